@@ -1,0 +1,262 @@
+// bench_engine_clusters: per scene, the positionTruncateBitCount trade (bytes per triangle
+// against position error and hit-t deviation) and the engine's cluster build throughput on
+// 1 and 2 threads beside Embree 3's RTC_BUILD_QUALITY_LOW build of the same triangles.
+//
+// usage: bench_engine_clusters [--quick] [--repeat N]
+//   --quick: ~100k-triangle scenes instead of ~10^6 (a smoke run).
+#include "clastrace/engine/cluster_build.h"
+#include "clastrace/engine/cluster_format.h"
+#include "clastrace/testsupport/cluster_scene.h"
+
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <string>
+
+namespace ts = clastrace::testsupport;
+namespace eng = clastrace::engine;
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+int g_repeat = 3;
+
+struct Scene {
+    std::string label;
+    ts::TriangleMesh mesh;
+    std::vector<ts::MeshCluster> clusters;
+};
+
+ts::TriangleMesh tiled(const ts::TriangleMesh& m, int n) {
+    // n x n copies side by side: a real mesh at a scene's triangle count.
+    ts::TriangleMesh out;
+    out.name = m.name + "x" + std::to_string(n * n);
+    const ts::Bounds b = ts::bounds_of(m);
+    const float dx = (b.hi[0] - b.lo[0]) * 1.1f, dz = (b.hi[2] - b.lo[2]) * 1.1f;
+    for (int i = 0; i < n; ++i)
+        for (int j = 0; j < n; ++j) {
+            const uint32_t base = uint32_t(out.positions.size());
+            for (const auto& p : m.positions) out.positions.push_back({p[0] + i * dx, p[1], p[2] + j * dz});
+            for (const auto& t : m.triangles) out.triangles.push_back({t[0] + base, t[1] + base, t[2] + base});
+        }
+    return out;
+}
+
+// Engine build of every cluster on `threads` threads (TBB arena), best of g_repeat: seconds.
+double engine_build_seconds(const ts::ClusterSceneInputs& in, int threads, std::vector<std::vector<std::byte>>& objects) {
+    objects.resize(in.infos.size());
+    tbb::task_arena arena(threads);
+    tbb::enumerable_thread_specific<eng::ClusterBuilder> builders;
+    tbb::enumerable_thread_specific<std::vector<eng::Finding>> findings;
+    double best = 1e30;
+    for (int rep = 0; rep < g_repeat + 1; ++rep) {  // the first run warms builders and outputs
+        const auto t0 = Clock::now();
+        arena.execute([&] {
+            tbb::parallel_for(tbb::blocked_range<size_t>(0, in.infos.size(), 32), [&](const tbb::blocked_range<size_t>& r) {
+                auto& b = builders.local();
+                auto& f = findings.local();
+                for (size_t i = r.begin(); i != r.end(); ++i) {
+                    f.clear();
+                    if (!b.build_triangle_cluster(in.memory, in.infos[i], in.input, int64_t(i), objects[i], f))
+                        std::fprintf(stderr, "cluster %zu failed to build\n", i);
+                }
+            });
+        });
+        if (rep > 0) best = std::min(best, seconds_since(t0));
+    }
+    return best;
+}
+
+// Embree: one scene, one triangle geometry over all triangles (shared buffers), LOW quality.
+double embree_scene_seconds(const ts::TriangleMesh& mesh, RTCDevice device) {
+    std::vector<ts::Float3> padded = mesh.positions;
+    padded.push_back({0, 0, 0});  // Embree reads 16 bytes at the last vertex
+    double best = 1e30;
+    for (int rep = 0; rep < g_repeat + 1; ++rep) {
+        const auto t0 = Clock::now();
+        RTCScene scene = rtcNewScene(device);
+        rtcSetSceneBuildQuality(scene, RTC_BUILD_QUALITY_LOW);
+        RTCGeometry g = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
+        rtcSetGeometryBuildQuality(g, RTC_BUILD_QUALITY_LOW);
+        rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, padded.data(), 0, 12, mesh.positions.size());
+        rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, mesh.triangles.data(), 0, 12, mesh.triangles.size());
+        rtcCommitGeometry(g);
+        rtcAttachGeometry(scene, g);
+        rtcReleaseGeometry(g);
+        rtcCommitScene(scene);
+        const double s = seconds_since(t0);
+        rtcReleaseScene(scene);
+        if (rep > 0) best = std::min(best, s);
+    }
+    return best;
+}
+
+// Embree: one scene per cluster (the engine's unit of work), LOW quality, built one after another.
+double embree_per_cluster_seconds(const Scene& sc, RTCDevice device) {
+    std::vector<std::vector<ts::Float3>> pos(sc.clusters.size());
+    std::vector<std::vector<ts::Triangle>> tri(sc.clusters.size());
+    for (size_t c = 0; c < sc.clusters.size(); ++c) {
+        for (uint32_t v : sc.clusters[c].vertices) pos[c].push_back(sc.mesh.positions[v]);
+        pos[c].push_back({0, 0, 0});
+        for (const auto& t : sc.clusters[c].triangles) tri[c].push_back({t[0], t[1], t[2]});
+    }
+    std::vector<RTCScene> scenes(sc.clusters.size());
+    double best = 1e30;
+    for (int rep = 0; rep < g_repeat + 1; ++rep) {
+        const auto t0 = Clock::now();
+        for (size_t c = 0; c < scenes.size(); ++c) {
+            scenes[c] = rtcNewScene(device);
+            rtcSetSceneBuildQuality(scenes[c], RTC_BUILD_QUALITY_LOW);
+            RTCGeometry g = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
+            rtcSetGeometryBuildQuality(g, RTC_BUILD_QUALITY_LOW);
+            rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, pos[c].data(), 0, 12, pos[c].size() - 1);
+            rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, tri[c].data(), 0, 12, tri[c].size());
+            rtcCommitGeometry(g);
+            rtcAttachGeometry(scenes[c], g);
+            rtcReleaseGeometry(g);
+            rtcCommitScene(scenes[c]);
+        }
+        const double s = seconds_since(t0);
+        for (RTCScene s2 : scenes) rtcReleaseScene(s2);
+        if (rep > 0) best = std::min(best, s);
+    }
+    return best;
+}
+
+struct TruncationRow {
+    unsigned bits;
+    double bytes_per_tri, max_abs_err, max_rel_over_bound, max_t_dev, build_ms;
+    size_t flips, compared;
+};
+
+void truncation_table(const Scene& sc, const std::vector<ts::TestRay>& rays) {
+    std::printf("\n== %s: %zu triangles, %zu vertices, %zu clusters (meshopt 64 v / 124 t) ==\n", sc.label.c_str(),
+                sc.mesh.triangles.size(), sc.mesh.positions.size(), sc.clusters.size());
+    std::printf("truncation table (rays for t deviation: %zu; 1 thread build)\n", rays.size());
+    std::printf("%5s %10s %14s %14s %14s %10s %10s\n", "bits", "B/tri", "max|dx|", "max rel/2^(N-24)",
+                "max rel dt", "t flips", "build ms");
+    std::vector<ts::SceneHit> reference;
+    for (unsigned bits : {0u, 4u, 8u, 12u, 16u, 20u, 24u}) {
+        const ts::ClusterSceneInputs in = ts::write_cluster_inputs(sc.mesh, sc.clusters, {1, 0, 0, bits});
+        ts::ClusterScene scene;
+        const double build_s = engine_build_seconds(in, 1, scene.objects);
+        // Position error from what the objects actually store.
+        double bytes = 0, max_abs = 0, max_rel = 0;
+        scene.bounds.resize(sc.clusters.size());
+        for (size_t c = 0; c < sc.clusters.size(); ++c) {
+            bytes += double(scene.objects[c].size());
+            const eng::HeaderCheck hc = eng::read_object_header(scene.objects[c]);
+            if (!hc.header) {
+                std::fprintf(stderr, "cluster %zu: %s\n", c, hc.error.c_str());
+                continue;
+            }
+            for (uint32_t i = 0; i < hc.header->triangle_count; ++i) {
+                const eng::DecodedTriangle t = eng::decode_triangle(scene.objects[c], *hc.header, i);
+                const auto& local = sc.clusters[c].triangles[t.original_index];
+                for (int k = 0; k < 3; ++k) {
+                    const ts::Float3& x = sc.mesh.positions[sc.clusters[c].vertices[local[k]]];
+                    scene.bounds[c].extend({t.v[k][0], t.v[k][1], t.v[k][2]});
+                    for (int a = 0; a < 3; ++a) {
+                        const double err = std::fabs(double(t.v[k][a]) - double(x[a]));
+                        max_abs = std::max(max_abs, err);
+                        if (x[a] != 0.0f) max_rel = std::max(max_rel, err / std::fabs(double(x[a])));
+                    }
+                }
+            }
+        }
+        const ts::ClusterSceneTracer tracer(scene);
+        std::vector<ts::SceneHit> hits(rays.size());
+        tbb::parallel_for(size_t(0), rays.size(), [&](size_t i) { hits[i] = tracer.trace(rays[i]); });
+        if (bits == 0) reference = hits;
+        double max_dt = 0;
+        size_t flips = 0, compared = 0;
+        for (size_t i = 0; i < rays.size(); ++i) {
+            if (hits[i].hit != reference[i].hit) {
+                ++flips;
+                continue;
+            }
+            if (!hits[i].hit) continue;
+            ++compared;
+            max_dt = std::max(max_dt, std::fabs(double(hits[i].t) - reference[i].t) / reference[i].t);
+        }
+        std::printf("%5u %10.2f %14.3e %14.3f %14.3e %10zu %10.1f\n", bits, bytes / sc.mesh.triangles.size(), max_abs,
+                    max_rel / std::ldexp(1.0, int(bits) - 24), max_dt, flips, build_s * 1e3);
+    }
+}
+
+void throughput_table(const Scene& sc) {
+    const ts::ClusterSceneInputs in = ts::write_cluster_inputs(sc.mesh, sc.clusters, {1, 0, 0, 0});
+    const double mtris = double(sc.mesh.triangles.size()) / 1e6;
+    std::printf("build throughput, %s (Mtris/s, best of %d; Embree RTC_BUILD_QUALITY_LOW, same untruncated triangles)\n",
+                sc.label.c_str(), g_repeat);
+    std::printf("%8s %12s %18s %12s %22s %12s\n", "threads", "engine", "embree 1 scene", "ratio", "embree per-cluster",
+                "ratio");
+    for (int threads : {1, 2}) {
+        std::vector<std::vector<std::byte>> objects;
+        const double e = engine_build_seconds(in, threads, objects);
+        RTCDevice device = ts::make_embree_device("threads=" + std::to_string(threads));
+        const double whole = embree_scene_seconds(sc.mesh, device);
+        const double per = threads == 1 ? embree_per_cluster_seconds(sc, device) : 0.0;
+        rtcReleaseDevice(device);
+        if (per > 0)
+            std::printf("%8d %12.2f %18.2f %11.2fx %22.2f %11.2fx\n", threads, mtris / e, mtris / whole, whole / e,
+                        mtris / per, per / e);
+        else
+            std::printf("%8d %12.2f %18.2f %11.2fx %22s %12s\n", threads, mtris / e, mtris / whole, whole / e, "-", "-");
+    }
+}
+
+} // namespace
+
+int main(int argc, char** argv) {
+    bool quick = false;
+    for (int i = 1; i < argc; ++i) {
+        const std::string a = argv[i];
+        if (a == "--quick") quick = true;
+        else if (a == "--repeat" && i + 1 < argc) g_repeat = std::max(1, std::atoi(argv[++i]));
+        else {
+            std::fprintf(stderr, "usage: %s [--quick] [--repeat N]\n", argv[0]);
+            return 2;
+        }
+    }
+    std::vector<Scene> scenes;
+    const int tiles = quick ? 5 : 16;
+    const auto wuson_path = ts::assimp_models_dir() / "OBJ/WusonOBJ.obj";
+    try {
+        scenes.push_back({"WusonOBJ tiled", tiled(ts::load_obj(wuson_path), tiles), {}});
+    } catch (const ts::MeshLoadError& e) {
+        std::fprintf(stderr, "no real mesh (%s); using an icosphere\n", e.what());
+        scenes.push_back({"icosphere", ts::make_icosphere(quick ? 5 : 8, 10.0f), {}});
+    }
+    scenes.push_back({"random soup", ts::make_random_soup(quick ? 100000 : 1000000, 1, 100.0f, 2.0f), {}});
+    for (Scene& s : scenes) {
+        const auto t0 = Clock::now();
+        s.clusters = ts::build_clusters(s.mesh, 64, 124);
+        std::fprintf(stderr, "%s: clustered in %.2f s\n", s.label.c_str(), seconds_since(t0));
+    }
+    std::printf("bench_engine_clusters: TBB, Embree %s, %u hardware threads\n", RTC_VERSION_STRING,
+                std::max(1u, unsigned(tbb::info::default_concurrency())));
+    std::printf("columns: B/tri = CLAS object bytes / triangles; max|dx| = largest stored-minus-input coordinate;\n"
+                "  max rel/2^(N-24) = max |dx|/|x| over coordinates, in units of 2^(N-24). Zeroing N low bits moves a\n"
+                "  coordinate toward zero by less than 2^N ulp = 2^(N-23) of its binade's lower end, so this column\n"
+                "  is < 2 (2^(N-24) is the round-to-nearest bound; truncation can reach up to twice it);\n"
+                "  max rel dt = max |t_N - t_0| / t_0 over rays hitting at both N and 0 bits; t flips = rays that hit\n"
+                "  at one and miss at the other.\n");
+    for (const Scene& s : scenes) {
+        const ts::Bounds b = ts::bounds_of(s.mesh);
+        std::vector<ts::TestRay> rays = ts::camera_rays(b, 256, 256, 3);
+        const auto rnd = ts::random_rays(b, quick ? 1 << 15 : 1 << 17, 4);
+        rays.insert(rays.end(), rnd.begin(), rnd.end());
+        truncation_table(s, rays);
+        throughput_table(s);
+    }
+    return 0;
+}
