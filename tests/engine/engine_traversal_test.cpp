@@ -176,8 +176,12 @@ TEST(Traversal, ClosedMeshNeverLeaksThroughEdgesOrVertices) {
       // must hit (the mesh encloses the centre).
       std::mt19937 rng(bits);
       std::uniform_real_distribution<float> J(-0.01f, 0.01f);
-      for (const auto& t : targets) {
-        const float c[3] = {J(rng) * scale, J(rng) * scale, J(rng) * scale};
+      for (size_t ti = 0; ti < targets.size(); ++ti) {
+        const auto& t = targets[ti];
+        // Even targets: from the exact centre, so the ray passes exactly through the
+        // vertex (direction == target); odd targets: from a jittered centre.
+        const float jitter = ti % 2 ? scale : 0.0f;
+        const float c[3] = {J(rng) * jitter, J(rng) * jitter, J(rng) * jitter};
         Ray out{{c[0], c[1], c[2]}, 0.0f, {t[0] - c[0], t[1] - c[1], t[2] - c[2]}, 1e38f};
         EXPECT_TRUE(trace_any(*view, out, 0)) << "leak outwards, bits " << bits << " scale " << scale;
         const Hit h1 = trace_closest(*view, out, 0);
