@@ -101,8 +101,9 @@ TEST(Traversal, AgreesWithBruteForceReference) {
       EXPECT_NEAR(hit.t, double(ref.t), 1e-6 * std::fabs(double(ref.t)) + 1e-30) << "cluster " << cluster << " ray " << k;
       // Coinciding triangles (random soups repeat vertices) may be picked either way at
       // equal t; otherwise it is the same triangle.
-      if (hit.triangle_index != ref.tri)
+      if (hit.triangle_index != ref.tri) {
         EXPECT_NEAR(hit.t, double(ref.t), 1e-7 * std::fabs(double(ref.t))) << "different triangle at a different t";
+      }
       ++compared;
     }
   }
