@@ -284,6 +284,7 @@ TEST(ClusterBuildRules, CountsBeyondTheFormatFailCleanly) {
   const auto o = build_triangle_cluster(arena.memory, info, test::default_input(), p, 0);
   EXPECT_FALSE(o.ok);
   EXPECT_TRUE(o.bytes.empty());
+  EXPECT_TRUE(has_rule(o.findings, kRuleBeyondEngineFormat));
 }
 
 TEST(ClusterBuild, MaximumSizeCluster) {

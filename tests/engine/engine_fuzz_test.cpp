@@ -81,7 +81,9 @@ TEST(EngineFuzz, RandomBuildTemplateAndInstantiateInputs) {
     if (trial % 2 == 0) {
       VkClusterAccelerationStructureBuildTriangleClusterInfoNV info{};
       randomize(rng, arena, idx, vtx, info);
-      const auto o = build_triangle_cluster(arena.memory, info, input, EngineProperties{}, trial);
+      EngineProperties props;
+      if (trial % 4 == 0) props.maxTrianglesPerCluster = props.maxVerticesPerCluster = 511;
+      const auto o = build_triangle_cluster(arena.memory, info, input, props, trial);
       expect_valid(o, true);
       (o.ok ? built : failed)++;
     } else {
