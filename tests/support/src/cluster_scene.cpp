@@ -324,7 +324,7 @@ void merge(AgreementCounts& a, const AgreementCounts& b) {
     a.embree_off_hit_miss += b.embree_off_hit_miss;
     a.embree_off_prim += b.embree_off_prim;
     for (const auto& e : b.embree_off_examples)
-        if (a.embree_off_examples.size() < 8) a.embree_off_examples.push_back(e);
+        if (a.embree_off_examples.size() < 8 || e[0] != 't') a.embree_off_examples.push_back(e);
     a.disagree_hit_miss += b.disagree_hit_miss;
     a.disagree_t += b.disagree_t;
     a.disagree_prim += b.disagree_prim;
@@ -351,8 +351,8 @@ AgreementCounts compare_with_embree(const ClusterScene& scene, const EmbreeRefer
                     if (!engine_clearly_right(scene, r, e, ref, tol)) return false;
                     ++acc.embree_off;
                     ++(what[0] == 't' ? acc.embree_off_t : what[0] == 'h' ? acc.embree_off_hit_miss : acc.embree_off_prim);
-                    if (acc.embree_off_examples.size() < 8)
-                        acc.embree_off_examples.push_back(std::string(what) + ": " + describe(r, e, ref));
+                    if (acc.embree_off_examples.size() < 8 || what[0] != 't')
+                        acc.embree_off_examples.push_back(std::string(what) + ": " + describe(r, e, ref) + arbiter_text(scene, r, e, ref));
                     return true;
                 };
                 if (e.hit != ref.hit) {
