@@ -115,7 +115,10 @@ inline uint32_t object_alignment(bool is_template, const EngineProperties& prope
 }
 
 // Upper bound of one object's size for the given input maxima (what
-// vkGetClusterAccelerationStructureBuildSizesNV sizes implicit destinations with).
+// vkGetClusterAccelerationStructureBuildSizesNV sizes implicit destinations with). It
+// holds for inputs within those maxima: an info that breaks ...-positionTruncateBitCount-10493
+// (fewer bits truncated than minPositionTruncateBitCount) or exceeds the maxima (finding
+// CLASTRACE-count-above-triangle-cluster-input) can produce a larger object.
 uint64_t max_cluster_object_size(const VkClusterAccelerationStructureTriangleClusterInputNV& input,
                                  const EngineProperties& properties, bool is_template);
 
