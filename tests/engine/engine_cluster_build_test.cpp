@@ -210,6 +210,14 @@ TEST(ClusterBuildRules, EachRuleFailsAndPasses) {
       {"VUID-VkClusterAccelerationStructureTriangleClusterInputNV-minPositionTruncateBitCount-10442",
        [](Arena&, BuildInfo&, Input& in, EngineProperties&) { in.minPositionTruncateBitCount = 33; },
        {"VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-positionTruncateBitCount-10493"}},
+      {"VUID-VkClusterAccelerationStructureGeometryIndexAndGeometryFlagsNV-reserved-10487",
+       [](Arena&, BuildInfo& i, Input&, EngineProperties&) { i.baseGeometryIndexAndGeometryFlags.reserved = 1; }},
+      {"VUID-VkClusterAccelerationStructureGeometryIndexAndGeometryFlagsNV-reserved-10487",
+       [](Arena& a, BuildInfo& i, Input&, EngineProperties&) {
+         std::vector<uint32_t> g(32, 0);
+         g[31] = 0x01000000u;
+         i.geometryIndexAndFlagsBuffer = a.put_vec(g);
+       }},
       {kRuleCountAboveInput, [](Arena&, BuildInfo&, Input& in, EngineProperties&) { in.maxClusterTriangleCount = 10; }},
       {kRuleGeometryIndexAboveInput,
        [](Arena&, BuildInfo& i, Input& in, EngineProperties&) {
