@@ -2,8 +2,9 @@
 // against position error and hit-t deviation) and the engine's cluster build throughput on
 // 1 and 2 threads beside Embree 3's RTC_BUILD_QUALITY_LOW build of the same triangles.
 //
-// usage: bench_engine_clusters [--quick] [--repeat N]
+// usage: bench_engine_clusters [--quick] [--throughput-only] [--repeat N]
 //   --quick: ~100k-triangle scenes instead of ~10^6 (a smoke run).
+//   --throughput-only: skip the truncation tables.
 #include "clastrace/engine/cluster_build.h"
 #include "clastrace/engine/cluster_format.h"
 #include "clastrace/testsupport/cluster_scene.h"
@@ -18,6 +19,7 @@
 #include <cstdio>
 #include <cstring>
 #include <string>
+#include <time.h>
 
 namespace ts = clastrace::testsupport;
 namespace eng = clastrace::engine;
@@ -26,6 +28,29 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+// Process CPU seconds: on a shared, loaded machine wall time measures the neighbours too;
+// CPU time measures the work (it also counts worker threads spinning, so it is pessimistic
+// for multi-threaded runs).
+double cpu_seconds() {
+    timespec ts{};
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+    return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
+}
+
+struct Timing {
+    double wall = 1e30, cpu = 1e30;
+    void keep_best(const Timing& t) {
+        wall = std::min(wall, t.wall);
+        cpu = std::min(cpu, t.cpu);
+    }
+};
+
+struct Stopwatch {
+    Clock::time_point wall0 = Clock::now();
+    double cpu0 = cpu_seconds();
+    Timing elapsed() const { return {seconds_since(wall0), cpu_seconds() - cpu0}; }
+};
 
 int g_repeat = 3;
 
@@ -63,8 +88,8 @@ struct EngineBuild {
         objects.resize(in.infos.size());
         run();
     }
-    double run() {
-        const auto t0 = Clock::now();
+    Timing run() {
+        const Stopwatch sw;
         arena.execute([&] {
             tbb::parallel_for(tbb::blocked_range<size_t>(0, in.infos.size(), 32), [&](const tbb::blocked_range<size_t>& r) {
                 auto& b = builders.local();
@@ -76,22 +101,22 @@ struct EngineBuild {
                 }
             });
         });
-        return seconds_since(t0);
+        return sw.elapsed();
     }
 };
 
 double engine_build_seconds(const ts::ClusterSceneInputs& in, int threads, std::vector<std::vector<std::byte>>& objects) {
     EngineBuild b(in, threads, objects);
     double best = 1e30;
-    for (int rep = 0; rep < g_repeat; ++rep) best = std::min(best, b.run());
+    for (int rep = 0; rep < g_repeat; ++rep) best = std::min(best, b.run().wall);
     return best;
 }
 
 // Embree: one scene, one triangle geometry over all triangles (shared buffers), LOW quality.
 // `padded` = the mesh positions plus one (Embree reads 16 bytes at the last vertex).
-double embree_scene_seconds(const ts::TriangleMesh& mesh, const std::vector<ts::Float3>& padded, RTCDevice device) {
+Timing embree_scene_seconds(const ts::TriangleMesh& mesh, const std::vector<ts::Float3>& padded, RTCDevice device) {
     {
-        const auto t0 = Clock::now();
+        const Stopwatch sw;
         RTCScene scene = rtcNewScene(device);
         rtcSetSceneBuildQuality(scene, RTC_BUILD_QUALITY_LOW);
         RTCGeometry g = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
@@ -102,7 +127,7 @@ double embree_scene_seconds(const ts::TriangleMesh& mesh, const std::vector<ts::
         rtcAttachGeometry(scene, g);
         rtcReleaseGeometry(g);
         rtcCommitScene(scene);
-        const double s = seconds_since(t0);
+        const Timing s = sw.elapsed();
         rtcReleaseScene(scene);
         return s;
     }
@@ -125,12 +150,12 @@ ClusterArrays cluster_arrays(const Scene& sc) {
     return a;
 }
 
-double embree_per_cluster_seconds(const ClusterArrays& arrays, RTCDevice device) {
+Timing embree_per_cluster_seconds(const ClusterArrays& arrays, RTCDevice device) {
     const auto& pos = arrays.pos;
     const auto& tri = arrays.tri;
     std::vector<RTCScene> scenes(pos.size());
     {
-        const auto t0 = Clock::now();
+        const Stopwatch sw;
         for (size_t c = 0; c < scenes.size(); ++c) {
             scenes[c] = rtcNewScene(device);
             rtcSetSceneBuildQuality(scenes[c], RTC_BUILD_QUALITY_LOW);
@@ -143,7 +168,7 @@ double embree_per_cluster_seconds(const ClusterArrays& arrays, RTCDevice device)
             rtcReleaseGeometry(g);
             rtcCommitScene(scenes[c]);
         }
-        const double s = seconds_since(t0);
+        const Timing s = sw.elapsed();
         for (RTCScene s2 : scenes) rtcReleaseScene(s2);
         return s;
     }
@@ -228,10 +253,11 @@ void throughput_table(const Scene& sc) {
     const double mtris = double(sc.mesh.triangles.size()) / 1e6;
     std::printf("build throughput, %s (Mtris/s, best of %d runs interleaved engine/Embree so both see the same load;\n"
                 "  Embree RTC_BUILD_QUALITY_LOW on the same untruncated triangles: one scene of one geometry, and one\n"
-                "  scene per cluster built one after another; ratio = engine / Embree)\n",
+                "  scene per cluster built one after another; ratio = engine / Embree; clock wall = elapsed time,\n"
+                "  cpu = process CPU time, the load-independent measure of work on a shared machine)\n",
                 sc.label.c_str(), g_repeat);
-    std::printf("%8s %10s %16s %8s %20s %8s\n", "threads", "engine", "embree 1 scene", "ratio", "embree per-cluster",
-                "ratio");
+    std::printf("%8s %6s %10s %16s %8s %20s %8s\n", "threads", "clock", "engine", "embree 1 scene", "ratio",
+                "embree per-cluster", "ratio");
     std::vector<ts::Float3> padded = sc.mesh.positions;
     padded.push_back({0, 0, 0});
     const ClusterArrays arrays = cluster_arrays(sc);
@@ -240,31 +266,37 @@ void throughput_table(const Scene& sc) {
         EngineBuild engine(in, threads, objects);
         RTCDevice device = ts::make_embree_device("threads=" + std::to_string(threads));
         embree_scene_seconds(sc.mesh, padded, device);  // warm Embree's thread pool and allocator
-        double e = 1e30, whole = 1e30, per = 1e30;
+        Timing e, whole, per;
         for (int rep = 0; rep < g_repeat; ++rep) {
-            e = std::min(e, engine.run());
-            whole = std::min(whole, embree_scene_seconds(sc.mesh, padded, device));
-            if (threads == 1) per = std::min(per, embree_per_cluster_seconds(arrays, device));
+            e.keep_best(engine.run());
+            whole.keep_best(embree_scene_seconds(sc.mesh, padded, device));
+            if (threads == 1) per.keep_best(embree_per_cluster_seconds(arrays, device));
         }
         rtcReleaseDevice(device);
-        if (threads == 1)
-            std::printf("%8d %10.2f %16.2f %7.2fx %20.2f %7.2fx\n", threads, mtris / e, mtris / whole, whole / e,
-                        mtris / per, per / e);
-        else
-            std::printf("%8d %10.2f %16.2f %7.2fx %20s %8s\n", threads, mtris / e, mtris / whole, whole / e, "-", "-");
+        auto row = [&](const char* clock, double te, double tw, double tp) {
+            if (threads == 1)
+                std::printf("%8d %6s %10.2f %16.2f %7.2fx %20.2f %7.2fx\n", threads, clock, mtris / te, mtris / tw,
+                            tw / te, mtris / tp, tp / te);
+            else
+                std::printf("%8d %6s %10.2f %16.2f %7.2fx %20s %8s\n", threads, clock, mtris / te, mtris / tw, tw / te,
+                            "-", "-");
+        };
+        row("wall", e.wall, whole.wall, per.wall);
+        row("cpu", e.cpu, whole.cpu, per.cpu);
     }
 }
 
 } // namespace
 
 int main(int argc, char** argv) {
-    bool quick = false;
+    bool quick = false, throughput_only = false;
     for (int i = 1; i < argc; ++i) {
         const std::string a = argv[i];
         if (a == "--quick") quick = true;
+        else if (a == "--throughput-only") throughput_only = true;
         else if (a == "--repeat" && i + 1 < argc) g_repeat = std::max(1, std::atoi(argv[++i]));
         else {
-            std::fprintf(stderr, "usage: %s [--quick] [--repeat N]\n", argv[0]);
+            std::fprintf(stderr, "usage: %s [--quick] [--throughput-only] [--repeat N]\n", argv[0]);
             return 2;
         }
     }
@@ -299,7 +331,7 @@ int main(int argc, char** argv) {
         std::vector<ts::TestRay> rays = ts::camera_rays(b, 256, 256, 3);
         const auto rnd = ts::random_rays(b, quick ? 1 << 15 : 1 << 17, 4);
         rays.insert(rays.end(), rnd.begin(), rnd.end());
-        truncation_table(s, rays);
+        if (!throughput_only) truncation_table(s, rays);
         throughput_table(s);
     }
     return 0;
