@@ -411,3 +411,35 @@ TEST(ClusterBuildRules, ClusterWithoutVerticesHasOnlyInactiveTriangles) {
 
 }  // namespace
 }  // namespace clastrace::engine
+
+namespace clastrace::engine {
+namespace {
+
+TEST(EngineProperties, CapturedPropertiesOverrideDefaultsAndDriveTheRules) {
+  VkPhysicalDeviceClusterAccelerationStructurePropertiesNV vk = EngineProperties::nvidia_default().to_vk();
+  EXPECT_EQ(vk.sType, VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_PROPERTIES_NV);
+  EXPECT_EQ(vk.maxTrianglesPerCluster, 256u);
+  EXPECT_EQ(vk.clusterByteAlignment, 128u);
+  vk.maxTrianglesPerCluster = 64;
+  vk.clusterByteAlignment = 256;
+  vk.clusterTemplateByteAlignment = 64;
+  const EngineProperties p = EngineProperties::from_vk(vk);
+  EXPECT_EQ(p.maxTrianglesPerCluster, 64u);
+  EXPECT_EQ(object_alignment(false, p), 256u);
+  EXPECT_EQ(object_alignment(true, p), 64u);
+  const auto round = p.to_vk();
+  EXPECT_EQ(std::memcmp(&round.maxVerticesPerCluster, &vk.maxVerticesPerCluster, 32), 0);
+  // A 72-triangle cluster is fine by default and breaks 10489 under the captured limit.
+  test::Arena arena;
+  const test::Mesh m = test::grid(6);
+  auto info = test::cluster_info(arena, m);
+  auto input = test::default_input();
+  input.maxClusterTriangleCount = 64;
+  EXPECT_FALSE(has_rule(build_triangle_cluster(arena.memory, info, test::default_input(), EngineProperties{}, 0).findings,
+                        "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-triangleCount-10489"));
+  EXPECT_TRUE(has_rule(build_triangle_cluster(arena.memory, info, input, p, 0).findings,
+                       "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-triangleCount-10489"));
+}
+
+}  // namespace
+}  // namespace clastrace::engine
