@@ -1,0 +1,274 @@
+// Binned SAH over cluster boxes (Wald 2007): 16 bins on each axis of the centroid
+// bounds, sweep for the cheapest split, object-median fallback when centroids coincide.
+// Sequential and index-ordered so the bytes never depend on thread count; ops run in
+// parallel one level up.
+#include "clastrace/engine/blas.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstring>
+#include <limits>
+
+namespace clastrace::engine {
+namespace {
+
+constexpr int kBins = 16;
+constexpr float kTraversalCost = 1.0f;
+constexpr float kClusterCost = 4.0f;  // descending into a CLAS costs a few node visits
+
+struct Box {
+  float lo[3] = {std::numeric_limits<float>::infinity(), std::numeric_limits<float>::infinity(),
+                 std::numeric_limits<float>::infinity()};
+  float hi[3] = {-std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity(),
+                 -std::numeric_limits<float>::infinity()};
+  void grow(const Box& b) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], b.lo[a]);
+      hi[a] = std::max(hi[a], b.hi[a]);
+    }
+  }
+  void grow_point(const float p[3]) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], p[a]);
+      hi[a] = std::max(hi[a], p[a]);
+    }
+  }
+  bool empty() const { return !(lo[0] <= hi[0]); }
+  // Half area; infinite boxes give inf, which SAH treats as "never cheaper".
+  float area() const {
+    if (empty()) return 0.0f;
+    float dx = hi[0] - lo[0], dy = hi[1] - lo[1], dz = hi[2] - lo[2];
+    return dx * dy + dy * dz + dz * dx;
+  }
+};
+
+struct Item {
+  Box box;
+  float centroid[3];
+  uint32_t source;  // index into the caller's span
+};
+
+struct Task {
+  uint32_t node, begin, end;
+};
+
+bool valid_box(const ClusterBox& c) {
+  for (int a = 0; a < 3; ++a) {
+    if (!(c.bounds_min[a] <= c.bounds_max[a])) return false;  // also rejects NaN
+  }
+  return true;
+}
+
+}  // namespace
+
+uint64_t bottom_level_size_bound(uint64_t cluster_count) {
+  uint64_t nodes = cluster_count == 0 ? 0 : 2 * cluster_count - 1;
+  return sizeof(BottomLevelHeader) + nodes * sizeof(BottomLevelNode) + cluster_count * sizeof(ClusterReference);
+}
+
+std::vector<std::byte> build_bottom_level(std::span<const ClusterBox> clusters, uint32_t input_reference_count) {
+  std::vector<Item> items;
+  items.reserve(clusters.size());
+  for (uint32_t i = 0; i < clusters.size(); ++i) {
+    const ClusterBox& c = clusters[i];
+    if (!valid_box(c)) continue;
+    Item it;
+    for (int a = 0; a < 3; ++a) {
+      it.box.lo[a] = c.bounds_min[a];
+      it.box.hi[a] = c.bounds_max[a];
+      // Clamp so that huge-but-finite boxes still give finite centroids.
+      double mid = 0.5 * (double(c.bounds_min[a]) + double(c.bounds_max[a]));
+      it.centroid[a] = float(std::clamp(mid, -double(std::numeric_limits<float>::max()),
+                                        double(std::numeric_limits<float>::max())));
+    }
+    it.source = i;
+    items.push_back(it);
+  }
+  const uint64_t n = items.size();
+  if (bottom_level_size_bound(n) > std::numeric_limits<uint32_t>::max()) return {};
+
+  std::vector<BottomLevelNode> nodes;
+  nodes.reserve(n == 0 ? 0 : 2 * n - 1);
+  std::vector<Task> stack;
+  if (n > 0) {
+    nodes.push_back({});
+    stack.push_back({0, 0, uint32_t(n)});
+  }
+  std::vector<Box> right_boxes(kBins);
+  while (!stack.empty()) {
+    Task t = stack.back();
+    stack.pop_back();
+    Box bounds, centroids;
+    for (uint32_t i = t.begin; i < t.end; ++i) {
+      bounds.grow(items[i].box);
+      centroids.grow_point(items[i].centroid);
+    }
+    BottomLevelNode& node = nodes[t.node];
+    for (int a = 0; a < 3; ++a) {
+      node.bounds_min[a] = bounds.lo[a];
+      node.bounds_max[a] = bounds.hi[a];
+    }
+    const uint32_t count = t.end - t.begin;
+    auto make_leaf = [&] {
+      nodes[t.node].first = t.begin;
+      nodes[t.node].count = count;
+    };
+    if (count == 1) {
+      make_leaf();
+      continue;
+    }
+    // Best split over 3 axes x (kBins - 1) planes.
+    float best_cost = std::numeric_limits<float>::infinity();
+    int best_axis = -1, best_plane = 0;
+    for (int axis = 0; axis < 3; ++axis) {
+      float extent = centroids.hi[axis] - centroids.lo[axis];
+      if (!(extent > 0.0f) || !std::isfinite(extent)) continue;
+      std::array<Box, kBins> bin_box;
+      std::array<uint32_t, kBins> bin_count{};
+      float scale = float(kBins) / extent;
+      for (uint32_t i = t.begin; i < t.end; ++i) {
+        int b = std::min(kBins - 1, int((items[i].centroid[axis] - centroids.lo[axis]) * scale));
+        bin_box[b].grow(items[i].box);
+        ++bin_count[b];
+      }
+      Box acc;
+      uint32_t acc_count = 0;
+      std::array<float, kBins> right_area{};
+      std::array<uint32_t, kBins> right_count{};
+      for (int b = kBins - 1; b > 0; --b) {
+        acc.grow(bin_box[b]);
+        acc_count += bin_count[b];
+        right_area[b] = acc.area();
+        right_count[b] = acc_count;
+      }
+      Box left;
+      uint32_t left_count = 0;
+      for (int b = 0; b < kBins - 1; ++b) {
+        left.grow(bin_box[b]);
+        left_count += bin_count[b];
+        if (left_count == 0 || right_count[b + 1] == 0) continue;
+        float cost = left.area() * float(left_count) + right_area[b + 1] * float(right_count[b + 1]);
+        if (cost < best_cost) {
+          best_cost = cost;
+          best_axis = axis;
+          best_plane = b;
+        }
+      }
+    }
+    const float parent_area = bounds.area();
+    uint32_t mid;
+    if (best_axis >= 0) {
+      float split_cost = kTraversalCost + (parent_area > 0.0f && std::isfinite(parent_area)
+                                               ? kClusterCost * best_cost / parent_area
+                                               : kClusterCost * float(count));
+      if (count <= kBottomLevelMaxLeafSize && float(count) * kClusterCost <= split_cost) {
+        make_leaf();
+        continue;
+      }
+      float extent = centroids.hi[best_axis] - centroids.lo[best_axis];
+      float scale = float(kBins) / extent;
+      auto* first = items.data() + t.begin;
+      auto* last = items.data() + t.end;
+      auto* pivot = std::partition(first, last, [&](const Item& it) {
+        int b = std::min(kBins - 1, int((it.centroid[best_axis] - centroids.lo[best_axis]) * scale));
+        return b <= best_plane;
+      });
+      mid = uint32_t(pivot - items.data());
+    } else {
+      // All centroids coincide (or are not finite): object median by input order.
+      if (count <= kBottomLevelMaxLeafSize) {
+        make_leaf();
+        continue;
+      }
+      mid = t.begin + count / 2;
+    }
+    uint32_t left_index = uint32_t(nodes.size());
+    nodes[t.node].first = left_index;
+    nodes[t.node].count = 0;
+    nodes.push_back({});
+    nodes.push_back({});
+    // Right pushed first so the left subtree is laid out first (depth-first order).
+    stack.push_back({left_index + 1, mid, t.end});
+    stack.push_back({left_index, t.begin, mid});
+  }
+
+  BottomLevelHeader h{};
+  h.magic = kObjectMagic;
+  h.object_type = uint8_t(ObjectType::ClustersBottomLevel);
+  h.format_version = kBottomLevelFormatVersion;
+  h.reference_count = uint32_t(n);
+  h.node_count = uint32_t(nodes.size());
+  h.nodes_offset = sizeof(BottomLevelHeader);
+  h.references_offset = uint32_t(h.nodes_offset + nodes.size() * sizeof(BottomLevelNode));
+  h.object_size = uint32_t(h.references_offset + n * sizeof(ClusterReference));
+  h.input_reference_count = input_reference_count;
+  if (n > 0) {
+    std::memcpy(h.bounds_min, nodes[0].bounds_min, sizeof h.bounds_min);
+    std::memcpy(h.bounds_max, nodes[0].bounds_max, sizeof h.bounds_max);
+  } else {
+    // Empty box, as the CLAS format writes one for an empty cluster.
+    for (int a = 0; a < 3; ++a) {
+      h.bounds_min[a] = std::numeric_limits<float>::infinity();
+      h.bounds_max[a] = -std::numeric_limits<float>::infinity();
+    }
+  }
+  std::vector<std::byte> out(h.object_size);
+  std::memcpy(out.data(), &h, sizeof h);
+  if (!nodes.empty()) std::memcpy(out.data() + h.nodes_offset, nodes.data(), nodes.size() * sizeof(BottomLevelNode));
+  for (uint64_t i = 0; i < n; ++i) {
+    const ClusterBox& c = clusters[items[i].source];
+    ClusterReference r{c.clas_address, c.reference_index, c.cluster_id};
+    std::memcpy(out.data() + h.references_offset + i * sizeof r, &r, sizeof r);
+  }
+  return out;
+}
+
+BottomLevelCheck read_bottom_level_header(std::span<const std::byte> bytes) {
+  BottomLevelCheck r;
+  if (bytes.size() < sizeof(BottomLevelHeader)) {
+    r.error = "shorter than a bottom-level header (" + std::to_string(bytes.size()) + " bytes)";
+    return r;
+  }
+  BottomLevelHeader h;
+  std::memcpy(&h, bytes.data(), sizeof h);
+  if (h.magic != kObjectMagic) {
+    r.error = "no engine object magic";
+    return r;
+  }
+  if (h.object_type != uint8_t(ObjectType::ClustersBottomLevel)) {
+    r.error = "object type " + std::to_string(h.object_type) + " is not a clusters bottom-level structure";
+    return r;
+  }
+  if (h.format_version != kBottomLevelFormatVersion) {
+    r.error = "unknown bottom-level format version " + std::to_string(h.format_version);
+    return r;
+  }
+  uint64_t nodes_end = uint64_t(h.nodes_offset) + uint64_t(h.node_count) * sizeof(BottomLevelNode);
+  uint64_t refs_end = uint64_t(h.references_offset) + uint64_t(h.reference_count) * sizeof(ClusterReference);
+  if (h.object_size > bytes.size() || h.nodes_offset < sizeof h || h.references_offset < sizeof h ||
+      nodes_end > h.object_size || refs_end > h.object_size) {
+    r.error = "sections run past object_size " + std::to_string(h.object_size);
+    return r;
+  }
+  if ((h.reference_count == 0) != (h.node_count == 0) || h.node_count > 2ull * h.reference_count) {
+    r.error = "node count " + std::to_string(h.node_count) + " does not fit reference count " +
+              std::to_string(h.reference_count);
+    return r;
+  }
+  for (uint32_t i = 0; i < h.node_count; ++i) {
+    BottomLevelNode node;
+    std::memcpy(&node, bytes.data() + h.nodes_offset + uint64_t(i) * sizeof node, sizeof node);
+    bool ok = node.count == 0 ? (node.first > i && uint64_t(node.first) + 1 < h.node_count)
+                              : (node.count <= kBottomLevelMaxLeafSize &&
+                                 uint64_t(node.first) + node.count <= h.reference_count);
+    if (!ok) {
+      r.error = "node " + std::to_string(i) + " points outside the object";
+      return r;
+    }
+  }
+  r.header = h;
+  return r;
+}
+
+}  // namespace clastrace::engine

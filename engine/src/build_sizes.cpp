@@ -1,0 +1,125 @@
+#include "clastrace/engine/build_sizes.h"
+
+#include "clastrace/engine/blas.h"
+#include "clastrace/engine/cluster_build.h"
+
+#include <algorithm>
+#include <limits>
+#include <string>
+
+namespace clastrace::engine {
+
+uint64_t sat_add(uint64_t a, uint64_t b) {
+  uint64_t r;
+  return __builtin_add_overflow(a, b, &r) ? std::numeric_limits<uint64_t>::max() : r;
+}
+uint64_t sat_mul(uint64_t a, uint64_t b) {
+  uint64_t r;
+  return __builtin_mul_overflow(a, b, &r) ? std::numeric_limits<uint64_t>::max() : r;
+}
+uint64_t align_up_sat(uint64_t v, uint64_t alignment) {
+  if (alignment <= 1) return v;
+  uint64_t r = sat_add(v, alignment - 1);
+  return r == std::numeric_limits<uint64_t>::max() ? r : r / alignment * alignment;
+}
+
+uint64_t scratch_bytes_for_ops(uint64_t op_count) { return sat_mul(op_count, 16); }
+
+uint64_t destination_alignment(VkClusterAccelerationStructureOpTypeNV op_type,
+                               VkClusterAccelerationStructureTypeNV move_type, const EngineProperties& p) {
+  auto by_type = [&](VkClusterAccelerationStructureTypeNV t) -> uint64_t {
+    switch (t) {
+      case VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_CLUSTERS_BOTTOM_LEVEL_NV: return p.clusterBottomLevelByteAlignment;
+      case VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_TRIANGLE_CLUSTER_NV: return p.clusterByteAlignment;
+      case VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_TRIANGLE_CLUSTER_TEMPLATE_NV: return p.clusterTemplateByteAlignment;
+      default: return 1;
+    }
+  };
+  switch (op_type) {
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV: return std::max<uint64_t>(1, by_type(move_type));
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV: return p.clusterBottomLevelByteAlignment;
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV:
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV: return p.clusterByteAlignment;
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV: return p.clusterTemplateByteAlignment;
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV: return 4;  // uint32 indices
+    default: return 1;
+  }
+}
+
+BuildSizes cluster_build_sizes(const VkClusterAccelerationStructureInputInfoNV& info, const EngineProperties& p) {
+  BuildSizes s;
+  const uint64_t count = info.maxAccelerationStructureCount;
+  auto bad = [&](const char* rule, const std::string& msg) {
+    s.findings.push_back({rule, "vkGetClusterAccelerationStructureBuildSizesNV: " + msg, -1, 0});
+    return s;
+  };
+  if (info.opMode > VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_COMPUTE_SIZES_NV)
+    return bad("VUID-VkClusterAccelerationStructureInputInfoNV-opMode-parameter",
+               "opMode " + std::to_string(int(info.opMode)) + " is not a VkClusterAccelerationStructureOpModeNV");
+  uint64_t one = 0;       // worst single object
+  uint64_t implicit = 0;  // worst implicit total, before per-object alignment padding
+  uint64_t align = destination_alignment(info.opType,
+                                         info.opType == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV &&
+                                                 info.opInput.pMoveObjects
+                                             ? info.opInput.pMoveObjects->type
+                                             : VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_MAX_ENUM_NV,
+                                         p);
+  switch (info.opType) {
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV: {
+      if (!info.opInput.pMoveObjects)
+        return bad("VUID-VkClusterAccelerationStructureInputInfoNV-pMoveObjects-parameter", "opInput.pMoveObjects is null");
+      one = info.opInput.pMoveObjects->maxMovedBytes;
+      implicit = info.opInput.pMoveObjects->maxMovedBytes;  // the moved objects together
+      break;
+    }
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV: {
+      const auto* in = info.opInput.pClustersBottomLevel;
+      if (!in)
+        return bad("VUID-VkClusterAccelerationStructureInputInfoNV-pClustersBottomLevel-parameter",
+                   "opInput.pClustersBottomLevel is null");
+      uint64_t per = std::min<uint64_t>(in->maxClusterCountPerAccelerationStructure, in->maxTotalClusterCount);
+      one = bottom_level_size_bound(per);
+      // Each BLAS costs its header plus 80 bytes per cluster at most; clusters are shared
+      // out of maxTotalClusterCount.
+      uint64_t per_cluster = 2 * sizeof(BottomLevelNode) + sizeof(ClusterReference);
+      implicit = std::min(sat_mul(count, one),
+                          sat_add(sat_mul(count, sizeof(BottomLevelHeader)), sat_mul(in->maxTotalClusterCount, per_cluster)));
+      break;
+    }
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV:
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV:
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV:
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV: {
+      const auto* in = info.opInput.pTriangleClusters;
+      if (!in)
+        return bad("VUID-VkClusterAccelerationStructureInputInfoNV-pTriangleClusters-parameter",
+                   "opInput.pTriangleClusters is null");
+      if (info.opType == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV) {
+        uint64_t tris = std::min<uint64_t>(in->maxClusterTriangleCount, EngineProperties::kFormatMaxTriangles);
+        one = 12 * tris;
+        implicit = std::min(sat_mul(count, one), sat_mul(12, in->maxTotalTriangleCount));
+      } else {
+        bool is_template = info.opType == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV;
+        one = max_cluster_object_size(*in, p, is_template);
+        implicit = sat_mul(count, one);
+      }
+      break;
+    }
+    default:
+      return bad("VUID-VkClusterAccelerationStructureInputInfoNV-opType-parameter",
+                 "opType " + std::to_string(int(info.opType)) + " is not a VkClusterAccelerationStructureOpTypeNV");
+  }
+  s.single_object_size = one;
+  // Implicit packing pads each object to `align`: at most align - 1 bytes each, and the
+  // base itself is required aligned.
+  uint64_t implicit_total = sat_add(implicit, sat_mul(count, align - 1));
+  s.build_scratch_size = scratch_bytes_for_ops(count);
+  switch (info.opMode) {
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV: s.acceleration_structure_size = implicit_total; break;
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV: s.acceleration_structure_size = one; break;
+    default: s.acceleration_structure_size = 0; break;
+  }
+  return s;
+}
+
+}  // namespace clastrace::engine
