@@ -1,0 +1,1 @@
+#include "engine2_test_util.h"
