@@ -1,1 +1,279 @@
+// Bottom-level builds traced against Embree, instantiated clusters, determinism.
 #include "engine2_test_util.h"
+
+#include <embree3/rtcore.h>
+#include <tbb/task_arena.h>
+
+#include <cstdio>
+
+namespace clastrace::engine::test2 {
+namespace {
+
+// One Embree BVH over every triangle of the mesh: the reference.
+struct EmbreeScene {
+  RTCDevice device = rtcNewDevice(nullptr);
+  RTCScene scene = rtcNewScene(device);
+  explicit EmbreeScene(const std::vector<float>& positions, const std::vector<uint32_t>& indices) {
+    RTCGeometry g = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
+    float* v = static_cast<float*>(
+        rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 12, positions.size() / 3));
+    std::copy(positions.begin(), positions.end(), v);
+    uint32_t* ix = static_cast<uint32_t*>(
+        rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 12, indices.size() / 3));
+    std::copy(indices.begin(), indices.end(), ix);
+    rtcCommitGeometry(g);
+    rtcAttachGeometry(scene, g);
+    rtcReleaseGeometry(g);
+    rtcCommitScene(scene);
+  }
+  ~EmbreeScene() {
+    rtcReleaseScene(scene);
+    rtcReleaseDevice(device);
+  }
+  RTCRayHit trace(const Ray& r) const {
+    RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    RTCRayHit rh{};
+    rh.ray.org_x = r.origin[0];
+    rh.ray.org_y = r.origin[1];
+    rh.ray.org_z = r.origin[2];
+    rh.ray.dir_x = r.direction[0];
+    rh.ray.dir_y = r.direction[1];
+    rh.ray.dir_z = r.direction[2];
+    rh.ray.tnear = r.tmin;
+    rh.ray.tfar = r.tmax;
+    rh.ray.mask = ~0u;
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(scene, &ctx, &rh);
+    return rh;
+  }
+};
+
+std::vector<Ray> sphere_rays(uint32_t n, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<float> g;
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  std::vector<Ray> rays;
+  for (uint32_t i = 0; i < n; ++i) {
+    float o[3] = {g(rng), g(rng), g(rng)}, p[3] = {g(rng), g(rng), g(rng)};
+    float lo = std::sqrt(o[0] * o[0] + o[1] * o[1] + o[2] * o[2]);
+    float lp = std::sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]);
+    Ray r{};
+    float kind = u(rng);
+    for (int a = 0; a < 3; ++a) {
+      if (kind < 0.7f) {  // from outside toward a point inside: hits
+        r.origin[a] = o[a] / lo * 3.0f;
+        r.direction[a] = p[a] / lp * 0.9f * u(rng) - r.origin[a];
+      } else if (kind < 0.9f) {  // from inside outward
+        r.origin[a] = o[a] / lo * 0.5f * u(rng);
+        r.direction[a] = p[a];
+      } else {  // from outside, mostly away: many misses
+        r.origin[a] = o[a] / lo * 3.0f;
+        r.direction[a] = p[a];
+      }
+    }
+    r.tmin = 0.0f;
+    r.tmax = 1e30f;
+    rays.push_back(r);
+  }
+  return rays;
+}
+
+// Traces every ray through the BLAS and Embree; returns the share of rays that disagree.
+void expect_matches_embree(const Rig& rig, uint64_t blas, const ClusteredMesh& m, uint32_t id_base = 0,
+                           const ObjectDirectory* dir = nullptr) {
+  EmbreeScene ref(m.positions, m.indices);
+  auto rays = sphere_rays(4000, 7);
+  size_t hits = 0, primitive_mismatch = 0;
+  std::vector<Finding> findings;
+  for (const Ray& r : rays) {
+    BottomLevelHit ours = trace_bottom_level_closest(rig.memory, blas, r, 0, dir, &findings);
+    RTCRayHit theirs = ref.trace(r);
+    bool they_hit = theirs.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+    ASSERT_EQ(ours.hit.hit, they_hit) << "ray origin " << r.origin[0] << "," << r.origin[1] << "," << r.origin[2];
+    if (!they_hit) continue;
+    ++hits;
+    EXPECT_NEAR(ours.hit.t, theirs.ray.tfar, 1e-5f * std::max(1.0f, theirs.ray.tfar));
+    uint32_t cluster = ours.hit.cluster_id - id_base;
+    ASSERT_LT(cluster, m.clusters.size());
+    ASSERT_LT(ours.hit.triangle_index, m.cluster_triangle_to_global[cluster].size());
+    uint32_t global = m.cluster_triangle_to_global[cluster][ours.hit.triangle_index];
+    if (global != theirs.hit.primID) {
+      ++primitive_mismatch;  // a ray through a shared edge: either neighbour is right
+    } else {
+      EXPECT_NEAR(ours.hit.u, theirs.hit.u, 1e-4f);
+      EXPECT_NEAR(ours.hit.v, theirs.hit.v, 1e-4f);
+    }
+  }
+  EXPECT_TRUE(findings.empty()) << describe(findings);
+  std::printf("  %zu rays, %zu hits, %zu hit another triangle at the same t (shared edge)\n", rays.size(), hits,
+              primitive_mismatch);
+  EXPECT_GT(hits, rays.size() / 2);
+  EXPECT_LE(primitive_mismatch, hits / 500) << primitive_mismatch << " of " << hits;
+}
+
+TEST(Engine2Blas, TracesLikeEmbreeOverTheSameTriangles) {
+  Rig rig(16);
+  ClusteredMesh m = icosphere_meshlets(5);  // 20480 triangles
+  ASSERT_GT(m.clusters.size(), 100u);
+  auto clas = build_clas(rig, m);
+  uint64_t blas = build_blas(rig, clas);
+  auto check = read_bottom_level_header(rig.bytes(blas, rig.get<uint32_t>(blas + 8)));
+  ASSERT_TRUE(check.header) << check.error;
+  EXPECT_EQ(check.header->reference_count, m.clusters.size());
+  EXPECT_EQ(blas % EngineProperties{}.clusterBottomLevelByteAlignment, 0u);
+  expect_matches_embree(rig, blas, m);
+}
+
+TEST(Engine2Blas, HitReportsTheReferenceIndexAndAddress) {
+  Rig rig;
+  ClusteredMesh m = icosphere_meshlets(3);
+  auto clas = build_clas(rig, m);
+  std::vector<uint64_t> reversed(clas.rbegin(), clas.rend());
+  uint64_t blas = build_blas(rig, reversed);
+  Ray r{{0, 0, 3}, 0.0f, {0, 0, -1}, 100.0f};
+  BottomLevelHit h = trace_bottom_level_closest(rig.memory, blas, r, 0);
+  ASSERT_TRUE(h.hit.hit);
+  EXPECT_NEAR(h.hit.t, 2.0f, 0.02f);
+  EXPECT_EQ(h.clas_address, reversed[h.reference_index]);
+  EXPECT_EQ(h.clas_address, clas[h.hit.cluster_id]);
+  EXPECT_TRUE(trace_bottom_level_any(rig.memory, blas, r, 0));
+  Ray away{{0, 0, 3}, 0.0f, {0, 0, 1}, 100.0f};
+  EXPECT_FALSE(trace_bottom_level_closest(rig.memory, blas, away, 0).hit.hit);
+  EXPECT_FALSE(trace_bottom_level_any(rig.memory, blas, away, 0));
+}
+
+TEST(Engine2Blas, InstantiatedClustersTraceLikeEmbree) {
+  Rig rig(16);
+  ClusteredMesh m = icosphere_meshlets(4);
+  const uint32_t n = uint32_t(m.clusters.size());
+  uint64_t tinfos = upload_cluster_infos(rig, m, /*as_templates=*/true);
+  CommandSetup ts;
+  setup_command(ts, rig, VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV,
+                VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV, n, tinfos);
+  ExecutionRecord tr = execute(ts.cmd, rig.memory);
+  ASSERT_TRUE(tr.findings.empty()) << describe(tr.findings);
+  claim_implicit(rig, tr);
+  auto templates = dst_addresses(rig, ts.cmd, n);
+  std::vector<VkClusterAccelerationStructureInstantiateClusterInfoNV> inst(n);
+  for (uint32_t c = 0; c < n; ++c) {
+    inst[c].clusterIdOffset = 1000;
+    inst[c].clusterTemplateAddress = templates[c];
+    inst[c].vertexBuffer = {rig.put_vec(rig.inputs, m.clusters[c].positions, 16), 12};
+  }
+  CommandSetup is;
+  setup_command(is, rig, VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV,
+                VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV, n, rig.put_vec(rig.inputs, inst, 16));
+  ExecutionRecord ir = execute(is.cmd, rig.memory);
+  ASSERT_TRUE(ir.findings.empty()) << describe(ir.findings);
+  claim_implicit(rig, ir);
+  auto clas = dst_addresses(rig, is.cmd, n);
+  // The instantiation read each template as an acceleration structure.
+  size_t template_reads = 0;
+  for (const auto& a : ir.accesses)
+    template_reads += a.access == VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR && !a.is_write;
+  EXPECT_EQ(template_reads, n);
+  uint64_t blas = build_blas(rig, clas);
+  expect_matches_embree(rig, blas, m, /*id_base=*/1000);
+}
+
+// Everything a build writes, byte for byte, on 1 and 2 threads.
+std::map<uint64_t, std::vector<std::byte>> build_scene_bytes(int threads, ExecutionRecord* blas_record) {
+  tbb::task_arena arena(threads);
+  std::map<uint64_t, std::vector<std::byte>> out;
+  arena.execute([&] {
+    Rig rig(16);
+    ClusteredMesh m = icosphere_meshlets(5);
+    auto clas = build_clas(rig, m);
+    // Several BLAS in one command: over all clusters, the first half, every third.
+    std::vector<std::vector<uint64_t>> sets(3);
+    for (size_t i = 0; i < clas.size(); ++i) {
+      sets[0].push_back(clas[i]);
+      if (i < clas.size() / 2) sets[1].push_back(clas[i]);
+      if (i % 3 == 0) sets[2].push_back(clas[i]);
+    }
+    std::vector<VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV> infos;
+    for (auto& s : sets) {
+      uint64_t info = upload_blas_info(rig, s);
+      infos.push_back(rig.get<VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV>(info));
+    }
+    CommandSetup s;
+    setup_command(s, rig, VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV,
+                  VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV, 3, rig.put_vec(rig.inputs, infos, 16));
+    *blas_record = execute(s.cmd, rig.memory);
+    out = rig.snapshot();
+  });
+  return out;
+}
+
+TEST(Engine2Blas, SameBytesOnOneAndTwoThreads) {
+  ExecutionRecord r1, r2;
+  auto one = build_scene_bytes(1, &r1);
+  auto two = build_scene_bytes(2, &r2);
+  ASSERT_TRUE(r1.findings.empty()) << describe(r1.findings);
+  ASSERT_EQ(one.size(), two.size());
+  for (const auto& [base, bytes] : one) EXPECT_TRUE(bytes == two.at(base)) << "region " << std::hex << base;
+  ASSERT_EQ(r1.accesses.size(), r2.accesses.size());
+  for (size_t i = 0; i < r1.accesses.size(); ++i) {
+    EXPECT_EQ(r1.accesses[i].begin, r2.accesses[i].begin);
+    EXPECT_EQ(r1.accesses[i].end, r2.accesses[i].end);
+    EXPECT_EQ(r1.accesses[i].field, r2.accesses[i].field);
+  }
+  EXPECT_EQ(r1.implicit_bytes_used, r2.implicit_bytes_used);
+}
+
+TEST(Engine2Blas, EmptyAndDegenerateInputs) {
+  // No references: a valid empty BLAS that never hits.
+  Rig rig;
+  uint64_t blas = build_blas(rig, {});
+  auto check = read_bottom_level_header(rig.bytes(blas, sizeof(BottomLevelHeader)));
+  ASSERT_TRUE(check.header) << check.error;
+  EXPECT_EQ(check.header->node_count, 0u);
+  Ray r{{0, 0, 3}, 0.0f, {0, 0, -1}, 100.0f};
+  EXPECT_FALSE(trace_bottom_level_closest(rig.memory, blas, r, 0).hit.hit);
+  // Boxes that all coincide, and a huge-but-finite one: still a valid tree.
+  std::vector<ClusterBox> boxes(100);
+  for (uint32_t i = 0; i < boxes.size(); ++i) {
+    boxes[i] = {{0, 0, 0}, {1, 1, 1}, 0x1000ull * i, i, i};
+  }
+  boxes[5] = {{-3e38f, -3e38f, -3e38f}, {3e38f, 3e38f, 3e38f}, 0x9999, 5, 5};
+  boxes[6] = {{1, 1, 1}, {0, 0, 0}, 0x8888, 6, 6};  // empty: left out
+  auto bytes = build_bottom_level(boxes, 100);
+  auto h = read_bottom_level_header(bytes);
+  ASSERT_TRUE(h.header) << h.error;
+  EXPECT_EQ(h.header->reference_count, 99u);
+  EXPECT_EQ(h.header->input_reference_count, 100u);
+  EXPECT_LE(bytes.size(), bottom_level_size_bound(100));
+}
+
+TEST(Engine2Blas, CorruptBottomLevelBytesAreRejected) {
+  std::vector<ClusterBox> boxes;
+  for (uint32_t i = 0; i < 50; ++i) boxes.push_back({{float(i), 0, 0}, {float(i) + 1, 1, 1}, 0x1000ull * i, i, i});
+  auto good = build_bottom_level(boxes, 50);
+  ASSERT_TRUE(read_bottom_level_header(good).header);
+  std::mt19937 rng(3);
+  size_t rejected = 0;
+  for (int trial = 0; trial < 2000; ++trial) {
+    auto bad = good;
+    // Flip bytes in the header and node area: child indices and counts.
+    for (int k = 0; k < 4; ++k) bad[rng() % std::min<size_t>(bad.size(), 64 + 32 * 20)] ^= std::byte(1u << (rng() % 8));
+    auto check = read_bottom_level_header(bad);
+    rejected += !check.header;
+    if (check.header) {  // accepted bytes must be safe to walk: children after parents, in range
+      for (uint32_t i = 0; i < check.header->node_count; ++i) {
+        BottomLevelNode n;
+        std::memcpy(&n, bad.data() + check.header->nodes_offset + 32ull * i, 32);
+        if (n.count == 0) {
+          ASSERT_GT(n.first, i);
+          ASSERT_LT(n.first + 1, check.header->node_count);
+        } else {
+          ASSERT_LE(n.first + n.count, check.header->reference_count);
+        }
+      }
+    }
+  }
+  EXPECT_GT(rejected, 0u);
+}
+
+}  // namespace
+}  // namespace clastrace::engine::test2
