@@ -45,20 +45,22 @@ void build_bvh(const float* positions, const uint32_t* indices, const uint8_t* a
   while (sp > 0) {
     const Task task = stack[--sp];
     BvhScratch::Node& node = s.nodes[task.node];
-    float clo[3], chi[3];
-    for (int k = 0; k < 3; ++k) {
-      node.lo[k] = clo[k] = INFINITY;
-      node.hi[k] = chi[k] = -INFINITY;
-    }
+    // Accumulate in locals: writing through `node` each step defeats vectorization.
+    float lo0 = INFINITY, lo1 = INFINITY, lo2 = INFINITY, hi0 = -INFINITY, hi1 = -INFINITY, hi2 = -INFINITY;
+    float cl0 = INFINITY, cl1 = INFINITY, cl2 = INFINITY, ch0 = -INFINITY, ch1 = -INFINITY, ch2 = -INFINITY;
     for (uint32_t i = task.begin; i < task.end; ++i) {
       const uint32_t t = s.perm[i];
-      for (int k = 0; k < 3; ++k) {
-        node.lo[k] = std::min(node.lo[k], s.tri_min[t][k]);
-        node.hi[k] = std::max(node.hi[k], s.tri_max[t][k]);
-        clo[k] = std::min(clo[k], s.centroid[t][k]);
-        chi[k] = std::max(chi[k], s.centroid[t][k]);
-      }
+      const float* mn = s.tri_min[t];
+      const float* mx = s.tri_max[t];
+      const float* c = s.centroid[t];
+      lo0 = std::min(lo0, mn[0]); lo1 = std::min(lo1, mn[1]); lo2 = std::min(lo2, mn[2]);
+      hi0 = std::max(hi0, mx[0]); hi1 = std::max(hi1, mx[1]); hi2 = std::max(hi2, mx[2]);
+      cl0 = std::min(cl0, c[0]); cl1 = std::min(cl1, c[1]); cl2 = std::min(cl2, c[2]);
+      ch0 = std::max(ch0, c[0]); ch1 = std::max(ch1, c[1]); ch2 = std::max(ch2, c[2]);
     }
+    node.lo[0] = lo0; node.lo[1] = lo1; node.lo[2] = lo2;
+    node.hi[0] = hi0; node.hi[1] = hi1; node.hi[2] = hi2;
+    const float clo[3] = {cl0, cl1, cl2}, chi[3] = {ch0, ch1, ch2};
     const uint32_t count = task.end - task.begin;
     if (count <= kMaxLeafSize) {
       node.first = task.begin;
