@@ -410,26 +410,16 @@ ExecutionRecord execute(const VkClusterAccelerationStructureCommandsInfoNV& comm
     if (moved_bytes > mv.maxMovedBytes)
       top.finding(kRuleMovedBytesAboveInput, "the command moves " + std::to_string(moved_bytes) +
                                                  " bytes, more than maxMovedBytes = " + std::to_string(mv.maxMovedBytes));
-    // A source that another op's destination overwrites in the same command: no order
-    // exists between ops, so what the source op reads is undefined.
-    std::vector<Written> dsts = written;
-    std::sort(dsts.begin(), dsts.end(), [](const Written& a, const Written& b) { return a.begin < b.begin; });
-    for (const Written& s : move_sources) {
-      auto it = std::lower_bound(dsts.begin(), dsts.end(), s.end, [](const Written& w, uint64_t v) { return w.begin < v; });
-      for (auto j = dsts.begin(); j != it; ++j) {
-        if (j->end <= s.begin) continue;
-        if (j->op == s.op) {
-          if (mv.noMoveOverlap)
-            top.finding(kRuleMoveOverlap, "op " + std::to_string(s.op) + " moves [" + hex(s.begin) + ", " + hex(s.end) +
-                                              ") onto an overlapping destination at " + hex(j->begin) +
-                                              " although noMoveOverlap is VK_TRUE",
-                        s.begin);
-        } else {
-          top.finding(kRuleIntraCommandHazard, "op " + std::to_string(s.op) + " moves from [" + hex(s.begin) + ", " +
-                                                   hex(s.end) + ") while op " + std::to_string(j->op) +
-                                                   " writes its destination over it in the same command",
-                      s.begin);
-        }
+    if (mv.noMoveOverlap) {
+      std::vector<Written> dsts = written;
+      std::sort(dsts.begin(), dsts.end(), [](const Written& a, const Written& b) { return a.op < b.op; });
+      for (const Written& src : move_sources) {
+        auto it = std::lower_bound(dsts.begin(), dsts.end(), src.op, [](const Written& w, int64_t op) { return w.op < op; });
+        if (it != dsts.end() && it->op == src.op && it->begin < src.end && src.begin < it->end)
+          top.finding(kRuleMoveOverlap, "op " + std::to_string(src.op) + " moves [" + hex(src.begin) + ", " +
+                                            hex(src.end) + ") onto an overlapping destination at " + hex(it->begin) +
+                                            " although noMoveOverlap is VK_TRUE",
+                      src.begin);
       }
     }
   } else if (input.opType == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV) {
@@ -448,6 +438,34 @@ ExecutionRecord execute(const VkClusterAccelerationStructureCommandsInfoNV& comm
       top.finding(kRuleTotalAboveInput, "the command builds " + std::to_string(total_vertices) +
                                             " vertices, more than maxTotalVertexCount = " +
                                             std::to_string(tc.maxTotalVertexCount));
+  }
+  // No order exists between the ops of one command: a range one op reads and another
+  // op (or the same op, through another field) writes is undefined on a GPU. (Moves
+  // without noMoveOverlap may overlap their own source: the spec allows it.)
+  {
+    std::vector<const MemoryAccess*> writes;
+    for (const auto& a : op_accesses)
+      if (a.is_write) writes.push_back(&a);
+    std::sort(writes.begin(), writes.end(), [](const MemoryAccess* a, const MemoryAccess* b) {
+      return a->begin < b->begin || (a->begin == b->begin && a->op_index < b->op_index);
+    });
+    std::vector<uint64_t> reach(writes.size());
+    for (size_t k = 0; k < writes.size(); ++k) reach[k] = std::max(k ? reach[k - 1] : 0, writes[k]->end);
+    for (const auto& read : op_accesses) {
+      if (read.is_write) continue;
+      auto it = std::lower_bound(writes.begin(), writes.end(), read.end,
+                                 [](const MemoryAccess* w, uint64_t v) { return w->begin < v; });
+      for (size_t k = size_t(it - writes.begin()); k-- > 0 && reach[k] > read.begin;) {
+        const MemoryAccess& w = *writes[k];
+        if (w.end <= read.begin) continue;
+        if (is_move && w.op_index == read.op_index) continue;  // a move may overlap its own source
+        top.finding(kRuleIntraCommandHazard,
+                    "op " + std::to_string(read.op_index) + " reads " + read.field + " [" + hex(read.begin) + ", " +
+                        hex(read.end) + ") which op " + std::to_string(w.op_index) + " writes as " + w.field +
+                        " in the same command",
+                    std::max(read.begin, w.begin));
+      }
+    }
   }
   finish();
   sink.close();
