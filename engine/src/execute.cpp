@@ -449,23 +449,32 @@ ExecutionRecord execute(const VkClusterAccelerationStructureCommandsInfoNV& comm
     std::sort(writes.begin(), writes.end(), [](const MemoryAccess* a, const MemoryAccess* b) {
       return a->begin < b->begin || (a->begin == b->begin && a->op_index < b->op_index);
     });
-    std::vector<uint64_t> reach(writes.size());
-    for (size_t k = 0; k < writes.size(); ++k) reach[k] = std::max(k ? reach[k - 1] : 0, writes[k]->end);
-    for (const auto& read : op_accesses) {
-      if (read.is_write) continue;
+    // Per read, the earlier-starting write that reaches furthest: one finding per read,
+    // O(log n) each, however the writes nest.
+    std::vector<size_t> reach(writes.size());
+    for (size_t k = 0; k < writes.size(); ++k)
+      reach[k] = k && writes[reach[k - 1]]->end >= writes[k]->end ? reach[k - 1] : k;
+    uint64_t hazards = 0;
+    auto check_read = [&](const MemoryAccess& read) {
+      if (read.is_write) return;
       auto it = std::lower_bound(writes.begin(), writes.end(), read.end,
                                  [](const MemoryAccess* w, uint64_t v) { return w->begin < v; });
-      for (size_t k = size_t(it - writes.begin()); k-- > 0 && reach[k] > read.begin;) {
-        const MemoryAccess& w = *writes[k];
-        if (w.end <= read.begin) continue;
-        if (is_move && w.op_index == read.op_index) continue;  // a move may overlap its own source
-        top.finding(kRuleIntraCommandHazard,
-                    "op " + std::to_string(read.op_index) + " reads " + read.field + " [" + hex(read.begin) + ", " +
-                        hex(read.end) + ") which op " + std::to_string(w.op_index) + " writes as " + w.field +
-                        " in the same command",
-                    std::max(read.begin, w.begin));
+      if (it == writes.begin()) return;
+      const MemoryAccess& w = *writes[reach[size_t(it - writes.begin()) - 1]];
+      if (w.end <= read.begin) return;
+      if (is_move && w.op_index == read.op_index) return;  // a move may overlap its own source
+      if (++hazards > options.max_findings_per_rule) {  // counted by the sink, not spelled out
+        top.finding(kRuleIntraCommandHazard, "");
+        return;
       }
-    }
+      top.finding(kRuleIntraCommandHazard,
+                  "op " + std::to_string(read.op_index) + " reads " + read.field + " [" + hex(read.begin) + ", " +
+                      hex(read.end) + ") which op " + std::to_string(w.op_index) + " writes as " + w.field +
+                      " in the same command",
+                  std::max(read.begin, w.begin));
+    };
+    for (const auto& a : top.accesses) check_read(a);  // srcInfosCount, indirection cells
+    for (const auto& a : op_accesses) check_read(a);
   }
   finish();
   sink.close();
