@@ -174,7 +174,11 @@ bool decode_triangle_info(const MemoryImage& memory, const TriangleInfoView& inf
   if (info.vertexCount > p.maxVerticesPerCluster)
     r.add(rules.vertexCount, "vertexCount " + std::to_string(info.vertexCount) + " > maxVerticesPerCluster " +
                                  std::to_string(p.maxVerticesPerCluster));
-  if (info.triangleCount > kMaxTriangles || info.vertexCount > kMaxVertices) buildable = false;
+  if (info.triangleCount > kMaxTriangles || info.vertexCount > kMaxVertices) {
+    r.add(kRuleBeyondEngineFormat, "triangleCount " + std::to_string(info.triangleCount) + " / vertexCount " +
+                                       std::to_string(info.vertexCount) + " exceed the engine's 256 per cluster");
+    buildable = false;
+  }
   if (info.triangleCount > input.maxClusterTriangleCount)
     r.add(kRuleCountAboveInput, "triangleCount " + std::to_string(info.triangleCount) +
                                     " > VkClusterAccelerationStructureTriangleClusterInputNV::maxClusterTriangleCount " +

@@ -35,15 +35,17 @@ void pack_positions(const float* positions, uint32_t count, uint32_t bits, uint3
   if (acc_bits > 0) dst[out++] = std::byte(acc & 0xFF);
 }
 
-uint8_t quantize_lo(const QuantFrame& f, int a, float v) {
-  const float rel = (v - f.lo[a]) / f.step[a];
+// The first guess may be off by one either way (inv_step is rounded); the loops make it
+// conservative with the exact decoding traversal uses.
+uint8_t quantize_lo(const QuantFrame& f, const float inv_step[3], int a, float v) {
+  const float rel = (v - f.lo[a]) * inv_step[a];
   int q = rel >= 255.0f ? 255 : (rel > 0.0f ? int(rel) : 0);
   while (q > 0 && dequant_lo(f, a, uint32_t(q)) > v) --q;
   return uint8_t(q);
 }
 
-uint8_t quantize_hi(const QuantFrame& f, int a, float v) {
-  const float rel = (v - f.lo[a]) / f.step[a];
+uint8_t quantize_hi(const QuantFrame& f, const float inv_step[3], int a, float v) {
+  const float rel = (v - f.lo[a]) * inv_step[a];
   int q = rel >= 255.0f ? 255 : (rel > 0.0f ? int(std::ceil(rel)) : 0);
   if (q > 255) q = 255;
   while (q < 255 && dequant_hi(f, a, uint32_t(q)) < v) ++q;
@@ -68,30 +70,36 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
   const uint32_t T = in.triangle_count;
   const bool is_clas = in.type == ObjectType::TriangleCluster;
 
-  // Active triangles: indices in range and no NaN coordinate (after truncation).
+  // Active triangles: indices in range and no NaN coordinate (after truncation). NaN is
+  // decided per vertex and bounds are taken over the vertices active triangles use, so
+  // the per-triangle work stays at three byte loads.
   uint8_t active[kMaxTriangles];
   uint32_t n_active = 0;
   bool any_nan = false;
   float bmin[3] = {INFINITY, INFINITY, INFINITY}, bmax[3] = {-INFINITY, -INFINITY, -INFINITY};
   if (in.positions) {
+    uint8_t vertex_nan[kMaxVertices];
+    uint8_t vertex_used[kMaxVertices] = {};
+    for (uint32_t v = 0; v < in.vertex_count; ++v) {
+      const float* p = in.positions + 3 * v;
+      vertex_nan[v] = std::isnan(p[0]) || std::isnan(p[1]) || std::isnan(p[2]);
+    }
     for (uint32_t t = 0; t < T; ++t) {
       if (in.inactive && in.inactive[t]) continue;
-      bool nan = false;
-      for (int v = 0; v < 3; ++v) {
-        const float* p = in.positions + 3 * in.indices[3 * t + v];
-        nan |= std::isnan(p[0]) || std::isnan(p[1]) || std::isnan(p[2]);
-      }
-      if (nan) {
+      const uint32_t* tri = in.indices + 3 * t;
+      if (vertex_nan[tri[0]] | vertex_nan[tri[1]] | vertex_nan[tri[2]]) {
         any_nan = true;
         continue;
       }
       active[n_active++] = uint8_t(t);
-      for (int v = 0; v < 3; ++v) {
-        const float* p = in.positions + 3 * in.indices[3 * t + v];
-        for (int k = 0; k < 3; ++k) {
-          bmin[k] = std::min(bmin[k], p[k]);
-          bmax[k] = std::max(bmax[k], p[k]);
-        }
+      vertex_used[tri[0]] = vertex_used[tri[1]] = vertex_used[tri[2]] = 1;
+    }
+    for (uint32_t v = 0; v < in.vertex_count; ++v) {
+      if (!vertex_used[v]) continue;
+      const float* p = in.positions + 3 * v;
+      for (int k = 0; k < 3; ++k) {
+        bmin[k] = std::min(bmin[k], p[k]);
+        bmax[k] = std::max(bmax[k], p[k]);
       }
     }
   }
@@ -182,6 +190,8 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
   std::byte* base = out.data();
   std::memcpy(base, &h, sizeof h);
 
+  float inv_step[3];
+  for (int a = 0; a < 3; ++a) inv_step[a] = 1.0f / frame.step[a];
   for (uint32_t i = 0; i < n_nodes; ++i) {
     const BvhScratch::Node& sn = s.nodes[i];
     BvhNode node{};
@@ -190,8 +200,8 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
         node.qmin[a] = 0;
         node.qmax[a] = 255;
       } else {
-        node.qmin[a] = quantize_lo(frame, a, sn.lo[a]);
-        node.qmax[a] = quantize_hi(frame, a, sn.hi[a]);
+        node.qmin[a] = quantize_lo(frame, inv_step, a, sn.lo[a]);
+        node.qmax[a] = quantize_hi(frame, inv_step, a, sn.hi[a]);
       }
     }
     node.link = sn.count ? uint16_t(kLeafBit | ((sn.count - 1u) << 8) | sn.first) : uint16_t(sn.first);

@@ -57,6 +57,11 @@ HeaderCheck read_object_header(std::span<const std::byte> bytes) {
   }
   // Local indices must name stored vertices, and BVH links must stay inside the object,
   // so that tracing a corrupt object can never read out of bounds.
+  // (A cluster without vertices keeps its inactive triangles' indices at 0 and has no BVH.)
+  if (V == 0 && h.node_count != 0) {
+    r.error = "BVH over a cluster without vertices";
+    return r;
+  }
   const std::byte* idx = bytes.data() + h.indices_offset;
   for (uint32_t i = 0; i < 3 * T; ++i)
     if (uint32_t(idx[i]) >= (V ? V : 1)) {

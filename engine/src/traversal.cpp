@@ -99,8 +99,8 @@ bool triangle_hit(const PreparedRay& r, const float* p0, const float* p1, const 
   return true;
 }
 
-template <bool kAny>
-Hit traverse(const ClasView& clas, const Ray& ray, uint32_t ray_flags) {
+template <bool kAny, bool kPlainFloats>
+Hit traverse_impl(const ClasView& clas, const Ray& ray, uint32_t ray_flags) {
   Hit best;
   const ObjectHeader& h = clas.header;
   if (h.node_count == 0) return best;
@@ -149,8 +149,12 @@ Hit traverse(const ClasView& clas, const Ray& ray, uint32_t ray_flags) {
         float v[3][3];
         for (int k = 0; k < 3; ++k) {
           const uint32_t vi = uint8_t(idx[3 * i + k]);
-          for (int a = 0; a < 3; ++a)
-            v[k][a] = detail::unpack_coordinate(pos, pos_size, h.position_bits, h.position_truncate_bits, 3 * vi + a);
+          if constexpr (kPlainFloats) {
+            std::memcpy(v[k], pos + 12 * size_t(vi), 12);
+          } else {
+            for (int a = 0; a < 3; ++a)
+              v[k][a] = detail::unpack_coordinate(pos, pos_size, h.position_bits, h.position_truncate_bits, 3 * vi + a);
+          }
         }
         TriangleHit th;
         if (!triangle_hit(r, v[0], v[1], v[2], tmax, th)) continue;
@@ -204,6 +208,12 @@ Hit traverse(const ClasView& clas, const Ray& ray, uint32_t ray_flags) {
     }
   }
   return best;
+}
+
+template <bool kAny>
+Hit traverse(const ClasView& clas, const Ray& ray, uint32_t ray_flags) {
+  return clas.header.position_bits == 32 ? traverse_impl<kAny, true>(clas, ray, ray_flags)
+                                         : traverse_impl<kAny, false>(clas, ray, ray_flags);
 }
 
 }  // namespace

@@ -284,6 +284,7 @@ TEST(ClusterBuildRules, CountsBeyondTheFormatFailCleanly) {
   const auto o = build_triangle_cluster(arena.memory, info, test::default_input(), p, 0);
   EXPECT_FALSE(o.ok);
   EXPECT_TRUE(o.bytes.empty());
+  EXPECT_TRUE(has_rule(o.findings, kRuleBeyondEngineFormat));
 }
 
 TEST(ClusterBuild, MaximumSizeCluster) {
@@ -352,6 +353,52 @@ TEST(ClusterBuild, Deterministic) {
   const auto o1 = build_triangle_cluster(arena.memory, info, test::default_input(), EngineProperties{}, 0);
   const auto o2 = build_triangle_cluster(arena.memory, info, test::default_input(), EngineProperties{}, 0);
   EXPECT_EQ(o1.bytes, o2.bytes);
+}
+
+}  // namespace
+}  // namespace clastrace::engine
+
+namespace clastrace::engine {
+namespace {
+
+TEST(ClusterBuildRules, FaultFindingNamesFieldAddressAndOp) {
+  test::Arena arena;
+  const test::Mesh m = test::grid(2);
+  auto info = test::cluster_info(arena, m);
+  info.vertexBuffer = 0xABC000;
+  const auto o = build_triangle_cluster(arena.memory, info, test::default_input(), EngineProperties{}, 17);
+  ASSERT_FALSE(o.ok);
+  ASSERT_EQ(o.findings.size(), 1u);
+  EXPECT_EQ(o.findings[0].rule, kRuleMemoryFault);
+  EXPECT_EQ(o.findings[0].address, 0xABC000u);
+  EXPECT_EQ(o.findings[0].op_index, 17);
+  EXPECT_NE(o.findings[0].message.find("vertexBuffer"), std::string::npos) << o.findings[0].message;
+  EXPECT_NE(o.findings[0].message.find("0xabc000"), std::string::npos) << o.findings[0].message;
+  EXPECT_NE(o.findings[0].message.find("op 17"), std::string::npos) << o.findings[0].message;
+}
+
+TEST(ClusterBuildRules, ClusterWithoutVerticesHasOnlyInactiveTriangles) {
+  test::Arena arena;
+  const std::vector<uint32_t> idx = {0, 0, 0, 1, 2, 3};
+  VkClusterAccelerationStructureBuildTriangleClusterInfoNV info{};
+  info.triangleCount = 2;
+  info.vertexCount = 0;
+  info.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
+  info.indexBuffer = arena.put_vec(idx);
+  info.vertexBuffer = arena.alloc(16);
+  const auto o = build_triangle_cluster(arena.memory, info, test::default_input(), EngineProperties{}, 0);
+  ASSERT_TRUE(o.ok);
+  EXPECT_TRUE(has_rule(o.findings, kRuleIndexOutOfRange));
+  const auto view = open_clas(o.bytes);
+  ASSERT_TRUE(view);
+  EXPECT_EQ(view->header.node_count, 0);
+  EXPECT_FALSE(trace_any(*view, Ray{{0, 0, 1}, 0, {0, 0, -1}, 10}, 0));
+  // Empty cluster: a valid object too.
+  info.triangleCount = 0;
+  const auto empty = build_triangle_cluster(arena.memory, info, test::default_input(), EngineProperties{}, 0);
+  ASSERT_TRUE(empty.ok);
+  EXPECT_TRUE(empty.findings.empty());
+  EXPECT_EQ(empty.bytes.size(), sizeof(ObjectHeader));
 }
 
 }  // namespace

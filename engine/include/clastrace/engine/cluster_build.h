@@ -91,6 +91,12 @@ ClusterObject get_cluster_template_indices(const MemoryImage& memory,
                                            const VkClusterAccelerationStructureGetTemplateIndicesInfoNV& info,
                                            int64_t op_index);
 
+// Alignment of an object's address in device memory: clusterByteAlignment for a CLAS,
+// clusterTemplateByteAlignment for a template (implicit destinations pack objects so).
+inline uint32_t object_alignment(bool is_template, const EngineProperties& properties) {
+  return is_template ? properties.clusterTemplateByteAlignment : properties.clusterByteAlignment;
+}
+
 // Upper bound of one object's size for the given input maxima (what
 // vkGetClusterAccelerationStructureBuildSizesNV sizes implicit destinations with).
 uint64_t max_cluster_object_size(const VkClusterAccelerationStructureTriangleClusterInputNV& input,

@@ -25,6 +25,7 @@ inline constexpr const char* kRuleUnsupportedFormat = "CLASTRACE-unsupported-ver
 inline constexpr const char* kRuleCountAboveInput = "CLASTRACE-count-above-triangle-cluster-input";
 inline constexpr const char* kRuleUniqueGeometryCount = "CLASTRACE-unique-geometry-count-above-input";
 inline constexpr const char* kRuleGeometryIndexAboveInput = "CLASTRACE-geometry-index-above-input";
+inline constexpr const char* kRuleBeyondEngineFormat = "CLASTRACE-count-beyond-engine-format";  // > 256 vertices/triangles
 
 bool has_rule(const std::vector<Finding>& findings, const std::string& rule);
 
