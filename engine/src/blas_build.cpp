@@ -90,20 +90,32 @@ std::vector<std::byte> build_bottom_level(std::span<const ClusterBox> clusters, 
 
   std::vector<BottomLevelNode> nodes;
   nodes.reserve(n == 0 ? 0 : 2 * n - 1);
-  std::vector<Task> stack;
-  if (n > 0) {
-    nodes.push_back({});
-    stack.push_back({0, 0, uint32_t(n)});
-  }
-  std::vector<Box> right_boxes(kBins);
-  while (!stack.empty()) {
-    Task t = stack.back();
-    stack.pop_back();
+  // Each task carries its node's bounds and centroid bounds, computed by the parent's
+  // binning pass, so every level costs one binning pass and one partition pass.
+  struct Pending {
+    Task task;
     Box bounds, centroids;
-    for (uint32_t i = t.begin; i < t.end; ++i) {
-      bounds.grow(items[i].box);
-      centroids.grow_point(items[i].centroid);
+  };
+  std::vector<Pending> stack;
+  if (n > 0) {
+    Box bounds, centroids;
+    for (const Item& it : items) {
+      bounds.grow(it.box);
+      centroids.grow_point(it.centroid);
     }
+    nodes.push_back({});
+    stack.push_back({{0, 0, uint32_t(n)}, bounds, centroids});
+  }
+  struct Bin {
+    Box box, centroids;
+    uint32_t count = 0;
+  };
+  while (!stack.empty()) {
+    Pending p = stack.back();
+    stack.pop_back();
+    const Task t = p.task;
+    const Box& bounds = p.bounds;
+    const Box& centroids = p.centroids;
     BottomLevelNode& node = nodes[t.node];
     for (int a = 0; a < 3; ++a) {
       node.bounds_min[a] = bounds.lo[a];
@@ -118,35 +130,45 @@ std::vector<std::byte> build_bottom_level(std::span<const ClusterBox> clusters, 
       make_leaf();
       continue;
     }
-    // Best split over 3 axes x (kBins - 1) planes.
+    // One pass bins every item on all three axes.
+    std::array<std::array<Bin, kBins>, 3> bins;
+    float scale[3];
+    bool axis_ok[3];
+    for (int a = 0; a < 3; ++a) {
+      float extent = centroids.hi[a] - centroids.lo[a];
+      axis_ok[a] = extent > 0.0f && std::isfinite(extent);
+      scale[a] = axis_ok[a] ? float(kBins) / extent : 0.0f;
+    }
+    for (uint32_t i = t.begin; i < t.end; ++i) {
+      const Item& it = items[i];
+      for (int a = 0; a < 3; ++a) {
+        if (!axis_ok[a]) continue;
+        int b = std::min(kBins - 1, int((it.centroid[a] - centroids.lo[a]) * scale[a]));
+        Bin& bin = bins[a][b];
+        bin.box.grow(it.box);
+        bin.centroids.grow_point(it.centroid);
+        ++bin.count;
+      }
+    }
     float best_cost = std::numeric_limits<float>::infinity();
     int best_axis = -1, best_plane = 0;
     for (int axis = 0; axis < 3; ++axis) {
-      float extent = centroids.hi[axis] - centroids.lo[axis];
-      if (!(extent > 0.0f) || !std::isfinite(extent)) continue;
-      std::array<Box, kBins> bin_box;
-      std::array<uint32_t, kBins> bin_count{};
-      float scale = float(kBins) / extent;
-      for (uint32_t i = t.begin; i < t.end; ++i) {
-        int b = std::min(kBins - 1, int((items[i].centroid[axis] - centroids.lo[axis]) * scale));
-        bin_box[b].grow(items[i].box);
-        ++bin_count[b];
-      }
+      if (!axis_ok[axis]) continue;
       Box acc;
       uint32_t acc_count = 0;
       std::array<float, kBins> right_area{};
       std::array<uint32_t, kBins> right_count{};
       for (int b = kBins - 1; b > 0; --b) {
-        acc.grow(bin_box[b]);
-        acc_count += bin_count[b];
+        acc.grow(bins[axis][b].box);
+        acc_count += bins[axis][b].count;
         right_area[b] = acc.area();
         right_count[b] = acc_count;
       }
       Box left;
       uint32_t left_count = 0;
       for (int b = 0; b < kBins - 1; ++b) {
-        left.grow(bin_box[b]);
-        left_count += bin_count[b];
+        left.grow(bins[axis][b].box);
+        left_count += bins[axis][b].count;
         if (left_count == 0 || right_count[b + 1] == 0) continue;
         float cost = left.area() * float(left_count) + right_area[b + 1] * float(right_count[b + 1]);
         if (cost < best_cost) {
@@ -158,6 +180,7 @@ std::vector<std::byte> build_bottom_level(std::span<const ClusterBox> clusters, 
     }
     const float parent_area = bounds.area();
     uint32_t mid;
+    Box lb, lc, rb, rc;
     if (best_axis >= 0) {
       float split_cost = kTraversalCost + (parent_area > 0.0f && std::isfinite(parent_area)
                                                ? kClusterCost * best_cost / parent_area
@@ -166,15 +189,18 @@ std::vector<std::byte> build_bottom_level(std::span<const ClusterBox> clusters, 
         make_leaf();
         continue;
       }
-      float extent = centroids.hi[best_axis] - centroids.lo[best_axis];
-      float scale = float(kBins) / extent;
+      const float lo = centroids.lo[best_axis], sc = scale[best_axis];
       auto* first = items.data() + t.begin;
       auto* last = items.data() + t.end;
       auto* pivot = std::partition(first, last, [&](const Item& it) {
-        int b = std::min(kBins - 1, int((it.centroid[best_axis] - centroids.lo[best_axis]) * scale));
-        return b <= best_plane;
+        return std::min(kBins - 1, int((it.centroid[best_axis] - lo) * sc)) <= best_plane;
       });
       mid = uint32_t(pivot - items.data());
+      for (int b = 0; b < kBins; ++b) {
+        const Bin& bin = bins[best_axis][b];
+        (b <= best_plane ? lb : rb).grow(bin.box);
+        (b <= best_plane ? lc : rc).grow(bin.centroids);
+      }
     } else {
       // All centroids coincide (or are not finite): object median by input order.
       if (count <= kBottomLevelMaxLeafSize) {
@@ -182,6 +208,10 @@ std::vector<std::byte> build_bottom_level(std::span<const ClusterBox> clusters, 
         continue;
       }
       mid = t.begin + count / 2;
+      for (uint32_t i = t.begin; i < t.end; ++i) {
+        (i < mid ? lb : rb).grow(items[i].box);
+        (i < mid ? lc : rc).grow_point(items[i].centroid);
+      }
     }
     uint32_t left_index = uint32_t(nodes.size());
     nodes[t.node].first = left_index;
@@ -189,8 +219,8 @@ std::vector<std::byte> build_bottom_level(std::span<const ClusterBox> clusters, 
     nodes.push_back({});
     nodes.push_back({});
     // Right pushed first so the left subtree is laid out first (depth-first order).
-    stack.push_back({left_index + 1, mid, t.end});
-    stack.push_back({left_index, t.begin, mid});
+    stack.push_back({{left_index + 1, mid, t.end}, rb, rc});
+    stack.push_back({{left_index, t.begin, mid}, lb, lc});
   }
 
   BottomLevelHeader h{};
