@@ -1,7 +1,7 @@
 // Binned SAH over cluster boxes (Wald 2007): 16 bins on each axis of the centroid
 // bounds, sweep for the cheapest split, object-median fallback when centroids coincide.
-// Sequential and index-ordered so the bytes never depend on thread count; ops run in
-// parallel one level up.
+// Large subtrees split their halves across threads (TBB); the node layout depends only
+// on the subtree-size threshold, so the bytes never depend on the thread count.
 #include "clastrace/engine/blas.h"
 
 #include <algorithm>
@@ -9,6 +9,8 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+
+#include <tbb/parallel_invoke.h>
 
 namespace clastrace::engine {
 namespace {
@@ -49,10 +51,6 @@ struct Item {
   uint32_t source;  // index into the caller's span
 };
 
-struct Task {
-  uint32_t node, begin, end;
-};
-
 bool valid_box(const ClusterBox& c) {
   for (int a = 0; a < 3; ++a) {
     if (!(c.bounds_min[a] <= c.bounds_max[a])) return false;  // also rejects NaN
@@ -60,6 +58,173 @@ bool valid_box(const ClusterBox& c) {
   return true;
 }
 
+
+struct Split {
+  bool leaf = false;
+  uint32_t mid = 0;
+  Box left_bounds, left_centroids, right_bounds, right_centroids;
+};
+
+struct Bin {
+  Box box, centroids;
+  uint32_t count = 0;
+};
+
+// SAH over 16 bins on each axis, one pass over the items; partitions [begin, end) in place.
+Split split_node(std::vector<Item>& items, uint32_t begin, uint32_t end, const Box& bounds, const Box& centroids) {
+  Split r;
+  const uint32_t count = end - begin;
+  if (count == 1) {
+    r.leaf = true;
+    return r;
+  }
+  std::array<std::array<Bin, kBins>, 3> bins;
+  float scale[3];
+  bool axis_ok[3];
+  for (int a = 0; a < 3; ++a) {
+    float extent = centroids.hi[a] - centroids.lo[a];
+    axis_ok[a] = extent > 0.0f && std::isfinite(extent);
+    scale[a] = axis_ok[a] ? float(kBins) / extent : 0.0f;
+  }
+  for (uint32_t i = begin; i < end; ++i) {
+    const Item& it = items[i];
+    for (int a = 0; a < 3; ++a) {
+      if (!axis_ok[a]) continue;
+      int b = std::min(kBins - 1, int((it.centroid[a] - centroids.lo[a]) * scale[a]));
+      Bin& bin = bins[a][b];
+      bin.box.grow(it.box);
+      bin.centroids.grow_point(it.centroid);
+      ++bin.count;
+    }
+  }
+  float best_cost = std::numeric_limits<float>::infinity();
+  int best_axis = -1, best_plane = 0;
+  for (int axis = 0; axis < 3; ++axis) {
+    if (!axis_ok[axis]) continue;
+    Box acc;
+    uint32_t acc_count = 0;
+    std::array<float, kBins> right_area{};
+    std::array<uint32_t, kBins> right_count{};
+    for (int b = kBins - 1; b > 0; --b) {
+      acc.grow(bins[axis][b].box);
+      acc_count += bins[axis][b].count;
+      right_area[b] = acc.area();
+      right_count[b] = acc_count;
+    }
+    Box left;
+    uint32_t left_count = 0;
+    for (int b = 0; b < kBins - 1; ++b) {
+      left.grow(bins[axis][b].box);
+      left_count += bins[axis][b].count;
+      if (left_count == 0 || right_count[b + 1] == 0) continue;
+      float cost = left.area() * float(left_count) + right_area[b + 1] * float(right_count[b + 1]);
+      if (cost < best_cost) {
+        best_cost = cost;
+        best_axis = axis;
+        best_plane = b;
+      }
+    }
+  }
+  if (best_axis >= 0) {
+    const float parent_area = bounds.area();
+    float split_cost = kTraversalCost + (parent_area > 0.0f && std::isfinite(parent_area)
+                                             ? kClusterCost * best_cost / parent_area
+                                             : kClusterCost * float(count));
+    if (count <= kBottomLevelMaxLeafSize && float(count) * kClusterCost <= split_cost) {
+      r.leaf = true;
+      return r;
+    }
+    const float lo = centroids.lo[best_axis], sc = scale[best_axis];
+    auto* pivot = std::partition(items.data() + begin, items.data() + end, [&](const Item& it) {
+      return std::min(kBins - 1, int((it.centroid[best_axis] - lo) * sc)) <= best_plane;
+    });
+    r.mid = uint32_t(pivot - items.data());
+    for (int b = 0; b < kBins; ++b) {
+      const Bin& bin = bins[best_axis][b];
+      (b <= best_plane ? r.left_bounds : r.right_bounds).grow(bin.box);
+      (b <= best_plane ? r.left_centroids : r.right_centroids).grow(bin.centroids);
+    }
+    return r;
+  }
+  // All centroids coincide (or are not finite): object median by input order.
+  if (count <= kBottomLevelMaxLeafSize) {
+    r.leaf = true;
+    return r;
+  }
+  r.mid = begin + count / 2;
+  for (uint32_t i = begin; i < end; ++i) {
+    (i < r.mid ? r.left_bounds : r.right_bounds).grow(items[i].box);
+    (i < r.mid ? r.left_centroids : r.right_centroids).grow_point(items[i].centroid);
+  }
+  return r;
+}
+
+void set_box(BottomLevelNode& node, const Box& b) {
+  for (int a = 0; a < 3; ++a) {
+    node.bounds_min[a] = b.lo[a];
+    node.bounds_max[a] = b.hi[a];
+  }
+}
+
+// Depth-first layout of one subtree, root at index 0.
+std::vector<BottomLevelNode> build_sequential(std::vector<Item>& items, uint32_t begin, uint32_t end, const Box& bounds,
+                                              const Box& centroids) {
+  struct Pending {
+    uint32_t node, begin, end;
+    Box bounds, centroids;
+  };
+  std::vector<BottomLevelNode> nodes(1);
+  std::vector<Pending> stack{{0, begin, end, bounds, centroids}};
+  while (!stack.empty()) {
+    Pending p = stack.back();
+    stack.pop_back();
+    set_box(nodes[p.node], p.bounds);
+    Split sp = split_node(items, p.begin, p.end, p.bounds, p.centroids);
+    if (sp.leaf) {
+      nodes[p.node].first = p.begin;
+      nodes[p.node].count = p.end - p.begin;
+      continue;
+    }
+    uint32_t left = uint32_t(nodes.size());
+    nodes[p.node].first = left;
+    nodes[p.node].count = 0;
+    nodes.resize(nodes.size() + 2);
+    stack.push_back({left + 1, sp.mid, p.end, sp.right_bounds, sp.right_centroids});
+    stack.push_back({left, p.begin, sp.mid, sp.left_bounds, sp.left_centroids});
+  }
+  return nodes;
+}
+
+// Subtrees above this size build their two halves in parallel; the layout depends only on
+// this threshold, never on the thread count.
+constexpr uint32_t kParallelSubtree = 4096;
+
+std::vector<BottomLevelNode> build_subtree(std::vector<Item>& items, uint32_t begin, uint32_t end, const Box& bounds,
+                                           const Box& centroids) {
+  if (end - begin <= kParallelSubtree) return build_sequential(items, begin, end, bounds, centroids);
+  Split sp = split_node(items, begin, end, bounds, centroids);
+  if (sp.leaf) return build_sequential(items, begin, end, bounds, centroids);
+  std::vector<BottomLevelNode> left, right;
+  tbb::parallel_invoke([&] { left = build_subtree(items, begin, sp.mid, sp.left_bounds, sp.left_centroids); },
+                       [&] { right = build_subtree(items, sp.mid, end, sp.right_bounds, sp.right_centroids); });
+  // Root, its two children, then the rest of the left subtree, then the rest of the right.
+  std::vector<BottomLevelNode> nodes(left.size() + right.size() + 1);
+  set_box(nodes[0], bounds);
+  nodes[0].first = 1;
+  nodes[0].count = 0;
+  const uint32_t left_rest = 3, right_rest = uint32_t(3 + left.size() - 1);
+  auto place = [&](const std::vector<BottomLevelNode>& sub, uint32_t root_at, uint32_t rest_at) {
+    auto map = [&](uint32_t k) { return k == 0 ? root_at : rest_at + k - 1; };
+    for (uint32_t k = 0; k < sub.size(); ++k) {
+      BottomLevelNode n = sub[k];
+      if (n.count == 0) n.first = map(n.first);
+      nodes[map(k)] = n;
+    }
+  };
+  place(left, 1, left_rest);
+  place(right, 2, right_rest);
+  return nodes;
+}
 }  // namespace
 
 uint64_t bottom_level_size_bound(uint64_t cluster_count) {
@@ -89,138 +254,13 @@ std::vector<std::byte> build_bottom_level(std::span<const ClusterBox> clusters, 
   if (bottom_level_size_bound(n) > std::numeric_limits<uint32_t>::max()) return {};
 
   std::vector<BottomLevelNode> nodes;
-  nodes.reserve(n == 0 ? 0 : 2 * n - 1);
-  // Each task carries its node's bounds and centroid bounds, computed by the parent's
-  // binning pass, so every level costs one binning pass and one partition pass.
-  struct Pending {
-    Task task;
-    Box bounds, centroids;
-  };
-  std::vector<Pending> stack;
   if (n > 0) {
     Box bounds, centroids;
     for (const Item& it : items) {
       bounds.grow(it.box);
       centroids.grow_point(it.centroid);
     }
-    nodes.push_back({});
-    stack.push_back({{0, 0, uint32_t(n)}, bounds, centroids});
-  }
-  struct Bin {
-    Box box, centroids;
-    uint32_t count = 0;
-  };
-  while (!stack.empty()) {
-    Pending p = stack.back();
-    stack.pop_back();
-    const Task t = p.task;
-    const Box& bounds = p.bounds;
-    const Box& centroids = p.centroids;
-    BottomLevelNode& node = nodes[t.node];
-    for (int a = 0; a < 3; ++a) {
-      node.bounds_min[a] = bounds.lo[a];
-      node.bounds_max[a] = bounds.hi[a];
-    }
-    const uint32_t count = t.end - t.begin;
-    auto make_leaf = [&] {
-      nodes[t.node].first = t.begin;
-      nodes[t.node].count = count;
-    };
-    if (count == 1) {
-      make_leaf();
-      continue;
-    }
-    // One pass bins every item on all three axes.
-    std::array<std::array<Bin, kBins>, 3> bins;
-    float scale[3];
-    bool axis_ok[3];
-    for (int a = 0; a < 3; ++a) {
-      float extent = centroids.hi[a] - centroids.lo[a];
-      axis_ok[a] = extent > 0.0f && std::isfinite(extent);
-      scale[a] = axis_ok[a] ? float(kBins) / extent : 0.0f;
-    }
-    for (uint32_t i = t.begin; i < t.end; ++i) {
-      const Item& it = items[i];
-      for (int a = 0; a < 3; ++a) {
-        if (!axis_ok[a]) continue;
-        int b = std::min(kBins - 1, int((it.centroid[a] - centroids.lo[a]) * scale[a]));
-        Bin& bin = bins[a][b];
-        bin.box.grow(it.box);
-        bin.centroids.grow_point(it.centroid);
-        ++bin.count;
-      }
-    }
-    float best_cost = std::numeric_limits<float>::infinity();
-    int best_axis = -1, best_plane = 0;
-    for (int axis = 0; axis < 3; ++axis) {
-      if (!axis_ok[axis]) continue;
-      Box acc;
-      uint32_t acc_count = 0;
-      std::array<float, kBins> right_area{};
-      std::array<uint32_t, kBins> right_count{};
-      for (int b = kBins - 1; b > 0; --b) {
-        acc.grow(bins[axis][b].box);
-        acc_count += bins[axis][b].count;
-        right_area[b] = acc.area();
-        right_count[b] = acc_count;
-      }
-      Box left;
-      uint32_t left_count = 0;
-      for (int b = 0; b < kBins - 1; ++b) {
-        left.grow(bins[axis][b].box);
-        left_count += bins[axis][b].count;
-        if (left_count == 0 || right_count[b + 1] == 0) continue;
-        float cost = left.area() * float(left_count) + right_area[b + 1] * float(right_count[b + 1]);
-        if (cost < best_cost) {
-          best_cost = cost;
-          best_axis = axis;
-          best_plane = b;
-        }
-      }
-    }
-    const float parent_area = bounds.area();
-    uint32_t mid;
-    Box lb, lc, rb, rc;
-    if (best_axis >= 0) {
-      float split_cost = kTraversalCost + (parent_area > 0.0f && std::isfinite(parent_area)
-                                               ? kClusterCost * best_cost / parent_area
-                                               : kClusterCost * float(count));
-      if (count <= kBottomLevelMaxLeafSize && float(count) * kClusterCost <= split_cost) {
-        make_leaf();
-        continue;
-      }
-      const float lo = centroids.lo[best_axis], sc = scale[best_axis];
-      auto* first = items.data() + t.begin;
-      auto* last = items.data() + t.end;
-      auto* pivot = std::partition(first, last, [&](const Item& it) {
-        return std::min(kBins - 1, int((it.centroid[best_axis] - lo) * sc)) <= best_plane;
-      });
-      mid = uint32_t(pivot - items.data());
-      for (int b = 0; b < kBins; ++b) {
-        const Bin& bin = bins[best_axis][b];
-        (b <= best_plane ? lb : rb).grow(bin.box);
-        (b <= best_plane ? lc : rc).grow(bin.centroids);
-      }
-    } else {
-      // All centroids coincide (or are not finite): object median by input order.
-      if (count <= kBottomLevelMaxLeafSize) {
-        make_leaf();
-        continue;
-      }
-      mid = t.begin + count / 2;
-      for (uint32_t i = t.begin; i < t.end; ++i) {
-        (i < mid ? lb : rb).grow(items[i].box);
-        (i < mid ? lc : rc).grow_point(items[i].centroid);
-      }
-    }
-    uint32_t left_index = uint32_t(nodes.size());
-    nodes[t.node].first = left_index;
-    nodes[t.node].count = 0;
-    nodes.push_back({});
-    nodes.push_back({});
-    // Right pushed first so the left subtree is laid out first (depth-first order).
-    stack.push_back({{left_index + 1, mid, t.end}, rb, rc});
-    stack.push_back({{left_index, t.begin, mid}, lb, lc});
+    nodes = build_subtree(items, 0, uint32_t(n), bounds, centroids);
   }
 
   BottomLevelHeader h{};

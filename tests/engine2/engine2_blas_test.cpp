@@ -222,6 +222,47 @@ TEST(Engine2Blas, SameBytesOnOneAndTwoThreads) {
   EXPECT_EQ(r1.implicit_bytes_used, r2.implicit_bytes_used);
 }
 
+TEST(Engine2Blas, LargeBuildIsParallelAndStillDeterministic) {
+  // 60000 boxes: the top of the tree builds its halves on different threads.
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<float> u(0.0f, 1000.0f);
+  std::vector<ClusterBox> boxes(60000);
+  for (uint32_t i = 0; i < boxes.size(); ++i) {
+    float x = u(rng), y = u(rng), z = u(rng);
+    boxes[i] = {{x, y, z}, {x + 1 + u(rng) * 0.01f, y + 1, z + 1}, 0x10000ull * (i + 1), i, i};
+  }
+  std::vector<std::byte> one, two;
+  tbb::task_arena(1).execute([&] { one = build_bottom_level(boxes, uint32_t(boxes.size())); });
+  tbb::task_arena(2).execute([&] { two = build_bottom_level(boxes, uint32_t(boxes.size())); });
+  ASSERT_EQ(one, two);
+  auto h = read_bottom_level_header(one);
+  ASSERT_TRUE(h.header) << h.error;
+  // Every reference appears exactly once, every node box contains its children's.
+  std::vector<int> seen(boxes.size());
+  std::vector<BottomLevelNode> nodes(h.header->node_count);
+  std::memcpy(nodes.data(), one.data() + h.header->nodes_offset, nodes.size() * sizeof(BottomLevelNode));
+  for (const auto& n : nodes) {
+    if (n.count == 0) {
+      for (uint32_t c : {n.first, n.first + 1})
+        for (int a = 0; a < 3; ++a) {
+          EXPECT_LE(n.bounds_min[a], nodes[c].bounds_min[a]);
+          EXPECT_GE(n.bounds_max[a], nodes[c].bounds_max[a]);
+        }
+      continue;
+    }
+    for (uint32_t k = 0; k < n.count; ++k) {
+      ClusterReference r;
+      std::memcpy(&r, one.data() + h.header->references_offset + sizeof r * (n.first + k), sizeof r);
+      ++seen[r.reference_index];
+      for (int a = 0; a < 3; ++a) {
+        EXPECT_LE(n.bounds_min[a], boxes[r.reference_index].bounds_min[a]);
+        EXPECT_GE(n.bounds_max[a], boxes[r.reference_index].bounds_max[a]);
+      }
+    }
+  }
+  for (int s : seen) ASSERT_EQ(s, 1);
+}
+
 TEST(Engine2Blas, EmptyAndDegenerateInputs) {
   // No references: a valid empty BLAS that never hits.
   Rig rig;
