@@ -1,4 +1,5 @@
 // Moves of CLAS, templates and BLAS; references through old addresses become findings.
+#include "engine2_embree.h"
 #include "engine2_test_util.h"
 
 namespace clastrace::engine::test2 {
@@ -46,8 +47,9 @@ TEST(Engine2Move, MovedClasWorksAndOldAddressesBecomeFindings) {
     EXPECT_EQ(moved.addresses[i] % EngineProperties{}.clusterByteAlignment, 0u);
     EXPECT_EQ(rig.bytes(moved.addresses[i], moved.record.ops[i].dst_size), rig.bytes(clas[i], moved.record.ops[i].dst_size));
   }
-  // A BLAS over the new addresses hits; the old BLAS's references are stale.
+  // A BLAS over the new addresses traces like Embree; the old BLAS's references are stale.
   uint64_t new_blas = build_blas(rig, moved.addresses, &dir);
+  expect_matches_embree(rig, new_blas, m, 0, &dir);
   Ray r{{0, 0, 3}, 0.0f, {0, 0, -1}, 100.0f};
   std::vector<Finding> trace_findings;
   BottomLevelHit h = trace_bottom_level_closest(rig.memory, new_blas, r, 0, &dir, &trace_findings);
@@ -98,6 +100,7 @@ TEST(Engine2Move, MovedBlasAndTemplateWorkAtTheirNewAddress) {
   ExecutionRecord r = execute(s.cmd, rig.memory, o);
   ASSERT_TRUE(r.findings.empty()) << describe(r.findings);
   EXPECT_EQ(r.ops[0].dst_address, dst);
+  expect_matches_embree(rig, dst, m, 0, &dir);
   Ray ray{{0.1f, 0.2f, 3}, 0.0f, {0, 0, -1}, 100.0f};
   std::vector<Finding> f;
   BottomLevelHit moved_hit = trace_bottom_level_closest(rig.memory, dst, ray, 0, &dir, &f);
