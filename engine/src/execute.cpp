@@ -173,6 +173,26 @@ ExecutionRecord execute(const VkClusterAccelerationStructureCommandsInfoNV& comm
     return record;
   }
 
+  // Buffer usage (12304-12308), where the trace recorded it (usage 0: unknown, not checked).
+  auto check_usage = [&](uint64_t address, VkBufferUsageFlags bit, const char* vuid, const char* what) {
+    if (address == 0) return;
+    const MemoryRegion* region = memory.find_region(address);
+    if (region && region->usage != 0 && !(region->usage & bit))
+      top.finding(vuid, std::string(what) + " " + hex(address) + " lies in buffer '" + region->label +
+                            "', which was not created with the usage it requires",
+                  address);
+  };
+  check_usage(cmd.scratch, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT,
+              "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12304", "scratchData");
+  check_usage(cmd.src_infos.deviceAddress, VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR,
+              "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12305", "srcInfosArray");
+  check_usage(count_address, VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR,
+              "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12306", "srcInfosCount");
+  check_usage(cmd.dst_addresses.deviceAddress, VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR,
+              "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12307", "dstAddressesArray");
+  check_usage(cmd.implicit_data, VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR,
+              "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12308", "dstImplicitData");
+
   // The op count: min(count in memory, maxAccelerationStructureCount); address 0: the max.
   uint64_t count = input.maxAccelerationStructureCount;
   if (command.srcInfosCount != 0) {

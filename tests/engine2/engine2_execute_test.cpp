@@ -205,6 +205,31 @@ TEST(Engine2Execute, ImplicitOverlappingScratchIs12303) {
       << describe(r.findings);
 }
 
+TEST(Engine2Execute, BufferUsageRulesWhenTheTraceRecordedUsage) {
+  Rig rig;
+  ClusteredMesh m = icosphere_meshlets(2);
+  uint64_t infos = upload_cluster_infos(rig, m);
+  const uint32_t n = uint32_t(m.clusters.size());
+  // Buffers with recorded usage, each missing the bit its field requires.
+  rig.memory.add_region(0x600000000ull, 1 << 16, VK_BUFFER_USAGE_TRANSFER_DST_BIT, "scratch without STORAGE");
+  rig.memory.add_region(0x610000000ull, 1 << 20, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, "implicit without AS_STORAGE");
+  rig.memory.add_region(0x620000000ull, 1 << 12, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, "count without BUILD_INPUT");
+  CommandSetup s;
+  setup_command(s, rig, VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV, kImplicit, n, infos);
+  s.cmd.scratchData = 0x600000000ull;
+  s.cmd.dstImplicitData = 0x610000000ull;
+  rig.memory.write<uint32_t>(0x620000000ull, n, {"t", -1});
+  s.cmd.srcInfosCount = 0x620000000ull;
+  ExecutionRecord r = execute(s.cmd, rig.memory);
+  for (const char* vuid : {"VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12304",
+                           "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12306",
+                           "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12308"})
+    EXPECT_EQ(count_rule(r.findings, vuid), 1u) << vuid << "\n" << describe(r.findings);
+  // Unknown usage (0) is never a finding: the inputs region above.
+  EXPECT_EQ(count_rule(r.findings, "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12305"), 0u);
+  EXPECT_TRUE(r.ops[0].executed);
+}
+
 TEST(Engine2Execute, BadOpTypeModeAndMissingInputAreFindings) {
   Rig rig;
   CommandSetup s;
