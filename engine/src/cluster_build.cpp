@@ -260,7 +260,10 @@ bool decode_triangle_info(const MemoryImage& memory, const TriangleInfoView& inf
   }
 
   // Geometry index and flags: base + per-triangle index; flags of both.
+  constexpr uint32_t kReservedBits = 0x1F000000u;  // reserved:5 above geometryIndex:24
+  constexpr const char* kReservedRule = "VUID-VkClusterAccelerationStructureGeometryIndexAndGeometryFlagsNV-reserved-10487";
   const uint32_t base = info.baseGeometryIndexAndFlags;
+  if (base & kReservedBits) r.add(kReservedRule, "baseGeometryIndexAndGeometryFlags.reserved is not 0");
   uint32_t max_index = base & 0xFFFFFFu;
   d.has_geometry = info.geometryIndexAndFlagsBuffer != 0;
   if (d.has_geometry) {
@@ -268,12 +271,13 @@ bool decode_triangle_info(const MemoryImage& memory, const TriangleInfoView& inf
                                       {"geometryIndexAndFlagsBuffer", r.op_index});
     const uint32_t gstep = info.geometryIndexAndFlagsBufferStride ? info.geometryIndexAndFlagsBufferStride : 4;
     uint32_t unique[8];
-    uint32_t n_unique = 0;
+    uint32_t n_unique = 0, reserved_set = 0;
     bool many = false;
     max_index = 0;
     for (uint32_t t = 0; t < T; ++t) {
       uint32_t g;
       std::memcpy(&g, gb.data() + size_t(t) * gstep, 4);
+      reserved_set += (g & kReservedBits) != 0;
       const uint32_t index = (base & 0xFFFFFFu) + (g & 0xFFFFFFu);
       const uint32_t flags = (base | g) & 0xE0000000u;
       max_index = std::max(max_index, index);
@@ -283,6 +287,9 @@ bool decode_triangle_info(const MemoryImage& memory, const TriangleInfoView& inf
         else unique[n_unique++] = index;
       }
     }
+    if (reserved_set)
+      r.add(kReservedRule, std::to_string(reserved_set) + " geometryIndexAndFlagsBuffer entries have reserved bits set",
+            info.geometryIndexAndFlagsBuffer);
     if (input.maxClusterUniqueGeometryCount && (many || n_unique > input.maxClusterUniqueGeometryCount))
       r.add(kRuleUniqueGeometryCount, "more unique geometry indices than maxClusterUniqueGeometryCount " +
                                           std::to_string(input.maxClusterUniqueGeometryCount));

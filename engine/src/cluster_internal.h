@@ -112,6 +112,20 @@ inline float unpack_coordinate(const std::byte* section, uint32_t section_size, 
   return f;
 }
 
+// The three coordinates of vertex `v` from a packed section (bits 1..31).
+inline void unpack_vertex(const std::byte* section, uint32_t avail, uint32_t bits, uint32_t truncate, uint32_t v, float xyz[3]) {
+  const uint64_t mask = (uint64_t(1) << bits) - 1u;
+  uint64_t bitpos = uint64_t(v) * 3u * bits;
+  for (int k = 0; k < 3; ++k, bitpos += bits) {
+    const uint32_t byte = uint32_t(bitpos >> 3);
+    uint64_t word = 0;
+    const uint32_t left = avail - byte;
+    std::memcpy(&word, section + byte, left < 8 ? left : 8);
+    const uint32_t pattern = uint32_t((word >> (bitpos & 7)) & mask) << truncate;
+    std::memcpy(&xyz[k], &pattern, 4);
+  }
+}
+
 inline uint32_t packed_section_size(uint32_t vertex_count, uint32_t bits) {
   return uint32_t((uint64_t(vertex_count) * 3 * bits + 7) / 8);
 }

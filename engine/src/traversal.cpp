@@ -110,7 +110,10 @@ Hit traverse_impl(const ClasView& clas, const Ray& ray, uint32_t ray_flags) {
   const std::byte* nodes = base + h.nodes_offset;
   const std::byte* pos = base + h.positions_offset;
   const std::byte* idx = base + h.indices_offset;
-  const uint32_t pos_size = detail::packed_section_size(h.vertex_count, h.position_bits);
+  // Bytes readable from the positions section on: the rest of the object. Reading past the
+  // section's last coordinate (into the next section) only fetches bits the mask drops,
+  // and spares the short-read path for all but the object's last bytes.
+  const uint32_t pos_size = h.object_size - h.positions_offset;
   const bool unbounded = h.header_flags & kUnboundedNodes;
   const detail::QuantFrame frame = detail::make_frame(h.bounds_min, h.bounds_max);
   const bool first_hit = kAny || (ray_flags & kRayFlagTerminateOnFirstHit);
@@ -152,8 +155,11 @@ Hit traverse_impl(const ClasView& clas, const Ray& ray, uint32_t ray_flags) {
           if constexpr (kPlainFloats) {
             std::memcpy(v[k], pos + 12 * size_t(vi), 12);
           } else {
-            for (int a = 0; a < 3; ++a)
-              v[k][a] = detail::unpack_coordinate(pos, pos_size, h.position_bits, h.position_truncate_bits, 3 * vi + a);
+            if (h.position_bits == 0) {
+              v[k][0] = v[k][1] = v[k][2] = 0.0f;
+            } else {
+              detail::unpack_vertex(pos, pos_size, h.position_bits, h.position_truncate_bits, vi, v[k]);
+            }
           }
         }
         TriangleHit th;

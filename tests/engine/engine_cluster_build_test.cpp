@@ -210,6 +210,14 @@ TEST(ClusterBuildRules, EachRuleFailsAndPasses) {
       {"VUID-VkClusterAccelerationStructureTriangleClusterInputNV-minPositionTruncateBitCount-10442",
        [](Arena&, BuildInfo&, Input& in, EngineProperties&) { in.minPositionTruncateBitCount = 33; },
        {"VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-positionTruncateBitCount-10493"}},
+      {"VUID-VkClusterAccelerationStructureGeometryIndexAndGeometryFlagsNV-reserved-10487",
+       [](Arena&, BuildInfo& i, Input&, EngineProperties&) { i.baseGeometryIndexAndGeometryFlags.reserved = 1; }},
+      {"VUID-VkClusterAccelerationStructureGeometryIndexAndGeometryFlagsNV-reserved-10487",
+       [](Arena& a, BuildInfo& i, Input&, EngineProperties&) {
+         std::vector<uint32_t> g(32, 0);
+         g[31] = 0x01000000u;
+         i.geometryIndexAndFlagsBuffer = a.put_vec(g);
+       }},
       {kRuleCountAboveInput, [](Arena&, BuildInfo&, Input& in, EngineProperties&) { in.maxClusterTriangleCount = 10; }},
       {kRuleGeometryIndexAboveInput,
        [](Arena&, BuildInfo& i, Input& in, EngineProperties&) {
@@ -399,6 +407,38 @@ TEST(ClusterBuildRules, ClusterWithoutVerticesHasOnlyInactiveTriangles) {
   ASSERT_TRUE(empty.ok);
   EXPECT_TRUE(empty.findings.empty());
   EXPECT_EQ(empty.bytes.size(), sizeof(ObjectHeader));
+}
+
+}  // namespace
+}  // namespace clastrace::engine
+
+namespace clastrace::engine {
+namespace {
+
+TEST(EngineProperties, CapturedPropertiesOverrideDefaultsAndDriveTheRules) {
+  VkPhysicalDeviceClusterAccelerationStructurePropertiesNV vk = EngineProperties::nvidia_default().to_vk();
+  EXPECT_EQ(vk.sType, VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_PROPERTIES_NV);
+  EXPECT_EQ(vk.maxTrianglesPerCluster, 256u);
+  EXPECT_EQ(vk.clusterByteAlignment, 128u);
+  vk.maxTrianglesPerCluster = 64;
+  vk.clusterByteAlignment = 256;
+  vk.clusterTemplateByteAlignment = 64;
+  const EngineProperties p = EngineProperties::from_vk(vk);
+  EXPECT_EQ(p.maxTrianglesPerCluster, 64u);
+  EXPECT_EQ(object_alignment(false, p), 256u);
+  EXPECT_EQ(object_alignment(true, p), 64u);
+  const auto round = p.to_vk();
+  EXPECT_EQ(std::memcmp(&round.maxVerticesPerCluster, &vk.maxVerticesPerCluster, 32), 0);
+  // A 72-triangle cluster is fine by default and breaks 10489 under the captured limit.
+  test::Arena arena;
+  const test::Mesh m = test::grid(6);
+  auto info = test::cluster_info(arena, m);
+  auto input = test::default_input();
+  input.maxClusterTriangleCount = 64;
+  EXPECT_FALSE(has_rule(build_triangle_cluster(arena.memory, info, test::default_input(), EngineProperties{}, 0).findings,
+                        "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-triangleCount-10489"));
+  EXPECT_TRUE(has_rule(build_triangle_cluster(arena.memory, info, input, p, 0).findings,
+                       "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-triangleCount-10489"));
 }
 
 }  // namespace

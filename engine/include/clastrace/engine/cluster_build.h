@@ -7,6 +7,23 @@
 // counts beyond the format, a missing template) returns ok == false and no bytes; rule
 // breaks the engine can still build through (e.g. an index >= vertexCount, which becomes
 // an inactive triangle) are findings on an ok object.
+//
+// Semantics the spec leaves implicit, as the engine applies them:
+// - a triangle's geometry index is baseGeometryIndexAndGeometryFlags.geometryIndex plus
+//   its geometryIndexAndFlagsBuffer entry's index (VUID ...-baseGeometryIndex-10496 speaks
+//   of "the values in baseGeometryIndex and geometryIndexBuffer"); its flags are the OR of
+//   both; without the buffer the base applies to every triangle;
+// - index values >= vertexCount make their triangle inactive (finding
+//   CLASTRACE-index-out-of-range); NaN coordinates (after truncation) make it inactive;
+// - vertexBufferStride must be a multiple of the vertex format's component size (the
+//   rule VUID ...-vertexBufferStride-10495 states against "vertexFormat", read as the
+//   acceleration-structure rule for vertexStride);
+// - opacityMicromapIndexType is checked only when an opacity micromap array or index
+//   buffer is given (applications leave it 0 otherwise);
+// - without opacityMicromapIndexBuffer, triangle i uses micromap index i (spec).
+// - instantiation: clusterID = template clusterID + clusterIdOffset (mod 2^32);
+//   geometryIndexOffset is a signed 24-bit offset; positions are truncated with the
+//   template's positionTruncateBitCount.
 #ifndef CLASTRACE_ENGINE_CLUSTER_BUILD_H
 #define CLASTRACE_ENGINE_CLUSTER_BUILD_H
 
@@ -98,7 +115,10 @@ inline uint32_t object_alignment(bool is_template, const EngineProperties& prope
 }
 
 // Upper bound of one object's size for the given input maxima (what
-// vkGetClusterAccelerationStructureBuildSizesNV sizes implicit destinations with).
+// vkGetClusterAccelerationStructureBuildSizesNV sizes implicit destinations with). It
+// holds for inputs within those maxima: an info that breaks ...-positionTruncateBitCount-10493
+// (fewer bits truncated than minPositionTruncateBitCount) or exceeds the maxima (finding
+// CLASTRACE-count-above-triangle-cluster-input) can produce a larger object.
 uint64_t max_cluster_object_size(const VkClusterAccelerationStructureTriangleClusterInputNV& input,
                                  const EngineProperties& properties, bool is_template);
 

@@ -43,6 +43,8 @@ struct MemoryFault : std::exception {
   const char* what() const noexcept override { return message.c_str(); }
 };
 
+// Const members (find_region, read_bytes, read, read_array) only look up and may run
+// concurrently from many threads; add_region and writes need exclusive access.
 class MemoryImage {
  public:
   // Adds a zero-filled region. Throws MemoryFault on size 0, on base + size wrapping
