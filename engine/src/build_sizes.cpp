@@ -25,8 +25,9 @@ uint64_t align_up_sat(uint64_t v, uint64_t alignment) {
 
 uint64_t scratch_bytes_for_ops(uint64_t op_count) { return sat_mul(op_count, 16); }
 
-uint64_t destination_alignment(VkClusterAccelerationStructureOpTypeNV op_type,
-                               VkClusterAccelerationStructureTypeNV move_type, const EngineProperties& p) {
+namespace {
+uint64_t alignment_for(VkClusterAccelerationStructureOpTypeNV op_type, VkClusterAccelerationStructureTypeNV move_type,
+                       const EngineProperties& p) {
   auto by_type = [&](VkClusterAccelerationStructureTypeNV t) -> uint64_t {
     switch (t) {
       case VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_CLUSTERS_BOTTOM_LEVEL_NV: return p.clusterBottomLevelByteAlignment;
@@ -44,6 +45,13 @@ uint64_t destination_alignment(VkClusterAccelerationStructureOpTypeNV op_type,
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV: return 4;  // uint32 indices
     default: return 1;
   }
+}
+}  // namespace
+
+// A captured properties struct may hold 0 (or a non power of two): never divide by 0.
+uint64_t destination_alignment(VkClusterAccelerationStructureOpTypeNV op_type,
+                               VkClusterAccelerationStructureTypeNV move_type, const EngineProperties& p) {
+  return std::max<uint64_t>(1, alignment_for(op_type, move_type, p));
 }
 
 BuildSizes cluster_build_sizes(const VkClusterAccelerationStructureInputInfoNV& info, const EngineProperties& p) {

@@ -230,6 +230,22 @@ TEST(Engine2Execute, BufferUsageRulesWhenTheTraceRecordedUsage) {
   EXPECT_TRUE(r.ops[0].executed);
 }
 
+TEST(Engine2Execute, ZeroAlignmentsInCapturedPropertiesDoNotCrash) {
+  Rig rig;
+  ClusteredMesh m = icosphere_meshlets(2);
+  uint64_t infos = upload_cluster_infos(rig, m);
+  CommandSetup s;
+  setup_command(s, rig, kBuild, kImplicit, uint32_t(m.clusters.size()), infos);
+  ExecuteOptions o;
+  o.properties.clusterByteAlignment = 0;
+  o.properties.clusterScratchByteAlignment = 0;
+  ExecutionRecord r = execute(s.cmd, rig.memory, o);
+  EXPECT_TRUE(r.findings.empty()) << describe(r.findings);
+  EXPECT_TRUE(r.ops[0].executed);
+  auto in = s.cmd.input;
+  EXPECT_GT(cluster_build_sizes(in, o.properties).acceleration_structure_size, 0u);
+}
+
 TEST(Engine2Execute, BadOpTypeModeAndMissingInputAreFindings) {
   Rig rig;
   CommandSetup s;
