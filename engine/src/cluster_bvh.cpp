@@ -1,10 +1,15 @@
-// BVH over the triangles of one cluster (at most 256): split at the middle of the
-// centroid bounds along their longest axis, median split when that leaves a side empty,
-// leaves of up to kMaxLeafSize triangles. No allocation: everything lives in BvhScratch.
+// BVH over the triangles of one cluster (at most 256): object-median splits along the
+// longest axis of the centroid bounds, rounded to whole leaves of kMaxLeafSize triangles.
+// No allocation: everything lives in BvhScratch.
 #include "cluster_internal.h"
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 namespace clastrace::engine::detail {
 
@@ -30,12 +35,12 @@ void build_bvh(const float* positions, const uint32_t* indices, const uint8_t* a
       const float hi = std::max(a[k], std::max(b[k], c[k]));
       s.tri_min[t][k] = lo;
       s.tri_max[t][k] = hi;
-      // Half-sum avoids overflow near FLT_MAX.
       // Half-sum avoids overflow near FLT_MAX; -inf..+inf gives NaN, which must not
       // reach the comparisons below.
-      const float c = lo * 0.5f + hi * 0.5f;
-      s.centroid[t][k] = c == c ? c : 0.0f;
+      const float m = lo * 0.5f + hi * 0.5f;
+      s.centroid[t][k] = m == m ? m : 0.0f;
     }
+    s.tri_min[t][3] = s.tri_max[t][3] = s.centroid[t][3] = 0.0f;
   }
 
   Task stack[kMaxNodes];
@@ -45,22 +50,41 @@ void build_bvh(const float* positions, const uint32_t* indices, const uint8_t* a
   while (sp > 0) {
     const Task task = stack[--sp];
     BvhScratch::Node& node = s.nodes[task.node];
-    // Accumulate in locals: writing through `node` each step defeats vectorization.
-    float lo0 = INFINITY, lo1 = INFINITY, lo2 = INFINITY, hi0 = -INFINITY, hi1 = -INFINITY, hi2 = -INFINITY;
-    float cl0 = INFINITY, cl1 = INFINITY, cl2 = INFINITY, ch0 = -INFINITY, ch1 = -INFINITY, ch2 = -INFINITY;
+    float clo[4], chi[4];
+#if defined(__SSE2__)
+    __m128 lo = _mm_set1_ps(INFINITY), hi = _mm_set1_ps(-INFINITY), cl = lo, ch = hi;
     for (uint32_t i = task.begin; i < task.end; ++i) {
       const uint32_t t = s.perm[i];
-      const float* mn = s.tri_min[t];
-      const float* mx = s.tri_max[t];
-      const float* c = s.centroid[t];
-      lo0 = std::min(lo0, mn[0]); lo1 = std::min(lo1, mn[1]); lo2 = std::min(lo2, mn[2]);
-      hi0 = std::max(hi0, mx[0]); hi1 = std::max(hi1, mx[1]); hi2 = std::max(hi2, mx[2]);
-      cl0 = std::min(cl0, c[0]); cl1 = std::min(cl1, c[1]); cl2 = std::min(cl2, c[2]);
-      ch0 = std::max(ch0, c[0]); ch1 = std::max(ch1, c[1]); ch2 = std::max(ch2, c[2]);
+      lo = _mm_min_ps(lo, _mm_load_ps(s.tri_min[t]));
+      hi = _mm_max_ps(hi, _mm_load_ps(s.tri_max[t]));
+      const __m128 c = _mm_load_ps(s.centroid[t]);
+      cl = _mm_min_ps(cl, c);
+      ch = _mm_max_ps(ch, c);
     }
-    node.lo[0] = lo0; node.lo[1] = lo1; node.lo[2] = lo2;
-    node.hi[0] = hi0; node.hi[1] = hi1; node.hi[2] = hi2;
-    const float clo[3] = {cl0, cl1, cl2}, chi[3] = {ch0, ch1, ch2};
+    float lo4[4], hi4[4];
+    _mm_storeu_ps(lo4, lo);
+    _mm_storeu_ps(hi4, hi);
+    _mm_storeu_ps(clo, cl);
+    _mm_storeu_ps(chi, ch);
+    for (int k = 0; k < 3; ++k) {
+      node.lo[k] = lo4[k];
+      node.hi[k] = hi4[k];
+    }
+#else
+    for (int k = 0; k < 3; ++k) {
+      node.lo[k] = clo[k] = INFINITY;
+      node.hi[k] = chi[k] = -INFINITY;
+    }
+    for (uint32_t i = task.begin; i < task.end; ++i) {
+      const uint32_t t = s.perm[i];
+      for (int k = 0; k < 3; ++k) {
+        node.lo[k] = std::min(node.lo[k], s.tri_min[t][k]);
+        node.hi[k] = std::max(node.hi[k], s.tri_max[t][k]);
+        clo[k] = std::min(clo[k], s.centroid[t][k]);
+        chi[k] = std::max(chi[k], s.centroid[t][k]);
+      }
+    }
+#endif
     const uint32_t count = task.end - task.begin;
     if (count <= kMaxLeafSize) {
       node.first = task.begin;
@@ -74,17 +98,24 @@ void build_bvh(const float* positions, const uint32_t* indices, const uint8_t* a
         best = chi[k] - clo[k];
         axis = k;
       }
-    const float split = clo[axis] * 0.5f + chi[axis] * 0.5f;
-    uint8_t* first = s.perm + task.begin;
-    uint8_t* last = s.perm + task.end;
-    uint8_t* mid = std::partition(first, last, [&](uint8_t t) { return s.centroid[t][axis] < split; });
-    if (mid == first || mid == last) {
-      mid = first + count / 2;
-      std::nth_element(first, mid, last, [&](uint8_t x, uint8_t y) {
-        if (s.centroid[x][axis] != s.centroid[y][axis]) return s.centroid[x][axis] < s.centroid[y][axis];
-        return x < y;  // deterministic order for equal centroids
-      });
+    // Object-median split rounded to whole leaves: left gets half of the leaves (full ones),
+    // so the tree has the fewest nodes (2 * ceil(n / 4) - 1) and stays balanced. Keys pack
+    // the centroid's order-preserving bit pattern with the triangle index, which makes the
+    // selection branch-light and deterministic on ties.
+    const uint32_t leaves = (count + kMaxLeafSize - 1) / kMaxLeafSize;
+    const uint32_t left_count = kMaxLeafSize * ((leaves + 1) / 2);
+    uint64_t keys[kMaxTriangles];
+    for (uint32_t i = 0; i < count; ++i) {
+      const uint32_t t = s.perm[task.begin + i];
+      uint32_t u;
+      std::memcpy(&u, &s.centroid[t][axis], 4);
+      u ^= (u >> 31) ? 0xFFFFFFFFu : 0x80000000u;
+      keys[i] = (uint64_t(u) << 8) | t;
     }
+    std::nth_element(keys, keys + left_count, keys + count);
+    for (uint32_t i = 0; i < count; ++i) s.perm[task.begin + i] = uint8_t(keys[i] & 0xFF);
+    uint8_t* first = s.perm + task.begin;
+    uint8_t* mid = first + left_count;
     const uint16_t left = uint16_t(s.node_count);
     s.node_count += 2;
     node.first = left;

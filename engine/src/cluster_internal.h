@@ -39,9 +39,10 @@ struct EncodeInput {
 
 // Scratch for the BVH build, sized once for the largest cluster.
 struct BvhScratch {
-  float tri_min[kMaxTriangles][3];
-  float tri_max[kMaxTriangles][3];
-  float centroid[kMaxTriangles][3];
+  // xyz + padding, 16-byte aligned for 4-wide min/max.
+  alignas(16) float tri_min[kMaxTriangles][4];
+  alignas(16) float tri_max[kMaxTriangles][4];
+  alignas(16) float centroid[kMaxTriangles][4];
   uint8_t perm[kMaxTriangles];
   struct Node {
     float lo[3], hi[3];
