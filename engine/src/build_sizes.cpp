@@ -54,6 +54,38 @@ uint64_t destination_alignment(VkClusterAccelerationStructureOpTypeNV op_type,
   return std::max<uint64_t>(1, alignment_for(op_type, move_type, p));
 }
 
+namespace {
+
+// Sum of the objects of `count` clusters whose triangles and vertices add up to at most
+// the input's totals. The per-object size is probed from Engine I's bound as an affine
+// worst case c + a*T + b*V (checked on a grid; if the format ever stops being affine
+// the per-object bound times count is used alone).
+uint64_t clusters_total_bound(uint64_t count, const VkClusterAccelerationStructureTriangleClusterInputNV& in,
+                              const EngineProperties& p, bool is_template) {
+  const uint64_t one = max_cluster_object_size(in, p, is_template);
+  const uint64_t per_object_total = sat_mul(count, one);
+  auto f = [&](uint32_t t, uint32_t v) {
+    VkClusterAccelerationStructureTriangleClusterInputNV q = in;
+    q.maxClusterTriangleCount = t;
+    q.maxClusterVertexCount = v;
+    return max_cluster_object_size(q, p, is_template);
+  };
+  const uint32_t max_t = std::min<uint32_t>(in.maxClusterTriangleCount, EngineProperties::kFormatMaxTriangles);
+  const uint32_t max_v = std::min<uint32_t>(in.maxClusterVertexCount, EngineProperties::kFormatMaxVertices);
+  const uint64_t c = f(0, 0) + 8;  // + rounding slack
+  uint64_t a = 0, b = 0;
+  for (uint32_t t = 1; t <= max_t; ++t) a = std::max(a, (f(t, 0) - f(0, 0) + t - 1) / t);
+  for (uint32_t v = 1; v <= max_v; ++v) b = std::max(b, (f(0, v) - f(0, 0) + v - 1) / v);
+  for (uint32_t t = 0; t <= max_t; t += std::max<uint32_t>(1, max_t / 16))
+    for (uint32_t v = 0; v <= max_v; v += std::max<uint32_t>(1, max_v / 16))
+      if (f(t, v) > c + a * t + b * v) return per_object_total;
+  const uint64_t tris = std::min<uint64_t>(in.maxTotalTriangleCount, sat_mul(count, max_t));
+  const uint64_t verts = std::min<uint64_t>(in.maxTotalVertexCount, sat_mul(count, max_v));
+  return std::min(per_object_total, sat_add(sat_mul(count, c), sat_add(sat_mul(a, tris), sat_mul(b, verts))));
+}
+
+}  // namespace
+
 BuildSizes cluster_build_sizes(const VkClusterAccelerationStructureInputInfoNV& info, const EngineProperties& p) {
   BuildSizes s;
   const uint64_t count = info.maxAccelerationStructureCount;
@@ -109,7 +141,7 @@ BuildSizes cluster_build_sizes(const VkClusterAccelerationStructureInputInfoNV& 
       } else {
         bool is_template = info.opType == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV;
         one = max_cluster_object_size(*in, p, is_template);
-        implicit = sat_mul(count, one);
+        implicit = clusters_total_bound(count, *in, p, is_template);
       }
       break;
     }
