@@ -21,38 +21,43 @@ constexpr int kEventSlots = 16;
 StageMask source_scope_of(StageMask m) { return source_scope(m) & ~kEventStageBits; }
 StageMask destination_scope_of(StageMask m) { return destination_scope(m) & ~kEventStageBits; }
 
-// The (stage, access) pairs a write was made visible to, as a union of a few rectangles.
+// The (stage, access) pairs a write was made visible to, as a union of rectangles
+// (destination stages x destination accesses of the barriers that made it visible). Almost
+// always one or two; more spill to the heap rather than merge, which would hide hazards.
 struct Visibility {
     struct Rect {
         StageMask stages;
         AccessMask accesses;
     };
-    std::array<Rect, 3> rects{};
-    uint8_t count = 0;
+    std::array<Rect, 2> inline_rects{};
+    uint8_t inline_count = 0;
+    std::vector<Rect> more;
 
-    // Returns false when rectangles had to be merged (an over-approximation).
+    std::size_t size() const { return inline_count + more.size(); }
+    const Rect& at(std::size_t i) const { return i < inline_count ? inline_rects[i] : more[i - inline_count]; }
+    Rect& at(std::size_t i) { return i < inline_count ? inline_rects[i] : more[i - inline_count]; }
+
+    // Returns true when the rectangle went to the heap.
     bool add(StageMask stages, AccessMask accesses) {
-        if (!stages || !accesses) return true;
-        for (uint8_t i = 0; i < count; ++i) {
-            Rect& r = rects[i];
-            if ((r.stages & stages) == stages && (r.accesses & accesses) == accesses) return true;
-            if (r.stages == stages) { r.accesses |= accesses; return true; }
-            if (r.accesses == accesses) { r.stages |= stages; return true; }
+        if (!stages || !accesses) return false;
+        for (std::size_t i = 0; i < size(); ++i) {
+            Rect& r = at(i);
+            if ((r.stages & stages) == stages && (r.accesses & accesses) == accesses) return false;
+            if (r.stages == stages) { r.accesses |= accesses; return false; }
+            if (r.accesses == accesses) { r.stages |= stages; return false; }
         }
-        if (count < rects.size()) {
-            rects[count++] = {stages, accesses};
-            return true;
+        if (inline_count < inline_rects.size()) {
+            inline_rects[inline_count++] = {stages, accesses};
+            return false;
         }
-        rects[count - 1].stages |= stages;
-        rects[count - 1].accesses |= accesses;
-        return false;
+        more.push_back({stages, accesses});
+        return true;
     }
     bool covers(StageMask stage, AccessMask accesses) const {
         for (AccessMask m = accesses; m; m &= m - 1) {
-            AccessMask bit = m & (~m + 1);
+            const AccessMask bit = m & (~m + 1);
             bool found = false;
-            for (uint8_t i = 0; i < count && !found; ++i)
-                found = (rects[i].stages & stage) && (rects[i].accesses & bit);
+            for (std::size_t i = 0; i < size() && !found; ++i) found = (at(i).stages & stage) && (at(i).accesses & bit);
             if (!found) return false;
         }
         return true;
@@ -129,6 +134,11 @@ struct Queue {
     uint32_t imports_base = 0;
     Clock known;
     uint64_t complete = 0;  // accesses with a smaller tag finished and were waited for by the host
+    // Absolute log positions, ascending. A "full" entry is a global barrier from every device
+    // stage and write to every device stage and access: it subsumes everything before it.
+    // A "special" entry can add what a full barrier does not (host visibility, event bits).
+    std::vector<uint32_t> full_positions;
+    std::vector<uint32_t> special_positions;
     uint32_t log_end() const { return log_base + uint32_t(log.size()); }
 };
 
@@ -247,8 +257,8 @@ struct SyncModel::State {
         }
         s.chain |= add_chain;
         s.avail |= add_avail;
-        for (uint8_t i = 0; i < add_visible.count; ++i)
-            if (!s.visible.add(add_visible.rects[i].stages, add_visible.rects[i].accesses)) ++stats.visibility_merges;
+        for (std::size_t i = 0; i < add_visible.size(); ++i)
+            stats.visibility_spills += s.visible.add(add_visible.at(i).stages, add_visible.at(i).accesses);
     }
 
     void apply_event_set(const Queue& q, const LogEntry& e, ChainState& s, const Record& r, bool home,
@@ -287,8 +297,8 @@ struct SyncModel::State {
         }
         s.chain |= add_chain;
         s.avail |= add_avail;
-        for (uint8_t i = 0; i < add_visible.count; ++i)
-            if (!s.visible.add(add_visible.rects[i].stages, add_visible.rects[i].accesses)) ++stats.visibility_merges;
+        for (std::size_t i = 0; i < add_visible.size(); ++i)
+            stats.visibility_spills += s.visible.add(add_visible.at(i).stages, add_visible.at(i).accesses);
     }
 
     void apply_entry(const Queue& q, uint32_t pos, ChainState& s, const Record& r, bool home, uint64_t seg_begin,
@@ -305,8 +315,7 @@ struct SyncModel::State {
                 s.chain |= im.dst_scope;
                 if (r.is_write) {
                     s.avail |= im.dst_scope;
-                    if (!s.visible.add(im.dst_scope, all_read_accesses() | all_write_accesses()))
-                        ++stats.visibility_merges;
+                    s.visible.add(im.dst_scope, all_read_accesses() | all_write_accesses());
                 }
             }
             break;
@@ -314,11 +323,49 @@ struct SyncModel::State {
         }
     }
 
+    static bool settled(const Record& r) {
+        const StageMask device = all_device_stages();
+        if ((r.sync.chain & device) != device) return false;
+        if (!r.is_write) return true;
+        if ((r.sync.avail & device) != device) return false;
+        const AccessMask all = all_read_accesses() | all_write_accesses();
+        for (std::size_t i = 0; i < r.sync.visible.size(); ++i) {
+            const Visibility::Rect& rect = r.sync.visible.at(i);
+            if ((rect.stages & device) == device && (rect.accesses & all) == all) return true;
+        }
+        return false;
+    }
+    static void apply_full(Record& r) {
+        const StageMask device = all_device_stages();
+        r.sync.chain |= device;
+        if (!r.is_write) return;
+        r.sync.avail |= device;
+        r.sync.visible.add(device, all_read_accesses() | all_write_accesses());
+    }
+
+    // Brings a record's chain state up to the end of its queue's log. Runs of ordinary
+    // entries are skipped once the record is settled, or jumped over to the last full
+    // barrier among them; only special entries are always applied.
     void catch_up(Record& r, uint64_t seg_begin, uint64_t seg_end) {
         if (r.queue == kHostSlot || r.completed) return;
         const Queue& q = queues[r.queue];
         const uint32_t end = q.log_end();
-        for (uint32_t pos = r.log_pos; pos < end; ++pos) apply_entry(q, pos, r.sync, r, true, seg_begin, seg_end);
+        uint32_t pos = r.log_pos;
+        while (pos < end) {
+            auto sp = std::lower_bound(q.special_positions.begin(), q.special_positions.end(), pos);
+            const uint32_t next_special = sp == q.special_positions.end() ? end : *sp;
+            if (!settled(r)) {
+                auto f = std::lower_bound(q.full_positions.begin(), q.full_positions.end(), next_special);
+                if (f != q.full_positions.begin() && *(f - 1) >= pos) {
+                    apply_full(r);
+                    ++stats.log_entries_applied;
+                    pos = *(f - 1) + 1;
+                }
+                for (; pos < next_special && !settled(r); ++pos) apply_entry(q, pos, r.sync, r, true, seg_begin, seg_end);
+            }
+            pos = next_special;
+            if (pos < end) apply_entry(q, pos++, r.sync, r, true, seg_begin, seg_end);
+        }
         r.log_pos = end;
     }
 
@@ -474,6 +521,17 @@ struct SyncModel::State {
             ++it;
         }
         for (const Finding& f : found) emit(f, b);
+        if (b.is_write) {
+            // Every segment in the range now holds just this write: one segment is enough.
+            // (Without this, overlapping writes would fragment memory byte by byte.)
+            auto first = segments.find(begin), last = segments.lower_bound(end);
+            if (std::next(first) != last) {
+                Segment merged = std::move(first->second);
+                merged.end = end;
+                segments.erase(first, last);
+                segments.emplace(begin, std::move(merged));
+            }
+        }
         stats.segments = segments.size();
         stats.peak_segments = std::max<uint64_t>(stats.peak_segments, segments.size());
     }
@@ -556,6 +614,18 @@ struct SyncModel::State {
         e.event_bits = event_bits;
         e.v1_event = v1;
         if (e.count == 0 && kind == EntryKind::kBarrier) return;
+        const StageMask device = all_device_stages();
+        const AccessMask all = all_read_accesses() | all_write_accesses();
+        bool special = kind == EntryKind::kEventSet, full = false;
+        for (uint32_t i = 0; i < e.count; ++i) {
+            const LoggedBarrier& b = q.pool[e.first + i - q.pool_base];
+            special = special || (b.dst_scope & ~device);
+            full = full || (kind == EntryKind::kBarrier && b.global && (b.src_scope & device) == device &&
+                            (b.dst_scope & device) == device && (b.src_atoms & all_write_accesses()) == all_write_accesses() &&
+                            (b.dst_atoms & all) == all);
+        }
+        if (special) q.special_positions.push_back(q.log_end());
+        else if (full) q.full_positions.push_back(q.log_end());
         q.log.push_back(e);
     }
 
@@ -627,6 +697,8 @@ struct SyncModel::State {
             }
             q.log.erase(q.log.begin(), q.log.begin() + drop);
             q.log_base += drop;
+            std::erase_if(q.full_positions, [&](uint32_t p) { return p < q.log_base; });
+            std::erase_if(q.special_positions, [&](uint32_t p) { return p < q.log_base; });
             q.pool.erase(q.pool.begin(), q.pool.begin() + (pool_keep - q.pool_base));
             q.pool_base = pool_keep;
             // Imports also serve the binary search; only those wholly before the kept log go.

@@ -38,7 +38,7 @@ struct SyncStats {
     uint64_t hazards_over_cap = 0;      // distinct hazards beyond SyncOptions::max_reports
     uint64_t unsatisfied_waits = 0;     // semaphore waits with no signal seen yet (no ordering assumed)
     uint64_t event_slot_reuses = 0;     // >16 events pending at once: the oldest loses its ordering
-    uint64_t visibility_merges = 0;     // visibility scopes merged (may hide a hazard; should stay 0)
+    uint64_t visibility_spills = 0;     // barrier applications leaving a write visible to >2 scopes (heap)
 };
 
 class SyncModel {
