@@ -104,6 +104,8 @@ struct LoggedBarrier {
     bool global = true;
 };
 
+constexpr uint32_t kNoRun = 0xFFFFFFFFu;
+
 enum class EntryKind : uint8_t { kBarrier, kImport, kEventSet, kEventWait };
 
 struct LogEntry {
@@ -113,6 +115,10 @@ struct LogEntry {
     uint32_t count = 0;
     uint32_t import_index = 0;  // absolute index into the queue's imports
     StageMask event_bits = 0;
+    // Consecutive identical single-barrier entries form a run; applying one barrier twice
+    // changes nothing, so catching up applies a run once. run_end is kept on the run's head.
+    uint32_t run_start = kNoRun;
+    uint32_t run_end = 0;
 };
 
 using Clock = std::vector<uint64_t>;  // per queue slot: accesses with a smaller tag are covered
@@ -139,6 +145,7 @@ struct Queue {
     // A "special" entry can add what a full barrier does not (host visibility, event bits).
     std::vector<uint32_t> full_positions;
     std::vector<uint32_t> special_positions;
+    std::size_t log_size_after_trim = 0;
     uint32_t log_end() const { return log_base + uint32_t(log.size()); }
 };
 
@@ -171,6 +178,15 @@ struct HazardKeyHash {
 bool contains(const AddressRange& outer, uint64_t begin, uint64_t end) {
     return outer.begin <= begin && end <= outer.end;
 }
+
+bool same_barrier(const LoggedBarrier& a, const LoggedBarrier& b) {
+    return a.src_scope == b.src_scope && a.dst_scope == b.dst_scope && a.src_atoms == b.src_atoms &&
+           a.dst_atoms == b.dst_atoms && a.global == b.global && (a.global || a.range == b.range);
+}
+
+const StageMask kDeviceStages = all_device_stages();
+const AccessMask kWriteAtoms = all_write_accesses();
+const AccessMask kAllAtoms = all_read_accesses() | all_write_accesses();
 
 }  // namespace
 
@@ -239,10 +255,12 @@ struct SyncModel::State {
     // ------------------------------------------------------------------ lazy barrier log
     void apply_barriers(const Queue& q, const LogEntry& e, ChainState& s, const Record& r, bool home,
                         uint64_t seg_begin, uint64_t seg_end) {
+        // All barriers of one command act at once: decide each against the state before any.
         StageMask add_chain = 0, add_avail = 0;
-        Visibility add_visible;
-        const AccessMask write_atoms = r.atoms & all_write_accesses();
-        for (uint32_t i = 0; i < e.count; ++i) {
+        uint64_t makes_visible = 0;  // bit i: barrier i makes the write visible
+        const AccessMask write_atoms = r.atoms & kWriteAtoms;
+        const uint32_t count = std::min<uint32_t>(e.count, 64);
+        for (uint32_t i = 0; i < count; ++i) {
             const LoggedBarrier& b = q.pool[e.first + i - q.pool_base];
             if (!b.global && !contains(b.range, seg_begin, seg_end)) continue;
             const bool direct = home && (b.src_scope & r.stage);
@@ -252,13 +270,15 @@ struct SyncModel::State {
             const bool in_access_scope = direct && (write_atoms & b.src_atoms) == write_atoms;
             if (in_access_scope || (s.avail & b.src_scope)) {
                 add_avail |= b.dst_scope;
-                add_visible.add(b.dst_scope, b.dst_atoms);
+                makes_visible |= uint64_t(1) << i;
             }
         }
         s.chain |= add_chain;
         s.avail |= add_avail;
-        for (std::size_t i = 0; i < add_visible.size(); ++i)
-            stats.visibility_spills += s.visible.add(add_visible.at(i).stages, add_visible.at(i).accesses);
+        for (uint64_t m = makes_visible; m; m &= m - 1) {
+            const LoggedBarrier& b = q.pool[e.first + uint32_t(__builtin_ctzll(m)) - q.pool_base];
+            stats.visibility_spills += s.visible.add(b.dst_scope, b.dst_atoms);
+        }
     }
 
     void apply_event_set(const Queue& q, const LogEntry& e, ChainState& s, const Record& r, bool home,
@@ -361,7 +381,14 @@ struct SyncModel::State {
                     ++stats.log_entries_applied;
                     pos = *(f - 1) + 1;
                 }
-                for (; pos < next_special && !settled(r); ++pos) apply_entry(q, pos, r.sync, r, true, seg_begin, seg_end);
+                while (pos < next_special && !settled(r)) {
+                    const LogEntry& e = q.log[pos - q.log_base];
+                    apply_entry(q, pos, r.sync, r, true, seg_begin, seg_end);
+                    uint32_t next = pos + 1;
+                    if (e.run_start != kNoRun && e.run_start >= q.log_base)
+                        next = std::max(next, std::min(q.log[e.run_start - q.log_base].run_end, next_special));
+                    pos = next;
+                }
             }
             pos = next_special;
             if (pos < end) apply_entry(q, pos++, r.sync, r, true, seg_begin, seg_end);
@@ -624,9 +651,27 @@ struct SyncModel::State {
                             (b.dst_scope & device) == device && (b.src_atoms & all_write_accesses()) == all_write_accesses() &&
                             (b.dst_atoms & all) == all);
         }
-        if (special) q.special_positions.push_back(q.log_end());
-        else if (full) q.full_positions.push_back(q.log_end());
+        const uint32_t pos = q.log_end();
+        e.run_start = pos;
+        e.run_end = pos + 1;
+        if (special) {
+            q.special_positions.push_back(pos);
+        } else if (full) {
+            q.full_positions.push_back(pos);
+        } else if (kind == EntryKind::kBarrier && e.count == 1 && !q.log.empty()) {
+            const LogEntry& prev = q.log.back();
+            if (prev.kind == EntryKind::kBarrier && prev.count == 1 && prev.run_end == pos &&
+                same_barrier(q.pool[prev.first - q.pool_base], q.pool[e.first - q.pool_base])) {
+                q.pool.pop_back();  // share the run's pooled barrier
+                e.first = prev.first;
+                e.run_start = prev.run_start;
+                q.log[prev.run_start - q.log_base].run_end = pos + 1;
+            }
+        }
+        if (e.run_start == pos && !(kind == EntryKind::kBarrier && e.count == 1 && !special && !full))
+            e.run_start = kNoRun;  // not a run member: catch-up never skips past it
         q.log.push_back(e);
+        maybe_compact(q);
     }
 
     // ------------------------------------------------------------------ host waits
@@ -660,6 +705,7 @@ struct SyncModel::State {
             else ++it;
         }
         trim_logs();
+        for (Queue& q : queues) q.log_size_after_trim = q.log.size();
         stats.segments = segments.size();
     }
 
@@ -695,6 +741,16 @@ struct SyncModel::State {
                 if (e.kind == EntryKind::kImport) import_keep = std::min(import_keep, e.import_index);
                 else pool_keep = std::min(pool_keep, e.first);
             }
+            if (drop < q.log.size()) {
+                // A run cut by the trim gets its first kept entry as new head.
+                const uint32_t head = q.log[drop].run_start;
+                if (head != kNoRun && head < keep[i]) {
+                    const uint32_t end = q.log[head - q.log_base].run_end;
+                    for (std::size_t k = drop; k < q.log.size() && q.log[k].run_start == head; ++k)
+                        q.log[k].run_start = keep[i];
+                    q.log[drop].run_end = end;
+                }
+            }
             q.log.erase(q.log.begin(), q.log.begin() + drop);
             q.log_base += drop;
             std::erase_if(q.full_positions, [&](uint32_t p) { return p < q.log_base; });
@@ -709,6 +765,21 @@ struct SyncModel::State {
             q.imports.erase(q.imports.begin(), q.imports.begin() + import_drop);
             q.imports_base += import_drop;
         }
+    }
+
+    // Without host waits the log would grow with the trace: now and then bring every record
+    // up to date and drop what none needs. Doubling keeps the cost amortized.
+    void maybe_compact(const Queue& q) {
+        if (q.log.size() > 4096 && q.log.size() > 2 * q.log_size_after_trim) compact();
+    }
+
+    void compact() {
+        for (auto& [begin, seg] : segments) {
+            if (seg.write) catch_up(*seg.write, begin, seg.end);
+            for (Record& r : seg.reads) catch_up(r, begin, seg.end);
+        }
+        trim_logs();
+        for (Queue& q : queues) q.log_size_after_trim = q.log.size();
     }
 
     Clock snapshot_now(uint16_t slot) {
@@ -857,6 +928,7 @@ void SyncModel::end_submission(std::span<const SemaphoreSignal> signals, uint64_
     }
     if (fence) s.fences[fence] = clock;
     s.in_submission = false;
+    s.maybe_compact(s.queues[s.current_queue]);
 }
 
 void SyncModel::host_access(const CommandRef& command, const Access& access) {

@@ -155,7 +155,15 @@ private:
             model.record_access(ref, a);
             reference.access(cmd, a);
         } else if (roll < 80) {
-            random_dependency(mem, buf);
+            // Often the very barrier recorded last: identical runs take a shortcut in the model.
+            if (chance(40) && (!last_mem_.empty() || !last_buf_.empty())) {
+                mem = last_mem_;
+                buf = last_buf_;
+            } else {
+                random_dependency(mem, buf);
+            }
+            last_mem_ = mem;
+            last_buf_ = buf;
             const DependencyInfo dep{mem, buf, 0};
             model.pipeline_barrier(ref, dep);
             reference.barrier(dep);
@@ -189,6 +197,8 @@ private:
     uint32_t next_command_ = 0;
     uint64_t next_semaphore_ = 1000;
     std::vector<uint64_t> pending_;
+    std::vector<MemoryBarrier> last_mem_;
+    std::vector<BufferBarrier> last_buf_;
 };
 
 std::string describe(const std::vector<ReferenceHazard>& hs) {
