@@ -206,11 +206,16 @@ struct SyncModel::State {
     int next_slot = 0;
     uint64_t set_serial = 0;
 
+    struct FieldHash {
+        using is_transparent = void;
+        std::size_t operator()(std::string_view v) const { return std::hash<std::string_view>{}(v); }
+    };
     std::vector<std::string> field_names{""};
-    std::unordered_map<std::string, uint32_t> field_ids{{"", 0}};
+    std::unordered_map<std::string, uint32_t, FieldHash, std::equal_to<>> field_ids{{"", 0}};
 
     uint64_t tag = 1;
     CommandRef last_command;
+    uint16_t last_queue = 0;
     bool last_was_access = false;
     uint16_t current_queue = 0;
     bool in_submission = false;
@@ -233,7 +238,7 @@ struct SyncModel::State {
     uint64_t covered(const Clock& c, uint16_t slot) const { return slot < c.size() ? c[slot] : 0; }
 
     uint32_t intern(std::string_view field) {
-        auto it = field_ids.find(std::string(field));
+        auto it = field_ids.find(field);
         if (it != field_ids.end()) return it->second;
         uint32_t id = uint32_t(field_names.size());
         field_names.emplace_back(field);
@@ -241,9 +246,11 @@ struct SyncModel::State {
         return id;
     }
 
-    uint64_t command_tag(const CommandRef& command) {
-        if (!(last_was_access && command == last_command)) ++tag;
+    // Accesses of one command share a tag; a command is known by its reference and queue.
+    uint64_t command_tag(const CommandRef& command, uint16_t queue) {
+        if (!(last_was_access && command == last_command && queue == last_queue)) ++tag;
         last_command = command;
+        last_queue = queue;
         last_was_access = true;
         return tag;
     }
@@ -831,13 +838,13 @@ void SyncModel::begin_submission(QueueId queue, uint32_t, std::span<const Semaph
 
 void SyncModel::record_access(const CommandRef& command, const Access& access) {
     State& s = *state_;
-    const uint64_t t = s.command_tag(command);
+    const uint64_t t = s.command_tag(command, s.current_queue);
     s.record(s.make_record(command, access, s.current_queue, t), false);
 }
 
 void SyncModel::record_copy(const CommandRef& command, const Access& source, const Access& destination) {
     State& s = *state_;
-    const uint64_t t = s.command_tag(command);
+    const uint64_t t = s.command_tag(command, s.current_queue);
     Record src = s.make_record(command, source, s.current_queue, t);
     Record dst = s.make_record(command, destination, s.current_queue, t);
     if (source.range.overlaps(destination.range)) {
@@ -854,7 +861,7 @@ void SyncModel::record_copy(const CommandRef& command, const Access& source, con
 
 void SyncModel::record_deserialize(const CommandRef& command, const Access& source, const Access& destination) {
     State& s = *state_;
-    const uint64_t t = s.command_tag(command);
+    const uint64_t t = s.command_tag(command, s.current_queue);
     s.record(s.make_record(command, source, s.current_queue, t), false);
     s.record(s.make_record(command, destination, s.current_queue, t), true);
 }
@@ -936,7 +943,7 @@ void SyncModel::host_access(const CommandRef& command, const Access& access) {
     Access a = access;
     a.stage = VK_PIPELINE_STAGE_2_HOST_BIT;
     a.access = a.is_write ? VK_ACCESS_2_HOST_WRITE_BIT : VK_ACCESS_2_HOST_READ_BIT;
-    const uint64_t t = s.command_tag(command);
+    const uint64_t t = s.command_tag(command, kHostSlot);
     s.record(s.make_record(command, a, kHostSlot, t), false);
 }
 
