@@ -28,6 +28,9 @@ struct Event {
     CommandRef command;
     Access access;
     MemoryBarrier barrier;
+    QueueId queue = 0;          // kBegin
+    uint64_t wait = 0;          // kBegin: binary semaphore to wait on (0 = none)
+    uint64_t signal = 0;        // kEnd: binary semaphore to signal (0 = none)
 };
 
 // Cluster builds the way an engine issues them each frame: upload the infos, barrier, build
@@ -92,6 +95,56 @@ std::vector<Event> clas_frames(std::size_t accesses, int batches_per_frame, int 
     return ev;
 }
 
+// A transfer queue uploads each frame's infos and vertex data, the compute queue waits on a
+// semaphore and builds; the compute queue signals back before the next upload (the WAR).
+std::vector<Event> two_queue_frames(std::size_t accesses, int batches_per_frame) {
+    std::vector<Event> ev;
+    std::size_t n = 0;
+    uint32_t submission = 0;
+    uint64_t frame = 0;
+    while (n < accesses) {
+        uint32_t cmd = 0;
+        auto access = [&](const char* name, uint64_t b, uint64_t e, StageMask st, AccessMask ac, bool w, const char* f,
+                          bool same) {
+            if (!same) ++cmd;
+            ev.push_back({Event::kAccess, {submission, 0, 1, cmd, name}, {{b, e}, st, ac, w, f}, {}});
+            ++n;
+        };
+        Event begin{Event::kBegin, {}, {}, {}};
+        begin.queue = 1;
+        begin.wait = frame ? 2 : 0;
+        ev.push_back(begin);
+        for (int batch = 0; batch < batches_per_frame; ++batch) {
+            const uint64_t infos = 0x100000 + uint64_t(batch) * 0x10000;
+            access("vkCmdCopyBuffer", infos, infos + 0x8000, VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
+                   true, "dstBuffer", false);
+        }
+        Event end{Event::kEnd, {}, {}, {}};
+        end.signal = 1;
+        ev.push_back(end);
+        ++submission;
+        cmd = 0;
+        begin.queue = 0;
+        begin.wait = 1;
+        ev.push_back(begin);
+        for (int batch = 0; batch < batches_per_frame; ++batch) {
+            const uint64_t infos = 0x100000 + uint64_t(batch) * 0x10000;
+            const uint64_t clas = 0x1000000 + uint64_t(batch) * 0x100000;
+            const char* build = "vkCmdBuildClusterAccelerationStructureIndirectNV";
+            access(build, infos, infos + 0x8000, kAsBuild, VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT, false, "srcInfosArray", false);
+            access(build, 0x50000, 0x60000, kAsBuild, kAsRead | kAsWrite, true, "scratchData", true);
+            access(build, clas, clas + 0x80000, kAsBuild, kAsWrite, true, "dstImplicitData", true);
+            ev.push_back({Event::kBarrier, {submission, 0, 1, ++cmd, "vkCmdPipelineBarrier2"}, {},
+                          {kAsBuild, kAsWrite, kAsBuild, kAsRead | kAsWrite}});
+        }
+        end.signal = 2;
+        ev.push_back(end);
+        ++submission;
+        ++frame;
+    }
+    return ev;
+}
+
 // One barrier before every access, over `ranges` live buffers, no host waits: the lazy log's
 // worst case when `full` is false (each touch replays every barrier since the last one).
 std::vector<Event> barrier_per_access(std::size_t accesses, std::size_t ranges, bool full) {
@@ -142,11 +195,17 @@ Result run_model(const std::vector<Event>& ev) {
         switch (e.kind) {
         case Event::kAccess: model.record_access(e.command, e.access); break;
         case Event::kBarrier: model.pipeline_barrier(e.command, DependencyInfo{std::span(&e.barrier, 1), {}, 0}); break;
-        case Event::kBegin: model.begin_submission(0, submission); break;
-        case Event::kEnd:
-            model.end_submission({}, 100 + submission++);
+        case Event::kBegin: {
+            const SemaphoreWait w{e.wait, 0, kAsBuild | VK_PIPELINE_STAGE_2_COPY_BIT};
+            model.begin_submission(e.queue, submission, e.wait ? std::span(&w, 1) : std::span<const SemaphoreWait>());
+            break;
+        }
+        case Event::kEnd: {
+            const SemaphoreSignal sig{e.signal, 0};
+            model.end_submission(e.signal ? std::span(&sig, 1) : std::span<const SemaphoreSignal>(), 100 + submission++);
             peak = std::max(peak, model.memory_bytes());
             break;
+        }
         case Event::kFenceWait: model.wait_for_fence(100 + submission - 3); break;
         }
     }
@@ -198,6 +257,8 @@ int main(int argc, char** argv) {
     for (std::size_t n = 1000; n <= max_accesses; n *= 10) {
         row("CLAS frames, 16 batches, " + std::to_string(n), [&] { return clas_frames(n, 16, 3); });
     }
+ for (std::size_t n = 1000; n <= max_accesses; n *= 10)
+        row("2 queues + semaphores, no host wait, " + std::to_string(n), [&] { return two_queue_frames(n, 16); });
     for (std::size_t n = 1000; n <= max_accesses; n *= 10)
         row("full barrier per access, " + std::to_string(n), [&] { return barrier_per_access(n, 4096, true); });
     for (std::size_t n = 1000; n <= max_accesses; n *= 10)

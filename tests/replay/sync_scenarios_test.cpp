@@ -446,6 +446,27 @@ TEST(SyncScenarios, TwoQueuesWithSemaphore) {
     EXPECT_TRUE(s.hazards().empty());
 }
 
+TEST(SyncScenarios, CrossQueueWriteAfterReadNeedsSemaphoreBack) {
+    auto run = [](bool signal_back) {
+        Stream s;
+        s.submit(0);
+        s.build(clas_build());  // reads srcInfos on the compute queue
+        s.end(signal_back ? std::initializer_list<SemaphoreSignal>{{9, 0}} : std::initializer_list<SemaphoreSignal>{});
+        if (signal_back) s.submit(1, {{9, 0, kCopy}});
+        else s.submit(1);
+        s.copy_buffer(kStaging, kInfos);  // the transfer queue overwrites them
+        s.end();
+        return s.hazards();
+    };
+    const auto bad = run(false);
+    ASSERT_EQ(bad.size(), 1u);
+    EXPECT_EQ(bad[0].hazard, HazardClass::kWriteAfterRead);
+    EXPECT_EQ(bad[0].fix.kind, FixKind::kSemaphore);
+    EXPECT_EQ(bad[0].prior.queue, 0u);
+    EXPECT_EQ(bad[0].later.queue, 1u);
+    EXPECT_TRUE(run(true).empty());
+}
+
 TEST(SyncScenarios, SemaphoreWaitStageMustCoverTheReader) {
     Stream bad;  // waits at COMPUTE only: the build at ACCELERATION_STRUCTURE_BUILD is not ordered
     bad.submit(0);
