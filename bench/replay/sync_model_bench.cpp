@@ -237,7 +237,7 @@ void row(const std::string& name, MakeStream make) {
     const std::size_t n = count_accesses(ev);
     const Result r = run_model(ev);
     const double noop = run_noop(ev);
-    std::printf("| %-40s | %9zu | %12.3g | %8.1f | %10.1f | %9.1f | %7zu | %9.2f |\n", name.c_str(), n, double(n) / r.seconds,
+    std::printf("| %-44s | %9zu | %12.3g | %8.1f | %10.1f | %9.1f | %7zu | %9.2f |\n", name.c_str(), n, double(n) / r.seconds,
                 r.seconds * 1e9 / double(n), r.seconds / noop, double(r.peak_bytes) / 1024.0, r.hazards,
                 double(r.applied) / double(n));
     std::fflush(stdout);
@@ -249,9 +249,9 @@ int main(int argc, char** argv) {
     const std::size_t max_accesses = argc > 1 ? std::strtoull(argv[1], nullptr, 10) : 1000000;
     if (argc > 2) g_filter = argv[2];  // only workloads whose name starts with this
     std::printf("SyncModel hazard checking vs a no-op consumer of the same events (thread CPU time, 1 thread)\n\n");
-    std::printf("| %-40s | %9s | %12s | %8s | %10s | %9s | %7s | %9s |\n", "workload", "accesses", "accesses/s",
+    std::printf("| %-44s | %9s | %12s | %8s | %10s | %9s | %7s | %9s |\n", "workload", "accesses", "accesses/s",
                 "ns/acc", "x no-op", "peak KiB", "hazards", "log/acc");
-    std::printf("|%s|%s|%s|%s|%s|%s|%s|%s|\n", std::string(42, '-').c_str(), std::string(11, '-').c_str(),
+    std::printf("|%s|%s|%s|%s|%s|%s|%s|%s|\n", std::string(46, '-').c_str(), std::string(11, '-').c_str(),
                 std::string(14, '-').c_str(), std::string(10, '-').c_str(), std::string(12, '-').c_str(),
                 std::string(11, '-').c_str(), std::string(9, '-').c_str(), std::string(11, '-').c_str());
     for (std::size_t n = 1000; n <= max_accesses; n *= 10) {
@@ -259,6 +259,12 @@ int main(int argc, char** argv) {
     }
  for (std::size_t n = 1000; n <= max_accesses; n *= 10)
         row("2 queues + semaphores, no host wait, " + std::to_string(n), [&] { return two_queue_frames(n, 16); });
+    for (std::size_t n = 1000; n <= max_accesses; n *= 10)
+        row("no barriers at all (all hazards), " + std::to_string(n), [&] {
+            auto ev = barrier_per_access(n, 4096, false);
+            std::erase_if(ev, [](const Event& e) { return e.kind == Event::kBarrier; });
+            return ev;
+        });
     for (std::size_t n = 1000; n <= max_accesses; n *= 10)
         row("full barrier per access, " + std::to_string(n), [&] { return barrier_per_access(n, 4096, true); });
     for (std::size_t n = 1000; n <= max_accesses; n *= 10)

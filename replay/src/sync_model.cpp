@@ -485,14 +485,17 @@ struct SyncModel::State {
     }
 
     void emit(const Finding& f, const Record& later) {
-        if (!seen.insert(f.key).second) {
+        if (seen.count(f.key)) {
             ++stats.duplicate_hazards;
             return;
         }
         if (reports.size() >= options.max_reports) {
+            // Past the cap nothing more is remembered, so memory stays bounded in a stream
+            // that is all hazards; repeats are then counted here too.
             ++stats.hazards_over_cap;
             return;
         }
+        seen.insert(f.key);
         HazardReport rep;
         rep.hazard = f.key.hazard;
         rep.prior = describe(f.prior);

@@ -838,6 +838,8 @@ TEST(SyncScenarios, DuplicatesAreCountedNotRepeatedAndCapHolds) {
     EXPECT_EQ(s.hazards().size(), 3u);
     EXPECT_EQ(s.model.stats().duplicate_hazards, 15u);
     EXPECT_EQ(s.model.stats().hazards_over_cap, 8u);
+    EXPECT_EQ(s.hazards()[0].later.command.command, r.command);
+    EXPECT_EQ(s.hazards()[0].overlap, (AddressRange{0, 0x100}));
 }
 
 TEST(SyncScenarios, HostWaitsRetireFinishedAccesses) {

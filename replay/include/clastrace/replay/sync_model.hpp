@@ -35,7 +35,7 @@ struct SyncStats {
     uint64_t segments = 0;              // live address segments now
     uint64_t peak_segments = 0;
     uint64_t duplicate_hazards = 0;     // same command pair, class and fields as a kept report
-    uint64_t hazards_over_cap = 0;      // distinct hazards beyond SyncOptions::max_reports
+    uint64_t hazards_over_cap = 0;      // hazards found once SyncOptions::max_reports were kept
     uint64_t unsatisfied_waits = 0;     // semaphore waits with no signal seen yet (no ordering assumed)
     uint64_t event_slot_reuses = 0;     // >16 events pending at once: the oldest loses its ordering
     uint64_t visibility_spills = 0;     // barrier applications leaving a write visible to >2 scopes (heap)
