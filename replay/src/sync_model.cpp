@@ -598,6 +598,9 @@ struct SyncModel::State {
             if (auto fix = unordered(*seg.write, later, true, seg_begin, seg_end))
                 note(found, HazardClass::kReadAfterWrite, *seg.write, b, *fix, seg_begin, seg_end);
         }
+        // A host read is over when the call returns: it orders itself before all later work
+        // and must not stand between the write and later writes.
+        if (b.queue == kHostSlot) return;
         for (Record& r : seg.reads) {
             if (r.queue == b.queue && r.stage == b.stage) {
                 r = b;  // a later read on the same queue and stage is ordered by whatever orders this one
@@ -829,7 +832,8 @@ void SyncModel::begin_submission(QueueId queue, uint32_t, std::span<const Semaph
         im.log_pos = q.log_end();
         im.own = std::move(*clock);
         im.cumulative = q.known;
-        im.dst_scope = destination_scope_of(w.dst_stages);
+        // VUID-VkSubmitInfo-pWaitDstStageMask-00078: waits never name HOST; keep device stages.
+        im.dst_scope = destination_scope_of(w.dst_stages) & kDeviceStages;
         LogEntry e;
         e.kind = EntryKind::kImport;
         e.import_index = q.imports_base + uint32_t(q.imports.size());

@@ -42,7 +42,7 @@ public:
             op.kind = Op::kWait;
             op.queue = queue;
             op.signal_op = it->second;
-            op.wait_scope = destination_scope(stages);
+            op.wait_scope = destination_scope(stages) & all_device_stages();  // waits never reach HOST
             pending_signal_.erase(it);
             ops_.push_back(op);
         }
@@ -56,6 +56,54 @@ public:
             ops_.push_back(op);
         }
     }
+    void end_submission_with_fence(std::vector<uint64_t> signals, uint64_t fence) {
+        end_submission(std::move(signals));
+        if (!fence) return;
+        Op op;
+        op.kind = Op::kSignal;
+        op.queue = queue_;
+        fence_op_[fence] = ops_.size();
+        ops_.push_back(op);
+    }
+    void host_access(uint32_t command, const Access& a) {
+        Op op;
+        op.kind = Op::kAccess;
+        op.queue = kHostQueue;
+        op.command = command;
+        op.range = a.range;
+        op.stage = VK_PIPELINE_STAGE_2_HOST_BIT;
+        op.atoms = a.is_write ? VK_ACCESS_2_HOST_WRITE_BIT : VK_ACCESS_2_HOST_READ_BIT;
+        op.is_write = a.is_write;
+        ops_.push_back(op);
+    }
+    void wait_for_fence(uint64_t fence) {
+        auto it = fence_op_.find(fence);
+        if (it == fence_op_.end()) return;
+        Op op;
+        op.kind = Op::kHostWait;
+        op.queue = kHostQueue;
+        op.signal_op = it->second;
+        ops_.push_back(op);
+    }
+    void queue_wait_idle(QueueId q) {
+        Op signal;
+        signal.kind = Op::kSignal;
+        signal.queue = q;
+        ops_.push_back(signal);
+        Op op;
+        op.kind = Op::kHostWait;
+        op.queue = kHostQueue;
+        op.signal_op = ops_.size() - 1;
+        ops_.push_back(op);
+    }
+    void device_wait_idle() {
+        Op op;
+        op.kind = Op::kHostWait;
+        op.queue = kHostQueue;
+        op.all = true;
+        ops_.push_back(op);
+    }
+
     void access(uint32_t command, const Access& a) {
         Op op;
         op.kind = Op::kAccess;
@@ -88,9 +136,13 @@ public:
                 std::ptrdiff_t w = -1;
                 for (std::size_t i = 0; i < j; ++i)
                     if (touches(ops_[i], x) && ops_[i].is_write) w = std::ptrdiff_t(i);
+                // Host reads and reads a host wait proved finished are ordered before anything
+                // later; they no longer stand between the write and later writes.
                 std::map<std::pair<QueueId, StageMask>, std::size_t> reads;
                 for (std::size_t i = std::size_t(w + 1); i < j; ++i)
-                    if (touches(ops_[i], x) && !ops_[i].is_write) reads[{ops_[i].queue, ops_[i].stage}] = i;
+                    if (touches(ops_[i], x) && !ops_[i].is_write && ops_[i].queue != kHostQueue &&
+                        completion(i, j) == j)
+                        reads[{ops_[i].queue, ops_[i].stage}] = i;
                 auto add = [&](std::size_t prior, HazardClass c) {
                     auto key = std::make_tuple(ops_[prior].command, b.command, c);
                     auto [it, fresh] = found.try_emplace(key, x, x + 1);
@@ -104,11 +156,11 @@ public:
                     if (!ok) add(prior, c);
                 };
                 if (b.is_write) {
-                    for (auto [k, r] : reads) decide(walk(r, j, x).chain & b.stage, r, HazardClass::kWriteAfterRead);
+                    for (auto [k, r] : reads) decide(ordered(r, j, x, false), r, HazardClass::kWriteAfterRead);
                     if (reads.empty() && w >= 0)
-                        decide(visible(walk(std::size_t(w), j, x), b), std::size_t(w), HazardClass::kWriteAfterWrite);
+                        decide(ordered(std::size_t(w), j, x, true), std::size_t(w), HazardClass::kWriteAfterWrite);
                 } else if (w >= 0) {
-                    decide(visible(walk(std::size_t(w), j, x), b), std::size_t(w), HazardClass::kReadAfterWrite);
+                    decide(ordered(std::size_t(w), j, x, true), std::size_t(w), HazardClass::kReadAfterWrite);
                 }
             }
         }
@@ -131,7 +183,8 @@ private:
         bool covers(uint64_t x) const { return global || (range.begin <= x && x < range.end); }
     };
     struct Op {
-        enum Kind { kAccess, kBarrier, kSetEvent, kResetEvent, kWaitEvent, kWait, kSignal } kind = kAccess;
+        enum Kind { kAccess, kBarrier, kSetEvent, kResetEvent, kWaitEvent, kWait, kSignal, kHostWait } kind = kAccess;
+        bool all = false;  // kHostWait: vkDeviceWaitIdle
         QueueId queue = 0;
         uint32_t command = 0;
         AddressRange range;
@@ -174,10 +227,33 @@ private:
         return false;
     }
 
-    // The dependency state of access ops_[a] as seen by access ops_[b], for byte x.
-    PairState walk(std::size_t a, std::size_t b, uint64_t x) const {
+    // The first host wait after ops_[a] and before ops_[b] that covers ops_[a], or b.
+    std::size_t completion(std::size_t a, std::size_t b) const {
+        for (std::size_t k = a + 1; k < b; ++k)
+            if (ops_[k].kind == Op::kHostWait && (ops_[k].all || signal_covers(ops_[k].signal_op, a))) return k;
+        return b;
+    }
+
+    // Is ops_[a] ordered before ops_[b] (and, when `memory`, visible to it) for byte x?
+    bool ordered(std::size_t a, std::size_t b, uint64_t x, bool memory) const {
         const Op& A = ops_[a];
-        const QueueId q = ops_[b].queue;
+        const Op& B = ops_[b];
+        if (A.queue == kHostQueue) return true;  // host work precedes later submissions and host work
+        const std::size_t done = completion(a, b);
+        if (B.queue == kHostQueue) {
+            if (done == b) return false;
+            if (!memory || B.is_write) return true;
+            // Host reads need the write visible to HOST/HOST_READ by what ran before the wait.
+            return visible(walk(a, done, x, A.queue), B);
+        }
+        if (done < b) return true;
+        const PairState s = walk(a, b, x, B.queue);
+        return memory ? visible(s, B) : (s.chain & B.stage) != 0;
+    }
+
+    // The dependency state of access ops_[a] as seen from queue q just before ops_[b], for byte x.
+    PairState walk(std::size_t a, std::size_t b, uint64_t x, QueueId q) const {
+        const Op& A = ops_[a];
         const AccessMask writes = A.atoms & all_write_accesses();
         PairState s;
         struct Snapshot {
@@ -266,6 +342,7 @@ private:
 
     std::vector<Op> ops_;
     std::map<uint64_t, std::size_t> pending_signal_;
+    std::map<uint64_t, std::size_t> fence_op_;
     QueueId queue_ = 0;
 };
 

@@ -45,7 +45,7 @@ constexpr StageMask kBarrierStages[] = {
     VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR,
     VK_PIPELINE_STAGE_2_RAY_TRACING_SHADER_BIT_KHR, VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT,
     VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_PIPELINE_STAGE_2_TOP_OF_PIPE_BIT,
-    VK_PIPELINE_STAGE_2_BOTTOM_OF_PIPE_BIT, VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT};
+    VK_PIPELINE_STAGE_2_BOTTOM_OF_PIPE_BIT, VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT, VK_PIPELINE_STAGE_2_HOST_BIT};
 constexpr AccessMask kBarrierAccesses[] = {
     0,
     VK_ACCESS_2_TRANSFER_WRITE_BIT,
@@ -57,13 +57,14 @@ constexpr AccessMask kBarrierAccesses[] = {
     VK_ACCESS_2_SHADER_READ_BIT,
     VK_ACCESS_2_TRANSFER_READ_BIT,
     VK_ACCESS_2_MEMORY_READ_BIT,
-    VK_ACCESS_2_UNIFORM_READ_BIT};
+    VK_ACCESS_2_UNIFORM_READ_BIT,
+    VK_ACCESS_2_HOST_READ_BIT};
 
 // Drives SyncModel and the reference with the same random stream.
 class RandomStream {
 public:
-    RandomStream(uint32_t seed, int queues, uint64_t address_space)
-        : rng_(seed), queues_(queues), space_(address_space) {}
+    RandomStream(uint32_t seed, int queues, uint64_t address_space, bool host)
+        : rng_(seed), queues_(queues), space_(address_space), host_(host) {}
 
     void run(int submissions, int ops_per_submission) {
         for (int s = 0; s < submissions; ++s) {
@@ -92,8 +93,34 @@ public:
                 ref_signals.push_back(sem);
                 pending_.push_back(sem);
             }
-            model.end_submission(signals, 0);
-            reference.end_submission(ref_signals);
+            const uint64_t fence = host_ && chance(40) ? 500 + uint64_t(s) : 0;
+            model.end_submission(signals, fence);
+            reference.end_submission_with_fence(ref_signals, fence);
+            if (fence) fences_.push_back(fence);
+            if (host_) host_ops(q);
+        }
+    }
+
+    // Between submissions: mapped-memory reads and writes, fence and idle waits.
+    void host_ops(QueueId q) {
+        for (int i = pick(3); i > 0; --i) {
+            const int roll = pick(100);
+            const uint32_t cmd = next_command_++;
+            if (roll < 50) {
+                const Access a{random_range(), 0, 0, chance(50), "mapped"};
+                model.host_access({0, 0, 0, cmd, "host"}, a);
+                reference.host_access(cmd, a);
+            } else if (roll < 80 && !fences_.empty()) {
+                const uint64_t f = fences_[std::size_t(pick(int(fences_.size())))];
+                model.wait_for_fence(f);
+                reference.wait_for_fence(f);
+            } else if (roll < 93) {
+                model.queue_wait_idle(q);
+                reference.queue_wait_idle(q);
+            } else {
+                model.device_wait_idle();
+                reference.device_wait_idle();
+            }
         }
     }
 
@@ -197,6 +224,8 @@ private:
     uint32_t next_command_ = 0;
     uint64_t next_semaphore_ = 1000;
     std::vector<uint64_t> pending_;
+    bool host_;
+    std::vector<uint64_t> fences_;
     std::vector<MemoryBarrier> last_mem_;
     std::vector<BufferBarrier> last_buf_;
 };
@@ -209,13 +238,16 @@ std::string describe(const std::vector<ReferenceHazard>& hs) {
     return s;
 }
 
-void cross_check(int queues, int seeds, int submissions, int ops) {
+void cross_check(int queues, int seeds, int submissions, int ops, bool host = false) {
     uint64_t ordered = 0, unordered = 0;
     for (int seed = 1; seed <= seeds; ++seed) {
-        RandomStream stream(uint32_t(seed * 7919 + queues), queues, 48);
+        RandomStream stream(uint32_t(seed * 7919 + queues + (host ? 1 : 0)), queues, 48, host);
         stream.run(submissions, ops);
         const auto got = stream.model_hazards();
         const auto want = stream.reference.hazards();
+        if (got != want) {
+            for (const HazardReport& h : stream.model.hazards()) std::printf("%s\n", h.format().c_str());
+        }
         ASSERT_EQ(got, want) << "seed " << seed << "\nmodel:\n" << describe(got) << "reference:\n" << describe(want);
         ordered += stream.reference.ordered_checks;
         unordered += stream.reference.unordered_checks;
@@ -223,13 +255,15 @@ void cross_check(int queues, int seeds, int submissions, int ops) {
     // The streams must exercise both outcomes, or the comparison proves little.
     EXPECT_GT(ordered, uint64_t(seeds) * 5);
     EXPECT_GT(unordered, uint64_t(seeds) * 5);
-    std::printf("%d queue(s): %llu ordered and %llu unordered byte-pair decisions agreed\n", queues,
+    std::printf("%d queue(s)%s: %llu ordered and %llu unordered byte-pair decisions agreed\n", queues, host ? " + host" : "",
                 (unsigned long long)ordered, (unsigned long long)unordered);
 }
 
 TEST(SyncRandom, OneQueueAgreesWithBruteForce) { cross_check(1, 400, 3, 25); }
 
 TEST(SyncRandom, ThreeQueuesWithSemaphoresAgreeWithBruteForce) { cross_check(3, 400, 8, 4); }
+
+TEST(SyncRandom, HostAccessesAndWaitsAgreeWithBruteForce) { cross_check(2, 400, 8, 4, true); }
 
 TEST(SyncRandom, LongValidStreamHasNoFindings) {
     // Every access preceded by a full barrier: 200k accesses over 4 queues' worth of ranges, silent.
