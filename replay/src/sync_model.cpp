@@ -807,6 +807,12 @@ void SyncModel::host_wait_semaphore(uint64_t semaphore, uint64_t value) {
     s.complete_through(it->second);
 }
 
+void SyncModel::host_signal_semaphore(uint64_t semaphore, uint64_t value) {
+    State& s = *state_;
+    s.sync_tag();
+    s.semaphores[semaphore].timeline[value] = Clock(s.queues.size(), 0);
+}
+
 const std::vector<HazardReport>& SyncModel::hazards() const { return state_->reports; }
 const SyncStats& SyncModel::stats() const { return state_->stats; }
 

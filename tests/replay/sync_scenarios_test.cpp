@@ -536,6 +536,20 @@ TEST(SyncScenarios, TimelineSemaphoreValues) {
     EXPECT_EQ(bad.model.stats().unsatisfied_waits, 1u);
 }
 
+TEST(SyncScenarios, HostSignalledTimelineSatisfiesWaitButOrdersNoDeviceWork) {
+    Stream s;
+    s.submit(0);
+    s.copy_buffer(kStaging, kInfos);
+    s.end();
+    s.model.host_signal_semaphore(0x72, 1);
+    s.submit(1, {{0x72, 1, kAsBuild}});
+    s.build(clas_build());
+    s.end();
+    EXPECT_EQ(s.model.stats().unsatisfied_waits, 0u);
+    ASSERT_EQ(s.hazards().size(), 1u);  // the copy on queue 0 is still unordered
+    EXPECT_EQ(s.hazards()[0].fix.kind, FixKind::kSemaphore);
+}
+
 TEST(SyncScenarios, HostWriteBeforeSubmitIsVisible) {
     Stream s;
     s.model.host_access({0, 0, 0, 0, "memcpy to mapped srcInfos"},

@@ -75,6 +75,9 @@ public:
     void queue_wait_idle(QueueId queue);
     void device_wait_idle();
     void host_wait_semaphore(uint64_t semaphore, uint64_t value);
+    // vkSignalSemaphore: satisfies device waits; orders only host work, which every later
+    // submission sees anyway.
+    void host_signal_semaphore(uint64_t semaphore, uint64_t value);
 
     // --- results -------------------------------------------------------------------
     const std::vector<HazardReport>& hazards() const;
