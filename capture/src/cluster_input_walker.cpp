@@ -29,13 +29,18 @@ class Walker {
 
   bool capture(MemoryRole role, uint32_t entry, VkDeviceAddress address, uint64_t size) {
     if (size == 0) return true;
+    CapturedRange range{role, entry, address, {}};
+    std::string why;
+    // Where the range is comes first (a garbage address is reported as such), its size second.
+    if (!read_(address, size, nullptr, why)) {
+      issue(address, size, std::string(memoryRoleName(role)) + ": " + why);
+      return false;
+    }
     if (total_ + size > kMaxCapturedBytesPerCommand || total_ + size < total_) {
       issue(address, size, "the ranges this command references exceed the capture's per-command limit of 1 GiB");
       return false;
     }
-    CapturedRange range{role, entry, address, {}};
-    std::string why;
-    if (!read_(address, size, range.bytes, why)) {
+    if (!read_(address, size, &range.bytes, why)) {
       issue(address, size, std::string(memoryRoleName(role)) + ": " + why);
       return false;
     }

@@ -70,6 +70,16 @@ void PauseWorker::run() {
   }
 }
 
+bool PauseWorker::checkMemory(VkDeviceAddress address, uint64_t size, std::string& why) {
+  auto range = device_.memoryMap.resolve(address, size, why);
+  if (!range) return false;
+  if (!range->host) {
+    why = "the memory is not host visible (staging copies are not implemented yet)";
+    return false;
+  }
+  return true;
+}
+
 bool PauseWorker::readMemory(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>& out, std::string& why) {
   auto range = device_.memoryMap.resolve(address, size, why);
   if (!range) return false;
@@ -91,8 +101,9 @@ bool PauseWorker::handle(Expected& expected) {
   if (device_.next.GetEventStatus(device_.device, pause.signal) != VK_EVENT_SET) return false;
   const auto started = std::chrono::steady_clock::now();
   const bool capture = expected.capture && device_.sink;
-  DeviceMemoryReader reader = [this](VkDeviceAddress a, uint64_t s, std::vector<uint8_t>& o, std::string& w) {
-    return readMemory(a, s, o, w);
+  DeviceMemoryReader reader = [this](VkDeviceAddress a, uint64_t s, std::vector<uint8_t>* o, std::string& w) {
+    if (!o) return checkMemory(a, s, w);
+    return readMemory(a, s, *o, w);
   };
 
   ClusterBuildCapture* record = nullptr;

@@ -62,6 +62,7 @@ class PauseWorker {
   };
   void run();
   bool handle(Expected& expected);
+  bool checkMemory(VkDeviceAddress address, uint64_t size, std::string& why);
   bool readMemory(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>& out, std::string& why);
 
   DeviceState& device_;

@@ -10,9 +10,10 @@
 
 namespace clastrace::capture {
 
-// Reads [address, address + size); false + `why` when the range is not readable.
+// Reads [address, address + size) into `out`; with `out` null only checks that it could.
+// False + `why` when the range is not readable.
 using DeviceMemoryReader =
-    std::function<bool(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>& out, std::string& why)>;
+    std::function<bool(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>* out, std::string& why)>;
 
 struct ClusterMemoryWalk {
   uint32_t executedCount = 0;
