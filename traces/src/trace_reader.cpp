@@ -561,6 +561,14 @@ struct TraceReader::Impl {
                 return error(TraceErrorCode::io_error, format::kFileHeaderSize, "read failed: " + src->last_error());
             }
             data_start = format::kFileHeaderSize + format::align8(fh.trace_header_size);
+            // The padding to 8 bytes is outside every checksum, so it must be zero.
+            uint64_t pad_at = format::kFileHeaderSize + fh.trace_header_size;
+            if (data_start <= size) {
+                std::vector<uint8_t> pad = read_small(pad_at, static_cast<size_t>(data_start - pad_at));
+                if (std::any_of(pad.begin(), pad.end(), [](uint8_t b) { return b != 0; })) {
+                    report(TraceErrorCode::bad_chunk, pad_at, "non-zero padding after the trace header");
+                }
+            }
             uint64_t computed = format::file_header_checksum(fh, header_bytes.data(), header_bytes.size());
             if (computed != fh.checksum) {
                 report(TraceErrorCode::checksum_mismatch, offsetof(format::FileHeader, checksum),
@@ -592,7 +600,7 @@ struct TraceReader::Impl {
 
     void open_index() {
         if (size < data_start + format::kTrailerSize) {
-            if (size >= data_start) report(TraceErrorCode::truncated, size, "no trailer: the file was cut or its writer never finished");
+            report(TraceErrorCode::truncated, size, "no trailer: the file was cut or its writer never finished");
             return;
         }
         const uint64_t trailer_at = size - format::kTrailerSize;
