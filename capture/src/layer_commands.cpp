@@ -35,6 +35,10 @@ VKAPI_ATTR VkResult VKAPI_CALL BeginCommandBuffer(VkCommandBuffer cb, const VkCo
   auto log = logOf(d, cb);
   clearCommandBufferLog(d, *log);  // begin implicitly resets
   log->recorded.usage = pBeginInfo->flags;
+  {
+    std::lock_guard lock(d.commandBuffersMutex);
+    log->recorded.secondary = d.secondaryCommandBuffers.count(cb) != 0;
+  }
   return d.next.BeginCommandBuffer(cb, pBeginInfo);
 }
 
@@ -63,6 +67,8 @@ VKAPI_ATTR VkResult VKAPI_CALL AllocateCommandBuffers(VkDevice device, const VkC
   std::lock_guard lock(d.commandBuffersMutex);
   auto& owned = d.poolCommandBuffers[pInfo->commandPool];
   owned.insert(owned.end(), pCommandBuffers, pCommandBuffers + pInfo->commandBufferCount);
+  if (pInfo->level == VK_COMMAND_BUFFER_LEVEL_SECONDARY)
+    d.secondaryCommandBuffers.insert(pCommandBuffers, pCommandBuffers + pInfo->commandBufferCount);
   return result;
 }
 
@@ -75,6 +81,7 @@ void forgetCommandBuffers(DeviceState& d, VkCommandPool pool, const VkCommandBuf
       clearCommandBufferLog(d, *it->second);
       d.commandBuffers.erase(it);
     }
+    d.secondaryCommandBuffers.erase(list[i]);
     auto& owned = d.poolCommandBuffers[pool];
     owned.erase(std::remove(owned.begin(), owned.end(), list[i]), owned.end());
   }

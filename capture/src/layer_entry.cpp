@@ -155,6 +155,16 @@ VKAPI_ATTR VkResult VKAPI_CALL CreateDevice(VkPhysicalDevice physicalDevice, con
     record.device = handleId(*pDevice);
     record.deviceName = properties.deviceName;
     record.apiVersion = properties.apiVersion;
+    record.vendorId = properties.vendorID;
+    record.deviceId = properties.deviceID;
+    record.driverVersion = properties.driverVersion;
+    record.deviceType = properties.deviceType;
+    record.pipelineCacheUuid.assign(properties.pipelineCacheUUID, properties.pipelineCacheUUID + VK_UUID_SIZE);
+    record.timestampPeriod = properties.limits.timestampPeriod;
+    record.memoryHeaps.assign(state->memoryProperties.memoryHeaps,
+                              state->memoryProperties.memoryHeaps + state->memoryProperties.memoryHeapCount);
+    for (uint32_t i = 0; i < pCreateInfo->enabledExtensionCount; ++i)
+      record.enabledExtensions.push_back(pCreateInfo->ppEnabledExtensionNames[i]);
     record.servedByLayer = serving;
     record.clusterProperties = state->clusterProperties;
     record.clusterFeatureEnabled = clusterExtensionRequested && clusterFeatureRequested;
@@ -214,12 +224,20 @@ VKAPI_ATTR PFN_vkVoidFunction VKAPI_CALL GetDeviceProcAddr(VkDevice device, cons
 }
 
 std::mutex sinkMutex;
-std::weak_ptr<CaptureSink> sharedSink;
+// Kept for the whole process: a trace is finished (index and trailer written) when the
+// sink is destroyed, at exit or when the loader unloads the layer, so a second device of
+// the same process appends to the same trace instead of truncating it.
+std::shared_ptr<CaptureSink> sharedSink;
 bool sinkFailed = false;
 
 }  // namespace
 
 DeviceState::~DeviceState() = default;
+
+uint64_t nextSubmissionIndex() {
+  static std::atomic<uint64_t> counter{0};
+  return counter++;
+}
 
 InstanceState* findInstance(DispatchKey key) {
   std::shared_lock lock(registryMutex);
@@ -268,7 +286,7 @@ void logMessage(LogLevel level, const char* format, ...) {
 
 std::shared_ptr<CaptureSink> processCaptureSink() {
   std::lock_guard lock(sinkMutex);
-  if (auto sink = sharedSink.lock()) return sink;
+  if (sharedSink) return sharedSink;
   if (sinkFailed) return nullptr;
   const LayerConfig& config = layerConfig();
   std::string error;

@@ -31,7 +31,13 @@ VKAPI_ATTR VkResult VKAPI_CALL AllocateMemory(VkDevice device, const VkMemoryAll
                  (unsigned long long)memory.handle);
   }
   d.memoryMap.addMemory(memory);
-  if (d.sink) d.sink->memoryAllocated({memory.handle, memory.size, memory.typeIndex, memory.propertyFlags});
+  if (d.sink) {
+    MemoryRecord record{memory.handle, memory.size, memory.typeIndex, memory.propertyFlags, 0};
+    for (auto* s = (const VkBaseInStructure*)pAllocateInfo->pNext; s; s = s->pNext)
+      if (s->sType == VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_FLAGS_INFO)
+        record.allocateFlags = ((const VkMemoryAllocateFlagsInfo*)s)->flags;
+    d.sink->memoryAllocated(record);
+  }
   return VK_SUCCESS;
 }
 
@@ -73,7 +79,13 @@ VKAPI_ATTR VkResult VKAPI_CALL CreateBuffer(VkDevice device, const VkBufferCreat
   buffer.usage = pCreateInfo->usage;
   buffer.flags = pCreateInfo->flags;
   d.memoryMap.addBuffer(buffer);
-  if (d.sink) d.sink->bufferCreated({buffer.handle, buffer.size, buffer.usage, buffer.flags});
+  if (d.sink) {
+    BufferRecord record{buffer.handle, buffer.size, buffer.usage, buffer.flags, pCreateInfo->sharingMode, {}};
+    if (pCreateInfo->sharingMode == VK_SHARING_MODE_CONCURRENT && pCreateInfo->pQueueFamilyIndices)
+      record.queueFamilies.assign(pCreateInfo->pQueueFamilyIndices,
+                                  pCreateInfo->pQueueFamilyIndices + pCreateInfo->queueFamilyIndexCount);
+    d.sink->bufferCreated(record);
+  }
   return VK_SUCCESS;
 }
 

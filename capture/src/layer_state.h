@@ -15,6 +15,7 @@
 #include <mutex>
 #include <shared_mutex>
 #include <unordered_map>
+#include <unordered_set>
 #include <vector>
 
 namespace clastrace::capture {
@@ -129,13 +130,17 @@ struct DeviceState {
   DeviceMemoryMap memoryMap;
   std::shared_ptr<CaptureSink> sink;  // null when not capturing
   std::unique_ptr<PauseWorker> pauses;
-  std::atomic<uint64_t> submissionCounter{0};
   std::atomic<uint64_t> pauseCounter{0};
   std::mutex commandBuffersMutex;
   std::unordered_map<VkCommandBuffer, std::shared_ptr<CommandBufferLog>> commandBuffers;
   std::unordered_map<VkCommandPool, std::vector<VkCommandBuffer>> poolCommandBuffers;
+  std::unordered_set<VkCommandBuffer> secondaryCommandBuffers;
   ~DeviceState();
 };
+
+// Submissions are counted per process, so indices from several devices never collide in
+// the one trace (CLASTRACE_SUBMIT_RANGE counts the same way).
+uint64_t nextSubmissionIndex();
 
 // Registries keyed by dispatch key; lookups take a shared lock, creation/destruction exclusive.
 InstanceState* findInstance(DispatchKey key);

@@ -36,7 +36,7 @@ void announce(DeviceState& d, VkQueue queue, SubmissionPlan& plan) {
 
 SubmissionPlan planFor(DeviceState& d, VkQueue queue, VkFence fence, bool synchronization2) {
   SubmissionPlan plan;
-  plan.record.index = d.submissionCounter++;
+  plan.record.index = nextSubmissionIndex();
   plan.record.queue = handleId(queue);
   plan.record.fence = handleId(fence);
   plan.record.synchronization2 = synchronization2;

@@ -138,6 +138,16 @@ bool PauseWorker::handle(Expected& expected) {
                "not executed, their destinations are not written");
   }
 
+  if (record) {  // name each range by a buffer holding it, as the trace's snapshots do
+    for (auto* list : {&record->inputs, &record->outputs})
+      for (CapturedRange& r : *list) {
+        std::string why;
+        if (auto where = device_.memoryMap.resolve(r.address, r.bytes.size(), why)) {
+          r.buffer = where->buffer.handle;
+          r.bufferOffset = where->offsetInBuffer;
+        }
+      }
+  }
   device_.next.ResetEvent(device_.device, pause.signal);
   device_.next.SetEvent(device_.device, pause.release);
   ++handled_;

@@ -1,6 +1,7 @@
 // The layer as the loader loads it: VK_ADD_LAYER_PATH points at the build tree's manifest,
 // VK_INSTANCE_LAYERS enables it, lavapipe is the driver (it lacks the cluster extension, so
 // the layer serves it). Each test runs a program and asserts on what it and the layer wrote.
+#include <clastrace/traces/trace_reader.h>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
@@ -248,6 +249,58 @@ TEST_F(ExactnessRun, CaptureOffStillServesWithoutWriting) {
   runExactness({{"CLASTRACE_CAPTURE", "0"}});
   EXPECT_FALSE(fs::exists(dir / "capture.json"));
   EXPECT_FALSE(expected.empty());  // the application ran its builds to the end
+}
+
+// The same run written as a .clt trace and read back with the trace reader.
+TEST_F(ExactnessRun, TraceHoldsTheBuildsWithTheirSnapshots) {
+  const fs::path trace = dir / "capture.clt";
+  ProcessResult r = run(app("exactness " + (dir / "expected.json").string()), {{"CLASTRACE_OUTPUT", trace.string()}});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  expected = json::parse(readText(dir / "expected.json"));
+  clastrace::traces::TraceError error;
+  auto reader = clastrace::traces::TraceReader::open(trace.string(), &error);
+  ASSERT_TRUE(reader) << error.message;
+  EXPECT_TRUE(reader->has_index());  // finished when the loader unloaded the layer
+  ASSERT_TRUE(reader->header() && reader->header()->device());
+  EXPECT_NE(reader->header()->device()->name()->str().find("llvmpipe"), std::string::npos);
+  EXPECT_EQ(reader->header()->device()->cluster_properties()->max_triangles_per_cluster(), 256u);
+
+  // Every snapshot (address -> bytes) of the two builds, in record order.
+  std::vector<std::vector<std::pair<uint64_t, std::string>>> builds;
+  std::vector<std::string> kinds;
+  clastrace::traces::RecordView view;
+  std::vector<std::pair<uint64_t, uint64_t>> snapshots;  // (address, hash) of the current build
+  std::vector<std::vector<std::pair<uint64_t, uint64_t>>> pendingBuilds;
+  uint64_t submissions = 0;
+  while (reader->next(&view)) {
+    if (view.kind == clastrace::fbs::RecordBody::QueueSubmit) ++submissions;
+    if (view.kind != clastrace::fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect) continue;
+    const auto* build = view.record->body_as_CmdBuildClusterAccelerationStructureIndirect();
+    std::vector<std::pair<uint64_t, uint64_t>> list;
+    for (const auto* s : *build->inputs()) list.emplace_back(s->address(), s->hash());
+    pendingBuilds.push_back(list);
+  }
+  EXPECT_TRUE(reader->damage().empty()) << reader->damage()[0].message;
+  EXPECT_EQ(submissions, 1u);
+  ASSERT_EQ(pendingBuilds.size(), 2u);
+  auto bytesAt = [&](size_t build, uint64_t address) {
+    for (const auto& [a, hash] : pendingBuilds[build])
+      if (a == address) {
+        std::vector<uint8_t> bytes;
+        auto e = reader->read_contents(hash, &bytes);
+        EXPECT_FALSE(e) << e.message;
+        std::string hex;
+        for (uint8_t b : bytes) hex += "0123456789abcdef"[b >> 4], hex += "0123456789abcdef"[b & 15];
+        return hex;
+      }
+    return std::string("<no snapshot>");
+  };
+  const json& want = expected["clusterBuild"];
+  EXPECT_EQ(bytesAt(0, want["srcInfosCount"]["address"]), want["srcInfosCount"]["bytes"]);
+  for (const char* role : {"srcInfos", "indexBuffer", "vertexBuffer", "geometryIndexAndFlagsBuffer"})
+    for (const auto& range : want[role]) EXPECT_EQ(bytesAt(0, range["address"]), range["bytes"]) << role;
+  const json& blas = expected["bottomLevelBuild"];
+  EXPECT_EQ(bytesAt(1, blas["clusterReferences"][0]["address"]), blas["clusterReferences"][0]["bytes"]);
 }
 
 // ---- Failure handling --------------------------------------------------------------------

@@ -49,6 +49,8 @@ struct CapturedRange {
   uint32_t entry = 0;  // srcInfosArray entry it belongs to (0 for command-wide ranges)
   VkDeviceAddress address = 0;
   std::vector<uint8_t> bytes;
+  uint64_t buffer = 0;        // a buffer holding the range, and the range's offset in it
+  VkDeviceSize bufferOffset = 0;
 };
 
 struct CaptureIssue {
@@ -63,6 +65,11 @@ struct DeviceRecord {
   uint64_t device = 0;
   std::string deviceName;
   uint32_t apiVersion = 0;
+  uint32_t vendorId = 0, deviceId = 0, driverVersion = 0, deviceType = 0;
+  std::vector<uint8_t> pipelineCacheUuid;
+  float timestampPeriod = 0;
+  std::vector<VkMemoryHeap> memoryHeaps;
+  std::vector<std::string> enabledExtensions;  // as the application asked, served ones included
   bool servedByLayer = false;
   VkPhysicalDeviceClusterAccelerationStructurePropertiesNV clusterProperties{};
   bool clusterFeatureEnabled = false;
@@ -74,6 +81,7 @@ struct MemoryRecord {
   VkDeviceSize size = 0;
   uint32_t typeIndex = 0;
   VkMemoryPropertyFlags propertyFlags = 0;
+  VkMemoryAllocateFlags allocateFlags = 0;
 };
 
 struct BufferRecord {
@@ -81,6 +89,8 @@ struct BufferRecord {
   VkDeviceSize size = 0;
   VkBufferUsageFlags usage = 0;
   VkBufferCreateFlags flags = 0;
+  VkSharingMode sharingMode = VK_SHARING_MODE_EXCLUSIVE;
+  std::vector<uint32_t> queueFamilies;
 };
 
 struct BufferBindingRecord {
@@ -184,6 +194,7 @@ using RecordedCommand =
 struct RecordedCommandBuffer {
   uint64_t commandBuffer = 0;
   VkCommandBufferUsageFlags usage = 0;
+  bool secondary = false;
   std::vector<RecordedCommand> commands;
 };
 
