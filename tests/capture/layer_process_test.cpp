@@ -303,6 +303,36 @@ TEST_F(ExactnessRun, TraceHoldsTheBuildsWithTheirSnapshots) {
   EXPECT_EQ(bytesAt(1, blas["clusterReferences"][0]["address"]), blas["clusterReferences"][0]["bytes"]);
 }
 
+// ---- The launcher -----------------------------------------------------------------------
+
+TEST_F(LayerProcess, LauncherRunsTheApplicationUnderTheLayer) {
+  const fs::path trace = dir / "launched.clt";
+  // No VK_ADD_LAYER_PATH/VK_INSTANCE_LAYERS from the test: the launcher sets them.
+  ProcessResult r = run(std::string(CLASTRACE_CAPTURE_LAUNCHER) + " capture -o " + trace.string() + " --layer-path " +
+                            CLASTRACE_LAYER_MANIFEST_DIR + " -- " + app("exactness " + (dir / "expected.json").string()),
+                        {}, false);
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  EXPECT_NE(r.err.find("clastrace capture: wrote '" + trace.string() + "'"), std::string::npos) << r.err;
+  clastrace::traces::TraceError error;
+  auto reader = clastrace::traces::TraceReader::open(trace.string(), &error);
+  ASSERT_TRUE(reader) << error.message;
+  size_t builds = 0;
+  clastrace::traces::RecordView view;
+  while (reader->next(&view))
+    if (view.kind == clastrace::fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect) ++builds;
+  EXPECT_EQ(builds, 2u);
+}
+
+TEST_F(LayerProcess, LauncherRefusesAnUnwritableOutputAndPassesExitCodes) {
+  ProcessResult r = run(std::string(CLASTRACE_CAPTURE_LAUNCHER) + " capture -o /nonexistent-dir/x.clt -- true", {}, false);
+  EXPECT_EQ(r.exitCode, 2);
+  EXPECT_NE(r.err.find("cannot write '/nonexistent-dir/x.clt'"), std::string::npos) << r.err;
+  r = run(std::string(CLASTRACE_CAPTURE_LAUNCHER) + " capture -o " + (dir / "x.clt").string() + " -- sh -c 'exit 7'",
+          {}, false);
+  EXPECT_EQ(r.exitCode, 7) << r.err;
+  EXPECT_NE(r.err.find("was not written"), std::string::npos) << r.err;  // sh makes no Vulkan device
+}
+
 // ---- Failure handling --------------------------------------------------------------------
 
 TEST_F(LayerProcess, UnwritableOutputGivesOneMessageAndTheApplicationRuns) {
