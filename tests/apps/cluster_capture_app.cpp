@@ -4,6 +4,7 @@
 //   exactness OUT.json     one command buffer writes a build's inputs with transfer commands,
 //                          builds, then overwrites them; OUT.json lists the bytes the builds
 //                          must have read (and the memory's final state, which differs)
+//   resubmit N             one command buffer submitted N times, the host changing the count
 //   pause-cost N           N builds in one submission; prints the time per build
 #include <clastrace/vk_cluster_abi.h>
 
@@ -403,6 +404,65 @@ int exactness(const char* outPath) {
   return 0;
 }
 
+// One command buffer submitted `times` times; before each submission the host writes the
+// build's count (1, 2, 3, 1, ...) into mapped memory. Each execution must be captured with
+// its own count, and the layer's events must be ready again for the next submission.
+int resubmit(int times) {
+  Context c;
+  c.createInstance();
+  c.createDevice();
+  Buffer counts = c.makeBuffer(256, 0);
+  Buffer infos = c.makeBuffer(1024, 0);
+  Buffer vertices = c.makeBuffer(256, 0);
+  Buffer indices = c.makeBuffer(256, 0);
+  VkClusterAccelerationStructureBuildTriangleClusterInfoNV cluster{};
+  cluster.triangleCount = 1;
+  cluster.vertexCount = 3;
+  cluster.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
+  cluster.indexBuffer = indices.address;
+  cluster.vertexBuffer = vertices.address;
+  for (int i = 0; i < 3; ++i) {
+    cluster.clusterID = 10 + i;
+    std::memcpy(infos.mapped + i * sizeof cluster, &cluster, sizeof cluster);
+  }
+  VkClusterAccelerationStructureTriangleClusterInputNV triangleInput{};
+  triangleInput.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
+  triangleInput.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+  VkClusterAccelerationStructureCommandsInfoNV build{};
+  build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+  build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+  build.input.maxAccelerationStructureCount = 3;
+  build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
+  build.input.opInput.pTriangleClusters = &triangleInput;
+  build.srcInfosArray = {infos.address, 0, 3 * sizeof cluster};
+  build.srcInfosCount = counts.address;
+
+  VkCommandBufferAllocateInfo allocInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr, c.pool,
+                                        VK_COMMAND_BUFFER_LEVEL_PRIMARY, 1};
+  VkCommandBuffer cb;
+  CHECK(vkAllocateCommandBuffers(c.device, &allocInfo, &cb));
+  VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr, 0, nullptr};
+  CHECK(vkBeginCommandBuffer(cb, &begin));
+  c.cmdBuildClusters(cb, &build);
+  CHECK(vkEndCommandBuffer(cb));
+  VkFenceCreateInfo fenceInfo{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO, nullptr, 0};
+  VkFence fence;
+  CHECK(vkCreateFence(c.device, &fenceInfo, nullptr, &fence));
+  for (int i = 0; i < times; ++i) {
+    const uint32_t count = uint32_t(i % 3) + 1;
+    std::memcpy(counts.mapped, &count, 4);
+    VkSubmitInfo submit{};
+    submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
+    submit.commandBufferCount = 1;
+    submit.pCommandBuffers = &cb;
+    CHECK(vkQueueSubmit(c.queue, 1, &submit, fence));
+    CHECK(vkWaitForFences(c.device, 1, &fence, VK_TRUE, 30ull * 1000 * 1000 * 1000));
+    CHECK(vkResetFences(c.device, 1, &fence));
+  }
+  vkDestroyFence(c.device, fence, nullptr);
+  return 0;
+}
+
 int pauseCost(int builds) {
   Context c;
   c.createInstance();
@@ -440,6 +500,7 @@ int pauseCost(int builds) {
 int main(int argc, char** argv) {
   if (argc == 3 && std::strcmp(argv[1], "limits") == 0) return limits(argv[2]);
   if (argc == 3 && std::strcmp(argv[1], "exactness") == 0) return exactness(argv[2]);
+  if (argc == 3 && std::strcmp(argv[1], "resubmit") == 0) return resubmit(std::max(1, std::atoi(argv[2])));
   if (argc == 3 && std::strcmp(argv[1], "pause-cost") == 0) return pauseCost(std::max(1, std::atoi(argv[2])));
   std::fprintf(stderr, "usage: cluster_capture_app limits|exactness OUT.json | pause-cost N\n");
   return 1;

@@ -251,6 +251,22 @@ TEST_F(ExactnessRun, CaptureOffStillServesWithoutWriting) {
   EXPECT_FALSE(expected.empty());  // the application ran its builds to the end
 }
 
+TEST_F(ExactnessRun, EachResubmissionIsCapturedWithItsOwnHostWrittenCount) {
+  ProcessResult r = run(app("resubmit 7"), {{"CLASTRACE_DEBUG_JSON", (dir / "capture.json").string()}});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  captured = json::parse(readText(dir / "capture.json"));
+  ASSERT_EQ(captured["clusterBuilds"].size(), 7u);
+  ASSERT_EQ(captured["submissions"].size(), 7u);
+  for (size_t i = 0; i < 7; ++i) {
+    const json& build = captured["clusterBuilds"][i];
+    EXPECT_EQ(build["submissionIndex"], captured["submissions"][i]["index"]);
+    EXPECT_EQ(build["executedCount"], i % 3 + 1) << "submission " << i;
+    EXPECT_EQ(ranges(build, "srcInfos").size(), 1u);
+    EXPECT_EQ(ranges(build, "srcInfos")[0]["size"], 64 * (i % 3 + 1));
+    EXPECT_EQ(ranges(build, "indexBuffer").size(), i % 3 + 1);
+  }
+}
+
 // The same run written as a .clt trace and read back with the trace reader.
 TEST_F(ExactnessRun, TraceHoldsTheBuildsWithTheirSnapshots) {
   const fs::path trace = dir / "capture.clt";
