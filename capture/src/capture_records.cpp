@@ -77,6 +77,10 @@ const char* memoryRoleName(MemoryRole role) {
     case MemoryRole::DstAddresses: return "dstAddresses";
     case MemoryRole::DstSizes: return "dstSizes";
     case MemoryRole::DstObject: return "dstObject";
+    case MemoryRole::TransformData: return "transformData";
+    case MemoryRole::Aabbs: return "aabbData";
+    case MemoryRole::Instances: return "instanceData";
+    case MemoryRole::SerializedAccelerationStructure: return "serializedAccelerationStructure";
   }
   return "unknown";
 }

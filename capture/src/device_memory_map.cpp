@@ -115,6 +115,33 @@ std::optional<ResolvedRange> DeviceMemoryMap::resolve(VkDeviceAddress address, V
   return std::nullopt;
 }
 
+std::optional<ResolvedRange> DeviceMemoryMap::resolveBuffer(uint64_t buffer, VkDeviceSize offset, VkDeviceSize size,
+                                                            std::string& why) const {
+  std::lock_guard lock(mutex_);
+  auto it = buffers_.find(buffer);
+  if (it == buffers_.end()) {
+    why = "buffer " + hex(buffer) + " is not a live buffer";
+    return std::nullopt;
+  }
+  const TrackedBuffer& b = it->second;
+  if (offset > b.size || size > b.size - offset) {
+    why = "range " + hex(offset) + "+" + hex(size) + " runs past the end of buffer " + hex(buffer) + " (size " +
+          hex(b.size) + ")";
+    return std::nullopt;
+  }
+  auto mem = memories_.find(b.memory);
+  if (b.memory == 0 || mem == memories_.end()) {
+    why = "buffer " + hex(buffer) + " has no live memory bound";
+    return std::nullopt;
+  }
+  ResolvedRange r;
+  r.buffer = b;
+  r.offsetInBuffer = offset;
+  r.memory = mem->second;
+  if (mem->second.hostBase) r.host = mem->second.hostBase + b.memoryOffset + offset;
+  return r;
+}
+
 bool DeviceMemoryMap::read(VkDeviceAddress address, VkDeviceSize size, std::vector<uint8_t>& out,
                            std::string& why) const {
   auto range = resolve(address, size, why);

@@ -111,10 +111,12 @@ struct CommandToJson {
     return {{"kind", "BuildAccelerationStructureNV"}, {"type", int(c.type)}, {"flags", c.flags},
             {"instanceCount", c.instanceCount}, {"geometryCount", c.geometries.size()},
             {"instanceData", c.instanceData}, {"instanceOffset", c.instanceOffset}, {"update", c.update},
-            {"dst", c.dst}, {"src", c.src}, {"scratch", c.scratch}, {"scratchOffset", c.scratchOffset}};
+            {"dst", c.dst}, {"src", c.src}, {"scratch", c.scratch}, {"scratchOffset", c.scratchOffset},
+            {"pauseId", c.pauseId}};
   }
   json operator()(const CopyMemoryToAccelerationStructureCommand& c) const {
-    return {{"kind", "CopyMemoryToAccelerationStructureKHR"}, {"src", c.src}, {"dst", c.dst}, {"mode", int(c.mode)}};
+    return {{"kind", "CopyMemoryToAccelerationStructureKHR"}, {"src", c.src}, {"dst", c.dst}, {"mode", int(c.mode)},
+            {"pauseId", c.pauseId}};
   }
 };
 
@@ -191,7 +193,7 @@ class JsonCaptureSink final : public CaptureSink {
   void clusterBuildCaptured(const ClusterBuildCapture& c) override {
     json issues = json::array();
     for (const auto& i : c.issues) issues.push_back({{"address", i.address}, {"size", i.size}, {"rule", i.rule}});
-    add("clusterBuilds", {{"pauseId", c.pauseId}, {"submissionIndex", c.submissionIndex},
+    add("clusterBuilds", {{"kind", int(c.kind)}, {"pauseId", c.pauseId}, {"submissionIndex", c.submissionIndex},
                           {"commandBuffer", c.commandBuffer}, {"parameters", parametersJson(c.parameters)},
                           {"executedCount", c.executedCount}, {"inputs", rangesJson(c.inputs)},
                           {"outputs", rangesJson(c.outputs)}, {"issues", issues},

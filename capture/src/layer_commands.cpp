@@ -399,34 +399,55 @@ VKAPI_ATTR void VKAPI_CALL CmdBuildAccelerationStructureNV(VkCommandBuffer cb, c
                                                            VkBool32 update, VkAccelerationStructureNV dst,
                                                            VkAccelerationStructureNV src, VkBuffer scratch,
                                                            VkDeviceSize scratchOffset) {
-  deviceOf(cb).next.CmdBuildAccelerationStructureNV(cb, pInfo, instanceData, instanceOffset, update, dst, src, scratch,
-                                                    scratchOffset);
-  // Recorded with its parameters; the geometry buffers' bytes are not captured yet (see report).
-  BuildAccelerationStructureNVCommand c;
-  c.type = pInfo->type;
-  c.flags = pInfo->flags;
-  c.instanceCount = pInfo->instanceCount;
+  DeviceState& d = deviceOf(cb);
+  auto c = std::make_shared<BuildAccelerationStructureNVCommand>();
+  c->type = pInfo->type;
+  c->flags = pInfo->flags;
+  c->instanceCount = pInfo->instanceCount;
   for (uint32_t i = 0; i < pInfo->geometryCount; ++i) {
     VkGeometryNV g = pInfo->pGeometries[i];
     g.pNext = nullptr;
     g.geometry.triangles.pNext = nullptr;
     g.geometry.aabbs.pNext = nullptr;
-    c.geometries.push_back(g);
+    c->geometries.push_back(g);
   }
-  c.instanceData = handleId(instanceData);
-  c.instanceOffset = instanceOffset;
-  c.update = update;
-  c.dst = handleId(dst);
-  c.src = handleId(src);
-  c.scratch = handleId(scratch);
-  c.scratchOffset = scratchOffset;
-  record(cb, std::move(c));
+  c->instanceData = handleId(instanceData);
+  c->instanceOffset = instanceOffset;
+  c->update = update;
+  c->dst = handleId(dst);
+  c->src = handleId(src);
+  c->scratch = handleId(scratch);
+  c->scratchOffset = scratchOffset;
+  auto log = logOf(d, cb);
+  if (d.capturing) {  // inputs only: the NV structure's own memory is opaque to the layer
+    c->pauseId = ++d.pauseCounter;
+    PausePoint before;
+    before.pauseId = c->pauseId;
+    before.buildNV = c;
+    recordPause(d, cb, *log, before);
+  }
+  d.next.CmdBuildAccelerationStructureNV(cb, pInfo, instanceData, instanceOffset, update, dst, src, scratch,
+                                         scratchOffset);
+  if (d.sink) log->recorded.commands.push_back(*c);
 }
 
 VKAPI_ATTR void VKAPI_CALL CmdCopyMemoryToAccelerationStructureKHR(VkCommandBuffer cb,
                                                                    const VkCopyMemoryToAccelerationStructureInfoKHR* pInfo) {
-  deviceOf(cb).next.CmdCopyMemoryToAccelerationStructureKHR(cb, pInfo);
-  record(cb, CopyMemoryToAccelerationStructureCommand{pInfo->src.deviceAddress, handleId(pInfo->dst), pInfo->mode});
+  DeviceState& d = deviceOf(cb);
+  auto c = std::make_shared<CopyMemoryToAccelerationStructureCommand>();
+  c->src = pInfo->src.deviceAddress;
+  c->dst = handleId(pInfo->dst);
+  c->mode = pInfo->mode;
+  auto log = logOf(d, cb);
+  if (d.capturing) {
+    c->pauseId = ++d.pauseCounter;
+    PausePoint before;
+    before.pauseId = c->pauseId;
+    before.copyToAccelerationStructure = c;
+    recordPause(d, cb, *log, before);
+  }
+  d.next.CmdCopyMemoryToAccelerationStructureKHR(cb, pInfo);
+  if (d.sink) log->recorded.commands.push_back(*c);
 }
 
 }  // namespace

@@ -4,6 +4,9 @@
 #include "layer_state.h"
 
 #include <chrono>
+#include <cstring>
+
+#include "clastrace/capture/acceleration_structure_walker.h"
 
 namespace clastrace::capture {
 
@@ -80,20 +83,32 @@ bool PauseWorker::checkMemory(VkDeviceAddress address, uint64_t size, std::strin
   return true;
 }
 
-bool PauseWorker::readMemory(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>& out, std::string& why) {
-  auto range = device_.memoryMap.resolve(address, size, why);
-  if (!range) return false;
-  if (range->host && !(range->memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_COHERENT_BIT)) {
+bool PauseWorker::readResolved(const ResolvedRange& range, uint64_t size, std::vector<uint8_t>& out) {
+  if (!range.host) return false;
+  if (!(range.memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_COHERENT_BIT)) {
     // Device writes to non-coherent memory reach the host view only after an invalidate of
     // whole atoms.
     const VkDeviceSize atom = device_.nonCoherentAtomSize;
-    const VkDeviceSize begin = (range->buffer.memoryOffset + range->offsetInBuffer) / atom * atom;
-    VkDeviceSize end = (range->buffer.memoryOffset + range->offsetInBuffer + size + atom - 1) / atom * atom;
-    VkMappedMemoryRange mapped{VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE, nullptr, (VkDeviceMemory)range->memory.handle,
-                               begin, end >= range->memory.size ? VK_WHOLE_SIZE : end - begin};
+    const VkDeviceSize first = range.buffer.memoryOffset + range.offsetInBuffer;
+    const VkDeviceSize begin = first / atom * atom;
+    const VkDeviceSize end = (first + size + atom - 1) / atom * atom;
+    VkMappedMemoryRange mapped{VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE, nullptr, (VkDeviceMemory)range.memory.handle,
+                               begin, end >= range.memory.size ? VK_WHOLE_SIZE : end - begin};
     device_.next.InvalidateMappedMemoryRanges(device_.device, 1, &mapped);
   }
-  return device_.memoryMap.read(address, size, out, why);
+  out.resize(size);
+  if (size) std::memcpy(out.data(), range.host, size);
+  return true;
+}
+
+bool PauseWorker::readMemory(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>& out, std::string& why) {
+  auto range = device_.memoryMap.resolve(address, size, why);
+  if (!range) return false;
+  if (!readResolved(*range, size, out)) {
+    why = "the memory is not host visible (staging copies are not implemented yet)";
+    return false;
+  }
+  return true;
 }
 
 bool PauseWorker::handle(Expected& expected) {
@@ -113,15 +128,34 @@ bool PauseWorker::handle(Expected& expected) {
       fresh.pauseId = pause.pauseId;
       fresh.submissionIndex = expected.submissionIndex;
       fresh.commandBuffer = expected.commandBuffer;
-      fresh.parameters = *pause.parameters;
+      ClusterMemoryWalk walk;
+      if (pause.buildNV) {
+        fresh.kind = CapturedCommandKind::BuildAccelerationStructureNV;
+        BufferMemoryReader bufferReader = [this](uint64_t buffer, VkDeviceSize offset, uint64_t size,
+                                                 std::vector<uint8_t>* out, std::string& why) {
+          auto range = device_.memoryMap.resolveBuffer(buffer, offset, size, why);
+          if (!range) return false;
+          if (!range->host) {
+            why = "the memory is not host visible (staging copies are not implemented yet)";
+            return false;
+          }
+          return out ? readResolved(*range, size, *out) : true;
+        };
+        walk = walkBuildAccelerationStructureNVInputs(*pause.buildNV, bufferReader);
+      } else if (pause.copyToAccelerationStructure) {
+        fresh.kind = CapturedCommandKind::CopyMemoryToAccelerationStructure;
+        walk = walkCopyMemoryToAccelerationStructureInputs(*pause.copyToAccelerationStructure, reader);
+      } else {
+        fresh.parameters = *pause.parameters;
+        walk = walkClusterInputs(*pause.parameters, reader);
+      }
       record = &open_.insert_or_assign(pause.pauseId, std::move(fresh)).first->second;
-      ClusterMemoryWalk walk = walkClusterInputs(*pause.parameters, reader);
       record->executedCount = walk.executedCount;
       record->inputs = std::move(walk.ranges);
       record->issues = std::move(walk.issues);
     } else {
       auto it = open_.find(pause.pauseId);
-      if (it != open_.end()) {
+      if (it != open_.end() && pause.parameters) {
         record = &it->second;
         ClusterMemoryWalk walk = walkClusterOutputs(*pause.parameters, record->executedCount, reader);
         record->outputs = std::move(walk.ranges);
@@ -142,6 +176,7 @@ bool PauseWorker::handle(Expected& expected) {
     for (auto* list : {&record->inputs, &record->outputs})
       for (CapturedRange& r : *list) {
         std::string why;
+        if (r.address == 0) continue;  // named by buffer and offset already
         if (auto where = device_.memoryMap.resolve(r.address, r.bytes.size(), why)) {
           r.buffer = where->buffer.handle;
           r.bufferOffset = where->offsetInBuffer;

@@ -17,6 +17,7 @@
 #pragma once
 
 #include "clastrace/capture/capture_records.h"
+#include "clastrace/capture/device_memory_map.h"
 
 #include <condition_variable>
 #include <deque>
@@ -38,7 +39,9 @@ struct PausePoint {
   bool lastOfCommand = true;  // the capture of this command is complete after this pause
   VkEvent signal = VK_NULL_HANDLE;
   VkEvent release = VK_NULL_HANDLE;
-  std::shared_ptr<const ClusterCommandParameters> parameters;
+  std::shared_ptr<const ClusterCommandParameters> parameters;  // a cluster build, or one of:
+  std::shared_ptr<const BuildAccelerationStructureNVCommand> buildNV;
+  std::shared_ptr<const CopyMemoryToAccelerationStructureCommand> copyToAccelerationStructure;
 };
 
 class PauseWorker {
@@ -64,6 +67,7 @@ class PauseWorker {
   bool handle(Expected& expected);
   bool checkMemory(VkDeviceAddress address, uint64_t size, std::string& why);
   bool readMemory(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>& out, std::string& why);
+  bool readResolved(const ResolvedRange& range, uint64_t size, std::vector<uint8_t>& out);
 
   DeviceState& device_;
   std::mutex mutex_;

@@ -217,8 +217,12 @@ class TraceCaptureSink final : public CaptureSink {
         auto it = recorded_.find(cb);
         if (it == recorded_.end()) continue;
         p.commandBuffers.push_back(it->second);
-        for (const auto& c : it->second->commands)
+        for (const auto& c : it->second->commands) {
           if (std::holds_alternative<ClusterBuildCommand>(c)) ++p.expectedBuilds;
+          if (const auto* nv = std::get_if<BuildAccelerationStructureNVCommand>(&c)) p.expectedBuilds += nv->pauseId != 0;
+          if (const auto* copy = std::get_if<CopyMemoryToAccelerationStructureCommand>(&c))
+            p.expectedBuilds += copy->pauseId != 0;
+        }
       }
     emitReadyLocked(false);
   }
@@ -442,6 +446,8 @@ class TraceCaptureSink final : public CaptureSink {
       r.src = c->src;
       r.scratch = c->scratch;
       r.scratch_offset = c->scratchOffset;
+      if (auto captured = p.builds.find(c->pauseId); c->pauseId && captured != p.builds.end())
+        snapshots(captured->second.inputs, r.inputs);
       appendLocked(recordOf(std::move(r)));
     } else if (const auto* c = std::get_if<CopyMemoryToAccelerationStructureCommand>(&command)) {
       fbs::CmdCopyMemoryToAccelerationStructureT r;
@@ -449,6 +455,8 @@ class TraceCaptureSink final : public CaptureSink {
       r.src_address = c->src;
       r.dst = c->dst;
       r.mode = uint32_t(c->mode);
+      if (auto captured = p.builds.find(c->pauseId); c->pauseId && captured != p.builds.end())
+        snapshots(captured->second.inputs, r.inputs);
       appendLocked(recordOf(std::move(r)));
     }
   }

@@ -41,6 +41,10 @@ enum class MemoryRole {
   DstAddresses,
   DstSizes,
   DstObject,
+  TransformData,      // vkCmdBuildAccelerationStructureNV geometry transforms
+  Aabbs,
+  Instances,
+  SerializedAccelerationStructure,  // vkCmdCopyMemoryToAccelerationStructureKHR source
 };
 const char* memoryRoleName(MemoryRole role);
 
@@ -178,12 +182,14 @@ struct BuildAccelerationStructureNVCommand {
   VkBool32 update = VK_FALSE;
   uint64_t dst = 0, src = 0, scratch = 0;
   VkDeviceSize scratchOffset = 0;
+  uint64_t pauseId = 0;  // 0: recorded without capture
 };
 
 struct CopyMemoryToAccelerationStructureCommand {
   VkDeviceAddress src = 0;
   uint64_t dst = 0;
   VkCopyAccelerationStructureModeKHR mode{};
+  uint64_t pauseId = 0;
 };
 
 using RecordedCommand =
@@ -222,7 +228,10 @@ struct SubmissionRecord {
 
 // Everything one vkCmdBuildClusterAccelerationStructureIndirectNV read, as it was when the
 // command executed on the queue, and everything it wrote, read after it completed.
+enum class CapturedCommandKind { ClusterBuild, BuildAccelerationStructureNV, CopyMemoryToAccelerationStructure };
+
 struct ClusterBuildCapture {
+  CapturedCommandKind kind = CapturedCommandKind::ClusterBuild;  // parameters apply to ClusterBuild only
   uint64_t pauseId = 0;
   uint64_t submissionIndex = 0;
   uint64_t commandBuffer = 0;

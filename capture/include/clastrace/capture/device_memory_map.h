@@ -61,6 +61,10 @@ class DeviceMemoryMap {
   // is not inside one bound buffer or its memory is not host visible.
   bool read(VkDeviceAddress address, VkDeviceSize size, std::vector<uint8_t>& out, std::string& why) const;
 
+  // The same for a range named by buffer handle and offset (commands that take VkBuffers).
+  std::optional<ResolvedRange> resolveBuffer(uint64_t buffer, VkDeviceSize offset, VkDeviceSize size,
+                                             std::string& why) const;
+
  private:
   mutable std::mutex mutex_;
   std::unordered_map<uint64_t, TrackedMemory> memories_;
