@@ -139,7 +139,7 @@ class JsonCaptureSink final : public CaptureSink {
     const auto& p = d.clusterProperties;
     json types = json::array();
     for (const auto& t : d.memoryTypes) types.push_back({{"propertyFlags", t.propertyFlags}, {"heapIndex", t.heapIndex}});
-    add("devices", {{"device", d.device}, {"deviceName", d.deviceName}, {"apiVersion", d.apiVersion},
+    add("devices", {{"device", d.device}, {"deviceName", d.deviceName}, {"applicationName", d.applicationName}, {"apiVersion", d.apiVersion},
                     {"servedByLayer", d.servedByLayer}, {"clusterFeatureEnabled", d.clusterFeatureEnabled},
                     {"memoryTypes", types},
                     {"clusterProperties",

@@ -45,6 +45,10 @@ VKAPI_ATTR VkResult VKAPI_CALL CreateInstance(const VkInstanceCreateInfo* pCreat
   layerConfig();  // parse (and report) the settings at a predictable moment
   auto state = std::make_unique<InstanceState>();
   state->instance = *pInstance;
+  if (const VkApplicationInfo* app = pCreateInfo->pApplicationInfo) {
+    if (app->pApplicationName) state->applicationName = app->pApplicationName;
+    if (app->pEngineName) state->engineName = app->pEngineName;
+  }
   state->apiVersion = pCreateInfo->pApplicationInfo && pCreateInfo->pApplicationInfo->apiVersion
                           ? pCreateInfo->pApplicationInfo->apiVersion
                           : VK_API_VERSION_1_0;
@@ -154,6 +158,8 @@ VKAPI_ATTR VkResult VKAPI_CALL CreateDevice(VkPhysicalDevice physicalDevice, con
     DeviceRecord record;
     record.device = handleId(*pDevice);
     record.deviceName = properties.deviceName;
+    record.applicationName = instance->applicationName;
+    record.engineName = instance->engineName;
     record.apiVersion = properties.apiVersion;
     record.vendorId = properties.vendorID;
     record.deviceId = properties.deviceID;

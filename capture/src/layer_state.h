@@ -114,6 +114,7 @@ struct InstanceState {
   VkInstance instance = VK_NULL_HANDLE;
   InstanceDispatch next;
   uint32_t apiVersion = VK_API_VERSION_1_0;
+  std::string applicationName, engineName;
 };
 
 struct DeviceState {

@@ -127,6 +127,8 @@ class TraceCaptureSink final : public CaptureSink {
     p.cluster_template_bounds_byte_alignment = d.clusterProperties.clusterTemplateBoundsByteAlignment;
     p.max_cluster_geometry_index = d.clusterProperties.maxClusterGeometryIndex;
     header.capture = std::make_unique<fbs::CaptureSettingsT>();
+    header.capture->application_name = d.applicationName;
+    header.capture->engine_name = d.engineName;
     header.capture->capture_tool = d.servedByLayer ? "clastrace-capture 0.1.0 (serving the extension)"
                                                    : "clastrace-capture 0.1.0";
     header.capture->start_time_unix_ns = uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(

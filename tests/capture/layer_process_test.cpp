@@ -280,6 +280,7 @@ TEST_F(ExactnessRun, TraceHoldsTheBuildsWithTheirSnapshots) {
   ASSERT_TRUE(reader->header() && reader->header()->device());
   EXPECT_NE(reader->header()->device()->name()->str().find("llvmpipe"), std::string::npos);
   EXPECT_EQ(reader->header()->device()->cluster_properties()->max_triangles_per_cluster(), 256u);
+  EXPECT_EQ(reader->header()->capture()->application_name()->str(), "cluster_capture_app");
 
   // Every snapshot (address -> bytes) of the two builds, in record order.
   std::vector<std::vector<std::pair<uint64_t, std::string>>> builds;

@@ -68,6 +68,7 @@ struct CaptureIssue {
 struct DeviceRecord {
   uint64_t device = 0;
   std::string deviceName;
+  std::string applicationName, engineName;  // VkApplicationInfo
   uint32_t apiVersion = 0;
   uint32_t vendorId = 0, deviceId = 0, driverVersion = 0, deviceType = 0;
   std::vector<uint8_t> pipelineCacheUuid;
