@@ -101,7 +101,13 @@ struct CommandToJson {
     return {{"kind", "UpdateBuffer"}, {"dst", c.dst}, {"offset", c.offset}, {"bytes", hexBytes(c.data)}};
   }
   json operator()(const DispatchCommand& c) const {
-    return {{"kind", "Dispatch"}, {"groups", {c.groupCountX, c.groupCountY, c.groupCountZ}}};
+    json buffers = json::array();
+    for (const auto& b : c.storageBuffers)
+      buffers.push_back({{"set", b.set}, {"binding", b.binding}, {"arrayElement", b.arrayElement},
+                         {"type", int(b.type)}, {"buffer", b.buffer}, {"offset", b.offset}, {"range", b.range},
+                         {"address", b.address}});
+    return {{"kind", "Dispatch"}, {"groups", {c.groupCountX, c.groupCountY, c.groupCountZ}}, {"pipeline", c.pipeline},
+            {"indirectBuffer", c.indirectBuffer}, {"indirectOffset", c.indirectOffset}, {"storageBuffers", buffers}};
   }
   json operator()(const ClusterBuildCommand& c) const {
     return {{"kind", "BuildClusterAccelerationStructureIndirectNV"}, {"pauseId", c.pauseId},

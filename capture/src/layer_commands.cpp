@@ -302,9 +302,125 @@ VKAPI_ATTR void VKAPI_CALL CmdUpdateBuffer(VkCommandBuffer cb, VkBuffer dst, VkD
   auto* bytes = static_cast<const uint8_t*>(pData);
   record(cb, UpdateBufferCommand{handleId(dst), offset, {bytes, bytes + size}});
 }
+// ---- Compute state: which storage buffers a dispatch sees ----------------------------------
+
+VKAPI_ATTR void VKAPI_CALL UpdateDescriptorSets(VkDevice device, uint32_t writeCount, const VkWriteDescriptorSet* writes,
+                                                uint32_t copyCount, const VkCopyDescriptorSet* copies) {
+  DeviceState& d = *findDevice(dispatchKey(device));
+  d.next.UpdateDescriptorSets(device, writeCount, writes, copyCount, copies);
+  std::lock_guard lock(d.descriptorsMutex);
+  for (uint32_t w = 0; w < writeCount; ++w) {
+    const VkWriteDescriptorSet& write = writes[w];
+    const bool storage = write.descriptorType == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER ||
+                         write.descriptorType == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC;
+    auto& set = d.storageDescriptors[write.dstSet];
+    // Consecutive descriptors continue at element + i of the same binding (overflow into the
+    // next binding is not followed).
+    for (uint32_t i = 0; i < write.descriptorCount; ++i) {
+      const std::pair<uint32_t, uint32_t> key{write.dstBinding, write.dstArrayElement + i};
+      if (!storage || !write.pBufferInfo) {
+        set.erase(key);
+        continue;
+      }
+      const VkDescriptorBufferInfo& info = write.pBufferInfo[i];
+      BoundStorageBuffer b;
+      b.binding = write.dstBinding;
+      b.arrayElement = write.dstArrayElement + i;
+      b.type = write.descriptorType;
+      b.buffer = handleId(info.buffer);
+      b.offset = info.offset;
+      b.range = info.range;
+      set[key] = b;
+    }
+  }
+  for (uint32_t c = 0; c < copyCount; ++c) {
+    const VkCopyDescriptorSet& copy = copies[c];
+    auto source = d.storageDescriptors.find(copy.srcSet);
+    for (uint32_t i = 0; i < copy.descriptorCount; ++i) {
+      const std::pair<uint32_t, uint32_t> to{copy.dstBinding, copy.dstArrayElement + i};
+      auto& dst = d.storageDescriptors[copy.dstSet];
+      if (source == d.storageDescriptors.end()) {
+        dst.erase(to);
+        continue;
+      }
+      auto from = source->second.find({copy.srcBinding, copy.srcArrayElement + i});
+      if (from == source->second.end()) {
+        dst.erase(to);
+        continue;
+      }
+      BoundStorageBuffer b = from->second;
+      b.binding = to.first;
+      b.arrayElement = to.second;
+      dst[to] = b;
+    }
+  }
+}
+
+VKAPI_ATTR void VKAPI_CALL CmdBindPipeline(VkCommandBuffer cb, VkPipelineBindPoint bindPoint, VkPipeline pipeline) {
+  DeviceState& d = deviceOf(cb);
+  d.next.CmdBindPipeline(cb, bindPoint, pipeline);
+  if (bindPoint == VK_PIPELINE_BIND_POINT_COMPUTE) logOf(d, cb)->computePipeline = handleId(pipeline);
+}
+
+VKAPI_ATTR void VKAPI_CALL CmdBindDescriptorSets(VkCommandBuffer cb, VkPipelineBindPoint bindPoint,
+                                                 VkPipelineLayout layout, uint32_t firstSet, uint32_t setCount,
+                                                 const VkDescriptorSet* sets, uint32_t dynamicOffsetCount,
+                                                 const uint32_t* dynamicOffsets) {
+  DeviceState& d = deviceOf(cb);
+  d.next.CmdBindDescriptorSets(cb, bindPoint, layout, firstSet, setCount, sets, dynamicOffsetCount, dynamicOffsets);
+  if (bindPoint != VK_PIPELINE_BIND_POINT_COMPUTE) return;
+  auto log = logOf(d, cb);
+  // Dynamic offsets are consumed set by set, in binding order, by every dynamic descriptor;
+  // the layer knows only the storage ones, so with dynamic uniform buffers in the same set
+  // the split is approximate (see README).
+  uint32_t nextOffset = 0;
+  std::lock_guard lock(d.descriptorsMutex);
+  for (uint32_t s = 0; s < setCount; ++s) {
+    std::vector<uint32_t> offsets;
+    auto known = d.storageDescriptors.find(sets[s]);
+    if (known != d.storageDescriptors.end())
+      for (const auto& [key, b] : known->second)
+        if (b.type == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC && nextOffset < dynamicOffsetCount)
+          offsets.push_back(dynamicOffsets[nextOffset++]);
+    log->computeSets[firstSet + s] = {sets[s], offsets};
+  }
+}
+
+std::vector<BoundStorageBuffer> boundStorageBuffers(DeviceState& d, const CommandBufferLog& log) {
+  std::vector<BoundStorageBuffer> out;
+  std::lock_guard lock(d.descriptorsMutex);
+  for (const auto& [setIndex, bound] : log.computeSets) {
+    auto known = d.storageDescriptors.find(bound.first);
+    if (known == d.storageDescriptors.end()) continue;
+    size_t dynamic = 0;
+    for (const auto& [key, descriptor] : known->second) {
+      BoundStorageBuffer b = descriptor;
+      b.set = setIndex;
+      if (b.type == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC && dynamic < bound.second.size())
+        b.offset += bound.second[dynamic++];
+      if (auto buffer = d.memoryMap.buffer(b.buffer); buffer && buffer->address) b.address = buffer->address + b.offset;
+      out.push_back(b);
+    }
+  }
+  return out;
+}
+
 VKAPI_ATTR void VKAPI_CALL CmdDispatch(VkCommandBuffer cb, uint32_t x, uint32_t y, uint32_t z) {
-  deviceOf(cb).next.CmdDispatch(cb, x, y, z);
-  record(cb, DispatchCommand{x, y, z});
+  DeviceState& d = deviceOf(cb);
+  d.next.CmdDispatch(cb, x, y, z);
+  if (!d.sink) return;
+  auto log = logOf(d, cb);
+  DispatchCommand c{x, y, z, log->computePipeline, 0, 0, boundStorageBuffers(d, *log)};
+  log->recorded.commands.push_back(std::move(c));
+}
+
+VKAPI_ATTR void VKAPI_CALL CmdDispatchIndirect(VkCommandBuffer cb, VkBuffer buffer, VkDeviceSize offset) {
+  DeviceState& d = deviceOf(cb);
+  d.next.CmdDispatchIndirect(cb, buffer, offset);
+  if (!d.sink) return;
+  auto log = logOf(d, cb);
+  DispatchCommand c{0, 0, 0, log->computePipeline, handleId(buffer), offset, boundStorageBuffers(d, *log)};
+  log->recorded.commands.push_back(std::move(c));
 }
 
 VKAPI_ATTR void VKAPI_CALL CmdExecuteCommands(VkCommandBuffer cb, uint32_t count, const VkCommandBuffer* secondaries) {
@@ -457,6 +573,8 @@ void clearCommandBufferLog(DeviceState& d, CommandBufferLog& log) {
   log.events.clear();
   log.pauses.clear();
   log.recorded.commands.clear();
+  log.computePipeline = 0;
+  log.computeSets.clear();
 }
 
 PFN_vkVoidFunction commandHook(const char* name) {
@@ -467,7 +585,8 @@ PFN_vkVoidFunction commandHook(const char* name) {
       HOOK(CmdPipelineBarrier2), HOOK(CmdPipelineBarrier2KHR), HOOK(CmdSetEvent), HOOK(CmdSetEvent2),
       HOOK(CmdSetEvent2KHR), HOOK(CmdResetEvent), HOOK(CmdResetEvent2), HOOK(CmdResetEvent2KHR), HOOK(CmdWaitEvents),
       HOOK(CmdWaitEvents2), HOOK(CmdWaitEvents2KHR), HOOK(CmdCopyBuffer), HOOK(CmdCopyBuffer2), HOOK(CmdCopyBuffer2KHR),
-      HOOK(CmdFillBuffer), HOOK(CmdUpdateBuffer), HOOK(CmdDispatch), HOOK(CmdExecuteCommands),
+      HOOK(CmdFillBuffer), HOOK(CmdUpdateBuffer), HOOK(CmdDispatch), HOOK(CmdDispatchIndirect),
+      HOOK(CmdBindPipeline), HOOK(CmdBindDescriptorSets), HOOK(UpdateDescriptorSets), HOOK(CmdExecuteCommands),
       HOOK(CmdBuildAccelerationStructureNV), HOOK(CmdCopyMemoryToAccelerationStructureKHR),
   };
   auto it = hooks.find(name);

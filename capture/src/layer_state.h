@@ -14,6 +14,7 @@
 #include <memory>
 #include <mutex>
 #include <shared_mutex>
+#include <map>
 #include <unordered_map>
 #include <unordered_set>
 #include <vector>
@@ -92,6 +93,10 @@ uint64_t handleId(Handle handle) {
   X(CmdFillBuffer)                             \
   X(CmdUpdateBuffer)                           \
   X(CmdDispatch)                               \
+  X(CmdDispatchIndirect)                       \
+  X(CmdBindPipeline)                           \
+  X(CmdBindDescriptorSets)                     \
+  X(UpdateDescriptorSets)                      \
   X(CmdExecuteCommands)                        \
   X(CmdBuildClusterAccelerationStructureIndirectNV) \
   X(GetClusterAccelerationStructureBuildSizesNV)    \
@@ -136,6 +141,9 @@ struct DeviceState {
   std::unordered_map<VkCommandBuffer, std::shared_ptr<CommandBufferLog>> commandBuffers;
   std::unordered_map<VkCommandPool, std::vector<VkCommandBuffer>> poolCommandBuffers;
   std::unordered_set<VkCommandBuffer> secondaryCommandBuffers;
+  // Storage-buffer descriptors written with vkUpdateDescriptorSets: set -> (binding, element).
+  std::mutex descriptorsMutex;
+  std::unordered_map<VkDescriptorSet, std::map<std::pair<uint32_t, uint32_t>, BoundStorageBuffer>> storageDescriptors;
   ~DeviceState();
 };
 

@@ -402,6 +402,12 @@ class TraceCaptureSink final : public CaptureSink {
       r.group_count_x = c->groupCountX;
       r.group_count_y = c->groupCountY;
       r.group_count_z = c->groupCountZ;
+      r.pipeline = c->pipeline;
+      r.indirect_buffer = c->indirectBuffer;
+      r.indirect_offset = c->indirectOffset;
+      for (const auto& b : c->storageBuffers)
+        r.storage_buffers.emplace_back(b.set, b.binding, b.arrayElement, uint32_t(b.type), b.buffer, b.offset, b.range,
+                                       b.address);
       appendLocked(recordOf(std::move(r)));
     } else if (const auto* c = std::get_if<ClusterBuildCommand>(&command)) {
       const auto& i = c->parameters.info;

@@ -4,6 +4,7 @@
 //   exactness OUT.json     one command buffer writes a build's inputs with transfer commands,
 //                          builds, then overwrites them; OUT.json lists the bytes the builds
 //                          must have read (and the memory's final state, which differs)
+//   dispatch OUT.json      a compute dispatch with storage buffers bound (one dynamic)
 //   resubmit N             one command buffer submitted N times, the host changing the count
 //   pause-cost N           N builds in one submission; prints the time per build
 #include <clastrace/vk_cluster_abi.h>
@@ -463,6 +464,86 @@ int resubmit(int times) {
   return 0;
 }
 
+// A compute dispatch with two storage buffers bound (one dynamic), for the layer's record of
+// what a dispatch can write. The shader does nothing: only the binding state matters.
+int dispatch(const char* outPath) {
+  Context c;
+  c.createInstance();
+  c.createDevice();
+  Buffer a = c.makeBuffer(1024, 0);
+  Buffer b = c.makeBuffer(4096, 0);
+  // OpCapability Shader; OpMemoryModel Logical GLSL450; OpEntryPoint GLCompute %1 "main";
+  // OpExecutionMode %1 LocalSize 1 1 1; void main() {}
+  const uint32_t spirv[] = {0x07230203, 0x00010000, 0, 5, 0,
+                            0x00020011, 1,
+                            0x0003000E, 0, 1,
+                            0x0005000F, 5, 1, 0x6E69616D, 0,
+                            0x00060010, 1, 17, 1, 1, 1,
+                            0x00020013, 2,
+                            0x00030021, 3, 2,
+                            0x00050036, 2, 1, 0, 3,
+                            0x000200F8, 4,
+                            0x000100FD,
+                            0x00010038};
+  VkShaderModuleCreateInfo moduleInfo{VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO, nullptr, 0, sizeof spirv, spirv};
+  VkShaderModule module;
+  CHECK(vkCreateShaderModule(c.device, &moduleInfo, nullptr, &module));
+  const VkDescriptorSetLayoutBinding bindings[2] = {
+      {0, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1, VK_SHADER_STAGE_COMPUTE_BIT, nullptr},
+      {1, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC, 1, VK_SHADER_STAGE_COMPUTE_BIT, nullptr}};
+  VkDescriptorSetLayoutCreateInfo layoutInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO, nullptr, 0, 2, bindings};
+  VkDescriptorSetLayout setLayout;
+  CHECK(vkCreateDescriptorSetLayout(c.device, &layoutInfo, nullptr, &setLayout));
+  VkPipelineLayoutCreateInfo pipelineLayoutInfo{VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO, nullptr, 0, 1, &setLayout, 0,
+                                                nullptr};
+  VkPipelineLayout pipelineLayout;
+  CHECK(vkCreatePipelineLayout(c.device, &pipelineLayoutInfo, nullptr, &pipelineLayout));
+  VkComputePipelineCreateInfo pipelineInfo{};
+  pipelineInfo.sType = VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO;
+  pipelineInfo.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT,
+                        module, "main", nullptr};
+  pipelineInfo.layout = pipelineLayout;
+  VkPipeline pipeline;
+  CHECK(vkCreateComputePipelines(c.device, VK_NULL_HANDLE, 1, &pipelineInfo, nullptr, &pipeline));
+  const VkDescriptorPoolSize sizes[2] = {{VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1},
+                                         {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC, 1}};
+  VkDescriptorPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO, nullptr, 0, 1, 2, sizes};
+  VkDescriptorPool pool;
+  CHECK(vkCreateDescriptorPool(c.device, &poolInfo, nullptr, &pool));
+  VkDescriptorSetAllocateInfo setInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_ALLOCATE_INFO, nullptr, pool, 1, &setLayout};
+  VkDescriptorSet set;
+  CHECK(vkAllocateDescriptorSets(c.device, &setInfo, &set));
+  const VkDescriptorBufferInfo infoA{a.buffer, 256, 512};
+  const VkDescriptorBufferInfo infoB{b.buffer, 0, 1024};
+  const VkWriteDescriptorSet writes[2] = {
+      {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET, nullptr, set, 0, 0, 1, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, nullptr, &infoA,
+       nullptr},
+      {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET, nullptr, set, 1, 0, 1, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC, nullptr,
+       &infoB, nullptr}};
+  vkUpdateDescriptorSets(c.device, 2, writes, 0, nullptr);
+
+  VkCommandBuffer cb = c.beginCommands();
+  vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline);
+  uint32_t dynamicOffset = 256;
+  vkCmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, pipelineLayout, 0, 1, &set, 1, &dynamicOffset);
+  vkCmdDispatch(cb, 2, 3, 4);
+  dynamicOffset = 1024;
+  vkCmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, pipelineLayout, 0, 1, &set, 1, &dynamicOffset);
+  vkCmdDispatch(cb, 1, 1, 1);
+  c.submitAndWait(cb);
+
+  nlohmann::json out = {{"pipeline", (uint64_t)pipeline},
+                        {"a", {{"buffer", (uint64_t)a.buffer}, {"address", a.address}}},
+                        {"b", {{"buffer", (uint64_t)b.buffer}, {"address", b.address}}}};
+  std::ofstream(outPath) << out.dump(1);
+  vkDestroyPipeline(c.device, pipeline, nullptr);
+  vkDestroyDescriptorPool(c.device, pool, nullptr);
+  vkDestroyPipelineLayout(c.device, pipelineLayout, nullptr);
+  vkDestroyDescriptorSetLayout(c.device, setLayout, nullptr);
+  vkDestroyShaderModule(c.device, module, nullptr);
+  return 0;
+}
+
 int pauseCost(int builds) {
   Context c;
   c.createInstance();
@@ -500,6 +581,7 @@ int pauseCost(int builds) {
 int main(int argc, char** argv) {
   if (argc == 3 && std::strcmp(argv[1], "limits") == 0) return limits(argv[2]);
   if (argc == 3 && std::strcmp(argv[1], "exactness") == 0) return exactness(argv[2]);
+  if (argc == 3 && std::strcmp(argv[1], "dispatch") == 0) return dispatch(argv[2]);
   if (argc == 3 && std::strcmp(argv[1], "resubmit") == 0) return resubmit(std::max(1, std::atoi(argv[2])));
   if (argc == 3 && std::strcmp(argv[1], "pause-cost") == 0) return pauseCost(std::max(1, std::atoi(argv[2])));
   std::fprintf(stderr, "usage: cluster_capture_app limits|exactness OUT.json | pause-cost N\n");

@@ -267,6 +267,34 @@ TEST_F(ExactnessRun, EachResubmissionIsCapturedWithItsOwnHostWrittenCount) {
   }
 }
 
+TEST_F(ExactnessRun, DispatchRecordsItsPipelineAndBoundStorageBuffers) {
+  ProcessResult r = run(app("dispatch " + (dir / "expected.json").string()),
+                        {{"CLASTRACE_DEBUG_JSON", (dir / "capture.json").string()}});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  expected = json::parse(readText(dir / "expected.json"));
+  captured = json::parse(readText(dir / "capture.json"));
+  std::vector<json> dispatches;
+  for (const auto& c : captured["commandBuffers"][0]["commands"])
+    if (c["kind"] == "Dispatch") dispatches.push_back(c);
+  ASSERT_EQ(dispatches.size(), 2u);
+  EXPECT_EQ(dispatches[0]["groups"], json::array({2, 3, 4}));
+  EXPECT_EQ(dispatches[0]["pipeline"], expected["pipeline"]);
+  for (size_t i = 0; i < 2; ++i) {
+    const json& buffers = dispatches[i]["storageBuffers"];
+    ASSERT_EQ(buffers.size(), 2u);
+    EXPECT_EQ(buffers[0]["binding"], 0);
+    EXPECT_EQ(buffers[0]["buffer"], expected["a"]["buffer"]);
+    EXPECT_EQ(buffers[0]["offset"], 256);
+    EXPECT_EQ(buffers[0]["range"], 512);
+    EXPECT_EQ(buffers[0]["address"], expected["a"]["address"].get<uint64_t>() + 256);
+    EXPECT_EQ(buffers[1]["binding"], 1);
+    EXPECT_EQ(buffers[1]["type"], 9);  // VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC
+    EXPECT_EQ(buffers[1]["buffer"], expected["b"]["buffer"]);
+  }
+  EXPECT_EQ(dispatches[0]["storageBuffers"][1]["offset"], 256);   // the dynamic offset of each bind
+  EXPECT_EQ(dispatches[1]["storageBuffers"][1]["offset"], 1024);
+}
+
 // The same run written as a .clt trace and read back with the trace reader.
 TEST_F(ExactnessRun, TraceHoldsTheBuildsWithTheirSnapshots) {
   const fs::path trace = dir / "capture.clt";

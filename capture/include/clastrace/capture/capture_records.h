@@ -162,9 +162,21 @@ struct UpdateBufferCommand {
   std::vector<uint8_t> data;
 };
 
+// One storage-buffer descriptor visible to a dispatch (dynamic offsets applied).
+struct BoundStorageBuffer {
+  uint32_t set = 0, binding = 0, arrayElement = 0;
+  VkDescriptorType type = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+  uint64_t buffer = 0;
+  VkDeviceSize offset = 0, range = 0;
+  VkDeviceAddress address = 0;  // buffer address + offset, when the buffer's address is known
+};
+
 struct DispatchCommand {
   uint32_t groupCountX = 0, groupCountY = 0, groupCountZ = 0;
-  // Bound storage buffers are not tracked yet (descriptor sets are not followed this round).
+  uint64_t pipeline = 0;
+  uint64_t indirectBuffer = 0;  // vkCmdDispatchIndirect
+  VkDeviceSize indirectOffset = 0;
+  std::vector<BoundStorageBuffer> storageBuffers;  // from vkUpdateDescriptorSets writes
 };
 
 struct ClusterBuildCommand {
