@@ -387,7 +387,8 @@ TEST_F(LayerProcess, InjectedPausesPassSynchronizationValidation) {
       << "khronos_validation.enables = VK_VALIDATION_FEATURE_ENABLE_SYNCHRONIZATION_VALIDATION_EXT\n"
          "khronos_validation.report_flags = error,warn\n"
          "khronos_validation.debug_action = VK_DBG_LAYER_ACTION_LOG_MSG\n";
-  for (const std::string& mode : {"exactness " + (dir / "expected.json").string(), std::string("resubmit 4")}) {
+  for (const std::string& mode : {"exactness " + (dir / "expected.json").string(), std::string("resubmit 4"),
+                                  "dispatch " + (dir / "dispatch.json").string()}) {
     ProcessResult r = run(app(mode), {{"VK_ADD_LAYER_PATH", CLASTRACE_LAYER_MANIFEST_DIR},
                                       {"VK_INSTANCE_LAYERS", "VK_LAYER_CLASTRACE_capture:VK_LAYER_KHRONOS_validation"},
                                       {"VK_LAYER_SETTINGS_PATH", (dir / "vk_layer_settings.txt").string()},
@@ -399,7 +400,7 @@ TEST_F(LayerProcess, InjectedPausesPassSynchronizationValidation) {
     EXPECT_EQ(all.find("SYNC-"), std::string::npos) << mode << ": " << all;
     EXPECT_EQ(count(all, "Validation Error"), 0u) << mode << ": " << all;
     ASSERT_TRUE(fs::exists(dir / "capture.json"));  // the layer did run above the validation layer
-    EXPECT_FALSE(json::parse(readText(dir / "capture.json"))["clusterBuilds"].empty());
+    EXPECT_FALSE(json::parse(readText(dir / "capture.json"))["commandBuffers"].empty());
   }
 }
 
