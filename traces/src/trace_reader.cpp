@@ -645,6 +645,15 @@ struct TraceReader::Impl {
             report(TraceErrorCode::bad_index, t.index_offset, "index lists no chunks");
             return;
         }
+        // The index chunk's own header must agree with what it indexes.
+        if (h.record_count != 0 || h.first_submission != idx->submission_count() ||
+            h.chunk_number != idx->chunks()->size()) {
+            report(TraceErrorCode::bad_index, t.index_offset,
+                   "index chunk header disagrees with the index (record count " + std::to_string(h.record_count) +
+                       ", first submission " + std::to_string(h.first_submission) + ", chunk number " +
+                       std::to_string(h.chunk_number) + ")");
+            return;
+        }
         index = idx;
         index_offset = t.index_offset;
         if (const auto* places = index->contents()) {
