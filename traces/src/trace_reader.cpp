@@ -18,6 +18,7 @@ namespace clastrace::traces {
 namespace {
 
 constexpr size_t kMaxDamageKept = 1000;
+constexpr uint32_t kReadAheadMinRawBytes = 256u << 10;
 
 std::string hex(uint64_t v) {
     char buf[24];
@@ -388,7 +389,10 @@ struct TraceReader::Impl {
                 drop_read_ahead();
                 status = read_chunk(pos, &h, &raw, &err);
             }
-            if (status == ChunkStatus::ok) start_read_ahead(pos + format::kChunkHeaderSize + h.compressed_size);
+            // Reading ahead pays for big chunks; for small ones a task costs more than it hides.
+            if (status == ChunkStatus::ok && h.raw_size >= kReadAheadMinRawBytes) {
+                start_read_ahead(pos + format::kChunkHeaderSize + h.compressed_size);
+            }
             switch (status) {
             case ChunkStatus::truncated:
                 report(std::move(err));
