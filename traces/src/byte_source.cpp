@@ -10,6 +10,9 @@ namespace clastrace::traces {
 
 namespace {
 
+// Per thread: the reader's read-ahead task reads concurrently with the reader.
+thread_local std::string last_read_error;
+
 class FileSource final : public ByteSource {
 public:
     FileSource(int fd, uint64_t size) : fd_(fd) { size_ = size; }
@@ -20,7 +23,7 @@ public:
             ssize_t got = ::pread(fd_, dst, n, static_cast<off_t>(offset));
             if (got < 0 && errno == EINTR) continue;
             if (got <= 0) {
-                error_ = got < 0 ? std::strerror(errno) : "unexpected end of file";
+                last_read_error = got < 0 ? std::strerror(errno) : "unexpected end of file";
                 return false;
             }
             dst += got;
@@ -29,11 +32,10 @@ public:
         }
         return true;
     }
-    std::string last_error() const override { return error_; }
+    std::string last_error() const override { return last_read_error; }
 
 private:
     int fd_;
-    std::string error_;
 };
 
 class MemorySource final : public ByteSource {

@@ -14,6 +14,7 @@ public:
     virtual ~ByteSource() = default;
     uint64_t size() const { return size_; }
     // Reads exactly n bytes at offset; false (errno in last_error()) on failure.
+    // Safe to call from two threads at once (the reader reads ahead on a task).
     virtual bool read_at(uint64_t offset, size_t n, uint8_t* dst) = 0;
     virtual std::string last_error() const { return {}; }
 

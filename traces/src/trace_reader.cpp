@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cinttypes>
 #include <cstdio>
+#include <future>
 #include <unordered_map>
 
 #include <zstd.h>
@@ -17,6 +18,7 @@ namespace clastrace::traces {
 namespace {
 
 constexpr size_t kMaxDamageKept = 1000;
+constexpr uint32_t kReadAheadMinRawBytes = 256u << 10;
 
 std::string hex(uint64_t v) {
     char buf[24];
@@ -41,6 +43,25 @@ enum class ChunkStatus {
 
 enum class RecordStatus { ok, skip, stop_chunk };
 
+// What one thread needs to read a chunk: the reader uses one set on its own thread
+// and one on the read-ahead task, so decompressing chunk n+1 overlaps the checks of chunk n.
+struct ChunkDecoder {
+    std::vector<uint8_t> compressed;
+    ZSTD_DCtx* dctx = ZSTD_createDCtx();
+    ChunkDecoder() = default;
+    ChunkDecoder(const ChunkDecoder&) = delete;
+    ChunkDecoder& operator=(const ChunkDecoder&) = delete;
+    ~ChunkDecoder() { ZSTD_freeDCtx(dctx); }
+};
+
+// A chunk read ahead of need, at the offset the reader will ask for next.
+struct ReadAhead {
+    uint64_t offset = 0;
+    format::ChunkHeader header{};
+    ChunkStatus status = ChunkStatus::ok;
+    TraceError error;
+};
+
 }  // namespace
 
 struct TraceReader::Impl {
@@ -64,8 +85,12 @@ struct TraceReader::Impl {
     bool ended = false;
     bool skipped_since_chunk = true;  // damage/seek since the last chunk: numbering may jump
     uint32_t expected_chunk_number = 0;
-    std::vector<uint8_t> compressed;
+    ChunkDecoder decoder;
     std::vector<uint8_t> raw;
+    // Read-ahead: a task decompressing the next chunk into ahead_raw with its own decoder.
+    ChunkDecoder ahead_decoder;
+    std::vector<uint8_t> ahead_raw;
+    std::future<ReadAhead> ahead;
     bool chunk_loaded = false;
     format::ChunkHeader chunk{};
     uint64_t chunk_offset = 0;
@@ -81,12 +106,11 @@ struct TraceReader::Impl {
     std::vector<uint8_t> side_raw;
     uint64_t side_offset = UINT64_MAX;
 
-    ZSTD_DCtx* dctx = ZSTD_createDCtx();
     std::vector<TraceError> damage;
     uint64_t damage_total = 0;
     TraceReadStats stats;
 
-    ~Impl() { ZSTD_freeDCtx(dctx); }
+    ~Impl() { drop_read_ahead(); }
 
     TraceError error(TraceErrorCode code, uint64_t offset, const std::string& problem) const {
         return make_trace_error(code, name, offset, problem);
@@ -102,6 +126,13 @@ struct TraceReader::Impl {
 
     // Reads, checks and decompresses the chunk whose header is at `offset`.
     ChunkStatus read_chunk(uint64_t offset, format::ChunkHeader* h, std::vector<uint8_t>* out, TraceError* err) {
+        return read_chunk_with(decoder, offset, h, out, err);
+    }
+
+    // Safe to run on the read-ahead task: touches only `d`, `out` and the (thread-safe) source.
+    ChunkStatus read_chunk_with(ChunkDecoder& d, uint64_t offset, format::ChunkHeader* h, std::vector<uint8_t>* out,
+                                TraceError* err) const {
+        std::vector<uint8_t>& compressed = d.compressed;
         if (offset > size || size - offset < format::kChunkHeaderSize) {
             *err = error(TraceErrorCode::truncated, offset,
                          "file ends inside a chunk header (" + std::to_string(size - std::min(size, offset)) +
@@ -166,7 +197,7 @@ struct TraceReader::Impl {
             return ChunkStatus::bad_payload;
         }
         out->resize(h->raw_size);
-        size_t got = ZSTD_decompressDCtx(dctx, out->data(), out->size(), compressed.data(), compressed.size());
+        size_t got = ZSTD_decompressDCtx(d.dctx, out->data(), out->size(), compressed.data(), compressed.size());
         if (ZSTD_isError(got) || got != h->raw_size) {
             *err = error(TraceErrorCode::decompress_failed, payload,
                          what + " does not decompress: " +
@@ -320,13 +351,48 @@ struct TraceReader::Impl {
         chunk_loaded = false;
     }
 
+    uint64_t ahead_started_at = UINT64_MAX;
+    uint64_t ahead_offset() const { return ahead_started_at; }
+
+    void start_read_ahead(uint64_t offset) {
+        drop_read_ahead();
+        if (offset >= size || size - offset < format::kChunkHeaderSize) return;
+        ahead_started_at = offset;
+        ahead = std::async(std::launch::async, [this, offset] {
+            ReadAhead r;
+            r.offset = offset;
+            r.status = read_chunk_with(ahead_decoder, offset, &r.header, &ahead_raw, &r.error);
+            return r;
+        });
+    }
+
+    void drop_read_ahead() {
+        if (ahead.valid()) ahead.wait();
+        ahead = {};
+        ahead_started_at = UINT64_MAX;
+    }
+
     // Loads the next intact record chunk; false at the end of the records.
     bool advance_chunk() {
         for (;;) {
             if (pos >= size) return false;
             TraceError err;
             format::ChunkHeader h{};
-            ChunkStatus status = read_chunk(pos, &h, &raw, &err);
+            ChunkStatus status;
+            if (ahead.valid() && ahead_offset() == pos) {
+                ReadAhead r = ahead.get();
+                std::swap(raw, ahead_raw);
+                h = r.header;
+                status = r.status;
+                err = std::move(r.error);
+            } else {
+                drop_read_ahead();
+                status = read_chunk(pos, &h, &raw, &err);
+            }
+            // Reading ahead pays for big chunks; for small ones a task costs more than it hides.
+            if (status == ChunkStatus::ok && h.raw_size >= kReadAheadMinRawBytes) {
+                start_read_ahead(pos + format::kChunkHeaderSize + h.compressed_size);
+            }
             switch (status) {
             case ChunkStatus::truncated:
                 report(std::move(err));
@@ -430,6 +496,7 @@ struct TraceReader::Impl {
     }
 
     void restart_at(uint64_t offset) {
+        drop_read_ahead();
         chunk_loaded = false;
         has_pending = false;
         ended = false;
@@ -643,6 +710,15 @@ struct TraceReader::Impl {
         const auto* idx = flatbuffers::GetRoot<fbs::TraceIndex>(index_raw.data());
         if (!idx->chunks()) {
             report(TraceErrorCode::bad_index, t.index_offset, "index lists no chunks");
+            return;
+        }
+        // The index chunk's own header must agree with what it indexes.
+        if (h.record_count != 0 || h.first_submission != idx->submission_count() ||
+            h.chunk_number != idx->chunks()->size()) {
+            report(TraceErrorCode::bad_index, t.index_offset,
+                   "index chunk header disagrees with the index (record count " + std::to_string(h.record_count) +
+                       ", first submission " + std::to_string(h.first_submission) + ", chunk number " +
+                       std::to_string(h.chunk_number) + ")");
             return;
         }
         index = idx;

@@ -1,5 +1,6 @@
 // Reads a .clt trace chunk by chunk with bounded memory: one decompressed chunk, one
-// more for read_contents, and 32 bytes per distinct content. Every record is checked by
+// more read ahead (on a task, so decompression overlaps the caller), one for
+// read_contents, and about 64 bytes per distinct content. Every record is checked by
 // the FlatBuffers verifier before it is handed out. Damage does not stop reading: it is
 // listed in damage() and the reader continues with the next intact chunk.
 #pragma once

@@ -1,6 +1,7 @@
 // Writes a .clt trace: records go into chunks that a background thread compresses and
 // appends, so the caller only pays for building records. Memory is bounded by
-// (max_chunks_in_flight + 1) chunks plus 32 bytes per distinct content.
+// (max_chunks_in_flight + 1) chunks plus about 100 bytes per distinct content (its key,
+// size, 128-bit fingerprint and place for the index).
 //
 // Errors are sticky: once a write fails (disk full, I/O error) every later call and
 // finish() return that error; nothing is lost silently.
