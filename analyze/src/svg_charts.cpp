@@ -1,0 +1,269 @@
+#include "svg_charts.h"
+
+#include <algorithm>
+#include <set>
+
+#include <fmt/format.h>
+
+#include "format_util.h"
+#include "markup.h"
+
+namespace clastrace::analyze {
+
+using fmt::format;
+
+const char* role_color(RegionRole role) {
+  switch (role) {
+    case RegionRole::buffer: return "#e8e8e8";
+    case RegionRole::scratch: return "#f2a65a";
+    case RegionRole::implicit_data: return "#7fb3d5";
+    case RegionRole::dst_addresses: return "#c39bd3";
+    case RegionRole::dst_sizes: return "#d7bde2";
+    case RegionRole::src_infos: return "#82e0aa";
+    case RegionRole::src_infos_count: return "#abebc6";
+    case RegionRole::object_clas: return "#2e86c1";
+    case RegionRole::object_template: return "#1abc9c";
+    case RegionRole::object_blas: return "#1f618d";
+    case RegionRole::vertex: return "#f7dc6f";
+    case RegionRole::index: return "#f0b27a";
+    case RegionRole::other: return "#aab7b8";
+  }
+  return "#aab7b8";
+}
+
+namespace {
+
+// Address axis with the gaps between used extents cut out: each extent is drawn in
+// proportion to its bytes (with a minimum height), gaps as thin breaks.
+class AddressAxis {
+ public:
+  AddressAxis(std::vector<std::pair<uint64_t, uint64_t>> ranges, double top, double height) {
+    std::sort(ranges.begin(), ranges.end());
+    for (auto [b, e] : ranges) {
+      if (!extents_.empty() && b <= extents_.back().end) extents_.back().end = std::max(extents_.back().end, e);
+      else extents_.push_back({b, e, 0, 0});
+    }
+    const std::size_t n = extents_.size();
+    if (n == 0) return;
+    const double gap = std::min(8.0, height * 0.2 / static_cast<double>(n));
+    const double min_h = std::min(6.0, height * 0.3 / static_cast<double>(n));
+    const double usable = height - gap * static_cast<double>(n - 1) - min_h * static_cast<double>(n);
+    long double total = 0;
+    for (const Extent& x : extents_) total += static_cast<long double>(x.end - x.begin);
+    double y = top;
+    for (Extent& x : extents_) {
+      x.y = y;
+      x.h = min_h + (total > 0 ? static_cast<double>(usable * (x.end - x.begin) / total) : 0.0);
+      y += x.h + gap;
+    }
+  }
+  double y(uint64_t address) const {
+    auto it = std::upper_bound(extents_.begin(), extents_.end(), address,
+                               [](uint64_t a, const Extent& x) { return a < x.begin; });
+    if (it == extents_.begin()) return extents_.empty() ? 0 : extents_.front().y;
+    const Extent& x = *std::prev(it);
+    if (address >= x.end) return x.y + x.h;
+    return x.y + x.h * static_cast<double>(address - x.begin) / static_cast<double>(x.end - x.begin);
+  }
+  // y just past the last byte of a range ending (exclusive) at `end`.
+  double y_end(uint64_t end) const {
+    const Extent* x = find(end == 0 ? 0 : end - 1);
+    if (!x) return extents_.empty() ? 0 : extents_.front().y;
+    if (end > x->end) return x->y + x->h;
+    return x->y + x->h * static_cast<double>(end - x->begin) / static_cast<double>(x->end - x->begin);
+  }
+  struct Extent {
+    uint64_t begin, end;
+    double y, h;
+  };
+  const std::vector<Extent>& extents() const { return extents_; }
+
+ private:
+  const Extent* find(uint64_t address) const {
+    auto it = std::upper_bound(extents_.begin(), extents_.end(), address,
+                               [](uint64_t a, const Extent& x) { return a < x.begin; });
+    return it == extents_.begin() ? nullptr : &*std::prev(it);
+  }
+  std::vector<Extent> extents_;
+};
+
+}  // namespace
+
+std::string svg_memory_map(const AnalysisReport& r) {
+  const double left = 120, top = 20, width = 840, height = 520, bottom_axis = 40;
+  std::vector<const RegionRow*> drawn;
+  for (const RegionRow& g : r.region_rows)
+    if (g.size > 0) drawn.push_back(&g);
+  std::size_t omitted = 0;
+  if (drawn.size() > kMaxMapRegions) {
+    std::stable_sort(drawn.begin(), drawn.end(), [](const RegionRow* a, const RegionRow* b) { return a->size > b->size; });
+    omitted = drawn.size() - kMaxMapRegions;
+    drawn.resize(kMaxMapRegions);
+  }
+  std::string s = format(
+      "<svg id=\"memory-map\" class=\"chart\" role=\"img\" width=\"{}\" height=\"{}\" viewBox=\"0 0 {} {}\">\n"
+      "<title>Address space over time: regions by role, overlaps outlined</title>\n",
+      left + width + 20, top + height + bottom_axis + 10, left + width + 20, top + height + bottom_axis + 10);
+  if (drawn.empty()) {
+    s += format("<text x=\"{}\" y=\"{}\">no regions</text>\n</svg>\n", left, top + 20);
+    return s;
+  }
+  uint64_t first = UINT64_MAX, last = 0;
+  std::vector<std::pair<uint64_t, uint64_t>> ranges;
+  for (const RegionRow* g : drawn) {
+    first = std::min(first, g->first_command);
+    last = std::max(last, g->last_command);
+    ranges.push_back({g->base, g->base + g->size});
+  }
+  for (const OverlapRow& o : r.overlaps) {
+    first = std::min(first, o.older_command);
+    last = std::max(last, o.newer_command);
+  }
+  const AddressAxis axis(std::move(ranges), top, height);
+  const double span = static_cast<double>(last - first + 1);
+  auto x = [&](uint64_t ordinal) { return left + width * static_cast<double>(ordinal - first) / span; };
+
+  // Address labels at each extent, thinned so they do not collide.
+  double last_label = -100;
+  for (const auto& e : axis.extents()) {
+    s += format("<line class=\"extent\" x1=\"{}\" x2=\"{:.1f}\" y1=\"{:.2f}\" y2=\"{:.2f}\"/>\n", left - 4, left + width,
+                e.y, e.y);
+    if (e.y - last_label >= 12) {
+      s += format("<text class=\"axis\" x=\"{}\" y=\"{:.2f}\" text-anchor=\"end\">{}</text>\n", left - 6, e.y + 4,
+                  fmtu::hex(e.begin));
+      last_label = e.y;
+    }
+  }
+  // Buffers first (containers, drawn behind what they hold), then everything else.
+  for (int pass = 0; pass < 2; ++pass) {
+    for (const RegionRow* g : drawn) {
+      if ((g->role == RegionRole::buffer) != (pass == 0)) continue;
+      double x0 = x(g->first_command), x1 = std::max(x(g->last_command + 1), x0 + 2.0);
+      double y0 = axis.y(g->base), y1 = std::max(axis.y_end(g->base + g->size), y0 + 1.0);
+      s += format(
+          "<rect class=\"region role-{}\" data-region=\"{}\" x=\"{:.2f}\" y=\"{:.2f}\" width=\"{:.2f}\" "
+          "height=\"{:.2f}\" fill=\"{}\"><title>{} {} [{}, +{}) commands {}..{}</title></rect>\n",
+          region_role_name(g->role), g->id, x0, y0, x1 - x0, y1 - y0, role_color(g->role), region_role_name(g->role),
+          escape_markup(g->label), fmtu::hex(g->base), g->size, g->first_command, g->last_command);
+    }
+  }
+  for (const OverlapRow& o : r.overlaps) {
+    double x0 = x(o.older_command), x1 = std::max(x(o.newer_command + 1), x0 + 2.0);
+    double y0 = axis.y(o.base), y1 = std::max(axis.y_end(o.base + o.size), y0 + 2.0);
+    const char* cls = o.hazard ? "hazard" : (o.kind == OverlapKind::aliasing ? "aliasing" : "reuse");
+    s += format(
+        "<rect class=\"overlap {}\" x=\"{:.2f}\" y=\"{:.2f}\" width=\"{:.2f}\" height=\"{:.2f}\">"
+        "<title>{}: {} (cmd {}) and {} (cmd {}) share [{}, +{})</title></rect>\n",
+        cls, x0, y0, x1 - x0, y1 - y0, o.hazard ? "HAZARD" : overlap_kind_name(o.kind), escape_markup(o.older_label),
+        o.older_command, escape_markup(o.newer_label), o.newer_command, fmtu::hex(o.base), o.size);
+  }
+  // Command axis: about eight ticks.
+  const double axis_y = top + height + 4;
+  s += format("<line class=\"axis-line\" x1=\"{}\" x2=\"{}\" y1=\"{}\" y2=\"{}\"/>\n", left, left + width, axis_y,
+              axis_y);
+  const uint64_t count = last - first + 1, step = std::max<uint64_t>(1, (count + 7) / 8);
+  for (uint64_t o = first; o <= last && o >= first; o += step) {
+    s += format("<text class=\"axis\" x=\"{:.1f}\" y=\"{}\" text-anchor=\"middle\">{}</text>\n",
+                x(o) + width / span / 2, axis_y + 14, o);
+    if (last - o < step) break;
+  }
+  s += format("<text class=\"axis-title\" x=\"{}\" y=\"{}\" text-anchor=\"middle\">command ordinal{}</text>\n",
+              left + width / 2, axis_y + 32,
+              omitted ? format(" ({} smaller regions not drawn)", omitted) : std::string());
+  s += "</svg>\n";
+  return s;
+}
+
+std::string svg_size_histogram(const OpTypeSizes& t) {
+  const auto& bins = t.engine_bytes.log2_bins();
+  int lo = -1, hi = -1;
+  uint64_t peak = 0;
+  for (int b = 0; b < ValueDistribution::kLog2Bins; ++b) {
+    if (bins[b] == 0) continue;
+    if (lo < 0) lo = b;
+    hi = b;
+    peak = std::max(peak, bins[b]);
+  }
+  const double left = 50, top = 20, plot_h = 160, bar_w = 44;
+  const int n = lo < 0 ? 0 : hi - lo + 1;
+  const double width = left + bar_w * n + 20, height = top + plot_h + 50;
+  std::string s = format(
+      "<svg id=\"hist-{}\" class=\"chart histogram\" role=\"img\" width=\"{}\" height=\"{}\" viewBox=\"0 0 {} {}\">\n"
+      "<title>Object bytes, {}: {} objects in log2 bins</title>\n",
+      op_type_name(t.op_type), std::max(width, 240.0), height, std::max(width, 240.0), height,
+      op_type_name(t.op_type), t.objects);
+  s += format("<line class=\"axis-line\" x1=\"{}\" x2=\"{}\" y1=\"{}\" y2=\"{}\"/>\n", left, left + bar_w * n,
+              top + plot_h, top + plot_h);
+  for (int b = lo; n > 0 && b <= hi; ++b) {
+    const double h = peak ? plot_h * static_cast<double>(bins[b]) / static_cast<double>(peak) : 0;
+    const double bx = left + bar_w * (b - lo);
+    const uint64_t low = ValueDistribution::bin_low(b);
+    const uint64_t high = b == 0 ? 0 : (b == 64 ? UINT64_MAX : ValueDistribution::bin_low(b + 1) - 1);
+    s += format(
+        "<rect class=\"bar\" data-low=\"{}\" data-high=\"{}\" data-count=\"{}\" x=\"{:.1f}\" y=\"{:.2f}\" "
+        "width=\"{}\" height=\"{:.2f}\"><title>{}..{} bytes: {} objects</title></rect>\n",
+        low, high, bins[b], bx + 3, top + plot_h - h, bar_w - 6, h, low, high, bins[b]);
+    if (bins[b]) s += format("<text class=\"count\" x=\"{:.1f}\" y=\"{:.2f}\" text-anchor=\"middle\">{}</text>\n",
+                             bx + bar_w / 2, top + plot_h - h - 3, bins[b]);
+    s += format("<text class=\"axis\" x=\"{:.1f}\" y=\"{}\" text-anchor=\"middle\">{}</text>\n", bx + bar_w / 2,
+                top + plot_h + 14, fmtu::human_bytes(low));
+  }
+  s += format("<text class=\"axis-title\" x=\"{}\" y=\"{}\">object bytes (bin low end)</text>\n", left,
+              top + plot_h + 36);
+  s += "</svg>\n";
+  return s;
+}
+
+std::string svg_timeline(const AnalysisReport& r) {
+  const double left = 70, top = 20, plot_w = 880, plot_h = 200;
+  const std::size_t n = r.timeline.size();
+  std::string s = format(
+      "<svg id=\"timeline\" class=\"chart\" role=\"img\" width=\"{}\" height=\"{}\" viewBox=\"0 0 {} {}\">\n"
+      "<title>Time per command: GPU timestamps and replay engine</title>\n",
+      left + plot_w + 20, top + plot_h + 60, left + plot_w + 20, top + plot_h + 60);
+  uint64_t peak = 0;
+  for (const TimelineBucket& b : r.timeline) peak = std::max({peak, b.replay_ns, b.gpu_ns});
+  if (n == 0 || peak == 0) {
+    s += format("<text x=\"{}\" y=\"{}\">no timing recorded</text>\n</svg>\n", left, top + 20);
+    return s;
+  }
+  std::set<uint64_t> listed;
+  for (const CommandRow& c : r.commands_listed) listed.insert(c.ordinal);
+  const double slot = plot_w / static_cast<double>(n);
+  const bool both = r.gpu_timing_present && r.replay_timing_present;
+  const double bar = std::max(0.5, (both ? slot / 2 : slot) * 0.85);
+  auto bar_rect = [&](const char* cls, double bx, uint64_t ns, const TimelineBucket& b) {
+    const double h = plot_h * static_cast<double>(ns) / static_cast<double>(peak);
+    return format(
+        "<rect class=\"{}\" data-first=\"{}\" data-last=\"{}\" data-ns=\"{}\" x=\"{:.2f}\" y=\"{:.2f}\" "
+        "width=\"{:.2f}\" height=\"{:.2f}\"><title>commands {}..{}: {} {} ms</title></rect>",
+        cls, b.first_ordinal, b.last_ordinal, ns, bx, top + plot_h - h, bar, h, b.first_ordinal, b.last_ordinal,
+        cls, fmtu::ms(ns));
+  };
+  for (std::size_t i = 0; i < n; ++i) {
+    const TimelineBucket& b = r.timeline[i];
+    const double bx = left + slot * static_cast<double>(i);
+    const bool link = b.commands == 1 && listed.count(b.first_ordinal);
+    if (link) s += format("<a href=\"#cmd-{}\">", b.first_ordinal);
+    if (r.replay_timing_present) s += bar_rect("replay", bx, b.replay_ns, b);
+    if (r.gpu_timing_present) s += bar_rect("gpu", bx + (both ? slot / 2 : 0), b.gpu_ns, b);
+    if (link) s += "</a>";
+    s += '\n';
+  }
+  s += format("<line class=\"axis-line\" x1=\"{}\" x2=\"{}\" y1=\"{}\" y2=\"{}\"/>\n", left, left + plot_w,
+              top + plot_h, top + plot_h);
+  s += format("<text class=\"axis\" x=\"{}\" y=\"{}\" text-anchor=\"end\">{} ms</text>\n", left - 4, top + 8,
+              fmtu::ms(peak));
+  s += format("<text class=\"axis\" x=\"{}\" y=\"{}\" text-anchor=\"end\">0</text>\n", left - 4, top + plot_h);
+  const std::size_t step = std::max<std::size_t>(1, (n + 7) / 8);
+  for (std::size_t i = 0; i < n; i += step)
+    s += format("<text class=\"axis\" x=\"{:.1f}\" y=\"{}\" text-anchor=\"middle\">{}</text>\n",
+                left + slot * (static_cast<double>(i) + 0.5), top + plot_h + 14, r.timeline[i].first_ordinal);
+  s += format("<text class=\"axis-title\" x=\"{}\" y=\"{}\" text-anchor=\"middle\">command ordinal{}</text>\n",
+              left + plot_w / 2, top + plot_h + 34,
+              r.timeline.front().commands > 1 || r.timeline.back().commands > 1 ? " (bars sum runs of commands)" : "");
+  s += "</svg>\n";
+  return s;
+}
+
+}  // namespace clastrace::analyze
