@@ -21,7 +21,24 @@ void AddressOwners::paint(uint64_t base, uint64_t size, const AddressOwner& owne
     it = spans_.erase(it);
   }
   for (auto& k : keep) spans_.emplace(k.first, k.second);
-  spans_.emplace(base, Span{end, owner});
+  auto placed = spans_.emplace(base, Span{end, owner}).first;
+
+  // Rejoin with neighbours of the same owner, so repeated uses do not fragment the map.
+  auto same = [](const AddressOwner& a, const AddressOwner& b) {
+    return a.region == b.region && a.role == b.role && a.command == b.command;
+  };
+  auto next = std::next(placed);
+  if (next != spans_.end() && next->first == placed->second.end && same(next->second.owner, owner)) {
+    placed->second.end = next->second.end;
+    spans_.erase(next);
+  }
+  if (placed != spans_.begin()) {
+    auto prev = std::prev(placed);
+    if (prev->second.end == placed->first && same(prev->second.owner, owner)) {
+      prev->second.end = placed->second.end;
+      spans_.erase(placed);
+    }
+  }
 }
 
 }  // namespace clastrace::analyze

@@ -38,13 +38,40 @@ bool ranges_intersect(uint64_t a, uint64_t as, uint64_t b, uint64_t bs) {
   return a < b + bs && b < a + as;
 }
 
-uint64_t command_cost(const CommandRow& c) { return c.gpu_ns.value_or(c.replay_ns.value_or(0)); }
+// The N most expensive commands by one clock, kept in a heap whose top is evicted first.
+class TopCommands {
+ public:
+  explicit TopCommands(std::optional<uint64_t> CommandRow::*clock) : clock_(clock) {}
+  void offer(const CommandRow& c, std::size_t n) {
+    if (n == 0 || !(c.*clock_)) return;
+    if (heap_.size() < n) {
+      heap_.push_back(c);
+      std::push_heap(heap_.begin(), heap_.end(), order());
+    } else if (order()(c, heap_.front())) {
+      std::pop_heap(heap_.begin(), heap_.end(), order());
+      heap_.back() = c;
+      std::push_heap(heap_.begin(), heap_.end(), order());
+    }
+  }
+  std::vector<CommandRow> sorted() const {
+    std::vector<CommandRow> v = heap_;
+    std::sort(v.begin(), v.end(), order());
+    return v;
+  }
 
-// Heap order for top commands: the cheapest (then the latest) on top, to be evicted first.
-bool costlier(const CommandRow& a, const CommandRow& b) {
-  uint64_t ca = command_cost(a), cb = command_cost(b);
-  return ca != cb ? ca > cb : a.ordinal < b.ordinal;
-}
+ private:
+  // Costlier first; equal cost: earlier command first.
+  struct Order {
+    std::optional<uint64_t> CommandRow::*clock;
+    bool operator()(const CommandRow& a, const CommandRow& b) const {
+      uint64_t ca = *(a.*clock), cb = *(b.*clock);
+      return ca != cb ? ca > cb : a.ordinal < b.ordinal;
+    }
+  };
+  Order order() const { return Order{clock_}; }
+  std::optional<uint64_t> CommandRow::*clock_;
+  std::vector<CommandRow> heap_;
+};
 
 }  // namespace
 
@@ -72,7 +99,8 @@ struct Analyzer::State {
   std::map<SummaryKey, OverlapSummaryRow> summary;
 
   std::deque<CommandRow> recent;
-  std::vector<CommandRow> top_heap;
+  TopCommands top_gpu{&CommandRow::gpu_ns};
+  TopCommands top_replay{&CommandRow::replay_ns};
   uint64_t timeline_width = 1;  // commands per bucket
 
   void require_open(const char* event) const {
@@ -401,16 +429,8 @@ void Analyzer::State::close_command() {
     r.commands_listed.push_back(current);
   recent.push_back(current);
   if (recent.size() > limits.recent_command_rows) recent.pop_front();
-  if (limits.top_commands > 0) {
-    if (top_heap.size() < limits.top_commands) {
-      top_heap.push_back(current);
-      std::push_heap(top_heap.begin(), top_heap.end(), costlier);
-    } else if (costlier(current, top_heap.front())) {
-      std::pop_heap(top_heap.begin(), top_heap.end(), costlier);
-      top_heap.back() = current;
-      std::push_heap(top_heap.begin(), top_heap.end(), costlier);
-    }
-  }
+  top_gpu.offer(current, limits.top_commands);
+  top_replay.offer(current, limits.top_commands);
   add_to_timeline(current);
   open = false;
 }
@@ -473,8 +493,8 @@ AnalysisReport Analyzer::finish() {
                           r.commands_listed.end());
   r.commands_not_listed = r.commands - r.commands_listed.size();
 
-  r.top_commands = s.top_heap;
-  std::sort(r.top_commands.begin(), r.top_commands.end(), costlier);
+  r.top_by_gpu = s.top_gpu.sorted();
+  r.top_by_replay = s.top_replay.sorted();
 
   // Overlap rows take labels of regions first seen after the overlap was recorded.
   for (OverlapRow& o : r.overlaps) {

@@ -24,7 +24,8 @@ tr:target { background: #fff3b0; }
 .hazard-row td { background: #fdecea; }
 .chart { display: block; margin: 6px 0; background: #fcfcfc; border: 1px solid #e3e3e3; }
 .chart text { font-size: 11px; fill: #444; } .chart .axis-title { font-size: 12px; fill: #222; }
-.chart .axis-line, .chart .extent { stroke: #bbb; stroke-width: 1; }
+.chart .axis-line { stroke: #bbb; stroke-width: 1; } .chart .gap { stroke: #999; stroke-dasharray: 2 3; }
+.chart .region-label { font-size: 10px; fill: #111; pointer-events: none; }
 .region { stroke: #fff; stroke-width: 0.5; fill-opacity: 0.85; }
 .role-buffer { stroke: #999; stroke-dasharray: 3 2; fill-opacity: 0.6; }
 .overlap { fill: none; stroke-width: 2; }
@@ -195,12 +196,18 @@ void timing(const AnalysisReport& r, const std::set<uint64_t>& listed, std::ostr
         << num_text(fmtu::fixed(fmtu::per_second(s.gpu_ops, s.gpu_ns), 0)) << num_text(mtris(s.gpu_triangles, s.gpu_ns))
         << "</tr>\n";
   });
-  out << "</table>\n<h3>Most expensive commands</h3>\n<table id=\"top-commands\">\n"
-      << head({"command", "name", "op type", "ops", "triangles", "GPU ns", "replay ns", "bytes"});
-  for (const CommandRow& c : r.top_commands)
-    out << "<tr>" << cmd_link(c.ordinal, listed) << txt(c.name) << txt(op_type_name(c.op_type)) << num(c.op_count)
-        << num(c.triangles) << opt_num(c.gpu_ns) << opt_num(c.replay_ns) << num(c.engine_bytes) << "</tr>\n";
   out << "</table>\n";
+  auto top = [&](const std::vector<CommandRow>& rows, const char* id, const char* clock) {
+    if (rows.empty()) return;
+    out << format("<h3>Most expensive commands by {} time</h3>\n<table id=\"{}\">\n", clock, id)
+        << head({"command", "name", "op type", "ops", "triangles", "GPU ns", "replay ns", "bytes"});
+    for (const CommandRow& c : rows)
+      out << "<tr>" << cmd_link(c.ordinal, listed) << txt(c.name) << txt(op_type_name(c.op_type)) << num(c.op_count)
+          << num(c.triangles) << opt_num(c.gpu_ns) << opt_num(c.replay_ns) << num(c.engine_bytes) << "</tr>\n";
+    out << "</table>\n";
+  };
+  top(r.top_by_gpu, "top-gpu", "GPU");
+  top(r.top_by_replay, "top-replay", "replay");
 }
 
 void commands(const AnalysisReport& r, std::ostream& out) {

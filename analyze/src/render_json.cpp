@@ -214,8 +214,9 @@ Json timing(const AnalysisReport& r) {
                   {"gpu_ops_per_second", opt(fmtu::per_second(s.gpu_ops, s.gpu_ns))},
                   {"gpu_mtris_per_second", mtris(s.gpu_triangles, s.gpu_ns)}});
   }
-  Json top = Json::array();
-  for (const CommandRow& c : r.top_commands) top.push_back(command_row(c));
+  Json top_gpu = Json::array(), top_replay = Json::array();
+  for (const CommandRow& c : r.top_by_gpu) top_gpu.push_back(command_row(c));
+  for (const CommandRow& c : r.top_by_replay) top_replay.push_back(command_row(c));
   Json timeline = Json::array();
   for (const TimelineBucket& b : r.timeline)
     timeline.push_back({{"first_ordinal", b.first_ordinal},
@@ -229,7 +230,8 @@ Json timing(const AnalysisReport& r) {
   return {{"gpu_timing_present", r.gpu_timing_present},
           {"replay_timing_present", r.replay_timing_present},
           {"by_op_type", by},
-          {"top_commands", top},
+          {"top_by_gpu", top_gpu},
+          {"top_by_replay", top_replay},
           {"timeline", timeline}};
 }
 

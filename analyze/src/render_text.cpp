@@ -58,10 +58,11 @@ void sizes_section(const AnalysisReport& r, std::ostream& out) {
     d.print(out, kTextColumns);
   }
 
-  out << "\nWorst case (build-sizes query) vs actual, and allocated vs used\n";
+  out << "\nWorst case (build-sizes query) vs actual; dstImplicitData allocated vs used;\n"
+         "scratch allocated vs required by the query\n";
   TextTable w;
   w.column("op type", Align::left).column("queried").column("worst case").column("actual").column("slack");
-  w.column("slack%").column("implicit alloc").column("used").column("scratch alloc").column("required");
+  w.column("slack%").column("implicit").column("used").column("scratch").column("required");
   for_each_used_op_type(r, [&](const OpTypeSizes& s) {
     w.row({op_type_short(s.op_type), num(s.commands_with_query), num(s.worst_case_bytes),
            num(s.actual_bytes_of_queried), fmtu::difference(s.worst_case_bytes, s.actual_bytes_of_queried),
@@ -82,7 +83,8 @@ void sizes_section(const AnalysisReport& r, std::ostream& out) {
       if (bins[b] == 0) continue;
       std::string range = b == 0 ? "0" : format("{}..{}", ValueDistribution::bin_low(b),
                                                   b == 64 ? UINT64_MAX : ValueDistribution::bin_low(b + 1) - 1);
-      std::size_t bar = static_cast<std::size_t>((bins[b] * 40 + peak - 1) / peak);
+      // 128-bit product: bins[b] * 30 overflows for hostile counts.
+      auto bar = static_cast<std::size_t>((static_cast<unsigned __int128>(bins[b]) * 30 + peak - 1) / peak);
       out << format("  {:>41} {:>10} {}\n", range, bins[b], std::string(bar, '#'));
     }
   });
@@ -149,14 +151,16 @@ void overlap_section(const AnalysisReport& r, std::ostream& out) {
   if (!r.overlaps.empty()) {
     out << "\nOverlapping region pairs\n";
     TextTable t;
-    t.column("older", Align::left).column("cmd").column("newer", Align::left).column("cmd");
-    t.column("address").column("bytes").column("kind", Align::left).column("verdict", Align::left);
+    t.column("older", Align::left).column("role", Align::left).column("cmd").column("newer", Align::left);
+    t.column("role", Align::left).column("cmd").column("address").column("bytes").column("kind", Align::left);
+    t.column("verdict", Align::left);
     std::size_t shown = 0;
     for (const OverlapRow& o : r.overlaps) {
       if (shown++ == kTextRows) break;
-      t.row({format("{} {}", region_role_name(o.older_role), o.older_label), num(o.older_command),
-             format("{} {}", region_role_name(o.newer_role), o.newer_label), num(o.newer_command), fmtu::hex(o.base),
-             num(o.size), overlap_kind_name(o.kind), o.hazard ? "HAZARD " + o.hazard_class : "safe"});
+      std::string verdict = !o.hazard ? "safe" : o.hazard_index ? format("HAZARD #{}", *o.hazard_index) : "HAZARD";
+      t.row({o.older_label, region_role_name(o.older_role), num(o.older_command), o.newer_label,
+             region_role_name(o.newer_role), num(o.newer_command), fmtu::hex(o.base), num(o.size),
+             overlap_kind_name(o.kind), verdict});
     }
     t.print(out, kTextColumns);
     if (r.overlaps.size() > kTextRows) out << format("({} more pairs in --json)\n", r.overlaps.size() - kTextRows);
@@ -196,15 +200,19 @@ void timing_section(const AnalysisReport& r, std::ostream& out) {
   });
   t.print(out, kTextColumns);
 
-  out << format("\nTop {} commands by {} time\n", r.top_commands.size(),
-                r.gpu_timing_present ? "GPU (else replay)" : "replay");
-  TextTable top;
-  top.column("#").column("name", Align::left).column("op", Align::left).column("ops").column("triangles");
-  top.column("gpu us").column("replay us").column("bytes");
-  for (const CommandRow& c : r.top_commands)
-    top.row({num(c.ordinal), c.name, op_type_short(c.op_type), num(c.op_count), num(c.triangles), opt_us(c.gpu_ns),
-             opt_us(c.replay_ns), num(c.engine_bytes)});
-  top.print(out, kTextColumns);
+  auto top = [&](const std::vector<CommandRow>& rows, const char* clock) {
+    if (rows.empty()) return;
+    out << format("\nTop {} commands by {} time\n", rows.size(), clock);
+    TextTable t2;
+    t2.column("#").column("name", Align::left).column("op", Align::left).column("ops").column("triangles");
+    t2.column("gpu us").column("replay us").column("bytes");
+    for (const CommandRow& c : rows)
+      t2.row({num(c.ordinal), c.name, op_type_short(c.op_type), num(c.op_count), num(c.triangles), opt_us(c.gpu_ns),
+              opt_us(c.replay_ns), num(c.engine_bytes)});
+    t2.print(out, kTextColumns);
+  };
+  top(r.top_by_gpu, "GPU");
+  top(r.top_by_replay, "replay");
 }
 
 }  // namespace
@@ -215,8 +223,13 @@ void render_text(const AnalysisReport& r, std::ostream& out) {
     if (static_cast<unsigned char>(ch) < 0x20 || ch == 0x7f) ch = '?';
   if (name.size() > 80) name = "~" + name.substr(name.size() - 79);
   out << format("clastrace analyze: {}\n", name);
-  out << format("{} commands in {} submissions: {} ops, {} objects, {} triangles\n", r.commands, r.submissions, r.ops,
-                r.objects, r.triangles);
+  TextTable totals;
+  totals.column("commands").column("submissions").column("ops").column("objects").column("triangles");
+  totals.column("regions").column("overlap events").column("hazards");
+  totals.row({num(r.commands), num(r.submissions), num(r.ops), num(r.objects), num(r.triangles), num(r.regions),
+              num(r.overlap_events), num(r.hazards_total)});
+  out << '\n';
+  totals.print(out, kTextColumns);
   sizes_section(r, out);
   commands_section(r, out);
   overlap_section(r, out);

@@ -1,6 +1,7 @@
 #include "svg_charts.h"
 
 #include <algorithm>
+#include <cmath>
 #include <set>
 
 #include <fmt/format.h>
@@ -33,58 +34,93 @@ const char* role_color(RegionRole role) {
 
 namespace {
 
-// Address axis with the gaps between used extents cut out: each extent is drawn in
-// proportion to its bytes (with a minimum height), gaps as thin breaks.
+// Address axis. Addresses are cut into segments at every region boundary; unused ranges
+// between them become thin breaks, and each segment gets a height growing with the square
+// root of its bytes, so a 16-byte array stays visible next to a 256 MiB pool. Segments only a
+// container buffer covers are drawn squeezed: what matters is what lives inside.
 class AddressAxis {
  public:
-  AddressAxis(std::vector<std::pair<uint64_t, uint64_t>> ranges, double top, double height) {
-    std::sort(ranges.begin(), ranges.end());
-    for (auto [b, e] : ranges) {
-      if (!extents_.empty() && b <= extents_.back().end) extents_.back().end = std::max(extents_.back().end, e);
-      else extents_.push_back({b, e, 0, 0});
+  struct Range {
+    uint64_t begin, end;
+    bool container;
+  };
+  struct Segment {
+    uint64_t begin, end;
+    double y, h;
+    bool after_gap;
+  };
+
+  AddressAxis(const std::vector<Range>& ranges, double top, double height) {
+    struct Event {
+      uint64_t at;
+      int content, container;
+    };
+    std::vector<Event> events;
+    for (const Range& r : ranges) {
+      events.push_back({r.begin, r.container ? 0 : 1, r.container ? 1 : 0});
+      events.push_back({r.end, r.container ? 0 : -1, r.container ? -1 : 0});
     }
-    const std::size_t n = extents_.size();
+    std::sort(events.begin(), events.end(), [](const Event& a, const Event& b) { return a.at < b.at; });
+    std::vector<double> weight;
+    int content = 0, container = 0;
+    bool gap = false;
+    for (std::size_t i = 0; i < events.size();) {
+      const uint64_t at = events[i].at;
+      for (; i < events.size() && events[i].at == at; ++i) {
+        content += events[i].content;
+        container += events[i].container;
+      }
+      if (i == events.size()) break;
+      const uint64_t next = events[i].at;
+      if (content == 0 && container == 0) {
+        gap = true;
+        continue;
+      }
+      const double root = std::sqrt(static_cast<double>(next - at));
+      segments_.push_back({at, next, 0, 0, gap && !segments_.empty()});
+      weight.push_back(content > 0 ? root : 0.3 * root);
+      gap = false;
+    }
+    const std::size_t n = segments_.size();
     if (n == 0) return;
-    const double gap = std::min(8.0, height * 0.2 / static_cast<double>(n));
-    const double min_h = std::min(6.0, height * 0.3 / static_cast<double>(n));
-    const double usable = height - gap * static_cast<double>(n - 1) - min_h * static_cast<double>(n);
-    long double total = 0;
-    for (const Extent& x : extents_) total += static_cast<long double>(x.end - x.begin);
+    std::size_t gaps = 0;
+    for (const Segment& g : segments_) gaps += g.after_gap;
+    const double gap_px = std::min(6.0, height * 0.15 / static_cast<double>(gaps + 1));
+    const double min_h = std::min(1.5, height * 0.2 / static_cast<double>(n));
+    const double usable = height - gap_px * static_cast<double>(gaps) - min_h * static_cast<double>(n);
+    double total = 0;
+    for (double w : weight) total += w;
     double y = top;
-    for (Extent& x : extents_) {
-      x.y = y;
-      x.h = min_h + (total > 0 ? static_cast<double>(usable * (x.end - x.begin) / total) : 0.0);
-      y += x.h + gap;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (segments_[i].after_gap) y += gap_px;
+      segments_[i].y = y;
+      segments_[i].h = min_h + (total > 0 ? usable * weight[i] / total : 0.0);
+      y += segments_[i].h;
     }
   }
+
   double y(uint64_t address) const {
-    auto it = std::upper_bound(extents_.begin(), extents_.end(), address,
-                               [](uint64_t a, const Extent& x) { return a < x.begin; });
-    if (it == extents_.begin()) return extents_.empty() ? 0 : extents_.front().y;
-    const Extent& x = *std::prev(it);
-    if (address >= x.end) return x.y + x.h;
-    return x.y + x.h * static_cast<double>(address - x.begin) / static_cast<double>(x.end - x.begin);
+    const Segment* g = find(address);
+    if (!g) return segments_.empty() ? 0 : segments_.front().y;
+    if (address >= g->end) return g->y + g->h;
+    return g->y + g->h * static_cast<double>(address - g->begin) / static_cast<double>(g->end - g->begin);
   }
   // y just past the last byte of a range ending (exclusive) at `end`.
   double y_end(uint64_t end) const {
-    const Extent* x = find(end == 0 ? 0 : end - 1);
-    if (!x) return extents_.empty() ? 0 : extents_.front().y;
-    if (end > x->end) return x->y + x->h;
-    return x->y + x->h * static_cast<double>(end - x->begin) / static_cast<double>(x->end - x->begin);
+    const Segment* g = find(end == 0 ? 0 : end - 1);
+    if (!g) return segments_.empty() ? 0 : segments_.front().y;
+    if (end > g->end) return g->y + g->h;
+    return g->y + g->h * static_cast<double>(end - g->begin) / static_cast<double>(g->end - g->begin);
   }
-  struct Extent {
-    uint64_t begin, end;
-    double y, h;
-  };
-  const std::vector<Extent>& extents() const { return extents_; }
+  const std::vector<Segment>& segments() const { return segments_; }
 
  private:
-  const Extent* find(uint64_t address) const {
-    auto it = std::upper_bound(extents_.begin(), extents_.end(), address,
-                               [](uint64_t a, const Extent& x) { return a < x.begin; });
-    return it == extents_.begin() ? nullptr : &*std::prev(it);
+  const Segment* find(uint64_t address) const {
+    auto it = std::upper_bound(segments_.begin(), segments_.end(), address,
+                               [](uint64_t a, const Segment& g) { return a < g.begin; });
+    return it == segments_.begin() ? nullptr : &*std::prev(it);
   }
-  std::vector<Extent> extents_;
+  std::vector<Segment> segments_;
 };
 
 }  // namespace
@@ -109,46 +145,50 @@ std::string svg_memory_map(const AnalysisReport& r) {
     return s;
   }
   uint64_t first = UINT64_MAX, last = 0;
-  std::vector<std::pair<uint64_t, uint64_t>> ranges;
+  std::vector<AddressAxis::Range> ranges;
   for (const RegionRow* g : drawn) {
     first = std::min(first, g->first_command);
     last = std::max(last, g->last_command);
-    ranges.push_back({g->base, g->base + g->size});
+    ranges.push_back({g->base, g->base + g->size, g->role == RegionRole::buffer});
   }
   for (const OverlapRow& o : r.overlaps) {
     first = std::min(first, o.older_command);
     last = std::max(last, o.newer_command);
   }
-  const AddressAxis axis(std::move(ranges), top, height);
-  const double span = static_cast<double>(last - first + 1);
+  const AddressAxis axis(ranges, top, height);
+  const double span = static_cast<double>(last - first) + 1.0;  // last - first + 1 may wrap
   auto x = [&](uint64_t ordinal) { return left + width * static_cast<double>(ordinal - first) / span; };
 
-  // Address labels at each extent, thinned so they do not collide.
+  // Address labels at segment starts, thinned so they do not collide; breaks mark cut gaps.
   double last_label = -100;
-  for (const auto& e : axis.extents()) {
-    s += format("<line class=\"extent\" x1=\"{}\" x2=\"{:.1f}\" y1=\"{:.2f}\" y2=\"{:.2f}\"/>\n", left - 4, left + width,
-                e.y, e.y);
-    if (e.y - last_label >= 12) {
-      s += format("<text class=\"axis\" x=\"{}\" y=\"{:.2f}\" text-anchor=\"end\">{}</text>\n", left - 6, e.y + 4,
-                  fmtu::hex(e.begin));
-      last_label = e.y;
+  for (const auto& g : axis.segments()) {
+    if (g.after_gap)
+      s += format("<line class=\"gap\" x1=\"{}\" x2=\"{:.1f}\" y1=\"{:.2f}\" y2=\"{:.2f}\"/>\n", left - 4,
+                  left + width, g.y - 1.5, g.y - 1.5);
+    if (g.y - last_label >= 13) {
+      s += format("<text class=\"axis\" x=\"{}\" y=\"{:.2f}\" text-anchor=\"end\">{}</text>\n", left - 6, g.y + 4,
+                  fmtu::hex(g.begin));
+      last_label = g.y;
     }
   }
   // Buffers first (containers, drawn behind what they hold), then everything else.
   for (int pass = 0; pass < 2; ++pass) {
     for (const RegionRow* g : drawn) {
       if ((g->role == RegionRole::buffer) != (pass == 0)) continue;
-      double x0 = x(g->first_command), x1 = std::max(x(g->last_command + 1), x0 + 2.0);
+      double x0 = x(g->first_command), x1 = std::max(x(g->last_command) + width / span, x0 + 2.0);
       double y0 = axis.y(g->base), y1 = std::max(axis.y_end(g->base + g->size), y0 + 1.0);
       s += format(
           "<rect class=\"region role-{}\" data-region=\"{}\" x=\"{:.2f}\" y=\"{:.2f}\" width=\"{:.2f}\" "
           "height=\"{:.2f}\" fill=\"{}\"><title>{} {} [{}, +{}) commands {}..{}</title></rect>\n",
           region_role_name(g->role), g->id, x0, y0, x1 - x0, y1 - y0, role_color(g->role), region_role_name(g->role),
           escape_markup(g->label), fmtu::hex(g->base), g->size, g->first_command, g->last_command);
+      if (pass == 1 && y1 - y0 >= 12 && x1 - x0 >= 70 && !g->label.empty())
+        s += format("<text class=\"region-label\" x=\"{:.2f}\" y=\"{:.2f}\">{}</text>\n", x0 + 3, y0 + 11,
+                    escape_markup(g->label.substr(0, static_cast<std::size_t>((x1 - x0) / 6.5))));
     }
   }
   for (const OverlapRow& o : r.overlaps) {
-    double x0 = x(o.older_command), x1 = std::max(x(o.newer_command + 1), x0 + 2.0);
+    double x0 = x(o.older_command), x1 = std::max(x(o.newer_command) + width / span, x0 + 2.0);
     double y0 = axis.y(o.base), y1 = std::max(axis.y_end(o.base + o.size), y0 + 2.0);
     const char* cls = o.hazard ? "hazard" : (o.kind == OverlapKind::aliasing ? "aliasing" : "reuse");
     s += format(
@@ -161,8 +201,9 @@ std::string svg_memory_map(const AnalysisReport& r) {
   const double axis_y = top + height + 4;
   s += format("<line class=\"axis-line\" x1=\"{}\" x2=\"{}\" y1=\"{}\" y2=\"{}\"/>\n", left, left + width, axis_y,
               axis_y);
-  const uint64_t count = last - first + 1, step = std::max<uint64_t>(1, (count + 7) / 8);
-  for (uint64_t o = first; o <= last && o >= first; o += step) {
+  // At most nine ticks, whatever the ordinals (they may span all of 2^64).
+  const uint64_t step = (last - first) / 8 + 1;
+  for (uint64_t i = 0, o = first; i < 9; ++i, o += step) {
     s += format("<text class=\"axis\" x=\"{:.1f}\" y=\"{}\" text-anchor=\"middle\">{}</text>\n",
                 x(o) + width / span / 2, axis_y + 14, o);
     if (last - o < step) break;

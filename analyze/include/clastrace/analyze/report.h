@@ -128,7 +128,8 @@ struct AnalysisReport {
 
   std::vector<CommandRow> commands_listed;   // first max_listed_commands, ordinal order
   uint64_t commands_not_listed = 0;
-  std::vector<CommandRow> top_commands;      // most expensive first (gpu time, else replay)
+  std::vector<CommandRow> top_by_gpu;        // most GPU time first (commands with gpu_ns)
+  std::vector<CommandRow> top_by_replay;     // most replay engine time first
   std::vector<TimelineBucket> timeline;
   bool gpu_timing_present = false, replay_timing_present = false;
 
