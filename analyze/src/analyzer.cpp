@@ -96,6 +96,7 @@ struct Analyzer::State {
   std::vector<OwnerOverlap> taken;  // scratch buffer for paint()
 
   std::map<std::pair<uint64_t, uint64_t>, std::size_t> overlap_index;
+  std::size_t hazard_pairs_past_cap = 0;
   std::map<SummaryKey, OverlapSummaryRow> summary;
 
   std::deque<CommandRow> recent;
@@ -372,7 +373,11 @@ void Analyzer::State::close_command() {
       uint64_t lo = std::min(row->base, p.base), hi = std::max(row->base + row->size, p.base + p.size);
       row->base = lo;
       row->size = hi - lo;
-    } else if (r.overlaps.size() < limits.max_listed_overlaps) {
+    } else if (r.overlaps.size() < limits.max_listed_overlaps ||
+               (hazard && hazard_pairs_past_cap < limits.max_listed_hazards)) {
+      // Hazards are what a reader looks for: their pairs are listed past the cap, up to the
+      // hazard listing limit.
+      if (r.overlaps.size() >= limits.max_listed_overlaps) ++hazard_pairs_past_cap;
       overlap_index.emplace(pair, r.overlaps.size());
       OverlapRow o;
       o.older_region = p.older.region;

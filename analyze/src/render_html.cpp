@@ -38,6 +38,8 @@ tr:target { background: #fff3b0; }
 .hists { display: flex; flex-wrap: wrap; gap: 16px; } .note { color: #666; }
 )css";
 
+constexpr std::size_t kMaxHtmlPairs = 300;
+
 std::string num(uint64_t v) { return format("<td class=\"num\">{}</td>", v); }
 std::string num_text(const std::string& v) { return format("<td class=\"num\">{}</td>", escape_markup(v)); }
 std::string txt(const std::string& v) { return format("<td>{}</td>", escape_markup(v)); }
@@ -70,6 +72,12 @@ void sizes(const AnalysisReport& r, std::ostream& out) {
   });
   out << "</table>\n";
 
+  bool any_driver = false;
+  for_each_used_op_type(r, [&](const OpTypeSizes& s) { any_driver |= s.objects_with_driver_bytes > 0; });
+  if (!any_driver) {
+    out << "<h3>Driver vs engine</h3>\n<p class=\"note\">The capture recorded no driver sizes "
+           "(dstSizesArray).</p>\n";
+  } else {
   out << "<h3>Driver vs engine</h3>\n<table id=\"driver-table\">\n"
       << head({"op type", "objects with driver size", "driver bytes", "engine bytes", "driver/engine", "driver median"});
   for_each_used_op_type(r, [&](const OpTypeSizes& s) {
@@ -80,6 +88,7 @@ void sizes(const AnalysisReport& r, std::ostream& out) {
         << num(s.driver_bytes.median()) << "</tr>\n";
   });
   out << "</table>\n";
+  }
 
   out << "<h3>Worst case vs actual, allocated vs used</h3>\n<table id=\"build-sizes-table\">\n"
       << head({"op type", "commands with query", "worst case", "actual", "slack", "slack %", "implicit allocated",
@@ -149,7 +158,14 @@ void memory(const AnalysisReport& r, const std::set<uint64_t>& listed, std::ostr
   out << "</table>\n<h3>Overlapping region pairs</h3>\n<table id=\"overlap-pairs\">\n"
       << head({"older region", "older role", "command", "newer region", "newer role", "command", "address", "bytes",
                "kind", "verdict"});
-  for (const OverlapRow& o : r.overlaps) {
+  // Hazards first, then aliasing, then ordered reuse; each in the order found.
+  std::vector<const OverlapRow*> rows;
+  for (int rank = 0; rank < 3; ++rank)
+    for (const OverlapRow& o : r.overlaps)
+      if ((o.hazard ? 0 : o.kind == OverlapKind::aliasing ? 1 : 2) == rank) rows.push_back(&o);
+  if (rows.size() > kMaxHtmlPairs) rows.resize(kMaxHtmlPairs);
+  for (const OverlapRow* op : rows) {
+    const OverlapRow& o = *op;
     std::string verdict = o.hazard ? (o.hazard_index ? format("<a href=\"#hazard-{}\">hazard {}</a>", *o.hazard_index,
                                                               escape_markup(o.hazard_class))
                                                      : "hazard " + escape_markup(o.hazard_class))
@@ -160,6 +176,9 @@ void memory(const AnalysisReport& r, const std::set<uint64_t>& listed, std::ostr
         << txt(overlap_kind_name(o.kind)) << "<td>" << verdict << "</td></tr>\n";
   }
   out << "</table>\n";
+  if (r.overlaps.size() > kMaxHtmlPairs)
+    out << format("<p class=\"note\">{} more pairs (ordered reuse) in the JSON report.</p>\n",
+                  r.overlaps.size() - kMaxHtmlPairs);
   if (r.overlap_events_not_listed)
     out << format("<p class=\"note\">{} more overlap events belong to pairs past the listing limit.</p>\n",
                   r.overlap_events_not_listed);

@@ -187,7 +187,19 @@ std::string svg_memory_map(const AnalysisReport& r) {
                     escape_markup(g->label.substr(0, static_cast<std::size_t>((x1 - x0) / 6.5))));
     }
   }
-  for (const OverlapRow& o : r.overlaps) {
+  // Hazards and aliasing are always outlined, hazards on top; ordered reuse only while few
+  // enough to read (a frame loop reuses every buffer every frame).
+  std::size_t reuse_pairs = 0;
+  for (const OverlapRow& o : r.overlaps) reuse_pairs += !o.hazard && o.kind == OverlapKind::reuse;
+  const bool outline_reuse = reuse_pairs <= kMaxOutlinedReuse;
+  std::vector<const OverlapRow*> outlined;
+  for (int rank = 2; rank >= 0; --rank)
+    for (const OverlapRow& o : r.overlaps) {
+      int k = o.hazard ? 0 : (o.kind == OverlapKind::aliasing ? 1 : 2);
+      if (k == rank && (k != 2 || outline_reuse)) outlined.push_back(&o);
+    }
+  for (const OverlapRow* op : outlined) {
+    const OverlapRow& o = *op;
     double x0 = x(o.older_command), x1 = std::max(x(o.newer_command) + width / span, x0 + 2.0);
     double y0 = axis.y(o.base), y1 = std::max(axis.y_end(o.base + o.size), y0 + 2.0);
     const char* cls = o.hazard ? "hazard" : (o.kind == OverlapKind::aliasing ? "aliasing" : "reuse");
@@ -210,7 +222,8 @@ std::string svg_memory_map(const AnalysisReport& r) {
   }
   s += format("<text class=\"axis-title\" x=\"{}\" y=\"{}\" text-anchor=\"middle\">command ordinal{}</text>\n",
               left + width / 2, axis_y + 32,
-              omitted ? format(" ({} smaller regions not drawn)", omitted) : std::string());
+              (omitted ? format(" ({} smaller regions not drawn)", omitted) : std::string()) +
+                  (outline_reuse ? std::string() : format(" ({} ordered-reuse pairs not outlined)", reuse_pairs)));
   s += "</svg>\n";
   return s;
 }

@@ -9,6 +9,7 @@
 namespace clastrace::analyze {
 
 inline constexpr std::size_t kMaxMapRegions = 3000;  // larger maps keep the largest regions
+inline constexpr std::size_t kMaxOutlinedReuse = 150;  // more ordered-reuse pairs are not outlined
 
 std::string svg_memory_map(const AnalysisReport& r);
 std::string svg_size_histogram(const OpTypeSizes& sizes);

@@ -96,7 +96,7 @@ TEST(AnalyzerMutation, RandomHostileStreamsNeverCrashAndAlwaysRender) {
       }
     }
     AnalysisReport r = a.finish();
-    EXPECT_LE(r.overlaps.size(), limits.max_listed_overlaps);
+    EXPECT_LE(r.overlaps.size(), limits.max_listed_overlaps + limits.max_listed_hazards);
     EXPECT_LE(r.hazards.size(), limits.max_listed_hazards);
     EXPECT_LE(r.timeline.size(), limits.timeline_buckets);
     EXPECT_LE(r.regions, limits.max_tracked_regions);

@@ -34,7 +34,7 @@ struct AnalyzerLimits {
   std::size_t top_commands = 10;
   std::size_t timeline_buckets = 256;
   std::size_t max_tracked_regions = 8192;  // the memory map draws at most 3000 of them
-  std::size_t max_listed_overlaps = 1024;
+  std::size_t max_listed_overlaps = 1024;  // plus up to max_listed_hazards pairs that are hazards
   std::size_t max_listed_hazards = 1024;
   std::size_t recent_command_rows = 256;  // kept so a hazard's first command can be listed
 };
