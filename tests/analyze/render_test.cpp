@@ -1,3 +1,4 @@
+#include <fstream>
 #include <regex>
 #include <sstream>
 
@@ -5,6 +6,7 @@
 #include <nlohmann/json.hpp>
 
 #include "clastrace/analyze/render.h"
+#include "clastrace/analyze/report_output.h"
 #include "svg_charts.h"
 #include "synthetic_input.h"
 
@@ -144,6 +146,34 @@ TEST(RenderHtml, LargeMapsDrawAtMostTheRegionCap) {
   const std::string html = render_html(stream_report(1000));  // 1000 * (2 + 8) regions
   EXPECT_EQ(count(html, "<rect class=\"region "), kMaxMapRegions);
   EXPECT_NE(html.find("smaller regions not drawn"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace clastrace::analyze
+
+namespace clastrace::analyze {
+namespace {
+
+TEST(ReportOutput, WritesTheChosenFormatToAFile) {
+  Analyzer a("out");
+  synthetic::feed_small_scenario(a);
+  const AnalysisReport r = a.finish();
+  const std::string dir = ::testing::TempDir();
+  std::string error;
+  ASSERT_TRUE(write_report(r, ReportFormat::html, dir + "/report.html", &error)) << error;
+  std::ifstream in(dir + "/report.html");
+  std::stringstream s;
+  s << in.rdbuf();
+  EXPECT_EQ(s.str(), render_html(r));
+  EXPECT_FALSE(std::ifstream(dir + "/report.html.partial").good());
+}
+
+TEST(ReportOutput, UnwritablePathIsAClearError) {
+  Analyzer a("out");
+  const AnalysisReport r = a.finish();
+  std::string error;
+  EXPECT_FALSE(write_report(r, ReportFormat::json, "/nonexistent-dir/x/report.json", &error));
+  EXPECT_NE(error.find("/nonexistent-dir/x/report.json.partial: cannot create"), std::string::npos) << error;
 }
 
 }  // namespace
