@@ -1,5 +1,6 @@
 #include <fstream>
 #include <regex>
+#include <set>
 #include <sstream>
 
 #include <gtest/gtest.h>
@@ -174,6 +175,39 @@ TEST(ReportOutput, UnwritablePathIsAClearError) {
   std::string error;
   EXPECT_FALSE(write_report(r, ReportFormat::json, "/nonexistent-dir/x/report.json", &error));
   EXPECT_NE(error.find("/nonexistent-dir/x/report.json.partial: cannot create"), std::string::npos) << error;
+}
+
+}  // namespace
+}  // namespace clastrace::analyze
+
+namespace clastrace::analyze {
+namespace {
+
+// docs/analyze.md is the JSON reference: every field name the JSON uses must appear there.
+void collect_keys(const nlohmann::json& j, std::set<std::string>& keys) {
+  if (j.is_object()) {
+    for (auto it = j.begin(); it != j.end(); ++it) {
+      keys.insert(it.key());
+      collect_keys(it.value(), keys);
+    }
+  } else if (j.is_array()) {
+    for (const auto& v : j) collect_keys(v, keys);
+  }
+}
+
+TEST(RenderJson, EveryFieldIsDocumented) {
+  std::ifstream in(CLASTRACE_ANALYZE_DOC);
+  ASSERT_TRUE(in) << CLASTRACE_ANALYZE_DOC;
+  std::stringstream doc;
+  doc << in.rdbuf();
+  std::set<std::string> keys;
+  collect_keys(nlohmann::json::parse(render_json(small_report())), keys);
+  EXPECT_GT(keys.size(), 100u);
+  // A name counts as documented inside code quotes: `name`, `a.name`, `name[]`, `name.b`, `name`:
+  for (const std::string& k : keys) {
+    std::regex documented("[`.]" + k + "[`\\[.:]");
+    EXPECT_TRUE(std::regex_search(doc.str(), documented)) << k;
+  }
 }
 
 }  // namespace
