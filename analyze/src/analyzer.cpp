@@ -120,6 +120,8 @@ struct Analyzer::State {
 };
 
 Analyzer::Analyzer(std::string trace_name, AnalyzerLimits limits) : state_(std::make_unique<State>()) {
+  // A timeline of zero buckets could not merge its way back under its cap.
+  if (limits.timeline_buckets == 0) limits.timeline_buckets = 1;
   state_->limits = limits;
   state_->report.trace_name = std::move(trace_name);
   for (int i = 0; i < kOpTypeCount; ++i) state_->report.by_op_type[i].op_type = static_cast<OpType>(i);
@@ -443,7 +445,7 @@ void Analyzer::State::close_command() {
 void Analyzer::State::add_to_timeline(const CommandRow& c) {
   auto& tl = report.timeline;
   const uint64_t seen = report.commands - 1;  // this command's position in the trace
-  if (seen / timeline_width >= limits.timeline_buckets && limits.timeline_buckets > 0) {
+  if (seen / timeline_width >= limits.timeline_buckets) {
     // Halve the resolution: merge bucket pairs, so memory stays at timeline_buckets.
     std::vector<TimelineBucket> merged;
     for (std::size_t i = 0; i < tl.size(); i += 2) {

@@ -114,6 +114,20 @@ TEST(AnalyzerLimits, TimelineHalvesResolutionWhenFull) {
   EXPECT_EQ(r.timeline[2].first_ordinal, 8u);
 }
 
+TEST(AnalyzerLimits, ZeroTimelineBucketsMeansOne) {
+  AnalyzerLimits limits;
+  limits.timeline_buckets = 0;
+  Analyzer a("timeline", limits);
+  synthetic::StreamShape shape;
+  shape.commands = 100;
+  shape.ops_per_command = 1;
+  synthetic::feed_stream(a, shape);
+  AnalysisReport r = a.finish();
+  ASSERT_EQ(r.timeline.size(), 1u);
+  EXPECT_EQ(r.timeline[0].commands, 100u);
+  EXPECT_EQ(r.timeline[0].last_ordinal, 99u);
+}
+
 TEST(AnalyzerLimits, AnalyzerWithoutEventsGivesAnEmptyReport) {
   Analyzer a("empty");
   AnalysisReport r = a.finish();
