@@ -32,7 +32,9 @@ tr:target { background: #fff3b0; }
 .overlap.hazard { stroke: #d62728; stroke-width: 3; fill: #d62728; fill-opacity: 0.25; }
 .overlap.aliasing { stroke: #ff7f0e; fill: #ff7f0e; fill-opacity: 0.15; }
 .overlap.reuse { stroke: #555; stroke-dasharray: 4 3; }
-.bar { fill: #2e86c1; } .replay { fill: #5d6d7e; } .gpu { fill: #28b463; }
+.bar { fill: #2e86c1; } .budget-whole { fill: #e5e8e8; stroke: #aab7b8; }
+.budget-part.objects { fill: #2e86c1; } .budget-part.implicit { fill: #7fb3d5; }
+.budget-part.scratch { fill: #f2a65a; } .budget-part.over { fill: #d62728; } .replay { fill: #5d6d7e; } .gpu { fill: #28b463; }
 .legend span { display: inline-block; margin-right: 14px; } .swatch { display: inline-block; width: 12px;
   height: 12px; margin-right: 4px; vertical-align: -1px; border: 1px solid #999; }
 .hists { display: flex; flex-wrap: wrap; gap: 16px; } .note { color: #666; }
@@ -102,7 +104,7 @@ void sizes(const AnalysisReport& r, std::ostream& out) {
         << num(s.implicit_allocated) << num(s.implicit_used) << num(s.scratch_allocated) << num(s.scratch_required)
         << num(s.scratch_used) << "</tr>\n";
   });
-  out << "</table>\n<h3>Object size histograms</h3>\n<div class=\"hists\">\n";
+  out << "</table>\n" << svg_size_budget(r) << "<h3>Object size histograms</h3>\n<div class=\"hists\">\n";
   for_each_used_op_type(r, [&](const OpTypeSizes& s) {
     if (s.objects) out << "<figure>" << svg_size_histogram(s) << "<figcaption>" << op_type_name(s.op_type)
                        << "</figcaption></figure>\n";
@@ -120,7 +122,7 @@ void sizes(const AnalysisReport& r, std::ostream& out) {
                           ? fmtu::percent(fmtu::ratio(t.untruncated_bytes - t.engine_bytes_of_those, t.untruncated_bytes))
                           : "-")
           << "</tr>\n";
-    out << "</table>\n";
+    out << "</table>\n" << svg_truncation(r);
   }
   if (r.trace_bytes) {
     const TraceBytes& b = *r.trace_bytes;

@@ -320,4 +320,83 @@ std::string svg_timeline(const AnalysisReport& r) {
   return s;
 }
 
+std::string svg_size_budget(const AnalysisReport& r) {
+  struct Row {
+    std::string label;
+    uint64_t part, whole;
+    const char* what;
+  };
+  std::vector<Row> rows;
+  for (const OpTypeSizes& t : r.by_op_type) {
+    if (t.commands == 0) continue;
+    const std::string op = op_type_name(t.op_type);
+    if (t.commands_with_query)
+      rows.push_back({op + ": objects / worst case", t.actual_bytes_of_queried, t.worst_case_bytes, "objects"});
+    if (t.implicit_allocated)
+      rows.push_back({op + ": implicit data used / allocated", t.implicit_used, t.implicit_allocated, "implicit"});
+    if (t.scratch_allocated)
+      rows.push_back({op + ": scratch required / allocated", t.scratch_required, t.scratch_allocated, "scratch"});
+  }
+  const double label_w = 330, bar_w = 560, row_h = 26, top = 10;
+  const double height = top + row_h * static_cast<double>(rows.size()) + 10;
+  std::string s = format(
+      "<svg id=\"size-budget\" class=\"chart\" role=\"img\" width=\"{}\" height=\"{}\" viewBox=\"0 0 {} {}\">\n"
+      "<title>How full each budget is: filled part of each bar, whole bar the larger value</title>\n",
+      label_w + bar_w + 160, std::max(height, 40.0), label_w + bar_w + 160, std::max(height, 40.0));
+  if (rows.empty()) return s + format("<text x=\"10\" y=\"24\">no build-sizes queries or allocations</text>\n</svg>\n");
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    const Row& row = rows[i];
+    const double y = top + row_h * static_cast<double>(i);
+    const uint64_t scale = std::max(row.part, row.whole);
+    const double fill = scale ? bar_w * static_cast<double>(row.part) / static_cast<double>(scale) : 0;
+    const double whole = scale ? bar_w * static_cast<double>(row.whole) / static_cast<double>(scale) : 0;
+    const bool over = row.part > row.whole;  // e.g. objects larger than the query's worst case
+    s += format("<text class=\"axis\" x=\"{}\" y=\"{:.1f}\" text-anchor=\"end\">{}</text>\n", label_w - 8, y + 15,
+                escape_markup(row.label));
+    s += format("<rect class=\"budget-whole\" x=\"{}\" y=\"{:.1f}\" width=\"{:.2f}\" height=\"18\"/>", label_w, y + 2,
+                whole);
+    s += format(
+        "<rect class=\"budget-part {}{}\" data-part=\"{}\" data-whole=\"{}\" x=\"{}\" y=\"{:.1f}\" width=\"{:.2f}\" "
+        "height=\"18\"><title>{}: {} of {} bytes</title></rect>",
+        row.what, over ? " over" : "", row.part, row.whole, label_w, y + 2, fill, escape_markup(row.label), row.part,
+        row.whole);
+    s += format("<text class=\"count\" x=\"{:.1f}\" y=\"{:.1f}\">{} of {} ({})</text>\n", label_w + bar_w + 6, y + 15,
+                fmtu::human_bytes(row.part), fmtu::human_bytes(row.whole),
+                fmtu::percent(fmtu::ratio(row.part, row.whole)));
+  }
+  return s + "</svg>\n";
+}
+
+std::string svg_truncation(const AnalysisReport& r) {
+  const double left = 60, top = 20, plot_h = 140, bar_w = 48;
+  const std::size_t n = r.truncation.size();
+  const double width = std::max(left + bar_w * static_cast<double>(n) + 20, 260.0);
+  std::string s = format(
+      "<svg id=\"truncation-chart\" class=\"chart\" role=\"img\" width=\"{}\" height=\"{}\" viewBox=\"0 0 {} {}\">\n"
+      "<title>Bytes per triangle by positionTruncateBitCount</title>\n",
+      width, top + plot_h + 50, width, top + plot_h + 50);
+  double peak = 0;
+  for (const TruncationRow& t : r.truncation)
+    peak = std::max(peak, fmtu::ratio(t.engine_bytes, t.triangles).value_or(0.0));
+  for (std::size_t i = 0; i < n; ++i) {
+    const TruncationRow& t = r.truncation[i];
+    const double v = fmtu::ratio(t.engine_bytes, t.triangles).value_or(0.0);
+    const double h = peak > 0 ? plot_h * v / peak : 0;
+    const double x = left + bar_w * static_cast<double>(i);
+    s += format(
+        "<rect class=\"bar\" data-bits=\"{}\" data-bytes-per-triangle=\"{:.2f}\" x=\"{:.1f}\" y=\"{:.2f}\" width=\"{}\" "
+        "height=\"{:.2f}\"><title>{} bits: {:.2f} bytes/triangle over {} objects</title></rect>\n",
+        t.truncate_bits, v, x + 4, top + plot_h - h, bar_w - 8, h, t.truncate_bits, v, t.objects);
+    s += format("<text class=\"count\" x=\"{:.1f}\" y=\"{:.2f}\" text-anchor=\"middle\">{:.1f}</text>\n", x + bar_w / 2,
+                top + plot_h - h - 3, v);
+    s += format("<text class=\"axis\" x=\"{:.1f}\" y=\"{}\" text-anchor=\"middle\">{}</text>\n", x + bar_w / 2,
+                top + plot_h + 14, t.truncate_bits);
+  }
+  s += format("<line class=\"axis-line\" x1=\"{}\" x2=\"{:.1f}\" y1=\"{}\" y2=\"{}\"/>\n", left,
+              left + bar_w * static_cast<double>(n), top + plot_h, top + plot_h);
+  s += format("<text class=\"axis-title\" x=\"{}\" y=\"{}\">positionTruncateBitCount</text>\n",
+              left, top + plot_h + 34);
+  return s + "</svg>\n";
+}
+
 }  // namespace clastrace::analyze

@@ -14,6 +14,11 @@ inline constexpr std::size_t kMaxOutlinedReuse = 150;  // more ordered-reuse pai
 std::string svg_memory_map(const AnalysisReport& r);
 std::string svg_size_histogram(const OpTypeSizes& sizes);
 std::string svg_timeline(const AnalysisReport& r);
+// Per op type: actual object bytes vs the build-sizes worst case, implicit data used vs
+// allocated, scratch required vs allocated, as "how full" bars (id size-budget).
+std::string svg_size_budget(const AnalysisReport& r);
+// Bytes per triangle by positionTruncateBitCount (id truncation-chart).
+std::string svg_truncation(const AnalysisReport& r);
 const char* role_color(RegionRole role);
 
 }  // namespace clastrace::analyze

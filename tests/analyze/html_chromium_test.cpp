@@ -79,6 +79,8 @@ TEST_F(HtmlInChromium, DomHoldsChartsAndNumbers) {
   EXPECT_NE(dom.find("<svg id=\"hist-build_clusters_bottom_level\""), std::string::npos);
   EXPECT_EQ(count(dom, "<rect class=\"region "), 14u);
   EXPECT_EQ(count(dom, "<rect class=\"overlap hazard\""), 1u);
+  EXPECT_NE(dom.find("<svg id=\"size-budget\""), std::string::npos);
+  EXPECT_NE(dom.find("<svg id=\"truncation-chart\""), std::string::npos);
   EXPECT_NE(dom.find("data-low=\"512\" data-high=\"1023\" data-count=\"3\""), std::string::npos);
   // Tables as the browser parsed them (it inserts <tbody>).
   const std::size_t totals = dom.find("<table id=\"totals\">");

@@ -116,7 +116,18 @@ TEST(RenderHtml, HasChartsTablesAndLinksWithTheRightNumbers) {
   EXPECT_EQ(count(html, "<rect class=\"overlap hazard\""), 1u);
   EXPECT_EQ(count(html, "<rect class=\"overlap aliasing\""), 1u);
   EXPECT_EQ(count(html, "<rect class=\"overlap reuse\""), 4u);
-  EXPECT_EQ(count(html, "<rect class=\"bar\""), 3u);  // blas: 1 bin, clas: 2 bins
+  EXPECT_EQ(count(html, "<rect class=\"bar\" data-low"), 3u);  // blas: 1 bin, clas: 2 bins
+  // Size budgets: blas objects 800 of 1000, scratch 512 of 4096; clas objects 5500 of 7400,
+  // implicit 5500 of 7000, scratch 3072 of 8192.
+  EXPECT_NE(html.find("id=\"size-budget\""), std::string::npos);
+  EXPECT_EQ(count(html, "<rect class=\"budget-part "), 5u);
+  EXPECT_NE(html.find("class=\"budget-part objects\" data-part=\"5500\" data-whole=\"7400\""), std::string::npos);
+  EXPECT_NE(html.find("class=\"budget-part implicit\" data-part=\"5500\" data-whole=\"7000\""), std::string::npos);
+  EXPECT_NE(html.find("class=\"budget-part scratch\" data-part=\"512\" data-whole=\"4096\""), std::string::npos);
+  // Truncation: 2200/30, 2300/45, 1000/25 bytes per triangle.
+  EXPECT_NE(html.find("data-bits=\"0\" data-bytes-per-triangle=\"73.33\""), std::string::npos);
+  EXPECT_NE(html.find("data-bits=\"4\" data-bytes-per-triangle=\"51.11\""), std::string::npos);
+  EXPECT_NE(html.find("data-bits=\"8\" data-bytes-per-triangle=\"40.00\""), std::string::npos);
   EXPECT_NE(html.find("data-low=\"512\" data-high=\"1023\" data-count=\"3\""), std::string::npos);
   EXPECT_EQ(count(html, "<rect class=\"replay\""), 3u);
   EXPECT_EQ(count(html, "<rect class=\"gpu\""), 3u);
