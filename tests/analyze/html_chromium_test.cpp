@@ -56,7 +56,9 @@ class HtmlInChromium : public ::testing::Test {
     fs::create_directories(dir_);
     Analyzer a("small.clastrace");
     synthetic::feed_small_scenario(a);
-    page_ = dir_ / "small_report.html";
+    // One page per test: ctest runs the tests of this fixture in parallel processes.
+    page_ = dir_ / (std::string("small_report_") + ::testing::UnitTest::GetInstance()->current_test_info()->name() +
+                    ".html");
     std::ofstream(page_) << render_html(a.finish());
     char tmpl[] = "/tmp/clastrace-chromium-XXXXXX";
     ASSERT_NE(mkdtemp(tmpl), nullptr);
