@@ -1,0 +1,248 @@
+// trace_throughput_bench [MB] [DIR]: trace write and read throughput next to plain zstd
+// at the same level on the same bytes. Goal: both ratios >= 0.8.
+//
+// The bytes are what a cluster capture stores: vertex positions (float3 grids with
+// smooth noise), 8-bit cluster-local indices, VkClusterAccelerationStructureBuild-
+// TriangleClusterInfoNV arrays, and every fourth frame repeating the previous
+// geometry (deduplicated by the trace, so it is not counted as stored bytes).
+// "Raw MB" is the bytes stored once; zstd compresses exactly those, in chunks of the
+// trace's chunk size, single-threaded. The trace is written to DIR (default /dev/shm)
+// so the disk does not dominate.
+#include <clastrace/traces/trace_reader.h>
+#include <clastrace/traces/trace_writer.h>
+#include <clastrace/vk_cluster_abi.h>
+
+#include <zstd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <ctime>
+#include <random>
+#include <string>
+#include <unistd.h>
+#include <vector>
+
+using namespace clastrace;
+using namespace clastrace::traces;
+
+namespace {
+
+// Wall time and process CPU time (all threads) together: on a shared, oversubscribed
+// machine wall time mostly measures the neighbours, CPU time measures our work.
+struct Stamp {
+    std::chrono::steady_clock::time_point wall;
+    double cpu;
+};
+double cpu_now() {
+    timespec ts;
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+    return static_cast<double>(ts.tv_sec) + static_cast<double>(ts.tv_nsec) * 1e-9;
+}
+struct Clock {
+    static Stamp now() { return {std::chrono::steady_clock::now(), cpu_now()}; }
+};
+struct Elapsed {
+    double wall, cpu;
+};
+Elapsed seconds_since(Stamp t) {
+    return {std::chrono::duration<double>(std::chrono::steady_clock::now() - t.wall).count(), cpu_now() - t.cpu};
+}
+
+struct Frame {
+    std::vector<uint8_t> vertices, indices, infos;
+};
+
+// One frame's build inputs: `clusters` clusters of 9x9-vertex grids, 128 triangles each.
+Frame make_frame(int frame, int clusters, std::mt19937& rng) {
+    Frame f;
+    std::vector<float> v;
+    v.reserve(clusters * 81 * 3);
+    std::normal_distribution<float> noise(0.0f, 0.002f);
+    for (int c = 0; c < clusters; ++c) {
+        float ox = static_cast<float>(c % 64), oy = static_cast<float>(c / 64);
+        for (int y = 0; y < 9; ++y)
+            for (int x = 0; x < 9; ++x) {
+                float fx = ox + x / 8.0f, fy = oy + y / 8.0f;
+                v.push_back(fx);
+                v.push_back(fy);
+                v.push_back(0.25f * std::sin(fx * 0.7f + frame * 0.05f) * std::cos(fy * 0.3f) + noise(rng));
+            }
+    }
+    f.vertices.resize(v.size() * 4);
+    std::memcpy(f.vertices.data(), v.data(), f.vertices.size());
+    for (int c = 0; c < clusters; ++c) {
+        for (int y = 0; y < 8; ++y)
+            for (int x = 0; x < 8; ++x) {
+                uint8_t a = static_cast<uint8_t>(y * 9 + x), b = a + 1, cc = a + 9, d = cc + 1;
+                if (rng() & 1) {
+                    f.indices.insert(f.indices.end(), {a, b, cc, b, d, cc});
+                } else {
+                    f.indices.insert(f.indices.end(), {a, b, d, a, d, cc});
+                }
+            }
+    }
+    std::vector<VkClusterAccelerationStructureBuildTriangleClusterInfoNV> infos(clusters);
+    for (int c = 0; c < clusters; ++c) {
+        auto& i = infos[c];
+        std::memset(&i, 0, sizeof i);
+        i.clusterID = static_cast<uint32_t>(c);
+        i.triangleCount = 128;
+        i.vertexCount = 81;
+        i.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_8BIT_NV;
+        i.indexBufferStride = 1;
+        i.vertexBufferStride = 12;
+        i.indexBuffer = 0x7f0000000000ull + static_cast<uint64_t>(c) * 384;
+        i.vertexBuffer = 0x7f1000000000ull + static_cast<uint64_t>(c) * 972;
+    }
+    f.infos.resize(infos.size() * sizeof(infos[0]));
+    std::memcpy(f.infos.data(), infos.data(), f.infos.size());
+    return f;
+}
+
+struct Result {
+    double raw_mb, trace_ratio, zstd_ratio;
+    Elapsed write, zstd_c, read, zstd_d;
+};
+
+Result run(const std::vector<Frame>& frames, const std::vector<int>& repeat_of, int level, uint32_t chunk,
+           const std::string& path) {
+    Result r{};
+    // Trace write: every frame's snapshots go through add_contents and one build record.
+    TraceError e;
+    TraceWriterOptions options;
+    options.zstd_level = level;
+    options.chunk_raw_bytes = chunk;
+    options.sync_on_finish = false;
+    fbs::TraceHeaderT header;
+    auto t0 = Clock::now();
+    auto w = TraceWriter::create(path, header, options, &e);
+    if (!w) {
+        std::fprintf(stderr, "%s\n", e.message.c_str());
+        std::exit(2);
+    }
+    for (size_t i = 0; i < frames.size(); ++i) {
+        const Frame& f = frames[repeat_of[i]];
+        fbs::CmdBuildClusterAccelerationStructureIndirectT build;
+        build.command_buffer = 1;
+        fbs::MemorySnapshot s;
+        for (const std::vector<uint8_t>* bytes : {&f.infos, &f.indices, &f.vertices}) {
+            if ((e = w->snapshot(1, 0, 0x1000, bytes->data(), bytes->size(), &s))) break;
+            build.inputs.push_back(s);
+        }
+        fbs::RecordT rec;
+        rec.body.Set(std::move(build));
+        if (!e) e = w->append(rec);
+        if (e) break;
+    }
+    if (!e) e = w->finish();
+    r.write = seconds_since(t0);
+    if (e) {
+        std::fprintf(stderr, "%s\n", e.message.c_str());
+        std::exit(2);
+    }
+    TraceWriterStats st = w->stats();
+    uint64_t raw = st.contents_bytes_stored;
+    r.raw_mb = raw / 1e6;
+    r.trace_ratio = static_cast<double>(raw) / static_cast<double>(st.compressed_bytes);
+
+    // Plain zstd on the same stored bytes, chunked the same way.
+    std::vector<uint8_t> plain;
+    plain.reserve(raw);
+    std::vector<bool> seen(frames.size());
+    for (size_t i = 0; i < frames.size(); ++i) {
+        if (seen[repeat_of[i]]) continue;
+        seen[repeat_of[i]] = true;
+        const Frame& f = frames[repeat_of[i]];
+        for (const std::vector<uint8_t>* bytes : {&f.infos, &f.indices, &f.vertices}) plain.insert(plain.end(), bytes->begin(), bytes->end());
+    }
+    ZSTD_CCtx* cctx = ZSTD_createCCtx();
+    std::vector<std::vector<uint8_t>> blocks;
+    uint64_t compressed = 0;
+    t0 = Clock::now();
+    for (size_t at = 0; at < plain.size(); at += chunk) {
+        size_t n = std::min<size_t>(chunk, plain.size() - at);
+        std::vector<uint8_t> out(ZSTD_compressBound(n));
+        out.resize(ZSTD_compressCCtx(cctx, out.data(), out.size(), plain.data() + at, n, level));
+        compressed += out.size();
+        blocks.push_back(std::move(out));
+    }
+    r.zstd_c = seconds_since(t0);
+    r.zstd_ratio = static_cast<double>(plain.size()) / static_cast<double>(compressed);
+    ZSTD_freeCCtx(cctx);
+
+    ZSTD_DCtx* dctx = ZSTD_createDCtx();
+    std::vector<uint8_t> out(chunk);
+    uint64_t sink = 0;
+    t0 = Clock::now();
+    for (const auto& b : blocks) {
+        size_t n = ZSTD_decompressDCtx(dctx, out.data(), out.size(), b.data(), b.size());
+        sink += out[n / 2];
+    }
+    r.zstd_d = seconds_since(t0);
+    ZSTD_freeDCtx(dctx);
+
+    // Trace read: every record verified, every content key checked.
+    t0 = Clock::now();
+    auto reader = TraceReader::open(path, &e);
+    if (!reader) {
+        std::fprintf(stderr, "%s\n", e.message.c_str());
+        std::exit(2);
+    }
+    RecordView v;
+    uint64_t read_bytes = 0;
+    while (reader->next(&v)) {
+        if (const auto* c = v.record->body_as_MemoryContents()) {
+            read_bytes += c->bytes()->size();
+            sink += c->bytes()->Get(c->bytes()->size() / 2);
+        }
+    }
+    r.read = seconds_since(t0);
+    if (reader->damage_count() != 0 || read_bytes != raw) {
+        std::fprintf(stderr, "read back %llu of %llu bytes, %llu damage\n", (unsigned long long)read_bytes,
+                     (unsigned long long)raw, (unsigned long long)reader->damage_count());
+        std::exit(1);
+    }
+    if (sink == 42) std::printf(" ");
+    ::unlink(path.c_str());
+    return r;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    double target_mb = argc > 1 ? std::atof(argv[1]) : 256;
+    std::string dir = argc > 2 ? argv[2] : "/dev/shm";
+    const int clusters = 4096;  // ~4.4 MB of inputs per frame
+    std::mt19937 rng(1);
+    std::vector<Frame> frames;
+    std::vector<int> repeat_of;
+    double stored = 0;
+    for (int i = 0; stored < target_mb * 1e6; ++i) {
+        if (i % 4 == 3) {
+            repeat_of.push_back(static_cast<int>(frames.size()) - 1);  // the previous geometry again
+            frames.push_back({});
+            continue;
+        }
+        frames.push_back(make_frame(i, clusters, rng));
+        repeat_of.push_back(i);
+        stored += frames.back().vertices.size() + frames.back().indices.size() + frames.back().infos.size();
+    }
+    std::printf("trace throughput vs plain zstd (same level, same stored bytes, %u-byte chunks; %zu frames, every 4th repeated)\n",
+                4u << 20, frames.size());
+    std::printf("MB/s of stored bytes; 'wall' = elapsed time, 'cpu' = process CPU time of all threads\n");
+    std::printf("%-5s %7s | %-27s | %-27s | %-27s | %-27s | %6s %6s\n", "level", "raw MB", "trace write MB/s wall (cpu)",
+                "zstd compress MB/s wall(cpu)", "trace read MB/s wall (cpu)", "zstd decomp MB/s wall (cpu)", "trace", "zstd");
+    for (int level : {1, 3, 9}) {
+        Result r = run(frames, repeat_of, level, 4u << 20, dir + "/clastrace-bench.clt");
+        auto mbs = [&](double s) { return r.raw_mb / s; };
+        std::printf("%-5d %7.1f | %7.1f (%7.1f)           | %7.1f (%7.1f)           | %7.1f (%7.1f)           | %7.1f (%7.1f)           | %5.2fx %5.2fx\n",
+                    level, r.raw_mb, mbs(r.write.wall), mbs(r.write.cpu), mbs(r.zstd_c.wall), mbs(r.zstd_c.cpu),
+                    mbs(r.read.wall), mbs(r.read.cpu), mbs(r.zstd_d.wall), mbs(r.zstd_d.cpu), r.trace_ratio, r.zstd_ratio);
+        std::printf("      ratio vs zstd: write %.2fx wall, %.2fx cpu;  read %.2fx wall, %.2fx cpu\n",
+                    r.zstd_c.wall / r.write.wall, r.zstd_c.cpu / r.write.cpu, r.zstd_d.wall / r.read.wall,
+                    r.zstd_d.cpu / r.read.cpu);
+    }
+    return 0;
+}

@@ -1,0 +1,259 @@
+// What the capture layer records: plain values, no Vulkan handles kept alive. Handles are
+// stored as uint64_t so a trace can name them; device addresses are what the application saw.
+#pragma once
+
+#include <clastrace/vk_cluster_abi.h>
+
+#include <cstdint>
+#include <string>
+#include <variant>
+#include <vector>
+
+namespace clastrace::capture {
+
+// VkClusterAccelerationStructureCommandsInfoNV with its op-specific input copied by value.
+// `info.input.opInput` and every pNext are cleared: the copy owns no pointers.
+struct ClusterCommandParameters {
+  VkClusterAccelerationStructureCommandsInfoNV info{};
+  VkClusterAccelerationStructureClustersBottomLevelInputNV bottomLevelInput{};
+  VkClusterAccelerationStructureTriangleClusterInputNV triangleClusterInput{};
+  VkClusterAccelerationStructureMoveObjectsInputNV moveObjectsInput{};
+  bool hasOpInput = false;  // false when the application passed a null op input
+
+  static ClusterCommandParameters copyOf(const VkClusterAccelerationStructureCommandsInfoNV& info);
+  // The parameters as a driver reads them: opInput pointing into this copy.
+  VkClusterAccelerationStructureCommandsInfoNV resolved() const;
+};
+
+ClusterCommandParameters copyClusterInput(const VkClusterAccelerationStructureInputInfoNV& input);
+
+// Which part of a cluster build's input or output a captured range is.
+enum class MemoryRole {
+  SrcInfosCount,
+  SrcInfos,
+  IndexBuffer,
+  VertexBuffer,
+  GeometryIndexAndFlags,
+  OpacityMicromapIndices,
+  InstantiationBoundingBox,
+  ClusterReferences,
+  IndirectAddress,   // an address read through an INDIRECTED_* address resolution flag
+  DstAddresses,
+  DstSizes,
+  DstObject,
+  TransformData,      // vkCmdBuildAccelerationStructureNV geometry transforms
+  Aabbs,
+  Instances,
+  SerializedAccelerationStructure,  // vkCmdCopyMemoryToAccelerationStructureKHR source
+};
+const char* memoryRoleName(MemoryRole role);
+
+struct CapturedRange {
+  MemoryRole role;
+  uint32_t entry = 0;  // srcInfosArray entry it belongs to (0 for command-wide ranges)
+  VkDeviceAddress address = 0;
+  std::vector<uint8_t> bytes;
+  uint64_t buffer = 0;        // a buffer holding the range, and the range's offset in it
+  VkDeviceSize bufferOffset = 0;
+};
+
+struct CaptureIssue {
+  VkDeviceAddress address = 0;
+  uint64_t size = 0;
+  std::string rule;  // a VUID verbatim where one applies, else a plain statement
+};
+
+// ---- State the replay needs -------------------------------------------------------------
+
+struct DeviceRecord {
+  uint64_t device = 0;
+  std::string deviceName;
+  std::string applicationName, engineName;  // VkApplicationInfo
+  uint32_t apiVersion = 0;
+  uint32_t vendorId = 0, deviceId = 0, driverVersion = 0, deviceType = 0;
+  std::vector<uint8_t> pipelineCacheUuid;
+  float timestampPeriod = 0;
+  std::vector<VkMemoryHeap> memoryHeaps;
+  std::vector<std::string> enabledExtensions;  // as the application asked, served ones included
+  bool servedByLayer = false;
+  VkPhysicalDeviceClusterAccelerationStructurePropertiesNV clusterProperties{};
+  bool clusterFeatureEnabled = false;
+  std::vector<VkMemoryType> memoryTypes;
+};
+
+struct MemoryRecord {
+  uint64_t memory = 0;
+  VkDeviceSize size = 0;
+  uint32_t typeIndex = 0;
+  VkMemoryPropertyFlags propertyFlags = 0;
+  VkMemoryAllocateFlags allocateFlags = 0;
+};
+
+struct BufferRecord {
+  uint64_t buffer = 0;
+  VkDeviceSize size = 0;
+  VkBufferUsageFlags usage = 0;
+  VkBufferCreateFlags flags = 0;
+  VkSharingMode sharingMode = VK_SHARING_MODE_EXCLUSIVE;
+  std::vector<uint32_t> queueFamilies;
+};
+
+struct BufferBindingRecord {
+  uint64_t buffer = 0;
+  uint64_t memory = 0;
+  VkDeviceSize offset = 0;
+};
+
+struct BufferAddressRecord {
+  uint64_t buffer = 0;
+  VkDeviceAddress address = 0;
+};
+
+struct BuildSizesQuery {
+  uint64_t device = 0;
+  ClusterCommandParameters input;  // only `info.input` and the op input are meaningful
+  VkAccelerationStructureBuildSizesInfoKHR answer{};
+  bool answeredByLayer = false;  // true: the layer's model; false: the driver's answer
+};
+
+// ---- Commands ---------------------------------------------------------------------------
+
+struct BufferBarrier {
+  uint64_t srcStage = 0, srcAccess = 0, dstStage = 0, dstAccess = 0;
+  uint64_t buffer = 0;
+  VkDeviceSize offset = 0, size = 0;
+};
+struct MemoryBarrier {
+  uint64_t srcStage = 0, srcAccess = 0, dstStage = 0, dstAccess = 0;
+};
+
+struct BarrierCommand {
+  bool synchronization2 = false;
+  uint64_t srcStageMask = 0, dstStageMask = 0;  // v1 only; v2 carries stages per barrier
+  VkDependencyFlags dependencyFlags = 0;
+  std::vector<MemoryBarrier> memoryBarriers;
+  std::vector<BufferBarrier> bufferBarriers;
+  uint32_t imageBarrierCount = 0;  // images are not modelled; counted so the trace is honest
+};
+
+struct EventCommand {
+  enum class Kind { Set, Reset, Wait } kind = Kind::Set;
+  bool synchronization2 = false;
+  std::vector<uint64_t> events;
+  uint64_t srcStageMask = 0, dstStageMask = 0;
+  std::vector<MemoryBarrier> memoryBarriers;
+  std::vector<BufferBarrier> bufferBarriers;
+};
+
+struct CopyBufferCommand {
+  uint64_t src = 0, dst = 0;
+  std::vector<VkBufferCopy> regions;
+};
+
+struct FillBufferCommand {
+  uint64_t dst = 0;
+  VkDeviceSize offset = 0, size = 0;
+  uint32_t data = 0;
+};
+
+struct UpdateBufferCommand {
+  uint64_t dst = 0;
+  VkDeviceSize offset = 0;
+  std::vector<uint8_t> data;
+};
+
+// One storage-buffer descriptor visible to a dispatch (dynamic offsets applied).
+struct BoundStorageBuffer {
+  uint32_t set = 0, binding = 0, arrayElement = 0;
+  VkDescriptorType type = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+  uint64_t buffer = 0;
+  VkDeviceSize offset = 0, range = 0;
+  VkDeviceAddress address = 0;  // buffer address + offset, when the buffer's address is known
+};
+
+struct DispatchCommand {
+  uint32_t groupCountX = 0, groupCountY = 0, groupCountZ = 0;
+  uint64_t pipeline = 0;
+  uint64_t indirectBuffer = 0;  // vkCmdDispatchIndirect
+  VkDeviceSize indirectOffset = 0;
+  std::vector<BoundStorageBuffer> storageBuffers;  // from vkUpdateDescriptorSets writes
+};
+
+struct ClusterBuildCommand {
+  ClusterCommandParameters parameters;
+  uint64_t pauseId = 0;          // links this command to its ClusterBuildCapture
+  bool executedByLayer = false;  // serving: the driver never sees this command
+};
+
+struct BuildAccelerationStructureNVCommand {
+  VkAccelerationStructureTypeNV type{};
+  VkBuildAccelerationStructureFlagsNV flags = 0;
+  uint32_t instanceCount = 0;
+  std::vector<VkGeometryNV> geometries;  // pNext cleared
+  uint64_t instanceData = 0;
+  VkDeviceSize instanceOffset = 0;
+  VkBool32 update = VK_FALSE;
+  uint64_t dst = 0, src = 0, scratch = 0;
+  VkDeviceSize scratchOffset = 0;
+  uint64_t pauseId = 0;  // 0: recorded without capture
+};
+
+struct CopyMemoryToAccelerationStructureCommand {
+  VkDeviceAddress src = 0;
+  uint64_t dst = 0;
+  VkCopyAccelerationStructureModeKHR mode{};
+  uint64_t pauseId = 0;
+};
+
+using RecordedCommand =
+    std::variant<BarrierCommand, EventCommand, CopyBufferCommand, FillBufferCommand, UpdateBufferCommand,
+                 DispatchCommand, ClusterBuildCommand, BuildAccelerationStructureNVCommand,
+                 CopyMemoryToAccelerationStructureCommand>;
+
+struct RecordedCommandBuffer {
+  uint64_t commandBuffer = 0;
+  VkCommandBufferUsageFlags usage = 0;
+  bool secondary = false;
+  std::vector<RecordedCommand> commands;
+};
+
+// ---- Submissions and execution ------------------------------------------------------------
+
+struct SemaphoreUse {
+  uint64_t semaphore = 0;
+  uint64_t value = 0;  // timeline value; 0 for binary semaphores
+  uint64_t stageMask = 0;
+};
+
+struct SubmitBatch {
+  std::vector<SemaphoreUse> waits;
+  std::vector<uint64_t> commandBuffers;
+  std::vector<SemaphoreUse> signals;
+};
+
+struct SubmissionRecord {
+  uint64_t index = 0;  // per-device submission counter, as CLASTRACE_SUBMIT_RANGE counts
+  uint64_t queue = 0;
+  bool synchronization2 = false;
+  std::vector<SubmitBatch> batches;
+  uint64_t fence = 0;
+};
+
+// Everything one vkCmdBuildClusterAccelerationStructureIndirectNV read, as it was when the
+// command executed on the queue, and everything it wrote, read after it completed.
+enum class CapturedCommandKind { ClusterBuild, BuildAccelerationStructureNV, CopyMemoryToAccelerationStructure };
+
+struct ClusterBuildCapture {
+  CapturedCommandKind kind = CapturedCommandKind::ClusterBuild;  // parameters apply to ClusterBuild only
+  uint64_t pauseId = 0;
+  uint64_t submissionIndex = 0;
+  uint64_t commandBuffer = 0;
+  ClusterCommandParameters parameters;
+  uint32_t executedCount = 0;  // min(srcInfosCount value, maxAccelerationStructureCount)
+  std::vector<CapturedRange> inputs;
+  std::vector<CapturedRange> outputs;
+  std::vector<CaptureIssue> issues;
+  double pauseMilliseconds = 0;  // queue stall the capture caused (both pauses)
+};
+
+}  // namespace clastrace::capture

@@ -1,0 +1,41 @@
+// Where the layer sends what it captured: one call per record kind. Calls may come from the
+// application's threads and from the layer's pause worker; implementations serialize them.
+#pragma once
+
+#include "clastrace/capture/capture_records.h"
+
+#include <memory>
+#include <string>
+
+namespace clastrace::capture {
+
+class CaptureSink {
+ public:
+  virtual ~CaptureSink() = default;
+  virtual void deviceCreated(const DeviceRecord&) = 0;
+  virtual void deviceDestroyed(uint64_t device) = 0;
+  virtual void memoryAllocated(const MemoryRecord&) = 0;
+  virtual void memoryFreed(uint64_t memory) = 0;
+  virtual void bufferCreated(const BufferRecord&) = 0;
+  virtual void bufferBound(const BufferBindingRecord&) = 0;
+  virtual void bufferAddressQueried(const BufferAddressRecord&) = 0;
+  virtual void bufferDestroyed(uint64_t buffer) = 0;
+  virtual void buildSizesQueried(const BuildSizesQuery&) = 0;
+  virtual void commandBufferRecorded(const RecordedCommandBuffer&) = 0;
+  virtual void commandBufferReset(uint64_t commandBuffer) = 0;
+  virtual void queueSubmitted(const SubmissionRecord&) = 0;
+  virtual void clusterBuildCaptured(const ClusterBuildCapture&) = 0;
+  // Makes everything received so far durable (the application may exit without cleanup).
+  virtual void flush() = 0;
+};
+
+// A human-readable dump of every record (JSON, rewritten on each flush): the test suites read
+// it, and it helps debugging a capture before a trace reader exists. False + `error` when the
+// path cannot be written.
+std::unique_ptr<CaptureSink> makeJsonCaptureSink(const std::string& path, std::string& error);
+
+// The .clt trace the replay reads (CLASTRACE_OUTPUT). Null + `error` when the path cannot be
+// written, or while this build has no trace writer.
+std::unique_ptr<CaptureSink> makeTraceCaptureSink(const std::string& path, int zstdLevel, std::string& error);
+
+}  // namespace clastrace::capture

@@ -1,0 +1,38 @@
+// Follows the pointers of one vkCmdBuildClusterAccelerationStructureIndirectNV through device
+// memory: the count, the srcInfosArray entries, and from each entry exactly the index, vertex,
+// geometry-index, opacity-micromap-index, bounds and cluster-reference bytes it references.
+// Pure logic over a memory reader, so it is tested without a GPU.
+#pragma once
+
+#include "clastrace/capture/capture_records.h"
+
+#include <functional>
+
+namespace clastrace::capture {
+
+// Reads [address, address + size) into `out`; with `out` null only checks that it could.
+// False + `why` when the range is not readable.
+using DeviceMemoryReader =
+    std::function<bool(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>* out, std::string& why)>;
+
+struct ClusterMemoryWalk {
+  uint32_t executedCount = 0;
+  std::vector<CapturedRange> ranges;
+  std::vector<CaptureIssue> issues;
+};
+
+// Bytes of one vertex of `format` as the extension accepts it; 0 for a format it does not.
+uint32_t clusterVertexFormatBytes(VkFormat format);
+
+// What the command reads, to be called while the queue is stopped just before it.
+ClusterMemoryWalk walkClusterInputs(const ClusterCommandParameters& parameters, const DeviceMemoryReader& read);
+
+// What the command wrote, to be called while the queue is stopped just after it.
+ClusterMemoryWalk walkClusterOutputs(const ClusterCommandParameters& parameters, uint32_t executedCount,
+                                     const DeviceMemoryReader& read);
+
+// A guard against hostile counts: a command whose followed ranges exceed this is cut short
+// with an issue instead of exhausting the captured process's memory.
+inline constexpr uint64_t kMaxCapturedBytesPerCommand = uint64_t(1) << 30;
+
+}  // namespace clastrace::capture

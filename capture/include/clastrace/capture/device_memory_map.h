@@ -1,0 +1,76 @@
+// The buffers and memory allocations of one VkDevice, and the lookup from a device address to
+// the bytes behind it: the layer follows the pointers a cluster build reads with it.
+#pragma once
+
+#include <vulkan/vulkan_core.h>
+
+#include <cstdint>
+#include <map>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+namespace clastrace::capture {
+
+struct TrackedMemory {
+  uint64_t handle = 0;
+  VkDeviceSize size = 0;
+  uint32_t typeIndex = 0;
+  VkMemoryPropertyFlags propertyFlags = 0;
+  uint8_t* hostBase = nullptr;  // the layer's persistent mapping of the whole allocation, if host visible
+};
+
+struct TrackedBuffer {
+  uint64_t handle = 0;
+  VkDeviceSize size = 0;
+  VkBufferUsageFlags usage = 0;
+  VkBufferCreateFlags flags = 0;
+  uint64_t memory = 0;  // 0 until bound
+  VkDeviceSize memoryOffset = 0;
+  VkDeviceAddress address = 0;  // 0 until the application asked for it
+};
+
+// Where a device address range lives; `host` is null when the memory is not mapped by the layer.
+struct ResolvedRange {
+  TrackedBuffer buffer;
+  VkDeviceSize offsetInBuffer = 0;
+  TrackedMemory memory;
+  uint8_t* host = nullptr;
+};
+
+class DeviceMemoryMap {
+ public:
+  void addMemory(const TrackedMemory& memory);
+  void removeMemory(uint64_t handle);
+  std::optional<TrackedMemory> memory(uint64_t handle) const;
+
+  void addBuffer(const TrackedBuffer& buffer);
+  void bindBuffer(uint64_t buffer, uint64_t memory, VkDeviceSize offset);
+  void setBufferAddress(uint64_t buffer, VkDeviceAddress address);
+  void removeBuffer(uint64_t handle);
+  std::optional<TrackedBuffer> buffer(uint64_t handle) const;
+
+  // The buffer (with a bound, live allocation) that holds all of [address, address + size).
+  // Aliasing buffers may share addresses; any one that holds the whole range is as good.
+  // On failure `why` names the rule broken, for the capture's issue list.
+  std::optional<ResolvedRange> resolve(VkDeviceAddress address, VkDeviceSize size, std::string& why) const;
+
+  // Copies [address, address + size) from the layer's mapping. False with `why` when the range
+  // is not inside one bound buffer or its memory is not host visible.
+  bool read(VkDeviceAddress address, VkDeviceSize size, std::vector<uint8_t>& out, std::string& why) const;
+
+  // The same for a range named by buffer handle and offset (commands that take VkBuffers).
+  std::optional<ResolvedRange> resolveBuffer(uint64_t buffer, VkDeviceSize offset, VkDeviceSize size,
+                                             std::string& why) const;
+
+ private:
+  mutable std::mutex mutex_;
+  std::unordered_map<uint64_t, TrackedMemory> memories_;
+  std::unordered_map<uint64_t, TrackedBuffer> buffers_;
+  std::multimap<VkDeviceAddress, uint64_t> buffersByAddress_;
+  VkDeviceSize largestAddressedBuffer_ = 0;
+};
+
+}  // namespace clastrace::capture

@@ -1,0 +1,38 @@
+// The capture layer's settings, read once from the environment of the captured process.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace clastrace::capture {
+
+enum class ServeMode { Auto, Off, On };  // Auto: serve exactly when the driver lacks the extension
+enum class LogLevel { Quiet, Error, Info, Debug };
+
+struct SubmitRange {  // inclusive, 0-based queue-submission indices
+  uint64_t first = 0;
+  uint64_t last = UINT64_MAX;
+  bool contains(uint64_t index) const { return index >= first && index <= last; }
+};
+
+struct LayerConfig {
+  bool capture = true;              // CLASTRACE_CAPTURE
+  ServeMode serve = ServeMode::Auto;  // CLASTRACE_SERVE
+  std::string outputPath;           // CLASTRACE_OUTPUT (.clt trace)
+  SubmitRange submitRange;          // CLASTRACE_SUBMIT_RANGE: "N", "A-B", "A-"
+  int zstdLevel = 3;                // CLASTRACE_ZSTD_LEVEL: 1..22
+  LogLevel log = LogLevel::Error;   // CLASTRACE_LOG: quiet|error|info|debug
+  std::string debugJsonPath;        // CLASTRACE_DEBUG_JSON: readable dump for tests and debugging
+  std::vector<std::string> errors;  // one line per rejected variable; the default is kept
+};
+
+// Parses the variables through `getenv` (injectable for tests). Never throws.
+LayerConfig parseLayerConfig(const std::function<const char*(const char*)>& getenv);
+
+// The process-wide configuration: parsed on first use, its errors printed to stderr once.
+const LayerConfig& layerConfig();
+
+}  // namespace clastrace::capture

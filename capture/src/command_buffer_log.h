@@ -1,0 +1,25 @@
+// What the layer keeps per application command buffer between vkBeginCommandBuffer and its
+// reset: the recorded commands, and the pause points (with the layer's events) to expect when
+// it is submitted.
+#pragma once
+
+#include "pause_worker.h"
+
+#include <map>
+#include <vector>
+
+namespace clastrace::capture {
+
+struct CommandBufferLog {
+  RecordedCommandBuffer recorded;
+  std::vector<PausePoint> pauses;  // in execution order, secondaries' included
+  std::vector<VkEvent> events;     // created by the layer for this recording
+  // Compute binding state, for the storage buffers each dispatch sees.
+  uint64_t computePipeline = 0;
+  std::map<uint32_t, std::pair<VkDescriptorSet, std::vector<uint32_t>>> computeSets;  // set -> (set, dynamic offsets)
+};
+
+// Destroys the layer's events of `log` and clears it for a new recording.
+void clearCommandBufferLog(DeviceState& device, CommandBufferLog& log);
+
+}  // namespace clastrace::capture

@@ -1,0 +1,247 @@
+#include "clastrace/capture/capture_sink.h"
+
+#include <nlohmann/json.hpp>
+
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <mutex>
+
+namespace clastrace::capture {
+namespace {
+
+using nlohmann::json;
+
+std::string hexBytes(const std::vector<uint8_t>& bytes) {
+  static const char* digits = "0123456789abcdef";
+  std::string text;
+  text.reserve(bytes.size() * 2);
+  for (uint8_t b : bytes) {
+    text.push_back(digits[b >> 4]);
+    text.push_back(digits[b & 15]);
+  }
+  return text;
+}
+
+json parametersJson(const ClusterCommandParameters& p) {
+  const auto& i = p.info;
+  json j = {
+      {"maxAccelerationStructureCount", i.input.maxAccelerationStructureCount},
+      {"flags", i.input.flags},
+      {"opType", int(i.input.opType)},
+      {"opMode", int(i.input.opMode)},
+      {"dstImplicitData", i.dstImplicitData},
+      {"scratchData", i.scratchData},
+      {"dstAddressesArray", {i.dstAddressesArray.deviceAddress, i.dstAddressesArray.stride, i.dstAddressesArray.size}},
+      {"dstSizesArray", {i.dstSizesArray.deviceAddress, i.dstSizesArray.stride, i.dstSizesArray.size}},
+      {"srcInfosArray", {i.srcInfosArray.deviceAddress, i.srcInfosArray.stride, i.srcInfosArray.size}},
+      {"srcInfosCount", i.srcInfosCount},
+      {"addressResolutionFlags", i.addressResolutionFlags},
+      {"hasOpInput", p.hasOpInput},
+  };
+  const auto& t = p.triangleClusterInput;
+  j["triangleClusterInput"] = {{"vertexFormat", int(t.vertexFormat)},
+                               {"maxGeometryIndexValue", t.maxGeometryIndexValue},
+                               {"maxClusterUniqueGeometryCount", t.maxClusterUniqueGeometryCount},
+                               {"maxClusterTriangleCount", t.maxClusterTriangleCount},
+                               {"maxClusterVertexCount", t.maxClusterVertexCount},
+                               {"maxTotalTriangleCount", t.maxTotalTriangleCount},
+                               {"maxTotalVertexCount", t.maxTotalVertexCount},
+                               {"minPositionTruncateBitCount", t.minPositionTruncateBitCount}};
+  j["bottomLevelInput"] = {{"maxTotalClusterCount", p.bottomLevelInput.maxTotalClusterCount},
+                           {"maxClusterCountPerAccelerationStructure",
+                            p.bottomLevelInput.maxClusterCountPerAccelerationStructure}};
+  j["moveObjectsInput"] = {{"type", int(p.moveObjectsInput.type)},
+                           {"noMoveOverlap", p.moveObjectsInput.noMoveOverlap},
+                           {"maxMovedBytes", p.moveObjectsInput.maxMovedBytes}};
+  return j;
+}
+
+json rangesJson(const std::vector<CapturedRange>& ranges) {
+  json list = json::array();
+  for (const auto& r : ranges)
+    list.push_back({{"role", memoryRoleName(r.role)}, {"entry", r.entry}, {"address", r.address},
+                    {"size", r.bytes.size()}, {"bytes", hexBytes(r.bytes)}});
+  return list;
+}
+
+json barriersJson(const std::vector<MemoryBarrier>& memory, const std::vector<BufferBarrier>& buffers) {
+  json j = {{"memory", json::array()}, {"buffer", json::array()}};
+  for (const auto& b : memory)
+    j["memory"].push_back({b.srcStage, b.srcAccess, b.dstStage, b.dstAccess});
+  for (const auto& b : buffers)
+    j["buffer"].push_back({{"masks", {b.srcStage, b.srcAccess, b.dstStage, b.dstAccess}},
+                           {"buffer", b.buffer}, {"offset", b.offset}, {"size", b.size}});
+  return j;
+}
+
+struct CommandToJson {
+  json operator()(const BarrierCommand& c) const {
+    return {{"kind", c.synchronization2 ? "PipelineBarrier2" : "PipelineBarrier"},
+            {"srcStageMask", c.srcStageMask}, {"dstStageMask", c.dstStageMask},
+            {"dependencyFlags", c.dependencyFlags}, {"barriers", barriersJson(c.memoryBarriers, c.bufferBarriers)},
+            {"imageBarrierCount", c.imageBarrierCount}};
+  }
+  json operator()(const EventCommand& c) const {
+    const char* names[] = {"SetEvent", "ResetEvent", "WaitEvents"};
+    std::string kind = names[int(c.kind)];
+    if (c.synchronization2) kind += "2";
+    return {{"kind", kind}, {"events", c.events}, {"srcStageMask", c.srcStageMask},
+            {"dstStageMask", c.dstStageMask}, {"barriers", barriersJson(c.memoryBarriers, c.bufferBarriers)}};
+  }
+  json operator()(const CopyBufferCommand& c) const {
+    json regions = json::array();
+    for (const auto& r : c.regions) regions.push_back({r.srcOffset, r.dstOffset, r.size});
+    return {{"kind", "CopyBuffer"}, {"src", c.src}, {"dst", c.dst}, {"regions", regions}};
+  }
+  json operator()(const FillBufferCommand& c) const {
+    return {{"kind", "FillBuffer"}, {"dst", c.dst}, {"offset", c.offset}, {"size", c.size}, {"data", c.data}};
+  }
+  json operator()(const UpdateBufferCommand& c) const {
+    return {{"kind", "UpdateBuffer"}, {"dst", c.dst}, {"offset", c.offset}, {"bytes", hexBytes(c.data)}};
+  }
+  json operator()(const DispatchCommand& c) const {
+    json buffers = json::array();
+    for (const auto& b : c.storageBuffers)
+      buffers.push_back({{"set", b.set}, {"binding", b.binding}, {"arrayElement", b.arrayElement},
+                         {"type", int(b.type)}, {"buffer", b.buffer}, {"offset", b.offset}, {"range", b.range},
+                         {"address", b.address}});
+    return {{"kind", "Dispatch"}, {"groups", {c.groupCountX, c.groupCountY, c.groupCountZ}}, {"pipeline", c.pipeline},
+            {"indirectBuffer", c.indirectBuffer}, {"indirectOffset", c.indirectOffset}, {"storageBuffers", buffers}};
+  }
+  json operator()(const ClusterBuildCommand& c) const {
+    return {{"kind", "BuildClusterAccelerationStructureIndirectNV"}, {"pauseId", c.pauseId},
+            {"executedByLayer", c.executedByLayer}, {"parameters", parametersJson(c.parameters)}};
+  }
+  json operator()(const BuildAccelerationStructureNVCommand& c) const {
+    return {{"kind", "BuildAccelerationStructureNV"}, {"type", int(c.type)}, {"flags", c.flags},
+            {"instanceCount", c.instanceCount}, {"geometryCount", c.geometries.size()},
+            {"instanceData", c.instanceData}, {"instanceOffset", c.instanceOffset}, {"update", c.update},
+            {"dst", c.dst}, {"src", c.src}, {"scratch", c.scratch}, {"scratchOffset", c.scratchOffset},
+            {"pauseId", c.pauseId}};
+  }
+  json operator()(const CopyMemoryToAccelerationStructureCommand& c) const {
+    return {{"kind", "CopyMemoryToAccelerationStructureKHR"}, {"src", c.src}, {"dst", c.dst}, {"mode", int(c.mode)},
+            {"pauseId", c.pauseId}};
+  }
+};
+
+json semaphoresJson(const std::vector<SemaphoreUse>& uses) {
+  json list = json::array();
+  for (const auto& s : uses) list.push_back({{"semaphore", s.semaphore}, {"value", s.value}, {"stageMask", s.stageMask}});
+  return list;
+}
+
+class JsonCaptureSink final : public CaptureSink {
+ public:
+  explicit JsonCaptureSink(std::string path) : path_(std::move(path)) {
+    for (const char* key : {"devices", "memories", "freedMemories", "buffers", "bindings", "addresses",
+                            "destroyedBuffers", "buildSizes", "commandBuffers", "resets", "submissions",
+                            "clusterBuilds", "destroyedDevices"})
+      root_[key] = json::array();
+  }
+
+  void deviceCreated(const DeviceRecord& d) override {
+    const auto& p = d.clusterProperties;
+    json types = json::array();
+    for (const auto& t : d.memoryTypes) types.push_back({{"propertyFlags", t.propertyFlags}, {"heapIndex", t.heapIndex}});
+    add("devices", {{"device", d.device}, {"deviceName", d.deviceName}, {"applicationName", d.applicationName}, {"apiVersion", d.apiVersion},
+                    {"servedByLayer", d.servedByLayer}, {"clusterFeatureEnabled", d.clusterFeatureEnabled},
+                    {"memoryTypes", types},
+                    {"clusterProperties",
+                     {{"maxVerticesPerCluster", p.maxVerticesPerCluster},
+                      {"maxTrianglesPerCluster", p.maxTrianglesPerCluster},
+                      {"clusterScratchByteAlignment", p.clusterScratchByteAlignment},
+                      {"clusterByteAlignment", p.clusterByteAlignment},
+                      {"clusterTemplateByteAlignment", p.clusterTemplateByteAlignment},
+                      {"clusterBottomLevelByteAlignment", p.clusterBottomLevelByteAlignment},
+                      {"clusterTemplateBoundsByteAlignment", p.clusterTemplateBoundsByteAlignment},
+                      {"maxClusterGeometryIndex", p.maxClusterGeometryIndex}}}});
+  }
+  void deviceDestroyed(uint64_t device) override {
+    add("destroyedDevices", device);
+    flush();
+  }
+  void memoryAllocated(const MemoryRecord& m) override {
+    add("memories", {{"memory", m.memory}, {"size", m.size}, {"typeIndex", m.typeIndex}, {"propertyFlags", m.propertyFlags}});
+  }
+  void memoryFreed(uint64_t memory) override { add("freedMemories", memory); }
+  void bufferCreated(const BufferRecord& b) override {
+    add("buffers", {{"buffer", b.buffer}, {"size", b.size}, {"usage", b.usage}, {"flags", b.flags}});
+  }
+  void bufferBound(const BufferBindingRecord& b) override {
+    add("bindings", {{"buffer", b.buffer}, {"memory", b.memory}, {"offset", b.offset}});
+  }
+  void bufferAddressQueried(const BufferAddressRecord& a) override {
+    add("addresses", {{"buffer", a.buffer}, {"address", a.address}});
+  }
+  void bufferDestroyed(uint64_t buffer) override { add("destroyedBuffers", buffer); }
+  void buildSizesQueried(const BuildSizesQuery& q) override {
+    add("buildSizes", {{"device", q.device}, {"input", parametersJson(q.input)}, {"answeredByLayer", q.answeredByLayer},
+                       {"accelerationStructureSize", q.answer.accelerationStructureSize},
+                       {"buildScratchSize", q.answer.buildScratchSize},
+                       {"updateScratchSize", q.answer.updateScratchSize}});
+  }
+  void commandBufferRecorded(const RecordedCommandBuffer& cb) override {
+    json commands = json::array();
+    for (const auto& c : cb.commands) commands.push_back(std::visit(CommandToJson{}, c));
+    add("commandBuffers", {{"commandBuffer", cb.commandBuffer}, {"usage", cb.usage}, {"commands", commands}});
+  }
+  void commandBufferReset(uint64_t commandBuffer) override { add("resets", commandBuffer); }
+  void queueSubmitted(const SubmissionRecord& s) override {
+    json batches = json::array();
+    for (const auto& b : s.batches)
+      batches.push_back({{"waits", semaphoresJson(b.waits)}, {"commandBuffers", b.commandBuffers},
+                         {"signals", semaphoresJson(b.signals)}});
+    add("submissions", {{"index", s.index}, {"queue", s.queue}, {"synchronization2", s.synchronization2},
+                        {"batches", batches}, {"fence", s.fence}});
+  }
+  void clusterBuildCaptured(const ClusterBuildCapture& c) override {
+    json issues = json::array();
+    for (const auto& i : c.issues) issues.push_back({{"address", i.address}, {"size", i.size}, {"rule", i.rule}});
+    add("clusterBuilds", {{"kind", int(c.kind)}, {"pauseId", c.pauseId}, {"submissionIndex", c.submissionIndex},
+                          {"commandBuffer", c.commandBuffer}, {"parameters", parametersJson(c.parameters)},
+                          {"executedCount", c.executedCount}, {"inputs", rangesJson(c.inputs)},
+                          {"outputs", rangesJson(c.outputs)}, {"issues", issues},
+                          {"pauseMilliseconds", c.pauseMilliseconds}});
+  }
+  void flush() override {
+    std::lock_guard lock(mutex_);
+    writeLocked();
+  }
+
+  bool writeLocked() {
+    const std::string temporary = path_ + ".partial";
+    std::FILE* file = std::fopen(temporary.c_str(), "wb");
+    if (!file) return false;
+    const std::string text = root_.dump(1);
+    const bool ok = std::fwrite(text.data(), 1, text.size(), file) == text.size();
+    if (std::fclose(file) != 0 || !ok) return false;
+    return std::rename(temporary.c_str(), path_.c_str()) == 0;
+  }
+
+ private:
+  void add(const char* key, json value) {
+    std::lock_guard lock(mutex_);
+    root_[key].push_back(std::move(value));
+  }
+
+  std::mutex mutex_;
+  std::string path_;
+  json root_;
+};
+
+}  // namespace
+
+std::unique_ptr<CaptureSink> makeJsonCaptureSink(const std::string& path, std::string& error) {
+  auto sink = std::make_unique<JsonCaptureSink>(path);
+  std::FILE* probe = std::fopen(path.c_str(), "wb");
+  if (!probe) {
+    error = "cannot write '" + path + "': " + std::strerror(errno);
+    return nullptr;
+  }
+  std::fclose(probe);
+  return sink;
+}
+
+}  // namespace clastrace::capture

@@ -1,0 +1,96 @@
+#include "clastrace/capture/layer_config.h"
+
+#include <cstdio>
+#include <cstdlib>
+#include <mutex>
+
+namespace clastrace::capture {
+namespace {
+
+std::optional<uint64_t> parseUnsigned(const std::string& text) {
+  if (text.empty() || text.size() > 19) return std::nullopt;
+  uint64_t value = 0;
+  for (char c : text) {
+    if (c < '0' || c > '9') return std::nullopt;
+    value = value * 10 + uint64_t(c - '0');
+  }
+  return value;
+}
+
+std::optional<bool> parseSwitch(const std::string& text) {
+  if (text == "1" || text == "on" || text == "true") return true;
+  if (text == "0" || text == "off" || text == "false") return false;
+  return std::nullopt;
+}
+
+std::optional<SubmitRange> parseRange(const std::string& text) {
+  const size_t dash = text.find('-');
+  if (dash == std::string::npos) {
+    auto single = parseUnsigned(text);
+    if (!single) return std::nullopt;
+    return SubmitRange{*single, *single};
+  }
+  auto first = parseUnsigned(text.substr(0, dash));
+  if (!first) return std::nullopt;
+  const std::string tail = text.substr(dash + 1);
+  if (tail.empty()) return SubmitRange{*first, UINT64_MAX};
+  auto last = parseUnsigned(tail);
+  if (!last || *last < *first) return std::nullopt;
+  return SubmitRange{*first, *last};
+}
+
+}  // namespace
+
+LayerConfig parseLayerConfig(const std::function<const char*(const char*)>& getenv) {
+  LayerConfig config;
+  auto value = [&](const char* name) -> std::optional<std::string> {
+    const char* v = getenv(name);
+    if (!v) return std::nullopt;
+    return std::string(v);
+  };
+  auto reject = [&](const char* name, const std::string& got, const char* expected) {
+    config.errors.push_back(std::string(name) + "='" + got + "' is not " + expected +
+                            "; using the default");
+  };
+
+  if (auto v = value("CLASTRACE_CAPTURE")) {
+    if (auto on = parseSwitch(*v)) config.capture = *on;
+    else reject("CLASTRACE_CAPTURE", *v, "0 or 1");
+  }
+  if (auto v = value("CLASTRACE_SERVE")) {
+    if (*v == "auto") config.serve = ServeMode::Auto;
+    else if (auto on = parseSwitch(*v)) config.serve = *on ? ServeMode::On : ServeMode::Off;
+    else reject("CLASTRACE_SERVE", *v, "0, 1 or auto");
+  }
+  if (auto v = value("CLASTRACE_OUTPUT")) config.outputPath = *v;
+  if (auto v = value("CLASTRACE_SUBMIT_RANGE")) {
+    if (auto range = parseRange(*v)) config.submitRange = *range;
+    else reject("CLASTRACE_SUBMIT_RANGE", *v, "N, A-B (A <= B) or A-");
+  }
+  if (auto v = value("CLASTRACE_ZSTD_LEVEL")) {
+    auto level = parseUnsigned(*v);
+    if (level && *level >= 1 && *level <= 22) config.zstdLevel = int(*level);
+    else reject("CLASTRACE_ZSTD_LEVEL", *v, "a zstd level from 1 to 22");
+  }
+  if (auto v = value("CLASTRACE_LOG")) {
+    if (*v == "quiet" || *v == "0") config.log = LogLevel::Quiet;
+    else if (*v == "error" || *v == "1") config.log = LogLevel::Error;
+    else if (*v == "info" || *v == "2") config.log = LogLevel::Info;
+    else if (*v == "debug" || *v == "3") config.log = LogLevel::Debug;
+    else reject("CLASTRACE_LOG", *v, "quiet, error, info or debug");
+  }
+  if (auto v = value("CLASTRACE_DEBUG_JSON")) config.debugJsonPath = *v;
+  return config;
+}
+
+const LayerConfig& layerConfig() {
+  static const LayerConfig config = [] {
+    LayerConfig parsed = parseLayerConfig([](const char* name) { return std::getenv(name); });
+    // Errors are printed even when CLASTRACE_LOG is quiet: a setting the user made was ignored.
+    for (const std::string& error : parsed.errors) std::fprintf(stderr, "clastrace: %s\n", error.c_str());
+    return parsed;
+  }();
+  return config;
+}
+
+}  // namespace clastrace::capture

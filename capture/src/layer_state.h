@@ -1,0 +1,187 @@
+// The layer's per-instance and per-device state, found by the loader's dispatch key (the first
+// pointer-sized word of every dispatchable handle), and the next layer's entry points.
+#pragma once
+
+#include "clastrace/capture/capture_sink.h"
+#include "clastrace/capture/device_memory_map.h"
+#include "clastrace/capture/layer_config.h"
+
+#include <clastrace/vk_cluster_abi.h>
+#include <vulkan/vk_layer.h>
+
+#include <atomic>
+#include <cstdarg>
+#include <memory>
+#include <mutex>
+#include <shared_mutex>
+#include <map>
+#include <unordered_map>
+#include <unordered_set>
+#include <vector>
+
+namespace clastrace::capture {
+
+class PauseWorker;
+struct CommandBufferLog;
+
+using DispatchKey = void*;
+template <typename Handle>
+DispatchKey dispatchKey(Handle handle) {
+  return *reinterpret_cast<DispatchKey*>(handle);
+}
+template <typename Handle>
+uint64_t handleId(Handle handle) {
+  return (uint64_t)(handle);
+}
+
+#define CLASTRACE_INSTANCE_FUNCTIONS(X)            \
+  X(GetInstanceProcAddr)                           \
+  X(DestroyInstance)                               \
+  X(EnumerateDeviceExtensionProperties)            \
+  X(GetPhysicalDeviceFeatures2)                    \
+  X(GetPhysicalDeviceFeatures2KHR)                 \
+  X(GetPhysicalDeviceProperties)                   \
+  X(GetPhysicalDeviceProperties2)                  \
+  X(GetPhysicalDeviceProperties2KHR)               \
+  X(GetPhysicalDeviceMemoryProperties)             \
+  X(GetPhysicalDeviceQueueFamilyProperties)        \
+  X(CreateDevice)
+
+#define CLASTRACE_DEVICE_FUNCTIONS(X)          \
+  X(GetDeviceProcAddr)                         \
+  X(DestroyDevice)                             \
+  X(AllocateMemory)                            \
+  X(FreeMemory)                                \
+  X(MapMemory)                                 \
+  X(UnmapMemory)                               \
+  X(InvalidateMappedMemoryRanges)              \
+  X(CreateBuffer)                              \
+  X(DestroyBuffer)                             \
+  X(BindBufferMemory)                          \
+  X(BindBufferMemory2)                         \
+  X(BindBufferMemory2KHR)                      \
+  X(GetBufferDeviceAddress)                    \
+  X(GetBufferDeviceAddressKHR)                 \
+  X(GetBufferDeviceAddressEXT)                 \
+  X(CreateEvent)                               \
+  X(DestroyEvent)                              \
+  X(GetEventStatus)                            \
+  X(SetEvent)                                  \
+  X(ResetEvent)                                \
+  X(AllocateCommandBuffers)                    \
+  X(FreeCommandBuffers)                        \
+  X(ResetCommandPool)                          \
+  X(DestroyCommandPool)                        \
+  X(BeginCommandBuffer)                        \
+  X(EndCommandBuffer)                          \
+  X(ResetCommandBuffer)                        \
+  X(CmdPipelineBarrier)                        \
+  X(CmdPipelineBarrier2)                       \
+  X(CmdPipelineBarrier2KHR)                    \
+  X(CmdSetEvent)                               \
+  X(CmdSetEvent2)                              \
+  X(CmdSetEvent2KHR)                           \
+  X(CmdResetEvent)                             \
+  X(CmdResetEvent2)                            \
+  X(CmdResetEvent2KHR)                         \
+  X(CmdWaitEvents)                             \
+  X(CmdWaitEvents2)                            \
+  X(CmdWaitEvents2KHR)                         \
+  X(CmdCopyBuffer)                             \
+  X(CmdCopyBuffer2)                            \
+  X(CmdCopyBuffer2KHR)                         \
+  X(CmdFillBuffer)                             \
+  X(CmdUpdateBuffer)                           \
+  X(CmdDispatch)                               \
+  X(CmdDispatchIndirect)                       \
+  X(CmdBindPipeline)                           \
+  X(CmdBindDescriptorSets)                     \
+  X(UpdateDescriptorSets)                      \
+  X(CmdExecuteCommands)                        \
+  X(CmdBuildClusterAccelerationStructureIndirectNV) \
+  X(GetClusterAccelerationStructureBuildSizesNV)    \
+  X(CmdBuildAccelerationStructureNV)           \
+  X(CmdCopyMemoryToAccelerationStructureKHR)   \
+  X(QueueSubmit)                               \
+  X(QueueSubmit2)                              \
+  X(QueueSubmit2KHR)
+
+#define CLASTRACE_DECLARE_PFN(name) PFN_vk##name name = nullptr;
+
+struct InstanceDispatch {
+  CLASTRACE_INSTANCE_FUNCTIONS(CLASTRACE_DECLARE_PFN)
+};
+struct DeviceDispatch {
+  CLASTRACE_DEVICE_FUNCTIONS(CLASTRACE_DECLARE_PFN)
+};
+
+struct InstanceState {
+  VkInstance instance = VK_NULL_HANDLE;
+  InstanceDispatch next;
+  uint32_t apiVersion = VK_API_VERSION_1_0;
+  std::string applicationName, engineName;
+};
+
+struct DeviceState {
+  VkDevice device = VK_NULL_HANDLE;
+  VkPhysicalDevice physicalDevice = VK_NULL_HANDLE;
+  InstanceState* instance = nullptr;
+  DeviceDispatch next;
+  bool serving = false;           // the layer provides the cluster extension for this device
+  bool clusterEnabled = false;    // the application enabled the extension (served or native)
+  bool capturing = false;
+  VkPhysicalDeviceClusterAccelerationStructurePropertiesNV clusterProperties{};
+  VkPhysicalDeviceMemoryProperties memoryProperties{};
+  VkDeviceSize nonCoherentAtomSize = 1;
+  DeviceMemoryMap memoryMap;
+  std::shared_ptr<CaptureSink> sink;  // null when not capturing
+  std::unique_ptr<PauseWorker> pauses;
+  std::atomic<uint64_t> pauseCounter{0};
+  std::mutex commandBuffersMutex;
+  std::unordered_map<VkCommandBuffer, std::shared_ptr<CommandBufferLog>> commandBuffers;
+  std::unordered_map<VkCommandPool, std::vector<VkCommandBuffer>> poolCommandBuffers;
+  std::unordered_set<VkCommandBuffer> secondaryCommandBuffers;
+  // Storage-buffer descriptors written with vkUpdateDescriptorSets: set -> (binding, element).
+  std::mutex descriptorsMutex;
+  std::unordered_map<VkDescriptorSet, std::map<std::pair<uint32_t, uint32_t>, BoundStorageBuffer>> storageDescriptors;
+  ~DeviceState();
+};
+
+// Submissions are counted per process, so indices from several devices never collide in
+// the one trace (CLASTRACE_SUBMIT_RANGE counts the same way).
+uint64_t nextSubmissionIndex();
+
+// Registries keyed by dispatch key; lookups take a shared lock, creation/destruction exclusive.
+InstanceState* findInstance(DispatchKey key);
+DeviceState* findDevice(DispatchKey key);
+void registerInstance(DispatchKey key, std::unique_ptr<InstanceState> state);
+std::unique_ptr<InstanceState> unregisterInstance(DispatchKey key);
+void registerDevice(DispatchKey key, std::unique_ptr<DeviceState> state);
+std::unique_ptr<DeviceState> unregisterDevice(DispatchKey key);
+
+// One line to stderr, prefixed "clastrace: ", when `level` is enabled by CLASTRACE_LOG.
+void logMessage(LogLevel level, const char* format, ...) __attribute__((format(printf, 2, 3)));
+
+// The process-wide sink (created on first device with capture on); null when capture is off or
+// the output cannot be written (the reason was printed once).
+std::shared_ptr<CaptureSink> processCaptureSink();
+
+// Interception tables: the layer's function for a name, or null.
+PFN_vkVoidFunction interceptInstanceFunction(const char* name);
+PFN_vkVoidFunction interceptDeviceFunction(const char* name, DeviceState* device);
+
+// Defined by the part that owns each group of hooks.
+PFN_vkVoidFunction servingInstanceHook(const char* name);
+PFN_vkVoidFunction resourceHook(const char* name);
+PFN_vkVoidFunction commandHook(const char* name);
+PFN_vkVoidFunction submitHook(const char* name);
+PFN_vkVoidFunction clusterHook(const char* name);
+
+// Serving decisions, shared by the instance hooks and device creation.
+bool driverHasClusterExtension(InstanceState& instance, VkPhysicalDevice physicalDevice);
+bool shouldServe(InstanceState& instance, VkPhysicalDevice physicalDevice);
+VkPhysicalDeviceClusterAccelerationStructurePropertiesNV clusterPropertiesFor(InstanceState& instance,
+                                                                              VkPhysicalDevice physicalDevice,
+                                                                              bool serving);
+
+}  // namespace clastrace::capture

@@ -1,0 +1,132 @@
+// Queue submissions: recorded with their semaphores and fence, and announced to the pause
+// worker (inside the application's call, so the order per queue is the queue's order).
+#include "command_buffer_log.h"
+#include "layer_state.h"
+
+#include <map>
+
+namespace clastrace::capture {
+namespace {
+
+struct PendingPauses {
+  uint64_t commandBuffer;
+  std::vector<PausePoint> pauses;
+};
+
+PendingPauses pausesOf(DeviceState& d, VkCommandBuffer cb) {
+  std::lock_guard lock(d.commandBuffersMutex);
+  auto it = d.commandBuffers.find(cb);
+  if (it == d.commandBuffers.end()) return {handleId(cb), {}};
+  return {handleId(cb), it->second->pauses};
+}
+
+// Everything the worker must expect from one submission, gathered before the driver call so
+// no command buffer can be re-recorded in between.
+struct SubmissionPlan {
+  SubmissionRecord record;
+  std::vector<PendingPauses> pauses;
+  bool capture = false;
+};
+
+void announce(DeviceState& d, VkQueue queue, SubmissionPlan& plan) {
+  if (d.pauses)
+    for (const PendingPauses& p : plan.pauses)
+      d.pauses->expect(queue, plan.record.index, plan.capture, p.commandBuffer, p.pauses);
+}
+
+SubmissionPlan planFor(DeviceState& d, VkQueue queue, VkFence fence, bool synchronization2) {
+  SubmissionPlan plan;
+  plan.record.index = nextSubmissionIndex();
+  plan.record.queue = handleId(queue);
+  plan.record.fence = handleId(fence);
+  plan.record.synchronization2 = synchronization2;
+  plan.capture = d.sink && layerConfig().submitRange.contains(plan.record.index);
+  return plan;
+}
+
+VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit(VkQueue queue, uint32_t submitCount, const VkSubmitInfo* pSubmits,
+                                           VkFence fence) {
+  DeviceState& d = *findDevice(dispatchKey(queue));
+  SubmissionPlan plan = planFor(d, queue, fence, false);
+  for (uint32_t s = 0; s < submitCount; ++s) {
+    const VkSubmitInfo& submit = pSubmits[s];
+    const VkTimelineSemaphoreSubmitInfo* timeline = nullptr;
+    for (auto* n = (const VkBaseInStructure*)submit.pNext; n; n = n->pNext)
+      if (n->sType == VK_STRUCTURE_TYPE_TIMELINE_SEMAPHORE_SUBMIT_INFO)
+        timeline = (const VkTimelineSemaphoreSubmitInfo*)n;
+    SubmitBatch batch;
+    for (uint32_t i = 0; i < submit.waitSemaphoreCount; ++i) {
+      uint64_t value = timeline && i < timeline->waitSemaphoreValueCount && timeline->pWaitSemaphoreValues
+                           ? timeline->pWaitSemaphoreValues[i]
+                           : 0;
+      batch.waits.push_back({handleId(submit.pWaitSemaphores[i]), value, submit.pWaitDstStageMask[i]});
+    }
+    for (uint32_t i = 0; i < submit.signalSemaphoreCount; ++i) {
+      uint64_t value = timeline && i < timeline->signalSemaphoreValueCount && timeline->pSignalSemaphoreValues
+                           ? timeline->pSignalSemaphoreValues[i]
+                           : 0;
+      batch.signals.push_back({handleId(submit.pSignalSemaphores[i]), value, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT});
+    }
+    for (uint32_t i = 0; i < submit.commandBufferCount; ++i) {
+      batch.commandBuffers.push_back(handleId(submit.pCommandBuffers[i]));
+      plan.pauses.push_back(pausesOf(d, submit.pCommandBuffers[i]));
+    }
+    plan.record.batches.push_back(std::move(batch));
+  }
+  VkResult result = d.next.QueueSubmit(queue, submitCount, pSubmits, fence);
+  if (result != VK_SUCCESS) return result;
+  announce(d, queue, plan);
+  if (plan.capture) d.sink->queueSubmitted(plan.record);
+  return result;
+}
+
+VkResult queueSubmit2(VkQueue queue, uint32_t submitCount, const VkSubmitInfo2* pSubmits, VkFence fence,
+                      PFN_vkQueueSubmit2 next) {
+  DeviceState& d = *findDevice(dispatchKey(queue));
+  SubmissionPlan plan = planFor(d, queue, fence, true);
+  for (uint32_t s = 0; s < submitCount; ++s) {
+    const VkSubmitInfo2& submit = pSubmits[s];
+    SubmitBatch batch;
+    for (uint32_t i = 0; i < submit.waitSemaphoreInfoCount; ++i) {
+      const auto& w = submit.pWaitSemaphoreInfos[i];
+      batch.waits.push_back({handleId(w.semaphore), w.value, w.stageMask});
+    }
+    for (uint32_t i = 0; i < submit.signalSemaphoreInfoCount; ++i) {
+      const auto& g = submit.pSignalSemaphoreInfos[i];
+      batch.signals.push_back({handleId(g.semaphore), g.value, g.stageMask});
+    }
+    for (uint32_t i = 0; i < submit.commandBufferInfoCount; ++i) {
+      VkCommandBuffer cb = submit.pCommandBufferInfos[i].commandBuffer;
+      batch.commandBuffers.push_back(handleId(cb));
+      plan.pauses.push_back(pausesOf(d, cb));
+    }
+    plan.record.batches.push_back(std::move(batch));
+  }
+  VkResult result = next(queue, submitCount, pSubmits, fence);
+  if (result != VK_SUCCESS) return result;
+  announce(d, queue, plan);
+  if (plan.capture) d.sink->queueSubmitted(plan.record);
+  return result;
+}
+
+VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit2(VkQueue queue, uint32_t count, const VkSubmitInfo2* submits, VkFence fence) {
+  return queueSubmit2(queue, count, submits, fence, findDevice(dispatchKey(queue))->next.QueueSubmit2);
+}
+VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit2KHR(VkQueue queue, uint32_t count, const VkSubmitInfo2* submits,
+                                               VkFence fence) {
+  return queueSubmit2(queue, count, submits, fence, findDevice(dispatchKey(queue))->next.QueueSubmit2KHR);
+}
+
+}  // namespace
+
+PFN_vkVoidFunction submitHook(const char* name) {
+  static const std::map<std::string, PFN_vkVoidFunction, std::less<>> hooks = {
+      {"vkQueueSubmit", (PFN_vkVoidFunction)QueueSubmit},
+      {"vkQueueSubmit2", (PFN_vkVoidFunction)QueueSubmit2},
+      {"vkQueueSubmit2KHR", (PFN_vkVoidFunction)QueueSubmit2KHR},
+  };
+  auto it = hooks.find(name);
+  return it == hooks.end() ? nullptr : it->second;
+}
+
+}  // namespace clastrace::capture

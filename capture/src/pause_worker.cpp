@@ -1,0 +1,201 @@
+#include "pause_worker.h"
+
+#include "clastrace/capture/cluster_input_walker.h"
+#include "layer_state.h"
+
+#include <chrono>
+#include <cstring>
+
+#include "clastrace/capture/acceleration_structure_walker.h"
+
+namespace clastrace::capture {
+
+PauseWorker::PauseWorker(DeviceState& device) : device_(device), thread_([this] { run(); }) {}
+
+PauseWorker::~PauseWorker() {
+  {
+    std::lock_guard lock(mutex_);
+    stop_ = true;
+  }
+  wake_.notify_all();
+  thread_.join();
+}
+
+void PauseWorker::expect(VkQueue queue, uint64_t submissionIndex, bool captureThisSubmission, uint64_t commandBuffer,
+                         const std::vector<PausePoint>& pauses) {
+  if (pauses.empty()) return;
+  {
+    std::lock_guard lock(mutex_);
+    auto& pending = queues_[queue];
+    for (const PausePoint& p : pauses) pending.push_back({p, submissionIndex, commandBuffer, captureThisSubmission});
+  }
+  wake_.notify_all();
+}
+
+void PauseWorker::run() {
+  using Clock = std::chrono::steady_clock;
+  auto lastProgress = Clock::now();
+  std::unique_lock lock(mutex_);
+  while (!stop_) {
+    bool anyPending = false;
+    bool progressed = false;
+    for (auto& [queue, pending] : queues_) {
+      if (pending.empty()) continue;
+      anyPending = true;
+      Expected head = pending.front();
+      lock.unlock();
+      const bool done = handle(head);
+      lock.lock();
+      if (done) {
+        auto& list = queues_[queue];
+        if (!list.empty()) list.pop_front();
+        progressed = true;
+      }
+    }
+    if (!anyPending) {
+      wake_.wait(lock, [this] { return stop_ || std::any_of(queues_.begin(), queues_.end(),
+                                                              [](auto& q) { return !q.second.empty(); }); });
+      lastProgress = Clock::now();
+      continue;
+    }
+    if (progressed) {
+      lastProgress = Clock::now();
+      continue;
+    }
+    // A queue is about to reach a pause or is still far from it: spin briefly (the queue is
+    // stalled while we sleep), then back off so an idle wait does not burn a core.
+    lock.unlock();
+    if (Clock::now() - lastProgress < std::chrono::microseconds(2000))
+      std::this_thread::yield();
+    else
+      std::this_thread::sleep_for(std::chrono::microseconds(50));
+    lock.lock();
+  }
+}
+
+bool PauseWorker::checkMemory(VkDeviceAddress address, uint64_t size, std::string& why) {
+  auto range = device_.memoryMap.resolve(address, size, why);
+  if (!range) return false;
+  if (!range->host) {
+    why = "the memory is not host visible (staging copies are not implemented yet)";
+    return false;
+  }
+  return true;
+}
+
+bool PauseWorker::readResolved(const ResolvedRange& range, uint64_t size, std::vector<uint8_t>& out) {
+  if (!range.host) return false;
+  if (!(range.memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_COHERENT_BIT)) {
+    // Device writes to non-coherent memory reach the host view only after an invalidate of
+    // whole atoms.
+    const VkDeviceSize atom = device_.nonCoherentAtomSize;
+    const VkDeviceSize first = range.buffer.memoryOffset + range.offsetInBuffer;
+    const VkDeviceSize begin = first / atom * atom;
+    const VkDeviceSize end = (first + size + atom - 1) / atom * atom;
+    VkMappedMemoryRange mapped{VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE, nullptr, (VkDeviceMemory)range.memory.handle,
+                               begin, end >= range.memory.size ? VK_WHOLE_SIZE : end - begin};
+    device_.next.InvalidateMappedMemoryRanges(device_.device, 1, &mapped);
+  }
+  out.resize(size);
+  if (size) std::memcpy(out.data(), range.host, size);
+  return true;
+}
+
+bool PauseWorker::readMemory(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>& out, std::string& why) {
+  auto range = device_.memoryMap.resolve(address, size, why);
+  if (!range) return false;
+  if (!readResolved(*range, size, out)) {
+    why = "the memory is not host visible (staging copies are not implemented yet)";
+    return false;
+  }
+  return true;
+}
+
+bool PauseWorker::handle(Expected& expected) {
+  const PausePoint& pause = expected.pause;
+  if (device_.next.GetEventStatus(device_.device, pause.signal) != VK_EVENT_SET) return false;
+  const auto started = std::chrono::steady_clock::now();
+  const bool capture = expected.capture && device_.sink;
+  DeviceMemoryReader reader = [this](VkDeviceAddress a, uint64_t s, std::vector<uint8_t>* o, std::string& w) {
+    if (!o) return checkMemory(a, s, w);
+    return readMemory(a, s, *o, w);
+  };
+
+  ClusterBuildCapture* record = nullptr;
+  if (capture) {
+    if (pause.phase == PausePhase::BeforeCommand) {
+      ClusterBuildCapture fresh;
+      fresh.pauseId = pause.pauseId;
+      fresh.submissionIndex = expected.submissionIndex;
+      fresh.commandBuffer = expected.commandBuffer;
+      ClusterMemoryWalk walk;
+      if (pause.buildNV) {
+        fresh.kind = CapturedCommandKind::BuildAccelerationStructureNV;
+        BufferMemoryReader bufferReader = [this](uint64_t buffer, VkDeviceSize offset, uint64_t size,
+                                                 std::vector<uint8_t>* out, std::string& why) {
+          auto range = device_.memoryMap.resolveBuffer(buffer, offset, size, why);
+          if (!range) return false;
+          if (!range->host) {
+            why = "the memory is not host visible (staging copies are not implemented yet)";
+            return false;
+          }
+          return out ? readResolved(*range, size, *out) : true;
+        };
+        walk = walkBuildAccelerationStructureNVInputs(*pause.buildNV, bufferReader);
+      } else if (pause.copyToAccelerationStructure) {
+        fresh.kind = CapturedCommandKind::CopyMemoryToAccelerationStructure;
+        walk = walkCopyMemoryToAccelerationStructureInputs(*pause.copyToAccelerationStructure, reader);
+      } else {
+        fresh.parameters = *pause.parameters;
+        walk = walkClusterInputs(*pause.parameters, reader);
+      }
+      record = &open_.insert_or_assign(pause.pauseId, std::move(fresh)).first->second;
+      record->executedCount = walk.executedCount;
+      record->inputs = std::move(walk.ranges);
+      record->issues = std::move(walk.issues);
+    } else {
+      auto it = open_.find(pause.pauseId);
+      if (it != open_.end() && pause.parameters) {
+        record = &it->second;
+        ClusterMemoryWalk walk = walkClusterOutputs(*pause.parameters, record->executedCount, reader);
+        record->outputs = std::move(walk.ranges);
+        for (auto& issue : walk.issues) record->issues.push_back(std::move(issue));
+      }
+    }
+  }
+  if (device_.serving && pause.phase == PausePhase::BeforeCommand && !warnedUnserved_) {
+    // Executing the build belongs to the engine (whole-command execution), not wired yet:
+    // the application's destination memory is left as it was.
+    warnedUnserved_ = true;
+    logMessage(LogLevel::Error,
+               "serving VK_NV_cluster_acceleration_structure without the engine: builds are captured but "
+               "not executed, their destinations are not written");
+  }
+
+  if (record) {  // name each range by a buffer holding it, as the trace's snapshots do
+    for (auto* list : {&record->inputs, &record->outputs})
+      for (CapturedRange& r : *list) {
+        std::string why;
+        if (r.address == 0) continue;  // named by buffer and offset already
+        if (auto where = device_.memoryMap.resolve(r.address, r.bytes.size(), why)) {
+          r.buffer = where->buffer.handle;
+          r.bufferOffset = where->offsetInBuffer;
+        }
+      }
+  }
+  device_.next.ResetEvent(device_.device, pause.signal);
+  device_.next.SetEvent(device_.device, pause.release);
+  ++handled_;
+
+  if (record) {
+    record->pauseMilliseconds +=
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - started).count();
+    if (pause.lastOfCommand) {
+      device_.sink->clusterBuildCaptured(*record);
+      open_.erase(pause.pauseId);
+    }
+  }
+  return true;
+}
+
+}  // namespace clastrace::capture

@@ -1,0 +1,83 @@
+// Stops the queue at each captured command and reads memory while it waits.
+//
+// Per captured command the layer records, around it in the application's command buffer:
+//
+//   vkCmdPipelineBarrier(ALL_COMMANDS -> ALL_COMMANDS|HOST, MEMORY_WRITE -> HOST_READ|MEMORY_READ)
+//       every write recorded or submitted before (copies, fills, updates, shaders) is complete,
+//       and available and visible to the host, once the event below is observed set;
+//   vkCmdSetEvent(signal, ALL_COMMANDS)
+//   vkCmdWaitEvents(release, HOST -> ALL_COMMANDS, HOST_WRITE -> MEMORY_READ|MEMORY_WRITE)
+//       the queue waits for the worker; what the worker wrote (when serving) is visible to
+//       the commands after;
+//   vkCmdResetEvent(release, ALL_COMMANDS)  so the command buffer can run again.
+//
+// The application's own barriers still apply between its commands; the injected ones only add
+// the host as an observer. The worker polls `signal` with vkGetEventStatus, resets it from the
+// host, reads, and sets `release`. Pauses of one queue are handled in submission order.
+#pragma once
+
+#include "clastrace/capture/capture_records.h"
+#include "clastrace/capture/device_memory_map.h"
+
+#include <condition_variable>
+#include <deque>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <thread>
+#include <vulkan/vulkan_core.h>
+
+namespace clastrace::capture {
+
+struct DeviceState;
+
+enum class PausePhase { BeforeCommand, AfterCommand };
+
+struct PausePoint {
+  uint64_t pauseId = 0;
+  PausePhase phase = PausePhase::BeforeCommand;
+  bool lastOfCommand = true;  // the capture of this command is complete after this pause
+  VkEvent signal = VK_NULL_HANDLE;
+  VkEvent release = VK_NULL_HANDLE;
+  std::shared_ptr<const ClusterCommandParameters> parameters;  // a cluster build, or one of:
+  std::shared_ptr<const BuildAccelerationStructureNVCommand> buildNV;
+  std::shared_ptr<const CopyMemoryToAccelerationStructureCommand> copyToAccelerationStructure;
+};
+
+class PauseWorker {
+ public:
+  explicit PauseWorker(DeviceState& device);
+  ~PauseWorker();  // stops the thread; pauses not reached are abandoned
+
+  // Called inside the application's vkQueueSubmit, in submission order per queue.
+  void expect(VkQueue queue, uint64_t submissionIndex, bool captureThisSubmission, uint64_t commandBuffer,
+              const std::vector<PausePoint>& pauses);
+
+  // Total pauses handled and the host time spent inside them, for the report line at exit.
+  uint64_t pausesHandled() const { return handled_; }
+
+ private:
+  struct Expected {
+    PausePoint pause;
+    uint64_t submissionIndex;
+    uint64_t commandBuffer;
+    bool capture;
+  };
+  void run();
+  bool handle(Expected& expected);
+  bool checkMemory(VkDeviceAddress address, uint64_t size, std::string& why);
+  bool readMemory(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>& out, std::string& why);
+  bool readResolved(const ResolvedRange& range, uint64_t size, std::vector<uint8_t>& out);
+
+  DeviceState& device_;
+  std::mutex mutex_;
+  std::condition_variable wake_;
+  std::map<VkQueue, std::deque<Expected>> queues_;
+  std::map<uint64_t, ClusterBuildCapture> open_;  // pauseId -> capture between its two pauses
+  bool stop_ = false;
+  std::atomic<uint64_t> handled_{0};
+  bool warnedUnserved_ = false;
+  std::thread thread_;
+};
+
+}  // namespace clastrace::capture

@@ -1,0 +1,498 @@
+// The .clt trace sink. The trace is a linear story the replay walks in order, while the layer
+// learns a command's memory only when the queue executes it, after vkQueueSubmit returned.
+// So state records (memory, buffers, size queries) are appended at once, and a submission's
+// command buffers are written out, each as Begin..End with the snapshots of its cluster
+// builds, followed by its QueueSubmit, once every build of that submission was captured.
+#include "clastrace/capture/capture_sink.h"
+
+#include <clastrace/traces/trace_writer.h>
+
+#include <cerrno>
+#include <chrono>
+#include <cstdio>
+#include <cstring>
+#include <map>
+#include <mutex>
+#include <unordered_map>
+
+namespace clastrace::capture {
+namespace {
+
+namespace fbs = clastrace::fbs;
+using traces::TraceError;
+using traces::TraceWriter;
+
+template <class T>
+fbs::RecordT recordOf(T body) {
+  fbs::RecordT r;
+  r.body.Set(std::move(body));
+  return r;
+}
+
+std::unique_ptr<fbs::ClusterInputInfoT> inputInfo(const ClusterCommandParameters& p) {
+  auto in = std::make_unique<fbs::ClusterInputInfoT>();
+  const auto& i = p.info.input;
+  in->max_acceleration_structure_count = i.maxAccelerationStructureCount;
+  in->flags = i.flags;
+  in->op_type = uint32_t(i.opType);
+  in->op_mode = uint32_t(i.opMode);
+  if (!p.hasOpInput) return in;
+  switch (i.opType) {
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV: {
+      fbs::ClustersBottomLevelInputT b;
+      b.max_total_cluster_count = p.bottomLevelInput.maxTotalClusterCount;
+      b.max_cluster_count_per_acceleration_structure = p.bottomLevelInput.maxClusterCountPerAccelerationStructure;
+      in->op_input.Set(std::move(b));
+      break;
+    }
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV: {
+      fbs::MoveObjectsInputT m;
+      m.type = uint32_t(p.moveObjectsInput.type);
+      m.no_move_overlap = p.moveObjectsInput.noMoveOverlap == VK_TRUE;
+      m.max_moved_bytes = p.moveObjectsInput.maxMovedBytes;
+      in->op_input.Set(std::move(m));
+      break;
+    }
+    default: {
+      const auto& s = p.triangleClusterInput;
+      fbs::TriangleClusterInputT t;
+      t.vertex_format = uint32_t(s.vertexFormat);
+      t.max_geometry_index_value = s.maxGeometryIndexValue;
+      t.max_cluster_unique_geometry_count = s.maxClusterUniqueGeometryCount;
+      t.max_cluster_triangle_count = s.maxClusterTriangleCount;
+      t.max_cluster_vertex_count = s.maxClusterVertexCount;
+      t.max_total_triangle_count = s.maxTotalTriangleCount;
+      t.max_total_vertex_count = s.maxTotalVertexCount;
+      t.min_position_truncate_bit_count = s.minPositionTruncateBitCount;
+      in->op_input.Set(std::move(t));
+      break;
+    }
+  }
+  return in;
+}
+
+std::unique_ptr<fbs::StridedDeviceAddressRegion> region(const VkStridedDeviceAddressRegionKHR& r) {
+  return std::make_unique<fbs::StridedDeviceAddressRegion>(r.deviceAddress, r.stride, r.size);
+}
+
+std::unique_ptr<fbs::DependencyT> dependency(VkDependencyFlags flags, const std::vector<MemoryBarrier>& memory,
+                                             const std::vector<BufferBarrier>& buffers, uint32_t images) {
+  auto d = std::make_unique<fbs::DependencyT>();
+  d->dependency_flags = flags;
+  for (const auto& b : memory) d->memory_barriers.emplace_back(b.srcStage, b.srcAccess, b.dstStage, b.dstAccess);
+  for (const auto& b : buffers)
+    d->buffer_barriers.emplace_back(b.srcStage, b.srcAccess, b.dstStage, b.dstAccess, VK_QUEUE_FAMILY_IGNORED,
+                                    VK_QUEUE_FAMILY_IGNORED, b.buffer, b.offset, b.size);
+  d->image_barrier_count = images;
+  return d;
+}
+
+class TraceCaptureSink final : public CaptureSink {
+ public:
+  TraceCaptureSink(std::string path, int zstdLevel) : path_(std::move(path)), zstdLevel_(zstdLevel) {}
+  ~TraceCaptureSink() override {
+    std::lock_guard lock(mutex_);
+    emitReadyLocked(true);
+    if (writer_) check(writer_->finish());
+  }
+
+  void deviceCreated(const DeviceRecord& d) override {
+    std::lock_guard lock(mutex_);
+    if (writer_ || failed_) return;  // the header describes the first device
+    fbs::TraceHeaderT header;
+    header.device = std::make_unique<fbs::DeviceInfoT>();
+    fbs::DeviceInfoT& info = *header.device;
+    info.name = d.deviceName;
+    info.vendor_id = d.vendorId;
+    info.device_id = d.deviceId;
+    info.driver_version = d.driverVersion;
+    info.api_version = d.apiVersion;
+    info.device_type = d.deviceType;
+    info.pipeline_cache_uuid = d.pipelineCacheUuid;
+    info.timestamp_period_ns = d.timestampPeriod;
+    for (const auto& t : d.memoryTypes) info.memory_types.emplace_back(t.propertyFlags, t.heapIndex);
+    for (const auto& h : d.memoryHeaps) info.memory_heaps.emplace_back(h.size, h.flags);
+    info.enabled_extensions = d.enabledExtensions;
+    info.cluster_features = std::make_unique<fbs::ClusterFeaturesT>();
+    info.cluster_features->cluster_acceleration_structure_supported = d.clusterProperties.maxTrianglesPerCluster != 0;
+    info.cluster_features->cluster_acceleration_structure_enabled = d.clusterFeatureEnabled;
+    info.cluster_properties = std::make_unique<fbs::ClusterPropertiesT>();
+    auto& p = *info.cluster_properties;
+    p.max_vertices_per_cluster = d.clusterProperties.maxVerticesPerCluster;
+    p.max_triangles_per_cluster = d.clusterProperties.maxTrianglesPerCluster;
+    p.cluster_scratch_byte_alignment = d.clusterProperties.clusterScratchByteAlignment;
+    p.cluster_byte_alignment = d.clusterProperties.clusterByteAlignment;
+    p.cluster_template_byte_alignment = d.clusterProperties.clusterTemplateByteAlignment;
+    p.cluster_bottom_level_byte_alignment = d.clusterProperties.clusterBottomLevelByteAlignment;
+    p.cluster_template_bounds_byte_alignment = d.clusterProperties.clusterTemplateBoundsByteAlignment;
+    p.max_cluster_geometry_index = d.clusterProperties.maxClusterGeometryIndex;
+    header.capture = std::make_unique<fbs::CaptureSettingsT>();
+    header.capture->application_name = d.applicationName;
+    header.capture->engine_name = d.engineName;
+    header.capture->capture_tool = d.servedByLayer ? "clastrace-capture 0.1.0 (serving the extension)"
+                                                   : "clastrace-capture 0.1.0";
+    header.capture->start_time_unix_ns = uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                                      std::chrono::system_clock::now().time_since_epoch())
+                                                      .count());
+    header.capture->snapshot_policy = "inputs+outputs";
+    traces::TraceWriterOptions options;
+    options.zstd_level = zstdLevel_;
+    TraceError error;
+    writer_ = TraceWriter::create(path_, header, options, &error);
+    if (!writer_) fail(error);
+  }
+  void deviceDestroyed(uint64_t) override {}
+
+  void memoryAllocated(const MemoryRecord& m) override {
+    fbs::MemoryAllocateT r;
+    r.memory = m.memory;
+    r.size = m.size;
+    r.memory_type_index = m.typeIndex;
+    r.allocate_flags = m.allocateFlags;
+    append(recordOf(std::move(r)));
+  }
+  void memoryFreed(uint64_t memory) override {
+    fbs::MemoryFreeT r;
+    r.memory = memory;
+    append(recordOf(std::move(r)));
+  }
+  void bufferCreated(const BufferRecord& b) override {
+    fbs::BufferCreateT r;
+    r.buffer = b.buffer;
+    r.size = b.size;
+    r.usage = b.usage;
+    r.create_flags = b.flags;
+    r.sharing_mode = uint32_t(b.sharingMode);
+    r.queue_family_indices = b.queueFamilies;
+    append(recordOf(std::move(r)));
+  }
+  // The binding is held back until the application asks for the address (it normally does
+  // right after binding), so one BufferBindMemory carries both.
+  void bufferBound(const BufferBindingRecord& b) override {
+    std::lock_guard lock(mutex_);
+    pendingBinds_[b.buffer] = b;
+  }
+  void bufferAddressQueried(const BufferAddressRecord& a) override {
+    std::lock_guard lock(mutex_);
+    auto it = pendingBinds_.find(a.buffer);
+    if (it == pendingBinds_.end()) {
+      if (addressed_.count(a.buffer)) return;  // asked again: nothing new
+      // Bound before capture saw it, or asked twice after an emitted bind: restate the binding.
+      auto known = boundAt_.find(a.buffer);
+      if (known == boundAt_.end()) return;
+      emitBindLocked(known->second, a.address);
+      return;
+    }
+    emitBindLocked(it->second, a.address);
+    pendingBinds_.erase(it);
+  }
+  void bufferDestroyed(uint64_t buffer) override {
+    std::lock_guard lock(mutex_);
+    flushBindsLocked();
+    addressed_.erase(buffer);
+    boundAt_.erase(buffer);
+    fbs::BufferDestroyT r;
+    r.buffer = buffer;
+    appendLocked(recordOf(std::move(r)));
+  }
+  void buildSizesQueried(const BuildSizesQuery& q) override {
+    fbs::GetClusterBuildSizesT r;
+    r.input = inputInfo(q.input);
+    r.acceleration_structure_size = q.answer.accelerationStructureSize;
+    r.update_scratch_size = q.answer.updateScratchSize;
+    r.build_scratch_size = q.answer.buildScratchSize;
+    append(recordOf(std::move(r)));
+  }
+  void commandBufferRecorded(const RecordedCommandBuffer& cb) override {
+    std::lock_guard lock(mutex_);
+    recorded_[cb.commandBuffer] = std::make_shared<RecordedCommandBuffer>(cb);
+  }
+  void commandBufferReset(uint64_t) override {}  // each submission restates its command buffers
+
+  void queueSubmitted(const SubmissionRecord& s) override {
+    std::lock_guard lock(mutex_);
+    Pending& p = pending_[s.index];
+    p.submission = s;
+    p.submitted = true;
+    for (const auto& batch : s.batches)
+      for (uint64_t cb : batch.commandBuffers) {
+        auto it = recorded_.find(cb);
+        if (it == recorded_.end()) continue;
+        p.commandBuffers.push_back(it->second);
+        for (const auto& c : it->second->commands) {
+          if (std::holds_alternative<ClusterBuildCommand>(c)) ++p.expectedBuilds;
+          if (const auto* nv = std::get_if<BuildAccelerationStructureNVCommand>(&c)) p.expectedBuilds += nv->pauseId != 0;
+          if (const auto* copy = std::get_if<CopyMemoryToAccelerationStructureCommand>(&c))
+            p.expectedBuilds += copy->pauseId != 0;
+        }
+      }
+    emitReadyLocked(false);
+  }
+  void clusterBuildCaptured(const ClusterBuildCapture& c) override {
+    std::lock_guard lock(mutex_);
+    pending_[c.submissionIndex].builds[c.pauseId] = c;
+    emitReadyLocked(false);
+  }
+  void flush() override {
+    std::lock_guard lock(mutex_);
+    flushBindsLocked();
+  }
+
+ private:
+  struct Pending {
+    SubmissionRecord submission;
+    bool submitted = false;
+    size_t expectedBuilds = 0;
+    std::vector<std::shared_ptr<RecordedCommandBuffer>> commandBuffers;
+    std::map<uint64_t, ClusterBuildCapture> builds;  // by pauseId
+  };
+
+  void fail(const TraceError& error) {
+    if (failed_) return;
+    failed_ = true;
+    std::fprintf(stderr, "clastrace: capture stopped: %s; the application continues without capture\n",
+                 error.message.c_str());
+  }
+  bool check(const TraceError& error) {
+    if (error) fail(error);
+    return !error;
+  }
+  void append(const fbs::RecordT& record) {
+    std::lock_guard lock(mutex_);
+    appendLocked(record);
+  }
+  void appendLocked(const fbs::RecordT& record) {
+    if (writer_ && !failed_) check(writer_->append(record));
+  }
+  void emitBindLocked(const BufferBindingRecord& b, VkDeviceAddress address) {
+    fbs::BufferBindMemoryT r;
+    r.buffer = b.buffer;
+    r.memory = b.memory;
+    r.memory_offset = b.offset;
+    r.device_address = address;
+    appendLocked(recordOf(std::move(r)));
+    boundAt_[b.buffer] = b;
+    if (address) addressed_.insert({b.buffer, true});
+  }
+  void flushBindsLocked() {
+    for (const auto& [buffer, bind] : pendingBinds_) emitBindLocked(bind, 0);
+    pendingBinds_.clear();
+  }
+
+  // Submissions go out in index order, each once all its builds were captured (or, at the
+  // end, with what arrived: a build whose pause never came has no snapshots).
+  void emitReadyLocked(bool final) {
+    while (!pending_.empty()) {
+      auto it = pending_.begin();
+      Pending& p = it->second;
+      if (!p.submitted) {
+        if (!final) return;
+        pending_.erase(it);  // captures of a submission outside the range, or unannounced
+        continue;
+      }
+      if (!final && p.builds.size() < p.expectedBuilds) return;
+      flushBindsLocked();
+      emitSubmissionLocked(p);
+      pending_.erase(it);
+    }
+  }
+
+  void snapshots(const std::vector<CapturedRange>& ranges, std::vector<fbs::MemorySnapshot>& out) {
+    for (const auto& r : ranges) {
+      fbs::MemorySnapshot snap;
+      if (!writer_ || failed_) return;
+      if (!check(writer_->snapshot(r.buffer, r.bufferOffset, r.address, r.bytes.data(), r.bytes.size(), &snap)))
+        return;
+      out.push_back(snap);
+    }
+  }
+
+  void emitSubmissionLocked(Pending& p) {
+    for (const auto& cb : p.commandBuffers) {
+      fbs::CommandBufferBeginT begin;
+      begin.command_buffer = cb->commandBuffer;
+      begin.flags = cb->usage;
+      begin.level = cb->secondary ? 1 : 0;
+      appendLocked(recordOf(std::move(begin)));
+      for (const auto& command : cb->commands) emitCommandLocked(cb->commandBuffer, command, p);
+      fbs::CommandBufferEndT end;
+      end.command_buffer = cb->commandBuffer;
+      appendLocked(recordOf(std::move(end)));
+    }
+    if (!writer_ || failed_) return;
+    fbs::QueueSubmitT submit;
+    submit.queue = p.submission.queue;
+    submit.version = p.submission.synchronization2 ? 2 : 1;
+    for (const auto& b : p.submission.batches) {
+      auto batch = std::make_unique<fbs::SubmitBatchT>();
+      for (const auto& w : b.waits) batch->wait_semaphores.emplace_back(w.semaphore, w.value, w.stageMask, 0);
+      batch->command_buffers = b.commandBuffers;
+      for (const auto& s : b.signals) batch->signal_semaphores.emplace_back(s.semaphore, s.value, s.stageMask, 0);
+      submit.batches.push_back(std::move(batch));
+    }
+    submit.fence = p.submission.fence;
+    submit.submission_index = writer_->next_submission_index();
+    submit.result = VK_SUCCESS;
+    appendLocked(recordOf(std::move(submit)));
+  }
+
+  void emitCommandLocked(uint64_t cb, const RecordedCommand& command, Pending& p) {
+    if (const auto* c = std::get_if<BarrierCommand>(&command)) {
+      fbs::CmdPipelineBarrierT r;
+      r.command_buffer = cb;
+      r.version = c->synchronization2 ? 2 : 1;
+      r.src_stage_mask = c->srcStageMask;
+      r.dst_stage_mask = c->dstStageMask;
+      r.dependency = dependency(c->dependencyFlags, c->memoryBarriers, c->bufferBarriers, c->imageBarrierCount);
+      appendLocked(recordOf(std::move(r)));
+    } else if (const auto* c = std::get_if<EventCommand>(&command)) {
+      const uint8_t version = c->synchronization2 ? 2 : 1;
+      if (c->kind == EventCommand::Kind::Set) {
+        fbs::CmdSetEventT r;
+        r.command_buffer = cb;
+        r.event = c->events.empty() ? 0 : c->events[0];
+        r.version = version;
+        r.stage_mask = c->srcStageMask;
+        if (c->synchronization2) r.dependency = dependency(0, c->memoryBarriers, c->bufferBarriers, 0);
+        appendLocked(recordOf(std::move(r)));
+      } else if (c->kind == EventCommand::Kind::Reset) {
+        fbs::CmdResetEventT r;
+        r.command_buffer = cb;
+        r.event = c->events.empty() ? 0 : c->events[0];
+        r.version = version;
+        r.stage_mask = c->srcStageMask;
+        appendLocked(recordOf(std::move(r)));
+      } else {
+        fbs::CmdWaitEventsT r;
+        r.command_buffer = cb;
+        r.version = version;
+        r.events = c->events;
+        r.src_stage_mask = c->srcStageMask;
+        r.dst_stage_mask = c->dstStageMask;
+        // The per-event split of v2 dependencies is not kept by the layer: one dependency.
+        r.dependencies.push_back(dependency(0, c->memoryBarriers, c->bufferBarriers, 0));
+        appendLocked(recordOf(std::move(r)));
+      }
+    } else if (const auto* c = std::get_if<CopyBufferCommand>(&command)) {
+      fbs::CmdCopyBufferT r;
+      r.command_buffer = cb;
+      r.version = 1;
+      r.src_buffer = c->src;
+      r.dst_buffer = c->dst;
+      for (const auto& region : c->regions) r.regions.emplace_back(region.srcOffset, region.dstOffset, region.size);
+      appendLocked(recordOf(std::move(r)));
+    } else if (const auto* c = std::get_if<FillBufferCommand>(&command)) {
+      fbs::CmdFillBufferT r;
+      r.command_buffer = cb;
+      r.dst_buffer = c->dst;
+      r.dst_offset = c->offset;
+      r.size = c->size;
+      r.data = c->data;
+      appendLocked(recordOf(std::move(r)));
+    } else if (const auto* c = std::get_if<UpdateBufferCommand>(&command)) {
+      fbs::CmdUpdateBufferT r;
+      r.command_buffer = cb;
+      r.dst_buffer = c->dst;
+      r.dst_offset = c->offset;
+      r.data = c->data;
+      appendLocked(recordOf(std::move(r)));
+    } else if (const auto* c = std::get_if<DispatchCommand>(&command)) {
+      fbs::CmdDispatchT r;
+      r.command_buffer = cb;
+      r.group_count_x = c->groupCountX;
+      r.group_count_y = c->groupCountY;
+      r.group_count_z = c->groupCountZ;
+      r.pipeline = c->pipeline;
+      r.indirect_buffer = c->indirectBuffer;
+      r.indirect_offset = c->indirectOffset;
+      for (const auto& b : c->storageBuffers)
+        r.storage_buffers.emplace_back(b.set, b.binding, b.arrayElement, uint32_t(b.type), b.buffer, b.offset, b.range,
+                                       b.address);
+      appendLocked(recordOf(std::move(r)));
+    } else if (const auto* c = std::get_if<ClusterBuildCommand>(&command)) {
+      const auto& i = c->parameters.info;
+      fbs::CmdBuildClusterAccelerationStructureIndirectT r;
+      r.command_buffer = cb;
+      r.input = inputInfo(c->parameters);
+      r.dst_implicit_data = i.dstImplicitData;
+      r.scratch_data = i.scratchData;
+      r.dst_addresses_array = region(i.dstAddressesArray);
+      r.dst_sizes_array = region(i.dstSizesArray);
+      r.src_infos_array = region(i.srcInfosArray);
+      r.src_infos_count = i.srcInfosCount;
+      r.address_resolution_flags = i.addressResolutionFlags;
+      auto captured = p.builds.find(c->pauseId);
+      if (captured != p.builds.end()) {
+        snapshots(captured->second.inputs, r.inputs);
+        snapshots(captured->second.outputs, r.outputs);
+      }
+      appendLocked(recordOf(std::move(r)));
+    } else if (const auto* c = std::get_if<BuildAccelerationStructureNVCommand>(&command)) {
+      fbs::CmdBuildAccelerationStructureNVT r;
+      r.command_buffer = cb;
+      r.info = std::make_unique<fbs::AccelerationStructureInfoNVT>();
+      r.info->type = uint32_t(c->type);
+      r.info->flags = c->flags;
+      r.info->instance_count = c->instanceCount;
+      for (const auto& g : c->geometries) {
+        auto geometry = std::make_unique<fbs::GeometryNVT>();
+        geometry->geometry_type = uint32_t(g.geometryType);
+        geometry->flags = g.flags;
+        const auto& t = g.geometry.triangles;
+        geometry->triangles = std::make_unique<fbs::GeometryTrianglesNV>(
+            uint64_t(t.vertexData), t.vertexOffset, t.vertexCount, uint32_t(t.vertexFormat), t.vertexStride,
+            uint64_t(t.indexData), t.indexOffset, t.indexCount, uint32_t(t.indexType), uint64_t(t.transformData),
+            t.transformOffset);
+        const auto& a = g.geometry.aabbs;
+        geometry->aabbs = std::make_unique<fbs::GeometryAabbNV>(uint64_t(a.aabbData), a.numAABBs, a.stride, a.offset);
+        r.info->geometries.push_back(std::move(geometry));
+      }
+      r.instance_data = c->instanceData;
+      r.instance_offset = c->instanceOffset;
+      r.update = c->update == VK_TRUE;
+      r.dst = c->dst;
+      r.src = c->src;
+      r.scratch = c->scratch;
+      r.scratch_offset = c->scratchOffset;
+      if (auto captured = p.builds.find(c->pauseId); c->pauseId && captured != p.builds.end())
+        snapshots(captured->second.inputs, r.inputs);
+      appendLocked(recordOf(std::move(r)));
+    } else if (const auto* c = std::get_if<CopyMemoryToAccelerationStructureCommand>(&command)) {
+      fbs::CmdCopyMemoryToAccelerationStructureT r;
+      r.command_buffer = cb;
+      r.src_address = c->src;
+      r.dst = c->dst;
+      r.mode = uint32_t(c->mode);
+      if (auto captured = p.builds.find(c->pauseId); c->pauseId && captured != p.builds.end())
+        snapshots(captured->second.inputs, r.inputs);
+      appendLocked(recordOf(std::move(r)));
+    }
+  }
+
+  std::mutex mutex_;
+  std::string path_;
+  int zstdLevel_;
+  std::unique_ptr<TraceWriter> writer_;
+  bool failed_ = false;
+  std::unordered_map<uint64_t, BufferBindingRecord> pendingBinds_;
+  std::unordered_map<uint64_t, BufferBindingRecord> boundAt_;
+  std::unordered_map<uint64_t, bool> addressed_;
+  std::unordered_map<uint64_t, std::shared_ptr<RecordedCommandBuffer>> recorded_;
+  std::map<uint64_t, Pending> pending_;  // by submission index
+};
+
+}  // namespace
+
+std::unique_ptr<CaptureSink> makeTraceCaptureSink(const std::string& path, int zstdLevel, std::string& error) {
+  // Checked here, before any device exists, so an unusable path is reported at once; the
+  // writer itself starts with the first device (the header describes it).
+  std::FILE* probe = std::fopen(path.c_str(), "wb");
+  if (!probe) {
+    error = "cannot write '" + path + "': " + std::strerror(errno);
+    return nullptr;
+  }
+  std::fclose(probe);
+  return std::make_unique<TraceCaptureSink>(path, zstdLevel);
+}
+
+}  // namespace clastrace::capture

@@ -1,0 +1,589 @@
+// A headless compute-only Vulkan program that uses VK_NV_cluster_acceleration_structure through
+// the loader, for the capture layer's tests. Modes:
+//   limits OUT.json        queries the extension, its feature and properties, and build sizes
+//   exactness OUT.json     one command buffer writes a build's inputs with transfer commands,
+//                          builds, then overwrites them; OUT.json lists the bytes the builds
+//                          must have read (and the memory's final state, which differs)
+//   dispatch OUT.json      a compute dispatch with storage buffers bound (one dynamic)
+//   resubmit N             one command buffer submitted N times, the host changing the count
+//   pause-cost N           N builds in one submission; prints the time per build
+#include <clastrace/vk_cluster_abi.h>
+
+#include <nlohmann/json.hpp>
+
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <string>
+#include <vector>
+
+namespace {
+
+#define CHECK(call)                                                                     \
+  do {                                                                                  \
+    VkResult r_ = (call);                                                               \
+    if (r_ != VK_SUCCESS) {                                                             \
+      std::fprintf(stderr, "cluster_capture_app: %s failed: %d\n", #call, int(r_));     \
+      std::exit(2);                                                                     \
+    }                                                                                   \
+  } while (0)
+
+[[noreturn]] void fail(const char* what) {
+  std::fprintf(stderr, "cluster_capture_app: %s\n", what);
+  std::exit(2);
+}
+
+std::string hex(const void* data, size_t size) {
+  static const char* digits = "0123456789abcdef";
+  std::string text;
+  for (size_t i = 0; i < size; ++i) {
+    uint8_t b = static_cast<const uint8_t*>(data)[i];
+    text.push_back(digits[b >> 4]);
+    text.push_back(digits[b & 15]);
+  }
+  return text;
+}
+
+struct Buffer {
+  VkBuffer buffer = VK_NULL_HANDLE;
+  VkDeviceMemory memory = VK_NULL_HANDLE;
+  VkDeviceAddress address = 0;
+  uint8_t* mapped = nullptr;
+  VkDeviceSize size = 0;
+};
+
+struct Context {
+  VkInstance instance = VK_NULL_HANDLE;
+  VkPhysicalDevice physicalDevice = VK_NULL_HANDLE;
+  VkDevice device = VK_NULL_HANDLE;
+  VkQueue queue = VK_NULL_HANDLE;
+  uint32_t queueFamily = 0;
+  VkCommandPool pool = VK_NULL_HANDLE;
+  PFN_vkCmdBuildClusterAccelerationStructureIndirectNV cmdBuildClusters = nullptr;
+  PFN_vkGetClusterAccelerationStructureBuildSizesNV getBuildSizes = nullptr;
+  std::vector<Buffer> buffers;
+
+  bool hasClusterExtension() const {
+    uint32_t count = 0;
+    vkEnumerateDeviceExtensionProperties(physicalDevice, nullptr, &count, nullptr);
+    std::vector<VkExtensionProperties> all(count);
+    vkEnumerateDeviceExtensionProperties(physicalDevice, nullptr, &count, all.data());
+    for (const auto& e : all)
+      if (std::strcmp(e.extensionName, VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME) == 0)
+        return e.specVersion == VK_NV_CLUSTER_ACCELERATION_STRUCTURE_SPEC_VERSION;
+    return false;
+  }
+
+  void createInstance() {
+    VkApplicationInfo app{VK_STRUCTURE_TYPE_APPLICATION_INFO, nullptr, "cluster_capture_app", 1, nullptr, 0,
+                          VK_API_VERSION_1_3};
+    VkInstanceCreateInfo info{VK_STRUCTURE_TYPE_INSTANCE_CREATE_INFO, nullptr, 0, &app, 0, nullptr, 0, nullptr};
+    CHECK(vkCreateInstance(&info, nullptr, &instance));
+    uint32_t count = 1;
+    VkResult r = vkEnumeratePhysicalDevices(instance, &count, &physicalDevice);
+    if ((r != VK_SUCCESS && r != VK_INCOMPLETE) || count == 0) fail("no physical device");
+  }
+
+  void createDevice() {
+    uint32_t familyCount = 0;
+    vkGetPhysicalDeviceQueueFamilyProperties(physicalDevice, &familyCount, nullptr);
+    std::vector<VkQueueFamilyProperties> families(familyCount);
+    vkGetPhysicalDeviceQueueFamilyProperties(physicalDevice, &familyCount, families.data());
+    for (queueFamily = 0; queueFamily < familyCount; ++queueFamily)
+      if (families[queueFamily].queueFlags & VK_QUEUE_COMPUTE_BIT) break;
+    if (queueFamily == familyCount) fail("no compute queue");
+    const float priority = 1.0f;
+    VkDeviceQueueCreateInfo queueInfo{VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO, nullptr, 0, queueFamily, 1, &priority};
+    VkPhysicalDeviceClusterAccelerationStructureFeaturesNV cluster{
+        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_FEATURES_NV, nullptr, VK_TRUE};
+    VkPhysicalDeviceVulkan12Features v12{};
+    v12.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_2_FEATURES;
+    v12.pNext = &cluster;
+    v12.bufferDeviceAddress = VK_TRUE;
+    const char* extension = VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME;
+    VkDeviceCreateInfo info{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO, &v12, 0, 1, &queueInfo, 0, nullptr, 1, &extension,
+                            nullptr};
+    CHECK(vkCreateDevice(physicalDevice, &info, nullptr, &device));
+    vkGetDeviceQueue(device, queueFamily, 0, &queue);
+    cmdBuildClusters = (PFN_vkCmdBuildClusterAccelerationStructureIndirectNV)vkGetDeviceProcAddr(
+        device, "vkCmdBuildClusterAccelerationStructureIndirectNV");
+    getBuildSizes = (PFN_vkGetClusterAccelerationStructureBuildSizesNV)vkGetDeviceProcAddr(
+        device, "vkGetClusterAccelerationStructureBuildSizesNV");
+    if (!cmdBuildClusters || !getBuildSizes) fail("the cluster entry points are missing");
+    VkCommandPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO, nullptr,
+                                     VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT, queueFamily};
+    CHECK(vkCreateCommandPool(device, &poolInfo, nullptr, &pool));
+  }
+
+  // Host-visible, coherent: the host fills it with a marker the GPU commands must replace.
+  Buffer makeBuffer(VkDeviceSize size, uint8_t hostMarker) {
+    Buffer b;
+    b.size = size;
+    VkBufferCreateInfo info{};
+    info.sType = VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO;
+    info.size = size;
+    info.usage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_TRANSFER_SRC_BIT |
+                 VK_BUFFER_USAGE_TRANSFER_DST_BIT | VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT;
+    CHECK(vkCreateBuffer(device, &info, nullptr, &b.buffer));
+    VkMemoryRequirements req;
+    vkGetBufferMemoryRequirements(device, b.buffer, &req);
+    VkPhysicalDeviceMemoryProperties props;
+    vkGetPhysicalDeviceMemoryProperties(physicalDevice, &props);
+    const VkMemoryPropertyFlags want = VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT;
+    uint32_t type = 0;
+    for (; type < props.memoryTypeCount; ++type)
+      if ((req.memoryTypeBits & (1u << type)) && (props.memoryTypes[type].propertyFlags & want) == want) break;
+    if (type == props.memoryTypeCount) fail("no host-visible coherent memory");
+    VkMemoryAllocateFlagsInfo flags{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_FLAGS_INFO, nullptr,
+                                    VK_MEMORY_ALLOCATE_DEVICE_ADDRESS_BIT, 0};
+    VkMemoryAllocateInfo alloc{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_INFO, &flags, req.size, type};
+    CHECK(vkAllocateMemory(device, &alloc, nullptr, &b.memory));
+    CHECK(vkBindBufferMemory(device, b.buffer, b.memory, 0));
+    VkBufferDeviceAddressInfo addressInfo{VK_STRUCTURE_TYPE_BUFFER_DEVICE_ADDRESS_INFO, nullptr, b.buffer};
+    b.address = vkGetBufferDeviceAddress(device, &addressInfo);
+    void* mapped = nullptr;
+    CHECK(vkMapMemory(device, b.memory, 0, VK_WHOLE_SIZE, 0, &mapped));
+    b.mapped = static_cast<uint8_t*>(mapped);
+    std::memset(b.mapped, hostMarker, size);
+    buffers.push_back(b);
+    return b;
+  }
+
+  VkCommandBuffer beginCommands() {
+    VkCommandBufferAllocateInfo info{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr, pool,
+                                     VK_COMMAND_BUFFER_LEVEL_PRIMARY, 1};
+    VkCommandBuffer cb;
+    CHECK(vkAllocateCommandBuffers(device, &info, &cb));
+    VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr,
+                                   VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT, nullptr};
+    CHECK(vkBeginCommandBuffer(cb, &begin));
+    return cb;
+  }
+
+  void submitAndWait(VkCommandBuffer cb) {
+    CHECK(vkEndCommandBuffer(cb));
+    VkFenceCreateInfo fenceInfo{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO, nullptr, 0};
+    VkFence fence;
+    CHECK(vkCreateFence(device, &fenceInfo, nullptr, &fence));
+    VkSubmitInfo submit{};
+    submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
+    submit.commandBufferCount = 1;
+    submit.pCommandBuffers = &cb;
+    CHECK(vkQueueSubmit(queue, 1, &submit, fence));
+    CHECK(vkWaitForFences(device, 1, &fence, VK_TRUE, 30ull * 1000 * 1000 * 1000));
+    vkDestroyFence(device, fence, nullptr);
+  }
+
+  ~Context() {
+    if (device) {
+      vkDeviceWaitIdle(device);
+      for (auto& b : buffers) {
+        vkDestroyBuffer(device, b.buffer, nullptr);
+        vkUnmapMemory(device, b.memory);
+        vkFreeMemory(device, b.memory, nullptr);
+      }
+      vkDestroyCommandPool(device, pool, nullptr);
+      vkDestroyDevice(device, nullptr);
+    }
+    if (instance) vkDestroyInstance(instance, nullptr);
+  }
+};
+
+void transferToBuildBarrier(VkCommandBuffer cb) {
+  VkMemoryBarrier barrier{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr, VK_ACCESS_TRANSFER_WRITE_BIT,
+                          VK_ACCESS_MEMORY_READ_BIT};
+  vkCmdPipelineBarrier(cb, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, 0, 1, &barrier, 0,
+                       nullptr, 0, nullptr);
+}
+
+void buildToTransferBarrier(VkCommandBuffer cb) {
+  VkMemoryBarrier barrier{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr, VK_ACCESS_MEMORY_READ_BIT | VK_ACCESS_MEMORY_WRITE_BIT,
+                          VK_ACCESS_TRANSFER_WRITE_BIT};
+  vkCmdPipelineBarrier(cb, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_PIPELINE_STAGE_TRANSFER_BIT, 0, 1, &barrier, 0,
+                       nullptr, 0, nullptr);
+}
+
+int limits(const char* outPath) {
+  Context c;
+  c.createInstance();
+  nlohmann::json out;
+  out["extensionListed"] = c.hasClusterExtension();
+  VkPhysicalDeviceClusterAccelerationStructureFeaturesNV features{
+      VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_FEATURES_NV, nullptr, VK_FALSE};
+  VkPhysicalDeviceFeatures2 features2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2, &features, {}};
+  vkGetPhysicalDeviceFeatures2(c.physicalDevice, &features2);
+  out["clusterAccelerationStructure"] = features.clusterAccelerationStructure == VK_TRUE;
+  VkPhysicalDeviceClusterAccelerationStructurePropertiesNV p{};
+  p.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_PROPERTIES_NV;
+  VkPhysicalDeviceProperties2 properties2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2, &p, {}};
+  vkGetPhysicalDeviceProperties2(c.physicalDevice, &properties2);
+  out["deviceName"] = properties2.properties.deviceName;
+  out["properties"] = {{"maxVerticesPerCluster", p.maxVerticesPerCluster},
+                       {"maxTrianglesPerCluster", p.maxTrianglesPerCluster},
+                       {"clusterScratchByteAlignment", p.clusterScratchByteAlignment},
+                       {"clusterByteAlignment", p.clusterByteAlignment},
+                       {"clusterTemplateByteAlignment", p.clusterTemplateByteAlignment},
+                       {"clusterBottomLevelByteAlignment", p.clusterBottomLevelByteAlignment},
+                       {"clusterTemplateBoundsByteAlignment", p.clusterTemplateBoundsByteAlignment},
+                       {"maxClusterGeometryIndex", p.maxClusterGeometryIndex}};
+  if (out["extensionListed"]) {
+    c.createDevice();
+    VkClusterAccelerationStructureTriangleClusterInputNV tri{};
+    tri.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
+    tri.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+    tri.maxClusterTriangleCount = 128;
+    tri.maxClusterVertexCount = 128;
+    tri.maxTotalTriangleCount = 1024;
+    tri.maxTotalVertexCount = 1024;
+    VkClusterAccelerationStructureInputInfoNV input{};
+    input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+    input.maxAccelerationStructureCount = 8;
+    input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
+    input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+    input.opInput.pTriangleClusters = &tri;
+    VkAccelerationStructureBuildSizesInfoKHR sizes{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr, 0, 0, 0};
+    c.getBuildSizes(c.device, &input, &sizes);
+    out["buildSizes"] = {{"accelerationStructureSize", sizes.accelerationStructureSize},
+                         {"buildScratchSize", sizes.buildScratchSize},
+                         {"updateScratchSize", sizes.updateScratchSize}};
+  }
+  std::ofstream(outPath) << out.dump(1);
+  return 0;
+}
+
+// Layout of the exactness scene: two triangle clusters (srcInfosCount says 2 of at most 3),
+// entries 80 bytes apart, then one bottom-level build over two cluster references.
+constexpr VkDeviceSize kInfoStride = 80;
+
+int exactness(const char* outPath) {
+  Context c;
+  c.createInstance();
+  c.createDevice();
+  nlohmann::json out;
+
+  Buffer staging = c.makeBuffer(4096, 0xEE);
+  Buffer infos = c.makeBuffer(4096, 0xEE);
+  Buffer counts = c.makeBuffer(256, 0xEE);
+  Buffer vertices = c.makeBuffer(1024, 0xEE);
+  Buffer indices = c.makeBuffer(256, 0xEE);
+  Buffer geometry = c.makeBuffer(256, 0xEE);
+  Buffer references = c.makeBuffer(256, 0xEE);
+  Buffer dstAddresses = c.makeBuffer(256, 0xEE);
+  Buffer dstSizes = c.makeBuffer(256, 0xEE);
+  Buffer implicitData = c.makeBuffer(1 << 16, 0);
+  Buffer scratch = c.makeBuffer(1 << 16, 0);
+
+  // Cluster 0: a quad, 4 vertices packed (stride 0), 16-bit indices, per-triangle geometry words.
+  // Cluster 1: one triangle, 3 vertices 16 bytes apart, 32-bit indices 8 bytes apart.
+  const float quad[4][3] = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}};
+  const float tri[3][4] = {{2, 0, 0, -1}, {3, 0, 0, -1}, {2, 1, 0.5f, -1}};  // 4th float is padding
+  const uint16_t quadIndices[6] = {0, 1, 2, 0, 2, 3};
+  const uint32_t triIndices[6] = {0, 0xAAAAAAAA, 1, 0xAAAAAAAA, 2, 0xAAAAAAAA};  // stride 8
+  const uint32_t geometryWords[2] = {(1u << 29) | 5u, (4u << 29) | 6u};
+
+  const VkDeviceSize quadOffset = 0, triOffset = 64, quadIndexOffset = 0, triIndexOffset = 64;
+  VkClusterAccelerationStructureBuildTriangleClusterInfoNV cluster[2]{};
+  cluster[0].clusterID = 100;
+  cluster[0].triangleCount = 2;
+  cluster[0].vertexCount = 4;
+  cluster[0].indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_16BIT_NV;
+  cluster[0].indexBuffer = indices.address + quadIndexOffset;
+  cluster[0].vertexBuffer = vertices.address + quadOffset;
+  cluster[0].geometryIndexAndFlagsBuffer = geometry.address;
+  cluster[1].clusterID = 101;
+  cluster[1].triangleCount = 1;
+  cluster[1].vertexCount = 3;
+  cluster[1].indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
+  cluster[1].indexBufferStride = 8;
+  cluster[1].vertexBufferStride = 16;
+  cluster[1].indexBuffer = indices.address + triIndexOffset;
+  cluster[1].vertexBuffer = vertices.address + triOffset;
+  cluster[1].baseGeometryIndexAndGeometryFlags.geometryIndex = 9;
+
+  uint8_t infoBytes[2 * kInfoStride];
+  std::memset(infoBytes, 0xCD, sizeof infoBytes);  // the gap between entries is not referenced
+  std::memcpy(infoBytes, &cluster[0], sizeof cluster[0]);
+  std::memcpy(infoBytes + kInfoStride, &cluster[1], sizeof cluster[1]);
+
+  const VkDeviceAddress clusterRefs[2] = {0x1000, 0x2000};
+  VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV blas{};
+  blas.clusterReferencesCount = 2;
+  blas.clusterReferences = references.address;
+
+  VkCommandBuffer cb = c.beginCommands();
+  vkCmdFillBuffer(cb, counts.buffer, 0, 4, 2);             // srcInfosCount of the cluster build: 2
+  vkCmdFillBuffer(cb, counts.buffer, 4, 4, 1);             // srcInfosCount of the bottom-level build: 1
+  vkCmdUpdateBuffer(cb, staging.buffer, 0, sizeof infoBytes, infoBytes);
+  VkBufferCopy copy{0, 0, sizeof infoBytes};
+  transferToBuildBarrier(cb);
+  vkCmdCopyBuffer(cb, staging.buffer, infos.buffer, 1, &copy);  // entries reach srcInfosArray by copy
+  vkCmdUpdateBuffer(cb, infos.buffer, 1024, sizeof blas, &blas);
+  vkCmdUpdateBuffer(cb, vertices.buffer, quadOffset, sizeof quad, quad);
+  vkCmdUpdateBuffer(cb, vertices.buffer, triOffset, sizeof tri, tri);
+  vkCmdUpdateBuffer(cb, indices.buffer, quadIndexOffset, sizeof quadIndices, quadIndices);
+  vkCmdUpdateBuffer(cb, indices.buffer, triIndexOffset, sizeof triIndices, triIndices);
+  vkCmdUpdateBuffer(cb, geometry.buffer, 0, sizeof geometryWords, geometryWords);
+  vkCmdUpdateBuffer(cb, references.buffer, 0, sizeof clusterRefs, clusterRefs);
+  vkCmdFillBuffer(cb, dstSizes.buffer, 0, 256, 0x77777777);  // what the "after" pause must see
+  transferToBuildBarrier(cb);
+
+  VkClusterAccelerationStructureTriangleClusterInputNV triangleInput{};
+  triangleInput.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
+  triangleInput.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+  triangleInput.maxGeometryIndexValue = 16;
+  triangleInput.maxClusterUniqueGeometryCount = 2;
+  triangleInput.maxClusterTriangleCount = 2;
+  triangleInput.maxClusterVertexCount = 4;
+  triangleInput.maxTotalTriangleCount = 3;
+  triangleInput.maxTotalVertexCount = 7;
+  VkClusterAccelerationStructureCommandsInfoNV build{};
+  build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+  build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+  build.input.maxAccelerationStructureCount = 3;
+  build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
+  build.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+  build.input.opInput.pTriangleClusters = &triangleInput;
+  build.dstImplicitData = implicitData.address;
+  build.scratchData = scratch.address;
+  build.dstAddressesArray = {dstAddresses.address, 8, 24};
+  build.dstSizesArray = {dstSizes.address, 4, 12};
+  build.srcInfosArray = {infos.address, kInfoStride, 3 * kInfoStride};
+  build.srcInfosCount = counts.address;
+  c.cmdBuildClusters(cb, &build);
+
+  VkClusterAccelerationStructureClustersBottomLevelInputNV blasInput{};
+  blasInput.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
+  blasInput.maxTotalClusterCount = 2;
+  blasInput.maxClusterCountPerAccelerationStructure = 2;
+  VkClusterAccelerationStructureCommandsInfoNV blasBuild{};
+  blasBuild.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+  blasBuild.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+  blasBuild.input.maxAccelerationStructureCount = 1;
+  blasBuild.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
+  blasBuild.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+  blasBuild.input.opInput.pClustersBottomLevel = &blasInput;
+  blasBuild.dstImplicitData = implicitData.address + 32768;
+  blasBuild.scratchData = scratch.address + 32768;
+  blasBuild.srcInfosArray = {infos.address + 1024, 0, sizeof blas};
+  blasBuild.srcInfosCount = counts.address + 4;
+  c.cmdBuildClusters(cb, &blasBuild);
+
+  // Overwrite everything the builds read: a capture taken at any other moment shows these.
+  buildToTransferBarrier(cb);
+  vkCmdFillBuffer(cb, counts.buffer, 0, 8, 7);
+  vkCmdFillBuffer(cb, vertices.buffer, 0, 1024, 0x3F800000);
+  vkCmdFillBuffer(cb, indices.buffer, 0, 256, 0x01010101);
+  vkCmdFillBuffer(cb, dstSizes.buffer, 0, 256, 0x99999999);
+  c.submitAndWait(cb);
+
+  auto range = [](VkDeviceAddress address, const void* data, size_t size) {
+    return nlohmann::json{{"address", address}, {"bytes", hex(data, size)}};
+  };
+  const uint32_t two = 2, one = 1;
+  out["clusterBuild"] = {
+      {"srcInfosCount", range(counts.address, &two, 4)},
+      {"srcInfos", {range(infos.address, &cluster[0], 64), range(infos.address + kInfoStride, &cluster[1], 64)}},
+      {"indexBuffer", {range(cluster[0].indexBuffer, quadIndices, sizeof quadIndices),
+                       range(cluster[1].indexBuffer, &triIndices[0], 4), range(cluster[1].indexBuffer + 8, &triIndices[2], 4),
+                       range(cluster[1].indexBuffer + 16, &triIndices[4], 4)}},
+      {"vertexBuffer", {range(cluster[0].vertexBuffer, quad, sizeof quad), range(cluster[1].vertexBuffer, tri[0], 12),
+                        range(cluster[1].vertexBuffer + 16, tri[1], 12), range(cluster[1].vertexBuffer + 32, tri[2], 12)}},
+      {"geometryIndexAndFlagsBuffer", {range(geometry.address, geometryWords, sizeof geometryWords)}},
+      {"dstSizesAfter", range(dstSizes.address, std::vector<uint8_t>(8, 0x77).data(), 8)},
+  };
+  out["bottomLevelBuild"] = {
+      {"srcInfosCount", range(counts.address + 4, &one, 4)},
+      {"srcInfos", {range(infos.address + 1024, &blas, sizeof blas)}},
+      {"clusterReferences", {range(references.address, clusterRefs, sizeof clusterRefs)}},
+  };
+  out["finalMemory"] = {{"srcInfosCount", range(counts.address, counts.mapped, 4)},
+                        {"vertexBuffer", range(vertices.address, vertices.mapped, sizeof quad)},
+                        {"dstSizes", range(dstSizes.address, dstSizes.mapped, 8)}};
+  std::ofstream(outPath) << out.dump(1);
+  return 0;
+}
+
+// One command buffer submitted `times` times; before each submission the host writes the
+// build's count (1, 2, 3, 1, ...) into mapped memory. Each execution must be captured with
+// its own count, and the layer's events must be ready again for the next submission.
+int resubmit(int times) {
+  Context c;
+  c.createInstance();
+  c.createDevice();
+  Buffer counts = c.makeBuffer(256, 0);
+  Buffer infos = c.makeBuffer(1024, 0);
+  Buffer vertices = c.makeBuffer(256, 0);
+  Buffer indices = c.makeBuffer(256, 0);
+  VkClusterAccelerationStructureBuildTriangleClusterInfoNV cluster{};
+  cluster.triangleCount = 1;
+  cluster.vertexCount = 3;
+  cluster.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
+  cluster.indexBuffer = indices.address;
+  cluster.vertexBuffer = vertices.address;
+  for (int i = 0; i < 3; ++i) {
+    cluster.clusterID = 10 + i;
+    std::memcpy(infos.mapped + i * sizeof cluster, &cluster, sizeof cluster);
+  }
+  VkClusterAccelerationStructureTriangleClusterInputNV triangleInput{};
+  triangleInput.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
+  triangleInput.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+  VkClusterAccelerationStructureCommandsInfoNV build{};
+  build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+  build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+  build.input.maxAccelerationStructureCount = 3;
+  build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
+  build.input.opInput.pTriangleClusters = &triangleInput;
+  build.srcInfosArray = {infos.address, 0, 3 * sizeof cluster};
+  build.srcInfosCount = counts.address;
+
+  VkCommandBufferAllocateInfo allocInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr, c.pool,
+                                        VK_COMMAND_BUFFER_LEVEL_PRIMARY, 1};
+  VkCommandBuffer cb;
+  CHECK(vkAllocateCommandBuffers(c.device, &allocInfo, &cb));
+  VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr, 0, nullptr};
+  CHECK(vkBeginCommandBuffer(cb, &begin));
+  c.cmdBuildClusters(cb, &build);
+  CHECK(vkEndCommandBuffer(cb));
+  VkFenceCreateInfo fenceInfo{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO, nullptr, 0};
+  VkFence fence;
+  CHECK(vkCreateFence(c.device, &fenceInfo, nullptr, &fence));
+  for (int i = 0; i < times; ++i) {
+    const uint32_t count = uint32_t(i % 3) + 1;
+    std::memcpy(counts.mapped, &count, 4);
+    VkSubmitInfo submit{};
+    submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
+    submit.commandBufferCount = 1;
+    submit.pCommandBuffers = &cb;
+    CHECK(vkQueueSubmit(c.queue, 1, &submit, fence));
+    CHECK(vkWaitForFences(c.device, 1, &fence, VK_TRUE, 30ull * 1000 * 1000 * 1000));
+    CHECK(vkResetFences(c.device, 1, &fence));
+  }
+  vkDestroyFence(c.device, fence, nullptr);
+  return 0;
+}
+
+// A compute dispatch with two storage buffers bound (one dynamic), for the layer's record of
+// what a dispatch can write. The shader does nothing: only the binding state matters.
+int dispatch(const char* outPath) {
+  Context c;
+  c.createInstance();
+  c.createDevice();
+  Buffer a = c.makeBuffer(1024, 0);
+  Buffer b = c.makeBuffer(4096, 0);
+  // OpCapability Shader; OpMemoryModel Logical GLSL450; OpEntryPoint GLCompute %1 "main";
+  // OpExecutionMode %1 LocalSize 1 1 1; void main() {}
+  const uint32_t spirv[] = {0x07230203, 0x00010000, 0, 5, 0,
+                            0x00020011, 1,
+                            0x0003000E, 0, 1,
+                            0x0005000F, 5, 1, 0x6E69616D, 0,
+                            0x00060010, 1, 17, 1, 1, 1,
+                            0x00020013, 2,
+                            0x00030021, 3, 2,
+                            0x00050036, 2, 1, 0, 3,
+                            0x000200F8, 4,
+                            0x000100FD,
+                            0x00010038};
+  VkShaderModuleCreateInfo moduleInfo{VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO, nullptr, 0, sizeof spirv, spirv};
+  VkShaderModule module;
+  CHECK(vkCreateShaderModule(c.device, &moduleInfo, nullptr, &module));
+  const VkDescriptorSetLayoutBinding bindings[2] = {
+      {0, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1, VK_SHADER_STAGE_COMPUTE_BIT, nullptr},
+      {1, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC, 1, VK_SHADER_STAGE_COMPUTE_BIT, nullptr}};
+  VkDescriptorSetLayoutCreateInfo layoutInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO, nullptr, 0, 2, bindings};
+  VkDescriptorSetLayout setLayout;
+  CHECK(vkCreateDescriptorSetLayout(c.device, &layoutInfo, nullptr, &setLayout));
+  VkPipelineLayoutCreateInfo pipelineLayoutInfo{VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO, nullptr, 0, 1, &setLayout, 0,
+                                                nullptr};
+  VkPipelineLayout pipelineLayout;
+  CHECK(vkCreatePipelineLayout(c.device, &pipelineLayoutInfo, nullptr, &pipelineLayout));
+  VkComputePipelineCreateInfo pipelineInfo{};
+  pipelineInfo.sType = VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO;
+  pipelineInfo.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT,
+                        module, "main", nullptr};
+  pipelineInfo.layout = pipelineLayout;
+  VkPipeline pipeline;
+  CHECK(vkCreateComputePipelines(c.device, VK_NULL_HANDLE, 1, &pipelineInfo, nullptr, &pipeline));
+  const VkDescriptorPoolSize sizes[2] = {{VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1},
+                                         {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC, 1}};
+  VkDescriptorPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO, nullptr, 0, 1, 2, sizes};
+  VkDescriptorPool pool;
+  CHECK(vkCreateDescriptorPool(c.device, &poolInfo, nullptr, &pool));
+  VkDescriptorSetAllocateInfo setInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_ALLOCATE_INFO, nullptr, pool, 1, &setLayout};
+  VkDescriptorSet set;
+  CHECK(vkAllocateDescriptorSets(c.device, &setInfo, &set));
+  const VkDescriptorBufferInfo infoA{a.buffer, 256, 512};
+  const VkDescriptorBufferInfo infoB{b.buffer, 0, 1024};
+  const VkWriteDescriptorSet writes[2] = {
+      {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET, nullptr, set, 0, 0, 1, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, nullptr, &infoA,
+       nullptr},
+      {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET, nullptr, set, 1, 0, 1, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC, nullptr,
+       &infoB, nullptr}};
+  vkUpdateDescriptorSets(c.device, 2, writes, 0, nullptr);
+
+  VkCommandBuffer cb = c.beginCommands();
+  vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline);
+  uint32_t dynamicOffset = 256;
+  vkCmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, pipelineLayout, 0, 1, &set, 1, &dynamicOffset);
+  vkCmdDispatch(cb, 2, 3, 4);
+  dynamicOffset = 1024;
+  vkCmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, pipelineLayout, 0, 1, &set, 1, &dynamicOffset);
+  vkCmdDispatch(cb, 1, 1, 1);
+  c.submitAndWait(cb);
+
+  nlohmann::json out = {{"pipeline", (uint64_t)pipeline},
+                        {"a", {{"buffer", (uint64_t)a.buffer}, {"address", a.address}}},
+                        {"b", {{"buffer", (uint64_t)b.buffer}, {"address", b.address}}}};
+  std::ofstream(outPath) << out.dump(1);
+  vkDestroyPipeline(c.device, pipeline, nullptr);
+  vkDestroyDescriptorPool(c.device, pool, nullptr);
+  vkDestroyPipelineLayout(c.device, pipelineLayout, nullptr);
+  vkDestroyDescriptorSetLayout(c.device, setLayout, nullptr);
+  vkDestroyShaderModule(c.device, module, nullptr);
+  return 0;
+}
+
+int pauseCost(int builds) {
+  Context c;
+  c.createInstance();
+  c.createDevice();
+  Buffer counts = c.makeBuffer(256, 0);  // srcInfosCount 0: the builds execute nothing
+  Buffer infos = c.makeBuffer(256, 0);
+  VkClusterAccelerationStructureTriangleClusterInputNV triangleInput{};
+  triangleInput.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
+  triangleInput.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+  VkClusterAccelerationStructureCommandsInfoNV build{};
+  build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+  build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+  build.input.maxAccelerationStructureCount = 1;
+  build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
+  build.input.opInput.pTriangleClusters = &triangleInput;
+  build.srcInfosArray = {infos.address, 0, 64};
+  build.srcInfosCount = counts.address;
+  double seconds[2] = {0, 0};
+  for (int pass = 0; pass < 2; ++pass) {
+    const int n = pass == 0 ? 0 : builds;
+    VkCommandBuffer cb = c.beginCommands();
+    vkCmdFillBuffer(cb, counts.buffer, 0, 4, 0);
+    for (int i = 0; i < n; ++i) c.cmdBuildClusters(cb, &build);
+    const auto start = std::chrono::steady_clock::now();
+    c.submitAndWait(cb);
+    seconds[pass] = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  }
+  std::printf("builds=%d empty_submit_ms=%.3f submit_ms=%.3f per_build_ms=%.4f\n", builds, seconds[0] * 1e3,
+              seconds[1] * 1e3, (seconds[1] - seconds[0]) * 1e3 / builds);
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc == 3 && std::strcmp(argv[1], "limits") == 0) return limits(argv[2]);
+  if (argc == 3 && std::strcmp(argv[1], "exactness") == 0) return exactness(argv[2]);
+  if (argc == 3 && std::strcmp(argv[1], "dispatch") == 0) return dispatch(argv[2]);
+  if (argc == 3 && std::strcmp(argv[1], "resubmit") == 0) return resubmit(std::max(1, std::atoi(argv[2])));
+  if (argc == 3 && std::strcmp(argv[1], "pause-cost") == 0) return pauseCost(std::max(1, std::atoi(argv[2])));
+  std::fprintf(stderr, "usage: cluster_capture_app limits|exactness OUT.json | pause-cost N\n");
+  return 1;
+}

@@ -1,0 +1,70 @@
+#include "clastrace/capture/layer_config.h"
+
+#include <gtest/gtest.h>
+
+#include <map>
+
+using namespace clastrace::capture;
+
+namespace {
+LayerConfig parse(const std::map<std::string, std::string>& env) {
+  return parseLayerConfig([&](const char* name) -> const char* {
+    auto it = env.find(name);
+    return it == env.end() ? nullptr : it->second.c_str();
+  });
+}
+}  // namespace
+
+TEST(LayerConfig, DefaultsCaptureOnServeAuto) {
+  LayerConfig c = parse({});
+  EXPECT_TRUE(c.capture);
+  EXPECT_EQ(c.serve, ServeMode::Auto);
+  EXPECT_EQ(c.zstdLevel, 3);
+  EXPECT_TRUE(c.submitRange.contains(0));
+  EXPECT_TRUE(c.submitRange.contains(UINT64_MAX));
+  EXPECT_TRUE(c.errors.empty());
+}
+
+TEST(LayerConfig, ReadsEveryVariable) {
+  LayerConfig c = parse({{"CLASTRACE_CAPTURE", "0"}, {"CLASTRACE_SERVE", "1"}, {"CLASTRACE_OUTPUT", "/tmp/a.clt"},
+                         {"CLASTRACE_SUBMIT_RANGE", "3-5"}, {"CLASTRACE_ZSTD_LEVEL", "19"}, {"CLASTRACE_LOG", "debug"}});
+  EXPECT_FALSE(c.capture);
+  EXPECT_EQ(c.serve, ServeMode::On);
+  EXPECT_EQ(c.outputPath, "/tmp/a.clt");
+  EXPECT_FALSE(c.submitRange.contains(2));
+  EXPECT_TRUE(c.submitRange.contains(3));
+  EXPECT_TRUE(c.submitRange.contains(5));
+  EXPECT_FALSE(c.submitRange.contains(6));
+  EXPECT_EQ(c.zstdLevel, 19);
+  EXPECT_EQ(c.log, LogLevel::Debug);
+  EXPECT_TRUE(c.errors.empty());
+}
+
+TEST(LayerConfig, SubmitRangeForms) {
+  EXPECT_EQ(parse({{"CLASTRACE_SUBMIT_RANGE", "7"}}).submitRange.first, 7u);
+  EXPECT_EQ(parse({{"CLASTRACE_SUBMIT_RANGE", "7"}}).submitRange.last, 7u);
+  EXPECT_EQ(parse({{"CLASTRACE_SUBMIT_RANGE", "4-"}}).submitRange.last, UINT64_MAX);
+  EXPECT_EQ(parse({{"CLASTRACE_SERVE", "0"}}).serve, ServeMode::Off);
+  EXPECT_EQ(parse({{"CLASTRACE_SERVE", "auto"}}).serve, ServeMode::Auto);
+}
+
+TEST(LayerConfig, BadValuesKeepDefaultsAndNameTheVariable) {
+  LayerConfig c = parse({{"CLASTRACE_ZSTD_LEVEL", "99"}, {"CLASTRACE_SUBMIT_RANGE", "9-2"}, {"CLASTRACE_SERVE", "maybe"},
+                         {"CLASTRACE_CAPTURE", ""}, {"CLASTRACE_LOG", "loud"}});
+  EXPECT_EQ(c.zstdLevel, 3);
+  EXPECT_EQ(c.submitRange.first, 0u);
+  EXPECT_EQ(c.serve, ServeMode::Auto);
+  EXPECT_TRUE(c.capture);
+  ASSERT_EQ(c.errors.size(), 5u);
+  EXPECT_NE(c.errors[0].find("CLASTRACE_CAPTURE=''"), std::string::npos);
+  EXPECT_NE(c.errors[1].find("CLASTRACE_SERVE='maybe'"), std::string::npos);
+  EXPECT_NE(c.errors[2].find("CLASTRACE_SUBMIT_RANGE='9-2'"), std::string::npos);
+  EXPECT_NE(c.errors[3].find("CLASTRACE_ZSTD_LEVEL='99'"), std::string::npos);
+  EXPECT_NE(c.errors[4].find("CLASTRACE_LOG='loud'"), std::string::npos);
+}
+
+TEST(LayerConfig, RejectsOverflowingNumbers) {
+  LayerConfig c = parse({{"CLASTRACE_SUBMIT_RANGE", "99999999999999999999999"}, {"CLASTRACE_ZSTD_LEVEL", "-3"}});
+  EXPECT_EQ(c.errors.size(), 2u);
+  EXPECT_EQ(c.submitRange.first, 0u);
+}

@@ -1,0 +1,427 @@
+// The layer as the loader loads it: VK_ADD_LAYER_PATH points at the build tree's manifest,
+// VK_INSTANCE_LAYERS enables it, lavapipe is the driver (it lacks the cluster extension, so
+// the layer serves it). Each test runs a program and asserts on what it and the layer wrote.
+#include <clastrace/traces/trace_reader.h>
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <sstream>
+
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+const char* kLavapipe = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json";
+
+struct ProcessResult {
+  int exitCode = -1;
+  std::string out, err;
+};
+
+std::string readText(const fs::path& path) {
+  std::ifstream in(path);
+  std::stringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+std::string quote(const std::string& s) {
+  std::string q = "'";
+  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
+  return q + "'";
+}
+
+class LayerProcess : public ::testing::Test {
+ protected:
+  fs::path dir;
+
+  void SetUp() override {
+    if (!fs::exists(kLavapipe)) GTEST_SKIP() << "lavapipe is not installed (scripts/deps.sh installs it)";
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir = fs::temp_directory_path() / ("clastrace_capture_" + std::to_string(getpid()) + "_" + info->name());
+    fs::remove_all(dir);
+    fs::create_directories(dir);
+  }
+  void TearDown() override {
+    if (!HasFailure() && !dir.empty()) fs::remove_all(dir);
+  }
+
+  // Runs `command` with lavapipe, the layer (unless withLayer is false) and `env` on top of a
+  // clean CLASTRACE_* environment.
+  ProcessResult run(const std::string& command, std::map<std::string, std::string> env, bool withLayer = true) {
+    std::string line = "env -u VK_INSTANCE_LAYERS -u VK_ADD_LAYER_PATH -u VK_ICD_FILENAMES";
+    for (const char* v : {"CLASTRACE_OUTPUT", "CLASTRACE_CAPTURE", "CLASTRACE_SERVE", "CLASTRACE_SUBMIT_RANGE",
+                          "CLASTRACE_ZSTD_LEVEL", "CLASTRACE_LOG", "CLASTRACE_DEBUG_JSON"})
+      line += std::string(" -u ") + v;
+    env["VK_DRIVER_FILES"] = kLavapipe;
+    env["XDG_RUNTIME_DIR"] = dir.string();
+    if (withLayer) {
+      env["VK_ADD_LAYER_PATH"] = CLASTRACE_LAYER_MANIFEST_DIR;
+      env["VK_INSTANCE_LAYERS"] = "VK_LAYER_CLASTRACE_capture";
+      env["VK_LOADER_DEBUG"] = "";  // the loader's own warnings are not the layer's output
+    }
+    for (const auto& [k, v] : env) line += " " + k + "=" + quote(v);
+    const fs::path out = dir / "stdout.txt", err = dir / "stderr.txt";
+    line += " timeout 120 " + command + " >" + quote(out.string()) + " 2>" + quote(err.string());
+    ProcessResult r;
+    const int status = std::system(line.c_str());
+    r.exitCode = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+    r.out = readText(out);
+    r.err = readText(err);
+    return r;
+  }
+
+  std::string app(const std::string& args) { return std::string(CLASTRACE_CAPTURE_APP) + " " + args; }
+
+  static size_t count(const std::string& text, const std::string& needle) {
+    size_t n = 0;
+    for (size_t at = text.find(needle); at != std::string::npos; at = text.find(needle, at + 1)) ++n;
+    return n;
+  }
+};
+
+// ---- Serving ------------------------------------------------------------------------------
+
+TEST_F(LayerProcess, VulkaninfoListsTheServedExtension) {
+  if (std::system("command -v vulkaninfo >/dev/null 2>&1") != 0) GTEST_SKIP() << "vulkaninfo is not installed";
+  ProcessResult with = run("vulkaninfo", {});
+  ASSERT_EQ(with.exitCode, 0) << with.err;
+  EXPECT_NE(with.out.find("VK_LAYER_CLASTRACE_capture"), std::string::npos);
+  // Listed among the device's extensions (and the layer's own), at spec version 4.
+  EXPECT_GE(count(with.out, "VK_NV_cluster_acceleration_structure         : extension revision 4"), 1u) << with.out;
+  EXPECT_NE(with.out.find("llvmpipe"), std::string::npos);
+
+  ProcessResult without = run("vulkaninfo", {}, false);
+  ASSERT_EQ(without.exitCode, 0) << without.err;
+  EXPECT_EQ(without.out.find("VK_NV_cluster_acceleration_structure"), std::string::npos);
+
+  ProcessResult off = run("vulkaninfo", {{"CLASTRACE_SERVE", "0"}});
+  ASSERT_EQ(off.exitCode, 0) << off.err;
+  EXPECT_EQ(count(off.out, "VK_NV_cluster_acceleration_structure         : extension revision 4"), 0u);
+}
+
+TEST_F(LayerProcess, FeaturesPropertiesAndBuildSizesAreServed) {
+  ProcessResult r = run(app("limits " + (dir / "limits.json").string()), {});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  json limits = json::parse(readText(dir / "limits.json"));
+  EXPECT_TRUE(limits["extensionListed"].get<bool>());
+  EXPECT_TRUE(limits["clusterAccelerationStructure"].get<bool>());
+  EXPECT_NE(limits["deviceName"].get<std::string>().find("llvmpipe"), std::string::npos);
+  const json& p = limits["properties"];
+  EXPECT_EQ(p["maxVerticesPerCluster"], 256);
+  EXPECT_EQ(p["maxTrianglesPerCluster"], 256);
+  EXPECT_EQ(p["clusterScratchByteAlignment"], 128);
+  EXPECT_EQ(p["clusterByteAlignment"], 128);
+  EXPECT_EQ(p["clusterTemplateByteAlignment"], 32);
+  EXPECT_EQ(p["clusterBottomLevelByteAlignment"], 256);
+  EXPECT_EQ(p["clusterTemplateBoundsByteAlignment"], 32);
+  EXPECT_EQ(p["maxClusterGeometryIndex"], 16777215);
+  // 8 clusters of up to 128 triangles and vertices: at least their raw positions and indices.
+  EXPECT_GE(limits["buildSizes"]["accelerationStructureSize"].get<uint64_t>(), 1024u * 12 + 1024u * 3);
+  EXPECT_GT(limits["buildSizes"]["buildScratchSize"].get<uint64_t>(), 0u);
+}
+
+TEST_F(LayerProcess, ServeOffLeavesTheDriverAsItIs) {
+  ProcessResult r = run(app("limits " + (dir / "limits.json").string()), {{"CLASTRACE_SERVE", "0"}});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  json limits = json::parse(readText(dir / "limits.json"));
+  EXPECT_FALSE(limits["extensionListed"].get<bool>());
+  EXPECT_FALSE(limits["clusterAccelerationStructure"].get<bool>());
+  EXPECT_EQ(limits["properties"]["maxVerticesPerCluster"], 0);
+}
+
+// ---- Capture at the point of execution -------------------------------------------------
+
+class ExactnessRun : public LayerProcess {
+ protected:
+  json expected, captured;
+  void runExactness(std::map<std::string, std::string> env = {}) {
+    env.emplace("CLASTRACE_DEBUG_JSON", (dir / "capture.json").string());
+    ProcessResult r = run(app("exactness " + (dir / "expected.json").string()), env);
+    ASSERT_EQ(r.exitCode, 0) << r.err;
+    expected = json::parse(readText(dir / "expected.json"));
+    if (fs::exists(dir / "capture.json")) captured = json::parse(readText(dir / "capture.json"));
+  }
+  static std::vector<json> ranges(const json& build, const std::string& role, const char* list = "inputs") {
+    std::vector<json> out;
+    for (const auto& r : build[list])
+      if (r["role"] == role) out.push_back(r);
+    return out;
+  }
+  static void expectRanges(const json& build, const std::string& role, const json& want) {
+    auto got = ranges(build, role);
+    ASSERT_EQ(got.size(), want.size()) << role;
+    for (size_t i = 0; i < got.size(); ++i) {
+      EXPECT_EQ(got[i]["address"], want[i]["address"]) << role << " #" << i;
+      EXPECT_EQ(got[i]["bytes"], want[i]["bytes"]) << role << " #" << i;
+    }
+  }
+};
+
+TEST_F(ExactnessRun, CapturedBytesAreWhatTheQueueWroteBeforeTheBuild) {
+  runExactness();
+  ASSERT_EQ(captured["clusterBuilds"].size(), 2u);
+  const json& build = captured["clusterBuilds"][0];
+  const json& want = expected["clusterBuild"];
+  EXPECT_EQ(build["executedCount"], 2);  // min(srcInfosCount = 2 written by vkCmdFillBuffer, max 3)
+  expectRanges(build, "srcInfosCount", json::array({want["srcInfosCount"]}));
+  expectRanges(build, "srcInfos", want["srcInfos"]);  // arrived by vkCmdUpdateBuffer + vkCmdCopyBuffer
+  expectRanges(build, "indexBuffer", want["indexBuffer"]);
+  expectRanges(build, "vertexBuffer", want["vertexBuffer"]);
+  expectRanges(build, "geometryIndexAndFlagsBuffer", want["geometryIndexAndFlagsBuffer"]);
+  // The memory ended up different (overwritten after the build in the same command buffer):
+  // the capture is of the moment of execution, not of submission or completion.
+  EXPECT_NE(expected["finalMemory"]["srcInfosCount"]["bytes"], want["srcInfosCount"]["bytes"]);
+  EXPECT_NE(expected["finalMemory"]["vertexBuffer"]["bytes"], want["vertexBuffer"][0]["bytes"]);
+  for (const auto& r : build["inputs"]) EXPECT_EQ(r["bytes"].get<std::string>().find("eeee"), std::string::npos) << r;
+
+  // Outputs are read right after the command, before the command buffer's later fill.
+  auto sizes = ranges(build, "dstSizes", "outputs");
+  ASSERT_EQ(sizes.size(), 1u);
+  EXPECT_EQ(sizes[0]["bytes"], want["dstSizesAfter"]["bytes"]);
+  EXPECT_NE(expected["finalMemory"]["dstSizes"]["bytes"], want["dstSizesAfter"]["bytes"]);
+
+  const json& blas = captured["clusterBuilds"][1];
+  const json& wantBlas = expected["bottomLevelBuild"];
+  EXPECT_EQ(blas["executedCount"], 1);
+  expectRanges(blas, "srcInfosCount", json::array({wantBlas["srcInfosCount"]}));
+  expectRanges(blas, "srcInfos", wantBlas["srcInfos"]);
+  expectRanges(blas, "clusterReferences", wantBlas["clusterReferences"]);
+  EXPECT_TRUE(blas["issues"].empty()) << blas["issues"];
+}
+
+TEST_F(ExactnessRun, RecordsParametersCommandsStateAndSubmission) {
+  runExactness();
+  const json& build = captured["clusterBuilds"][0];
+  const json& parameters = build["parameters"];
+  EXPECT_EQ(parameters["maxAccelerationStructureCount"], 3);
+  EXPECT_EQ(parameters["opType"], 2);
+  EXPECT_EQ(parameters["srcInfosArray"][1], 80);
+  EXPECT_EQ(parameters["triangleClusterInput"]["vertexFormat"], 106);  // VK_FORMAT_R32G32B32_SFLOAT
+  EXPECT_EQ(parameters["triangleClusterInput"]["maxTotalVertexCount"], 7);
+  EXPECT_EQ(captured["clusterBuilds"][1]["parameters"]["bottomLevelInput"]["maxTotalClusterCount"], 2);
+
+  // The application's commands, in order, without the layer's injected pause commands.
+  ASSERT_EQ(captured["commandBuffers"].size(), 1u);
+  std::vector<std::string> kinds;
+  for (const auto& c : captured["commandBuffers"][0]["commands"]) kinds.push_back(c["kind"]);
+  const std::vector<std::string> want = {
+      "FillBuffer", "FillBuffer", "UpdateBuffer", "PipelineBarrier", "CopyBuffer", "UpdateBuffer",
+      "UpdateBuffer", "UpdateBuffer", "UpdateBuffer", "UpdateBuffer", "UpdateBuffer", "UpdateBuffer",
+      "FillBuffer", "PipelineBarrier", "BuildClusterAccelerationStructureIndirectNV",
+      "BuildClusterAccelerationStructureIndirectNV", "PipelineBarrier", "FillBuffer", "FillBuffer",
+      "FillBuffer", "FillBuffer"};
+  EXPECT_EQ(kinds, want);
+  EXPECT_EQ(captured["commandBuffers"][0]["commands"][0]["data"], 2);
+
+  ASSERT_EQ(captured["submissions"].size(), 1u);
+  EXPECT_NE(captured["submissions"][0]["fence"], 0);
+  EXPECT_EQ(captured["submissions"][0]["batches"][0]["commandBuffers"][0], captured["commandBuffers"][0]["commandBuffer"]);
+
+  // State: 11 buffers with their usage, bound and addressed; host-visible memory.
+  EXPECT_EQ(captured["buffers"].size(), 11u);
+  EXPECT_EQ(captured["bindings"].size(), 11u);
+  EXPECT_EQ(captured["addresses"].size(), 11u);
+  EXPECT_EQ(captured["destroyedBuffers"].size(), 11u);
+  EXPECT_EQ(captured["freedMemories"].size(), 11u);
+  for (const auto& m : captured["memories"]) EXPECT_TRUE(m["propertyFlags"].get<uint32_t>() & 0x2) << m;
+  const json& device = captured["devices"][0];
+  EXPECT_TRUE(device["servedByLayer"].get<bool>());
+  EXPECT_TRUE(device["clusterFeatureEnabled"].get<bool>());
+  EXPECT_EQ(device["clusterProperties"]["maxTrianglesPerCluster"], 256);
+}
+
+TEST_F(ExactnessRun, SubmitRangeOutsideTheSubmissionCapturesNoBuild) {
+  runExactness({{"CLASTRACE_SUBMIT_RANGE", "5-"}});
+  EXPECT_TRUE(captured["clusterBuilds"].empty());
+  EXPECT_TRUE(captured["submissions"].empty());
+  EXPECT_EQ(captured["commandBuffers"].size(), 1u);  // recording happens before the index is known
+}
+
+TEST_F(ExactnessRun, CaptureOffStillServesWithoutWriting) {
+  runExactness({{"CLASTRACE_CAPTURE", "0"}});
+  EXPECT_FALSE(fs::exists(dir / "capture.json"));
+  EXPECT_FALSE(expected.empty());  // the application ran its builds to the end
+}
+
+TEST_F(ExactnessRun, EachResubmissionIsCapturedWithItsOwnHostWrittenCount) {
+  ProcessResult r = run(app("resubmit 7"), {{"CLASTRACE_DEBUG_JSON", (dir / "capture.json").string()}});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  captured = json::parse(readText(dir / "capture.json"));
+  ASSERT_EQ(captured["clusterBuilds"].size(), 7u);
+  ASSERT_EQ(captured["submissions"].size(), 7u);
+  for (size_t i = 0; i < 7; ++i) {
+    const json& build = captured["clusterBuilds"][i];
+    EXPECT_EQ(build["submissionIndex"], captured["submissions"][i]["index"]);
+    EXPECT_EQ(build["executedCount"], i % 3 + 1) << "submission " << i;
+    EXPECT_EQ(ranges(build, "srcInfos").size(), 1u);
+    EXPECT_EQ(ranges(build, "srcInfos")[0]["size"], 64 * (i % 3 + 1));
+    EXPECT_EQ(ranges(build, "indexBuffer").size(), i % 3 + 1);
+  }
+}
+
+TEST_F(ExactnessRun, DispatchRecordsItsPipelineAndBoundStorageBuffers) {
+  ProcessResult r = run(app("dispatch " + (dir / "expected.json").string()),
+                        {{"CLASTRACE_DEBUG_JSON", (dir / "capture.json").string()}});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  expected = json::parse(readText(dir / "expected.json"));
+  captured = json::parse(readText(dir / "capture.json"));
+  std::vector<json> dispatches;
+  for (const auto& c : captured["commandBuffers"][0]["commands"])
+    if (c["kind"] == "Dispatch") dispatches.push_back(c);
+  ASSERT_EQ(dispatches.size(), 2u);
+  EXPECT_EQ(dispatches[0]["groups"], json::array({2, 3, 4}));
+  EXPECT_EQ(dispatches[0]["pipeline"], expected["pipeline"]);
+  for (size_t i = 0; i < 2; ++i) {
+    const json& buffers = dispatches[i]["storageBuffers"];
+    ASSERT_EQ(buffers.size(), 2u);
+    EXPECT_EQ(buffers[0]["binding"], 0);
+    EXPECT_EQ(buffers[0]["buffer"], expected["a"]["buffer"]);
+    EXPECT_EQ(buffers[0]["offset"], 256);
+    EXPECT_EQ(buffers[0]["range"], 512);
+    EXPECT_EQ(buffers[0]["address"], expected["a"]["address"].get<uint64_t>() + 256);
+    EXPECT_EQ(buffers[1]["binding"], 1);
+    EXPECT_EQ(buffers[1]["type"], 9);  // VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC
+    EXPECT_EQ(buffers[1]["buffer"], expected["b"]["buffer"]);
+  }
+  EXPECT_EQ(dispatches[0]["storageBuffers"][1]["offset"], 256);   // the dynamic offset of each bind
+  EXPECT_EQ(dispatches[1]["storageBuffers"][1]["offset"], 1024);
+}
+
+// The same run written as a .clt trace and read back with the trace reader.
+TEST_F(ExactnessRun, TraceHoldsTheBuildsWithTheirSnapshots) {
+  const fs::path trace = dir / "capture.clt";
+  ProcessResult r = run(app("exactness " + (dir / "expected.json").string()), {{"CLASTRACE_OUTPUT", trace.string()}});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  expected = json::parse(readText(dir / "expected.json"));
+  clastrace::traces::TraceError error;
+  auto reader = clastrace::traces::TraceReader::open(trace.string(), &error);
+  ASSERT_TRUE(reader) << error.message;
+  EXPECT_TRUE(reader->has_index());  // finished when the loader unloaded the layer
+  ASSERT_TRUE(reader->header() && reader->header()->device());
+  EXPECT_NE(reader->header()->device()->name()->str().find("llvmpipe"), std::string::npos);
+  EXPECT_EQ(reader->header()->device()->cluster_properties()->max_triangles_per_cluster(), 256u);
+  EXPECT_EQ(reader->header()->capture()->application_name()->str(), "cluster_capture_app");
+
+  // Every snapshot (address -> bytes) of the two builds, in record order.
+  std::vector<std::vector<std::pair<uint64_t, std::string>>> builds;
+  std::vector<std::string> kinds;
+  clastrace::traces::RecordView view;
+  std::vector<std::pair<uint64_t, uint64_t>> snapshots;  // (address, hash) of the current build
+  std::vector<std::vector<std::pair<uint64_t, uint64_t>>> pendingBuilds;
+  uint64_t submissions = 0;
+  while (reader->next(&view)) {
+    if (view.kind == clastrace::fbs::RecordBody::QueueSubmit) ++submissions;
+    if (view.kind != clastrace::fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect) continue;
+    const auto* build = view.record->body_as_CmdBuildClusterAccelerationStructureIndirect();
+    std::vector<std::pair<uint64_t, uint64_t>> list;
+    for (const auto* s : *build->inputs()) list.emplace_back(s->address(), s->hash());
+    pendingBuilds.push_back(list);
+  }
+  EXPECT_TRUE(reader->damage().empty()) << reader->damage()[0].message;
+  EXPECT_EQ(submissions, 1u);
+  ASSERT_EQ(pendingBuilds.size(), 2u);
+  auto bytesAt = [&](size_t build, uint64_t address) {
+    for (const auto& [a, hash] : pendingBuilds[build])
+      if (a == address) {
+        std::vector<uint8_t> bytes;
+        auto e = reader->read_contents(hash, &bytes);
+        EXPECT_FALSE(e) << e.message;
+        std::string hex;
+        for (uint8_t b : bytes) hex += "0123456789abcdef"[b >> 4], hex += "0123456789abcdef"[b & 15];
+        return hex;
+      }
+    return std::string("<no snapshot>");
+  };
+  const json& want = expected["clusterBuild"];
+  EXPECT_EQ(bytesAt(0, want["srcInfosCount"]["address"]), want["srcInfosCount"]["bytes"]);
+  for (const char* role : {"srcInfos", "indexBuffer", "vertexBuffer", "geometryIndexAndFlagsBuffer"})
+    for (const auto& range : want[role]) EXPECT_EQ(bytesAt(0, range["address"]), range["bytes"]) << role;
+  const json& blas = expected["bottomLevelBuild"];
+  EXPECT_EQ(bytesAt(1, blas["clusterReferences"][0]["address"]), blas["clusterReferences"][0]["bytes"]);
+}
+
+// ---- The launcher -----------------------------------------------------------------------
+
+TEST_F(LayerProcess, LauncherRunsTheApplicationUnderTheLayer) {
+  const fs::path trace = dir / "launched.clt";
+  // No VK_ADD_LAYER_PATH/VK_INSTANCE_LAYERS from the test: the launcher sets them.
+  ProcessResult r = run(std::string(CLASTRACE_CAPTURE_LAUNCHER) + " capture -o " + trace.string() + " --layer-path " +
+                            CLASTRACE_LAYER_MANIFEST_DIR + " -- " + app("exactness " + (dir / "expected.json").string()),
+                        {}, false);
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  EXPECT_NE(r.err.find("clastrace capture: wrote '" + trace.string() + "'"), std::string::npos) << r.err;
+  clastrace::traces::TraceError error;
+  auto reader = clastrace::traces::TraceReader::open(trace.string(), &error);
+  ASSERT_TRUE(reader) << error.message;
+  size_t builds = 0;
+  clastrace::traces::RecordView view;
+  while (reader->next(&view))
+    if (view.kind == clastrace::fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect) ++builds;
+  EXPECT_EQ(builds, 2u);
+}
+
+TEST_F(LayerProcess, LauncherRefusesAnUnwritableOutputAndPassesExitCodes) {
+  ProcessResult r = run(std::string(CLASTRACE_CAPTURE_LAUNCHER) + " capture -o /nonexistent-dir/x.clt -- true", {}, false);
+  EXPECT_EQ(r.exitCode, 2);
+  EXPECT_NE(r.err.find("cannot write '/nonexistent-dir/x.clt'"), std::string::npos) << r.err;
+  r = run(std::string(CLASTRACE_CAPTURE_LAUNCHER) + " capture -o " + (dir / "x.clt").string() + " -- sh -c 'exit 7'",
+          {}, false);
+  EXPECT_EQ(r.exitCode, 7) << r.err;
+  EXPECT_NE(r.err.find("was not written"), std::string::npos) << r.err;  // sh makes no Vulkan device
+}
+
+// The injected barrier/event sequence under the Khronos validation layer with synchronization
+// validation, placed beneath the capture layer so it sees what the driver sees.
+TEST_F(LayerProcess, InjectedPausesPassSynchronizationValidation) {
+  const char* manifest = "/usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json";
+  if (!fs::exists(manifest)) GTEST_SKIP() << "vulkan-validationlayers is not installed";
+  std::ofstream(dir / "vk_layer_settings.txt")
+      << "khronos_validation.enables = VK_VALIDATION_FEATURE_ENABLE_SYNCHRONIZATION_VALIDATION_EXT\n"
+         "khronos_validation.report_flags = error,warn\n"
+         "khronos_validation.debug_action = VK_DBG_LAYER_ACTION_LOG_MSG\n";
+  for (const std::string& mode : {"exactness " + (dir / "expected.json").string(), std::string("resubmit 4"),
+                                  "dispatch " + (dir / "dispatch.json").string()}) {
+    ProcessResult r = run(app(mode), {{"VK_ADD_LAYER_PATH", CLASTRACE_LAYER_MANIFEST_DIR},
+                                      {"VK_INSTANCE_LAYERS", "VK_LAYER_CLASTRACE_capture:VK_LAYER_KHRONOS_validation"},
+                                      {"VK_LAYER_SETTINGS_PATH", (dir / "vk_layer_settings.txt").string()},
+                                      {"CLASTRACE_DEBUG_JSON", (dir / "capture.json").string()}},
+                          false);
+    ASSERT_EQ(r.exitCode, 0) << mode << ": " << r.err;
+    const std::string all = r.out + r.err;
+    EXPECT_EQ(all.find("VUID-"), std::string::npos) << mode << ": " << all;
+    EXPECT_EQ(all.find("SYNC-"), std::string::npos) << mode << ": " << all;
+    EXPECT_EQ(count(all, "Validation Error"), 0u) << mode << ": " << all;
+    ASSERT_TRUE(fs::exists(dir / "capture.json"));  // the layer did run above the validation layer
+    EXPECT_FALSE(json::parse(readText(dir / "capture.json"))["commandBuffers"].empty());
+  }
+}
+
+// ---- Failure handling --------------------------------------------------------------------
+
+TEST_F(LayerProcess, UnwritableOutputGivesOneMessageAndTheApplicationRuns) {
+  for (const char* variable : {"CLASTRACE_DEBUG_JSON", "CLASTRACE_OUTPUT"}) {
+    ProcessResult r = run(app("exactness " + (dir / "expected.json").string()),
+                {{variable, "/nonexistent-dir/capture.out"}});
+    EXPECT_EQ(r.exitCode, 0) << variable << ": " << r.err;
+    EXPECT_EQ(count(r.err, "clastrace: capture disabled: cannot write '/nonexistent-dir/capture.out'"), 1u)
+        << variable << ": " << r.err;
+    EXPECT_TRUE(fs::exists(dir / "expected.json"));
+    fs::remove(dir / "expected.json");
+  }
+}
+
+TEST_F(LayerProcess, BadSettingIsReportedOnceByName) {
+  ProcessResult r = run(app("limits " + (dir / "limits.json").string()), {{"CLASTRACE_ZSTD_LEVEL", "99"}});
+  EXPECT_EQ(r.exitCode, 0) << r.err;
+  EXPECT_EQ(count(r.err, "CLASTRACE_ZSTD_LEVEL='99'"), 1u) << r.err;
+}
+
+}  // namespace

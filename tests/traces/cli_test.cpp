@@ -1,0 +1,128 @@
+// Runs the built `clastrace` program on good, damaged and unreadable traces and checks
+// its exit codes (0 intact, 1 damage, 2 usage/unreadable) and what it prints.
+#include "trace_test_support.h"
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <array>
+#include <cstdio>
+#include <sys/wait.h>
+
+namespace clastrace::traces::testing {
+namespace {
+
+struct ProgramRun {
+    int exit_code = -1;
+    std::string output;  // stdout and stderr together
+    std::string stdout_only;
+};
+
+ProgramRun run(const std::string& args, bool merge_stderr = true) {
+    ProgramRun r;
+    std::string cmd = std::string(CLASTRACE_BIN) + " " + args + (merge_stderr ? " 2>&1" : " 2>/dev/null");
+    FILE* p = popen(cmd.c_str(), "r");
+    if (!p) return r;
+    std::array<char, 4096> buf;
+    size_t n;
+    while ((n = fread(buf.data(), 1, buf.size(), p)) > 0) r.output.append(buf.data(), n);
+    int status = pclose(p);
+    r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+    r.stdout_only = r.output;
+    return r;
+}
+
+const std::string kSample = CLASTRACE_SAMPLE;
+
+TEST(ClastraceCli, HelpOnProgramAndInfo) {
+    ProgramRun top = run("--help");
+    EXPECT_EQ(top.exit_code, 0);
+    EXPECT_NE(top.output.find("info"), std::string::npos) << top.output;
+    ProgramRun info = run("info --help");
+    EXPECT_EQ(info.exit_code, 0);
+    EXPECT_NE(info.output.find("--json"), std::string::npos) << info.output;
+    EXPECT_NE(info.output.find("TRACE"), std::string::npos) << info.output;
+}
+
+TEST(ClastraceCli, UsageErrorsExitWithTwo) {
+    EXPECT_EQ(run("").exit_code, 2);
+    EXPECT_EQ(run("info").exit_code, 2);
+    EXPECT_EQ(run("info --bogus " + kSample).exit_code, 2);
+    EXPECT_EQ(run("nosuchcommand").exit_code, 2);
+}
+
+TEST(ClastraceCli, InfoOnTheSampleIsCleanAndComplete) {
+    ProgramRun r = run("info " + kSample);
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+    for (const char* text : {"NVIDIA GeForce RTX 4080 (sample)", "maxVerticesPerCluster 256",
+                             "CmdBuildClusterAccelerationStructureIndirect", "CmdBuildAccelerationStructureNV",
+                             "QueueSubmit", "dedup ratio", "compression ratio", "damage      none"}) {
+        EXPECT_NE(r.output.find(text), std::string::npos) << "missing \"" << text << "\" in\n" << r.output;
+    }
+}
+
+TEST(ClastraceCli, InfoJsonHasTheDocumentedFields) {
+    ProgramRun r = run("info --json " + kSample, false);
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    nlohmann::json j = nlohmann::json::parse(r.stdout_only);
+    EXPECT_EQ(j["format_version"]["major"], 1);
+    EXPECT_EQ(j["header"]["device"]["vendor_id"], 0x10de);
+    EXPECT_EQ(j["header"]["device"]["cluster_properties"]["maxVerticesPerCluster"], 256);
+    EXPECT_EQ(j["header"]["device"]["cluster_properties"]["clusterBottomLevelByteAlignment"], 256);
+    EXPECT_EQ(j["header"]["device"]["cluster_features"]["enabled"], true);
+    EXPECT_EQ(j["index"]["present"], true);
+    EXPECT_EQ(j["index"]["submissions"], 1);
+    EXPECT_EQ(j["records"]["by_kind"]["QueueSubmit"], 1);
+    EXPECT_EQ(j["records"]["by_kind"]["CmdBuildClusterAccelerationStructureIndirect"], 1);
+    EXPECT_EQ(j["records"]["by_kind"]["DebugLabel"], 0);  // every kind is listed, zero or not
+    EXPECT_GT(j["memory"]["bytes_referenced"].get<uint64_t>(), j["memory"]["bytes_stored"].get<uint64_t>());
+    EXPECT_GT(j["memory"]["dedup_ratio"].get<double>(), 1.0);
+    EXPECT_GT(j["chunks"]["raw_bytes"].get<uint64_t>(), j["chunks"]["compressed_bytes"].get<uint64_t>());
+    EXPECT_EQ(j["damage"]["count"], 0);
+    EXPECT_TRUE(j["damage"]["items"].empty());
+}
+
+TEST(ClastraceCli, DamagedTraceExitsWithOneAndNamesTheOffset) {
+    std::vector<uint8_t> file = read_file(kSample);
+    ASSERT_GT(file.size(), 1000u);
+    file[file.size() / 2] ^= 0x04;
+    const std::string path = temp_path("flipped.clt");
+    write_file(path, file);
+    ProgramRun r = run("info " + path);
+    EXPECT_EQ(r.exit_code, 1) << r.output;
+    EXPECT_NE(r.output.find("checksum mismatch"), std::string::npos) << r.output;
+    EXPECT_NE(r.output.find(path + ": offset "), std::string::npos) << r.output;
+
+    ProgramRun j = run("info --json " + path, false);
+    EXPECT_EQ(j.exit_code, 1);
+    nlohmann::json doc = nlohmann::json::parse(j.stdout_only);
+    ASSERT_GE(doc["damage"]["count"].get<int>(), 1);
+    EXPECT_EQ(doc["damage"]["items"][0]["code"], "checksum_mismatch");
+
+    file = read_file(kSample);
+    file.resize(file.size() - 100);
+    const std::string cut = temp_path("cut.clt");
+    write_file(cut, file);
+    ProgramRun c = run("info " + cut);
+    EXPECT_EQ(c.exit_code, 1) << c.output;
+    EXPECT_NE(c.output.find("[truncated]"), std::string::npos) << c.output;
+}
+
+TEST(ClastraceCli, UnreadableInputExitsWithTwo) {
+    ProgramRun missing = run("info /nonexistent/trace.clt");
+    EXPECT_EQ(missing.exit_code, 2);
+    EXPECT_NE(missing.output.find("/nonexistent/trace.clt: offset 0: cannot open"), std::string::npos) << missing.output;
+    const std::string text = temp_path("text.clt");
+    write_file(text, std::vector<uint8_t>(100, 'a'));
+    ProgramRun not_trace = run("info " + text);
+    EXPECT_EQ(not_trace.exit_code, 2);
+    EXPECT_NE(not_trace.output.find("not a clastrace trace"), std::string::npos) << not_trace.output;
+    const std::string empty = temp_path("empty.clt");
+    write_file(empty, {});
+    ProgramRun e = run("info --json " + empty);
+    EXPECT_EQ(e.exit_code, 2);
+    EXPECT_NE(e.output.find("empty file"), std::string::npos) << e.output;
+}
+
+}  // namespace
+}  // namespace clastrace::traces::testing

@@ -1,0 +1,141 @@
+// `clastrace capture -o OUT.clt [options] -- APP [ARGS...]`: runs APP with the capture layer
+// enabled through the Vulkan loader's environment variables, and reports what it wrote.
+//
+// Registration (main.cpp / commands.h belong to the CLI's owner): declare
+//   Command register_capture(CLI::App& app);
+// in commands.h, add register_capture(app) to main()'s list, and cmd_capture.cpp to the
+// clastrace executable's sources.
+#include "commands.h"
+
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace clastrace::tools {
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr const char* kLayerName = "VK_LAYER_CLASTRACE_capture";
+constexpr const char* kManifestName = "VkLayer_clastrace_capture.json";
+
+struct CaptureOptions {
+  std::string output;
+  std::string submitRange;
+  int zstdLevel = 3;
+  std::string serve = "auto";
+  bool noCapture = false;
+  std::string log = "error";
+  std::string layerPath;
+  std::vector<std::string> command;
+};
+
+// The manifest next to this program: the build tree's (tools/../capture/manifest) or the
+// installed one (bin/../share/vulkan/explicit_layer.d). Empty: leave it to the loader's search.
+std::string findManifestDir() {
+  std::error_code ec;
+  const fs::path self = fs::read_symlink("/proc/self/exe", ec);
+  if (ec) return {};
+  for (const fs::path& candidate : {self.parent_path().parent_path() / "capture" / "manifest",
+                                    self.parent_path().parent_path() / "share" / "vulkan" / "explicit_layer.d"})
+    if (fs::exists(candidate / kManifestName, ec)) return candidate.string();
+  return {};
+}
+
+void prependList(const char* variable, const std::string& value) {
+  const char* old = std::getenv(variable);
+  std::string joined = value;
+  if (old && *old) joined += std::string(":") + old;
+  setenv(variable, joined.c_str(), 1);
+}
+
+int runCapture(const CaptureOptions& o) {
+  if (o.command.empty()) {
+    std::fprintf(stderr, "clastrace capture: no application given (put it after --)\n");
+    return kExitUsage;
+  }
+  const fs::path output = fs::absolute(o.output);
+  if (!o.noCapture) {
+    std::FILE* probe = std::fopen(output.c_str(), "wb");
+    if (!probe) {
+      std::fprintf(stderr, "clastrace capture: cannot write '%s': %s\n", output.c_str(), std::strerror(errno));
+      return kExitUsage;
+    }
+    std::fclose(probe);
+  }
+  const std::string manifestDir = o.layerPath.empty() ? findManifestDir() : o.layerPath;
+  if (!manifestDir.empty()) prependList("VK_ADD_LAYER_PATH", manifestDir);
+  const char* layers = std::getenv("VK_INSTANCE_LAYERS");
+  if (!layers || !std::strstr(layers, kLayerName)) prependList("VK_INSTANCE_LAYERS", kLayerName);
+  setenv("CLASTRACE_OUTPUT", output.c_str(), 1);
+  setenv("CLASTRACE_CAPTURE", o.noCapture ? "0" : "1", 1);
+  setenv("CLASTRACE_SERVE", o.serve.c_str(), 1);
+  setenv("CLASTRACE_ZSTD_LEVEL", std::to_string(o.zstdLevel).c_str(), 1);
+  setenv("CLASTRACE_LOG", o.log.c_str(), 1);
+  if (!o.submitRange.empty()) setenv("CLASTRACE_SUBMIT_RANGE", o.submitRange.c_str(), 1);
+  else unsetenv("CLASTRACE_SUBMIT_RANGE");
+
+  std::vector<char*> argv;
+  for (const std::string& a : o.command) argv.push_back(const_cast<char*>(a.c_str()));
+  argv.push_back(nullptr);
+  const pid_t child = fork();
+  if (child < 0) {
+    std::fprintf(stderr, "clastrace capture: fork failed: %s\n", std::strerror(errno));
+    return kExitUsage;
+  }
+  if (child == 0) {
+    execvp(argv[0], argv.data());
+    std::fprintf(stderr, "clastrace capture: cannot run '%s': %s\n", argv[0], std::strerror(errno));
+    _exit(127);
+  }
+  int status = 0;
+  while (waitpid(child, &status, 0) < 0 && errno == EINTR) {
+  }
+  const int code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  std::error_code ec;
+  if (!o.noCapture) {
+    const auto size = fs::file_size(output, ec);
+    if (ec || size == 0)
+      std::fprintf(stderr, "clastrace capture: '%s' was not written (did the application create a Vulkan device?)\n",
+                   output.c_str());
+    else
+      std::fprintf(stderr, "clastrace capture: wrote '%s' (%llu bytes)\n", output.c_str(), (unsigned long long)size);
+  }
+  return code;  // the application's own exit code
+}
+
+}  // namespace
+
+Command register_capture(CLI::App& app) {
+  auto options = std::make_shared<CaptureOptions>();
+  CLI::App* sub = app.add_subcommand(
+      "capture",
+      "Run an application with the capture layer and write its cluster builds to a .clt trace.\n"
+      "Exit code: the application's (2 when it could not be started or the output is unwritable).");
+  sub->add_option("-o,--output", options->output, "trace to write (.clt)")->required();
+  sub->add_option("--submit-range", options->submitRange, "queue submissions to capture: N, A-B or A- (0-based)");
+  sub->add_option("--zstd-level", options->zstdLevel, "zstd level of the trace's chunks")->check(CLI::Range(1, 22));
+  sub->add_option("--serve", options->serve, "serve VK_NV_cluster_acceleration_structure: auto (when the driver "
+                                             "lacks it), on, off")
+      ->check(CLI::IsMember({"auto", "on", "off", "0", "1"}));
+  sub->add_flag("--no-capture", options->noCapture, "only serve the extension, write nothing");
+  sub->add_option("--log", options->log, "layer messages: quiet, error, info, debug")
+      ->check(CLI::IsMember({"quiet", "error", "info", "debug"}));
+  sub->add_option("--layer-path", options->layerPath, "folder holding VkLayer_clastrace_capture.json");
+  sub->add_option("command", options->command, "the application and its arguments (after --)")->required();
+  return {sub, [options] {
+            CaptureOptions o = *options;
+            if (o.serve == "on") o.serve = "1";
+            if (o.serve == "off") o.serve = "0";
+            return runCapture(o);
+          }};
+}
+
+}  // namespace clastrace::tools

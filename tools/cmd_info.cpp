@@ -1,0 +1,266 @@
+// clastrace info TRACE [--json]: what a trace holds and whether it is intact.
+#include "commands.h"
+
+#include <clastrace/traces/records.h>
+#include <clastrace/traces/trace_reader.h>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include <array>
+#include <cstdio>
+#include <iostream>
+#include <map>
+#include <memory>
+#include <string>
+
+namespace clastrace::tools {
+
+namespace {
+
+using traces::TraceReader;
+
+struct TraceSummary {
+    std::array<uint64_t, traces::kRecordKindCount> by_kind{};
+    uint64_t unknown_kinds = 0;
+    uint64_t records = 0;
+    uint64_t snapshots = 0;
+    uint64_t bytes_referenced = 0;
+    uint64_t contents = 0;
+    uint64_t bytes_stored = 0;
+};
+
+TraceSummary summarize(TraceReader& reader) {
+    TraceSummary s;
+    traces::RecordView view;
+    while (reader.next(&view)) {
+        ++s.records;
+        auto k = static_cast<unsigned>(view.kind);
+        if (k < traces::kRecordKindCount) {
+            ++s.by_kind[k];
+        } else {
+            ++s.unknown_kinds;
+        }
+        if (const auto* c = view.record->body_as_MemoryContents()) {
+            ++s.contents;
+            s.bytes_stored += c->bytes() ? c->bytes()->size() : 0;
+            continue;
+        }
+        traces::SnapshotLists lists = traces::record_snapshots(*view.record);
+        for (const traces::SnapshotVector* list : {lists.inputs, lists.outputs}) {
+            if (!list) continue;
+            for (const auto* snap : *list) {
+                ++s.snapshots;
+                s.bytes_referenced += snap->size();
+            }
+        }
+    }
+    return s;
+}
+
+std::string version_string(uint32_t v) {
+    return fmt::format("{}.{}.{}", (v >> 22) & 0x7f, (v >> 12) & 0x3ff, v & 0xfff);  // VK_API_VERSION_*
+}
+
+// NVIDIA packs its driver version 10.8.8.6 bits; everyone else uses the Vulkan packing.
+std::string driver_string(uint32_t vendor, uint32_t v) {
+    if (vendor == 0x10de) return fmt::format("{}.{}.{}", v >> 22, (v >> 14) & 0xff, (v >> 6) & 0xff);
+    return version_string(v);
+}
+
+double ratio(uint64_t a, uint64_t b) { return b == 0 ? 0.0 : static_cast<double>(a) / static_cast<double>(b); }
+
+const char* str(const flatbuffers::String* s) { return s ? s->c_str() : ""; }
+
+nlohmann::json header_json(const fbs::TraceHeader* h) {
+    using nlohmann::json;
+    if (!h) return nullptr;
+    json j;
+    if (const auto* d = h->device()) {
+        json dev = {{"name", str(d->name())},
+                    {"vendor_id", d->vendor_id()},
+                    {"device_id", d->device_id()},
+                    {"driver_version", d->driver_version()},
+                    {"driver_version_text", driver_string(d->vendor_id(), d->driver_version())},
+                    {"api_version", d->api_version()},
+                    {"api_version_text", version_string(d->api_version())},
+                    {"driver_name", str(d->driver_name())},
+                    {"driver_info", str(d->driver_info())}};
+        json exts = json::array();
+        if (d->enabled_extensions())
+            for (const auto* e : *d->enabled_extensions()) exts.push_back(e->str());
+        dev["enabled_extensions"] = exts;
+        if (const auto* f = d->cluster_features()) {
+            dev["cluster_features"] = {{"supported", f->cluster_acceleration_structure_supported()},
+                                       {"enabled", f->cluster_acceleration_structure_enabled()}};
+        } else {
+            dev["cluster_features"] = nullptr;
+        }
+        if (const auto* p = d->cluster_properties()) {
+            dev["cluster_properties"] = {
+                {"maxVerticesPerCluster", p->max_vertices_per_cluster()},
+                {"maxTrianglesPerCluster", p->max_triangles_per_cluster()},
+                {"clusterScratchByteAlignment", p->cluster_scratch_byte_alignment()},
+                {"clusterByteAlignment", p->cluster_byte_alignment()},
+                {"clusterTemplateByteAlignment", p->cluster_template_byte_alignment()},
+                {"clusterBottomLevelByteAlignment", p->cluster_bottom_level_byte_alignment()},
+                {"clusterTemplateBoundsByteAlignment", p->cluster_template_bounds_byte_alignment()},
+                {"maxClusterGeometryIndex", p->max_cluster_geometry_index()}};
+        } else {
+            dev["cluster_properties"] = nullptr;
+        }
+        j["device"] = dev;
+    } else {
+        j["device"] = nullptr;
+    }
+    if (const auto* c = h->capture()) {
+        j["capture"] = {{"application_name", str(c->application_name())},
+                        {"engine_name", str(c->engine_name())},
+                        {"capture_tool", str(c->capture_tool())},
+                        {"start_time_unix_ns", c->start_time_unix_ns()},
+                        {"snapshot_policy", str(c->snapshot_policy())},
+                        {"chunk_raw_bytes", c->chunk_raw_bytes()},
+                        {"zstd_level", c->zstd_level()},
+                        {"content_hash_bits", c->content_hash_bits()}};
+    } else {
+        j["capture"] = nullptr;
+    }
+    return j;
+}
+
+nlohmann::json info_json(const std::string& path, const TraceReader& reader, const TraceSummary& s) {
+    using nlohmann::json;
+    const traces::TraceReadStats& st = reader.stats();
+    json by_kind = json::object();
+    for (unsigned k = 1; k < traces::kRecordKindCount; ++k) {
+        by_kind[traces::record_kind_name(static_cast<fbs::RecordBody>(k))] = s.by_kind[k];
+    }
+    json damage = json::array();
+    for (const traces::TraceError& e : reader.damage()) {
+        damage.push_back({{"code", traces::trace_error_code_name(e.code)}, {"offset", e.file_offset}, {"message", e.message}});
+    }
+    return {
+        {"file", path},
+        {"file_size", st.file_size},
+        {"format_version", {{"major", reader.version_major()}, {"minor", reader.version_minor()}}},
+        {"header", header_json(reader.header())},
+        {"index", {{"present", reader.has_index()}, {"submissions", reader.indexed_submission_count()}}},
+        {"records", {{"total", s.records}, {"damaged", st.records_damaged}, {"unknown_kind", s.unknown_kinds}, {"by_kind", by_kind}}},
+        {"memory",
+         {{"snapshots", s.snapshots},
+          {"bytes_referenced", s.bytes_referenced},
+          {"contents", s.contents},
+          {"bytes_stored", s.bytes_stored},
+          {"dedup_ratio", ratio(s.bytes_referenced, s.bytes_stored)}}},
+        {"chunks",
+         {{"read", st.chunks_read},
+          {"damaged", st.chunks_damaged},
+          {"raw_bytes", st.raw_bytes},
+          {"compressed_bytes", st.compressed_bytes},
+          {"compression_ratio", ratio(st.raw_bytes, st.compressed_bytes)},
+          {"bytes_skipped", st.bytes_skipped}}},
+        {"damage", {{"count", reader.damage_count()}, {"items", damage}}},
+    };
+}
+
+void print_text(const std::string& path, const TraceReader& reader, const TraceSummary& s) {
+    const traces::TraceReadStats& st = reader.stats();
+    fmt::print("{:<12}{} ({} bytes)\n", "trace", path, st.file_size);
+    fmt::print("{:<12}{}.{}\n", "format", reader.version_major(), reader.version_minor());
+    if (const fbs::TraceHeader* h = reader.header()) {
+        if (const auto* d = h->device()) {
+            fmt::print("{:<12}{} (vendor {:#06x}, device {:#06x}), driver {} {}, Vulkan {}\n", "device", str(d->name()),
+                       d->vendor_id(), d->device_id(), str(d->driver_name()), driver_string(d->vendor_id(), d->driver_version()),
+                       version_string(d->api_version()));
+            if (const auto* f = d->cluster_features()) {
+                fmt::print("{:<12}clusterAccelerationStructure supported {}, enabled {}\n", "clusters",
+                           f->cluster_acceleration_structure_supported() ? "yes" : "no",
+                           f->cluster_acceleration_structure_enabled() ? "yes" : "no");
+            }
+            if (const auto* p = d->cluster_properties()) {
+                fmt::print("{:<12}maxVerticesPerCluster {}, maxTrianglesPerCluster {}, maxClusterGeometryIndex {}\n", "",
+                           p->max_vertices_per_cluster(), p->max_triangles_per_cluster(), p->max_cluster_geometry_index());
+                fmt::print("{:<12}alignments: scratch {}, cluster {}, template {}, bottom level {}, template bounds {}\n", "",
+                           p->cluster_scratch_byte_alignment(), p->cluster_byte_alignment(),
+                           p->cluster_template_byte_alignment(), p->cluster_bottom_level_byte_alignment(),
+                           p->cluster_template_bounds_byte_alignment());
+            }
+        }
+        if (const auto* c = h->capture()) {
+            fmt::print("{:<12}application \"{}\", tool \"{}\", snapshots \"{}\", chunks of {} bytes, zstd level {}\n",
+                       "capture", str(c->application_name()), str(c->capture_tool()), str(c->snapshot_policy()),
+                       c->chunk_raw_bytes(), c->zstd_level());
+        }
+    } else {
+        fmt::print("{:<12}(damaged)\n", "header");
+    }
+    fmt::print("{:<12}{}\n", "index",
+               reader.has_index() ? fmt::format("present, {} submissions", reader.indexed_submission_count())
+                                  : std::string("absent"));
+
+    fmt::print("\n{:<46}{:>10}\n", "record kind", "count");
+    for (unsigned k = 1; k < traces::kRecordKindCount; ++k) {
+        if (s.by_kind[k] == 0) continue;
+        fmt::print("  {:<44}{:>10}\n", traces::record_kind_name(static_cast<fbs::RecordBody>(k)), s.by_kind[k]);
+    }
+    if (s.unknown_kinds) fmt::print("  {:<44}{:>10}\n", "(newer kinds, skipped)", s.unknown_kinds);
+    fmt::print("  {:<44}{:>10}\n", "total", s.records);
+    if (st.records_damaged) fmt::print("  {:<44}{:>10}\n", "damaged (skipped)", st.records_damaged);
+
+    fmt::print("\n{:<12}{} bytes referenced by {} snapshots, {} bytes stored in {} contents, dedup ratio {:.2f}x\n",
+               "memory", s.bytes_referenced, s.snapshots, s.bytes_stored, s.contents, ratio(s.bytes_referenced, s.bytes_stored));
+    fmt::print("{:<12}{} read, {} damaged; {} raw bytes, {} compressed bytes, compression ratio {:.2f}x\n", "chunks",
+               st.chunks_read, st.chunks_damaged, st.raw_bytes, st.compressed_bytes, ratio(st.raw_bytes, st.compressed_bytes));
+    if (reader.damage_count() == 0) {
+        fmt::print("{:<12}none\n", "damage");
+        return;
+    }
+    fmt::print("{:<12}{} problem(s)\n", "damage", reader.damage_count());
+    for (const traces::TraceError& e : reader.damage()) {
+        fmt::print("  [{}] {}\n", traces::trace_error_code_name(e.code), e.message);
+    }
+    if (reader.damage_count() > reader.damage().size()) {
+        fmt::print("  ... {} more not listed\n", reader.damage_count() - reader.damage().size());
+    }
+}
+
+}  // namespace
+
+Command register_info(CLI::App& app) {
+    struct Options {
+        std::string path;
+        bool json = false;
+    };
+    auto options = std::make_shared<Options>();
+    CLI::App* sub = app.add_subcommand(
+        "info", "Show a trace's header, record counts, memory deduplication, compression and any damage.\n"
+                "Exit code: 0 intact, 1 damage found, 2 usage error or unreadable file.");
+    sub->add_option("TRACE", options->path, "the .clt trace file")->required();
+    sub->add_flag("--json", options->json, "print one JSON object (fields in docs/trace-format.md)");
+
+    auto run = [options]() -> int {
+        traces::TraceError error;
+        std::unique_ptr<TraceReader> reader = TraceReader::open(options->path, &error);
+        if (!reader) {
+            if (options->json) {
+                nlohmann::json j = {{"file", options->path},
+                                    {"error", {{"code", traces::trace_error_code_name(error.code)},
+                                               {"offset", error.file_offset},
+                                               {"message", error.message}}}};
+                std::cout << j.dump(2) << "\n";
+            }
+            std::fprintf(stderr, "clastrace info: %s\n", error.message.c_str());
+            return kExitUsage;
+        }
+        TraceSummary summary = summarize(*reader);
+        if (options->json) {
+            std::cout << info_json(options->path, *reader, summary).dump(2) << "\n";
+        } else {
+            print_text(options->path, *reader, summary);
+        }
+        return reader->damage_count() == 0 ? kExitOk : kExitFindings;
+    };
+    return {sub, run};
+}
+
+}  // namespace clastrace::tools

@@ -1,0 +1,87 @@
+// Reads a .clt trace chunk by chunk with bounded memory: one decompressed chunk, one
+// more read ahead (on a task, so decompression overlaps the caller), one for
+// read_contents, and about 64 bytes per distinct content. Every record is checked by
+// the FlatBuffers verifier before it is handed out. Damage does not stop reading: it is
+// listed in damage() and the reader continues with the next intact chunk.
+#pragma once
+
+#include <clastrace/traces/trace_error.h>
+#include <clastrace/traces/trace_generated.h>
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace clastrace::traces {
+
+// One record, valid until the next call to next(), seek_to_submission() or read_contents().
+struct RecordView {
+    const fbs::Record* record = nullptr;
+    fbs::RecordBody kind = fbs::RecordBody::NONE;
+    const uint8_t* bytes = nullptr;  // the Record FlatBuffer
+    uint32_t size = 0;
+    uint64_t chunk_offset = 0;       // file offset of the chunk holding it
+    uint32_t chunk_number = 0;
+    uint32_t raw_offset = 0;         // offset of its frame in the chunk's decompressed bytes
+};
+
+struct TraceReadStats {
+    uint64_t file_size = 0;
+    uint64_t chunks_read = 0;          // record chunks that passed their checksums
+    uint64_t chunks_damaged = 0;
+    uint64_t raw_bytes = 0;            // decompressed bytes of the chunks read
+    uint64_t compressed_bytes = 0;     // their compressed payload bytes
+    uint64_t records = 0;              // records handed out
+    uint64_t records_damaged = 0;      // records skipped because they failed a check
+    uint64_t bytes_skipped = 0;        // bytes passed over while looking for the next chunk
+};
+
+class TraceReader {
+public:
+    // Fails (nullptr, *error) only when nothing can be read: unopenable or empty file,
+    // wrong magic, newer major version. Lesser damage goes to damage().
+    static std::unique_ptr<TraceReader> open(const std::string& path, TraceError* error);
+    // Reads from memory that must outlive the reader; `name` is used in messages.
+    static std::unique_ptr<TraceReader> open_memory(const uint8_t* data, size_t size, const std::string& name,
+                                                    TraceError* error);
+    ~TraceReader();
+    TraceReader(const TraceReader&) = delete;
+    TraceReader& operator=(const TraceReader&) = delete;
+
+    uint16_t version_major() const;
+    uint16_t version_minor() const;
+    // The TraceHeader, or nullptr when it is damaged (see damage()).
+    const fbs::TraceHeader* header() const;
+
+    // True when the file ends with an intact index (it was finished).
+    bool has_index() const;
+    // Submissions listed in the index (0 without index).
+    uint64_t indexed_submission_count() const;
+
+    // Next intact record in file order; false at the end of the records.
+    bool next(RecordView* out);
+
+    // Positions the reader so that next() returns the QueueSubmit with this
+    // submission_index. Uses the index when present, else scans from the start.
+    TraceError seek_to_submission(uint64_t submission_index);
+
+    // Copies the bytes of the contents with this hash (defined anywhere in the file the
+    // reader has seen or the index lists).
+    TraceError read_contents(uint64_t hash, std::vector<uint8_t>* out);
+
+    // Every problem found so far, in the order found (at most 1000 kept; see damage_count()).
+    const std::vector<TraceError>& damage() const;
+    uint64_t damage_count() const;
+
+    const TraceReadStats& stats() const;
+
+    struct Impl;
+
+private:
+    explicit TraceReader(std::unique_ptr<Impl> impl);
+    std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace clastrace::traces

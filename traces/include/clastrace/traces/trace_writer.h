@@ -1,0 +1,82 @@
+// Writes a .clt trace: records go into chunks that a background thread compresses and
+// appends, so the caller only pays for building records. Memory is bounded by
+// (max_chunks_in_flight + 1) chunks plus about 100 bytes per distinct content (its key,
+// size, 128-bit fingerprint and place for the index).
+//
+// Errors are sticky: once a write fails (disk full, I/O error) every later call and
+// finish() return that error; nothing is lost silently.
+#pragma once
+
+#include <clastrace/traces/trace_error.h>
+#include <clastrace/traces/trace_generated.h>
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <string>
+
+namespace clastrace::traces {
+
+struct TraceWriterOptions {
+    uint32_t chunk_raw_bytes = 4u << 20;  // a chunk is sealed once its records reach this size
+    int zstd_level = 3;
+    uint32_t max_chunks_in_flight = 2;    // sealed chunks waiting for the compression thread
+    bool sync_on_finish = true;           // fsync before finish() reports success
+    // Bits of the content hash kept. 64 for real traces; tests lower it to force collisions.
+    unsigned content_hash_bits = 64;
+};
+
+struct TraceWriterStats {
+    uint64_t records = 0;
+    uint64_t submissions = 0;
+    uint64_t chunks = 0;               // record chunks written so far (not counting the index)
+    uint64_t raw_bytes = 0;            // record bytes before compression, framing included
+    uint64_t compressed_bytes = 0;     // chunk payload bytes after compression
+    uint64_t contents_stored = 0;      // distinct MemoryContents records written
+    uint64_t contents_bytes_stored = 0;
+    uint64_t contents_deduplicated = 0;      // add_contents calls answered by an existing record
+    uint64_t contents_bytes_deduplicated = 0;
+    uint64_t hash_collisions = 0;      // distinct bytes whose first-choice key was taken
+};
+
+class TraceWriter {
+public:
+    // Creates (truncates) `path` and writes the file header. The writer fills
+    // header.capture's chunk size, zstd level and hash bits from `options`.
+    // Returns nullptr with *error set when the file cannot be created or options are bad.
+    static std::unique_ptr<TraceWriter> create(const std::string& path, const fbs::TraceHeaderT& header,
+                                               const TraceWriterOptions& options, TraceError* error);
+    ~TraceWriter();  // without finish(): stops the thread, leaves a file without index
+    TraceWriter(const TraceWriter&) = delete;
+    TraceWriter& operator=(const TraceWriter&) = delete;
+
+    // Stores `bytes` once: on the first call for a byte string a MemoryContents record is
+    // written; later calls with equal bytes only return its key in *hash.
+    TraceError add_contents(const void* bytes, size_t size, uint64_t* hash);
+
+    // add_contents, then describes the snapshot for a command's inputs/outputs.
+    TraceError snapshot(uint64_t buffer, uint64_t offset, uint64_t address, const void* bytes, size_t size,
+                        fbs::MemorySnapshot* out);
+
+    // Appends one record. MemoryContents must go through add_contents; a QueueSubmit's
+    // submission_index must equal next_submission_index().
+    TraceError append(const fbs::RecordT& record);
+    TraceError append(const fbs::Record* record);  // any verified Record (e.g. copied from a reader)
+    TraceError append_record_bytes(const uint8_t* data, size_t size);  // a finished Record FlatBuffer
+
+    uint64_t next_submission_index() const;
+
+    // Seals the last chunk, waits for the compression thread, writes the index chunk and
+    // trailer, and (by option) fsyncs. The first error met anywhere is returned.
+    TraceError finish();
+
+    TraceWriterStats stats() const;
+
+    struct Impl;
+
+private:
+    explicit TraceWriter(std::unique_ptr<Impl> impl);
+    std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace clastrace::traces

@@ -1,0 +1,29 @@
+#include "file_format.h"
+
+#define XXH_INLINE_ALL
+#include <xxhash.h>
+
+namespace clastrace::traces::format {
+
+uint64_t checksum(const void* data, size_t size) { return XXH3_64bits(data, size); }
+
+uint64_t file_header_checksum(const FileHeader& h, const uint8_t* trace_header, size_t size) {
+    XXH3_state_t state;
+    XXH3_64bits_reset(&state);
+    XXH3_64bits_update(&state, &h, offsetof(FileHeader, checksum));
+    XXH3_64bits_update(&state, trace_header, size);
+    return XXH3_64bits_digest(&state);
+}
+
+uint64_t chunk_header_checksum(const ChunkHeader& h) {
+    return XXH3_64bits(&h, offsetof(ChunkHeader, header_checksum));
+}
+
+uint64_t trailer_checksum(const Trailer& t) { return XXH3_64bits(&t, offsetof(Trailer, checksum)); }
+
+uint64_t content_key(const void* data, size_t size, uint64_t seed, unsigned bits) {
+    uint64_t h = XXH3_64bits_withSeed(data, size, seed);
+    return bits >= 64 ? h : (h & ((uint64_t{1} << bits) - 1));
+}
+
+}  // namespace clastrace::traces::format

@@ -1,0 +1,36 @@
+#include <clastrace/traces/records.h>
+
+namespace clastrace::traces {
+
+namespace {
+template <class T>
+SnapshotLists lists_of(const T* command) {
+    if (!command) return {};
+    return {command->inputs(), command->outputs()};
+}
+}  // namespace
+
+SnapshotLists record_snapshots(const fbs::Record& record) {
+    using K = fbs::RecordBody;
+    switch (record.body_type()) {
+    case K::CmdCopyBuffer: return lists_of(record.body_as_CmdCopyBuffer());
+    case K::CmdDispatch: return lists_of(record.body_as_CmdDispatch());
+    case K::CmdBuildClusterAccelerationStructureIndirect:
+        return lists_of(record.body_as_CmdBuildClusterAccelerationStructureIndirect());
+    case K::CmdBuildAccelerationStructureNV: return lists_of(record.body_as_CmdBuildAccelerationStructureNV());
+    case K::CmdCopyMemoryToAccelerationStructure:
+        return lists_of(record.body_as_CmdCopyMemoryToAccelerationStructure());
+    case K::MemoryObservation: {
+        const auto* o = record.body_as_MemoryObservation();
+        return o ? SnapshotLists{o->snapshots(), nullptr} : SnapshotLists{};
+    }
+    default: return {};
+    }
+}
+
+const char* record_kind_name(fbs::RecordBody kind) {
+    if (static_cast<unsigned>(kind) >= kRecordKindCount) return "unknown";
+    return fbs::EnumNameRecordBody(kind);
+}
+
+}  // namespace clastrace::traces
