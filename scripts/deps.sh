@@ -5,7 +5,7 @@ set -euo pipefail
 
 PACKAGES=(
   build-essential cmake ninja-build pkg-config git
-  libvulkan-dev vulkan-tools mesa-vulkan-drivers
+  libvulkan-dev vulkan-tools mesa-vulkan-drivers vulkan-validationlayers
   libzstd-dev zstd flatbuffers-compiler libflatbuffers-dev libxxhash-dev
   libembree-dev libtbb-dev libmeshoptimizer-dev assimp-testmodels
   libcli11-dev nlohmann-json3-dev libfmt-dev

@@ -1,10 +1,5 @@
 // `clastrace capture -o OUT.clt [options] -- APP [ARGS...]`: runs APP with the capture layer
 // enabled through the Vulkan loader's environment variables, and reports what it wrote.
-//
-// Registration (main.cpp / commands.h belong to the CLI's owner): declare
-//   Command register_capture(CLI::App& app);
-// in commands.h, add register_capture(app) to main()'s list, and cmd_capture.cpp to the
-// clastrace executable's sources.
 #include "commands.h"
 
 #include <sys/wait.h>
