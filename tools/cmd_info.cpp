@@ -240,7 +240,8 @@ Command register_info(CLI::App& app) {
 
     auto run = [options]() -> int {
         traces::TraceError error;
-        std::unique_ptr<TraceReader> reader = TraceReader::open(options->path, &error);
+        std::unique_ptr<TraceReader> reader = TraceReader::open(
+            options->path, &error, traces::TraceReaderOptions{.verify_content_keys = true});
         if (!reader) {
             if (options->json) {
                 nlohmann::json j = {{"file", options->path},

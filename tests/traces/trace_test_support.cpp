@@ -10,6 +10,9 @@
 namespace clastrace::traces::testing {
 
 namespace {
+
+// The damage tests check every rule the reader knows, the content-key check included.
+const TraceReaderOptions kVerifyEverything{.verify_content_keys = true};
 template <class T>
 fbs::RecordT record(T body) {
     fbs::RecordT r;
@@ -241,13 +244,13 @@ static ReadResult drain(std::unique_ptr<TraceReader> reader, TraceError error) {
 
 ReadResult read_all(const std::string& path) {
     TraceError e;
-    auto reader = TraceReader::open(path, &e);
+    auto reader = TraceReader::open(path, &e, kVerifyEverything);
     return drain(std::move(reader), e);
 }
 
 ReadResult read_all_memory(const std::vector<uint8_t>& bytes) {
     TraceError e;
-    auto reader = TraceReader::open_memory(bytes.data(), bytes.size(), "memory.clt", &e);
+    auto reader = TraceReader::open_memory(bytes.data(), bytes.size(), "memory.clt", &e, kVerifyEverything);
     return drain(std::move(reader), e);
 }
 
