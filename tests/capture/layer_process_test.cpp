@@ -272,6 +272,7 @@ TEST_F(ServeRun, TraceNamesTheEngineAsTheDriverOfItsOutputs) {
   const fs::path trace = dir / "serve.clt";
   ProcessResult r = runServe({{"CLASTRACE_OUTPUT", trace.string()}});
   ASSERT_EQ(r.exitCode, 0) << r.err;
+  expectTheEnginesBytes();  // so the snapshots below are the engine's bytes
   clastrace::traces::TraceError error;
   auto reader = clastrace::traces::TraceReader::open(trace.string(), &error);
   ASSERT_TRUE(reader) << error.message;
