@@ -230,9 +230,18 @@ void PauseWorker::executeServed(const PausePoint& pause, ClusterBuildCapture* re
   logMessage(LogLevel::Info, "served build (pause %llu): %u ops executed by the engine, %zu findings, %llu bytes written",
              (unsigned long long)pause.pauseId, served.record.op_count, served.record.findings.size(),
              (unsigned long long)served.bytesWrittenBack);
-  for (const engine::Finding& f : served.record.findings)
-    logMessage(LogLevel::Error, "served build (pause %llu) op %lld: %s: %s", (unsigned long long)pause.pauseId,
-               (long long)f.op_index, f.rule.c_str(), f.message.c_str());
+  // An application repeating one mistake every frame would bury everything else: each rule is
+  // logged a few times per device, then once more to say the rest are counted, not printed.
+  constexpr uint64_t kLoggedPerRule = 8;
+  for (const engine::Finding& f : served.record.findings) {
+    const uint64_t seen = ++findingsPerRule_[f.rule];
+    if (seen <= kLoggedPerRule)
+      logMessage(LogLevel::Error, "served build (pause %llu) op %lld: %s: %s", (unsigned long long)pause.pauseId,
+                 (long long)f.op_index, f.rule.c_str(), f.message.c_str());
+    if (seen == kLoggedPerRule)
+      logMessage(LogLevel::Error, "%s: further findings of this rule on this device are not logged (a capture keeps "
+                 "them all)", f.rule.c_str());
+  }
   if (record) {
     record->executedByEngine = true;
     for (const engine::Finding& f : served.record.findings)

@@ -26,6 +26,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <string>
 #include <thread>
 #include <vulkan/vulkan_core.h>
 
@@ -81,6 +82,7 @@ class PauseWorker {
   std::map<uint64_t, ClusterBuildCapture> open_;  // pauseId -> capture between its two pauses
   bool stop_ = false;
   std::atomic<uint64_t> handled_{0};
+  std::map<std::string, uint64_t> findingsPerRule_;  // how often each engine rule was logged
   engine::ObjectDirectory directory_;  // the served device's live objects, across its commands
   std::thread thread_;
 };
