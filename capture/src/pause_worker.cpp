@@ -227,9 +227,11 @@ void PauseWorker::executeServed(const PausePoint& pause, ClusterBuildCapture* re
       VkMappedMemoryRange range = wholeRange(memory);
       device_.next.FlushMappedMemoryRanges(device_.device, 1, &range);
     }
-  logMessage(LogLevel::Info, "served build (pause %llu): %u ops executed by the engine, %zu findings, %llu bytes written",
+  logMessage(LogLevel::Info,
+             "served build (pause %llu): %u ops executed by the engine, %zu findings, %llu bytes read in "
+             "(%u runs), %llu bytes written",
              (unsigned long long)pause.pauseId, served.record.op_count, served.record.findings.size(),
-             (unsigned long long)served.bytesWrittenBack);
+             (unsigned long long)served.bytesCopiedIn, served.attempts, (unsigned long long)served.bytesWrittenBack);
   // An application repeating one mistake every frame would bury everything else: each rule is
   // logged a few times per device, then once more to say the rest are counted, not printed.
   constexpr uint64_t kLoggedPerRule = 8;

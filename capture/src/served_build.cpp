@@ -21,59 +21,124 @@ std::string hex(uint64_t v) {
 
 }  // namespace
 
-ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command,
-                                   std::span<const ServedBuffer> buffers, engine::ObjectDirectory& directory,
-                                   const engine::EngineProperties& properties) {
-  ServedExecution result;
+namespace {
+
+// Buffers whose address ranges overlap (aliases), as the one region they form in the image.
+struct AliasGroup {
+  uint64_t base = 0, end = 0;
+  VkBufferUsageFlags usage = 0;
+  std::vector<const ServedBuffer*> buffers;
+};
+
+std::vector<AliasGroup> aliasGroups(std::span<const ServedBuffer> buffers) {
   std::vector<const ServedBuffer*> sorted;
   for (const ServedBuffer& b : buffers)
     if (b.address != 0 && b.size != 0 && b.host && b.address + b.size > b.address) sorted.push_back(&b);
   std::sort(sorted.begin(), sorted.end(), [](auto* a, auto* b) { return a->address < b->address; });
+  std::vector<AliasGroup> groups;
+  for (const ServedBuffer* b : sorted) {
+    if (groups.empty() || b->address >= groups.back().end) groups.push_back({b->address, b->address, 0, {}});
+    AliasGroup& g = groups.back();
+    g.end = std::max(g.end, b->address + b->size);
+    g.usage |= b->usage;
+    g.buffers.push_back(b);
+  }
+  return groups;
+}
 
+// Index of the group holding `address`, or groups.size().
+size_t groupOf(const std::vector<AliasGroup>& groups, uint64_t address) {
+  auto it = std::upper_bound(groups.begin(), groups.end(), address, [](uint64_t a, const AliasGroup& g) { return a < g.base; });
+  if (it == groups.begin()) return groups.size();
+  --it;
+  return address < it->end ? size_t(it - groups.begin()) : groups.size();
+}
+
+}  // namespace
+
+ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command,
+                                   std::span<const ServedBuffer> buffers, engine::ObjectDirectory& directory,
+                                   const engine::EngineProperties& properties) {
+  ServedExecution result;
+  const std::vector<AliasGroup> groups = aliasGroups(buffers);
+
+  // Start from the buffers the command names itself; run; every finding about an address in a
+  // buffer left out adds that buffer, and the command runs again from the same state (the
+  // directory is copied per attempt). A run without findings read only memory that was there,
+  // so it equals a run over all buffers. With findings left, or with indirected fields (whose
+  // targets the seeds do not name), the last run is over all buffers: exact either way.
+  std::vector<bool> selected(groups.size(), false);
+  auto select = [&](uint64_t address) {
+    const size_t g = address ? groupOf(groups, address) : groups.size();
+    if (g == groups.size() || selected[g]) return false;
+    selected[g] = true;
+    return true;
+  };
+  if (command.addressResolutionFlags != 0) {
+    selected.assign(groups.size(), true);
+  } else {
+    for (uint64_t seed : {command.srcInfosArray.deviceAddress, command.srcInfosCount, command.dstImplicitData,
+                          command.scratchData, command.dstAddressesArray.deviceAddress,
+                          command.dstSizesArray.deviceAddress})
+      select(seed);
+  }
+
+  engine::ExecuteOptions options;
+  options.properties = properties;
   engine::MemoryImage image;
+  engine::ObjectDirectory attempt;
   try {
-    // Aliases share addresses: one region per run of overlapping buffers, their usages joined.
-    for (size_t first = 0; first < sorted.size();) {
-      uint64_t end = sorted[first]->address + sorted[first]->size;
-      VkBufferUsageFlags usage = sorted[first]->usage;
-      size_t last = first + 1;
-      for (; last < sorted.size() && sorted[last]->address < end; ++last) {
-        end = std::max(end, sorted[last]->address + sorted[last]->size);
-        usage |= sorted[last]->usage;
+    for (bool last = false;;) {
+      image = engine::MemoryImage();
+      result.bytesCopiedIn = 0;
+      for (size_t g = 0; g < groups.size(); ++g) {
+        if (!selected[g]) continue;
+        const AliasGroup& group = groups[g];
+        engine::MemoryRegion& region =
+            image.add_region(group.base, group.end - group.base, group.usage, "buffer " + hex(group.buffers[0]->buffer));
+        for (const ServedBuffer* b : group.buffers) {
+          std::memcpy(region.bytes.data() + (b->address - group.base), b->host, b->size);
+          result.bytesCopiedIn += b->size;
+        }
       }
-      const uint64_t base = sorted[first]->address;
-      engine::MemoryRegion& region = image.add_region(base, end - base, usage, "buffer " + hex(sorted[first]->buffer));
-      for (size_t i = first; i < last; ++i) {
-        std::memcpy(region.bytes.data() + (sorted[i]->address - base), sorted[i]->host, sorted[i]->size);
-        result.bytesCopiedIn += sorted[i]->size;
+      attempt = directory;
+      options.directory = &attempt;
+      result.record = engine::execute(command, image, options);
+      ++result.attempts;
+      if (last || result.record.findings.empty()) break;
+      bool grew = false;
+      for (const engine::Finding& f : result.record.findings) grew |= select(f.address);
+      if (!grew) {
+        if (std::find(selected.begin(), selected.end(), false) == selected.end()) break;
+        selected.assign(groups.size(), true);
+        last = true;
       }
-      first = last;
     }
-    engine::ExecuteOptions options;
-    options.properties = properties;
-    options.directory = &directory;
-    result.record = engine::execute(command, image, options);
   } catch (const std::exception& e) {
     result.error = e.what();
     return result;
   }
+  directory = std::move(attempt);
   result.ran = true;
 
   // Back into every buffer that holds a written byte (aliases included: same memory or not,
   // each view must show what the command wrote).
   for (const engine::MemoryAccess& access : result.record.accesses) {
     if (!access.is_write || access.end <= access.begin) continue;
-    for (const ServedBuffer* b : sorted) {
-      const uint64_t begin = std::max(access.begin, b->address);
-      const uint64_t end = std::min(access.end, b->address + b->size);
-      if (begin >= end) continue;
-      const engine::MemoryRegion* region = image.find_region(begin);
-      if (!region || end > region->base + region->size) continue;  // the engine wrote only inside regions
-      std::memcpy(b->host + (begin - b->address), region->bytes.data() + (begin - region->base), end - begin);
-      result.bytesWrittenBack += end - begin;
-      if (std::find(result.writtenMemories.begin(), result.writtenMemories.end(), b->memory) ==
-          result.writtenMemories.end())
-        result.writtenMemories.push_back(b->memory);
+    for (size_t g = groupOf(groups, access.begin); g < groups.size() && groups[g].base < access.end; ++g) {
+      if (!selected[g]) continue;
+      for (const ServedBuffer* b : groups[g].buffers) {
+        const uint64_t begin = std::max(access.begin, b->address);
+        const uint64_t end = std::min(access.end, b->address + b->size);
+        if (begin >= end) continue;
+        const engine::MemoryRegion* region = image.find_region(begin);
+        if (!region || end > region->base + region->size) continue;  // the engine wrote only inside regions
+        std::memcpy(b->host + (begin - b->address), region->bytes.data() + (begin - region->base), end - begin);
+        result.bytesWrittenBack += end - begin;
+        if (std::find(result.writtenMemories.begin(), result.writtenMemories.end(), b->memory) ==
+            result.writtenMemories.end())
+          result.writtenMemories.push_back(b->memory);
+      }
     }
   }
   return result;

@@ -10,6 +10,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstring>
 #include <map>
 
@@ -183,4 +184,45 @@ TEST(ServedBuild, MissingMemoryBecomesFindingsNotACrash) {
   ASSERT_TRUE(run.ran) << run.error;
   EXPECT_FALSE(run.record.findings.empty());
   EXPECT_EQ(run.bytesWrittenBack, 0u);
+}
+
+// Only the buffers the command reaches are copied: a large unrelated buffer is left alone, and
+// the result still equals engine::execute over all memory (checked above with every buffer).
+TEST(ServedBuild, CopiesOnlyTheBuffersTheCommandReaches) {
+  HostScene scene;
+  std::vector<uint8_t> unrelated(1 << 20, 0x5A);
+  scene.buffers.push_back({77, 0x40000000, unrelated.size(), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, unrelated.data(), 9});
+  uint64_t sceneBytes = 0;
+  for (const auto& [name, bytes] : scene.bytes) sceneBytes += bytes.size();
+  engine::ObjectDirectory directory;
+  ServedExecution clusters = executeServedBuild(scene.commands.clusters, scene.buffers, directory, servedEngineProperties());
+  ASSERT_TRUE(clusters.ran) << clusters.error;
+  EXPECT_TRUE(clusters.record.findings.empty());
+  // The named buffers, then the index and vertex buffers the infos point at (the engine stops an
+  // op at its first fault, so one attempt can find the index buffer and the next the vertices).
+  EXPECT_GE(clusters.attempts, 2u);
+  EXPECT_LE(clusters.attempts, 3u);
+  EXPECT_LT(clusters.bytesCopiedIn, sceneBytes);
+  // The bottom level names its infos; the references and the clusters they point at follow.
+  ServedExecution blas = executeServedBuild(scene.commands.blas, scene.buffers, directory, servedEngineProperties());
+  ASSERT_TRUE(blas.ran) << blas.error;
+  EXPECT_TRUE(blas.record.findings.empty()) << blas.record.findings[0].message;
+  EXPECT_EQ(blas.attempts, 3u);  // infos; then the reference array; then the clusters it names
+  EXPECT_LT(blas.bytesCopiedIn, sceneBytes);
+  EXPECT_GT(scene.at<uint32_t>("blasDstSizes", 0), 0u);
+  EXPECT_EQ(std::count(unrelated.begin(), unrelated.end(), 0x5A), long(unrelated.size()));
+}
+
+// A command with a finding no buffer explains runs once more over every buffer, so what it
+// reports and writes is what a run over all memory gives.
+TEST(ServedBuild, UnexplainedFindingsRunOverAllBuffers) {
+  HostScene scene;
+  uint64_t allBytes = 0;
+  for (const auto& b : scene.buffers) allBytes += b.size;
+  scene.commands.clusters.scratchData = 0;  // VUID-...-scratchData-12300
+  engine::ObjectDirectory directory;
+  ServedExecution run = executeServedBuild(scene.commands.clusters, scene.buffers, directory, servedEngineProperties());
+  ASSERT_TRUE(run.ran) << run.error;
+  EXPECT_TRUE(engine::has_rule(run.record.findings, engine::kRuleScratchTooSmall));
+  EXPECT_EQ(run.bytesCopiedIn, allBytes);
 }

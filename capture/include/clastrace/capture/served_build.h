@@ -2,7 +2,7 @@
 // and answering vkGetClusterAccelerationStructureBuildSizesNV from the engine's size model.
 //
 // The layer calls executeServedBuild at the pause before the command, while the queue waits:
-// the host bytes of every addressed buffer become the engine's MemoryImage, the engine runs
+// the host bytes of the addressed buffers it reaches become the engine's MemoryImage, the engine runs
 // the whole command, and every range its ExecutionRecord marks written is copied back into
 // those host bytes. Vulkan specifics (mapping, flush/invalidate) stay with the caller.
 #pragma once
@@ -34,10 +34,13 @@ struct ServedExecution {
   std::string error;
   engine::ExecutionRecord record;
   std::vector<uint64_t> writtenMemories;   // allocations that received bytes (to flush)
-  uint64_t bytesCopiedIn = 0, bytesWrittenBack = 0;
+  uint64_t bytesCopiedIn = 0, bytesWrittenBack = 0;  // of the last attempt
+  uint32_t attempts = 0;  // engine runs until the image held every buffer the command reads
 };
 
-// Buffers whose address ranges overlap (aliases) become one region holding their union.
+// Buffers whose address ranges overlap (aliases) become one region holding their union. Only
+// the buffers the command reaches are copied: those it names, then those its findings point
+// into, found by running again; the result equals a run over all of `buffers`.
 ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command,
                                    std::span<const ServedBuffer> buffers, engine::ObjectDirectory& directory,
                                    const engine::EngineProperties& properties);
