@@ -1,5 +1,6 @@
 #include "clastrace/capture/served_build.h"
 
+#include "clastrace/capture/cluster_input_walker.h"
 #include "clastrace/capture/cluster_limits.h"
 
 #include <clastrace/engine/build_sizes.h>
@@ -62,7 +63,7 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
   ServedExecution result;
   const std::vector<AliasGroup> groups = aliasGroups(buffers);
 
-  // Start from the buffers the command names itself; run; every finding about an address in a
+  // Start from the buffers the command names itself and those its pointers lead to; run; every finding about an address in a
   // buffer left out adds that buffer, and the command runs again from the same state (the
   // directory is copied per attempt). A run without findings read only memory that was there,
   // so it equals a run over all buffers. With findings left, or with indirected fields (whose
@@ -81,6 +82,29 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
                           command.scratchData, command.dstAddressesArray.deviceAddress,
                           command.dstSizesArray.deviceAddress})
       select(seed);
+    // The capture's pointer walk names most of the rest (index, vertex, geometry, reference
+    // arrays; the clusters a reference array names), so one engine run usually suffices.
+    DeviceMemoryReader read = [&](VkDeviceAddress address, uint64_t size, std::vector<uint8_t>* out, std::string& why) {
+      const size_t g = groupOf(groups, address);
+      if (g < groups.size())
+        for (const ServedBuffer* b : groups[g].buffers)
+          if (address >= b->address && size <= b->address + b->size - address) {
+            if (out) out->assign(b->host + (address - b->address), b->host + (address - b->address) + size);
+            return true;
+          }
+      why = "not inside one buffer";
+      return false;
+    };
+    const ClusterMemoryWalk walk = walkClusterInputs(ClusterCommandParameters::copyOf(command), read);
+    for (const CapturedRange& range : walk.ranges) {
+      select(range.address);
+      if (range.role != MemoryRole::ClusterReferences) continue;
+      for (size_t at = 0; at + 8 <= range.bytes.size(); at += 8) {
+        uint64_t reference;
+        std::memcpy(&reference, range.bytes.data() + at, 8);
+        select(reference);
+      }
+    }
   }
 
   engine::ExecuteOptions options;
