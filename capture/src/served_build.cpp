@@ -63,11 +63,12 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
   ServedExecution result;
   const std::vector<AliasGroup> groups = aliasGroups(buffers);
 
-  // Start from the buffers the command names itself and those its pointers lead to; run; every finding about an address in a
-  // buffer left out adds that buffer, and the command runs again from the same state (the
-  // directory is copied per attempt). A run without findings read only memory that was there,
-  // so it equals a run over all buffers. With findings left, or with indirected fields (whose
-  // targets the seeds do not name), the last run is over all buffers: exact either way.
+  // Start from the buffers the command names itself and those its pointers lead to; run; every
+  // finding about an address in a buffer left out adds that buffer, and the command runs again
+  // from the same state (the directory is copied per attempt). A run without findings read only
+  // memory that was there, so it equals a run over all buffers. With findings left, or with
+  // indirected fields (whose targets the seeds do not name), the last run is over all buffers:
+  // exact either way.
   std::vector<bool> selected(groups.size(), false);
   auto select = [&](uint64_t address) {
     const size_t g = address ? groupOf(groups, address) : groups.size();
@@ -125,24 +126,25 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
           result.bytesCopiedIn += b->size;
         }
       }
-      attempt = directory;
-      options.directory = &attempt;
+      // Over every buffer no further attempt can follow: the device's directory itself.
+      last = last || std::find(selected.begin(), selected.end(), false) == selected.end();
+      if (!last) attempt = directory;
+      options.directory = last ? &directory : &attempt;
       result.record = engine::execute(command, image, options);
       ++result.attempts;
-      if (last || result.record.findings.empty()) break;
+      if (last) break;
+      if (result.record.findings.empty()) {
+        directory = std::move(attempt);
+        break;
+      }
       bool grew = false;
       for (const engine::Finding& f : result.record.findings) grew |= select(f.address);
-      if (!grew) {
-        if (std::find(selected.begin(), selected.end(), false) == selected.end()) break;
-        selected.assign(groups.size(), true);
-        last = true;
-      }
+      if (!grew) selected.assign(groups.size(), true);
     }
   } catch (const std::exception& e) {
     result.error = e.what();
     return result;
   }
-  directory = std::move(attempt);
   result.ran = true;
 
   // Back into every buffer that holds a written byte (aliases included: same memory or not,
