@@ -563,7 +563,8 @@ TEST_F(LayerProcess, InjectedPausesPassSynchronizationValidation) {
          "khronos_validation.report_flags = error,warn\n"
          "khronos_validation.debug_action = VK_DBG_LAYER_ACTION_LOG_MSG\n";
   for (const std::string& mode : {"exactness " + (dir / "expected.json").string(), std::string("resubmit 4"),
-                                  "dispatch " + (dir / "dispatch.json").string()}) {
+                                  "dispatch " + (dir / "dispatch.json").string(),
+                                  "serve " + (dir / "serve.json").string()}) {
     ProcessResult r = run(app(mode), {{"VK_ADD_LAYER_PATH", CLASTRACE_LAYER_MANIFEST_DIR},
                                       {"VK_INSTANCE_LAYERS", "VK_LAYER_CLASTRACE_capture:VK_LAYER_KHRONOS_validation"},
                                       {"VK_LAYER_SETTINGS_PATH", (dir / "vk_layer_settings.txt").string()},
