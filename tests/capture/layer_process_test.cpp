@@ -3,6 +3,7 @@
 // the layer serves it). Each test runs a program and asserts on what it and the layer wrote.
 #include "served_scene.h"
 
+#include <clastrace/engine/build_sizes.h>
 #include <clastrace/engine/cluster_format.h>
 #include <clastrace/engine/execute.h>
 #include <clastrace/traces/trace_reader.h>
@@ -195,9 +196,17 @@ class ServeRun : public LayerProcess {
     clastrace::engine::ObjectDirectory directory;
     clastrace::engine::ExecuteOptions options;
     options.directory = &directory;
-    for (auto* command : {&commands.clusters, &commands.blas}) {
+    for (auto [command, name] : {std::pair{&commands.clusters, "clusters"}, std::pair{&commands.blas, "blas"}}) {
       auto record = clastrace::engine::execute(*command, image, options);
       EXPECT_EQ(record.findings.size(), 0u) << record.findings[0].message;
+      // What the application was told through the loader is the engine's bound, and holds the build.
+      const auto bound = clastrace::engine::cluster_build_sizes(command->input, clastrace::engine::EngineProperties{});
+      const json& told = out["buildSizes"][name];
+      EXPECT_EQ(told["accelerationStructureSize"].get<uint64_t>(), bound.acceleration_structure_size) << name;
+      EXPECT_EQ(told["buildScratchSize"].get<uint64_t>(), bound.build_scratch_size) << name;
+      EXPECT_GT(record.implicit_bytes_used, 0u) << name;
+      EXPECT_LE(record.implicit_bytes_used, bound.acceleration_structure_size) << name;
+      EXPECT_LE(record.scratch_bytes_used, bound.build_scratch_size) << name;
     }
     for (const auto& [name, b] : out["buffers"].items())
       EXPECT_EQ(b["bytes"].get<std::string>(), hexOf(image.read_bytes(b["address"], b["size"], {}))) << name;
