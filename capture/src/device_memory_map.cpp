@@ -155,4 +155,21 @@ bool DeviceMemoryMap::read(VkDeviceAddress address, VkDeviceSize size, std::vect
   return true;
 }
 
+std::vector<ResolvedRange> DeviceMemoryMap::hostAddressedBuffers() const {
+  std::lock_guard lock(mutex_);
+  std::vector<ResolvedRange> out;
+  for (const auto& [address, handle] : buffersByAddress_) {
+    const TrackedBuffer& b = buffers_.at(handle);
+    auto mem = memories_.find(b.memory);
+    if (b.memory == 0 || mem == memories_.end() || !mem->second.hostBase) continue;
+    if (b.memoryOffset > mem->second.size || b.size > mem->second.size - b.memoryOffset) continue;
+    ResolvedRange r;
+    r.buffer = b;
+    r.memory = mem->second;
+    r.host = mem->second.hostBase + b.memoryOffset;
+    out.push_back(r);
+  }
+  return out;
+}
+
 }  // namespace clastrace::capture

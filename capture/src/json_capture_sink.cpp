@@ -199,10 +199,14 @@ class JsonCaptureSink final : public CaptureSink {
   void clusterBuildCaptured(const ClusterBuildCapture& c) override {
     json issues = json::array();
     for (const auto& i : c.issues) issues.push_back({{"address", i.address}, {"size", i.size}, {"rule", i.rule}});
+    json findings = json::array();
+    for (const auto& f : c.engineFindings)
+      findings.push_back({{"rule", f.rule}, {"message", f.message}, {"opIndex", f.opIndex}, {"address", f.address}});
     add("clusterBuilds", {{"kind", int(c.kind)}, {"pauseId", c.pauseId}, {"submissionIndex", c.submissionIndex},
                           {"commandBuffer", c.commandBuffer}, {"parameters", parametersJson(c.parameters)},
                           {"executedCount", c.executedCount}, {"inputs", rangesJson(c.inputs)},
                           {"outputs", rangesJson(c.outputs)}, {"issues", issues},
+                          {"executedByEngine", c.executedByEngine}, {"engineFindings", findings},
                           {"pauseMilliseconds", c.pauseMilliseconds}});
   }
   void flush() override {

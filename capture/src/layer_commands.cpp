@@ -1,6 +1,6 @@
 // Command recording: each intercepted command is forwarded, then recorded into the command
 // buffer's log. Cluster builds get the pause points described in pause_worker.h.
-#include "clastrace/capture/build_sizes_model.h"
+#include "clastrace/capture/served_build.h"
 #include "command_buffer_log.h"
 #include "layer_state.h"
 
@@ -497,7 +497,7 @@ VKAPI_ATTR void VKAPI_CALL GetClusterAccelerationStructureBuildSizesNV(VkDevice 
   DeviceState& d = *findDevice(dispatchKey(device));
   BuildSizesQuery query;
   if (d.serving || !d.next.GetClusterAccelerationStructureBuildSizesNV) {
-    conservativeClusterBuildSizes(*pInfo, d.clusterProperties, *pSizeInfo);
+    servedClusterBuildSizes(*pInfo, *pSizeInfo);
     query.answeredByLayer = true;
   } else {
     d.next.GetClusterAccelerationStructureBuildSizesNV(device, pInfo, pSizeInfo);

@@ -1,6 +1,5 @@
 // Serving VK_NV_cluster_acceleration_structure where the driver lacks it: the extension in the
 // device's list, its feature and properties structs, and the answers to its two entry points.
-#include "clastrace/capture/build_sizes_model.h"
 #include "clastrace/capture/cluster_limits.h"
 #include "layer_state.h"
 

@@ -55,6 +55,7 @@ uint64_t handleId(Handle handle) {
   X(MapMemory)                                 \
   X(UnmapMemory)                               \
   X(InvalidateMappedMemoryRanges)              \
+  X(FlushMappedMemoryRanges)                   \
   X(CreateBuffer)                              \
   X(DestroyBuffer)                             \
   X(BindBufferMemory)                          \

@@ -3,10 +3,13 @@
 #include "clastrace/capture/cluster_input_walker.h"
 #include "layer_state.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cstring>
 
 #include "clastrace/capture/acceleration_structure_walker.h"
+#include "clastrace/capture/cluster_limits.h"
+#include "clastrace/capture/served_build.h"
 
 namespace clastrace::capture {
 
@@ -163,14 +166,7 @@ bool PauseWorker::handle(Expected& expected) {
       }
     }
   }
-  if (device_.serving && pause.phase == PausePhase::BeforeCommand && !warnedUnserved_) {
-    // Executing the build belongs to the engine (whole-command execution), not wired yet:
-    // the application's destination memory is left as it was.
-    warnedUnserved_ = true;
-    logMessage(LogLevel::Error,
-               "serving VK_NV_cluster_acceleration_structure without the engine: builds are captured but "
-               "not executed, their destinations are not written");
-  }
+  if (device_.serving && pause.phase == PausePhase::BeforeCommand && pause.parameters) executeServed(pause, record);
 
   if (record) {  // name each range by a buffer holding it, as the trace's snapshots do
     for (auto* list : {&record->inputs, &record->outputs})
@@ -196,6 +192,63 @@ bool PauseWorker::handle(Expected& expected) {
     }
   }
   return true;
+}
+
+void PauseWorker::executeServed(const PausePoint& pause, ClusterBuildCapture* record) {
+  std::vector<ResolvedRange> held = device_.memoryMap.hostAddressedBuffers();
+  std::vector<ServedBuffer> buffers;
+  std::vector<uint64_t> nonCoherent;
+  buffers.reserve(held.size());
+  for (const ResolvedRange& r : held) {
+    buffers.push_back({r.buffer.handle, r.buffer.address, r.buffer.size, r.buffer.usage, r.host, r.memory.handle});
+    if (!(r.memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_COHERENT_BIT) &&
+        std::find(nonCoherent.begin(), nonCoherent.end(), r.memory.handle) == nonCoherent.end())
+      nonCoherent.push_back(r.memory.handle);
+  }
+  // What the device wrote to non-coherent memory reaches the host view only after an invalidate.
+  auto wholeRange = [](uint64_t memory) {
+    return VkMappedMemoryRange{VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE, nullptr, (VkDeviceMemory)memory, 0, VK_WHOLE_SIZE};
+  };
+  for (uint64_t memory : nonCoherent) {
+    VkMappedMemoryRange range = wholeRange(memory);
+    device_.next.InvalidateMappedMemoryRanges(device_.device, 1, &range);
+  }
+
+  ServedExecution served =
+      executeServedBuild(pause.parameters->resolved(), buffers, directory_, servedEngineProperties());
+  if (!served.ran) {
+    logMessage(LogLevel::Error, "served build (pause %llu) could not run in the engine: %s",
+               (unsigned long long)pause.pauseId, served.error.c_str());
+    if (record) record->engineFindings.push_back({"CLASTRACE-engine-could-not-run", served.error, -1, 0});
+    return;
+  }
+  for (uint64_t memory : served.writtenMemories)
+    if (std::find(nonCoherent.begin(), nonCoherent.end(), memory) != nonCoherent.end()) {
+      VkMappedMemoryRange range = wholeRange(memory);
+      device_.next.FlushMappedMemoryRanges(device_.device, 1, &range);
+    }
+  logMessage(LogLevel::Info,
+             "served build (pause %llu): %u ops executed by the engine, %zu findings, %llu bytes read in "
+             "(%u runs), %llu bytes written",
+             (unsigned long long)pause.pauseId, served.record.op_count, served.record.findings.size(),
+             (unsigned long long)served.bytesCopiedIn, served.attempts, (unsigned long long)served.bytesWrittenBack);
+  // An application repeating one mistake every frame would bury everything else: each rule is
+  // logged a few times per device, then once more to say the rest are counted, not printed.
+  constexpr uint64_t kLoggedPerRule = 8;
+  for (const engine::Finding& f : served.record.findings) {
+    const uint64_t seen = ++findingsPerRule_[f.rule];
+    if (seen <= kLoggedPerRule)
+      logMessage(LogLevel::Error, "served build (pause %llu) op %lld: %s: %s", (unsigned long long)pause.pauseId,
+                 (long long)f.op_index, f.rule.c_str(), f.message.c_str());
+    if (seen == kLoggedPerRule)
+      logMessage(LogLevel::Error, "%s: further findings of this rule on this device are not logged (a capture keeps "
+                 "them all)", f.rule.c_str());
+  }
+  if (record) {
+    record->executedByEngine = true;
+    for (const engine::Finding& f : served.record.findings)
+      record->engineFindings.push_back({f.rule, f.message, f.op_index, f.address});
+  }
 }
 
 }  // namespace clastrace::capture

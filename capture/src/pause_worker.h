@@ -19,11 +19,14 @@
 #include "clastrace/capture/capture_records.h"
 #include "clastrace/capture/device_memory_map.h"
 
+#include <clastrace/engine/object_directory.h>
+
 #include <condition_variable>
 #include <deque>
 #include <map>
 #include <memory>
 #include <mutex>
+#include <string>
 #include <thread>
 #include <vulkan/vulkan_core.h>
 
@@ -68,6 +71,9 @@ class PauseWorker {
   bool checkMemory(VkDeviceAddress address, uint64_t size, std::string& why);
   bool readMemory(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>& out, std::string& why);
   bool readResolved(const ResolvedRange& range, uint64_t size, std::vector<uint8_t>& out);
+  // Serving: runs the command in the engine against the application's memory and writes its
+  // outputs back, while the queue waits at the pause before it.
+  void executeServed(const PausePoint& pause, ClusterBuildCapture* record);
 
   DeviceState& device_;
   std::mutex mutex_;
@@ -76,7 +82,8 @@ class PauseWorker {
   std::map<uint64_t, ClusterBuildCapture> open_;  // pauseId -> capture between its two pauses
   bool stop_ = false;
   std::atomic<uint64_t> handled_{0};
-  bool warnedUnserved_ = false;
+  std::map<std::string, uint64_t> findingsPerRule_;  // how often each engine rule was logged
+  engine::ObjectDirectory directory_;  // the served device's live objects, across its commands
   std::thread thread_;
 };
 

@@ -109,6 +109,14 @@ class TraceCaptureSink final : public CaptureSink {
     info.api_version = d.apiVersion;
     info.device_type = d.deviceType;
     info.pipeline_cache_uuid = d.pipelineCacheUuid;
+    if (d.servedByLayer) {
+      // The cluster builds' outputs in this trace were written by clastrace's engine, not by
+      // the device's driver: replay compares them with the engine byte for byte.
+      info.driver_name = "clastrace engine";
+      info.driver_info = "VK_NV_cluster_acceleration_structure served by VK_LAYER_CLASTRACE_capture: cluster "
+                         "builds executed by clastrace's CPU engine on the host; the device's driver ran "
+                         "everything else";
+    }
     info.timestamp_period_ns = d.timestampPeriod;
     for (const auto& t : d.memoryTypes) info.memory_types.emplace_back(t.propertyFlags, t.heapIndex);
     for (const auto& h : d.memoryHeaps) info.memory_heaps.emplace_back(h.size, h.flags);

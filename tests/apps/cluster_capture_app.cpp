@@ -7,6 +7,12 @@
 //   dispatch OUT.json      a compute dispatch with storage buffers bound (one dynamic)
 //   resubmit N             one command buffer submitted N times, the host changing the count
 //   pause-cost N           N builds in one submission; prints the time per build
+//   serve OUT.json         served_scene.h: triangle clusters, then a bottom level over the
+//                          addresses the first build wrote, in one command buffer; OUT.json
+//                          holds every buffer's address and what the builds wrote. Exit 3
+//                          when the device does not offer the extension.
+#include "served_scene.h"
+
 #include <clastrace/vk_cluster_abi.h>
 
 #include <nlohmann/json.hpp>
@@ -118,14 +124,14 @@ struct Context {
   }
 
   // Host-visible, coherent: the host fills it with a marker the GPU commands must replace.
-  Buffer makeBuffer(VkDeviceSize size, uint8_t hostMarker) {
+  Buffer makeBuffer(VkDeviceSize size, uint8_t hostMarker, VkBufferUsageFlags extraUsage = 0) {
     Buffer b;
     b.size = size;
     VkBufferCreateInfo info{};
     info.sType = VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO;
     info.size = size;
     info.usage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_TRANSFER_SRC_BIT |
-                 VK_BUFFER_USAGE_TRANSFER_DST_BIT | VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT;
+                 VK_BUFFER_USAGE_TRANSFER_DST_BIT | VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | extraUsage;
     CHECK(vkCreateBuffer(device, &info, nullptr, &b.buffer));
     VkMemoryRequirements req;
     vkGetBufferMemoryRequirements(device, b.buffer, &req);
@@ -576,10 +582,100 @@ int pauseCost(int builds) {
   return 0;
 }
 
+int serve(const char* outPath) {
+  Context c;
+  c.createInstance();
+  if (!c.hasClusterExtension()) {
+    std::printf("VK_NV_cluster_acceleration_structure is not supported\n");
+    return 3;
+  }
+  c.createDevice();
+  VkPhysicalDeviceClusterAccelerationStructurePropertiesNV p{};
+  p.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_PROPERTIES_NV;
+  VkPhysicalDeviceProperties2 properties2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2, &p, {}};
+  vkGetPhysicalDeviceProperties2(c.physicalDevice, &properties2);
+
+  served_scene::Commands sizing;
+  served_scene::makeCommands({}, sizing);
+  VkAccelerationStructureBuildSizesInfoKHR clusterSizes{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr, 0, 0, 0};
+  VkAccelerationStructureBuildSizesInfoKHR blasSizes{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr, 0, 0, 0};
+  c.getBuildSizes(c.device, &sizing.clusters.input, &clusterSizes);
+  c.getBuildSizes(c.device, &sizing.blas.input, &blasSizes);
+  if (!clusterSizes.accelerationStructureSize || !blasSizes.accelerationStructureSize) fail("build sizes of 0");
+
+  const VkBufferUsageFlags input = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
+  const VkBufferUsageFlags storage = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
+  served_scene::Inputs probe = served_scene::makeInputs({});
+  Buffer vertices = c.makeBuffer(probe.vertices.size() * 4, 0xEE, input);
+  Buffer indices = c.makeBuffer(probe.indices.size() * 4, 0xEE, input);
+  Buffer infos = c.makeBuffer(served_scene::kInfoStride * served_scene::kMaxClusters, 0xEE, input);
+  Buffer counts = c.makeBuffer(8, 0xEE, input);
+  Buffer dstAddresses = c.makeBuffer(8 * served_scene::kMaxClusters, 0xEE, storage | input);
+  Buffer dstSizes = c.makeBuffer(4 * served_scene::kMaxClusters, 0xEE, storage);
+  Buffer implicitData = c.makeBuffer(clusterSizes.accelerationStructureSize, 0xEE, storage);
+  Buffer scratch = c.makeBuffer(clusterSizes.buildScratchSize, 0xEE, 0);
+  Buffer blasInfos = c.makeBuffer(sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV), 0xEE, input);
+  Buffer blasDstAddresses = c.makeBuffer(8, 0xEE, storage);
+  Buffer blasDstSizes = c.makeBuffer(4, 0xEE, storage);
+  Buffer blasImplicit = c.makeBuffer(blasSizes.accelerationStructureSize, 0xEE, storage);
+  Buffer blasScratch = c.makeBuffer(blasSizes.buildScratchSize, 0xEE, 0);
+
+  served_scene::Addresses a{vertices.address, indices.address, infos.address, counts.address,
+                            dstAddresses.address, dstSizes.address, implicitData.address, scratch.address,
+                            blasInfos.address, blasDstAddresses.address, blasDstSizes.address, blasImplicit.address,
+                            blasScratch.address};
+  served_scene::Inputs in = served_scene::makeInputs(a);
+  std::memcpy(vertices.mapped, in.vertices.data(), in.vertices.size() * 4);
+  std::memcpy(indices.mapped, in.indices.data(), in.indices.size() * 4);
+  std::memcpy(infos.mapped, in.infos.data(), in.infos.size() * served_scene::kInfoStride);
+  std::memcpy(counts.mapped, in.counts, sizeof in.counts);
+  std::memcpy(blasInfos.mapped, &in.blasInfo, sizeof in.blasInfo);
+  served_scene::Commands commands;
+  served_scene::makeCommands(a, commands);
+
+  VkCommandBuffer cb = c.beginCommands();
+  c.cmdBuildClusters(cb, &commands.clusters);
+  // The bottom level reads the cluster objects and the addresses the first build wrote.
+  VkMemoryBarrier barrier{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr, VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
+                          VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_KHR | VK_ACCESS_SHADER_READ_BIT |
+                              VK_ACCESS_INDIRECT_COMMAND_READ_BIT};
+  vkCmdPipelineBarrier(cb, VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                       VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, 0, 1, &barrier, 0, nullptr, 0, nullptr);
+  c.cmdBuildClusters(cb, &commands.blas);
+  VkMemoryBarrier toHost{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr, VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
+                         VK_ACCESS_HOST_READ_BIT};
+  vkCmdPipelineBarrier(cb, VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_PIPELINE_STAGE_HOST_BIT, 0, 1,
+                       &toHost, 0, nullptr, 0, nullptr);
+  c.submitAndWait(cb);
+  CHECK(vkQueueWaitIdle(c.queue));
+
+  auto bufferJson = [](const Buffer& b) {
+    return nlohmann::json{{"address", b.address}, {"size", b.size}, {"bytes", hex(b.mapped, b.size)}};
+  };
+  nlohmann::json out;
+  out["properties"] = {{"clusterByteAlignment", p.clusterByteAlignment},
+                       {"clusterBottomLevelByteAlignment", p.clusterBottomLevelByteAlignment}};
+  out["buildSizes"] = {{"clusters", {{"accelerationStructureSize", clusterSizes.accelerationStructureSize},
+                                     {"buildScratchSize", clusterSizes.buildScratchSize}}},
+                       {"blas", {{"accelerationStructureSize", blasSizes.accelerationStructureSize},
+                                 {"buildScratchSize", blasSizes.buildScratchSize}}}};
+  // Addresses for the host recomputation; bytes as the builds left them.
+  out["buffers"] = {{"vertices", bufferJson(vertices)},         {"indices", bufferJson(indices)},
+                    {"infos", bufferJson(infos)},               {"counts", bufferJson(counts)},
+                    {"dstAddresses", bufferJson(dstAddresses)}, {"dstSizes", bufferJson(dstSizes)},
+                    {"implicitData", bufferJson(implicitData)}, {"scratch", bufferJson(scratch)},
+                    {"blasInfos", bufferJson(blasInfos)},       {"blasDstAddresses", bufferJson(blasDstAddresses)},
+                    {"blasDstSizes", bufferJson(blasDstSizes)}, {"blasImplicit", bufferJson(blasImplicit)},
+                    {"blasScratch", bufferJson(blasScratch)}};
+  std::ofstream(outPath) << out.dump(1);
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   if (argc == 3 && std::strcmp(argv[1], "limits") == 0) return limits(argv[2]);
+  if (argc == 3 && std::strcmp(argv[1], "serve") == 0) return serve(argv[2]);
   if (argc == 3 && std::strcmp(argv[1], "exactness") == 0) return exactness(argv[2]);
   if (argc == 3 && std::strcmp(argv[1], "dispatch") == 0) return dispatch(argv[2]);
   if (argc == 3 && std::strcmp(argv[1], "resubmit") == 0) return resubmit(std::max(1, std::atoi(argv[2])));

@@ -1,6 +1,11 @@
 // The layer as the loader loads it: VK_ADD_LAYER_PATH points at the build tree's manifest,
 // VK_INSTANCE_LAYERS enables it, lavapipe is the driver (it lacks the cluster extension, so
 // the layer serves it). Each test runs a program and asserts on what it and the layer wrote.
+#include "served_scene.h"
+
+#include <clastrace/engine/build_sizes.h>
+#include <clastrace/engine/cluster_format.h>
+#include <clastrace/engine/execute.h>
 #include <clastrace/traces/trace_reader.h>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -8,9 +13,12 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <cstring>
+#include <span>
 #include <sstream>
 
 namespace {
@@ -137,6 +145,169 @@ TEST_F(LayerProcess, ServeOffLeavesTheDriverAsItIs) {
   EXPECT_EQ(limits["properties"]["maxVerticesPerCluster"], 0);
 }
 
+// ---- Served builds execute in the engine ---------------------------------------------------
+
+class ServeRun : public LayerProcess {
+ protected:
+  json out;  // what cluster_capture_app `serve` read back after vkQueueWaitIdle
+
+  static std::string hexOf(std::span<const std::byte> bytes) {
+    std::string hex;
+    for (std::byte b : bytes) hex += "0123456789abcdef"[uint8_t(b) >> 4], hex += "0123456789abcdef"[uint8_t(b) & 15];
+    return hex;
+  }
+  static std::vector<uint8_t> bytesOf(const std::string& hex) {
+    std::vector<uint8_t> bytes(hex.size() / 2);
+    for (size_t i = 0; i < bytes.size(); ++i) bytes[i] = uint8_t(std::stoul(hex.substr(2 * i, 2), nullptr, 16));
+    return bytes;
+  }
+  ProcessResult runServe(std::map<std::string, std::string> env = {}) {
+    ProcessResult r = run(app("serve " + (dir / "serve.json").string()), env);
+    if (r.exitCode == 0) out = json::parse(readText(dir / "serve.json"));
+    return r;
+  }
+  uint64_t address(const char* name) const { return out["buffers"][name]["address"]; }
+
+  // The same two commands run by engine::execute on the host, at the application's addresses,
+  // over buffers holding what the application wrote into them (0xEE elsewhere); every buffer
+  // the application read back must equal the engine's, byte for byte.
+  void expectTheEnginesBytes() {
+    served_scene::Addresses a{address("vertices"),    address("indices"),          address("infos"),
+                              address("counts"),      address("dstAddresses"),     address("dstSizes"),
+                              address("implicitData"), address("scratch"),         address("blasInfos"),
+                              address("blasDstAddresses"), address("blasDstSizes"), address("blasImplicit"),
+                              address("blasScratch")};
+    clastrace::engine::MemoryImage image;
+    for (const auto& [name, b] : out["buffers"].items()) {
+      auto& region = image.add_region(b["address"], b["size"], 0, name);
+      std::fill(region.bytes.begin(), region.bytes.end(), std::byte{0xEE});
+    }
+    served_scene::Inputs in = served_scene::makeInputs(a);
+    auto put = [&](uint64_t at, const void* data, size_t size) {
+      std::memcpy(image.write_bytes(at, size, {}).data(), data, size);
+    };
+    put(a.vertices, in.vertices.data(), in.vertices.size() * 4);
+    put(a.indices, in.indices.data(), in.indices.size() * 4);
+    put(a.infos, in.infos.data(), in.infos.size() * served_scene::kInfoStride);
+    put(a.counts, in.counts, sizeof in.counts);
+    put(a.blasInfos, &in.blasInfo, sizeof in.blasInfo);
+    served_scene::Commands commands;
+    served_scene::makeCommands(a, commands);
+    clastrace::engine::ObjectDirectory directory;
+    clastrace::engine::ExecuteOptions options;
+    options.directory = &directory;
+    for (auto [command, name] : {std::pair{&commands.clusters, "clusters"}, std::pair{&commands.blas, "blas"}}) {
+      auto record = clastrace::engine::execute(*command, image, options);
+      EXPECT_EQ(record.findings.size(), 0u) << record.findings[0].message;
+      // What the application was told through the loader is the engine's bound, and holds the build.
+      const auto bound = clastrace::engine::cluster_build_sizes(command->input, clastrace::engine::EngineProperties{});
+      const json& told = out["buildSizes"][name];
+      EXPECT_EQ(told["accelerationStructureSize"].get<uint64_t>(), bound.acceleration_structure_size) << name;
+      EXPECT_EQ(told["buildScratchSize"].get<uint64_t>(), bound.build_scratch_size) << name;
+      EXPECT_GT(record.implicit_bytes_used, 0u) << name;
+      EXPECT_LE(record.implicit_bytes_used, bound.acceleration_structure_size) << name;
+      EXPECT_LE(record.scratch_bytes_used, bound.build_scratch_size) << name;
+    }
+    for (const auto& [name, b] : out["buffers"].items())
+      EXPECT_EQ(b["bytes"].get<std::string>(), hexOf(image.read_bytes(b["address"], b["size"], {}))) << name;
+
+    // And what that means: sizes > 0, addresses inside dstImplicitData at the advertised
+    // alignment, objects that start with the engine's magic.
+    const auto dstAddresses = bytesOf(out["buffers"]["dstAddresses"]["bytes"]);
+    const auto dstSizes = bytesOf(out["buffers"]["dstSizes"]["bytes"]);
+    const auto implicit = bytesOf(out["buffers"]["implicitData"]["bytes"]);
+    const uint64_t alignment = out["properties"]["clusterByteAlignment"];
+    for (uint32_t i = 0; i < served_scene::kClusterCount; ++i) {
+      uint64_t at;
+      uint32_t size, magic;
+      std::memcpy(&at, dstAddresses.data() + 8 * i, 8);
+      std::memcpy(&size, dstSizes.data() + 4 * i, 4);
+      EXPECT_GT(size, 0u);
+      EXPECT_EQ(at % alignment, 0u);
+      ASSERT_GE(at, a.implicitData);
+      ASSERT_LE(at - a.implicitData + size, implicit.size());
+      std::memcpy(&magic, implicit.data() + (at - a.implicitData), 4);
+      EXPECT_EQ(magic, clastrace::engine::kObjectMagic);
+    }
+    const auto blasAddress = bytesOf(out["buffers"]["blasDstAddresses"]["bytes"]);
+    uint64_t blas;
+    std::memcpy(&blas, blasAddress.data(), 8);
+    EXPECT_EQ(blas % out["properties"]["clusterBottomLevelByteAlignment"].get<uint64_t>(), 0u);
+    EXPECT_EQ(blas, a.blasImplicit);
+  }
+};
+
+TEST_F(ServeRun, BuildsWriteWhatTheEngineComputesAndTheCaptureRecordsIt) {
+  ProcessResult r = runServe({{"CLASTRACE_DEBUG_JSON", (dir / "capture.json").string()}});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  EXPECT_EQ(r.err, "");  // no findings: the scene is valid
+  expectTheEnginesBytes();
+
+  // The capture's outputs are the bytes the engine wrote (read after the command, and
+  // what the application saw at the end, nothing overwrote them).
+  json captured = json::parse(readText(dir / "capture.json"));
+  ASSERT_EQ(captured["clusterBuilds"].size(), 2u);
+  for (const auto& build : captured["clusterBuilds"]) {
+    EXPECT_TRUE(build["executedByEngine"].get<bool>());
+    EXPECT_TRUE(build["engineFindings"].empty()) << build["engineFindings"];
+  }
+  bool sawSizes = false;
+  for (const auto& range : captured["clusterBuilds"][0]["outputs"])
+    if (range["role"] == "dstSizes") {
+      sawSizes = true;
+      EXPECT_EQ(range["address"], address("dstSizes"));
+      EXPECT_EQ(range["bytes"].get<std::string>(),
+                out["buffers"]["dstSizes"]["bytes"].get<std::string>().substr(0, 8 * served_scene::kClusterCount));
+    }
+  EXPECT_TRUE(sawSizes);
+}
+
+TEST_F(ServeRun, CaptureOffStillExecutesTheBuilds) {
+  ProcessResult r = runServe({{"CLASTRACE_CAPTURE", "0"}});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  expectTheEnginesBytes();
+}
+
+TEST_F(ServeRun, ServeOffLeavesTheApplicationWithoutTheExtension) {
+  ProcessResult r = runServe({{"CLASTRACE_SERVE", "0"}});
+  EXPECT_EQ(r.exitCode, 3) << r.err;
+  EXPECT_NE(r.out.find("VK_NV_cluster_acceleration_structure is not supported"), std::string::npos) << r.out;
+  EXPECT_FALSE(fs::exists(dir / "serve.json"));
+}
+
+// The trace says whose outputs it holds: the header's driver is clastrace's engine, and the
+// builds' output snapshots hold the bytes the application read back.
+TEST_F(ServeRun, TraceNamesTheEngineAsTheDriverOfItsOutputs) {
+  const fs::path trace = dir / "serve.clt";
+  ProcessResult r = runServe({{"CLASTRACE_OUTPUT", trace.string()}});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  expectTheEnginesBytes();  // so the snapshots below are the engine's bytes
+  clastrace::traces::TraceError error;
+  auto reader = clastrace::traces::TraceReader::open(trace.string(), &error);
+  ASSERT_TRUE(reader) << error.message;
+  ASSERT_TRUE(reader->header() && reader->header()->device() && reader->header()->device()->driver_name());
+  EXPECT_EQ(reader->header()->device()->driver_name()->str(), "clastrace engine");
+  std::vector<std::pair<uint64_t, uint64_t>> outputs;  // (address, hash) of the first build
+  clastrace::traces::RecordView view;
+  while (reader->next(&view)) {
+    if (view.kind != clastrace::fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect) continue;
+    const auto* build = view.record->body_as_CmdBuildClusterAccelerationStructureIndirect();
+    if (outputs.empty() && build->outputs())
+      for (const auto* s : *build->outputs()) outputs.emplace_back(s->address(), s->hash());
+  }
+  bool sawSizes = false;
+  for (const auto& [at, hash] : outputs) {
+    if (at != address("dstSizes")) continue;
+    sawSizes = true;
+    std::vector<uint8_t> bytes;
+    auto e = reader->read_contents(hash, &bytes);
+    ASSERT_FALSE(e) << e.message;
+    EXPECT_EQ(hexOf(std::as_bytes(std::span(bytes))),
+              out["buffers"]["dstSizes"]["bytes"].get<std::string>().substr(0, 8 * served_scene::kClusterCount));
+  }
+  EXPECT_TRUE(sawSizes);
+}
+
 // ---- Capture at the point of execution -------------------------------------------------
 
 class ExactnessRun : public LayerProcess {
@@ -182,11 +353,24 @@ TEST_F(ExactnessRun, CapturedBytesAreWhatTheQueueWroteBeforeTheBuild) {
   EXPECT_NE(expected["finalMemory"]["vertexBuffer"]["bytes"], want["vertexBuffer"][0]["bytes"]);
   for (const auto& r : build["inputs"]) EXPECT_EQ(r["bytes"].get<std::string>().find("eeee"), std::string::npos) << r;
 
-  // Outputs are read right after the command, before the command buffer's later fill.
+  // Outputs are read right after the command, before the command buffer's later fill. The
+  // layer serves the extension on lavapipe, so the engine wrote the two sizes over the
+  // application's 0x77 fill.
   auto sizes = ranges(build, "dstSizes", "outputs");
   ASSERT_EQ(sizes.size(), 1u);
-  EXPECT_EQ(sizes[0]["bytes"], want["dstSizesAfter"]["bytes"]);
-  EXPECT_NE(expected["finalMemory"]["dstSizes"]["bytes"], want["dstSizesAfter"]["bytes"]);
+  const std::string sizeBytes = sizes[0]["bytes"];
+  ASSERT_EQ(sizeBytes.size(), 16u);
+  EXPECT_NE(sizeBytes, want["dstSizesAfter"]["bytes"]);
+  EXPECT_NE(sizeBytes.substr(0, 8), "00000000");
+  EXPECT_NE(sizeBytes.substr(8, 8), "00000000");
+  EXPECT_NE(expected["finalMemory"]["dstSizes"]["bytes"], sizeBytes);
+  EXPECT_TRUE(build["executedByEngine"].get<bool>());
+  // The app's buffers lack the acceleration-structure usages the extension requires: the
+  // engine's findings name the VUIDs and reach the capture.
+  std::vector<std::string> rules;
+  for (const auto& f : build["engineFindings"]) rules.push_back(f["rule"]);
+  EXPECT_NE(std::find(rules.begin(), rules.end(), "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12305"),
+            rules.end()) << build["engineFindings"];
 
   const json& blas = captured["clusterBuilds"][1];
   const json& wantBlas = expected["bottomLevelBuild"];
@@ -388,10 +572,14 @@ TEST_F(LayerProcess, InjectedPausesPassSynchronizationValidation) {
          "khronos_validation.report_flags = error,warn\n"
          "khronos_validation.debug_action = VK_DBG_LAYER_ACTION_LOG_MSG\n";
   for (const std::string& mode : {"exactness " + (dir / "expected.json").string(), std::string("resubmit 4"),
-                                  "dispatch " + (dir / "dispatch.json").string()}) {
+                                  "dispatch " + (dir / "dispatch.json").string(),
+                                  "serve " + (dir / "serve.json").string()}) {
     ProcessResult r = run(app(mode), {{"VK_ADD_LAYER_PATH", CLASTRACE_LAYER_MANIFEST_DIR},
                                       {"VK_INSTANCE_LAYERS", "VK_LAYER_CLASTRACE_capture:VK_LAYER_KHRONOS_validation"},
                                       {"VK_LAYER_SETTINGS_PATH", (dir / "vk_layer_settings.txt").string()},
+                                      // the engine's own findings name VUIDs too: only the
+                                      // validation layer's messages count here
+                                      {"CLASTRACE_LOG", "quiet"},
                                       {"CLASTRACE_DEBUG_JSON", (dir / "capture.json").string()}},
                           false);
     ASSERT_EQ(r.exitCode, 0) << mode << ": " << r.err;

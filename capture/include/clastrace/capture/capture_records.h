@@ -63,6 +63,13 @@ struct CaptureIssue {
   std::string rule;  // a VUID verbatim where one applies, else a plain statement
 };
 
+struct EngineFindingRecord {
+  std::string rule;  // the engine's rule: a VUID verbatim or a CLASTRACE-... name
+  std::string message;
+  int64_t opIndex = -1;
+  VkDeviceAddress address = 0;
+};
+
 // ---- State the replay needs -------------------------------------------------------------
 
 struct DeviceRecord {
@@ -253,6 +260,10 @@ struct ClusterBuildCapture {
   std::vector<CapturedRange> inputs;
   std::vector<CapturedRange> outputs;
   std::vector<CaptureIssue> issues;
+  // Serving: the command ran in clastrace's engine (its outputs are what the engine wrote),
+  // and what the engine found wrong with it.
+  bool executedByEngine = false;
+  std::vector<EngineFindingRecord> engineFindings;
   double pauseMilliseconds = 0;  // queue stall the capture caused (both pauses)
 };
 

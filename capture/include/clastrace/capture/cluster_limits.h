@@ -1,24 +1,20 @@
 // What the layer answers for VK_NV_cluster_acceleration_structure when it serves the extension.
 //
-// One place on purpose: the engine will own the limits of the device it emulates and these
-// defaults are to be replaced by its values. They are NVIDIA-like (Ada/Blackwell drivers).
+// The served device is clastrace's engine: its EngineProperties are the one source of these
+// limits, so what the application is told and what engine::execute enforces never differ.
 #pragma once
 
+#include <clastrace/engine/properties.h>
 #include <clastrace/vk_cluster_abi.h>
 
 namespace clastrace::capture {
 
+inline engine::EngineProperties servedEngineProperties() { return engine::EngineProperties::nvidia_default(); }
+
 inline VkPhysicalDeviceClusterAccelerationStructurePropertiesNV servedClusterProperties() {
-  VkPhysicalDeviceClusterAccelerationStructurePropertiesNV p{};
+  VkPhysicalDeviceClusterAccelerationStructurePropertiesNV p = servedEngineProperties().to_vk();
   p.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_PROPERTIES_NV;
-  p.maxVerticesPerCluster = 256;
-  p.maxTrianglesPerCluster = 256;
-  p.clusterScratchByteAlignment = 128;
-  p.clusterByteAlignment = 128;
-  p.clusterTemplateByteAlignment = 32;
-  p.clusterBottomLevelByteAlignment = 256;
-  p.clusterTemplateBoundsByteAlignment = 32;
-  p.maxClusterGeometryIndex = 16777215;
+  p.pNext = nullptr;
   return p;
 }
 

@@ -65,6 +65,10 @@ class DeviceMemoryMap {
   std::optional<ResolvedRange> resolveBuffer(uint64_t buffer, VkDeviceSize offset, VkDeviceSize size,
                                              std::string& why) const;
 
+  // Every buffer with a queried address and live host-mapped memory bound, from its first byte
+  // (offsetInBuffer 0): what a served build may touch.
+  std::vector<ResolvedRange> hostAddressedBuffers() const;
+
  private:
   mutable std::mutex mutex_;
   std::unordered_map<uint64_t, TrackedMemory> memories_;

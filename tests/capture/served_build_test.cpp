@@ -1,0 +1,278 @@
+// The served device's answers come from the engine: build sizes equal engine::cluster_build_sizes
+// and hold a real build; executeServedBuild writes back exactly what engine::execute computes.
+#include "clastrace/capture/cluster_limits.h"
+#include "clastrace/capture/served_build.h"
+#include "served_scene.h"
+
+#include <clastrace/engine/build_sizes.h>
+#include <clastrace/engine/cluster_format.h>
+#include <clastrace/engine/execute.h>
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cstring>
+#include <map>
+
+using namespace clastrace;
+using namespace clastrace::capture;
+
+namespace {
+
+// The scene's buffers in host memory, at made-up device addresses 64 KiB apart.
+struct HostScene {
+  served_scene::Addresses a;
+  served_scene::Commands commands;
+  std::map<std::string, std::vector<uint8_t>> bytes;
+  std::vector<ServedBuffer> buffers;
+  VkAccelerationStructureBuildSizesInfoKHR clusterSizes{}, blasSizes{};
+
+  HostScene() {
+    served_scene::Commands sizing;
+    served_scene::makeCommands({}, sizing);
+    EXPECT_TRUE(servedClusterBuildSizes(sizing.clusters.input, clusterSizes));
+    EXPECT_TRUE(servedClusterBuildSizes(sizing.blas.input, blasSizes));
+    served_scene::Inputs probe = served_scene::makeInputs({});
+    uint64_t next = 0x100000;
+    auto add = [&](const char* name, uint64_t& address, uint64_t size, VkBufferUsageFlags usage) {
+      address = next;
+      next += (size + 0xFFFF) / 0x10000 * 0x10000 + 0x10000;
+      bytes[name].assign(size, 0xEE);
+      buffers.push_back({buffers.size() + 1, address, size, usage, nullptr, 7});
+    };
+    const VkBufferUsageFlags in = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
+    const VkBufferUsageFlags st = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
+    const VkBufferUsageFlags sc = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
+    add("vertices", a.vertices, probe.vertices.size() * 4, in);
+    add("indices", a.indices, probe.indices.size() * 4, in);
+    add("infos", a.infos, served_scene::kInfoStride * served_scene::kMaxClusters, in);
+    add("counts", a.counts, 8, in);
+    add("dstAddresses", a.dstAddresses, 8 * served_scene::kMaxClusters, st | in);
+    add("dstSizes", a.dstSizes, 4 * served_scene::kMaxClusters, st);
+    add("implicitData", a.implicitData, clusterSizes.accelerationStructureSize, st);
+    add("scratch", a.scratch, clusterSizes.buildScratchSize, sc);
+    add("blasInfos", a.blasInfos, sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV), in);
+    add("blasDstAddresses", a.blasDstAddresses, 8, st);
+    add("blasDstSizes", a.blasDstSizes, 4, st);
+    add("blasImplicit", a.blasImplicit, blasSizes.accelerationStructureSize, st);
+    add("blasScratch", a.blasScratch, blasSizes.buildScratchSize, sc);
+    size_t i = 0;
+    for (auto name : {"vertices", "indices", "infos", "counts", "dstAddresses", "dstSizes", "implicitData", "scratch",
+                      "blasInfos", "blasDstAddresses", "blasDstSizes", "blasImplicit", "blasScratch"})
+      buffers[i++].host = bytes[name].data();
+    served_scene::Inputs inputs = served_scene::makeInputs(a);
+    std::memcpy(bytes["vertices"].data(), inputs.vertices.data(), inputs.vertices.size() * 4);
+    std::memcpy(bytes["indices"].data(), inputs.indices.data(), inputs.indices.size() * 4);
+    std::memcpy(bytes["infos"].data(), inputs.infos.data(), inputs.infos.size() * served_scene::kInfoStride);
+    std::memcpy(bytes["counts"].data(), inputs.counts, 8);
+    std::memcpy(bytes["blasInfos"].data(), &inputs.blasInfo, sizeof inputs.blasInfo);
+    served_scene::makeCommands(a, commands);
+  }
+  template <class T>
+  T at(const char* name, size_t index) {
+    T value;
+    std::memcpy(&value, bytes.at(name).data() + index * sizeof(T), sizeof(T));
+    return value;
+  }
+};
+
+}  // namespace
+
+TEST(ServedBuild, LimitsAreTheEngines) {
+  const auto served = servedClusterProperties();
+  const auto engine = engine::EngineProperties::nvidia_default().to_vk();
+  EXPECT_EQ(served.sType, VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_PROPERTIES_NV);
+  EXPECT_EQ(served.clusterByteAlignment, engine.clusterByteAlignment);
+  EXPECT_EQ(served.clusterBottomLevelByteAlignment, engine.clusterBottomLevelByteAlignment);
+  EXPECT_EQ(served.maxTrianglesPerCluster, engine.maxTrianglesPerCluster);
+  EXPECT_EQ(served.maxClusterGeometryIndex, engine.maxClusterGeometryIndex);
+}
+
+TEST(ServedBuild, BuildSizesAreTheEnginesAndHoldARealBuild) {
+  HostScene scene;
+  for (auto* command : {&scene.commands.clusters, &scene.commands.blas}) {
+    const engine::BuildSizes want = engine::cluster_build_sizes(command->input, servedEngineProperties());
+    VkAccelerationStructureBuildSizesInfoKHR got{};
+    ASSERT_TRUE(servedClusterBuildSizes(command->input, got));
+    EXPECT_EQ(got.accelerationStructureSize, want.acceleration_structure_size);
+    EXPECT_EQ(got.buildScratchSize, want.build_scratch_size);
+    EXPECT_EQ(got.updateScratchSize, 0u);
+  }
+  engine::ObjectDirectory directory;
+  for (auto [command, sizes] : {std::pair{&scene.commands.clusters, scene.clusterSizes},
+                                std::pair{&scene.commands.blas, scene.blasSizes}}) {
+    ServedExecution run = executeServedBuild(*command, scene.buffers, directory, servedEngineProperties());
+    ASSERT_TRUE(run.ran) << run.error;
+    EXPECT_TRUE(run.record.findings.empty()) << run.record.findings[0].rule << ": " << run.record.findings[0].message;
+    EXPECT_GT(run.record.implicit_bytes_used, 0u);
+    EXPECT_LE(run.record.implicit_bytes_used, sizes.accelerationStructureSize);
+    EXPECT_LE(run.record.scratch_bytes_used, sizes.buildScratchSize);
+  }
+}
+
+TEST(ServedBuild, RejectedInputAnswersZero) {
+  VkClusterAccelerationStructureInputInfoNV input{};
+  input.maxAccelerationStructureCount = 1;
+  input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
+  VkAccelerationStructureBuildSizesInfoKHR sizes{};
+  sizes.accelerationStructureSize = 5;
+  EXPECT_FALSE(servedClusterBuildSizes(input, sizes));  // no op input
+  EXPECT_EQ(sizes.accelerationStructureSize, 0u);
+}
+
+// What lands in the host bytes is exactly what engine::execute writes into a MemoryImage of
+// the same buffers; the bottom level reads the addresses the cluster build wrote.
+TEST(ServedBuild, WritesBackExactlyWhatTheEngineWrote) {
+  HostScene scene;
+  engine::MemoryImage image;
+  for (const ServedBuffer& b : scene.buffers) {
+    auto& region = image.add_region(b.address, b.size, b.usage, "");
+    std::memcpy(region.bytes.data(), b.host, b.size);
+  }
+  engine::ObjectDirectory served, direct;
+  engine::ExecuteOptions options;
+  options.directory = &direct;
+  for (auto* command : {&scene.commands.clusters, &scene.commands.blas}) {
+    ServedExecution run = executeServedBuild(*command, scene.buffers, served, servedEngineProperties());
+    ASSERT_TRUE(run.ran) << run.error;
+    EXPECT_EQ(run.writtenMemories, std::vector<uint64_t>{7});
+    engine::execute(*command, image, options);
+  }
+  for (const ServedBuffer& b : scene.buffers) {
+    auto want = image.read_bytes(b.address, b.size, {});
+    EXPECT_EQ(std::memcmp(want.data(), b.host, b.size), 0) << "buffer " << b.buffer;
+  }
+  const auto properties = servedClusterProperties();
+  for (uint32_t i = 0; i < served_scene::kClusterCount; ++i) {
+    const uint64_t address = scene.at<uint64_t>("dstAddresses", i);
+    const uint32_t size = scene.at<uint32_t>("dstSizes", i);
+    EXPECT_GT(size, 0u);
+    EXPECT_EQ(address % properties.clusterByteAlignment, 0u);
+    ASSERT_GE(address, scene.a.implicitData);
+    ASSERT_LE(address + size, scene.a.implicitData + scene.clusterSizes.accelerationStructureSize);
+    uint32_t magic;
+    std::memcpy(&magic, scene.bytes["implicitData"].data() + (address - scene.a.implicitData), 4);
+    EXPECT_EQ(magic, engine::kObjectMagic);
+  }
+  EXPECT_EQ(scene.at<uint32_t>("dstSizes", served_scene::kClusterCount), 0xEEEEEEEEu);  // not an op: untouched
+  const uint64_t blas = scene.at<uint64_t>("blasDstAddresses", 0);
+  EXPECT_EQ(blas % properties.clusterBottomLevelByteAlignment, 0u);
+  EXPECT_GT(scene.at<uint32_t>("blasDstSizes", 0), 0u);
+  EXPECT_EQ(blas, scene.a.blasImplicit);
+}
+
+// Aliasing buffers (same addresses) become one region; each alias receives the written bytes.
+TEST(ServedBuild, AliasedBuffersAreOneRegionAndAllReceiveTheWrites) {
+  HostScene scene;
+  std::vector<uint8_t> alias(scene.bytes["dstSizes"]);
+  scene.buffers.push_back({99, scene.a.dstSizes, alias.size(), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, alias.data(), 8});
+  engine::ObjectDirectory directory;
+  ServedExecution run = executeServedBuild(scene.commands.clusters, scene.buffers, directory, servedEngineProperties());
+  ASSERT_TRUE(run.ran) << run.error;
+  EXPECT_TRUE(run.record.findings.empty());
+  EXPECT_EQ(std::memcmp(alias.data(), scene.bytes["dstSizes"].data(), alias.size()), 0);
+  EXPECT_GT(scene.at<uint32_t>("dstSizes", 0), 0u);
+  EXPECT_NE(scene.at<uint32_t>("dstSizes", 0), 0xEEEEEEEEu);
+}
+
+// Addresses outside every buffer: the engine reports them, nothing is written, no crash.
+TEST(ServedBuild, MissingMemoryBecomesFindingsNotACrash) {
+  HostScene scene;
+  std::vector<ServedBuffer> none;
+  engine::ObjectDirectory directory;
+  ServedExecution run = executeServedBuild(scene.commands.clusters, none, directory, servedEngineProperties());
+  ASSERT_TRUE(run.ran) << run.error;
+  EXPECT_FALSE(run.record.findings.empty());
+  EXPECT_EQ(run.bytesWrittenBack, 0u);
+}
+
+// Only the buffers the command reaches are copied: a large unrelated buffer is left alone, and
+// the result still equals engine::execute over all memory (checked above with every buffer).
+TEST(ServedBuild, CopiesOnlyTheBuffersTheCommandReaches) {
+  HostScene scene;
+  std::vector<uint8_t> unrelated(1 << 20, 0x5A);
+  scene.buffers.push_back({77, 0x40000000, unrelated.size(), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, unrelated.data(), 9});
+  uint64_t sceneBytes = 0;
+  for (const auto& [name, bytes] : scene.bytes) sceneBytes += bytes.size();
+  engine::ObjectDirectory directory;
+  ServedExecution clusters = executeServedBuild(scene.commands.clusters, scene.buffers, directory, servedEngineProperties());
+  ASSERT_TRUE(clusters.ran) << clusters.error;
+  EXPECT_TRUE(clusters.record.findings.empty());
+  EXPECT_EQ(clusters.attempts, 1u);  // the pointer walk named the index and vertex buffers
+  EXPECT_LT(clusters.bytesCopiedIn, sceneBytes);
+  // The bottom level: the walk names the reference array and the clusters it lists.
+  ServedExecution blas = executeServedBuild(scene.commands.blas, scene.buffers, directory, servedEngineProperties());
+  ASSERT_TRUE(blas.ran) << blas.error;
+  EXPECT_TRUE(blas.record.findings.empty()) << blas.record.findings[0].message;
+  EXPECT_EQ(blas.attempts, 1u);
+  EXPECT_LT(blas.bytesCopiedIn, sceneBytes);
+  EXPECT_GT(scene.at<uint32_t>("blasDstSizes", 0), 0u);
+  EXPECT_EQ(std::count(unrelated.begin(), unrelated.end(), 0x5A), long(unrelated.size()));
+}
+
+// A command with a finding no buffer explains runs once more over every buffer, so what it
+// reports and writes is what a run over all memory gives.
+TEST(ServedBuild, UnexplainedFindingsRunOverAllBuffers) {
+  HostScene scene;
+  uint64_t allBytes = 0;
+  for (const auto& b : scene.buffers) allBytes += b.size;
+  scene.commands.clusters.scratchData = 0;  // VUID-...-scratchData-12300
+  engine::ObjectDirectory directory;
+  ServedExecution run = executeServedBuild(scene.commands.clusters, scene.buffers, directory, servedEngineProperties());
+  ASSERT_TRUE(run.ran) << run.error;
+  EXPECT_TRUE(engine::has_rule(run.record.findings, engine::kRuleScratchTooSmall));
+  EXPECT_EQ(run.bytesCopiedIn, allBytes);
+}
+
+// What the walk does not follow (move sources) is found by running again: the first run's
+// finding about the source cluster adds the buffer holding it.
+TEST(ServedBuild, BuffersTheWalkMissesAreFoundByRunningAgain) {
+  HostScene scene;
+  engine::ObjectDirectory directory;
+  ASSERT_TRUE(executeServedBuild(scene.commands.clusters, scene.buffers, directory, servedEngineProperties()).ran);
+  const uint64_t source = scene.at<uint64_t>("dstAddresses", 1);
+  const uint32_t sourceSize = scene.at<uint32_t>("dstSizes", 1);
+
+  VkClusterAccelerationStructureMoveObjectsInputNV moveInput{};
+  moveInput.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_MOVE_OBJECTS_INPUT_NV;
+  moveInput.type = VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_TRIANGLE_CLUSTER_NV;
+  moveInput.noMoveOverlap = VK_TRUE;
+  moveInput.maxMovedBytes = 1 << 16;
+  VkClusterAccelerationStructureCommandsInfoNV move{};
+  move.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+  move.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+  move.input.maxAccelerationStructureCount = 1;
+  move.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV;
+  move.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+  move.input.opInput.pMoveObjects = &moveInput;
+  VkAccelerationStructureBuildSizesInfoKHR sizes{};
+  ASSERT_TRUE(servedClusterBuildSizes(move.input, sizes));
+  std::vector<uint8_t> info(8), count(4), dstAddress(8), dstSize(4), dst(sizes.accelerationStructureSize),
+      scratch(std::max<uint64_t>(sizes.buildScratchSize, 16));
+  std::memcpy(info.data(), &source, 8);
+  count[0] = 1;
+  const VkBufferUsageFlags in = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
+  const VkBufferUsageFlags st = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
+  std::vector<ServedBuffer> buffers = scene.buffers;
+  buffers.push_back({201, 0x7000000, info.size(), in, info.data(), 7});
+  buffers.push_back({202, 0x7100000, count.size(), in, count.data(), 7});
+  buffers.push_back({203, 0x7200000, dstAddress.size(), st, dstAddress.data(), 7});
+  buffers.push_back({204, 0x7300000, dstSize.size(), st, dstSize.data(), 7});
+  buffers.push_back({205, 0x7400000, dst.size(), st, dst.data(), 7});
+  buffers.push_back({206, 0x7500000, scratch.size(), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, scratch.data(), 7});
+  move.srcInfosArray = {0x7000000, 8, 8};
+  move.srcInfosCount = 0x7100000;
+  move.dstAddressesArray = {0x7200000, 8, 8};
+  move.dstSizesArray = {0x7300000, 4, 4};
+  move.dstImplicitData = 0x7400000;
+  move.scratchData = 0x7500000;
+
+  ServedExecution run = executeServedBuild(move, buffers, directory, servedEngineProperties());
+  ASSERT_TRUE(run.ran) << run.error;
+  EXPECT_TRUE(run.record.findings.empty()) << run.record.findings[0].message;
+  EXPECT_EQ(run.attempts, 2u);
+  uint32_t movedSize;
+  std::memcpy(&movedSize, dstSize.data(), 4);
+  EXPECT_EQ(movedSize, sourceSize);
+  EXPECT_EQ(std::memcmp(dst.data(), scene.bytes["implicitData"].data() + (source - scene.a.implicitData), sourceSize), 0);
+}
