@@ -1,0 +1,67 @@
+// engine::execute: one vkCmdBuildClusterAccelerationStructureIndirectNV against a
+// MemoryImage, exactly as the extension specifies, returning every range it read and
+// wrote (execution_record.h).
+//
+// Semantics the engine fixes where the spec leaves freedom:
+// - Ops run in parallel (TBB) in chunks of kOpsPerChunk; within a chunk every op reads
+//   before any op writes, and writes land in op index order, so the bytes never depend on
+//   the thread count (overlapping destinations: the higher op index wins, and a finding
+//   says so).
+// - Implicit destinations are packed from dstImplicitData in op index order, each object
+//   at the next multiple of its type's alignment (properties).
+// - An indirected field (addressResolutionFlags) holds the address of a VkDeviceAddress
+//   (srcInfosCount: of the uint32 count); a strided region keeps its stride and size.
+// - Scratch holds a 16-byte (offset, size) entry per op: the implicit layout.
+// - A failed op writes no object; in implicit mode its dstAddressesArray/dstSizesArray
+//   entries are written as 0.
+#ifndef CLASTRACE_ENGINE_EXECUTE_H
+#define CLASTRACE_ENGINE_EXECUTE_H
+
+#include "clastrace/engine/execution_record.h"
+#include "clastrace/engine/memory_image.h"
+#include "clastrace/engine/object_directory.h"
+#include "clastrace/engine/properties.h"
+#include "clastrace/vk_cluster_abi.h"
+
+#include <cstdint>
+
+namespace clastrace::engine {
+
+inline constexpr uint32_t kOpsPerChunk = 16384;
+
+struct ExecuteOptions {
+  EngineProperties properties = EngineProperties::nvidia_default();
+  // Live objects across commands (replay keeps one). nullptr: a private directory for
+  // this call, so only this command's moves and builds are tracked.
+  ObjectDirectory* directory = nullptr;
+  // Findings kept per rule per command; the rest are counted in one summary finding.
+  uint32_t max_findings_per_rule = 64;
+  // The maxAccelerationStructureCount the app sized its buffers with (10445); 0: the
+  // command's own value.
+  uint32_t queried_max_count = 0;
+};
+
+ExecutionRecord execute(const VkClusterAccelerationStructureCommandsInfoNV& command, MemoryImage& memory,
+                        const ExecuteOptions& options = {});
+
+// Rules of the engine itself (no VUID names them).
+inline constexpr const char* kRuleFindingsTruncated = "CLASTRACE-findings-truncated";
+inline constexpr const char* kRuleDestinationOverlap = "CLASTRACE-destinations-overlap";
+inline constexpr const char* kRuleDestinationMisaligned = "CLASTRACE-destination-misaligned";
+inline constexpr const char* kRuleDestinationTooSmall = "CLASTRACE-explicit-destination-smaller-than-object";
+inline constexpr const char* kRuleSrcInfosStride = "CLASTRACE-src-infos-stride-below-struct-size";
+inline constexpr const char* kRuleMoveTypeMismatch = "CLASTRACE-moved-object-type-differs-from-input";
+inline constexpr const char* kRuleMovedBytesAboveInput = "CLASTRACE-moved-bytes-above-maxMovedBytes";
+inline constexpr const char* kRuleMoveOverlap = "CLASTRACE-move-overlaps-with-noMoveOverlap";
+inline constexpr const char* kRuleIntraCommandHazard = "CLASTRACE-op-reads-what-another-op-writes";
+inline constexpr const char* kRuleClusterCountAboveInput = "CLASTRACE-cluster-count-above-bottom-level-input";
+inline constexpr const char* kRuleTotalAboveInput = "CLASTRACE-total-count-above-input";
+inline constexpr const char* kRuleBottomLevelTooLarge = "CLASTRACE-bottom-level-over-4GiB";
+inline constexpr const char* kRuleMissingSizesArray = "CLASTRACE-compute-sizes-without-dstSizesArray";
+inline constexpr const char* kRuleMissingInput = "CLASTRACE-missing-op-input";
+inline constexpr const char* kRuleScratchTooSmall = "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-scratchData-12300";
+inline constexpr const char* kRuleScratchMisaligned = "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-scratchData-12301";
+
+}  // namespace clastrace::engine
+
+#endif

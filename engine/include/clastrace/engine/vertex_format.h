@@ -1,0 +1,39 @@
+// Vertex formats a cluster input may use, decoded to float positions.
+//
+// VUID-VkClusterAccelerationStructureTriangleClusterInputNV-vertexFormat-10439 allows any
+// format with VK_FORMAT_FEATURE_ACCELERATION_STRUCTURE_VERTEX_BUFFER_BIT_KHR. The engine
+// decodes every format that feature is defined for: the mandatory ones (R32G32_SFLOAT,
+// R32G32B32_SFLOAT, R16G16_SFLOAT, R16G16B16A16_SFLOAT, R16G16_SNORM, R16G16B16A16_SNORM)
+// and the optional ones drivers report (R16G16B16_SFLOAT, R16G16_UNORM,
+// R16G16B16A16_UNORM, R8G8_SNORM, R8G8B8A8_SNORM, R8G8_UNORM, R8G8B8A8_UNORM,
+// A2B10G10R10_UNORM_PACK32, R32G32B32A32_SFLOAT). Two-component formats give z = 0; the
+// fourth component is ignored. Truncation (positionTruncateBitCount) applies afterwards,
+// to the 32-bit float pattern of each decoded coordinate.
+#ifndef CLASTRACE_ENGINE_VERTEX_FORMAT_H
+#define CLASTRACE_ENGINE_VERTEX_FORMAT_H
+
+#include "clastrace/vk_cluster_abi.h"
+
+#include <cstddef>
+#include <cstdint>
+
+namespace clastrace::engine {
+
+struct VertexFormatInfo {
+  bool supported = false;
+  uint32_t size = 0;            // bytes per vertex (tightly packed stride)
+  uint32_t component_size = 0;  // bytes of one component (10495/10504 stride rule)
+  uint32_t components = 0;      // position components read (2 or 3)
+};
+
+VertexFormatInfo vertex_format_info(VkFormat format);
+
+// Decodes one vertex at `src` (format size bytes, any alignment) into xyz.
+void decode_vertex(VkFormat format, const std::byte* src, float xyz[3]);
+
+// Zeroes the low `bits` bits (0..32) of a float's bit pattern, as the GPU does.
+float truncate_position(float value, uint32_t bits);
+
+}  // namespace clastrace::engine
+
+#endif

@@ -1,0 +1,344 @@
+// Binned SAH over cluster boxes (Wald 2007): 16 bins on each axis of the centroid
+// bounds, sweep for the cheapest split, object-median fallback when centroids coincide.
+// Large subtrees split their halves across threads (TBB); the node layout depends only
+// on the subtree-size threshold, so the bytes never depend on the thread count.
+#include "clastrace/engine/blas.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstring>
+#include <limits>
+
+#include <tbb/parallel_invoke.h>
+
+namespace clastrace::engine {
+namespace {
+
+constexpr int kBins = 16;
+constexpr float kTraversalCost = 1.0f;
+constexpr float kClusterCost = 4.0f;  // descending into a CLAS costs a few node visits
+
+struct Box {
+  float lo[3] = {std::numeric_limits<float>::infinity(), std::numeric_limits<float>::infinity(),
+                 std::numeric_limits<float>::infinity()};
+  float hi[3] = {-std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity(),
+                 -std::numeric_limits<float>::infinity()};
+  void grow(const Box& b) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], b.lo[a]);
+      hi[a] = std::max(hi[a], b.hi[a]);
+    }
+  }
+  void grow_point(const float p[3]) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], p[a]);
+      hi[a] = std::max(hi[a], p[a]);
+    }
+  }
+  bool empty() const { return !(lo[0] <= hi[0]); }
+  // Half area; infinite boxes give inf, which SAH treats as "never cheaper".
+  float area() const {
+    if (empty()) return 0.0f;
+    float dx = hi[0] - lo[0], dy = hi[1] - lo[1], dz = hi[2] - lo[2];
+    return dx * dy + dy * dz + dz * dx;
+  }
+};
+
+struct Item {
+  Box box;
+  float centroid[3];
+  uint32_t source;  // index into the caller's span
+};
+
+bool valid_box(const ClusterBox& c) {
+  for (int a = 0; a < 3; ++a) {
+    if (!(c.bounds_min[a] <= c.bounds_max[a])) return false;  // also rejects NaN
+  }
+  return true;
+}
+
+
+struct Split {
+  bool leaf = false;
+  uint32_t mid = 0;
+  Box left_bounds, left_centroids, right_bounds, right_centroids;
+};
+
+struct Bin {
+  Box box, centroids;
+  uint32_t count = 0;
+};
+
+// SAH over 16 bins on each axis, one pass over the items; partitions [begin, end) in place.
+Split split_node(std::vector<Item>& items, uint32_t begin, uint32_t end, const Box& bounds, const Box& centroids) {
+  Split r;
+  const uint32_t count = end - begin;
+  if (count == 1) {
+    r.leaf = true;
+    return r;
+  }
+  std::array<std::array<Bin, kBins>, 3> bins;
+  float scale[3];
+  bool axis_ok[3];
+  for (int a = 0; a < 3; ++a) {
+    float extent = centroids.hi[a] - centroids.lo[a];
+    axis_ok[a] = extent > 0.0f && std::isfinite(extent);
+    scale[a] = axis_ok[a] ? float(kBins) / extent : 0.0f;
+  }
+  for (uint32_t i = begin; i < end; ++i) {
+    const Item& it = items[i];
+    for (int a = 0; a < 3; ++a) {
+      if (!axis_ok[a]) continue;
+      int b = std::min(kBins - 1, int((it.centroid[a] - centroids.lo[a]) * scale[a]));
+      Bin& bin = bins[a][b];
+      bin.box.grow(it.box);
+      bin.centroids.grow_point(it.centroid);
+      ++bin.count;
+    }
+  }
+  float best_cost = std::numeric_limits<float>::infinity();
+  int best_axis = -1, best_plane = 0;
+  for (int axis = 0; axis < 3; ++axis) {
+    if (!axis_ok[axis]) continue;
+    Box acc;
+    uint32_t acc_count = 0;
+    std::array<float, kBins> right_area{};
+    std::array<uint32_t, kBins> right_count{};
+    for (int b = kBins - 1; b > 0; --b) {
+      acc.grow(bins[axis][b].box);
+      acc_count += bins[axis][b].count;
+      right_area[b] = acc.area();
+      right_count[b] = acc_count;
+    }
+    Box left;
+    uint32_t left_count = 0;
+    for (int b = 0; b < kBins - 1; ++b) {
+      left.grow(bins[axis][b].box);
+      left_count += bins[axis][b].count;
+      if (left_count == 0 || right_count[b + 1] == 0) continue;
+      float cost = left.area() * float(left_count) + right_area[b + 1] * float(right_count[b + 1]);
+      if (cost < best_cost) {
+        best_cost = cost;
+        best_axis = axis;
+        best_plane = b;
+      }
+    }
+  }
+  if (best_axis >= 0) {
+    const float parent_area = bounds.area();
+    float split_cost = kTraversalCost + (parent_area > 0.0f && std::isfinite(parent_area)
+                                             ? kClusterCost * best_cost / parent_area
+                                             : kClusterCost * float(count));
+    if (count <= kBottomLevelMaxLeafSize && float(count) * kClusterCost <= split_cost) {
+      r.leaf = true;
+      return r;
+    }
+    const float lo = centroids.lo[best_axis], sc = scale[best_axis];
+    auto* pivot = std::partition(items.data() + begin, items.data() + end, [&](const Item& it) {
+      return std::min(kBins - 1, int((it.centroid[best_axis] - lo) * sc)) <= best_plane;
+    });
+    r.mid = uint32_t(pivot - items.data());
+    for (int b = 0; b < kBins; ++b) {
+      const Bin& bin = bins[best_axis][b];
+      (b <= best_plane ? r.left_bounds : r.right_bounds).grow(bin.box);
+      (b <= best_plane ? r.left_centroids : r.right_centroids).grow(bin.centroids);
+    }
+    return r;
+  }
+  // All centroids coincide (or are not finite): object median by input order.
+  if (count <= kBottomLevelMaxLeafSize) {
+    r.leaf = true;
+    return r;
+  }
+  r.mid = begin + count / 2;
+  for (uint32_t i = begin; i < end; ++i) {
+    (i < r.mid ? r.left_bounds : r.right_bounds).grow(items[i].box);
+    (i < r.mid ? r.left_centroids : r.right_centroids).grow_point(items[i].centroid);
+  }
+  return r;
+}
+
+void set_box(BottomLevelNode& node, const Box& b) {
+  for (int a = 0; a < 3; ++a) {
+    node.bounds_min[a] = b.lo[a];
+    node.bounds_max[a] = b.hi[a];
+  }
+}
+
+// Depth-first layout of one subtree, root at index 0.
+std::vector<BottomLevelNode> build_sequential(std::vector<Item>& items, uint32_t begin, uint32_t end, const Box& bounds,
+                                              const Box& centroids) {
+  struct Pending {
+    uint32_t node, begin, end;
+    Box bounds, centroids;
+  };
+  std::vector<BottomLevelNode> nodes(1);
+  std::vector<Pending> stack{{0, begin, end, bounds, centroids}};
+  while (!stack.empty()) {
+    Pending p = stack.back();
+    stack.pop_back();
+    set_box(nodes[p.node], p.bounds);
+    Split sp = split_node(items, p.begin, p.end, p.bounds, p.centroids);
+    if (sp.leaf) {
+      nodes[p.node].first = p.begin;
+      nodes[p.node].count = p.end - p.begin;
+      continue;
+    }
+    uint32_t left = uint32_t(nodes.size());
+    nodes[p.node].first = left;
+    nodes[p.node].count = 0;
+    nodes.resize(nodes.size() + 2);
+    stack.push_back({left + 1, sp.mid, p.end, sp.right_bounds, sp.right_centroids});
+    stack.push_back({left, p.begin, sp.mid, sp.left_bounds, sp.left_centroids});
+  }
+  return nodes;
+}
+
+// Subtrees above this size build their two halves in parallel; the layout depends only on
+// this threshold, never on the thread count.
+constexpr uint32_t kParallelSubtree = 4096;
+
+std::vector<BottomLevelNode> build_subtree(std::vector<Item>& items, uint32_t begin, uint32_t end, const Box& bounds,
+                                           const Box& centroids) {
+  if (end - begin <= kParallelSubtree) return build_sequential(items, begin, end, bounds, centroids);
+  Split sp = split_node(items, begin, end, bounds, centroids);
+  if (sp.leaf) return build_sequential(items, begin, end, bounds, centroids);
+  std::vector<BottomLevelNode> left, right;
+  tbb::parallel_invoke([&] { left = build_subtree(items, begin, sp.mid, sp.left_bounds, sp.left_centroids); },
+                       [&] { right = build_subtree(items, sp.mid, end, sp.right_bounds, sp.right_centroids); });
+  // Root, its two children, then the rest of the left subtree, then the rest of the right.
+  std::vector<BottomLevelNode> nodes(left.size() + right.size() + 1);
+  set_box(nodes[0], bounds);
+  nodes[0].first = 1;
+  nodes[0].count = 0;
+  const uint32_t left_rest = 3, right_rest = uint32_t(3 + left.size() - 1);
+  auto place = [&](const std::vector<BottomLevelNode>& sub, uint32_t root_at, uint32_t rest_at) {
+    auto map = [&](uint32_t k) { return k == 0 ? root_at : rest_at + k - 1; };
+    for (uint32_t k = 0; k < sub.size(); ++k) {
+      BottomLevelNode n = sub[k];
+      if (n.count == 0) n.first = map(n.first);
+      nodes[map(k)] = n;
+    }
+  };
+  place(left, 1, left_rest);
+  place(right, 2, right_rest);
+  return nodes;
+}
+}  // namespace
+
+uint64_t bottom_level_size_bound(uint64_t cluster_count) {
+  uint64_t nodes = cluster_count == 0 ? 0 : 2 * cluster_count - 1;
+  return sizeof(BottomLevelHeader) + nodes * sizeof(BottomLevelNode) + cluster_count * sizeof(ClusterReference);
+}
+
+std::vector<std::byte> build_bottom_level(std::span<const ClusterBox> clusters, uint32_t input_reference_count) {
+  std::vector<Item> items;
+  items.reserve(clusters.size());
+  for (uint32_t i = 0; i < clusters.size(); ++i) {
+    const ClusterBox& c = clusters[i];
+    if (!valid_box(c)) continue;
+    Item it;
+    for (int a = 0; a < 3; ++a) {
+      it.box.lo[a] = c.bounds_min[a];
+      it.box.hi[a] = c.bounds_max[a];
+      // Clamp so that huge-but-finite boxes still give finite centroids.
+      double mid = 0.5 * (double(c.bounds_min[a]) + double(c.bounds_max[a]));
+      it.centroid[a] = float(std::clamp(mid, -double(std::numeric_limits<float>::max()),
+                                        double(std::numeric_limits<float>::max())));
+    }
+    it.source = i;
+    items.push_back(it);
+  }
+  const uint64_t n = items.size();
+  if (bottom_level_size_bound(n) > std::numeric_limits<uint32_t>::max()) return {};
+
+  std::vector<BottomLevelNode> nodes;
+  if (n > 0) {
+    Box bounds, centroids;
+    for (const Item& it : items) {
+      bounds.grow(it.box);
+      centroids.grow_point(it.centroid);
+    }
+    nodes = build_subtree(items, 0, uint32_t(n), bounds, centroids);
+  }
+
+  BottomLevelHeader h{};
+  h.magic = kObjectMagic;
+  h.object_type = uint8_t(ObjectType::ClustersBottomLevel);
+  h.format_version = kBottomLevelFormatVersion;
+  h.reference_count = uint32_t(n);
+  h.node_count = uint32_t(nodes.size());
+  h.nodes_offset = sizeof(BottomLevelHeader);
+  h.references_offset = uint32_t(h.nodes_offset + nodes.size() * sizeof(BottomLevelNode));
+  h.object_size = uint32_t(h.references_offset + n * sizeof(ClusterReference));
+  h.input_reference_count = input_reference_count;
+  if (n > 0) {
+    std::memcpy(h.bounds_min, nodes[0].bounds_min, sizeof h.bounds_min);
+    std::memcpy(h.bounds_max, nodes[0].bounds_max, sizeof h.bounds_max);
+  } else {
+    // Empty box, as the CLAS format writes one for an empty cluster.
+    for (int a = 0; a < 3; ++a) {
+      h.bounds_min[a] = std::numeric_limits<float>::infinity();
+      h.bounds_max[a] = -std::numeric_limits<float>::infinity();
+    }
+  }
+  std::vector<std::byte> out(h.object_size);
+  std::memcpy(out.data(), &h, sizeof h);
+  if (!nodes.empty()) std::memcpy(out.data() + h.nodes_offset, nodes.data(), nodes.size() * sizeof(BottomLevelNode));
+  for (uint64_t i = 0; i < n; ++i) {
+    const ClusterBox& c = clusters[items[i].source];
+    ClusterReference r{c.clas_address, c.reference_index, c.cluster_id};
+    std::memcpy(out.data() + h.references_offset + i * sizeof r, &r, sizeof r);
+  }
+  return out;
+}
+
+BottomLevelCheck read_bottom_level_header(std::span<const std::byte> bytes) {
+  BottomLevelCheck r;
+  if (bytes.size() < sizeof(BottomLevelHeader)) {
+    r.error = "shorter than a bottom-level header (" + std::to_string(bytes.size()) + " bytes)";
+    return r;
+  }
+  BottomLevelHeader h;
+  std::memcpy(&h, bytes.data(), sizeof h);
+  if (h.magic != kObjectMagic) {
+    r.error = "no engine object magic";
+    return r;
+  }
+  if (h.object_type != uint8_t(ObjectType::ClustersBottomLevel)) {
+    r.error = "object type " + std::to_string(h.object_type) + " is not a clusters bottom-level structure";
+    return r;
+  }
+  if (h.format_version != kBottomLevelFormatVersion) {
+    r.error = "unknown bottom-level format version " + std::to_string(h.format_version);
+    return r;
+  }
+  uint64_t nodes_end = uint64_t(h.nodes_offset) + uint64_t(h.node_count) * sizeof(BottomLevelNode);
+  uint64_t refs_end = uint64_t(h.references_offset) + uint64_t(h.reference_count) * sizeof(ClusterReference);
+  if (h.object_size > bytes.size() || h.nodes_offset < sizeof h || h.references_offset < sizeof h ||
+      nodes_end > h.object_size || refs_end > h.object_size) {
+    r.error = "sections run past object_size " + std::to_string(h.object_size);
+    return r;
+  }
+  if ((h.reference_count == 0) != (h.node_count == 0) || h.node_count > 2ull * h.reference_count) {
+    r.error = "node count " + std::to_string(h.node_count) + " does not fit reference count " +
+              std::to_string(h.reference_count);
+    return r;
+  }
+  for (uint32_t i = 0; i < h.node_count; ++i) {
+    BottomLevelNode node;
+    std::memcpy(&node, bytes.data() + h.nodes_offset + uint64_t(i) * sizeof node, sizeof node);
+    bool ok = node.count == 0 ? (node.first > i && uint64_t(node.first) + 1 < h.node_count)
+                              : (node.count <= kBottomLevelMaxLeafSize &&
+                                 uint64_t(node.first) + node.count <= h.reference_count);
+    if (!ok) {
+      r.error = "node " + std::to_string(i) + " points outside the object";
+      return r;
+    }
+  }
+  r.header = h;
+  return r;
+}
+
+}  // namespace clastrace::engine

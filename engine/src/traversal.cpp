@@ -1,0 +1,252 @@
+// Ray traversal of one CLAS: conservative box tests over the quantized BVH, watertight
+// triangle tests (Woop, Benthin & Wald 2013) in double precision.
+#include "clastrace/engine/traversal.h"
+
+#include "cluster_internal.h"
+#include "clastrace/vk_cluster_abi.h"
+
+#include <cmath>
+#include <limits>
+
+namespace clastrace::engine {
+
+namespace {
+
+constexpr double kEps = std::numeric_limits<double>::epsilon() * 0.5;
+// Ize 2013: scaling the far distance by 1 + 2*gamma(3) makes the slab test conservative.
+constexpr double kFarScale = 1.0 + 2.0 * (3.0 * kEps) / (1.0 - 3.0 * kEps);
+
+struct PreparedRay {
+  double o[3], d[3], inv[3];
+  bool zero[3];
+  int kx, ky, kz;
+  double sx, sy, sz;
+  double tmin, tmax;
+  uint32_t flags;
+};
+
+PreparedRay prepare(const Ray& ray, uint32_t flags) {
+  PreparedRay r;
+  for (int a = 0; a < 3; ++a) {
+    r.o[a] = ray.origin[a];
+    r.d[a] = ray.direction[a];
+    r.zero[a] = ray.direction[a] == 0.0f;
+    r.inv[a] = r.zero[a] ? 0.0 : 1.0 / r.d[a];
+  }
+  // Dimension permutation: z is the largest direction component; swapping x and y when
+  // it is negative keeps the triangles' winding.
+  int kz = 0;
+  if (std::fabs(r.d[1]) > std::fabs(r.d[kz])) kz = 1;
+  if (std::fabs(r.d[2]) > std::fabs(r.d[kz])) kz = 2;
+  int kx = (kz + 1) % 3, ky = (kx + 1) % 3;
+  if (r.d[kz] < 0.0) std::swap(kx, ky);
+  r.kx = kx;
+  r.ky = ky;
+  r.kz = kz;
+  r.sx = r.d[kx] / r.d[kz];
+  r.sy = r.d[ky] / r.d[kz];
+  r.sz = 1.0 / r.d[kz];
+  r.tmin = ray.tmin;
+  r.tmax = ray.tmax;
+  r.flags = flags;
+  return r;
+}
+
+bool box_hit(const PreparedRay& r, const float lo[3], const float hi[3], double tmax, double& tnear) {
+  double t0 = r.tmin, t1 = tmax;
+  for (int a = 0; a < 3; ++a) {
+    if (r.zero[a]) {
+      if (r.o[a] < lo[a] || r.o[a] > hi[a]) return false;
+      continue;
+    }
+    double ta = (double(lo[a]) - r.o[a]) * r.inv[a];
+    double tb = (double(hi[a]) - r.o[a]) * r.inv[a];
+    if (ta > tb) std::swap(ta, tb);
+    tb *= kFarScale;
+    t0 = ta > t0 ? ta : t0;
+    t1 = tb < t1 ? tb : t1;
+  }
+  tnear = t0;
+  return t0 <= t1;
+}
+
+struct TriangleHit {
+  double t, u, v;
+  bool front;
+};
+
+bool triangle_hit(const PreparedRay& r, const float* p0, const float* p1, const float* p2, double tmax, TriangleHit& h) {
+  const double A[3] = {p0[0] - r.o[0], p0[1] - r.o[1], p0[2] - r.o[2]};
+  const double B[3] = {p1[0] - r.o[0], p1[1] - r.o[1], p1[2] - r.o[2]};
+  const double C[3] = {p2[0] - r.o[0], p2[1] - r.o[1], p2[2] - r.o[2]};
+  const double Ax = A[r.kx] - r.sx * A[r.kz], Ay = A[r.ky] - r.sy * A[r.kz];
+  const double Bx = B[r.kx] - r.sx * B[r.kz], By = B[r.ky] - r.sy * B[r.kz];
+  const double Cx = C[r.kx] - r.sx * C[r.kz], Cy = C[r.ky] - r.sy * C[r.kz];
+  const double U = Cx * By - Cy * Bx;
+  const double V = Ax * Cy - Ay * Cx;
+  const double W = Bx * Ay - By * Ax;
+  if ((U < 0.0 || V < 0.0 || W < 0.0) && (U > 0.0 || V > 0.0 || W > 0.0)) return false;
+  const double det = U + V + W;
+  if (det == 0.0 || std::isnan(det)) return false;
+  const double T = U * (r.sz * A[r.kz]) + V * (r.sz * B[r.kz]) + W * (r.sz * C[r.kz]);
+  const double t = T / det;
+  if (!(t >= r.tmin && t <= tmax)) return false;
+  h.t = t;
+  h.u = V / det;
+  h.v = W / det;
+  // det > 0: v0 v1 v2 appear clockwise looking along the ray (Vulkan's front face).
+  h.front = det > 0.0;
+  return true;
+}
+
+template <bool kAny, bool kPlainFloats>
+Hit traverse_impl(const ClasView& clas, const Ray& ray, uint32_t ray_flags) {
+  Hit best;
+  const ObjectHeader& h = clas.header;
+  if (h.node_count == 0) return best;
+  const PreparedRay r = prepare(ray, ray_flags);
+  if (!(r.tmin <= r.tmax)) return best;
+  const std::byte* base = clas.bytes.data();
+  const std::byte* nodes = base + h.nodes_offset;
+  const std::byte* pos = base + h.positions_offset;
+  const std::byte* idx = base + h.indices_offset;
+  // Bytes readable from the positions section on: the rest of the object. Reading past the
+  // section's last coordinate (into the next section) only fetches bits the mask drops,
+  // and spares the short-read path for all but the object's last bytes.
+  const uint32_t pos_size = h.object_size - h.positions_offset;
+  const bool unbounded = h.header_flags & kUnboundedNodes;
+  const detail::QuantFrame frame = detail::make_frame(h.bounds_min, h.bounds_max);
+  const bool first_hit = kAny || (ray_flags & kRayFlagTerminateOnFirstHit);
+
+  double tmax = r.tmax;
+  uint16_t stack[detail::kMaxNodes + 1];
+  int sp = 0;
+  stack[sp++] = 0;
+  auto node_box = [&](uint32_t i, float lo[3], float hi[3]) {
+    BvhNode n;
+    std::memcpy(&n, nodes + 8 * size_t(i), 8);
+    for (int a = 0; a < 3; ++a) {
+      if (unbounded) {
+        lo[a] = -INFINITY;
+        hi[a] = INFINITY;
+      } else {
+        lo[a] = detail::dequant_lo(frame, a, n.qmin[a]);
+        hi[a] = detail::dequant_hi(frame, a, n.qmax[a]);
+      }
+    }
+    return n.link;
+  };
+  {
+    float lo[3], hi[3];
+    double tn;
+    node_box(0, lo, hi);
+    if (!box_hit(r, lo, hi, tmax, tn)) return best;
+  }
+  while (sp > 0) {
+    const uint32_t ni = stack[--sp];
+    BvhNode n;
+    std::memcpy(&n, nodes + 8 * size_t(ni), 8);
+    if (n.link & kLeafBit) {
+      const uint32_t first = n.link & 0xFF, count = ((n.link >> 8) & 3) + 1;
+      for (uint32_t i = first; i < first + count; ++i) {
+        float v[3][3];
+        for (int k = 0; k < 3; ++k) {
+          const uint32_t vi = uint8_t(idx[3 * i + k]);
+          if constexpr (kPlainFloats) {
+            std::memcpy(v[k], pos + 12 * size_t(vi), 12);
+          } else {
+            if (h.position_bits == 0) {
+              v[k][0] = v[k][1] = v[k][2] = 0.0f;
+            } else {
+              detail::unpack_vertex(pos, pos_size, h.position_bits, h.position_truncate_bits, vi, v[k]);
+            }
+          }
+        }
+        TriangleHit th;
+        if (!triangle_hit(r, v[0], v[1], v[2], tmax, th)) continue;
+        if (!kAny && th.t >= tmax && best.hit) continue;
+        const uint32_t gif = (h.header_flags & kHasTriangleData) ? detail::read_u32(base + h.triangle_data_offset + 4 * i)
+                                                                 : h.base_geometry_index_and_flags;
+        const uint32_t gflags = gif >> 29;
+        const bool cull_disable = gflags & VK_CLUSTER_ACCELERATION_STRUCTURE_GEOMETRY_CULL_DISABLE_BIT_NV;
+        if (!cull_disable) {
+          if ((ray_flags & kRayFlagCullBackFacingTriangles) && !th.front) continue;
+          if ((ray_flags & kRayFlagCullFrontFacingTriangles) && th.front) continue;
+        }
+        bool opaque = gflags & VK_CLUSTER_ACCELERATION_STRUCTURE_GEOMETRY_OPAQUE_BIT_NV;
+        if (ray_flags & kRayFlagOpaque) opaque = true;
+        else if (ray_flags & kRayFlagNoOpaque) opaque = false;
+        if ((ray_flags & kRayFlagCullOpaque) && opaque) continue;
+        if ((ray_flags & kRayFlagCullNoOpaque) && !opaque) continue;
+        best.hit = true;
+        best.t = float(th.t);
+        best.u = float(th.u);
+        best.v = float(th.v);
+        best.triangle_index = (h.header_flags & kHasTriangleOrder) ? uint32_t(uint8_t(base[h.triangle_order_offset + i])) : i;
+        best.cluster_id = h.cluster_id;
+        best.geometry_index = gif & 0xFFFFFFu;
+        best.front_face = th.front;
+        best.opaque = opaque;
+        tmax = th.t;
+        if (first_hit) return best;
+      }
+      continue;
+    }
+    const uint32_t left = n.link & 0x3FF;
+    float llo[3], lhi[3], rlo[3], rhi[3];
+    double tl, tr;
+    node_box(left, llo, lhi);
+    node_box(left + 1, rlo, rhi);
+    const bool hl = box_hit(r, llo, lhi, tmax, tl);
+    const bool hr = box_hit(r, rlo, rhi, tmax, tr);
+    if (hl && hr) {
+      if (tl <= tr) {
+        stack[sp++] = uint16_t(left + 1);
+        stack[sp++] = uint16_t(left);
+      } else {
+        stack[sp++] = uint16_t(left);
+        stack[sp++] = uint16_t(left + 1);
+      }
+    } else if (hl) {
+      stack[sp++] = uint16_t(left);
+    } else if (hr) {
+      stack[sp++] = uint16_t(left + 1);
+    }
+  }
+  return best;
+}
+
+template <bool kAny>
+Hit traverse(const ClasView& clas, const Ray& ray, uint32_t ray_flags) {
+  return clas.header.position_bits == 32 ? traverse_impl<kAny, true>(clas, ray, ray_flags)
+                                         : traverse_impl<kAny, false>(clas, ray, ray_flags);
+}
+
+}  // namespace
+
+std::optional<ClasView> open_clas(std::span<const std::byte> bytes, std::string* error) {
+  HeaderCheck hc = read_object_header(bytes);
+  if (hc.header && hc.header->object_type != uint8_t(ObjectType::TriangleCluster)) {
+    hc.header.reset();
+    hc.error = "object is a cluster template, not a CLAS";
+  }
+  if (!hc.header) {
+    if (error) *error = hc.error;
+    return std::nullopt;
+  }
+  return ClasView{bytes.first(hc.header->object_size), *hc.header};
+}
+
+Hit trace_closest(const ClasView& clas, const Ray& ray, uint32_t ray_flags) { return traverse<false>(clas, ray, ray_flags); }
+bool trace_any(const ClasView& clas, const Ray& ray, uint32_t ray_flags) { return traverse<true>(clas, ray, ray_flags).hit; }
+
+Hit trace_closest(std::span<const std::byte> clas, const Ray& ray, uint32_t ray_flags) {
+  const auto view = open_clas(clas);
+  return view ? trace_closest(*view, ray, ray_flags) : Hit{};
+}
+bool trace_any(std::span<const std::byte> clas, const Ray& ray, uint32_t ray_flags) {
+  const auto view = open_clas(clas);
+  return view ? trace_any(*view, ray, ray_flags) : false;
+}
+
+}  // namespace clastrace::engine

@@ -1,0 +1,93 @@
+// SyncModel: decides which memory accesses of a captured stream are ordered and made
+// visible by the spec's execution and memory dependencies, and reports those that are not.
+//
+// Feed it in execution order: one submission at a time (per-queue submission order, then
+// command-buffer order, then command order), host operations between submissions where
+// the trace has them. For each byte the model keeps the last write and the reads since,
+// each with the dependency chains that reached it (the validation layers' per-resource
+// access state, kept over device-address ranges instead of resources).
+//
+// Barriers are appended to a per-queue log and applied to an access's state only when a
+// later access touches its bytes, so a global barrier costs O(1) however much memory is
+// live. Host waits (fences, idle) retire completed accesses; memory then stays bounded by
+// what is in flight, not by the trace.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <vector>
+
+#include "clastrace/replay/hazard_report.hpp"
+#include "clastrace/replay/sync_types.hpp"
+
+namespace clastrace::replay {
+
+struct SyncOptions {
+    // Distinct hazards kept; later ones are only counted.
+    std::size_t max_reports = 1000;
+};
+
+struct SyncStats {
+    uint64_t accesses = 0;
+    uint64_t barriers = 0;              // memory and buffer barriers, events and semaphore waits included
+    uint64_t log_entries_applied = 0;   // lazy barrier applications (the model's main cost)
+    uint64_t segments = 0;              // live address segments now
+    uint64_t peak_segments = 0;
+    uint64_t duplicate_hazards = 0;     // same command pair, class and fields as a kept report
+    uint64_t hazards_over_cap = 0;      // hazards found once SyncOptions::max_reports were kept
+    uint64_t unsatisfied_waits = 0;     // semaphore waits with no signal seen yet (no ordering assumed)
+    uint64_t event_slot_reuses = 0;     // >16 events pending at once: the oldest loses its ordering
+    uint64_t visibility_spills = 0;     // barrier applications leaving a write visible to >2 scopes (heap)
+};
+
+class SyncModel {
+public:
+    explicit SyncModel(SyncOptions options = {});
+    ~SyncModel();
+    SyncModel(const SyncModel&) = delete;
+    SyncModel& operator=(const SyncModel&) = delete;
+
+    // --- device work, one submission batch at a time -------------------------------
+    // Waits happen before the batch's commands (pWaitSemaphoreInfos / pWaitDstStageMask).
+    void begin_submission(QueueId queue, uint32_t submission_index, std::span<const SemaphoreWait> waits = {});
+    void record_access(const CommandRef& command, const Access& access);
+    // A copy or move whose source and destination must not overlap (vkCmdCopyBuffer,
+    // cluster moves with noMoveOverlap, AS copies): reports kMoveOverlap, then records both.
+    void record_copy(const CommandRef& command, const Access& source, const Access& destination);
+    // Deserialization (vkCmdCopyMemoryToAccelerationStructureKHR): write-after-read/write
+    // hazards on the destination are reported as kDeserializeInUse.
+    void record_deserialize(const CommandRef& command, const Access& source, const Access& destination);
+    void pipeline_barrier(const CommandRef& command, const DependencyInfo& dependency);
+    // vkCmdSetEvent2 (dependency as given) or vkCmdSetEvent (v1: one barrier with the stage
+    // mask and no access masks; the waiting command's barriers then supply the accesses).
+    void set_event(const CommandRef& command, uint64_t event, const DependencyInfo& dependency);
+    void set_event_v1(const CommandRef& command, uint64_t event, VkPipelineStageFlags stages);
+    void reset_event(const CommandRef& command, uint64_t event);
+    void wait_events(const CommandRef& command, std::span<const uint64_t> events, const DependencyInfo& dependency);
+    // Signals happen after the batch's commands; fence 0 means none.
+    void end_submission(std::span<const SemaphoreSignal> signals = {}, uint64_t fence = 0);
+
+    // --- host ----------------------------------------------------------------------
+    // Host read or write of mapped memory (stage HOST, HOST_READ/HOST_WRITE set here).
+    void host_access(const CommandRef& command, const Access& access);
+    void wait_for_fence(uint64_t fence);
+    void queue_wait_idle(QueueId queue);
+    void device_wait_idle();
+    void host_wait_semaphore(uint64_t semaphore, uint64_t value);
+    // vkSignalSemaphore: satisfies device waits; orders only host work, which every later
+    // submission sees anyway.
+    void host_signal_semaphore(uint64_t semaphore, uint64_t value);
+
+    // --- results -------------------------------------------------------------------
+    const std::vector<HazardReport>& hazards() const;
+    const SyncStats& stats() const;
+    // Bytes the model holds now (segments, records, logs); for the memory table.
+    std::size_t memory_bytes() const;
+
+private:
+    struct State;
+    std::unique_ptr<State> state_;
+};
+
+}  // namespace clastrace::replay

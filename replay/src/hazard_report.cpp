@@ -1,0 +1,141 @@
+#include "clastrace/replay/hazard_report.hpp"
+
+#include <cinttypes>
+#include <cstdio>
+
+#include <nlohmann/json.hpp>
+
+namespace clastrace::replay {
+namespace {
+
+std::string hex(uint64_t v) {
+    char buf[24];
+    std::snprintf(buf, sizeof buf, "0x%" PRIx64, v);
+    return buf;
+}
+
+std::string where(const HazardAccess& a) {
+    std::string s = a.command.name && *a.command.name ? a.command.name : "command";
+    if (a.queue == kHostQueue) return s + " (host)";
+    s += " (queue " + std::to_string(a.queue) + ", submit " + std::to_string(a.command.submission) + ", cb " +
+         std::to_string(a.command.command_buffer) + ", cmd " + std::to_string(a.command.command) + ")";
+    return s;
+}
+
+const char* verb(const HazardAccess& a) { return a.is_write ? "writes" : "reads"; }
+const char* past(const HazardAccess& a) { return a.is_write ? "wrote" : "read"; }
+
+nlohmann::json side_json(const HazardAccess& a) {
+    return {
+        {"command", a.command.name ? a.command.name : ""},
+        {"queue", a.queue == kHostQueue ? nlohmann::json("host") : nlohmann::json(a.queue)},
+        {"submission", a.command.submission},
+        {"command_buffer", a.command.command_buffer},
+        {"command_buffer_handle", hex(a.command.command_buffer_handle)},
+        {"command_index", a.command.command},
+        {"field", a.field},
+        {"stage", stage_names(a.stage)},
+        {"access", access_names(a.access)},
+        {"write", a.is_write},
+        {"range", {hex(a.range.begin), hex(a.range.end)}},
+    };
+}
+
+const char* fix_kind_name(FixKind k) {
+    switch (k) {
+    case FixKind::kPipelineBarrier: return "pipeline_barrier";
+    case FixKind::kSemaphore: return "semaphore";
+    case FixKind::kHostWait: return "host_wait";
+    case FixKind::kHostWaitAndBarrier: return "host_wait_and_barrier";
+    case FixKind::kDisjointRanges: return "disjoint_ranges";
+    }
+    return "?";
+}
+
+}  // namespace
+
+const char* hazard_class_name(HazardClass c) {
+    switch (c) {
+    case HazardClass::kReadAfterWrite: return "READ-AFTER-WRITE";
+    case HazardClass::kWriteAfterWrite: return "WRITE-AFTER-WRITE";
+    case HazardClass::kWriteAfterRead: return "WRITE-AFTER-READ";
+    case HazardClass::kMoveOverlap: return "MOVE-OVERLAP";
+    case HazardClass::kDeserializeInUse: return "DESERIALIZE-IN-USE";
+    }
+    return "?";
+}
+
+std::string FixingBarrier::describe() const {
+    const std::string barrier = "{srcStageMask=" + stage_flag_names(src_stages) +
+                                ", srcAccessMask=" + access_flag_names(src_access) +
+                                ", dstStageMask=" + stage_flag_names(dst_stages) +
+                                ", dstAccessMask=" + access_flag_names(dst_access) + "}";
+    switch (kind) {
+    case FixKind::kPipelineBarrier:
+        return "vkCmdPipelineBarrier2 with a VkMemoryBarrier2 (or a VkBufferMemoryBarrier2 covering the range) " +
+               barrier;
+    case FixKind::kSemaphore:
+        return "signal a semaphore after the earlier command (stageMask=" + stage_flag_names(src_stages) +
+               ") and wait on it in the later submission with stageMask/pWaitDstStageMask including " +
+               stage_flag_names(dst_stages);
+    case FixKind::kHostWait:
+        return "wait for the earlier submission's fence (vkWaitForFences or vkQueueWaitIdle) before the host access";
+    case FixKind::kHostWaitAndBarrier:
+        return "record vkCmdPipelineBarrier2 with a VkMemoryBarrier2 " + barrier +
+               " after the earlier command, then wait for the submission's fence before the host reads";
+    case FixKind::kDisjointRanges:
+        return "no barrier can order a command against itself: use non-overlapping source and destination ranges";
+    }
+    return "";
+}
+
+std::string HazardReport::format() const {
+    std::string s = "SYNC-HAZARD-";
+    s += hazard_class_name(hazard);
+    s += ": ";
+    const std::string region = "[" + hex(overlap.begin) + ", " + hex(overlap.end) + ")";
+    if (hazard == HazardClass::kMoveOverlap) {
+        s += where(later) + " copies " + prior.field + " " + "[" + hex(prior.range.begin) + ", " +
+             hex(prior.range.end) + ") into " + later.field + " [" + hex(later.range.begin) + ", " +
+             hex(later.range.end) + "), which overlap in " + region + ".";
+    } else {
+        s += where(later) + " " + verb(later) + " " + later.field + " " + region + " at " + stage_names(later.stage) +
+             " / " + access_names(later.access) + " after " + where(prior) + " " + past(prior) + " " + prior.field +
+             " at " + stage_names(prior.stage) + " / " + access_names(prior.access);
+        switch (fix.kind) {
+        case FixKind::kSemaphore: s += " on another queue with no semaphore ordering them."; break;
+        case FixKind::kHostWait:
+        case FixKind::kHostWaitAndBarrier: s += " with no completed host wait making it visible to the host."; break;
+        default:
+            s += hazard == HazardClass::kWriteAfterRead ? " with no execution dependency between them."
+                                                        : " with no barrier making it available and visible.";
+        }
+    }
+    s += " Fix: " + fix.describe();
+    return s;
+}
+
+nlohmann::json to_json(const HazardReport& r) {
+    return {
+        {"class", hazard_class_name(r.hazard)},
+        {"prior", side_json(r.prior)},
+        {"later", side_json(r.later)},
+        {"overlap", {hex(r.overlap.begin), hex(r.overlap.end)}},
+        {"fix",
+         {{"kind", fix_kind_name(r.fix.kind)},
+          {"srcStageMask", stage_flag_names(r.fix.src_stages)},
+          {"srcAccessMask", access_flag_names(r.fix.src_access)},
+          {"dstStageMask", stage_flag_names(r.fix.dst_stages)},
+          {"dstAccessMask", access_flag_names(r.fix.dst_access)},
+          {"text", r.fix.describe()}}},
+        {"message", r.format()},
+    };
+}
+
+nlohmann::json to_json(const std::vector<HazardReport>& reports, uint64_t suppressed) {
+    nlohmann::json list = nlohmann::json::array();
+    for (const HazardReport& r : reports) list.push_back(to_json(r));
+    return {{"hazards", std::move(list)}, {"suppressed", suppressed}};
+}
+
+}  // namespace clastrace::replay

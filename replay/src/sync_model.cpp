@@ -1,0 +1,831 @@
+#include "clastrace/replay/sync_model.hpp"
+
+#include <algorithm>
+#include <string>
+#include <unordered_map>
+#include <unordered_set>
+
+#include "sync_state.hpp"
+
+namespace clastrace::replay {
+
+using namespace detail;
+
+struct SyncModel::State {
+    SyncOptions options;
+    SyncStats stats;
+    std::vector<HazardReport> reports;
+    std::unordered_set<HazardKey, HazardKeyHash> seen;
+
+    std::map<uint64_t, Segment> segments;  // keyed by begin
+    std::vector<Queue> queues;
+    std::unordered_map<uint64_t, SemaphoreState> semaphores;
+    std::unordered_map<uint64_t, Clock> fences;
+    std::unordered_map<uint64_t, EventState> events;
+    std::array<uint64_t, kEventSlots> slot_owner{};  // event handle holding each slot (0 = free)
+    std::array<bool, kEventSlots> slot_used{};
+    int next_slot = 0;
+    uint64_t set_serial = 0;
+
+    struct FieldHash {
+        using is_transparent = void;
+        std::size_t operator()(std::string_view v) const { return std::hash<std::string_view>{}(v); }
+    };
+    std::vector<std::string> field_names{""};
+    std::unordered_map<std::string, uint32_t, FieldHash, std::equal_to<>> field_ids{{"", 0}};
+
+    uint64_t tag = 1;
+    CommandRef last_command;
+    uint16_t last_queue = 0;
+    bool last_was_access = false;
+    uint16_t current_queue = 0;
+    bool in_submission = false;
+
+    // ------------------------------------------------------------------ bookkeeping
+    uint16_t queue_slot(QueueId id) {
+        for (std::size_t i = 0; i < queues.size(); ++i)
+            if (queues[i].id == id) return uint16_t(i);
+        Queue q;
+        q.id = id;
+        queues.push_back(std::move(q));
+        for (Queue& each : queues) each.known.resize(queues.size(), 0);
+        for (auto& [handle, clock] : fences) clock.resize(queues.size(), 0);
+        for (auto& [handle, sem] : semaphores) {
+            if (sem.binary_signal) sem.binary_signal->resize(queues.size(), 0);
+            for (auto& [value, clock] : sem.timeline) clock.resize(queues.size(), 0);
+        }
+        return uint16_t(queues.size() - 1);
+    }
+    uint64_t covered(const Clock& c, uint16_t slot) const { return slot < c.size() ? c[slot] : 0; }
+
+    uint32_t intern(std::string_view field) {
+        auto it = field_ids.find(field);
+        if (it != field_ids.end()) return it->second;
+        uint32_t id = uint32_t(field_names.size());
+        field_names.emplace_back(field);
+        field_ids.emplace(field_names.back(), id);
+        return id;
+    }
+
+    // Accesses of one command share a tag; a command is known by its reference and queue.
+    uint64_t command_tag(const CommandRef& command, uint16_t queue) {
+        if (!(last_was_access && command == last_command && queue == last_queue)) ++tag;
+        last_command = command;
+        last_queue = queue;
+        last_was_access = true;
+        return tag;
+    }
+    uint64_t sync_tag() {
+        last_was_access = false;
+        return ++tag;
+    }
+
+    // ------------------------------------------------------------------ lazy barrier log
+    void apply_barriers(const Queue& q, const LogEntry& e, ChainState& s, const Record& r, bool home,
+                        uint64_t seg_begin, uint64_t seg_end) {
+        // All barriers of one command act at once: decide each against the state before any.
+        StageMask add_chain = 0, add_avail = 0;
+        uint64_t makes_visible = 0;  // bit i: barrier i makes the write visible
+        const AccessMask write_atoms = r.atoms & kWriteAtoms;
+        const uint32_t count = std::min<uint32_t>(e.count, 64);
+        for (uint32_t i = 0; i < count; ++i) {
+            const LoggedBarrier& b = q.pool[e.first + i - q.pool_base];
+            if (!b.global && !contains(b.range, seg_begin, seg_end)) continue;
+            const bool direct = home && (b.src_scope & r.stage);
+            if (!direct && !(s.chain & b.src_scope)) continue;
+            add_chain |= b.dst_scope;
+            if (!r.is_write) continue;
+            const bool in_access_scope = direct && (write_atoms & b.src_atoms) == write_atoms;
+            if (in_access_scope || (s.avail & b.src_scope)) {
+                add_avail |= b.dst_scope;
+                makes_visible |= uint64_t(1) << i;
+            }
+        }
+        s.chain |= add_chain;
+        s.avail |= add_avail;
+        for (uint64_t m = makes_visible; m; m &= m - 1) {
+            const LoggedBarrier& b = q.pool[e.first + uint32_t(__builtin_ctzll(m)) - q.pool_base];
+            stats.visibility_spills += s.visible.add(b.dst_scope, b.dst_atoms);
+        }
+    }
+
+    void apply_event_set(const Queue& q, const LogEntry& e, ChainState& s, const Record& r, bool home,
+                         uint64_t seg_begin, uint64_t seg_end) {
+        // The slot may carry an older set of a reused event: this set starts it afresh.
+        s.chain &= ~e.event_bits;
+        s.avail &= ~e.event_bits;
+        const AccessMask write_atoms = r.atoms & all_write_accesses();
+        for (uint32_t i = 0; i < e.count; ++i) {
+            const LoggedBarrier& b = q.pool[e.first + i - q.pool_base];
+            if (!b.global && !contains(b.range, seg_begin, seg_end)) continue;
+            const bool direct = home && (b.src_scope & r.stage);
+            if (!direct && !(s.chain & b.src_scope & ~kEventStageBits)) continue;
+            s.chain |= e.event_bits;
+            if (!r.is_write) continue;
+            const bool in_access_scope = direct && (e.v1_event || (write_atoms & b.src_atoms) == write_atoms);
+            if (in_access_scope || (s.avail & b.src_scope & ~kEventStageBits)) s.avail |= e.event_bits;
+        }
+    }
+
+    void apply_event_wait(const Queue& q, const LogEntry& e, ChainState& s, const Record& r, uint64_t seg_begin,
+                          uint64_t seg_end) {
+        if (!(s.chain & e.event_bits)) return;
+        StageMask add_chain = 0, add_avail = 0;
+        Visibility add_visible;
+        const AccessMask write_atoms = r.atoms & all_write_accesses();
+        for (uint32_t i = 0; i < e.count; ++i) {
+            const LoggedBarrier& b = q.pool[e.first + i - q.pool_base];
+            if (!b.global && !contains(b.range, seg_begin, seg_end)) continue;
+            add_chain |= b.dst_scope;
+            if (!r.is_write || !(s.avail & e.event_bits)) continue;
+            // A v1 set names no accesses; the wait's source access mask stands in for it.
+            if (e.v1_event && (write_atoms & b.src_atoms) != write_atoms) continue;
+            add_avail |= b.dst_scope;
+            add_visible.add(b.dst_scope, b.dst_atoms);
+        }
+        s.chain |= add_chain;
+        s.avail |= add_avail;
+        for (std::size_t i = 0; i < add_visible.size(); ++i)
+            stats.visibility_spills += s.visible.add(add_visible.at(i).stages, add_visible.at(i).accesses);
+    }
+
+    void apply_entry(const Queue& q, uint32_t pos, ChainState& s, const Record& r, bool home, uint64_t seg_begin,
+                     uint64_t seg_end) {
+        const LogEntry& e = q.log[pos - q.log_base];
+        ++stats.log_entries_applied;
+        switch (e.kind) {
+        case EntryKind::kBarrier: apply_barriers(q, e, s, r, home, seg_begin, seg_end); break;
+        case EntryKind::kEventSet: apply_event_set(q, e, s, r, home, seg_begin, seg_end); break;
+        case EntryKind::kEventWait: apply_event_wait(q, e, s, r, seg_begin, seg_end); break;
+        case EntryKind::kImport: {
+            const Import& im = q.imports[e.import_index - q.imports_base];
+            if (covered(im.own, r.queue) > r.tag) {
+                s.chain |= im.dst_scope;
+                if (r.is_write) {
+                    s.avail |= im.dst_scope;
+                    s.visible.add(im.dst_scope, all_read_accesses() | all_write_accesses());
+                }
+            }
+            break;
+        }
+        }
+    }
+
+    static bool settled(const Record& r) {
+        const StageMask device = all_device_stages();
+        if ((r.sync.chain & device) != device) return false;
+        if (!r.is_write) return true;
+        if ((r.sync.avail & device) != device) return false;
+        const AccessMask all = all_read_accesses() | all_write_accesses();
+        for (std::size_t i = 0; i < r.sync.visible.size(); ++i) {
+            const Visibility::Rect& rect = r.sync.visible.at(i);
+            if ((rect.stages & device) == device && (rect.accesses & all) == all) return true;
+        }
+        return false;
+    }
+    static void apply_full(Record& r) {
+        const StageMask device = all_device_stages();
+        r.sync.chain |= device;
+        if (!r.is_write) return;
+        r.sync.avail |= device;
+        r.sync.visible.add(device, all_read_accesses() | all_write_accesses());
+    }
+
+    // Brings a record's chain state up to the end of its queue's log. Runs of ordinary
+    // entries are skipped once the record is settled, or jumped over to the last full
+    // barrier among them; only special entries are always applied.
+    void catch_up(Record& r, uint64_t seg_begin, uint64_t seg_end) {
+        if (r.queue == kHostSlot || r.completed) return;
+        const Queue& q = queues[r.queue];
+        const uint32_t end = q.log_end();
+        uint32_t pos = r.log_pos;
+        while (pos < end) {
+            auto sp = std::lower_bound(q.special_positions.begin(), q.special_positions.end(), pos);
+            const uint32_t next_special = sp == q.special_positions.end() ? end : *sp;
+            if (!settled(r)) {
+                auto f = std::lower_bound(q.full_positions.begin(), q.full_positions.end(), next_special);
+                if (f != q.full_positions.begin() && *(f - 1) >= pos) {
+                    apply_full(r);
+                    ++stats.log_entries_applied;
+                    pos = *(f - 1) + 1;
+                }
+                while (pos < next_special && !settled(r)) {
+                    const LogEntry& e = q.log[pos - q.log_base];
+                    apply_entry(q, pos, r.sync, r, true, seg_begin, seg_end);
+                    uint32_t next = pos + 1;
+                    if (e.run_start != kNoRun && e.run_start >= q.log_base)
+                        next = std::max(next, std::min(q.log[e.run_start - q.log_base].run_end, next_special));
+                    pos = next;
+                }
+            }
+            pos = next_special;
+            if (pos < end) apply_entry(q, pos++, r.sync, r, true, seg_begin, seg_end);
+        }
+        r.log_pos = end;
+    }
+
+    // The chain state of a record from another queue as seen from `w`: nothing until a
+    // semaphore wait on `w` covers it, then that wait's stages and whatever follows on `w`.
+    std::optional<ChainState> foreign_view(const Record& r, const Queue& w, uint64_t seg_begin, uint64_t seg_end) {
+        auto it = std::partition_point(w.imports.begin(), w.imports.end(),
+                                       [&](const Import& im) { return covered(im.cumulative, r.queue) <= r.tag; });
+        if (it == w.imports.end()) return std::nullopt;
+        ChainState s;
+        for (uint32_t pos = it->log_pos; pos < w.log_end(); ++pos) apply_entry(w, pos, s, r, false, seg_begin, seg_end);
+        return s;
+    }
+
+    // ------------------------------------------------------------------ hazard decisions
+    struct Later {
+        const Record* record;
+        uint16_t queue;
+        bool deserialize;
+    };
+
+    // Is `prior` execution-ordered before `later`, and (when `need_visible`) is it visible?
+    // Returns the fix to suggest when it is not; nullopt when ordered.
+    std::optional<FixKind> unordered(Record& prior, const Later& later, bool need_visible, uint64_t seg_begin,
+                                     uint64_t seg_end) {
+        const Record& b = *later.record;
+        if (prior.queue == kHostSlot) return std::nullopt;  // host work before the submit: ordered and visible
+        const bool prior_complete = prior.completed || prior.tag < queues[prior.queue].complete;
+        if (later.queue == kHostSlot) {
+            if (!prior_complete) return need_visible ? FixKind::kHostWaitAndBarrier : FixKind::kHostWait;
+            if (!need_visible || b.is_write) return std::nullopt;
+            catch_up(prior, seg_begin, seg_end);
+            return prior.sync.visible.covers(VK_PIPELINE_STAGE_2_HOST_BIT, b.atoms)
+                       ? std::nullopt
+                       : std::optional<FixKind>(FixKind::kHostWaitAndBarrier);
+        }
+        if (prior_complete) return std::nullopt;
+        const ChainState* s = nullptr;
+        std::optional<ChainState> foreign;
+        if (prior.queue == later.queue) {
+            catch_up(prior, seg_begin, seg_end);
+            s = &prior.sync;
+        } else {
+            foreign = foreign_view(prior, queues[later.queue], seg_begin, seg_end);
+            if (!foreign) return FixKind::kSemaphore;
+            s = &*foreign;
+        }
+        const bool ok = need_visible ? s->visible.covers(b.stage, b.atoms) : (s->chain & b.stage) != 0;
+        if (ok) return std::nullopt;
+        return prior.queue == later.queue ? FixKind::kPipelineBarrier : FixKind::kSemaphore;
+    }
+
+    struct Finding {
+        HazardKey key;
+        Record prior;  // a copy: the segment's record is replaced right after the check
+        FixKind fix;
+        AddressRange overlap;
+    };
+
+    void note(std::vector<Finding>& found, HazardClass hazard, const Record& prior, const Record& later, FixKind fix,
+              uint64_t seg_begin, uint64_t seg_end) {
+        HazardKey key{prior.tag, later.tag, prior.field, later.field, hazard};
+        for (Finding& f : found) {
+            if (f.key == key) {  // the same two accesses over adjacent segments: widen the region
+                f.overlap.begin = std::min(f.overlap.begin, seg_begin);
+                f.overlap.end = std::max(f.overlap.end, seg_end);
+                return;
+            }
+        }
+        found.push_back({key, prior, fix, {seg_begin, seg_end}});
+    }
+
+    HazardAccess describe(const Record& r) const {
+        HazardAccess a;
+        a.command = r.command;
+        a.queue = r.queue == kHostSlot ? kHostQueue : queues[r.queue].id;
+        a.stage = r.stage;
+        a.access = r.access;
+        a.is_write = r.is_write;
+        a.range = r.range;
+        a.field = field_names[r.field];
+        return a;
+    }
+
+    void emit(const Finding& f, const Record& later) {
+        if (seen.count(f.key)) {
+            ++stats.duplicate_hazards;
+            return;
+        }
+        if (reports.size() >= options.max_reports) {
+            // Past the cap nothing more is remembered, so memory stays bounded in a stream
+            // that is all hazards; repeats are then counted here too.
+            ++stats.hazards_over_cap;
+            return;
+        }
+        seen.insert(f.key);
+        HazardReport rep;
+        rep.hazard = f.key.hazard;
+        rep.prior = describe(f.prior);
+        rep.later = describe(later);
+        rep.overlap = f.overlap;
+        rep.fix.kind = f.fix;
+        rep.fix.src_stages = f.prior.stage;
+        rep.fix.dst_stages = later.stage;
+        const bool memory = f.key.hazard != HazardClass::kWriteAfterRead &&
+                            !(f.key.hazard == HazardClass::kDeserializeInUse && !f.prior.is_write);
+        if (memory) {
+            rep.fix.src_access = f.prior.access & (all_write_accesses() | VK_ACCESS_2_SHADER_WRITE_BIT |
+                                                    VK_ACCESS_2_MEMORY_WRITE_BIT);
+            rep.fix.dst_access = later.access;
+        }
+        if (f.fix == FixKind::kHostWaitAndBarrier) {
+            rep.fix.dst_stages = VK_PIPELINE_STAGE_2_HOST_BIT;
+            rep.fix.dst_access = VK_ACCESS_2_HOST_READ_BIT;
+        }
+        reports.push_back(std::move(rep));
+    }
+
+    // ------------------------------------------------------------------ the address map
+    // Makes `at` a segment boundary if a segment straddles it.
+    void split_at(uint64_t at) {
+        auto it = segments.upper_bound(at);
+        if (it == segments.begin()) return;
+        --it;
+        if (it->first >= at || it->second.end <= at) return;
+        Segment tail = it->second;
+        it->second.end = at;
+        segments.emplace_hint(std::next(it), at, std::move(tail));
+    }
+
+    void record(const Record& b, bool deserialize) {
+        ++stats.accesses;
+        const uint64_t begin = b.range.begin, end = b.range.end;
+        if (end <= begin) return;
+        split_at(begin);
+        split_at(end);
+        std::vector<Finding> found;
+        const Later later{&b, b.queue, deserialize};
+        uint64_t cursor = begin;
+        auto it = segments.lower_bound(begin);
+        while (cursor < end) {
+            if (it == segments.end() || it->first > cursor) {
+                // A gap nobody touched yet: a fresh segment up to the next one.
+                const uint64_t gap_end = (it == segments.end()) ? end : std::min(end, it->first);
+                Segment fresh;
+                fresh.end = gap_end;
+                if (b.is_write) fresh.write = b;
+                else fresh.reads.push_back(b);
+                it = std::next(segments.emplace_hint(it, cursor, std::move(fresh)));
+                cursor = gap_end;
+                continue;
+            }
+            Segment& seg = it->second;
+            check_and_update(seg, it->first, later, found);
+            cursor = seg.end;
+            ++it;
+        }
+        for (const Finding& f : found) emit(f, b);
+        if (b.is_write) {
+            // Every segment in the range now holds just this write: one segment is enough.
+            // (Without this, overlapping writes would fragment memory byte by byte.)
+            auto first = segments.find(begin), last = segments.lower_bound(end);
+            if (std::next(first) != last) {
+                Segment merged = std::move(first->second);
+                merged.end = end;
+                segments.erase(first, last);
+                segments.emplace(begin, std::move(merged));
+            }
+        }
+        stats.segments = segments.size();
+        stats.peak_segments = std::max<uint64_t>(stats.peak_segments, segments.size());
+    }
+
+    void check_and_update(Segment& seg, uint64_t seg_begin, const Later& later, std::vector<Finding>& found) {
+        const Record& b = *later.record;
+        const uint64_t seg_end = seg.end;
+        if (b.is_write) {
+            bool any_read = false;
+            for (Record& r : seg.reads) {
+                if (r.tag == b.tag) continue;
+                any_read = true;
+                if (auto fix = unordered(r, later, false, seg_begin, seg_end))
+                    note(found, later.deserialize ? HazardClass::kDeserializeInUse : HazardClass::kWriteAfterRead, r,
+                         b, *fix, seg_begin, seg_end);
+            }
+            if (!any_read && seg.write && seg.write->tag != b.tag) {
+                if (auto fix = unordered(*seg.write, later, true, seg_begin, seg_end))
+                    note(found, later.deserialize ? HazardClass::kDeserializeInUse : HazardClass::kWriteAfterWrite,
+                         *seg.write, b, *fix, seg_begin, seg_end);
+            }
+            seg.write = b;
+            seg.reads.clear();
+            return;
+        }
+        if (seg.write && seg.write->tag != b.tag) {
+            if (auto fix = unordered(*seg.write, later, true, seg_begin, seg_end))
+                note(found, HazardClass::kReadAfterWrite, *seg.write, b, *fix, seg_begin, seg_end);
+        }
+        // A host read is over when the call returns: it orders itself before all later work
+        // and must not stand between the write and later writes.
+        if (b.queue == kHostSlot) return;
+        for (Record& r : seg.reads) {
+            if (r.queue == b.queue && r.stage == b.stage) {
+                r = b;  // a later read on the same queue and stage is ordered by whatever orders this one
+                return;
+            }
+        }
+        seg.reads.push_back(b);
+    }
+
+    Record make_record(const CommandRef& command, const Access& a, uint16_t queue, uint64_t t) {
+        Record r;
+        r.tag = t;
+        r.command = command;
+        r.range = a.range;
+        r.stage = atomic_stages(a.stage) & ~kEventStageBits;
+        r.access = a.access;
+        r.atoms = atomic_accesses(a.access);
+        r.is_write = a.is_write;
+        r.field = intern(a.field);
+        r.queue = queue;
+        r.log_pos = queue == kHostSlot ? 0 : queues[queue].log_end();
+        return r;
+    }
+
+    // ------------------------------------------------------------------ barriers
+    uint32_t pool_barriers(Queue& q, const DependencyInfo& dep) {
+        const uint32_t first = q.pool_base + uint32_t(q.pool.size());
+        for (const MemoryBarrier& m : dep.memory_barriers) {
+            q.pool.push_back({source_scope_of(m.src_stages), destination_scope_of(m.dst_stages),
+                              atomic_accesses(m.src_access), atomic_accesses(m.dst_access), {}, true});
+        }
+        for (const BufferBarrier& bb : dep.buffer_barriers) {
+            if (bb.range.empty()) continue;
+            q.pool.push_back({source_scope_of(bb.masks.src_stages), destination_scope_of(bb.masks.dst_stages),
+                              atomic_accesses(bb.masks.src_access), atomic_accesses(bb.masks.dst_access), bb.range,
+                              false});
+            // Segments must lie wholly inside or outside every buffer barrier's range.
+            split_at(bb.range.begin);
+            split_at(bb.range.end);
+        }
+        stats.barriers += dep.memory_barriers.size() + dep.buffer_barriers.size();
+        return first;
+    }
+
+    void log_barrier_entry(EntryKind kind, const DependencyInfo& dep, StageMask event_bits, bool v1) {
+        Queue& q = queues[current_queue];
+        LogEntry e;
+        e.kind = kind;
+        e.first = pool_barriers(q, dep);
+        e.count = q.pool_base + uint32_t(q.pool.size()) - e.first;
+        e.event_bits = event_bits;
+        e.v1_event = v1;
+        if (e.count == 0 && kind == EntryKind::kBarrier) return;
+        const StageMask device = all_device_stages();
+        const AccessMask all = all_read_accesses() | all_write_accesses();
+        bool special = kind == EntryKind::kEventSet, full = false;
+        for (uint32_t i = 0; i < e.count; ++i) {
+            const LoggedBarrier& b = q.pool[e.first + i - q.pool_base];
+            special = special || (b.dst_scope & ~device);
+            full = full || (kind == EntryKind::kBarrier && b.global && (b.src_scope & device) == device &&
+                            (b.dst_scope & device) == device && (b.src_atoms & all_write_accesses()) == all_write_accesses() &&
+                            (b.dst_atoms & all) == all);
+        }
+        const uint32_t pos = q.log_end();
+        e.run_start = pos;
+        e.run_end = pos + 1;
+        if (special) {
+            q.special_positions.push_back(pos);
+        } else if (full) {
+            q.full_positions.push_back(pos);
+        } else if (kind == EntryKind::kBarrier && e.count == 1 && !q.log.empty()) {
+            const LogEntry& prev = q.log.back();
+            if (prev.kind == EntryKind::kBarrier && prev.count == 1 && prev.run_end == pos &&
+                same_barrier(q.pool[prev.first - q.pool_base], q.pool[e.first - q.pool_base])) {
+                q.pool.pop_back();  // share the run's pooled barrier
+                e.first = prev.first;
+                e.run_start = prev.run_start;
+                q.log[prev.run_start - q.log_base].run_end = pos + 1;
+            }
+        }
+        if (e.run_start == pos && !(kind == EntryKind::kBarrier && e.count == 1 && !special && !full))
+            e.run_start = kNoRun;  // not a run member: catch-up never skips past it
+        q.log.push_back(e);
+        maybe_compact(q);
+    }
+
+    // ------------------------------------------------------------------ host waits
+    void complete_through(const Clock& clock) {
+        for (std::size_t i = 0; i < queues.size() && i < clock.size(); ++i)
+            queues[i].complete = std::max(queues[i].complete, clock[i]);
+        retire();
+    }
+
+    // Drops what host waits proved finished; keeps completed writes the host cannot see yet.
+    void retire() {
+        for (auto it = segments.begin(); it != segments.end();) {
+            Segment& seg = it->second;
+            const uint64_t seg_begin = it->first;
+            std::erase_if(seg.reads, [&](const Record& r) {
+                return r.queue == kHostSlot || r.tag < queues[r.queue].complete;
+            });
+            if (seg.write) {
+                Record& w = *seg.write;
+                if (w.queue == kHostSlot) {
+                    seg.write.reset();
+                } else if (!w.completed && w.tag < queues[w.queue].complete) {
+                    catch_up(w, seg_begin, seg.end);
+                    if (w.sync.visible.covers(VK_PIPELINE_STAGE_2_HOST_BIT, VK_ACCESS_2_HOST_READ_BIT))
+                        seg.write.reset();
+                    else
+                        w.completed = true;
+                }
+            }
+            if (!seg.write && seg.reads.empty()) it = segments.erase(it);
+            else ++it;
+        }
+        trim_logs();
+        for (Queue& q : queues) q.log_size_after_trim = q.log.size();
+        stats.segments = segments.size();
+    }
+
+    // Forgets log entries no live record can still need.
+    void trim_logs() {
+        std::vector<uint32_t> keep(queues.size());
+        for (std::size_t i = 0; i < queues.size(); ++i) keep[i] = queues[i].log_end();
+        auto need = [&](const Record& r) {
+            if (r.queue == kHostSlot || r.completed) return;
+            keep[r.queue] = std::min(keep[r.queue], r.log_pos);
+            for (std::size_t w = 0; w < queues.size(); ++w) {
+                if (w == r.queue) continue;
+                const auto& ims = queues[w].imports;
+                auto it = std::partition_point(ims.begin(), ims.end(), [&](const Import& im) {
+                    return covered(im.cumulative, r.queue) <= r.tag;
+                });
+                if (it != ims.end()) keep[w] = std::min(keep[w], it->log_pos);
+            }
+        };
+        for (auto& [begin, seg] : segments) {
+            if (seg.write) need(*seg.write);
+            for (const Record& r : seg.reads) need(r);
+        }
+        for (std::size_t i = 0; i < queues.size(); ++i) {
+            Queue& q = queues[i];
+            const uint32_t drop = keep[i] - q.log_base;
+            if (drop == 0) continue;
+            // Barriers and imports referenced by the kept entries stay.
+            uint32_t pool_keep = q.pool_base + uint32_t(q.pool.size());
+            uint32_t import_keep = q.imports_base + uint32_t(q.imports.size());
+            for (uint32_t k = drop; k < q.log.size(); ++k) {
+                const LogEntry& e = q.log[k];
+                if (e.kind == EntryKind::kImport) import_keep = std::min(import_keep, e.import_index);
+                else pool_keep = std::min(pool_keep, e.first);
+            }
+            if (drop < q.log.size()) {
+                // A run cut by the trim gets its first kept entry as new head.
+                const uint32_t head = q.log[drop].run_start;
+                if (head != kNoRun && head < keep[i]) {
+                    const uint32_t end = q.log[head - q.log_base].run_end;
+                    for (std::size_t k = drop; k < q.log.size() && q.log[k].run_start == head; ++k)
+                        q.log[k].run_start = keep[i];
+                    q.log[drop].run_end = end;
+                }
+            }
+            q.log.erase(q.log.begin(), q.log.begin() + drop);
+            q.log_base += drop;
+            std::erase_if(q.full_positions, [&](uint32_t p) { return p < q.log_base; });
+            std::erase_if(q.special_positions, [&](uint32_t p) { return p < q.log_base; });
+            q.pool.erase(q.pool.begin(), q.pool.begin() + (pool_keep - q.pool_base));
+            q.pool_base = pool_keep;
+            // Imports also serve the binary search; only those wholly before the kept log go.
+            uint32_t import_drop = 0;
+            while (import_drop < q.imports.size() && q.imports_base + import_drop < import_keep &&
+                   q.imports[import_drop].log_pos < q.log_base)
+                ++import_drop;
+            q.imports.erase(q.imports.begin(), q.imports.begin() + import_drop);
+            q.imports_base += import_drop;
+        }
+    }
+
+    // Without host waits the log would grow with the trace: now and then bring every record
+    // up to date and drop what none needs. Doubling keeps the cost amortized.
+    void maybe_compact(const Queue& q) {
+        if (q.log.size() > 4096 && q.log.size() > 2 * q.log_size_after_trim) compact();
+    }
+
+    void compact() {
+        for (auto& [begin, seg] : segments) {
+            if (seg.write) catch_up(*seg.write, begin, seg.end);
+            for (Record& r : seg.reads) catch_up(r, begin, seg.end);
+        }
+        trim_logs();
+        for (Queue& q : queues) q.log_size_after_trim = q.log.size();
+    }
+
+    Clock snapshot_now(uint16_t slot) {
+        Clock c = queues[slot].known;
+        c[slot] = tag + 1;
+        return c;
+    }
+};
+
+// ====================================================================== public API
+
+SyncModel::SyncModel(SyncOptions options) : state_(std::make_unique<State>()) { state_->options = options; }
+SyncModel::~SyncModel() = default;
+
+void SyncModel::begin_submission(QueueId queue, uint32_t, std::span<const SemaphoreWait> waits) {
+    State& s = *state_;
+    s.current_queue = s.queue_slot(queue);
+    s.in_submission = true;
+    s.sync_tag();
+    for (const SemaphoreWait& w : waits) {
+        SemaphoreState& sem = s.semaphores[w.semaphore];
+        std::optional<Clock> clock;
+        if (sem.binary_signal) {
+            clock = std::move(sem.binary_signal);
+            sem.binary_signal.reset();  // a binary wait consumes the signal
+        } else if (auto it = sem.timeline.lower_bound(w.value); it != sem.timeline.end()) {
+            clock = it->second;
+        }
+        if (!clock) {
+            ++s.stats.unsatisfied_waits;
+            continue;
+        }
+        clock->resize(s.queues.size(), 0);
+        Queue& q = s.queues[s.current_queue];
+        for (std::size_t i = 0; i < q.known.size(); ++i) q.known[i] = std::max(q.known[i], (*clock)[i]);
+        Import im;
+        im.log_pos = q.log_end();
+        im.own = std::move(*clock);
+        im.cumulative = q.known;
+        // VUID-VkSubmitInfo-pWaitDstStageMask-00078: waits never name HOST; keep device stages.
+        im.dst_scope = destination_scope_of(w.dst_stages) & kDeviceStages;
+        LogEntry e;
+        e.kind = EntryKind::kImport;
+        e.import_index = q.imports_base + uint32_t(q.imports.size());
+        q.imports.push_back(std::move(im));
+        q.log.push_back(e);
+        ++s.stats.barriers;
+    }
+}
+
+void SyncModel::record_access(const CommandRef& command, const Access& access) {
+    State& s = *state_;
+    const uint64_t t = s.command_tag(command, s.current_queue);
+    s.record(s.make_record(command, access, s.current_queue, t), false);
+}
+
+void SyncModel::record_copy(const CommandRef& command, const Access& source, const Access& destination) {
+    State& s = *state_;
+    const uint64_t t = s.command_tag(command, s.current_queue);
+    Record src = s.make_record(command, source, s.current_queue, t);
+    Record dst = s.make_record(command, destination, s.current_queue, t);
+    if (source.range.overlaps(destination.range)) {
+        State::Finding f{{t, t, src.field, dst.field, HazardClass::kMoveOverlap},
+                         src,
+                         FixKind::kDisjointRanges,
+                         {std::max(source.range.begin, destination.range.begin),
+                          std::min(source.range.end, destination.range.end)}};
+        s.emit(f, dst);
+    }
+    s.record(src, false);
+    s.record(dst, false);
+}
+
+void SyncModel::record_deserialize(const CommandRef& command, const Access& source, const Access& destination) {
+    State& s = *state_;
+    const uint64_t t = s.command_tag(command, s.current_queue);
+    s.record(s.make_record(command, source, s.current_queue, t), false);
+    s.record(s.make_record(command, destination, s.current_queue, t), true);
+}
+
+void SyncModel::pipeline_barrier(const CommandRef&, const DependencyInfo& dependency) {
+    State& s = *state_;
+    s.sync_tag();
+    s.log_barrier_entry(EntryKind::kBarrier, dependency, 0, false);
+}
+
+void SyncModel::set_event(const CommandRef&, uint64_t event, const DependencyInfo& dependency) {
+    State& s = *state_;
+    s.sync_tag();
+    EventState& ev = s.events[event];
+    if (ev.slot < 0) {
+        const int slot = s.next_slot;
+        s.next_slot = (s.next_slot + 1) % kEventSlots;
+        if (s.slot_used[std::size_t(slot)]) {
+            ++s.stats.event_slot_reuses;
+            s.events[s.slot_owner[std::size_t(slot)]].slot = -1;
+        }
+        s.slot_used[std::size_t(slot)] = true;
+        s.slot_owner[std::size_t(slot)] = event;
+        ev.slot = slot;
+    }
+    ev.set_serial = ++s.set_serial;
+    ev.v1 = false;
+    s.log_barrier_entry(EntryKind::kEventSet, dependency, StageMask(1) << (kFirstEventBit + ev.slot), false);
+}
+
+void SyncModel::set_event_v1(const CommandRef& command, uint64_t event, VkPipelineStageFlags stages) {
+    const MemoryBarrier b = memory_barrier_v1(stages, 0, 0, 0);
+    set_event(command, event, DependencyInfo{std::span(&b, 1), {}, 0});
+    Queue& q = state_->queues[state_->current_queue];
+    q.log.back().v1_event = true;
+    state_->events[event].v1 = true;
+}
+
+void SyncModel::reset_event(const CommandRef&, uint64_t event) {
+    State& s = *state_;
+    s.sync_tag();
+    auto it = s.events.find(event);
+    if (it == s.events.end() || it->second.slot < 0) return;
+    s.slot_used[std::size_t(it->second.slot)] = false;
+    it->second.slot = -1;
+}
+
+void SyncModel::wait_events(const CommandRef&, std::span<const uint64_t> events, const DependencyInfo& dependency) {
+    State& s = *state_;
+    s.sync_tag();
+    StageMask bits = 0;
+    bool v1 = false;
+    for (uint64_t event : events) {
+        auto it = s.events.find(event);
+        if (it == s.events.end() || it->second.slot < 0) continue;  // never set on the device: orders nothing
+        bits |= StageMask(1) << (kFirstEventBit + it->second.slot);
+        v1 = v1 || it->second.v1;
+    }
+    if (!bits) return;
+    s.log_barrier_entry(EntryKind::kEventWait, dependency, bits, v1);
+}
+
+void SyncModel::end_submission(std::span<const SemaphoreSignal> signals, uint64_t fence) {
+    State& s = *state_;
+    s.sync_tag();
+    const Clock clock = s.snapshot_now(s.current_queue);
+    for (const SemaphoreSignal& sig : signals) {
+        SemaphoreState& sem = s.semaphores[sig.semaphore];
+        if (sig.value == 0) sem.binary_signal = clock;
+        else sem.timeline[sig.value] = clock;
+    }
+    if (fence) s.fences[fence] = clock;
+    s.in_submission = false;
+    s.maybe_compact(s.queues[s.current_queue]);
+}
+
+void SyncModel::host_access(const CommandRef& command, const Access& access) {
+    State& s = *state_;
+    Access a = access;
+    a.stage = VK_PIPELINE_STAGE_2_HOST_BIT;
+    a.access = a.is_write ? VK_ACCESS_2_HOST_WRITE_BIT : VK_ACCESS_2_HOST_READ_BIT;
+    const uint64_t t = s.command_tag(command, kHostSlot);
+    s.record(s.make_record(command, a, kHostSlot, t), false);
+}
+
+void SyncModel::wait_for_fence(uint64_t fence) {
+    State& s = *state_;
+    s.sync_tag();
+    auto it = s.fences.find(fence);
+    if (it == s.fences.end()) return;
+    s.complete_through(it->second);
+}
+
+void SyncModel::queue_wait_idle(QueueId queue) {
+    State& s = *state_;
+    s.sync_tag();
+    const uint16_t slot = s.queue_slot(queue);
+    s.complete_through(s.snapshot_now(slot));
+}
+
+void SyncModel::device_wait_idle() {
+    State& s = *state_;
+    s.sync_tag();
+    Clock all(s.queues.size(), s.tag + 1);
+    s.complete_through(all);
+}
+
+void SyncModel::host_wait_semaphore(uint64_t semaphore, uint64_t value) {
+    State& s = *state_;
+    s.sync_tag();
+    auto sem = s.semaphores.find(semaphore);
+    if (sem == s.semaphores.end()) return;
+    auto it = sem->second.timeline.lower_bound(value);
+    if (it == sem->second.timeline.end()) return;
+    s.complete_through(it->second);
+}
+
+void SyncModel::host_signal_semaphore(uint64_t semaphore, uint64_t value) {
+    State& s = *state_;
+    s.sync_tag();
+    s.semaphores[semaphore].timeline[value] = Clock(s.queues.size(), 0);
+}
+
+const std::vector<HazardReport>& SyncModel::hazards() const { return state_->reports; }
+const SyncStats& SyncModel::stats() const { return state_->stats; }
+
+std::size_t SyncModel::memory_bytes() const {
+    const State& s = *state_;
+    // A std::map node carries three pointers and a colour besides the value.
+    std::size_t bytes = s.segments.size() * (sizeof(std::pair<const uint64_t, Segment>) + 32);
+    for (const auto& [begin, seg] : s.segments) bytes += seg.reads.capacity() * sizeof(Record);
+    for (const Queue& q : s.queues) {
+        bytes += q.log.capacity() * sizeof(LogEntry) + q.pool.capacity() * sizeof(LoggedBarrier);
+        for (const Import& im : q.imports) bytes += sizeof(Import) + (im.own.size() + im.cumulative.size()) * 8;
+    }
+    return bytes;
+}
+
+}  // namespace clastrace::replay

@@ -1,0 +1,194 @@
+// The model's data layout: per-address access records, the per-queue barrier log, and the
+// semaphore/event bookkeeping. Internal to sync_model.cpp; kept apart so each file has one job.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <vector>
+
+#include "clastrace/replay/hazard_report.hpp"
+#include "clastrace/replay/sync_masks.hpp"
+#include "clastrace/replay/sync_types.hpp"
+
+namespace clastrace::replay::detail {
+
+// Events are modelled as virtual pipeline stages: vkCmdSetEvent chains what is in its first
+// scope into the event's stage bit, vkCmdWaitEvents chains that bit into its second scope.
+// Nothing else names these bits, so later barriers can neither add nor remove them.
+constexpr StageMask kEventStageBits = 0xFFFF000000000000ull;
+constexpr int kFirstEventBit = 48;
+constexpr int kEventSlots = 16;
+
+inline StageMask source_scope_of(StageMask m) { return source_scope(m) & ~kEventStageBits; }
+inline StageMask destination_scope_of(StageMask m) { return destination_scope(m) & ~kEventStageBits; }
+
+// The (stage, access) pairs a write was made visible to, as a union of rectangles
+// (destination stages x destination accesses of the barriers that made it visible). Almost
+// always one or two; more spill to the heap rather than merge, which would hide hazards.
+struct Visibility {
+    struct Rect {
+        StageMask stages;
+        AccessMask accesses;
+    };
+    std::array<Rect, 2> inline_rects{};
+    uint8_t inline_count = 0;
+    std::vector<Rect> more;
+
+    std::size_t size() const { return inline_count + more.size(); }
+    const Rect& at(std::size_t i) const { return i < inline_count ? inline_rects[i] : more[i - inline_count]; }
+    Rect& at(std::size_t i) { return i < inline_count ? inline_rects[i] : more[i - inline_count]; }
+
+    // Returns true when the rectangle went to the heap.
+    bool add(StageMask stages, AccessMask accesses) {
+        if (!stages || !accesses) return false;
+        for (std::size_t i = 0; i < size(); ++i) {
+            Rect& r = at(i);
+            if ((r.stages & stages) == stages && (r.accesses & accesses) == accesses) return false;
+            if (r.stages == stages) { r.accesses |= accesses; return false; }
+            if (r.accesses == accesses) { r.stages |= stages; return false; }
+        }
+        if (inline_count < inline_rects.size()) {
+            inline_rects[inline_count++] = {stages, accesses};
+            return false;
+        }
+        more.push_back({stages, accesses});
+        return true;
+    }
+    bool covers(StageMask stage, AccessMask accesses) const {
+        for (AccessMask m = accesses; m; m &= m - 1) {
+            const AccessMask bit = m & (~m + 1);
+            bool found = false;
+            for (std::size_t i = 0; i < size() && !found; ++i) found = (at(i).stages & stage) && (at(i).accesses & bit);
+            if (!found) return false;
+        }
+        return true;
+    }
+};
+
+// What the dependency chains after an access have reached so far.
+struct ChainState {
+    StageMask chain = 0;  // stages whose later work is execution-ordered after the access
+    StageMask avail = 0;  // same, for chains that began with an availability operation (writes)
+    Visibility visible;   // (stage, access) pairs the write is visible to
+};
+
+struct Record {
+    uint64_t tag = 0;            // unique per command; execution order on its queue
+    CommandRef command;
+    AddressRange range;          // the whole access, for reports
+    StageMask stage = 0;         // one atomic stage
+    AccessMask access = 0;       // as given, for reports
+    AccessMask atoms = 0;        // atomic accesses, for checks
+    uint32_t field = 0;
+    uint32_t log_pos = 0;        // absolute position in its queue's log applied up to
+    uint16_t queue = 0;          // queue slot, or kHostSlot
+    bool is_write = false;
+    bool completed = false;      // retired by a host wait, kept only because the host cannot see it
+    ChainState sync;
+};
+
+constexpr uint16_t kHostSlot = 0xFFFF;
+
+struct Segment {
+    uint64_t end = 0;
+    std::optional<Record> write;
+    std::vector<Record> reads;  // the latest read per (queue, stage) since the write
+};
+
+// Barriers as stored in a queue's log, scopes already normalized.
+struct LoggedBarrier {
+    StageMask src_scope = 0;
+    StageMask dst_scope = 0;
+    AccessMask src_atoms = 0;
+    AccessMask dst_atoms = 0;
+    AddressRange range;
+    bool global = true;
+};
+
+constexpr uint32_t kNoRun = 0xFFFFFFFFu;
+
+enum class EntryKind : uint8_t { kBarrier, kImport, kEventSet, kEventWait };
+
+struct LogEntry {
+    EntryKind kind = EntryKind::kBarrier;
+    bool v1_event = false;      // event set without access masks (vkCmdSetEvent)
+    uint32_t first = 0;         // absolute index into the queue's barrier pool
+    uint32_t count = 0;
+    uint32_t import_index = 0;  // absolute index into the queue's imports
+    StageMask event_bits = 0;
+    // Consecutive identical single-barrier entries form a run; applying one barrier twice
+    // changes nothing, so catching up applies a run once. run_end is kept on the run's head.
+    uint32_t run_start = kNoRun;
+    uint32_t run_end = 0;
+};
+
+using Clock = std::vector<uint64_t>;  // per queue slot: accesses with a smaller tag are covered
+
+struct Import {
+    uint32_t log_pos = 0;
+    Clock own;         // what this wait's signal covers
+    Clock cumulative;  // what all waits up to this one cover (monotone: binary search)
+    StageMask dst_scope = 0;
+};
+
+struct Queue {
+    QueueId id = 0;
+    std::vector<LogEntry> log;
+    uint32_t log_base = 0;
+    std::vector<LoggedBarrier> pool;
+    uint32_t pool_base = 0;
+    std::vector<Import> imports;
+    uint32_t imports_base = 0;
+    Clock known;
+    uint64_t complete = 0;  // accesses with a smaller tag finished and were waited for by the host
+    // Absolute log positions, ascending. A "full" entry is a global barrier from every device
+    // stage and write to every device stage and access: it subsumes everything before it.
+    // A "special" entry can add what a full barrier does not (host visibility, event bits).
+    std::vector<uint32_t> full_positions;
+    std::vector<uint32_t> special_positions;
+    std::size_t log_size_after_trim = 0;
+    uint32_t log_end() const { return log_base + uint32_t(log.size()); }
+};
+
+struct SemaphoreState {
+    std::optional<Clock> binary_signal;
+    std::map<uint64_t, Clock> timeline;  // value -> what the signal covers
+};
+
+struct EventState {
+    int slot = -1;
+    bool v1 = false;
+    uint64_t set_serial = 0;
+};
+
+struct HazardKey {
+    uint64_t prior_tag, later_tag;
+    uint32_t prior_field, later_field;
+    HazardClass hazard;
+    friend bool operator==(const HazardKey&, const HazardKey&) = default;
+};
+struct HazardKeyHash {
+    std::size_t operator()(const HazardKey& k) const {
+        uint64_t h = k.prior_tag * 0x9E3779B97F4A7C15ull ^ (k.later_tag + 0x632BE59BD9B4E019ull);
+        h ^= (uint64_t(k.prior_field) << 32 | k.later_field) * 0xC2B2AE3D27D4EB4Full;
+        h ^= uint64_t(k.hazard) << 7;
+        return std::size_t(h ^ (h >> 29));
+    }
+};
+
+inline bool contains(const AddressRange& outer, uint64_t begin, uint64_t end) {
+    return outer.begin <= begin && end <= outer.end;
+}
+
+inline bool same_barrier(const LoggedBarrier& a, const LoggedBarrier& b) {
+    return a.src_scope == b.src_scope && a.dst_scope == b.dst_scope && a.src_atoms == b.src_atoms &&
+           a.dst_atoms == b.dst_atoms && a.global == b.global && (a.global || a.range == b.range);
+}
+
+inline const StageMask kDeviceStages = all_device_stages();
+inline const AccessMask kWriteAtoms = all_write_accesses();
+inline const AccessMask kAllAtoms = all_read_accesses() | all_write_accesses();
+
+}  // namespace clastrace::replay::detail
