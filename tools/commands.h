@@ -19,5 +19,6 @@ struct Command {
 };
 
 Command register_info(CLI::App& app);
+Command register_replay(CLI::App& app);
 
 }  // namespace clastrace::tools
