@@ -62,11 +62,15 @@ std::string format_text(const ReplayReport& r) {
          (r.engine_trace ? ", made by clastrace's engine: outputs compared byte for byte" : ", captured on a driver: sizes compared side by side") +
          ")\n";
     if (!r.sizes.empty()) {
-        s += "  command                                  op type  ops  compared  captured bytes  engine bytes  equal\n";
+        s += "  sizes, capture vs engine:\n";
+        std::snprintf(line, sizeof line, "  %-26s %7s %6s %8s %14s %14s %6s\n", "command", "op type", "ops", "compared",
+                      "captured bytes", "engine bytes", "equal");
+        s += line;
         for (const SizeComparison& c : r.sizes) {
-            std::snprintf(line, sizeof line, "  s%-4u cb%-3u cmd%-4u %-24s %7u %4u %9u %15" PRIu64 " %13" PRIu64 " %6u\n",
-                          c.where.submission, c.where.command_buffer, c.where.command, "", c.op_type, c.ops, c.ops_compared,
-                          c.captured_bytes, c.engine_bytes, c.sizes_equal);
+            const std::string where = "s" + std::to_string(c.where.submission) + " cb" + std::to_string(c.where.command_buffer) +
+                                      " cmd" + std::to_string(c.where.command) + " [#" + std::to_string(c.where.sequence) + "]";
+            std::snprintf(line, sizeof line, "  %-26s %7u %6u %8u %14" PRIu64 " %14" PRIu64 " %6u\n", where.c_str(), c.op_type,
+                          c.ops, c.ops_compared, c.captured_bytes, c.engine_bytes, c.sizes_equal);
             s += line;
         }
     }
