@@ -54,7 +54,7 @@ std::string format_text(const ReplayReport& r) {
     for (const ReplayFinding& f : r.findings) s += f.format() + "\n";
     for (const HazardReport& h : r.hazards) s += h.format() + "\n";
     if (r.findings_over_cap) s += "(" + std::to_string(r.findings_over_cap) + " more findings not kept)\n";
-    if (r.hazards_over_cap) s += "(" + std::to_string(r.hazards_over_cap) + " more hazards not kept or duplicates)\n";
+    if (r.hazards_over_cap) s += "(" + std::to_string(r.hazards_over_cap) + " more hazards not kept)\n";
     for (const NotReplayed& n : r.not_replayed) s += "note: " + where_text(n.where) + ": " + n.reason + "\n";
 
     char line[256];
@@ -132,6 +132,7 @@ nlohmann::json to_json(const ReplayReport& r) {
         {"outputs_verified", r.verified},
         {"findings", findings},
         {"findings_over_cap", r.findings_over_cap},
+        {"hazards_merged", r.hazards_merged},
         {"hazards", hazards},
         {"sizes", sizes},
         {"not_replayed", not_replayed},

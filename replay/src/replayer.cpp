@@ -14,6 +14,7 @@
 #include <algorithm>
 #include <cstring>
 #include <map>
+#include <tuple>
 #include <memory>
 #include <unordered_map>
 #include <unordered_set>
@@ -72,6 +73,48 @@ uint64_t command_buffer_of(const fbs::Record& r) {
     }
 }
 
+// "srcInfosArray[3].vertexBuffer" -> "srcInfosArray[*].vertexBuffer".
+std::string any_index(const std::string& field) {
+    std::string out;
+    for (size_t i = 0; i < field.size(); ++i) {
+        out += field[i];
+        if (field[i] != '[') continue;
+        size_t j = i + 1;
+        while (j < field.size() && field[j] >= '0' && field[j] <= '9') ++j;
+        if (j > i + 1 && j < field.size() && field[j] == ']') {
+            out += '*';
+            i = j - 1;
+        }
+    }
+    return out;
+}
+
+// The engine reports accesses per op, so one missing barrier before a build would show
+// once per op. Hazards of one class between the same two commands over the same prior
+// field become one report whose later field names the ops as [*] and whose ranges cover them all.
+std::vector<HazardReport> merge_per_op_hazards(const std::vector<HazardReport>& hazards, uint64_t* merged) {
+    std::vector<HazardReport> out;
+    std::map<std::tuple<int, uint32_t, uint32_t, uint32_t, uint32_t, uint32_t, uint32_t, std::string, std::string>, size_t> index;
+    for (const HazardReport& h : hazards) {
+        auto key = std::make_tuple(int(h.hazard), h.prior.command.submission, h.prior.command.command_buffer,
+                                   h.prior.command.command, h.later.command.submission, h.later.command.command_buffer,
+                                   h.later.command.command, any_index(h.prior.field), any_index(h.later.field));
+        auto [it, inserted] = index.emplace(key, out.size());
+        if (inserted) {
+            out.push_back(h);
+            continue;
+        }
+        ++*merged;
+        HazardReport& m = out[it->second];
+        if (m.later.field != h.later.field) m.later.field = std::get<8>(key);
+        if (m.prior.field != h.prior.field) m.prior.field = std::get<7>(key);
+        m.later.range = {std::min(m.later.range.begin, h.later.range.begin), std::max(m.later.range.end, h.later.range.end)};
+        m.prior.range = {std::min(m.prior.range.begin, h.prior.range.begin), std::max(m.prior.range.end, h.prior.range.end)};
+        m.overlap = {std::min(m.overlap.begin, h.overlap.begin), std::max(m.overlap.end, h.overlap.end)};
+    }
+    return out;
+}
+
 class Replay {
 public:
     Replay(TraceReader& reader, const std::string& name, const ReplayOptions& options)
@@ -117,7 +160,7 @@ private:
               std::string_view field);
     std::vector<BufferBarrier> buffer_barriers(const fbs::Dependency* dependency, std::vector<MemoryBarrier>* global);
 
-    void copy_buffer(const fbs::CmdCopyBuffer& copy, const CommandRef& ref);
+    void copy_buffer(const fbs::CmdCopyBuffer& copy, const CommandRef& ref, const ReplayLocation& where);
     void fill_buffer(const fbs::CmdFillBuffer& fill, const CommandRef& ref);
     void update_buffer(const fbs::CmdUpdateBuffer& update, const CommandRef& ref);
     void dispatch(const fbs::CmdDispatch& dispatch, const CommandRef& ref, const ReplayLocation& where);
@@ -288,8 +331,9 @@ void Replay::barrier(const fbs::Record& record, const CommandRef& ref) {
     }
 }
 
-void Replay::copy_buffer(const fbs::CmdCopyBuffer& copy, const CommandRef& ref) {
+void Replay::copy_buffer(const fbs::CmdCopyBuffer& copy, const CommandRef& ref, const ReplayLocation& where) {
     ++report_.counts.copies;
+    lay_in_snapshots(copy.inputs(), where);
     if (!copy.regions()) return;
     std::vector<uint8_t> bytes;
     uint32_t i = 0;
@@ -423,7 +467,7 @@ void Replay::execute_command(const fbs::Record& record, const CommandRef& ref, u
     case fbs::RecordBody::CmdSetEvent:
     case fbs::RecordBody::CmdResetEvent:
     case fbs::RecordBody::CmdWaitEvents: barrier(record, ref); break;
-    case fbs::RecordBody::CmdCopyBuffer: copy_buffer(*record.body_as_CmdCopyBuffer(), ref); break;
+    case fbs::RecordBody::CmdCopyBuffer: copy_buffer(*record.body_as_CmdCopyBuffer(), ref, where); break;
     case fbs::RecordBody::CmdFillBuffer: fill_buffer(*record.body_as_CmdFillBuffer(), ref); break;
     case fbs::RecordBody::CmdUpdateBuffer: update_buffer(*record.body_as_CmdUpdateBuffer(), ref); break;
     case fbs::RecordBody::CmdDispatch: dispatch(*record.body_as_CmdDispatch(), ref, where); break;
@@ -595,7 +639,7 @@ ReplayReport Replay::run() {
     }
     for (const traces::TraceError& e : reader_.damage()) report_.trace_damage.push_back(e.message);
     if (options_.check_hazards) {
-        report_.hazards = sync_.hazards();
+        report_.hazards = merge_per_op_hazards(sync_.hazards(), &report_.hazards_merged);
         report_.hazards_over_cap = sync_.stats().hazards_over_cap;
     }
     return std::move(report_);

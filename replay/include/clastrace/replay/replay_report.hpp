@@ -82,7 +82,8 @@ struct ReplayReport {
     std::vector<ReplayFinding> findings;
     uint64_t findings_over_cap = 0;
     std::vector<HazardReport> hazards;
-    uint64_t hazards_over_cap = 0;     // duplicates + over the cap (SyncStats)
+    uint64_t hazards_over_cap = 0;     // over the cap (SyncStats)
+    uint64_t hazards_merged = 0;       // per-op hazards folded into one report per command pair and field
     bool hazards_checked = true;
     bool verified = true;
     std::vector<SizeComparison> sizes;
