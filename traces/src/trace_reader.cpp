@@ -66,6 +66,7 @@ struct ReadAhead {
 
 struct TraceReader::Impl {
     std::string name;
+    TraceReaderOptions options;
     std::unique_ptr<ByteSource> src;
     uint64_t size = 0;
     uint16_t version_major = 0;
@@ -301,7 +302,7 @@ struct TraceReader::Impl {
         if (const auto* c = record.body_as_MemoryContents()) {
             const uint8_t* data = c->bytes() ? c->bytes()->data() : nullptr;
             size_t n = c->bytes() ? c->bytes()->size() : 0;
-            uint64_t key = format::content_key(data, n, c->seed(), hash_bits);
+            uint64_t key = options.verify_content_keys ? format::content_key(data, n, c->seed(), hash_bits) : c->hash();
             if (key != c->hash()) {
                 report(TraceErrorCode::content_mismatch, chunk_offset,
                        record_place(at) + ": contents " + hex(c->hash()) + " hold bytes hashing to " + hex(key));
@@ -738,21 +739,24 @@ struct TraceReader::Impl {
 TraceReader::TraceReader(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 TraceReader::~TraceReader() = default;
 
-static std::unique_ptr<TraceReader::Impl> make_impl(std::unique_ptr<ByteSource> src, const std::string& name) {
+static std::unique_ptr<TraceReader::Impl> make_impl(std::unique_ptr<ByteSource> src, const std::string& name,
+                                                     const TraceReaderOptions& options) {
     auto impl = std::make_unique<TraceReader::Impl>();
+    impl->options = options;
     impl->src = std::move(src);
     impl->name = name;
     return impl;
 }
 
-std::unique_ptr<TraceReader> TraceReader::open(const std::string& path, TraceError* error) {
+std::unique_ptr<TraceReader> TraceReader::open(const std::string& path, TraceError* error,
+                                               const TraceReaderOptions& options) {
     std::string why;
     auto src = open_file_source(path, &why);
     if (!src) {
         *error = make_trace_error(TraceErrorCode::io_error, path, 0, "cannot open: " + why);
         return nullptr;
     }
-    auto impl = make_impl(std::move(src), path);
+    auto impl = make_impl(std::move(src), path, options);
     if (TraceError e = impl->open()) {
         *error = std::move(e);
         return nullptr;
@@ -761,8 +765,8 @@ std::unique_ptr<TraceReader> TraceReader::open(const std::string& path, TraceErr
 }
 
 std::unique_ptr<TraceReader> TraceReader::open_memory(const uint8_t* data, size_t size, const std::string& name,
-                                                      TraceError* error) {
-    auto impl = make_impl(memory_source(data, size), name);
+                                                      TraceError* error, const TraceReaderOptions& options) {
+    auto impl = make_impl(memory_source(data, size), name, options);
     if (TraceError e = impl->open()) {
         *error = std::move(e);
         return nullptr;

@@ -38,14 +38,22 @@ struct TraceReadStats {
     uint64_t bytes_skipped = 0;        // bytes passed over while looking for the next chunk
 };
 
+// Speed/accuracy knob (bench/traces measures it). The chunk checksums always prove the
+// bytes are what the writer wrote; recomputing every content's key additionally proves the
+// writer keyed them honestly, at the cost of hashing every stored byte once more.
+struct TraceReaderOptions {
+    bool verify_content_keys = true;
+};
+
 class TraceReader {
 public:
     // Fails (nullptr, *error) only when nothing can be read: unopenable or empty file,
     // wrong magic, newer major version. Lesser damage goes to damage().
-    static std::unique_ptr<TraceReader> open(const std::string& path, TraceError* error);
+    static std::unique_ptr<TraceReader> open(const std::string& path, TraceError* error,
+                                             const TraceReaderOptions& options = {});
     // Reads from memory that must outlive the reader; `name` is used in messages.
     static std::unique_ptr<TraceReader> open_memory(const uint8_t* data, size_t size, const std::string& name,
-                                                    TraceError* error);
+                                                    TraceError* error, const TraceReaderOptions& options = {});
     ~TraceReader();
     TraceReader(const TraceReader&) = delete;
     TraceReader& operator=(const TraceReader&) = delete;
