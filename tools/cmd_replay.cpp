@@ -7,6 +7,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <chrono>
 #include <cstdio>
 #include <iostream>
 #include <memory>
@@ -75,7 +76,11 @@ int run_replay(const ReplayArgs& args) {
     }
     const bool show_progress = args.progress || isatty(STDERR_FILENO);
     if (show_progress) {
-        options.progress = [](const replay::ReplayProgress& p) {
+        // At most five lines a second: a terminal redraw per 64 records would cost more than the replay.
+        options.progress = [last = std::chrono::steady_clock::time_point{}](const replay::ReplayProgress& p) mutable {
+            const auto now = std::chrono::steady_clock::now();
+            if (now - last < std::chrono::milliseconds(200)) return;
+            last = now;
             const double pct = p.file_size ? 100.0 * double(p.bytes_read) / double(p.file_size) : 0.0;
             std::fprintf(stderr, "\rreplay: %5.1f%%  %llu records, %llu commands", pct, (unsigned long long)p.records,
                          (unsigned long long)p.commands);
