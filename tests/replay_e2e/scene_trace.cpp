@@ -10,7 +10,7 @@
 namespace clastrace::test {
 
 namespace {
-constexpr uint64_t kCommandBuffer = 0xc0de, kQueue = 0x9001, kFence = 0xfe1, kMemory = 0x1001, kHostMemory = 0x1002;
+constexpr uint64_t kFirstCommandBuffer = 0xc0de, kQueue = 0x9001, kFence = 0xfe1, kMemory = 0x1001, kHostMemory = 0x1002;
 constexpr uint64_t kStaging = 0x2100;
 constexpr uint32_t kClusters = 2, kGrid = 3, kVerts = kGrid * kGrid, kTris = (kGrid - 1) * (kGrid - 1) * 2;
 
@@ -53,7 +53,8 @@ void SceneTrace::add_buffer(uint64_t handle, uint64_t address, uint64_t size, ui
 }
 
 SceneTrace::SceneTrace(const std::string& path, bool engine_device, uint64_t scratch_size)
-    : mirror_(std::make_unique<Mirror>()), scratch_size_(scratch_size), engine_device_(engine_device) {
+    : mirror_(std::make_unique<Mirror>()), scratch_size_(scratch_size), engine_device_(engine_device),
+      command_buffer_(kFirstCommandBuffer) {
     fbs::TraceHeaderT h;
     h.device = std::make_unique<fbs::DeviceInfoT>();
     h.device->name = engine_device ? "clastrace engine" : "test driver";
@@ -120,13 +121,13 @@ SceneTrace::SceneTrace(const std::string& path, bool engine_device, uint64_t scr
         i.vertexBuffer = B::kVertices + c * kVerts * 12;
     }
     fbs::CommandBufferBeginT begin;
-    begin.command_buffer = kCommandBuffer;
+    begin.command_buffer = command_buffer_;
     check(writer_->append(record(begin)));
 }
 
 void SceneTrace::copy_infos() {
     fbs::CmdCopyBufferT copy;
-    copy.command_buffer = kCommandBuffer;
+    copy.command_buffer = command_buffer_;
     copy.version = 1;
     copy.src_buffer = kStaging;
     copy.dst_buffer = 0x2003;
@@ -140,7 +141,7 @@ void SceneTrace::copy_infos() {
 
 void SceneTrace::barrier(uint64_t src_stage, uint64_t src_access, uint64_t dst_stage, uint64_t dst_access) {
     fbs::CmdPipelineBarrierT b;
-    b.command_buffer = kCommandBuffer;
+    b.command_buffer = command_buffer_;
     b.version = 2;
     b.dependency = std::make_unique<fbs::DependencyT>();
     b.dependency->memory_barriers.emplace_back(src_stage, src_access, dst_stage, dst_access);
@@ -158,7 +159,7 @@ void SceneTrace::emit_build(const VkClusterAccelerationStructureCommandsInfoNV& 
     engine::ExecutionRecord r = engine::execute(info, mirror_->image, options);
 
     fbs::CmdBuildClusterAccelerationStructureIndirectT b;
-    b.command_buffer = kCommandBuffer;
+    b.command_buffer = command_buffer_;
     b.input = std::make_unique<fbs::ClusterInputInfoT>();
     b.input->max_acceleration_structure_count = info.input.maxAccelerationStructureCount;
     b.input->op_type = info.input.opType;
@@ -277,15 +278,36 @@ void SceneTrace::build_blas(const std::vector<uint64_t>& cluster_addresses) {
                {{blas.clusterReferences, bytes_of(mirror_refs.data(), mirror_refs.size() * 8)}});
 }
 
+void SceneTrace::submit(uint64_t queue, uint64_t wait_semaphore, uint64_t signal_semaphore) {
+    fbs::CommandBufferEndT end;
+    end.command_buffer = command_buffer_;
+    check(writer_->append(record(end)));
+    fbs::QueueSubmitT submit;
+    submit.queue = queue;
+    submit.version = 2;
+    auto batch = std::make_unique<fbs::SubmitBatchT>();
+    batch->command_buffers.push_back(command_buffer_);
+    if (wait_semaphore)
+        batch->wait_semaphores.emplace_back(wait_semaphore, 0, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, 0);
+    if (signal_semaphore) batch->signal_semaphores.emplace_back(signal_semaphore, 0, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, 0);
+    submit.batches.push_back(std::move(batch));
+    submit.submission_index = writer_->next_submission_index();
+    check(writer_->append(record(std::move(submit))));
+    ++command_buffer_;
+    fbs::CommandBufferBeginT begin;
+    begin.command_buffer = command_buffer_;
+    check(writer_->append(record(begin)));
+}
+
 void SceneTrace::finish() {
     fbs::CommandBufferEndT end;
-    end.command_buffer = kCommandBuffer;
+    end.command_buffer = command_buffer_;
     check(writer_->append(record(end)));
     fbs::QueueSubmitT submit;
     submit.queue = kQueue;
     submit.version = 2;
     auto batch = std::make_unique<fbs::SubmitBatchT>();
-    batch->command_buffers.push_back(kCommandBuffer);
+    batch->command_buffers.push_back(command_buffer_);
     submit.batches.push_back(std::move(batch));
     submit.fence = kFence;
     submit.submission_index = writer_->next_submission_index();

@@ -42,6 +42,9 @@ public:
     void barrier(uint64_t src_stage, uint64_t src_access, uint64_t dst_stage, uint64_t dst_access);
     // A BLAS over the clusters at these (captured) addresses.
     void build_blas(const std::vector<uint64_t>& cluster_addresses);
+    // Ends the command buffer and submits it to `queue` (binary semaphores, 0 = none);
+    // later commands go into a fresh command buffer.
+    void submit(uint64_t queue, uint64_t wait_semaphore = 0, uint64_t signal_semaphore = 0);
     // Ends the command buffer, submits, waits on the fence, finishes the file.
     void finish();
 
@@ -61,6 +64,7 @@ private:
     std::vector<uint8_t> indices_;
     uint64_t scratch_size_;
     bool engine_device_;
+    uint64_t command_buffer_;
 };
 
 }  // namespace clastrace::test
