@@ -240,23 +240,34 @@ void Replay::feed(const CommandRef& ref, const AddressRange& range, StageMask st
 void Replay::host_observation(const fbs::MemoryObservation& observation) {
     if (!observation.snapshots()) return;
     CommandRef ref{next_submission_, 0, 0, host_ops_++, "host write (mapped memory)"};
-    ReplayLocation where{sequence_, next_submission_, 0, ref.command, 0, ref.name};
-    std::vector<uint8_t> bytes;
+    std::vector<uint8_t> bytes, before;
     for (const fbs::MemorySnapshot* s : *observation.snapshots()) {
         std::optional<uint64_t> address = memory_.snapshot_address(s->buffer(), s->offset(), s->address());
-        if (!address || !contents(s->hash(), &bytes) || !memory_.write(*address, bytes)) {
+        if (!address || !contents(s->hash(), &bytes)) {
+            ++report_.counts.snapshots_outside_memory;
+            continue;
+        }
+        // A capture may observe mapped memory the host did not touch: only bytes that
+        // changed count as a host write (unchanged ones would be false WAR/WAW hazards).
+        AddressRange written{*address, *address + bytes.size()};
+        if (memory_.read(*address, bytes.size(), &before)) {
+            size_t first = 0, last = bytes.size();
+            while (first < last && bytes[first] == before[first]) ++first;
+            while (last > first && bytes[last - 1] == before[last - 1]) --last;
+            written = {*address + first, *address + last};
+        }
+        if (!memory_.write(*address, bytes)) {
             ++report_.counts.snapshots_outside_memory;
             continue;
         }
         ++report_.counts.snapshots_applied;
         report_.counts.snapshot_bytes += bytes.size();
-        if (options_.check_hazards) {
+        if (options_.check_hazards && !written.empty()) {
             ++report_.counts.accesses;
-            sync_.host_access(ref, Access{{*address, *address + bytes.size()}, VK_PIPELINE_STAGE_2_HOST_BIT,
-                                          VK_ACCESS_2_HOST_WRITE_BIT, true, "mapped memory"});
+            sync_.host_access(ref, Access{written, VK_PIPELINE_STAGE_2_HOST_BIT, VK_ACCESS_2_HOST_WRITE_BIT, true,
+                                          "mapped memory"});
         }
     }
-    (void)where;
 }
 
 std::vector<BufferBarrier> Replay::buffer_barriers(const fbs::Dependency* dependency, std::vector<MemoryBarrier>* global) {

@@ -313,6 +313,39 @@ TEST(ReplayE2E, RandomValidStreamsHaveNoFalsePositives) {
     std::remove(path.c_str());
 }
 
+// The host rewrites srcInfosArray (mapped memory) while a submission that reads it may
+// still run: a hazard unless the host waited for the submission's fence first.
+void host_scene(const std::string& path, bool wait, bool same_bytes) {
+    SceneTrace t(path, true);
+    t.build({});
+    t.submit(0x9001, 0, 0, 0xfe2);
+    if (wait) t.wait_fence(0xfe2);
+    auto infos = t.infos;
+    if (!same_bytes) infos[1].clusterID = 777;
+    const auto* p = reinterpret_cast<const uint8_t*>(infos.data());
+    t.observe(SceneBuffers::kInfos, std::vector<uint8_t>(p, p + infos.size() * sizeof infos[0]));
+    t.finish();
+}
+
+TEST(ReplayE2E, HostRewriteOfBuildInputsNeedsAFenceWait) {
+    const std::string path = temp_path("host.clt");
+    host_scene(path, false, false);
+    replay::ReplayReport r = replay_file(path);
+    ASSERT_EQ(r.hazards.size(), 1u) << describe(r);
+    EXPECT_EQ(r.hazards[0].hazard, replay::HazardClass::kWriteAfterRead);
+    EXPECT_EQ(r.hazards[0].fix.kind, replay::FixKind::kHostWait);
+    // Only the changed bytes count as written: the low two bytes of op 1's clusterID (101 -> 777).
+    EXPECT_EQ(r.hazards[0].later.range.begin, SceneBuffers::kInfos + 64);
+    EXPECT_EQ(r.hazards[0].later.range.end, SceneBuffers::kInfos + 64 + 2);
+    host_scene(path, true, false);
+    r = replay_file(path);
+    EXPECT_TRUE(r.clean()) << describe(r);
+    host_scene(path, false, true);  // observed but unchanged: no host write
+    r = replay_file(path);
+    EXPECT_TRUE(r.clean()) << describe(r);
+    std::remove(path.c_str());
+}
+
 TEST(ReplayE2E, SlicesSelectCommands) {
     const std::string path = temp_path("slice.clt");
     scratch_scene(path, false);

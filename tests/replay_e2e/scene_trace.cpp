@@ -278,7 +278,23 @@ void SceneTrace::build_blas(const std::vector<uint64_t>& cluster_addresses) {
                {{blas.clusterReferences, bytes_of(mirror_refs.data(), mirror_refs.size() * 8)}});
 }
 
-void SceneTrace::submit(uint64_t queue, uint64_t wait_semaphore, uint64_t signal_semaphore) {
+void SceneTrace::wait_fence(uint64_t fence) {
+    fbs::FenceWaitT wait;
+    wait.fences.push_back(fence);
+    wait.wait_all = true;
+    check(writer_->append(record(std::move(wait))));
+}
+
+void SceneTrace::observe(uint64_t address, const std::vector<uint8_t>& bytes) {
+    fbs::MemoryObservationT o;
+    o.memory = kMemory;
+    fbs::MemorySnapshot snap;
+    check(writer_->snapshot(0, 0, address, bytes.data(), bytes.size(), &snap));
+    o.snapshots.push_back(snap);
+    check(writer_->append(record(std::move(o))));
+}
+
+void SceneTrace::submit(uint64_t queue, uint64_t wait_semaphore, uint64_t signal_semaphore, uint64_t fence) {
     fbs::CommandBufferEndT end;
     end.command_buffer = command_buffer_;
     check(writer_->append(record(end)));
@@ -291,6 +307,7 @@ void SceneTrace::submit(uint64_t queue, uint64_t wait_semaphore, uint64_t signal
         batch->wait_semaphores.emplace_back(wait_semaphore, 0, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, 0);
     if (signal_semaphore) batch->signal_semaphores.emplace_back(signal_semaphore, 0, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, 0);
     submit.batches.push_back(std::move(batch));
+    submit.fence = fence;
     submit.submission_index = writer_->next_submission_index();
     check(writer_->append(record(std::move(submit))));
     ++command_buffer_;

@@ -44,7 +44,10 @@ public:
     void build_blas(const std::vector<uint64_t>& cluster_addresses);
     // Ends the command buffer and submits it to `queue` (binary semaphores, 0 = none);
     // later commands go into a fresh command buffer.
-    void submit(uint64_t queue, uint64_t wait_semaphore = 0, uint64_t signal_semaphore = 0);
+    void submit(uint64_t queue, uint64_t wait_semaphore = 0, uint64_t signal_semaphore = 0, uint64_t fence = 0);
+    void wait_fence(uint64_t fence);
+    // The capture saw mapped memory at `address` hold `bytes` (a host write, between submissions).
+    void observe(uint64_t address, const std::vector<uint8_t>& bytes);
     // Ends the command buffer, submits, waits on the fence, finishes the file.
     void finish();
 
