@@ -1,6 +1,7 @@
 #include "replay_memory.hpp"
 
 #include <algorithm>
+#include <new>
 #include <cstdio>
 #include <cstring>
 
@@ -25,15 +26,31 @@ uint64_t ReplayMemory::memory_base(uint64_t memory) {
     return base;
 }
 
-void ReplayMemory::add_region(uint64_t address, uint64_t size, uint64_t usage, const std::string& label) {
-    if (size == 0 || address + size < address) return;
+bool ReplayMemory::add_region(uint64_t address, uint64_t size, uint64_t usage, const std::string& label) {
+    if (size == 0 || address + size < address) return true;
+    if (size > budget_ - used_) return false;
     try {
         image_.add_region(address, size, static_cast<VkBufferUsageFlags>(usage), label);
+        used_ += size;
     } catch (const engine::MemoryFault&) {
         // Two buffers over the same bytes (aliasing): the first region serves both as far
         // as it reaches; the rest of this buffer stays outside the image.
         ++aliased_buffers_;
+    } catch (const std::bad_alloc&) {
+        return false;
     }
+    return true;
+}
+
+bool ReplayMemory::fill(uint64_t address, uint64_t size, uint32_t value) {
+    try {
+        std::span<std::byte> dst = image_.write_bytes(address, size, {"vkCmdFillBuffer", -1});
+        for (uint64_t k = 0; k + 4 <= size; k += 4) std::memcpy(dst.data() + k, &value, 4);
+    } catch (const engine::MemoryFault&) {
+        return false;
+    }
+    unmark({address, address + size});
+    return true;
 }
 
 void ReplayMemory::bind_buffer(uint64_t buffer, uint64_t memory, uint64_t memory_offset, uint64_t device_address) {
@@ -47,7 +64,7 @@ void ReplayMemory::bind_buffer(uint64_t buffer, uint64_t memory, uint64_t memory
     b.bound = true;
     char label[40];
     std::snprintf(label, sizeof label, "buffer 0x%llx", static_cast<unsigned long long>(buffer));
-    add_region(b.address, b.size, b.usage, label);
+    if (!add_region(b.address, b.size, b.usage, label)) over_budget_.emplace_back(buffer, b.size);
 }
 
 void ReplayMemory::bind_object(uint64_t object, uint64_t memory, uint64_t memory_offset) {

@@ -13,11 +13,16 @@
 #include <span>
 #include <string>
 #include <unordered_map>
+#include <utility>
+#include <vector>
 
 namespace clastrace::replay::detail {
 
 class ReplayMemory {
 public:
+    // Bytes the image may hold in all (each region is allocated zero-filled when bound).
+    explicit ReplayMemory(uint64_t budget_bytes = 8ull << 30) : budget_(budget_bytes) {}
+
     void create_buffer(uint64_t buffer, uint64_t size, uint64_t usage);
     // Binds and adds the buffer's region. Buffers without a device address get one: the
     // memory object's base (learned from an addressed buffer bound to it) plus the offset,
@@ -40,6 +45,10 @@ public:
     bool read(uint64_t address, uint64_t size, std::vector<uint8_t>* out) const;
     void mark_engine_object(AddressRange range);
     uint64_t aliased_buffers() const { return aliased_buffers_; }
+    // Buffers left out of the image because they would exceed the budget (handle, size).
+    const std::vector<std::pair<uint64_t, uint64_t>>& over_budget() const { return over_budget_; }
+    // Fills [address, address + size) with a repeated 32-bit value in place (vkCmdFillBuffer).
+    bool fill(uint64_t address, uint64_t size, uint32_t value);
 
     engine::MemoryImage& image() { return image_; }
     const engine::MemoryImage& image() const { return image_; }
@@ -59,7 +68,7 @@ private:
         bool bound = false;
     };
     void unmark(AddressRange range);
-    void add_region(uint64_t address, uint64_t size, uint64_t usage, const std::string& label);
+    bool add_region(uint64_t address, uint64_t size, uint64_t usage, const std::string& label);
     uint64_t memory_base(uint64_t memory);
 
     engine::MemoryImage image_;
@@ -70,6 +79,9 @@ private:
     uint64_t next_private_ = kPrivateBase;
     uint64_t aliased_buffers_ = 0;
     std::map<uint64_t, uint64_t> engine_objects_;  // begin -> end, disjoint
+    uint64_t budget_;
+    uint64_t used_ = 0;
+    std::vector<std::pair<uint64_t, uint64_t>> over_budget_;
 };
 
 }  // namespace clastrace::replay::detail

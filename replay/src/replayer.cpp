@@ -118,7 +118,7 @@ std::vector<HazardReport> merge_per_op_hazards(const std::vector<HazardReport>& 
 class Replay {
 public:
     Replay(TraceReader& reader, const std::string& name, const ReplayOptions& options)
-        : reader_(reader), options_(options), sync_(SyncOptions{options.max_findings}) {
+        : reader_(reader), options_(options), memory_(options.memory_budget_bytes), sync_(SyncOptions{options.max_findings}) {
         report_.trace = name;
         report_.hazards_checked = options.check_hazards;
         report_.verified = options.verify_outputs;
@@ -146,6 +146,7 @@ public:
 private:
     struct Recorded {
         std::vector<std::vector<uint8_t>> commands;  // Record FlatBuffers, copied out of the reader
+        bool one_time = false;                        // freed once submitted (memory stays bounded)
     };
 
     void on_record(const traces::RecordView& view);
@@ -370,10 +371,7 @@ void Replay::fill_buffer(const fbs::CmdFillBuffer& fill, const CommandRef& ref) 
     auto range = memory_.buffer_range(fill.dst_buffer(), fill.dst_offset(), fill.size());
     if (!range) return;
     if (fill.size() == kWholeSize) range->end = range->begin + ((range->end - range->begin) & ~3ull);
-    std::vector<uint8_t> bytes(range->end - range->begin);
-    const uint32_t data = fill.data();
-    for (size_t k = 0; k + 4 <= bytes.size(); k += 4) std::memcpy(&bytes[k], &data, 4);
-    memory_.write(range->begin, bytes);
+    memory_.fill(range->begin, range->end - range->begin, fill.data());
     feed(ref, *range, VK_PIPELINE_STAGE_2_CLEAR_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, true, "dstOffset");
 }
 
@@ -544,6 +542,7 @@ void Replay::on_submit(const fbs::QueueSubmit& submit) {
                         }
                         ++command;
                     }
+                    if (it->second.one_time) recorded_.erase(it);
                 }
                 ++cb_index;
             }
@@ -589,7 +588,12 @@ void Replay::on_record(const traces::RecordView& view) {
         }
         break;
     }
-    case fbs::RecordBody::CommandBufferBegin: recorded_[r.body_as_CommandBufferBegin()->command_buffer()].commands.clear(); break;
+    case fbs::RecordBody::CommandBufferBegin: {
+        Recorded& cb = recorded_[r.body_as_CommandBufferBegin()->command_buffer()];
+        cb.commands.clear();
+        cb.one_time = r.body_as_CommandBufferBegin()->flags() & VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
+        break;
+    }
     case fbs::RecordBody::CommandBufferReset: {
         const auto* reset = r.body_as_CommandBufferReset();
         if (reset->command_buffer() != 0) recorded_.erase(reset->command_buffer());
@@ -649,6 +653,12 @@ ReplayReport Replay::run() {
         }
     }
     for (const traces::TraceError& e : reader_.damage()) report_.trace_damage.push_back(e.message);
+    for (const auto& [buffer, size] : memory_.over_budget())
+        add_finding({"CLASTRACE-replay-memory-budget",
+                     "buffer " + detail::hex(buffer) + " (" + std::to_string(size) +
+                         " bytes) was left out of the replay's memory: it would exceed the budget of " +
+                         std::to_string(options_.memory_budget_bytes) + " bytes (ReplayOptions::memory_budget_bytes)",
+                     FindingSource::kReplay, ReplayLocation{}, -1, 0});
     if (options_.check_hazards) {
         report_.hazards = merge_per_op_hazards(sync_.hazards(), &report_.hazards_merged);
         report_.hazards_over_cap = sync_.stats().hazards_over_cap;

@@ -346,6 +346,25 @@ TEST(ReplayE2E, HostRewriteOfBuildInputsNeedsAFenceWait) {
     std::remove(path.c_str());
 }
 
+// Buffers beyond the memory budget are left out and named, not allocated.
+TEST(ReplayE2E, BuffersBeyondTheMemoryBudgetAreReportedNotAllocated) {
+    const std::string path = temp_path("budget.clt");
+    {
+        SceneTrace t(path, true);
+        t.build({});
+        t.finish();
+    }
+    replay::ReplayOptions o;
+    o.memory_budget_bytes = 0x30000;  // the vertex..scratch buffers fit, the 64 KiB destinations do not all fit
+    replay::ReplayReport r = replay_file(path, o);
+    bool budget = false;
+    for (const auto& f : r.findings) budget |= f.rule == "CLASTRACE-replay-memory-budget";
+    EXPECT_TRUE(budget) << describe(r);
+    EXPECT_FALSE(r.clean());
+    EXPECT_TRUE(replay_file(path).clean());
+    std::remove(path.c_str());
+}
+
 TEST(ReplayE2E, SlicesSelectCommands) {
     const std::string path = temp_path("slice.clt");
     scratch_scene(path, false);

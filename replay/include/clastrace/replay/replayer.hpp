@@ -42,6 +42,9 @@ struct ReplayOptions {
     int64_t submission = -1;
     std::size_t max_findings = 1000;   // findings kept (hazards: the same cap); the rest counted
     uint32_t max_findings_per_rule = 64;  // per command, passed to the engine
+    // Bytes of captured memory the replay may hold: every bound buffer is one zero-filled
+    // region. Buffers beyond it are left out (a CLASTRACE-replay-memory-budget finding).
+    uint64_t memory_budget_bytes = 8ull << 30;
     // Called about every 64 records; may be empty.
     std::function<void(const ReplayProgress&)> progress;
 };
