@@ -391,7 +391,7 @@ TEST(ReplayE2E, SlicesSelectCommands) {
 TEST(ReplayE2E, RandomMutationsOfAValidSceneNeverCrash) {
     std::mt19937_64 rng(1234);
     const std::string path = temp_path("mutant.clt");
-    for (int round = 0; round < 40; ++round) {
+    for (int round = 0; round < 150; ++round) {
         {
             SceneTrace t(path, round % 2 == 0);
             t.driver_address_shift = (rng() % 4) * 0x100;
