@@ -124,6 +124,43 @@ TEST(ReplayE2E, ScratchReusedAfterBarrierIsClean) {
     std::remove(path.c_str());
 }
 
+enum class Sync { kNone, kBarrierV1, kEvent, kEventSetBeforeTheFirstBuild };
+
+void scratch_scene_with(const std::string& path, Sync sync) {
+    SceneTrace t(path, true);
+    if (sync == Sync::kEventSetBeforeTheFirstBuild) t.set_event(0xe1, kBuild, kAsWrite, kBuild, kAsRead | kAsWrite);
+    t.build({});
+    if (sync == Sync::kBarrierV1)
+        t.barrier_v1(uint32_t(kBuild), uint32_t(kAsWrite), uint32_t(kBuild), uint32_t(kAsRead | kAsWrite));
+    if (sync == Sync::kEvent) t.set_event(0xe1, kBuild, kAsWrite, kBuild, kAsRead | kAsWrite);
+    if (sync == Sync::kEvent || sync == Sync::kEventSetBeforeTheFirstBuild)
+        t.wait_event(0xe1, kBuild, kAsWrite, kBuild, kAsRead | kAsWrite);
+    BuildCall second;
+    second.dst = SceneBuffers::kDst2;
+    second.addresses = SceneBuffers::kAddresses2;
+    second.sizes = SceneBuffers::kSizes2;
+    second.first_cluster_id = 200;
+    t.build(second);
+    t.finish();
+}
+
+TEST(ReplayE2E, V1BarriersAndEventsOrderTheScratchReuse) {
+    const std::string path = temp_path("sync_kinds.clt");
+    scratch_scene_with(path, Sync::kBarrierV1);
+    replay::ReplayReport r = replay_file(path);
+    EXPECT_TRUE(r.clean()) << describe(r);
+    scratch_scene_with(path, Sync::kEvent);
+    r = replay_file(path);
+    EXPECT_TRUE(r.clean()) << describe(r);
+    EXPECT_EQ(r.counts.barriers, 2u);
+    // An event set before the first build does not cover it.
+    scratch_scene_with(path, Sync::kEventSetBeforeTheFirstBuild);
+    r = replay_file(path);
+    ASSERT_EQ(r.hazards.size(), 1u) << describe(r);
+    EXPECT_EQ(r.hazards[0].later.field, "scratchData");
+    std::remove(path.c_str());
+}
+
 void copy_scene(const std::string& path, bool with_barrier) {
     SceneTrace t(path, true);
     t.copy_infos();

@@ -148,6 +148,38 @@ void SceneTrace::barrier(uint64_t src_stage, uint64_t src_access, uint64_t dst_s
     check(writer_->append(record(std::move(b))));
 }
 
+void SceneTrace::barrier_v1(uint32_t src_stage, uint32_t src_access, uint32_t dst_stage, uint32_t dst_access) {
+    fbs::CmdPipelineBarrierT b;
+    b.command_buffer = command_buffer_;
+    b.version = 1;
+    b.src_stage_mask = src_stage;
+    b.dst_stage_mask = dst_stage;
+    b.dependency = std::make_unique<fbs::DependencyT>();
+    b.dependency->memory_barriers.emplace_back(src_stage, src_access, dst_stage, dst_access);
+    check(writer_->append(record(std::move(b))));
+}
+
+void SceneTrace::set_event(uint64_t event, uint64_t src_stage, uint64_t src_access, uint64_t dst_stage, uint64_t dst_access) {
+    fbs::CmdSetEventT e;
+    e.command_buffer = command_buffer_;
+    e.event = event;
+    e.version = 2;
+    e.dependency = std::make_unique<fbs::DependencyT>();
+    e.dependency->memory_barriers.emplace_back(src_stage, src_access, dst_stage, dst_access);
+    check(writer_->append(record(std::move(e))));
+}
+
+void SceneTrace::wait_event(uint64_t event, uint64_t src_stage, uint64_t src_access, uint64_t dst_stage, uint64_t dst_access) {
+    fbs::CmdWaitEventsT w;
+    w.command_buffer = command_buffer_;
+    w.version = 2;
+    w.events.push_back(event);
+    auto dep = std::make_unique<fbs::DependencyT>();
+    dep->memory_barriers.emplace_back(src_stage, src_access, dst_stage, dst_access);
+    w.dependencies.push_back(std::move(dep));
+    check(writer_->append(record(std::move(w))));
+}
+
 void SceneTrace::emit_build(const VkClusterAccelerationStructureCommandsInfoNV& info, const BuildCall& call,
                             std::vector<std::pair<uint64_t, std::vector<uint8_t>>> inputs, uint64_t shift,
                             const std::vector<std::pair<uint64_t, std::vector<uint8_t>>>& mirror_patch) {

@@ -40,6 +40,11 @@ public:
     // srcInfosArray contents written by vkCmdCopyBuffer from a staging buffer.
     void copy_infos();
     void barrier(uint64_t src_stage, uint64_t src_access, uint64_t dst_stage, uint64_t dst_access);
+    // vkCmdPipelineBarrier (v1): one VkMemoryBarrier with the call's stage masks.
+    void barrier_v1(uint32_t src_stage, uint32_t src_access, uint32_t dst_stage, uint32_t dst_access);
+    // vkCmdSetEvent2 / vkCmdWaitEvents2 with one VkMemoryBarrier2.
+    void set_event(uint64_t event, uint64_t src_stage, uint64_t src_access, uint64_t dst_stage, uint64_t dst_access);
+    void wait_event(uint64_t event, uint64_t src_stage, uint64_t src_access, uint64_t dst_stage, uint64_t dst_access);
     // A BLAS over the clusters at these (captured) addresses.
     void build_blas(const std::vector<uint64_t>& cluster_addresses);
     // Ends the command buffer and submits it to `queue` (binary semaphores, 0 = none);
