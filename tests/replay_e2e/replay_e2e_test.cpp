@@ -265,6 +265,25 @@ TEST(ReplayE2E, DriverAddressesInClusterReferencesAreTranslated) {
     std::remove(path.c_str());
 }
 
+TEST(ReplayE2E, DriverAddressesOfMoveSourcesAreTranslated) {
+    const std::string path = temp_path("driver_move.clt");
+    const uint64_t shift = 0x800;
+    {
+        SceneTrace t(path, false);
+        t.driver_address_shift = shift;
+        t.build({});
+        t.barrier(kBuild, kAsWrite, kBuild, kAsRead | kAsWrite);
+        t.move_clusters({SceneBuffers::kDst + shift});
+        t.finish();
+    }
+    replay::ReplayReport r = replay_file(path);
+    EXPECT_TRUE(r.findings.empty()) << describe(r);
+    EXPECT_TRUE(r.hazards.empty()) << describe(r);
+    EXPECT_EQ(r.counts.addresses_translated, 1u);
+    EXPECT_EQ(r.counts.cluster_ops, 3u);
+    std::remove(path.c_str());
+}
+
 TEST(ReplayE2E, DriverReferenceToAnObjectNeverRebuiltIsReported) {
     const std::string path = temp_path("driver_bad.clt");
     {

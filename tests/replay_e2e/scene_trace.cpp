@@ -201,6 +201,12 @@ void SceneTrace::emit_build(const VkClusterAccelerationStructureCommandsInfoNV& 
         in.max_total_cluster_count = info.input.opInput.pClustersBottomLevel->maxTotalClusterCount;
         in.max_cluster_count_per_acceleration_structure = info.input.opInput.pClustersBottomLevel->maxClusterCountPerAccelerationStructure;
         b.input->op_input.Set(std::move(in));
+    } else if (info.input.opType == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV) {
+        fbs::MoveObjectsInputT in;
+        in.type = info.input.opInput.pMoveObjects->type;
+        in.no_move_overlap = info.input.opInput.pMoveObjects->noMoveOverlap;
+        in.max_moved_bytes = info.input.opInput.pMoveObjects->maxMovedBytes;
+        b.input->op_input.Set(std::move(in));
     } else {
         const auto& t = *info.input.opInput.pTriangleClusters;
         fbs::TriangleClusterInputT in;
@@ -346,6 +352,34 @@ void SceneTrace::submit(uint64_t queue, uint64_t wait_semaphore, uint64_t signal
     fbs::CommandBufferBeginT begin;
     begin.command_buffer = command_buffer_;
     check(writer_->append(record(begin)));
+}
+
+void SceneTrace::move_clusters(const std::vector<uint64_t>& cluster_addresses) {
+    VkClusterAccelerationStructureMoveObjectsInputNV in{};
+    in.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_MOVE_OBJECTS_INPUT_NV;
+    in.type = VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_TRIANGLE_CLUSTER_NV;
+    in.noMoveOverlap = VK_TRUE;
+    in.maxMovedBytes = 0x8000;
+    const auto n = static_cast<uint32_t>(cluster_addresses.size());
+    VkClusterAccelerationStructureCommandsInfoNV info{};
+    info.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+    info.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+    info.input.maxAccelerationStructureCount = n;
+    info.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV;
+    info.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+    info.input.opInput.pMoveObjects = &in;
+    info.dstImplicitData = SceneBuffers::kBlasDst;
+    info.scratchData = SceneBuffers::kScratch;
+    info.dstAddressesArray = {SceneBuffers::kAddresses2, 8, n * 8ull};
+    info.dstSizesArray = {SceneBuffers::kSizes2, 4, n * 4ull};
+    info.srcInfosArray = {SceneBuffers::kBlasInfos, 8, n * 8ull};
+    const uint64_t shift = engine_device_ ? 0 : driver_address_shift;
+    std::vector<uint64_t> mirror_sources;
+    for (uint64_t a : cluster_addresses) mirror_sources.push_back(a - shift);
+    BuildCall call;
+    call.capture_outputs = false;
+    emit_build(info, call, {{SceneBuffers::kBlasInfos, bytes_of(cluster_addresses.data(), n * 8ull)}}, shift,
+               {{SceneBuffers::kBlasInfos, bytes_of(mirror_sources.data(), n * 8ull)}});
 }
 
 void SceneTrace::finish() {

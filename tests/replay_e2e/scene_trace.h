@@ -45,6 +45,8 @@ public:
     // vkCmdSetEvent2 / vkCmdWaitEvents2 with one VkMemoryBarrier2.
     void set_event(uint64_t event, uint64_t src_stage, uint64_t src_access, uint64_t dst_stage, uint64_t dst_access);
     void wait_event(uint64_t event, uint64_t src_stage, uint64_t src_access, uint64_t dst_stage, uint64_t dst_access);
+    // Moves the clusters at these (captured) addresses into implicit destinations at kBlasDst.
+    void move_clusters(const std::vector<uint64_t>& cluster_addresses);
     // A BLAS over the clusters at these (captured) addresses.
     void build_blas(const std::vector<uint64_t>& cluster_addresses);
     // Ends the command buffer and submits it to `queue` (binary semaphores, 0 = none);
