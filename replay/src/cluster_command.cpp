@@ -253,6 +253,8 @@ void verify(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
             uint32_t captured_size = 0;
             if (captured.value(info.dstSizesArray.deviceAddress + i * stride, &captured_size)) {
                 ++sizes.ops_compared;
+                if (sizes.first_ops.size() < SizeComparison::kOpsListed)
+                    sizes.first_ops.push_back({static_cast<uint32_t>(i), captured_size, op.dst_size});
                 sizes.captured_bytes += captured_size;
                 sizes.engine_bytes += op.dst_size;
                 if (captured_size == op.dst_size) {

@@ -112,14 +112,19 @@ nlohmann::json to_json(const ReplayReport& r) {
                             {"message", f.message}});
     nlohmann::json hazards = to_json(r.hazards, r.hazards_over_cap);
     nlohmann::json sizes = nlohmann::json::array();
-    for (const SizeComparison& c : r.sizes)
+    for (const SizeComparison& c : r.sizes) {
+        nlohmann::json ops = nlohmann::json::array();
+        for (const SizeComparison::OpSize& o : c.first_ops)
+            ops.push_back({{"op", o.op}, {"captured", o.captured}, {"engine", o.engine}});
         sizes.push_back({{"where", where_json(c.where)},
+                         {"first_ops", ops},
                          {"op_type", c.op_type},
                          {"ops", c.ops},
                          {"ops_compared", c.ops_compared},
                          {"captured_bytes", c.captured_bytes},
                          {"engine_bytes", c.engine_bytes},
                          {"sizes_equal", c.sizes_equal}});
+    }
     nlohmann::json not_replayed = nlohmann::json::array();
     for (const NotReplayed& n : r.not_replayed) not_replayed.push_back({{"where", where_json(n.where)}, {"reason", n.reason}});
     const ReplayCounts& n = r.counts;

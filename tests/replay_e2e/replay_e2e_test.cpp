@@ -481,6 +481,10 @@ TEST(ReplayE2E, ShippedSampleReplaysCleanWithDriverSizesSideBySide) {
     EXPECT_EQ(r.sizes[0].ops_compared, 2u);
     EXPECT_EQ(r.sizes[0].captured_bytes, 2u * 7936u);  // what the sample's "driver" answered
     EXPECT_GT(r.sizes[0].engine_bytes, 0u);
+    ASSERT_EQ(r.sizes[0].first_ops.size(), 2u);
+    EXPECT_EQ(r.sizes[0].first_ops[1].op, 1u);
+    EXPECT_EQ(r.sizes[0].first_ops[1].captured, 7936u);
+    EXPECT_EQ(r.sizes[0].first_ops[0].engine + r.sizes[0].first_ops[1].engine, r.sizes[0].engine_bytes);
     ASSERT_EQ(r.not_replayed.size(), 1u);
     EXPECT_EQ(std::string(r.not_replayed[0].where.name), "vkCmdBuildAccelerationStructureNV");
     EXPECT_GT(r.counts.accesses, 10u);

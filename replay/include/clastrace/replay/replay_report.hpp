@@ -50,6 +50,13 @@ struct SizeComparison {
     uint64_t captured_bytes = 0;    // sum of captured dstSizesArray entries (ops_compared)
     uint64_t engine_bytes = 0;      // sum of the engine's sizes for the same ops
     uint32_t sizes_equal = 0;       // ops with captured size == engine size
+    struct OpSize {
+        uint32_t op = 0;
+        uint32_t captured = 0;
+        uint64_t engine = 0;
+    };
+    std::vector<OpSize> first_ops;  // the first kOpsListed compared ops, one by one
+    static constexpr size_t kOpsListed = 64;
 };
 
 struct NotReplayed {
