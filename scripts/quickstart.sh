@@ -6,3 +6,4 @@ build=${CLASTRACE_BUILD_DIR:-$root/build}
 
 "$root/scripts/build.sh"
 "$build/tools/clastrace" info "$root/traces/samples/sample.clt"
+"$build/tools/clastrace" replay "$root/traces/samples/sample.clt"

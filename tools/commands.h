@@ -19,6 +19,7 @@ struct Command {
 };
 
 Command register_info(CLI::App& app);
+Command register_replay(CLI::App& app);
 Command register_capture(CLI::App& app);
 
 }  // namespace clastrace::tools

@@ -12,6 +12,7 @@ int main(int argc, char** argv) {
 
     std::vector<Command> commands = {
         register_info(app),
+        register_replay(app),
         register_capture(app),
     };
 

@@ -173,7 +173,7 @@ TraceError write_sample_trace(const std::string& path) {
         {kStagingBuffer, info_bytes, VK_BUFFER_USAGE_TRANSFER_SRC_BIT, kHostMemory, 0, 0},
         {kInfoBuffer, info_bytes, build_input | VK_BUFFER_USAGE_TRANSFER_DST_BIT, kDeviceLocalMemory, 0x3000, 0},
         {kClusterBuffer, 64 << 10, as_storage, kDeviceLocalMemory, 0x10000, 0},
-        {kDstAddressBuffer, kClusters * 8, storage, kDeviceLocalMemory, 0x4000, 0},
+        {kDstAddressBuffer, kClusters * 8, as_storage, kDeviceLocalMemory, 0x4000, 0},
         {kDstSizeBuffer, kClusters * 4, storage, kDeviceLocalMemory, 0x4100, 0},
         {kScratchBuffer, 32 << 10, storage, kDeviceLocalMemory, 0x20000, 0},
         {kBlasScratchBuffer, 32 << 10, VK_BUFFER_USAGE_RAY_TRACING_BIT_NV, kDeviceLocalMemory, 0x30000, 0},

@@ -1,0 +1,108 @@
+// What a replay found: rule violations (VUIDs and clastrace rules, each at the command
+// and op that broke it), synchronization hazards, mismatches between the capturing
+// side's outputs and the engine's, and the commands this build does not replay yet.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json_fwd.hpp>
+
+#include "clastrace/replay/hazard_report.hpp"
+
+namespace clastrace::replay {
+
+// Where in the captured stream a finding was made.
+struct ReplayLocation {
+    uint64_t sequence = 0;        // execution order of the command over the whole replay (--ops)
+    uint32_t submission = 0;      // QueueSubmit submission_index
+    uint32_t command_buffer = 0;  // command buffer within that submission
+    uint32_t command = 0;         // command within its command buffer
+    uint64_t command_buffer_handle = 0;
+    const char* name = "";        // Vulkan command name
+};
+
+enum class FindingSource : uint8_t {
+    kEngine,   // a rule the engine checked while executing the command (VUID-... / CLASTRACE-...)
+    kVerify,   // the capturing side's outputs differ from the engine's
+    kReplay,   // the trace itself cannot be replayed as recorded (unknown memory, untranslated reference)
+};
+const char* finding_source_name(FindingSource source);
+
+struct ReplayFinding {
+    std::string rule;        // VUID string verbatim, or CLASTRACE-...
+    std::string message;
+    FindingSource source = FindingSource::kEngine;
+    ReplayLocation where;
+    int64_t op_index = -1;   // element of srcInfosArray, -1 for the command as a whole
+    uint64_t address = 0;
+    // "VUID-... : submission 0, command buffer 0 (0x4001), command 3 vkCmd...: message"
+    std::string format() const;
+};
+
+// One cluster command's sizes, capturing side next to the engine (the side-by-side table).
+struct SizeComparison {
+    ReplayLocation where;
+    uint32_t op_type = 0;
+    uint32_t ops = 0;               // ops executed by the engine
+    uint32_t ops_compared = 0;      // ops whose captured size was in the trace
+    uint64_t captured_bytes = 0;    // sum of captured dstSizesArray entries (ops_compared)
+    uint64_t engine_bytes = 0;      // sum of the engine's sizes for the same ops
+    uint32_t sizes_equal = 0;       // ops with captured size == engine size
+    struct OpSize {
+        uint32_t op = 0;
+        uint32_t captured = 0;
+        uint64_t engine = 0;
+    };
+    std::vector<OpSize> first_ops;  // the first kOpsListed compared ops, one by one
+    static constexpr size_t kOpsListed = 64;
+};
+
+struct NotReplayed {
+    ReplayLocation where;
+    std::string reason;
+};
+
+struct ReplayCounts {
+    uint64_t records = 0;
+    uint64_t submissions = 0;
+    uint64_t commands = 0;             // commands executed (inside --ops/--submit)
+    uint64_t cluster_commands = 0;     // vkCmdBuildClusterAccelerationStructureIndirectNV executed
+    uint64_t cluster_ops = 0;          // ops they ran
+    uint64_t copies = 0;               // copy/fill/update commands applied to memory
+    uint64_t barriers = 0;             // barrier/event commands fed to the sync model
+    uint64_t accesses = 0;             // accesses fed to the sync model
+    uint64_t snapshots_applied = 0;    // captured memory snapshots laid into the image
+    uint64_t snapshot_bytes = 0;
+    uint64_t snapshots_outside_memory = 0;  // snapshots no bound buffer holds (skipped)
+    uint64_t outputs_compared = 0;     // captured output snapshots compared byte for byte
+    uint64_t output_bytes_compared = 0;
+    uint64_t addresses_translated = 0; // object addresses rewritten captured -> rebuilt
+    uint64_t skipped_commands = 0;     // commands outside --ops/--submit
+};
+
+struct ReplayReport {
+    std::string trace;                 // file name as given
+    bool engine_trace = false;         // made by clastrace's own engine: outputs compared byte-exactly
+    std::string device;                // capturing device name
+    std::vector<ReplayFinding> findings;
+    uint64_t findings_over_cap = 0;
+    std::vector<HazardReport> hazards;
+    uint64_t hazards_over_cap = 0;     // over the cap (SyncStats)
+    uint64_t hazards_merged = 0;       // per-op hazards folded into one report per command pair and field
+    bool hazards_checked = true;
+    bool verified = true;
+    std::vector<SizeComparison> sizes;
+    std::vector<NotReplayed> not_replayed;
+    std::vector<std::string> trace_damage;  // TraceError messages met while reading
+    ReplayCounts counts;
+
+    bool clean() const { return findings.empty() && hazards.empty() && trace_damage.empty(); }
+};
+
+// Text: one line per finding (rule first, as the validation layers print), then a summary.
+std::string format_text(const ReplayReport& report);
+nlohmann::json to_json(const ReplayReport& report);
+
+}  // namespace clastrace::replay

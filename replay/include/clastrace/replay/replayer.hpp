@@ -1,0 +1,61 @@
+// Replayer: re-executes a captured trace on the built-in engine, in queue order.
+//
+// For every submitted command it lays the command's captured memory snapshots into one
+// MemoryImage, executes cluster builds with engine::execute (one ObjectDirectory for the
+// whole replay, so later commands see earlier results), applies copies/fills/updates to
+// the image, and feeds every access, barrier, event, semaphore, fence and host access to
+// the SyncModel. Outputs the capture recorded are compared with the engine's: sizes side
+// by side always, bytes exactly when the trace was made by clastrace's own engine.
+//
+// Captured object addresses (dstAddressesArray outputs) are translated to the addresses
+// the engine rebuilt the objects at, wherever the spec says a value is an object address:
+// clusterReferences arrays, move sources, template addresses.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <limits>
+#include <string>
+
+#include "clastrace/replay/replay_report.hpp"
+
+namespace clastrace::traces {
+class TraceReader;
+}
+
+namespace clastrace::replay {
+
+struct ReplayProgress {
+    uint64_t bytes_read = 0;   // file offset of the chunk being replayed
+    uint64_t file_size = 0;
+    uint64_t records = 0;
+    uint64_t commands = 0;
+};
+
+struct ReplayOptions {
+    bool check_hazards = true;
+    bool verify_outputs = true;
+    // Commands executed, by execution sequence number (ReplayLocation::sequence), inclusive.
+    uint64_t first_command = 0;
+    uint64_t last_command = std::numeric_limits<uint64_t>::max();
+    // Only this submission_index (-1: all).
+    int64_t submission = -1;
+    std::size_t max_findings = 1000;   // findings kept (hazards: the same cap); the rest counted
+    uint32_t max_findings_per_rule = 64;  // per command, passed to the engine
+    // Bytes of captured memory the replay may hold: every bound buffer is one zero-filled
+    // region. Buffers beyond it are left out (a CLASTRACE-replay-memory-budget finding).
+    uint64_t memory_budget_bytes = 8ull << 30;
+    // Called about every 64 records; may be empty.
+    std::function<void(const ReplayProgress&)> progress;
+};
+
+// A trace "was made by clastrace's own engine" when its device's driver_name starts with
+// "clastrace" (docs/replay.md): its captured outputs must then equal the engine's bytes.
+bool is_engine_device(const std::string& driver_name);
+
+// Replays everything `reader` yields from its current position. `trace_name` names the
+// file in the report. Never throws on bad input: damage and faults become findings.
+ReplayReport replay_trace(traces::TraceReader& reader, const std::string& trace_name,
+                          const ReplayOptions& options = {});
+
+}  // namespace clastrace::replay

@@ -1,0 +1,329 @@
+#include "cluster_command.hpp"
+
+#include <clastrace/engine/execute.h>
+
+#include <algorithm>
+#include <cinttypes>
+#include <cstddef>
+#include <cstdio>
+#include <cstring>
+
+namespace clastrace::replay::detail {
+
+std::string hex(uint64_t value) {
+    char buf[24];
+    std::snprintf(buf, sizeof buf, "0x%" PRIx64, value);
+    return buf;
+}
+
+namespace {
+
+VkStridedDeviceAddressRegionKHR region(const fbs::StridedDeviceAddressRegion* r) {
+    if (!r) return {0, 0, 0};
+    return {r->device_address(), r->stride(), r->size()};
+}
+
+// The captured call as the engine takes it. The op input structs live in `storage`.
+struct CommandStorage {
+    VkClusterAccelerationStructureCommandsInfoNV info{};
+    VkClusterAccelerationStructureClustersBottomLevelInputNV bottom_level{};
+    VkClusterAccelerationStructureTriangleClusterInputNV triangles{};
+    VkClusterAccelerationStructureMoveObjectsInputNV move{};
+};
+
+void to_vulkan(const fbs::CmdBuildClusterAccelerationStructureIndirect& b, CommandStorage* s) {
+    VkClusterAccelerationStructureCommandsInfoNV& info = s->info;
+    info.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+    info.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+    if (const fbs::ClusterInputInfo* in = b.input()) {
+        info.input.maxAccelerationStructureCount = in->max_acceleration_structure_count();
+        info.input.flags = in->flags();
+        info.input.opType = static_cast<VkClusterAccelerationStructureOpTypeNV>(in->op_type());
+        info.input.opMode = static_cast<VkClusterAccelerationStructureOpModeNV>(in->op_mode());
+        if (const auto* t = in->op_input_as_TriangleClusterInput()) {
+            s->triangles.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
+            s->triangles.vertexFormat = static_cast<VkFormat>(t->vertex_format());
+            s->triangles.maxGeometryIndexValue = t->max_geometry_index_value();
+            s->triangles.maxClusterUniqueGeometryCount = t->max_cluster_unique_geometry_count();
+            s->triangles.maxClusterTriangleCount = t->max_cluster_triangle_count();
+            s->triangles.maxClusterVertexCount = t->max_cluster_vertex_count();
+            s->triangles.maxTotalTriangleCount = t->max_total_triangle_count();
+            s->triangles.maxTotalVertexCount = t->max_total_vertex_count();
+            s->triangles.minPositionTruncateBitCount = t->min_position_truncate_bit_count();
+            info.input.opInput.pTriangleClusters = &s->triangles;
+        } else if (const auto* c = in->op_input_as_ClustersBottomLevelInput()) {
+            s->bottom_level.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
+            s->bottom_level.maxTotalClusterCount = c->max_total_cluster_count();
+            s->bottom_level.maxClusterCountPerAccelerationStructure = c->max_cluster_count_per_acceleration_structure();
+            info.input.opInput.pClustersBottomLevel = &s->bottom_level;
+        } else if (const auto* m = in->op_input_as_MoveObjectsInput()) {
+            s->move.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_MOVE_OBJECTS_INPUT_NV;
+            s->move.type = static_cast<VkClusterAccelerationStructureTypeNV>(m->type());
+            s->move.noMoveOverlap = m->no_move_overlap() ? VK_TRUE : VK_FALSE;
+            s->move.maxMovedBytes = m->max_moved_bytes();
+            info.input.opInput.pMoveObjects = &s->move;
+        }
+    }
+    info.dstImplicitData = b.dst_implicit_data();
+    info.scratchData = b.scratch_data();
+    info.dstAddressesArray = region(b.dst_addresses_array());
+    info.dstSizesArray = region(b.dst_sizes_array());
+    info.srcInfosArray = region(b.src_infos_array());
+    info.srcInfosCount = b.src_infos_count();
+    info.addressResolutionFlags = b.address_resolution_flags();
+}
+
+// Element size of srcInfosArray and where object addresses sit in one element.
+struct InfoLayout {
+    uint64_t size = 0;
+    int64_t object_field = -1;        // offset of a VkDeviceAddress naming an object, -1 none
+    const char* object_field_name = "";
+    bool cluster_references = false;  // VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV
+};
+
+InfoLayout info_layout(VkClusterAccelerationStructureOpTypeNV type) {
+    switch (type) {
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV:
+        return {sizeof(VkClusterAccelerationStructureMoveObjectsInfoNV),
+                offsetof(VkClusterAccelerationStructureMoveObjectsInfoNV, srcAccelerationStructure),
+                "srcAccelerationStructure", false};
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV:
+        return {sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV), -1, "clusterReferences", true};
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV:
+        return {sizeof(VkClusterAccelerationStructureInstantiateClusterInfoNV),
+                offsetof(VkClusterAccelerationStructureInstantiateClusterInfoNV, clusterTemplateAddress),
+                "clusterTemplateAddress", false};
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV:
+        return {sizeof(VkClusterAccelerationStructureGetTemplateIndicesInfoNV),
+                offsetof(VkClusterAccelerationStructureGetTemplateIndicesInfoNV, clusterTemplateAddress),
+                "clusterTemplateAddress", false};
+    default: return {};
+    }
+}
+
+class Translator {
+public:
+    explicit Translator(ClusterCommandContext& c) : c_(c) {}
+
+    // Rewrites the captured object addresses the command will read, in memory, before it runs.
+    void run(const VkClusterAccelerationStructureCommandsInfoNV& info) {
+        const InfoLayout layout = info_layout(info.input.opType);
+        if (layout.size == 0) return;
+        // Indirected arrays and counts are left to the engine as captured (not translated yet).
+        if (info.addressResolutionFlags != 0) return;
+        uint64_t count = info.input.maxAccelerationStructureCount;
+        if (info.srcInfosCount != 0) {
+            uint32_t n = 0;
+            if (read(info.srcInfosCount, &n)) count = std::min<uint64_t>(count, n);
+        }
+        const uint64_t stride = info.srcInfosArray.stride ? info.srcInfosArray.stride : layout.size;
+        if (stride < layout.size) return;
+        if (info.srcInfosArray.size != 0) count = std::min(count, info.srcInfosArray.size / stride);
+        for (uint64_t i = 0; i < count; ++i) {
+            const uint64_t element = info.srcInfosArray.deviceAddress + i * stride;
+            if (layout.cluster_references) {
+                VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV blas{};
+                if (!read(element, &blas)) return;
+                const uint64_t ref_stride = blas.clusterReferencesStride ? blas.clusterReferencesStride : 8;
+                for (uint64_t j = 0; j < blas.clusterReferencesCount; ++j) {
+                    if (!cell(blas.clusterReferences + j * ref_stride, static_cast<int64_t>(i), "clusterReferences", j))
+                        break;
+                }
+            } else if (!cell(element + static_cast<uint64_t>(layout.object_field), static_cast<int64_t>(i),
+                             layout.object_field_name, UINT64_MAX)) {
+                return;
+            }
+        }
+    }
+
+private:
+    template <class T>
+    bool read(uint64_t address, T* out) {
+        try {
+            *out = c_.memory.image().read<T>(address, {"translation", -1});
+            return true;
+        } catch (const engine::MemoryFault&) {
+            return false;
+        }
+    }
+
+    // False when the cell is outside memory (the engine reports that itself).
+    bool cell(uint64_t address, int64_t op, const char* field, uint64_t element) {
+        uint64_t value = 0;
+        if (!read(address, &value)) return false;
+        if (value == 0) return true;
+        AddressTranslation& t = c_.translation;
+        auto done = t.translated_cells.find(address);
+        if (done != t.translated_cells.end() && done->second == value) return true;
+        auto it = t.rebuilt_at.find(value);
+        if (it != t.rebuilt_at.end()) {
+            if (it->second != value) {
+                c_.memory.image().write<uint64_t>(address, it->second, {"translation", op});
+                ++c_.report.counts.addresses_translated;
+            }
+            t.translated_cells[address] = it->second;
+            return true;
+        }
+        if (t.rebuilt.count(value) || c_.engine_trace) return true;
+        // A driver trace names an object the replay never rebuilt (built before the capture
+        // began, or by a command this replay skipped): the engine cannot read driver bytes.
+        std::string where = std::string("srcInfosArray[") + std::to_string(op) + "]." + field;
+        if (element != UINT64_MAX) where += "[" + std::to_string(element) + "]";
+        c_.add_finding({"CLASTRACE-replay-reference-not-rebuilt",
+                        where + " holds captured object address " + hex(value) +
+                            ", which no replayed command built: it translates to no rebuilt object",
+                        FindingSource::kReplay, c_.where, op, value});
+        return true;
+    }
+
+    ClusterCommandContext& c_;
+};
+
+struct CapturedOutputs {
+    std::vector<std::pair<uint64_t, std::vector<uint8_t>>> snapshots;  // address, bytes
+
+    template <class T>
+    bool value(uint64_t address, T* out) const {
+        for (const auto& [base, bytes] : snapshots) {
+            if (address >= base && address - base <= bytes.size() && bytes.size() - (address - base) >= sizeof(T)) {
+                std::memcpy(out, bytes.data() + (address - base), sizeof(T));
+                return true;
+            }
+        }
+        return false;
+    }
+};
+
+std::string field_at(const engine::ExecutionRecord& record, uint64_t address, int64_t* op) {
+    for (const engine::MemoryAccess& a : record.accesses) {
+        if (a.is_write && address >= a.begin && address < a.end) {
+            *op = a.op_index;
+            return a.field;
+        }
+    }
+    *op = -1;
+    return "memory the engine did not write";
+}
+
+void verify(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
+            const VkClusterAccelerationStructureCommandsInfoNV& info, const engine::ExecutionRecord& record,
+            ClusterCommandContext& c) {
+    CapturedOutputs captured;
+    if (build.outputs()) {
+        for (const fbs::MemorySnapshot* s : *build.outputs()) {
+            auto address = c.memory.snapshot_address(s->buffer(), s->offset(), s->address());
+            std::vector<uint8_t> bytes;
+            if (address && c.contents(s->hash(), &bytes)) captured.snapshots.emplace_back(*address, std::move(bytes));
+        }
+    }
+    const bool implicit = info.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+    const bool sizes_written = info.input.opMode != VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
+    const bool direct_addresses =
+        !(info.addressResolutionFlags & VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_ADDRESS_ARRAY_BIT_NV);
+    const bool direct_sizes =
+        !(info.addressResolutionFlags & VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_SIZES_ARRAY_BIT_NV);
+    const bool check = c.options.verify_outputs;
+    SizeComparison sizes;
+    sizes.where = c.where;
+    sizes.op_type = info.input.opType;
+    sizes.ops = static_cast<uint32_t>(record.ops.size());
+
+    for (size_t i = 0; i < record.ops.size(); ++i) {
+        const engine::OpResult& op = record.ops[i];
+        const auto op_index = static_cast<int64_t>(i);
+        if (op.executed && op.dst_address != 0 && info.input.opType != VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV) {
+            c.translation.rebuilt.insert(op.dst_address);
+            c.memory.mark_engine_object({op.dst_address, op.dst_address + op.dst_size});
+        }
+        if (implicit && direct_addresses && info.dstAddressesArray.deviceAddress != 0) {
+            const uint64_t stride = info.dstAddressesArray.stride ? info.dstAddressesArray.stride : 8;
+            uint64_t captured_address = 0;
+            if (captured.value(info.dstAddressesArray.deviceAddress + i * stride, &captured_address) && captured_address != 0) {
+                if (op.executed && op.dst_address != 0) c.translation.rebuilt_at[captured_address] = op.dst_address;
+                if (check && c.engine_trace && captured_address != op.dst_address) {
+                    c.add_finding({"CLASTRACE-replay-output-differs",
+                                   "dstAddressesArray[" + std::to_string(i) + "]: captured " + hex(captured_address) +
+                                       ", engine " + hex(op.dst_address),
+                                   FindingSource::kVerify, c.where, op_index, info.dstAddressesArray.deviceAddress + i * stride});
+                }
+            }
+        }
+        if (check && sizes_written && direct_sizes && info.dstSizesArray.deviceAddress != 0) {
+            const uint64_t stride = info.dstSizesArray.stride ? info.dstSizesArray.stride : 4;
+            uint32_t captured_size = 0;
+            if (captured.value(info.dstSizesArray.deviceAddress + i * stride, &captured_size)) {
+                ++sizes.ops_compared;
+                if (sizes.first_ops.size() < SizeComparison::kOpsListed)
+                    sizes.first_ops.push_back({static_cast<uint32_t>(i), captured_size, op.dst_size});
+                sizes.captured_bytes += captured_size;
+                sizes.engine_bytes += op.dst_size;
+                if (captured_size == op.dst_size) {
+                    ++sizes.sizes_equal;
+                } else if (c.engine_trace) {
+                    c.add_finding({"CLASTRACE-replay-output-differs",
+                                   "dstSizesArray[" + std::to_string(i) + "]: captured " + std::to_string(captured_size) +
+                                       " bytes, engine " + std::to_string(op.dst_size),
+                                   FindingSource::kVerify, c.where, op_index, info.dstSizesArray.deviceAddress + i * stride});
+                }
+            }
+        }
+    }
+    if (check && (sizes.ops_compared || !record.ops.empty())) c.report.sizes.push_back(sizes);
+
+    // A trace made by the engine must hold exactly the bytes the engine writes now.
+    if (!check || !c.engine_trace) return;
+    std::vector<uint8_t> now;
+    for (const auto& [address, bytes] : captured.snapshots) {
+        ++c.report.counts.outputs_compared;
+        c.report.counts.output_bytes_compared += bytes.size();
+        if (!c.memory.read(address, bytes.size(), &now)) continue;
+        auto diff = std::mismatch(bytes.begin(), bytes.end(), now.begin());
+        if (diff.first == bytes.end()) continue;
+        const uint64_t at = address + static_cast<uint64_t>(diff.first - bytes.begin());
+        int64_t op = -1;
+        const std::string field = field_at(record, at, &op);
+        c.add_finding({"CLASTRACE-replay-output-differs",
+                       "captured output byte at " + hex(at) + " (" + field + ") is " + hex(*diff.first) +
+                           ", the engine wrote " + hex(*diff.second) + " (output snapshot at " + hex(address) + ", " +
+                           std::to_string(bytes.size()) + " bytes)",
+                       FindingSource::kVerify, c.where, op, at});
+    }
+}
+
+}  // namespace
+
+void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect& build, uint32_t queried_max_count,
+                         ClusterCommandContext& c) {
+    CommandStorage storage;
+    to_vulkan(build, &storage);
+    const VkClusterAccelerationStructureCommandsInfoNV& info = storage.info;
+    Translator(c).run(info);
+
+    engine::ExecuteOptions options;
+    options.properties = c.properties;
+    options.directory = &c.directory;
+    options.max_findings_per_rule = c.options.max_findings_per_rule;
+    options.queried_max_count = queried_max_count;
+    engine::ExecutionRecord record;
+    try {
+        record = engine::execute(info, c.memory.image(), options);
+    } catch (const std::exception& e) {
+        c.add_finding({"CLASTRACE-replay-engine-failed", std::string("the engine stopped: ") + e.what(),
+                       FindingSource::kReplay, c.where, -1, 0});
+        return;
+    }
+    ++c.report.counts.cluster_commands;
+    c.report.counts.cluster_ops += record.ops.size();
+    for (const engine::Finding& f : record.findings)
+        c.add_finding({f.rule, f.message, FindingSource::kEngine, c.where, f.op_index, f.address});
+    if (c.options.check_hazards) {
+        for (const engine::MemoryAccess& a : record.accesses) {
+            if (a.end <= a.begin) continue;
+            ++c.report.counts.accesses;
+            c.sync.record_access(c.ref, Access{{a.begin, a.end}, a.stage, a.access, a.is_write, a.field});
+        }
+    }
+    verify(build, info, record, c);
+}
+
+}  // namespace clastrace::replay::detail

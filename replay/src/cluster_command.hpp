@@ -1,0 +1,51 @@
+// One vkCmdBuildClusterAccelerationStructureIndirectNV during replay: captured object
+// addresses translated to rebuilt ones, engine::execute, accesses to the sync model,
+// and the capture's outputs compared with the engine's.
+#pragma once
+
+#include "replay_memory.hpp"
+
+#include <clastrace/engine/object_directory.h>
+#include <clastrace/engine/properties.h>
+#include <clastrace/replay/replay_report.hpp>
+#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/sync_model.hpp>
+#include <clastrace/traces/trace_generated.h>
+
+#include <functional>
+#include <string>
+#include <unordered_map>
+#include <unordered_set>
+#include <vector>
+
+namespace clastrace::replay::detail {
+
+std::string hex(uint64_t value);
+
+// Captured object address -> the address the engine rebuilt that object at. In a trace
+// made by the engine itself every entry maps to itself.
+struct AddressTranslation {
+    std::unordered_map<uint64_t, uint64_t> rebuilt_at;
+    std::unordered_set<uint64_t> rebuilt;                     // every address the engine built an object at
+    std::unordered_map<uint64_t, uint64_t> translated_cells;  // memory cell -> value replay wrote there
+};
+
+struct ClusterCommandContext {
+    ReplayMemory& memory;
+    engine::ObjectDirectory& directory;
+    AddressTranslation& translation;
+    const engine::EngineProperties& properties;
+    const ReplayOptions& options;
+    ReplayReport& report;
+    SyncModel& sync;
+    const CommandRef& ref;
+    const ReplayLocation& where;
+    bool engine_trace;
+    std::function<void(ReplayFinding)> add_finding;
+    std::function<bool(uint64_t hash, std::vector<uint8_t>* bytes)> contents;
+};
+
+void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect& build, uint32_t queried_max_count,
+                         ClusterCommandContext& context);
+
+}  // namespace clastrace::replay::detail

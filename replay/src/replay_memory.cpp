@@ -1,0 +1,179 @@
+#include "replay_memory.hpp"
+
+#include <algorithm>
+#include <new>
+#include <cstdio>
+#include <cstring>
+
+namespace clastrace::replay::detail {
+
+namespace {
+constexpr uint64_t kWholeSize = ~0ull;
+constexpr uint64_t kPrivateSpan = 1ull << 40;  // address space per memory object without a device address
+}  // namespace
+
+void ReplayMemory::create_buffer(uint64_t buffer, uint64_t size, uint64_t usage) {
+    buffers_[buffer] = Buffer{size, usage, 0, false};
+}
+
+uint64_t ReplayMemory::memory_base(uint64_t memory) {
+    auto it = memory_base_.find(memory);
+    if (it != memory_base_.end()) return it->second;
+    uint64_t base = next_private_;
+    next_private_ += kPrivateSpan;
+    if (next_private_ < kPrivateBase) next_private_ = kPrivateBase;  // wrapped: reuse (aliasing at worst)
+    memory_base_.emplace(memory, base);
+    return base;
+}
+
+bool ReplayMemory::add_region(uint64_t address, uint64_t size, uint64_t usage, const std::string& label) {
+    if (size == 0 || address + size < address) return true;
+    if (size > budget_ - used_) return false;
+    try {
+        image_.add_region(address, size, static_cast<VkBufferUsageFlags>(usage), label);
+        used_ += size;
+    } catch (const engine::MemoryFault&) {
+        // Two buffers over the same bytes (aliasing): the first region serves both as far
+        // as it reaches; the rest of this buffer stays outside the image.
+        ++aliased_buffers_;
+    } catch (const std::bad_alloc&) {
+        return false;
+    }
+    return true;
+}
+
+bool ReplayMemory::fill(uint64_t address, uint64_t size, uint32_t value) {
+    try {
+        std::span<std::byte> dst = image_.write_bytes(address, size, {"vkCmdFillBuffer", -1});
+        for (uint64_t k = 0; k + 4 <= size; k += 4) std::memcpy(dst.data() + k, &value, 4);
+    } catch (const engine::MemoryFault&) {
+        return false;
+    }
+    unmark({address, address + size});
+    return true;
+}
+
+void ReplayMemory::bind_buffer(uint64_t buffer, uint64_t memory, uint64_t memory_offset, uint64_t device_address) {
+    Buffer& b = buffers_[buffer];
+    if (device_address != 0) {
+        b.address = device_address;
+        if (memory != 0 && device_address >= memory_offset) memory_base_.emplace(memory, device_address - memory_offset);
+    } else {
+        b.address = memory_base(memory) + memory_offset;
+    }
+    b.bound = true;
+    char label[40];
+    std::snprintf(label, sizeof label, "buffer 0x%llx", static_cast<unsigned long long>(buffer));
+    if (!add_region(b.address, b.size, b.usage, label)) over_budget_.emplace_back(buffer, b.size);
+}
+
+void ReplayMemory::bind_object(uint64_t object, uint64_t memory, uint64_t memory_offset) {
+    Object& o = objects_[object];
+    o.address = memory_base(memory) + memory_offset;
+    auto size = object_size_.find(object);
+    if (size != object_size_.end()) o.size = size->second;
+    o.bound = true;
+}
+
+void ReplayMemory::create_object(uint64_t object, uint64_t buffer, uint64_t offset, uint64_t size, uint64_t) {
+    if (buffer == 0) return;  // NV objects are placed by bind_object
+    if (auto r = buffer_range(buffer, offset, size ? size : kWholeSize)) {
+        objects_[object] = Object{r->begin, r->end - r->begin, true};
+    }
+}
+
+std::optional<AddressRange> ReplayMemory::buffer_range(uint64_t buffer, uint64_t offset, uint64_t size) const {
+    auto it = buffers_.find(buffer);
+    if (it == buffers_.end() || !it->second.bound) return std::nullopt;
+    const Buffer& b = it->second;
+    if (offset > b.size) return std::nullopt;
+    uint64_t n = size == kWholeSize ? b.size - offset : std::min(size, b.size - offset);
+    return AddressRange{b.address + offset, b.address + offset + n};
+}
+
+std::optional<AddressRange> ReplayMemory::object_range(uint64_t object) const {
+    auto it = objects_.find(object);
+    if (it == objects_.end() || !it->second.bound) return std::nullopt;
+    uint64_t size = it->second.size;
+    if (size == 0) {
+        auto s = object_size_.find(object);
+        if (s == object_size_.end()) return std::nullopt;
+        size = s->second;
+    }
+    return AddressRange{it->second.address, it->second.address + size};
+}
+
+std::optional<uint64_t> ReplayMemory::snapshot_address(uint64_t buffer, uint64_t offset, uint64_t address) const {
+    if (address != 0) return address;
+    auto it = buffers_.find(buffer);
+    if (it == buffers_.end() || !it->second.bound) return std::nullopt;
+    return it->second.address + offset;
+}
+
+bool ReplayMemory::lay_in(uint64_t address, std::span<const uint8_t> bytes) {
+    if (bytes.empty()) return true;
+    std::span<std::byte> dst;
+    try {
+        dst = image_.write_bytes(address, bytes.size(), {"snapshot", -1});
+    } catch (const engine::MemoryFault&) {
+        return false;
+    }
+    const uint64_t end = address + bytes.size();
+    uint64_t cursor = address;
+    auto it = engine_objects_.upper_bound(address);
+    if (it != engine_objects_.begin()) --it;
+    for (; it != engine_objects_.end() && it->first < end; ++it) {
+        if (it->second <= cursor) continue;
+        uint64_t skip_begin = std::max(it->first, cursor);
+        if (skip_begin > cursor) std::memcpy(dst.data() + (cursor - address), bytes.data() + (cursor - address), skip_begin - cursor);
+        cursor = std::min(it->second, end);
+    }
+    if (cursor < end) std::memcpy(dst.data() + (cursor - address), bytes.data() + (cursor - address), end - cursor);
+    return true;
+}
+
+bool ReplayMemory::write(uint64_t address, std::span<const uint8_t> bytes) {
+    if (bytes.empty()) return true;
+    try {
+        std::span<std::byte> dst = image_.write_bytes(address, bytes.size(), {"copy", -1});
+        std::memcpy(dst.data(), bytes.data(), bytes.size());
+    } catch (const engine::MemoryFault&) {
+        return false;
+    }
+    unmark({address, address + bytes.size()});
+    return true;
+}
+
+bool ReplayMemory::read(uint64_t address, uint64_t size, std::vector<uint8_t>* out) const {
+    try {
+        std::span<const std::byte> src = image_.read_bytes(address, size, {"replay", -1});
+        out->resize(size);
+        if (size) std::memcpy(out->data(), src.data(), size);
+        return true;
+    } catch (const engine::MemoryFault&) {
+        return false;
+    }
+}
+
+void ReplayMemory::unmark(AddressRange range) {
+    auto it = engine_objects_.upper_bound(range.begin);
+    if (it != engine_objects_.begin()) --it;
+    while (it != engine_objects_.end() && it->first < range.end) {
+        uint64_t b = it->first, e = it->second;
+        if (e <= range.begin) {
+            ++it;
+            continue;
+        }
+        it = engine_objects_.erase(it);
+        if (b < range.begin) engine_objects_.emplace(b, range.begin);
+        if (e > range.end) it = engine_objects_.emplace(range.end, e).first;
+    }
+}
+
+void ReplayMemory::mark_engine_object(AddressRange range) {
+    if (range.empty()) return;
+    unmark(range);
+    engine_objects_.emplace(range.begin, range.end);
+}
+
+}  // namespace clastrace::replay::detail

@@ -1,0 +1,87 @@
+// The address space a replay sees: every bound buffer as a region of one MemoryImage,
+// buffer/offset pairs resolved to device addresses, and the byte ranges the engine built
+// objects into (captured snapshots never overwrite those: in a driver trace they hold the
+// driver's bytes, which the engine cannot read).
+#pragma once
+
+#include <clastrace/engine/memory_image.h>
+#include <clastrace/replay/sync_types.hpp>
+
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <span>
+#include <string>
+#include <unordered_map>
+#include <utility>
+#include <vector>
+
+namespace clastrace::replay::detail {
+
+class ReplayMemory {
+public:
+    // Bytes the image may hold in all (each region is allocated zero-filled when bound).
+    explicit ReplayMemory(uint64_t budget_bytes = 8ull << 30) : budget_(budget_bytes) {}
+
+    void create_buffer(uint64_t buffer, uint64_t size, uint64_t usage);
+    // Binds and adds the buffer's region. Buffers without a device address get one: the
+    // memory object's base (learned from an addressed buffer bound to it) plus the offset,
+    // or a private range above kPrivateBase, so aliasing through memory still overlaps.
+    void bind_buffer(uint64_t buffer, uint64_t memory, uint64_t memory_offset, uint64_t device_address);
+    void bind_object(uint64_t object, uint64_t memory, uint64_t memory_offset);  // NV AS
+    void create_object(uint64_t object, uint64_t buffer, uint64_t offset, uint64_t size, uint64_t requirement);
+    void object_requirement(uint64_t object, uint64_t size) { object_size_[object] = size; }
+
+    // [offset, offset + size) of `buffer` as device addresses (VK_WHOLE_SIZE: to the end).
+    std::optional<AddressRange> buffer_range(uint64_t buffer, uint64_t offset, uint64_t size) const;
+    std::optional<AddressRange> object_range(uint64_t object) const;
+    std::optional<uint64_t> snapshot_address(uint64_t buffer, uint64_t offset, uint64_t address) const;
+
+    // Writes `bytes` at `address`, leaving engine-built object bytes alone. False when no
+    // region holds the range.
+    bool lay_in(uint64_t address, std::span<const uint8_t> bytes);
+    // Plain write (copies, fills, updates): also ends engine ownership of those bytes.
+    bool write(uint64_t address, std::span<const uint8_t> bytes);
+    bool read(uint64_t address, uint64_t size, std::vector<uint8_t>* out) const;
+    void mark_engine_object(AddressRange range);
+    uint64_t aliased_buffers() const { return aliased_buffers_; }
+    // Buffers left out of the image because they would exceed the budget (handle, size).
+    const std::vector<std::pair<uint64_t, uint64_t>>& over_budget() const { return over_budget_; }
+    // Fills [address, address + size) with a repeated 32-bit value in place (vkCmdFillBuffer).
+    bool fill(uint64_t address, uint64_t size, uint32_t value);
+
+    engine::MemoryImage& image() { return image_; }
+    const engine::MemoryImage& image() const { return image_; }
+
+    static constexpr uint64_t kPrivateBase = 0xF000'0000'0000'0000ull;
+
+private:
+    struct Buffer {
+        uint64_t size = 0;
+        uint64_t usage = 0;
+        uint64_t address = 0;
+        bool bound = false;
+    };
+    struct Object {
+        uint64_t address = 0;
+        uint64_t size = 0;
+        bool bound = false;
+    };
+    void unmark(AddressRange range);
+    bool add_region(uint64_t address, uint64_t size, uint64_t usage, const std::string& label);
+    uint64_t memory_base(uint64_t memory);
+
+    engine::MemoryImage image_;
+    std::unordered_map<uint64_t, Buffer> buffers_;
+    std::unordered_map<uint64_t, Object> objects_;
+    std::unordered_map<uint64_t, uint64_t> object_size_;
+    std::unordered_map<uint64_t, uint64_t> memory_base_;
+    uint64_t next_private_ = kPrivateBase;
+    uint64_t aliased_buffers_ = 0;
+    std::map<uint64_t, uint64_t> engine_objects_;  // begin -> end, disjoint
+    uint64_t budget_;
+    uint64_t used_ = 0;
+    std::vector<std::pair<uint64_t, uint64_t>> over_budget_;
+};
+
+}  // namespace clastrace::replay::detail

@@ -1,0 +1,164 @@
+#include "clastrace/replay/replay_report.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <cinttypes>
+#include <cstdio>
+#include <map>
+
+namespace clastrace::replay {
+
+namespace {
+
+std::string hex(uint64_t v) {
+    char buf[24];
+    std::snprintf(buf, sizeof buf, "0x%" PRIx64, v);
+    return buf;
+}
+
+std::string where_text(const ReplayLocation& w) {
+    return "submission " + std::to_string(w.submission) + ", command buffer " + std::to_string(w.command_buffer) + " (" +
+           hex(w.command_buffer_handle) + "), command " + std::to_string(w.command) + " " + w.name + " [#" +
+           std::to_string(w.sequence) + "]";
+}
+
+nlohmann::json where_json(const ReplayLocation& w) {
+    return {{"sequence", w.sequence},
+            {"submission", w.submission},
+            {"command_buffer", w.command_buffer},
+            {"command_buffer_handle", hex(w.command_buffer_handle)},
+            {"command", w.command},
+            {"name", w.name}};
+}
+
+}  // namespace
+
+const char* finding_source_name(FindingSource source) {
+    switch (source) {
+    case FindingSource::kEngine: return "engine";
+    case FindingSource::kVerify: return "verify";
+    case FindingSource::kReplay: return "replay";
+    }
+    return "unknown";
+}
+
+std::string ReplayFinding::format() const {
+    std::string s = rule + ": " + where_text(where);
+    if (op_index >= 0) s += ", op " + std::to_string(op_index);
+    return s + ": " + message;
+}
+
+std::string format_text(const ReplayReport& r) {
+    std::string s;
+    for (const std::string& d : r.trace_damage) s += "CLASTRACE-trace-damaged: " + d + "\n";
+    for (const ReplayFinding& f : r.findings) s += f.format() + "\n";
+    for (const HazardReport& h : r.hazards) s += h.format() + "\n";
+    if (r.findings_over_cap) s += "(" + std::to_string(r.findings_over_cap) + " more findings not kept)\n";
+    if (r.hazards_over_cap) s += "(" + std::to_string(r.hazards_over_cap) + " more hazards not kept)\n";
+    for (const NotReplayed& n : r.not_replayed) s += "note: " + where_text(n.where) + ": " + n.reason + "\n";
+
+    char line[256];
+    s += "\nreplay of " + r.trace + " (" + (r.device.empty() ? std::string("unknown device") : r.device) +
+         (r.engine_trace ? ", made by clastrace's engine: outputs compared byte for byte" : ", captured on a driver: sizes compared side by side") +
+         ")\n";
+    if (!r.sizes.empty()) {
+        s += "  sizes, capture vs engine:\n";
+        std::snprintf(line, sizeof line, "  %-26s %7s %6s %8s %14s %14s %6s\n", "command", "op type", "ops", "compared",
+                      "captured bytes", "engine bytes", "equal");
+        s += line;
+        for (const SizeComparison& c : r.sizes) {
+            const std::string where = "s" + std::to_string(c.where.submission) + " cb" + std::to_string(c.where.command_buffer) +
+                                      " cmd" + std::to_string(c.where.command) + " [#" + std::to_string(c.where.sequence) + "]";
+            std::snprintf(line, sizeof line, "  %-26s %7u %6u %8u %14" PRIu64 " %14" PRIu64 " %6u\n", where.c_str(), c.op_type,
+                          c.ops, c.ops_compared, c.captured_bytes, c.engine_bytes, c.sizes_equal);
+            s += line;
+        }
+    }
+    const ReplayCounts& n = r.counts;
+    std::map<std::string, uint64_t> by_rule;
+    for (const ReplayFinding& f : r.findings) ++by_rule[f.rule];
+    for (const HazardReport& h : r.hazards) ++by_rule[std::string("SYNC-HAZARD-") + hazard_class_name(h.hazard)];
+    std::snprintf(line, sizeof line,
+                  "  records %" PRIu64 ", submissions %" PRIu64 ", commands replayed %" PRIu64 " (skipped %" PRIu64
+                  "), cluster commands %" PRIu64 " (%" PRIu64 " ops), copies/fills/updates %" PRIu64 "\n",
+                  n.records, n.submissions, n.commands, n.skipped_commands, n.cluster_commands, n.cluster_ops, n.copies);
+    s += line;
+    std::snprintf(line, sizeof line,
+                  "  snapshots laid in %" PRIu64 " (%" PRIu64 " bytes, %" PRIu64 " outside memory), outputs compared %" PRIu64
+                  " (%" PRIu64 " bytes), addresses translated %" PRIu64 ", accesses checked %" PRIu64 "\n",
+                  n.snapshots_applied, n.snapshot_bytes, n.snapshots_outside_memory, n.outputs_compared,
+                  n.output_bytes_compared, n.addresses_translated, n.accesses);
+    s += line;
+    s += "  not replayed yet: " + std::to_string(r.not_replayed.size()) + " command(s)" +
+         (r.hazards_checked ? "" : "; hazards not checked (--no-hazards)") +
+         (r.verified ? "" : "; outputs not verified (--no-verify)") + "\n";
+    if (by_rule.empty() && r.trace_damage.empty()) {
+        s += "  result: clean\n";
+    } else {
+        s += "  result: " + std::to_string(r.findings.size() + r.hazards.size() + r.trace_damage.size()) + " finding(s)\n";
+        for (const auto& [rule, count] : by_rule) s += "    " + std::to_string(count) + "  " + rule + "\n";
+    }
+    return s;
+}
+
+nlohmann::json to_json(const ReplayReport& r) {
+    nlohmann::json findings = nlohmann::json::array();
+    for (const ReplayFinding& f : r.findings)
+        findings.push_back({{"rule", f.rule},
+                            {"source", finding_source_name(f.source)},
+                            {"where", where_json(f.where)},
+                            {"op_index", f.op_index},
+                            {"address", hex(f.address)},
+                            {"message", f.message}});
+    nlohmann::json hazards = to_json(r.hazards, r.hazards_over_cap);
+    nlohmann::json sizes = nlohmann::json::array();
+    for (const SizeComparison& c : r.sizes) {
+        nlohmann::json ops = nlohmann::json::array();
+        for (const SizeComparison::OpSize& o : c.first_ops)
+            ops.push_back({{"op", o.op}, {"captured", o.captured}, {"engine", o.engine}});
+        sizes.push_back({{"where", where_json(c.where)},
+                         {"first_ops", ops},
+                         {"op_type", c.op_type},
+                         {"ops", c.ops},
+                         {"ops_compared", c.ops_compared},
+                         {"captured_bytes", c.captured_bytes},
+                         {"engine_bytes", c.engine_bytes},
+                         {"sizes_equal", c.sizes_equal}});
+    }
+    nlohmann::json not_replayed = nlohmann::json::array();
+    for (const NotReplayed& n : r.not_replayed) not_replayed.push_back({{"where", where_json(n.where)}, {"reason", n.reason}});
+    const ReplayCounts& n = r.counts;
+    return {
+        {"trace", r.trace},
+        {"device", r.device},
+        {"engine_trace", r.engine_trace},
+        {"clean", r.clean()},
+        {"hazards_checked", r.hazards_checked},
+        {"outputs_verified", r.verified},
+        {"findings", findings},
+        {"findings_over_cap", r.findings_over_cap},
+        {"hazards_merged", r.hazards_merged},
+        {"hazards", hazards},
+        {"sizes", sizes},
+        {"not_replayed", not_replayed},
+        {"trace_damage", r.trace_damage},
+        {"counts",
+         {{"records", n.records},
+          {"submissions", n.submissions},
+          {"commands", n.commands},
+          {"skipped_commands", n.skipped_commands},
+          {"cluster_commands", n.cluster_commands},
+          {"cluster_ops", n.cluster_ops},
+          {"copies", n.copies},
+          {"barriers", n.barriers},
+          {"accesses", n.accesses},
+          {"snapshots_applied", n.snapshots_applied},
+          {"snapshot_bytes", n.snapshot_bytes},
+          {"snapshots_outside_memory", n.snapshots_outside_memory},
+          {"outputs_compared", n.outputs_compared},
+          {"output_bytes_compared", n.output_bytes_compared},
+          {"addresses_translated", n.addresses_translated}}},
+    };
+}
+
+}  // namespace clastrace::replay

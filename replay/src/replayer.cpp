@@ -1,0 +1,676 @@
+// replay_trace: streams the trace, queues each command buffer's commands until it is
+// submitted, then executes them in submission order (see replayer.hpp).
+#include "clastrace/replay/replayer.hpp"
+
+#include "cluster_command.hpp"
+#include "replay_memory.hpp"
+
+#include <clastrace/engine/execute.h>
+#include <clastrace/engine/object_directory.h>
+#include <clastrace/replay/sync_model.hpp>
+#include <clastrace/traces/records.h>
+#include <clastrace/traces/trace_reader.h>
+
+#include <algorithm>
+#include <cstring>
+#include <map>
+#include <tuple>
+#include <memory>
+#include <unordered_map>
+#include <unordered_set>
+
+namespace clastrace::replay {
+
+bool is_engine_device(const std::string& driver_name) { return driver_name.rfind("clastrace", 0) == 0; }
+
+namespace {
+
+using detail::ReplayMemory;
+using traces::TraceReader;
+namespace fbs = clastrace::fbs;
+
+constexpr uint64_t kWholeSize = ~0ull;
+
+const char* command_name(fbs::RecordBody kind) {
+    switch (kind) {
+    case fbs::RecordBody::CmdPipelineBarrier: return "vkCmdPipelineBarrier";
+    case fbs::RecordBody::CmdSetEvent: return "vkCmdSetEvent";
+    case fbs::RecordBody::CmdResetEvent: return "vkCmdResetEvent";
+    case fbs::RecordBody::CmdWaitEvents: return "vkCmdWaitEvents";
+    case fbs::RecordBody::CmdCopyBuffer: return "vkCmdCopyBuffer";
+    case fbs::RecordBody::CmdFillBuffer: return "vkCmdFillBuffer";
+    case fbs::RecordBody::CmdUpdateBuffer: return "vkCmdUpdateBuffer";
+    case fbs::RecordBody::CmdDispatch: return "vkCmdDispatch";
+    case fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect:
+        return "vkCmdBuildClusterAccelerationStructureIndirectNV";
+    case fbs::RecordBody::CmdBuildAccelerationStructureNV: return "vkCmdBuildAccelerationStructureNV";
+    case fbs::RecordBody::CmdCopyMemoryToAccelerationStructure: return "vkCmdCopyMemoryToAccelerationStructureKHR";
+    case fbs::RecordBody::GpuTimestamp: return "vkCmdWriteTimestamp";
+    case fbs::RecordBody::DebugLabel: return "vkCmdDebugUtilsLabelEXT";
+    default: return "command";
+    }
+}
+
+uint64_t command_buffer_of(const fbs::Record& r) {
+    switch (r.body_type()) {
+    case fbs::RecordBody::CmdPipelineBarrier: return r.body_as_CmdPipelineBarrier()->command_buffer();
+    case fbs::RecordBody::CmdSetEvent: return r.body_as_CmdSetEvent()->command_buffer();
+    case fbs::RecordBody::CmdResetEvent: return r.body_as_CmdResetEvent()->command_buffer();
+    case fbs::RecordBody::CmdWaitEvents: return r.body_as_CmdWaitEvents()->command_buffer();
+    case fbs::RecordBody::CmdCopyBuffer: return r.body_as_CmdCopyBuffer()->command_buffer();
+    case fbs::RecordBody::CmdFillBuffer: return r.body_as_CmdFillBuffer()->command_buffer();
+    case fbs::RecordBody::CmdUpdateBuffer: return r.body_as_CmdUpdateBuffer()->command_buffer();
+    case fbs::RecordBody::CmdDispatch: return r.body_as_CmdDispatch()->command_buffer();
+    case fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect:
+        return r.body_as_CmdBuildClusterAccelerationStructureIndirect()->command_buffer();
+    case fbs::RecordBody::CmdBuildAccelerationStructureNV:
+        return r.body_as_CmdBuildAccelerationStructureNV()->command_buffer();
+    case fbs::RecordBody::CmdCopyMemoryToAccelerationStructure:
+        return r.body_as_CmdCopyMemoryToAccelerationStructure()->command_buffer();
+    case fbs::RecordBody::GpuTimestamp: return r.body_as_GpuTimestamp()->command_buffer();
+    case fbs::RecordBody::DebugLabel: return r.body_as_DebugLabel()->command_buffer();
+    default: return 0;
+    }
+}
+
+// "srcInfosArray[3].vertexBuffer" -> "srcInfosArray[*].vertexBuffer".
+std::string any_index(const std::string& field) {
+    std::string out;
+    for (size_t i = 0; i < field.size(); ++i) {
+        out += field[i];
+        if (field[i] != '[') continue;
+        size_t j = i + 1;
+        while (j < field.size() && field[j] >= '0' && field[j] <= '9') ++j;
+        if (j > i + 1 && j < field.size() && field[j] == ']') {
+            out += '*';
+            i = j - 1;
+        }
+    }
+    return out;
+}
+
+// The engine reports accesses per op, so one missing barrier before a build would show
+// once per op. Hazards of one class between the same two commands over the same prior
+// field become one report whose later field names the ops as [*] and whose ranges cover them all.
+std::vector<HazardReport> merge_per_op_hazards(const std::vector<HazardReport>& hazards, uint64_t* merged) {
+    std::vector<HazardReport> out;
+    std::map<std::tuple<int, uint32_t, uint32_t, uint32_t, uint32_t, uint32_t, uint32_t, std::string, std::string>, size_t> index;
+    for (const HazardReport& h : hazards) {
+        auto key = std::make_tuple(int(h.hazard), h.prior.command.submission, h.prior.command.command_buffer,
+                                   h.prior.command.command, h.later.command.submission, h.later.command.command_buffer,
+                                   h.later.command.command, any_index(h.prior.field), any_index(h.later.field));
+        auto [it, inserted] = index.emplace(key, out.size());
+        if (inserted) {
+            out.push_back(h);
+            continue;
+        }
+        ++*merged;
+        HazardReport& m = out[it->second];
+        if (m.later.field != h.later.field) m.later.field = std::get<8>(key);
+        if (m.prior.field != h.prior.field) m.prior.field = std::get<7>(key);
+        m.later.range = {std::min(m.later.range.begin, h.later.range.begin), std::max(m.later.range.end, h.later.range.end)};
+        m.prior.range = {std::min(m.prior.range.begin, h.prior.range.begin), std::max(m.prior.range.end, h.prior.range.end)};
+        m.overlap = {std::min(m.overlap.begin, h.overlap.begin), std::max(m.overlap.end, h.overlap.end)};
+    }
+    return out;
+}
+
+class Replay {
+public:
+    Replay(TraceReader& reader, const std::string& name, const ReplayOptions& options)
+        : reader_(reader), options_(options), memory_(options.memory_budget_bytes), sync_(SyncOptions{options.max_findings}) {
+        report_.trace = name;
+        report_.hazards_checked = options.check_hazards;
+        report_.verified = options.verify_outputs;
+        if (const fbs::TraceHeader* h = reader.header(); h && h->device()) {
+            const fbs::DeviceInfo* d = h->device();
+            if (d->name()) report_.device = d->name()->str();
+            if (d->driver_name()) report_.engine_trace = is_engine_device(d->driver_name()->str());
+            if (const fbs::ClusterProperties* p = d->cluster_properties()) {
+                VkPhysicalDeviceClusterAccelerationStructurePropertiesNV vk{};
+                vk.maxVerticesPerCluster = p->max_vertices_per_cluster();
+                vk.maxTrianglesPerCluster = p->max_triangles_per_cluster();
+                vk.clusterScratchByteAlignment = p->cluster_scratch_byte_alignment();
+                vk.clusterByteAlignment = p->cluster_byte_alignment();
+                vk.clusterTemplateByteAlignment = p->cluster_template_byte_alignment();
+                vk.clusterBottomLevelByteAlignment = p->cluster_bottom_level_byte_alignment();
+                vk.clusterTemplateBoundsByteAlignment = p->cluster_template_bounds_byte_alignment();
+                vk.maxClusterGeometryIndex = p->max_cluster_geometry_index();
+                properties_ = engine::EngineProperties::from_vk(vk);
+            }
+        }
+    }
+
+    ReplayReport run();
+
+private:
+    struct Recorded {
+        std::vector<std::vector<uint8_t>> commands;  // Record FlatBuffers, copied out of the reader
+        bool one_time = false;                        // freed once submitted (memory stays bounded)
+    };
+
+    void on_record(const traces::RecordView& view);
+    void on_submit(const fbs::QueueSubmit& submit);
+    void execute_command(const fbs::Record& record, const CommandRef& ref, uint64_t sequence);
+    void host_observation(const fbs::MemoryObservation& observation);
+
+    // Memory helpers.
+    bool contents(uint64_t hash, std::vector<uint8_t>* bytes);
+    void lay_in_snapshots(const traces::SnapshotVector* snapshots, const ReplayLocation& where);
+    void feed(const CommandRef& ref, const AddressRange& range, StageMask stage, AccessMask access, bool write,
+              std::string_view field);
+    std::vector<BufferBarrier> buffer_barriers(const fbs::Dependency* dependency, std::vector<MemoryBarrier>* global);
+
+    void copy_buffer(const fbs::CmdCopyBuffer& copy, const CommandRef& ref, const ReplayLocation& where);
+    void fill_buffer(const fbs::CmdFillBuffer& fill, const CommandRef& ref);
+    void update_buffer(const fbs::CmdUpdateBuffer& update, const CommandRef& ref);
+    void dispatch(const fbs::CmdDispatch& dispatch, const CommandRef& ref, const ReplayLocation& where);
+    void build_nv(const fbs::CmdBuildAccelerationStructureNV& build, const CommandRef& ref, const ReplayLocation& where);
+    void copy_to_object(const fbs::CmdCopyMemoryToAccelerationStructure& copy, const CommandRef& ref,
+                        const ReplayLocation& where);
+    void barrier(const fbs::Record& record, const CommandRef& ref);
+
+    void add_finding(ReplayFinding finding);
+    ReplayLocation location(const CommandRef& ref, uint64_t sequence) const {
+        return ReplayLocation{sequence, ref.submission, ref.command_buffer, ref.command, ref.command_buffer_handle, ref.name};
+    }
+    QueueId queue_id(uint64_t queue) {
+        auto [it, inserted] = queues_.emplace(queue, static_cast<QueueId>(queues_.size()));
+        return it->second;
+    }
+    bool selected(uint64_t sequence, uint32_t submission) const {
+        if (options_.submission >= 0 && submission != static_cast<uint64_t>(options_.submission)) return false;
+        return sequence >= options_.first_command && sequence <= options_.last_command;
+    }
+
+    TraceReader& reader_;
+    ReplayOptions options_;
+    ReplayReport report_;
+    engine::EngineProperties properties_ = engine::EngineProperties::nvidia_default();
+    engine::ObjectDirectory directory_;
+    ReplayMemory memory_;
+    SyncModel sync_;
+    detail::AddressTranslation translation_;
+    std::unordered_map<uint64_t, Recorded> recorded_;
+    std::unordered_map<uint64_t, QueueId> queues_;
+    std::map<std::pair<uint32_t, uint32_t>, uint32_t> queried_max_count_;  // (opType, opMode) -> count
+    uint64_t sequence_ = 0;
+    uint32_t next_submission_ = 0;
+    uint32_t host_ops_ = 0;
+};
+
+void Replay::add_finding(ReplayFinding finding) {
+    if (report_.findings.size() >= options_.max_findings) {
+        ++report_.findings_over_cap;
+        return;
+    }
+    report_.findings.push_back(std::move(finding));
+}
+
+bool Replay::contents(uint64_t hash, std::vector<uint8_t>* bytes) {
+    return !reader_.read_contents(hash, bytes);
+}
+
+void Replay::lay_in_snapshots(const traces::SnapshotVector* snapshots, const ReplayLocation& where) {
+    if (!snapshots) return;
+    std::vector<uint8_t> bytes;
+    for (const fbs::MemorySnapshot* s : *snapshots) {
+        std::optional<uint64_t> address = memory_.snapshot_address(s->buffer(), s->offset(), s->address());
+        if (!address || !contents(s->hash(), &bytes) || !memory_.lay_in(*address, bytes)) {
+            ++report_.counts.snapshots_outside_memory;
+            add_finding({"CLASTRACE-replay-snapshot-outside-memory",
+                         "captured snapshot of " + std::to_string(s->size()) + " bytes at buffer " +
+                             detail::hex(s->buffer()) + " offset " + std::to_string(s->offset()) + " address " +
+                             detail::hex(s->address()) +
+                             " lies in no bound buffer (or its contents are missing): not laid into memory",
+                         FindingSource::kReplay, where, -1, s->address()});
+            continue;
+        }
+        ++report_.counts.snapshots_applied;
+        report_.counts.snapshot_bytes += bytes.size();
+    }
+}
+
+void Replay::feed(const CommandRef& ref, const AddressRange& range, StageMask stage, AccessMask access, bool write,
+                  std::string_view field) {
+    if (!options_.check_hazards || range.empty()) return;
+    ++report_.counts.accesses;
+    sync_.record_access(ref, Access{range, stage, access, write, field});
+}
+
+void Replay::host_observation(const fbs::MemoryObservation& observation) {
+    if (!observation.snapshots()) return;
+    CommandRef ref{next_submission_, 0, 0, host_ops_++, "host write (mapped memory)"};
+    std::vector<uint8_t> bytes, before;
+    for (const fbs::MemorySnapshot* s : *observation.snapshots()) {
+        std::optional<uint64_t> address = memory_.snapshot_address(s->buffer(), s->offset(), s->address());
+        if (!address || !contents(s->hash(), &bytes)) {
+            ++report_.counts.snapshots_outside_memory;
+            continue;
+        }
+        // A capture may observe mapped memory the host did not touch: only bytes that
+        // changed count as a host write (unchanged ones would be false WAR/WAW hazards).
+        AddressRange written{*address, *address + bytes.size()};
+        if (memory_.read(*address, bytes.size(), &before)) {
+            size_t first = 0, last = bytes.size();
+            while (first < last && bytes[first] == before[first]) ++first;
+            while (last > first && bytes[last - 1] == before[last - 1]) --last;
+            written = {*address + first, *address + last};
+        }
+        if (!memory_.write(*address, bytes)) {
+            ++report_.counts.snapshots_outside_memory;
+            continue;
+        }
+        ++report_.counts.snapshots_applied;
+        report_.counts.snapshot_bytes += bytes.size();
+        if (options_.check_hazards && !written.empty()) {
+            ++report_.counts.accesses;
+            sync_.host_access(ref, Access{written, VK_PIPELINE_STAGE_2_HOST_BIT, VK_ACCESS_2_HOST_WRITE_BIT, true,
+                                          "mapped memory"});
+        }
+    }
+}
+
+std::vector<BufferBarrier> Replay::buffer_barriers(const fbs::Dependency* dependency, std::vector<MemoryBarrier>* global) {
+    std::vector<BufferBarrier> out;
+    if (!dependency) return out;
+    if (dependency->memory_barriers()) {
+        for (const fbs::MemoryBarrier* b : *dependency->memory_barriers())
+            global->push_back({b->src_stage_mask(), b->src_access_mask(), b->dst_stage_mask(), b->dst_access_mask()});
+    }
+    if (dependency->buffer_barriers()) {
+        for (const fbs::BufferMemoryBarrier* b : *dependency->buffer_barriers()) {
+            MemoryBarrier masks{b->src_stage_mask(), b->src_access_mask(), b->dst_stage_mask(), b->dst_access_mask()};
+            if (auto range = memory_.buffer_range(b->buffer(), b->offset(), b->size())) {
+                out.push_back({masks, *range});
+            } else {
+                // A buffer the trace never bound: keep the execution dependency only.
+                global->push_back({masks.src_stages, 0, masks.dst_stages, 0});
+            }
+        }
+    }
+    return out;
+}
+
+void Replay::barrier(const fbs::Record& record, const CommandRef& ref) {
+    ++report_.counts.barriers;
+    if (!options_.check_hazards) return;
+    std::vector<MemoryBarrier> global;
+    switch (record.body_type()) {
+    case fbs::RecordBody::CmdPipelineBarrier: {
+        const fbs::CmdPipelineBarrier* b = record.body_as_CmdPipelineBarrier();
+        std::vector<BufferBarrier> buffers = buffer_barriers(b->dependency(), &global);
+        if (b->version() == 1 && global.empty() && buffers.empty())
+            global.push_back(execution_barrier_v1(static_cast<VkPipelineStageFlags>(b->src_stage_mask()),
+                                                  static_cast<VkPipelineStageFlags>(b->dst_stage_mask())));
+        sync_.pipeline_barrier(ref, DependencyInfo{global, buffers, b->dependency() ? b->dependency()->dependency_flags() : 0});
+        break;
+    }
+    case fbs::RecordBody::CmdSetEvent: {
+        const fbs::CmdSetEvent* e = record.body_as_CmdSetEvent();
+        if (e->version() == 1 || !e->dependency()) {
+            sync_.set_event_v1(ref, e->event(), static_cast<VkPipelineStageFlags>(e->stage_mask()));
+        } else {
+            std::vector<BufferBarrier> buffers = buffer_barriers(e->dependency(), &global);
+            sync_.set_event(ref, e->event(), DependencyInfo{global, buffers, e->dependency()->dependency_flags()});
+        }
+        break;
+    }
+    case fbs::RecordBody::CmdResetEvent: sync_.reset_event(ref, record.body_as_CmdResetEvent()->event()); break;
+    case fbs::RecordBody::CmdWaitEvents: {
+        const fbs::CmdWaitEvents* w = record.body_as_CmdWaitEvents();
+        if (!w->events()) break;
+        std::vector<uint64_t> events(w->events()->begin(), w->events()->end());
+        const auto* deps = w->dependencies();
+        if (w->version() == 1 || !deps || deps->size() != events.size()) {
+            std::vector<BufferBarrier> buffers =
+                buffer_barriers(deps && deps->size() ? deps->Get(0) : nullptr, &global);
+            if (global.empty() && buffers.empty())
+                global.push_back(execution_barrier_v1(static_cast<VkPipelineStageFlags>(w->src_stage_mask()),
+                                                      static_cast<VkPipelineStageFlags>(w->dst_stage_mask())));
+            sync_.wait_events(ref, events, DependencyInfo{global, buffers, 0});
+        } else {
+            // vkCmdWaitEvents2: one VkDependencyInfo per event.
+            for (size_t i = 0; i < events.size(); ++i) {
+                global.clear();
+                std::vector<BufferBarrier> buffers = buffer_barriers(deps->Get(static_cast<flatbuffers::uoffset_t>(i)), &global);
+                sync_.wait_events(ref, std::span<const uint64_t>(&events[i], 1), DependencyInfo{global, buffers, 0});
+            }
+        }
+        break;
+    }
+    default: break;
+    }
+}
+
+void Replay::copy_buffer(const fbs::CmdCopyBuffer& copy, const CommandRef& ref, const ReplayLocation& where) {
+    ++report_.counts.copies;
+    lay_in_snapshots(copy.inputs(), where);
+    if (!copy.regions()) return;
+    std::vector<uint8_t> bytes;
+    uint32_t i = 0;
+    for (const fbs::BufferCopy* region : *copy.regions()) {
+        auto src = memory_.buffer_range(copy.src_buffer(), region->src_offset(), region->size());
+        auto dst = memory_.buffer_range(copy.dst_buffer(), region->dst_offset(), region->size());
+        if (src && dst) {
+            if (memory_.read(src->begin, src->end - src->begin, &bytes)) memory_.write(dst->begin, bytes);
+            if (options_.check_hazards) {
+                report_.counts.accesses += 2;
+                std::string src_field = "pRegions[" + std::to_string(i) + "].srcOffset";
+                std::string dst_field = "pRegions[" + std::to_string(i) + "].dstOffset";
+                sync_.record_copy(ref, Access{*src, VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT, false, src_field},
+                                  Access{*dst, VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, true, dst_field});
+            }
+        }
+        ++i;
+    }
+}
+
+void Replay::fill_buffer(const fbs::CmdFillBuffer& fill, const CommandRef& ref) {
+    ++report_.counts.copies;
+    auto range = memory_.buffer_range(fill.dst_buffer(), fill.dst_offset(), fill.size());
+    if (!range) return;
+    if (fill.size() == kWholeSize) range->end = range->begin + ((range->end - range->begin) & ~3ull);
+    memory_.fill(range->begin, range->end - range->begin, fill.data());
+    feed(ref, *range, VK_PIPELINE_STAGE_2_CLEAR_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, true, "dstOffset");
+}
+
+void Replay::update_buffer(const fbs::CmdUpdateBuffer& update, const CommandRef& ref) {
+    ++report_.counts.copies;
+    const uint64_t size = update.data() ? update.data()->size() : 0;
+    auto range = memory_.buffer_range(update.dst_buffer(), update.dst_offset(), size);
+    if (!range || size == 0) return;
+    memory_.write(range->begin, std::span<const uint8_t>(update.data()->data(), range->end - range->begin));
+    feed(ref, *range, VK_PIPELINE_STAGE_2_CLEAR_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, true, "pData");
+}
+
+void Replay::dispatch(const fbs::CmdDispatch& d, const CommandRef& ref, const ReplayLocation& where) {
+    lay_in_snapshots(d.inputs(), where);
+    if (d.indirect_buffer() != 0) {
+        if (auto r = memory_.buffer_range(d.indirect_buffer(), d.indirect_offset(), 12))
+            feed(ref, *r, VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT, VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT, false, "indirect buffer");
+    }
+    if (d.storage_buffers()) {
+        // Which bytes a shader writes is unknown: every bound storage range counts as read and written.
+        for (const fbs::BoundBufferRange* b : *d.storage_buffers()) {
+            std::optional<AddressRange> r;
+            if (b->address() != 0 && b->range() != kWholeSize) {
+                r = AddressRange{b->address(), b->address() + b->range()};
+            } else {
+                r = memory_.buffer_range(b->buffer(), b->offset(), b->range());
+            }
+            if (!r) continue;
+            std::string field = "set " + std::to_string(b->set()) + " binding " + std::to_string(b->binding()) + "[" +
+                                std::to_string(b->array_element()) + "]";
+            feed(ref, *r, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                 VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, true, field);
+        }
+    }
+    // The shader's effect is whatever the capture saw it write.
+    if (d.outputs()) {
+        std::vector<uint8_t> bytes;
+        for (const fbs::MemorySnapshot* s : *d.outputs()) {
+            auto address = memory_.snapshot_address(s->buffer(), s->offset(), s->address());
+            if (address && contents(s->hash(), &bytes)) memory_.write(*address, bytes);
+        }
+    }
+}
+
+void Replay::build_nv(const fbs::CmdBuildAccelerationStructureNV& b, const CommandRef& ref, const ReplayLocation& where) {
+    report_.not_replayed.push_back({where, "vkCmdBuildAccelerationStructureNV is not replayed yet (later issue); "
+                                           "its scratch, destination and input ranges are still checked for hazards"});
+    if (!options_.check_hazards) return;
+    constexpr StageMask kBuild = VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR;
+    if (b.inputs()) {
+        uint32_t i = 0;
+        for (const fbs::MemorySnapshot* s : *b.inputs()) {
+            auto address = memory_.snapshot_address(s->buffer(), s->offset(), s->address());
+            if (address)
+                feed(ref, {*address, *address + s->size()}, kBuild, VK_ACCESS_2_SHADER_READ_BIT, false,
+                     "pInfo->pGeometries (input " + std::to_string(i) + ")");
+            ++i;
+        }
+    }
+    if (b.instance_data() != 0 && b.info()) {
+        if (auto r = memory_.buffer_range(b.instance_data(), b.instance_offset(), uint64_t{b.info()->instance_count()} * 64))
+            feed(ref, *r, kBuild, VK_ACCESS_2_SHADER_READ_BIT, false, "instanceData");
+    }
+    if (auto r = memory_.buffer_range(b.scratch(), b.scratch_offset(), kWholeSize))
+        feed(ref, *r, kBuild, VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR | VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
+             true, "scratch");
+    if (b.update() && b.src() != 0) {
+        if (auto r = memory_.object_range(b.src()))
+            feed(ref, *r, kBuild, VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR, false, "src");
+    }
+    if (auto r = memory_.object_range(b.dst()))
+        feed(ref, *r, kBuild, VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR, true, "dst");
+}
+
+void Replay::copy_to_object(const fbs::CmdCopyMemoryToAccelerationStructure& c, const CommandRef& ref,
+                            const ReplayLocation& where) {
+    report_.not_replayed.push_back({where, "vkCmdCopyMemoryToAccelerationStructureKHR is not replayed yet (later issue); "
+                                           "its source and destination ranges are still checked for hazards"});
+    if (!options_.check_hazards) return;
+    uint64_t src_size = 0;
+    if (c.inputs())
+        for (const fbs::MemorySnapshot* s : *c.inputs())
+            if (s->address() == c.src_address()) src_size = std::max(src_size, s->size());
+    auto dst = memory_.object_range(c.dst());
+    constexpr StageMask kCopy = VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR;
+    Access src_access{{c.src_address(), c.src_address() + src_size}, kCopy, VK_ACCESS_2_TRANSFER_READ_BIT, false,
+                      "pInfo->src.deviceAddress"};
+    if (dst) {
+        report_.counts.accesses += 2;
+        sync_.record_deserialize(ref, src_access,
+                                 Access{*dst, kCopy, VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR, true, "pInfo->dst"});
+    } else if (src_size) {
+        feed(ref, src_access.range, kCopy, VK_ACCESS_2_TRANSFER_READ_BIT, false, "pInfo->src.deviceAddress");
+    }
+}
+
+void Replay::execute_command(const fbs::Record& record, const CommandRef& ref, uint64_t sequence) {
+    const ReplayLocation where = location(ref, sequence);
+    ++report_.counts.commands;
+    switch (record.body_type()) {
+    case fbs::RecordBody::CmdPipelineBarrier:
+    case fbs::RecordBody::CmdSetEvent:
+    case fbs::RecordBody::CmdResetEvent:
+    case fbs::RecordBody::CmdWaitEvents: barrier(record, ref); break;
+    case fbs::RecordBody::CmdCopyBuffer: copy_buffer(*record.body_as_CmdCopyBuffer(), ref, where); break;
+    case fbs::RecordBody::CmdFillBuffer: fill_buffer(*record.body_as_CmdFillBuffer(), ref); break;
+    case fbs::RecordBody::CmdUpdateBuffer: update_buffer(*record.body_as_CmdUpdateBuffer(), ref); break;
+    case fbs::RecordBody::CmdDispatch: dispatch(*record.body_as_CmdDispatch(), ref, where); break;
+    case fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect: {
+        const auto& build = *record.body_as_CmdBuildClusterAccelerationStructureIndirect();
+        lay_in_snapshots(build.inputs(), where);
+        uint32_t queried = 0;
+        if (build.input()) {
+            auto it = queried_max_count_.find({build.input()->op_type(), build.input()->op_mode()});
+            if (it != queried_max_count_.end()) queried = it->second;
+        }
+        detail::ClusterCommandContext context{memory_, directory_, translation_, properties_, options_, report_, sync_,
+                                              ref,     where,      report_.engine_trace,
+                                              [this](ReplayFinding f) { add_finding(std::move(f)); },
+                                              [this](uint64_t hash, std::vector<uint8_t>* out) { return contents(hash, out); }};
+        detail::run_cluster_command(build, queried, context);
+        break;
+    }
+    case fbs::RecordBody::CmdBuildAccelerationStructureNV:
+        build_nv(*record.body_as_CmdBuildAccelerationStructureNV(), ref, where);
+        break;
+    case fbs::RecordBody::CmdCopyMemoryToAccelerationStructure:
+        copy_to_object(*record.body_as_CmdCopyMemoryToAccelerationStructure(), ref, where);
+        break;
+    default: --report_.counts.commands; break;  // timestamps, labels: nothing to replay
+    }
+}
+
+void Replay::on_submit(const fbs::QueueSubmit& submit) {
+    const uint32_t submission = static_cast<uint32_t>(submit.submission_index());
+    next_submission_ = submission + 1;
+    host_ops_ = 0;
+    ++report_.counts.submissions;
+    if (submit.result() != VK_SUCCESS) return;  // nothing reached the queue
+    const QueueId queue = queue_id(submit.queue());
+    const auto* batches = submit.batches();
+    const size_t batch_count = batches ? batches->size() : 0;
+    uint32_t cb_index = 0;
+    for (size_t b = 0; b < std::max<size_t>(batch_count, 1); ++b) {
+        const fbs::SubmitBatch* batch = batch_count ? batches->Get(static_cast<flatbuffers::uoffset_t>(b)) : nullptr;
+        std::vector<SemaphoreWait> waits;
+        std::vector<SemaphoreSignal> signals;
+        if (batch && batch->wait_semaphores())
+            for (const fbs::SemaphoreOp* w : *batch->wait_semaphores())
+                waits.push_back({w->semaphore(), w->value(),
+                                 w->stage_mask() ? w->stage_mask() : StageMask(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT)});
+        if (batch && batch->signal_semaphores())
+            for (const fbs::SemaphoreOp* s : *batch->signal_semaphores()) signals.push_back({s->semaphore(), s->value()});
+        if (options_.check_hazards) sync_.begin_submission(queue, submission, waits);
+        if (batch && batch->command_buffers()) {
+            for (uint64_t handle : *batch->command_buffers()) {
+                auto it = recorded_.find(handle);
+                if (it != recorded_.end()) {
+                    uint32_t command = 0;
+                    for (const std::vector<uint8_t>& bytes : it->second.commands) {
+                        const fbs::Record* record = flatbuffers::GetRoot<fbs::Record>(bytes.data());
+                        const uint64_t sequence = sequence_++;
+                        CommandRef ref{submission, cb_index, handle, command, command_name(record->body_type())};
+                        if (selected(sequence, submission)) {
+                            execute_command(*record, ref, sequence);
+                        } else {
+                            ++report_.counts.skipped_commands;
+                        }
+                        ++command;
+                    }
+                    if (it->second.one_time) recorded_.erase(it);
+                }
+                ++cb_index;
+            }
+        }
+        if (options_.check_hazards) sync_.end_submission(signals, b + 1 >= batch_count ? submit.fence() : 0);
+    }
+}
+
+void Replay::on_record(const traces::RecordView& view) {
+    const fbs::Record& r = *view.record;
+    switch (view.kind) {
+    case fbs::RecordBody::BufferCreate: {
+        const auto* c = r.body_as_BufferCreate();
+        memory_.create_buffer(c->buffer(), c->size(), c->usage());
+        break;
+    }
+    case fbs::RecordBody::BufferBindMemory: {
+        const auto* b = r.body_as_BufferBindMemory();
+        memory_.bind_buffer(b->buffer(), b->memory(), b->memory_offset(), b->device_address());
+        break;
+    }
+    case fbs::RecordBody::AccelerationStructureCreate: {
+        const auto* c = r.body_as_AccelerationStructureCreate();
+        memory_.create_object(c->acceleration_structure(), c->buffer(), c->offset(), c->size(), 0);
+        break;
+    }
+    case fbs::RecordBody::AccelerationStructureMemoryRequirementsNV: {
+        const auto* q = r.body_as_AccelerationStructureMemoryRequirementsNV();
+        if (q->type() == VK_ACCELERATION_STRUCTURE_MEMORY_REQUIREMENTS_TYPE_OBJECT_NV)
+            memory_.object_requirement(q->acceleration_structure(), q->size());
+        break;
+    }
+    case fbs::RecordBody::AccelerationStructureBindMemory: {
+        const auto* b = r.body_as_AccelerationStructureBindMemory();
+        memory_.bind_object(b->acceleration_structure(), b->memory(), b->memory_offset());
+        break;
+    }
+    case fbs::RecordBody::GetClusterBuildSizes: {
+        const auto* q = r.body_as_GetClusterBuildSizes();
+        if (q->input()) {
+            uint32_t& m = queried_max_count_[{q->input()->op_type(), q->input()->op_mode()}];
+            m = std::max(m, q->input()->max_acceleration_structure_count());
+        }
+        break;
+    }
+    case fbs::RecordBody::CommandBufferBegin: {
+        Recorded& cb = recorded_[r.body_as_CommandBufferBegin()->command_buffer()];
+        cb.commands.clear();
+        cb.one_time = r.body_as_CommandBufferBegin()->flags() & VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
+        break;
+    }
+    case fbs::RecordBody::CommandBufferReset: {
+        const auto* reset = r.body_as_CommandBufferReset();
+        if (reset->command_buffer() != 0) recorded_.erase(reset->command_buffer());
+        break;
+    }
+    case fbs::RecordBody::MemoryObservation: host_observation(*r.body_as_MemoryObservation()); break;
+    case fbs::RecordBody::QueueSubmit: on_submit(*r.body_as_QueueSubmit()); break;
+    case fbs::RecordBody::QueueWaitIdle:
+        if (options_.check_hazards) sync_.queue_wait_idle(queue_id(r.body_as_QueueWaitIdle()->queue()));
+        break;
+    case fbs::RecordBody::DeviceWaitIdle:
+        if (options_.check_hazards) sync_.device_wait_idle();
+        break;
+    case fbs::RecordBody::FenceWait: {
+        const auto* w = r.body_as_FenceWait();
+        if (options_.check_hazards && w->result() == VK_SUCCESS && w->fences() && (w->wait_all() || w->fences()->size() == 1))
+            for (uint64_t f : *w->fences()) sync_.wait_for_fence(f);
+        break;
+    }
+    case fbs::RecordBody::FenceStatus: {
+        const auto* s = r.body_as_FenceStatus();
+        if (options_.check_hazards && s->result() == VK_SUCCESS) sync_.wait_for_fence(s->fence());
+        break;
+    }
+    case fbs::RecordBody::HostSemaphoreOp: {
+        const auto* h = r.body_as_HostSemaphoreOp();
+        if (!options_.check_hazards || !h->semaphores() || !h->values() || h->result() != VK_SUCCESS) break;
+        const size_t n = std::min(h->semaphores()->size(), h->values()->size());
+        for (size_t i = 0; i < n; ++i) {
+            auto k = static_cast<flatbuffers::uoffset_t>(i);
+            if (h->op() == 0) sync_.host_signal_semaphore(h->semaphores()->Get(k), h->values()->Get(k));
+            else if (!h->wait_any() || n == 1) sync_.host_wait_semaphore(h->semaphores()->Get(k), h->values()->Get(k));
+        }
+        break;
+    }
+    default: {
+        if (uint64_t cb = command_buffer_of(r)) {
+            recorded_[cb].commands.emplace_back(view.bytes, view.bytes + view.size);
+        }
+        break;
+    }
+    }
+}
+
+ReplayReport Replay::run() {
+    traces::RecordView view;
+    ReplayProgress progress;
+    while (reader_.next(&view)) {
+        ++report_.counts.records;
+        on_record(view);
+        if (options_.progress && (report_.counts.records & 63) == 0) {
+            progress.bytes_read = view.chunk_offset;
+            progress.file_size = reader_.stats().file_size;
+            progress.records = report_.counts.records;
+            progress.commands = report_.counts.commands;
+            options_.progress(progress);
+        }
+    }
+    for (const traces::TraceError& e : reader_.damage()) report_.trace_damage.push_back(e.message);
+    for (const auto& [buffer, size] : memory_.over_budget())
+        add_finding({"CLASTRACE-replay-memory-budget",
+                     "buffer " + detail::hex(buffer) + " (" + std::to_string(size) +
+                         " bytes) was left out of the replay's memory: it would exceed the budget of " +
+                         std::to_string(options_.memory_budget_bytes) + " bytes (ReplayOptions::memory_budget_bytes)",
+                     FindingSource::kReplay, ReplayLocation{}, -1, 0});
+    if (options_.check_hazards) {
+        report_.hazards = merge_per_op_hazards(sync_.hazards(), &report_.hazards_merged);
+        report_.hazards_over_cap = sync_.stats().hazards_over_cap;
+    }
+    return std::move(report_);
+}
+
+}  // namespace
+
+ReplayReport replay_trace(TraceReader& reader, const std::string& trace_name, const ReplayOptions& options) {
+    Replay replay(reader, trace_name, options);
+    return replay.run();
+}
+
+}  // namespace clastrace::replay

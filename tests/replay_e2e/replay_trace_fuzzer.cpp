@@ -1,0 +1,135 @@
+// libFuzzer target: one cluster command whose every field and whose srcInfosArray bytes come
+// from the fuzzer, written as a valid trace, replayed end to end (translation, engine,
+// verification, sync model). Build: -DCLASTRACE_FUZZ=ON with clang.
+#include <clastrace/replay/replayer.hpp>
+#include <clastrace/traces/trace_reader.h>
+#include <clastrace/traces/trace_writer.h>
+#include <clastrace/vk_cluster_abi.h>
+
+#include <fuzzer/FuzzedDataProvider.h>
+
+#include <cstdio>
+#include <string>
+#include <unistd.h>
+
+using namespace clastrace;
+
+namespace {
+
+constexpr uint64_t kBase = 0x10000000, kBufferSize = 0x4000, kBuffers = 6;
+
+template <class T>
+fbs::RecordT record(T body) {
+    fbs::RecordT r;
+    r.body.Set(std::move(body));
+    return r;
+}
+
+}  // namespace
+
+extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
+    FuzzedDataProvider in(data, size);
+    static const std::string path = "/tmp/replay_fuzz_" + std::to_string(getpid()) + ".clt";
+    fbs::TraceHeaderT header;
+    header.device = std::make_unique<fbs::DeviceInfoT>();
+    header.device->driver_name = in.ConsumeBool() ? "clastrace engine" : "NVIDIA";
+    traces::TraceError e;
+    traces::TraceWriterOptions options;
+    options.sync_on_finish = false;
+    auto writer = traces::TraceWriter::create(path, header, options, &e);
+    if (!writer) return 0;
+    for (uint64_t b = 0; b < kBuffers; ++b) {
+        fbs::BufferCreateT c;
+        c.buffer = 0x100 + b;
+        c.size = kBufferSize;
+        c.usage = in.ConsumeIntegral<uint32_t>();
+        writer->append(record(c));
+        fbs::BufferBindMemoryT bind;
+        bind.buffer = c.buffer;
+        bind.memory = 1;
+        bind.memory_offset = b * kBufferSize;
+        bind.device_address = kBase + b * kBufferSize;
+        writer->append(record(bind));
+    }
+    auto address = [&] {
+        return in.ConsumeBool() ? in.ConsumeIntegral<uint64_t>()
+                                : kBase + in.ConsumeIntegralInRange<uint64_t>(0, kBuffers * kBufferSize);
+    };
+    fbs::CommandBufferBeginT begin;
+    begin.command_buffer = 0xc0;
+    writer->append(record(begin));
+    for (int command = 0, n = in.ConsumeIntegralInRange(1, 3); command < n; ++command) {
+        fbs::CmdBuildClusterAccelerationStructureIndirectT b;
+        b.command_buffer = 0xc0;
+        b.input = std::make_unique<fbs::ClusterInputInfoT>();
+        b.input->max_acceleration_structure_count = in.ConsumeIntegralInRange<uint32_t>(0, 70);
+        b.input->op_type = in.ConsumeIntegralInRange<uint32_t>(0, 6);
+        b.input->op_mode = in.ConsumeIntegralInRange<uint32_t>(0, 3);
+        switch (in.ConsumeIntegralInRange(0, 3)) {
+        case 0: {
+            fbs::TriangleClusterInputT t;
+            t.vertex_format = VK_FORMAT_R32G32B32_SFLOAT;
+            t.max_cluster_triangle_count = in.ConsumeIntegralInRange<uint32_t>(0, 300);
+            t.max_cluster_vertex_count = in.ConsumeIntegralInRange<uint32_t>(0, 300);
+            t.max_total_triangle_count = in.ConsumeIntegral<uint32_t>();
+            t.max_total_vertex_count = in.ConsumeIntegral<uint32_t>();
+            t.max_cluster_unique_geometry_count = in.ConsumeIntegralInRange<uint32_t>(0, 4);
+            b.input->op_input.Set(std::move(t));
+            break;
+        }
+        case 1: {
+            fbs::ClustersBottomLevelInputT t;
+            t.max_total_cluster_count = in.ConsumeIntegralInRange<uint32_t>(0, 1000);
+            t.max_cluster_count_per_acceleration_structure = in.ConsumeIntegralInRange<uint32_t>(0, 1000);
+            b.input->op_input.Set(std::move(t));
+            break;
+        }
+        case 2: {
+            fbs::MoveObjectsInputT t;
+            t.type = in.ConsumeIntegralInRange<uint32_t>(0, 3);
+            t.no_move_overlap = in.ConsumeBool();
+            t.max_moved_bytes = in.ConsumeIntegralInRange<uint64_t>(0, 1 << 20);
+            b.input->op_input.Set(std::move(t));
+            break;
+        }
+        default: break;
+        }
+        b.dst_implicit_data = address();
+        b.scratch_data = address();
+        b.dst_addresses_array = std::make_unique<fbs::StridedDeviceAddressRegion>(address(), in.ConsumeIntegralInRange(0, 64),
+                                                                                  in.ConsumeIntegralInRange(0, 4096));
+        b.dst_sizes_array = std::make_unique<fbs::StridedDeviceAddressRegion>(address(), in.ConsumeIntegralInRange(0, 64),
+                                                                              in.ConsumeIntegralInRange(0, 4096));
+        const uint64_t infos = kBase + in.ConsumeIntegralInRange<uint64_t>(0, kBufferSize);
+        b.src_infos_array = std::make_unique<fbs::StridedDeviceAddressRegion>(infos, in.ConsumeIntegralInRange(0, 128),
+                                                                              in.ConsumeIntegralInRange(0, 8192));
+        b.src_infos_count = in.ConsumeBool() ? address() : 0;
+        b.address_resolution_flags = in.ConsumeBool() ? in.ConsumeIntegralInRange<uint32_t>(0, 63) : 0;
+        std::vector<uint8_t> bytes = in.ConsumeBytes<uint8_t>(in.ConsumeIntegralInRange<size_t>(0, 2048));
+        if (!bytes.empty()) {
+            fbs::MemorySnapshot snap;
+            if (!writer->snapshot(0, 0, infos, bytes.data(), bytes.size(), &snap)) b.inputs.push_back(snap);
+            if (in.ConsumeBool() && !writer->snapshot(0, 0, address(), bytes.data(), bytes.size(), &snap))
+                b.outputs.push_back(snap);
+        }
+        writer->append(record(std::move(b)));
+    }
+    fbs::CommandBufferEndT end;
+    end.command_buffer = 0xc0;
+    writer->append(record(end));
+    fbs::QueueSubmitT submit;
+    submit.queue = 1;
+    auto batch = std::make_unique<fbs::SubmitBatchT>();
+    batch->command_buffers.push_back(0xc0);
+    submit.batches.push_back(std::move(batch));
+    submit.submission_index = writer->next_submission_index();
+    writer->append(record(std::move(submit)));
+    if (writer->finish()) return 0;
+    writer.reset();
+    auto reader = traces::TraceReader::open(path, &e);
+    if (!reader) return 0;
+    replay::ReplayOptions replay_options;
+    replay_options.memory_budget_bytes = 1 << 20;
+    replay::replay_trace(*reader, path, replay_options);
+    return 0;
+}

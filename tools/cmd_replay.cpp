@@ -1,0 +1,120 @@
+// clastrace replay TRACE: re-executes the captured builds, moves and copies on the
+// built-in engine in queue order; reports hazards, broken rules and output mismatches.
+#include "commands.h"
+
+#include <clastrace/replay/replayer.hpp>
+#include <clastrace/traces/trace_reader.h>
+
+#include <nlohmann/json.hpp>
+
+#include <chrono>
+#include <cstdio>
+#include <iostream>
+#include <memory>
+#include <string>
+#include <unistd.h>
+
+namespace clastrace::tools {
+
+namespace {
+
+struct ReplayArgs {
+    std::string trace;
+    bool json = false;
+    std::string ops;
+    int64_t submit = -1;
+    bool no_hazards = false;
+    bool no_verify = false;
+    bool progress = false;
+    std::size_t max_findings = 1000;
+};
+
+// "N..M", "N.." or "N" (one command).
+bool parse_ops(const std::string& text, uint64_t* first, uint64_t* last) {
+    try {
+        size_t dots = text.find("..");
+        size_t used = 0;
+        if (dots == std::string::npos) {
+            *first = *last = std::stoull(text, &used);
+            return used == text.size();
+        }
+        *first = std::stoull(text.substr(0, dots), &used);
+        if (used != dots) return false;
+        std::string rest = text.substr(dots + 2);
+        if (rest.empty()) return true;
+        *last = std::stoull(rest, &used);
+        return used == rest.size() && *last >= *first;
+    } catch (const std::exception&) {
+        return false;
+    }
+}
+
+int run_replay(const ReplayArgs& args) {
+    replay::ReplayOptions options;
+    options.check_hazards = !args.no_hazards;
+    options.verify_outputs = !args.no_verify;
+    options.submission = args.submit;
+    options.max_findings = args.max_findings;
+    if (!args.ops.empty() && !parse_ops(args.ops, &options.first_command, &options.last_command)) {
+        std::fprintf(stderr, "clastrace replay: --ops takes N..M, N.. or N (command sequence numbers), not '%s'\n",
+                     args.ops.c_str());
+        return kExitUsage;
+    }
+    traces::TraceError error;
+    std::unique_ptr<traces::TraceReader> reader = traces::TraceReader::open(args.trace, &error);
+    if (!reader) {
+        if (args.json) {
+            nlohmann::json j = {{"trace", args.trace},
+                                {"error", {{"code", traces::trace_error_code_name(error.code)},
+                                           {"offset", error.file_offset},
+                                           {"message", error.message}}}};
+            std::cout << j.dump(2) << "\n";
+        } else {
+            std::fprintf(stderr, "clastrace replay: %s\n", error.message.c_str());
+        }
+        return kExitUsage;
+    }
+    const bool show_progress = args.progress || isatty(STDERR_FILENO);
+    if (show_progress) {
+        // At most five lines a second: a terminal redraw per 64 records would cost more than the replay.
+        options.progress = [last = std::chrono::steady_clock::time_point{}](const replay::ReplayProgress& p) mutable {
+            const auto now = std::chrono::steady_clock::now();
+            if (now - last < std::chrono::milliseconds(200)) return;
+            last = now;
+            const double pct = p.file_size ? 100.0 * double(p.bytes_read) / double(p.file_size) : 0.0;
+            std::fprintf(stderr, "\rreplay: %5.1f%%  %llu records, %llu commands", pct, (unsigned long long)p.records,
+                         (unsigned long long)p.commands);
+        };
+    }
+    replay::ReplayReport report = replay::replay_trace(*reader, args.trace, options);
+    if (show_progress) std::fprintf(stderr, "\rreplay: done%40s\n", "");
+    if (args.json) {
+        std::cout << replay::to_json(report).dump(2) << "\n";
+    } else {
+        std::cout << replay::format_text(report);
+    }
+    return report.clean() ? kExitOk : kExitFindings;
+}
+
+}  // namespace
+
+Command register_replay(CLI::App& app) {
+    auto args = std::make_shared<ReplayArgs>();
+    CLI::App* sub = app.add_subcommand(
+        "replay",
+        "Re-execute every captured cluster build/move on the built-in engine in queue order and report "
+        "synchronization hazards, broken rules (VUIDs) and outputs that differ from the capture. "
+        "Exit: 0 clean, 1 findings, 2 usage error or unreadable trace.");
+    sub->add_option("TRACE", args->trace, "the .clt trace")->required();
+    sub->add_flag("--json", args->json, "print one JSON object (docs/replay.md)");
+    sub->add_option("--ops", args->ops, "replay only commands N..M (execution sequence numbers, as printed [#N])");
+    sub->add_option("--submit", args->submit, "replay only the commands of submission K")->check(CLI::NonNegativeNumber);
+    sub->add_flag("--no-hazards", args->no_hazards, "skip the synchronization model");
+    sub->add_flag("--no-verify", args->no_verify, "skip comparing captured outputs with the engine's");
+    sub->add_flag("--progress", args->progress, "progress on stderr even when it is not a terminal");
+    sub->add_option("--max-findings", args->max_findings, "findings and hazards kept (the rest are counted)")
+        ->check(CLI::PositiveNumber);
+    return Command{sub, [args] { return run_replay(*args); }};
+}
+
+}  // namespace clastrace::tools
