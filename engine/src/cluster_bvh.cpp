@@ -24,6 +24,7 @@ struct Task {
 void build_bvh(const float* positions, const uint32_t* indices, const uint8_t* active_list, uint32_t n, BvhScratch& s) {
   s.node_count = 0;
   if (n == 0) return;
+  uint64_t axis_key[3][kMaxTriangles];
   for (uint32_t i = 0; i < n; ++i) {
     const uint32_t t = active_list[i];
     s.perm[i] = uint8_t(t);
@@ -39,6 +40,12 @@ void build_bvh(const float* positions, const uint32_t* indices, const uint8_t* a
       // reach the comparisons below.
       const float m = lo * 0.5f + hi * 0.5f;
       s.centroid[t][k] = m == m ? m : 0.0f;
+      // Selection key per axis, computed once: the centroid's order-preserving bit pattern
+      // above the triangle index.
+      uint32_t u;
+      std::memcpy(&u, &s.centroid[t][k], 4);
+      u ^= (u >> 31) ? 0xFFFFFFFFu : 0x80000000u;
+      axis_key[k][t] = (uint64_t(u) << 8) | t;
     }
     s.tri_min[t][3] = s.tri_max[t][3] = s.centroid[t][3] = 0.0f;
   }
@@ -117,11 +124,7 @@ void build_bvh(const float* positions, const uint32_t* indices, const uint8_t* a
     const uint32_t left_count = kMaxLeafSize * ((leaves + 1) / 2);
     uint64_t keys[kMaxTriangles];
     for (uint32_t i = 0; i < count; ++i) {
-      const uint32_t t = s.perm[task.begin + i];
-      uint32_t u;
-      std::memcpy(&u, &s.centroid[t][axis], 4);
-      u ^= (u >> 31) ? 0xFFFFFFFFu : 0x80000000u;
-      keys[i] = (uint64_t(u) << 8) | t;
+      keys[i] = axis_key[axis][s.perm[task.begin + i]];
     }
     std::nth_element(keys, keys + left_count, keys + count);
     const uint16_t left = uint16_t(s.node_count);
