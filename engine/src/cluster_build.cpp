@@ -221,20 +221,32 @@ bool decode_triangle_info(const MemoryImage& memory, const TriangleInfoView& inf
   const auto idx = memory.read_array(info.indexBuffer, 3ull * T, info.indexBufferStride, index_size,
                                      {"indexBuffer", r.op_index});
   const uint32_t istep = info.indexBufferStride ? info.indexBufferStride : index_size;
+  // Widen first (one loop per index size, no per-value switch), then range-check.
+  const std::byte* const isrc = idx.data();
+  const uint32_t n_indices = 3 * T;
+  if (index_size == 1) {
+    for (uint32_t i = 0; i < n_indices; ++i) indices[i] = uint8_t(isrc[size_t(i) * istep]);
+  } else if (index_size == 2) {
+    for (uint32_t i = 0; i < n_indices; ++i) {
+      uint16_t value;
+      std::memcpy(&value, isrc + size_t(i) * istep, 2);
+      indices[i] = value;
+    }
+  } else {
+    for (uint32_t i = 0; i < n_indices; ++i) std::memcpy(&indices[i], isrc + size_t(i) * istep, 4);
+  }
   uint32_t out_of_range = 0, first_bad = 0;
   for (uint32_t t = 0; t < T; ++t) {
-    inactive[t] = 0;
-    for (int v = 0; v < 3; ++v) {
-      const std::byte* src = idx.data() + size_t(3 * t + v) * istep;
-      uint32_t value;
-      if (index_size == 1) value = uint8_t(*src);
-      else if (index_size == 2) { uint16_t s; std::memcpy(&s, src, 2); value = s; }
-      else std::memcpy(&value, src, 4);
-      indices[3 * t + v] = value;
-      if (value >= V) {
-        if (out_of_range++ == 0) first_bad = 3 * t + v;
-        inactive[t] = 1;
-      }
+    const uint32_t bad = uint32_t(indices[3 * t] >= V) + uint32_t(indices[3 * t + 1] >= V) + uint32_t(indices[3 * t + 2] >= V);
+    inactive[t] = bad != 0;
+    if (bad) {
+      if (out_of_range == 0)
+        for (int v = 0; v < 3; ++v)
+          if (indices[3 * t + v] >= V) {
+            first_bad = 3 * t + v;
+            break;
+          }
+      out_of_range += bad;
     }
   }
   if (out_of_range)

@@ -24,6 +24,7 @@ struct Task {
 void build_bvh(const float* positions, const uint32_t* indices, const uint8_t* active_list, uint32_t n, BvhScratch& s) {
   s.node_count = 0;
   if (n == 0) return;
+  uint64_t axis_key[3][kMaxTriangles];
   for (uint32_t i = 0; i < n; ++i) {
     const uint32_t t = active_list[i];
     s.perm[i] = uint8_t(t);
@@ -39,10 +40,43 @@ void build_bvh(const float* positions, const uint32_t* indices, const uint8_t* a
       // reach the comparisons below.
       const float m = lo * 0.5f + hi * 0.5f;
       s.centroid[t][k] = m == m ? m : 0.0f;
+      // Selection key per axis, computed once: the centroid's order-preserving bit pattern
+      // above the triangle index.
+      uint32_t u;
+      std::memcpy(&u, &s.centroid[t][k], 4);
+      u ^= (u >> 31) ? 0xFFFFFFFFu : 0x80000000u;
+      axis_key[k][t] = (uint64_t(u) << 8) | t;
     }
     s.tri_min[t][3] = s.tri_max[t][3] = s.centroid[t][3] = 0.0f;
   }
 
+#if defined(__SSE2__)
+  // Each node's box and centroid box are gathered where its triangles were last visited
+  // (the root by its own pass, a child in its parent's write-back of the selection), in
+  // the same perm order as a separate pass over the child's range, so the results are
+  // identical and each level reads its triangles once instead of twice.
+  alignas(16) float cbox[kMaxNodes][2][4];
+  {
+    __m128 lo = _mm_set1_ps(INFINITY), hi = _mm_set1_ps(-INFINITY), cl = lo, ch = hi;
+    for (uint32_t i = 0; i < n; ++i) {
+      const uint32_t t = s.perm[i];
+      lo = _mm_min_ps(lo, _mm_load_ps(s.tri_min[t]));
+      hi = _mm_max_ps(hi, _mm_load_ps(s.tri_max[t]));
+      const __m128 c = _mm_load_ps(s.centroid[t]);
+      cl = _mm_min_ps(cl, c);
+      ch = _mm_max_ps(ch, c);
+    }
+    alignas(16) float lo4[4], hi4[4];
+    _mm_store_ps(lo4, lo);
+    _mm_store_ps(hi4, hi);
+    _mm_store_ps(cbox[0][0], cl);
+    _mm_store_ps(cbox[0][1], ch);
+    for (int k = 0; k < 3; ++k) {
+      s.nodes[0].lo[k] = lo4[k];
+      s.nodes[0].hi[k] = hi4[k];
+    }
+  }
+#endif
   Task stack[kMaxNodes];
   int sp = 0;
   s.node_count = 1;
@@ -52,24 +86,8 @@ void build_bvh(const float* positions, const uint32_t* indices, const uint8_t* a
     BvhScratch::Node& node = s.nodes[task.node];
     float clo[4], chi[4];
 #if defined(__SSE2__)
-    __m128 lo = _mm_set1_ps(INFINITY), hi = _mm_set1_ps(-INFINITY), cl = lo, ch = hi;
-    for (uint32_t i = task.begin; i < task.end; ++i) {
-      const uint32_t t = s.perm[i];
-      lo = _mm_min_ps(lo, _mm_load_ps(s.tri_min[t]));
-      hi = _mm_max_ps(hi, _mm_load_ps(s.tri_max[t]));
-      const __m128 c = _mm_load_ps(s.centroid[t]);
-      cl = _mm_min_ps(cl, c);
-      ch = _mm_max_ps(ch, c);
-    }
-    float lo4[4], hi4[4];
-    _mm_storeu_ps(lo4, lo);
-    _mm_storeu_ps(hi4, hi);
-    _mm_storeu_ps(clo, cl);
-    _mm_storeu_ps(chi, ch);
-    for (int k = 0; k < 3; ++k) {
-      node.lo[k] = lo4[k];
-      node.hi[k] = hi4[k];
-    }
+    std::memcpy(clo, cbox[task.node][0], sizeof clo);
+    std::memcpy(chi, cbox[task.node][1], sizeof chi);
 #else
     for (int k = 0; k < 3; ++k) {
       node.lo[k] = clo[k] = INFINITY;
@@ -106,21 +124,42 @@ void build_bvh(const float* positions, const uint32_t* indices, const uint8_t* a
     const uint32_t left_count = kMaxLeafSize * ((leaves + 1) / 2);
     uint64_t keys[kMaxTriangles];
     for (uint32_t i = 0; i < count; ++i) {
-      const uint32_t t = s.perm[task.begin + i];
-      uint32_t u;
-      std::memcpy(&u, &s.centroid[t][axis], 4);
-      u ^= (u >> 31) ? 0xFFFFFFFFu : 0x80000000u;
-      keys[i] = (uint64_t(u) << 8) | t;
+      keys[i] = axis_key[axis][s.perm[task.begin + i]];
     }
     std::nth_element(keys, keys + left_count, keys + count);
-    for (uint32_t i = 0; i < count; ++i) s.perm[task.begin + i] = uint8_t(keys[i] & 0xFF);
-    uint8_t* first = s.perm + task.begin;
-    uint8_t* mid = first + left_count;
     const uint16_t left = uint16_t(s.node_count);
     s.node_count += 2;
     node.first = left;
     node.count = 0;
-    const uint16_t m = uint16_t(task.begin + (mid - first));
+    uint8_t* first = s.perm + task.begin;
+#if defined(__SSE2__)
+    for (int side = 0; side < 2; ++side) {
+      const uint32_t b = side ? left_count : 0, e = side ? count : left_count;
+      __m128 lo = _mm_set1_ps(INFINITY), hi = _mm_set1_ps(-INFINITY), cl = lo, ch = hi;
+      for (uint32_t i = b; i < e; ++i) {
+        const uint32_t t = uint32_t(keys[i] & 0xFF);
+        first[i] = uint8_t(t);
+        lo = _mm_min_ps(lo, _mm_load_ps(s.tri_min[t]));
+        hi = _mm_max_ps(hi, _mm_load_ps(s.tri_max[t]));
+        const __m128 c = _mm_load_ps(s.centroid[t]);
+        cl = _mm_min_ps(cl, c);
+        ch = _mm_max_ps(ch, c);
+      }
+      alignas(16) float lo4[4], hi4[4];
+      _mm_store_ps(lo4, lo);
+      _mm_store_ps(hi4, hi);
+      _mm_store_ps(cbox[left + side][0], cl);
+      _mm_store_ps(cbox[left + side][1], ch);
+      BvhScratch::Node& child = s.nodes[left + side];
+      for (int k = 0; k < 3; ++k) {
+        child.lo[k] = lo4[k];
+        child.hi[k] = hi4[k];
+      }
+    }
+#else
+    for (uint32_t i = 0; i < count; ++i) first[i] = uint8_t(keys[i] & 0xFF);
+#endif
+    const uint16_t m = uint16_t(task.begin + left_count);
     stack[sp++] = {uint16_t(left + 1), m, task.end};
     stack[sp++] = {left, task.begin, m};
   }

@@ -46,8 +46,14 @@ uint8_t quantize_lo(const QuantFrame& f, const float inv_step[3], int a, float v
 
 uint8_t quantize_hi(const QuantFrame& f, const float inv_step[3], int a, float v) {
   const float rel = (v - f.lo[a]) * inv_step[a];
-  int q = rel >= 255.0f ? 255 : (rel > 0.0f ? int(std::ceil(rel)) : 0);
-  if (q > 255) q = 255;
+  // ceil of rel in (0, 255) as truncation plus one when rel has a fraction (exact there,
+  // and no libm call on baseline x86-64, which lacks roundss).
+  int q = 0;
+  if (rel >= 255.0f) q = 255;
+  else if (rel > 0.0f) {
+    q = int(rel);
+    q += float(q) < rel;
+  }
   while (q < 255 && dequant_hi(f, a, uint32_t(q)) < v) ++q;
   return uint8_t(q);
 }
@@ -82,7 +88,7 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
     uint8_t vertex_used[kMaxVertices] = {};
     for (uint32_t v = 0; v < in.vertex_count; ++v) {
       const float* p = in.positions + 3 * v;
-      vertex_nan[v] = std::isnan(p[0]) || std::isnan(p[1]) || std::isnan(p[2]);
+      vertex_nan[v] = (p[0] != p[0]) | (p[1] != p[1]) | (p[2] != p[2]);  // NaN, branch-free
     }
     for (uint32_t t = 0; t < T; ++t) {
       if (in.inactive && in.inactive[t]) continue;
@@ -208,12 +214,11 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
     std::memcpy(base + h.nodes_offset + 8 * i, &node, 8);
   }
   if (in.positions) pack_positions(in.positions, 3 * in.vertex_count, h.position_bits, in.truncate_bits, base + h.positions_offset);
+  std::byte* const index_bytes = base + h.indices_offset;
   for (uint32_t i = 0; i < T; ++i) {
     const uint32_t t = order[i];
-    for (int v = 0; v < 3; ++v) {
-      const bool dead = in.inactive && in.inactive[t];
-      base[h.indices_offset + 3 * i + v] = std::byte(dead ? 0 : uint8_t(in.indices[3 * t + v]));
-    }
+    if (!(in.inactive && in.inactive[t]))
+      for (int v = 0; v < 3; ++v) index_bytes[3 * i + v] = std::byte(uint8_t(in.indices[3 * t + v]));  // dead ones stay 0
     if (!identity) base[h.triangle_order_offset + i] = std::byte(uint8_t(t));
     if (varying) std::memcpy(base + h.triangle_data_offset + 4 * i, &in.geometry_index_and_flags[t], 4);
     if (in.has_omm) std::memcpy(base + h.omm_offset + sizeof(OpacityMicromapSection) + 4 * i, &in.omm_indices[t], 4);
