@@ -43,10 +43,10 @@ int run_analyze(const AnalyzeArgs& args) {
         return kExitUsage;
     }
     // What the report leaves out is said on stderr so that stdout stays one text/JSON document.
-    if (fed.hazards_without_sequence)
-        std::fprintf(stderr, "clastrace analyze: %llu hazards name a command without a sequence number and are not "
-                             "in the report (clastrace replay lists them)\n",
-                     (unsigned long long)fed.hazards_without_sequence);
+    if (fed.hazards_not_fed)
+        std::fprintf(stderr, "clastrace analyze: %llu hazards name a command the replay report has no sequence number "
+                             "for, or one left out, and are not in the report (clastrace replay lists them)\n",
+                     (unsigned long long)fed.hazards_not_fed);
     if (fed.ops_without_sizes)
         std::fprintf(stderr, "clastrace analyze: %llu ops have no per-op sizes in the replay report and are counted "
                              "as ops without objects\n",

@@ -57,7 +57,7 @@ ReplayFeedStats feed_replay_report(const replay::ReplayReport& report, Analyzer&
     auto later = sequence_of.find(key_of(h.later.command));
     auto prior = sequence_of.find(key_of(h.prior.command));
     if (later == sequence_of.end() || prior == sequence_of.end() || prior->second > later->second) {
-      ++stats.hazards_without_sequence;
+      ++stats.hazards_not_fed;
       continue;
     }
     PendingCommand& p = commands[later->second];
@@ -76,6 +76,7 @@ ReplayFeedStats feed_replay_report(const replay::ReplayReport& report, Analyzer&
   for (const auto& [sequence, p] : commands) {
     if (p.where.submission < last_submission) {
       ++stats.commands_out_of_order;
+      stats.hazards_not_fed += p.hazards.size();
       continue;
     }
     last_submission = p.where.submission;
@@ -104,7 +105,7 @@ ReplayFeedStats feed_replay_report(const replay::ReplayReport& report, Analyzer&
         analyzer.on_object(o);
         ++stats.objects;
       }
-      stats.ops_without_sizes += p.sizes->ops - p.sizes->first_ops.size();
+      if (p.sizes->ops > p.sizes->first_ops.size()) stats.ops_without_sizes += p.sizes->ops - p.sizes->first_ops.size();
     }
     for (const replay::HazardReport* h : p.hazards) {
       HazardSummary s;

@@ -5,7 +5,7 @@
 //     with the engine's size and the captured dstSizesArray size as the driver size;
 //   - hazards whose two commands have a known sequence number (cluster commands, or commands
 //     that also carry a finding or a not-replayed note); the rest are counted in
-//     ReplayFeedStats::hazards_without_sequence.
+//     ReplayFeedStats::hazards_not_fed.
 // Not known from the report, so not fed: regions, build-sizes queries, triangles, vertices,
 // truncate bits, object addresses, replay/GPU time, non-cluster commands without findings.
 #pragma once
@@ -25,7 +25,7 @@ struct ReplayFeedStats {
   uint64_t objects = 0;
   uint64_t ops_without_sizes = 0;         // ops past first_ops or not compared: no object fed
   uint64_t hazards = 0;
-  uint64_t hazards_without_sequence = 0;  // a command of the pair has no known sequence
+  uint64_t hazards_not_fed = 0;  // a command of the pair has no known sequence or was left out
   uint64_t commands_out_of_order = 0;     // submission went backwards in sequence order: left out
 };
 
