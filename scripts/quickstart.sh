@@ -7,3 +7,4 @@ build=${CLASTRACE_BUILD_DIR:-$root/build}
 "$root/scripts/build.sh"
 "$build/tools/clastrace" info "$root/traces/samples/sample.clt"
 "$build/tools/clastrace" replay "$root/traces/samples/sample.clt"
+"$build/tools/clastrace" analyze "$root/traces/samples/sample.clt" --html "$build/sample-report.html"

@@ -21,5 +21,6 @@ struct Command {
 Command register_info(CLI::App& app);
 Command register_replay(CLI::App& app);
 Command register_capture(CLI::App& app);
+Command register_analyze(CLI::App& app);
 
 }  // namespace clastrace::tools

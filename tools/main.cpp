@@ -14,6 +14,7 @@ int main(int argc, char** argv) {
         register_info(app),
         register_replay(app),
         register_capture(app),
+        register_analyze(app),
     };
 
     try {

@@ -1,0 +1,214 @@
+// `clastrace analyze` on the shipped sample (text, JSON, HTML, exit codes) and the adapter
+// that turns a ReplayReport into analyzer events, on a trace with a known hazard.
+#include "scene_trace.h"
+
+#include <clastrace/analyze/analyzer.h>
+#include <clastrace/analyze/replay_adapter.h>
+#include <clastrace/replay/replayer.hpp>
+#include <clastrace/traces/trace_reader.h>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <random>
+#include <vector>
+#include <string>
+#include <sys/wait.h>
+#include <unistd.h>
+
+namespace clastrace {
+namespace {
+
+constexpr uint64_t kBuild = VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR;
+constexpr uint64_t kAsWrite = VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR;
+constexpr uint64_t kAsRead = VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR;
+
+std::string temp_path(const std::string& name) {
+    return (std::filesystem::temp_directory_path() / ("analyze_cli_" + std::to_string(::getpid()) + "_" + name))
+        .string();
+}
+
+std::string read_file(const std::string& path) {
+    std::ifstream in(path, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+int run_cli(const std::string& args, std::string* out) {
+    const std::string out_path = temp_path("cli.out");
+    const std::string cmd = std::string(CLASTRACE_BIN) + " " + args + " > " + out_path + " 2>/dev/null";
+    int status = std::system(cmd.c_str());
+    *out = read_file(out_path);
+    std::remove(out_path.c_str());
+    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+// Two builds sharing scratchData; without the barrier the second one is a WRITE-AFTER-WRITE.
+void scratch_scene(const std::string& path, bool with_barrier) {
+    test::SceneTrace t(path, true);
+    t.build({});
+    if (with_barrier) t.barrier(kBuild, kAsWrite, kBuild, kAsRead | kAsWrite);
+    test::BuildCall second;
+    second.dst = test::SceneBuffers::kDst2;
+    second.addresses = test::SceneBuffers::kAddresses2;
+    second.sizes = test::SceneBuffers::kSizes2;
+    second.first_cluster_id = 200;
+    t.build(second);
+    t.finish();
+}
+
+replay::ReplayReport replay_file(const std::string& path) {
+    traces::TraceError e;
+    auto reader = traces::TraceReader::open(path, &e);
+    EXPECT_TRUE(reader) << e.message;
+    if (!reader) return {};
+    return replay::replay_trace(*reader, path);
+}
+
+TEST(AnalyzeCli, TextHasSizeTables) {
+    std::string out;
+    ASSERT_EQ(run_cli(std::string("analyze ") + CLASTRACE_SAMPLE, &out), 0) << out;
+    EXPECT_NE(out.find("Sizes by op type (engine bytes per object)"), std::string::npos) << out;
+    EXPECT_NE(out.find("Driver sizes (objects whose dstSizesArray was captured)"), std::string::npos) << out;
+}
+
+TEST(AnalyzeCli, JsonCountsMatchReplay) {
+    std::string replay_out, analyze_out;
+    ASSERT_EQ(run_cli(std::string("replay --json ") + CLASTRACE_SAMPLE, &replay_out), 0) << replay_out;
+    ASSERT_EQ(run_cli(std::string("analyze --json ") + CLASTRACE_SAMPLE, &analyze_out), 0) << analyze_out;
+    const nlohmann::json r = nlohmann::json::parse(replay_out);
+    const nlohmann::json a = nlohmann::json::parse(analyze_out);
+    EXPECT_EQ(a["schema_version"], 1);
+    // The adapter feeds the cluster commands (what the replay report keeps sizes of), one
+    // object per op whose sizes were compared.
+    ASSERT_GT(r["counts"]["cluster_commands"].get<uint64_t>(), 0u);
+    EXPECT_EQ(a["totals"]["commands"], r["counts"]["cluster_commands"]);
+    EXPECT_EQ(a["totals"]["ops"], r["counts"]["cluster_ops"]);
+    uint64_t compared_ops = 0, engine_bytes = 0, captured_bytes = 0;
+    for (const auto& s : r["sizes"]) {
+        compared_ops += s["first_ops"].size();
+        for (const auto& op : s["first_ops"]) {
+            engine_bytes += op["engine"].get<uint64_t>();
+            captured_bytes += op["captured"].get<uint64_t>();
+        }
+    }
+    EXPECT_EQ(a["totals"]["objects"], compared_ops);
+    EXPECT_EQ(a["totals"]["objects"], r["counts"]["cluster_ops"]);  // the sample has < 64 ops per command
+    const nlohmann::json clas = a["sizes"]["by_op_type"];
+    uint64_t objects = 0, engine = 0;
+    for (const auto& t : clas) {
+        objects += t["objects"].get<uint64_t>();
+        engine += t["engine_bytes"]["sum"].get<uint64_t>();
+    }
+    EXPECT_EQ(objects, compared_ops);
+    EXPECT_EQ(engine, engine_bytes);
+    EXPECT_GT(captured_bytes, 0u);
+    EXPECT_EQ(a["hazards"]["total"], 0);
+}
+
+TEST(AnalyzeCli, HtmlIsSelfContainedWithSvg) {
+    const std::string html_path = temp_path("report.html");
+    std::string out;
+    ASSERT_EQ(run_cli(std::string("analyze ") + CLASTRACE_SAMPLE + " --html " + html_path, &out), 0) << out;
+    EXPECT_NE(out.find(html_path), std::string::npos) << out;  // says where the report is
+    const std::string html = read_file(html_path);
+    EXPECT_EQ(html.rfind("<!DOCTYPE html>", 0), 0u) << html.substr(0, 80);
+    EXPECT_NE(html.find("<svg"), std::string::npos);
+    EXPECT_EQ(html.find("<script"), std::string::npos);
+    EXPECT_EQ(html.find("http://"), html.find("http://www.w3.org/2000/svg"));  // only the SVG namespace
+    EXPECT_EQ(html.find("https://"), std::string::npos);
+    std::remove(html_path.c_str());
+}
+
+TEST(AnalyzeCli, ExitCodes) {
+    std::string out;
+    EXPECT_EQ(run_cli("analyze /nonexistent/trace.clt", &out), 2);
+    EXPECT_EQ(run_cli(std::string("analyze --json --html x.html ") + CLASTRACE_SAMPLE, &out), 2);
+    EXPECT_EQ(run_cli("analyze", &out), 2);
+    EXPECT_EQ(run_cli("analyze --help", &out), 0);
+    EXPECT_EQ(run_cli(std::string("analyze ") + CLASTRACE_SAMPLE + " --html /nonexistent-dir/r.html", &out), 2);
+
+    const std::string hazard = temp_path("hazard.clt");
+    scratch_scene(hazard, false);
+    EXPECT_EQ(run_cli("analyze --json " + hazard, &out), 1);
+    const nlohmann::json a = nlohmann::json::parse(out);
+    EXPECT_EQ(a["hazards"]["total"], 1);
+    scratch_scene(hazard, true);
+    EXPECT_EQ(run_cli("analyze " + hazard, &out), 0) << out;
+    std::remove(hazard.c_str());
+}
+
+TEST(ReplayAdapter, HazardNamesBothBuildsInSequenceOrder) {
+    const std::string path = temp_path("adapter.clt");
+    scratch_scene(path, false);
+    replay::ReplayReport r = replay_file(path);
+    ASSERT_EQ(r.sizes.size(), 2u);
+    ASSERT_EQ(r.hazards.size(), 1u);
+
+    analyze::Analyzer analyzer(path);
+    const analyze::ReplayFeedStats fed = analyze::feed_replay_report(r, analyzer);
+    const analyze::AnalysisReport report = analyzer.finish();
+    std::remove(path.c_str());
+
+    EXPECT_EQ(fed.commands, 2u);
+    EXPECT_EQ(fed.hazards, 1u);
+    EXPECT_EQ(fed.hazards_not_fed, 0u);
+    EXPECT_EQ(fed.ops_without_sizes, 0u);
+    EXPECT_EQ(report.commands, 2u);
+    EXPECT_EQ(report.objects, r.counts.cluster_ops);
+    ASSERT_EQ(report.hazards.size(), 1u);
+    const analyze::HazardSummary& h = report.hazards[0].hazard;
+    EXPECT_EQ(h.hazard_class, "WRITE-AFTER-WRITE");
+    EXPECT_EQ(h.first_command, r.sizes[0].where.sequence);
+    EXPECT_EQ(h.second_command, r.sizes[1].where.sequence);
+    EXPECT_GT(h.size, 0u);
+    const analyze::OpTypeSizes& clas = report.sizes(analyze::OpType::build_triangle_cluster);
+    EXPECT_EQ(clas.commands, 2u);
+    EXPECT_EQ(clas.objects_with_driver_bytes, r.counts.cluster_ops);
+    uint64_t engine = 0;
+    for (const auto& s : r.sizes) engine += s.engine_bytes;
+    EXPECT_EQ(clas.engine_bytes.sum(), engine);
+}
+
+// Damaged traces give replay reports with gaps (commands cut off, hazards without their first
+// command): the adapter must still hand the analyzer a valid event stream.
+TEST(ReplayAdapter, DamagedTracesStillFeedValidEvents) {
+    const std::string clean = temp_path("mutate_clean.clt");
+    scratch_scene(clean, false);
+    const std::string bytes_text = read_file(clean);
+    const std::vector<char> bytes(bytes_text.begin(), bytes_text.end());
+    ASSERT_GT(bytes.size(), 200u);
+    std::mt19937_64 rng(7);
+    const std::string path = temp_path("mutate.clt");
+    int replayed = 0;
+    for (int round = 0; round < 60; ++round) {
+        std::vector<char> mutant = bytes;
+        if (round % 3 == 2) {
+            mutant.resize(32 + rng() % (mutant.size() - 32));
+        } else {
+            for (int k = 0, n = 1 + int(rng() % 4); k < n; ++k) mutant[rng() % mutant.size()] ^= char(1 << (rng() % 8));
+        }
+        std::ofstream(path, std::ios::binary).write(mutant.data(), std::streamsize(mutant.size()));
+        traces::TraceError e;
+        auto reader = traces::TraceReader::open(path, &e);
+        if (!reader) continue;
+        ++replayed;
+        const replay::ReplayReport r = replay::replay_trace(*reader, path);
+        analyze::Analyzer analyzer(path);
+        analyze::ReplayFeedStats fed;
+        EXPECT_NO_THROW(fed = analyze::feed_replay_report(r, analyzer)) << "round " << round;
+        const analyze::AnalysisReport report = analyzer.finish();
+        EXPECT_EQ(report.commands, fed.commands);
+        EXPECT_EQ(fed.hazards + fed.hazards_not_fed, r.hazards.size());
+    }
+    EXPECT_GT(replayed, 0);
+    std::remove(path.c_str());
+    std::remove(clean.c_str());
+}
+
+}  // namespace
+}  // namespace clastrace
