@@ -342,6 +342,26 @@ void report_fault(const MemoryFault& f, Reporter& r) {
   r.out.push_back(Finding{kRuleMemoryFault, std::string(r.info_name) + ": " + f.message, r.op_index, f.address});
 }
 
+// The encoder fields a cluster and a template take alike from their info and its decoding;
+// the caller sets the object type, positions and inactive triangles, where the two differ.
+void set_shared_encode_fields(const TriangleInfoView& info, const VkClusterAccelerationStructureTriangleClusterInputNV& input,
+                              const Decoded& d, const uint32_t* indices, const uint32_t* geometry, const int32_t* omm,
+                              detail::EncodeInput& in) {
+  in.cluster_id = info.clusterID;
+  in.cluster_flags = info.clusterFlags;
+  in.triangle_count = d.triangle_count;
+  in.vertex_count = d.vertex_count;
+  in.truncate_bits = d.truncate_bits;
+  in.vertex_format = uint32_t(input.vertexFormat);
+  in.indices = indices;
+  in.base_geometry_index_and_flags = info.baseGeometryIndexAndFlags;
+  in.geometry_index_and_flags = d.has_geometry ? geometry : nullptr;
+  in.has_omm = d.has_omm;
+  in.omm_array = info.opacityMicromapArray;
+  in.omm_index_type = d.omm_index_type;
+  in.omm_indices = omm;
+}
+
 }  // namespace
 
 bool ClusterBuilder::build_triangle_cluster(const MemoryImage& memory,
@@ -362,21 +382,9 @@ bool ClusterBuilder::build_triangle_cluster(const MemoryImage& memory,
   }
   detail::EncodeInput in;
   in.type = ObjectType::TriangleCluster;
-  in.cluster_id = info.clusterID;
-  in.cluster_flags = info.clusterFlags;
-  in.triangle_count = d.triangle_count;
-  in.vertex_count = d.vertex_count;
-  in.truncate_bits = d.truncate_bits;
-  in.vertex_format = uint32_t(input.vertexFormat);
+  set_shared_encode_fields(view_of(info), input, d, s.indices, s.geometry, s.omm, in);
   in.positions = s.positions;
-  in.indices = s.indices;
   in.inactive = s.inactive;
-  std::memcpy(&in.base_geometry_index_and_flags, &info.baseGeometryIndexAndGeometryFlags, 4);
-  in.geometry_index_and_flags = d.has_geometry ? s.geometry : nullptr;
-  in.has_omm = d.has_omm;
-  in.omm_array = info.opacityMicromapArray;
-  in.omm_index_type = d.omm_index_type;
-  in.omm_indices = s.omm;
   detail::encode_object(in, s.bvh, out);
   return true;
 }
@@ -411,20 +419,8 @@ bool ClusterBuilder::build_triangle_cluster_template(const MemoryImage& memory,
     return false;
   }
   in.type = ObjectType::TriangleClusterTemplate;
-  in.cluster_id = info.clusterID;
-  in.cluster_flags = info.clusterFlags;
-  in.triangle_count = d.triangle_count;
-  in.vertex_count = d.vertex_count;
-  in.truncate_bits = d.truncate_bits;
-  in.vertex_format = uint32_t(input.vertexFormat);
+  set_shared_encode_fields(view_of(info), input, d, s.indices, s.geometry, s.omm, in);
   in.positions = d.has_positions ? s.positions : nullptr;
-  in.indices = s.indices;
-  std::memcpy(&in.base_geometry_index_and_flags, &info.baseGeometryIndexAndGeometryFlags, 4);
-  in.geometry_index_and_flags = d.has_geometry ? s.geometry : nullptr;
-  in.has_omm = d.has_omm;
-  in.omm_array = info.opacityMicromapArray;
-  in.omm_index_type = d.omm_index_type;
-  in.omm_indices = s.omm;
   detail::encode_object(in, s.bvh, out);
   return true;
 }
