@@ -202,6 +202,19 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
     { fbs::CpuTimestampT r; r.clock = 1; r.nanoseconds = 987654321; r.label = "submit"; out.push_back(record(r)); }
     { fbs::CalibratedTimestampsT r; r.gpu_ticks = 1; r.cpu_nanoseconds = 2; r.max_deviation_ns = 3; out.push_back(record(r)); }
     { fbs::DebugLabelT r; r.command_buffer = 0xcb; r.queue = 0; r.op = 0; r.text = "build clusters"; out.push_back(record(r)); }
+    {
+        fbs::RayQueryCheckT r;
+        r.acceleration_structure = 0xa5; r.device_handle = 0x7000100; r.after_submission = 4; r.label = "fixed rays";
+        r.rays.push_back(fbs::TracedRay(0.f, 1.f, -5.f, 0.001f, 0.f, 0.f, 1.f, 1e30f, 1u, 0xffu));
+        r.results.push_back(fbs::RayHitResult(1u, 5.25f, 7u, 2u, 31u, 0u, 0xfeu, 0.25f, 0.5f));
+        out.push_back(record(r));
+    }
+    {
+        fbs::CaptureFindingT r;
+        r.command_buffer = 0xcb; r.command_index = 3; r.submission = 2; r.op_index = 17; r.severity = 2;
+        r.rule = "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-clusterID-10487"; r.message = "clusterID is 0xFFFFFFFF";
+        out.push_back(record(r));
+    }
     return out;
 }
 
