@@ -87,6 +87,8 @@ class Walker {
     return values;
   }
 
+  ClusterMemoryWalk& result() { return out_; }
+
   const std::vector<uint8_t>* lastBytes() const { return out_.ranges.empty() ? nullptr : &out_.ranges.back().bytes; }
 
   void issue(VkDeviceAddress address, uint64_t size, std::string rule) {
@@ -160,11 +162,13 @@ void followTriangleCluster(Walker& walker, uint32_t entry, const uint8_t* bytes,
       walker.captureStrided(MemoryRole::OpacityMicromapIndices, entry, info.opacityMicromapIndexBuffer, triangles,
                             info.opacityMicromapIndexBufferStride, ommIndexBytes);
   }
+  if (isTemplate) walker.result().templateVertexCounts.push_back(vertices);
   if (isTemplate && info.instantiationBoundingBoxLimit != 0)
     walker.capture(MemoryRole::InstantiationBoundingBox, entry, info.instantiationBoundingBoxLimit, 6 * sizeof(float));
 }
 
-void followEntry(Walker& walker, uint32_t entry, const uint8_t* bytes, const ClusterCommandParameters& p) {
+void followEntry(Walker& walker, uint32_t entry, const uint8_t* bytes, const ClusterCommandParameters& p,
+                 const TemplateVertexCountLookup& templateVertexCount) {
   switch (p.info.input.opType) {
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV:
       followTriangleCluster(walker, entry, bytes, false, p);
@@ -179,8 +183,24 @@ void followEntry(Walker& walker, uint32_t entry, const uint8_t* bytes, const Clu
                             info.clusterReferencesStride, sizeof(VkDeviceAddress));
       break;
     }
-    // Move sources, templates to instantiate and their vertex arrays are objects whose size the
-    // layer learns only from the builds that produced them: not followed yet (see report).
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV: {
+      // The vertex array holds as many vertices as the template has, which only its build said.
+      VkClusterAccelerationStructureInstantiateClusterInfoNV info;
+      std::memcpy(&info, bytes, sizeof info);
+      if (info.vertexBuffer.startAddress == 0) break;
+      const uint32_t vertexBytes = clusterVertexFormatBytes(p.triangleClusterInput.vertexFormat);
+      uint32_t vertices = 0;
+      if (vertexBytes == 0 || !templateVertexCount || !templateVertexCount(info.clusterTemplateAddress, &vertices)) {
+        walker.issue(info.vertexBuffer.startAddress, 0,
+                     "vertexBuffer of srcInfosArray entry " + std::to_string(entry) + " not captured: template " +
+                         std::to_string(info.clusterTemplateAddress) + " was not built under the layer");
+        break;
+      }
+      walker.captureStrided(MemoryRole::VertexBuffer, entry, info.vertexBuffer.startAddress, vertices,
+                            info.vertexBuffer.strideInBytes, vertexBytes);
+      break;
+    }
+    // Move sources and templates are objects earlier builds wrote (captured as their outputs).
     default:
       break;
   }
@@ -216,7 +236,8 @@ uint32_t clusterVertexFormatBytes(VkFormat format) {
   }
 }
 
-ClusterMemoryWalk walkClusterInputs(const ClusterCommandParameters& p, const DeviceMemoryReader& read) {
+ClusterMemoryWalk walkClusterInputs(const ClusterCommandParameters& p, const DeviceMemoryReader& read,
+                                    const TemplateVertexCountLookup& templateVertexCount) {
   ClusterMemoryWalk out;
   Walker walker(read, out);
   const Info& info = p.info;
@@ -280,7 +301,7 @@ ClusterMemoryWalk walkClusterInputs(const ClusterCommandParameters& p, const Dev
     }
   }
   if (entries.size() < uint64_t(count) * entryBytes) return out;  // cut short; the issue says why
-  for (uint32_t i = 0; i < count; ++i) followEntry(walker, i, entries.data() + uint64_t(i) * entryBytes, p);
+  for (uint32_t i = 0; i < count; ++i) followEntry(walker, i, entries.data() + uint64_t(i) * entryBytes, p, templateVertexCount);
 
   // Explicit destinations are read by the command, not written.
   if (info.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV) {

@@ -150,7 +150,14 @@ bool PauseWorker::handle(Expected& expected) {
         walk = walkCopyMemoryToAccelerationStructureInputs(*pause.copyToAccelerationStructure, reader);
       } else {
         fresh.parameters = *pause.parameters;
-        walk = walkClusterInputs(*pause.parameters, reader);
+        walk = walkClusterInputs(*pause.parameters, reader, [this](VkDeviceAddress address, uint32_t* vertices) {
+          auto it = templateVertexCounts_.find(address);
+          if (it == templateVertexCounts_.end()) return false;
+          *vertices = it->second;
+          return true;
+        });
+        if (!walk.templateVertexCounts.empty())
+          pendingTemplateVertexCounts_[pause.pauseId] = std::move(walk.templateVertexCounts);
       }
       record = &open_.insert_or_assign(pause.pauseId, std::move(fresh)).first->second;
       record->executedCount = walk.executedCount;
@@ -161,6 +168,11 @@ bool PauseWorker::handle(Expected& expected) {
       if (it != open_.end() && pause.parameters) {
         record = &it->second;
         ClusterMemoryWalk walk = walkClusterOutputs(*pause.parameters, record->executedCount, reader);
+        auto pending = pendingTemplateVertexCounts_.find(pause.pauseId);
+        if (pending != pendingTemplateVertexCounts_.end()) {
+          learnTemplates(*pause.parameters, pending->second);
+          pendingTemplateVertexCounts_.erase(pending);
+        }
         record->outputs = std::move(walk.ranges);
         for (auto& issue : walk.issues) record->issues.push_back(std::move(issue));
       }
@@ -192,6 +204,22 @@ bool PauseWorker::handle(Expected& expected) {
     }
   }
   return true;
+}
+
+void PauseWorker::learnTemplates(const ClusterCommandParameters& parameters, const std::vector<uint32_t>& vertexCounts) {
+  const auto& info = parameters.info;
+  if (info.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_COMPUTE_SIZES_NV ||
+      (info.addressResolutionFlags & VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_ADDRESS_ARRAY_BIT_NV))
+    return;
+  const uint64_t stride = info.dstAddressesArray.stride ? info.dstAddressesArray.stride : 8;
+  for (size_t i = 0; i < vertexCounts.size(); ++i) {
+    std::vector<uint8_t> bytes;
+    std::string why;
+    if (!readMemory(info.dstAddressesArray.deviceAddress + i * stride, 8, bytes, why)) return;
+    uint64_t address;
+    std::memcpy(&address, bytes.data(), 8);
+    if (address != 0) templateVertexCounts_[address] = vertexCounts[i];
+  }
 }
 
 void PauseWorker::executeServed(const PausePoint& pause, ClusterBuildCapture* record) {

@@ -84,6 +84,11 @@ class PauseWorker {
   std::atomic<uint64_t> handled_{0};
   std::map<std::string, uint64_t> findingsPerRule_;  // how often each engine rule was logged
   engine::ObjectDirectory directory_;  // the served device's live objects, across its commands
+  // Templates built under the layer: address -> vertex count, so an instantiation's vertex
+  // array is captured at its real length. Pending: a template build's counts until its outputs.
+  void learnTemplates(const ClusterCommandParameters& parameters, const std::vector<uint32_t>& vertexCounts);
+  std::map<uint64_t, std::vector<uint32_t>> pendingTemplateVertexCounts_;  // pauseId -> per entry
+  std::map<VkDeviceAddress, uint32_t> templateVertexCounts_;
   std::thread thread_;
 };
 

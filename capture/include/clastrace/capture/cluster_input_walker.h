@@ -19,13 +19,20 @@ struct ClusterMemoryWalk {
   uint32_t executedCount = 0;
   std::vector<CapturedRange> ranges;
   std::vector<CaptureIssue> issues;
+  std::vector<uint32_t> templateVertexCounts;  // template builds: vertexCount of each executed entry
 };
+
+// The vertex count of the template at `templateAddress`, as its build's src info gave it;
+// false when the layer did not see that template built. An instantiation reads that many
+// vertices from its vertexBuffer.
+using TemplateVertexCountLookup = std::function<bool(VkDeviceAddress templateAddress, uint32_t* vertexCount)>;
 
 // Bytes of one vertex of `format` as the extension accepts it; 0 for a format it does not.
 uint32_t clusterVertexFormatBytes(VkFormat format);
 
 // What the command reads, to be called while the queue is stopped just before it.
-ClusterMemoryWalk walkClusterInputs(const ClusterCommandParameters& parameters, const DeviceMemoryReader& read);
+ClusterMemoryWalk walkClusterInputs(const ClusterCommandParameters& parameters, const DeviceMemoryReader& read,
+                                    const TemplateVertexCountLookup& templateVertexCount = {});
 
 // What the command wrote, to be called while the queue is stopped just after it.
 ClusterMemoryWalk walkClusterOutputs(const ClusterCommandParameters& parameters, uint32_t executedCount,
