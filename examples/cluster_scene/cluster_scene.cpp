@@ -26,14 +26,17 @@ const VkBufferUsageFlags kStorage = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORA
 
 const std::vector<BarrierInfo>& barrierCatalogue() {
   static const std::vector<BarrierInfo> barriers = {
-      {"copy-to-sizes", "copy:cluster-infos -> build:cluster-sizes: the copied srcInfosArray and count"},
+      // Both cluster builds read the copied infos; the barrier between them orders builds only.
+      {"copy-to-sizes", "copy:cluster-infos -> build:cluster-sizes, build:clusters: the copied srcInfosArray and count"},
       {"sizes-to-clusters", "build:cluster-sizes -> build:clusters: scratch reuse"},
       {"copy-to-templates", "copy:template-infos -> build:templates: the copied srcInfosArray and count"},
       {"clusters-to-templates", "build:clusters -> build:templates: scratch reuse"},
       {"templates-to-address-copy", "build:templates -> copy:template-addresses: the template addresses it wrote"},
       {"copy-to-instantiate",
        "copy:instance-infos, copy:template-addresses -> build:instantiate: the copied srcInfosArray and count"},
-      {"templates-to-instantiate", "build:templates -> build:instantiate: template objects, scratch reuse"},
+      // The template objects already reach the instantiation through the chain
+      // templates-to-address-copy -> copy-to-instantiate; this one adds scratch reuse.
+      {"templates-to-instantiate", "build:templates -> build:instantiate: scratch reuse"},
       {"instantiate-to-indices", "build:instantiate -> build:template-indices: scratch reuse"},
       {"indices-to-move", "build:template-indices -> build:move: scratch reuse"},
       {"copy-to-blas", "copy:blas-infos -> build:blas: the copied srcInfosArray and count"},

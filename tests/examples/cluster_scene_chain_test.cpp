@@ -1,0 +1,460 @@
+// The sample application end to end on lavapipe: examples/cluster_scene under the capture
+// layer (capture + serving) -> trace -> replay. The replay must reproduce every output byte
+// the application read back and find no hazard; each barrier the application leaves out
+// must give exactly the hazards that barrier prevents; two threads recording two command
+// buffers must lose no command.
+#include <clastrace/replay/hazard_report.hpp>
+#include <clastrace/replay/replay_report.hpp>
+#include <clastrace/replay/replayer.hpp>
+#include <clastrace/traces/trace_reader.h>
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <set>
+#include <sstream>
+#include <tuple>
+
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+using clastrace::fbs::RecordBody;
+
+const char* kLavapipe = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json";
+// A subset of the mesh keeps each run well under a second on lavapipe.
+const char* kSceneArgs = " --max-clusters 6 --json";
+
+std::string readText(const fs::path& path) {
+  std::ifstream in(path);
+  std::stringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+std::string quote(const std::string& s) {
+  std::string q = "'";
+  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
+  return q + "'";
+}
+
+struct ProcessResult {
+  int exitCode = -1;
+  std::string out, err;
+};
+
+// FNV-1a 64, as the application digests the objects it reads back.
+uint64_t fnv1a64(const std::vector<uint8_t>& bytes, size_t begin, size_t size) {
+  uint64_t h = 0xcbf29ce484222325ull;
+  for (size_t i = begin; i < begin + size; ++i) h = (h ^ bytes[i]) * 0x100000001b3ull;
+  return h;
+}
+
+std::string hexOf(const std::vector<uint8_t>& bytes) {
+  std::string hex;
+  for (uint8_t b : bytes) hex += "0123456789abcdef"[b >> 4], hex += "0123456789abcdef"[b & 15];
+  return hex;
+}
+
+std::string digestText(uint64_t v) {
+  char text[24];
+  std::snprintf(text, sizeof text, "0x%016llx", (unsigned long long)v);
+  return text;
+}
+
+// One command of the trace, in the order of its command buffer.
+struct TracedCommand {
+  std::string kind;  // "copy", "barrier", "build", "other"
+  uint32_t opType = 0, opMode = 0;
+  std::vector<std::pair<uint64_t, std::vector<uint8_t>>> outputs;  // address, bytes
+};
+
+struct TracedScene {
+  std::map<uint64_t, std::vector<TracedCommand>> commandBuffers;  // handle -> commands
+  uint64_t submissions = 0, outputSnapshots = 0;
+  std::string driver;
+};
+
+class ClusterSceneChain : public ::testing::Test {
+ protected:
+  fs::path dir;
+
+  void SetUp() override {
+    if (!fs::exists(kLavapipe)) GTEST_SKIP() << "lavapipe is not installed (scripts/deps.sh installs it)";
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    std::string name = std::string(info->name());
+    for (char& c : name)
+      if (c == '/') c = '_';
+    dir = fs::temp_directory_path() / ("clastrace_scene_" + std::to_string(getpid()) + "_" + name);
+    fs::remove_all(dir);
+    fs::create_directories(dir);
+  }
+  void TearDown() override {
+    if (!HasFailure() && !dir.empty()) fs::remove_all(dir);
+  }
+
+  // Runs `command` on lavapipe, with the layer unless withLayer is false.
+  ProcessResult run(const std::string& command, std::map<std::string, std::string> env, bool withLayer = true) {
+    std::string line = "env -u VK_INSTANCE_LAYERS -u VK_ADD_LAYER_PATH -u VK_ICD_FILENAMES";
+    for (const char* v : {"CLASTRACE_OUTPUT", "CLASTRACE_CAPTURE", "CLASTRACE_SERVE", "CLASTRACE_SUBMIT_RANGE",
+                          "CLASTRACE_ZSTD_LEVEL", "CLASTRACE_LOG", "CLASTRACE_DEBUG_JSON"})
+      line += std::string(" -u ") + v;
+    env["VK_DRIVER_FILES"] = kLavapipe;
+    env["XDG_RUNTIME_DIR"] = dir.string();
+    env["VK_LOADER_DEBUG"] = "";
+    if (withLayer) {
+      env["VK_ADD_LAYER_PATH"] = CLASTRACE_LAYER_MANIFEST_DIR;
+      env["VK_INSTANCE_LAYERS"] = "VK_LAYER_CLASTRACE_capture";
+    }
+    for (const auto& [k, v] : env) line += " " + k + "=" + quote(v);
+    const fs::path out = dir / "stdout.txt", err = dir / "stderr.txt";
+    line += " timeout 120 " + command + " >" + quote(out.string()) + " 2>" + quote(err.string());
+    ProcessResult r;
+    const int status = std::system(line.c_str());
+    r.exitCode = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+    r.out = readText(out);
+    r.err = readText(err);
+    return r;
+  }
+
+  static std::string scene(const std::string& args) { return std::string(CLUSTER_SCENE_APP) + " " + args; }
+
+  // The application under the layer, writing `trace`; returns its --json output.
+  json captureScene(const fs::path& trace, const std::string& args) {
+    ProcessResult r = run(scene(args + kSceneArgs), {{"CLASTRACE_OUTPUT", trace.string()}});
+    EXPECT_EQ(r.exitCode, 0) << r.err;
+    EXPECT_EQ(r.err, "");  // no layer finding: every build is valid
+    if (r.exitCode != 0) return json();
+    return json::parse(r.out);
+  }
+
+  static TracedScene readTrace(const fs::path& trace) {
+    TracedScene t;
+    clastrace::traces::TraceError error;
+    auto reader = clastrace::traces::TraceReader::open(trace.string(), &error);
+    EXPECT_TRUE(reader) << error.message;
+    if (!reader) return t;
+    EXPECT_TRUE(reader->has_index());
+    if (reader->header() && reader->header()->device() && reader->header()->device()->driver_name())
+      t.driver = reader->header()->device()->driver_name()->str();
+    // (command buffer, command index) -> output (address, content hash), read after the records.
+    std::vector<std::tuple<uint64_t, size_t, std::vector<std::pair<uint64_t, uint64_t>>>> pending;
+    clastrace::traces::RecordView view;
+    while (reader->next(&view)) {
+      const clastrace::fbs::Record* r = view.record;
+      switch (view.kind) {
+        case RecordBody::QueueSubmit: ++t.submissions; break;
+        case RecordBody::CommandBufferBegin:
+          t.commandBuffers[r->body_as_CommandBufferBegin()->command_buffer()].clear();
+          break;
+        case RecordBody::CmdCopyBuffer:
+          t.commandBuffers[r->body_as_CmdCopyBuffer()->command_buffer()].push_back(TracedCommand{"copy", 0, 0, {}});
+          break;
+        case RecordBody::CmdPipelineBarrier:
+          t.commandBuffers[r->body_as_CmdPipelineBarrier()->command_buffer()].push_back(TracedCommand{"barrier", 0, 0, {}});
+          break;
+        case RecordBody::CmdBuildClusterAccelerationStructureIndirect: {
+          const auto* b = r->body_as_CmdBuildClusterAccelerationStructureIndirect();
+          TracedCommand c{"build", uint32_t(b->input()->op_type()), uint32_t(b->input()->op_mode()), {}};
+          auto& list = t.commandBuffers[b->command_buffer()];
+          list.push_back(c);
+          std::vector<std::pair<uint64_t, uint64_t>> outputs;
+          if (b->outputs())
+            for (const auto* s : *b->outputs()) outputs.emplace_back(s->address(), s->hash());
+          pending.emplace_back(b->command_buffer(), list.size() - 1, outputs);
+          break;
+        }
+        case RecordBody::CmdFillBuffer:
+        case RecordBody::CmdUpdateBuffer:
+        case RecordBody::CmdSetEvent:
+        case RecordBody::CmdWaitEvents:
+        case RecordBody::CmdResetEvent:
+        case RecordBody::CmdDispatch: {
+          // Not recorded by the application: the layer's own pause commands must not show.
+          ADD_FAILURE() << "unexpected command record kind " << int(view.kind);
+          break;
+        }
+        default: break;
+      }
+    }
+    EXPECT_TRUE(reader->damage().empty());
+    for (auto& [commandBuffer, index, outputs] : pending)
+      for (const auto& [address, hash] : outputs) {
+        TracedCommand* command = &t.commandBuffers[commandBuffer][index];
+        std::vector<uint8_t> bytes;
+        auto e = reader->read_contents(hash, &bytes);
+        EXPECT_FALSE(e) << e.message;
+        command->outputs.emplace_back(address, std::move(bytes));
+        ++t.outputSnapshots;
+      }
+    return t;
+  }
+
+  static clastrace::replay::ReplayReport replay(const fs::path& trace) {
+    clastrace::traces::TraceError error;
+    auto reader = clastrace::traces::TraceReader::open(trace.string(), &error);
+    EXPECT_TRUE(reader) << error.message;
+    if (!reader) return {};
+    return clastrace::replay::replay_trace(*reader, trace.string());
+  }
+};
+
+std::string describe(const clastrace::replay::ReplayReport& report) {
+  std::string text;
+  for (const auto& f : report.findings) text += f.format() + "\n";
+  for (const auto& h : report.hazards) text += h.format() + "\n";
+  for (const auto& d : report.trace_damage) text += d + "\n";
+  return text;
+}
+
+// The application's view (json) against the trace's: same commands in the same order.
+void expectSameCommands(const json& app, const std::vector<TracedCommand>& traced) {
+  std::vector<std::string> appKinds, tracedKinds;
+  for (const auto& c : app["commands"]) {
+    const std::string s = c;
+    appKinds.push_back(s.substr(0, s.find(':')));
+  }
+  for (const auto& c : traced) tracedKinds.push_back(c.kind);
+  EXPECT_EQ(tracedKinds, appKinds);
+  size_t copies = 0, barriers = 0, builds = 0;
+  for (const auto& k : tracedKinds) copies += k == "copy", barriers += k == "barrier", builds += k == "build";
+  EXPECT_EQ(copies, app["counts"]["copies"].get<size_t>());
+  EXPECT_EQ(barriers, app["counts"]["barriers"].get<size_t>());
+  EXPECT_EQ(builds, app["counts"]["builds"].get<size_t>());
+}
+
+// Every array and object the application read back is a captured output of its build.
+void expectCapturedOutputsAreWhatTheAppSaw(const json& app, const std::vector<TracedCommand>& traced) {
+  std::vector<const TracedCommand*> builds;
+  for (const auto& c : traced)
+    if (c.kind == "build") builds.push_back(&c);
+  ASSERT_EQ(builds.size(), app["builds"].size());
+  for (size_t i = 0; i < builds.size(); ++i) {
+    const json& b = app["builds"][i];
+    const TracedCommand& t = *builds[i];
+    const std::string label = b["label"];
+    EXPECT_EQ(t.opType, b["opType"].get<uint32_t>()) << label;
+    EXPECT_EQ(t.opMode, b["opMode"].get<uint32_t>()) << label;
+    auto snapshotAt = [&](uint64_t address, uint64_t size) -> std::optional<std::vector<uint8_t>> {
+      for (const auto& [at, bytes] : t.outputs)
+        if (address >= at && address - at + size <= bytes.size())
+          return std::vector<uint8_t>(bytes.begin() + (address - at), bytes.begin() + (address - at + size));
+      return std::nullopt;
+    };
+    const uint32_t ops = b["ops"];
+    auto sizes = snapshotAt(b["dstSizesArray"], 4ull * ops);
+    ASSERT_TRUE(sizes) << label << ": no captured dstSizesArray";
+    EXPECT_EQ(hexOf(*sizes), b["sizesBytes"].get<std::string>()) << label;
+    if (b["addresses"].empty()) continue;  // compute-sizes mode writes sizes only
+    auto addresses = snapshotAt(b["dstAddressesArray"], 8ull * ops);
+    ASSERT_TRUE(addresses) << label << ": no captured dstAddressesArray";
+    EXPECT_EQ(hexOf(*addresses), b["addressesBytes"].get<std::string>()) << label;
+    for (uint32_t op = 0; op < ops; ++op) {
+      const uint64_t at = b["addresses"][op], size = b["sizes"][op];
+      auto object = snapshotAt(at, size);
+      ASSERT_TRUE(object) << label << " op " << op << ": object bytes not captured";
+      EXPECT_EQ(digestText(fnv1a64(*object, 0, object->size())), b["objectDigests"][op].get<std::string>())
+          << label << " op " << op;
+    }
+  }
+}
+
+TEST_F(ClusterSceneChain, ReplayReproducesEveryOutputAndFindsNoHazard) {
+  const fs::path trace = dir / "scene.clt";
+  const json app = captureScene(trace, "");
+  ASSERT_FALSE(app.is_null());
+  ASSERT_EQ(app["scenes"].size(), 1u);
+  const json& scene = app["scenes"][0];
+  EXPECT_EQ(app["clusters"], 6);
+  EXPECT_GT(app["triangles"].get<int>(), 1000);  // the whole Wuson mesh was loaded
+
+  const TracedScene traced = readTrace(trace);
+  EXPECT_EQ(traced.driver, "clastrace engine");  // served: its outputs are the engine's bytes
+  EXPECT_EQ(traced.submissions, 1u);
+  ASSERT_EQ(traced.commandBuffers.count(scene["commandBuffer"]), 1u);
+  const auto& commands = traced.commandBuffers.at(scene["commandBuffer"]);
+  expectSameCommands(scene, commands);
+  expectCapturedOutputsAreWhatTheAppSaw(scene, commands);
+
+  // Each op type, and compute-sizes mode, traced at least once.
+  std::set<uint32_t> opTypes;
+  bool computeSizes = false;
+  for (const auto& c : commands)
+    if (c.kind == "build") opTypes.insert(c.opType), computeSizes |= c.opMode == 2;
+  EXPECT_EQ(opTypes, (std::set<uint32_t>{0, 1, 2, 3, 4, 5}));
+  EXPECT_TRUE(computeSizes);
+
+  const clastrace::replay::ReplayReport report = replay(trace);
+  EXPECT_TRUE(report.engine_trace);
+  EXPECT_TRUE(report.clean()) << describe(report);
+  EXPECT_TRUE(report.not_replayed.empty());
+  EXPECT_EQ(report.counts.cluster_commands, 7u);
+  EXPECT_EQ(report.counts.copies, scene["counts"]["copies"].get<uint64_t>());
+  EXPECT_EQ(report.counts.barriers, scene["counts"]["barriers"].get<uint64_t>());
+  // Every captured output snapshot was compared with the engine's bytes, and all were equal
+  // (a difference is a CLASTRACE-replay-output-differs finding, and there is none).
+  EXPECT_EQ(report.counts.outputs_compared, traced.outputSnapshots);
+  EXPECT_GT(report.counts.output_bytes_compared, 0u);
+  // Per op type and mode: every op's size compared and equal.
+  std::map<std::pair<uint32_t, bool>, uint32_t> comparedOps;  // (op type, compute-sizes) -> ops
+  ASSERT_EQ(report.sizes.size(), 7u);
+  const std::vector<const TracedCommand*> builds = [&] {
+    std::vector<const TracedCommand*> b;
+    for (const auto& c : commands)
+      if (c.kind == "build") b.push_back(&c);
+    return b;
+  }();
+  for (size_t i = 0; i < report.sizes.size(); ++i) {
+    const auto& s = report.sizes[i];
+    EXPECT_EQ(s.ops, s.ops_compared) << i;
+    EXPECT_EQ(s.sizes_equal, s.ops_compared) << i;
+    EXPECT_EQ(s.captured_bytes, s.engine_bytes) << i;
+    comparedOps[{s.op_type, builds[i]->opMode == 2}] += s.sizes_equal;
+  }
+  for (uint32_t type = 0; type < 6; ++type) EXPECT_GT((comparedOps[{type, false}]), 0u) << "op type " << type;
+  EXPECT_GT((comparedOps[{2u, true}]), 0u) << "compute-sizes";
+
+  // The command-line replay agrees.
+  ProcessResult cli = run(std::string(CLASTRACE_CLI) + " replay --json " + trace.string(), {}, false);
+  EXPECT_EQ(cli.exitCode, 0) << cli.out << cli.err;
+  const json replayed = json::parse(cli.out);
+  EXPECT_TRUE(replayed["clean"].get<bool>());
+  EXPECT_EQ(replayed["counts"]["outputs_compared"], traced.outputSnapshots);
+}
+
+// ---- Skipped barriers ---------------------------------------------------------------
+
+// What leaving out each barrier of examples/cluster_scene must give, and nothing else:
+// (hazard class, earlier command, later command), commands named as the app names them.
+using Expected = std::set<std::tuple<std::string, std::string, std::string>>;
+const std::map<std::string, Expected>& expectedHazards() {
+  static const std::map<std::string, Expected> table = {
+      // Both builds read the copied cluster infos; the barrier between them orders builds only.
+      {"copy-to-sizes",
+       {{"READ-AFTER-WRITE", "copy:cluster-infos", "build:cluster-sizes"},
+        {"READ-AFTER-WRITE", "copy:cluster-infos", "build:clusters"}}},
+      {"sizes-to-clusters", {{"WRITE-AFTER-WRITE", "build:cluster-sizes", "build:clusters"}}},
+      {"copy-to-templates", {{"READ-AFTER-WRITE", "copy:template-infos", "build:templates"}}},
+      {"clusters-to-templates", {{"WRITE-AFTER-WRITE", "build:clusters", "build:templates"}}},
+      {"templates-to-address-copy", {{"READ-AFTER-WRITE", "build:templates", "copy:template-addresses"}}},
+      {"copy-to-instantiate",
+       {{"READ-AFTER-WRITE", "copy:instance-infos", "build:instantiate"},
+        {"READ-AFTER-WRITE", "copy:template-addresses", "build:instantiate"}}},
+      // The template objects are ordered before the instantiation by the dependency chain
+      // templates-to-address-copy (build -> transfer) + copy-to-instantiate (transfer -> build):
+      // only the scratch reuse is left unordered.
+      {"templates-to-instantiate", {{"WRITE-AFTER-WRITE", "build:templates", "build:instantiate"}}},
+      {"instantiate-to-indices", {{"WRITE-AFTER-WRITE", "build:instantiate", "build:template-indices"}}},
+      {"indices-to-move", {{"WRITE-AFTER-WRITE", "build:template-indices", "build:move"}}},
+      {"copy-to-blas", {{"READ-AFTER-WRITE", "copy:blas-infos", "build:blas"}}},
+      {"move-to-blas",
+       {{"READ-AFTER-WRITE", "build:move", "build:blas"}, {"WRITE-AFTER-WRITE", "build:move", "build:blas"}}},
+  };
+  return table;
+}
+
+TEST_F(ClusterSceneChain, ListBarriersNamesEveryBarrierTheTestKnows) {
+  ProcessResult r = run(scene("--list-barriers"), {}, false);
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  std::set<std::string> listed;
+  std::istringstream lines(r.out);
+  for (std::string line; std::getline(lines, line);) listed.insert(line.substr(0, line.find(' ')));
+  std::set<std::string> known;
+  for (const auto& [name, _] : expectedHazards()) known.insert(name);
+  EXPECT_EQ(listed, known);
+}
+
+class SkippedBarrier : public ClusterSceneChain, public ::testing::WithParamInterface<std::string> {};
+
+TEST_P(SkippedBarrier, GivesExactlyItsHazard) {
+  const std::string name = GetParam();
+  const fs::path trace = dir / "skipped.clt";
+  const json app = captureScene(trace, "--skip-barrier " + name);
+  ASSERT_FALSE(app.is_null());
+  const json& scene = app["scenes"][0];
+  for (const auto& c : scene["commands"]) EXPECT_NE(c.get<std::string>(), "barrier:" + name);
+  const std::vector<std::string> labels = scene["commands"];
+
+  const clastrace::replay::ReplayReport report = replay(trace);
+  EXPECT_TRUE(report.findings.empty()) << describe(report);  // serving still wrote the engine's bytes
+  EXPECT_TRUE(report.trace_damage.empty());
+  Expected found;
+  for (const auto& h : report.hazards) {
+    ASSERT_LT(h.prior.command.command, labels.size());
+    ASSERT_LT(h.later.command.command, labels.size());
+    EXPECT_EQ(h.prior.command.command_buffer_handle, scene["commandBuffer"].get<uint64_t>());
+    found.insert({clastrace::replay::hazard_class_name(h.hazard), labels[h.prior.command.command],
+                  labels[h.later.command.command]});
+  }
+  EXPECT_EQ(found, expectedHazards().at(name)) << describe(report);
+}
+
+INSTANTIATE_TEST_SUITE_P(EachBarrier, SkippedBarrier,
+                         ::testing::Values("copy-to-sizes", "sizes-to-clusters", "copy-to-templates",
+                                           "clusters-to-templates", "templates-to-address-copy", "copy-to-instantiate",
+                                           "templates-to-instantiate", "instantiate-to-indices", "indices-to-move",
+                                           "copy-to-blas", "move-to-blas"),
+                         [](const auto& info) {
+                           std::string n = info.param;
+                           for (char& c : n)
+                             if (c == '-') c = '_';
+                           return n;
+                         });
+
+// ---- Multi-threaded recording -------------------------------------------------------
+
+// Two threads record (and submit) one command buffer each, at the same time. Lavapipe has
+// one queue, so both go to it under the application's lock; the trace must hold every
+// command of both, in each command buffer's order.
+TEST_F(ClusterSceneChain, TwoThreadsRecordingLoseNoCommand) {
+  const fs::path trace = dir / "threads.clt";
+  const json app = captureScene(trace, "--threads 2");
+  ASSERT_FALSE(app.is_null());
+  ASSERT_EQ(app["scenes"].size(), 2u);
+  EXPECT_GE(app["queues"].get<int>(), 1);
+  const TracedScene traced = readTrace(trace);
+  EXPECT_EQ(traced.submissions, 2u);
+  EXPECT_EQ(traced.commandBuffers.size(), 2u);
+  for (const json& scene : app["scenes"]) {
+    ASSERT_EQ(traced.commandBuffers.count(scene["commandBuffer"]), 1u);
+    const auto& commands = traced.commandBuffers.at(scene["commandBuffer"]);
+    expectSameCommands(scene, commands);
+    expectCapturedOutputsAreWhatTheAppSaw(scene, commands);
+  }
+  const clastrace::replay::ReplayReport report = replay(trace);
+  EXPECT_TRUE(report.clean()) << describe(report);
+  EXPECT_EQ(report.counts.cluster_commands, 14u);
+  EXPECT_EQ(report.counts.outputs_compared, traced.outputSnapshots);
+}
+
+// ---- The application's own errors -----------------------------------------------------
+
+TEST_F(ClusterSceneChain, ClearErrorsAndExitCodes) {
+  ProcessResult r = run(scene("/nonexistent/mesh.obj"), {});
+  EXPECT_EQ(r.exitCode, 2);
+  EXPECT_NE(r.err.find("/nonexistent/mesh.obj: cannot open"), std::string::npos) << r.err;
+
+  std::ofstream(dir / "bad.obj") << "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n";
+  r = run(scene((dir / "bad.obj").string()), {});
+  EXPECT_EQ(r.exitCode, 2);
+  EXPECT_NE(r.err.find("bad.obj:4: face corner 9 names no vertex"), std::string::npos) << r.err;
+
+  r = run(scene("--skip-barrier no-such-barrier --max-clusters 2"), {});
+  EXPECT_EQ(r.exitCode, 2);
+  EXPECT_NE(r.err.find("no barrier is named 'no-such-barrier'"), std::string::npos) << r.err;
+
+  r = run(scene("--max-clusters 2"), {}, false);  // lavapipe alone lacks the extension
+  EXPECT_EQ(r.exitCode, 3);
+  EXPECT_NE(r.err.find("does not offer VK_NV_cluster_acceleration_structure"), std::string::npos) << r.err;
+
+  r = run(scene("--help"), {}, false);
+  EXPECT_EQ(r.exitCode, 0);
+  EXPECT_NE(r.out.find("--skip-barrier"), std::string::npos);
+}
+
+}  // namespace
