@@ -1,10 +1,25 @@
 #!/usr/bin/env bash
-# First README command: install, build, and run the main job on the shipped sample trace.
+# First README command: install, build, run the main job on the shipped sample trace, then
+# capture the sample application under the layer on lavapipe, replay and analyze that trace.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 build=${CLASTRACE_BUILD_DIR:-$root/build}
+clastrace="$build/tools/clastrace"
 
 "$root/scripts/build.sh"
-"$build/tools/clastrace" info "$root/traces/samples/sample.clt"
-"$build/tools/clastrace" replay "$root/traces/samples/sample.clt"
-"$build/tools/clastrace" analyze "$root/traces/samples/sample.clt" --html "$build/sample-report.html"
+"$clastrace" info "$root/traces/samples/sample.clt"
+"$clastrace" replay "$root/traces/samples/sample.clt"
+"$clastrace" analyze "$root/traces/samples/sample.clt" --html "$build/sample-report.html"
+
+# examples/cluster_scene on lavapipe (CPU Vulkan, in scripts/deps.sh): the layer serves
+# VK_NV_cluster_acceleration_structure there and records every build with what it read.
+lavapipe=$(ls /usr/share/vulkan/icd.d/lvp_icd.*.json 2>/dev/null | head -n 1 || true)
+if [[ -z "$lavapipe" ]]; then
+  echo "quickstart: lavapipe's ICD manifest is missing (apt-get install mesa-vulkan-drivers); skipping the capture" >&2
+  exit 1
+fi
+trace="$build/cluster_scene.clt"
+VK_DRIVER_FILES="$lavapipe" "$clastrace" capture -o "$trace" -- "$build/examples/cluster_scene/cluster_scene"
+"$clastrace" replay "$trace"
+"$clastrace" analyze "$trace" --html "$build/cluster_scene-report.html"
+echo "quickstart: captured $trace; HTML reports: $build/sample-report.html, $build/cluster_scene-report.html"
