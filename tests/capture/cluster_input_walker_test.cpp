@@ -232,6 +232,63 @@ TEST(ClusterInputWalker, TemplateBoundsAndBottomLevelReferences) {
   EXPECT_EQ(refs[2]->bytes.size(), 8u);
 }
 
+// An instantiation reads as many vertices as its template has: the count comes from the
+// template's build (walkClusterInputs reports it per entry), looked up by template address.
+TEST(ClusterInputWalker, InstantiationVerticesAreSizedByTheirTemplate) {
+  FakeDeviceMemory memory;
+  memory.region(kInfos, 1024);
+  memory.region(kIndices, 64);
+  memory.region(kVertices, 1024);
+  VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV tmpl[2]{};
+  for (uint32_t i = 0; i < 2; ++i) {
+    tmpl[i].triangleCount = 1;
+    tmpl[i].vertexCount = 3 + 2 * i;
+    tmpl[i].indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_8BIT_NV;
+    tmpl[i].indexBuffer = kIndices;
+  }
+  memory.put(kInfos, tmpl[0]);
+  memory.put(kInfos + sizeof tmpl[0], tmpl[1]);
+  ClusterCommandParameters t = triangleBuild(2, 0, 0);
+  t.info.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV;
+  t.info.srcInfosCount = 0;
+  EXPECT_EQ(walkClusterInputs(t, memory.reader()).templateVertexCounts, (std::vector<uint32_t>{3, 5}));
+
+  // Two instantiations of template 0xA000 (5 vertices): packed, and 32 bytes apart.
+  VkClusterAccelerationStructureInstantiateClusterInfoNV instance[2]{};
+  instance[0].clusterTemplateAddress = 0xA000;
+  instance[0].vertexBuffer = {kVertices, 12};
+  instance[1].clusterTemplateAddress = 0xA000;
+  instance[1].vertexBuffer = {kVertices + 512, 32};
+  memory.put(kInfos, instance[0]);
+  memory.put(kInfos + sizeof instance[0], instance[1]);
+  ClusterCommandParameters p = triangleBuild(2, 0, 0);
+  p.info.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV;
+  p.info.srcInfosCount = 0;
+  std::vector<VkDeviceAddress> asked;
+  ClusterMemoryWalk walk = walkClusterInputs(p, memory.reader(), [&](VkDeviceAddress a, uint32_t* vertices) {
+    asked.push_back(a);
+    if (a != 0xA000) return false;
+    *vertices = 5;
+    return true;
+  });
+  EXPECT_TRUE(walk.issues.empty());
+  EXPECT_EQ(asked, (std::vector<VkDeviceAddress>{0xA000, 0xA000}));
+  auto vertices = rangesOf(walk, MemoryRole::VertexBuffer);
+  ASSERT_EQ(vertices.size(), 6u);  // one packed span, then five 12-byte elements 32 apart
+  EXPECT_EQ(vertices[0]->address, kVertices);
+  EXPECT_EQ(vertices[0]->bytes.size(), 60u);
+  EXPECT_EQ(vertices[5]->address, kVertices + 512 + 4 * 32);
+  EXPECT_EQ(vertices[5]->bytes.size(), 12u);
+  EXPECT_EQ(vertices[5]->entry, 1u);
+
+  // A template the layer never saw built: an issue naming the entry, no guessed length.
+  walk = walkClusterInputs(p, memory.reader(), [](VkDeviceAddress, uint32_t*) { return false; });
+  EXPECT_TRUE(rangesOf(walk, MemoryRole::VertexBuffer).empty());
+  ASSERT_EQ(walk.issues.size(), 2u);
+  EXPECT_NE(walk.issues[0].rule.find("vertexBuffer of srcInfosArray entry 0 not captured"), std::string::npos)
+      << walk.issues[0].rule;
+}
+
 TEST(ClusterInputWalker, OutputsReadAddressesSizesAndTheObjects) {
   FakeDeviceMemory memory;
   memory.region(kDst, 64);
