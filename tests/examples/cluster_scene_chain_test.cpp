@@ -27,8 +27,8 @@ using nlohmann::json;
 using clastrace::fbs::RecordBody;
 
 const char* kLavapipe = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json";
-// A subset of the mesh keeps each run well under a second on lavapipe.
-const char* kSceneArgs = " --max-clusters 6 --json";
+// A subset of the mesh keeps each skipped-barrier run well under a second on lavapipe.
+const char* kSubset = "--max-clusters 6";
 
 std::string readText(const fs::path& path) {
   std::ifstream in(path);
@@ -126,7 +126,7 @@ class ClusterSceneChain : public ::testing::Test {
 
   // The application under the layer, writing `trace`; returns its --json output.
   json captureScene(const fs::path& trace, const std::string& args) {
-    ProcessResult r = run(scene(args + kSceneArgs), {{"CLASTRACE_OUTPUT", trace.string()}});
+    ProcessResult r = run(scene(args + " --json"), {{"CLASTRACE_OUTPUT", trace.string()}});
     EXPECT_EQ(r.exitCode, 0) << r.err;
     EXPECT_EQ(r.err, "");  // no layer finding: every build is valid
     if (r.exitCode != 0) return json();
@@ -264,14 +264,20 @@ void expectCapturedOutputsAreWhatTheAppSaw(const json& app, const std::vector<Tr
   }
 }
 
-TEST_F(ClusterSceneChain, ReplayReproducesEveryOutputAndFindsNoHazard) {
+// The default mesh (a subset and whole), and other OBJ files of assimp-testmodels down to
+// a single cluster.
+class CleanScene : public ClusterSceneChain, public ::testing::WithParamInterface<std::pair<std::string, int>> {};
+
+TEST_P(CleanScene, ReplayReproducesEveryOutputAndFindsNoHazard) {
+  const auto& [args, clusters] = GetParam();
   const fs::path trace = dir / "scene.clt";
-  const json app = captureScene(trace, "");
+  const json app = captureScene(trace, args);
   ASSERT_FALSE(app.is_null());
   ASSERT_EQ(app["scenes"].size(), 1u);
   const json& scene = app["scenes"][0];
-  EXPECT_EQ(app["clusters"], 6);
-  EXPECT_GT(app["triangles"].get<int>(), 1000);  // the whole Wuson mesh was loaded
+  EXPECT_EQ(app["clusters"], clusters);
+  if (args.find("--max-clusters") == std::string::npos) EXPECT_EQ(app["clusterTriangles"], app["triangles"]);
+  else EXPECT_LT(app["clusterTriangles"], app["triangles"]);  // a subset
 
   const TracedScene traced = readTrace(trace);
   EXPECT_EQ(traced.driver, "clastrace engine");  // served: its outputs are the engine's bytes
@@ -327,6 +333,45 @@ TEST_F(ClusterSceneChain, ReplayReproducesEveryOutputAndFindsNoHazard) {
   EXPECT_EQ(replayed["counts"]["outputs_compared"], traced.outputSnapshots);
 }
 
+const std::vector<std::pair<std::string, int>> kMeshes = {
+    {kSubset, 6},
+    {"", 43},  // all of WusonOBJ.obj
+    {"/usr/share/assimp/models/OBJ/spider.obj", 14},
+    {"/usr/share/assimp/models/OBJ/box.obj", 1},
+};
+std::string meshName(const ::testing::TestParamInfo<std::pair<std::string, int>>& info) {
+  static const char* names[] = {"WusonSubset", "Wuson", "Spider", "Box"};
+  return names[info.index];
+}
+INSTANTIATE_TEST_SUITE_P(Meshes, CleanScene, ::testing::ValuesIn(kMeshes), meshName);
+
+// The sample's own Vulkan use (copies, barriers, fences, two threads) under the Khronos
+// validation layer with synchronization validation, beneath the capture layer.
+TEST_F(ClusterSceneChain, PassesSynchronizationValidation) {
+  const char* manifest = "/usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json";
+  if (!fs::exists(manifest)) GTEST_SKIP() << "vulkan-validationlayers is not installed";
+  std::ofstream(dir / "vk_layer_settings.txt")
+      << "khronos_validation.enables = VK_VALIDATION_FEATURE_ENABLE_SYNCHRONIZATION_VALIDATION_EXT\n"
+         "khronos_validation.report_flags = error,warn\n"
+         "khronos_validation.debug_action = VK_DBG_LAYER_ACTION_LOG_MSG\n";
+  for (const std::string& args : {std::string(kSubset), std::string(kSubset) + " --threads 2"}) {
+    const fs::path trace = dir / "validated.clt";
+    ProcessResult r = run(scene(args), {{"VK_ADD_LAYER_PATH", CLASTRACE_LAYER_MANIFEST_DIR},
+                                        {"VK_INSTANCE_LAYERS", "VK_LAYER_CLASTRACE_capture:VK_LAYER_KHRONOS_validation"},
+                                        {"VK_LAYER_SETTINGS_PATH", (dir / "vk_layer_settings.txt").string()},
+                                        {"CLASTRACE_OUTPUT", trace.string()}},
+                          false);
+    ASSERT_EQ(r.exitCode, 0) << args << ": " << r.err;
+    const std::string all = r.out + r.err;
+    EXPECT_EQ(all.find("VUID-"), std::string::npos) << args << ": " << all;
+    EXPECT_EQ(all.find("SYNC-"), std::string::npos) << args << ": " << all;
+    EXPECT_EQ(all.find("Validation"), std::string::npos) << args << ": " << all;
+    EXPECT_NE(r.out.find("7 builds"), std::string::npos) << r.out;
+    EXPECT_TRUE(fs::exists(trace));  // the capture layer did run above the validation layer
+    fs::remove(trace);
+  }
+}
+
 // ---- Skipped barriers ---------------------------------------------------------------
 
 // What leaving out each barrier of examples/cluster_scene must give, and nothing else:
@@ -374,7 +419,7 @@ class SkippedBarrier : public ClusterSceneChain, public ::testing::WithParamInte
 TEST_P(SkippedBarrier, GivesExactlyItsHazard) {
   const std::string name = GetParam();
   const fs::path trace = dir / "skipped.clt";
-  const json app = captureScene(trace, "--skip-barrier " + name);
+  const json app = captureScene(trace, std::string(kSubset) + " --skip-barrier " + name);
   ASSERT_FALSE(app.is_null());
   const json& scene = app["scenes"][0];
   for (const auto& c : scene["commands"]) EXPECT_NE(c.get<std::string>(), "barrier:" + name);
@@ -413,7 +458,7 @@ INSTANTIATE_TEST_SUITE_P(EachBarrier, SkippedBarrier,
 // command of both, in each command buffer's order.
 TEST_F(ClusterSceneChain, TwoThreadsRecordingLoseNoCommand) {
   const fs::path trace = dir / "threads.clt";
-  const json app = captureScene(trace, "--threads 2");
+  const json app = captureScene(trace, std::string(kSubset) + " --threads 2");
   ASSERT_FALSE(app.is_null());
   ASSERT_EQ(app["scenes"].size(), 2u);
   EXPECT_GE(app["queues"].get<int>(), 1);
