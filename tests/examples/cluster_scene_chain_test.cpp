@@ -331,6 +331,16 @@ TEST_P(CleanScene, ReplayReproducesEveryOutputAndFindsNoHazard) {
   const json replayed = json::parse(cli.out);
   EXPECT_TRUE(replayed["clean"].get<bool>());
   EXPECT_EQ(replayed["counts"]["outputs_compared"], traced.outputSnapshots);
+
+  // And the analyzer (the quick start's last step) reads the same commands and ops.
+  ProcessResult analyzed = run(std::string(CLASTRACE_CLI) + " analyze --json " + trace.string(), {}, false);
+  EXPECT_EQ(analyzed.exitCode, 0) << analyzed.err;
+  const json analysis = json::parse(analyzed.out);
+  uint64_t ops = 0;
+  for (const auto& b : scene["builds"]) ops += b["ops"].get<uint64_t>();
+  EXPECT_EQ(analysis["totals"]["commands"], 7);
+  EXPECT_EQ(analysis["totals"]["ops"], ops);
+  EXPECT_EQ(analysis["hazards"]["total"], 0);
 }
 
 const std::vector<std::pair<std::string, int>> kMeshes = {
