@@ -158,6 +158,9 @@ bool PauseWorker::handle(Expected& expected) {
         });
         if (!walk.templateVertexCounts.empty())
           pendingTemplateVertexCounts_[pause.pauseId] = std::move(walk.templateVertexCounts);
+        else if (pause.parameters->info.input.opType == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV &&
+                 pause.parameters->moveObjectsInput.type == VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_TRIANGLE_CLUSTER_TEMPLATE_NV)
+          pendingTemplateVertexCounts_[pause.pauseId] = movedTemplateVertexCounts(*pause.parameters, walk.executedCount);
       }
       record = &open_.insert_or_assign(pause.pauseId, std::move(fresh)).first->second;
       record->executedCount = walk.executedCount;
@@ -218,8 +221,27 @@ void PauseWorker::learnTemplates(const ClusterCommandParameters& parameters, con
     if (!readMemory(info.dstAddressesArray.deviceAddress + i * stride, 8, bytes, why)) return;
     uint64_t address;
     std::memcpy(&address, bytes.data(), 8);
-    if (address != 0) templateVertexCounts_[address] = vertexCounts[i];
+    if (address != 0 && vertexCounts[i] != 0) templateVertexCounts_[address] = vertexCounts[i];
   }
+}
+
+std::vector<uint32_t> PauseWorker::movedTemplateVertexCounts(const ClusterCommandParameters& parameters,
+                                                             uint32_t executedCount) {
+  std::vector<uint32_t> counts;
+  const auto& info = parameters.info;
+  if (info.addressResolutionFlags & VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_SRC_INFOS_ARRAY_BIT_NV)
+    return counts;
+  const uint64_t stride = info.srcInfosArray.stride ? info.srcInfosArray.stride : 8;
+  for (uint32_t i = 0; i < executedCount; ++i) {
+    std::vector<uint8_t> bytes;
+    std::string why;
+    if (!readMemory(info.srcInfosArray.deviceAddress + i * stride, 8, bytes, why)) break;
+    uint64_t source;  // VkClusterAccelerationStructureMoveObjectsInfoNV::srcAccelerationStructure
+    std::memcpy(&source, bytes.data(), 8);
+    auto it = templateVertexCounts_.find(source);
+    counts.push_back(it == templateVertexCounts_.end() ? 0 : it->second);  // 0: unknown, not learned
+  }
+  return counts;
 }
 
 void PauseWorker::executeServed(const PausePoint& pause, ClusterBuildCapture* record) {

@@ -87,6 +87,8 @@ class PauseWorker {
   // Templates built under the layer: address -> vertex count, so an instantiation's vertex
   // array is captured at its real length. Pending: a template build's counts until its outputs.
   void learnTemplates(const ClusterCommandParameters& parameters, const std::vector<uint32_t>& vertexCounts);
+  // A move of templates: the vertex count of each source, to be learned at its destination.
+  std::vector<uint32_t> movedTemplateVertexCounts(const ClusterCommandParameters& parameters, uint32_t executedCount);
   std::map<uint64_t, std::vector<uint32_t>> pendingTemplateVertexCounts_;  // pauseId -> per entry
   std::map<VkDeviceAddress, uint32_t> templateVertexCounts_;
   std::thread thread_;
