@@ -29,14 +29,17 @@ const std::vector<BarrierInfo>& barrierCatalogue() {
       // Both cluster builds read the copied infos; the barrier between them orders builds only.
       {"copy-to-sizes", "copy:cluster-infos -> build:cluster-sizes, build:clusters: the copied srcInfosArray and count"},
       {"sizes-to-clusters", "build:cluster-sizes -> build:clusters: scratch reuse"},
-      {"copy-to-templates", "copy:template-infos -> build:templates: the copied srcInfosArray and count"},
+      {"copy-to-templates",
+       "copy:template-infos -> build:templates, build:template-move: the copied srcInfosArray and count"},
       {"clusters-to-templates", "build:clusters -> build:templates: scratch reuse"},
-      {"templates-to-address-copy", "build:templates -> copy:template-addresses: the template addresses it wrote"},
+      {"templates-to-template-move", "build:templates -> build:template-move: template addresses and objects, scratch reuse"},
+      {"template-move-to-address-copy",
+       "build:template-move -> copy:template-addresses: the moved template addresses it wrote"},
       {"copy-to-instantiate",
        "copy:instance-infos, copy:template-addresses -> build:instantiate: the copied srcInfosArray and count"},
-      // The template objects already reach the instantiation through the chain
-      // templates-to-address-copy -> copy-to-instantiate; this one adds scratch reuse.
-      {"templates-to-instantiate", "build:templates -> build:instantiate: scratch reuse"},
+      // The moved templates already reach the instantiation through the chain
+      // template-move-to-address-copy -> copy-to-instantiate; this one adds scratch reuse.
+      {"template-move-to-instantiate", "build:template-move -> build:instantiate: scratch reuse"},
       {"instantiate-to-indices", "build:instantiate -> build:template-indices: scratch reuse"},
       {"indices-to-move", "build:template-indices -> build:move: scratch reuse"},
       {"copy-to-blas", "copy:blas-infos -> build:blas: the copied srcInfosArray and count"},
@@ -150,9 +153,12 @@ class SceneRecorder {
       info.input.opInput.pClustersBottomLevel = &cmd.bottomLevel;
     } else if (type == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV) {
       cmd.move.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_MOVE_OBJECTS_INPUT_NV;
-      cmd.move.type = VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_TRIANGLE_CLUSTER_NV;
+      // Moves compact what an earlier build packed: at most all of its bytes move.
+      const bool templates = std::string(label) == "template-move";
+      cmd.move.type = templates ? VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_TRIANGLE_CLUSTER_TEMPLATE_NV
+                                : VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_TRIANGLE_CLUSTER_NV;
       cmd.move.noMoveOverlap = VK_TRUE;
-      cmd.move.maxMovedBytes = clusters_->implicitData.size;  // at most every cluster built
+      cmd.move.maxMovedBytes = (templates ? templates_ : clusters_)->implicitData.size;
       info.input.opInput.pMoveObjects = &cmd.move;
     } else {
       cmd.triangles.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
@@ -236,10 +242,13 @@ class SceneRecorder {
                                sizeof(VkClusterAccelerationStructureInstantiateClusterInfoNV),
                                countAt + InfoLayout::kInstanceCount);
     // Template indices and moves read the addresses earlier builds wrote as their src infos
-    // (both info structs are one VkDeviceAddress): no copy needed.
+    // (both info structs are one VkDeviceAddress): no copy needed. The templates are moved
+    // (compacted) before anything uses them.
+    templateMove_ = &addCommand("template-move", type(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV), implicit,
+                                n_, templates_->addresses.address, 8, countAt + InfoLayout::kTemplateCount);
     templateIndices_ = &addCommand("template-indices",
                                type(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV), implicit, n_,
-                               templates_->addresses.address, 8, countAt + InfoLayout::kTemplateCount);
+                               templateMove_->addresses.address, 8, countAt + InfoLayout::kTemplateCount);
     move_ = &addCommand("move", type(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV), implicit, n_,
                         clusters_->addresses.address, 8, countAt + InfoLayout::kClusterCount);
     blas_ = &addCommand("blas", type(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV), implicit, 2,
@@ -284,6 +293,7 @@ class SceneRecorder {
 
   void build(ClusterCommand& command) {
     c_.cmdBuildClusters(cb_, &command.info);
+    recorded_.push_back(&command);
     result_.commands.push_back("build:" + command.label);
     ++result_.builds;
   }
@@ -313,9 +323,11 @@ class SceneRecorder {
     copyToBuild("copy-to-templates");
     buildToBuild("clusters-to-templates");
     build(*templates_);
+    buildToBuild("templates-to-template-move");
+    build(*templateMove_);
 
     // Instance infos: everything but clusterTemplateAddress from staging, then each
-    // template's address from the templates' dstAddressesArray.
+    // moved template's address from the template move's dstAddressesArray.
     std::vector<VkBufferCopy> fromStaging, fromTemplates;
     constexpr VkDeviceSize kTemplateField = offsetof(VkClusterAccelerationStructureInstantiateClusterInfoNV, clusterTemplateAddress);
     for (uint32_t i = 0; i < n_; ++i) {
@@ -327,11 +339,11 @@ class SceneRecorder {
     const VkDeviceSize countAt = layout_.counts + InfoLayout::kInstanceCount;
     fromStaging.push_back({countAt, countAt, 4});
     copy("instance-infos", staging_, infos_, fromStaging);
-    barrier("templates-to-address-copy", kBuildStage, kBuildWrites, VK_PIPELINE_STAGE_TRANSFER_BIT,
+    barrier("template-move-to-address-copy", kBuildStage, kBuildWrites, VK_PIPELINE_STAGE_TRANSFER_BIT,
             VK_ACCESS_TRANSFER_READ_BIT);
-    copy("template-addresses", templates_->addresses, infos_, fromTemplates);
+    copy("template-addresses", templateMove_->addresses, infos_, fromTemplates);
     copyToBuild("copy-to-instantiate");
-    buildToBuild("templates-to-instantiate");
+    buildToBuild("template-move-to-instantiate");
     build(*instantiate_);
 
     buildToBuild("instantiate-to-indices");
@@ -354,7 +366,8 @@ class SceneRecorder {
   }
 
   void readBack() {
-    for (ClusterCommand& command : commands_) {
+    for (ClusterCommand* recorded : recorded_) {  // in record order, as the trace lists them
+      const ClusterCommand& command = *recorded;
       BuildOutputs out;
       out.label = command.label;
       out.opType = command.info.input.opType;
@@ -392,8 +405,9 @@ class SceneRecorder {
   Buffer vertices_, indices_, instanceVertices_, staging_, infos_, scratch_;
   VkDeviceSize scratchSize_ = 0;
   std::deque<ClusterCommand> commands_;
-  ClusterCommand *sizes_ = nullptr, *clusters_ = nullptr, *templates_ = nullptr, *instantiate_ = nullptr,
-                 *templateIndices_ = nullptr, *move_ = nullptr, *blas_ = nullptr;
+  std::vector<ClusterCommand*> recorded_;
+  ClusterCommand *sizes_ = nullptr, *clusters_ = nullptr, *templates_ = nullptr, *templateMove_ = nullptr,
+                 *instantiate_ = nullptr, *templateIndices_ = nullptr, *move_ = nullptr, *blas_ = nullptr;
   VkCommandPool pool_ = VK_NULL_HANDLE;
   VkCommandBuffer cb_ = VK_NULL_HANDLE;
   SceneResult result_;

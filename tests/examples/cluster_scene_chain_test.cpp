@@ -4,6 +4,7 @@
 // must give exactly the hazards that barrier prevents; two threads recording two command
 // buffers must lose no command.
 #include <clastrace/replay/hazard_report.hpp>
+#include <clastrace/vk_cluster_abi.h>
 #include <clastrace/replay/replay_report.hpp>
 #include <clastrace/replay/replayer.hpp>
 #include <clastrace/traces/trace_reader.h>
@@ -73,6 +74,7 @@ struct TracedCommand {
   std::string kind;  // "copy", "barrier", "build", "other"
   uint32_t opType = 0, opMode = 0;
   std::vector<std::pair<uint64_t, std::vector<uint8_t>>> outputs;  // address, bytes
+  int moveType = -1;  // moves: VkClusterAccelerationStructureTypeNV of what moved
 };
 
 struct TracedScene {
@@ -154,14 +156,15 @@ class ClusterSceneChain : public ::testing::Test {
           t.commandBuffers[r->body_as_CommandBufferBegin()->command_buffer()].clear();
           break;
         case RecordBody::CmdCopyBuffer:
-          t.commandBuffers[r->body_as_CmdCopyBuffer()->command_buffer()].push_back(TracedCommand{"copy", 0, 0, {}});
+          t.commandBuffers[r->body_as_CmdCopyBuffer()->command_buffer()].push_back(TracedCommand{"copy", 0, 0, {}, -1});
           break;
         case RecordBody::CmdPipelineBarrier:
-          t.commandBuffers[r->body_as_CmdPipelineBarrier()->command_buffer()].push_back(TracedCommand{"barrier", 0, 0, {}});
+          t.commandBuffers[r->body_as_CmdPipelineBarrier()->command_buffer()].push_back(TracedCommand{"barrier", 0, 0, {}, -1});
           break;
         case RecordBody::CmdBuildClusterAccelerationStructureIndirect: {
           const auto* b = r->body_as_CmdBuildClusterAccelerationStructureIndirect();
-          TracedCommand c{"build", uint32_t(b->input()->op_type()), uint32_t(b->input()->op_mode()), {}};
+          TracedCommand c{"build", uint32_t(b->input()->op_type()), uint32_t(b->input()->op_mode()), {}, -1};
+          if (const auto* move = b->input()->op_input_as_MoveObjectsInput()) c.moveType = int(move->type());
           auto& list = t.commandBuffers[b->command_buffer()];
           list.push_back(c);
           std::vector<std::pair<uint64_t, uint64_t>> outputs;
@@ -295,12 +298,17 @@ TEST_P(CleanScene, ReplayReproducesEveryOutputAndFindsNoHazard) {
     if (c.kind == "build") opTypes.insert(c.opType), computeSizes |= c.opMode == 2;
   EXPECT_EQ(opTypes, (std::set<uint32_t>{0, 1, 2, 3, 4, 5}));
   EXPECT_TRUE(computeSizes);
+  std::set<int> moved;  // clusters and templates
+  for (const auto& c : commands)
+    if (c.kind == "build" && c.opType == 0) moved.insert(c.moveType);
+  EXPECT_EQ(moved, (std::set<int>{VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_TRIANGLE_CLUSTER_NV,
+                                  VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_TRIANGLE_CLUSTER_TEMPLATE_NV}));
 
   const clastrace::replay::ReplayReport report = replay(trace);
   EXPECT_TRUE(report.engine_trace);
   EXPECT_TRUE(report.clean()) << describe(report);
   EXPECT_TRUE(report.not_replayed.empty());
-  EXPECT_EQ(report.counts.cluster_commands, 7u);
+  EXPECT_EQ(report.counts.cluster_commands, 8u);
   EXPECT_EQ(report.counts.copies, scene["counts"]["copies"].get<uint64_t>());
   EXPECT_EQ(report.counts.barriers, scene["counts"]["barriers"].get<uint64_t>());
   // Every captured output snapshot was compared with the engine's bytes, and all were equal
@@ -309,7 +317,7 @@ TEST_P(CleanScene, ReplayReproducesEveryOutputAndFindsNoHazard) {
   EXPECT_GT(report.counts.output_bytes_compared, 0u);
   // Per op type and mode: every op's size compared and equal.
   std::map<std::pair<uint32_t, bool>, uint32_t> comparedOps;  // (op type, compute-sizes) -> ops
-  ASSERT_EQ(report.sizes.size(), 7u);
+  ASSERT_EQ(report.sizes.size(), 8u);
   const std::vector<const TracedCommand*> builds = [&] {
     std::vector<const TracedCommand*> b;
     for (const auto& c : commands)
@@ -339,7 +347,7 @@ TEST_P(CleanScene, ReplayReproducesEveryOutputAndFindsNoHazard) {
   const json analysis = json::parse(analyzed.out);
   uint64_t ops = 0;
   for (const auto& b : scene["builds"]) ops += b["ops"].get<uint64_t>();
-  EXPECT_EQ(analysis["totals"]["commands"], 7);
+  EXPECT_EQ(analysis["totals"]["commands"], 8);
   EXPECT_EQ(analysis["totals"]["ops"], ops);
   EXPECT_EQ(analysis["hazards"]["total"], 0);
 }
@@ -377,7 +385,7 @@ TEST_F(ClusterSceneChain, PassesSynchronizationValidation) {
     EXPECT_EQ(all.find("VUID-"), std::string::npos) << args << ": " << all;
     EXPECT_EQ(all.find("SYNC-"), std::string::npos) << args << ": " << all;
     EXPECT_EQ(all.find("Validation"), std::string::npos) << args << ": " << all;
-    EXPECT_NE(r.out.find("7 builds"), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("8 builds"), std::string::npos) << r.out;
     EXPECT_TRUE(fs::exists(trace));  // the capture layer did run above the validation layer
     fs::remove(trace);
   }
@@ -395,16 +403,22 @@ const std::map<std::string, Expected>& expectedHazards() {
        {{"READ-AFTER-WRITE", "copy:cluster-infos", "build:cluster-sizes"},
         {"READ-AFTER-WRITE", "copy:cluster-infos", "build:clusters"}}},
       {"sizes-to-clusters", {{"WRITE-AFTER-WRITE", "build:cluster-sizes", "build:clusters"}}},
-      {"copy-to-templates", {{"READ-AFTER-WRITE", "copy:template-infos", "build:templates"}}},
+      // The template move's srcInfosCount is the copied template count too.
+      {"copy-to-templates",
+       {{"READ-AFTER-WRITE", "copy:template-infos", "build:templates"},
+        {"READ-AFTER-WRITE", "copy:template-infos", "build:template-move"}}},
       {"clusters-to-templates", {{"WRITE-AFTER-WRITE", "build:clusters", "build:templates"}}},
-      {"templates-to-address-copy", {{"READ-AFTER-WRITE", "build:templates", "copy:template-addresses"}}},
+      {"templates-to-template-move",
+       {{"READ-AFTER-WRITE", "build:templates", "build:template-move"},
+        {"WRITE-AFTER-WRITE", "build:templates", "build:template-move"}}},
+      {"template-move-to-address-copy", {{"READ-AFTER-WRITE", "build:template-move", "copy:template-addresses"}}},
       {"copy-to-instantiate",
        {{"READ-AFTER-WRITE", "copy:instance-infos", "build:instantiate"},
         {"READ-AFTER-WRITE", "copy:template-addresses", "build:instantiate"}}},
-      // The template objects are ordered before the instantiation by the dependency chain
-      // templates-to-address-copy (build -> transfer) + copy-to-instantiate (transfer -> build):
-      // only the scratch reuse is left unordered.
-      {"templates-to-instantiate", {{"WRITE-AFTER-WRITE", "build:templates", "build:instantiate"}}},
+      // The moved templates are ordered before the instantiation by the dependency chain
+      // template-move-to-address-copy (build -> transfer) + copy-to-instantiate (transfer ->
+      // build): only the scratch reuse is left unordered.
+      {"template-move-to-instantiate", {{"WRITE-AFTER-WRITE", "build:template-move", "build:instantiate"}}},
       {"instantiate-to-indices", {{"WRITE-AFTER-WRITE", "build:instantiate", "build:template-indices"}}},
       {"indices-to-move", {{"WRITE-AFTER-WRITE", "build:template-indices", "build:move"}}},
       {"copy-to-blas", {{"READ-AFTER-WRITE", "copy:blas-infos", "build:blas"}}},
@@ -439,7 +453,7 @@ Expected hazardsWithout(ClusterSceneChain& test, const std::vector<std::string>&
   const std::vector<std::string> labels = scene["commands"];
   for (const auto& name : skipped)
     EXPECT_EQ(std::count(labels.begin(), labels.end(), "barrier:" + name), 0) << name;
-  EXPECT_EQ(labels.size() + skipped.size(), 24u);  // 5 copies, 12 barriers (one to the host), 7 builds
+  EXPECT_EQ(labels.size() + skipped.size(), 26u);  // 5 copies, 13 barriers (one to the host), 8 builds
 
   const clastrace::replay::ReplayReport report = test.replay(trace);
   EXPECT_TRUE(report.findings.empty()) << describe(report);  // serving still wrote the engine's bytes
@@ -473,8 +487,9 @@ TEST_F(ClusterSceneChain, TwoSkippedBarriersGiveBothHazards) {
 
 INSTANTIATE_TEST_SUITE_P(EachBarrier, SkippedBarrier,
                          ::testing::Values("copy-to-sizes", "sizes-to-clusters", "copy-to-templates",
-                                           "clusters-to-templates", "templates-to-address-copy", "copy-to-instantiate",
-                                           "templates-to-instantiate", "instantiate-to-indices", "indices-to-move",
+                                           "clusters-to-templates", "templates-to-template-move",
+                                           "template-move-to-address-copy", "copy-to-instantiate",
+                                           "template-move-to-instantiate", "instantiate-to-indices", "indices-to-move",
                                            "copy-to-blas", "move-to-blas"),
                          [](const auto& info) {
                            std::string n = info.param;
@@ -505,7 +520,7 @@ TEST_F(ClusterSceneChain, TwoThreadsRecordingLoseNoCommand) {
   }
   const clastrace::replay::ReplayReport report = replay(trace);
   EXPECT_TRUE(report.clean()) << describe(report);
-  EXPECT_EQ(report.counts.cluster_commands, 14u);
+  EXPECT_EQ(report.counts.cluster_commands, 16u);
   EXPECT_EQ(report.counts.outputs_compared, traced.outputSnapshots);
 }
 
