@@ -107,7 +107,7 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
 
   if (listBarriers) {
-    for (const BarrierInfo& b : barrierCatalogue()) std::printf("%-26s %s\n", b.name, b.orders);
+    for (const BarrierInfo& b : barrierCatalogue()) std::printf("%-30s %s\n", b.name, b.orders);
     return 0;
   }
   if (clusterTriangles % 4 != 0) {
