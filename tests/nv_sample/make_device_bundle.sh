@@ -18,5 +18,6 @@ for binary in "$out/bin/nv_ray_tracing_app" "$out/lib/libVkLayer_clastrace_captu
   ldd "$binary" | awk '/=> \//{print $3}' | while read -r lib; do cp -L -n "$lib" "$out/lib/"; done
 done
 cp -L /lib64/ld-linux-x86-64.so.2 "$out/lib/"
+strip --strip-debug "$out/bin/nv_ray_tracing_app" "$out/lib/libVkLayer_clastrace_capture.so"
 cp "$here/device_run.sh" "$out/"
 du -sh "$out"

@@ -3,6 +3,7 @@
 // device and its driver identity, the NV objects with their handles and memory, every NV build
 // with its inputs as executed, the deserialization with the driver's blob, and the ray checks.
 #include <clastrace/traces/trace_reader.h>
+#include <vulkan/vulkan.h>
 
 #include <gtest/gtest.h>
 
@@ -99,8 +100,10 @@ const Sample& sample() {
         case fbs::RecordBody::RayQueryCheck: {
           auto* c = r->body_as_RayQueryCheck();
           Sample::Check check{c->acceleration_structure(), c->device_handle(), c->after_submission(), {}, {}, {}};
-          if (c->rays()) check.rays.assign(c->rays()->begin(), c->rays()->end());
-          if (c->results()) check.results.assign(c->results()->begin(), c->results()->end());
+          if (c->rays())
+            for (auto* ray : *c->rays()) check.rays.push_back(*ray);
+          if (c->results())
+            for (auto* result : *c->results()) check.results.push_back(*result);
           if (c->label()) check.label = c->label()->str();
           out.checks.push_back(std::move(check));
           break;
@@ -231,7 +234,7 @@ TEST(NvSample, RayChecksFollowTheBuildAndTheRefit) {
 TEST(NvSample, DriverAnswersArePlausible) {
   const Sample& s = sample();
   for (const auto& c : s.checks) {
-    uint32_t hits = 0, triangleHits = 0, boxHits = 0;
+    uint32_t hits = 0, triangleHits = 0, boxHits = 0, tetrahedronHits = 0;
     std::set<uint32_t> instances;
     for (size_t i = 0; i < c.results.size(); ++i) {
       const auto& ray = c.rays[i];
@@ -255,6 +258,7 @@ TEST(NvSample, DriverAnswersArePlausible) {
         ++triangleHits;
         EXPECT_TRUE(h.hit_kind() == 0xFEu || h.hit_kind() == 0xFFu) << i << " " << h.hit_kind();
         EXPECT_LT(h.geometry_index(), 2u) << i;
+        tetrahedronHits += h.geometry_index() == 1;
         EXPECT_LT(h.primitive_id(), h.geometry_index() == 0 ? 72u : 4u) << i;
         EXPECT_GE(h.barycentric_u(), 0.0f);
         EXPECT_GE(h.barycentric_v(), 0.0f);
@@ -267,6 +271,7 @@ TEST(NvSample, DriverAnswersArePlausible) {
     EXPECT_GT(triangleHits, 100u);
     EXPECT_GT(boxHits, 100u);
     EXPECT_EQ(instances.size(), 4u);
+    EXPECT_GT(tetrahedronHits, 0u);  // geometry 1 of the triangle bottom level
   }
 }
 
