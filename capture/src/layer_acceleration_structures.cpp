@@ -4,6 +4,7 @@
 #include "command_buffer_log.h"
 #include "layer_state.h"
 
+#include <chrono>
 #include <cinttypes>
 #include <cstring>
 #include <map>
@@ -196,6 +197,7 @@ void runRayChecks(DeviceState& d, VkQueue queue, uint64_t submissionIndex, const
   context.rayTracingProperties = d.rayTracingPropertiesNV;
   context.setCommandBufferDispatch = true;
   for (uint64_t topLevel : topLevels) {
+    const auto started = std::chrono::steady_clock::now();
     RayCheckRecord record;
     record.accelerationStructure = topLevel;
     record.submissionIndex = submissionIndex;
@@ -211,8 +213,9 @@ void runRayChecks(DeviceState& d, VkQueue queue, uint64_t submissionIndex, const
     }
     size_t hits = 0;
     for (const NvRayHit& h : record.hits) hits += h.hit != 0;
-    logMessage(LogLevel::Info, "ray check of top level 0x%llx after submission %llu: %zu rays, %zu hits",
-               (unsigned long long)topLevel, (unsigned long long)submissionIndex, record.rays.size(), hits);
+    const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - started).count();
+    logMessage(LogLevel::Info, "ray check of top level 0x%llx after submission %llu: %zu rays, %zu hits, %.2f ms",
+               (unsigned long long)topLevel, (unsigned long long)submissionIndex, record.rays.size(), hits, ms);
     d.sink->rayQueryChecked(record);
   }
 }
