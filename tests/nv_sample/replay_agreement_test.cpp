@@ -11,6 +11,7 @@
 
 #include <gtest/gtest.h>
 
+#include <cstdio>
 #include <string>
 
 namespace {
@@ -58,6 +59,11 @@ TEST(NvSampleReplay, EveryRayAgreesWithTheDriver) {
   const auto& r = report();
   ASSERT_EQ(r.ray_checks.size(), 2u);  // after the build and after the refit
   for (const auto& c : r.ray_checks) {
+    std::printf("ray check after submission %llu: %llu rays, %llu hits agree, %llu misses agree, %llu ties, %llu near "
+                "edges, %llu disagree, max relative t difference %.3g\n",
+                (unsigned long long)c.after_submission, (unsigned long long)c.rays, (unsigned long long)c.agree_hit,
+                (unsigned long long)c.agree_miss, (unsigned long long)c.tie, (unsigned long long)c.edge,
+                (unsigned long long)c.disagree, c.max_rel_t);
     ASSERT_TRUE(c.checked) << c.why_not;
     EXPECT_EQ(c.rays, 4096u);
     EXPECT_EQ(c.disagree, 0u) << c.label;
