@@ -28,6 +28,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <functional>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -253,6 +254,28 @@ std::vector<Box> boxes(float lift) {
   return out;
 }
 
+// --extremes: the same structure (two triangle geometries, 8 boxes, 5 instances, build then
+// refit) with what numerical extremes look like: a floor triangle 2e4 wide far below, a
+// 1e-3 triangle, a degenerate and a NaN (inactive) triangle, a quad split along a shared edge;
+// a zero-thickness box, a NaN (inactive) box, a 1e-3 box, two identical boxes, a 2000-wide
+// slab; instances mirrored (negative determinant), scaled by 1e-2 and moved 1000 away.
+std::vector<Vertex> extremeVertices(float phase) {
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  return {{-1e4f, -20.0f, -1e4f, 0}, {1e4f, -20.0f, -1e4f, 0}, {0, -20.0f, 1e4f, 0},
+          {0, 0.5f + 1e-4f * phase, 0, 0}, {1e-3f, 0.5f, 0, 0}, {0, 0.5f, 1e-3f, 0},
+          {1, 1, 1, 0}, {1, 1, 1, 0}, {2, 2 + phase, 2, 0},
+          {nan, 0, 0, 0}, {1, 0, 0, 0}, {0, 0, 1, 0},
+          {-2, 0.2f + 0.1f * phase, -2, 0}, {-1, 0.2f, -2, 0}, {-1, 0.2f, -1, 0}, {-2, 0.2f, -1, 0}};
+}
+std::vector<uint32_t> extremeIndices() { return {0, 1, 2, 3, 5, 4, 6, 7, 8, 9, 10, 11, 12, 14, 13, 12, 15, 14}; }
+std::vector<Box> extremeBoxes(float lift) {
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  return {{{-3, 0, -3}, {-2, 1 + lift, -2}, {0, 0}},     {{-1, 0.5f, -3}, {0, 0.5f, -2}, {0, 0}},
+          {{nan, 0, 0}, {1, 1, 1}, {0, 0}},             {{1, 0, 1}, {1.001f, 0.001f, 1.001f}, {0, 0}},
+          {{2, 0, 2}, {3, 1 + lift, 3}, {0, 0}},        {{2, 0, 2}, {3, 1 + lift, 3}, {0, 0}},
+          {{-1000, -5, -1000}, {1000, -4, 1000}, {0, 0}}, {{0, 0, 0}, {0.5f, 0.5f + lift, 0.5f}, {0, 0}}};
+}
+
 void setTransform(VkAccelerationStructureInstanceNV& inst, float yaw, float scale, float tx, float ty, float tz) {
   const float c = std::cos(yaw) * scale, s = std::sin(yaw) * scale;
   const float m[12] = {c, 0, s, tx, 0, scale, 0, ty, -s, 0, c, tz};
@@ -339,16 +362,17 @@ std::vector<NvTracedRay> sceneRays(uint32_t count) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  bool probe = false, require = false, skipKhr = false;
+  bool probe = false, require = false, skipKhr = false, extremes = false;
   uint32_t rayCount = 4096;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     if (a == "--probe") probe = true;
     else if (a == "--require") require = true;
     else if (a == "--no-khr") skipKhr = true;
+    else if (a == "--extremes") extremes = true;
     else if (a == "--rays" && i + 1 < argc) rayCount = uint32_t(std::strtoul(argv[++i], nullptr, 10));
     else {
-      std::fprintf(stderr, "usage: nv_ray_tracing_app [--probe] [--require] [--no-khr] [--rays N]\n");
+      std::fprintf(stderr, "usage: nv_ray_tracing_app [--probe] [--require] [--no-khr] [--extremes] [--rays N]\n");
       return 2;
     }
   }
@@ -443,8 +467,12 @@ int main(int argc, char** argv) {
 
   // ---- NV bottom levels and top level ---------------------------------------------------------
   const VkBufferUsageFlags input = VK_BUFFER_USAGE_RAY_TRACING_BIT_NV;
-  auto vertices = v.upload(heightField(0.0f), input);
-  auto indices = v.upload(heightFieldIndices(), input);
+  auto sceneVertices = [&](float phase) { return extremes ? extremeVertices(phase) : heightField(phase); };
+  auto sceneBoxes = [&](float lift) { return extremes ? extremeBoxes(lift) : boxes(lift); };
+  const auto firstVertices = sceneVertices(0.0f);
+  const auto gridIndices = extremes ? extremeIndices() : heightFieldIndices();
+  auto vertices = v.upload(firstVertices, input);
+  auto indices = v.upload(gridIndices, input);
   // Two 3x4 transforms at offsets 0 and 48; geometry 0 uses the second (offset 48).
   std::vector<float> transforms = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 1.2f, 0, 0, 0.5f, 0, 1, 0, 0.25f, 0, 0, 1.2f, -0.5f};
   auto transformBuffer = v.upload(transforms, input);
@@ -452,7 +480,7 @@ int main(int argc, char** argv) {
   const std::vector<uint16_t> tetraIndices = {0, 1, 2, 0, 2, 3, 0, 3, 1, 1, 3, 2};
   auto tetraVertexBuffer = v.upload(tetraVertices, input);
   auto tetraIndexBuffer = v.upload(tetraIndices, input);
-  auto boxBuffer = v.upload(boxes(0.0f), input);
+  auto boxBuffer = v.upload(sceneBoxes(0.0f), input);
 
   VkGeometryNV triangleGeometries[2] = {};
   for (auto& g : triangleGeometries) {
@@ -464,11 +492,11 @@ int main(int argc, char** argv) {
   }
   auto& grid = triangleGeometries[0].geometry.triangles;
   grid.vertexData = vertices.buffer;
-  grid.vertexCount = 49;
+  grid.vertexCount = uint32_t(firstVertices.size());
   grid.vertexStride = sizeof(Vertex);
   grid.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
   grid.indexData = indices.buffer;
-  grid.indexCount = 6 * 6 * 6;
+  grid.indexCount = uint32_t(gridIndices.size());
   grid.indexType = VK_INDEX_TYPE_UINT32;
   grid.transformData = transformBuffer.buffer;
   grid.transformOffset = 48;
@@ -514,6 +542,13 @@ int main(int argc, char** argv) {
     setTransform(instances[2], 0.0f, 1.0f, -3.0f, 0.2f + t, 4.0f);
     setTransform(instances[3], -0.4f, 1.5f, 4.5f, 0.0f, 4.5f);
     setTransform(instances[4], 0.0f, 1.0f, 0.0f, -2.0f, 0.0f);
+    if (extremes) {
+      // Mirrored (x negated: front faces turn back), a hundredth the size, 1000 away.
+      const float mirrored[12] = {-0.8f, 0, 0, 4.0f, 0, 0.8f, 0, 0.5f + t, 0, 0, 0.8f, -2.0f};
+      std::memcpy(instances[1].transform.matrix, mirrored, sizeof mirrored);
+      setTransform(instances[2], 0.0f, 0.01f, -3.0f, 0.2f + t, 4.0f);
+      setTransform(instances[3], -0.4f, 1.5f, 1000.0f, 0.0f, 1000.0f);
+    }
     const uint32_t custom[kInstances] = {10, 11, 12, 0xABCDE, 14};
     const uint32_t masks[kInstances] = {0xFF, 0x01, 0xFF, 0x02, 0x00};
     const uint32_t offsets[kInstances] = {0, 0, 2, 2, 0};
@@ -562,9 +597,9 @@ int main(int argc, char** argv) {
               triangleBlas.deviceHandle, aabbBlas.deviceHandle, tlas.deviceHandle);
 
   // Refit: same topology, moved vertices, boxes and instances.
-  const auto moved = heightField(0.8f);
+  const auto moved = sceneVertices(0.8f);
   std::memcpy(vertices.mapped, moved.data(), moved.size() * sizeof(Vertex));
-  const auto lifted = boxes(0.25f);
+  const auto lifted = sceneBoxes(0.25f);
   std::memcpy(boxBuffer.mapped, lifted.data(), lifted.size() * sizeof(Box));
   fillInstances(0.3f);
   std::memcpy(instanceBuffer.mapped, instances.data(), instances.size() * sizeof(instances[0]));

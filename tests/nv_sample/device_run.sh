@@ -29,7 +29,7 @@ echo "=== without the layer"
 echo "=== under the layer"
 LAYER_ENV=(VK_ADD_LAYER_PATH="$PWD/manifest" VK_INSTANCE_LAYERS=VK_LAYER_CLASTRACE_capture CLASTRACE_LOG=info
            CLASTRACE_RAY_CHECK=${RAY_CHECK:-4096})
-env "${LAYER_ENV[@]}" CLASTRACE_OUTPUT="$OUT/h100_nv_ray_tracing.clt" "${APP[@]}" ${APP_ARGS:-} 2>&1 | tee "$OUT/app_layer.log"
+env "${LAYER_ENV[@]}" CLASTRACE_OUTPUT="$OUT/${TRACE_NAME:-h100_nv_ray_tracing.clt}" "${APP[@]}" ${APP_ARGS:-} 2>&1 | tee "$OUT/app_layer.log"
 echo "=== without the layer, again (the driver's answers must repeat: same digest)"
 "${APP[@]}" ${APP_ARGS:-} 2>&1 | grep traced | tee -a "$OUT/app_plain.log"
 if [ -n "${RAY_CHECK_LARGE:-}" ]; then
