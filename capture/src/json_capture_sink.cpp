@@ -137,7 +137,7 @@ class JsonCaptureSink final : public CaptureSink {
   explicit JsonCaptureSink(std::string path) : path_(std::move(path)) {
     for (const char* key : {"devices", "memories", "freedMemories", "buffers", "bindings", "addresses",
                             "destroyedBuffers", "buildSizes", "commandBuffers", "resets", "submissions",
-                            "clusterBuilds", "destroyedDevices"})
+                            "clusterBuilds", "destroyedDevices", "accelerationStructures", "rayChecks"})
       root_[key] = json::array();
   }
 
@@ -145,7 +145,9 @@ class JsonCaptureSink final : public CaptureSink {
     const auto& p = d.clusterProperties;
     json types = json::array();
     for (const auto& t : d.memoryTypes) types.push_back({{"propertyFlags", t.propertyFlags}, {"heapIndex", t.heapIndex}});
-    add("devices", {{"device", d.device}, {"deviceName", d.deviceName}, {"applicationName", d.applicationName}, {"apiVersion", d.apiVersion},
+    add("devices", {{"device", d.device}, {"deviceName", d.deviceName}, {"driverName", d.driverName},
+                    {"driverInfo", d.driverInfo}, {"driverUuid", hexBytes(d.driverUuid)},
+                    {"rayTracingHandleSize", d.rayTracingPropertiesNV.shaderGroupHandleSize}, {"applicationName", d.applicationName}, {"apiVersion", d.apiVersion},
                     {"servedByLayer", d.servedByLayer}, {"clusterFeatureEnabled", d.clusterFeatureEnabled},
                     {"memoryTypes", types},
                     {"clusterProperties",
@@ -208,6 +210,41 @@ class JsonCaptureSink final : public CaptureSink {
                           {"outputs", rangesJson(c.outputs)}, {"issues", issues},
                           {"executedByEngine", c.executedByEngine}, {"engineFindings", findings},
                           {"pauseMilliseconds", c.pauseMilliseconds}});
+  }
+  void accelerationStructureCreated(const AccelerationStructureRecord& a) override {
+    add("accelerationStructures", {{"event", "create"}, {"accelerationStructure", a.accelerationStructure},
+                                   {"khr", a.khr}, {"type", a.type}, {"buffer", a.buffer}, {"offset", a.offset},
+                                   {"size", a.size}, {"instanceCount", a.instanceCount},
+                                   {"geometryCount", a.geometries.size()}});
+  }
+  void accelerationStructureBound(const AccelerationStructureBindingRecord& b) override {
+    add("accelerationStructures", {{"event", "bind"}, {"accelerationStructure", b.accelerationStructure},
+                                   {"memory", b.memory}, {"offset", b.offset}});
+  }
+  void accelerationStructureAddressQueried(const AccelerationStructureAddressRecord& a) override {
+    add("accelerationStructures",
+        {{"event", "address"}, {"accelerationStructure", a.accelerationStructure}, {"address", a.address}});
+  }
+  void accelerationStructureMemoryRequirements(const AccelerationStructureMemoryRequirementsRecord& m) override {
+    add("accelerationStructures", {{"event", "memoryRequirements"}, {"accelerationStructure", m.accelerationStructure},
+                                   {"type", m.type}, {"size", m.size}, {"alignment", m.alignment}});
+  }
+  void accelerationStructureDestroyed(uint64_t as) override {
+    add("accelerationStructures", {{"event", "destroy"}, {"accelerationStructure", as}});
+  }
+  void rayQueryChecked(const RayCheckRecord& c) override {
+    size_t hits = 0;
+    json firstHits = json::array();
+    for (const NvRayHit& h : c.hits) {
+      hits += h.hit != 0;
+      if (h.hit && firstHits.size() < 8)
+        firstHits.push_back({{"t", h.t}, {"customIndex", h.instanceCustomIndex}, {"instanceId", h.instanceId},
+                             {"primitiveId", h.primitiveId}, {"geometryIndex", h.geometryIndex},
+                             {"hitKind", h.hitKind}, {"u", h.u}, {"v", h.v}});
+    }
+    add("rayChecks", {{"accelerationStructure", c.accelerationStructure}, {"deviceHandle", c.deviceHandle},
+                      {"submissionIndex", c.submissionIndex}, {"rays", c.rays.size()}, {"hits", hits},
+                      {"firstHits", firstHits}, {"label", c.label}});
   }
   void flush() override {
     std::lock_guard lock(mutex_);

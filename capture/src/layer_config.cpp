@@ -7,6 +7,8 @@
 namespace clastrace::capture {
 namespace {
 
+constexpr uint64_t kMaxRayCheckRays = 1u << 20;  // 48 MiB of rays and answers per check
+
 std::optional<uint64_t> parseUnsigned(const std::string& text) {
   if (text.empty() || text.size() > 19) return std::nullopt;
   uint64_t value = 0;
@@ -80,6 +82,11 @@ LayerConfig parseLayerConfig(const std::function<const char*(const char*)>& gete
     else reject("CLASTRACE_LOG", *v, "quiet, error, info or debug");
   }
   if (auto v = value("CLASTRACE_DEBUG_JSON")) config.debugJsonPath = *v;
+  if (auto v = value("CLASTRACE_RAY_CHECK")) {
+    auto rays = parseUnsigned(*v);
+    if (rays && *rays <= kMaxRayCheckRays) config.rayCheckRays = uint32_t(*rays);
+    else reject("CLASTRACE_RAY_CHECK", *v, "a ray count from 0 to 1048576");
+  }
   return config;
 }
 

@@ -86,6 +86,30 @@ struct ChainUnlink {
   }
 };
 
+// Driver name, UUIDs and NV ray-tracing limits (Vulkan 1.2 devices): what tells a serialized
+// acceleration structure of this driver from another's, and what the ray check builds on.
+void fillDriverIdentity(InstanceState& instance, VkPhysicalDevice physicalDevice, uint32_t apiVersion,
+                        DeviceState& state, DeviceRecord& record) {
+  if (!instance.next.GetPhysicalDeviceProperties2 || apiVersion < VK_API_VERSION_1_2) return;
+  VkPhysicalDeviceRayTracingPropertiesNV rayTracing{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_RAY_TRACING_PROPERTIES_NV};
+  VkPhysicalDeviceDriverProperties driver{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_DRIVER_PROPERTIES,
+                                          state.nvRayTracingEnabled ? &rayTracing : nullptr};
+  VkPhysicalDeviceIDProperties ids{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_ID_PROPERTIES, &driver};
+  VkPhysicalDeviceProperties2 properties{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2, &ids};
+  instance.next.GetPhysicalDeviceProperties2(physicalDevice, &properties);
+  record.driverId = uint32_t(driver.driverID);
+  record.driverName = driver.driverName;
+  record.driverInfo = driver.driverInfo;
+  record.driverUuid.assign(ids.driverUUID, ids.driverUUID + VK_UUID_SIZE);
+  record.deviceUuid.assign(ids.deviceUUID, ids.deviceUUID + VK_UUID_SIZE);
+  if (state.nvRayTracingEnabled) {
+    rayTracing.pNext = nullptr;
+    state.rayTracingPropertiesNV = rayTracing;
+    record.hasRayTracingPropertiesNV = true;
+    record.rayTracingPropertiesNV = rayTracing;
+  }
+}
+
 VKAPI_ATTR VkResult VKAPI_CALL CreateDevice(VkPhysicalDevice physicalDevice, const VkDeviceCreateInfo* pCreateInfo,
                                             const VkAllocationCallbacks* pAllocator, VkDevice* pDevice) {
   InstanceState* instance = findInstance(dispatchKey(physicalDevice));
@@ -146,6 +170,9 @@ VKAPI_ATTR VkResult VKAPI_CALL CreateDevice(VkPhysicalDevice physicalDevice, con
   instance->next.GetPhysicalDeviceMemoryProperties(physicalDevice, &state->memoryProperties);
   state->nonCoherentAtomSize = properties.limits.nonCoherentAtomSize ? properties.limits.nonCoherentAtomSize : 1;
   state->clusterProperties = clusterPropertiesFor(*instance, physicalDevice, serving);
+  for (uint32_t i = 0; i < pCreateInfo->enabledExtensionCount; ++i)
+    if (std::strcmp(pCreateInfo->ppEnabledExtensionNames[i], VK_NV_RAY_TRACING_EXTENSION_NAME) == 0)
+      state->nvRayTracingEnabled = true;
 
   const LayerConfig& config = layerConfig();
   if (config.capture) state->sink = processCaptureSink();
@@ -171,11 +198,14 @@ VKAPI_ATTR VkResult VKAPI_CALL CreateDevice(VkPhysicalDevice physicalDevice, con
                               state->memoryProperties.memoryHeaps + state->memoryProperties.memoryHeapCount);
     for (uint32_t i = 0; i < pCreateInfo->enabledExtensionCount; ++i)
       record.enabledExtensions.push_back(pCreateInfo->ppEnabledExtensionNames[i]);
-    record.servedByLayer = serving;
+    // Serving matters to the trace only when the application uses the served extension: an NV
+    // ray-tracing program on a driver without it is a plain native capture.
+    record.servedByLayer = serving && clusterExtensionRequested;
     record.clusterProperties = state->clusterProperties;
     record.clusterFeatureEnabled = clusterExtensionRequested && clusterFeatureRequested;
     record.memoryTypes.assign(state->memoryProperties.memoryTypes,
                               state->memoryProperties.memoryTypes + state->memoryProperties.memoryTypeCount);
+    fillDriverIdentity(*instance, physicalDevice, properties.apiVersion, *state, record);
     state->sink->deviceCreated(record);
   }
   registerDevice(dispatchKey(*pDevice), std::move(state));
@@ -327,6 +357,7 @@ PFN_vkVoidFunction interceptDeviceFunction(const char* name, DeviceState* device
     return device->serving || native ? clusterHook(name) : nullptr;
   }
   PFN_vkVoidFunction hook = resourceHook(name);
+  if (!hook) hook = accelerationStructureHook(name);
   if (!hook) hook = commandHook(name);
   if (!hook) hook = submitHook(name);
   if (!hook || !device) return hook;

@@ -5,6 +5,7 @@
 #include "clastrace/capture/capture_sink.h"
 #include "clastrace/capture/device_memory_map.h"
 #include "clastrace/capture/layer_config.h"
+#include "clastrace/capture/nv_scene_model.h"
 
 #include <clastrace/vk_cluster_abi.h>
 #include <vulkan/vk_layer.h>
@@ -105,7 +106,17 @@ uint64_t handleId(Handle handle) {
   X(CmdCopyMemoryToAccelerationStructureKHR)   \
   X(QueueSubmit)                               \
   X(QueueSubmit2)                              \
-  X(QueueSubmit2KHR)
+  X(QueueSubmit2KHR)                           \
+  X(GetDeviceQueue)                            \
+  X(GetDeviceQueue2)                           \
+  X(CreateAccelerationStructureNV)             \
+  X(DestroyAccelerationStructureNV)            \
+  X(BindAccelerationStructureMemoryNV)         \
+  X(GetAccelerationStructureHandleNV)          \
+  X(GetAccelerationStructureMemoryRequirementsNV) \
+  X(CreateAccelerationStructureKHR)            \
+  X(DestroyAccelerationStructureKHR)           \
+  X(GetAccelerationStructureDeviceAddressKHR)
 
 #define CLASTRACE_DECLARE_PFN(name) PFN_vk##name name = nullptr;
 
@@ -145,6 +156,13 @@ struct DeviceState {
   // Storage-buffer descriptors written with vkUpdateDescriptorSets: set -> (binding, element).
   std::mutex descriptorsMutex;
   std::unordered_map<VkDescriptorSet, std::map<std::pair<uint32_t, uint32_t>, BoundStorageBuffer>> storageDescriptors;
+  // The ray check (CLASTRACE_RAY_CHECK): queue families of the queues handed out, the NV ray
+  // tracing limits, and the NV structures the capture saw built.
+  std::mutex queuesMutex;
+  std::unordered_map<VkQueue, uint32_t> queueFamilies;
+  bool nvRayTracingEnabled = false;
+  VkPhysicalDeviceRayTracingPropertiesNV rayTracingPropertiesNV{};
+  NvSceneModel nvScene;
   ~DeviceState();
 };
 
@@ -177,6 +195,12 @@ PFN_vkVoidFunction resourceHook(const char* name);
 PFN_vkVoidFunction commandHook(const char* name);
 PFN_vkVoidFunction submitHook(const char* name);
 PFN_vkVoidFunction clusterHook(const char* name);
+PFN_vkVoidFunction accelerationStructureHook(const char* name);
+
+// CLASTRACE_RAY_CHECK: after submission `submissionIndex` on `queue` (just submitted), waits
+// for the queue and traces the configured rays against each of `topLevels`, recording a
+// RayCheckRecord per top level. Called from the application's vkQueueSubmit.
+void runRayChecks(DeviceState& device, VkQueue queue, uint64_t submissionIndex, const std::vector<uint64_t>& topLevels);
 
 // Serving decisions, shared by the instance hooks and device creation.
 bool driverHasClusterExtension(InstanceState& instance, VkPhysicalDevice physicalDevice);

@@ -3,6 +3,7 @@
 #include "command_buffer_log.h"
 #include "layer_state.h"
 
+#include <algorithm>
 #include <map>
 
 namespace clastrace::capture {
@@ -44,6 +45,19 @@ SubmissionPlan planFor(DeviceState& d, VkQueue queue, VkFence fence, bool synchr
   return plan;
 }
 
+// CLASTRACE_RAY_CHECK: the top levels this submission built (or updated) get their rays traced
+// once it completed.
+void checkRays(DeviceState& d, VkQueue queue, const SubmissionPlan& plan) {
+  if (!plan.capture || layerConfig().rayCheckRays == 0) return;
+  std::vector<uint64_t> topLevels;
+  for (const PendingPauses& p : plan.pauses)
+    for (const PausePoint& pause : p.pauses)
+      if (pause.buildNV && pause.buildNV->type == VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV &&
+          std::find(topLevels.begin(), topLevels.end(), pause.buildNV->dst) == topLevels.end())
+        topLevels.push_back(pause.buildNV->dst);
+  runRayChecks(d, queue, plan.record.index, topLevels);
+}
+
 VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit(VkQueue queue, uint32_t submitCount, const VkSubmitInfo* pSubmits,
                                            VkFence fence) {
   DeviceState& d = *findDevice(dispatchKey(queue));
@@ -77,6 +91,7 @@ VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit(VkQueue queue, uint32_t submitCount, 
   if (result != VK_SUCCESS) return result;
   announce(d, queue, plan);
   if (plan.capture) d.sink->queueSubmitted(plan.record);
+  checkRays(d, queue, plan);
   return result;
 }
 
@@ -106,6 +121,7 @@ VkResult queueSubmit2(VkQueue queue, uint32_t submitCount, const VkSubmitInfo2* 
   if (result != VK_SUCCESS) return result;
   announce(d, queue, plan);
   if (plan.capture) d.sink->queueSubmitted(plan.record);
+  checkRays(d, queue, plan);
   return result;
 }
 

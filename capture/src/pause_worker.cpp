@@ -145,6 +145,7 @@ bool PauseWorker::handle(Expected& expected) {
           return out ? readResolved(*range, size, *out) : true;
         };
         walk = walkBuildAccelerationStructureNVInputs(*pause.buildNV, bufferReader);
+        device_.nvScene.observeBuild(*pause.buildNV, walk.ranges);  // for the ray check
       } else if (pause.copyToAccelerationStructure) {
         fresh.kind = CapturedCommandKind::CopyMemoryToAccelerationStructure;
         walk = walkCopyMemoryToAccelerationStructureInputs(*pause.copyToAccelerationStructure, reader);

@@ -116,6 +116,25 @@ class TraceCaptureSink final : public CaptureSink {
       info.driver_info = "VK_NV_cluster_acceleration_structure served by VK_LAYER_CLASTRACE_capture: cluster "
                          "builds executed by clastrace's CPU engine on the host; the device's driver ran "
                          "everything else";
+    } else if (!d.driverName.empty()) {
+      info.driver_id = d.driverId;
+      info.driver_name = d.driverName;
+      info.driver_info = d.driverInfo;
+    }
+    info.driver_uuid = d.driverUuid;
+    info.device_uuid = d.deviceUuid;
+    if (d.hasRayTracingPropertiesNV) {
+      const auto& rt = d.rayTracingPropertiesNV;
+      info.ray_tracing_properties_nv = std::make_unique<fbs::RayTracingPropertiesNVT>();
+      auto& o = *info.ray_tracing_properties_nv;
+      o.shader_group_handle_size = rt.shaderGroupHandleSize;
+      o.max_recursion_depth = rt.maxRecursionDepth;
+      o.max_shader_group_stride = rt.maxShaderGroupStride;
+      o.shader_group_base_alignment = rt.shaderGroupBaseAlignment;
+      o.max_geometry_count = rt.maxGeometryCount;
+      o.max_instance_count = rt.maxInstanceCount;
+      o.max_triangle_count = rt.maxTriangleCount;
+      o.max_descriptor_set_acceleration_structures = rt.maxDescriptorSetAccelerationStructures;
     }
     info.timestamp_period_ns = d.timestampPeriod;
     for (const auto& t : d.memoryTypes) info.memory_types.emplace_back(t.propertyFlags, t.heapIndex);
@@ -246,13 +265,128 @@ class TraceCaptureSink final : public CaptureSink {
     flushBindsLocked();
   }
 
+  // An object's create record waits for its NV handle or KHR address (asked right after
+  // binding, or right after creation), so one AccelerationStructureCreate carries it; its
+  // binding and memory requirements follow it.
+  void accelerationStructureCreated(const AccelerationStructureRecord& a) override {
+    std::lock_guard lock(mutex_);
+    auto r = std::make_unique<fbs::AccelerationStructureCreateT>();
+    r->acceleration_structure = a.accelerationStructure;
+    r->api = a.khr ? 1 : 0;
+    r->type = a.type;
+    r->buffer = a.buffer;
+    r->offset = a.offset;
+    r->size = a.size;
+    r->create_flags = a.createFlags;
+    r->compacted_size = a.compactedSize;
+    if (!a.khr) r->info = nvInfo(a.infoType, a.infoFlags, a.instanceCount, a.geometries);
+    pendingObjects_[a.accelerationStructure].create = std::move(r);
+  }
+  void accelerationStructureBound(const AccelerationStructureBindingRecord& b) override {
+    fbs::AccelerationStructureBindMemoryT r;
+    r.acceleration_structure = b.accelerationStructure;
+    r.memory = b.memory;
+    r.memory_offset = b.offset;
+    objectRecord(b.accelerationStructure, recordOf(std::move(r)));
+  }
+  void accelerationStructureMemoryRequirements(const AccelerationStructureMemoryRequirementsRecord& m) override {
+    fbs::AccelerationStructureMemoryRequirementsNVT r;
+    r.acceleration_structure = m.accelerationStructure;
+    r.type = m.type;
+    r.size = m.size;
+    r.alignment = m.alignment;
+    r.memory_type_bits = m.memoryTypeBits;
+    objectRecord(m.accelerationStructure, recordOf(std::move(r)));
+  }
+  void accelerationStructureAddressQueried(const AccelerationStructureAddressRecord& a) override {
+    std::lock_guard lock(mutex_);
+    auto it = pendingObjects_.find(a.accelerationStructure);
+    if (it == pendingObjects_.end() || !it->second.create) return;  // created before capture, or asked again
+    it->second.create->device_address = a.address;
+    emitObjectLocked(it);
+  }
+  void accelerationStructureDestroyed(uint64_t as) override {
+    std::lock_guard lock(mutex_);
+    if (auto it = pendingObjects_.find(as); it != pendingObjects_.end()) emitObjectLocked(it);
+    fbs::AccelerationStructureDestroyT r;
+    r.acceleration_structure = as;
+    appendLocked(recordOf(std::move(r)));
+  }
+  void rayQueryChecked(const RayCheckRecord& c) override {
+    std::lock_guard lock(mutex_);
+    if (auto it = pending_.find(c.submissionIndex); it != pending_.end()) {
+      it->second.rayChecks.push_back(c);  // goes out right after its submission
+      return;
+    }
+    emitRayCheckLocked(c);
+  }
+
  private:
+  struct PendingObject {
+    std::unique_ptr<fbs::AccelerationStructureCreateT> create;
+    std::vector<fbs::RecordT> after;  // binding, memory requirements
+  };
+
+  static std::unique_ptr<fbs::AccelerationStructureInfoNVT> nvInfo(uint32_t type, uint32_t flags, uint32_t instances,
+                                                                   const std::vector<VkGeometryNV>& geometries) {
+    auto info = std::make_unique<fbs::AccelerationStructureInfoNVT>();
+    info->type = type;
+    info->flags = flags;
+    info->instance_count = instances;
+    for (const auto& g : geometries) {
+      auto geometry = std::make_unique<fbs::GeometryNVT>();
+      geometry->geometry_type = uint32_t(g.geometryType);
+      geometry->flags = g.flags;
+      const auto& t = g.geometry.triangles;
+      geometry->triangles = std::make_unique<fbs::GeometryTrianglesNV>(
+          uint64_t(t.vertexData), t.vertexOffset, t.vertexCount, uint32_t(t.vertexFormat), t.vertexStride,
+          uint64_t(t.indexData), t.indexOffset, t.indexCount, uint32_t(t.indexType), uint64_t(t.transformData),
+          t.transformOffset);
+      const auto& a = g.geometry.aabbs;
+      geometry->aabbs = std::make_unique<fbs::GeometryAabbNV>(uint64_t(a.aabbData), a.numAABBs, a.stride, a.offset);
+      info->geometries.push_back(std::move(geometry));
+    }
+    return info;
+  }
+  void objectRecord(uint64_t as, fbs::RecordT record) {
+    std::lock_guard lock(mutex_);
+    auto it = pendingObjects_.find(as);
+    if (it != pendingObjects_.end()) it->second.after.push_back(std::move(record));
+    else appendLocked(record);
+  }
+  void emitObjectLocked(std::map<uint64_t, PendingObject>::iterator it) {
+    if (it->second.create) appendLocked(recordOf(std::move(*it->second.create)));
+    for (const auto& r : it->second.after) appendLocked(r);
+    pendingObjects_.erase(it);
+  }
+  void flushObjectsLocked() {
+    while (!pendingObjects_.empty()) emitObjectLocked(pendingObjects_.begin());
+  }
+  void emitRayCheckLocked(const RayCheckRecord& c) {
+    fbs::RayQueryCheckT r;
+    r.acceleration_structure = c.accelerationStructure;
+    r.device_handle = c.deviceHandle;
+    auto index = traceSubmission_.find(c.submissionIndex);
+    r.after_submission = index == traceSubmission_.end() ? ~0ull : index->second;
+    for (const NvTracedRay& ray : c.rays)
+      r.rays.emplace_back(ray.origin[0], ray.origin[1], ray.origin[2], ray.tMin, ray.direction[0], ray.direction[1],
+                          ray.direction[2], ray.tMax, ray.rayFlags, ray.cullMask);
+    // NV GLSL has no gl_GeometryIndexEXT: the index comes from the hit record (stride 1), so it
+    // is the driver's answer too.
+    for (const NvRayHit& h : c.hits)
+      r.results.emplace_back(h.hit, h.t, h.instanceCustomIndex, h.instanceId, h.primitiveId,
+                             h.hit ? h.geometryIndex : 0xFFFFFFFFu, h.hitKind, h.u, h.v);
+    r.label = c.label;
+    appendLocked(recordOf(std::move(r)));
+  }
+
   struct Pending {
     SubmissionRecord submission;
     bool submitted = false;
     size_t expectedBuilds = 0;
     std::vector<std::shared_ptr<RecordedCommandBuffer>> commandBuffers;
     std::map<uint64_t, ClusterBuildCapture> builds;  // by pauseId
+    std::vector<RayCheckRecord> rayChecks;
   };
 
   void fail(const TraceError& error) {
@@ -285,6 +419,7 @@ class TraceCaptureSink final : public CaptureSink {
   void flushBindsLocked() {
     for (const auto& [buffer, bind] : pendingBinds_) emitBindLocked(bind, 0);
     pendingBinds_.clear();
+    flushObjectsLocked();
   }
 
   // Submissions go out in index order, each once all its builds were captured (or, at the
@@ -340,8 +475,10 @@ class TraceCaptureSink final : public CaptureSink {
     }
     submit.fence = p.submission.fence;
     submit.submission_index = writer_->next_submission_index();
+    traceSubmission_[p.submission.index] = submit.submission_index;
     submit.result = VK_SUCCESS;
     appendLocked(recordOf(std::move(submit)));
+    for (const RayCheckRecord& c : p.rayChecks) emitRayCheckLocked(c);
   }
 
   void emitCommandLocked(uint64_t cb, const RecordedCommand& command, Pending& p) {
@@ -487,6 +624,8 @@ class TraceCaptureSink final : public CaptureSink {
   std::unordered_map<uint64_t, bool> addressed_;
   std::unordered_map<uint64_t, std::shared_ptr<RecordedCommandBuffer>> recorded_;
   std::map<uint64_t, Pending> pending_;  // by submission index
+  std::map<uint64_t, PendingObject> pendingObjects_;  // by acceleration structure
+  std::map<uint64_t, uint64_t> traceSubmission_;     // layer submission index -> trace's
 };
 
 }  // namespace

@@ -2,6 +2,8 @@
 // stored as uint64_t so a trace can name them; device addresses are what the application saw.
 #pragma once
 
+#include "clastrace/capture/nv_ray_tracer.h"
+
 #include <clastrace/vk_cluster_abi.h>
 
 #include <cstdint>
@@ -86,6 +88,13 @@ struct DeviceRecord {
   VkPhysicalDeviceClusterAccelerationStructurePropertiesNV clusterProperties{};
   bool clusterFeatureEnabled = false;
   std::vector<VkMemoryType> memoryTypes;
+  // VkPhysicalDeviceDriverProperties / VkPhysicalDeviceIDProperties (Vulkan 1.2 devices): the
+  // header of a serialized acceleration structure names the driver that wrote it.
+  uint32_t driverId = 0;
+  std::string driverName, driverInfo;
+  std::vector<uint8_t> driverUuid, deviceUuid;
+  bool hasRayTracingPropertiesNV = false;  // the device has VK_NV_ray_tracing
+  VkPhysicalDeviceRayTracingPropertiesNV rayTracingPropertiesNV{};
 };
 
 struct MemoryRecord {
@@ -121,6 +130,47 @@ struct BuildSizesQuery {
   ClusterCommandParameters input;  // only `info.input` and the op input are meaningful
   VkAccelerationStructureBuildSizesInfoKHR answer{};
   bool answeredByLayer = false;  // true: the layer's model; false: the driver's answer
+};
+
+// vkCreateAccelerationStructureNV / vkCreateAccelerationStructureKHR.
+struct AccelerationStructureRecord {
+  uint64_t accelerationStructure = 0;
+  bool khr = false;
+  uint32_t type = 0;  // VkAccelerationStructureTypeKHR/NV
+  uint64_t buffer = 0;  // KHR: where it lives
+  VkDeviceSize offset = 0, size = 0;
+  uint32_t createFlags = 0;
+  VkDeviceSize compactedSize = 0;  // NV
+  uint32_t infoType = 0, infoFlags = 0, instanceCount = 0;  // NV: VkAccelerationStructureInfoNV
+  std::vector<VkGeometryNV> geometries;                     // pNext cleared
+};
+struct AccelerationStructureBindingRecord {  // vkBindAccelerationStructureMemoryNV
+  uint64_t accelerationStructure = 0;
+  uint64_t memory = 0;
+  VkDeviceSize offset = 0;
+};
+// vkGetAccelerationStructureHandleNV (the 64-bit handle instance records name) or
+// vkGetAccelerationStructureDeviceAddressKHR.
+struct AccelerationStructureAddressRecord {
+  uint64_t accelerationStructure = 0;
+  uint64_t address = 0;
+};
+struct AccelerationStructureMemoryRequirementsRecord {  // vkGetAccelerationStructureMemoryRequirementsNV
+  uint64_t accelerationStructure = 0;
+  uint32_t type = 0;  // VkAccelerationStructureMemoryRequirementsTypeNV
+  VkDeviceSize size = 0, alignment = 0;
+  uint32_t memoryTypeBits = 0;
+};
+
+// CLASTRACE_RAY_CHECK: rays the layer traced against a top level after the submission that
+// built it completed, and the driver's answers (see capture/README.md, "Ray check").
+struct RayCheckRecord {
+  uint64_t accelerationStructure = 0;
+  uint64_t deviceHandle = 0;
+  uint64_t submissionIndex = 0;  // the layer's index; the trace sink maps it to the trace's
+  std::vector<NvTracedRay> rays;
+  std::vector<NvRayHit> hits;
+  std::string label;
 };
 
 // ---- Commands ---------------------------------------------------------------------------

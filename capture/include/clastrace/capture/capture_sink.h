@@ -25,6 +25,13 @@ class CaptureSink {
   virtual void commandBufferReset(uint64_t commandBuffer) = 0;
   virtual void queueSubmitted(const SubmissionRecord&) = 0;
   virtual void clusterBuildCaptured(const ClusterBuildCapture&) = 0;
+  // Acceleration-structure objects and the ray check (no-ops unless a sink records them).
+  virtual void accelerationStructureCreated(const AccelerationStructureRecord&) {}
+  virtual void accelerationStructureBound(const AccelerationStructureBindingRecord&) {}
+  virtual void accelerationStructureAddressQueried(const AccelerationStructureAddressRecord&) {}
+  virtual void accelerationStructureMemoryRequirements(const AccelerationStructureMemoryRequirementsRecord&) {}
+  virtual void accelerationStructureDestroyed(uint64_t) {}
+  virtual void rayQueryChecked(const RayCheckRecord&) {}
   // Makes everything received so far durable (the application may exit without cleanup).
   virtual void flush() = 0;
 };

@@ -26,6 +26,7 @@ struct LayerConfig {
   int zstdLevel = 3;                // CLASTRACE_ZSTD_LEVEL: 1..22
   LogLevel log = LogLevel::Error;   // CLASTRACE_LOG: quiet|error|info|debug
   std::string debugJsonPath;        // CLASTRACE_DEBUG_JSON: readable dump for tests and debugging
+  uint32_t rayCheckRays = 0;        // CLASTRACE_RAY_CHECK: rays per NV top-level check, 0 = off
   std::vector<std::string> errors;  // one line per rejected variable; the default is kept
 };
 
