@@ -1,9 +1,9 @@
-// `clastrace analyze` on the shipped sample (text, JSON, HTML, exit codes) and the adapter
-// that turns a ReplayReport into analyzer events, on a trace with a known hazard.
+// `clastrace analyze` on the shipped sample (text, JSON, HTML, exit codes) and the streaming
+// feeder (analyze_trace) on a trace with a known hazard and on damaged traces.
 #include "scene_trace.h"
 
 #include <clastrace/analyze/analyzer.h>
-#include <clastrace/analyze/replay_adapter.h>
+#include <clastrace/analyze/replay_stream.h>
 #include <clastrace/replay/replayer.hpp>
 #include <clastrace/traces/trace_reader.h>
 
@@ -61,14 +61,6 @@ void scratch_scene(const std::string& path, bool with_barrier) {
     t.finish();
 }
 
-replay::ReplayReport replay_file(const std::string& path) {
-    traces::TraceError e;
-    auto reader = traces::TraceReader::open(path, &e);
-    EXPECT_TRUE(reader) << e.message;
-    if (!reader) return {};
-    return replay::replay_trace(*reader, path);
-}
-
 TEST(AnalyzeCli, TextHasSizeTables) {
     std::string out;
     ASSERT_EQ(run_cli(std::string("analyze ") + CLASTRACE_SAMPLE, &out), 0) << out;
@@ -82,12 +74,18 @@ TEST(AnalyzeCli, JsonCountsMatchReplay) {
     ASSERT_EQ(run_cli(std::string("analyze --json ") + CLASTRACE_SAMPLE, &analyze_out), 0) << analyze_out;
     const nlohmann::json r = nlohmann::json::parse(replay_out);
     const nlohmann::json a = nlohmann::json::parse(analyze_out);
-    EXPECT_EQ(a["schema_version"], 1);
-    // The adapter feeds the cluster commands (what the replay report keeps sizes of), one
-    // object per op whose sizes were compared.
+    EXPECT_EQ(a["schema_version"], 2);
+    // Every replayed command is fed (timestamps and labels are spans, not commands).
     ASSERT_GT(r["counts"]["cluster_commands"].get<uint64_t>(), 0u);
-    EXPECT_EQ(a["totals"]["commands"], r["counts"]["cluster_commands"]);
-    EXPECT_EQ(a["totals"]["ops"], r["counts"]["cluster_ops"]);
+    EXPECT_EQ(a["totals"]["commands"], r["counts"]["commands"]);
+    uint64_t cluster_commands = 0, cluster_ops = 0;
+    for (const auto& k : a["commands"]["kinds"])
+        if (k["name"] == "vkCmdBuildClusterAccelerationStructureIndirectNV") {
+            cluster_commands = k["commands"].get<uint64_t>();
+            cluster_ops = k["ops"].get<uint64_t>();
+        }
+    EXPECT_EQ(cluster_commands, r["counts"]["cluster_commands"]);
+    EXPECT_EQ(cluster_ops, r["counts"]["cluster_ops"]);
     uint64_t compared_ops = 0, engine_bytes = 0, captured_bytes = 0;
     for (const auto& s : r["sizes"]) {
         compared_ops += s["first_ops"].size();
@@ -96,18 +94,20 @@ TEST(AnalyzeCli, JsonCountsMatchReplay) {
             captured_bytes += op["captured"].get<uint64_t>();
         }
     }
-    EXPECT_EQ(a["totals"]["objects"], compared_ops);
-    EXPECT_EQ(a["totals"]["objects"], r["counts"]["cluster_ops"]);  // the sample has < 64 ops per command
-    const nlohmann::json clas = a["sizes"]["by_op_type"];
-    uint64_t objects = 0, engine = 0;
-    for (const auto& t : clas) {
+    EXPECT_EQ(a["totals"]["objects"], compared_ops);  // the sample has < 64 ops per command
+    uint64_t objects = 0, engine = 0, driver = 0;
+    for (const auto& t : a["sizes"]["by_op_type"]) {
         objects += t["objects"].get<uint64_t>();
         engine += t["engine_bytes"]["sum"].get<uint64_t>();
+        if (!t["driver_bytes"].is_null()) driver += t["driver_bytes"]["sum"].get<uint64_t>();
     }
     EXPECT_EQ(objects, compared_ops);
     EXPECT_EQ(engine, engine_bytes);
-    EXPECT_GT(captured_bytes, 0u);
+    EXPECT_EQ(driver, captured_bytes);
     EXPECT_EQ(a["hazards"]["total"], 0);
+    // The sample brackets its commands with two GPU timestamps 48250 ticks apart.
+    ASSERT_EQ(a["timing"]["gpu_spans"]["total"], 1);
+    EXPECT_FALSE(a["sizes"]["trace_bytes"].is_null());
 }
 
 TEST(AnalyzeCli, HtmlIsSelfContainedWithSvg) {
@@ -142,41 +142,40 @@ TEST(AnalyzeCli, ExitCodes) {
     std::remove(hazard.c_str());
 }
 
-TEST(ReplayAdapter, HazardNamesBothBuildsInSequenceOrder) {
-    const std::string path = temp_path("adapter.clt");
+TEST(AnalyzeTrace, HazardNamesBothBuildsInSequenceOrder) {
+    const std::string path = temp_path("stream.clt");
     scratch_scene(path, false);
-    replay::ReplayReport r = replay_file(path);
-    ASSERT_EQ(r.sizes.size(), 2u);
-    ASSERT_EQ(r.hazards.size(), 1u);
-
-    analyze::Analyzer analyzer(path);
-    const analyze::ReplayFeedStats fed = analyze::feed_replay_report(r, analyzer);
-    const analyze::AnalysisReport report = analyzer.finish();
+    traces::TraceError e;
+    auto reader = traces::TraceReader::open(path, &e);
+    ASSERT_TRUE(reader) << e.message;
+    const analyze::TraceAnalysis a = analyze::analyze_trace(*reader, path);
     std::remove(path.c_str());
 
-    EXPECT_EQ(fed.commands, 2u);
-    EXPECT_EQ(fed.hazards, 1u);
-    EXPECT_EQ(fed.hazards_not_fed, 0u);
-    EXPECT_EQ(fed.ops_without_sizes, 0u);
-    EXPECT_EQ(report.commands, 2u);
-    EXPECT_EQ(report.objects, r.counts.cluster_ops);
-    ASSERT_EQ(report.hazards.size(), 1u);
-    const analyze::HazardSummary& h = report.hazards[0].hazard;
+    const replay::ReplayReport& r = a.replay;
+    ASSERT_EQ(r.sizes.size(), 2u);
+    ASSERT_EQ(r.hazards.size(), 1u);
+    EXPECT_EQ(a.report.commands, r.counts.commands);
+    EXPECT_EQ(a.report.objects, r.counts.cluster_ops);
+    ASSERT_EQ(a.report.hazards.size(), 1u);
+    const analyze::HazardSummary& h = a.report.hazards[0].hazard;
     EXPECT_EQ(h.hazard_class, "WRITE-AFTER-WRITE");
     EXPECT_EQ(h.first_command, r.sizes[0].where.sequence);
     EXPECT_EQ(h.second_command, r.sizes[1].where.sequence);
     EXPECT_GT(h.size, 0u);
-    const analyze::OpTypeSizes& clas = report.sizes(analyze::OpType::build_triangle_cluster);
+    const analyze::OpTypeSizes& clas = a.report.sizes(analyze::OpType::build_triangle_cluster);
     EXPECT_EQ(clas.commands, 2u);
     EXPECT_EQ(clas.objects_with_driver_bytes, r.counts.cluster_ops);
     uint64_t engine = 0;
     for (const auto& s : r.sizes) engine += s.engine_bytes;
     EXPECT_EQ(clas.engine_bytes.sum(), engine);
+    // Both builds write the same scratch bytes: one region, so the hazard has no overlap event
+    // of two regions; it is still listed with both commands.
+    EXPECT_EQ(a.report.hazards_total, 1u);
 }
 
-// Damaged traces give replay reports with gaps (commands cut off, hazards without their first
-// command): the adapter must still hand the analyzer a valid event stream.
-TEST(ReplayAdapter, DamagedTracesStillFeedValidEvents) {
+// Damaged traces replay with gaps (commands cut off, hazards without their first command):
+// the feeder must still hand the analyzer a valid event stream.
+TEST(AnalyzeTrace, DamagedTracesStillFeedValidEvents) {
     const std::string clean = temp_path("mutate_clean.clt");
     scratch_scene(clean, false);
     const std::string bytes_text = read_file(clean);
@@ -197,13 +196,10 @@ TEST(ReplayAdapter, DamagedTracesStillFeedValidEvents) {
         auto reader = traces::TraceReader::open(path, &e);
         if (!reader) continue;
         ++replayed;
-        const replay::ReplayReport r = replay::replay_trace(*reader, path);
-        analyze::Analyzer analyzer(path);
-        analyze::ReplayFeedStats fed;
-        EXPECT_NO_THROW(fed = analyze::feed_replay_report(r, analyzer)) << "round " << round;
-        const analyze::AnalysisReport report = analyzer.finish();
-        EXPECT_EQ(report.commands, fed.commands);
-        EXPECT_EQ(fed.hazards + fed.hazards_not_fed, r.hazards.size());
+        analyze::TraceAnalysis a;
+        ASSERT_NO_THROW(a = analyze::analyze_trace(*reader, path)) << "round " << round;
+        EXPECT_EQ(a.report.commands, a.replay.counts.commands + a.replay.counts.skipped_commands) << "round " << round;
+        EXPECT_LE(a.report.hazards_total, a.stream.hazards);
     }
     EXPECT_GT(replayed, 0);
     std::remove(path.c_str());
