@@ -1,8 +1,10 @@
 // `clastrace analyze` on the shipped sample (text, JSON, HTML, exit codes) and the streaming
 // feeder (analyze_trace) on a trace with a known hazard and on damaged traces.
+#include "analyze_scene.h"
 #include "scene_trace.h"
 
 #include <clastrace/analyze/analyzer.h>
+#include <clastrace/analyze/render.h>
 #include <clastrace/analyze/replay_stream.h>
 #include <clastrace/replay/replayer.hpp>
 #include <clastrace/traces/trace_reader.h>
@@ -16,6 +18,7 @@
 #include <fstream>
 #include <iterator>
 #include <random>
+#include <sstream>
 #include <vector>
 #include <string>
 #include <sys/wait.h>
@@ -175,13 +178,36 @@ TEST(AnalyzeTrace, HazardNamesBothBuildsInSequenceOrder) {
 
 // Damaged traces replay with gaps (commands cut off, hazards without their first command):
 // the feeder must still hand the analyzer a valid event stream.
-TEST(AnalyzeTrace, DamagedTracesStillFeedValidEvents) {
+// A scene with every record kind the feeder reads: timestamps, calibration, build-sizes
+// queries, an NV build and a deserialization.
+void every_kind_scene(const std::string& path) {
+    test::AnalyzeSceneWriter w(path, 2.0f);
+    w.timestamp(1000);
+    test::ClusterBuild a;
+    a.triangle_counts = {2, 8, 18};
+    a.truncate_bits = 6;
+    w.build(a);
+    w.timestamp(1600);
+    w.nv_build(24, 12345, 2048);
+    w.deserialize(256, 4096);
+    w.timestamp(3100);
+    w.calibrate(1000, 5'000'000, 250);
+    w.submit();
+    w.build(a);
+    w.submit();
+    w.finish();
+}
+
+class AnalyzeDamaged : public ::testing::TestWithParam<int> {};
+
+TEST_P(AnalyzeDamaged, StillFeedValidEvents) {
     const std::string clean = temp_path("mutate_clean.clt");
-    scratch_scene(clean, false);
+    if (GetParam() == 0) scratch_scene(clean, false);
+    else every_kind_scene(clean);
     const std::string bytes_text = read_file(clean);
     const std::vector<char> bytes(bytes_text.begin(), bytes_text.end());
     ASSERT_GT(bytes.size(), 200u);
-    std::mt19937_64 rng(7);
+    std::mt19937_64 rng(7 + GetParam());
     const std::string path = temp_path("mutate.clt");
     int replayed = 0;
     for (int round = 0; round < 60; ++round) {
@@ -198,6 +224,10 @@ TEST(AnalyzeTrace, DamagedTracesStillFeedValidEvents) {
         ++replayed;
         analyze::TraceAnalysis a;
         ASSERT_NO_THROW(a = analyze::analyze_trace(*reader, path)) << "round " << round;
+        std::istringstream lines(analyze::render_text(a.report));
+        for (std::string line; std::getline(lines, line);) EXPECT_LE(line.size(), analyze::kTextColumns) << line;
+        EXPECT_TRUE(nlohmann::json::accept(analyze::render_json(a.report))) << "round " << round;
+        EXPECT_NE(analyze::render_html(a.report).find("</html>"), std::string::npos);
         EXPECT_EQ(a.report.commands, a.replay.counts.commands + a.replay.counts.skipped_commands) << "round " << round;
         EXPECT_LE(a.report.hazards_total, a.stream.hazards);
     }
@@ -205,6 +235,8 @@ TEST(AnalyzeTrace, DamagedTracesStillFeedValidEvents) {
     std::remove(path.c_str());
     std::remove(clean.c_str());
 }
+
+INSTANTIATE_TEST_SUITE_P(Scenes, AnalyzeDamaged, ::testing::Values(0, 1));
 
 }  // namespace
 }  // namespace clastrace

@@ -355,6 +355,47 @@ TEST(StreamGolden, JsonHoldsTheNumbers) {
     EXPECT_TRUE(nv);
 }
 
+// Hostile clocks: a timestamp earlier than the one before it measures nothing (a note says so),
+// and a header without timestampPeriod gets 1 ns per tick, said in a note.
+TEST(StreamGolden, BackwardTimestampsAndMissingPeriodAreNotes) {
+    const std::string path = temp_path("clock.clt");
+    {
+        test::AnalyzeSceneWriter w(path, 0.0f);
+        test::ClusterBuild b;
+        b.triangle_counts = {3};
+        w.timestamp(5000);
+        w.build(b);
+        w.timestamp(1000);
+        w.build(b);
+        w.timestamp(1400);
+        w.submit();
+        w.finish();
+    }
+    traces::TraceError e;
+    auto reader = traces::TraceReader::open(path, &e);
+    ASSERT_TRUE(reader) << e.message;
+    const analyze::TraceAnalysis a = analyze::analyze_trace(*reader, path);
+    std::filesystem::remove(path);
+    const analyze::AnalysisReport& r = a.report;
+    ASSERT_EQ(r.gpu_spans_total, 1u);  // only 1000 -> 1400 is a span
+    EXPECT_EQ(r.gpu_spans[0].span.gpu_ns, 400u);
+    EXPECT_EQ(r.gpu_spans[0].span.first_ordinal, 3u);
+    ASSERT_TRUE(r.gpu_clock);
+    EXPECT_FALSE(r.gpu_clock->period_known);
+    EXPECT_EQ(r.gpu_clock->timestamp_period_ns, 1.0);
+    bool backwards = false, assumed = false;
+    for (const std::string& n : r.notes) {
+        backwards |= n.find("1 GPU timestamps are earlier than the timestamp before them") != std::string::npos;
+        assumed |= n.find("no timestampPeriod: 1 ns per tick assumed") != std::string::npos;
+    }
+    EXPECT_TRUE(backwards);
+    EXPECT_TRUE(assumed);
+    const std::string text = analyze::render_text(r);
+    EXPECT_NE(text.find("\nNotes\n"), std::string::npos);
+    std::istringstream lines(text);
+    for (std::string line; std::getline(lines, line);) EXPECT_LE(line.size(), analyze::kTextColumns) << line;
+}
+
 // Peak memory follows the largest submission: the feeder holds one submission's events, so
 // a trace of many equal submissions holds exactly as many events at its peak as one of them.
 TEST(StreamGolden, HeldEventsFollowTheLargestSubmission) {
