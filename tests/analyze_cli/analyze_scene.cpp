@@ -132,9 +132,11 @@ BuiltClusters AnalyzeSceneWriter::build(const ClusterBuild& call) {
     info.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
     info.input.maxAccelerationStructureCount = n;
     info.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
-    info.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+    info.input.opMode = call.mode;
     info.input.opInput.pTriangleClusters = &tri;
-    info.dstImplicitData = call.dst;
+    const bool implicit = call.mode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+    const bool explicit_mode = call.mode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
+    info.dstImplicitData = implicit ? call.dst : 0;
     info.scratchData = call.scratch;
     info.dstAddressesArray = {call.arrays, 8, n * 8ull};
     info.dstSizesArray = {call.arrays + 0x200, 4, n * 4ull};
@@ -163,10 +165,17 @@ BuiltClusters AnalyzeSceneWriter::build(const ClusterBuild& call) {
         check(writer_->append(record(std::move(q))));
     }
 
-    const std::vector<std::pair<uint64_t, std::vector<uint8_t>>> inputs = {
+    std::vector<std::pair<uint64_t, std::vector<uint8_t>>> inputs = {
         {S::kInfos, bytes_of(infos.data(), n * sizeof infos[0])},
         {S::kIndices, bytes_of(indices.data(), indices.size() * 4)},
         {S::kVertices, bytes_of(vertices.data(), vertices.size() * 4)}};
+    if (explicit_mode) {
+        std::vector<uint64_t> slots(n);
+        std::vector<uint32_t> room(n, 1024);
+        for (uint32_t i = 0; i < n; ++i) slots[i] = call.dst + i * 1024ull;
+        inputs.emplace_back(call.arrays, bytes_of(slots.data(), n * 8ull));
+        inputs.emplace_back(call.arrays + 0x200, bytes_of(room.data(), n * 4ull));
+    }
     for (const auto& [address, bytes] : inputs)
         std::memcpy(mirror_->image.write_bytes(address, bytes.size(), {}).data(), bytes.data(), bytes.size());
     engine::ExecuteOptions options;
@@ -196,10 +205,14 @@ BuiltClusters AnalyzeSceneWriter::build(const ClusterBuild& call) {
         check(writer_->snapshot(0, 0, address, bytes.data(), bytes.size(), &snap));
         b.inputs.push_back(snap);
     }
-    check(writer_->snapshot(0, 0, call.arrays, addresses.data(), n * 8ull, &snap));
-    b.outputs.push_back(snap);
-    check(writer_->snapshot(0, 0, call.arrays + 0x200, driver_sizes.data(), n * 4ull, &snap));
-    b.outputs.push_back(snap);
+    if (implicit) {
+        check(writer_->snapshot(0, 0, call.arrays, addresses.data(), n * 8ull, &snap));
+        b.outputs.push_back(snap);
+    }
+    if (!explicit_mode) {
+        check(writer_->snapshot(0, 0, call.arrays + 0x200, driver_sizes.data(), n * 4ull, &snap));
+        b.outputs.push_back(snap);
+    }
     check(writer_->append(record(std::move(b))));
     return built;
 }

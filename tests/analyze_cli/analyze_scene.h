@@ -34,6 +34,9 @@ struct ClusterBuild {
     bool query = true;                           // a GetClusterBuildSizes record before the build
     uint64_t query_answer = 0x10000;             // its acceleration_structure_size
     uint64_t query_scratch = 0x1000;             // its build_scratch_size
+    // Explicit: op i's object goes to dst + i * 1024 (dstAddressesArray and dstSizesArray = 1024
+    // are inputs). Compute sizes: only dstSizesArray is written.
+    VkClusterAccelerationStructureOpModeNV mode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
 };
 
 struct BuiltClusters {

@@ -355,6 +355,64 @@ TEST(StreamGolden, JsonHoldsTheNumbers) {
     EXPECT_TRUE(nv);
 }
 
+// Op modes: explicit destinations (objects where dstAddressesArray says, worst case = the
+// per-object answer x ops, no implicit data) and compute sizes (sizes only, the captured
+// dstSizesArray as driver sizes, nothing compared against a worst case).
+TEST(StreamGolden, ExplicitAndComputeSizesModes) {
+    const std::string path = temp_path("modes.clt");
+    test::BuiltClusters ex, sizes;
+    {
+        test::AnalyzeSceneWriter w(path, 1.0f);
+        test::ClusterBuild e;
+        e.triangle_counts = {2, 8, 18};
+        e.mode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
+        e.dst = S::kPool + 0x10000;
+        e.query_answer = 0x400;  // explicit: per object
+        ex = w.build(e);
+        w.build_to_build_barrier();
+        test::ClusterBuild c;
+        c.triangle_counts = {4, 4};
+        c.mode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_COMPUTE_SIZES_NV;
+        c.arrays = S::kArrays + 0x400;
+        c.query = false;
+        sizes = w.build(c);
+        w.submit();
+        w.finish();
+    }
+    traces::TraceError err;
+    auto reader = traces::TraceReader::open(path, &err);
+    ASSERT_TRUE(reader) << err.message;
+    const analyze::TraceAnalysis a = analyze::analyze_trace(*reader, path);
+    std::filesystem::remove(path);
+    EXPECT_TRUE(a.replay.findings.empty()) << a.replay.findings[0].format();
+    const analyze::AnalysisReport& r = a.report;
+    const analyze::OpTypeSizes& t = r.sizes(analyze::OpType::build_triangle_cluster);
+    EXPECT_EQ(t.commands, 2u);
+    EXPECT_EQ(t.objects, 5u);
+    EXPECT_EQ(t.engine_bytes.sum(), sum(ex.engine_sizes) + sum(sizes.engine_sizes));
+    EXPECT_EQ(t.commands_with_query, 1u);
+    EXPECT_EQ(t.worst_case_bytes, 3u * 0x400u);
+    EXPECT_EQ(t.actual_bytes_of_queried, sum(ex.engine_sizes));
+    EXPECT_EQ(t.objects_with_driver_bytes, 2u);
+    EXPECT_EQ(t.driver_bytes.sum(), sum(sizes.engine_sizes) + 2 * 128);
+    EXPECT_EQ(t.implicit_allocated, 0u);
+    EXPECT_EQ(t.implicit_used, 0u);
+    ASSERT_GE(r.commands_listed.size(), 3u);
+    EXPECT_EQ(r.commands_listed[0].op_mode, analyze::OpMode::explicit_destinations);
+    EXPECT_EQ(r.commands_listed[0].worst_case_bytes, 3u * 0x400u);
+    EXPECT_EQ(r.commands_listed[2].op_mode, analyze::OpMode::compute_sizes);
+    EXPECT_FALSE(r.commands_listed[2].worst_case_bytes);
+    int objects_at_slots = 0;
+    for (const auto& row : r.region_rows) {
+        EXPECT_NE(row.role, analyze::RegionRole::implicit_data);
+        if (row.role == analyze::RegionRole::object_clas) {
+            EXPECT_EQ((row.base - (S::kPool + 0x10000)) % 1024, 0u);
+            ++objects_at_slots;
+        }
+    }
+    EXPECT_EQ(objects_at_slots, 3);
+}
+
 // Hostile clocks: a timestamp earlier than the one before it measures nothing (a note says so),
 // and a header without timestampPeriod gets 1 ns per tick, said in a note.
 TEST(StreamGolden, BackwardTimestampsAndMissingPeriodAreNotes) {
