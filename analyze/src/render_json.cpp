@@ -82,6 +82,7 @@ Json sizes(const AnalysisReport& r) {
     j["vertices"] = s.vertices;
     j["engine_bytes"] = distribution(s.engine_bytes);
     j["bytes_per_triangle"] = opt(fmtu::ratio(s.engine_bytes.sum(), s.triangles));
+    j["bytes_per_vertex"] = opt(fmtu::ratio(s.engine_bytes.sum(), s.vertices));
     j["driver_bytes"] = s.objects_with_driver_bytes ? distribution(s.driver_bytes) : Json(nullptr);
     j["engine_bytes_of_driver_objects"] = s.engine_bytes_of_driver_objects;
     Json q;

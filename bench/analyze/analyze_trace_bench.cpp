@@ -11,7 +11,8 @@
 //
 //   analyze_trace_bench                       the tables (10^4..10^6 ops; then 10^6 ops with
 //                                             growing submissions)
-//   analyze_trace_bench --one MODE TRACE      one measurement
+//   analyze_trace_bench --one MODE TRACE REBUILDS   one measurement (REBUILDS: untruncated rebuilds per command)
+//   analyze_trace_bench --knob                the untruncated-rebuilds table only
 //   analyze_trace_bench --write TRACE OPS OPS_PER_COMMAND COMMANDS_PER_SUBMISSION
 #include <clastrace/analyze/replay_stream.h>
 #include <clastrace/engine/execute.h>
@@ -59,7 +60,8 @@ void check(const traces::TraceError& e) {
 }
 
 // Writes the trace; returns its size in bytes.
-uint64_t write_trace(const std::string& path, uint64_t ops, uint64_t per_command, uint64_t per_submission) {
+uint64_t write_trace(const std::string& path, uint64_t ops, uint64_t per_command, uint64_t per_submission,
+                     uint32_t truncate_bits = 0) {
     fbs::TraceHeaderT h;
     h.device = std::make_unique<fbs::DeviceInfoT>();
     h.device->name = "bench driver";
@@ -93,6 +95,7 @@ uint64_t write_trace(const std::string& path, uint64_t ops, uint64_t per_command
         info.vertexBufferStride = 12;
         info.indexBuffer = kIndices;
         info.vertexBuffer = kVertices;
+        info.positionTruncateBitCount = truncate_bits;
     }
     const uint64_t pool = per_command * 1024, scratch = per_command * 16;
     const uint64_t usage = VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR |
@@ -251,7 +254,7 @@ private:
     analyze::ReplayStreamFeeder& f_;
 };
 
-int run_one(const std::string& mode, const std::string& path) {
+int run_one(const std::string& mode, const std::string& path, uint32_t rebuilds) {
     traces::TraceError e;
     auto reader = traces::TraceReader::open(path, &e);
     if (!reader) {
@@ -261,12 +264,20 @@ int run_one(const std::string& mode, const std::string& path) {
     const uint64_t rss_before = status_kib("VmRSS:");
     const auto t0 = std::chrono::steady_clock::now();
     uint64_t ops = 0, objects = 0, bytes = 0, largest_ops = 0, largest_events = 0, held = 0, hazards = 0;
+    uint64_t measured = 0, truncated_bytes = 0, untruncated_bytes = 0;
     if (mode == "replay") {
         const replay::ReplayReport r = replay::replay_trace(*reader, path);
         ops = r.counts.cluster_ops;
         hazards = r.hazards.size();
     } else if (mode == "stream") {
-        const analyze::TraceAnalysis a = analyze::analyze_trace(*reader, path);
+        analyze::AnalyzeOptions options;
+        options.stream.untruncated_rebuilds_per_command = rebuilds;
+        const analyze::TraceAnalysis a = analyze::analyze_trace(*reader, path, options);
+        for (const analyze::TruncationRow& t : a.report.truncation) {
+            measured += t.objects_with_untruncated;
+            truncated_bytes += t.engine_bytes_of_those;
+            untruncated_bytes += t.untruncated_bytes;
+        }
         ops = a.report.ops;
         objects = a.report.objects;
         bytes = a.report.sizes(analyze::OpType::build_triangle_cluster).engine_bytes.sum();
@@ -293,21 +304,22 @@ int run_one(const std::string& mode, const std::string& path) {
         hazards = report.hazards_total;
     }
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    std::printf("%llu %.6f %llu %llu %llu %llu %llu %llu %llu %llu\n", (unsigned long long)ops, seconds,
+    std::printf("%llu %.6f %llu %llu %llu %llu %llu %llu %llu %llu %llu %llu %llu\n", (unsigned long long)ops, seconds,
                 (unsigned long long)status_kib("VmHWM:"), (unsigned long long)rss_before, (unsigned long long)objects,
                 (unsigned long long)bytes, (unsigned long long)largest_ops, (unsigned long long)largest_events,
-                (unsigned long long)held, (unsigned long long)hazards);
+                (unsigned long long)held, (unsigned long long)hazards, (unsigned long long)measured,
+                (unsigned long long)truncated_bytes, (unsigned long long)untruncated_bytes);
     return 0;
 }
 
 struct Measurement {
     unsigned long long ops = 0, hwm = 0, start = 0, objects = 0, bytes = 0, largest_ops = 0, largest_events = 0, held = 0,
-                       hazards = 0;
+                       hazards = 0, measured = 0, truncated = 0, untruncated = 0;
     double seconds = 0;
     bool ok = false;
 };
 
-Measurement measure(const char* self, const char* mode, const std::string& trace) {
+Measurement measure(const char* self, const char* mode, const std::string& trace, uint32_t rebuilds = 8) {
     Measurement m;
     int fd[2];
     if (pipe(fd) != 0) return m;
@@ -315,7 +327,8 @@ Measurement measure(const char* self, const char* mode, const std::string& trace
     if (pid == 0) {
         dup2(fd[1], STDOUT_FILENO);
         close(fd[0]);
-        execl(self, self, "--one", mode, trace.c_str(), static_cast<char*>(nullptr));
+        const std::string r = std::to_string(rebuilds);
+        execl(self, self, "--one", mode, trace.c_str(), r.c_str(), static_cast<char*>(nullptr));
         _exit(127);
     }
     close(fd[1]);
@@ -324,8 +337,9 @@ Measurement measure(const char* self, const char* mode, const std::string& trace
     close(fd[0]);
     int status = 0;
     waitpid(pid, &status, 0);
-    if (got > 0 && std::sscanf(buf, "%llu %lf %llu %llu %llu %llu %llu %llu %llu %llu", &m.ops, &m.seconds, &m.hwm, &m.start,
-                               &m.objects, &m.bytes, &m.largest_ops, &m.largest_events, &m.held, &m.hazards) == 10)
+    if (got > 0 && std::sscanf(buf, "%llu %lf %llu %llu %llu %llu %llu %llu %llu %llu %llu %llu %llu", &m.ops, &m.seconds,
+                               &m.hwm, &m.start, &m.objects, &m.bytes, &m.largest_ops, &m.largest_events, &m.held,
+                               &m.hazards, &m.measured, &m.truncated, &m.untruncated) == 13)
         m.ok = WIFEXITED(status) && WEXITSTATUS(status) == 0;
     return m;
 }
@@ -343,30 +357,63 @@ bool row(const char* self, const std::string& dir, uint64_t ops, uint64_t per_co
         std::printf("%9llu  measurement failed (or stream and peer disagree)\n", (unsigned long long)ops);
         return false;
     }
-    std::printf("%9llu %7llu %9.1f %6.1f %9.1f %7.1f %9.1f %8.1f %9.1f %7.3f %9llu %8.1f\n", s.ops, s.largest_ops,
-                static_cast<double>(file) / 1024.0, write_s, mib(r.hwm), r.seconds, mib(s.hwm), s.seconds, mib(p.hwm),
+    std::printf("%9llu %7llu %8.1f %9.1f %7.1f %9.1f %8.1f %9.1f %7.1f %7.3f %9llu %7.1f\n", s.ops, s.largest_ops,
+                static_cast<double>(file) / 1024.0, mib(r.hwm), r.seconds, mib(s.hwm), s.seconds, mib(p.hwm), p.seconds,
                 static_cast<double>(s.hwm) / static_cast<double>(p.hwm), s.largest_events,
                 static_cast<double>(s.held) / (1024.0 * 1024.0));
+    std::fflush(stdout);
+    (void)write_s;
     return true;
 }
 
 void header() {
-    std::printf("%9s %7s %9s %6s %9s %7s %9s %8s %9s %7s %9s %8s\n", "ops", "sub ops", "file KiB", "write", "replay",
-                "replay", "stream", "stream", "peer", "stream/", "largest", "held");
-    std::printf("%9s %7s %9s %6s %9s %7s %9s %8s %9s %7s %9s %8s\n", "", "(max)", "", "s", "peak MiB", "s", "peak MiB",
-                "s", "peak MiB", "peer", "sub evts", "MiB");
+    std::printf("%9s %7s %8s %9s %7s %9s %8s %9s %7s %7s %9s %7s\n", "ops", "sub ops", "file", "replay", "replay",
+                "stream", "stream", "peer", "peer", "stream/", "largest", "held");
+    std::printf("%9s %7s %8s %9s %7s %9s %8s %9s %7s %7s %9s %7s\n", "", "(max)", "KiB", "peak MiB", "s", "peak MiB",
+                "s", "peak MiB", "s", "peer", "sub evts", "MiB");
+}
+
+// The knob: truncated clusters rebuilt at positionTruncateBitCount 0 per command. Each
+// rebuild is one more engine build; what it buys is a measured (not estimated) saving.
+int knob_table(const char* self, const std::string& dir) {
+    std::printf("\nStreamOptions::untruncated_rebuilds_per_command, 3x10^5 ops at positionTruncateBitCount 8\n"
+                "(1000 ops per command; least time of 3 runs): analysis time vs how many objects' saving is measured\n");
+    std::printf("%9s %9s %9s %10s %12s %14s %8s\n", "rebuilds", "stream s", "vs 0", "measured", "truncated B",
+                "untruncated B", "saved");
+    const std::string trace = dir + "/bench_knob.clt";
+    write_trace(trace, 300000, 1000, 4, 8);
+    double base = 0;
+    for (uint32_t rebuilds : {0u, 8u, 64u, 1000u}) {
+        Measurement m = measure(self, "stream", trace, rebuilds);
+        for (int again = 0; again < 2 && m.ok; ++again) {  // the least of three runs: the machine is shared
+            const Measurement n = measure(self, "stream", trace, rebuilds);
+            if (n.ok && n.seconds < m.seconds) m = n;
+        }
+        if (!m.ok) {
+            std::printf("%9u  measurement failed\n", rebuilds);
+            return 1;
+        }
+        if (rebuilds == 0) base = m.seconds;
+        std::printf("%9u %9.2f %9.2f %10llu %12llu %14llu %7.1f%%\n", rebuilds, m.seconds, m.seconds / base, m.measured,
+                    m.truncated, m.untruncated,
+                    m.untruncated ? 100.0 * (double(m.untruncated) - double(m.truncated)) / double(m.untruncated) : 0.0);
+        std::fflush(stdout);
+    }
+    std::filesystem::remove(trace);
+    return 0;
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
-    if (argc == 4 && std::string(argv[1]) == "--one") return run_one(argv[2], argv[3]);
+    if (argc == 5 && std::string(argv[1]) == "--one") return run_one(argv[2], argv[3], std::stoul(argv[4]));
     if (argc == 6 && std::string(argv[1]) == "--write") {
         std::printf("%llu bytes\n", (unsigned long long)write_trace(argv[2], std::stoull(argv[3]), std::stoull(argv[4]),
                                                                     std::stoull(argv[5])));
         return 0;
     }
     const std::string dir = std::filesystem::temp_directory_path().string();
+    if (argc == 2 && std::string(argv[1]) == "--knob") return knob_table(argv[0], dir);
     std::printf("clastrace analyze on generated trace files: CLAS builds of 1..8 triangles, implicit destinations,\n"
                 "a barrier and two GPU timestamps per command, captured sizes. Peak = VmHWM of a fresh process.\n"
                 "replay: replay alone; stream: analyze_trace (one submission held); peer: store-then-analyze\n"
@@ -380,5 +427,6 @@ int main(int argc, char** argv) {
     header();
     for (uint64_t per_command : {250ull, 2500ull, 25000ull})
         if (!row(argv[0], dir, 1000000, per_command, 4)) return 1;
-    return 0;
+
+    return knob_table(argv[0], dir);
 }

@@ -340,6 +340,8 @@ TEST(StreamGolden, JsonHoldsTheNumbers) {
     EXPECT_EQ((*clas)["build_sizes"]["worst_case_bytes"], 0x28000);
     EXPECT_EQ((*clas)["build_sizes"]["slack_bytes"], int64_t(0x28000) - int64_t(g.engine_bytes()));
     EXPECT_EQ((*clas)["scratch"]["used"], 128);
+    EXPECT_DOUBLE_EQ((*clas)["bytes_per_vertex"].get<double>(), double(g.engine_bytes()) / 80.0);
+    EXPECT_DOUBLE_EQ((*clas)["bytes_per_triangle"].get<double>(), double(g.engine_bytes()) / 64.0);
     EXPECT_EQ(j["timing"]["gpu_spans"]["gpu_ns"], 4200);
     EXPECT_EQ(j["timing"]["gpu_spans"]["listed"][2]["host_start_ns"], 5'003'200);
     EXPECT_EQ(j["timing"]["gpu_clock"]["calibration"]["max_deviation_ns"], 250);
