@@ -431,7 +431,7 @@ void describe_command(const replay::ReplayedCommand& c, DescribeContext& ctx, He
     case fbs::RecordBody::CmdWaitEvents: out->kind = HeldCommand::Kind::sync; break;
     default: break;
   }
-  if (c.executed) info.replay_ns = c.replay_ns;
+  // Replay time is engine time: set below for the commands the engine ran.
   switch (r.body_type()) {
     case fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect:
       describe_cluster(c, *r.body_as_CmdBuildClusterAccelerationStructureIndirect(), ctx, out);
@@ -444,7 +444,6 @@ void describe_command(const replay::ReplayedCommand& c, DescribeContext& ctx, He
       break;
     default: break;
   }
-  if (!c.executed) info.replay_ns.reset();
 }
 
 }  // namespace clastrace::analyze::detail

@@ -118,15 +118,17 @@ void sizes_section(const AnalysisReport& r, std::ostream& out) {
 void commands_section(const AnalysisReport& r, std::ostream& out) {
   heading(out, "Commands");
   if (!r.command_kinds.empty()) {
-    out << "By kind (driver B: captured sizes, and the object size the driver was asked for where replay\n"
-           "does not rebuild the command's objects)\n";
+    out << "By kind (vkCmd...; driver B: captured sizes, and the object size the driver was asked for\n"
+           "where replay does not rebuild the command's objects; replay and gpu in ms)\n";
     TextTable k;
-    k.column("command", Align::left).column("cmds").column("ops").column("triangles").column("objects");
-    k.column("engine B").column("driver B").column("replay ms").column("gpu ms").column("haz");
-    for (const CommandKindRow& c : r.command_kinds)
-      k.row({c.name, num(c.commands), num(c.ops), num(c.triangles), num(c.objects), num(c.engine_bytes),
+    k.column("command", Align::left).column("cmds").column("ops").column("tris").column("engine B");
+    k.column("driver B").column("replay").column("gpu");
+    for (const CommandKindRow& c : r.command_kinds) {
+      const bool vk = c.name.rfind("vkCmd", 0) == 0;
+      k.row({vk ? c.name.substr(5) : c.name, num(c.commands), num(c.ops), num(c.triangles), num(c.engine_bytes),
              num(c.driver_bytes), c.replay_commands ? fmtu::ms(c.replay_ns) : "-",
-             c.gpu_commands ? fmtu::ms(c.gpu_ns) : "-", num(c.hazards)});
+             c.gpu_commands ? fmtu::ms(c.gpu_ns) : "-"});
+    }
     k.print(out, kTextColumns);
     if (r.command_kinds_not_listed) out << format("({} commands of further kinds)\n", r.command_kinds_not_listed);
     out << '\n';
