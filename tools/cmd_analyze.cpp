@@ -20,6 +20,7 @@ struct AnalyzeArgs {
     std::string trace;
     bool json = false;
     std::string html;
+    uint32_t truncation_rebuilds = 8;
 };
 
 int run_analyze(const AnalyzeArgs& args) {
@@ -31,7 +32,9 @@ int run_analyze(const AnalyzeArgs& args) {
     }
     analyze::TraceAnalysis analysis;
     try {
-        analysis = analyze::analyze_trace(*reader, args.trace);
+        analyze::AnalyzeOptions options;
+        options.stream.untruncated_rebuilds_per_command = args.truncation_rebuilds;
+        analysis = analyze::analyze_trace(*reader, args.trace, options);
     } catch (const analyze::AnalysisInputError& e) {
         std::fprintf(stderr, "clastrace analyze: %s: the replay could not be analyzed: %s\n", args.trace.c_str(),
                      e.what());
@@ -62,6 +65,10 @@ Command register_analyze(CLI::App& app) {
     sub->add_option("TRACE", args->trace, "the .clt trace")->required();
     CLI::Option* json = sub->add_flag("--json", args->json, "print the report as one JSON object (docs/analyze.md)");
     CLI::Option* html = sub->add_option("--html", args->html, "write the report as a self-contained HTML file");
+    sub->add_option("--truncation-rebuilds", args->truncation_rebuilds,
+                    "truncated clusters per command rebuilt at positionTruncateBitCount 0 to measure what truncation "
+                    "saves (one more engine build each; 0: none)")
+        ->capture_default_str();
     json->excludes(html);
     html->excludes(json);
     return Command{sub, [args] { return run_analyze(*args); }};

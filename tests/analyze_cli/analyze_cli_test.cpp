@@ -133,6 +133,9 @@ TEST(AnalyzeCli, ExitCodes) {
     EXPECT_EQ(run_cli(std::string("analyze --json --html x.html ") + CLASTRACE_SAMPLE, &out), 2);
     EXPECT_EQ(run_cli("analyze", &out), 2);
     EXPECT_EQ(run_cli("analyze --help", &out), 0);
+    EXPECT_NE(out.find("--truncation-rebuilds"), std::string::npos) << out;
+    EXPECT_EQ(run_cli(std::string("analyze --truncation-rebuilds -1 ") + CLASTRACE_SAMPLE, &out), 2);
+    EXPECT_EQ(run_cli(std::string("analyze --truncation-rebuilds 0 --json ") + CLASTRACE_SAMPLE, &out), 0);
     EXPECT_EQ(run_cli(std::string("analyze ") + CLASTRACE_SAMPLE + " --html /nonexistent-dir/r.html", &out), 2);
 
     const std::string hazard = temp_path("hazard.clt");
