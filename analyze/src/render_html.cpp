@@ -230,7 +230,7 @@ void timing(const AnalysisReport& r, const std::set<uint64_t>& listed, std::ostr
   top(r.top_by_gpu, "top-gpu", "GPU");
   top(r.top_by_replay, "top-replay", "replay");
 
-  out << format("<h3>GPU timestamp spans ({})</h3>\n", r.gpu_spans_total) << svg_gpu_spans(r);
+  out << format("<h3 id=\"gpu\">GPU timestamp spans ({})</h3>\n", r.gpu_spans_total) << svg_gpu_spans(r);
   if (r.gpu_spans.empty()) return;
   const GpuClock clock = r.gpu_clock.value_or(GpuClock{});
   out << format("<p class=\"note\">Timestamp period {} ns{}{}. {} ms over all spans: {} ops/s.</p>\n",
@@ -286,7 +286,7 @@ void render_html(const AnalysisReport& r, std::ostream& out) {
       << "<title>clastrace analyze: " << name << "</title>\n<style>" << kStyle << "</style>\n</head>\n<body>\n"
       << "<h1>clastrace analyze: " << name << "</h1>\n"
       << "<nav><a href=\"#sizes\">Sizes</a> · <a href=\"#memory\">Memory map</a> · <a href=\"#hazards\">Hazards</a> · "
-         "<a href=\"#timing\">Timing</a> · <a href=\"#commands\">Commands</a></nav>\n"
+         "<a href=\"#timing\">Timing</a> · <a href=\"#gpu\">GPU spans</a> · <a href=\"#commands\">Commands</a></nav>\n"
       << "<table id=\"totals\">\n"
       << head({"commands", "submissions", "ops", "objects", "triangles", "regions", "overlap events", "hazards"})
       << "<tr>" << num(r.commands) << num(r.submissions) << num(r.ops) << num(r.objects) << num(r.triangles)
