@@ -217,6 +217,14 @@ void describe_cluster(const replay::ReplayedCommand& c, const fbs::CmdBuildClust
     if (role == RegionRole::src_infos && a.op_index >= 0 && static_cast<uint64_t>(a.op_index) < info_address.size())
       info_address[a.op_index] = a.begin;
     if (starts_with(a.field, "dstImplicitData[op ") || starts_with(a.field, "*dstAddressesArray[")) continue;  // objects
+    if (contains(a.field, ".srcAccelerationStructure") && !a.is_write) {  // a move's source object
+      const auto* move = input ? input->op_input_as_MoveObjectsInput() : nullptr;
+      const RegionRole source = move ? object_role(static_cast<VkClusterAccelerationStructureTypeNV>(move->type()))
+                                     : RegionRole::other;
+      out->regions.push_back(region(source, a.begin, a.end - a.begin, false,
+                                    fmt::format("{} 0x{:x}", role_label(source), a.begin)));
+      continue;
+    }
     if (role == RegionRole::object_clas || role == RegionRole::object_template) {
       out->regions.push_back(region(role, a.begin, a.end - a.begin, a.is_write,
                                     fmt::format("{} 0x{:x}", role_label(role), a.begin)));

@@ -179,6 +179,49 @@ TEST(AnalyzeTrace, HazardNamesBothBuildsInSequenceOrder) {
     EXPECT_EQ(a.report.hazards_total, 1u);
 }
 
+// A BLAS over a built CLAS, then a move of that CLAS into the BLAS's memory: the CLAS is one
+// region from its build through both reads; the move's implicit data taking the BLAS's bytes
+// is an ordered reuse, and so is the BLAS's 16-byte scratch on the first build's 32.
+TEST(AnalyzeTrace, BlasAndMoveReadTheClasTheyName) {
+    const std::string path = temp_path("blas_move.clt");
+    {
+        test::SceneTrace t(path, true);
+        t.build({});
+        t.barrier(kBuild, kAsWrite, kBuild, kAsRead | kAsWrite);
+        t.build_blas({test::SceneBuffers::kDst});
+        t.barrier(kBuild, kAsWrite, kBuild, kAsRead | kAsWrite);
+        t.move_clusters({test::SceneBuffers::kDst});
+        t.finish();
+    }
+    traces::TraceError e;
+    auto reader = traces::TraceReader::open(path, &e);
+    ASSERT_TRUE(reader) << e.message;
+    const analyze::TraceAnalysis a = analyze::analyze_trace(*reader, path);
+    std::remove(path.c_str());
+    const analyze::AnalysisReport& r = a.report;
+    EXPECT_EQ(r.hazards_total, 0u);
+    EXPECT_EQ(r.sizes(analyze::OpType::build_clusters_bottom_level).objects, 1u);
+    EXPECT_EQ(r.sizes(analyze::OpType::move_objects).objects, 1u);
+    const analyze::RegionRow* clas = nullptr;
+    for (const auto& row : r.region_rows)
+        if (row.role == analyze::RegionRole::object_clas && row.base == test::SceneBuffers::kDst) clas = &row;
+    ASSERT_NE(clas, nullptr);
+    EXPECT_EQ(clas->first_command, 0u);
+    EXPECT_EQ(clas->last_command, 4u);  // build 0, barrier 1, BLAS 2, barrier 3, move 4
+    EXPECT_EQ(clas->uses, 3u);
+    ASSERT_EQ(r.overlap_events, 2u) << analyze::render_text(r);
+    EXPECT_EQ(r.overlaps[0].older_role, analyze::RegionRole::scratch);
+    EXPECT_EQ(r.overlaps[0].size, 16u);
+    EXPECT_EQ(r.overlaps[1].older_role, analyze::RegionRole::object_blas);
+    EXPECT_EQ(r.overlaps[1].older_command, 2u);
+    EXPECT_EQ(r.overlaps[1].newer_role, analyze::RegionRole::implicit_data);
+    EXPECT_EQ(r.overlaps[1].newer_command, 4u);
+    for (const auto& o : r.overlaps) {
+        EXPECT_EQ(o.kind, analyze::OverlapKind::reuse);
+        EXPECT_FALSE(o.hazard);
+    }
+}
+
 // Damaged traces replay with gaps (commands cut off, hazards without their first command):
 // the feeder must still hand the analyzer a valid event stream.
 // A scene with every record kind the feeder reads: timestamps, calibration, build-sizes
