@@ -139,7 +139,11 @@ void commands_section(const AnalysisReport& r, std::ostream& out) {
   std::size_t shown = 0;
   for (const CommandRow& c : r.commands_listed) {
     if (shown++ == kTextRows) break;
-    t.row({num(c.ordinal), num(c.submission), op_type_short(c.op_type), op_mode_name(c.op_mode), num(c.op_count),
+    // Commands outside the cluster extension say what they are by name (vkCmd dropped).
+    const std::string op = c.op_type != OpType::other ? op_type_short(c.op_type)
+                           : c.name.rfind("vkCmd", 0) == 0 ? c.name.substr(5)
+                                                           : c.name;
+    t.row({num(c.ordinal), num(c.submission), op, op_mode_name(c.op_mode), num(c.op_count),
            num(c.objects), num(c.engine_bytes), opt_num(c.worst_case_bytes), num(c.implicit_allocated),
            num(c.scratch_allocated), num(c.hazards)});
   }
