@@ -292,6 +292,13 @@ TraceAnalysis analyze_trace(traces::TraceReader& reader, const std::string& trac
   TraceAnalysis result;
   result.replay = replay::replay_trace(reader, trace_name, replay_options);
   feeder.finish(reader.stats());
+  if (result.replay.hazards_over_cap)
+    analyzer.on_note(fmt::format("{} hazards past replay's cap of {} distinct hazards were counted by replay only "
+                                 "(not in this report)",
+                                 result.replay.hazards_over_cap, replay_options.max_findings));
+  if (!result.replay.trace_damage.empty())
+    analyzer.on_note(fmt::format("the trace is damaged ({} problems; clastrace info lists them): the report covers what "
+                                 "could be read", result.replay.trace_damage.size()));
   result.report = analyzer.finish();
   result.stream = feeder.stats();
   return result;
