@@ -1,11 +1,11 @@
-// clastrace analyze TRACE [--json | --html OUT.html]: replays the trace, then reports where
-// the memory and time of its acceleration-structure builds go (docs/analyze.md).
+// clastrace analyze TRACE [--json | --html OUT.html]: replays the trace and, as each command
+// is replayed, folds it into a report of where the memory and time of its
+// acceleration-structure builds go (docs/analyze.md).
 #include "commands.h"
 
 #include <clastrace/analyze/analyzer.h>
-#include <clastrace/analyze/replay_adapter.h>
+#include <clastrace/analyze/replay_stream.h>
 #include <clastrace/analyze/report_output.h>
-#include <clastrace/replay/replayer.hpp>
 #include <clastrace/traces/trace_reader.h>
 
 #include <cstdio>
@@ -20,6 +20,7 @@ struct AnalyzeArgs {
     std::string trace;
     bool json = false;
     std::string html;
+    uint32_t truncation_rebuilds = 8;
 };
 
 int run_analyze(const AnalyzeArgs& args) {
@@ -29,29 +30,17 @@ int run_analyze(const AnalyzeArgs& args) {
         std::fprintf(stderr, "clastrace analyze: %s\n", error.message.c_str());
         return kExitUsage;
     }
-    replay::ReplayReport replayed = replay::replay_trace(*reader, args.trace);
-
-    analyze::Analyzer analyzer(args.trace);
-    analyze::ReplayFeedStats fed;
-    analyze::AnalysisReport report;
+    analyze::TraceAnalysis analysis;
     try {
-        fed = analyze::feed_replay_report(replayed, analyzer);
-        report = analyzer.finish();
+        analyze::AnalyzeOptions options;
+        options.stream.untruncated_rebuilds_per_command = args.truncation_rebuilds;
+        analysis = analyze::analyze_trace(*reader, args.trace, options);
     } catch (const analyze::AnalysisInputError& e) {
         std::fprintf(stderr, "clastrace analyze: %s: the replay could not be analyzed: %s\n", args.trace.c_str(),
                      e.what());
         return kExitUsage;
     }
-    // What the report leaves out is said on stderr so that stdout stays one text/JSON document.
-    if (fed.hazards_not_fed)
-        std::fprintf(stderr, "clastrace analyze: %llu hazards name a command the replay report has no sequence number "
-                             "for, or one left out, and are not in the report (clastrace replay lists them)\n",
-                     (unsigned long long)fed.hazards_not_fed);
-    if (fed.ops_without_sizes)
-        std::fprintf(stderr, "clastrace analyze: %llu ops have no per-op sizes in the replay report and are counted "
-                             "as ops without objects\n",
-                     (unsigned long long)fed.ops_without_sizes);
-
+    const analyze::AnalysisReport& report = analysis.report;
     const analyze::ReportFormat format = args.json ? analyze::ReportFormat::json
                                          : args.html.empty() ? analyze::ReportFormat::text
                                                              : analyze::ReportFormat::html;
@@ -61,7 +50,7 @@ int run_analyze(const AnalyzeArgs& args) {
         return kExitUsage;
     }
     if (!args.html.empty() && args.html != "-") std::fprintf(stdout, "report written to %s\n", args.html.c_str());
-    return replayed.clean() && report.hazards_total == 0 ? kExitOk : kExitFindings;
+    return analysis.replay.clean() && report.hazards_total == 0 ? kExitOk : kExitFindings;
 }
 
 }  // namespace
@@ -76,6 +65,10 @@ Command register_analyze(CLI::App& app) {
     sub->add_option("TRACE", args->trace, "the .clt trace")->required();
     CLI::Option* json = sub->add_flag("--json", args->json, "print the report as one JSON object (docs/analyze.md)");
     CLI::Option* html = sub->add_option("--html", args->html, "write the report as a self-contained HTML file");
+    sub->add_option("--truncation-rebuilds", args->truncation_rebuilds,
+                    "truncated clusters per command rebuilt at positionTruncateBitCount 0 to measure what truncation "
+                    "saves (one more engine build each; 0: none)")
+        ->capture_default_str();
     json->excludes(html);
     html->excludes(json);
     return Command{sub, [args] { return run_analyze(*args); }};

@@ -15,6 +15,7 @@ struct AddressOwner {
   uint64_t region = 0;
   RegionRole role = RegionRole::other;
   uint64_t command = 0;
+  bool written = false;
 };
 
 struct OwnerOverlap {

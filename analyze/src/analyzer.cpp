@@ -85,6 +85,11 @@ struct Analyzer::State {
   CommandRow current;
   std::optional<BuildSizesInfo> current_query;
   uint64_t current_implicit_used = 0;
+  bool implicit_allocated_given = false, scratch_allocated_given = false;
+  std::optional<uint64_t> implicit_used_given;
+  uint64_t current_driver_object_bytes = 0;
+  uint64_t submission_commands = 0, submission_ops = 0;  // of the submission being fed
+  std::unordered_map<std::string, std::size_t> kind_index;
   std::vector<PendingOverlap> pending_overlaps;
   std::vector<HazardSummary> pending_hazards;
 
@@ -111,6 +116,7 @@ struct Analyzer::State {
 
   void close_command();
   void add_to_timeline(const CommandRow& c);
+  void add_to_kinds(const CommandRow& c);
   void list_command(const CommandRow& c);
   const CommandRow* find_recent(uint64_t ordinal) const {
     for (const auto& r : recent)
@@ -150,7 +156,20 @@ void Analyzer::on_command(const CommandInfo& c) {
   if (s.open) s.close_command();
 
   AnalysisReport& r = s.report;
-  if (r.commands == 0 || c.submission != s.last_submission) ++r.submissions;
+  if (r.commands == 0 || c.submission != s.last_submission) {
+    ++r.submissions;
+    s.submission_commands = s.submission_ops = 0;
+  }
+  ++s.submission_commands;
+  s.submission_ops += c.op_count;
+  // Largest: most ops, then most commands, then first.
+  const bool same = r.largest_submission == c.submission && r.largest_submission_commands > 0;
+  if (same || s.submission_ops > r.largest_submission_ops ||
+      (s.submission_ops == r.largest_submission_ops && s.submission_commands > r.largest_submission_commands)) {
+    r.largest_submission = c.submission;
+    r.largest_submission_ops = s.submission_ops;
+    r.largest_submission_commands = s.submission_commands;
+  }
   s.last_submission = c.submission;
   ++r.commands;
   r.ops += c.op_count;
@@ -188,6 +207,12 @@ void Analyzer::on_command(const CommandInfo& c) {
   row.gpu_ns = c.gpu_ns;
   row.replay_ns = c.replay_ns;
   row.scratch_used = c.scratch_used_bytes;
+  s.implicit_allocated_given = c.implicit_allocated_bytes.has_value();
+  s.scratch_allocated_given = c.scratch_allocated_bytes.has_value();
+  row.implicit_allocated = c.implicit_allocated_bytes.value_or(0);
+  row.scratch_allocated = c.scratch_allocated_bytes.value_or(0);
+  s.current_driver_object_bytes = c.driver_object_bytes;
+  s.implicit_used_given = c.implicit_used_bytes;
   s.current_query.reset();
   s.current_implicit_used = 0;
 }
@@ -207,6 +232,7 @@ void Analyzer::on_region(const RegionInfo& region) {
   AnalysisReport& r = s.report;
   ++r.region_uses;
   uint64_t newer_first_use = cmd;
+  std::optional<uint64_t> newer_previous_use;  // the last command before this one that used the region
   auto it = s.regions.find(region.id);
   if (it != s.regions.end()) {
     RegionRow& row = it->second;
@@ -217,6 +243,7 @@ void Analyzer::on_region(const RegionInfo& region) {
           cmd, region.id, region_role_name(region.role), region.base, region.size, row.first_command,
           region_role_name(row.role), row.base, row.size));
     newer_first_use = row.first_command;
+    if (row.last_command != cmd) newer_previous_use = row.last_command;
     row.last_command = cmd;
     ++row.uses;
     row.written = row.written || region.written;
@@ -227,14 +254,21 @@ void Analyzer::on_region(const RegionInfo& region) {
     ++r.region_uses_not_tracked;
   }
 
-  if (region.role == RegionRole::implicit_data) s.current.implicit_allocated += region.size;
-  if (region.role == RegionRole::scratch) s.current.scratch_allocated += region.size;
+  if (region.role == RegionRole::implicit_data && !s.implicit_allocated_given) s.current.implicit_allocated += region.size;
+  if (region.role == RegionRole::scratch && !s.scratch_allocated_given) s.current.scratch_allocated += region.size;
 
   if (region.role == RegionRole::buffer || region.size == 0) return;
   s.taken.clear();
-  s.owners.paint(region.base, region.size, AddressOwner{region.id, region.role, cmd}, s.taken);
+  s.owners.paint(region.base, region.size, AddressOwner{region.id, region.role, cmd, region.written}, s.taken);
   for (const OwnerOverlap& o : s.taken) {
     if (o.previous.command == cmd && contained_by_design(o.previous.role, region.role)) continue;
+    // Reading bytes another region only read (shared vertices, a CLAS two BLAS reference) is
+    // sharing, not reuse: neither use changes what the other sees.
+    if (!o.previous.written && !region.written) continue;
+    // The same dstImplicitData rebuilt: the objects of its previous build lived inside it.
+    if (region.role == RegionRole::implicit_data && is_object_role(o.previous.role) &&
+        (o.previous.command == newer_previous_use || o.previous.command == cmd))
+      continue;
     PendingOverlap p;
     p.older = o.previous;
     p.newer_region = region.id;
@@ -312,6 +346,32 @@ void Analyzer::on_hazard(const HazardSummary& h) {
 
 void Analyzer::on_trace_bytes(const TraceBytes& bytes) { state_->report.trace_bytes = bytes; }
 
+void Analyzer::on_gpu_span(const GpuSpan& span) {
+  State& s = *state_;
+  if (span.first_ordinal > span.last_ordinal)
+    throw AnalysisInputError(fmt::format("GPU span: first command {} comes after last command {}",
+                                         span.first_ordinal, span.last_ordinal));
+  AnalysisReport& r = s.report;
+  r.gpu_timing_present = true;
+  ++r.gpu_spans_total;
+  r.gpu_spans_ops += span.ops;
+  r.gpu_spans_triangles += span.triangles;
+  r.gpu_spans_ns = r.gpu_spans_ns > UINT64_MAX - span.gpu_ns ? UINT64_MAX : r.gpu_spans_ns + span.gpu_ns;
+  if (r.gpu_spans.size() < s.limits.max_listed_gpu_spans) r.gpu_spans.push_back(GpuSpanRow{span, 0, {}});
+}
+
+void Analyzer::on_gpu_clock(const GpuClock& clock) {
+  if (!(clock.timestamp_period_ns > 0) || !(clock.timestamp_period_ns < 1e12))
+    throw AnalysisInputError(fmt::format("timestamp period {} ns is not a positive finite period",
+                                         clock.timestamp_period_ns));
+  state_->report.gpu_clock = clock;
+}
+
+void Analyzer::on_note(std::string note) {
+  auto& notes = state_->report.notes;
+  if (notes.size() < 64) notes.push_back(std::move(note));
+}
+
 void Analyzer::State::close_command() {
   AnalysisReport& r = report;
   OpTypeSizes& t = r.by_op_type[static_cast<int>(current.op_type)];
@@ -337,7 +397,7 @@ void Analyzer::State::close_command() {
   }
   if (current.op_mode == OpMode::implicit_destinations) {
     t.implicit_allocated += current.implicit_allocated;
-    t.implicit_used += current_implicit_used;
+    t.implicit_used += implicit_used_given.value_or(current_implicit_used);
   }
   t.scratch_allocated += current.scratch_allocated;
   if (current.scratch_used) t.scratch_used += *current.scratch_used;
@@ -432,6 +492,8 @@ void Analyzer::State::close_command() {
   pending_overlaps.clear();
   pending_hazards.clear();
 
+  add_to_kinds(current);
+
   if (r.commands_listed.size() < limits.max_listed_commands || force_list)
     r.commands_listed.push_back(current);
   recent.push_back(current);
@@ -440,6 +502,36 @@ void Analyzer::State::close_command() {
   top_replay.offer(current, limits.top_commands);
   add_to_timeline(current);
   open = false;
+}
+
+void Analyzer::State::add_to_kinds(const CommandRow& c) {
+  constexpr std::size_t kMaxKinds = 64;
+  auto it = kind_index.find(c.name);
+  if (it == kind_index.end()) {
+    if (report.command_kinds.size() >= kMaxKinds) {
+      ++report.command_kinds_not_listed;
+      return;
+    }
+    it = kind_index.emplace(c.name, report.command_kinds.size()).first;
+    report.command_kinds.push_back(CommandKindRow{});
+    report.command_kinds.back().name = c.name;
+  }
+  CommandKindRow& k = report.command_kinds[it->second];
+  ++k.commands;
+  k.ops += c.op_count;
+  k.triangles += c.triangles;
+  k.objects += c.objects;
+  k.engine_bytes += c.engine_bytes;
+  k.driver_bytes += c.driver_bytes + current_driver_object_bytes;
+  if (c.replay_ns) {
+    k.replay_ns += *c.replay_ns;
+    ++k.replay_commands;
+  }
+  if (c.gpu_ns) {
+    k.gpu_ns += *c.gpu_ns;
+    ++k.gpu_commands;
+  }
+  k.hazards += c.hazards;
 }
 
 void Analyzer::State::add_to_timeline(const CommandRow& c) {
@@ -517,6 +609,22 @@ AnalysisReport Analyzer::finish() {
     return std::tie(a.first_command, a.base, a.id) < std::tie(b.first_command, b.base, b.id);
   });
   for (auto& [key, row] : s.summary) r.overlap_summary.push_back(row);
+
+  // GPU spans on one axis: ns after the first listed span, and on the host clock when the
+  // capture calibrated the device clock (ticks before the calibration point count back).
+  if (!r.gpu_spans.empty()) {
+    const double period = r.gpu_clock ? r.gpu_clock->timestamp_period_ns : 1.0;
+    uint64_t first = UINT64_MAX;
+    for (const GpuSpanRow& g : r.gpu_spans) first = std::min(first, g.span.start_ticks);
+    for (GpuSpanRow& g : r.gpu_spans) {
+      g.start_ns = static_cast<uint64_t>(static_cast<double>(g.span.start_ticks - first) * period + 0.5);
+      if (r.gpu_clock && r.gpu_clock->calibration_ticks && r.gpu_clock->calibration_host_ns) {
+        const double delta = (static_cast<double>(g.span.start_ticks) - static_cast<double>(*r.gpu_clock->calibration_ticks)) * period;
+        const double host = static_cast<double>(*r.gpu_clock->calibration_host_ns) + delta;
+        if (host >= 0 && host < 1.8e19) g.host_start_ns = static_cast<uint64_t>(host + 0.5);
+      }
+    }
+  }
   return std::move(r);
 }
 

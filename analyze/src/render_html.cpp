@@ -229,10 +229,37 @@ void timing(const AnalysisReport& r, const std::set<uint64_t>& listed, std::ostr
   };
   top(r.top_by_gpu, "top-gpu", "GPU");
   top(r.top_by_replay, "top-replay", "replay");
+
+  out << format("<h3 id=\"gpu\">GPU timestamp spans ({})</h3>\n", r.gpu_spans_total) << svg_gpu_spans(r);
+  if (r.gpu_spans.empty()) return;
+  const GpuClock clock = r.gpu_clock.value_or(GpuClock{});
+  out << format("<p class=\"note\">Timestamp period {} ns{}{}. {} ms over all spans: {} ops/s.</p>\n",
+                clock.timestamp_period_ns, clock.period_known ? "" : " (assumed)",
+                clock.calibration_ticks ? format("; device tick {} = host {} ns", *clock.calibration_ticks,
+                                                 clock.calibration_host_ns.value_or(0))
+                                        : std::string(),
+                fmtu::ms(r.gpu_spans_ns), fmtu::fixed(fmtu::per_second(r.gpu_spans_ops, r.gpu_spans_ns), 0))
+      << "<table id=\"gpu-spans\">\n"
+      << head({"first command", "last command", "commands", "ops", "triangles", "start ns", "host start ns", "GPU ns",
+               "ops/s"});
+  for (const GpuSpanRow& g : r.gpu_spans)
+    out << "<tr>" << cmd_link(g.span.first_ordinal, listed) << cmd_link(g.span.last_ordinal, listed)
+        << num(g.span.commands) << num(g.span.ops) << num(g.span.triangles) << num(g.start_ns)
+        << opt_num(g.host_start_ns) << num(g.span.gpu_ns)
+        << num_text(fmtu::fixed(fmtu::per_second(g.span.ops, g.span.gpu_ns), 0)) << "</tr>\n";
+  out << "</table>\n";
 }
 
 void commands(const AnalysisReport& r, std::ostream& out) {
-  out << "<h2 id=\"commands\">Commands</h2>\n<table id=\"command-table\">\n"
+  out << "<h2 id=\"commands\">Commands</h2>\n<table id=\"command-kinds\">\n"
+      << head({"command", "commands", "ops", "triangles", "objects", "engine bytes", "driver bytes", "replay ns",
+               "GPU ns", "hazards"});
+  for (const CommandKindRow& k : r.command_kinds)
+    out << format("<tr data-name=\"{}\">", escape_markup(k.name)) << txt(k.name) << num(k.commands) << num(k.ops)
+        << num(k.triangles) << num(k.objects) << num(k.engine_bytes) << num(k.driver_bytes)
+        << (k.replay_commands ? num(k.replay_ns) : num_text("-")) << (k.gpu_commands ? num(k.gpu_ns) : num_text("-"))
+        << num(k.hazards) << "</tr>\n";
+  out << "</table>\n<table id=\"command-table\">\n"
       << head({"command", "submission", "cb", "index", "name", "op type", "mode", "ops", "triangles", "objects",
                "bytes", "driver bytes", "worst case", "implicit allocated", "scratch allocated", "GPU ns",
                "replay ns", "hazards"});
@@ -259,11 +286,19 @@ void render_html(const AnalysisReport& r, std::ostream& out) {
       << "<title>clastrace analyze: " << name << "</title>\n<style>" << kStyle << "</style>\n</head>\n<body>\n"
       << "<h1>clastrace analyze: " << name << "</h1>\n"
       << "<nav><a href=\"#sizes\">Sizes</a> · <a href=\"#memory\">Memory map</a> · <a href=\"#hazards\">Hazards</a> · "
-         "<a href=\"#timing\">Timing</a> · <a href=\"#commands\">Commands</a></nav>\n"
+         "<a href=\"#timing\">Timing</a> · <a href=\"#gpu\">GPU spans</a> · <a href=\"#commands\">Commands</a></nav>\n"
       << "<table id=\"totals\">\n"
       << head({"commands", "submissions", "ops", "objects", "triangles", "regions", "overlap events", "hazards"})
       << "<tr>" << num(r.commands) << num(r.submissions) << num(r.ops) << num(r.objects) << num(r.triangles)
-      << num(r.regions) << num(r.overlap_events) << num(r.hazards_total) << "</tr>\n</table>\n";
+      << num(r.regions) << num(r.overlap_events) << num(r.hazards_total) << "</tr>\n</table>\n"
+      << format("<p id=\"largest-submission\" data-submission=\"{0}\" data-commands=\"{1}\" data-ops=\"{2}\">"
+                "Largest submission: #{0}, {1} commands, {2} ops.</p>\n",
+                r.largest_submission, r.largest_submission_commands, r.largest_submission_ops);
+  if (!r.notes.empty()) {
+    out << "<ul id=\"notes\">\n";
+    for (const std::string& n : r.notes) out << "<li>" << escape_markup(n) << "</li>\n";
+    out << "</ul>\n";
+  }
   sizes(r, out);
   memory(r, listed, out);
   hazards(r, listed, out);

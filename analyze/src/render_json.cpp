@@ -82,6 +82,7 @@ Json sizes(const AnalysisReport& r) {
     j["vertices"] = s.vertices;
     j["engine_bytes"] = distribution(s.engine_bytes);
     j["bytes_per_triangle"] = opt(fmtu::ratio(s.engine_bytes.sum(), s.triangles));
+    j["bytes_per_vertex"] = opt(fmtu::ratio(s.engine_bytes.sum(), s.vertices));
     j["driver_bytes"] = s.objects_with_driver_bytes ? distribution(s.driver_bytes) : Json(nullptr);
     j["engine_bytes_of_driver_objects"] = s.engine_bytes_of_driver_objects;
     Json q;
@@ -227,8 +228,42 @@ Json timing(const AnalysisReport& r) {
                         {"replay_ns", b.replay_ns},
                         {"gpu_ns", b.gpu_ns},
                         {"gpu_commands", b.gpu_commands}});
+  Json clock = nullptr;
+  if (r.gpu_clock) {
+    const GpuClock& c = *r.gpu_clock;
+    Json calibration = nullptr;
+    if (c.calibration_ticks && c.calibration_host_ns)
+      calibration = {{"gpu_ticks", *c.calibration_ticks},
+                     {"host_ns", *c.calibration_host_ns},
+                     {"max_deviation_ns", opt(c.calibration_max_deviation_ns)}};
+    clock = {{"timestamp_period_ns", c.timestamp_period_ns}, {"period_known", c.period_known}, {"calibration", calibration}};
+  }
+  Json spans = Json::array();
+  for (const GpuSpanRow& g : r.gpu_spans)
+    spans.push_back({{"first_ordinal", g.span.first_ordinal},
+                     {"last_ordinal", g.span.last_ordinal},
+                     {"commands", g.span.commands},
+                     {"ops", g.span.ops},
+                     {"triangles", g.span.triangles},
+                     {"start_ticks", g.span.start_ticks},
+                     {"start_ns", g.start_ns},
+                     {"host_start_ns", opt(g.host_start_ns)},
+                     {"gpu_ns", g.span.gpu_ns}});
+  auto mtris_all = [](uint64_t tris, uint64_t ns) {
+    auto v = fmtu::per_second(tris, ns);
+    return v ? Json(*v / 1e6) : Json(nullptr);
+  };
+  Json gpu_spans = {{"total", r.gpu_spans_total},
+                    {"gpu_ns", r.gpu_spans_ns},
+                    {"ops", r.gpu_spans_ops},
+                    {"triangles", r.gpu_spans_triangles},
+                    {"ops_per_second", opt(fmtu::per_second(r.gpu_spans_ops, r.gpu_spans_ns))},
+                    {"mtris_per_second", mtris_all(r.gpu_spans_triangles, r.gpu_spans_ns)},
+                    {"listed", spans}};
   return {{"gpu_timing_present", r.gpu_timing_present},
           {"replay_timing_present", r.replay_timing_present},
+          {"gpu_clock", clock},
+          {"gpu_spans", gpu_spans},
           {"by_op_type", by},
           {"top_by_gpu", top_gpu},
           {"top_by_replay", top_replay},
@@ -243,16 +278,36 @@ void render_json(const AnalysisReport& r, std::ostream& out) {
   j["tool"] = "clastrace analyze";
   j["trace"] = r.trace_name;
   j["totals"] = {{"commands", r.commands}, {"submissions", r.submissions}, {"ops", r.ops},
-                 {"objects", r.objects},   {"triangles", r.triangles}};
+                 {"objects", r.objects},   {"triangles", r.triangles},
+                 {"largest_submission", {{"submission", r.largest_submission},
+                                         {"commands", r.largest_submission_commands},
+                                         {"ops", r.largest_submission_ops}}}};
   j["sizes"] = sizes(r);
   Json commands;
   commands["listed"] = Json::array();
   for (const CommandRow& c : r.commands_listed) commands["listed"].push_back(command_row(c));
   commands["not_listed"] = r.commands_not_listed;
+  Json kinds = Json::array();
+  for (const CommandKindRow& k : r.command_kinds)
+    kinds.push_back({{"name", k.name},
+                     {"commands", k.commands},
+                     {"ops", k.ops},
+                     {"triangles", k.triangles},
+                     {"objects", k.objects},
+                     {"engine_bytes", k.engine_bytes},
+                     {"driver_bytes", k.driver_bytes},
+                     {"replay_ns", k.replay_ns},
+                     {"replay_commands", k.replay_commands},
+                     {"gpu_ns", k.gpu_ns},
+                     {"gpu_commands", k.gpu_commands},
+                     {"hazards", k.hazards}});
+  commands["kinds"] = kinds;
+  commands["kinds_not_listed"] = r.command_kinds_not_listed;
   j["commands"] = commands;
   j["overlap"] = overlap(r);
   j["hazards"] = hazards(r);
   j["timing"] = timing(r);
+  j["notes"] = r.notes;
   // Labels come from traces and may hold invalid UTF-8: replace rather than throw.
   out << j.dump(2, ' ', false, Json::error_handler_t::replace) << '\n';
 }

@@ -117,13 +117,33 @@ void sizes_section(const AnalysisReport& r, std::ostream& out) {
 
 void commands_section(const AnalysisReport& r, std::ostream& out) {
   heading(out, "Commands");
+  if (!r.command_kinds.empty()) {
+    out << "By kind (vkCmd...; driver B: captured sizes, and the object size the driver was asked for\n"
+           "where replay does not rebuild the command's objects; replay and gpu in ms)\n";
+    TextTable k;
+    k.column("command", Align::left).column("cmds").column("ops").column("tris").column("engine B");
+    k.column("driver B").column("replay").column("gpu");
+    for (const CommandKindRow& c : r.command_kinds) {
+      const bool vk = c.name.rfind("vkCmd", 0) == 0;
+      k.row({vk ? c.name.substr(5) : c.name, num(c.commands), num(c.ops), num(c.triangles), num(c.engine_bytes),
+             num(c.driver_bytes), c.replay_commands ? fmtu::ms(c.replay_ns) : "-",
+             c.gpu_commands ? fmtu::ms(c.gpu_ns) : "-"});
+    }
+    k.print(out, kTextColumns);
+    if (r.command_kinds_not_listed) out << format("({} commands of further kinds)\n", r.command_kinds_not_listed);
+    out << '\n';
+  }
   TextTable t;
   t.column("#").column("sub").column("op", Align::left).column("mode", Align::left).column("ops");
   t.column("objects").column("bytes").column("worst case").column("implicit").column("scratch").column("haz");
   std::size_t shown = 0;
   for (const CommandRow& c : r.commands_listed) {
     if (shown++ == kTextRows) break;
-    t.row({num(c.ordinal), num(c.submission), op_type_short(c.op_type), op_mode_name(c.op_mode), num(c.op_count),
+    // Commands outside the cluster extension say what they are by name (vkCmd dropped).
+    const std::string op = c.op_type != OpType::other ? op_type_short(c.op_type)
+                           : c.name.rfind("vkCmd", 0) == 0 ? c.name.substr(5)
+                                                           : c.name;
+    t.row({num(c.ordinal), num(c.submission), op, op_mode_name(c.op_mode), num(c.op_count),
            num(c.objects), num(c.engine_bytes), opt_num(c.worst_case_bytes), num(c.implicit_allocated),
            num(c.scratch_allocated), num(c.hazards)});
   }
@@ -213,6 +233,31 @@ void timing_section(const AnalysisReport& r, std::ostream& out) {
   };
   top(r.top_by_gpu, "GPU");
   top(r.top_by_replay, "replay");
+
+  if (r.gpu_spans_total) {
+    const GpuClock clock = r.gpu_clock.value_or(GpuClock{});
+    out << format("\nGPU timestamp spans: {} spans, {} ms, {} ops ({} ops/s), {} triangles\n", r.gpu_spans_total,
+                  fmtu::ms(r.gpu_spans_ns), r.gpu_spans_ops,
+                  fmtu::fixed(fmtu::per_second(r.gpu_spans_ops, r.gpu_spans_ns), 0), r.gpu_spans_triangles);
+    out << format("(timestamp period {} ns{}{})\n", clock.timestamp_period_ns, clock.period_known ? "" : ", assumed",
+                  clock.calibration_ticks ? format("; calibrated: tick {} = host {} ns +- {} ns", *clock.calibration_ticks,
+                                                   clock.calibration_host_ns.value_or(0),
+                                                   clock.calibration_max_deviation_ns.value_or(0))
+                                          : std::string());
+    TextTable s;
+    s.column("commands").column("cmds").column("ops").column("triangles").column("start us").column("host start ms");
+    s.column("gpu us").column("ops/s");
+    std::size_t shown = 0;
+    for (const GpuSpanRow& g : r.gpu_spans) {
+      if (shown++ == kTextRows) break;
+      s.row({format("{}..{}", g.span.first_ordinal, g.span.last_ordinal), num(g.span.commands), num(g.span.ops),
+             num(g.span.triangles), opt_us(g.start_ns),
+             g.host_start_ns ? format("{:.3f}", static_cast<double>(*g.host_start_ns) / 1e6) : "-", opt_us(g.span.gpu_ns),
+             fmtu::fixed(fmtu::per_second(g.span.ops, g.span.gpu_ns), 0)});
+    }
+    s.print(out, kTextColumns);
+    if (r.gpu_spans_total > shown) out << format("({} more spans in --json)\n", r.gpu_spans_total - shown);
+  }
 }
 
 }  // namespace
@@ -230,10 +275,31 @@ void render_text(const AnalysisReport& r, std::ostream& out) {
               num(r.overlap_events), num(r.hazards_total)});
   out << '\n';
   totals.print(out, kTextColumns);
+  if (r.commands)
+    out << format("largest submission: #{}, {} commands, {} ops\n", r.largest_submission,
+                  r.largest_submission_commands, r.largest_submission_ops);
   sizes_section(r, out);
   commands_section(r, out);
   overlap_section(r, out);
   timing_section(r, out);
+  if (!r.notes.empty()) {
+    heading(out, "Notes");
+    for (const std::string& n : r.notes) {
+      std::string line = n;
+      for (char& ch : line)
+        if (static_cast<unsigned char>(ch) < 0x20 || ch == 0x7f) ch = '?';
+      std::string prefix = "- ";  // wrapped at the terminal width
+      while (prefix.size() + line.size() > kTextColumns) {
+        const std::size_t room = kTextColumns - prefix.size();
+        std::size_t cut = line.rfind(' ', room);
+        if (cut == std::string::npos || cut == 0) cut = room;
+        out << prefix << line.substr(0, cut) << '\n';
+        line = line.substr(cut + (cut < line.size() && line[cut] == ' ' ? 1 : 0));
+        prefix = "  ";
+      }
+      out << prefix << line << '\n';
+    }
+  }
 }
 
 std::string render_text(const AnalysisReport& r) {

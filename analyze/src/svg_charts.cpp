@@ -320,6 +320,45 @@ std::string svg_timeline(const AnalysisReport& r) {
   return s;
 }
 
+std::string svg_gpu_spans(const AnalysisReport& r) {
+  const double left = 70, top = 20, plot_w = 880, lane_h = 28;
+  uint64_t end = 0;
+  for (const GpuSpanRow& g : r.gpu_spans) end = std::max(end, g.start_ns + g.span.gpu_ns);
+  std::string s = format(
+      "<svg id=\"gpu-timeline\" class=\"chart\" role=\"img\" width=\"{}\" height=\"{}\" viewBox=\"0 0 {} {}\">\n"
+      "<title>GPU timestamp spans on the device clock</title>\n",
+      left + plot_w + 20, top + lane_h + 50, left + plot_w + 20, top + lane_h + 50);
+  if (r.gpu_spans.empty() || end == 0) {
+    s += format("<text x=\"{}\" y=\"{}\">no GPU timestamps recorded</text>\n</svg>\n", left, top + 20);
+    return s;
+  }
+  std::set<uint64_t> listed;
+  for (const CommandRow& c : r.commands_listed) listed.insert(c.ordinal);
+  const double scale = plot_w / static_cast<double>(end);
+  for (const GpuSpanRow& g : r.gpu_spans) {
+    const double x = left + scale * static_cast<double>(g.start_ns);
+    const double w = std::max(1.0, scale * static_cast<double>(g.span.gpu_ns));
+    const bool link = listed.count(g.span.first_ordinal) > 0;
+    if (link) s += format("<a href=\"#cmd-{}\">", g.span.first_ordinal);
+    s += format("<rect class=\"gpu-span gpu\" data-first=\"{}\" data-last=\"{}\" data-start-ns=\"{}\" data-ns=\"{}\" "
+                "data-ops=\"{}\" x=\"{:.2f}\" y=\"{}\" width=\"{:.2f}\" height=\"{}\"><title>commands {}..{}: {} ops, {} ms"
+                "</title></rect>",
+                g.span.first_ordinal, g.span.last_ordinal, g.start_ns, g.span.gpu_ns, g.span.ops, x, top, w, lane_h,
+                g.span.first_ordinal, g.span.last_ordinal, g.span.ops, fmtu::ms(g.span.gpu_ns));
+    if (link) s += "</a>";
+    s += '\n';
+  }
+  s += format("<line class=\"axis-line\" x1=\"{}\" x2=\"{}\" y1=\"{}\" y2=\"{}\"/>\n", left, left + plot_w,
+              top + lane_h, top + lane_h);
+  s += format("<text class=\"axis\" x=\"{}\" y=\"{}\" text-anchor=\"start\">0</text>\n", left, top + lane_h + 14);
+  s += format("<text class=\"axis\" x=\"{}\" y=\"{}\" text-anchor=\"end\">{} ms</text>\n", left + plot_w,
+              top + lane_h + 14, fmtu::ms(end));
+  s += format("<text class=\"axis-title\" x=\"{}\" y=\"{}\" text-anchor=\"middle\">GPU time since the first span</text>\n",
+              left + plot_w / 2, top + lane_h + 34);
+  s += "</svg>\n";
+  return s;
+}
+
 std::string svg_size_budget(const AnalysisReport& r) {
   struct Row {
     std::string label;

@@ -19,6 +19,9 @@ std::string svg_timeline(const AnalysisReport& r);
 std::string svg_size_budget(const AnalysisReport& r);
 // Bytes per triangle by positionTruncateBitCount (id truncation-chart).
 std::string svg_truncation(const AnalysisReport& r);
+// GPU timestamp spans on the device clock: one bar per span from its start, as wide as its
+// time (id gpu-timeline; rect.gpu-span with data-first, data-last, data-start-ns, data-ns).
+std::string svg_gpu_spans(const AnalysisReport& r);
 const char* role_color(RegionRole role);
 
 }  // namespace clastrace::analyze

@@ -3,6 +3,7 @@
 #include <clastrace/engine/execute.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cinttypes>
 #include <cstddef>
 #include <cstdio>
@@ -305,8 +306,12 @@ void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect
     options.max_findings_per_rule = c.options.max_findings_per_rule;
     options.queried_max_count = queried_max_count;
     engine::ExecutionRecord record;
+    const auto started = std::chrono::steady_clock::now();
     try {
         record = engine::execute(info, c.memory.image(), options);
+        if (c.engine_ns)
+            *c.engine_ns = static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                                     std::chrono::steady_clock::now() - started).count());
     } catch (const std::exception& e) {
         c.add_finding({"CLASTRACE-replay-engine-failed", std::string("the engine stopped: ") + e.what(),
                        FindingSource::kReplay, c.where, -1, 0});
@@ -324,6 +329,7 @@ void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect
         }
     }
     verify(build, info, record, c);
+    if (c.executed) *c.executed = std::move(record);
 }
 
 }  // namespace clastrace::replay::detail

@@ -5,6 +5,7 @@
 
 #include "replay_memory.hpp"
 
+#include <clastrace/engine/execution_record.h>
 #include <clastrace/engine/object_directory.h>
 #include <clastrace/engine/properties.h>
 #include <clastrace/replay/replay_report.hpp>
@@ -43,6 +44,9 @@ struct ClusterCommandContext {
     bool engine_trace;
     std::function<void(ReplayFinding)> add_finding;
     std::function<bool(uint64_t hash, std::vector<uint8_t>* bytes)> contents;
+    // For a ReplayObserver: the engine's record and its time are moved here when non-null.
+    engine::ExecutionRecord* executed = nullptr;
+    uint64_t* engine_ns = nullptr;
 };
 
 void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect& build, uint32_t queried_max_count,

@@ -12,6 +12,7 @@
 #include <clastrace/traces/trace_reader.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cstring>
 #include <map>
 #include <tuple>
@@ -152,6 +153,7 @@ private:
     void on_record(const traces::RecordView& view);
     void on_submit(const fbs::QueueSubmit& submit);
     void execute_command(const fbs::Record& record, const CommandRef& ref, uint64_t sequence);
+    void replay_command(const fbs::Record& record, const CommandRef& ref, uint64_t sequence, bool selected);
     void host_observation(const fbs::MemoryObservation& observation);
 
     // Memory helpers.
@@ -197,7 +199,42 @@ private:
     uint64_t sequence_ = 0;
     uint32_t next_submission_ = 0;
     uint32_t host_ops_ = 0;
+    // Where run_cluster_command leaves the engine's record for options_.observer (null without one).
+    engine::ExecutionRecord* observed_execution_ = nullptr;
+    uint64_t* observed_engine_ns_ = nullptr;
 };
+
+// Executes (or skips) one command and, with an observer, hands it the command, then the
+// findings and hazards the command produced.
+void Replay::replay_command(const fbs::Record& record, const CommandRef& ref, uint64_t sequence, bool selected) {
+    ReplayObserver* observer = options_.observer;
+    const size_t findings = report_.findings.size(), hazards = options_.check_hazards ? sync_.hazards().size() : 0;
+    const uint64_t engine_runs = report_.counts.cluster_commands;
+    engine::ExecutionRecord execution;
+    uint64_t engine_ns = 0;
+    if (observer) {
+        observed_execution_ = &execution;
+        observed_engine_ns_ = &engine_ns;
+    }
+    const auto started = std::chrono::steady_clock::now();
+    if (selected) {
+        execute_command(record, ref, sequence);
+    } else {
+        ++report_.counts.skipped_commands;
+    }
+    if (!observer) return;
+    observed_execution_ = nullptr;
+    observed_engine_ns_ = nullptr;
+    ReplayedCommand c{location(ref, sequence), &record, selected,
+                      report_.counts.cluster_commands != engine_runs ? &execution : nullptr, engine_ns,
+                      static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                                std::chrono::steady_clock::now() - started).count()),
+                      &memory_.image()};
+    observer->on_command(c);
+    for (size_t i = findings; i < report_.findings.size(); ++i) observer->on_finding(report_.findings[i]);
+    if (options_.check_hazards)
+        for (size_t i = hazards; i < sync_.hazards().size(); ++i) observer->on_hazard(sync_.hazards()[i]);
+}
 
 void Replay::add_finding(ReplayFinding finding) {
     if (report_.findings.size() >= options_.max_findings) {
@@ -491,7 +528,8 @@ void Replay::execute_command(const fbs::Record& record, const CommandRef& ref, u
         detail::ClusterCommandContext context{memory_, directory_, translation_, properties_, options_, report_, sync_,
                                               ref,     where,      report_.engine_trace,
                                               [this](ReplayFinding f) { add_finding(std::move(f)); },
-                                              [this](uint64_t hash, std::vector<uint8_t>* out) { return contents(hash, out); }};
+                                              [this](uint64_t hash, std::vector<uint8_t>* out) { return contents(hash, out); },
+                                              observed_execution_, observed_engine_ns_};
         detail::run_cluster_command(build, queried, context);
         break;
     }
@@ -511,6 +549,7 @@ void Replay::on_submit(const fbs::QueueSubmit& submit) {
     host_ops_ = 0;
     ++report_.counts.submissions;
     if (submit.result() != VK_SUCCESS) return;  // nothing reached the queue
+    if (options_.observer) options_.observer->on_submission_begin(submission);
     const QueueId queue = queue_id(submit.queue());
     const auto* batches = submit.batches();
     const size_t batch_count = batches ? batches->size() : 0;
@@ -535,11 +574,7 @@ void Replay::on_submit(const fbs::QueueSubmit& submit) {
                         const fbs::Record* record = flatbuffers::GetRoot<fbs::Record>(bytes.data());
                         const uint64_t sequence = sequence_++;
                         CommandRef ref{submission, cb_index, handle, command, command_name(record->body_type())};
-                        if (selected(sequence, submission)) {
-                            execute_command(*record, ref, sequence);
-                        } else {
-                            ++report_.counts.skipped_commands;
-                        }
+                        replay_command(*record, ref, sequence, selected(sequence, submission));
                         ++command;
                     }
                     if (it->second.one_time) recorded_.erase(it);
@@ -549,6 +584,7 @@ void Replay::on_submit(const fbs::QueueSubmit& submit) {
         }
         if (options_.check_hazards) sync_.end_submission(signals, b + 1 >= batch_count ? submit.fence() : 0);
     }
+    if (options_.observer) options_.observer->on_submission_end(submission);
 }
 
 void Replay::on_record(const traces::RecordView& view) {
@@ -643,6 +679,7 @@ ReplayReport Replay::run() {
     ReplayProgress progress;
     while (reader_.next(&view)) {
         ++report_.counts.records;
+        if (options_.observer) options_.observer->on_record(view);
         on_record(view);
         if (options_.progress && (report_.counts.records & 63) == 0) {
             progress.bytes_read = view.chunk_offset;

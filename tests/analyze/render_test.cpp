@@ -89,7 +89,7 @@ TEST(RenderJson, TopLevelFieldsAreStable) {
   std::vector<std::string> keys;
   for (auto it = j.begin(); it != j.end(); ++it) keys.push_back(it.key());
   EXPECT_EQ(keys, (std::vector<std::string>{"schema_version", "tool", "trace", "totals", "sizes", "commands", "overlap",
-                                            "hazards", "timing"}));
+                                            "hazards", "timing", "notes"}));
 }
 
 TEST(RenderHtml, SelfContainedWithoutScriptOrNetwork) {
@@ -115,7 +115,7 @@ TEST(RenderHtml, HasChartsTablesAndLinksWithTheRightNumbers) {
   EXPECT_EQ(count(html, "<rect class=\"region "), 14u);
   EXPECT_EQ(count(html, "<rect class=\"overlap hazard\""), 1u);
   EXPECT_EQ(count(html, "<rect class=\"overlap aliasing\""), 1u);
-  EXPECT_EQ(count(html, "<rect class=\"overlap reuse\""), 4u);
+  EXPECT_EQ(count(html, "<rect class=\"overlap reuse\""), 3u);
   EXPECT_EQ(count(html, "<rect class=\"bar\" data-low"), 3u);  // blas: 1 bin, clas: 2 bins
   // Size budgets: blas objects 800 of 1000, scratch 512 of 4096; clas objects 5500 of 7400,
   // implicit 5500 of 7000, scratch 3072 of 8192.

@@ -16,7 +16,8 @@ namespace clastrace::analyze::synthetic {
 //        102 @0x10900 1400 B (10/20/30 triangles, truncate 0/0/4, driver 1100/1300/1500);
 //        query: 5000 B, scratch 2048. gpu 50 us, replay 200 us.
 //  cmd 1 (sub 0) build_clusters_bottom_level, explicit, 1 op: new scratch 21 on 11's bytes
-//        (reuse, 4096 B), src_infos 22 [0x30000,+16) on 12 (reuse, 16 B), reads 100..102,
+//        (reuse, 4096 B), src_infos 22 [0x30000,+16) read where 12 was read (sharing: no
+//        overlap, neither writes), reads 100..102,
 //        writes BLAS 200 @0x40000 800 B (60 triangles); query 1000 B/object, scratch 512.
 //        gpu 20 us, replay 100 us.
 //  cmd 2 (sub 1) build_triangle_cluster, implicit, 2 ops: implicit data 30 [0x10400,+2000)
@@ -26,6 +27,9 @@ namespace clastrace::analyze::synthetic {
 //        untruncated 1000), 301 @0x107d0 1000 B (25 tris, truncate 8, untruncated 1200).
 //        query 2400 B, scratch 1024. replay 50 us, no GPU timestamp.
 //  trace bytes: raw 100000, deduplicated 40000, compressed 10000.
+//  GPU: 1.5 ns per tick; one timestamp span over cmds 0..1 (ticks 1000..51000: 75 us, 4 ops,
+//  120 triangles); calibration tick 1000 = host 2 s, so the span starts at host 2000000000 ns.
+//  One note.
 inline void feed_small_scenario(Analyzer& a) {
   auto region = [&](uint64_t id, const char* label, uint64_t base, uint64_t size, RegionRole role, bool written) {
     a.on_region(RegionInfo{id, label, base, size, role, written});
@@ -45,6 +49,15 @@ inline void feed_small_scenario(Analyzer& a) {
     a.on_object(o);
   };
   a.on_trace_bytes(TraceBytes{100000, 40000, 10000});
+  GpuClock clock;
+  clock.timestamp_period_ns = 1.5;
+  clock.period_known = true;
+  clock.calibration_ticks = 1000;
+  clock.calibration_host_ns = 2'000'000'000;
+  clock.calibration_max_deviation_ns = 100;
+  a.on_gpu_clock(clock);
+  a.on_gpu_span(GpuSpan{0, 1, 2, 4, 120, 1000, 75000});
+  a.on_note("a note for people");
 
   CommandInfo c0;
   c0.ordinal = 0;

@@ -1,9 +1,11 @@
-// `clastrace analyze` on the shipped sample (text, JSON, HTML, exit codes) and the adapter
-// that turns a ReplayReport into analyzer events, on a trace with a known hazard.
+// `clastrace analyze` on the shipped sample (text, JSON, HTML, exit codes) and the streaming
+// feeder (analyze_trace) on a trace with a known hazard and on damaged traces.
+#include "analyze_scene.h"
 #include "scene_trace.h"
 
 #include <clastrace/analyze/analyzer.h>
-#include <clastrace/analyze/replay_adapter.h>
+#include <clastrace/analyze/render.h>
+#include <clastrace/analyze/replay_stream.h>
 #include <clastrace/replay/replayer.hpp>
 #include <clastrace/traces/trace_reader.h>
 
@@ -16,6 +18,7 @@
 #include <fstream>
 #include <iterator>
 #include <random>
+#include <sstream>
 #include <vector>
 #include <string>
 #include <sys/wait.h>
@@ -61,14 +64,6 @@ void scratch_scene(const std::string& path, bool with_barrier) {
     t.finish();
 }
 
-replay::ReplayReport replay_file(const std::string& path) {
-    traces::TraceError e;
-    auto reader = traces::TraceReader::open(path, &e);
-    EXPECT_TRUE(reader) << e.message;
-    if (!reader) return {};
-    return replay::replay_trace(*reader, path);
-}
-
 TEST(AnalyzeCli, TextHasSizeTables) {
     std::string out;
     ASSERT_EQ(run_cli(std::string("analyze ") + CLASTRACE_SAMPLE, &out), 0) << out;
@@ -82,12 +77,18 @@ TEST(AnalyzeCli, JsonCountsMatchReplay) {
     ASSERT_EQ(run_cli(std::string("analyze --json ") + CLASTRACE_SAMPLE, &analyze_out), 0) << analyze_out;
     const nlohmann::json r = nlohmann::json::parse(replay_out);
     const nlohmann::json a = nlohmann::json::parse(analyze_out);
-    EXPECT_EQ(a["schema_version"], 1);
-    // The adapter feeds the cluster commands (what the replay report keeps sizes of), one
-    // object per op whose sizes were compared.
+    EXPECT_EQ(a["schema_version"], 2);
+    // Every replayed command is fed (timestamps and labels are spans, not commands).
     ASSERT_GT(r["counts"]["cluster_commands"].get<uint64_t>(), 0u);
-    EXPECT_EQ(a["totals"]["commands"], r["counts"]["cluster_commands"]);
-    EXPECT_EQ(a["totals"]["ops"], r["counts"]["cluster_ops"]);
+    EXPECT_EQ(a["totals"]["commands"], r["counts"]["commands"]);
+    uint64_t cluster_commands = 0, cluster_ops = 0;
+    for (const auto& k : a["commands"]["kinds"])
+        if (k["name"] == "vkCmdBuildClusterAccelerationStructureIndirectNV") {
+            cluster_commands = k["commands"].get<uint64_t>();
+            cluster_ops = k["ops"].get<uint64_t>();
+        }
+    EXPECT_EQ(cluster_commands, r["counts"]["cluster_commands"]);
+    EXPECT_EQ(cluster_ops, r["counts"]["cluster_ops"]);
     uint64_t compared_ops = 0, engine_bytes = 0, captured_bytes = 0;
     for (const auto& s : r["sizes"]) {
         compared_ops += s["first_ops"].size();
@@ -96,18 +97,20 @@ TEST(AnalyzeCli, JsonCountsMatchReplay) {
             captured_bytes += op["captured"].get<uint64_t>();
         }
     }
-    EXPECT_EQ(a["totals"]["objects"], compared_ops);
-    EXPECT_EQ(a["totals"]["objects"], r["counts"]["cluster_ops"]);  // the sample has < 64 ops per command
-    const nlohmann::json clas = a["sizes"]["by_op_type"];
-    uint64_t objects = 0, engine = 0;
-    for (const auto& t : clas) {
+    EXPECT_EQ(a["totals"]["objects"], compared_ops);  // the sample has < 64 ops per command
+    uint64_t objects = 0, engine = 0, driver = 0;
+    for (const auto& t : a["sizes"]["by_op_type"]) {
         objects += t["objects"].get<uint64_t>();
         engine += t["engine_bytes"]["sum"].get<uint64_t>();
+        if (!t["driver_bytes"].is_null()) driver += t["driver_bytes"]["sum"].get<uint64_t>();
     }
     EXPECT_EQ(objects, compared_ops);
     EXPECT_EQ(engine, engine_bytes);
-    EXPECT_GT(captured_bytes, 0u);
+    EXPECT_EQ(driver, captured_bytes);
     EXPECT_EQ(a["hazards"]["total"], 0);
+    // The sample brackets its commands with two GPU timestamps 48250 ticks apart.
+    ASSERT_EQ(a["timing"]["gpu_spans"]["total"], 1);
+    EXPECT_FALSE(a["sizes"]["trace_bytes"].is_null());
 }
 
 TEST(AnalyzeCli, HtmlIsSelfContainedWithSvg) {
@@ -130,6 +133,9 @@ TEST(AnalyzeCli, ExitCodes) {
     EXPECT_EQ(run_cli(std::string("analyze --json --html x.html ") + CLASTRACE_SAMPLE, &out), 2);
     EXPECT_EQ(run_cli("analyze", &out), 2);
     EXPECT_EQ(run_cli("analyze --help", &out), 0);
+    EXPECT_NE(out.find("--truncation-rebuilds"), std::string::npos) << out;
+    EXPECT_EQ(run_cli(std::string("analyze --truncation-rebuilds -1 ") + CLASTRACE_SAMPLE, &out), 2);
+    EXPECT_EQ(run_cli(std::string("analyze --truncation-rebuilds 0 --json ") + CLASTRACE_SAMPLE, &out), 0);
     EXPECT_EQ(run_cli(std::string("analyze ") + CLASTRACE_SAMPLE + " --html /nonexistent-dir/r.html", &out), 2);
 
     const std::string hazard = temp_path("hazard.clt");
@@ -142,47 +148,112 @@ TEST(AnalyzeCli, ExitCodes) {
     std::remove(hazard.c_str());
 }
 
-TEST(ReplayAdapter, HazardNamesBothBuildsInSequenceOrder) {
-    const std::string path = temp_path("adapter.clt");
+TEST(AnalyzeTrace, HazardNamesBothBuildsInSequenceOrder) {
+    const std::string path = temp_path("stream.clt");
     scratch_scene(path, false);
-    replay::ReplayReport r = replay_file(path);
-    ASSERT_EQ(r.sizes.size(), 2u);
-    ASSERT_EQ(r.hazards.size(), 1u);
-
-    analyze::Analyzer analyzer(path);
-    const analyze::ReplayFeedStats fed = analyze::feed_replay_report(r, analyzer);
-    const analyze::AnalysisReport report = analyzer.finish();
+    traces::TraceError e;
+    auto reader = traces::TraceReader::open(path, &e);
+    ASSERT_TRUE(reader) << e.message;
+    const analyze::TraceAnalysis a = analyze::analyze_trace(*reader, path);
     std::remove(path.c_str());
 
-    EXPECT_EQ(fed.commands, 2u);
-    EXPECT_EQ(fed.hazards, 1u);
-    EXPECT_EQ(fed.hazards_not_fed, 0u);
-    EXPECT_EQ(fed.ops_without_sizes, 0u);
-    EXPECT_EQ(report.commands, 2u);
-    EXPECT_EQ(report.objects, r.counts.cluster_ops);
-    ASSERT_EQ(report.hazards.size(), 1u);
-    const analyze::HazardSummary& h = report.hazards[0].hazard;
+    const replay::ReplayReport& r = a.replay;
+    ASSERT_EQ(r.sizes.size(), 2u);
+    ASSERT_EQ(r.hazards.size(), 1u);
+    EXPECT_EQ(a.report.commands, r.counts.commands);
+    EXPECT_EQ(a.report.objects, r.counts.cluster_ops);
+    ASSERT_EQ(a.report.hazards.size(), 1u);
+    const analyze::HazardSummary& h = a.report.hazards[0].hazard;
     EXPECT_EQ(h.hazard_class, "WRITE-AFTER-WRITE");
     EXPECT_EQ(h.first_command, r.sizes[0].where.sequence);
     EXPECT_EQ(h.second_command, r.sizes[1].where.sequence);
     EXPECT_GT(h.size, 0u);
-    const analyze::OpTypeSizes& clas = report.sizes(analyze::OpType::build_triangle_cluster);
+    const analyze::OpTypeSizes& clas = a.report.sizes(analyze::OpType::build_triangle_cluster);
     EXPECT_EQ(clas.commands, 2u);
     EXPECT_EQ(clas.objects_with_driver_bytes, r.counts.cluster_ops);
     uint64_t engine = 0;
     for (const auto& s : r.sizes) engine += s.engine_bytes;
     EXPECT_EQ(clas.engine_bytes.sum(), engine);
+    // Both builds write the same scratch bytes: one region, so the hazard has no overlap event
+    // of two regions; it is still listed with both commands.
+    EXPECT_EQ(a.report.hazards_total, 1u);
 }
 
-// Damaged traces give replay reports with gaps (commands cut off, hazards without their first
-// command): the adapter must still hand the analyzer a valid event stream.
-TEST(ReplayAdapter, DamagedTracesStillFeedValidEvents) {
+// A BLAS over a built CLAS, then a move of that CLAS into the BLAS's memory: the CLAS is one
+// region from its build through both reads; the move's implicit data taking the BLAS's bytes
+// is an ordered reuse, and so is the BLAS's 16-byte scratch on the first build's 32.
+TEST(AnalyzeTrace, BlasAndMoveReadTheClasTheyName) {
+    const std::string path = temp_path("blas_move.clt");
+    {
+        test::SceneTrace t(path, true);
+        t.build({});
+        t.barrier(kBuild, kAsWrite, kBuild, kAsRead | kAsWrite);
+        t.build_blas({test::SceneBuffers::kDst});
+        t.barrier(kBuild, kAsWrite, kBuild, kAsRead | kAsWrite);
+        t.move_clusters({test::SceneBuffers::kDst});
+        t.finish();
+    }
+    traces::TraceError e;
+    auto reader = traces::TraceReader::open(path, &e);
+    ASSERT_TRUE(reader) << e.message;
+    const analyze::TraceAnalysis a = analyze::analyze_trace(*reader, path);
+    std::remove(path.c_str());
+    const analyze::AnalysisReport& r = a.report;
+    EXPECT_EQ(r.hazards_total, 0u);
+    EXPECT_EQ(r.sizes(analyze::OpType::build_clusters_bottom_level).objects, 1u);
+    EXPECT_EQ(r.sizes(analyze::OpType::move_objects).objects, 1u);
+    const analyze::RegionRow* clas = nullptr;
+    for (const auto& row : r.region_rows)
+        if (row.role == analyze::RegionRole::object_clas && row.base == test::SceneBuffers::kDst) clas = &row;
+    ASSERT_NE(clas, nullptr);
+    EXPECT_EQ(clas->first_command, 0u);
+    EXPECT_EQ(clas->last_command, 4u);  // build 0, barrier 1, BLAS 2, barrier 3, move 4
+    EXPECT_EQ(clas->uses, 3u);
+    ASSERT_EQ(r.overlap_events, 2u) << analyze::render_text(r);
+    EXPECT_EQ(r.overlaps[0].older_role, analyze::RegionRole::scratch);
+    EXPECT_EQ(r.overlaps[0].size, 16u);
+    EXPECT_EQ(r.overlaps[1].older_role, analyze::RegionRole::object_blas);
+    EXPECT_EQ(r.overlaps[1].older_command, 2u);
+    EXPECT_EQ(r.overlaps[1].newer_role, analyze::RegionRole::implicit_data);
+    EXPECT_EQ(r.overlaps[1].newer_command, 4u);
+    for (const auto& o : r.overlaps) {
+        EXPECT_EQ(o.kind, analyze::OverlapKind::reuse);
+        EXPECT_FALSE(o.hazard);
+    }
+}
+
+// Damaged traces replay with gaps (commands cut off, hazards without their first command):
+// the feeder must still hand the analyzer a valid event stream.
+// A scene with every record kind the feeder reads: timestamps, calibration, build-sizes
+// queries, an NV build and a deserialization.
+void every_kind_scene(const std::string& path) {
+    test::AnalyzeSceneWriter w(path, 2.0f);
+    w.timestamp(1000);
+    test::ClusterBuild a;
+    a.triangle_counts = {2, 8, 18};
+    a.truncate_bits = 6;
+    w.build(a);
+    w.timestamp(1600);
+    w.nv_build(24, 12345, 2048);
+    w.deserialize(256, 4096);
+    w.timestamp(3100);
+    w.calibrate(1000, 5'000'000, 250);
+    w.submit();
+    w.build(a);
+    w.submit();
+    w.finish();
+}
+
+class AnalyzeDamaged : public ::testing::TestWithParam<int> {};
+
+TEST_P(AnalyzeDamaged, StillFeedValidEvents) {
     const std::string clean = temp_path("mutate_clean.clt");
-    scratch_scene(clean, false);
+    if (GetParam() == 0) scratch_scene(clean, false);
+    else every_kind_scene(clean);
     const std::string bytes_text = read_file(clean);
     const std::vector<char> bytes(bytes_text.begin(), bytes_text.end());
     ASSERT_GT(bytes.size(), 200u);
-    std::mt19937_64 rng(7);
+    std::mt19937_64 rng(7 + GetParam());
     const std::string path = temp_path("mutate.clt");
     int replayed = 0;
     for (int round = 0; round < 60; ++round) {
@@ -197,18 +268,21 @@ TEST(ReplayAdapter, DamagedTracesStillFeedValidEvents) {
         auto reader = traces::TraceReader::open(path, &e);
         if (!reader) continue;
         ++replayed;
-        const replay::ReplayReport r = replay::replay_trace(*reader, path);
-        analyze::Analyzer analyzer(path);
-        analyze::ReplayFeedStats fed;
-        EXPECT_NO_THROW(fed = analyze::feed_replay_report(r, analyzer)) << "round " << round;
-        const analyze::AnalysisReport report = analyzer.finish();
-        EXPECT_EQ(report.commands, fed.commands);
-        EXPECT_EQ(fed.hazards + fed.hazards_not_fed, r.hazards.size());
+        analyze::TraceAnalysis a;
+        ASSERT_NO_THROW(a = analyze::analyze_trace(*reader, path)) << "round " << round;
+        std::istringstream lines(analyze::render_text(a.report));
+        for (std::string line; std::getline(lines, line);) EXPECT_LE(line.size(), analyze::kTextColumns) << line;
+        EXPECT_TRUE(nlohmann::json::accept(analyze::render_json(a.report))) << "round " << round;
+        EXPECT_NE(analyze::render_html(a.report).find("</html>"), std::string::npos);
+        EXPECT_EQ(a.report.commands, a.replay.counts.commands + a.replay.counts.skipped_commands) << "round " << round;
+        EXPECT_LE(a.report.hazards_total, a.stream.hazards);
     }
     EXPECT_GT(replayed, 0);
     std::remove(path.c_str());
     std::remove(clean.c_str());
 }
+
+INSTANTIATE_TEST_SUITE_P(Scenes, AnalyzeDamaged, ::testing::Values(0, 1));
 
 }  // namespace
 }  // namespace clastrace

@@ -37,6 +37,7 @@ struct AnalyzerLimits {
   std::size_t max_listed_overlaps = 1024;  // plus up to max_listed_hazards pairs that are hazards
   std::size_t max_listed_hazards = 1024;
   std::size_t recent_command_rows = 256;  // kept so a hazard's first command can be listed
+  std::size_t max_listed_gpu_spans = 1024;
 };
 
 class Analyzer {
@@ -52,6 +53,11 @@ class Analyzer {
   void on_build_sizes(const BuildSizesInfo& sizes);
   void on_hazard(const HazardSummary& hazard);
   void on_trace_bytes(const TraceBytes& bytes);
+  // Any time: a GPU timestamp pair's span (spans come in execution order), the device clock,
+  // and notes for people (what could not be attributed; at most 64 kept).
+  void on_gpu_span(const GpuSpan& span);
+  void on_gpu_clock(const GpuClock& clock);
+  void on_note(std::string note);
 
   // Closes the open command and returns the report; the Analyzer is spent afterwards.
   AnalysisReport finish();

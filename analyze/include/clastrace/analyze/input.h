@@ -54,7 +54,7 @@ struct RegionInfo {
   uint64_t base = 0;    // device address of the first byte
   uint64_t size = 0;    // bytes; base + size must not pass 2^64
   RegionRole role = RegionRole::other;
-  bool written = false; // the command writes (some of) it
+  bool written = false; // the command writes (some of) it; two reads of the same bytes never overlap
 };
 
 // A command as replay saw it. Opens a command: every region, object, build-sizes and hazard
@@ -72,6 +72,16 @@ struct CommandInfo {
   std::optional<uint64_t> gpu_ns;     // captured GPU timestamps around the command, if any
   std::optional<uint64_t> replay_ns;  // replay engine time for the command
   std::optional<uint64_t> scratch_used_bytes;  // engine's scratch use, if it models one
+  // Bytes from dstImplicitData / scratchData to the end of the buffer holding them, where the
+  // trace binds that buffer. Unset: the sums of the command's implicit_data/scratch regions.
+  std::optional<uint64_t> implicit_allocated_bytes;
+  std::optional<uint64_t> scratch_allocated_bytes;
+  // dstImplicitData bytes the build packed objects into (alignment gaps included). Unset: the
+  // sum of the command's object bytes.
+  std::optional<uint64_t> implicit_used_bytes;
+  // Commands whose objects replay does not rebuild (legacy NV builds, deserialization): size
+  // of the destination object the driver was asked for (memory requirements / create size).
+  uint64_t driver_object_bytes = 0;
 };
 
 // One acceleration-structure object a command produced (one per op that wrote an object).
@@ -110,6 +120,22 @@ struct HazardSummary {
   uint64_t base = 0;         // address range involved; size 0 means "not known"
   uint64_t size = 0;
   std::string message;
+};
+
+// Two GPU timestamps written into one command buffer and the commands recorded between them.
+struct GpuSpan {
+  uint64_t first_ordinal = 0, last_ordinal = 0;  // commands between the timestamps (ordinals)
+  uint64_t commands = 0, ops = 0, triangles = 0;
+  uint64_t start_ticks = 0;  // first timestamp, in device ticks
+  uint64_t gpu_ns = 0;       // (end - start) ticks x timestamp period
+};
+
+// The device clock: VkPhysicalDeviceLimits::timestampPeriod and, if the capture recorded
+// vkGetCalibratedTimestampsEXT, one pair tying device ticks to the host clock.
+struct GpuClock {
+  double timestamp_period_ns = 1.0;
+  bool period_known = false;  // false: the trace header had no period; 1 ns per tick assumed
+  std::optional<uint64_t> calibration_ticks, calibration_host_ns, calibration_max_deviation_ns;
 };
 
 struct TraceBytes {

@@ -13,7 +13,9 @@
 
 namespace clastrace::analyze {
 
-inline constexpr int kReportSchemaVersion = 1;
+// 2: commands are every submitted command (copies, barriers, legacy builds), not only cluster
+// builds; two reads of the same bytes are no longer an overlap.
+inline constexpr int kReportSchemaVersion = 2;
 
 struct OpTypeSizes {
   OpType op_type = OpType::other;
@@ -114,11 +116,28 @@ struct HazardRow {
   uint64_t matched_overlaps = 0;  // overlap events this hazard explains
 };
 
+struct CommandKindRow {  // every command kind the trace submitted, by Vulkan name
+  std::string name;
+  uint64_t commands = 0, ops = 0, triangles = 0, objects = 0;
+  uint64_t engine_bytes = 0, driver_bytes = 0;  // objects' bytes (driver: captured sizes and
+                                                // the driver_object_bytes of commands not rebuilt)
+  uint64_t replay_ns = 0, replay_commands = 0, gpu_ns = 0, gpu_commands = 0;
+  uint64_t hazards = 0;
+};
+
+struct GpuSpanRow {
+  GpuSpan span;
+  uint64_t start_ns = 0;                    // after the first listed span's start
+  std::optional<uint64_t> host_start_ns;    // on the host clock (GpuClock calibration)
+};
+
 struct AnalysisReport {
   int schema_version = kReportSchemaVersion;
   std::string trace_name;
 
   uint64_t commands = 0, submissions = 0, ops = 0, objects = 0, triangles = 0;
+  uint64_t largest_submission = 0;            // submission index with the most ops (ties: first)
+  uint64_t largest_submission_commands = 0, largest_submission_ops = 0;
   uint64_t regions = 0, region_uses = 0;
   uint64_t region_uses_not_tracked = 0;  // uses of regions beyond max_tracked_regions
 
@@ -126,12 +145,20 @@ struct AnalysisReport {
   std::vector<TruncationRow> truncation;               // ascending truncate_bits, objects > 0
   std::optional<TraceBytes> trace_bytes;
 
+  std::vector<CommandKindRow> command_kinds;  // in order of first appearance, at most 64 names
+  uint64_t command_kinds_not_listed = 0;     // commands of names past that cap
+
   std::vector<CommandRow> commands_listed;   // first max_listed_commands, ordinal order
   uint64_t commands_not_listed = 0;
   std::vector<CommandRow> top_by_gpu;        // most GPU time first (commands with gpu_ns)
   std::vector<CommandRow> top_by_replay;     // most replay engine time first
   std::vector<TimelineBucket> timeline;
   bool gpu_timing_present = false, replay_timing_present = false;
+  std::optional<GpuClock> gpu_clock;
+  std::vector<GpuSpanRow> gpu_spans;         // first max_listed_gpu_spans, in order
+  uint64_t gpu_spans_total = 0, gpu_spans_ns = 0, gpu_spans_ops = 0, gpu_spans_triangles = 0;
+
+  std::vector<std::string> notes;            // what the feeder could not attribute (at most 64)
 
   std::vector<RegionRow> region_rows;        // tracked regions, by first use then address
   std::vector<OverlapRow> overlaps;          // first max_listed_overlaps pairs

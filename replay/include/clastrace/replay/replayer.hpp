@@ -17,6 +17,7 @@
 #include <limits>
 #include <string>
 
+#include "clastrace/replay/replay_observer.h"
 #include "clastrace/replay/replay_report.hpp"
 
 namespace clastrace::traces {
@@ -47,6 +48,9 @@ struct ReplayOptions {
     uint64_t memory_budget_bytes = 8ull << 30;
     // Called about every 64 records; may be empty.
     std::function<void(const ReplayProgress&)> progress;
+    // Sees every record, submission, command, finding and hazard as the replay meets them
+    // (replay_observer.h); may be null. Not owned.
+    ReplayObserver* observer = nullptr;
 };
 
 // A trace "was made by clastrace's own engine" when its device's driver_name starts with
