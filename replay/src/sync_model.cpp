@@ -513,6 +513,28 @@ struct SyncModel::State {
         for (std::size_t i = 0; i < queues.size() && i < clock.size(); ++i)
             queues[i].complete = std::max(queues[i].complete, clock[i]);
         retire();
+        prune_timelines();
+    }
+
+    bool all_complete(const Clock& c) const {
+        for (std::size_t i = 0; i < c.size() && i < queues.size(); ++i)
+            if (c[i] > queues[i].complete) return false;
+        return true;
+    }
+
+    // A timeline semaphore keeps one clock per value signalled, so an app counting frames
+    // on it would grow the map with the trace. A value whose signal and next value's signal
+    // are both complete can go: a wait on it finds that next value, whose extra coverage is
+    // completed work, which orders nothing any more.
+    void prune_timelines() {
+        for (auto& [handle, sem] : semaphores) {
+            auto& timeline = sem.timeline;
+            for (auto it = timeline.begin(); it != timeline.end();) {
+                auto next = std::next(it);
+                if (next != timeline.end() && all_complete(it->second) && all_complete(next->second)) it = timeline.erase(it);
+                else it = next;
+            }
+        }
     }
 
     // Drops what host waits proved finished; keeps completed writes the host cannot see yet.
@@ -795,6 +817,31 @@ void SyncModel::device_wait_idle() {
     s.sync_tag();
     Clock all(s.queues.size(), s.tag + 1);
     s.complete_through(all);
+}
+
+void SyncModel::memory_freed(AddressRange range) {
+    State& s = *state_;
+    // Completed accesses to freed memory can order nothing any more; the host kept
+    // completed writes only for its own later reads, which freed memory cannot have.
+    // Accesses still in flight stay: memory freed and reused under them is a hazard.
+    auto it = s.segments.upper_bound(range.begin);
+    if (it != s.segments.begin()) --it;
+    while (it != s.segments.end() && it->first < range.end) {
+        Segment& seg = it->second;
+        if (it->first < range.begin || seg.end > range.end) {
+            ++it;
+            continue;
+        }
+        std::erase_if(seg.reads, [&](const Record& r) {
+            return r.queue == kHostSlot || r.tag < s.queues[r.queue].complete;
+        });
+        if (seg.write && (seg.write->queue == kHostSlot || seg.write->completed ||
+                          seg.write->tag < s.queues[seg.write->queue].complete))
+            seg.write.reset();
+        if (!seg.write && seg.reads.empty()) it = s.segments.erase(it);
+        else ++it;
+    }
+    s.stats.segments = s.segments.size();
 }
 
 void SyncModel::host_wait_semaphore(uint64_t semaphore, uint64_t value) {

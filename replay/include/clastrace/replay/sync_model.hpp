@@ -78,6 +78,8 @@ public:
     // vkSignalSemaphore: satisfies device waits; orders only host work, which every later
     // submission sees anyway.
     void host_signal_semaphore(uint64_t semaphore, uint64_t value);
+    // vkDestroyBuffer / vkFreeMemory: forgets the completed accesses inside `range`.
+    void memory_freed(AddressRange range);
 
     // --- results -------------------------------------------------------------------
     const std::vector<HazardReport>& hazards() const;
