@@ -47,10 +47,17 @@ double cpu_now() {
     return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) + 1e-6 * double(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
 }
 
+// The high-water mark of this process image's memory (VmHWM). Not getrusage's ru_maxrss,
+// which a child keeps from its parent across fork and exec.
 uint64_t peak_rss_kb() {
-    rusage u{};
-    getrusage(RUSAGE_SELF, &u);
-    return uint64_t(u.ru_maxrss);
+    FILE* f = std::fopen("/proc/self/status", "r");
+    if (!f) return 0;
+    char line[256];
+    unsigned long long kb = 0;
+    while (std::fgets(line, sizeof line, f))
+        if (std::sscanf(line, "VmHWM: %llu kB", &kb) == 1) break;
+    std::fclose(f);
+    return kb;
 }
 
 uint64_t current_rss_kb() {

@@ -251,8 +251,10 @@ void Replay::lay_in_snapshots(const traces::SnapshotVector* snapshots, const Rep
     std::vector<uint8_t> bytes;
     for (const fbs::MemorySnapshot* s : *snapshots) {
         std::optional<uint64_t> address = memory_.snapshot_address(s->buffer(), s->offset(), s->address());
+        const uint64_t refused = memory_.writes_over_budget();
         if (!address || !contents(s->hash(), &bytes) || !memory_.lay_in(*address, bytes)) {
             ++report_.counts.snapshots_outside_memory;
+            if (memory_.writes_over_budget() != refused) continue;  // named once, by the budget finding
             add_finding({"CLASTRACE-replay-snapshot-outside-memory",
                          "captured snapshot of " + std::to_string(s->size()) + " bytes at buffer " +
                              detail::hex(s->buffer()) + " offset " + std::to_string(s->offset()) + " address " +
