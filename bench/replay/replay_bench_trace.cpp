@@ -87,6 +87,7 @@ public:
         wait.wait_all = true;
         append(record(std::move(wait)));
         check(writer_->finish());
+        stats_.contents = writer_->stats().contents_stored;
         return stats_;
     }
 

@@ -29,6 +29,7 @@ struct BenchTraceStats {
     // its commands carry (what one submission can bring into the replay at once).
     uint64_t largest_submission_bytes = 0;
     uint64_t buffers_destroyed = 0;
+    uint64_t contents = 0;          // distinct memory contents stored (the reader indexes each)
 };
 
 // Writes the trace to `path`; throws std::runtime_error on a write error.

@@ -1,4 +1,4 @@
-// replay_throughput_bench [--ops N] [--max-ops M] [--dir D] | --write-trace PATH OPS
+// replay_throughput_bench [--ops N] [--max-ops M] [--dir D] [--threads T] | --write-trace PATH OPS
 // | --child-replay PATH: replay throughput with and
 // without hazard checking next to plain zstd decompression of the same trace, then how
 // replay time and peak memory grow with trace length.
@@ -27,6 +27,9 @@
 #include <string>
 #include <vector>
 
+#include <tbb/global_control.h>
+
+#include <memory>
 #include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -210,6 +213,9 @@ double mb(uint64_t bytes) { return double(bytes) / 1e6; }
 int main(int argc, char** argv) {
     uint64_t table_ops = 100000, max_ops = 1000000;
     std::string dir = "/tmp";
+    // --threads N caps the engine's TBB workers: 1 makes CPU time pure work (idle workers
+    // spinning would otherwise count), the steadiest ratio on a busy machine.
+    std::unique_ptr<tbb::global_control> threads;
     for (int i = 1; i < argc; ++i) {
         const std::string a = argv[i];
         if (a == "--child-replay" && i + 1 < argc) return child_replay(argv[i + 1]);
@@ -224,8 +230,11 @@ int main(int argc, char** argv) {
         if (a == "--ops" && i + 1 < argc) table_ops = std::strtoull(argv[++i], nullptr, 10);
         else if (a == "--max-ops" && i + 1 < argc) max_ops = std::strtoull(argv[++i], nullptr, 10);
         else if (a == "--dir" && i + 1 < argc) dir = argv[++i];
+        else if (a == "--threads" && i + 1 < argc)
+            threads = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
+                                                            std::strtoull(argv[++i], nullptr, 10));
         else {
-            std::fprintf(stderr, "usage: %s [--ops N] [--max-ops M] [--dir D]\n", argv[0]);
+            std::fprintf(stderr, "usage: %s [--ops N] [--max-ops M] [--dir D] [--threads T]\n", argv[0]);
             return 2;
         }
     }
@@ -236,7 +245,7 @@ int main(int argc, char** argv) {
         bench::BenchTraceShape shape;
         shape.target_ops = table_ops;
         const bench::BenchTraceStats stats = bench::write_bench_trace(path, shape);
-        constexpr int kRepeats = 3;
+        constexpr int kRepeats = 5;
         double on = 1e30, off = 1e30, z = 1e30, on_cpu = 1e30, off_cpu = 1e30, z_cpu = 1e30;
         ReplayRun last_on, last_off;
         ZstdRun zr;
@@ -259,10 +268,12 @@ int main(int argc, char** argv) {
         const double raw = mb(last_on.raw_bytes);
         const double laid = mb(last_on.report.counts.snapshot_bytes);
         std::printf("replay throughput, %llu ops (%llu cluster ops, %llu commands, %llu submissions), "
-                    "trace %.2f MB on disk, %.2f MB decompressed, %.2f MB of memory laid in; best of %d\n",
+                    "trace %.2f MB on disk, %.2f MB decompressed, %.2f MB of memory laid in; best of %d, engine threads: %s\n",
                     (unsigned long long)stats.ops, (unsigned long long)stats.cluster_ops,
                     (unsigned long long)last_on.report.counts.commands, (unsigned long long)stats.submissions,
-                    mb(stats.file_bytes), raw, laid, kRepeats);
+                    mb(stats.file_bytes), raw, laid, kRepeats,
+                    threads ? std::to_string(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)).c_str()
+                            : "TBB default");
         std::printf("| run | wall s | CPU s (all threads) | ops/s (wall) | trace MB/s (decompressed, wall) "
                     "| memory MB/s (laid in, wall) | wall vs zstd | CPU vs zstd |\n");
         std::printf("|---|---:|---:|---:|---:|---:|---:|---:|\n");
@@ -283,8 +294,8 @@ int main(int argc, char** argv) {
     if (max_ops > 0) {
         std::printf("replay time and peak memory by trace length (hazards on; each size in a fresh process)\n");
         std::printf("| ops | submissions | buffers destroyed | trace MB | replay s | ops/s | peak RSS MB | RSS over start MB "
-                    "| image peak MB | largest submission MB |\n");
-        std::printf("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+                    "| image peak MB | largest submission MB | distinct contents |\n");
+        std::printf("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
         for (uint64_t ops = 100; ops <= max_ops; ops *= 10) {
             const std::string path = trace_path(dir, ops);
             bench::BenchTraceShape shape;
@@ -296,12 +307,12 @@ int main(int argc, char** argv) {
                 std::printf("| %llu | child replay failed |\n", (unsigned long long)ops);
                 continue;
             }
-            std::printf("| %llu | %llu | %llu | %.2f | %.3f | %.0f | %.1f | %.1f | %.2f | %.3f |\n",
+            std::printf("| %llu | %llu | %llu | %.2f | %.3f | %.0f | %.1f | %.1f | %.2f | %.3f | %llu |\n",
                         (unsigned long long)stats.ops, (unsigned long long)stats.submissions,
                         (unsigned long long)stats.buffers_destroyed, mb(stats.file_bytes), c.seconds,
                         double(stats.ops) / c.seconds, double(c.peak_kb) / 1024.0,
                         double(c.peak_kb - std::min(c.peak_kb, c.base_kb)) / 1024.0, mb(c.image_peak),
-                        mb(stats.largest_submission_bytes));
+                        mb(stats.largest_submission_bytes), (unsigned long long)stats.contents);
             std::fflush(stdout);
         }
     }

@@ -13,6 +13,7 @@
 
 #include <cstdio>
 #include <string>
+#include <tuple>
 #include <vector>
 
 namespace clastrace::replay {
@@ -196,6 +197,72 @@ TEST(ReplayMemory, RecordedCommandBuffersAreBoundedAndADroppedOneIsNamed) {
     r = replay_file(path);  // the default keeps them all
     EXPECT_TRUE(r.clean()) << describe(r);
     EXPECT_EQ(r.counts.commands, 8u * 66);
+    std::remove(path.c_str());
+}
+
+// A 1 GiB buffer whose trace references 1 MiB of it costs about 1 MiB in the replay.
+TEST(ReplayMemory, GiBBufferWithOneMiBReferencedCostsAboutOneMiB) {
+    const std::string path = temp_path("gib.clt");
+    constexpr uint64_t kMiB = 1ull << 20, kBig = 0x200000000ull, kStaging = 0x300000000ull;
+    {
+        fbs::TraceHeaderT header;
+        traces::TraceError error;
+        traces::TraceWriterOptions o;
+        o.sync_on_finish = false;
+        auto w = traces::TraceWriter::create(path, header, o, &error);
+        ASSERT_TRUE(w) << error.message;
+        auto append = [&](auto body) {
+            fbs::RecordT r;
+            r.body.Set(std::move(body));
+            ASSERT_FALSE(w->append(r));
+        };
+        for (const auto& [handle, address, size] : {std::tuple{0xb1ull, kBig, 1ull << 30}, {0xb2ull, kStaging, kMiB}}) {
+            fbs::BufferCreateT create;
+            create.buffer = handle;
+            create.size = size;
+            append(create);
+            fbs::BufferBindMemoryT bind;
+            bind.buffer = handle;
+            bind.memory = handle + 0x1000;
+            bind.device_address = address;
+            append(bind);
+        }
+        fbs::CommandBufferBeginT begin;
+        begin.command_buffer = 0xc1;
+        append(begin);
+        std::vector<uint8_t> bytes(kMiB);
+        for (size_t i = 0; i < bytes.size(); ++i) bytes[i] = uint8_t(i * 31 + 7);
+        fbs::CmdCopyBufferT copy;
+        copy.command_buffer = 0xc1;
+        copy.version = 1;
+        copy.src_buffer = 0xb2;
+        copy.dst_buffer = 0xb1;
+        copy.regions.emplace_back(0, 512 * kMiB, kMiB);
+        fbs::MemorySnapshot snap;
+        ASSERT_FALSE(w->snapshot(0xb2, 0, kStaging, bytes.data(), bytes.size(), &snap));
+        copy.inputs.push_back(snap);
+        append(std::move(copy));
+        fbs::CmdFillBufferT clear;  // clearing the whole GiB costs nothing either
+        clear.command_buffer = 0xc1;
+        clear.dst_buffer = 0xb1;
+        clear.dst_offset = 600 * kMiB;
+        clear.size = ~0ull;
+        append(clear);
+        fbs::QueueSubmitT s;
+        s.queue = 0x9001;
+        s.version = 2;
+        auto batch = std::make_unique<fbs::SubmitBatchT>();
+        batch->command_buffers.push_back(0xc1);
+        s.batches.push_back(std::move(batch));
+        s.submission_index = w->next_submission_index();
+        append(std::move(s));
+        ASSERT_FALSE(w->finish());
+    }
+    const ReplayReport r = replay_file(path);
+    EXPECT_TRUE(r.clean()) << describe(r);
+    EXPECT_EQ(r.counts.copies, 2u);
+    EXPECT_GE(r.counts.peak_image_bytes, 2 * kMiB);  // the staging MiB and the copied MiB
+    EXPECT_LE(r.counts.peak_image_bytes, 2 * kMiB + 4 * kPage);
     std::remove(path.c_str());
 }
 
