@@ -572,7 +572,7 @@ void Replay::on_submit(const fbs::QueueSubmit& submit) {
                                      " is submitted again, but its commands were dropped to keep the replay within "
                                      "ReplayOptions::max_recorded_bytes (" + std::to_string(options_.max_recorded_bytes) +
                                      "): not replayed",
-                                 FindingSource::kReplay, ReplayLocation{sequence_, submission, cb_index, 0, handle, ""}, -1, 0});
+                                 FindingSource::kReplay, ReplayLocation{sequence_, submission, cb_index, 0, handle, "vkQueueSubmit"}, -1, 0});
                 if (it != recorded_.end()) {
                     it->second.submitted = uint64_t(submission) + 1;
                     uint32_t command = 0;
