@@ -6,6 +6,7 @@
 #include <cinttypes>
 #include <cstdio>
 #include <limits>
+#include <cstdlib>
 #include <new>
 
 namespace clastrace::engine {
@@ -29,15 +30,27 @@ RegionBytes::RegionBytes(uint64_t size) {
   // pages see its shared zero page, so address space is all a region costs up front.
   void* p = mmap(nullptr, static_cast<size_t>(mapped), PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE,
                  -1, 0);
-  if (p == MAP_FAILED) throw std::bad_alloc();
+  if (p == MAP_FAILED) {
+    // Each mapping is one kernel VMA and their number is capped (vm.max_map_count, 65530
+    // by default): a trace with that many live buffers still replays, its small ones held
+    // densely on the heap and counted whole.
+    if (mapped > kDenseFallbackBytes) throw std::bad_alloc();
+    p = std::calloc(static_cast<size_t>(mapped), 1);
+    if (!p) throw std::bad_alloc();
+    dense_ = true;
+    touched_.emplace(0, mapped / kPageBytes);
+    resident_ = mapped;
+  }
   data_ = static_cast<std::byte*>(p);
   size_ = size;
   mapped_ = mapped;
 }
 
 void RegionBytes::release() {
-  if (data_) munmap(data_, static_cast<size_t>(mapped_));
+  if (data_ && dense_) std::free(data_);
+  else if (data_) munmap(data_, static_cast<size_t>(mapped_));
   data_ = nullptr;
+  dense_ = false;
   size_ = mapped_ = resident_ = 0;
   touched_.clear();
 }
@@ -45,8 +58,9 @@ void RegionBytes::release() {
 RegionBytes::~RegionBytes() { release(); }
 
 RegionBytes::RegionBytes(RegionBytes&& other) noexcept
-    : data_(other.data_), size_(other.size_), mapped_(other.mapped_), resident_(other.resident_),
+    : dense_(other.dense_), data_(other.data_), size_(other.size_), mapped_(other.mapped_), resident_(other.resident_),
       touched_(std::move(other.touched_)) {
+  other.dense_ = false;
   other.data_ = nullptr;
   other.size_ = other.mapped_ = other.resident_ = 0;
   other.touched_.clear();
@@ -55,11 +69,13 @@ RegionBytes::RegionBytes(RegionBytes&& other) noexcept
 RegionBytes& RegionBytes::operator=(RegionBytes&& other) noexcept {
   if (this == &other) return *this;
   release();
+  dense_ = other.dense_;
   data_ = other.data_;
   size_ = other.size_;
   mapped_ = other.mapped_;
   resident_ = other.resident_;
   touched_ = std::move(other.touched_);
+  other.dense_ = false;
   other.data_ = nullptr;
   other.size_ = other.mapped_ = other.resident_ = 0;
   other.touched_.clear();
@@ -71,6 +87,7 @@ RegionBytes::RegionBytes(const RegionBytes& other) : RegionBytes(other.size_) {
     const uint64_t begin = first * kPageBytes, end = std::min(last * kPageBytes, size_);
     std::memcpy(data_ + begin, other.data_ + begin, static_cast<size_t>(end - begin));
   }
+  if (dense_) return;  // a dense copy counts itself whole
   touched_ = other.touched_;
   resident_ = other.resident_;
 }
@@ -135,7 +152,7 @@ uint64_t RegionBytes::zero(uint64_t offset, uint64_t size) {
     std::memset(data_ + b, 0, static_cast<size_t>(e - b));
     touch(b, e - b);
   };
-  if (page_begin >= page_end) {
+  if (page_begin >= page_end || dense_) {  // heap memory is not ours to give back to the OS
     clear(offset, end);
     return 0;
   }
@@ -197,6 +214,7 @@ MemoryRegion& MemoryImage::add_region(uint64_t base, uint64_t size, VkBufferUsag
   r.label = std::move(label);
   r.bytes = RegionBytes(size);
   reserved_ += size;
+  if (r.bytes.dense()) written_ += r.bytes.resident_bytes();  // held whole from the start
   return regions_.emplace(base, std::move(r)).first->second;
 }
 

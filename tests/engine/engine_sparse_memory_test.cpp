@@ -161,5 +161,23 @@ TEST(SparseMemoryImage, RawRegionAccessCountsTheWholeRegion) {
   EXPECT_EQ(whole.size(), 10 * kPage + 3);
 }
 
+// More live regions than the OS gives mappings (vm.max_map_count, 65530 by default): the
+// ones past the limit are held densely and still read and write like any other.
+TEST(SparseMemoryImage, MoreRegionsThanTheOsHasMappingsStillWork) {
+  MemoryImage m;
+  constexpr uint64_t kRegions = 70000, kBase = 0x100000000ull;
+  for (uint64_t i = 0; i < kRegions; ++i) m.add_region(kBase + i * 2 * kPage, 100, 0, "small");
+  uint64_t dense = 0;
+  for (uint64_t i = 0; i < kRegions; ++i) {
+    m.write<uint64_t>(kBase + i * 2 * kPage + 8, i * 3 + 1, {"test", -1});
+    dense += m.find_region(kBase + i * 2 * kPage)->bytes.dense();
+  }
+  for (uint64_t i = 0; i < kRegions; i += 997) EXPECT_EQ(m.read<uint64_t>(kBase + i * 2 * kPage + 8, {"test", -1}), i * 3 + 1);
+  EXPECT_EQ(m.resident_bytes(), kRegions * kPage);  // one page each, dense or not
+  m.zero_bytes(kBase + (kRegions - 1) * 2 * kPage, 100, {"fill", -1});
+  EXPECT_EQ(m.read<uint64_t>(kBase + (kRegions - 1) * 2 * kPage + 8, {"test", -1}), 0u);
+  RecordProperty("dense_regions", std::to_string(dense));
+}
+
 }  // namespace
 }  // namespace clastrace::engine

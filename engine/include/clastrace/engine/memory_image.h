@@ -77,9 +77,14 @@ class RegionBytes {
   uint64_t zero(uint64_t offset, uint64_t size);
   // Bytes in counted pages: what the region costs.
   uint64_t resident_bytes() const { return resident_; }
+  // True when the region lives on the heap, wholly counted: the OS refused another mapping
+  // (vm.max_map_count) and the region was small enough to hold densely.
+  bool dense() const { return dense_; }
+  static constexpr uint64_t kDenseFallbackBytes = 1ull << 20;
 
  private:
   void release();
+  bool dense_ = false;
   std::byte* data_ = nullptr;
   uint64_t size_ = 0;
   uint64_t mapped_ = 0;                  // size_ rounded up to whole pages
