@@ -1,8 +1,13 @@
 #include "clastrace/engine/memory_image.h"
 
+#include <sys/mman.h>
+
+#include <algorithm>
 #include <cinttypes>
 #include <cstdio>
 #include <limits>
+#include <cstdlib>
+#include <new>
 
 namespace clastrace::engine {
 
@@ -13,6 +18,168 @@ std::string hex(uint64_t v) {
   return buf;
 }
 }  // namespace
+
+// ------------------------------------------------------------------------ RegionBytes
+
+RegionBytes::RegionBytes(uint64_t size) {
+  if (size == 0) return;
+  if (size > std::numeric_limits<uint64_t>::max() - kPageBytes) throw std::bad_alloc();
+  const uint64_t mapped = (size + kPageBytes - 1) / kPageBytes * kPageBytes;
+  if (mapped > std::numeric_limits<size_t>::max()) throw std::bad_alloc();
+  // Private anonymous memory: the kernel maps a page on first write and reads of untouched
+  // pages see its shared zero page, so address space is all a region costs up front.
+  void* p = mmap(nullptr, static_cast<size_t>(mapped), PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE,
+                 -1, 0);
+  if (p == MAP_FAILED) {
+    // Each mapping is one kernel VMA and their number is capped (vm.max_map_count, 65530
+    // by default): a trace with that many live buffers still replays, its small ones held
+    // densely on the heap and counted whole.
+    if (mapped > kDenseFallbackBytes) throw std::bad_alloc();
+    p = std::calloc(static_cast<size_t>(mapped), 1);
+    if (!p) throw std::bad_alloc();
+    dense_ = true;
+    touched_.emplace(0, mapped / kPageBytes);
+    resident_ = mapped;
+  }
+  data_ = static_cast<std::byte*>(p);
+  size_ = size;
+  mapped_ = mapped;
+}
+
+void RegionBytes::release() {
+  if (data_ && dense_) std::free(data_);
+  else if (data_) munmap(data_, static_cast<size_t>(mapped_));
+  data_ = nullptr;
+  dense_ = false;
+  size_ = mapped_ = resident_ = 0;
+  touched_.clear();
+}
+
+RegionBytes::~RegionBytes() { release(); }
+
+RegionBytes::RegionBytes(RegionBytes&& other) noexcept
+    : dense_(other.dense_), data_(other.data_), size_(other.size_), mapped_(other.mapped_), resident_(other.resident_),
+      touched_(std::move(other.touched_)) {
+  other.dense_ = false;
+  other.data_ = nullptr;
+  other.size_ = other.mapped_ = other.resident_ = 0;
+  other.touched_.clear();
+}
+
+RegionBytes& RegionBytes::operator=(RegionBytes&& other) noexcept {
+  if (this == &other) return *this;
+  release();
+  dense_ = other.dense_;
+  data_ = other.data_;
+  size_ = other.size_;
+  mapped_ = other.mapped_;
+  resident_ = other.resident_;
+  touched_ = std::move(other.touched_);
+  other.dense_ = false;
+  other.data_ = nullptr;
+  other.size_ = other.mapped_ = other.resident_ = 0;
+  other.touched_.clear();
+  return *this;
+}
+
+RegionBytes::RegionBytes(const RegionBytes& other) : RegionBytes(other.size_) {
+  for (const auto& [first, last] : other.touched_) {
+    const uint64_t begin = first * kPageBytes, end = std::min(last * kPageBytes, size_);
+    std::memcpy(data_ + begin, other.data_ + begin, static_cast<size_t>(end - begin));
+  }
+  if (dense_) return;  // a dense copy counts itself whole
+  touched_ = other.touched_;
+  resident_ = other.resident_;
+}
+
+RegionBytes& RegionBytes::operator=(const RegionBytes& other) {
+  if (this != &other) *this = RegionBytes(other);
+  return *this;
+}
+
+uint64_t RegionBytes::untouched_bytes(uint64_t offset, uint64_t size) const {
+  if (size == 0 || offset >= size_) return 0;
+  uint64_t first = offset / kPageBytes;
+  const uint64_t last = (std::min(offset + size, size_) + kPageBytes - 1) / kPageBytes;
+  uint64_t missing = 0;
+  auto it = touched_.upper_bound(first);
+  if (it != touched_.begin()) {
+    auto prev = std::prev(it);
+    if (prev->second > first) first = std::min(prev->second, last);
+  }
+  for (; first < last; ++it) {
+    const uint64_t run_begin = it == touched_.end() ? last : std::min(it->first, last);
+    missing += run_begin - first;
+    if (it == touched_.end()) break;
+    first = std::min(std::max(first, it->second), last);
+  }
+  return missing * kPageBytes;
+}
+
+uint64_t RegionBytes::touch(uint64_t offset, uint64_t size) {
+  if (size == 0 || offset >= size_) return 0;
+  uint64_t first = offset / kPageBytes;
+  uint64_t last = (std::min(offset + size, size_) + kPageBytes - 1) / kPageBytes;
+  // Fast path: already inside one counted run.
+  auto it = touched_.upper_bound(first);
+  if (it != touched_.begin()) {
+    auto prev = std::prev(it);
+    if (prev->second >= last) return 0;
+    if (prev->second >= first) it = prev;  // overlaps or is adjacent: merge
+  }
+  uint64_t covered = 0;
+  while (it != touched_.end() && it->first <= last) {
+    first = std::min(first, it->first);
+    last = std::max(last, it->second);
+    covered += it->second - it->first;
+    it = touched_.erase(it);
+  }
+  touched_.emplace(first, last);
+  const uint64_t added = (last - first - covered) * kPageBytes;
+  resident_ += added;
+  return added;
+}
+
+uint64_t RegionBytes::zero(uint64_t offset, uint64_t size) {
+  if (size == 0 || offset >= size_) return 0;
+  const uint64_t end = std::min(offset + size, size_);
+  // Whole pages inside go back to the OS (they read as zeros again); the edges are cleared.
+  uint64_t page_begin = (offset + kPageBytes - 1) / kPageBytes, page_end = end / kPageBytes;
+  if (end == size_) page_end = mapped_ / kPageBytes;  // the region's tail page is ours alone
+  // Pages never counted already read as zeros: only counted ones need clearing.
+  auto clear = [&](uint64_t b, uint64_t e) {
+    if (b >= e || untouched_bytes(b, e - b) == ((e - 1) / kPageBytes - b / kPageBytes + 1) * kPageBytes) return;
+    std::memset(data_ + b, 0, static_cast<size_t>(e - b));
+    touch(b, e - b);
+  };
+  if (page_begin >= page_end || dense_) {  // heap memory is not ours to give back to the OS
+    clear(offset, end);
+    return 0;
+  }
+  const uint64_t head = page_begin * kPageBytes, tail = std::min(page_end * kPageBytes, size_);
+  clear(offset, std::min(head, end));
+  clear(std::max(tail, offset), end);
+  madvise(data_ + head, static_cast<size_t>((page_end - page_begin) * kPageBytes), MADV_DONTNEED);
+  // Stop counting [page_begin, page_end).
+  uint64_t released = 0;
+  auto it = touched_.upper_bound(page_begin);
+  if (it != touched_.begin()) --it;
+  while (it != touched_.end() && it->first < page_end) {
+    const uint64_t b = it->first, e = it->second;
+    if (e <= page_begin) {
+      ++it;
+      continue;
+    }
+    it = touched_.erase(it);
+    released += std::min(e, page_end) - std::max(b, page_begin);
+    if (b < page_begin) touched_.emplace(b, page_begin);
+    if (e > page_end) it = touched_.emplace(page_end, e).first;
+  }
+  resident_ -= released * kPageBytes;
+  return released * kPageBytes;
+}
+
+// ------------------------------------------------------------------------ MemoryImage
 
 void MemoryImage::fault(uint64_t address, uint64_t size, FieldRef where, const std::string& what) {
   MemoryFault f;
@@ -45,8 +212,38 @@ MemoryRegion& MemoryImage::add_region(uint64_t base, uint64_t size, VkBufferUsag
   r.size = size;
   r.usage = usage;
   r.label = std::move(label);
-  r.bytes.assign(static_cast<size_t>(size), std::byte{0});
+  r.bytes = RegionBytes(size);
+  reserved_ += size;
+  if (r.bytes.dense()) written_ += r.bytes.resident_bytes();  // held whole from the start
   return regions_.emplace(base, std::move(r)).first->second;
+}
+
+bool MemoryImage::remove_region(uint64_t base) {
+  auto it = regions_.find(base);
+  if (it == regions_.end()) return false;
+  reserved_ -= it->second.size;
+  written_ -= std::min(written_, it->second.bytes.resident_bytes());
+  regions_.erase(it);
+  return true;
+}
+
+uint64_t MemoryImage::resident_bytes() const {
+  uint64_t total = 0;
+  for (const auto& [base, r] : regions_) total += r.bytes.resident_bytes();
+  return total;
+}
+
+void MemoryImage::zero_bytes(uint64_t address, uint64_t size, FieldRef where) {
+  MemoryRegion* r = find_region(address);
+  if (!r) fault(address, size, where, address == 0 ? "null device address write" : "write to an address outside every memory region");
+  const uint64_t offset = address - r->base;
+  if (size > r->size - offset)
+    fault(address, size, where, "write runs off the end of region '" + r->label + "' [" + hex(r->base) + ", +" + std::to_string(r->size) + ")");
+  const uint64_t before = r->bytes.resident_bytes();
+  r->bytes.zero(offset, size);
+  const uint64_t after = r->bytes.resident_bytes();
+  if (after < before) written_ -= std::min(written_, before - after);
+  else written_ += after - before;
 }
 
 const MemoryRegion* MemoryImage::find_region(uint64_t address) const {
@@ -76,7 +273,18 @@ std::span<std::byte> MemoryImage::write_bytes(uint64_t address, uint64_t size, F
   const uint64_t offset = address - r->base;
   if (size > r->size - offset)
     fault(address, size, where, "write runs off the end of region '" + r->label + "' [" + hex(r->base) + ", +" + std::to_string(r->size) + ")");
-  return {r->bytes.data() + offset, static_cast<size_t>(size)};
+  if (resident_limit_ != ~0ull) {
+    const uint64_t added = r->bytes.untouched_bytes(offset, size);
+    if (added > 0 && written_ + added > resident_limit_) {
+      ++resident_limit_faults_;
+      fault(address, size, where, "write would take the memory image past its limit of " + std::to_string(resident_limit_) +
+                                      " resident bytes (" + std::to_string(written_) + " held)");
+    }
+  }
+  uint64_t added = 0;
+  std::byte* bytes = r->bytes.write_at(offset, size, &added);
+  written_ += added;
+  return {bytes, static_cast<size_t>(size)};
 }
 
 namespace {

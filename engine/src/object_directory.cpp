@@ -97,6 +97,11 @@ void ObjectDirectory::record_built(uint64_t address, ObjectType type, std::span<
   moved_to_.erase(address);
 }
 
+void ObjectDirectory::forget(uint64_t begin, uint64_t end) {
+  std::erase_if(live_, [&](const auto& entry) { return entry.first >= begin && entry.first < end; });
+  std::erase_if(moved_to_, [&](const auto& entry) { return entry.first >= begin && entry.first < end; });
+}
+
 void ObjectDirectory::record_moved_away(uint64_t address, uint64_t new_address) {
   live_.erase(address);
   moved_to_[address] = new_address;

@@ -269,7 +269,10 @@ void verify(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
             }
         }
     }
-    if (check && (sizes.ops_compared || !record.ops.empty())) c.report.sizes.push_back(sizes);
+    if (check && (sizes.ops_compared || !record.ops.empty())) {
+        if (c.report.sizes.size() < c.options.max_command_rows) c.report.sizes.push_back(std::move(sizes));
+        else ++c.report.rows_over_cap;
+    }
 
     // A trace made by the engine must hold exactly the bytes the engine writes now.
     if (!check || !c.engine_trace) return;

@@ -28,10 +28,9 @@ uint64_t ReplayMemory::memory_base(uint64_t memory) {
 
 bool ReplayMemory::add_region(uint64_t address, uint64_t size, uint64_t usage, const std::string& label) {
     if (size == 0 || address + size < address) return true;
-    if (size > budget_ - used_) return false;
+    if (size > kReservedLimit - std::min(kReservedLimit, image_.reserved_bytes())) return false;
     try {
         image_.add_region(address, size, static_cast<VkBufferUsageFlags>(usage), label);
-        used_ += size;
     } catch (const engine::MemoryFault&) {
         // Two buffers over the same bytes (aliasing): the first region serves both as far
         // as it reaches; the rest of this buffer stays outside the image.
@@ -42,10 +41,39 @@ bool ReplayMemory::add_region(uint64_t address, uint64_t size, uint64_t usage, c
     return true;
 }
 
+std::optional<AddressRange> ReplayMemory::destroy_buffer(uint64_t buffer) {
+    auto it = buffers_.find(buffer);
+    if (it == buffers_.end()) return std::nullopt;
+    const Buffer b = it->second;
+    buffers_.erase(it);
+    if (!b.bound || b.size == 0 || b.address + b.size < b.address) return std::nullopt;
+    const AddressRange range{b.address, b.address + b.size};
+    // The region serving this buffer (its own, or the one it aliased) goes once no live
+    // buffer overlaps it: another buffer over the same memory keeps seeing the bytes.
+    if (const engine::MemoryRegion* region = image_.find_region(b.address)) {
+        const uint64_t begin = region->base, end = region->base + region->size;
+        bool shared = false;
+        for (const auto& [handle, other] : buffers_)
+            if (other.bound && other.address < end && begin < other.address + other.size) shared = true;
+        if (!shared) image_.remove_region(begin);
+    }
+    unmark(range);
+    return range;
+}
+
+void ReplayMemory::destroy_object(uint64_t object) {
+    objects_.erase(object);
+    object_size_.erase(object);
+}
+
 bool ReplayMemory::fill(uint64_t address, uint64_t size, uint32_t value) {
     try {
-        std::span<std::byte> dst = image_.write_bytes(address, size, {"vkCmdFillBuffer", -1});
-        for (uint64_t k = 0; k + 4 <= size; k += 4) std::memcpy(dst.data() + k, &value, 4);
+        if (value == 0) {
+            image_.zero_bytes(address, size, {"vkCmdFillBuffer", -1});  // a cleared buffer costs no pages
+        } else {
+            std::span<std::byte> dst = image_.write_bytes(address, size, {"vkCmdFillBuffer", -1});
+            for (uint64_t k = 0; k + 4 <= size; k += 4) std::memcpy(dst.data() + k, &value, 4);
+        }
     } catch (const engine::MemoryFault&) {
         return false;
     }

@@ -7,6 +7,8 @@
 #include <clastrace/engine/memory_image.h>
 #include <clastrace/replay/sync_types.hpp>
 
+#include <algorithm>
+
 #include <cstdint>
 #include <map>
 #include <optional>
@@ -20,8 +22,11 @@ namespace clastrace::replay::detail {
 
 class ReplayMemory {
 public:
-    // Bytes the image may hold in all (each region is allocated zero-filled when bound).
-    explicit ReplayMemory(uint64_t budget_bytes = 8ull << 30) : budget_(budget_bytes) {}
+    // Bytes the image may hold in all. Regions are sparse (engine::RegionBytes): binding a
+    // buffer reserves address space only, and the budget counts the pages written.
+    explicit ReplayMemory(uint64_t budget_bytes = 8ull << 30) : budget_(budget_bytes) {
+        image_.set_resident_limit(budget_bytes);
+    }
 
     void create_buffer(uint64_t buffer, uint64_t size, uint64_t usage);
     // Binds and adds the buffer's region. Buffers without a device address get one: the
@@ -31,6 +36,11 @@ public:
     void bind_object(uint64_t object, uint64_t memory, uint64_t memory_offset);  // NV AS
     void create_object(uint64_t object, uint64_t buffer, uint64_t offset, uint64_t size, uint64_t requirement);
     void object_requirement(uint64_t object, uint64_t size) { object_size_[object] = size; }
+    // vkDestroyBuffer: its region and bytes go (unless another live buffer overlaps them),
+    // and the engine no longer owns bytes there. Returns the range it had, if bound.
+    std::optional<AddressRange> destroy_buffer(uint64_t buffer);
+    void destroy_object(uint64_t object);
+    void free_memory(uint64_t memory) { memory_base_.erase(memory); }
 
     // [offset, offset + size) of `buffer` as device addresses (VK_WHOLE_SIZE: to the end).
     std::optional<AddressRange> buffer_range(uint64_t buffer, uint64_t offset, uint64_t size) const;
@@ -45,8 +55,16 @@ public:
     bool read(uint64_t address, uint64_t size, std::vector<uint8_t>* out) const;
     void mark_engine_object(AddressRange range);
     uint64_t aliased_buffers() const { return aliased_buffers_; }
-    // Buffers left out of the image because they would exceed the budget (handle, size).
+    // Buffers left out of the image because they would exceed the address-space limit (handle, size).
     const std::vector<std::pair<uint64_t, uint64_t>>& over_budget() const { return over_budget_; }
+    // Writes refused because the image would hold more than the budget.
+    uint64_t writes_over_budget() const { return image_.resident_limit_faults(); }
+    // The most bytes the image held at once, as sampled by note_peak() (after each submission batch).
+    uint64_t peak_resident_bytes() const { return peak_; }
+    void note_peak() { peak_ = std::max(peak_, image_.resident_bytes()); }
+    // Address space all regions may span: far beyond any real trace, below what a 47-bit
+    // user address space can reserve.
+    static constexpr uint64_t kReservedLimit = 1ull << 44;
     // Fills [address, address + size) with a repeated 32-bit value in place (vkCmdFillBuffer).
     bool fill(uint64_t address, uint64_t size, uint32_t value);
 
@@ -68,6 +86,7 @@ private:
         bool bound = false;
     };
     void unmark(AddressRange range);
+    // Adds the region (an alias of an existing one is served by it); false when over the limit.
     bool add_region(uint64_t address, uint64_t size, uint64_t usage, const std::string& label);
     uint64_t memory_base(uint64_t memory);
 
@@ -80,7 +99,7 @@ private:
     uint64_t aliased_buffers_ = 0;
     std::map<uint64_t, uint64_t> engine_objects_;  // begin -> end, disjoint
     uint64_t budget_;
-    uint64_t used_ = 0;
+    uint64_t peak_ = 0;
     std::vector<std::pair<uint64_t, uint64_t>> over_budget_;
 };
 

@@ -57,7 +57,7 @@ std::string format_text(const ReplayReport& r) {
     if (r.hazards_over_cap) s += "(" + std::to_string(r.hazards_over_cap) + " more hazards not kept)\n";
     for (const NotReplayed& n : r.not_replayed) s += "note: " + where_text(n.where) + ": " + n.reason + "\n";
 
-    char line[256];
+    char line[384];
     s += "\nreplay of " + r.trace + " (" + (r.device.empty() ? std::string("unknown device") : r.device) +
          (r.engine_trace ? ", made by clastrace's engine: outputs compared byte for byte" : ", captured on a driver: sizes compared side by side") +
          ")\n";
@@ -74,6 +74,8 @@ std::string format_text(const ReplayReport& r) {
             s += line;
         }
     }
+    if (r.rows_over_cap)
+        s += "  (" + std::to_string(r.rows_over_cap) + " more per-command rows not kept: ReplayOptions::max_command_rows)\n";
     const ReplayCounts& n = r.counts;
     std::map<std::string, uint64_t> by_rule;
     for (const ReplayFinding& f : r.findings) ++by_rule[f.rule];
@@ -85,9 +87,10 @@ std::string format_text(const ReplayReport& r) {
     s += line;
     std::snprintf(line, sizeof line,
                   "  snapshots laid in %" PRIu64 " (%" PRIu64 " bytes, %" PRIu64 " outside memory), outputs compared %" PRIu64
-                  " (%" PRIu64 " bytes), addresses translated %" PRIu64 ", accesses checked %" PRIu64 "\n",
+                  " (%" PRIu64 " bytes), addresses translated %" PRIu64 ", accesses checked %" PRIu64
+                  ", memory image peak %" PRIu64 " bytes\n",
                   n.snapshots_applied, n.snapshot_bytes, n.snapshots_outside_memory, n.outputs_compared,
-                  n.output_bytes_compared, n.addresses_translated, n.accesses);
+                  n.output_bytes_compared, n.addresses_translated, n.accesses, n.peak_image_bytes);
     s += line;
     s += "  not replayed yet: " + std::to_string(r.not_replayed.size()) + " command(s)" +
          (r.hazards_checked ? "" : "; hazards not checked (--no-hazards)") +
@@ -141,6 +144,7 @@ nlohmann::json to_json(const ReplayReport& r) {
         {"hazards", hazards},
         {"sizes", sizes},
         {"not_replayed", not_replayed},
+        {"rows_over_cap", r.rows_over_cap},
         {"trace_damage", r.trace_damage},
         {"counts",
          {{"records", n.records},
@@ -157,7 +161,8 @@ nlohmann::json to_json(const ReplayReport& r) {
           {"snapshots_outside_memory", n.snapshots_outside_memory},
           {"outputs_compared", n.outputs_compared},
           {"output_bytes_compared", n.output_bytes_compared},
-          {"addresses_translated", n.addresses_translated}}},
+          {"addresses_translated", n.addresses_translated},
+          {"peak_image_bytes", n.peak_image_bytes}}},
     };
 }
 

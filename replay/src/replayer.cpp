@@ -148,6 +148,8 @@ private:
     struct Recorded {
         std::vector<std::vector<uint8_t>> commands;  // Record FlatBuffers, copied out of the reader
         bool one_time = false;                        // freed once submitted (memory stays bounded)
+        uint64_t bytes = 0;
+        uint64_t submitted = 0;                       // 1 + submission_index of its last submission, 0 never
     };
 
     void on_record(const traces::RecordView& view);
@@ -173,6 +175,9 @@ private:
     void barrier(const fbs::Record& record, const CommandRef& ref);
 
     void add_finding(ReplayFinding finding);
+    void memory_freed(std::optional<AddressRange> range);
+    void drop_recorded(const Recorded& cb) { recorded_bytes_ -= std::min(recorded_bytes_, cb.bytes); }
+    void limit_recorded();
     ReplayLocation location(const CommandRef& ref, uint64_t sequence) const {
         return ReplayLocation{sequence, ref.submission, ref.command_buffer, ref.command, ref.command_buffer_handle, ref.name};
     }
@@ -202,6 +207,8 @@ private:
     // Where run_cluster_command leaves the engine's record for options_.observer (null without one).
     engine::ExecutionRecord* observed_execution_ = nullptr;
     uint64_t* observed_engine_ns_ = nullptr;
+    uint64_t recorded_bytes_ = 0;
+    std::unordered_set<uint64_t> dropped_;  // command buffers limit_recorded() dropped
 };
 
 // Executes (or skips) one command and, with an observer, hands it the command, then the
@@ -236,6 +243,34 @@ void Replay::replay_command(const fbs::Record& record, const CommandRef& ref, ui
         for (size_t i = hazards; i < sync_.hazards().size(); ++i) observer->on_hazard(sync_.hazards()[i]);
 }
 
+// A destroyed buffer's memory: nothing the replay keeps about those bytes can matter to a
+// later command except accesses still in flight (the sync model keeps those).
+void Replay::memory_freed(std::optional<AddressRange> range) {
+    if (!range || range->empty()) return;
+    directory_.forget(range->begin, range->end);
+    auto inside = [&](uint64_t a) { return a >= range->begin && a < range->end; };
+    std::erase_if(translation_.rebuilt, inside);
+    std::erase_if(translation_.rebuilt_at, [&](const auto& e) { return inside(e.first) || inside(e.second); });
+    std::erase_if(translation_.translated_cells, [&](const auto& e) { return inside(e.first); });
+    if (options_.check_hazards) sync_.memory_freed(*range);
+}
+
+// Command buffers stay recorded after submission because they may be submitted again;
+// captures rarely say when one is freed, so past the limit the least recently submitted go.
+void Replay::limit_recorded() {
+    if (recorded_bytes_ <= options_.max_recorded_bytes) return;
+    std::vector<std::pair<uint64_t, uint64_t>> submitted;  // (submitted, handle)
+    for (const auto& [handle, cb] : recorded_)
+        if (cb.submitted) submitted.emplace_back(cb.submitted, handle);
+    std::sort(submitted.begin(), submitted.end());
+    for (const auto& [when, handle] : submitted) {
+        if (recorded_bytes_ <= options_.max_recorded_bytes / 2) break;
+        drop_recorded(recorded_[handle]);
+        recorded_.erase(handle);
+        if (dropped_.size() < (1u << 16)) dropped_.insert(handle);
+    }
+}
+
 void Replay::add_finding(ReplayFinding finding) {
     if (report_.findings.size() >= options_.max_findings) {
         ++report_.findings_over_cap;
@@ -253,8 +288,10 @@ void Replay::lay_in_snapshots(const traces::SnapshotVector* snapshots, const Rep
     std::vector<uint8_t> bytes;
     for (const fbs::MemorySnapshot* s : *snapshots) {
         std::optional<uint64_t> address = memory_.snapshot_address(s->buffer(), s->offset(), s->address());
+        const uint64_t refused = memory_.writes_over_budget();
         if (!address || !contents(s->hash(), &bytes) || !memory_.lay_in(*address, bytes)) {
             ++report_.counts.snapshots_outside_memory;
+            if (memory_.writes_over_budget() != refused) continue;  // named once, by the budget finding
             add_finding({"CLASTRACE-replay-snapshot-outside-memory",
                          "captured snapshot of " + std::to_string(s->size()) + " bytes at buffer " +
                              detail::hex(s->buffer()) + " offset " + std::to_string(s->offset()) + " address " +
@@ -568,7 +605,15 @@ void Replay::on_submit(const fbs::QueueSubmit& submit) {
         if (batch && batch->command_buffers()) {
             for (uint64_t handle : *batch->command_buffers()) {
                 auto it = recorded_.find(handle);
+                if (it == recorded_.end() && dropped_.count(handle))
+                    add_finding({"CLASTRACE-replay-command-buffer-dropped",
+                                 "command buffer " + detail::hex(handle) +
+                                     " is submitted again, but its commands were dropped to keep the replay within "
+                                     "ReplayOptions::max_recorded_bytes (" + std::to_string(options_.max_recorded_bytes) +
+                                     "): not replayed",
+                                 FindingSource::kReplay, ReplayLocation{sequence_, submission, cb_index, 0, handle, "vkQueueSubmit"}, -1, 0});
                 if (it != recorded_.end()) {
+                    it->second.submitted = uint64_t(submission) + 1;
                     uint32_t command = 0;
                     for (const std::vector<uint8_t>& bytes : it->second.commands) {
                         const fbs::Record* record = flatbuffers::GetRoot<fbs::Record>(bytes.data());
@@ -577,13 +622,18 @@ void Replay::on_submit(const fbs::QueueSubmit& submit) {
                         replay_command(*record, ref, sequence, selected(sequence, submission));
                         ++command;
                     }
-                    if (it->second.one_time) recorded_.erase(it);
+                    if (it->second.one_time) {
+                        drop_recorded(it->second);
+                        recorded_.erase(it);
+                    }
                 }
                 ++cb_index;
             }
         }
         if (options_.check_hazards) sync_.end_submission(signals, b + 1 >= batch_count ? submit.fence() : 0);
+        memory_.note_peak();
     }
+    limit_recorded();
     if (options_.observer) options_.observer->on_submission_end(submission);
 }
 
@@ -600,6 +650,11 @@ void Replay::on_record(const traces::RecordView& view) {
         memory_.bind_buffer(b->buffer(), b->memory(), b->memory_offset(), b->device_address());
         break;
     }
+    case fbs::RecordBody::BufferDestroy: memory_freed(memory_.destroy_buffer(r.body_as_BufferDestroy()->buffer())); break;
+    case fbs::RecordBody::AccelerationStructureDestroy:
+        memory_.destroy_object(r.body_as_AccelerationStructureDestroy()->acceleration_structure());
+        break;
+    case fbs::RecordBody::MemoryFree: memory_.free_memory(r.body_as_MemoryFree()->memory()); break;
     case fbs::RecordBody::AccelerationStructureCreate: {
         const auto* c = r.body_as_AccelerationStructureCreate();
         memory_.create_object(c->acceleration_structure(), c->buffer(), c->offset(), c->size(), 0);
@@ -626,13 +681,18 @@ void Replay::on_record(const traces::RecordView& view) {
     }
     case fbs::RecordBody::CommandBufferBegin: {
         Recorded& cb = recorded_[r.body_as_CommandBufferBegin()->command_buffer()];
-        cb.commands.clear();
+        drop_recorded(cb);
+        cb = Recorded{};
+        dropped_.erase(r.body_as_CommandBufferBegin()->command_buffer());
         cb.one_time = r.body_as_CommandBufferBegin()->flags() & VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
         break;
     }
     case fbs::RecordBody::CommandBufferReset: {
         const auto* reset = r.body_as_CommandBufferReset();
-        if (reset->command_buffer() != 0) recorded_.erase(reset->command_buffer());
+        if (auto it = recorded_.find(reset->command_buffer()); it != recorded_.end()) {
+            drop_recorded(it->second);
+            recorded_.erase(it);
+        }
         break;
     }
     case fbs::RecordBody::MemoryObservation: host_observation(*r.body_as_MemoryObservation()); break;
@@ -667,7 +727,10 @@ void Replay::on_record(const traces::RecordView& view) {
     }
     default: {
         if (uint64_t cb = command_buffer_of(r)) {
-            recorded_[cb].commands.emplace_back(view.bytes, view.bytes + view.size);
+            Recorded& recorded = recorded_[cb];
+            recorded.commands.emplace_back(view.bytes, view.bytes + view.size);
+            recorded.bytes += view.size;
+            recorded_bytes_ += view.size;
         }
         break;
     }
@@ -693,9 +756,17 @@ ReplayReport Replay::run() {
     for (const auto& [buffer, size] : memory_.over_budget())
         add_finding({"CLASTRACE-replay-memory-budget",
                      "buffer " + detail::hex(buffer) + " (" + std::to_string(size) +
-                         " bytes) was left out of the replay's memory: it would exceed the budget of " +
+                         " bytes) was left out of the replay's memory: the address space of all buffers would exceed " +
+                         std::to_string(ReplayMemory::kReservedLimit) + " bytes",
+                     FindingSource::kReplay, ReplayLocation{}, -1, 0});
+    if (memory_.writes_over_budget())
+        add_finding({"CLASTRACE-replay-memory-budget",
+                     std::to_string(memory_.writes_over_budget()) +
+                         " write(s) to memory were refused: the replay's memory would hold more than the budget of " +
                          std::to_string(options_.memory_budget_bytes) + " bytes (ReplayOptions::memory_budget_bytes)",
                      FindingSource::kReplay, ReplayLocation{}, -1, 0});
+    memory_.note_peak();
+    report_.counts.peak_image_bytes = memory_.peak_resident_bytes();
     if (options_.check_hazards) {
         report_.hazards = merge_per_op_hazards(sync_.hazards(), &report_.hazards_merged);
         report_.hazards_over_cap = sync_.stats().hazards_over_cap;

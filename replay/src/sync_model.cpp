@@ -351,16 +351,30 @@ struct SyncModel::State {
         segments.emplace_hint(std::next(it), at, std::move(tail));
     }
 
+    // One pass over the segments [begin, end) touches: splits at the two ends as it meets
+    // them, fills gaps with fresh segments, and (a write) leaves one segment behind. Each
+    // access costs one tree search plus the segments it covers.
     void record(const Record& b, bool deserialize) {
         ++stats.accesses;
         const uint64_t begin = b.range.begin, end = b.range.end;
         if (end <= begin) return;
-        split_at(begin);
-        split_at(end);
         std::vector<Finding> found;
         const Later later{&b, b.queue, deserialize};
+        auto it = segments.upper_bound(begin);
+        if (it != segments.begin()) {
+            auto prev = std::prev(it);
+            if (prev->second.end > begin) {
+                if (prev->first < begin) {
+                    Segment tail = prev->second;
+                    prev->second.end = begin;
+                    it = segments.emplace_hint(it, begin, std::move(tail));
+                } else {
+                    it = prev;
+                }
+            }
+        }
+        auto first = segments.end();
         uint64_t cursor = begin;
-        auto it = segments.lower_bound(begin);
         while (cursor < end) {
             if (it == segments.end() || it->first > cursor) {
                 // A gap nobody touched yet: a fresh segment up to the next one.
@@ -369,26 +383,28 @@ struct SyncModel::State {
                 fresh.end = gap_end;
                 if (b.is_write) fresh.write = b;
                 else fresh.reads.push_back(b);
-                it = std::next(segments.emplace_hint(it, cursor, std::move(fresh)));
+                it = segments.emplace_hint(it, cursor, std::move(fresh));
+                if (first == segments.end()) first = it;
                 cursor = gap_end;
+                ++it;
                 continue;
             }
-            Segment& seg = it->second;
-            check_and_update(seg, it->first, later, found);
-            cursor = seg.end;
+            if (it->second.end > end) {
+                Segment tail = it->second;
+                it->second.end = end;
+                segments.emplace_hint(std::next(it), end, std::move(tail));
+            }
+            if (first == segments.end()) first = it;
+            check_and_update(it->second, it->first, later, found);
+            cursor = it->second.end;
             ++it;
         }
         for (const Finding& f : found) emit(f, b);
-        if (b.is_write) {
+        if (b.is_write && std::next(first) != it) {
             // Every segment in the range now holds just this write: one segment is enough.
             // (Without this, overlapping writes would fragment memory byte by byte.)
-            auto first = segments.find(begin), last = segments.lower_bound(end);
-            if (std::next(first) != last) {
-                Segment merged = std::move(first->second);
-                merged.end = end;
-                segments.erase(first, last);
-                segments.emplace(begin, std::move(merged));
-            }
+            first->second.end = end;
+            segments.erase(std::next(first), it);
         }
         stats.segments = segments.size();
         stats.peak_segments = std::max<uint64_t>(stats.peak_segments, segments.size());
@@ -401,6 +417,9 @@ struct SyncModel::State {
             bool any_read = false;
             for (Record& r : seg.reads) {
                 if (r.tag == b.tag) continue;
+                // A read the host saw complete orders nothing and hides nothing: sweeps drop
+                // such reads lazily, so they must count as already gone.
+                if (r.queue != kHostSlot && r.tag < queues[r.queue].complete) continue;
                 any_read = true;
                 if (auto fix = unordered(r, later, false, seg_begin, seg_end))
                     note(found, later.deserialize ? HazardClass::kDeserializeInUse : HazardClass::kWriteAfterRead, r,
@@ -509,10 +528,41 @@ struct SyncModel::State {
     }
 
     // ------------------------------------------------------------------ host waits
-    void complete_through(const Clock& clock) {
+    // Accesses older than a queue's `complete` count as finished wherever they are met, so
+    // dropping them (retire) only saves memory. A sweep costs a pass over every segment, so
+    // fence and semaphore waits sweep only once the segments have doubled since the last
+    // sweep (memory stays within twice what is live, plus kSweepFloor); idle waits always do.
+    static constexpr std::size_t kSweepFloor = 1024;
+    std::size_t sweep_at = kSweepFloor;
+
+    void complete_through(const Clock& clock, bool always_sweep) {
         for (std::size_t i = 0; i < queues.size() && i < clock.size(); ++i)
             queues[i].complete = std::max(queues[i].complete, clock[i]);
+        if (!always_sweep && segments.size() < sweep_at) return;
         retire();
+        prune_timelines();
+        sweep_at = std::max(kSweepFloor, 2 * segments.size());
+    }
+
+    bool all_complete(const Clock& c) const {
+        for (std::size_t i = 0; i < c.size() && i < queues.size(); ++i)
+            if (c[i] > queues[i].complete) return false;
+        return true;
+    }
+
+    // A timeline semaphore keeps one clock per value signalled, so an app counting frames
+    // on it would grow the map with the trace. A value whose signal and next value's signal
+    // are both complete can go: a wait on it finds that next value, whose extra coverage is
+    // completed work, which orders nothing any more.
+    void prune_timelines() {
+        for (auto& [handle, sem] : semaphores) {
+            auto& timeline = sem.timeline;
+            for (auto it = timeline.begin(); it != timeline.end();) {
+                auto next = std::next(it);
+                if (next != timeline.end() && all_complete(it->second) && all_complete(next->second)) it = timeline.erase(it);
+                else it = next;
+            }
+        }
     }
 
     // Drops what host waits proved finished; keeps completed writes the host cannot see yet.
@@ -780,21 +830,46 @@ void SyncModel::wait_for_fence(uint64_t fence) {
     s.sync_tag();
     auto it = s.fences.find(fence);
     if (it == s.fences.end()) return;
-    s.complete_through(it->second);
+    s.complete_through(it->second, false);
 }
 
 void SyncModel::queue_wait_idle(QueueId queue) {
     State& s = *state_;
     s.sync_tag();
     const uint16_t slot = s.queue_slot(queue);
-    s.complete_through(s.snapshot_now(slot));
+    s.complete_through(s.snapshot_now(slot), true);
 }
 
 void SyncModel::device_wait_idle() {
     State& s = *state_;
     s.sync_tag();
     Clock all(s.queues.size(), s.tag + 1);
-    s.complete_through(all);
+    s.complete_through(all, true);
+}
+
+void SyncModel::memory_freed(AddressRange range) {
+    State& s = *state_;
+    // Completed accesses to freed memory can order nothing any more; the host kept
+    // completed writes only for its own later reads, which freed memory cannot have.
+    // Accesses still in flight stay: memory freed and reused under them is a hazard.
+    auto it = s.segments.upper_bound(range.begin);
+    if (it != s.segments.begin()) --it;
+    while (it != s.segments.end() && it->first < range.end) {
+        Segment& seg = it->second;
+        if (it->first < range.begin || seg.end > range.end) {
+            ++it;
+            continue;
+        }
+        std::erase_if(seg.reads, [&](const Record& r) {
+            return r.queue == kHostSlot || r.tag < s.queues[r.queue].complete;
+        });
+        if (seg.write && (seg.write->queue == kHostSlot || seg.write->completed ||
+                          seg.write->tag < s.queues[seg.write->queue].complete))
+            seg.write.reset();
+        if (!seg.write && seg.reads.empty()) it = s.segments.erase(it);
+        else ++it;
+    }
+    s.stats.segments = s.segments.size();
 }
 
 void SyncModel::host_wait_semaphore(uint64_t semaphore, uint64_t value) {
@@ -804,7 +879,7 @@ void SyncModel::host_wait_semaphore(uint64_t semaphore, uint64_t value) {
     if (sem == s.semaphores.end()) return;
     auto it = sem->second.timeline.lower_bound(value);
     if (it == sem->second.timeline.end()) return;
-    s.complete_through(it->second);
+    s.complete_through(it->second, false);
 }
 
 void SyncModel::host_signal_semaphore(uint64_t semaphore, uint64_t value) {

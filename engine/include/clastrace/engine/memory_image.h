@@ -3,6 +3,11 @@
 // Every engine input is read through it and every output written through it, so a
 // hostile address, size or stride becomes a MemoryFault that names the address, the
 // field it came from and the op index, never undefined behaviour.
+//
+// A region costs only the pages written: its bytes are reserved address space that the
+// OS backs on first write (untouched pages read as zeros without being allocated), so a
+// 1 GiB buffer whose trace references 1 MiB costs about 1 MiB, and spans that cross
+// pages stay contiguous (no copying, no span invalidated by a later access).
 #ifndef CLASTRACE_ENGINE_MEMORY_IMAGE_H
 #define CLASTRACE_ENGINE_MEMORY_IMAGE_H
 
@@ -13,6 +18,7 @@
 #include <cstring>
 #include <exception>
 #include <map>
+#include <memory>
 #include <span>
 #include <string>
 #include <type_traits>
@@ -26,12 +32,72 @@ struct FieldRef {
   int64_t op_index = -1;   // index of the op in its command, -1 when none
 };
 
+// The bytes of one region, zero until written. Reading never allocates. Writing through
+// touch() (what MemoryImage::write_bytes does) counts the pages it covers; the raw
+// non-const accessors (data(), begin(), operator[]) give write access without a range, so
+// data()/begin() count the whole region and operator[] its byte's page.
+class RegionBytes {
+ public:
+  static constexpr uint64_t kPageBytes = 4096;  // accounting unit (the OS page on x86-64 and arm64 Linux)
+
+  RegionBytes() = default;
+  // Reserves `size` bytes of zeros; throws std::bad_alloc when the address space cannot be had.
+  explicit RegionBytes(uint64_t size);
+  ~RegionBytes();
+  RegionBytes(RegionBytes&& other) noexcept;
+  RegionBytes& operator=(RegionBytes&& other) noexcept;
+  RegionBytes(const RegionBytes& other);  // copies the touched pages only
+  RegionBytes& operator=(const RegionBytes& other);
+
+  size_t size() const { return size_; }
+  bool empty() const { return size_ == 0; }
+  const std::byte* data() const { return data_; }
+  std::byte* data() { touch(0, size_); return data_; }
+  const std::byte* begin() const { return data_; }
+  const std::byte* end() const { return data_ + size_; }
+  std::byte* begin() { return data(); }
+  std::byte* end() { return data_ + size_; }
+  const std::byte& operator[](size_t i) const { return data_[i]; }
+  std::byte& operator[](size_t i) { touch(i, 1); return data_[i]; }
+  operator std::vector<std::byte>() const { return {begin(), end()}; }
+
+  // [offset, offset + size) for writing: counts its pages (adding the bytes newly counted
+  // to *added when given) and returns its first byte.
+  std::byte* write_at(uint64_t offset, uint64_t size, uint64_t* added = nullptr) {
+    const uint64_t n = touch(offset, size);
+    if (added) *added += n;
+    return data_ + offset;
+  }
+  // Counts the pages of [offset, offset + size). Returns the bytes newly counted.
+  uint64_t touch(uint64_t offset, uint64_t size);
+  // Bytes of [offset, offset + size) in pages not counted yet (what touch() would add).
+  uint64_t untouched_bytes(uint64_t offset, uint64_t size) const;
+  // Zeros [offset, offset + size); whole pages inside go back to the OS and stop counting.
+  // Returns the bytes no longer counted.
+  uint64_t zero(uint64_t offset, uint64_t size);
+  // Bytes in counted pages: what the region costs.
+  uint64_t resident_bytes() const { return resident_; }
+  // True when the region lives on the heap, wholly counted: the OS refused another mapping
+  // (vm.max_map_count) and the region was small enough to hold densely.
+  bool dense() const { return dense_; }
+  static constexpr uint64_t kDenseFallbackBytes = 1ull << 20;
+
+ private:
+  void release();
+  bool dense_ = false;
+  std::byte* data_ = nullptr;
+  uint64_t size_ = 0;
+  uint64_t mapped_ = 0;                  // size_ rounded up to whole pages
+  uint64_t resident_ = 0;
+  std::map<uint64_t, uint64_t> touched_;  // first page -> one past the last, disjoint, not adjacent
+};
+
 struct MemoryRegion {
   uint64_t base = 0;
   uint64_t size = 0;
   VkBufferUsageFlags usage = 0;
   std::string label;
-  std::vector<std::byte> bytes;
+  RegionBytes bytes;
 };
 
 struct MemoryFault : std::exception {
@@ -91,10 +157,30 @@ class MemoryImage {
 
   const std::map<uint64_t, MemoryRegion>& regions() const { return regions_; }
 
+  // Forgets the region based at `base` and gives its pages back (a destroyed buffer).
+  // False when no region starts there.
+  bool remove_region(uint64_t base);
+  // Zeros [address, address + size) inside one region (MemoryFault otherwise), giving whole
+  // pages back: clearing memory never costs memory.
+  void zero_bytes(uint64_t address, uint64_t size, FieldRef where);
+
+  // Bytes the image holds: the counted pages of every region (see RegionBytes).
+  uint64_t resident_bytes() const;
+  // Bytes of address space its regions span (what a dense image would allocate).
+  uint64_t reserved_bytes() const { return reserved_; }
+  // write_bytes faults ("memory image limit") instead of counting pages beyond `bytes` in
+  // all; the limit counts pages first written through write_bytes.
+  void set_resident_limit(uint64_t bytes) { resident_limit_ = bytes; }
+  uint64_t resident_limit_faults() const { return resident_limit_faults_; }
+
   [[noreturn]] static void fault(uint64_t address, uint64_t size, FieldRef where, const std::string& what);
 
  private:
   std::map<uint64_t, MemoryRegion> regions_;  // keyed by base
+  uint64_t reserved_ = 0;
+  uint64_t written_ = 0;  // pages counted through write_bytes, for the limit
+  uint64_t resident_limit_ = ~0ull;
+  uint64_t resident_limit_faults_ = 0;
 };
 
 }  // namespace clastrace::engine

@@ -39,6 +39,9 @@ class ObjectDirectory {
   // After a move without noMoveOverlap: the source no longer holds an object.
   void record_moved_away(uint64_t address, uint64_t new_address);
 
+  // After the memory [begin, end) was freed (a destroyed buffer): nothing lives there now.
+  void forget(uint64_t begin, uint64_t end);
+
   size_t live_count() const { return live_.size(); }
 
  private:

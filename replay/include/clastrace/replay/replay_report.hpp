@@ -80,6 +80,7 @@ struct ReplayCounts {
     uint64_t output_bytes_compared = 0;
     uint64_t addresses_translated = 0; // object addresses rewritten captured -> rebuilt
     uint64_t skipped_commands = 0;     // commands outside --ops/--submit
+    uint64_t peak_image_bytes = 0;     // most bytes the memory image held at once (resident pages)
 };
 
 struct ReplayReport {
@@ -95,6 +96,7 @@ struct ReplayReport {
     bool verified = true;
     std::vector<SizeComparison> sizes;
     std::vector<NotReplayed> not_replayed;
+    uint64_t rows_over_cap = 0;        // sizes and not_replayed rows past ReplayOptions::max_command_rows
     std::vector<std::string> trace_damage;  // TraceError messages met while reading
     ReplayCounts counts;
 

@@ -43,9 +43,18 @@ struct ReplayOptions {
     int64_t submission = -1;
     std::size_t max_findings = 1000;   // findings kept (hazards: the same cap); the rest counted
     uint32_t max_findings_per_rule = 64;  // per command, passed to the engine
-    // Bytes of captured memory the replay may hold: every bound buffer is one zero-filled
-    // region. Buffers beyond it are left out (a CLASTRACE-replay-memory-budget finding).
+    // Bytes of captured memory the replay may hold. Every bound buffer is a sparse region
+    // that costs only the pages written; a write past the budget is refused (a
+    // CLASTRACE-replay-memory-budget finding), and so is a buffer beyond 16 TiB of
+    // address space in all.
     uint64_t memory_budget_bytes = 8ull << 30;
+    // Per-command rows kept in the report (sizes side by side, commands not replayed);
+    // the rest are counted (ReplayReport::rows_over_cap), so memory stays bounded.
+    std::size_t max_command_rows = 4096;
+    // Record bytes of submitted command buffers kept for resubmission. Beyond it the
+    // least recently submitted are dropped; resubmitting one is a
+    // CLASTRACE-replay-command-buffer-dropped finding.
+    uint64_t max_recorded_bytes = 256ull << 20;
     // Called about every 64 records; may be empty.
     std::function<void(const ReplayProgress&)> progress;
     // Sees every record, submission, command, finding and hazard as the replay meets them

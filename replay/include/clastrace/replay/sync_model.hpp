@@ -9,8 +9,9 @@
 //
 // Barriers are appended to a per-queue log and applied to an access's state only when a
 // later access touches its bytes, so a global barrier costs O(1) however much memory is
-// live. Host waits (fences, idle) retire completed accesses; memory then stays bounded by
-// what is in flight, not by the trace.
+// live. Host waits (fences, idle) complete accesses; they are swept out when the segments
+// have doubled since the last sweep (always at idle waits), so memory stays within twice
+// what is in flight, not growing with the trace.
 #pragma once
 
 #include <cstdint>
@@ -78,6 +79,8 @@ public:
     // vkSignalSemaphore: satisfies device waits; orders only host work, which every later
     // submission sees anyway.
     void host_signal_semaphore(uint64_t semaphore, uint64_t value);
+    // vkDestroyBuffer / vkFreeMemory: forgets the completed accesses inside `range`.
+    void memory_freed(AddressRange range);
 
     // --- results -------------------------------------------------------------------
     const std::vector<HazardReport>& hazards() const;
