@@ -367,7 +367,9 @@ void NvReplay::ray_check(const fbs::RayQueryCheck& check) {
     out.label = check.label() ? check.label()->str() : "";
     out.acceleration_structure = check.acceleration_structure();
     out.after_submission = check.after_submission();
-    const ReplayLocation where{};
+    ReplayLocation where{};
+    where.submission = uint32_t(check.after_submission());
+    where.name = "RayQueryCheck";
     auto fail = [&](std::string why) {
         out.why_not = std::move(why);
         c_.report.ray_checks.push_back(out);
