@@ -87,7 +87,9 @@ eng::ExecutionRecord NvWorld::build(const eng::NvObjectInfo& info, eng::NvObject
     cmd.dst = dst;
     if (src) cmd.src = *src;
     const eng::NvMemoryRequirements need = eng::nv_memory_requirements(info);
-    const uint64_t s = update ? need.update_scratch : need.build_scratch;
+    // Hostile counts ask for huge scratch: the test world gives at most 16 MiB (the engine
+    // then reports the scratch rule, which is what such a command breaks).
+    const uint64_t s = std::min<uint64_t>(update ? need.update_scratch : need.build_scratch, 16ull << 20);
     cmd.scratch_address = scratch(s);
     cmd.scratch_available = s;
     eng::ExecutionRecord r = eng::execute_nv_build(cmd, memory, options);
