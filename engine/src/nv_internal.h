@@ -4,7 +4,9 @@
 
 #include "clastrace/engine/nv_format.h"
 
+#include <algorithm>
 #include <cstdint>
+#include <limits>
 #include <span>
 #include <vector>
 
@@ -13,10 +15,24 @@ namespace clastrace::engine::nv {
 struct Box {
   float lo[3];
   float hi[3];
-  static Box empty();
-  void grow(const Box& b);
-  void grow_point(const float p[3]);
-  bool valid() const;  // lo <= hi on every axis (false for NaN and for empty)
+  static Box empty() {
+    constexpr float inf = std::numeric_limits<float>::infinity();
+    return Box{{inf, inf, inf}, {-inf, -inf, -inf}};
+  }
+  // NaN in `b` is ignored (std::min/max keep the first argument when comparing with NaN).
+  void grow(const Box& b) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], b.lo[a]);
+      hi[a] = std::max(hi[a], b.hi[a]);
+    }
+  }
+  void grow_point(const float p[3]) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], p[a]);
+      hi[a] = std::max(hi[a], p[a]);
+    }
+  }
+  bool valid() const { return lo[0] <= hi[0] && lo[1] <= hi[1] && lo[2] <= hi[2]; }  // false for NaN and empty
 };
 
 // Binned SAH tree over `boxes` (all valid): nodes in depth-first order (left child at

@@ -333,16 +333,28 @@ bool trace_scene(const NvScene::Data& s, const Ray& ray, uint32_t flags, uint32_
   const RayD rd = prepare(o, d);
   const double tmin = ray.tmin;
   double tmax = ray.tmax;
-  std::vector<uint32_t> stack{0};
+  // A fixed stack covers every tree the builder makes; hostile (checked) trees may be
+  // deeper and spill into the vector.
+  uint32_t stack[128];
+  int sp = 0;
+  std::vector<uint32_t> overflow;
+  stack[sp++] = 0;
   bool found = false;
-  while (!stack.empty()) {
-    const uint32_t ni = stack.back();
-    stack.pop_back();
+  while (sp > 0 || !overflow.empty()) {
+    uint32_t ni;
+    if (!overflow.empty()) {
+      ni = overflow.back();
+      overflow.pop_back();
+    } else {
+      ni = stack[--sp];
+    }
     const NvNode& n = s.nodes[ni];
     if (std::isnan(box_entry(rd, n.bounds_min, n.bounds_max, tmin, tmax))) continue;
     if (n.count == 0) {
-      stack.push_back(n.first);
-      stack.push_back(ni + 1);
+      for (uint32_t c : {n.first, ni + 1}) {
+        if (sp < 128) stack[sp++] = c;
+        else overflow.push_back(c);
+      }
       continue;
     }
     for (uint32_t k = n.first; k < n.first + n.count; ++k) {

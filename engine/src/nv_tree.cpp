@@ -44,37 +44,48 @@ struct Builder {
     }
     const uint32_t count = end - begin;
     if (count <= 1) return emit_leaf(node, begin, end, bounds);
-    // Best binned split over the three axes.
+    // Best binned split over the three axes, binned in one pass over the items.
     int best_axis = -1;
     int best_bin = 0;
     double best_cost = kInf;
+    double lo[3], scale[3];
+    bool usable[3];
     for (int a = 0; a < 3; ++a) {
-      const double lo = cbounds.lo[a], extent = double(cbounds.hi[a]) - lo;
-      if (!(extent > 0.0) || !std::isfinite(extent)) continue;
-      Box bin_box[kBins];
-      uint32_t bin_count[kBins] = {};
-      for (auto& b : bin_box) b = Box::empty();
-      for (uint32_t i = begin; i < end; ++i) {
-        int k = int((centroid[3 * size_t(items[i]) + a] - lo) / extent * kBins);
-        k = std::clamp(k, 0, kBins - 1);
-        bin_box[k].grow(boxes[items[i]]);
-        ++bin_count[k];
+      lo[a] = cbounds.lo[a];
+      const double extent = double(cbounds.hi[a]) - lo[a];
+      usable[a] = extent > 0.0 && std::isfinite(extent);
+      scale[a] = usable[a] ? kBins / extent : 0.0;
+    }
+    Box bin_box[3][kBins];
+    uint32_t bin_count[3][kBins] = {};
+    for (auto& axis : bin_box)
+      for (auto& b : axis) b = Box::empty();
+    for (uint32_t i = begin; i < end; ++i) {
+      const uint32_t it = items[i];
+      const Box& box = boxes[it];
+      for (int a = 0; a < 3; ++a) {
+        const int k = std::clamp(int((centroid[3 * size_t(it) + a] - lo[a]) * scale[a]), 0, kBins - 1);
+        bin_box[a][k].grow(box);
+        ++bin_count[a][k];
       }
+    }
+    for (int a = 0; a < 3; ++a) {
+      if (!usable[a]) continue;
       double right_area[kBins];
       uint32_t right_count[kBins];
       Box acc = Box::empty();
       uint32_t n = 0;
       for (int k = kBins - 1; k > 0; --k) {
-        acc.grow(bin_box[k]);
-        n += bin_count[k];
+        acc.grow(bin_box[a][k]);
+        n += bin_count[a][k];
         right_area[k] = half_area(acc);
         right_count[k] = n;
       }
       acc = Box::empty();
       n = 0;
       for (int k = 0; k < kBins - 1; ++k) {
-        acc.grow(bin_box[k]);
-        n += bin_count[k];
+        acc.grow(bin_box[a][k]);
+        n += bin_count[a][k];
         if (n == 0 || right_count[k + 1] == 0) continue;
         const double cost = half_area(acc) * n + right_area[k + 1] * right_count[k + 1];
         if (cost < best_cost) {
@@ -92,10 +103,8 @@ struct Builder {
     // recursion stays shallow (depth <= 64 + log2 n).
     if (best_axis >= 0 && depth < 64) {
       const int a = best_axis;
-      const double lo = cbounds.lo[a], extent = double(cbounds.hi[a]) - lo;
       auto* split = std::stable_partition(items.data() + begin, items.data() + end, [&](uint32_t it) {
-        int k = int((centroid[3 * size_t(it) + a] - lo) / extent * kBins);
-        return std::clamp(k, 0, kBins - 1) <= best_bin;
+        return std::clamp(int((centroid[3 * size_t(it) + a] - lo[a]) * scale[a]), 0, kBins - 1) <= best_bin;
       });
       mid = uint32_t(split - items.data());
     } else {
@@ -119,24 +128,6 @@ struct Builder {
 };
 
 }  // namespace
-
-Box Box::empty() {
-  constexpr float inf = std::numeric_limits<float>::infinity();
-  return Box{{inf, inf, inf}, {-inf, -inf, -inf}};
-}
-void Box::grow(const Box& b) {
-  for (int a = 0; a < 3; ++a) {
-    lo[a] = std::min(lo[a], b.lo[a]);
-    hi[a] = std::max(hi[a], b.hi[a]);
-  }
-}
-void Box::grow_point(const float p[3]) {
-  for (int a = 0; a < 3; ++a) {
-    lo[a] = std::min(lo[a], p[a]);
-    hi[a] = std::max(hi[a], p[a]);
-  }
-}
-bool Box::valid() const { return lo[0] <= hi[0] && lo[1] <= hi[1] && lo[2] <= hi[2]; }
 
 Box triangle_box(const float v[9]) {
   Box b = Box::empty();
