@@ -257,25 +257,52 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
   const RayD rd = prepare(o, d);
   const bool cull_disable = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_CULL_DISABLE_BIT_NV;
   const bool flip = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_FRONT_COUNTERCLOCKWISE_BIT_NV;
-  uint32_t stack[192];
-  std::vector<uint32_t> overflow;
+  // Near child first, each entry with the distance at which the ray enters its box, so
+  // closest-hit queries skip subtrees behind the best hit found so far.
+  struct Entry {
+    uint32_t node;
+    double t;
+  };
+  Entry stack[192];
+  std::vector<Entry> overflow;
   int sp = 0;
-  stack[sp++] = 0;
+  auto push = [&](uint32_t node, double t) {
+    if (sp < 192) stack[sp++] = Entry{node, t};
+    else overflow.push_back(Entry{node, t});
+  };
+  {
+    const double t0 = box_entry(rd, b.nodes[0].bounds_min, b.nodes[0].bounds_max, tmin, *tmax);
+    if (!std::isnan(t0)) push(0, t0);
+  }
   bool found = false;
   while (sp > 0 || !overflow.empty()) {
-    uint32_t ni;
+    Entry e;
     if (!overflow.empty()) {
-      ni = overflow.back();
+      e = overflow.back();
       overflow.pop_back();
     } else {
-      ni = stack[--sp];
+      e = stack[--sp];
     }
+    if (e.t > *tmax) continue;
+    const uint32_t ni = e.node;
     const NvNode& n = b.nodes[ni];
-    if (std::isnan(box_entry(rd, n.bounds_min, n.bounds_max, tmin, *tmax))) continue;
     if (n.count == 0) {
-      for (uint32_t c : {n.first, ni + 1}) {
-        if (sp < 192) stack[sp++] = c;
-        else overflow.push_back(c);
+      const NvNode &l = b.nodes[ni + 1], &r = b.nodes[n.first];
+      const double tl = box_entry(rd, l.bounds_min, l.bounds_max, tmin, *tmax);
+      const double tr = box_entry(rd, r.bounds_min, r.bounds_max, tmin, *tmax);
+      const bool hl = !std::isnan(tl), hr = !std::isnan(tr);
+      if (hl && hr) {
+        if (tl <= tr) {
+          push(n.first, tr);
+          push(ni + 1, tl);
+        } else {
+          push(ni + 1, tl);
+          push(n.first, tr);
+        }
+      } else if (hl) {
+        push(ni + 1, tl);
+      } else if (hr) {
+        push(n.first, tr);
       }
       continue;
     }
