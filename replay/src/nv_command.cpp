@@ -70,6 +70,12 @@ NvReplay::Object* NvReplay::object(uint64_t handle) {
     return it == objects_.end() ? nullptr : &it->second;
 }
 
+void NvReplay::set_limits(const fbs::RayTracingPropertiesNV& p) {
+    if (p.max_geometry_count()) limits_.max_geometry_count = p.max_geometry_count();
+    if (p.max_instance_count()) limits_.max_instance_count = p.max_instance_count();
+    if (p.max_triangle_count()) limits_.max_triangle_count = p.max_triangle_count();
+}
+
 void NvReplay::on_create(const fbs::AccelerationStructureCreate& create) {
     Object o;
     o.handle = create.acceleration_structure();
@@ -245,6 +251,7 @@ void NvReplay::build(const fbs::CmdBuildAccelerationStructureNV& b, const Comman
     const uint64_t available = cmd.scratch_available;
     if (driver_sizes) cmd.scratch_available = kWholeSize;
     engine::NvBuildOptions options;
+    options.limits = limits_;
     options.max_findings_per_rule = c_.options.max_findings_per_rule;
     options.resolve_handle = [this](uint64_t h) { return resolve(h, false); };
     engine::ExecutionRecord record = engine::execute_nv_build(cmd, c_.memory.image(), options);

@@ -41,6 +41,8 @@ class NvReplay {
 public:
     explicit NvReplay(NvReplayContext context) : c_(std::move(context)) {}
 
+    // The capturing device's VkPhysicalDeviceRayTracingPropertiesNV limits (0: keep the default).
+    void set_limits(const fbs::RayTracingPropertiesNV& p);
     void on_create(const fbs::AccelerationStructureCreate& create);
     void on_requirement(const fbs::AccelerationStructureMemoryRequirementsNV& requirement);
     void on_bind(const fbs::AccelerationStructureBindMemory& bind);
@@ -75,6 +77,7 @@ private:
     void engine_findings(const engine::ExecutionRecord& record, const ReplayLocation& where);
 
     NvReplayContext c_;
+    engine::NvLimits limits_;
     std::unordered_map<uint64_t, Object> objects_;
     std::unordered_map<uint64_t, uint64_t> by_driver_handle_;  // driver handle -> object handle
     std::map<uint64_t, uint64_t> shadow_owner_;                // shadow base -> object handle

@@ -197,6 +197,18 @@ TEST(ReplayNv, InstanceHandleThatTranslatesToNothingIsAFinding) {
         << replay::format_text(r);
 }
 
+TEST(ReplayNv, TheCapturingDevicesLimitsApply) {
+    const std::string path = temp_path("limits.clt");
+    {
+        NvTraceBuilder t(path, false, /*max_instance_count=*/4);
+        write_scene(t, 6, 3);
+        t.finish();
+    }
+    const replay::ReplayReport r = replay_file(path);
+    EXPECT_EQ(count_rule(r, "VUID-VkAccelerationStructureInfoNV-instanceCount-02422"), 1u) << replay::format_text(r);
+    std::filesystem::remove(path);
+}
+
 TEST(ReplayNv, DeserializedEngineBlobTranslatesItsHandleListAndAgrees) {
     const std::string path = temp_path("deserialize.clt");
     {
