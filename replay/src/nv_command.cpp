@@ -70,10 +70,18 @@ NvReplay::Object* NvReplay::object(uint64_t handle) {
     return it == objects_.end() ? nullptr : &it->second;
 }
 
-void NvReplay::set_limits(const fbs::RayTracingPropertiesNV& p) {
-    if (p.max_geometry_count()) limits_.max_geometry_count = p.max_geometry_count();
-    if (p.max_instance_count()) limits_.max_instance_count = p.max_instance_count();
-    if (p.max_triangle_count()) limits_.max_triangle_count = p.max_triangle_count();
+void NvReplay::set_device(const fbs::DeviceInfo& device) {
+    if (const fbs::RayTracingPropertiesNV* p = device.ray_tracing_properties_nv()) {
+        if (p->max_geometry_count()) limits_.max_geometry_count = p->max_geometry_count();
+        if (p->max_instance_count()) limits_.max_instance_count = p->max_instance_count();
+        if (p->max_triangle_count()) limits_.max_triangle_count = p->max_triangle_count();
+    }
+    // The accelerationStructure feature cannot be enabled without its extension.
+    if (const auto* extensions = device.enabled_extensions(); extensions && extensions->size() > 0) {
+        khr_acceleration_structure_missing_ = true;
+        for (const flatbuffers::String* e : *extensions)
+            if (e && e->str() == "VK_KHR_acceleration_structure") khr_acceleration_structure_missing_ = false;
+    }
 }
 
 void NvReplay::on_create(const fbs::AccelerationStructureCreate& create) {
@@ -297,6 +305,11 @@ void NvReplay::deserialize(const fbs::CmdCopyMemoryToAccelerationStructure& copy
                            const ReplayLocation& where) {
     c_.lay_in_snapshots(copy.inputs(), where);
     ++c_.report.counts.deserializations;
+    if (khr_acceleration_structure_missing_)
+        c_.add_finding({engine::kVuidDeserializeFeature,
+                        "the device's enabled extensions (recorded in the trace) do not include VK_KHR_acceleration_structure, "
+                        "so its accelerationStructure feature cannot be enabled",
+                        FindingSource::kEngine, where, -1, 0});
     engine::NvDeserializeCommand cmd;
     cmd.src_address = copy.src_address();
     cmd.mode = copy.mode();

@@ -41,8 +41,10 @@ class NvReplay {
 public:
     explicit NvReplay(NvReplayContext context) : c_(std::move(context)) {}
 
-    // The capturing device's VkPhysicalDeviceRayTracingPropertiesNV limits (0: keep the default).
-    void set_limits(const fbs::RayTracingPropertiesNV& p);
+    // The capturing device: its VkPhysicalDeviceRayTracingPropertiesNV limits (0: keep the
+    // default) and whether VK_KHR_acceleration_structure was enabled (when the trace lists
+    // the enabled extensions).
+    void set_device(const fbs::DeviceInfo& device);
     void on_create(const fbs::AccelerationStructureCreate& create);
     void on_requirement(const fbs::AccelerationStructureMemoryRequirementsNV& requirement);
     void on_bind(const fbs::AccelerationStructureBindMemory& bind);
@@ -78,6 +80,7 @@ private:
 
     NvReplayContext c_;
     engine::NvLimits limits_;
+    bool khr_acceleration_structure_missing_ = false;
     std::unordered_map<uint64_t, Object> objects_;
     std::unordered_map<uint64_t, uint64_t> by_driver_handle_;  // driver handle -> object handle
     std::map<uint64_t, uint64_t> shadow_owner_;                // shadow base -> object handle

@@ -139,7 +139,7 @@ public:
                 vk.maxClusterGeometryIndex = p->max_cluster_geometry_index();
                 properties_ = engine::EngineProperties::from_vk(vk);
             }
-            if (const fbs::RayTracingPropertiesNV* p = d->ray_tracing_properties_nv()) nv_.set_limits(*p);
+            nv_.set_device(*d);
         }
     }
 

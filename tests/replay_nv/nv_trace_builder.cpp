@@ -20,11 +20,13 @@ void NvTraceBuilder::append(T body) {
     check(writer_->append(r));
 }
 
-NvTraceBuilder::NvTraceBuilder(const std::string& path, bool engine_device, uint64_t max_instance_count) {
+NvTraceBuilder::NvTraceBuilder(const std::string& path, bool engine_device, uint64_t max_instance_count,
+                               std::vector<std::string> enabled_extensions) {
     fbs::TraceHeaderT h;
     h.device = std::make_unique<fbs::DeviceInfoT>();
     h.device->name = engine_device ? "clastrace engine" : "NVIDIA H100 (test double)";
     h.device->driver_name = engine_device ? "clastrace engine" : "NVIDIA";
+    h.device->enabled_extensions = std::move(enabled_extensions);
     if (max_instance_count) {
         h.device->ray_tracing_properties_nv = std::make_unique<fbs::RayTracingPropertiesNVT>();
         h.device->ray_tracing_properties_nv->max_instance_count = max_instance_count;

@@ -17,7 +17,8 @@ namespace clastrace::nvtest {
 class NvTraceBuilder {
 public:
     // max_instance_count != 0: the device reports VkPhysicalDeviceRayTracingPropertiesNV with it.
-    NvTraceBuilder(const std::string& path, bool engine_device, uint64_t max_instance_count = 0);
+    NvTraceBuilder(const std::string& path, bool engine_device, uint64_t max_instance_count = 0,
+                   std::vector<std::string> enabled_extensions = {});
     ~NvTraceBuilder();
 
     // A bound buffer holding `bytes` (snapshotted into the next command's inputs).

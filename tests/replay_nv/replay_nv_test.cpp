@@ -206,6 +206,23 @@ TEST(ReplayNv, TheCapturingDevicesLimitsApply) {
     }
     const replay::ReplayReport r = replay_file(path);
     EXPECT_EQ(count_rule(r, "VUID-VkAccelerationStructureInfoNV-instanceCount-02422"), 1u) << replay::format_text(r);
+    // A deserialization on a device whose recorded extensions lack VK_KHR_acceleration_structure.
+    for (bool with_khr : {false, true}) {
+        {
+            std::vector<std::string> ext{"VK_NV_ray_tracing"};
+            if (with_khr) ext.push_back("VK_KHR_acceleration_structure");
+            NvTraceBuilder t(path, false, 0, ext);
+            Written w = write_scene(t, 2, 3);
+            std::vector<uint8_t> blob(256, 0);
+            const uint64_t src = t.buffer(blob.data(), blob.size());
+            t.deserialize(src, w.tlas);
+            t.submit();
+            t.finish();
+        }
+        const replay::ReplayReport r2 = replay_file(path);
+        EXPECT_EQ(count_rule(r2, "VUID-vkCmdCopyMemoryToAccelerationStructureKHR-accelerationStructure-08927"), with_khr ? 0u : 1u)
+            << replay::format_text(r2);
+    }
     std::filesystem::remove(path);
 }
 
