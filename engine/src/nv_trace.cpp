@@ -360,27 +360,52 @@ bool trace_scene(const NvScene::Data& s, const Ray& ray, uint32_t flags, uint32_
   const RayD rd = prepare(o, d);
   const double tmin = ray.tmin;
   double tmax = ray.tmax;
-  // A fixed stack covers every tree the builder makes; hostile (checked) trees may be
-  // deeper and spill into the vector.
-  uint32_t stack[128];
+  // Near child first with its entry distance (as in trace_instance); a fixed stack covers
+  // every tree the builder makes, deeper (hostile but checked) trees spill into the vector.
+  struct Entry {
+    uint32_t node;
+    double t;
+  };
+  Entry stack[128];
+  std::vector<Entry> overflow;
   int sp = 0;
-  std::vector<uint32_t> overflow;
-  stack[sp++] = 0;
+  auto push = [&](uint32_t node, double t) {
+    if (sp < 128) stack[sp++] = Entry{node, t};
+    else overflow.push_back(Entry{node, t});
+  };
+  {
+    const double t0 = box_entry(rd, s.nodes[0].bounds_min, s.nodes[0].bounds_max, tmin, tmax);
+    if (!std::isnan(t0)) push(0, t0);
+  }
   bool found = false;
   while (sp > 0 || !overflow.empty()) {
-    uint32_t ni;
+    Entry e;
     if (!overflow.empty()) {
-      ni = overflow.back();
+      e = overflow.back();
       overflow.pop_back();
     } else {
-      ni = stack[--sp];
+      e = stack[--sp];
     }
+    if (e.t > tmax) continue;
+    const uint32_t ni = e.node;
     const NvNode& n = s.nodes[ni];
-    if (std::isnan(box_entry(rd, n.bounds_min, n.bounds_max, tmin, tmax))) continue;
     if (n.count == 0) {
-      for (uint32_t c : {n.first, ni + 1}) {
-        if (sp < 128) stack[sp++] = c;
-        else overflow.push_back(c);
+      const NvNode &l = s.nodes[ni + 1], &r = s.nodes[n.first];
+      const double tl = box_entry(rd, l.bounds_min, l.bounds_max, tmin, tmax);
+      const double tr = box_entry(rd, r.bounds_min, r.bounds_max, tmin, tmax);
+      const bool hl = !std::isnan(tl), hr = !std::isnan(tr);
+      if (hl && hr) {
+        if (tl <= tr) {
+          push(n.first, tr);
+          push(ni + 1, tl);
+        } else {
+          push(ni + 1, tl);
+          push(n.first, tr);
+        }
+      } else if (hl) {
+        push(ni + 1, tl);
+      } else if (hr) {
+        push(n.first, tr);
       }
       continue;
     }
