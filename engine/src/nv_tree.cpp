@@ -56,6 +56,14 @@ struct Builder {
       usable[a] = extent > 0.0 && std::isfinite(extent);
       scale[a] = usable[a] ? kBins / extent : 0.0;
     }
+    // Bin of a centroid; NaN (inf - inf on an unusable axis) and infinities clamp
+    // without a float-to-int conversion out of range.
+    auto bin_of = [&](float c, int a) {
+      const double x = (double(c) - lo[a]) * scale[a];
+      if (!(x >= 1.0)) return 0;
+      if (x >= double(kBins - 1)) return kBins - 1;
+      return int(x);
+    };
     Box bin_box[3][kBins];
     uint32_t bin_count[3][kBins] = {};
     for (auto& axis : bin_box)
@@ -64,7 +72,7 @@ struct Builder {
       const uint32_t it = items[i];
       const Box& box = boxes[it];
       for (int a = 0; a < 3; ++a) {
-        const int k = std::clamp(int((centroid[3 * size_t(it) + a] - lo[a]) * scale[a]), 0, kBins - 1);
+        const int k = bin_of(centroid[3 * size_t(it) + a], a);
         bin_box[a][k].grow(box);
         ++bin_count[a][k];
       }
@@ -104,7 +112,7 @@ struct Builder {
     if (best_axis >= 0 && depth < 64) {
       const int a = best_axis;
       auto* split = std::stable_partition(items.data() + begin, items.data() + end, [&](uint32_t it) {
-        return std::clamp(int((centroid[3 * size_t(it) + a] - lo[a]) * scale[a]), 0, kBins - 1) <= best_bin;
+        return bin_of(centroid[3 * size_t(it) + a], a) <= best_bin;
       });
       mid = uint32_t(split - items.data());
     } else {

@@ -148,6 +148,29 @@ TEST(NvExtremes, HugeAndTinyCoordinatesKeepTheirT) {
     EXPECT_FALSE(top2->closest(eng::Ray{{0, 0, 0}, 0, {0, 0, 1}, FLT_MAX}, 0, 0xFF).hit);
 }
 
+// Infinite coordinates (a float overflow upstream) give boxes with infinite centroids: the
+// build must bin them without undefined behaviour (found by engine_nv_fuzzer) and the
+// finite triangles must still answer.
+TEST(NvExtremes, InfiniteCoordinatesBuildAndFiniteTrianglesStillHit) {
+    ts::TriangleMesh m = quad(1, 0);
+    const float inf = INFINITY;
+    const uint32_t base = uint32_t(m.positions.size());
+    m.positions.push_back({inf, 0, 0});
+    m.positions.push_back({inf, 1, 0});
+    m.positions.push_back({-inf, inf, inf});
+    for (int k = 0; k < 6; ++k) m.triangles.push_back({base, base + 1, base + 2});
+    NvWorld w;
+    auto info = w.blas_info(one_mesh(m));
+    auto obj = w.make_object(info, "blas");
+    ASSERT_TRUE(w.build(info, obj).ops[0].executed);
+    auto scene = eng::NvScene::open_bottom(w.memory, obj.address, nullptr);
+    ASSERT_TRUE(scene);
+    const eng::NvHit h = scene->closest(eng::Ray{{0.2f, 0.3f, 5}, 0, {0, 0, -1}, 10}, 0, 0xFF);
+    ASSERT_TRUE(h.hit);
+    EXPECT_LT(h.primitive_index, 2u);
+    EXPECT_FLOAT_EQ(h.t, 5.0f);
+}
+
 TEST(NvExtremes, RaysWithNanInfOrEmptyIntervalsMissQuietly) {
     auto s = build_scene({one_mesh(ts::make_icosphere(1, 1))}, std::vector<InstanceSpec>(1));
     auto top = eng::NvScene::open(s->world.memory, s->tlas.address, nullptr, nullptr);
