@@ -118,10 +118,12 @@ bool NvReplay::ensure_shadow(Object& o, const ReplayLocation& where, uint64_t at
     uint64_t need = o.created ? engine::nv_memory_requirements(*o.created).object : 0;
     need = std::max({need, o.khr_size, at_least, uint64_t(engine::kNvObjectAlignment)});
     if (o.shadow && o.shadow_size >= need) return true;
-    if (next_shadow_ - kShadowBase + need > kShadowBudget) {
+    const uint64_t budget = std::min(kShadowBudget, c_.options.memory_budget_bytes / 2);
+    if (need > budget || next_shadow_ - kShadowBase > budget - need) {
         c_.add_finding({kRuleShadowBudget,
                         "acceleration structure " + hex(o.handle) + " would need " + std::to_string(need) +
-                            " bytes of engine memory; all NV objects together may take " + std::to_string(kShadowBudget),
+                            " bytes of engine memory; all NV objects together may take " + std::to_string(budget) +
+                            " (half of ReplayOptions::memory_budget_bytes, at most 4 GiB)",
                         FindingSource::kReplay, where, -1, 0});
         return false;
     }
@@ -331,9 +333,12 @@ void NvReplay::deserialize(const fbs::CmdCopyMemoryToAccelerationStructure& copy
             } catch (const engine::MemoryFault&) {
             }
         }
-        if (dst->bound && deserialized <= kShadowBudget) ensure_shadow(*dst, where, deserialized);
+        // Grow the shadow only up to the size dst was created with: a larger deserializedSize
+        // breaks dst-03746 and must not allocate what a hostile header asks for.
+        const uint64_t created = std::max({dst->driver_object, dst->khr_size,
+                                           dst->created ? engine::nv_memory_requirements(*dst->created).object : 0});
+        if (dst->bound) ensure_shadow(*dst, where, deserialized <= created ? deserialized : 0);
         cmd.dst = binding(*dst, where);
-        if (dst->driver_object) cmd.dst.size = std::min(cmd.dst.size, std::max(dst->driver_object, dst->shadow_size));
     }
     engine::NvDeserializeOptions options;
     options.resolve_handle = [this](uint64_t h) { return resolve(h, false); };

@@ -348,6 +348,41 @@ TEST(ReplayNv, ScratchReuseAndDeserializingIntoAnObjectInUseAreHazards) {
     EXPECT_TRUE(scratch_hazard) << replay::format_text(r);
 }
 
+// Hostile creation counts and a hostile deserializedSize end in findings, not allocations.
+TEST(ReplayNv, HostileCreationCountsAndDeserializedSizesAllocateNothing) {
+    const std::string path = temp_path("hostile.clt");
+    {
+        NvTraceBuilder t(path, false);
+        auto blas = scene_blas();
+        auto info = t.blas_info(blas[0]);
+        auto huge = info;
+        const auto& o = *huge.geometries[0]->triangles;
+        huge.geometries[0]->triangles = std::make_unique<fbs::GeometryTrianglesNV>(
+            o.vertex_data(), 0, 0xFFFFFFFFu, o.vertex_format(), 12, o.index_data(), 0, 0xFFFFFFFFu, o.index_type(), 0, 0);
+        auto obj = t.create(huge, 1000);
+        t.build(info, obj);
+        std::vector<uint8_t> blob(256, 0);
+        eng::SerializedHeader h{};
+        std::memcpy(h.driver_uuid, eng::kEngineDriverUuid.data(), 16);
+        std::memcpy(h.compatibility_uuid, eng::kEngineNvCompatibilityUuid.data(), 16);
+        h.serialized_size = 256;
+        h.deserialized_size = 3ull << 30;
+        std::memcpy(blob.data(), &h, sizeof h);
+        const uint64_t src = t.buffer(blob.data(), blob.size());
+        auto small = t.create(info, 1000);
+        t.deserialize(src, small);
+        t.submit();
+        t.finish();
+    }
+    const replay::ReplayReport r = replay_file(path);
+    EXPECT_EQ(count_rule(r, "CLASTRACE-replay-nv-object-over-budget"), 1u) << replay::format_text(r);
+    EXPECT_GE(count_rule(r, "VUID-VkCopyMemoryToAccelerationStructureInfoKHR-dst-03746") +
+                  count_rule(r, "VUID-VkCopyMemoryToAccelerationStructureInfoKHR-src-04960"),
+              1u)
+        << replay::format_text(r);
+    std::filesystem::remove(path);
+}
+
 // Hostile instance bytes, handles and counts in a driver trace: the replay finishes.
 TEST(ReplayNv, RandomMutationsOfInstanceRecordsNeverCrash) {
     std::mt19937_64 rng(99);
