@@ -76,6 +76,32 @@ std::string format_text(const ReplayReport& r) {
     }
     if (r.rows_over_cap)
         s += "  (" + std::to_string(r.rows_over_cap) + " more per-command rows not kept: ReplayOptions::max_command_rows)\n";
+    if (!r.nv_sizes.empty()) {
+        s += "  NV objects, driver vs engine bytes:\n";
+        std::snprintf(line, sizeof line, "  %-26s %-6s %10s %14s %14s %14s\n", "command", "level", "primitives",
+                      "driver object", "engine object", "engine used");
+        s += line;
+        for (const NvSizeComparison& c : r.nv_sizes) {
+            const std::string where = "s" + std::to_string(c.where.submission) + " cb" + std::to_string(c.where.command_buffer) +
+                                      " cmd" + std::to_string(c.where.command) + " [#" + std::to_string(c.where.sequence) + "]";
+            std::snprintf(line, sizeof line, "  %-26s %-6s %10" PRIu64 " %14s %14" PRIu64 " %14" PRIu64 "\n", where.c_str(),
+                          c.top_level ? "top" : "bottom", c.primitives,
+                          c.driver_object ? std::to_string(c.driver_object).c_str() : "-", c.engine_object, c.engine_bytes);
+            s += line;
+        }
+    }
+    for (const RayCheckResult& c : r.ray_checks) {
+        if (!c.checked) {
+            s += "  ray check '" + c.label + "' on " + hex(c.acceleration_structure) + ": not checked: " + c.why_not + "\n";
+            continue;
+        }
+        std::snprintf(line, sizeof line,
+                      "  ray check '%s' on %s: %" PRIu64 " rays, agree %" PRIu64 " (%" PRIu64 " hits, %" PRIu64
+                      " misses), tie %" PRIu64 ", edge %" PRIu64 ", disagree %" PRIu64 "\n",
+                      c.label.c_str(), hex(c.acceleration_structure).c_str(), c.rays, c.agree_hit + c.agree_miss, c.agree_hit,
+                      c.agree_miss, c.tie, c.edge, c.disagree);
+        s += line;
+    }
     const ReplayCounts& n = r.counts;
     std::map<std::string, uint64_t> by_rule;
     for (const ReplayFinding& f : r.findings) ++by_rule[f.rule];
@@ -128,6 +154,31 @@ nlohmann::json to_json(const ReplayReport& r) {
                          {"engine_bytes", c.engine_bytes},
                          {"sizes_equal", c.sizes_equal}});
     }
+    nlohmann::json nv_sizes = nlohmann::json::array();
+    for (const NvSizeComparison& c : r.nv_sizes)
+        nv_sizes.push_back({{"where", where_json(c.where)},
+                            {"handle", hex(c.handle)},
+                            {"level", c.top_level ? "top" : "bottom"},
+                            {"primitives", c.primitives},
+                            {"driver_object", c.driver_object},
+                            {"driver_build_scratch", c.driver_build_scratch},
+                            {"engine_object", c.engine_object},
+                            {"engine_build_scratch", c.engine_build_scratch},
+                            {"engine_bytes", c.engine_bytes}});
+    nlohmann::json ray_checks = nlohmann::json::array();
+    for (const RayCheckResult& c : r.ray_checks)
+        ray_checks.push_back({{"label", c.label},
+                              {"acceleration_structure", hex(c.acceleration_structure)},
+                              {"after_submission", c.after_submission},
+                              {"checked", c.checked},
+                              {"why_not", c.why_not},
+                              {"rays", c.rays},
+                              {"agree_hit", c.agree_hit},
+                              {"agree_miss", c.agree_miss},
+                              {"tie", c.tie},
+                              {"edge", c.edge},
+                              {"disagree", c.disagree},
+                              {"max_rel_t", c.max_rel_t}});
     nlohmann::json not_replayed = nlohmann::json::array();
     for (const NotReplayed& n : r.not_replayed) not_replayed.push_back({{"where", where_json(n.where)}, {"reason", n.reason}});
     const ReplayCounts& n = r.counts;
@@ -145,6 +196,8 @@ nlohmann::json to_json(const ReplayReport& r) {
         {"sizes", sizes},
         {"not_replayed", not_replayed},
         {"rows_over_cap", r.rows_over_cap},
+        {"nv_sizes", nv_sizes},
+        {"ray_checks", ray_checks},
         {"trace_damage", r.trace_damage},
         {"counts",
          {{"records", n.records},
@@ -162,7 +215,10 @@ nlohmann::json to_json(const ReplayReport& r) {
           {"outputs_compared", n.outputs_compared},
           {"output_bytes_compared", n.output_bytes_compared},
           {"addresses_translated", n.addresses_translated},
-          {"peak_image_bytes", n.peak_image_bytes}}},
+          {"peak_image_bytes", n.peak_image_bytes},
+          {"nv_builds", n.nv_builds},
+          {"deserializations", n.deserializations},
+          {"handles_translated", n.handles_translated}}},
     };
 }
 

@@ -3,6 +3,7 @@
 #include "clastrace/replay/replayer.hpp"
 
 #include "cluster_command.hpp"
+#include "nv_command.hpp"
 #include "replay_memory.hpp"
 
 #include <clastrace/engine/execute.h>
@@ -139,6 +140,7 @@ public:
                 vk.maxClusterGeometryIndex = p->max_cluster_geometry_index();
                 properties_ = engine::EngineProperties::from_vk(vk);
             }
+            nv_.set_device(*d);
         }
     }
 
@@ -209,6 +211,8 @@ private:
     uint64_t* observed_engine_ns_ = nullptr;
     uint64_t recorded_bytes_ = 0;
     std::unordered_set<uint64_t> dropped_;  // command buffers limit_recorded() dropped
+    detail::NvReplay nv_{{memory_, report_, sync_, options_, [this](ReplayFinding f) { add_finding(std::move(f)); },
+                          [this](const traces::SnapshotVector* s, const ReplayLocation& w) { lay_in_snapshots(s, w); }}};
 };
 
 // Executes (or skips) one command and, with an observer, hands it the command, then the
@@ -491,55 +495,12 @@ void Replay::dispatch(const fbs::CmdDispatch& d, const CommandRef& ref, const Re
 }
 
 void Replay::build_nv(const fbs::CmdBuildAccelerationStructureNV& b, const CommandRef& ref, const ReplayLocation& where) {
-    report_.not_replayed.push_back({where, "vkCmdBuildAccelerationStructureNV is not replayed yet (later issue); "
-                                           "its scratch, destination and input ranges are still checked for hazards"});
-    if (!options_.check_hazards) return;
-    constexpr StageMask kBuild = VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR;
-    if (b.inputs()) {
-        uint32_t i = 0;
-        for (const fbs::MemorySnapshot* s : *b.inputs()) {
-            auto address = memory_.snapshot_address(s->buffer(), s->offset(), s->address());
-            if (address)
-                feed(ref, {*address, *address + s->size()}, kBuild, VK_ACCESS_2_SHADER_READ_BIT, false,
-                     "pInfo->pGeometries (input " + std::to_string(i) + ")");
-            ++i;
-        }
-    }
-    if (b.instance_data() != 0 && b.info()) {
-        if (auto r = memory_.buffer_range(b.instance_data(), b.instance_offset(), uint64_t{b.info()->instance_count()} * 64))
-            feed(ref, *r, kBuild, VK_ACCESS_2_SHADER_READ_BIT, false, "instanceData");
-    }
-    if (auto r = memory_.buffer_range(b.scratch(), b.scratch_offset(), kWholeSize))
-        feed(ref, *r, kBuild, VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR | VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
-             true, "scratch");
-    if (b.update() && b.src() != 0) {
-        if (auto r = memory_.object_range(b.src()))
-            feed(ref, *r, kBuild, VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR, false, "src");
-    }
-    if (auto r = memory_.object_range(b.dst()))
-        feed(ref, *r, kBuild, VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR, true, "dst");
+    nv_.build(b, ref, where);  // nv_command.cpp
 }
 
 void Replay::copy_to_object(const fbs::CmdCopyMemoryToAccelerationStructure& c, const CommandRef& ref,
                             const ReplayLocation& where) {
-    report_.not_replayed.push_back({where, "vkCmdCopyMemoryToAccelerationStructureKHR is not replayed yet (later issue); "
-                                           "its source and destination ranges are still checked for hazards"});
-    if (!options_.check_hazards) return;
-    uint64_t src_size = 0;
-    if (c.inputs())
-        for (const fbs::MemorySnapshot* s : *c.inputs())
-            if (s->address() == c.src_address()) src_size = std::max(src_size, s->size());
-    auto dst = memory_.object_range(c.dst());
-    constexpr StageMask kCopy = VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR;
-    Access src_access{{c.src_address(), c.src_address() + src_size}, kCopy, VK_ACCESS_2_TRANSFER_READ_BIT, false,
-                      "pInfo->src.deviceAddress"};
-    if (dst) {
-        report_.counts.accesses += 2;
-        sync_.record_deserialize(ref, src_access,
-                                 Access{*dst, kCopy, VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR, true, "pInfo->dst"});
-    } else if (src_size) {
-        feed(ref, src_access.range, kCopy, VK_ACCESS_2_TRANSFER_READ_BIT, false, "pInfo->src.deviceAddress");
-    }
+    nv_.deserialize(c, ref, where);  // nv_command.cpp
 }
 
 void Replay::execute_command(const fbs::Record& record, const CommandRef& ref, uint64_t sequence) {
@@ -658,17 +619,20 @@ void Replay::on_record(const traces::RecordView& view) {
     case fbs::RecordBody::AccelerationStructureCreate: {
         const auto* c = r.body_as_AccelerationStructureCreate();
         memory_.create_object(c->acceleration_structure(), c->buffer(), c->offset(), c->size(), 0);
+        nv_.on_create(*c);
         break;
     }
     case fbs::RecordBody::AccelerationStructureMemoryRequirementsNV: {
         const auto* q = r.body_as_AccelerationStructureMemoryRequirementsNV();
         if (q->type() == VK_ACCELERATION_STRUCTURE_MEMORY_REQUIREMENTS_TYPE_OBJECT_NV)
             memory_.object_requirement(q->acceleration_structure(), q->size());
+        nv_.on_requirement(*q);
         break;
     }
     case fbs::RecordBody::AccelerationStructureBindMemory: {
         const auto* b = r.body_as_AccelerationStructureBindMemory();
         memory_.bind_object(b->acceleration_structure(), b->memory(), b->memory_offset());
+        nv_.on_bind(*b);
         break;
     }
     case fbs::RecordBody::GetClusterBuildSizes: {
@@ -696,6 +660,7 @@ void Replay::on_record(const traces::RecordView& view) {
         break;
     }
     case fbs::RecordBody::MemoryObservation: host_observation(*r.body_as_MemoryObservation()); break;
+    case fbs::RecordBody::RayQueryCheck: nv_.ray_check(*r.body_as_RayQueryCheck()); break;
     case fbs::RecordBody::QueueSubmit: on_submit(*r.body_as_QueueSubmit()); break;
     case fbs::RecordBody::QueueWaitIdle:
         if (options_.check_hazards) sync_.queue_wait_idle(queue_id(r.body_as_QueueWaitIdle()->queue()));

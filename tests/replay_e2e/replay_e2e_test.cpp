@@ -486,8 +486,11 @@ TEST(ReplayE2E, ShippedSampleReplaysCleanWithDriverSizesSideBySide) {
     EXPECT_EQ(r.sizes[0].first_ops[1].op, 1u);
     EXPECT_EQ(r.sizes[0].first_ops[1].captured, 7936u);
     EXPECT_EQ(r.sizes[0].first_ops[0].engine + r.sizes[0].first_ops[1].engine, r.sizes[0].engine_bytes);
-    ASSERT_EQ(r.not_replayed.size(), 1u);
-    EXPECT_EQ(std::string(r.not_replayed[0].where.name), "vkCmdBuildAccelerationStructureNV");
+    // Its vkCmdBuildAccelerationStructureNV is replayed by the engine (nv_command.cpp).
+    EXPECT_TRUE(r.not_replayed.empty());
+    EXPECT_EQ(r.counts.nv_builds, 1u);
+    ASSERT_EQ(r.nv_sizes.size(), 1u);
+    EXPECT_GT(r.nv_sizes[0].engine_bytes, 0u);
     EXPECT_GT(r.counts.accesses, 10u);
 }
 

@@ -59,6 +59,35 @@ struct SizeComparison {
     static constexpr size_t kOpsListed = 64;
 };
 
+// One VkAccelerationStructureNV build: the capturing driver's memory requirement (when the
+// trace holds it) next to the engine's requirement and the bytes its object took.
+struct NvSizeComparison {
+    ReplayLocation where;
+    uint64_t handle = 0;
+    bool top_level = false;
+    uint64_t primitives = 0;          // triangles/AABBs given, or instances
+    uint64_t driver_object = 0;       // 0: not captured
+    uint64_t driver_build_scratch = 0;
+    uint64_t engine_object = 0;       // the engine's requirement for the creation info
+    uint64_t engine_build_scratch = 0;
+    uint64_t engine_bytes = 0;        // the object the engine built
+};
+
+// One RayQueryCheck record: the capture's rays traced through the rebuilt top level.
+struct RayCheckResult {
+    std::string label;
+    uint64_t acceleration_structure = 0;
+    uint64_t after_submission = 0;
+    bool checked = false;            // false: `why_not` says why no ray was traced
+    std::string why_not;
+    uint64_t rays = 0;
+    uint64_t agree_miss = 0, agree_hit = 0;
+    uint64_t tie = 0;                // other primitive at the same t (shared edges, overlaps)
+    uint64_t edge = 0;               // hit/miss or primitive differs within 1e-5 of an edge
+    uint64_t disagree = 0;           // each one also a finding (up to the cap)
+    double max_rel_t = 0;
+};
+
 struct NotReplayed {
     ReplayLocation where;
     std::string reason;
@@ -81,6 +110,9 @@ struct ReplayCounts {
     uint64_t addresses_translated = 0; // object addresses rewritten captured -> rebuilt
     uint64_t skipped_commands = 0;     // commands outside --ops/--submit
     uint64_t peak_image_bytes = 0;     // most bytes the memory image held at once (resident pages)
+    uint64_t nv_builds = 0;            // vkCmdBuildAccelerationStructureNV executed by the engine
+    uint64_t deserializations = 0;     // vkCmdCopyMemoryToAccelerationStructureKHR executed
+    uint64_t handles_translated = 0;   // instance/serialized handles mapped to rebuilt objects
 };
 
 struct ReplayReport {
@@ -97,6 +129,8 @@ struct ReplayReport {
     std::vector<SizeComparison> sizes;
     std::vector<NotReplayed> not_replayed;
     uint64_t rows_over_cap = 0;        // sizes and not_replayed rows past ReplayOptions::max_command_rows
+    std::vector<NvSizeComparison> nv_sizes;
+    std::vector<RayCheckResult> ray_checks;
     std::vector<std::string> trace_damage;  // TraceError messages met while reading
     ReplayCounts counts;
 

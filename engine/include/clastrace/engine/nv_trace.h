@@ -1,0 +1,83 @@
+// Ray traversal of NV objects: top level -> instance transform -> bottom level.
+//
+// Vulkan's rules as the engine applies them (no shaders run):
+// - An instance is visited when (mask & cullMask & 0xFF) != 0 and it is active (reference
+//   not 0, its BLAS found when the TLAS was built and still a bottom-level object now).
+// - The ray enters the BLAS through the inverse of the instance's 3x4 transform (double
+//   precision); t is the same parameter in both spaces (the direction is not normalized).
+// - Triangles: watertight test (Woop, Benthin & Wald 2013) in double precision. Facing is
+//   decided in object space: front-facing when dot(direction, cross(v1 - v0, v2 - v0)) < 0,
+//   inverted by the instance flag TRIANGLE_FRONT_COUNTERCLOCKWISE (FLIP_FACING). Culling by
+//   the ray flags CullBack/CullFrontFacing unless the instance has TRIANGLE_CULL_DISABLE.
+//   Hit kind 0xFE front, 0xFF back; u, v are the weights of v1 and v2.
+// - Opacity: the geometry's OPAQUE flag, overridden by the instance's FORCE_OPAQUE /
+//   FORCE_NO_OPAQUE, overridden by the ray's Opaque / NoOpaque; then CullOpaque /
+//   CullNoOpaque. A non-opaque candidate is accepted (as by an any-hit shader that
+//   does not ignore it).
+// - AABBs: the engine stands in for the intersection shader: it reports the box entry
+//   (max(t_entry, tmin); tmin when the origin is inside), hit kind 0, u = v = 0.
+// - Closest hit: the smallest t; on equal t the first found (deterministic for an object's
+//   bytes). TerminateOnFirstHit: the first accepted hit.
+#ifndef CLASTRACE_ENGINE_NV_TRACE_H
+#define CLASTRACE_ENGINE_NV_TRACE_H
+
+#include "clastrace/engine/finding.h"
+#include "clastrace/engine/memory_image.h"
+#include "clastrace/engine/nv_format.h"
+#include "clastrace/engine/traversal.h"
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace clastrace::engine {
+
+inline constexpr uint32_t kHitKindFrontFacing = 0xFE;
+inline constexpr uint32_t kHitKindBackFacing = 0xFF;
+
+struct NvHit {
+  bool hit = false;
+  float t = 0.0f;
+  uint32_t instance_index = 0;         // gl_InstanceID: index of the instance record
+  uint32_t instance_custom_index = 0;  // gl_InstanceCustomIndexEXT
+  uint32_t sbt_offset = 0;
+  uint32_t geometry_index = 0;
+  uint32_t primitive_index = 0;        // gl_PrimitiveID
+  float u = 0.0f, v = 0.0f;
+  uint32_t hit_kind = 0;
+  bool opaque = false;
+};
+
+// A top-level object opened once for many rays: its bytes and every BLAS it reaches are
+// copied and checked (open_nv_object), so tracing never touches memory again.
+class NvScene {
+ public:
+  // The scene of the top-level object at `address`; nullopt with `error` when the bytes
+  // there are no checked NV top-level object. Instances whose BLAS is gone or damaged are
+  // left out, each with a finding.
+  static std::optional<NvScene> open(const MemoryImage& memory, uint64_t address, std::vector<Finding>* findings,
+                                     std::string* error);
+  // One bottom-level object as the scene of one instance (identity transform, mask 0xFF,
+  // instance index 0, custom index 0, flags 0).
+  static std::optional<NvScene> open_bottom(const MemoryImage& memory, uint64_t address, std::string* error);
+
+  NvHit closest(const Ray& ray, uint32_t ray_flags, uint32_t cull_mask) const;
+  bool any(const Ray& ray, uint32_t ray_flags, uint32_t cull_mask) const;
+
+  uint32_t instance_count() const;
+  uint32_t instances_reached() const;  // instances with a usable BLAS
+
+  struct Data;
+  NvScene(std::shared_ptr<const Data> data) : data_(std::move(data)) {}
+
+ private:
+  std::shared_ptr<const Data> data_;
+};
+
+inline constexpr const char* kRuleNvStaleInstance = "CLASTRACE-nv-instance-blas-gone";
+
+}  // namespace clastrace::engine
+
+#endif

@@ -1,0 +1,526 @@
+// vkCmdBuildAccelerationStructureNV: command checks, input gathering (nv_gather.cpp),
+// tree build or refit, and the write into dst's memory.
+#include "clastrace/engine/nv_build.h"
+
+#include "nv_gather.h"
+#include "nv_internal.h"
+
+#include <algorithm>
+#include <cstring>
+#include <functional>
+#include <map>
+
+namespace clastrace::engine {
+namespace nv {
+
+void Context::finding(const char* rule, std::string message, uint64_t address) {
+  uint32_t& n = per_rule[rule];
+  if (++n > options.max_findings_per_rule) return;
+  record.findings.push_back(Finding{rule, std::move(message), -1, address});
+}
+
+void Context::access(uint64_t begin, uint64_t size, VkAccessFlags2 access, bool write, std::string field) {
+  if (size == 0) return;
+  const uint64_t end = begin + size < begin ? ~0ull : begin + size;
+  record.accesses.push_back(MemoryAccess{begin, end, kStageBuild, access, write, std::move(field), -1});
+}
+
+void Context::close() {
+  for (const auto& [rule, n] : per_rule)
+    if (n > options.max_findings_per_rule)
+      record.findings.push_back(Finding{kRuleNvFindingsTruncated,
+                                        std::to_string(n - options.max_findings_per_rule) + " more findings of " + rule +
+                                            " in this command were not listed",
+                                        -1, 0});
+}
+
+}  // namespace nv
+
+namespace {
+
+using nv::Box;
+using nv::Context;
+
+uint64_t input_primitives(const NvGeometry& g) {
+  if (g.type == VK_GEOMETRY_TYPE_AABBS_NV) return g.aabbs.count;
+  return g.triangles.index_type == VK_INDEX_TYPE_NONE_NV ? g.triangles.vertex_count / 3 : g.triangles.index_count / 3;
+}
+
+bool overlaps(uint64_t a, uint64_t an, uint64_t b, uint64_t bn) {
+  if (an == 0 || bn == 0) return false;
+  const uint64_t ae = a + an < a ? ~0ull : a + an, be = b + bn < b ? ~0ull : b + bn;
+  return a < be && b < ae;
+}
+
+std::string hex(uint64_t v) {
+  char buf[24];
+  std::snprintf(buf, sizeof buf, "0x%llx", static_cast<unsigned long long>(v));
+  return buf;
+}
+
+// Command-level rules that need no memory. False when the build cannot run.
+bool check_command(Context& c) {
+  const NvBuildCommand& cmd = c.command;
+  const NvObjectInfo& info = cmd.info;
+  const bool top = info.type == VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV;
+  bool ok = true;
+  if (info.type != VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV && info.type != VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV) {
+    c.finding("VUID-VkAccelerationStructureInfoNV-type-parameter",
+              "pInfo->type " + std::to_string(uint32_t(info.type)) + " is neither top nor bottom level");
+    return false;
+  }
+  if ((info.flags & VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_NV) &&
+      (info.flags & VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV))
+    c.finding(kVuidInfoFastBoth, "pInfo->flags has both PREFER_FAST_TRACE and PREFER_FAST_BUILD");
+  if (top && !info.geometries.empty()) {
+    c.finding(kVuidInfoTopGeometries, "top-level build with geometryCount " + std::to_string(info.geometries.size()));
+    ok = false;
+  }
+  if (!top && info.instance_count != 0) {
+    c.finding(kVuidInfoBottomInstances, "bottom-level build with instanceCount " + std::to_string(info.instance_count));
+    ok = false;
+  }
+  if (info.geometries.size() > c.options.limits.max_geometry_count) {
+    c.finding(kVuidNvGeometryCount, "geometryCount " + std::to_string(info.geometries.size()) + " exceeds maxGeometryCount " +
+                                        std::to_string(c.options.limits.max_geometry_count));
+    ok = false;
+  }
+  if (top && info.instance_count > c.options.limits.max_instance_count) {
+    c.finding(kVuidInfoInstanceCount, "instanceCount " + std::to_string(info.instance_count) + " exceeds maxInstanceCount " +
+                                          std::to_string(c.options.limits.max_instance_count));
+    ok = false;
+  }
+  uint64_t triangles = 0;
+  for (size_t g = 0; g < info.geometries.size(); ++g) {
+    if (info.geometries[g].type != info.geometries[0].type) {
+      c.finding(kVuidInfoMixedTypes, "pGeometries[" + std::to_string(g) + "] has another geometryType than pGeometries[0]");
+      ok = false;
+      break;
+    }
+    if (info.geometries[g].type == VK_GEOMETRY_TYPE_TRIANGLES_NV) triangles += input_primitives(info.geometries[g]);
+  }
+  if (triangles > c.options.limits.max_triangle_count) {
+    c.finding(kVuidInfoTriangleCount, "the geometries hold " + std::to_string(triangles) +
+                                          " triangles, above maxTriangleCount " + std::to_string(c.options.limits.max_triangle_count));
+    ok = false;
+  }
+  // dst
+  if (cmd.dst.handle == 0 || !cmd.dst.bound) {
+    c.finding(kVuidNvDstBound, "dst " + hex(cmd.dst.handle) + " has no memory bound (vkBindAccelerationStructureMemoryNV)");
+    ok = false;
+  }
+  if (cmd.dst.created) {
+    const NvObjectInfo& made = *cmd.dst.created;
+    std::string why;
+    if (made.type != info.type) why = "type differs from the type dst was created with";
+    else if (made.flags != info.flags) why = "flags " + hex(info.flags) + " differ from the creation flags " + hex(made.flags);
+    else if (made.instance_count < info.instance_count) why = "instanceCount is above dst's " + std::to_string(made.instance_count);
+    else if (made.geometries.size() < info.geometries.size()) why = "geometryCount is above dst's " + std::to_string(made.geometries.size());
+    for (size_t g = 0; why.empty() && g < info.geometries.size(); ++g) {
+      const NvGeometry &b = info.geometries[g], &m = made.geometries[g];
+      if (b.triangles.vertex_count > m.triangles.vertex_count || b.triangles.index_count > m.triangles.index_count ||
+          b.aabbs.count > m.aabbs.count)
+        why = "pGeometries[" + std::to_string(g) + "] has more vertices, indices or AABBs than dst was created with";
+    }
+    if (!why.empty()) {
+      c.finding(kVuidNvDstCompatible, "dst " + hex(cmd.dst.handle) + ": the build's " + why);
+      ok = false;
+    }
+  }
+  // update / src
+  if (cmd.update) {
+    if (cmd.src.handle == 0) {
+      c.finding(kVuidNvUpdateNoSrc, "update is VK_TRUE but src is VK_NULL_HANDLE");
+      ok = false;
+    } else if (!cmd.src.built || !(cmd.src.built_flags & VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_NV)) {
+      c.finding(kVuidNvUpdateNotAllowed, "update from src " + hex(cmd.src.handle) +
+                                             (cmd.src.built ? ", whose last build had no ALLOW_UPDATE flag"
+                                                            : ", which was never built"));
+      ok = false;
+    } else if (cmd.src.handle != cmd.dst.handle && cmd.src.bound && cmd.dst.bound &&
+               overlaps(cmd.src.address, cmd.src.size, cmd.dst.address, cmd.dst.size)) {
+      c.finding(kVuidNvUpdateAliasing, "src " + hex(cmd.src.handle) + " and dst " + hex(cmd.dst.handle) +
+                                           " are different objects whose memory overlaps at " +
+                                           hex(std::max(cmd.src.address, cmd.dst.address)),
+                std::max(cmd.src.address, cmd.dst.address));
+    }
+  }
+  // scratch
+  const NvMemoryRequirements need = nv_memory_requirements(info);
+  const uint64_t scratch_need = cmd.update ? need.update_scratch : need.build_scratch;
+  if (!cmd.scratch_ray_tracing_usage) c.finding(kVuidNvScratchUsage, "scratch was created without VK_BUFFER_USAGE_RAY_TRACING_BIT_NV");
+  if (cmd.instance_address != 0 && !cmd.instance_buffer_ray_tracing_usage)
+    c.finding(kVuidNvInstanceUsage, "instanceData was created without VK_BUFFER_USAGE_RAY_TRACING_BIT_NV");
+  if (scratch_need > cmd.scratch_available)
+    c.finding(cmd.update ? kVuidNvUpdateScratch : kVuidNvBuildScratch,
+              "scratch holds " + std::to_string(cmd.scratch_available) + " bytes after scratchOffset; the " +
+                  (cmd.update ? "update" : "build") + " scratch requirement is " + std::to_string(scratch_need),
+              cmd.scratch_address);
+  c.record.scratch_address = cmd.scratch_address;
+  c.record.scratch_bytes_used = std::min(scratch_need, cmd.scratch_available);
+  c.access(cmd.scratch_address, c.record.scratch_bytes_used, kAccessScratch, true, "scratch");
+  if (ok) {
+    // The worst case for these counts must fit before anything is allocated: hostile
+    // counts end here, not in a huge allocation.
+    uint64_t active_bound = 0;
+    for (const NvGeometry& g : info.geometries) active_bound += input_primitives(g);
+    if (top) active_bound = info.instance_count;
+    const uint64_t bound = nv_memory_requirements(top, info.geometries.size(), active_bound).object;
+    if (bound > cmd.dst.size) {
+      c.finding(kRuleNvObjectTooLarge, "the engine's object for this build may need " + std::to_string(bound) +
+                                           " bytes; dst " + hex(cmd.dst.handle) + " has " + std::to_string(cmd.dst.size) +
+                                           " bytes bound",
+                cmd.dst.address);
+      ok = false;
+    } else {
+      try {
+        (void)c.memory.read_bytes(cmd.dst.address, bound, FieldRef{"dst", -1});
+      } catch (const MemoryFault& f) {
+        c.finding(kRuleNvMemoryFault, "dst " + hex(cmd.dst.handle) + ": " + f.message, cmd.dst.address);
+        ok = false;
+      }
+    }
+  }
+  return ok;
+}
+
+// The assembled object: header, geometries, records, nodes.
+std::vector<std::byte> assemble(NvObjectHeader h, std::span<const NvGeometryRecord> geometries,
+                                std::span<const std::byte> records, std::span<const NvNode> nodes) {
+  h.magic = kNvObjectMagic;
+  h.format_version = kNvFormatVersion;
+  h.geometries_offset = sizeof(NvObjectHeader);
+  h.primitives_offset = h.geometries_offset + geometries.size_bytes();
+  h.nodes_offset = h.primitives_offset + records.size();
+  h.object_size = h.nodes_offset + nodes.size_bytes();
+  h.geometry_count = uint32_t(geometries.size());
+  h.node_count = uint32_t(nodes.size());
+  const Box root = nodes.empty() ? Box::empty()
+                                 : Box{{nodes[0].bounds_min[0], nodes[0].bounds_min[1], nodes[0].bounds_min[2]},
+                                       {nodes[0].bounds_max[0], nodes[0].bounds_max[1], nodes[0].bounds_max[2]}};
+  std::memcpy(h.bounds_min, root.lo, 12);
+  std::memcpy(h.bounds_max, root.hi, 12);
+  std::vector<std::byte> out(h.object_size);
+  std::memcpy(out.data(), &h, sizeof h);
+  if (!geometries.empty()) std::memcpy(out.data() + h.geometries_offset, geometries.data(), geometries.size_bytes());
+  if (!records.empty()) std::memcpy(out.data() + h.primitives_offset, records.data(), records.size());
+  if (!nodes.empty()) std::memcpy(out.data() + h.nodes_offset, nodes.data(), nodes.size_bytes());
+  return out;
+}
+
+std::vector<std::byte> build_bottom(const nv::BottomInput& in, uint32_t flags) {
+  std::vector<Box> boxes;
+  std::vector<uint32_t> source;  // input primitive record of each box
+  for (uint32_t i = 0; i < in.primitives.size(); ++i) {
+    if (!in.active[i]) continue;
+    const NvPrimitiveRecord& p = in.primitives[i];
+    Box b = in.aabbs ? Box{{p.v[0], p.v[1], p.v[2]}, {p.v[3], p.v[4], p.v[5]}} : nv::triangle_box(p.v);
+    boxes.push_back(b);
+    source.push_back(i);
+  }
+  nv::Tree tree = nv::build_tree(boxes);
+  std::vector<NvPrimitiveRecord> ordered(tree.order.size());
+  for (size_t k = 0; k < tree.order.size(); ++k) ordered[k] = in.primitives[source[tree.order[k]]];
+  NvObjectHeader h{};
+  h.kind = uint8_t(NvObjectKind::kBottomLevel);
+  h.build_flags = flags;
+  h.geometry_type = in.aabbs ? VK_GEOMETRY_TYPE_AABBS_NV : VK_GEOMETRY_TYPE_TRIANGLES_NV;
+  h.primitive_count = uint32_t(ordered.size());
+  h.input_count = uint32_t(in.primitives.size());
+  return assemble(h, in.geometries, std::as_bytes(std::span(ordered)), tree.nodes);
+}
+
+std::vector<std::byte> build_top(const nv::TopInput& in, uint32_t flags) {
+  std::vector<Box> boxes;
+  std::vector<uint32_t> source;
+  for (uint32_t i = 0; i < in.instances.size(); ++i) {
+    const NvInstanceRecord& r = in.instances[i];
+    Box b{{r.world_min[0], r.world_min[1], r.world_min[2]}, {r.world_max[0], r.world_max[1], r.world_max[2]}};
+    if (!r.active || !b.valid()) continue;
+    boxes.push_back(b);
+    source.push_back(i);
+  }
+  nv::Tree tree = nv::build_tree(boxes);
+  // Leaves index instance records directly (records stay in input order: gl_InstanceID
+  // is the record's index), so the tree's order becomes a permutation in the leaves.
+  // Leaves of one instance each keep that simple.
+  std::vector<NvNode> nodes;
+  nodes.reserve(tree.nodes.size() * 2);
+  // Re-expand leaves with several items into chains of single-item leaves.
+  std::function<uint32_t(uint32_t)> copy = [&](uint32_t old) -> uint32_t {
+    const NvNode n = tree.nodes[old];
+    const uint32_t at = uint32_t(nodes.size());
+    nodes.push_back(n);
+    if (n.count == 0) {
+      copy(old + 1);
+      const uint32_t right = copy(n.first);
+      nodes[at].first = right;
+      return at;
+    }
+    // Leaf of n.count items -> a right-leaning chain of interior nodes over single leaves.
+    uint32_t cur = at;
+    for (uint32_t k = 0; k < n.count; ++k) {
+      const uint32_t item = source[tree.order[n.first + k]];
+      const NvInstanceRecord& r = in.instances[item];
+      NvNode leaf{};
+      std::memcpy(leaf.bounds_min, r.world_min, 12);
+      std::memcpy(leaf.bounds_max, r.world_max, 12);
+      leaf.first = item;
+      leaf.count = 1;
+      if (k + 1 == n.count) {
+        nodes[cur] = leaf;
+        break;
+      }
+      nodes[cur].count = 0;  // interior: left = leaf (cur + 1), right = the rest
+      nodes.push_back(leaf);
+      const uint32_t rest = uint32_t(nodes.size());
+      nodes.push_back(n);
+      nodes[cur].first = rest;
+      cur = rest;
+    }
+    return at;
+  };
+  if (!tree.nodes.empty()) copy(0);
+  nv::refit_tree(std::span(nodes), [&](uint32_t i) {
+    const NvInstanceRecord& r = in.instances[i];
+    return Box{{r.world_min[0], r.world_min[1], r.world_min[2]}, {r.world_max[0], r.world_max[1], r.world_max[2]}};
+  });
+  NvObjectHeader h{};
+  h.kind = uint8_t(NvObjectKind::kTopLevel);
+  h.build_flags = flags;
+  h.primitive_count = uint32_t(in.instances.size());
+  h.input_count = uint32_t(in.instances.size());
+  return assemble(h, {}, std::as_bytes(std::span(in.instances)), nodes);
+}
+
+// The src object for an update, checked; nullopt (with a finding) when src holds none.
+std::optional<std::vector<std::byte>> read_src(Context& c) {
+  const NvObjectBinding& src = c.command.src;
+  std::string error;
+  try {
+    auto head = c.memory.read_bytes(src.address, sizeof(NvObjectHeader), FieldRef{"src", -1});
+    if (auto h = read_nv_header(head, &error)) {
+      auto bytes = c.memory.read_bytes(src.address, h->object_size, FieldRef{"src", -1});
+      if (open_nv_object(bytes, &error)) {
+        c.access(src.address, h->object_size, kAccessObjectRead, false, "src");
+        return std::vector<std::byte>(bytes.begin(), bytes.end());
+      }
+    }
+  } catch (const MemoryFault& f) {
+    error = f.message;
+  }
+  c.finding(kRuleNvSrcNotBuilt, "update source src " + hex(src.handle) + " at " + hex(src.address) +
+                                    " holds no engine NV object: " + error,
+            src.address);
+  return std::nullopt;
+}
+
+template <class T>
+void store(std::vector<std::byte>& bytes, uint64_t offset, const T& value) {
+  std::memcpy(bytes.data() + offset, &value, sizeof(T));
+}
+
+void set_root_bounds(std::vector<std::byte>& bytes, NvObjectHeader& h, std::span<const NvNode> nodes) {
+  Box root = Box::empty();
+  if (!nodes.empty())
+    root = Box{{nodes[0].bounds_min[0], nodes[0].bounds_min[1], nodes[0].bounds_min[2]},
+               {nodes[0].bounds_max[0], nodes[0].bounds_max[1], nodes[0].bounds_max[2]}};
+  std::memcpy(h.bounds_min, root.lo, 12);
+  std::memcpy(h.bounds_max, root.hi, 12);
+  ++h.update_count;
+  store(bytes, 0, h);
+  if (!nodes.empty()) std::memcpy(bytes.data() + h.nodes_offset, nodes.data(), nodes.size_bytes());
+}
+
+std::string topology_change(const NvObjectView& src, const nv::BottomInput& in) {
+  if (src.header.kind != uint8_t(NvObjectKind::kBottomLevel)) return "src is a top-level object";
+  if (src.header.geometry_count != in.geometries.size())
+    return "geometryCount " + std::to_string(in.geometries.size()) + " differs from src's " + std::to_string(src.header.geometry_count);
+  if (!in.geometries.empty() && src.header.geometry_type != uint32_t(in.aabbs ? VK_GEOMETRY_TYPE_AABBS_NV : VK_GEOMETRY_TYPE_TRIANGLES_NV))
+    return "geometryType differs from src's";
+  for (uint32_t g = 0; g < in.geometries.size(); ++g) {
+    const NvGeometryRecord a = src.geometry(g), &b = in.geometries[g];
+    const std::string at = "pGeometries[" + std::to_string(g) + "]: ";
+    if (a.input_primitives != b.input_primitives)
+      return at + std::to_string(b.input_primitives) + " primitives, src has " + std::to_string(a.input_primitives);
+    if (a.vertex_format != b.vertex_format) return at + "vertexFormat differs from src's";
+    if (a.index_type != b.index_type) return at + "indexType differs from src's";
+    if (a.vertex_count != b.vertex_count) return at + (in.aabbs ? "stride" : "vertexCount") + std::string(" differs from src's");
+    if (a.has_transform != b.has_transform) return at + "transformData presence differs from src's";
+    if (a.geometry_flags != b.geometry_flags) return at + "flags differ from src's";
+  }
+  return {};
+}
+
+std::optional<std::vector<std::byte>> update_bottom(Context& c, const NvObjectView& src, const nv::BottomInput& in) {
+  const std::string change = topology_change(src, in);
+  if (!change.empty()) {
+    c.finding(kRuleNvUpdateTopology, "update: " + change + "; the engine rebuilds dst from scratch", c.command.src.address);
+    return std::nullopt;
+  }
+  std::vector<uint64_t> first(in.geometries.size() + 1, 0);
+  for (size_t g = 0; g < in.geometries.size(); ++g) first[g + 1] = first[g] + in.geometries[g].input_primitives;
+  std::vector<uint8_t> was_active(in.primitives.size(), 0);
+  std::vector<std::byte> bytes(src.bytes.begin(), src.bytes.end());
+  NvObjectHeader h = src.header;
+  std::vector<NvPrimitiveRecord> records(h.primitive_count);
+  for (uint32_t k = 0; k < h.primitive_count; ++k) {
+    const NvPrimitiveRecord old = src.primitive(k);
+    const uint64_t index = first[old.geometry_index] + old.primitive_index;
+    if (old.primitive_index >= in.geometries[old.geometry_index].input_primitives) return std::nullopt;  // damaged src
+    was_active[index] = 1;
+    records[k] = in.primitives[index];
+    if (!in.active[index])
+      c.finding(kVuidNvMadeInactive, "update: pGeometries[" + std::to_string(old.geometry_index) + "] primitive " +
+                                         std::to_string(old.primitive_index) + " was active in src and is inactive now");
+  }
+  for (size_t i = 0; i < in.primitives.size(); ++i)
+    if (in.active[i] && !was_active[i])
+      c.finding(kVuidNvMadeActive, "update: pGeometries[" + std::to_string(in.primitives[i].geometry_index) + "] primitive " +
+                                       std::to_string(in.primitives[i].primitive_index) +
+                                       " was inactive in src and is active now (it stays out of the refit tree)");
+  std::memcpy(bytes.data() + h.primitives_offset, records.data(), records.size() * sizeof(NvPrimitiveRecord));
+  std::vector<NvNode> nodes(h.node_count);
+  for (uint32_t i = 0; i < h.node_count; ++i) nodes[i] = src.node(i);
+  nv::refit_tree(std::span(nodes), [&](uint32_t i) {
+    const NvPrimitiveRecord& p = records[i];
+    return in.aabbs ? Box{{p.v[0], p.v[1], p.v[2]}, {p.v[3], p.v[4], p.v[5]}} : nv::triangle_box(p.v);
+  });
+  set_root_bounds(bytes, h, nodes);
+  return bytes;
+}
+
+std::optional<std::vector<std::byte>> update_top(Context& c, const NvObjectView& src, const nv::TopInput& in) {
+  if (src.header.kind != uint8_t(NvObjectKind::kTopLevel) || src.header.primitive_count != in.instances.size()) {
+    c.finding(kRuleNvUpdateTopology,
+              src.header.kind != uint8_t(NvObjectKind::kTopLevel)
+                  ? std::string("update: src is a bottom-level object; the engine rebuilds dst from scratch")
+                  : "update: instanceCount " + std::to_string(in.instances.size()) + " differs from src's " +
+                        std::to_string(src.header.primitive_count) + "; the engine rebuilds dst from scratch",
+              c.command.src.address);
+    return std::nullopt;
+  }
+  std::vector<uint8_t> in_tree(in.instances.size(), 0);
+  std::vector<NvNode> nodes(src.header.node_count);
+  for (uint32_t i = 0; i < src.header.node_count; ++i) {
+    nodes[i] = src.node(i);
+    if (nodes[i].count) in_tree[nodes[i].first] = 1;
+  }
+  std::vector<NvInstanceRecord> records = in.instances;
+  for (uint32_t i = 0; i < records.size(); ++i) {
+    const NvInstanceRecord old = src.instance(i);
+    if (old.active && !records[i].active)
+      c.finding(kVuidNvMadeInactive, "update: instance " + std::to_string(i) + " was active in src and its reference is 0 now");
+    if (!old.active && records[i].active)
+      c.finding(kVuidNvMadeActive, "update: instance " + std::to_string(i) +
+                                       " was inactive in src and is active now (it stays out of the refit tree)");
+    if (!in_tree[i]) {  // keep the topology: an instance outside the tree stays outside
+      Box e = Box::empty();
+      std::memcpy(records[i].world_min, e.lo, 12);
+      std::memcpy(records[i].world_max, e.hi, 12);
+    }
+  }
+  std::vector<std::byte> bytes(src.bytes.begin(), src.bytes.end());
+  NvObjectHeader h = src.header;
+  std::memcpy(bytes.data() + h.primitives_offset, records.data(), records.size() * sizeof(NvInstanceRecord));
+  nv::refit_tree(std::span(nodes), [&](uint32_t i) {
+    const NvInstanceRecord& r = records[i];
+    return Box{{r.world_min[0], r.world_min[1], r.world_min[2]}, {r.world_max[0], r.world_max[1], r.world_max[2]}};
+  });
+  set_root_bounds(bytes, h, nodes);
+  return bytes;
+}
+
+// Whole-command overlap rules: scratch against everything else, inputs against dst.
+void check_overlaps(Context& c, uint64_t dst_size) {
+  const NvBuildCommand& cmd = c.command;
+  for (const MemoryAccess& a : c.record.accesses) {
+    if (a.field == "scratch") continue;
+    if (overlaps(a.begin, a.end - a.begin, cmd.scratch_address, c.record.scratch_bytes_used))
+      c.finding(kRuleNvScratchOverlap, "scratch [" + hex(cmd.scratch_address) + ", +" + std::to_string(c.record.scratch_bytes_used) +
+                                           ") overlaps " + a.field + " [" + hex(a.begin) + ", " + hex(a.end) + ")",
+                std::max(a.begin, cmd.scratch_address));
+    if (!a.is_write && a.field != "src" && overlaps(a.begin, a.end - a.begin, cmd.dst.address, dst_size))
+      c.finding(kRuleNvInputOverlapsDst, a.field + " [" + hex(a.begin) + ", " + hex(a.end) + ") overlaps dst's memory",
+                std::max(a.begin, cmd.dst.address));
+  }
+  if (overlaps(cmd.dst.address, dst_size, cmd.scratch_address, c.record.scratch_bytes_used))
+    c.finding(kRuleNvScratchOverlap, "scratch overlaps dst's memory", std::max(cmd.dst.address, cmd.scratch_address));
+}
+
+}  // namespace
+
+NvMemoryRequirements nv_memory_requirements(const NvObjectInfo& info) {
+  const bool top = info.type == VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV;
+  uint64_t count = top ? info.instance_count : 0;
+  if (!top)
+    for (const NvGeometry& g : info.geometries) count += input_primitives(g);
+  return nv_memory_requirements(top, top ? 0 : info.geometries.size(), count);
+}
+
+ExecutionRecord execute_nv_build(const NvBuildCommand& command, MemoryImage& memory, const NvBuildOptions& options) {
+  ExecutionRecord record;
+  record.op_count = 1;
+  record.ops.resize(1);
+  Context c{command, memory, options, record, {}};
+  const bool top = command.info.type == VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV;
+  if (!check_command(c)) {
+    c.close();
+    return record;
+  }
+  std::optional<std::vector<std::byte>> object;
+  try {
+    std::optional<std::vector<std::byte>> src;
+    if (command.update) src = read_src(c);
+    std::optional<NvObjectView> src_view;
+    if (src) {
+      src_view = open_nv_object(*src, nullptr);
+      if (!(src_view->header.build_flags & VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_NV)) {
+        c.finding(kVuidNvUpdateNotAllowed, "update from src " + hex(command.src.handle) +
+                                               ": the build that wrote its bytes had no ALLOW_UPDATE flag");
+        src_view.reset();
+      }
+    }
+    if (command.update && !src_view) {
+      c.close();
+      return record;  // nothing defined to update from
+    }
+    if (top) {
+      nv::TopInput in = nv::gather_top(c);
+      if (src_view) object = update_top(c, *src_view, in);
+      if (!object) object = build_top(in, command.info.flags);
+    } else {
+      nv::BottomInput in = nv::gather_bottom(c);
+      if (src_view) object = update_bottom(c, *src_view, in);
+      if (!object) object = build_bottom(in, command.info.flags);
+    }
+  } catch (const MemoryFault& f) {
+    c.finding(kRuleNvMemoryFault, f.message, f.address);
+    c.close();
+    return record;
+  }
+  if (object->size() > command.dst.size) {
+    c.finding(kRuleNvObjectTooLarge, "the engine's object needs " + std::to_string(object->size()) + " bytes; dst " +
+                                         hex(command.dst.handle) + " has " + std::to_string(command.dst.size) + " bytes bound",
+              command.dst.address);
+    c.close();
+    return record;
+  }
+  check_overlaps(c, object->size());
+  try {
+    auto out = memory.write_bytes(command.dst.address, object->size(), FieldRef{"dst", -1});
+    std::memcpy(out.data(), object->data(), object->size());
+  } catch (const MemoryFault& f) {
+    c.finding(kRuleNvMemoryFault, f.message, f.address);
+    c.close();
+    return record;
+  }
+  c.access(command.dst.address, object->size(), kAccessObjectWrite, true, "dst");
+  record.ops[0].executed = true;
+  record.ops[0].dst_address = command.dst.address;
+  record.ops[0].dst_size = object->size();
+  c.close();
+  return record;
+}
+
+}  // namespace clastrace::engine

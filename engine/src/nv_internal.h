@@ -1,0 +1,77 @@
+// Pieces the NV build, update and serialization share.
+#ifndef CLASTRACE_ENGINE_NV_INTERNAL_H
+#define CLASTRACE_ENGINE_NV_INTERNAL_H
+
+#include "clastrace/engine/nv_format.h"
+
+#include <algorithm>
+#include <cstdint>
+#include <limits>
+#include <span>
+#include <vector>
+
+namespace clastrace::engine::nv {
+
+struct Box {
+  float lo[3];
+  float hi[3];
+  static Box empty() {
+    constexpr float inf = std::numeric_limits<float>::infinity();
+    return Box{{inf, inf, inf}, {-inf, -inf, -inf}};
+  }
+  // NaN in `b` is ignored (std::min/max keep the first argument when comparing with NaN).
+  void grow(const Box& b) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], b.lo[a]);
+      hi[a] = std::max(hi[a], b.hi[a]);
+    }
+  }
+  void grow_point(const float p[3]) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], p[a]);
+      hi[a] = std::max(hi[a], p[a]);
+    }
+  }
+  bool valid() const { return lo[0] <= hi[0] && lo[1] <= hi[1] && lo[2] <= hi[2]; }  // false for NaN and empty
+};
+
+// Binned SAH tree over `boxes` (all valid): nodes in depth-first order (left child at
+// index + 1, right child at NvNode::first), leaves of up to kNvMaxLeafSize; `order` is
+// the item order leaves refer to. Deterministic: same boxes, same tree.
+struct Tree {
+  std::vector<NvNode> nodes;
+  std::vector<uint32_t> order;
+};
+Tree build_tree(std::span<const Box> boxes);
+
+// Recomputes every node box from its items (leaf) or children, bottom-up. `item_box(i)`
+// is the box of record i (the leaf ranges index records directly).
+template <class ItemBox>
+void refit_tree(std::span<NvNode> nodes, ItemBox item_box) {
+  for (size_t k = nodes.size(); k-- > 0;) {
+    NvNode& n = nodes[k];
+    Box b = Box::empty();
+    if (n.count == 0) {
+      for (uint32_t c : {uint32_t(k + 1), n.first}) {
+        const NvNode& child = nodes[c];
+        b.grow(Box{{child.bounds_min[0], child.bounds_min[1], child.bounds_min[2]},
+                   {child.bounds_max[0], child.bounds_max[1], child.bounds_max[2]}});
+      }
+    } else {
+      for (uint32_t i = 0; i < n.count; ++i) b.grow(item_box(n.first + i));
+    }
+    for (int a = 0; a < 3; ++a) {
+      n.bounds_min[a] = b.lo[a];
+      n.bounds_max[a] = b.hi[a];
+    }
+  }
+}
+
+Box triangle_box(const float v[9]);
+// The world box of `local` under a 3x4 row-major transform (all 8 corners, in double,
+// rounded outwards to float).
+Box transform_box(const Box& local, const float m[12]);
+
+}  // namespace clastrace::engine::nv
+
+#endif
