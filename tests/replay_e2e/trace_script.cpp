@@ -266,8 +266,9 @@ void TraceScript::submit(uint64_t queue, const std::vector<SemaphoreUse>& waits,
     auto batch = std::make_unique<fbs::SubmitBatchT>();
     batch->command_buffers.push_back(command_buffer_);
     for (const SemaphoreUse& w : waits) batch->wait_semaphores.emplace_back(w.semaphore, w.value, w.stages, 0);
-    // vkQueueSubmit has no signal stage mask: the capture records 0 there.
-    for (const SemaphoreUse& g : signals) batch->signal_semaphores.emplace_back(g.semaphore, g.value, version == 1 ? 0 : g.stages, 0);
+    // vkQueueSubmit has no signal stage mask (the capture records ALL_COMMANDS); a v1 record
+    // with another mask tests that replay ignores it.
+    for (const SemaphoreUse& g : signals) batch->signal_semaphores.emplace_back(g.semaphore, g.value, g.stages, 0);
     s.batches.push_back(std::move(batch));
     s.fence = fence;
     s.submission_index = writer_->next_submission_index();
