@@ -502,4 +502,36 @@ TEST(VuidCatalogueCoverage, EveryListedVuidHasACase) {
     }
 }
 
+// Two buffers over the same memory and address, only the second with the usage 12308
+// requires: the address is allocated from a buffer with that usage, so nothing is reported.
+// Without the second buffer the same build is 12308.
+TEST(VuidCatalogueUsage, AliasedBufferWithTheUsageSatisfiesTheRule) {
+    constexpr uint64_t kAliased = 0x20000000;
+    for (bool with_alias : {true, false}) {
+        const std::string path = temp_path(with_alias ? "aliased.clt" : "unaliased.clt");
+        {
+            TraceScript t(path, device());
+            add_buffers(t);
+            t.buffer(0xa001, kAliased, 0x10000, VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | VK_BUFFER_USAGE_STORAGE_BUFFER_BIT,
+                     0x2002, 0);
+            if (with_alias)
+                t.buffer(0xa002, kAliased, 0x10000,
+                         VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR,
+                         0x2002, 0);
+            ClusterCommand c = triangle_clusters(Destinations::kImplicit);
+            c.info.dstImplicitData = kAliased;
+            c.emit(t);
+            t.finish();
+        }
+        const replay::ReplayReport r = replay_file(path);
+        std::remove(path.c_str());
+        if (with_alias) {
+            EXPECT_TRUE(r.clean()) << replay::format_text(r);
+        } else {
+            ASSERT_EQ(r.findings.size(), 1u) << replay::format_text(r);
+            EXPECT_EQ(r.findings[0].rule, "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12308");
+        }
+    }
+}
+
 }  // namespace
