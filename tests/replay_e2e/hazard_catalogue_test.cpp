@@ -259,6 +259,16 @@ const HazardCase kCases[] = {
      },
      "vkCmdBuildClusterAccelerationStructureIndirectNV", "srcInfosArray[0]", "dstOffset", kInfos, kInfos + 64,
      FixKind::kPipelineBarrier, kClear, 0},
+    {"DeserializeOverObjectsStillBeingBuilt", HazardClass::kDeserializeInUse,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         t.acceleration_structure(0xa5001, kDstBuffer, 0, 0x1000);  // over the CLAS at kDst
+         at.prior = triangle_clusters(Destinations::kExplicit).emit(t);
+         if (fixed) t.barrier(kBuild, kAsWrite, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR, kAsWrite);
+         at.later = t.next_command();
+         t.deserialize(kStaging, 0xa5001, std::vector<uint8_t>(0x100, 0x5a));
+     },
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "*dstAddressesArray[0]", "pInfo->dst", kDst, kDst + 0x1000,
+     FixKind::kPipelineBarrier, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR, kAsWrite},
     {"CopySourceOverlapsDestination", HazardClass::kMoveOverlap,
      [](TraceScript& t, bool fixed, Commands& at) {
          at.prior = at.later = t.next_command();

@@ -103,6 +103,30 @@ void TraceScript::query_build_sizes(const VkClusterAccelerationStructureInputInf
     check(writer_->append(record(std::move(q))));
 }
 
+void TraceScript::acceleration_structure(uint64_t handle, uint64_t buffer, uint64_t offset, uint64_t size) {
+    fbs::AccelerationStructureCreateT c;
+    c.acceleration_structure = handle;
+    c.api = 1;
+    c.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR;
+    c.buffer = buffer;
+    c.offset = offset;
+    c.size = size;
+    check(writer_->append(record(std::move(c))));
+}
+
+void TraceScript::deserialize(uint64_t src_address, uint64_t dst_object, const std::vector<uint8_t>& serialized) {
+    ensure_begun();
+    fbs::CmdCopyMemoryToAccelerationStructureT c;
+    c.command_buffer = command_buffer_;
+    c.src_address = src_address;
+    c.dst = dst_object;
+    c.mode = VK_COPY_ACCELERATION_STRUCTURE_MODE_DESERIALIZE_KHR;
+    fbs::MemorySnapshot snap;
+    check(writer_->snapshot(0, 0, src_address, serialized.data(), serialized.size(), &snap));
+    c.inputs.push_back(snap);
+    check(writer_->append(record(std::move(c))));
+}
+
 void TraceScript::host_write(uint64_t address, const std::vector<uint8_t>& bytes) {
     fbs::MemoryObservationT o;
     o.memory = 0x1001;

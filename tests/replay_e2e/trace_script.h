@@ -59,6 +59,8 @@ public:
                 uint64_t memory_offset = 0);
     // vkGetClusterAccelerationStructureBuildSizesNV with this input (10445).
     void query_build_sizes(const VkClusterAccelerationStructureInputInfoNV& input);
+    // vkCreateAccelerationStructureKHR over [offset, offset + size) of `buffer`.
+    void acceleration_structure(uint64_t handle, uint64_t buffer, uint64_t offset, uint64_t size);
     // Host write to mapped memory observed between submissions.
     void host_write(uint64_t address, const std::vector<uint8_t>& bytes);
 
@@ -67,6 +69,8 @@ public:
     void copy(uint64_t src_buffer, uint64_t src_offset, uint64_t dst_buffer, uint64_t dst_offset, uint64_t size,
               const std::vector<InputSnapshot>& inputs = {});
     void fill(uint64_t dst_buffer, uint64_t offset, uint64_t size, uint32_t data);
+    // vkCmdCopyMemoryToAccelerationStructureKHR (deserialize) of `serialized` at src_address.
+    void deserialize(uint64_t src_address, uint64_t dst_object, const std::vector<uint8_t>& serialized);
     void update(uint64_t dst_buffer, uint64_t offset, const std::vector<uint8_t>& data);
     // A dispatch with one storage buffer range bound; `outputs` is what the capture saw it write.
     void dispatch(uint64_t storage_buffer, uint64_t offset, uint64_t range, const std::vector<InputSnapshot>& outputs = {});
