@@ -175,7 +175,12 @@ private:
         case 13: implicit_templates(); break;
         default: implicit_clusters(); break;
         }
-        if (chance(0.1)) end_submission();
+        if (chance(0.1)) {
+            end_submission();
+        } else if (chance(0.1)) {
+            t_.next_command_buffer();  // barriers and events order across command buffers of a batch
+            ++stats_.command_buffers;
+        }
     }
 
     // --- non-build commands ------------------------------------------------------------

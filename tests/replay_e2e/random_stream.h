@@ -30,6 +30,7 @@ struct RandomStreamStats {
     uint64_t cluster_commands = 0;
     uint64_t commands = 0;       // every command, barriers included
     uint64_t submissions = 0;
+    uint64_t command_buffers = 0;  // beyond one per submission
     uint64_t mutations = 0;
     uint64_t commands_by_op_type[6] = {};  // VkClusterAccelerationStructureOpTypeNV
     uint64_t events = 0, narrow_signals = 0, semaphores = 0, host_writes = 0;

@@ -47,6 +47,7 @@ TEST(RandomStreams, TenThousandOpsOfValidStreamReplayWithoutFindingOrHazard) {
         EXPECT_GT(written.semaphores, written.narrow_signals);
         EXPECT_GT(written.host_writes, 0u);
         EXPECT_GT(written.submissions, 50u);
+        EXPECT_GT(written.command_buffers, 50u);
         const replay::ReplayReport r = replay_file(path);
         std::remove(path.c_str());
         EXPECT_TRUE(r.findings.empty()) << replay::format_text(r).substr(0, 4000);

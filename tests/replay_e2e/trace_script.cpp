@@ -278,6 +278,17 @@ void TraceScript::full_barrier() {
             VK_ACCESS_2_MEMORY_READ_BIT | VK_ACCESS_2_MEMORY_WRITE_BIT);
 }
 
+void TraceScript::next_command_buffer() {
+    ensure_begun();
+    fbs::CommandBufferEndT end;
+    end.command_buffer = command_buffer_;
+    check(writer_->append(record(end)));
+    batch_.push_back(command_buffer_);
+    command_buffer_ = next_command_buffer_++;
+    begun_ = false;
+    recorded_ = false;
+}
+
 void TraceScript::submit(uint64_t queue, const std::vector<SemaphoreUse>& waits, const std::vector<SemaphoreUse>& signals,
                          uint64_t fence, uint8_t version) {
     ensure_begun();
@@ -288,6 +299,8 @@ void TraceScript::submit(uint64_t queue, const std::vector<SemaphoreUse>& waits,
     s.queue = queue;
     s.version = version;
     auto batch = std::make_unique<fbs::SubmitBatchT>();
+    batch->command_buffers = std::move(batch_);
+    batch_.clear();
     batch->command_buffers.push_back(command_buffer_);
     for (const SemaphoreUse& w : waits) batch->wait_semaphores.emplace_back(w.semaphore, w.value, w.stages, 0);
     // vkQueueSubmit has no signal stage mask (the capture records ALL_COMMANDS); a v1 record

@@ -88,6 +88,9 @@ public:
     // signals carry no stage mask; 2: vkQueueSubmit2). Later commands go into a fresh one.
     void submit(uint64_t queue, const std::vector<SemaphoreUse>& waits = {}, const std::vector<SemaphoreUse>& signals = {},
                 uint64_t fence = 0, uint8_t version = 2);
+    // Ends the current command buffer; the next commands go into a fresh one, submitted in
+    // the same batch as this one by the next submit().
+    void next_command_buffer();
     // Submits an already recorded command buffer again (or one that was reset).
     void resubmit(uint64_t queue, uint64_t command_buffer, uint64_t fence = 0);
     void wait_fence(uint64_t fence);
@@ -112,6 +115,7 @@ private:
     bool begun_ = false;
     bool recorded_ = false;
     uint32_t commands_ = 0;
+    std::vector<uint64_t> batch_;  // ended command buffers waiting for the next submit()
 };
 
 }  // namespace clastrace::test
