@@ -11,6 +11,7 @@
 #include <gtest/gtest.h>
 
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <string>
 #include <unistd.h>
@@ -36,6 +37,12 @@ constexpr uint64_t kTransferRead = VK_ACCESS_2_TRANSFER_READ_BIT;
 
 std::string temp_path(const std::string& name) {
     return (std::filesystem::temp_directory_path() / ("hazard_catalogue_" + std::to_string(::getpid()) + "_" + name)).string();
+}
+
+// CLASTRACE_KEEP_TRACES=1 keeps the catalogue's traces (one per rule and twin) in TMPDIR,
+// e.g. to look at them with `clastrace replay`.
+void discard(const std::string& path) {
+    if (!std::getenv("CLASTRACE_KEEP_TRACES")) std::remove(path.c_str());
 }
 
 replay::ReplayReport replay_file(const std::string& path) {
@@ -289,7 +296,7 @@ protected:
             t.finish();
         }
         replay::ReplayReport r = replay_file(path);
-        std::remove(path.c_str());
+        discard(path);
         return r;
     }
 };

@@ -14,6 +14,7 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <set>
 #include <string>
@@ -27,6 +28,12 @@ using namespace clastrace::test::catalogue;
 
 std::string temp_path(const std::string& name) {
     return (std::filesystem::temp_directory_path() / ("vuid_catalogue_" + std::to_string(::getpid()) + "_" + name)).string();
+}
+
+// CLASTRACE_KEEP_TRACES=1 keeps the catalogue's traces (one per rule and twin) in TMPDIR,
+// e.g. to look at them with `clastrace replay`.
+void discard(const std::string& path) {
+    if (!std::getenv("CLASTRACE_KEEP_TRACES")) std::remove(path.c_str());
 }
 
 replay::ReplayReport replay_file(const std::string& path) {
@@ -455,7 +462,7 @@ protected:
             t.finish();
         }
         replay::ReplayReport r = replay_file(path);
-        std::remove(path.c_str());
+        discard(path);
         return r;
     }
 };
