@@ -9,6 +9,7 @@
 #include <gtest/gtest.h>
 
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -106,3 +107,21 @@ TEST(RandomStreams, FlippedBytesOfAStreamFileNeverCrash) {
 }
 
 }  // namespace
+
+// More seeds, run on request (CLASTRACE_STREAM_SEEDS=N): a search for false positives.
+TEST(RandomStreams, ManySeedsOnRequest) {
+    const char* env = std::getenv("CLASTRACE_STREAM_SEEDS");
+    if (!env) GTEST_SKIP() << "set CLASTRACE_STREAM_SEEDS=N to replay N more valid streams";
+    const int seeds = std::atoi(env);
+    for (int seed = 1000; seed < 1000 + seeds; ++seed) {
+        const std::string path = temp_path("seed_" + std::to_string(seed) + ".clt");
+        test::RandomStreamOptions o;
+        o.seed = uint64_t(seed);
+        o.min_cluster_ops = 3000;
+        o.queues = 1 + uint32_t(seed % 4);
+        test::write_random_stream(path, o);
+        const replay::ReplayReport r = replay_file(path);
+        std::remove(path.c_str());
+        EXPECT_TRUE(r.clean()) << "seed " << seed << "\n" << replay::format_text(r).substr(0, 3000);
+    }
+}
