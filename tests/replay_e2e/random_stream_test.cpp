@@ -123,5 +123,11 @@ TEST(RandomStreams, ManySeedsOnRequest) {
         const replay::ReplayReport r = replay_file(path);
         std::remove(path.c_str());
         EXPECT_TRUE(r.clean()) << "seed " << seed << "\n" << replay::format_text(r).substr(0, 3000);
+        o.mutation_rate = 0.2;  // and a damaged twin: must replay to the end
+        o.min_cluster_ops = 800;
+        const test::RandomStreamStats written = test::write_random_stream(path, o);
+        const replay::ReplayReport m = replay_file(path);
+        std::remove(path.c_str());
+        EXPECT_EQ(m.counts.submissions, written.submissions) << "seed " << seed;
     }
 }
