@@ -201,6 +201,7 @@ private:
     // Pool membership, as far as the trace tells it: resets that name both a command buffer
     // and its pool. vkResetCommandPool (pool only) then resets those buffers.
     std::unordered_map<uint64_t, std::unordered_set<uint64_t>> pool_members_;
+    std::unordered_set<uint64_t> pools_noted_;  // pool resets of unknown membership already in not_replayed
     std::unordered_map<uint64_t, QueueId> queues_;
     std::map<std::pair<uint32_t, uint32_t>, uint32_t> queried_max_count_;  // (opType, opMode) -> count
     uint64_t sequence_ = 0;
@@ -523,6 +524,7 @@ void Replay::reset_command_buffers(const fbs::CommandBufferReset& reset) {
     if (reset.command_pool() == 0) return;
     auto members = pool_members_.find(reset.command_pool());
     if (members == pool_members_.end()) {
+        if (!pools_noted_.insert(reset.command_pool()).second) return;  // a pool reset every frame: noted once
         ReplayLocation where;
         where.submission = next_submission_;
         where.name = "vkResetCommandPool";
