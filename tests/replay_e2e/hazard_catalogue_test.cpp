@@ -202,6 +202,17 @@ const HazardCase kCases[] = {
          at.later = c.emit(t);
      },
      "vkCmdUpdateBuffer", "pData", "srcInfosCount", kCount, kCount + 4, FixKind::kPipelineBarrier, kBuild, kIndirect},
+    {"CountWrittenByCopy", HazardClass::kReadAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         at.prior = t.next_command();
+         t.copy(kStagingBuffer, 0, kInfosBuffer, kCount - kInfos, 4, {{kStaging, bytes_of(std::vector<uint32_t>{2})}});
+         if (fixed) t.barrier(kCopy, kTransferWrite, kBuild, kIndirect);
+         ClusterCommand c = triangle_clusters(Destinations::kImplicit);
+         c.info.srcInfosCount = kCount;
+         at.later = c.emit(t);
+     },
+     "vkCmdCopyBuffer", "pRegions[0].dstOffset", "srcInfosCount", kCount, kCount + 4, FixKind::kPipelineBarrier, kBuild,
+     kIndirect},
     {"InfosWrittenByDispatch", HazardClass::kReadAfterWrite,
      [](TraceScript& t, bool fixed, Commands& at) {
          at.prior = t.next_command();
@@ -220,6 +231,15 @@ const HazardCase kCases[] = {
      },
      "vkCmdCopyBuffer", "pRegions[0].dstOffset", "vertexBuffer", kVertices, kVertices + 0x300, FixKind::kPipelineBarrier,
      kBuild, kShaderRead},
+    {"VerticesWrittenByUpdate", HazardClass::kReadAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         at.prior = t.next_command();
+         t.update(kGeometryBuffer, 0, std::vector<uint8_t>(96, 0));
+         if (fixed) t.barrier(kClear, kTransferWrite, kBuild, kShaderRead);
+         at.later = triangle_clusters(Destinations::kImplicit).emit(t);
+     },
+     "vkCmdUpdateBuffer", "pData", "vertexBuffer", kVertices, kVertices + 96, FixKind::kPipelineBarrier, kBuild,
+     kShaderRead},
     {"IndicesWrittenByDispatch", HazardClass::kReadAfterWrite,
      [](TraceScript& t, bool fixed, Commands& at) {
          at.prior = t.next_command();
