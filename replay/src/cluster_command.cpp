@@ -8,6 +8,8 @@
 #include <cstddef>
 #include <cstdio>
 #include <cstring>
+#include <string_view>
+#include <unordered_set>
 
 namespace clastrace::replay::detail {
 
@@ -322,8 +324,20 @@ void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect
     }
     ++c.report.counts.cluster_commands;
     c.report.counts.cluster_ops += record.ops.size();
-    for (const engine::Finding& f : record.findings)
+    // The engine checks the command's VkClusterAccelerationStructureTriangleClusterInputNV with
+    // every op that uses it; it is one struct of the command: reported once, for the command.
+    static constexpr std::string_view kInputRule = "VUID-VkClusterAccelerationStructureTriangleClusterInputNV-";
+    std::unordered_set<std::string> input_rules;
+    for (const engine::Finding& f : record.findings) {
+        if (f.rule.starts_with(kInputRule)) {
+            if (input_rules.insert(f.rule).second)
+                c.add_finding({f.rule, "input.opInput.pTriangleClusters: " + f.message, FindingSource::kEngine, c.where,
+                               -1, f.address});
+            continue;
+        }
+        if (f.rule == engine::kRuleFindingsTruncated && f.message.find(kInputRule) != std::string::npos) continue;
         c.add_finding({f.rule, f.message, FindingSource::kEngine, c.where, f.op_index, f.address});
+    }
     if (c.options.check_hazards) {
         for (const engine::MemoryAccess& a : record.accesses) {
             if (a.end <= a.begin) continue;

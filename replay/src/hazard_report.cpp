@@ -103,7 +103,10 @@ std::string HazardReport::format() const {
              " / " + access_names(later.access) + " after " + where(prior) + " " + past(prior) + " " + prior.field +
              " at " + stage_names(prior.stage) + " / " + access_names(prior.access);
         switch (fix.kind) {
-        case FixKind::kSemaphore: s += " on another queue with no semaphore ordering them."; break;
+        case FixKind::kSemaphore:
+            s += " on another queue with no semaphore ordering them (a signal whose stage mask holds the earlier"
+                 " stage, waited on with a stage mask that holds the later one).";
+            break;
         case FixKind::kHostWait:
         case FixKind::kHostWaitAndBarrier: s += " with no completed host wait making it visible to the host."; break;
         default:

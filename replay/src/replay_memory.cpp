@@ -33,8 +33,12 @@ bool ReplayMemory::add_region(uint64_t address, uint64_t size, uint64_t usage, c
         image_.add_region(address, size, static_cast<VkBufferUsageFlags>(usage), label);
     } catch (const engine::MemoryFault&) {
         // Two buffers over the same bytes (aliasing): the first region serves both as far
-        // as it reaches; the rest of this buffer stays outside the image.
+        // as it reaches; the rest of this buffer stays outside the image. An address is
+        // "allocated from a buffer created with" a usage (12304-12308) if any buffer over
+        // it has that usage: the region takes this buffer's usage too (0 stays unknown).
         ++aliased_buffers_;
+        if (engine::MemoryRegion* r = image_.find_region(address); r && r->usage != 0)
+            r->usage |= static_cast<VkBufferUsageFlags>(usage);
     } catch (const std::bad_alloc&) {
         return false;
     }

@@ -75,12 +75,17 @@ uint64_t command_buffer_of(const fbs::Record& r) {
     }
 }
 
-// "srcInfosArray[3].vertexBuffer" -> "srcInfosArray[*].vertexBuffer".
+// "srcInfosArray[3].vertexBuffer" -> "srcInfosArray[*].vertexBuffer",
+// "dstImplicitData[op 3]" -> "dstImplicitData[op *]".
 std::string any_index(const std::string& field) {
     std::string out;
     for (size_t i = 0; i < field.size(); ++i) {
         out += field[i];
         if (field[i] != '[') continue;
+        if (field.compare(i + 1, 3, "op ") == 0) {
+            out += "op ";
+            i += 3;
+        }
         size_t j = i + 1;
         while (j < field.size() && field[j] >= '0' && field[j] <= '9') ++j;
         if (j > i + 1 && j < field.size() && field[j] == ']') {
@@ -156,6 +161,7 @@ private:
 
     void on_record(const traces::RecordView& view);
     void on_submit(const fbs::QueueSubmit& submit);
+    void reset_command_buffers(const fbs::CommandBufferReset& reset);
     void execute_command(const fbs::Record& record, const CommandRef& ref, uint64_t sequence);
     void replay_command(const fbs::Record& record, const CommandRef& ref, uint64_t sequence, bool selected);
     void host_observation(const fbs::MemoryObservation& observation);
@@ -180,6 +186,12 @@ private:
     void memory_freed(std::optional<AddressRange> range);
     void drop_recorded(const Recorded& cb) { recorded_bytes_ -= std::min(recorded_bytes_, cb.bytes); }
     void limit_recorded();
+    void forget_recorded(uint64_t handle) {
+        if (auto it = recorded_.find(handle); it != recorded_.end()) {
+            drop_recorded(it->second);
+            recorded_.erase(it);
+        }
+    }
     ReplayLocation location(const CommandRef& ref, uint64_t sequence) const {
         return ReplayLocation{sequence, ref.submission, ref.command_buffer, ref.command, ref.command_buffer_handle, ref.name};
     }
@@ -201,6 +213,10 @@ private:
     SyncModel sync_;
     detail::AddressTranslation translation_;
     std::unordered_map<uint64_t, Recorded> recorded_;
+    // Pool membership, as far as the trace tells it: resets that name both a command buffer
+    // and its pool. vkResetCommandPool (pool only) then resets those buffers.
+    std::unordered_map<uint64_t, std::unordered_set<uint64_t>> pool_members_;
+    std::unordered_set<uint64_t> pools_noted_;  // pool resets of unknown membership already in not_replayed
     std::unordered_map<uint64_t, QueueId> queues_;
     std::map<std::pair<uint32_t, uint32_t>, uint32_t> queried_max_count_;  // (opType, opMode) -> count
     uint64_t sequence_ = 0;
@@ -541,6 +557,27 @@ void Replay::execute_command(const fbs::Record& record, const CommandRef& ref, u
     }
 }
 
+void Replay::reset_command_buffers(const fbs::CommandBufferReset& reset) {
+    if (reset.command_buffer() != 0) {
+        forget_recorded(reset.command_buffer());
+        if (reset.command_pool() != 0) pool_members_[reset.command_pool()].insert(reset.command_buffer());
+        return;
+    }
+    if (reset.command_pool() == 0) return;
+    auto members = pool_members_.find(reset.command_pool());
+    if (members == pool_members_.end()) {
+        if (!pools_noted_.insert(reset.command_pool()).second) return;  // a pool reset every frame: noted once
+        ReplayLocation where;
+        where.submission = next_submission_;
+        where.name = "vkResetCommandPool";
+        report_.not_replayed.push_back({where, "vkResetCommandPool(" + detail::hex(reset.command_pool()) +
+                                                   "): the trace does not say which command buffers the pool holds; "
+                                                   "a buffer submitted again without being re-recorded replays its old commands"});
+        return;
+    }
+    for (uint64_t cb : members->second) forget_recorded(cb);
+}
+
 void Replay::on_submit(const fbs::QueueSubmit& submit) {
     const uint32_t submission = static_cast<uint32_t>(submit.submission_index());
     next_submission_ = submission + 1;
@@ -561,7 +598,11 @@ void Replay::on_submit(const fbs::QueueSubmit& submit) {
                 waits.push_back({w->semaphore(), w->value(),
                                  w->stage_mask() ? w->stage_mask() : StageMask(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT)});
         if (batch && batch->signal_semaphores())
-            for (const fbs::SemaphoreOp* s : *batch->signal_semaphores()) signals.push_back({s->semaphore(), s->value()});
+            for (const fbs::SemaphoreOp* s : *batch->signal_semaphores())
+                // vkQueueSubmit signals are ALL_COMMANDS by the spec (their stage_mask is 0 or that).
+                signals.push_back({s->semaphore(), s->value(),
+                                   submit.version() >= 2 && s->stage_mask() ? StageMask(s->stage_mask())
+                                                                            : StageMask(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT)});
         if (options_.check_hazards) sync_.begin_submission(queue, submission, waits);
         if (batch && batch->command_buffers()) {
             for (uint64_t handle : *batch->command_buffers()) {
@@ -583,10 +624,15 @@ void Replay::on_submit(const fbs::QueueSubmit& submit) {
                         replay_command(*record, ref, sequence, selected(sequence, submission));
                         ++command;
                     }
-                    if (it->second.one_time) {
-                        drop_recorded(it->second);
-                        recorded_.erase(it);
-                    }
+                    if (it->second.one_time) forget_recorded(handle);
+                } else if (!dropped_.count(handle)) {
+                    // Reset (buffer or pool), never begun in the trace, or a one-time buffer submitted again.
+                    ReplayLocation where{sequence_, submission, cb_index, 0, handle, "vkQueueSubmit"};
+                    add_finding({"CLASTRACE-replay-command-buffer-not-recorded",
+                                 "command buffer " + detail::hex(handle) +
+                                     " holds no recorded commands (reset, never begun in the trace, or "
+                                     "ONE_TIME_SUBMIT and already submitted): nothing of it is replayed",
+                                 FindingSource::kReplay, where, -1, 0});
                 }
                 ++cb_index;
             }
@@ -651,14 +697,7 @@ void Replay::on_record(const traces::RecordView& view) {
         cb.one_time = r.body_as_CommandBufferBegin()->flags() & VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
         break;
     }
-    case fbs::RecordBody::CommandBufferReset: {
-        const auto* reset = r.body_as_CommandBufferReset();
-        if (auto it = recorded_.find(reset->command_buffer()); it != recorded_.end()) {
-            drop_recorded(it->second);
-            recorded_.erase(it);
-        }
-        break;
-    }
+    case fbs::RecordBody::CommandBufferReset: reset_command_buffers(*r.body_as_CommandBufferReset()); break;
     case fbs::RecordBody::MemoryObservation: host_observation(*r.body_as_MemoryObservation()); break;
     case fbs::RecordBody::RayQueryCheck: nv_.ray_check(*r.body_as_RayQueryCheck()); break;
     case fbs::RecordBody::QueueSubmit: on_submit(*r.body_as_QueueSubmit()); break;

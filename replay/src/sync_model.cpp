@@ -40,6 +40,9 @@ struct SyncModel::State {
     bool last_was_access = false;
     uint16_t current_queue = 0;
     bool in_submission = false;
+    uint32_t next_signal = 0;   // narrow semaphore signal ids
+    bool any_narrow = false;    // a narrow signal was seen: records are caught up before foreign views
+    int foreign_depth = 0;      // nesting of foreign views through chains of narrow signals
 
     // ------------------------------------------------------------------ bookkeeping
     uint16_t queue_slot(QueueId id) {
@@ -157,11 +160,18 @@ struct SyncModel::State {
         case EntryKind::kBarrier: apply_barriers(q, e, s, r, home, seg_begin, seg_end); break;
         case EntryKind::kEventSet: apply_event_set(q, e, s, r, home, seg_begin, seg_end); break;
         case EntryKind::kEventWait: apply_event_wait(q, e, s, r, seg_begin, seg_end); break;
+        case EntryKind::kSignal: {
+            const bool direct = home && (r.stage & e.event_bits);
+            if (direct || (s.chain & e.event_bits))
+                s.signals.push_back({e.signal, !r.is_write || direct || (s.avail & e.event_bits) != 0});
+            break;
+        }
         case EntryKind::kImport: {
             const Import& im = q.imports[e.import_index - q.imports_base];
-            if (covered(im.own, r.queue) > r.tag) {
+            bool available = true;
+            if (covered(im.own, r.queue) > r.tag && (!im.signal || in_signal(im, r, seg_begin, seg_end, &available))) {
                 s.chain |= im.dst_scope;
-                if (r.is_write) {
+                if (r.is_write && available) {
                     s.avail |= im.dst_scope;
                     s.visible.add(im.dst_scope, all_read_accesses() | all_write_accesses());
                 }
@@ -235,6 +245,29 @@ struct SyncModel::State {
         return s;
     }
 
+    // Did the narrow signal `im` waited on take `r` into its first scope (and, for a write,
+    // its access scope: *available)? The signal's clock covers r; its stage mask decides.
+    bool in_signal(const Import& im, const Record& r, uint64_t seg_begin, uint64_t seg_end, bool* available) {
+        const std::vector<SignalMembership>* list = &r.sync.signals;  // r's own queue signaled: caught up past it
+        std::optional<ChainState> view;
+        if (im.signal_queue != r.queue) {
+            // A record of a third queue: what the signaling queue's log did with it.
+            if (foreign_depth >= 4) return true;  // long chains of narrow signals: assume taken in
+            ++foreign_depth;
+            view = foreign_view(r, queues[im.signal_queue], seg_begin, seg_end);
+            --foreign_depth;
+            if (!view) return false;
+            list = &view->signals;
+        }
+        for (const SignalMembership& m : *list) {
+            if (m.signal == im.signal) {
+                *available = m.available;
+                return true;
+            }
+        }
+        return false;
+    }
+
     // ------------------------------------------------------------------ hazard decisions
     struct Later {
         const Record* record;
@@ -264,6 +297,7 @@ struct SyncModel::State {
             catch_up(prior, seg_begin, seg_end);
             s = &prior.sync;
         } else {
+            if (any_narrow) catch_up(prior, seg_begin, seg_end);  // its narrow-signal memberships
             foreign = foreign_view(prior, queues[later.queue], seg_begin, seg_end);
             if (!foreign) return FixKind::kSemaphore;
             s = &*foreign;
@@ -686,11 +720,15 @@ void SyncModel::begin_submission(QueueId queue, uint32_t, std::span<const Semaph
     for (const SemaphoreWait& w : waits) {
         SemaphoreState& sem = s.semaphores[w.semaphore];
         std::optional<Clock> clock;
+        NarrowSignal narrow;
         if (sem.binary_signal) {
             clock = std::move(sem.binary_signal);
             sem.binary_signal.reset();  // a binary wait consumes the signal
+            narrow = sem.binary_narrow;
+            sem.binary_narrow = {};
         } else if (auto it = sem.timeline.lower_bound(w.value); it != sem.timeline.end()) {
             clock = it->second;
+            if (auto n = sem.timeline_narrow.find(it->first); n != sem.timeline_narrow.end()) narrow = n->second;
         }
         if (!clock) {
             ++s.stats.unsatisfied_waits;
@@ -705,6 +743,8 @@ void SyncModel::begin_submission(QueueId queue, uint32_t, std::span<const Semaph
         im.cumulative = q.known;
         // VUID-VkSubmitInfo-pWaitDstStageMask-00078: waits never name HOST; keep device stages.
         im.dst_scope = destination_scope_of(w.dst_stages) & kDeviceStages;
+        im.signal = narrow.signal;
+        im.signal_queue = narrow.queue;
         LogEntry e;
         e.kind = EntryKind::kImport;
         e.import_index = q.imports_base + uint32_t(q.imports.size());
@@ -807,9 +847,31 @@ void SyncModel::end_submission(std::span<const SemaphoreSignal> signals, uint64_
     s.sync_tag();
     const Clock clock = s.snapshot_now(s.current_queue);
     for (const SemaphoreSignal& sig : signals) {
+        NarrowSignal narrow;
+        const StageMask scope = source_scope_of(sig.src_stages) & kDeviceStages;
+        if (scope != kDeviceStages) {
+            // A mark in the log: catching a record up over it tells whether this signal's
+            // first scope (its stages, or a chain into them) took the record in.
+            narrow = {++s.next_signal, s.current_queue};
+            s.any_narrow = true;
+            Queue& q = s.queues[s.current_queue];
+            LogEntry e;
+            e.kind = EntryKind::kSignal;
+            e.event_bits = scope;
+            e.signal = narrow.signal;
+            e.first = q.pool_base + uint32_t(q.pool.size());  // no barriers: keeps the pool trim valid
+            q.special_positions.push_back(q.log_end());
+            q.log.push_back(e);
+        }
         SemaphoreState& sem = s.semaphores[sig.semaphore];
-        if (sig.value == 0) sem.binary_signal = clock;
-        else sem.timeline[sig.value] = clock;
+        if (sig.value == 0) {
+            sem.binary_signal = clock;
+            sem.binary_narrow = narrow;
+        } else {
+            sem.timeline[sig.value] = clock;
+            if (narrow.signal) sem.timeline_narrow[sig.value] = narrow;
+            else sem.timeline_narrow.erase(sig.value);
+        }
     }
     if (fence) s.fences[fence] = clock;
     s.in_submission = false;

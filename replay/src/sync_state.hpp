@@ -68,10 +68,20 @@ struct Visibility {
 };
 
 // What the dependency chains after an access have reached so far.
+// A semaphore signal whose stage mask leaves some device stages out of its first scope
+// (vkQueueSubmit2 with a narrow VkSemaphoreSubmitInfo::stageMask). Signals whose scope is
+// every stage need no bookkeeping: their clock alone says what they cover.
+struct SignalMembership {
+    uint32_t signal = 0;    // narrow signal id
+    bool available = false; // the write is in the signal's first access scope too
+};
+
 struct ChainState {
     StageMask chain = 0;  // stages whose later work is execution-ordered after the access
     StageMask avail = 0;  // same, for chains that began with an availability operation (writes)
     Visibility visible;   // (stage, access) pairs the write is visible to
+    // Narrow signals whose first scope took the access in (see kSignal log entries).
+    std::vector<SignalMembership> signals;
 };
 
 struct Record {
@@ -109,7 +119,9 @@ struct LoggedBarrier {
 
 constexpr uint32_t kNoRun = 0xFFFFFFFFu;
 
-enum class EntryKind : uint8_t { kBarrier, kImport, kEventSet, kEventWait };
+// kSignal: a narrow semaphore signal at this point of the queue; catching a record up
+// over it notes whether the signal's first scope took the record in.
+enum class EntryKind : uint8_t { kBarrier, kImport, kEventSet, kEventWait, kSignal };
 
 struct LogEntry {
     EntryKind kind = EntryKind::kBarrier;
@@ -117,7 +129,8 @@ struct LogEntry {
     uint32_t first = 0;         // absolute index into the queue's barrier pool
     uint32_t count = 0;
     uint32_t import_index = 0;  // absolute index into the queue's imports
-    StageMask event_bits = 0;
+    StageMask event_bits = 0;   // kSignal: the signal's first synchronization scope
+    uint32_t signal = 0;        // kSignal: narrow signal id
     // Consecutive identical single-barrier entries form a run; applying one barrier twice
     // changes nothing, so catching up applies a run once. run_end is kept on the run's head.
     uint32_t run_start = kNoRun;
@@ -131,6 +144,8 @@ struct Import {
     Clock own;         // what this wait's signal covers
     Clock cumulative;  // what all waits up to this one cover (monotone: binary search)
     StageMask dst_scope = 0;
+    uint32_t signal = 0;          // narrow signal id, 0 when the signal's scope is every stage
+    uint16_t signal_queue = 0;    // queue slot that signaled (narrow signals only)
 };
 
 struct Queue {
@@ -152,9 +167,16 @@ struct Queue {
     uint32_t log_end() const { return log_base + uint32_t(log.size()); }
 };
 
+struct NarrowSignal {
+    uint32_t signal = 0;  // 0: the signal's scope is every stage
+    uint16_t queue = 0;
+};
+
 struct SemaphoreState {
     std::optional<Clock> binary_signal;
+    NarrowSignal binary_narrow;
     std::map<uint64_t, Clock> timeline;  // value -> what the signal covers
+    std::map<uint64_t, NarrowSignal> timeline_narrow;
 };
 
 struct EventState {

@@ -47,17 +47,22 @@ public:
             ops_.push_back(op);
         }
     }
-    void end_submission(std::vector<uint64_t> signals) {
-        for (uint64_t s : signals) {
+    // `stages`: each signal's stage mask (vkQueueSubmit2); missing entries are ALL_COMMANDS.
+    void end_submission(std::vector<uint64_t> signals, std::vector<StageMask> stages = {}) {
+        for (std::size_t i = 0; i < signals.size(); ++i) {
             Op op;
             op.kind = Op::kSignal;
             op.queue = queue_;
-            pending_signal_[s] = ops_.size();
+            const StageMask scope =
+                source_scope(i < stages.size() ? stages[i] : VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT) & all_device_stages();
+            op.narrow = scope != all_device_stages();
+            op.signal_scope = scope;
+            pending_signal_[signals[i]] = ops_.size();
             ops_.push_back(op);
         }
     }
-    void end_submission_with_fence(std::vector<uint64_t> signals, uint64_t fence) {
-        end_submission(std::move(signals));
+    void end_submission_with_fence(std::vector<uint64_t> signals, uint64_t fence, std::vector<StageMask> stages = {}) {
+        end_submission(std::move(signals), std::move(stages));
         if (!fence) return;
         Op op;
         op.kind = Op::kSignal;
@@ -196,6 +201,8 @@ private:
         bool v1 = false;
         std::size_t signal_op = 0;
         StageMask wait_scope = 0;
+        bool narrow = false;        // kSignal: a stage mask that leaves device stages out
+        StageMask signal_scope = 0; // kSignal: its first synchronization scope
     };
     struct PairState {
         StageMask chain = 0, avail = 0;
@@ -309,15 +316,25 @@ private:
                 s = next;
                 break;
             }
-            case Op::kWait:
-                if (signal_covers(op.signal_op, a)) {
+            case Op::kWait: {
+                bool in = signal_covers(op.signal_op, a), available = true;
+                const Op& sig = ops_[op.signal_op];
+                if (in && sig.narrow) {
+                    // Only what the signal's stages, or chains into them, hold at the signal.
+                    const bool direct = sig.queue == A.queue && (A.stage & sig.signal_scope);
+                    const PairState at_signal = walk(a, op.signal_op, x, sig.queue);
+                    in = direct || (at_signal.chain & sig.signal_scope);
+                    available = !A.is_write || direct || (at_signal.avail & sig.signal_scope);
+                }
+                if (in) {
                     s.chain |= op.wait_scope;
-                    if (A.is_write) {
+                    if (A.is_write && available) {
                         s.avail |= op.wait_scope;
                         s.make_visible(op.wait_scope, all_read_accesses() | all_write_accesses());
                     }
                 }
                 break;
+            }
             default: break;
             }
         }

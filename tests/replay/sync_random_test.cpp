@@ -87,15 +87,19 @@ public:
             for (int i = 0; i < ops; ++i) one_op(q, uint32_t(s));
             std::vector<SemaphoreSignal> signals;
             std::vector<uint64_t> ref_signals;
+            std::vector<StageMask> ref_stages;
             if (queues_ > 1 && chance(60)) {
                 const uint64_t sem = next_semaphore_++;
-                signals.push_back({sem, 0});
+                // vkQueueSubmit2 signals may narrow their first scope to some stages.
+                const StageMask stages = chance(30) ? barrier_stages() : StageMask(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT);
+                signals.push_back({sem, 0, stages});
                 ref_signals.push_back(sem);
+                ref_stages.push_back(stages);
                 pending_.push_back(sem);
             }
             const uint64_t fence = host_ && chance(40) ? 500 + uint64_t(s) : 0;
             model.end_submission(signals, fence);
-            reference.end_submission_with_fence(ref_signals, fence);
+            reference.end_submission_with_fence(ref_signals, fence, ref_stages);
             if (fence) fences_.push_back(fence);
             if (host_) host_ops(q);
         }

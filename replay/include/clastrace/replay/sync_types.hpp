@@ -88,6 +88,9 @@ struct SemaphoreWait {
 struct SemaphoreSignal {
     uint64_t semaphore = 0;
     uint64_t value = 0;           // timeline value; ignored for binary semaphores
+    // VkSemaphoreSubmitInfo::stageMask: limits the signal's first synchronization scope.
+    // vkQueueSubmit (v1) signals have none: the spec makes them ALL_COMMANDS.
+    StageMask src_stages = VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT;
 };
 
 }  // namespace clastrace::replay

@@ -1,0 +1,390 @@
+// The hazard catalogue: for every hazard class of the issue, one trace whose two commands
+// lack the dependency the spec demands, and a twin that adds exactly the barrier (or
+// semaphore, or disjoint range) the report suggests. The report must name the class, both
+// commands, the fields and byte ranges, and a fix whose masks cover the twin's barrier.
+#include "catalogue_scene.h"
+#include "trace_script.h"
+
+#include <clastrace/replay/replayer.hpp>
+#include <clastrace/traces/trace_reader.h>
+
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <string>
+#include <unistd.h>
+
+namespace {
+
+using namespace clastrace;
+using namespace clastrace::test;
+using namespace clastrace::test::catalogue;
+using replay::FixKind;
+using replay::HazardClass;
+
+constexpr uint64_t kBuild = VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR;
+constexpr uint64_t kAsRead = VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR;
+constexpr uint64_t kAsWrite = VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR;
+constexpr uint64_t kIndirect = VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT;
+constexpr uint64_t kShaderRead = VK_ACCESS_2_SHADER_READ_BIT;
+constexpr uint64_t kCopy = VK_PIPELINE_STAGE_2_COPY_BIT;
+constexpr uint64_t kClear = VK_PIPELINE_STAGE_2_CLEAR_BIT;
+constexpr uint64_t kCompute = VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT;
+constexpr uint64_t kTransferWrite = VK_ACCESS_2_TRANSFER_WRITE_BIT;
+constexpr uint64_t kTransferRead = VK_ACCESS_2_TRANSFER_READ_BIT;
+
+std::string temp_path(const std::string& name) {
+    return (std::filesystem::temp_directory_path() / ("hazard_catalogue_" + std::to_string(::getpid()) + "_" + name)).string();
+}
+
+// CLASTRACE_KEEP_TRACES=1 keeps the catalogue's traces (one per rule and twin) in TMPDIR,
+// e.g. to look at them with `clastrace replay`.
+void discard(const std::string& path) {
+    if (!std::getenv("CLASTRACE_KEEP_TRACES")) std::remove(path.c_str());
+}
+
+replay::ReplayReport replay_file(const std::string& path) {
+    traces::TraceError e;
+    auto reader = traces::TraceReader::open(path, &e);
+    EXPECT_TRUE(reader) << e.message;
+    if (!reader) return {};
+    return replay::replay_trace(*reader, path);
+}
+
+// The command indices the scene gave the two accesses (set while writing).
+struct Commands {
+    uint32_t prior = 0;
+    uint32_t later = 0;
+    uint32_t later_submission = 0;
+};
+
+using Scene = void (*)(TraceScript& t, bool fixed, Commands& at);
+
+struct HazardCase {
+    const char* name;
+    HazardClass hazard;
+    Scene scene;
+    const char* prior_command;  // Vulkan command name of the earlier access
+    const char* prior_field;    // substrings of the fields the report names
+    const char* later_field;
+    uint64_t overlap_begin;     // the overlap lies in [overlap_begin, overlap_end)
+    uint64_t overlap_end;
+    FixKind fix;
+    uint64_t fix_dst_stage;     // must be in the suggested fix
+    uint64_t fix_dst_access;    // 0: an execution dependency suffices (write-after-read)
+};
+
+// Second command of a pair: its own scratch, outputs and destinations, so the only shared
+// bytes are the ones the case is about.
+ClusterCommand disjoint(ClusterCommand c) {
+    c.info.scratchData = kScratch2;
+    if (c.info.dstImplicitData) c.info.dstImplicitData = kDst2;
+    c.info.dstAddressesArray.deviceAddress = kOut + 0x400;
+    if (c.info.dstSizesArray.deviceAddress) c.info.dstSizesArray.deviceAddress = kSizes + 0x400;
+    return c;
+}
+
+void build_barrier(TraceScript& t, uint64_t dst_access) { t.barrier(kBuild, kAsWrite, kBuild, dst_access); }
+
+std::vector<uint8_t> triangle_infos() {
+    std::vector<TriangleInfo> infos{triangle_info(0), triangle_info(1)};
+    return bytes_of(infos);
+}
+
+const HazardCase kCases[] = {
+    {"ScratchReusedByNextBuild", HazardClass::kWriteAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         at.prior = triangle_clusters(Destinations::kImplicit).emit(t);
+         if (fixed) build_barrier(t, kAsRead | kAsWrite);
+         ClusterCommand second = disjoint(triangle_clusters(Destinations::kImplicit));
+         second.info.scratchData = kScratch;
+         at.later = second.emit(t);
+     },
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "scratchData", "scratchData", kScratch, kScratch + 32,
+     FixKind::kPipelineBarrier, kBuild, kAsWrite},
+    {"ScratchReusedAcrossQueuesWithoutSemaphore", HazardClass::kWriteAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         at.prior = triangle_clusters(Destinations::kImplicit).emit(t);
+         t.submit(0x9001, {}, fixed ? std::vector<SemaphoreUse>{{0x5e1, 0, kBuild}} : std::vector<SemaphoreUse>{});
+         ClusterCommand second = disjoint(triangle_clusters(Destinations::kImplicit));
+         second.info.scratchData = kScratch;
+         at.later = second.emit(t);
+         at.later_submission = 1;
+         t.submit(0x9002, fixed ? std::vector<SemaphoreUse>{{0x5e1, 0, kBuild}} : std::vector<SemaphoreUse>{});
+     },
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "scratchData", "scratchData", kScratch, kScratch + 32,
+     FixKind::kSemaphore, kBuild, kAsWrite},
+    {"ClusterReadByBottomLevelBeforeVisible", HazardClass::kReadAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         at.prior = triangle_clusters(Destinations::kExplicit).emit(t);
+         if (fixed) build_barrier(t, kAsRead);
+         at.later = disjoint(bottom_level()).emit(t);
+     },
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "*dstAddressesArray[", "clusterReferences[*]", kDst,
+     kDst + 2 * kExplicitStride, FixKind::kPipelineBarrier, kBuild, kAsRead},
+    {"TemplateReadByInstantiateBeforeVisible", HazardClass::kReadAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         at.prior = triangle_templates(Destinations::kExplicit).emit(t);
+         if (fixed) build_barrier(t, kAsRead);
+         at.later = disjoint(instantiate()).emit(t);
+     },
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "*dstAddressesArray[0]", "clusterTemplateAddress", kDst,
+     kDst + kExplicitStride, FixKind::kPipelineBarrier, kBuild, kAsRead},
+    {"TemplateReadByTemplateIndicesBeforeVisible", HazardClass::kReadAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         at.prior = triangle_templates(Destinations::kExplicit).emit(t);
+         if (fixed) build_barrier(t, kAsRead);
+         at.later = disjoint(template_indices()).emit(t);
+     },
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "*dstAddressesArray[", "clusterTemplateAddress", kDst,
+     kDst + 2 * kExplicitStride, FixKind::kPipelineBarrier, kBuild, kAsRead},
+    {"ClusterReadByMoveBeforeVisible", HazardClass::kReadAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         at.prior = triangle_clusters(Destinations::kExplicit).emit(t);
+         if (fixed) build_barrier(t, kAsRead);
+         at.later = disjoint(move_clusters()).emit(t);
+     },
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "*dstAddressesArray[", "srcAccelerationStructure", kDst,
+     kDst + 2 * kExplicitStride, FixKind::kPipelineBarrier, kBuild, kAsRead},
+    {"BottomLevelReadByMoveBeforeVisible", HazardClass::kReadAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         triangle_clusters(Destinations::kExplicit).emit(t);
+         build_barrier(t, kAsRead | kAsWrite);
+         at.prior = disjoint(bottom_level()).emit(t);  // the BLAS lands at kDst2
+         if (fixed) build_barrier(t, kAsRead);
+         ClusterCommand move = move_clusters(1);
+         move.move.type = VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_CLUSTERS_BOTTOM_LEVEL_NV;
+         move.infos = bytes_of(std::vector<uint64_t>{kDst2});
+         move.info.dstImplicitData = kDst2 + 0x10000;
+         at.later = move.emit(t);
+     },
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "dstImplicitData[op 0]", "srcAccelerationStructure", kDst2,
+     kDst2 + 0x10000, FixKind::kPipelineBarrier, kBuild, kAsRead},
+    {"InfosWrittenByCopy", HazardClass::kReadAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         const std::vector<uint8_t> infos = triangle_infos();
+         at.prior = t.next_command();
+         t.copy(kStagingBuffer, 0, kInfosBuffer, 0, infos.size(), {{kStaging, infos}});
+         if (fixed) t.barrier(kCopy, kTransferWrite, kBuild, kIndirect);
+         at.later = triangle_clusters(Destinations::kImplicit).emit(t);
+     },
+     "vkCmdCopyBuffer", "pRegions[0].dstOffset", "srcInfosArray[*]", kInfos, kInfos + 2 * sizeof(TriangleInfo),
+     FixKind::kPipelineBarrier, kBuild, kIndirect},
+    {"InfosWrittenByCopyBarrierWithoutIndirectRead", HazardClass::kReadAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         const std::vector<uint8_t> infos = triangle_infos();
+         at.prior = t.next_command();
+         t.copy(kStagingBuffer, 0, kInfosBuffer, 0, infos.size(), {{kStaging, infos}});
+         // The build reads its infos as INDIRECT_COMMAND_READ: ACCELERATION_STRUCTURE_READ does not do.
+         t.barrier(kCopy, kTransferWrite, kBuild, fixed ? kIndirect : kAsRead);
+         at.later = triangle_clusters(Destinations::kImplicit).emit(t);
+     },
+     "vkCmdCopyBuffer", "pRegions[0].dstOffset", "srcInfosArray[*]", kInfos, kInfos + 2 * sizeof(TriangleInfo),
+     FixKind::kPipelineBarrier, kBuild, kIndirect},
+    {"InfosWrittenByFill", HazardClass::kReadAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         at.prior = t.next_command();
+         t.fill(kInfosBuffer, 0, 0x1000, 0);
+         if (fixed) t.barrier(kClear, kTransferWrite, kBuild, kIndirect);
+         at.later = triangle_clusters(Destinations::kImplicit).emit(t);
+     },
+     "vkCmdFillBuffer", "dstOffset", "srcInfosArray[*]", kInfos, kInfos + 2 * sizeof(TriangleInfo),
+     FixKind::kPipelineBarrier, kBuild, kIndirect},
+    {"CountWrittenByUpdate", HazardClass::kReadAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         at.prior = t.next_command();
+         t.update(kInfosBuffer, kCount - kInfos, bytes_of(std::vector<uint32_t>{2}));
+         if (fixed) t.buffer_barrier(kInfosBuffer, kCount - kInfos, 4, kClear, kTransferWrite, kBuild, kIndirect);
+         ClusterCommand c = triangle_clusters(Destinations::kImplicit);
+         c.info.srcInfosCount = kCount;
+         at.later = c.emit(t);
+     },
+     "vkCmdUpdateBuffer", "pData", "srcInfosCount", kCount, kCount + 4, FixKind::kPipelineBarrier, kBuild, kIndirect},
+    {"CountWrittenByCopy", HazardClass::kReadAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         at.prior = t.next_command();
+         t.copy(kStagingBuffer, 0, kInfosBuffer, kCount - kInfos, 4, {{kStaging, bytes_of(std::vector<uint32_t>{2})}});
+         if (fixed) t.barrier(kCopy, kTransferWrite, kBuild, kIndirect);
+         ClusterCommand c = triangle_clusters(Destinations::kImplicit);
+         c.info.srcInfosCount = kCount;
+         at.later = c.emit(t);
+     },
+     "vkCmdCopyBuffer", "pRegions[0].dstOffset", "srcInfosCount", kCount, kCount + 4, FixKind::kPipelineBarrier, kBuild,
+     kIndirect},
+    {"InfosWrittenByDispatch", HazardClass::kReadAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         at.prior = t.next_command();
+         t.dispatch(kInfosBuffer, 0, 0x1000, {{kInfos, triangle_infos()}});
+         if (fixed) t.barrier(kCompute, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, kBuild, kIndirect);
+         at.later = triangle_clusters(Destinations::kImplicit).emit(t);
+     },
+     "vkCmdDispatch", "set 0 binding 0[0]", "srcInfosArray[*]", kInfos, kInfos + 2 * sizeof(TriangleInfo),
+     FixKind::kPipelineBarrier, kBuild, kIndirect},
+    {"VerticesWrittenByCopy", HazardClass::kReadAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         at.prior = t.next_command();
+         t.copy(kStagingBuffer, 0, kGeometryBuffer, 0, 0x300, {{kStaging, std::vector<uint8_t>(0x300, 0)}});
+         if (fixed) t.barrier(kCopy, kTransferWrite, kBuild, kShaderRead);
+         at.later = triangle_clusters(Destinations::kImplicit).emit(t);
+     },
+     "vkCmdCopyBuffer", "pRegions[0].dstOffset", "vertexBuffer", kVertices, kVertices + 0x300, FixKind::kPipelineBarrier,
+     kBuild, kShaderRead},
+    {"VerticesWrittenByUpdate", HazardClass::kReadAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         at.prior = t.next_command();
+         t.update(kGeometryBuffer, 0, std::vector<uint8_t>(96, 0));
+         if (fixed) t.barrier(kClear, kTransferWrite, kBuild, kShaderRead);
+         at.later = triangle_clusters(Destinations::kImplicit).emit(t);
+     },
+     "vkCmdUpdateBuffer", "pData", "vertexBuffer", kVertices, kVertices + 96, FixKind::kPipelineBarrier, kBuild,
+     kShaderRead},
+    {"IndicesWrittenByDispatch", HazardClass::kReadAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         at.prior = t.next_command();
+         t.dispatch(kGeometryBuffer, kIndices - kGeometry, 0x100);
+         if (fixed) t.barrier(kCompute, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, kBuild, kShaderRead);
+         at.later = triangle_clusters(Destinations::kImplicit).emit(t);
+     },
+     "vkCmdDispatch", "set 0 binding 0[0]", "indexBuffer", kIndices, kIndices + 6, FixKind::kPipelineBarrier, kBuild,
+     kShaderRead},
+    {"SizesReadByCopyBeforeVisible", HazardClass::kReadAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         at.prior = triangle_clusters(Destinations::kImplicit).emit(t);
+         if (fixed) t.barrier(kBuild, kAsWrite, kCopy, kTransferRead);
+         at.later = t.next_command();
+         t.copy(kOutBuffer, kSizes - kOut, kDst2Buffer, 0, 8);
+     },
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "dstSizesArray[", "pRegions[0].srcOffset", kSizes, kSizes + 8,
+     FixKind::kPipelineBarrier, kCopy, kTransferRead},
+    {"AddressesOverwrittenByFill", HazardClass::kWriteAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         at.prior = triangle_clusters(Destinations::kImplicit).emit(t);
+         if (fixed) t.barrier(kBuild, kAsWrite, kClear, kTransferWrite);
+         at.later = t.next_command();
+         t.fill(kOutBuffer, 0, 16, 0);
+     },
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "dstAddressesArray[", "dstOffset", kOut, kOut + 16,
+     FixKind::kPipelineBarrier, kClear, kTransferWrite},
+    {"ObjectsOverwrittenByNextBuild", HazardClass::kWriteAfterWrite,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         at.prior = triangle_clusters(Destinations::kImplicit).emit(t);
+         if (fixed) build_barrier(t, kAsWrite);
+         ClusterCommand second = disjoint(triangle_clusters(Destinations::kImplicit));
+         second.info.dstImplicitData = kDst;
+         at.later = second.emit(t);
+     },
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "dstImplicitData[op ", "dstImplicitData[op ", kDst, kDst + 0x10000,
+     FixKind::kPipelineBarrier, kBuild, kAsWrite},
+    {"InfosOverwrittenWhileBuildReadsThem", HazardClass::kWriteAfterRead,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         at.prior = triangle_clusters(Destinations::kImplicit).emit(t);
+         if (fixed) t.barrier(kBuild, 0, kClear, 0);  // an execution dependency is enough
+         at.later = t.next_command();
+         t.fill(kInfosBuffer, 0, 64, 0);
+     },
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "srcInfosArray[0]", "dstOffset", kInfos, kInfos + 64,
+     FixKind::kPipelineBarrier, kClear, 0},
+    {"DeserializeOverObjectsStillBeingBuilt", HazardClass::kDeserializeInUse,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         t.acceleration_structure(0xa5001, kDstBuffer, 0, 0x1000);  // over the CLAS at kDst
+         at.prior = triangle_clusters(Destinations::kExplicit).emit(t);
+         if (fixed) t.barrier(kBuild, kAsWrite, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR, kAsWrite);
+         at.later = t.next_command();
+         t.deserialize(kStaging, 0xa5001, std::vector<uint8_t>(0x100, 0x5a));
+     },
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "*dstAddressesArray[0]", "pInfo->dst", kDst, kDst + 0x1000,
+     FixKind::kPipelineBarrier, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR, kAsWrite},
+    {"CopySourceOverlapsDestination", HazardClass::kMoveOverlap,
+     [](TraceScript& t, bool fixed, Commands& at) {
+         at.prior = at.later = t.next_command();
+         t.copy(kInfosBuffer, 0, kInfosBuffer, fixed ? 256 : 64, 128);
+     },
+     "vkCmdCopyBuffer", "pRegions[0].srcOffset", "pRegions[0].dstOffset", kInfos + 64, kInfos + 128,
+     FixKind::kDisjointRanges, 0, 0},
+};
+
+class HazardCatalogue : public ::testing::TestWithParam<HazardCase> {
+protected:
+    replay::ReplayReport run(bool fixed, Commands* at) {
+        const std::string path = temp_path(std::string(GetParam().name) + (fixed ? "_fixed.clt" : "_broken.clt"));
+        {
+            TraceScript t(path, device());
+            add_buffers(t);
+            GetParam().scene(t, fixed, *at);
+            t.finish();
+        }
+        replay::ReplayReport r = replay_file(path);
+        discard(path);
+        return r;
+    }
+};
+
+TEST_P(HazardCatalogue, MissingDependencyIsOneHazardNamingBothCommandsFieldsAndFix) {
+    const HazardCase& c = GetParam();
+    Commands at;
+    const replay::ReplayReport r = run(false, &at);
+    const std::string text = replay::format_text(r);
+    EXPECT_TRUE(r.findings.empty()) << text;
+    ASSERT_EQ(r.hazards.size(), 1u) << text;
+    const replay::HazardReport& h = r.hazards[0];
+    EXPECT_EQ(h.hazard, c.hazard) << text;
+    EXPECT_EQ(std::string(h.prior.command.name), c.prior_command) << text;
+    EXPECT_EQ(h.prior.command.command, at.prior) << text;
+    EXPECT_EQ(h.later.command.command, at.later) << text;
+    EXPECT_EQ(h.later.command.submission, at.later_submission) << text;
+    EXPECT_NE(h.prior.field.find(c.prior_field), std::string::npos) << h.prior.field;
+    EXPECT_NE(h.later.field.find(c.later_field), std::string::npos) << h.later.field;
+    EXPECT_FALSE(h.overlap.empty());
+    EXPECT_GE(h.overlap.begin, c.overlap_begin) << text;
+    EXPECT_LE(h.overlap.end, c.overlap_end) << text;
+    EXPECT_TRUE(h.prior.range.overlaps(h.overlap) && h.later.range.overlaps(h.overlap)) << text;
+    EXPECT_EQ(h.fix.kind, c.fix) << text;
+    EXPECT_EQ(h.fix.dst_stages & c.fix_dst_stage, c.fix_dst_stage) << text;
+    EXPECT_EQ(h.fix.dst_access & c.fix_dst_access, c.fix_dst_access) << text;
+    const std::string line = h.format();
+    EXPECT_NE(line.find(std::string("SYNC-HAZARD-") + replay::hazard_class_name(c.hazard)), std::string::npos) << line;
+    EXPECT_NE(line.find(h.later.field), std::string::npos) << line;
+    EXPECT_NE(line.find(h.prior.field), std::string::npos) << line;
+}
+
+TEST_P(HazardCatalogue, TwinWithTheFixIsClean) {
+    Commands at;
+    const replay::ReplayReport r = run(true, &at);
+    EXPECT_TRUE(r.clean()) << replay::format_text(r);
+}
+
+INSTANTIATE_TEST_SUITE_P(Replay, HazardCatalogue, ::testing::ValuesIn(kCases),
+                         [](const ::testing::TestParamInfo<HazardCase>& info) { return std::string(info.param.name); });
+
+// A cluster move with noMoveOverlap whose destination overlaps its source: the engine's rule
+// (the spec allows overlap only without noMoveOverlap).
+TEST(HazardCatalogueMove, MoveOntoItsOwnSourceWithNoMoveOverlapIsReported) {
+    for (bool broken : {true, false}) {
+        const std::string path = temp_path(broken ? "move_overlap.clt" : "move_disjoint.clt");
+        uint32_t move_command = 0;
+        {
+            TraceScript t(path, device());
+            add_buffers(t);
+            triangle_clusters(Destinations::kExplicit).emit(t);
+            build_barrier(t, kAsRead | kAsWrite);
+            ClusterCommand move = move_clusters(1);
+            move.info.dstImplicitData = broken ? kDst + 128 : kDst2;  // the source is at kDst
+            move.info.scratchData = kScratch2;
+            move_command = move.emit(t);
+            t.finish();
+        }
+        const replay::ReplayReport r = replay_file(path);
+        std::remove(path.c_str());
+        if (!broken) {
+            EXPECT_TRUE(r.clean()) << replay::format_text(r);
+            continue;
+        }
+        ASSERT_FALSE(r.findings.empty()) << replay::format_text(r);
+        EXPECT_EQ(r.findings[0].rule, "CLASTRACE-move-overlaps-with-noMoveOverlap");
+        EXPECT_EQ(r.findings[0].where.command, move_command);
+    }
+}
+
+}  // namespace
