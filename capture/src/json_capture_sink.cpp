@@ -196,7 +196,7 @@ class JsonCaptureSink final : public CaptureSink {
     add("submissions", {{"index", s.index}, {"queue", s.queue}, {"synchronization2", s.synchronization2},
                         {"batches", batches}, {"fence", s.fence}});
   }
-  void clusterBuildCaptured(const ClusterBuildCapture& c) override {
+  void clusterBuildCaptured(ClusterBuildCapture c) override {
     json issues = json::array();
     for (const auto& i : c.issues) issues.push_back({{"address", i.address}, {"size", i.size}, {"rule", i.rule}});
     json findings = json::array();
@@ -208,6 +208,13 @@ class JsonCaptureSink final : public CaptureSink {
                           {"outputs", rangesJson(c.outputs)}, {"issues", issues},
                           {"executedByEngine", c.executedByEngine}, {"engineFindings", findings},
                           {"pauseMilliseconds", c.pauseMilliseconds}});
+  }
+  void hostSynchronized(const HostSyncRecord& h) override {
+    static const char* const kinds[] = {"EventSet",      "EventReset",     "EventStatus",     "FenceWait",
+                                        "FenceReset",    "FenceStatus",    "QueueWaitIdle",   "DeviceWaitIdle",
+                                        "SemaphoreSignal", "SemaphoreWait"};
+    add("hostSync", {{"kind", kinds[int(h.kind)]}, {"handles", h.handles}, {"values", h.values},
+                     {"waitAll", h.waitAll}, {"timeout", h.timeout}, {"result", h.result}});
   }
   void flush() override {
     std::lock_guard lock(mutex_);

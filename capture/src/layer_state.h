@@ -59,6 +59,7 @@ uint64_t handleId(Handle handle) {
   X(CreateBuffer)                              \
   X(DestroyBuffer)                             \
   X(BindBufferMemory)                          \
+  X(GetBufferMemoryRequirements)               \
   X(BindBufferMemory2)                         \
   X(BindBufferMemory2KHR)                      \
   X(GetBufferDeviceAddress)                    \
@@ -105,7 +106,16 @@ uint64_t handleId(Handle handle) {
   X(CmdCopyMemoryToAccelerationStructureKHR)   \
   X(QueueSubmit)                               \
   X(QueueSubmit2)                              \
-  X(QueueSubmit2KHR)
+  X(QueueSubmit2KHR)                           \
+  X(WaitForFences)                             \
+  X(ResetFences)                               \
+  X(GetFenceStatus)                            \
+  X(QueueWaitIdle)                             \
+  X(DeviceWaitIdle)                            \
+  X(SignalSemaphore)                           \
+  X(SignalSemaphoreKHR)                        \
+  X(WaitSemaphores)                            \
+  X(WaitSemaphoresKHR)
 
 #define CLASTRACE_DECLARE_PFN(name) PFN_vk##name name = nullptr;
 
@@ -131,6 +141,8 @@ struct DeviceState {
   bool serving = false;           // the layer provides the cluster extension for this device
   bool clusterEnabled = false;    // the application enabled the extension (served or native)
   bool capturing = false;
+  // Capture on and still writing (a sink that failed stops the capture work at once).
+  bool capturingNow() const { return sink && sink->active(); }
   VkPhysicalDeviceClusterAccelerationStructurePropertiesNV clusterProperties{};
   VkPhysicalDeviceMemoryProperties memoryProperties{};
   VkDeviceSize nonCoherentAtomSize = 1;
@@ -177,6 +189,7 @@ PFN_vkVoidFunction resourceHook(const char* name);
 PFN_vkVoidFunction commandHook(const char* name);
 PFN_vkVoidFunction submitHook(const char* name);
 PFN_vkVoidFunction clusterHook(const char* name);
+PFN_vkVoidFunction hostSyncHook(const char* name);
 
 // Serving decisions, shared by the instance hooks and device creation.
 bool driverHasClusterExtension(InstanceState& instance, VkPhysicalDevice physicalDevice);

@@ -29,9 +29,14 @@ struct SubmissionPlan {
 };
 
 void announce(DeviceState& d, VkQueue queue, SubmissionPlan& plan) {
-  if (d.pauses)
-    for (const PendingPauses& p : plan.pauses)
-      d.pauses->expect(queue, plan.record.index, plan.capture, p.commandBuffer, p.pauses);
+  if (!d.pauses) return;
+  // A simultaneous-use command buffer listed twice runs its pauses twice: number them so each
+  // execution is captured on its own.
+  std::map<std::pair<uint64_t, PausePhase>, uint32_t> executions;
+  for (PendingPauses& p : plan.pauses) {
+    for (PausePoint& pause : p.pauses) pause.occurrence = executions[{pause.pauseId, pause.phase}]++;
+    d.pauses->expect(queue, plan.record.index, plan.capture, p.commandBuffer, p.pauses);
+  }
 }
 
 SubmissionPlan planFor(DeviceState& d, VkQueue queue, VkFence fence, bool synchronization2) {

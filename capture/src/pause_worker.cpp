@@ -13,6 +13,12 @@
 
 namespace clastrace::capture {
 
+namespace {
+const char* const kNotStaged =
+    "the memory is not host visible and the buffer has no acceleration-structure usage (build input or storage), "
+    "so the layer did not stage it";
+}  // namespace
+
 PauseWorker::PauseWorker(DeviceState& device) : device_(device), thread_([this] { run(); }) {}
 
 PauseWorker::~PauseWorker() {
@@ -22,6 +28,12 @@ PauseWorker::~PauseWorker() {
   }
   wake_.notify_all();
   thread_.join();
+  if (pauseMilliseconds_.empty()) return;
+  std::vector<float> sorted = pauseMilliseconds_;
+  std::sort(sorted.begin(), sorted.end());
+  auto at = [&](double q) { return sorted[std::min(sorted.size() - 1, size_t(q * double(sorted.size())))]; };
+  logMessage(LogLevel::Info, "pauses: %zu handled; host time per pause: median %.3f ms, p90 %.3f ms, max %.3f ms",
+             sorted.size(), at(0.5), at(0.9), sorted.back());
 }
 
 void PauseWorker::expect(VkQueue queue, uint64_t submissionIndex, bool captureThisSubmission, uint64_t commandBuffer,
@@ -76,18 +88,34 @@ void PauseWorker::run() {
   }
 }
 
+const uint8_t* PauseWorker::stagedBytes(const ResolvedRange& range) {
+  if (range.host) return range.host;
+  const StagedBuffer* staged = staging_ ? staging_->find(range.buffer.handle) : nullptr;
+  if (!staged) return nullptr;
+  if (!staging_->coherent) {  // the queue's copy reaches the host view only after an invalidate
+    VkMappedMemoryRange whole{VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE, nullptr, staging_->memory, 0, VK_WHOLE_SIZE};
+    device_.next.InvalidateMappedMemoryRanges(device_.device, 1, &whole);
+  }
+  return staging_->host + staged->offset + range.offsetInBuffer;
+}
+
 bool PauseWorker::checkMemory(VkDeviceAddress address, uint64_t size, std::string& why) {
   auto range = device_.memoryMap.resolve(address, size, why);
   if (!range) return false;
-  if (!range->host) {
-    why = "the memory is not host visible (staging copies are not implemented yet)";
+  if (!range->host && !(staging_ && staging_->find(range->buffer.handle))) {
+    why = kNotStaged;
     return false;
   }
   return true;
 }
 
 bool PauseWorker::readResolved(const ResolvedRange& range, uint64_t size, std::vector<uint8_t>& out) {
-  if (!range.host) return false;
+  if (!range.host) {
+    const uint8_t* staged = stagedBytes(range);
+    if (!staged) return false;
+    out.assign(staged, staged + size);
+    return true;
+  }
   if (!(range.memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_COHERENT_BIT)) {
     // Device writes to non-coherent memory reach the host view only after an invalidate of
     // whole atoms.
@@ -108,7 +136,7 @@ bool PauseWorker::readMemory(VkDeviceAddress address, uint64_t size, std::vector
   auto range = device_.memoryMap.resolve(address, size, why);
   if (!range) return false;
   if (!readResolved(*range, size, out)) {
-    why = "the memory is not host visible (staging copies are not implemented yet)";
+    why = kNotStaged;
     return false;
   }
   return true;
@@ -118,17 +146,20 @@ bool PauseWorker::handle(Expected& expected) {
   const PausePoint& pause = expected.pause;
   if (device_.next.GetEventStatus(device_.device, pause.signal) != VK_EVENT_SET) return false;
   const auto started = std::chrono::steady_clock::now();
-  const bool capture = expected.capture && device_.sink;
+  staging_ = pause.staging.get();
+  const bool capture = expected.capture && device_.capturingNow();
   DeviceMemoryReader reader = [this](VkDeviceAddress a, uint64_t s, std::vector<uint8_t>* o, std::string& w) {
     if (!o) return checkMemory(a, s, w);
     return readMemory(a, s, *o, w);
   };
 
   ClusterBuildCapture* record = nullptr;
+  const auto openKey = std::make_tuple(expected.submissionIndex, pause.pauseId, pause.occurrence);
   if (capture) {
     if (pause.phase == PausePhase::BeforeCommand) {
       ClusterBuildCapture fresh;
       fresh.pauseId = pause.pauseId;
+      fresh.occurrence = pause.occurrence;
       fresh.submissionIndex = expected.submissionIndex;
       fresh.commandBuffer = expected.commandBuffer;
       ClusterMemoryWalk walk;
@@ -138,8 +169,8 @@ bool PauseWorker::handle(Expected& expected) {
                                                  std::vector<uint8_t>* out, std::string& why) {
           auto range = device_.memoryMap.resolveBuffer(buffer, offset, size, why);
           if (!range) return false;
-          if (!range->host) {
-            why = "the memory is not host visible (staging copies are not implemented yet)";
+          if (!range->host && !(staging_ && staging_->find(range->buffer.handle))) {
+            why = kNotStaged;
             return false;
           }
           return out ? readResolved(*range, size, *out) : true;
@@ -152,12 +183,12 @@ bool PauseWorker::handle(Expected& expected) {
         fresh.parameters = *pause.parameters;
         walk = walkClusterInputs(*pause.parameters, reader);
       }
-      record = &open_.insert_or_assign(pause.pauseId, std::move(fresh)).first->second;
+      record = &open_.insert_or_assign(openKey, std::move(fresh)).first->second;
       record->executedCount = walk.executedCount;
       record->inputs = std::move(walk.ranges);
       record->issues = std::move(walk.issues);
     } else {
-      auto it = open_.find(pause.pauseId);
+      auto it = open_.find(openKey);
       if (it != open_.end() && pause.parameters) {
         record = &it->second;
         ClusterMemoryWalk walk = walkClusterOutputs(*pause.parameters, record->executedCount, reader);
@@ -182,13 +213,14 @@ bool PauseWorker::handle(Expected& expected) {
   device_.next.ResetEvent(device_.device, pause.signal);
   device_.next.SetEvent(device_.device, pause.release);
   ++handled_;
+  const double stalled = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - started).count();
+  pauseMilliseconds_.push_back(float(stalled));
 
   if (record) {
-    record->pauseMilliseconds +=
-        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - started).count();
+    record->pauseMilliseconds += stalled;
     if (pause.lastOfCommand) {
-      device_.sink->clusterBuildCaptured(*record);
-      open_.erase(pause.pauseId);
+      device_.sink->clusterBuildCaptured(std::move(*record));
+      open_.erase(openKey);
     }
   }
   return true;
@@ -204,6 +236,14 @@ void PauseWorker::executeServed(const PausePoint& pause, ClusterBuildCapture* re
     if (!(r.memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_COHERENT_BIT) &&
         std::find(nonCoherent.begin(), nonCoherent.end(), r.memory.handle) == nonCoherent.end())
       nonCoherent.push_back(r.memory.handle);
+  }
+  // Unmapped buffers take part through their staged copies; the queue copies them back.
+  if (staging_) {
+    const uint64_t stagingMemory = handleId(staging_->memory);
+    for (const StagedBuffer& b : staging_->buffers)
+      buffers.push_back({b.buffer.handle, b.buffer.address, b.buffer.size, b.buffer.usage, staging_->host + b.offset,
+                         stagingMemory});
+    if (!staging_->coherent) nonCoherent.push_back(stagingMemory);
   }
   // What the device wrote to non-coherent memory reaches the host view only after an invalidate.
   auto wholeRange = [](uint64_t memory) {
