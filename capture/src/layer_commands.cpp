@@ -478,8 +478,10 @@ VKAPI_ATTR void VKAPI_CALL CmdBuildClusterAccelerationStructureIndirectNV(
   auto log = logOf(d, cb);
   // Capture needs a pause before (inputs) and after (outputs); serving needs the one before,
   // where the build runs while the queue waits.
-  const bool pauseAfter = d.capturingNow();
-  if (pauseAfter || d.serving) {
+  // When serving, the command is the engine's run at the pause before it, and the queue does
+  // nothing until the next command: the outputs are read in that same pause.
+  const bool pauseAfter = d.capturingNow() && !d.serving;
+  if (d.capturingNow() || d.serving) {
     PausePoint before;
     before.pauseId = pauseId;
     before.phase = PausePhase::BeforeCommand;

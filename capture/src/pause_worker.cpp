@@ -197,7 +197,16 @@ bool PauseWorker::handle(Expected& expected) {
       }
     }
   }
-  if (device_.serving && pause.phase == PausePhase::BeforeCommand && pause.parameters) executeServed(pause, record);
+  if (device_.serving && pause.phase == PausePhase::BeforeCommand && pause.parameters) {
+    executeServed(pause, record);
+    // Served, the command has executed once the engine returns: its outputs are read now,
+    // exactly as a pause after it would read them (the queue runs nothing in between).
+    if (record && pause.lastOfCommand) {
+      ClusterMemoryWalk walk = walkClusterOutputs(*pause.parameters, record->executedCount, reader);
+      record->outputs = std::move(walk.ranges);
+      for (auto& issue : walk.issues) record->issues.push_back(std::move(issue));
+    }
+  }
 
   if (record) {  // name each range by a buffer holding it, as the trace's snapshots do
     for (auto* list : {&record->inputs, &record->outputs})

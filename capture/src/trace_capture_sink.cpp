@@ -7,10 +7,12 @@
 
 #include <clastrace/traces/trace_writer.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cerrno>
 #include <condition_variable>
 #include <thread>
+#include <tuple>
 #include <chrono>
 #include <cstdio>
 #include <cstring>
@@ -471,13 +473,41 @@ class TraceCaptureSink final : public CaptureSink {
     }
   }
 
+  // One snapshot per run of touching or overlapping ranges of one buffer (all read at the same
+  // pause, so overlaps hold equal bytes): the same bytes, without a 40-byte descriptor (and an
+  // incompressible 8-byte key) per cluster's vertex or index range. Ranges named only by
+  // buffer and offset, or in no known buffer, stay as they are.
   void snapshots(const std::vector<CapturedRange>& ranges, std::vector<fbs::MemorySnapshot>& out) {
-    for (const auto& r : ranges) {
+    std::vector<const CapturedRange*> order;
+    for (const auto& r : ranges) order.push_back(&r);
+    std::stable_sort(order.begin(), order.end(), [](const CapturedRange* a, const CapturedRange* b) {
+      return std::tie(a->buffer, a->address) < std::tie(b->buffer, b->address);
+    });
+    std::vector<uint8_t> run;
+    for (size_t i = 0; i < order.size();) {
+      const CapturedRange& first = *order[i];
+      const bool mergeable = first.address != 0 && first.buffer != 0;
+      uint64_t end = first.address + first.bytes.size();
+      size_t next = i + 1;
+      if (mergeable) {
+        run.assign(first.bytes.begin(), first.bytes.end());
+        for (; next < order.size() && order[next]->buffer == first.buffer && order[next]->address != 0 &&
+               order[next]->address <= end;
+             ++next) {
+          const CapturedRange& r = *order[next];
+          const uint64_t rEnd = r.address + r.bytes.size();
+          if (rEnd > end) run.insert(run.end(), r.bytes.end() - (rEnd - end), r.bytes.end());
+          end = std::max(end, rEnd);
+        }
+      }
+      const bool merged = next > i + 1;
+      const uint8_t* bytes = merged ? run.data() : first.bytes.data();
+      const size_t size = merged ? run.size() : first.bytes.size();
       fbs::MemorySnapshot snap;
       if (!writer_ || failed_) return;
-      if (!check(writer_->snapshot(r.buffer, r.bufferOffset, r.address, r.bytes.data(), r.bytes.size(), &snap)))
-        return;
+      if (!check(writer_->snapshot(first.buffer, first.bufferOffset, first.address, bytes, size, &snap))) return;
       out.push_back(snap);
+      i = next;
     }
   }
 
