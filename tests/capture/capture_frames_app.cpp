@@ -15,10 +15,12 @@
 //     one SIMULTANEOUS_USE command buffer submitted twice in one vkQueueSubmit and twice more
 //     in two; its build reads a count that the command buffer itself rewrites after the build.
 //
-// Prints "frames=N loop_ms=T" (the frame loop's wall time) on success.
+// Prints "frames=N loop_ms=T loop_cpu_ms=C" on success: the frame loop's wall time, and the CPU
+// time of all the process's threads (driver and layer included) during it.
 #include <clastrace/vk_cluster_abi.h>
 
 #include <chrono>
+#include <sys/resource.h>
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
@@ -161,6 +163,13 @@ struct FrameOptions {
   int exitAt = -1, abortAt = -1, stopAt = -1;
 };
 
+double processCpuMilliseconds() {
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  return (double(usage.ru_utime.tv_sec) + double(usage.ru_stime.tv_sec)) * 1e3 +
+         (double(usage.ru_utime.tv_usec) + double(usage.ru_stime.tv_usec)) * 1e-3;
+}
+
 void writeVertices(const Buffer& vertices, uint32_t clusters, int frame) {
   auto* v = reinterpret_cast<float*>(vertices.mapped);
   for (uint32_t c = 0; c < clusters; ++c) {
@@ -279,6 +288,7 @@ int frames(const FrameOptions& o) {
   CHECK(vkCreateEvent(c.device, &eventInfo, nullptr, &frameEvent));
 
   const auto start = std::chrono::steady_clock::now();
+  const double cpuStart = processCpuMilliseconds();
   for (int f = 0; f < o.frames; ++f) {
     const bool last = f == o.exitAt || f == o.abortAt || f == o.stopAt;
     if (last && !o.waitFor.empty())
@@ -318,6 +328,7 @@ int frames(const FrameOptions& o) {
     CHECK(vkResetEvent(c.device, frameEvent));
   }
   const double loopMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  const double loopCpuMs = processCpuMilliseconds() - cpuStart;
   CHECK(vkQueueWaitIdle(c.queue));
   CHECK(vkDeviceWaitIdle(c.device));
   if (!o.out.empty()) {
@@ -326,7 +337,7 @@ int frames(const FrameOptions& o) {
         << hex(dstAddresses.mapped, dstAddresses.size) << "\", \"implicit\": \"" << hex(implicit.mapped, implicit.size)
         << "\", \"blasImplicit\": \"" << hex(blasImplicit.mapped, blasImplicit.size) << "\"}\n";
   }
-  std::printf("frames=%d loop_ms=%.3f\n", o.frames, loopMs);
+  std::printf("frames=%d loop_ms=%.3f loop_cpu_ms=%.3f\n", o.frames, loopMs, loopCpuMs);
   vkDestroyEvent(c.device, frameEvent, nullptr);
   vkDestroyFence(c.device, fence, nullptr);
   vkDestroyCommandPool(c.device, c.pool, nullptr);
