@@ -1,7 +1,8 @@
 // A frame loop over VK_NV_cluster_acceleration_structure for the capture layer's robustness
 // tests and its overhead benchmark. Each frame the host moves one eighth of the clusters, a
 // GPU copy fills srcInfosArray, a triangle-cluster build and a bottom-level build over its
-// dstAddressesArray run, and the host waits on a fence (and sets/resets an event).
+// dstAddressesArray run, and the host waits on a fence (and sets/resets an event, and signals
+// and waits on a timeline semaphore).
 //
 //   capture_frames_app frames N [options]
 //     --clusters C        clusters per build (default 64)
@@ -96,6 +97,7 @@ struct Context {
     v12.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_2_FEATURES;
     v12.pNext = &cluster;
     v12.bufferDeviceAddress = VK_TRUE;
+    v12.timelineSemaphore = VK_TRUE;
     const char* extension = VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME;
     VkDeviceCreateInfo deviceInfo{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO, &v12, 0, 1, &queueInfo, 0, nullptr, 1,
                                   &extension, nullptr};
@@ -286,6 +288,11 @@ int frames(const FrameOptions& o) {
   VkEventCreateInfo eventInfo{VK_STRUCTURE_TYPE_EVENT_CREATE_INFO, nullptr, 0};
   VkEvent frameEvent;
   CHECK(vkCreateEvent(c.device, &eventInfo, nullptr, &frameEvent));
+  VkSemaphoreTypeCreateInfo timelineType{VK_STRUCTURE_TYPE_SEMAPHORE_TYPE_CREATE_INFO, nullptr,
+                                         VK_SEMAPHORE_TYPE_TIMELINE, 0};
+  VkSemaphoreCreateInfo semaphoreInfo{VK_STRUCTURE_TYPE_SEMAPHORE_CREATE_INFO, &timelineType, 0};
+  VkSemaphore timeline;
+  CHECK(vkCreateSemaphore(c.device, &semaphoreInfo, nullptr, &timeline));
 
   const auto start = std::chrono::steady_clock::now();
   const double cpuStart = processCpuMilliseconds();
@@ -326,6 +333,12 @@ int frames(const FrameOptions& o) {
     if (vkGetFenceStatus(c.device, fence) != VK_SUCCESS) fail("fence not signalled after the wait");
     CHECK(vkResetFences(c.device, 1, &fence));
     CHECK(vkResetEvent(c.device, frameEvent));
+    // The host counts frames on a timeline semaphore and waits for its own signal.
+    const uint64_t value = uint64_t(f) + 1;
+    VkSemaphoreSignalInfo signal{VK_STRUCTURE_TYPE_SEMAPHORE_SIGNAL_INFO, nullptr, timeline, value};
+    CHECK(vkSignalSemaphore(c.device, &signal));
+    VkSemaphoreWaitInfo wait{VK_STRUCTURE_TYPE_SEMAPHORE_WAIT_INFO, nullptr, 0, 1, &timeline, &value};
+    CHECK(vkWaitSemaphores(c.device, &wait, 60ull * 1000 * 1000 * 1000));
   }
   const double loopMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
   const double loopCpuMs = processCpuMilliseconds() - cpuStart;
@@ -339,6 +352,7 @@ int frames(const FrameOptions& o) {
   }
   std::printf("frames=%d loop_ms=%.3f loop_cpu_ms=%.3f\n", o.frames, loopMs, loopCpuMs);
   vkDestroyEvent(c.device, frameEvent, nullptr);
+  vkDestroySemaphore(c.device, timeline, nullptr);
   vkDestroyFence(c.device, fence, nullptr);
   vkDestroyCommandPool(c.device, c.pool, nullptr);
   for (Buffer* b : {&vertices, &indices, &infoSource, &infos, &counts, &dstAddresses, &dstSizes, &implicit, &scratch,

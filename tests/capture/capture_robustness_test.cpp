@@ -303,16 +303,42 @@ TEST_F(CaptureRobustness, HostSynchronizationFollowsTheSubmissionItWaitedFor) {
   for (RecordBody k : t.kinds)
     if (k == RecordBody::QueueSubmit || k == RecordBody::HostEventOp || k == RecordBody::FenceWait ||
         k == RecordBody::FenceStatus || k == RecordBody::FenceReset || k == RecordBody::QueueWaitIdle ||
-        k == RecordBody::DeviceWaitIdle)
+        k == RecordBody::DeviceWaitIdle || k == RecordBody::HostSemaphoreOp)
       host.push_back(k);
   std::vector<RecordBody> want;
   for (int frame = 0; frame < 3; ++frame)
     for (RecordBody k : {RecordBody::QueueSubmit, RecordBody::HostEventOp, RecordBody::FenceWait,
-                         RecordBody::FenceStatus, RecordBody::FenceReset, RecordBody::HostEventOp})
+                         RecordBody::FenceStatus, RecordBody::FenceReset, RecordBody::HostEventOp,
+                         RecordBody::HostSemaphoreOp, RecordBody::HostSemaphoreOp})
       want.push_back(k);
   want.push_back(RecordBody::QueueWaitIdle);
   want.push_back(RecordBody::DeviceWaitIdle);
   EXPECT_EQ(host, want);
+
+  // The records carry the calls' arguments and results.
+  clastrace::traces::TraceError error;
+  auto reader = TraceReader::open(trace.string(), &error);
+  ASSERT_TRUE(reader) << error.message;
+  clastrace::traces::RecordView view;
+  std::vector<std::string> seen;
+  while (reader->next(&view)) {
+    const auto* r = view.record;
+    if (const auto* e = r->body_as_HostEventOp())
+      seen.push_back("event op " + std::to_string(e->op()) + " result " + std::to_string(e->result()));
+    if (const auto* w = r->body_as_FenceWait())
+      seen.push_back("fence wait " + std::to_string(w->fences()->size()) + " all " + std::to_string(w->wait_all()) +
+                     " result " + std::to_string(w->result()) + " timeout " + std::to_string(w->timeout()));
+    if (const auto* h = r->body_as_HostSemaphoreOp())
+      seen.push_back("semaphore op " + std::to_string(h->op()) + " value " + std::to_string(h->values()->Get(0)) +
+                     " result " + std::to_string(h->result()));
+  }
+  ASSERT_EQ(seen.size(), 15u);
+  EXPECT_EQ(seen[0], "event op 0 result 0");
+  EXPECT_EQ(seen[1], "fence wait 1 all 1 result 0 timeout 60000000000");
+  EXPECT_EQ(seen[2], "event op 1 result 0");
+  EXPECT_EQ(seen[3], "semaphore op 0 value 1 result 0");
+  EXPECT_EQ(seen[4], "semaphore op 1 value 1 result 0");
+  EXPECT_EQ(seen[14], "semaphore op 1 value 3 result 0");
 }
 
 TEST_F(CaptureRobustness, ServedBuildFindingsAreRecordedAndListedByInfo) {
