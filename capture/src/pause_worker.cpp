@@ -197,15 +197,40 @@ bool PauseWorker::handle(Expected& expected) {
       }
     }
   }
+  // Served, the command has executed once the engine returns, and its outputs are what a pause
+  // after it would read (the queue runs nothing in between). The engine's image holds them (and
+  // everything the command read), so they are walked there after the queue is released; if
+  // the engine could not run, from memory now.
+  std::shared_ptr<const engine::MemoryImage> servedImage;
   if (device_.serving && pause.phase == PausePhase::BeforeCommand && pause.parameters) {
-    executeServed(pause, record);
-    // Served, the command has executed once the engine returns: its outputs are read now,
-    // exactly as a pause after it would read them (the queue runs nothing in between).
-    if (record && pause.lastOfCommand) {
+    servedImage = executeServed(pause, record);
+    if (record && pause.lastOfCommand && !servedImage) {
       ClusterMemoryWalk walk = walkClusterOutputs(*pause.parameters, record->executedCount, reader);
       record->outputs = std::move(walk.ranges);
       for (auto& issue : walk.issues) record->issues.push_back(std::move(issue));
     }
+  }
+  device_.next.ResetEvent(device_.device, pause.signal);
+  device_.next.SetEvent(device_.device, pause.release);
+  ++handled_;
+  const double stalled = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - started).count();
+  pauseMilliseconds_.push_back(float(stalled));
+  staging_ = nullptr;  // the queue may overwrite the staged copies from here on
+
+  if (record && servedImage && pause.lastOfCommand) {
+    DeviceMemoryReader fromImage = [&](VkDeviceAddress a, uint64_t s, std::vector<uint8_t>* o, std::string& why) {
+      const engine::MemoryRegion* region = servedImage->find_region(a);
+      if (!region || a + s < a || a + s > region->base + region->size) {
+        why = "outside the memory the served build reached";
+        return false;
+      }
+      if (o) o->assign(reinterpret_cast<const uint8_t*>(region->bytes.data()) + (a - region->base),
+                       reinterpret_cast<const uint8_t*>(region->bytes.data()) + (a - region->base) + s);
+      return true;
+    };
+    ClusterMemoryWalk walk = walkClusterOutputs(*pause.parameters, record->executedCount, fromImage);
+    record->outputs = std::move(walk.ranges);
+    for (auto& issue : walk.issues) record->issues.push_back(std::move(issue));
   }
 
   if (record) {  // name each range by a buffer holding it, as the trace's snapshots do
@@ -219,12 +244,6 @@ bool PauseWorker::handle(Expected& expected) {
         }
       }
   }
-  device_.next.ResetEvent(device_.device, pause.signal);
-  device_.next.SetEvent(device_.device, pause.release);
-  ++handled_;
-  const double stalled = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - started).count();
-  pauseMilliseconds_.push_back(float(stalled));
-
   if (record) {
     record->pauseMilliseconds += stalled;
     if (pause.lastOfCommand) {
@@ -235,7 +254,8 @@ bool PauseWorker::handle(Expected& expected) {
   return true;
 }
 
-void PauseWorker::executeServed(const PausePoint& pause, ClusterBuildCapture* record) {
+std::shared_ptr<const engine::MemoryImage> PauseWorker::executeServed(const PausePoint& pause,
+                                                                      ClusterBuildCapture* record) {
   std::vector<ResolvedRange> held = device_.memoryMap.hostAddressedBuffers();
   std::vector<ServedBuffer> buffers;
   std::vector<uint64_t> nonCoherent;
@@ -264,12 +284,13 @@ void PauseWorker::executeServed(const PausePoint& pause, ClusterBuildCapture* re
   }
 
   ServedExecution served =
-      executeServedBuild(pause.parameters->resolved(), buffers, directory_, servedEngineProperties());
+      executeServedBuild(pause.parameters->resolved(), buffers, directory_, servedEngineProperties(),
+                         record ? &record->inputs : nullptr);
   if (!served.ran) {
     logMessage(LogLevel::Error, "served build (pause %llu) could not run in the engine: %s",
                (unsigned long long)pause.pauseId, served.error.c_str());
     if (record) record->engineFindings.push_back({"CLASTRACE-engine-could-not-run", served.error, -1, 0});
-    return;
+    return nullptr;
   }
   for (uint64_t memory : served.writtenMemories)
     if (std::find(nonCoherent.begin(), nonCoherent.end(), memory) != nonCoherent.end()) {
@@ -298,6 +319,7 @@ void PauseWorker::executeServed(const PausePoint& pause, ClusterBuildCapture* re
     for (const engine::Finding& f : served.record.findings)
       record->engineFindings.push_back({f.rule, f.message, f.op_index, f.address});
   }
+  return served.image;
 }
 
 }  // namespace clastrace::capture

@@ -83,7 +83,8 @@ class PauseWorker {
   const uint8_t* stagedBytes(const ResolvedRange& range);
   // Serving: runs the command in the engine against the application's memory and writes its
   // outputs back, while the queue waits at the pause before it.
-  void executeServed(const PausePoint& pause, ClusterBuildCapture* record);
+  // Returns the engine's image of the run (null when it could not run).
+  std::shared_ptr<const engine::MemoryImage> executeServed(const PausePoint& pause, ClusterBuildCapture* record);
 
   DeviceState& device_;
   std::mutex mutex_;
