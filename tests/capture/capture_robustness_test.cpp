@@ -133,7 +133,7 @@ class CaptureRobustness : public ::testing::Test {
   // The shell line that runs `args` of the frames app under the layer with `env` on top of a
   // clean CLASTRACE_* environment; `prefix` runs first in the same shell (ulimit, trap).
   std::string commandLine(const std::string& args, std::map<std::string, std::string> env,
-                          const std::string& prefix = "") {
+                          const std::string& prefix = "", const std::string& layers = "VK_LAYER_CLASTRACE_capture") {
     std::string line = prefix + "exec env -u VK_INSTANCE_LAYERS -u VK_ADD_LAYER_PATH -u VK_ICD_FILENAMES";
     for (const char* v : {"CLASTRACE_OUTPUT", "CLASTRACE_CAPTURE", "CLASTRACE_SERVE", "CLASTRACE_SUBMIT_RANGE",
                           "CLASTRACE_ZSTD_LEVEL", "CLASTRACE_LOG", "CLASTRACE_DEBUG_JSON", "CLASTRACE_FLUSH_MS",
@@ -142,7 +142,7 @@ class CaptureRobustness : public ::testing::Test {
     env["VK_DRIVER_FILES"] = kLavapipe;
     env["XDG_RUNTIME_DIR"] = dir.string();
     env["VK_ADD_LAYER_PATH"] = CLASTRACE_LAYER_MANIFEST_DIR;
-    env["VK_INSTANCE_LAYERS"] = "VK_LAYER_CLASTRACE_capture";
+    env["VK_INSTANCE_LAYERS"] = layers;
     env["VK_LOADER_DEBUG"] = "";
     for (const auto& [k, v] : env) line += " " + k + "=" + quote(v);
     return line + " " + CLASTRACE_FRAMES_APP + " " + args + " >" + quote((dir / "stdout.txt").string()) + " 2>" +
@@ -493,6 +493,31 @@ TEST_F(CaptureRobustness, ForcedStagingCapturesAndServesTheSameBytes) {
             << what << " of build " << b << " range " << i;
       }
     }
+  }
+}
+
+// The injected staging copies and barriers, and a simultaneous-use command buffer run twice
+// in one submission, under the Khronos validation layer with synchronization validation,
+// beneath the capture layer so it sees what the driver sees.
+TEST_F(CaptureRobustness, StagingAndSimultaneousUsePassSynchronizationValidation) {
+  if (!fs::exists("/usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json"))
+    GTEST_SKIP() << "vulkan-validationlayers is not installed";
+  std::ofstream(dir / "vk_layer_settings.txt")
+      << "khronos_validation.enables = VK_VALIDATION_FEATURE_ENABLE_SYNCHRONIZATION_VALIDATION_EXT\n"
+         "khronos_validation.report_flags = error,warn\n"
+         "khronos_validation.debug_action = VK_DBG_LAYER_ACTION_LOG_MSG\n";
+  for (const std::string& args : {std::string("frames 3 --clusters 4"), "simultaneous " + quote((dir / "s.json").string())}) {
+    ProcessResult r = finish(start(commandLine(
+        args,
+        {{"CLASTRACE_OUTPUT", (dir / "v.clt").string()}, {"CLASTRACE_FORCE_STAGING", "1"}, {"CLASTRACE_LOG", "quiet"},
+         {"VK_LAYER_SETTINGS_PATH", (dir / "vk_layer_settings.txt").string()}},
+        "", "VK_LAYER_CLASTRACE_capture:VK_LAYER_KHRONOS_validation")));
+    ASSERT_EQ(r.exitCode, 0) << args << ": " << r.err;
+    const std::string all = r.out + r.err;
+    EXPECT_EQ(all.find("VUID-"), std::string::npos) << args << ": " << all;
+    EXPECT_EQ(all.find("SYNC-"), std::string::npos) << args << ": " << all;
+    EXPECT_EQ(count(all, "Validation Error"), 0u) << args << ": " << all;
+    EXPECT_GE(readTrace(dir / "v.clt").buildInputs.size(), 2u);  // the capture layer ran above it
   }
 }
 
