@@ -149,12 +149,20 @@ class CaptureRobustness : public ::testing::Test {
            quote((dir / "stderr.txt").string());
   }
 
+  // The process runs in a process group of its own (its id is `pid`), so that killing the group
+  // reaches the application under the shell and `timeout`.
   pid_t start(const std::string& line) {
-    const std::string shell = "timeout -s KILL 180 sh -c " + quote(line);
+    // --foreground: timeout stays in this group instead of making one of its own.
+    const std::string shell = "timeout --foreground -s KILL 180 sh -c " + quote(line);
     const char* argv[] = {"sh", "-c", shell.c_str(), nullptr};
+    posix_spawnattr_t attributes;
+    posix_spawnattr_init(&attributes);
+    posix_spawnattr_setflags(&attributes, POSIX_SPAWN_SETPGROUP);
+    posix_spawnattr_setpgroup(&attributes, 0);
     pid_t pid = -1;
-    if (posix_spawn(&pid, "/bin/sh", nullptr, nullptr, const_cast<char**>(argv), environ) != 0) return -1;
-    return pid;
+    const int failed = posix_spawn(&pid, "/bin/sh", nullptr, &attributes, const_cast<char**>(argv), environ);
+    posix_spawnattr_destroy(&attributes);
+    return failed ? -1 : pid;
   }
 
   ProcessResult finish(pid_t pid) {
@@ -247,7 +255,7 @@ TEST_F(CaptureRobustness, KilledApplicationLeavesTheTraceUpToItsLastFlush) {
                                 {{"CLASTRACE_OUTPUT", trace.string()}, {"CLASTRACE_FLUSH_MS", "50"}}));
   ASSERT_GT(pid, 0);
   const bool reached = waitForSubmissions(trace, 6);
-  kill(pid, SIGKILL);  // the shell execs the application: this is its pid
+  kill(-pid, SIGKILL);  // the whole group: the shells, timeout and the application
   ProcessResult r = finish(pid);
   ASSERT_TRUE(reached) << "the trace never showed 6 submissions while the application ran: " << r.err;
   EXPECT_EQ(r.exitCode, -SIGKILL);
