@@ -2,6 +2,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <atomic>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -137,8 +138,12 @@ class JsonCaptureSink final : public CaptureSink {
   explicit JsonCaptureSink(std::string path) : path_(std::move(path)) {
     for (const char* key : {"devices", "memories", "freedMemories", "buffers", "bindings", "addresses",
                             "destroyedBuffers", "buildSizes", "commandBuffers", "resets", "submissions",
-                            "clusterBuilds", "destroyedDevices"})
+                            "clusterBuilds", "destroyedDevices", "hostSync"})
       root_[key] = json::array();
+  }
+  ~JsonCaptureSink() override {  // the application may exit without destroying its device
+    std::lock_guard lock(mutex_);
+    writeOrReportLocked();
   }
 
   void deviceCreated(const DeviceRecord& d) override {
@@ -218,7 +223,16 @@ class JsonCaptureSink final : public CaptureSink {
   }
   void flush() override {
     std::lock_guard lock(mutex_);
-    writeLocked();
+    writeOrReportLocked();
+  }
+  bool active() const override { return !failed_; }
+
+  // One message for the first failed write; from then on the capture stops (active() false).
+  void writeOrReportLocked() {
+    if (writeLocked() || failed_) return;
+    failed_ = true;
+    std::fprintf(stderr, "clastrace: capture stopped: cannot write '%s': %s; the application continues without "
+                 "capture\n", path_.c_str(), std::strerror(errno));
   }
 
   bool writeLocked() {
@@ -240,6 +254,7 @@ class JsonCaptureSink final : public CaptureSink {
   std::mutex mutex_;
   std::string path_;
   json root_;
+  std::atomic<bool> failed_{false};
 };
 
 }  // namespace

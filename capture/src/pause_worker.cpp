@@ -47,6 +47,15 @@ void PauseWorker::expect(VkQueue queue, uint64_t submissionIndex, bool captureTh
   wake_.notify_all();
 }
 
+bool PauseWorker::expectedOnAnotherQueue(uint64_t commandBuffer, VkQueue queue) {
+  std::lock_guard lock(mutex_);
+  for (const auto& [other, pending] : queues_)
+    if (other != queue)
+      for (const Expected& e : pending)
+        if (e.commandBuffer == commandBuffer) return true;
+  return false;
+}
+
 void PauseWorker::run() {
   using Clock = std::chrono::steady_clock;
   auto lastProgress = Clock::now();

@@ -63,6 +63,9 @@ class PauseWorker {
   void expect(VkQueue queue, uint64_t submissionIndex, bool captureThisSubmission, uint64_t commandBuffer,
               const std::vector<PausePoint>& pauses);
 
+  // Whether pauses of `commandBuffer` are still expected on a queue other than `queue`.
+  bool expectedOnAnotherQueue(uint64_t commandBuffer, VkQueue queue);
+
   // Total pauses handled and the host time spent inside them, for the report line at exit.
   uint64_t pausesHandled() const { return handled_; }
 
