@@ -13,6 +13,7 @@
 #include <map>
 #include <memory>
 #include <string>
+#include <vector>
 
 namespace clastrace::tools {
 
@@ -28,7 +29,21 @@ struct TraceSummary {
     uint64_t bytes_referenced = 0;
     uint64_t contents = 0;
     uint64_t bytes_stored = 0;
+    // What the capture layer saw broken (CaptureFinding, format 1.1); the first kMaxListed kept.
+    struct Finding {
+        uint64_t submission, command_buffer;
+        uint32_t command_index, op_index;
+        uint8_t severity;
+        std::string rule, message;
+    };
+    static constexpr size_t kMaxListed = 1000;
+    std::vector<Finding> findings;
+    uint64_t finding_count = 0;
 };
+
+const char* severity_name(uint8_t severity) {
+    return severity == 0 ? "info" : severity == 1 ? "warning" : "error";
+}
 
 TraceSummary summarize(TraceReader& reader) {
     TraceSummary s;
@@ -40,6 +55,12 @@ TraceSummary summarize(TraceReader& reader) {
             ++s.by_kind[k];
         } else {
             ++s.unknown_kinds;
+        }
+        if (const auto* f = view.record->body_as_CaptureFinding()) {
+            if (s.finding_count++ < TraceSummary::kMaxListed)
+                s.findings.push_back({f->submission(), f->command_buffer(), f->command_index(), f->op_index(),
+                                      f->severity(), f->rule() ? f->rule()->str() : "", f->message() ? f->message()->str() : ""});
+            continue;
         }
         if (const auto* c = view.record->body_as_MemoryContents()) {
             ++s.contents;
@@ -128,6 +149,20 @@ nlohmann::json header_json(const fbs::TraceHeader* h) {
     return j;
 }
 
+nlohmann::json findings_json(const TraceSummary& s) {
+    nlohmann::json items = nlohmann::json::array();
+    for (const auto& f : s.findings) {
+        items.push_back({{"submission", f.submission},
+                         {"command_buffer", f.command_buffer},
+                         {"command_index", f.command_index},
+                         {"op_index", f.op_index == 0xFFFFFFFFu ? nlohmann::json(nullptr) : nlohmann::json(f.op_index)},
+                         {"severity", severity_name(f.severity)},
+                         {"rule", f.rule},
+                         {"message", f.message}});
+    }
+    return items;
+}
+
 nlohmann::json info_json(const std::string& path, const TraceReader& reader, const TraceSummary& s) {
     using nlohmann::json;
     const traces::TraceReadStats& st = reader.stats();
@@ -160,6 +195,7 @@ nlohmann::json info_json(const std::string& path, const TraceReader& reader, con
           {"compression_ratio", ratio(st.raw_bytes, st.compressed_bytes)},
           {"bytes_skipped", st.bytes_skipped}}},
         {"damage", {{"count", reader.damage_count()}, {"items", damage}}},
+        {"capture_findings", {{"count", s.finding_count}, {"items", findings_json(s)}}},
     };
 }
 
@@ -206,6 +242,17 @@ void print_text(const std::string& path, const TraceReader& reader, const TraceS
     if (s.unknown_kinds) fmt::print("  {:<44}{:>10}\n", "(newer kinds, skipped)", s.unknown_kinds);
     fmt::print("  {:<44}{:>10}\n", "total", s.records);
     if (st.records_damaged) fmt::print("  {:<44}{:>10}\n", "damaged (skipped)", st.records_damaged);
+
+    if (s.finding_count) {
+        fmt::print("\n{:<12}{} recorded while capturing\n", "findings", s.finding_count);
+        for (const auto& f : s.findings) {
+            std::string op = f.op_index == 0xFFFFFFFFu ? "" : fmt::format(" op {}", f.op_index);
+            fmt::print("  submission {} command buffer {:#x} command {}{}: [{}] {}: {}\n", f.submission, f.command_buffer,
+                       f.command_index, op, severity_name(f.severity), f.rule, f.message);
+        }
+        if (s.finding_count > s.findings.size())
+            fmt::print("  ... {} more not listed\n", s.finding_count - s.findings.size());
+    }
 
     fmt::print("\n{:<12}{} bytes referenced by {} snapshots, {} bytes stored in {} contents, dedup ratio {:.2f}x\n",
                "memory", s.bytes_referenced, s.snapshots, s.bytes_stored, s.contents, ratio(s.bytes_referenced, s.bytes_stored));

@@ -14,6 +14,7 @@ struct CommandBufferLog {
   RecordedCommandBuffer recorded;
   std::vector<PausePoint> pauses;  // in execution order, secondaries' included
   std::vector<VkEvent> events;     // created by the layer for this recording
+  std::vector<std::shared_ptr<StagingSet>> staging;  // the pauses' staging buffers, likewise
   // Compute binding state, for the storage buffers each dispatch sees.
   uint64_t computePipeline = 0;
   std::map<uint32_t, std::pair<VkDescriptorSet, std::vector<uint32_t>>> computeSets;  // set -> (set, dynamic offsets)

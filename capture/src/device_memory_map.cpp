@@ -172,4 +172,17 @@ std::vector<ResolvedRange> DeviceMemoryMap::hostAddressedBuffers() const {
   return out;
 }
 
+std::vector<TrackedBuffer> DeviceMemoryMap::unmappedAddressedBuffers(VkBufferUsageFlags usageMask) const {
+  std::lock_guard lock(mutex_);
+  std::vector<TrackedBuffer> out;
+  for (const auto& [address, handle] : buffersByAddress_) {
+    const TrackedBuffer& b = buffers_.at(handle);
+    auto mem = memories_.find(b.memory);
+    if (b.memory == 0 || mem == memories_.end() || mem->second.hostBase || !(b.usage & usageMask)) continue;
+    if (b.memoryOffset > mem->second.size || b.size > mem->second.size - b.memoryOffset) continue;
+    out.push_back(b);
+  }
+  return out;
+}
+
 }  // namespace clastrace::capture

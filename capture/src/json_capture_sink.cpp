@@ -2,6 +2,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <atomic>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -137,8 +138,12 @@ class JsonCaptureSink final : public CaptureSink {
   explicit JsonCaptureSink(std::string path) : path_(std::move(path)) {
     for (const char* key : {"devices", "memories", "freedMemories", "buffers", "bindings", "addresses",
                             "destroyedBuffers", "buildSizes", "commandBuffers", "resets", "submissions",
-                            "clusterBuilds", "destroyedDevices", "accelerationStructures", "rayChecks"})
+                            "clusterBuilds", "destroyedDevices", "accelerationStructures", "rayChecks", "hostSync"})
       root_[key] = json::array();
+  }
+  ~JsonCaptureSink() override {  // the application may exit without destroying its device
+    std::lock_guard lock(mutex_);
+    writeOrReportLocked();
   }
 
   void deviceCreated(const DeviceRecord& d) override {
@@ -198,7 +203,7 @@ class JsonCaptureSink final : public CaptureSink {
     add("submissions", {{"index", s.index}, {"queue", s.queue}, {"synchronization2", s.synchronization2},
                         {"batches", batches}, {"fence", s.fence}});
   }
-  void clusterBuildCaptured(const ClusterBuildCapture& c) override {
+  void clusterBuildCaptured(ClusterBuildCapture c) override {
     json issues = json::array();
     for (const auto& i : c.issues) issues.push_back({{"address", i.address}, {"size", i.size}, {"rule", i.rule}});
     json findings = json::array();
@@ -246,9 +251,25 @@ class JsonCaptureSink final : public CaptureSink {
                       {"submissionIndex", c.submissionIndex}, {"rays", c.rays.size()}, {"hits", hits},
                       {"firstHits", firstHits}, {"label", c.label}});
   }
+  void hostSynchronized(const HostSyncRecord& h) override {
+    static const char* const kinds[] = {"EventSet",      "EventReset",     "EventStatus",     "FenceWait",
+                                        "FenceReset",    "FenceStatus",    "QueueWaitIdle",   "DeviceWaitIdle",
+                                        "SemaphoreSignal", "SemaphoreWait"};
+    add("hostSync", {{"kind", kinds[int(h.kind)]}, {"handles", h.handles}, {"values", h.values},
+                     {"waitAll", h.waitAll}, {"timeout", h.timeout}, {"result", h.result}});
+  }
   void flush() override {
     std::lock_guard lock(mutex_);
-    writeLocked();
+    writeOrReportLocked();
+  }
+  bool active() const override { return !failed_; }
+
+  // One message for the first failed write; from then on the capture stops (active() false).
+  void writeOrReportLocked() {
+    if (writeLocked() || failed_) return;
+    failed_ = true;
+    std::fprintf(stderr, "clastrace: capture stopped: cannot write '%s': %s; the application continues without "
+                 "capture\n", path_.c_str(), std::strerror(errno));
   }
 
   bool writeLocked() {
@@ -270,6 +291,7 @@ class JsonCaptureSink final : public CaptureSink {
   std::mutex mutex_;
   std::string path_;
   json root_;
+  std::atomic<bool> failed_{false};
 };
 
 }  // namespace

@@ -446,6 +446,12 @@ void recordPause(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log, Paus
   }
   log.events.push_back(pause.signal);
   log.events.push_back(pause.release);
+  std::shared_ptr<StagingSet> staging = createStaging(d);
+  if (staging) {
+    log.staging.push_back(staging);
+    pause.staging = staging;
+    recordCopiesToStaging(d, cb, *staging);
+  }
 
   const VkMemoryBarrier toHost{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr, VK_ACCESS_MEMORY_WRITE_BIT,
                                VK_ACCESS_HOST_READ_BIT | VK_ACCESS_MEMORY_READ_BIT};
@@ -458,6 +464,9 @@ void recordPause(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log, Paus
   d.next.CmdWaitEvents(cb, 1, &pause.release, VK_PIPELINE_STAGE_HOST_BIT, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, 1,
                        &fromHost, 0, nullptr, 0, nullptr);
   d.next.CmdResetEvent(cb, pause.release, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT);
+  // A served build wrote its outputs into the staged copies.
+  if (staging && d.serving && pause.parameters && pause.phase == PausePhase::BeforeCommand)
+    recordCopiesFromStaging(d, cb, *staging);
   log.pauses.push_back(std::move(pause));
 }
 
@@ -469,8 +478,10 @@ VKAPI_ATTR void VKAPI_CALL CmdBuildClusterAccelerationStructureIndirectNV(
   auto log = logOf(d, cb);
   // Capture needs a pause before (inputs) and after (outputs); serving needs the one before,
   // where the build runs while the queue waits.
-  const bool pauseAfter = d.capturing;
-  if (d.capturing || d.serving) {
+  // When serving, the command is the engine's run at the pause before it, and the queue does
+  // nothing until the next command: the outputs are read in that same pause.
+  const bool pauseAfter = d.capturingNow() && !d.serving;
+  if (d.capturingNow() || d.serving) {
     PausePoint before;
     before.pauseId = pauseId;
     before.phase = PausePhase::BeforeCommand;
@@ -535,7 +546,7 @@ VKAPI_ATTR void VKAPI_CALL CmdBuildAccelerationStructureNV(VkCommandBuffer cb, c
   c->scratch = handleId(scratch);
   c->scratchOffset = scratchOffset;
   auto log = logOf(d, cb);
-  if (d.capturing) {  // inputs only: the NV structure's own memory is opaque to the layer
+  if (d.capturingNow()) {  // inputs only: the NV structure's own memory is opaque to the layer
     c->pauseId = ++d.pauseCounter;
     PausePoint before;
     before.pauseId = c->pauseId;
@@ -555,7 +566,7 @@ VKAPI_ATTR void VKAPI_CALL CmdCopyMemoryToAccelerationStructureKHR(VkCommandBuff
   c->dst = handleId(pInfo->dst);
   c->mode = pInfo->mode;
   auto log = logOf(d, cb);
-  if (d.capturing) {
+  if (d.capturingNow()) {
     c->pauseId = ++d.pauseCounter;
     PausePoint before;
     before.pauseId = c->pauseId;
@@ -571,6 +582,8 @@ VKAPI_ATTR void VKAPI_CALL CmdCopyMemoryToAccelerationStructureKHR(VkCommandBuff
 void clearCommandBufferLog(DeviceState& d, CommandBufferLog& log) {
   for (VkEvent event : log.events) d.next.DestroyEvent(d.device, event, nullptr);
   log.events.clear();
+  for (auto& staging : log.staging) destroyStaging(d, *staging);
+  log.staging.clear();
   log.pauses.clear();
   log.recorded.commands.clear();
   log.computePipeline = 0;

@@ -330,7 +330,7 @@ std::shared_ptr<CaptureSink> processCaptureSink() {
   if (!config.debugJsonPath.empty()) {
     sink = makeJsonCaptureSink(config.debugJsonPath, error);
   } else if (!config.outputPath.empty()) {
-    sink = makeTraceCaptureSink(config.outputPath, config.zstdLevel, error);
+    sink = makeTraceCaptureSink(config.outputPath, config.zstdLevel, error, config.flushMilliseconds);
   } else {
     // Serving alone is a normal use (CI drivers): no output named means no capture, quietly.
     sinkFailed = true;
@@ -360,6 +360,7 @@ PFN_vkVoidFunction interceptDeviceFunction(const char* name, DeviceState* device
   if (!hook) hook = accelerationStructureHook(name);
   if (!hook) hook = commandHook(name);
   if (!hook) hook = submitHook(name);
+  if (!hook) hook = hostSyncHook(name);
   if (!hook || !device) return hook;
   // Forward only what the driver chain has: the hook would call a null pointer otherwise.
   return device->next.GetDeviceProcAddr(device->device, name) ? hook : nullptr;

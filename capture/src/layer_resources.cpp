@@ -22,7 +22,9 @@ VKAPI_ATTR VkResult VKAPI_CALL AllocateMemory(VkDevice device, const VkMemoryAll
   memory.typeIndex = pAllocateInfo->memoryTypeIndex;
   if (memory.typeIndex < d.memoryProperties.memoryTypeCount)
     memory.propertyFlags = d.memoryProperties.memoryTypes[memory.typeIndex].propertyFlags;
-  if (memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT) {
+  // CLASTRACE_FORCE_STAGING: the layer keeps no mapping, as for memory the host cannot map, so
+  // the staging path runs on drivers (lavapipe) whose memory is all host visible.
+  if ((memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT) && !layerConfig().forceStaging) {
     void* base = nullptr;
     if (d.next.MapMemory(device, *pMemory, 0, VK_WHOLE_SIZE, 0, &base) == VK_SUCCESS)
       memory.hostBase = static_cast<uint8_t*>(base);

@@ -60,6 +60,7 @@ uint64_t handleId(Handle handle) {
   X(CreateBuffer)                              \
   X(DestroyBuffer)                             \
   X(BindBufferMemory)                          \
+  X(GetBufferMemoryRequirements)               \
   X(BindBufferMemory2)                         \
   X(BindBufferMemory2KHR)                      \
   X(GetBufferDeviceAddress)                    \
@@ -116,7 +117,16 @@ uint64_t handleId(Handle handle) {
   X(GetAccelerationStructureMemoryRequirementsNV) \
   X(CreateAccelerationStructureKHR)            \
   X(DestroyAccelerationStructureKHR)           \
-  X(GetAccelerationStructureDeviceAddressKHR)
+  X(GetAccelerationStructureDeviceAddressKHR)  \
+  X(WaitForFences)                             \
+  X(ResetFences)                               \
+  X(GetFenceStatus)                            \
+  X(QueueWaitIdle)                             \
+  X(DeviceWaitIdle)                            \
+  X(SignalSemaphore)                           \
+  X(SignalSemaphoreKHR)                        \
+  X(WaitSemaphores)                            \
+  X(WaitSemaphoresKHR)
 
 #define CLASTRACE_DECLARE_PFN(name) PFN_vk##name name = nullptr;
 
@@ -142,6 +152,8 @@ struct DeviceState {
   bool serving = false;           // the layer provides the cluster extension for this device
   bool clusterEnabled = false;    // the application enabled the extension (served or native)
   bool capturing = false;
+  // Capture on and still writing (a sink that failed stops the capture work at once).
+  bool capturingNow() const { return sink && sink->active(); }
   VkPhysicalDeviceClusterAccelerationStructurePropertiesNV clusterProperties{};
   VkPhysicalDeviceMemoryProperties memoryProperties{};
   VkDeviceSize nonCoherentAtomSize = 1;
@@ -201,6 +213,7 @@ PFN_vkVoidFunction accelerationStructureHook(const char* name);
 // for the queue and traces the configured rays against each of `topLevels`, recording a
 // RayCheckRecord per top level. Called from the application's vkQueueSubmit.
 void runRayChecks(DeviceState& device, VkQueue queue, uint64_t submissionIndex, const std::vector<uint64_t>& topLevels);
+PFN_vkVoidFunction hostSyncHook(const char* name);
 
 // Serving decisions, shared by the instance hooks and device creation.
 bool driverHasClusterExtension(InstanceState& instance, VkPhysicalDevice physicalDevice);

@@ -4,6 +4,7 @@
 #include "layer_state.h"
 
 #include <algorithm>
+#include <atomic>
 #include <map>
 
 namespace clastrace::capture {
@@ -12,13 +13,15 @@ namespace {
 struct PendingPauses {
   uint64_t commandBuffer;
   std::vector<PausePoint> pauses;
+  bool simultaneousUse = false;
 };
 
 PendingPauses pausesOf(DeviceState& d, VkCommandBuffer cb) {
   std::lock_guard lock(d.commandBuffersMutex);
   auto it = d.commandBuffers.find(cb);
-  if (it == d.commandBuffers.end()) return {handleId(cb), {}};
-  return {handleId(cb), it->second->pauses};
+  if (it == d.commandBuffers.end()) return {handleId(cb), {}, false};
+  return {handleId(cb), it->second->pauses,
+          (it->second->recorded.usage & VK_COMMAND_BUFFER_USAGE_SIMULTANEOUS_USE_BIT) != 0};
 }
 
 // Everything the worker must expect from one submission, gathered before the driver call so
@@ -30,9 +33,23 @@ struct SubmissionPlan {
 };
 
 void announce(DeviceState& d, VkQueue queue, SubmissionPlan& plan) {
-  if (d.pauses)
-    for (const PendingPauses& p : plan.pauses)
-      d.pauses->expect(queue, plan.record.index, plan.capture, p.commandBuffer, p.pauses);
+  if (!d.pauses) return;
+  // A simultaneous-use command buffer listed twice runs its pauses twice: number them so each
+  // execution is captured on its own.
+  std::map<std::pair<uint64_t, PausePhase>, uint32_t> executions;
+  for (PendingPauses& p : plan.pauses) {
+    // Two queues running one command buffer at once would share its pause events, which one
+    // queue's order keeps apart: say so (once per process) rather than capture it wrongly unnoticed.
+    static std::atomic<bool> warned{false};
+    if (p.simultaneousUse && !p.pauses.empty() && d.pauses->expectedOnAnotherQueue(p.commandBuffer, queue) &&
+        !warned.exchange(true))
+      logMessage(LogLevel::Error, "command buffer 0x%llx (SIMULTANEOUS_USE) was submitted to a second queue while its "
+                 "pauses on another queue were still pending: the executions share the layer's pause events, so "
+                 "their captures may be wrong or the queues may stall (not supported yet)",
+                 (unsigned long long)p.commandBuffer);
+    for (PausePoint& pause : p.pauses) pause.occurrence = executions[{pause.pauseId, pause.phase}]++;
+    d.pauses->expect(queue, plan.record.index, plan.capture, p.commandBuffer, p.pauses);
+  }
 }
 
 SubmissionPlan planFor(DeviceState& d, VkQueue queue, VkFence fence, bool synchronization2) {

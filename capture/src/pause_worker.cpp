@@ -13,6 +13,12 @@
 
 namespace clastrace::capture {
 
+namespace {
+const char* const kNotStaged =
+    "the memory is not host visible and the buffer has no acceleration-structure usage (build input or storage), "
+    "so the layer did not stage it";
+}  // namespace
+
 PauseWorker::PauseWorker(DeviceState& device) : device_(device), thread_([this] { run(); }) {}
 
 PauseWorker::~PauseWorker() {
@@ -22,6 +28,12 @@ PauseWorker::~PauseWorker() {
   }
   wake_.notify_all();
   thread_.join();
+  if (pauseMilliseconds_.empty()) return;
+  std::vector<float> sorted = pauseMilliseconds_;
+  std::sort(sorted.begin(), sorted.end());
+  auto at = [&](double q) { return sorted[std::min(sorted.size() - 1, size_t(q * double(sorted.size())))]; };
+  logMessage(LogLevel::Info, "pauses: %zu handled; host time per pause: median %.3f ms, p90 %.3f ms, max %.3f ms",
+             sorted.size(), at(0.5), at(0.9), sorted.back());
 }
 
 void PauseWorker::expect(VkQueue queue, uint64_t submissionIndex, bool captureThisSubmission, uint64_t commandBuffer,
@@ -33,6 +45,15 @@ void PauseWorker::expect(VkQueue queue, uint64_t submissionIndex, bool captureTh
     for (const PausePoint& p : pauses) pending.push_back({p, submissionIndex, commandBuffer, captureThisSubmission});
   }
   wake_.notify_all();
+}
+
+bool PauseWorker::expectedOnAnotherQueue(uint64_t commandBuffer, VkQueue queue) {
+  std::lock_guard lock(mutex_);
+  for (const auto& [other, pending] : queues_)
+    if (other != queue)
+      for (const Expected& e : pending)
+        if (e.commandBuffer == commandBuffer) return true;
+  return false;
 }
 
 void PauseWorker::run() {
@@ -76,18 +97,34 @@ void PauseWorker::run() {
   }
 }
 
+const uint8_t* PauseWorker::stagedBytes(const ResolvedRange& range) {
+  if (range.host) return range.host;
+  const StagedBuffer* staged = staging_ ? staging_->find(range.buffer.handle) : nullptr;
+  if (!staged) return nullptr;
+  if (!staging_->coherent) {  // the queue's copy reaches the host view only after an invalidate
+    VkMappedMemoryRange whole{VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE, nullptr, staging_->memory, 0, VK_WHOLE_SIZE};
+    device_.next.InvalidateMappedMemoryRanges(device_.device, 1, &whole);
+  }
+  return staging_->host + staged->offset + range.offsetInBuffer;
+}
+
 bool PauseWorker::checkMemory(VkDeviceAddress address, uint64_t size, std::string& why) {
   auto range = device_.memoryMap.resolve(address, size, why);
   if (!range) return false;
-  if (!range->host) {
-    why = "the memory is not host visible (staging copies are not implemented yet)";
+  if (!range->host && !(staging_ && staging_->find(range->buffer.handle))) {
+    why = kNotStaged;
     return false;
   }
   return true;
 }
 
 bool PauseWorker::readResolved(const ResolvedRange& range, uint64_t size, std::vector<uint8_t>& out) {
-  if (!range.host) return false;
+  if (!range.host) {
+    const uint8_t* staged = stagedBytes(range);
+    if (!staged) return false;
+    out.assign(staged, staged + size);
+    return true;
+  }
   if (!(range.memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_COHERENT_BIT)) {
     // Device writes to non-coherent memory reach the host view only after an invalidate of
     // whole atoms.
@@ -108,7 +145,7 @@ bool PauseWorker::readMemory(VkDeviceAddress address, uint64_t size, std::vector
   auto range = device_.memoryMap.resolve(address, size, why);
   if (!range) return false;
   if (!readResolved(*range, size, out)) {
-    why = "the memory is not host visible (staging copies are not implemented yet)";
+    why = kNotStaged;
     return false;
   }
   return true;
@@ -118,17 +155,20 @@ bool PauseWorker::handle(Expected& expected) {
   const PausePoint& pause = expected.pause;
   if (device_.next.GetEventStatus(device_.device, pause.signal) != VK_EVENT_SET) return false;
   const auto started = std::chrono::steady_clock::now();
-  const bool capture = expected.capture && device_.sink;
+  staging_ = pause.staging.get();
+  const bool capture = expected.capture && device_.capturingNow();
   DeviceMemoryReader reader = [this](VkDeviceAddress a, uint64_t s, std::vector<uint8_t>* o, std::string& w) {
     if (!o) return checkMemory(a, s, w);
     return readMemory(a, s, *o, w);
   };
 
   ClusterBuildCapture* record = nullptr;
+  const auto openKey = std::make_tuple(expected.submissionIndex, pause.pauseId, pause.occurrence);
   if (capture) {
     if (pause.phase == PausePhase::BeforeCommand) {
       ClusterBuildCapture fresh;
       fresh.pauseId = pause.pauseId;
+      fresh.occurrence = pause.occurrence;
       fresh.submissionIndex = expected.submissionIndex;
       fresh.commandBuffer = expected.commandBuffer;
       ClusterMemoryWalk walk;
@@ -138,8 +178,8 @@ bool PauseWorker::handle(Expected& expected) {
                                                  std::vector<uint8_t>* out, std::string& why) {
           auto range = device_.memoryMap.resolveBuffer(buffer, offset, size, why);
           if (!range) return false;
-          if (!range->host) {
-            why = "the memory is not host visible (staging copies are not implemented yet)";
+          if (!range->host && !(staging_ && staging_->find(range->buffer.handle))) {
+            why = kNotStaged;
             return false;
           }
           return out ? readResolved(*range, size, *out) : true;
@@ -163,12 +203,12 @@ bool PauseWorker::handle(Expected& expected) {
                  pause.parameters->moveObjectsInput.type == VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_TRIANGLE_CLUSTER_TEMPLATE_NV)
           pendingTemplateVertexCounts_[pause.pauseId] = movedTemplateVertexCounts(*pause.parameters, walk.executedCount);
       }
-      record = &open_.insert_or_assign(pause.pauseId, std::move(fresh)).first->second;
+      record = &open_.insert_or_assign(openKey, std::move(fresh)).first->second;
       record->executedCount = walk.executedCount;
       record->inputs = std::move(walk.ranges);
       record->issues = std::move(walk.issues);
     } else {
-      auto it = open_.find(pause.pauseId);
+      auto it = open_.find(openKey);
       if (it != open_.end() && pause.parameters) {
         record = &it->second;
         ClusterMemoryWalk walk = walkClusterOutputs(*pause.parameters, record->executedCount, reader);
@@ -182,7 +222,41 @@ bool PauseWorker::handle(Expected& expected) {
       }
     }
   }
-  if (device_.serving && pause.phase == PausePhase::BeforeCommand && pause.parameters) executeServed(pause, record);
+  // Served, the command has executed once the engine returns, and its outputs are what a pause
+  // after it would read (the queue runs nothing in between). The engine's image holds them (and
+  // everything the command read), so they are walked there after the queue is released; if
+  // the engine could not run, from memory now.
+  std::shared_ptr<const engine::MemoryImage> servedImage;
+  if (device_.serving && pause.phase == PausePhase::BeforeCommand && pause.parameters) {
+    servedImage = executeServed(pause, record);
+    if (record && pause.lastOfCommand && !servedImage) {
+      ClusterMemoryWalk walk = walkClusterOutputs(*pause.parameters, record->executedCount, reader);
+      record->outputs = std::move(walk.ranges);
+      for (auto& issue : walk.issues) record->issues.push_back(std::move(issue));
+    }
+  }
+  device_.next.ResetEvent(device_.device, pause.signal);
+  device_.next.SetEvent(device_.device, pause.release);
+  ++handled_;
+  const double stalled = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - started).count();
+  pauseMilliseconds_.push_back(float(stalled));
+  staging_ = nullptr;  // the queue may overwrite the staged copies from here on
+
+  if (record && servedImage && pause.lastOfCommand) {
+    DeviceMemoryReader fromImage = [&](VkDeviceAddress a, uint64_t s, std::vector<uint8_t>* o, std::string& why) {
+      const engine::MemoryRegion* region = servedImage->find_region(a);
+      if (!region || a + s < a || a + s > region->base + region->size) {
+        why = "outside the memory the served build reached";
+        return false;
+      }
+      if (o) o->assign(reinterpret_cast<const uint8_t*>(region->bytes.data()) + (a - region->base),
+                       reinterpret_cast<const uint8_t*>(region->bytes.data()) + (a - region->base) + s);
+      return true;
+    };
+    ClusterMemoryWalk walk = walkClusterOutputs(*pause.parameters, record->executedCount, fromImage);
+    record->outputs = std::move(walk.ranges);
+    for (auto& issue : walk.issues) record->issues.push_back(std::move(issue));
+  }
 
   if (record) {  // name each range by a buffer holding it, as the trace's snapshots do
     for (auto* list : {&record->inputs, &record->outputs})
@@ -195,16 +269,11 @@ bool PauseWorker::handle(Expected& expected) {
         }
       }
   }
-  device_.next.ResetEvent(device_.device, pause.signal);
-  device_.next.SetEvent(device_.device, pause.release);
-  ++handled_;
-
   if (record) {
-    record->pauseMilliseconds +=
-        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - started).count();
+    record->pauseMilliseconds += stalled;
     if (pause.lastOfCommand) {
-      device_.sink->clusterBuildCaptured(*record);
-      open_.erase(pause.pauseId);
+      device_.sink->clusterBuildCaptured(std::move(*record));
+      open_.erase(openKey);
     }
   }
   return true;
@@ -245,7 +314,8 @@ std::vector<uint32_t> PauseWorker::movedTemplateVertexCounts(const ClusterComman
   return counts;
 }
 
-void PauseWorker::executeServed(const PausePoint& pause, ClusterBuildCapture* record) {
+std::shared_ptr<const engine::MemoryImage> PauseWorker::executeServed(const PausePoint& pause,
+                                                                      ClusterBuildCapture* record) {
   std::vector<ResolvedRange> held = device_.memoryMap.hostAddressedBuffers();
   std::vector<ServedBuffer> buffers;
   std::vector<uint64_t> nonCoherent;
@@ -255,6 +325,14 @@ void PauseWorker::executeServed(const PausePoint& pause, ClusterBuildCapture* re
     if (!(r.memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_COHERENT_BIT) &&
         std::find(nonCoherent.begin(), nonCoherent.end(), r.memory.handle) == nonCoherent.end())
       nonCoherent.push_back(r.memory.handle);
+  }
+  // Unmapped buffers take part through their staged copies; the queue copies them back.
+  if (staging_) {
+    const uint64_t stagingMemory = handleId(staging_->memory);
+    for (const StagedBuffer& b : staging_->buffers)
+      buffers.push_back({b.buffer.handle, b.buffer.address, b.buffer.size, b.buffer.usage, staging_->host + b.offset,
+                         stagingMemory});
+    if (!staging_->coherent) nonCoherent.push_back(stagingMemory);
   }
   // What the device wrote to non-coherent memory reaches the host view only after an invalidate.
   auto wholeRange = [](uint64_t memory) {
@@ -266,12 +344,13 @@ void PauseWorker::executeServed(const PausePoint& pause, ClusterBuildCapture* re
   }
 
   ServedExecution served =
-      executeServedBuild(pause.parameters->resolved(), buffers, directory_, servedEngineProperties());
+      executeServedBuild(pause.parameters->resolved(), buffers, directory_, servedEngineProperties(),
+                         record ? &record->inputs : nullptr);
   if (!served.ran) {
     logMessage(LogLevel::Error, "served build (pause %llu) could not run in the engine: %s",
                (unsigned long long)pause.pauseId, served.error.c_str());
     if (record) record->engineFindings.push_back({"CLASTRACE-engine-could-not-run", served.error, -1, 0});
-    return;
+    return nullptr;
   }
   for (uint64_t memory : served.writtenMemories)
     if (std::find(nonCoherent.begin(), nonCoherent.end(), memory) != nonCoherent.end()) {
@@ -300,6 +379,7 @@ void PauseWorker::executeServed(const PausePoint& pause, ClusterBuildCapture* re
     for (const engine::Finding& f : served.record.findings)
       record->engineFindings.push_back({f.rule, f.message, f.op_index, f.address});
   }
+  return served.image;
 }
 
 }  // namespace clastrace::capture

@@ -18,6 +18,7 @@
 
 #include "clastrace/capture/capture_records.h"
 #include "clastrace/capture/device_memory_map.h"
+#include "pause_staging.h"
 
 #include <clastrace/engine/object_directory.h>
 
@@ -28,6 +29,8 @@
 #include <mutex>
 #include <string>
 #include <thread>
+#include <tuple>
+#include <vector>
 #include <vulkan/vulkan_core.h>
 
 namespace clastrace::capture {
@@ -40,11 +43,15 @@ struct PausePoint {
   uint64_t pauseId = 0;
   PausePhase phase = PausePhase::BeforeCommand;
   bool lastOfCommand = true;  // the capture of this command is complete after this pause
+  // Which execution of this pause within one submission (a simultaneous-use command buffer
+  // may run twice in one vkQueueSubmit; its pauses then come twice, in order).
+  uint32_t occurrence = 0;
   VkEvent signal = VK_NULL_HANDLE;
   VkEvent release = VK_NULL_HANDLE;
   std::shared_ptr<const ClusterCommandParameters> parameters;  // a cluster build, or one of:
   std::shared_ptr<const BuildAccelerationStructureNVCommand> buildNV;
   std::shared_ptr<const CopyMemoryToAccelerationStructureCommand> copyToAccelerationStructure;
+  std::shared_ptr<const StagingSet> staging;  // copies of unmapped memory, or null (pause_staging.h)
 };
 
 class PauseWorker {
@@ -55,6 +62,9 @@ class PauseWorker {
   // Called inside the application's vkQueueSubmit, in submission order per queue.
   void expect(VkQueue queue, uint64_t submissionIndex, bool captureThisSubmission, uint64_t commandBuffer,
               const std::vector<PausePoint>& pauses);
+
+  // Whether pauses of `commandBuffer` are still expected on a queue other than `queue`.
+  bool expectedOnAnotherQueue(uint64_t commandBuffer, VkQueue queue);
 
   // Total pauses handled and the host time spent inside them, for the report line at exit.
   uint64_t pausesHandled() const { return handled_; }
@@ -71,15 +81,22 @@ class PauseWorker {
   bool checkMemory(VkDeviceAddress address, uint64_t size, std::string& why);
   bool readMemory(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>& out, std::string& why);
   bool readResolved(const ResolvedRange& range, uint64_t size, std::vector<uint8_t>& out);
+  // The host bytes of `range`: the layer's mapping, or the current pause's staged copy; null
+  // when neither holds it.
+  const uint8_t* stagedBytes(const ResolvedRange& range);
   // Serving: runs the command in the engine against the application's memory and writes its
   // outputs back, while the queue waits at the pause before it.
-  void executeServed(const PausePoint& pause, ClusterBuildCapture* record);
+  // Returns the engine's image of the run (null when it could not run).
+  std::shared_ptr<const engine::MemoryImage> executeServed(const PausePoint& pause, ClusterBuildCapture* record);
 
   DeviceState& device_;
   std::mutex mutex_;
   std::condition_variable wake_;
   std::map<VkQueue, std::deque<Expected>> queues_;
-  std::map<uint64_t, ClusterBuildCapture> open_;  // pauseId -> capture between its two pauses
+  // (submission, pauseId, occurrence) -> capture between its two pauses
+  std::map<std::tuple<uint64_t, uint64_t, uint32_t>, ClusterBuildCapture> open_;
+  std::vector<float> pauseMilliseconds_;
+  const StagingSet* staging_ = nullptr;  // of the pause being handled  // host time of each pause, for the report at exit
   bool stop_ = false;
   std::atomic<uint64_t> handled_{0};
   std::map<std::string, uint64_t> findingsPerRule_;  // how often each engine rule was logged

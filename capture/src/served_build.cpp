@@ -59,7 +59,8 @@ size_t groupOf(const std::vector<AliasGroup>& groups, uint64_t address) {
 
 ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command,
                                    std::span<const ServedBuffer> buffers, engine::ObjectDirectory& directory,
-                                   const engine::EngineProperties& properties) {
+                                   const engine::EngineProperties& properties,
+                                   const std::vector<CapturedRange>* inputWalk) {
   ServedExecution result;
   const std::vector<AliasGroup> groups = aliasGroups(buffers);
 
@@ -96,8 +97,9 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
       why = "not inside one buffer";
       return false;
     };
-    const ClusterMemoryWalk walk = walkClusterInputs(ClusterCommandParameters::copyOf(command), read);
-    for (const CapturedRange& range : walk.ranges) {
+    ClusterMemoryWalk walk;
+    if (!inputWalk) walk = walkClusterInputs(ClusterCommandParameters::copyOf(command), read);
+    for (const CapturedRange& range : inputWalk ? *inputWalk : walk.ranges) {
       select(range.address);
       if (range.role != MemoryRole::ClusterReferences) continue;
       for (size_t at = 0; at + 8 <= range.bytes.size(); at += 8) {
@@ -167,6 +169,7 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
       }
     }
   }
+  result.image = std::make_shared<const engine::MemoryImage>(std::move(image));
   return result;
 }
 

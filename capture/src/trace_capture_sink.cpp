@@ -7,7 +7,12 @@
 
 #include <clastrace/traces/trace_writer.h>
 
+#include <algorithm>
+#include <atomic>
 #include <cerrno>
+#include <condition_variable>
+#include <thread>
+#include <tuple>
 #include <chrono>
 #include <cstdio>
 #include <cstring>
@@ -89,12 +94,22 @@ std::unique_ptr<fbs::DependencyT> dependency(VkDependencyFlags flags, const std:
 
 class TraceCaptureSink final : public CaptureSink {
  public:
-  TraceCaptureSink(std::string path, int zstdLevel) : path_(std::move(path)), zstdLevel_(zstdLevel) {}
+  TraceCaptureSink(std::string path, int zstdLevel, uint32_t flushMilliseconds)
+      : path_(std::move(path)), zstdLevel_(zstdLevel), flushMilliseconds_(flushMilliseconds) {
+    emitter_ = std::thread([this] { emitInBackground(); });
+  }
   ~TraceCaptureSink() override {
+    {
+      std::lock_guard lock(wakeMutex_);
+      stopEmitting_ = true;
+    }
+    wake_.notify_all();
+    emitter_.join();
     std::lock_guard lock(mutex_);
     emitReadyLocked(true);
-    if (writer_) check(writer_->finish());
+    if (writer_ && !failed_) check(writer_->finish());
   }
+  bool active() const override { return !failed_; }
 
   void deviceCreated(const DeviceRecord& d) override {
     std::lock_guard lock(mutex_);
@@ -207,20 +222,20 @@ class TraceCaptureSink final : public CaptureSink {
       // Bound before capture saw it, or asked twice after an emitted bind: restate the binding.
       auto known = boundAt_.find(a.buffer);
       if (known == boundAt_.end()) return;
-      emitBindLocked(known->second, a.address);
+      emitBindLocked(known->second, a.address, true);
       return;
     }
-    emitBindLocked(it->second, a.address);
+    emitBindLocked(it->second, a.address, true);
     pendingBinds_.erase(it);
   }
   void bufferDestroyed(uint64_t buffer) override {
     std::lock_guard lock(mutex_);
-    flushBindsLocked();
+    flushBindsLocked(true);
     addressed_.erase(buffer);
     boundAt_.erase(buffer);
     fbs::BufferDestroyT r;
     r.buffer = buffer;
-    appendLocked(recordOf(std::move(r)));
+    appendOrderedLocked(recordOf(std::move(r)));
   }
   void buildSizesQueried(const BuildSizesQuery& q) override {
     fbs::GetClusterBuildSizesT r;
@@ -253,16 +268,31 @@ class TraceCaptureSink final : public CaptureSink {
             p.expectedBuilds += copy->pauseId != 0;
         }
       }
-    emitReadyLocked(false);
+    wakeEmitter();
   }
-  void clusterBuildCaptured(const ClusterBuildCapture& c) override {
+  // Hashing and framing the snapshots happen on the sink's thread, not in the pause that
+  // delivered them; past kMaxPendingBytes the deliverer does it (bounded memory).
+  void clusterBuildCaptured(ClusterBuildCapture c) override {
     std::lock_guard lock(mutex_);
-    pending_[c.submissionIndex].builds[c.pauseId] = c;
-    emitReadyLocked(false);
+    for (const auto* list : {&c.inputs, &c.outputs})
+      for (const CapturedRange& r : *list) pendingBytes_ += r.bytes.size();
+    pending_[c.submissionIndex].builds[{c.pauseId, c.occurrence}] = std::move(c);
+    if (pendingBytes_ > kMaxPendingBytes) emitReadyLocked(false);
+    else wakeEmitter();
+  }
+  // Host synchronization goes out after the newest submission already announced, as the
+  // application made the call after that vkQueueSubmit returned; a submission still waiting
+  // for its builds holds it back with it, so the order in the trace is the order of the calls.
+  void hostSynchronized(const HostSyncRecord& h) override {
+    fbs::RecordT record = hostSyncRecord(h);
+    std::lock_guard lock(mutex_);
+    appendOrderedLocked(std::move(record));
   }
   void flush() override {
     std::lock_guard lock(mutex_);
-    flushBindsLocked();
+    emitReadyLocked(false);
+    flushBindsLocked(false);
+    if (writer_ && !failed_) check(writer_->flush());
   }
 
   // An object's create record waits for its NV handle or KHR address (asked right after
@@ -385,13 +415,133 @@ class TraceCaptureSink final : public CaptureSink {
     bool submitted = false;
     size_t expectedBuilds = 0;
     std::vector<std::shared_ptr<RecordedCommandBuffer>> commandBuffers;
-    std::map<uint64_t, ClusterBuildCapture> builds;  // by pauseId
+    std::map<std::pair<uint64_t, uint32_t>, ClusterBuildCapture> builds;  // by (pauseId, occurrence)
+    std::vector<fbs::RecordT> after;  // the application's calls made after this submission
     std::vector<RayCheckRecord> rayChecks;
   };
+  static constexpr uint64_t kMaxPendingBytes = 256ull << 20;
+
+  static fbs::RecordT hostSyncRecord(const HostSyncRecord& h) {
+    using K = HostSyncRecord::Kind;
+    auto first = [&] { return h.handles.empty() ? 0 : h.handles[0]; };
+    switch (h.kind) {
+      case K::EventSet:
+      case K::EventReset:
+      case K::EventStatus: {
+        fbs::HostEventOpT r;
+        r.event = first();
+        r.op = h.kind == K::EventSet ? 0 : h.kind == K::EventReset ? 1 : 2;
+        r.result = h.result;
+        return recordOf(std::move(r));
+      }
+      case K::FenceWait: {
+        fbs::FenceWaitT r;
+        r.fences = h.handles;
+        r.wait_all = h.waitAll;
+        r.timeout = h.timeout;
+        r.result = h.result;
+        return recordOf(std::move(r));
+      }
+      case K::FenceReset: {
+        fbs::FenceResetT r;
+        r.fences = h.handles;
+        return recordOf(std::move(r));
+      }
+      case K::FenceStatus: {
+        fbs::FenceStatusT r;
+        r.fence = first();
+        r.result = h.result;
+        return recordOf(std::move(r));
+      }
+      case K::QueueWaitIdle: {
+        fbs::QueueWaitIdleT r;
+        r.queue = first();
+        r.result = h.result;
+        return recordOf(std::move(r));
+      }
+      case K::DeviceWaitIdle: {
+        fbs::DeviceWaitIdleT r;
+        r.result = h.result;
+        return recordOf(std::move(r));
+      }
+      case K::SemaphoreSignal:
+      case K::SemaphoreWait:
+        break;
+    }
+    fbs::HostSemaphoreOpT r;
+    r.op = h.kind == K::SemaphoreSignal ? 0 : 1;
+    r.semaphores = h.handles;
+    r.values = h.values;
+    r.wait_any = !h.waitAll;
+    r.timeout = h.timeout;
+    r.result = h.result;
+    return recordOf(std::move(r));
+  }
+
+  // What the build's capture found wrong, kept with the submission that ran it: the engine's
+  // findings when it served the build (errors), and ranges the capture could not read.
+  static void collectFindings(uint64_t commandBuffer, size_t index, const ClusterBuildCapture& captured,
+                              std::vector<fbs::CaptureFindingT>& out) {
+    auto finding = [&](uint8_t severity, const std::string& rule, const std::string& message, int64_t op) {
+      fbs::CaptureFindingT r;
+      r.command_buffer = commandBuffer;
+      r.command_index = uint32_t(index);
+      r.op_index = op < 0 || op > int64_t(UINT32_MAX) ? UINT32_MAX : uint32_t(op);
+      r.severity = severity;
+      r.rule = rule;
+      r.message = message;
+      out.push_back(std::move(r));
+    };
+    for (const EngineFindingRecord& f : captured.engineFindings) finding(2, f.rule, f.message, f.opIndex);
+    for (const CaptureIssue& i : captured.issues) {
+      char where[64];
+      std::snprintf(where, sizeof where, " (address 0x%llx, %llu bytes)", (unsigned long long)i.address,
+                    (unsigned long long)i.size);
+      finding(1, "CLASTRACE-capture-incomplete", i.rule + where, -1);
+    }
+  }
+  static uint64_t pauseIdOf(const RecordedCommand& command) {
+    if (const auto* c = std::get_if<ClusterBuildCommand>(&command)) return c->pauseId;
+    if (const auto* c = std::get_if<BuildAccelerationStructureNVCommand>(&command)) return c->pauseId;
+    if (const auto* c = std::get_if<CopyMemoryToAccelerationStructureCommand>(&command)) return c->pauseId;
+    return 0;
+  }
+
+  void wakeEmitter() {
+    {
+      std::lock_guard lock(wakeMutex_);
+      work_ = true;
+    }
+    wake_.notify_one();
+  }
+
+  // Emits submissions whose builds all arrived, and every flushMilliseconds_ writes the
+  // records so far out as a finished chunk.
+  void emitInBackground() {
+    using Clock = std::chrono::steady_clock;
+    auto lastFlush = Clock::now();
+    const auto interval = std::chrono::milliseconds(flushMilliseconds_ ? flushMilliseconds_ : 3600000);
+    std::unique_lock wait(wakeMutex_);
+    while (!stopEmitting_) {
+      wake_.wait_until(wait, lastFlush + interval, [&] { return stopEmitting_ || work_; });
+      if (stopEmitting_) break;
+      work_ = false;
+      wait.unlock();
+      {
+        std::lock_guard lock(mutex_);
+        emitReadyLocked(false);
+        if (flushMilliseconds_ && Clock::now() - lastFlush >= interval) {
+          if (writer_ && !failed_ && appendedSinceFlush_) check(writer_->flush());
+          appendedSinceFlush_ = false;
+          lastFlush = Clock::now();
+        }
+      }
+      wait.lock();
+    }
+  }
 
   void fail(const TraceError& error) {
-    if (failed_) return;
-    failed_ = true;
+    if (failed_.exchange(true)) return;
     std::fprintf(stderr, "clastrace: capture stopped: %s; the application continues without capture\n",
                  error.message.c_str());
   }
@@ -399,25 +549,40 @@ class TraceCaptureSink final : public CaptureSink {
     if (error) fail(error);
     return !error;
   }
-  void append(const fbs::RecordT& record) {
+  void append(fbs::RecordT record) {
     std::lock_guard lock(mutex_);
+    appendOrderedLocked(std::move(record));
+  }
+  // A record of an application call goes after the newest submission announced before it (the
+  // call came after that vkQueueSubmit returned); a submission still waiting for its builds
+  // holds it back, so the trace keeps the order of the calls.
+  void appendOrderedLocked(fbs::RecordT record) {
+    for (auto it = pending_.rbegin(); it != pending_.rend(); ++it)
+      if (it->second.submitted) {
+        it->second.after.push_back(std::move(record));
+        return;
+      }
     appendLocked(record);
   }
   void appendLocked(const fbs::RecordT& record) {
     if (writer_ && !failed_) check(writer_->append(record));
+    appendedSinceFlush_ = true;
   }
-  void emitBindLocked(const BufferBindingRecord& b, VkDeviceAddress address) {
+  void emitBindLocked(const BufferBindingRecord& b, VkDeviceAddress address, bool ordered) {
     fbs::BufferBindMemoryT r;
     r.buffer = b.buffer;
     r.memory = b.memory;
     r.memory_offset = b.offset;
     r.device_address = address;
-    appendLocked(recordOf(std::move(r)));
+    if (ordered) appendOrderedLocked(recordOf(std::move(r)));
+    else appendLocked(recordOf(std::move(r)));
     boundAt_[b.buffer] = b;
     if (address) addressed_.insert({b.buffer, true});
   }
-  void flushBindsLocked() {
-    for (const auto& [buffer, bind] : pendingBinds_) emitBindLocked(bind, 0);
+  // Bindings never followed by an address query; `ordered` as for appendOrderedLocked (false:
+  // right now, before the submission being emitted).
+  void flushBindsLocked(bool ordered) {
+    for (const auto& [buffer, bind] : pendingBinds_) emitBindLocked(bind, 0, ordered);
     pendingBinds_.clear();
     flushObjectsLocked();
   }
@@ -434,30 +599,84 @@ class TraceCaptureSink final : public CaptureSink {
         continue;
       }
       if (!final && p.builds.size() < p.expectedBuilds) return;
-      flushBindsLocked();
+      flushBindsLocked(false);
       emitSubmissionLocked(p);
+      for (const auto& [key, build] : p.builds)
+        for (const auto* list : {&build.inputs, &build.outputs})
+          for (const CapturedRange& r : *list) pendingBytes_ -= std::min<uint64_t>(pendingBytes_, r.bytes.size());
       pending_.erase(it);
     }
   }
 
+  // One snapshot per run of touching or overlapping ranges of one buffer (all read at the same
+  // pause, so overlaps hold equal bytes): the same bytes, without a 40-byte descriptor (and an
+  // incompressible 8-byte key) per cluster's vertex or index range. Ranges named only by
+  // buffer and offset, or in no known buffer, stay as they are.
   void snapshots(const std::vector<CapturedRange>& ranges, std::vector<fbs::MemorySnapshot>& out) {
-    for (const auto& r : ranges) {
+    std::vector<const CapturedRange*> order;
+    for (const auto& r : ranges) order.push_back(&r);
+    std::stable_sort(order.begin(), order.end(), [](const CapturedRange* a, const CapturedRange* b) {
+      return std::tie(a->buffer, a->address) < std::tie(b->buffer, b->address);
+    });
+    std::vector<uint8_t> run;
+    for (size_t i = 0; i < order.size();) {
+      const CapturedRange& first = *order[i];
+      const bool mergeable = first.address != 0 && first.buffer != 0;
+      uint64_t end = first.address + first.bytes.size();
+      size_t next = i + 1;
+      if (mergeable) {
+        run.assign(first.bytes.begin(), first.bytes.end());
+        for (; next < order.size() && order[next]->buffer == first.buffer && order[next]->address != 0 &&
+               order[next]->address <= end;
+             ++next) {
+          const CapturedRange& r = *order[next];
+          const uint64_t rEnd = r.address + r.bytes.size();
+          if (rEnd > end) run.insert(run.end(), r.bytes.end() - (rEnd - end), r.bytes.end());
+          end = std::max(end, rEnd);
+        }
+      }
+      const bool merged = next > i + 1;
+      const uint8_t* bytes = merged ? run.data() : first.bytes.data();
+      const size_t size = merged ? run.size() : first.bytes.size();
       fbs::MemorySnapshot snap;
       if (!writer_ || failed_) return;
-      if (!check(writer_->snapshot(r.buffer, r.bufferOffset, r.address, r.bytes.data(), r.bytes.size(), &snap)))
-        return;
+      if (!check(writer_->snapshot(first.buffer, first.bufferOffset, first.address, bytes, size, &snap))) return;
       out.push_back(snap);
+      i = next;
     }
   }
 
   void emitSubmissionLocked(Pending& p) {
+    std::map<uint64_t, uint32_t> executions;  // pauseId -> executions emitted (simultaneous use)
+    std::vector<fbs::CaptureFindingT> findings;
     for (const auto& cb : p.commandBuffers) {
       fbs::CommandBufferBeginT begin;
       begin.command_buffer = cb->commandBuffer;
       begin.flags = cb->usage;
       begin.level = cb->secondary ? 1 : 0;
       appendLocked(recordOf(std::move(begin)));
-      for (const auto& command : cb->commands) emitCommandLocked(cb->commandBuffer, command, p);
+      for (size_t index = 0; index < cb->commands.size(); ++index) {
+        const RecordedCommand& command = cb->commands[index];
+        const ClusterBuildCapture* captured = nullptr;
+        if (const uint64_t pauseId = pauseIdOf(command)) {
+          auto it = p.builds.find({pauseId, executions[pauseId]++});
+          if (it != p.builds.end()) captured = &it->second;
+        }
+        if (captured) {
+          collectFindings(cb->commandBuffer, index, *captured, findings);
+        } else if (pauseIdOf(command)) {  // emitted at the end without its pause: say so
+          fbs::CaptureFindingT f;
+          f.command_buffer = cb->commandBuffer;
+          f.command_index = uint32_t(index);
+          f.op_index = UINT32_MAX;
+          f.severity = 1;
+          f.rule = "CLASTRACE-capture-incomplete";
+          f.message = "the queue never reached this command's pause before the process or the capture ended: "
+                      "its memory was not captured";
+          findings.push_back(std::move(f));
+        }
+        emitCommandLocked(cb->commandBuffer, command, captured);
+      }
       fbs::CommandBufferEndT end;
       end.command_buffer = cb->commandBuffer;
       appendLocked(recordOf(std::move(end)));
@@ -477,11 +696,17 @@ class TraceCaptureSink final : public CaptureSink {
     submit.submission_index = writer_->next_submission_index();
     traceSubmission_[p.submission.index] = submit.submission_index;
     submit.result = VK_SUCCESS;
+    const uint64_t submission = submit.submission_index;
     appendLocked(recordOf(std::move(submit)));
     for (const RayCheckRecord& c : p.rayChecks) emitRayCheckLocked(c);
+    for (fbs::CaptureFindingT& f : findings) {
+      f.submission = submission;
+      appendLocked(recordOf(std::move(f)));
+    }
+    for (const fbs::RecordT& r : p.after) appendLocked(r);
   }
 
-  void emitCommandLocked(uint64_t cb, const RecordedCommand& command, Pending& p) {
+  void emitCommandLocked(uint64_t cb, const RecordedCommand& command, const ClusterBuildCapture* captured) {
     if (const auto* c = std::get_if<BarrierCommand>(&command)) {
       fbs::CmdPipelineBarrierT r;
       r.command_buffer = cb;
@@ -566,10 +791,9 @@ class TraceCaptureSink final : public CaptureSink {
       r.src_infos_array = region(i.srcInfosArray);
       r.src_infos_count = i.srcInfosCount;
       r.address_resolution_flags = i.addressResolutionFlags;
-      auto captured = p.builds.find(c->pauseId);
-      if (captured != p.builds.end()) {
-        snapshots(captured->second.inputs, r.inputs);
-        snapshots(captured->second.outputs, r.outputs);
+      if (captured) {
+        snapshots(captured->inputs, r.inputs);
+        snapshots(captured->outputs, r.outputs);
       }
       appendLocked(recordOf(std::move(r)));
     } else if (const auto* c = std::get_if<BuildAccelerationStructureNVCommand>(&command)) {
@@ -599,8 +823,7 @@ class TraceCaptureSink final : public CaptureSink {
       r.src = c->src;
       r.scratch = c->scratch;
       r.scratch_offset = c->scratchOffset;
-      if (auto captured = p.builds.find(c->pauseId); c->pauseId && captured != p.builds.end())
-        snapshots(captured->second.inputs, r.inputs);
+      if (captured) snapshots(captured->inputs, r.inputs);
       appendLocked(recordOf(std::move(r)));
     } else if (const auto* c = std::get_if<CopyMemoryToAccelerationStructureCommand>(&command)) {
       fbs::CmdCopyMemoryToAccelerationStructureT r;
@@ -608,8 +831,7 @@ class TraceCaptureSink final : public CaptureSink {
       r.src_address = c->src;
       r.dst = c->dst;
       r.mode = uint32_t(c->mode);
-      if (auto captured = p.builds.find(c->pauseId); c->pauseId && captured != p.builds.end())
-        snapshots(captured->second.inputs, r.inputs);
+      if (captured) snapshots(captured->inputs, r.inputs);
       appendLocked(recordOf(std::move(r)));
     }
   }
@@ -618,7 +840,14 @@ class TraceCaptureSink final : public CaptureSink {
   std::string path_;
   int zstdLevel_;
   std::unique_ptr<TraceWriter> writer_;
-  bool failed_ = false;
+  std::atomic<bool> failed_{false};
+  bool appendedSinceFlush_ = false;
+  uint32_t flushMilliseconds_;
+  uint64_t pendingBytes_ = 0;  // captured bytes held in pending_
+  std::mutex wakeMutex_;       // guards work_ and stopEmitting_
+  std::condition_variable wake_;
+  bool work_ = false, stopEmitting_ = false;
+  std::thread emitter_;
   std::unordered_map<uint64_t, BufferBindingRecord> pendingBinds_;
   std::unordered_map<uint64_t, BufferBindingRecord> boundAt_;
   std::unordered_map<uint64_t, bool> addressed_;
@@ -630,7 +859,8 @@ class TraceCaptureSink final : public CaptureSink {
 
 }  // namespace
 
-std::unique_ptr<CaptureSink> makeTraceCaptureSink(const std::string& path, int zstdLevel, std::string& error) {
+std::unique_ptr<CaptureSink> makeTraceCaptureSink(const std::string& path, int zstdLevel, std::string& error,
+                                                  uint32_t flushMilliseconds) {
   // Checked here, before any device exists, so an unusable path is reported at once; the
   // writer itself starts with the first device (the header describes it).
   std::FILE* probe = std::fopen(path.c_str(), "wb");
@@ -639,7 +869,7 @@ std::unique_ptr<CaptureSink> makeTraceCaptureSink(const std::string& path, int z
     return nullptr;
   }
   std::fclose(probe);
-  return std::make_unique<TraceCaptureSink>(path, zstdLevel);
+  return std::make_unique<TraceCaptureSink>(path, zstdLevel, flushMilliseconds);
 }
 
 }  // namespace clastrace::capture

@@ -469,6 +469,15 @@ TraceError TraceWriter::append_record_bytes(const uint8_t* data, size_t size) {
 
 uint64_t TraceWriter::next_submission_index() const { return impl_->submissions; }
 
+TraceError TraceWriter::flush() {
+    Impl& w = *impl_;
+    if (TraceError e = w.check_usable()) return e;
+    if (TraceError e = w.seal_chunk()) return e;
+    std::unique_lock lock(w.mutex);
+    w.queue_changed.wait(lock, [&] { return (w.queue.empty() && !w.worker_busy) || w.error; });
+    return w.error;
+}
+
 TraceError TraceWriter::finish() { return impl_->finish(); }
 
 TraceWriterStats TraceWriter::stats() const {

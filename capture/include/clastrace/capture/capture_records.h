@@ -296,6 +296,23 @@ struct SubmissionRecord {
   uint64_t fence = 0;
 };
 
+// A host call that synchronizes with the device: replay needs them to know which submissions
+// had completed when the host next wrote memory (FenceWait) or what the host signalled.
+struct HostSyncRecord {
+  enum class Kind {
+    EventSet, EventReset, EventStatus,     // vkSetEvent / vkResetEvent / vkGetEventStatus
+    FenceWait, FenceReset, FenceStatus,    // vkWaitForFences / vkResetFences / vkGetFenceStatus
+    QueueWaitIdle, DeviceWaitIdle,
+    SemaphoreSignal, SemaphoreWait,        // vkSignalSemaphore / vkWaitSemaphores
+  };
+  Kind kind = Kind::FenceWait;
+  std::vector<uint64_t> handles;  // events, fences, semaphores, or the queue of QueueWaitIdle
+  std::vector<uint64_t> values;   // timeline values of SemaphoreSignal/SemaphoreWait
+  bool waitAll = true;            // FenceWait waitAll; SemaphoreWait without VK_SEMAPHORE_WAIT_ANY_BIT
+  uint64_t timeout = 0;
+  int32_t result = 0;             // the call's VkResult (EventStatus: VK_EVENT_SET/VK_EVENT_RESET)
+};
+
 // Everything one vkCmdBuildClusterAccelerationStructureIndirectNV read, as it was when the
 // command executed on the queue, and everything it wrote, read after it completed.
 enum class CapturedCommandKind { ClusterBuild, BuildAccelerationStructureNV, CopyMemoryToAccelerationStructure };
@@ -303,6 +320,7 @@ enum class CapturedCommandKind { ClusterBuild, BuildAccelerationStructureNV, Cop
 struct ClusterBuildCapture {
   CapturedCommandKind kind = CapturedCommandKind::ClusterBuild;  // parameters apply to ClusterBuild only
   uint64_t pauseId = 0;
+  uint32_t occurrence = 0;  // nth execution of this command in its submission (simultaneous use)
   uint64_t submissionIndex = 0;
   uint64_t commandBuffer = 0;
   ClusterCommandParameters parameters;

@@ -24,7 +24,11 @@ class CaptureSink {
   virtual void commandBufferRecorded(const RecordedCommandBuffer&) = 0;
   virtual void commandBufferReset(uint64_t commandBuffer) = 0;
   virtual void queueSubmitted(const SubmissionRecord&) = 0;
-  virtual void clusterBuildCaptured(const ClusterBuildCapture&) = 0;
+  virtual void clusterBuildCaptured(ClusterBuildCapture) = 0;  // by value: the worker moves it in
+  virtual void hostSynchronized(const HostSyncRecord&) = 0;
+  // False once the sink stopped writing (its one message printed): the layer then saves the
+  // work of capturing, and the application runs on as with capture off.
+  virtual bool active() const { return true; }
   // Acceleration-structure objects and the ray check (no-ops unless a sink records them).
   virtual void accelerationStructureCreated(const AccelerationStructureRecord&) {}
   virtual void accelerationStructureBound(const AccelerationStructureBindingRecord&) {}
@@ -43,6 +47,9 @@ std::unique_ptr<CaptureSink> makeJsonCaptureSink(const std::string& path, std::s
 
 // The .clt trace the replay reads (CLASTRACE_OUTPUT). Null + `error` when the path cannot be
 // written, or while this build has no trace writer.
-std::unique_ptr<CaptureSink> makeTraceCaptureSink(const std::string& path, int zstdLevel, std::string& error);
+// Every `flushMilliseconds` (0: never) the records so far are written out as a finished chunk,
+// so a process that is killed loses at most that much of its capture.
+std::unique_ptr<CaptureSink> makeTraceCaptureSink(const std::string& path, int zstdLevel, std::string& error,
+                                                  uint32_t flushMilliseconds = 1000);
 
 }  // namespace clastrace::capture

@@ -69,6 +69,11 @@ class DeviceMemoryMap {
   // (offsetInBuffer 0): what a served build may touch.
   std::vector<ResolvedRange> hostAddressedBuffers() const;
 
+  // Every buffer with a queried address and live memory bound that the layer has not mapped
+  // (memory the host cannot map), whose usage has a bit of `usageMask`: what a pause must copy
+  // into host-visible staging to read it.
+  std::vector<TrackedBuffer> unmappedAddressedBuffers(VkBufferUsageFlags usageMask) const;
+
  private:
   mutable std::mutex mutex_;
   std::unordered_map<uint64_t, TrackedMemory> memories_;

@@ -27,6 +27,8 @@ struct LayerConfig {
   LogLevel log = LogLevel::Error;   // CLASTRACE_LOG: quiet|error|info|debug
   std::string debugJsonPath;        // CLASTRACE_DEBUG_JSON: readable dump for tests and debugging
   uint32_t rayCheckRays = 0;        // CLASTRACE_RAY_CHECK: rays per NV top-level check, 0 = off
+  uint32_t flushMilliseconds = 1000;  // CLASTRACE_FLUSH_MS: a killed process loses at most this much (0: never)
+  bool forceStaging = false;        // CLASTRACE_FORCE_STAGING: treat all memory as not host visible (tests)
   std::vector<std::string> errors;  // one line per rejected variable; the default is kept
 };
 

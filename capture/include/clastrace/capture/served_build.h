@@ -7,12 +7,16 @@
 // those host bytes. Vulkan specifics (mapping, flush/invalidate) stay with the caller.
 #pragma once
 
+#include "clastrace/capture/capture_records.h"
+
 #include <clastrace/engine/execution_record.h>
+#include <clastrace/engine/memory_image.h>
 #include <clastrace/engine/object_directory.h>
 #include <clastrace/engine/properties.h>
 #include <clastrace/vk_cluster_abi.h>
 
 #include <cstdint>
+#include <memory>
 #include <span>
 #include <string>
 #include <vector>
@@ -36,14 +40,20 @@ struct ServedExecution {
   std::vector<uint64_t> writtenMemories;   // allocations that received bytes (to flush)
   uint64_t bytesCopiedIn = 0, bytesWrittenBack = 0;  // of the last attempt
   uint32_t attempts = 0;  // engine runs until the image held every buffer the command reads
+  // The image of the last run, holding every byte the command read and wrote, as it left it:
+  // the capture reads the command's outputs from it after the queue was released.
+  std::shared_ptr<const engine::MemoryImage> image;
 };
 
 // Buffers whose address ranges overlap (aliases) become one region holding their union. Only
 // the buffers the command reaches are copied: those it names, then those its findings point
-// into, found by running again; the result equals a run over all of `buffers`.
+// into, found by running again; the result equals a run over all of `buffers`. `inputWalk`:
+// the command's inputs as the capture already walked them at this pause (saves walking twice),
+// or null.
 ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command,
                                    std::span<const ServedBuffer> buffers, engine::ObjectDirectory& directory,
-                                   const engine::EngineProperties& properties);
+                                   const engine::EngineProperties& properties,
+                                   const std::vector<CapturedRange>* inputWalk = nullptr);
 
 // vkGetClusterAccelerationStructureBuildSizesNV of the served device: engine::cluster_build_sizes.
 // False (and zero sizes) when the engine rejects the input (its findings say why).

@@ -66,6 +66,12 @@ public:
 
     uint64_t next_submission_index() const;
 
+    // Seals the chunk being filled and returns once the compression thread has written every
+    // sealed chunk, so what was appended so far survives the process being killed (a reader
+    // of the unfinished file gets it back; no fsync: a power loss is not covered). A capture
+    // calls it periodically; each call ends a chunk, so calling it often costs compression.
+    TraceError flush();
+
     // Seals the last chunk, waits for the compression thread, writes the index chunk and
     // trailer, and (by option) fsyncs. The first error met anywhere is returned.
     TraceError finish();

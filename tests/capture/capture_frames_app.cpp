@@ -1,0 +1,488 @@
+// A frame loop over VK_NV_cluster_acceleration_structure for the capture layer's robustness
+// tests and its overhead benchmark. Each frame the host moves one eighth of the clusters, a
+// GPU copy fills srcInfosArray, a triangle-cluster build and a bottom-level build over its
+// dstAddressesArray run, and the host waits on a fence (and sets/resets an event, and signals
+// and waits on a timeline semaphore).
+//
+//   capture_frames_app frames N [options]
+//     --clusters C        clusters per build (default 64)
+//     --out FILE          JSON: what the builds wrote in the last frame (hex)
+//     --bad-cluster-id    cluster 0 gets clusterID 0xFFFFFFFF (a rule the engine names)
+//     --exit-at K         after submitting frame K: exit(0) without waiting or cleanup
+//     --abort-at K        after submitting frame K: abort()
+//     --stop-at K         after submitting frame K: sleep until killed
+//     --wait-for FILE     before frame K of the three above: wait until FILE exists
+//   capture_frames_app simultaneous OUT.json
+//     one SIMULTANEOUS_USE command buffer submitted twice in one vkQueueSubmit and twice more
+//     in two; its build reads a count that the command buffer itself rewrites after the build.
+//
+// Prints "frames=N loop_ms=T loop_cpu_ms=C" on success: the frame loop's wall time, and the CPU
+// time of all the process's threads (driver and layer included) during it.
+#include <clastrace/vk_cluster_abi.h>
+
+#include <chrono>
+#include <sys/resource.h>
+#include <csignal>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+namespace {
+
+#define CHECK(call)                                                                 \
+  do {                                                                              \
+    VkResult r_ = (call);                                                           \
+    if (r_ != VK_SUCCESS) {                                                         \
+      std::fprintf(stderr, "capture_frames_app: %s failed: %d\n", #call, int(r_)); \
+      std::exit(2);                                                                 \
+    }                                                                               \
+  } while (0)
+
+[[noreturn]] void fail(const char* what) {
+  std::fprintf(stderr, "capture_frames_app: %s\n", what);
+  std::exit(2);
+}
+
+std::string hex(const uint8_t* data, size_t size) {
+  std::string text;
+  for (size_t i = 0; i < size; ++i) {
+    text.push_back("0123456789abcdef"[data[i] >> 4]);
+    text.push_back("0123456789abcdef"[data[i] & 15]);
+  }
+  return text;
+}
+
+struct Buffer {
+  VkBuffer buffer = VK_NULL_HANDLE;
+  VkDeviceMemory memory = VK_NULL_HANDLE;
+  VkDeviceAddress address = 0;
+  uint8_t* mapped = nullptr;
+  VkDeviceSize size = 0;
+};
+
+struct Context {
+  VkInstance instance = VK_NULL_HANDLE;
+  VkPhysicalDevice physicalDevice = VK_NULL_HANDLE;
+  VkDevice device = VK_NULL_HANDLE;
+  VkQueue queue = VK_NULL_HANDLE;
+  VkCommandPool pool = VK_NULL_HANDLE;
+  PFN_vkCmdBuildClusterAccelerationStructureIndirectNV cmdBuildClusters = nullptr;
+  PFN_vkGetClusterAccelerationStructureBuildSizesNV getBuildSizes = nullptr;
+
+  Context() {
+    VkApplicationInfo app{VK_STRUCTURE_TYPE_APPLICATION_INFO, nullptr, "capture_frames_app", 1, nullptr, 0,
+                          VK_API_VERSION_1_3};
+    VkInstanceCreateInfo info{VK_STRUCTURE_TYPE_INSTANCE_CREATE_INFO, nullptr, 0, &app, 0, nullptr, 0, nullptr};
+    CHECK(vkCreateInstance(&info, nullptr, &instance));
+    uint32_t count = 1;
+    VkResult r = vkEnumeratePhysicalDevices(instance, &count, &physicalDevice);
+    if ((r != VK_SUCCESS && r != VK_INCOMPLETE) || count == 0) fail("no physical device");
+    uint32_t familyCount = 0;
+    vkGetPhysicalDeviceQueueFamilyProperties(physicalDevice, &familyCount, nullptr);
+    std::vector<VkQueueFamilyProperties> families(familyCount);
+    vkGetPhysicalDeviceQueueFamilyProperties(physicalDevice, &familyCount, families.data());
+    uint32_t family = 0;
+    while (family < familyCount && !(families[family].queueFlags & VK_QUEUE_COMPUTE_BIT)) ++family;
+    if (family == familyCount) fail("no compute queue");
+    const float priority = 1.0f;
+    VkDeviceQueueCreateInfo queueInfo{VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO, nullptr, 0, family, 1, &priority};
+    VkPhysicalDeviceClusterAccelerationStructureFeaturesNV cluster{
+        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_FEATURES_NV, nullptr, VK_TRUE};
+    VkPhysicalDeviceVulkan12Features v12{};
+    v12.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_2_FEATURES;
+    v12.pNext = &cluster;
+    v12.bufferDeviceAddress = VK_TRUE;
+    v12.timelineSemaphore = VK_TRUE;
+    const char* extension = VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME;
+    VkDeviceCreateInfo deviceInfo{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO, &v12, 0, 1, &queueInfo, 0, nullptr, 1,
+                                  &extension, nullptr};
+    CHECK(vkCreateDevice(physicalDevice, &deviceInfo, nullptr, &device));
+    vkGetDeviceQueue(device, family, 0, &queue);
+    cmdBuildClusters = (PFN_vkCmdBuildClusterAccelerationStructureIndirectNV)vkGetDeviceProcAddr(
+        device, "vkCmdBuildClusterAccelerationStructureIndirectNV");
+    getBuildSizes = (PFN_vkGetClusterAccelerationStructureBuildSizesNV)vkGetDeviceProcAddr(
+        device, "vkGetClusterAccelerationStructureBuildSizesNV");
+    if (!cmdBuildClusters || !getBuildSizes) fail("the cluster entry points are missing");
+    VkCommandPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO, nullptr,
+                                     VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT, family};
+    CHECK(vkCreateCommandPool(device, &poolInfo, nullptr, &pool));
+  }
+
+  Buffer makeBuffer(VkDeviceSize size, VkBufferUsageFlags usage) {
+    Buffer b;
+    b.size = size;
+    VkBufferCreateInfo info{};
+    info.sType = VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO;
+    info.size = size;
+    info.usage = usage | VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_TRANSFER_SRC_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT |
+                 VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT;
+    CHECK(vkCreateBuffer(device, &info, nullptr, &b.buffer));
+    VkMemoryRequirements req;
+    vkGetBufferMemoryRequirements(device, b.buffer, &req);
+    VkPhysicalDeviceMemoryProperties props;
+    vkGetPhysicalDeviceMemoryProperties(physicalDevice, &props);
+    const VkMemoryPropertyFlags want = VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT;
+    uint32_t type = 0;
+    while (type < props.memoryTypeCount &&
+           !((req.memoryTypeBits & (1u << type)) && (props.memoryTypes[type].propertyFlags & want) == want))
+      ++type;
+    if (type == props.memoryTypeCount) fail("no host-visible coherent memory");
+    VkMemoryAllocateFlagsInfo flags{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_FLAGS_INFO, nullptr,
+                                    VK_MEMORY_ALLOCATE_DEVICE_ADDRESS_BIT, 0};
+    VkMemoryAllocateInfo alloc{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_INFO, &flags, req.size, type};
+    CHECK(vkAllocateMemory(device, &alloc, nullptr, &b.memory));
+    CHECK(vkBindBufferMemory(device, b.buffer, b.memory, 0));
+    VkBufferDeviceAddressInfo addressInfo{VK_STRUCTURE_TYPE_BUFFER_DEVICE_ADDRESS_INFO, nullptr, b.buffer};
+    b.address = vkGetBufferDeviceAddress(device, &addressInfo);
+    void* mapped = nullptr;
+    CHECK(vkMapMemory(device, b.memory, 0, VK_WHOLE_SIZE, 0, &mapped));
+    b.mapped = static_cast<uint8_t*>(mapped);
+    std::memset(b.mapped, 0, size);
+    return b;
+  }
+};
+
+void barrier(VkCommandBuffer cb, VkPipelineStageFlags src, VkAccessFlags srcAccess, VkPipelineStageFlags dst,
+             VkAccessFlags dstAccess) {
+  VkMemoryBarrier b{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr, srcAccess, dstAccess};
+  vkCmdPipelineBarrier(cb, src, dst, 0, 1, &b, 0, nullptr, 0, nullptr);
+}
+
+constexpr uint32_t kQuadsX = 8, kQuadsY = 4, kVertices = (kQuadsX + 1) * (kQuadsY + 1), kTriangles = 2 * kQuadsX * kQuadsY;
+const VkBufferUsageFlags kInput = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
+const VkBufferUsageFlags kStorage = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
+
+struct FrameOptions {
+  int frames = 10;
+  uint32_t clusters = 64;
+  std::string out, waitFor;
+  bool badClusterId = false;
+  int exitAt = -1, abortAt = -1, stopAt = -1;
+};
+
+double processCpuMilliseconds() {
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  return (double(usage.ru_utime.tv_sec) + double(usage.ru_stime.tv_sec)) * 1e3 +
+         (double(usage.ru_utime.tv_usec) + double(usage.ru_stime.tv_usec)) * 1e-3;
+}
+
+void writeVertices(const Buffer& vertices, uint32_t clusters, int frame) {
+  auto* v = reinterpret_cast<float*>(vertices.mapped);
+  for (uint32_t c = 0; c < clusters; ++c) {
+    if (frame > 0 && int(c % 8) != frame % 8) continue;  // one eighth of the clusters move per frame
+    for (uint32_t y = 0; y <= kQuadsY; ++y)
+      for (uint32_t x = 0; x <= kQuadsX; ++x) {
+        float* p = v + (uint64_t(c) * kVertices + y * (kQuadsX + 1) + x) * 3;
+        p[0] = float(c % 16) * 9.0f + float(x);
+        p[1] = float(c / 16) * 5.0f + float(y);
+        p[2] = float(frame) * 0.125f + float(x * y % 3) * 0.25f;
+      }
+  }
+}
+
+int frames(const FrameOptions& o) {
+  Context c;
+  const uint32_t n = o.clusters;
+  VkClusterAccelerationStructureTriangleClusterInputNV triangles{};
+  triangles.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
+  triangles.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+  triangles.maxGeometryIndexValue = 0;
+  triangles.maxClusterUniqueGeometryCount = 1;
+  triangles.maxClusterTriangleCount = kTriangles;
+  triangles.maxClusterVertexCount = kVertices;
+  triangles.maxTotalTriangleCount = n * kTriangles;
+  triangles.maxTotalVertexCount = n * kVertices;
+  VkClusterAccelerationStructureCommandsInfoNV build{};
+  build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+  build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+  build.input.maxAccelerationStructureCount = n;
+  build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
+  build.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+  build.input.opInput.pTriangleClusters = &triangles;
+  VkClusterAccelerationStructureClustersBottomLevelInputNV bottom{};
+  bottom.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
+  bottom.maxTotalClusterCount = n;
+  bottom.maxClusterCountPerAccelerationStructure = n;
+  VkClusterAccelerationStructureCommandsInfoNV blas{};
+  blas.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+  blas.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+  blas.input.maxAccelerationStructureCount = 1;
+  blas.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
+  blas.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+  blas.input.opInput.pClustersBottomLevel = &bottom;
+  VkAccelerationStructureBuildSizesInfoKHR clusterSizes{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR,
+                                                        nullptr, 0, 0, 0};
+  VkAccelerationStructureBuildSizesInfoKHR blasSizes = clusterSizes;
+  c.getBuildSizes(c.device, &build.input, &clusterSizes);
+  c.getBuildSizes(c.device, &blas.input, &blasSizes);
+  if (!clusterSizes.accelerationStructureSize || !blasSizes.accelerationStructureSize) fail("build sizes of 0");
+
+  using Info = VkClusterAccelerationStructureBuildTriangleClusterInfoNV;
+  Buffer vertices = c.makeBuffer(uint64_t(n) * kVertices * 12, kInput);
+  Buffer indices = c.makeBuffer(uint64_t(n) * kTriangles * 12, kInput);
+  Buffer infoSource = c.makeBuffer(uint64_t(n) * sizeof(Info), 0);
+  Buffer infos = c.makeBuffer(uint64_t(n) * sizeof(Info), kInput);
+  Buffer counts = c.makeBuffer(8, kInput);
+  Buffer dstAddresses = c.makeBuffer(uint64_t(n) * 8, kStorage | kInput);
+  Buffer dstSizes = c.makeBuffer(uint64_t(n) * 4, kStorage);
+  Buffer implicit = c.makeBuffer(clusterSizes.accelerationStructureSize, kStorage);
+  Buffer scratch = c.makeBuffer(clusterSizes.buildScratchSize, kStorage);
+  Buffer blasInfo = c.makeBuffer(sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV), kInput);
+  Buffer blasAddress = c.makeBuffer(8, kStorage);
+  Buffer blasSize = c.makeBuffer(4, kStorage);
+  Buffer blasImplicit = c.makeBuffer(blasSizes.accelerationStructureSize, kStorage);
+  Buffer blasScratch = c.makeBuffer(blasSizes.buildScratchSize, kStorage);
+
+  auto* index = reinterpret_cast<uint32_t*>(indices.mapped);
+  auto* info = reinterpret_cast<Info*>(infoSource.mapped);
+  for (uint32_t k = 0; k < n; ++k) {
+    uint32_t* t = index + uint64_t(k) * kTriangles * 3;
+    for (uint32_t y = 0; y < kQuadsY; ++y)
+      for (uint32_t x = 0; x < kQuadsX; ++x) {
+        const uint32_t v = y * (kQuadsX + 1) + x;
+        for (uint32_t i : {v, v + 1, v + kQuadsX + 2, v, v + kQuadsX + 2, v + kQuadsX + 1}) *t++ = i;
+      }
+    Info& i = info[k];
+    i = Info{};
+    i.clusterID = (o.badClusterId && k == 0) ? 0xFFFFFFFFu : 1000 + k;
+    i.triangleCount = kTriangles;
+    i.vertexCount = kVertices;
+    i.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
+    i.indexBuffer = indices.address + uint64_t(k) * kTriangles * 12;
+    i.vertexBuffer = vertices.address + uint64_t(k) * kVertices * 12;
+  }
+  const uint32_t countValues[2] = {n, 1};
+  std::memcpy(counts.mapped, countValues, sizeof countValues);
+  VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV reference{};
+  reference.clusterReferencesCount = n;
+  reference.clusterReferencesStride = 8;
+  reference.clusterReferences = dstAddresses.address;
+  std::memcpy(blasInfo.mapped, &reference, sizeof reference);
+
+  build.dstImplicitData = implicit.address;
+  build.scratchData = scratch.address;
+  build.dstAddressesArray = {dstAddresses.address, 8, dstAddresses.size};
+  build.dstSizesArray = {dstSizes.address, 4, dstSizes.size};
+  build.srcInfosArray = {infos.address, sizeof(Info), infos.size};
+  build.srcInfosCount = counts.address;
+  blas.dstImplicitData = blasImplicit.address;
+  blas.scratchData = blasScratch.address;
+  blas.dstAddressesArray = {blasAddress.address, 8, 8};
+  blas.dstSizesArray = {blasSize.address, 4, 4};
+  blas.srcInfosArray = {blasInfo.address, 0, blasInfo.size};
+  blas.srcInfosCount = counts.address + 4;
+
+  VkCommandBufferAllocateInfo allocInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr, c.pool,
+                                        VK_COMMAND_BUFFER_LEVEL_PRIMARY, 1};
+  VkCommandBuffer cb;
+  CHECK(vkAllocateCommandBuffers(c.device, &allocInfo, &cb));
+  VkFenceCreateInfo fenceInfo{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO, nullptr, 0};
+  VkFence fence;
+  CHECK(vkCreateFence(c.device, &fenceInfo, nullptr, &fence));
+  VkEventCreateInfo eventInfo{VK_STRUCTURE_TYPE_EVENT_CREATE_INFO, nullptr, 0};
+  VkEvent frameEvent;
+  CHECK(vkCreateEvent(c.device, &eventInfo, nullptr, &frameEvent));
+  VkSemaphoreTypeCreateInfo timelineType{VK_STRUCTURE_TYPE_SEMAPHORE_TYPE_CREATE_INFO, nullptr,
+                                         VK_SEMAPHORE_TYPE_TIMELINE, 0};
+  VkSemaphoreCreateInfo semaphoreInfo{VK_STRUCTURE_TYPE_SEMAPHORE_CREATE_INFO, &timelineType, 0};
+  VkSemaphore timeline;
+  CHECK(vkCreateSemaphore(c.device, &semaphoreInfo, nullptr, &timeline));
+
+  const auto start = std::chrono::steady_clock::now();
+  const double cpuStart = processCpuMilliseconds();
+  for (int f = 0; f < o.frames; ++f) {
+    const bool last = f == o.exitAt || f == o.abortAt || f == o.stopAt;
+    if (last && !o.waitFor.empty())
+      while (!std::filesystem::exists(o.waitFor)) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    writeVertices(vertices, n, f);
+    // Re-recorded every frame, as engines do.
+    VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr,
+                                   VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT, nullptr};
+    CHECK(vkBeginCommandBuffer(cb, &begin));
+    VkBufferCopy copy{0, 0, infos.size};
+    vkCmdCopyBuffer(cb, infoSource.buffer, infos.buffer, 1, &copy);
+    barrier(cb, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT,
+            VK_ACCESS_MEMORY_READ_BIT);
+    c.cmdBuildClusters(cb, &build);
+    barrier(cb, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_WRITE_BIT, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT,
+            VK_ACCESS_MEMORY_READ_BIT);
+    c.cmdBuildClusters(cb, &blas);
+    barrier(cb, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_WRITE_BIT, VK_PIPELINE_STAGE_HOST_BIT,
+            VK_ACCESS_HOST_READ_BIT);
+    CHECK(vkEndCommandBuffer(cb));
+    VkSubmitInfo submit{};
+    submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
+    submit.commandBufferCount = 1;
+    submit.pCommandBuffers = &cb;
+    CHECK(vkQueueSubmit(c.queue, 1, &submit, fence));
+    if (f == o.exitAt) std::exit(0);
+    if (f == o.abortAt) std::abort();
+    if (f == o.stopAt) {
+      std::printf("stopped at frame %d\n", f);
+      std::fflush(stdout);
+      for (;;) std::this_thread::sleep_for(std::chrono::seconds(1));
+    }
+    CHECK(vkSetEvent(c.device, frameEvent));
+    CHECK(vkWaitForFences(c.device, 1, &fence, VK_TRUE, 60ull * 1000 * 1000 * 1000));
+    if (vkGetFenceStatus(c.device, fence) != VK_SUCCESS) fail("fence not signalled after the wait");
+    CHECK(vkResetFences(c.device, 1, &fence));
+    CHECK(vkResetEvent(c.device, frameEvent));
+    // The host counts frames on a timeline semaphore and waits for its own signal.
+    const uint64_t value = uint64_t(f) + 1;
+    VkSemaphoreSignalInfo signal{VK_STRUCTURE_TYPE_SEMAPHORE_SIGNAL_INFO, nullptr, timeline, value};
+    CHECK(vkSignalSemaphore(c.device, &signal));
+    VkSemaphoreWaitInfo wait{VK_STRUCTURE_TYPE_SEMAPHORE_WAIT_INFO, nullptr, 0, 1, &timeline, &value};
+    CHECK(vkWaitSemaphores(c.device, &wait, 60ull * 1000 * 1000 * 1000));
+  }
+  const double loopMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  const double loopCpuMs = processCpuMilliseconds() - cpuStart;
+  CHECK(vkQueueWaitIdle(c.queue));
+  CHECK(vkDeviceWaitIdle(c.device));
+  if (!o.out.empty()) {
+    std::ofstream out(o.out);
+    out << "{\"dstSizes\": \"" << hex(dstSizes.mapped, dstSizes.size) << "\", \"dstAddresses\": \""
+        << hex(dstAddresses.mapped, dstAddresses.size) << "\", \"implicit\": \"" << hex(implicit.mapped, implicit.size)
+        << "\", \"blasImplicit\": \"" << hex(blasImplicit.mapped, blasImplicit.size) << "\"}\n";
+  }
+  std::printf("frames=%d loop_ms=%.3f loop_cpu_ms=%.3f\n", o.frames, loopMs, loopCpuMs);
+  vkDestroyEvent(c.device, frameEvent, nullptr);
+  vkDestroySemaphore(c.device, timeline, nullptr);
+  vkDestroyFence(c.device, fence, nullptr);
+  vkDestroyCommandPool(c.device, c.pool, nullptr);
+  for (Buffer* b : {&vertices, &indices, &infoSource, &infos, &counts, &dstAddresses, &dstSizes, &implicit, &scratch,
+                    &blasInfo, &blasAddress, &blasSize, &blasImplicit, &blasScratch}) {
+    vkDestroyBuffer(c.device, b->buffer, nullptr);
+    vkFreeMemory(c.device, b->memory, nullptr);
+  }
+  vkDestroyDevice(c.device, nullptr);
+  vkDestroyInstance(c.instance, nullptr);
+  return 0;
+}
+
+// The build reads counts[0]; after it the command buffer copies counts[1] over counts[0], so
+// the first execution builds one cluster and every later one two.
+int simultaneous(const char* outPath) {
+  Context c;
+  using Info = VkClusterAccelerationStructureBuildTriangleClusterInfoNV;
+  Buffer vertices = c.makeBuffer(2 * kVertices * 12, kInput);
+  Buffer indices = c.makeBuffer(kTriangles * 12, kInput);
+  Buffer infos = c.makeBuffer(2 * sizeof(Info), kInput);
+  Buffer counts = c.makeBuffer(8, kInput);
+  Buffer dstSizes = c.makeBuffer(8, kStorage);
+  Buffer dstAddresses = c.makeBuffer(16, kStorage);
+  writeVertices(vertices, 2, 0);
+  auto* index = reinterpret_cast<uint32_t*>(indices.mapped);
+  for (uint32_t y = 0; y < kQuadsY; ++y)
+    for (uint32_t x = 0; x < kQuadsX; ++x) {
+      const uint32_t v = y * (kQuadsX + 1) + x;
+      for (uint32_t i : {v, v + 1, v + kQuadsX + 2, v, v + kQuadsX + 2, v + kQuadsX + 1}) *index++ = i;
+    }
+  for (uint32_t k = 0; k < 2; ++k) {
+    Info i{};
+    i.clusterID = 7 + k;
+    i.triangleCount = kTriangles;
+    i.vertexCount = kVertices;
+    i.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
+    i.indexBuffer = indices.address;
+    i.vertexBuffer = vertices.address + k * kVertices * 12;
+    std::memcpy(infos.mapped + k * sizeof(Info), &i, sizeof i);
+  }
+  const uint32_t countValues[2] = {1, 2};
+  std::memcpy(counts.mapped, countValues, sizeof countValues);
+  VkClusterAccelerationStructureTriangleClusterInputNV triangles{};
+  triangles.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
+  triangles.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+  triangles.maxClusterUniqueGeometryCount = 1;
+  triangles.maxClusterTriangleCount = kTriangles;
+  triangles.maxClusterVertexCount = kVertices;
+  triangles.maxTotalTriangleCount = 2 * kTriangles;
+  triangles.maxTotalVertexCount = 2 * kVertices;
+  VkClusterAccelerationStructureCommandsInfoNV build{};
+  build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+  build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+  build.input.maxAccelerationStructureCount = 2;
+  build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
+  build.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+  build.input.opInput.pTriangleClusters = &triangles;
+  VkAccelerationStructureBuildSizesInfoKHR sizes{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr,
+                                                 0, 0, 0};
+  c.getBuildSizes(c.device, &build.input, &sizes);
+  Buffer implicit = c.makeBuffer(sizes.accelerationStructureSize, kStorage);
+  Buffer scratch = c.makeBuffer(sizes.buildScratchSize, kStorage);
+  build.dstImplicitData = implicit.address;
+  build.scratchData = scratch.address;
+  build.dstAddressesArray = {dstAddresses.address, 8, 16};
+  build.dstSizesArray = {dstSizes.address, 4, 8};
+  build.srcInfosArray = {infos.address, sizeof(Info), 2 * sizeof(Info)};
+  build.srcInfosCount = counts.address;
+
+  VkCommandBufferAllocateInfo allocInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr, c.pool,
+                                        VK_COMMAND_BUFFER_LEVEL_PRIMARY, 1};
+  VkCommandBuffer cb;
+  CHECK(vkAllocateCommandBuffers(c.device, &allocInfo, &cb));
+  VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr,
+                                 VK_COMMAND_BUFFER_USAGE_SIMULTANEOUS_USE_BIT, nullptr};
+  CHECK(vkBeginCommandBuffer(cb, &begin));
+  barrier(cb, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT,
+          VK_ACCESS_MEMORY_READ_BIT);
+  c.cmdBuildClusters(cb, &build);
+  barrier(cb, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_READ_BIT | VK_ACCESS_MEMORY_WRITE_BIT,
+          VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT);
+  VkBufferCopy copy{4, 0, 4};
+  vkCmdCopyBuffer(cb, counts.buffer, counts.buffer, 1, &copy);
+  CHECK(vkEndCommandBuffer(cb));
+
+  VkCommandBuffer twice[2] = {cb, cb};
+  VkSubmitInfo submit{};
+  submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
+  submit.commandBufferCount = 2;
+  submit.pCommandBuffers = twice;
+  CHECK(vkQueueSubmit(c.queue, 1, &submit, VK_NULL_HANDLE));  // two executions, one submission
+  submit.commandBufferCount = 1;
+  CHECK(vkQueueSubmit(c.queue, 1, &submit, VK_NULL_HANDLE));  // and two more while those may run
+  CHECK(vkQueueSubmit(c.queue, 1, &submit, VK_NULL_HANDLE));
+  CHECK(vkQueueWaitIdle(c.queue));
+  std::ofstream(outPath) << "{\"dstSizes\": \"" << hex(dstSizes.mapped, 8) << "\", \"counts\": \""
+                         << hex(counts.mapped, 8) << "\"}\n";
+  vkDestroyCommandPool(c.device, c.pool, nullptr);
+  for (Buffer* b : {&vertices, &indices, &infos, &counts, &dstSizes, &dstAddresses, &implicit, &scratch}) {
+    vkDestroyBuffer(c.device, b->buffer, nullptr);
+    vkFreeMemory(c.device, b->memory, nullptr);
+  }
+  vkDestroyDevice(c.device, nullptr);
+  vkDestroyInstance(c.instance, nullptr);
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc == 3 && std::strcmp(argv[1], "simultaneous") == 0) return simultaneous(argv[2]);
+  if (argc >= 3 && std::strcmp(argv[1], "frames") == 0) {
+    FrameOptions o;
+    o.frames = std::atoi(argv[2]);
+    for (int i = 3; i < argc; ++i) {
+      const std::string a = argv[i];
+      const char* value = i + 1 < argc ? argv[i + 1] : nullptr;
+      if (a == "--bad-cluster-id") o.badClusterId = true;
+      else if (!value) fail("option without value");
+      else if (a == "--clusters") o.clusters = uint32_t(std::atoi(argv[++i]));
+      else if (a == "--out") o.out = argv[++i];
+      else if (a == "--wait-for") o.waitFor = argv[++i];
+      else if (a == "--exit-at") o.exitAt = std::atoi(argv[++i]);
+      else if (a == "--abort-at") o.abortAt = std::atoi(argv[++i]);
+      else if (a == "--stop-at") o.stopAt = std::atoi(argv[++i]);
+      else fail("unknown option");
+    }
+    if (o.frames < 1 || o.clusters < 1 || o.clusters > 4096) fail("frames >= 1 and clusters in [1, 4096]");
+    return frames(o);
+  }
+  std::fprintf(stderr, "usage: capture_frames_app frames N [options] | simultaneous OUT.json\n");
+  return 1;
+}

@@ -1,0 +1,558 @@
+// The layer under stress, on lavapipe through the loader: write failures, applications that
+// exit, abort or are killed mid-frame, simultaneous-use command buffers, memory the host cannot
+// map (forced staging), host synchronization records and the engine's findings in the trace.
+#include <clastrace/traces/trace_reader.h>
+#include <gtest/gtest.h>
+
+#include <signal.h>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <sstream>
+#include <thread>
+#include <tuple>
+
+extern char** environ;
+
+namespace {
+
+namespace fs = std::filesystem;
+using clastrace::fbs::RecordBody;
+using clastrace::traces::TraceReader;
+
+const char* kLavapipe = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json";
+
+std::string readText(const fs::path& path) {
+  std::ifstream in(path);
+  std::stringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+std::string quote(const std::string& s) {
+  std::string q = "'";
+  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
+  return q + "'";
+}
+
+size_t count(const std::string& text, const std::string& needle) {
+  size_t n = 0;
+  for (size_t at = text.find(needle); at != std::string::npos; at = text.find(needle, at + 1)) ++n;
+  return n;
+}
+
+std::string hexOf(const std::vector<uint8_t>& bytes) {
+  std::string hex;
+  for (uint8_t b : bytes) hex += "0123456789abcdef"[b >> 4], hex += "0123456789abcdef"[b & 15];
+  return hex;
+}
+
+// What a test needs to know of a trace: record kinds in order, each cluster build's snapshots
+// with their bytes, and the damage the reader reported.
+struct TraceContents {
+  bool opened = false;
+  std::string openError;
+  bool indexed = false;
+  std::vector<RecordBody> kinds;
+  struct Snapshot {
+    uint64_t address;
+    std::string bytes;
+  };
+  std::vector<std::vector<Snapshot>> buildInputs, buildOutputs;
+  std::vector<const char*> damage;  // trace_error_code_name of each problem
+  size_t count(RecordBody kind) const { return size_t(std::count(kinds.begin(), kinds.end(), kind)); }
+};
+
+TraceContents readTrace(const fs::path& path) {
+  TraceContents t;
+  clastrace::traces::TraceError error;
+  auto reader = TraceReader::open(path.string(), &error);
+  if (!reader) {
+    t.openError = error.message;
+    return t;
+  }
+  t.opened = true;
+  t.indexed = reader->has_index();
+  clastrace::traces::RecordView view;
+  std::vector<std::pair<uint64_t, uint64_t>> inputs, outputs;
+  std::vector<std::vector<std::pair<uint64_t, uint64_t>>> allInputs, allOutputs;
+  while (reader->next(&view)) {
+    t.kinds.push_back(view.kind);
+    if (view.kind != RecordBody::CmdBuildClusterAccelerationStructureIndirect) continue;
+    const auto* build = view.record->body_as_CmdBuildClusterAccelerationStructureIndirect();
+    std::vector<std::pair<uint64_t, uint64_t>> in, out;
+    if (build->inputs())
+      for (const auto* s : *build->inputs()) in.emplace_back(s->address(), s->hash());
+    if (build->outputs())
+      for (const auto* s : *build->outputs()) out.emplace_back(s->address(), s->hash());
+    allInputs.push_back(in);
+    allOutputs.push_back(out);
+  }
+  auto resolve = [&](const std::vector<std::vector<std::pair<uint64_t, uint64_t>>>& lists,
+                     std::vector<std::vector<TraceContents::Snapshot>>& into) {
+    for (const auto& list : lists) {
+      into.emplace_back();
+      for (const auto& [address, hash] : list) {
+        std::vector<uint8_t> bytes;
+        auto e = reader->read_contents(hash, &bytes);
+        into.back().push_back({address, e ? "<" + e.message + ">" : hexOf(bytes)});
+      }
+    }
+  };
+  resolve(allInputs, t.buildInputs);
+  resolve(allOutputs, t.buildOutputs);
+  for (const auto& e : reader->damage()) t.damage.push_back(clastrace::traces::trace_error_code_name(e.code));
+  return t;
+}
+
+struct ProcessResult {
+  int exitCode = -1;  // -signal when it was killed by one
+  std::string out, err;
+};
+
+class CaptureRobustness : public ::testing::Test {
+ protected:
+  fs::path dir;
+
+  void SetUp() override {
+    if (!fs::exists(kLavapipe)) GTEST_SKIP() << "lavapipe is not installed (scripts/deps.sh installs it)";
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir = fs::temp_directory_path() / ("clastrace_robust_" + std::to_string(getpid()) + "_" + info->name());
+    fs::remove_all(dir);
+    fs::create_directories(dir);
+  }
+  void TearDown() override {
+    if (!HasFailure() && !dir.empty()) fs::remove_all(dir);
+  }
+
+  // The shell line that runs `args` of the frames app under the layer with `env` on top of a
+  // clean CLASTRACE_* environment; `prefix` runs first in the same shell (ulimit, trap).
+  std::string commandLine(const std::string& args, std::map<std::string, std::string> env,
+                          const std::string& prefix = "", const std::string& layers = "VK_LAYER_CLASTRACE_capture") {
+    std::string line = prefix + "exec env -u VK_INSTANCE_LAYERS -u VK_ADD_LAYER_PATH -u VK_ICD_FILENAMES";
+    for (const char* v : {"CLASTRACE_OUTPUT", "CLASTRACE_CAPTURE", "CLASTRACE_SERVE", "CLASTRACE_SUBMIT_RANGE",
+                          "CLASTRACE_ZSTD_LEVEL", "CLASTRACE_LOG", "CLASTRACE_DEBUG_JSON", "CLASTRACE_FLUSH_MS",
+                          "CLASTRACE_FORCE_STAGING"})
+      line += std::string(" -u ") + v;
+    env["VK_DRIVER_FILES"] = kLavapipe;
+    env["XDG_RUNTIME_DIR"] = dir.string();
+    env["VK_ADD_LAYER_PATH"] = CLASTRACE_LAYER_MANIFEST_DIR;
+    env["VK_INSTANCE_LAYERS"] = layers;
+    env["VK_LOADER_DEBUG"] = "";
+    for (const auto& [k, v] : env) line += " " + k + "=" + quote(v);
+    return line + " " + CLASTRACE_FRAMES_APP + " " + args + " >" + quote((dir / "stdout.txt").string()) + " 2>" +
+           quote((dir / "stderr.txt").string());
+  }
+
+  // The process runs in a process group of its own (its id is `pid`), so that killing the group
+  // reaches the application under the shell and `timeout`.
+  pid_t start(const std::string& line) {
+    // --foreground: timeout stays in this group instead of making one of its own.
+    const std::string shell = "timeout --foreground -s KILL 180 sh -c " + quote(line);
+    const char* argv[] = {"sh", "-c", shell.c_str(), nullptr};
+    posix_spawnattr_t attributes;
+    posix_spawnattr_init(&attributes);
+    posix_spawnattr_setflags(&attributes, POSIX_SPAWN_SETPGROUP);
+    posix_spawnattr_setpgroup(&attributes, 0);
+    pid_t pid = -1;
+    const int failed = posix_spawn(&pid, "/bin/sh", nullptr, &attributes, const_cast<char**>(argv), environ);
+    posix_spawnattr_destroy(&attributes);
+    return failed ? -1 : pid;
+  }
+
+  ProcessResult finish(pid_t pid) {
+    ProcessResult r;
+    int status = 0;
+    if (pid > 0 && waitpid(pid, &status, 0) == pid) {
+      if (WIFEXITED(status)) r.exitCode = WEXITSTATUS(status);
+      // timeout and sh report a killed child as 128 + signal
+      if (r.exitCode > 128) r.exitCode = -(r.exitCode - 128);
+      if (WIFSIGNALED(status)) r.exitCode = -WTERMSIG(status);
+    }
+    r.out = readText(dir / "stdout.txt");
+    r.err = readText(dir / "stderr.txt");
+    return r;
+  }
+
+  ProcessResult run(const std::string& args, std::map<std::string, std::string> env, const std::string& prefix = "") {
+    return finish(start(commandLine(args, std::move(env), prefix)));
+  }
+
+  // Reads the growing trace until it holds `submissions` QueueSubmit records (the periodic
+  // flush must bring them out while the application still runs). False after two minutes.
+  bool waitForSubmissions(const fs::path& trace, size_t submissions) {
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::minutes(2);
+    while (std::chrono::steady_clock::now() < deadline) {
+      if (fs::exists(trace) && readTrace(trace).count(RecordBody::QueueSubmit) >= submissions) return true;
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+    return false;
+  }
+
+  // The builds of the first `submissions` frames of a cut trace have their inputs and
+  // outputs, and every snapshot's bytes read back.
+  static void expectIntactBuilds(const TraceContents& t, size_t submissions) {
+    ASSERT_TRUE(t.opened) << t.openError;
+    EXPECT_GE(t.count(RecordBody::QueueSubmit), submissions);
+    ASSERT_GE(t.buildInputs.size(), 2 * submissions);  // two builds a frame
+    for (size_t b = 0; b < 2 * submissions; ++b) {
+      EXPECT_FALSE(t.buildInputs[b].empty()) << "build " << b;
+      EXPECT_FALSE(t.buildOutputs[b].empty()) << "build " << b;
+    }
+    for (const auto* lists : {&t.buildInputs, &t.buildOutputs})
+      for (const auto& list : *lists)
+        for (const auto& s : list) EXPECT_NE(s.bytes.front(), '<') << s.bytes;
+    for (const char* code : t.damage) EXPECT_STREQ(code, "truncated");  // only the cut end
+  }
+};
+
+// ---- Write failures ----------------------------------------------------------------------
+
+TEST_F(CaptureRobustness, FullDiskAtTheStartGivesOneMessageAndServingContinues) {
+  ProcessResult r = run("frames 3 --clusters 8 --out " + quote((dir / "out.json").string()),
+                        {{"CLASTRACE_OUTPUT", "/dev/full"}});
+  EXPECT_EQ(r.exitCode, 0) << r.err;
+  EXPECT_EQ(count(r.err, "clastrace:"), 1u) << r.err;
+  EXPECT_EQ(count(r.err, "clastrace: capture stopped: /dev/full: "), 1u) << r.err;
+  EXPECT_NE(r.err.find("No space left on device"), std::string::npos) << r.err;
+  EXPECT_NE(r.out.find("frames=3"), std::string::npos) << r.out;
+  // Served builds still ran: the engine wrote non-zero sizes.
+  const std::string out = readText(dir / "out.json");
+  EXPECT_NE(out.find("\"dstSizes\": \""), std::string::npos);
+  EXPECT_EQ(out.find("\"dstSizes\": \"00000000"), std::string::npos) << out.substr(0, 80);
+}
+
+// A file size limit (SIGXFSZ ignored, so writes fail with EFBIG) stops the trace part way:
+// one message naming the file and the error, the application finishes its frames, and what
+// was written before the failure still reads back.
+TEST_F(CaptureRobustness, WriteFailureMidTraceStopsCaptureOnceAndTheApplicationRuns) {
+  const fs::path trace = dir / "limited.clt";
+  ProcessResult r = run("frames 12 --clusters 32", {{"CLASTRACE_OUTPUT", trace.string()}, {"CLASTRACE_FLUSH_MS", "5"}},
+                        "ulimit -f 64; trap '' XFSZ; ");
+  EXPECT_EQ(r.exitCode, 0) << r.err;
+  EXPECT_NE(r.out.find("frames=12"), std::string::npos) << r.out;
+  EXPECT_EQ(count(r.err, "clastrace:"), 1u) << r.err;
+  EXPECT_EQ(count(r.err, "clastrace: capture stopped: " + trace.string() + ": offset "), 1u) << r.err;
+  EXPECT_NE(r.err.find("File too large"), std::string::npos) << r.err;
+  EXPECT_LE(fs::file_size(trace), 64u * 512);
+  TraceContents t = readTrace(trace);
+  ASSERT_TRUE(t.opened) << t.openError;
+  EXPECT_FALSE(t.indexed);
+  for (const auto& list : t.buildInputs)
+    for (const auto& s : list) EXPECT_NE(s.bytes.front(), '<') << s.bytes;
+}
+
+// The disk fills up while the trace grows (writes of the trace fail with ENOSPC past 24 KiB):
+// one message naming the file, the offset and the error; the application and serving go on.
+TEST_F(CaptureRobustness, DiskFullMidTraceStopsCaptureOnceAndTheApplicationRuns) {
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+  GTEST_SKIP() << "an LD_PRELOAD shim cannot come before a sanitizer's runtime";
+#endif
+  const fs::path trace = dir / "full.clt";
+  ProcessResult r = run("frames 12 --clusters 32 --out " + quote((dir / "out.json").string()),
+                        {{"CLASTRACE_OUTPUT", trace.string()}, {"CLASTRACE_FLUSH_MS", "5"},
+                         {"LD_PRELOAD", CLASTRACE_ENOSPC_SHIM}, {"CLASTRACE_TEST_FULL_PATH", trace.string()},
+                         {"CLASTRACE_TEST_FULL_AFTER", "24576"}});
+  EXPECT_EQ(r.exitCode, 0) << r.err;
+  EXPECT_NE(r.out.find("frames=12"), std::string::npos) << r.out;
+  EXPECT_EQ(count(r.err, "clastrace:"), 1u) << r.err;
+  EXPECT_EQ(count(r.err, "clastrace: capture stopped: " + trace.string() + ": offset "), 1u) << r.err;
+  EXPECT_NE(r.err.find("No space left on device"), std::string::npos) << r.err;
+  EXPECT_GT(fs::file_size(trace), 0u);  // the header and what fitted were written
+  EXPECT_LE(fs::file_size(trace), 24576u);
+  const std::string out = readText(dir / "out.json");
+  EXPECT_EQ(out.find("\"dstSizes\": \"00000000"), std::string::npos) << out.substr(0, 80);
+  TraceContents t = readTrace(trace);
+  ASSERT_TRUE(t.opened) << t.openError;
+  for (const auto& list : t.buildInputs)
+    for (const auto& s : list) EXPECT_NE(s.bytes.front(), '<') << s.bytes;
+}
+
+// ---- Applications that end abruptly -------------------------------------------------------
+
+TEST_F(CaptureRobustness, KilledApplicationLeavesTheTraceUpToItsLastFlush) {
+  const fs::path trace = dir / "killed.clt";
+  pid_t pid = start(commandLine("frames 100000 --clusters 16 --stop-at 6",
+                                {{"CLASTRACE_OUTPUT", trace.string()}, {"CLASTRACE_FLUSH_MS", "50"}}));
+  ASSERT_GT(pid, 0);
+  const bool reached = waitForSubmissions(trace, 6);
+  kill(-pid, SIGKILL);  // the whole group: the shells, timeout and the application
+  ProcessResult r = finish(pid);
+  ASSERT_TRUE(reached) << "the trace never showed 6 submissions while the application ran: " << r.err;
+  EXPECT_EQ(r.exitCode, -SIGKILL);
+  TraceContents t = readTrace(trace);
+  EXPECT_FALSE(t.indexed);
+  expectIntactBuilds(t, 6);
+  EXPECT_FALSE(t.damage.empty());  // the reader says the file was cut
+}
+
+TEST_F(CaptureRobustness, AbortMidFrameLeavesTheTraceUpToItsLastFlush) {
+  const fs::path trace = dir / "aborted.clt";
+  pid_t pid = start(commandLine("frames 100000 --clusters 16 --abort-at 5 --wait-for " + quote((dir / "go").string()),
+                                {{"CLASTRACE_OUTPUT", trace.string()}, {"CLASTRACE_FLUSH_MS", "50"}}));
+  ASSERT_GT(pid, 0);
+  const bool reached = waitForSubmissions(trace, 5);
+  std::ofstream(dir / "go") << "go";
+  ProcessResult r = finish(pid);
+  ASSERT_TRUE(reached) << r.err;
+  EXPECT_EQ(r.exitCode, -SIGABRT) << r.err;
+  TraceContents t = readTrace(trace);
+  EXPECT_FALSE(t.indexed);
+  expectIntactBuilds(t, 5);
+}
+
+// exit() without vkDestroyDevice while the last frame is on the queue: the layer's static
+// state finishes the trace, with every frame that completed.
+TEST_F(CaptureRobustness, ExitWithoutCleanupMidFrameFinishesTheTrace) {
+  const fs::path trace = dir / "exited.clt";
+  ProcessResult r = run("frames 100 --clusters 16 --exit-at 4", {{"CLASTRACE_OUTPUT", trace.string()}});
+  EXPECT_EQ(r.exitCode, 0) << r.err;
+  EXPECT_EQ(r.err, "");
+  TraceContents t = readTrace(trace);
+  EXPECT_TRUE(t.indexed);
+  expectIntactBuilds(t, 4);
+  EXPECT_TRUE(t.damage.empty());
+  // The frame on the queue at exit: its submission is there, its builds are marked as not
+  // captured rather than left looking like builds that read nothing.
+  EXPECT_EQ(t.count(RecordBody::QueueSubmit), 5u);
+  ASSERT_EQ(t.buildInputs.size(), 10u);
+  EXPECT_TRUE(t.buildInputs[8].empty());
+  EXPECT_EQ(t.count(RecordBody::CaptureFinding), 2u);
+}
+
+// ---- Host synchronization and findings -------------------------------------------------------
+
+TEST_F(CaptureRobustness, HostSynchronizationFollowsTheSubmissionItWaitedFor) {
+  const fs::path trace = dir / "sync.clt";
+  ProcessResult r = run("frames 3 --clusters 4", {{"CLASTRACE_OUTPUT", trace.string()}});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  TraceContents t = readTrace(trace);
+  ASSERT_TRUE(t.opened) << t.openError;
+  std::vector<RecordBody> host;  // QueueSubmit and the host calls, in trace order
+  for (RecordBody k : t.kinds)
+    if (k == RecordBody::QueueSubmit || k == RecordBody::HostEventOp || k == RecordBody::FenceWait ||
+        k == RecordBody::FenceStatus || k == RecordBody::FenceReset || k == RecordBody::QueueWaitIdle ||
+        k == RecordBody::DeviceWaitIdle || k == RecordBody::HostSemaphoreOp)
+      host.push_back(k);
+  std::vector<RecordBody> want;
+  for (int frame = 0; frame < 3; ++frame)
+    for (RecordBody k : {RecordBody::QueueSubmit, RecordBody::HostEventOp, RecordBody::FenceWait,
+                         RecordBody::FenceStatus, RecordBody::FenceReset, RecordBody::HostEventOp,
+                         RecordBody::HostSemaphoreOp, RecordBody::HostSemaphoreOp})
+      want.push_back(k);
+  want.push_back(RecordBody::QueueWaitIdle);
+  want.push_back(RecordBody::DeviceWaitIdle);
+  EXPECT_EQ(host, want);
+
+  // The records carry the calls' arguments and results.
+  clastrace::traces::TraceError error;
+  auto reader = TraceReader::open(trace.string(), &error);
+  ASSERT_TRUE(reader) << error.message;
+  clastrace::traces::RecordView view;
+  std::vector<std::string> seen;
+  while (reader->next(&view)) {
+    const auto* r = view.record;
+    if (const auto* e = r->body_as_HostEventOp())
+      seen.push_back("event op " + std::to_string(e->op()) + " result " + std::to_string(e->result()));
+    if (const auto* w = r->body_as_FenceWait())
+      seen.push_back("fence wait " + std::to_string(w->fences()->size()) + " all " + std::to_string(w->wait_all()) +
+                     " result " + std::to_string(w->result()) + " timeout " + std::to_string(w->timeout()));
+    if (const auto* h = r->body_as_HostSemaphoreOp())
+      seen.push_back("semaphore op " + std::to_string(h->op()) + " value " + std::to_string(h->values()->Get(0)) +
+                     " result " + std::to_string(h->result()));
+  }
+  ASSERT_EQ(seen.size(), 15u);
+  EXPECT_EQ(seen[0], "event op 0 result 0");
+  EXPECT_EQ(seen[1], "fence wait 1 all 1 result 0 timeout 60000000000");
+  EXPECT_EQ(seen[2], "event op 1 result 0");
+  EXPECT_EQ(seen[3], "semaphore op 0 value 1 result 0");
+  EXPECT_EQ(seen[4], "semaphore op 1 value 1 result 0");
+  EXPECT_EQ(seen[14], "semaphore op 1 value 3 result 0");
+}
+
+TEST_F(CaptureRobustness, ServedBuildFindingsAreRecordedAndListedByInfo) {
+  const fs::path trace = dir / "findings.clt";
+  ProcessResult r = run("frames 2 --clusters 4 --bad-cluster-id", {{"CLASTRACE_OUTPUT", trace.string()},
+                                                                   {"CLASTRACE_LOG", "quiet"}});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  clastrace::traces::TraceError error;
+  auto reader = TraceReader::open(trace.string(), &error);
+  ASSERT_TRUE(reader) << error.message;
+  clastrace::traces::RecordView view;
+  std::vector<std::tuple<std::string, uint32_t, uint64_t, uint32_t, uint8_t>> findings;
+  uint64_t submissions = 0;
+  while (reader->next(&view)) {
+    if (view.kind == RecordBody::QueueSubmit) ++submissions;
+    if (view.kind != RecordBody::CaptureFinding) continue;
+    const auto* f = view.record->body_as_CaptureFinding();
+    findings.emplace_back(f->rule()->str(), f->op_index(), f->submission(), f->command_index(), f->severity());
+    EXPECT_EQ(f->submission() + 1, submissions);  // right after the submission that ran it
+  }
+  // One per frame: op 0 of the triangle-cluster build (the third command: copy, barrier, build).
+  const std::string rule = "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-clusterID-10488";
+  ASSERT_EQ(findings.size(), 2u);
+  for (uint64_t frame = 0; frame < 2; ++frame)
+    EXPECT_EQ(findings[frame], std::make_tuple(rule, 0u, frame, 2u, uint8_t(2)));
+
+  const std::string info = std::string(CLASTRACE_CLI) + " info " + quote(trace.string());
+  const fs::path text = dir / "info.txt", json = dir / "info.json";
+  std::system((info + " >" + quote(text.string()) + " 2>&1").c_str());
+  std::system((info + " --json >" + quote(json.string()) + " 2>&1").c_str());
+  EXPECT_EQ(count(readText(text), rule), 2u) << readText(text);
+  const std::string j = readText(json);
+  EXPECT_NE(j.find("\"capture_findings\""), std::string::npos) << j;
+  EXPECT_EQ(count(j, rule), 2u) << j;
+
+  // A valid scene records none.
+  ProcessResult valid = run("frames 2 --clusters 4", {{"CLASTRACE_OUTPUT", (dir / "valid.clt").string()}});
+  ASSERT_EQ(valid.exitCode, 0) << valid.err;
+  EXPECT_EQ(readTrace(dir / "valid.clt").count(RecordBody::CaptureFinding), 0u);
+}
+
+// ---- Simultaneous use and staging --------------------------------------------------------------
+
+// Four executions of one command buffer (two in one submission): each is captured with the
+// count it read, 1 for the first, 2 for the later ones (the command buffer rewrites it).
+TEST_F(CaptureRobustness, SimultaneousUseCommandBufferIsCapturedPerExecution) {
+  const fs::path trace = dir / "simultaneous.clt";
+  ProcessResult r = run("simultaneous " + quote((dir / "out.json").string()), {{"CLASTRACE_OUTPUT", trace.string()}});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  EXPECT_EQ(r.err, "");
+  TraceContents t = readTrace(trace);
+  ASSERT_TRUE(t.opened) << t.openError;
+  EXPECT_EQ(t.count(RecordBody::QueueSubmit), 3u);
+  ASSERT_EQ(t.buildInputs.size(), 4u);
+  std::vector<std::string> counts;
+  for (const auto& inputs : t.buildInputs)  // srcInfosCount: the one 4-byte snapshot
+    for (const auto& snapshot : inputs)
+      if (snapshot.bytes.size() == 8) counts.push_back(snapshot.bytes);
+  EXPECT_EQ(counts, (std::vector<std::string>{"01000000", "02000000", "02000000", "02000000"}));
+  // Both clusters were built by the last execution: two non-zero sizes.
+  const std::string out = readText(dir / "out.json");
+  EXPECT_EQ(out.find("\"dstSizes\": \"00000000"), std::string::npos) << out;
+  EXPECT_EQ(out.find("00000000\", \"counts\""), std::string::npos) << out;
+}
+
+// Device addresses differ between runs (lavapipe's are host pointers), so two runs are
+// compared with every address, and every aligned 64-bit word inside the bytes that is one,
+// written as "b<creation index>+<offset>" of the buffer holding it.
+struct AddressNames {
+  std::vector<std::tuple<uint64_t, uint64_t, size_t>> buffers;  // address, size, creation index
+
+  explicit AddressNames(const fs::path& trace) {
+    clastrace::traces::TraceError error;
+    auto reader = TraceReader::open(trace.string(), &error);
+    if (!reader) return;
+    std::map<uint64_t, std::pair<size_t, uint64_t>> created;  // handle -> (index, size)
+    clastrace::traces::RecordView view;
+    while (reader->next(&view)) {
+      if (const auto* c = view.record->body_as_BufferCreate()) created[c->buffer()] = {created.size(), c->size()};
+      if (const auto* b = view.record->body_as_BufferBindMemory(); b && b->device_address())
+        if (auto it = created.find(b->buffer()); it != created.end())
+          buffers.emplace_back(b->device_address(), it->second.second, it->second.first);
+    }
+  }
+  std::string name(uint64_t address) const {
+    for (const auto& [at, size, index] : buffers)
+      if (address >= at && address < at + size) return "b" + std::to_string(index) + "+" + std::to_string(address - at);
+    return "";
+  }
+  std::string bytes(const std::string& hex) const {
+    std::string out;
+    for (size_t i = 0; i < hex.size(); i += 16) {
+      const std::string word = hex.substr(i, 16);
+      uint64_t value = 0;
+      if (word.size() == 16)
+        for (int b = 7; b >= 0; --b) value = value << 8 | std::stoull(word.substr(2 * b, 2), nullptr, 16);
+      const std::string named = word.size() == 16 ? name(value) : "";
+      out += named.empty() ? word : "<" + named + ">";
+    }
+    return out;
+  }
+  // The hex strings of a JSON text, named the same way.
+  std::string json(const std::string& text) const {
+    std::string out, token;
+    for (char c : text + '"') {
+      if (c != '"') {
+        token += c;
+        continue;
+      }
+      const bool hex = token.size() >= 16 && token.find_first_not_of("0123456789abcdef") == std::string::npos;
+      out += (hex ? bytes(token) : token) + '"';
+      token.clear();
+    }
+    return out;
+  }
+};
+
+// The staging path (copies into the layer's host-visible buffers before each pause, and back
+// after a served build) captures and serves the very bytes of the direct path.
+TEST_F(CaptureRobustness, ForcedStagingCapturesAndServesTheSameBytes) {
+  std::map<std::string, TraceContents> traces;
+  std::map<std::string, std::string> outputs;
+  std::map<std::string, AddressNames> names;
+  for (const char* staging : {"0", "1"}) {
+    const fs::path trace = dir / (std::string("staging") + staging + ".clt");
+    const fs::path out = dir / (std::string("out") + staging + ".json");
+    ProcessResult r = run("frames 3 --clusters 8 --out " + quote(out.string()),
+                          {{"CLASTRACE_OUTPUT", trace.string()}, {"CLASTRACE_FORCE_STAGING", staging}});
+    ASSERT_EQ(r.exitCode, 0) << staging << ": " << r.err;
+    EXPECT_EQ(r.err, "") << staging;
+    traces[staging] = readTrace(trace);
+    names.emplace(staging, AddressNames(trace));
+    outputs[staging] = names.at(staging).json(readText(out));
+  }
+  ASSERT_EQ(names.at("0").buffers.size(), 14u);  // the app's buffers, none of the layer's staging
+  ASSERT_EQ(names.at("1").buffers.size(), 14u);
+  EXPECT_EQ(outputs["0"], outputs["1"]);
+  EXPECT_NE(outputs["0"].find("<b"), std::string::npos);  // addresses were found and named
+  ASSERT_EQ(traces["0"].buildInputs.size(), 6u);
+  ASSERT_EQ(traces["1"].buildInputs.size(), 6u);
+  for (size_t b = 0; b < 6; ++b) {
+    for (auto [lists, what] : {std::pair{&TraceContents::buildInputs, "inputs"}, std::pair{&TraceContents::buildOutputs, "outputs"}}) {
+      const auto& direct = (traces["0"].*lists)[b];
+      const auto& staged = (traces["1"].*lists)[b];
+      ASSERT_EQ(direct.size(), staged.size()) << what << " of build " << b;
+      EXPECT_FALSE(direct.empty());
+      for (size_t i = 0; i < direct.size(); ++i) {
+        EXPECT_EQ(names.at("0").name(direct[i].address), names.at("1").name(staged[i].address))
+            << what << " of build " << b;
+        EXPECT_NE(names.at("0").name(direct[i].address), "");
+        EXPECT_EQ(names.at("0").bytes(direct[i].bytes), names.at("1").bytes(staged[i].bytes))
+            << what << " of build " << b << " range " << i;
+      }
+    }
+  }
+}
+
+// The injected staging copies and barriers, and a simultaneous-use command buffer run twice
+// in one submission, under the Khronos validation layer with synchronization validation,
+// beneath the capture layer so it sees what the driver sees.
+TEST_F(CaptureRobustness, StagingAndSimultaneousUsePassSynchronizationValidation) {
+  if (!fs::exists("/usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json"))
+    GTEST_SKIP() << "vulkan-validationlayers is not installed";
+  std::ofstream(dir / "vk_layer_settings.txt")
+      << "khronos_validation.enables = VK_VALIDATION_FEATURE_ENABLE_SYNCHRONIZATION_VALIDATION_EXT\n"
+         "khronos_validation.report_flags = error,warn\n"
+         "khronos_validation.debug_action = VK_DBG_LAYER_ACTION_LOG_MSG\n";
+  for (const std::string& args : {std::string("frames 3 --clusters 4"), "simultaneous " + quote((dir / "s.json").string())}) {
+    ProcessResult r = finish(start(commandLine(
+        args,
+        {{"CLASTRACE_OUTPUT", (dir / "v.clt").string()}, {"CLASTRACE_FORCE_STAGING", "1"}, {"CLASTRACE_LOG", "quiet"},
+         {"VK_LAYER_SETTINGS_PATH", (dir / "vk_layer_settings.txt").string()}},
+        "", "VK_LAYER_CLASTRACE_capture:VK_LAYER_KHRONOS_validation")));
+    ASSERT_EQ(r.exitCode, 0) << args << ": " << r.err;
+    const std::string all = r.out + r.err;
+    EXPECT_EQ(all.find("VUID-"), std::string::npos) << args << ": " << all;
+    EXPECT_EQ(all.find("SYNC-"), std::string::npos) << args << ": " << all;
+    EXPECT_EQ(count(all, "Validation Error"), 0u) << args << ": " << all;
+    EXPECT_GE(readTrace(dir / "v.clt").buildInputs.size(), 2u);  // the capture layer ran above it
+  }
+}
+
+}  // namespace
