@@ -31,6 +31,23 @@ struct Task {
 // increasing index order). hist[2k] / hist[2k+1] hold the counts of the low / high digits.
 void radix_sort3(const uint16_t (*key)[kMaxTriangles], uint32_t n, uint16_t (*hist)[kDigits],
                  uint8_t (*order)[kMaxTriangles]) {
+  // Exclusive prefix sums (counts <= 256 fit 16 bits).
+#if defined(__SSE2__)
+  static_assert(kDigits % 8 == 0);
+  for (int h = 0; h < 6; ++h) {
+    __m128i carry = _mm_setzero_si128();
+    for (uint32_t d = 0; d < kDigits; d += 8) {
+      __m128i* const p = reinterpret_cast<__m128i*>(hist[h] + d);
+      __m128i x = _mm_loadu_si128(p);
+      x = _mm_add_epi16(x, _mm_slli_si128(x, 2));
+      x = _mm_add_epi16(x, _mm_slli_si128(x, 4));
+      x = _mm_add_epi16(x, _mm_slli_si128(x, 8));  // inclusive
+      _mm_storeu_si128(p, _mm_add_epi16(_mm_slli_si128(x, 2), carry));
+      const __m128i last = _mm_shufflehi_epi16(x, 0xFF);
+      carry = _mm_add_epi16(carry, _mm_unpackhi_epi64(last, last));
+    }
+  }
+#else
   for (int h = 0; h < 6; ++h) {
     uint32_t sum = 0;
     for (uint32_t d = 0; d < kDigits; ++d) {
@@ -39,6 +56,7 @@ void radix_sort3(const uint16_t (*key)[kMaxTriangles], uint32_t n, uint16_t (*hi
       sum += c;
     }
   }
+#endif
   for (int k = 0; k < 3; ++k) {
     uint16_t* const lo = hist[2 * k];
     uint16_t* const hi = hist[2 * k + 1];
