@@ -57,17 +57,16 @@ void radix_sort3(const uint16_t (*key)[kMaxTriangles], uint32_t n, uint16_t (*hi
     }
   }
 #endif
-  for (int k = 0; k < 3; ++k) {
-    uint16_t* const lo = hist[2 * k];
-    uint16_t* const hi = hist[2 * k + 1];
-    const uint16_t* const kk = key[k];
-    uint8_t tmp[kMaxTriangles];
-    for (uint32_t i = 0; i < n; ++i) tmp[lo[kk[i] & (kDigits - 1)]++] = uint8_t(i);
-    for (uint32_t j = 0; j < n; ++j) {
-      const uint32_t i = tmp[j];
-      order[k][hi[kk[i] >> kDigitBits]++] = uint8_t(i);
+  // The three axes go through each pass together: three independent chains of counter
+  // updates for the out-of-order core to overlap.
+  uint8_t tmp[3][kMaxTriangles];
+  for (uint32_t i = 0; i < n; ++i)
+    for (int k = 0; k < 3; ++k) tmp[k][hist[2 * k][key[k][i] & (kDigits - 1)]++] = uint8_t(i);
+  for (uint32_t j = 0; j < n; ++j)
+    for (int k = 0; k < 3; ++k) {
+      const uint32_t i = tmp[k][j];
+      order[k][hist[2 * k + 1][key[k][i] >> kDigitBits]++] = uint8_t(i);
     }
-  }
 }
 
 }  // namespace
