@@ -2,9 +2,10 @@
 // against position error and hit-t deviation) and the engine's cluster build throughput on
 // 1 and 2 threads beside Embree 3's RTC_BUILD_QUALITY_LOW build of the same triangles.
 //
-// usage: bench_engine_clusters [--quick] [--throughput-only] [--repeat N]
+// usage: bench_engine_clusters [--quick] [--throughput-only] [--engine-only] [--repeat N]
 //   --quick: ~100k-triangle scenes instead of ~10^6 (a smoke run).
 //   --throughput-only: skip the truncation tables.
+//   --engine-only: only the engine's 1-thread build, repeated (a clean profile under perf).
 #include "clastrace/engine/cluster_build.h"
 #include "clastrace/engine/cluster_format.h"
 #include "clastrace/testsupport/cluster_scene.h"
@@ -248,6 +249,84 @@ void truncation_table(const Scene& sc, const std::vector<ts::TestRay>& rays) {
     }
 }
 
+// Surface-area estimate of one CLAS's BVH, from its stored (quantized) node boxes: for a
+// ray that meets the root box, the expected node-box tests (the root, then both children of
+// every interior node it reaches) and triangle tests (every triangle of every leaf it
+// reaches), a node being reached with probability area(node) / area(root). No early exit:
+// this measures the tree, not a ray set. Returns false for a flat root (no area).
+bool sah_estimate(const std::vector<std::byte>& object, double& box_tests, double& tri_tests) {
+    const eng::HeaderCheck hc = eng::read_object_header(object);
+    if (!hc.header || hc.header->node_count == 0) return false;
+    const eng::ObjectHeader& h = *hc.header;
+    float step[3];
+    for (int a = 0; a < 3; ++a) step[a] = (h.bounds_max[a] - h.bounds_min[a]) / 255.0f;
+    auto area = [&](const eng::BvhNode& n) {
+        double e[3];
+        for (int a = 0; a < 3; ++a) {
+            const double lo = n.qmin[a] == 0 ? h.bounds_min[a] : h.bounds_min[a] + float(n.qmin[a]) * step[a];
+            const double hi = n.qmax[a] == 255 ? h.bounds_max[a] : h.bounds_min[a] + float(n.qmax[a]) * step[a];
+            e[a] = hi - lo;
+        }
+        return e[0] * e[1] + e[1] * e[2] + e[2] * e[0];
+    };
+    eng::BvhNode root;
+    std::memcpy(&root, object.data() + h.nodes_offset, sizeof root);
+    const double root_area = area(root);
+    if (!(root_area > 0) || !std::isfinite(root_area)) return false;
+    box_tests = 1;
+    tri_tests = 0;
+    for (uint32_t i = 0; i < h.node_count; ++i) {
+        eng::BvhNode n;
+        std::memcpy(&n, object.data() + h.nodes_offset + sizeof n * i, sizeof n);
+        const double p = area(n) / root_area;
+        if (n.link & eng::kLeafBit) tri_tests += p * (((n.link >> 8) & 3) + 1);
+        else box_tests += 2 * p;
+    }
+    return true;
+}
+
+// BVH quality of the engine's objects: the SAH estimate averaged over clusters, and the
+// closest-hit trace rate of the whole scene (Embree's BVH over the cluster boxes, the engine
+// inside each cluster; 1 thread, best of the repeats).
+void quality_line(const Scene& sc, const std::vector<std::vector<std::byte>>& objects) {
+    double box = 0, tri = 0;
+    size_t counted = 0;
+    ts::ClusterScene scene;
+    scene.objects = objects;
+    scene.bounds.resize(objects.size());
+    for (size_t c = 0; c < objects.size(); ++c) {
+        double b, t;
+        if (sah_estimate(objects[c], b, t)) {
+            box += b;
+            tri += t;
+            ++counted;
+        }
+        const eng::HeaderCheck hc = eng::read_object_header(objects[c]);
+        if (hc.header) {
+            scene.bounds[c].extend({hc.header->bounds_min[0], hc.header->bounds_min[1], hc.header->bounds_min[2]});
+            scene.bounds[c].extend({hc.header->bounds_max[0], hc.header->bounds_max[1], hc.header->bounds_max[2]});
+        }
+    }
+    const ts::Bounds b = ts::bounds_of(sc.mesh);
+    std::vector<ts::TestRay> rays = ts::camera_rays(b, 256, 256, 3);
+    const auto rnd = ts::random_rays(b, 1 << 16, 4);
+    rays.insert(rays.end(), rnd.begin(), rnd.end());
+    const ts::ClusterSceneTracer tracer(scene);
+    double best = 1e30;
+    size_t hits = 0;
+    for (int rep = 0; rep < g_repeat; ++rep) {
+        const Stopwatch sw;
+        size_t h = 0;
+        for (const auto& r : rays) h += tracer.trace(r).hit;
+        best = std::min(best, sw.elapsed().cpu);
+        hits = h;
+    }
+    std::printf("BVH quality, %s: SAH estimate per cluster-box hit: %.3f node-box tests + %.3f triangle tests "
+                "(mean over %zu clusters); trace %.3f Mrays/s cpu (%zu rays, %zu hits, 1 thread)\n",
+                sc.label.c_str(), box / double(counted), tri / double(counted), counted, double(rays.size()) / 1e6 / best,
+                rays.size(), hits);
+}
+
 void throughput_table(const Scene& sc) {
     const ts::ClusterSceneInputs in = ts::write_cluster_inputs(sc.mesh, sc.clusters, {1, 0, 0, 0});
     const double mtris = double(sc.mesh.triangles.size()) / 1e6;
@@ -283,20 +362,22 @@ void throughput_table(const Scene& sc) {
         };
         row("wall", e.wall, whole.wall, per.wall);
         row("cpu", e.cpu, whole.cpu, per.cpu);
+        if (threads == 2) quality_line(sc, objects);
     }
 }
 
 } // namespace
 
 int main(int argc, char** argv) {
-    bool quick = false, throughput_only = false;
+    bool quick = false, throughput_only = false, engine_only = false;
     for (int i = 1; i < argc; ++i) {
         const std::string a = argv[i];
         if (a == "--quick") quick = true;
         else if (a == "--throughput-only") throughput_only = true;
+        else if (a == "--engine-only") engine_only = true;
         else if (a == "--repeat" && i + 1 < argc) g_repeat = std::max(1, std::atoi(argv[++i]));
         else {
-            std::fprintf(stderr, "usage: %s [--quick] [--throughput-only] [--repeat N]\n", argv[0]);
+            std::fprintf(stderr, "usage: %s [--quick] [--throughput-only] [--engine-only] [--repeat N]\n", argv[0]);
             return 2;
         }
     }
@@ -326,6 +407,20 @@ int main(int argc, char** argv) {
                 "  dt p99 = 99th percentile of that over all rays hitting at both; tri chg = rays hitting another\n"
                 "  triangle; hit flip = rays hitting at one setting and missing at the other; build ms = all\n"
                 "  clusters, 1 thread, best of the repeats.\n");
+    if (engine_only) {
+        for (const Scene& s : scenes) {
+            const ts::ClusterSceneInputs in = ts::write_cluster_inputs(s.mesh, s.clusters, {1, 0, 0, 0});
+            std::vector<std::vector<std::byte>> objects;
+            EngineBuild engine(in, 1, objects);
+            Timing best;
+            for (int rep = 0; rep < g_repeat; ++rep) best.keep_best(engine.run());
+            const double mtris = double(s.mesh.triangles.size()) / 1e6;
+            std::printf("%s: engine build, 1 thread, best of %d: wall %.2f ms (%.2f Mtris/s), cpu %.2f ms (%.2f Mtris/s)\n",
+                        s.label.c_str(), g_repeat, best.wall * 1e3, mtris / best.wall, best.cpu * 1e3, mtris / best.cpu);
+            quality_line(s, objects);
+        }
+        return 0;
+    }
     for (const Scene& s : scenes) {
         const ts::Bounds b = ts::bounds_of(s.mesh);
         std::vector<ts::TestRay> rays = ts::camera_rays(b, 256, 256, 3);

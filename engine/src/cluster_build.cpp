@@ -224,7 +224,9 @@ bool decode_triangle_info(const MemoryImage& memory, const TriangleInfoView& inf
   // Widen first (one loop per index size, no per-value switch), then range-check.
   const std::byte* const isrc = idx.data();
   const uint32_t n_indices = 3 * T;
-  if (index_size == 1) {
+  if (index_size == 1 && istep == 1) {
+    for (uint32_t i = 0; i < n_indices; ++i) indices[i] = uint8_t(isrc[i]);  // packed: vectorizes
+  } else if (index_size == 1) {
     for (uint32_t i = 0; i < n_indices; ++i) indices[i] = uint8_t(isrc[size_t(i) * istep]);
   } else if (index_size == 2) {
     for (uint32_t i = 0; i < n_indices; ++i) {
@@ -236,17 +238,24 @@ bool decode_triangle_info(const MemoryImage& memory, const TriangleInfoView& inf
     for (uint32_t i = 0; i < n_indices; ++i) std::memcpy(&indices[i], isrc + size_t(i) * istep, 4);
   }
   uint32_t out_of_range = 0, first_bad = 0;
-  for (uint32_t t = 0; t < T; ++t) {
-    const uint32_t bad = uint32_t(indices[3 * t] >= V) + uint32_t(indices[3 * t + 1] >= V) + uint32_t(indices[3 * t + 2] >= V);
-    inactive[t] = bad != 0;
-    if (bad) {
-      if (out_of_range == 0)
-        for (int v = 0; v < 3; ++v)
-          if (indices[3 * t + v] >= V) {
-            first_bad = 3 * t + v;
-            break;
-          }
-      out_of_range += bad;
+  uint32_t largest_index = 0;
+  for (uint32_t i = 0; i < n_indices; ++i) largest_index = std::max(largest_index, indices[i]);
+  // The common case, every index in range, costs one vectorized pass.
+  if (largest_index < V) {
+    std::memset(inactive, 0, T);
+  } else {
+    for (uint32_t t = 0; t < T; ++t) {
+      const uint32_t bad = uint32_t(indices[3 * t] >= V) + uint32_t(indices[3 * t + 1] >= V) + uint32_t(indices[3 * t + 2] >= V);
+      inactive[t] = bad != 0;
+      if (bad) {
+        if (out_of_range == 0)
+          for (int v = 0; v < 3; ++v)
+            if (indices[3 * t + v] >= V) {
+              first_bad = 3 * t + v;
+              break;
+            }
+        out_of_range += bad;
+      }
     }
   }
   if (out_of_range)
@@ -260,7 +269,9 @@ bool decode_triangle_info(const MemoryImage& memory, const TriangleInfoView& inf
   if (d.has_positions && V > 0) {
     const auto vb = memory.read_array(info.vertexBuffer, V, info.vertexBufferStride, vf.size, {"vertexBuffer", r.op_index});
     const uint32_t vstep = info.vertexBufferStride ? info.vertexBufferStride : vf.size;
-    if (input.vertexFormat == VK_FORMAT_R32G32B32_SFLOAT || input.vertexFormat == VK_FORMAT_R32G32B32A32_SFLOAT) {
+    if (input.vertexFormat == VK_FORMAT_R32G32B32_SFLOAT && vstep == 12) {
+      std::memcpy(positions, vb.data(), size_t(V) * 12);
+    } else if (input.vertexFormat == VK_FORMAT_R32G32B32_SFLOAT || input.vertexFormat == VK_FORMAT_R32G32B32A32_SFLOAT) {
       for (uint32_t v = 0; v < V; ++v) std::memcpy(positions + 3 * v, vb.data() + size_t(v) * vstep, 12);
     } else {
       for (uint32_t v = 0; v < V; ++v) decode_vertex(input.vertexFormat, vb.data() + size_t(v) * vstep, positions + 3 * v);

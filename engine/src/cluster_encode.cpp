@@ -1,5 +1,6 @@
 // Lays out a CLAS or template object (docs/engine-formats.md) from decoded input.
 #include "cluster_internal.h"
+#include "simd4.h"
 
 #include <algorithm>
 #include <bit>
@@ -35,6 +36,7 @@ void pack_positions(const float* positions, uint32_t count, uint32_t bits, uint3
   if (acc_bits > 0) dst[out++] = std::byte(acc & 0xFF);
 }
 
+#if !defined(__SSE2__)
 // The first guess may be off by one either way (inv_step is rounded); the loops make it
 // conservative with the exact decoding traversal uses.
 uint8_t quantize_lo(const QuantFrame& f, const float inv_step[3], int a, float v) {
@@ -57,6 +59,78 @@ uint8_t quantize_hi(const QuantFrame& f, const float inv_step[3], int a, float v
   while (q < 255 && dequant_hi(f, a, uint32_t(q)) < v) ++q;
   return uint8_t(q);
 }
+#endif
+
+// Every node's box quantized conservatively (quantize_lo/quantize_hi per bound) and its
+// link, written as BvhNode records. The SSE2 path does the three axes of a bound at once
+// with the same float operations, so it writes the same bytes.
+void write_nodes(const QuantFrame& f, bool unbounded, const BvhScratch& s, uint32_t n_nodes, std::byte* dst) {
+  if (unbounded) {
+    for (uint32_t i = 0; i < n_nodes; ++i) {
+      const BvhScratch::Node& sn = s.nodes[i];
+      BvhNode node{};
+      for (int a = 0; a < 3; ++a) {
+        node.qmin[a] = 0;
+        node.qmax[a] = 255;
+      }
+      node.link = sn.count ? uint16_t(kLeafBit | ((sn.count - 1u) << 8) | sn.first) : uint16_t(sn.first);
+      std::memcpy(dst + 8 * i, &node, 8);
+    }
+    return;
+  }
+#if defined(__SSE2__)
+  // Lane 3 carries v = lo = 0, step = 1: it never moves.
+  const __m128 lo = _mm_setr_ps(f.lo[0], f.lo[1], f.lo[2], 0.0f);
+  const __m128 step = _mm_setr_ps(f.step[0], f.step[1], f.step[2], 1.0f);
+  const __m128 inv = _mm_div_ps(_mm_set1_ps(1.0f), step);
+  const __m128 zero = _mm_setzero_ps(), top = _mm_set1_ps(255.0f);
+  const __m128i izero = _mm_setzero_si128(), itop = _mm_set1_epi32(255);
+  auto dequant = [&](__m128i q) { return _mm_add_ps(lo, _mm_mul_ps(_mm_cvtepi32_ps(q), step)); };
+  for (uint32_t i = 0; i < n_nodes; ++i) {
+    const BvhScratch::Node& sn = s.nodes[i];
+    const __m128 vlo = _mm_load_ps(sn.lo), vhi = _mm_load_ps(sn.hi);
+    // max(x, 0) with x second-false takes 0 for NaN, like the scalar `rel > 0` test.
+    const __m128 xlo = _mm_min_ps(_mm_max_ps(_mm_mul_ps(_mm_sub_ps(vlo, lo), inv), zero), top);
+    const __m128 xhi = _mm_min_ps(_mm_max_ps(_mm_mul_ps(_mm_sub_ps(vhi, lo), inv), zero), top);
+    __m128i qlo = _mm_cvttps_epi32(xlo);
+    __m128i qhi = _mm_cvttps_epi32(xhi);
+    qhi = _mm_sub_epi32(qhi, _mm_castps_si128(_mm_cmplt_ps(_mm_cvtepi32_ps(qhi), xhi)));  // ceil
+    for (;;) {
+      const __m128i down = _mm_and_si128(_mm_cmpgt_epi32(qlo, izero), _mm_castps_si128(_mm_cmpgt_ps(dequant(qlo), vlo)));
+      if (!_mm_movemask_epi8(down)) break;
+      qlo = _mm_add_epi32(qlo, down);
+    }
+    for (;;) {
+      const __m128i up = _mm_and_si128(_mm_cmplt_epi32(qhi, itop), _mm_castps_si128(_mm_cmplt_ps(dequant(qhi), vhi)));
+      if (!_mm_movemask_epi8(up)) break;
+      qhi = _mm_sub_epi32(qhi, up);
+    }
+    alignas(16) int32_t ql[4], qh[4];
+    _mm_store_si128(reinterpret_cast<__m128i*>(ql), qlo);
+    _mm_store_si128(reinterpret_cast<__m128i*>(qh), qhi);
+    BvhNode node{};
+    for (int a = 0; a < 3; ++a) {
+      node.qmin[a] = uint8_t(ql[a]);
+      node.qmax[a] = uint8_t(qh[a]);
+    }
+    node.link = sn.count ? uint16_t(kLeafBit | ((sn.count - 1u) << 8) | sn.first) : uint16_t(sn.first);
+    std::memcpy(dst + 8 * i, &node, 8);
+  }
+#else
+  float inv_step[3];
+  for (int a = 0; a < 3; ++a) inv_step[a] = 1.0f / f.step[a];
+  for (uint32_t i = 0; i < n_nodes; ++i) {
+    const BvhScratch::Node& sn = s.nodes[i];
+    BvhNode node{};
+    for (int a = 0; a < 3; ++a) {
+      node.qmin[a] = quantize_lo(f, inv_step, a, sn.lo[a]);
+      node.qmax[a] = quantize_hi(f, inv_step, a, sn.hi[a]);
+    }
+    node.link = sn.count ? uint16_t(kLeafBit | ((sn.count - 1u) << 8) | sn.first) : uint16_t(sn.first);
+    std::memcpy(dst + 8 * i, &node, 8);
+  }
+#endif
+}
 
 }  // namespace
 
@@ -76,41 +150,39 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
   const uint32_t T = in.triangle_count;
   const bool is_clas = in.type == ObjectType::TriangleCluster;
 
-  // Active triangles: indices in range and no NaN coordinate (after truncation). NaN is
-  // decided per vertex and bounds are taken over the vertices active triangles use, so
-  // the per-triangle work stays at three byte loads.
+  // Active triangles: indices in range and no NaN coordinate (after truncation). One pass
+  // gathers each active triangle's box (what the BVH build starts from) and the object
+  // bounds over them, which are the bounds over the vertices active triangles use.
   uint8_t active[kMaxTriangles];
   uint32_t n_active = 0;
   bool any_nan = false;
-  float bmin[3] = {INFINITY, INFINITY, INFINITY}, bmax[3] = {-INFINITY, -INFINITY, -INFINITY};
+  float bmin[3] = {0.0f, 0.0f, 0.0f}, bmax[3] = {0.0f, 0.0f, 0.0f};
   if (in.positions) {
-    uint8_t vertex_nan[kMaxVertices];
-    uint8_t vertex_used[kMaxVertices] = {};
-    for (uint32_t v = 0; v < in.vertex_count; ++v) {
-      const float* p = in.positions + 3 * v;
-      vertex_nan[v] = (p[0] != p[0]) | (p[1] != p[1]) | (p[2] != p[2]);  // NaN, branch-free
-    }
+    Float4 lo_all = splat(INFINITY), hi_all = splat(-INFINITY);
     for (uint32_t t = 0; t < T; ++t) {
       if (in.inactive && in.inactive[t]) continue;
       const uint32_t* tri = in.indices + 3 * t;
-      if (vertex_nan[tri[0]] | vertex_nan[tri[1]] | vertex_nan[tri[2]]) {
+      const Float4 a = load3(in.positions + 3 * tri[0]);
+      const Float4 b = load3(in.positions + 3 * tri[1]);
+      const Float4 c = load3(in.positions + 3 * tri[2]);
+      if (nan_lanes(a) | nan_lanes(b) | nan_lanes(c)) {
         any_nan = true;
         continue;
       }
+      const Float4 lo = min4(a, min4(b, c)), hi = max4(a, max4(b, c));
+      store4(s.tri_min[n_active], lo);
+      store4(s.tri_max[n_active], hi);
+      lo_all = min4(lo_all, lo);
+      hi_all = max4(hi_all, hi);
       active[n_active++] = uint8_t(t);
-      vertex_used[tri[0]] = vertex_used[tri[1]] = vertex_used[tri[2]] = 1;
     }
-    for (uint32_t v = 0; v < in.vertex_count; ++v) {
-      if (!vertex_used[v]) continue;
-      const float* p = in.positions + 3 * v;
-      for (int k = 0; k < 3; ++k) {
-        bmin[k] = std::min(bmin[k], p[k]);
-        bmax[k] = std::max(bmax[k], p[k]);
-      }
+    if (n_active > 0) {
+      alignas(16) float lo4[4], hi4[4];
+      store4(lo4, lo_all);
+      store4(hi4, hi_all);
+      std::memcpy(bmin, lo4, sizeof bmin);
+      std::memcpy(bmax, hi4, sizeof bmax);
     }
-  }
-  if (n_active == 0) {
-    for (int k = 0; k < 3; ++k) bmin[k] = bmax[k] = 0.0f;
   }
   std::memcpy(h.bounds_min, bmin, sizeof bmin);
   std::memcpy(h.bounds_max, bmax, sizeof bmax);
@@ -120,14 +192,16 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
   uint8_t order[kMaxTriangles];
   uint32_t n_nodes = 0;
   if (is_clas && n_active > 0) {
-    build_bvh(in.positions, in.indices, active, n_active, s);
+    build_bvh(active, n_active, s);
     n_nodes = s.node_count;
     std::memcpy(order, s.perm, n_active);
-    bool is_active[kMaxTriangles] = {};
-    for (uint32_t i = 0; i < n_active; ++i) is_active[active[i]] = true;
-    uint32_t k = n_active;
-    for (uint32_t t = 0; t < T; ++t)
-      if (!is_active[t]) order[k++] = uint8_t(t);
+    if (n_active < T) {
+      bool is_active[kMaxTriangles] = {};
+      for (uint32_t i = 0; i < n_active; ++i) is_active[active[i]] = true;
+      uint32_t k = n_active;
+      for (uint32_t t = 0; t < T; ++t)
+        if (!is_active[t]) order[k++] = uint8_t(t);
+    }
   } else {
     for (uint32_t t = 0; t < T; ++t) order[t] = uint8_t(t);
   }
@@ -196,33 +270,29 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
   std::byte* base = out.data();
   std::memcpy(base, &h, sizeof h);
 
-  float inv_step[3];
-  for (int a = 0; a < 3; ++a) inv_step[a] = 1.0f / frame.step[a];
-  for (uint32_t i = 0; i < n_nodes; ++i) {
-    const BvhScratch::Node& sn = s.nodes[i];
-    BvhNode node{};
-    for (int a = 0; a < 3; ++a) {
-      if (unbounded) {
-        node.qmin[a] = 0;
-        node.qmax[a] = 255;
-      } else {
-        node.qmin[a] = quantize_lo(frame, inv_step, a, sn.lo[a]);
-        node.qmax[a] = quantize_hi(frame, inv_step, a, sn.hi[a]);
-      }
-    }
-    node.link = sn.count ? uint16_t(kLeafBit | ((sn.count - 1u) << 8) | sn.first) : uint16_t(sn.first);
-    std::memcpy(base + h.nodes_offset + 8 * i, &node, 8);
-  }
+  write_nodes(frame, unbounded, s, n_nodes, base + h.nodes_offset);
   if (in.positions) pack_positions(in.positions, 3 * in.vertex_count, h.position_bits, in.truncate_bits, base + h.positions_offset);
+  // Per-triangle sections in stored order, one loop each (no per-triangle tests of which
+  // sections exist).
   std::byte* const index_bytes = base + h.indices_offset;
+  const bool any_dead = in.inactive && std::memchr(in.inactive, 1, T) != nullptr;
   for (uint32_t i = 0; i < T; ++i) {
-    const uint32_t t = order[i];
-    if (!(in.inactive && in.inactive[t]))
-      for (int v = 0; v < 3; ++v) index_bytes[3 * i + v] = std::byte(uint8_t(in.indices[3 * t + v]));  // dead ones stay 0
-    if (!identity) base[h.triangle_order_offset + i] = std::byte(uint8_t(t));
-    if (varying) std::memcpy(base + h.triangle_data_offset + 4 * i, &in.geometry_index_and_flags[t], 4);
-    if (in.has_omm) std::memcpy(base + h.omm_offset + sizeof(OpacityMicromapSection) + 4 * i, &in.omm_indices[t], 4);
+    const uint32_t* tri = in.indices + 3 * order[i];
+    index_bytes[3 * i + 0] = std::byte(uint8_t(tri[0]));
+    index_bytes[3 * i + 1] = std::byte(uint8_t(tri[1]));
+    index_bytes[3 * i + 2] = std::byte(uint8_t(tri[2]));
   }
+  if (any_dead)
+    for (uint32_t i = 0; i < T; ++i)
+      if (in.inactive[order[i]])  // dead ones stay 0
+        for (int v = 0; v < 3; ++v) index_bytes[3 * i + v] = std::byte{0};
+  if (!identity) std::memcpy(base + h.triangle_order_offset, order, T);
+  if (varying)
+    for (uint32_t i = 0; i < T; ++i)
+      std::memcpy(base + h.triangle_data_offset + 4 * i, &in.geometry_index_and_flags[order[i]], 4);
+  if (in.has_omm)
+    for (uint32_t i = 0; i < T; ++i)
+      std::memcpy(base + h.omm_offset + sizeof(OpacityMicromapSection) + 4 * i, &in.omm_indices[order[i]], 4);
   if (in.has_omm) {
     OpacityMicromapSection sec{};
     sec.opacity_micromap_array = in.omm_array;
