@@ -229,6 +229,15 @@ bool PauseWorker::handle(Expected& expected) {
   std::shared_ptr<const engine::MemoryImage> servedImage;
   if (device_.serving && pause.phase == PausePhase::BeforeCommand && pause.parameters) {
     servedImage = executeServed(pause, record);
+    // No pause follows a served command: learn the templates it built (or moved) now, while
+    // its dstAddressesArray holds what the engine just wrote and the queue still waits.
+    if (pause.lastOfCommand) {
+      auto pending = pendingTemplateVertexCounts_.find(pause.pauseId);
+      if (pending != pendingTemplateVertexCounts_.end()) {
+        learnTemplates(*pause.parameters, pending->second);
+        pendingTemplateVertexCounts_.erase(pending);
+      }
+    }
     if (record && pause.lastOfCommand && !servedImage) {
       ClusterMemoryWalk walk = walkClusterOutputs(*pause.parameters, record->executedCount, reader);
       record->outputs = std::move(walk.ranges);

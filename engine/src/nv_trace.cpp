@@ -2,6 +2,7 @@
 // watertight double triangle tests, Vulkan's instance and ray flag rules.
 #include "clastrace/engine/nv_trace.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -240,6 +241,23 @@ uint32_t NvScene::instances_reached() const { return data_->reached; }
 
 namespace {
 
+// The float32 error bound of NvHit::t_error: 8 ulps of the largest magnitude that enters
+// the driver's arithmetic (object-space primitive coordinates and origin, and the terms of
+// the world-to-object transform), over the largest direction component, plus 8 ulps of t.
+double float_t_error(const Instance& inst, const double wo[3], const double o[3], const double d[3],
+                     const NvPrimitiveRecord& p, bool aabb, double t) {
+  double scale = 0.0;
+  for (int a = 0; a < 3; ++a) scale = std::max(scale, std::fabs(o[a]));
+  for (int i = 0; i < (aabb ? 6 : 9); ++i) scale = std::max(scale, std::fabs(double(p.v[i])));
+  for (int r = 0; r < 3; ++r) {
+    const double* m = inst.inverse + 4 * r;
+    scale = std::max(scale, std::fabs(m[0] * wo[0]) + std::fabs(m[1] * wo[1]) + std::fabs(m[2] * wo[2]) + std::fabs(m[3]));
+  }
+  const double dmax = std::max({std::fabs(d[0]), std::fabs(d[1]), std::fabs(d[2])});
+  const double ulp = std::numeric_limits<float>::epsilon();
+  return 8.0 * ulp * (dmax > 0.0 ? scale / dmax : 0.0) + 8.0 * ulp * std::fabs(t);
+}
+
 // One instance's BLAS: updates `best` (closest) or returns true at the first accepted
 // hit (any / terminate-on-first-hit).
 bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32_t flags, bool first_hit, double tmin,
@@ -345,6 +363,7 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
         best->v = float(cand.v);
         best->hit_kind = kind;
         best->opaque = opaque;
+        best->t_error = float(float_t_error(inst, wo, o, d, p, b.aabbs, cand.t));
       }
       *tmax = cand.t;
       if (first_hit) return true;

@@ -95,11 +95,14 @@ std::string format_text(const ReplayReport& r) {
             s += "  ray check '" + c.label + "' on " + hex(c.acceleration_structure) + ": not checked: " + c.why_not + "\n";
             continue;
         }
+        // Labels say how the rays were traced and can be long: the first words name the check.
+        const std::string label = c.label.size() > 40 ? c.label.substr(0, 37) + "..." : c.label;
         std::snprintf(line, sizeof line,
                       "  ray check '%s' on %s: %" PRIu64 " rays, agree %" PRIu64 " (%" PRIu64 " hits, %" PRIu64
-                      " misses), tie %" PRIu64 ", edge %" PRIu64 ", disagree %" PRIu64 "\n",
-                      c.label.c_str(), hex(c.acceleration_structure).c_str(), c.rays, c.agree_hit + c.agree_miss, c.agree_hit,
-                      c.agree_miss, c.tie, c.edge, c.disagree);
+                      " misses; %" PRIu64 " of the hits within float32 error only), tie %" PRIu64 ", edge %" PRIu64
+                      ", disagree %" PRIu64 "\n",
+                      label.c_str(), hex(c.acceleration_structure).c_str(), c.rays, c.agree_hit + c.agree_miss, c.agree_hit,
+                      c.agree_miss, c.float_precision, c.tie, c.edge, c.disagree);
         s += line;
     }
     const ReplayCounts& n = r.counts;
@@ -175,6 +178,7 @@ nlohmann::json to_json(const ReplayReport& r) {
                               {"rays", c.rays},
                               {"agree_hit", c.agree_hit},
                               {"agree_miss", c.agree_miss},
+                              {"agree_hit_float_precision", c.float_precision},
                               {"tie", c.tie},
                               {"edge", c.edge},
                               {"disagree", c.disagree},

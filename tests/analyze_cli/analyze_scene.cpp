@@ -72,7 +72,8 @@ AnalyzeSceneWriter::AnalyzeSceneWriter(const std::string& path, float timestamp_
     add_buffer(S::kIndexBuffer, S::kIndices, 0x10000, input);
     add_buffer(0x2003, S::kInfos, 0x4000, input);
     add_buffer(0x2004, S::kArrays, 0x4000, storage | VK_BUFFER_USAGE_TRANSFER_SRC_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT);
-    add_buffer(S::kPoolBuffer, S::kPool, S::kPoolSize, storage | VK_BUFFER_USAGE_TRANSFER_SRC_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT);
+    add_buffer(S::kPoolBuffer, S::kPool, S::kPoolSize, storage | VK_BUFFER_USAGE_TRANSFER_SRC_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT |
+                                                      VK_BUFFER_USAGE_RAY_TRACING_BIT_NV);  // also the NV build's scratch
     add_buffer(0x2007, S::kSerialized, 0x1000, input);
     add_buffer(S::kAsBuffer, S::kAsStorage, 0x10000, storage);
     begin();
@@ -248,12 +249,24 @@ void AnalyzeSceneWriter::copy_buffer() {
     check(writer_->append(record(std::move(c))));
 }
 
+static std::unique_ptr<fbs::GeometryNVT> nv_triangles(uint32_t index_count) {
+    auto g = std::make_unique<fbs::GeometryNVT>();
+    g->geometry_type = VK_GEOMETRY_TYPE_TRIANGLES_NV;
+    g->triangles = std::make_unique<fbs::GeometryTrianglesNV>(AnalyzeScene::kVertexBuffer, 0, 10, VK_FORMAT_R32G32B32_SFLOAT, 12,
+                                                              AnalyzeScene::kIndexBuffer, 0x8000, index_count,
+                                                              VK_INDEX_TYPE_UINT32, 0, 0);
+    return g;
+}
+
 void AnalyzeSceneWriter::nv_build(uint32_t index_count, uint64_t object_bytes, uint64_t scratch_bytes) {
     if (!nv_declared_) {
         fbs::AccelerationStructureCreateT c;
         c.acceleration_structure = AnalyzeScene::kNvObject;
         c.api = 0;
         c.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV;
+        c.info = std::make_unique<fbs::AccelerationStructureInfoNVT>();  // room for the build's geometry
+        c.info->type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV;
+        c.info->geometries.push_back(nv_triangles(index_count));
         check(writer_->append(record(std::move(c))));
         for (auto [type, size] : {std::pair<uint32_t, uint64_t>{VK_ACCELERATION_STRUCTURE_MEMORY_REQUIREMENTS_TYPE_OBJECT_NV, object_bytes},
                                   {VK_ACCELERATION_STRUCTURE_MEMORY_REQUIREMENTS_TYPE_BUILD_SCRATCH_NV, scratch_bytes}}) {
@@ -264,22 +277,30 @@ void AnalyzeSceneWriter::nv_build(uint32_t index_count, uint64_t object_bytes, u
             q.alignment = 256;
             check(writer_->append(record(std::move(q))));
         }
+        fbs::AccelerationStructureBindMemoryT bind;  // an unbound dst is VUID 07787
+        bind.acceleration_structure = AnalyzeScene::kNvObject;
+        bind.memory = 0x3001;
+        check(writer_->append(record(std::move(bind))));
         nv_declared_ = true;
     }
     fbs::CmdBuildAccelerationStructureNVT b;
     b.command_buffer = command_buffer_;
     b.info = std::make_unique<fbs::AccelerationStructureInfoNVT>();
     b.info->type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV;
-    auto g = std::make_unique<fbs::GeometryNVT>();
-    g->geometry_type = VK_GEOMETRY_TYPE_TRIANGLES_NV;
-    g->triangles = std::make_unique<fbs::GeometryTrianglesNV>(AnalyzeScene::kVertexBuffer, 0, 10, VK_FORMAT_R32G32B32_SFLOAT, 12,
-                                                              AnalyzeScene::kIndexBuffer, 0x8000, index_count,
-                                                              VK_INDEX_TYPE_UINT32, 0, 0);
-    b.info->geometries.push_back(std::move(g));
+    b.info->geometries.push_back(nv_triangles(index_count));
     b.dst = AnalyzeScene::kNvObject;
     b.scratch = AnalyzeScene::kPoolBuffer;
     b.scratch_offset = 0x38000;
     check(writer_->append(record(std::move(b))));
+}
+
+// Another driver's serialized object (UUIDs not the engine's): opaque to the replay, but its
+// header must hold together (sizes, no handles) or the replay reports VUID 04960.
+static std::vector<uint8_t> foreign_serialized_blob(uint64_t serialized_bytes, uint64_t object_bytes) {
+    std::vector<uint8_t> blob(std::max<uint64_t>(serialized_bytes, 56), 0x5a);
+    const uint64_t header[3] = {blob.size(), object_bytes, 0};  // serialized, deserialized size, handle count
+    std::memcpy(blob.data() + 32, header, sizeof header);
+    return blob;
 }
 
 void AnalyzeSceneWriter::deserialize(uint64_t serialized_bytes, uint64_t object_bytes) {
@@ -294,7 +315,7 @@ void AnalyzeSceneWriter::deserialize(uint64_t serialized_bytes, uint64_t object_
         check(writer_->append(record(std::move(c))));
         khr_declared_ = true;
     }
-    std::vector<uint8_t> serialized(serialized_bytes, 0x5a);
+    std::vector<uint8_t> serialized = foreign_serialized_blob(serialized_bytes, object_bytes);
     fbs::CmdCopyMemoryToAccelerationStructureT k;
     k.command_buffer = command_buffer_;
     k.src_address = AnalyzeScene::kSerialized;

@@ -48,6 +48,12 @@ struct NvHit {
   float u = 0.0f, v = 0.0f;
   uint32_t hit_kind = 0;
   bool opaque = false;
+  // How far a float32 implementation's t may honestly sit from this t: a few units in the
+  // last place of the largest coordinate the hit involved (the primitive's object-space
+  // coordinates, the ray origin and its transform into object space), divided by the
+  // direction's size. Drivers trace in float; the engine in double. Replay compares a
+  // driver's t against this bound, not only against a relative tolerance of t.
+  float t_error = 0.0f;
 };
 
 // A top-level object opened once for many rays: its bytes and every BLAS it reaches are

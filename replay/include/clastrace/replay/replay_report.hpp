@@ -82,6 +82,8 @@ struct RayCheckResult {
     std::string why_not;
     uint64_t rays = 0;
     uint64_t agree_miss = 0, agree_hit = 0;
+    uint64_t float_precision = 0;    // of agree_hit: same primitive, t off by more than 1e-5
+                                     // relative but within the engine's float32 error bound
     uint64_t tie = 0;                // other primitive at the same t (shared edges, overlaps)
     uint64_t edge = 0;               // hit/miss or primitive differs within 1e-5 of an edge
     uint64_t disagree = 0;           // each one also a finding (up to the cap)
