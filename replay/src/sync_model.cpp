@@ -480,7 +480,7 @@ struct SyncModel::State {
         const uint64_t begin = b.range.begin, end = b.range.end;
         if (end <= begin) return;
         std::vector<Finding> found;
-        found_index.clear();
+        if (!found_index.empty()) found_index.clear();  // clear() would wipe every bucket each time
         const Later later{&b, b.queue, deserialize};
         auto it = segments.upper_bound(begin);
         if (it != segments.begin()) {
