@@ -339,11 +339,15 @@ void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect
         c.add_finding({f.rule, f.message, FindingSource::kEngine, c.where, f.op_index, f.address});
     }
     if (c.options.check_hazards) {
+        // One call for the command: the model keeps each per-op array as one range.
+        std::vector<Access> accesses;
+        accesses.reserve(record.accesses.size());
         for (const engine::MemoryAccess& a : record.accesses) {
             if (a.end <= a.begin) continue;
-            ++c.report.counts.accesses;
-            c.sync.record_access(c.ref, Access{{a.begin, a.end}, a.stage, a.access, a.is_write, a.field});
+            accesses.push_back(Access{{a.begin, a.end}, a.stage, a.access, a.is_write, a.field});
         }
+        c.report.counts.accesses += accesses.size();
+        c.sync.record_accesses(c.ref, accesses);
     }
     verify(build, info, record, c);
     if (c.executed) *c.executed = std::move(record);

@@ -34,6 +34,14 @@ struct SyncModel::State {
     std::vector<std::string> field_names{""};
     std::unordered_map<std::string, uint32_t, FieldHash, std::equal_to<>> field_ids{{"", 0}};
 
+    // record_accesses' working lists, kept to spare the allocations per command.
+    struct BatchScratch {
+        std::vector<std::pair<uint64_t, uint32_t>> by_begin;
+        std::vector<uint8_t> pinned;
+        std::vector<int32_t> run_of, next_member;
+        std::vector<uint32_t> members;
+    } batch;
+
     uint64_t tag = 1;
     CommandRef last_command;
     uint16_t last_queue = 0;
@@ -312,19 +320,93 @@ struct SyncModel::State {
         Record prior;  // a copy: the segment's record is replaced right after the check
         FixKind fix;
         AddressRange overlap;
+        // The later access is one element of an element run: the element's field and bytes.
+        bool later_element = false;
+        uint32_t later_field = 0;
+        AddressRange later_range;
+        uint32_t order = 0;         // record_accesses: index of the later access in the command's list
+        uint32_t later_record = 0;  // record_accesses: which of its records was the later access
     };
+
+    // The element of an element run holding byte `at`: its field and bytes (a plain record:
+    // its own). Interning here runs only on the hazard path.
+    void element_of(const Record& r, uint64_t at, uint32_t* field, AddressRange* range) {
+        if (!r.element_bytes) {
+            *field = r.field;
+            *range = r.range;
+            return;
+        }
+        const uint64_t k = (at - r.range.begin) / r.element_bytes;
+        range->begin = r.range.begin + k * r.element_bytes;
+        range->end = range->begin + r.element_bytes;
+        const std::string name = field_names[r.field] + std::to_string(r.first_element + k) + field_names[r.field_suffix];
+        *field = intern(name);
+    }
+
+    // Findings of one access are few, except when an element run meets another: then the
+    // pairs of elements are many, and a linear search for the key would be quadratic.
+    std::unordered_map<HazardKey, std::size_t, HazardKeyHash> found_index;
+
+    void note_one(std::vector<Finding>& found, HazardKey key, const Record& prior, const AddressRange& prior_range,
+                  const Record& later, const AddressRange& later_range, FixKind fix, uint64_t begin, uint64_t end) {
+        Finding* same = nullptr;
+        if (found.size() <= 16) {
+            for (Finding& f : found)
+                if (f.key == key) same = &f;
+        } else {
+            if (found_index.empty())
+                for (std::size_t i = 0; i < found.size(); ++i) found_index.emplace(found[i].key, i);
+            if (auto it = found_index.find(key); it != found_index.end()) same = &found[it->second];
+        }
+        if (same) {  // the same two accesses over adjacent segments: widen the region
+            same->overlap.begin = std::min(same->overlap.begin, begin);
+            same->overlap.end = std::max(same->overlap.end, end);
+            return;
+        }
+        Finding f;
+        f.key = key;
+        f.prior = prior;
+        f.fix = fix;
+        f.overlap = {begin, end};
+        if (prior.element_bytes) {
+            f.prior.range = prior_range;
+            f.prior.field = key.prior_field;
+            f.prior.element_bytes = 0;
+        }
+        if (later.element_bytes) {
+            f.later_element = true;
+            f.later_field = key.later_field;
+            f.later_range = later_range;
+        }
+        if (!found_index.empty()) found_index.emplace(key, found.size());
+        found.push_back(std::move(f));
+    }
 
     void note(std::vector<Finding>& found, HazardClass hazard, const Record& prior, const Record& later, FixKind fix,
               uint64_t seg_begin, uint64_t seg_end) {
-        HazardKey key{prior.tag, later.tag, prior.field, later.field, hazard};
-        for (Finding& f : found) {
-            if (f.key == key) {  // the same two accesses over adjacent segments: widen the region
-                f.overlap.begin = std::min(f.overlap.begin, seg_begin);
-                f.overlap.end = std::max(f.overlap.end, seg_end);
-                return;
-            }
+        if (!prior.element_bytes && !later.element_bytes) {
+            note_one(found, {prior.tag, later.tag, prior.field, later.field, hazard}, prior, prior.range, later,
+                     later.range, fix, seg_begin, seg_end);
+            return;
         }
-        found.push_back({key, prior, fix, {seg_begin, seg_end}});
+        // Per pair of elements whose bytes meet, in address order: what record_access on
+        // each element would have found segment by segment.
+        for (uint64_t p = seg_begin; p < seg_end;) {
+            uint32_t prior_field;
+            AddressRange prior_range;
+            element_of(prior, p, &prior_field, &prior_range);
+            const uint64_t p_end = std::min(seg_end, prior_range.end);
+            for (uint64_t l = p; l < p_end;) {
+                uint32_t later_field;
+                AddressRange later_range;
+                element_of(later, l, &later_field, &later_range);
+                const uint64_t l_end = std::min(p_end, later_range.end);
+                note_one(found, {prior.tag, later.tag, prior_field, later_field, hazard}, prior, prior_range, later,
+                         later_range, fix, l, l_end);
+                l = l_end;
+            }
+            p = p_end;
+        }
     }
 
     HazardAccess describe(const Record& r) const {
@@ -355,6 +437,10 @@ struct SyncModel::State {
         rep.hazard = f.key.hazard;
         rep.prior = describe(f.prior);
         rep.later = describe(later);
+        if (f.later_element) {
+            rep.later.range = f.later_range;
+            rep.later.field = field_names[f.later_field];
+        }
         rep.overlap = f.overlap;
         rep.fix.kind = f.fix;
         rep.fix.src_stages = f.prior.stage;
@@ -388,11 +474,13 @@ struct SyncModel::State {
     // One pass over the segments [begin, end) touches: splits at the two ends as it meets
     // them, fills gaps with fresh segments, and (a write) leaves one segment behind. Each
     // access costs one tree search plus the segments it covers.
-    void record(const Record& b, bool deserialize) {
+    // `collect`: findings go there instead of being reported (record_accesses orders them).
+    void record(const Record& b, bool deserialize, std::vector<Finding>* collect = nullptr) {
         ++stats.accesses;
         const uint64_t begin = b.range.begin, end = b.range.end;
         if (end <= begin) return;
         std::vector<Finding> found;
+        if (!found_index.empty()) found_index.clear();  // clear() would wipe every bucket each time
         const Later later{&b, b.queue, deserialize};
         auto it = segments.upper_bound(begin);
         if (it != segments.begin()) {
@@ -433,7 +521,9 @@ struct SyncModel::State {
             cursor = it->second.end;
             ++it;
         }
-        for (const Finding& f : found) emit(f, b);
+        if (collect) collect->insert(collect->end(), std::make_move_iterator(found.begin()), std::make_move_iterator(found.end()));
+        else
+            for (const Finding& f : found) emit(f, b);
         if (b.is_write && std::next(first) != it) {
             // Every segment in the range now holds just this write: one segment is enough.
             // (Without this, overlapping writes would fragment memory byte by byte.)
@@ -760,17 +850,159 @@ void SyncModel::record_access(const CommandRef& command, const Access& access) {
     s.record(s.make_record(command, access, s.current_queue, t), false);
 }
 
+namespace {
+
+// "srcInfosArray[12].vertexBuffer" -> "srcInfosArray[", 12, "].vertexBuffer". Only the
+// canonical spelling of the index (no leading zeros) counts, so the text rebuilt from the
+// parts is the field itself.
+bool split_indexed_field(std::string_view field, std::string_view* prefix, uint64_t* index, std::string_view* suffix) {
+    const std::size_t open = field.find('[');
+    if (open == std::string_view::npos) return false;
+    std::size_t i = open + 1;
+    uint64_t value = 0;
+    while (i < field.size() && field[i] >= '0' && field[i] <= '9' && i - open <= 9) value = value * 10 + uint64_t(field[i++] - '0');
+    const std::size_t digits = i - open - 1;
+    if (digits == 0 || i >= field.size() || field[i] != ']' || (digits > 1 && field[open + 1] == '0')) return false;
+    *prefix = field.substr(0, open + 1);
+    *index = value;
+    *suffix = field.substr(i);
+    return true;
+}
+
+}  // namespace
+
+void SyncModel::record_accesses(const CommandRef& command, std::span<const Access> accesses) {
+    State& s = *state_;
+    const std::size_t n = accesses.size();
+    if (n < 2) {
+        for (const Access& a : accesses) record_access(command, a);
+        return;
+    }
+    const uint64_t t = s.command_tag(command, s.current_queue);
+
+    // Accesses overlapping another of the command keep their place in the order: pinned.
+    auto& by_begin = s.batch.by_begin;
+    by_begin.clear();
+    for (uint32_t i = 0; i < n; ++i)
+        if (!accesses[i].range.empty()) by_begin.push_back({accesses[i].range.begin, i});
+    std::sort(by_begin.begin(), by_begin.end());
+    auto& pinned = s.batch.pinned;
+    pinned.assign(n, 0);
+    uint64_t reach = 0;
+    uint32_t reach_index = 0;
+    bool any = false;
+    for (const auto& [begin, i] : by_begin) {
+        if (any && begin < reach) pinned[i] = pinned[reach_index] = 1;
+        if (!any || accesses[i].range.end > reach) {
+            reach = accesses[i].range.end;
+            reach_index = i;
+            any = true;
+        }
+    }
+
+    // Element runs, each growing while the next element continues it.
+    struct Run {
+        std::string_view prefix, suffix;
+        uint64_t first = 0, next = 0, bytes = 0;
+        AddressRange range;
+        uint32_t head = 0, last = 0, count = 1, members_at = 0;
+    };
+    std::vector<Run> runs;
+    auto& run_of = s.batch.run_of;
+    auto& next_member = s.batch.next_member;
+    run_of.assign(n, -1);
+    next_member.assign(n, -1);
+    std::size_t open[8];  // runs still growing, one per field shape
+    std::size_t open_count = 0;
+    for (uint32_t i = 0; i < n; ++i) {
+        const Access& a = accesses[i];
+        std::string_view prefix, suffix;
+        uint64_t index = 0;
+        if (pinned[i] || a.range.empty() || !split_indexed_field(a.field, &prefix, &index, &suffix)) continue;
+        const uint64_t bytes = a.range.end - a.range.begin;
+        std::size_t* slot = nullptr;
+        for (std::size_t k = 0; k < open_count; ++k) {
+            const Run& r = runs[open[k]];
+            const Access& h = accesses[r.head];
+            if (r.prefix == prefix && r.suffix == suffix && h.stage == a.stage && h.access == a.access &&
+                h.is_write == a.is_write)
+                slot = &open[k];
+        }
+        if (slot) {
+            Run& r = runs[*slot];
+            if (r.next == index && r.range.end == a.range.begin && r.bytes == bytes) {
+                r.range.end = a.range.end;
+                ++r.next;
+                next_member[r.last] = int32_t(i);
+                r.last = i;
+                ++r.count;
+                run_of[i] = int32_t(*slot);
+                continue;
+            }
+        }
+        if (bytes > UINT32_MAX || index > UINT32_MAX) continue;
+        runs.push_back({prefix, suffix, index, index + 1, bytes, a.range, i, i});
+        run_of[i] = int32_t(runs.size() - 1);
+        if (slot) *slot = runs.size() - 1;
+        else if (open_count < std::size(open)) open[open_count++] = runs.size() - 1;
+    }
+    // Each run's members in one flat list: a finding on element k belongs to its k-th access.
+    auto& members = s.batch.members;
+    members.clear();
+    for (Run& r : runs) {
+        r.members_at = uint32_t(members.size());
+        for (int32_t m = int32_t(r.head); m >= 0; m = next_member[std::size_t(m)]) members.push_back(uint32_t(m));
+    }
+
+    // Record in the command's order (a run at its first element); report in that order too.
+    std::vector<State::Finding> found, each;
+    std::vector<Record> laters;
+    for (uint32_t i = 0; i < n; ++i) {
+        const int32_t ri = run_of[i];
+        const Run* run = ri >= 0 && runs[std::size_t(ri)].count > 1 ? &runs[std::size_t(ri)] : nullptr;
+        Record rec;
+        if (run) {
+            if (run->head != i) continue;
+            Access a = accesses[i];
+            a.range = run->range;
+            a.field = run->prefix;
+            rec = s.make_record(command, a, s.current_queue, t);
+            rec.element_bytes = uint32_t(run->bytes);
+            rec.first_element = uint32_t(run->first);
+            rec.field_suffix = s.intern(run->suffix);
+            s.stats.accesses += run->count - 1;  // counted per access, as record_access would
+        } else {
+            rec = s.make_record(command, accesses[i], s.current_queue, t);
+        }
+        each.clear();
+        s.record(rec, false, &each);
+        if (each.empty()) continue;
+        for (State::Finding& f : each) {
+            f.order = i;
+            if (f.later_element)
+                f.order = members[run->members_at + std::size_t((f.later_range.begin - rec.range.begin) / rec.element_bytes)];
+            f.later_record = uint32_t(laters.size());
+        }
+        laters.push_back(std::move(rec));
+        found.insert(found.end(), std::make_move_iterator(each.begin()), std::make_move_iterator(each.end()));
+    }
+    std::stable_sort(found.begin(), found.end(),
+                     [](const State::Finding& a, const State::Finding& b) { return a.order < b.order; });
+    for (const State::Finding& f : found) s.emit(f, laters[f.later_record]);
+}
+
 void SyncModel::record_copy(const CommandRef& command, const Access& source, const Access& destination) {
     State& s = *state_;
     const uint64_t t = s.command_tag(command, s.current_queue);
     Record src = s.make_record(command, source, s.current_queue, t);
     Record dst = s.make_record(command, destination, s.current_queue, t);
     if (source.range.overlaps(destination.range)) {
-        State::Finding f{{t, t, src.field, dst.field, HazardClass::kMoveOverlap},
-                         src,
-                         FixKind::kDisjointRanges,
-                         {std::max(source.range.begin, destination.range.begin),
-                          std::min(source.range.end, destination.range.end)}};
+        State::Finding f;
+        f.key = {t, t, src.field, dst.field, HazardClass::kMoveOverlap};
+        f.prior = src;
+        f.fix = FixKind::kDisjointRanges;
+        f.overlap = {std::max(source.range.begin, destination.range.begin),
+                     std::min(source.range.end, destination.range.end)};
         s.emit(f, dst);
     }
     s.record(src, false);

@@ -91,7 +91,13 @@ struct Record {
     StageMask stage = 0;         // one atomic stage
     AccessMask access = 0;       // as given, for reports
     AccessMask atoms = 0;        // atomic accesses, for checks
-    uint32_t field = 0;
+    uint32_t field = 0;          // an element run: the field's text before the index, e.g. "srcInfosArray["
+    // An element run (SyncModel::record_accesses): element k is the byte range
+    // [range.begin + k * element_bytes, +element_bytes), named field + (first_element + k) +
+    // field_suffix. Hazards are decided per segment as for any record and named per element.
+    uint32_t element_bytes = 0;  // 0: one access
+    uint32_t first_element = 0;
+    uint32_t field_suffix = 0;
     uint32_t log_pos = 0;        // absolute position in its queue's log applied up to
     uint16_t queue = 0;          // queue slot, or kHostSlot
     bool is_write = false;

@@ -53,6 +53,14 @@ public:
     // Waits happen before the batch's commands (pWaitSemaphoreInfos / pWaitDstStageMask).
     void begin_submission(QueueId queue, uint32_t submission_index, std::span<const SemaphoreWait> waits = {});
     void record_access(const CommandRef& command, const Access& access);
+    // All accesses of one command, in the command's order: the same hazards, reported in the
+    // same order and naming the same fields and ranges, as record_access on each in turn.
+    // Cheaper for per-op arrays: accesses named "x[i]" (same text around the index, same
+    // stage, access and direction, equal sizes, each starting where the one of i-1 ends) are
+    // kept as one range, and a hazard on it is split back to the elements whose bytes meet.
+    // Accesses overlapping another access of the command are recorded one by one, in order
+    // (their order decides which of them a later command's hazard names).
+    void record_accesses(const CommandRef& command, std::span<const Access> accesses);
     // A copy or move whose source and destination must not overlap (vkCmdCopyBuffer,
     // cluster moves with noMoveOverlap, AS copies): reports kMoveOverlap, then records both.
     void record_copy(const CommandRef& command, const Access& source, const Access& destination);
