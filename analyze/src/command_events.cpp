@@ -2,10 +2,12 @@
 
 #include <algorithm>
 #include <cstring>
+#include <optional>
 #include <string_view>
 
 #include <fmt/format.h>
 
+#include <clastrace/engine/cluster_format.h>
 #include <clastrace/engine/execution_record.h>
 #include <clastrace/engine/memory_image.h>
 
@@ -126,6 +128,20 @@ std::optional<uint64_t> available(const RecordedState& recorded, uint64_t addres
   auto b = recorded.buffer_at(address);
   if (!b) return std::nullopt;
   return b->base + b->size - address;
+}
+
+// The header of the engine object at `address` in replay memory, if one is there.
+std::optional<engine::ObjectHeader> engine_object_header(const engine::MemoryImage* memory, uint64_t address) {
+  if (!memory || address == 0) return std::nullopt;
+  try {
+    const auto bytes = memory->read_bytes(address, sizeof(engine::ObjectHeader), engine::FieldRef{"object header", -1});
+    engine::ObjectHeader h;
+    std::memcpy(&h, bytes.data(), sizeof h);
+    if (h.magic != engine::kObjectMagic) return std::nullopt;
+    return h;
+  } catch (const engine::MemoryFault&) {
+    return std::nullopt;
+  }
 }
 
 VkClusterAccelerationStructureTriangleClusterInputNV triangle_input(const fbs::ClusterInputInfo* in) {
@@ -299,6 +315,12 @@ void describe_cluster(const replay::ReplayedCommand& c, const fbs::CmdBuildClust
           o.triangles = shape->second.triangles;
           o.vertices = shape->second.vertices;
           o.truncate_bits = shape->second.truncate_bits;
+        } else if (auto h = engine_object_header(c.memory, op.dst_address)) {
+          // A template moved (or built before the trace) is not in ctx.templates: the
+          // instantiated object's own header says what it holds.
+          o.triangles = h->triangle_count;
+          o.vertices = h->vertex_count;
+          o.truncate_bits = h->position_truncate_bits;
         }
       }
     }
