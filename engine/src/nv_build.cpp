@@ -211,6 +211,8 @@ std::vector<std::byte> assemble(NvObjectHeader h, std::span<const NvGeometryReco
 std::vector<std::byte> build_bottom(const nv::BottomInput& in, uint32_t flags) {
   std::vector<Box> boxes;
   std::vector<uint32_t> source;  // input primitive record of each box
+  boxes.reserve(in.primitives.size());
+  source.reserve(in.primitives.size());
   for (uint32_t i = 0; i < in.primitives.size(); ++i) {
     if (!in.active[i]) continue;
     const NvPrimitiveRecord& p = in.primitives[i];
@@ -218,7 +220,11 @@ std::vector<std::byte> build_bottom(const nv::BottomInput& in, uint32_t flags) {
     boxes.push_back(b);
     source.push_back(i);
   }
-  nv::Tree tree = nv::build_tree(boxes);
+  // PREFER_FAST_BUILD alone picks the Morton builder; with PREFER_FAST_TRACE (an invalid
+  // pair, reported) or neither, the SAH builder.
+  const bool fast_build = (flags & VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV) &&
+                          !(flags & VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_NV);
+  nv::Tree tree = nv::build_tree(boxes, fast_build ? nv::TreeQuality::kMorton : nv::TreeQuality::kSah);
   std::vector<NvPrimitiveRecord> ordered(tree.order.size());
   for (size_t k = 0; k < tree.order.size(); ++k) ordered[k] = in.primitives[source[tree.order[k]]];
   NvObjectHeader h{};
