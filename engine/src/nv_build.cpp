@@ -185,13 +185,15 @@ bool check_command(Context& c) {
 }
 
 // The assembled object: header, geometries, records, nodes.
-std::vector<std::byte> assemble(NvObjectHeader h, std::span<const NvGeometryRecord> geometries,
-                                std::span<const std::byte> records, std::span<const NvNode> nodes) {
+// `write_records(dst)` writes the `records_size` record bytes in place (no staging copy).
+template <class WriteRecords>
+std::vector<std::byte> assemble(NvObjectHeader h, std::span<const NvGeometryRecord> geometries, uint64_t records_size,
+                                WriteRecords write_records, std::span<const NvNode> nodes) {
   h.magic = kNvObjectMagic;
   h.format_version = kNvFormatVersion;
   h.geometries_offset = sizeof(NvObjectHeader);
   h.primitives_offset = h.geometries_offset + geometries.size_bytes();
-  h.nodes_offset = h.primitives_offset + records.size();
+  h.nodes_offset = h.primitives_offset + records_size;
   h.object_size = h.nodes_offset + nodes.size_bytes();
   h.geometry_count = uint32_t(geometries.size());
   h.node_count = uint32_t(nodes.size());
@@ -203,37 +205,38 @@ std::vector<std::byte> assemble(NvObjectHeader h, std::span<const NvGeometryReco
   std::vector<std::byte> out(h.object_size);
   std::memcpy(out.data(), &h, sizeof h);
   if (!geometries.empty()) std::memcpy(out.data() + h.geometries_offset, geometries.data(), geometries.size_bytes());
-  if (!records.empty()) std::memcpy(out.data() + h.primitives_offset, records.data(), records.size());
+  write_records(out.data() + h.primitives_offset);
   if (!nodes.empty()) std::memcpy(out.data() + h.nodes_offset, nodes.data(), nodes.size_bytes());
   return out;
 }
 
 std::vector<std::byte> build_bottom(const nv::BottomInput& in, uint32_t flags) {
-  std::vector<Box> boxes;
-  std::vector<uint32_t> source;  // input primitive record of each box
-  boxes.reserve(in.primitives.size());
-  source.reserve(in.primitives.size());
+  std::vector<Box> boxes(in.primitives.size());
+  std::vector<uint32_t> source(in.primitives.size());  // input primitive record of each box
+  size_t active = 0;
   for (uint32_t i = 0; i < in.primitives.size(); ++i) {
     if (!in.active[i]) continue;
     const NvPrimitiveRecord& p = in.primitives[i];
-    Box b = in.aabbs ? Box{{p.v[0], p.v[1], p.v[2]}, {p.v[3], p.v[4], p.v[5]}} : nv::triangle_box(p.v);
-    boxes.push_back(b);
-    source.push_back(i);
+    boxes[active] = in.aabbs ? Box{{p.v[0], p.v[1], p.v[2]}, {p.v[3], p.v[4], p.v[5]}} : nv::triangle_box(p.v);
+    source[active++] = i;
   }
+  boxes.resize(active);
   // PREFER_FAST_BUILD alone picks the Morton builder; with PREFER_FAST_TRACE (an invalid
   // pair, reported) or neither, the SAH builder.
   const bool fast_build = (flags & VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV) &&
                           !(flags & VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_NV);
   nv::Tree tree = nv::build_tree(boxes, fast_build ? nv::TreeQuality::kMorton : nv::TreeQuality::kSah);
-  std::vector<NvPrimitiveRecord> ordered(tree.order.size());
-  for (size_t k = 0; k < tree.order.size(); ++k) ordered[k] = in.primitives[source[tree.order[k]]];
   NvObjectHeader h{};
   h.kind = uint8_t(NvObjectKind::kBottomLevel);
   h.build_flags = flags;
   h.geometry_type = in.aabbs ? VK_GEOMETRY_TYPE_AABBS_NV : VK_GEOMETRY_TYPE_TRIANGLES_NV;
-  h.primitive_count = uint32_t(ordered.size());
+  h.primitive_count = uint32_t(tree.order.size());
   h.input_count = uint32_t(in.primitives.size());
-  return assemble(h, in.geometries, std::as_bytes(std::span(ordered)), tree.nodes);
+  auto write_records = [&](std::byte* dst) {
+    for (size_t k = 0; k < tree.order.size(); ++k)
+      std::memcpy(dst + k * sizeof(NvPrimitiveRecord), &in.primitives[source[tree.order[k]]], sizeof(NvPrimitiveRecord));
+  };
+  return assemble(h, in.geometries, tree.order.size() * sizeof(NvPrimitiveRecord), write_records, tree.nodes);
 }
 
 std::vector<std::byte> build_top(const nv::TopInput& in, uint32_t flags) {
@@ -296,7 +299,11 @@ std::vector<std::byte> build_top(const nv::TopInput& in, uint32_t flags) {
   h.build_flags = flags;
   h.primitive_count = uint32_t(in.instances.size());
   h.input_count = uint32_t(in.instances.size());
-  return assemble(h, {}, std::as_bytes(std::span(in.instances)), nodes);
+  const auto records = std::as_bytes(std::span(in.instances));
+  auto write_records = [&](std::byte* dst) {
+    if (!records.empty()) std::memcpy(dst, records.data(), records.size());
+  };
+  return assemble(h, {}, records.size(), write_records, nodes);
 }
 
 // The src object for an update, checked; nullopt (with a finding) when src holds none.

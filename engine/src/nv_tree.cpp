@@ -10,6 +10,7 @@
 #include "nv_internal.h"
 
 #include <emmintrin.h>
+#include <tbb/global_control.h>
 #include <tbb/parallel_invoke.h>
 #include <tbb/task_arena.h>
 
@@ -286,7 +287,8 @@ uint32_t spread_bits(uint32_t x) {
 // code of their centroid, every node split where its range's highest differing code bit
 // flips. One sort and one pass per level, no cost evaluation: the fast-build mode.
 struct MortonBuilder {
-  const BoxRef* refs;     // sorted by code
+  const Box* boxes;
+  const uint32_t* items;  // sorted by code
   const uint32_t* codes;  // sorted
   uint32_t parallel_items;
 
@@ -297,7 +299,10 @@ struct MortonBuilder {
     const uint32_t count = end - begin;
     if (count <= kNvMaxLeafSize) {
       Bounds4 b = Bounds4::empty();
-      for (uint32_t i = begin; i < end; ++i) b.grow(load_lo(refs[i]), _mm_load_ps(refs[i].hi));
+      for (uint32_t i = begin; i < end; ++i) {
+        const Box& box = boxes[items[i]];
+        b.grow(_mm_setr_ps(box.lo[0], box.lo[1], box.lo[2], 0.0f), _mm_setr_ps(box.hi[0], box.hi[1], box.hi[2], 0.0f));
+      }
       Builder::set_bounds(out[node], b);
       out[node].first = begin;
       out[node].count = count;
@@ -335,12 +340,19 @@ struct MortonBuilder {
 void sort_by_code(std::vector<uint32_t>& codes, std::vector<uint32_t>& items) {
   const size_t n = codes.size();
   std::vector<uint32_t> codes2(n), items2(n);
-  for (int shift = 0; shift < 30; shift += 10) {
-    uint32_t histogram[1025] = {};
-    for (size_t i = 0; i < n; ++i) ++histogram[((codes[i] >> shift) & 1023) + 1];
-    for (int k = 0; k < 1024; ++k) histogram[k + 1] += histogram[k];
+  std::vector<uint32_t> histograms(3 * 1024, 0);  // all three digits counted in one pass
+  for (size_t i = 0; i < n; ++i)
+    for (int d = 0; d < 3; ++d) ++histograms[1024 * d + ((codes[i] >> (10 * d)) & 1023)];
+  for (int d = 0; d < 3; ++d) {
+    uint32_t* start = histograms.data() + 1024 * d;
+    uint32_t sum = 0;
+    for (int k = 0; k < 1024; ++k) {
+      const uint32_t c = start[k];
+      start[k] = sum;
+      sum += c;
+    }
     for (size_t i = 0; i < n; ++i) {
-      const uint32_t at = histogram[(codes[i] >> shift) & 1023]++;
+      const uint32_t at = start[(codes[i] >> (10 * d)) & 1023]++;
       codes2[at] = codes[i];
       items2[at] = items[i];
     }
@@ -378,39 +390,55 @@ Box transform_box(const Box& local, const float m[12]) {
 Tree build_tree(std::span<const Box> boxes, TreeQuality quality) {
   Tree t;
   if (boxes.empty()) return t;
-  std::vector<BoxRef> refs(boxes.size());
-  for (size_t i = 0; i < boxes.size(); ++i) {
-    BoxRef& r = refs[i];
-    std::memcpy(r.lo, boxes[i].lo, 12);
-    std::memcpy(r.hi, boxes[i].hi, 12);
-    r.id = uint32_t(i);
-    r.pad = 0;
-  }
   // One thread: no tasks and no splicing (the same bytes either way).
-  const uint32_t parallel_items = tbb::this_task_arena::max_concurrency() > 1 ? kParallelItems : ~0u;
-  Builder b{refs.data(), parallel_items};
-  const Range all = b.bounds_of(0, uint32_t(boxes.size()));
-  t.nodes.reserve(2 * boxes.size());
+  // (global_control caps the threads without changing the arena's reported concurrency.)
+  const size_t threads = std::min<size_t>(size_t(tbb::this_task_arena::max_concurrency()),
+                                          tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
+  const uint32_t parallel_items = threads > 1 ? kParallelItems : ~0u;
+  const uint32_t n = uint32_t(boxes.size());
+  auto load = [&](uint32_t i, __m128* lo, __m128* hi) {
+    *lo = _mm_setr_ps(boxes[i].lo[0], boxes[i].lo[1], boxes[i].lo[2], 0.0f);
+    *hi = _mm_setr_ps(boxes[i].hi[0], boxes[i].hi[1], boxes[i].hi[2], 0.0f);
+  };
   if (quality == TreeQuality::kSah) {
-    b.build(t.nodes, all, 0);
-  } else {
-    // 10 bits per axis over the centroid bounds (NaN and unusable axes quantize to 0).
-    const BinMap map(all.centroids, 1024);
-    std::vector<uint32_t> codes(refs.size()), items(refs.size());
-    for (size_t i = 0; i < refs.size(); ++i) {
-      alignas(16) int32_t q[4];
-      _mm_store_si128(reinterpret_cast<__m128i*>(q), map.bins(centroid(load_lo(refs[i]), _mm_load_ps(refs[i].hi))));
-      codes[i] = spread_bits(uint32_t(q[0])) | spread_bits(uint32_t(q[1])) << 1 | spread_bits(uint32_t(q[2])) << 2;
-      items[i] = uint32_t(i);
+    std::vector<BoxRef> refs(n);
+    for (uint32_t i = 0; i < n; ++i) {
+      BoxRef& r = refs[i];
+      std::memcpy(r.lo, boxes[i].lo, 12);
+      std::memcpy(r.hi, boxes[i].hi, 12);
+      r.id = i;
+      r.pad = 0;
     }
-    sort_by_code(codes, items);
-    std::vector<BoxRef> sorted(refs.size());
-    for (size_t i = 0; i < refs.size(); ++i) sorted[i] = refs[items[i]];
-    refs.swap(sorted);
-    MortonBuilder{refs.data(), codes.data(), parallel_items}.build(t.nodes, 0, uint32_t(refs.size()));
+    Builder b{refs.data(), parallel_items};
+    t.nodes.reserve(2 * size_t(n));
+    b.build(t.nodes, b.bounds_of(0, n), 0);
+    t.order.resize(n);
+    for (uint32_t i = 0; i < n; ++i) t.order[i] = refs[i].id;
+    return t;
   }
-  t.order.resize(boxes.size());
-  for (size_t i = 0; i < boxes.size(); ++i) t.order[i] = refs[i].id;
+  // Morton: no box copies; the codes and the sorted item order are all it keeps.
+  Bounds4 centroids = Bounds4::empty();
+  for (uint32_t i = 0; i < n; ++i) {
+    __m128 lo, hi;
+    load(i, &lo, &hi);
+    const __m128 c = centroid(lo, hi);
+    centroids.grow(c, c);
+  }
+  // 10 bits per axis over the centroid bounds (NaN and unusable axes quantize to 0).
+  const BinMap map(centroids, 1024);
+  std::vector<uint32_t> codes(n), items(n);
+  for (uint32_t i = 0; i < n; ++i) {
+    __m128 lo, hi;
+    load(i, &lo, &hi);
+    alignas(16) int32_t q[4];
+    _mm_store_si128(reinterpret_cast<__m128i*>(q), map.bins(centroid(lo, hi)));
+    codes[i] = spread_bits(uint32_t(q[0])) | spread_bits(uint32_t(q[1])) << 1 | spread_bits(uint32_t(q[2])) << 2;
+    items[i] = i;
+  }
+  t.nodes.reserve(size_t(n));  // leaves of up to 4 and Morton's uneven splits: about n nodes
+  sort_by_code(codes, items);
+  MortonBuilder{boxes.data(), items.data(), codes.data(), parallel_items}.build(t.nodes, 0, n);
+  t.order = std::move(items);
   return t;
 }
 
