@@ -22,7 +22,7 @@
 namespace clastrace::engine::nv {
 namespace {
 
-constexpr int kBins = 32;  // most bins per axis (ranges of fewer items use one per item)
+constexpr int kBins = 32;  // most bins per axis (ranges of up to 32 items use 16-32)
 constexpr double kInf = std::numeric_limits<double>::infinity();
 // Below this many items a subtree is built on the calling thread.
 constexpr uint32_t kParallelItems = 16384;
@@ -246,9 +246,9 @@ struct Builder {
       out[node].count = count;
     };
     if (count <= 1) return leaf();
-    // Small ranges bin into fewer bins: clearing and sweeping 32 bins would cost more than
-    // binning their few items.
-    const BinMap map(r.centroids, int(std::clamp<uint32_t>(count, 4, kBins)));
+    // Small ranges bin into fewer bins (one per item, at least 16): clearing and sweeping 32
+    // bins would cost more than binning their few items; under 16 the trees traced slower.
+    const BinMap map(r.centroids, int(std::clamp<uint32_t>(count, 16, kBins)));
     const Split best = find_split(r, map);
     const double area = half_area(r.box);
     if (count <= kNvMaxLeafSize && (best.axis < 0 || !(best.cost + area < area * count))) return leaf();
