@@ -1,9 +1,13 @@
 // NV bottom-level build throughput (Mtris/s) and closest-hit ray throughput (Mrays/s), one
-// thread, next to Embree 3 on the same triangles: RTC_BUILD_QUALITY_LOW (its fastest
-// build) and the default MEDIUM. Best of 5 runs, engine and Embree interleaved.
+// thread, next to Embree 3 on the same triangles. The engine's two builders face the Embree
+// builder of the same kind: the default SAH tree against RTC_BUILD_QUALITY_MEDIUM (binned
+// SAH), the PREFER_FAST_BUILD Morton tree against RTC_BUILD_QUALITY_LOW (its fastest). Build
+// times are best of 5, engine and Embree interleaved; the rays are one pass of 200k.
 #include "nv_scene.h"
 
 #include <clastrace/testsupport/rays.h>
+
+#include <tbb/global_control.h>
 
 #include <algorithm>
 #include <chrono>
@@ -35,45 +39,65 @@ double embree_build(RTCDevice device, const ts::TriangleMesh& m, RTCBuildQuality
     return s;
 }
 
+// One engine build mode on `mesh`: its best build time and its closest-hit pass.
+struct EngineRun {
+    double build_s = 1e30, rays_s = 0;
+    uint64_t bytes = 0;
+    size_t hits = 0;
+};
+
+struct EngineMode {
+    NvWorld* world;
+    eng::NvBuildCommand cmd;
+    EngineMode(NvWorld& w, const ts::TriangleMesh& mesh, uint32_t flags) : world(&w) {
+        BlasSpec spec;
+        spec.geometries.push_back({mesh, {}, VK_GEOMETRY_OPAQUE_BIT_NV});
+        cmd.info = w.blas_info(spec, flags);
+        cmd.dst = w.make_object(cmd.info, "blas");
+        const auto need = eng::nv_memory_requirements(cmd.info);
+        cmd.scratch_address = w.scratch(need.build_scratch);
+        cmd.scratch_available = need.build_scratch;
+    }
+    void build(EngineRun& run) {
+        const auto t0 = Clock::now();
+        const eng::ExecutionRecord r = eng::execute_nv_build(cmd, world->memory);
+        run.build_s = std::min(run.build_s, since(t0));
+        run.bytes = r.ops[0].dst_size;
+    }
+    void trace(EngineRun& run, const std::vector<ts::TestRay>& rays) {
+        auto nv = eng::NvScene::open_bottom(world->memory, cmd.dst.address, nullptr);
+        const auto t0 = Clock::now();
+        for (const auto& t : rays)
+            run.hits += nv->closest(eng::Ray{{t.origin[0], t.origin[1], t.origin[2]}, 0, {t.direction[0], t.direction[1], t.direction[2]}, t.tmax}, 0, 0xFF).hit;
+        run.rays_s = since(t0);
+    }
+};
+
 void row(const char* name, ts::TriangleMesh mesh) {
     // Embree's shared vertex buffers are read 16 bytes at a time: keep one spare vertex of capacity.
     mesh.positions.reserve(mesh.positions.size() + 2);
     NvWorld w;
-    BlasSpec spec;
-    spec.geometries.push_back({mesh, {}, VK_GEOMETRY_OPAQUE_BIT_NV});
-    const eng::NvObjectInfo info = w.blas_info(spec);
-    eng::NvObjectBinding obj = w.make_object(info, "blas");
-    eng::NvBuildCommand cmd;
-    cmd.info = info;
-    cmd.dst = obj;
-    const auto need = eng::nv_memory_requirements(info);
-    cmd.scratch_address = w.scratch(need.build_scratch);
-    cmd.scratch_available = need.build_scratch;
+    EngineMode sah(w, mesh, 0), morton(w, mesh, VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV);
     RTCDevice device = rtcNewDevice("threads=1");
-    double engine = 1e30, low = 1e30, medium = 1e30;
-    uint64_t bytes = 0;
+    EngineRun sah_run, morton_run;
+    double low = 1e30, medium = 1e30;
     for (int run = 0; run < 5; ++run) {
-        const auto t0 = Clock::now();
-        const eng::ExecutionRecord r = eng::execute_nv_build(cmd, w.memory);
-        engine = std::min(engine, since(t0));
-        bytes = r.ops[0].dst_size;
+        sah.build(sah_run);
+        morton.build(morton_run);
         low = std::min(low, embree_build(device, mesh, RTC_BUILD_QUALITY_LOW, nullptr));
         medium = std::min(medium, embree_build(device, mesh, RTC_BUILD_QUALITY_MEDIUM, nullptr));
     }
     const double mtris = mesh.triangles.size() / 1e6;
-    // Rays: closest hit through the engine object and through Embree's MEDIUM scene.
+    // Rays: closest hit through both engine objects and through Embree's MEDIUM scene.
     RTCScene scene = nullptr;
     embree_build(device, mesh, RTC_BUILD_QUALITY_MEDIUM, &scene);
-    auto nv = eng::NvScene::open_bottom(w.memory, obj.address, nullptr);
     const auto rays = ts::random_rays(ts::bounds_of(mesh), 200000, 3);
-    size_t hits_engine = 0, hits_embree = 0;
-    auto t0 = Clock::now();
-    for (const auto& t : rays)
-        hits_engine += nv->closest(eng::Ray{{t.origin[0], t.origin[1], t.origin[2]}, 0, {t.direction[0], t.direction[1], t.direction[2]}, t.tmax}, 0, 0xFF).hit;
-    const double engine_rays = since(t0);
+    sah.trace(sah_run, rays);
+    morton.trace(morton_run, rays);
+    size_t hits_embree = 0;
     RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
-    t0 = Clock::now();
+    const auto t0 = Clock::now();
     for (const auto& t : rays) {
         RTCRayHit rh{};
         rh.ray = RTCRay{t.origin[0], t.origin[1], t.origin[2], 0, t.direction[0], t.direction[1], t.direction[2], 0, t.tmax, ~0u, 0, 0};
@@ -84,19 +108,26 @@ void row(const char* name, ts::TriangleMesh mesh) {
     const double embree_rays = since(t0);
     rtcReleaseScene(scene);
     rtcReleaseDevice(device);
-    std::printf("%-14s %9zu %7.1f %10.2f %10.2f %10.2f %9.2fx %10.2f %10.2f %8.2fx %7zu/%zu\n", name, mesh.triangles.size(),
-                double(bytes) / mesh.triangles.size(), mtris / engine, mtris / low, mtris / medium, low > 0 ? engine / low : 0.0,
-                rays.size() / 1e6 / engine_rays, rays.size() / 1e6 / embree_rays, engine_rays / embree_rays, hits_engine,
-                hits_embree);
+    const double n = double(rays.size()) / 1e6;
+    std::printf("%-14s %7zu %6.1f | %7.2f %7.2f %7.2f %6.2fx | %7.2f %7.2f %7.2f %6.2fx | %7.2f %7.2f %7.2f | %zu/%zu/%zu\n", name,
+                mesh.triangles.size(), double(sah_run.bytes) / mesh.triangles.size(), mtris / sah_run.build_s, mtris / medium,
+                n / sah_run.rays_s, sah_run.build_s / medium, mtris / morton_run.build_s, mtris / low, n / morton_run.rays_s,
+                morton_run.build_s / low, n / embree_rays, sah_run.rays_s / embree_rays, morton_run.rays_s / embree_rays,
+                sah_run.hits, morton_run.hits, hits_embree);
 }
 
 }  // namespace
 
 int main() {
-    std::printf("NV bottom-level build and closest-hit rays, 1 thread, best of 5 (build) / 200k random rays\n");
-    std::printf("%-14s %9s %7s %10s %10s %10s %10s %10s %10s %9s %15s\n", "mesh", "tris", "B/tri", "engine", "embree LOW",
-                "embree MED", "LOW/eng", "eng Mray/s", "emb Mray/s", "emb/eng", "hits eng/emb");
-    std::printf("%-14s %9s %7s %10s %10s %10s %10s\n", "", "", "", "Mtris/s", "Mtris/s", "Mtris/s", "time");
+    // The engine's builders use TBB for large ranges: hold them to one thread like Embree.
+    tbb::global_control one_thread(tbb::global_control::max_allowed_parallelism, 1);
+    std::printf("NV bottom-level build and closest-hit rays, 1 thread, best of 5 (build) / 200k random rays\n"
+                "SAH: default flags, next to Embree MEDIUM (binned SAH); Morton: PREFER_FAST_BUILD, next to Embree LOW\n"
+                "(its fastest build). x columns: engine time / Embree time (below 1: engine faster).\n");
+    std::printf("%-14s %7s %6s | %7s %7s %7s %7s | %7s %7s %7s %7s | %7s %7s %7s | %s\n", "mesh", "tris", "B/tri", "SAH", "emb MED",
+                "SAH", "SAH/MED", "Morton", "emb LOW", "Morton", "Mor/LOW", "emb", "SAH/emb", "Mor/emb", "hits SAH/Morton/Embree");
+    std::printf("%-14s %7s %6s | %7s %7s %7s %7s | %7s %7s %7s %7s | %7s %7s %7s |\n", "", "", "", "Mtris/s", "Mtris/s", "Mray/s",
+                "build", "Mtris/s", "Mtris/s", "Mray/s", "build", "Mray/s", "rays", "rays");
     row("icosphere-6", ts::make_icosphere(6, 1.0f));
     row("terrain-300", ts::make_terrain(300, 300, 1));
     row("soup-200k", ts::make_random_soup(200000, 5, 1.0f, 0.05f));

@@ -9,6 +9,7 @@
 #include <cstring>
 #include <functional>
 #include <map>
+#include <memory>
 
 namespace clastrace::engine {
 namespace nv {
@@ -184,50 +185,80 @@ bool check_command(Context& c) {
   return ok;
 }
 
-// The assembled object: header, geometries, records, nodes.
-std::vector<std::byte> assemble(NvObjectHeader h, std::span<const NvGeometryRecord> geometries,
-                                std::span<const std::byte> records, std::span<const NvNode> nodes) {
+// An object ready to be written into dst: its size, and the writer of its bytes (built
+// objects are written in place, without a staging copy of the whole object).
+struct ObjectBytes {
+  uint64_t size = 0;
+  std::function<void(std::byte*)> write;
+};
+
+ObjectBytes bytes_of(std::vector<std::byte> bytes) {
+  auto held = std::make_shared<std::vector<std::byte>>(std::move(bytes));
+  return ObjectBytes{held->size(), [held](std::byte* out) { std::memcpy(out, held->data(), held->size()); }};
+}
+
+// Fills the header's layout fields (header, geometries, records, nodes) and root bounds.
+NvObjectHeader lay_out(NvObjectHeader h, size_t geometry_count, uint64_t records_size, std::span<const NvNode> nodes) {
   h.magic = kNvObjectMagic;
   h.format_version = kNvFormatVersion;
   h.geometries_offset = sizeof(NvObjectHeader);
-  h.primitives_offset = h.geometries_offset + geometries.size_bytes();
-  h.nodes_offset = h.primitives_offset + records.size();
+  h.primitives_offset = h.geometries_offset + geometry_count * sizeof(NvGeometryRecord);
+  h.nodes_offset = h.primitives_offset + records_size;
   h.object_size = h.nodes_offset + nodes.size_bytes();
-  h.geometry_count = uint32_t(geometries.size());
+  h.geometry_count = uint32_t(geometry_count);
   h.node_count = uint32_t(nodes.size());
   const Box root = nodes.empty() ? Box::empty()
                                  : Box{{nodes[0].bounds_min[0], nodes[0].bounds_min[1], nodes[0].bounds_min[2]},
                                        {nodes[0].bounds_max[0], nodes[0].bounds_max[1], nodes[0].bounds_max[2]}};
   std::memcpy(h.bounds_min, root.lo, 12);
   std::memcpy(h.bounds_max, root.hi, 12);
-  std::vector<std::byte> out(h.object_size);
-  std::memcpy(out.data(), &h, sizeof h);
-  if (!geometries.empty()) std::memcpy(out.data() + h.geometries_offset, geometries.data(), geometries.size_bytes());
-  if (!records.empty()) std::memcpy(out.data() + h.primitives_offset, records.data(), records.size());
-  if (!nodes.empty()) std::memcpy(out.data() + h.nodes_offset, nodes.data(), nodes.size_bytes());
-  return out;
+  return h;
 }
 
-std::vector<std::byte> build_bottom(const nv::BottomInput& in, uint32_t flags) {
-  std::vector<Box> boxes;
-  std::vector<uint32_t> source;  // input primitive record of each box
+// `write_records(dst)` writes the record bytes in place.
+template <class WriteRecords>
+void write_object(std::byte* out, const NvObjectHeader& h, std::span<const NvGeometryRecord> geometries,
+                  WriteRecords& write_records, std::span<const NvNode> nodes) {
+  std::memcpy(out, &h, sizeof h);
+  if (!geometries.empty()) std::memcpy(out + h.geometries_offset, geometries.data(), geometries.size_bytes());
+  write_records(out + h.primitives_offset);
+  if (!nodes.empty()) std::memcpy(out + h.nodes_offset, nodes.data(), nodes.size_bytes());
+}
+
+// `in` must outlive the returned writer.
+ObjectBytes build_bottom(const nv::BottomInput& in, uint32_t flags) {
+  std::vector<Box> boxes(in.primitives.size());
+  std::vector<uint32_t> source(in.primitives.size());  // input primitive record of each box
+  size_t active = 0;
   for (uint32_t i = 0; i < in.primitives.size(); ++i) {
     if (!in.active[i]) continue;
     const NvPrimitiveRecord& p = in.primitives[i];
-    Box b = in.aabbs ? Box{{p.v[0], p.v[1], p.v[2]}, {p.v[3], p.v[4], p.v[5]}} : nv::triangle_box(p.v);
-    boxes.push_back(b);
-    source.push_back(i);
+    boxes[active] = in.aabbs ? Box{{p.v[0], p.v[1], p.v[2]}, {p.v[3], p.v[4], p.v[5]}} : nv::triangle_box(p.v);
+    source[active++] = i;
   }
-  nv::Tree tree = nv::build_tree(boxes);
-  std::vector<NvPrimitiveRecord> ordered(tree.order.size());
-  for (size_t k = 0; k < tree.order.size(); ++k) ordered[k] = in.primitives[source[tree.order[k]]];
+  boxes.resize(active);
+  // PREFER_FAST_BUILD alone picks the Morton builder; with PREFER_FAST_TRACE (an invalid
+  // pair, reported) or neither, the SAH builder.
+  const bool fast_build = (flags & VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV) &&
+                          !(flags & VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_NV);
+  nv::Tree tree = nv::build_tree(boxes, fast_build ? nv::TreeQuality::kMorton : nv::TreeQuality::kSah);
   NvObjectHeader h{};
   h.kind = uint8_t(NvObjectKind::kBottomLevel);
   h.build_flags = flags;
   h.geometry_type = in.aabbs ? VK_GEOMETRY_TYPE_AABBS_NV : VK_GEOMETRY_TYPE_TRIANGLES_NV;
-  h.primitive_count = uint32_t(ordered.size());
+  h.primitive_count = uint32_t(tree.order.size());
   h.input_count = uint32_t(in.primitives.size());
-  return assemble(h, in.geometries, std::as_bytes(std::span(ordered)), tree.nodes);
+  h = lay_out(h, in.geometries.size(), tree.order.size() * sizeof(NvPrimitiveRecord), tree.nodes);
+  auto held = std::make_shared<std::pair<nv::Tree, std::vector<uint32_t>>>(std::move(tree), std::move(source));
+  return ObjectBytes{h.object_size, [h, held, &in](std::byte* out) {
+                       const auto& [t, src] = *held;
+                       auto write_records = [&](std::byte* dst) {
+                         for (size_t k = 0; k < t.order.size(); ++k)
+                           std::memcpy(dst + k * sizeof(NvPrimitiveRecord), &in.primitives[src[t.order[k]]],
+                                       sizeof(NvPrimitiveRecord));
+                       };
+                       write_object(out, h, in.geometries, write_records, t.nodes);
+                     }};
 }
 
 std::vector<std::byte> build_top(const nv::TopInput& in, uint32_t flags) {
@@ -290,7 +321,14 @@ std::vector<std::byte> build_top(const nv::TopInput& in, uint32_t flags) {
   h.build_flags = flags;
   h.primitive_count = uint32_t(in.instances.size());
   h.input_count = uint32_t(in.instances.size());
-  return assemble(h, {}, std::as_bytes(std::span(in.instances)), nodes);
+  const auto records = std::as_bytes(std::span(in.instances));
+  auto write_records = [&](std::byte* dst) {
+    if (!records.empty()) std::memcpy(dst, records.data(), records.size());
+  };
+  h = lay_out(h, 0, records.size(), nodes);
+  std::vector<std::byte> out(h.object_size);
+  write_object(out.data(), h, {}, write_records, nodes);
+  return out;
 }
 
 // The src object for an update, checked; nullopt (with a finding) when src holds none.
@@ -468,7 +506,9 @@ ExecutionRecord execute_nv_build(const NvBuildCommand& command, MemoryImage& mem
     c.close();
     return record;
   }
-  std::optional<std::vector<std::byte>> object;
+  std::optional<ObjectBytes> object;
+  nv::TopInput top_in;
+  nv::BottomInput bottom_in;  // read by object->write
   try {
     std::optional<std::vector<std::byte>> src;
     if (command.update) src = read_src(c);
@@ -486,39 +526,41 @@ ExecutionRecord execute_nv_build(const NvBuildCommand& command, MemoryImage& mem
       return record;  // nothing defined to update from
     }
     if (top) {
-      nv::TopInput in = nv::gather_top(c);
-      if (src_view) object = update_top(c, *src_view, in);
-      if (!object) object = build_top(in, command.info.flags);
+      top_in = nv::gather_top(c);
+      if (src_view)
+        if (auto updated = update_top(c, *src_view, top_in)) object = bytes_of(std::move(*updated));
+      if (!object) object = bytes_of(build_top(top_in, command.info.flags));
     } else {
-      nv::BottomInput in = nv::gather_bottom(c);
-      if (src_view) object = update_bottom(c, *src_view, in);
-      if (!object) object = build_bottom(in, command.info.flags);
+      bottom_in = nv::gather_bottom(c);
+      if (src_view)
+        if (auto updated = update_bottom(c, *src_view, bottom_in)) object = bytes_of(std::move(*updated));
+      if (!object) object = build_bottom(bottom_in, command.info.flags);
     }
   } catch (const MemoryFault& f) {
     c.finding(kRuleNvMemoryFault, f.message, f.address);
     c.close();
     return record;
   }
-  if (object->size() > command.dst.size) {
-    c.finding(kRuleNvObjectTooLarge, "the engine's object needs " + std::to_string(object->size()) + " bytes; dst " +
+  if (object->size > command.dst.size) {
+    c.finding(kRuleNvObjectTooLarge, "the engine's object needs " + std::to_string(object->size) + " bytes; dst " +
                                          hex(command.dst.handle) + " has " + std::to_string(command.dst.size) + " bytes bound",
               command.dst.address);
     c.close();
     return record;
   }
-  check_overlaps(c, object->size());
+  check_overlaps(c, object->size);
   try {
-    auto out = memory.write_bytes(command.dst.address, object->size(), FieldRef{"dst", -1});
-    std::memcpy(out.data(), object->data(), object->size());
+    auto out = memory.write_bytes(command.dst.address, object->size, FieldRef{"dst", -1});
+    object->write(out.data());
   } catch (const MemoryFault& f) {
     c.finding(kRuleNvMemoryFault, f.message, f.address);
     c.close();
     return record;
   }
-  c.access(command.dst.address, object->size(), kAccessObjectWrite, true, "dst");
+  c.access(command.dst.address, object->size, kAccessObjectWrite, true, "dst");
   record.ops[0].executed = true;
   record.ops[0].dst_address = command.dst.address;
-  record.ops[0].dst_size = object->size();
+  record.ops[0].dst_size = object->size;
   c.close();
   return record;
 }

@@ -195,6 +195,9 @@ BottomInput gather_bottom(Context& c) {
       auto bytes = read_span(c, t.transform_address, 1, 48, 48, at + ".geometry.triangles.transformData");
       std::memcpy(m, bytes.data(), 48);
     }
+    in.primitives.reserve(in.primitives.size() + count);
+    in.active.reserve(in.active.size() + count);
+    const bool float3 = t.vertex_format == VK_FORMAT_R32G32B32_SFLOAT;  // the common format: a plain copy
     for (uint32_t i = 0; i < count; ++i) {
       NvPrimitiveRecord p{};
       p.geometry_index = g;
@@ -218,7 +221,9 @@ BottomInput gather_bottom(Context& c) {
           active = false;
           break;
         }
-        decode_nv_vertex(t.vertex_format, vertices.data() + uint64_t(index) * t.vertex_stride, p.v + 3 * k);
+        const std::byte* vertex = vertices.data() + uint64_t(index) * t.vertex_stride;
+        if (float3) std::memcpy(p.v + 3 * k, vertex, 12);
+        else decode_nv_vertex(t.vertex_format, vertex, p.v + 3 * k);
       }
       if (active) {
         if (std::isnan(p.v[0]) || std::isnan(p.v[3]) || std::isnan(p.v[6])) {

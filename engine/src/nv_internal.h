@@ -42,7 +42,10 @@ struct Tree {
   std::vector<NvNode> nodes;
   std::vector<uint32_t> order;
 };
-Tree build_tree(std::span<const Box> boxes);
+// kSah: binned SAH (the default). kMorton: linear BVH over sorted Morton codes, several
+// times faster to build and slower to trace (VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV).
+enum class TreeQuality { kSah, kMorton };
+Tree build_tree(std::span<const Box> boxes, TreeQuality quality = TreeQuality::kSah);
 
 // Recomputes every node box from its items (leaf) or children, bottom-up. `item_box(i)`
 // is the box of record i (the leaf ranges index records directly).

@@ -7,6 +7,7 @@
 #include <clastrace/testsupport/rays.h>
 
 #include <gtest/gtest.h>
+#include <tbb/global_control.h>
 
 #include <cmath>
 #include <cstring>
@@ -47,6 +48,41 @@ TEST(NvBuild, BottomLevelSizeWithinRequirementAndHeaderCounts) {
     EXPECT_EQ(view->header.geometry_count, 2u);
     EXPECT_EQ(view->header.kind, uint8_t(eng::NvObjectKind::kBottomLevel));
     EXPECT_FLOAT_EQ(view->header.bounds_max[0], 2.2f);
+}
+
+// Both builders (SAH by default, Morton for PREFER_FAST_BUILD) write the same bytes at 1
+// and at 2 threads on a mesh large enough to build its top levels on TBB tasks, and build
+// different trees (the flag reaches the builder).
+TEST(NvBuild, BytesDoNotDependOnThreadCountForEitherBuilder) {
+    const ts::TriangleMesh mesh = ts::make_random_soup(40000, 17, 1.0f, 0.05f);
+    auto bytes_at = [&](int threads, VkBuildAccelerationStructureFlagsNV flags) {
+        tbb::global_control limit(tbb::global_control::max_allowed_parallelism, size_t(threads));
+        NvWorld w;
+        BlasSpec spec;
+        spec.geometries.push_back({mesh, {}, VK_GEOMETRY_OPAQUE_BIT_NV});
+        const auto info = w.blas_info(spec, flags);
+        auto obj = w.make_object(info, "blas");
+        const auto r = w.build(info, obj);
+        EXPECT_TRUE(r.ops[0].executed) << rules(r);
+        const auto span = w.memory.read_bytes(obj.address, r.ops[0].dst_size, {});
+        return std::vector<std::byte>(span.begin(), span.end());
+    };
+    const auto fast = VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV;
+    const auto sah1 = bytes_at(1, 0), sah2 = bytes_at(2, 0), morton1 = bytes_at(1, fast), morton2 = bytes_at(2, fast);
+    EXPECT_EQ(sah1, sah2);
+    EXPECT_EQ(morton1, morton2);
+    ASSERT_EQ(sah1.size() > 0, true);
+    std::string error;
+    auto a = eng::open_nv_object(sah1, &error), b = eng::open_nv_object(morton1, &error);
+    ASSERT_TRUE(a && b) << error;
+    EXPECT_EQ(a->header.primitive_count, 40000u);
+    EXPECT_EQ(b->header.primitive_count, 40000u);
+    bool same_tree = a->header.node_count == b->header.node_count;
+    for (uint32_t i = 0; same_tree && i < a->header.node_count; ++i) {
+        const eng::NvNode x = a->node(i), y = b->node(i);
+        same_tree = std::memcmp(&x, &y, sizeof x) == 0;
+    }
+    EXPECT_FALSE(same_tree);
 }
 
 // The same surface in every encoding NV allows must give bit-identical answers to the

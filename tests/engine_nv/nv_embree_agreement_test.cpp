@@ -37,8 +37,8 @@ constexpr uint32_t kFlagSets[] = {0,
                                   eng::kRayFlagCullBackFacingTriangles | eng::kRayFlagNoOpaque};
 
 Agreement run(const std::vector<BlasSpec>& blas, const std::vector<InstanceSpec>& instances, size_t ray_count,
-              float extent, uint64_t seed) {
-    auto built = build_scene(blas, instances);
+              float extent, uint64_t seed, VkBuildAccelerationStructureFlagsNV build_flags = 0) {
+    auto built = build_scene(blas, instances, build_flags);
     EXPECT_TRUE(built->findings.empty()) << built->findings.front();
     std::vector<eng::Finding> findings;
     std::string error;
@@ -77,6 +77,20 @@ TEST(NvEmbreeAgreement, InstancedMixedSceneWithEveryRayFlag) {
     EXPECT_EQ(a.any_disagree, 0u) << a.summary();
     EXPECT_GT(a.agree_hit, a.rays / 5) << a.summary();  // the scene is actually hit
     EXPECT_GT(a.agree_miss, a.rays / 20) << a.summary();
+    EXPECT_LT(a.tie + a.edge, a.rays / 200) << a.summary();
+}
+
+// PREFER_FAST_BUILD builds the bottom levels with the Morton builder: another tree, the
+// same answers.
+TEST(NvEmbreeAgreement, FastBuildMortonTreesAgree) {
+    const auto blas = mixed_blas();
+    const auto instances = random_instances(48, int(blas.size()), 5.0f, 3);
+    const Agreement a = run(blas, instances, 40000, 8.0f, 22, VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV);
+    for (const auto& e : a.examples) ADD_FAILURE() << e;
+    std::printf("[ nv-embree ] fast build: %s\n", a.summary().c_str());
+    EXPECT_EQ(a.disagree, 0u) << a.summary();
+    EXPECT_EQ(a.any_disagree, 0u) << a.summary();
+    EXPECT_GT(a.agree_hit, a.rays / 5) << a.summary();
     EXPECT_LT(a.tie + a.edge, a.rays / 200) << a.summary();
 }
 

@@ -151,7 +151,49 @@ TEST(NvExtremes, HugeAndTinyCoordinatesKeepTheirT) {
 // Infinite coordinates (a float overflow upstream) give boxes with infinite centroids: the
 // build must bin them without undefined behaviour (found by engine_nv_fuzzer) and the
 // finite triangles must still answer.
+// A grid of 24x24 quads (far more than a leaf) spanning [-s, s]^2 at height s, built by
+// both builders (SAH and PREFER_FAST_BUILD's Morton codes): huge extents must not overflow
+// the bin or code arithmetic and denormal ones must still separate; every cell centre is
+// hit at t = s.
+TEST(NvExtremes, BothBuildersSplitHugeAndTinyGrids) {
+    constexpr int n = 24;
+    for (VkBuildAccelerationStructureFlagsNV flags : {0u, uint32_t(VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV)}) {
+        for (float s : {3.0e38f, 1e30f, 1.0f, 1e-30f, 1e-40f /*denormal*/}) {
+            ts::TriangleMesh m;
+            auto coord = [&](int i) { return s * (float(i) / n * 2.0f - 1.0f); };
+            for (int j = 0; j <= n; ++j)
+                for (int i = 0; i <= n; ++i) m.positions.push_back({coord(i), coord(j), s});
+            for (int j = 0; j < n; ++j)
+                for (int i = 0; i < n; ++i) {
+                    const uint32_t a = uint32_t(j * (n + 1) + i), b = a + 1, c = a + n + 1, d = c + 1;
+                    m.triangles.push_back({a, b, d});
+                    m.triangles.push_back({a, d, c});
+                }
+            NvWorld w;
+            auto info = w.blas_info(one_mesh(m), flags);
+            auto obj = w.make_object(info, "blas");
+            const auto r = w.build(info, obj);
+            ASSERT_TRUE(r.ops[0].executed) << s;
+            std::string error;
+            const auto view = eng::open_nv_object(w.memory.read_bytes(obj.address, r.ops[0].dst_size, {}), &error);
+            ASSERT_TRUE(view) << error;
+            EXPECT_GT(view->header.node_count, 2u * n * n / 4) << s;  // split down to small leaves
+            auto scene = eng::NvScene::open_bottom(w.memory, obj.address, nullptr);
+            ASSERT_TRUE(scene);
+            int hits = 0;
+            for (int j = 0; j < n; ++j)
+                for (int i = 0; i < n; ++i) {
+                    const float x = 0.5f * coord(i) + 0.5f * coord(i + 1), y = 0.5f * coord(j) + 0.5f * coord(j + 1);
+                    const eng::NvHit h = scene->closest(eng::Ray{{x, y, 0}, 0, {0, 0, 1}, FLT_MAX}, 0, 0xFF);
+                    hits += h.hit && h.t == s && h.primitive_index / 2 == uint32_t(j * n + i);
+                }
+            EXPECT_EQ(hits, n * n) << "scale " << s << " flags " << flags;
+        }
+    }
+}
+
 TEST(NvExtremes, InfiniteCoordinatesBuildAndFiniteTrianglesStillHit) {
+  for (VkBuildAccelerationStructureFlagsNV flags : {0u, uint32_t(VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV)}) {
     ts::TriangleMesh m = quad(1, 0);
     const float inf = INFINITY;
     const uint32_t base = uint32_t(m.positions.size());
@@ -160,7 +202,7 @@ TEST(NvExtremes, InfiniteCoordinatesBuildAndFiniteTrianglesStillHit) {
     m.positions.push_back({-inf, inf, inf});
     for (int k = 0; k < 6; ++k) m.triangles.push_back({base, base + 1, base + 2});
     NvWorld w;
-    auto info = w.blas_info(one_mesh(m));
+    auto info = w.blas_info(one_mesh(m), flags);
     auto obj = w.make_object(info, "blas");
     ASSERT_TRUE(w.build(info, obj).ops[0].executed);
     auto scene = eng::NvScene::open_bottom(w.memory, obj.address, nullptr);
@@ -169,6 +211,7 @@ TEST(NvExtremes, InfiniteCoordinatesBuildAndFiniteTrianglesStillHit) {
     ASSERT_TRUE(h.hit);
     EXPECT_LT(h.primitive_index, 2u);
     EXPECT_FLOAT_EQ(h.t, 5.0f);
+  }
 }
 
 TEST(NvExtremes, RaysWithNanInfOrEmptyIntervalsMissQuietly) {
