@@ -29,6 +29,7 @@ struct CaptureOptions {
   bool noCapture = false;
   std::string log = "error";
   std::string layerPath;
+  uint32_t rayCheck = 0;  // CLASTRACE_RAY_CHECK: rays per NV top level, 0 = off
   std::vector<std::string> command;
 };
 
@@ -74,6 +75,7 @@ int runCapture(const CaptureOptions& o) {
   setenv("CLASTRACE_SERVE", o.serve.c_str(), 1);
   setenv("CLASTRACE_ZSTD_LEVEL", std::to_string(o.zstdLevel).c_str(), 1);
   setenv("CLASTRACE_LOG", o.log.c_str(), 1);
+  if (o.rayCheck) setenv("CLASTRACE_RAY_CHECK", std::to_string(o.rayCheck).c_str(), 1);
   if (!o.submitRange.empty()) setenv("CLASTRACE_SUBMIT_RANGE", o.submitRange.c_str(), 1);
   else unsetenv("CLASTRACE_SUBMIT_RANGE");
 
@@ -123,6 +125,10 @@ Command register_capture(CLI::App& app) {
   sub->add_flag("--no-capture", options->noCapture, "only serve the extension, write nothing");
   sub->add_option("--log", options->log, "layer messages: quiet, error, info, debug")
       ->check(CLI::IsMember({"quiet", "error", "info", "debug"}));
+  sub->add_option("--ray-check", options->rayCheck,
+                  "after each NV top-level build, trace N rays with the driver and record its hits "
+                  "(RayQueryCheck; needs VK_NV_ray_tracing)")
+      ->check(CLI::Range(0, 1048576));
   sub->add_option("--layer-path", options->layerPath, "folder holding VkLayer_clastrace_capture.json");
   sub->add_option("command", options->command, "the application and its arguments (after --)")->required();
   return {sub, [options] {

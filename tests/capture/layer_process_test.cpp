@@ -562,6 +562,21 @@ TEST_F(LayerProcess, LauncherRefusesAnUnwritableOutputAndPassesExitCodes) {
   EXPECT_NE(r.err.find("was not written"), std::string::npos) << r.err;  // sh makes no Vulkan device
 }
 
+TEST_F(LayerProcess, LauncherPassesItsSettingsToTheLayerEnvironment) {
+  const fs::path trace = dir / "settings.clt";
+  ProcessResult r = run(std::string(CLASTRACE_CAPTURE_LAUNCHER) + " capture -o " + trace.string() +
+                            " --ray-check 64 --zstd-level 7 --serve 0 -- sh -c 'env | grep ^CLASTRACE_ | sort'",
+                        {}, false);
+  EXPECT_NE(r.out.find("CLASTRACE_RAY_CHECK=64\n"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("CLASTRACE_ZSTD_LEVEL=7\n"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("CLASTRACE_SERVE=0\n"), std::string::npos) << r.out;
+  r = run(std::string(CLASTRACE_CAPTURE_LAUNCHER) + " capture -o " + trace.string() + " -- sh -c 'env'", {}, false);
+  EXPECT_EQ(r.out.find("CLASTRACE_RAY_CHECK="), std::string::npos) << "off unless asked for";
+  r = run(std::string(CLASTRACE_CAPTURE_LAUNCHER) + " capture -o " + trace.string() + " --ray-check 2000000 -- true", {},
+          false);
+  EXPECT_EQ(r.exitCode, 2) << r.err;
+}
+
 // The injected barrier/event sequence under the Khronos validation layer with synchronization
 // validation, placed beneath the capture layer so it sees what the driver sees.
 TEST_F(LayerProcess, InjectedPausesPassSynchronizationValidation) {
