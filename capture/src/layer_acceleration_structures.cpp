@@ -126,14 +126,20 @@ VKAPI_ATTR void VKAPI_CALL GetDeviceQueue(VkDevice device, uint32_t family, uint
   DeviceState& d = deviceOf(device);
   d.next.GetDeviceQueue(device, family, index, pQueue);
   std::lock_guard lock(d.queuesMutex);
-  if (*pQueue) d.queueFamilies[*pQueue] = family;
+  if (*pQueue) {
+    d.queueFamilies[*pQueue] = family;
+    d.queueIndices[*pQueue] = index;
+  }
 }
 
 VKAPI_ATTR void VKAPI_CALL GetDeviceQueue2(VkDevice device, const VkDeviceQueueInfo2* pInfo, VkQueue* pQueue) {
   DeviceState& d = deviceOf(device);
   d.next.GetDeviceQueue2(device, pInfo, pQueue);
   std::lock_guard lock(d.queuesMutex);
-  if (*pQueue) d.queueFamilies[*pQueue] = pInfo->queueFamilyIndex;
+  if (*pQueue) {
+    d.queueFamilies[*pQueue] = pInfo->queueFamilyIndex;
+    d.queueIndices[*pQueue] = pInfo->queueIndex;
+  }
 }
 
 // Waits until everything submitted to `queue` so far has completed (an empty submission's fence).

@@ -172,6 +172,7 @@ struct DeviceState {
   // tracing limits, and the NV structures the capture saw built.
   std::mutex queuesMutex;
   std::unordered_map<VkQueue, uint32_t> queueFamilies;
+  std::unordered_map<VkQueue, uint32_t> queueIndices;  // index within its family
   bool nvRayTracingEnabled = false;
   VkPhysicalDeviceRayTracingPropertiesNV rayTracingPropertiesNV{};
   NvSceneModel nvScene;

@@ -56,6 +56,11 @@ SubmissionPlan planFor(DeviceState& d, VkQueue queue, VkFence fence, bool synchr
   SubmissionPlan plan;
   plan.record.index = nextSubmissionIndex();
   plan.record.queue = handleId(queue);
+  {
+    std::lock_guard lock(d.queuesMutex);
+    if (auto f = d.queueFamilies.find(queue); f != d.queueFamilies.end()) plan.record.queueFamily = f->second;
+    if (auto i = d.queueIndices.find(queue); i != d.queueIndices.end()) plan.record.queueIndex = i->second;
+  }
   plan.record.fence = handleId(fence);
   plan.record.synchronization2 = synchronization2;
   plan.capture = d.sink && layerConfig().submitRange.contains(plan.record.index);

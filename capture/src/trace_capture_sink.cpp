@@ -684,6 +684,8 @@ class TraceCaptureSink final : public CaptureSink {
     if (!writer_ || failed_) return;
     fbs::QueueSubmitT submit;
     submit.queue = p.submission.queue;
+    submit.queue_family_index = p.submission.queueFamily;
+    submit.queue_index = p.submission.queueIndex;
     submit.version = p.submission.synchronization2 ? 2 : 1;
     for (const auto& b : p.submission.batches) {
       auto batch = std::make_unique<fbs::SubmitBatchT>();

@@ -291,6 +291,8 @@ struct SubmitBatch {
 struct SubmissionRecord {
   uint64_t index = 0;  // per-device submission counter, as CLASTRACE_SUBMIT_RANGE counts
   uint64_t queue = 0;
+  uint32_t queueFamily = 0;  // from vkGetDeviceQueue[2]; 0 for a queue the layer never saw handed out
+  uint32_t queueIndex = 0;
   bool synchronization2 = false;
   std::vector<SubmitBatch> batches;
   uint64_t fence = 0;
