@@ -4,6 +4,8 @@
 #include "command_buffer_log.h"
 #include "layer_state.h"
 
+#include <optional>
+
 #include <cstring>
 #include <map>
 
@@ -42,8 +44,25 @@ VKAPI_ATTR VkResult VKAPI_CALL BeginCommandBuffer(VkCommandBuffer cb, const VkCo
   return d.next.BeginCommandBuffer(cb, pBeginInfo);
 }
 
+void recordPause(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log, PausePoint pause);
+
 VKAPI_ATTR VkResult VKAPI_CALL EndCommandBuffer(VkCommandBuffer cb) {
   DeviceState& d = deviceOf(cb);
+  {
+    // The timestamps are read at a last pause: the queue holds there, so the next execution
+    // of this command buffer cannot reset them first, and the submission's trace records wait
+    // for the ticks just as they wait for the builds' memory.
+    auto log = logOf(d, cb);
+    if (log->timestampPool && log->timestampsWritten) {
+      PausePoint read;
+      read.pauseId = log->timestampReadPauseId;
+      read.phase = PausePhase::AfterCommand;
+      read.lastOfCommand = true;
+      read.timestampPool = log->timestampPool;
+      read.timestampCount = log->timestampsWritten;
+      recordPause(d, cb, *log, read);
+    }
+  }
   VkResult result = d.next.EndCommandBuffer(cb);
   if (result == VK_SUCCESS && d.sink) d.sink->commandBufferRecorded(logOf(d, cb)->recorded);
   return result;
@@ -446,7 +465,8 @@ void recordPause(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log, Paus
   }
   log.events.push_back(pause.signal);
   log.events.push_back(pause.release);
-  std::shared_ptr<StagingSet> staging = createStaging(d);
+  // The timestamp readback reads no application memory: nothing to stage.
+  std::shared_ptr<StagingSet> staging = pause.timestampPool ? nullptr : createStaging(d);
   if (staging) {
     log.staging.push_back(staging);
     pause.staging = staging;
@@ -470,6 +490,49 @@ void recordPause(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log, Paus
   log.pauses.push_back(std::move(pause));
 }
 
+// Queries per recording: a pair per captured command. Commands past the first 128 of one
+// recording get no timestamps (the analyzer simply sees no span for them).
+constexpr uint32_t kTimestampQueries = 256;
+
+// Writes a timestamp of the layer's own pool into `cb` and returns its record (the caller puts
+// it in the log around the command's record), or nothing when timestamps are off, the command
+// buffer is secondary (its pauses run inside a primary; not supported), or the pool is full.
+// `pairStart`: the first of a pair, written only when its partner fits too.
+std::optional<TimestampWriteCommand> writeTimestamp(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log,
+                                                    VkPipelineStageFlagBits stage, bool pairStart) {
+  if (!d.timestamps || !d.capturingNow() || log.recorded.secondary) return std::nullopt;
+  if (log.timestampsWritten + (pairStart ? 2 : 1) > kTimestampQueries) return std::nullopt;
+  if (!log.timestampPool) {
+    VkQueryPoolCreateInfo info{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
+    info.queryType = VK_QUERY_TYPE_TIMESTAMP;
+    info.queryCount = kTimestampQueries;
+    if (d.next.CreateQueryPool(d.device, &info, nullptr, &log.timestampPool) != VK_SUCCESS) {
+      log.timestampPool = VK_NULL_HANDLE;
+      log.timestampsWritten = kTimestampQueries;  // do not try again in this recording
+      return std::nullopt;
+    }
+    // Reset in the command buffer, so each execution starts from unavailable queries.
+    d.next.CmdResetQueryPool(cb, log.timestampPool, 0, kTimestampQueries);
+    log.timestampReadPauseId = ++d.pauseCounter;
+  }
+  const uint32_t query = log.timestampsWritten++;
+  d.next.CmdWriteTimestamp(cb, stage, log.timestampPool, query);
+  return TimestampWriteCommand{handleId(log.timestampPool), query, uint64_t(stage), log.timestampReadPauseId};
+}
+
+// Start: once everything before (the pause's wait included) has finished, so the span is the
+// command's alone. End: once the command has finished.
+std::optional<TimestampWriteCommand> timestampBefore(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log) {
+  auto t = writeTimestamp(d, cb, log, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, true);
+  if (t) log.recorded.commands.push_back(*t);
+  return t;
+}
+std::optional<TimestampWriteCommand> timestampAfter(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log,
+                                                    bool started) {
+  if (!started) return std::nullopt;
+  return writeTimestamp(d, cb, log, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, false);
+}
+
 VKAPI_ATTR void VKAPI_CALL CmdBuildClusterAccelerationStructureIndirectNV(
     VkCommandBuffer cb, const VkClusterAccelerationStructureCommandsInfoNV* pCommandInfos) {
   DeviceState& d = deviceOf(cb);
@@ -489,8 +552,11 @@ VKAPI_ATTR void VKAPI_CALL CmdBuildClusterAccelerationStructureIndirectNV(
     before.parameters = parameters;
     recordPause(d, cb, *log, before);
   }
+  // Served, the queue runs nothing for the command: no GPU time to measure.
+  const bool started = !d.serving && timestampBefore(d, cb, *log).has_value();
   if (!d.serving && d.next.CmdBuildClusterAccelerationStructureIndirectNV)
     d.next.CmdBuildClusterAccelerationStructureIndirectNV(cb, pCommandInfos);
+  auto ended = timestampAfter(d, cb, *log, started);
   if (pauseAfter) {
     PausePoint after;
     after.pauseId = pauseId;
@@ -500,6 +566,7 @@ VKAPI_ATTR void VKAPI_CALL CmdBuildClusterAccelerationStructureIndirectNV(
     recordPause(d, cb, *log, after);
   }
   if (d.sink) log->recorded.commands.push_back(ClusterBuildCommand{*parameters, pauseId, d.serving});
+  if (ended) log->recorded.commands.push_back(*ended);
 }
 
 VKAPI_ATTR void VKAPI_CALL GetClusterAccelerationStructureBuildSizesNV(VkDevice device,
@@ -553,9 +620,12 @@ VKAPI_ATTR void VKAPI_CALL CmdBuildAccelerationStructureNV(VkCommandBuffer cb, c
     before.buildNV = c;
     recordPause(d, cb, *log, before);
   }
+  const bool started = timestampBefore(d, cb, *log).has_value();
   d.next.CmdBuildAccelerationStructureNV(cb, pInfo, instanceData, instanceOffset, update, dst, src, scratch,
                                          scratchOffset);
+  auto ended = timestampAfter(d, cb, *log, started);
   if (d.sink) log->recorded.commands.push_back(*c);
+  if (ended) log->recorded.commands.push_back(*ended);
 }
 
 VKAPI_ATTR void VKAPI_CALL CmdCopyMemoryToAccelerationStructureKHR(VkCommandBuffer cb,
@@ -573,8 +643,11 @@ VKAPI_ATTR void VKAPI_CALL CmdCopyMemoryToAccelerationStructureKHR(VkCommandBuff
     before.copyToAccelerationStructure = c;
     recordPause(d, cb, *log, before);
   }
+  const bool started = timestampBefore(d, cb, *log).has_value();
   d.next.CmdCopyMemoryToAccelerationStructureKHR(cb, pInfo);
+  auto ended = timestampAfter(d, cb, *log, started);
   if (d.sink) log->recorded.commands.push_back(*c);
+  if (ended) log->recorded.commands.push_back(*ended);
 }
 
 }  // namespace
@@ -585,6 +658,10 @@ void clearCommandBufferLog(DeviceState& d, CommandBufferLog& log) {
   for (auto& staging : log.staging) destroyStaging(d, *staging);
   log.staging.clear();
   log.pauses.clear();
+  if (log.timestampPool) d.next.DestroyQueryPool(d.device, log.timestampPool, nullptr);
+  log.timestampPool = VK_NULL_HANDLE;
+  log.timestampsWritten = 0;
+  log.timestampReadPauseId = 0;
   log.recorded.commands.clear();
   log.computePipeline = 0;
   log.computeSets.clear();

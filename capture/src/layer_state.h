@@ -126,6 +126,11 @@ uint64_t handleId(Handle handle) {
   X(SignalSemaphore)                           \
   X(SignalSemaphoreKHR)                        \
   X(WaitSemaphores)                            \
+  X(CreateQueryPool)                           \
+  X(DestroyQueryPool)                          \
+  X(CmdResetQueryPool)                         \
+  X(CmdWriteTimestamp)                         \
+  X(GetQueryPoolResults)                       \
   X(WaitSemaphoresKHR)
 
 #define CLASTRACE_DECLARE_PFN(name) PFN_vk##name name = nullptr;
@@ -152,6 +157,10 @@ struct DeviceState {
   bool serving = false;           // the layer provides the cluster extension for this device
   bool clusterEnabled = false;    // the application enabled the extension (served or native)
   bool capturing = false;
+  // GPU timestamps around captured commands: CLASTRACE_TIMESTAMPS and every queue family the
+  // device was created with has timestampValidBits (a command buffer runs on one of them).
+  bool timestamps = false;
+  uint64_t timestampMask = ~0ull;  // the smallest family's valid bits
   // Capture on and still writing (a sink that failed stops the capture work at once).
   bool capturingNow() const { return sink && sink->active(); }
   VkPhysicalDeviceClusterAccelerationStructurePropertiesNV clusterProperties{};
