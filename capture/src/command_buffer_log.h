@@ -16,7 +16,7 @@ struct CommandBufferLog {
   std::vector<VkEvent> events;     // created by the layer for this recording
   std::vector<std::shared_ptr<StagingSet>> staging;  // the pauses' staging buffers, likewise
   // GPU timestamps around the captured commands (primary command buffers only): the layer's
-  // query pool for this recording, queries used, and the pause at the end that reads them.
+  // query pool for this recording, queries used, and the id its readback is known by.
   VkQueryPool timestampPool = VK_NULL_HANDLE;
   uint32_t timestampsWritten = 0;
   uint64_t timestampReadPauseId = 0;

@@ -44,25 +44,8 @@ VKAPI_ATTR VkResult VKAPI_CALL BeginCommandBuffer(VkCommandBuffer cb, const VkCo
   return d.next.BeginCommandBuffer(cb, pBeginInfo);
 }
 
-void recordPause(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log, PausePoint pause);
-
 VKAPI_ATTR VkResult VKAPI_CALL EndCommandBuffer(VkCommandBuffer cb) {
   DeviceState& d = deviceOf(cb);
-  {
-    // The timestamps are read at a last pause: the queue holds there, so the next execution
-    // of this command buffer cannot reset them first, and the submission's trace records wait
-    // for the ticks just as they wait for the builds' memory.
-    auto log = logOf(d, cb);
-    if (log->timestampPool && log->timestampsWritten) {
-      PausePoint read;
-      read.pauseId = log->timestampReadPauseId;
-      read.phase = PausePhase::AfterCommand;
-      read.lastOfCommand = true;
-      read.timestampPool = log->timestampPool;
-      read.timestampCount = log->timestampsWritten;
-      recordPause(d, cb, *log, read);
-    }
-  }
   VkResult result = d.next.EndCommandBuffer(cb);
   if (result == VK_SUCCESS && d.sink) d.sink->commandBufferRecorded(logOf(d, cb)->recorded);
   return result;
@@ -465,8 +448,7 @@ void recordPause(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log, Paus
   }
   log.events.push_back(pause.signal);
   log.events.push_back(pause.release);
-  // The timestamp readback reads no application memory: nothing to stage.
-  std::shared_ptr<StagingSet> staging = pause.timestampPool ? nullptr : createStaging(d);
+  std::shared_ptr<StagingSet> staging = createStaging(d);
   if (staging) {
     log.staging.push_back(staging);
     pause.staging = staging;
@@ -503,7 +485,8 @@ std::optional<TimestampWriteCommand> writeTimestamp(DeviceState& d, VkCommandBuf
   if (!d.timestamps || !d.capturingNow() || log.recorded.secondary) return std::nullopt;
   if (log.timestampsWritten + (pairStart ? 2 : 1) > kTimestampQueries) return std::nullopt;
   if (!log.timestampPool) {
-    VkQueryPoolCreateInfo info{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
+    VkQueryPoolCreateInfo info{};
+    info.sType = VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO;
     info.queryType = VK_QUERY_TYPE_TIMESTAMP;
     info.queryCount = kTimestampQueries;
     if (d.next.CreateQueryPool(d.device, &info, nullptr, &log.timestampPool) != VK_SUCCESS) {
@@ -544,6 +527,10 @@ VKAPI_ATTR void VKAPI_CALL CmdBuildClusterAccelerationStructureIndirectNV(
   // When serving, the command is the engine's run at the pause before it, and the queue does
   // nothing until the next command: the outputs are read in that same pause.
   const bool pauseAfter = d.capturingNow() && !d.serving;
+  // Served, the command's execution is the engine's run inside the pause before it: its span
+  // covers that pause (the queue's time on the command, capture reading included). Native, the
+  // span starts after the pause, so the capture's stall is not counted.
+  bool started = d.serving && timestampBefore(d, cb, *log).has_value();
   if (d.capturingNow() || d.serving) {
     PausePoint before;
     before.pauseId = pauseId;
@@ -552,8 +539,7 @@ VKAPI_ATTR void VKAPI_CALL CmdBuildClusterAccelerationStructureIndirectNV(
     before.parameters = parameters;
     recordPause(d, cb, *log, before);
   }
-  // Served, the queue runs nothing for the command: no GPU time to measure.
-  const bool started = !d.serving && timestampBefore(d, cb, *log).has_value();
+  if (!d.serving) started = timestampBefore(d, cb, *log).has_value();
   if (!d.serving && d.next.CmdBuildClusterAccelerationStructureIndirectNV)
     d.next.CmdBuildClusterAccelerationStructureIndirectNV(cb, pCommandInfos);
   auto ended = timestampAfter(d, cb, *log, started);
@@ -658,7 +644,13 @@ void clearCommandBufferLog(DeviceState& d, CommandBufferLog& log) {
   for (auto& staging : log.staging) destroyStaging(d, *staging);
   log.staging.clear();
   log.pauses.clear();
-  if (log.timestampPool) d.next.DestroyQueryPool(d.device, log.timestampPool, nullptr);
+  if (log.timestampPool) {
+    // Resetting, freeing or re-beginning is allowed only once no execution is pending: what was
+    // not read yet is final now.
+    const VkQueryPool pool = log.timestampPool;
+    readCompletedTimestamps(d, [pool](const DeviceState::PendingTimestampRead& r) { return r.pool == pool; });
+    d.next.DestroyQueryPool(d.device, log.timestampPool, nullptr);
+  }
   log.timestampPool = VK_NULL_HANDLE;
   log.timestampsWritten = 0;
   log.timestampReadPauseId = 0;

@@ -162,8 +162,6 @@ bool PauseWorker::handle(Expected& expected) {
     return readMemory(a, s, *o, w);
   };
 
-  if (pause.timestampPool) return readTimestamps(expected, capture, started);
-
   ClusterBuildCapture* record = nullptr;
   const auto openKey = std::make_tuple(expected.submissionIndex, pause.pauseId, pause.occurrence);
   if (capture) {
@@ -287,42 +285,6 @@ bool PauseWorker::handle(Expected& expected) {
       open_.erase(openKey);
     }
   }
-  return true;
-}
-
-// The pause at the end of a command buffer with timestamps: every query of it was written
-// before the queue signalled, so waiting for the results cannot block on the queue.
-bool PauseWorker::readTimestamps(const Expected& expected, bool capture,
-                                 std::chrono::steady_clock::time_point started) {
-  const PausePoint& pause = expected.pause;
-  ClusterBuildCapture read;
-  if (capture) {
-    read.kind = CapturedCommandKind::Timestamps;
-    read.pauseId = pause.pauseId;
-    read.occurrence = pause.occurrence;
-    read.submissionIndex = expected.submissionIndex;
-    read.commandBuffer = expected.commandBuffer;
-    std::vector<uint64_t> results(size_t(pause.timestampCount) * 2);  // (ticks, availability) per query
-    const VkResult r = device_.next.GetQueryPoolResults(
-        device_.device, pause.timestampPool, 0, pause.timestampCount, results.size() * sizeof(uint64_t),
-        results.data(), 2 * sizeof(uint64_t),
-        VK_QUERY_RESULT_64_BIT | VK_QUERY_RESULT_WAIT_BIT | VK_QUERY_RESULT_WITH_AVAILABILITY_BIT);
-    for (uint32_t q = 0; q < pause.timestampCount; ++q) {
-      const bool valid = (r == VK_SUCCESS || r == VK_NOT_READY) && results[2 * q + 1] != 0;
-      read.timestampTicks.push_back(valid ? results[2 * q] & device_.timestampMask : 0);
-      read.timestampValid.push_back(valid);
-    }
-    if (r != VK_SUCCESS)
-      logMessage(LogLevel::Error, "reading the layer's timestamps of command buffer 0x%llx failed (VkResult %d)",
-                 (unsigned long long)expected.commandBuffer, int(r));
-  }
-  device_.next.ResetEvent(device_.device, pause.signal);
-  device_.next.SetEvent(device_.device, pause.release);
-  ++handled_;
-  pauseMilliseconds_.push_back(
-      float(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - started).count()));
-  staging_ = nullptr;
-  if (capture) device_.sink->clusterBuildCaptured(std::move(read));
   return true;
 }
 

@@ -53,9 +53,6 @@ struct PausePoint {
   std::shared_ptr<const BuildAccelerationStructureNVCommand> buildNV;
   std::shared_ptr<const CopyMemoryToAccelerationStructureCommand> copyToAccelerationStructure;
   std::shared_ptr<const StagingSet> staging;  // copies of unmapped memory, or null (pause_staging.h)
-  // The end-of-command-buffer pause that reads the layer's timestamps: queries 0..count-1.
-  VkQueryPool timestampPool = VK_NULL_HANDLE;
-  uint32_t timestampCount = 0;
 };
 
 class PauseWorker {
@@ -82,7 +79,6 @@ class PauseWorker {
   };
   void run();
   bool handle(Expected& expected);
-  bool readTimestamps(const Expected& expected, bool capture, std::chrono::steady_clock::time_point started);
   bool checkMemory(VkDeviceAddress address, uint64_t size, std::string& why);
   bool readMemory(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>& out, std::string& why);
   bool readResolved(const ResolvedRange& range, uint64_t size, std::vector<uint8_t>& out);
