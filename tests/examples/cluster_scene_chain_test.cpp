@@ -586,16 +586,29 @@ Expected hazardsWithout(ClusterSceneChain& test, const std::vector<std::string>&
   const clastrace::replay::ReplayReport report = test.replay(trace);
   EXPECT_TRUE(report.findings.empty()) << describe(report);  // serving still wrote the engine's bytes
   EXPECT_TRUE(report.trace_damage.empty());
+  // The trace's command indices count the layer's timestamps too: map them to the app's.
+  std::vector<int> appIndex;  // trace command index -> application command index (-1: a timestamp)
+  forEachTimeline(trace, [&](uint64_t cb, const TracedTimeline& t) {
+    if (cb != scene["commandBuffer"].get<uint64_t>()) return;
+    int next = 0;
+    for (char kind : t.order) appIndex.push_back(kind == 'T' ? -1 : next++);
+  });
+  auto label = [&](uint64_t traceIndex) -> const std::string* {
+    if (traceIndex >= appIndex.size() || appIndex[traceIndex] < 0 || size_t(appIndex[traceIndex]) >= labels.size())
+      return nullptr;
+    return &labels[size_t(appIndex[traceIndex])];
+  };
   Expected found;
   for (const auto& h : report.hazards) {
     EXPECT_EQ(h.prior.command.command_buffer_handle, scene["commandBuffer"].get<uint64_t>());
     EXPECT_EQ(h.later.command.command_buffer_handle, scene["commandBuffer"].get<uint64_t>());
-    if (h.prior.command.command >= labels.size() || h.later.command.command >= labels.size()) {
+    const std::string* prior = label(h.prior.command.command);
+    const std::string* later = label(h.later.command.command);
+    if (!prior || !later) {
       ADD_FAILURE() << "hazard names a command the application did not record: " << h.format();
       continue;
     }
-    found.insert({clastrace::replay::hazard_class_name(h.hazard), labels[h.prior.command.command],
-                  labels[h.later.command.command]});
+    found.insert({clastrace::replay::hazard_class_name(h.hazard), *prior, *later});
   }
   return found;
 }
