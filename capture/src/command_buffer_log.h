@@ -15,6 +15,11 @@ struct CommandBufferLog {
   std::vector<PausePoint> pauses;  // in execution order, secondaries' included
   std::vector<VkEvent> events;     // created by the layer for this recording
   std::vector<std::shared_ptr<StagingSet>> staging;  // the pauses' staging buffers, likewise
+  // GPU timestamps around the captured commands (primary command buffers only): the layer's
+  // query pool for this recording, queries used, and the id its readback is known by.
+  VkQueryPool timestampPool = VK_NULL_HANDLE;
+  uint32_t timestampsWritten = 0;
+  uint64_t timestampReadPauseId = 0;
   // Compute binding state, for the storage buffers each dispatch sees.
   uint64_t computePipeline = 0;
   std::map<uint32_t, std::pair<VkDescriptorSet, std::vector<uint32_t>>> computeSets;  // set -> (set, dynamic offsets)

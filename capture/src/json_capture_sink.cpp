@@ -121,6 +121,9 @@ struct CommandToJson {
             {"dst", c.dst}, {"src", c.src}, {"scratch", c.scratch}, {"scratchOffset", c.scratchOffset},
             {"pauseId", c.pauseId}};
   }
+  json operator()(const TimestampWriteCommand& c) const {
+    return {{"kind", "WriteTimestamp"}, {"query", c.query}, {"stageMask", c.stageMask}};
+  }
   json operator()(const CopyMemoryToAccelerationStructureCommand& c) const {
     return {{"kind", "CopyMemoryToAccelerationStructureKHR"}, {"src", c.src}, {"dst", c.dst}, {"mode", int(c.mode)},
             {"pauseId", c.pauseId}};
@@ -191,8 +194,17 @@ class JsonCaptureSink final : public CaptureSink {
   }
   void commandBufferRecorded(const RecordedCommandBuffer& cb) override {
     json commands = json::array();
-    for (const auto& c : cb.commands) commands.push_back(std::visit(CommandToJson{}, c));
-    add("commandBuffers", {{"commandBuffer", cb.commandBuffer}, {"usage", cb.usage}, {"commands", commands}});
+    json timestamps = json::array();  // the layer's own, kept apart so command indices are the application's
+    for (const auto& c : cb.commands) {
+      if (const auto* t = std::get_if<TimestampWriteCommand>(&c)) {
+        timestamps.push_back({{"afterCommand", commands.size()}, {"query", t->query}, {"stageMask", t->stageMask},
+                              {"readPauseId", t->readPauseId}});
+        continue;
+      }
+      commands.push_back(std::visit(CommandToJson{}, c));
+    }
+    add("commandBuffers", {{"commandBuffer", cb.commandBuffer}, {"usage", cb.usage}, {"commands", commands},
+                           {"timestamps", timestamps}});
   }
   void commandBufferReset(uint64_t commandBuffer) override { add("resets", commandBuffer); }
   void queueSubmitted(const SubmissionRecord& s) override {
@@ -204,6 +216,12 @@ class JsonCaptureSink final : public CaptureSink {
                         {"batches", batches}, {"fence", s.fence}});
   }
   void clusterBuildCaptured(ClusterBuildCapture c) override {
+    if (c.kind == CapturedCommandKind::Timestamps) {  // a readback, not a build: listed apart
+      add("timestampReads", {{"pauseId", c.pauseId}, {"submissionIndex", c.submissionIndex},
+                             {"commandBuffer", c.commandBuffer}, {"ticks", c.timestampTicks},
+                             {"valid", c.timestampValid}});
+      return;
+    }
     json issues = json::array();
     for (const auto& i : c.issues) issues.push_back({{"address", i.address}, {"size", i.size}, {"rule", i.rule}});
     json findings = json::array();

@@ -4,6 +4,8 @@
 #include "command_buffer_log.h"
 #include "layer_state.h"
 
+#include <optional>
+
 #include <cstring>
 #include <map>
 
@@ -470,6 +472,50 @@ void recordPause(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log, Paus
   log.pauses.push_back(std::move(pause));
 }
 
+// Queries per recording: a pair per captured command. Commands past the first 128 of one
+// recording get no timestamps (the analyzer simply sees no span for them).
+constexpr uint32_t kTimestampQueries = 256;
+
+// Writes a timestamp of the layer's own pool into `cb` and returns its record (the caller puts
+// it in the log around the command's record), or nothing when timestamps are off, the command
+// buffer is secondary (its pauses run inside a primary; not supported), or the pool is full.
+// `pairStart`: the first of a pair, written only when its partner fits too.
+std::optional<TimestampWriteCommand> writeTimestamp(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log,
+                                                    VkPipelineStageFlagBits stage, bool pairStart) {
+  if (!d.timestamps || !d.capturingNow() || log.recorded.secondary) return std::nullopt;
+  if (log.timestampsWritten + (pairStart ? 2 : 1) > kTimestampQueries) return std::nullopt;
+  if (!log.timestampPool) {
+    VkQueryPoolCreateInfo info{};
+    info.sType = VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO;
+    info.queryType = VK_QUERY_TYPE_TIMESTAMP;
+    info.queryCount = kTimestampQueries;
+    if (d.next.CreateQueryPool(d.device, &info, nullptr, &log.timestampPool) != VK_SUCCESS) {
+      log.timestampPool = VK_NULL_HANDLE;
+      log.timestampsWritten = kTimestampQueries;  // do not try again in this recording
+      return std::nullopt;
+    }
+    // Reset in the command buffer, so each execution starts from unavailable queries.
+    d.next.CmdResetQueryPool(cb, log.timestampPool, 0, kTimestampQueries);
+    log.timestampReadPauseId = ++d.pauseCounter;
+  }
+  const uint32_t query = log.timestampsWritten++;
+  d.next.CmdWriteTimestamp(cb, stage, log.timestampPool, query);
+  return TimestampWriteCommand{handleId(log.timestampPool), query, uint64_t(stage), log.timestampReadPauseId};
+}
+
+// Start: once everything before (the pause's wait included) has finished, so the span is the
+// command's alone. End: once the command has finished.
+std::optional<TimestampWriteCommand> timestampBefore(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log) {
+  auto t = writeTimestamp(d, cb, log, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, true);
+  if (t) log.recorded.commands.push_back(*t);
+  return t;
+}
+std::optional<TimestampWriteCommand> timestampAfter(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log,
+                                                    bool started) {
+  if (!started) return std::nullopt;
+  return writeTimestamp(d, cb, log, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, false);
+}
+
 VKAPI_ATTR void VKAPI_CALL CmdBuildClusterAccelerationStructureIndirectNV(
     VkCommandBuffer cb, const VkClusterAccelerationStructureCommandsInfoNV* pCommandInfos) {
   DeviceState& d = deviceOf(cb);
@@ -481,6 +527,10 @@ VKAPI_ATTR void VKAPI_CALL CmdBuildClusterAccelerationStructureIndirectNV(
   // When serving, the command is the engine's run at the pause before it, and the queue does
   // nothing until the next command: the outputs are read in that same pause.
   const bool pauseAfter = d.capturingNow() && !d.serving;
+  // Served, the command's execution is the engine's run inside the pause before it: its span
+  // covers that pause (the queue's time on the command, capture reading included). Native, the
+  // span starts after the pause, so the capture's stall is not counted.
+  bool started = d.serving && timestampBefore(d, cb, *log).has_value();
   if (d.capturingNow() || d.serving) {
     PausePoint before;
     before.pauseId = pauseId;
@@ -489,8 +539,10 @@ VKAPI_ATTR void VKAPI_CALL CmdBuildClusterAccelerationStructureIndirectNV(
     before.parameters = parameters;
     recordPause(d, cb, *log, before);
   }
+  if (!d.serving) started = timestampBefore(d, cb, *log).has_value();
   if (!d.serving && d.next.CmdBuildClusterAccelerationStructureIndirectNV)
     d.next.CmdBuildClusterAccelerationStructureIndirectNV(cb, pCommandInfos);
+  auto ended = timestampAfter(d, cb, *log, started);
   if (pauseAfter) {
     PausePoint after;
     after.pauseId = pauseId;
@@ -500,6 +552,7 @@ VKAPI_ATTR void VKAPI_CALL CmdBuildClusterAccelerationStructureIndirectNV(
     recordPause(d, cb, *log, after);
   }
   if (d.sink) log->recorded.commands.push_back(ClusterBuildCommand{*parameters, pauseId, d.serving});
+  if (ended) log->recorded.commands.push_back(*ended);
 }
 
 VKAPI_ATTR void VKAPI_CALL GetClusterAccelerationStructureBuildSizesNV(VkDevice device,
@@ -553,9 +606,12 @@ VKAPI_ATTR void VKAPI_CALL CmdBuildAccelerationStructureNV(VkCommandBuffer cb, c
     before.buildNV = c;
     recordPause(d, cb, *log, before);
   }
+  const bool started = timestampBefore(d, cb, *log).has_value();
   d.next.CmdBuildAccelerationStructureNV(cb, pInfo, instanceData, instanceOffset, update, dst, src, scratch,
                                          scratchOffset);
+  auto ended = timestampAfter(d, cb, *log, started);
   if (d.sink) log->recorded.commands.push_back(*c);
+  if (ended) log->recorded.commands.push_back(*ended);
 }
 
 VKAPI_ATTR void VKAPI_CALL CmdCopyMemoryToAccelerationStructureKHR(VkCommandBuffer cb,
@@ -573,8 +629,11 @@ VKAPI_ATTR void VKAPI_CALL CmdCopyMemoryToAccelerationStructureKHR(VkCommandBuff
     before.copyToAccelerationStructure = c;
     recordPause(d, cb, *log, before);
   }
+  const bool started = timestampBefore(d, cb, *log).has_value();
   d.next.CmdCopyMemoryToAccelerationStructureKHR(cb, pInfo);
+  auto ended = timestampAfter(d, cb, *log, started);
   if (d.sink) log->recorded.commands.push_back(*c);
+  if (ended) log->recorded.commands.push_back(*ended);
 }
 
 }  // namespace
@@ -585,6 +644,16 @@ void clearCommandBufferLog(DeviceState& d, CommandBufferLog& log) {
   for (auto& staging : log.staging) destroyStaging(d, *staging);
   log.staging.clear();
   log.pauses.clear();
+  if (log.timestampPool) {
+    // Resetting, freeing or re-beginning is allowed only once no execution is pending: what was
+    // not read yet is final now.
+    const VkQueryPool pool = log.timestampPool;
+    readCompletedTimestamps(d, [pool](const DeviceState::PendingTimestampRead& r) { return r.pool == pool; });
+    d.next.DestroyQueryPool(d.device, log.timestampPool, nullptr);
+  }
+  log.timestampPool = VK_NULL_HANDLE;
+  log.timestampsWritten = 0;
+  log.timestampReadPauseId = 0;
   log.recorded.commands.clear();
   log.computePipeline = 0;
   log.computeSets.clear();

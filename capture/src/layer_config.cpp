@@ -96,6 +96,10 @@ LayerConfig parseLayerConfig(const std::function<const char*(const char*)>& gete
     if (auto on = parseSwitch(*v)) config.forceStaging = *on;
     else reject("CLASTRACE_FORCE_STAGING", *v, "0 or 1");
   }
+  if (auto v = value("CLASTRACE_TIMESTAMPS")) {
+    if (auto on = parseSwitch(*v)) config.timestamps = *on;
+    else reject("CLASTRACE_TIMESTAMPS", *v, "0 or 1");
+  }
   return config;
 }
 

@@ -4,6 +4,7 @@
 #include "command_buffer_log.h"
 #include "pause_worker.h"
 
+#include <algorithm>
 #include <cstdio>
 #include <cstring>
 #include <string>
@@ -177,9 +178,23 @@ VKAPI_ATTR VkResult VKAPI_CALL CreateDevice(VkPhysicalDevice physicalDevice, con
   const LayerConfig& config = layerConfig();
   if (config.capture) state->sink = processCaptureSink();
   state->capturing = state->sink != nullptr;
+  if (state->capturing && config.timestamps && pCreateInfo->queueCreateInfoCount) {
+    uint32_t familyCount = 0;
+    instance->next.GetPhysicalDeviceQueueFamilyProperties(physicalDevice, &familyCount, nullptr);
+    std::vector<VkQueueFamilyProperties> families(familyCount);
+    instance->next.GetPhysicalDeviceQueueFamilyProperties(physicalDevice, &familyCount, families.data());
+    uint32_t validBits = 64;
+    for (uint32_t i = 0; i < pCreateInfo->queueCreateInfoCount; ++i) {
+      const uint32_t family = pCreateInfo->pQueueCreateInfos[i].queueFamilyIndex;
+      validBits = std::min(validBits, family < familyCount ? families[family].timestampValidBits : 0u);
+    }
+    state->timestamps = validBits != 0 && state->next.CreateQueryPool && state->next.CmdWriteTimestamp &&
+                        state->next.CmdResetQueryPool && state->next.GetQueryPoolResults;
+    state->timestampMask = validBits >= 64 ? ~0ull : (1ull << validBits) - 1;
+  }
   if (state->capturing || serving) state->pauses = std::make_unique<PauseWorker>(*state);
-  logMessage(LogLevel::Info, "device %s: serving %s, capture %s", properties.deviceName, serving ? "on" : "off",
-             state->capturing ? "on" : "off");
+  logMessage(LogLevel::Info, "device %s: serving %s, capture %s, timestamps %s", properties.deviceName,
+             serving ? "on" : "off", state->capturing ? "on" : "off", state->timestamps ? "on" : "off");
 
   if (state->sink) {
     DeviceRecord record;

@@ -3,6 +3,7 @@
 // completed when the host next touched memory.
 #include "layer_state.h"
 
+#include <algorithm>
 #include <map>
 
 namespace clastrace::capture {
@@ -32,6 +33,24 @@ std::vector<uint64_t> ids(uint32_t count, const Handle* handles) {
   return out;
 }
 
+// A signalled fence: its submission, and every earlier one on the same queue, has completed.
+void fencesCompleted(DeviceState& d, uint32_t count, const VkFence* fences) {
+  std::map<VkQueue, uint64_t> completedUpTo;  // queue -> newest completed submission
+  {
+    std::lock_guard lock(d.timestampsMutex);
+    if (d.pendingTimestampReads.empty()) return;
+    for (const auto& r : d.pendingTimestampReads)
+      for (uint32_t i = 0; i < count; ++i)
+        if (r.fence && r.fence == handleId(fences[i]))
+          completedUpTo[r.queue] = std::max(completedUpTo[r.queue], r.submissionIndex);
+  }
+  if (completedUpTo.empty()) return;
+  readCompletedTimestamps(d, [&](const DeviceState::PendingTimestampRead& r) {
+    auto it = completedUpTo.find(r.queue);
+    return it != completedUpTo.end() && r.submissionIndex <= it->second;
+  });
+}
+
 VKAPI_ATTR VkResult VKAPI_CALL SetEvent(VkDevice device, VkEvent event) {
   DeviceState& d = deviceOf(device);
   VkResult result = d.next.SetEvent(device, event);
@@ -55,6 +74,7 @@ VKAPI_ATTR VkResult VKAPI_CALL WaitForFences(VkDevice device, uint32_t count, co
                                              uint64_t timeout) {
   DeviceState& d = deviceOf(device);
   VkResult result = d.next.WaitForFences(device, count, fences, waitAll, timeout);
+  if (result == VK_SUCCESS && (waitAll || count == 1)) fencesCompleted(d, count, fences);
   record(d, Kind::FenceWait, ids(count, fences), result, {}, waitAll == VK_TRUE, timeout);
   return result;
 }
@@ -67,6 +87,7 @@ VKAPI_ATTR VkResult VKAPI_CALL ResetFences(VkDevice device, uint32_t count, cons
 VKAPI_ATTR VkResult VKAPI_CALL GetFenceStatus(VkDevice device, VkFence fence) {
   DeviceState& d = deviceOf(device);
   VkResult result = d.next.GetFenceStatus(device, fence);
+  if (result == VK_SUCCESS) fencesCompleted(d, 1, &fence);
   record(d, Kind::FenceStatus, {handleId(fence)}, result);
   return result;
 }
@@ -74,12 +95,15 @@ VKAPI_ATTR VkResult VKAPI_CALL GetFenceStatus(VkDevice device, VkFence fence) {
 VKAPI_ATTR VkResult VKAPI_CALL QueueWaitIdle(VkQueue queue) {
   DeviceState& d = *findDevice(dispatchKey(queue));
   VkResult result = d.next.QueueWaitIdle(queue);
+  if (result == VK_SUCCESS)
+    readCompletedTimestamps(d, [queue](const DeviceState::PendingTimestampRead& r) { return r.queue == queue; });
   record(d, Kind::QueueWaitIdle, {handleId(queue)}, result);
   return result;
 }
 VKAPI_ATTR VkResult VKAPI_CALL DeviceWaitIdle(VkDevice device) {
   DeviceState& d = deviceOf(device);
   VkResult result = d.next.DeviceWaitIdle(device);
+  if (result == VK_SUCCESS) readCompletedTimestamps(d, [](const DeviceState::PendingTimestampRead&) { return true; });
   record(d, Kind::DeviceWaitIdle, {}, result);
   return result;
 }

@@ -12,6 +12,7 @@
 
 #include <atomic>
 #include <cstdarg>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <shared_mutex>
@@ -126,6 +127,11 @@ uint64_t handleId(Handle handle) {
   X(SignalSemaphore)                           \
   X(SignalSemaphoreKHR)                        \
   X(WaitSemaphores)                            \
+  X(CreateQueryPool)                           \
+  X(DestroyQueryPool)                          \
+  X(CmdResetQueryPool)                         \
+  X(CmdWriteTimestamp)                         \
+  X(GetQueryPoolResults)                       \
   X(WaitSemaphoresKHR)
 
 #define CLASTRACE_DECLARE_PFN(name) PFN_vk##name name = nullptr;
@@ -152,6 +158,24 @@ struct DeviceState {
   bool serving = false;           // the layer provides the cluster extension for this device
   bool clusterEnabled = false;    // the application enabled the extension (served or native)
   bool capturing = false;
+  // GPU timestamps around captured commands: CLASTRACE_TIMESTAMPS and every queue family the
+  // device was created with has timestampValidBits (a command buffer runs on one of them).
+  bool timestamps = false;
+  uint64_t timestampMask = ~0ull;  // the smallest family's valid bits
+  // Executions whose timestamps are still to be read: once the application learns they
+  // completed (fence, idle wait), or when their command buffer is reset, freed or re-begun.
+  struct PendingTimestampRead {
+    VkQueue queue = VK_NULL_HANDLE;
+    uint64_t fence = 0;
+    uint64_t submissionIndex = 0;
+    uint64_t commandBuffer = 0;
+    VkQueryPool pool = VK_NULL_HANDLE;
+    uint32_t count = 0;
+    uint64_t readPauseId = 0;
+    uint32_t occurrence = 0;
+  };
+  std::mutex timestampsMutex;
+  std::vector<PendingTimestampRead> pendingTimestampReads;
   // Capture on and still writing (a sink that failed stops the capture work at once).
   bool capturingNow() const { return sink && sink->active(); }
   VkPhysicalDeviceClusterAccelerationStructurePropertiesNV clusterProperties{};
@@ -215,6 +239,11 @@ PFN_vkVoidFunction accelerationStructureHook(const char* name);
 // RayCheckRecord per top level. Called from the application's vkQueueSubmit.
 void runRayChecks(DeviceState& device, VkQueue queue, uint64_t submissionIndex, const std::vector<uint64_t>& topLevels);
 PFN_vkVoidFunction hostSyncHook(const char* name);
+
+// GPU timestamps (layer_timestamps.cpp): reads, and hands to the sink, the pending executions
+// `completed` says have finished (their queries are then final).
+void readCompletedTimestamps(DeviceState& device,
+                             const std::function<bool(const DeviceState::PendingTimestampRead&)>& completed);
 
 // Serving decisions, shared by the instance hooks and device creation.
 bool driverHasClusterExtension(InstanceState& instance, VkPhysicalDevice physicalDevice);

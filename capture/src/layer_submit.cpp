@@ -14,14 +14,18 @@ struct PendingPauses {
   uint64_t commandBuffer;
   std::vector<PausePoint> pauses;
   bool simultaneousUse = false;
+  VkQueryPool timestampPool = VK_NULL_HANDLE;  // the layer's timestamps of this recording, if any
+  uint32_t timestamps = 0;
+  uint64_t timestampReadPauseId = 0;
 };
 
 PendingPauses pausesOf(DeviceState& d, VkCommandBuffer cb) {
   std::lock_guard lock(d.commandBuffersMutex);
   auto it = d.commandBuffers.find(cb);
   if (it == d.commandBuffers.end()) return {handleId(cb), {}, false};
-  return {handleId(cb), it->second->pauses,
-          (it->second->recorded.usage & VK_COMMAND_BUFFER_USAGE_SIMULTANEOUS_USE_BIT) != 0};
+  const CommandBufferLog& log = *it->second;
+  return {handleId(cb), log.pauses, (log.recorded.usage & VK_COMMAND_BUFFER_USAGE_SIMULTANEOUS_USE_BIT) != 0,
+          log.timestampPool, log.timestampsWritten, log.timestampReadPauseId};
 }
 
 // Everything the worker must expect from one submission, gathered before the driver call so
@@ -65,6 +69,18 @@ SubmissionPlan planFor(DeviceState& d, VkQueue queue, VkFence fence, bool synchr
   plan.record.synchronization2 = synchronization2;
   plan.capture = d.sink && layerConfig().submitRange.contains(plan.record.index);
   return plan;
+}
+
+// The executions whose timestamps the trace waits for: read once they are known complete.
+void expectTimestamps(DeviceState& d, VkQueue queue, const SubmissionPlan& plan) {
+  if (!plan.capture) return;
+  std::map<uint64_t, uint32_t> executions;  // read id -> executions in this submission
+  std::lock_guard lock(d.timestampsMutex);
+  for (const PendingPauses& p : plan.pauses)
+    if (p.timestampPool && p.timestamps)
+      d.pendingTimestampReads.push_back({queue, plan.record.fence, plan.record.index, p.commandBuffer,
+                                         p.timestampPool, p.timestamps, p.timestampReadPauseId,
+                                         executions[p.timestampReadPauseId]++});
 }
 
 // CLASTRACE_RAY_CHECK: the top levels this submission built (or updated) get their rays traced
@@ -112,6 +128,7 @@ VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit(VkQueue queue, uint32_t submitCount, 
   VkResult result = d.next.QueueSubmit(queue, submitCount, pSubmits, fence);
   if (result != VK_SUCCESS) return result;
   announce(d, queue, plan);
+  expectTimestamps(d, queue, plan);
   if (plan.capture) d.sink->queueSubmitted(plan.record);
   checkRays(d, queue, plan);
   return result;
@@ -142,6 +159,7 @@ VkResult queueSubmit2(VkQueue queue, uint32_t submitCount, const VkSubmitInfo2* 
   VkResult result = next(queue, submitCount, pSubmits, fence);
   if (result != VK_SUCCESS) return result;
   announce(d, queue, plan);
+  expectTimestamps(d, queue, plan);
   if (plan.capture) d.sink->queueSubmitted(plan.record);
   checkRays(d, queue, plan);
   return result;

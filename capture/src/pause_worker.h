@@ -22,6 +22,7 @@
 
 #include <clastrace/engine/object_directory.h>
 
+#include <chrono>
 #include <condition_variable>
 #include <deque>
 #include <map>

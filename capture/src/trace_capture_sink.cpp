@@ -267,6 +267,7 @@ class TraceCaptureSink final : public CaptureSink {
           if (const auto* copy = std::get_if<CopyMemoryToAccelerationStructureCommand>(&c))
             p.expectedBuilds += copy->pauseId != 0;
         }
+        if (timestampReadOf(*it->second)) ++p.expectedBuilds;  // its timestamps' readback
       }
     wakeEmitter();
   }
@@ -500,6 +501,12 @@ class TraceCaptureSink final : public CaptureSink {
       finding(1, "CLASTRACE-capture-incomplete", i.rule + where, -1);
     }
   }
+  // The pause that reads a command buffer's timestamps (0: it has none).
+  static uint64_t timestampReadOf(const RecordedCommandBuffer& cb) {
+    for (const auto& c : cb.commands)
+      if (const auto* t = std::get_if<TimestampWriteCommand>(&c)) return t->readPauseId;
+    return 0;
+  }
   static uint64_t pauseIdOf(const RecordedCommand& command) {
     if (const auto* c = std::get_if<ClusterBuildCommand>(&command)) return c->pauseId;
     if (const auto* c = std::get_if<BuildAccelerationStructureNVCommand>(&command)) return c->pauseId;
@@ -655,8 +662,26 @@ class TraceCaptureSink final : public CaptureSink {
       begin.flags = cb->usage;
       begin.level = cb->secondary ? 1 : 0;
       appendLocked(recordOf(std::move(begin)));
+      const ClusterBuildCapture* timestamps = nullptr;  // this execution's ticks
+      if (const uint64_t readPauseId = timestampReadOf(*cb)) {
+        auto it = p.builds.find({readPauseId, executions[readPauseId]++});
+        if (it != p.builds.end()) timestamps = &it->second;
+      }
       for (size_t index = 0; index < cb->commands.size(); ++index) {
         const RecordedCommand& command = cb->commands[index];
+        if (const auto* t = std::get_if<TimestampWriteCommand>(&command)) {
+          fbs::GpuTimestampT r;
+          r.command_buffer = cb->commandBuffer;
+          r.query_pool = t->queryPool;
+          r.query = t->query;
+          r.stage_mask = t->stageMask;
+          if (timestamps && t->query < timestamps->timestampTicks.size()) {
+            r.ticks = timestamps->timestampTicks[t->query];
+            r.ticks_valid = timestamps->timestampValid[t->query];
+          }
+          appendLocked(recordOf(std::move(r)));
+          continue;
+        }
         const ClusterBuildCapture* captured = nullptr;
         if (const uint64_t pauseId = pauseIdOf(command)) {
           auto it = p.builds.find({pauseId, executions[pauseId]++});

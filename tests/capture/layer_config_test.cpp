@@ -68,3 +68,13 @@ TEST(LayerConfig, RejectsOverflowingNumbers) {
   EXPECT_EQ(c.errors.size(), 2u);
   EXPECT_EQ(c.submitRange.first, 0u);
 }
+
+TEST(LayerConfig, TimestampsOnByDefaultAndSwitchedByZeroOrOne) {
+  EXPECT_TRUE(parse({}).timestamps);
+  EXPECT_FALSE(parse({{"CLASTRACE_TIMESTAMPS", "0"}}).timestamps);
+  EXPECT_TRUE(parse({{"CLASTRACE_TIMESTAMPS", "1"}}).timestamps);
+  LayerConfig bad = parse({{"CLASTRACE_TIMESTAMPS", "sometimes"}});
+  EXPECT_TRUE(bad.timestamps);  // the default is kept
+  ASSERT_EQ(bad.errors.size(), 1u);
+  EXPECT_NE(bad.errors[0].find("CLASTRACE_TIMESTAMPS='sometimes'"), std::string::npos);
+}

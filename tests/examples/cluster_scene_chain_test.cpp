@@ -17,6 +17,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <set>
 #include <sstream>
@@ -105,7 +106,7 @@ class ClusterSceneChain : public ::testing::Test {
   ProcessResult run(const std::string& command, std::map<std::string, std::string> env, bool withLayer = true) {
     std::string line = "env -u VK_INSTANCE_LAYERS -u VK_ADD_LAYER_PATH -u VK_ICD_FILENAMES";
     for (const char* v : {"CLASTRACE_OUTPUT", "CLASTRACE_CAPTURE", "CLASTRACE_SERVE", "CLASTRACE_SUBMIT_RANGE",
-                          "CLASTRACE_ZSTD_LEVEL", "CLASTRACE_LOG", "CLASTRACE_DEBUG_JSON"})
+                          "CLASTRACE_ZSTD_LEVEL", "CLASTRACE_LOG", "CLASTRACE_DEBUG_JSON", "CLASTRACE_TIMESTAMPS"})
       line += std::string(" -u ") + v;
     env["VK_DRIVER_FILES"] = kLavapipe;
     env["XDG_RUNTIME_DIR"] = dir.string();
@@ -405,6 +406,128 @@ TEST_F(ClusterSceneChain, PassesSynchronizationValidation) {
   }
 }
 
+// ---- GPU timestamps ------------------------------------------------------------------
+
+// The layer's timestamps of one command buffer, in the order of its commands.
+struct TracedTimeline {
+  std::string order;  // per command: 'T' timestamp, 'B' cluster build, 'c' copy, 'b' barrier, 'o' other
+  std::vector<const clastrace::fbs::GpuTimestamp*> timestamps;
+  float periodNs = 0;
+};
+
+// Reads one trace and hands each command buffer's timeline to `check` (the records stay alive
+// while it runs).
+void forEachTimeline(const fs::path& trace, const std::function<void(uint64_t, const TracedTimeline&)>& check) {
+  clastrace::traces::TraceError error;
+  auto reader = clastrace::traces::TraceReader::open(trace.string(), &error);
+  ASSERT_TRUE(reader) << error.message;
+  ASSERT_TRUE(reader->header() && reader->header()->device());
+  std::vector<clastrace::traces::RecordView> views;
+  std::map<uint64_t, TracedTimeline> timelines;
+  clastrace::traces::RecordView view;
+  while (reader->next(&view)) {
+    const clastrace::fbs::Record* r = view.record;
+    uint64_t cb = 0;
+    char kind = 'o';
+    switch (view.kind) {
+      case RecordBody::CommandBufferBegin:
+        timelines[r->body_as_CommandBufferBegin()->command_buffer()] = {};
+        continue;
+      case RecordBody::GpuTimestamp: {
+        const auto* t = r->body_as_GpuTimestamp();
+        cb = t->command_buffer();
+        timelines[cb].timestamps.push_back(t);
+        kind = 'T';
+        break;
+      }
+      case RecordBody::CmdBuildClusterAccelerationStructureIndirect:
+        cb = r->body_as_CmdBuildClusterAccelerationStructureIndirect()->command_buffer(), kind = 'B';
+        break;
+      case RecordBody::CmdCopyBuffer: cb = r->body_as_CmdCopyBuffer()->command_buffer(), kind = 'c'; break;
+      case RecordBody::CmdPipelineBarrier: cb = r->body_as_CmdPipelineBarrier()->command_buffer(), kind = 'b'; break;
+      default: continue;
+    }
+    timelines[cb].order += kind;
+  }
+  for (auto& [cb, timeline] : timelines) {
+    timeline.periodNs = reader->header()->device()->timestamp_period_ns();
+    check(cb, timeline);
+  }
+}
+
+// Each captured build between a pair of the layer's timestamps, read back valid and in order;
+// the analyzer turns each pair into the build's gpu_ns. CLASTRACE_TIMESTAMPS=0: none at all.
+TEST_F(ClusterSceneChain, TimestampsAroundEachCapturedBuildGiveItsGpuTime) {
+  for (const std::string& args : {std::string(kSubset), std::string(kSubset) + " --threads 2"}) {
+    const fs::path trace = dir / "timed.clt";
+    const json app = captureScene(trace, args);
+    ASSERT_FALSE(app.is_null()) << args;
+    size_t builds = 0, timelines = 0, spans = 0;
+    forEachTimeline(trace, [&](uint64_t cb, const TracedTimeline& t) {
+      ++timelines;
+      if (!t.timestamps.empty()) spans += t.timestamps.size() - 1;  // the analyzer spans each neighbouring pair
+      EXPECT_GT(t.periodNs, 0.0f);  // lavapipe's timestampPeriod reaches the header
+      const size_t b = size_t(std::count(t.order.begin(), t.order.end(), 'B'));
+      builds += b;
+      ASSERT_EQ(t.timestamps.size(), 2 * b) << std::hex << cb << " " << t.order;
+      // Every build sits alone between its pair: T B T.
+      for (size_t i = 0; i < t.order.size(); ++i)
+        if (t.order[i] == 'B') {
+          ASSERT_TRUE(i > 0 && i + 1 < t.order.size()) << t.order;
+          EXPECT_EQ(t.order[i - 1], 'T') << t.order;
+          EXPECT_EQ(t.order[i + 1], 'T') << t.order;
+        }
+      std::set<uint32_t> queries;
+      for (size_t i = 0; i + 1 < t.timestamps.size(); i += 2) {
+        const auto* start = t.timestamps[i];
+        const auto* end = t.timestamps[i + 1];
+        EXPECT_TRUE(start->ticks_valid() && end->ticks_valid()) << i;
+        EXPECT_EQ(start->stage_mask(), uint64_t(VK_PIPELINE_STAGE_ALL_COMMANDS_BIT));
+        EXPECT_EQ(end->stage_mask(), uint64_t(VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT));
+        EXPECT_EQ(start->query_pool(), end->query_pool());
+        EXPECT_NE(start->query_pool(), 0u);
+        // Served, the span covers the pause where the engine ran the build: never empty.
+        EXPECT_GT(end->ticks(), start->ticks()) << i;
+        if (i >= 2) EXPECT_GE(start->ticks(), t.timestamps[i - 1]->ticks()) << i;  // in queue order
+        queries.insert(start->query()), queries.insert(end->query());
+      }
+      EXPECT_EQ(queries.size(), t.timestamps.size());
+    });
+    EXPECT_EQ(builds, 8u * (args.find("--threads 2") != std::string::npos ? 2 : 1)) << args;
+    EXPECT_GE(timelines, 1u);
+
+    ProcessResult analyzed = run(std::string(CLASTRACE_CLI) + " analyze --json " + trace.string(), {}, false);
+    ASSERT_EQ(analyzed.exitCode, 0) << analyzed.err;
+    const json analysis = json::parse(analyzed.out);
+    EXPECT_TRUE(analysis["timing"]["gpu_timing_present"].get<bool>());
+    EXPECT_EQ(analysis["timing"]["gpu_spans"]["total"].get<uint64_t>(), spans);
+    EXPECT_GT(analysis["timing"]["gpu_spans"]["gpu_ns"].get<double>(), 0.0);
+    size_t timed = 0;
+    for (const auto& c : analysis["commands"]["listed"])
+      if (c["name"] == "vkCmdBuildClusterAccelerationStructureIndirectNV") {
+        ASSERT_TRUE(c["gpu_ns"].is_number()) << c.dump();
+        EXPECT_GT(c["gpu_ns"].get<double>(), 0.0) << c.dump();
+        ++timed;
+      }
+    EXPECT_EQ(timed, builds);
+    fs::remove(trace);
+  }
+
+  // Off: no query in the trace, and the analyzer has no GPU time.
+  const fs::path trace = dir / "untimed.clt";
+  ProcessResult r = run(scene(std::string(kSubset)), {{"CLASTRACE_OUTPUT", trace.string()}, {"CLASTRACE_TIMESTAMPS", "0"}});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  size_t builds = 0;
+  forEachTimeline(trace, [&](uint64_t, const TracedTimeline& t) {
+    EXPECT_TRUE(t.timestamps.empty()) << t.order;
+    builds += size_t(std::count(t.order.begin(), t.order.end(), 'B'));
+  });
+  EXPECT_EQ(builds, 8u);
+  ProcessResult analyzed = run(std::string(CLASTRACE_CLI) + " analyze --json " + trace.string(), {}, false);
+  ASSERT_EQ(analyzed.exitCode, 0) << analyzed.err;
+  EXPECT_FALSE(json::parse(analyzed.out)["timing"]["gpu_timing_present"].get<bool>());
+}
+
 // ---- Skipped barriers ---------------------------------------------------------------
 
 // What leaving out each barrier of examples/cluster_scene must give, and nothing else:
@@ -472,16 +595,29 @@ Expected hazardsWithout(ClusterSceneChain& test, const std::vector<std::string>&
   const clastrace::replay::ReplayReport report = test.replay(trace);
   EXPECT_TRUE(report.findings.empty()) << describe(report);  // serving still wrote the engine's bytes
   EXPECT_TRUE(report.trace_damage.empty());
+  // The trace's command indices count the layer's timestamps too: map them to the app's.
+  std::vector<int> appIndex;  // trace command index -> application command index (-1: a timestamp)
+  forEachTimeline(trace, [&](uint64_t cb, const TracedTimeline& t) {
+    if (cb != scene["commandBuffer"].get<uint64_t>()) return;
+    int next = 0;
+    for (char kind : t.order) appIndex.push_back(kind == 'T' ? -1 : next++);
+  });
+  auto label = [&](uint64_t traceIndex) -> const std::string* {
+    if (traceIndex >= appIndex.size() || appIndex[traceIndex] < 0 || size_t(appIndex[traceIndex]) >= labels.size())
+      return nullptr;
+    return &labels[size_t(appIndex[traceIndex])];
+  };
   Expected found;
   for (const auto& h : report.hazards) {
     EXPECT_EQ(h.prior.command.command_buffer_handle, scene["commandBuffer"].get<uint64_t>());
     EXPECT_EQ(h.later.command.command_buffer_handle, scene["commandBuffer"].get<uint64_t>());
-    if (h.prior.command.command >= labels.size() || h.later.command.command >= labels.size()) {
+    const std::string* prior = label(h.prior.command.command);
+    const std::string* later = label(h.later.command.command);
+    if (!prior || !later) {
       ADD_FAILURE() << "hazard names a command the application did not record: " << h.format();
       continue;
     }
-    found.insert({clastrace::replay::hazard_class_name(h.hazard), labels[h.prior.command.command],
-                  labels[h.later.command.command]});
+    found.insert({clastrace::replay::hazard_class_name(h.hazard), *prior, *later});
   }
   return found;
 }

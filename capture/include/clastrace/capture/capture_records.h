@@ -262,10 +262,20 @@ struct CopyMemoryToAccelerationStructureCommand {
   uint64_t pauseId = 0;
 };
 
+// A timestamp the layer wrote around a captured command (into its own query pool, which the
+// application never sees). Its ticks arrive with the capture of `readPauseId`: the pause the
+// layer put at the end of the command buffer, where the queue waits while they are read.
+struct TimestampWriteCommand {
+  uint64_t queryPool = 0;
+  uint32_t query = 0;
+  uint64_t stageMask = 0;  // VkPipelineStageFlags2 value (the sync1 bits used have the same value)
+  uint64_t readPauseId = 0;
+};
+
 using RecordedCommand =
     std::variant<BarrierCommand, EventCommand, CopyBufferCommand, FillBufferCommand, UpdateBufferCommand,
                  DispatchCommand, ClusterBuildCommand, BuildAccelerationStructureNVCommand,
-                 CopyMemoryToAccelerationStructureCommand>;
+                 CopyMemoryToAccelerationStructureCommand, TimestampWriteCommand>;
 
 struct RecordedCommandBuffer {
   uint64_t commandBuffer = 0;
@@ -317,7 +327,8 @@ struct HostSyncRecord {
 
 // Everything one vkCmdBuildClusterAccelerationStructureIndirectNV read, as it was when the
 // command executed on the queue, and everything it wrote, read after it completed.
-enum class CapturedCommandKind { ClusterBuild, BuildAccelerationStructureNV, CopyMemoryToAccelerationStructure };
+// Timestamps: not a command but the readback of one command buffer's timestamps (ticks below).
+enum class CapturedCommandKind { ClusterBuild, BuildAccelerationStructureNV, CopyMemoryToAccelerationStructure, Timestamps };
 
 struct ClusterBuildCapture {
   CapturedCommandKind kind = CapturedCommandKind::ClusterBuild;  // parameters apply to ClusterBuild only
@@ -335,6 +346,10 @@ struct ClusterBuildCapture {
   bool executedByEngine = false;
   std::vector<EngineFindingRecord> engineFindings;
   double pauseMilliseconds = 0;  // queue stall the capture caused (both pauses)
+  // Timestamps: the ticks of queries 0..n-1 of the command buffer's layer-owned pool, masked
+  // to the queue's valid bits; valid false where the driver reported no result.
+  std::vector<uint64_t> timestampTicks;
+  std::vector<bool> timestampValid;
 };
 
 }  // namespace clastrace::capture

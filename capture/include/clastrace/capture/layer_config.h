@@ -29,6 +29,7 @@ struct LayerConfig {
   uint32_t rayCheckRays = 0;        // CLASTRACE_RAY_CHECK: rays per NV top-level check, 0 = off
   uint32_t flushMilliseconds = 1000;  // CLASTRACE_FLUSH_MS: a killed process loses at most this much (0: never)
   bool forceStaging = false;        // CLASTRACE_FORCE_STAGING: treat all memory as not host visible (tests)
+  bool timestamps = true;           // CLASTRACE_TIMESTAMPS: GPU timestamps around each captured command
   std::vector<std::string> errors;  // one line per rejected variable; the default is kept
 };
 

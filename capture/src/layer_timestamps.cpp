@@ -1,0 +1,52 @@
+// GPU timestamps around captured commands: the readback. Queries are read only once the
+// application has learned the execution completed (a fence it waited for, an idle wait) or
+// may no longer be pending (its command buffer is reset, freed or re-begun): a driver may
+// implement any query read as a wait for the whole submission, which a paused queue never
+// finishes (lavapipe does), so the pause worker cannot read them.
+#include "layer_state.h"
+
+#include <clastrace/capture/capture_records.h>
+
+namespace clastrace::capture {
+
+void readCompletedTimestamps(DeviceState& d,
+                             const std::function<bool(const DeviceState::PendingTimestampRead&)>& completed) {
+  std::vector<DeviceState::PendingTimestampRead> ready;
+  {
+    std::lock_guard lock(d.timestampsMutex);
+    auto& pending = d.pendingTimestampReads;
+    for (auto it = pending.begin(); it != pending.end();) {
+      if (completed(*it)) {
+        ready.push_back(*it);
+        it = pending.erase(it);
+      } else {
+        ++it;
+      }
+    }
+  }
+  for (const auto& r : ready) {
+    ClusterBuildCapture read;
+    read.kind = CapturedCommandKind::Timestamps;
+    read.pauseId = r.readPauseId;
+    read.occurrence = r.occurrence;
+    read.submissionIndex = r.submissionIndex;
+    read.commandBuffer = r.commandBuffer;
+    std::vector<uint64_t> results(size_t(r.count) * 2);  // (ticks, availability) per query
+    // No WAIT: the execution is complete, so what is not available now never will be.
+    const VkResult result = d.next.GetQueryPoolResults(d.device, r.pool, 0, r.count, results.size() * sizeof(uint64_t),
+                                                       results.data(), 2 * sizeof(uint64_t),
+                                                       VK_QUERY_RESULT_64_BIT | VK_QUERY_RESULT_WITH_AVAILABILITY_BIT);
+    const bool read_ok = result == VK_SUCCESS || result == VK_NOT_READY;
+    for (uint32_t q = 0; q < r.count; ++q) {
+      const bool valid = read_ok && results[2 * q + 1] != 0;
+      read.timestampTicks.push_back(valid ? results[2 * q] & d.timestampMask : 0);
+      read.timestampValid.push_back(valid);
+    }
+    if (!read_ok)
+      logMessage(LogLevel::Error, "reading the layer's timestamps of command buffer 0x%llx failed (VkResult %d)",
+                 (unsigned long long)r.commandBuffer, int(result));
+    if (d.capturingNow()) d.sink->clusterBuildCaptured(std::move(read));
+  }
+}
+
+}  // namespace clastrace::capture
