@@ -32,6 +32,14 @@ namespace {
 
 const char* kLavapipe = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json";
 
+// Lavapipe and the build tree by default; CLASTRACE_BENCH_DRIVER_FILES, CLASTRACE_BENCH_LAYER_DIR
+// and CLASTRACE_BENCH_FRAMES_APP point the bench at another driver and a carried bundle (the
+// numbers in capture/README.md from a GPU machine were taken that way).
+std::string setting(const char* variable, const char* fallback) {
+  const char* v = std::getenv(variable);
+  return v && *v ? v : fallback;
+}
+
 std::string readText(const fs::path& path) {
   std::ifstream in(path);
   std::stringstream text;
@@ -67,11 +75,12 @@ bool parseRun(const std::string& out, const std::string& err, Run& run) {
 
 Run runApp(const fs::path& dir, const std::string& args, const std::map<std::string, std::string>& env) {
   std::string line = "env -u CLASTRACE_OUTPUT -u CLASTRACE_CAPTURE -u CLASTRACE_DEBUG_JSON -u VK_ICD_FILENAMES";
-  line += std::string(" VK_DRIVER_FILES=") + kLavapipe + " VK_ADD_LAYER_PATH=" + CLASTRACE_LAYER_MANIFEST_DIR +
+  line += " VK_DRIVER_FILES=" + setting("CLASTRACE_BENCH_DRIVER_FILES", kLavapipe) +
+          " VK_ADD_LAYER_PATH=" + setting("CLASTRACE_BENCH_LAYER_DIR", CLASTRACE_LAYER_MANIFEST_DIR) +
           " VK_INSTANCE_LAYERS=VK_LAYER_CLASTRACE_capture CLASTRACE_LOG=info";
   for (const auto& [k, v] : env) line += " " + k + "=" + v;
   const fs::path out = dir / "out.txt", err = dir / "err.txt";
-  line += std::string(" ") + CLASTRACE_FRAMES_APP + " " + args + " >" + out.string() + " 2>" + err.string();
+  line += " " + setting("CLASTRACE_BENCH_FRAMES_APP", CLASTRACE_FRAMES_APP) + " " + args + " >" + out.string() + " 2>" + err.string();
   Run run;
   if (std::system(line.c_str()) != 0 || !parseRun(readText(out), readText(err), run)) {
     std::fprintf(stderr, "capture_overhead_bench: the app failed:\n%s\n", readText(err).c_str());
