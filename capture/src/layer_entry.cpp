@@ -92,11 +92,17 @@ struct ChainUnlink {
 void fillDriverIdentity(InstanceState& instance, VkPhysicalDevice physicalDevice, uint32_t apiVersion,
                         DeviceState& state, DeviceRecord& record) {
   if (!instance.next.GetPhysicalDeviceProperties2 || apiVersion < VK_API_VERSION_1_2) return;
-  VkPhysicalDeviceRayTracingPropertiesNV rayTracing{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_RAY_TRACING_PROPERTIES_NV};
-  VkPhysicalDeviceDriverProperties driver{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_DRIVER_PROPERTIES,
-                                          state.nvRayTracingEnabled ? &rayTracing : nullptr};
-  VkPhysicalDeviceIDProperties ids{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_ID_PROPERTIES, &driver};
-  VkPhysicalDeviceProperties2 properties{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2, &ids};
+  VkPhysicalDeviceRayTracingPropertiesNV rayTracing{};
+  rayTracing.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_RAY_TRACING_PROPERTIES_NV;
+  VkPhysicalDeviceDriverProperties driver{};
+  driver.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_DRIVER_PROPERTIES;
+  driver.pNext = state.nvRayTracingEnabled ? &rayTracing : nullptr;
+  VkPhysicalDeviceIDProperties ids{};
+  ids.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_ID_PROPERTIES;
+  ids.pNext = &driver;
+  VkPhysicalDeviceProperties2 properties{};
+  properties.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2;
+  properties.pNext = &ids;
   instance.next.GetPhysicalDeviceProperties2(physicalDevice, &properties);
   record.driverId = uint32_t(driver.driverID);
   record.driverName = driver.driverName;
