@@ -154,8 +154,10 @@ int main(int argc, char** argv) {
   const int frames = argc > 1 ? std::max(1, std::atoi(argv[1])) : 60;
   const int clusters = argc > 2 ? std::clamp(std::atoi(argv[2]), 1, 4096) : 256;
   const int repetitions = argc > 3 ? std::max(1, std::atoi(argv[3])) : 5;
-  if (!fs::exists(kLavapipe)) {
-    std::fprintf(stderr, "capture_overhead_bench: lavapipe is not installed\n");
+  const std::string driver = setting("CLASTRACE_BENCH_DRIVER_FILES", kLavapipe);
+  if (!fs::exists(driver)) {
+    std::fprintf(stderr, "capture_overhead_bench: the driver manifest %s is missing (lavapipe: apt-get install "
+                 "mesa-vulkan-drivers)\n", driver.c_str());
     return 1;
   }
   const fs::path dir = fs::temp_directory_path() / ("clastrace_capture_bench_" + std::to_string(getpid()));
@@ -193,7 +195,8 @@ int main(int argc, char** argv) {
   const TraceBytes& bytes = modes[1].bytes;
 
   std::printf("capture overhead: %d frames x (1 triangle-cluster build of %d clusters + 1 bottom-level build), "
-              "lavapipe, best of %d runs each (interleaved)\n\n", frames, clusters, repetitions);
+              "%s, best of %d runs each (interleaved)\n\n", frames, clusters,
+              driver == kLavapipe ? "lavapipe" : driver.c_str(), repetitions);
   // Wall time is what the application feels, but on a machine shared with other work it swings
   // by tens of percent run to run; the process's CPU time (all threads: application, driver,
   // layer worker, trace writer) is the steadier measure of the work capture adds.
