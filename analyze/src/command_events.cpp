@@ -391,6 +391,9 @@ void describe_nv_build(const replay::ReplayedCommand& c, const fbs::CmdBuildAcce
       o.triangles = info.triangles;
       out->objects.push_back(o);
     }
+    // The driver's size now sits on the rebuilt objects: the command-level figure is only
+    // for commands whose objects the replay does not rebuild.
+    if (!out->objects.empty()) info.driver_object_bytes = 0;
   }
   add_buffers(rec, out->regions);
 }
@@ -424,6 +427,7 @@ void describe_deserialize(const replay::ReplayedCommand& c, const fbs::CmdCopyMe
       if (info.driver_object_bytes) o.driver_bytes = info.driver_object_bytes;
       out->objects.push_back(o);
     }
+    if (!out->objects.empty()) info.driver_object_bytes = 0;  // on the objects now
   }
   add_buffers(ctx.recorded, out->regions);
 }

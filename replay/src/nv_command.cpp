@@ -8,6 +8,7 @@
 #include <clastrace/engine/nv_trace.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 
 namespace clastrace::replay::detail {
@@ -264,7 +265,10 @@ void NvReplay::build(const fbs::CmdBuildAccelerationStructureNV& b, const Comman
     options.limits = limits_;
     options.max_findings_per_rule = c_.options.max_findings_per_rule;
     options.resolve_handle = [this](uint64_t h) { return resolve(h, false); };
+    const auto started = std::chrono::steady_clock::now();
     engine::ExecutionRecord record = engine::execute_nv_build(cmd, c_.memory.image(), options);
+    const uint64_t engine_ns = uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(
+        std::chrono::steady_clock::now() - started).count());
     if (driver_sizes) {
         for (engine::MemoryAccess& a : record.accesses)
             if (a.field == "scratch") a.end = a.begin + std::min(available, driver_scratch);
@@ -301,6 +305,7 @@ void NvReplay::build(const fbs::CmdBuildAccelerationStructureNV& b, const Comman
         s.engine_bytes = record.ops[0].dst_size;
         c_.report.nv_sizes.push_back(s);
     }
+    if (c_.observe) c_.observe(std::move(record), engine_ns);
 }
 
 void NvReplay::deserialize(const fbs::CmdCopyMemoryToAccelerationStructure& copy, const CommandRef& ref,
@@ -342,7 +347,10 @@ void NvReplay::deserialize(const fbs::CmdCopyMemoryToAccelerationStructure& copy
     }
     engine::NvDeserializeOptions options;
     options.resolve_handle = [this](uint64_t h) { return resolve(h, false); };
+    const auto started = std::chrono::steady_clock::now();
     engine::NvDeserializeResult r = engine::execute_nv_deserialize(cmd, c_.memory.image(), options);
+    const uint64_t engine_ns = uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(
+        std::chrono::steady_clock::now() - started).count());
     if (r.opaque && dst) {
         const uint64_t created = dst->driver_object ? dst->driver_object : dst->khr_size;
         if (created && r.header.deserialized_size > created)
@@ -385,6 +393,7 @@ void NvReplay::deserialize(const fbs::CmdCopyMemoryToAccelerationStructure& copy
             c_.sync.record_access(ref, src_access);
         }
     }
+    if (c_.observe) c_.observe(std::move(r.record), engine_ns);
 }
 
 void NvReplay::ray_check(const fbs::RayQueryCheck& check) {

@@ -35,6 +35,8 @@ struct NvReplayContext {
     const ReplayOptions& options;
     std::function<void(ReplayFinding)> add_finding;
     std::function<void(const SnapshotVector*, const ReplayLocation&)> lay_in_snapshots;
+    // Hands the engine's record of a command (and its engine time) to a replay observer.
+    std::function<void(engine::ExecutionRecord&&, uint64_t engine_ns)> observe;
 };
 
 class NvReplay {

@@ -228,7 +228,14 @@ private:
     uint64_t recorded_bytes_ = 0;
     std::unordered_set<uint64_t> dropped_;  // command buffers limit_recorded() dropped
     detail::NvReplay nv_{{memory_, report_, sync_, options_, [this](ReplayFinding f) { add_finding(std::move(f)); },
-                          [this](const traces::SnapshotVector* s, const ReplayLocation& w) { lay_in_snapshots(s, w); }}};
+                          [this](const traces::SnapshotVector* s, const ReplayLocation& w) { lay_in_snapshots(s, w); },
+                          [this](engine::ExecutionRecord&& r, uint64_t ns) {
+                              if (!observed_execution_) return;
+                              *observed_execution_ = std::move(r);
+                              *observed_engine_ns_ = ns;
+                              observed_nv_ = true;
+                          }}};
+    bool observed_nv_ = false;  // the command in replay_command was an NV build or deserialization
 };
 
 // Executes (or skips) one command and, with an observer, hands it the command, then the
@@ -239,6 +246,7 @@ void Replay::replay_command(const fbs::Record& record, const CommandRef& ref, ui
     const uint64_t engine_runs = report_.counts.cluster_commands;
     engine::ExecutionRecord execution;
     uint64_t engine_ns = 0;
+    observed_nv_ = false;
     if (observer) {
         observed_execution_ = &execution;
         observed_engine_ns_ = &engine_ns;
@@ -253,7 +261,7 @@ void Replay::replay_command(const fbs::Record& record, const CommandRef& ref, ui
     observed_execution_ = nullptr;
     observed_engine_ns_ = nullptr;
     ReplayedCommand c{location(ref, sequence), &record, selected,
-                      report_.counts.cluster_commands != engine_runs ? &execution : nullptr, engine_ns,
+                      report_.counts.cluster_commands != engine_runs || observed_nv_ ? &execution : nullptr, engine_ns,
                       static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
                                                 std::chrono::steady_clock::now() - started).count()),
                       &memory_.image()};

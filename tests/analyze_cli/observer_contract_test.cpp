@@ -91,8 +91,10 @@ TEST(ReplayObserverContract, EventsArriveInOrder) {
     EXPECT_TRUE(rec.order_ok);
     EXPECT_FALSE(rec.open);
     EXPECT_EQ(rec.commands, 6u);  // 2 timestamps, A, B, the NV build; A again in the second submission
-    EXPECT_EQ(rec.executions, r.counts.cluster_commands);
-    EXPECT_EQ(rec.ops, r.counts.cluster_ops);
+    // Every command the engine ran hands its record over: the cluster builds and the NV build.
+    EXPECT_EQ(rec.executions, r.counts.cluster_commands + r.counts.nv_builds + r.counts.deserializations);
+    EXPECT_EQ(r.counts.nv_builds, 1u);
+    EXPECT_EQ(rec.ops, r.counts.cluster_ops + r.counts.nv_builds);  // an NV build is one op
     EXPECT_GT(rec.engine_ns, 0u);
     EXPECT_TRUE(rec.memory_ok);
     EXPECT_GE(rec.hazards, r.hazards.size());  // before replay folds per-op hazards
