@@ -488,7 +488,9 @@ TEST_F(ClusterSceneChain, TimestampsAroundEachCapturedBuildGiveItsGpuTime) {
         EXPECT_NE(start->query_pool(), 0u);
         // Served, the span covers the pause where the engine ran the build: never empty.
         EXPECT_GT(end->ticks(), start->ticks()) << i;
-        if (i >= 2) EXPECT_GE(start->ticks(), t.timestamps[i - 1]->ticks()) << i;  // in queue order
+        if (i >= 2) {
+          EXPECT_GE(start->ticks(), t.timestamps[i - 1]->ticks()) << i;  // in queue order
+        }
         queries.insert(start->query()), queries.insert(end->query());
       }
       EXPECT_EQ(queries.size(), t.timestamps.size());
