@@ -241,6 +241,63 @@ uint32_t NvScene::instances_reached() const { return data_->reached; }
 
 namespace {
 
+// Visits the leaves of one tree (top or bottom level) that the ray's [tmin, *tmax] reaches,
+// near child first, each stack entry with the distance at which the ray enters its box so
+// closest-hit queries skip subtrees behind the best hit so far (`leaf` lowers *tmax). A fixed
+// stack covers every tree the builder makes; deeper (hostile but checked) trees spill into the
+// vector. `leaf` returns true to stop (first-hit queries).
+template <class Leaf>
+void walk_tree(const std::vector<NvNode>& nodes, const RayD& rd, double tmin, double* tmax, Leaf&& leaf) {
+  struct Entry {
+    uint32_t node;
+    double t;
+  };
+  Entry stack[192];
+  std::vector<Entry> overflow;
+  int sp = 0;
+  auto push = [&](uint32_t node, double t) {
+    if (sp < 192) stack[sp++] = Entry{node, t};
+    else overflow.push_back(Entry{node, t});
+  };
+  {
+    const double t0 = box_entry(rd, nodes[0].bounds_min, nodes[0].bounds_max, tmin, *tmax);
+    if (!std::isnan(t0)) push(0, t0);
+  }
+  while (sp > 0 || !overflow.empty()) {
+    Entry e;
+    if (!overflow.empty()) {
+      e = overflow.back();
+      overflow.pop_back();
+    } else {
+      e = stack[--sp];
+    }
+    if (e.t > *tmax) continue;
+    const uint32_t ni = e.node;
+    const NvNode& n = nodes[ni];
+    if (n.count == 0) {
+      const NvNode &l = nodes[ni + 1], &r = nodes[n.first];
+      const double tl = box_entry(rd, l.bounds_min, l.bounds_max, tmin, *tmax);
+      const double tr = box_entry(rd, r.bounds_min, r.bounds_max, tmin, *tmax);
+      const bool hl = !std::isnan(tl), hr = !std::isnan(tr);
+      if (hl && hr) {
+        if (tl <= tr) {
+          push(n.first, tr);
+          push(ni + 1, tl);
+        } else {
+          push(ni + 1, tl);
+          push(n.first, tr);
+        }
+      } else if (hl) {
+        push(ni + 1, tl);
+      } else if (hr) {
+        push(n.first, tr);
+      }
+      continue;
+    }
+    if (leaf(n)) return;
+  }
+}
+
 // The float32 error bound of NvHit::t_error: 8 ulps of the largest magnitude that enters
 // the driver's arithmetic (object-space primitive coordinates and origin, and the terms of
 // the world-to-object transform), over the largest direction component, plus 8 ulps of t.
@@ -275,55 +332,8 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
   const RayD rd = prepare(o, d);
   const bool cull_disable = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_CULL_DISABLE_BIT_NV;
   const bool flip = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_FRONT_COUNTERCLOCKWISE_BIT_NV;
-  // Near child first, each entry with the distance at which the ray enters its box, so
-  // closest-hit queries skip subtrees behind the best hit found so far.
-  struct Entry {
-    uint32_t node;
-    double t;
-  };
-  Entry stack[192];
-  std::vector<Entry> overflow;
-  int sp = 0;
-  auto push = [&](uint32_t node, double t) {
-    if (sp < 192) stack[sp++] = Entry{node, t};
-    else overflow.push_back(Entry{node, t});
-  };
-  {
-    const double t0 = box_entry(rd, b.nodes[0].bounds_min, b.nodes[0].bounds_max, tmin, *tmax);
-    if (!std::isnan(t0)) push(0, t0);
-  }
   bool found = false;
-  while (sp > 0 || !overflow.empty()) {
-    Entry e;
-    if (!overflow.empty()) {
-      e = overflow.back();
-      overflow.pop_back();
-    } else {
-      e = stack[--sp];
-    }
-    if (e.t > *tmax) continue;
-    const uint32_t ni = e.node;
-    const NvNode& n = b.nodes[ni];
-    if (n.count == 0) {
-      const NvNode &l = b.nodes[ni + 1], &r = b.nodes[n.first];
-      const double tl = box_entry(rd, l.bounds_min, l.bounds_max, tmin, *tmax);
-      const double tr = box_entry(rd, r.bounds_min, r.bounds_max, tmin, *tmax);
-      const bool hl = !std::isnan(tl), hr = !std::isnan(tr);
-      if (hl && hr) {
-        if (tl <= tr) {
-          push(n.first, tr);
-          push(ni + 1, tl);
-        } else {
-          push(ni + 1, tl);
-          push(n.first, tr);
-        }
-      } else if (hl) {
-        push(ni + 1, tl);
-      } else if (hr) {
-        push(n.first, tr);
-      }
-      continue;
-    }
+  walk_tree(b.nodes, rd, tmin, tmax, [&](const NvNode& n) {
     for (uint32_t k = n.first; k < n.first + n.count; ++k) {
       const NvPrimitiveRecord& p = b.primitives[k];
       // Opacity: geometry flag < instance force flags < ray flags.
@@ -368,7 +378,8 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
       *tmax = cand.t;
       if (first_hit) return true;
     }
-  }
+    return false;
+  });
   return found;
 }
 
@@ -379,55 +390,8 @@ bool trace_scene(const NvScene::Data& s, const Ray& ray, uint32_t flags, uint32_
   const RayD rd = prepare(o, d);
   const double tmin = ray.tmin;
   double tmax = ray.tmax;
-  // Near child first with its entry distance (as in trace_instance); a fixed stack covers
-  // every tree the builder makes, deeper (hostile but checked) trees spill into the vector.
-  struct Entry {
-    uint32_t node;
-    double t;
-  };
-  Entry stack[128];
-  std::vector<Entry> overflow;
-  int sp = 0;
-  auto push = [&](uint32_t node, double t) {
-    if (sp < 128) stack[sp++] = Entry{node, t};
-    else overflow.push_back(Entry{node, t});
-  };
-  {
-    const double t0 = box_entry(rd, s.nodes[0].bounds_min, s.nodes[0].bounds_max, tmin, tmax);
-    if (!std::isnan(t0)) push(0, t0);
-  }
   bool found = false;
-  while (sp > 0 || !overflow.empty()) {
-    Entry e;
-    if (!overflow.empty()) {
-      e = overflow.back();
-      overflow.pop_back();
-    } else {
-      e = stack[--sp];
-    }
-    if (e.t > tmax) continue;
-    const uint32_t ni = e.node;
-    const NvNode& n = s.nodes[ni];
-    if (n.count == 0) {
-      const NvNode &l = s.nodes[ni + 1], &r = s.nodes[n.first];
-      const double tl = box_entry(rd, l.bounds_min, l.bounds_max, tmin, tmax);
-      const double tr = box_entry(rd, r.bounds_min, r.bounds_max, tmin, tmax);
-      const bool hl = !std::isnan(tl), hr = !std::isnan(tr);
-      if (hl && hr) {
-        if (tl <= tr) {
-          push(n.first, tr);
-          push(ni + 1, tl);
-        } else {
-          push(ni + 1, tl);
-          push(n.first, tr);
-        }
-      } else if (hl) {
-        push(ni + 1, tl);
-      } else if (hr) {
-        push(n.first, tr);
-      }
-      continue;
-    }
+  walk_tree(s.nodes, rd, tmin, &tmax, [&](const NvNode& n) {
     for (uint32_t k = n.first; k < n.first + n.count; ++k) {
       const Instance& inst = s.instances[k];
       if (!inst.blas || !(inst.mask & cull_mask & 0xFFu)) continue;
@@ -436,7 +400,8 @@ bool trace_scene(const NvScene::Data& s, const Ray& ray, uint32_t flags, uint32_
         if (first_hit) return true;
       }
     }
-  }
+    return false;
+  });
   return found;
 }
 
