@@ -233,13 +233,13 @@ TEST_F(CaptureRobustness, FullDiskAtTheStartGivesOneMessageAndServingContinues) 
 TEST_F(CaptureRobustness, WriteFailureMidTraceStopsCaptureOnceAndTheApplicationRuns) {
   const fs::path trace = dir / "limited.clt";
   ProcessResult r = run("frames 12 --clusters 32", {{"CLASTRACE_OUTPUT", trace.string()}, {"CLASTRACE_FLUSH_MS", "5"}},
-                        "ulimit -f 64; trap '' XFSZ; ");
+                        "ulimit -f 16; trap '' XFSZ; ");
   EXPECT_EQ(r.exitCode, 0) << r.err;
   EXPECT_NE(r.out.find("frames=12"), std::string::npos) << r.out;
   EXPECT_EQ(count(r.err, "clastrace:"), 1u) << r.err;
   EXPECT_EQ(count(r.err, "clastrace: capture stopped: " + trace.string() + ": offset "), 1u) << r.err;
   EXPECT_NE(r.err.find("File too large"), std::string::npos) << r.err;
-  EXPECT_LE(fs::file_size(trace), 64u * 512);
+  EXPECT_LE(fs::file_size(trace), 16u * 512);
   TraceContents t = readTrace(trace);
   ASSERT_TRUE(t.opened) << t.openError;
   EXPECT_FALSE(t.indexed);
