@@ -247,7 +247,7 @@ TEST_F(CaptureRobustness, WriteFailureMidTraceStopsCaptureOnceAndTheApplicationR
     for (const auto& s : list) EXPECT_NE(s.bytes.front(), '<') << s.bytes;
 }
 
-// The disk fills up while the trace grows (writes of the trace fail with ENOSPC past 24 KiB):
+// The disk fills up while the trace grows (writes of the trace fail with ENOSPC past 8 KiB):
 // one message naming the file, the offset and the error; the application and serving go on.
 TEST_F(CaptureRobustness, DiskFullMidTraceStopsCaptureOnceAndTheApplicationRuns) {
 #if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
@@ -257,14 +257,14 @@ TEST_F(CaptureRobustness, DiskFullMidTraceStopsCaptureOnceAndTheApplicationRuns)
   ProcessResult r = run("frames 12 --clusters 32 --out " + quote((dir / "out.json").string()),
                         {{"CLASTRACE_OUTPUT", trace.string()}, {"CLASTRACE_FLUSH_MS", "5"},
                          {"LD_PRELOAD", CLASTRACE_ENOSPC_SHIM}, {"CLASTRACE_TEST_FULL_PATH", trace.string()},
-                         {"CLASTRACE_TEST_FULL_AFTER", "24576"}});
+                         {"CLASTRACE_TEST_FULL_AFTER", "8192"}});
   EXPECT_EQ(r.exitCode, 0) << r.err;
   EXPECT_NE(r.out.find("frames=12"), std::string::npos) << r.out;
   EXPECT_EQ(count(r.err, "clastrace:"), 1u) << r.err;
   EXPECT_EQ(count(r.err, "clastrace: capture stopped: " + trace.string() + ": offset "), 1u) << r.err;
   EXPECT_NE(r.err.find("No space left on device"), std::string::npos) << r.err;
   EXPECT_GT(fs::file_size(trace), 0u);  // the header and what fitted were written
-  EXPECT_LE(fs::file_size(trace), 24576u);
+  EXPECT_LE(fs::file_size(trace), 8192u);
   const std::string out = readText(dir / "out.json");
   EXPECT_EQ(out.find("\"dstSizes\": \"00000000"), std::string::npos) << out.substr(0, 80);
   TraceContents t = readTrace(trace);
