@@ -9,6 +9,7 @@
 #include <fcntl.h>
 #include <poll.h>
 #include <signal.h>
+#include <sys/prctl.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -55,6 +56,7 @@ class XvfbServer {
     pid_ = fork();
     if (pid_ < 0) return std::string("fork: ") + std::strerror(errno);
     if (pid_ == 0) {
+      prctl(PR_SET_PDEATHSIG, SIGTERM);  // a test process that crashes leaves no server behind
       dup2(fds[1], 3);  // -displayfd 3: Xvfb writes the display number there once it listens
       const int devnull = open("/dev/null", O_WRONLY);
       dup2(devnull, 1);
