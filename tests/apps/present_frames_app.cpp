@@ -2,12 +2,15 @@
 // (Xvfb in the tests), a swapchain, and per frame one command buffer that builds triangle
 // clusters and a bottom level over them with VK_NV_cluster_acceleration_structure (served by
 // the layer on lavapipe), clears the acquired image and presents it.
-//   present_frames_app FRAMES
+//   present_frames_app FRAMES [SUBMISSIONS_PER_FRAME]
 // Frame f writes clusterID = kFrameIdStride * f + served_scene's ID into srcInfosArray, so a
 // trace tells which frames' builds it holds. One frame in flight: the frame's fence is waited
 // before the host writes the next frame's inputs; after each frame the app checks the build
 // wrote a size for every cluster (the served build ran). Exit 0 when every frame presented,
 // 2 on any failure (message on stderr), 3 when the device does not offer the extension.
+// SUBMISSIONS_PER_FRAME (default 1) - 1 extra submissions precede each frame's own, each a
+// vkCmdFillBuffer of the frame number into 64 bytes of their own: frames and submissions then
+// count differently.
 #include "served_scene.h"
 
 #include <clastrace/vk_cluster_abi.h>
@@ -252,7 +255,7 @@ struct App {
   }
 };
 
-int run(uint32_t frames) {
+int run(uint32_t frames, uint32_t submissionsPerFrame) {
   App app;
   app.createInstance();
   if (!app.hasClusterExtension()) {
@@ -297,6 +300,13 @@ int run(uint32_t frames) {
   std::memcpy(blasInfos.mapped, &in.blasInfo, sizeof in.blasInfo);
   served_scene::Commands commands;
   served_scene::makeCommands(a, commands);
+  Buffer fillTarget = app.makeBuffer(64 * 16, VK_BUFFER_USAGE_TRANSFER_DST_BIT);  // 64 bytes per extra submission
+  std::vector<VkCommandBuffer> extra(submissionsPerFrame - 1);
+  if (!extra.empty()) {
+    VkCommandBufferAllocateInfo extraInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr, app.pool,
+                                          VK_COMMAND_BUFFER_LEVEL_PRIMARY, uint32_t(extra.size())};
+    CHECK(vkAllocateCommandBuffers(app.device, &extraInfo, extra.data()));
+  }
 
   for (uint32_t frame = 0; frame < frames; ++frame) {
     // The previous frame's fence was waited: the host may rewrite the build's inputs.
@@ -306,6 +316,16 @@ int run(uint32_t frames) {
       std::memcpy(infos.mapped + c * served_scene::kInfoStride, &info, sizeof info);
     }
     std::memset(dstSizes.mapped, 0, 4 * served_scene::kMaxClusters);
+    for (size_t k = 0; k < extra.size(); ++k) {
+      VkCommandBuffer e = extra[k];
+      VkCommandBufferBeginInfo once{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr,
+                                    VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT, nullptr};
+      CHECK(vkBeginCommandBuffer(e, &once));
+      vkCmdFillBuffer(e, fillTarget.buffer, 64 * k, 64, frame);  // apart: no barrier needed between them
+      CHECK(vkEndCommandBuffer(e));
+      VkSubmitInfo fill{VK_STRUCTURE_TYPE_SUBMIT_INFO, nullptr, 0, nullptr, nullptr, 1, &e, 0, nullptr};
+      CHECK(vkQueueSubmit(app.queue, 1, &fill, VK_NULL_HANDLE));
+    }
     uint32_t image = 0;
     CHECK(vkAcquireNextImageKHR(app.device, app.swapchain, 10 * kSecond, app.imageAvailable, VK_NULL_HANDLE, &image));
 
@@ -363,10 +383,12 @@ int run(uint32_t frames) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  const int frames = argc == 2 ? std::atoi(argv[1]) : 0;
-  if (frames <= 0 || frames > 10000) {
-    std::fprintf(stderr, "usage: present_frames_app FRAMES   (1..10000; the window goes to $DISPLAY)\n");
+  const int frames = argc >= 2 ? std::atoi(argv[1]) : 0;
+  const int submissions = argc == 3 ? std::atoi(argv[2]) : 1;
+  if (argc > 3 || frames <= 0 || frames > 10000 || submissions <= 0 || submissions > 16) {
+    std::fprintf(stderr, "usage: present_frames_app FRAMES [SUBMISSIONS_PER_FRAME]   (1..10000, 1..16; the window "
+                 "goes to $DISPLAY)\n");
     return 1;
   }
-  return run(uint32_t(frames));
+  return run(uint32_t(frames), uint32_t(submissions));
 }

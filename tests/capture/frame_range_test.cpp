@@ -215,9 +215,11 @@ class FrameRange : public ::testing::Test {
     r.err = readText(err);
     return r;
   }
-  ProcessResult runApp(uint32_t frames, std::map<std::string, std::string> env) {
+  ProcessResult runApp(uint32_t frames, std::map<std::string, std::string> env, uint32_t submissionsPerFrame = 1) {
     env["CLASTRACE_OUTPUT"] = (dir / "frames.clt").string();
-    return run(std::string(CLASTRACE_PRESENT_APP) + " " + std::to_string(frames), env);
+    return run(std::string(CLASTRACE_PRESENT_APP) + " " + std::to_string(frames) + " " +
+                   std::to_string(submissionsPerFrame),
+               env);
   }
   std::string cli(const std::string& args) { return std::string(CLASTRACE_CLI) + " " + args; }
 };
@@ -292,6 +294,32 @@ TEST_F(FrameRange, OpenEndedAndSingleFrameRanges) {
   t = readFrameTrace(dir / "frames.clt");
   EXPECT_EQ(t.triangleBuildFrames, (std::multiset<uint32_t>{0}));
   EXPECT_EQ(t.order.front(), "S");
+}
+
+// Three submissions a frame (two fills, then the build): frames are counted by presents, not
+// by submissions, and a frame's every submission is captured.
+TEST_F(FrameRange, AFrameIsEverySubmissionBetweenTwoPresents) {
+  ProcessResult r = runApp(5, {{"CLASTRACE_FRAME_RANGE", "2-3"}}, 3);
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  FrameTrace t = readFrameTrace(dir / "frames.clt");
+  EXPECT_TRUE(t.problems.empty()) << t.problems.front();
+  EXPECT_EQ(t.triangleBuildFrames, (std::multiset<uint32_t>{2, 3}));
+  EXPECT_EQ(t.order, (std::vector<std::string>{"P0", "P1", "S", "S", "S", "P2", "S", "S", "S", "P3", "P4"}));
+  ProcessResult replay = run(cli("replay " + quote((dir / "frames.clt").string())), {});
+  EXPECT_EQ(replay.exitCode, 0) << replay.out << replay.err;
+  EXPECT_NE(replay.out.find("submissions 6,"), std::string::npos) << replay.out;
+
+  // The same frames by submission index: 6-11.
+  r = runApp(5, {{"CLASTRACE_SUBMIT_RANGE", "6-11"}}, 3);
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  EXPECT_EQ(readFrameTrace(dir / "frames.clt").triangleBuildFrames, (std::multiset<uint32_t>{2, 3}));
+  // Both: the frames 2-3 and the submissions 7-9 meet in frame 2's last submission (its build)
+  // and frame 3's first two (fills only).
+  r = runApp(5, {{"CLASTRACE_FRAME_RANGE", "2-3"}, {"CLASTRACE_SUBMIT_RANGE", "8-10"}}, 3);
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  t = readFrameTrace(dir / "frames.clt");
+  EXPECT_EQ(t.triangleBuildFrames, (std::multiset<uint32_t>{2}));
+  EXPECT_EQ(t.order, (std::vector<std::string>{"P0", "P1", "S", "P2", "S", "S", "P3", "P4"}));
 }
 
 // One submission per frame here, so submission k is frame k: the two ranges intersect.
