@@ -10,7 +10,7 @@ PACKAGES=(
   libembree-dev libtbb-dev libmeshoptimizer-dev assimp-testmodels
   libcli11-dev nlohmann-json3-dev libfmt-dev
   libgtest-dev libgmock-dev libbenchmark-dev
-  glslang-tools
+  glslang-tools xvfb xauth libxcb1-dev
   chromium fonts-dejavu-core
 )
 

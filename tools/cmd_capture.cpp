@@ -24,6 +24,7 @@ constexpr const char* kManifestName = "VkLayer_clastrace_capture.json";
 struct CaptureOptions {
   std::string output;
   std::string submitRange;
+  std::string frames;  // CLASTRACE_FRAME_RANGE
   int zstdLevel = 3;
   std::string serve = "auto";
   bool noCapture = false;
@@ -78,6 +79,8 @@ int runCapture(const CaptureOptions& o) {
   if (o.rayCheck) setenv("CLASTRACE_RAY_CHECK", std::to_string(o.rayCheck).c_str(), 1);
   if (!o.submitRange.empty()) setenv("CLASTRACE_SUBMIT_RANGE", o.submitRange.c_str(), 1);
   else unsetenv("CLASTRACE_SUBMIT_RANGE");
+  if (!o.frames.empty()) setenv("CLASTRACE_FRAME_RANGE", o.frames.c_str(), 1);
+  else unsetenv("CLASTRACE_FRAME_RANGE");
 
   std::vector<char*> argv;
   for (const std::string& a : o.command) argv.push_back(const_cast<char*>(a.c_str()));
@@ -108,6 +111,25 @@ int runCapture(const CaptureOptions& o) {
   return code;  // the application's own exit code
 }
 
+// The layer's syntax (capture/src/layer_config.cpp): checked here too, so a typo stops before
+// the application runs instead of capturing every frame.
+CLI::Validator frameRangeValidator() {
+  return CLI::Validator(
+      [](std::string& text) -> std::string {
+        auto number = [](const std::string& t) {
+          return !t.empty() && t.size() <= 19 && t.find_first_not_of("0123456789") == std::string::npos;
+        };
+        const size_t dash = text.find('-');
+        const std::string first = text.substr(0, dash);
+        const std::string last = dash == std::string::npos ? first : text.substr(dash + 1);
+        bool ok = number(first) && (last.empty() || number(last));
+        if (ok && !last.empty() && std::stoull(last) < std::stoull(first)) ok = false;
+        if (dash == std::string::npos && !number(first)) ok = false;
+        return ok ? std::string() : "'" + text + "' is not a frame range: N, A-B (A <= B) or A-";
+      },
+      "N|A-B|A-");
+}
+
 }  // namespace
 
 Command register_capture(CLI::App& app) {
@@ -118,6 +140,11 @@ Command register_capture(CLI::App& app) {
       "Exit code: the application's (2 when it could not be started or the output is unwritable).");
   sub->add_option("-o,--output", options->output, "trace to write (.clt)")->required();
   sub->add_option("--submit-range", options->submitRange, "queue submissions to capture: N, A-B or A- (0-based)");
+  sub->add_option("--frames", options->frames,
+                  "frames to capture: N, A-B or A- (0-based; frame N is what is submitted after the N-th "
+                  "vkQueuePresentKHR and up to the next). With --submit-range too, a submission is captured only "
+                  "when it is in both")
+      ->check(frameRangeValidator());
   sub->add_option("--zstd-level", options->zstdLevel, "zstd level of the trace's chunks")->check(CLI::Range(1, 22));
   sub->add_option("--serve", options->serve, "serve VK_NV_cluster_acceleration_structure: auto (when the driver "
                                              "lacks it), on, off")

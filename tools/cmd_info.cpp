@@ -7,6 +7,7 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <array>
 #include <cstdio>
 #include <iostream>
@@ -39,6 +40,12 @@ struct TraceSummary {
     static constexpr size_t kMaxListed = 1000;
     std::vector<Finding> findings;
     uint64_t finding_count = 0;
+    // Frames (QueuePresent, format 1.2): a submission belongs to the frame the next present
+    // ends (the last present's frame + 1 after it).
+    uint64_t presents = 0;
+    uint64_t first_frame = 0, last_frame = 0;
+    uint64_t unassigned_submissions = 0;  // QueueSubmits since the last present
+    std::map<uint64_t, uint64_t> submissions_by_frame;
 };
 
 const char* severity_name(uint8_t severity) {
@@ -62,6 +69,14 @@ TraceSummary summarize(TraceReader& reader) {
                                       f->severity(), f->rule() ? f->rule()->str() : "", f->message() ? f->message()->str() : ""});
             continue;
         }
+        if (view.kind == fbs::RecordBody::QueueSubmit) ++s.unassigned_submissions;
+        if (const auto* p = view.record->body_as_QueuePresent()) {
+            if (s.presents++ == 0) s.first_frame = p->frame();
+            s.last_frame = std::max(s.last_frame, p->frame());
+            if (s.unassigned_submissions) s.submissions_by_frame[p->frame()] += s.unassigned_submissions;
+            s.unassigned_submissions = 0;
+            continue;
+        }
         if (const auto* c = view.record->body_as_MemoryContents()) {
             ++s.contents;
             s.bytes_stored += c->bytes() ? c->bytes()->size() : 0;
@@ -76,6 +91,7 @@ TraceSummary summarize(TraceReader& reader) {
             }
         }
     }
+    if (s.presents && s.unassigned_submissions) s.submissions_by_frame[s.last_frame + 1] += s.unassigned_submissions;
     return s;
 }
 
@@ -163,6 +179,14 @@ nlohmann::json findings_json(const TraceSummary& s) {
     return items;
 }
 
+nlohmann::json frames_json(const TraceSummary& s) {
+    if (s.presents == 0) return {{"presents", 0}};
+    nlohmann::json captured = nlohmann::json::array();
+    for (const auto& [frame, submissions] : s.submissions_by_frame)
+        captured.push_back({{"frame", frame}, {"submissions", submissions}});
+    return {{"presents", s.presents}, {"first", s.first_frame}, {"last", s.last_frame}, {"with_submissions", captured}};
+}
+
 nlohmann::json info_json(const std::string& path, const TraceReader& reader, const TraceSummary& s) {
     using nlohmann::json;
     const traces::TraceReadStats& st = reader.stats();
@@ -196,6 +220,7 @@ nlohmann::json info_json(const std::string& path, const TraceReader& reader, con
           {"bytes_skipped", st.bytes_skipped}}},
         {"damage", {{"count", reader.damage_count()}, {"items", damage}}},
         {"capture_findings", {{"count", s.finding_count}, {"items", findings_json(s)}}},
+        {"frames", frames_json(s)},
     };
 }
 
@@ -243,6 +268,19 @@ void print_text(const std::string& path, const TraceReader& reader, const TraceS
     fmt::print("  {:<44}{:>10}\n", "total", s.records);
     if (st.records_damaged) fmt::print("  {:<44}{:>10}\n", "damaged (skipped)", st.records_damaged);
 
+    if (s.presents) {
+        fmt::print("\n{:<12}{} presents, ending frames {}-{}; submissions in frames:", "frames", s.presents,
+                   s.first_frame, s.last_frame);
+        size_t listed = 0;
+        for (const auto& [frame, submissions] : s.submissions_by_frame) {
+            if (listed++ == 32) {
+                fmt::print(" ... ({} frames in all)", s.submissions_by_frame.size());
+                break;
+            }
+            fmt::print(" {} ({})", frame, submissions);
+        }
+        fmt::print("{}\n", s.submissions_by_frame.empty() ? " none" : "");
+    }
     if (s.finding_count) {
         fmt::print("\n{:<12}{} recorded while capturing\n", "findings", s.finding_count);
         for (const auto& f : s.findings) {

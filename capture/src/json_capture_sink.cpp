@@ -141,7 +141,7 @@ class JsonCaptureSink final : public CaptureSink {
   explicit JsonCaptureSink(std::string path) : path_(std::move(path)) {
     for (const char* key : {"devices", "memories", "freedMemories", "buffers", "bindings", "addresses",
                             "destroyedBuffers", "buildSizes", "commandBuffers", "resets", "submissions",
-                            "clusterBuilds", "destroyedDevices", "accelerationStructures", "rayChecks", "hostSync"})
+                            "clusterBuilds", "destroyedDevices", "accelerationStructures", "rayChecks", "hostSync", "presents"})
       root_[key] = json::array();
   }
   ~JsonCaptureSink() override {  // the application may exit without destroying its device
@@ -275,6 +275,10 @@ class JsonCaptureSink final : public CaptureSink {
                                         "SemaphoreSignal", "SemaphoreWait"};
     add("hostSync", {{"kind", kinds[int(h.kind)]}, {"handles", h.handles}, {"values", h.values},
                      {"waitAll", h.waitAll}, {"timeout", h.timeout}, {"result", h.result}});
+  }
+  void queuePresented(const PresentRecord& p) override {
+    add("presents", {{"queue", p.queue}, {"frame", p.frame}, {"waitSemaphores", p.waitSemaphores},
+                     {"swapchains", p.swapchains}, {"imageIndices", p.imageIndices}, {"result", p.result}});
   }
   void flush() override {
     std::lock_guard lock(mutex_);

@@ -25,20 +25,20 @@ std::optional<bool> parseSwitch(const std::string& text) {
   return std::nullopt;
 }
 
-std::optional<SubmitRange> parseRange(const std::string& text) {
+std::optional<IndexRange> parseRange(const std::string& text) {
   const size_t dash = text.find('-');
   if (dash == std::string::npos) {
     auto single = parseUnsigned(text);
     if (!single) return std::nullopt;
-    return SubmitRange{*single, *single};
+    return IndexRange{*single, *single};
   }
   auto first = parseUnsigned(text.substr(0, dash));
   if (!first) return std::nullopt;
   const std::string tail = text.substr(dash + 1);
-  if (tail.empty()) return SubmitRange{*first, UINT64_MAX};
+  if (tail.empty()) return IndexRange{*first, UINT64_MAX};
   auto last = parseUnsigned(tail);
   if (!last || *last < *first) return std::nullopt;
-  return SubmitRange{*first, *last};
+  return IndexRange{*first, *last};
 }
 
 }  // namespace
@@ -68,6 +68,10 @@ LayerConfig parseLayerConfig(const std::function<const char*(const char*)>& gete
   if (auto v = value("CLASTRACE_SUBMIT_RANGE")) {
     if (auto range = parseRange(*v)) config.submitRange = *range;
     else reject("CLASTRACE_SUBMIT_RANGE", *v, "N, A-B (A <= B) or A-");
+  }
+  if (auto v = value("CLASTRACE_FRAME_RANGE")) {
+    if (auto range = parseRange(*v)) config.frameRange = *range;
+    else reject("CLASTRACE_FRAME_RANGE", *v, "N, A-B (A <= B) or A- (0-based frames)");
   }
   if (auto v = value("CLASTRACE_ZSTD_LEVEL")) {
     auto level = parseUnsigned(*v);

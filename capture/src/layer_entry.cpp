@@ -382,6 +382,7 @@ PFN_vkVoidFunction interceptDeviceFunction(const char* name, DeviceState* device
   if (!hook) hook = commandHook(name);
   if (!hook) hook = submitHook(name);
   if (!hook) hook = hostSyncHook(name);
+  if (!hook) hook = presentHook(name);
   if (!hook || !device) return hook;
   // Forward only what the driver chain has: the hook would call a null pointer otherwise.
   return device->next.GetDeviceProcAddr(device->device, name) ? hook : nullptr;

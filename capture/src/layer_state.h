@@ -132,7 +132,8 @@ uint64_t handleId(Handle handle) {
   X(CmdResetQueryPool)                         \
   X(CmdWriteTimestamp)                         \
   X(GetQueryPoolResults)                       \
-  X(WaitSemaphoresKHR)
+  X(WaitSemaphoresKHR)                         \
+  X(QueuePresentKHR)
 
 #define CLASTRACE_DECLARE_PFN(name) PFN_vk##name name = nullptr;
 
@@ -207,6 +208,10 @@ struct DeviceState {
 // the one trace (CLASTRACE_SUBMIT_RANGE counts the same way).
 uint64_t nextSubmissionIndex();
 
+// Frames (CLASTRACE_FRAME_RANGE): vkQueuePresentKHR calls so far in this process, so the frame
+// a submission made now belongs to (layer_present.cpp).
+uint64_t currentFrame();
+
 // Registries keyed by dispatch key; lookups take a shared lock, creation/destruction exclusive.
 InstanceState* findInstance(DispatchKey key);
 DeviceState* findDevice(DispatchKey key);
@@ -233,6 +238,7 @@ PFN_vkVoidFunction commandHook(const char* name);
 PFN_vkVoidFunction submitHook(const char* name);
 PFN_vkVoidFunction clusterHook(const char* name);
 PFN_vkVoidFunction accelerationStructureHook(const char* name);
+PFN_vkVoidFunction presentHook(const char* name);
 
 // CLASTRACE_RAY_CHECK: after submission `submissionIndex` on `queue` (just submitted), waits
 // for the queue and traces the configured rays against each of `topLevels`, recording a

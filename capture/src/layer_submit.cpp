@@ -67,7 +67,8 @@ SubmissionPlan planFor(DeviceState& d, VkQueue queue, VkFence fence, bool synchr
   }
   plan.record.fence = handleId(fence);
   plan.record.synchronization2 = synchronization2;
-  plan.capture = d.sink && layerConfig().submitRange.contains(plan.record.index);
+  plan.capture = d.sink && layerConfig().submitRange.contains(plan.record.index) &&
+                 layerConfig().frameRange.contains(currentFrame());
   return plan;
 }
 

@@ -289,6 +289,17 @@ class TraceCaptureSink final : public CaptureSink {
     std::lock_guard lock(mutex_);
     appendOrderedLocked(std::move(record));
   }
+  // Ordered like host synchronization: after the submissions of the frame it ends.
+  void queuePresented(const PresentRecord& p) override {
+    fbs::QueuePresentT r;
+    r.queue = p.queue;
+    r.frame = p.frame;
+    r.wait_semaphores = p.waitSemaphores;
+    r.swapchains = p.swapchains;
+    r.image_indices = p.imageIndices;
+    r.result = p.result;
+    append(recordOf(std::move(r)));
+  }
   void flush() override {
     std::lock_guard lock(mutex_);
     emitReadyLocked(false);

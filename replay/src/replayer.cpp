@@ -726,6 +726,12 @@ void Replay::on_record(const traces::RecordView& view) {
         if (options_.check_hazards && s->result() == VK_SUCCESS) sync_.wait_for_fence(s->fence());
         break;
     }
+    case fbs::RecordBody::QueuePresent: {
+        const auto* p = r.body_as_QueuePresent();
+        if (options_.check_hazards && p->wait_semaphores())
+            sync_.present_wait(std::span<const uint64_t>(p->wait_semaphores()->data(), p->wait_semaphores()->size()));
+        break;
+    }
     case fbs::RecordBody::HostSemaphoreOp: {
         const auto* h = r.body_as_HostSemaphoreOp();
         if (!options_.check_hazards || !h->semaphores() || !h->values() || h->result() != VK_SUCCESS) break;

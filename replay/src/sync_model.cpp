@@ -1182,6 +1182,16 @@ void SyncModel::host_signal_semaphore(uint64_t semaphore, uint64_t value) {
     s.semaphores[semaphore].timeline[value] = Clock(s.queues.size(), 0);
 }
 
+void SyncModel::present_wait(std::span<const uint64_t> semaphores) {
+    State& s = *state_;
+    for (uint64_t semaphore : semaphores) {
+        auto sem = s.semaphores.find(semaphore);
+        if (sem == s.semaphores.end()) continue;  // signalled outside the trace (another frame range)
+        sem->second.binary_signal.reset();
+        sem->second.binary_narrow = {};
+    }
+}
+
 const std::vector<HazardReport>& SyncModel::hazards() const { return state_->reports; }
 const SyncStats& SyncModel::stats() const { return state_->stats; }
 

@@ -215,6 +215,12 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
         r.rule = "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-clusterID-10487"; r.message = "clusterID is 0xFFFFFFFF";
         out.push_back(record(r));
     }
+    {
+        fbs::QueuePresentT r;
+        r.queue = 0x9e; r.frame = 41; r.wait_semaphores = {0x5e2, 0x5e3}; r.swapchains = {0x5c};
+        r.image_indices = {2}; r.result = 1000001003;  // VK_SUBOPTIMAL_KHR
+        out.push_back(record(r));
+    }
     return out;
 }
 

@@ -308,6 +308,16 @@ struct SubmissionRecord {
   uint64_t fence = 0;
 };
 
+// vkQueuePresentKHR: ends frame `frame` (frames count presents per process, from 0).
+struct PresentRecord {
+  uint64_t queue = 0;
+  uint64_t frame = 0;
+  std::vector<uint64_t> waitSemaphores;  // binary: the presentation engine consumes their signals
+  std::vector<uint64_t> swapchains;
+  std::vector<uint32_t> imageIndices;
+  int32_t result = 0;
+};
+
 // A host call that synchronizes with the device: replay needs them to know which submissions
 // had completed when the host next wrote memory (FenceWait) or what the host signalled.
 struct HostSyncRecord {

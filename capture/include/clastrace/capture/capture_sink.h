@@ -36,6 +36,8 @@ class CaptureSink {
   virtual void accelerationStructureMemoryRequirements(const AccelerationStructureMemoryRequirementsRecord&) {}
   virtual void accelerationStructureDestroyed(uint64_t) {}
   virtual void rayQueryChecked(const RayCheckRecord&) {}
+  // vkQueuePresentKHR, recorded whatever the frame range selects (frame boundaries).
+  virtual void queuePresented(const PresentRecord&) {}
   // Makes everything received so far durable (the application may exit without cleanup).
   virtual void flush() = 0;
 };

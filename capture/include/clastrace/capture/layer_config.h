@@ -12,17 +12,22 @@ namespace clastrace::capture {
 enum class ServeMode { Auto, Off, On };  // Auto: serve exactly when the driver lacks the extension
 enum class LogLevel { Quiet, Error, Info, Debug };
 
-struct SubmitRange {  // inclusive, 0-based queue-submission indices
+struct IndexRange {  // inclusive, 0-based: queue-submission or frame indices
   uint64_t first = 0;
   uint64_t last = UINT64_MAX;
   bool contains(uint64_t index) const { return index >= first && index <= last; }
 };
+using SubmitRange = IndexRange;
 
 struct LayerConfig {
   bool capture = true;              // CLASTRACE_CAPTURE
   ServeMode serve = ServeMode::Auto;  // CLASTRACE_SERVE
   std::string outputPath;           // CLASTRACE_OUTPUT (.clt trace)
   SubmitRange submitRange;          // CLASTRACE_SUBMIT_RANGE: "N", "A-B", "A-"
+  // CLASTRACE_FRAME_RANGE, same syntax: frame N is what is submitted after the N-th
+  // vkQueuePresentKHR and up to the (N+1)-th. A submission is captured only when it is in
+  // both ranges.
+  IndexRange frameRange;
   int zstdLevel = 3;                // CLASTRACE_ZSTD_LEVEL: 1..22
   LogLevel log = LogLevel::Error;   // CLASTRACE_LOG: quiet|error|info|debug
   std::string debugJsonPath;        // CLASTRACE_DEBUG_JSON: readable dump for tests and debugging

@@ -87,6 +87,10 @@ public:
     // vkSignalSemaphore: satisfies device waits; orders only host work, which every later
     // submission sees anyway.
     void host_signal_semaphore(uint64_t semaphore, uint64_t value);
+    // vkQueuePresentKHR: the presentation engine waits on binary semaphores and consumes their
+    // signals (a later wait on one finds it unsignalled). It reads no memory the model tracks
+    // and orders no later work, so nothing else changes.
+    void present_wait(std::span<const uint64_t> semaphores);
     // vkDestroyBuffer / vkFreeMemory: forgets the completed accesses inside `range`.
     void memory_freed(AddressRange range);
 

@@ -1,0 +1,394 @@
+// A windowed frame loop for the capture layer's frame-range tests: an xcb window on $DISPLAY
+// (Xvfb in the tests), a swapchain, and per frame one command buffer that builds triangle
+// clusters and a bottom level over them with VK_NV_cluster_acceleration_structure (served by
+// the layer on lavapipe), clears the acquired image and presents it.
+//   present_frames_app FRAMES [SUBMISSIONS_PER_FRAME]
+// Frame f writes clusterID = kFrameIdStride * f + served_scene's ID into srcInfosArray, so a
+// trace tells which frames' builds it holds. One frame in flight: the frame's fence is waited
+// before the host writes the next frame's inputs; after each frame the app checks the build
+// wrote a size for every cluster (the served build ran). Exit 0 when every frame presented,
+// 2 on any failure (message on stderr), 3 when the device does not offer the extension.
+// SUBMISSIONS_PER_FRAME (default 1) - 1 extra submissions precede each frame's own, each a
+// vkCmdFillBuffer of the frame number into 64 bytes of their own: frames and submissions then
+// count differently.
+#include "served_scene.h"
+
+#include <clastrace/vk_cluster_abi.h>
+#include <xcb/xcb.h>  // before vulkan_xcb.h, which uses its types
+#include <vulkan/vulkan_xcb.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <vector>
+
+namespace {
+
+constexpr uint32_t kFrameIdStride = 1000;
+constexpr uint64_t kSecond = 1000ull * 1000 * 1000;
+
+#define CHECK(call)                                                                  \
+  do {                                                                               \
+    VkResult r_ = (call);                                                            \
+    if (r_ != VK_SUCCESS) {                                                          \
+      std::fprintf(stderr, "present_frames_app: %s failed: %d\n", #call, int(r_));   \
+      std::exit(2);                                                                  \
+    }                                                                                \
+  } while (0)
+
+[[noreturn]] void fail(const char* what) {
+  std::fprintf(stderr, "present_frames_app: %s\n", what);
+  std::exit(2);
+}
+
+struct Buffer {
+  VkBuffer buffer = VK_NULL_HANDLE;
+  VkDeviceMemory memory = VK_NULL_HANDLE;
+  VkDeviceAddress address = 0;
+  uint8_t* mapped = nullptr;
+};
+
+struct Window {
+  xcb_connection_t* connection = nullptr;
+  xcb_window_t window = 0;
+
+  Window() {
+    connection = xcb_connect(nullptr, nullptr);  // $DISPLAY
+    if (xcb_connection_has_error(connection)) fail("cannot connect to the X server named by $DISPLAY");
+    xcb_screen_t* screen = xcb_setup_roots_iterator(xcb_get_setup(connection)).data;
+    window = xcb_generate_id(connection);
+    xcb_create_window(connection, XCB_COPY_FROM_PARENT, window, screen->root, 0, 0, 64, 64, 0,
+                      XCB_WINDOW_CLASS_INPUT_OUTPUT, screen->root_visual, 0, nullptr);
+    xcb_map_window(connection, window);
+    xcb_flush(connection);
+  }
+  ~Window() {
+    xcb_destroy_window(connection, window);
+    xcb_disconnect(connection);
+  }
+};
+
+struct App {
+  Window window;
+  VkInstance instance = VK_NULL_HANDLE;
+  VkSurfaceKHR surface = VK_NULL_HANDLE;
+  VkPhysicalDevice physicalDevice = VK_NULL_HANDLE;
+  VkDevice device = VK_NULL_HANDLE;
+  uint32_t family = 0;
+  VkQueue queue = VK_NULL_HANDLE;
+  VkSwapchainKHR swapchain = VK_NULL_HANDLE;
+  std::vector<VkImage> images;
+  std::vector<VkSemaphore> renderDone;  // one per image: a present may still wait on the last one
+  VkSemaphore imageAvailable = VK_NULL_HANDLE;
+  VkFence frameDone = VK_NULL_HANDLE;
+  VkCommandPool pool = VK_NULL_HANDLE;
+  VkCommandBuffer cb = VK_NULL_HANDLE;
+  std::vector<Buffer> buffers;
+  PFN_vkCmdBuildClusterAccelerationStructureIndirectNV cmdBuildClusters = nullptr;
+  PFN_vkGetClusterAccelerationStructureBuildSizesNV getBuildSizes = nullptr;
+
+  void createInstance() {
+    VkApplicationInfo app{VK_STRUCTURE_TYPE_APPLICATION_INFO, nullptr, "present_frames_app", 1, nullptr, 0,
+                          VK_API_VERSION_1_3};
+    const char* extensions[] = {VK_KHR_SURFACE_EXTENSION_NAME, VK_KHR_XCB_SURFACE_EXTENSION_NAME};
+    VkInstanceCreateInfo info{VK_STRUCTURE_TYPE_INSTANCE_CREATE_INFO, nullptr, 0, &app, 0, nullptr, 2, extensions};
+    CHECK(vkCreateInstance(&info, nullptr, &instance));
+    VkXcbSurfaceCreateInfoKHR surfaceInfo{VK_STRUCTURE_TYPE_XCB_SURFACE_CREATE_INFO_KHR, nullptr, 0,
+                                          window.connection, window.window};
+    CHECK(vkCreateXcbSurfaceKHR(instance, &surfaceInfo, nullptr, &surface));
+    uint32_t count = 1;
+    VkResult r = vkEnumeratePhysicalDevices(instance, &count, &physicalDevice);
+    if ((r != VK_SUCCESS && r != VK_INCOMPLETE) || count == 0) fail("no physical device");
+  }
+
+  bool hasClusterExtension() const {
+    uint32_t count = 0;
+    vkEnumerateDeviceExtensionProperties(physicalDevice, nullptr, &count, nullptr);
+    std::vector<VkExtensionProperties> all(count);
+    vkEnumerateDeviceExtensionProperties(physicalDevice, nullptr, &count, all.data());
+    return std::any_of(all.begin(), all.end(), [](const VkExtensionProperties& e) {
+      return std::strcmp(e.extensionName, VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME) == 0;
+    });
+  }
+
+  void createDevice() {
+    uint32_t familyCount = 0;
+    vkGetPhysicalDeviceQueueFamilyProperties(physicalDevice, &familyCount, nullptr);
+    std::vector<VkQueueFamilyProperties> families(familyCount);
+    vkGetPhysicalDeviceQueueFamilyProperties(physicalDevice, &familyCount, families.data());
+    for (family = 0; family < familyCount; ++family) {
+      VkBool32 present = VK_FALSE;
+      CHECK(vkGetPhysicalDeviceSurfaceSupportKHR(physicalDevice, family, surface, &present));
+      if (present && (families[family].queueFlags & VK_QUEUE_COMPUTE_BIT)) break;
+    }
+    if (family == familyCount) fail("no queue family both computes and presents to the window");
+    const float priority = 1.0f;
+    VkDeviceQueueCreateInfo queueInfo{VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO, nullptr, 0, family, 1, &priority};
+    VkPhysicalDeviceClusterAccelerationStructureFeaturesNV cluster{
+        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_FEATURES_NV, nullptr, VK_TRUE};
+    VkPhysicalDeviceVulkan12Features v12{};
+    v12.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_2_FEATURES;
+    v12.pNext = &cluster;
+    v12.bufferDeviceAddress = VK_TRUE;
+    const char* extensions[] = {VK_KHR_SWAPCHAIN_EXTENSION_NAME, VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME};
+    VkDeviceCreateInfo info{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO, &v12, 0, 1, &queueInfo, 0, nullptr, 2, extensions,
+                            nullptr};
+    CHECK(vkCreateDevice(physicalDevice, &info, nullptr, &device));
+    vkGetDeviceQueue(device, family, 0, &queue);
+    cmdBuildClusters = (PFN_vkCmdBuildClusterAccelerationStructureIndirectNV)vkGetDeviceProcAddr(
+        device, "vkCmdBuildClusterAccelerationStructureIndirectNV");
+    getBuildSizes = (PFN_vkGetClusterAccelerationStructureBuildSizesNV)vkGetDeviceProcAddr(
+        device, "vkGetClusterAccelerationStructureBuildSizesNV");
+    if (!cmdBuildClusters || !getBuildSizes) fail("the cluster entry points are missing");
+  }
+
+  void createSwapchain() {
+    VkSurfaceCapabilitiesKHR caps;
+    CHECK(vkGetPhysicalDeviceSurfaceCapabilitiesKHR(physicalDevice, surface, &caps));
+    uint32_t formatCount = 1;
+    VkSurfaceFormatKHR format;
+    VkResult r = vkGetPhysicalDeviceSurfaceFormatsKHR(physicalDevice, surface, &formatCount, &format);
+    if ((r != VK_SUCCESS && r != VK_INCOMPLETE) || formatCount == 0) fail("the surface has no format");
+    uint32_t modeCount = 0;
+    CHECK(vkGetPhysicalDeviceSurfacePresentModesKHR(physicalDevice, surface, &modeCount, nullptr));
+    std::vector<VkPresentModeKHR> modes(modeCount);
+    CHECK(vkGetPhysicalDeviceSurfacePresentModesKHR(physicalDevice, surface, &modeCount, modes.data()));
+    // Xvfb has no vertical blank to wait for: prefer the modes that never block on one.
+    VkPresentModeKHR mode = VK_PRESENT_MODE_FIFO_KHR;
+    for (VkPresentModeKHR m : {VK_PRESENT_MODE_MAILBOX_KHR, VK_PRESENT_MODE_IMMEDIATE_KHR})
+      if (std::find(modes.begin(), modes.end(), m) != modes.end()) mode = m;
+    if (!(caps.supportedUsageFlags & VK_IMAGE_USAGE_TRANSFER_DST_BIT)) fail("swapchain images cannot be cleared");
+    VkSwapchainCreateInfoKHR info{};
+    info.sType = VK_STRUCTURE_TYPE_SWAPCHAIN_CREATE_INFO_KHR;
+    info.surface = surface;
+    info.minImageCount = caps.maxImageCount ? std::min(caps.minImageCount + 1, caps.maxImageCount) : caps.minImageCount + 1;
+    info.imageFormat = format.format;
+    info.imageColorSpace = format.colorSpace;
+    info.imageExtent = caps.currentExtent.width != UINT32_MAX ? caps.currentExtent : VkExtent2D{64, 64};
+    info.imageArrayLayers = 1;
+    info.imageUsage = VK_IMAGE_USAGE_TRANSFER_DST_BIT;
+    info.imageSharingMode = VK_SHARING_MODE_EXCLUSIVE;
+    info.preTransform = caps.currentTransform;
+    info.compositeAlpha = VK_COMPOSITE_ALPHA_OPAQUE_BIT_KHR;
+    for (VkCompositeAlphaFlagBitsKHR a : {VK_COMPOSITE_ALPHA_INHERIT_BIT_KHR, VK_COMPOSITE_ALPHA_OPAQUE_BIT_KHR})
+      if (caps.supportedCompositeAlpha & a) info.compositeAlpha = a;
+    info.presentMode = mode;
+    info.clipped = VK_TRUE;
+    CHECK(vkCreateSwapchainKHR(device, &info, nullptr, &swapchain));
+    uint32_t imageCount = 0;
+    CHECK(vkGetSwapchainImagesKHR(device, swapchain, &imageCount, nullptr));
+    images.resize(imageCount);
+    CHECK(vkGetSwapchainImagesKHR(device, swapchain, &imageCount, images.data()));
+    VkSemaphoreCreateInfo semaphoreInfo{VK_STRUCTURE_TYPE_SEMAPHORE_CREATE_INFO, nullptr, 0};
+    renderDone.resize(imageCount);
+    for (VkSemaphore& s : renderDone) CHECK(vkCreateSemaphore(device, &semaphoreInfo, nullptr, &s));
+    CHECK(vkCreateSemaphore(device, &semaphoreInfo, nullptr, &imageAvailable));
+    VkFenceCreateInfo fenceInfo{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO, nullptr, 0};
+    CHECK(vkCreateFence(device, &fenceInfo, nullptr, &frameDone));
+    VkCommandPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO, nullptr,
+                                     VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT, family};
+    CHECK(vkCreateCommandPool(device, &poolInfo, nullptr, &pool));
+    VkCommandBufferAllocateInfo cbInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr, pool,
+                                       VK_COMMAND_BUFFER_LEVEL_PRIMARY, 1};
+    CHECK(vkAllocateCommandBuffers(device, &cbInfo, &cb));
+  }
+
+  // Host-visible and coherent, with a device address.
+  Buffer makeBuffer(VkDeviceSize size, VkBufferUsageFlags usage) {
+    Buffer b;
+    VkBufferCreateInfo info{};
+    info.sType = VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO;
+    info.size = size;
+    info.usage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | usage;
+    CHECK(vkCreateBuffer(device, &info, nullptr, &b.buffer));
+    VkMemoryRequirements req;
+    vkGetBufferMemoryRequirements(device, b.buffer, &req);
+    VkPhysicalDeviceMemoryProperties props;
+    vkGetPhysicalDeviceMemoryProperties(physicalDevice, &props);
+    const VkMemoryPropertyFlags want = VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT;
+    uint32_t type = 0;
+    while (type < props.memoryTypeCount &&
+           !((req.memoryTypeBits & (1u << type)) && (props.memoryTypes[type].propertyFlags & want) == want))
+      ++type;
+    if (type == props.memoryTypeCount) fail("no host-visible coherent memory");
+    VkMemoryAllocateFlagsInfo flags{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_FLAGS_INFO, nullptr,
+                                    VK_MEMORY_ALLOCATE_DEVICE_ADDRESS_BIT, 0};
+    VkMemoryAllocateInfo alloc{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_INFO, &flags, req.size, type};
+    CHECK(vkAllocateMemory(device, &alloc, nullptr, &b.memory));
+    CHECK(vkBindBufferMemory(device, b.buffer, b.memory, 0));
+    VkBufferDeviceAddressInfo addressInfo{VK_STRUCTURE_TYPE_BUFFER_DEVICE_ADDRESS_INFO, nullptr, b.buffer};
+    b.address = vkGetBufferDeviceAddress(device, &addressInfo);
+    void* mapped = nullptr;
+    CHECK(vkMapMemory(device, b.memory, 0, VK_WHOLE_SIZE, 0, &mapped));
+    b.mapped = static_cast<uint8_t*>(mapped);
+    std::memset(b.mapped, 0, size);
+    buffers.push_back(b);
+    return b;
+  }
+
+  void imageBarrier(VkImage image, VkImageLayout from, VkImageLayout to, VkAccessFlags srcAccess,
+                    VkAccessFlags dstAccess, VkPipelineStageFlags srcStage, VkPipelineStageFlags dstStage) {
+    VkImageMemoryBarrier barrier{VK_STRUCTURE_TYPE_IMAGE_MEMORY_BARRIER, nullptr, srcAccess, dstAccess, from, to,
+                                 VK_QUEUE_FAMILY_IGNORED, VK_QUEUE_FAMILY_IGNORED, image,
+                                 {VK_IMAGE_ASPECT_COLOR_BIT, 0, 1, 0, 1}};
+    vkCmdPipelineBarrier(cb, srcStage, dstStage, 0, 0, nullptr, 0, nullptr, 1, &barrier);
+  }
+
+  ~App() {
+    if (device) {
+      vkDeviceWaitIdle(device);
+      for (const Buffer& b : buffers) {
+        vkDestroyBuffer(device, b.buffer, nullptr);
+        vkUnmapMemory(device, b.memory);
+        vkFreeMemory(device, b.memory, nullptr);
+      }
+      vkDestroyCommandPool(device, pool, nullptr);
+      vkDestroyFence(device, frameDone, nullptr);
+      vkDestroySemaphore(device, imageAvailable, nullptr);
+      for (VkSemaphore s : renderDone) vkDestroySemaphore(device, s, nullptr);
+      vkDestroySwapchainKHR(device, swapchain, nullptr);
+      vkDestroyDevice(device, nullptr);
+    }
+    if (surface) vkDestroySurfaceKHR(instance, surface, nullptr);
+    if (instance) vkDestroyInstance(instance, nullptr);
+  }
+};
+
+int run(uint32_t frames, uint32_t submissionsPerFrame) {
+  App app;
+  app.createInstance();
+  if (!app.hasClusterExtension()) {
+    std::printf("VK_NV_cluster_acceleration_structure is not supported\n");
+    return 3;
+  }
+  app.createDevice();
+  app.createSwapchain();
+
+  served_scene::Commands sizing;
+  served_scene::makeCommands({}, sizing);
+  VkAccelerationStructureBuildSizesInfoKHR clusterSizes{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr, 0, 0, 0};
+  VkAccelerationStructureBuildSizesInfoKHR blasSizes{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr, 0, 0, 0};
+  app.getBuildSizes(app.device, &sizing.clusters.input, &clusterSizes);
+  app.getBuildSizes(app.device, &sizing.blas.input, &blasSizes);
+  if (!clusterSizes.accelerationStructureSize || !blasSizes.accelerationStructureSize) fail("build sizes of 0");
+
+  const VkBufferUsageFlags input = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
+  const VkBufferUsageFlags storage = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
+  const served_scene::Inputs probe = served_scene::makeInputs({});
+  Buffer vertices = app.makeBuffer(probe.vertices.size() * 4, input);
+  Buffer indices = app.makeBuffer(probe.indices.size() * 4, input);
+  Buffer infos = app.makeBuffer(served_scene::kInfoStride * served_scene::kMaxClusters, input);
+  Buffer counts = app.makeBuffer(8, input);
+  Buffer dstAddresses = app.makeBuffer(8 * served_scene::kMaxClusters, storage | input);
+  Buffer dstSizes = app.makeBuffer(4 * served_scene::kMaxClusters, storage);
+  Buffer implicitData = app.makeBuffer(clusterSizes.accelerationStructureSize, storage);
+  Buffer scratch = app.makeBuffer(clusterSizes.buildScratchSize, 0);
+  Buffer blasInfos = app.makeBuffer(sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV), input);
+  Buffer blasDstAddresses = app.makeBuffer(8, storage);
+  Buffer blasDstSizes = app.makeBuffer(4, storage);
+  Buffer blasImplicit = app.makeBuffer(blasSizes.accelerationStructureSize, storage);
+  Buffer blasScratch = app.makeBuffer(blasSizes.buildScratchSize, 0);
+  const served_scene::Addresses a{vertices.address,     indices.address,      infos.address,       counts.address,
+                                  dstAddresses.address, dstSizes.address,     implicitData.address, scratch.address,
+                                  blasInfos.address,    blasDstAddresses.address, blasDstSizes.address,
+                                  blasImplicit.address, blasScratch.address};
+  served_scene::Inputs in = served_scene::makeInputs(a);
+  std::memcpy(vertices.mapped, in.vertices.data(), in.vertices.size() * 4);
+  std::memcpy(indices.mapped, in.indices.data(), in.indices.size() * 4);
+  std::memcpy(counts.mapped, in.counts, sizeof in.counts);
+  std::memcpy(blasInfos.mapped, &in.blasInfo, sizeof in.blasInfo);
+  served_scene::Commands commands;
+  served_scene::makeCommands(a, commands);
+  Buffer fillTarget = app.makeBuffer(64 * 16, VK_BUFFER_USAGE_TRANSFER_DST_BIT);  // 64 bytes per extra submission
+  std::vector<VkCommandBuffer> extra(submissionsPerFrame - 1);
+  if (!extra.empty()) {
+    VkCommandBufferAllocateInfo extraInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr, app.pool,
+                                          VK_COMMAND_BUFFER_LEVEL_PRIMARY, uint32_t(extra.size())};
+    CHECK(vkAllocateCommandBuffers(app.device, &extraInfo, extra.data()));
+  }
+
+  for (uint32_t frame = 0; frame < frames; ++frame) {
+    // The previous frame's fence was waited: the host may rewrite the build's inputs.
+    for (uint32_t c = 0; c < served_scene::kClusterCount; ++c) {
+      auto info = in.infos[c];
+      info.clusterID += kFrameIdStride * frame;
+      std::memcpy(infos.mapped + c * served_scene::kInfoStride, &info, sizeof info);
+    }
+    std::memset(dstSizes.mapped, 0, 4 * served_scene::kMaxClusters);
+    for (size_t k = 0; k < extra.size(); ++k) {
+      VkCommandBuffer e = extra[k];
+      VkCommandBufferBeginInfo once{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr,
+                                    VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT, nullptr};
+      CHECK(vkBeginCommandBuffer(e, &once));
+      vkCmdFillBuffer(e, fillTarget.buffer, 64 * k, 64, frame);  // apart: no barrier needed between them
+      CHECK(vkEndCommandBuffer(e));
+      VkSubmitInfo fill{VK_STRUCTURE_TYPE_SUBMIT_INFO, nullptr, 0, nullptr, nullptr, 1, &e, 0, nullptr};
+      CHECK(vkQueueSubmit(app.queue, 1, &fill, VK_NULL_HANDLE));
+    }
+    uint32_t image = 0;
+    CHECK(vkAcquireNextImageKHR(app.device, app.swapchain, 10 * kSecond, app.imageAvailable, VK_NULL_HANDLE, &image));
+
+    VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr,
+                                   VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT, nullptr};
+    CHECK(vkBeginCommandBuffer(app.cb, &begin));
+    app.cmdBuildClusters(app.cb, &commands.clusters);
+    VkMemoryBarrier built{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr, VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
+                          VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_KHR | VK_ACCESS_SHADER_READ_BIT |
+                              VK_ACCESS_INDIRECT_COMMAND_READ_BIT};
+    vkCmdPipelineBarrier(app.cb, VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                         VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, 0, 1, &built, 0, nullptr, 0, nullptr);
+    app.cmdBuildClusters(app.cb, &commands.blas);
+    VkMemoryBarrier toHost{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr, VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
+                           VK_ACCESS_HOST_READ_BIT};
+    vkCmdPipelineBarrier(app.cb, VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_PIPELINE_STAGE_HOST_BIT, 0,
+                         1, &toHost, 0, nullptr, 0, nullptr);
+    // A colour per frame, so the window shows the loop advancing.
+    app.imageBarrier(app.images[image], VK_IMAGE_LAYOUT_UNDEFINED, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 0,
+                     VK_ACCESS_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_PIPELINE_STAGE_TRANSFER_BIT);
+    const VkClearColorValue color{{float(frame % 3) / 2.0f, 0.25f, 0.5f, 1.0f}};
+    const VkImageSubresourceRange whole{VK_IMAGE_ASPECT_COLOR_BIT, 0, 1, 0, 1};
+    vkCmdClearColorImage(app.cb, app.images[image], VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, &color, 1, &whole);
+    app.imageBarrier(app.images[image], VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, VK_IMAGE_LAYOUT_PRESENT_SRC_KHR,
+                     VK_ACCESS_TRANSFER_WRITE_BIT, 0, VK_PIPELINE_STAGE_TRANSFER_BIT,
+                     VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT);
+    CHECK(vkEndCommandBuffer(app.cb));
+
+    const VkPipelineStageFlags waitStage = VK_PIPELINE_STAGE_TRANSFER_BIT;
+    VkSubmitInfo submit{VK_STRUCTURE_TYPE_SUBMIT_INFO, nullptr, 1, &app.imageAvailable, &waitStage, 1, &app.cb, 1,
+                        &app.renderDone[image]};
+    CHECK(vkQueueSubmit(app.queue, 1, &submit, app.frameDone));
+    VkPresentInfoKHR present{VK_STRUCTURE_TYPE_PRESENT_INFO_KHR, nullptr, 1, &app.renderDone[image], 1,
+                             &app.swapchain, &image, nullptr};
+    const VkResult presented = vkQueuePresentKHR(app.queue, &present);
+    if (presented != VK_SUCCESS && presented != VK_SUBOPTIMAL_KHR) {
+      std::fprintf(stderr, "present_frames_app: vkQueuePresentKHR of frame %u failed: %d\n", frame, int(presented));
+      return 2;
+    }
+    CHECK(vkWaitForFences(app.device, 1, &app.frameDone, VK_TRUE, 30 * kSecond));
+    CHECK(vkResetFences(app.device, 1, &app.frameDone));
+    for (uint32_t c = 0; c < served_scene::kClusterCount; ++c) {
+      uint32_t size = 0;
+      std::memcpy(&size, dstSizes.mapped + 4 * c, 4);
+      if (size == 0) {
+        std::fprintf(stderr, "present_frames_app: frame %u: cluster %u was not built (dstSizesArray is 0)\n", frame, c);
+        return 2;
+      }
+    }
+  }
+  std::printf("presented %u frames\n", frames);
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const int frames = argc >= 2 ? std::atoi(argv[1]) : 0;
+  const int submissions = argc == 3 ? std::atoi(argv[2]) : 1;
+  if (argc > 3 || frames <= 0 || frames > 10000 || submissions <= 0 || submissions > 16) {
+    std::fprintf(stderr, "usage: present_frames_app FRAMES [SUBMISSIONS_PER_FRAME]   (1..10000, 1..16; the window "
+                 "goes to $DISPLAY)\n");
+    return 1;
+  }
+  return run(uint32_t(frames), uint32_t(submissions));
+}
