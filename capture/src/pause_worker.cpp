@@ -83,9 +83,12 @@ void PauseWorker::run() {
         progressed = true;
       }
     }
-    // A released command's output walk waits while a queue stands at its next pause: the queue
-    // goes first (a served build's next pause comes at once, nothing runs on the device between).
-    if (!progressed && !afterRelease_.empty()) {
+    // A released command's output walk waits while a queue is about to stand at its next pause:
+    // the queue goes first (after a served build the next pause comes within microseconds,
+    // nothing runs on the device between). It runs once no pause is expected, or once none came
+    // for a while (a real device command in between).
+    if (!progressed && !afterRelease_.empty() &&
+        (!anyPending || Clock::now() - lastProgress >= std::chrono::microseconds(500))) {
       AfterRelease work = std::move(afterRelease_.front());
       afterRelease_.pop_front();
       lock.unlock();

@@ -729,29 +729,26 @@ class TraceCaptureSink final : public CaptureSink {
     std::stable_sort(order.begin(), order.end(), [](const CapturedRange* a, const CapturedRange* b) {
       return std::tie(a->buffer, a->address) < std::tie(b->buffer, b->address);
     });
-    std::vector<uint8_t> run;
+    std::vector<traces::ContentPiece> pieces;
     for (size_t i = 0; i < order.size();) {
       const CapturedRange& first = *order[i];
       const bool mergeable = first.address != 0 && first.buffer != 0;
       uint64_t end = first.address + first.bytes.size();
       size_t next = i + 1;
+      pieces.assign(1, {first.bytes.data(), first.bytes.size()});
       if (mergeable) {
-        run.assign(first.bytes.begin(), first.bytes.end());
         for (; next < order.size() && order[next]->buffer == first.buffer && order[next]->address != 0 &&
                order[next]->address <= end;
              ++next) {
           const CapturedRange& r = *order[next];
           const uint64_t rEnd = r.address + r.bytes.size();
-          if (rEnd > end) run.insert(run.end(), r.bytes.end() - (rEnd - end), r.bytes.end());
+          if (rEnd > end) pieces.push_back({r.bytes.data() + (r.bytes.size() - (rEnd - end)), size_t(rEnd - end)});
           end = std::max(end, rEnd);
         }
       }
-      const bool merged = next > i + 1;
-      const uint8_t* bytes = merged ? run.data() : first.bytes.data();
-      const size_t size = merged ? run.size() : first.bytes.size();
       fbs::MemorySnapshot snap;
       if (!writer_ || failed_) return;
-      if (!check(writer_->snapshot(first.buffer, first.bufferOffset, first.address, bytes, size, &snap))) return;
+      if (!check(writer_->snapshot(first.buffer, first.bufferOffset, first.address, pieces, &snap))) return;
       out.push_back(snap);
       i = next;
     }

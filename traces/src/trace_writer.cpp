@@ -92,6 +92,7 @@ struct TraceWriter::Impl {
     flatbuffers::FlatBufferBuilder fbb{1024};
     std::unordered_map<uint64_t, StoredContents> contents;
     std::unordered_map<Fingerprint, uint64_t, FingerprintHash> keys_by_fingerprint;
+    std::vector<uint8_t> gathered;  // new contents given in pieces, made one string
     std::vector<ContentPlace> content_places;
     TraceWriterStats counters;  // main-thread counters (chunk/bytes come from the worker)
 
@@ -442,8 +443,15 @@ std::unique_ptr<TraceWriter> TraceWriter::create(const std::string& path, const 
 }
 
 TraceError TraceWriter::add_contents(const void* bytes, size_t size, uint64_t* hash) {
+    const ContentPiece one{bytes, size};
+    return add_contents(std::span<const ContentPiece>(&one, 1), hash);
+}
+
+TraceError TraceWriter::add_contents(std::span<const ContentPiece> pieces, uint64_t* hash) {
     Impl& w = *impl_;
     if (TraceError e = w.check_usable()) return e;
+    size_t size = 0;
+    for (const ContentPiece& p : pieces) size += p.size;
     if (size > format::kMaxRecordBytes - 128) {
         return make_trace_error(TraceErrorCode::invalid_argument, w.path, 0,
                                 "contents of " + std::to_string(size) +
@@ -454,13 +462,32 @@ TraceError TraceWriter::add_contents(const void* bytes, size_t size, uint64_t* h
         uint64_t started = now_ns();
         ~Timed() { total += now_ns() - started; }
     } timed{w.counters.contents_ns};
-    const XXH128_hash_t fingerprint = XXH3_128bits(bytes, size);
+    // A repeat (most snapshots of a frame loop) costs one hash pass over its pieces where they
+    // lie; only new contents are gathered into one string.
+    XXH128_hash_t fingerprint;
+    if (pieces.size() == 1) {
+        fingerprint = XXH3_128bits(pieces[0].bytes, size);
+    } else {
+        XXH3_state_t state;
+        XXH3_128bits_reset(&state);
+        for (const ContentPiece& p : pieces) XXH3_128bits_update(&state, p.bytes, p.size);
+        fingerprint = XXH3_128bits_digest(&state);
+    }
     const Fingerprint known{fingerprint.low64, fingerprint.high64, size};
     if (auto repeat = w.keys_by_fingerprint.find(known); repeat != w.keys_by_fingerprint.end()) {
         ++w.counters.contents_deduplicated;
         w.counters.contents_bytes_deduplicated += size;
         *hash = repeat->second;
         return {};
+    }
+    const void* bytes = pieces.empty() ? nullptr : pieces[0].bytes;
+    if (pieces.size() > 1) {
+        w.gathered.clear();
+        for (const ContentPiece& p : pieces) {
+            const auto* b = static_cast<const uint8_t*>(p.bytes);
+            w.gathered.insert(w.gathered.end(), b, b + p.size);
+        }
+        bytes = w.gathered.data();
     }
     // Seed 0 gives the key; a different byte string already holding that key (a real
     // collision) moves these bytes to the next seed until a free or matching key is found.
@@ -506,6 +533,16 @@ TraceError TraceWriter::snapshot(uint64_t buffer, uint64_t offset, uint64_t addr
                                  fbs::MemorySnapshot* out) {
     uint64_t hash = 0;
     if (TraceError e = add_contents(bytes, size, &hash)) return e;
+    *out = fbs::MemorySnapshot(buffer, offset, address, size, hash);
+    return {};
+}
+
+TraceError TraceWriter::snapshot(uint64_t buffer, uint64_t offset, uint64_t address,
+                                 std::span<const ContentPiece> pieces, fbs::MemorySnapshot* out) {
+    uint64_t hash = 0;
+    if (TraceError e = add_contents(pieces, &hash)) return e;
+    uint64_t size = 0;
+    for (const ContentPiece& p : pieces) size += p.size;
     *out = fbs::MemorySnapshot(buffer, offset, address, size, hash);
     return {};
 }

@@ -13,6 +13,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <memory>
+#include <span>
 #include <string>
 
 namespace clastrace::traces {
@@ -50,6 +51,11 @@ struct TraceWriterStats {
     uint64_t flush_wait_ns = 0;        // flush()/finish() waiting for the compression thread(s)
 };
 
+struct ContentPiece {  // one part of a content given in pieces
+    const void* bytes;
+    size_t size;
+};
+
 class TraceWriter {
 public:
     // Creates (truncates) `path` and writes the file header. The writer fills
@@ -65,8 +71,14 @@ public:
     // written; later calls with equal bytes only return its key in *hash.
     TraceError add_contents(const void* bytes, size_t size, uint64_t* hash);
 
+    // The same for the concatenation of `pieces` (adjacent ranges read separately): equal bytes
+    // get the same key however they were cut, and a repeat is hashed where it lies, uncopied.
+    TraceError add_contents(std::span<const ContentPiece> pieces, uint64_t* hash);
+
     // add_contents, then describes the snapshot for a command's inputs/outputs.
     TraceError snapshot(uint64_t buffer, uint64_t offset, uint64_t address, const void* bytes, size_t size,
+                        fbs::MemorySnapshot* out);
+    TraceError snapshot(uint64_t buffer, uint64_t offset, uint64_t address, std::span<const ContentPiece> pieces,
                         fbs::MemorySnapshot* out);
 
     // Appends one record. MemoryContents must go through add_contents; a QueueSubmit's
