@@ -12,6 +12,7 @@
 #include "clastrace/capture/capture_cost.h"
 #include "clastrace/capture/cluster_limits.h"
 #include "clastrace/capture/served_build.h"
+#include "clastrace/capture/uncached_copy.h"
 
 namespace clastrace::capture {
 
@@ -147,7 +148,9 @@ bool PauseWorker::readResolved(const ResolvedRange& range, uint64_t size, std::v
   if (!range.host) {
     const uint8_t* staged = stagedBytes(range);
     if (!staged) return false;
-    out.assign(staged, staged + size);
+    out.resize(size);
+    if (staging_->cached) std::memcpy(out.data(), staged, size);
+    else copyFromUncached(out.data(), staged, size);
     return true;
   }
   if (!(range.memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_COHERENT_BIT)) {
@@ -162,7 +165,11 @@ bool PauseWorker::readResolved(const ResolvedRange& range, uint64_t size, std::v
     device_.next.InvalidateMappedMemoryRanges(device_.device, 1, &mapped);
   }
   out.resize(size);
-  if (size) std::memcpy(out.data(), range.host, size);
+  if (range.memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT) {
+    if (size) std::memcpy(out.data(), range.host, size);
+  } else {
+    copyFromUncached(out.data(), range.host, size);
+  }
   return true;
 }
 
