@@ -84,19 +84,6 @@ void PauseWorker::run() {
         progressed = true;
       }
     }
-    // A released command's output walk waits while a queue is about to stand at its next pause:
-    // the queue goes first (after a served build the next pause comes within microseconds,
-    // nothing runs on the device between). It runs once no pause is expected, or once none came
-    // for a while (a real device command in between).
-    if (!progressed && !afterRelease_.empty() &&
-        (!anyPending || Clock::now() - lastProgress >= std::chrono::microseconds(500))) {
-      AfterRelease work = std::move(afterRelease_.front());
-      afterRelease_.pop_front();
-      lock.unlock();
-      finishReleased(work);
-      lock.lock();
-      continue;
-    }
     if (!anyPending) {
       wake_.wait(lock, [this] { return stop_ || std::any_of(queues_.begin(), queues_.end(),
                                                               [](auto& q) { return !q.second.empty(); }); });
@@ -115,11 +102,6 @@ void PauseWorker::run() {
     else
       std::this_thread::sleep_for(std::chrono::microseconds(50));
     lock.lock();
-  }
-  lock.unlock();
-  while (!afterRelease_.empty()) {  // before the sink's flush at vkDestroyDevice
-    finishReleased(afterRelease_.front());
-    afterRelease_.pop_front();
   }
 }
 
@@ -296,10 +278,12 @@ bool PauseWorker::handle(Expected& expected) {
     nameRanges(*record);
     return true;
   }
-  // The rest reads only the engine's image and the memory map: it runs once no queue waits.
+  // The rest reads the engine's image and the memory map, with the queue running again. Not
+  // later than now: once the queue passes its last pause the application may destroy the
+  // buffers that name the ranges (deferring this past the next pause changed traces under load).
   AfterRelease work{std::move(*record), std::move(servedImage), pause.parameters};
   open_.erase(openKey);
-  afterRelease_.push_back(std::move(work));
+  finishReleased(work);
   return true;
 }
 

@@ -79,8 +79,7 @@ class PauseWorker {
     bool capture;
   };
   // A captured command's last pause is released: what remains (walking a served build's outputs
-  // in the engine's image, naming ranges by buffer, handing the record to the sink) waits until
-  // no queue stands at a pause.
+  // in the engine's image, naming ranges by buffer, handing the record to the sink).
   struct AfterRelease {
     ClusterBuildCapture record;
     std::shared_ptr<const engine::MemoryImage> servedImage;  // null: outputs already read
@@ -107,7 +106,6 @@ class PauseWorker {
   std::map<VkQueue, std::deque<Expected>> queues_;
   // (submission, pauseId, occurrence) -> capture between its two pauses
   std::map<std::tuple<uint64_t, uint64_t, uint32_t>, ClusterBuildCapture> open_;
-  std::deque<AfterRelease> afterRelease_;  // the worker thread's own
   std::vector<float> pauseMilliseconds_;
   const StagingSet* staging_ = nullptr;  // of the pause being handled  // host time of each pause, for the report at exit
   bool stop_ = false;
