@@ -8,7 +8,10 @@
 //   3. the host time per pause (median, p90) and the pause count, from the layer's report (of
 //      each mode's last run),
 //   4. the periodic flush knob (CLASTRACE_FLUSH_MS: what a killed application can lose) against
-//      chunks, trace bytes and time.
+//      chunks, trace bytes and time,
+//   5. the compression level knob (CLASTRACE_ZSTD_LEVEL) against trace bytes and time,
+//   6. where capture's time went (the layer's CLASTRACE_STATS report of the last run of the
+//      serving-only and capture modes).
 //
 //   capture_overhead_bench [frames=60] [clusters=256] [repetitions=5]
 #include <clastrace/traces/records.h>
@@ -51,6 +54,7 @@ struct Run {
   double loopMs = 0, loopCpuMs = 0;
   uint64_t pauses = 0;
   double pauseMedianMs = 0, pauseP90Ms = 0;
+  std::vector<std::string> stats;  // the layer's "clastrace: stats: " lines
 };
 
 bool parseRun(const std::string& out, const std::string& err, Run& run) {
@@ -70,6 +74,9 @@ bool parseRun(const std::string& out, const std::string& err, Run& run) {
       run.pauseP90Ms = p90;
     }
   }
+  std::istringstream lines(err);
+  for (std::string line; std::getline(lines, line);)
+    if (line.rfind("clastrace: stats: ", 0) == 0) run.stats.push_back(line.substr(18));
   return true;
 }
 
@@ -77,7 +84,7 @@ Run runApp(const fs::path& dir, const std::string& args, const std::map<std::str
   std::string line = "env -u CLASTRACE_OUTPUT -u CLASTRACE_CAPTURE -u CLASTRACE_DEBUG_JSON -u VK_ICD_FILENAMES";
   line += " VK_DRIVER_FILES=" + setting("CLASTRACE_BENCH_DRIVER_FILES", kLavapipe) +
           " VK_ADD_LAYER_PATH=" + setting("CLASTRACE_BENCH_LAYER_DIR", CLASTRACE_LAYER_MANIFEST_DIR) +
-          " VK_INSTANCE_LAYERS=VK_LAYER_CLASTRACE_capture CLASTRACE_LOG=info";
+          " VK_INSTANCE_LAYERS=VK_LAYER_CLASTRACE_capture CLASTRACE_LOG=info CLASTRACE_STATS=1";
   for (const auto& [k, v] : env) line += " " + k + "=" + v;
   const fs::path out = dir / "out.txt", err = dir / "err.txt";
   line += " " + setting("CLASTRACE_BENCH_FRAMES_APP", CLASTRACE_FRAMES_APP) + " " + args + " >" + out.string() + " 2>" + err.string();
@@ -182,6 +189,10 @@ int main(int argc, char** argv) {
        {{"CLASTRACE_OUTPUT", traceOf("flush0")}, {"CLASTRACE_FLUSH_MS", "0"}}, {}, {}, {}, {}},
       {"capture + serving, CLASTRACE_FLUSH_MS=50",
        {{"CLASTRACE_OUTPUT", traceOf("flush50")}, {"CLASTRACE_FLUSH_MS", "50"}}, {}, {}, {}, {}},
+      {"capture + serving, CLASTRACE_ZSTD_LEVEL=1",
+       {{"CLASTRACE_OUTPUT", traceOf("zstd1")}, {"CLASTRACE_ZSTD_LEVEL", "1"}}, {}, {}, {}, {}},
+      {"capture + serving, CLASTRACE_ZSTD_LEVEL=9",
+       {{"CLASTRACE_OUTPUT", traceOf("zstd9")}, {"CLASTRACE_ZSTD_LEVEL", "9"}}, {}, {}, {}, {}},
   };
   // Interleaved, so drift of a shared machine spreads over every mode alike.
   for (int r = 0; r < repetitions; ++r)
@@ -231,6 +242,29 @@ int main(int argc, char** argv) {
     const double cpu = median(m.cpu);
     std::printf("| %-38s | %6llu | %10llu | %15.1f | %20.3fx |\n", label, (unsigned long long)m.bytes.chunks,
                 (unsigned long long)m.bytes.fileBytes, cpu, cpu / peerCpu);
+  }
+  // Compression runs on its own thread (at a lower priority than the application): the level
+  // trades trace bytes against that thread's CPU, which the application feels only when the
+  // machine has no idle core.
+  std::printf("\n| CLASTRACE_ZSTD_LEVEL | .clt bytes | compressor CPU ms (last run) | wall ms (best) | ratio | CPU ms (median) | ratio |\n");
+  std::printf("|---------------------:|-----------:|-----------------------------:|---------------:|------:|----------------:|------:|\n");
+  for (size_t i : {5, 1, 6}) {
+    const Mode& m = modes[i];
+    double compressorCpu = 0;
+    for (const std::string& line : m.last.stats) {
+      const size_t at = line.find("compressor CPU ");
+      if (at != std::string::npos) compressorCpu = std::atof(line.c_str() + at + 15);
+    }
+    const double ms = best(m.loops), cpu = median(m.cpu);
+    std::printf("| %20s | %10llu | %28.1f | %14.1f | %4.3fx | %15.1f | %4.3fx |\n",
+                i == 5 ? "1" : i == 1 ? "3 (default)" : "9", (unsigned long long)m.bytes.fileBytes, compressorCpu, ms,
+                ms / peer, cpu, cpu / peerCpu);
+  }
+  // The layer's own account (CLASTRACE_STATS=1, capture/README.md): wall and CPU time per
+  // phase over the whole process, the vkDestroyDevice flush included (after the frame loop).
+  for (size_t i : {0, 1}) {
+    std::printf("\nwhere the time went, %s (last run, CLASTRACE_STATS=1):\n\n", modes[i].name);
+    for (const std::string& line : modes[i].last.stats) std::printf("    %s\n", line.c_str());
   }
   fs::remove_all(dir);
   return 0;

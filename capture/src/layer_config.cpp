@@ -104,6 +104,10 @@ LayerConfig parseLayerConfig(const std::function<const char*(const char*)>& gete
     if (auto on = parseSwitch(*v)) config.timestamps = *on;
     else reject("CLASTRACE_TIMESTAMPS", *v, "0 or 1");
   }
+  if (auto v = value("CLASTRACE_STATS")) {
+    if (auto on = parseSwitch(*v)) config.stats = *on;
+    else reject("CLASTRACE_STATS", *v, "0 or 1");
+  }
   return config;
 }
 

@@ -1,6 +1,8 @@
 // Loader-facing part: interface negotiation, instance and device creation with the next
 // layer's entry points, the registries, and the proc-address interception.
 #include "layer_state.h"
+
+#include "clastrace/capture/capture_cost.h"
 #include "command_buffer_log.h"
 #include "pause_worker.h"
 
@@ -240,6 +242,10 @@ VKAPI_ATTR void VKAPI_CALL DestroyDevice(VkDevice device, const VkAllocationCall
   if (state->sink) {
     state->sink->deviceDestroyed(handleId(device));
     state->sink->flush();
+  }
+  if (layerConfig().stats) {  // after the flush, so the trace's numbers are final
+    for (const std::string& line : costReport(state->sink ? state->sink->costLines() : std::vector<std::string>{}))
+      std::fprintf(stderr, "clastrace: %s\n", line.c_str());
   }
   for (auto& [commandBuffer, log] : state->commandBuffers) clearCommandBufferLog(*state, *log);
   PFN_vkDestroyDevice destroy = state->next.DestroyDevice;

@@ -5,6 +5,7 @@
 // finishes (lavapipe does), so the pause worker cannot read them.
 #include "layer_state.h"
 
+#include <clastrace/capture/capture_cost.h>
 #include <clastrace/capture/capture_records.h>
 
 namespace clastrace::capture {
@@ -33,9 +34,11 @@ void readCompletedTimestamps(DeviceState& d,
     read.commandBuffer = r.commandBuffer;
     std::vector<uint64_t> results(size_t(r.count) * 2);  // (ticks, availability) per query
     // No WAIT: the execution is complete, so what is not available now never will be.
+    const uint64_t started = wallNs();
     const VkResult result = d.next.GetQueryPoolResults(d.device, r.pool, 0, r.count, results.size() * sizeof(uint64_t),
                                                        results.data(), 2 * sizeof(uint64_t),
                                                        VK_QUERY_RESULT_64_BIT | VK_QUERY_RESULT_WITH_AVAILABILITY_BIT);
+    addCost(CostPhase::TimestampRead, wallNs() - started);
     const bool read_ok = result == VK_SUCCESS || result == VK_NOT_READY;
     for (uint32_t q = 0; q < r.count; ++q) {
       const bool valid = read_ok && results[2 * q + 1] != 0;

@@ -44,10 +44,13 @@ std::shared_ptr<StagingSet> createStaging(DeviceState& d) {
   }
   VkMemoryRequirements requirements{};
   d.next.GetBufferMemoryRequirements(d.device, staging->buffer, &requirements);
-  // Coherent host-visible memory if there is one (no flush/invalidate), else any host-visible.
+  // The host reads every staged byte: cached coherent memory if there is one (uncached,
+  // write-combined host-visible memory reads several times slower), else coherent (no
+  // flush/invalidate), else any host-visible.
   uint32_t type = UINT32_MAX;
-  const VkMemoryPropertyFlags choices[2] = {VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT,
-                                            VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT};
+  const VkMemoryPropertyFlags choices[3] = {
+      VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT | VK_MEMORY_PROPERTY_HOST_CACHED_BIT,
+      VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT, VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT};
   for (VkMemoryPropertyFlags want : choices) {
     for (uint32_t t = 0; t < d.memoryProperties.memoryTypeCount && type == UINT32_MAX; ++t)
       if ((requirements.memoryTypeBits & (1u << t)) && (d.memoryProperties.memoryTypes[t].propertyFlags & want) == want)
@@ -67,6 +70,7 @@ std::shared_ptr<StagingSet> createStaging(DeviceState& d) {
   }
   staging->host = static_cast<uint8_t*>(host);
   staging->coherent = d.memoryProperties.memoryTypes[type].propertyFlags & VK_MEMORY_PROPERTY_HOST_COHERENT_BIT;
+  staging->cached = d.memoryProperties.memoryTypes[type].propertyFlags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT;
   return staging;
 }
 

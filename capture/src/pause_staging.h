@@ -30,6 +30,7 @@ struct StagingSet {
   VkDeviceMemory memory = VK_NULL_HANDLE;
   uint8_t* host = nullptr;
   bool coherent = true;
+  bool cached = true;  // HOST_CACHED: plain loads; otherwise the worker uses streaming loads
   std::vector<StagedBuffer> buffers;
 
   const StagedBuffer* find(uint64_t buffer) const;

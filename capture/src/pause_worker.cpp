@@ -6,10 +6,13 @@
 #include <algorithm>
 #include <chrono>
 #include <cstring>
+#include <pthread.h>
 
 #include "clastrace/capture/acceleration_structure_walker.h"
+#include "clastrace/capture/capture_cost.h"
 #include "clastrace/capture/cluster_limits.h"
 #include "clastrace/capture/served_build.h"
+#include "clastrace/capture/uncached_copy.h"
 
 namespace clastrace::capture {
 
@@ -57,6 +60,11 @@ bool PauseWorker::expectedOnAnotherQueue(uint64_t commandBuffer, VkQueue queue) 
 }
 
 void PauseWorker::run() {
+  markLayerThread();
+  pthread_setname_np(pthread_self(), "clastrace-pause");  // for profilers and top
+  struct CpuAtExit {  // the worker's CPU time, for CLASTRACE_STATS
+    ~CpuAtExit() { addThreadCpu(CostThread::PauseWorker, threadCpuNs()); }
+  } cpuAtExit;
   using Clock = std::chrono::steady_clock;
   auto lastProgress = Clock::now();
   std::unique_lock lock(mutex_);
@@ -122,7 +130,9 @@ bool PauseWorker::readResolved(const ResolvedRange& range, uint64_t size, std::v
   if (!range.host) {
     const uint8_t* staged = stagedBytes(range);
     if (!staged) return false;
-    out.assign(staged, staged + size);
+    out.resize(size);
+    if (staging_->cached) std::memcpy(out.data(), staged, size);
+    else copyFromUncached(out.data(), staged, size);
     return true;
   }
   if (!(range.memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_COHERENT_BIT)) {
@@ -137,7 +147,11 @@ bool PauseWorker::readResolved(const ResolvedRange& range, uint64_t size, std::v
     device_.next.InvalidateMappedMemoryRanges(device_.device, 1, &mapped);
   }
   out.resize(size);
-  if (size) std::memcpy(out.data(), range.host, size);
+  if (range.memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT) {
+    if (size) std::memcpy(out.data(), range.host, size);
+  } else {
+    copyFromUncached(out.data(), range.host, size);
+  }
   return true;
 }
 
@@ -155,6 +169,7 @@ bool PauseWorker::handle(Expected& expected) {
   const PausePoint& pause = expected.pause;
   if (device_.next.GetEventStatus(device_.device, pause.signal) != VK_EVENT_SET) return false;
   const auto started = std::chrono::steady_clock::now();
+  const uint64_t startedCpu = threadCpuNs();
   staging_ = pause.staging.get();
   const bool capture = expected.capture && device_.capturingNow();
   DeviceMemoryReader reader = [this](VkDeviceAddress a, uint64_t s, std::vector<uint8_t>* o, std::string& w) {
@@ -165,6 +180,7 @@ bool PauseWorker::handle(Expected& expected) {
   ClusterBuildCapture* record = nullptr;
   const auto openKey = std::make_tuple(expected.submissionIndex, pause.pauseId, pause.occurrence);
   if (capture) {
+    CostScope cost(CostPhase::PauseRead);
     if (pause.phase == PausePhase::BeforeCommand) {
       ClusterBuildCapture fresh;
       fresh.pauseId = pause.pauseId;
@@ -228,7 +244,10 @@ bool PauseWorker::handle(Expected& expected) {
   // the engine could not run, from memory now.
   std::shared_ptr<const engine::MemoryImage> servedImage;
   if (device_.serving && pause.phase == PausePhase::BeforeCommand && pause.parameters) {
-    servedImage = executeServed(pause, record);
+    {
+      CostScope cost(CostPhase::PauseEngine);
+      servedImage = executeServed(pause, record);
+    }
     // No pause follows a served command: learn the templates it built (or moved) now, while
     // its dstAddressesArray holds what the engine just wrote and the queue still waits.
     if (pause.lastOfCommand) {
@@ -247,11 +266,44 @@ bool PauseWorker::handle(Expected& expected) {
   device_.next.ResetEvent(device_.device, pause.signal);
   device_.next.SetEvent(device_.device, pause.release);
   ++handled_;
-  const double stalled = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - started).count();
+  const auto released = std::chrono::steady_clock::now();
+  const uint64_t releasedCpu = threadCpuNs();
+  const double stalled = std::chrono::duration<double, std::milli>(released - started).count();
   pauseMilliseconds_.push_back(float(stalled));
+  addCost(CostPhase::PauseHeld, uint64_t(stalled * 1e6), releasedCpu - startedCpu);
   staging_ = nullptr;  // the queue may overwrite the staged copies from here on
+  if (!record) return true;
+  record->pauseMilliseconds += stalled;
+  if (!pause.lastOfCommand) {  // the record waits in open_ for the command's next pause
+    nameRanges(*record);
+    return true;
+  }
+  // The rest reads the engine's image and the memory map, with the queue running again. Not
+  // later than now: once the queue passes its last pause the application may destroy the
+  // buffers that name the ranges (deferring this past the next pause changed traces under load).
+  AfterRelease work{std::move(*record), std::move(servedImage), pause.parameters};
+  open_.erase(openKey);
+  finishReleased(work);
+  return true;
+}
 
-  if (record && servedImage && pause.lastOfCommand) {
+void PauseWorker::nameRanges(ClusterBuildCapture& record) {  // by a buffer holding each, as the trace's snapshots do
+  for (auto* list : {&record.inputs, &record.outputs})
+    for (CapturedRange& r : *list) {
+      std::string why;
+      if (r.address == 0) continue;  // named by buffer and offset already
+      if (auto where = device_.memoryMap.resolve(r.address, r.bytes.size(), why)) {
+        r.buffer = where->buffer.handle;
+        r.bufferOffset = where->offsetInBuffer;
+      }
+    }
+}
+
+void PauseWorker::finishReleased(AfterRelease& work) {
+  CostScope cost(CostPhase::AfterRelease, true);
+  ClusterBuildCapture* record = &work.record;
+  const std::shared_ptr<const engine::MemoryImage>& servedImage = work.servedImage;
+  if (servedImage && work.parameters) {
     DeviceMemoryReader fromImage = [&](VkDeviceAddress a, uint64_t s, std::vector<uint8_t>* o, std::string& why) {
       const engine::MemoryRegion* region = servedImage->find_region(a);
       if (!region || a + s < a || a + s > region->base + region->size) {
@@ -262,30 +314,12 @@ bool PauseWorker::handle(Expected& expected) {
                        reinterpret_cast<const uint8_t*>(region->bytes.data()) + (a - region->base) + s);
       return true;
     };
-    ClusterMemoryWalk walk = walkClusterOutputs(*pause.parameters, record->executedCount, fromImage);
+    ClusterMemoryWalk walk = walkClusterOutputs(*work.parameters, record->executedCount, fromImage);
     record->outputs = std::move(walk.ranges);
     for (auto& issue : walk.issues) record->issues.push_back(std::move(issue));
   }
-
-  if (record) {  // name each range by a buffer holding it, as the trace's snapshots do
-    for (auto* list : {&record->inputs, &record->outputs})
-      for (CapturedRange& r : *list) {
-        std::string why;
-        if (r.address == 0) continue;  // named by buffer and offset already
-        if (auto where = device_.memoryMap.resolve(r.address, r.bytes.size(), why)) {
-          r.buffer = where->buffer.handle;
-          r.bufferOffset = where->offsetInBuffer;
-        }
-      }
-  }
-  if (record) {
-    record->pauseMilliseconds += stalled;
-    if (pause.lastOfCommand) {
-      device_.sink->clusterBuildCaptured(std::move(*record));
-      open_.erase(openKey);
-    }
-  }
-  return true;
+  nameRanges(*record);
+  device_.sink->clusterBuildCaptured(std::move(*record));
 }
 
 void PauseWorker::learnTemplates(const ClusterCommandParameters& parameters, const std::vector<uint32_t>& vertexCounts) {

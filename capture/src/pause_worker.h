@@ -20,6 +20,7 @@
 #include "clastrace/capture/device_memory_map.h"
 #include "pause_staging.h"
 
+#include <clastrace/engine/memory_image.h>
 #include <clastrace/engine/object_directory.h>
 
 #include <chrono>
@@ -77,8 +78,17 @@ class PauseWorker {
     uint64_t commandBuffer;
     bool capture;
   };
+  // A captured command's last pause is released: what remains (walking a served build's outputs
+  // in the engine's image, naming ranges by buffer, handing the record to the sink).
+  struct AfterRelease {
+    ClusterBuildCapture record;
+    std::shared_ptr<const engine::MemoryImage> servedImage;  // null: outputs already read
+    std::shared_ptr<const ClusterCommandParameters> parameters;
+  };
   void run();
   bool handle(Expected& expected);
+  void finishReleased(AfterRelease& work);
+  void nameRanges(ClusterBuildCapture& record);
   bool checkMemory(VkDeviceAddress address, uint64_t size, std::string& why);
   bool readMemory(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>& out, std::string& why);
   bool readResolved(const ResolvedRange& range, uint64_t size, std::vector<uint8_t>& out);

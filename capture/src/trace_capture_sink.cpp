@@ -3,7 +3,15 @@
 // So state records (memory, buffers, size queries) are appended at once, and a submission's
 // command buffers are written out, each as Begin..End with the snapshots of its cluster
 // builds, followed by its QueueSubmit, once every build of that submission was captured.
+//
+// Two locks, so the application's threads and the pause worker never wait while a submission
+// is hashed, framed and handed to the compressor: `mutex_` guards what the calls change (held
+// for map updates only), and everything bound for the file goes, in trace order, through
+// `outbox_`; whoever holds `writeMutex_` (the sink's thread, or a flush) takes the outbox and
+// writes it. Lock order: writeMutex_ before mutex_.
 #include "clastrace/capture/capture_sink.h"
+
+#include "clastrace/capture/capture_cost.h"
 
 #include <clastrace/traces/trace_writer.h>
 
@@ -16,9 +24,14 @@
 #include <chrono>
 #include <cstdio>
 #include <cstring>
+#include <deque>
 #include <map>
 #include <mutex>
+#include <pthread.h>
+#include <sys/resource.h>
+#include <unistd.h>
 #include <unordered_map>
+#include <variant>
 
 namespace clastrace::capture {
 namespace {
@@ -105,14 +118,19 @@ class TraceCaptureSink final : public CaptureSink {
     }
     wake_.notify_all();
     emitter_.join();
-    std::lock_guard lock(mutex_);
-    emitReadyLocked(true);
+    std::lock_guard write(writeMutex_);
+    {
+      StateLock lock(*this);
+      emitReadyLocked(true);
+    }
+    writeOutboxLocked();
     if (writer_ && !failed_) check(writer_->finish());
   }
   bool active() const override { return !failed_; }
 
   void deviceCreated(const DeviceRecord& d) override {
-    std::lock_guard lock(mutex_);
+    std::lock_guard write(writeMutex_);
+    StateLock lock(*this);
     if (writer_ || failed_) return;  // the header describes the first device
     fbs::TraceHeaderT header;
     header.device = std::make_unique<fbs::DeviceInfoT>();
@@ -179,6 +197,7 @@ class TraceCaptureSink final : public CaptureSink {
     header.capture->snapshot_policy = "inputs+outputs";
     traces::TraceWriterOptions options;
     options.zstd_level = zstdLevel_;
+    options.compressor_nice = kBackgroundNice;
     TraceError error;
     writer_ = TraceWriter::create(path_, header, options, &error);
     if (!writer_) fail(error);
@@ -211,11 +230,11 @@ class TraceCaptureSink final : public CaptureSink {
   // The binding is held back until the application asks for the address (it normally does
   // right after binding), so one BufferBindMemory carries both.
   void bufferBound(const BufferBindingRecord& b) override {
-    std::lock_guard lock(mutex_);
+    StateLock lock(*this);
     pendingBinds_[b.buffer] = b;
   }
   void bufferAddressQueried(const BufferAddressRecord& a) override {
-    std::lock_guard lock(mutex_);
+    StateLock lock(*this);
     auto it = pendingBinds_.find(a.buffer);
     if (it == pendingBinds_.end()) {
       if (addressed_.count(a.buffer)) return;  // asked again: nothing new
@@ -229,7 +248,7 @@ class TraceCaptureSink final : public CaptureSink {
     pendingBinds_.erase(it);
   }
   void bufferDestroyed(uint64_t buffer) override {
-    std::lock_guard lock(mutex_);
+    StateLock lock(*this);
     flushBindsLocked(true);
     addressed_.erase(buffer);
     boundAt_.erase(buffer);
@@ -246,13 +265,14 @@ class TraceCaptureSink final : public CaptureSink {
     append(recordOf(std::move(r)));
   }
   void commandBufferRecorded(const RecordedCommandBuffer& cb) override {
-    std::lock_guard lock(mutex_);
-    recorded_[cb.commandBuffer] = std::make_shared<RecordedCommandBuffer>(cb);
+    auto copy = std::make_shared<RecordedCommandBuffer>(cb);  // outside the lock
+    StateLock lock(*this);
+    recorded_[cb.commandBuffer] = std::move(copy);
   }
   void commandBufferReset(uint64_t) override {}  // each submission restates its command buffers
 
   void queueSubmitted(const SubmissionRecord& s) override {
-    std::lock_guard lock(mutex_);
+    StateLock lock(*this);
     Pending& p = pending_[s.index];
     p.submission = s;
     p.submitted = true;
@@ -274,19 +294,25 @@ class TraceCaptureSink final : public CaptureSink {
   // Hashing and framing the snapshots happen on the sink's thread, not in the pause that
   // delivered them; past kMaxPendingBytes the deliverer does it (bounded memory).
   void clusterBuildCaptured(ClusterBuildCapture c) override {
-    std::lock_guard lock(mutex_);
-    for (const auto* list : {&c.inputs, &c.outputs})
-      for (const CapturedRange& r : *list) pendingBytes_ += r.bytes.size();
-    pending_[c.submissionIndex].builds[{c.pauseId, c.occurrence}] = std::move(c);
-    if (pendingBytes_ > kMaxPendingBytes) emitReadyLocked(false);
-    else wakeEmitter();
+    bool overLimit = false;
+    {
+      StateLock lock(*this);
+      for (const auto* list : {&c.inputs, &c.outputs})
+        for (const CapturedRange& r : *list) pendingBytes_ += r.bytes.size();
+      pending_[c.submissionIndex].builds[{c.pauseId, c.occurrence}] = std::move(c);
+      overLimit = pendingBytes_ > kMaxPendingBytes;
+      if (overLimit) emitReadyLocked(false);
+    }
+    if (!overLimit) return wakeEmitter();
+    std::lock_guard write(writeMutex_);
+    writeOutboxLocked();
   }
   // Host synchronization goes out after the newest submission already announced, as the
   // application made the call after that vkQueueSubmit returned; a submission still waiting
   // for its builds holds it back with it, so the order in the trace is the order of the calls.
   void hostSynchronized(const HostSyncRecord& h) override {
     fbs::RecordT record = hostSyncRecord(h);
-    std::lock_guard lock(mutex_);
+    StateLock lock(*this);
     appendOrderedLocked(std::move(record));
   }
   // Ordered like host synchronization: after the submissions of the frame it ends.
@@ -301,17 +327,53 @@ class TraceCaptureSink final : public CaptureSink {
     append(recordOf(std::move(r)));
   }
   void flush() override {
-    std::lock_guard lock(mutex_);
-    emitReadyLocked(false);
-    flushBindsLocked(false);
+    CostScope cost(CostPhase::DeviceFlush, true);
+    std::lock_guard write(writeMutex_);
+    {
+      StateLock lock(*this);
+      emitReadyLocked(false);
+      flushBindsLocked(false);
+    }
+    writeOutboxLocked();
     if (writer_ && !failed_) check(writer_->flush());
+  }
+  std::vector<std::string> costLines() override {
+    std::vector<std::string> lines;
+    if (emitter_.joinable()) {
+      clockid_t clock;
+      timespec t{};
+      if (pthread_getcpuclockid(emitter_.native_handle(), &clock) == 0 && clock_gettime(clock, &t) == 0) {
+        char line[96];
+        std::snprintf(line, sizeof line, "thread sink emitter CPU ms: %.3f", (t.tv_sec * 1e9 + t.tv_nsec) / 1e6);
+        lines.push_back(line);
+      }
+    }
+    std::lock_guard write(writeMutex_);
+    if (!writer_) return lines;
+    const traces::TraceWriterStats w = writer_->stats();
+    char line[256];
+    std::snprintf(line, sizeof line,
+                  "trace: %llu records, %llu chunks, %llu raw bytes -> %llu compressed (zstd -%d); contents: %llu "
+                  "stored (%llu bytes), %llu deduplicated (%llu bytes)",
+                  (unsigned long long)w.records, (unsigned long long)w.chunks, (unsigned long long)w.raw_bytes,
+                  (unsigned long long)w.compressed_bytes, zstdLevel_, (unsigned long long)w.contents_stored,
+                  (unsigned long long)w.contents_bytes_stored, (unsigned long long)w.contents_deduplicated,
+                  (unsigned long long)w.contents_bytes_deduplicated);
+    lines.push_back(line);
+    std::snprintf(line, sizeof line,
+                  "trace writer ms: contents (hash, dedup, frame) %.3f, compress %.3f, file writes %.3f, compressor "
+                  "CPU %.3f, appends blocked on the compressor %.3f, flushes waiting %.3f",
+                  w.contents_ns / 1e6, w.compress_ns / 1e6, w.file_write_ns / 1e6, w.compressor_cpu_ns / 1e6,
+                  w.append_blocked_ns / 1e6, w.flush_wait_ns / 1e6);
+    lines.push_back(line);
+    return lines;
   }
 
   // An object's create record waits for its NV handle or KHR address (asked right after
   // binding, or right after creation), so one AccelerationStructureCreate carries it; its
   // binding and memory requirements follow it.
   void accelerationStructureCreated(const AccelerationStructureRecord& a) override {
-    std::lock_guard lock(mutex_);
+    StateLock lock(*this);
     auto r = std::make_unique<fbs::AccelerationStructureCreateT>();
     r->acceleration_structure = a.accelerationStructure;
     r->api = a.khr ? 1 : 0;
@@ -341,26 +403,26 @@ class TraceCaptureSink final : public CaptureSink {
     objectRecord(m.accelerationStructure, recordOf(std::move(r)));
   }
   void accelerationStructureAddressQueried(const AccelerationStructureAddressRecord& a) override {
-    std::lock_guard lock(mutex_);
+    StateLock lock(*this);
     auto it = pendingObjects_.find(a.accelerationStructure);
     if (it == pendingObjects_.end() || !it->second.create) return;  // created before capture, or asked again
     it->second.create->device_address = a.address;
     emitObjectLocked(it);
   }
   void accelerationStructureDestroyed(uint64_t as) override {
-    std::lock_guard lock(mutex_);
+    StateLock lock(*this);
     if (auto it = pendingObjects_.find(as); it != pendingObjects_.end()) emitObjectLocked(it);
     fbs::AccelerationStructureDestroyT r;
     r.acceleration_structure = as;
     appendLocked(recordOf(std::move(r)));
   }
   void rayQueryChecked(const RayCheckRecord& c) override {
-    std::lock_guard lock(mutex_);
+    StateLock lock(*this);
     if (auto it = pending_.find(c.submissionIndex); it != pending_.end()) {
       it->second.rayChecks.push_back(c);  // goes out right after its submission
       return;
     }
-    emitRayCheckLocked(c);
+    if (writer_ && !failed_) outbox_.emplace_back(c);
   }
 
  private:
@@ -391,20 +453,20 @@ class TraceCaptureSink final : public CaptureSink {
     return info;
   }
   void objectRecord(uint64_t as, fbs::RecordT record) {
-    std::lock_guard lock(mutex_);
+    StateLock lock(*this);
     auto it = pendingObjects_.find(as);
     if (it != pendingObjects_.end()) it->second.after.push_back(std::move(record));
-    else appendLocked(record);
+    else appendLocked(std::move(record));
   }
   void emitObjectLocked(std::map<uint64_t, PendingObject>::iterator it) {
     if (it->second.create) appendLocked(recordOf(std::move(*it->second.create)));
-    for (const auto& r : it->second.after) appendLocked(r);
+    for (auto& r : it->second.after) appendLocked(std::move(r));
     pendingObjects_.erase(it);
   }
   void flushObjectsLocked() {
     while (!pendingObjects_.empty()) emitObjectLocked(pendingObjects_.begin());
   }
-  void emitRayCheckLocked(const RayCheckRecord& c) {
+  void writeRayCheck(const RayCheckRecord& c) {
     fbs::RayQueryCheckT r;
     r.acceleration_structure = c.accelerationStructure;
     r.device_handle = c.deviceHandle;
@@ -419,7 +481,7 @@ class TraceCaptureSink final : public CaptureSink {
       r.results.emplace_back(h.hit, h.t, h.instanceCustomIndex, h.instanceId, h.primitiveId,
                              h.hit ? h.geometryIndex : 0xFFFFFFFFu, h.hitKind, h.u, h.v);
     r.label = c.label;
-    appendLocked(recordOf(std::move(r)));
+    writeRecord(recordOf(std::move(r)));
   }
 
   struct Pending {
@@ -432,6 +494,7 @@ class TraceCaptureSink final : public CaptureSink {
     std::vector<RayCheckRecord> rayChecks;
   };
   static constexpr uint64_t kMaxPendingBytes = 256ull << 20;
+  static constexpr int kBackgroundNice = 10;  // the sink's and the compressor's threads
 
   static fbs::RecordT hostSyncRecord(const HostSyncRecord& h) {
     using K = HostSyncRecord::Kind;
@@ -536,6 +599,12 @@ class TraceCaptureSink final : public CaptureSink {
   // Emits submissions whose builds all arrived, and every flushMilliseconds_ writes the
   // records so far out as a finished chunk.
   void emitInBackground() {
+    emitterThread = true;
+    // The application's threads (and the served builds' engine) come first: writing the trace
+    // takes the cores they leave idle. Memory stays bounded (kMaxPendingBytes: past it the
+    // pause worker writes itself). Best effort, per thread on Linux.
+    (void)setpriority(PRIO_PROCESS, id_t(gettid()), kBackgroundNice);
+    pthread_setname_np(pthread_self(), "clastrace-sink");  // for profilers and top
     using Clock = std::chrono::steady_clock;
     auto lastFlush = Clock::now();
     const auto interval = std::chrono::milliseconds(flushMilliseconds_ ? flushMilliseconds_ : 3600000);
@@ -546,9 +615,14 @@ class TraceCaptureSink final : public CaptureSink {
       work_ = false;
       wait.unlock();
       {
-        std::lock_guard lock(mutex_);
-        emitReadyLocked(false);
+        std::lock_guard write(writeMutex_);
+        {
+          StateLock lock(*this);
+          emitReadyLocked(false);
+        }
+        writeOutboxLocked();
         if (flushMilliseconds_ && Clock::now() - lastFlush >= interval) {
+          CostScope cost(CostPhase::PeriodicFlush);
           if (writer_ && !failed_ && appendedSinceFlush_) check(writer_->flush());
           appendedSinceFlush_ = false;
           lastFlush = Clock::now();
@@ -568,7 +642,7 @@ class TraceCaptureSink final : public CaptureSink {
     return !error;
   }
   void append(fbs::RecordT record) {
-    std::lock_guard lock(mutex_);
+    StateLock lock(*this);
     appendOrderedLocked(std::move(record));
   }
   // A record of an application call goes after the newest submission announced before it (the
@@ -580,9 +654,13 @@ class TraceCaptureSink final : public CaptureSink {
         it->second.after.push_back(std::move(record));
         return;
       }
-    appendLocked(record);
+    appendLocked(std::move(record));
   }
-  void appendLocked(const fbs::RecordT& record) {
+  // Queues a record for the file (mutex_ held); writeOutboxLocked writes it.
+  void appendLocked(fbs::RecordT record) {
+    if (writer_ && !failed_) outbox_.emplace_back(std::move(record));
+  }
+  void writeRecord(const fbs::RecordT& record) {  // writeMutex_ held
     if (writer_ && !failed_) check(writer_->append(record));
     appendedSinceFlush_ = true;
   }
@@ -618,11 +696,36 @@ class TraceCaptureSink final : public CaptureSink {
       }
       if (!final && p.builds.size() < p.expectedBuilds) return;
       flushBindsLocked(false);
-      emitSubmissionLocked(p);
-      for (const auto& [key, build] : p.builds)
-        for (const auto* list : {&build.inputs, &build.outputs})
-          for (const CapturedRange& r : *list) pendingBytes_ -= std::min<uint64_t>(pendingBytes_, r.bytes.size());
+      if (writer_ && !failed_) outbox_.emplace_back(std::move(p));
       pending_.erase(it);
+    }
+  }
+
+  // Writes what the outbox holds, in order, until it stays empty; writeMutex_ held, mutex_ not.
+  void writeOutboxLocked() {
+    for (;;) {
+      std::deque<OutItem> items;
+      {
+        StateLock lock(*this);
+        items.swap(outbox_);
+      }
+      if (items.empty()) return;
+      uint64_t written = 0;
+      for (OutItem& item : items) {
+        if (auto* record = std::get_if<fbs::RecordT>(&item)) {
+          writeRecord(*record);
+        } else if (auto* p = std::get_if<Pending>(&item)) {
+          writeSubmission(*p);
+          for (const auto& [key, build] : p->builds)
+            for (const auto* list : {&build.inputs, &build.outputs})
+              for (const CapturedRange& r : *list) written += r.bytes.size();
+        } else {
+          writeRayCheck(std::get<RayCheckRecord>(item));
+        }
+      }
+      items.clear();  // frees the captured bytes before the count says they are gone
+      StateLock lock(*this);
+      pendingBytes_ -= std::min(pendingBytes_, written);
     }
   }
 
@@ -631,40 +734,39 @@ class TraceCaptureSink final : public CaptureSink {
   // incompressible 8-byte key) per cluster's vertex or index range. Ranges named only by
   // buffer and offset, or in no known buffer, stay as they are.
   void snapshots(const std::vector<CapturedRange>& ranges, std::vector<fbs::MemorySnapshot>& out) {
+    CostScope cost(CostPhase::Snapshot);
     std::vector<const CapturedRange*> order;
     for (const auto& r : ranges) order.push_back(&r);
     std::stable_sort(order.begin(), order.end(), [](const CapturedRange* a, const CapturedRange* b) {
       return std::tie(a->buffer, a->address) < std::tie(b->buffer, b->address);
     });
-    std::vector<uint8_t> run;
+    std::vector<traces::ContentPiece> pieces;
     for (size_t i = 0; i < order.size();) {
       const CapturedRange& first = *order[i];
       const bool mergeable = first.address != 0 && first.buffer != 0;
       uint64_t end = first.address + first.bytes.size();
       size_t next = i + 1;
+      pieces.assign(1, {first.bytes.data(), first.bytes.size()});
       if (mergeable) {
-        run.assign(first.bytes.begin(), first.bytes.end());
         for (; next < order.size() && order[next]->buffer == first.buffer && order[next]->address != 0 &&
                order[next]->address <= end;
              ++next) {
           const CapturedRange& r = *order[next];
           const uint64_t rEnd = r.address + r.bytes.size();
-          if (rEnd > end) run.insert(run.end(), r.bytes.end() - (rEnd - end), r.bytes.end());
+          if (rEnd > end) pieces.push_back({r.bytes.data() + (r.bytes.size() - (rEnd - end)), size_t(rEnd - end)});
           end = std::max(end, rEnd);
         }
       }
-      const bool merged = next > i + 1;
-      const uint8_t* bytes = merged ? run.data() : first.bytes.data();
-      const size_t size = merged ? run.size() : first.bytes.size();
       fbs::MemorySnapshot snap;
       if (!writer_ || failed_) return;
-      if (!check(writer_->snapshot(first.buffer, first.bufferOffset, first.address, bytes, size, &snap))) return;
+      if (!check(writer_->snapshot(first.buffer, first.bufferOffset, first.address, pieces, &snap))) return;
       out.push_back(snap);
       i = next;
     }
   }
 
-  void emitSubmissionLocked(Pending& p) {
+  void writeSubmission(Pending& p) {
+    CostScope cost(CostPhase::Emit, true);
     std::map<uint64_t, uint32_t> executions;  // pauseId -> executions emitted (simultaneous use)
     std::vector<fbs::CaptureFindingT> findings;
     for (const auto& cb : p.commandBuffers) {
@@ -672,7 +774,7 @@ class TraceCaptureSink final : public CaptureSink {
       begin.command_buffer = cb->commandBuffer;
       begin.flags = cb->usage;
       begin.level = cb->secondary ? 1 : 0;
-      appendLocked(recordOf(std::move(begin)));
+      writeRecord(recordOf(std::move(begin)));
       const ClusterBuildCapture* timestamps = nullptr;  // this execution's ticks
       if (const uint64_t readPauseId = timestampReadOf(*cb)) {
         auto it = p.builds.find({readPauseId, executions[readPauseId]++});
@@ -690,7 +792,7 @@ class TraceCaptureSink final : public CaptureSink {
             r.ticks = timestamps->timestampTicks[t->query];
             r.ticks_valid = timestamps->timestampValid[t->query];
           }
-          appendLocked(recordOf(std::move(r)));
+          writeRecord(recordOf(std::move(r)));
           continue;
         }
         const ClusterBuildCapture* captured = nullptr;
@@ -711,11 +813,11 @@ class TraceCaptureSink final : public CaptureSink {
                       "its memory was not captured";
           findings.push_back(std::move(f));
         }
-        emitCommandLocked(cb->commandBuffer, command, captured);
+        writeCommand(cb->commandBuffer, command, captured);
       }
       fbs::CommandBufferEndT end;
       end.command_buffer = cb->commandBuffer;
-      appendLocked(recordOf(std::move(end)));
+      writeRecord(recordOf(std::move(end)));
     }
     if (!writer_ || failed_) return;
     fbs::QueueSubmitT submit;
@@ -735,16 +837,16 @@ class TraceCaptureSink final : public CaptureSink {
     traceSubmission_[p.submission.index] = submit.submission_index;
     submit.result = VK_SUCCESS;
     const uint64_t submission = submit.submission_index;
-    appendLocked(recordOf(std::move(submit)));
-    for (const RayCheckRecord& c : p.rayChecks) emitRayCheckLocked(c);
+    writeRecord(recordOf(std::move(submit)));
+    for (const RayCheckRecord& c : p.rayChecks) writeRayCheck(c);
     for (fbs::CaptureFindingT& f : findings) {
       f.submission = submission;
-      appendLocked(recordOf(std::move(f)));
+      writeRecord(recordOf(std::move(f)));
     }
-    for (const fbs::RecordT& r : p.after) appendLocked(r);
+    for (const fbs::RecordT& r : p.after) writeRecord(r);
   }
 
-  void emitCommandLocked(uint64_t cb, const RecordedCommand& command, const ClusterBuildCapture* captured) {
+  void writeCommand(uint64_t cb, const RecordedCommand& command, const ClusterBuildCapture* captured) {
     if (const auto* c = std::get_if<BarrierCommand>(&command)) {
       fbs::CmdPipelineBarrierT r;
       r.command_buffer = cb;
@@ -752,7 +854,7 @@ class TraceCaptureSink final : public CaptureSink {
       r.src_stage_mask = c->srcStageMask;
       r.dst_stage_mask = c->dstStageMask;
       r.dependency = dependency(c->dependencyFlags, c->memoryBarriers, c->bufferBarriers, c->imageBarrierCount);
-      appendLocked(recordOf(std::move(r)));
+      writeRecord(recordOf(std::move(r)));
     } else if (const auto* c = std::get_if<EventCommand>(&command)) {
       const uint8_t version = c->synchronization2 ? 2 : 1;
       if (c->kind == EventCommand::Kind::Set) {
@@ -762,14 +864,14 @@ class TraceCaptureSink final : public CaptureSink {
         r.version = version;
         r.stage_mask = c->srcStageMask;
         if (c->synchronization2) r.dependency = dependency(0, c->memoryBarriers, c->bufferBarriers, 0);
-        appendLocked(recordOf(std::move(r)));
+        writeRecord(recordOf(std::move(r)));
       } else if (c->kind == EventCommand::Kind::Reset) {
         fbs::CmdResetEventT r;
         r.command_buffer = cb;
         r.event = c->events.empty() ? 0 : c->events[0];
         r.version = version;
         r.stage_mask = c->srcStageMask;
-        appendLocked(recordOf(std::move(r)));
+        writeRecord(recordOf(std::move(r)));
       } else {
         fbs::CmdWaitEventsT r;
         r.command_buffer = cb;
@@ -779,7 +881,7 @@ class TraceCaptureSink final : public CaptureSink {
         r.dst_stage_mask = c->dstStageMask;
         // The per-event split of v2 dependencies is not kept by the layer: one dependency.
         r.dependencies.push_back(dependency(0, c->memoryBarriers, c->bufferBarriers, 0));
-        appendLocked(recordOf(std::move(r)));
+        writeRecord(recordOf(std::move(r)));
       }
     } else if (const auto* c = std::get_if<CopyBufferCommand>(&command)) {
       fbs::CmdCopyBufferT r;
@@ -788,7 +890,7 @@ class TraceCaptureSink final : public CaptureSink {
       r.src_buffer = c->src;
       r.dst_buffer = c->dst;
       for (const auto& region : c->regions) r.regions.emplace_back(region.srcOffset, region.dstOffset, region.size);
-      appendLocked(recordOf(std::move(r)));
+      writeRecord(recordOf(std::move(r)));
     } else if (const auto* c = std::get_if<FillBufferCommand>(&command)) {
       fbs::CmdFillBufferT r;
       r.command_buffer = cb;
@@ -796,14 +898,14 @@ class TraceCaptureSink final : public CaptureSink {
       r.dst_offset = c->offset;
       r.size = c->size;
       r.data = c->data;
-      appendLocked(recordOf(std::move(r)));
+      writeRecord(recordOf(std::move(r)));
     } else if (const auto* c = std::get_if<UpdateBufferCommand>(&command)) {
       fbs::CmdUpdateBufferT r;
       r.command_buffer = cb;
       r.dst_buffer = c->dst;
       r.dst_offset = c->offset;
       r.data = c->data;
-      appendLocked(recordOf(std::move(r)));
+      writeRecord(recordOf(std::move(r)));
     } else if (const auto* c = std::get_if<DispatchCommand>(&command)) {
       fbs::CmdDispatchT r;
       r.command_buffer = cb;
@@ -816,7 +918,7 @@ class TraceCaptureSink final : public CaptureSink {
       for (const auto& b : c->storageBuffers)
         r.storage_buffers.emplace_back(b.set, b.binding, b.arrayElement, uint32_t(b.type), b.buffer, b.offset, b.range,
                                        b.address);
-      appendLocked(recordOf(std::move(r)));
+      writeRecord(recordOf(std::move(r)));
     } else if (const auto* c = std::get_if<ClusterBuildCommand>(&command)) {
       const auto& i = c->parameters.info;
       fbs::CmdBuildClusterAccelerationStructureIndirectT r;
@@ -833,7 +935,7 @@ class TraceCaptureSink final : public CaptureSink {
         snapshots(captured->inputs, r.inputs);
         snapshots(captured->outputs, r.outputs);
       }
-      appendLocked(recordOf(std::move(r)));
+      writeRecord(recordOf(std::move(r)));
     } else if (const auto* c = std::get_if<BuildAccelerationStructureNVCommand>(&command)) {
       fbs::CmdBuildAccelerationStructureNVT r;
       r.command_buffer = cb;
@@ -862,7 +964,7 @@ class TraceCaptureSink final : public CaptureSink {
       r.scratch = c->scratch;
       r.scratch_offset = c->scratchOffset;
       if (captured) snapshots(captured->inputs, r.inputs);
-      appendLocked(recordOf(std::move(r)));
+      writeRecord(recordOf(std::move(r)));
     } else if (const auto* c = std::get_if<CopyMemoryToAccelerationStructureCommand>(&command)) {
       fbs::CmdCopyMemoryToAccelerationStructureT r;
       r.command_buffer = cb;
@@ -870,11 +972,45 @@ class TraceCaptureSink final : public CaptureSink {
       r.dst = c->dst;
       r.mode = uint32_t(c->mode);
       if (captured) snapshots(captured->inputs, r.inputs);
-      appendLocked(recordOf(std::move(r)));
+      writeRecord(recordOf(std::move(r)));
     }
   }
 
+  // The state lock, timed: the application's threads and the pause worker report their waits
+  // (CLASTRACE_STATS); the sink's own thread does not.
+  class StateLock {
+   public:
+    explicit StateLock(TraceCaptureSink& sink) : lock_(sink.mutex_, std::defer_lock) {
+      if (emitterThread) {
+        lock_.lock();
+        return;
+      }
+      const uint64_t started = wallNs();
+      lock_.lock();
+      locked_ = wallNs();
+      const uint64_t waited = locked_ - started;
+      if (onLayerThread()) {
+        addCost(CostPhase::WorkerSinkWait, waited);
+        locked_ = 0;
+      } else {
+        addCost(CostPhase::AppSinkWait, waited);
+        started_ = started;
+      }
+    }
+    ~StateLock() {
+      if (started_) addCost(CostPhase::AppSinkCall, wallNs() - started_);
+    }
+
+   private:
+    std::unique_lock<std::mutex> lock_;
+    uint64_t locked_ = 0, started_ = 0;
+  };
+  static thread_local bool emitterThread;
+  using OutItem = std::variant<fbs::RecordT, Pending, RayCheckRecord>;
+
   std::mutex mutex_;
+  std::mutex writeMutex_;     // the writer, and what only the writing side touches
+  std::deque<OutItem> outbox_;  // records bound for the file, in trace order (mutex_)
   std::string path_;
   int zstdLevel_;
   std::unique_ptr<TraceWriter> writer_;
@@ -892,8 +1028,10 @@ class TraceCaptureSink final : public CaptureSink {
   std::unordered_map<uint64_t, std::shared_ptr<RecordedCommandBuffer>> recorded_;
   std::map<uint64_t, Pending> pending_;  // by submission index
   std::map<uint64_t, PendingObject> pendingObjects_;  // by acceleration structure
-  std::map<uint64_t, uint64_t> traceSubmission_;     // layer submission index -> trace's
+  std::map<uint64_t, uint64_t> traceSubmission_;     // layer submission index -> trace's (writeMutex_)
 };
+
+thread_local bool TraceCaptureSink::emitterThread = false;
 
 }  // namespace
 

@@ -3,11 +3,15 @@
 #include "file_format.h"
 
 #include <cerrno>
+#include <chrono>
 #include <condition_variable>
+#include <ctime>
 #include <cstring>
 #include <deque>
 #include <fcntl.h>
 #include <mutex>
+#include <pthread.h>
+#include <sys/resource.h>
 #include <sys/uio.h>
 #include <thread>
 #include <unistd.h>
@@ -40,6 +44,28 @@ struct StoredContents {
     XXH128_hash_t fingerprint;
 };
 
+uint64_t now_ns() {
+    return uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                        std::chrono::steady_clock::now().time_since_epoch())
+                        .count());
+}
+
+uint64_t thread_cpu_ns() {
+    timespec t{};
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+    return uint64_t(t.tv_sec) * 1000000000ull + uint64_t(t.tv_nsec);
+}
+
+// Size and fingerprint of stored contents, to find a repeat's key with one hash pass (the key,
+// a seeded XXH3-64 fixed by the format, is computed only for new contents).
+struct Fingerprint {
+    uint64_t low, high, size;
+    bool operator==(const Fingerprint&) const = default;
+};
+struct FingerprintHash {
+    size_t operator()(const Fingerprint& f) const { return static_cast<size_t>(f.low ^ (f.size * 0x9E3779B97F4A7C15ull)); }
+};
+
 struct ContentPlace {
     uint64_t hash;
     uint64_t size;
@@ -65,6 +91,8 @@ struct TraceWriter::Impl {
     uint64_t records = 0;
     flatbuffers::FlatBufferBuilder fbb{1024};
     std::unordered_map<uint64_t, StoredContents> contents;
+    std::unordered_map<Fingerprint, uint64_t, FingerprintHash> keys_by_fingerprint;
+    std::vector<uint8_t> gathered;  // new contents given in pieces, made one string
     std::vector<ContentPlace> content_places;
     TraceWriterStats counters;  // main-thread counters (chunk/bytes come from the worker)
 
@@ -80,6 +108,7 @@ struct TraceWriter::Impl {
     std::vector<fbs::ChunkLocation> chunk_locations;
     uint64_t compressed_bytes = 0;
     uint64_t raw_bytes = 0;
+    uint64_t compress_ns = 0, file_write_ns = 0, compressor_cpu_ns = 0, flush_wait_ns = 0;
     std::thread worker;
 
     TraceError fail_io(const char* what, int err, uint64_t offset) {
@@ -119,7 +148,9 @@ struct TraceWriter::Impl {
                            format::ChunkKind kind, uint32_t chunk_number, uint32_t record_count,
                            uint64_t first_submission, uint64_t offset, uint32_t* compressed_size) {
         compressed.resize(ZSTD_compressBound(size));
+        const uint64_t started = now_ns();
         size_t csize = ZSTD_compressCCtx(cctx, compressed.data(), compressed.size(), data, size, options.zstd_level);
+        const uint64_t compressed_at = now_ns();
         if (ZSTD_isError(csize)) {
             return make_trace_error(TraceErrorCode::io_error, path, offset,
                                     std::string("zstd compression failed: ") + ZSTD_getErrorName(csize));
@@ -136,10 +167,20 @@ struct TraceWriter::Impl {
         h.header_checksum = format::chunk_header_checksum(h);
         iovec parts[2] = {{&h, sizeof h}, {compressed.data(), csize}};
         *compressed_size = static_cast<uint32_t>(csize);
-        return write_all(parts, 2, offset);
+        TraceError e = write_all(parts, 2, offset);
+        std::lock_guard lock(timing_mutex);
+        compress_ns += compressed_at - started;
+        file_write_ns += now_ns() - compressed_at;
+        return e;
     }
+    std::mutex timing_mutex;  // the timing totals above (written by whichever thread compresses)
 
     void worker_main() {
+        if (options.compressor_nice != 0) {
+            // Best effort: without the right to it the thread keeps the caller's priority.
+            (void)::setpriority(PRIO_PROCESS, static_cast<id_t>(::gettid()), options.compressor_nice);
+        }
+        pthread_setname_np(pthread_self(), "clastrace-zstd");  // for profilers and top
         ZSTD_CCtx* cctx = ZSTD_createCCtx();
         std::vector<uint8_t> compressed;
         std::unique_lock lock(mutex);
@@ -161,6 +202,7 @@ struct TraceWriter::Impl {
             }
 
             lock.lock();
+            compressor_cpu_ns = thread_cpu_ns();
             if (!failed && e) error = std::move(e);
             if (!failed && !error) {
                 chunk_locations.push_back(fbs::ChunkLocation(offset, chunk.first_submission, chunk.submission_count,
@@ -198,7 +240,11 @@ struct TraceWriter::Impl {
         chunk_first_submission = submissions;
         ++counters.chunks;
         std::unique_lock lock(mutex);
-        queue_changed.wait(lock, [&] { return queue.size() < options.max_chunks_in_flight || error; });
+        if (queue.size() >= options.max_chunks_in_flight && !error) {
+            const uint64_t started = now_ns();
+            queue_changed.wait(lock, [&] { return queue.size() < options.max_chunks_in_flight || error; });
+            counters.append_blocked_ns += now_ns() - started;
+        }
         if (error) return error;
         queue.push_back(std::move(chunk));
         if (!spare_buffers.empty()) {
@@ -273,7 +319,9 @@ struct TraceWriter::Impl {
         TraceError e = seal_chunk();
         {
             std::unique_lock lock(mutex);
+            const uint64_t started = now_ns();
             queue_changed.wait(lock, [&] { return (queue.empty() && !worker_busy); });
+            flush_wait_ns += now_ns() - started;
             stop = true;
             queue_changed.notify_all();
         }
@@ -395,14 +443,52 @@ std::unique_ptr<TraceWriter> TraceWriter::create(const std::string& path, const 
 }
 
 TraceError TraceWriter::add_contents(const void* bytes, size_t size, uint64_t* hash) {
+    const ContentPiece one{bytes, size};
+    return add_contents(std::span<const ContentPiece>(&one, 1), hash);
+}
+
+TraceError TraceWriter::add_contents(std::span<const ContentPiece> pieces, uint64_t* hash) {
     Impl& w = *impl_;
     if (TraceError e = w.check_usable()) return e;
+    size_t size = 0;
+    for (const ContentPiece& p : pieces) size += p.size;
     if (size > format::kMaxRecordBytes - 128) {
         return make_trace_error(TraceErrorCode::invalid_argument, w.path, 0,
                                 "contents of " + std::to_string(size) +
                                     " bytes exceed the per-record limit; snapshot it in parts");
     }
-    const XXH128_hash_t fingerprint = XXH3_128bits(bytes, size);
+    struct Timed {  // add_contents's time, whichever way it returns
+        uint64_t& total;
+        uint64_t started = now_ns();
+        ~Timed() { total += now_ns() - started; }
+    } timed{w.counters.contents_ns};
+    // A repeat (most snapshots of a frame loop) costs one hash pass over its pieces where they
+    // lie; only new contents are gathered into one string.
+    XXH128_hash_t fingerprint;
+    if (pieces.size() == 1) {
+        fingerprint = XXH3_128bits(pieces[0].bytes, size);
+    } else {
+        XXH3_state_t state;
+        XXH3_128bits_reset(&state);
+        for (const ContentPiece& p : pieces) XXH3_128bits_update(&state, p.bytes, p.size);
+        fingerprint = XXH3_128bits_digest(&state);
+    }
+    const Fingerprint known{fingerprint.low64, fingerprint.high64, size};
+    if (auto repeat = w.keys_by_fingerprint.find(known); repeat != w.keys_by_fingerprint.end()) {
+        ++w.counters.contents_deduplicated;
+        w.counters.contents_bytes_deduplicated += size;
+        *hash = repeat->second;
+        return {};
+    }
+    const void* bytes = pieces.empty() ? nullptr : pieces[0].bytes;
+    if (pieces.size() > 1) {
+        w.gathered.clear();
+        for (const ContentPiece& p : pieces) {
+            const auto* b = static_cast<const uint8_t*>(p.bytes);
+            w.gathered.insert(w.gathered.end(), b, b + p.size);
+        }
+        bytes = w.gathered.data();
+    }
     // Seed 0 gives the key; a different byte string already holding that key (a real
     // collision) moves these bytes to the next seed until a free or matching key is found.
     for (uint64_t seed = 0;; ++seed) {
@@ -434,6 +520,7 @@ TraceError TraceWriter::add_contents(const void* bytes, size_t size, uint64_t* h
             w.contents.erase(it);
             return e;
         }
+        w.keys_by_fingerprint.emplace(known, key);
         w.content_places.push_back({key, size, chunk, raw_offset});
         ++w.counters.contents_stored;
         w.counters.contents_bytes_stored += size;
@@ -446,6 +533,16 @@ TraceError TraceWriter::snapshot(uint64_t buffer, uint64_t offset, uint64_t addr
                                  fbs::MemorySnapshot* out) {
     uint64_t hash = 0;
     if (TraceError e = add_contents(bytes, size, &hash)) return e;
+    *out = fbs::MemorySnapshot(buffer, offset, address, size, hash);
+    return {};
+}
+
+TraceError TraceWriter::snapshot(uint64_t buffer, uint64_t offset, uint64_t address,
+                                 std::span<const ContentPiece> pieces, fbs::MemorySnapshot* out) {
+    uint64_t hash = 0;
+    if (TraceError e = add_contents(pieces, &hash)) return e;
+    uint64_t size = 0;
+    for (const ContentPiece& p : pieces) size += p.size;
     *out = fbs::MemorySnapshot(buffer, offset, address, size, hash);
     return {};
 }
@@ -474,7 +571,9 @@ TraceError TraceWriter::flush() {
     if (TraceError e = w.check_usable()) return e;
     if (TraceError e = w.seal_chunk()) return e;
     std::unique_lock lock(w.mutex);
+    const uint64_t started = now_ns();
     w.queue_changed.wait(lock, [&] { return (w.queue.empty() && !w.worker_busy) || w.error; });
+    w.flush_wait_ns += now_ns() - started;
     return w.error;
 }
 
@@ -488,6 +587,11 @@ TraceWriterStats TraceWriter::stats() const {
     std::lock_guard lock(w.mutex);
     s.raw_bytes = w.raw_bytes;
     s.compressed_bytes = w.compressed_bytes;
+    s.compressor_cpu_ns = w.compressor_cpu_ns;
+    s.flush_wait_ns = w.flush_wait_ns;
+    std::lock_guard timing(w.timing_mutex);
+    s.compress_ns = w.compress_ns;
+    s.file_write_ns = w.file_write_ns;
     return s;
 }
 

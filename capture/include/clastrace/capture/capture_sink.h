@@ -6,6 +6,7 @@
 
 #include <memory>
 #include <string>
+#include <vector>
 
 namespace clastrace::capture {
 
@@ -40,6 +41,8 @@ class CaptureSink {
   virtual void queuePresented(const PresentRecord&) {}
   // Makes everything received so far durable (the application may exit without cleanup).
   virtual void flush() = 0;
+  // Lines for the CLASTRACE_STATS report: what the sink wrote and where its time went.
+  virtual std::vector<std::string> costLines() { return {}; }
 };
 
 // A human-readable dump of every record (JSON, rewritten on each flush): the test suites read

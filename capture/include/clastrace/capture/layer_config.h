@@ -35,6 +35,7 @@ struct LayerConfig {
   uint32_t flushMilliseconds = 1000;  // CLASTRACE_FLUSH_MS: a killed process loses at most this much (0: never)
   bool forceStaging = false;        // CLASTRACE_FORCE_STAGING: treat all memory as not host visible (tests)
   bool timestamps = true;           // CLASTRACE_TIMESTAMPS: GPU timestamps around each captured command
+  bool stats = false;               // CLASTRACE_STATS: where capture's time went, on stderr at vkDestroyDevice
   std::vector<std::string> errors;  // one line per rejected variable; the default is kept
 };
 

@@ -1,7 +1,7 @@
 // Writes a .clt trace: records go into chunks that a background thread compresses and
 // appends, so the caller only pays for building records. Memory is bounded by
-// (max_chunks_in_flight + 1) chunks plus about 100 bytes per distinct content (its key,
-// size, 128-bit fingerprint and place for the index).
+// (max_chunks_in_flight + 1) chunks plus about 150 bytes per distinct content (its key,
+// size, 128-bit fingerprint, the fingerprint's way back to the key, and place for the index).
 //
 // Errors are sticky: once a write fails (disk full, I/O error) every later call and
 // finish() return that error; nothing is lost silently.
@@ -13,6 +13,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <memory>
+#include <span>
 #include <string>
 
 namespace clastrace::traces {
@@ -24,6 +25,10 @@ struct TraceWriterOptions {
     bool sync_on_finish = true;           // fsync before finish() reports success
     // Bits of the content hash kept. 64 for real traces; tests lower it to force collisions.
     unsigned content_hash_bits = 64;
+    // Nice value of the compression thread (Linux: per thread; 0 leaves it as created). A
+    // capture runs it at a lower priority than the application, so compression takes idle
+    // cores rather than the application's.
+    int compressor_nice = 0;
 };
 
 struct TraceWriterStats {
@@ -37,6 +42,18 @@ struct TraceWriterStats {
     uint64_t contents_deduplicated = 0;      // add_contents calls answered by an existing record
     uint64_t contents_bytes_deduplicated = 0;
     uint64_t hash_collisions = 0;      // distinct bytes whose first-choice key was taken
+    // Where the writer's time goes (nanoseconds; wall clock unless named CPU).
+    uint64_t contents_ns = 0;          // add_contents: hashing, dedup lookup, framing new contents
+    uint64_t compress_ns = 0;          // zstd on the compression thread(s)
+    uint64_t file_write_ns = 0;        // writev of compressed chunks
+    uint64_t compressor_cpu_ns = 0;    // CPU time of the compression thread(s)
+    uint64_t append_blocked_ns = 0;    // callers waiting for room in the compression queue
+    uint64_t flush_wait_ns = 0;        // flush()/finish() waiting for the compression thread(s)
+};
+
+struct ContentPiece {  // one part of a content given in pieces
+    const void* bytes;
+    size_t size;
 };
 
 class TraceWriter {
@@ -54,8 +71,14 @@ public:
     // written; later calls with equal bytes only return its key in *hash.
     TraceError add_contents(const void* bytes, size_t size, uint64_t* hash);
 
+    // The same for the concatenation of `pieces` (adjacent ranges read separately): equal bytes
+    // get the same key however they were cut, and a repeat is hashed where it lies, uncopied.
+    TraceError add_contents(std::span<const ContentPiece> pieces, uint64_t* hash);
+
     // add_contents, then describes the snapshot for a command's inputs/outputs.
     TraceError snapshot(uint64_t buffer, uint64_t offset, uint64_t address, const void* bytes, size_t size,
+                        fbs::MemorySnapshot* out);
+    TraceError snapshot(uint64_t buffer, uint64_t offset, uint64_t address, std::span<const ContentPiece> pieces,
                         fbs::MemorySnapshot* out);
 
     // Appends one record. MemoryContents must go through add_contents; a QueueSubmit's

@@ -1,0 +1,176 @@
+// CLASTRACE_STATS=1: the layer's account of where capture's time went, on lavapipe through the
+// loader. The counts it reports must agree with the trace it wrote (records, chunks, stored and
+// deduplicated contents, submissions) and with the frames the application ran.
+#include <clastrace/capture/layer_config.h>
+#include <clastrace/traces/records.h>
+#include <clastrace/traces/trace_reader.h>
+#include <gtest/gtest.h>
+
+#include <unistd.h>
+
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <sstream>
+#include <string>
+#include <vector>
+
+namespace {
+
+namespace fs = std::filesystem;
+using clastrace::fbs::RecordBody;
+
+const char* kLavapipe = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json";
+
+std::string readText(const fs::path& path) {
+  std::ifstream in(path);
+  std::stringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+// The report's lines, without the "clastrace: stats: " prefix.
+std::vector<std::string> statsLines(const std::string& err) {
+  std::vector<std::string> lines;
+  std::istringstream in(err);
+  for (std::string line; std::getline(in, line);)
+    if (line.rfind("clastrace: stats: ", 0) == 0) lines.push_back(line.substr(18));
+  return lines;
+}
+
+// The count column of the phase line named `phase` (-1: no such line).
+long long phaseCount(const std::vector<std::string>& lines, const std::string& phase) {
+  for (const std::string& line : lines)
+    if (line.rfind(phase + " | ", 0) == 0) return std::atoll(line.c_str() + phase.size() + 3);
+  return -1;
+}
+
+struct TraceLine {
+  bool found = false;
+  unsigned long long records = 0, chunks = 0, raw = 0, compressed = 0, stored = 0, storedBytes = 0, deduplicated = 0,
+                     deduplicatedBytes = 0;
+  int level = 0;
+};
+
+TraceLine traceLine(const std::vector<std::string>& lines) {
+  TraceLine t;
+  for (const std::string& line : lines)
+    if (std::sscanf(line.c_str(),
+                    "trace: %llu records, %llu chunks, %llu raw bytes -> %llu compressed (zstd -%d); contents: %llu "
+                    "stored (%llu bytes), %llu deduplicated (%llu bytes)",
+                    &t.records, &t.chunks, &t.raw, &t.compressed, &t.level, &t.stored, &t.storedBytes,
+                    &t.deduplicated, &t.deduplicatedBytes) == 9)
+      t.found = true;
+  return t;
+}
+
+class CaptureCostReport : public ::testing::Test {
+ protected:
+  fs::path dir;
+  static constexpr int kFrames = 5;
+
+  void SetUp() override {
+    if (!fs::exists(kLavapipe)) GTEST_SKIP() << "lavapipe is not installed (scripts/deps.sh installs it)";
+    dir = fs::temp_directory_path() /
+          ("clastrace_cost_" + std::to_string(getpid()) + "_" +
+           ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir);
+    fs::create_directories(dir);
+  }
+  void TearDown() override {
+    if (!HasFailure() && !dir.empty()) fs::remove_all(dir);
+  }
+
+  // Runs the frames app under the layer; returns its stderr.
+  std::string run(const std::map<std::string, std::string>& env) {
+    std::string line = "env -u CLASTRACE_OUTPUT -u CLASTRACE_CAPTURE -u CLASTRACE_STATS -u CLASTRACE_DEBUG_JSON "
+                       "-u CLASTRACE_LOG -u VK_ICD_FILENAMES -u VK_INSTANCE_LAYERS";
+    line += std::string(" VK_DRIVER_FILES=") + kLavapipe + " VK_ADD_LAYER_PATH=" + CLASTRACE_LAYER_MANIFEST_DIR +
+            " VK_INSTANCE_LAYERS=VK_LAYER_CLASTRACE_capture";
+    for (const auto& [k, v] : env) line += " " + k + "=" + v;
+    const fs::path err = dir / "err.txt";
+    line += std::string(" ") + CLASTRACE_FRAMES_APP + " frames " + std::to_string(kFrames) + " --clusters 24 >" +
+            (dir / "out.txt").string() + " 2>" + err.string();
+    EXPECT_EQ(std::system(line.c_str()), 0) << readText(err);
+    return readText(err);
+  }
+};
+
+TEST_F(CaptureCostReport, CountsAgreeWithTheTraceWritten) {
+  const fs::path trace = dir / "out.clt";
+  const std::vector<std::string> lines = statsLines(run({{"CLASTRACE_OUTPUT", trace.string()}, {"CLASTRACE_STATS", "1"}}));
+  ASSERT_FALSE(lines.empty());
+
+  clastrace::traces::TraceError error;
+  auto reader = clastrace::traces::TraceReader::open(trace.string(), &error);
+  ASSERT_TRUE(reader) << error.message;
+  unsigned long long records = 0, submissions = 0, contents = 0, contentBytes = 0, snapshots = 0;
+  clastrace::traces::RecordView view;
+  while (reader->next(&view)) {
+    ++records;
+    if (view.kind == RecordBody::QueueSubmit) ++submissions;
+    if (const auto* c = view.record->body_as_MemoryContents()) {
+      ++contents;
+      contentBytes += c->bytes() ? c->bytes()->size() : 0;
+    }
+    auto lists = clastrace::traces::record_snapshots(*view.record);
+    for (const auto* list : {lists.inputs, lists.outputs})
+      if (list) {
+        snapshots += list->size();
+        // Every range the app's buffers hold is named by its buffer (and so merged with its
+        // neighbours), however late the layer's threads ran.
+        for (const auto* s : *list) EXPECT_NE(s->buffer(), 0u) << "snapshot at 0x" << std::hex << s->address();
+      }
+  }
+  ASSERT_TRUE(reader->damage().empty());
+
+  // Each frame's two served builds stop the queue once each; each submission is emitted once.
+  EXPECT_EQ(phaseCount(lines, "pause held (queue stalled)"), 2 * kFrames);
+  EXPECT_EQ(phaseCount(lines, "worker after release"), 2 * kFrames);
+  EXPECT_EQ(phaseCount(lines, "sink: emitting submissions"), (long long)submissions);
+  EXPECT_GE(submissions, (unsigned long long)kFrames);
+  EXPECT_EQ(phaseCount(lines, "vkDestroyDevice flush"), 1);
+
+  const TraceLine t = traceLine(lines);
+  ASSERT_TRUE(t.found);
+  EXPECT_EQ(t.records, records);
+  EXPECT_EQ(t.chunks, reader->stats().chunks_read);
+  EXPECT_EQ(t.level, 3);
+  EXPECT_EQ(t.stored, contents);
+  EXPECT_EQ(t.storedBytes, contentBytes);
+  // Every snapshot's bytes were either stored or found stored already.
+  EXPECT_EQ(t.stored + t.deduplicated, snapshots);
+  EXPECT_GT(t.deduplicated, 0u);  // the frames repeat most of their geometry
+  EXPECT_GT(t.raw, t.compressed);
+}
+
+TEST_F(CaptureCostReport, ServingOnlyReportsThePausesAndNoTrace) {
+  const std::vector<std::string> lines = statsLines(run({{"CLASTRACE_CAPTURE", "0"}, {"CLASTRACE_STATS", "1"}}));
+  EXPECT_EQ(phaseCount(lines, "pause held (queue stalled)"), 2 * kFrames);
+  EXPECT_EQ(phaseCount(lines, "  engine (served build)"), 2 * kFrames);
+  EXPECT_EQ(phaseCount(lines, "  reading inputs/outputs"), -1);
+  EXPECT_EQ(phaseCount(lines, "sink: emitting submissions"), -1);
+  EXPECT_FALSE(traceLine(lines).found);
+}
+
+TEST_F(CaptureCostReport, NoReportUnlessAsked) {
+  EXPECT_TRUE(statsLines(run({{"CLASTRACE_OUTPUT", (dir / "quiet.clt").string()}})).empty());
+}
+
+TEST(CaptureCostSetting, ParsesAndRejectsByName) {
+  auto parse = [](const char* value) {
+    return clastrace::capture::parseLayerConfig(
+        [value](const char* name) -> const char* { return std::string(name) == "CLASTRACE_STATS" ? value : nullptr; });
+  };
+  EXPECT_FALSE(parse(nullptr).stats);
+  EXPECT_TRUE(parse("1").stats);
+  EXPECT_FALSE(parse("0").stats);
+  const auto bad = parse("sometimes");
+  EXPECT_FALSE(bad.stats);
+  ASSERT_EQ(bad.errors.size(), 1u);
+  EXPECT_NE(bad.errors[0].find("CLASTRACE_STATS='sometimes'"), std::string::npos);
+}
+
+}  // namespace
