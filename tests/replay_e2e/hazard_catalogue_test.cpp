@@ -4,6 +4,7 @@
 // commands, the fields and byte ranges, and a fix whose masks cover the twin's barrier.
 #include <cstring>
 #include "catalogue_scene.h"
+#include "trace_files.h"
 #include "trace_script.h"
 
 #include <clastrace/replay/replayer.hpp>
@@ -36,23 +37,8 @@ constexpr uint64_t kCompute = VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT;
 constexpr uint64_t kTransferWrite = VK_ACCESS_2_TRANSFER_WRITE_BIT;
 constexpr uint64_t kTransferRead = VK_ACCESS_2_TRANSFER_READ_BIT;
 
-std::string temp_path(const std::string& name) {
-    return (std::filesystem::temp_directory_path() / ("hazard_catalogue_" + std::to_string(::getpid()) + "_" + name)).string();
-}
-
-// CLASTRACE_KEEP_TRACES=1 keeps the catalogue's traces (one per rule and twin) in TMPDIR,
-// e.g. to look at them with `clastrace replay`.
-void discard(const std::string& path) {
-    if (!std::getenv("CLASTRACE_KEEP_TRACES")) std::remove(path.c_str());
-}
-
-replay::ReplayReport replay_file(const std::string& path) {
-    traces::TraceError e;
-    auto reader = traces::TraceReader::open(path, &e);
-    EXPECT_TRUE(reader) << e.message;
-    if (!reader) return {};
-    return replay::replay_trace(*reader, path);
-}
+// One trace per case and twin (CLASTRACE_KEEP_TRACES=1 keeps them).
+std::string temp_path(const std::string& name) { return temp_trace_path("hazard_catalogue", name); }
 
 // The command indices the scene gave the two accesses (set while writing).
 struct Commands {
@@ -322,7 +308,7 @@ protected:
             t.finish();
         }
         replay::ReplayReport r = replay_file(path);
-        discard(path);
+        discard_trace(path);
         return r;
     }
 };

@@ -2,6 +2,7 @@
 // stage masks (vkQueueSubmit2), command pool resets, command buffers submitted with nothing
 // recorded.
 #include "catalogue_scene.h"
+#include "trace_files.h"
 #include "trace_script.h"
 
 #include <clastrace/replay/replayer.hpp>
@@ -22,9 +23,7 @@ using namespace clastrace::test::catalogue;
 constexpr uint64_t kBuild = VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR;
 constexpr uint64_t kQueueA = 0x9001, kQueueB = 0x9002, kPool = 0x9900;
 
-std::string temp_path(const std::string& name) {
-    return (std::filesystem::temp_directory_path() / ("queue_model_" + std::to_string(::getpid()) + "_" + name)).string();
-}
+std::string temp_path(const std::string& name) { return temp_trace_path("queue_model", name); }
 
 template <class Scene>
 replay::ReplayReport replay_scene(const std::string& name, Scene scene) {

@@ -5,6 +5,7 @@
 // verbatim at the command and op that broke it; the twin must replay clean.
 // docs/replay.md maps each VUID to its case name here.
 #include "catalogue_scene.h"
+#include "trace_files.h"
 #include "trace_script.h"
 
 #include <clastrace/replay/replayer.hpp>
@@ -26,23 +27,8 @@ using namespace clastrace;
 using namespace clastrace::test;
 using namespace clastrace::test::catalogue;
 
-std::string temp_path(const std::string& name) {
-    return (std::filesystem::temp_directory_path() / ("vuid_catalogue_" + std::to_string(::getpid()) + "_" + name)).string();
-}
-
-// CLASTRACE_KEEP_TRACES=1 keeps the catalogue's traces (one per rule and twin) in TMPDIR,
-// e.g. to look at them with `clastrace replay`.
-void discard(const std::string& path) {
-    if (!std::getenv("CLASTRACE_KEEP_TRACES")) std::remove(path.c_str());
-}
-
-replay::ReplayReport replay_file(const std::string& path) {
-    traces::TraceError e;
-    auto reader = traces::TraceReader::open(path, &e);
-    EXPECT_TRUE(reader) << e.message;
-    if (!reader) return {};
-    return replay::replay_trace(*reader, path);
-}
+// One trace per rule and twin (CLASTRACE_KEEP_TRACES=1 keeps them).
+std::string temp_path(const std::string& name) { return temp_trace_path("vuid_catalogue", name); }
 
 // Where the broken rule must be reported.
 struct Expected {
@@ -462,7 +448,7 @@ protected:
             t.finish();
         }
         replay::ReplayReport r = replay_file(path);
-        discard(path);
+        discard_trace(path);
         return r;
     }
 };
