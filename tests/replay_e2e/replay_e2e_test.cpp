@@ -22,6 +22,7 @@ using test::BuildCall;
 using test::SceneBuffers;
 using test::SceneTrace;
 
+using test::damaged_copy;
 using test::replay_file;
 
 std::string temp_path(const std::string& name) { return test::temp_trace_path("replay_e2e", name); }
@@ -499,12 +500,7 @@ TEST(ReplayE2E, FlippedAndTruncatedTraceFilesNeverCrash) {
     const std::string path = temp_path("flip.clt");
     int damaged = 0;
     for (int round = 0; round < 60; ++round) {
-        std::vector<char> mutant = bytes;
-        if (round % 3 == 2) {
-            mutant.resize(32 + rng() % (mutant.size() - 32));
-        } else {
-            for (int k = 0, n = 1 + int(rng() % 4); k < n; ++k) mutant[rng() % mutant.size()] ^= char(1 << (rng() % 8));
-        }
+        const std::vector<char> mutant = damaged_copy(bytes, round, rng);
         std::ofstream(path, std::ios::binary).write(mutant.data(), std::streamsize(mutant.size()));
         traces::TraceError e;
         auto reader = traces::TraceReader::open(path, &e);
