@@ -3,9 +3,7 @@
 // semaphore, or disjoint range) the report suggests. The report must name the class, both
 // commands, the fields and byte ranges, and a fix whose masks cover the twin's barrier.
 #include <cstring>
-#include "catalogue_scene.h"
-#include "trace_files.h"
-#include "trace_script.h"
+#include "catalogue_replay.h"
 
 #include <clastrace/replay/replayer.hpp>
 #include <clastrace/traces/trace_reader.h>
@@ -291,16 +289,8 @@ const HazardCase kCases[] = {
 class HazardCatalogue : public ::testing::TestWithParam<HazardCase> {
 protected:
     replay::ReplayReport run(bool fixed, Commands* at) {
-        const std::string path = temp_path(std::string(GetParam().name) + (fixed ? "_fixed.clt" : "_broken.clt"));
-        {
-            TraceScript t(path, device());
-            add_buffers(t);
-            GetParam().scene(t, fixed, *at);
-            t.finish();
-        }
-        replay::ReplayReport r = replay_file(path);
-        discard_trace(path);
-        return r;
+        return replay_catalogue_scene(temp_path(std::string(GetParam().name) + (fixed ? "_fixed.clt" : "_broken.clt")),
+                                      [&](TraceScript& t) { GetParam().scene(t, fixed, *at); });
     }
 };
 
@@ -353,21 +343,16 @@ INSTANTIATE_TEST_SUITE_P(Replay, HazardCatalogue, ::testing::ValuesIn(kCases),
 // (the spec allows overlap only without noMoveOverlap).
 TEST(HazardCatalogueMove, MoveOntoItsOwnSourceWithNoMoveOverlapIsReported) {
     for (bool broken : {true, false}) {
-        const std::string path = temp_path(broken ? "move_overlap.clt" : "move_disjoint.clt");
         uint32_t move_command = 0;
-        {
-            TraceScript t(path, device());
-            add_buffers(t);
-            triangle_clusters(Destinations::kExplicit).emit(t);
-            build_barrier(t, kAsRead | kAsWrite);
-            ClusterCommand move = move_clusters(1);
-            move.info.dstImplicitData = broken ? kDst + 128 : kDst2;  // the source is at kDst
-            move.info.scratchData = kScratch2;
-            move_command = move.emit(t);
-            t.finish();
-        }
-        const replay::ReplayReport r = replay_file(path);
-        std::remove(path.c_str());
+        const replay::ReplayReport r =
+            replay_catalogue_scene(temp_path(broken ? "move_overlap.clt" : "move_disjoint.clt"), [&](TraceScript& t) {
+                triangle_clusters(Destinations::kExplicit).emit(t);
+                build_barrier(t, kAsRead | kAsWrite);
+                ClusterCommand move = move_clusters(1);
+                move.info.dstImplicitData = broken ? kDst + 128 : kDst2;  // the source is at kDst
+                move.info.scratchData = kScratch2;
+                move_command = move.emit(t);
+            });
         if (!broken) {
             EXPECT_TRUE(r.clean()) << replay::format_text(r);
             continue;
