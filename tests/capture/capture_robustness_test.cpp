@@ -485,18 +485,13 @@ TEST_F(CaptureRobustness, ForcedStagingCapturesAndServesTheSameBytes) {
 // in one submission, under the Khronos validation layer with synchronization validation,
 // beneath the capture layer so it sees what the driver sees.
 TEST_F(CaptureRobustness, StagingAndSimultaneousUsePassSynchronizationValidation) {
-  if (!fs::exists("/usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json"))
-    GTEST_SKIP() << "vulkan-validationlayers is not installed";
-  std::ofstream(dir / "vk_layer_settings.txt")
-      << "khronos_validation.enables = VK_VALIDATION_FEATURE_ENABLE_SYNCHRONIZATION_VALIDATION_EXT\n"
-         "khronos_validation.report_flags = error,warn\n"
-         "khronos_validation.debug_action = VK_DBG_LAYER_ACTION_LOG_MSG\n";
+  if (!fs::exists(kValidationLayerManifest)) GTEST_SKIP() << "vulkan-validationlayers is not installed";
+  std::map<std::string, std::string> env = synchronizationValidation();
+  env["CLASTRACE_OUTPUT"] = (dir / "v.clt").string();
+  env["CLASTRACE_FORCE_STAGING"] = "1";
+  env["CLASTRACE_LOG"] = "quiet";
   for (const std::string& args : {std::string("frames 3 --clusters 4"), "simultaneous " + quote((dir / "s.json").string())}) {
-    ProcessResult r = finish(start(commandLine(
-        args,
-        {{"CLASTRACE_OUTPUT", (dir / "v.clt").string()}, {"CLASTRACE_FORCE_STAGING", "1"}, {"CLASTRACE_LOG", "quiet"},
-         {"VK_LAYER_SETTINGS_PATH", (dir / "vk_layer_settings.txt").string()}},
-        "", "VK_LAYER_CLASTRACE_capture:VK_LAYER_KHRONOS_validation")));
+    ProcessResult r = finish(start(commandLine(args, env, "", kCaptureOverValidation)));
     ASSERT_EQ(r.exitCode, 0) << args << ": " << r.err;
     const std::string all = r.out + r.err;
     EXPECT_EQ(all.find("VUID-"), std::string::npos) << args << ": " << all;

@@ -517,23 +517,15 @@ TEST_F(LayerProcess, LauncherPassesItsSettingsToTheLayerEnvironment) {
 // The injected barrier/event sequence under the Khronos validation layer with synchronization
 // validation, placed beneath the capture layer so it sees what the driver sees.
 TEST_F(LayerProcess, InjectedPausesPassSynchronizationValidation) {
-  const char* manifest = "/usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json";
-  if (!fs::exists(manifest)) GTEST_SKIP() << "vulkan-validationlayers is not installed";
-  std::ofstream(dir / "vk_layer_settings.txt")
-      << "khronos_validation.enables = VK_VALIDATION_FEATURE_ENABLE_SYNCHRONIZATION_VALIDATION_EXT\n"
-         "khronos_validation.report_flags = error,warn\n"
-         "khronos_validation.debug_action = VK_DBG_LAYER_ACTION_LOG_MSG\n";
+  if (!fs::exists(kValidationLayerManifest)) GTEST_SKIP() << "vulkan-validationlayers is not installed";
+  std::map<std::string, std::string> env = synchronizationValidation();
+  // the engine's own findings name VUIDs too: only the validation layer's messages count here
+  env["CLASTRACE_LOG"] = "quiet";
+  env["CLASTRACE_DEBUG_JSON"] = (dir / "capture.json").string();
   for (const std::string& mode : {"exactness " + (dir / "expected.json").string(), std::string("resubmit 4"),
                                   "dispatch " + (dir / "dispatch.json").string(),
                                   "serve " + (dir / "serve.json").string()}) {
-    ProcessResult r = run(app(mode), {{"VK_ADD_LAYER_PATH", CLASTRACE_LAYER_MANIFEST_DIR},
-                                      {"VK_INSTANCE_LAYERS", "VK_LAYER_CLASTRACE_capture:VK_LAYER_KHRONOS_validation"},
-                                      {"VK_LAYER_SETTINGS_PATH", (dir / "vk_layer_settings.txt").string()},
-                                      // the engine's own findings name VUIDs too: only the
-                                      // validation layer's messages count here
-                                      {"CLASTRACE_LOG", "quiet"},
-                                      {"CLASTRACE_DEBUG_JSON", (dir / "capture.json").string()}},
-                          false);
+    ProcessResult r = run(app(mode), env, false);
     ASSERT_EQ(r.exitCode, 0) << mode << ": " << r.err;
     const std::string all = r.out + r.err;
     EXPECT_EQ(all.find("VUID-"), std::string::npos) << mode << ": " << all;

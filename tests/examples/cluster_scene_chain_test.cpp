@@ -321,19 +321,12 @@ INSTANTIATE_TEST_SUITE_P(Meshes, CleanScene, ::testing::ValuesIn(kMeshes), meshN
 // The sample's own Vulkan use (copies, barriers, fences, two threads) under the Khronos
 // validation layer with synchronization validation, beneath the capture layer.
 TEST_F(ClusterSceneChain, PassesSynchronizationValidation) {
-  const char* manifest = "/usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json";
-  if (!fs::exists(manifest)) GTEST_SKIP() << "vulkan-validationlayers is not installed";
-  std::ofstream(dir / "vk_layer_settings.txt")
-      << "khronos_validation.enables = VK_VALIDATION_FEATURE_ENABLE_SYNCHRONIZATION_VALIDATION_EXT\n"
-         "khronos_validation.report_flags = error,warn\n"
-         "khronos_validation.debug_action = VK_DBG_LAYER_ACTION_LOG_MSG\n";
+  if (!fs::exists(kValidationLayerManifest)) GTEST_SKIP() << "vulkan-validationlayers is not installed";
+  std::map<std::string, std::string> env = synchronizationValidation();
   for (const std::string& args : {std::string(kSubset), std::string(kSubset) + " --threads 2"}) {
     const fs::path trace = dir / "validated.clt";
-    ProcessResult r = run(scene(args), {{"VK_ADD_LAYER_PATH", CLASTRACE_LAYER_MANIFEST_DIR},
-                                        {"VK_INSTANCE_LAYERS", "VK_LAYER_CLASTRACE_capture:VK_LAYER_KHRONOS_validation"},
-                                        {"VK_LAYER_SETTINGS_PATH", (dir / "vk_layer_settings.txt").string()},
-                                        {"CLASTRACE_OUTPUT", trace.string()}},
-                          false);
+    env["CLASTRACE_OUTPUT"] = trace.string();
+    ProcessResult r = run(scene(args), env, false);
     ASSERT_EQ(r.exitCode, 0) << args << ": " << r.err;
     const std::string all = r.out + r.err;
     EXPECT_EQ(all.find("VUID-"), std::string::npos) << args << ": " << all;

@@ -68,6 +68,16 @@ std::string LayerLaunchTest::cleanEnvironment(std::map<std::string, std::string>
   return line;
 }
 
+std::map<std::string, std::string> LayerLaunchTest::synchronizationValidation() const {
+  const fs::path settings = dir / "vk_layer_settings.txt";
+  std::ofstream(settings) << "khronos_validation.enables = VK_VALIDATION_FEATURE_ENABLE_SYNCHRONIZATION_VALIDATION_EXT\n"
+                             "khronos_validation.report_flags = error,warn\n"
+                             "khronos_validation.debug_action = VK_DBG_LAYER_ACTION_LOG_MSG\n";
+  return {{"VK_ADD_LAYER_PATH", CLASTRACE_LAYER_MANIFEST_DIR},
+          {"VK_INSTANCE_LAYERS", kCaptureOverValidation},
+          {"VK_LAYER_SETTINGS_PATH", settings.string()}};
+}
+
 ProcessResult LayerLaunchTest::run(const std::string& command, std::map<std::string, std::string> env, bool withLayer) {
   const fs::path out = dir / "stdout.txt", err = dir / "stderr.txt";
   const std::string line = cleanEnvironment(std::move(env), withLayer ? kCaptureLayer : "") + " timeout 120 " + command +

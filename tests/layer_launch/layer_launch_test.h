@@ -16,6 +16,8 @@ namespace clastrace::layer_launch {
 
 inline constexpr const char* kLavapipeIcd = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json";
 inline constexpr const char* kCaptureLayer = "VK_LAYER_CLASTRACE_capture";
+inline constexpr const char* kValidationLayerManifest = "/usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json";
+inline constexpr const char* kCaptureOverValidation = "VK_LAYER_CLASTRACE_capture:VK_LAYER_KHRONOS_validation";
 
 struct ProcessResult {
   int exitCode = -1;  // -signal when it was killed by one (where the runner can tell)
@@ -44,6 +46,11 @@ class LayerLaunchTest : public ::testing::Test {
   // Runs the shell command `command` (at most 120 s) in that environment; its output goes to
   // dir/stdout.txt and dir/stderr.txt and comes back in the result.
   ProcessResult run(const std::string& command, std::map<std::string, std::string> env, bool withLayer = true);
+  // The Khronos validation layer beneath the capture layer (so it sees what the driver sees),
+  // with synchronization validation and its errors and warnings logged: writes
+  // dir/vk_layer_settings.txt and returns the environment entries that load both layers.
+  // Callers skip the test when kValidationLayerManifest does not exist.
+  std::map<std::string, std::string> synchronizationValidation() const;
 
  private:
   std::string directoryPrefix_;
