@@ -23,17 +23,15 @@
 #include <clastrace/trace_building/trace_header.h>
 #include <clastrace/traces/trace_reader.h>
 
+#include "fresh_process.h"
+
 #include <chrono>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <stdexcept>
 #include <string>
 #include <vector>
-
-#include <sys/wait.h>
-#include <unistd.h>
 
 using namespace clastrace;
 
@@ -44,14 +42,7 @@ namespace tb = trace_building;
 constexpr uint64_t kVertices = 0x10000000, kIndices = 0x10010000, kInfos = 0x20000000, kArrays = 0x30000000,
                    kScratch = 0x38000000, kPool = 0x40000000;
 
-uint64_t status_kib(const char* field) {
-    std::ifstream in("/proc/self/status");
-    std::string line;
-    const std::size_t n = std::strlen(field);
-    while (std::getline(in, line))
-        if (line.compare(0, n, field) == 0) return std::stoull(line.substr(n + 1));
-    return 0;
-}
+using bench::status_kib;
 
 // Writes the trace; returns its size in bytes.
 uint64_t write_trace(const std::string& path, uint64_t ops, uint64_t per_command, uint64_t per_submission,
@@ -217,26 +208,10 @@ struct Measurement {
 
 Measurement measure(const char* self, const char* mode, const std::string& trace, uint32_t rebuilds = 8) {
     Measurement m;
-    int fd[2];
-    if (pipe(fd) != 0) return m;
-    pid_t pid = fork();
-    if (pid == 0) {
-        dup2(fd[1], STDOUT_FILENO);
-        close(fd[0]);
-        const std::string r = std::to_string(rebuilds);
-        execl(self, self, "--one", mode, trace.c_str(), r.c_str(), static_cast<char*>(nullptr));
-        _exit(127);
-    }
-    close(fd[1]);
-    char buf[512] = {};
-    ssize_t got = read(fd[0], buf, sizeof buf - 1);
-    close(fd[0]);
-    int status = 0;
-    waitpid(pid, &status, 0);
-    if (got > 0 && std::sscanf(buf, "%llu %lf %llu %llu %llu %llu %llu %llu %llu %llu %llu %llu %llu", &m.ops, &m.seconds,
-                               &m.hwm, &m.start, &m.objects, &m.bytes, &m.largest_ops, &m.largest_events, &m.held,
-                               &m.hazards, &m.measured, &m.truncated, &m.untruncated) == 13)
-        m.ok = WIFEXITED(status) && WEXITSTATUS(status) == 0;
+    const auto out = bench::run_fresh_process(self, {mode, trace, std::to_string(rebuilds)});
+    m.ok = out && std::sscanf(out->c_str(), "%llu %lf %llu %llu %llu %llu %llu %llu %llu %llu %llu %llu %llu", &m.ops,
+                              &m.seconds, &m.hwm, &m.start, &m.objects, &m.bytes, &m.largest_ops, &m.largest_events,
+                              &m.held, &m.hazards, &m.measured, &m.truncated, &m.untruncated) == 13;
     return m;
 }
 
