@@ -17,6 +17,7 @@
 #include <clastrace/analyze/replay_stream.h>
 #include <clastrace/replay/replayer.hpp>
 #include <clastrace/trace_building/cluster_records.h>
+#include <clastrace/trace_building/cluster_structs.h>
 #include <clastrace/trace_building/command_records.h>
 #include <clastrace/trace_building/engine_mirror.h>
 #include <clastrace/trace_building/record_writer.h>

@@ -3,6 +3,7 @@
 #include <clastrace/engine/build_sizes.h>
 #include <clastrace/engine/properties.h>
 #include <clastrace/trace_building/cluster_records.h>
+#include <clastrace/trace_building/cluster_structs.h>
 #include <clastrace/trace_building/command_records.h>
 #include <clastrace/trace_building/record_writer.h>
 #include <clastrace/trace_building/trace_header.h>

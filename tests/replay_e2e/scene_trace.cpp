@@ -1,6 +1,7 @@
 #include "scene_trace.h"
 
 #include <clastrace/trace_building/cluster_records.h>
+#include <clastrace/trace_building/cluster_structs.h>
 #include <clastrace/trace_building/command_records.h>
 #include <clastrace/trace_building/trace_header.h>
 

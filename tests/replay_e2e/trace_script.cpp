@@ -1,5 +1,6 @@
 #include "trace_script.h"
 
+#include <clastrace/trace_building/cluster_records.h>
 #include <clastrace/trace_building/command_records.h>
 #include <clastrace/trace_building/trace_header.h>
 

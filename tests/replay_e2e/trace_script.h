@@ -4,7 +4,7 @@
 // engine: the replay computes every output itself (no captured outputs are written).
 #pragma once
 
-#include <clastrace/trace_building/cluster_records.h>
+#include <clastrace/trace_building/cluster_structs.h>
 #include <clastrace/trace_building/record_writer.h>
 #include <clastrace/vk_cluster_abi.h>
 
