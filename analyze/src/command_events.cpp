@@ -18,6 +18,19 @@ namespace {
 using engine::ExecutionRecord;
 using engine::MemoryAccess;
 
+bool build_object(engine::ClusterBuilder& builder, const engine::MemoryImage& memory,
+                  const VkClusterAccelerationStructureBuildTriangleClusterInfoNV& info,
+                  const VkClusterAccelerationStructureTriangleClusterInputNV& input, int64_t op_index,
+                  std::vector<std::byte>& out, std::vector<engine::Finding>& findings) {
+  return builder.build_triangle_cluster(memory, info, input, op_index, out, findings);
+}
+bool build_object(engine::ClusterBuilder& builder, const engine::MemoryImage& memory,
+                  const VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV& info,
+                  const VkClusterAccelerationStructureTriangleClusterInputNV& input, int64_t op_index,
+                  std::vector<std::byte>& out, std::vector<engine::Finding>& findings) {
+  return builder.build_triangle_cluster_template(memory, info, input, op_index, out, findings);
+}
+
 // One id per (role, range): a later command using the same bytes in the same role extends
 // that region's lifetime; the same bytes in another role are another region.
 uint64_t region_id(RegionRole role, uint64_t base, uint64_t size) {
@@ -272,22 +285,25 @@ void describe_cluster(const replay::ReplayedCommand& c, const fbs::CmdBuildClust
     o.engine_bytes = op.dst_size;
     if (auto d = captured.at(i)) o.driver_bytes = *d;
     const auto i64 = static_cast<int64_t>(i);
+    // A truncated object is built again at positionTruncateBitCount 0 while the command's
+    // budget lasts, so that what truncation saved is measured, not estimated.
+    auto rebuild_untruncated = [&](auto at_zero) {
+      if (o.truncate_bits == 0 || budget == 0 || !c.memory) return;
+      --budget;
+      at_zero.positionTruncateBitCount = 0;
+      auto in_zero = tri_input;
+      in_zero.minPositionTruncateBitCount = 0;
+      ignored.clear();
+      if (build_object(ctx.builder, *c.memory, at_zero, in_zero, i64, rebuilt, ignored))
+        o.engine_bytes_untruncated = rebuilt.size();
+      ++ctx.rebuilds;
+    };
     if (info.op_type == OpType::build_triangle_cluster) {
       if (auto t = read_info<VkClusterAccelerationStructureBuildTriangleClusterInfoNV>(c.memory, info_address[i])) {
         o.triangles = t->triangleCount;
         o.vertices = t->vertexCount;
         o.truncate_bits = t->positionTruncateBitCount;
-        if (o.truncate_bits > 0 && budget > 0 && c.memory) {
-          --budget;
-          auto at_zero = *t;
-          at_zero.positionTruncateBitCount = 0;
-          auto in_zero = tri_input;
-          in_zero.minPositionTruncateBitCount = 0;
-          ignored.clear();
-          if (ctx.builder.build_triangle_cluster(*c.memory, at_zero, in_zero, i64, rebuilt, ignored))
-            o.engine_bytes_untruncated = rebuilt.size();
-          ++ctx.rebuilds;
-        }
+        rebuild_untruncated(*t);
       }
     } else if (info.op_type == OpType::build_triangle_cluster_template) {
       if (auto t = read_info<VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV>(c.memory, info_address[i])) {
@@ -296,17 +312,7 @@ void describe_cluster(const replay::ReplayedCommand& c, const fbs::CmdBuildClust
         o.truncate_bits = t->positionTruncateBitCount;
         if (op.dst_address && ctx.templates.size() < (1u << 16))
           ctx.templates[op.dst_address] = TemplateShape{t->triangleCount, t->vertexCount, t->positionTruncateBitCount};
-        if (o.truncate_bits > 0 && budget > 0 && c.memory) {
-          --budget;
-          auto at_zero = *t;
-          at_zero.positionTruncateBitCount = 0;
-          auto in_zero = tri_input;
-          in_zero.minPositionTruncateBitCount = 0;
-          ignored.clear();
-          if (ctx.builder.build_triangle_cluster_template(*c.memory, at_zero, in_zero, i64, rebuilt, ignored))
-            o.engine_bytes_untruncated = rebuilt.size();
-          ++ctx.rebuilds;
-        }
+        rebuild_untruncated(*t);
       }
     } else if (info.op_type == OpType::instantiate_triangle_cluster) {
       if (auto t = read_info<VkClusterAccelerationStructureInstantiateClusterInfoNV>(c.memory, info_address[i])) {

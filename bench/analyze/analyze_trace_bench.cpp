@@ -15,65 +15,42 @@
 //   analyze_trace_bench --knob                the untruncated-rebuilds table only
 //   analyze_trace_bench --write TRACE OPS OPS_PER_COMMAND COMMANDS_PER_SUBMISSION
 #include <clastrace/analyze/replay_stream.h>
-#include <clastrace/engine/execute.h>
-#include <clastrace/engine/memory_image.h>
 #include <clastrace/replay/replayer.hpp>
+#include <clastrace/trace_building/cluster_records.h>
+#include <clastrace/trace_building/cluster_structs.h>
+#include <clastrace/trace_building/command_records.h>
+#include <clastrace/trace_building/engine_mirror.h>
+#include <clastrace/trace_building/record_writer.h>
+#include <clastrace/trace_building/trace_header.h>
 #include <clastrace/traces/trace_reader.h>
-#include <clastrace/traces/trace_writer.h>
+
+#include "fresh_process.h"
 
 #include <chrono>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <stdexcept>
 #include <string>
 #include <vector>
-
-#include <sys/wait.h>
-#include <unistd.h>
 
 using namespace clastrace;
 
 namespace {
 
+namespace tb = trace_building;
+
 constexpr uint64_t kVertices = 0x10000000, kIndices = 0x10010000, kInfos = 0x20000000, kArrays = 0x30000000,
                    kScratch = 0x38000000, kPool = 0x40000000;
 
-uint64_t status_kib(const char* field) {
-    std::ifstream in("/proc/self/status");
-    std::string line;
-    const std::size_t n = std::strlen(field);
-    while (std::getline(in, line))
-        if (line.compare(0, n, field) == 0) return std::stoull(line.substr(n + 1));
-    return 0;
-}
-
-template <class T>
-fbs::RecordT record(T body) {
-    fbs::RecordT r;
-    r.body.Set(std::move(body));
-    return r;
-}
-void check(const traces::TraceError& e) {
-    if (e) throw std::runtime_error(e.message);
-}
+using bench::status_kib;
 
 // Writes the trace; returns its size in bytes.
 uint64_t write_trace(const std::string& path, uint64_t ops, uint64_t per_command, uint64_t per_submission,
                      uint32_t truncate_bits = 0) {
-    fbs::TraceHeaderT h;
-    h.device = std::make_unique<fbs::DeviceInfoT>();
-    h.device->name = "bench driver";
-    h.device->driver_name = "NVIDIA";
+    fbs::TraceHeaderT h = tb::trace_header("bench driver", "NVIDIA", "analyze_trace_bench");
     h.device->timestamp_period_ns = 1.0f;
-    h.capture = std::make_unique<fbs::CaptureSettingsT>();
-    h.capture->capture_tool = "analyze_trace_bench";
-    traces::TraceError e;
-    traces::TraceWriterOptions o;
-    o.sync_on_finish = false;
-    auto w = traces::TraceWriter::create(path, h, o, &e);
-    check(e);
+    tb::RecordWriter w(path, h);
 
     // One command's inputs: cluster i is a strip of 1 + i % 8 triangles.
     const auto n = static_cast<uint32_t>(per_command);
@@ -85,158 +62,69 @@ uint64_t write_trace(const std::string& path, uint64_t ops, uint64_t per_command
         for (uint32_t k : {i, i + 1, i + 2}) indices.push_back(k);
     std::vector<VkClusterAccelerationStructureBuildTriangleClusterInfoNV> infos(n);
     for (uint32_t i = 0; i < n; ++i) {
-        auto& info = infos[i];
-        std::memset(&info, 0, sizeof info);
-        info.clusterID = i;
-        info.triangleCount = 1 + i % 8;
-        info.vertexCount = info.triangleCount + 2;
-        info.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
-        info.indexBufferStride = 4;
-        info.vertexBufferStride = 12;
-        info.indexBuffer = kIndices;
-        info.vertexBuffer = kVertices;
-        info.positionTruncateBitCount = truncate_bits;
+        infos[i] = tb::triangle_cluster_info(i, 1 + i % 8, 3 + i % 8, kIndices, 4, kVertices);
+        infos[i].positionTruncateBitCount = truncate_bits;
     }
     const uint64_t pool = per_command * 1024, scratch = per_command * 16;
     const uint64_t usage = VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR |
                            VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
-    engine::MemoryImage mirror;
+    tb::EngineMirror mirror;
     uint64_t handle = 0x100;
     for (auto [address, size] : {std::pair<uint64_t, uint64_t>{kVertices, 4096}, {kIndices, 4096},
                                  {kInfos, n * sizeof infos[0]}, {kArrays, n * 16ull}, {kScratch, scratch}, {kPool, pool}}) {
-        fbs::BufferCreateT c;
-        c.buffer = ++handle;
-        c.size = size;
-        c.usage = usage;
-        check(w->append(record(c)));
-        fbs::BufferBindMemoryT b;
-        b.buffer = handle;
-        b.memory = 1;
-        b.memory_offset = address;
-        b.device_address = address;
-        check(w->append(record(b)));
-        mirror.add_region(address, size, static_cast<VkBufferUsageFlags>(usage), "mirror");
+        w.buffer(++handle, address, size, usage, 1, address);
+        mirror.add_buffer(address, size, usage);
     }
-    VkClusterAccelerationStructureTriangleClusterInputNV tri{};
-    tri.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
-    tri.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
-    tri.maxClusterUniqueGeometryCount = 1;
-    tri.maxClusterTriangleCount = 8;
-    tri.maxClusterVertexCount = 10;
-    tri.maxTotalTriangleCount = n * 8;
-    tri.maxTotalVertexCount = n * 10;
-    VkClusterAccelerationStructureCommandsInfoNV info{};
-    info.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
-    info.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
-    info.input.maxAccelerationStructureCount = n;
-    info.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
-    info.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
-    info.input.opInput.pTriangleClusters = &tri;
+    const auto tri = tb::triangle_cluster_limits(8, 10, n * 8, n * 10);
+    auto info = tb::cluster_commands(tb::cluster_op_input(n, &tri));
     info.dstImplicitData = kPool;
     info.scratchData = kScratch;
     info.dstAddressesArray = {kArrays, 8, n * 8ull};
     info.dstSizesArray = {kArrays + n * 8ull, 4, n * 4ull};
     info.srcInfosArray = {kInfos, sizeof infos[0], n * sizeof infos[0]};
-    auto write = [&](uint64_t address, const void* p, std::size_t size) {
-        std::memcpy(mirror.write_bytes(address, size, {}).data(), p, size);
-    };
-    write(kInfos, infos.data(), n * sizeof infos[0]);
-    write(kVertices, vertices.data(), vertices.size() * 4);
-    write(kIndices, indices.data(), indices.size() * 4);
-    const engine::ExecutionRecord r = engine::execute(info, mirror);
+    mirror.write(kInfos, tb::bytes_of(infos));
+    mirror.write(kVertices, tb::bytes_of(vertices));
+    mirror.write(kIndices, tb::bytes_of(indices));
+    const engine::ExecutionRecord r = mirror.execute(info);
     std::vector<uint64_t> addresses(n);
     std::vector<uint32_t> sizes(n);
     for (uint32_t i = 0; i < n; ++i) {
         addresses[i] = r.ops[i].dst_address;
         sizes[i] = static_cast<uint32_t>(r.ops[i].dst_size);
     }
-    auto input = [&] {
-        auto in = std::make_unique<fbs::ClusterInputInfoT>();
-        in->max_acceleration_structure_count = n;
-        in->op_type = info.input.opType;
-        in->op_mode = info.input.opMode;
-        fbs::TriangleClusterInputT t;
-        t.vertex_format = tri.vertexFormat;
-        t.max_cluster_unique_geometry_count = 1;
-        t.max_cluster_triangle_count = 8;
-        t.max_cluster_vertex_count = 10;
-        t.max_total_triangle_count = tri.maxTotalTriangleCount;
-        t.max_total_vertex_count = tri.maxTotalVertexCount;
-        in->op_input.Set(std::move(t));
-        return in;
-    };
     fbs::GetClusterBuildSizesT q;
-    q.input = input();
+    q.input = tb::cluster_input(info.input);
     q.acceleration_structure_size = pool;
     q.build_scratch_size = scratch;
-    check(w->append(record(std::move(q))));
+    w.append(std::move(q));
 
     const uint64_t commands = std::max<uint64_t>(1, ops / per_command);
     uint64_t cb = 0xc000, ticks = 1000;
     for (uint64_t c = 0; c < commands; ++c) {
-        if (c % per_submission == 0) {
-            fbs::CommandBufferBeginT begin;
-            begin.command_buffer = ++cb;
-            begin.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
-            check(w->append(record(begin)));
-        }
-        fbs::CmdPipelineBarrierT barrier;
-        barrier.command_buffer = cb;
-        barrier.version = 2;
-        barrier.dependency = std::make_unique<fbs::DependencyT>();
+        if (c % per_submission == 0) w.append(tb::command_buffer_begin(++cb, VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT));
         const uint64_t as = VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR | VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR;
-        barrier.dependency->memory_barriers.emplace_back(VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, as,
-                                                         VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, as);
-        check(w->append(record(std::move(barrier))));
+        w.append(tb::memory_barrier(cb, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, as,
+                                    VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, as));
         fbs::GpuTimestampT ts;
         ts.command_buffer = cb;
         ts.ticks = ticks;
         ts.ticks_valid = true;
-        check(w->append(record(ts)));
-        fbs::CmdBuildClusterAccelerationStructureIndirectT b;
-        b.command_buffer = cb;
-        b.input = input();
-        b.dst_implicit_data = kPool;
-        b.scratch_data = kScratch;
-        b.dst_addresses_array = std::make_unique<fbs::StridedDeviceAddressRegion>(kArrays, 8, n * 8ull);
-        b.dst_sizes_array = std::make_unique<fbs::StridedDeviceAddressRegion>(kArrays + n * 8ull, 4, n * 4ull);
-        b.src_infos_array = std::make_unique<fbs::StridedDeviceAddressRegion>(kInfos, sizeof infos[0], n * sizeof infos[0]);
-        fbs::MemorySnapshot snap;
-        check(w->snapshot(0, 0, kInfos, infos.data(), n * sizeof infos[0], &snap));
-        b.inputs.push_back(snap);
-        check(w->snapshot(0, 0, kVertices, vertices.data(), vertices.size() * 4, &snap));
-        b.inputs.push_back(snap);
-        check(w->snapshot(0, 0, kIndices, indices.data(), indices.size() * 4, &snap));
-        b.inputs.push_back(snap);
-        check(w->snapshot(0, 0, kArrays, addresses.data(), n * 8ull, &snap));
-        b.outputs.push_back(snap);
-        check(w->snapshot(0, 0, kArrays + n * 8ull, sizes.data(), n * 4ull, &snap));
-        b.outputs.push_back(snap);
-        check(w->append(record(std::move(b))));
+        w.append(ts);
+        fbs::CmdBuildClusterAccelerationStructureIndirectT b = tb::cluster_build(cb, info);
+        b.inputs = {w.snapshot(kInfos, tb::bytes_of(infos)), w.snapshot(kVertices, tb::bytes_of(vertices)),
+                    w.snapshot(kIndices, tb::bytes_of(indices))};
+        b.outputs = {w.snapshot(kArrays, tb::bytes_of(addresses)), w.snapshot(kArrays + n * 8ull, tb::bytes_of(sizes))};
+        w.append(std::move(b));
         ticks += 20 * per_command;  // 20 ns per op on the "GPU"
         ts.ticks = ticks;
-        check(w->append(record(ts)));
+        w.append(ts);
         ticks += 500;
         if (c % per_submission == per_submission - 1 || c + 1 == commands) {
-            fbs::CommandBufferEndT end;
-            end.command_buffer = cb;
-            check(w->append(record(end)));
-            fbs::QueueSubmitT submit;
-            submit.queue = 0x9001;
-            submit.version = 2;
-            auto batch = std::make_unique<fbs::SubmitBatchT>();
-            batch->command_buffers.push_back(cb);
-            submit.batches.push_back(std::move(batch));
-            submit.fence = 0xfe1;
-            submit.submission_index = w->next_submission_index();
-            check(w->append(record(std::move(submit))));
-            fbs::FenceWaitT wait;
-            wait.fences.push_back(0xfe1);
-            wait.wait_all = true;
-            check(w->append(record(std::move(wait))));
+            w.end_and_submit(0x9001, cb, 0xfe1);
+            w.wait_fence(0xfe1);
         }
     }
-    check(w->finish());
+    w.finish();
     return std::filesystem::file_size(path);
 }
 
@@ -321,26 +209,10 @@ struct Measurement {
 
 Measurement measure(const char* self, const char* mode, const std::string& trace, uint32_t rebuilds = 8) {
     Measurement m;
-    int fd[2];
-    if (pipe(fd) != 0) return m;
-    pid_t pid = fork();
-    if (pid == 0) {
-        dup2(fd[1], STDOUT_FILENO);
-        close(fd[0]);
-        const std::string r = std::to_string(rebuilds);
-        execl(self, self, "--one", mode, trace.c_str(), r.c_str(), static_cast<char*>(nullptr));
-        _exit(127);
-    }
-    close(fd[1]);
-    char buf[512] = {};
-    ssize_t got = read(fd[0], buf, sizeof buf - 1);
-    close(fd[0]);
-    int status = 0;
-    waitpid(pid, &status, 0);
-    if (got > 0 && std::sscanf(buf, "%llu %lf %llu %llu %llu %llu %llu %llu %llu %llu %llu %llu %llu", &m.ops, &m.seconds,
-                               &m.hwm, &m.start, &m.objects, &m.bytes, &m.largest_ops, &m.largest_events, &m.held,
-                               &m.hazards, &m.measured, &m.truncated, &m.untruncated) == 13)
-        m.ok = WIFEXITED(status) && WEXITSTATUS(status) == 0;
+    const auto out = bench::run_fresh_process(self, {mode, trace, std::to_string(rebuilds)});
+    m.ok = out && std::sscanf(out->c_str(), "%llu %lf %llu %llu %llu %llu %llu %llu %llu %llu %llu %llu %llu", &m.ops,
+                              &m.seconds, &m.hwm, &m.start, &m.objects, &m.bytes, &m.largest_ops, &m.largest_events,
+                              &m.held, &m.hazards, &m.measured, &m.truncated, &m.untruncated) == 13;
     return m;
 }
 

@@ -2,10 +2,13 @@
 
 #include <clastrace/engine/build_sizes.h>
 #include <clastrace/engine/properties.h>
-#include <clastrace/traces/trace_writer.h>
-#include <clastrace/vk_cluster_abi.h>
+#include <clastrace/trace_building/cluster_records.h>
+#include <clastrace/trace_building/cluster_structs.h>
+#include <clastrace/trace_building/command_records.h>
+#include <clastrace/trace_building/record_writer.h>
+#include <clastrace/trace_building/trace_header.h>
 
-#include <cstring>
+#include <cstdio>
 #include <random>
 #include <stdexcept>
 #include <vector>
@@ -14,6 +17,9 @@ namespace clastrace::bench {
 
 namespace {
 
+namespace tb = trace_building;
+using tb::record;
+using tb::throw_if_error;
 using Info = VkClusterAccelerationStructureBuildTriangleClusterInfoNV;
 using BlasInfo = VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV;
 
@@ -33,17 +39,6 @@ constexpr uint64_t kAsRead = VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR | V
 constexpr uint64_t kAsWrite = VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR | VK_ACCESS_2_SHADER_WRITE_BIT;
 constexpr uint64_t kBuildReads = kAsRead | VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT;
 
-template <class T>
-fbs::RecordT record(T body) {
-    fbs::RecordT r;
-    r.body.Set(std::move(body));
-    return r;
-}
-
-void check(const traces::TraceError& e) {
-    if (e) throw std::runtime_error(e.message);
-}
-
 uint64_t align_up(uint64_t v, uint64_t a) { return (v + a - 1) / a * a; }
 
 struct ClusterGeometry {
@@ -53,30 +48,8 @@ struct ClusterGeometry {
 
 class Writer {
 public:
-    Writer(const std::string& path, const BenchTraceShape& shape) : shape_(shape), rng_(shape.seed) {
-        fbs::TraceHeaderT h;
-        h.device = std::make_unique<fbs::DeviceInfoT>();
-        h.device->name = "clastrace engine";
-        h.device->driver_name = "clastrace engine";
-        h.device->cluster_properties = std::make_unique<fbs::ClusterPropertiesT>();
-        auto& p = *h.device->cluster_properties;
-        const engine::EngineProperties e = engine::EngineProperties::nvidia_default();
-        p.max_vertices_per_cluster = e.maxVerticesPerCluster;
-        p.max_triangles_per_cluster = e.maxTrianglesPerCluster;
-        p.cluster_scratch_byte_alignment = e.clusterScratchByteAlignment;
-        p.cluster_byte_alignment = e.clusterByteAlignment;
-        p.cluster_template_byte_alignment = e.clusterTemplateByteAlignment;
-        p.cluster_bottom_level_byte_alignment = e.clusterBottomLevelByteAlignment;
-        p.cluster_template_bounds_byte_alignment = e.clusterTemplateBoundsByteAlignment;
-        p.max_cluster_geometry_index = e.maxClusterGeometryIndex;
-        h.capture = std::make_unique<fbs::CaptureSettingsT>();
-        h.capture->capture_tool = "replay_throughput_bench";
-        traces::TraceError error;
-        traces::TraceWriterOptions o;
-        o.sync_on_finish = false;
-        writer_ = traces::TraceWriter::create(path, h, o, &error);
-        check(error);
-    }
+    Writer(const std::string& path, const BenchTraceShape& shape)
+        : shape_(shape), rng_(shape.seed), writer_(path, header()) {}
 
     BenchTraceStats run() {
         make_geometry();
@@ -86,40 +59,34 @@ public:
         for (uint32_t s = 0; s < kSlots; ++s) wait.fences.push_back(kFence0 + s);
         wait.wait_all = true;
         append(record(std::move(wait)));
-        check(writer_->finish());
-        stats_.contents = writer_->stats().contents_stored;
+        stats_.contents = writer_.finish().contents_stored;
         return stats_;
     }
 
 private:
+    static fbs::TraceHeaderT header() {
+        fbs::TraceHeaderT h = tb::trace_header(tb::kEngineDriver, tb::kEngineDriver, "replay_throughput_bench");
+        h.device->cluster_properties = tb::cluster_properties(engine::EngineProperties::nvidia_default());
+        return h;
+    }
+
     // Packed here so the submission's record bytes can be counted exactly.
     void append(const fbs::RecordT& r) {
         flatbuffers::FlatBufferBuilder fbb;
         fbb.Finish(fbs::Record::Pack(fbb, &r));
         submission_bytes_ += fbb.GetSize();
-        check(writer_->append_record_bytes(fbb.GetBufferPointer(), fbb.GetSize()));
+        throw_if_error(writer_.writer().append_record_bytes(fbb.GetBufferPointer(), fbb.GetSize()));
     }
 
     fbs::MemorySnapshot snapshot(uint64_t address, const void* bytes, size_t size) {
-        fbs::MemorySnapshot s;
-        check(writer_->snapshot(0, 0, address, bytes, size, &s));
         submission_bytes_ += size;
-        return s;
+        return writer_.snapshot(address, bytes, size);
     }
 
     uint64_t add_buffer(uint64_t address, uint64_t size, uint64_t usage, uint64_t memory) {
         const uint64_t handle = next_buffer_++;
-        fbs::BufferCreateT c;
-        c.buffer = handle;
-        c.size = size;
-        c.usage = usage;
-        append(record(c));
-        fbs::BufferBindMemoryT b;
-        b.buffer = handle;
-        b.memory = memory;
-        b.memory_offset = address - 0x100000000ull;
-        b.device_address = address;
-        append(record(b));
+        append(record(tb::buffer_create(handle, size, usage)));
+        append(record(tb::buffer_bind(handle, memory, address - 0x100000000ull, address)));
         return handle;
     }
 
@@ -155,13 +122,7 @@ private:
         const uint32_t k = shape_.clusters_per_build;
         const uint32_t per_frame = k * shape_.builds_per_frame;
 
-        tri_.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
-        tri_.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
-        tri_.maxClusterUniqueGeometryCount = 1;
-        tri_.maxClusterTriangleCount = 128;
-        tri_.maxClusterVertexCount = 81;
-        tri_.maxTotalTriangleCount = 128 * k;
-        tri_.maxTotalVertexCount = 81 * k;
+        tri_ = tb::triangle_cluster_limits(128, 81, 128 * k, 81 * k);
         blas_in_.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
         blas_in_.maxTotalClusterCount = per_frame;
         blas_in_.maxClusterCountPerAccelerationStructure = per_frame;
@@ -179,7 +140,7 @@ private:
             align_up(std::max({clas.build_scratch_size, blas.build_scratch_size, move.build_scratch_size}), 256);
         for (const auto& [input, sizes] : {std::pair{clas_input(k), clas}, {blas_input(), blas}, {move_input(k), move}}) {
             fbs::GetClusterBuildSizesT q;
-            q.input = cluster_input(input);
+            q.input = tb::cluster_input(input);
             q.acceleration_structure_size = sizes.acceleration_structure_size;
             q.build_scratch_size = sizes.build_scratch_size;
             append(record(std::move(q)));
@@ -215,87 +176,26 @@ private:
         stream_at_ += align_up(stream_bytes_, 0x100000);
     }
 
-    VkClusterAccelerationStructureInputInfoNV clas_input(uint32_t k) const {
-        VkClusterAccelerationStructureInputInfoNV in{};
-        in.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
-        in.maxAccelerationStructureCount = k;
-        in.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
-        in.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
-        in.opInput.pTriangleClusters = const_cast<VkClusterAccelerationStructureTriangleClusterInputNV*>(&tri_);
-        return in;
-    }
-    VkClusterAccelerationStructureInputInfoNV blas_input() const {
-        VkClusterAccelerationStructureInputInfoNV in{};
-        in.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
-        in.maxAccelerationStructureCount = 1;
-        in.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
-        in.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
-        in.opInput.pClustersBottomLevel = const_cast<VkClusterAccelerationStructureClustersBottomLevelInputNV*>(&blas_in_);
-        return in;
-    }
-    VkClusterAccelerationStructureInputInfoNV move_input(uint32_t k) const {
-        VkClusterAccelerationStructureInputInfoNV in{};
-        in.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
-        in.maxAccelerationStructureCount = k;
-        in.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV;
-        in.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
-        in.opInput.pMoveObjects = const_cast<VkClusterAccelerationStructureMoveObjectsInputNV*>(&move_in_);
-        return in;
-    }
-
-    static std::unique_ptr<fbs::ClusterInputInfoT> cluster_input(const VkClusterAccelerationStructureInputInfoNV& info) {
-        auto in = std::make_unique<fbs::ClusterInputInfoT>();
-        in->max_acceleration_structure_count = info.maxAccelerationStructureCount;
-        in->op_type = info.opType;
-        in->op_mode = info.opMode;
-        if (info.opType == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV) {
-            fbs::ClustersBottomLevelInputT b;
-            b.max_total_cluster_count = info.opInput.pClustersBottomLevel->maxTotalClusterCount;
-            b.max_cluster_count_per_acceleration_structure =
-                info.opInput.pClustersBottomLevel->maxClusterCountPerAccelerationStructure;
-            in->op_input.Set(std::move(b));
-        } else if (info.opType == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV) {
-            fbs::MoveObjectsInputT m;
-            m.type = info.opInput.pMoveObjects->type;
-            m.no_move_overlap = info.opInput.pMoveObjects->noMoveOverlap;
-            m.max_moved_bytes = info.opInput.pMoveObjects->maxMovedBytes;
-            in->op_input.Set(std::move(m));
-        } else {
-            const auto& t = *info.opInput.pTriangleClusters;
-            fbs::TriangleClusterInputT x;
-            x.vertex_format = t.vertexFormat;
-            x.max_cluster_unique_geometry_count = t.maxClusterUniqueGeometryCount;
-            x.max_cluster_triangle_count = t.maxClusterTriangleCount;
-            x.max_cluster_vertex_count = t.maxClusterVertexCount;
-            x.max_total_triangle_count = t.maxTotalTriangleCount;
-            x.max_total_vertex_count = t.maxTotalVertexCount;
-            in->op_input.Set(std::move(x));
-        }
-        return in;
-    }
+    VkClusterAccelerationStructureInputInfoNV clas_input(uint32_t k) const { return tb::cluster_op_input(k, &tri_); }
+    VkClusterAccelerationStructureInputInfoNV blas_input() const { return tb::cluster_op_input(1, &blas_in_); }
+    VkClusterAccelerationStructureInputInfoNV move_input(uint32_t k) const { return tb::cluster_op_input(k, &move_in_); }
 
     void barrier(uint64_t src_stage, uint64_t src_access, uint64_t dst_stage, uint64_t dst_access) {
-        fbs::CmdPipelineBarrierT b;
-        b.command_buffer = command_buffer_;
-        b.version = 2;
-        b.dependency = std::make_unique<fbs::DependencyT>();
-        b.dependency->memory_barriers.emplace_back(src_stage, src_access, dst_stage, dst_access);
-        append(record(std::move(b)));
+        append(record(tb::memory_barrier(command_buffer_, src_stage, src_access, dst_stage, dst_access)));
         ++stats_.ops;
         ++stats_.commands;
     }
 
     void build(const VkClusterAccelerationStructureInputInfoNV& input, uint64_t dst, uint64_t addresses, uint64_t sizes,
                uint64_t infos, uint64_t info_stride, std::vector<fbs::MemorySnapshot> inputs) {
-        fbs::CmdBuildClusterAccelerationStructureIndirectT b;
-        b.command_buffer = command_buffer_;
-        b.input = cluster_input(input);
         const uint64_t n = input.maxAccelerationStructureCount;
-        b.dst_implicit_data = dst;
-        b.scratch_data = scratch_address_;
-        b.dst_addresses_array = std::make_unique<fbs::StridedDeviceAddressRegion>(addresses, 8, n * 8);
-        b.dst_sizes_array = std::make_unique<fbs::StridedDeviceAddressRegion>(sizes, 4, n * 4);
-        b.src_infos_array = std::make_unique<fbs::StridedDeviceAddressRegion>(infos, info_stride, n * info_stride);
+        auto info = tb::cluster_commands(input);
+        info.dstImplicitData = dst;
+        info.scratchData = scratch_address_;
+        info.dstAddressesArray = {addresses, 8, n * 8};
+        info.dstSizesArray = {sizes, 4, n * 4};
+        info.srcInfosArray = {infos, info_stride, n * info_stride};
+        fbs::CmdBuildClusterAccelerationStructureIndirectT b = tb::cluster_build(command_buffer_, info);
         b.inputs = std::move(inputs);
         append(record(std::move(b)));
         stats_.ops += n;
@@ -304,10 +204,7 @@ private:
     }
 
     void wait_fence(uint64_t fence) {
-        fbs::FenceWaitT wait;
-        wait.fences.push_back(fence);
-        wait.wait_all = true;
-        append(record(std::move(wait)));
+        append(record(tb::fence_wait(fence)));
         fbs::FenceResetT reset;
         reset.fences.push_back(fence);
         append(record(std::move(reset)));
@@ -331,9 +228,7 @@ private:
         }
         submission_bytes_ = 0;
         command_buffer_ = kCommandBuffer0 + s;
-        fbs::CommandBufferBeginT begin;
-        begin.command_buffer = command_buffer_;
-        append(record(begin));
+        append(record(tb::command_buffer_begin(command_buffer_)));
 
         // Last frame's builds (same queue) may still use the scratch and this slot's buffers.
         barrier(kBuild | kTransfer, kAsWrite | VK_ACCESS_2_TRANSFER_WRITE_BIT, kBuild | kTransfer,
@@ -346,16 +241,8 @@ private:
         for (uint32_t i = 0; i < per_frame; ++i) {
             picked[i] = pick(rng_);
             const ClusterGeometry& g = geometry_[picked[i]];
-            Info& info = infos[i];
-            std::memset(&info, 0, sizeof info);
-            info.clusterID = uint32_t(frame * per_frame + i) & 0xFFFFFFu;
-            info.triangleCount = g.triangles;
-            info.vertexCount = g.vertices;
-            info.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_8BIT_NV;
-            info.indexBufferStride = 1;
-            info.vertexBufferStride = 12;
-            info.indexBuffer = index_address_ + g.index_offset;
-            info.vertexBuffer = vertex_address_ + g.vertex_offset;
+            infos[i] = tb::triangle_cluster_info(uint32_t(frame * per_frame + i) & 0xFFFFFFu, g.triangles, g.vertices,
+                                                 index_address_ + g.index_offset, 1, vertex_address_ + g.vertex_offset);
         }
         const uint64_t info_bytes = per_frame * sizeof(Info);
         fbs::CmdCopyBufferT copy;
@@ -423,18 +310,8 @@ private:
                   slot.sizes + (per_frame + 1) * 4, slot.addresses, 8, {});
         }
 
-        fbs::CommandBufferEndT end;
-        end.command_buffer = command_buffer_;
-        append(record(end));
-        fbs::QueueSubmitT submit;
-        submit.queue = kQueue;
-        submit.version = 2;
-        auto batch = std::make_unique<fbs::SubmitBatchT>();
-        batch->command_buffers.push_back(command_buffer_);
-        submit.batches.push_back(std::move(batch));
-        submit.fence = kFence0 + s;
-        submit.submission_index = writer_->next_submission_index();
-        append(record(std::move(submit)));
+        append(record(tb::command_buffer_end(command_buffer_)));
+        append(record(tb::queue_submit(kQueue, {command_buffer_}, kFence0 + s, writer_.next_submission_index())));
         ++stats_.submissions;
         stats_.largest_submission_bytes = std::max(stats_.largest_submission_bytes, submission_bytes_);
     }
@@ -446,7 +323,7 @@ private:
 
     BenchTraceShape shape_;
     std::mt19937_64 rng_;
-    std::unique_ptr<traces::TraceWriter> writer_;
+    tb::RecordWriter writer_;
     BenchTraceStats stats_;
     std::vector<float> vertices_;
     std::vector<uint8_t> indices_;

@@ -52,6 +52,27 @@ struct Reporter {
   }
 };
 
+// The cluster template at `address`, read whole by the size its header gives. No header (and
+// kRuleNotATemplate reported) when the address holds something else.
+struct TemplateRead {
+  std::span<const std::byte> bytes;
+  std::optional<ObjectHeader> header;
+};
+TemplateRead read_cluster_template(const MemoryImage& memory, uint64_t address, int64_t op_index, Reporter& r) {
+  const auto head = memory.read_bytes(address, sizeof(ObjectHeader), {"clusterTemplateAddress", op_index});
+  const uint32_t size = object_size_from_header(head);
+  TemplateRead t{memory.read_bytes(address, size ? size : sizeof(ObjectHeader), {"clusterTemplateAddress", op_index}), {}};
+  HeaderCheck hc = read_object_header(t.bytes);
+  if (!hc.header || hc.header->object_type != uint8_t(ObjectType::TriangleClusterTemplate)) {
+    r.add(kRuleNotATemplate,
+          "clusterTemplateAddress holds no cluster template: " + (hc.header ? std::string("object is a CLAS") : hc.error),
+          address);
+    return t;
+  }
+  t.header = hc.header;
+  return t;
+}
+
 // The fields the build and the template info share (same layout up to offset 64).
 struct TriangleInfoView {
   uint32_t clusterID, clusterFlags, triangleCount, vertexCount, positionTruncateBitCount, indexType, opacityMicromapIndexType;
@@ -448,18 +469,10 @@ bool ClusterBuilder::instantiate_triangle_cluster(const MemoryImage& memory,
     r.add("VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-reserved-10509",
           "reserved is " + std::to_string(info.reserved) + ", not 0");
   try {
-    // The template: header first (fixed size), then the whole object by its own size.
-    const auto head = memory.read_bytes(info.clusterTemplateAddress, sizeof(ObjectHeader), {"clusterTemplateAddress", op_index});
-    const uint32_t size = object_size_from_header(head);
-    const auto bytes = memory.read_bytes(info.clusterTemplateAddress, size ? size : sizeof(ObjectHeader),
-                                         {"clusterTemplateAddress", op_index});
-    const HeaderCheck hc = read_object_header(bytes);
-    if (!hc.header || hc.header->object_type != uint8_t(ObjectType::TriangleClusterTemplate)) {
-      r.add(kRuleNotATemplate, "clusterTemplateAddress holds no cluster template: " + (hc.header ? std::string("object is a CLAS") : hc.error),
-            info.clusterTemplateAddress);
-      return false;
-    }
-    const ObjectHeader& h = *hc.header;
+    const TemplateRead tmpl = read_cluster_template(memory, info.clusterTemplateAddress, op_index, r);
+    if (!tmpl.header) return false;
+    const std::span<const std::byte> bytes = tmpl.bytes;
+    const ObjectHeader& h = *tmpl.header;
     const uint32_t T = h.triangle_count, V = h.vertex_count;
     if (uint32_t(input.vertexFormat) != h.vertex_format)
       r.add("VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-vertexBuffer-10508",
@@ -622,17 +635,10 @@ ClusterObject get_cluster_template_indices(const MemoryImage& memory,
   ClusterObject o;
   Reporter r{o.findings, op_index, "VkClusterAccelerationStructureGetTemplateIndicesInfoNV"};
   try {
-    const auto head = memory.read_bytes(info.clusterTemplateAddress, sizeof(ObjectHeader), {"clusterTemplateAddress", op_index});
-    const uint32_t size = object_size_from_header(head);
-    const auto bytes = memory.read_bytes(info.clusterTemplateAddress, size ? size : sizeof(ObjectHeader),
-                                         {"clusterTemplateAddress", op_index});
-    const HeaderCheck hc = read_object_header(bytes);
-    if (!hc.header || hc.header->object_type != uint8_t(ObjectType::TriangleClusterTemplate)) {
-      r.add(kRuleNotATemplate, "clusterTemplateAddress holds no cluster template: " + (hc.header ? std::string("object is a CLAS") : hc.error),
-            info.clusterTemplateAddress);
-      return o;
-    }
-    const ObjectHeader& h = *hc.header;
+    const TemplateRead tmpl = read_cluster_template(memory, info.clusterTemplateAddress, op_index, r);
+    if (!tmpl.header) return o;
+    const std::span<const std::byte> bytes = tmpl.bytes;
+    const ObjectHeader& h = *tmpl.header;
     o.bytes.assign(12 * size_t(h.triangle_count), std::byte{0});
     for (uint32_t i = 0; i < h.triangle_count; ++i) {
       const DecodedTriangle tri = decode_triangle(bytes, h, i);

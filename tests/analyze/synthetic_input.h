@@ -9,6 +9,22 @@
 
 namespace clastrace::analyze::synthetic {
 
+// A vkCmdBuildClusterAccelerationStructureIndirectNV, the `index`-th command of its command buffer.
+inline CommandInfo cluster_command(uint64_t ordinal, uint64_t submission, uint64_t command_buffer, uint32_t index,
+                                   OpType op_type, OpMode op_mode, uint64_t op_count, uint64_t triangles) {
+  CommandInfo c;
+  c.ordinal = ordinal;
+  c.submission = submission;
+  c.command_buffer = command_buffer;
+  c.index = index;
+  c.name = "vkCmdBuildClusterAccelerationStructureIndirectNV";
+  c.op_type = op_type;
+  c.op_mode = op_mode;
+  c.op_count = op_count;
+  c.triangles = triangles;
+  return c;
+}
+
 // Three commands in two submissions:
 //  cmd 0 (sub 0) build_triangle_cluster, implicit, 3 ops: implicit data 10 [0x10000,+5000),
 //        scratch 11 [0x20000,+4096), src_infos 12 [0x30000,+192), dst_addresses 13 [0x31000,+24),
@@ -59,16 +75,7 @@ inline void feed_small_scenario(Analyzer& a) {
   a.on_gpu_span(GpuSpan{0, 1, 2, 4, 120, 1000, 75000});
   a.on_note("a note for people");
 
-  CommandInfo c0;
-  c0.ordinal = 0;
-  c0.submission = 0;
-  c0.command_buffer = 7;
-  c0.index = 0;
-  c0.name = "vkCmdBuildClusterAccelerationStructureIndirectNV";
-  c0.op_type = OpType::build_triangle_cluster;
-  c0.op_mode = OpMode::implicit_destinations;
-  c0.op_count = 3;
-  c0.triangles = 60;
+  CommandInfo c0 = cluster_command(0, 0, 7, 0, OpType::build_triangle_cluster, OpMode::implicit_destinations, 3, 60);
   c0.gpu_ns = 50000;
   c0.replay_ns = 200000;
   a.on_command(c0);
@@ -85,16 +92,7 @@ inline void feed_small_scenario(Analyzer& a) {
   object(1, ObjectType::clas, 0x10400, 1200, 1300, std::nullopt, 20, 24, 0);
   object(2, ObjectType::clas, 0x10900, 1400, 1500, std::nullopt, 30, 36, 4);
 
-  CommandInfo c1;
-  c1.ordinal = 1;
-  c1.submission = 0;
-  c1.command_buffer = 7;
-  c1.index = 1;
-  c1.name = "vkCmdBuildClusterAccelerationStructureIndirectNV";
-  c1.op_type = OpType::build_clusters_bottom_level;
-  c1.op_mode = OpMode::explicit_destinations;
-  c1.op_count = 1;
-  c1.triangles = 60;
+  CommandInfo c1 = cluster_command(1, 0, 7, 1, OpType::build_clusters_bottom_level, OpMode::explicit_destinations, 1, 60);
   c1.gpu_ns = 20000;
   c1.replay_ns = 100000;
   a.on_command(c1);
@@ -107,16 +105,7 @@ inline void feed_small_scenario(Analyzer& a) {
   region(200, "blas 0", 0x40000, 800, RegionRole::object_blas, true);
   object(0, ObjectType::blas, 0x40000, 800, std::nullopt, std::nullopt, 60, 0, 0);
 
-  CommandInfo c2;
-  c2.ordinal = 2;
-  c2.submission = 1;
-  c2.command_buffer = 8;
-  c2.index = 0;
-  c2.name = "vkCmdBuildClusterAccelerationStructureIndirectNV";
-  c2.op_type = OpType::build_triangle_cluster;
-  c2.op_mode = OpMode::implicit_destinations;
-  c2.op_count = 2;
-  c2.triangles = 40;
+  CommandInfo c2 = cluster_command(2, 1, 8, 0, OpType::build_triangle_cluster, OpMode::implicit_destinations, 2, 40);
   c2.replay_ns = 50000;
   a.on_command(c2);
   a.on_build_sizes(BuildSizesInfo{2, 40, 48, 25, 30, 4, 2400, 1024, 0});
@@ -144,16 +133,10 @@ struct StreamShape {
 inline void feed_stream(Analyzer& a, const StreamShape& shape) {
   uint64_t next_region = 1;
   for (uint64_t c = 0; c < shape.commands; ++c) {
-    CommandInfo ci;
-    ci.ordinal = c;
-    ci.submission = c / shape.commands_per_submission;
-    ci.command_buffer = ci.submission;
-    ci.index = static_cast<uint32_t>(c % shape.commands_per_submission);
-    ci.name = "vkCmdBuildClusterAccelerationStructureIndirectNV";
-    ci.op_type = OpType::build_triangle_cluster;
-    ci.op_mode = OpMode::implicit_destinations;
-    ci.op_count = shape.ops_per_command;
-    ci.triangles = shape.ops_per_command * 64;
+    const uint64_t submission = c / shape.commands_per_submission;
+    CommandInfo ci = cluster_command(c, submission, submission, static_cast<uint32_t>(c % shape.commands_per_submission),
+                                     OpType::build_triangle_cluster, OpMode::implicit_destinations,
+                                     shape.ops_per_command, shape.ops_per_command * 64);
     ci.replay_ns = 1000 + (c * 7919) % 5000;
     if (c % 2 == 0) ci.gpu_ns = 500 + (c * 104729) % 3000;
     a.on_command(ci);

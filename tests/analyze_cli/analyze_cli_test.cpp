@@ -2,6 +2,7 @@
 // feeder (analyze_trace) on a trace with a known hazard and on damaged traces.
 #include "analyze_scene.h"
 #include "scene_trace.h"
+#include "trace_files.h"
 
 #include <clastrace/analyze/analyzer.h>
 #include <clastrace/analyze/render.h>
@@ -31,10 +32,9 @@ constexpr uint64_t kBuild = VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT
 constexpr uint64_t kAsWrite = VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR;
 constexpr uint64_t kAsRead = VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR;
 
-std::string temp_path(const std::string& name) {
-    return (std::filesystem::temp_directory_path() / ("analyze_cli_" + std::to_string(::getpid()) + "_" + name))
-        .string();
-}
+using test::damaged_copy;
+
+std::string temp_path(const std::string& name) { return test::temp_trace_path("analyze_cli", name); }
 
 std::string read_file(const std::string& path) {
     std::ifstream in(path, std::ios::binary);
@@ -264,12 +264,7 @@ TEST_P(AnalyzeDamaged, StillFeedValidEvents) {
     const std::string path = temp_path("mutate.clt");
     int replayed = 0;
     for (int round = 0; round < 60; ++round) {
-        std::vector<char> mutant = bytes;
-        if (round % 3 == 2) {
-            mutant.resize(32 + rng() % (mutant.size() - 32));
-        } else {
-            for (int k = 0, n = 1 + int(rng() % 4); k < n; ++k) mutant[rng() % mutant.size()] ^= char(1 << (rng() % 8));
-        }
+        const std::vector<char> mutant = damaged_copy(bytes, round, rng);
         std::ofstream(path, std::ios::binary).write(mutant.data(), std::streamsize(mutant.size()));
         traces::TraceError e;
         auto reader = traces::TraceReader::open(path, &e);

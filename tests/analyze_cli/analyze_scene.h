@@ -4,7 +4,8 @@
 // every byte the report should show.
 #pragma once
 
-#include <clastrace/traces/trace_writer.h>
+#include <clastrace/trace_building/engine_mirror.h>
+#include <clastrace/trace_building/record_writer.h>
 #include <clastrace/vk_cluster_abi.h>
 
 #include <cstdint>
@@ -64,9 +65,8 @@ public:
     traces::TraceWriterStats finish();
 
 private:
-    struct Mirror;
-    std::unique_ptr<Mirror> mirror_;
-    std::unique_ptr<traces::TraceWriter> writer_;
+    trace_building::EngineMirror mirror_;
+    trace_building::RecordWriter writer_;
     uint64_t command_buffer_ = 0xc0de;
     bool nv_declared_ = false, khr_declared_ = false;
     void add_buffer(uint64_t handle, uint64_t address, uint64_t size, uint64_t usage);

@@ -4,6 +4,7 @@
 // data (a safe reuse with a barrier, a WRITE-AFTER-WRITE hazard without), a legacy NV build and
 // a deserialization. Checked in the report, the text, the JSON.
 #include "analyze_scene.h"
+#include "trace_files.h"
 
 #include <clastrace/analyze/render.h>
 #include <clastrace/analyze/replay_stream.h>
@@ -23,10 +24,7 @@ namespace {
 
 using S = test::AnalyzeScene;
 
-std::string temp_path(const std::string& name) {
-    return (std::filesystem::temp_directory_path() / ("analyze_golden_" + std::to_string(::getpid()) + "_" + name))
-        .string();
-}
+std::string temp_path(const std::string& name) { return test::temp_trace_path("analyze_golden", name); }
 
 uint64_t sum(const std::vector<uint64_t>& v) { return std::accumulate(v.begin(), v.end(), uint64_t{0}); }
 

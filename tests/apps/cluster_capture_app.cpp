@@ -11,6 +11,7 @@
 //                          addresses the first build wrote, in one command buffer; OUT.json
 //                          holds every buffer's address and what the builds wrote. Exit 3
 //                          when the device does not offer the extension.
+#include "cluster_test_device.h"
 #include "served_scene.h"
 
 #include <clastrace/vk_cluster_abi.h>
@@ -27,174 +28,11 @@
 
 namespace {
 
-#define CHECK(call)                                                                     \
-  do {                                                                                  \
-    VkResult r_ = (call);                                                               \
-    if (r_ != VK_SUCCESS) {                                                             \
-      std::fprintf(stderr, "cluster_capture_app: %s failed: %d\n", #call, int(r_));     \
-      std::exit(2);                                                                     \
-    }                                                                                   \
-  } while (0)
+using namespace clastrace::testapp;
 
-[[noreturn]] void fail(const char* what) {
-  std::fprintf(stderr, "cluster_capture_app: %s\n", what);
-  std::exit(2);
-}
-
-std::string hex(const void* data, size_t size) {
-  static const char* digits = "0123456789abcdef";
-  std::string text;
-  for (size_t i = 0; i < size; ++i) {
-    uint8_t b = static_cast<const uint8_t*>(data)[i];
-    text.push_back(digits[b >> 4]);
-    text.push_back(digits[b & 15]);
-  }
-  return text;
-}
-
-struct Buffer {
-  VkBuffer buffer = VK_NULL_HANDLE;
-  VkDeviceMemory memory = VK_NULL_HANDLE;
-  VkDeviceAddress address = 0;
-  uint8_t* mapped = nullptr;
-  VkDeviceSize size = 0;
-};
-
-struct Context {
-  VkInstance instance = VK_NULL_HANDLE;
-  VkPhysicalDevice physicalDevice = VK_NULL_HANDLE;
-  VkDevice device = VK_NULL_HANDLE;
-  VkQueue queue = VK_NULL_HANDLE;
-  uint32_t queueFamily = 0;
-  VkCommandPool pool = VK_NULL_HANDLE;
-  PFN_vkCmdBuildClusterAccelerationStructureIndirectNV cmdBuildClusters = nullptr;
-  PFN_vkGetClusterAccelerationStructureBuildSizesNV getBuildSizes = nullptr;
-  std::vector<Buffer> buffers;
-
-  bool hasClusterExtension() const {
-    uint32_t count = 0;
-    vkEnumerateDeviceExtensionProperties(physicalDevice, nullptr, &count, nullptr);
-    std::vector<VkExtensionProperties> all(count);
-    vkEnumerateDeviceExtensionProperties(physicalDevice, nullptr, &count, all.data());
-    for (const auto& e : all)
-      if (std::strcmp(e.extensionName, VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME) == 0)
-        return e.specVersion == VK_NV_CLUSTER_ACCELERATION_STRUCTURE_SPEC_VERSION;
-    return false;
-  }
-
-  void createInstance() {
-    VkApplicationInfo app{VK_STRUCTURE_TYPE_APPLICATION_INFO, nullptr, "cluster_capture_app", 1, nullptr, 0,
-                          VK_API_VERSION_1_3};
-    VkInstanceCreateInfo info{VK_STRUCTURE_TYPE_INSTANCE_CREATE_INFO, nullptr, 0, &app, 0, nullptr, 0, nullptr};
-    CHECK(vkCreateInstance(&info, nullptr, &instance));
-    uint32_t count = 1;
-    VkResult r = vkEnumeratePhysicalDevices(instance, &count, &physicalDevice);
-    if ((r != VK_SUCCESS && r != VK_INCOMPLETE) || count == 0) fail("no physical device");
-  }
-
-  void createDevice() {
-    uint32_t familyCount = 0;
-    vkGetPhysicalDeviceQueueFamilyProperties(physicalDevice, &familyCount, nullptr);
-    std::vector<VkQueueFamilyProperties> families(familyCount);
-    vkGetPhysicalDeviceQueueFamilyProperties(physicalDevice, &familyCount, families.data());
-    for (queueFamily = 0; queueFamily < familyCount; ++queueFamily)
-      if (families[queueFamily].queueFlags & VK_QUEUE_COMPUTE_BIT) break;
-    if (queueFamily == familyCount) fail("no compute queue");
-    const float priority = 1.0f;
-    VkDeviceQueueCreateInfo queueInfo{VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO, nullptr, 0, queueFamily, 1, &priority};
-    VkPhysicalDeviceClusterAccelerationStructureFeaturesNV cluster{
-        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_FEATURES_NV, nullptr, VK_TRUE};
-    VkPhysicalDeviceVulkan12Features v12{};
-    v12.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_2_FEATURES;
-    v12.pNext = &cluster;
-    v12.bufferDeviceAddress = VK_TRUE;
-    const char* extension = VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME;
-    VkDeviceCreateInfo info{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO, &v12, 0, 1, &queueInfo, 0, nullptr, 1, &extension,
-                            nullptr};
-    CHECK(vkCreateDevice(physicalDevice, &info, nullptr, &device));
-    vkGetDeviceQueue(device, queueFamily, 0, &queue);
-    cmdBuildClusters = (PFN_vkCmdBuildClusterAccelerationStructureIndirectNV)vkGetDeviceProcAddr(
-        device, "vkCmdBuildClusterAccelerationStructureIndirectNV");
-    getBuildSizes = (PFN_vkGetClusterAccelerationStructureBuildSizesNV)vkGetDeviceProcAddr(
-        device, "vkGetClusterAccelerationStructureBuildSizesNV");
-    if (!cmdBuildClusters || !getBuildSizes) fail("the cluster entry points are missing");
-    VkCommandPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO, nullptr,
-                                     VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT, queueFamily};
-    CHECK(vkCreateCommandPool(device, &poolInfo, nullptr, &pool));
-  }
-
-  // Host-visible, coherent: the host fills it with a marker the GPU commands must replace.
-  Buffer makeBuffer(VkDeviceSize size, uint8_t hostMarker, VkBufferUsageFlags extraUsage = 0) {
-    Buffer b;
-    b.size = size;
-    VkBufferCreateInfo info{};
-    info.sType = VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO;
-    info.size = size;
-    info.usage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_TRANSFER_SRC_BIT |
-                 VK_BUFFER_USAGE_TRANSFER_DST_BIT | VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | extraUsage;
-    CHECK(vkCreateBuffer(device, &info, nullptr, &b.buffer));
-    VkMemoryRequirements req;
-    vkGetBufferMemoryRequirements(device, b.buffer, &req);
-    VkPhysicalDeviceMemoryProperties props;
-    vkGetPhysicalDeviceMemoryProperties(physicalDevice, &props);
-    const VkMemoryPropertyFlags want = VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT;
-    uint32_t type = 0;
-    for (; type < props.memoryTypeCount; ++type)
-      if ((req.memoryTypeBits & (1u << type)) && (props.memoryTypes[type].propertyFlags & want) == want) break;
-    if (type == props.memoryTypeCount) fail("no host-visible coherent memory");
-    VkMemoryAllocateFlagsInfo flags{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_FLAGS_INFO, nullptr,
-                                    VK_MEMORY_ALLOCATE_DEVICE_ADDRESS_BIT, 0};
-    VkMemoryAllocateInfo alloc{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_INFO, &flags, req.size, type};
-    CHECK(vkAllocateMemory(device, &alloc, nullptr, &b.memory));
-    CHECK(vkBindBufferMemory(device, b.buffer, b.memory, 0));
-    VkBufferDeviceAddressInfo addressInfo{VK_STRUCTURE_TYPE_BUFFER_DEVICE_ADDRESS_INFO, nullptr, b.buffer};
-    b.address = vkGetBufferDeviceAddress(device, &addressInfo);
-    void* mapped = nullptr;
-    CHECK(vkMapMemory(device, b.memory, 0, VK_WHOLE_SIZE, 0, &mapped));
-    b.mapped = static_cast<uint8_t*>(mapped);
-    std::memset(b.mapped, hostMarker, size);
-    buffers.push_back(b);
-    return b;
-  }
-
-  VkCommandBuffer beginCommands() {
-    VkCommandBufferAllocateInfo info{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr, pool,
-                                     VK_COMMAND_BUFFER_LEVEL_PRIMARY, 1};
-    VkCommandBuffer cb;
-    CHECK(vkAllocateCommandBuffers(device, &info, &cb));
-    VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr,
-                                   VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT, nullptr};
-    CHECK(vkBeginCommandBuffer(cb, &begin));
-    return cb;
-  }
-
-  void submitAndWait(VkCommandBuffer cb) {
-    CHECK(vkEndCommandBuffer(cb));
-    VkFenceCreateInfo fenceInfo{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO, nullptr, 0};
-    VkFence fence;
-    CHECK(vkCreateFence(device, &fenceInfo, nullptr, &fence));
-    VkSubmitInfo submit{};
-    submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
-    submit.commandBufferCount = 1;
-    submit.pCommandBuffers = &cb;
-    CHECK(vkQueueSubmit(queue, 1, &submit, fence));
-    CHECK(vkWaitForFences(device, 1, &fence, VK_TRUE, 30ull * 1000 * 1000 * 1000));
-    vkDestroyFence(device, fence, nullptr);
-  }
-
-  ~Context() {
-    if (device) {
-      vkDeviceWaitIdle(device);
-      for (auto& b : buffers) {
-        vkDestroyBuffer(device, b.buffer, nullptr);
-        vkUnmapMemory(device, b.memory);
-        vkFreeMemory(device, b.memory, nullptr);
-      }
-      vkDestroyCommandPool(device, pool, nullptr);
-      vkDestroyDevice(device, nullptr);
-    }
-    if (instance) vkDestroyInstance(instance, nullptr);
-  }
+// Everything it made is destroyed when a mode returns.
+struct Context : ClusterTestDevice {
+  ~Context() { destroy(); }
 };
 
 void transferToBuildBarrier(VkCommandBuffer cb) {
@@ -269,17 +107,17 @@ int exactness(const char* outPath) {
   c.createDevice();
   nlohmann::json out;
 
-  Buffer staging = c.makeBuffer(4096, 0xEE);
-  Buffer infos = c.makeBuffer(4096, 0xEE);
-  Buffer counts = c.makeBuffer(256, 0xEE);
-  Buffer vertices = c.makeBuffer(1024, 0xEE);
-  Buffer indices = c.makeBuffer(256, 0xEE);
-  Buffer geometry = c.makeBuffer(256, 0xEE);
-  Buffer references = c.makeBuffer(256, 0xEE);
-  Buffer dstAddresses = c.makeBuffer(256, 0xEE);
-  Buffer dstSizes = c.makeBuffer(256, 0xEE);
-  Buffer implicitData = c.makeBuffer(1 << 16, 0);
-  Buffer scratch = c.makeBuffer(1 << 16, 0);
+  Buffer staging = c.makeBuffer(4096, 0, 0xEE);
+  Buffer infos = c.makeBuffer(4096, 0, 0xEE);
+  Buffer counts = c.makeBuffer(256, 0, 0xEE);
+  Buffer vertices = c.makeBuffer(1024, 0, 0xEE);
+  Buffer indices = c.makeBuffer(256, 0, 0xEE);
+  Buffer geometry = c.makeBuffer(256, 0, 0xEE);
+  Buffer references = c.makeBuffer(256, 0, 0xEE);
+  Buffer dstAddresses = c.makeBuffer(256, 0, 0xEE);
+  Buffer dstSizes = c.makeBuffer(256, 0, 0xEE);
+  Buffer implicitData = c.makeBuffer(1 << 16, 0, 0);
+  Buffer scratch = c.makeBuffer(1 << 16, 0, 0);
 
   // Cluster 0: a quad, 4 vertices packed (stride 0), 16-bit indices, per-triangle geometry words.
   // Cluster 1: one triangle, 3 vertices 16 bytes apart, 32-bit indices 8 bytes apart.
@@ -418,10 +256,10 @@ int resubmit(int times) {
   Context c;
   c.createInstance();
   c.createDevice();
-  Buffer counts = c.makeBuffer(256, 0);
-  Buffer infos = c.makeBuffer(1024, 0);
-  Buffer vertices = c.makeBuffer(256, 0);
-  Buffer indices = c.makeBuffer(256, 0);
+  Buffer counts = c.makeBuffer(256, 0, 0);
+  Buffer infos = c.makeBuffer(1024, 0, 0);
+  Buffer vertices = c.makeBuffer(256, 0, 0);
+  Buffer indices = c.makeBuffer(256, 0, 0);
   VkClusterAccelerationStructureBuildTriangleClusterInfoNV cluster{};
   cluster.triangleCount = 1;
   cluster.vertexCount = 3;
@@ -476,8 +314,8 @@ int dispatch(const char* outPath) {
   Context c;
   c.createInstance();
   c.createDevice();
-  Buffer a = c.makeBuffer(1024, 0);
-  Buffer b = c.makeBuffer(4096, 0);
+  Buffer a = c.makeBuffer(1024, 0, 0);
+  Buffer b = c.makeBuffer(4096, 0, 0);
   // OpCapability Shader; OpMemoryModel Logical GLSL450; OpEntryPoint GLCompute %1 "main";
   // OpExecutionMode %1 LocalSize 1 1 1; void main() {}
   const uint32_t spirv[] = {0x07230203, 0x00010000, 0, 5, 0,
@@ -554,8 +392,8 @@ int pauseCost(int builds) {
   Context c;
   c.createInstance();
   c.createDevice();
-  Buffer counts = c.makeBuffer(256, 0);  // srcInfosCount 0: the builds execute nothing
-  Buffer infos = c.makeBuffer(256, 0);
+  Buffer counts = c.makeBuffer(256, 0, 0);  // srcInfosCount 0: the builds execute nothing
+  Buffer infos = c.makeBuffer(256, 0, 0);
   VkClusterAccelerationStructureTriangleClusterInputNV triangleInput{};
   triangleInput.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
   triangleInput.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
@@ -606,19 +444,19 @@ int serve(const char* outPath) {
   const VkBufferUsageFlags input = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
   const VkBufferUsageFlags storage = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
   served_scene::Inputs probe = served_scene::makeInputs({});
-  Buffer vertices = c.makeBuffer(probe.vertices.size() * 4, 0xEE, input);
-  Buffer indices = c.makeBuffer(probe.indices.size() * 4, 0xEE, input);
-  Buffer infos = c.makeBuffer(served_scene::kInfoStride * served_scene::kMaxClusters, 0xEE, input);
-  Buffer counts = c.makeBuffer(8, 0xEE, input);
-  Buffer dstAddresses = c.makeBuffer(8 * served_scene::kMaxClusters, 0xEE, storage | input);
-  Buffer dstSizes = c.makeBuffer(4 * served_scene::kMaxClusters, 0xEE, storage);
-  Buffer implicitData = c.makeBuffer(clusterSizes.accelerationStructureSize, 0xEE, storage);
-  Buffer scratch = c.makeBuffer(clusterSizes.buildScratchSize, 0xEE, 0);
-  Buffer blasInfos = c.makeBuffer(sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV), 0xEE, input);
-  Buffer blasDstAddresses = c.makeBuffer(8, 0xEE, storage);
-  Buffer blasDstSizes = c.makeBuffer(4, 0xEE, storage);
-  Buffer blasImplicit = c.makeBuffer(blasSizes.accelerationStructureSize, 0xEE, storage);
-  Buffer blasScratch = c.makeBuffer(blasSizes.buildScratchSize, 0xEE, 0);
+  Buffer vertices = c.makeBuffer(probe.vertices.size() * 4, input, 0xEE);
+  Buffer indices = c.makeBuffer(probe.indices.size() * 4, input, 0xEE);
+  Buffer infos = c.makeBuffer(served_scene::kInfoStride * served_scene::kMaxClusters, input, 0xEE);
+  Buffer counts = c.makeBuffer(8, input, 0xEE);
+  Buffer dstAddresses = c.makeBuffer(8 * served_scene::kMaxClusters, storage | input, 0xEE);
+  Buffer dstSizes = c.makeBuffer(4 * served_scene::kMaxClusters, storage, 0xEE);
+  Buffer implicitData = c.makeBuffer(clusterSizes.accelerationStructureSize, storage, 0xEE);
+  Buffer scratch = c.makeBuffer(clusterSizes.buildScratchSize, 0, 0xEE);
+  Buffer blasInfos = c.makeBuffer(sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV), input, 0xEE);
+  Buffer blasDstAddresses = c.makeBuffer(8, storage, 0xEE);
+  Buffer blasDstSizes = c.makeBuffer(4, storage, 0xEE);
+  Buffer blasImplicit = c.makeBuffer(blasSizes.accelerationStructureSize, storage, 0xEE);
+  Buffer blasScratch = c.makeBuffer(blasSizes.buildScratchSize, 0, 0xEE);
 
   served_scene::Addresses a{vertices.address, indices.address, infos.address, counts.address,
                             dstAddresses.address, dstSizes.address, implicitData.address, scratch.address,

@@ -18,7 +18,7 @@
 //
 // Prints "frames=N loop_ms=T loop_cpu_ms=C" on success: the frame loop's wall time, and the CPU
 // time of all the process's threads (driver and layer included) during it.
-#include <clastrace/vk_cluster_abi.h>
+#include "cluster_test_device.h"
 
 #include <chrono>
 #include <sys/resource.h>
@@ -34,116 +34,14 @@
 
 namespace {
 
-#define CHECK(call)                                                                 \
-  do {                                                                              \
-    VkResult r_ = (call);                                                           \
-    if (r_ != VK_SUCCESS) {                                                         \
-      std::fprintf(stderr, "capture_frames_app: %s failed: %d\n", #call, int(r_)); \
-      std::exit(2);                                                                 \
-    }                                                                               \
-  } while (0)
+using namespace clastrace::testapp;
 
-[[noreturn]] void fail(const char* what) {
-  std::fprintf(stderr, "capture_frames_app: %s\n", what);
-  std::exit(2);
-}
-
-std::string hex(const uint8_t* data, size_t size) {
-  std::string text;
-  for (size_t i = 0; i < size; ++i) {
-    text.push_back("0123456789abcdef"[data[i] >> 4]);
-    text.push_back("0123456789abcdef"[data[i] & 15]);
-  }
-  return text;
-}
-
-struct Buffer {
-  VkBuffer buffer = VK_NULL_HANDLE;
-  VkDeviceMemory memory = VK_NULL_HANDLE;
-  VkDeviceAddress address = 0;
-  uint8_t* mapped = nullptr;
-  VkDeviceSize size = 0;
-};
-
-struct Context {
-  VkInstance instance = VK_NULL_HANDLE;
-  VkPhysicalDevice physicalDevice = VK_NULL_HANDLE;
-  VkDevice device = VK_NULL_HANDLE;
-  VkQueue queue = VK_NULL_HANDLE;
-  VkCommandPool pool = VK_NULL_HANDLE;
-  PFN_vkCmdBuildClusterAccelerationStructureIndirectNV cmdBuildClusters = nullptr;
-  PFN_vkGetClusterAccelerationStructureBuildSizesNV getBuildSizes = nullptr;
-
+// Timeline semaphores on (the frame loop signals and waits on one). Each mode tears down
+// itself; the exit/abort/stop modes leave on purpose without doing so.
+struct Context : ClusterTestDevice {
   Context() {
-    VkApplicationInfo app{VK_STRUCTURE_TYPE_APPLICATION_INFO, nullptr, "capture_frames_app", 1, nullptr, 0,
-                          VK_API_VERSION_1_3};
-    VkInstanceCreateInfo info{VK_STRUCTURE_TYPE_INSTANCE_CREATE_INFO, nullptr, 0, &app, 0, nullptr, 0, nullptr};
-    CHECK(vkCreateInstance(&info, nullptr, &instance));
-    uint32_t count = 1;
-    VkResult r = vkEnumeratePhysicalDevices(instance, &count, &physicalDevice);
-    if ((r != VK_SUCCESS && r != VK_INCOMPLETE) || count == 0) fail("no physical device");
-    uint32_t familyCount = 0;
-    vkGetPhysicalDeviceQueueFamilyProperties(physicalDevice, &familyCount, nullptr);
-    std::vector<VkQueueFamilyProperties> families(familyCount);
-    vkGetPhysicalDeviceQueueFamilyProperties(physicalDevice, &familyCount, families.data());
-    uint32_t family = 0;
-    while (family < familyCount && !(families[family].queueFlags & VK_QUEUE_COMPUTE_BIT)) ++family;
-    if (family == familyCount) fail("no compute queue");
-    const float priority = 1.0f;
-    VkDeviceQueueCreateInfo queueInfo{VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO, nullptr, 0, family, 1, &priority};
-    VkPhysicalDeviceClusterAccelerationStructureFeaturesNV cluster{
-        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_FEATURES_NV, nullptr, VK_TRUE};
-    VkPhysicalDeviceVulkan12Features v12{};
-    v12.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_2_FEATURES;
-    v12.pNext = &cluster;
-    v12.bufferDeviceAddress = VK_TRUE;
-    v12.timelineSemaphore = VK_TRUE;
-    const char* extension = VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME;
-    VkDeviceCreateInfo deviceInfo{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO, &v12, 0, 1, &queueInfo, 0, nullptr, 1,
-                                  &extension, nullptr};
-    CHECK(vkCreateDevice(physicalDevice, &deviceInfo, nullptr, &device));
-    vkGetDeviceQueue(device, family, 0, &queue);
-    cmdBuildClusters = (PFN_vkCmdBuildClusterAccelerationStructureIndirectNV)vkGetDeviceProcAddr(
-        device, "vkCmdBuildClusterAccelerationStructureIndirectNV");
-    getBuildSizes = (PFN_vkGetClusterAccelerationStructureBuildSizesNV)vkGetDeviceProcAddr(
-        device, "vkGetClusterAccelerationStructureBuildSizesNV");
-    if (!cmdBuildClusters || !getBuildSizes) fail("the cluster entry points are missing");
-    VkCommandPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO, nullptr,
-                                     VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT, family};
-    CHECK(vkCreateCommandPool(device, &poolInfo, nullptr, &pool));
-  }
-
-  Buffer makeBuffer(VkDeviceSize size, VkBufferUsageFlags usage) {
-    Buffer b;
-    b.size = size;
-    VkBufferCreateInfo info{};
-    info.sType = VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO;
-    info.size = size;
-    info.usage = usage | VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_TRANSFER_SRC_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT |
-                 VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT;
-    CHECK(vkCreateBuffer(device, &info, nullptr, &b.buffer));
-    VkMemoryRequirements req;
-    vkGetBufferMemoryRequirements(device, b.buffer, &req);
-    VkPhysicalDeviceMemoryProperties props;
-    vkGetPhysicalDeviceMemoryProperties(physicalDevice, &props);
-    const VkMemoryPropertyFlags want = VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT;
-    uint32_t type = 0;
-    while (type < props.memoryTypeCount &&
-           !((req.memoryTypeBits & (1u << type)) && (props.memoryTypes[type].propertyFlags & want) == want))
-      ++type;
-    if (type == props.memoryTypeCount) fail("no host-visible coherent memory");
-    VkMemoryAllocateFlagsInfo flags{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_FLAGS_INFO, nullptr,
-                                    VK_MEMORY_ALLOCATE_DEVICE_ADDRESS_BIT, 0};
-    VkMemoryAllocateInfo alloc{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_INFO, &flags, req.size, type};
-    CHECK(vkAllocateMemory(device, &alloc, nullptr, &b.memory));
-    CHECK(vkBindBufferMemory(device, b.buffer, b.memory, 0));
-    VkBufferDeviceAddressInfo addressInfo{VK_STRUCTURE_TYPE_BUFFER_DEVICE_ADDRESS_INFO, nullptr, b.buffer};
-    b.address = vkGetBufferDeviceAddress(device, &addressInfo);
-    void* mapped = nullptr;
-    CHECK(vkMapMemory(device, b.memory, 0, VK_WHOLE_SIZE, 0, &mapped));
-    b.mapped = static_cast<uint8_t*>(mapped);
-    std::memset(b.mapped, 0, size);
-    return b;
+    createInstance();
+    createDevice(/*timelineSemaphores=*/true);
   }
 };
 

@@ -1,6 +1,8 @@
 // The layer under stress, on lavapipe through the loader: write failures, applications that
 // exit, abort or are killed mid-frame, simultaneous-use command buffers, memory the host cannot
 // map (forced staging), host synchronization records and the engine's findings in the trace.
+#include "layer_launch_test.h"
+
 #include <clastrace/traces/trace_reader.h>
 #include <gtest/gtest.h>
 
@@ -25,32 +27,7 @@ namespace fs = std::filesystem;
 using clastrace::fbs::RecordBody;
 using clastrace::traces::TraceReader;
 
-const char* kLavapipe = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json";
-
-std::string readText(const fs::path& path) {
-  std::ifstream in(path);
-  std::stringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
-
-std::string quote(const std::string& s) {
-  std::string q = "'";
-  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return q + "'";
-}
-
-size_t count(const std::string& text, const std::string& needle) {
-  size_t n = 0;
-  for (size_t at = text.find(needle); at != std::string::npos; at = text.find(needle, at + 1)) ++n;
-  return n;
-}
-
-std::string hexOf(const std::vector<uint8_t>& bytes) {
-  std::string hex;
-  for (uint8_t b : bytes) hex += "0123456789abcdef"[b >> 4], hex += "0123456789abcdef"[b & 15];
-  return hex;
-}
+using namespace clastrace::layer_launch;
 
 // What a test needs to know of a trace: record kinds in order, each cluster build's snapshots
 // with their bytes, and the damage the reader reported.
@@ -110,43 +87,16 @@ TraceContents readTrace(const fs::path& path) {
   return t;
 }
 
-struct ProcessResult {
-  int exitCode = -1;  // -signal when it was killed by one
-  std::string out, err;
-};
-
-class CaptureRobustness : public ::testing::Test {
+class CaptureRobustness : public LayerLaunchTest {
  protected:
-  fs::path dir;
+  CaptureRobustness() : LayerLaunchTest("clastrace_robust") {}
 
-  void SetUp() override {
-    if (!fs::exists(kLavapipe)) GTEST_SKIP() << "lavapipe is not installed (scripts/deps.sh installs it)";
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir = fs::temp_directory_path() / ("clastrace_robust_" + std::to_string(getpid()) + "_" + info->name());
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-  }
-  void TearDown() override {
-    if (!HasFailure() && !dir.empty()) fs::remove_all(dir);
-  }
-
-  // The shell line that runs `args` of the frames app under the layer with `env` on top of a
-  // clean CLASTRACE_* environment; `prefix` runs first in the same shell (ulimit, trap).
+  // The shell line that runs `args` of the frames app under `layers` with `env` on top of a
+  // clean environment; `prefix` runs first in the same shell (ulimit, trap).
   std::string commandLine(const std::string& args, std::map<std::string, std::string> env,
-                          const std::string& prefix = "", const std::string& layers = "VK_LAYER_CLASTRACE_capture") {
-    std::string line = prefix + "exec env -u VK_INSTANCE_LAYERS -u VK_ADD_LAYER_PATH -u VK_ICD_FILENAMES";
-    for (const char* v : {"CLASTRACE_OUTPUT", "CLASTRACE_CAPTURE", "CLASTRACE_SERVE", "CLASTRACE_SUBMIT_RANGE",
-                          "CLASTRACE_ZSTD_LEVEL", "CLASTRACE_LOG", "CLASTRACE_DEBUG_JSON", "CLASTRACE_FLUSH_MS",
-                          "CLASTRACE_FORCE_STAGING"})
-      line += std::string(" -u ") + v;
-    env["VK_DRIVER_FILES"] = kLavapipe;
-    env["XDG_RUNTIME_DIR"] = dir.string();
-    env["VK_ADD_LAYER_PATH"] = CLASTRACE_LAYER_MANIFEST_DIR;
-    env["VK_INSTANCE_LAYERS"] = layers;
-    env["VK_LOADER_DEBUG"] = "";
-    for (const auto& [k, v] : env) line += " " + k + "=" + quote(v);
-    return line + " " + CLASTRACE_FRAMES_APP + " " + args + " >" + quote((dir / "stdout.txt").string()) + " 2>" +
-           quote((dir / "stderr.txt").string());
+                          const std::string& prefix = "", const std::string& layers = kCaptureLayer) {
+    return prefix + "exec " + cleanEnvironment(std::move(env), layers) + " " + CLASTRACE_FRAMES_APP + " " + args +
+           " >" + quote((dir / "stdout.txt").string()) + " 2>" + quote((dir / "stderr.txt").string());
   }
 
   // The process runs in a process group of its own (its id is `pid`), so that killing the group
@@ -535,18 +485,13 @@ TEST_F(CaptureRobustness, ForcedStagingCapturesAndServesTheSameBytes) {
 // in one submission, under the Khronos validation layer with synchronization validation,
 // beneath the capture layer so it sees what the driver sees.
 TEST_F(CaptureRobustness, StagingAndSimultaneousUsePassSynchronizationValidation) {
-  if (!fs::exists("/usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json"))
-    GTEST_SKIP() << "vulkan-validationlayers is not installed";
-  std::ofstream(dir / "vk_layer_settings.txt")
-      << "khronos_validation.enables = VK_VALIDATION_FEATURE_ENABLE_SYNCHRONIZATION_VALIDATION_EXT\n"
-         "khronos_validation.report_flags = error,warn\n"
-         "khronos_validation.debug_action = VK_DBG_LAYER_ACTION_LOG_MSG\n";
+  if (!fs::exists(kValidationLayerManifest)) GTEST_SKIP() << "vulkan-validationlayers is not installed";
+  std::map<std::string, std::string> env = synchronizationValidation();
+  env["CLASTRACE_OUTPUT"] = (dir / "v.clt").string();
+  env["CLASTRACE_FORCE_STAGING"] = "1";
+  env["CLASTRACE_LOG"] = "quiet";
   for (const std::string& args : {std::string("frames 3 --clusters 4"), "simultaneous " + quote((dir / "s.json").string())}) {
-    ProcessResult r = finish(start(commandLine(
-        args,
-        {{"CLASTRACE_OUTPUT", (dir / "v.clt").string()}, {"CLASTRACE_FORCE_STAGING", "1"}, {"CLASTRACE_LOG", "quiet"},
-         {"VK_LAYER_SETTINGS_PATH", (dir / "vk_layer_settings.txt").string()}},
-        "", "VK_LAYER_CLASTRACE_capture:VK_LAYER_KHRONOS_validation")));
+    ProcessResult r = finish(start(commandLine(args, env, "", kCaptureOverValidation)));
     ASSERT_EQ(r.exitCode, 0) << args << ": " << r.err;
     const std::string all = r.out + r.err;
     EXPECT_EQ(all.find("VUID-"), std::string::npos) << args << ": " << all;

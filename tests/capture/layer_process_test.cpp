@@ -1,6 +1,7 @@
 // The layer as the loader loads it: VK_ADD_LAYER_PATH points at the build tree's manifest,
 // VK_INSTANCE_LAYERS enables it, lavapipe is the driver (it lacks the cluster extension, so
 // the layer serves it). Each test runs a program and asserts on what it and the layer wrote.
+#include "layer_launch_test.h"
 #include "served_scene.h"
 
 #include <clastrace/engine/build_sizes.h>
@@ -10,89 +11,25 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
-#include <sys/wait.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <map>
 #include <cstring>
 #include <span>
-#include <sstream>
 
 namespace {
 
 namespace fs = std::filesystem;
 using nlohmann::json;
 
-const char* kLavapipe = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json";
+using namespace clastrace::layer_launch;
 
-struct ProcessResult {
-  int exitCode = -1;
-  std::string out, err;
-};
-
-std::string readText(const fs::path& path) {
-  std::ifstream in(path);
-  std::stringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
-
-std::string quote(const std::string& s) {
-  std::string q = "'";
-  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return q + "'";
-}
-
-class LayerProcess : public ::testing::Test {
+class LayerProcess : public LayerLaunchTest {
  protected:
-  fs::path dir;
-
-  void SetUp() override {
-    if (!fs::exists(kLavapipe)) GTEST_SKIP() << "lavapipe is not installed (scripts/deps.sh installs it)";
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir = fs::temp_directory_path() / ("clastrace_capture_" + std::to_string(getpid()) + "_" + info->name());
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-  }
-  void TearDown() override {
-    if (!HasFailure() && !dir.empty()) fs::remove_all(dir);
-  }
-
-  // Runs `command` with lavapipe, the layer (unless withLayer is false) and `env` on top of a
-  // clean CLASTRACE_* environment.
-  ProcessResult run(const std::string& command, std::map<std::string, std::string> env, bool withLayer = true) {
-    std::string line = "env -u VK_INSTANCE_LAYERS -u VK_ADD_LAYER_PATH -u VK_ICD_FILENAMES";
-    for (const char* v : {"CLASTRACE_OUTPUT", "CLASTRACE_CAPTURE", "CLASTRACE_SERVE", "CLASTRACE_SUBMIT_RANGE",
-                          "CLASTRACE_ZSTD_LEVEL", "CLASTRACE_LOG", "CLASTRACE_DEBUG_JSON"})
-      line += std::string(" -u ") + v;
-    env["VK_DRIVER_FILES"] = kLavapipe;
-    env["XDG_RUNTIME_DIR"] = dir.string();
-    if (withLayer) {
-      env["VK_ADD_LAYER_PATH"] = CLASTRACE_LAYER_MANIFEST_DIR;
-      env["VK_INSTANCE_LAYERS"] = "VK_LAYER_CLASTRACE_capture";
-      env["VK_LOADER_DEBUG"] = "";  // the loader's own warnings are not the layer's output
-    }
-    for (const auto& [k, v] : env) line += " " + k + "=" + quote(v);
-    const fs::path out = dir / "stdout.txt", err = dir / "stderr.txt";
-    line += " timeout 120 " + command + " >" + quote(out.string()) + " 2>" + quote(err.string());
-    ProcessResult r;
-    const int status = std::system(line.c_str());
-    r.exitCode = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    r.out = readText(out);
-    r.err = readText(err);
-    return r;
-  }
+  LayerProcess() : LayerLaunchTest("clastrace_capture") {}
 
   std::string app(const std::string& args) { return std::string(CLASTRACE_CAPTURE_APP) + " " + args; }
-
-  static size_t count(const std::string& text, const std::string& needle) {
-    size_t n = 0;
-    for (size_t at = text.find(needle); at != std::string::npos; at = text.find(needle, at + 1)) ++n;
-    return n;
-  }
 };
 
 // ---- Serving ------------------------------------------------------------------------------
@@ -580,23 +517,15 @@ TEST_F(LayerProcess, LauncherPassesItsSettingsToTheLayerEnvironment) {
 // The injected barrier/event sequence under the Khronos validation layer with synchronization
 // validation, placed beneath the capture layer so it sees what the driver sees.
 TEST_F(LayerProcess, InjectedPausesPassSynchronizationValidation) {
-  const char* manifest = "/usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json";
-  if (!fs::exists(manifest)) GTEST_SKIP() << "vulkan-validationlayers is not installed";
-  std::ofstream(dir / "vk_layer_settings.txt")
-      << "khronos_validation.enables = VK_VALIDATION_FEATURE_ENABLE_SYNCHRONIZATION_VALIDATION_EXT\n"
-         "khronos_validation.report_flags = error,warn\n"
-         "khronos_validation.debug_action = VK_DBG_LAYER_ACTION_LOG_MSG\n";
+  if (!fs::exists(kValidationLayerManifest)) GTEST_SKIP() << "vulkan-validationlayers is not installed";
+  std::map<std::string, std::string> env = synchronizationValidation();
+  // the engine's own findings name VUIDs too: only the validation layer's messages count here
+  env["CLASTRACE_LOG"] = "quiet";
+  env["CLASTRACE_DEBUG_JSON"] = (dir / "capture.json").string();
   for (const std::string& mode : {"exactness " + (dir / "expected.json").string(), std::string("resubmit 4"),
                                   "dispatch " + (dir / "dispatch.json").string(),
                                   "serve " + (dir / "serve.json").string()}) {
-    ProcessResult r = run(app(mode), {{"VK_ADD_LAYER_PATH", CLASTRACE_LAYER_MANIFEST_DIR},
-                                      {"VK_INSTANCE_LAYERS", "VK_LAYER_CLASTRACE_capture:VK_LAYER_KHRONOS_validation"},
-                                      {"VK_LAYER_SETTINGS_PATH", (dir / "vk_layer_settings.txt").string()},
-                                      // the engine's own findings name VUIDs too: only the
-                                      // validation layer's messages count here
-                                      {"CLASTRACE_LOG", "quiet"},
-                                      {"CLASTRACE_DEBUG_JSON", (dir / "capture.json").string()}},
-                          false);
+    ProcessResult r = run(app(mode), env, false);
     ASSERT_EQ(r.exitCode, 0) << mode << ": " << r.err;
     const std::string all = r.out + r.err;
     EXPECT_EQ(all.find("VUID-"), std::string::npos) << mode << ": " << all;

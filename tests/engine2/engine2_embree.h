@@ -4,50 +4,33 @@
 
 #include "engine2_test_util.h"
 
-#include <embree3/rtcore.h>
+#include <clastrace/testsupport/embree_reference.h>
 
 #include <cstdio>
+#include <cstring>
 
 namespace clastrace::engine::test2 {
 
-// One Embree BVH over every triangle of the mesh: the reference.
-struct EmbreeScene {
-  RTCDevice device = rtcNewDevice(nullptr);
-  RTCScene scene = rtcNewScene(device);
-  explicit EmbreeScene(const std::vector<float>& positions, const std::vector<uint32_t>& indices) {
-    RTCGeometry g = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
-    float* v = static_cast<float*>(
-        rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 12, positions.size() / 3));
-    std::copy(positions.begin(), positions.end(), v);
-    uint32_t* ix = static_cast<uint32_t*>(
-        rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 12, indices.size() / 3));
-    std::copy(indices.begin(), indices.end(), ix);
-    rtcCommitGeometry(g);
-    rtcAttachGeometry(scene, g);
-    rtcReleaseGeometry(g);
-    rtcCommitScene(scene);
+// Embree's BVH over every triangle of the mesh (one geometry: primID = the mesh's triangle).
+class EmbreeScene {
+ public:
+  EmbreeScene(const std::vector<float>& positions, const std::vector<uint32_t>& indices) : ref_(/*robust=*/false) {
+    std::vector<testsupport::Float3> p(positions.size() / 3);
+    std::vector<testsupport::Triangle> t(indices.size() / 3);
+    std::memcpy(p.data(), positions.data(), p.size() * sizeof p[0]);
+    std::memcpy(t.data(), indices.data(), t.size() * sizeof t[0]);
+    ref_.add_cluster(p, t);
+    ref_.commit();
   }
-  ~EmbreeScene() {
-    rtcReleaseScene(scene);
-    rtcReleaseDevice(device);
+  testsupport::ReferenceHit trace(const Ray& r) const {
+    return ref_.intersect(testsupport::TestRay{{r.origin[0], r.origin[1], r.origin[2]},
+                                               r.tmin,
+                                               {r.direction[0], r.direction[1], r.direction[2]},
+                                               r.tmax});
   }
-  RTCRayHit trace(const Ray& r) const {
-    RTCIntersectContext ctx;
-    rtcInitIntersectContext(&ctx);
-    RTCRayHit rh{};
-    rh.ray.org_x = r.origin[0];
-    rh.ray.org_y = r.origin[1];
-    rh.ray.org_z = r.origin[2];
-    rh.ray.dir_x = r.direction[0];
-    rh.ray.dir_y = r.direction[1];
-    rh.ray.dir_z = r.direction[2];
-    rh.ray.tnear = r.tmin;
-    rh.ray.tfar = r.tmax;
-    rh.ray.mask = ~0u;
-    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-    rtcIntersect1(scene, &ctx, &rh);
-    return rh;
-  }
+
+ private:
+  testsupport::EmbreeReference ref_;
 };
 
 inline std::vector<Ray> sphere_rays(uint32_t n, uint32_t seed) {
@@ -89,21 +72,21 @@ inline void expect_matches_embree(const Rig& rig, uint64_t blas, const Clustered
   std::vector<Finding> findings;
   for (const Ray& r : rays) {
     BottomLevelHit ours = trace_bottom_level_closest(rig.memory, blas, r, 0, dir, &findings);
-    RTCRayHit theirs = ref.trace(r);
-    bool they_hit = theirs.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+    const testsupport::ReferenceHit theirs = ref.trace(r);
+    const bool they_hit = theirs.hit;
     ASSERT_EQ(ours.hit.hit, they_hit) << "ray origin " << r.origin[0] << "," << r.origin[1] << "," << r.origin[2];
     if (!they_hit) continue;
     ++hits;
-    EXPECT_NEAR(ours.hit.t, theirs.ray.tfar, 1e-5f * std::max(1.0f, theirs.ray.tfar));
+    EXPECT_NEAR(ours.hit.t, theirs.t, 1e-5f * std::max(1.0f, theirs.t));
     uint32_t cluster = ours.hit.cluster_id - id_base;
     ASSERT_LT(cluster, m.clusters.size());
     ASSERT_LT(ours.hit.triangle_index, m.cluster_triangle_to_global[cluster].size());
     uint32_t global = m.cluster_triangle_to_global[cluster][ours.hit.triangle_index];
-    if (global != theirs.hit.primID) {
+    if (global != theirs.triangle) {
       ++primitive_mismatch;  // a ray through a shared edge: either neighbour is right
     } else {
-      EXPECT_NEAR(ours.hit.u, theirs.hit.u, 1e-4f);
-      EXPECT_NEAR(ours.hit.v, theirs.hit.v, 1e-4f);
+      EXPECT_NEAR(ours.hit.u, theirs.u, 1e-4f);
+      EXPECT_NEAR(ours.hit.v, theirs.v, 1e-4f);
     }
   }
   EXPECT_TRUE(findings.empty()) << describe(findings);

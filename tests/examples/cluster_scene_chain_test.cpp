@@ -3,6 +3,8 @@
 // the application read back and find no hazard; each barrier the application leaves out
 // must give exactly the hazards that barrier prevents; two threads recording two command
 // buffers must lose no command.
+#include "layer_launch_test.h"
+
 #include <clastrace/replay/hazard_report.hpp>
 #include <clastrace/vk_cluster_abi.h>
 #include <clastrace/replay/replay_report.hpp>
@@ -10,9 +12,6 @@
 #include <clastrace/traces/trace_reader.h>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
-
-#include <sys/wait.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <filesystem>
@@ -29,39 +28,16 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 using clastrace::fbs::RecordBody;
 
-const char* kLavapipe = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json";
+using namespace clastrace::layer_launch;
+
 // A subset of the mesh keeps each skipped-barrier run well under a second on lavapipe.
 const char* kSubset = "--max-clusters 6";
-
-std::string readText(const fs::path& path) {
-  std::ifstream in(path);
-  std::stringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
-
-std::string quote(const std::string& s) {
-  std::string q = "'";
-  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return q + "'";
-}
-
-struct ProcessResult {
-  int exitCode = -1;
-  std::string out, err;
-};
 
 // FNV-1a 64, as the application digests the objects it reads back.
 uint64_t fnv1a64(const std::vector<uint8_t>& bytes, size_t begin, size_t size) {
   uint64_t h = 0xcbf29ce484222325ull;
   for (size_t i = begin; i < begin + size; ++i) h = (h ^ bytes[i]) * 0x100000001b3ull;
   return h;
-}
-
-std::string hexOf(const std::vector<uint8_t>& bytes) {
-  std::string hex;
-  for (uint8_t b : bytes) hex += "0123456789abcdef"[b >> 4], hex += "0123456789abcdef"[b & 15];
-  return hex;
 }
 
 std::string digestText(uint64_t v) {
@@ -84,47 +60,10 @@ struct TracedScene {
   std::string driver;
 };
 
-class ClusterSceneChain : public ::testing::Test {
+class ClusterSceneChain : public LayerLaunchTest {
  public:
-  fs::path dir;
-
-  void SetUp() override {
-    if (!fs::exists(kLavapipe)) GTEST_SKIP() << "lavapipe is not installed (scripts/deps.sh installs it)";
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    std::string name = std::string(info->name());
-    for (char& c : name)
-      if (c == '/') c = '_';
-    dir = fs::temp_directory_path() / ("clastrace_scene_" + std::to_string(getpid()) + "_" + name);
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-  }
-  void TearDown() override {
-    if (!HasFailure() && !dir.empty()) fs::remove_all(dir);
-  }
-
-  // Runs `command` on lavapipe, with the layer unless withLayer is false.
-  ProcessResult run(const std::string& command, std::map<std::string, std::string> env, bool withLayer = true) {
-    std::string line = "env -u VK_INSTANCE_LAYERS -u VK_ADD_LAYER_PATH -u VK_ICD_FILENAMES";
-    for (const char* v : {"CLASTRACE_OUTPUT", "CLASTRACE_CAPTURE", "CLASTRACE_SERVE", "CLASTRACE_SUBMIT_RANGE",
-                          "CLASTRACE_ZSTD_LEVEL", "CLASTRACE_LOG", "CLASTRACE_DEBUG_JSON", "CLASTRACE_TIMESTAMPS"})
-      line += std::string(" -u ") + v;
-    env["VK_DRIVER_FILES"] = kLavapipe;
-    env["XDG_RUNTIME_DIR"] = dir.string();
-    env["VK_LOADER_DEBUG"] = "";
-    if (withLayer) {
-      env["VK_ADD_LAYER_PATH"] = CLASTRACE_LAYER_MANIFEST_DIR;
-      env["VK_INSTANCE_LAYERS"] = "VK_LAYER_CLASTRACE_capture";
-    }
-    for (const auto& [k, v] : env) line += " " + k + "=" + quote(v);
-    const fs::path out = dir / "stdout.txt", err = dir / "stderr.txt";
-    line += " timeout 120 " + command + " >" + quote(out.string()) + " 2>" + quote(err.string());
-    ProcessResult r;
-    const int status = std::system(line.c_str());
-    r.exitCode = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    r.out = readText(out);
-    r.err = readText(err);
-    return r;
-  }
+  ClusterSceneChain() : LayerLaunchTest("clastrace_scene") {}
+  using LayerLaunchTest::run;
 
   static std::string scene(const std::string& args) { return std::string(CLUSTER_SCENE_APP) + " " + args; }
 
@@ -382,19 +321,12 @@ INSTANTIATE_TEST_SUITE_P(Meshes, CleanScene, ::testing::ValuesIn(kMeshes), meshN
 // The sample's own Vulkan use (copies, barriers, fences, two threads) under the Khronos
 // validation layer with synchronization validation, beneath the capture layer.
 TEST_F(ClusterSceneChain, PassesSynchronizationValidation) {
-  const char* manifest = "/usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json";
-  if (!fs::exists(manifest)) GTEST_SKIP() << "vulkan-validationlayers is not installed";
-  std::ofstream(dir / "vk_layer_settings.txt")
-      << "khronos_validation.enables = VK_VALIDATION_FEATURE_ENABLE_SYNCHRONIZATION_VALIDATION_EXT\n"
-         "khronos_validation.report_flags = error,warn\n"
-         "khronos_validation.debug_action = VK_DBG_LAYER_ACTION_LOG_MSG\n";
+  if (!fs::exists(kValidationLayerManifest)) GTEST_SKIP() << "vulkan-validationlayers is not installed";
+  std::map<std::string, std::string> env = synchronizationValidation();
   for (const std::string& args : {std::string(kSubset), std::string(kSubset) + " --threads 2"}) {
     const fs::path trace = dir / "validated.clt";
-    ProcessResult r = run(scene(args), {{"VK_ADD_LAYER_PATH", CLASTRACE_LAYER_MANIFEST_DIR},
-                                        {"VK_INSTANCE_LAYERS", "VK_LAYER_CLASTRACE_capture:VK_LAYER_KHRONOS_validation"},
-                                        {"VK_LAYER_SETTINGS_PATH", (dir / "vk_layer_settings.txt").string()},
-                                        {"CLASTRACE_OUTPUT", trace.string()}},
-                          false);
+    env["CLASTRACE_OUTPUT"] = trace.string();
+    ProcessResult r = run(scene(args), env, false);
     ASSERT_EQ(r.exitCode, 0) << args << ": " << r.err;
     const std::string all = r.out + r.err;
     EXPECT_EQ(all.find("VUID-"), std::string::npos) << args << ": " << all;

@@ -3,8 +3,7 @@
 // semaphore, or disjoint range) the report suggests. The report must name the class, both
 // commands, the fields and byte ranges, and a fix whose masks cover the twin's barrier.
 #include <cstring>
-#include "catalogue_scene.h"
-#include "trace_script.h"
+#include "catalogue_replay.h"
 
 #include <clastrace/replay/replayer.hpp>
 #include <clastrace/traces/trace_reader.h>
@@ -14,6 +13,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <functional>
 #include <string>
 #include <unistd.h>
 
@@ -35,24 +35,10 @@ constexpr uint64_t kClear = VK_PIPELINE_STAGE_2_CLEAR_BIT;
 constexpr uint64_t kCompute = VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT;
 constexpr uint64_t kTransferWrite = VK_ACCESS_2_TRANSFER_WRITE_BIT;
 constexpr uint64_t kTransferRead = VK_ACCESS_2_TRANSFER_READ_BIT;
+constexpr uint64_t kStorageWrite = VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT;
 
-std::string temp_path(const std::string& name) {
-    return (std::filesystem::temp_directory_path() / ("hazard_catalogue_" + std::to_string(::getpid()) + "_" + name)).string();
-}
-
-// CLASTRACE_KEEP_TRACES=1 keeps the catalogue's traces (one per rule and twin) in TMPDIR,
-// e.g. to look at them with `clastrace replay`.
-void discard(const std::string& path) {
-    if (!std::getenv("CLASTRACE_KEEP_TRACES")) std::remove(path.c_str());
-}
-
-replay::ReplayReport replay_file(const std::string& path) {
-    traces::TraceError e;
-    auto reader = traces::TraceReader::open(path, &e);
-    EXPECT_TRUE(reader) << e.message;
-    if (!reader) return {};
-    return replay::replay_trace(*reader, path);
-}
+// One trace per case and twin (CLASTRACE_KEEP_TRACES=1 keeps them).
+std::string temp_path(const std::string& name) { return temp_trace_path("hazard_catalogue", name); }
 
 // The command indices the scene gave the two accesses (set while writing).
 struct Commands {
@@ -61,7 +47,7 @@ struct Commands {
     uint32_t later_submission = 0;
 };
 
-using Scene = void (*)(TraceScript& t, bool fixed, Commands& at);
+using Scene = std::function<void(TraceScript& t, bool fixed, Commands& at)>;
 
 struct HazardCase {
     const char* name;
@@ -94,6 +80,43 @@ std::vector<uint8_t> triangle_infos() {
     return bytes_of(infos);
 }
 
+// `writer` builds objects at kDst that `reader`'s build then reads; the twin puts a build
+// barrier between them.
+HazardCase build_output_read_by_build(const char* name, ClusterCommand (*writer)(), ClusterCommand (*reader)(),
+                                      const char* prior_field, const char* later_field, uint64_t overlap_end) {
+    return {name, HazardClass::kReadAfterWrite,
+            [writer, reader](TraceScript& t, bool fixed, Commands& at) {
+                at.prior = writer().emit(t);
+                if (fixed) build_barrier(t, kAsRead);
+                at.later = disjoint(reader()).emit(t);
+            },
+            "vkCmdBuildClusterAccelerationStructureIndirectNV", prior_field, later_field, kDst, overlap_end,
+            FixKind::kPipelineBarrier, kBuild, kAsRead};
+}
+
+// A transfer or dispatch (`write`, in `src_stage` with `src_access`) writes bytes the next
+// triangle-cluster build reads with `read_access`; the twin puts that barrier between them.
+struct InputWrite {
+    void (*write)(TraceScript& t);
+    uint64_t src_stage, src_access;
+    const char* command;
+    const char* field;
+};
+HazardCase input_written_before_build(const char* name, InputWrite w, uint64_t read_access, const char* later_field,
+                                      uint64_t overlap_begin, uint64_t overlap_end) {
+    return {name, HazardClass::kReadAfterWrite,
+            [w, read_access](TraceScript& t, bool fixed, Commands& at) {
+                at.prior = t.next_command();
+                w.write(t);
+                if (fixed) t.barrier(w.src_stage, w.src_access, kBuild, read_access);
+                at.later = triangle_clusters(Destinations::kImplicit).emit(t);
+            },
+            w.command, w.field, later_field, overlap_begin, overlap_end, FixKind::kPipelineBarrier, kBuild, read_access};
+}
+
+ClusterCommand explicit_clusters() { return triangle_clusters(Destinations::kExplicit); }
+ClusterCommand explicit_templates() { return triangle_templates(Destinations::kExplicit); }
+
 const HazardCase kCases[] = {
     {"ScratchReusedByNextBuild", HazardClass::kWriteAfterWrite,
      [](TraceScript& t, bool fixed, Commands& at) {
@@ -117,38 +140,15 @@ const HazardCase kCases[] = {
      },
      "vkCmdBuildClusterAccelerationStructureIndirectNV", "scratchData", "scratchData", kScratch, kScratch + 32,
      FixKind::kSemaphore, kBuild, kAsWrite},
-    {"ClusterReadByBottomLevelBeforeVisible", HazardClass::kReadAfterWrite,
-     [](TraceScript& t, bool fixed, Commands& at) {
-         at.prior = triangle_clusters(Destinations::kExplicit).emit(t);
-         if (fixed) build_barrier(t, kAsRead);
-         at.later = disjoint(bottom_level()).emit(t);
-     },
-     "vkCmdBuildClusterAccelerationStructureIndirectNV", "*dstAddressesArray[", "clusterReferences[*]", kDst,
-     kDst + 2 * kExplicitStride, FixKind::kPipelineBarrier, kBuild, kAsRead},
-    {"TemplateReadByInstantiateBeforeVisible", HazardClass::kReadAfterWrite,
-     [](TraceScript& t, bool fixed, Commands& at) {
-         at.prior = triangle_templates(Destinations::kExplicit).emit(t);
-         if (fixed) build_barrier(t, kAsRead);
-         at.later = disjoint(instantiate()).emit(t);
-     },
-     "vkCmdBuildClusterAccelerationStructureIndirectNV", "*dstAddressesArray[0]", "clusterTemplateAddress", kDst,
-     kDst + kExplicitStride, FixKind::kPipelineBarrier, kBuild, kAsRead},
-    {"TemplateReadByTemplateIndicesBeforeVisible", HazardClass::kReadAfterWrite,
-     [](TraceScript& t, bool fixed, Commands& at) {
-         at.prior = triangle_templates(Destinations::kExplicit).emit(t);
-         if (fixed) build_barrier(t, kAsRead);
-         at.later = disjoint(template_indices()).emit(t);
-     },
-     "vkCmdBuildClusterAccelerationStructureIndirectNV", "*dstAddressesArray[", "clusterTemplateAddress", kDst,
-     kDst + 2 * kExplicitStride, FixKind::kPipelineBarrier, kBuild, kAsRead},
-    {"ClusterReadByMoveBeforeVisible", HazardClass::kReadAfterWrite,
-     [](TraceScript& t, bool fixed, Commands& at) {
-         at.prior = triangle_clusters(Destinations::kExplicit).emit(t);
-         if (fixed) build_barrier(t, kAsRead);
-         at.later = disjoint(move_clusters()).emit(t);
-     },
-     "vkCmdBuildClusterAccelerationStructureIndirectNV", "*dstAddressesArray[", "srcAccelerationStructure", kDst,
-     kDst + 2 * kExplicitStride, FixKind::kPipelineBarrier, kBuild, kAsRead},
+    build_output_read_by_build("ClusterReadByBottomLevelBeforeVisible", explicit_clusters, [] { return bottom_level(); },
+                               "*dstAddressesArray[", "clusterReferences[*]", kDst + 2 * kExplicitStride),
+    build_output_read_by_build("TemplateReadByInstantiateBeforeVisible", explicit_templates, [] { return instantiate(); },
+                               "*dstAddressesArray[0]", "clusterTemplateAddress", kDst + kExplicitStride),
+    build_output_read_by_build("TemplateReadByTemplateIndicesBeforeVisible", explicit_templates,
+                               [] { return template_indices(); }, "*dstAddressesArray[", "clusterTemplateAddress",
+                               kDst + 2 * kExplicitStride),
+    build_output_read_by_build("ClusterReadByMoveBeforeVisible", explicit_clusters, [] { return move_clusters(); },
+                               "*dstAddressesArray[", "srcAccelerationStructure", kDst + 2 * kExplicitStride),
     {"BottomLevelReadByMoveBeforeVisible", HazardClass::kReadAfterWrite,
      [](TraceScript& t, bool fixed, Commands& at) {
          triangle_clusters(Destinations::kExplicit).emit(t);
@@ -163,16 +163,13 @@ const HazardCase kCases[] = {
      },
      "vkCmdBuildClusterAccelerationStructureIndirectNV", "dstImplicitData[op 0]", "srcAccelerationStructure", kDst2,
      kDst2 + 0x10000, FixKind::kPipelineBarrier, kBuild, kAsRead},
-    {"InfosWrittenByCopy", HazardClass::kReadAfterWrite,
-     [](TraceScript& t, bool fixed, Commands& at) {
-         const std::vector<uint8_t> infos = triangle_infos();
-         at.prior = t.next_command();
-         t.copy(kStagingBuffer, 0, kInfosBuffer, 0, infos.size(), {{kStaging, infos}});
-         if (fixed) t.barrier(kCopy, kTransferWrite, kBuild, kIndirect);
-         at.later = triangle_clusters(Destinations::kImplicit).emit(t);
-     },
-     "vkCmdCopyBuffer", "pRegions[0].dstOffset", "srcInfosArray[*]", kInfos, kInfos + 2 * sizeof(TriangleInfo),
-     FixKind::kPipelineBarrier, kBuild, kIndirect},
+    input_written_before_build("InfosWrittenByCopy",
+                               {[](TraceScript& t) {
+                                    const std::vector<uint8_t> infos = triangle_infos();
+                                    t.copy(kStagingBuffer, 0, kInfosBuffer, 0, infos.size(), {{kStaging, infos}});
+                                },
+                                kCopy, kTransferWrite, "vkCmdCopyBuffer", "pRegions[0].dstOffset"},
+                               kIndirect, "srcInfosArray[*]", kInfos, kInfos + 2 * sizeof(TriangleInfo)),
     {"InfosWrittenByCopyBarrierWithoutIndirectRead", HazardClass::kReadAfterWrite,
      [](TraceScript& t, bool fixed, Commands& at) {
          const std::vector<uint8_t> infos = triangle_infos();
@@ -184,15 +181,10 @@ const HazardCase kCases[] = {
      },
      "vkCmdCopyBuffer", "pRegions[0].dstOffset", "srcInfosArray[*]", kInfos, kInfos + 2 * sizeof(TriangleInfo),
      FixKind::kPipelineBarrier, kBuild, kIndirect},
-    {"InfosWrittenByFill", HazardClass::kReadAfterWrite,
-     [](TraceScript& t, bool fixed, Commands& at) {
-         at.prior = t.next_command();
-         t.fill(kInfosBuffer, 0, 0x1000, 0);
-         if (fixed) t.barrier(kClear, kTransferWrite, kBuild, kIndirect);
-         at.later = triangle_clusters(Destinations::kImplicit).emit(t);
-     },
-     "vkCmdFillBuffer", "dstOffset", "srcInfosArray[*]", kInfos, kInfos + 2 * sizeof(TriangleInfo),
-     FixKind::kPipelineBarrier, kBuild, kIndirect},
+    input_written_before_build("InfosWrittenByFill",
+                               {[](TraceScript& t) { t.fill(kInfosBuffer, 0, 0x1000, 0); }, kClear, kTransferWrite,
+                                "vkCmdFillBuffer", "dstOffset"},
+                               kIndirect, "srcInfosArray[*]", kInfos, kInfos + 2 * sizeof(TriangleInfo)),
     {"CountWrittenByUpdate", HazardClass::kReadAfterWrite,
      [](TraceScript& t, bool fixed, Commands& at) {
          at.prior = t.next_command();
@@ -214,42 +206,25 @@ const HazardCase kCases[] = {
      },
      "vkCmdCopyBuffer", "pRegions[0].dstOffset", "srcInfosCount", kCount, kCount + 4, FixKind::kPipelineBarrier, kBuild,
      kIndirect},
-    {"InfosWrittenByDispatch", HazardClass::kReadAfterWrite,
-     [](TraceScript& t, bool fixed, Commands& at) {
-         at.prior = t.next_command();
-         t.dispatch(kInfosBuffer, 0, 0x1000, {{kInfos, triangle_infos()}});
-         if (fixed) t.barrier(kCompute, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, kBuild, kIndirect);
-         at.later = triangle_clusters(Destinations::kImplicit).emit(t);
-     },
-     "vkCmdDispatch", "set 0 binding 0[0]", "srcInfosArray[*]", kInfos, kInfos + 2 * sizeof(TriangleInfo),
-     FixKind::kPipelineBarrier, kBuild, kIndirect},
-    {"VerticesWrittenByCopy", HazardClass::kReadAfterWrite,
-     [](TraceScript& t, bool fixed, Commands& at) {
-         at.prior = t.next_command();
-         t.copy(kStagingBuffer, 0, kGeometryBuffer, 0, 0x300, {{kStaging, std::vector<uint8_t>(0x300, 0)}});
-         if (fixed) t.barrier(kCopy, kTransferWrite, kBuild, kShaderRead);
-         at.later = triangle_clusters(Destinations::kImplicit).emit(t);
-     },
-     "vkCmdCopyBuffer", "pRegions[0].dstOffset", "vertexBuffer", kVertices, kVertices + 0x300, FixKind::kPipelineBarrier,
-     kBuild, kShaderRead},
-    {"VerticesWrittenByUpdate", HazardClass::kReadAfterWrite,
-     [](TraceScript& t, bool fixed, Commands& at) {
-         at.prior = t.next_command();
-         t.update(kGeometryBuffer, 0, std::vector<uint8_t>(96, 0));
-         if (fixed) t.barrier(kClear, kTransferWrite, kBuild, kShaderRead);
-         at.later = triangle_clusters(Destinations::kImplicit).emit(t);
-     },
-     "vkCmdUpdateBuffer", "pData", "vertexBuffer", kVertices, kVertices + 96, FixKind::kPipelineBarrier, kBuild,
-     kShaderRead},
-    {"IndicesWrittenByDispatch", HazardClass::kReadAfterWrite,
-     [](TraceScript& t, bool fixed, Commands& at) {
-         at.prior = t.next_command();
-         t.dispatch(kGeometryBuffer, kIndices - kGeometry, 0x100);
-         if (fixed) t.barrier(kCompute, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, kBuild, kShaderRead);
-         at.later = triangle_clusters(Destinations::kImplicit).emit(t);
-     },
-     "vkCmdDispatch", "set 0 binding 0[0]", "indexBuffer", kIndices, kIndices + 6, FixKind::kPipelineBarrier, kBuild,
-     kShaderRead},
+    input_written_before_build("InfosWrittenByDispatch",
+                               {[](TraceScript& t) { t.dispatch(kInfosBuffer, 0, 0x1000, {{kInfos, triangle_infos()}}); },
+                                kCompute, kStorageWrite, "vkCmdDispatch", "set 0 binding 0[0]"},
+                               kIndirect, "srcInfosArray[*]", kInfos, kInfos + 2 * sizeof(TriangleInfo)),
+    input_written_before_build("VerticesWrittenByCopy",
+                               {[](TraceScript& t) {
+                                    t.copy(kStagingBuffer, 0, kGeometryBuffer, 0, 0x300,
+                                           {{kStaging, std::vector<uint8_t>(0x300, 0)}});
+                                },
+                                kCopy, kTransferWrite, "vkCmdCopyBuffer", "pRegions[0].dstOffset"},
+                               kShaderRead, "vertexBuffer", kVertices, kVertices + 0x300),
+    input_written_before_build("VerticesWrittenByUpdate",
+                               {[](TraceScript& t) { t.update(kGeometryBuffer, 0, std::vector<uint8_t>(96, 0)); }, kClear,
+                                kTransferWrite, "vkCmdUpdateBuffer", "pData"},
+                               kShaderRead, "vertexBuffer", kVertices, kVertices + 96),
+    input_written_before_build("IndicesWrittenByDispatch",
+                               {[](TraceScript& t) { t.dispatch(kGeometryBuffer, kIndices - kGeometry, 0x100); },
+                                kCompute, kStorageWrite, "vkCmdDispatch", "set 0 binding 0[0]"},
+                               kShaderRead, "indexBuffer", kIndices, kIndices + 6),
     {"SizesReadByCopyBeforeVisible", HazardClass::kReadAfterWrite,
      [](TraceScript& t, bool fixed, Commands& at) {
          at.prior = triangle_clusters(Destinations::kImplicit).emit(t);
@@ -314,16 +289,8 @@ const HazardCase kCases[] = {
 class HazardCatalogue : public ::testing::TestWithParam<HazardCase> {
 protected:
     replay::ReplayReport run(bool fixed, Commands* at) {
-        const std::string path = temp_path(std::string(GetParam().name) + (fixed ? "_fixed.clt" : "_broken.clt"));
-        {
-            TraceScript t(path, device());
-            add_buffers(t);
-            GetParam().scene(t, fixed, *at);
-            t.finish();
-        }
-        replay::ReplayReport r = replay_file(path);
-        discard(path);
-        return r;
+        return replay_catalogue_scene(temp_path(std::string(GetParam().name) + (fixed ? "_fixed.clt" : "_broken.clt")),
+                                      [&](TraceScript& t) { GetParam().scene(t, fixed, *at); });
     }
 };
 
@@ -376,21 +343,16 @@ INSTANTIATE_TEST_SUITE_P(Replay, HazardCatalogue, ::testing::ValuesIn(kCases),
 // (the spec allows overlap only without noMoveOverlap).
 TEST(HazardCatalogueMove, MoveOntoItsOwnSourceWithNoMoveOverlapIsReported) {
     for (bool broken : {true, false}) {
-        const std::string path = temp_path(broken ? "move_overlap.clt" : "move_disjoint.clt");
         uint32_t move_command = 0;
-        {
-            TraceScript t(path, device());
-            add_buffers(t);
-            triangle_clusters(Destinations::kExplicit).emit(t);
-            build_barrier(t, kAsRead | kAsWrite);
-            ClusterCommand move = move_clusters(1);
-            move.info.dstImplicitData = broken ? kDst + 128 : kDst2;  // the source is at kDst
-            move.info.scratchData = kScratch2;
-            move_command = move.emit(t);
-            t.finish();
-        }
-        const replay::ReplayReport r = replay_file(path);
-        std::remove(path.c_str());
+        const replay::ReplayReport r =
+            replay_catalogue_scene(temp_path(broken ? "move_overlap.clt" : "move_disjoint.clt"), [&](TraceScript& t) {
+                triangle_clusters(Destinations::kExplicit).emit(t);
+                build_barrier(t, kAsRead | kAsWrite);
+                ClusterCommand move = move_clusters(1);
+                move.info.dstImplicitData = broken ? kDst + 128 : kDst2;  // the source is at kDst
+                move.info.scratchData = kScratch2;
+                move_command = move.emit(t);
+            });
         if (!broken) {
             EXPECT_TRUE(r.clean()) << replay::format_text(r);
             continue;

@@ -1,8 +1,7 @@
 // What the replay models of queues and command buffers beyond barriers: semaphore signal
 // stage masks (vkQueueSubmit2), command pool resets, command buffers submitted with nothing
 // recorded.
-#include "catalogue_scene.h"
-#include "trace_script.h"
+#include "catalogue_replay.h"
 
 #include <clastrace/replay/replayer.hpp>
 #include <clastrace/traces/trace_reader.h>
@@ -22,25 +21,11 @@ using namespace clastrace::test::catalogue;
 constexpr uint64_t kBuild = VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR;
 constexpr uint64_t kQueueA = 0x9001, kQueueB = 0x9002, kPool = 0x9900;
 
-std::string temp_path(const std::string& name) {
-    return (std::filesystem::temp_directory_path() / ("queue_model_" + std::to_string(::getpid()) + "_" + name)).string();
-}
+std::string temp_path(const std::string& name) { return temp_trace_path("queue_model", name); }
 
 template <class Scene>
 replay::ReplayReport replay_scene(const std::string& name, Scene scene) {
-    const std::string path = temp_path(name);
-    {
-        TraceScript t(path, device());
-        add_buffers(t);
-        scene(t);
-        t.finish();
-    }
-    traces::TraceError e;
-    auto reader = traces::TraceReader::open(path, &e);
-    EXPECT_TRUE(reader) << e.message;
-    replay::ReplayReport r = reader ? replay::replay_trace(*reader, path) : replay::ReplayReport{};
-    std::remove(path.c_str());
-    return r;
+    return replay_catalogue_scene(temp_path(name), scene);
 }
 
 ClusterCommand second_build() {

@@ -292,24 +292,19 @@ private:
         triangle_limits(c, count);
         emit(c);
     }
-    void explicit_clusters() {
+    // 1..16 objects that `make` builds into explicit destinations among the `live` slots of `arena`.
+    template <class Info>
+    void explicit_objects(ClusterCommand (*make)(Destinations, uint32_t), uint64_t arena, std::array<bool, kSlots>& live) {
         const uint32_t count = 1 + below(16);
-        ClusterCommand c = triangle_clusters(Destinations::kExplicit, count);
-        randomize_ids<TriangleInfo>(c, count);
+        ClusterCommand c = make(Destinations::kExplicit, count);
+        randomize_ids<Info>(c, count);
         triangle_limits(c, count);
-        const uint32_t first = explicit_outputs(c, kDst, count);
+        const uint32_t first = explicit_outputs(c, arena, count);
         emit(c);
-        for (uint32_t i = 0; i < count; ++i) clas_[first + i] = true;
+        for (uint32_t i = 0; i < count; ++i) live[first + i] = true;
     }
-    void explicit_templates() {
-        const uint32_t count = 1 + below(16);
-        ClusterCommand c = triangle_templates(Destinations::kExplicit, count);
-        randomize_ids<TemplateInfo>(c, count);
-        triangle_limits(c, count);
-        const uint32_t first = explicit_outputs(c, kDst2, count);
-        emit(c);
-        for (uint32_t i = 0; i < count; ++i) templates_[first + i] = true;
-    }
+    void explicit_clusters() { explicit_objects<TriangleInfo>(triangle_clusters, kDst, clas_); }
+    void explicit_templates() { explicit_objects<TemplateInfo>(triangle_templates, kDst2, templates_); }
     std::vector<uint32_t> live(const std::array<bool, kSlots>& slots) const {
         std::vector<uint32_t> out;
         for (uint32_t i = 0; i < kSlots; ++i)

@@ -2,6 +2,7 @@
 // hazard; damaged ones (dropped dependencies, hostile infos/counts/strides/addresses,
 // flipped file bytes) must replay to the end with well-formed findings, never crash.
 #include "random_stream.h"
+#include "trace_files.h"
 
 #include <clastrace/replay/replayer.hpp>
 #include <clastrace/traces/trace_reader.h>
@@ -19,9 +20,7 @@ namespace {
 
 using namespace clastrace;
 
-std::string temp_path(const std::string& name) {
-    return (std::filesystem::temp_directory_path() / ("random_stream_" + std::to_string(::getpid()) + "_" + name)).string();
-}
+std::string temp_path(const std::string& name) { return test::temp_trace_path("random_stream", name); }
 
 replay::ReplayReport replay_file(const std::string& path) {
     traces::TraceError e;

@@ -1,6 +1,7 @@
 // End-to-end replay: traces written with the TraceWriter, replayed through the engine and
 // the synchronization model. Each broken scene has a correctly synchronized/valid twin.
 #include "scene_trace.h"
+#include "trace_files.h"
 
 #include <clastrace/replay/replayer.hpp>
 #include <clastrace/traces/trace_reader.h>
@@ -21,17 +22,10 @@ using test::BuildCall;
 using test::SceneBuffers;
 using test::SceneTrace;
 
-std::string temp_path(const std::string& name) {
-    return (std::filesystem::temp_directory_path() / ("replay_e2e_" + std::to_string(::getpid()) + "_" + name)).string();
-}
+using test::damaged_copy;
+using test::replay_file;
 
-replay::ReplayReport replay_file(const std::string& path, replay::ReplayOptions options = {}) {
-    traces::TraceError e;
-    auto reader = traces::TraceReader::open(path, &e);
-    EXPECT_TRUE(reader) << e.message;
-    if (!reader) return {};
-    return replay::replay_trace(*reader, path, options);
-}
+std::string temp_path(const std::string& name) { return test::temp_trace_path("replay_e2e", name); }
 
 std::string describe(const replay::ReplayReport& r) { return replay::format_text(r); }
 
@@ -506,12 +500,7 @@ TEST(ReplayE2E, FlippedAndTruncatedTraceFilesNeverCrash) {
     const std::string path = temp_path("flip.clt");
     int damaged = 0;
     for (int round = 0; round < 60; ++round) {
-        std::vector<char> mutant = bytes;
-        if (round % 3 == 2) {
-            mutant.resize(32 + rng() % (mutant.size() - 32));
-        } else {
-            for (int k = 0, n = 1 + int(rng() % 4); k < n; ++k) mutant[rng() % mutant.size()] ^= char(1 << (rng() % 8));
-        }
+        const std::vector<char> mutant = damaged_copy(bytes, round, rng);
         std::ofstream(path, std::ios::binary).write(mutant.data(), std::streamsize(mutant.size()));
         traces::TraceError e;
         auto reader = traces::TraceReader::open(path, &e);

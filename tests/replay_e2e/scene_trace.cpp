@@ -1,82 +1,40 @@
 #include "scene_trace.h"
 
-#include <clastrace/engine/execute.h>
-#include <clastrace/engine/memory_image.h>
-#include <clastrace/engine/object_directory.h>
+#include <clastrace/trace_building/cluster_records.h>
+#include <clastrace/trace_building/cluster_structs.h>
+#include <clastrace/trace_building/command_records.h>
+#include <clastrace/trace_building/trace_header.h>
 
 #include <cstring>
-#include <stdexcept>
 
 namespace clastrace::test {
+
+namespace tb = trace_building;
 
 namespace {
 constexpr uint64_t kFirstCommandBuffer = 0xc0de, kQueue = 0x9001, kFence = 0xfe1, kMemory = 0x1001, kHostMemory = 0x1002;
 constexpr uint64_t kStaging = 0x2100;
 constexpr uint32_t kClusters = 2, kGrid = 3, kVerts = kGrid * kGrid, kTris = (kGrid - 1) * (kGrid - 1) * 2;
 
-template <class T>
-fbs::RecordT record(T body) {
-    fbs::RecordT r;
-    r.body.Set(std::move(body));
-    return r;
-}
-void check(const traces::TraceError& e) {
-    if (e) throw std::runtime_error(e.message);
-}
-std::vector<uint8_t> bytes_of(const void* p, size_t n) {
-    const auto* b = static_cast<const uint8_t*>(p);
-    return {b, b + n};
+fbs::TraceHeaderT scene_header(bool engine_device) {
+    fbs::TraceHeaderT h = tb::trace_header(engine_device ? tb::kEngineDriver : "test driver",
+                                           engine_device ? tb::kEngineDriver : "NVIDIA", "replay_e2e_tests");
+    h.device->cluster_properties = tb::cluster_properties(engine::EngineProperties::nvidia_default());
+    return h;
 }
 }  // namespace
-
-struct SceneTrace::Mirror {
-    engine::MemoryImage image;
-    engine::ObjectDirectory directory;
-};
 
 SceneTrace::~SceneTrace() = default;
 
 void SceneTrace::add_buffer(uint64_t handle, uint64_t address, uint64_t size, uint64_t usage, uint64_t memory,
                             uint64_t offset) {
-    fbs::BufferCreateT c;
-    c.buffer = handle;
-    c.size = size;
-    c.usage = usage;
-    check(writer_->append(record(c)));
-    fbs::BufferBindMemoryT b;
-    b.buffer = handle;
-    b.memory = memory;
-    b.memory_offset = offset;
-    b.device_address = address;
-    check(writer_->append(record(b)));
-    if (address) mirror_->image.add_region(address, size, static_cast<VkBufferUsageFlags>(usage), "mirror");
+    writer_.buffer(handle, address, size, usage, memory, offset);
+    if (address) mirror_.add_buffer(address, size, usage);
 }
 
 SceneTrace::SceneTrace(const std::string& path, bool engine_device, uint64_t scratch_size)
-    : mirror_(std::make_unique<Mirror>()), scratch_size_(scratch_size), engine_device_(engine_device),
+    : writer_(path, scene_header(engine_device)), scratch_size_(scratch_size), engine_device_(engine_device),
       command_buffer_(kFirstCommandBuffer) {
-    fbs::TraceHeaderT h;
-    h.device = std::make_unique<fbs::DeviceInfoT>();
-    h.device->name = engine_device ? "clastrace engine" : "test driver";
-    h.device->driver_name = engine_device ? "clastrace engine" : "NVIDIA";
-    h.device->cluster_properties = std::make_unique<fbs::ClusterPropertiesT>();
-    auto& p = *h.device->cluster_properties;
-    p.max_vertices_per_cluster = 256;
-    p.max_triangles_per_cluster = 256;
-    p.cluster_scratch_byte_alignment = 128;
-    p.cluster_byte_alignment = 128;
-    p.cluster_template_byte_alignment = 32;
-    p.cluster_bottom_level_byte_alignment = 256;
-    p.cluster_template_bounds_byte_alignment = 32;
-    p.max_cluster_geometry_index = 16777215;
-    h.capture = std::make_unique<fbs::CaptureSettingsT>();
-    h.capture->capture_tool = "replay_e2e_tests";
-    traces::TraceError e;
-    traces::TraceWriterOptions o;
-    o.sync_on_finish = false;
-    writer_ = traces::TraceWriter::create(path, h, o, &e);
-    check(e);
-
     const uint64_t sda = VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT;
     const uint64_t input = sda | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
     const uint64_t as_storage = sda | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR | VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
@@ -107,22 +65,9 @@ SceneTrace::SceneTrace(const std::string& path, bool engine_device, uint64_t scr
             uint8_t a = uint8_t(y * kGrid + x), b = uint8_t(a + 1), c = uint8_t(a + kGrid), d = uint8_t(c + 1);
             for (uint8_t v : {a, b, c, b, d, c}) indices_.push_back(v);
         }
-    infos.resize(kClusters);
-    for (uint32_t c = 0; c < kClusters; ++c) {
-        auto& i = infos[c];
-        std::memset(&i, 0, sizeof i);
-        i.clusterID = 100 + c;
-        i.triangleCount = kTris;
-        i.vertexCount = kVerts;
-        i.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_8BIT_NV;
-        i.indexBufferStride = 1;
-        i.vertexBufferStride = 12;
-        i.indexBuffer = B::kIndices;
-        i.vertexBuffer = B::kVertices + c * kVerts * 12;
-    }
-    fbs::CommandBufferBeginT begin;
-    begin.command_buffer = command_buffer_;
-    check(writer_->append(record(begin)));
+    for (uint32_t c = 0; c < kClusters; ++c)
+        infos.push_back(tb::triangle_cluster_info(100 + c, kTris, kVerts, B::kIndices, 1, B::kVertices + c * kVerts * 12));
+    writer_.append(tb::command_buffer_begin(command_buffer_));
 }
 
 void SceneTrace::copy_infos() {
@@ -133,140 +78,57 @@ void SceneTrace::copy_infos() {
     copy.dst_buffer = 0x2003;
     const uint64_t n = infos.size() * sizeof infos[0];
     copy.regions.emplace_back(0, 0, n);
-    fbs::MemorySnapshot snap;
-    check(writer_->snapshot(kStaging, 0, 0, infos.data(), n, &snap));
-    copy.inputs.push_back(snap);
-    check(writer_->append(record(std::move(copy))));
+    copy.inputs.push_back(writer_.snapshot(0, infos.data(), n, kStaging));
+    writer_.append(std::move(copy));
 }
 
 void SceneTrace::barrier(uint64_t src_stage, uint64_t src_access, uint64_t dst_stage, uint64_t dst_access) {
-    fbs::CmdPipelineBarrierT b;
-    b.command_buffer = command_buffer_;
-    b.version = 2;
-    b.dependency = std::make_unique<fbs::DependencyT>();
-    b.dependency->memory_barriers.emplace_back(src_stage, src_access, dst_stage, dst_access);
-    check(writer_->append(record(std::move(b))));
+    writer_.append(tb::memory_barrier(command_buffer_, src_stage, src_access, dst_stage, dst_access));
 }
 
 void SceneTrace::barrier_v1(uint32_t src_stage, uint32_t src_access, uint32_t dst_stage, uint32_t dst_access) {
-    fbs::CmdPipelineBarrierT b;
-    b.command_buffer = command_buffer_;
+    fbs::CmdPipelineBarrierT b = tb::memory_barrier(command_buffer_, src_stage, src_access, dst_stage, dst_access);
     b.version = 1;
     b.src_stage_mask = src_stage;
     b.dst_stage_mask = dst_stage;
-    b.dependency = std::make_unique<fbs::DependencyT>();
-    b.dependency->memory_barriers.emplace_back(src_stage, src_access, dst_stage, dst_access);
-    check(writer_->append(record(std::move(b))));
+    writer_.append(std::move(b));
 }
 
 void SceneTrace::set_event(uint64_t event, uint64_t src_stage, uint64_t src_access, uint64_t dst_stage, uint64_t dst_access) {
-    fbs::CmdSetEventT e;
-    e.command_buffer = command_buffer_;
-    e.event = event;
-    e.version = 2;
-    e.dependency = std::make_unique<fbs::DependencyT>();
-    e.dependency->memory_barriers.emplace_back(src_stage, src_access, dst_stage, dst_access);
-    check(writer_->append(record(std::move(e))));
+    writer_.append(tb::set_event(command_buffer_, event, src_stage, src_access, dst_stage, dst_access));
 }
 
 void SceneTrace::wait_event(uint64_t event, uint64_t src_stage, uint64_t src_access, uint64_t dst_stage, uint64_t dst_access) {
-    fbs::CmdWaitEventsT w;
-    w.command_buffer = command_buffer_;
-    w.version = 2;
-    w.events.push_back(event);
-    auto dep = std::make_unique<fbs::DependencyT>();
-    dep->memory_barriers.emplace_back(src_stage, src_access, dst_stage, dst_access);
-    w.dependencies.push_back(std::move(dep));
-    check(writer_->append(record(std::move(w))));
+    writer_.append(tb::wait_event(command_buffer_, event, src_stage, src_access, dst_stage, dst_access));
 }
 
 void SceneTrace::emit_build(const VkClusterAccelerationStructureCommandsInfoNV& info, const BuildCall& call,
                             std::vector<std::pair<uint64_t, std::vector<uint8_t>>> inputs, uint64_t shift,
                             const std::vector<std::pair<uint64_t, std::vector<uint8_t>>>& mirror_patch) {
     for (const auto& list : {inputs, mirror_patch})
-        for (const auto& [address, bytes] : list)
-            std::memcpy(mirror_->image.write_bytes(address, bytes.size(), {}).data(), bytes.data(), bytes.size());
-    engine::ExecuteOptions options;
-    options.directory = &mirror_->directory;
-    engine::ExecutionRecord r = engine::execute(info, mirror_->image, options);
+        for (const auto& [address, bytes] : list) mirror_.write(address, bytes);
+    const engine::ExecutionRecord r = mirror_.execute(info);
 
-    fbs::CmdBuildClusterAccelerationStructureIndirectT b;
-    b.command_buffer = command_buffer_;
-    b.input = std::make_unique<fbs::ClusterInputInfoT>();
-    b.input->max_acceleration_structure_count = info.input.maxAccelerationStructureCount;
-    b.input->op_type = info.input.opType;
-    b.input->op_mode = info.input.opMode;
-    if (info.input.opType == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV) {
-        fbs::ClustersBottomLevelInputT in;
-        in.max_total_cluster_count = info.input.opInput.pClustersBottomLevel->maxTotalClusterCount;
-        in.max_cluster_count_per_acceleration_structure = info.input.opInput.pClustersBottomLevel->maxClusterCountPerAccelerationStructure;
-        b.input->op_input.Set(std::move(in));
-    } else if (info.input.opType == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV) {
-        fbs::MoveObjectsInputT in;
-        in.type = info.input.opInput.pMoveObjects->type;
-        in.no_move_overlap = info.input.opInput.pMoveObjects->noMoveOverlap;
-        in.max_moved_bytes = info.input.opInput.pMoveObjects->maxMovedBytes;
-        b.input->op_input.Set(std::move(in));
-    } else {
-        const auto& t = *info.input.opInput.pTriangleClusters;
-        fbs::TriangleClusterInputT in;
-        in.vertex_format = t.vertexFormat;
-        in.max_cluster_unique_geometry_count = t.maxClusterUniqueGeometryCount;
-        in.max_cluster_triangle_count = t.maxClusterTriangleCount;
-        in.max_cluster_vertex_count = t.maxClusterVertexCount;
-        in.max_total_triangle_count = t.maxTotalTriangleCount;
-        in.max_total_vertex_count = t.maxTotalVertexCount;
-        b.input->op_input.Set(std::move(in));
-    }
-    b.dst_implicit_data = info.dstImplicitData;
-    b.scratch_data = info.scratchData;
-    b.dst_addresses_array = std::make_unique<fbs::StridedDeviceAddressRegion>(info.dstAddressesArray.deviceAddress,
-                                                                              info.dstAddressesArray.stride, info.dstAddressesArray.size);
-    b.dst_sizes_array = std::make_unique<fbs::StridedDeviceAddressRegion>(info.dstSizesArray.deviceAddress,
-                                                                          info.dstSizesArray.stride, info.dstSizesArray.size);
-    b.src_infos_array = std::make_unique<fbs::StridedDeviceAddressRegion>(info.srcInfosArray.deviceAddress,
-                                                                          info.srcInfosArray.stride, info.srcInfosArray.size);
-    fbs::MemorySnapshot snap;
-    for (auto& [address, bytes] : inputs) {
-        check(writer_->snapshot(0, 0, address, bytes.data(), bytes.size(), &snap));
-        b.inputs.push_back(snap);
-    }
+    fbs::CmdBuildClusterAccelerationStructureIndirectT b = tb::cluster_build(command_buffer_, info);
+    for (auto& [address, bytes] : inputs) b.inputs.push_back(writer_.snapshot(address, bytes));
     if (call.capture_outputs) {
         const uint64_t n = info.input.maxAccelerationStructureCount;
         std::vector<uint64_t> addresses(n);
         for (uint64_t i = 0; i < n && i < r.ops.size(); ++i) addresses[i] = r.ops[i].dst_address ? r.ops[i].dst_address + shift : 0;
-        check(writer_->snapshot(0, 0, info.dstAddressesArray.deviceAddress, addresses.data(), n * 8, &snap));
-        b.outputs.push_back(snap);
-        auto sizes = mirror_->image.read_bytes(info.dstSizesArray.deviceAddress, n * 4, {});
-        check(writer_->snapshot(0, 0, info.dstSizesArray.deviceAddress, sizes.data(), n * 4, &snap));
-        b.outputs.push_back(snap);
+        b.outputs.push_back(writer_.snapshot(info.dstAddressesArray.deviceAddress, addresses.data(), n * 8));
+        b.outputs.push_back(writer_.snapshot(info.dstSizesArray.deviceAddress, mirror_.read(info.dstSizesArray.deviceAddress, n * 4)));
         if (engine_device_ && r.implicit_bytes_used) {
-            auto objects = mirror_->image.read_bytes(info.dstImplicitData, r.implicit_bytes_used, {});
-            std::vector<uint8_t> copy = bytes_of(objects.data(), objects.size());
-            if (call.corrupt_output_byte) copy[call.corrupt_output_byte % copy.size()] ^= 0x40;
-            check(writer_->snapshot(0, 0, info.dstImplicitData, copy.data(), copy.size(), &snap));
-            b.outputs.push_back(snap);
+            std::vector<uint8_t> objects = mirror_.read(info.dstImplicitData, r.implicit_bytes_used);
+            if (call.corrupt_output_byte) objects[call.corrupt_output_byte % objects.size()] ^= 0x40;
+            b.outputs.push_back(writer_.snapshot(info.dstImplicitData, objects));
         }
     }
-    check(writer_->append(record(std::move(b))));
+    writer_.append(std::move(b));
 }
 
 void SceneTrace::build(const BuildCall& call) {
-    VkClusterAccelerationStructureTriangleClusterInputNV tri{};
-    tri.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
-    tri.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
-    tri.maxClusterUniqueGeometryCount = 1;
-    tri.maxClusterTriangleCount = kTris;
-    tri.maxClusterVertexCount = kVerts;
-    tri.maxTotalTriangleCount = kTris * kClusters;
-    tri.maxTotalVertexCount = kVerts * kClusters;
-    VkClusterAccelerationStructureCommandsInfoNV info{};
-    info.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
-    info.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
-    info.input.maxAccelerationStructureCount = static_cast<uint32_t>(infos.size());
-    info.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
-    info.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
-    info.input.opInput.pTriangleClusters = &tri;
+    const auto tri = tb::triangle_cluster_limits(kTris, kVerts, kTris * kClusters, kVerts * kClusters);
+    auto info = tb::cluster_commands(tb::cluster_op_input(static_cast<uint32_t>(infos.size()), &tri));
     info.dstImplicitData = call.dst;
     info.scratchData = call.scratch;
     info.dstAddressesArray = {call.addresses, 8, infos.size() * 8};
@@ -276,9 +138,9 @@ void SceneTrace::build(const BuildCall& call) {
     for (size_t c = 0; c < call_infos.size(); ++c)
         if (call_infos[c].clusterID != 0xFFFFFFFFu) call_infos[c].clusterID = call.first_cluster_id + uint32_t(c);
     emit_build(info, call,
-               {{SceneBuffers::kInfos, bytes_of(call_infos.data(), call_infos.size() * sizeof call_infos[0])},
+               {{SceneBuffers::kInfos, tb::bytes_of(call_infos)},
                 {SceneBuffers::kIndices, indices_},
-                {SceneBuffers::kVertices, bytes_of(vertices_.data(), vertices_.size() * 4)}},
+                {SceneBuffers::kVertices, tb::bytes_of(vertices_)}},
                engine_device_ ? 0 : driver_address_shift);
 }
 
@@ -287,13 +149,7 @@ void SceneTrace::build_blas(const std::vector<uint64_t>& cluster_addresses) {
     in.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
     in.maxTotalClusterCount = static_cast<uint32_t>(cluster_addresses.size());
     in.maxClusterCountPerAccelerationStructure = in.maxTotalClusterCount;
-    VkClusterAccelerationStructureCommandsInfoNV info{};
-    info.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
-    info.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
-    info.input.maxAccelerationStructureCount = 1;
-    info.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
-    info.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
-    info.input.opInput.pClustersBottomLevel = &in;
+    auto info = tb::cluster_commands(tb::cluster_op_input(1, &in));
     info.dstImplicitData = SceneBuffers::kBlasDst;
     info.scratchData = SceneBuffers::kScratch;
     info.dstAddressesArray = {SceneBuffers::kAddresses2, 8, 8};
@@ -312,46 +168,28 @@ void SceneTrace::build_blas(const std::vector<uint64_t>& cluster_addresses) {
     std::memcpy(captured.data() + 64, cluster_addresses.data(), cluster_addresses.size() * 8);
     BuildCall call;
     call.capture_outputs = false;
-    emit_build(info, call, {{SceneBuffers::kBlasInfos, captured}}, shift,
-               {{blas.clusterReferences, bytes_of(mirror_refs.data(), mirror_refs.size() * 8)}});
+    emit_build(info, call, {{SceneBuffers::kBlasInfos, captured}}, shift, {{blas.clusterReferences, tb::bytes_of(mirror_refs)}});
 }
 
-void SceneTrace::wait_fence(uint64_t fence) {
-    fbs::FenceWaitT wait;
-    wait.fences.push_back(fence);
-    wait.wait_all = true;
-    check(writer_->append(record(std::move(wait))));
-}
+void SceneTrace::wait_fence(uint64_t fence) { writer_.wait_fence(fence); }
 
 void SceneTrace::observe(uint64_t address, const std::vector<uint8_t>& bytes) {
     fbs::MemoryObservationT o;
     o.memory = kMemory;
-    fbs::MemorySnapshot snap;
-    check(writer_->snapshot(0, 0, address, bytes.data(), bytes.size(), &snap));
-    o.snapshots.push_back(snap);
-    check(writer_->append(record(std::move(o))));
+    o.snapshots.push_back(writer_.snapshot(address, bytes));
+    writer_.append(std::move(o));
 }
 
 void SceneTrace::submit(uint64_t queue, uint64_t wait_semaphore, uint64_t signal_semaphore, uint64_t fence) {
-    fbs::CommandBufferEndT end;
-    end.command_buffer = command_buffer_;
-    check(writer_->append(record(end)));
-    fbs::QueueSubmitT submit;
-    submit.queue = queue;
-    submit.version = 2;
-    auto batch = std::make_unique<fbs::SubmitBatchT>();
-    batch->command_buffers.push_back(command_buffer_);
+    writer_.append(tb::command_buffer_end(command_buffer_));
+    fbs::QueueSubmitT submit = tb::queue_submit(queue, {command_buffer_}, fence, writer_.next_submission_index());
+    fbs::SubmitBatchT& batch = *submit.batches[0];
     if (wait_semaphore)
-        batch->wait_semaphores.emplace_back(wait_semaphore, 0, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, 0);
-    if (signal_semaphore) batch->signal_semaphores.emplace_back(signal_semaphore, 0, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, 0);
-    submit.batches.push_back(std::move(batch));
-    submit.fence = fence;
-    submit.submission_index = writer_->next_submission_index();
-    check(writer_->append(record(std::move(submit))));
+        batch.wait_semaphores.emplace_back(wait_semaphore, 0, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, 0);
+    if (signal_semaphore) batch.signal_semaphores.emplace_back(signal_semaphore, 0, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, 0);
+    writer_.append(std::move(submit));
     ++command_buffer_;
-    fbs::CommandBufferBeginT begin;
-    begin.command_buffer = command_buffer_;
-    check(writer_->append(record(begin)));
+    writer_.append(tb::command_buffer_begin(command_buffer_));
 }
 
 void SceneTrace::move_clusters(const std::vector<uint64_t>& cluster_addresses) {
@@ -361,13 +199,7 @@ void SceneTrace::move_clusters(const std::vector<uint64_t>& cluster_addresses) {
     in.noMoveOverlap = VK_TRUE;
     in.maxMovedBytes = 0x8000;
     const auto n = static_cast<uint32_t>(cluster_addresses.size());
-    VkClusterAccelerationStructureCommandsInfoNV info{};
-    info.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
-    info.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
-    info.input.maxAccelerationStructureCount = n;
-    info.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV;
-    info.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
-    info.input.opInput.pMoveObjects = &in;
+    auto info = tb::cluster_commands(tb::cluster_op_input(n, &in));
     info.dstImplicitData = SceneBuffers::kBlasDst;
     info.scratchData = SceneBuffers::kScratch;
     info.dstAddressesArray = {SceneBuffers::kAddresses2, 8, n * 8ull};
@@ -378,28 +210,14 @@ void SceneTrace::move_clusters(const std::vector<uint64_t>& cluster_addresses) {
     for (uint64_t a : cluster_addresses) mirror_sources.push_back(a - shift);
     BuildCall call;
     call.capture_outputs = false;
-    emit_build(info, call, {{SceneBuffers::kBlasInfos, bytes_of(cluster_addresses.data(), n * 8ull)}}, shift,
-               {{SceneBuffers::kBlasInfos, bytes_of(mirror_sources.data(), n * 8ull)}});
+    emit_build(info, call, {{SceneBuffers::kBlasInfos, tb::bytes_of(cluster_addresses)}}, shift,
+               {{SceneBuffers::kBlasInfos, tb::bytes_of(mirror_sources)}});
 }
 
 void SceneTrace::finish() {
-    fbs::CommandBufferEndT end;
-    end.command_buffer = command_buffer_;
-    check(writer_->append(record(end)));
-    fbs::QueueSubmitT submit;
-    submit.queue = kQueue;
-    submit.version = 2;
-    auto batch = std::make_unique<fbs::SubmitBatchT>();
-    batch->command_buffers.push_back(command_buffer_);
-    submit.batches.push_back(std::move(batch));
-    submit.fence = kFence;
-    submit.submission_index = writer_->next_submission_index();
-    check(writer_->append(record(std::move(submit))));
-    fbs::FenceWaitT wait;
-    wait.fences.push_back(kFence);
-    wait.wait_all = true;
-    check(writer_->append(record(std::move(wait))));
-    check(writer_->finish());
+    writer_.end_and_submit(kQueue, command_buffer_, kFence);
+    writer_.wait_fence(kFence);
+    writer_.finish();
 }
 
 }  // namespace clastrace::test

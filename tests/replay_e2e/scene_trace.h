@@ -2,7 +2,8 @@
 // cluster builds, copies and barriers, one submission, like a capture would record them.
 #pragma once
 
-#include <clastrace/traces/trace_writer.h>
+#include <clastrace/trace_building/engine_mirror.h>
+#include <clastrace/trace_building/record_writer.h>
 #include <clastrace/vk_cluster_abi.h>
 
 #include <cstdint>
@@ -67,9 +68,8 @@ private:
     void emit_build(const VkClusterAccelerationStructureCommandsInfoNV& info, const BuildCall& call,
                     std::vector<std::pair<uint64_t, std::vector<uint8_t>>> inputs, uint64_t translated_base_shift,
                     const std::vector<std::pair<uint64_t, std::vector<uint8_t>>>& mirror_patch = {});
-    struct Mirror;
-    std::unique_ptr<Mirror> mirror_;
-    std::unique_ptr<traces::TraceWriter> writer_;
+    trace_building::EngineMirror mirror_;
+    trace_building::RecordWriter writer_;
     std::vector<float> vertices_;
     std::vector<uint8_t> indices_;
     uint64_t scratch_size_;

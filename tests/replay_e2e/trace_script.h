@@ -4,7 +4,8 @@
 // engine: the replay computes every output itself (no captured outputs are written).
 #pragma once
 
-#include <clastrace/traces/trace_writer.h>
+#include <clastrace/trace_building/cluster_structs.h>
+#include <clastrace/trace_building/record_writer.h>
 #include <clastrace/vk_cluster_abi.h>
 
 #include <cstdint>
@@ -21,15 +22,7 @@ struct InputSnapshot {
     std::vector<uint8_t> bytes;
 };
 
-template <class T>
-std::vector<uint8_t> bytes_of(const T* values, size_t count) {
-    const auto* p = reinterpret_cast<const uint8_t*>(values);
-    return {p, p + count * sizeof(T)};
-}
-template <class T>
-std::vector<uint8_t> bytes_of(const std::vector<T>& values) {
-    return bytes_of(values.data(), values.size());
-}
+using trace_building::bytes_of;
 
 struct SemaphoreUse {
     uint64_t semaphore = 0;
@@ -109,7 +102,7 @@ public:
 
 private:
     void ensure_begun();
-    std::unique_ptr<traces::TraceWriter> writer_;
+    trace_building::RecordWriter writer_;
     uint64_t command_buffer_ = 0xc000;
     uint64_t next_command_buffer_ = 0xc001;
     bool begun_ = false;

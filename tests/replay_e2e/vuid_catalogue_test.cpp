@@ -4,8 +4,7 @@
 // twin that differs only in the broken value. The replay must report the VUID string
 // verbatim at the command and op that broke it; the twin must replay clean.
 // docs/replay.md maps each VUID to its case name here.
-#include "catalogue_scene.h"
-#include "trace_script.h"
+#include "catalogue_replay.h"
 
 #include <clastrace/replay/replayer.hpp>
 #include <clastrace/traces/trace_reader.h>
@@ -26,23 +25,8 @@ using namespace clastrace;
 using namespace clastrace::test;
 using namespace clastrace::test::catalogue;
 
-std::string temp_path(const std::string& name) {
-    return (std::filesystem::temp_directory_path() / ("vuid_catalogue_" + std::to_string(::getpid()) + "_" + name)).string();
-}
-
-// CLASTRACE_KEEP_TRACES=1 keeps the catalogue's traces (one per rule and twin) in TMPDIR,
-// e.g. to look at them with `clastrace replay`.
-void discard(const std::string& path) {
-    if (!std::getenv("CLASTRACE_KEEP_TRACES")) std::remove(path.c_str());
-}
-
-replay::ReplayReport replay_file(const std::string& path) {
-    traces::TraceError e;
-    auto reader = traces::TraceReader::open(path, &e);
-    EXPECT_TRUE(reader) << e.message;
-    if (!reader) return {};
-    return replay::replay_trace(*reader, path);
-}
+// One trace per rule and twin (CLASTRACE_KEEP_TRACES=1 keeps them).
+std::string temp_path(const std::string& name) { return temp_trace_path("vuid_catalogue", name); }
 
 // Where the broken rule must be reported.
 struct Expected {
@@ -454,16 +438,8 @@ const VuidCase kCases[] = {
 class VuidCatalogue : public ::testing::TestWithParam<VuidCase> {
 protected:
     replay::ReplayReport run(bool broken, Expected* at) {
-        const std::string path = temp_path(std::string(GetParam().name) + (broken ? "_broken.clt" : "_twin.clt"));
-        {
-            TraceScript t(path, device());
-            add_buffers(t);
-            GetParam().scene(t, broken, *at);
-            t.finish();
-        }
-        replay::ReplayReport r = replay_file(path);
-        discard(path);
-        return r;
+        return replay_catalogue_scene(temp_path(std::string(GetParam().name) + (broken ? "_broken.clt" : "_twin.clt")),
+                                      [&](TraceScript& t) { GetParam().scene(t, broken, *at); });
     }
 };
 
@@ -520,23 +496,18 @@ TEST(VuidCatalogueCoverage, EveryListedVuidHasACase) {
 TEST(VuidCatalogueUsage, AliasedBufferWithTheUsageSatisfiesTheRule) {
     constexpr uint64_t kAliased = 0x20000000;
     for (bool with_alias : {true, false}) {
-        const std::string path = temp_path(with_alias ? "aliased.clt" : "unaliased.clt");
-        {
-            TraceScript t(path, device());
-            add_buffers(t);
-            t.buffer(0xa001, kAliased, 0x10000, VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | VK_BUFFER_USAGE_STORAGE_BUFFER_BIT,
-                     0x2002, 0);
-            if (with_alias)
-                t.buffer(0xa002, kAliased, 0x10000,
-                         VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR,
-                         0x2002, 0);
-            ClusterCommand c = triangle_clusters(Destinations::kImplicit);
-            c.info.dstImplicitData = kAliased;
-            c.emit(t);
-            t.finish();
-        }
-        const replay::ReplayReport r = replay_file(path);
-        std::remove(path.c_str());
+        const replay::ReplayReport r =
+            replay_catalogue_scene(temp_path(with_alias ? "aliased.clt" : "unaliased.clt"), [&](TraceScript& t) {
+                t.buffer(0xa001, kAliased, 0x10000,
+                         VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, 0x2002, 0);
+                if (with_alias)
+                    t.buffer(0xa002, kAliased, 0x10000,
+                             VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR,
+                             0x2002, 0);
+                ClusterCommand c = triangle_clusters(Destinations::kImplicit);
+                c.info.dstImplicitData = kAliased;
+                c.emit(t);
+            });
         if (with_alias) {
             EXPECT_TRUE(r.clean()) << replay::format_text(r);
         } else {

@@ -1,67 +1,41 @@
 #include "nv_trace_builder.h"
 
-#include <stdexcept>
+#include <clastrace/trace_building/command_records.h>
+#include <clastrace/trace_building/trace_header.h>
 
 namespace clastrace::nvtest {
 namespace {
 
+namespace tb = trace_building;
+
 constexpr uint64_t kQueue = 0x9001, kFence = 0xFE1, kBufferMemory = 0x1001, kObjectMemory = 0x1002;
 
-void check(const traces::TraceError& e) {
-    if (e) throw std::runtime_error(e.message);
-}
-
-}  // namespace
-
-template <class T>
-void NvTraceBuilder::append(T body) {
-    fbs::RecordT r;
-    r.body.Set(std::move(body));
-    check(writer_->append(r));
-}
-
-NvTraceBuilder::NvTraceBuilder(const std::string& path, bool engine_device, uint64_t max_instance_count,
-                               std::vector<std::string> enabled_extensions) {
-    fbs::TraceHeaderT h;
-    h.device = std::make_unique<fbs::DeviceInfoT>();
-    h.device->name = engine_device ? "clastrace engine" : "NVIDIA H100 (test double)";
-    h.device->driver_name = engine_device ? "clastrace engine" : "NVIDIA";
+fbs::TraceHeaderT nv_header(bool engine_device, uint64_t max_instance_count, std::vector<std::string> enabled_extensions) {
+    fbs::TraceHeaderT h = tb::trace_header(engine_device ? tb::kEngineDriver : "NVIDIA H100 (test double)",
+                                           engine_device ? tb::kEngineDriver : "NVIDIA", "replay_nv_tests");
     h.device->enabled_extensions = std::move(enabled_extensions);
     if (max_instance_count) {
         h.device->ray_tracing_properties_nv = std::make_unique<fbs::RayTracingPropertiesNVT>();
         h.device->ray_tracing_properties_nv->max_instance_count = max_instance_count;
     }
-    h.capture = std::make_unique<fbs::CaptureSettingsT>();
-    h.capture->capture_tool = "replay_nv_tests";
-    traces::TraceError e;
-    traces::TraceWriterOptions o;
-    o.sync_on_finish = false;
-    writer_ = traces::TraceWriter::create(path, h, o, &e);
-    check(e);
+    return h;
 }
+
+}  // namespace
+
+NvTraceBuilder::NvTraceBuilder(const std::string& path, bool engine_device, uint64_t max_instance_count,
+                               std::vector<std::string> enabled_extensions)
+    : writer_(path, nv_header(engine_device, max_instance_count, std::move(enabled_extensions))) {}
 
 NvTraceBuilder::~NvTraceBuilder() = default;
 
 uint64_t NvTraceBuilder::buffer(const void* bytes, uint64_t size, uint64_t usage) {
     const uint64_t handle = next_buffer_++, address = next_address_;
     next_address_ += (size + 0xFFFF) / 0x10000 * 0x10000 + 0x10000;
-    fbs::BufferCreateT c;
-    c.buffer = handle;
-    c.size = size;
-    c.usage = usage | VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT;
-    append(c);
-    fbs::BufferBindMemoryT b;
-    b.buffer = handle;
-    b.memory = kBufferMemory;
-    b.memory_offset = address - 0x10000000;
-    b.device_address = address;
-    append(b);
+    writer_.buffer(handle, address, size, usage | VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT, kBufferMemory,
+                   address - 0x10000000);
     buffers_.push_back({handle, address});
-    if (bytes) {
-        fbs::MemorySnapshot snap;
-        check(writer_->snapshot(handle, 0, address, bytes, size, &snap));
-        pending_inputs_.push_back(snap);
-    }
+    if (bytes) pending_inputs_.push_back(writer_.snapshot(address, bytes, size, handle));
     return handle;
 }
 
@@ -82,14 +56,14 @@ NvTraceBuilder::Object NvTraceBuilder::create(const fbs::AccelerationStructureIn
     c.type = info.type;
     c.info = std::make_unique<fbs::AccelerationStructureInfoNVT>(info);
     c.device_address = o.driver_handle;
-    append(std::move(c));
+    writer_.append(std::move(c));
     for (uint32_t type : {0u, 1u, 2u}) {
         fbs::AccelerationStructureMemoryRequirementsNVT q;
         q.acceleration_structure = o.handle;
         q.type = type;
         q.size = type == 0 ? driver_object_size : 4096;
         q.alignment = 256;
-        append(q);
+        writer_.append(q);
     }
     if (bind) {
         fbs::AccelerationStructureBindMemoryT b;
@@ -97,7 +71,7 @@ NvTraceBuilder::Object NvTraceBuilder::create(const fbs::AccelerationStructureIn
         b.memory = kObjectMemory;
         b.memory_offset = next_offset_;
         next_offset_ += (driver_object_size + 0xFFFF) / 0x10000 * 0x10000;
-        append(b);
+        writer_.append(b);
     }
     return o;
 }
@@ -139,12 +113,7 @@ fbs::AccelerationStructureInfoNVT NvTraceBuilder::tlas_info(uint32_t instance_co
 void NvTraceBuilder::build(const fbs::AccelerationStructureInfoNVT& info, const Object& dst, uint64_t instance_buffer,
                            bool update, const Object* src, uint64_t scratch_size, uint64_t scratch_buffer) {
     const uint64_t scratch = scratch_buffer ? scratch_buffer : buffer(nullptr, scratch_size);
-    if (!open_) {
-        fbs::CommandBufferBeginT begin;
-        begin.command_buffer = command_buffer_;
-        append(begin);
-        open_ = true;
-    }
+    begin_if_needed();
     fbs::CmdBuildAccelerationStructureNVT b;
     b.command_buffer = command_buffer_;
     b.info = std::make_unique<fbs::AccelerationStructureInfoNVT>(info);
@@ -155,16 +124,17 @@ void NvTraceBuilder::build(const fbs::AccelerationStructureInfoNVT& info, const 
     b.scratch = scratch;
     b.inputs = std::move(pending_inputs_);
     pending_inputs_.clear();
-    append(std::move(b));
+    writer_.append(std::move(b));
+}
+
+void NvTraceBuilder::begin_if_needed() {
+    if (open_) return;
+    writer_.append(tb::command_buffer_begin(command_buffer_));
+    open_ = true;
 }
 
 void NvTraceBuilder::deserialize(uint64_t src_buffer, const Object& dst, uint32_t mode, uint64_t src_offset) {
-    if (!open_) {
-        fbs::CommandBufferBeginT begin;
-        begin.command_buffer = command_buffer_;
-        append(begin);
-        open_ = true;
-    }
+    begin_if_needed();
     fbs::CmdCopyMemoryToAccelerationStructureT c;
     c.command_buffer = command_buffer_;
     c.src_address = address_of(src_buffer) + src_offset;
@@ -172,38 +142,19 @@ void NvTraceBuilder::deserialize(uint64_t src_buffer, const Object& dst, uint32_
     c.mode = mode;
     c.inputs = std::move(pending_inputs_);
     pending_inputs_.clear();
-    append(std::move(c));
+    writer_.append(std::move(c));
 }
 
 void NvTraceBuilder::barrier() {
-    fbs::CmdPipelineBarrierT b;
-    b.command_buffer = command_buffer_;
-    b.version = 2;
-    b.dependency = std::make_unique<fbs::DependencyT>();
     const uint64_t stages = VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR | VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR;
     const uint64_t access = VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR | VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR |
                             VK_ACCESS_2_SHADER_READ_BIT | VK_ACCESS_2_TRANSFER_READ_BIT;
-    b.dependency->memory_barriers.emplace_back(stages, access, stages, access);
-    append(std::move(b));
+    writer_.append(tb::memory_barrier(command_buffer_, stages, access, stages, access));
 }
 
 void NvTraceBuilder::submit() {
-    fbs::CommandBufferEndT end;
-    end.command_buffer = command_buffer_;
-    append(end);
-    fbs::QueueSubmitT s;
-    s.queue = kQueue;
-    s.version = 2;
-    auto batch = std::make_unique<fbs::SubmitBatchT>();
-    batch->command_buffers.push_back(command_buffer_);
-    s.batches.push_back(std::move(batch));
-    s.fence = kFence;
-    s.submission_index = writer_->next_submission_index();
-    append(std::move(s));
-    fbs::FenceWaitT w;
-    w.fences.push_back(kFence);
-    w.wait_all = true;
-    append(std::move(w));
+    writer_.end_and_submit(kQueue, command_buffer_, kFence);
+    writer_.wait_fence(kFence);
     ++command_buffer_;
     open_ = false;
 }
@@ -213,7 +164,7 @@ void NvTraceBuilder::ray_check(const Object& tlas, const std::vector<eng::Ray>& 
     fbs::RayQueryCheckT c;
     c.acceleration_structure = tlas.handle;
     c.device_handle = tlas.driver_handle;
-    c.after_submission = writer_->next_submission_index() - 1;
+    c.after_submission = writer_.next_submission_index() - 1;
     c.label = label;
     for (size_t i = 0; i < rays.size(); ++i) {
         const eng::Ray& r = rays[i];
@@ -222,9 +173,9 @@ void NvTraceBuilder::ray_check(const Object& tlas, const std::vector<eng::Ray>& 
         const RefHit& a = answers[i];
         c.results.emplace_back(a.hit ? 1u : 0u, a.t, a.custom_index, a.instance, a.primitive, a.geometry, a.hit_kind, a.u, a.v);
     }
-    append(std::move(c));
+    writer_.append(std::move(c));
 }
 
-void NvTraceBuilder::finish() { check(writer_->finish()); }
+void NvTraceBuilder::finish() { writer_.finish(); }
 
 }  // namespace clastrace::nvtest

@@ -6,7 +6,7 @@
 
 #include "nv_scene.h"
 
-#include <clastrace/traces/trace_writer.h>
+#include <clastrace/trace_building/record_writer.h>
 
 #include <memory>
 #include <string>
@@ -45,9 +45,8 @@ public:
     void finish();
 
 private:
-    template <class T>
-    void append(T body);
-    std::unique_ptr<traces::TraceWriter> writer_;
+    void begin_if_needed();
+    trace_building::RecordWriter writer_;
     std::vector<fbs::MemorySnapshot> pending_inputs_;
     std::vector<std::pair<uint64_t, uint64_t>> buffers_;  // handle, address
     uint64_t next_buffer_ = 0x5000, next_address_ = 0x10000000, next_object_ = 0xA5000, next_offset_ = 0;

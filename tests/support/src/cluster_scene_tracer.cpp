@@ -1,4 +1,5 @@
 #include "clastrace/testsupport/cluster_scene.h"
+#include "clastrace/testsupport/embree_ray.h"
 
 #include "clastrace/engine/traversal.h"
 
@@ -62,18 +63,7 @@ ClusterSceneTracer::~ClusterSceneTracer() {
 SceneHit ClusterSceneTracer::trace(const TestRay& ray) const {
     RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
-    RTCRayHit rh;
-    std::memset(&rh, 0, sizeof rh);
-    rh.ray.org_x = ray.origin[0];
-    rh.ray.org_y = ray.origin[1];
-    rh.ray.org_z = ray.origin[2];
-    rh.ray.dir_x = ray.direction[0];
-    rh.ray.dir_y = ray.direction[1];
-    rh.ray.dir_z = ray.direction[2];
-    rh.ray.tnear = ray.tmin;
-    rh.ray.tfar = ray.tmax;
-    rh.ray.mask = ~0u;
-    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    RTCRayHit rh = embree_ray_hit(ray);
     rtcIntersect1(rtc_, &ctx, &rh);
     SceneHit out;
     if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return out;

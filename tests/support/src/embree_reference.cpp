@@ -1,5 +1,7 @@
 #include "clastrace/testsupport/embree_reference.h"
 
+#include "clastrace/testsupport/embree_ray.h"
+
 #include <cmath>
 #include <cstring>
 #include <stdexcept>
@@ -29,21 +31,6 @@ void collect_filter(const RTCFilterFunctionNArguments* args) {
         ctx->out->push_back(h);
     }
     args->valid[0] = 0;  // reject, so traversal goes on and reports every candidate
-}
-
-void fill(RTCRayHit& rh, const TestRay& r) {
-    std::memset(&rh, 0, sizeof rh);
-    rh.ray.org_x = r.origin[0];
-    rh.ray.org_y = r.origin[1];
-    rh.ray.org_z = r.origin[2];
-    rh.ray.dir_x = r.direction[0];
-    rh.ray.dir_y = r.direction[1];
-    rh.ray.dir_z = r.direction[2];
-    rh.ray.tnear = r.tmin;
-    rh.ray.tfar = r.tmax;
-    rh.ray.mask = 0xFFFFFFFFu;
-    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-    rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
 }
 
 } // namespace
@@ -96,8 +83,7 @@ void EmbreeReference::commit() {
 ReferenceHit EmbreeReference::intersect(const TestRay& ray) const {
     RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
-    RTCRayHit rh;
-    fill(rh, ray);
+    RTCRayHit rh = embree_ray_hit(ray);
     rtcIntersect1(scene_, &ctx, &rh);
     ReferenceHit h;
     if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return h;
@@ -113,8 +99,7 @@ ReferenceHit EmbreeReference::intersect(const TestRay& ray) const {
 bool EmbreeReference::occluded(const TestRay& ray) const {
     RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
-    RTCRayHit rh;
-    fill(rh, ray);
+    RTCRayHit rh = embree_ray_hit(ray);
     rtcOccluded1(scene_, &ctx, &rh.ray);
     return rh.ray.tfar < 0.0f;  // Embree marks an occluded ray with tfar = -inf
 }
@@ -127,8 +112,7 @@ std::vector<ReferenceHit> EmbreeReference::hits_near(const TestRay& ray, float t
     ctx.out = &out;
     const float slack = std::fabs(t) * rel + 1e-30f;
     ctx.t_lo = t - slack;
-    RTCRayHit rh;
-    fill(rh, ray);
+    RTCRayHit rh = embree_ray_hit(ray);
     rh.ray.tfar = std::fmin(ray.tmax, t + slack);
     rtcIntersect1(scene_, &ctx.base, &rh);
     return out;

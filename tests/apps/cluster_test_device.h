@@ -1,0 +1,58 @@
+// The Vulkan set-up the headless test programs share (tests/apps, tests/capture): the first
+// physical device, one compute queue with VK_NV_cluster_acceleration_structure and buffer
+// device addresses enabled, a resettable command pool, and host-visible coherent buffers with
+// device addresses. Nothing is destroyed behind the program's back: it calls destroy() or
+// tears down itself (a program that exits mid-frame on purpose does neither). A failed call prints "<program>: <call> failed: <VkResult>" and exits with 2,
+// which the tests tell apart from the layer's findings.
+#pragma once
+
+#include <clastrace/vk_cluster_abi.h>
+
+#include <cstddef>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#define CHECK(call) ::clastrace::testapp::check_result((call), #call)
+
+namespace clastrace::testapp {
+
+[[noreturn]] void fail(const char* what);
+void check_result(VkResult result, const char* call);
+std::string hex(const void* data, size_t size);
+
+struct Buffer {
+  VkBuffer buffer = VK_NULL_HANDLE;
+  VkDeviceMemory memory = VK_NULL_HANDLE;
+  VkDeviceAddress address = 0;
+  uint8_t* mapped = nullptr;
+  VkDeviceSize size = 0;
+};
+
+struct ClusterTestDevice {
+  VkInstance instance = VK_NULL_HANDLE;
+  VkPhysicalDevice physicalDevice = VK_NULL_HANDLE;
+  VkDevice device = VK_NULL_HANDLE;
+  VkQueue queue = VK_NULL_HANDLE;
+  uint32_t queueFamily = 0;
+  VkCommandPool pool = VK_NULL_HANDLE;
+  PFN_vkCmdBuildClusterAccelerationStructureIndirectNV cmdBuildClusters = nullptr;
+  PFN_vkGetClusterAccelerationStructureBuildSizesNV getBuildSizes = nullptr;
+  std::vector<Buffer> buffers;  // destroyed with the device
+
+  // applicationName nullptr: the program's own name.
+  void createInstance(const char* applicationName = nullptr);
+  // The device lists the extension at the spec version of our ABI header.
+  bool hasClusterExtension() const;
+  void createDevice(bool timelineSemaphores = false);
+  // STORAGE, TRANSFER_SRC/DST and SHADER_DEVICE_ADDRESS usage plus `usage`; every byte `fill`
+  // (a marker the GPU commands must replace, where a test checks that they did).
+  Buffer makeBuffer(VkDeviceSize size, VkBufferUsageFlags usage, uint8_t fill = 0);
+  // A one-time-submit primary command buffer, begun.
+  VkCommandBuffer beginCommands();
+  void submitAndWait(VkCommandBuffer cb);
+  // Waits for the device, then destroys the buffers made, the pool, the device and the instance.
+  void destroy();
+};
+
+}  // namespace clastrace::testapp
