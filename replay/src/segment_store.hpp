@@ -147,9 +147,17 @@ private:
             if (entries_[finger_].end > at) return finger_;
             if (finger_ + 1 == n || entries_[finger_ + 1].end > at) return finger_ + 1;
         }
-        // Entries are disjoint and sorted, so their ends are sorted too.
-        auto it = std::partition_point(entries_.begin(), entries_.end(), [at](const Entry& e) { return e.end <= at; });
-        return std::size_t(it - entries_.begin());
+        // Entries are disjoint and sorted, so their ends are sorted too. Branch-free halving:
+        // the accesses of one command jump between arrays, so the branch would mispredict.
+        if (n == 0) return 0;
+        const Entry* base = entries_.data();
+        std::size_t len = n;
+        while (len > 1) {
+            const std::size_t half = len / 2;
+            base = base[half - 1].end <= at ? base + half : base;
+            len -= half;
+        }
+        return std::size_t(base - entries_.data()) + (base->end <= at ? 1 : 0);
     }
 
     uint32_t allocate() {
