@@ -4,8 +4,9 @@
 // cost one move of trivially copyable entries, and freed bodies go back to the pool with their
 // heap capacity (a body's read list) kept for the next segment.
 //
-// The model's accesses mostly land on or next to the segment touched last, so that one is
-// tried before the binary search.
+// The search for an address runs over a separate array of the segments' ends (8 bytes a
+// segment), branch-free: a command's accesses jump between its arrays, so neither a cached
+// "last segment" nor the search's branches predict well.
 //
 // Body needs a default constructor, copy assignment and clear(). Internal to replay; a
 // template only so that tests can check it against a per-byte reference with a plain body.
@@ -90,7 +91,6 @@ public:
             }
         }
         splice(first, next, pieces_);
-        finger_ = first;
     }
 
     // Makes `at` a segment boundary if a segment straddles it.
@@ -101,6 +101,8 @@ public:
         const Entry tail{at, e.end, copy_of(e.body)};
         entries_[i].end = at;
         entries_.insert(entries_.begin() + std::ptrdiff_t(i + 1), tail);
+        ends_[i] = at;
+        ends_.insert(ends_.begin() + std::ptrdiff_t(i + 1), tail.end);
     }
 
     // Calls fn(Body&, begin, end) on every segment meeting [lo, hi), in address order.
@@ -121,18 +123,25 @@ public:
         std::size_t out = first_ending_after(lo), in = out;
         for (; in < entries_.size() && entries_[in].begin < hi; ++in) {
             const Entry e = entries_[in];
-            if (drop(bodies_[e.body], e.begin, e.end)) release(e.body);
-            else entries_[out++] = e;
+            if (drop(bodies_[e.body], e.begin, e.end)) {
+                release(e.body);
+            } else {
+                ends_[out] = e.end;
+                entries_[out++] = e;
+            }
         }
-        if (out != in) entries_.erase(entries_.begin() + std::ptrdiff_t(out), entries_.begin() + std::ptrdiff_t(in));
-        finger_ = 0;
+        if (out != in) {
+            entries_.erase(entries_.begin() + std::ptrdiff_t(out), entries_.begin() + std::ptrdiff_t(in));
+            ends_.erase(ends_.begin() + std::ptrdiff_t(out), ends_.begin() + std::ptrdiff_t(in));
+        }
     }
 
     // Bytes held: entries, bodies (pooled ones too) and whatever body_heap_bytes says a body
     // holds on the heap.
     template <class HeapBytes>
     std::size_t memory_bytes(HeapBytes&& body_heap_bytes) const {
-        std::size_t bytes = entries_.capacity() * sizeof(Entry) + bodies_.capacity() * sizeof(Body) +
+        std::size_t bytes = entries_.capacity() * sizeof(Entry) + ends_.capacity() * sizeof(uint64_t) +
+                            bodies_.capacity() * sizeof(Body) +
                             free_.capacity() * sizeof(uint32_t) + pieces_.capacity() * sizeof(Entry);
         for (const Body& b : bodies_) bytes += body_heap_bytes(b);
         return bytes;
@@ -141,23 +150,17 @@ public:
 private:
     // Index of the first entry whose end lies past `at` (the one holding `at`, or the next).
     std::size_t first_ending_after(uint64_t at) const {
-        const std::size_t n = entries_.size();
-        if (finger_ < n && entries_[finger_].begin <= at) {
-            // The last update's segment or the one after it: the common sequential case.
-            if (entries_[finger_].end > at) return finger_;
-            if (finger_ + 1 == n || entries_[finger_ + 1].end > at) return finger_ + 1;
-        }
-        // Entries are disjoint and sorted, so their ends are sorted too. Branch-free halving:
-        // the accesses of one command jump between arrays, so the branch would mispredict.
+        // Entries are disjoint and sorted, so their ends are sorted too.
+        const std::size_t n = ends_.size();
         if (n == 0) return 0;
-        const Entry* base = entries_.data();
+        const uint64_t* base = ends_.data();
         std::size_t len = n;
         while (len > 1) {
             const std::size_t half = len / 2;
-            base = base[half - 1].end <= at ? base + half : base;
+            base = base[half - 1] <= at ? base + half : base;
             len -= half;
         }
-        return std::size_t(base - entries_.data()) + (base->end <= at ? 1 : 0);
+        return std::size_t(base - ends_.data()) + (*base <= at ? 1 : 0);
     }
 
     uint32_t allocate() {
@@ -182,18 +185,22 @@ private:
     // entries_[from, to) become `with`.
     void splice(std::size_t from, std::size_t to, const std::vector<Entry>& with) {
         const std::size_t old = to - from;
-        if (with.size() > old)
+        if (with.size() > old) {
             entries_.insert(entries_.begin() + std::ptrdiff_t(to), with.size() - old, Entry{});
-        else if (with.size() < old)
+            ends_.insert(ends_.begin() + std::ptrdiff_t(to), with.size() - old, 0);
+        } else if (with.size() < old) {
             entries_.erase(entries_.begin() + std::ptrdiff_t(from + with.size()), entries_.begin() + std::ptrdiff_t(to));
+            ends_.erase(ends_.begin() + std::ptrdiff_t(from + with.size()), ends_.begin() + std::ptrdiff_t(to));
+        }
         std::copy(with.begin(), with.end(), entries_.begin() + std::ptrdiff_t(from));
+        for (std::size_t k = 0; k < with.size(); ++k) ends_[from + k] = with[k].end;
     }
 
     std::vector<Entry> entries_;  // sorted by begin, disjoint
+    std::vector<uint64_t> ends_;  // entries_[i].end, for the search
     std::vector<Body> bodies_;
     std::vector<uint32_t> free_;   // released bodies, cleared
     std::vector<Entry> pieces_;    // update's working list
-    std::size_t finger_ = 0;       // where the last update began
 };
 
 }  // namespace clastrace::replay::detail

@@ -40,6 +40,7 @@ struct SyncModel::State {
     };
     struct BatchScratch {
         std::vector<std::pair<uint64_t, uint32_t>> by_begin;
+        std::vector<uint64_t> packed;
         std::vector<uint8_t> pinned;
         std::vector<int32_t> run_of, next_member;
         std::vector<uint32_t> members;
@@ -77,10 +78,15 @@ struct SyncModel::State {
     // Every access names its field ("srcInfosArray[7].vertexBuffer": a few names per op
     // index), so interning runs once per access: an open-addressing table of (hash, id) over
     // field_names, with a word-at-a-time hash, instead of a node-based map hashing bytewise.
+    // The texts are compared in one arena: names longer than the small-string buffer would
+    // each sit in their own heap block, a cache miss per lookup.
     struct FieldSlot {
         uint64_t hash = 0;
         uint32_t id = UINT32_MAX;  // UINT32_MAX: empty
+        uint32_t length = 0;
+        std::size_t offset = 0;    // into field_arena
     };
+    std::string field_arena;
     std::vector<FieldSlot> field_table = std::vector<FieldSlot>(64);
 
     static uint64_t field_hash(std::string_view v) {
@@ -93,7 +99,7 @@ struct SyncModel::State {
             h ^= h >> 32;
         }
         uint64_t w = 0;
-        std::memcpy(&w, v.data() + i, v.size() - i);
+        if (i < v.size()) std::memcpy(&w, v.data() + i, v.size() - i);
         h = (h ^ w) * 0xC4CEB9FE1A85EC53ull;
         return h ^ (h >> 29);
     }
@@ -104,17 +110,21 @@ struct SyncModel::State {
         for (std::size_t i = h & mask;; i = (i + 1) & mask) {
             const FieldSlot& slot = field_table[i];
             if (slot.id == UINT32_MAX) break;
-            if (slot.hash == h && field_names[slot.id] == field) return slot.id;
+            if (slot.hash == h && slot.length == field.size() &&
+                (field.empty() || std::memcmp(field_arena.data() + slot.offset, field.data(), field.size()) == 0))
+                return slot.id;
         }
         const uint32_t id = uint32_t(field_names.size());
         field_names.emplace_back(field);
+        const std::size_t offset = field_arena.size();
+        field_arena.append(field);
         if (2 * field_names.size() > field_table.size()) {
             std::vector<FieldSlot> old(2 * field_table.size());
             old.swap(field_table);
             for (const FieldSlot& slot : old)
                 if (slot.id != UINT32_MAX) place_field(slot);
         }
-        place_field({h, id});
+        place_field({h, id, uint32_t(field.size()), offset});
         return id;
     }
     void place_field(FieldSlot slot) {
@@ -897,9 +907,26 @@ void SyncModel::record_accesses(const CommandRef& command, std::span<const Acces
     // Accesses overlapping another of the command keep their place in the order: pinned.
     auto& by_begin = s.batch.by_begin;
     by_begin.clear();
-    for (uint32_t i = 0; i < n; ++i)
-        if (!accesses[i].range.empty()) by_begin.push_back({accesses[i].range.begin, i});
-    std::sort(by_begin.begin(), by_begin.end());
+    // Sorted as one 64-bit key (begin above the index) where both fit: the same order as the
+    // pairs at a fraction of the comparisons' cost, which showed in the profile.
+    constexpr int kIndexBits = 20;
+    auto& packed = s.batch.packed;
+    packed.clear();
+    bool fits = n < (std::size_t(1) << kIndexBits);
+    for (uint32_t i = 0; i < n && fits; ++i) {
+        const AddressRange& r = accesses[i].range;
+        if (r.empty()) continue;
+        fits = r.begin < (uint64_t(1) << (64 - kIndexBits));
+        packed.push_back(r.begin << kIndexBits | i);
+    }
+    if (fits) {
+        std::sort(packed.begin(), packed.end());
+        for (uint64_t k : packed) by_begin.push_back({k >> kIndexBits, uint32_t(k & ((1u << kIndexBits) - 1))});
+    } else {
+        for (uint32_t i = 0; i < n; ++i)
+            if (!accesses[i].range.empty()) by_begin.push_back({accesses[i].range.begin, i});
+        std::sort(by_begin.begin(), by_begin.end());
+    }
     auto& pinned = s.batch.pinned;
     pinned.assign(n, 0);
     uint64_t reach = 0;
