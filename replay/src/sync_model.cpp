@@ -961,8 +961,10 @@ void SyncModel::record_accesses(const CommandRef& command, std::span<const Acces
         for (std::size_t k = 0; k < open_count; ++k) {
             const Run& r = runs[open[k]];
             const Access& h = accesses[r.head];
-            if (r.prefix == prefix && r.suffix == suffix && h.stage == a.stage && h.access == a.access &&
-                h.is_write == a.is_write)
+            // The integers first: most open runs differ in them, and the texts cost a compare each.
+            if (h.stage == a.stage && h.access == a.access && h.is_write == a.is_write &&
+                r.prefix.size() == prefix.size() && r.suffix.size() == suffix.size() && r.prefix == prefix &&
+                r.suffix == suffix)
                 slot = &open[k];
         }
         if (slot) {
