@@ -13,6 +13,27 @@ namespace clastrace::replay {
 
 using namespace detail;
 
+namespace {
+
+// "srcInfosArray[12].vertexBuffer" -> "srcInfosArray[", 12, "].vertexBuffer". Only the
+// canonical spelling of the index (no leading zeros) counts, so the text rebuilt from the
+// parts is the field itself.
+bool split_indexed_field(std::string_view field, std::string_view* prefix, uint64_t* index, std::string_view* suffix) {
+    const std::size_t open = field.find('[');
+    if (open == std::string_view::npos) return false;
+    std::size_t i = open + 1;
+    uint64_t value = 0;
+    while (i < field.size() && field[i] >= '0' && field[i] <= '9' && i - open <= 9) value = value * 10 + uint64_t(field[i++] - '0');
+    const std::size_t digits = i - open - 1;
+    if (digits == 0 || i >= field.size() || field[i] != ']' || (digits > 1 && field[open + 1] == '0')) return false;
+    *prefix = field.substr(0, open + 1);
+    *index = value;
+    *suffix = field.substr(i);
+    return true;
+}
+
+}  // namespace
+
 struct SyncModel::State {
     SyncOptions options;
     SyncStats stats;
@@ -30,10 +51,19 @@ struct SyncModel::State {
     uint64_t set_serial = 0;
 
     std::vector<std::string> field_names;  // interned: id -> text ("" is id 0)
+    // Each interned name split once around its first index ("srcInfosArray[" 12
+    // "].vertexBuffer", both parts interned too), so record_accesses forms its element runs
+    // by comparing ids instead of parsing and comparing every access's text.
+    struct FieldShape {
+        bool indexed = false;
+        uint32_t prefix = 0, suffix = 0;
+        uint64_t index = 0;
+    };
+    std::vector<FieldShape> field_shapes;
 
     // record_accesses' working lists, kept to spare the allocations per command.
     struct Run {  // an element run being formed: consecutive "x[i]" accesses
-        std::string_view prefix, suffix;
+        uint32_t prefix = 0, suffix = 0;  // interned texts around the index
         uint64_t first = 0, next = 0, bytes = 0;
         AddressRange range;
         uint32_t head = 0, last = 0, count = 1, members_at = 0;
@@ -45,6 +75,7 @@ struct SyncModel::State {
         std::vector<int32_t> run_of, next_member;
         std::vector<uint32_t> members;
         std::vector<Run> runs;
+        std::vector<uint32_t> field_of;
         Record record;
     } batch;
 
@@ -116,6 +147,7 @@ struct SyncModel::State {
         }
         const uint32_t id = uint32_t(field_names.size());
         field_names.emplace_back(field);
+        field_shapes.emplace_back();
         const std::size_t offset = field_arena.size();
         field_arena.append(field);
         if (2 * field_names.size() > field_table.size()) {
@@ -125,6 +157,13 @@ struct SyncModel::State {
                 if (slot.id != UINT32_MAX) place_field(slot);
         }
         place_field({h, id, uint32_t(field.size()), offset});
+        std::string_view prefix, suffix;
+        uint64_t index = 0;
+        const std::string name = field_names[id];  // the parts' interning may move field_names
+        if (split_indexed_field(name, &prefix, &index, &suffix)) {
+            const uint32_t prefix_id = intern(prefix), suffix_id = intern(suffix);  // shorter: ends
+            field_shapes[id] = {true, prefix_id, suffix_id, index};
+        }
         return id;
     }
     void place_field(FieldSlot slot) {
@@ -593,6 +632,10 @@ struct SyncModel::State {
     }
     // make_record into an existing record (record_accesses reuses one, sparing its vectors).
     void fill_record(Record& r, const CommandRef& command, const Access& a, uint16_t queue, uint64_t t) {
+        fill_record(r, command, a, queue, t, intern(a.field));
+    }
+    void fill_record(Record& r, const CommandRef& command, const Access& a, uint16_t queue, uint64_t t,
+                     uint32_t field) {
         r.element_bytes = 0;
         r.first_element = 0;
         r.field_suffix = 0;
@@ -608,7 +651,7 @@ struct SyncModel::State {
         r.access = a.access;
         r.atoms = atomic_accesses(a.access);
         r.is_write = a.is_write;
-        r.field = intern(a.field);
+        r.field = field;
         r.queue = queue;
         r.log_pos = queue == kHostSlot ? 0 : queues[queue].log_end();
     }
@@ -874,26 +917,6 @@ void SyncModel::record_access(const CommandRef& command, const Access& access) {
     s.record(s.make_record(command, access, s.current_queue, t), false);
 }
 
-namespace {
-
-// "srcInfosArray[12].vertexBuffer" -> "srcInfosArray[", 12, "].vertexBuffer". Only the
-// canonical spelling of the index (no leading zeros) counts, so the text rebuilt from the
-// parts is the field itself.
-bool split_indexed_field(std::string_view field, std::string_view* prefix, uint64_t* index, std::string_view* suffix) {
-    const std::size_t open = field.find('[');
-    if (open == std::string_view::npos) return false;
-    std::size_t i = open + 1;
-    uint64_t value = 0;
-    while (i < field.size() && field[i] >= '0' && field[i] <= '9' && i - open <= 9) value = value * 10 + uint64_t(field[i++] - '0');
-    const std::size_t digits = i - open - 1;
-    if (digits == 0 || i >= field.size() || field[i] != ']' || (digits > 1 && field[open + 1] == '0')) return false;
-    *prefix = field.substr(0, open + 1);
-    *index = value;
-    *suffix = field.substr(i);
-    return true;
-}
-
-}  // namespace
 
 void SyncModel::record_accesses(const CommandRef& command, std::span<const Access> accesses) {
     State& s = *state_;
@@ -941,6 +964,11 @@ void SyncModel::record_accesses(const CommandRef& command, std::span<const Acces
         }
     }
 
+    // Each access's field, interned once for the run forming below and its record.
+    auto& field_of = s.batch.field_of;
+    field_of.resize(n);
+    for (uint32_t i = 0; i < n; ++i) field_of[i] = s.intern(accesses[i].field);
+
     // Element runs, each growing while the next element continues it.
     using Run = State::Run;
     auto& runs = s.batch.runs;
@@ -953,18 +981,18 @@ void SyncModel::record_accesses(const CommandRef& command, std::span<const Acces
     std::size_t open_count = 0;
     for (uint32_t i = 0; i < n; ++i) {
         const Access& a = accesses[i];
-        std::string_view prefix, suffix;
-        uint64_t index = 0;
-        if (pinned[i] || a.range.empty() || !split_indexed_field(a.field, &prefix, &index, &suffix)) continue;
+        if (pinned[i] || a.range.empty()) continue;
+        const State::FieldShape shape = s.field_shapes[field_of[i]];
+        if (!shape.indexed) continue;
+        const uint32_t prefix = shape.prefix, suffix = shape.suffix;
+        const uint64_t index = shape.index;
         const uint64_t bytes = a.range.end - a.range.begin;
         std::size_t* slot = nullptr;
         for (std::size_t k = 0; k < open_count; ++k) {
             const Run& r = runs[open[k]];
             const Access& h = accesses[r.head];
-            // The integers first: most open runs differ in them, and the texts cost a compare each.
-            if (h.stage == a.stage && h.access == a.access && h.is_write == a.is_write &&
-                r.prefix.size() == prefix.size() && r.suffix.size() == suffix.size() && r.prefix == prefix &&
-                r.suffix == suffix)
+            if (r.prefix == prefix && r.suffix == suffix && h.stage == a.stage && h.access == a.access &&
+                h.is_write == a.is_write)
                 slot = &open[k];
         }
         if (slot) {
@@ -1004,14 +1032,13 @@ void SyncModel::record_accesses(const CommandRef& command, std::span<const Acces
         if (run) {
             Access a = accesses[i];
             a.range = run->range;
-            a.field = run->prefix;
-            s.fill_record(rec, command, a, s.current_queue, t);
+            s.fill_record(rec, command, a, s.current_queue, t, run->prefix);
             rec.element_bytes = uint32_t(run->bytes);
             rec.first_element = uint32_t(run->first);
-            rec.field_suffix = s.intern(run->suffix);
+            rec.field_suffix = run->suffix;
             s.stats.accesses += run->count - 1;  // counted per access, as record_access would
         } else {
-            s.fill_record(rec, command, accesses[i], s.current_queue, t);
+            s.fill_record(rec, command, accesses[i], s.current_queue, t, field_of[i]);
         }
         each.clear();
         s.record(rec, false, &each);
