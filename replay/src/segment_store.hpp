@@ -29,12 +29,9 @@ public:
     };
 
     std::size_t size() const { return entries_.size(); }
-    const std::vector<Entry>& entries() const { return entries_; }
-    Body& body(const Entry& e) { return bodies_[e.body]; }
-    const Body& body(const Entry& e) const { return bodies_[e.body]; }
 
     // Visits [begin, end) in address order: segments straddling either end are split first
-    // (the piece outside keeps the body, the piece inside gets a copy), gaps become new
+    // (one piece keeps the body, the other gets a copy of it), gaps become new
     // segments handed to fresh(Body&, begin, end), and existing ones go to
     // touch(Body&, begin, end). With `merge`, the segments inside [begin, end) then become one,
     // keeping the first one's body (the caller made them all equal).
