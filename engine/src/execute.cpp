@@ -70,6 +70,22 @@ struct Written {
   int64_t op;
 };
 
+// ExecuteOptions::first_without_usage when the caller has no buffer list: the image's
+// regions, each with one usage (0: unknown, taken as allowed); bytes in no region are the
+// memory rules' business.
+std::optional<uint64_t> first_region_without_usage(const MemoryImage& memory, uint64_t begin, uint64_t end,
+                                                   VkBufferUsageFlags bit) {
+  const auto& regions = memory.regions();
+  auto it = regions.upper_bound(begin);
+  if (it != regions.begin()) --it;
+  for (; it != regions.end() && it->first < end; ++it) {
+    const MemoryRegion& r = it->second;
+    if (r.base + r.size <= begin) continue;
+    if (r.usage != 0 && !(r.usage & bit)) return std::max(begin, r.base);
+  }
+  return std::nullopt;
+}
+
 }  // namespace
 
 ExecutionRecord execute(const VkClusterAccelerationStructureCommandsInfoNV& command, MemoryImage& memory,
@@ -184,12 +200,8 @@ ExecutionRecord execute(const VkClusterAccelerationStructureCommandsInfoNV& comm
   };
   check_usage(cmd.scratch, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT,
               "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12304", "scratchData");
-  check_usage(cmd.src_infos.deviceAddress, VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR,
-              "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12305", "srcInfosArray");
   check_usage(count_address, VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR,
               "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12306", "srcInfosCount");
-  check_usage(cmd.dst_addresses.deviceAddress, VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR,
-              "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12307", "dstAddressesArray");
   check_usage(cmd.implicit_data, VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR,
               "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12308", "dstImplicitData");
 
@@ -247,6 +259,35 @@ ExecutionRecord execute(const VkClusterAccelerationStructureCommandsInfoNV& comm
   cmd.count = uint32_t(count);  // <= maxAccelerationStructureCount
   record.op_count = cmd.count;
   record.ops.resize(cmd.count);
+
+  // 12305/12307 name a "device address range": every byte of the elements the ops use, up
+  // to the last one's end (with no op, the first byte), must lie in a buffer with the usage.
+  auto check_range_usage = [&](uint64_t address, uint64_t stride, uint64_t element, VkBufferUsageFlags bit,
+                               const char* vuid, const char* what) {
+    if (address == 0) return;
+    uint64_t bytes = 1;
+    if (cmd.count > 0) {
+      const uint64_t step = stride == 0 ? element : stride;
+      if (step != 0 && uint64_t(cmd.count - 1) > (UINT64_MAX - element) / step) return;  // wraps: faults say so
+      bytes = uint64_t(cmd.count - 1) * step + element;
+    }
+    const uint64_t end = address + bytes < address ? UINT64_MAX : address + bytes;
+    const std::optional<uint64_t> bad = options.first_without_usage
+                                            ? options.first_without_usage(address, end, bit)
+                                            : first_region_without_usage(memory, address, end, bit);
+    if (!bad) return;
+    const MemoryRegion* region = memory.find_region(*bad);
+    top.finding(vuid, std::string(what) + " spans [" + hex(address) + ", " + hex(end) + "); its byte " + hex(*bad) +
+                          (region ? " (buffer '" + region->label + "')" : std::string()) +
+                          " lies in no buffer created with the usage it requires",
+                *bad);
+  };
+  check_range_usage(cmd.src_infos.deviceAddress, stride, cmd.info_size,
+                    VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR,
+                    "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12305", "srcInfosArray");
+  check_range_usage(cmd.dst_addresses.deviceAddress, cmd.dst_addresses.stride, 8,
+                    VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR,
+                    "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12307", "dstAddressesArray");
 
   // Scratch: the engine's (offset, size) table; 12300 against the queried size.
   BuildSizes queried = [&] {

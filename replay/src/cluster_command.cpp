@@ -310,6 +310,9 @@ void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect
     options.directory = &c.directory;
     options.max_findings_per_rule = c.options.max_findings_per_rule;
     options.queried_max_count = queried_max_count;
+    options.first_without_usage = [&c](uint64_t begin, uint64_t end, VkBufferUsageFlags usage) {
+        return c.memory.first_without_usage(begin, end, usage);
+    };
     engine::ExecutionRecord record;
     const auto started = std::chrono::steady_clock::now();
     try {

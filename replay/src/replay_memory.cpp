@@ -13,7 +13,48 @@ constexpr uint64_t kPrivateSpan = 1ull << 40;  // address space per memory objec
 }  // namespace
 
 void ReplayMemory::create_buffer(uint64_t buffer, uint64_t size, uint64_t usage) {
+    unindex(buffer);
     buffers_[buffer] = Buffer{size, usage, 0, false};
+}
+
+void ReplayMemory::unindex(uint64_t buffer) {
+    auto it = buffers_.find(buffer);
+    if (it == buffers_.end() || !it->second.bound) return;
+    auto [first, last] = bound_at_.equal_range(it->second.address);
+    for (auto at = first; at != last; ++at) {
+        if (at->second == buffer) {
+            bound_at_.erase(at);
+            break;
+        }
+    }
+}
+
+std::optional<uint64_t> ReplayMemory::first_without_usage(uint64_t begin, uint64_t end, uint64_t usage) const {
+    std::vector<AddressRange> held, allowed;
+    for (auto it = bound_at_.lower_bound(begin > largest_bound_ ? begin - largest_bound_ : 0);
+         it != bound_at_.end() && it->first < end; ++it) {
+        const Buffer& b = buffers_.at(it->second);
+        const uint64_t b_end = b.address + b.size < b.address ? UINT64_MAX : b.address + b.size;
+        if (b_end <= begin || b.size == 0) continue;
+        const AddressRange part{std::max(begin, b.address), std::min(end, b_end)};
+        held.push_back(part);
+        if (b.usage == 0 || (b.usage & usage)) allowed.push_back(part);
+    }
+    auto by_begin = [](const AddressRange& a, const AddressRange& b) { return a.begin < b.begin; };
+    std::sort(allowed.begin(), allowed.end(), by_begin);
+    std::vector<AddressRange> merged;  // the allowed bytes as disjoint, non-adjacent ranges
+    for (const AddressRange& r : allowed) {
+        if (!merged.empty() && r.begin <= merged.back().end) merged.back().end = std::max(merged.back().end, r.end);
+        else merged.push_back(r);
+    }
+    std::optional<uint64_t> first;
+    for (const AddressRange& h : held) {
+        uint64_t at = h.begin;
+        auto m = std::partition_point(merged.begin(), merged.end(), [&](const AddressRange& r) { return r.end <= at; });
+        if (m != merged.end() && m->begin <= at) at = m->end;
+        if (at < h.end && (!first || at < *first)) first = at;
+    }
+    return first;
 }
 
 uint64_t ReplayMemory::memory_base(uint64_t memory) {
@@ -48,6 +89,7 @@ bool ReplayMemory::add_region(uint64_t address, uint64_t size, uint64_t usage, c
 std::optional<AddressRange> ReplayMemory::destroy_buffer(uint64_t buffer) {
     auto it = buffers_.find(buffer);
     if (it == buffers_.end()) return std::nullopt;
+    unindex(buffer);
     const Buffer b = it->second;
     buffers_.erase(it);
     if (!b.bound || b.size == 0 || b.address + b.size < b.address) return std::nullopt;
@@ -86,6 +128,7 @@ bool ReplayMemory::fill(uint64_t address, uint64_t size, uint32_t value) {
 }
 
 void ReplayMemory::bind_buffer(uint64_t buffer, uint64_t memory, uint64_t memory_offset, uint64_t device_address) {
+    unindex(buffer);
     Buffer& b = buffers_[buffer];
     if (device_address != 0) {
         b.address = device_address;
@@ -94,6 +137,8 @@ void ReplayMemory::bind_buffer(uint64_t buffer, uint64_t memory, uint64_t memory
         b.address = memory_base(memory) + memory_offset;
     }
     b.bound = true;
+    bound_at_.emplace(b.address, buffer);
+    largest_bound_ = std::max(largest_bound_, b.size);
     char label[40];
     std::snprintf(label, sizeof label, "buffer 0x%llx", static_cast<unsigned long long>(buffer));
     if (!add_region(b.address, b.size, b.usage, label)) over_budget_.emplace_back(buffer, b.size);

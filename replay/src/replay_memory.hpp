@@ -54,6 +54,10 @@ public:
     bool write(uint64_t address, std::span<const uint8_t> bytes);
     bool read(uint64_t address, uint64_t size, std::vector<uint8_t>* out) const;
     void mark_engine_object(AddressRange range);
+    // The first byte of [begin, end) that a bound buffer holds but no bound buffer created
+    // with a bit of `usage` (or with unknown usage, 0) holds; nullopt when there is none.
+    // Aliased buffers count each on their own (VUIDs 12305/12307 take any buffer over a byte).
+    std::optional<uint64_t> first_without_usage(uint64_t begin, uint64_t end, uint64_t usage) const;
     uint64_t aliased_buffers() const { return aliased_buffers_; }
     // Buffers left out of the image because they would exceed the address-space limit (handle, size).
     const std::vector<std::pair<uint64_t, uint64_t>>& over_budget() const { return over_budget_; }
@@ -86,12 +90,15 @@ private:
         bool bound = false;
     };
     void unmark(AddressRange range);
+    void unindex(uint64_t buffer);
     // Adds the region (an alias of an existing one is served by it); false when over the limit.
     bool add_region(uint64_t address, uint64_t size, uint64_t usage, const std::string& label);
     uint64_t memory_base(uint64_t memory);
 
     engine::MemoryImage image_;
     std::unordered_map<uint64_t, Buffer> buffers_;
+    std::multimap<uint64_t, uint64_t> bound_at_;  // address -> bound buffer handle
+    uint64_t largest_bound_ = 0;                  // size of the largest buffer ever bound
     std::unordered_map<uint64_t, Object> objects_;
     std::unordered_map<uint64_t, uint64_t> object_size_;
     std::unordered_map<uint64_t, uint64_t> memory_base_;

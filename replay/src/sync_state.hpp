@@ -36,6 +36,23 @@ struct Visibility {
     uint8_t inline_count = 0;
     std::vector<Rect> more;
 
+    Visibility() = default;
+    Visibility(const Visibility&) = default;
+    Visibility(Visibility&&) = default;
+    Visibility& operator=(Visibility&&) = default;
+    // Records are copied into every segment they cover; `more` is almost always empty on
+    // both sides, and then the vector's out-of-line assignment is not worth a call.
+    Visibility& operator=(const Visibility& o) {
+        inline_rects = o.inline_rects;
+        inline_count = o.inline_count;
+        if (!more.empty() || !o.more.empty()) more = o.more;
+        return *this;
+    }
+    void clear() {
+        inline_count = 0;
+        more.clear();
+    }
+
     std::size_t size() const { return inline_count + more.size(); }
     const Rect& at(std::size_t i) const { return i < inline_count ? inline_rects[i] : more[i - inline_count]; }
     Rect& at(std::size_t i) { return i < inline_count ? inline_rects[i] : more[i - inline_count]; }
@@ -82,6 +99,18 @@ struct ChainState {
     Visibility visible;   // (stage, access) pairs the write is visible to
     // Narrow signals whose first scope took the access in (see kSignal log entries).
     std::vector<SignalMembership> signals;
+
+    ChainState() = default;
+    ChainState(const ChainState&) = default;
+    ChainState(ChainState&&) = default;
+    ChainState& operator=(ChainState&&) = default;
+    ChainState& operator=(const ChainState& o) {  // as Visibility: skip the empty vector's call
+        chain = o.chain;
+        avail = o.avail;
+        visible = o.visible;
+        if (!signals.empty() || !o.signals.empty()) signals = o.signals;
+        return *this;
+    }
 };
 
 struct Record {
@@ -107,10 +136,14 @@ struct Record {
 
 constexpr uint16_t kHostSlot = 0xFFFF;
 
+// What the model knows about one address segment (its bounds live in the SegmentStore).
 struct Segment {
-    uint64_t end = 0;
     std::optional<Record> write;
     std::vector<Record> reads;  // the latest read per (queue, stage) since the write
+    void clear() {
+        write.reset();
+        reads.clear();
+    }
 };
 
 // Barriers as stored in a queue's log, scopes already normalized.

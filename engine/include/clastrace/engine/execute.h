@@ -24,6 +24,8 @@
 #include "clastrace/vk_cluster_abi.h"
 
 #include <cstdint>
+#include <functional>
+#include <optional>
 
 namespace clastrace::engine {
 
@@ -39,6 +41,12 @@ struct ExecuteOptions {
   // The maxAccelerationStructureCount the app sized its buffers with (10445); 0: the
   // command's own value.
   uint32_t queried_max_count = 0;
+  // 12305/12307 require a whole "device address range" (srcInfosArray's, dstAddressesArray's
+  // elements) to come from buffers with a usage. The answer: the first byte of
+  // [begin, end) that some buffer holds but no buffer with `usage` (or of unknown usage)
+  // does, or nullopt. Replay passes its buffer list, aliased buffers included; without it
+  // the engine asks the image's regions (one usage per region).
+  std::function<std::optional<uint64_t>(uint64_t begin, uint64_t end, VkBufferUsageFlags usage)> first_without_usage;
 };
 
 ExecutionRecord execute(const VkClusterAccelerationStructureCommandsInfoNV& command, MemoryImage& memory,
