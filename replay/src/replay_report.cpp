@@ -17,18 +17,26 @@ std::string hex(uint64_t v) {
 }
 
 std::string where_text(const ReplayLocation& w) {
+    std::string command = "command " + std::to_string(w.command);
+    if (w.secondary_handle)
+        command += " (vkCmdExecuteCommands) > secondary " + std::to_string(w.secondary) + " (" + hex(w.secondary_handle) +
+                   "), command " + std::to_string(w.secondary_command);
     return "submission " + std::to_string(w.submission) + ", command buffer " + std::to_string(w.command_buffer) + " (" +
-           hex(w.command_buffer_handle) + "), command " + std::to_string(w.command) + " " + w.name + " [#" +
-           std::to_string(w.sequence) + "]";
+           hex(w.command_buffer_handle) + "), " + command + " " + w.name + " [#" + std::to_string(w.sequence) + "]";
 }
 
 nlohmann::json where_json(const ReplayLocation& w) {
-    return {{"sequence", w.sequence},
-            {"submission", w.submission},
-            {"command_buffer", w.command_buffer},
-            {"command_buffer_handle", hex(w.command_buffer_handle)},
-            {"command", w.command},
-            {"name", w.name}};
+    nlohmann::json j = {{"sequence", w.sequence},
+                        {"submission", w.submission},
+                        {"command_buffer", w.command_buffer},
+                        {"command_buffer_handle", hex(w.command_buffer_handle)},
+                        {"command", w.command},
+                        {"name", w.name}};
+    if (w.secondary_handle)
+        j["secondary"] = {{"index", w.secondary},
+                          {"command_buffer_handle", hex(w.secondary_handle)},
+                          {"command", w.secondary_command}};
+    return j;
 }
 
 }  // namespace
