@@ -121,6 +121,9 @@ struct CommandToJson {
             {"dst", c.dst}, {"src", c.src}, {"scratch", c.scratch}, {"scratchOffset", c.scratchOffset},
             {"pauseId", c.pauseId}};
   }
+  json operator()(const ExecuteCommandsCommand& c) const {
+    return {{"kind", "ExecuteCommands"}, {"secondaries", c.secondaries}};
+  }
   json operator()(const TimestampWriteCommand& c) const {
     return {{"kind", "WriteTimestamp"}, {"query", c.query}, {"stageMask", c.stageMask}};
   }
@@ -203,7 +206,8 @@ class JsonCaptureSink final : public CaptureSink {
       }
       commands.push_back(std::visit(CommandToJson{}, c));
     }
-    add("commandBuffers", {{"commandBuffer", cb.commandBuffer}, {"usage", cb.usage}, {"commands", commands},
+    add("commandBuffers", {{"commandBuffer", cb.commandBuffer}, {"usage", cb.usage}, {"secondary", cb.secondary},
+                           {"commands", commands},
                            {"timestamps", timestamps}});
   }
   void commandBufferReset(uint64_t commandBuffer) override { add("resets", commandBuffer); }

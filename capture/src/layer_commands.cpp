@@ -428,12 +428,16 @@ VKAPI_ATTR void VKAPI_CALL CmdDispatchIndirect(VkCommandBuffer cb, VkBuffer buff
 VKAPI_ATTR void VKAPI_CALL CmdExecuteCommands(VkCommandBuffer cb, uint32_t count, const VkCommandBuffer* secondaries) {
   DeviceState& d = deviceOf(cb);
   d.next.CmdExecuteCommands(cb, count, secondaries);
-  // The secondaries' pauses happen when this primary runs: the worker must expect them here.
+  // The secondaries' pauses happen when this primary runs: the worker must expect them here,
+  // in execution order (a secondary listed twice pauses twice).
   auto primary = logOf(d, cb);
+  ExecuteCommandsCommand c;
   for (uint32_t i = 0; i < count; ++i) {
     auto secondary = logOf(d, secondaries[i]);
     primary->pauses.insert(primary->pauses.end(), secondary->pauses.begin(), secondary->pauses.end());
+    c.secondaries.push_back(handleId(secondaries[i]));
   }
+  if (d.sink) primary->recorded.commands.push_back(std::move(c));
 }
 
 // ---- The captured commands ------------------------------------------------------------------

@@ -15,6 +15,10 @@
 //   capture_frames_app simultaneous OUT.json
 //     one SIMULTANEOUS_USE command buffer submitted twice in one vkQueueSubmit and twice more
 //     in two; its build reads a count that the command buffer itself rewrites after the build.
+//   capture_frames_app secondary OUT.json [--skip-barrier]
+//     a primary command buffer copies srcInfosArray, runs a secondary (SIMULTANEOUS_USE) that
+//     holds the cluster build, rewrites the count the build reads and runs the secondary again;
+//     --skip-barrier leaves out the secondary's barrier before its build.
 //
 // Prints "frames=N loop_ms=T loop_cpu_ms=C" on success: the frame loop's wall time, and the CPU
 // time of all the process's threads (driver and layer included) during it.
@@ -460,10 +464,118 @@ int simultaneous(const char* outPath) {
   return 0;
 }
 
+// The build of the secondary reads counts[0] (1 at first); between the two executions the
+// primary copies counts[1] (2) over it, so the second execution builds both clusters.
+int secondary(const char* outPath, bool skipBarrier) {
+  Context c;
+  using Info = VkClusterAccelerationStructureBuildTriangleClusterInfoNV;
+  Buffer vertices = c.makeBuffer(2 * kVertices * 12, kInput);
+  Buffer indices = c.makeBuffer(kTriangles * 12, kInput);
+  Buffer staging = c.makeBuffer(2 * sizeof(Info), 0);
+  Buffer infos = c.makeBuffer(2 * sizeof(Info), kInput);
+  Buffer counts = c.makeBuffer(8, kInput);
+  Buffer dstSizes = c.makeBuffer(8, kStorage);
+  Buffer dstAddresses = c.makeBuffer(16, kStorage);
+  writeVertices(vertices, 2, 0);
+  auto* index = reinterpret_cast<uint32_t*>(indices.mapped);
+  for (uint32_t y = 0; y < kQuadsY; ++y)
+    for (uint32_t x = 0; x < kQuadsX; ++x) {
+      const uint32_t v = y * (kQuadsX + 1) + x;
+      for (uint32_t i : {v, v + 1, v + kQuadsX + 2, v, v + kQuadsX + 2, v + kQuadsX + 1}) *index++ = i;
+    }
+  for (uint32_t k = 0; k < 2; ++k) {
+    Info i{};
+    i.clusterID = 11 + k;
+    i.triangleCount = kTriangles;
+    i.vertexCount = kVertices;
+    i.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
+    i.indexBuffer = indices.address;
+    i.vertexBuffer = vertices.address + k * kVertices * 12;
+    std::memcpy(staging.mapped + k * sizeof(Info), &i, sizeof i);  // the GPU copies it to `infos`
+  }
+  const uint32_t countValues[2] = {1, 2};
+  std::memcpy(counts.mapped, countValues, sizeof countValues);
+  VkClusterAccelerationStructureTriangleClusterInputNV triangles{};
+  triangles.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
+  triangles.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+  triangles.maxClusterUniqueGeometryCount = 1;
+  triangles.maxClusterTriangleCount = kTriangles;
+  triangles.maxClusterVertexCount = kVertices;
+  triangles.maxTotalTriangleCount = 2 * kTriangles;
+  triangles.maxTotalVertexCount = 2 * kVertices;
+  VkClusterAccelerationStructureCommandsInfoNV build{};
+  build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+  build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+  build.input.maxAccelerationStructureCount = 2;
+  build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
+  build.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+  build.input.opInput.pTriangleClusters = &triangles;
+  VkAccelerationStructureBuildSizesInfoKHR sizes{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr,
+                                                 0, 0, 0};
+  c.getBuildSizes(c.device, &build.input, &sizes);
+  Buffer implicit = c.makeBuffer(sizes.accelerationStructureSize, kStorage);
+  Buffer scratch = c.makeBuffer(sizes.buildScratchSize, kStorage);
+  build.dstImplicitData = implicit.address;
+  build.scratchData = scratch.address;
+  build.dstAddressesArray = {dstAddresses.address, 8, 16};
+  build.dstSizesArray = {dstSizes.address, 4, 8};
+  build.srcInfosArray = {infos.address, sizeof(Info), 2 * sizeof(Info)};
+  build.srcInfosCount = counts.address;
+
+  VkCommandBufferAllocateInfo allocInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr, c.pool,
+                                        VK_COMMAND_BUFFER_LEVEL_SECONDARY, 1};
+  VkCommandBuffer inner, outer;
+  CHECK(vkAllocateCommandBuffers(c.device, &allocInfo, &inner));
+  allocInfo.level = VK_COMMAND_BUFFER_LEVEL_PRIMARY;
+  CHECK(vkAllocateCommandBuffers(c.device, &allocInfo, &outer));
+  VkCommandBufferInheritanceInfo inheritance{};
+  inheritance.sType = VK_STRUCTURE_TYPE_COMMAND_BUFFER_INHERITANCE_INFO;
+  VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr,
+                                 VK_COMMAND_BUFFER_USAGE_SIMULTANEOUS_USE_BIT, &inheritance};
+  CHECK(vkBeginCommandBuffer(inner, &begin));
+  if (!skipBarrier)  // the copies of the primary (srcInfosArray, count) before the build reads them
+    barrier(inner, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT,
+            VK_ACCESS_MEMORY_READ_BIT);
+  c.cmdBuildClusters(inner, &build);
+  barrier(inner, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_READ_BIT | VK_ACCESS_MEMORY_WRITE_BIT,
+          VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_READ_BIT | VK_ACCESS_MEMORY_WRITE_BIT);
+  CHECK(vkEndCommandBuffer(inner));
+
+  begin.flags = 0;
+  begin.pInheritanceInfo = nullptr;
+  CHECK(vkBeginCommandBuffer(outer, &begin));
+  VkBufferCopy copyInfos{0, 0, 2 * sizeof(Info)};
+  vkCmdCopyBuffer(outer, staging.buffer, infos.buffer, 1, &copyInfos);
+  vkCmdExecuteCommands(outer, 1, &inner);
+  VkBufferCopy copyCount{4, 0, 4};
+  vkCmdCopyBuffer(outer, counts.buffer, counts.buffer, 1, &copyCount);
+  vkCmdExecuteCommands(outer, 1, &inner);
+  CHECK(vkEndCommandBuffer(outer));
+
+  VkSubmitInfo submit{};
+  submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
+  submit.commandBufferCount = 1;
+  submit.pCommandBuffers = &outer;
+  CHECK(vkQueueSubmit(c.queue, 1, &submit, VK_NULL_HANDLE));
+  CHECK(vkQueueWaitIdle(c.queue));
+  std::ofstream(outPath) << "{\"dstSizes\": \"" << hex(dstSizes.mapped, 8) << "\", \"counts\": \""
+                         << hex(counts.mapped, 8) << "\"}\n";
+  vkDestroyCommandPool(c.device, c.pool, nullptr);
+  for (Buffer* b : {&vertices, &indices, &staging, &infos, &counts, &dstSizes, &dstAddresses, &implicit, &scratch}) {
+    vkDestroyBuffer(c.device, b->buffer, nullptr);
+    vkFreeMemory(c.device, b->memory, nullptr);
+  }
+  vkDestroyDevice(c.device, nullptr);
+  vkDestroyInstance(c.instance, nullptr);
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   if (argc == 3 && std::strcmp(argv[1], "simultaneous") == 0) return simultaneous(argv[2]);
+  if ((argc == 3 || (argc == 4 && std::strcmp(argv[3], "--skip-barrier") == 0)) && std::strcmp(argv[1], "secondary") == 0)
+    return secondary(argv[2], argc == 4);
   if (argc >= 3 && std::strcmp(argv[1], "frames") == 0) {
     FrameOptions o;
     o.frames = std::atoi(argv[2]);
@@ -483,6 +595,8 @@ int main(int argc, char** argv) {
     if (o.frames < 1 || o.clusters < 1 || o.clusters > 4096) fail("frames >= 1 and clusters in [1, 4096]");
     return frames(o);
   }
-  std::fprintf(stderr, "usage: capture_frames_app frames N [options] | simultaneous OUT.json\n");
+  std::fprintf(stderr,
+               "usage: capture_frames_app frames N [options] | simultaneous OUT.json | secondary OUT.json "
+               "[--skip-barrier]\n");
   return 1;
 }

@@ -272,10 +272,16 @@ struct TimestampWriteCommand {
   uint64_t readPauseId = 0;
 };
 
+// vkCmdExecuteCommands: the secondaries run, in this order, as they are recorded when the
+// primary is submitted (a secondary cannot be re-recorded while a primary holding it is pending).
+struct ExecuteCommandsCommand {
+  std::vector<uint64_t> secondaries;
+};
+
 using RecordedCommand =
     std::variant<BarrierCommand, EventCommand, CopyBufferCommand, FillBufferCommand, UpdateBufferCommand,
                  DispatchCommand, ClusterBuildCommand, BuildAccelerationStructureNVCommand,
-                 CopyMemoryToAccelerationStructureCommand, TimestampWriteCommand>;
+                 CopyMemoryToAccelerationStructureCommand, TimestampWriteCommand, ExecuteCommandsCommand>;
 
 struct RecordedCommandBuffer {
   uint64_t commandBuffer = 0;
