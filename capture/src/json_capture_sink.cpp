@@ -216,8 +216,10 @@ class JsonCaptureSink final : public CaptureSink {
     for (const auto& b : s.batches)
       batches.push_back({{"waits", semaphoresJson(b.waits)}, {"commandBuffers", b.commandBuffers},
                          {"signals", semaphoresJson(b.signals)}});
+    json notes = json::array();
+    for (const auto& n : s.notes) notes.push_back({{"commandBuffer", n.commandBuffer}, {"rule", n.rule}, {"message", n.message}});
     add("submissions", {{"index", s.index}, {"queue", s.queue}, {"synchronization2", s.synchronization2},
-                        {"batches", batches}, {"fence", s.fence}});
+                        {"batches", batches}, {"fence", s.fence}, {"notes", notes}});
   }
   void clusterBuildCaptured(ClusterBuildCapture c) override {
     if (c.kind == CapturedCommandKind::Timestamps) {  // a readback, not a build: listed apart

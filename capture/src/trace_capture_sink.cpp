@@ -710,6 +710,16 @@ class TraceCaptureSink final : public CaptureSink {
     const uint64_t submission = submit.submission_index;
     appendLocked(recordOf(std::move(submit)));
     for (const RayCheckRecord& c : p.rayChecks) emitRayCheckLocked(c);
+    for (const SubmissionRecord::Note& note : p.submission.notes) {
+      fbs::CaptureFindingT f;
+      f.command_buffer = note.commandBuffer;
+      f.command_index = UINT32_MAX;  // the whole command buffer
+      f.op_index = UINT32_MAX;
+      f.severity = 1;
+      f.rule = note.rule;
+      f.message = note.message;
+      findings.push_back(std::move(f));
+    }
     for (fbs::CaptureFindingT& f : findings) {
       f.submission = submission;
       appendLocked(recordOf(std::move(f)));

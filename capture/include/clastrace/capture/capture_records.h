@@ -312,6 +312,13 @@ struct SubmissionRecord {
   bool synchronization2 = false;
   std::vector<SubmitBatch> batches;
   uint64_t fence = 0;
+  // What the layer could not do exactly for this submission; written as CaptureFindings.
+  struct Note {
+    uint64_t commandBuffer = 0;
+    std::string rule;  // CLASTRACE-*
+    std::string message;
+  };
+  std::vector<Note> notes;
 };
 
 // A host call that synchronizes with the device: replay needs them to know which submissions
