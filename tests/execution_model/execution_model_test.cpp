@@ -371,4 +371,55 @@ TEST(ExecutionModel, BadSecondariesAreReported) {
     EXPECT_EQ(r.counts.copies, 1u);  // the fill ran all the same
 }
 
+// Hostile execution records: a primary that executes itself, a secondary that executes
+// another (nested), an execute listing 100000 unknown handles, a restatement index of
+// UINT32_MAX. Each is reported, bounded, and nothing recurses.
+TEST(ExecutionModel, HostileExecutionRecordsAreBounded) {
+    const std::string path = temp_path("hostile");
+    {
+        TraceScript t(path, device());
+        add_buffers(t);
+        t.begin(kOtherSecondary, 0, 1, 0);
+        t.fill(kScratchBuffer, 0, 16, 0);
+        t.end();
+        t.begin(kSecondary, 0, 1, 0);
+        t.execute_commands({kOtherSecondary});  // nested
+        t.end();
+        t.begin(kPrimary, 0, 0, 0);
+        t.execute_commands({kPrimary, kSecondary});  // itself, then the nesting secondary
+        t.execute_commands(std::vector<uint64_t>(100000, 0xdead));
+        t.end();
+        t.begin(kPrimary, 0, 0, 0xFFFFFFFFu);  // a restatement with no copies before it
+        t.fill(kScratchBuffer, 16, 16, 0);
+        t.end();
+        t.submit_listed(kQueue, {kPrimary, kPrimary});
+        t.finish();
+    }
+    traces::TraceError e;
+    auto reader = traces::TraceReader::open(path, &e);
+    ASSERT_TRUE(reader) << e.message;
+    replay::ReplayOptions options;
+    options.max_findings = 64;
+    replay::ReplayReport r = replay::replay_trace(*reader, path, options);
+    std::remove(path.c_str());
+    size_t out_of_order = 0, not_primary = 0, not_recorded = 0;
+    for (const auto& f : r.findings) {
+        out_of_order += f.rule == "CLASTRACE-replay-restatement-out-of-order";
+        not_primary += f.rule == "VUID-vkCmdExecuteCommands-pCommandBuffers-00088";
+        not_recorded += f.rule == "CLASTRACE-replay-command-buffer-not-recorded";
+    }
+    EXPECT_EQ(out_of_order, 1u);
+    EXPECT_GE(not_primary, 1u);  // the primary listed as its own secondary
+    EXPECT_GT(not_recorded, 0u);
+    EXPECT_EQ(r.findings.size(), options.max_findings);
+    EXPECT_GT(r.findings_over_cap, 100000u);  // both executions list them all
+    size_t nested = 0;
+    for (const auto& n : r.not_replayed) nested += n.reason.find("nested") != std::string::npos;
+    EXPECT_GE(nested, 1u);
+    // Executions of the primary count in execution order, nested ones included: the first
+    // listing runs the recording, whose self-execution is the second execution (copy 1: the
+    // one fill); the second listing is the third and runs the recording again.
+    EXPECT_EQ(r.counts.copies, 1u);
+}
+
 }  // namespace
