@@ -15,10 +15,11 @@
 //   capture_frames_app simultaneous OUT.json
 //     one SIMULTANEOUS_USE command buffer submitted twice in one vkQueueSubmit and twice more
 //     in two; its build reads a count that the command buffer itself rewrites after the build.
-//   capture_frames_app secondary OUT.json [--skip-barrier]
+//   capture_frames_app secondary OUT.json [--skip-barrier] [--bad-cluster-id]
 //     a primary command buffer copies srcInfosArray, runs a secondary (SIMULTANEOUS_USE) that
 //     holds the cluster build, rewrites the count the build reads and runs the secondary again;
-//     --skip-barrier leaves out the secondary's barrier before its build.
+//     --skip-barrier leaves out the secondary's barrier before its build; --bad-cluster-id as
+//     for frames.
 //
 // Prints "frames=N loop_ms=T loop_cpu_ms=C" on success: the frame loop's wall time, and the CPU
 // time of all the process's threads (driver and layer included) during it.
@@ -466,7 +467,7 @@ int simultaneous(const char* outPath) {
 
 // The build of the secondary reads counts[0] (1 at first); between the two executions the
 // primary copies counts[1] (2) over it, so the second execution builds both clusters.
-int secondary(const char* outPath, bool skipBarrier) {
+int secondary(const char* outPath, bool skipBarrier, bool badClusterId) {
   Context c;
   using Info = VkClusterAccelerationStructureBuildTriangleClusterInfoNV;
   Buffer vertices = c.makeBuffer(2 * kVertices * 12, kInput);
@@ -485,7 +486,7 @@ int secondary(const char* outPath, bool skipBarrier) {
     }
   for (uint32_t k = 0; k < 2; ++k) {
     Info i{};
-    i.clusterID = 11 + k;
+    i.clusterID = badClusterId && k == 0 ? 0xFFFFFFFFu : 11 + k;
     i.triangleCount = kTriangles;
     i.vertexCount = kVertices;
     i.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
@@ -574,8 +575,15 @@ int secondary(const char* outPath, bool skipBarrier) {
 
 int main(int argc, char** argv) {
   if (argc == 3 && std::strcmp(argv[1], "simultaneous") == 0) return simultaneous(argv[2]);
-  if ((argc == 3 || (argc == 4 && std::strcmp(argv[3], "--skip-barrier") == 0)) && std::strcmp(argv[1], "secondary") == 0)
-    return secondary(argv[2], argc == 4);
+  if (argc >= 3 && std::strcmp(argv[1], "secondary") == 0) {
+    bool skipBarrier = false, badClusterId = false;
+    for (int i = 3; i < argc; ++i) {
+      if (std::strcmp(argv[i], "--skip-barrier") == 0) skipBarrier = true;
+      else if (std::strcmp(argv[i], "--bad-cluster-id") == 0) badClusterId = true;
+      else fail("unknown option");
+    }
+    return secondary(argv[2], skipBarrier, badClusterId);
+  }
   if (argc >= 3 && std::strcmp(argv[1], "frames") == 0) {
     FrameOptions o;
     o.frames = std::atoi(argv[2]);
@@ -597,6 +605,6 @@ int main(int argc, char** argv) {
   }
   std::fprintf(stderr,
                "usage: capture_frames_app frames N [options] | simultaneous OUT.json | secondary OUT.json "
-               "[--skip-barrier]\n");
+               "[--skip-barrier] [--bad-cluster-id]\n");
   return 1;
 }

@@ -176,6 +176,38 @@ TEST_F(CaptureExecution, SkippedBarrierInSecondaryIsTheHazard) {
   }
 }
 
+// The served engine's finding on the build inside the secondary becomes a CaptureFinding per
+// execution naming the secondary, the command's index in it, the primary and the execute.
+TEST_F(CaptureExecution, CaptureFindingInSecondaryNamesThePrimary) {
+  const fs::path trace = dir / "secondary_bad.clt";
+  ASSERT_EQ(capture("secondary " + quote((dir / "out.json").string()) + " --bad-cluster-id", trace), 0)
+      << readText(dir / "stderr.txt");
+  Begins b = begins(trace);
+  ASSERT_EQ(b.begins.size(), 3u);
+  const uint64_t secondary = std::get<0>(b.begins[0]), primary = std::get<0>(b.begins[2]);
+  clastrace::traces::TraceError e;
+  auto reader = clastrace::traces::TraceReader::open(trace.string(), &e);
+  ASSERT_TRUE(reader) << e.message;
+  std::vector<std::tuple<uint64_t, uint32_t, uint64_t, uint32_t, uint32_t>> findings;
+  clastrace::traces::RecordView view;
+  while (reader->next(&view))
+    if (const auto* f = view.record->body_as_CaptureFinding())
+      if (f->rule() && f->rule()->str().find("clusterID") != std::string::npos)
+        findings.emplace_back(f->command_buffer(), f->command_index(), f->primary_command_buffer(),
+                              f->execute_command_index(), f->op_index());
+  using F = std::tuple<uint64_t, uint32_t, uint64_t, uint32_t, uint32_t>;
+  EXPECT_EQ(findings, (std::vector<F>{F{secondary, 1u, primary, 1u, 0u}, F{secondary, 1u, primary, 3u, 0u}}));
+  // The replay finds the same rule at the same places.
+  clastrace::replay::ReplayReport r = replay(trace, nullptr);
+  std::vector<std::tuple<uint64_t, uint32_t, uint64_t, uint32_t>> replayed;
+  for (const auto& f : r.findings)
+    if (f.rule.find("clusterID") != std::string::npos)
+      replayed.emplace_back(f.where.command_buffer_handle, f.where.command, f.where.secondary_handle,
+                            f.where.secondary_command);
+  using R = std::tuple<uint64_t, uint32_t, uint64_t, uint32_t>;
+  EXPECT_EQ(replayed, (std::vector<R>{R{primary, 1u, secondary, 1u}, R{primary, 3u, secondary, 1u}})) << describe(r);
+}
+
 // A simultaneous-use command buffer listed twice in one submission, then submitted twice more:
 // the replay runs each execution with the count its capture saw (1, then 2 for the others).
 TEST_F(CaptureExecution, CommandBufferListedTwiceReplaysEachExecution) {
