@@ -103,11 +103,17 @@ std::string any_index(const std::string& field) {
 // field become one report whose later field names the ops as [*] and whose ranges cover them all.
 std::vector<HazardReport> merge_per_op_hazards(const std::vector<HazardReport>& hazards, uint64_t* merged) {
     std::vector<HazardReport> out;
-    std::map<std::tuple<int, uint32_t, uint32_t, uint32_t, uint32_t, uint32_t, uint32_t, std::string, std::string>, size_t> index;
+    // A command is (submission, command buffer, command) and, inside a secondary, (secondary,
+    // its command): commands of one secondary share the primary's execute index.
+    auto command_key = [](const CommandRef& c) {
+        return std::make_tuple(c.submission, c.command_buffer, c.command, c.secondary_handle ? c.secondary + 1 : 0u,
+                               c.secondary_command);
+    };
+    using CommandKey = decltype(command_key(CommandRef{}));
+    std::map<std::tuple<int, CommandKey, CommandKey, std::string, std::string>, size_t> index;
     for (const HazardReport& h : hazards) {
-        auto key = std::make_tuple(int(h.hazard), h.prior.command.submission, h.prior.command.command_buffer,
-                                   h.prior.command.command, h.later.command.submission, h.later.command.command_buffer,
-                                   h.later.command.command, any_index(h.prior.field), any_index(h.later.field));
+        auto key = std::make_tuple(int(h.hazard), command_key(h.prior.command), command_key(h.later.command),
+                                   any_index(h.prior.field), any_index(h.later.field));
         auto [it, inserted] = index.emplace(key, out.size());
         if (inserted) {
             out.push_back(h);
@@ -115,8 +121,8 @@ std::vector<HazardReport> merge_per_op_hazards(const std::vector<HazardReport>& 
         }
         ++*merged;
         HazardReport& m = out[it->second];
-        if (m.later.field != h.later.field) m.later.field = std::get<8>(key);
-        if (m.prior.field != h.prior.field) m.prior.field = std::get<7>(key);
+        if (m.later.field != h.later.field) m.later.field = std::get<4>(key);
+        if (m.prior.field != h.prior.field) m.prior.field = std::get<3>(key);
         m.later.range = {std::min(m.later.range.begin, h.later.range.begin), std::max(m.later.range.end, h.later.range.end)};
         m.prior.range = {std::min(m.prior.range.begin, h.prior.range.begin), std::max(m.prior.range.end, h.prior.range.end)};
         m.overlap = {std::min(m.overlap.begin, h.overlap.begin), std::max(m.overlap.end, h.overlap.end)};
