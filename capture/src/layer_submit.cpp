@@ -50,11 +50,6 @@ void announce(DeviceState& d, VkQueue queue, SubmissionPlan& plan) {
   }
 }
 
-// How long a submission waits for another queue to finish with its shared pause events. The
-// other queue may wait for something the application does only after this call returns (a
-// host-set event, a timeline value signalled later): then the wait gives up, and says so.
-constexpr std::chrono::milliseconds kSharedPauseWait{10000};
-
 // Executions of one command buffer on two queues would share its pause events (pause_worker.h,
 // shared_pause_tracker.h). Before the driver sees a submission whose pauses may run on several
 // queues, wait until no other queue uses those events; the returned lock is held until the
@@ -71,11 +66,14 @@ std::unique_lock<std::mutex> admitSharedPauses(DeviceState& d, VkQueue queue, Su
         if (commandBuffers.empty() || commandBuffers.back() != p.commandBuffer) commandBuffers.push_back(p.commandBuffer);
       }
   if (releases.empty()) return {};
+  // The other queue may wait for something the application does only after this call returns
+  // (a host-set event, a timeline value signalled later): then the wait gives up, and says so.
+  const std::chrono::milliseconds patience{layerConfig().sharedWaitMilliseconds};
   std::unique_lock lock(d.sharedPausesMutex);
-  if (d.pauses->waitUntilFree(queue, releases, kSharedPauseWait)) return lock;
+  if (d.pauses->waitUntilFree(queue, releases, patience)) return lock;
   logMessage(LogLevel::Error, "submission %llu: a simultaneous-use command buffer is still running on another queue "
              "after %lld ms; its executions share the layer's pause events, so the captures of this submission may "
-             "be wrong", (unsigned long long)plan.record.index, (long long)kSharedPauseWait.count());
+             "be wrong", (unsigned long long)plan.record.index, (long long)patience.count());
   for (uint64_t cb : commandBuffers)
     plan.record.notes.push_back({cb, "CLASTRACE-capture-concurrent-execution",
                                  "this command buffer (or a simultaneous-use secondary it executes) was still running "

@@ -15,6 +15,10 @@
 //   capture_frames_app simultaneous OUT.json
 //     one SIMULTANEOUS_USE command buffer submitted twice in one vkQueueSubmit and twice more
 //     in two; its build reads a count that the command buffer itself rewrites after the build.
+//   capture_frames_app twoqueues OUT.json [--hold-first]
+//     the simultaneous-use command buffer of `simultaneous`, submitted to queue 0 and at once to
+//     queue 1 (needs a family with two queues); --hold-first makes its executions wait on an
+//     event the host sets only after both submissions returned.
 //   capture_frames_app secondary OUT.json [--skip-barrier] [--bad-cluster-id]
 //     a primary command buffer copies srcInfosArray, runs a secondary (SIMULTANEOUS_USE) that
 //     holds the cluster build, rewrites the count the build reads and runs the secondary again;
@@ -75,11 +79,12 @@ struct Context {
   VkPhysicalDevice physicalDevice = VK_NULL_HANDLE;
   VkDevice device = VK_NULL_HANDLE;
   VkQueue queue = VK_NULL_HANDLE;
+  VkQueue secondQueue = VK_NULL_HANDLE;  // queue 1 of the family, when asked for
   VkCommandPool pool = VK_NULL_HANDLE;
   PFN_vkCmdBuildClusterAccelerationStructureIndirectNV cmdBuildClusters = nullptr;
   PFN_vkGetClusterAccelerationStructureBuildSizesNV getBuildSizes = nullptr;
 
-  Context() {
+  explicit Context(uint32_t queues = 1) {
     VkApplicationInfo app{VK_STRUCTURE_TYPE_APPLICATION_INFO, nullptr, "capture_frames_app", 1, nullptr, 0,
                           VK_API_VERSION_1_3};
     VkInstanceCreateInfo info{VK_STRUCTURE_TYPE_INSTANCE_CREATE_INFO, nullptr, 0, &app, 0, nullptr, 0, nullptr};
@@ -94,8 +99,9 @@ struct Context {
     uint32_t family = 0;
     while (family < familyCount && !(families[family].queueFlags & VK_QUEUE_COMPUTE_BIT)) ++family;
     if (family == familyCount) fail("no compute queue");
-    const float priority = 1.0f;
-    VkDeviceQueueCreateInfo queueInfo{VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO, nullptr, 0, family, 1, &priority};
+    const float priorities[2] = {1.0f, 1.0f};
+    if (queues > 2 || families[family].queueCount < queues) fail("not enough queues in the compute family");
+    VkDeviceQueueCreateInfo queueInfo{VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO, nullptr, 0, family, queues, priorities};
     VkPhysicalDeviceClusterAccelerationStructureFeaturesNV cluster{
         VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_FEATURES_NV, nullptr, VK_TRUE};
     VkPhysicalDeviceVulkan12Features v12{};
@@ -108,6 +114,7 @@ struct Context {
                                   &extension, nullptr};
     CHECK(vkCreateDevice(physicalDevice, &deviceInfo, nullptr, &device));
     vkGetDeviceQueue(device, family, 0, &queue);
+    if (queues == 2) vkGetDeviceQueue(device, family, 1, &secondQueue);
     cmdBuildClusters = (PFN_vkCmdBuildClusterAccelerationStructureIndirectNV)vkGetDeviceProcAddr(
         device, "vkCmdBuildClusterAccelerationStructureIndirectNV");
     getBuildSizes = (PFN_vkGetClusterAccelerationStructureBuildSizesNV)vkGetDeviceProcAddr(
@@ -465,6 +472,109 @@ int simultaneous(const char* outPath) {
   return 0;
 }
 
+// As `simultaneous`, the build reads counts[0] and the command buffer then copies counts[1]
+// over it: the execution on queue 0 builds one cluster, the one on queue 1 two.
+int twoQueues(const char* outPath, bool holdFirst) {
+  Context c(2);
+  using Info = VkClusterAccelerationStructureBuildTriangleClusterInfoNV;
+  Buffer vertices = c.makeBuffer(2 * kVertices * 12, kInput);
+  Buffer indices = c.makeBuffer(kTriangles * 12, kInput);
+  Buffer infos = c.makeBuffer(2 * sizeof(Info), kInput);
+  Buffer counts = c.makeBuffer(8, kInput);
+  Buffer dstSizes = c.makeBuffer(8, kStorage);
+  Buffer dstAddresses = c.makeBuffer(16, kStorage);
+  writeVertices(vertices, 2, 0);
+  auto* index = reinterpret_cast<uint32_t*>(indices.mapped);
+  for (uint32_t y = 0; y < kQuadsY; ++y)
+    for (uint32_t x = 0; x < kQuadsX; ++x) {
+      const uint32_t v = y * (kQuadsX + 1) + x;
+      for (uint32_t i : {v, v + 1, v + kQuadsX + 2, v, v + kQuadsX + 2, v + kQuadsX + 1}) *index++ = i;
+    }
+  for (uint32_t k = 0; k < 2; ++k) {
+    Info i{};
+    i.clusterID = 21 + k;
+    i.triangleCount = kTriangles;
+    i.vertexCount = kVertices;
+    i.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
+    i.indexBuffer = indices.address;
+    i.vertexBuffer = vertices.address + k * kVertices * 12;
+    std::memcpy(infos.mapped + k * sizeof(Info), &i, sizeof i);
+  }
+  const uint32_t countValues[2] = {1, 2};
+  std::memcpy(counts.mapped, countValues, sizeof countValues);
+  VkClusterAccelerationStructureTriangleClusterInputNV triangles{};
+  triangles.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
+  triangles.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+  triangles.maxClusterUniqueGeometryCount = 1;
+  triangles.maxClusterTriangleCount = kTriangles;
+  triangles.maxClusterVertexCount = kVertices;
+  triangles.maxTotalTriangleCount = 2 * kTriangles;
+  triangles.maxTotalVertexCount = 2 * kVertices;
+  VkClusterAccelerationStructureCommandsInfoNV build{};
+  build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+  build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+  build.input.maxAccelerationStructureCount = 2;
+  build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
+  build.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+  build.input.opInput.pTriangleClusters = &triangles;
+  VkAccelerationStructureBuildSizesInfoKHR sizes{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr,
+                                                 0, 0, 0};
+  c.getBuildSizes(c.device, &build.input, &sizes);
+  Buffer implicit = c.makeBuffer(sizes.accelerationStructureSize, kStorage);
+  Buffer scratch = c.makeBuffer(sizes.buildScratchSize, kStorage);
+  build.dstImplicitData = implicit.address;
+  build.scratchData = scratch.address;
+  build.dstAddressesArray = {dstAddresses.address, 8, 16};
+  build.dstSizesArray = {dstSizes.address, 4, 8};
+  build.srcInfosArray = {infos.address, sizeof(Info), 2 * sizeof(Info)};
+  build.srcInfosCount = counts.address;
+
+  VkEvent hold = VK_NULL_HANDLE;
+  VkEventCreateInfo eventInfo{VK_STRUCTURE_TYPE_EVENT_CREATE_INFO, nullptr, 0};
+  CHECK(vkCreateEvent(c.device, &eventInfo, nullptr, &hold));
+  VkCommandBufferAllocateInfo allocInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr, c.pool,
+                                        VK_COMMAND_BUFFER_LEVEL_PRIMARY, 1};
+  VkCommandBuffer cb;
+  CHECK(vkAllocateCommandBuffers(c.device, &allocInfo, &cb));
+  VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr,
+                                 VK_COMMAND_BUFFER_USAGE_SIMULTANEOUS_USE_BIT, nullptr};
+  CHECK(vkBeginCommandBuffer(cb, &begin));
+  if (holdFirst)
+    vkCmdWaitEvents(cb, 1, &hold, VK_PIPELINE_STAGE_HOST_BIT, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, 0, nullptr, 0, nullptr,
+                    0, nullptr);
+  barrier(cb, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT,
+          VK_ACCESS_MEMORY_READ_BIT);
+  c.cmdBuildClusters(cb, &build);
+  barrier(cb, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_READ_BIT | VK_ACCESS_MEMORY_WRITE_BIT,
+          VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT);
+  VkBufferCopy copy{4, 0, 4};
+  vkCmdCopyBuffer(cb, counts.buffer, counts.buffer, 1, &copy);
+  CHECK(vkEndCommandBuffer(cb));
+
+  VkSubmitInfo submit{};
+  submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
+  submit.commandBufferCount = 1;
+  submit.pCommandBuffers = &cb;
+  // The second submission is made while the first may still run: the executions of `cb` on the
+  // two queues may overlap (the application orders them only through the count it reads).
+  CHECK(vkQueueSubmit(c.queue, 1, &submit, VK_NULL_HANDLE));
+  CHECK(vkQueueSubmit(c.secondQueue, 1, &submit, VK_NULL_HANDLE));
+  if (holdFirst) CHECK(vkSetEvent(c.device, hold));
+  CHECK(vkQueueWaitIdle(c.queue));
+  CHECK(vkQueueWaitIdle(c.secondQueue));
+  std::ofstream(outPath) << "{\"dstSizes\": \"" << hex(dstSizes.mapped, 8) << "\", \"counts\": \""
+                         << hex(counts.mapped, 8) << "\"}\n";
+  vkDestroyEvent(c.device, hold, nullptr);
+  vkDestroyCommandPool(c.device, c.pool, nullptr);
+  for (Buffer* b : {&vertices, &indices, &infos, &counts, &dstSizes, &dstAddresses, &implicit, &scratch}) {
+    vkDestroyBuffer(c.device, b->buffer, nullptr);
+    vkFreeMemory(c.device, b->memory, nullptr);
+  }
+  vkDestroyDevice(c.device, nullptr);
+  vkDestroyInstance(c.instance, nullptr);
+  return 0;
+}
+
 // The build of the secondary reads counts[0] (1 at first); between the two executions the
 // primary copies counts[1] (2) over it, so the second execution builds both clusters.
 int secondary(const char* outPath, bool skipBarrier, bool badClusterId) {
@@ -575,6 +685,10 @@ int secondary(const char* outPath, bool skipBarrier, bool badClusterId) {
 
 int main(int argc, char** argv) {
   if (argc == 3 && std::strcmp(argv[1], "simultaneous") == 0) return simultaneous(argv[2]);
+  if (argc >= 3 && std::strcmp(argv[1], "twoqueues") == 0) {
+    if (argc > 4 || (argc == 4 && std::strcmp(argv[3], "--hold-first") != 0)) fail("unknown option");
+    return twoQueues(argv[2], argc == 4);
+  }
   if (argc >= 3 && std::strcmp(argv[1], "secondary") == 0) {
     bool skipBarrier = false, badClusterId = false;
     for (int i = 3; i < argc; ++i) {
@@ -604,7 +718,7 @@ int main(int argc, char** argv) {
     return frames(o);
   }
   std::fprintf(stderr,
-               "usage: capture_frames_app frames N [options] | simultaneous OUT.json | secondary OUT.json "
-               "[--skip-barrier] [--bad-cluster-id]\n");
+               "usage: capture_frames_app frames N [options] | simultaneous OUT.json | twoqueues OUT.json "
+               "[--hold-first] | secondary OUT.json [--skip-barrier] [--bad-cluster-id]\n");
   return 1;
 }

@@ -71,12 +71,18 @@ class CaptureExecution : public ::testing::Test {
   }
 
   // Runs the frames app with `args` under the layer, capturing to `trace`; returns its exit code.
-  int capture(const std::string& args, const fs::path& trace) {
+  // `twoQueues`: the test layer below gives lavapipe's family a second queue.
+  int capture(const std::string& args, const fs::path& trace, bool twoQueues = false, const std::string& extraEnv = "") {
     std::string line = "env -u VK_INSTANCE_LAYERS -u VK_ADD_LAYER_PATH -u VK_ICD_FILENAMES -u CLASTRACE_SERVE "
-                       "-u CLASTRACE_CAPTURE -u CLASTRACE_SUBMIT_RANGE -u CLASTRACE_DEBUG_JSON -u CLASTRACE_FORCE_STAGING";
+                       "-u CLASTRACE_CAPTURE -u CLASTRACE_SUBMIT_RANGE -u CLASTRACE_DEBUG_JSON -u CLASTRACE_FORCE_STAGING "
+                       "-u CLASTRACE_SHARED_WAIT_MS";
+    const std::string layerPath = std::string(CLASTRACE_LAYER_MANIFEST_DIR) +
+                                  (twoQueues ? std::string(":") + CLASTRACE_TWO_QUEUE_MANIFEST_DIR : "");
+    const std::string layers =
+        twoQueues ? "VK_LAYER_CLASTRACE_capture:VK_LAYER_CLASTRACE_test_two_queues" : "VK_LAYER_CLASTRACE_capture";
     line += " VK_DRIVER_FILES=" + quote(kLavapipe) + " XDG_RUNTIME_DIR=" + quote(dir.string()) +
-            " VK_ADD_LAYER_PATH=" + quote(CLASTRACE_LAYER_MANIFEST_DIR) +
-            " VK_INSTANCE_LAYERS=VK_LAYER_CLASTRACE_capture CLASTRACE_LOG=error CLASTRACE_OUTPUT=" + quote(trace.string());
+            " VK_ADD_LAYER_PATH=" + quote(layerPath) + " VK_INSTANCE_LAYERS=" + layers + " " + extraEnv +
+            " CLASTRACE_LOG=error CLASTRACE_OUTPUT=" + quote(trace.string());
     line += std::string(" ") + CLASTRACE_FRAMES_APP + " " + args + " >" + quote((dir / "stdout.txt").string()) + " 2>" +
             quote((dir / "stderr.txt").string());
     const int status = std::system(line.c_str());
@@ -206,6 +212,62 @@ TEST_F(CaptureExecution, CaptureFindingInSecondaryNamesThePrimary) {
                             f.where.secondary_command);
   using R = std::tuple<uint64_t, uint32_t, uint64_t, uint32_t>;
   EXPECT_EQ(replayed, (std::vector<R>{R{primary, 1u, secondary, 1u}, R{primary, 3u, secondary, 1u}})) << describe(r);
+}
+
+// Queue handles of the QueueSubmit records and the rules of the CaptureFindings, in file order.
+struct Submissions {
+  std::vector<uint64_t> queues;
+  std::vector<std::string> rules;
+};
+Submissions submissionsOf(const fs::path& trace) {
+  Submissions s;
+  clastrace::traces::TraceError e;
+  auto reader = clastrace::traces::TraceReader::open(trace.string(), &e);
+  if (!reader) return s;
+  clastrace::traces::RecordView view;
+  while (reader->next(&view)) {
+    if (const auto* q = view.record->body_as_QueueSubmit()) s.queues.push_back(q->queue());
+    if (const auto* f = view.record->body_as_CaptureFinding()) s.rules.push_back(f->rule() ? f->rule()->str() : "");
+  }
+  return s;
+}
+
+// One simultaneous-use command buffer submitted to queue 0 and at once to queue 1 (a second
+// queue the test layer below adds). The second submission is admitted only once the first
+// execution has passed its pause, so each execution is captured at its own pause: the count
+// read is 1 on queue 0 and 2 on queue 1 (without the admission the worker could take the first
+// execution's pause for the second queue's, and swap them).
+TEST_F(CaptureExecution, SimultaneousUseOnTwoQueuesIsCapturedPerQueue) {
+  const fs::path trace = dir / "two_queues.clt";
+  ASSERT_EQ(capture("twoqueues " + quote((dir / "out.json").string()), trace, true), 0) << readText(dir / "stderr.txt");
+  EXPECT_EQ(readText(dir / "stderr.txt"), "");
+  Submissions s = submissionsOf(trace);
+  ASSERT_EQ(s.queues.size(), 2u);
+  EXPECT_NE(s.queues[0], s.queues[1]);
+  EXPECT_TRUE(s.rules.empty());
+  ClusterRuns runs;
+  clastrace::replay::ReplayReport r = replay(trace, &runs);
+  EXPECT_EQ(runs.opCounts, (std::vector<uint32_t>{1, 2}));
+  ASSERT_EQ(runs.where.size(), 2u);
+  EXPECT_EQ(runs.where[0].submission, 0u);
+  EXPECT_EQ(runs.where[1].submission, 1u);
+  EXPECT_TRUE(r.findings.empty()) << describe(r);
+}
+
+// The first execution waits on an event the host sets only after both submissions returned:
+// the admission of the second cannot wait for it, gives up after CLASTRACE_SHARED_WAIT_MS,
+// says so once on stderr and in the trace, and the application runs to the end.
+TEST_F(CaptureExecution, SimultaneousUseOnTwoQueuesThatCannotWaitIsReported) {
+  const fs::path trace = dir / "two_queues_held.clt";
+  ASSERT_EQ(capture("twoqueues " + quote((dir / "out.json").string()) + " --hold-first", trace, true,
+                    "CLASTRACE_SHARED_WAIT_MS=200"),
+            0)
+      << readText(dir / "stderr.txt");
+  EXPECT_NE(readText(dir / "stderr.txt").find("still running on another queue after 200 ms"), std::string::npos)
+      << readText(dir / "stderr.txt");
+  Submissions s = submissionsOf(trace);
+  ASSERT_EQ(s.queues.size(), 2u);
+  EXPECT_EQ(s.rules, (std::vector<std::string>{"CLASTRACE-capture-concurrent-execution"}));
 }
 
 // A simultaneous-use command buffer listed twice in one submission, then submitted twice more:
