@@ -709,11 +709,15 @@ void Replay::run_command_buffer(uint64_t handle, uint32_t submission, uint32_t c
             ref.secondary_command = command;
         }
         replay_command(*record, ref, sequence, selected(sequence, submission));
-        if (record->body_type() == fbs::RecordBody::CmdExecuteCommands && selected(sequence, submission)) {
+        // The secondaries' commands get their own sequence numbers and are selected (--ops) one
+        // by one, whether or not the execute command itself is.
+        if (record->body_type() == fbs::RecordBody::CmdExecuteCommands) {
             if (inside) {
-                report_.not_replayed.push_back({location(ref, sequence),
-                                                "vkCmdExecuteCommands inside a secondary command buffer "
-                                                "(VK_EXT_nested_command_buffer): the nested secondaries are not replayed"});
+                if (selected(sequence, submission))
+                    report_.not_replayed.push_back({location(ref, sequence),
+                                                    "vkCmdExecuteCommands inside a secondary command buffer "
+                                                    "(VK_EXT_nested_command_buffer): the nested secondaries are not "
+                                                    "replayed"});
             } else {
                 execute_secondaries(*record->body_as_CmdExecuteCommands(), ref);
             }

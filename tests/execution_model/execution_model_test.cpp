@@ -346,6 +346,48 @@ TEST(ExecutionModel, SecondaryReExecutionAndFindingLocation) {
     EXPECT_NE(f.format().find("secondary 0 (0x5c01), command 1"), std::string::npos) << f.format();
 }
 
+// --ops selects a secondary's commands by their own sequence numbers: the second execution's
+// build alone (sequence 5: barrier #0, execute #1, then #2 #3 and #4 #5 for the two executions).
+TEST(ExecutionModel, OpsSelectCommandsInsideSecondaries) {
+    const std::string path = temp_path("sec_ops");
+    {
+        TraceScript t(path, device());
+        add_buffers(t);
+        t.begin(kSecondary, kSimultaneous, 1, 0);
+        t.full_barrier();
+        ClusterCommand bad = counted_build(1);
+        edit_info<TriangleInfo>(bad, 0, [](TriangleInfo& i) { i.clusterID = 0xFFFFFFFFu; });
+        bad.emit(t);
+        t.end();
+        t.begin(kSecondary, kSimultaneous, 1, 1);
+        t.full_barrier();
+        counted_build(2).emit(t);
+        t.end();
+        t.begin(kPrimary, 0, 0, 0);
+        t.full_barrier();
+        t.execute_commands({kSecondary, kSecondary});
+        t.end();
+        t.submit_listed(kQueue, {kPrimary});
+        t.finish();
+    }
+    traces::TraceError e;
+    auto reader = traces::TraceReader::open(path, &e);
+    ASSERT_TRUE(reader) << e.message;
+    ClusterRuns runs;
+    replay::ReplayOptions options;
+    options.observer = &runs;
+    options.first_command = 5;
+    options.last_command = 5;
+    replay::ReplayReport r = replay::replay_trace(*reader, path, options);
+    std::remove(path.c_str());
+    EXPECT_EQ(runs.op_counts, (std::vector<uint32_t>{2}));
+    ASSERT_EQ(runs.where.size(), 1u);
+    EXPECT_EQ(runs.where[0].sequence, 5u);
+    EXPECT_EQ(runs.where[0].secondary, 1u);
+    EXPECT_TRUE(r.findings.empty()) << describe(r);  // the bad cluster ID is in the first execution
+    EXPECT_EQ(r.counts.skipped_commands, 5u);
+}
+
 // A secondary the trace never recorded is named at its execute; a primary handle listed as a
 // secondary is reported by the VUID that forbids it, and still runs.
 TEST(ExecutionModel, BadSecondariesAreReported) {
