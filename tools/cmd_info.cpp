@@ -255,8 +255,10 @@ void print_text(const std::string& path, const TraceReader& reader, const TraceS
             std::string op = f.op_index == 0xFFFFFFFFu ? "" : fmt::format(" op {}", f.op_index);
             if (f.primary_command_buffer)  // a secondary's command: which primary ran it
                 op += fmt::format(" (executed by {:#x} command {})", f.primary_command_buffer, f.execute_command_index);
+            const std::string command =
+                f.command_index == 0xFFFFFFFFu ? std::string("(whole)") : std::to_string(f.command_index);
             fmt::print("  submission {} command buffer {:#x} command {}{}: [{}] {}: {}\n", f.submission, f.command_buffer,
-                       f.command_index, op, severity_name(f.severity), f.rule, f.message);
+                       command, op, severity_name(f.severity), f.rule, f.message);
         }
         if (s.finding_count > s.findings.size())
             fmt::print("  ... {} more not listed\n", s.finding_count - s.findings.size());
