@@ -36,6 +36,8 @@ struct TraceSummary {
         uint32_t command_index, op_index;
         uint8_t severity;
         std::string rule, message;
+        uint64_t primary_command_buffer = 0;  // format 1.2: the primary that ran this secondary's command
+        uint32_t execute_command_index = 0;
     };
     static constexpr size_t kMaxListed = 1000;
     std::vector<Finding> findings;
@@ -66,7 +68,8 @@ TraceSummary summarize(TraceReader& reader) {
         if (const auto* f = view.record->body_as_CaptureFinding()) {
             if (s.finding_count++ < TraceSummary::kMaxListed)
                 s.findings.push_back({f->submission(), f->command_buffer(), f->command_index(), f->op_index(),
-                                      f->severity(), f->rule() ? f->rule()->str() : "", f->message() ? f->message()->str() : ""});
+                                      f->severity(), f->rule() ? f->rule()->str() : "", f->message() ? f->message()->str() : "",
+                                      f->primary_command_buffer(), f->execute_command_index()});
             continue;
         }
         if (view.kind == fbs::RecordBody::QueueSubmit) ++s.unassigned_submissions;
@@ -175,6 +178,9 @@ nlohmann::json findings_json(const TraceSummary& s) {
                          {"severity", severity_name(f.severity)},
                          {"rule", f.rule},
                          {"message", f.message}});
+        if (f.primary_command_buffer)
+            items.back()["executed_by"] = {{"command_buffer", f.primary_command_buffer},
+                                           {"execute_command_index", f.execute_command_index}};
     }
     return items;
 }
@@ -285,8 +291,12 @@ void print_text(const std::string& path, const TraceReader& reader, const TraceS
         fmt::print("\n{:<12}{} recorded while capturing\n", "findings", s.finding_count);
         for (const auto& f : s.findings) {
             std::string op = f.op_index == 0xFFFFFFFFu ? "" : fmt::format(" op {}", f.op_index);
+            if (f.primary_command_buffer)  // a secondary's command: which primary ran it
+                op += fmt::format(" (executed by {:#x} command {})", f.primary_command_buffer, f.execute_command_index);
+            const std::string command =
+                f.command_index == 0xFFFFFFFFu ? std::string("(whole)") : std::to_string(f.command_index);
             fmt::print("  submission {} command buffer {:#x} command {}{}: [{}] {}: {}\n", f.submission, f.command_buffer,
-                       f.command_index, op, severity_name(f.severity), f.rule, f.message);
+                       command, op, severity_name(f.severity), f.rule, f.message);
         }
         if (s.finding_count > s.findings.size())
             fmt::print("  ... {} more not listed\n", s.finding_count - s.findings.size());

@@ -453,8 +453,9 @@ void describe_command(const replay::ReplayedCommand& c, DescribeContext& ctx, He
   CommandInfo& info = out->info;
   info.ordinal = c.where.sequence;
   info.submission = c.where.submission;
-  info.command_buffer = c.where.command_buffer_handle;
-  info.index = c.where.command;
+  // A command of a secondary command buffer is listed under the secondary, at its index there.
+  info.command_buffer = c.where.secondary_handle ? c.where.secondary_handle : c.where.command_buffer_handle;
+  info.index = c.where.secondary_handle ? c.where.secondary_command : c.where.command;
   info.name = c.where.name ? c.where.name : "";
   out->command_buffer_index = c.where.command_buffer;
   switch (r.body_type()) {

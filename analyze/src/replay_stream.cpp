@@ -36,9 +36,21 @@ std::string any_index(const std::string& field) {
   return out;
 }
 
-uint64_t command_key(uint32_t submission, uint32_t command_buffer, uint32_t command) {
+uint64_t command_key(uint32_t submission, uint32_t command_buffer, uint32_t command, uint64_t secondary_handle,
+                     uint32_t secondary, uint32_t secondary_command) {
   // 24 bits of command buffer and command: a hazard naming a command past that is unknown.
-  return (uint64_t{submission} << 40) ^ (uint64_t{command_buffer & 0xfffff} << 20) ^ (command & 0xfffff);
+  uint64_t key = (uint64_t{submission} << 40) ^ (uint64_t{command_buffer & 0xfffff} << 20) ^ (command & 0xfffff);
+  if (secondary_handle) {  // commands of one secondary share the primary's execute index: mix in their own
+    uint64_t x = (uint64_t{secondary} << 32 | secondary_command) + 0x9e3779b97f4a7c15ull;
+    x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ull;
+    x = (x ^ (x >> 27)) * 0x94d049bb133111ebull;
+    key ^= x ^ (x >> 31);
+  }
+  return key;
+}
+template <class Where>
+uint64_t command_key(const Where& w) {
+  return command_key(w.submission, w.command_buffer, w.command, w.secondary_handle, w.secondary, w.secondary_command);
 }
 
 }  // namespace
@@ -72,8 +84,8 @@ struct ReplayStreamFeeder::State {
         contents(std::move(c)), options(o) {}
 
   void remember(const replay::ReplayLocation& w) {
-    sequence_of[command_key(w.submission, w.command_buffer, w.command)] = w.sequence;
-    window.push_back(command_key(w.submission, w.command_buffer, w.command));
+    sequence_of[command_key(w)] = w.sequence;
+    window.push_back(command_key(w));
     if (window.size() > options.hazard_window_commands) {
       auto it = sequence_of.find(window.front());
       if (it != sequence_of.end()) sequence_of.erase(it);
@@ -149,8 +161,7 @@ void ReplayStreamFeeder::on_hazard(const replay::HazardReport& h) {
   ++s.stats.hazards;
   if (s.held.empty()) return;  // hazards always follow their command's on_command
   HeldCommand& cmd = s.held.back();
-  auto prior = s.sequence_of.find(command_key(h.prior.command.submission, h.prior.command.command_buffer,
-                                              h.prior.command.command));
+  auto prior = s.sequence_of.find(command_key(h.prior.command));
   if (prior == s.sequence_of.end() || prior->second > cmd.info.ordinal) {
     ++s.stats.hazards_prior_unknown;
     return;

@@ -121,6 +121,9 @@ struct CommandToJson {
             {"dst", c.dst}, {"src", c.src}, {"scratch", c.scratch}, {"scratchOffset", c.scratchOffset},
             {"pauseId", c.pauseId}};
   }
+  json operator()(const ExecuteCommandsCommand& c) const {
+    return {{"kind", "ExecuteCommands"}, {"secondaries", c.secondaries}};
+  }
   json operator()(const TimestampWriteCommand& c) const {
     return {{"kind", "WriteTimestamp"}, {"query", c.query}, {"stageMask", c.stageMask}};
   }
@@ -203,7 +206,8 @@ class JsonCaptureSink final : public CaptureSink {
       }
       commands.push_back(std::visit(CommandToJson{}, c));
     }
-    add("commandBuffers", {{"commandBuffer", cb.commandBuffer}, {"usage", cb.usage}, {"commands", commands},
+    add("commandBuffers", {{"commandBuffer", cb.commandBuffer}, {"usage", cb.usage}, {"secondary", cb.secondary},
+                           {"commands", commands},
                            {"timestamps", timestamps}});
   }
   void commandBufferReset(uint64_t commandBuffer) override { add("resets", commandBuffer); }
@@ -212,8 +216,10 @@ class JsonCaptureSink final : public CaptureSink {
     for (const auto& b : s.batches)
       batches.push_back({{"waits", semaphoresJson(b.waits)}, {"commandBuffers", b.commandBuffers},
                          {"signals", semaphoresJson(b.signals)}});
+    json notes = json::array();
+    for (const auto& n : s.notes) notes.push_back({{"commandBuffer", n.commandBuffer}, {"rule", n.rule}, {"message", n.message}});
     add("submissions", {{"index", s.index}, {"queue", s.queue}, {"synchronization2", s.synchronization2},
-                        {"batches", batches}, {"fence", s.fence}});
+                        {"batches", batches}, {"fence", s.fence}, {"notes", notes}});
   }
   void clusterBuildCaptured(ClusterBuildCapture c) override {
     if (c.kind == CapturedCommandKind::Timestamps) {  // a readback, not a build: listed apart

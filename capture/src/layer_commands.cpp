@@ -428,12 +428,20 @@ VKAPI_ATTR void VKAPI_CALL CmdDispatchIndirect(VkCommandBuffer cb, VkBuffer buff
 VKAPI_ATTR void VKAPI_CALL CmdExecuteCommands(VkCommandBuffer cb, uint32_t count, const VkCommandBuffer* secondaries) {
   DeviceState& d = deviceOf(cb);
   d.next.CmdExecuteCommands(cb, count, secondaries);
-  // The secondaries' pauses happen when this primary runs: the worker must expect them here.
+  // The secondaries' pauses happen when this primary runs: the worker must expect them here,
+  // in execution order (a secondary listed twice pauses twice).
   auto primary = logOf(d, cb);
+  ExecuteCommandsCommand c;
   for (uint32_t i = 0; i < count; ++i) {
     auto secondary = logOf(d, secondaries[i]);
+    const size_t first = primary->pauses.size();
     primary->pauses.insert(primary->pauses.end(), secondary->pauses.begin(), secondary->pauses.end());
+    // A simultaneous-use secondary may run inside primaries on two queues at once.
+    if (secondary->recorded.usage & VK_COMMAND_BUFFER_USAGE_SIMULTANEOUS_USE_BIT)
+      for (size_t p = first; p < primary->pauses.size(); ++p) primary->pauses[p].shared = true;
+    c.secondaries.push_back(handleId(secondaries[i]));
   }
+  if (d.sink) primary->recorded.commands.push_back(std::move(c));
 }
 
 // ---- The captured commands ------------------------------------------------------------------
@@ -639,6 +647,7 @@ VKAPI_ATTR void VKAPI_CALL CmdCopyMemoryToAccelerationStructureKHR(VkCommandBuff
 }  // namespace
 
 void clearCommandBufferLog(DeviceState& d, CommandBufferLog& log) {
+  if (d.pauses) d.pauses->forgetEvents(log.events);
   for (VkEvent event : log.events) d.next.DestroyEvent(d.device, event, nullptr);
   log.events.clear();
   for (auto& staging : log.staging) destroyStaging(d, *staging);

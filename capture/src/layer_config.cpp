@@ -96,6 +96,11 @@ LayerConfig parseLayerConfig(const std::function<const char*(const char*)>& gete
     if (ms && *ms <= 3600000) config.flushMilliseconds = uint32_t(*ms);
     else reject("CLASTRACE_FLUSH_MS", *v, "milliseconds from 0 (never) to 3600000");
   }
+  if (auto v = value("CLASTRACE_SHARED_WAIT_MS")) {
+    auto ms = parseUnsigned(*v);
+    if (ms && *ms <= 3600000) config.sharedWaitMilliseconds = uint32_t(*ms);
+    else reject("CLASTRACE_SHARED_WAIT_MS", *v, "milliseconds from 0 to 3600000");
+  }
   if (auto v = value("CLASTRACE_FORCE_STAGING")) {
     if (auto on = parseSwitch(*v)) config.forceStaging = *on;
     else reject("CLASTRACE_FORCE_STAGING", *v, "0 or 1");

@@ -185,6 +185,9 @@ struct DeviceState {
   DeviceMemoryMap memoryMap;
   std::shared_ptr<CaptureSink> sink;  // null when not capturing
   std::unique_ptr<PauseWorker> pauses;
+  // Held from the check that no other queue uses a submission's shared pause events until the
+  // worker expects its pauses (layer_submit.cpp), so two such submissions never overlap there.
+  std::mutex sharedPausesMutex;
   std::atomic<uint64_t> pauseCounter{0};
   std::mutex commandBuffersMutex;
   std::unordered_map<VkCommandBuffer, std::shared_ptr<CommandBufferLog>> commandBuffers;

@@ -4,7 +4,7 @@
 #include "layer_state.h"
 
 #include <algorithm>
-#include <atomic>
+#include <chrono>
 #include <map>
 
 namespace clastrace::capture {
@@ -24,8 +24,11 @@ PendingPauses pausesOf(DeviceState& d, VkCommandBuffer cb) {
   auto it = d.commandBuffers.find(cb);
   if (it == d.commandBuffers.end()) return {handleId(cb), {}, false};
   const CommandBufferLog& log = *it->second;
-  return {handleId(cb), log.pauses, (log.recorded.usage & VK_COMMAND_BUFFER_USAGE_SIMULTANEOUS_USE_BIT) != 0,
-          log.timestampPool, log.timestampsWritten, log.timestampReadPauseId};
+  PendingPauses pending{handleId(cb), log.pauses, (log.recorded.usage & VK_COMMAND_BUFFER_USAGE_SIMULTANEOUS_USE_BIT) != 0,
+                        log.timestampPool, log.timestampsWritten, log.timestampReadPauseId};
+  if (pending.simultaneousUse)
+    for (PausePoint& pause : pending.pauses) pause.shared = true;
+  return pending;
 }
 
 // Everything the worker must expect from one submission, gathered before the driver call so
@@ -42,18 +45,42 @@ void announce(DeviceState& d, VkQueue queue, SubmissionPlan& plan) {
   // execution is captured on its own.
   std::map<std::pair<uint64_t, PausePhase>, uint32_t> executions;
   for (PendingPauses& p : plan.pauses) {
-    // Two queues running one command buffer at once would share its pause events, which one
-    // queue's order keeps apart: say so (once per process) rather than capture it wrongly unnoticed.
-    static std::atomic<bool> warned{false};
-    if (p.simultaneousUse && !p.pauses.empty() && d.pauses->expectedOnAnotherQueue(p.commandBuffer, queue) &&
-        !warned.exchange(true))
-      logMessage(LogLevel::Error, "command buffer 0x%llx (SIMULTANEOUS_USE) was submitted to a second queue while its "
-                 "pauses on another queue were still pending: the executions share the layer's pause events, so "
-                 "their captures may be wrong or the queues may stall (not supported yet)",
-                 (unsigned long long)p.commandBuffer);
     for (PausePoint& pause : p.pauses) pause.occurrence = executions[{pause.pauseId, pause.phase}]++;
     d.pauses->expect(queue, plan.record.index, plan.capture, p.commandBuffer, p.pauses);
   }
+}
+
+// Executions of one command buffer on two queues would share its pause events (pause_worker.h,
+// shared_pause_tracker.h). Before the driver sees a submission whose pauses may run on several
+// queues, wait until no other queue uses those events; the returned lock is held until the
+// worker expects this submission's pauses. Where the wait gives up, the submission goes ahead
+// and carries a note (CaptureFinding) that its captures may be wrong.
+std::unique_lock<std::mutex> admitSharedPauses(DeviceState& d, VkQueue queue, SubmissionPlan& plan) {
+  if (!d.pauses) return {};
+  std::vector<uint64_t> releases;
+  std::vector<uint64_t> commandBuffers;
+  for (const PendingPauses& p : plan.pauses)
+    for (const PausePoint& pause : p.pauses)
+      if (pause.shared) {
+        releases.push_back(handleId(pause.release));
+        if (commandBuffers.empty() || commandBuffers.back() != p.commandBuffer) commandBuffers.push_back(p.commandBuffer);
+      }
+  if (releases.empty()) return {};
+  // The other queue may wait for something the application does only after this call returns
+  // (a host-set event, a timeline value signalled later): then the wait gives up, and says so.
+  const std::chrono::milliseconds patience{layerConfig().sharedWaitMilliseconds};
+  std::unique_lock lock(d.sharedPausesMutex);
+  if (d.pauses->waitUntilFree(queue, releases, patience)) return lock;
+  logMessage(LogLevel::Error, "submission %llu: a simultaneous-use command buffer is still running on another queue "
+             "after %lld ms; its executions share the layer's pause events, so the captures of this submission may "
+             "be wrong", (unsigned long long)plan.record.index, (long long)patience.count());
+  for (uint64_t cb : commandBuffers)
+    plan.record.notes.push_back({cb, "CLASTRACE-capture-concurrent-execution",
+                                 "this command buffer (or a simultaneous-use secondary it executes) was still running "
+                                 "its captured commands on another queue when this submission was made, and the layer "
+                                 "gave up waiting for it: both executions used the same pause events, so the memory "
+                                 "captured for either may have been read at the wrong point"});
+  return lock;
 }
 
 SubmissionPlan planFor(DeviceState& d, VkQueue queue, VkFence fence, bool synchronization2) {
@@ -126,9 +153,11 @@ VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit(VkQueue queue, uint32_t submitCount, 
     }
     plan.record.batches.push_back(std::move(batch));
   }
+  auto admitted = admitSharedPauses(d, queue, plan);
   VkResult result = d.next.QueueSubmit(queue, submitCount, pSubmits, fence);
   if (result != VK_SUCCESS) return result;
   announce(d, queue, plan);
+  if (admitted.owns_lock()) admitted.unlock();  // the worker tracks this submission's shared pauses now
   expectTimestamps(d, queue, plan);
   if (plan.capture) d.sink->queueSubmitted(plan.record);
   checkRays(d, queue, plan);
@@ -157,9 +186,11 @@ VkResult queueSubmit2(VkQueue queue, uint32_t submitCount, const VkSubmitInfo2* 
     }
     plan.record.batches.push_back(std::move(batch));
   }
+  auto admitted = admitSharedPauses(d, queue, plan);
   VkResult result = next(queue, submitCount, pSubmits, fence);
   if (result != VK_SUCCESS) return result;
   announce(d, queue, plan);
+  if (admitted.owns_lock()) admitted.unlock();  // the worker tracks this submission's shared pauses now
   expectTimestamps(d, queue, plan);
   if (plan.capture) d.sink->queueSubmitted(plan.record);
   checkRays(d, queue, plan);

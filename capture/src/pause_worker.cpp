@@ -45,18 +45,33 @@ void PauseWorker::expect(VkQueue queue, uint64_t submissionIndex, bool captureTh
   {
     std::lock_guard lock(mutex_);
     auto& pending = queues_[queue];
-    for (const PausePoint& p : pauses) pending.push_back({p, submissionIndex, commandBuffer, captureThisSubmission});
+    for (const PausePoint& p : pauses) {
+      pending.push_back({queue, p, submissionIndex, commandBuffer, captureThisSubmission});
+      if (p.shared) shared_.expected(handleId(queue), handleId(p.release));
+    }
   }
   wake_.notify_all();
 }
 
-bool PauseWorker::expectedOnAnotherQueue(uint64_t commandBuffer, VkQueue queue) {
+bool PauseWorker::waitUntilFree(VkQueue queue, const std::vector<uint64_t>& releases, std::chrono::milliseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  auto isReset = [this](uint64_t release) {
+    return device_.next.GetEventStatus(device_.device, (VkEvent)release) == VK_EVENT_RESET;
+  };
+  std::unique_lock lock(mutex_);
+  while (shared_.busyElsewhere(handleId(queue), releases, isReset)) {
+    if (std::chrono::steady_clock::now() >= deadline) return false;
+    lock.unlock();
+    std::this_thread::sleep_for(std::chrono::microseconds(100));
+    lock.lock();
+  }
+  return true;
+}
+
+void PauseWorker::forgetEvents(const std::vector<VkEvent>& events) {
   std::lock_guard lock(mutex_);
-  for (const auto& [other, pending] : queues_)
-    if (other != queue)
-      for (const Expected& e : pending)
-        if (e.commandBuffer == commandBuffer) return true;
-  return false;
+  if (shared_.empty()) return;
+  for (VkEvent e : events) shared_.forget(handleId(e));
 }
 
 void PauseWorker::run() {
@@ -265,6 +280,10 @@ bool PauseWorker::handle(Expected& expected) {
   }
   device_.next.ResetEvent(device_.device, pause.signal);
   device_.next.SetEvent(device_.device, pause.release);
+  if (pause.shared) {
+    std::lock_guard lock(mutex_);
+    shared_.released(handleId(expected.queue), handleId(pause.release));
+  }
   ++handled_;
   const auto released = std::chrono::steady_clock::now();
   const uint64_t releasedCpu = threadCpuNs();

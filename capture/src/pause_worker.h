@@ -18,6 +18,7 @@
 
 #include "clastrace/capture/capture_records.h"
 #include "clastrace/capture/device_memory_map.h"
+#include "clastrace/capture/shared_pause_tracker.h"
 #include "pause_staging.h"
 
 #include <clastrace/engine/memory_image.h>
@@ -48,6 +49,9 @@ struct PausePoint {
   // Which execution of this pause within one submission (a simultaneous-use command buffer
   // may run twice in one vkQueueSubmit; its pauses then come twice, in order).
   uint32_t occurrence = 0;
+  // Its command buffer may run on two queues at once (a SIMULTANEOUS_USE primary, or a
+  // simultaneous-use secondary): submissions wait until no other queue uses its events.
+  bool shared = false;
   VkEvent signal = VK_NULL_HANDLE;
   VkEvent release = VK_NULL_HANDLE;
   std::shared_ptr<const ClusterCommandParameters> parameters;  // a cluster build, or one of:
@@ -65,14 +69,19 @@ class PauseWorker {
   void expect(VkQueue queue, uint64_t submissionIndex, bool captureThisSubmission, uint64_t commandBuffer,
               const std::vector<PausePoint>& pauses);
 
-  // Whether pauses of `commandBuffer` are still expected on a queue other than `queue`.
-  bool expectedOnAnotherQueue(uint64_t commandBuffer, VkQueue queue);
+  // Waits until no queue other than `queue` uses any of the pause events `releases` (see
+  // shared_pause_tracker.h); false when `timeout` passed first (the other queue may wait for
+  // something the application does only after this submission).
+  bool waitUntilFree(VkQueue queue, const std::vector<uint64_t>& releases, std::chrono::milliseconds timeout);
+  // The command buffer owning these events was reset or freed.
+  void forgetEvents(const std::vector<VkEvent>& events);
 
   // Total pauses handled and the host time spent inside them, for the report line at exit.
   uint64_t pausesHandled() const { return handled_; }
 
  private:
   struct Expected {
+    VkQueue queue;
     PausePoint pause;
     uint64_t submissionIndex;
     uint64_t commandBuffer;
@@ -109,6 +118,7 @@ class PauseWorker {
   std::vector<float> pauseMilliseconds_;
   const StagingSet* staging_ = nullptr;  // of the pause being handled  // host time of each pause, for the report at exit
   bool stop_ = false;
+  SharedPauseTracker shared_;  // guarded by mutex_
   std::atomic<uint64_t> handled_{0};
   std::map<std::string, uint64_t> findingsPerRule_;  // how often each engine rule was logged
   engine::ObjectDirectory directory_;  // the served device's live objects, across its commands

@@ -281,15 +281,25 @@ class TraceCaptureSink final : public CaptureSink {
         auto it = recorded_.find(cb);
         if (it == recorded_.end()) continue;
         p.commandBuffers.push_back(it->second);
-        for (const auto& c : it->second->commands) {
-          if (std::holds_alternative<ClusterBuildCommand>(c)) ++p.expectedBuilds;
-          if (const auto* nv = std::get_if<BuildAccelerationStructureNVCommand>(&c)) p.expectedBuilds += nv->pauseId != 0;
-          if (const auto* copy = std::get_if<CopyMemoryToAccelerationStructureCommand>(&c))
-            p.expectedBuilds += copy->pauseId != 0;
-        }
+        p.expectedBuilds += capturedCommandsOf(*it->second);
         if (timestampReadOf(*it->second)) ++p.expectedBuilds;  // its timestamps' readback
+        // Its secondaries as they are now: the application may re-record them once this
+        // submission completed, before the sink writes it.
+        for (const auto& c : it->second->commands)
+          if (const auto* execute = std::get_if<ExecuteCommandsCommand>(&c))
+            for (uint64_t secondary : execute->secondaries)
+              if (auto found = recorded_.find(secondary); found != recorded_.end()) {
+                p.secondaries.emplace(secondary, found->second);
+                p.expectedBuilds += capturedCommandsOf(*found->second);
+              }
       }
     wakeEmitter();
+  }
+  // Commands of `cb` whose execution the worker captures at a pause.
+  static size_t capturedCommandsOf(const RecordedCommandBuffer& cb) {
+    size_t n = 0;
+    for (const auto& c : cb.commands) n += pauseIdOf(c) != 0;
+    return n;
   }
   // Hashing and framing the snapshots happen on the sink's thread, not in the pause that
   // delivered them; past kMaxPendingBytes the deliverer does it (bounded memory).
@@ -489,6 +499,7 @@ class TraceCaptureSink final : public CaptureSink {
     bool submitted = false;
     size_t expectedBuilds = 0;
     std::vector<std::shared_ptr<RecordedCommandBuffer>> commandBuffers;
+    std::map<uint64_t, std::shared_ptr<RecordedCommandBuffer>> secondaries;  // executed by them, by handle
     std::map<std::pair<uint64_t, uint32_t>, ClusterBuildCapture> builds;  // by (pauseId, occurrence)
     std::vector<fbs::RecordT> after;  // the application's calls made after this submission
     std::vector<RayCheckRecord> rayChecks;
@@ -765,60 +776,33 @@ class TraceCaptureSink final : public CaptureSink {
     }
   }
 
+  // Where a command buffer's block runs: a primary of the submission, or a secondary at its
+  // primary's vkCmdExecuteCommands (findings name both).
+  struct ExecutionSite {
+    uint64_t primary = 0;        // 0: the block is a primary's own
+    uint32_t executeIndex = 0;   // index of the primary's vkCmdExecuteCommands
+  };
+  struct SubmissionEmit {
+    Pending& pending;
+    std::map<uint64_t, uint32_t> executions;   // pauseId -> executions emitted (repeated executions)
+    std::map<uint64_t, uint32_t> restatements;  // command buffer -> blocks emitted (CommandBufferBegin.restatement)
+    std::vector<fbs::CaptureFindingT> findings;
+  };
+
   void writeSubmission(Pending& p) {
     CostScope cost(CostPhase::Emit, true);
-    std::map<uint64_t, uint32_t> executions;  // pauseId -> executions emitted (simultaneous use)
-    std::vector<fbs::CaptureFindingT> findings;
+    SubmissionEmit e{p, {}, {}, {}};
     for (const auto& cb : p.commandBuffers) {
-      fbs::CommandBufferBeginT begin;
-      begin.command_buffer = cb->commandBuffer;
-      begin.flags = cb->usage;
-      begin.level = cb->secondary ? 1 : 0;
-      writeRecord(recordOf(std::move(begin)));
-      const ClusterBuildCapture* timestamps = nullptr;  // this execution's ticks
-      if (const uint64_t readPauseId = timestampReadOf(*cb)) {
-        auto it = p.builds.find({readPauseId, executions[readPauseId]++});
-        if (it != p.builds.end()) timestamps = &it->second;
-      }
-      for (size_t index = 0; index < cb->commands.size(); ++index) {
-        const RecordedCommand& command = cb->commands[index];
-        if (const auto* t = std::get_if<TimestampWriteCommand>(&command)) {
-          fbs::GpuTimestampT r;
-          r.command_buffer = cb->commandBuffer;
-          r.query_pool = t->queryPool;
-          r.query = t->query;
-          r.stage_mask = t->stageMask;
-          if (timestamps && t->query < timestamps->timestampTicks.size()) {
-            r.ticks = timestamps->timestampTicks[t->query];
-            r.ticks_valid = timestamps->timestampValid[t->query];
-          }
-          writeRecord(recordOf(std::move(r)));
-          continue;
-        }
-        const ClusterBuildCapture* captured = nullptr;
-        if (const uint64_t pauseId = pauseIdOf(command)) {
-          auto it = p.builds.find({pauseId, executions[pauseId]++});
-          if (it != p.builds.end()) captured = &it->second;
-        }
-        if (captured) {
-          collectFindings(cb->commandBuffer, index, *captured, findings);
-        } else if (pauseIdOf(command)) {  // emitted at the end without its pause: say so
-          fbs::CaptureFindingT f;
-          f.command_buffer = cb->commandBuffer;
-          f.command_index = uint32_t(index);
-          f.op_index = UINT32_MAX;
-          f.severity = 1;
-          f.rule = "CLASTRACE-capture-incomplete";
-          f.message = "the queue never reached this command's pause before the process or the capture ended: "
-                      "its memory was not captured";
-          findings.push_back(std::move(f));
-        }
-        writeCommand(cb->commandBuffer, command, captured);
-      }
-      fbs::CommandBufferEndT end;
-      end.command_buffer = cb->commandBuffer;
-      writeRecord(recordOf(std::move(end)));
+      // A secondary's block goes before its primary's, once per execution, so every recording
+      // is in the trace before the QueueSubmit that runs it (format 1.2).
+      for (size_t index = 0; index < cb->commands.size(); ++index)
+        if (const auto* execute = std::get_if<ExecuteCommandsCommand>(&cb->commands[index]))
+          for (uint64_t secondary : execute->secondaries)
+            if (auto it = p.secondaries.find(secondary); it != p.secondaries.end())
+              writeCommandBuffer(e, *it->second, {cb->commandBuffer, uint32_t(index)});
+      writeCommandBuffer(e, *cb, {});
     }
+    std::vector<fbs::CaptureFindingT>& findings = e.findings;
     if (!writer_ || failed_) return;
     fbs::QueueSubmitT submit;
     submit.queue = p.submission.queue;
@@ -839,11 +823,90 @@ class TraceCaptureSink final : public CaptureSink {
     const uint64_t submission = submit.submission_index;
     writeRecord(recordOf(std::move(submit)));
     for (const RayCheckRecord& c : p.rayChecks) writeRayCheck(c);
+    for (const SubmissionRecord::Note& note : p.submission.notes) {
+      fbs::CaptureFindingT f;
+      f.command_buffer = note.commandBuffer;
+      f.command_index = UINT32_MAX;  // the whole command buffer
+      f.op_index = UINT32_MAX;
+      f.severity = 1;
+      f.rule = note.rule;
+      f.message = note.message;
+      findings.push_back(std::move(f));
+    }
     for (fbs::CaptureFindingT& f : findings) {
       f.submission = submission;
       writeRecord(recordOf(std::move(f)));
     }
     for (const fbs::RecordT& r : p.after) writeRecord(r);
+  }
+
+  // One execution of `cb`: Begin (restated when it ran before in this submission), its
+  // commands with that execution's snapshots and timestamps, End.
+  void writeCommandBuffer(SubmissionEmit& e, const RecordedCommandBuffer& cb, ExecutionSite site) {
+    Pending& p = e.pending;
+    fbs::CommandBufferBeginT begin;
+    begin.command_buffer = cb.commandBuffer;
+    begin.flags = cb.usage;
+    begin.level = cb.secondary ? 1 : 0;
+    begin.restatement = e.restatements[cb.commandBuffer]++;
+    writeRecord(recordOf(std::move(begin)));
+    const ClusterBuildCapture* timestamps = nullptr;  // this execution's ticks
+    if (const uint64_t readPauseId = timestampReadOf(cb)) {
+      auto it = p.builds.find({readPauseId, e.executions[readPauseId]++});
+      if (it != p.builds.end()) timestamps = &it->second;
+    }
+    auto finding = [&](fbs::CaptureFindingT f) {
+      f.primary_command_buffer = site.primary;
+      f.execute_command_index = site.executeIndex;
+      e.findings.push_back(std::move(f));
+    };
+    for (size_t index = 0; index < cb.commands.size(); ++index) {
+      const RecordedCommand& command = cb.commands[index];
+      if (const auto* t = std::get_if<TimestampWriteCommand>(&command)) {
+        fbs::GpuTimestampT r;
+        r.command_buffer = cb.commandBuffer;
+        r.query_pool = t->queryPool;
+        r.query = t->query;
+        r.stage_mask = t->stageMask;
+        if (timestamps && t->query < timestamps->timestampTicks.size()) {
+          r.ticks = timestamps->timestampTicks[t->query];
+          r.ticks_valid = timestamps->timestampValid[t->query];
+        }
+        writeRecord(recordOf(std::move(r)));
+        continue;
+      }
+      if (const auto* execute = std::get_if<ExecuteCommandsCommand>(&command)) {
+        fbs::CmdExecuteCommandsT r;
+        r.command_buffer = cb.commandBuffer;
+        r.secondaries = execute->secondaries;
+        writeRecord(recordOf(std::move(r)));
+        continue;
+      }
+      const ClusterBuildCapture* captured = nullptr;
+      if (const uint64_t pauseId = pauseIdOf(command)) {
+        auto it = p.builds.find({pauseId, e.executions[pauseId]++});
+        if (it != p.builds.end()) captured = &it->second;
+      }
+      if (captured) {
+        std::vector<fbs::CaptureFindingT> found;
+        collectFindings(cb.commandBuffer, index, *captured, found);
+        for (auto& f : found) finding(std::move(f));
+      } else if (pauseIdOf(command)) {  // emitted at the end without its pause: say so
+        fbs::CaptureFindingT f;
+        f.command_buffer = cb.commandBuffer;
+        f.command_index = uint32_t(index);
+        f.op_index = UINT32_MAX;
+        f.severity = 1;
+        f.rule = "CLASTRACE-capture-incomplete";
+        f.message = "the queue never reached this command's pause before the process or the capture ended: "
+                    "its memory was not captured";
+        finding(std::move(f));
+      }
+      writeCommand(cb.commandBuffer, command, captured);
+    }
+    fbs::CommandBufferEndT end;
+    end.command_buffer = cb.commandBuffer;
+    writeRecord(recordOf(std::move(end)));
   }
 
   void writeCommand(uint64_t cb, const RecordedCommand& command, const ClusterBuildCapture* captured) {

@@ -18,15 +18,18 @@ std::string where(const HazardAccess& a) {
     std::string s = a.command.name && *a.command.name ? a.command.name : "command";
     if (a.queue == kHostQueue) return s + " (host)";
     s += " (queue " + std::to_string(a.queue) + ", submit " + std::to_string(a.command.submission) + ", cb " +
-         std::to_string(a.command.command_buffer) + ", cmd " + std::to_string(a.command.command) + ")";
-    return s;
+         std::to_string(a.command.command_buffer) + ", cmd " + std::to_string(a.command.command);
+    if (a.command.secondary_handle)
+        s += " > secondary " + std::to_string(a.command.secondary) + " (" + hex(a.command.secondary_handle) + "), cmd " +
+             std::to_string(a.command.secondary_command);
+    return s + ")";
 }
 
 const char* verb(const HazardAccess& a) { return a.is_write ? "writes" : "reads"; }
 const char* past(const HazardAccess& a) { return a.is_write ? "wrote" : "read"; }
 
 nlohmann::json side_json(const HazardAccess& a) {
-    return {
+    nlohmann::json j = {
         {"command", a.command.name ? a.command.name : ""},
         {"queue", a.queue == kHostQueue ? nlohmann::json("host") : nlohmann::json(a.queue)},
         {"submission", a.command.submission},
@@ -39,6 +42,11 @@ nlohmann::json side_json(const HazardAccess& a) {
         {"write", a.is_write},
         {"range", {hex(a.range.begin), hex(a.range.end)}},
     };
+    if (a.command.secondary_handle)  // a command of a secondary command buffer (vkCmdExecuteCommands)
+        j["secondary"] = {{"index", a.command.secondary},
+                          {"command_buffer_handle", hex(a.command.secondary_handle)},
+                          {"command_index", a.command.secondary_command}};
+    return j;
 }
 
 const char* fix_kind_name(FixKind k) {

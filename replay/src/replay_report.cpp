@@ -17,18 +17,34 @@ std::string hex(uint64_t v) {
 }
 
 std::string where_text(const ReplayLocation& w) {
+    std::string command = "command " + std::to_string(w.command);
+    if (w.secondary_handle)
+        command += " (vkCmdExecuteCommands) > secondary " + std::to_string(w.secondary) + " (" + hex(w.secondary_handle) +
+                   "), command " + std::to_string(w.secondary_command);
     return "submission " + std::to_string(w.submission) + ", command buffer " + std::to_string(w.command_buffer) + " (" +
-           hex(w.command_buffer_handle) + "), command " + std::to_string(w.command) + " " + w.name + " [#" +
-           std::to_string(w.sequence) + "]";
+           hex(w.command_buffer_handle) + "), " + command + " " + w.name + " [#" + std::to_string(w.sequence) + "]";
 }
 
 nlohmann::json where_json(const ReplayLocation& w) {
-    return {{"sequence", w.sequence},
-            {"submission", w.submission},
-            {"command_buffer", w.command_buffer},
-            {"command_buffer_handle", hex(w.command_buffer_handle)},
-            {"command", w.command},
-            {"name", w.name}};
+    nlohmann::json j = {{"sequence", w.sequence},
+                        {"submission", w.submission},
+                        {"command_buffer", w.command_buffer},
+                        {"command_buffer_handle", hex(w.command_buffer_handle)},
+                        {"command", w.command},
+                        {"name", w.name}};
+    if (w.secondary_handle)
+        j["secondary"] = {{"index", w.secondary},
+                          {"command_buffer_handle", hex(w.secondary_handle)},
+                          {"command", w.secondary_command}};
+    return j;
+}
+
+// "s0 cb1 cmd3 [#8]", or "s0 cb1 cmd3>0.1 [#8]" for command 1 of secondary 0 of execute 3.
+std::string short_where(const ReplayLocation& w) {
+    std::string command = std::to_string(w.command);
+    if (w.secondary_handle) command += ">" + std::to_string(w.secondary) + "." + std::to_string(w.secondary_command);
+    return "s" + std::to_string(w.submission) + " cb" + std::to_string(w.command_buffer) + " cmd" + command + " [#" +
+           std::to_string(w.sequence) + "]";
 }
 
 }  // namespace
@@ -67,8 +83,7 @@ std::string format_text(const ReplayReport& r) {
                       "captured bytes", "engine bytes", "equal");
         s += line;
         for (const SizeComparison& c : r.sizes) {
-            const std::string where = "s" + std::to_string(c.where.submission) + " cb" + std::to_string(c.where.command_buffer) +
-                                      " cmd" + std::to_string(c.where.command) + " [#" + std::to_string(c.where.sequence) + "]";
+            const std::string where = short_where(c.where);
             std::snprintf(line, sizeof line, "  %-26s %7u %6u %8u %14" PRIu64 " %14" PRIu64 " %6u\n", where.c_str(), c.op_type,
                           c.ops, c.ops_compared, c.captured_bytes, c.engine_bytes, c.sizes_equal);
             s += line;
@@ -82,8 +97,7 @@ std::string format_text(const ReplayReport& r) {
                       "driver object", "engine object", "engine used");
         s += line;
         for (const NvSizeComparison& c : r.nv_sizes) {
-            const std::string where = "s" + std::to_string(c.where.submission) + " cb" + std::to_string(c.where.command_buffer) +
-                                      " cmd" + std::to_string(c.where.command) + " [#" + std::to_string(c.where.sequence) + "]";
+            const std::string where = short_where(c.where);
             std::snprintf(line, sizeof line, "  %-26s %-6s %10" PRIu64 " %14s %14" PRIu64 " %14" PRIu64 "\n", where.c_str(),
                           c.top_level ? "top" : "bottom", c.primitives,
                           c.driver_object ? std::to_string(c.driver_object).c_str() : "-", c.engine_object, c.engine_bytes);

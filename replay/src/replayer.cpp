@@ -49,6 +49,7 @@ const char* command_name(fbs::RecordBody kind) {
     case fbs::RecordBody::CmdCopyMemoryToAccelerationStructure: return "vkCmdCopyMemoryToAccelerationStructureKHR";
     case fbs::RecordBody::GpuTimestamp: return "vkCmdWriteTimestamp";
     case fbs::RecordBody::DebugLabel: return "vkCmdDebugUtilsLabelEXT";
+    case fbs::RecordBody::CmdExecuteCommands: return "vkCmdExecuteCommands";
     default: return "command";
     }
 }
@@ -71,6 +72,7 @@ uint64_t command_buffer_of(const fbs::Record& r) {
         return r.body_as_CmdCopyMemoryToAccelerationStructure()->command_buffer();
     case fbs::RecordBody::GpuTimestamp: return r.body_as_GpuTimestamp()->command_buffer();
     case fbs::RecordBody::DebugLabel: return r.body_as_DebugLabel()->command_buffer();
+    case fbs::RecordBody::CmdExecuteCommands: return r.body_as_CmdExecuteCommands()->command_buffer();
     default: return 0;
     }
 }
@@ -101,11 +103,17 @@ std::string any_index(const std::string& field) {
 // field become one report whose later field names the ops as [*] and whose ranges cover them all.
 std::vector<HazardReport> merge_per_op_hazards(const std::vector<HazardReport>& hazards, uint64_t* merged) {
     std::vector<HazardReport> out;
-    std::map<std::tuple<int, uint32_t, uint32_t, uint32_t, uint32_t, uint32_t, uint32_t, std::string, std::string>, size_t> index;
+    // A command is (submission, command buffer, command) and, inside a secondary, (secondary,
+    // its command): commands of one secondary share the primary's execute index.
+    auto command_key = [](const CommandRef& c) {
+        return std::make_tuple(c.submission, c.command_buffer, c.command, c.secondary_handle ? c.secondary + 1 : 0u,
+                               c.secondary_command);
+    };
+    using CommandKey = decltype(command_key(CommandRef{}));
+    std::map<std::tuple<int, CommandKey, CommandKey, std::string, std::string>, size_t> index;
     for (const HazardReport& h : hazards) {
-        auto key = std::make_tuple(int(h.hazard), h.prior.command.submission, h.prior.command.command_buffer,
-                                   h.prior.command.command, h.later.command.submission, h.later.command.command_buffer,
-                                   h.later.command.command, any_index(h.prior.field), any_index(h.later.field));
+        auto key = std::make_tuple(int(h.hazard), command_key(h.prior.command), command_key(h.later.command),
+                                   any_index(h.prior.field), any_index(h.later.field));
         auto [it, inserted] = index.emplace(key, out.size());
         if (inserted) {
             out.push_back(h);
@@ -113,8 +121,8 @@ std::vector<HazardReport> merge_per_op_hazards(const std::vector<HazardReport>& 
         }
         ++*merged;
         HazardReport& m = out[it->second];
-        if (m.later.field != h.later.field) m.later.field = std::get<8>(key);
-        if (m.prior.field != h.prior.field) m.prior.field = std::get<7>(key);
+        if (m.later.field != h.later.field) m.later.field = std::get<4>(key);
+        if (m.prior.field != h.prior.field) m.prior.field = std::get<3>(key);
         m.later.range = {std::min(m.later.range.begin, h.later.range.begin), std::max(m.later.range.end, h.later.range.end)};
         m.prior.range = {std::min(m.prior.range.begin, h.prior.range.begin), std::max(m.prior.range.end, h.prior.range.end)};
         m.overlap = {std::min(m.overlap.begin, h.overlap.begin), std::max(m.overlap.end, h.overlap.end)};
@@ -152,15 +160,30 @@ public:
     ReplayReport run();
 
 private:
+    using Commands = std::vector<std::vector<uint8_t>>;  // Record FlatBuffers, copied out of the reader
     struct Recorded {
-        std::vector<std::vector<uint8_t>> commands;  // Record FlatBuffers, copied out of the reader
+        Commands commands;
+        // Restatements (format 1.2): restated[k - 1] is copy k of the recording, for the
+        // (k+1)-th execution in the next submission that runs it (its own snapshots).
+        std::vector<Commands> restated;
+        uint32_t filling = 0;                         // which copy the command records go to (0: commands)
         bool one_time = false;                        // freed once submitted (memory stays bounded)
+        bool secondary = false;
         uint64_t bytes = 0;
         uint64_t submitted = 0;                       // 1 + submission_index of its last submission, 0 never
+        Commands& target() { return filling == 0 || filling > restated.size() ? commands : restated[filling - 1]; }
+        // The copy the `execution`-th execution (0-based) in a submission runs.
+        const Commands& copy_for(uint32_t execution) const {
+            return execution == 0 || execution > restated.size() ? commands : restated[execution - 1];
+        }
     };
 
     void on_record(const traces::RecordView& view);
     void on_submit(const fbs::QueueSubmit& submit);
+    // Replays one execution of a command buffer (a primary listed in a batch, or a secondary
+    // at its primary's vkCmdExecuteCommands: `inside` then names the execute command).
+    void run_command_buffer(uint64_t handle, uint32_t submission, uint32_t cb_index, const CommandRef* inside);
+    void execute_secondaries(const fbs::CmdExecuteCommands& execute, const CommandRef& ref);
     void reset_command_buffers(const fbs::CommandBufferReset& reset);
     void execute_command(const fbs::Record& record, const CommandRef& ref, uint64_t sequence);
     void replay_command(const fbs::Record& record, const CommandRef& ref, uint64_t sequence, bool selected);
@@ -193,7 +216,8 @@ private:
         }
     }
     ReplayLocation location(const CommandRef& ref, uint64_t sequence) const {
-        return ReplayLocation{sequence, ref.submission, ref.command_buffer, ref.command, ref.command_buffer_handle, ref.name};
+        return ReplayLocation{sequence,  ref.submission,       ref.command_buffer, ref.command, ref.command_buffer_handle,
+                              ref.name,  ref.secondary_handle, ref.secondary,      ref.secondary_command};
     }
     QueueId queue_id(uint64_t queue) {
         auto [it, inserted] = queues_.emplace(queue, static_cast<QueueId>(queues_.size()));
@@ -227,6 +251,8 @@ private:
     uint64_t* observed_engine_ns_ = nullptr;
     uint64_t recorded_bytes_ = 0;
     std::unordered_set<uint64_t> dropped_;  // command buffers limit_recorded() dropped
+    // Executions so far of each command buffer in the submission being replayed (restatements).
+    std::unordered_map<uint64_t, uint32_t> executions_;
     detail::NvReplay nv_{{memory_, report_, sync_, options_, [this](ReplayFinding f) { add_finding(std::move(f)); },
                           [this](const traces::SnapshotVector* s, const ReplayLocation& w) { lay_in_snapshots(s, w); },
                           [this](engine::ExecutionRecord&& r, uint64_t ns) {
@@ -614,42 +640,111 @@ void Replay::on_submit(const fbs::QueueSubmit& submit) {
         if (options_.check_hazards) sync_.begin_submission(queue, submission, waits);
         if (batch && batch->command_buffers()) {
             for (uint64_t handle : *batch->command_buffers()) {
-                auto it = recorded_.find(handle);
-                if (it == recorded_.end() && dropped_.count(handle))
-                    add_finding({"CLASTRACE-replay-command-buffer-dropped",
-                                 "command buffer " + detail::hex(handle) +
-                                     " is submitted again, but its commands were dropped to keep the replay within "
-                                     "ReplayOptions::max_recorded_bytes (" + std::to_string(options_.max_recorded_bytes) +
-                                     "): not replayed",
-                                 FindingSource::kReplay, ReplayLocation{sequence_, submission, cb_index, 0, handle, "vkQueueSubmit"}, -1, 0});
-                if (it != recorded_.end()) {
-                    it->second.submitted = uint64_t(submission) + 1;
-                    uint32_t command = 0;
-                    for (const std::vector<uint8_t>& bytes : it->second.commands) {
-                        const fbs::Record* record = flatbuffers::GetRoot<fbs::Record>(bytes.data());
-                        const uint64_t sequence = sequence_++;
-                        CommandRef ref{submission, cb_index, handle, command, command_name(record->body_type())};
-                        replay_command(*record, ref, sequence, selected(sequence, submission));
-                        ++command;
-                    }
-                    if (it->second.one_time) forget_recorded(handle);
-                } else if (!dropped_.count(handle)) {
-                    // Reset (buffer or pool), never begun in the trace, or a one-time buffer submitted again.
-                    ReplayLocation where{sequence_, submission, cb_index, 0, handle, "vkQueueSubmit"};
-                    add_finding({"CLASTRACE-replay-command-buffer-not-recorded",
-                                 "command buffer " + detail::hex(handle) +
-                                     " holds no recorded commands (reset, never begun in the trace, or "
-                                     "ONE_TIME_SUBMIT and already submitted): nothing of it is replayed",
-                                 FindingSource::kReplay, where, -1, 0});
-                }
+                run_command_buffer(handle, submission, cb_index, nullptr);
                 ++cb_index;
             }
         }
         if (options_.check_hazards) sync_.end_submission(signals, b + 1 >= batch_count ? submit.fence() : 0);
         memory_.note_peak();
     }
+    // Restated copies serve this submission only; the recording itself may be submitted again.
+    for (const auto& [handle, count] : executions_)
+        if (auto it = recorded_.find(handle); it != recorded_.end() && !it->second.restated.empty()) {
+            uint64_t copies = 0;
+            for (const Commands& copy : it->second.restated)
+                for (const auto& bytes : copy) copies += bytes.size();
+            copies = std::min(copies, it->second.bytes);
+            it->second.bytes -= copies;
+            recorded_bytes_ -= std::min(recorded_bytes_, copies);
+            it->second.restated.clear();
+            it->second.filling = 0;
+        }
+    executions_.clear();
     limit_recorded();
     if (options_.observer) options_.observer->on_submission_end(submission);
+}
+
+void Replay::run_command_buffer(uint64_t handle, uint32_t submission, uint32_t cb_index, const CommandRef* inside) {
+    const char* where_name = inside ? "vkCmdExecuteCommands" : "vkQueueSubmit";
+    auto location_here = [&] {
+        ReplayLocation where{sequence_, submission, cb_index, 0, handle, where_name};
+        if (inside) {
+            where.command_buffer_handle = inside->command_buffer_handle;
+            where.command = inside->command;
+            where.secondary_handle = handle;
+            where.secondary = inside->secondary;
+        }
+        return where;
+    };
+    auto it = recorded_.find(handle);
+    if (it == recorded_.end()) {
+        if (dropped_.count(handle))
+            add_finding({"CLASTRACE-replay-command-buffer-dropped",
+                         "command buffer " + detail::hex(handle) +
+                             " is submitted again, but its commands were dropped to keep the replay within "
+                             "ReplayOptions::max_recorded_bytes (" + std::to_string(options_.max_recorded_bytes) +
+                             "): not replayed",
+                         FindingSource::kReplay, location_here(), -1, 0});
+        else  // Reset (buffer or pool), never begun in the trace, or a one-time buffer submitted again.
+            add_finding({"CLASTRACE-replay-command-buffer-not-recorded",
+                         "command buffer " + detail::hex(handle) +
+                             " holds no recorded commands (reset, never begun in the trace, or "
+                             "ONE_TIME_SUBMIT and already submitted): nothing of it is replayed",
+                         FindingSource::kReplay, location_here(), -1, 0});
+        return;
+    }
+    Recorded& recorded = it->second;
+    recorded.submitted = uint64_t(submission) + 1;
+    const uint32_t execution = executions_[handle]++;
+    const Commands& commands = recorded.copy_for(execution);
+    uint32_t command = 0;
+    for (const std::vector<uint8_t>& bytes : commands) {
+        const fbs::Record* record = flatbuffers::GetRoot<fbs::Record>(bytes.data());
+        const uint64_t sequence = sequence_++;
+        CommandRef ref{submission, cb_index, handle, command, command_name(record->body_type())};
+        if (inside) {
+            ref = *inside;
+            ref.name = command_name(record->body_type());
+            ref.secondary_handle = handle;
+            ref.secondary_command = command;
+        }
+        replay_command(*record, ref, sequence, selected(sequence, submission));
+        // The secondaries' commands get their own sequence numbers and are selected (--ops) one
+        // by one, whether or not the execute command itself is.
+        if (record->body_type() == fbs::RecordBody::CmdExecuteCommands) {
+            if (inside) {
+                if (selected(sequence, submission))
+                    report_.not_replayed.push_back({location(ref, sequence),
+                                                    "vkCmdExecuteCommands inside a secondary command buffer "
+                                                    "(VK_EXT_nested_command_buffer): the nested secondaries are not "
+                                                    "replayed"});
+            } else {
+                execute_secondaries(*record->body_as_CmdExecuteCommands(), ref);
+            }
+        }
+        ++command;
+    }
+    if (!inside && recorded.one_time) forget_recorded(handle);
+}
+
+// The secondaries run inline, in list order, as part of the primary's command-buffer order:
+// the synchronization model sees their commands between the primary's commands before and
+// after the vkCmdExecuteCommands.
+void Replay::execute_secondaries(const fbs::CmdExecuteCommands& execute, const CommandRef& ref) {
+    if (!execute.secondaries()) return;
+    uint32_t index = 0;
+    for (uint64_t secondary : *execute.secondaries()) {
+        CommandRef inside = ref;
+        inside.secondary = index++;
+        auto it = recorded_.find(secondary);
+        if (it != recorded_.end() && !it->second.secondary)
+            add_finding({"VUID-vkCmdExecuteCommands-pCommandBuffers-00088",
+                         "pCommandBuffers[" + std::to_string(inside.secondary) + "] (" + detail::hex(secondary) +
+                             ") was begun as a primary command buffer (CommandBufferBegin level 0): it is replayed "
+                             "inline all the same",
+                         FindingSource::kReplay, location(ref, sequence_), -1, 0});
+        run_command_buffer(secondary, ref.submission, ref.command_buffer, &inside);
+    }
 }
 
 void Replay::on_record(const traces::RecordView& view) {
@@ -698,11 +793,32 @@ void Replay::on_record(const traces::RecordView& view) {
         break;
     }
     case fbs::RecordBody::CommandBufferBegin: {
-        Recorded& cb = recorded_[r.body_as_CommandBufferBegin()->command_buffer()];
+        const fbs::CommandBufferBegin* begin = r.body_as_CommandBufferBegin();
+        Recorded& cb = recorded_[begin->command_buffer()];
+        if (const uint32_t k = begin->restatement(); k != 0) {
+            // Copy k of the recording, for the (k+1)-th execution in the next submission; a
+            // hostile index cannot make the list longer than the copies actually written.
+            if (k > cb.restated.size() + 1) {
+                add_finding({"CLASTRACE-replay-restatement-out-of-order",
+                             "CommandBufferBegin of " + detail::hex(begin->command_buffer()) + " restates execution " +
+                                 std::to_string(k) + " but only " + std::to_string(cb.restated.size()) +
+                                 " restatement(s) precede it: its commands are kept as restatement " +
+                                 std::to_string(cb.restated.size() + 1),
+                             FindingSource::kReplay, ReplayLocation{sequence_, next_submission_, 0, 0,
+                                                                    begin->command_buffer(), "vkBeginCommandBuffer"},
+                             -1, 0});
+            }
+            const size_t slot = std::min<size_t>(k, cb.restated.size() + 1);
+            if (slot > cb.restated.size()) cb.restated.emplace_back();
+            cb.restated[slot - 1].clear();
+            cb.filling = static_cast<uint32_t>(slot);
+            break;
+        }
         drop_recorded(cb);
         cb = Recorded{};
-        dropped_.erase(r.body_as_CommandBufferBegin()->command_buffer());
-        cb.one_time = r.body_as_CommandBufferBegin()->flags() & VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
+        dropped_.erase(begin->command_buffer());
+        cb.one_time = begin->flags() & VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
+        cb.secondary = begin->level() == 1;
         break;
     }
     case fbs::RecordBody::CommandBufferReset: reset_command_buffers(*r.body_as_CommandBufferReset()); break;
@@ -746,7 +862,7 @@ void Replay::on_record(const traces::RecordView& view) {
     default: {
         if (uint64_t cb = command_buffer_of(r)) {
             Recorded& recorded = recorded_[cb];
-            recorded.commands.emplace_back(view.bytes, view.bytes + view.size);
+            recorded.target().emplace_back(view.bytes, view.bytes + view.size);
             recorded.bytes += view.size;
             recorded_bytes_ += view.size;
         }

@@ -50,7 +50,7 @@ bool ClusterTestDevice::hasClusterExtension() const {
   return false;
 }
 
-void ClusterTestDevice::createDevice(bool timelineSemaphores) {
+void ClusterTestDevice::createDevice(bool timelineSemaphores, uint32_t queues) {
   uint32_t familyCount = 0;
   vkGetPhysicalDeviceQueueFamilyProperties(physicalDevice, &familyCount, nullptr);
   std::vector<VkQueueFamilyProperties> families(familyCount);
@@ -58,8 +58,9 @@ void ClusterTestDevice::createDevice(bool timelineSemaphores) {
   for (queueFamily = 0; queueFamily < familyCount; ++queueFamily)
     if (families[queueFamily].queueFlags & VK_QUEUE_COMPUTE_BIT) break;
   if (queueFamily == familyCount) fail("no compute queue");
-  const float priority = 1.0f;
-  VkDeviceQueueCreateInfo queueInfo{VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO, nullptr, 0, queueFamily, 1, &priority};
+  if (queues < 1 || queues > 2 || families[queueFamily].queueCount < queues) fail("not enough queues in the compute family");
+  const float priorities[2] = {1.0f, 1.0f};
+  VkDeviceQueueCreateInfo queueInfo{VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO, nullptr, 0, queueFamily, queues, priorities};
   VkPhysicalDeviceClusterAccelerationStructureFeaturesNV cluster{
       VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_FEATURES_NV, nullptr, VK_TRUE};
   VkPhysicalDeviceVulkan12Features v12{};
@@ -71,6 +72,7 @@ void ClusterTestDevice::createDevice(bool timelineSemaphores) {
   VkDeviceCreateInfo info{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO, &v12, 0, 1, &queueInfo, 0, nullptr, 1, &extension, nullptr};
   CHECK(vkCreateDevice(physicalDevice, &info, nullptr, &device));
   vkGetDeviceQueue(device, queueFamily, 0, &queue);
+  if (queues == 2) vkGetDeviceQueue(device, queueFamily, 1, &secondQueue);
   cmdBuildClusters = (PFN_vkCmdBuildClusterAccelerationStructureIndirectNV)vkGetDeviceProcAddr(
       device, "vkCmdBuildClusterAccelerationStructureIndirectNV");
   getBuildSizes = (PFN_vkGetClusterAccelerationStructureBuildSizesNV)vkGetDeviceProcAddr(

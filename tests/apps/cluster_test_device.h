@@ -34,6 +34,7 @@ struct ClusterTestDevice {
   VkPhysicalDevice physicalDevice = VK_NULL_HANDLE;
   VkDevice device = VK_NULL_HANDLE;
   VkQueue queue = VK_NULL_HANDLE;
+  VkQueue secondQueue = VK_NULL_HANDLE;  // queue 1 of the family, when two are asked for
   uint32_t queueFamily = 0;
   VkCommandPool pool = VK_NULL_HANDLE;
   PFN_vkCmdBuildClusterAccelerationStructureIndirectNV cmdBuildClusters = nullptr;
@@ -44,7 +45,7 @@ struct ClusterTestDevice {
   void createInstance(const char* applicationName = nullptr);
   // The device lists the extension at the spec version of our ABI header.
   bool hasClusterExtension() const;
-  void createDevice(bool timelineSemaphores = false);
+  void createDevice(bool timelineSemaphores = false, uint32_t queues = 1);
   // STORAGE, TRANSFER_SRC/DST and SHADER_DEVICE_ADDRESS usage plus `usage`; every byte `fill`
   // (a marker the GPU commands must replace, where a test checks that they did).
   Buffer makeBuffer(VkDeviceSize size, VkBufferUsageFlags usage, uint8_t fill = 0);

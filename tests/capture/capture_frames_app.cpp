@@ -15,6 +15,15 @@
 //   capture_frames_app simultaneous OUT.json
 //     one SIMULTANEOUS_USE command buffer submitted twice in one vkQueueSubmit and twice more
 //     in two; its build reads a count that the command buffer itself rewrites after the build.
+//   capture_frames_app twoqueues OUT.json [--hold-first]
+//     the simultaneous-use command buffer of `simultaneous`, submitted to queue 0 and at once to
+//     queue 1 (needs a family with two queues); --hold-first makes its executions wait on an
+//     event the host sets only after both submissions returned.
+//   capture_frames_app secondary OUT.json [--skip-barrier] [--bad-cluster-id]
+//     a primary command buffer copies srcInfosArray, runs a secondary (SIMULTANEOUS_USE) that
+//     holds the cluster build, rewrites the count the build reads and runs the secondary again;
+//     --skip-barrier leaves out the secondary's barrier before its build; --bad-cluster-id as
+//     for frames.
 //
 // Prints "frames=N loop_ms=T loop_cpu_ms=C" on success: the frame loop's wall time, and the CPU
 // time of all the process's threads (driver and layer included) during it.
@@ -39,9 +48,9 @@ using namespace clastrace::testapp;
 // Timeline semaphores on (the frame loop signals and waits on one). Each mode tears down
 // itself; the exit/abort/stop modes leave on purpose without doing so.
 struct Context : ClusterTestDevice {
-  Context() {
+  explicit Context(uint32_t queues = 1) {
     createInstance();
-    createDevice(/*timelineSemaphores=*/true);
+    createDevice(/*timelineSemaphores=*/true, queues);
   }
 };
 
@@ -263,105 +272,221 @@ int frames(const FrameOptions& o) {
   return 0;
 }
 
-// The build reads counts[0]; after it the command buffer copies counts[1] over counts[0], so
-// the first execution builds one cluster and every later one two.
+// Two triangle clusters whose build reads its count at counts[0] (1) while counts[1] holds 2:
+// the execution modes below make a later execution build both by copying counts[1] over
+// counts[0] on the GPU. With `infosFromStaging` srcInfosArray is filled by a GPU copy from
+// `staging` (recordInfosCopy), else by the host.
+struct CountedClusterScene {
+  using Info = VkClusterAccelerationStructureBuildTriangleClusterInfoNV;
+  Context& c;
+  Buffer vertices, indices, staging, infos, counts, dstSizes, dstAddresses, implicit, scratch;
+  VkClusterAccelerationStructureTriangleClusterInputNV triangles{};
+  VkClusterAccelerationStructureCommandsInfoNV build{};
+
+  CountedClusterScene(Context& context, uint32_t firstClusterId, bool badClusterId, bool infosFromStaging) : c(context) {
+    vertices = c.makeBuffer(2 * kVertices * 12, kInput);
+    indices = c.makeBuffer(kTriangles * 12, kInput);
+    staging = c.makeBuffer(2 * sizeof(Info), 0);
+    infos = c.makeBuffer(2 * sizeof(Info), kInput);
+    counts = c.makeBuffer(8, kInput);
+    dstSizes = c.makeBuffer(8, kStorage);
+    dstAddresses = c.makeBuffer(16, kStorage);
+    writeVertices(vertices, 2, 0);
+    auto* index = reinterpret_cast<uint32_t*>(indices.mapped);
+    for (uint32_t y = 0; y < kQuadsY; ++y)
+      for (uint32_t x = 0; x < kQuadsX; ++x) {
+        const uint32_t v = y * (kQuadsX + 1) + x;
+        for (uint32_t i : {v, v + 1, v + kQuadsX + 2, v, v + kQuadsX + 2, v + kQuadsX + 1}) *index++ = i;
+      }
+    for (uint32_t k = 0; k < 2; ++k) {
+      Info i{};
+      i.clusterID = badClusterId && k == 0 ? 0xFFFFFFFFu : firstClusterId + k;
+      i.triangleCount = kTriangles;
+      i.vertexCount = kVertices;
+      i.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
+      i.indexBuffer = indices.address;
+      i.vertexBuffer = vertices.address + k * kVertices * 12;
+      std::memcpy((infosFromStaging ? staging : infos).mapped + k * sizeof(Info), &i, sizeof i);
+    }
+    const uint32_t countValues[2] = {1, 2};
+    std::memcpy(counts.mapped, countValues, sizeof countValues);
+    triangles.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
+    triangles.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+    triangles.maxClusterUniqueGeometryCount = 1;
+    triangles.maxClusterTriangleCount = kTriangles;
+    triangles.maxClusterVertexCount = kVertices;
+    triangles.maxTotalTriangleCount = 2 * kTriangles;
+    triangles.maxTotalVertexCount = 2 * kVertices;
+    build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+    build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+    build.input.maxAccelerationStructureCount = 2;
+    build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
+    build.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+    build.input.opInput.pTriangleClusters = &triangles;
+    VkAccelerationStructureBuildSizesInfoKHR sizes{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR,
+                                                   nullptr, 0, 0, 0};
+    c.getBuildSizes(c.device, &build.input, &sizes);
+    implicit = c.makeBuffer(sizes.accelerationStructureSize, kStorage);
+    scratch = c.makeBuffer(sizes.buildScratchSize, kStorage);
+    build.dstImplicitData = implicit.address;
+    build.scratchData = scratch.address;
+    build.dstAddressesArray = {dstAddresses.address, 8, 16};
+    build.dstSizesArray = {dstSizes.address, 4, 8};
+    build.srcInfosArray = {infos.address, sizeof(Info), 2 * sizeof(Info)};
+    build.srcInfosCount = counts.address;
+  }
+  CountedClusterScene(const CountedClusterScene&) = delete;
+
+  void recordInfosCopy(VkCommandBuffer cb) {
+    VkBufferCopy copy{0, 0, 2 * sizeof(Info)};
+    vkCmdCopyBuffer(cb, staging.buffer, infos.buffer, 1, &copy);
+  }
+  void recordCountCopy(VkCommandBuffer cb) {  // counts[1] over counts[0]
+    VkBufferCopy copy{4, 0, 4};
+    vkCmdCopyBuffer(cb, counts.buffer, counts.buffer, 1, &copy);
+  }
+  // The build, then (after a barrier from it) the count rewritten for the next execution.
+  void recordBuildThenCountCopy(VkCommandBuffer cb) {
+    barrier(cb, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT,
+            VK_ACCESS_MEMORY_READ_BIT);
+    c.cmdBuildClusters(cb, &build);
+    barrier(cb, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_READ_BIT | VK_ACCESS_MEMORY_WRITE_BIT,
+            VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT);
+    recordCountCopy(cb);
+  }
+  // OUT.json: what the builds wrote, and the counts, in hex; then everything is destroyed.
+  int finish(const char* outPath) {
+    std::ofstream(outPath) << "{\"dstSizes\": \"" << hex(dstSizes.mapped, 8) << "\", \"counts\": \""
+                           << hex(counts.mapped, 8) << "\"}\n";
+    vkDestroyCommandPool(c.device, c.pool, nullptr);
+    for (Buffer* b : {&vertices, &indices, &staging, &infos, &counts, &dstSizes, &dstAddresses, &implicit, &scratch}) {
+      vkDestroyBuffer(c.device, b->buffer, nullptr);
+      vkFreeMemory(c.device, b->memory, nullptr);
+    }
+    vkDestroyDevice(c.device, nullptr);
+    vkDestroyInstance(c.instance, nullptr);
+    return 0;
+  }
+};
+
+VkCommandBuffer allocateCommandBuffer(Context& c, VkCommandBufferLevel level) {
+  VkCommandBufferAllocateInfo info{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr, c.pool, level, 1};
+  VkCommandBuffer cb;
+  CHECK(vkAllocateCommandBuffers(c.device, &info, &cb));
+  return cb;
+}
+
+VkSubmitInfo submitOf(const VkCommandBuffer* cbs, uint32_t count) {
+  VkSubmitInfo submit{};
+  submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
+  submit.commandBufferCount = count;
+  submit.pCommandBuffers = cbs;
+  return submit;
+}
+
+// The first execution builds one cluster and every later one two.
 int simultaneous(const char* outPath) {
   Context c;
-  using Info = VkClusterAccelerationStructureBuildTriangleClusterInfoNV;
-  Buffer vertices = c.makeBuffer(2 * kVertices * 12, kInput);
-  Buffer indices = c.makeBuffer(kTriangles * 12, kInput);
-  Buffer infos = c.makeBuffer(2 * sizeof(Info), kInput);
-  Buffer counts = c.makeBuffer(8, kInput);
-  Buffer dstSizes = c.makeBuffer(8, kStorage);
-  Buffer dstAddresses = c.makeBuffer(16, kStorage);
-  writeVertices(vertices, 2, 0);
-  auto* index = reinterpret_cast<uint32_t*>(indices.mapped);
-  for (uint32_t y = 0; y < kQuadsY; ++y)
-    for (uint32_t x = 0; x < kQuadsX; ++x) {
-      const uint32_t v = y * (kQuadsX + 1) + x;
-      for (uint32_t i : {v, v + 1, v + kQuadsX + 2, v, v + kQuadsX + 2, v + kQuadsX + 1}) *index++ = i;
-    }
-  for (uint32_t k = 0; k < 2; ++k) {
-    Info i{};
-    i.clusterID = 7 + k;
-    i.triangleCount = kTriangles;
-    i.vertexCount = kVertices;
-    i.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
-    i.indexBuffer = indices.address;
-    i.vertexBuffer = vertices.address + k * kVertices * 12;
-    std::memcpy(infos.mapped + k * sizeof(Info), &i, sizeof i);
-  }
-  const uint32_t countValues[2] = {1, 2};
-  std::memcpy(counts.mapped, countValues, sizeof countValues);
-  VkClusterAccelerationStructureTriangleClusterInputNV triangles{};
-  triangles.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
-  triangles.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
-  triangles.maxClusterUniqueGeometryCount = 1;
-  triangles.maxClusterTriangleCount = kTriangles;
-  triangles.maxClusterVertexCount = kVertices;
-  triangles.maxTotalTriangleCount = 2 * kTriangles;
-  triangles.maxTotalVertexCount = 2 * kVertices;
-  VkClusterAccelerationStructureCommandsInfoNV build{};
-  build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
-  build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
-  build.input.maxAccelerationStructureCount = 2;
-  build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
-  build.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
-  build.input.opInput.pTriangleClusters = &triangles;
-  VkAccelerationStructureBuildSizesInfoKHR sizes{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr,
-                                                 0, 0, 0};
-  c.getBuildSizes(c.device, &build.input, &sizes);
-  Buffer implicit = c.makeBuffer(sizes.accelerationStructureSize, kStorage);
-  Buffer scratch = c.makeBuffer(sizes.buildScratchSize, kStorage);
-  build.dstImplicitData = implicit.address;
-  build.scratchData = scratch.address;
-  build.dstAddressesArray = {dstAddresses.address, 8, 16};
-  build.dstSizesArray = {dstSizes.address, 4, 8};
-  build.srcInfosArray = {infos.address, sizeof(Info), 2 * sizeof(Info)};
-  build.srcInfosCount = counts.address;
-
-  VkCommandBufferAllocateInfo allocInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr, c.pool,
-                                        VK_COMMAND_BUFFER_LEVEL_PRIMARY, 1};
-  VkCommandBuffer cb;
-  CHECK(vkAllocateCommandBuffers(c.device, &allocInfo, &cb));
+  CountedClusterScene scene(c, 7, false, false);
+  VkCommandBuffer cb = allocateCommandBuffer(c, VK_COMMAND_BUFFER_LEVEL_PRIMARY);
   VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr,
                                  VK_COMMAND_BUFFER_USAGE_SIMULTANEOUS_USE_BIT, nullptr};
   CHECK(vkBeginCommandBuffer(cb, &begin));
-  barrier(cb, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT,
-          VK_ACCESS_MEMORY_READ_BIT);
-  c.cmdBuildClusters(cb, &build);
-  barrier(cb, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_READ_BIT | VK_ACCESS_MEMORY_WRITE_BIT,
-          VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT);
-  VkBufferCopy copy{4, 0, 4};
-  vkCmdCopyBuffer(cb, counts.buffer, counts.buffer, 1, &copy);
+  scene.recordBuildThenCountCopy(cb);
   CHECK(vkEndCommandBuffer(cb));
 
   VkCommandBuffer twice[2] = {cb, cb};
-  VkSubmitInfo submit{};
-  submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
-  submit.commandBufferCount = 2;
-  submit.pCommandBuffers = twice;
+  VkSubmitInfo submit = submitOf(twice, 2);
   CHECK(vkQueueSubmit(c.queue, 1, &submit, VK_NULL_HANDLE));  // two executions, one submission
   submit.commandBufferCount = 1;
   CHECK(vkQueueSubmit(c.queue, 1, &submit, VK_NULL_HANDLE));  // and two more while those may run
   CHECK(vkQueueSubmit(c.queue, 1, &submit, VK_NULL_HANDLE));
   CHECK(vkQueueWaitIdle(c.queue));
-  std::ofstream(outPath) << "{\"dstSizes\": \"" << hex(dstSizes.mapped, 8) << "\", \"counts\": \""
-                         << hex(counts.mapped, 8) << "\"}\n";
-  vkDestroyCommandPool(c.device, c.pool, nullptr);
-  for (Buffer* b : {&vertices, &indices, &infos, &counts, &dstSizes, &dstAddresses, &implicit, &scratch}) {
-    vkDestroyBuffer(c.device, b->buffer, nullptr);
-    vkFreeMemory(c.device, b->memory, nullptr);
-  }
-  vkDestroyDevice(c.device, nullptr);
-  vkDestroyInstance(c.instance, nullptr);
-  return 0;
+  return scene.finish(outPath);
+}
+
+// The simultaneous-use command buffer on queue 0 and at once on queue 1: the execution on
+// queue 0 builds one cluster, the one on queue 1 two.
+int twoQueues(const char* outPath, bool holdFirst) {
+  Context c(2);
+  CountedClusterScene scene(c, 21, false, false);
+  VkEvent hold = VK_NULL_HANDLE;
+  VkEventCreateInfo eventInfo{VK_STRUCTURE_TYPE_EVENT_CREATE_INFO, nullptr, 0};
+  CHECK(vkCreateEvent(c.device, &eventInfo, nullptr, &hold));
+  VkCommandBuffer cb = allocateCommandBuffer(c, VK_COMMAND_BUFFER_LEVEL_PRIMARY);
+  VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr,
+                                 VK_COMMAND_BUFFER_USAGE_SIMULTANEOUS_USE_BIT, nullptr};
+  CHECK(vkBeginCommandBuffer(cb, &begin));
+  if (holdFirst)
+    vkCmdWaitEvents(cb, 1, &hold, VK_PIPELINE_STAGE_HOST_BIT, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, 0, nullptr, 0, nullptr,
+                    0, nullptr);
+  scene.recordBuildThenCountCopy(cb);
+  CHECK(vkEndCommandBuffer(cb));
+
+  // The second submission is made while the first may still run: the executions of `cb` on the
+  // two queues may overlap (the application orders them only through the count it reads).
+  VkSubmitInfo submit = submitOf(&cb, 1);
+  CHECK(vkQueueSubmit(c.queue, 1, &submit, VK_NULL_HANDLE));
+  CHECK(vkQueueSubmit(c.secondQueue, 1, &submit, VK_NULL_HANDLE));
+  if (holdFirst) CHECK(vkSetEvent(c.device, hold));
+  CHECK(vkQueueWaitIdle(c.queue));
+  CHECK(vkQueueWaitIdle(c.secondQueue));
+  vkDestroyEvent(c.device, hold, nullptr);
+  return scene.finish(outPath);
+}
+
+// The build in the secondary reads counts[0] (1 at first); between the two executions the
+// primary copies counts[1] (2) over it, so the second execution builds both clusters.
+int secondary(const char* outPath, bool skipBarrier, bool badClusterId) {
+  Context c;
+  CountedClusterScene scene(c, 11, badClusterId, true);
+  VkCommandBuffer inner = allocateCommandBuffer(c, VK_COMMAND_BUFFER_LEVEL_SECONDARY);
+  VkCommandBuffer outer = allocateCommandBuffer(c, VK_COMMAND_BUFFER_LEVEL_PRIMARY);
+  VkCommandBufferInheritanceInfo inheritance{};
+  inheritance.sType = VK_STRUCTURE_TYPE_COMMAND_BUFFER_INHERITANCE_INFO;
+  VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr,
+                                 VK_COMMAND_BUFFER_USAGE_SIMULTANEOUS_USE_BIT, &inheritance};
+  CHECK(vkBeginCommandBuffer(inner, &begin));
+  if (!skipBarrier)  // the copies of the primary (srcInfosArray, count) before the build reads them
+    barrier(inner, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT,
+            VK_ACCESS_MEMORY_READ_BIT);
+  c.cmdBuildClusters(inner, &scene.build);
+  barrier(inner, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_READ_BIT | VK_ACCESS_MEMORY_WRITE_BIT,
+          VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_READ_BIT | VK_ACCESS_MEMORY_WRITE_BIT);
+  CHECK(vkEndCommandBuffer(inner));
+
+  begin.flags = 0;
+  begin.pInheritanceInfo = nullptr;
+  CHECK(vkBeginCommandBuffer(outer, &begin));
+  scene.recordInfosCopy(outer);
+  vkCmdExecuteCommands(outer, 1, &inner);
+  scene.recordCountCopy(outer);
+  vkCmdExecuteCommands(outer, 1, &inner);
+  CHECK(vkEndCommandBuffer(outer));
+
+  VkSubmitInfo submit = submitOf(&outer, 1);
+  CHECK(vkQueueSubmit(c.queue, 1, &submit, VK_NULL_HANDLE));
+  CHECK(vkQueueWaitIdle(c.queue));
+  return scene.finish(outPath);
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
   if (argc == 3 && std::strcmp(argv[1], "simultaneous") == 0) return simultaneous(argv[2]);
+  if (argc >= 3 && std::strcmp(argv[1], "twoqueues") == 0) {
+    if (argc > 4 || (argc == 4 && std::strcmp(argv[3], "--hold-first") != 0)) fail("unknown option");
+    return twoQueues(argv[2], argc == 4);
+  }
+  if (argc >= 3 && std::strcmp(argv[1], "secondary") == 0) {
+    bool skipBarrier = false, badClusterId = false;
+    for (int i = 3; i < argc; ++i) {
+      if (std::strcmp(argv[i], "--skip-barrier") == 0) skipBarrier = true;
+      else if (std::strcmp(argv[i], "--bad-cluster-id") == 0) badClusterId = true;
+      else fail("unknown option");
+    }
+    return secondary(argv[2], skipBarrier, badClusterId);
+  }
   if (argc >= 3 && std::strcmp(argv[1], "frames") == 0) {
     FrameOptions o;
     o.frames = std::atoi(argv[2]);
@@ -381,6 +506,8 @@ int main(int argc, char** argv) {
     if (o.frames < 1 || o.clusters < 1 || o.clusters > 4096) fail("frames >= 1 and clusters in [1, 4096]");
     return frames(o);
   }
-  std::fprintf(stderr, "usage: capture_frames_app frames N [options] | simultaneous OUT.json\n");
+  std::fprintf(stderr,
+               "usage: capture_frames_app frames N [options] | simultaneous OUT.json | twoqueues OUT.json "
+               "[--hold-first] | secondary OUT.json [--skip-barrier] [--bad-cluster-id]\n");
   return 1;
 }

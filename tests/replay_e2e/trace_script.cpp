@@ -85,6 +85,48 @@ void TraceScript::begin(uint64_t command_buffer, uint32_t flags) {
     commands_ = 0;
 }
 
+void TraceScript::begin(uint64_t command_buffer, uint32_t flags, uint32_t level, uint32_t restatement) {
+    command_buffer_ = command_buffer;
+    fbs::CommandBufferBeginT begin;
+    begin.command_buffer = command_buffer;
+    begin.flags = flags;
+    begin.level = level;
+    begin.restatement = restatement;
+    writer_.append(begin);
+    begun_ = true;
+    recorded_ = false;
+    commands_ = 0;
+}
+
+void TraceScript::end() {
+    fbs::CommandBufferEndT end;
+    end.command_buffer = command_buffer_;
+    writer_.append(end);
+    command_buffer_ = next_command_buffer_++;
+    begun_ = false;
+    recorded_ = false;
+}
+
+void TraceScript::execute_commands(const std::vector<uint64_t>& secondaries) {
+    ensure_begun();
+    fbs::CmdExecuteCommandsT e;
+    e.command_buffer = command_buffer_;
+    e.secondaries = secondaries;
+    writer_.append(std::move(e));
+}
+
+void TraceScript::submit_listed(uint64_t queue, const std::vector<uint64_t>& command_buffers, uint64_t fence) {
+    fbs::QueueSubmitT s;
+    s.queue = queue;
+    s.version = 2;
+    auto batch = std::make_unique<fbs::SubmitBatchT>();
+    batch->command_buffers = command_buffers;
+    s.batches.push_back(std::move(batch));
+    s.fence = fence;
+    s.submission_index = writer_.next_submission_index();
+    writer_.append(std::move(s));
+}
+
 void TraceScript::ensure_begun() {
     if (!begun_) begin(command_buffer_);
     recorded_ = true;

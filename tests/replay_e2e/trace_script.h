@@ -96,6 +96,15 @@ public:
     uint32_t next_command() const { return begun_ ? commands_ : 0; }
     // Starts recording a given command buffer (e.g. to re-record one); flags as vkBeginCommandBuffer.
     void begin(uint64_t command_buffer, uint32_t flags = 0);
+    // Format 1.2: begins `command_buffer` as a secondary (level 1) and/or as restatement k of
+    // its recording (the (k+1)-th execution in the next submission, CommandBufferBegin.restatement).
+    void begin(uint64_t command_buffer, uint32_t flags, uint32_t level, uint32_t restatement);
+    // Ends the current command buffer without queueing it for a submit (a secondary, a restatement).
+    void end();
+    // vkCmdExecuteCommands in the current command buffer.
+    void execute_commands(const std::vector<uint64_t>& secondaries);
+    // One vkQueueSubmit of one batch listing `command_buffers` (already recorded), in this order.
+    void submit_listed(uint64_t queue, const std::vector<uint64_t>& command_buffers, uint64_t fence = 0);
 
     // Submits what is recorded (if anything), waits for the device, finishes the file.
     void finish();

@@ -111,7 +111,7 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
     { fbs::AccelerationStructureBindMemoryT r; r.acceleration_structure = 0xa5; r.memory = 0x10; r.memory_offset = 1024; out.push_back(record(r)); }
     { fbs::AccelerationStructureDestroyT r; r.acceleration_structure = 0xa5; out.push_back(record(r)); }
     { fbs::AccelerationStructureMemoryRequirementsNVT r; r.acceleration_structure = 0xa5; r.type = 2; r.size = 4096; r.alignment = 256; r.memory_type_bits = 3; out.push_back(record(r)); }
-    { fbs::CommandBufferBeginT r; r.command_buffer = 0xcb; r.flags = 1; r.level = 1; out.push_back(record(r)); }
+    { fbs::CommandBufferBeginT r; r.command_buffer = 0xcb; r.flags = 1; r.level = 1; r.restatement = 2; out.push_back(record(r)); }
     { fbs::CommandBufferEndT r; r.command_buffer = 0xcb; out.push_back(record(r)); }
     { fbs::CommandBufferResetT r; r.command_buffer = 0xcb; r.flags = 1; r.command_pool = 0xc0; out.push_back(record(r)); }
     { fbs::CmdPipelineBarrierT r; r.command_buffer = 0xcb; r.version = 1; r.src_stage_mask = 0x1000; r.dst_stage_mask = 0x02000000; r.dependency = dependency(1); out.push_back(record(std::move(r))); }
@@ -221,6 +221,7 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
         r.image_indices = {2}; r.result = 1000001003;  // VK_SUBOPTIMAL_KHR
         out.push_back(record(r));
     }
+    { fbs::CmdExecuteCommandsT r; r.command_buffer = 0xcb; r.secondaries = {0x5c1, 0x5c2, 0x5c1}; out.push_back(record(r)); }
     return out;
 }
 

@@ -272,10 +272,16 @@ struct TimestampWriteCommand {
   uint64_t readPauseId = 0;
 };
 
+// vkCmdExecuteCommands: the secondaries run, in this order, as they are recorded when the
+// primary is submitted (a secondary cannot be re-recorded while a primary holding it is pending).
+struct ExecuteCommandsCommand {
+  std::vector<uint64_t> secondaries;
+};
+
 using RecordedCommand =
     std::variant<BarrierCommand, EventCommand, CopyBufferCommand, FillBufferCommand, UpdateBufferCommand,
                  DispatchCommand, ClusterBuildCommand, BuildAccelerationStructureNVCommand,
-                 CopyMemoryToAccelerationStructureCommand, TimestampWriteCommand>;
+                 CopyMemoryToAccelerationStructureCommand, TimestampWriteCommand, ExecuteCommandsCommand>;
 
 struct RecordedCommandBuffer {
   uint64_t commandBuffer = 0;
@@ -306,6 +312,13 @@ struct SubmissionRecord {
   bool synchronization2 = false;
   std::vector<SubmitBatch> batches;
   uint64_t fence = 0;
+  // What the layer could not do exactly for this submission; written as CaptureFindings.
+  struct Note {
+    uint64_t commandBuffer = 0;
+    std::string rule;  // CLASTRACE-*
+    std::string message;
+  };
+  std::vector<Note> notes;
 };
 
 // vkQueuePresentKHR: ends frame `frame` (frames count presents per process, from 0).

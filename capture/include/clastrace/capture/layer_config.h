@@ -36,6 +36,9 @@ struct LayerConfig {
   bool forceStaging = false;        // CLASTRACE_FORCE_STAGING: treat all memory as not host visible (tests)
   bool timestamps = true;           // CLASTRACE_TIMESTAMPS: GPU timestamps around each captured command
   bool stats = false;               // CLASTRACE_STATS: where capture's time went, on stderr at vkDestroyDevice
+  // CLASTRACE_SHARED_WAIT_MS: how long a submission waits for another queue to finish with the
+  // pause events of a simultaneous-use command buffer (layer_submit.cpp) before it goes ahead.
+  uint32_t sharedWaitMilliseconds = 10000;
   std::vector<std::string> errors;  // one line per rejected variable; the default is kept
 };
 

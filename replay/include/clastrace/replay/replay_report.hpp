@@ -21,6 +21,10 @@ struct ReplayLocation {
     uint32_t command = 0;         // command within its command buffer
     uint64_t command_buffer_handle = 0;
     const char* name = "";        // Vulkan command name
+    // Inside a secondary command buffer (as CommandRef): `command` is the vkCmdExecuteCommands.
+    uint64_t secondary_handle = 0;
+    uint32_t secondary = 0;
+    uint32_t secondary_command = 0;
 };
 
 enum class FindingSource : uint8_t {

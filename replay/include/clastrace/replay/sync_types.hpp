@@ -31,9 +31,15 @@ struct CommandRef {
     uint64_t command_buffer_handle = 0;
     uint32_t command = 0;         // index of the command within its command buffer
     const char* name = "";        // e.g. "vkCmdBuildClusterAccelerationStructureIndirectNV"
+    // A command of a secondary command buffer: `command` is the primary's vkCmdExecuteCommands,
+    // `secondary` the position in its list, `secondary_command` the index within the secondary.
+    uint64_t secondary_handle = 0;  // 0: a command of the primary itself
+    uint32_t secondary = 0;
+    uint32_t secondary_command = 0;
     friend bool operator==(const CommandRef& a, const CommandRef& b) {
         return a.submission == b.submission && a.command_buffer == b.command_buffer && a.command == b.command &&
-               a.command_buffer_handle == b.command_buffer_handle;
+               a.command_buffer_handle == b.command_buffer_handle && a.secondary_handle == b.secondary_handle &&
+               a.secondary == b.secondary && a.secondary_command == b.secondary_command;
     }
 };
 
