@@ -10,7 +10,6 @@
 
 #include "clastrace/capture/acceleration_structure_walker.h"
 #include "clastrace/capture/capture_cost.h"
-#include "clastrace/capture/captured_bytes_pool.h"
 #include "clastrace/capture/cluster_limits.h"
 #include "clastrace/capture/served_build.h"
 #include "clastrace/capture/uncached_copy.h"
@@ -18,12 +17,6 @@
 namespace clastrace::capture {
 
 namespace {
-// Captured bytes go into storage the sink handed back (captured_bytes_pool.h): warm pages, no
-// arena growth inside the pause. Tiny reads (pointers, counts) are not worth the pool's lock.
-void reserveCaptured(std::vector<uint8_t>& out, uint64_t size) {
-  if (size >= 256 && out.capacity() < size) out = takeCapturedBytes(size_t(size));
-}
-
 const char* const kNotStaged =
     "the memory is not host visible and the buffer has no acceleration-structure usage (build input or storage), "
     "so the layer did not stage it";
@@ -137,7 +130,6 @@ bool PauseWorker::readResolved(const ResolvedRange& range, uint64_t size, std::v
   if (!range.host) {
     const uint8_t* staged = stagedBytes(range);
     if (!staged) return false;
-    reserveCaptured(out, size);
     out.resize(size);
     if (staging_->cached) std::memcpy(out.data(), staged, size);
     else copyFromUncached(out.data(), staged, size);
@@ -154,7 +146,6 @@ bool PauseWorker::readResolved(const ResolvedRange& range, uint64_t size, std::v
                                begin, end >= range.memory.size ? VK_WHOLE_SIZE : end - begin};
     device_.next.InvalidateMappedMemoryRanges(device_.device, 1, &mapped);
   }
-  reserveCaptured(out, size);
   out.resize(size);
   if (range.memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT) {
     if (size) std::memcpy(out.data(), range.host, size);
@@ -319,7 +310,6 @@ void PauseWorker::finishReleased(AfterRelease& work) {
         why = "outside the memory the served build reached";
         return false;
       }
-      if (o) reserveCaptured(*o, s);
       if (o) o->assign(reinterpret_cast<const uint8_t*>(region->bytes.data()) + (a - region->base),
                        reinterpret_cast<const uint8_t*>(region->bytes.data()) + (a - region->base) + s);
       return true;

@@ -12,7 +12,6 @@
 #include "clastrace/capture/capture_sink.h"
 
 #include "clastrace/capture/capture_cost.h"
-#include "clastrace/capture/captured_bytes_pool.h"
 
 #include <clastrace/traces/trace_writer.h>
 
@@ -722,12 +721,9 @@ class TraceCaptureSink final : public CaptureSink {
           writeRecord(*record);
         } else if (auto* p = std::get_if<Pending>(&item)) {
           writeSubmission(*p);
-          for (auto& [key, build] : p->builds)
-            for (auto* list : {&build.inputs, &build.outputs})
-              for (CapturedRange& r : *list) {
-                written += r.bytes.size();
-                recycleCapturedBytes(std::move(r.bytes));  // for the pause worker's next reads
-              }
+          for (const auto& [key, build] : p->builds)
+            for (const auto* list : {&build.inputs, &build.outputs})
+              for (const CapturedRange& r : *list) written += r.bytes.size();
         } else {
           writeRayCheck(std::get<RayCheckRecord>(item));
         }
