@@ -145,7 +145,10 @@ Command register_capture(CLI::App& app) {
                   "vkQueuePresentKHR and up to the next). With --submit-range too, a submission is captured only "
                   "when it is in both")
       ->check(frameRangeValidator());
-  sub->add_option("--zstd-level", options->zstdLevel, "zstd level of the trace's chunks")->check(CLI::Range(1, 22));
+  sub->add_option("--zstd-level", options->zstdLevel,
+                  "zstd level of the trace's chunks: 1..22, or a fast level -1..-100 (faster, larger)")
+      ->check(CLI::Range(-100, 22) &
+              CLI::Validator([](std::string& v) { return std::string(v == "0" ? "0 is not a level" : ""); }, "NOT 0"));
   sub->add_option("--serve", options->serve, "serve VK_NV_cluster_acceleration_structure: auto (when the driver "
                                              "lacks it), on, off")
       ->check(CLI::IsMember({"auto", "on", "off", "0", "1"}));

@@ -74,9 +74,11 @@ LayerConfig parseLayerConfig(const std::function<const char*(const char*)>& gete
     else reject("CLASTRACE_FRAME_RANGE", *v, "N, A-B (A <= B) or A- (0-based frames)");
   }
   if (auto v = value("CLASTRACE_ZSTD_LEVEL")) {
-    auto level = parseUnsigned(*v);
-    if (level && *level >= 1 && *level <= 22) config.zstdLevel = int(*level);
-    else reject("CLASTRACE_ZSTD_LEVEL", *v, "a zstd level from 1 to 22");
+    // zstd's fast levels (-1 fastest of them ... -100) trade ratio for compressor CPU.
+    const bool fast = !v->empty() && (*v)[0] == '-';
+    auto level = parseUnsigned(fast ? v->substr(1) : *v);
+    if (level && *level >= 1 && *level <= (fast ? 100u : 22u)) config.zstdLevel = fast ? -int(*level) : int(*level);
+    else reject("CLASTRACE_ZSTD_LEVEL", *v, "a zstd level from 1 to 22, or a fast level from -1 to -100");
   }
   if (auto v = value("CLASTRACE_LOG")) {
     if (*v == "quiet" || *v == "0") config.log = LogLevel::Quiet;

@@ -28,6 +28,7 @@
 #include <map>
 #include <mutex>
 #include <pthread.h>
+#include <sched.h>
 #include <sys/resource.h>
 #include <unistd.h>
 #include <unordered_map>
@@ -198,6 +199,7 @@ class TraceCaptureSink final : public CaptureSink {
     traces::TraceWriterOptions options;
     options.zstd_level = zstdLevel_;
     options.compressor_nice = kBackgroundNice;
+    options.compressor_idle_class = true;
     TraceError error;
     writer_ = TraceWriter::create(path_, header, options, &error);
     if (!writer_) fail(error);
@@ -612,9 +614,12 @@ class TraceCaptureSink final : public CaptureSink {
   void emitInBackground() {
     emitterThread = true;
     // The application's threads (and the served builds' engine) come first: writing the trace
-    // takes the cores they leave idle. Memory stays bounded (kMaxPendingBytes: past it the
-    // pause worker writes itself). Best effort, per thread on Linux.
-    (void)setpriority(PRIO_PROCESS, id_t(gettid()), kBackgroundNice);
+    // takes the cores they leave idle (SCHED_IDLE; a lower nice where the class is refused).
+    // Memory stays bounded (kMaxPendingBytes: past it the pause worker writes itself, at its
+    // own priority). Best effort, per thread on Linux.
+    sched_param idle{};
+    if (pthread_setschedparam(pthread_self(), SCHED_IDLE, &idle) != 0)
+      (void)setpriority(PRIO_PROCESS, id_t(gettid()), kBackgroundNice);
     pthread_setname_np(pthread_self(), "clastrace-sink");  // for profilers and top
     using Clock = std::chrono::steady_clock;
     auto lastFlush = Clock::now();

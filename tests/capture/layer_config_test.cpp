@@ -64,9 +64,20 @@ TEST(LayerConfig, BadValuesKeepDefaultsAndNameTheVariable) {
 }
 
 TEST(LayerConfig, RejectsOverflowingNumbers) {
-  LayerConfig c = parse({{"CLASTRACE_SUBMIT_RANGE", "99999999999999999999999"}, {"CLASTRACE_ZSTD_LEVEL", "-3"}});
+  LayerConfig c = parse({{"CLASTRACE_SUBMIT_RANGE", "99999999999999999999999"}, {"CLASTRACE_ZSTD_LEVEL", "-101"}});
   EXPECT_EQ(c.errors.size(), 2u);
   EXPECT_EQ(c.submitRange.first, 0u);
+  EXPECT_EQ(c.zstdLevel, 3);
+}
+
+TEST(LayerConfig, ZstdFastLevelsAreNegative) {
+  EXPECT_EQ(parse({{"CLASTRACE_ZSTD_LEVEL", "-5"}}).zstdLevel, -5);
+  EXPECT_EQ(parse({{"CLASTRACE_ZSTD_LEVEL", "-100"}}).zstdLevel, -100);
+  for (const char* bad : {"0", "-0", "-", "--1", "23"}) {
+    LayerConfig c = parse({{"CLASTRACE_ZSTD_LEVEL", bad}});
+    EXPECT_EQ(c.zstdLevel, 3) << bad;
+    EXPECT_EQ(c.errors.size(), 1u) << bad;
+  }
 }
 
 TEST(LayerConfig, TimestampsOnByDefaultAndSwitchedByZeroOrOne) {

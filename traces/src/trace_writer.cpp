@@ -11,6 +11,7 @@
 #include <fcntl.h>
 #include <mutex>
 #include <pthread.h>
+#include <sched.h>
 #include <sys/resource.h>
 #include <sys/uio.h>
 #include <thread>
@@ -92,7 +93,6 @@ struct TraceWriter::Impl {
     flatbuffers::FlatBufferBuilder fbb{1024};
     std::unordered_map<uint64_t, StoredContents> contents;
     std::unordered_map<Fingerprint, uint64_t, FingerprintHash> keys_by_fingerprint;
-    std::vector<uint8_t> gathered;  // new contents given in pieces, made one string
     std::vector<ContentPlace> content_places;
     TraceWriterStats counters;  // main-thread counters (chunk/bytes come from the worker)
 
@@ -176,10 +176,12 @@ struct TraceWriter::Impl {
     std::mutex timing_mutex;  // the timing totals above (written by whichever thread compresses)
 
     void worker_main() {
-        if (options.compressor_nice != 0) {
-            // Best effort: without the right to it the thread keeps the caller's priority.
+        // Best effort: without the right to either the thread keeps the caller's priority.
+        sched_param idle{};
+        const bool idled =
+            options.compressor_idle_class && ::pthread_setschedparam(::pthread_self(), SCHED_IDLE, &idle) == 0;
+        if (!idled && options.compressor_nice != 0)
             (void)::setpriority(PRIO_PROCESS, static_cast<id_t>(::gettid()), options.compressor_nice);
-        }
         pthread_setname_np(pthread_self(), "clastrace-zstd");  // for profilers and top
         ZSTD_CCtx* cctx = ZSTD_createCCtx();
         std::vector<uint8_t> compressed;
@@ -463,7 +465,7 @@ TraceError TraceWriter::add_contents(std::span<const ContentPiece> pieces, uint6
         ~Timed() { total += now_ns() - started; }
     } timed{w.counters.contents_ns};
     // A repeat (most snapshots of a frame loop) costs one hash pass over its pieces where they
-    // lie; only new contents are gathered into one string.
+    // lie; new contents then take one keying pass and one copy into their record.
     XXH128_hash_t fingerprint;
     if (pieces.size() == 1) {
         fingerprint = XXH3_128bits(pieces[0].bytes, size);
@@ -480,19 +482,21 @@ TraceError TraceWriter::add_contents(std::span<const ContentPiece> pieces, uint6
         *hash = repeat->second;
         return {};
     }
-    const void* bytes = pieces.empty() ? nullptr : pieces[0].bytes;
-    if (pieces.size() > 1) {
-        w.gathered.clear();
-        for (const ContentPiece& p : pieces) {
-            const auto* b = static_cast<const uint8_t*>(p.bytes);
-            w.gathered.insert(w.gathered.end(), b, b + p.size);
-        }
-        bytes = w.gathered.data();
-    }
+    // New contents are keyed and framed straight from their pieces: no gathered copy.
+    auto keyOf = [&](uint64_t seed) {
+        if (pieces.size() == 1) return format::content_key(pieces[0].bytes, size, seed, w.options.content_hash_bits);
+        XXH3_state_t state;
+        XXH3_INITSTATE(&state);  // a stack state's first seeded reset reads it (xxhash.h)
+        XXH3_64bits_reset_withSeed(&state, seed);
+        for (const ContentPiece& p : pieces) XXH3_64bits_update(&state, p.bytes, p.size);
+        const uint64_t h = XXH3_64bits_digest(&state);  // as format::content_key over the whole
+        const unsigned bits = w.options.content_hash_bits;
+        return bits >= 64 ? h : (h & ((uint64_t{1} << bits) - 1));
+    };
     // Seed 0 gives the key; a different byte string already holding that key (a real
     // collision) moves these bytes to the next seed until a free or matching key is found.
     for (uint64_t seed = 0;; ++seed) {
-        uint64_t key = format::content_key(bytes, size, seed, w.options.content_hash_bits);
+        uint64_t key = keyOf(seed);
         auto [it, inserted] = w.contents.try_emplace(key, StoredContents{size, fingerprint});
         if (!inserted) {
             if (it->second.size == size && XXH128_isEqual(it->second.fingerprint, fingerprint)) {
@@ -508,7 +512,12 @@ TraceError TraceWriter::add_contents(std::span<const ContentPiece> pieces, uint6
             continue;
         }
         w.fbb.Clear();
-        auto vec = w.fbb.CreateVector(static_cast<const uint8_t*>(bytes), size);
+        uint8_t* vecBytes = nullptr;
+        auto vec = w.fbb.CreateUninitializedVector(size, &vecBytes);
+        for (const ContentPiece& p : pieces) {
+            if (p.size) std::memcpy(vecBytes, p.bytes, p.size);
+            vecBytes += p.size;
+        }
         auto body = fbs::CreateMemoryContents(w.fbb, key, seed, vec);
         w.fbb.Finish(fbs::CreateRecord(w.fbb, fbs::RecordBody::MemoryContents, body.Union()));
         // The frame lands at the end of the current chunk, unless add_frame seals it first.

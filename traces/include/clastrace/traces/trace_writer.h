@@ -29,6 +29,10 @@ struct TraceWriterOptions {
     // capture runs it at a lower priority than the application, so compression takes idle
     // cores rather than the application's.
     int compressor_nice = 0;
+    // Runs the compression thread in Linux's idle scheduling class (SCHED_IDLE): it gets a core
+    // only when no normal thread wants it, so a capture's compression never delays the threads
+    // of the application. Where the class is refused, compressor_nice applies instead.
+    bool compressor_idle_class = false;
 };
 
 struct TraceWriterStats {
