@@ -16,6 +16,7 @@
 
 #include <cstdio>
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <unistd.h>
 #include <vector>
@@ -133,16 +134,20 @@ replay::ReplayReport replay_file_with(const std::string& path, const replay::Rep
     return report;
 }
 
-// The barriered twin of a hazard test has no hazard; the other exactly one, returned for
-// its checks (null when the count is wrong, already reported).
-const replay::HazardReport* single_hazard_unless_fixed(const replay::ReplayReport& r, bool fixed) {
+// Writes and replays one of a hazard test's twins: the barriered one (`fixed`) has no hazard,
+// the other exactly one, returned for its checks (none when the count is wrong, already
+// reported). Neither has findings.
+template <class Body>
+std::optional<replay::HazardReport> twin_hazard(const std::string& name, bool fixed, Body body) {
+    const replay::ReplayReport r = replay_file(write_trace(fixed ? name + "_fixed" : name, body));
     EXPECT_TRUE(r.findings.empty()) << describe(r);
     if (fixed) {
         EXPECT_TRUE(r.hazards.empty()) << describe(r);
-        return nullptr;
+        return std::nullopt;
     }
     EXPECT_EQ(r.hazards.size(), 1u) << describe(r);
-    return r.hazards.size() == 1 ? &r.hazards[0] : nullptr;
+    if (r.hazards.size() != 1) return std::nullopt;
+    return r.hazards[0];
 }
 
 // ---- One command buffer, two executions in one submission --------------------------------
@@ -216,27 +221,24 @@ TEST(ExecutionModel, HazardFromSecondaryIntoPrimaryIsFound) {
     for (const bool fixed : {false, true}) {
         SCOPED_TRACE(fixed ? "barriered twin" : "missing barrier");
         uint32_t build = 0;
-        const std::string path = write_trace(fixed ? "sec_to_pri_fixed" : "sec_to_pri", [&](TraceScript& t) {
+        const std::optional<replay::HazardReport> h = twin_hazard("sec_to_pri", fixed, [&](TraceScript& t) {
             copy_in_secondary_build_in_primary(t, fixed, &build);
         });
-        const replay::ReplayReport r = replay_file(path);
-        const replay::HazardReport* found = single_hazard_unless_fixed(r, fixed);
-        if (!found) continue;
-        const replay::HazardReport& h = *found;
-        EXPECT_EQ(h.hazard, HazardClass::kReadAfterWrite);
-        EXPECT_STREQ(h.prior.command.name, "vkCmdCopyBuffer");
-        EXPECT_EQ(h.prior.command.command_buffer_handle, kPrimary);
-        EXPECT_EQ(h.prior.command.command, 0u);  // the vkCmdExecuteCommands
-        EXPECT_EQ(h.prior.command.secondary_handle, kSecondary);
-        EXPECT_EQ(h.prior.command.secondary, 0u);
-        EXPECT_EQ(h.prior.command.secondary_command, 1u);
-        EXPECT_STREQ(h.later.command.name, "vkCmdBuildClusterAccelerationStructureIndirectNV");
-        EXPECT_EQ(h.later.command.secondary_handle, 0u);
-        EXPECT_EQ(h.later.command.command, build);
-        EXPECT_NE(h.later.field.find("srcInfosArray"), std::string::npos) << h.later.field;
-        const std::string text = h.format();
+        if (!h) continue;
+        EXPECT_EQ(h->hazard, HazardClass::kReadAfterWrite);
+        EXPECT_STREQ(h->prior.command.name, "vkCmdCopyBuffer");
+        EXPECT_EQ(h->prior.command.command_buffer_handle, kPrimary);
+        EXPECT_EQ(h->prior.command.command, 0u);  // the vkCmdExecuteCommands
+        EXPECT_EQ(h->prior.command.secondary_handle, kSecondary);
+        EXPECT_EQ(h->prior.command.secondary, 0u);
+        EXPECT_EQ(h->prior.command.secondary_command, 1u);
+        EXPECT_STREQ(h->later.command.name, "vkCmdBuildClusterAccelerationStructureIndirectNV");
+        EXPECT_EQ(h->later.command.secondary_handle, 0u);
+        EXPECT_EQ(h->later.command.command, build);
+        EXPECT_NE(h->later.field.find("srcInfosArray"), std::string::npos) << h->later.field;
+        const std::string text = h->format();
         EXPECT_NE(text.find("secondary 0 (0x5c01), cmd 1"), std::string::npos) << text;
-        const std::string json = replay::to_json(h).dump();
+        const std::string json = replay::to_json(*h).dump();
         EXPECT_NE(json.find("\"secondary\""), std::string::npos) << json;
     }
 }
@@ -246,7 +248,7 @@ TEST(ExecutionModel, HazardFromSecondaryIntoPrimaryIsFound) {
 TEST(ExecutionModel, HazardFromPrimaryIntoSecondaryIsFound) {
     for (const bool fixed : {false, true}) {
         SCOPED_TRACE(fixed ? "barriered twin" : "missing barrier");
-        const std::string path = write_trace(fixed ? "pri_to_sec_fixed" : "pri_to_sec", [&](TraceScript& t) {
+        const std::optional<replay::HazardReport> h = twin_hazard("pri_to_sec", fixed, [&](TraceScript& t) {
             const std::vector<uint8_t> infos = bytes_of(std::vector<TriangleInfo>{triangle_info(0), triangle_info(1)});
             t.begin(kSecondary, 0, 1, 0);
             if (fixed) t.barrier(kCopy, kTransferWrite, kBuild, kIndirect);
@@ -258,16 +260,13 @@ TEST(ExecutionModel, HazardFromPrimaryIntoSecondaryIsFound) {
             t.end();
             t.submit_listed(kQueue, {kPrimary});
         });
-        const replay::ReplayReport r = replay_file(path);
-        const replay::HazardReport* found = single_hazard_unless_fixed(r, fixed);
-        if (!found) continue;
-        const replay::HazardReport& h = *found;
-        EXPECT_EQ(h.hazard, HazardClass::kReadAfterWrite);
-        EXPECT_STREQ(h.prior.command.name, "vkCmdCopyBuffer");
-        EXPECT_EQ(h.prior.command.secondary_handle, 0u);
-        EXPECT_EQ(h.later.command.command, 1u);  // the vkCmdExecuteCommands
-        EXPECT_EQ(h.later.command.secondary_handle, kSecondary);
-        EXPECT_EQ(h.later.command.secondary_command, 0u);
+        if (!h) continue;
+        EXPECT_EQ(h->hazard, HazardClass::kReadAfterWrite);
+        EXPECT_STREQ(h->prior.command.name, "vkCmdCopyBuffer");
+        EXPECT_EQ(h->prior.command.secondary_handle, 0u);
+        EXPECT_EQ(h->later.command.command, 1u);  // the vkCmdExecuteCommands
+        EXPECT_EQ(h->later.command.secondary_handle, kSecondary);
+        EXPECT_EQ(h->later.command.secondary_command, 0u);
     }
 }
 
@@ -276,7 +275,7 @@ TEST(ExecutionModel, HazardFromPrimaryIntoSecondaryIsFound) {
 TEST(ExecutionModel, HazardBetweenTwoSecondariesIsFound) {
     for (const bool fixed : {false, true}) {
         SCOPED_TRACE(fixed ? "barriered twin" : "missing barrier");
-        const std::string path = write_trace(fixed ? "sec_sec_fixed" : "sec_sec", [&](TraceScript& t) {
+        const std::optional<replay::HazardReport> h = twin_hazard("sec_sec", fixed, [&](TraceScript& t) {
             t.begin(kSecondary, 0, 1, 0);
             triangle_clusters(Destinations::kImplicit).emit(t);
             t.end();
@@ -295,16 +294,13 @@ TEST(ExecutionModel, HazardBetweenTwoSecondariesIsFound) {
             t.end();
             t.submit_listed(kQueue, {kPrimary});
         });
-        const replay::ReplayReport r = replay_file(path);
-        const replay::HazardReport* found = single_hazard_unless_fixed(r, fixed);
-        if (!found) continue;
-        const replay::HazardReport& h = *found;
-        EXPECT_EQ(h.hazard, HazardClass::kWriteAfterWrite);
-        EXPECT_EQ(h.prior.command.secondary_handle, kSecondary);
-        EXPECT_EQ(h.prior.command.secondary, 0u);
-        EXPECT_EQ(h.later.command.secondary_handle, kOtherSecondary);
-        EXPECT_EQ(h.later.command.secondary, 1u);
-        EXPECT_NE(h.later.field.find("scratchData"), std::string::npos) << h.later.field;
+        if (!h) continue;
+        EXPECT_EQ(h->hazard, HazardClass::kWriteAfterWrite);
+        EXPECT_EQ(h->prior.command.secondary_handle, kSecondary);
+        EXPECT_EQ(h->prior.command.secondary, 0u);
+        EXPECT_EQ(h->later.command.secondary_handle, kOtherSecondary);
+        EXPECT_EQ(h->later.command.secondary, 1u);
+        EXPECT_NE(h->later.field.find("scratchData"), std::string::npos) << h->later.field;
     }
 }
 
