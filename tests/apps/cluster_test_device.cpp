@@ -28,11 +28,12 @@ std::string hex(const void* data, size_t size) {
   return text;
 }
 
-void ClusterTestDevice::createInstance(const char* applicationName) {
+void ClusterTestDevice::createInstance(const char* applicationName, const std::vector<const char*>& extensions) {
   VkApplicationInfo app{VK_STRUCTURE_TYPE_APPLICATION_INFO, nullptr,
                         applicationName ? applicationName : program_invocation_short_name, 1, nullptr, 0,
                         VK_API_VERSION_1_3};
-  VkInstanceCreateInfo info{VK_STRUCTURE_TYPE_INSTANCE_CREATE_INFO, nullptr, 0, &app, 0, nullptr, 0, nullptr};
+  VkInstanceCreateInfo info{VK_STRUCTURE_TYPE_INSTANCE_CREATE_INFO, nullptr, 0, &app, 0, nullptr,
+                            uint32_t(extensions.size()), extensions.data()};
   CHECK(vkCreateInstance(&info, nullptr, &instance));
   uint32_t count = 1;
   VkResult r = vkEnumeratePhysicalDevices(instance, &count, &physicalDevice);
@@ -50,14 +51,18 @@ bool ClusterTestDevice::hasClusterExtension() const {
   return false;
 }
 
-void ClusterTestDevice::createDevice(bool timelineSemaphores, uint32_t queues) {
+void ClusterTestDevice::createDevice(bool timelineSemaphores, uint32_t queues, VkSurfaceKHR presentTo) {
   uint32_t familyCount = 0;
   vkGetPhysicalDeviceQueueFamilyProperties(physicalDevice, &familyCount, nullptr);
   std::vector<VkQueueFamilyProperties> families(familyCount);
   vkGetPhysicalDeviceQueueFamilyProperties(physicalDevice, &familyCount, families.data());
-  for (queueFamily = 0; queueFamily < familyCount; ++queueFamily)
-    if (families[queueFamily].queueFlags & VK_QUEUE_COMPUTE_BIT) break;
-  if (queueFamily == familyCount) fail("no compute queue");
+  for (queueFamily = 0; queueFamily < familyCount; ++queueFamily) {
+    VkBool32 presents = VK_TRUE;
+    if (presentTo) CHECK(vkGetPhysicalDeviceSurfaceSupportKHR(physicalDevice, queueFamily, presentTo, &presents));
+    if (presents && (families[queueFamily].queueFlags & VK_QUEUE_COMPUTE_BIT)) break;
+  }
+  if (queueFamily == familyCount)
+    fail(presentTo ? "no queue family both computes and presents to the window" : "no compute queue");
   if (queues < 1 || queues > 2 || families[queueFamily].queueCount < queues) fail("not enough queues in the compute family");
   const float priorities[2] = {1.0f, 1.0f};
   VkDeviceQueueCreateInfo queueInfo{VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO, nullptr, 0, queueFamily, queues, priorities};
@@ -68,8 +73,9 @@ void ClusterTestDevice::createDevice(bool timelineSemaphores, uint32_t queues) {
   v12.pNext = &cluster;
   v12.bufferDeviceAddress = VK_TRUE;
   v12.timelineSemaphore = timelineSemaphores ? VK_TRUE : VK_FALSE;
-  const char* extension = VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME;
-  VkDeviceCreateInfo info{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO, &v12, 0, 1, &queueInfo, 0, nullptr, 1, &extension, nullptr};
+  const char* extensions[] = {VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME, VK_KHR_SWAPCHAIN_EXTENSION_NAME};
+  VkDeviceCreateInfo info{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO, &v12, 0, 1, &queueInfo, 0, nullptr, presentTo ? 2u : 1u,
+                          extensions, nullptr};
   CHECK(vkCreateDevice(physicalDevice, &info, nullptr, &device));
   vkGetDeviceQueue(device, queueFamily, 0, &queue);
   if (queues == 2) vkGetDeviceQueue(device, queueFamily, 1, &secondQueue);

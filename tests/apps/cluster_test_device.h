@@ -41,11 +41,13 @@ struct ClusterTestDevice {
   PFN_vkGetClusterAccelerationStructureBuildSizesNV getBuildSizes = nullptr;
   std::vector<Buffer> buffers;  // destroyed with the device
 
-  // applicationName nullptr: the program's own name.
-  void createInstance(const char* applicationName = nullptr);
+  // applicationName nullptr: the program's own name. `extensions`: instance extensions a
+  // program needs beyond ours (a window surface's).
+  void createInstance(const char* applicationName = nullptr, const std::vector<const char*>& extensions = {});
   // The device lists the extension at the spec version of our ABI header.
   bool hasClusterExtension() const;
-  void createDevice(bool timelineSemaphores = false, uint32_t queues = 1);
+  // presentTo: a surface the queue must also present to; the device then enables VK_KHR_swapchain.
+  void createDevice(bool timelineSemaphores = false, uint32_t queues = 1, VkSurfaceKHR presentTo = VK_NULL_HANDLE);
   // STORAGE, TRANSFER_SRC/DST and SHADER_DEVICE_ADDRESS usage plus `usage`; every byte `fill`
   // (a marker the GPU commands must replace, where a test checks that they did).
   Buffer makeBuffer(VkDeviceSize size, VkBufferUsageFlags usage, uint8_t fill = 0);

@@ -11,6 +11,7 @@
 // SUBMISSIONS_PER_FRAME (default 1) - 1 extra submissions precede each frame's own, each a
 // vkCmdFillBuffer of the frame number into 64 bytes of their own: frames and submissions then
 // count differently.
+#include "cluster_test_device.h"
 #include "served_scene.h"
 
 #include <clastrace/vk_cluster_abi.h>
@@ -28,26 +29,9 @@ namespace {
 constexpr uint32_t kFrameIdStride = 1000;
 constexpr uint64_t kSecond = 1000ull * 1000 * 1000;
 
-#define CHECK(call)                                                                  \
-  do {                                                                               \
-    VkResult r_ = (call);                                                            \
-    if (r_ != VK_SUCCESS) {                                                          \
-      std::fprintf(stderr, "present_frames_app: %s failed: %d\n", #call, int(r_));   \
-      std::exit(2);                                                                  \
-    }                                                                                \
-  } while (0)
-
-[[noreturn]] void fail(const char* what) {
-  std::fprintf(stderr, "present_frames_app: %s\n", what);
-  std::exit(2);
-}
-
-struct Buffer {
-  VkBuffer buffer = VK_NULL_HANDLE;
-  VkDeviceMemory memory = VK_NULL_HANDLE;
-  VkDeviceAddress address = 0;
-  uint8_t* mapped = nullptr;
-};
+using clastrace::testapp::Buffer;
+using clastrace::testapp::ClusterTestDevice;
+using clastrace::testapp::fail;
 
 struct Window {
   xcb_connection_t* connection = nullptr;
@@ -71,89 +55,33 @@ struct Window {
 
 struct App {
   Window window;
-  VkInstance instance = VK_NULL_HANDLE;
+  ClusterTestDevice vk;  // its queue also presents to `surface`
   VkSurfaceKHR surface = VK_NULL_HANDLE;
-  VkPhysicalDevice physicalDevice = VK_NULL_HANDLE;
-  VkDevice device = VK_NULL_HANDLE;
-  uint32_t family = 0;
-  VkQueue queue = VK_NULL_HANDLE;
   VkSwapchainKHR swapchain = VK_NULL_HANDLE;
   std::vector<VkImage> images;
   std::vector<VkSemaphore> renderDone;  // one per image: a present may still wait on the last one
   VkSemaphore imageAvailable = VK_NULL_HANDLE;
   VkFence frameDone = VK_NULL_HANDLE;
-  VkCommandPool pool = VK_NULL_HANDLE;
   VkCommandBuffer cb = VK_NULL_HANDLE;
-  std::vector<Buffer> buffers;
-  PFN_vkCmdBuildClusterAccelerationStructureIndirectNV cmdBuildClusters = nullptr;
-  PFN_vkGetClusterAccelerationStructureBuildSizesNV getBuildSizes = nullptr;
 
   void createInstance() {
-    VkApplicationInfo app{VK_STRUCTURE_TYPE_APPLICATION_INFO, nullptr, "present_frames_app", 1, nullptr, 0,
-                          VK_API_VERSION_1_3};
-    const char* extensions[] = {VK_KHR_SURFACE_EXTENSION_NAME, VK_KHR_XCB_SURFACE_EXTENSION_NAME};
-    VkInstanceCreateInfo info{VK_STRUCTURE_TYPE_INSTANCE_CREATE_INFO, nullptr, 0, &app, 0, nullptr, 2, extensions};
-    CHECK(vkCreateInstance(&info, nullptr, &instance));
+    vk.createInstance(nullptr, {VK_KHR_SURFACE_EXTENSION_NAME, VK_KHR_XCB_SURFACE_EXTENSION_NAME});
     VkXcbSurfaceCreateInfoKHR surfaceInfo{VK_STRUCTURE_TYPE_XCB_SURFACE_CREATE_INFO_KHR, nullptr, 0,
                                           window.connection, window.window};
-    CHECK(vkCreateXcbSurfaceKHR(instance, &surfaceInfo, nullptr, &surface));
-    uint32_t count = 1;
-    VkResult r = vkEnumeratePhysicalDevices(instance, &count, &physicalDevice);
-    if ((r != VK_SUCCESS && r != VK_INCOMPLETE) || count == 0) fail("no physical device");
-  }
-
-  bool hasClusterExtension() const {
-    uint32_t count = 0;
-    vkEnumerateDeviceExtensionProperties(physicalDevice, nullptr, &count, nullptr);
-    std::vector<VkExtensionProperties> all(count);
-    vkEnumerateDeviceExtensionProperties(physicalDevice, nullptr, &count, all.data());
-    return std::any_of(all.begin(), all.end(), [](const VkExtensionProperties& e) {
-      return std::strcmp(e.extensionName, VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME) == 0;
-    });
-  }
-
-  void createDevice() {
-    uint32_t familyCount = 0;
-    vkGetPhysicalDeviceQueueFamilyProperties(physicalDevice, &familyCount, nullptr);
-    std::vector<VkQueueFamilyProperties> families(familyCount);
-    vkGetPhysicalDeviceQueueFamilyProperties(physicalDevice, &familyCount, families.data());
-    for (family = 0; family < familyCount; ++family) {
-      VkBool32 present = VK_FALSE;
-      CHECK(vkGetPhysicalDeviceSurfaceSupportKHR(physicalDevice, family, surface, &present));
-      if (present && (families[family].queueFlags & VK_QUEUE_COMPUTE_BIT)) break;
-    }
-    if (family == familyCount) fail("no queue family both computes and presents to the window");
-    const float priority = 1.0f;
-    VkDeviceQueueCreateInfo queueInfo{VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO, nullptr, 0, family, 1, &priority};
-    VkPhysicalDeviceClusterAccelerationStructureFeaturesNV cluster{
-        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_FEATURES_NV, nullptr, VK_TRUE};
-    VkPhysicalDeviceVulkan12Features v12{};
-    v12.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_2_FEATURES;
-    v12.pNext = &cluster;
-    v12.bufferDeviceAddress = VK_TRUE;
-    const char* extensions[] = {VK_KHR_SWAPCHAIN_EXTENSION_NAME, VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME};
-    VkDeviceCreateInfo info{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO, &v12, 0, 1, &queueInfo, 0, nullptr, 2, extensions,
-                            nullptr};
-    CHECK(vkCreateDevice(physicalDevice, &info, nullptr, &device));
-    vkGetDeviceQueue(device, family, 0, &queue);
-    cmdBuildClusters = (PFN_vkCmdBuildClusterAccelerationStructureIndirectNV)vkGetDeviceProcAddr(
-        device, "vkCmdBuildClusterAccelerationStructureIndirectNV");
-    getBuildSizes = (PFN_vkGetClusterAccelerationStructureBuildSizesNV)vkGetDeviceProcAddr(
-        device, "vkGetClusterAccelerationStructureBuildSizesNV");
-    if (!cmdBuildClusters || !getBuildSizes) fail("the cluster entry points are missing");
+    CHECK(vkCreateXcbSurfaceKHR(vk.instance, &surfaceInfo, nullptr, &surface));
   }
 
   void createSwapchain() {
     VkSurfaceCapabilitiesKHR caps;
-    CHECK(vkGetPhysicalDeviceSurfaceCapabilitiesKHR(physicalDevice, surface, &caps));
+    CHECK(vkGetPhysicalDeviceSurfaceCapabilitiesKHR(vk.physicalDevice, surface, &caps));
     uint32_t formatCount = 1;
     VkSurfaceFormatKHR format;
-    VkResult r = vkGetPhysicalDeviceSurfaceFormatsKHR(physicalDevice, surface, &formatCount, &format);
+    VkResult r = vkGetPhysicalDeviceSurfaceFormatsKHR(vk.physicalDevice, surface, &formatCount, &format);
     if ((r != VK_SUCCESS && r != VK_INCOMPLETE) || formatCount == 0) fail("the surface has no format");
     uint32_t modeCount = 0;
-    CHECK(vkGetPhysicalDeviceSurfacePresentModesKHR(physicalDevice, surface, &modeCount, nullptr));
+    CHECK(vkGetPhysicalDeviceSurfacePresentModesKHR(vk.physicalDevice, surface, &modeCount, nullptr));
     std::vector<VkPresentModeKHR> modes(modeCount);
-    CHECK(vkGetPhysicalDeviceSurfacePresentModesKHR(physicalDevice, surface, &modeCount, modes.data()));
+    CHECK(vkGetPhysicalDeviceSurfacePresentModesKHR(vk.physicalDevice, surface, &modeCount, modes.data()));
     // Xvfb has no vertical blank to wait for: prefer the modes that never block on one.
     VkPresentModeKHR mode = VK_PRESENT_MODE_FIFO_KHR;
     for (VkPresentModeKHR m : {VK_PRESENT_MODE_MAILBOX_KHR, VK_PRESENT_MODE_IMMEDIATE_KHR})
@@ -175,56 +103,20 @@ struct App {
       if (caps.supportedCompositeAlpha & a) info.compositeAlpha = a;
     info.presentMode = mode;
     info.clipped = VK_TRUE;
-    CHECK(vkCreateSwapchainKHR(device, &info, nullptr, &swapchain));
+    CHECK(vkCreateSwapchainKHR(vk.device, &info, nullptr, &swapchain));
     uint32_t imageCount = 0;
-    CHECK(vkGetSwapchainImagesKHR(device, swapchain, &imageCount, nullptr));
+    CHECK(vkGetSwapchainImagesKHR(vk.device, swapchain, &imageCount, nullptr));
     images.resize(imageCount);
-    CHECK(vkGetSwapchainImagesKHR(device, swapchain, &imageCount, images.data()));
+    CHECK(vkGetSwapchainImagesKHR(vk.device, swapchain, &imageCount, images.data()));
     VkSemaphoreCreateInfo semaphoreInfo{VK_STRUCTURE_TYPE_SEMAPHORE_CREATE_INFO, nullptr, 0};
     renderDone.resize(imageCount);
-    for (VkSemaphore& s : renderDone) CHECK(vkCreateSemaphore(device, &semaphoreInfo, nullptr, &s));
-    CHECK(vkCreateSemaphore(device, &semaphoreInfo, nullptr, &imageAvailable));
+    for (VkSemaphore& s : renderDone) CHECK(vkCreateSemaphore(vk.device, &semaphoreInfo, nullptr, &s));
+    CHECK(vkCreateSemaphore(vk.device, &semaphoreInfo, nullptr, &imageAvailable));
     VkFenceCreateInfo fenceInfo{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO, nullptr, 0};
-    CHECK(vkCreateFence(device, &fenceInfo, nullptr, &frameDone));
-    VkCommandPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO, nullptr,
-                                     VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT, family};
-    CHECK(vkCreateCommandPool(device, &poolInfo, nullptr, &pool));
-    VkCommandBufferAllocateInfo cbInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr, pool,
+    CHECK(vkCreateFence(vk.device, &fenceInfo, nullptr, &frameDone));
+    VkCommandBufferAllocateInfo cbInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr, vk.pool,
                                        VK_COMMAND_BUFFER_LEVEL_PRIMARY, 1};
-    CHECK(vkAllocateCommandBuffers(device, &cbInfo, &cb));
-  }
-
-  // Host-visible and coherent, with a device address.
-  Buffer makeBuffer(VkDeviceSize size, VkBufferUsageFlags usage) {
-    Buffer b;
-    VkBufferCreateInfo info{};
-    info.sType = VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO;
-    info.size = size;
-    info.usage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | usage;
-    CHECK(vkCreateBuffer(device, &info, nullptr, &b.buffer));
-    VkMemoryRequirements req;
-    vkGetBufferMemoryRequirements(device, b.buffer, &req);
-    VkPhysicalDeviceMemoryProperties props;
-    vkGetPhysicalDeviceMemoryProperties(physicalDevice, &props);
-    const VkMemoryPropertyFlags want = VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT;
-    uint32_t type = 0;
-    while (type < props.memoryTypeCount &&
-           !((req.memoryTypeBits & (1u << type)) && (props.memoryTypes[type].propertyFlags & want) == want))
-      ++type;
-    if (type == props.memoryTypeCount) fail("no host-visible coherent memory");
-    VkMemoryAllocateFlagsInfo flags{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_FLAGS_INFO, nullptr,
-                                    VK_MEMORY_ALLOCATE_DEVICE_ADDRESS_BIT, 0};
-    VkMemoryAllocateInfo alloc{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_INFO, &flags, req.size, type};
-    CHECK(vkAllocateMemory(device, &alloc, nullptr, &b.memory));
-    CHECK(vkBindBufferMemory(device, b.buffer, b.memory, 0));
-    VkBufferDeviceAddressInfo addressInfo{VK_STRUCTURE_TYPE_BUFFER_DEVICE_ADDRESS_INFO, nullptr, b.buffer};
-    b.address = vkGetBufferDeviceAddress(device, &addressInfo);
-    void* mapped = nullptr;
-    CHECK(vkMapMemory(device, b.memory, 0, VK_WHOLE_SIZE, 0, &mapped));
-    b.mapped = static_cast<uint8_t*>(mapped);
-    std::memset(b.mapped, 0, size);
-    buffers.push_back(b);
-    return b;
+    CHECK(vkAllocateCommandBuffers(vk.device, &cbInfo, &cb));
   }
 
   void imageBarrier(VkImage image, VkImageLayout from, VkImageLayout to, VkAccessFlags srcAccess,
@@ -236,59 +128,52 @@ struct App {
   }
 
   ~App() {
-    if (device) {
-      vkDeviceWaitIdle(device);
-      for (const Buffer& b : buffers) {
-        vkDestroyBuffer(device, b.buffer, nullptr);
-        vkUnmapMemory(device, b.memory);
-        vkFreeMemory(device, b.memory, nullptr);
-      }
-      vkDestroyCommandPool(device, pool, nullptr);
-      vkDestroyFence(device, frameDone, nullptr);
-      vkDestroySemaphore(device, imageAvailable, nullptr);
-      for (VkSemaphore s : renderDone) vkDestroySemaphore(device, s, nullptr);
-      vkDestroySwapchainKHR(device, swapchain, nullptr);
-      vkDestroyDevice(device, nullptr);
+    if (vk.device) {
+      vkDeviceWaitIdle(vk.device);
+      vkDestroyFence(vk.device, frameDone, nullptr);
+      vkDestroySemaphore(vk.device, imageAvailable, nullptr);
+      for (VkSemaphore s : renderDone) vkDestroySemaphore(vk.device, s, nullptr);
+      vkDestroySwapchainKHR(vk.device, swapchain, nullptr);
     }
-    if (surface) vkDestroySurfaceKHR(instance, surface, nullptr);
-    if (instance) vkDestroyInstance(instance, nullptr);
+    if (surface) vkDestroySurfaceKHR(vk.instance, surface, nullptr);
+    vk.destroy();
   }
 };
 
 int run(uint32_t frames, uint32_t submissionsPerFrame) {
   App app;
   app.createInstance();
-  if (!app.hasClusterExtension()) {
+  if (!app.vk.hasClusterExtension()) {
     std::printf("VK_NV_cluster_acceleration_structure is not supported\n");
     return 3;
   }
-  app.createDevice();
+  app.vk.createDevice(false, 1, app.surface);
   app.createSwapchain();
 
   served_scene::Commands sizing;
   served_scene::makeCommands({}, sizing);
   VkAccelerationStructureBuildSizesInfoKHR clusterSizes{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr, 0, 0, 0};
   VkAccelerationStructureBuildSizesInfoKHR blasSizes{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr, 0, 0, 0};
-  app.getBuildSizes(app.device, &sizing.clusters.input, &clusterSizes);
-  app.getBuildSizes(app.device, &sizing.blas.input, &blasSizes);
+  app.vk.getBuildSizes(app.vk.device, &sizing.clusters.input, &clusterSizes);
+  app.vk.getBuildSizes(app.vk.device, &sizing.blas.input, &blasSizes);
   if (!clusterSizes.accelerationStructureSize || !blasSizes.accelerationStructureSize) fail("build sizes of 0");
 
   const VkBufferUsageFlags input = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
   const VkBufferUsageFlags storage = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
   const served_scene::Inputs probe = served_scene::makeInputs({});
-  Buffer vertices = app.makeBuffer(probe.vertices.size() * 4, input);
-  Buffer indices = app.makeBuffer(probe.indices.size() * 4, input);
-  Buffer infos = app.makeBuffer(served_scene::kInfoStride * served_scene::kMaxClusters, input);
-  Buffer counts = app.makeBuffer(8, input);
-  Buffer dstAddresses = app.makeBuffer(8 * served_scene::kMaxClusters, storage | input);
-  Buffer dstSizes = app.makeBuffer(4 * served_scene::kMaxClusters, storage);
-  Buffer implicitData = app.makeBuffer(clusterSizes.accelerationStructureSize, storage);
-  Buffer scratch = app.makeBuffer(clusterSizes.buildScratchSize, 0);
-  Buffer blasInfos = app.makeBuffer(sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV), input);
-  Buffer blasDstAddresses = app.makeBuffer(8, storage);
-  Buffer blasDstSizes = app.makeBuffer(4, storage);
-  Buffer blasImplicit = app.makeBuffer(blasSizes.accelerationStructureSize, storage);
-  Buffer blasScratch = app.makeBuffer(blasSizes.buildScratchSize, 0);
+  Buffer vertices = app.vk.makeBuffer(probe.vertices.size() * 4, input);
+  Buffer indices = app.vk.makeBuffer(probe.indices.size() * 4, input);
+  Buffer infos = app.vk.makeBuffer(served_scene::kInfoStride * served_scene::kMaxClusters, input);
+  Buffer counts = app.vk.makeBuffer(8, input);
+  Buffer dstAddresses = app.vk.makeBuffer(8 * served_scene::kMaxClusters, storage | input);
+  Buffer dstSizes = app.vk.makeBuffer(4 * served_scene::kMaxClusters, storage);
+  Buffer implicitData = app.vk.makeBuffer(clusterSizes.accelerationStructureSize, storage);
+  Buffer scratch = app.vk.makeBuffer(clusterSizes.buildScratchSize, 0);
+  Buffer blasInfos = app.vk.makeBuffer(sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV), input);
+  Buffer blasDstAddresses = app.vk.makeBuffer(8, storage);
+  Buffer blasDstSizes = app.vk.makeBuffer(4, storage);
+  Buffer blasImplicit = app.vk.makeBuffer(blasSizes.accelerationStructureSize, storage);
+  Buffer blasScratch = app.vk.makeBuffer(blasSizes.buildScratchSize, 0);
   const served_scene::Addresses a{vertices.address,     indices.address,      infos.address,       counts.address,
                                   dstAddresses.address, dstSizes.address,     implicitData.address, scratch.address,
                                   blasInfos.address,    blasDstAddresses.address, blasDstSizes.address,
@@ -300,12 +185,12 @@ int run(uint32_t frames, uint32_t submissionsPerFrame) {
   std::memcpy(blasInfos.mapped, &in.blasInfo, sizeof in.blasInfo);
   served_scene::Commands commands;
   served_scene::makeCommands(a, commands);
-  Buffer fillTarget = app.makeBuffer(64 * 16, VK_BUFFER_USAGE_TRANSFER_DST_BIT);  // 64 bytes per extra submission
+  Buffer fillTarget = app.vk.makeBuffer(64 * 16, VK_BUFFER_USAGE_TRANSFER_DST_BIT);  // 64 bytes per extra submission
   std::vector<VkCommandBuffer> extra(submissionsPerFrame - 1);
   if (!extra.empty()) {
-    VkCommandBufferAllocateInfo extraInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr, app.pool,
+    VkCommandBufferAllocateInfo extraInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr, app.vk.pool,
                                           VK_COMMAND_BUFFER_LEVEL_PRIMARY, uint32_t(extra.size())};
-    CHECK(vkAllocateCommandBuffers(app.device, &extraInfo, extra.data()));
+    CHECK(vkAllocateCommandBuffers(app.vk.device, &extraInfo, extra.data()));
   }
 
   for (uint32_t frame = 0; frame < frames; ++frame) {
@@ -324,21 +209,21 @@ int run(uint32_t frames, uint32_t submissionsPerFrame) {
       vkCmdFillBuffer(e, fillTarget.buffer, 64 * k, 64, frame);  // apart: no barrier needed between them
       CHECK(vkEndCommandBuffer(e));
       VkSubmitInfo fill{VK_STRUCTURE_TYPE_SUBMIT_INFO, nullptr, 0, nullptr, nullptr, 1, &e, 0, nullptr};
-      CHECK(vkQueueSubmit(app.queue, 1, &fill, VK_NULL_HANDLE));
+      CHECK(vkQueueSubmit(app.vk.queue, 1, &fill, VK_NULL_HANDLE));
     }
     uint32_t image = 0;
-    CHECK(vkAcquireNextImageKHR(app.device, app.swapchain, 10 * kSecond, app.imageAvailable, VK_NULL_HANDLE, &image));
+    CHECK(vkAcquireNextImageKHR(app.vk.device, app.swapchain, 10 * kSecond, app.imageAvailable, VK_NULL_HANDLE, &image));
 
     VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr,
                                    VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT, nullptr};
     CHECK(vkBeginCommandBuffer(app.cb, &begin));
-    app.cmdBuildClusters(app.cb, &commands.clusters);
+    app.vk.cmdBuildClusters(app.cb, &commands.clusters);
     VkMemoryBarrier built{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr, VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
                           VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_KHR | VK_ACCESS_SHADER_READ_BIT |
                               VK_ACCESS_INDIRECT_COMMAND_READ_BIT};
     vkCmdPipelineBarrier(app.cb, VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
                          VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, 0, 1, &built, 0, nullptr, 0, nullptr);
-    app.cmdBuildClusters(app.cb, &commands.blas);
+    app.vk.cmdBuildClusters(app.cb, &commands.blas);
     VkMemoryBarrier toHost{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr, VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
                            VK_ACCESS_HOST_READ_BIT};
     vkCmdPipelineBarrier(app.cb, VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_PIPELINE_STAGE_HOST_BIT, 0,
@@ -357,16 +242,16 @@ int run(uint32_t frames, uint32_t submissionsPerFrame) {
     const VkPipelineStageFlags waitStage = VK_PIPELINE_STAGE_TRANSFER_BIT;
     VkSubmitInfo submit{VK_STRUCTURE_TYPE_SUBMIT_INFO, nullptr, 1, &app.imageAvailable, &waitStage, 1, &app.cb, 1,
                         &app.renderDone[image]};
-    CHECK(vkQueueSubmit(app.queue, 1, &submit, app.frameDone));
+    CHECK(vkQueueSubmit(app.vk.queue, 1, &submit, app.frameDone));
     VkPresentInfoKHR present{VK_STRUCTURE_TYPE_PRESENT_INFO_KHR, nullptr, 1, &app.renderDone[image], 1,
                              &app.swapchain, &image, nullptr};
-    const VkResult presented = vkQueuePresentKHR(app.queue, &present);
+    const VkResult presented = vkQueuePresentKHR(app.vk.queue, &present);
     if (presented != VK_SUCCESS && presented != VK_SUBOPTIMAL_KHR) {
       std::fprintf(stderr, "present_frames_app: vkQueuePresentKHR of frame %u failed: %d\n", frame, int(presented));
       return 2;
     }
-    CHECK(vkWaitForFences(app.device, 1, &app.frameDone, VK_TRUE, 30 * kSecond));
-    CHECK(vkResetFences(app.device, 1, &app.frameDone));
+    CHECK(vkWaitForFences(app.vk.device, 1, &app.frameDone, VK_TRUE, 30 * kSecond));
+    CHECK(vkResetFences(app.vk.device, 1, &app.frameDone));
     for (uint32_t c = 0; c < served_scene::kClusterCount; ++c) {
       uint32_t size = 0;
       std::memcpy(&size, dstSizes.mapped + 4 * c, 4);

@@ -79,6 +79,15 @@ double processCpuMilliseconds() {
          (double(usage.ru_utime.tv_usec) + double(usage.ru_stime.tv_usec)) * 1e-3;
 }
 
+// One cluster's triangles: two per quad of the kQuadsX x kQuadsY grid, 3 * kTriangles indices.
+void writeGridIndices(uint32_t* out) {
+  for (uint32_t y = 0; y < kQuadsY; ++y)
+    for (uint32_t x = 0; x < kQuadsX; ++x) {
+      const uint32_t v = y * (kQuadsX + 1) + x;
+      for (uint32_t i : {v, v + 1, v + kQuadsX + 2, v, v + kQuadsX + 2, v + kQuadsX + 1}) *out++ = i;
+    }
+}
+
 void writeVertices(const Buffer& vertices, uint32_t clusters, int frame) {
   auto* v = reinterpret_cast<float*>(vertices.mapped);
   for (uint32_t c = 0; c < clusters; ++c) {
@@ -93,25 +102,32 @@ void writeVertices(const Buffer& vertices, uint32_t clusters, int frame) {
   }
 }
 
-int frames(const FrameOptions& o) {
-  Context c;
-  const uint32_t n = o.clusters;
-  VkClusterAccelerationStructureTriangleClusterInputNV triangles{};
+// An implicit-destination build of up to `clusters` grid clusters (kTriangles, kVertices each):
+// `build` points at `triangles`, so the caller keeps both alive together.
+void describeClusterBuild(uint32_t clusters, VkClusterAccelerationStructureTriangleClusterInputNV& triangles,
+                          VkClusterAccelerationStructureCommandsInfoNV& build) {
   triangles.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
   triangles.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
   triangles.maxGeometryIndexValue = 0;
   triangles.maxClusterUniqueGeometryCount = 1;
   triangles.maxClusterTriangleCount = kTriangles;
   triangles.maxClusterVertexCount = kVertices;
-  triangles.maxTotalTriangleCount = n * kTriangles;
-  triangles.maxTotalVertexCount = n * kVertices;
-  VkClusterAccelerationStructureCommandsInfoNV build{};
+  triangles.maxTotalTriangleCount = clusters * kTriangles;
+  triangles.maxTotalVertexCount = clusters * kVertices;
   build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
   build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
-  build.input.maxAccelerationStructureCount = n;
+  build.input.maxAccelerationStructureCount = clusters;
   build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
   build.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
   build.input.opInput.pTriangleClusters = &triangles;
+}
+
+int frames(const FrameOptions& o) {
+  Context c;
+  const uint32_t n = o.clusters;
+  VkClusterAccelerationStructureTriangleClusterInputNV triangles{};
+  VkClusterAccelerationStructureCommandsInfoNV build{};
+  describeClusterBuild(n, triangles, build);
   VkClusterAccelerationStructureClustersBottomLevelInputNV bottom{};
   bottom.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
   bottom.maxTotalClusterCount = n;
@@ -149,12 +165,7 @@ int frames(const FrameOptions& o) {
   auto* index = reinterpret_cast<uint32_t*>(indices.mapped);
   auto* info = reinterpret_cast<Info*>(infoSource.mapped);
   for (uint32_t k = 0; k < n; ++k) {
-    uint32_t* t = index + uint64_t(k) * kTriangles * 3;
-    for (uint32_t y = 0; y < kQuadsY; ++y)
-      for (uint32_t x = 0; x < kQuadsX; ++x) {
-        const uint32_t v = y * (kQuadsX + 1) + x;
-        for (uint32_t i : {v, v + 1, v + kQuadsX + 2, v, v + kQuadsX + 2, v + kQuadsX + 1}) *t++ = i;
-      }
+    writeGridIndices(index + uint64_t(k) * kTriangles * 3);
     Info& i = info[k];
     i = Info{};
     i.clusterID = (o.badClusterId && k == 0) ? 0xFFFFFFFFu : 1000 + k;
@@ -292,12 +303,7 @@ struct CountedClusterScene {
     dstSizes = c.makeBuffer(8, kStorage);
     dstAddresses = c.makeBuffer(16, kStorage);
     writeVertices(vertices, 2, 0);
-    auto* index = reinterpret_cast<uint32_t*>(indices.mapped);
-    for (uint32_t y = 0; y < kQuadsY; ++y)
-      for (uint32_t x = 0; x < kQuadsX; ++x) {
-        const uint32_t v = y * (kQuadsX + 1) + x;
-        for (uint32_t i : {v, v + 1, v + kQuadsX + 2, v, v + kQuadsX + 2, v + kQuadsX + 1}) *index++ = i;
-      }
+    writeGridIndices(reinterpret_cast<uint32_t*>(indices.mapped));
     for (uint32_t k = 0; k < 2; ++k) {
       Info i{};
       i.clusterID = badClusterId && k == 0 ? 0xFFFFFFFFu : firstClusterId + k;
@@ -310,19 +316,7 @@ struct CountedClusterScene {
     }
     const uint32_t countValues[2] = {1, 2};
     std::memcpy(counts.mapped, countValues, sizeof countValues);
-    triangles.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
-    triangles.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
-    triangles.maxClusterUniqueGeometryCount = 1;
-    triangles.maxClusterTriangleCount = kTriangles;
-    triangles.maxClusterVertexCount = kVertices;
-    triangles.maxTotalTriangleCount = 2 * kTriangles;
-    triangles.maxTotalVertexCount = 2 * kVertices;
-    build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
-    build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
-    build.input.maxAccelerationStructureCount = 2;
-    build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
-    build.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
-    build.input.opInput.pTriangleClusters = &triangles;
+    describeClusterBuild(2, triangles, build);
     VkAccelerationStructureBuildSizesInfoKHR sizes{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR,
                                                    nullptr, 0, 0, 0};
     c.getBuildSizes(c.device, &build.input, &sizes);

@@ -1,21 +1,13 @@
 // CLASTRACE_FRAME_RANGE parsing: the same syntax and errors as CLASTRACE_SUBMIT_RANGE, kept
 // apart from it.
-#include "clastrace/capture/layer_config.h"
+#include "layer_config_env.h"
 
 #include <gtest/gtest.h>
 
-#include <map>
-
 using namespace clastrace::capture;
+using clastrace::capture::test::parse;
 
 namespace {
-
-LayerConfig parse(const std::map<std::string, std::string>& env) {
-  return parseLayerConfig([&](const char* name) -> const char* {
-    auto it = env.find(name);
-    return it == env.end() ? nullptr : it->second.c_str();
-  });
-}
 
 TEST(FrameRangeConfig, DefaultIsEveryFrame) {
   LayerConfig c = parse({});

@@ -1,19 +1,9 @@
-#include "clastrace/capture/layer_config.h"
+#include "layer_config_env.h"
 
 #include <gtest/gtest.h>
 
-#include <map>
-
 using namespace clastrace::capture;
-
-namespace {
-LayerConfig parse(const std::map<std::string, std::string>& env) {
-  return parseLayerConfig([&](const char* name) -> const char* {
-    auto it = env.find(name);
-    return it == env.end() ? nullptr : it->second.c_str();
-  });
-}
-}  // namespace
+using clastrace::capture::test::parse;
 
 TEST(LayerConfig, DefaultsCaptureOnServeAuto) {
   LayerConfig c = parse({});

@@ -1,20 +1,12 @@
 // The settings of the robustness features: the flush interval and forced staging.
-#include "clastrace/capture/layer_config.h"
+#include "layer_config_env.h"
 
 #include <gtest/gtest.h>
 
-#include <map>
-
 using namespace clastrace::capture;
+using clastrace::capture::test::parse;
 
 namespace {
-
-LayerConfig parse(const std::map<std::string, std::string>& env) {
-  return parseLayerConfig([&](const char* name) -> const char* {
-    auto it = env.find(name);
-    return it == env.end() ? nullptr : it->second.c_str();
-  });
-}
 
 TEST(RobustnessSettings, DefaultsFlushEverySecondWithoutStaging) {
   LayerConfig c = parse({});

@@ -16,6 +16,7 @@
 
 #include <cstdio>
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <unistd.h>
 #include <vector>
@@ -84,28 +85,82 @@ ClusterCommand counted_build(uint32_t count) {
     return c;
 }
 
+// A trace of the catalogue's buffers and whatever `body` records, written to a fresh path.
+template <class Body>
+std::string write_trace(const std::string& name, Body body) {
+    const std::string path = temp_path(name);
+    TraceScript t(path, device());
+    add_buffers(t);
+    body(t);
+    t.finish();
+    return path;
+}
+
+// Two recordings of one command buffer, each a full barrier then a build: `first`, then a
+// build counting 2, the second written as restatement `second_restatement`.
+void record_two_executions(TraceScript& t, uint64_t command_buffer, uint32_t level, uint32_t second_restatement,
+                           ClusterCommand first) {
+    t.begin(command_buffer, kSimultaneous, level, 0);
+    t.full_barrier();  // orders each execution after the one before
+    first.emit(t);
+    t.end();
+    t.begin(command_buffer, kSimultaneous, level, second_restatement);
+    t.full_barrier();
+    counted_build(2).emit(t);
+    t.end();
+}
+
+// A simultaneous-use secondary executed twice by one vkCmdExecuteCommands (primary command 1
+// after a barrier): the recording's build (secondary command 1) has a bad cluster ID and
+// counts 1, the restatement's counts 2.
+void secondary_executed_twice(TraceScript& t) {
+    ClusterCommand bad = counted_build(1);
+    edit_info<TriangleInfo>(bad, 0, [](TriangleInfo& i) { i.clusterID = 0xFFFFFFFFu; });
+    record_two_executions(t, kSecondary, 1, 1, bad);
+    t.begin(kPrimary, 0, 0, 0);
+    t.full_barrier();                               // primary command 0
+    t.execute_commands({kSecondary, kSecondary});  // primary command 1
+    t.end();
+    t.submit_listed(kQueue, {kPrimary});
+}
+
+// Replays with `options` (no second pass) and removes the file.
+replay::ReplayReport replay_file_with(const std::string& path, const replay::ReplayOptions& options) {
+    traces::TraceError e;
+    auto reader = traces::TraceReader::open(path, &e);
+    EXPECT_TRUE(reader) << e.message;
+    replay::ReplayReport report = reader ? replay::replay_trace(*reader, path, options) : replay::ReplayReport{};
+    std::remove(path.c_str());
+    return report;
+}
+
+// Writes and replays one of a hazard test's twins: the barriered one (`fixed`) has no hazard,
+// the other exactly one, returned for its checks (none when the count is wrong, already
+// reported). Neither has findings.
+template <class Body>
+std::optional<replay::HazardReport> twin_hazard(const std::string& name, bool fixed, Body body) {
+    const replay::ReplayReport r = replay_file(write_trace(fixed ? name + "_fixed" : name, body));
+    EXPECT_TRUE(r.findings.empty()) << describe(r);
+    if (fixed) {
+        EXPECT_TRUE(r.hazards.empty()) << describe(r);
+        return std::nullopt;
+    }
+    EXPECT_EQ(r.hazards.size(), 1u) << describe(r);
+    if (r.hazards.size() != 1) return std::nullopt;
+    return r.hazards[0];
+}
+
 // ---- One command buffer, two executions in one submission --------------------------------
 
 // The capture saw the count at 1 in the first execution and at 2 in the second (the
 // command buffer rewrites it after the build): each execution must run with its own bytes,
 // and a later submission of the same buffer with the recording itself.
 TEST(ExecutionModel, CommandBufferListedTwiceRunsEachRestatement) {
-    const std::string path = temp_path("twice");
-    {
-        TraceScript t(path, device());
-        add_buffers(t);
-        t.begin(kPrimary, kSimultaneous, 0, 0);
-        t.full_barrier();  // orders each execution after the one before
-        counted_build(1).emit(t);
-        t.end();
-        t.begin(kPrimary, kSimultaneous, 0, 1);
-        t.full_barrier();
-        counted_build(2).emit(t);
-        t.end();
+    const std::string path = write_trace("twice", [](TraceScript& t) {
+        record_two_executions(t, kPrimary, 0, 1, counted_build(1));
         t.submit_listed(kQueue, {kPrimary, kPrimary});
         t.submit_listed(kQueue, {kPrimary});
-        t.finish();
-    }
+    });
     ClusterRuns runs;
     replay::ReplayReport r = replay_file(path, &runs);
     EXPECT_EQ(runs.op_counts, (std::vector<uint32_t>{1, 2, 1}));
@@ -120,21 +175,10 @@ TEST(ExecutionModel, CommandBufferListedTwiceRunsEachRestatement) {
 // Before format 1.2 a capture wrote the two executions as two ordinary recordings: the last
 // one wins, for both executions (what old traces replay as; kept for them).
 TEST(ExecutionModel, OrdinaryBeginStillReplacesTheRecording) {
-    const std::string path = temp_path("replaced");
-    {
-        TraceScript t(path, device());
-        add_buffers(t);
-        t.begin(kPrimary, kSimultaneous, 0, 0);
-        t.full_barrier();
-        counted_build(1).emit(t);
-        t.end();
-        t.begin(kPrimary, kSimultaneous, 0, 0);
-        t.full_barrier();
-        counted_build(2).emit(t);
-        t.end();
+    const std::string path = write_trace("replaced", [](TraceScript& t) {
+        record_two_executions(t, kPrimary, 0, 0, counted_build(1));
         t.submit_listed(kQueue, {kPrimary, kPrimary});
-        t.finish();
-    }
+    });
     ClusterRuns runs;
     replay_file(path, &runs);
     EXPECT_EQ(runs.op_counts, (std::vector<uint32_t>{2, 2}));
@@ -142,21 +186,10 @@ TEST(ExecutionModel, OrdinaryBeginStillReplacesTheRecording) {
 
 // A restatement index past the copies written so far is reported and kept as the next copy.
 TEST(ExecutionModel, RestatementOutOfOrderIsReported) {
-    const std::string path = temp_path("out_of_order");
-    {
-        TraceScript t(path, device());
-        add_buffers(t);
-        t.begin(kPrimary, kSimultaneous, 0, 0);
-        t.full_barrier();
-        counted_build(1).emit(t);
-        t.end();
-        t.begin(kPrimary, kSimultaneous, 0, 7);
-        t.full_barrier();
-        counted_build(2).emit(t);
-        t.end();
+    const std::string path = write_trace("out_of_order", [](TraceScript& t) {
+        record_two_executions(t, kPrimary, 0, 7, counted_build(1));
         t.submit_listed(kQueue, {kPrimary, kPrimary, kPrimary});
-        t.finish();
-    }
+    });
     ClusterRuns runs;
     replay::ReplayReport r = replay_file(path, &runs);
     EXPECT_EQ(runs.op_counts, (std::vector<uint32_t>{1, 2, 1}));  // a third execution has no copy: the recording
@@ -187,36 +220,25 @@ void copy_in_secondary_build_in_primary(TraceScript& t, bool fixed, uint32_t* bu
 TEST(ExecutionModel, HazardFromSecondaryIntoPrimaryIsFound) {
     for (const bool fixed : {false, true}) {
         SCOPED_TRACE(fixed ? "barriered twin" : "missing barrier");
-        const std::string path = temp_path(fixed ? "sec_to_pri_fixed" : "sec_to_pri");
         uint32_t build = 0;
-        {
-            TraceScript t(path, device());
-            add_buffers(t);
+        const std::optional<replay::HazardReport> h = twin_hazard("sec_to_pri", fixed, [&](TraceScript& t) {
             copy_in_secondary_build_in_primary(t, fixed, &build);
-            t.finish();
-        }
-        replay::ReplayReport r = replay_file(path);
-        EXPECT_TRUE(r.findings.empty()) << describe(r);
-        if (fixed) {
-            EXPECT_TRUE(r.hazards.empty()) << describe(r);
-            continue;
-        }
-        ASSERT_EQ(r.hazards.size(), 1u) << describe(r);
-        const replay::HazardReport& h = r.hazards[0];
-        EXPECT_EQ(h.hazard, HazardClass::kReadAfterWrite);
-        EXPECT_STREQ(h.prior.command.name, "vkCmdCopyBuffer");
-        EXPECT_EQ(h.prior.command.command_buffer_handle, kPrimary);
-        EXPECT_EQ(h.prior.command.command, 0u);  // the vkCmdExecuteCommands
-        EXPECT_EQ(h.prior.command.secondary_handle, kSecondary);
-        EXPECT_EQ(h.prior.command.secondary, 0u);
-        EXPECT_EQ(h.prior.command.secondary_command, 1u);
-        EXPECT_STREQ(h.later.command.name, "vkCmdBuildClusterAccelerationStructureIndirectNV");
-        EXPECT_EQ(h.later.command.secondary_handle, 0u);
-        EXPECT_EQ(h.later.command.command, build);
-        EXPECT_NE(h.later.field.find("srcInfosArray"), std::string::npos) << h.later.field;
-        const std::string text = h.format();
+        });
+        if (!h) continue;
+        EXPECT_EQ(h->hazard, HazardClass::kReadAfterWrite);
+        EXPECT_STREQ(h->prior.command.name, "vkCmdCopyBuffer");
+        EXPECT_EQ(h->prior.command.command_buffer_handle, kPrimary);
+        EXPECT_EQ(h->prior.command.command, 0u);  // the vkCmdExecuteCommands
+        EXPECT_EQ(h->prior.command.secondary_handle, kSecondary);
+        EXPECT_EQ(h->prior.command.secondary, 0u);
+        EXPECT_EQ(h->prior.command.secondary_command, 1u);
+        EXPECT_STREQ(h->later.command.name, "vkCmdBuildClusterAccelerationStructureIndirectNV");
+        EXPECT_EQ(h->later.command.secondary_handle, 0u);
+        EXPECT_EQ(h->later.command.command, build);
+        EXPECT_NE(h->later.field.find("srcInfosArray"), std::string::npos) << h->later.field;
+        const std::string text = h->format();
         EXPECT_NE(text.find("secondary 0 (0x5c01), cmd 1"), std::string::npos) << text;
-        const std::string json = replay::to_json(h).dump();
+        const std::string json = replay::to_json(*h).dump();
         EXPECT_NE(json.find("\"secondary\""), std::string::npos) << json;
     }
 }
@@ -226,10 +248,7 @@ TEST(ExecutionModel, HazardFromSecondaryIntoPrimaryIsFound) {
 TEST(ExecutionModel, HazardFromPrimaryIntoSecondaryIsFound) {
     for (const bool fixed : {false, true}) {
         SCOPED_TRACE(fixed ? "barriered twin" : "missing barrier");
-        const std::string path = temp_path(fixed ? "pri_to_sec_fixed" : "pri_to_sec");
-        {
-            TraceScript t(path, device());
-            add_buffers(t);
+        const std::optional<replay::HazardReport> h = twin_hazard("pri_to_sec", fixed, [&](TraceScript& t) {
             const std::vector<uint8_t> infos = bytes_of(std::vector<TriangleInfo>{triangle_info(0), triangle_info(1)});
             t.begin(kSecondary, 0, 1, 0);
             if (fixed) t.barrier(kCopy, kTransferWrite, kBuild, kIndirect);
@@ -240,22 +259,14 @@ TEST(ExecutionModel, HazardFromPrimaryIntoSecondaryIsFound) {
             t.execute_commands({kSecondary});
             t.end();
             t.submit_listed(kQueue, {kPrimary});
-            t.finish();
-        }
-        replay::ReplayReport r = replay_file(path);
-        EXPECT_TRUE(r.findings.empty()) << describe(r);
-        if (fixed) {
-            EXPECT_TRUE(r.hazards.empty()) << describe(r);
-            continue;
-        }
-        ASSERT_EQ(r.hazards.size(), 1u) << describe(r);
-        const replay::HazardReport& h = r.hazards[0];
-        EXPECT_EQ(h.hazard, HazardClass::kReadAfterWrite);
-        EXPECT_STREQ(h.prior.command.name, "vkCmdCopyBuffer");
-        EXPECT_EQ(h.prior.command.secondary_handle, 0u);
-        EXPECT_EQ(h.later.command.command, 1u);  // the vkCmdExecuteCommands
-        EXPECT_EQ(h.later.command.secondary_handle, kSecondary);
-        EXPECT_EQ(h.later.command.secondary_command, 0u);
+        });
+        if (!h) continue;
+        EXPECT_EQ(h->hazard, HazardClass::kReadAfterWrite);
+        EXPECT_STREQ(h->prior.command.name, "vkCmdCopyBuffer");
+        EXPECT_EQ(h->prior.command.secondary_handle, 0u);
+        EXPECT_EQ(h->later.command.command, 1u);  // the vkCmdExecuteCommands
+        EXPECT_EQ(h->later.command.secondary_handle, kSecondary);
+        EXPECT_EQ(h->later.command.secondary_command, 0u);
     }
 }
 
@@ -264,10 +275,7 @@ TEST(ExecutionModel, HazardFromPrimaryIntoSecondaryIsFound) {
 TEST(ExecutionModel, HazardBetweenTwoSecondariesIsFound) {
     for (const bool fixed : {false, true}) {
         SCOPED_TRACE(fixed ? "barriered twin" : "missing barrier");
-        const std::string path = temp_path(fixed ? "sec_sec_fixed" : "sec_sec");
-        {
-            TraceScript t(path, device());
-            add_buffers(t);
+        const std::optional<replay::HazardReport> h = twin_hazard("sec_sec", fixed, [&](TraceScript& t) {
             t.begin(kSecondary, 0, 1, 0);
             triangle_clusters(Destinations::kImplicit).emit(t);
             t.end();
@@ -285,49 +293,21 @@ TEST(ExecutionModel, HazardBetweenTwoSecondariesIsFound) {
             t.execute_commands({kSecondary, kOtherSecondary});
             t.end();
             t.submit_listed(kQueue, {kPrimary});
-            t.finish();
-        }
-        replay::ReplayReport r = replay_file(path);
-        EXPECT_TRUE(r.findings.empty()) << describe(r);
-        if (fixed) {
-            EXPECT_TRUE(r.hazards.empty()) << describe(r);
-            continue;
-        }
-        ASSERT_EQ(r.hazards.size(), 1u) << describe(r);
-        const replay::HazardReport& h = r.hazards[0];
-        EXPECT_EQ(h.hazard, HazardClass::kWriteAfterWrite);
-        EXPECT_EQ(h.prior.command.secondary_handle, kSecondary);
-        EXPECT_EQ(h.prior.command.secondary, 0u);
-        EXPECT_EQ(h.later.command.secondary_handle, kOtherSecondary);
-        EXPECT_EQ(h.later.command.secondary, 1u);
-        EXPECT_NE(h.later.field.find("scratchData"), std::string::npos) << h.later.field;
+        });
+        if (!h) continue;
+        EXPECT_EQ(h->hazard, HazardClass::kWriteAfterWrite);
+        EXPECT_EQ(h->prior.command.secondary_handle, kSecondary);
+        EXPECT_EQ(h->prior.command.secondary, 0u);
+        EXPECT_EQ(h->later.command.secondary_handle, kOtherSecondary);
+        EXPECT_EQ(h->later.command.secondary, 1u);
+        EXPECT_NE(h->later.field.find("scratchData"), std::string::npos) << h->later.field;
     }
 }
 
 // The engine's findings in a secondary name primary, execute command, secondary and command;
 // a secondary executed twice runs its restatement the second time (its own snapshots).
 TEST(ExecutionModel, SecondaryReExecutionAndFindingLocation) {
-    const std::string path = temp_path("sec_findings");
-    {
-        TraceScript t(path, device());
-        add_buffers(t);
-        t.begin(kSecondary, kSimultaneous, 1, 0);
-        t.full_barrier();
-        ClusterCommand bad = counted_build(1);
-        edit_info<TriangleInfo>(bad, 0, [](TriangleInfo& i) { i.clusterID = 0xFFFFFFFFu; });
-        bad.emit(t);  // secondary command 1
-        t.end();
-        t.begin(kSecondary, kSimultaneous, 1, 1);
-        t.full_barrier();
-        counted_build(2).emit(t);
-        t.end();
-        t.begin(kPrimary, 0, 0, 0);
-        t.full_barrier();                               // primary command 0
-        t.execute_commands({kSecondary, kSecondary});  // primary command 1
-        t.end();
-        t.submit_listed(kQueue, {kPrimary});
-        t.finish();
-    }
+    const std::string path = write_trace("sec_findings", secondary_executed_twice);
     ClusterRuns runs;
     replay::ReplayReport r = replay_file(path, &runs);
     EXPECT_EQ(runs.op_counts, (std::vector<uint32_t>{1, 2}));
@@ -349,37 +329,13 @@ TEST(ExecutionModel, SecondaryReExecutionAndFindingLocation) {
 // --ops selects a secondary's commands by their own sequence numbers: the second execution's
 // build alone (sequence 5: barrier #0, execute #1, then #2 #3 and #4 #5 for the two executions).
 TEST(ExecutionModel, OpsSelectCommandsInsideSecondaries) {
-    const std::string path = temp_path("sec_ops");
-    {
-        TraceScript t(path, device());
-        add_buffers(t);
-        t.begin(kSecondary, kSimultaneous, 1, 0);
-        t.full_barrier();
-        ClusterCommand bad = counted_build(1);
-        edit_info<TriangleInfo>(bad, 0, [](TriangleInfo& i) { i.clusterID = 0xFFFFFFFFu; });
-        bad.emit(t);
-        t.end();
-        t.begin(kSecondary, kSimultaneous, 1, 1);
-        t.full_barrier();
-        counted_build(2).emit(t);
-        t.end();
-        t.begin(kPrimary, 0, 0, 0);
-        t.full_barrier();
-        t.execute_commands({kSecondary, kSecondary});
-        t.end();
-        t.submit_listed(kQueue, {kPrimary});
-        t.finish();
-    }
-    traces::TraceError e;
-    auto reader = traces::TraceReader::open(path, &e);
-    ASSERT_TRUE(reader) << e.message;
+    const std::string path = write_trace("sec_ops", secondary_executed_twice);
     ClusterRuns runs;
     replay::ReplayOptions options;
     options.observer = &runs;
     options.first_command = 5;
     options.last_command = 5;
-    replay::ReplayReport r = replay::replay_trace(*reader, path, options);
-    std::remove(path.c_str());
+    const replay::ReplayReport r = replay_file_with(path, options);
     EXPECT_EQ(runs.op_counts, (std::vector<uint32_t>{2}));
     ASSERT_EQ(runs.where.size(), 1u);
     EXPECT_EQ(runs.where[0].sequence, 5u);
@@ -391,10 +347,7 @@ TEST(ExecutionModel, OpsSelectCommandsInsideSecondaries) {
 // A secondary the trace never recorded is named at its execute; a primary handle listed as a
 // secondary is reported by the VUID that forbids it, and still runs.
 TEST(ExecutionModel, BadSecondariesAreReported) {
-    const std::string path = temp_path("sec_bad");
-    {
-        TraceScript t(path, device());
-        add_buffers(t);
+    const std::string path = write_trace("sec_bad", [](TraceScript& t) {
         t.begin(kOtherSecondary, 0, 0, 0);  // level 0: a primary
         t.fill(kScratchBuffer, 0, 16, 0);
         t.end();
@@ -402,8 +355,7 @@ TEST(ExecutionModel, BadSecondariesAreReported) {
         t.execute_commands({kSecondary, kOtherSecondary});
         t.end();
         t.submit_listed(kQueue, {kPrimary});
-        t.finish();
-    }
+    });
     replay::ReplayReport r = replay_file(path);
     ASSERT_EQ(r.findings.size(), 2u) << describe(r);
     EXPECT_EQ(r.findings[0].rule, "CLASTRACE-replay-command-buffer-not-recorded");
@@ -417,10 +369,7 @@ TEST(ExecutionModel, BadSecondariesAreReported) {
 // another (nested), an execute listing 100000 unknown handles, a restatement index of
 // UINT32_MAX. Each is reported, bounded, and nothing recurses.
 TEST(ExecutionModel, HostileExecutionRecordsAreBounded) {
-    const std::string path = temp_path("hostile");
-    {
-        TraceScript t(path, device());
-        add_buffers(t);
+    const std::string path = write_trace("hostile", [](TraceScript& t) {
         t.begin(kOtherSecondary, 0, 1, 0);
         t.fill(kScratchBuffer, 0, 16, 0);
         t.end();
@@ -435,15 +384,10 @@ TEST(ExecutionModel, HostileExecutionRecordsAreBounded) {
         t.fill(kScratchBuffer, 16, 16, 0);
         t.end();
         t.submit_listed(kQueue, {kPrimary, kPrimary});
-        t.finish();
-    }
-    traces::TraceError e;
-    auto reader = traces::TraceReader::open(path, &e);
-    ASSERT_TRUE(reader) << e.message;
+    });
     replay::ReplayOptions options;
     options.max_findings = 64;
-    replay::ReplayReport r = replay::replay_trace(*reader, path, options);
-    std::remove(path.c_str());
+    const replay::ReplayReport r = replay_file_with(path, options);
     size_t out_of_order = 0, not_primary = 0, not_recorded = 0;
     for (const auto& f : r.findings) {
         out_of_order += f.rule == "CLASTRACE-replay-restatement-out-of-order";

@@ -5,18 +5,14 @@
 // the first byte past it) or every element (valid: nothing). A check of the start address
 // alone passes both.
 #include "catalogue_scene.h"
+#include "trace_files.h"
 #include "trace_script.h"
-
-#include <clastrace/replay/replayer.hpp>
-#include <clastrace/traces/trace_reader.h>
 
 #include <gtest/gtest.h>
 
 #include <cstdio>
-#include <filesystem>
 #include <ostream>
 #include <string>
-#include <unistd.h>
 
 namespace {
 
@@ -33,17 +29,7 @@ constexpr uint64_t kAsStorage = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_B
 constexpr uint64_t kRangeBase = 0x30000000;
 constexpr uint64_t kWide = 0x1000;  // the large buffer's size
 
-std::string temp_path(const std::string& name) {
-    return (std::filesystem::temp_directory_path() / ("usage_range_" + std::to_string(::getpid()) + "_" + name)).string();
-}
-
-replay::ReplayReport replay_file(const std::string& path) {
-    traces::TraceError e;
-    auto reader = traces::TraceReader::open(path, &e);
-    EXPECT_TRUE(reader) << e.message;
-    if (!reader) return {};
-    return replay::replay_trace(*reader, path);
-}
+std::string temp_path(const std::string& name) { return temp_trace_path("usage_range", name); }
 
 struct RangeCase {
     const char* name;

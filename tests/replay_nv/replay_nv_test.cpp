@@ -4,6 +4,7 @@
 // translated, the rays agree; wrong answers, unknown handles, other drivers' blobs and
 // hazards are reported.
 #include "nv_trace_builder.h"
+#include "trace_files.h"
 
 #include <clastrace/engine/nv_serialize.h>
 #include <clastrace/replay/replayer.hpp>
@@ -16,22 +17,13 @@
 #include <cstring>
 #include <filesystem>
 #include <random>
-#include <unistd.h>
 
 namespace clastrace::nvtest {
 namespace {
 
-std::string temp_path(const std::string& name) {
-    return (std::filesystem::temp_directory_path() / ("replay_nv_" + std::to_string(::getpid()) + "_" + name)).string();
-}
+using test::replay_file;
 
-replay::ReplayReport replay_file(const std::string& path) {
-    traces::TraceError e;
-    auto reader = traces::TraceReader::open(path, &e);
-    EXPECT_TRUE(reader) << e.message;
-    if (!reader) return {};
-    return replay::replay_trace(*reader, path);
-}
+std::string temp_path(const std::string& name) { return test::temp_trace_path("replay_nv", name); }
 
 size_t count_rule(const replay::ReplayReport& r, const std::string& rule) {
     size_t n = 0;
