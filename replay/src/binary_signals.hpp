@@ -1,0 +1,34 @@
+// BinarySignals: which binary semaphores hold a signal no wait has consumed yet, as far as the
+// trace tells it, for VUID-vkQueueSubmit-pSignalSemaphores-00067 / VUID-vkQueueSubmit2-semaphore-03868
+// (a binary semaphore must be unsignalled when a submission signals it).
+//
+// Only signals the trace holds count: a semaphore first seen in a wait, or signalled outside
+// the captured range, is unknown and never reported. Submission waits, presents and (since
+// format 1.2) acquires are all recorded, so every consumer and producer of a known signal is seen.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <unordered_map>
+
+namespace clastrace::replay::detail {
+
+class BinarySignals {
+public:
+    // A wait (submission or present) consumes the signal.
+    void consume(uint64_t semaphore) { pending_.erase(semaphore); }
+    // Records the signal; returns where the earlier, still unconsumed signal came from (empty
+    // when the semaphore was unsignalled or unknown).
+    std::string signal(uint64_t semaphore, std::string origin) {
+        auto [it, inserted] = pending_.try_emplace(semaphore, origin);
+        if (inserted) return {};
+        std::string earlier = std::move(it->second);
+        it->second = std::move(origin);
+        return earlier;
+    }
+
+private:
+    std::unordered_map<uint64_t, std::string> pending_;  // semaphore -> where its signal came from
+};
+
+}  // namespace clastrace::replay::detail
