@@ -188,6 +188,7 @@ nlohmann::json findings_json(const TraceSummary& s) {
 }
 
 nlohmann::json frames_json(const TraceSummary& s) {
+    if (s.presents == 0 && s.acquires == 0) return {{"presents", 0}};
     if (s.presents == 0) return {{"presents", 0}, {"acquires", s.acquires}};
     nlohmann::json captured = nlohmann::json::array();
     for (const auto& [frame, submissions] : s.submissions_by_frame)
@@ -277,8 +278,8 @@ void print_text(const std::string& path, const TraceReader& reader, const TraceS
     if (st.records_damaged) fmt::print("  {:<44}{:>10}\n", "damaged (skipped)", st.records_damaged);
 
     if (s.presents) {
-        fmt::print("\n{:<12}{} presents, {} acquires, ending frames {}-{}; submissions in frames:", "frames", s.presents,
-                   s.acquires, s.first_frame, s.last_frame);
+        fmt::print("\n{:<12}{} presents, ending frames {}-{}; submissions in frames:", "frames", s.presents,
+                   s.first_frame, s.last_frame);
         size_t listed = 0;
         for (const auto& [frame, submissions] : s.submissions_by_frame) {
             if (listed++ == 32) {
@@ -289,6 +290,8 @@ void print_text(const std::string& path, const TraceReader& reader, const TraceS
         }
         fmt::print("{}\n", s.submissions_by_frame.empty() ? " none" : "");
     }
+    // Acquires (format 1.2): the presentation engine's signals replay takes for the frames' waits.
+    if (s.acquires) fmt::print("{}{:<12}{} image acquires\n", s.presents ? "" : "\n", s.presents ? "" : "frames", s.acquires);
     if (s.finding_count) {
         fmt::print("\n{:<12}{} recorded while capturing\n", "findings", s.finding_count);
         for (const auto& f : s.findings) {
