@@ -1,6 +1,8 @@
 // BinarySignals: which binary semaphores hold a signal no wait has consumed yet, as far as the
 // trace tells it, for VUID-vkQueueSubmit-pSignalSemaphores-00067 / VUID-vkQueueSubmit2-semaphore-03868
-// (a binary semaphore must be unsignalled when a submission signals it).
+// (a binary semaphore must be unsignalled when a submission signals it) and for
+// VUID-vkAcquireNextImageKHR-semaphore-01286 / VUID-VkAcquireNextImageInfoKHR-semaphore-01288
+// (nor when an acquire is given it).
 //
 // Only signals the trace holds count: a semaphore first seen in a wait, or signalled outside
 // the captured range, is unknown and never reported. Submission waits, presents and (since
@@ -25,6 +27,12 @@ public:
         std::string earlier = std::move(it->second);
         it->second = std::move(origin);
         return earlier;
+    }
+
+    // Where the semaphore's unconsumed signal came from; empty when it has none the trace holds.
+    std::string signalled_by(uint64_t semaphore) const {
+        auto it = pending_.find(semaphore);
+        return it == pending_.end() ? std::string() : it->second;
     }
 
 private:

@@ -878,10 +878,29 @@ void Replay::on_record(const traces::RecordView& view) {
         const auto* a = r.body_as_AcquireNextImage();
         ++report_.counts.acquires;
         // VK_SUCCESS / VK_SUBOPTIMAL_KHR: the presentation engine signals the semaphore and fence.
-        if (a->result() != VK_SUCCESS && a->result() != VK_SUBOPTIMAL_KHR) break;
-        if (a->semaphore())
-            binary_signals_.signal(a->semaphore(), "vkAcquireNextImageKHR (swapchain " + detail::hex(a->swapchain()) +
-                                                       ", image " + std::to_string(a->image_index()) + ")");
+        // vkAcquireNextImage2KHR's deviceMask is never 0 (VUID-VkAcquireNextImageInfoKHR-deviceMask-01290).
+        const bool v2 = a->device_mask() != 0;
+        const char* name = v2 ? "vkAcquireNextImage2KHR" : "vkAcquireNextImageKHR";
+        const bool signals = a->result() == VK_SUCCESS || a->result() == VK_SUBOPTIMAL_KHR;
+        if (a->semaphore()) {
+            // Whatever the result, the semaphore had to be unsignalled at the call.
+            const std::string here = std::string(name) + " (swapchain " + detail::hex(a->swapchain()) + ", image " +
+                                     std::to_string(a->image_index()) + ")";
+            const std::string earlier =
+                signals ? binary_signals_.signal(a->semaphore(), here) : binary_signals_.signalled_by(a->semaphore());
+            if (!earlier.empty()) {
+                ReplayLocation where;
+                where.sequence = sequence_;
+                where.submission = next_submission_;
+                where.name = name;
+                add_finding({v2 ? "VUID-VkAcquireNextImageInfoKHR-semaphore-01288" : "VUID-vkAcquireNextImageKHR-semaphore-01286",
+                             std::string(v2 ? "pAcquireInfo->semaphore" : "semaphore") + ": binary semaphore " +
+                                 detail::hex(a->semaphore()) + " is still signalled by " + earlier +
+                                 " (no submission or present waited on it in between)",
+                             FindingSource::kReplay, where, -1, 0});
+            }
+        }
+        if (!signals) break;
         if (options_.check_hazards) sync_.acquire_signal(a->semaphore(), a->fence());
         break;
     }

@@ -166,6 +166,46 @@ TEST_F(SemaphoreSignals, ASignalAfterAnUnconsumedAcquireIsReported) {
     EXPECT_NE(found[0]->message.find("vkAcquireNextImageKHR"), std::string::npos) << found[0]->message;
 }
 
+// An acquire given a semaphore still signalled: VUID-vkAcquireNextImageKHR-semaphore-01286, or
+// VUID-VkAcquireNextImageInfoKHR-semaphore-01288 for vkAcquireNextImage2KHR (deviceMask set),
+// whatever the call returned. Valid twin: the frame's submission waits on it in between.
+void write_double_acquire(const std::string& path, uint32_t device_mask, bool wait_between, int32_t second_result) {
+    TraceScript s(path);
+    s.buffer(kTarget, 0x10000, 0x100, VK_BUFFER_USAGE_TRANSFER_DST_BIT);
+    s.acquire(kImageAvailable, 0, VK_SUCCESS, device_mask);
+    s.fill(kTarget, 0, 0x100, 1);
+    s.submit(kQueue, wait_between ? std::vector<SemaphoreUse>{{kImageAvailable, 0, kTransfer}} : std::vector<SemaphoreUse>{},
+             {}, 0, 1);
+    s.acquire(kImageAvailable, 0, second_result, device_mask);
+    s.finish();
+}
+
+TEST_F(SemaphoreSignals, AnAcquireOfAStillSignalledSemaphoreIsReported) {
+    write_double_acquire(path, 0, false, VK_SUCCESS);
+    replay::ReplayReport r = replay_file(path);
+    auto found = findings_of(r, "VUID-vkAcquireNextImageKHR-semaphore-01286");
+    ASSERT_EQ(found.size(), 1u);
+    EXPECT_EQ(found[0]->where.submission, 1u);  // before the next submission
+    EXPECT_STREQ(found[0]->where.name, "vkAcquireNextImageKHR");
+    EXPECT_EQ(r.findings.size(), 1u);
+
+    write_double_acquire(path, 1, false, VK_TIMEOUT);
+    r = replay_file(path);
+    found = findings_of(r, "VUID-VkAcquireNextImageInfoKHR-semaphore-01288");
+    ASSERT_EQ(found.size(), 1u);
+    EXPECT_STREQ(found[0]->where.name, "vkAcquireNextImage2KHR");
+    EXPECT_NE(found[0]->message.find("vkAcquireNextImage2KHR (swapchain"), std::string::npos) << found[0]->message;
+}
+
+TEST_F(SemaphoreSignals, AnAcquireAfterTheWaitIsValid) {
+    for (uint32_t device_mask : {0u, 1u}) {
+        write_double_acquire(path, device_mask, true, VK_SUCCESS);
+        const replay::ReplayReport r = replay_file(path);
+        EXPECT_TRUE(r.findings.empty()) << r.findings[0].format();
+        EXPECT_EQ(r.counts.acquires, 2u);
+    }
+}
+
 // Semaphores whose earlier signal the trace does not hold, and timeline signals, are left alone.
 TEST_F(SemaphoreSignals, UnknownAndTimelineSemaphoresAreNotReported) {
     TraceScript s(path);

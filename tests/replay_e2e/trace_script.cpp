@@ -266,13 +266,14 @@ void TraceScript::present(uint64_t queue, const std::vector<uint64_t>& waits, ui
     writer_.append(std::move(p));
 }
 
-void TraceScript::acquire(uint64_t semaphore, uint64_t fence, int32_t result) {
+void TraceScript::acquire(uint64_t semaphore, uint64_t fence, int32_t result, uint32_t device_mask) {
     fbs::AcquireNextImageT a;
     a.swapchain = 0x5c;
     a.timeout = ~0ull;
     a.semaphore = semaphore;
     a.fence = fence;
     a.result = result;
+    a.device_mask = device_mask;
     writer_.append(std::move(a));
 }
 
