@@ -2,7 +2,8 @@
 // frame N is what is submitted after the N-th present call and up to the (N+1)-th, which is
 // what CLASTRACE_FRAME_RANGE selects. Every present is recorded, in or out of the range, so a
 // trace says where each frame ended and which semaphores the presentation engine consumed.
-// vkAcquireNextImage[2]KHR are recorded the same way: the semaphores and fences they signal.
+// vkAcquireNextImage[2]KHR are recorded too (the semaphores and fences they signal), in the
+// selected frames only.
 #include "layer_state.h"
 
 #include <atomic>
@@ -37,10 +38,12 @@ VKAPI_ATTR VkResult VKAPI_CALL QueuePresentKHR(VkQueue queue, const VkPresentInf
 
 // A successful acquire is the presentation engine's signal of the semaphore and fence the
 // application's next submission (or fence wait) waits on; without the record replay would count
-// that wait as unsatisfied. Recorded whatever the frame range selects, like presents.
+// that wait as unsatisfied. Unlike presents, recorded only in the frames CLASTRACE_FRAME_RANGE
+// selects: outside them the submissions that consume the signal are not recorded, and replay
+// would take the next frame's acquire for a second signal of a still-signalled semaphore.
 void recordAcquire(DeviceState& d, const VkAcquireNextImageInfoKHR& info, uint32_t deviceMask, VkResult result,
                    const uint32_t* pImageIndex) {
-  if (!d.capturingNow()) return;
+  if (!d.capturingNow() || !layerConfig().frameRange.contains(currentFrame())) return;
   AcquireRecord record;
   record.swapchain = handleId(info.swapchain);
   record.timeout = info.timeout;

@@ -6,7 +6,8 @@
 //
 // Only signals the trace holds count: a semaphore first seen in a wait, or signalled outside
 // the captured range, is unknown and never reported. Submission waits, presents and (since
-// format 1.2) acquires are all recorded, so every consumer and producer of a known signal is seen.
+// format 1.2) acquires are all recorded, so every consumer and producer of a known signal is
+// seen, except in a trace of a range: where submissions were left out, forget_all().
 #pragma once
 
 #include <cstdint>
@@ -17,6 +18,9 @@ namespace clastrace::replay::detail {
 
 class BinarySignals {
 public:
+    // Submissions missing from the trace (a gap in submission_index: a submit or frame range)
+    // may have consumed any signal: forget them all rather than report a second signal.
+    void forget_all() { pending_.clear(); }
     // A wait (submission or present) consumes the signal.
     void consume(uint64_t semaphore) { pending_.erase(semaphore); }
     // Records the signal; returns where the earlier, still unconsumed signal came from (empty

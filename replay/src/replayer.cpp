@@ -645,6 +645,7 @@ void Replay::check_binary_signals(const fbs::QueueSubmit& submit, uint32_t batch
 
 void Replay::on_submit(const fbs::QueueSubmit& submit) {
     const uint32_t submission = static_cast<uint32_t>(submit.submission_index());
+    if (submission != next_submission_) binary_signals_.forget_all();  // submissions left out of the trace
     next_submission_ = submission + 1;
     host_ops_ = 0;
     ++report_.counts.submissions;
