@@ -45,6 +45,7 @@ struct TraceSummary {
     // Frames (QueuePresent, format 1.2): a submission belongs to the frame the next present
     // ends (the last present's frame + 1 after it).
     uint64_t presents = 0;
+    uint64_t acquires = 0;                // AcquireNextImage records (format 1.2)
     uint64_t first_frame = 0, last_frame = 0;
     uint64_t unassigned_submissions = 0;  // QueueSubmits since the last present
     std::map<uint64_t, uint64_t> submissions_by_frame;
@@ -73,6 +74,7 @@ TraceSummary summarize(TraceReader& reader) {
             continue;
         }
         if (view.kind == fbs::RecordBody::QueueSubmit) ++s.unassigned_submissions;
+        if (view.kind == fbs::RecordBody::AcquireNextImage) ++s.acquires;
         if (const auto* p = view.record->body_as_QueuePresent()) {
             if (s.presents++ == 0) s.first_frame = p->frame();
             s.last_frame = std::max(s.last_frame, p->frame());
@@ -186,11 +188,12 @@ nlohmann::json findings_json(const TraceSummary& s) {
 }
 
 nlohmann::json frames_json(const TraceSummary& s) {
-    if (s.presents == 0) return {{"presents", 0}};
+    if (s.presents == 0 && s.acquires == 0) return {{"presents", 0}};
+    if (s.presents == 0) return {{"presents", 0}, {"acquires", s.acquires}};
     nlohmann::json captured = nlohmann::json::array();
     for (const auto& [frame, submissions] : s.submissions_by_frame)
         captured.push_back({{"frame", frame}, {"submissions", submissions}});
-    return {{"presents", s.presents}, {"first", s.first_frame}, {"last", s.last_frame}, {"with_submissions", captured}};
+    return {{"presents", s.presents}, {"acquires", s.acquires}, {"first", s.first_frame}, {"last", s.last_frame}, {"with_submissions", captured}};
 }
 
 nlohmann::json info_json(const std::string& path, const TraceReader& reader, const TraceSummary& s) {
@@ -287,6 +290,8 @@ void print_text(const std::string& path, const TraceReader& reader, const TraceS
         }
         fmt::print("{}\n", s.submissions_by_frame.empty() ? " none" : "");
     }
+    // Acquires (format 1.2): the presentation engine's signals replay takes for the frames' waits.
+    if (s.acquires) fmt::print("{}{:<12}{} image acquires\n", s.presents ? "" : "\n", s.presents ? "" : "frames", s.acquires);
     if (s.finding_count) {
         fmt::print("\n{:<12}{} recorded while capturing\n", "findings", s.finding_count);
         for (const auto& f : s.findings) {

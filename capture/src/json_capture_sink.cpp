@@ -144,7 +144,7 @@ class JsonCaptureSink final : public CaptureSink {
   explicit JsonCaptureSink(std::string path) : path_(std::move(path)) {
     for (const char* key : {"devices", "memories", "freedMemories", "buffers", "bindings", "addresses",
                             "destroyedBuffers", "buildSizes", "commandBuffers", "resets", "submissions",
-                            "clusterBuilds", "destroyedDevices", "accelerationStructures", "rayChecks", "hostSync", "presents"})
+                            "clusterBuilds", "destroyedDevices", "accelerationStructures", "rayChecks", "hostSync", "presents", "acquires"})
       root_[key] = json::array();
   }
   ~JsonCaptureSink() override {  // the application may exit without destroying its device
@@ -285,6 +285,11 @@ class JsonCaptureSink final : public CaptureSink {
   void queuePresented(const PresentRecord& p) override {
     add("presents", {{"queue", p.queue}, {"frame", p.frame}, {"waitSemaphores", p.waitSemaphores},
                      {"swapchains", p.swapchains}, {"imageIndices", p.imageIndices}, {"result", p.result}});
+  }
+  void imageAcquired(const AcquireRecord& a) override {
+    add("acquires", {{"swapchain", a.swapchain}, {"timeout", a.timeout}, {"semaphore", a.semaphore},
+                     {"fence", a.fence}, {"imageIndex", a.imageIndex}, {"result", a.result},
+                     {"deviceMask", a.deviceMask}});
   }
   void flush() override {
     std::lock_guard lock(mutex_);

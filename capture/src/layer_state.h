@@ -133,7 +133,9 @@ uint64_t handleId(Handle handle) {
   X(CmdWriteTimestamp)                         \
   X(GetQueryPoolResults)                       \
   X(WaitSemaphoresKHR)                         \
-  X(QueuePresentKHR)
+  X(QueuePresentKHR)                           \
+  X(AcquireNextImageKHR)                       \
+  X(AcquireNextImage2KHR)
 
 #define CLASTRACE_DECLARE_PFN(name) PFN_vk##name name = nullptr;
 

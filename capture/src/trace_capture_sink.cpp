@@ -338,6 +338,18 @@ class TraceCaptureSink final : public CaptureSink {
     r.result = p.result;
     append(recordOf(std::move(r)));
   }
+  // Ordered like presents: the submission that waits on the semaphore comes after it.
+  void imageAcquired(const AcquireRecord& a) override {
+    fbs::AcquireNextImageT r;
+    r.swapchain = a.swapchain;
+    r.timeout = a.timeout;
+    r.semaphore = a.semaphore;
+    r.fence = a.fence;
+    r.image_index = a.imageIndex;
+    r.result = a.result;
+    r.device_mask = a.deviceMask;
+    append(recordOf(std::move(r)));
+  }
   void flush() override {
     CostScope cost(CostPhase::DeviceFlush, true);
     std::lock_guard write(writeMutex_);

@@ -135,6 +135,10 @@ std::string format_text(const ReplayReport& r) {
                   n.snapshots_applied, n.snapshot_bytes, n.snapshots_outside_memory, n.outputs_compared,
                   n.output_bytes_compared, n.addresses_translated, n.accesses, n.peak_image_bytes);
     s += line;
+    std::snprintf(line, sizeof line,
+                  "  presents %" PRIu64 ", acquires %" PRIu64 ", semaphore waits with no signal in the trace %" PRIu64 "\n",
+                  n.presents, n.acquires, n.unsatisfied_semaphore_waits);
+    s += line;
     s += "  not replayed yet: " + std::to_string(r.not_replayed.size()) + " command(s)" +
          (r.hazards_checked ? "" : "; hazards not checked (--no-hazards)") +
          (r.verified ? "" : "; outputs not verified (--no-verify)") + "\n";
@@ -236,7 +240,10 @@ nlohmann::json to_json(const ReplayReport& r) {
           {"peak_image_bytes", n.peak_image_bytes},
           {"nv_builds", n.nv_builds},
           {"deserializations", n.deserializations},
-          {"handles_translated", n.handles_translated}}},
+          {"handles_translated", n.handles_translated},
+          {"presents", n.presents},
+          {"acquires", n.acquires},
+          {"unsatisfied_semaphore_waits", n.unsatisfied_semaphore_waits}}},
     };
 }
 

@@ -2,6 +2,7 @@
 // submitted, then executes them in submission order (see replayer.hpp).
 #include "clastrace/replay/replayer.hpp"
 
+#include "binary_signals.hpp"
 #include "cluster_command.hpp"
 #include "nv_command.hpp"
 #include "replay_memory.hpp"
@@ -206,6 +207,9 @@ private:
     void barrier(const fbs::Record& record, const CommandRef& ref);
 
     void add_finding(ReplayFinding finding);
+    // VUID-vkQueueSubmit-pSignalSemaphores-00067 / VUID-vkQueueSubmit2-semaphore-03868 for one batch.
+    void check_binary_signals(const fbs::QueueSubmit& submit, uint32_t batch, std::span<const SemaphoreWait> waits,
+                              std::span<const SemaphoreSignal> signals);
     void memory_freed(std::optional<AddressRange> range);
     void drop_recorded(const Recorded& cb) { recorded_bytes_ -= std::min(recorded_bytes_, cb.bytes); }
     void limit_recorded();
@@ -253,6 +257,7 @@ private:
     std::unordered_set<uint64_t> dropped_;  // command buffers limit_recorded() dropped
     // Executions so far of each command buffer in the submission being replayed (restatements).
     std::unordered_map<uint64_t, uint32_t> executions_;
+    detail::BinarySignals binary_signals_;
     detail::NvReplay nv_{{memory_, report_, sync_, options_, [this](ReplayFinding f) { add_finding(std::move(f)); },
                           [this](const traces::SnapshotVector* s, const ReplayLocation& w) { lay_in_snapshots(s, w); },
                           [this](engine::ExecutionRecord&& r, uint64_t ns) {
@@ -612,8 +617,35 @@ void Replay::reset_command_buffers(const fbs::CommandBufferReset& reset) {
     for (uint64_t cb : members->second) forget_recorded(cb);
 }
 
+void Replay::check_binary_signals(const fbs::QueueSubmit& submit, uint32_t batch, std::span<const SemaphoreWait> waits,
+                                  std::span<const SemaphoreSignal> signals) {
+    // A wait value of 0 is a binary semaphore (timeline values start above 0), as in SyncModel.
+    for (const SemaphoreWait& w : waits)
+        if (w.value == 0) binary_signals_.consume(w.semaphore);
+    const bool v2 = submit.version() >= 2;
+    const uint32_t submission = static_cast<uint32_t>(submit.submission_index());
+    for (size_t i = 0; i < signals.size(); ++i) {
+        if (signals[i].value != 0) continue;
+        const std::string here = "submission " + std::to_string(submission) + " batch " + std::to_string(batch);
+        const std::string earlier = binary_signals_.signal(signals[i].semaphore, here);
+        if (earlier.empty()) continue;
+        ReplayLocation where;
+        where.sequence = sequence_;
+        where.submission = submission;
+        where.name = v2 ? "vkQueueSubmit2" : "vkQueueSubmit";
+        const std::string field = v2 ? "pSubmits[" + std::to_string(batch) + "].pSignalSemaphoreInfos[" + std::to_string(i) + "]"
+                                     : "pSubmits[" + std::to_string(batch) + "].pSignalSemaphores[" + std::to_string(i) + "]";
+        add_finding({v2 ? "VUID-vkQueueSubmit2-semaphore-03868" : "VUID-vkQueueSubmit-pSignalSemaphores-00067",
+                     field + ": binary semaphore " + detail::hex(signals[i].semaphore) + " is signalled by " + here +
+                         " while still signalled by " + earlier +
+                         " (no submission or present waited on it in between)",
+                     FindingSource::kReplay, where, -1, 0});
+    }
+}
+
 void Replay::on_submit(const fbs::QueueSubmit& submit) {
     const uint32_t submission = static_cast<uint32_t>(submit.submission_index());
+    if (submission != next_submission_) binary_signals_.forget_all();  // submissions left out of the trace
     next_submission_ = submission + 1;
     host_ops_ = 0;
     ++report_.counts.submissions;
@@ -637,6 +669,7 @@ void Replay::on_submit(const fbs::QueueSubmit& submit) {
                 signals.push_back({s->semaphore(), s->value(),
                                    submit.version() >= 2 && s->stage_mask() ? StageMask(s->stage_mask())
                                                                             : StageMask(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT)});
+        check_binary_signals(submit, static_cast<uint32_t>(b), waits, signals);
         if (options_.check_hazards) sync_.begin_submission(queue, submission, waits);
         if (batch && batch->command_buffers()) {
             for (uint64_t handle : *batch->command_buffers()) {
@@ -842,8 +875,41 @@ void Replay::on_record(const traces::RecordView& view) {
         if (options_.check_hazards && s->result() == VK_SUCCESS) sync_.wait_for_fence(s->fence());
         break;
     }
+    case fbs::RecordBody::AcquireNextImage: {
+        const auto* a = r.body_as_AcquireNextImage();
+        ++report_.counts.acquires;
+        // VK_SUCCESS / VK_SUBOPTIMAL_KHR: the presentation engine signals the semaphore and fence.
+        // vkAcquireNextImage2KHR's deviceMask is never 0 (VUID-VkAcquireNextImageInfoKHR-deviceMask-01290).
+        const bool v2 = a->device_mask() != 0;
+        const char* name = v2 ? "vkAcquireNextImage2KHR" : "vkAcquireNextImageKHR";
+        const bool signals = a->result() == VK_SUCCESS || a->result() == VK_SUBOPTIMAL_KHR;
+        if (a->semaphore()) {
+            // Whatever the result, the semaphore had to be unsignalled at the call.
+            const std::string here = std::string(name) + " (swapchain " + detail::hex(a->swapchain()) + ", image " +
+                                     std::to_string(a->image_index()) + ")";
+            const std::string earlier =
+                signals ? binary_signals_.signal(a->semaphore(), here) : binary_signals_.signalled_by(a->semaphore());
+            if (!earlier.empty()) {
+                ReplayLocation where;
+                where.sequence = sequence_;
+                where.submission = next_submission_;
+                where.name = name;
+                add_finding({v2 ? "VUID-VkAcquireNextImageInfoKHR-semaphore-01288" : "VUID-vkAcquireNextImageKHR-semaphore-01286",
+                             std::string(v2 ? "pAcquireInfo->semaphore" : "semaphore") + ": binary semaphore " +
+                                 detail::hex(a->semaphore()) + " is still signalled by " + earlier +
+                                 " (no submission or present waited on it in between)",
+                             FindingSource::kReplay, where, -1, 0});
+            }
+        }
+        if (!signals) break;
+        if (options_.check_hazards) sync_.acquire_signal(a->semaphore(), a->fence());
+        break;
+    }
     case fbs::RecordBody::QueuePresent: {
         const auto* p = r.body_as_QueuePresent();
+        ++report_.counts.presents;
+        if (p->wait_semaphores())
+            for (uint64_t semaphore : *p->wait_semaphores()) binary_signals_.consume(semaphore);
         if (options_.check_hazards && p->wait_semaphores())
             sync_.present_wait(std::span<const uint64_t>(p->wait_semaphores()->data(), p->wait_semaphores()->size()));
         break;
@@ -904,6 +970,7 @@ ReplayReport Replay::run() {
     if (options_.check_hazards) {
         report_.hazards = merge_per_op_hazards(sync_.hazards(), &report_.hazards_merged);
         report_.hazards_over_cap = sync_.stats().hazards_over_cap;
+        report_.counts.unsatisfied_semaphore_waits = sync_.stats().unsatisfied_waits;
     }
     return std::move(report_);
 }

@@ -1253,6 +1253,17 @@ void SyncModel::present_wait(std::span<const uint64_t> semaphores) {
     }
 }
 
+void SyncModel::acquire_signal(uint64_t semaphore, uint64_t fence) {
+    State& s = *state_;
+    s.sync_tag();
+    if (semaphore) {
+        SemaphoreState& sem = s.semaphores[semaphore];
+        sem.binary_signal = Clock(s.queues.size(), 0);
+        sem.binary_narrow = {};
+    }
+    if (fence) s.fences[fence] = Clock(s.queues.size(), 0);
+}
+
 const std::vector<HazardReport>& SyncModel::hazards() const { return state_->reports; }
 const SyncStats& SyncModel::stats() const { return state_->stats; }
 

@@ -106,6 +106,14 @@ struct FrameTrace {
   std::vector<std::vector<uint64_t>> presentWaits;
   std::vector<std::vector<uint64_t>> submitSignals;  // per QueueSubmit, its batches' signal semaphores
   std::vector<std::string> order;                    // "S" per QueueSubmit, "P<frame>" per QueuePresent
+  // Format 1.2 acquires: "A" per AcquireNextImage too, with each acquire's semaphore, image and
+  // result, and each submission's binary wait semaphores.
+  std::vector<std::string> orderWithAcquires;
+  std::vector<uint64_t> acquireSemaphores;
+  std::vector<uint32_t> acquireImages;
+  std::vector<int32_t> acquireResults;
+  std::vector<std::vector<uint64_t>> presentImages;
+  std::vector<std::vector<uint64_t>> submitWaits;
   std::multiset<uint32_t> triangleBuildFrames;
   uint32_t bottomLevelBuilds = 0;
   uint16_t versionMinor = 0;
@@ -130,13 +138,26 @@ FrameTrace readFrameTrace(const fs::path& path) {
       t.presentWaits.emplace_back();
       if (p->wait_semaphores()) t.presentWaits.back().assign(p->wait_semaphores()->begin(), p->wait_semaphores()->end());
       t.order.push_back("P" + std::to_string(p->frame()));
+      t.orderWithAcquires.push_back(t.order.back());
+      t.presentImages.emplace_back();
+      if (p->image_indices()) t.presentImages.back().assign(p->image_indices()->begin(), p->image_indices()->end());
+    } else if (const auto* a = r.body_as_AcquireNextImage()) {
+      t.orderWithAcquires.push_back("A");
+      t.acquireSemaphores.push_back(a->semaphore());
+      t.acquireImages.push_back(a->image_index());
+      t.acquireResults.push_back(a->result());
     } else if (const auto* s = r.body_as_QueueSubmit()) {
       t.order.push_back("S");
+      t.orderWithAcquires.push_back("S");
       t.submitSignals.emplace_back();
+      t.submitWaits.emplace_back();
       if (s->batches())
-        for (const auto* b : *s->batches())
+        for (const auto* b : *s->batches()) {
           if (b->signal_semaphores())
             for (const auto* op : *b->signal_semaphores()) t.submitSignals.back().push_back(op->semaphore());
+          if (b->wait_semaphores())
+            for (const auto* op : *b->wait_semaphores()) t.submitWaits.back().push_back(op->semaphore());
+        }
     } else if (const auto* b = r.body_as_CmdBuildClusterAccelerationStructureIndirect()) {
       if (!b->input() || b->input()->op_type() != kTriangleClusterOp) {
         ++t.bottomLevelBuilds;
@@ -367,6 +388,62 @@ TEST_F(FrameRange, CaptureCommandSetsTheRangeAndRejectsABadOne) {
   EXPECT_NE(help.out.find("vkQueuePresentKHR"), std::string::npos);
 }
 
+// vkAcquireNextImageKHR (format 1.2): one record per frame, before the frame's submission that
+// waits on its semaphore, so replay finds every semaphore wait satisfied. Without the acquires
+// (a trace of format 1.2 before them) each frame's wait has no signal in the trace: the
+// replay_semaphore_tests twin WithoutAcquireRecordsEveryFramesWaitIsUnsatisfied shows the count
+// is then the number of frames.
+TEST_F(FrameRange, EveryAcquireIsRecordedBeforeItsFramesSubmission) {
+  ProcessResult r = runApp(4, {});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  FrameTrace t = readFrameTrace(dir / "frames.clt");
+  EXPECT_TRUE(t.problems.empty()) << t.problems.front();
+  EXPECT_EQ(t.orderWithAcquires,
+            (std::vector<std::string>{"A", "S", "P0", "A", "S", "P1", "A", "S", "P2", "A", "S", "P3"}));
+  ASSERT_EQ(t.acquireSemaphores.size(), 4u);
+  ASSERT_EQ(t.submitWaits.size(), 4u);
+  ASSERT_EQ(t.presentImages.size(), 4u);
+  for (size_t f = 0; f < 4; ++f) {
+    EXPECT_NE(t.acquireSemaphores[f], 0u);
+    EXPECT_EQ(t.acquireResults[f], 0) << "frame " << f;
+    // The frame's submission waits on what its acquire signalled; its present shows that image.
+    EXPECT_EQ(t.submitWaits[f], std::vector<uint64_t>{t.acquireSemaphores[f]}) << "frame " << f;
+    EXPECT_EQ(t.presentImages[f], std::vector<uint64_t>{t.acquireImages[f]}) << "frame " << f;
+  }
+
+  ProcessResult replay = run(cli("replay --json " + quote((dir / "frames.clt").string())), {});
+  EXPECT_EQ(replay.exitCode, 0) << replay.out << replay.err;
+  nlohmann::json counts = nlohmann::json::parse(replay.out)["counts"];
+  EXPECT_EQ(counts["unsatisfied_semaphore_waits"], 0);
+  EXPECT_EQ(counts["acquires"], 4);
+  EXPECT_EQ(counts["presents"], 4);
+  ProcessResult text = run(cli("replay " + quote((dir / "frames.clt").string())), {});
+  EXPECT_NE(text.out.find("presents 4, acquires 4, semaphore waits with no signal in the trace 0"), std::string::npos)
+      << text.out;
+
+  ProcessResult info = run(cli("info --json " + quote((dir / "frames.clt").string())), {});
+  ASSERT_EQ(info.exitCode, 0) << info.err;
+  EXPECT_EQ(nlohmann::json::parse(info.out)["frames"]["acquires"], 4);
+  EXPECT_EQ(nlohmann::json::parse(info.out)["records"]["by_kind"]["AcquireNextImage"], 4);
+}
+
+// Acquires are recorded in the selected frames only (their signals are consumed by submissions
+// the range leaves out otherwise), so the range replays clean.
+TEST_F(FrameRange, AcquiresAreRecordedInTheSelectedFramesOnly) {
+  ProcessResult r = runApp(4, {{"CLASTRACE_FRAME_RANGE", "2"}});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  FrameTrace t = readFrameTrace(dir / "frames.clt");
+  EXPECT_EQ(t.orderWithAcquires, (std::vector<std::string>{"P0", "P1", "A", "S", "P2", "P3"}));
+  ASSERT_EQ(t.submitWaits.size(), 1u);
+  EXPECT_EQ(t.submitWaits[0], t.acquireSemaphores);
+  ProcessResult replay = run(cli("replay --json " + quote((dir / "frames.clt").string())), {});
+  EXPECT_EQ(replay.exitCode, 0) << replay.out << replay.err;
+  nlohmann::json report = nlohmann::json::parse(replay.out);
+  EXPECT_EQ(report["counts"]["unsatisfied_semaphore_waits"], 0);
+  EXPECT_EQ(report["counts"]["acquires"], 1);
+  EXPECT_TRUE(report["findings"].empty()) << report["findings"];
+}
+
 // The debug JSON lists the presents too, with their swapchain, image and semaphores.
 TEST_F(FrameRange, DebugJsonListsPresents) {
   ProcessResult r = run(std::string(CLASTRACE_PRESENT_APP) + " 3",
@@ -385,6 +462,9 @@ TEST_F(FrameRange, DebugJsonListsPresents) {
   ASSERT_EQ(captured["submissions"].size(), 1u);
   EXPECT_EQ(captured["submissions"][0]["batches"][0]["signals"][0]["semaphore"],
             captured["presents"][1]["waitSemaphores"][0]);
+  ASSERT_EQ(captured["acquires"].size(), 1u);  // frame 1's only
+  EXPECT_EQ(captured["acquires"][0]["result"], 0);
+  EXPECT_EQ(captured["acquires"][0]["imageIndex"], captured["presents"][1]["imageIndices"][0]);
 }
 
 }  // namespace

@@ -256,6 +256,27 @@ void TraceScript::wait_fence(uint64_t fence) { writer_.wait_fence(fence); }
 
 void TraceScript::device_wait_idle() { writer_.append(fbs::DeviceWaitIdleT{}); }
 
+void TraceScript::present(uint64_t queue, const std::vector<uint64_t>& waits, uint64_t frame) {
+    fbs::QueuePresentT p;
+    p.queue = queue;
+    p.frame = frame;
+    p.wait_semaphores = waits;
+    p.swapchains = {0x5c};
+    p.image_indices = {0};
+    writer_.append(std::move(p));
+}
+
+void TraceScript::acquire(uint64_t semaphore, uint64_t fence, int32_t result, uint32_t device_mask) {
+    fbs::AcquireNextImageT a;
+    a.swapchain = 0x5c;
+    a.timeout = ~0ull;
+    a.semaphore = semaphore;
+    a.fence = fence;
+    a.result = result;
+    a.device_mask = device_mask;
+    writer_.append(std::move(a));
+}
+
 void TraceScript::reset(uint64_t command_buffer, uint64_t pool) {
     fbs::CommandBufferResetT r;
     r.command_buffer = command_buffer;

@@ -88,6 +88,11 @@ public:
     void resubmit(uint64_t queue, uint64_t command_buffer, uint64_t fence = 0);
     void wait_fence(uint64_t fence);
     void device_wait_idle();
+    // Format 1.2: vkQueuePresentKHR waiting on binary `waits`, and vkAcquireNextImageKHR
+    // signalling `semaphore` and `fence` (0: none) with `result` (`device_mask` not 0:
+    // vkAcquireNextImage2KHR).
+    void present(uint64_t queue, const std::vector<uint64_t>& waits, uint64_t frame = 0);
+    void acquire(uint64_t semaphore, uint64_t fence = 0, int32_t result = 0, uint32_t device_mask = 0);
     // vkResetCommandBuffer (pool 0) or, with command_buffer 0, vkResetCommandPool.
     void reset(uint64_t command_buffer, uint64_t pool);
     // The command buffer commands go into now (begun on first use).

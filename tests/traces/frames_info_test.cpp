@@ -42,8 +42,9 @@ fbs::RecordT present(uint64_t frame) {
     return r;
 }
 
-// `layout`: 'S' a submission (signalling semaphore 0x5e0 + the frame it belongs to), a digit a
-// present ending that frame.
+// `layout`: 'S' a submission (the last of its frame signalling semaphore 0x5e0 + the frame it
+// belongs to: a second signal before the present's wait would be VUID-vkQueueSubmit-
+// pSignalSemaphores-00067), a digit a present ending that frame.
 std::string write_trace(const std::string& name, const std::string& layout) {
     const std::string path = temp_path(name);
     TraceError error;
@@ -65,7 +66,7 @@ std::string write_trace(const std::string& name, const std::string& layout) {
         s.queue = 0x9e;
         s.version = 1;
         auto batch = std::make_unique<fbs::SubmitBatchT>();
-        batch->signal_semaphores.emplace_back(0x5e0 + frame, 0, 0, 0);
+        if (i + 1 == layout.size() || layout[i + 1] != 'S') batch->signal_semaphores.emplace_back(0x5e0 + frame, 0, 0, 0);
         s.batches.push_back(std::move(batch));
         s.submission_index = w->next_submission_index();
         fbs::RecordT r;

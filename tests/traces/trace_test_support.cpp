@@ -222,6 +222,13 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
         out.push_back(record(r));
     }
     { fbs::CmdExecuteCommandsT r; r.command_buffer = 0xcb; r.secondaries = {0x5c1, 0x5c2, 0x5c1}; out.push_back(record(r)); }
+    {
+        fbs::AcquireNextImageT r;
+        r.swapchain = 0x5c; r.timeout = ~0ull; r.semaphore = 0x5e4; r.fence = 0xf3; r.image_index = 2;
+        r.result = 1000001003;  // VK_SUBOPTIMAL_KHR
+        r.device_mask = 1;
+        out.push_back(record(r));
+    }
     return out;
 }
 

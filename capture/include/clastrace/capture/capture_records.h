@@ -331,6 +331,18 @@ struct PresentRecord {
   int32_t result = 0;
 };
 
+// vkAcquireNextImageKHR / vkAcquireNextImage2KHR: a successful one is the presentation
+// engine's signal of `semaphore` and `fence` (replay's wait on the semaphore is then satisfied).
+struct AcquireRecord {
+  uint64_t swapchain = 0;
+  uint64_t timeout = 0;
+  uint64_t semaphore = 0;
+  uint64_t fence = 0;
+  uint32_t imageIndex = 0;
+  int32_t result = 0;
+  uint32_t deviceMask = 0;  // vkAcquireNextImage2KHR only
+};
+
 // A host call that synchronizes with the device: replay needs them to know which submissions
 // had completed when the host next wrote memory (FenceWait) or what the host signalled.
 struct HostSyncRecord {

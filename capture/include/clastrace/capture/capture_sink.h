@@ -39,6 +39,8 @@ class CaptureSink {
   virtual void rayQueryChecked(const RayCheckRecord&) {}
   // vkQueuePresentKHR, recorded whatever the frame range selects (frame boundaries).
   virtual void queuePresented(const PresentRecord&) {}
+  // vkAcquireNextImage[2]KHR, recorded like presents (in call order, whatever the range).
+  virtual void imageAcquired(const AcquireRecord&) {}
   // Makes everything received so far durable (the application may exit without cleanup).
   virtual void flush() = 0;
   // Lines for the CLASTRACE_STATS report: what the sink wrote and where its time went.

@@ -119,6 +119,11 @@ struct ReplayCounts {
     uint64_t nv_builds = 0;            // vkCmdBuildAccelerationStructureNV executed by the engine
     uint64_t deserializations = 0;     // vkCmdCopyMemoryToAccelerationStructureKHR executed
     uint64_t handles_translated = 0;   // instance/serialized handles mapped to rebuilt objects
+    uint64_t presents = 0;             // vkQueuePresentKHR records (format 1.2)
+    uint64_t acquires = 0;             // vkAcquireNextImage[2]KHR records (format 1.2)
+    // Semaphore waits of submissions whose signal the trace does not hold (SyncStats): such a
+    // wait orders nothing in the hazard check. 0 with --no-hazards (not counted).
+    uint64_t unsatisfied_semaphore_waits = 0;
 };
 
 struct ReplayReport {

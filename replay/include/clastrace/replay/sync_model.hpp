@@ -91,6 +91,10 @@ public:
     // signals (a later wait on one finds it unsignalled). It reads no memory the model tracks
     // and orders no later work, so nothing else changes.
     void present_wait(std::span<const uint64_t> semaphores);
+    // vkAcquireNextImageKHR (successful): the presentation engine signals the binary semaphore
+    // and the fence (0: none) from outside every queue, so a wait on either is satisfied but
+    // orders nothing the model tracks (no memory is accessed).
+    void acquire_signal(uint64_t semaphore, uint64_t fence);
     // vkDestroyBuffer / vkFreeMemory: forgets the completed accesses inside `range`.
     void memory_freed(AddressRange range);
 
