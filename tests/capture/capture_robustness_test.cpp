@@ -267,12 +267,15 @@ TEST_F(CaptureRobustness, ExitWithoutCleanupMidFrameFinishesTheTrace) {
   EXPECT_TRUE(t.indexed);
   expectIntactBuilds(t, 4);
   EXPECT_TRUE(t.damage.empty());
-  // The frame on the queue at exit: its submission is there, its builds are marked as not
-  // captured rather than left looking like builds that read nothing.
+  // The frame on the queue at exit: its submission is there, and each of its builds is either
+  // captured (the queue reached its pause before exit() ended the process: on a loaded machine
+  // the layer's worker can win that race) or marked as not captured, never left looking like
+  // a build that read nothing.
   EXPECT_EQ(t.count(RecordBody::QueueSubmit), 5u);
   ASSERT_EQ(t.buildInputs.size(), 10u);
-  EXPECT_TRUE(t.buildInputs[8].empty());
-  EXPECT_EQ(t.count(RecordBody::CaptureFinding), 2u);
+  size_t uncaptured = 0;
+  for (size_t i = 8; i < 10; ++i) uncaptured += t.buildInputs[i].empty() ? 1 : 0;
+  EXPECT_EQ(t.count(RecordBody::CaptureFinding), uncaptured);
 }
 
 // ---- Host synchronization and findings -------------------------------------------------------
