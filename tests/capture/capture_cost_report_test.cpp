@@ -1,6 +1,7 @@
 // CLASTRACE_STATS=1: the layer's account of where capture's time went, on lavapipe through the
 // loader. The counts it reports must agree with the trace it wrote (records, chunks, stored and
 // deduplicated contents, submissions) and with the frames the application ran.
+#include "layer_launch_test.h"
 #include <clastrace/capture/layer_config.h>
 #include <clastrace/traces/records.h>
 #include <clastrace/traces/trace_reader.h>
@@ -20,16 +21,10 @@
 namespace {
 
 namespace fs = std::filesystem;
+using clastrace::layer_launch::readText;
 using clastrace::fbs::RecordBody;
 
 const char* kLavapipe = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json";
-
-std::string readText(const fs::path& path) {
-  std::ifstream in(path);
-  std::stringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
 
 // The report's lines, without the "clastrace: stats: " prefix.
 std::vector<std::string> statsLines(const std::string& err) {

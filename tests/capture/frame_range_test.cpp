@@ -2,6 +2,7 @@
 // display this test starts itself (lavapipe has no headless surface), under the layer on
 // lavapipe, which serves the cluster extension. Frame f's builds carry clusterIDs
 // 1000 * f + 500.., so the trace's srcInfosArray snapshots say which frames were captured.
+#include "layer_launch_test.h"
 #include <clastrace/traces/trace_reader.h>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -23,25 +24,14 @@
 namespace {
 
 namespace fs = std::filesystem;
+using clastrace::layer_launch::readText;
+using clastrace::layer_launch::quote;
 namespace fbs = clastrace::fbs;
 
 const char* kLavapipe = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json";
 const char* kXvfb = "/usr/bin/Xvfb";
 constexpr uint32_t kFrameIdStride = 1000;  // present_frames_app's clusterID step per frame
 constexpr uint32_t kTriangleClusterOp = 2;  // VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV
-
-std::string readText(const fs::path& path) {
-  std::ifstream in(path);
-  std::stringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
-
-std::string quote(const std::string& s) {
-  std::string q = "'";
-  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return q + "'";
-}
 
 // An Xvfb server on a display number it picks itself (-displayfd), for the whole suite.
 class XvfbServer {

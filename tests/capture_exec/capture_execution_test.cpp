@@ -3,6 +3,7 @@
 // twice by one primary (each execution captured at its own pause, with its own count), and a
 // simultaneous-use command buffer listed twice in one submission (each execution replayed
 // with its own snapshots). The served outputs must be reproduced by the replay.
+#include "layer_launch_test.h"
 #include <clastrace/engine/execution_record.h>
 #include <clastrace/replay/replay_observer.h>
 #include <clastrace/replay/replayer.hpp>
@@ -21,22 +22,11 @@
 namespace {
 
 namespace fs = std::filesystem;
+using clastrace::layer_launch::readText;
+using clastrace::layer_launch::quote;
 using clastrace::fbs::RecordBody;
 
 const char* kLavapipe = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json";
-
-std::string quote(const std::string& s) {
-  std::string q = "'";
-  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return q + "'";
-}
-
-std::string readText(const fs::path& path) {
-  std::ifstream in(path);
-  std::stringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
 
 struct ClusterRuns : clastrace::replay::ReplayObserver {
   std::vector<uint32_t> opCounts;
