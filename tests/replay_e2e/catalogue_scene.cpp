@@ -84,9 +84,13 @@ void add_buffers(TraceScript& t) {
 
 ScriptDevice device() { return ScriptDevice{}; }
 
-TriangleInfo triangle_info(uint32_t c) {
-    TriangleInfo i{};
-    i.clusterID = 100 + c;
+namespace {
+// Cluster c of the scene: two triangles over its own four vertices, indices shared. A
+// triangle cluster and a template take the same fields; only their clusterIDs differ.
+template <class Info>
+Info two_triangle_cluster(uint32_t cluster_id, uint32_t c) {
+    Info i{};
+    i.clusterID = cluster_id;
     i.triangleCount = 2;
     i.vertexCount = 4;
     i.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_8BIT_NV;
@@ -96,19 +100,11 @@ TriangleInfo triangle_info(uint32_t c) {
     i.vertexBuffer = kVertices + c * 48ull;
     return i;
 }
+}  // namespace
 
-TemplateInfo template_info(uint32_t c) {
-    TemplateInfo i{};
-    i.clusterID = 200 + c;
-    i.triangleCount = 2;
-    i.vertexCount = 4;
-    i.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_8BIT_NV;
-    i.indexBufferStride = 1;
-    i.vertexBufferStride = 12;
-    i.indexBuffer = kIndices;
-    i.vertexBuffer = kVertices + c * 48ull;
-    return i;
-}
+TriangleInfo triangle_info(uint32_t c) { return two_triangle_cluster<TriangleInfo>(100 + c, c); }
+
+TemplateInfo template_info(uint32_t c) { return two_triangle_cluster<TemplateInfo>(200 + c, c); }
 
 VkClusterAccelerationStructureTriangleClusterInputNV triangle_input() {
     VkClusterAccelerationStructureTriangleClusterInputNV in{};
