@@ -84,6 +84,12 @@ void PauseWorker::run() {
   auto lastProgress = Clock::now();
   std::unique_lock lock(mutex_);
   while (!stop_) {
+    if (!unfinished_.empty() && std::all_of(queues_.begin(), queues_.end(), [](auto& q) { return q.second.empty(); })) {
+      lock.unlock();
+      finishOneUnfinished();  // no pause expected: the queues do not wait for this
+      lock.lock();
+      continue;
+    }
     bool anyPending = false;
     bool progressed = false;
     for (auto& [queue, pending] : queues_) {
@@ -118,6 +124,14 @@ void PauseWorker::run() {
       std::this_thread::sleep_for(std::chrono::microseconds(50));
     lock.lock();
   }
+  lock.unlock();
+  while (!unfinished_.empty()) finishOneUnfinished();
+}
+
+void PauseWorker::finishOneUnfinished() {
+  AfterRelease work = std::move(unfinished_.front());
+  unfinished_.pop_front();
+  finishReleased(work);
 }
 
 const uint8_t* PauseWorker::stagedBytes(const ResolvedRange& range) {
@@ -187,7 +201,20 @@ bool PauseWorker::handle(Expected& expected) {
   const uint64_t startedCpu = threadCpuNs();
   staging_ = pause.staging.get();
   const bool capture = expected.capture && device_.capturingNow();
-  DeviceMemoryReader reader = [this](VkDeviceAddress a, uint64_t s, std::vector<uint8_t>* o, std::string& w) {
+  // A served build reads the application's memory through the engine's image; the capture's
+  // walk reads through the same copy, so each byte crosses from (often uncached) memory once.
+  std::vector<ServedBuffer> servedBuffers;
+  std::unique_ptr<ServedMemory> served;
+  if (device_.serving && pause.phase == PausePhase::BeforeCommand && pause.parameters) {
+    servedBuffers = prepareServedBuffers();
+    served = std::make_unique<ServedMemory>(servedBuffers);
+  }
+  DeviceMemoryReader reader = [this, &served](VkDeviceAddress a, uint64_t s, std::vector<uint8_t>* o, std::string& w) {
+    if (served)
+      if (const uint8_t* bytes = served->read(a, s)) {
+        if (o) o->assign(bytes, bytes + s);
+        return true;
+      }
     if (!o) return checkMemory(a, s, w);
     return readMemory(a, s, *o, w);
   };
@@ -258,10 +285,10 @@ bool PauseWorker::handle(Expected& expected) {
   // everything the command read), so they are walked there after the queue is released; if
   // the engine could not run, from memory now.
   std::shared_ptr<const engine::MemoryImage> servedImage;
-  if (device_.serving && pause.phase == PausePhase::BeforeCommand && pause.parameters) {
+  if (served) {
     {
       CostScope cost(CostPhase::PauseEngine);
-      servedImage = executeServed(pause, record);
+      servedImage = executeServed(pause, *served, record);
     }
     // No pause follows a served command: learn the templates it built (or moved) now, while
     // its dstAddressesArray holds what the engine just wrote and the queue still waits.
@@ -300,18 +327,31 @@ bool PauseWorker::handle(Expected& expected) {
   // The rest reads the engine's image and the memory map, with the queue running again. Not
   // later than now: once the queue passes its last pause the application may destroy the
   // buffers that name the ranges (deferring this past the next pause changed traces under load).
-  AfterRelease work{std::move(*record), std::move(servedImage), pause.parameters};
+  AfterRelease work{std::move(*record), std::move(servedImage), pause.parameters, {}, nullptr};
   open_.erase(openKey);
+  if (work.servedImage && served) {
+    work.servedBuffers = std::move(servedBuffers);  // moving keeps the group's pointers valid
+    work.served = std::move(served);
+    unfinished_.push_back(std::move(work));
+    if (unfinished_.size() > kMaxUnfinished) finishOneUnfinished();
+    return true;
+  }
   finishReleased(work);
   return true;
 }
 
-void PauseWorker::nameRanges(ClusterBuildCapture& record) {  // by a buffer holding each, as the trace's snapshots do
+// By a buffer holding each, as the trace's snapshots do: the served buffers of the pause when
+// given (the one starting nearest below the range, as the memory map would answer), else the
+// memory map now.
+void PauseWorker::nameRanges(ClusterBuildCapture& record, const ServedMemory* served) {
   for (auto* list : {&record.inputs, &record.outputs})
     for (CapturedRange& r : *list) {
       std::string why;
       if (r.address == 0) continue;  // named by buffer and offset already
-      if (auto where = device_.memoryMap.resolve(r.address, r.bytes.size(), why)) {
+      if (const ServedBuffer* b = served ? served->bufferHolding(r.address, r.bytes.size()) : nullptr) {
+        r.buffer = b->buffer;
+        r.bufferOffset = r.address - b->address;
+      } else if (auto where = device_.memoryMap.resolve(r.address, r.bytes.size(), why)) {
         r.buffer = where->buffer.handle;
         r.bufferOffset = where->offsetInBuffer;
       }
@@ -337,7 +377,7 @@ void PauseWorker::finishReleased(AfterRelease& work) {
     record->outputs = std::move(walk.ranges);
     for (auto& issue : walk.issues) record->issues.push_back(std::move(issue));
   }
-  nameRanges(*record);
+  nameRanges(*record, work.served.get());
   device_.sink->clusterBuildCaptured(std::move(*record));
 }
 
@@ -376,37 +416,38 @@ std::vector<uint32_t> PauseWorker::movedTemplateVertexCounts(const ClusterComman
   return counts;
 }
 
-std::shared_ptr<const engine::MemoryImage> PauseWorker::executeServed(const PausePoint& pause,
-                                                                      ClusterBuildCapture* record) {
+std::vector<ServedBuffer> PauseWorker::prepareServedBuffers() {
   std::vector<ResolvedRange> held = device_.memoryMap.hostAddressedBuffers();
   std::vector<ServedBuffer> buffers;
-  std::vector<uint64_t> nonCoherent;
+  servedNonCoherent_.clear();
   buffers.reserve(held.size());
   for (const ResolvedRange& r : held) {
-    buffers.push_back({r.buffer.handle, r.buffer.address, r.buffer.size, r.buffer.usage, r.host, r.memory.handle});
+    buffers.push_back({r.buffer.handle, r.buffer.address, r.buffer.size, r.buffer.usage, r.host, r.memory.handle,
+                       (r.memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT) != 0});
     if (!(r.memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_COHERENT_BIT) &&
-        std::find(nonCoherent.begin(), nonCoherent.end(), r.memory.handle) == nonCoherent.end())
-      nonCoherent.push_back(r.memory.handle);
+        std::find(servedNonCoherent_.begin(), servedNonCoherent_.end(), r.memory.handle) == servedNonCoherent_.end())
+      servedNonCoherent_.push_back(r.memory.handle);
   }
   // Unmapped buffers take part through their staged copies; the queue copies them back.
   if (staging_) {
     const uint64_t stagingMemory = handleId(staging_->memory);
     for (const StagedBuffer& b : staging_->buffers)
       buffers.push_back({b.buffer.handle, b.buffer.address, b.buffer.size, b.buffer.usage, staging_->host + b.offset,
-                         stagingMemory});
-    if (!staging_->coherent) nonCoherent.push_back(stagingMemory);
+                         stagingMemory, staging_->cached});
+    if (!staging_->coherent) servedNonCoherent_.push_back(stagingMemory);
   }
   // What the device wrote to non-coherent memory reaches the host view only after an invalidate.
-  auto wholeRange = [](uint64_t memory) {
-    return VkMappedMemoryRange{VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE, nullptr, (VkDeviceMemory)memory, 0, VK_WHOLE_SIZE};
-  };
-  for (uint64_t memory : nonCoherent) {
-    VkMappedMemoryRange range = wholeRange(memory);
+  for (uint64_t memory : servedNonCoherent_) {
+    VkMappedMemoryRange range{VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE, nullptr, (VkDeviceMemory)memory, 0, VK_WHOLE_SIZE};
     device_.next.InvalidateMappedMemoryRanges(device_.device, 1, &range);
   }
+  return buffers;
+}
 
+std::shared_ptr<const engine::MemoryImage> PauseWorker::executeServed(const PausePoint& pause, ServedMemory& memory,
+                                                                      ClusterBuildCapture* record) {
   ServedExecution served =
-      executeServedBuild(pause.parameters->resolved(), buffers, directory_, servedEngineProperties(),
+      executeServedBuild(pause.parameters->resolved(), memory, directory_, servedEngineProperties(),
                          record ? &record->inputs : nullptr);
   if (!served.ran) {
     logMessage(LogLevel::Error, "served build (pause %llu) could not run in the engine: %s",
@@ -414,9 +455,10 @@ std::shared_ptr<const engine::MemoryImage> PauseWorker::executeServed(const Paus
     if (record) record->engineFindings.push_back({"CLASTRACE-engine-could-not-run", served.error, -1, 0});
     return nullptr;
   }
-  for (uint64_t memory : served.writtenMemories)
-    if (std::find(nonCoherent.begin(), nonCoherent.end(), memory) != nonCoherent.end()) {
-      VkMappedMemoryRange range = wholeRange(memory);
+  for (uint64_t written : served.writtenMemories)
+    if (std::find(servedNonCoherent_.begin(), servedNonCoherent_.end(), written) != servedNonCoherent_.end()) {
+      VkMappedMemoryRange range{VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE, nullptr, (VkDeviceMemory)written, 0,
+                                VK_WHOLE_SIZE};
       device_.next.FlushMappedMemoryRanges(device_.device, 1, &range);
     }
   logMessage(LogLevel::Info,

@@ -20,6 +20,7 @@
 #include "clastrace/capture/device_memory_map.h"
 #include "clastrace/capture/shared_pause_tracker.h"
 #include "pause_staging.h"
+#include "clastrace/capture/served_build.h"
 
 #include <clastrace/engine/memory_image.h>
 #include <clastrace/engine/object_directory.h>
@@ -93,11 +94,21 @@ class PauseWorker {
     ClusterBuildCapture record;
     std::shared_ptr<const engine::MemoryImage> servedImage;  // null: outputs already read
     std::shared_ptr<const ClusterCommandParameters> parameters;
+    // The buffers as they were at the pause, to name the ranges by: the application may destroy
+    // them once the queue moved on, and a served command's record is finished later.
+    std::vector<ServedBuffer> servedBuffers;
+    std::unique_ptr<ServedMemory> served;
   };
   void run();
   bool handle(Expected& expected);
   void finishReleased(AfterRelease& work);
-  void nameRanges(ClusterBuildCapture& record);
+  // Served records are finished while no queue waits on the worker (a queue paused right after
+  // another pause would otherwise wait for the first one's output walk); at most
+  // kMaxUnfinished wait, each holding its engine image.
+  static constexpr size_t kMaxUnfinished = 8;
+  std::deque<AfterRelease> unfinished_;
+  void finishOneUnfinished();
+  void nameRanges(ClusterBuildCapture& record, const ServedMemory* served = nullptr);
   bool checkMemory(VkDeviceAddress address, uint64_t size, std::string& why);
   bool readMemory(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>& out, std::string& why);
   bool readResolved(const ResolvedRange& range, uint64_t size, std::vector<uint8_t>& out);
@@ -107,7 +118,12 @@ class PauseWorker {
   // Serving: runs the command in the engine against the application's memory and writes its
   // outputs back, while the queue waits at the pause before it.
   // Returns the engine's image of the run (null when it could not run).
-  std::shared_ptr<const engine::MemoryImage> executeServed(const PausePoint& pause, ClusterBuildCapture* record);
+  std::shared_ptr<const engine::MemoryImage> executeServed(const PausePoint& pause, ServedMemory& memory,
+                                                           ClusterBuildCapture* record);
+  // The buffers a served build can reach (mapped ones, and the pause's staged copies), their
+  // non-coherent memory invalidated; the allocations to flush after it are kept below.
+  std::vector<ServedBuffer> prepareServedBuffers();
+  std::vector<uint64_t> servedNonCoherent_;
 
   DeviceState& device_;
   std::mutex mutex_;

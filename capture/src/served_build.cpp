@@ -2,6 +2,7 @@
 
 #include "clastrace/capture/cluster_input_walker.h"
 #include "clastrace/capture/cluster_limits.h"
+#include "clastrace/capture/uncached_copy.h"
 
 #include <clastrace/engine/build_sizes.h>
 #include <clastrace/engine/execute.h>
@@ -10,6 +11,7 @@
 #include <cstdio>
 #include <cstring>
 #include <exception>
+#include <utility>
 
 namespace clastrace::capture {
 namespace {
@@ -22,57 +24,92 @@ std::string hex(uint64_t v) {
 
 }  // namespace
 
-namespace {
-
-// Buffers whose address ranges overlap (aliases), as the one region they form in the image.
-struct AliasGroup {
-  uint64_t base = 0, end = 0;
-  VkBufferUsageFlags usage = 0;
-  std::vector<const ServedBuffer*> buffers;
-};
-
-std::vector<AliasGroup> aliasGroups(std::span<const ServedBuffer> buffers) {
+ServedMemory::ServedMemory(std::span<const ServedBuffer> buffers) {
   std::vector<const ServedBuffer*> sorted;
   for (const ServedBuffer& b : buffers)
     if (b.address != 0 && b.size != 0 && b.host && b.address + b.size > b.address) sorted.push_back(&b);
-  std::sort(sorted.begin(), sorted.end(), [](auto* a, auto* b) { return a->address < b->address; });
-  std::vector<AliasGroup> groups;
+  std::stable_sort(sorted.begin(), sorted.end(), [](auto* a, auto* b) { return a->address < b->address; });
   for (const ServedBuffer* b : sorted) {
-    if (groups.empty() || b->address >= groups.back().end) groups.push_back({b->address, b->address, 0, {}});
-    AliasGroup& g = groups.back();
+    if (groups_.empty() || b->address >= groups_.back().end) groups_.push_back({b->address, b->address, 0, {}});
+    Group& g = groups_.back();
     g.end = std::max(g.end, b->address + b->size);
     g.usage |= b->usage;
     g.buffers.push_back(b);
   }
-  return groups;
+  copied_.assign(groups_.size(), false);
 }
 
-// Index of the group holding `address`, or groups.size().
-size_t groupOf(const std::vector<AliasGroup>& groups, uint64_t address) {
-  auto it = std::upper_bound(groups.begin(), groups.end(), address, [](uint64_t a, const AliasGroup& g) { return a < g.base; });
-  if (it == groups.begin()) return groups.size();
+size_t ServedMemory::groupOf(uint64_t address) const {
+  auto it = std::upper_bound(groups_.begin(), groups_.end(), address,
+                             [](uint64_t a, const Group& g) { return a < g.base; });
+  if (it == groups_.begin()) return groups_.size();
   --it;
-  return address < it->end ? size_t(it - groups.begin()) : groups.size();
+  return address < it->end ? size_t(it - groups_.begin()) : groups_.size();
 }
 
-}  // namespace
+const ServedBuffer* ServedMemory::bufferHolding(VkDeviceAddress address, uint64_t size) const {
+  const size_t g = groupOf(address);
+  if (g == groups_.size()) return nullptr;
+  const std::vector<const ServedBuffer*>& buffers = groups_[g].buffers;  // by address, ascending
+  for (auto it = buffers.rbegin(); it != buffers.rend(); ++it)
+    if (address >= (*it)->address && size <= (*it)->address + (*it)->size - address) return *it;
+  return nullptr;
+}
+
+void ServedMemory::copy(size_t group) {
+  if (copied_[group]) return;
+  const Group& g = groups_[group];
+  engine::MemoryRegion& region = image_.add_region(g.base, g.end - g.base, g.usage, "buffer " + hex(g.buffers[0]->buffer));
+  for (const ServedBuffer* b : g.buffers) {
+    uint8_t* to = reinterpret_cast<uint8_t*>(region.bytes.write_at(b->address - g.base, b->size));
+    if (b->cached) std::memcpy(to, b->host, b->size);
+    else copyFromUncached(to, b->host, b->size);
+    bytesCopied_ += b->size;
+  }
+  copied_[group] = true;
+}
+
+const uint8_t* ServedMemory::read(VkDeviceAddress address, uint64_t size) {
+  const size_t g = groupOf(address);
+  if (g == groups_.size()) return nullptr;
+  for (const ServedBuffer* b : groups_[g].buffers)
+    if (address >= b->address && size <= b->address + b->size - address) {
+      copy(g);
+      return reinterpret_cast<const uint8_t*>(std::as_const(image_).find_region(groups_[g].base)->bytes.data()) +
+             (address - groups_[g].base);
+    }
+  return nullptr;
+}
+
+void ServedMemory::reset() {
+  image_ = engine::MemoryImage();
+  copied_.assign(groups_.size(), false);
+  bytesCopied_ = 0;
+}
 
 ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command,
                                    std::span<const ServedBuffer> buffers, engine::ObjectDirectory& directory,
                                    const engine::EngineProperties& properties,
                                    const std::vector<CapturedRange>* inputWalk) {
-  ServedExecution result;
-  const std::vector<AliasGroup> groups = aliasGroups(buffers);
+  ServedMemory memory(buffers);
+  return executeServedBuild(command, memory, directory, properties, inputWalk);
+}
 
-  // Start from the buffers the command names itself and those its pointers lead to; run; every
-  // finding about an address in a buffer left out adds that buffer, and the command runs again
-  // from the same state (the directory is copied per attempt). A run without findings read only
-  // memory that was there, so it equals a run over all buffers. With findings left, or with
-  // indirected fields (whose targets the seeds do not name), the last run is over all buffers:
-  // exact either way.
+ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command, ServedMemory& memory,
+                                   engine::ObjectDirectory& directory, const engine::EngineProperties& properties,
+                                   const std::vector<CapturedRange>* inputWalk) {
+  ServedExecution result;
+  const std::vector<ServedMemory::Group>& groups = memory.groups();
+
+  // Start from the buffers the command names itself, those its pointers lead to and those
+  // read already; run; every finding about an address in a buffer left out adds that buffer,
+  // and the command runs again from the same state (the directory is copied per attempt). A run
+  // without findings read only memory that was there, so it equals a run over all buffers.
+  // With findings left, or with indirected fields (whose targets the seeds do not name), the
+  // last run is over all buffers: exact either way.
   std::vector<bool> selected(groups.size(), false);
   auto select = [&](uint64_t address) {
-    const size_t g = address ? groupOf(groups, address) : groups.size();
+    const size_t g = address ? memory.groupOf(address) : groups.size();
     if (g == groups.size() || selected[g]) return false;
     selected[g] = true;
     return true;
@@ -87,15 +124,13 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
     // The capture's pointer walk names most of the rest (index, vertex, geometry, reference
     // arrays; the clusters a reference array names), so one engine run usually suffices.
     DeviceMemoryReader read = [&](VkDeviceAddress address, uint64_t size, std::vector<uint8_t>* out, std::string& why) {
-      const size_t g = groupOf(groups, address);
-      if (g < groups.size())
-        for (const ServedBuffer* b : groups[g].buffers)
-          if (address >= b->address && size <= b->address + b->size - address) {
-            if (out) out->assign(b->host + (address - b->address), b->host + (address - b->address) + size);
-            return true;
-          }
-      why = "not inside one buffer";
-      return false;
+      const uint8_t* bytes = memory.read(address, size);
+      if (!bytes) {
+        why = "not inside one buffer";
+        return false;
+      }
+      if (out) out->assign(bytes, bytes + size);
+      return true;
     };
     ClusterMemoryWalk walk;
     if (!inputWalk) walk = walkClusterInputs(ClusterCommandParameters::copyOf(command), read);
@@ -108,31 +143,24 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
         select(reference);
       }
     }
+    for (size_t g = 0; g < groups.size(); ++g)  // in the image already: more memory is never less exact
+      if (memory.copied(g)) selected[g] = true;
   }
 
   engine::ExecuteOptions options;
   options.properties = properties;
-  engine::MemoryImage image;
   engine::ObjectDirectory attempt;
   try {
     for (bool last = false;;) {
-      image = engine::MemoryImage();
-      result.bytesCopiedIn = 0;
-      for (size_t g = 0; g < groups.size(); ++g) {
-        if (!selected[g]) continue;
-        const AliasGroup& group = groups[g];
-        engine::MemoryRegion& region =
-            image.add_region(group.base, group.end - group.base, group.usage, "buffer " + hex(group.buffers[0]->buffer));
-        for (const ServedBuffer* b : group.buffers) {
-          std::memcpy(region.bytes.data() + (b->address - group.base), b->host, b->size);
-          result.bytesCopiedIn += b->size;
-        }
-      }
+      if (result.attempts > 0) memory.reset();  // the engine wrote into the last image
+      for (size_t g = 0; g < groups.size(); ++g)
+        if (selected[g]) memory.copy(g);
+      result.bytesCopiedIn = memory.bytesCopied();
       // Over every buffer no further attempt can follow: the device's directory itself.
       last = last || std::find(selected.begin(), selected.end(), false) == selected.end();
       if (!last) attempt = directory;
       options.directory = last ? &directory : &attempt;
-      result.record = engine::execute(command, image, options);
+      result.record = engine::execute(command, memory.image(), options);
       ++result.attempts;
       if (last) break;
       if (result.record.findings.empty()) {
@@ -151,9 +179,10 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
 
   // Back into every buffer that holds a written byte (aliases included: same memory or not,
   // each view must show what the command wrote).
+  const engine::MemoryImage& image = memory.image();
   for (const engine::MemoryAccess& access : result.record.accesses) {
     if (!access.is_write || access.end <= access.begin) continue;
-    for (size_t g = groupOf(groups, access.begin); g < groups.size() && groups[g].base < access.end; ++g) {
+    for (size_t g = memory.groupOf(access.begin); g < groups.size() && groups[g].base < access.end; ++g) {
       if (!selected[g]) continue;
       for (const ServedBuffer* b : groups[g].buffers) {
         const uint64_t begin = std::max(access.begin, b->address);
@@ -169,7 +198,8 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
       }
     }
   }
-  result.image = std::make_shared<const engine::MemoryImage>(std::move(image));
+  result.image = std::make_shared<const engine::MemoryImage>(std::move(memory.image()));
+  memory.reset();
   return result;
 }
 

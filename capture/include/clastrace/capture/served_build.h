@@ -31,6 +31,48 @@ struct ServedBuffer {
   VkBufferUsageFlags usage = 0;
   uint8_t* host = nullptr;  // the first byte of the buffer in host memory
   uint64_t memory = 0;      // the allocation, so the caller can flush what was written
+  // Host-cached memory is read with plain loads; other host memory (write-combined on most
+  // discrete GPUs) with streaming loads, a line at a time.
+  bool cached = true;
+};
+
+// The served buffers as the engine will see them: buffers whose address ranges overlap
+// (aliases) form one group, one region of the image, and a group is copied from host memory
+// the first time anything reads it. The capture's walk of the command's inputs and the served
+// build then read the application's memory once, through one copy, instead of each on its own
+// (reads from uncached memory are what a pause pays for most).
+class ServedMemory {
+ public:
+  explicit ServedMemory(std::span<const ServedBuffer> buffers);
+  ServedMemory(const ServedMemory&) = delete;
+  ServedMemory& operator=(const ServedMemory&) = delete;
+
+  // [address, address + size) when one served buffer holds all of it, its group copied into
+  // the image first; null otherwise. Valid until the next reset().
+  const uint8_t* read(VkDeviceAddress address, uint64_t size);
+
+  // For executeServedBuild: the groups, which are in the image, copying and starting over.
+  struct Group {
+    uint64_t base = 0, end = 0;
+    VkBufferUsageFlags usage = 0;
+    std::vector<const ServedBuffer*> buffers;
+  };
+  const std::vector<Group>& groups() const { return groups_; }
+  size_t groupOf(uint64_t address) const;  // groups().size() when no group holds it
+  // The buffer holding all of [address, address + size) that starts nearest below it; null
+  // when none does.
+  const ServedBuffer* bufferHolding(VkDeviceAddress address, uint64_t size) const;
+  bool copied(size_t group) const { return copied_[group]; }
+  void copy(size_t group);
+  void reset();  // an empty image, as before any read (the engine wrote into the last one)
+  engine::MemoryImage& image() { return image_; }
+  uint64_t bytesCopied() const { return bytesCopied_; }  // since the last reset()
+
+ private:
+  std::vector<Group> groups_;
+  std::vector<bool> copied_;
+  engine::MemoryImage image_;
+  uint64_t bytesCopied_ = 0;
 };
 
 struct ServedExecution {
@@ -45,11 +87,15 @@ struct ServedExecution {
   std::shared_ptr<const engine::MemoryImage> image;
 };
 
-// Buffers whose address ranges overlap (aliases) become one region holding their union. Only
-// the buffers the command reaches are copied: those it names, then those its findings point
-// into, found by running again; the result equals a run over all of `buffers`. `inputWalk`:
-// the command's inputs as the capture already walked them at this pause (saves walking twice),
-// or null.
+// Only the buffers the command reaches are copied: those it names, those its pointers lead to
+// and those already read through `memory`, then those its findings point into, found by running
+// again; the result equals a run over all of the buffers. `inputWalk`: the command's inputs as
+// the capture already walked them at this pause (saves walking twice), or null. `memory` is
+// used up: its image becomes the result's.
+ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command, ServedMemory& memory,
+                                   engine::ObjectDirectory& directory, const engine::EngineProperties& properties,
+                                   const std::vector<CapturedRange>* inputWalk = nullptr);
+// The same over a fresh ServedMemory of `buffers`.
 ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command,
                                    std::span<const ServedBuffer> buffers, engine::ObjectDirectory& directory,
                                    const engine::EngineProperties& properties,
