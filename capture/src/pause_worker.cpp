@@ -17,6 +17,17 @@
 namespace clastrace::capture {
 
 namespace {
+// About a microsecond of busy waiting that leaves the core's other hyperthread its share.
+void spinBriefly() {
+  for (int i = 0; i < 32; ++i) {
+#if defined(__x86_64__) || defined(__i386__)
+    __builtin_ia32_pause();
+#elif defined(__aarch64__)
+    asm volatile("yield");
+#endif
+  }
+}
+
 const char* const kNotStaged =
     "the memory is not host visible and the buffer has no acceleration-structure usage (build input or storage), "
     "so the layer did not stage it";
@@ -116,10 +127,13 @@ void PauseWorker::run() {
       continue;
     }
     // A queue is about to reach a pause or is still far from it: spin briefly (the queue is
-    // stalled while we sleep), then back off so an idle wait does not burn a core.
+    // stalled while we sleep), then back off so an idle wait does not burn a core. The spin
+    // does not yield: a yield can hand the core to the sink's and compressor's background
+    // threads until the next scheduler tick, while the queue may already wait (measured on the
+    // H100: capture cost about 6 points of the app's time more with yields).
     lock.unlock();
     if (Clock::now() - lastProgress < std::chrono::microseconds(2000))
-      std::this_thread::yield();
+      spinBriefly();
     else
       std::this_thread::sleep_for(std::chrono::microseconds(50));
     lock.lock();
