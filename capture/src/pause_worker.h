@@ -124,6 +124,7 @@ class PauseWorker {
   // non-coherent memory invalidated; the allocations to flush after it are kept below.
   std::vector<ServedBuffer> prepareServedBuffers();
   std::vector<uint64_t> servedNonCoherent_;
+  std::shared_ptr<ServedRegionPool> regionPool_ = std::make_shared<ServedRegionPool>();
 
   DeviceState& device_;
   std::mutex mutex_;

@@ -24,7 +24,34 @@ std::string hex(uint64_t v) {
 
 }  // namespace
 
-ServedMemory::ServedMemory(std::span<const ServedBuffer> buffers) {
+engine::RegionBytes ServedRegionPool::take(uint64_t size) {
+  std::lock_guard lock(mutex_);
+  auto it = bySize_.find(size);
+  if (it == bySize_.end()) return {};
+  engine::RegionBytes bytes = std::move(it->second);
+  bySize_.erase(it);
+  held_ -= size;
+  return bytes;
+}
+
+void ServedRegionPool::give(std::vector<engine::RegionBytes> storage) {
+  std::lock_guard lock(mutex_);
+  for (engine::RegionBytes& bytes : storage) {
+    // Dense regions (the heap fallback past vm.max_map_count) and what exceeds the bound are freed.
+    if (bytes.empty() || bytes.dense() || held_ + bytes.size() > kMaxBytes) continue;
+    held_ += bytes.size();
+    const uint64_t size = bytes.size();
+    bySize_.emplace(size, std::move(bytes));
+  }
+}
+
+uint64_t ServedRegionPool::heldBytes() const {
+  std::lock_guard lock(mutex_);
+  return held_;
+}
+
+ServedMemory::ServedMemory(std::span<const ServedBuffer> buffers, std::shared_ptr<ServedRegionPool> pool)
+    : pool_(std::move(pool)) {
   std::vector<const ServedBuffer*> sorted;
   for (const ServedBuffer& b : buffers)
     if (b.address != 0 && b.size != 0 && b.host && b.address + b.size > b.address) sorted.push_back(&b);
@@ -59,7 +86,9 @@ const ServedBuffer* ServedMemory::bufferHolding(VkDeviceAddress address, uint64_
 void ServedMemory::copy(size_t group) {
   if (copied_[group]) return;
   const Group& g = groups_[group];
-  engine::MemoryRegion& region = image_.add_region(g.base, g.end - g.base, g.usage, "buffer " + hex(g.buffers[0]->buffer));
+  engine::MemoryRegion& region =
+      image_.add_region(g.base, g.end - g.base, g.usage, "buffer " + hex(g.buffers[0]->buffer),
+                        pool_ ? pool_->take(g.end - g.base) : engine::RegionBytes());
   for (const ServedBuffer* b : g.buffers) {
     uint8_t* to = reinterpret_cast<uint8_t*>(region.bytes.write_at(b->address - g.base, b->size));
     if (b->cached) std::memcpy(to, b->host, b->size);
@@ -81,7 +110,23 @@ const uint8_t* ServedMemory::read(VkDeviceAddress address, uint64_t size) {
   return nullptr;
 }
 
+ServedMemory::~ServedMemory() {
+  if (pool_) pool_->give(image_.release_storage());
+}
+
+std::shared_ptr<const engine::MemoryImage> ServedMemory::share() {
+  auto* image = new engine::MemoryImage(std::move(image_));
+  image_ = engine::MemoryImage();
+  copied_.assign(groups_.size(), false);
+  bytesCopied_ = 0;
+  return std::shared_ptr<const engine::MemoryImage>(image, [pool = pool_, image](const engine::MemoryImage*) {
+    if (pool) pool->give(image->release_storage());
+    delete image;
+  });
+}
+
 void ServedMemory::reset() {
+  if (pool_) pool_->give(image_.release_storage());
   image_ = engine::MemoryImage();
   copied_.assign(groups_.size(), false);
   bytesCopied_ = 0;
@@ -198,8 +243,7 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
       }
     }
   }
-  result.image = std::make_shared<const engine::MemoryImage>(std::move(memory.image()));
-  memory.reset();
+  result.image = memory.share();
   return result;
 }
 

@@ -12,6 +12,7 @@
 #include "clastrace/capture/capture_sink.h"
 
 #include "clastrace/capture/capture_cost.h"
+#include "clastrace/capture/foreground_gate.h"
 
 #include <clastrace/traces/trace_writer.h>
 
@@ -200,6 +201,7 @@ class TraceCaptureSink final : public CaptureSink {
     options.zstd_level = zstdLevel_;
     options.compressor_nice = kBackgroundNice;
     options.compressor_idle_class = true;
+    options.compressor_yield = [] { foregroundGate().waitWhileBusy(); };
     TraceError error;
     writer_ = TraceWriter::create(path_, header, options, &error);
     if (!writer_) fail(error);
@@ -642,6 +644,7 @@ class TraceCaptureSink final : public CaptureSink {
       if (stopEmitting_) break;
       work_ = false;
       wait.unlock();
+      foregroundGate().waitWhileBusy();
       {
         std::lock_guard write(writeMutex_);
         {
@@ -740,6 +743,7 @@ class TraceCaptureSink final : public CaptureSink {
       if (items.empty()) return;
       uint64_t written = 0;
       for (OutItem& item : items) {
+        if (emitterThread) foregroundGate().waitWhileBusy();  // a queue waits on the layer: step aside
         if (auto* record = std::get_if<fbs::RecordT>(&item)) {
           writeRecord(*record);
         } else if (auto* p = std::get_if<Pending>(&item)) {

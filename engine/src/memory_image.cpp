@@ -193,6 +193,20 @@ void MemoryImage::fault(uint64_t address, uint64_t size, FieldRef where, const s
 }
 
 MemoryRegion& MemoryImage::add_region(uint64_t base, uint64_t size, VkBufferUsageFlags usage, std::string label) {
+  return add_region(base, size, usage, std::move(label), RegionBytes());
+}
+
+std::vector<RegionBytes> MemoryImage::release_storage() {
+  std::vector<RegionBytes> storage;
+  storage.reserve(regions_.size());
+  for (auto& [base, region] : regions_) storage.push_back(std::move(region.bytes));
+  regions_.clear();
+  reserved_ = written_ = 0;
+  return storage;
+}
+
+MemoryRegion& MemoryImage::add_region(uint64_t base, uint64_t size, VkBufferUsageFlags usage, std::string label,
+                                      RegionBytes&& storage) {
   FieldRef where{"add_region", -1};
   if (size == 0) fault(base, size, where, "memory region of size 0");
   // A region may end exactly at 2^64 (its last byte is 2^64 - 1), never beyond.
@@ -212,9 +226,10 @@ MemoryRegion& MemoryImage::add_region(uint64_t base, uint64_t size, VkBufferUsag
   r.size = size;
   r.usage = usage;
   r.label = std::move(label);
-  r.bytes = RegionBytes(size);
+  const bool reused = storage.size() == size;
+  r.bytes = reused ? std::move(storage) : RegionBytes(size);
   reserved_ += size;
-  if (r.bytes.dense()) written_ += r.bytes.resident_bytes();  // held whole from the start
+  if (reused || r.bytes.dense()) written_ += r.bytes.resident_bytes();  // counted already / held whole from the start
   return regions_.emplace(base, std::move(r)).first->second;
 }
 

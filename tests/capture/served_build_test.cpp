@@ -276,3 +276,77 @@ TEST(ServedBuild, BuffersTheWalkMissesAreFoundByRunningAgain) {
   EXPECT_EQ(movedSize, sourceSize);
   EXPECT_EQ(std::memcmp(dst.data(), scene.bytes["implicitData"].data() + (source - scene.a.implicitData), sourceSize), 0);
 }
+
+// Frame after frame from one pool: each frame's images reuse the last one's region bytes (no
+// fresh mapping), yet every run sees the host bytes as they are now, not what the reused pages
+// held, and writes back exactly what a run without the pool writes.
+TEST(ServedBuild, RegionPoolReusesBytesAndNeverLeaksStaleOnes) {
+  HostScene pooled, plain;
+  auto pool = std::make_shared<ServedRegionPool>();
+  engine::ObjectDirectory pooledDirectory, plainDirectory;
+  const std::byte* firstImageVertices = nullptr;
+  for (int frame = 0; frame < 3; ++frame) {
+    for (HostScene* scene : {&pooled, &plain}) {  // the vertices move every frame
+      float* v = reinterpret_cast<float*>(scene->bytes["vertices"].data());
+      for (size_t i = 0; i < scene->bytes["vertices"].size() / 4; i += 3) v[i] += 0.25f * float(frame + 1);
+    }
+    for (auto command : {&served_scene::Commands::clusters, &served_scene::Commands::blas}) {
+      ServedMemory memory(pooled.buffers, pool);
+      ServedExecution a = executeServedBuild(pooled.commands.*command, memory, pooledDirectory, servedEngineProperties());
+      ServedExecution b = executeServedBuild(plain.commands.*command, plain.buffers, plainDirectory, servedEngineProperties());
+      ASSERT_TRUE(a.ran && b.ran) << a.error << b.error;
+      if (command == &served_scene::Commands::clusters) {  // (the bottom level does not read vertices)
+        const engine::MemoryRegion* vertices = a.image->find_region(pooled.a.vertices);
+        ASSERT_NE(vertices, nullptr);
+        EXPECT_EQ(std::memcmp(vertices->bytes.data(), pooled.bytes["vertices"].data(), pooled.bytes["vertices"].size()), 0)
+            << "frame " << frame << ": the image holds stale vertices";
+        if (frame == 0) firstImageVertices = vertices->bytes.data();
+        else EXPECT_EQ(vertices->bytes.data(), firstImageVertices) << "frame " << frame << ": not reused";
+      }
+    }  // the images go back to the pool here
+    for (const char* name : {"implicitData", "dstAddresses", "dstSizes", "blasImplicit", "blasDstSizes"})
+      EXPECT_EQ(pooled.bytes[name], plain.bytes[name]) << name << ", frame " << frame;
+  }
+  EXPECT_GT(pool->heldBytes(), 0u);
+  EXPECT_LE(pool->heldBytes(), ServedRegionPool::kMaxBytes);
+}
+
+TEST(ServedBuild, RegionPoolMatchesExactSizesAndStaysBounded) {
+  ServedRegionPool pool;
+  EXPECT_TRUE(pool.take(4096).empty());
+  std::vector<engine::RegionBytes> given;
+  given.emplace_back(8192);
+  given.emplace_back(ServedRegionPool::kMaxBytes);  // does not fit beside the first
+  pool.give(std::move(given));
+  EXPECT_EQ(pool.heldBytes(), 8192u);
+  EXPECT_TRUE(pool.take(4096).empty());
+  engine::RegionBytes back = pool.take(8192);
+  EXPECT_EQ(back.size(), 8192u);
+  EXPECT_EQ(pool.heldBytes(), 0u);
+}
+
+// The capture's walk and the served build read through one copy: a read copies the buffer's
+// alias group on first touch only, and ranges outside every buffer, or across two, are null.
+TEST(ServedBuild, ServedMemoryCopiesAGroupOnFirstRead) {
+  std::vector<uint8_t> a(4096, 1), b(4096, 2), c(100, 3);
+  const std::vector<ServedBuffer> buffers = {
+      {1, 0x10000, 4096, 0, a.data(), 7, false},  // uncached: streaming loads
+      {2, 0x10800, 4096, 0, b.data(), 7, true},   // aliases the second half of the first
+      {3, 0x40000, 100, 0, c.data(), 8, true},
+  };
+  ServedMemory memory(buffers);
+  ASSERT_EQ(memory.groups().size(), 2u);
+  EXPECT_EQ(memory.bytesCopied(), 0u);
+  const uint8_t* p = memory.read(0x10000, 16);
+  ASSERT_NE(p, nullptr);
+  EXPECT_EQ(p[0], 1);
+  EXPECT_EQ(memory.bytesCopied(), 8192u);  // both buffers of the group, once
+  EXPECT_EQ(memory.read(0x10800, 16)[0], 2);  // the later buffer's bytes where they alias
+  EXPECT_EQ(memory.bytesCopied(), 8192u);
+  EXPECT_FALSE(memory.copied(1));
+  EXPECT_EQ(memory.read(0x40000 + 90, 20), nullptr);  // runs past the buffer
+  EXPECT_EQ(memory.read(0x30000, 4), nullptr);
+  EXPECT_EQ(memory.bufferHolding(0x10900, 16)->buffer, 2u);
+  EXPECT_EQ(memory.bufferHolding(0x10100, 16)->buffer, 1u);
+  EXPECT_EQ(memory.bufferHolding(0x107F8, 16)->buffer, 1u);  // only the first holds all of it
+}

@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <cstring>
+#include <utility>
 #include <vector>
 
 namespace clastrace::engine {
@@ -113,6 +114,30 @@ TEST(SparseMemoryImage, RemovedRegionsGiveTheirPagesAndAddressesBack) {
   // The range can be bound again and reads zeros.
   m.add_region(0x100000, 2 * kPage, 0, "again");
   EXPECT_EQ(m.read<uint64_t>(0x100000 + 100, {"test", -1}), 0u);
+}
+
+// A served build's next image reuses the last one's bytes: same pages, as they were (the
+// caller overwrites them), counted as written; bytes of another size are not used.
+TEST(SparseMemoryImage, ReleasedStorageIsReusedAsIs) {
+  MemoryImage first;
+  first.add_region(0x100000, 3 * kPage, 0, "a");
+  put(first, 0x100000 + 10, pattern(100, 3));
+  std::vector<RegionBytes> storage = first.release_storage();
+  EXPECT_TRUE(first.regions().empty());
+  EXPECT_EQ(first.reserved_bytes(), 0u);
+  ASSERT_EQ(storage.size(), 1u);
+  const std::byte* pages = std::as_const(storage[0]).data();
+
+  MemoryImage next;
+  MemoryRegion& r = next.add_region(0x900000, 3 * kPage, 0, "b", std::move(storage[0]));
+  EXPECT_EQ(static_cast<const RegionBytes&>(r.bytes).data(), pages);
+  EXPECT_EQ(next.read_bytes(0x900000 + 10, 100, {"test", -1})[99], pattern(100, 3)[99]);
+  EXPECT_EQ(next.resident_bytes(), kPage);
+
+  RegionBytes other(kPage);
+  MemoryRegion& fresh = next.add_region(0x200000, 2 * kPage, 0, "c", std::move(other));
+  EXPECT_EQ(fresh.bytes.size(), 2 * kPage);
+  EXPECT_EQ(next.read<uint64_t>(0x200000, {"test", -1}), 0u);  // zero-filled: the size differed
 }
 
 TEST(SparseMemoryImage, CopiesHoldTheSameBytesAndOnlyTheWrittenPages) {

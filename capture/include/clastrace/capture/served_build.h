@@ -16,6 +16,8 @@
 #include <clastrace/vk_cluster_abi.h>
 
 #include <cstdint>
+#include <map>
+#include <mutex>
 #include <memory>
 #include <span>
 #include <string>
@@ -36,6 +38,24 @@ struct ServedBuffer {
   bool cached = true;
 };
 
+// Region bytes that finished served images gave back, for the next images to reuse: a frame
+// loop builds from the same buffers every frame, and each fresh page costs a page fault (on
+// the H100 most of the page faults of a served run, and the unmapping's TLB shootdowns
+// interrupt every thread of the process). Thread-safe; holds at most kMaxBytes.
+class ServedRegionPool {
+ public:
+  static constexpr uint64_t kMaxBytes = 256ull << 20;
+  // Bytes of exactly `size`, or an empty RegionBytes when none is held.
+  engine::RegionBytes take(uint64_t size);
+  void give(std::vector<engine::RegionBytes> storage);
+  uint64_t heldBytes() const;
+
+ private:
+  mutable std::mutex mutex_;
+  std::multimap<uint64_t, engine::RegionBytes> bySize_;
+  uint64_t held_ = 0;
+};
+
 // The served buffers as the engine will see them: buffers whose address ranges overlap
 // (aliases) form one group, one region of the image, and a group is copied from host memory
 // the first time anything reads it. The capture's walk of the command's inputs and the served
@@ -43,7 +63,9 @@ struct ServedBuffer {
 // (reads from uncached memory are what a pause pays for most).
 class ServedMemory {
  public:
-  explicit ServedMemory(std::span<const ServedBuffer> buffers);
+  // `pool`, when given, lends the regions' bytes and gets them back from the images made here.
+  explicit ServedMemory(std::span<const ServedBuffer> buffers, std::shared_ptr<ServedRegionPool> pool = nullptr);
+  ~ServedMemory();
   ServedMemory(const ServedMemory&) = delete;
   ServedMemory& operator=(const ServedMemory&) = delete;
 
@@ -67,8 +89,12 @@ class ServedMemory {
   void reset();  // an empty image, as before any read (the engine wrote into the last one)
   engine::MemoryImage& image() { return image_; }
   uint64_t bytesCopied() const { return bytesCopied_; }  // since the last reset()
+  // The image as it stands, shared; its bytes go back to the pool when the last owner lets go.
+  // The image here is empty afterwards (as after reset()).
+  std::shared_ptr<const engine::MemoryImage> share();
 
  private:
+  std::shared_ptr<ServedRegionPool> pool_;
   std::vector<Group> groups_;
   std::vector<bool> copied_;
   engine::MemoryImage image_;

@@ -116,6 +116,14 @@ class MemoryImage {
   // Adds a zero-filled region. Throws MemoryFault on size 0, on base + size wrapping
   // 2^64, or on overlap with an existing region.
   MemoryRegion& add_region(uint64_t base, uint64_t size, VkBufferUsageFlags usage, std::string label);
+  // The same over `storage` when it holds exactly `size` bytes (bytes another image gave back
+  // through release_storage): the region starts with those bytes as they are, for a caller
+  // that overwrites every one of them; otherwise zero-filled as above. Reuse saves a fresh
+  // mapping's page faults and its unmapping.
+  MemoryRegion& add_region(uint64_t base, uint64_t size, VkBufferUsageFlags usage, std::string label,
+                           RegionBytes&& storage);
+  // Empties the image and hands back each region's bytes, for add_region to reuse.
+  std::vector<RegionBytes> release_storage();
 
   // The region containing `address`, or nullptr.
   const MemoryRegion* find_region(uint64_t address) const;
