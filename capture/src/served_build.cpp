@@ -22,6 +22,11 @@ std::string hex(uint64_t v) {
   return text;
 }
 
+// All of [address, address + size) lies inside `b` (no sum may wrap).
+bool holds(const ServedBuffer& b, uint64_t address, uint64_t size) {
+  return address >= b.address && address - b.address <= b.size && size <= b.size - (address - b.address);
+}
+
 }  // namespace
 
 engine::RegionBytes ServedRegionPool::take(uint64_t size) {
@@ -79,7 +84,7 @@ const ServedBuffer* ServedMemory::bufferHolding(VkDeviceAddress address, uint64_
   if (g == groups_.size()) return nullptr;
   const std::vector<const ServedBuffer*>& buffers = groups_[g].buffers;  // by address, ascending
   for (auto it = buffers.rbegin(); it != buffers.rend(); ++it)
-    if (address >= (*it)->address && size <= (*it)->address + (*it)->size - address) return *it;
+    if (holds(**it, address, size)) return *it;
   return nullptr;
 }
 
@@ -99,15 +104,22 @@ void ServedMemory::copy(size_t group) {
 }
 
 const uint8_t* ServedMemory::read(VkDeviceAddress address, uint64_t size) {
-  const size_t g = groupOf(address);
-  if (g == groups_.size()) return nullptr;
-  for (const ServedBuffer* b : groups_[g].buffers)
-    if (address >= b->address && size <= b->address + b->size - address) {
-      copy(g);
-      return reinterpret_cast<const uint8_t*>(std::as_const(image_).find_region(groups_[g].base)->bytes.data()) +
-             (address - groups_[g].base);
-    }
-  return nullptr;
+  // A walk reads many small ranges of few buffers (a cluster's indices, then its vertices):
+  // the last buffer that answered usually answers again.
+  const ServedBuffer* b = lastRead_;
+  if (!(b && holds(*b, address, size))) {
+    b = bufferHolding(address, size);
+    if (!b) return nullptr;
+    lastRead_ = b;
+    lastGroup_ = groupOf(address);
+    lastGroupBytes_ = nullptr;
+  }
+  if (!lastGroupBytes_) {
+    copy(lastGroup_);
+    lastGroupBytes_ = reinterpret_cast<const uint8_t*>(
+        std::as_const(image_).find_region(groups_[lastGroup_].base)->bytes.data());
+  }
+  return lastGroupBytes_ + (address - groups_[lastGroup_].base);
 }
 
 ServedMemory::~ServedMemory() {
@@ -115,6 +127,7 @@ ServedMemory::~ServedMemory() {
 }
 
 std::shared_ptr<const engine::MemoryImage> ServedMemory::share() {
+  lastGroupBytes_ = nullptr;
   auto* image = new engine::MemoryImage(std::move(image_));
   image_ = engine::MemoryImage();
   copied_.assign(groups_.size(), false);
@@ -126,6 +139,7 @@ std::shared_ptr<const engine::MemoryImage> ServedMemory::share() {
 }
 
 void ServedMemory::reset() {
+  lastGroupBytes_ = nullptr;
   if (pool_) pool_->give(image_.release_storage());
   image_ = engine::MemoryImage();
   copied_.assign(groups_.size(), false);

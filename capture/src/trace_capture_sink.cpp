@@ -692,6 +692,7 @@ class TraceCaptureSink final : public CaptureSink {
     if (writer_ && !failed_) outbox_.emplace_back(std::move(record));
   }
   void writeRecord(const fbs::RecordT& record) {  // writeMutex_ held
+    if (emitterThread) foregroundGate().waitWhileBusy();  // a queue waits on the layer: step aside
     if (writer_ && !failed_) check(writer_->append(record));
     appendedSinceFlush_ = true;
   }
@@ -743,7 +744,6 @@ class TraceCaptureSink final : public CaptureSink {
       if (items.empty()) return;
       uint64_t written = 0;
       for (OutItem& item : items) {
-        if (emitterThread) foregroundGate().waitWhileBusy();  // a queue waits on the layer: step aside
         if (auto* record = std::get_if<fbs::RecordT>(&item)) {
           writeRecord(*record);
         } else if (auto* p = std::get_if<Pending>(&item)) {
@@ -790,6 +790,7 @@ class TraceCaptureSink final : public CaptureSink {
         }
       }
       fbs::MemorySnapshot snap;
+      if (emitterThread) foregroundGate().waitWhileBusy();
       if (!writer_ || failed_) return;
       if (!check(writer_->snapshot(first.buffer, first.bufferOffset, first.address, pieces, &snap))) return;
       out.push_back(snap);

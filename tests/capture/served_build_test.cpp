@@ -349,4 +349,16 @@ TEST(ServedBuild, ServedMemoryCopiesAGroupOnFirstRead) {
   EXPECT_EQ(memory.bufferHolding(0x10900, 16)->buffer, 2u);
   EXPECT_EQ(memory.bufferHolding(0x10100, 16)->buffer, 1u);
   EXPECT_EQ(memory.bufferHolding(0x107F8, 16)->buffer, 1u);  // only the first holds all of it
+
+  // A small buffer inside a large one: past its end only the large one holds a range (the
+  // small one's end minus the address must not wrap into "holds").
+  std::vector<uint8_t> large(0x10000, 4), small(0x100, 5);
+  const std::vector<ServedBuffer> nested = {{1, 0x100000, 0x10000, 0, large.data(), 7, true},
+                                            {2, 0x100800, 0x100, 0, small.data(), 7, true}};
+  ServedMemory inside(nested);
+  EXPECT_EQ(inside.bufferHolding(0x105000, 16)->buffer, 1u);
+  EXPECT_EQ(inside.bufferHolding(0x100810, 16)->buffer, 2u);
+  EXPECT_EQ(inside.read(0x100810, 4)[0], 5);
+  EXPECT_EQ(inside.read(0x105000, 4)[0], 4);  // after a read of the small one (the cached buffer)
+  EXPECT_EQ(inside.read(0x10F000, 0x2000), nullptr);
 }

@@ -128,7 +128,7 @@ TEST(TraceRoundTrip, SlicedCompressionWithYieldsReadsBackTheSame) {
         const std::string path = temp_path("sliced.clt");
         TraceError e;
         TraceWriterOptions options;
-        options.chunk_raw_bytes = 3u << 20;  // each chunk spans many 256 KiB slices
+        options.chunk_raw_bytes = 3u << 20;  // each chunk spans many 128 KiB slices
         options.zstd_level = level;
         std::atomic<int> yields{0};
         options.compressor_yield = [&] { ++yields; };

@@ -150,7 +150,7 @@ struct TraceWriter::Impl {
                     const std::function<void()>* yield) {
         if (!yield || !*yield)
             return ZSTD_compressCCtx(cctx, compressed.data(), compressed.size(), data, size, options.zstd_level);
-        constexpr size_t kSlice = 256u << 10;
+        constexpr size_t kSlice = 128u << 10;  // zstd's block: the least it compresses at once
         ZSTD_CCtx_reset(cctx, ZSTD_reset_session_and_parameters);
         size_t r = ZSTD_CCtx_setParameter(cctx, ZSTD_c_compressionLevel, options.zstd_level);
         if (!ZSTD_isError(r)) r = ZSTD_CCtx_setPledgedSrcSize(cctx, size);

@@ -99,6 +99,9 @@ class ServedMemory {
   std::vector<bool> copied_;
   engine::MemoryImage image_;
   uint64_t bytesCopied_ = 0;
+  const ServedBuffer* lastRead_ = nullptr;  // the buffer the last read() found, its group, and
+  size_t lastGroup_ = 0;                    // that group's bytes in the image (null: not known)
+  const uint8_t* lastGroupBytes_ = nullptr;
 };
 
 struct ServedExecution {
