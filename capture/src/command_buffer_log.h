@@ -20,12 +20,19 @@ struct CommandBufferLog {
   VkQueryPool timestampPool = VK_NULL_HANDLE;
   uint32_t timestampsWritten = 0;
   uint64_t timestampReadPauseId = 0;
+  // The layer's objects of earlier recordings, reused by the next: creating and destroying
+  // events and query pools every frame costs driver work (on NVIDIA's driver, page-attribute
+  // changes whose TLB flushes interrupt every core).
+  std::vector<VkEvent> spareEvents;
+  VkQueryPool spareTimestampPool = VK_NULL_HANDLE;
   // Compute binding state, for the storage buffers each dispatch sees.
   uint64_t computePipeline = 0;
   std::map<uint32_t, std::pair<VkDescriptorSet, std::vector<uint32_t>>> computeSets;  // set -> (set, dynamic offsets)
 };
 
-// Destroys the layer's events of `log` and clears it for a new recording.
+// Clears `log` for a new recording; its events and query pool become spares.
 void clearCommandBufferLog(DeviceState& device, CommandBufferLog& log);
+// Clears `log` and destroys the layer's objects: the command buffer is freed (or the device).
+void releaseCommandBufferLog(DeviceState& device, CommandBufferLog& log);
 
 }  // namespace clastrace::capture

@@ -80,7 +80,7 @@ void forgetCommandBuffers(DeviceState& d, VkCommandPool pool, const VkCommandBuf
     if (!list[i]) continue;
     auto it = d.commandBuffers.find(list[i]);
     if (it != d.commandBuffers.end()) {
-      clearCommandBufferLog(d, *it->second);
+      releaseCommandBufferLog(d, *it->second);
       d.commandBuffers.erase(it);
     }
     d.secondaryCommandBuffers.erase(list[i]);
@@ -449,9 +449,17 @@ VKAPI_ATTR void VKAPI_CALL CmdExecuteCommands(VkCommandBuffer cb, uint32_t count
 // Records barrier + set(signal) + wait(release) + reset(release); see pause_worker.h.
 void recordPause(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log, PausePoint pause) {
   VkEventCreateInfo eventInfo{VK_STRUCTURE_TYPE_EVENT_CREATE_INFO, nullptr, 0};
-  if (d.next.CreateEvent(d.device, &eventInfo, nullptr, &pause.signal) != VK_SUCCESS) return;
-  if (d.next.CreateEvent(d.device, &eventInfo, nullptr, &pause.release) != VK_SUCCESS) {
-    d.next.DestroyEvent(d.device, pause.signal, nullptr);
+  auto event = [&](VkEvent* out) {
+    if (log.spareEvents.empty()) return d.next.CreateEvent(d.device, &eventInfo, nullptr, out) == VK_SUCCESS;
+    *out = log.spareEvents.back();
+    log.spareEvents.pop_back();
+    return true;
+  };
+  // Spares lie in (signal, release) pairs: each event keeps its role (validation tracks which
+  // stage last set an event, and a wait names that stage).
+  if (!event(&pause.release)) return;
+  if (!event(&pause.signal)) {
+    log.spareEvents.push_back(pause.release);
     return;
   }
   log.events.push_back(pause.signal);
@@ -492,6 +500,12 @@ std::optional<TimestampWriteCommand> writeTimestamp(DeviceState& d, VkCommandBuf
                                                     VkPipelineStageFlagBits stage, bool pairStart) {
   if (!d.timestamps || !d.capturingNow() || log.recorded.secondary) return std::nullopt;
   if (log.timestampsWritten + (pairStart ? 2 : 1) > kTimestampQueries) return std::nullopt;
+  if (!log.timestampPool && log.spareTimestampPool) {
+    log.timestampPool = log.spareTimestampPool;
+    log.spareTimestampPool = VK_NULL_HANDLE;
+    d.next.CmdResetQueryPool(cb, log.timestampPool, 0, kTimestampQueries);
+    log.timestampReadPauseId = ++d.pauseCounter;
+  }
   if (!log.timestampPool) {
     VkQueryPoolCreateInfo info{};
     info.sType = VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO;
@@ -648,7 +662,12 @@ VKAPI_ATTR void VKAPI_CALL CmdCopyMemoryToAccelerationStructureKHR(VkCommandBuff
 
 void clearCommandBufferLog(DeviceState& d, CommandBufferLog& log) {
   if (d.pauses) d.pauses->forgetEvents(log.events);
-  for (VkEvent event : log.events) d.next.DestroyEvent(d.device, event, nullptr);
+  // No execution is pending (the command buffer is re-begun, reset or freed): an abandoned
+  // pause may have left an event set, so each starts over unsignalled.
+  for (VkEvent event : log.events) {
+    d.next.ResetEvent(d.device, event);
+    log.spareEvents.push_back(event);
+  }
   log.events.clear();
   for (auto& staging : log.staging) destroyStaging(d, *staging);
   log.staging.clear();
@@ -658,7 +677,7 @@ void clearCommandBufferLog(DeviceState& d, CommandBufferLog& log) {
     // not read yet is final now.
     const VkQueryPool pool = log.timestampPool;
     readCompletedTimestamps(d, [pool](const DeviceState::PendingTimestampRead& r) { return r.pool == pool; });
-    d.next.DestroyQueryPool(d.device, log.timestampPool, nullptr);
+    log.spareTimestampPool = pool;  // the next recording resets it before its first query
   }
   log.timestampPool = VK_NULL_HANDLE;
   log.timestampsWritten = 0;
@@ -666,6 +685,14 @@ void clearCommandBufferLog(DeviceState& d, CommandBufferLog& log) {
   log.recorded.commands.clear();
   log.computePipeline = 0;
   log.computeSets.clear();
+}
+
+void releaseCommandBufferLog(DeviceState& d, CommandBufferLog& log) {
+  clearCommandBufferLog(d, log);
+  for (VkEvent event : log.spareEvents) d.next.DestroyEvent(d.device, event, nullptr);
+  log.spareEvents.clear();
+  if (log.spareTimestampPool) d.next.DestroyQueryPool(d.device, log.spareTimestampPool, nullptr);
+  log.spareTimestampPool = VK_NULL_HANDLE;
 }
 
 PFN_vkVoidFunction commandHook(const char* name) {

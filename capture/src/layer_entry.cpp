@@ -247,7 +247,7 @@ VKAPI_ATTR void VKAPI_CALL DestroyDevice(VkDevice device, const VkAllocationCall
     for (const std::string& line : costReport(state->sink ? state->sink->costLines() : std::vector<std::string>{}))
       std::fprintf(stderr, "clastrace: %s\n", line.c_str());
   }
-  for (auto& [commandBuffer, log] : state->commandBuffers) clearCommandBufferLog(*state, *log);
+  for (auto& [commandBuffer, log] : state->commandBuffers) releaseCommandBufferLog(*state, *log);
   PFN_vkDestroyDevice destroy = state->next.DestroyDevice;
   state.reset();  // frees the layer's events and mappings while the device still exists
   destroy(device, pAllocator);

@@ -6,13 +6,11 @@
 #include <algorithm>
 #include <chrono>
 #include <cstring>
-#include <optional>
 #include <pthread.h>
 
 #include "clastrace/capture/acceleration_structure_walker.h"
 #include "clastrace/capture/capture_cost.h"
 #include "clastrace/capture/cluster_limits.h"
-#include "clastrace/capture/foreground_gate.h"
 #include "clastrace/capture/served_build.h"
 #include "clastrace/capture/uncached_copy.h"
 
@@ -213,7 +211,6 @@ bool PauseWorker::readMemory(VkDeviceAddress address, uint64_t size, std::vector
 bool PauseWorker::handle(Expected& expected) {
   const PausePoint& pause = expected.pause;
   if (device_.next.GetEventStatus(device_.device, pause.signal) != VK_EVENT_SET) return false;
-  std::optional<ForegroundGate::Scope> foreground(std::in_place, foregroundGate());  // until the release
   const auto started = std::chrono::steady_clock::now();
   const uint64_t startedCpu = threadCpuNs();
   staging_ = pause.staging.get();
@@ -324,7 +321,6 @@ bool PauseWorker::handle(Expected& expected) {
   }
   device_.next.ResetEvent(device_.device, pause.signal);
   device_.next.SetEvent(device_.device, pause.release);
-  foreground.reset();
   if (pause.shared) {
     std::lock_guard lock(mutex_);
     shared_.released(handleId(expected.queue), handleId(pause.release));

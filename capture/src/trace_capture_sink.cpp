@@ -12,7 +12,6 @@
 #include "clastrace/capture/capture_sink.h"
 
 #include "clastrace/capture/capture_cost.h"
-#include "clastrace/capture/foreground_gate.h"
 
 #include <clastrace/traces/trace_writer.h>
 
@@ -201,7 +200,6 @@ class TraceCaptureSink final : public CaptureSink {
     options.zstd_level = zstdLevel_;
     options.compressor_nice = kBackgroundNice;
     options.compressor_idle_class = true;
-    options.compressor_yield = [] { foregroundGate().waitWhileBusy(); };
     TraceError error;
     writer_ = TraceWriter::create(path_, header, options, &error);
     if (!writer_) fail(error);
@@ -644,7 +642,6 @@ class TraceCaptureSink final : public CaptureSink {
       if (stopEmitting_) break;
       work_ = false;
       wait.unlock();
-      foregroundGate().waitWhileBusy();
       {
         std::lock_guard write(writeMutex_);
         {
@@ -692,7 +689,6 @@ class TraceCaptureSink final : public CaptureSink {
     if (writer_ && !failed_) outbox_.emplace_back(std::move(record));
   }
   void writeRecord(const fbs::RecordT& record) {  // writeMutex_ held
-    if (emitterThread) foregroundGate().waitWhileBusy();  // a queue waits on the layer: step aside
     if (writer_ && !failed_) check(writer_->append(record));
     appendedSinceFlush_ = true;
   }
@@ -790,7 +786,6 @@ class TraceCaptureSink final : public CaptureSink {
         }
       }
       fbs::MemorySnapshot snap;
-      if (emitterThread) foregroundGate().waitWhileBusy();
       if (!writer_ || failed_) return;
       if (!check(writer_->snapshot(first.buffer, first.bufferOffset, first.address, pieces, &snap))) return;
       out.push_back(snap);

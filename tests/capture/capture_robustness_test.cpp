@@ -15,6 +15,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <set>
 #include <sstream>
 #include <thread>
 #include <tuple>
@@ -366,6 +367,42 @@ TEST_F(CaptureRobustness, ServedBuildFindingsAreRecordedAndListedByInfo) {
   ProcessResult valid = run("frames 2 --clusters 4", {{"CLASTRACE_OUTPUT", (dir / "valid.clt").string()}});
   ASSERT_EQ(valid.exitCode, 0) << valid.err;
   EXPECT_EQ(readTrace(dir / "valid.clt").count(RecordBody::CaptureFinding), 0u);
+}
+
+// The frame loop re-records one command buffer every frame; the layer reuses its query pool and
+// pause events across the recordings, so every frame's two builds still get their own valid
+// pair of GPU timestamps, read back after that frame's fence, from the one pool.
+TEST_F(CaptureRobustness, ReRecordedCommandBufferKeepsValidTimestampsEveryFrame) {
+  const fs::path trace = dir / "timed.clt";
+  ProcessResult r = run("frames 5 --clusters 4", {{"CLASTRACE_OUTPUT", trace.string()}});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  clastrace::traces::TraceError error;
+  auto reader = clastrace::traces::TraceReader::open(trace.string(), &error);
+  ASSERT_TRUE(reader) << error.message;
+  clastrace::traces::RecordView view;
+  std::vector<std::vector<const clastrace::fbs::GpuTimestamp*>> frames;
+  std::set<uint64_t> pools;
+  while (reader->next(&view)) {
+    if (view.kind == RecordBody::CommandBufferBegin) frames.emplace_back();
+    if (view.kind != RecordBody::GpuTimestamp || frames.empty()) continue;
+    const auto* t = view.record->body_as_GpuTimestamp();
+    frames.back().push_back(t);
+    pools.insert(t->query_pool());
+  }
+  ASSERT_EQ(frames.size(), 5u);
+  for (size_t f = 0; f < frames.size(); ++f) {
+    ASSERT_EQ(frames[f].size(), 4u) << "frame " << f;  // before and after each of the two builds
+    for (size_t i = 0; i < 4; ++i) {
+      EXPECT_TRUE(frames[f][i]->ticks_valid()) << "frame " << f << " query " << i;
+      EXPECT_EQ(frames[f][i]->query(), i) << "frame " << f;  // the reused pool starts over
+    }
+    EXPECT_GT(frames[f][1]->ticks(), frames[f][0]->ticks()) << "frame " << f;
+    EXPECT_GE(frames[f][2]->ticks(), frames[f][1]->ticks()) << "frame " << f;
+    if (f > 0) {
+      EXPECT_GT(frames[f][0]->ticks(), frames[f - 1][3]->ticks()) << "frame " << f;
+    }
+  }
+  EXPECT_EQ(pools.size(), 1u) << "a query pool per recording: the spare was not reused";
 }
 
 // ---- Simultaneous use and staging --------------------------------------------------------------

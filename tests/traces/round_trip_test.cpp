@@ -6,7 +6,6 @@
 
 #include <gtest/gtest.h>
 
-#include <atomic>
 #include <csignal>
 #include <random>
 #include <set>
@@ -118,53 +117,6 @@ TEST(TraceRoundTrip, IdenticalSnapshotsAreStoredOnce) {
     ASSERT_FALSE(reader->read_contents(s3.hash(), &got));
     EXPECT_EQ(got, copy);
     EXPECT_EQ(reader->read_contents(0x1234, &got).code, TraceErrorCode::missing_contents);
-}
-
-// A capture compresses in slices and yields between them (TraceWriterOptions::compressor_yield):
-// the chunks read back the same as one-shot ones, random bytes (which zstd stores raw, past the
-// one-shot bound's slack) and repetitive ones alike, at a fast and a default level.
-TEST(TraceRoundTrip, SlicedCompressionWithYieldsReadsBackTheSame) {
-    for (int level : {-5, 3}) {
-        const std::string path = temp_path("sliced.clt");
-        TraceError e;
-        TraceWriterOptions options;
-        options.chunk_raw_bytes = 3u << 20;  // each chunk spans many 128 KiB slices
-        options.zstd_level = level;
-        std::atomic<int> yields{0};
-        options.compressor_yield = [&] { ++yields; };
-        auto w = TraceWriter::create(path, test_header(), options, &e);
-        ASSERT_TRUE(w) << e.message;
-        std::mt19937_64 random(7);
-        std::vector<std::vector<uint8_t>> blobs;
-        std::vector<fbs::MemorySnapshot> snaps;
-        for (int i = 0; i < 6; ++i) {
-            std::vector<uint8_t> bytes(size_t(700000 + 4099 * i));
-            if (i % 2) for (auto& b : bytes) b = uint8_t(random());
-            else for (size_t k = 0; k < bytes.size(); ++k) bytes[k] = uint8_t(k / 3 + i);
-            fbs::MemorySnapshot snap;
-            ASSERT_FALSE(w->snapshot(uint64_t(i + 1), 0, 0x10000ull * (i + 1) << 8, bytes.data(), bytes.size(), &snap));
-            snaps.push_back(snap);
-            blobs.push_back(std::move(bytes));
-            fbs::CmdCopyBufferT cmd;
-            cmd.inputs = {snap};
-            fbs::RecordT r;
-            r.body.Set(std::move(cmd));
-            ASSERT_FALSE(w->append(r));
-        }
-        ASSERT_FALSE(w->finish());
-        EXPECT_GT(yields.load(), 4) << "level " << level;
-
-        ReadResult read = read_all(path);
-        ASSERT_TRUE(read.opened) << read.open_error.message;
-        EXPECT_EQ(read.damage_count, 0u) << describe(read.damage);
-        auto reader = TraceReader::open(path, &e);
-        ASSERT_TRUE(reader) << e.message;
-        for (size_t i = 0; i < blobs.size(); ++i) {
-            std::vector<uint8_t> got;
-            ASSERT_FALSE(reader->read_contents(snaps[i].hash(), &got)) << i;
-            EXPECT_EQ(got, blobs[i]) << "level " << level << " blob " << i;
-        }
-    }
 }
 
 TEST(TraceRoundTrip, HashCollisionsGetDistinctKeysAndTheRightBytes) {

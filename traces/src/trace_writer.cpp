@@ -144,42 +144,12 @@ struct TraceWriter::Impl {
     }
 
     // Compresses and writes one chunk at file_offset; used by the worker and for the index.
-    // One zstd frame of `size` bytes. With a yield hook, fed in slices with the hook called
-    // between them (the frame is the same kind either way: its content size is pledged).
-    size_t compress(ZSTD_CCtx* cctx, std::vector<uint8_t>& compressed, const uint8_t* data, size_t size,
-                    const std::function<void()>* yield) {
-        if (!yield || !*yield)
-            return ZSTD_compressCCtx(cctx, compressed.data(), compressed.size(), data, size, options.zstd_level);
-        constexpr size_t kSlice = 128u << 10;  // zstd's block: the least it compresses at once
-        ZSTD_CCtx_reset(cctx, ZSTD_reset_session_and_parameters);
-        size_t r = ZSTD_CCtx_setParameter(cctx, ZSTD_c_compressionLevel, options.zstd_level);
-        if (!ZSTD_isError(r)) r = ZSTD_CCtx_setPledgedSrcSize(cctx, size);
-        if (ZSTD_isError(r)) return r;
-        ZSTD_outBuffer out{compressed.data(), compressed.size(), 0};
-        ZSTD_inBuffer in{data, 0, 0};
-        for (;;) {
-            const bool last = size - in.size <= kSlice;
-            in.size = last ? size : in.size + kSlice;
-            r = ZSTD_compressStream2(cctx, &out, &in, last ? ZSTD_e_end : ZSTD_e_continue);
-            if (ZSTD_isError(r)) return r;
-            if (last && r == 0) return out.pos;
-            if (out.pos == out.size) {  // past the one-shot bound: room for the frame's end
-                compressed.resize(compressed.size() + ZSTD_CStreamOutSize());
-                out.dst = compressed.data();
-                out.size = compressed.size();
-            }
-            if (!last) (*yield)();
-        }
-    }
-
-    // Compresses and writes one chunk at file_offset; used by the worker and for the index.
     TraceError write_chunk(ZSTD_CCtx* cctx, std::vector<uint8_t>& compressed, const uint8_t* data, size_t size,
                            format::ChunkKind kind, uint32_t chunk_number, uint32_t record_count,
-                           uint64_t first_submission, uint64_t offset, uint32_t* compressed_size,
-                           const std::function<void()>* yield = nullptr) {
+                           uint64_t first_submission, uint64_t offset, uint32_t* compressed_size) {
         compressed.resize(ZSTD_compressBound(size));
         const uint64_t started = now_ns();
-        size_t csize = compress(cctx, compressed, data, size, yield);
+        size_t csize = ZSTD_compressCCtx(cctx, compressed.data(), compressed.size(), data, size, options.zstd_level);
         const uint64_t compressed_at = now_ns();
         if (ZSTD_isError(csize)) {
             return make_trace_error(TraceErrorCode::io_error, path, offset,
@@ -230,8 +200,7 @@ struct TraceWriter::Impl {
             uint32_t csize = 0;
             if (!failed) {
                 e = write_chunk(cctx, compressed, chunk.raw.data(), chunk.raw.size(), format::ChunkKind::records,
-                                chunk.chunk_number, chunk.record_count, chunk.first_submission, offset, &csize,
-                                &options.compressor_yield);
+                                chunk.chunk_number, chunk.record_count, chunk.first_submission, offset, &csize);
             }
 
             lock.lock();

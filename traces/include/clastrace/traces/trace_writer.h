@@ -12,7 +12,6 @@
 
 #include <cstddef>
 #include <cstdint>
-#include <functional>
 #include <memory>
 #include <span>
 #include <string>
@@ -34,9 +33,6 @@ struct TraceWriterOptions {
     // only when no normal thread wants it, so a capture's compression never delays the threads
     // of the application. Where the class is refused, compressor_nice applies instead.
     bool compressor_idle_class = false;
-    // Called by the compression thread between slices of a chunk (128 KiB of input each),
-    // with no lock held: a capture blocks there while the application waits on it.
-    std::function<void()> compressor_yield;
 };
 
 struct TraceWriterStats {
