@@ -84,7 +84,7 @@ Run runApp(const fs::path& dir, const std::string& args, const std::map<std::str
   std::string line = "env -u CLASTRACE_OUTPUT -u CLASTRACE_CAPTURE -u CLASTRACE_DEBUG_JSON -u VK_ICD_FILENAMES";
   line += " VK_DRIVER_FILES=" + setting("CLASTRACE_BENCH_DRIVER_FILES", kLavapipe) +
           " VK_ADD_LAYER_PATH=" + setting("CLASTRACE_BENCH_LAYER_DIR", CLASTRACE_LAYER_MANIFEST_DIR) +
-          " VK_INSTANCE_LAYERS=VK_LAYER_CLASTRACE_capture CLASTRACE_LOG=info CLASTRACE_STATS=1";
+          " VK_INSTANCE_LAYERS=VK_LAYER_CLASTRACE_capture CLASTRACE_STATS=1";
   for (const auto& [k, v] : env) line += " " + k + "=" + v;
   const fs::path out = dir / "out.txt", err = dir / "err.txt";
   line += " " + setting("CLASTRACE_BENCH_FRAMES_APP", CLASTRACE_FRAMES_APP) + " " + args + " >" + out.string() + " 2>" + err.string();
