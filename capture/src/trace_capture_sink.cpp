@@ -350,6 +350,20 @@ class TraceCaptureSink final : public CaptureSink {
     r.device_mask = a.deviceMask;
     append(recordOf(std::move(r)));
   }
+  void releaseWritten() override {
+    std::vector<decltype(Pending::builds)> written;
+    uint64_t bytes = 0;
+    {
+      std::lock_guard lock(writtenMutex_);
+      if (written_.empty()) return;
+      written.swap(written_);
+      bytes = writtenBytes_;
+      writtenBytes_ = 0;
+    }
+    written.clear();
+    StateLock lock(*this);
+    pendingBytes_ -= std::min(pendingBytes_, bytes);
+  }
   void flush() override {
     CostScope cost(CostPhase::DeviceFlush, true);
     std::lock_guard write(writeMutex_);
@@ -751,7 +765,18 @@ class TraceCaptureSink final : public CaptureSink {
           writeRayCheck(std::get<RayCheckRecord>(item));
         }
       }
-      items.clear();  // frees the captured bytes before the count says they are gone
+      // The captured bytes go to the worker to free (releaseWritten) while few are waiting;
+      // past that this thread frees them, so memory stays bounded if no worker comes by.
+      {
+        std::lock_guard lock(writtenMutex_);
+        if (writtenBytes_ + written <= kMaxWrittenBytes) {
+          for (OutItem& item : items)
+            if (auto* p = std::get_if<Pending>(&item)) written_.push_back(std::move(p->builds));
+          writtenBytes_ += written;
+          written = 0;
+        }
+      }
+      items.clear();  // frees what is left before the count says it is gone
       StateLock lock(*this);
       pendingBytes_ -= std::min(pendingBytes_, written);
     }
@@ -1097,7 +1122,12 @@ class TraceCaptureSink final : public CaptureSink {
   std::atomic<bool> failed_{false};
   bool appendedSinceFlush_ = false;
   uint32_t flushMilliseconds_;
-  uint64_t pendingBytes_ = 0;  // captured bytes held in pending_
+  uint64_t pendingBytes_ = 0;  // captured bytes held in pending_ and written_
+  // Builds already written, their bytes waiting for releaseWritten.
+  static constexpr uint64_t kMaxWrittenBytes = 64ull << 20;
+  std::mutex writtenMutex_;
+  std::vector<std::map<std::pair<uint64_t, uint32_t>, ClusterBuildCapture>> written_;
+  uint64_t writtenBytes_ = 0;
   std::mutex wakeMutex_;       // guards work_ and stopEmitting_
   std::condition_variable wake_;
   bool work_ = false, stopEmitting_ = false;

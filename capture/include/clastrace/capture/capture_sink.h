@@ -41,6 +41,11 @@ class CaptureSink {
   virtual void queuePresented(const PresentRecord&) {}
   // vkAcquireNextImage[2]KHR, recorded like presents (in call order, whatever the range).
   virtual void imageAcquired(const AcquireRecord&) {}
+  // Frees the captured bytes of records already written, on the calling thread. The pause
+  // worker calls it when idle: the bytes were allocated on its thread, and freeing them there
+  // spares the sink's thread the allocator's cross-thread path (and the worker's allocations
+  // inside the next pause the contention on its arena's lock).
+  virtual void releaseWritten() {}
   // Makes everything received so far durable (the application may exit without cleanup).
   virtual void flush() = 0;
   // Lines for the CLASTRACE_STATS report: what the sink wrote and where its time went.
