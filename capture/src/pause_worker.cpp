@@ -224,12 +224,9 @@ bool PauseWorker::handle(Expected& expected) {
   const bool capture = expected.capture && device_.capturingNow();
   // A served build reads the application's memory through the engine's image; the capture's
   // walk reads through the same copy, so each byte crosses from (often uncached) memory once.
-  std::vector<ServedBuffer> servedBuffers;
   std::unique_ptr<ServedMemory> served;
-  if (device_.serving && pause.phase == PausePhase::BeforeCommand && pause.parameters) {
-    servedBuffers = prepareServedBuffers();
-    served = std::make_unique<ServedMemory>(servedBuffers, regionPool_);
-  }
+  if (device_.serving && pause.phase == PausePhase::BeforeCommand && pause.parameters)
+    served = std::make_unique<ServedMemory>(prepareServedBuffers(), regionPool_);
   DeviceMemoryReader reader = [this, &served](VkDeviceAddress a, uint64_t s, std::vector<uint8_t>* o, std::string& w) {
     if (served)
       if (const uint8_t* bytes = served->read(a, s)) {
@@ -345,13 +342,13 @@ bool PauseWorker::handle(Expected& expected) {
     nameRanges(*record);
     return true;
   }
-  // The rest reads the engine's image and the memory map, with the queue running again. Not
-  // later than now: once the queue passes its last pause the application may destroy the
-  // buffers that name the ranges (deferring this past the next pause changed traces under load).
-  AfterRelease work{std::move(*record), std::move(servedImage), pause.parameters, {}, nullptr};
+  // The rest reads the engine's image, with the queue running again. A served record waits
+  // until no pause is due, named then by the buffers of this pause (the application may have
+  // destroyed them by then); any other now, by the memory map, before the queue passes its last
+  // pause and the application may destroy the buffers that name the ranges.
+  AfterRelease work{std::move(*record), std::move(servedImage), pause.parameters, nullptr};
   open_.erase(openKey);
   if (work.servedImage && served) {
-    work.servedBuffers = std::move(servedBuffers);  // moving keeps the group's pointers valid
     work.served = std::move(served);
     unfinished_.push_back(std::move(work));
     if (unfinished_.size() > kMaxUnfinished) finishOneUnfinished();
@@ -440,26 +437,23 @@ std::vector<uint32_t> PauseWorker::movedTemplateVertexCounts(const ClusterComman
 std::vector<ServedBuffer> PauseWorker::prepareServedBuffers() {
   std::vector<ResolvedRange> held = device_.memoryMap.hostAddressedBuffers();
   std::vector<ServedBuffer> buffers;
-  servedNonCoherent_.clear();
   buffers.reserve(held.size());
-  for (const ResolvedRange& r : held) {
+  for (const ResolvedRange& r : held)
     buffers.push_back({r.buffer.handle, r.buffer.address, r.buffer.size, r.buffer.usage, r.host, r.memory.handle,
-                       (r.memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT) != 0});
-    if (!(r.memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_COHERENT_BIT) &&
-        std::find(servedNonCoherent_.begin(), servedNonCoherent_.end(), r.memory.handle) == servedNonCoherent_.end())
-      servedNonCoherent_.push_back(r.memory.handle);
-  }
+                       (r.memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT) != 0,
+                       (r.memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_COHERENT_BIT) != 0});
   // Unmapped buffers take part through their staged copies; the queue copies them back.
-  if (staging_) {
-    const uint64_t stagingMemory = handleId(staging_->memory);
+  if (staging_)
     for (const StagedBuffer& b : staging_->buffers)
       buffers.push_back({b.buffer.handle, b.buffer.address, b.buffer.size, b.buffer.usage, staging_->host + b.offset,
-                         stagingMemory, staging_->cached});
-    if (!staging_->coherent) servedNonCoherent_.push_back(stagingMemory);
-  }
+                         handleId(staging_->memory), staging_->cached, staging_->coherent});
   // What the device wrote to non-coherent memory reaches the host view only after an invalidate.
-  for (uint64_t memory : servedNonCoherent_) {
-    VkMappedMemoryRange range{VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE, nullptr, (VkDeviceMemory)memory, 0, VK_WHOLE_SIZE};
+  std::vector<uint64_t> invalidated;
+  for (const ServedBuffer& b : buffers) {
+    if (b.coherent || std::find(invalidated.begin(), invalidated.end(), b.memory) != invalidated.end()) continue;
+    invalidated.push_back(b.memory);
+    VkMappedMemoryRange range{VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE, nullptr, (VkDeviceMemory)b.memory, 0,
+                              VK_WHOLE_SIZE};
     device_.next.InvalidateMappedMemoryRanges(device_.device, 1, &range);
   }
   return buffers;
@@ -476,8 +470,10 @@ std::shared_ptr<const engine::MemoryImage> PauseWorker::executeServed(const Paus
     if (record) record->engineFindings.push_back({"CLASTRACE-engine-could-not-run", served.error, -1, 0});
     return nullptr;
   }
+  const std::span<const ServedBuffer> buffers = memory.buffers();
   for (uint64_t written : served.writtenMemories)
-    if (std::find(servedNonCoherent_.begin(), servedNonCoherent_.end(), written) != servedNonCoherent_.end()) {
+    if (std::any_of(buffers.begin(), buffers.end(),
+                    [&](const ServedBuffer& b) { return b.memory == written && !b.coherent; })) {
       VkMappedMemoryRange range{VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE, nullptr, (VkDeviceMemory)written, 0,
                                 VK_WHOLE_SIZE};
       device_.next.FlushMappedMemoryRanges(device_.device, 1, &range);

@@ -96,7 +96,6 @@ class PauseWorker {
     std::shared_ptr<const ClusterCommandParameters> parameters;
     // The buffers as they were at the pause, to name the ranges by: the application may destroy
     // them once the queue moved on, and a served command's record is finished later.
-    std::vector<ServedBuffer> servedBuffers;
     std::unique_ptr<ServedMemory> served;
   };
   void run();
@@ -121,9 +120,8 @@ class PauseWorker {
   std::shared_ptr<const engine::MemoryImage> executeServed(const PausePoint& pause, ServedMemory& memory,
                                                            ClusterBuildCapture* record);
   // The buffers a served build can reach (mapped ones, and the pause's staged copies), their
-  // non-coherent memory invalidated; the allocations to flush after it are kept below.
+  // non-coherent memory invalidated.
   std::vector<ServedBuffer> prepareServedBuffers();
-  std::vector<uint64_t> servedNonCoherent_;
   std::shared_ptr<ServedRegionPool> regionPool_ = std::make_shared<ServedRegionPool>();
 
   DeviceState& device_;

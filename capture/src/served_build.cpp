@@ -55,10 +55,10 @@ uint64_t ServedRegionPool::heldBytes() const {
   return held_;
 }
 
-ServedMemory::ServedMemory(std::span<const ServedBuffer> buffers, std::shared_ptr<ServedRegionPool> pool)
-    : pool_(std::move(pool)) {
+ServedMemory::ServedMemory(std::vector<ServedBuffer> buffers, std::shared_ptr<ServedRegionPool> pool)
+    : pool_(std::move(pool)), buffers_(std::move(buffers)) {
   std::vector<const ServedBuffer*> sorted;
-  for (const ServedBuffer& b : buffers)
+  for (const ServedBuffer& b : buffers_)
     if (b.address != 0 && b.size != 0 && b.host && b.address + b.size > b.address) sorted.push_back(&b);
   std::stable_sort(sorted.begin(), sorted.end(), [](auto* a, auto* b) { return a->address < b->address; });
   for (const ServedBuffer* b : sorted) {
@@ -127,11 +127,8 @@ ServedMemory::~ServedMemory() {
 }
 
 std::shared_ptr<const engine::MemoryImage> ServedMemory::share() {
-  lastGroupBytes_ = nullptr;
   auto* image = new engine::MemoryImage(std::move(image_));
-  image_ = engine::MemoryImage();
-  copied_.assign(groups_.size(), false);
-  bytesCopied_ = 0;
+  reset();  // (the moved-from image holds nothing to give back)
   return std::shared_ptr<const engine::MemoryImage>(image, [pool = pool_, image](const engine::MemoryImage*) {
     if (pool) pool->give(image->release_storage());
     delete image;
@@ -150,7 +147,7 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
                                    std::span<const ServedBuffer> buffers, engine::ObjectDirectory& directory,
                                    const engine::EngineProperties& properties,
                                    const std::vector<CapturedRange>* inputWalk) {
-  ServedMemory memory(buffers);
+  ServedMemory memory({buffers.begin(), buffers.end()});
   return executeServedBuild(command, memory, directory, properties, inputWalk);
 }
 

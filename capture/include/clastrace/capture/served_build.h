@@ -36,6 +36,7 @@ struct ServedBuffer {
   // Host-cached memory is read with plain loads; other host memory (write-combined on most
   // discrete GPUs) with streaming loads, a line at a time.
   bool cached = true;
+  bool coherent = true;  // false: the caller flushes what the build wrote into the allocation
 };
 
 // Region bytes that finished served images gave back, for the next images to reuse: a frame
@@ -64,7 +65,7 @@ class ServedRegionPool {
 class ServedMemory {
  public:
   // `pool`, when given, lends the regions' bytes and gets them back from the images made here.
-  explicit ServedMemory(std::span<const ServedBuffer> buffers, std::shared_ptr<ServedRegionPool> pool = nullptr);
+  explicit ServedMemory(std::vector<ServedBuffer> buffers, std::shared_ptr<ServedRegionPool> pool = nullptr);
   ~ServedMemory();
   ServedMemory(const ServedMemory&) = delete;
   ServedMemory& operator=(const ServedMemory&) = delete;
@@ -80,6 +81,7 @@ class ServedMemory {
     std::vector<const ServedBuffer*> buffers;
   };
   const std::vector<Group>& groups() const { return groups_; }
+  std::span<const ServedBuffer> buffers() const { return buffers_; }  // as given
   size_t groupOf(uint64_t address) const;  // groups().size() when no group holds it
   // The buffer holding all of [address, address + size) that starts nearest below it; null
   // when none does.
@@ -95,6 +97,7 @@ class ServedMemory {
 
  private:
   std::shared_ptr<ServedRegionPool> pool_;
+  std::vector<ServedBuffer> buffers_;  // the groups point into it
   std::vector<Group> groups_;
   std::vector<bool> copied_;
   engine::MemoryImage image_;
