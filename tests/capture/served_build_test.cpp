@@ -1,5 +1,6 @@
 // The served device's answers come from the engine: build sizes equal engine::cluster_build_sizes
 // and hold a real build; executeServedBuild writes back exactly what engine::execute computes.
+#include "clastrace/capture/cluster_input_walker.h"
 #include "clastrace/capture/cluster_limits.h"
 #include "clastrace/capture/served_build.h"
 #include "served_scene.h"
@@ -361,4 +362,121 @@ TEST(ServedBuild, ServedMemoryCopiesAGroupOnFirstRead) {
   EXPECT_EQ(inside.read(0x100810, 4)[0], 5);
   EXPECT_EQ(inside.read(0x105000, 4)[0], 4);  // after a read of the small one (the cached buffer)
   EXPECT_EQ(inside.read(0x10F000, 0x2000), nullptr);
+}
+
+namespace {
+
+// The capture's input walk of `command` through `memory`, leaving bulk inputs in its image.
+ClusterMemoryWalk walkLeavingBulkUncopied(const VkClusterAccelerationStructureCommandsInfoNV& command,
+                                          ServedMemory& memory) {
+  DeviceMemoryReader read = [&](VkDeviceAddress a, uint64_t s, std::vector<uint8_t>* out, std::string& why) {
+    const uint8_t* bytes = memory.read(a, s);
+    if (!bytes) {
+      why = "not inside one buffer";
+      return false;
+    }
+    if (out) out->assign(bytes, bytes + s);
+    return true;
+  };
+  DeviceMemoryView view = [&](VkDeviceAddress a, uint64_t s) { return memory.read(a, s); };
+  return walkClusterInputs(ClusterCommandParameters::copyOf(command), read, {}, view);
+}
+
+// Where the bytes of `range` lie in `image`, or null.
+const uint8_t* inImage(const engine::MemoryImage& image, const CapturedRange& range) {
+  const engine::MemoryRegion* region = image.find_region(range.address);
+  if (!region) return nullptr;
+  return reinterpret_cast<const uint8_t*>(region->bytes.data()) + (range.address - region->base);
+}
+
+size_t countUncopied(const std::vector<CapturedRange>& ranges, MemoryRole role) {
+  return size_t(std::count_if(ranges.begin(), ranges.end(),
+                              [&](const CapturedRange& r) { return r.role == role && r.uncopied; }));
+}
+
+}  // namespace
+
+// Served, the capture leaves vertices and indices in the engine's image while the queue waits
+// and copies them after the release: they hold the bytes the command read, and what the walk
+// parses itself (the src infos) is copied at once.
+TEST(ServedBuild, UncopiedInputsLieInTheImageWithTheBytesTheCommandRead) {
+  HostScene scene;
+  const std::vector<uint8_t> vertices = scene.bytes["vertices"], indices = scene.bytes["indices"];
+  ServedMemory memory(scene.buffers);
+  ClusterMemoryWalk walk = walkLeavingBulkUncopied(scene.commands.clusters, memory);
+  ASSERT_TRUE(walk.issues.empty()) << walk.issues[0].rule;
+  EXPECT_EQ(countUncopied(walk.ranges, MemoryRole::VertexBuffer), size_t(served_scene::kClusterCount));
+  EXPECT_EQ(countUncopied(walk.ranges, MemoryRole::IndexBuffer), size_t(served_scene::kClusterCount));
+  EXPECT_EQ(countUncopied(walk.ranges, MemoryRole::SrcInfos), 0u);
+  engine::ObjectDirectory directory;
+  ServedExecution run = executeServedBuild(scene.commands.clusters, memory, directory, servedEngineProperties(),
+                                           &walk.ranges);
+  ASSERT_TRUE(run.ran) << run.error;
+  EXPECT_EQ(run.attempts, 1u);
+  for (CapturedRange& r : walk.ranges) {
+    if (!r.uncopied) continue;
+    EXPECT_EQ(r.uncopied, inImage(*run.image, r)) << memoryRoleName(r.role) << " of entry " << r.entry;
+    const std::vector<uint8_t>& source = r.role == MemoryRole::VertexBuffer ? vertices : indices;
+    const uint64_t base = r.role == MemoryRole::VertexBuffer ? scene.a.vertices : scene.a.indices;
+    r.copyUncopied();
+    EXPECT_EQ(r.uncopied, nullptr);
+    ASSERT_LE(r.address - base + r.bytes.size(), source.size());
+    EXPECT_EQ(std::memcmp(r.bytes.data(), source.data() + (r.address - base), r.bytes.size()), 0);
+  }
+}
+
+// A destination that overlaps the vertices (a violation the replay reports) overwrites them in
+// the image and, by the write-back, in the application's memory: the capture still records
+// the vertices the command read, copied from the application's memory before the write-back.
+TEST(ServedBuild, InputsTheEngineOverwritesAreCopiedBeforeTheWriteBack) {
+  HostScene scene;
+  const std::vector<uint8_t> vertices = scene.bytes["vertices"];
+  // One buffer over the vertices and room for every cluster, aliasing the vertex buffer.
+  std::vector<uint8_t> shared(vertices.size() + scene.clusterSizes.accelerationStructureSize + 4096, 0xEE);
+  std::memcpy(shared.data(), vertices.data(), vertices.size());
+  std::memcpy(scene.bytes["vertices"].data(), vertices.data(), vertices.size());
+  scene.buffers.push_back({98, scene.a.vertices, shared.size(), VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR |
+                                                                    VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR,
+                           shared.data(), 7});
+  scene.commands.clusters.dstImplicitData = scene.a.vertices;
+  ServedMemory memory(scene.buffers);
+  ClusterMemoryWalk walk = walkLeavingBulkUncopied(scene.commands.clusters, memory);
+  ASSERT_EQ(countUncopied(walk.ranges, MemoryRole::VertexBuffer), size_t(served_scene::kClusterCount));
+  engine::ObjectDirectory directory;
+  ServedExecution run = executeServedBuild(scene.commands.clusters, memory, directory, servedEngineProperties(),
+                                           &walk.ranges);
+  ASSERT_TRUE(run.ran) << run.error;
+  ASSERT_NE(std::memcmp(shared.data(), vertices.data(), vertices.size()), 0) << "the build did not write over the vertices";
+  size_t checked = 0;
+  for (CapturedRange& r : walk.ranges) {
+    if (r.role != MemoryRole::VertexBuffer) continue;
+    r.copyUncopied();  // the ones the engine did not write over still lie in the image
+    ASSERT_LE(r.address - scene.a.vertices + r.bytes.size(), vertices.size());
+    EXPECT_EQ(std::memcmp(r.bytes.data(), vertices.data() + (r.address - scene.a.vertices), r.bytes.size()), 0)
+        << "entry " << r.entry << ": not the vertices the command read";
+    ++checked;
+  }
+  EXPECT_EQ(checked, size_t(served_scene::kClusterCount));
+}
+
+// A second run copies the image anew: the uncopied ranges then lie in the last run's image.
+TEST(ServedBuild, UncopiedInputsFollowTheImageOfTheLastRun) {
+  HostScene scene;
+  const std::vector<uint8_t> vertices = scene.bytes["vertices"];
+  scene.commands.clusters.scratchData = 0;  // a finding no buffer explains: a run over all buffers follows
+  ServedMemory memory(scene.buffers);
+  ClusterMemoryWalk walk = walkLeavingBulkUncopied(scene.commands.clusters, memory);
+  ASSERT_GT(countUncopied(walk.ranges, MemoryRole::VertexBuffer), 0u);
+  engine::ObjectDirectory directory;
+  ServedExecution run = executeServedBuild(scene.commands.clusters, memory, directory, servedEngineProperties(),
+                                           &walk.ranges);
+  ASSERT_TRUE(run.ran) << run.error;
+  ASSERT_EQ(run.attempts, 2u);
+  for (CapturedRange& r : walk.ranges) {
+    if (r.role != MemoryRole::VertexBuffer) continue;
+    ASSERT_NE(r.uncopied, nullptr);
+    EXPECT_EQ(r.uncopied, inImage(*run.image, r));
+    r.copyUncopied();
+    EXPECT_EQ(std::memcmp(r.bytes.data(), vertices.data() + (r.address - scene.a.vertices), r.bytes.size()), 0);
+  }
 }
