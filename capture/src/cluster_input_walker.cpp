@@ -25,8 +25,7 @@ uint64_t stridedSpan(uint64_t count, uint64_t stride, uint64_t elementBytes) {
 
 class Walker {
  public:
-  Walker(const DeviceMemoryReader& read, ClusterMemoryWalk& out, const DeviceMemoryView* view = nullptr)
-      : read_(read), view_(view), out_(out) {}
+  Walker(const DeviceMemoryReader& read, ClusterMemoryWalk& out) : read_(read), out_(out) {}
 
   bool capture(MemoryRole role, uint32_t entry, VkDeviceAddress address, uint64_t size) {
     if (size == 0) return true;
@@ -41,10 +40,7 @@ class Walker {
       issue(address, size, "the ranges this command references exceed the capture's per-command limit of 1 GiB");
       return false;
     }
-    if (view_ && *view_ && !parsed(role)) range.uncopied = (*view_)(address, size);
-    if (range.uncopied) {
-      range.uncopiedSize = size;
-    } else if (!read_(address, size, &range.bytes, why)) {
+    if (!read_(address, size, &range.bytes, why)) {
       issue(address, size, std::string(memoryRoleName(role)) + ": " + why);
       return false;
     }
@@ -100,21 +96,7 @@ class Walker {
   }
 
  private:
-  // Roles whose bytes the walk (or the served build's buffer selection) reads itself.
-  static bool parsed(MemoryRole role) {
-    switch (role) {
-      case MemoryRole::IndexBuffer:
-      case MemoryRole::VertexBuffer:
-      case MemoryRole::GeometryIndexAndFlags:
-      case MemoryRole::OpacityMicromapIndices:
-      case MemoryRole::InstantiationBoundingBox:
-        return false;
-      default:
-        return true;
-    }
-  }
   const DeviceMemoryReader& read_;
-  const DeviceMemoryView* view_;
   ClusterMemoryWalk& out_;
   uint64_t total_ = 0;
 };
@@ -255,10 +237,9 @@ uint32_t clusterVertexFormatBytes(VkFormat format) {
 }
 
 ClusterMemoryWalk walkClusterInputs(const ClusterCommandParameters& p, const DeviceMemoryReader& read,
-                                    const TemplateVertexCountLookup& templateVertexCount,
-                                    const DeviceMemoryView& view) {
+                                    const TemplateVertexCountLookup& templateVertexCount) {
   ClusterMemoryWalk out;
-  Walker walker(read, out, &view);
+  Walker walker(read, out);
   const Info& info = p.info;
   const uint32_t maxCount = info.input.maxAccelerationStructureCount;
   const VkClusterAccelerationStructureAddressResolutionFlagsNV flags = info.addressResolutionFlags;

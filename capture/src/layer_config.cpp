@@ -111,11 +111,6 @@ LayerConfig parseLayerConfig(const std::function<const char*(const char*)>& gete
     if (auto on = parseSwitch(*v)) config.timestamps = *on;
     else reject("CLASTRACE_TIMESTAMPS", *v, "0 or 1");
   }
-  if (auto v = value("CLASTRACE_ENGINE_THREADS")) {
-    auto threads = parseUnsigned(*v);
-    if (threads && *threads <= 1024) config.engineThreads = uint32_t(*threads);
-    else reject("CLASTRACE_ENGINE_THREADS", *v, "a thread count from 0 (one per core) to 1024");
-  }
   if (auto v = value("CLASTRACE_STATS")) {
     if (auto on = parseSwitch(*v)) config.stats = *on;
     else reject("CLASTRACE_STATS", *v, "0 or 1");

@@ -33,12 +33,7 @@ const char* const kNotStaged =
     "so the layer did not stage it";
 }  // namespace
 
-PauseWorker::PauseWorker(DeviceState& device)
-    : engineArena_(layerConfig().engineThreads
-                       ? std::make_unique<tbb::task_arena>(int(layerConfig().engineThreads))
-                       : nullptr),
-      device_(device),
-      thread_([this] { run(); }) {}
+PauseWorker::PauseWorker(DeviceState& device) : device_(device), thread_([this] { run(); }) {}
 
 PauseWorker::~PauseWorker() {
   {
@@ -272,18 +267,12 @@ bool PauseWorker::handle(Expected& expected) {
         walk = walkCopyMemoryToAccelerationStructureInputs(*pause.copyToAccelerationStructure, reader);
       } else {
         fresh.parameters = *pause.parameters;
-        // Served, the bulk inputs are left in the engine's image and copied after the release.
-        DeviceMemoryView view;
-        if (served) view = [&served](VkDeviceAddress a, uint64_t s) { return served->read(a, s); };
-        walk = walkClusterInputs(
-            *pause.parameters, reader,
-            [this](VkDeviceAddress address, uint32_t* vertices) {
-              auto it = templateVertexCounts_.find(address);
-              if (it == templateVertexCounts_.end()) return false;
-              *vertices = it->second;
-              return true;
-            },
-            view);
+        walk = walkClusterInputs(*pause.parameters, reader, [this](VkDeviceAddress address, uint32_t* vertices) {
+          auto it = templateVertexCounts_.find(address);
+          if (it == templateVertexCounts_.end()) return false;
+          *vertices = it->second;
+          return true;
+        });
         if (!walk.templateVertexCounts.empty())
           pendingTemplateVertexCounts_[pause.pauseId] = std::move(walk.templateVertexCounts);
         else if (pause.parameters->info.input.opType == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV &&
@@ -377,10 +366,10 @@ void PauseWorker::nameRanges(ClusterBuildCapture& record, const ServedMemory* se
     for (CapturedRange& r : *list) {
       std::string why;
       if (r.address == 0) continue;  // named by buffer and offset already
-      if (const ServedBuffer* b = served ? served->bufferHolding(r.address, r.size()) : nullptr) {
+      if (const ServedBuffer* b = served ? served->bufferHolding(r.address, r.bytes.size()) : nullptr) {
         r.buffer = b->buffer;
         r.bufferOffset = r.address - b->address;
-      } else if (auto where = device_.memoryMap.resolve(r.address, r.size(), why)) {
+      } else if (auto where = device_.memoryMap.resolve(r.address, r.bytes.size(), why)) {
         r.buffer = where->buffer.handle;
         r.bufferOffset = where->offsetInBuffer;
       }
@@ -391,7 +380,6 @@ void PauseWorker::finishReleased(AfterRelease& work) {
   CostScope cost(CostPhase::AfterRelease, true);
   ClusterBuildCapture* record = &work.record;
   const std::shared_ptr<const engine::MemoryImage>& servedImage = work.servedImage;
-  for (CapturedRange& r : record->inputs) r.copyUncopied();  // from the image, still held here
   if (servedImage && work.parameters) {
     DeviceMemoryReader fromImage = [&](VkDeviceAddress a, uint64_t s, std::vector<uint8_t>* o, std::string& why) {
       const engine::MemoryRegion* region = servedImage->find_region(a);
@@ -473,13 +461,9 @@ std::vector<ServedBuffer> PauseWorker::prepareServedBuffers() {
 
 std::shared_ptr<const engine::MemoryImage> PauseWorker::executeServed(const PausePoint& pause, ServedMemory& memory,
                                                                       ClusterBuildCapture* record) {
-  ServedExecution served;
-  auto run = [&] {
-    served = executeServedBuild(pause.parameters->resolved(), memory, directory_, servedEngineProperties(),
-                                record ? &record->inputs : nullptr);
-  };
-  if (engineArena_) engineArena_->execute(run);
-  else run();
+  ServedExecution served =
+      executeServedBuild(pause.parameters->resolved(), memory, directory_, servedEngineProperties(),
+                         record ? &record->inputs : nullptr);
   if (!served.ran) {
     logMessage(LogLevel::Error, "served build (pause %llu) could not run in the engine: %s",
                (unsigned long long)pause.pauseId, served.error.c_str());

@@ -24,7 +24,6 @@
 
 #include <clastrace/engine/memory_image.h>
 #include <clastrace/engine/object_directory.h>
-#include <tbb/task_arena.h>
 
 #include <chrono>
 #include <condition_variable>
@@ -124,9 +123,6 @@ class PauseWorker {
   // non-coherent memory invalidated.
   std::vector<ServedBuffer> prepareServedBuffers();
   std::shared_ptr<ServedRegionPool> regionPool_ = std::make_shared<ServedRegionPool>();
-  // Where served builds run when CLASTRACE_ENGINE_THREADS caps their threads; null: TBB's
-  // default arena (a thread per core the process may run on).
-  std::unique_ptr<tbb::task_arena> engineArena_;
 
   DeviceState& device_;
   std::mutex mutex_;

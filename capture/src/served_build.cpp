@@ -27,43 +27,6 @@ bool holds(const ServedBuffer& b, uint64_t address, uint64_t size) {
   return address >= b.address && address - b.address <= b.size && size <= b.size - (address - b.address);
 }
 
-// See executeServedBuild. `record`: the last run's, null when the engine could not run;
-// `imageReplaced`: the image was copied anew for a later run, so the ranges' places moved.
-void settleUncopiedInputs(std::vector<CapturedRange>& inputs, ServedMemory& memory,
-                          const engine::ExecutionRecord* record, bool imageReplaced) {
-  std::vector<std::pair<uint64_t, uint64_t>> written;  // [begin, end), merged, ascending
-  if (record) {
-    for (const engine::MemoryAccess& a : record->accesses)
-      if (a.is_write && a.end > a.begin) written.emplace_back(a.begin, a.end);
-    std::sort(written.begin(), written.end());
-    size_t kept = 0;
-    for (const auto& w : written) {
-      if (kept && w.first <= written[kept - 1].second) written[kept - 1].second = std::max(written[kept - 1].second, w.second);
-      else written[kept++] = w;
-    }
-    written.resize(kept);
-  }
-  auto overwritten = [&](uint64_t begin, uint64_t end) {
-    auto it = std::upper_bound(written.begin(), written.end(), begin,
-                               [](uint64_t a, const std::pair<uint64_t, uint64_t>& w) { return a < w.second; });
-    return it != written.end() && it->first < end;
-  };
-  for (CapturedRange& r : inputs) {
-    if (!r.uncopied) continue;
-    const uint64_t size = r.uncopiedSize;
-    if (!record || overwritten(r.address, r.address + size)) {
-      // The application's memory still holds what the command read: the write-back comes later.
-      if (memory.readApplication(r.address, size, r.bytes)) {
-        r.uncopied = nullptr;
-        r.uncopiedSize = 0;
-        continue;
-      }
-    }
-    if (imageReplaced) r.uncopied = memory.read(r.address, size);  // the same bytes, copied again
-    if (!r.uncopied) r.uncopiedSize = 0;  // (not reached: the range came from one of memory's buffers)
-  }
-}
-
 }  // namespace
 
 engine::RegionBytes ServedRegionPool::take(uint64_t size) {
@@ -125,16 +88,6 @@ const ServedBuffer* ServedMemory::bufferHolding(VkDeviceAddress address, uint64_
   return nullptr;
 }
 
-bool ServedMemory::readApplication(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>& out) const {
-  const ServedBuffer* b = bufferHolding(address, size);
-  if (!b) return false;
-  out.resize(size);
-  const uint8_t* from = b->host + (address - b->address);
-  if (b->cached) std::memcpy(out.data(), from, size);
-  else copyFromUncached(out.data(), from, size);
-  return true;
-}
-
 void ServedMemory::copy(size_t group) {
   if (copied_[group]) return;
   const Group& g = groups_[group];
@@ -193,14 +146,14 @@ void ServedMemory::reset() {
 ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command,
                                    std::span<const ServedBuffer> buffers, engine::ObjectDirectory& directory,
                                    const engine::EngineProperties& properties,
-                                   std::vector<CapturedRange>* inputWalk) {
+                                   const std::vector<CapturedRange>* inputWalk) {
   ServedMemory memory({buffers.begin(), buffers.end()});
   return executeServedBuild(command, memory, directory, properties, inputWalk);
 }
 
 ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command, ServedMemory& memory,
                                    engine::ObjectDirectory& directory, const engine::EngineProperties& properties,
-                                   std::vector<CapturedRange>* inputWalk) {
+                                   const std::vector<CapturedRange>* inputWalk) {
   ServedExecution result;
   const std::vector<ServedMemory::Group>& groups = memory.groups();
 
@@ -276,11 +229,9 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
     }
   } catch (const std::exception& e) {
     result.error = e.what();
-    if (inputWalk) settleUncopiedInputs(*inputWalk, memory, nullptr, false);
     return result;
   }
   result.ran = true;
-  if (inputWalk) settleUncopiedInputs(*inputWalk, memory, &result.record, result.attempts > 1);
 
   // Back into every buffer that holds a written byte (aliases included: same memory or not,
   // each view must show what the command wrote).

@@ -2,7 +2,6 @@
 
 #include <gtest/gtest.h>
 
-#include <algorithm>
 #include <cstring>
 #include <map>
 #include <random>
@@ -141,36 +140,6 @@ TEST_F(TwoClusters, FollowsEveryPointerWithExactRanges) {
   auto geometry = rangesOf(walk, MemoryRole::GeometryIndexAndFlags);
   ASSERT_EQ(geometry.size(), 1u);
   EXPECT_EQ(geometry[0]->bytes.size(), 8u);
-}
-
-// With a view (a served build's image), the ranges the walk does not parse are left where
-// they lie, uncopied; what it parses is still read, and a range the view cannot answer is read.
-TEST_F(TwoClusters, AViewLeavesOnlyUnparsedRangesUncopied) {
-  std::vector<VkDeviceAddress> viewed;
-  DeviceMemoryView view = [&](VkDeviceAddress a, uint64_t size) -> const uint8_t* {
-    viewed.push_back(a);
-    if (a >= kGeometry && a < kGeometry + 256) return nullptr;  // e.g. across two buffers
-    auto it = std::prev(memory.regions.upper_bound(a));
-    return a - it->first + size <= it->second.size() ? it->second.data() + (a - it->first) : nullptr;
-  };
-  ClusterMemoryWalk plain = walkClusterInputs(triangleBuild(3, 96, 3 * 96), memory.reader());
-  memory.bytesRead = 0;
-  ClusterMemoryWalk walk = walkClusterInputs(triangleBuild(3, 96, 3 * 96), memory.reader(), {}, view);
-  EXPECT_TRUE(walk.issues.empty()) << walk.issues[0].rule;
-  ASSERT_EQ(walk.ranges.size(), plain.ranges.size());
-  uint64_t copied = 0;
-  for (size_t i = 0; i < walk.ranges.size(); ++i) {
-    CapturedRange& r = walk.ranges[i];
-    const bool bulk = r.role == MemoryRole::IndexBuffer || r.role == MemoryRole::VertexBuffer;
-    EXPECT_EQ(r.uncopied != nullptr, bulk) << memoryRoleName(r.role) << " at " << r.address;
-    EXPECT_EQ(r.size(), plain.ranges[i].bytes.size());
-    if (!r.uncopied) copied += r.bytes.size();
-    r.copyUncopied();
-    EXPECT_EQ(r.bytes, plain.ranges[i].bytes) << memoryRoleName(r.role) << " at " << r.address;
-  }
-  EXPECT_EQ(memory.bytesRead, copied);  // the reader copied only what was not left uncopied
-  EXPECT_EQ(std::count(viewed.begin(), viewed.end(), kGeometry), 1);  // asked, refused, then read
-  EXPECT_EQ(std::count(viewed.begin(), viewed.end(), kInfos), 0);  // parsed roles are never viewed
 }
 
 TEST_F(TwoClusters, CountIsTheMinimumOfMemoryAndMaximum) {

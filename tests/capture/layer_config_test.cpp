@@ -79,15 +79,3 @@ TEST(LayerConfig, TimestampsOnByDefaultAndSwitchedByZeroOrOne) {
   ASSERT_EQ(bad.errors.size(), 1u);
   EXPECT_NE(bad.errors[0].find("CLASTRACE_TIMESTAMPS='sometimes'"), std::string::npos);
 }
-
-TEST(LayerConfig, EngineThreadsDefaultToEveryCoreAndRejectNonNumbers) {
-  EXPECT_EQ(parse({}).engineThreads, 0u);
-  EXPECT_EQ(parse({{"CLASTRACE_ENGINE_THREADS", "3"}}).engineThreads, 3u);
-  EXPECT_EQ(parse({{"CLASTRACE_ENGINE_THREADS", "0"}}).engineThreads, 0u);
-  for (const char* bad : {"-1", "two", "1025", ""}) {
-    LayerConfig c = parse({{"CLASTRACE_ENGINE_THREADS", bad}});
-    EXPECT_EQ(c.engineThreads, 0u) << bad;
-    ASSERT_EQ(c.errors.size(), 1u) << bad;
-    EXPECT_NE(c.errors[0].find("CLASTRACE_ENGINE_THREADS"), std::string::npos);
-  }
-}

@@ -94,7 +94,6 @@ struct TraceWriter::Impl {
     std::unordered_map<uint64_t, StoredContents> contents;
     std::unordered_map<Fingerprint, uint64_t, FingerprintHash> keys_by_fingerprint;
     std::vector<ContentPlace> content_places;
-    std::vector<uint8_t> gathered;  // add_contents: pieces made contiguous for the one-shot hash
     TraceWriterStats counters;  // main-thread counters (chunk/bytes come from the worker)
 
     // Shared with the compression thread, under `mutex`.
@@ -465,21 +464,17 @@ TraceError TraceWriter::add_contents(std::span<const ContentPiece> pieces, uint6
         uint64_t started = now_ns();
         ~Timed() { total += now_ns() - started; }
     } timed{w.counters.contents_ns};
-    // Every content is hashed with the one-shot XXH3 over contiguous bytes: pieces (a cluster's
-    // vertex and index ranges, often a few hundred bytes each) are gathered first, as the
-    // streaming hash costs several times more per byte over small pieces than the copy does.
-    const uint8_t* whole = static_cast<const uint8_t*>(pieces.empty() ? nullptr : pieces[0].bytes);
-    if (pieces.size() > 1) {
-        w.gathered.resize(size);
-        uint8_t* to = w.gathered.data();
-        for (const ContentPiece& p : pieces) {
-            if (p.size) std::memcpy(to, p.bytes, p.size);
-            to += p.size;
-        }
-        whole = w.gathered.data();
+    // A repeat (most snapshots of a frame loop) costs one hash pass over its pieces where they
+    // lie; new contents then take one keying pass and one copy into their record.
+    XXH128_hash_t fingerprint;
+    if (pieces.size() == 1) {
+        fingerprint = XXH3_128bits(pieces[0].bytes, size);
+    } else {
+        XXH3_state_t state;
+        XXH3_128bits_reset(&state);
+        for (const ContentPiece& p : pieces) XXH3_128bits_update(&state, p.bytes, p.size);
+        fingerprint = XXH3_128bits_digest(&state);
     }
-    // A repeat (most snapshots of a frame loop) costs that one pass.
-    const XXH128_hash_t fingerprint = XXH3_128bits(whole, size);
     const Fingerprint known{fingerprint.low64, fingerprint.high64, size};
     if (auto repeat = w.keys_by_fingerprint.find(known); repeat != w.keys_by_fingerprint.end()) {
         ++w.counters.contents_deduplicated;
@@ -487,15 +482,21 @@ TraceError TraceWriter::add_contents(std::span<const ContentPiece> pieces, uint6
         *hash = repeat->second;
         return {};
     }
-    // New contents are copied once more, into their record, and keyed there (bytes just read).
-    w.fbb.Clear();
-    uint8_t* stored = nullptr;
-    auto vec = w.fbb.CreateUninitializedVector(size, &stored);
-    if (size) std::memcpy(stored, whole, size);
+    // New contents are keyed and framed straight from their pieces: no gathered copy.
+    auto keyOf = [&](uint64_t seed) {
+        if (pieces.size() == 1) return format::content_key(pieces[0].bytes, size, seed, w.options.content_hash_bits);
+        XXH3_state_t state;
+        XXH3_INITSTATE(&state);  // a stack state's first seeded reset reads it (xxhash.h)
+        XXH3_64bits_reset_withSeed(&state, seed);
+        for (const ContentPiece& p : pieces) XXH3_64bits_update(&state, p.bytes, p.size);
+        const uint64_t h = XXH3_64bits_digest(&state);  // as format::content_key over the whole
+        const unsigned bits = w.options.content_hash_bits;
+        return bits >= 64 ? h : (h & ((uint64_t{1} << bits) - 1));
+    };
     // Seed 0 gives the key; a different byte string already holding that key (a real
     // collision) moves these bytes to the next seed until a free or matching key is found.
     for (uint64_t seed = 0;; ++seed) {
-        uint64_t key = format::content_key(stored, size, seed, w.options.content_hash_bits);
+        uint64_t key = keyOf(seed);
         auto [it, inserted] = w.contents.try_emplace(key, StoredContents{size, fingerprint});
         if (!inserted) {
             if (it->second.size == size && XXH128_isEqual(it->second.fingerprint, fingerprint)) {
@@ -509,6 +510,13 @@ TraceError TraceWriter::add_contents(std::span<const ContentPiece> pieces, uint6
                 return make_trace_error(TraceErrorCode::invalid_argument, w.path, 0, "no free content key left");
             }
             continue;
+        }
+        w.fbb.Clear();
+        uint8_t* vecBytes = nullptr;
+        auto vec = w.fbb.CreateUninitializedVector(size, &vecBytes);
+        for (const ContentPiece& p : pieces) {
+            if (p.size) std::memcpy(vecBytes, p.bytes, p.size);
+            vecBytes += p.size;
         }
         auto body = fbs::CreateMemoryContents(w.fbb, key, seed, vec);
         w.fbb.Finish(fbs::CreateRecord(w.fbb, fbs::RecordBody::MemoryContents, body.Union()));

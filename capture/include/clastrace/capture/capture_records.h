@@ -57,20 +57,6 @@ struct CapturedRange {
   std::vector<uint8_t> bytes;
   uint64_t buffer = 0;        // a buffer holding the range, and the range's offset in it
   VkDeviceSize bufferOffset = 0;
-  // A served build's bulk inputs (vertices, indices, ...) are not copied while the queue waits:
-  // until the record is finished their bytes lie in the engine's image of that pause, here
-  // (`bytes` stays empty meanwhile). Null once copied, and for every other range.
-  const uint8_t* uncopied = nullptr;
-  uint64_t uncopiedSize = 0;
-
-  uint64_t size() const { return uncopied ? uncopiedSize : bytes.size(); }
-  // Takes the bytes from where they lie (the image must still hold them).
-  void copyUncopied() {
-    if (!uncopied) return;
-    bytes.assign(uncopied, uncopied + uncopiedSize);
-    uncopied = nullptr;
-    uncopiedSize = 0;
-  }
 };
 
 struct CaptureIssue {

@@ -30,16 +30,9 @@ using TemplateVertexCountLookup = std::function<bool(VkDeviceAddress templateAdd
 // Bytes of one vertex of `format` as the extension accepts it; 0 for a format it does not.
 uint32_t clusterVertexFormatBytes(VkFormat format);
 
-// Where [address, address + size) lies in memory that outlives the walk (a served build's
-// image), or null. Given to the input walk, the ranges it does not parse itself (vertices,
-// indices, geometry indices, opacity-micromap indices, instantiation bounds) are left there,
-// uncopied (CapturedRange::uncopied), and read through `read` only where this answers null.
-using DeviceMemoryView = std::function<const uint8_t*(VkDeviceAddress address, uint64_t size)>;
-
 // What the command reads, to be called while the queue is stopped just before it.
 ClusterMemoryWalk walkClusterInputs(const ClusterCommandParameters& parameters, const DeviceMemoryReader& read,
-                                    const TemplateVertexCountLookup& templateVertexCount = {},
-                                    const DeviceMemoryView& view = {});
+                                    const TemplateVertexCountLookup& templateVertexCount = {});
 
 // What the command wrote, to be called while the queue is stopped just after it.
 ClusterMemoryWalk walkClusterOutputs(const ClusterCommandParameters& parameters, uint32_t executedCount,

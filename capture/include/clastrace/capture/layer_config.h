@@ -39,9 +39,6 @@ struct LayerConfig {
   // CLASTRACE_SHARED_WAIT_MS: how long a submission waits for another queue to finish with the
   // pause events of a simultaneous-use command buffer (layer_submit.cpp) before it goes ahead.
   uint32_t sharedWaitMilliseconds = 10000;
-  // CLASTRACE_ENGINE_THREADS: threads a served build may use (0: one per core the process may
-  // run on). Fewer leave cores to the application and to the capture's background threads.
-  uint32_t engineThreads = 0;
   std::vector<std::string> errors;  // one line per rejected variable; the default is kept
 };
 

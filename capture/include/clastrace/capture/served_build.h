@@ -86,9 +86,6 @@ class ServedMemory {
   // The buffer holding all of [address, address + size) that starts nearest below it; null
   // when none does.
   const ServedBuffer* bufferHolding(VkDeviceAddress address, uint64_t size) const;
-  // [address, address + size) from the application's memory itself (not the image); false when
-  // no buffer holds all of it.
-  bool readApplication(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>& out) const;
   bool copied(size_t group) const { return copied_[group]; }
   void copy(size_t group);
   void reset();  // an empty image, as before any read (the engine wrote into the last one)
@@ -125,19 +122,16 @@ struct ServedExecution {
 // Only the buffers the command reaches are copied: those it names, those its pointers lead to
 // and those already read through `memory`, then those its findings point into, found by running
 // again; the result equals a run over all of the buffers. `inputWalk`: the command's inputs as
-// the capture already walked them at this pause (saves walking twice), or null. Its uncopied
-// ranges (walked with `memory.read` as the view) are settled: afterwards each one either lies
-// in the result's image, holding the bytes the command read, or was copied from the
-// application's memory before the write-back, where the engine wrote over it (a destination
-// overlapping an input) or could not run. `memory` is used up: its image becomes the result's.
+// the capture already walked them at this pause (saves walking twice), or null. `memory` is
+// used up: its image becomes the result's.
 ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command, ServedMemory& memory,
                                    engine::ObjectDirectory& directory, const engine::EngineProperties& properties,
-                                   std::vector<CapturedRange>* inputWalk = nullptr);
+                                   const std::vector<CapturedRange>* inputWalk = nullptr);
 // The same over a fresh ServedMemory of `buffers`.
 ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command,
                                    std::span<const ServedBuffer> buffers, engine::ObjectDirectory& directory,
                                    const engine::EngineProperties& properties,
-                                   std::vector<CapturedRange>* inputWalk = nullptr);
+                                   const std::vector<CapturedRange>* inputWalk = nullptr);
 
 // vkGetClusterAccelerationStructureBuildSizesNV of the served device: engine::cluster_build_sizes.
 // False (and zero sizes) when the engine rejects the input (its findings say why).
