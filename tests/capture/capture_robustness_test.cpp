@@ -89,6 +89,9 @@ TraceContents readTrace(const fs::path& path) {
 }
 
 class CaptureRobustness : public LayerLaunchTest {
+  friend void expectSameBytesForEachValue(CaptureRobustness& test, const std::string& variable,
+                                          const std::vector<std::string>& values);
+
  protected:
   CaptureRobustness() : LayerLaunchTest("clastrace_robust") {}
 
@@ -483,42 +486,51 @@ struct AddressNames {
 
 // The staging path (copies into the layer's host-visible buffers before each pause, and back
 // after a served build) captures and serves the very bytes of the direct path.
-TEST_F(CaptureRobustness, ForcedStagingCapturesAndServesTheSameBytes) {
-  std::map<std::string, TraceContents> traces;
-  std::map<std::string, std::string> outputs;
-  std::map<std::string, AddressNames> names;
-  for (const char* staging : {"0", "1"}) {
-    const fs::path trace = dir / (std::string("staging") + staging + ".clt");
-    const fs::path out = dir / (std::string("out") + staging + ".json");
-    ProcessResult r = run("frames 3 --clusters 8 --out " + quote(out.string()),
-                          {{"CLASTRACE_OUTPUT", trace.string()}, {"CLASTRACE_FORCE_STAGING", staging}});
-    ASSERT_EQ(r.exitCode, 0) << staging << ": " << r.err;
-    EXPECT_EQ(r.err, "") << staging;
-    traces[staging] = readTrace(trace);
-    names.emplace(staging, AddressNames(trace));
-    outputs[staging] = names.at(staging).json(readText(out));
+// Runs the frame app once per value of `variable` and expects the same application outputs and
+// the same captured bytes (ranges named by buffer: the addresses may differ between runs).
+void expectSameBytesForEachValue(CaptureRobustness& test, const std::string& variable,
+                                 const std::vector<std::string>& values) {
+  std::vector<TraceContents> traces;
+  std::vector<std::string> outputs;
+  std::vector<AddressNames> names;
+  for (const std::string& value : values) {
+    const fs::path trace = test.dir / (variable + value + ".clt");
+    const fs::path out = test.dir / (variable + value + ".json");
+    ProcessResult r = test.run("frames 3 --clusters 8 --out " + quote(out.string()),
+                               {{"CLASTRACE_OUTPUT", trace.string()}, {variable, value}});
+    ASSERT_EQ(r.exitCode, 0) << variable << "=" << value << ": " << r.err;
+    EXPECT_EQ(r.err, "") << variable << "=" << value;
+    traces.push_back(readTrace(trace));
+    names.emplace_back(trace);
+    outputs.push_back(names.back().json(readText(out)));
+    ASSERT_EQ(names.back().buffers.size(), 14u) << "the app's buffers, none of the layer's staging";
+    ASSERT_EQ(traces.back().buildInputs.size(), 6u);
   }
-  ASSERT_EQ(names.at("0").buffers.size(), 14u);  // the app's buffers, none of the layer's staging
-  ASSERT_EQ(names.at("1").buffers.size(), 14u);
-  EXPECT_EQ(outputs["0"], outputs["1"]);
-  EXPECT_NE(outputs["0"].find("<b"), std::string::npos);  // addresses were found and named
-  ASSERT_EQ(traces["0"].buildInputs.size(), 6u);
-  ASSERT_EQ(traces["1"].buildInputs.size(), 6u);
-  for (size_t b = 0; b < 6; ++b) {
-    for (auto [lists, what] : {std::pair{&TraceContents::buildInputs, "inputs"}, std::pair{&TraceContents::buildOutputs, "outputs"}}) {
-      const auto& direct = (traces["0"].*lists)[b];
-      const auto& staged = (traces["1"].*lists)[b];
-      ASSERT_EQ(direct.size(), staged.size()) << what << " of build " << b;
-      EXPECT_FALSE(direct.empty());
-      for (size_t i = 0; i < direct.size(); ++i) {
-        EXPECT_EQ(names.at("0").name(direct[i].address), names.at("1").name(staged[i].address))
-            << what << " of build " << b;
-        EXPECT_NE(names.at("0").name(direct[i].address), "");
-        EXPECT_EQ(names.at("0").bytes(direct[i].bytes), names.at("1").bytes(staged[i].bytes))
-            << what << " of build " << b << " range " << i;
-      }
+  EXPECT_NE(outputs[0].find("<b"), std::string::npos);  // addresses were found and named
+  // A build's snapshots by name: their order follows the buffers' handle values, which differ
+  // between processes.
+  auto byName = [&](size_t run, const std::vector<TraceContents::Snapshot>& list) {
+    std::map<std::string, std::string> named;
+    for (const auto& snapshot : list) {
+      const std::string name = names[run].name(snapshot.address);
+      EXPECT_NE(name, "");
+      named[name] = names[run].bytes(snapshot.bytes);
     }
+    return named;
+  };
+  for (size_t v = 1; v < values.size(); ++v) {
+    const std::string which = variable + "=" + values[v] + " against " + values[0];
+    EXPECT_EQ(outputs[0], outputs[v]) << which;
+    for (size_t b = 0; b < 6; ++b)
+      for (auto [lists, what] : {std::pair{&TraceContents::buildInputs, "inputs"}, std::pair{&TraceContents::buildOutputs, "outputs"}}) {
+        EXPECT_FALSE((traces[0].*lists)[b].empty());
+        EXPECT_EQ(byName(0, (traces[0].*lists)[b]), byName(v, (traces[v].*lists)[b])) << which << ": " << what << " of build " << b;
+      }
   }
+}
+
+TEST_F(CaptureRobustness, ForcedStagingCapturesAndServesTheSameBytes) {
+  expectSameBytesForEachValue(*this, "CLASTRACE_FORCE_STAGING", {"0", "1"});
 }
 
 // The injected staging copies and barriers, and a simultaneous-use command buffer run twice

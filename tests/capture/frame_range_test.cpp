@@ -208,7 +208,8 @@ class FrameRange : public ::testing::Test {
     std::string line = "env -u VK_INSTANCE_LAYERS -u VK_ADD_LAYER_PATH -u VK_ICD_FILENAMES";
     for (const char* v : {"CLASTRACE_OUTPUT", "CLASTRACE_CAPTURE", "CLASTRACE_SERVE", "CLASTRACE_SUBMIT_RANGE",
                           "CLASTRACE_FRAME_RANGE", "CLASTRACE_ZSTD_LEVEL", "CLASTRACE_LOG", "CLASTRACE_DEBUG_JSON",
-                          "CLASTRACE_RAY_CHECK", "CLASTRACE_FLUSH_MS", "CLASTRACE_FORCE_STAGING", "CLASTRACE_TIMESTAMPS"})
+                          "CLASTRACE_RAY_CHECK", "CLASTRACE_FLUSH_MS", "CLASTRACE_FORCE_STAGING", "CLASTRACE_TIMESTAMPS",
+                          "CLASTRACE_STATS", "CLASTRACE_SHARED_WAIT_MS"})
       line += std::string(" -u ") + v;
     env["VK_DRIVER_FILES"] = kLavapipe;
     env["XDG_RUNTIME_DIR"] = dir.string();
