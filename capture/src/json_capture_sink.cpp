@@ -222,6 +222,7 @@ class JsonCaptureSink final : public CaptureSink {
                         {"batches", batches}, {"fence", s.fence}, {"notes", notes}});
   }
   void clusterBuildCaptured(ClusterBuildCapture c) override {
+    if (c.complete) std::exchange(c.complete, nullptr)(c);  // a readable dump: finished at once
     if (c.kind == CapturedCommandKind::Timestamps) {  // a readback, not a build: listed apart
       add("timestampReads", {{"pauseId", c.pauseId}, {"submissionIndex", c.submissionIndex},
                              {"commandBuffer", c.commandBuffer}, {"ticks", c.timestampTicks},

@@ -98,12 +98,6 @@ void PauseWorker::run() {
   auto lastProgress = Clock::now();
   std::unique_lock lock(mutex_);
   while (!stop_) {
-    if (!unfinished_.empty() && std::all_of(queues_.begin(), queues_.end(), [](auto& q) { return q.second.empty(); })) {
-      lock.unlock();
-      finishOneUnfinished();  // no pause expected: the queues do not wait for this
-      lock.lock();
-      continue;
-    }
     bool anyPending = false;
     bool progressed = false;
     for (auto& [queue, pending] : queues_) {
@@ -145,14 +139,6 @@ void PauseWorker::run() {
       std::this_thread::sleep_for(std::chrono::microseconds(50));
     lock.lock();
   }
-  lock.unlock();
-  while (!unfinished_.empty()) finishOneUnfinished();
-}
-
-void PauseWorker::finishOneUnfinished() {
-  AfterRelease work = std::move(unfinished_.front());
-  unfinished_.pop_front();
-  finishReleased(work);
 }
 
 const uint8_t* PauseWorker::stagedBytes(const ResolvedRange& range) {
@@ -342,61 +328,39 @@ bool PauseWorker::handle(Expected& expected) {
     nameRanges(*record);
     return true;
   }
-  // The rest reads the engine's image, with the queue running again. A served record waits
-  // until no pause is due, named then by the buffers of this pause (the application may have
-  // destroyed them by then); any other now, by the memory map, before the queue passes its last
-  // pause and the application may destroy the buffers that name the ranges.
-  AfterRelease work{std::move(*record), std::move(servedImage), pause.parameters, nullptr};
-  open_.erase(openKey);
-  if (work.servedImage && served) {
-    work.served = std::move(served);
-    unfinished_.push_back(std::move(work));
-    if (unfinished_.size() > kMaxUnfinished) finishOneUnfinished();
+  // A served record leaves unfinished: the sink's thread walks its outputs in the engine's
+  // image and names its ranges by this pause's buffers (the application may destroy them once
+  // the queue moved on), while this thread takes the next pause. Any other record is named now,
+  // by the memory map, before the queue passes its last pause and the application may destroy
+  // the buffers that name the ranges.
+  if (servedImage && served && pause.parameters) {
+    record->heldBytes = servedImage->resident_bytes();
+    record->complete = [image = std::move(servedImage), parameters = pause.parameters,
+                        memory = std::shared_ptr<const ServedMemory>(std::move(served))](ClusterBuildCapture& r) {
+      completeServedRecord(r, *image, *parameters, *memory);
+    };
+    device_.sink->clusterBuildCaptured(std::move(*record));
+    open_.erase(openKey);
     return true;
   }
-  finishReleased(work);
+  ClusterBuildCapture work = std::move(*record);
+  open_.erase(openKey);
+  nameRanges(work);
+  device_.sink->clusterBuildCaptured(std::move(work));
   return true;
 }
 
-// By a buffer holding each, as the trace's snapshots do: the served buffers of the pause when
-// given (the one starting nearest below the range, as the memory map would answer), else the
-// memory map now.
-void PauseWorker::nameRanges(ClusterBuildCapture& record, const ServedMemory* served) {
+// By a buffer holding each, as the trace's snapshots do: the memory map now.
+void PauseWorker::nameRanges(ClusterBuildCapture& record) {
   for (auto* list : {&record.inputs, &record.outputs})
     for (CapturedRange& r : *list) {
       std::string why;
       if (r.address == 0) continue;  // named by buffer and offset already
-      if (const ServedBuffer* b = served ? served->bufferHolding(r.address, r.bytes.size()) : nullptr) {
-        r.buffer = b->buffer;
-        r.bufferOffset = r.address - b->address;
-      } else if (auto where = device_.memoryMap.resolve(r.address, r.bytes.size(), why)) {
+      if (auto where = device_.memoryMap.resolve(r.address, r.bytes.size(), why)) {
         r.buffer = where->buffer.handle;
         r.bufferOffset = where->offsetInBuffer;
       }
     }
-}
-
-void PauseWorker::finishReleased(AfterRelease& work) {
-  CostScope cost(CostPhase::AfterRelease, true);
-  ClusterBuildCapture* record = &work.record;
-  const std::shared_ptr<const engine::MemoryImage>& servedImage = work.servedImage;
-  if (servedImage && work.parameters) {
-    DeviceMemoryReader fromImage = [&](VkDeviceAddress a, uint64_t s, std::vector<uint8_t>* o, std::string& why) {
-      const engine::MemoryRegion* region = servedImage->find_region(a);
-      if (!region || a + s < a || a + s > region->base + region->size) {
-        why = "outside the memory the served build reached";
-        return false;
-      }
-      if (o) o->assign(reinterpret_cast<const uint8_t*>(region->bytes.data()) + (a - region->base),
-                       reinterpret_cast<const uint8_t*>(region->bytes.data()) + (a - region->base) + s);
-      return true;
-    };
-    ClusterMemoryWalk walk = walkClusterOutputs(*work.parameters, record->executedCount, fromImage);
-    record->outputs = std::move(walk.ranges);
-    for (auto& issue : walk.issues) record->issues.push_back(std::move(issue));
-  }
-  nameRanges(*record, work.served.get());
-  device_.sink->clusterBuildCaptured(std::move(*record));
 }
 
 void PauseWorker::learnTemplates(const ClusterCommandParameters& parameters, const std::vector<uint32_t>& vertexCounts) {

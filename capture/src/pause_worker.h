@@ -88,26 +88,9 @@ class PauseWorker {
     uint64_t commandBuffer;
     bool capture;
   };
-  // A captured command's last pause is released: what remains (walking a served build's outputs
-  // in the engine's image, naming ranges by buffer, handing the record to the sink).
-  struct AfterRelease {
-    ClusterBuildCapture record;
-    std::shared_ptr<const engine::MemoryImage> servedImage;  // null: outputs already read
-    std::shared_ptr<const ClusterCommandParameters> parameters;
-    // The buffers as they were at the pause, to name the ranges by: the application may destroy
-    // them once the queue moved on, and a served command's record is finished later.
-    std::unique_ptr<ServedMemory> served;
-  };
   void run();
   bool handle(Expected& expected);
-  void finishReleased(AfterRelease& work);
-  // Served records are finished while no queue waits on the worker (a queue paused right after
-  // another pause would otherwise wait for the first one's output walk); at most
-  // kMaxUnfinished wait, each holding its engine image.
-  static constexpr size_t kMaxUnfinished = 8;
-  std::deque<AfterRelease> unfinished_;
-  void finishOneUnfinished();
-  void nameRanges(ClusterBuildCapture& record, const ServedMemory* served = nullptr);
+  void nameRanges(ClusterBuildCapture& record);  // by the memory map, now
   bool checkMemory(VkDeviceAddress address, uint64_t size, std::string& why);
   bool readMemory(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>& out, std::string& why);
   bool readResolved(const ResolvedRange& range, uint64_t size, std::vector<uint8_t>& out);

@@ -258,6 +258,30 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
   return result;
 }
 
+void completeServedRecord(ClusterBuildCapture& record, const engine::MemoryImage& image,
+                          const ClusterCommandParameters& parameters, const ServedMemory& memory) {
+  DeviceMemoryReader fromImage = [&](VkDeviceAddress a, uint64_t s, std::vector<uint8_t>* o, std::string& why) {
+    const engine::MemoryRegion* region = image.find_region(a);
+    if (!region || a + s < a || a + s > region->base + region->size) {
+      why = "outside the memory the served build reached";
+      return false;
+    }
+    const auto* bytes = reinterpret_cast<const uint8_t*>(region->bytes.data()) + (a - region->base);
+    if (o) o->assign(bytes, bytes + s);
+    return true;
+  };
+  ClusterMemoryWalk walk = walkClusterOutputs(parameters, record.executedCount, fromImage);
+  record.outputs = std::move(walk.ranges);
+  for (auto& issue : walk.issues) record.issues.push_back(std::move(issue));
+  for (auto* list : {&record.inputs, &record.outputs})
+    for (CapturedRange& r : *list)
+      if (r.address != 0)
+        if (const ServedBuffer* b = memory.bufferHolding(r.address, r.bytes.size())) {
+          r.buffer = b->buffer;
+          r.bufferOffset = r.address - b->address;
+        }
+}
+
 bool servedClusterBuildSizes(const VkClusterAccelerationStructureInputInfoNV& input,
                              VkAccelerationStructureBuildSizesInfoKHR& sizes) {
   const engine::BuildSizes answer = engine::cluster_build_sizes(input, servedEngineProperties());

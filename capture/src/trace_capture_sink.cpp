@@ -311,6 +311,7 @@ class TraceCaptureSink final : public CaptureSink {
       StateLock lock(*this);
       for (const auto* list : {&c.inputs, &c.outputs})
         for (const CapturedRange& r : *list) pendingBytes_ += r.bytes.size();
+      pendingBytes_ += c.heldBytes;  // an unfinished served record's engine image
       pending_[c.submissionIndex].builds[{c.pauseId, c.occurrence}] = std::move(c);
       overLimit = pendingBytes_ > kMaxPendingBytes;
       if (overLimit) emitReadyLocked(false);
@@ -782,6 +783,22 @@ class TraceCaptureSink final : public CaptureSink {
     }
   }
 
+  // Finishes a served build's record (walking its outputs in the engine's image), here on the
+  // sink's thread rather than on the pause worker; the image goes back to the served region pool,
+  // and the pending count trades its bytes for the outputs'.
+  void completeBuild(ClusterBuildCapture& build) {
+    if (!build.complete) return;
+    {
+      CostScope cost(CostPhase::ServedRecordCompletion, true);
+      auto complete = std::exchange(build.complete, nullptr);
+      complete(build);
+    }  // (the image is released with `complete`)
+    uint64_t outputs = 0;
+    for (const CapturedRange& r : build.outputs) outputs += r.bytes.size();
+    StateLock lock(*this);
+    pendingBytes_ = pendingBytes_ - std::min(pendingBytes_, std::exchange(build.heldBytes, 0)) + outputs;
+  }
+
   // One snapshot per run of touching or overlapping ranges of one buffer (all read at the same
   // pause, so overlaps hold equal bytes): the same bytes, without a 40-byte descriptor (and an
   // incompressible 8-byte key) per cluster's vertex or index range. Ranges named only by
@@ -833,6 +850,7 @@ class TraceCaptureSink final : public CaptureSink {
 
   void writeSubmission(Pending& p) {
     CostScope cost(CostPhase::Emit, true);
+    for (auto& [key, build] : p.builds) completeBuild(build);
     SubmissionEmit e{p, {}, {}, {}};
     for (const auto& cb : p.commandBuffers) {
       // A secondary's block goes before its primary's, once per execution, so every recording

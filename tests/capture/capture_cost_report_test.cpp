@@ -123,7 +123,7 @@ TEST_F(CaptureCostReport, CountsAgreeWithTheTraceWritten) {
 
   // Each frame's two served builds stop the queue once each; each submission is emitted once.
   EXPECT_EQ(phaseCount(lines, "pause held (queue stalled)"), 2 * kFrames);
-  EXPECT_EQ(phaseCount(lines, "worker after release"), 2 * kFrames);
+  EXPECT_EQ(phaseCount(lines, "served records completed"), 2 * kFrames);  // on the sink's thread
   EXPECT_EQ(phaseCount(lines, "sink: emitting submissions"), (long long)submissions);
   EXPECT_GE(submissions, (unsigned long long)kFrames);
   EXPECT_EQ(phaseCount(lines, "vkDestroyDevice flush"), 1);

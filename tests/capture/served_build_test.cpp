@@ -362,3 +362,37 @@ TEST(ServedBuild, ServedMemoryCopiesAGroupOnFirstRead) {
   EXPECT_EQ(inside.read(0x105000, 4)[0], 4);  // after a read of the small one (the cached buffer)
   EXPECT_EQ(inside.read(0x10F000, 0x2000), nullptr);
 }
+
+// A served record is completed off the pause worker: its outputs come from the engine's image
+// of the run (equal to what was written back to the application), every range is named by the
+// pause's buffer holding it, and a range no buffer holds stays unnamed.
+TEST(ServedBuild, CompletedRecordHoldsTheWrittenOutputsNamedByThePausesBuffers) {
+  HostScene scene;
+  ServedMemory memory(scene.buffers);
+  engine::ObjectDirectory directory;
+  ServedExecution run = executeServedBuild(scene.commands.clusters, memory, directory, servedEngineProperties());
+  ASSERT_TRUE(run.ran) << run.error;
+  ClusterBuildCapture record;
+  record.executedCount = served_scene::kClusterCount;
+  record.inputs.push_back({MemoryRole::VertexBuffer, 0, scene.a.vertices + 12, {1, 2, 3}});
+  record.inputs.push_back({MemoryRole::VertexBuffer, 0, 0x7FFF0000, {4}});  // in no buffer
+  const ClusterCommandParameters parameters = ClusterCommandParameters::copyOf(scene.commands.clusters);
+  completeServedRecord(record, *run.image, parameters, memory);
+  EXPECT_TRUE(record.issues.empty()) << record.issues[0].rule;
+  EXPECT_EQ(record.inputs[0].buffer, 1u);  // "vertices", the scene's first buffer
+  EXPECT_EQ(record.inputs[0].bufferOffset, 12u);
+  EXPECT_EQ(record.inputs[1].buffer, 0u);
+  std::map<MemoryRole, size_t> roles;
+  for (const CapturedRange& r : record.outputs) {
+    ++roles[r.role];
+    const ServedBuffer* holder = memory.bufferHolding(r.address, r.bytes.size());
+    ASSERT_NE(holder, nullptr) << memoryRoleName(r.role);
+    EXPECT_EQ(r.buffer, holder->buffer);
+    EXPECT_EQ(r.bufferOffset, r.address - holder->address);
+    EXPECT_EQ(std::memcmp(r.bytes.data(), holder->host + r.bufferOffset, r.bytes.size()), 0)
+        << memoryRoleName(r.role) << ": not what was written back";
+  }
+  EXPECT_EQ(roles[MemoryRole::DstAddresses], 1u);
+  EXPECT_EQ(roles[MemoryRole::DstSizes], 1u);
+  EXPECT_EQ(roles[MemoryRole::DstObject], size_t(served_scene::kClusterCount));
+}

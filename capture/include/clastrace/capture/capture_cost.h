@@ -16,7 +16,7 @@ enum class CostPhase : uint8_t {
   PauseHeld,      // pause worker: the queue is stalled (event seen -> release)
   PauseRead,      //   of which: the capture reading the command's inputs (and outputs)
   PauseEngine,    //   of which: the served build's engine run
-  AfterRelease,   // pause worker, queue released: output walk, buffer naming, hand-over
+  ServedRecordCompletion,  // a served record completed where it is written: output walk, buffer naming
   WorkerSinkWait, // pause worker waiting for the sink's lock
   AppSinkCall,    // application threads inside the sink (records, submissions, timestamps)
   AppSinkWait,    //   of which: waiting for the sink's lock

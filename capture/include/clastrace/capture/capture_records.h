@@ -7,6 +7,7 @@
 #include <clastrace/vk_cluster_abi.h>
 
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <variant>
 #include <vector>
@@ -385,6 +386,12 @@ struct ClusterBuildCapture {
   // to the queue's valid bits; valid false where the driver reported no result.
   std::vector<uint64_t> timestampTicks;
   std::vector<bool> timestampValid;
+  // A served build's record leaves the pause worker unfinished: its outputs are still to be
+  // walked in the engine's image (which this holds, `heldBytes` of it) and its ranges named by
+  // the buffers of its pause. Whoever writes the record calls this first, on its own thread,
+  // so the worker is free for the next pause. Empty for every other record.
+  std::function<void(ClusterBuildCapture&)> complete;
+  uint64_t heldBytes = 0;
 };
 
 }  // namespace clastrace::capture

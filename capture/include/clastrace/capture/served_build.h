@@ -133,6 +133,14 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
                                    const engine::EngineProperties& properties,
                                    const std::vector<CapturedRange>* inputWalk = nullptr);
 
+// The rest of a served build's record, after the queue moved on: its outputs walked in the
+// engine's image of the run (as a pause after the command would have read them: the queue ran
+// nothing in between) and every range named by the buffer of `memory` holding it (the one
+// starting nearest below it), as the buffers were at the pause. Ranges no buffer of `memory`
+// holds stay unnamed.
+void completeServedRecord(ClusterBuildCapture& record, const engine::MemoryImage& image,
+                          const ClusterCommandParameters& parameters, const ServedMemory& memory);
+
 // vkGetClusterAccelerationStructureBuildSizesNV of the served device: engine::cluster_build_sizes.
 // False (and zero sizes) when the engine rejects the input (its findings say why).
 bool servedClusterBuildSizes(const VkClusterAccelerationStructureInputInfoNV& input,
