@@ -24,6 +24,7 @@
 namespace {
 
 namespace fs = std::filesystem;
+using clastrace::layer_launch::ProcessResult;
 using clastrace::layer_launch::readText;
 using clastrace::layer_launch::quote;
 namespace fbs = clastrace::fbs;
@@ -83,11 +84,6 @@ class XvfbServer {
 
 XvfbServer xvfb;
 std::string xvfbError;
-
-struct ProcessResult {
-  int exitCode = -1;
-  std::string out, err;
-};
 
 // What a trace says about frames: presents, captured builds (by the frames their clusterIDs
 // name), and the record order of submissions and presents.
@@ -181,9 +177,9 @@ FrameTrace readFrameTrace(const fs::path& path) {
   return t;
 }
 
-class FrameRange : public ::testing::Test {
+class FrameRange : public clastrace::layer_launch::LayerLaunchTest {
  protected:
-  fs::path dir;
+  FrameRange() : LayerLaunchTest("clastrace_frames") {}
 
   static void SetUpTestSuite() {
     if (fs::exists(kLavapipe)) xvfbError = xvfb.start();
@@ -191,41 +187,16 @@ class FrameRange : public ::testing::Test {
   static void TearDownTestSuite() { xvfb.stop(); }
 
   void SetUp() override {
-    if (!fs::exists(kLavapipe)) GTEST_SKIP() << "lavapipe is not installed (scripts/deps.sh installs it)";
+    LayerLaunchTest::SetUp();  // skips the test when lavapipe is not installed
+    if (IsSkipped()) return;
     ASSERT_TRUE(xvfbError.empty()) << xvfbError;
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir = fs::temp_directory_path() / ("clastrace_frames_" + std::to_string(getpid()) + "_" + info->name());
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-  }
-  void TearDown() override {
-    if (!HasFailure() && !dir.empty()) fs::remove_all(dir);
   }
 
   // Runs `command` on the Xvfb display with lavapipe, the layer and `env` over a clean
   // CLASTRACE_* environment.
   ProcessResult run(const std::string& command, std::map<std::string, std::string> env) {
-    std::string line = "env -u VK_INSTANCE_LAYERS -u VK_ADD_LAYER_PATH -u VK_ICD_FILENAMES";
-    for (const char* v : {"CLASTRACE_OUTPUT", "CLASTRACE_CAPTURE", "CLASTRACE_SERVE", "CLASTRACE_SUBMIT_RANGE",
-                          "CLASTRACE_FRAME_RANGE", "CLASTRACE_ZSTD_LEVEL", "CLASTRACE_LOG", "CLASTRACE_DEBUG_JSON",
-                          "CLASTRACE_RAY_CHECK", "CLASTRACE_FLUSH_MS", "CLASTRACE_FORCE_STAGING", "CLASTRACE_TIMESTAMPS",
-                          "CLASTRACE_STATS", "CLASTRACE_SHARED_WAIT_MS"})
-      line += std::string(" -u ") + v;
-    env["VK_DRIVER_FILES"] = kLavapipe;
-    env["XDG_RUNTIME_DIR"] = dir.string();
     env["DISPLAY"] = xvfb.display();
-    env["VK_ADD_LAYER_PATH"] = CLASTRACE_LAYER_MANIFEST_DIR;
-    env["VK_INSTANCE_LAYERS"] = "VK_LAYER_CLASTRACE_capture";
-    env["VK_LOADER_DEBUG"] = "";
-    for (const auto& [k, v] : env) line += " " + k + "=" + quote(v);
-    const fs::path out = dir / "stdout.txt", err = dir / "stderr.txt";
-    line += " timeout 120 " + command + " >" + quote(out.string()) + " 2>" + quote(err.string());
-    ProcessResult r;
-    const int status = std::system(line.c_str());
-    r.exitCode = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    r.out = readText(out);
-    r.err = readText(err);
-    return r;
+    return LayerLaunchTest::run(command, std::move(env));
   }
   ProcessResult runApp(uint32_t frames, std::map<std::string, std::string> env, uint32_t submissionsPerFrame = 1) {
     env["CLASTRACE_OUTPUT"] = (dir / "frames.clt").string();
