@@ -16,7 +16,7 @@ thread_local bool layerThread = false;
 
 const char* const kPhaseNames[] = {
     "pause held (queue stalled)", "  reading inputs/outputs", "  engine (served build)",
-    "served records completed",       "worker waiting for sink",  "app threads in sink",
+    "served records completed",   "worker waiting for sink",  "app threads in sink",
     "  waiting for sink lock",    "timestamp readback",       "sink: emitting submissions",
     "  snapshots (merge, hash, store)", "periodic flush",     "vkDestroyDevice flush",
 };

@@ -333,19 +333,17 @@ bool PauseWorker::handle(Expected& expected) {
   // the queue moved on), while this thread takes the next pause. Any other record is named now,
   // by the memory map, before the queue passes its last pause and the application may destroy
   // the buffers that name the ranges.
-  if (servedImage && served && pause.parameters) {
-    record->heldBytes = servedImage->resident_bytes();
-    record->complete = [image = std::move(servedImage), parameters = pause.parameters,
-                        memory = std::shared_ptr<const ServedMemory>(std::move(served))](ClusterBuildCapture& r) {
-      completeServedRecord(r, *image, *parameters, *memory);
-    };
-    device_.sink->clusterBuildCaptured(std::move(*record));
-    open_.erase(openKey);
-    return true;
-  }
   ClusterBuildCapture work = std::move(*record);
   open_.erase(openKey);
-  nameRanges(work);
+  if (servedImage) {  // (set only when the build was served and ran)
+    work.heldBytes = servedImage->resident_bytes();
+    work.complete = [image = std::move(servedImage), parameters = pause.parameters,
+                     memory = std::shared_ptr<const ServedMemory>(std::move(served))](ClusterBuildCapture& r) {
+      completeServedRecord(r, *image, *parameters, *memory);
+    };
+  } else {
+    nameRanges(work);
+  }
   device_.sink->clusterBuildCaptured(std::move(work));
   return true;
 }
