@@ -29,6 +29,40 @@ bool holds(const ServedBuffer& b, uint64_t address, uint64_t size) {
 
 }  // namespace
 
+// The groups completeServedRecord reads besides those the command wrote into: the ones holding
+// the address and size arrays, and those holding the objects the arrays name (an object the
+// command did not write is still read as the memory holds it). With indirected fields, all.
+static std::vector<bool> groupsTheOutputsName(const VkClusterAccelerationStructureCommandsInfoNV& command,
+                                              const ServedMemory& memory, uint32_t executed) {
+  const size_t count = memory.groups().size();
+  if (command.addressResolutionFlags != 0) return std::vector<bool>(count, true);
+  std::vector<bool> keep(count, false);
+  auto mark = [&](uint64_t address) {
+    const size_t g = address ? memory.groupOf(address) : count;
+    if (g < count) keep[g] = true;
+  };
+  const VkStridedDeviceAddressRegionKHR& addresses = command.dstAddressesArray;
+  const VkStridedDeviceAddressRegionKHR& sizes = command.dstSizesArray;
+  mark(addresses.deviceAddress);
+  mark(sizes.deviceAddress);
+  if (addresses.deviceAddress == 0 || sizes.deviceAddress == 0) return keep;
+  const engine::MemoryImage& image = memory.image();
+  for (uint32_t i = 0; i < executed; ++i) {
+    uint64_t address = 0;
+    uint32_t size = 0;
+    try {
+      const engine::FieldRef where{"dst arrays", int64_t(i)};
+      address = image.read<uint64_t>(engine::MemoryImage::strided_address(addresses, i, sizeof address, where), where);
+      size = image.read<uint32_t>(engine::MemoryImage::strided_address(sizes, i, sizeof size, where), where);
+    } catch (const engine::MemoryFault&) {
+      return std::vector<bool>(count, true);  // the walk reads what it can: keep it all
+    }
+    if (address != 0 && size != 0 && address + size > address)
+      for (size_t g = memory.groupOf(address); g < count && memory.groups()[g].base < address + size; ++g) keep[g] = true;
+  }
+  return keep;
+}
+
 engine::RegionBytes ServedRegionPool::take(uint64_t size) {
   std::lock_guard lock(mutex_);
   auto it = bySize_.find(size);
@@ -126,7 +160,16 @@ ServedMemory::~ServedMemory() {
   if (pool_) pool_->give(image_.release_storage());
 }
 
-std::shared_ptr<const engine::MemoryImage> ServedMemory::share() {
+std::shared_ptr<const engine::MemoryImage> ServedMemory::share(const std::vector<bool>* keep) {
+  if (keep) {
+    std::vector<engine::RegionBytes> unneeded;
+    for (size_t g = 0; g < groups_.size(); ++g)
+      if (copied_[g] && !(*keep)[g]) {
+        engine::RegionBytes bytes;
+        if (image_.remove_region(groups_[g].base, &bytes)) unneeded.push_back(std::move(bytes));
+      }
+    if (pool_) pool_->give(std::move(unneeded));
+  }
   auto* image = new engine::MemoryImage(std::move(image_));
   reset();  // (the moved-from image holds nothing to give back)
   return std::shared_ptr<const engine::MemoryImage>(image, [pool = pool_, image](const engine::MemoryImage*) {
@@ -236,10 +279,12 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
   // Back into every buffer that holds a written byte (aliases included: same memory or not,
   // each view must show what the command wrote).
   const engine::MemoryImage& image = memory.image();
+  std::vector<bool> keep = groupsTheOutputsName(command, memory, result.record.op_count);
   for (const engine::MemoryAccess& access : result.record.accesses) {
     if (!access.is_write || access.end <= access.begin) continue;
     for (size_t g = memory.groupOf(access.begin); g < groups.size() && groups[g].base < access.end; ++g) {
       if (!selected[g]) continue;
+      keep[g] = true;
       for (const ServedBuffer* b : groups[g].buffers) {
         const uint64_t begin = std::max(access.begin, b->address);
         const uint64_t end = std::min(access.end, b->address + b->size);
@@ -254,7 +299,7 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
       }
     }
   }
-  result.image = memory.share();
+  result.image = memory.share(&keep);
   return result;
 }
 

@@ -233,11 +233,12 @@ MemoryRegion& MemoryImage::add_region(uint64_t base, uint64_t size, VkBufferUsag
   return regions_.emplace(base, std::move(r)).first->second;
 }
 
-bool MemoryImage::remove_region(uint64_t base) {
+bool MemoryImage::remove_region(uint64_t base, RegionBytes* storage) {
   auto it = regions_.find(base);
   if (it == regions_.end()) return false;
   reserved_ -= it->second.size;
   written_ -= std::min(written_, it->second.bytes.resident_bytes());
+  if (storage) *storage = std::move(it->second.bytes);
   regions_.erase(it);
   return true;
 }

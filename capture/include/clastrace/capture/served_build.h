@@ -90,10 +90,12 @@ class ServedMemory {
   void copy(size_t group);
   void reset();  // an empty image, as before any read (the engine wrote into the last one)
   engine::MemoryImage& image() { return image_; }
+  const engine::MemoryImage& image() const { return image_; }
   uint64_t bytesCopied() const { return bytesCopied_; }  // since the last reset()
   // The image as it stands, shared; its bytes go back to the pool when the last owner lets go.
-  // The image here is empty afterwards (as after reset()).
-  std::shared_ptr<const engine::MemoryImage> share();
+  // The regions of groups not in `keep` (when given: one flag per group) go back at once. The
+  // image here is empty afterwards (as after reset()).
+  std::shared_ptr<const engine::MemoryImage> share(const std::vector<bool>* keep = nullptr);
 
  private:
   std::shared_ptr<ServedRegionPool> pool_;
@@ -114,8 +116,11 @@ struct ServedExecution {
   std::vector<uint64_t> writtenMemories;   // allocations that received bytes (to flush)
   uint64_t bytesCopiedIn = 0, bytesWrittenBack = 0;  // of the last attempt
   uint32_t attempts = 0;  // engine runs until the image held every buffer the command reads
-  // The image of the last run, holding every byte the command read and wrote, as it left it:
-  // the capture reads the command's outputs from it after the queue was released.
+  // The image of the last run as it left it, reduced to what completeServedRecord reads: the
+  // groups the command wrote into, those holding its address and size arrays, and those holding
+  // the objects these arrays name. The capture reads the command's outputs from it after the
+  // queue was released, maybe much later: the input groups (most of the bytes) go back to the
+  // region pool at once, for the next pause to reuse.
   std::shared_ptr<const engine::MemoryImage> image;
 };
 

@@ -165,9 +165,10 @@ class MemoryImage {
 
   const std::map<uint64_t, MemoryRegion>& regions() const { return regions_; }
 
-  // Forgets the region based at `base` and gives its pages back (a destroyed buffer).
-  // False when no region starts there.
-  bool remove_region(uint64_t base);
+  // Forgets the region based at `base` and gives its pages back (a destroyed buffer), or,
+  // with `storage`, hands its bytes there for add_region to reuse. False when no region
+  // starts there.
+  bool remove_region(uint64_t base, RegionBytes* storage = nullptr);
   // Zeros [address, address + size) inside one region (MemoryFault otherwise), giving whole
   // pages back: clearing memory never costs memory.
   void zero_bytes(uint64_t address, uint64_t size, FieldRef where);
