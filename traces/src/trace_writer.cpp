@@ -23,6 +23,8 @@
 #include <xxhash.h>
 #include <zstd.h>
 
+#include "content_hash.h"
+
 namespace clastrace::traces {
 
 namespace {
@@ -465,16 +467,11 @@ TraceError TraceWriter::add_contents(std::span<const ContentPiece> pieces, uint6
         ~Timed() { total += now_ns() - started; }
     } timed{w.counters.contents_ns};
     // A repeat (most snapshots of a frame loop) costs one hash pass over its pieces where they
-    // lie; new contents then take one keying pass and one copy into their record.
-    XXH128_hash_t fingerprint;
-    if (pieces.size() == 1) {
-        fingerprint = XXH3_128bits(pieces[0].bytes, size);
-    } else {
-        XXH3_state_t state;
-        XXH3_128bits_reset(&state);
-        for (const ContentPiece& p : pieces) XXH3_128bits_update(&state, p.bytes, p.size);
-        fingerprint = XXH3_128bits_digest(&state);
-    }
+    // lie; new contents then take one copy into their record. The pass gives both hashes: XXH3's
+    // 64- and 128-bit variants share one streaming state (the 128-bit reset is the 64-bit one),
+    // so the fingerprint and the seed-0 key are two digests of it.
+    const ContentHashes hashes = hash_content(pieces.data(), pieces.size());
+    const XXH128_hash_t fingerprint{hashes.fingerprint_low, hashes.fingerprint_high};
     const Fingerprint known{fingerprint.low64, fingerprint.high64, size};
     if (auto repeat = w.keys_by_fingerprint.find(known); repeat != w.keys_by_fingerprint.end()) {
         ++w.counters.contents_deduplicated;
@@ -484,14 +481,9 @@ TraceError TraceWriter::add_contents(std::span<const ContentPiece> pieces, uint6
     }
     // New contents are keyed and framed straight from their pieces: no gathered copy.
     auto keyOf = [&](uint64_t seed) {
-        if (pieces.size() == 1) return format::content_key(pieces[0].bytes, size, seed, w.options.content_hash_bits);
-        XXH3_state_t state;
-        XXH3_INITSTATE(&state);  // a stack state's first seeded reset reads it (xxhash.h)
-        XXH3_64bits_reset_withSeed(&state, seed);
-        for (const ContentPiece& p : pieces) XXH3_64bits_update(&state, p.bytes, p.size);
-        const uint64_t h = XXH3_64bits_digest(&state);  // as format::content_key over the whole
         const unsigned bits = w.options.content_hash_bits;
-        return bits >= 64 ? h : (h & ((uint64_t{1} << bits) - 1));
+        const uint64_t h = seed == 0 ? hashes.key_seed0 : content_key_of(pieces.data(), pieces.size(), seed);
+        return bits >= 64 ? h : (h & ((uint64_t{1} << bits) - 1));  // as format::content_key over the whole
     };
     // Seed 0 gives the key; a different byte string already holding that key (a real
     // collision) moves these bytes to the next seed until a free or matching key is found.

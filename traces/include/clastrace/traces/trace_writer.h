@@ -7,6 +7,7 @@
 // finish() return that error; nothing is lost silently.
 #pragma once
 
+#include <clastrace/traces/content_piece.h>
 #include <clastrace/traces/trace_error.h>
 #include <clastrace/traces/trace_generated.h>
 
@@ -53,11 +54,6 @@ struct TraceWriterStats {
     uint64_t compressor_cpu_ns = 0;    // CPU time of the compression thread(s)
     uint64_t append_blocked_ns = 0;    // callers waiting for room in the compression queue
     uint64_t flush_wait_ns = 0;        // flush()/finish() waiting for the compression thread(s)
-};
-
-struct ContentPiece {  // one part of a content given in pieces
-    const void* bytes;
-    size_t size;
 };
 
 class TraceWriter {

@@ -1,0 +1,7 @@
+// Compiled with -mavx512f (traces/CMakeLists.txt); run only where the CPU and OS have AVX-512F.
+#include "content_hash.h"
+
+#define XXH_VECTOR XXH_AVX512
+#define CONTENT_HASH_FUNCTION hash_content_avx512
+#define CONTENT_KEY_FUNCTION content_key_avx512
+#include "content_hash_kernel.inc"
