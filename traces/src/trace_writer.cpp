@@ -29,9 +29,29 @@ namespace clastrace::traces {
 
 namespace {
 
+// Bytes whose growth leaves new elements uninitialized: every framed record is written over
+// whole (frame, body, padding), so value-initializing them first would be one more pass over
+// each chunk.
+template <class T>
+struct UninitializedAllocator : std::allocator<T> {
+    template <class U>
+    struct rebind {
+        using other = UninitializedAllocator<U>;
+    };
+    template <class U>
+    void construct(U* p) noexcept {
+        ::new (static_cast<void*>(p)) U;
+    }
+    template <class U, class... Args>
+    void construct(U* p, Args&&... args) {
+        ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+    }
+};
+using ChunkBytes = std::vector<uint8_t, UninitializedAllocator<uint8_t>>;
+
 // A sealed chunk on its way to the compression thread.
 struct PendingChunk {
-    std::vector<uint8_t> raw;
+    ChunkBytes raw;
     uint32_t chunk_number = 0;
     uint32_t record_count = 0;
     uint32_t submission_count = 0;
@@ -59,7 +79,7 @@ uint64_t thread_cpu_ns() {
     return uint64_t(t.tv_sec) * 1000000000ull + uint64_t(t.tv_nsec);
 }
 
-// Size and fingerprint of stored contents, to find a repeat's key with one hash pass (the key,
+// Size and fingerprint of stored contents, to find a repeat's key without keying it again (the key,
 // a seeded XXH3-64 fixed by the format, is computed only for new contents).
 struct Fingerprint {
     uint64_t low, high, size;
@@ -85,7 +105,7 @@ struct TraceWriter::Impl {
     bool finished = false;
 
     // Main-thread state: the chunk being filled.
-    std::vector<uint8_t> raw;
+    ChunkBytes raw;
     uint32_t raw_records = 0;
     uint32_t raw_submissions = 0;
     uint64_t chunk_first_submission = 0;
@@ -102,7 +122,7 @@ struct TraceWriter::Impl {
     std::mutex mutex;
     std::condition_variable queue_changed;
     std::deque<PendingChunk> queue;
-    std::vector<std::vector<uint8_t>> spare_buffers;  // recycled raw buffers
+    std::vector<ChunkBytes> spare_buffers;  // recycled raw buffers
     bool worker_busy = false;
     bool stop = false;
     TraceError error;            // first error; sticky
