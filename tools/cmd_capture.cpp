@@ -31,6 +31,7 @@ struct CaptureOptions {
   std::string log = "error";
   std::string layerPath;
   uint32_t rayCheck = 0;  // CLASTRACE_RAY_CHECK: rays per NV top level, 0 = off
+  std::string backgroundCpus;  // CLASTRACE_BACKGROUND_CPUS
   std::vector<std::string> command;
 };
 
@@ -81,6 +82,7 @@ int runCapture(const CaptureOptions& o) {
   else unsetenv("CLASTRACE_SUBMIT_RANGE");
   if (!o.frames.empty()) setenv("CLASTRACE_FRAME_RANGE", o.frames.c_str(), 1);
   else unsetenv("CLASTRACE_FRAME_RANGE");
+  if (!o.backgroundCpus.empty()) setenv("CLASTRACE_BACKGROUND_CPUS", o.backgroundCpus.c_str(), 1);
 
   std::vector<char*> argv;
   for (const std::string& a : o.command) argv.push_back(const_cast<char*>(a.c_str()));
@@ -130,6 +132,32 @@ CLI::Validator frameRangeValidator() {
       "N|A-B|A-");
 }
 
+// CLASTRACE_BACKGROUND_CPUS's syntax (capture/src/background_cpus.cpp): spare, app, or CPUs
+// and inclusive ranges joined by commas, each CPU below 4096.
+CLI::Validator backgroundCpusValidator() {
+  return CLI::Validator(
+      [](std::string& text) -> std::string {
+        if (text == "spare" || text == "app") return {};
+        auto cpu = [](const std::string& t) {
+          return !t.empty() && t.size() <= 4 && t.find_first_not_of("0123456789") == std::string::npos &&
+                 std::stoul(t) < 4096;
+        };
+        bool ok = true;
+        size_t at = 0;
+        while (ok && at <= text.size()) {
+          const size_t comma = std::min(text.find(',', at), text.size());
+          const std::string item = text.substr(at, comma - at);
+          const size_t dash = item.find('-');
+          const std::string first = item.substr(0, dash);
+          const std::string last = dash == std::string::npos ? first : item.substr(dash + 1);
+          ok = cpu(first) && cpu(last) && std::stoul(last) >= std::stoul(first);
+          at = comma + 1;
+        }
+        return ok ? std::string() : "'" + text + "' is not spare, app or a CPU list such as 6-7,12";
+      },
+      "spare|app|LIST");
+}
+
 }  // namespace
 
 Command register_capture(CLI::App& app) {
@@ -159,6 +187,11 @@ Command register_capture(CLI::App& app) {
                   "after each NV top-level build, trace N rays with the driver and record its hits "
                   "(RayQueryCheck; needs VK_NV_ray_tracing)")
       ->check(CLI::Range(0, 1048576));
+  sub->add_option("--background-cpus", options->backgroundCpus,
+                  "CPUs for the capture's background threads (trace writing and compression): spare (default: "
+                  "the CPUs the application may not run on, if any), app (the application's), or a list such as "
+                  "6-7,12")
+      ->check(backgroundCpusValidator());
   sub->add_option("--layer-path", options->layerPath, "folder holding VkLayer_clastrace_capture.json");
   sub->add_option("command", options->command, "the application and its arguments (after --)")->required();
   return {sub, [options] {

@@ -111,6 +111,12 @@ LayerConfig parseLayerConfig(const std::function<const char*(const char*)>& gete
     if (auto on = parseSwitch(*v)) config.timestamps = *on;
     else reject("CLASTRACE_TIMESTAMPS", *v, "0 or 1");
   }
+  if (auto v = value("CLASTRACE_BACKGROUND_CPUS")) {
+    if (*v == "spare") config.backgroundCpus = {BackgroundCpus::Mode::Spare, {}};
+    else if (*v == "app") config.backgroundCpus = {BackgroundCpus::Mode::App, {}};
+    else if (auto cpus = parseCpuList(*v)) config.backgroundCpus = {BackgroundCpus::Mode::List, *cpus};
+    else reject("CLASTRACE_BACKGROUND_CPUS", *v, "spare, app or a CPU list such as 6-7,12");
+  }
   if (auto v = value("CLASTRACE_STATS")) {
     if (auto on = parseSwitch(*v)) config.stats = *on;
     else reject("CLASTRACE_STATS", *v, "0 or 1");

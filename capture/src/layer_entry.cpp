@@ -2,6 +2,7 @@
 // layer's entry points, the registries, and the proc-address interception.
 #include "layer_state.h"
 
+#include "clastrace/capture/background_cpus.h"
 #include "clastrace/capture/capture_cost.h"
 #include "command_buffer_log.h"
 #include "pause_worker.h"
@@ -357,7 +358,15 @@ std::shared_ptr<CaptureSink> processCaptureSink() {
   if (!config.debugJsonPath.empty()) {
     sink = makeJsonCaptureSink(config.debugJsonPath, error);
   } else if (!config.outputPath.empty()) {
-    sink = makeTraceCaptureSink(config.outputPath, config.zstdLevel, error, config.flushMilliseconds);
+    // Decided on the application's thread creating the device: its affinity is the application's.
+    BackgroundPlacement placement;
+    placement.applicationCpus = callingThreadCpus();
+    placement.cpus = backgroundCpusFor(config.backgroundCpus, onlineCpus(), placement.applicationCpus);
+    logMessage(LogLevel::Info, "background threads: CPUs %s (the application's: %s)",
+               placement.cpus.empty() ? "of the application" : formatCpuList(placement.cpus).c_str(),
+               formatCpuList(placement.applicationCpus).c_str());
+    sink = makeTraceCaptureSink(config.outputPath, config.zstdLevel, error, config.flushMilliseconds,
+                                std::move(placement));
   } else {
     // Serving alone is a normal use (CI drivers): no output named means no capture, quietly.
     sinkFailed = true;

@@ -10,6 +10,7 @@
 // `outbox_`; whoever holds `writeMutex_` (the sink's thread, or a flush) takes the outbox and
 // writes it. Lock order: writeMutex_ before mutex_.
 #include "clastrace/capture/capture_sink.h"
+#include "clastrace/capture/background_cpus.h"
 
 #include "clastrace/capture/capture_cost.h"
 
@@ -108,8 +109,9 @@ std::unique_ptr<fbs::DependencyT> dependency(VkDependencyFlags flags, const std:
 
 class TraceCaptureSink final : public CaptureSink {
  public:
-  TraceCaptureSink(std::string path, int zstdLevel, uint32_t flushMilliseconds)
-      : path_(std::move(path)), zstdLevel_(zstdLevel), flushMilliseconds_(flushMilliseconds) {
+  TraceCaptureSink(std::string path, int zstdLevel, uint32_t flushMilliseconds, BackgroundPlacement placement)
+      : path_(std::move(path)), zstdLevel_(zstdLevel), flushMilliseconds_(flushMilliseconds),
+        placement_(std::move(placement)) {
     emitter_ = std::thread([this] { emitInBackground(); });
   }
   ~TraceCaptureSink() override {
@@ -200,6 +202,7 @@ class TraceCaptureSink final : public CaptureSink {
     options.zstd_level = zstdLevel_;
     options.compressor_nice = kBackgroundNice;
     options.compressor_idle_class = true;
+    options.compressor_cpus = placement_.cpus;
     TraceError error;
     writer_ = TraceWriter::create(path_, header, options, &error);
     if (!writer_) fail(error);
@@ -387,12 +390,23 @@ class TraceCaptureSink final : public CaptureSink {
         lines.push_back(line);
       }
     }
+    {
+      std::lock_guard lock(placementMutex_);
+      const std::string application = formatCpuList(placement_.applicationCpus);
+      lines.push_back((placement_.cpus.empty()
+                           ? "background threads: with the application (CPUs " + application + ")"
+                           : "background threads: asked for CPUs " + formatCpuList(placement_.cpus) +
+                                 " (the application's: " + application + ")") +
+                      "; sink on " + formatCpuList(sinkCpus_));
+    }
     std::lock_guard write(writeMutex_);
     if (!writer_) return lines;
     const traces::TraceWriterStats w = writer_->stats();
+    lines.back() += std::string(", compressor ") +
+                    (placement_.cpus.empty() ? "as created" : w.compressor_placed ? "placed" : "refused (as created)");
     char line[256];
     std::snprintf(line, sizeof line,
-                  "trace: %llu records, %llu chunks, %llu raw bytes -> %llu compressed (zstd -%d); contents: %llu "
+                  "trace: %llu records, %llu chunks, %llu raw bytes -> %llu compressed (zstd level %d); contents: %llu "
                   "stored (%llu bytes), %llu deduplicated (%llu bytes)",
                   (unsigned long long)w.records, (unsigned long long)w.chunks, (unsigned long long)w.raw_bytes,
                   (unsigned long long)w.compressed_bytes, zstdLevel_, (unsigned long long)w.contents_stored,
@@ -648,6 +662,11 @@ class TraceCaptureSink final : public CaptureSink {
     if (pthread_setschedparam(pthread_self(), SCHED_IDLE, &idle) != 0)
       (void)setpriority(PRIO_PROCESS, id_t(gettid()), kBackgroundNice);
     pthread_setname_np(pthread_self(), "clastrace-sink");  // for profilers and top
+    if (!placement_.cpus.empty()) (void)placeCallingThread(placement_.cpus);
+    {
+      std::lock_guard lock(placementMutex_);
+      sinkCpus_ = callingThreadCpus();  // what the kernel gave, for the stats line
+    }
     using Clock = std::chrono::steady_clock;
     auto lastFlush = Clock::now();
     const auto interval = std::chrono::milliseconds(flushMilliseconds_ ? flushMilliseconds_ : 3600000);
@@ -1149,6 +1168,9 @@ class TraceCaptureSink final : public CaptureSink {
   std::mutex wakeMutex_;       // guards work_ and stopEmitting_
   std::condition_variable wake_;
   bool work_ = false, stopEmitting_ = false;
+  const BackgroundPlacement placement_;
+  std::mutex placementMutex_;
+  std::vector<unsigned> sinkCpus_;  // the sink thread's CPUs once placed
   std::thread emitter_;
   std::unordered_map<uint64_t, BufferBindingRecord> pendingBinds_;
   std::unordered_map<uint64_t, BufferBindingRecord> boundAt_;
@@ -1164,7 +1186,7 @@ thread_local bool TraceCaptureSink::emitterThread = false;
 }  // namespace
 
 std::unique_ptr<CaptureSink> makeTraceCaptureSink(const std::string& path, int zstdLevel, std::string& error,
-                                                  uint32_t flushMilliseconds) {
+                                                  uint32_t flushMilliseconds, BackgroundPlacement placement) {
   // Checked here, before any device exists, so an unusable path is reported at once; the
   // writer itself starts with the first device (the header describes it).
   std::FILE* probe = std::fopen(path.c_str(), "wb");
@@ -1173,7 +1195,7 @@ std::unique_ptr<CaptureSink> makeTraceCaptureSink(const std::string& path, int z
     return nullptr;
   }
   std::fclose(probe);
-  return std::make_unique<TraceCaptureSink>(path, zstdLevel, flushMilliseconds);
+  return std::make_unique<TraceCaptureSink>(path, zstdLevel, flushMilliseconds, std::move(placement));
 }
 
 }  // namespace clastrace::capture

@@ -79,3 +79,47 @@ TEST(LayerConfig, TimestampsOnByDefaultAndSwitchedByZeroOrOne) {
   ASSERT_EQ(bad.errors.size(), 1u);
   EXPECT_NE(bad.errors[0].find("CLASTRACE_TIMESTAMPS='sometimes'"), std::string::npos);
 }
+
+TEST(LayerConfig, BackgroundCpusSpareByDefaultAppOrAList) {
+  EXPECT_EQ(parse({}).backgroundCpus.mode, BackgroundCpus::Mode::Spare);
+  EXPECT_EQ(parse({{"CLASTRACE_BACKGROUND_CPUS", "app"}}).backgroundCpus.mode, BackgroundCpus::Mode::App);
+  LayerConfig listed = parse({{"CLASTRACE_BACKGROUND_CPUS", "6-7,12,7"}});
+  EXPECT_EQ(listed.backgroundCpus.mode, BackgroundCpus::Mode::List);
+  EXPECT_EQ(listed.backgroundCpus.list, (std::vector<unsigned>{6, 7, 12}));
+  for (const char* bad : {"", "idle", "3-1", "1,", ",1", "-2", "4096", "1-2-3", "a"}) {
+    LayerConfig c = parse({{"CLASTRACE_BACKGROUND_CPUS", bad}});
+    EXPECT_EQ(c.backgroundCpus.mode, BackgroundCpus::Mode::Spare) << bad;
+    ASSERT_EQ(c.errors.size(), 1u) << bad;
+    EXPECT_NE(c.errors[0].find("CLASTRACE_BACKGROUND_CPUS='" + std::string(bad) + "'"), std::string::npos);
+  }
+}
+
+TEST(BackgroundCpus, ListsParseAndFoldBack) {
+  EXPECT_EQ(parseCpuList("0-3,8"), (std::vector<unsigned>{0, 1, 2, 3, 8}));
+  EXPECT_EQ(parseCpuList("5"), (std::vector<unsigned>{5}));
+  EXPECT_EQ(parseCpuList("4095"), (std::vector<unsigned>{4095}));
+  EXPECT_EQ(formatCpuList({0, 1, 2, 3, 8}), "0-3,8");
+  EXPECT_EQ(formatCpuList({1, 3, 4}), "1,3-4");
+  EXPECT_EQ(formatCpuList({}), "none");
+  EXPECT_EQ(formatCpuList(*parseCpuList("0-1,6-15")), "0-1,6-15");
+}
+
+TEST(BackgroundCpus, SpareIsTheOnlineCpusTheApplicationLacks) {
+  const std::vector<unsigned> online = *parseCpuList("0-15");
+  const BackgroundCpus spare;
+  EXPECT_EQ(formatCpuList(backgroundCpusFor(spare, online, *parseCpuList("2-5"))), "0-1,6-15");
+  EXPECT_TRUE(backgroundCpusFor(spare, online, online).empty());  // nothing spare: stay with the app
+  EXPECT_TRUE(backgroundCpusFor(spare, online, {}).empty());      // the app's CPUs unknown
+  EXPECT_TRUE(backgroundCpusFor({BackgroundCpus::Mode::App, {}}, online, *parseCpuList("2-5")).empty());
+  EXPECT_EQ(backgroundCpusFor({BackgroundCpus::Mode::List, {9}}, online, online), (std::vector<unsigned>{9}));
+}
+
+TEST(BackgroundCpus, TheCallingThreadCanBePlacedOnItsOwnCpusAndBack) {
+  const std::vector<unsigned> mine = callingThreadCpus();
+  ASSERT_FALSE(mine.empty());
+  EXPECT_TRUE(placeCallingThread({mine.front()}));
+  EXPECT_EQ(callingThreadCpus(), std::vector<unsigned>{mine.front()});
+  EXPECT_TRUE(placeCallingThread(mine));
+  EXPECT_EQ(callingThreadCpus(), mine);
+  EXPECT_FALSE(placeCallingThread({}));
+}

@@ -56,7 +56,8 @@ std::string LayerLaunchTest::cleanEnvironment(std::map<std::string, std::string>
   for (const char* v : {"CLASTRACE_OUTPUT", "CLASTRACE_CAPTURE", "CLASTRACE_SERVE", "CLASTRACE_SUBMIT_RANGE",
                         "CLASTRACE_ZSTD_LEVEL", "CLASTRACE_LOG", "CLASTRACE_DEBUG_JSON", "CLASTRACE_FLUSH_MS",
                         "CLASTRACE_FORCE_STAGING", "CLASTRACE_TIMESTAMPS", "CLASTRACE_RAY_CHECK",
-                        "CLASTRACE_STATS", "CLASTRACE_SHARED_WAIT_MS", "CLASTRACE_FRAME_RANGE"})
+                        "CLASTRACE_STATS", "CLASTRACE_SHARED_WAIT_MS", "CLASTRACE_FRAME_RANGE",
+                        "CLASTRACE_BACKGROUND_CPUS"})
     line += std::string(" -u ") + v;
   env["VK_DRIVER_FILES"] = kLavapipeIcd;
   env["XDG_RUNTIME_DIR"] = dir.string();

@@ -195,7 +195,8 @@ struct TraceWriter::Impl {
         file_write_ns += now_ns() - compressed_at;
         return e;
     }
-    std::mutex timing_mutex;  // the timing totals above (written by whichever thread compresses)
+    bool compressor_placed = false;
+    std::mutex timing_mutex;  // the timing totals above and compressor_placed
 
     void worker_main() {
         // Best effort: without the right to either the thread keeps the caller's priority.
@@ -205,6 +206,15 @@ struct TraceWriter::Impl {
         if (!idled && options.compressor_nice != 0)
             (void)::setpriority(PRIO_PROCESS, static_cast<id_t>(::gettid()), options.compressor_nice);
         pthread_setname_np(pthread_self(), "clastrace-zstd");  // for profilers and top
+        if (!options.compressor_cpus.empty()) {
+            cpu_set_t cpus;
+            CPU_ZERO(&cpus);
+            for (unsigned c : options.compressor_cpus)
+                if (c < CPU_SETSIZE) CPU_SET(c, &cpus);
+            const bool placed = ::sched_setaffinity(0, sizeof cpus, &cpus) == 0;  // 0: this thread
+            std::lock_guard placement(timing_mutex);
+            compressor_placed = placed;
+        }
         ZSTD_CCtx* cctx = ZSTD_createCCtx();
         std::vector<uint8_t> compressed;
         std::unique_lock lock(mutex);
@@ -613,6 +623,7 @@ TraceWriterStats TraceWriter::stats() const {
     std::lock_guard timing(w.timing_mutex);
     s.compress_ns = w.compress_ns;
     s.file_write_ns = w.file_write_ns;
+    s.compressor_placed = w.compressor_placed;
     return s;
 }
 

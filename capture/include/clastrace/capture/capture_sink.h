@@ -61,7 +61,14 @@ std::unique_ptr<CaptureSink> makeJsonCaptureSink(const std::string& path, std::s
 // written, or while this build has no trace writer.
 // Every `flushMilliseconds` (0: never) the records so far are written out as a finished chunk,
 // so a process that is killed loses at most that much of its capture.
+// Its two threads (the sink's and the compressor's) run on `placement.cpus` when not empty
+// (background_cpus.h); `applicationCpus` is only reported.
+struct BackgroundPlacement {
+  std::vector<unsigned> cpus;
+  std::vector<unsigned> applicationCpus;
+};
 std::unique_ptr<CaptureSink> makeTraceCaptureSink(const std::string& path, int zstdLevel, std::string& error,
-                                                  uint32_t flushMilliseconds = 1000);
+                                                  uint32_t flushMilliseconds = 1000,
+                                                  BackgroundPlacement placement = {});
 
 }  // namespace clastrace::capture

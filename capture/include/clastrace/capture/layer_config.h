@@ -1,6 +1,8 @@
 // The capture layer's settings, read once from the environment of the captured process.
 #pragma once
 
+#include "clastrace/capture/background_cpus.h"
+
 #include <cstdint>
 #include <functional>
 #include <optional>
@@ -39,6 +41,7 @@ struct LayerConfig {
   // CLASTRACE_SHARED_WAIT_MS: how long a submission waits for another queue to finish with the
   // pause events of a simultaneous-use command buffer (layer_submit.cpp) before it goes ahead.
   uint32_t sharedWaitMilliseconds = 10000;
+  BackgroundCpus backgroundCpus;   // CLASTRACE_BACKGROUND_CPUS: spare|app|a CPU list (background_cpus.h)
   std::vector<std::string> errors;  // one line per rejected variable; the default is kept
 };
 

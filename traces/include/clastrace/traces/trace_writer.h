@@ -16,6 +16,7 @@
 #include <memory>
 #include <span>
 #include <string>
+#include <vector>
 
 namespace clastrace::traces {
 
@@ -34,6 +35,9 @@ struct TraceWriterOptions {
     // only when no normal thread wants it, so a capture's compression never delays the threads
     // of the application. Where the class is refused, compressor_nice applies instead.
     bool compressor_idle_class = false;
+    // The CPUs the compression thread may run on (Linux, 0-based); empty: those of the thread
+    // creating the writer. Best effort: a set the kernel refuses leaves it where it was created.
+    std::vector<unsigned> compressor_cpus;
 };
 
 struct TraceWriterStats {
@@ -54,6 +58,7 @@ struct TraceWriterStats {
     uint64_t compressor_cpu_ns = 0;    // CPU time of the compression thread(s)
     uint64_t append_blocked_ns = 0;    // callers waiting for room in the compression queue
     uint64_t flush_wait_ns = 0;        // flush()/finish() waiting for the compression thread(s)
+    bool compressor_placed = false;    // the compression thread runs on options.compressor_cpus
 };
 
 class TraceWriter {

@@ -1,0 +1,46 @@
+// Where the capture's background threads run: the sink's (`clastrace-sink`) and the trace
+// compressor's (`clastrace-zstd`). Both already yield to every normal thread (SCHED_IDLE), but
+// on the application's own cores they still evict its caches and take the cores its engine
+// threads wake on; measured on the H100 machine, moving them to other cores took 4-12 points off
+// the capture's cost (docs/benchmarks.md, round 3).
+//
+// CLASTRACE_BACKGROUND_CPUS:
+//   spare (default)  the online CPUs that the thread creating the capture may not run on (an
+//                    application started under `taskset` or a narrowed affinity), when there
+//                    are any; otherwise the application's own, as with `app`
+//   app              inherited from the application: the old placement
+//   a list, "6-7,12" those CPUs (0-based, as `taskset -c` takes them)
+// The pause worker and the served engine's threads stay with the application: they are on its
+// path. Placement is best effort: a CPU the process's cpuset excludes is refused by the kernel,
+// and the threads then keep the application's CPUs (the stats line says which they got).
+#pragma once
+
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace clastrace::capture {
+
+struct BackgroundCpus {
+  enum class Mode { Spare, App, List };
+  Mode mode = Mode::Spare;
+  std::vector<unsigned> list;  // Mode::List: ascending, no repeats
+};
+
+// "0-3,8" -> {0,1,2,3,8}: comma-separated CPUs and inclusive ranges, each CPU below 4096.
+std::optional<std::vector<unsigned>> parseCpuList(const std::string& text);
+// The inverse, ranges folded: {0,1,2,3,8} -> "0-3,8"; "none" when empty.
+std::string formatCpuList(const std::vector<unsigned>& cpus);
+
+// The CPUs the background threads should be given, from the machine's online CPUs and the
+// calling (application) thread's allowed ones; empty means: leave them where they were created.
+std::vector<unsigned> backgroundCpusFor(const BackgroundCpus& setting, const std::vector<unsigned>& online,
+                                        const std::vector<unsigned>& allowed);
+
+std::vector<unsigned> onlineCpus();          // /sys/devices/system/cpu/online; empty if unknown
+std::vector<unsigned> callingThreadCpus();   // the calling thread's affinity; empty if unknown
+// Restricts the calling thread to `cpus`. False (and the thread as it was) when the kernel
+// refuses, e.g. none of them is in the process's cpuset.
+bool placeCallingThread(const std::vector<unsigned>& cpus);
+
+}  // namespace clastrace::capture

@@ -1,0 +1,107 @@
+#include "clastrace/capture/background_cpus.h"
+
+#include <sched.h>
+
+#include <algorithm>
+#include <fstream>
+
+namespace clastrace::capture {
+namespace {
+
+constexpr unsigned kMaxCpu = 4096;  // the kernel's largest NR_CPUS default
+
+std::optional<unsigned> parseCpu(const std::string& text) {
+  if (text.empty() || text.size() > 4) return std::nullopt;
+  unsigned value = 0;
+  for (char c : text) {
+    if (c < '0' || c > '9') return std::nullopt;
+    value = value * 10 + unsigned(c - '0');
+  }
+  if (value >= kMaxCpu) return std::nullopt;
+  return value;
+}
+
+}  // namespace
+
+std::optional<std::vector<unsigned>> parseCpuList(const std::string& text) {
+  std::vector<unsigned> cpus;
+  size_t at = 0;
+  while (at <= text.size()) {
+    const size_t comma = std::min(text.find(',', at), text.size());
+    const std::string item = text.substr(at, comma - at);
+    const size_t dash = item.find('-');
+    const auto first = parseCpu(item.substr(0, dash));
+    const auto last = dash == std::string::npos ? first : parseCpu(item.substr(dash + 1));
+    if (!first || !last || *last < *first) return std::nullopt;
+    for (unsigned c = *first; c <= *last; ++c) cpus.push_back(c);
+    at = comma + 1;
+  }
+  std::sort(cpus.begin(), cpus.end());
+  cpus.erase(std::unique(cpus.begin(), cpus.end()), cpus.end());
+  return cpus;
+}
+
+std::string formatCpuList(const std::vector<unsigned>& cpus) {
+  if (cpus.empty()) return "none";
+  std::string text;
+  for (size_t i = 0; i < cpus.size();) {
+    size_t j = i;
+    while (j + 1 < cpus.size() && cpus[j + 1] == cpus[j] + 1) ++j;
+    if (!text.empty()) text += ',';
+    text += std::to_string(cpus[i]);
+    if (j > i) text += '-' + std::to_string(cpus[j]);
+    i = j + 1;
+  }
+  return text;
+}
+
+std::vector<unsigned> backgroundCpusFor(const BackgroundCpus& setting, const std::vector<unsigned>& online,
+                                        const std::vector<unsigned>& allowed) {
+  switch (setting.mode) {
+    case BackgroundCpus::Mode::App:
+      return {};
+    case BackgroundCpus::Mode::List:
+      return setting.list;
+    case BackgroundCpus::Mode::Spare:
+      break;
+  }
+  if (allowed.empty()) return {};  // the application's CPUs unknown: nothing to keep clear of
+  std::vector<unsigned> spare;
+  for (unsigned cpu : online)
+    if (!std::binary_search(allowed.begin(), allowed.end(), cpu)) spare.push_back(cpu);
+  return spare;
+}
+
+std::vector<unsigned> onlineCpus() {
+  std::ifstream file("/sys/devices/system/cpu/online");
+  std::string line;
+  if (!std::getline(file, line)) return {};
+  return parseCpuList(line).value_or(std::vector<unsigned>{});
+}
+
+std::vector<unsigned> callingThreadCpus() {
+  cpu_set_t* set = CPU_ALLOC(kMaxCpu);
+  if (!set) return {};
+  const size_t bytes = CPU_ALLOC_SIZE(kMaxCpu);
+  std::vector<unsigned> cpus;
+  if (sched_getaffinity(0, bytes, set) == 0)
+    for (unsigned c = 0; c < kMaxCpu; ++c)
+      if (CPU_ISSET_S(c, bytes, set)) cpus.push_back(c);
+  CPU_FREE(set);
+  return cpus;
+}
+
+bool placeCallingThread(const std::vector<unsigned>& cpus) {
+  if (cpus.empty()) return false;
+  cpu_set_t* set = CPU_ALLOC(kMaxCpu);
+  if (!set) return false;
+  const size_t bytes = CPU_ALLOC_SIZE(kMaxCpu);
+  CPU_ZERO_S(bytes, set);
+  for (unsigned c : cpus)
+    if (c < kMaxCpu) CPU_SET_S(c, bytes, set);
+  const bool placed = sched_setaffinity(0, bytes, set) == 0;  // 0: the calling thread (Linux)
+  CPU_FREE(set);
+  return placed;
+}
+
+}  // namespace clastrace::capture
