@@ -81,7 +81,8 @@ bool parseRun(const std::string& out, const std::string& err, Run& run) {
 }
 
 Run runApp(const fs::path& dir, const std::string& args, const std::map<std::string, std::string>& env) {
-  std::string line = "env -u CLASTRACE_OUTPUT -u CLASTRACE_CAPTURE -u CLASTRACE_DEBUG_JSON -u VK_ICD_FILENAMES";
+  std::string line = "env -u CLASTRACE_OUTPUT -u CLASTRACE_CAPTURE -u CLASTRACE_DEBUG_JSON -u CLASTRACE_BACKGROUND_CPUS "
+                     "-u VK_ICD_FILENAMES";
   line += " VK_DRIVER_FILES=" + setting("CLASTRACE_BENCH_DRIVER_FILES", kLavapipe) +
           " VK_ADD_LAYER_PATH=" + setting("CLASTRACE_BENCH_LAYER_DIR", CLASTRACE_LAYER_MANIFEST_DIR) +
           " VK_INSTANCE_LAYERS=VK_LAYER_CLASTRACE_capture CLASTRACE_STATS=1";
@@ -197,6 +198,8 @@ int main(int argc, char** argv) {
        {{"CLASTRACE_OUTPUT", traceOf("zstdm1")}, {"CLASTRACE_ZSTD_LEVEL", "-1"}}, {}, {}, {}, {}},
       {"capture + serving, CLASTRACE_ZSTD_LEVEL=-5",
        {{"CLASTRACE_OUTPUT", traceOf("zstdm5")}, {"CLASTRACE_ZSTD_LEVEL", "-5"}}, {}, {}, {}, {}},
+      {"capture + serving, CLASTRACE_BACKGROUND_CPUS=app",
+       {{"CLASTRACE_OUTPUT", traceOf("bgapp")}, {"CLASTRACE_BACKGROUND_CPUS", "app"}}, {}, {}, {}, {}},
   };
   // Interleaved, so drift of a shared machine spreads over every mode alike.
   for (int r = 0; r < repetitions; ++r)
@@ -280,6 +283,24 @@ int main(int argc, char** argv) {
                 i == 8 ? "-5" : i == 7 ? "-1" : i == 5 ? "1" : i == 1 ? "3 (default)" : "9", (unsigned long long)m.bytes.fileBytes, compressorCpu, ms,
                 ms / peer, cpu, cpu / peerCpu);
   }
+  // Where the sink's and the compressor's threads run: by default on the CPUs the application
+  // may not use (the bench runs confined by taskset on the device), with `app` on its own,
+  // where their SCHED_IDLE work still shares the engine's cores and caches. Without spare CPUs
+  // (an unconfined run) both rows run the same placement.
+  std::printf("\n| CLASTRACE_BACKGROUND_CPUS | wall ms (best) | ratio | median wall ratio | median pairwise | CPU ms (median) | ratio |\n");
+  std::printf("|---------------------------|---------------:|------:|------------------:|----------------:|----------------:|------:|\n");
+  for (size_t i : {1, 9}) {
+    const Mode& m = modes[i];
+    std::vector<double> pairs;
+    for (int r = 0; r < repetitions; ++r) pairs.push_back(m.loops[r] / modes[0].loops[r]);
+    const double ms = best(m.loops), cpu = median(m.cpu);
+    std::printf("| %-25s | %14.1f | %4.3fx | %16.3fx | %14.3fx | %15.1f | %4.3fx |\n", i == 1 ? "spare (default)" : "app",
+                ms, ms / peer, median(m.loops) / medianServe, median(pairs), cpu, cpu / peerCpu);
+  }
+  for (size_t i : {1, 9})
+    for (const std::string& line : modes[i].last.stats)
+      if (line.rfind("background threads:", 0) == 0) std::printf("\n    %s", line.c_str());
+  std::printf("\n");
   // The layer's own account (CLASTRACE_STATS=1, capture/README.md): wall and CPU time per
   // phase over the whole process, the vkDestroyDevice flush included (after the frame loop).
   for (size_t i : {0, 1}) {

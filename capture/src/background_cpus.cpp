@@ -56,7 +56,7 @@ std::string formatCpuList(const std::vector<unsigned>& cpus) {
 }
 
 std::vector<unsigned> backgroundCpusFor(const BackgroundCpus& setting, const std::vector<unsigned>& online,
-                                        const std::vector<unsigned>& allowed) {
+                                        const std::vector<unsigned>& allowed, const std::vector<unsigned>& reserved) {
   switch (setting.mode) {
     case BackgroundCpus::Mode::App:
       return {};
@@ -68,15 +68,27 @@ std::vector<unsigned> backgroundCpusFor(const BackgroundCpus& setting, const std
   if (allowed.empty()) return {};  // the application's CPUs unknown: nothing to keep clear of
   std::vector<unsigned> spare;
   for (unsigned cpu : online)
-    if (!std::binary_search(allowed.begin(), allowed.end(), cpu)) spare.push_back(cpu);
+    if (!std::binary_search(allowed.begin(), allowed.end(), cpu) &&
+        std::find(reserved.begin(), reserved.end(), cpu) == reserved.end())
+      spare.push_back(cpu);
   return spare;
 }
 
-std::vector<unsigned> onlineCpus() {
-  std::ifstream file("/sys/devices/system/cpu/online");
+namespace {
+std::vector<unsigned> cpuListFile(const char* path) {  // empty when missing, empty or unreadable
+  std::ifstream file(path);
   std::string line;
   if (!std::getline(file, line)) return {};
   return parseCpuList(line).value_or(std::vector<unsigned>{});
+}
+}  // namespace
+
+std::vector<unsigned> onlineCpus() { return cpuListFile("/sys/devices/system/cpu/online"); }
+
+std::vector<unsigned> reservedCpus() {
+  std::vector<unsigned> reserved = cpuListFile("/sys/devices/system/cpu/isolated");
+  for (unsigned c : cpuListFile("/sys/devices/system/cpu/nohz_full")) reserved.push_back(c);
+  return reserved;
 }
 
 std::vector<unsigned> callingThreadCpus() {

@@ -361,7 +361,8 @@ std::shared_ptr<CaptureSink> processCaptureSink() {
     // Decided on the application's thread creating the device: its affinity is the application's.
     BackgroundPlacement placement;
     placement.applicationCpus = callingThreadCpus();
-    placement.cpus = backgroundCpusFor(config.backgroundCpus, onlineCpus(), placement.applicationCpus);
+    placement.cpus =
+        backgroundCpusFor(config.backgroundCpus, onlineCpus(), placement.applicationCpus, reservedCpus());
     logMessage(LogLevel::Info, "background threads: CPUs %s (the application's: %s)",
                placement.cpus.empty() ? "of the application" : formatCpuList(placement.cpus).c_str(),
                formatCpuList(placement.applicationCpus).c_str());

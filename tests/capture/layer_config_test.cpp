@@ -110,6 +110,9 @@ TEST(BackgroundCpus, SpareIsTheOnlineCpusTheApplicationLacks) {
   EXPECT_EQ(formatCpuList(backgroundCpusFor(spare, online, *parseCpuList("2-5"))), "0-1,6-15");
   EXPECT_TRUE(backgroundCpusFor(spare, online, online).empty());  // nothing spare: stay with the app
   EXPECT_TRUE(backgroundCpusFor(spare, online, {}).empty());      // the app's CPUs unknown
+  // CPUs the kernel keeps apart (isolcpus, nohz_full) are someone else's.
+  EXPECT_EQ(formatCpuList(backgroundCpusFor(spare, online, *parseCpuList("2-5"), {12, 13, 14, 15})), "0-1,6-11");
+  EXPECT_TRUE(backgroundCpusFor(spare, online, *parseCpuList("0-11"), {12, 13, 14, 15}).empty());
   EXPECT_TRUE(backgroundCpusFor({BackgroundCpus::Mode::App, {}}, online, *parseCpuList("2-5")).empty());
   EXPECT_EQ(backgroundCpusFor({BackgroundCpus::Mode::List, {9}}, online, online), (std::vector<unsigned>{9}));
 }

@@ -6,8 +6,9 @@
 //
 // CLASTRACE_BACKGROUND_CPUS:
 //   spare (default)  the online CPUs that the thread creating the capture may not run on (an
-//                    application started under `taskset` or a narrowed affinity), when there
-//                    are any; otherwise the application's own, as with `app`
+//                    application started under `taskset` or a narrowed affinity), leaving out
+//                    those the kernel keeps apart (isolcpus, nohz_full: someone reserved them),
+//                    when there are any; otherwise the application's own, as with `app`
 //   app              inherited from the application: the old placement
 //   a list, "6-7,12" those CPUs (0-based, as `taskset -c` takes them)
 // The pause worker and the served engine's threads stay with the application: they are on its
@@ -32,12 +33,15 @@ std::optional<std::vector<unsigned>> parseCpuList(const std::string& text);
 // The inverse, ranges folded: {0,1,2,3,8} -> "0-3,8"; "none" when empty.
 std::string formatCpuList(const std::vector<unsigned>& cpus);
 
-// The CPUs the background threads should be given, from the machine's online CPUs and the
-// calling (application) thread's allowed ones; empty means: leave them where they were created.
+// The CPUs the background threads should be given, from the machine's online CPUs, the
+// calling (application) thread's allowed ones and the reserved ones; empty means: leave them
+// where they were created.
 std::vector<unsigned> backgroundCpusFor(const BackgroundCpus& setting, const std::vector<unsigned>& online,
-                                        const std::vector<unsigned>& allowed);
+                                        const std::vector<unsigned>& allowed,
+                                        const std::vector<unsigned>& reserved = {});
 
 std::vector<unsigned> onlineCpus();          // /sys/devices/system/cpu/online; empty if unknown
+std::vector<unsigned> reservedCpus();        // /sys/devices/system/cpu/{isolated,nohz_full}
 std::vector<unsigned> callingThreadCpus();   // the calling thread's affinity; empty if unknown
 // Restricts the calling thread to `cpus`. False (and the thread as it was) when the kernel
 // refuses, e.g. none of them is in the process's cpuset.
