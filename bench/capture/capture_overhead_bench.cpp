@@ -24,6 +24,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <random>
 #include <sstream>
 #include <string>
 #include <unistd.h>
@@ -103,6 +104,25 @@ double best(const std::vector<double>& v) { return *std::min_element(v.begin(), 
 double median(std::vector<double> v) {
   std::sort(v.begin(), v.end());
   return v[v.size() / 2];
+}
+
+// How far the median-wall ratio could move with other runs of the same machine: the 2.5th and
+// 97.5th percentiles of the ratio over resampled repetitions (rounds drawn with replacement,
+// each round's two runs kept together). A fixed seed keeps the printed interval reproducible.
+std::pair<double, double> bootstrapRatioInterval(const std::vector<double>& peer, const std::vector<double>& mode) {
+  std::mt19937 random(20261123);
+  std::uniform_int_distribution<size_t> pick(0, peer.size() - 1);
+  std::vector<double> ratios, a(peer.size()), b(peer.size());
+  for (int k = 0; k < 2000; ++k) {
+    for (size_t i = 0; i < peer.size(); ++i) {
+      const size_t r = pick(random);
+      a[i] = peer[r];
+      b[i] = mode[r];
+    }
+    ratios.push_back(median(b) / median(a));
+  }
+  std::sort(ratios.begin(), ratios.end());
+  return {ratios[ratios.size() * 25 / 1000], ratios[ratios.size() * 975 / 1000]};
 }
 
 struct TraceBytes {
@@ -239,8 +259,10 @@ int main(int argc, char** argv) {
   const auto atGoal = std::count_if(pairWall.begin(), pairWall.end(), [](double r) { return r <= 1.10; });
   std::printf("| %-37s | %14.1f | %5.3fx | %15s | %6s |\n", "capture + serving, median wall", medianCapture,
               medianCapture / medianServe, "", "");
-  std::printf("\nserving only median wall %.1f ms; pairs with capture <= 1.10x: %lld of %d\n", medianServe,
-              (long long)atGoal, repetitions);
+  const auto [low, high] = bootstrapRatioInterval(modes[0].loops, modes[1].loops);
+  std::printf("\nserving only median wall %.1f ms; pairs with capture <= 1.10x: %lld of %d; median wall ratio "
+              "%.3fx, 95%% bootstrap interval %.3fx-%.3fx\n",
+              medianServe, (long long)atGoal, repetitions, medianCapture / medianServe, low, high);
   std::printf("\n| trace bytes                                    |       bytes | vs referenced |\n");
   std::printf("|------------------------------------------------|------------:|--------------:|\n");
   auto row = [&](const char* name, uint64_t v) {
