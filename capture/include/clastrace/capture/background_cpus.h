@@ -11,6 +11,10 @@
 //                    when there are any; otherwise the application's own, as with `app`
 //   app              inherited from the application: the old placement
 //   a list, "6-7,12" those CPUs (0-based, as `taskset -c` takes them)
+// The application's CPUs are those of the thread creating the first device (what `taskset`
+// set), not the union of all its threads': drivers' own threads may widen theirs (Mesa's queues
+// reset theirs to every CPU), which would leave nothing spare. A thread of the application
+// pinned outside that set may meet the background threads on its CPU; they still yield to it.
 // The pause worker and the served engine's threads stay with the application: they are on its
 // path. Placement is best effort: a CPU the process's cpuset excludes is refused by the kernel,
 // and the threads then keep the application's CPUs (the stats line says which they got).
