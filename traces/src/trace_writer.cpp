@@ -18,9 +18,6 @@
 #include <unistd.h>
 #include <unordered_map>
 #include <vector>
-#if defined(__x86_64__) || defined(__i386__)
-#include <x86intrin.h>
-#endif
 
 #define XXH_INLINE_ALL
 #include <xxhash.h>
@@ -76,26 +73,6 @@ uint64_t now_ns() {
                         .count());
 }
 
-// A cheap timestamp for add_contents, which a capture calls hundreds of times a frame: the
-// time-stamp counter (a few ns) where there is one, converted to ns by ElapsedTicks::rate.
-uint64_t ticks() {
-#if defined(__x86_64__) || defined(__i386__)
-    return __rdtsc();
-#else
-    return now_ns();
-#endif
-}
-
-// Ticks against nanoseconds since the writer started: the conversion rate, measured over the
-// whole run rather than calibrated up front.
-struct ElapsedTicks {
-    uint64_t ns = now_ns(), tick = ticks();
-    double rate() const {  // ns per tick
-        const uint64_t dt = ticks() - tick, dn = now_ns() - ns;
-        return dt ? double(dn) / double(dt) : 1.0;
-    }
-};
-
 uint64_t thread_cpu_ns() {
     timespec t{};
     clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
@@ -140,8 +117,6 @@ struct TraceWriter::Impl {
     std::unordered_map<Fingerprint, uint64_t, FingerprintHash> keys_by_fingerprint;
     std::vector<ContentPlace> content_places;
     TraceWriterStats counters;  // main-thread counters (chunk/bytes come from the worker)
-    uint64_t contents_ticks = 0;  // add_contents's time in ticks(); counters.contents_ns at stats()
-    ElapsedTicks started;
 
     // Shared with the compression thread, under `mutex`.
     std::mutex mutex;
@@ -518,9 +493,9 @@ TraceError TraceWriter::add_contents(std::span<const ContentPiece> pieces, uint6
     }
     struct Timed {  // add_contents's time, whichever way it returns
         uint64_t& total;
-        uint64_t started = ticks();
-        ~Timed() { total += ticks() - started; }
-    } timed{w.contents_ticks};
+        uint64_t started = now_ns();
+        ~Timed() { total += now_ns() - started; }
+    } timed{w.counters.contents_ns};
     // A repeat (most snapshots of a frame loop) costs one hash pass over its pieces where they
     // lie; new contents then take one copy into their record. The pass gives both hashes: XXH3's
     // 64- and 128-bit variants share one streaming state (the 128-bit reset is the 64-bit one),
@@ -638,7 +613,6 @@ TraceError TraceWriter::finish() { return impl_->finish(); }
 TraceWriterStats TraceWriter::stats() const {
     Impl& w = *impl_;
     TraceWriterStats s = w.counters;
-    s.contents_ns = uint64_t(double(w.contents_ticks) * w.started.rate());
     s.records = w.records;
     s.submissions = w.submissions;
     std::lock_guard lock(w.mutex);
