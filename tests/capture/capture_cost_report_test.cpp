@@ -171,6 +171,11 @@ TEST_F(CaptureCostReport, BackgroundThreadsGoWhereTheSettingSays) {
   EXPECT_EQ(placementLine("app"), "background threads: with the application (CPUs 0); sink on 0, compressor as created");
   EXPECT_EQ(placementLine(last.c_str()), "background threads: asked for CPUs " + last +
                                              " (the application's: 0); sink on " + last + ", compressor placed");
+  // A CPU the kernel refuses (none such here; a cpuset would do the same): both threads stay
+  // with the application and the line says so.
+  if (online.back() < 4095)
+    EXPECT_EQ(placementLine("4095"),
+              "background threads: asked for CPUs 4095 (the application's: 0); sink on 0, compressor refused (as created)");
 }
 
 }  // namespace

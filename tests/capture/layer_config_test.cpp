@@ -125,4 +125,9 @@ TEST(BackgroundCpus, TheCallingThreadCanBePlacedOnItsOwnCpusAndBack) {
   EXPECT_TRUE(placeCallingThread(mine));
   EXPECT_EQ(callingThreadCpus(), mine);
   EXPECT_FALSE(placeCallingThread({}));
+  // A set the kernel refuses (no such CPU here) leaves the thread where it was.
+  if (mine.back() < 4095) {
+    EXPECT_FALSE(placeCallingThread({4095}));
+    EXPECT_EQ(callingThreadCpus(), mine);
+  }
 }
