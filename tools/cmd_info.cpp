@@ -1,6 +1,7 @@
 // clastrace info TRACE [--json]: what a trace holds and whether it is intact.
 #include "commands.h"
 
+#include <clastrace/replay/replayer.hpp>
 #include <clastrace/traces/records.h>
 #include <clastrace/traces/trace_reader.h>
 
@@ -133,8 +134,11 @@ nlohmann::json header_json(const fbs::TraceHeader* h) {
             for (const auto* e : *d->enabled_extensions()) exts.push_back(e->str());
         dev["enabled_extensions"] = exts;
         if (const auto* f = d->cluster_features()) {
+            // "served": the capture layer advertised the feature and its engine executed the
+            // cluster builds (the trace names the engine as the driver), whatever the driver has.
             dev["cluster_features"] = {{"supported", f->cluster_acceleration_structure_supported()},
-                                       {"enabled", f->cluster_acceleration_structure_enabled()}};
+                                       {"enabled", f->cluster_acceleration_structure_enabled()},
+                                       {"served", d->driver_name() && replay::is_engine_device(d->driver_name()->str())}};
         } else {
             dev["cluster_features"] = nullptr;
         }
@@ -243,9 +247,13 @@ void print_text(const std::string& path, const TraceReader& reader, const TraceS
                        d->vendor_id(), d->device_id(), str(d->driver_name()), driver_string(d->vendor_id(), d->driver_version()),
                        version_string(d->api_version()));
             if (const auto* f = d->cluster_features()) {
-                fmt::print("{:<12}clusterAccelerationStructure supported {}, enabled {}\n", "clusters",
+                const bool served = d->driver_name() && replay::is_engine_device(d->driver_name()->str());
+                fmt::print("{:<12}clusterAccelerationStructure supported {}, enabled {}{}\n", "clusters",
                            f->cluster_acceleration_structure_supported() ? "yes" : "no",
-                           f->cluster_acceleration_structure_enabled() ? "yes" : "no");
+                           f->cluster_acceleration_structure_enabled() ? "yes" : "no",
+                           served ? " (served: the capture layer advertised it and clastrace's engine ran the cluster "
+                                    "builds, not the driver)"
+                                  : "");
             }
             if (const auto* p = d->cluster_properties()) {
                 fmt::print("{:<12}maxVerticesPerCluster {}, maxTrianglesPerCluster {}, maxClusterGeometryIndex {}\n", "",

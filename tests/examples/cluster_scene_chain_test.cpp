@@ -281,6 +281,16 @@ TEST_P(CleanScene, ReplayReproducesEveryOutputAndFindsNoHazard) {
   EXPECT_TRUE(replayed["clean"].get<bool>());
   EXPECT_EQ(replayed["counts"]["outputs_compared"], traced.outputSnapshots);
 
+  // `clastrace info` says the extension was served, not the driver's.
+  ProcessResult info = run(std::string(CLASTRACE_CLI) + " info --json " + trace.string(), {}, false);
+  EXPECT_EQ(info.exitCode, 0) << info.err;
+  const json features = json::parse(info.out)["header"]["device"]["cluster_features"];
+  EXPECT_EQ(features["served"], true);
+  EXPECT_EQ(features["enabled"], true);
+  ProcessResult infoText = run(std::string(CLASTRACE_CLI) + " info " + trace.string(), {}, false);
+  EXPECT_NE(infoText.out.find("supported yes, enabled yes (served: the capture layer advertised it"), std::string::npos)
+      << infoText.out;
+
   // And the analyzer (the quick start's last step) reads the same commands and ops.
   ProcessResult analyzed = run(std::string(CLASTRACE_CLI) + " analyze --json " + trace.string(), {}, false);
   EXPECT_EQ(analyzed.exitCode, 0) << analyzed.err;

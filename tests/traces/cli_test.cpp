@@ -70,6 +70,7 @@ TEST(ClastraceCli, InfoJsonHasTheDocumentedFields) {
     EXPECT_EQ(j["header"]["device"]["cluster_properties"]["maxVerticesPerCluster"], 256);
     EXPECT_EQ(j["header"]["device"]["cluster_properties"]["clusterBottomLevelByteAlignment"], 256);
     EXPECT_EQ(j["header"]["device"]["cluster_features"]["enabled"], true);
+    EXPECT_EQ(j["header"]["device"]["cluster_features"]["served"], false);  // the sample's driver built them
     EXPECT_EQ(j["index"]["present"], true);
     EXPECT_EQ(j["index"]["submissions"], 1);
     EXPECT_EQ(j["records"]["by_kind"]["QueueSubmit"], 1);
