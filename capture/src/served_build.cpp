@@ -27,12 +27,10 @@ bool holds(const ServedBuffer& b, uint64_t address, uint64_t size) {
   return address >= b.address && address - b.address <= b.size && size <= b.size - (address - b.address);
 }
 
-}  // namespace
-
 // The groups completeServedRecord reads besides those the command wrote into: the ones holding
 // the address and size arrays, and those holding the objects the arrays name (an object the
 // command did not write is still read as the memory holds it). With indirected fields, all.
-static std::vector<bool> groupsTheOutputsName(const VkClusterAccelerationStructureCommandsInfoNV& command,
+std::vector<bool> groupsTheOutputsName(const VkClusterAccelerationStructureCommandsInfoNV& command,
                                               const ServedMemory& memory, uint32_t executed) {
   const size_t count = memory.groups().size();
   if (command.addressResolutionFlags != 0) return std::vector<bool>(count, true);
@@ -62,6 +60,8 @@ static std::vector<bool> groupsTheOutputsName(const VkClusterAccelerationStructu
   }
   return keep;
 }
+
+}  // namespace
 
 engine::RegionBytes ServedRegionPool::take(uint64_t size) {
   std::lock_guard lock(mutex_);
