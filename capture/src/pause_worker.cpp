@@ -425,7 +425,8 @@ std::shared_ptr<const engine::MemoryImage> PauseWorker::executeServed(const Paus
                                                                       ClusterBuildCapture* record) {
   ServedExecution served =
       executeServedBuild(pause.parameters->resolved(), memory, directory_, servedEngineProperties(),
-                         record ? &record->inputs : nullptr);
+                         record ? &record->inputs : nullptr,
+                         record ? std::optional<uint32_t>(record->executedCount) : std::nullopt);
   if (!served.ran) {
     logMessage(LogLevel::Error, "served build (pause %llu) could not run in the engine: %s",
                (unsigned long long)pause.pauseId, served.error.c_str());

@@ -196,7 +196,7 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
 
 ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command, ServedMemory& memory,
                                    engine::ObjectDirectory& directory, const engine::EngineProperties& properties,
-                                   const std::vector<CapturedRange>* inputWalk) {
+                                   const std::vector<CapturedRange>* inputWalk, std::optional<uint32_t> outputEntries) {
   ServedExecution result;
   const std::vector<ServedMemory::Group>& groups = memory.groups();
 
@@ -279,12 +279,15 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
   // Back into every buffer that holds a written byte (aliases included: same memory or not,
   // each view must show what the command wrote).
   const engine::MemoryImage& image = memory.image();
-  std::vector<bool> keep = groupsTheOutputsName(command, memory, result.record.op_count);
+  // The capture's walk may count more entries than the engine ran (its own caps): both are kept.
+  std::vector<bool> keep;
+  if (outputEntries)
+    keep = groupsTheOutputsName(command, memory, std::max(result.record.op_count, *outputEntries));
   for (const engine::MemoryAccess& access : result.record.accesses) {
     if (!access.is_write || access.end <= access.begin) continue;
     for (size_t g = memory.groupOf(access.begin); g < groups.size() && groups[g].base < access.end; ++g) {
       if (!selected[g]) continue;
-      keep[g] = true;
+      if (outputEntries) keep[g] = true;
       for (const ServedBuffer* b : groups[g].buffers) {
         const uint64_t begin = std::max(access.begin, b->address);
         const uint64_t end = std::min(access.end, b->address + b->size);
@@ -299,7 +302,7 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
       }
     }
   }
-  result.image = memory.share(&keep);
+  result.image = memory.share(outputEntries ? &keep : nullptr);
   return result;
 }
 

@@ -292,13 +292,17 @@ TEST(ServedBuild, RegionPoolReusesBytesAndNeverLeaksStaleOnes) {
     for (auto command : {&served_scene::Commands::clusters, &served_scene::Commands::blas}) {
       const uint64_t heldBefore = pool->heldBytes();
       ServedMemory memory(pooled.buffers, pool);
-      ServedExecution a = executeServedBuild(pooled.commands.*command, memory, pooledDirectory, servedEngineProperties());
+      // (0: the completion walks no more entries than the engine ran)
+      ServedExecution a =
+          executeServedBuild(pooled.commands.*command, memory, pooledDirectory, servedEngineProperties(), nullptr, 0u);
       ServedExecution b = executeServedBuild(plain.commands.*command, plain.buffers, plainDirectory, servedEngineProperties());
       ASSERT_TRUE(a.ran && b.ran) << a.error << b.error;
       if (command == &served_scene::Commands::clusters) {
         // The inputs went back to the pool as the build ended, while its image lives on for the
         // record's completion with the outputs only: after the first frame, with the same bytes.
         EXPECT_EQ(a.image->find_region(pooled.a.vertices), nullptr) << "frame " << frame << ": inputs kept";
+        // Without output entries nobody walks the image later: it stays whole.
+        EXPECT_NE(b.image->find_region(plain.a.vertices), nullptr) << "frame " << frame;
         EXPECT_NE(a.image->find_region(pooled.a.implicitData), nullptr) << "frame " << frame;
         EXPECT_NE(a.image->find_region(pooled.a.dstSizes), nullptr) << "frame " << frame;
         EXPECT_GE(pool->heldBytes(), pooled.bytes["vertices"].size() + pooled.bytes["indices"].size());
@@ -371,7 +375,8 @@ TEST(ServedBuild, CompletedRecordHoldsTheWrittenOutputsNamedByThePausesBuffers) 
   HostScene scene;
   ServedMemory memory(scene.buffers);
   engine::ObjectDirectory directory;
-  ServedExecution run = executeServedBuild(scene.commands.clusters, memory, directory, servedEngineProperties());
+  ServedExecution run = executeServedBuild(scene.commands.clusters, memory, directory, servedEngineProperties(),
+                                           nullptr, served_scene::kClusterCount);
   ASSERT_TRUE(run.ran) << run.error;
   ClusterBuildCapture record;
   record.executedCount = served_scene::kClusterCount;

@@ -18,6 +18,7 @@
 #include <cstdint>
 #include <map>
 #include <mutex>
+#include <optional>
 #include <memory>
 #include <span>
 #include <string>
@@ -116,11 +117,11 @@ struct ServedExecution {
   std::vector<uint64_t> writtenMemories;   // allocations that received bytes (to flush)
   uint64_t bytesCopiedIn = 0, bytesWrittenBack = 0;  // of the last attempt
   uint32_t attempts = 0;  // engine runs until the image held every buffer the command reads
-  // The image of the last run as it left it, reduced to what completeServedRecord reads: the
-  // groups the command wrote into, those holding its address and size arrays, and those holding
-  // the objects these arrays name. The capture reads the command's outputs from it after the
-  // queue was released, maybe much later: the input groups (most of the bytes) go back to the
-  // region pool at once, for the next pause to reuse.
+  // The image of the last run as it left it; with `outputEntries` given, reduced to what
+  // completeServedRecord reads: the groups the command wrote into, those holding its address
+  // and size arrays, and those holding the objects these arrays name. The capture reads the
+  // command's outputs from it after the queue was released, maybe much later: the input groups
+  // (most of the bytes) go back to the region pool at once, for the next pause to reuse.
   std::shared_ptr<const engine::MemoryImage> image;
 };
 
@@ -128,10 +129,13 @@ struct ServedExecution {
 // and those already read through `memory`, then those its findings point into, found by running
 // again; the result equals a run over all of the buffers. `inputWalk`: the command's inputs as
 // the capture already walked them at this pause (saves walking twice), or null. `memory` is
-// used up: its image becomes the result's.
+// used up: its image becomes the result's. `outputEntries`: the dst array entries a later
+// completeServedRecord walks (the record's executedCount), to keep only what it reads; none
+// when nothing reads the image afterwards (serving only: the image is kept whole).
 ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command, ServedMemory& memory,
                                    engine::ObjectDirectory& directory, const engine::EngineProperties& properties,
-                                   const std::vector<CapturedRange>* inputWalk = nullptr);
+                                   const std::vector<CapturedRange>* inputWalk = nullptr,
+                                   std::optional<uint32_t> outputEntries = std::nullopt);
 // The same over a fresh ServedMemory of `buffers`.
 ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command,
                                    std::span<const ServedBuffer> buffers, engine::ObjectDirectory& directory,
