@@ -1,5 +1,7 @@
 #include "clastrace/capture/background_cpus.h"
 
+#include "decimal_text.h"
+
 #include <sched.h>
 
 #include <algorithm>
@@ -11,14 +13,9 @@ namespace {
 constexpr unsigned kMaxCpu = 4096;  // the kernel's largest NR_CPUS default
 
 std::optional<unsigned> parseCpu(const std::string& text) {
-  if (text.empty() || text.size() > 4) return std::nullopt;
-  unsigned value = 0;
-  for (char c : text) {
-    if (c < '0' || c > '9') return std::nullopt;
-    value = value * 10 + unsigned(c - '0');
-  }
-  if (value >= kMaxCpu) return std::nullopt;
-  return value;
+  const std::optional<uint64_t> value = parseDecimal(text, 4);
+  if (!value || *value >= kMaxCpu) return std::nullopt;
+  return unsigned(*value);
 }
 
 }  // namespace

@@ -1,5 +1,7 @@
 #include "clastrace/capture/layer_config.h"
 
+#include "decimal_text.h"
+
 #include <cstdio>
 #include <cstdlib>
 #include <mutex>
@@ -9,15 +11,6 @@ namespace {
 
 constexpr uint64_t kMaxRayCheckRays = 1u << 20;  // 48 MiB of rays and answers per check
 
-std::optional<uint64_t> parseUnsigned(const std::string& text) {
-  if (text.empty() || text.size() > 19) return std::nullopt;
-  uint64_t value = 0;
-  for (char c : text) {
-    if (c < '0' || c > '9') return std::nullopt;
-    value = value * 10 + uint64_t(c - '0');
-  }
-  return value;
-}
 
 std::optional<bool> parseSwitch(const std::string& text) {
   if (text == "1" || text == "on" || text == "true") return true;
@@ -28,15 +21,15 @@ std::optional<bool> parseSwitch(const std::string& text) {
 std::optional<IndexRange> parseRange(const std::string& text) {
   const size_t dash = text.find('-');
   if (dash == std::string::npos) {
-    auto single = parseUnsigned(text);
+    auto single = parseDecimal(text);
     if (!single) return std::nullopt;
     return IndexRange{*single, *single};
   }
-  auto first = parseUnsigned(text.substr(0, dash));
+  auto first = parseDecimal(text.substr(0, dash));
   if (!first) return std::nullopt;
   const std::string tail = text.substr(dash + 1);
   if (tail.empty()) return IndexRange{*first, UINT64_MAX};
-  auto last = parseUnsigned(tail);
+  auto last = parseDecimal(tail);
   if (!last || *last < *first) return std::nullopt;
   return IndexRange{*first, *last};
 }
@@ -76,7 +69,7 @@ LayerConfig parseLayerConfig(const std::function<const char*(const char*)>& gete
   if (auto v = value("CLASTRACE_ZSTD_LEVEL")) {
     // zstd's fast levels (-1 fastest of them ... -100) trade ratio for compressor CPU.
     const bool fast = !v->empty() && (*v)[0] == '-';
-    auto level = parseUnsigned(fast ? v->substr(1) : *v);
+    auto level = parseDecimal(fast ? v->substr(1) : *v);
     if (level && *level >= 1 && *level <= (fast ? 100u : 22u)) config.zstdLevel = fast ? -int(*level) : int(*level);
     else reject("CLASTRACE_ZSTD_LEVEL", *v, "a zstd level from 1 to 22, or a fast level from -1 to -100");
   }
@@ -89,17 +82,17 @@ LayerConfig parseLayerConfig(const std::function<const char*(const char*)>& gete
   }
   if (auto v = value("CLASTRACE_DEBUG_JSON")) config.debugJsonPath = *v;
   if (auto v = value("CLASTRACE_RAY_CHECK")) {
-    auto rays = parseUnsigned(*v);
+    auto rays = parseDecimal(*v);
     if (rays && *rays <= kMaxRayCheckRays) config.rayCheckRays = uint32_t(*rays);
     else reject("CLASTRACE_RAY_CHECK", *v, "a ray count from 0 to 1048576");
   }
   if (auto v = value("CLASTRACE_FLUSH_MS")) {
-    auto ms = parseUnsigned(*v);
+    auto ms = parseDecimal(*v);
     if (ms && *ms <= 3600000) config.flushMilliseconds = uint32_t(*ms);
     else reject("CLASTRACE_FLUSH_MS", *v, "milliseconds from 0 (never) to 3600000");
   }
   if (auto v = value("CLASTRACE_SHARED_WAIT_MS")) {
-    auto ms = parseUnsigned(*v);
+    auto ms = parseDecimal(*v);
     if (ms && *ms <= 3600000) config.sharedWaitMilliseconds = uint32_t(*ms);
     else reject("CLASTRACE_SHARED_WAIT_MS", *v, "milliseconds from 0 to 3600000");
   }
