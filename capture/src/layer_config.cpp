@@ -11,7 +11,6 @@ namespace {
 
 constexpr uint64_t kMaxRayCheckRays = 1u << 20;  // 48 MiB of rays and answers per check
 
-
 std::optional<bool> parseSwitch(const std::string& text) {
   if (text == "1" || text == "on" || text == "true") return true;
   if (text == "0" || text == "off" || text == "false") return false;
