@@ -79,8 +79,8 @@ uint64_t thread_cpu_ns() {
     return uint64_t(t.tv_sec) * 1000000000ull + uint64_t(t.tv_nsec);
 }
 
-// Size and fingerprint of stored contents, to find a repeat's key without keying it again (the key,
-// a seeded XXH3-64 fixed by the format, is computed only for new contents).
+// Size and fingerprint of stored contents, to find a repeat's key (a seeded XXH3-64 fixed by
+// the format) by the fingerprint alone.
 struct Fingerprint {
     uint64_t low, high, size;
     bool operator==(const Fingerprint&) const = default;
