@@ -178,4 +178,24 @@ TEST_F(CaptureCostReport, BackgroundThreadsGoWhereTheSettingSays) {
               "background threads: asked for CPUs 4095 (the application's: 0); sink on 0, compressor refused (as created)");
 }
 
+// `clastrace capture --background-cpus` passes the setting to the layer, and a malformed value
+// stops before the application runs, naming the option.
+TEST_F(CaptureCostReport, CaptureCommandSetsTheBackgroundCpusAndRejectsABadValue) {
+  const std::string trace = (dir / "cli.clt").string();
+  const std::string app = std::string(CLASTRACE_FRAMES_APP) + " frames 2 --clusters 8";
+  clastrace::layer_launch::ProcessResult r = LayerLaunchTest::run(
+      std::string(CLASTRACE_CLI) + " capture -o " + trace + " --background-cpus app -- " + app, {{"CLASTRACE_STATS", "1"}}, false);
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  EXPECT_NE(r.err.find("clastrace: stats: background threads: with the application"), std::string::npos) << r.err;
+  for (const char* bad : {"3-1", "x", "1,", "4096", "idle"}) {
+    clastrace::layer_launch::ProcessResult b = LayerLaunchTest::run(
+        std::string(CLASTRACE_CLI) + " capture -o " + trace + " --background-cpus " + bad + " -- " + app, {}, false);
+    EXPECT_EQ(b.exitCode, 2) << bad;
+    EXPECT_NE(b.err.find(std::string("--background-cpus: '") + bad + "' is not spare, app or a CPU list"),
+              std::string::npos)
+        << b.err;
+    EXPECT_EQ(b.out.find("frames="), std::string::npos) << "the application ran despite --background-cpus " << bad;
+  }
+}
+
 }  // namespace
