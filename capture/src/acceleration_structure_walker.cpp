@@ -97,7 +97,7 @@ ClusterMemoryWalk walkCopyMemoryToAccelerationStructureInputs(const CopyMemoryTo
                                                               const DeviceMemoryReader& read) {
   ClusterMemoryWalk out;
   constexpr uint64_t kSizeOffset = 2 * VK_UUID_SIZE;
-  std::vector<uint8_t> header;
+  CapturedBytes header;
   std::string why;
   if (!read(c.src, kSizeOffset + 8, &header, why)) {
     out.issues.push_back({c.src, kSizeOffset + 8, "serialized acceleration structure header: " + why});

@@ -89,7 +89,7 @@ class Walker {
 
   ClusterMemoryWalk& result() { return out_; }
 
-  const std::vector<uint8_t>* lastBytes() const { return out_.ranges.empty() ? nullptr : &out_.ranges.back().bytes; }
+  const CapturedBytes* lastBytes() const { return out_.ranges.empty() ? nullptr : &out_.ranges.back().bytes; }
 
   void issue(VkDeviceAddress address, uint64_t size, std::string rule) {
     out_.issues.push_back({address, size, std::move(rule)});
@@ -292,7 +292,7 @@ ClusterMemoryWalk walkClusterInputs(const ClusterCommandParameters& p, const Dev
   std::vector<uint8_t> entries;  // packed copy, one entry after another
   entries.reserve(uint64_t(count) * entryBytes);
   for (size_t r = firstEntryRange; r < lastEntryRange; ++r) {
-    const std::vector<uint8_t>& bytes = out.ranges[r].bytes;
+    const CapturedBytes& bytes = out.ranges[r].bytes;
     if (stride == entryBytes || stride > entryBytes) {
       entries.insert(entries.end(), bytes.begin(), bytes.end());
     } else {  // overlapping entries were captured as one span: unpack them

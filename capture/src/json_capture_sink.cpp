@@ -7,13 +7,14 @@
 #include <cstdio>
 #include <cstring>
 #include <mutex>
+#include <span>
 
 namespace clastrace::capture {
 namespace {
 
 using nlohmann::json;
 
-std::string hexBytes(const std::vector<uint8_t>& bytes) {
+std::string hexBytes(std::span<const uint8_t> bytes) {
   static const char* digits = "0123456789abcdef";
   std::string text;
   text.reserve(bytes.size() * 2);
@@ -62,7 +63,7 @@ json rangesJson(const std::vector<CapturedRange>& ranges) {
   json list = json::array();
   for (const auto& r : ranges)
     list.push_back({{"role", memoryRoleName(r.role)}, {"entry", r.entry}, {"address", r.address},
-                    {"size", r.bytes.size()}, {"bytes", hexBytes(r.bytes)}});
+                    {"size", r.bytes.size()}, {"bytes", hexBytes(r.bytes.span())}});
   return list;
 }
 

@@ -13,7 +13,7 @@ const CapturedRange* findRange(const std::vector<CapturedRange>& inputs, MemoryR
   return nullptr;
 }
 
-float readFloat(const std::vector<uint8_t>& bytes, size_t offset) {
+float readFloat(const CapturedBytes& bytes, size_t offset) {
   float f = 0;
   if (offset + 4 <= bytes.size()) std::memcpy(&f, bytes.data() + offset, 4);
   return f;

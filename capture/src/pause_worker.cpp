@@ -162,13 +162,13 @@ bool PauseWorker::checkMemory(VkDeviceAddress address, uint64_t size, std::strin
   return true;
 }
 
-bool PauseWorker::readResolved(const ResolvedRange& range, uint64_t size, std::vector<uint8_t>& out) {
+bool PauseWorker::readResolved(const ResolvedRange& range, uint64_t size, CapturedBytes& out) {
   if (!range.host) {
     const uint8_t* staged = stagedBytes(range);
     if (!staged) return false;
-    out.resize(size);
-    if (staging_->cached) std::memcpy(out.data(), staged, size);
-    else copyFromUncached(out.data(), staged, size);
+    uint8_t* to = out.fill(size);
+    if (staging_->cached) std::memcpy(to, staged, size);
+    else copyFromUncached(to, staged, size);
     return true;
   }
   if (!(range.memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_COHERENT_BIT)) {
@@ -182,16 +182,16 @@ bool PauseWorker::readResolved(const ResolvedRange& range, uint64_t size, std::v
                                begin, end >= range.memory.size ? VK_WHOLE_SIZE : end - begin};
     device_.next.InvalidateMappedMemoryRanges(device_.device, 1, &mapped);
   }
-  out.resize(size);
+  uint8_t* to = out.fill(size);
   if (range.memory.propertyFlags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT) {
-    if (size) std::memcpy(out.data(), range.host, size);
+    if (size) std::memcpy(to, range.host, size);
   } else {
-    copyFromUncached(out.data(), range.host, size);
+    copyFromUncached(to, range.host, size);
   }
   return true;
 }
 
-bool PauseWorker::readMemory(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>& out, std::string& why) {
+bool PauseWorker::readMemory(VkDeviceAddress address, uint64_t size, CapturedBytes& out, std::string& why) {
   auto range = device_.memoryMap.resolve(address, size, why);
   if (!range) return false;
   if (!readResolved(*range, size, out)) {
@@ -213,7 +213,7 @@ bool PauseWorker::handle(Expected& expected) {
   std::unique_ptr<ServedMemory> served;
   if (device_.serving && pause.phase == PausePhase::BeforeCommand && pause.parameters)
     served = std::make_unique<ServedMemory>(prepareServedBuffers(), regionPool_);
-  DeviceMemoryReader reader = [this, &served](VkDeviceAddress a, uint64_t s, std::vector<uint8_t>* o, std::string& w) {
+  DeviceMemoryReader reader = [this, &served](VkDeviceAddress a, uint64_t s, CapturedBytes* o, std::string& w) {
     if (served)
       if (const uint8_t* bytes = served->read(a, s)) {
         if (o) o->assign(bytes, bytes + s);
@@ -237,7 +237,7 @@ bool PauseWorker::handle(Expected& expected) {
       if (pause.buildNV) {
         fresh.kind = CapturedCommandKind::BuildAccelerationStructureNV;
         BufferMemoryReader bufferReader = [this](uint64_t buffer, VkDeviceSize offset, uint64_t size,
-                                                 std::vector<uint8_t>* out, std::string& why) {
+                                                 CapturedBytes* out, std::string& why) {
           auto range = device_.memoryMap.resolveBuffer(buffer, offset, size, why);
           if (!range) return false;
           if (!range->host && !(staging_ && staging_->find(range->buffer.handle))) {
@@ -339,7 +339,7 @@ bool PauseWorker::handle(Expected& expected) {
     work.heldBytes = servedImage->resident_bytes();
     work.complete = [image = std::move(servedImage), parameters = pause.parameters,
                      memory = std::shared_ptr<const ServedMemory>(std::move(served))](ClusterBuildCapture& r) {
-      completeServedRecord(r, *image, *parameters, *memory);
+      completeServedRecord(r, image, *parameters, *memory);
     };
   } else {
     nameRanges(work);
@@ -368,7 +368,7 @@ void PauseWorker::learnTemplates(const ClusterCommandParameters& parameters, con
     return;
   const uint64_t stride = info.dstAddressesArray.stride ? info.dstAddressesArray.stride : 8;
   for (size_t i = 0; i < vertexCounts.size(); ++i) {
-    std::vector<uint8_t> bytes;
+    CapturedBytes bytes;
     std::string why;
     if (!readMemory(info.dstAddressesArray.deviceAddress + i * stride, 8, bytes, why)) return;
     uint64_t address;
@@ -385,7 +385,7 @@ std::vector<uint32_t> PauseWorker::movedTemplateVertexCounts(const ClusterComman
     return counts;
   const uint64_t stride = info.srcInfosArray.stride ? info.srcInfosArray.stride : 8;
   for (uint32_t i = 0; i < executedCount; ++i) {
-    std::vector<uint8_t> bytes;
+    CapturedBytes bytes;
     std::string why;
     if (!readMemory(info.srcInfosArray.deviceAddress + i * stride, 8, bytes, why)) break;
     uint64_t source;  // VkClusterAccelerationStructureMoveObjectsInfoNV::srcAccelerationStructure

@@ -92,8 +92,8 @@ class PauseWorker {
   bool handle(Expected& expected);
   void nameRanges(ClusterBuildCapture& record);  // by the memory map, now
   bool checkMemory(VkDeviceAddress address, uint64_t size, std::string& why);
-  bool readMemory(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>& out, std::string& why);
-  bool readResolved(const ResolvedRange& range, uint64_t size, std::vector<uint8_t>& out);
+  bool readMemory(VkDeviceAddress address, uint64_t size, CapturedBytes& out, std::string& why);
+  bool readResolved(const ResolvedRange& range, uint64_t size, CapturedBytes& out);
   // The host bytes of `range`: the layer's mapping, or the current pause's staged copy; null
   // when neither holds it.
   const uint8_t* stagedBytes(const ResolvedRange& range);

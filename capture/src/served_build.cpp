@@ -222,7 +222,7 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
       select(seed);
     // The capture's pointer walk names most of the rest (index, vertex, geometry, reference
     // arrays; the clusters a reference array names), so one engine run usually suffices.
-    DeviceMemoryReader read = [&](VkDeviceAddress address, uint64_t size, std::vector<uint8_t>* out, std::string& why) {
+    DeviceMemoryReader read = [&](VkDeviceAddress address, uint64_t size, CapturedBytes* out, std::string& why) {
       const uint8_t* bytes = memory.read(address, size);
       if (!bytes) {
         why = "not inside one buffer";
@@ -306,16 +306,16 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
   return result;
 }
 
-void completeServedRecord(ClusterBuildCapture& record, const engine::MemoryImage& image,
+void completeServedRecord(ClusterBuildCapture& record, std::shared_ptr<const engine::MemoryImage> image,
                           const ClusterCommandParameters& parameters, const ServedMemory& memory) {
-  DeviceMemoryReader fromImage = [&](VkDeviceAddress a, uint64_t s, std::vector<uint8_t>* o, std::string& why) {
-    const engine::MemoryRegion* region = image.find_region(a);
+  DeviceMemoryReader fromImage = [&](VkDeviceAddress a, uint64_t s, CapturedBytes* o, std::string& why) {
+    const engine::MemoryRegion* region = image->find_region(a);
     if (!region || a + s < a || a + s > region->base + region->size) {
       why = "outside the memory the served build reached";
       return false;
     }
     const auto* bytes = reinterpret_cast<const uint8_t*>(region->bytes.data()) + (a - region->base);
-    if (o) o->assign(bytes, bytes + s);
+    if (o) *o = CapturedBytes::view(image, bytes, s);  // nothing writes the image any more
     return true;
   };
   ClusterMemoryWalk walk = walkClusterOutputs(parameters, record.executedCount, fromImage);

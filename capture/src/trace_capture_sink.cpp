@@ -300,6 +300,14 @@ class TraceCaptureSink final : public CaptureSink {
       }
     wakeEmitter();
   }
+  // What a captured build holds until it is written: its ranges' own bytes and the served
+  // engine image that its unfinished completion or its output views keep.
+  static uint64_t heldBytesOf(const ClusterBuildCapture& c) {
+    uint64_t bytes = c.heldBytes;
+    for (const auto* list : {&c.inputs, &c.outputs})
+      for (const CapturedRange& r : *list) bytes += r.bytes.ownedSize();
+    return bytes;
+  }
   // Commands of `cb` whose execution the worker captures at a pause.
   static size_t capturedCommandsOf(const RecordedCommandBuffer& cb) {
     size_t n = 0;
@@ -312,9 +320,7 @@ class TraceCaptureSink final : public CaptureSink {
     bool overLimit = false;
     {
       StateLock lock(*this);
-      for (const auto* list : {&c.inputs, &c.outputs})
-        for (const CapturedRange& r : *list) pendingBytes_ += r.bytes.size();
-      pendingBytes_ += c.heldBytes;  // an unfinished served record's engine image
+      pendingBytes_ += heldBytesOf(c);
       pending_[c.submissionIndex].builds[{c.pauseId, c.occurrence}] = std::move(c);
       overLimit = pendingBytes_ > kMaxPendingBytes;
       if (overLimit) emitReadyLocked(false);
@@ -778,9 +784,7 @@ class TraceCaptureSink final : public CaptureSink {
           writeRecord(*record);
         } else if (auto* p = std::get_if<Pending>(&item)) {
           writeSubmission(*p);
-          for (const auto& [key, build] : p->builds)
-            for (const auto* list : {&build.inputs, &build.outputs})
-              for (const CapturedRange& r : *list) written += r.bytes.size();
+          for (const auto& [key, build] : p->builds) written += heldBytesOf(build);
         } else {
           writeRayCheck(std::get<RayCheckRecord>(item));
         }
@@ -803,19 +807,22 @@ class TraceCaptureSink final : public CaptureSink {
   }
 
   // Finishes a served build's record (walking its outputs in the engine's image), here on the
-  // sink's thread rather than on the pause worker; the image goes back to the served region pool,
-  // and the pending count trades its bytes for the outputs'.
+  // sink's thread rather than on the pause worker. The outputs are views into the image, which
+  // they keep until the record is written and freed; with no view the image goes back to the
+  // served region pool now.
   void completeBuild(ClusterBuildCapture& build) {
     if (!build.complete) return;
+    const uint64_t before = heldBytesOf(build);
     {
       CostScope cost(CostPhase::ServedRecordCompletion, true);
       auto complete = std::exchange(build.complete, nullptr);
       complete(build);
-    }  // (the image is released with `complete`)
-    uint64_t outputs = 0;
-    for (const CapturedRange& r : build.outputs) outputs += r.bytes.size();
+    }  // (`complete`'s own reference to the image goes with it)
+    if (std::none_of(build.outputs.begin(), build.outputs.end(), [](const CapturedRange& r) { return r.bytes.isView(); }))
+      build.heldBytes = 0;
+    const uint64_t after = heldBytesOf(build);
     StateLock lock(*this);
-    pendingBytes_ = pendingBytes_ - std::min(pendingBytes_, std::exchange(build.heldBytes, 0)) + outputs;
+    pendingBytes_ = pendingBytes_ - std::min(pendingBytes_, before) + after;
   }
 
   // One snapshot per run of touching or overlapping ranges of one buffer (all read at the same

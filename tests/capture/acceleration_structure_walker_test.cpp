@@ -23,7 +23,7 @@ struct TwoBuffers : ::testing::Test {
     map.bindBuffer(kInstances, 0x10, 4096);
   }
   BufferMemoryReader reader() {
-    return [this](uint64_t buffer, VkDeviceSize offset, uint64_t size, std::vector<uint8_t>* out, std::string& why) {
+    return [this](uint64_t buffer, VkDeviceSize offset, uint64_t size, CapturedBytes* out, std::string& why) {
       auto r = map.resolveBuffer(buffer, offset, size, why);
       if (!r) return false;
       if (out) out->assign(r->host, r->host + size);
@@ -103,7 +103,7 @@ TEST(AccelerationStructureWalker, CopyMemoryReadsTheSizeTheHeaderStates) {
   std::vector<uint8_t> serialized(512, 0xAB);
   const uint64_t total = 300;
   std::memcpy(serialized.data() + 2 * VK_UUID_SIZE, &total, 8);
-  DeviceMemoryReader read = [&](VkDeviceAddress a, uint64_t size, std::vector<uint8_t>* out, std::string& why) {
+  DeviceMemoryReader read = [&](VkDeviceAddress a, uint64_t size, CapturedBytes* out, std::string& why) {
     if (a != 0x1000 || size > serialized.size()) {
       why = "outside";
       return false;

@@ -26,7 +26,7 @@ struct FakeDeviceMemory {
     std::memcpy(it->second.data() + (address - it->first), &value, sizeof value);
   }
   DeviceMemoryReader reader() {
-    return [this](VkDeviceAddress a, uint64_t size, std::vector<uint8_t>* out, std::string& why) {
+    return [this](VkDeviceAddress a, uint64_t size, CapturedBytes* out, std::string& why) {
       auto it = regions.upper_bound(a);
       if (it == regions.begin()) {
         why = "unmapped";

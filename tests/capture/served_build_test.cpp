@@ -306,7 +306,9 @@ TEST(ServedBuild, RegionPoolReusesBytesAndNeverLeaksStaleOnes) {
         EXPECT_NE(a.image->find_region(pooled.a.implicitData), nullptr) << "frame " << frame;
         EXPECT_NE(a.image->find_region(pooled.a.dstSizes), nullptr) << "frame " << frame;
         EXPECT_GE(pool->heldBytes(), pooled.bytes["vertices"].size() + pooled.bytes["indices"].size());
-        if (frame > 0) EXPECT_LE(pool->heldBytes(), heldBefore) << "frame " << frame << ": fresh bytes taken";
+        if (frame > 0) {
+          EXPECT_LE(pool->heldBytes(), heldBefore) << "frame " << frame << ": fresh bytes taken";
+        }
       }
     }  // the images go back to the pool here
     for (const char* name : {"implicitData", "dstAddresses", "dstSizes", "blasImplicit", "blasDstSizes"})
@@ -383,7 +385,7 @@ TEST(ServedBuild, CompletedRecordHoldsTheWrittenOutputsNamedByThePausesBuffers) 
   record.inputs.push_back({MemoryRole::VertexBuffer, 0, scene.a.vertices + 12, {1, 2, 3}});
   record.inputs.push_back({MemoryRole::VertexBuffer, 0, 0x7FFF0000, {4}});  // in no buffer
   const ClusterCommandParameters parameters = ClusterCommandParameters::copyOf(scene.commands.clusters);
-  completeServedRecord(record, *run.image, parameters, memory);
+  completeServedRecord(record, run.image, parameters, memory);
   EXPECT_TRUE(record.issues.empty()) << record.issues[0].rule;
   EXPECT_EQ(record.inputs[0].buffer, 1u);  // "vertices", the scene's first buffer
   EXPECT_EQ(record.inputs[0].bufferOffset, 12u);
@@ -401,4 +403,42 @@ TEST(ServedBuild, CompletedRecordHoldsTheWrittenOutputsNamedByThePausesBuffers) 
   EXPECT_EQ(roles[MemoryRole::DstAddresses], 1u);
   EXPECT_EQ(roles[MemoryRole::DstSizes], 1u);
   EXPECT_EQ(roles[MemoryRole::DstObject], size_t(served_scene::kClusterCount));
+}
+
+// The completed outputs are views into the engine's image, not copies: they stay valid (and
+// equal to what was written back) after every other owner let the image go, and the image's
+// bytes return to the region pool only when the record itself is freed.
+TEST(ServedBuild, CompletedOutputsViewTheImageAndKeepItUntilTheRecordGoes) {
+  HostScene scene;
+  auto pool = std::make_shared<ServedRegionPool>();
+  engine::ObjectDirectory directory;
+  uint64_t poolWhileHeld = 0;
+  {
+    ClusterBuildCapture record;
+    {
+      ServedMemory memory(scene.buffers, pool);
+      ServedExecution run = executeServedBuild(scene.commands.clusters, memory, directory, servedEngineProperties(),
+                                               nullptr, served_scene::kClusterCount);
+      ASSERT_TRUE(run.ran) << run.error;
+      record.executedCount = served_scene::kClusterCount;
+      completeServedRecord(record, std::move(run.image), ClusterCommandParameters::copyOf(scene.commands.clusters),
+                           memory);
+    }  // the run, its memory and the caller's reference to the image are gone
+    poolWhileHeld = pool->heldBytes();
+    ASSERT_FALSE(record.outputs.empty());
+    uint64_t viewed = 0;
+    for (const CapturedRange& r : record.outputs) {
+      EXPECT_TRUE(r.bytes.isView()) << memoryRoleName(r.role);
+      EXPECT_EQ(r.bytes.ownedSize(), 0u);
+      viewed += r.bytes.size();
+      const ServedBuffer* holder = nullptr;
+      for (const ServedBuffer& b : scene.buffers)
+        if (b.buffer == r.buffer) holder = &b;
+      ASSERT_NE(holder, nullptr) << memoryRoleName(r.role);
+      EXPECT_EQ(std::memcmp(r.bytes.data(), holder->host + r.bufferOffset, r.bytes.size()), 0)
+          << memoryRoleName(r.role) << ": the view no longer shows what was written back";
+    }
+    EXPECT_GT(viewed, 0u);
+  }  // the record and with it the last view
+  EXPECT_GT(pool->heldBytes(), poolWhileHeld) << "the image did not return to the pool with the record";
 }

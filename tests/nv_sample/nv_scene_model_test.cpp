@@ -13,8 +13,7 @@ namespace {
 template <typename T>
 CapturedRange range(MemoryRole role, uint32_t entry, const std::vector<T>& values) {
   CapturedRange r{role, entry, 0, {}};
-  r.bytes.resize(values.size() * sizeof(T));
-  std::memcpy(r.bytes.data(), values.data(), r.bytes.size());
+  std::memcpy(r.bytes.fill(values.size() * sizeof(T)), values.data(), values.size() * sizeof(T));
   return r;
 }
 

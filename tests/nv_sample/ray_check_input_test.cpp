@@ -34,8 +34,7 @@ TEST(RayCheckConfig, AcceptsCountsUpToTheLimitAndNamesRejectedValues) {
 CapturedRange bytes(MemoryRole role, uint32_t entry, size_t size, float fill) {
   CapturedRange r{role, entry, 0, {}};
   std::vector<float> values((size + 3) / 4, fill);
-  r.bytes.resize(size);
-  std::memcpy(r.bytes.data(), values.data(), size);
+  std::memcpy(r.bytes.fill(size), values.data(), size);
   return r;
 }
 
@@ -67,14 +66,15 @@ TEST(RayCheckInputs, TruncatedRangesAreReadOnlyAsFarAsTheyGo) {
   top.dst = 3;
   top.instanceCount = 2;
   CapturedRange instances{MemoryRole::Instances, 0, 0, {}};
-  instances.bytes.resize(64 + 40);  // one whole record and a torn one
+  std::vector<uint8_t> records(64 + 40);  // one whole record and a torn one
   const float identity[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
-  std::memcpy(instances.bytes.data(), identity, 48);
+  std::memcpy(records.data(), identity, 48);
   const uint32_t customAndMask = 5u | (0xFFu << 24), sbt = 0;
   const uint64_t reference = 0xB1;
-  std::memcpy(instances.bytes.data() + 48, &customAndMask, 4);
-  std::memcpy(instances.bytes.data() + 52, &sbt, 4);
-  std::memcpy(instances.bytes.data() + 56, &reference, 8);
+  std::memcpy(records.data() + 48, &customAndMask, 4);
+  std::memcpy(records.data() + 52, &sbt, 4);
+  std::memcpy(records.data() + 56, &reference, 8);
+  instances.bytes = records;
   model.observeBuild(top, {instances});
 
   NvTraceScene scene;
@@ -90,7 +90,8 @@ TEST(RayCheckInputs, TruncatedRangesAreReadOnlyAsFarAsTheyGo) {
   // The box bottom level kept its three boxes, zero past the captured bytes.
   top.dst = 4;
   const uint64_t boxReference = 0xB2;
-  std::memcpy(instances.bytes.data() + 56, &boxReference, 8);
+  std::memcpy(records.data() + 56, &boxReference, 8);
+  instances.bytes = records;
   model.observeBuild(top, {instances});
   ASSERT_TRUE(model.prepare(4, 4, scene, rays, handle, why)) << why;
   ASSERT_EQ(scene.boxes.size(), 18u);

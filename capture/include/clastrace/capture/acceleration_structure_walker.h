@@ -10,7 +10,7 @@ namespace clastrace::capture {
 
 // Reads [offset, offset + size) of `buffer`; with `out` null only checks that it could.
 using BufferMemoryReader =
-    std::function<bool(uint64_t buffer, VkDeviceSize offset, uint64_t size, std::vector<uint8_t>* out, std::string& why)>;
+    std::function<bool(uint64_t buffer, VkDeviceSize offset, uint64_t size, CapturedBytes* out, std::string& why)>;
 
 ClusterMemoryWalk walkBuildAccelerationStructureNVInputs(const BuildAccelerationStructureNVCommand& command,
                                                          const BufferMemoryReader& read);

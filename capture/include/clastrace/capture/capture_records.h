@@ -2,6 +2,7 @@
 // stored as uint64_t so a trace can name them; device addresses are what the application saw.
 #pragma once
 
+#include "clastrace/capture/captured_bytes.h"
 #include "clastrace/capture/nv_ray_tracer.h"
 
 #include <clastrace/vk_cluster_abi.h>
@@ -55,7 +56,7 @@ struct CapturedRange {
   MemoryRole role;
   uint32_t entry = 0;  // srcInfosArray entry it belongs to (0 for command-wide ranges)
   VkDeviceAddress address = 0;
-  std::vector<uint8_t> bytes;
+  CapturedBytes bytes;
   uint64_t buffer = 0;        // a buffer holding the range, and the range's offset in it
   VkDeviceSize bufferOffset = 0;
 };
@@ -389,7 +390,8 @@ struct ClusterBuildCapture {
   // A served build's record leaves the pause worker unfinished: its outputs are still to be
   // walked in the engine's image (which this holds, `heldBytes` of it) and its ranges named by
   // the buffers of its pause. Whoever writes the record calls this first, on its own thread,
-  // so the worker is free for the next pause. Empty for every other record.
+  // so the worker is free for the next pause. Empty for every other record. Once it ran, the
+  // outputs are views into that image and keep it (still `heldBytes`) until they are freed.
   std::function<void(ClusterBuildCapture&)> complete;
   uint64_t heldBytes = 0;
 };

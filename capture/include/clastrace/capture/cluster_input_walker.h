@@ -10,10 +10,11 @@
 
 namespace clastrace::capture {
 
-// Reads [address, address + size) into `out`; with `out` null only checks that it could.
-// False + `why` when the range is not readable.
+// Reads [address, address + size) into `out` (a copy, or a view where the reader's memory
+// stays unchanged); with `out` null only checks that it could. False + `why` when the range is
+// not readable.
 using DeviceMemoryReader =
-    std::function<bool(VkDeviceAddress address, uint64_t size, std::vector<uint8_t>* out, std::string& why)>;
+    std::function<bool(VkDeviceAddress address, uint64_t size, CapturedBytes* out, std::string& why)>;
 
 struct ClusterMemoryWalk {
   uint32_t executedCount = 0;

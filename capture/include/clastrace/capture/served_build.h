@@ -146,8 +146,8 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
 // engine's image of the run (as a pause after the command would have read them: the queue ran
 // nothing in between) and every range named by the buffer of `memory` holding it (the one
 // starting nearest below it), as the buffers were at the pause. Ranges no buffer of `memory`
-// holds stay unnamed.
-void completeServedRecord(ClusterBuildCapture& record, const engine::MemoryImage& image,
+// holds stay unnamed. The outputs are views into `image`, which they keep alive.
+void completeServedRecord(ClusterBuildCapture& record, std::shared_ptr<const engine::MemoryImage> image,
                           const ClusterCommandParameters& parameters, const ServedMemory& memory);
 
 // vkGetClusterAccelerationStructureBuildSizesNV of the served device: engine::cluster_build_sizes.
