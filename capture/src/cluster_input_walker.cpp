@@ -332,9 +332,11 @@ ClusterMemoryWalk walkClusterOutputs(const ClusterCommandParameters& p, uint32_t
     sizes = walker.captureStridedValues(MemoryRole::DstSizes, info.dstSizesArray.deviceAddress, executedCount,
                                         info.dstSizesArray.stride, sizeof(uint32_t));
   // The objects themselves, where both their address and size are known.
-  if (!computeSizes && addresses.size() == executedCount && sizes.size() == executedCount)
+  if (!computeSizes && addresses.size() == executedCount && sizes.size() == executedCount) {
+    out.ranges.reserve(out.ranges.size() + executedCount);  // (as many values were read already)
     for (uint32_t i = 0; i < executedCount; ++i)
       if (addresses[i] != 0 && sizes[i] != 0) walker.capture(MemoryRole::DstObject, i, addresses[i], sizes[i]);
+  }
   return out;
 }
 

@@ -321,13 +321,20 @@ void completeServedRecord(ClusterBuildCapture& record, std::shared_ptr<const eng
   ClusterMemoryWalk walk = walkClusterOutputs(parameters, record.executedCount, fromImage);
   record.outputs = std::move(walk.ranges);
   for (auto& issue : walk.issues) record.issues.push_back(std::move(issue));
+  // Ranges come in runs through one buffer (a cluster's indices, its vertices, the objects):
+  // the buffer that named the last range is tried first, unless a nested one could hold it.
+  const ServedBuffer* last = nullptr;
   for (auto* list : {&record.inputs, &record.outputs})
-    for (CapturedRange& r : *list)
-      if (r.address != 0)
-        if (const ServedBuffer* b = memory.bufferHolding(r.address, r.bytes.size())) {
-          r.buffer = b->buffer;
-          r.bufferOffset = r.address - b->address;
-        }
+    for (CapturedRange& r : *list) {
+      if (r.address == 0) continue;
+      const ServedBuffer* b = last && holds(*last, r.address, r.bytes.size()) ? last : nullptr;
+      if (!b && (b = memory.bufferHolding(r.address, r.bytes.size())) != nullptr)
+        last = memory.groups()[memory.groupOf(b->address)].buffers.size() == 1 ? b : nullptr;
+      if (b) {
+        r.buffer = b->buffer;
+        r.bufferOffset = r.address - b->address;
+      }
+    }
 }
 
 bool servedClusterBuildSizes(const VkClusterAccelerationStructureInputInfoNV& input,
