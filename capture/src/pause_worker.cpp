@@ -209,16 +209,13 @@ bool PauseWorker::handle(Expected& expected) {
   staging_ = pause.staging.get();
   const bool capture = expected.capture && device_.capturingNow();
   // A served build reads the application's memory through the engine's image; the capture's
-  // walk reads through the same copy, so each byte crosses from (often uncached) memory once.
+  // walk reads through the same copy, so each byte crosses from (often uncached) memory once,
+  // and its ranges are views into that copy rather than copies of their own.
   std::unique_ptr<ServedMemory> served;
   if (device_.serving && pause.phase == PausePhase::BeforeCommand && pause.parameters)
     served = std::make_unique<ServedMemory>(prepareServedBuffers(), regionPool_);
   DeviceMemoryReader reader = [this, &served](VkDeviceAddress a, uint64_t s, CapturedBytes* o, std::string& w) {
-    if (served)
-      if (const uint8_t* bytes = served->read(a, s)) {
-        if (o) o->assign(bytes, bytes + s);
-        return true;
-      }
+    if (served && served->view(a, s, o)) return true;  // (executeServedBuild keeps them what was read)
     if (!o) return checkMemory(a, s, w);
     return readMemory(a, s, *o, w);
   };

@@ -22,6 +22,14 @@ std::string hex(uint64_t v) {
   return text;
 }
 
+// An empty image whose region bytes go back to `pool` with its last owner.
+std::shared_ptr<engine::MemoryImage> pooledImage(std::shared_ptr<ServedRegionPool> pool) {
+  return std::shared_ptr<engine::MemoryImage>(new engine::MemoryImage, [pool = std::move(pool)](engine::MemoryImage* image) {
+    if (pool) pool->give(image->release_storage());
+    delete image;
+  });
+}
+
 // All of [address, address + size) lies inside `b` (no sum may wrap).
 bool holds(const ServedBuffer& b, uint64_t address, uint64_t size) {
   return address >= b.address && address - b.address <= b.size && size <= b.size - (address - b.address);
@@ -90,7 +98,7 @@ uint64_t ServedRegionPool::heldBytes() const {
 }
 
 ServedMemory::ServedMemory(std::vector<ServedBuffer> buffers, std::shared_ptr<ServedRegionPool> pool)
-    : pool_(std::move(pool)), buffers_(std::move(buffers)) {
+    : pool_(std::move(pool)), buffers_(std::move(buffers)), image_(pooledImage(pool_)) {
   std::vector<const ServedBuffer*> sorted;
   for (const ServedBuffer& b : buffers_)
     if (b.address != 0 && b.size != 0 && b.host && b.address + b.size > b.address) sorted.push_back(&b);
@@ -103,6 +111,7 @@ ServedMemory::ServedMemory(std::vector<ServedBuffer> buffers, std::shared_ptr<Se
     g.buffers.push_back(b);
   }
   copied_.assign(groups_.size(), false);
+  viewed_.assign(groups_.size(), false);
 }
 
 size_t ServedMemory::groupOf(uint64_t address) const {
@@ -126,7 +135,7 @@ void ServedMemory::copy(size_t group) {
   if (copied_[group]) return;
   const Group& g = groups_[group];
   engine::MemoryRegion& region =
-      image_.add_region(g.base, g.end - g.base, g.usage, "buffer " + hex(g.buffers[0]->buffer),
+      image_->add_region(g.base, g.end - g.base, g.usage, "buffer " + hex(g.buffers[0]->buffer),
                         pool_ ? pool_->take(g.end - g.base) : engine::RegionBytes());
   for (const ServedBuffer* b : g.buffers) {
     uint8_t* to = reinterpret_cast<uint8_t*>(region.bytes.write_at(b->address - g.base, b->size));
@@ -151,52 +160,87 @@ const uint8_t* ServedMemory::read(VkDeviceAddress address, uint64_t size) {
   if (!lastGroupBytes_) {
     copy(lastGroup_);
     lastGroupBytes_ = reinterpret_cast<const uint8_t*>(
-        std::as_const(image_).find_region(groups_[lastGroup_].base)->bytes.data());
+        std::as_const(*image_).find_region(groups_[lastGroup_].base)->bytes.data());
   }
   return lastGroupBytes_ + (address - groups_[lastGroup_].base);
 }
 
-ServedMemory::~ServedMemory() {
-  if (pool_) pool_->give(image_.release_storage());
+bool ServedMemory::view(VkDeviceAddress address, uint64_t size, CapturedBytes* out) {
+  const uint8_t* bytes = read(address, size);
+  if (!bytes) return false;
+  if (!out) return true;
+  viewed_[lastGroup_] = true;
+  *out = CapturedBytes::view(image_, bytes, size);
+  return true;
 }
+
+void ServedMemory::keepInputsAsRead(std::vector<CapturedRange>& inputs, const engine::ExecutionRecord* written) const {
+  std::vector<std::pair<uint64_t, uint64_t>> writes;  // merged [begin, end), ascending
+  if (written) {
+    for (const engine::MemoryAccess& a : written->accesses)
+      if (a.is_write && a.end > a.begin) writes.emplace_back(a.begin, a.end);
+    std::sort(writes.begin(), writes.end());
+    size_t kept = 0;
+    for (const auto& w : writes)
+      if (kept && w.first <= writes[kept - 1].second) writes[kept - 1].second = std::max(writes[kept - 1].second, w.second);
+      else writes[kept++] = w;
+    writes.resize(kept);
+  }
+  for (CapturedRange& r : inputs) {
+    if (!r.bytes.views(image_.get())) continue;
+    const uint64_t end = r.address + r.bytes.size();
+    if (written) {
+      auto after = std::upper_bound(writes.begin(), writes.end(), std::make_pair(r.address, UINT64_MAX));
+      const bool overlaps = (after != writes.end() && after->first < end) ||
+                            (after != writes.begin() && std::prev(after)->second > r.address);
+      if (!overlaps) continue;
+    }
+    const ServedBuffer* b = bufferHolding(r.address, r.bytes.size());
+    if (!b) continue;  // (a view is only made inside one buffer)
+    const uint8_t* from = b->host + (r.address - b->address);
+    const size_t size = r.bytes.size();
+    uint8_t* to = r.bytes.fill(size);
+    if (b->cached) std::memcpy(to, from, size);
+    else copyFromUncached(to, from, size);
+  }
+}
+
+ServedMemory::~ServedMemory() = default;  // (the image's bytes go back to the pool with its last owner)
 
 std::shared_ptr<const engine::MemoryImage> ServedMemory::share(const std::vector<bool>* keep) {
   if (keep) {
     std::vector<engine::RegionBytes> unneeded;
     for (size_t g = 0; g < groups_.size(); ++g)
-      if (copied_[g] && !(*keep)[g]) {
+      if (copied_[g] && !(*keep)[g] && !viewed_[g]) {
         engine::RegionBytes bytes;
-        if (image_.remove_region(groups_[g].base, &bytes)) unneeded.push_back(std::move(bytes));
+        if (image_->remove_region(groups_[g].base, &bytes)) unneeded.push_back(std::move(bytes));
       }
     if (pool_) pool_->give(std::move(unneeded));
   }
-  auto* image = new engine::MemoryImage(std::move(image_));
-  reset();  // (the moved-from image holds nothing to give back)
-  return std::shared_ptr<const engine::MemoryImage>(image, [pool = pool_, image](const engine::MemoryImage*) {
-    if (pool) pool->give(image->release_storage());
-    delete image;
-  });
+  std::shared_ptr<const engine::MemoryImage> shared = std::move(image_);
+  reset();
+  return shared;
 }
 
 void ServedMemory::reset() {
   lastGroupBytes_ = nullptr;
-  if (pool_) pool_->give(image_.release_storage());
-  image_ = engine::MemoryImage();
+  image_ = pooledImage(pool_);
   copied_.assign(groups_.size(), false);
+  viewed_.assign(groups_.size(), false);
   bytesCopied_ = 0;
 }
 
 ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command,
                                    std::span<const ServedBuffer> buffers, engine::ObjectDirectory& directory,
                                    const engine::EngineProperties& properties,
-                                   const std::vector<CapturedRange>* inputWalk) {
+                                   std::vector<CapturedRange>* inputWalk) {
   ServedMemory memory({buffers.begin(), buffers.end()});
   return executeServedBuild(command, memory, directory, properties, inputWalk);
 }
 
 ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command, ServedMemory& memory,
                                    engine::ObjectDirectory& directory, const engine::EngineProperties& properties,
-                                   const std::vector<CapturedRange>* inputWalk, std::optional<uint32_t> outputEntries) {
+                                   std::vector<CapturedRange>* inputWalk, std::optional<uint32_t> outputEntries) {
   ServedExecution result;
   const std::vector<ServedMemory::Group>& groups = memory.groups();
 
@@ -228,7 +272,7 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
         why = "not inside one buffer";
         return false;
       }
-      if (out) out->assign(bytes, bytes + size);
+      if (out) *out = CapturedBytes::borrow(bytes, size);  // (the walk ends before the engine runs)
       return true;
     };
     ClusterMemoryWalk walk;
@@ -261,6 +305,7 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
       options.directory = last ? &directory : &attempt;
       result.record = engine::execute(command, memory.image(), options);
       ++result.attempts;
+      if (inputWalk) memory.keepInputsAsRead(*inputWalk, &result.record);  // before the write-back
       if (last) break;
       if (result.record.findings.empty()) {
         directory = std::move(attempt);
@@ -271,6 +316,7 @@ ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsI
       if (!grew) selected.assign(groups.size(), true);
     }
   } catch (const std::exception& e) {
+    if (inputWalk) memory.keepInputsAsRead(*inputWalk, nullptr);  // it may have written anything
     result.error = e.what();
     return result;
   }

@@ -29,6 +29,11 @@ class CapturedBytes {
     return b;
   }
 
+  // A view owned by nobody, of bytes that outlive every use of it.
+  static CapturedBytes borrow(const uint8_t* data, size_t size) {
+    return view(std::shared_ptr<const void>(std::shared_ptr<const void>(), data), data, size);
+  }
+
   const uint8_t* data() const { return keeper_ ? view_ : copy_.data(); }
   size_t size() const { return keeper_ ? viewSize_ : copy_.size(); }
   bool empty() const { return size() == 0; }
@@ -37,6 +42,7 @@ class CapturedBytes {
   uint8_t operator[](size_t i) const { return data()[i]; }
   std::span<const uint8_t> span() const { return {data(), size()}; }
   bool isView() const { return keeper_ != nullptr; }
+  bool views(const void* kept) const { return keeper_ && keeper_.get() == kept; }  // kept by that object
   // Bytes this range holds of its own (a view holds none: its keeper is counted elsewhere).
   size_t ownedSize() const { return keeper_ ? 0 : copy_.size(); }
 

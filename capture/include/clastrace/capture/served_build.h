@@ -74,6 +74,14 @@ class ServedMemory {
   // [address, address + size) when one served buffer holds all of it, its group copied into
   // the image first; null otherwise. Valid until the next reset().
   const uint8_t* read(VkDeviceAddress address, uint64_t size);
+  // The same bytes as a view that keeps the image alive (its group stays in what share()
+  // returns); false when read() would give null. The engine may still write over a view: see
+  // keepInputsAsRead.
+  bool view(VkDeviceAddress address, uint64_t size, CapturedBytes* out);
+  // Views into the image the engine last ran on whose bytes it wrote (`written`: its record;
+  // null: it may have written anything) become copies of the application's bytes, which the
+  // build has not written back yet: a captured input stays what the command read.
+  void keepInputsAsRead(std::vector<CapturedRange>& inputs, const engine::ExecutionRecord* written) const;
 
   // For executeServedBuild: the groups, which are in the image, copying and starting over.
   struct Group {
@@ -89,13 +97,15 @@ class ServedMemory {
   const ServedBuffer* bufferHolding(VkDeviceAddress address, uint64_t size) const;
   bool copied(size_t group) const { return copied_[group]; }
   void copy(size_t group);
-  void reset();  // an empty image, as before any read (the engine wrote into the last one)
-  engine::MemoryImage& image() { return image_; }
-  const engine::MemoryImage& image() const { return image_; }
+  // An empty image, as before any read (the engine wrote into the last one); the last image's
+  // bytes go back to the pool with its last owner (views of it may live on).
+  void reset();
+  engine::MemoryImage& image() { return *image_; }
+  const engine::MemoryImage& image() const { return *image_; }
   uint64_t bytesCopied() const { return bytesCopied_; }  // since the last reset()
   // The image as it stands, shared; its bytes go back to the pool when the last owner lets go.
-  // The regions of groups not in `keep` (when given: one flag per group) go back at once. The
-  // image here is empty afterwards (as after reset()).
+  // The regions of groups not in `keep` (when given: one flag per group) and not viewed go back
+  // at once. The image here is empty afterwards (as after reset()).
   std::shared_ptr<const engine::MemoryImage> share(const std::vector<bool>* keep = nullptr);
 
  private:
@@ -103,7 +113,8 @@ class ServedMemory {
   std::vector<ServedBuffer> buffers_;  // the groups point into it
   std::vector<Group> groups_;
   std::vector<bool> copied_;
-  engine::MemoryImage image_;
+  std::vector<bool> viewed_;  // groups of the image that views (view()) point into
+  std::shared_ptr<engine::MemoryImage> image_;
   uint64_t bytesCopied_ = 0;
   const ServedBuffer* lastRead_ = nullptr;  // the buffer the last read() found, its group, and
   size_t lastGroup_ = 0;                    // that group's bytes in the image (null: not known)
@@ -128,19 +139,20 @@ struct ServedExecution {
 // Only the buffers the command reaches are copied: those it names, those its pointers lead to
 // and those already read through `memory`, then those its findings point into, found by running
 // again; the result equals a run over all of the buffers. `inputWalk`: the command's inputs as
-// the capture already walked them at this pause (saves walking twice), or null. `memory` is
+// the capture already walked them at this pause (saves walking twice; its views into `memory`
+// that the build writes over become copies of what it read), or null. `memory` is
 // used up: its image becomes the result's. `outputEntries`: the dst array entries a later
 // completeServedRecord walks (the record's executedCount), to keep only what it reads; none
 // when nothing reads the image afterwards (serving only: the image is kept whole).
 ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command, ServedMemory& memory,
                                    engine::ObjectDirectory& directory, const engine::EngineProperties& properties,
-                                   const std::vector<CapturedRange>* inputWalk = nullptr,
+                                   std::vector<CapturedRange>* inputWalk = nullptr,
                                    std::optional<uint32_t> outputEntries = std::nullopt);
 // The same over a fresh ServedMemory of `buffers`.
 ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command,
                                    std::span<const ServedBuffer> buffers, engine::ObjectDirectory& directory,
                                    const engine::EngineProperties& properties,
-                                   const std::vector<CapturedRange>* inputWalk = nullptr);
+                                   std::vector<CapturedRange>* inputWalk = nullptr);
 
 // The rest of a served build's record, after the queue moved on: its outputs walked in the
 // engine's image of the run (as a pause after the command would have read them: the queue ran
