@@ -1,8 +1,9 @@
 // The bytes of one captured range: a copy of its own, or a view into memory that stays
-// unchanged for as long as a shared keeper lives. A served build's outputs are read from the
-// engine's image after the build ran (nothing writes it any more); viewing them there instead
-// of copying them saves the sink one pass over every output byte and an allocation per range,
-// and the image goes back to the region pool once the last view is gone.
+// unchanged for as long as a shared keeper lives. A served build's ranges lie in the engine's
+// image already (its inputs as the pause copied them in, its outputs as the build wrote them);
+// viewing them there instead of copying them saves a pass over every captured byte and an
+// allocation per range, and the image goes back to the region pool once the last view is
+// gone. (Inputs the build writes over are turned back into copies: ServedMemory::keepInputsAsRead.)
 #pragma once
 
 #include <algorithm>
