@@ -30,6 +30,13 @@ std::shared_ptr<engine::MemoryImage> pooledImage(std::shared_ptr<ServedRegionPoo
   });
 }
 
+// [offset, offset + size) of `b`'s host bytes into `to`: plain loads for cached memory,
+// streaming loads for the rest (write-combined on most discrete GPUs).
+void copyFromHost(const ServedBuffer& b, uint64_t offset, uint64_t size, uint8_t* to) {
+  if (b.cached) std::memcpy(to, b.host + offset, size);
+  else copyFromUncached(to, b.host + offset, size);
+}
+
 // All of [address, address + size) lies inside `b` (no sum may wrap).
 bool holds(const ServedBuffer& b, uint64_t address, uint64_t size) {
   return address >= b.address && address - b.address <= b.size && size <= b.size - (address - b.address);
@@ -98,7 +105,7 @@ uint64_t ServedRegionPool::heldBytes() const {
 }
 
 ServedMemory::ServedMemory(std::vector<ServedBuffer> buffers, std::shared_ptr<ServedRegionPool> pool)
-    : pool_(std::move(pool)), buffers_(std::move(buffers)), image_(pooledImage(pool_)) {
+    : pool_(std::move(pool)), buffers_(std::move(buffers)) {
   std::vector<const ServedBuffer*> sorted;
   for (const ServedBuffer& b : buffers_)
     if (b.address != 0 && b.size != 0 && b.host && b.address + b.size > b.address) sorted.push_back(&b);
@@ -110,8 +117,7 @@ ServedMemory::ServedMemory(std::vector<ServedBuffer> buffers, std::shared_ptr<Se
     g.usage |= b->usage;
     g.buffers.push_back(b);
   }
-  copied_.assign(groups_.size(), false);
-  viewed_.assign(groups_.size(), false);
+  reset();  // the first, empty image
 }
 
 size_t ServedMemory::groupOf(uint64_t address) const {
@@ -138,9 +144,7 @@ void ServedMemory::copy(size_t group) {
       image_->add_region(g.base, g.end - g.base, g.usage, "buffer " + hex(g.buffers[0]->buffer),
                         pool_ ? pool_->take(g.end - g.base) : engine::RegionBytes());
   for (const ServedBuffer* b : g.buffers) {
-    uint8_t* to = reinterpret_cast<uint8_t*>(region.bytes.write_at(b->address - g.base, b->size));
-    if (b->cached) std::memcpy(to, b->host, b->size);
-    else copyFromUncached(to, b->host, b->size);
+    copyFromHost(*b, 0, b->size, reinterpret_cast<uint8_t*>(region.bytes.write_at(b->address - g.base, b->size)));
     bytesCopied_ += b->size;
   }
   copied_[group] = true;
@@ -197,11 +201,8 @@ void ServedMemory::keepInputsAsRead(std::vector<CapturedRange>& inputs, const en
     }
     const ServedBuffer* b = bufferHolding(r.address, r.bytes.size());
     if (!b) continue;  // (a view is only made inside one buffer)
-    const uint8_t* from = b->host + (r.address - b->address);
     const size_t size = r.bytes.size();
-    uint8_t* to = r.bytes.fill(size);
-    if (b->cached) std::memcpy(to, from, size);
-    else copyFromUncached(to, from, size);
+    copyFromHost(*b, r.address - b->address, size, r.bytes.fill(size));
   }
 }
 

@@ -807,7 +807,7 @@ class TraceCaptureSink final : public CaptureSink {
   }
 
   // Finishes a served build's record (walking its outputs in the engine's image), here on the
-  // sink's thread rather than on the pause worker. The outputs are views into the image, which
+  // sink's thread rather than on the pause worker. Its ranges are views into the image, which
   // they keep until the record is written and freed; with no view the image goes back to the
   // served region pool now.
   void completeBuild(ClusterBuildCapture& build) {
@@ -818,7 +818,9 @@ class TraceCaptureSink final : public CaptureSink {
       auto complete = std::exchange(build.complete, nullptr);
       complete(build);
     }  // (`complete`'s own reference to the image goes with it)
-    if (std::none_of(build.outputs.begin(), build.outputs.end(), [](const CapturedRange& r) { return r.bytes.isView(); }))
+    auto view = [](const CapturedRange& r) { return r.bytes.isView(); };
+    if (std::none_of(build.inputs.begin(), build.inputs.end(), view) &&
+        std::none_of(build.outputs.begin(), build.outputs.end(), view))
       build.heldBytes = 0;
     const uint64_t after = heldBytesOf(build);
     StateLock lock(*this);
