@@ -115,6 +115,10 @@ double ratio(uint64_t a, uint64_t b) { return b == 0 ? 0.0 : static_cast<double>
 
 const char* str(const flatbuffers::String* s) { return s ? s->c_str() : ""; }
 
+// The capture layer advertised the cluster feature and its engine executed the cluster builds
+// (the trace names the engine as the driver), whatever the driver has.
+bool served(const fbs::DeviceInfo* d) { return d->driver_name() && replay::is_engine_device(d->driver_name()->str()); }
+
 nlohmann::json header_json(const fbs::TraceHeader* h) {
     using nlohmann::json;
     if (!h) return nullptr;
@@ -134,11 +138,9 @@ nlohmann::json header_json(const fbs::TraceHeader* h) {
             for (const auto* e : *d->enabled_extensions()) exts.push_back(e->str());
         dev["enabled_extensions"] = exts;
         if (const auto* f = d->cluster_features()) {
-            // "served": the capture layer advertised the feature and its engine executed the
-            // cluster builds (the trace names the engine as the driver), whatever the driver has.
             dev["cluster_features"] = {{"supported", f->cluster_acceleration_structure_supported()},
                                        {"enabled", f->cluster_acceleration_structure_enabled()},
-                                       {"served", d->driver_name() && replay::is_engine_device(d->driver_name()->str())}};
+                                       {"served", served(d)}};
         } else {
             dev["cluster_features"] = nullptr;
         }
@@ -247,11 +249,10 @@ void print_text(const std::string& path, const TraceReader& reader, const TraceS
                        d->vendor_id(), d->device_id(), str(d->driver_name()), driver_string(d->vendor_id(), d->driver_version()),
                        version_string(d->api_version()));
             if (const auto* f = d->cluster_features()) {
-                const bool served = d->driver_name() && replay::is_engine_device(d->driver_name()->str());
                 fmt::print("{:<12}clusterAccelerationStructure supported {}, enabled {}{}\n", "clusters",
                            f->cluster_acceleration_structure_supported() ? "yes" : "no",
                            f->cluster_acceleration_structure_enabled() ? "yes" : "no",
-                           served ? " (served: the capture layer advertised it and clastrace's engine ran the cluster "
+                           served(d) ? " (served: the capture layer advertised it and clastrace's engine ran the cluster "
                                     "builds, not the driver)"
                                   : "");
             }
