@@ -45,8 +45,8 @@ struct TraceReadStats {
 // Speed/accuracy knob (bench/traces measures it). The chunk checksums always prove the
 // bytes are what the writer wrote, so no flipped bit gets through either way; recomputing
 // every content's key additionally proves the writer keyed them honestly, at the cost of
-// hashing every stored byte once more (about 10% of read time). Off for streaming
-// consumers such as replay; `clastrace info`, the integrity check, turns it on.
+// hashing every stored byte once more (about 10% of read time). Off by default;
+// `clastrace info`, `replay` and `analyze` turn it on so that all three give one verdict.
 struct TraceReaderOptions {
     bool verify_content_keys = false;
     // Bytes the reader may decompress in all, so that a small file of chunks that inflate
