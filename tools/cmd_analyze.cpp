@@ -2,6 +2,7 @@
 // is replayed, folds it into a report of where the memory and time of its
 // acceleration-structure builds go (docs/analyze.md).
 #include "commands.h"
+#include "reader_options.h"
 
 #include <clastrace/analyze/analyzer.h>
 #include <clastrace/analyze/replay_stream.h>
@@ -21,11 +22,12 @@ struct AnalyzeArgs {
     bool json = false;
     std::string html;
     uint32_t truncation_rebuilds = 8;
+  traces::TraceReaderOptions reader{.verify_content_keys = true};
 };
 
 int run_analyze(const AnalyzeArgs& args) {
     traces::TraceError error;
-    std::unique_ptr<traces::TraceReader> reader = traces::TraceReader::open(args.trace, &error);
+    std::unique_ptr<traces::TraceReader> reader = traces::TraceReader::open(args.trace, &error, args.reader);
     if (!reader) {
         std::fprintf(stderr, "clastrace analyze: %s\n", error.message.c_str());
         return kExitUsage;
@@ -69,7 +71,8 @@ Command register_analyze(CLI::App& app) {
                     "truncated clusters per command rebuilt at positionTruncateBitCount 0 to measure what truncation "
                     "saves (one more engine build each; 0: none)")
         ->capture_default_str();
-    json->excludes(html);
+    add_max_raw_option(sub, &args->reader);
+  json->excludes(html);
     html->excludes(json);
     return Command{sub, [args] { return run_analyze(*args); }};
 }

@@ -1,5 +1,6 @@
 // clastrace info TRACE [--json]: what a trace holds and whether it is intact.
 #include "commands.h"
+#include "reader_options.h"
 
 #include <clastrace/replay/replayer.hpp>
 #include <clastrace/traces/records.h>
@@ -339,6 +340,7 @@ Command register_info(CLI::App& app) {
     struct Options {
         std::string path;
         bool json = false;
+        traces::TraceReaderOptions reader{.verify_content_keys = true};
     };
     auto options = std::make_shared<Options>();
     CLI::App* sub = app.add_subcommand(
@@ -346,11 +348,11 @@ Command register_info(CLI::App& app) {
                 "Exit code: 0 intact, 1 damage found, 2 usage error or unreadable file.");
     sub->add_option("TRACE", options->path, "the .clt trace file")->required();
     sub->add_flag("--json", options->json, "print one JSON object (fields in docs/trace-format.md)");
+    add_max_raw_option(sub, &options->reader);
 
     auto run = [options]() -> int {
         traces::TraceError error;
-        std::unique_ptr<TraceReader> reader = TraceReader::open(
-            options->path, &error, traces::TraceReaderOptions{.verify_content_keys = true});
+        std::unique_ptr<TraceReader> reader = TraceReader::open(options->path, &error, options->reader);
         if (!reader) {
             if (options->json) {
                 nlohmann::json j = {{"file", options->path},

@@ -1,6 +1,7 @@
 // clastrace replay TRACE: re-executes the captured builds, moves and copies on the
 // built-in engine in queue order; reports hazards, broken rules and output mismatches.
 #include "commands.h"
+#include "reader_options.h"
 
 #include <clastrace/replay/replayer.hpp>
 #include <clastrace/traces/trace_reader.h>
@@ -27,6 +28,7 @@ struct ReplayArgs {
     bool no_verify = false;
     bool progress = false;
     std::size_t max_findings = 1000;
+    traces::TraceReaderOptions reader{.verify_content_keys = true};
 };
 
 // "N..M", "N.." or "N" (one command).
@@ -61,7 +63,7 @@ int run_replay(const ReplayArgs& args) {
         return kExitUsage;
     }
     traces::TraceError error;
-    std::unique_ptr<traces::TraceReader> reader = traces::TraceReader::open(args.trace, &error);
+    std::unique_ptr<traces::TraceReader> reader = traces::TraceReader::open(args.trace, &error, args.reader);
     if (!reader) {
         if (args.json) {
             nlohmann::json j = {{"trace", args.trace},
@@ -114,6 +116,7 @@ Command register_replay(CLI::App& app) {
     sub->add_flag("--progress", args->progress, "progress on stderr even when it is not a terminal");
     sub->add_option("--max-findings", args->max_findings, "findings and hazards kept (the rest are counted)")
         ->check(CLI::PositiveNumber);
+    add_max_raw_option(sub, &args->reader);
     return Command{sub, [args] { return run_replay(*args); }};
 }
 

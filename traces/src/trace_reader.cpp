@@ -6,6 +6,7 @@
 #include "file_format.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cinttypes>
 #include <cstdio>
 #include <future>
@@ -19,6 +20,18 @@ namespace {
 
 constexpr size_t kMaxDamageKept = 1000;
 constexpr uint32_t kReadAheadMinRawBytes = 256u << 10;
+// Reading ahead a bigger chunk would hold two of them at once; the writer's chunks are 4 MiB.
+constexpr uint32_t kReadAheadMaxRawBytes = 16u << 20;
+// The reader holds at most one buffer above this (the chunk being read or the one
+// read_contents needs), so its memory stays near one chunk of kMaxChunkRawBytes.
+constexpr uint32_t kBigBufferBytes = 32u << 20;
+// The writer never frames a record the verifier rejects, so a chunk whose frames break
+// this often holds no records: one more message per frame would only cost time.
+constexpr uint32_t kMaxBrokenFramesPerChunk = 4;
+// ChunkLocation and ContentLocation sizes in the index, and the fixed part around them.
+constexpr uint64_t kIndexBytesPerChunk = 32;
+constexpr uint64_t kIndexBytesPerContent = 24;
+constexpr uint64_t kIndexFixedBytes = 64u << 10;
 
 std::string hex(uint64_t v) {
     char buf[24];
@@ -39,9 +52,20 @@ enum class ChunkStatus {
     bad_header,   // header unusable: look for the next chunk header byte by byte
     bad_payload,  // header fine, payload not: skip exactly this chunk
     truncated,    // the file ends inside this chunk
+    over_budget,  // decompressing it would pass TraceReaderOptions::max_raw_bytes: stop reading
 };
 
-enum class RecordStatus { ok, skip, stop_chunk };
+enum class RecordStatus {
+    ok,
+    skip,        // the record breaks a rule; the frames around it are fine
+    broken,      // the frame itself is not a record (verifier, kind, body)
+    stop_chunk,
+};
+
+// Frees a buffer whose capacity a big chunk left behind, so it does not linger.
+void release_if_big(std::vector<uint8_t>& buffer, size_t needed = 0) {
+    if (buffer.capacity() > kBigBufferBytes && buffer.capacity() > 2 * needed) std::vector<uint8_t>().swap(buffer);
+}
 
 // What one thread needs to read a chunk: the reader uses one set on its own thread
 // and one on the read-ahead task, so decompressing chunk n+1 overlaps the checks of chunk n.
@@ -60,6 +84,7 @@ struct ReadAhead {
     format::ChunkHeader header{};
     ChunkStatus status = ChunkStatus::ok;
     TraceError error;
+    bool decompressed = false;  // false for chunks left to the reader's thread (big or not records)
 };
 
 }  // namespace
@@ -80,6 +105,14 @@ struct TraceReader::Impl {
     std::vector<uint8_t> index_raw;
     const fbs::TraceIndex* index = nullptr;
     uint64_t index_offset = 0;
+    std::unordered_map<uint64_t, uint32_t> index_position;  // chunk file offset -> place in index->chunks()
+    std::vector<bool> index_chunk_read;                      // by place: the scan read that records chunk
+
+    // Decompression budget, shared with the read-ahead task.
+    uint64_t raw_budget = 0;
+    mutable std::atomic<uint64_t> raw_spent{0};
+    bool budget_reported = false;
+    bool budget_exhausted = false;
 
     // Streaming state.
     uint64_t pos = 0;
@@ -97,8 +130,18 @@ struct TraceReader::Impl {
     uint64_t chunk_offset = 0;
     size_t cursor = 0;
     uint32_t chunk_records_seen = 0;
+    uint32_t chunk_submissions = 0;
+    uint32_t chunk_broken_frames = 0;
     bool chunk_cut_short = false;
+    bool raw_evicted = false;  // the loaded chunk's bytes were freed for read_contents: decompress again
     uint64_t next_submission = 0;
+    // The last records chunk handed out since the scan (re)started: a chunk numbered at or
+    // below it, or starting before the submissions read, repeats records already handed out.
+    bool have_last_chunk = false;
+    uint32_t last_chunk_number = 0;
+    // A scan from the first chunk, never repositioned: only it can tell which chunks the index lists in vain.
+    bool full_scan = false;
+    uint64_t scan_records_claimed = 0;
     bool seeked = false;
     bool has_pending = false;
     RecordView pending;
@@ -124,15 +167,39 @@ struct TraceReader::Impl {
         ++damage_total;
         if (damage.size() < kMaxDamageKept) damage.push_back(std::move(e));
     }
+    // For problems that can repeat per record: past the kept ones, counting costs no message.
+    template <class MakeProblem>
+    void report_with(TraceErrorCode code, uint64_t offset, MakeProblem&& problem) {
+        ++damage_total;
+        if (damage.size() < kMaxDamageKept) damage.push_back(error(code, offset, problem()));
+    }
+
+    // Takes n bytes from the decompression budget; false (nothing taken) when they do not fit.
+    bool take_from_budget(uint64_t n) const {
+        uint64_t spent = raw_spent.load();
+        do {
+            if (spent > raw_budget || n > raw_budget - spent) return false;
+        } while (!raw_spent.compare_exchange_weak(spent, spent + n));
+        return true;
+    }
 
     // Reads, checks and decompresses the chunk whose header is at `offset`.
     ChunkStatus read_chunk(uint64_t offset, format::ChunkHeader* h, std::vector<uint8_t>* out, TraceError* err) {
-        return read_chunk_with(decoder, offset, h, out, err);
+        ChunkStatus status = read_chunk_with(decoder, offset, h, out, err);
+        if (status == ChunkStatus::over_budget) budget_exhausted = true;
+        return status;
     }
 
-    // Safe to run on the read-ahead task: touches only `d`, `out` and the (thread-safe) source.
+    // Safe to run on the read-ahead task: touches only `d`, `out`, the budget and the (thread-safe) source.
     ChunkStatus read_chunk_with(ChunkDecoder& d, uint64_t offset, format::ChunkHeader* h, std::vector<uint8_t>* out,
                                 TraceError* err) const {
+        ChunkStatus status = read_checked_payload(d, offset, h, err);
+        return status == ChunkStatus::ok ? decompress_payload(d, offset, *h, out, err) : status;
+    }
+
+    // Header and compressed payload of the chunk at `offset` into d.compressed, checksums
+    // checked, nothing decompressed.
+    ChunkStatus read_checked_payload(ChunkDecoder& d, uint64_t offset, format::ChunkHeader* h, TraceError* err) const {
         std::vector<uint8_t>& compressed = d.compressed;
         if (offset > size || size - offset < format::kChunkHeaderSize) {
             *err = error(TraceErrorCode::truncated, offset,
@@ -158,12 +225,15 @@ struct TraceReader::Impl {
             return ChunkStatus::bad_header;
         }
         const std::string what = "chunk " + std::to_string(h->chunk_number);
-        uint32_t max_raw = h->kind == static_cast<uint16_t>(format::ChunkKind::index) ? format::kMaxIndexRawBytes
-                                                                                       : format::kMaxChunkRawBytes;
+        const bool is_index = h->kind == static_cast<uint16_t>(format::ChunkKind::index);
+        const uint64_t max_raw = is_index ? plausible_index_raw_bytes() : format::kMaxChunkRawBytes;
         if (h->raw_size > max_raw) {
             *err = error(TraceErrorCode::length_out_of_range, offset + offsetof(format::ChunkHeader, raw_size),
                          what + " claims " + std::to_string(h->raw_size) + " raw bytes, over the limit of " +
-                             std::to_string(max_raw));
+                             std::to_string(max_raw) +
+                             (is_index ? " (an index of a file of " + std::to_string(size) +
+                                             " bytes: one entry per chunk and per content it can hold)"
+                                       : std::string()));
             return ChunkStatus::bad_header;
         }
         if (h->compressed_size > ZSTD_compressBound(h->raw_size)) {
@@ -179,6 +249,7 @@ struct TraceReader::Impl {
                              std::to_string(size - payload) + " remain in the file");
             return ChunkStatus::truncated;
         }
+        release_if_big(compressed, h->compressed_size);
         compressed.resize(h->compressed_size);
         if (!src->read_at(payload, compressed.size(), compressed.data())) {
             *err = error(TraceErrorCode::io_error, payload, "read failed: " + src->last_error());
@@ -191,15 +262,34 @@ struct TraceReader::Impl {
                              hex(computed) + ")");
             return ChunkStatus::bad_payload;
         }
+        return ChunkStatus::ok;
+    }
+
+    // Decompresses d.compressed (read by read_checked_payload for header h) into `out`.
+    ChunkStatus decompress_payload(ChunkDecoder& d, uint64_t offset, const format::ChunkHeader& h,
+                                   std::vector<uint8_t>* out, TraceError* err) const {
+        const std::vector<uint8_t>& compressed = d.compressed;
+        const uint64_t payload = offset + format::kChunkHeaderSize;
+        const std::string what = "chunk " + std::to_string(h.chunk_number);
         unsigned long long content = ZSTD_getFrameContentSize(compressed.data(), compressed.size());
-        if (content != h->raw_size) {
+        if (content != h.raw_size) {
             *err = error(TraceErrorCode::decompress_failed, payload,
-                         what + " zstd frame does not declare the chunk's " + std::to_string(h->raw_size) + " raw bytes");
+                         what + " zstd frame does not declare the chunk's " + std::to_string(h.raw_size) + " raw bytes");
             return ChunkStatus::bad_payload;
         }
-        out->resize(h->raw_size);
+        if (!take_from_budget(h.raw_size)) {
+            *err = error(TraceErrorCode::length_out_of_range, offset,
+                         what + " would inflate " + std::to_string(compressed.size()) + " bytes to " +
+                             std::to_string(h.raw_size) + ", past the budget of " + std::to_string(raw_budget) +
+                             " decompressed bytes (" + std::to_string(raw_spent.load()) +
+                             " already spent; default 64 x the file size, at least 1 GiB): the rest of the file is "
+                             "not read; raise the budget with --max-raw-mib (TraceReaderOptions::max_raw_bytes)");
+            return ChunkStatus::over_budget;
+        }
+        release_if_big(*out, h.raw_size);
+        out->resize(h.raw_size);
         size_t got = ZSTD_decompressDCtx(d.dctx, out->data(), out->size(), compressed.data(), compressed.size());
-        if (ZSTD_isError(got) || got != h->raw_size) {
+        if (ZSTD_isError(got) || got != h.raw_size) {
             *err = error(TraceErrorCode::decompress_failed, payload,
                          what + " does not decompress: " +
                              (ZSTD_isError(got) ? ZSTD_getErrorName(got) : std::string("size differs")));
@@ -208,14 +298,28 @@ struct TraceReader::Impl {
         return ChunkStatus::ok;
     }
 
+    // The largest index a file of this size can need: an entry per chunk (each at least a
+    // header) and per content (each costs the file at least its 8-byte key twice, in its
+    // record and in the index; counted at 8 for margin), within the format's limit.
+    uint64_t plausible_index_raw_bytes() const {
+        uint64_t plausible = kIndexFixedBytes + kIndexBytesPerChunk * (size / format::kChunkHeaderSize) +
+                             kIndexBytesPerContent * (size / 8);
+        return std::min<uint64_t>(plausible, format::kMaxIndexRawBytes);
+    }
+
     // Finds the next offset >= from holding a chunk header whose checksum holds.
     uint64_t find_next_chunk(uint64_t from) {
-        constexpr size_t kBlock = 1 << 20;
+        // Blocks grow from 4 KiB, so finding a header close by costs little even when it is
+        // found again and again (a file of headers that each fail a later check).
+        size_t block_size = 4096;
+        constexpr size_t kMaxBlock = 1 << 20;
         std::vector<uint8_t> block;
         const uint8_t magic[4] = {'C', 'L', 'C', 'K'};
         uint64_t at = from;
         while (at + format::kChunkHeaderSize <= size) {
-            size_t n = static_cast<size_t>(std::min<uint64_t>(kBlock + format::kChunkHeaderSize, size - at));
+            const size_t step = block_size;
+            block_size = std::min(kMaxBlock, block_size * 2);
+            size_t n = static_cast<size_t>(std::min<uint64_t>(step + format::kChunkHeaderSize, size - at));
             block.resize(n);
             if (!src->read_at(at, n, block.data())) return size;
             for (size_t i = 0; i + format::kChunkHeaderSize <= n; ++i) {
@@ -224,8 +328,8 @@ struct TraceReader::Impl {
                 std::memcpy(&h, &block[i], sizeof h);
                 if (format::chunk_header_checksum(h) == h.header_checksum) return at + i;
             }
-            if (n < kBlock + format::kChunkHeaderSize) break;
-            at += kBlock;
+            if (n < step + format::kChunkHeaderSize) break;
+            at += step;
         }
         return size;
     }
@@ -270,20 +374,23 @@ struct TraceReader::Impl {
 
         flatbuffers::Verifier verifier(bytes, rsize, 64, 10'000'000);
         if (!fbs::VerifyRecordBuffer(verifier)) {
-            report(TraceErrorCode::invalid_record, chunk_offset, record_place(at) + ": fails the FlatBuffers verifier");
-            return RecordStatus::skip;
+            report_with(TraceErrorCode::invalid_record, chunk_offset,
+                        [&] { return record_place(at) + ": fails the FlatBuffers verifier"; });
+            return RecordStatus::broken;
         }
         const fbs::Record* record = fbs::GetRecord(bytes);
         fbs::RecordBody kind = record->body_type();
         if (static_cast<uint32_t>(kind) != rkind) {
-            report(TraceErrorCode::invalid_record, chunk_offset,
-                   record_place(at) + ": frame says kind " + std::to_string(rkind) + ", record holds " +
-                       std::to_string(static_cast<unsigned>(kind)));
-            return RecordStatus::skip;
+            report_with(TraceErrorCode::invalid_record, chunk_offset, [&] {
+                return record_place(at) + ": frame says kind " + std::to_string(rkind) + ", record holds " +
+                       std::to_string(static_cast<unsigned>(kind));
+            });
+            return RecordStatus::broken;
         }
         if (kind == fbs::RecordBody::NONE || record->body() == nullptr) {
-            report(TraceErrorCode::invalid_record, chunk_offset, record_place(at) + ": record has no body");
-            return RecordStatus::skip;
+            report_with(TraceErrorCode::invalid_record, chunk_offset,
+                        [&] { return record_place(at) + ": record has no body"; });
+            return RecordStatus::broken;
         }
         if (!check_record(*record, at)) return RecordStatus::skip;
 
@@ -304,8 +411,9 @@ struct TraceReader::Impl {
             size_t n = c->bytes() ? c->bytes()->size() : 0;
             uint64_t key = options.verify_content_keys ? format::content_key(data, n, c->seed(), hash_bits) : c->hash();
             if (key != c->hash()) {
-                report(TraceErrorCode::content_mismatch, chunk_offset,
-                       record_place(at) + ": contents " + hex(c->hash()) + " hold bytes hashing to " + hex(key));
+                report_with(TraceErrorCode::content_mismatch, chunk_offset, [&] {
+                    return record_place(at) + ": contents " + hex(c->hash()) + " hold bytes hashing to " + hex(key);
+                });
                 return false;
             }
             contents[c->hash()] = ContentPlace{n, chunk_offset, at, true};
@@ -318,15 +426,17 @@ struct TraceReader::Impl {
             for (const fbs::MemorySnapshot* s : *list) {
                 auto it = contents.find(s->hash());
                 if (it == contents.end() || (!it->second.seen_in_scan && !seeked)) {
-                    report(TraceErrorCode::missing_contents, chunk_offset,
-                           record_place(at) + " (" + record_kind_name(record.body_type()) + "): snapshot of address " +
-                               hex(s->address()) + " refers to contents " + hex(s->hash()) +
-                               " that no earlier record defines");
+                    report_with(TraceErrorCode::missing_contents, chunk_offset, [&] {
+                        return record_place(at) + " (" + record_kind_name(record.body_type()) +
+                               "): snapshot of address " + hex(s->address()) + " refers to contents " +
+                               hex(s->hash()) + " that no earlier record defines";
+                    });
                     ok = false;
                 } else if (it->second.size != s->size()) {
-                    report(TraceErrorCode::content_mismatch, chunk_offset,
-                           record_place(at) + ": snapshot size " + std::to_string(s->size()) + " but contents " +
-                               hex(s->hash()) + " hold " + std::to_string(it->second.size) + " bytes");
+                    report_with(TraceErrorCode::content_mismatch, chunk_offset, [&] {
+                        return record_place(at) + ": snapshot size " + std::to_string(s->size()) + " but contents " +
+                               hex(s->hash()) + " hold " + std::to_string(it->second.size) + " bytes";
+                    });
                     ok = false;
                 }
             }
@@ -334,11 +444,13 @@ struct TraceReader::Impl {
         if (!ok) return false;
         if (const auto* q = record.body_as_QueueSubmit()) {
             if (q->submission_index() != next_submission) {
-                report(TraceErrorCode::invalid_record, chunk_offset,
-                       record_place(at) + ": submission_index " + std::to_string(q->submission_index()) +
-                           ", expected " + std::to_string(next_submission));
+                report_with(TraceErrorCode::invalid_record, chunk_offset, [&] {
+                    return record_place(at) + ": submission_index " + std::to_string(q->submission_index()) +
+                           ", expected " + std::to_string(next_submission);
+                });
             }
             next_submission = q->submission_index() + 1;
+            ++chunk_submissions;
         }
         return true;
     }
@@ -349,7 +461,48 @@ struct TraceReader::Impl {
                    "chunk " + std::to_string(chunk.chunk_number) + " header says " + std::to_string(chunk.record_count) +
                        " records, its payload holds " + std::to_string(chunk_records_seen));
         }
+        if (chunk_loaded && !chunk_cut_short && chunk_records_seen == chunk.record_count) {
+            check_submissions_against_index();
+        }
         chunk_loaded = false;
+        raw_evicted = false;
+    }
+
+    // A chunk is cut short after its first few broken frames: the rest of a chunk that
+    // breaks like that (a hostile one: 256 MiB of zeros is 2^25 broken frames) holds nothing.
+    void stop_chunk_after_broken_frames() {
+        report(TraceErrorCode::invalid_record, chunk_offset,
+               "chunk " + std::to_string(chunk.chunk_number) + ": " + std::to_string(chunk_broken_frames) +
+                   " broken record frames; the remaining " + std::to_string(raw.size() - cursor) +
+                   " raw bytes of the chunk are skipped");
+        stats.bytes_skipped += raw.size() - cursor;
+        chunk_cut_short = true;
+        close_chunk();
+    }
+
+    // The chunk being read, again, after read_contents freed its bytes for another big chunk.
+    bool reload_evicted_chunk() {
+        release_if_big(side_raw);
+        if (side_raw.capacity() == 0) side_offset = UINT64_MAX;
+        format::ChunkHeader h{};
+        TraceError err;
+        if (read_chunk(chunk_offset, &h, &raw, &err) != ChunkStatus::ok) {
+            report_budget_or(std::move(err));
+            chunk_cut_short = true;
+            close_chunk();
+            return false;
+        }
+        raw_evicted = false;
+        return true;
+    }
+
+    // Budget damage is said once; other errors each time.
+    void report_budget_or(TraceError err) {
+        if (err.code == TraceErrorCode::length_out_of_range && budget_exhausted) {
+            if (budget_reported) return;
+            budget_reported = true;
+        }
+        report(std::move(err));
     }
 
     uint64_t ahead_started_at = UINT64_MAX;
@@ -362,7 +515,12 @@ struct TraceReader::Impl {
         ahead = std::async(std::launch::async, [this, offset] {
             ReadAhead r;
             r.offset = offset;
-            r.status = read_chunk_with(ahead_decoder, offset, &r.header, &ahead_raw, &r.error);
+            r.status = read_checked_payload(ahead_decoder, offset, &r.header, &r.error);
+            if (r.status == ChunkStatus::ok && r.header.kind == static_cast<uint16_t>(format::ChunkKind::records) &&
+                r.header.raw_size <= kReadAheadMaxRawBytes) {
+                r.status = decompress_payload(ahead_decoder, offset, r.header, &ahead_raw, &r.error);
+                r.decompressed = r.status == ChunkStatus::ok;
+            }
             return r;
         });
     }
@@ -373,28 +531,66 @@ struct TraceReader::Impl {
         ahead_started_at = UINT64_MAX;
     }
 
+    // The chunk at `pos`: from the read-ahead when it read this offset, else read here.
+    // With *have_raw false and status ok only the checked compressed payload is in `decoder`.
+    ChunkStatus take_chunk(format::ChunkHeader* h, TraceError* err, bool* have_raw) {
+        *have_raw = false;
+        if (ahead.valid() && ahead_offset() == pos) {
+            ReadAhead r = ahead.get();
+            ahead_started_at = UINT64_MAX;
+            *h = r.header;
+            *err = std::move(r.error);
+            if (r.status == ChunkStatus::over_budget) budget_exhausted = true;
+            if (r.decompressed) {
+                std::swap(raw, ahead_raw);
+                release_if_big(ahead_raw);
+                *have_raw = true;
+            } else if (r.status == ChunkStatus::ok) {
+                std::swap(decoder.compressed, ahead_decoder.compressed);
+            }
+            return r.status;
+        }
+        drop_read_ahead();
+        return read_checked_payload(decoder, pos, h, err);
+    }
+
     // Loads the next intact record chunk; false at the end of the records.
     bool advance_chunk() {
         for (;;) {
-            if (pos >= size) return false;
+            if (pos >= size) {
+                finish_scan();
+                return false;
+            }
             TraceError err;
             format::ChunkHeader h{};
-            ChunkStatus status;
-            if (ahead.valid() && ahead_offset() == pos) {
-                ReadAhead r = ahead.get();
-                std::swap(raw, ahead_raw);
-                h = r.header;
-                status = r.status;
-                err = std::move(r.error);
-            } else {
-                drop_read_ahead();
-                status = read_chunk(pos, &h, &raw, &err);
+            bool have_raw = false;
+            ChunkStatus status = take_chunk(&h, &err, &have_raw);
+            const uint64_t here = pos;
+            const bool is_records = h.kind == static_cast<uint16_t>(format::ChunkKind::records);
+            if ((status == ChunkStatus::ok || status == ChunkStatus::bad_payload) && is_records) {
+                check_chunk_against_index(here, h);
+            }
+            if (status == ChunkStatus::ok && is_records) {
+                if (!in_order(here, h)) {
+                    pos += format::kChunkHeaderSize + h.compressed_size;
+                    continue;
+                }
+                if (!have_raw) {
+                    if (h.raw_size > kBigBufferBytes) release_if_big(side_raw), side_offset = UINT64_MAX;
+                    status = decompress_payload(decoder, here, h, &raw, &err);
+                    if (status == ChunkStatus::over_budget) budget_exhausted = true;
+                }
             }
             // Reading ahead pays for big chunks; for small ones a task costs more than it hides.
-            if (status == ChunkStatus::ok && h.raw_size >= kReadAheadMinRawBytes) {
+            if (status == ChunkStatus::ok && is_records && h.raw_size >= kReadAheadMinRawBytes) {
                 start_read_ahead(pos + format::kChunkHeaderSize + h.compressed_size);
             }
             switch (status) {
+            case ChunkStatus::over_budget:
+                report_budget_or(std::move(err));
+                ++stats.chunks_damaged;
+                pos = size;
+                return false;
             case ChunkStatus::truncated:
                 report(std::move(err));
                 ++stats.chunks_damaged;
@@ -412,13 +608,26 @@ struct TraceReader::Impl {
                 continue;
             case ChunkStatus::ok: break;
             }
-            uint64_t here = pos;
             pos += format::kChunkHeaderSize + h.compressed_size;
             if (h.kind == static_cast<uint16_t>(format::ChunkKind::index)) {
-                reached_index_chunk(here, pos);
-                return false;
+                if (reached_index_chunk(here, pos)) {
+                    finish_scan();
+                    return false;
+                }
+                continue;
             }
-            if (h.kind != static_cast<uint16_t>(format::ChunkKind::records)) continue;  // newer kind: skip
+            if (!is_records) {
+                // Kinds added by a newer minor version are skipped; in a file this reader
+                // fully knows, an unknown kind is a records chunk whose label was changed.
+                if (version_minor <= format::kVersionMinor) {
+                    report(TraceErrorCode::bad_chunk, here,
+                           "chunk " + std::to_string(h.chunk_number) + " has kind " + std::to_string(h.kind) +
+                               ", which format " + std::to_string(version_major) + "." + std::to_string(version_minor) +
+                               " does not define; its " + std::to_string(h.record_count) + " records are skipped");
+                    ++stats.chunks_damaged;
+                }
+                continue;
+            }
             if (!skipped_since_chunk && h.chunk_number != expected_chunk_number) {
                 report(TraceErrorCode::bad_chunk, here,
                        "chunk number " + std::to_string(h.chunk_number) + " where " +
@@ -432,13 +641,19 @@ struct TraceReader::Impl {
             }
             next_submission = h.first_submission;
             expected_chunk_number = h.chunk_number + 1;
+            have_last_chunk = true;
+            last_chunk_number = h.chunk_number;
             skipped_since_chunk = false;
             chunk = h;
             chunk_offset = here;
             chunk_loaded = true;
             chunk_cut_short = false;
+            raw_evicted = false;
             cursor = 0;
             chunk_records_seen = 0;
+            chunk_submissions = 0;
+            chunk_broken_frames = 0;
+            scan_records_claimed += h.record_count;
             ++stats.chunks_read;
             stats.raw_bytes += h.raw_size;
             stats.compressed_bytes += h.compressed_size;
@@ -446,24 +661,112 @@ struct TraceReader::Impl {
         }
     }
 
-    void reached_index_chunk(uint64_t at, uint64_t after) {
-        if (index) {
-            if (at != index_offset) {
-                report(TraceErrorCode::bad_index, at,
-                       "index chunk here but the trailer points at offset " + std::to_string(index_offset));
-            }
+    // False for a chunk that repeats or goes back (a duplicated or reordered chunk): its
+    // records would hand out submissions already handed out, so they are skipped.
+    bool in_order(uint64_t at, const format::ChunkHeader& h) {
+        if (!have_last_chunk || (h.chunk_number > last_chunk_number && h.first_submission >= next_submission)) {
+            return true;
+        }
+        report(TraceErrorCode::bad_chunk, at,
+               "chunk " + std::to_string(h.chunk_number) + " (first submission " + std::to_string(h.first_submission) +
+                   ") comes after chunk " + std::to_string(last_chunk_number) + " and " +
+                   std::to_string(next_submission) +
+                   " submissions: a repeated or reordered chunk; its " + std::to_string(h.record_count) +
+                   " records are skipped so that no record is handed out twice");
+        ++stats.chunks_damaged;
+        skipped_since_chunk = true;
+        return false;
+    }
+
+    // A records chunk's header against the index's entry for its offset.
+    void check_chunk_against_index(uint64_t at, const format::ChunkHeader& h) {
+        if (!index) return;
+        auto it = index_position.find(at);
+        if (it == index_position.end()) {
+            report(TraceErrorCode::bad_index, at,
+                   "chunk " + std::to_string(h.chunk_number) + " is a records chunk the index does not list");
             return;
         }
-        // No usable trailer at the end of the file: is there one right after this index?
+        const fbs::ChunkLocation* c = index->chunks()->Get(it->second);
+        index_chunk_read[it->second] = true;
+        std::string differs;
+        auto compare = [&](const char* field, uint64_t listed, uint64_t read) {
+            if (listed != read) {
+                differs += std::string(differs.empty() ? "" : ", ") + field + " " + std::to_string(listed) +
+                           " in the index, " + std::to_string(read) + " in the chunk";
+            }
+        };
+        compare("chunk number", it->second, h.chunk_number);
+        compare("first submission", c->first_submission(), h.first_submission);
+        compare("record count", c->record_count(), h.record_count);
+        compare("raw size", c->raw_size(), h.raw_size);
+        compare("compressed size", c->compressed_size(), h.compressed_size);
+        if (!differs.empty()) {
+            report(TraceErrorCode::bad_index, at,
+                   "index entry " + std::to_string(it->second) + " disagrees with the chunk there: " + differs);
+        }
+    }
+
+    // QueueSubmits of a fully read chunk against its index entry.
+    void check_submissions_against_index() {
+        if (!index) return;
+        auto it = index_position.find(chunk_offset);
+        if (it == index_position.end()) return;
+        uint32_t listed = index->chunks()->Get(it->second)->submission_count();
+        if (listed != chunk_submissions) {
+            report(TraceErrorCode::bad_index, chunk_offset,
+                   "index entry " + std::to_string(it->second) + " says chunk " + std::to_string(chunk.chunk_number) +
+                       " holds " + std::to_string(listed) + " submissions, it holds " +
+                       std::to_string(chunk_submissions));
+        }
+    }
+
+    // At the end of a scan from the first chunk: chunks the index lists that were not read,
+    // and, when nothing else was damaged, the index's totals against what was read.
+    void finish_scan() {
+        if (!index || !full_scan || budget_exhausted) return;
+        full_scan = false;  // once per scan
+        const auto* chunks = index->chunks();
+        for (uint32_t i = 0; i < chunks->size(); ++i) {
+            if (index_chunk_read[i]) continue;
+            report_with(TraceErrorCode::bad_index, chunks->Get(i)->file_offset(), [&] {
+                return "index entry " + std::to_string(i) + " lists a records chunk at offset " +
+                       std::to_string(chunks->Get(i)->file_offset()) + " that the scan did not read as one";
+            });
+        }
+        if (damage_total != 0) return;
+        if (index->record_count() != scan_records_claimed || index->submission_count() != next_submission) {
+            report(TraceErrorCode::bad_index, index_offset,
+                   "index counts " + std::to_string(index->record_count()) + " records and " +
+                       std::to_string(index->submission_count()) + " submissions, the chunks hold " +
+                       std::to_string(scan_records_claimed) + " and " + std::to_string(next_submission));
+        }
+    }
+
+    // True when this index chunk ends the records: the one the trailer points at, or,
+    // without a usable trailer at the end, one followed by a trailer. Any other index
+    // chunk is damage, and the chunks after it are still read.
+    bool reached_index_chunk(uint64_t at, uint64_t after) {
+        if (index) {
+            if (at == index_offset) return true;
+            report(TraceErrorCode::bad_index, at,
+                   "index chunk here but the trailer points at offset " + std::to_string(index_offset) +
+                       "; the chunks after it are still read");
+            return false;
+        }
+        if (after == size) return true;
         if (size - after >= format::kTrailerSize) {
             format::Trailer t{};
             if (src->read_at(after, sizeof t, reinterpret_cast<uint8_t*>(&t)) &&
-                std::memcmp(t.magic, format::kTrailerMagic, 8) == 0 && format::trailer_checksum(t) == t.checksum &&
-                after + format::kTrailerSize < size) {
-                report(TraceErrorCode::trailing_bytes, after + format::kTrailerSize,
-                       std::to_string(size - after - format::kTrailerSize) + " bytes after the trailer");
+                std::memcmp(t.magic, format::kTrailerMagic, 8) == 0 && format::trailer_checksum(t) == t.checksum) {
+                if (after + format::kTrailerSize < size) {
+                    report(TraceErrorCode::trailing_bytes, after + format::kTrailerSize,
+                           std::to_string(size - after - format::kTrailerSize) + " bytes after the trailer");
+                }
+                return true;
             }
         }
+        return false;
     }
 
     bool next(RecordView* out) {
@@ -474,6 +777,7 @@ struct TraceReader::Impl {
             return true;
         }
         for (;;) {
+            if (chunk_loaded && raw_evicted && !reload_evicted_chunk()) continue;
             if (chunk_loaded && cursor < raw.size()) {
                 RecordStatus s = parse_record(out);
                 if (s == RecordStatus::ok) {
@@ -481,7 +785,9 @@ struct TraceReader::Impl {
                     return true;
                 }
                 ++stats.records_damaged;
-                if (s == RecordStatus::stop_chunk) {
+                if (s == RecordStatus::broken && ++chunk_broken_frames >= kMaxBrokenFramesPerChunk) {
+                    stop_chunk_after_broken_frames();
+                } else if (s == RecordStatus::stop_chunk) {
                     chunk_cut_short = true;
                     close_chunk();
                 }
@@ -499,10 +805,13 @@ struct TraceReader::Impl {
     void restart_at(uint64_t offset) {
         drop_read_ahead();
         chunk_loaded = false;
+        raw_evicted = false;
         has_pending = false;
         ended = false;
         pos = offset;
         skipped_since_chunk = true;
+        have_last_chunk = false;
+        full_scan = false;
     }
 
     TraceError seek(uint64_t k) {
@@ -552,14 +861,28 @@ struct TraceReader::Impl {
         }
         const ContentPlace place = it->second;
         const std::vector<uint8_t>* source = nullptr;
-        if (chunk_loaded && place.chunk_offset == chunk_offset) {
+        if (chunk_loaded && !raw_evicted && place.chunk_offset == chunk_offset) {
             source = &raw;
         } else {
             if (side_offset != place.chunk_offset) {
                 format::ChunkHeader h{};
                 TraceError err;
                 side_offset = UINT64_MAX;
-                if (read_chunk(place.chunk_offset, &h, &side_raw, &err) != ChunkStatus::ok) return err;
+                ChunkStatus status = read_checked_payload(decoder, place.chunk_offset, &h, &err);
+                if (status == ChunkStatus::ok) {
+                    // Two big buffers at once would double the reader's memory: the chunk
+                    // being read gives its bytes up and is decompressed again by next().
+                    if (h.raw_size > kBigBufferBytes && raw.capacity() > kBigBufferBytes && chunk_loaded) {
+                        std::vector<uint8_t>().swap(raw);
+                        raw_evicted = true;
+                    }
+                    status = decompress_payload(decoder, place.chunk_offset, h, &side_raw, &err);
+                }
+                if (status == ChunkStatus::over_budget) {
+                    budget_exhausted = true;
+                    report_budget_or(err);
+                }
+                if (status != ChunkStatus::ok) return err;
                 side_offset = place.chunk_offset;
             }
             source = &side_raw;
@@ -592,6 +915,8 @@ struct TraceReader::Impl {
     TraceError open() {
         size = src->size();
         stats.file_size = size;
+        raw_budget = options.max_raw_bytes ? options.max_raw_bytes : default_raw_budget(size);
+        stats.raw_budget = raw_budget;
         if (size == 0) return error(TraceErrorCode::truncated, 0, "empty file");
         if (size < format::kFileHeaderSize) {
             if (size >= 8 && std::memcmp(read_small(0, 8).data(), format::kFileMagic, 8) != 0) {
@@ -656,6 +981,7 @@ struct TraceReader::Impl {
             }
             restart_at(data_start);
         }
+        full_scan = true;
         open_index();
         return {};
     }
@@ -724,17 +1050,69 @@ struct TraceReader::Impl {
         }
         index = idx;
         index_offset = t.index_offset;
+        check_index_entries();
         if (const auto* places = index->contents()) {
             const auto* chunks = index->chunks();
             contents.reserve(places->size());
+            bool reported = false;
             for (const fbs::ContentLocation* c : *places) {
-                if (c->chunk() >= chunks->size()) continue;
+                if (c->chunk() >= chunks->size()) {
+                    if (!reported) {
+                        report(TraceErrorCode::bad_index, index_offset,
+                               "index places contents " + hex(c->hash()) + " in chunk " + std::to_string(c->chunk()) +
+                                   ", it lists " + std::to_string(chunks->size()) + " chunks");
+                    }
+                    reported = true;
+                    continue;
+                }
                 contents.emplace(c->hash(), ContentPlace{c->size(), chunks->Get(c->chunk())->file_offset(),
                                                          c->raw_offset(), false});
             }
         }
     }
+
+    // The index's chunk list on its own: offsets rising inside the records, each chunk
+    // starting where the submissions before it end, totals the sum of the entries. The
+    // scan then compares each entry with the chunk at its offset.
+    void check_index_entries() {
+        const auto* chunks = index->chunks();
+        index_position.reserve(chunks->size());
+        index_chunk_read.assign(chunks->size(), false);
+        uint64_t records = 0;
+        uint64_t submissions = 0;
+        uint64_t previous_end = data_start;
+        std::string problem;
+        for (uint32_t i = 0; i < chunks->size(); ++i) {
+            const fbs::ChunkLocation* c = chunks->Get(i);
+            if (problem.empty() && (c->file_offset() < previous_end || c->file_offset() >= index_offset)) {
+                problem = "entry " + std::to_string(i) + " places a chunk at offset " +
+                          std::to_string(c->file_offset()) + ", outside the records after offset " +
+                          std::to_string(previous_end);
+            }
+            if (problem.empty() && c->first_submission() != submissions) {
+                problem = "entry " + std::to_string(i) + " starts at submission " +
+                          std::to_string(c->first_submission()) + " after " + std::to_string(submissions) +
+                          " submissions";
+            }
+            previous_end = c->file_offset() + format::kChunkHeaderSize + c->compressed_size();
+            records += c->record_count();
+            submissions += c->submission_count();
+            index_position.emplace(c->file_offset(), i);
+        }
+        if (problem.empty() && (records != index->record_count() || submissions != index->submission_count())) {
+            problem = "its chunks hold " + std::to_string(records) + " records and " + std::to_string(submissions) +
+                      " submissions, its totals say " + std::to_string(index->record_count()) + " and " +
+                      std::to_string(index->submission_count());
+        }
+        if (!problem.empty()) report(TraceErrorCode::bad_index, index_offset, "index: " + problem);
+    }
 };
+
+uint64_t default_raw_budget(uint64_t file_size) {
+    const uint64_t relative =
+        file_size > UINT64_MAX / kRawBudgetPerFileByte ? UINT64_MAX : file_size * kRawBudgetPerFileByte;
+    return std::max(kRawBudgetFloorBytes, relative);
+}
 
 TraceReader::TraceReader(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 TraceReader::~TraceReader() = default;
@@ -786,6 +1164,9 @@ TraceError TraceReader::seek_to_submission(uint64_t k) { return impl_->seek(k); 
 TraceError TraceReader::read_contents(uint64_t hash, std::vector<uint8_t>* out) { return impl_->read_contents(hash, out); }
 const std::vector<TraceError>& TraceReader::damage() const { return impl_->damage; }
 uint64_t TraceReader::damage_count() const { return impl_->damage_total; }
-const TraceReadStats& TraceReader::stats() const { return impl_->stats; }
+const TraceReadStats& TraceReader::stats() const {
+    impl_->stats.raw_bytes_decompressed = impl_->raw_spent.load();
+    return impl_->stats;
+}
 
 }  // namespace clastrace::traces

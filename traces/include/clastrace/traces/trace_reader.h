@@ -1,8 +1,10 @@
-// Reads a .clt trace chunk by chunk with bounded memory: one decompressed chunk, one
-// more read ahead (on a task, so decompression overlaps the caller), one for
-// read_contents, and about 64 bytes per distinct content. Every record is checked by
-// the FlatBuffers verifier before it is handed out. Damage does not stop reading: it is
-// listed in damage() and the reader continues with the next intact chunk.
+// Reads a .clt trace chunk by chunk with bounded work and memory: one decompressed chunk,
+// one more of at most 16 MiB read ahead (on a task, so decompression overlaps the caller),
+// one for read_contents (at most one of the two above 32 MiB at a time), the index (bounded
+// by what the file's size makes plausible) and about 64 bytes per distinct content; all
+// the bytes it decompresses are bounded by a budget relative to the file's size. Every
+// record is checked by the FlatBuffers verifier before it is handed out. Damage does not
+// stop reading: it is listed in damage() and the reader continues with the next intact chunk.
 #pragma once
 
 #include <clastrace/traces/trace_error.h>
@@ -36,16 +38,28 @@ struct TraceReadStats {
     uint64_t records = 0;              // records handed out
     uint64_t records_damaged = 0;      // records skipped because they failed a check
     uint64_t bytes_skipped = 0;        // bytes passed over while looking for the next chunk
+    uint64_t raw_bytes_decompressed = 0;  // every byte decompressed (read-ahead, read_contents, index included)
+    uint64_t raw_budget = 0;              // the limit on raw_bytes_decompressed (TraceReaderOptions::max_raw_bytes)
 };
 
 // Speed/accuracy knob (bench/traces measures it). The chunk checksums always prove the
 // bytes are what the writer wrote, so no flipped bit gets through either way; recomputing
 // every content's key additionally proves the writer keyed them honestly, at the cost of
-// hashing every stored byte once more (about 10% of read time). Off for streaming
-// consumers such as replay; `clastrace info`, the integrity check, turns it on.
+// hashing every stored byte once more (about 10% of read time). Off by default;
+// `clastrace info`, `replay` and `analyze` turn it on so that all three give one verdict.
 struct TraceReaderOptions {
     bool verify_content_keys = false;
+    // Bytes the reader may decompress in all, so that a small file of chunks that inflate
+    // enormously (256 MiB of zeros compress to 8 KiB) costs seconds, not minutes. Once the
+    // next chunk would pass it the reader stops, with length_out_of_range damage.
+    // 0: default_raw_budget(file size), far above what real traces inflate to (about 4x).
+    uint64_t max_raw_bytes = 0;
 };
+
+inline constexpr uint64_t kRawBudgetFloorBytes = uint64_t{1} << 30;
+inline constexpr uint64_t kRawBudgetPerFileByte = 64;
+// max(1 GiB, 64 x the file size).
+uint64_t default_raw_budget(uint64_t file_size);
 
 class TraceReader {
 public:

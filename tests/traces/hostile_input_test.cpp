@@ -1,0 +1,432 @@
+// Hostile traces: files crafted so that reading them would cost minutes of CPU or
+// gigabytes of memory, or would hide damage behind a consistent-looking index. Each
+// gets bounded work (asserted on counts, never on time) and one verdict: damage.
+#include "trace_test_support.h"
+
+#include "file_format.h"
+
+#include <gtest/gtest.h>
+
+#include <zstd.h>
+
+#include <algorithm>
+#include <cstdlib>
+#include <functional>
+#include <sys/wait.h>
+
+namespace clastrace::traces::testing {
+namespace {
+
+namespace f = clastrace::traces::format;
+
+// Builds a finished trace chunk by chunk: a writer-made file header, crafted chunks, and
+// an index and trailer that list exactly those chunks, so only what a test breaks is wrong.
+class CraftedTrace {
+public:
+    CraftedTrace() {
+        const std::string path = temp_path("hostile_prefix.clt");
+        TraceError e;
+        auto w = TraceWriter::create(path, test_header(), {}, &e);
+        EXPECT_TRUE(w) << e.message;
+        EXPECT_FALSE(w->finish());
+        file_ = read_file(path);
+        file_.resize(f::kFileHeaderSize + f::align8(f::load<uint32_t>(file_.data() + 12)));
+    }
+
+    // A records chunk holding `records` (framed as the writer frames them); its offset.
+    uint64_t add_records(const std::vector<fbs::RecordT>& records) {
+        std::vector<uint8_t> raw;
+        uint32_t submissions = 0;
+        for (const fbs::RecordT& r : records) {
+            if (const auto* c = r.body.AsMemoryContents()) {
+                index_.contents.emplace_back(c->hash, c->bytes.size(), static_cast<uint32_t>(index_.chunks.size()),
+                                             static_cast<uint32_t>(raw.size()));
+            }
+            if (r.body.type == fbs::RecordBody::QueueSubmit) ++submissions;
+            flatbuffers::FlatBufferBuilder b;
+            b.Finish(fbs::Record::Pack(b, &r));
+            frame(raw, b.GetBufferPointer(), b.GetSize(), static_cast<uint32_t>(r.body.type));
+        }
+        return add_raw(raw, static_cast<uint32_t>(records.size()), submissions);
+    }
+
+    // A records chunk of any raw bytes (zeros, broken frames) claiming `records` records.
+    uint64_t add_raw(const std::vector<uint8_t>& raw, uint32_t records, uint32_t submissions = 0) {
+        const uint64_t at = file_.size();
+        f::ChunkHeader h = append_chunk(raw, f::ChunkKind::records, records, submissions_);
+        index_.chunks.emplace_back(at, submissions_, submissions, records, h.raw_size, h.compressed_size);
+        index_.record_count += records;
+        submissions_ += submissions;
+        index_.submission_count = submissions_;
+        return at;
+    }
+
+    // Index chunk and trailer; `edit` may change the index first.
+    std::vector<uint8_t> finish(const std::function<void(fbs::TraceIndexT&)>& edit = {}) {
+        fbs::TraceIndexT index = index_;
+        if (edit) edit(index);
+        flatbuffers::FlatBufferBuilder b;
+        b.Finish(fbs::TraceIndex::Pack(b, &index));
+        std::vector<uint8_t> raw(b.GetBufferPointer(), b.GetBufferPointer() + b.GetSize());
+        std::vector<uint8_t> file = file_;
+        const uint64_t index_at = file.size();
+        append_chunk_to(file, raw, f::ChunkKind::index, 0, index.submission_count,
+                        static_cast<uint32_t>(index.chunks.size()));
+        append_trailer(file, index_at);
+        return file;
+    }
+
+    const std::vector<uint8_t>& file() const { return file_; }
+
+    static void frame(std::vector<uint8_t>& raw, const uint8_t* data, size_t size, uint32_t kind) {
+        uint32_t head[2] = {static_cast<uint32_t>(size), kind};
+        size_t at = raw.size();
+        raw.resize(at + 8 + f::align8(size), 0);
+        std::memcpy(raw.data() + at, head, 8);
+        std::memcpy(raw.data() + at + 8, data, size);
+    }
+
+    static f::ChunkHeader append_chunk_to(std::vector<uint8_t>& file, const std::vector<uint8_t>& raw,
+                                          f::ChunkKind kind, uint32_t records, uint64_t first_submission,
+                                          uint32_t number) {
+        std::vector<uint8_t> compressed(ZSTD_compressBound(raw.size()));
+        size_t n = ZSTD_compress(compressed.data(), compressed.size(), raw.data(), raw.size(), 1);
+        compressed.resize(n);
+        f::ChunkHeader h{};
+        h.magic = f::kChunkMagic;
+        h.kind = static_cast<uint16_t>(kind);
+        h.chunk_number = number;
+        h.record_count = records;
+        h.raw_size = static_cast<uint32_t>(raw.size());
+        h.compressed_size = static_cast<uint32_t>(n);
+        h.first_submission = first_submission;
+        h.payload_checksum = f::checksum(compressed.data(), n);
+        h.header_checksum = f::chunk_header_checksum(h);
+        const size_t at = file.size();
+        file.resize(at + sizeof h);
+        std::memcpy(file.data() + at, &h, sizeof h);
+        file.insert(file.end(), compressed.begin(), compressed.end());
+        return h;
+    }
+
+    static void append_trailer(std::vector<uint8_t>& file, uint64_t index_at) {
+        f::Trailer t{};
+        std::memcpy(t.magic, f::kTrailerMagic, 8);
+        t.index_offset = index_at;
+        t.trailer_offset = file.size();
+        t.checksum = f::trailer_checksum(t);
+        const size_t at = file.size();
+        file.resize(at + sizeof t);
+        std::memcpy(file.data() + at, &t, sizeof t);
+    }
+
+private:
+    f::ChunkHeader append_chunk(const std::vector<uint8_t>& raw, f::ChunkKind kind, uint32_t records,
+                                uint64_t first_submission) {
+        return append_chunk_to(file_, raw, kind, records, first_submission,
+                               static_cast<uint32_t>(index_.chunks.size()));
+    }
+
+    std::vector<uint8_t> file_;
+    fbs::TraceIndexT index_;
+    uint64_t submissions_ = 0;
+};
+
+fbs::RecordT submit(uint64_t index) {
+    fbs::QueueSubmitT q;
+    q.submission_index = index;
+    q.queue = 7;
+    fbs::RecordT r;
+    r.body.Set(std::move(q));
+    return r;
+}
+
+fbs::RecordT contents(std::vector<uint8_t> bytes, bool honest_key = true) {
+    fbs::MemoryContentsT c;
+    c.hash = f::content_key(bytes.data(), bytes.size(), 0, 64) ^ (honest_key ? 0 : 1);
+    c.bytes = std::move(bytes);
+    fbs::RecordT r;
+    r.body.Set(std::move(c));
+    return r;
+}
+
+// Two submissions per chunk, three chunks: the shape the tests below break.
+CraftedTrace three_chunks() {
+    CraftedTrace t;
+    for (uint64_t s = 0; s < 6; s += 2) t.add_records({submit(s), submit(s + 1)});
+    return t;
+}
+
+struct Read {
+    uint64_t records = 0;
+    uint64_t submissions = 0;
+    std::vector<uint64_t> submission_indices;
+    std::vector<TraceError> damage;
+    uint64_t damage_count = 0;
+    TraceReadStats stats;
+};
+
+Read read(const std::vector<uint8_t>& file, TraceReaderOptions options = {.verify_content_keys = true}) {
+    Read out;
+    TraceError e;
+    auto reader = TraceReader::open_memory(file.data(), file.size(), "hostile.clt", &e, options);
+    EXPECT_TRUE(reader) << e.message;
+    if (!reader) return out;
+    RecordView v;
+    while (reader->next(&v)) {
+        ++out.records;
+        if (v.kind == fbs::RecordBody::QueueSubmit) {
+            out.submission_indices.push_back(v.record->body_as_QueueSubmit()->submission_index());
+        }
+    }
+    out.submissions = out.submission_indices.size();
+    out.damage = reader->damage();
+    out.damage_count = reader->damage_count();
+    out.stats = reader->stats();
+    return out;
+}
+
+const TraceError* find_damage(const Read& r, TraceErrorCode code, const std::string& text = {}) {
+    auto it = std::find_if(r.damage.begin(), r.damage.end(), [&](const TraceError& e) {
+        return e.code == code && e.message.find(text) != std::string::npos;
+    });
+    return it == r.damage.end() ? nullptr : &*it;
+}
+
+TEST(HostileTrace, CraftedTraceIsIntact) {
+    Read r = read(three_chunks().finish());
+    EXPECT_EQ(r.damage_count, 0u) << describe(r.damage);
+    EXPECT_EQ(r.submissions, 6u);
+}
+
+TEST(HostileTrace, DefaultBudgetIsSixtyFourTimesTheFileWithAFloor) {
+    EXPECT_EQ(default_raw_budget(1000), kRawBudgetFloorBytes);
+    EXPECT_EQ(default_raw_budget(uint64_t{100} << 20), uint64_t{6400} << 20);
+    EXPECT_EQ(default_raw_budget(UINT64_MAX), UINT64_MAX);
+}
+
+TEST(HostileTrace, ZeroBombChunksStopAtTheDecompressionBudget) {
+    CraftedTrace t;
+    const std::vector<uint8_t> zeros(8u << 20, 0);
+    std::vector<uint64_t> offsets;
+    for (int i = 0; i < 16; ++i) offsets.push_back(t.add_raw(zeros, 1));
+    std::vector<uint8_t> file = t.finish();
+    ASSERT_LT(file.size(), 64u << 10);  // 128 MiB of zeros in a few KiB
+
+    TraceReaderOptions options{.verify_content_keys = true, .max_raw_bytes = 20u << 20};
+    Read r = read(file, options);
+    EXPECT_LE(r.stats.raw_bytes_decompressed, options.max_raw_bytes);
+    EXPECT_EQ(r.stats.raw_budget, options.max_raw_bytes);
+    // Chunks 0 and 1 fit, chunk 2 would pass 20 MiB: reading stops there, said once.
+    const TraceError* over = find_damage(r, TraceErrorCode::length_out_of_range, "past the budget");
+    ASSERT_NE(over, nullptr) << describe(r.damage);
+    EXPECT_EQ(over->file_offset, offsets[2]);
+    EXPECT_NE(over->message.find("chunk 2 would inflate"), std::string::npos) << over->message;
+    EXPECT_NE(over->message.find("--max-raw-mib"), std::string::npos) << over->message;
+    EXPECT_LE(r.damage_count, 12u) << describe(r.damage);
+}
+
+TEST(HostileTrace, ChunkOfZerosCostsAFewProblemsNotOnePerFrame) {
+    CraftedTrace t;
+    const uint64_t zero_chunk = t.add_raw(std::vector<uint8_t>(1u << 20, 0), 1);
+    t.add_records({submit(0)});
+    Read r = read(t.finish());
+    // 131072 frames of size 0 would each fail the verifier: the chunk stops after a few.
+    EXPECT_LE(r.damage_count, 8u) << describe(r.damage);
+    EXPECT_LE(r.stats.records_damaged, 8u);
+    const TraceError* stop = find_damage(r, TraceErrorCode::invalid_record, "broken record frames");
+    ASSERT_NE(stop, nullptr) << describe(r.damage);
+    EXPECT_EQ(stop->file_offset, zero_chunk);
+    EXPECT_NE(stop->message.find("raw bytes of the chunk are skipped"), std::string::npos) << stop->message;
+    EXPECT_EQ(r.submissions, 1u);  // the chunk after it still reads
+}
+
+TEST(HostileTrace, IndexLargerThanTheFileCanNeedIsRefusedBeforeDecompressing) {
+    CraftedTrace t = three_chunks();
+    std::vector<uint8_t> file = t.file();
+    const uint64_t index_at = file.size();
+    f::ChunkHeader h = CraftedTrace::append_chunk_to(file, std::vector<uint8_t>(64, 0), f::ChunkKind::index, 0, 6, 3);
+    h.raw_size = 1u << 30;  // within the format's 1 GiB limit, far past what a small file indexes
+    h.header_checksum = f::chunk_header_checksum(h);
+    std::memcpy(file.data() + index_at, &h, sizeof h);
+    CraftedTrace::append_trailer(file, index_at);
+    Read r = read(file);
+    const TraceError* e = find_damage(r, TraceErrorCode::length_out_of_range, "an index of a file of");
+    ASSERT_NE(e, nullptr) << describe(r.damage);
+    EXPECT_EQ(e->file_offset, index_at + offsetof(f::ChunkHeader, raw_size));
+    EXPECT_LT(r.stats.raw_bytes_decompressed, 1u << 20);
+    EXPECT_EQ(r.submissions, 6u);
+}
+
+TEST(HostileTrace, RecordsChunkRelabelledAsIndexIsDamageAndLaterChunksStillRead) {
+    CraftedTrace t = three_chunks();
+    std::vector<uint8_t> file = t.finish();
+    // Relabel chunk 1 with a consistent header checksum: as an index chunk, then as a kind 1.2 lacks.
+    uint64_t at = f::kFileHeaderSize + f::align8(f::load<uint32_t>(file.data() + 12));
+    f::ChunkHeader h0;
+    std::memcpy(&h0, file.data() + at, sizeof h0);
+    at += f::kChunkHeaderSize + h0.compressed_size;
+    for (uint16_t kind : {uint16_t{2}, uint16_t{3}}) {
+        std::vector<uint8_t> relabelled = file;
+        f::ChunkHeader h;
+        std::memcpy(&h, relabelled.data() + at, sizeof h);
+        h.kind = kind;
+        h.header_checksum = f::chunk_header_checksum(h);
+        std::memcpy(relabelled.data() + at, &h, sizeof h);
+        Read r = read(relabelled);
+        EXPECT_EQ(r.submission_indices, (std::vector<uint64_t>{0, 1, 4, 5})) << "kind " << kind;
+        EXPECT_NE(find_damage(r, TraceErrorCode::bad_index, "that the scan did not read as one"), nullptr)
+            << describe(r.damage);
+        if (kind == 2) {
+            EXPECT_NE(find_damage(r, TraceErrorCode::bad_index, "index chunk here but the trailer points"), nullptr)
+                << describe(r.damage);
+        } else {
+            EXPECT_NE(find_damage(r, TraceErrorCode::bad_chunk, "has kind 3, which format 1.2 does not define"),
+                      nullptr)
+                << describe(r.damage);
+        }
+    }
+}
+
+// ChunkLocation is a FlatBuffers struct without setters: a copy with changed fields.
+struct Location {
+    uint64_t file_offset, first_submission;
+    uint32_t submission_count, record_count, raw_size, compressed_size;
+};
+void edit_location(fbs::ChunkLocation& c, const std::function<void(Location&)>& edit) {
+    Location l{c.file_offset(), c.first_submission(), c.submission_count(), c.record_count(), c.raw_size(),
+               c.compressed_size()};
+    edit(l);
+    c = fbs::ChunkLocation(l.file_offset, l.first_submission, l.submission_count, l.record_count, l.raw_size,
+                           l.compressed_size);
+}
+
+TEST(HostileTrace, IndexDisagreeingWithTheChunksIsBadIndex) {
+    struct Case {
+        const char* name;
+        std::function<void(fbs::TraceIndexT&)> edit;
+        const char* message;
+    };
+    const std::vector<Case> cases = {
+        {"record count", [](fbs::TraceIndexT& i) { edit_location(i.chunks[1], [](Location& l) { l.record_count = 3; }); i.record_count += 1; },
+         "record count 3 in the index, 2 in the chunk"},
+        {"submission count",
+         [](fbs::TraceIndexT& i) {
+             edit_location(i.chunks[1], [](Location& l) { l.submission_count = 3; });
+             edit_location(i.chunks[2], [](Location& l) { l.first_submission = 5; });
+             i.submission_count = 7;
+         },
+         "holds 3 submissions, it holds 2"},
+        {"raw size", [](fbs::TraceIndexT& i) { edit_location(i.chunks[2], [](Location& l) { l.raw_size += 8; }); },
+         "raw size"},
+        {"offset", [](fbs::TraceIndexT& i) { edit_location(i.chunks[2], [](Location& l) { l.file_offset += 8; }); },
+         "is a records chunk the index does not list"},
+        {"totals", [](fbs::TraceIndexT& i) { i.record_count += 5; }, "its totals say"},
+    };
+    for (const Case& c : cases) {
+        Read r = read(three_chunks().finish(c.edit));
+        EXPECT_NE(find_damage(r, TraceErrorCode::bad_index, c.message), nullptr) << c.name << "\n" << describe(r.damage);
+        EXPECT_EQ(r.submissions, 6u) << c.name;
+    }
+}
+
+TEST(HostileTrace, DuplicatedChunkIsSkippedSoNoSubmissionRepeats) {
+    CraftedTrace t = three_chunks();
+    std::vector<uint8_t> file = t.finish();
+    uint64_t first = f::kFileHeaderSize + f::align8(f::load<uint32_t>(file.data() + 12));
+    f::ChunkHeader h0;
+    std::memcpy(&h0, file.data() + first, sizeof h0);
+    const uint64_t second = first + f::kChunkHeaderSize + h0.compressed_size;
+    f::ChunkHeader h1;
+    std::memcpy(&h1, file.data() + second, sizeof h1);
+    const uint64_t third = second + f::kChunkHeaderSize + h1.compressed_size;
+    // chunk 0, chunk 1, chunk 1 again, chunk 0 again, chunk 2 ...
+    std::vector<uint8_t> dup(file.begin(), file.begin() + static_cast<long>(third));
+    dup.insert(dup.end(), file.begin() + static_cast<long>(second), file.begin() + static_cast<long>(third));
+    dup.insert(dup.end(), file.begin() + static_cast<long>(first), file.begin() + static_cast<long>(second));
+    dup.insert(dup.end(), file.begin() + static_cast<long>(third), file.end());
+    Read r = read(dup);
+    EXPECT_EQ(r.submission_indices, (std::vector<uint64_t>{0, 1, 2, 3, 4, 5}));
+    const TraceError* e = find_damage(r, TraceErrorCode::bad_chunk, "records are skipped");
+    ASSERT_NE(e, nullptr) << describe(r.damage);
+    EXPECT_EQ(e->file_offset, third);
+}
+
+TEST(HostileTrace, DamageBeyondTheKeptListIsCountedCheaply) {
+    // 5000 snapshots of undefined contents: each is a problem, only 1000 are kept.
+    std::vector<fbs::RecordT> records;
+    for (int i = 0; i < 5000; ++i) {
+        fbs::CmdCopyBufferT copy;
+        copy.inputs.emplace_back(1, 0, 0x1000, 16, 0x1000u + static_cast<uint64_t>(i));
+        fbs::RecordT r;
+        r.body.Set(std::move(copy));
+        records.push_back(std::move(r));
+    }
+    CraftedTrace t;
+    t.add_records(records);
+    Read r = read(t.finish());
+    EXPECT_EQ(r.damage_count, 5000u);
+    EXPECT_EQ(r.damage.size(), 1000u);
+}
+
+// ---- The CLI's verdict: exit 1 from info, replay and analyze. ----
+
+int exit_code(const std::string& args) {
+    const std::string cmd = std::string(CLASTRACE_BIN) + " " + args + " >/dev/null 2>&1";
+    int status = std::system(cmd.c_str());
+    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+void expect_damage_verdict(const std::vector<uint8_t>& file, const std::string& name) {
+    const std::string path = temp_path(name + ".clt");
+    write_file(path, file);
+    EXPECT_EQ(exit_code("info " + path), 1) << name;
+    EXPECT_EQ(exit_code("replay " + path), 1) << name;
+    EXPECT_EQ(exit_code("analyze " + path), 1) << name;
+}
+
+TEST(HostileTraceCli, IntactCraftedTraceIsClean) {
+    const std::string path = temp_path("crafted_clean.clt");
+    CraftedTrace t;
+    t.add_records({contents({1, 2, 3, 4}), submit(0)});
+    write_file(path, t.finish());
+    EXPECT_EQ(exit_code("info " + path), 0);
+    EXPECT_EQ(exit_code("replay " + path), 0);
+}
+
+TEST(HostileTraceCli, RelabelledChunkIsDamage) {
+    std::vector<uint8_t> file = three_chunks().finish();
+    uint64_t at = f::kFileHeaderSize + f::align8(f::load<uint32_t>(file.data() + 12));
+    f::ChunkHeader h;
+    std::memcpy(&h, file.data() + at, sizeof h);
+    h.kind = 3;
+    h.header_checksum = f::chunk_header_checksum(h);
+    std::memcpy(file.data() + at, &h, sizeof h);
+    expect_damage_verdict(file, "relabelled");
+}
+
+TEST(HostileTraceCli, InconsistentIndexIsDamage) {
+    expect_damage_verdict(three_chunks().finish([](fbs::TraceIndexT& i) { edit_location(i.chunks[0], [](Location& l) { l.raw_size = 1; }); }),
+                          "inconsistent_index");
+}
+
+TEST(HostileTraceCli, ContentsFailingTheirKeyAreDamage) {
+    CraftedTrace t;
+    t.add_records({contents({1, 2, 3, 4}, false), submit(0)});
+    expect_damage_verdict(t.finish(), "content_key");
+}
+
+TEST(HostileTraceCli, DuplicatedChunkIsDamageNotUnreadable) {
+    std::vector<uint8_t> file = three_chunks().finish();
+    uint64_t first = f::kFileHeaderSize + f::align8(f::load<uint32_t>(file.data() + 12));
+    f::ChunkHeader h0;
+    std::memcpy(&h0, file.data() + first, sizeof h0);
+    const uint64_t second = first + f::kChunkHeaderSize + h0.compressed_size;
+    std::vector<uint8_t> dup(file.begin(), file.begin() + static_cast<long>(second));
+    dup.insert(dup.end(), file.begin() + static_cast<long>(first), file.begin() + static_cast<long>(second));
+    dup.insert(dup.end(), file.begin() + static_cast<long>(second), file.end());
+    expect_damage_verdict(dup, "duplicated");
+}
+
+}  // namespace
+}  // namespace clastrace::traces::testing

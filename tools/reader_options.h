@@ -1,0 +1,24 @@
+// The reader options that `info`, `replay` and `analyze` share on their command lines.
+#pragma once
+
+#include <clastrace/traces/trace_reader.h>
+
+#include <CLI/CLI.hpp>
+
+#include <cstdint>
+
+namespace clastrace::tools {
+
+// --max-raw-mib: raises the decompression budget (TraceReaderOptions::max_raw_bytes) for a
+// real trace that inflates more than 64 times its file size.
+inline void add_max_raw_option(CLI::App* command, traces::TraceReaderOptions* options) {
+    command
+        ->add_option_function<uint64_t>(
+            "--max-raw-mib",
+            [options](uint64_t mib) { options->max_raw_bytes = mib > (UINT64_MAX >> 20) ? UINT64_MAX : mib << 20; },
+            "MiB the reader may decompress in all (default: 64 x the file size, at least 1024); a trace that "
+            "inflates past it is reported as damaged")
+        ->check(CLI::PositiveNumber);
+}
+
+}  // namespace clastrace::tools
