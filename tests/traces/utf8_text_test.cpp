@@ -77,6 +77,21 @@ TEST(Utf8Text, EachMaximalIllFormedSubpartBecomesOneReplacementCharacter) {
     }
 }
 
+TEST(Utf8Text, PrefixesDoNotCutACharacter) {
+    const std::string text = "ab\xE2\x82\xAC" "c\xF0\x9F\x98\x80";  // a b € c 😀
+    EXPECT_EQ(utf8_prefix(text, 100), text);
+    EXPECT_EQ(utf8_prefix(text, 2), "ab");
+    EXPECT_EQ(utf8_prefix(text, 3), "ab");
+    EXPECT_EQ(utf8_prefix(text, 4), "ab");
+    EXPECT_EQ(utf8_prefix(text, 5), "ab\xE2\x82\xAC");
+    EXPECT_EQ(utf8_prefix(text, 8), "ab\xE2\x82\xAC" "c");
+    EXPECT_EQ(utf8_prefix(text, 9), "ab\xE2\x82\xAC" "c");
+    EXPECT_EQ(utf8_prefix(text, 10), text);
+    EXPECT_EQ(utf8_prefix("\xF0\x9F\x98\x80", 3), "");
+    EXPECT_EQ(utf8_prefix("caf\xE9 au lait", 4), "caf\xE9");  // ill-formed bytes are cut as bytes
+    EXPECT_EQ(utf8_prefix("\x80\x80\x80\x80\x80", 4), "\x80\x80\x80\x80");
+}
+
 // The JSON output dumps whole documents with nlohmann's `replace` handler: it must follow the
 // same rule, so that a name reads the same in JSON, in HTML and in a trace written today.
 TEST(Utf8Text, NlohmannsReplaceHandlerFollowsTheSameRule) {

@@ -71,4 +71,15 @@ std::string valid_utf8(std::string_view bytes) {
     return text;
 }
 
+std::string_view utf8_prefix(std::string_view text, size_t max_bytes) {
+    if (text.size() <= max_bytes) return text;
+    // A continuation byte right after the cut belongs to a character begun before it: cut
+    // before that character's lead (at most three bytes back; longer runs are no character).
+    size_t cut = max_bytes;
+    const auto continues = [&](size_t i) { return (static_cast<uint8_t>(text[i]) & 0xC0) == 0x80; };
+    for (size_t back = 0; back < 3 && cut > 0 && continues(cut); ++back) --cut;
+    if (continues(cut)) cut = max_bytes;
+    return text.substr(0, cut);
+}
+
 }  // namespace clastrace::traces

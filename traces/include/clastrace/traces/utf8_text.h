@@ -3,6 +3,7 @@
 // a trace and prints as JSON or HTML is UTF-8. One rule turns the first into the second, here.
 #pragma once
 
+#include <cstddef>
 #include <string>
 #include <string_view>
 
@@ -16,5 +17,9 @@ bool is_valid_utf8(std::string_view bytes);
 // practice, which nlohmann::json's error_handler_t::replace follows too, so a JSON document
 // dumped with it agrees with this). Well-formed text comes back unchanged.
 std::string valid_utf8(std::string_view bytes);
+
+// The longest prefix of `text` of at most `max_bytes` bytes that does not cut a character in
+// two (shortened labels and names stay as valid as they were).
+std::string_view utf8_prefix(std::string_view text, size_t max_bytes);
 
 }  // namespace clastrace::traces
