@@ -4,6 +4,7 @@
 // read the trace.
 #include "layer_launch_test.h"
 
+#include <clastrace/traces/trace_reader.h>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
@@ -35,6 +36,15 @@ TEST_F(Latin1Names, TheTraceHoldsTheNamesAsUtf8AndTheToolsReadIt) {
   const std::string trace = (dir / "latin1.clt").string();
   ProcessResult r = run(CLASTRACE_LATIN1_APP, {{"CLASTRACE_OUTPUT", trace}});
   ASSERT_EQ(r.exitCode, 0) << r.err;
+
+  // The trace itself holds UTF-8 (the tools below would repair what it did not).
+  clastrace::traces::TraceError error;
+  auto reader = clastrace::traces::TraceReader::open(trace, &error);
+  ASSERT_TRUE(reader) << error.message;
+  const auto* capture = reader->header()->capture();
+  ASSERT_TRUE(capture && capture->application_name() && capture->engine_name());
+  EXPECT_EQ(capture->application_name()->str(), "caf" + R);
+  EXPECT_EQ(capture->engine_name()->str(), "moteur " + R + "t" + R);
 
   const json info = tool("info", trace, 0);
   EXPECT_EQ(info["header"]["capture"]["application_name"], "caf" + R);
