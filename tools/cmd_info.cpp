@@ -1,5 +1,6 @@
 // clastrace info TRACE [--json]: what a trace holds and whether it is intact.
 #include "commands.h"
+#include "json_output.h"
 #include "reader_options.h"
 
 #include <clastrace/replay/replayer.hpp>
@@ -359,14 +360,14 @@ Command register_info(CLI::App& app) {
                                     {"error", {{"code", traces::trace_error_code_name(error.code)},
                                                {"offset", error.file_offset},
                                                {"message", error.message}}}};
-                std::cout << j.dump(2) << "\n";
+                std::cout << json_text(j) << "\n";
             }
             std::fprintf(stderr, "clastrace info: %s\n", error.message.c_str());
             return kExitUsage;
         }
         TraceSummary summary = summarize(*reader);
         if (options->json) {
-            std::cout << info_json(options->path, *reader, summary).dump(2) << "\n";
+            std::cout << json_text(info_json(options->path, *reader, summary)) << "\n";
         } else {
             print_text(options->path, *reader, summary);
         }

@@ -1,6 +1,7 @@
 // clastrace replay TRACE: re-executes the captured builds, moves and copies on the
 // built-in engine in queue order; reports hazards, broken rules and output mismatches.
 #include "commands.h"
+#include "json_output.h"
 #include "reader_options.h"
 
 #include <clastrace/replay/replayer.hpp>
@@ -70,7 +71,7 @@ int run_replay(const ReplayArgs& args) {
                                 {"error", {{"code", traces::trace_error_code_name(error.code)},
                                            {"offset", error.file_offset},
                                            {"message", error.message}}}};
-            std::cout << j.dump(2) << "\n";
+            std::cout << json_text(j) << "\n";
         } else {
             std::fprintf(stderr, "clastrace replay: %s\n", error.message.c_str());
         }
@@ -91,7 +92,7 @@ int run_replay(const ReplayArgs& args) {
     replay::ReplayReport report = replay::replay_trace(*reader, args.trace, options);
     if (show_progress) std::fprintf(stderr, "\rreplay: done%40s\n", "");
     if (args.json) {
-        std::cout << replay::to_json(report).dump(2) << "\n";
+        std::cout << json_text(replay::to_json(report)) << "\n";
     } else {
         std::cout << replay::format_text(report);
     }

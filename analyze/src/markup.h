@@ -1,12 +1,17 @@
-// Escaping for text that comes from traces (labels, names, messages) into HTML and SVG.
+// Escaping for text that comes from traces (labels, names, messages) into HTML and SVG. The page
+// is UTF-8: bytes that are not (a Latin-1 file name, a label cut inside a character) become
+// U+FFFD first, by the rule the JSON output follows too (traces::valid_utf8).
 #pragma once
+
+#include <clastrace/traces/utf8_text.h>
 
 #include <string>
 #include <string_view>
 
 namespace clastrace::analyze {
 
-inline std::string escape_markup(std::string_view s) {
+inline std::string escape_markup(std::string_view raw) {
+  const std::string s = traces::valid_utf8(raw);
   std::string out;
   out.reserve(s.size());
   for (char c : s) {

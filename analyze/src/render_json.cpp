@@ -308,7 +308,8 @@ void render_json(const AnalysisReport& r, std::ostream& out) {
   j["hazards"] = hazards(r);
   j["timing"] = timing(r);
   j["notes"] = r.notes;
-  // Labels come from traces and may hold invalid UTF-8: replace rather than throw.
+  // Names and labels come from traces and file names and need not be UTF-8: each ill-formed
+  // sequence becomes U+FFFD (traces::valid_utf8's rule) rather than throwing.
   out << j.dump(2, ' ', false, Json::error_handler_t::replace) << '\n';
 }
 

@@ -184,7 +184,7 @@ std::string svg_memory_map(const AnalysisReport& r) {
           escape_markup(g->label), fmtu::hex(g->base), g->size, g->first_command, g->last_command);
       if (pass == 1 && y1 - y0 >= 12 && x1 - x0 >= 70 && !g->label.empty())
         s += format("<text class=\"region-label\" x=\"{:.2f}\" y=\"{:.2f}\">{}</text>\n", x0 + 3, y0 + 11,
-                    escape_markup(g->label.substr(0, static_cast<std::size_t>((x1 - x0) / 6.5))));
+                    escape_markup(traces::utf8_prefix(g->label, static_cast<std::size_t>((x1 - x0) / 6.5))));
     }
   }
   // Hazards and aliasing are always outlined, hazards on top; ordered reuse only while few

@@ -311,7 +311,9 @@ class JsonCaptureSink final : public CaptureSink {
     const std::string temporary = path_ + ".partial";
     std::FILE* file = std::fopen(temporary.c_str(), "wb");
     if (!file) return false;
-    const std::string text = root_.dump(1);
+    // Names and labels the application gave need not be UTF-8: each ill-formed sequence becomes
+    // U+FFFD (traces::valid_utf8's rule), where the default handler would throw in the application.
+    const std::string text = root_.dump(1, ' ', false, json::error_handler_t::replace);
     const bool ok = std::fwrite(text.data(), 1, text.size(), file) == text.size();
     if (std::fclose(file) != 0 || !ok) return false;
     return std::rename(temporary.c_str(), path_.c_str()) == 0;

@@ -6,6 +6,7 @@
 
 #include <clastrace/engine/nv_serialize.h>
 #include <clastrace/engine/nv_trace.h>
+#include <clastrace/traces/utf8_text.h>
 
 #include <algorithm>
 #include <chrono>
@@ -433,7 +434,8 @@ void NvReplay::ray_check(const fbs::RayQueryCheck& check) {
     out.checked = true;
     size_t reported = 0;
     // Labels say how the rays were traced and can be long: the first words name the check.
-    const std::string short_label = out.label.size() > 40 ? out.label.substr(0, 37) + "..." : out.label;
+    const std::string short_label =
+        out.label.size() > 40 ? std::string(traces::utf8_prefix(out.label, 37)) + "..." : out.label;
     for (size_t i = 0; i < n; ++i) {
         const fbs::TracedRay* r = rays->Get(flatbuffers::uoffset_t(i));
         const fbs::RayHitResult* d = results->Get(flatbuffers::uoffset_t(i));

@@ -1,5 +1,6 @@
 #include "clastrace/replay/replay_report.hpp"
 
+#include <clastrace/traces/utf8_text.h>
 #include <nlohmann/json.hpp>
 
 #include <cinttypes>
@@ -110,7 +111,8 @@ std::string format_text(const ReplayReport& r) {
             continue;
         }
         // Labels say how the rays were traced and can be long: the first words name the check.
-        const std::string label = c.label.size() > 40 ? c.label.substr(0, 37) + "..." : c.label;
+        const std::string label =
+            c.label.size() > 40 ? std::string(traces::utf8_prefix(c.label, 37)) + "..." : c.label;
         std::snprintf(line, sizeof line,
                       "  ray check '%s' on %s: %" PRIu64 " rays, agree %" PRIu64 " (%" PRIu64 " hits, %" PRIu64
                       " misses; %" PRIu64 " of the hits within float32 error only), tie %" PRIu64 ", edge %" PRIu64

@@ -28,9 +28,10 @@ std::string hex(const void* data, size_t size) {
   return text;
 }
 
-void ClusterTestDevice::createInstance(const char* applicationName, const std::vector<const char*>& extensions) {
+void ClusterTestDevice::createInstance(const char* applicationName, const std::vector<const char*>& extensions,
+                                       const char* engineName) {
   VkApplicationInfo app{VK_STRUCTURE_TYPE_APPLICATION_INFO, nullptr,
-                        applicationName ? applicationName : program_invocation_short_name, 1, nullptr, 0,
+                        applicationName ? applicationName : program_invocation_short_name, 1, engineName, 0,
                         VK_API_VERSION_1_3};
   VkInstanceCreateInfo info{VK_STRUCTURE_TYPE_INSTANCE_CREATE_INFO, nullptr, 0, &app, 0, nullptr,
                             uint32_t(extensions.size()), extensions.data()};

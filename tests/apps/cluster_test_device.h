@@ -42,8 +42,9 @@ struct ClusterTestDevice {
   std::vector<Buffer> buffers;  // destroyed with the device
 
   // applicationName nullptr: the program's own name. `extensions`: instance extensions a
-  // program needs beyond ours (a window surface's).
-  void createInstance(const char* applicationName = nullptr, const std::vector<const char*>& extensions = {});
+  // program needs beyond ours (a window surface's). engineName nullptr: none.
+  void createInstance(const char* applicationName = nullptr, const std::vector<const char*>& extensions = {},
+                      const char* engineName = nullptr);
   // The device lists the extension at the spec version of our ABI header.
   bool hasClusterExtension() const;
   // presentTo: a surface the queue must also present to; the device then enables VK_KHR_swapchain.

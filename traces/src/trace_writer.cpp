@@ -24,6 +24,7 @@
 #include <zstd.h>
 
 #include "content_hash.h"
+#include "stored_text.h"
 
 namespace clastrace::traces {
 
@@ -345,7 +346,18 @@ struct TraceWriter::Impl {
                                         std::to_string(record->body_as_QueueSubmit()->submission_index()) +
                                         " but the next submission is " + std::to_string(submissions));
         }
+        if (has_invalid_utf8(*record)) return add_repaired_frame(*record, kind);
         return add_frame(data, size, kind);
+    }
+
+    // A record whose strings are not all UTF-8 is stored with them repaired (stored_text.h).
+    TraceError add_repaired_frame(const fbs::Record& record, fbs::RecordBody kind) {
+        fbs::RecordT repaired;
+        record.UnPackTo(&repaired);
+        make_strings_valid_utf8(repaired);
+        flatbuffers::FlatBufferBuilder b(1024);
+        b.Finish(fbs::Record::Pack(b, &repaired));
+        return add_frame(b.GetBufferPointer(), b.GetSize(), kind);
     }
 
     TraceError finish() {
@@ -444,6 +456,7 @@ std::unique_ptr<TraceWriter> TraceWriter::create(const std::string& path, const 
     h.capture->chunk_raw_bytes = options.chunk_raw_bytes;
     h.capture->zstd_level = options.zstd_level;
     h.capture->content_hash_bits = static_cast<uint8_t>(options.content_hash_bits);
+    make_strings_valid_utf8(h);
     flatbuffers::FlatBufferBuilder b;
     b.Finish(fbs::TraceHeader::Pack(b, &h));
     if (b.GetSize() > format::kMaxTraceHeaderBytes) return fail(TraceErrorCode::invalid_argument, "trace header over 16 MiB");

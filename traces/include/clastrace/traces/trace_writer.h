@@ -5,6 +5,9 @@
 //
 // Errors are sticky: once a write fails (disk full, I/O error) every later call and
 // finish() return that error; nothing is lost silently.
+//
+// Every string the writer stores (the header's names, labels, finding texts) is UTF-8: bytes
+// that are not become U+FFFD as they are written (utf8_text.h), whoever built the record.
 #pragma once
 
 #include <clastrace/traces/content_piece.h>
