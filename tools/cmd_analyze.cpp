@@ -22,7 +22,7 @@ struct AnalyzeArgs {
     bool json = false;
     std::string html;
     uint32_t truncation_rebuilds = 8;
-  traces::TraceReaderOptions reader{.verify_content_keys = true};
+    traces::TraceReaderOptions reader{.verify_content_keys = true};
 };
 
 int run_analyze(const AnalyzeArgs& args) {
@@ -72,7 +72,7 @@ Command register_analyze(CLI::App& app) {
                     "saves (one more engine build each; 0: none)")
         ->capture_default_str();
     add_max_raw_option(sub, &args->reader);
-  json->excludes(html);
+    json->excludes(html);
     html->excludes(json);
     return Command{sub, [args] { return run_analyze(*args); }};
 }

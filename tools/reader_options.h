@@ -16,7 +16,7 @@ inline void add_max_raw_option(CLI::App* command, traces::TraceReaderOptions* op
         ->add_option_function<uint64_t>(
             "--max-raw-mib",
             [options](uint64_t mib) { options->max_raw_bytes = mib > (UINT64_MAX >> 20) ? UINT64_MAX : mib << 20; },
-            "MiB the reader may decompress in all (default: 64 x the file size, at least 1024); a trace that "
+            "MiB the reader may decompress in all (default: 1024 x the file size, at least 1024); a trace that "
             "inflates past it is reported as damaged")
         ->check(CLI::PositiveNumber);
 }

@@ -199,9 +199,9 @@ TEST(HostileTrace, CraftedTraceIsIntact) {
     EXPECT_EQ(r.submissions, 6u);
 }
 
-TEST(HostileTrace, DefaultBudgetIsSixtyFourTimesTheFileWithAFloor) {
+TEST(HostileTrace, DefaultBudgetIsThousandTwentyFourTimesTheFileWithAFloor) {
     EXPECT_EQ(default_raw_budget(1000), kRawBudgetFloorBytes);
-    EXPECT_EQ(default_raw_budget(uint64_t{100} << 20), uint64_t{6400} << 20);
+    EXPECT_EQ(default_raw_budget(uint64_t{100} << 20), uint64_t{102400} << 20);
     EXPECT_EQ(default_raw_budget(UINT64_MAX), UINT64_MAX);
 }
 

@@ -282,7 +282,7 @@ struct TraceReader::Impl {
                          what + " would inflate " + std::to_string(compressed.size()) + " bytes to " +
                              std::to_string(h.raw_size) + ", past the budget of " + std::to_string(raw_budget) +
                              " decompressed bytes (" + std::to_string(raw_spent.load()) +
-                             " already spent; default 64 x the file size, at least 1 GiB): the rest of the file is "
+                             " already spent; default 1024 x the file size, at least 1 GiB): the rest of the file is "
                              "not read; raise the budget with --max-raw-mib (TraceReaderOptions::max_raw_bytes)");
             return ChunkStatus::over_budget;
         }
