@@ -2,6 +2,7 @@
 // is replayed, folds it into a report of where the memory and time of its
 // acceleration-structure builds go (docs/analyze.md).
 #include "commands.h"
+#include "trace_error_json.h"
 
 #include <clastrace/analyze/analyzer.h>
 #include <clastrace/analyze/replay_stream.h>
@@ -27,7 +28,11 @@ int run_analyze(const AnalyzeArgs& args) {
     traces::TraceError error;
     std::unique_ptr<traces::TraceReader> reader = traces::TraceReader::open(args.trace, &error);
     if (!reader) {
-        std::fprintf(stderr, "clastrace analyze: %s\n", error.message.c_str());
+        if (args.json) {
+            print_trace_error_json(args.trace, error);
+        } else {
+            std::fprintf(stderr, "clastrace analyze: %s\n", error.message.c_str());
+        }
         return kExitUsage;
     }
     analyze::TraceAnalysis analysis;
