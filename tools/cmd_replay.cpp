@@ -86,11 +86,13 @@ traces::TraceError submission_not_in_trace(const ReplayArgs& args, uint64_t subm
                               : submissions == 1 ? "1 submission (--submit 0)"
                                                  : std::to_string(submissions) + " submissions (--submit 0 to " +
                                                        std::to_string(submissions - 1) + ")";
-    return traces::make_trace_error(
-        traces::TraceErrorCode::invalid_argument, args.trace, 0,
-        "--submit " + std::to_string(args.submit) + ": " +
-            (damaged ? "the readable part of the trace holds " + holds + "; the rest is damaged (clastrace info shows where)"
-                     : "the trace holds " + holds));
+    traces::TraceError error;  // not at a file offset: no "offset 0" in the message
+    error.code = traces::TraceErrorCode::invalid_argument;
+    error.message = args.trace + ": --submit " + std::to_string(args.submit) + ": " +
+                    (damaged ? "the readable part of the trace holds " + holds +
+                                   "; the rest is damaged (clastrace info shows where)"
+                             : "the trace holds " + holds);
+    return error;
 }
 
 int run_replay(const ReplayArgs& args) {
