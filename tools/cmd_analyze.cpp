@@ -3,6 +3,7 @@
 // acceleration-structure builds go (docs/analyze.md).
 #include "commands.h"
 #include "reader_options.h"
+#include "trace_error_json.h"
 
 #include <clastrace/analyze/analyzer.h>
 #include <clastrace/analyze/replay_stream.h>
@@ -29,7 +30,11 @@ int run_analyze(const AnalyzeArgs& args) {
     traces::TraceError error;
     std::unique_ptr<traces::TraceReader> reader = traces::TraceReader::open(args.trace, &error, args.reader);
     if (!reader) {
-        std::fprintf(stderr, "clastrace analyze: %s\n", error.message.c_str());
+        if (args.json) {
+            print_trace_error_json(args.trace, error);
+        } else {
+            std::fprintf(stderr, "clastrace analyze: %s\n", error.message.c_str());
+        }
         return kExitUsage;
     }
     analyze::TraceAnalysis analysis;

@@ -3,12 +3,14 @@
 #include "commands.h"
 #include "json_output.h"
 #include "reader_options.h"
+#include "trace_error_json.h"
 
 #include <clastrace/replay/replayer.hpp>
 #include <clastrace/traces/trace_reader.h>
 
 #include <nlohmann/json.hpp>
 
+#include <charconv>
 #include <chrono>
 #include <cstdio>
 #include <iostream>
@@ -19,6 +21,9 @@
 namespace clastrace::tools {
 
 namespace {
+
+// Findings kept in memory at most (each holds its message text); more are counted.
+constexpr uint64_t kMostFindingsKept = 1'000'000;
 
 struct ReplayArgs {
     std::string trace;
@@ -52,6 +57,47 @@ bool parse_ops(const std::string& text, uint64_t* first, uint64_t* last) {
     }
 }
 
+// CLI11's own range checks print their bounds in full, and the largest double has 309 digits.
+CLI::Validator whole_number_from(uint64_t least, uint64_t most, const std::string& what) {
+    return CLI::Validator(
+        [=](std::string& text) -> std::string {
+            uint64_t value = 0;
+            const char* end = text.data() + text.size();
+            auto [stop, ec] = std::from_chars(text.data(), end, value);
+            if (ec != std::errc{} || stop != end || value < least || value > most) {
+                return "takes " + what + ", a whole number from " + std::to_string(least) + " to " +
+                       std::to_string(most) + ", not '" + text + "'";
+            }
+            return {};
+        },
+        std::to_string(least) + ".." + std::to_string(most));
+}
+
+int refuse(const ReplayArgs& args, const traces::TraceError& error) {
+    if (args.json) {
+        print_trace_error_json(args.trace, error);
+    } else {
+        std::fprintf(stderr, "clastrace replay: %s\n", error.message.c_str());
+    }
+    return kExitUsage;
+}
+
+// --submit K names a submission the trace does not hold: say how many it holds rather
+// than replay nothing and call that clean.
+traces::TraceError submission_not_in_trace(const ReplayArgs& args, uint64_t submissions, bool damaged) {
+    const std::string holds = submissions == 0 ? "no submissions"
+                              : submissions == 1 ? "1 submission (--submit 0)"
+                                                 : std::to_string(submissions) + " submissions (--submit 0 to " +
+                                                       std::to_string(submissions - 1) + ")";
+    traces::TraceError error;  // not at a file offset: no "offset 0" in the message
+    error.code = traces::TraceErrorCode::invalid_argument;
+    error.message = args.trace + ": --submit " + std::to_string(args.submit) + ": " +
+                    (damaged ? "the readable part of the trace holds " + holds +
+                                   "; the rest is damaged (clastrace info shows where)"
+                             : "the trace holds " + holds);
+    return error;
+}
+
 int run_replay(const ReplayArgs& args) {
     replay::ReplayOptions options;
     options.check_hazards = !args.no_hazards;
@@ -65,17 +111,11 @@ int run_replay(const ReplayArgs& args) {
     }
     traces::TraceError error;
     std::unique_ptr<traces::TraceReader> reader = traces::TraceReader::open(args.trace, &error, args.reader);
-    if (!reader) {
-        if (args.json) {
-            nlohmann::json j = {{"trace", args.trace},
-                                {"error", {{"code", traces::trace_error_code_name(error.code)},
-                                           {"offset", error.file_offset},
-                                           {"message", error.message}}}};
-            std::cout << json_text(j) << "\n";
-        } else {
-            std::fprintf(stderr, "clastrace replay: %s\n", error.message.c_str());
-        }
-        return kExitUsage;
+    if (!reader) return refuse(args, error);
+    // A finished trace's index says how many submissions it holds; an unfinished one is
+    // counted by the replay itself (below).
+    if (args.submit >= 0 && reader->has_index() && uint64_t(args.submit) >= reader->indexed_submission_count()) {
+        return refuse(args, submission_not_in_trace(args, reader->indexed_submission_count(), false));
     }
     const bool show_progress = args.progress || isatty(STDERR_FILENO);
     if (show_progress) {
@@ -91,6 +131,9 @@ int run_replay(const ReplayArgs& args) {
     }
     replay::ReplayReport report = replay::replay_trace(*reader, args.trace, options);
     if (show_progress) std::fprintf(stderr, "\rreplay: done%40s\n", "");
+    if (args.submit >= 0 && uint64_t(args.submit) >= report.counts.submissions) {
+        return refuse(args, submission_not_in_trace(args, report.counts.submissions, !report.trace_damage.empty()));
+    }
     if (args.json) {
         std::cout << json_text(replay::to_json(report)) << "\n";
     } else {
@@ -111,12 +154,15 @@ Command register_replay(CLI::App& app) {
     sub->add_option("TRACE", args->trace, "the .clt trace")->required();
     sub->add_flag("--json", args->json, "print one JSON object (docs/replay.md)");
     sub->add_option("--ops", args->ops, "replay only commands N..M (execution sequence numbers, as printed [#N])");
-    sub->add_option("--submit", args->submit, "replay only the commands of submission K")->check(CLI::NonNegativeNumber);
+    sub->add_option("--submit", args->submit, "replay only the commands of submission K (0 is the first)")
+        ->check(whole_number_from(0, UINT32_MAX, "a submission number"));
     sub->add_flag("--no-hazards", args->no_hazards, "skip the synchronization model");
     sub->add_flag("--no-verify", args->no_verify, "skip comparing captured outputs with the engine's");
     sub->add_flag("--progress", args->progress, "progress on stderr even when it is not a terminal");
-    sub->add_option("--max-findings", args->max_findings, "findings and hazards kept (the rest are counted)")
-        ->check(CLI::PositiveNumber);
+    sub->add_option("--max-findings", args->max_findings,
+                    "findings and hazards kept, 1 to " + std::to_string(kMostFindingsKept) + " (the rest are counted)")
+        ->check(whole_number_from(1, kMostFindingsKept, "the number of findings kept"))
+        ->capture_default_str();
     add_max_raw_option(sub, &args->reader);
     return Command{sub, [args] { return run_replay(*args); }};
 }

@@ -52,10 +52,22 @@ private:
     const uint8_t* data_;
 };
 
+// What a path names when it is not a regular file, for the refusal.
+const char* file_kind(mode_t mode) {
+    if (S_ISDIR(mode)) return "a directory";
+    if (S_ISFIFO(mode)) return "a FIFO or pipe";
+    if (S_ISCHR(mode)) return "a character device";
+    if (S_ISBLK(mode)) return "a block device";
+    if (S_ISSOCK(mode)) return "a socket";
+    return "neither file, directory nor device";
+}
+
 }  // namespace
 
 std::unique_ptr<ByteSource> open_file_source(const std::string& path, std::string* error) {
-    int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+    // O_NONBLOCK: opening a FIFO that has no writer would otherwise wait for one forever.
+    // Regular files ignore the flag, and nothing else is read.
+    int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK);
     if (fd < 0) {
         *error = std::strerror(errno);
         return nullptr;
@@ -66,8 +78,11 @@ std::unique_ptr<ByteSource> open_file_source(const std::string& path, std::strin
         ::close(fd);
         return nullptr;
     }
-    if (S_ISDIR(st.st_mode)) {
-        *error = "is a directory";
+    // A pipe, FIFO or device has no size to seek in (pread fails or /dev/zero never ends),
+    // so it would be misread as an empty or endless file.
+    if (!S_ISREG(st.st_mode)) {
+        *error = std::string("not a regular file (") + file_kind(st.st_mode) +
+                 "): clastrace reads traces from regular files";
         ::close(fd);
         return nullptr;
     }

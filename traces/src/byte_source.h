@@ -22,7 +22,8 @@ protected:
     uint64_t size_ = 0;
 };
 
-// nullptr with *error (errno text) when the file cannot be opened.
+// nullptr with *error (errno text, or why it is refused) when the file cannot be opened
+// or is not a regular file.
 std::unique_ptr<ByteSource> open_file_source(const std::string& path, std::string* error);
 std::unique_ptr<ByteSource> memory_source(const uint8_t* data, size_t size);
 

@@ -1,6 +1,6 @@
-// libFuzzer target: one cluster command whose every field and whose srcInfosArray bytes come
-// from the fuzzer, written as a valid trace, replayed end to end (translation, engine,
-// verification, sync model). Build: -DCLASTRACE_FUZZ=ON with clang.
+// Fuzz target (docs/fuzzing.md): one cluster command whose every field and whose
+// srcInfosArray bytes come from the fuzzer, written as a valid trace, replayed end to end
+// (translation, engine, verification, sync model).
 #include <clastrace/replay/replayer.hpp>
 #include <clastrace/traces/trace_reader.h>
 #include <clastrace/traces/trace_writer.h>

@@ -1,4 +1,4 @@
-// libFuzzer target (clang only): arbitrary bytes become a whole command and the memory
+// Fuzz target (docs/fuzzing.md): arbitrary bytes become a whole command and the memory
 // it reads. The first bytes pick the op type, mode, flags, counts, strides and limits;
 // every address field points into the fuzzed memory (or at 0 / past it). execute() must
 // never crash, hang or allocate in proportion to a count rather than to memory.

@@ -1,4 +1,4 @@
-// libFuzzer target (clang only): arbitrary bytes as an engine object at a device address,
+// Fuzz target (docs/fuzzing.md): arbitrary bytes as an engine object at a device address,
 // checked, traced, instantiated from and asked for its template indices. Nothing may
 // crash, hang or read outside the bytes given.
 #include "clastrace/engine/cluster_build.h"

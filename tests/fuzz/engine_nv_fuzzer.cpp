@@ -1,4 +1,4 @@
-// libFuzzer target (clang only): arbitrary bytes become a bottom-level build (geometry
+// Fuzz target (docs/fuzzing.md): arbitrary bytes become a bottom-level build (geometry
 // type, counts, format, index type, stride from the first bytes, inputs from the rest),
 // a top-level build over it with fuzzed instance records, a deserialization of fuzzed
 // serialized data, and a few rays through whatever was built. Nothing may crash, hang, or
