@@ -1,5 +1,6 @@
 #include "clastrace/capture/capture_sink.h"
 
+#include <clastrace/traces/output_file.h>
 #include <nlohmann/json.hpp>
 
 #include <atomic>
@@ -301,20 +302,12 @@ class JsonCaptureSink final : public CaptureSink {
 
   // One message for the first failed write; from then on the capture stops (active() false).
   void writeOrReportLocked() {
-    if (writeLocked() || failed_) return;
+    if (failed_) return;
+    std::string error;
+    if (traces::write_output_file(path_, root_.dump(1), &error)) return;
     failed_ = true;
-    std::fprintf(stderr, "clastrace: capture stopped: cannot write '%s': %s; the application continues without "
-                 "capture\n", path_.c_str(), std::strerror(errno));
-  }
-
-  bool writeLocked() {
-    const std::string temporary = path_ + ".partial";
-    std::FILE* file = std::fopen(temporary.c_str(), "wb");
-    if (!file) return false;
-    const std::string text = root_.dump(1);
-    const bool ok = std::fwrite(text.data(), 1, text.size(), file) == text.size();
-    if (std::fclose(file) != 0 || !ok) return false;
-    return std::rename(temporary.c_str(), path_.c_str()) == 0;
+    std::fprintf(stderr, "clastrace: capture stopped: %s; the application continues without capture\n",
+                 error.c_str());
   }
 
  private:
@@ -332,14 +325,9 @@ class JsonCaptureSink final : public CaptureSink {
 }  // namespace
 
 std::unique_ptr<CaptureSink> makeJsonCaptureSink(const std::string& path, std::string& error) {
-  auto sink = std::make_unique<JsonCaptureSink>(path);
-  std::FILE* probe = std::fopen(path.c_str(), "wb");
-  if (!probe) {
-    error = "cannot write '" + path + "': " + std::strerror(errno);
-    return nullptr;
-  }
-  std::fclose(probe);
-  return sink;
+  // Checked without creating or emptying anything: the dump replaces the file whole when written.
+  if (!traces::probe_output(path, &error)) return nullptr;
+  return std::make_unique<JsonCaptureSink>(path);
 }
 
 }  // namespace clastrace::capture
