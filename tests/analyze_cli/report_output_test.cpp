@@ -2,6 +2,7 @@
 // a symbolic link keeps being a link to the new report, a device stays a device.
 #include <gtest/gtest.h>
 
+#include <fcntl.h>
 #include <sys/stat.h>
 #include <sys/sysmacros.h>
 #include <sys/wait.h>
@@ -53,7 +54,11 @@ TEST(AnalyzeReportOutput, HtmlThroughASymbolicLinkReplacesTheTargetAndKeepsTheLi
 // replace the system's /dev/null), else /dev/null itself (which a non-root run cannot replace).
 fs::path null_device(const fs::path& dir) {
     const fs::path own = dir / "null";
-    return ::mknod(own.c_str(), S_IFCHR | 0666, makedev(1, 3)) == 0 ? own : fs::path("/dev/null");
+    if (::mknod(own.c_str(), S_IFCHR | 0666, makedev(1, 3)) != 0) return "/dev/null";
+    const int fd = ::open(own.c_str(), O_WRONLY);  // a file system mounted nodev refuses it
+    if (fd < 0) return "/dev/null";
+    ::close(fd);
+    return own;
 }
 
 TEST(AnalyzeReportOutput, HtmlToANullDeviceLeavesTheDevice) {

@@ -8,6 +8,7 @@
 #include <clastrace/traces/trace_reader.h>
 #include <gtest/gtest.h>
 
+#include <fcntl.h>
 #include <spawn.h>
 #include <sys/stat.h>
 #include <sys/sysmacros.h>
@@ -140,7 +141,9 @@ TEST_F(CaptureOutput, MalformedSubmitRangeStopsBeforeTheApplicationRuns) {
 // failed, and the launcher's line does not contradict it ("was not written" / "wrote").
 TEST_F(CaptureOutput, FullDeviceGetsOneFailureAndNoContradiction) {
   fs::path device = dir / "full";
-  if (::mknod(device.c_str(), S_IFCHR | 0666, makedev(1, 7)) != 0) device = "/dev/full";
+  const int probe = ::mknod(device.c_str(), S_IFCHR | 0666, makedev(1, 7)) == 0 ? ::open(device.c_str(), O_WRONLY) : -1;
+  if (probe < 0) device = "/dev/full";  // not root, or a file system mounted nodev
+  else ::close(probe);
   ProcessResult r = run(cli("-o " + device.string() + " -- " + framesApp("frames 2 --clusters 8")), {}, false);
   EXPECT_EQ(r.exitCode, 0) << r.err;
   EXPECT_EQ(count(r.err, "No space left on device"), 1u) << r.err;

@@ -109,7 +109,11 @@ TEST(OutputFile, FifoIsWrittenInPlaceAndStaysAFifo) {
 // replace the system's /dev/null), else /dev/null itself (which a non-root run cannot replace).
 std::string own_device(const std::string& dir, const std::string& name, unsigned minor) {
     const std::string own = dir + "/" + name;
-    return ::mknod(own.c_str(), S_IFCHR | 0666, makedev(1, minor)) == 0 ? own : "/dev/" + name;
+    if (::mknod(own.c_str(), S_IFCHR | 0666, makedev(1, minor)) != 0) return "/dev/" + name;
+    const int fd = ::open(own.c_str(), O_WRONLY);  // a file system mounted nodev refuses it
+    if (fd < 0) return "/dev/" + name;
+    ::close(fd);
+    return own;
 }
 std::string null_device(const std::string& dir) { return own_device(dir, "null", 3); }
 
