@@ -63,13 +63,15 @@ std::string open_failure(const std::string& named, const OutputTarget& target, i
     return named + system_reason(err);
 }
 
+// Only a lock held elsewhere refuses: where the file system has no flock (ENOLCK), the output
+// is written unguarded rather than not at all.
 bool lock_exclusive(int fd, const std::string& named, std::string* error) {
     while (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
         if (errno == EINTR) continue;
         if (errno == EWOULDBLOCK) {
             return fail(error, named + "another process (another capture?) is writing it and holds its lock");
         }
-        return fail(error, named + "cannot lock it: " + system_reason(errno));
+        return true;
     }
     return true;
 }
@@ -78,7 +80,8 @@ bool lock_exclusive(int fd, const std::string& named, std::string* error) {
 int create_temporary(const std::string& target, std::string* temporary) {
     static std::atomic<unsigned> counter{0};
     const std::string dir = directory_of(target);
-    const std::string base = target.substr(target.rfind('/') == std::string::npos ? 0 : target.rfind('/') + 1);
+    const size_t slash = target.rfind('/');
+    const std::string base = slash == std::string::npos ? target : target.substr(slash + 1);
     for (int attempt = 0; attempt < 100; ++attempt) {
         *temporary = dir + "/." + base + ".clastrace-" + std::to_string(::getpid()) + "-" +
                      std::to_string(counter.fetch_add(1)) + ".tmp";
