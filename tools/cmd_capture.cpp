@@ -2,6 +2,8 @@
 // enabled through the Vulkan loader's environment variables, and reports what it wrote.
 #include "commands.h"
 
+#include <fcntl.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -12,6 +14,8 @@
 #include <filesystem>
 #include <string>
 #include <vector>
+
+#include <clastrace/traces/output_file.h>
 
 namespace clastrace::tools {
 namespace {
@@ -54,25 +58,120 @@ void prependList(const char* variable, const std::string& value) {
   setenv(variable, joined.c_str(), 1);
 }
 
+// Where execvp would find `name`: a path as given, else the first PATH entry holding an
+// executable regular file. Empty, with *error, when the application could not be started.
+std::string findProgram(const std::string& name, std::string* error) {
+  auto runnable = [](const std::string& path, int* err) {
+    struct stat st {};
+    if (::stat(path.c_str(), &st) != 0) *err = errno;
+    else if (!S_ISREG(st.st_mode)) *err = S_ISDIR(st.st_mode) ? EISDIR : EACCES;
+    else if (::access(path.c_str(), X_OK) != 0) *err = errno;
+    else return true;
+    return false;
+  };
+  int err = ENOENT;
+  if (name.find('/') != std::string::npos) {
+    if (runnable(name, &err)) return name;
+  } else if (!name.empty()) {
+    const char* path = std::getenv("PATH");
+    const std::string entries = path ? path : "/bin:/usr/bin";
+    for (size_t at = 0; at <= entries.size();) {
+      const size_t colon = std::min(entries.find(':', at), entries.size());
+      const std::string dir = colon == at ? "." : entries.substr(at, colon - at);
+      int candidateErr = 0;
+      if (runnable(dir + "/" + name, &candidateErr)) return dir + "/" + name;
+      if (candidateErr != ENOENT && candidateErr != ENOTDIR) err = candidateErr;  // as execvp: EACCES wins
+      at = colon + 1;
+    }
+    if (err == ENOENT) {
+      *error = "cannot run '" + name + "': no such program on PATH";
+      return {};
+    }
+  }
+  *error = "cannot run '" + name + "': " + std::strerror(err);
+  return {};
+}
+
+// The output while the application runs: opened and locked (traces/output_file.h) by this
+// process and handed down to the layer (CLASTRACE_OUTPUT_FD), so that a second capture of the
+// same path is refused before its application starts, and the final line can tell what the
+// capture did to the file.
+struct HeldOutput {
+  int fd = -1;
+  traces::OutputTarget target;
+  bool created = false;      // absent before: removed again when nothing was written
+  struct stat before {};     // a regular file's state before the application ran
+
+  bool isFile() const { return target.kind == traces::OutputKind::absent || target.kind == traces::OutputKind::regular; }
+  bool hadTrace() const { return !created && target.kind == traces::OutputKind::regular && before.st_size > 0; }
+
+  // Removes a file this run created and nobody wrote, then lets the lock go.
+  void release() {
+    struct stat now {};
+    if (created && ::fstat(fd, &now) == 0 && now.st_size == 0) ::unlink(target.path.c_str());
+    if (fd >= 0) ::close(fd);
+    fd = -1;
+  }
+};
+
+// The last line of a capture: what happened to the output.
+void reportOutput(const std::string& path, HeldOutput& held) {
+  if (!held.isFile()) {
+    std::fprintf(stderr,
+                 "clastrace capture: the trace went to %s '%s' as it was written (a device or FIFO keeps no "
+                 "size to check here; a write it refused is reported above)\n",
+                 traces::output_kind_name(held.target.kind), path.c_str());
+    return;
+  }
+  struct stat after {};
+  ::fstat(held.fd, &after);
+  const bool untouched = held.hadTrace() && after.st_size == held.before.st_size &&
+                         after.st_mtim.tv_sec == held.before.st_mtim.tv_sec &&
+                         after.st_mtim.tv_nsec == held.before.st_mtim.tv_nsec;
+  if (untouched)
+    std::fprintf(stderr, "clastrace capture: '%s' was not written; the earlier trace there is kept (did the "
+                 "application create a Vulkan device?)\n", path.c_str());
+  else if (after.st_size == 0)
+    std::fprintf(stderr, "clastrace capture: '%s' was not written (did the application create a Vulkan device?)\n",
+                 path.c_str());
+  else
+    std::fprintf(stderr, "clastrace capture: wrote '%s' (%llu bytes)%s\n", path.c_str(),
+                 (unsigned long long)after.st_size, held.hadTrace() ? ", replacing the earlier trace there" : "");
+}
+
 int runCapture(const CaptureOptions& o) {
+  if (o.output.empty()) {
+    std::fprintf(stderr, "clastrace capture: -o names no file (the name is empty)\n");
+    return kExitUsage;
+  }
   if (o.command.empty()) {
     std::fprintf(stderr, "clastrace capture: no application given (put it after --)\n");
     return kExitUsage;
   }
-  const fs::path output = fs::absolute(o.output);
+  std::string problem;
+  if (findProgram(o.command[0], &problem).empty()) {
+    std::fprintf(stderr, "clastrace capture: %s\n", problem.c_str());
+    return kExitUsage;
+  }
+  std::error_code ec;
+  const std::string output = fs::absolute(o.output, ec).string();
+  HeldOutput held;
   if (!o.noCapture) {
-    std::FILE* probe = std::fopen(output.c_str(), "wb");
-    if (!probe) {
-      std::fprintf(stderr, "clastrace capture: cannot write '%s': %s\n", output.c_str(), std::strerror(errno));
+    held.fd = traces::open_output_in_place(output, &held.target, &problem);
+    if (held.fd < 0) {
+      std::fprintf(stderr, "clastrace capture: %s\n", problem.c_str());
       return kExitUsage;
     }
-    std::fclose(probe);
+    held.created = held.target.kind == traces::OutputKind::absent;
+    ::fstat(held.fd, &held.before);
   }
   const std::string manifestDir = o.layerPath.empty() ? findManifestDir() : o.layerPath;
   if (!manifestDir.empty()) prependList("VK_ADD_LAYER_PATH", manifestDir);
   const char* layers = std::getenv("VK_INSTANCE_LAYERS");
   if (!layers || !std::strstr(layers, kLayerName)) prependList("VK_INSTANCE_LAYERS", kLayerName);
   setenv("CLASTRACE_OUTPUT", output.c_str(), 1);
+  if (held.fd >= 0) setenv("CLASTRACE_OUTPUT_FD", std::to_string(held.fd).c_str(), 1);
+  else unsetenv("CLASTRACE_OUTPUT_FD");
   setenv("CLASTRACE_CAPTURE", o.noCapture ? "0" : "1", 1);
   setenv("CLASTRACE_SERVE", o.serve.c_str(), 1);
   setenv("CLASTRACE_ZSTD_LEVEL", std::to_string(o.zstdLevel).c_str(), 1);
@@ -87,37 +186,53 @@ int runCapture(const CaptureOptions& o) {
   std::vector<char*> argv;
   for (const std::string& a : o.command) argv.push_back(const_cast<char*>(a.c_str()));
   argv.push_back(nullptr);
+  // The child reports a failed exec through this close-on-exec pipe: a successful exec closes
+  // it unwritten.
+  int execReport[2];
+  if (::pipe2(execReport, O_CLOEXEC) != 0) {
+    std::fprintf(stderr, "clastrace capture: cannot start '%s': %s\n", argv[0], std::strerror(errno));
+    held.release();
+    return kExitUsage;
+  }
   const pid_t child = fork();
   if (child < 0) {
-    std::fprintf(stderr, "clastrace capture: fork failed: %s\n", std::strerror(errno));
+    std::fprintf(stderr, "clastrace capture: cannot start '%s': fork failed: %s\n", argv[0], std::strerror(errno));
+    held.release();
     return kExitUsage;
   }
   if (child == 0) {
+    if (held.fd >= 0) ::fcntl(held.fd, F_SETFD, 0);  // the layer takes it over
     execvp(argv[0], argv.data());
-    std::fprintf(stderr, "clastrace capture: cannot run '%s': %s\n", argv[0], std::strerror(errno));
+    const int err = errno;
+    [[maybe_unused]] ssize_t n = ::write(execReport[1], &err, sizeof err);
     _exit(127);
   }
+  ::close(execReport[1]);
+  int execErr = 0;
+  ssize_t got;
+  while ((got = ::read(execReport[0], &execErr, sizeof execErr)) < 0 && errno == EINTR) {
+  }
+  ::close(execReport[0]);
   int status = 0;
   while (waitpid(child, &status, 0) < 0 && errno == EINTR) {
   }
-  const int code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-  std::error_code ec;
-  if (!o.noCapture) {
-    const auto size = fs::file_size(output, ec);
-    if (ec || size == 0)
-      std::fprintf(stderr, "clastrace capture: '%s' was not written (did the application create a Vulkan device?)\n",
-                   output.c_str());
-    else
-      std::fprintf(stderr, "clastrace capture: wrote '%s' (%llu bytes)\n", output.c_str(), (unsigned long long)size);
+  if (got == sizeof execErr) {
+    std::fprintf(stderr, "clastrace capture: cannot run '%s': %s\n", argv[0], std::strerror(execErr));
+    held.release();
+    return kExitUsage;
   }
+  const int code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  if (!o.noCapture) reportOutput(output, held);
+  held.release();
   return code;  // the application's own exit code
 }
 
-// The layer's syntax (capture/src/layer_config.cpp): checked here too, so a typo stops before
-// the application runs instead of capturing every frame.
-CLI::Validator frameRangeValidator() {
+// The layer's syntax of CLASTRACE_SUBMIT_RANGE and CLASTRACE_FRAME_RANGE
+// (capture/src/layer_config.cpp): checked here too, so a typo stops before the application runs
+// instead of capturing everything. `what`: "frame" or "submission".
+CLI::Validator indexRangeValidator(const std::string& what) {
   return CLI::Validator(
-      [](std::string& text) -> std::string {
+      [what](std::string& text) -> std::string {
         auto number = [](const std::string& t) {
           return !t.empty() && t.size() <= 19 && t.find_first_not_of("0123456789") == std::string::npos;
         };
@@ -127,7 +242,7 @@ CLI::Validator frameRangeValidator() {
         bool ok = number(first) && (last.empty() || number(last));
         if (ok && !last.empty() && std::stoull(last) < std::stoull(first)) ok = false;
         if (dash == std::string::npos && !number(first)) ok = false;
-        return ok ? std::string() : "'" + text + "' is not a frame range: N, A-B (A <= B) or A-";
+        return ok ? std::string() : "'" + text + "' is not a " + what + " range: N, A-B (A <= B) or A-";
       },
       "N|A-B|A-");
 }
@@ -165,14 +280,20 @@ Command register_capture(CLI::App& app) {
   CLI::App* sub = app.add_subcommand(
       "capture",
       "Run an application with the capture layer and write its cluster builds to a .clt trace.\n"
-      "Exit code: the application's (2 when it could not be started or the output is unwritable).");
+      "Exit code: the application's; 2, with one line and before the application starts, when it cannot be run, "
+      "an option is malformed or the output is refused (empty name, unwritable, a directory, block device or "
+      "socket, or locked by another capture).\n"
+      "The trace is written in place under a lock: an earlier file is emptied only when the application creates "
+      "its first Vulkan device; a symbolic link's target is written; a character device or FIFO is written as it "
+      "is. The last line says what happened to the output.");
   sub->add_option("-o,--output", options->output, "trace to write (.clt)")->required();
-  sub->add_option("--submit-range", options->submitRange, "queue submissions to capture: N, A-B or A- (0-based)");
+  sub->add_option("--submit-range", options->submitRange, "queue submissions to capture: N, A-B or A- (0-based)")
+      ->check(indexRangeValidator("submission"));
   sub->add_option("--frames", options->frames,
                   "frames to capture: N, A-B or A- (0-based; frame N is what is submitted after the N-th "
                   "vkQueuePresentKHR and up to the next). With --submit-range too, a submission is captured only "
                   "when it is in both")
-      ->check(frameRangeValidator());
+      ->check(indexRangeValidator("frame"));
   sub->add_option("--zstd-level", options->zstdLevel,
                   "zstd level of the trace's chunks: 1..22, or a fast level -1..-100 (faster, larger)")
       ->check(CLI::Range(-100, 22) &

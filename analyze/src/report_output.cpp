@@ -1,10 +1,9 @@
 #include "clastrace/analyze/report_output.h"
 
-#include <cerrno>
-#include <cstdio>
-#include <cstring>
-#include <fstream>
 #include <iostream>
+#include <sstream>
+
+#include <clastrace/traces/output_file.h>
 
 #include "clastrace/analyze/render.h"
 
@@ -32,28 +31,11 @@ bool write_report(const AnalysisReport& report, ReportFormat format, const std::
     }
     return true;
   }
-  // Write next to the target, then rename: a failed run never leaves a truncated report.
-  const std::string partial = path + ".partial";
-  {
-    std::ofstream out(partial, std::ios::binary | std::ios::trunc);
-    if (!out) {
-      if (error) *error = partial + ": cannot create: " + std::strerror(errno);
-      return false;
-    }
-    render(report, format, out);
-    out.flush();
-    if (!out) {
-      if (error) *error = partial + ": write failed: " + std::strerror(errno);
-      std::remove(partial.c_str());
-      return false;
-    }
-  }
-  if (std::rename(partial.c_str(), path.c_str()) != 0) {
-    if (error) *error = path + ": cannot replace with the new report: " + std::strerror(errno);
-    std::remove(partial.c_str());
-    return false;
-  }
-  return true;
+  // The output-file rule (traces/output_file.h): a report replaces a regular file only whole,
+  // and never replaces a device, FIFO or symbolic link.
+  std::ostringstream out;
+  render(report, format, out);
+  return traces::write_output_file(path, out.view(), error);
 }
 
 }  // namespace clastrace::analyze

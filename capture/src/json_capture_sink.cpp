@@ -1,5 +1,6 @@
 #include "clastrace/capture/capture_sink.h"
 
+#include <clastrace/traces/output_file.h>
 #include <nlohmann/json.hpp>
 
 #include <atomic>
@@ -301,22 +302,14 @@ class JsonCaptureSink final : public CaptureSink {
 
   // One message for the first failed write; from then on the capture stops (active() false).
   void writeOrReportLocked() {
-    if (writeLocked() || failed_) return;
-    failed_ = true;
-    std::fprintf(stderr, "clastrace: capture stopped: cannot write '%s': %s; the application continues without "
-                 "capture\n", path_.c_str(), std::strerror(errno));
-  }
-
-  bool writeLocked() {
-    const std::string temporary = path_ + ".partial";
-    std::FILE* file = std::fopen(temporary.c_str(), "wb");
-    if (!file) return false;
+    if (failed_) return;
+    std::string error;
     // Names and labels the application gave need not be UTF-8: each ill-formed sequence becomes
     // U+FFFD (traces::valid_utf8's rule), where the default handler would throw in the application.
-    const std::string text = root_.dump(1, ' ', false, json::error_handler_t::replace);
-    const bool ok = std::fwrite(text.data(), 1, text.size(), file) == text.size();
-    if (std::fclose(file) != 0 || !ok) return false;
-    return std::rename(temporary.c_str(), path_.c_str()) == 0;
+    if (traces::write_output_file(path_, root_.dump(1, ' ', false, json::error_handler_t::replace), &error)) return;
+    failed_ = true;
+    std::fprintf(stderr, "clastrace: capture stopped: %s; the application continues without capture\n",
+                 error.c_str());
   }
 
  private:
@@ -334,14 +327,9 @@ class JsonCaptureSink final : public CaptureSink {
 }  // namespace
 
 std::unique_ptr<CaptureSink> makeJsonCaptureSink(const std::string& path, std::string& error) {
-  auto sink = std::make_unique<JsonCaptureSink>(path);
-  std::FILE* probe = std::fopen(path.c_str(), "wb");
-  if (!probe) {
-    error = "cannot write '" + path + "': " + std::strerror(errno);
-    return nullptr;
-  }
-  std::fclose(probe);
-  return sink;
+  // Checked without creating or emptying anything: the dump replaces the file whole when written.
+  if (!traces::probe_output(path, &error)) return nullptr;
+  return std::make_unique<JsonCaptureSink>(path);
 }
 
 }  // namespace clastrace::capture

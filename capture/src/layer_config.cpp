@@ -57,6 +57,10 @@ LayerConfig parseLayerConfig(const std::function<const char*(const char*)>& gete
     else reject("CLASTRACE_SERVE", *v, "0, 1 or auto");
   }
   if (auto v = value("CLASTRACE_OUTPUT")) config.outputPath = *v;
+  if (auto v = value("CLASTRACE_OUTPUT_FD")) {
+    if (auto fd = parseDecimal(*v); fd && *fd <= INT32_MAX) config.outputFd = int(*fd);
+    else reject("CLASTRACE_OUTPUT_FD", *v, "a file descriptor number");
+  }
   if (auto v = value("CLASTRACE_SUBMIT_RANGE")) {
     if (auto range = parseRange(*v)) config.submitRange = *range;
     else reject("CLASTRACE_SUBMIT_RANGE", *v, "N, A-B (A <= B) or A-");

@@ -367,7 +367,7 @@ std::shared_ptr<CaptureSink> processCaptureSink() {
                placement.cpus.empty() ? "of the application" : formatCpuList(placement.cpus).c_str(),
                formatCpuList(placement.applicationCpus).c_str());
     sink = makeTraceCaptureSink(config.outputPath, config.zstdLevel, error, config.flushMilliseconds,
-                                std::move(placement));
+                                std::move(placement), config.outputFd);
   } else {
     // Serving alone is a normal use (CI drivers): no output named means no capture, quietly.
     sinkFailed = true;

@@ -14,6 +14,7 @@
 
 #include "clastrace/capture/capture_cost.h"
 
+#include <clastrace/traces/output_file.h>
 #include <clastrace/traces/trace_writer.h>
 
 #include <algorithm>
@@ -33,6 +34,7 @@
 #include <sys/resource.h>
 #include <unistd.h>
 #include <unordered_map>
+#include <utility>
 #include <variant>
 
 namespace clastrace::capture {
@@ -109,8 +111,9 @@ std::unique_ptr<fbs::DependencyT> dependency(VkDependencyFlags flags, const std:
 
 class TraceCaptureSink final : public CaptureSink {
  public:
-  TraceCaptureSink(std::string path, int zstdLevel, uint32_t flushMilliseconds, BackgroundPlacement placement)
-      : path_(std::move(path)), zstdLevel_(zstdLevel), flushMilliseconds_(flushMilliseconds),
+  TraceCaptureSink(std::string path, int outputFd, int zstdLevel, uint32_t flushMilliseconds,
+                   BackgroundPlacement placement)
+      : path_(std::move(path)), outputFd_(outputFd), zstdLevel_(zstdLevel), flushMilliseconds_(flushMilliseconds),
         placement_(std::move(placement)) {
     emitter_ = std::thread([this] { emitInBackground(); });
   }
@@ -128,6 +131,7 @@ class TraceCaptureSink final : public CaptureSink {
     }
     writeOutboxLocked();
     if (writer_ && !failed_) check(writer_->finish());
+    if (outputFd_ >= 0) ::close(outputFd_);  // no device came: the output was left untouched
   }
   bool active() const override { return !failed_; }
 
@@ -204,7 +208,7 @@ class TraceCaptureSink final : public CaptureSink {
     options.compressor_idle_class = true;
     options.compressor_cpus = placement_.cpus;
     TraceError error;
-    writer_ = TraceWriter::create(path_, header, options, &error);
+    writer_ = TraceWriter::create_on(std::exchange(outputFd_, -1), path_, header, options, &error);
     if (!writer_) fail(error);
   }
   void deviceDestroyed(uint64_t) override {}
@@ -1163,6 +1167,7 @@ class TraceCaptureSink final : public CaptureSink {
   std::mutex writeMutex_;     // the writer, and what only the writing side touches
   std::deque<OutItem> outbox_;  // records bound for the file, in trace order (mutex_)
   std::string path_;
+  int outputFd_;  // opened and locked at the start, until the writer takes it over (writeMutex_)
   int zstdLevel_;
   std::unique_ptr<TraceWriter> writer_;
   std::atomic<bool> failed_{false};
@@ -1195,16 +1200,17 @@ thread_local bool TraceCaptureSink::emitterThread = false;
 }  // namespace
 
 std::unique_ptr<CaptureSink> makeTraceCaptureSink(const std::string& path, int zstdLevel, std::string& error,
-                                                  uint32_t flushMilliseconds, BackgroundPlacement placement) {
-  // Checked here, before any device exists, so an unusable path is reported at once; the
-  // writer itself starts with the first device (the header describes it).
-  std::FILE* probe = std::fopen(path.c_str(), "wb");
-  if (!probe) {
-    error = "cannot write '" + path + "': " + std::strerror(errno);
-    return nullptr;
-  }
-  std::fclose(probe);
-  return std::make_unique<TraceCaptureSink>(path, zstdLevel, flushMilliseconds, std::move(placement));
+                                                  uint32_t flushMilliseconds, BackgroundPlacement placement,
+                                                  int inheritedFd) {
+  // Opened and locked here, before any device exists, so an unusable path or another capture
+  // writing it is reported at once; nothing is emptied until the writer starts with the first
+  // device (the header describes it). The trace is written in place rather than renamed at the
+  // end: a killed application still leaves what was flushed at `path`.
+  traces::OutputTarget target;
+  const int fd = inheritedFd >= 0 ? traces::adopt_output(inheritedFd, path, &target, &error)
+                                  : traces::open_output_in_place(path, &target, &error);
+  if (fd < 0) return nullptr;
+  return std::make_unique<TraceCaptureSink>(path, fd, zstdLevel, flushMilliseconds, std::move(placement));
 }
 
 }  // namespace clastrace::capture

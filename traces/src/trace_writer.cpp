@@ -13,6 +13,7 @@
 #include <pthread.h>
 #include <sched.h>
 #include <sys/resource.h>
+#include <sys/stat.h>
 #include <sys/uio.h>
 #include <thread>
 #include <unistd.h>
@@ -24,6 +25,7 @@
 #include <zstd.h>
 
 #include "content_hash.h"
+#include "clastrace/traces/output_file.h"
 #include "stored_text.h"
 
 namespace clastrace::traces {
@@ -428,6 +430,30 @@ struct TraceWriter::Impl {
     }
 };
 
+namespace {
+
+const char* options_problem(const TraceWriterOptions& options) {
+    if (options.chunk_raw_bytes < 4096 || options.chunk_raw_bytes > format::kMaxChunkRawBytes) {
+        return "chunk_raw_bytes must be in [4096, 256 MiB]";
+    }
+    if (options.max_chunks_in_flight == 0) return "max_chunks_in_flight must be >= 1";
+    if (options.content_hash_bits < 8 || options.content_hash_bits > 64) return "content_hash_bits must be in [8, 64]";
+    if (options.zstd_level < ZSTD_minCLevel() || options.zstd_level > ZSTD_maxCLevel()) {
+        return "zstd_level out of zstd's range";
+    }
+    return nullptr;
+}
+
+// An output refused or failed before any byte of the trace (its message names the path).
+TraceError output_error(const std::string& problem) {
+    TraceError e;
+    e.code = TraceErrorCode::io_error;
+    e.message = problem;
+    return e;
+}
+
+}  // namespace
+
 TraceWriter::TraceWriter(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 
 TraceWriter::~TraceWriter() {
@@ -436,20 +462,28 @@ TraceWriter::~TraceWriter() {
 
 std::unique_ptr<TraceWriter> TraceWriter::create(const std::string& path, const fbs::TraceHeaderT& header,
                                                  const TraceWriterOptions& options, TraceError* error) {
+    if (const char* bad = options_problem(options)) {  // refused before the file is touched
+        *error = make_trace_error(TraceErrorCode::invalid_argument, path, 0, bad);
+        return nullptr;
+    }
+    OutputTarget target;
+    std::string problem;
+    const int fd = open_output_in_place(path, &target, &problem);
+    if (fd < 0) {
+        *error = output_error(problem);
+        return nullptr;
+    }
+    return create_on(fd, path, header, options, error);
+}
+
+std::unique_ptr<TraceWriter> TraceWriter::create_on(int fd, const std::string& path, const fbs::TraceHeaderT& header,
+                                                    const TraceWriterOptions& options, TraceError* error) {
     auto fail = [&](TraceErrorCode code, const std::string& problem) -> std::unique_ptr<TraceWriter> {
+        ::close(fd);
         *error = make_trace_error(code, path, 0, problem);
         return nullptr;
     };
-    if (options.chunk_raw_bytes < 4096 || options.chunk_raw_bytes > format::kMaxChunkRawBytes) {
-        return fail(TraceErrorCode::invalid_argument, "chunk_raw_bytes must be in [4096, 256 MiB]");
-    }
-    if (options.max_chunks_in_flight == 0) return fail(TraceErrorCode::invalid_argument, "max_chunks_in_flight must be >= 1");
-    if (options.content_hash_bits < 8 || options.content_hash_bits > 64) {
-        return fail(TraceErrorCode::invalid_argument, "content_hash_bits must be in [8, 64]");
-    }
-    if (options.zstd_level < ZSTD_minCLevel() || options.zstd_level > ZSTD_maxCLevel()) {
-        return fail(TraceErrorCode::invalid_argument, "zstd_level out of zstd's range");
-    }
+    if (const char* problem = options_problem(options)) return fail(TraceErrorCode::invalid_argument, problem);
 
     fbs::TraceHeaderT h = header;  // deep copy (object API) so the settings can be filled in
     if (!h.capture) h.capture = std::make_unique<fbs::CaptureSettingsT>();
@@ -461,8 +495,15 @@ std::unique_ptr<TraceWriter> TraceWriter::create(const std::string& path, const 
     b.Finish(fbs::TraceHeader::Pack(b, &h));
     if (b.GetSize() > format::kMaxTraceHeaderBytes) return fail(TraceErrorCode::invalid_argument, "trace header over 16 MiB");
 
-    int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-    if (fd < 0) return fail(TraceErrorCode::io_error, std::string("cannot create: ") + std::strerror(errno));
+    struct stat st {};
+    OutputTarget target{path, OutputKind::regular};
+    if (::fstat(fd, &st) == 0 && !S_ISREG(st.st_mode)) target.kind = OutputKind::character_device;
+    std::string problem;
+    if (!start_output_in_place(fd, target, &problem)) {
+        ::close(fd);
+        *error = output_error(problem);
+        return nullptr;
+    }
 
     auto impl = std::make_unique<Impl>();
     impl->path = path;

@@ -67,8 +67,12 @@ struct BackgroundPlacement {
   std::vector<unsigned> cpus;
   std::vector<unsigned> applicationCpus;
 };
+// The output follows traces/output_file.h's rule and is written in place: it is opened (or,
+// with `inheritedFd` >= 0, taken over from `clastrace capture`) and locked here, and emptied
+// only when the first device starts the trace. Another process holding the lock (another
+// capture of the same path) makes this fail with `error` saying so.
 std::unique_ptr<CaptureSink> makeTraceCaptureSink(const std::string& path, int zstdLevel, std::string& error,
                                                   uint32_t flushMilliseconds = 1000,
-                                                  BackgroundPlacement placement = {});
+                                                  BackgroundPlacement placement = {}, int inheritedFd = -1);
 
 }  // namespace clastrace::capture

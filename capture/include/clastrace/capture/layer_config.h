@@ -25,6 +25,9 @@ struct LayerConfig {
   bool capture = true;              // CLASTRACE_CAPTURE
   ServeMode serve = ServeMode::Auto;  // CLASTRACE_SERVE
   std::string outputPath;           // CLASTRACE_OUTPUT (.clt trace)
+  // CLASTRACE_OUTPUT_FD: the output already opened and locked by `clastrace capture`, handed
+  // down to the application (traces::adopt_output checks it is CLASTRACE_OUTPUT); -1: none.
+  int outputFd = -1;
   SubmitRange submitRange;          // CLASTRACE_SUBMIT_RANGE: "N", "A-B", "A-"
   // CLASTRACE_FRAME_RANGE, same syntax: frame N is what is submitted after the N-th
   // vkQueuePresentKHR and up to the (N+1)-th. A submission is captured only when it is in

@@ -66,11 +66,18 @@ struct TraceWriterStats {
 
 class TraceWriter {
 public:
-    // Creates (truncates) `path` and writes the file header. The writer fills
-    // header.capture's chunk size, zstd level and hash bits from `options`.
+    // Writes a new trace at `path` under the output-file rule (output_file.h): a regular file
+    // is locked and written in place, so a killed writer still leaves what it flushed there;
+    // another writer holding the lock is refused. The writer fills header.capture's chunk
+    // size, zstd level and hash bits from `options`.
     // Returns nullptr with *error set when the file cannot be created or options are bad.
     static std::unique_ptr<TraceWriter> create(const std::string& path, const fbs::TraceHeaderT& header,
                                                const TraceWriterOptions& options, TraceError* error);
+    // The same on `fd`, already opened (and locked) by open_output_in_place or adopt_output for
+    // `path`: the writer takes it over (closes it, on failure too) and empties a regular file
+    // before writing the header.
+    static std::unique_ptr<TraceWriter> create_on(int fd, const std::string& path, const fbs::TraceHeaderT& header,
+                                                  const TraceWriterOptions& options, TraceError* error);
     ~TraceWriter();  // without finish(): stops the thread, leaves a file without index
     TraceWriter(const TraceWriter&) = delete;
     TraceWriter& operator=(const TraceWriter&) = delete;
