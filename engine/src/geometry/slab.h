@@ -22,20 +22,25 @@ inline constexpr double kConservativeFarScale = 1.0 + 2.0 * (3.0 * kUnitRoundoff
 template <bool Robust>
 inline bool slab_test(const PreparedRay& r, const float lo[3], const float hi[3], double tmax, double* entry) {
   double t_near = r.tmin, t_far = tmax;
+  // One verdict at the end instead of a branch per axis: traversals run this on every
+  // child box, where early exits mispredict. An interval that ends before it starts only
+  // happens when the final test fails too, so `ok` only adds the NaN and zero-direction
+  // misses.
+  bool ok = true;
   for (int a = 0; a < 3; ++a) {
     if (r.d[a] == 0.0) {
-      if (!(r.o[a] >= lo[a] && r.o[a] <= hi[a])) return false;
+      ok &= (r.o[a] >= lo[a]) & (r.o[a] <= hi[a]);
       continue;
     }
     double t0 = (double(lo[a]) - r.o[a]) * r.inv[a], t1 = (double(hi[a]) - r.o[a]) * r.inv[a];
     if (t0 > t1) std::swap(t0, t1);
     if constexpr (Robust) t1 *= kConservativeFarScale;
-    if (!(t0 <= t_far) || !(t1 >= t_near)) return false;
+    ok &= t0 <= t1;  // false when either is NaN
     t_near = t0 > t_near ? t0 : t_near;
     t_far = t1 < t_far ? t1 : t_far;
   }
   *entry = t_near;
-  return t_near <= t_far;
+  return ok & (t_near <= t_far);
 }
 
 }  // namespace clastrace::engine::geometry
