@@ -1,8 +1,11 @@
-// Binned SAH over cluster boxes (Wald 2007): 16 bins on each axis of the centroid
-// bounds, sweep for the cheapest split, object-median fallback when centroids coincide.
+// Binned SAH over cluster boxes (the engine's SAH core, geometry/binned_sah.h): 16 bins on
+// each axis of the centroid bounds, object-median fallback when centroids coincide.
 // Large subtrees split their halves across threads (TBB); the node layout depends only
 // on the subtree-size threshold, so the bytes never depend on the thread count.
 #include "clastrace/engine/blas.h"
+
+#include "geometry/binned_sah.h"
+#include "geometry/box.h"
 
 #include <algorithm>
 #include <array>
@@ -15,35 +18,11 @@
 namespace clastrace::engine {
 namespace {
 
-constexpr int kBins = 16;
-constexpr float kTraversalCost = 1.0f;
-constexpr float kClusterCost = 4.0f;  // descending into a CLAS costs a few node visits
+// Descending into a CLAS costs a few node visits.
+constexpr geometry::SahParams kSah{16, 1.0, 4.0, kBottomLevelMaxLeafSize};
+constexpr int kBins = kSah.max_bins;
 
-struct Box {
-  float lo[3] = {std::numeric_limits<float>::infinity(), std::numeric_limits<float>::infinity(),
-                 std::numeric_limits<float>::infinity()};
-  float hi[3] = {-std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity(),
-                 -std::numeric_limits<float>::infinity()};
-  void grow(const Box& b) {
-    for (int a = 0; a < 3; ++a) {
-      lo[a] = std::min(lo[a], b.lo[a]);
-      hi[a] = std::max(hi[a], b.hi[a]);
-    }
-  }
-  void grow_point(const float p[3]) {
-    for (int a = 0; a < 3; ++a) {
-      lo[a] = std::min(lo[a], p[a]);
-      hi[a] = std::max(hi[a], p[a]);
-    }
-  }
-  bool empty() const { return !(lo[0] <= hi[0]); }
-  // Half area; infinite boxes give inf, which SAH treats as "never cheaper".
-  float area() const {
-    if (empty()) return 0.0f;
-    float dx = hi[0] - lo[0], dy = hi[1] - lo[1], dz = hi[2] - lo[2];
-    return dx * dy + dy * dz + dz * dx;
-  }
-};
+using geometry::Box;
 
 struct Item {
   Box box;
@@ -97,40 +76,19 @@ Split split_node(std::vector<Item>& items, uint32_t begin, uint32_t end, const B
       ++bin.count;
     }
   }
-  float best_cost = std::numeric_limits<float>::infinity();
-  int best_axis = -1, best_plane = 0;
-  for (int axis = 0; axis < 3; ++axis) {
-    if (!axis_ok[axis]) continue;
-    Box acc;
-    uint32_t acc_count = 0;
-    std::array<float, kBins> right_area{};
-    std::array<uint32_t, kBins> right_count{};
-    for (int b = kBins - 1; b > 0; --b) {
-      acc.grow(bins[axis][b].box);
-      acc_count += bins[axis][b].count;
-      right_area[b] = acc.area();
-      right_count[b] = acc_count;
-    }
-    Box left;
-    uint32_t left_count = 0;
-    for (int b = 0; b < kBins - 1; ++b) {
-      left.grow(bins[axis][b].box);
-      left_count += bins[axis][b].count;
-      if (left_count == 0 || right_count[b + 1] == 0) continue;
-      float cost = left.area() * float(left_count) + right_area[b + 1] * float(right_count[b + 1]);
-      if (cost < best_cost) {
-        best_cost = cost;
-        best_axis = axis;
-        best_plane = b;
-      }
-    }
-  }
+  const geometry::SahSplit<float> best = geometry::cheapest_split<float, kBins>(
+      kBins, axis_ok, [&](int a, int k) -> const Box& { return bins[a][k].box; },
+      [&](int a, int k) { return bins[a][k].count; }, Box::empty(), [](const Box& b) { return b.half_area<float>(); });
+  const int best_axis = best.axis, best_plane = best.bin;
   if (best_axis >= 0) {
-    const float parent_area = bounds.area();
-    float split_cost = kTraversalCost + (parent_area > 0.0f && std::isfinite(parent_area)
-                                             ? kClusterCost * best_cost / parent_area
-                                             : kClusterCost * float(count));
-    if (count <= kBottomLevelMaxLeafSize && float(count) * kClusterCost <= split_cost) {
+    // The leaf rule in float, normalized by the parent's area (a zero or infinite area
+    // compares the split as costing a leaf).
+    const float traversal_cost = float(kSah.traversal_cost), cluster_cost = float(kSah.intersection_cost);
+    const float parent_area = bounds.half_area<float>();
+    float split_cost = traversal_cost + (parent_area > 0.0f && std::isfinite(parent_area)
+                                             ? cluster_cost * best.cost / parent_area
+                                             : cluster_cost * float(count));
+    if (count <= kSah.max_leaf_size && float(count) * cluster_cost <= split_cost) {
       r.leaf = true;
       return r;
     }
@@ -147,7 +105,7 @@ Split split_node(std::vector<Item>& items, uint32_t begin, uint32_t end, const B
     return r;
   }
   // All centroids coincide (or are not finite): object median by input order.
-  if (count <= kBottomLevelMaxLeafSize) {
+  if (count <= kSah.max_leaf_size) {
     r.leaf = true;
     return r;
   }

@@ -1,8 +1,10 @@
-// BLAS -> CLAS traversal: a slab test per BVH node (double precision, so huge finite
-// boxes and zero direction components stay conservative), then Engine I's CLAS
-// traversal per referenced cluster. Children are visited nearest first; a later hit
-// replaces the best only when strictly closer, so ties resolve by node order.
+// BLAS -> CLAS traversal: the engine's conservative slab test (geometry/slab.h) per BVH
+// node, then Engine I's CLAS traversal per referenced cluster. Children are visited nearest
+// first; a later hit replaces the best only when strictly closer, so ties resolve by node
+// order.
 #include "clastrace/engine/blas.h"
+
+#include "geometry/slab.h"
 
 #include <algorithm>
 #include <cmath>
@@ -13,27 +15,8 @@
 namespace clastrace::engine {
 namespace {
 
-struct RayBox {
-  double org[3], inv[3];
-  double tmin, tmax;
-};
-
-bool hit_box(const RayBox& r, const BottomLevelNode& n, double tmax, double& entry) {
-  double t0 = r.tmin, t1 = tmax;
-  for (int a = 0; a < 3; ++a) {
-    double lo = (double(n.bounds_min[a]) - r.org[a]) * r.inv[a];
-    double hi = (double(n.bounds_max[a]) - r.org[a]) * r.inv[a];
-    if (std::isnan(lo) || std::isnan(hi)) {
-      // 0 * inf: the ray lies in the slab plane; inside iff origin within the slab.
-      if (r.org[a] < n.bounds_min[a] || r.org[a] > n.bounds_max[a]) return false;
-      continue;
-    }
-    if (lo > hi) std::swap(lo, hi);
-    t0 = std::max(t0, lo);
-    t1 = std::min(t1, hi);
-  }
-  entry = t0;
-  return t0 <= t1;
+bool hit_box(const geometry::PreparedRay& r, const BottomLevelNode& n, double tmax, double& entry) {
+  return geometry::slab_test<true>(r, n.bounds_min, n.bounds_max, tmax, &entry);
 }
 
 template <class Visit>
@@ -55,13 +38,9 @@ void walk(const MemoryImage& memory, uint64_t blas_address, const Ray& ray, cons
     std::memcpy(&n, blas.bytes.data() + h.nodes_offset + uint64_t(i) * sizeof n, sizeof n);
     return n;
   };
-  RayBox rb;
-  for (int a = 0; a < 3; ++a) {
-    rb.org[a] = ray.origin[a];
-    rb.inv[a] = 1.0 / double(ray.direction[a]);
-  }
-  rb.tmin = ray.tmin;
-  rb.tmax = ray.tmax;
+  const double origin[3] = {ray.origin[0], ray.origin[1], ray.origin[2]};
+  const double direction[3] = {ray.direction[0], ray.direction[1], ray.direction[2]};
+  const geometry::PreparedRay rb = geometry::prepare_ray(origin, direction, ray.tmin, ray.tmax);
   std::vector<uint32_t> reported;
   std::vector<uint32_t> stack{0};
   double tmax = ray.tmax;

@@ -175,12 +175,39 @@ struct Decoded {
   uint32_t omm_index_type = 0;
 };
 
+// One decode: what it reads, the rules it checks it by, and where it writes (the builder's
+// scratch arrays, sized for kMaxVertices / kMaxTriangles).
+struct TriangleDecode {
+  const MemoryImage& memory;
+  const TriangleInfoView& info;
+  const VkClusterAccelerationStructureTriangleClusterInputNV& input;
+  const EngineProperties& properties;
+  const InfoRules& rules;
+  bool positions_optional;  // a template may leave vertexBuffer 0
+  float* positions;
+  uint32_t* indices;
+  uint8_t* inactive;
+  uint32_t* geometry;
+  int32_t* omm;
+  Decoded& decoded;
+  Reporter& report;
+};
+
 // Reads and checks everything a build or template info names. Returns false when no
 // object can be built; findings say why.
-bool decode_triangle_info(const MemoryImage& memory, const TriangleInfoView& info,
-                          const VkClusterAccelerationStructureTriangleClusterInputNV& input, const EngineProperties& p,
-                          const InfoRules& rules, bool positions_optional, ClusterBuilder& /*unused*/, float* positions,
-                          uint32_t* indices, uint8_t* inactive, uint32_t* geometry, int32_t* omm, Decoded& d, Reporter& r) {
+bool decode_triangle_info(const TriangleDecode& job) {
+  const MemoryImage& memory = job.memory;
+  const TriangleInfoView& info = job.info;
+  const VkClusterAccelerationStructureTriangleClusterInputNV& input = job.input;
+  const EngineProperties& p = job.properties;
+  const InfoRules& rules = job.rules;
+  float* const positions = job.positions;
+  uint32_t* const indices = job.indices;
+  uint8_t* const inactive = job.inactive;
+  uint32_t* const geometry = job.geometry;
+  int32_t* const omm = job.omm;
+  Decoded& d = job.decoded;
+  Reporter& r = job.report;
   bool buildable = true;
   check_input(input, p, r);
   const VertexFormatInfo vf = vertex_format_info(input.vertexFormat);
@@ -286,7 +313,7 @@ bool decode_triangle_info(const MemoryImage& memory, const TriangleInfoView& inf
           info.indexBuffer);
 
   // Positions: decoded, then truncated on their 32-bit patterns.
-  d.has_positions = !(positions_optional && info.vertexBuffer == 0);
+  d.has_positions = !(job.positions_optional && info.vertexBuffer == 0);
   if (d.has_positions && V > 0) {
     const auto vb = memory.read_array(info.vertexBuffer, V, info.vertexBufferStride, vf.size, {"vertexBuffer", r.op_index});
     const uint32_t vstep = info.vertexBufferStride ? info.vertexBufferStride : vf.size;
@@ -405,8 +432,8 @@ bool ClusterBuilder::build_triangle_cluster(const MemoryImage& memory,
   Decoded d;
   out.clear();
   try {
-    if (!decode_triangle_info(memory, view_of(info), input, properties_, kBuildRules, false, *this, s.positions, s.indices,
-                              s.inactive, s.geometry, s.omm, d, r))
+    if (!decode_triangle_info({memory, view_of(info), input, properties_, kBuildRules, /*positions_optional=*/false,
+                               s.positions, s.indices, s.inactive, s.geometry, s.omm, d, r}))
       return false;
   } catch (const MemoryFault& f) {
     report_fault(f, r);
@@ -431,8 +458,8 @@ bool ClusterBuilder::build_triangle_cluster_template(const MemoryImage& memory,
   out.clear();
   detail::EncodeInput in;
   try {
-    if (!decode_triangle_info(memory, view_of(info), input, properties_, kTemplateRules, true, *this, s.positions, s.indices,
-                              s.inactive, s.geometry, s.omm, d, r))
+    if (!decode_triangle_info({memory, view_of(info), input, properties_, kTemplateRules, /*positions_optional=*/true,
+                               s.positions, s.indices, s.inactive, s.geometry, s.omm, d, r}))
       return false;
     for (uint32_t t = 0; t < d.triangle_count; ++t)
       if (s.inactive[t]) return false;  // a template must be instantiable: index findings already reported

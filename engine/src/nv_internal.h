@@ -3,6 +3,7 @@
 #define CLASTRACE_ENGINE_NV_INTERNAL_H
 
 #include "clastrace/engine/nv_format.h"
+#include "geometry/box.h"
 
 #include <algorithm>
 #include <cstdint>
@@ -12,28 +13,7 @@
 
 namespace clastrace::engine::nv {
 
-struct Box {
-  float lo[3];
-  float hi[3];
-  static Box empty() {
-    constexpr float inf = std::numeric_limits<float>::infinity();
-    return Box{{inf, inf, inf}, {-inf, -inf, -inf}};
-  }
-  // NaN in `b` is ignored (std::min/max keep the first argument when comparing with NaN).
-  void grow(const Box& b) {
-    for (int a = 0; a < 3; ++a) {
-      lo[a] = std::min(lo[a], b.lo[a]);
-      hi[a] = std::max(hi[a], b.hi[a]);
-    }
-  }
-  void grow_point(const float p[3]) {
-    for (int a = 0; a < 3; ++a) {
-      lo[a] = std::min(lo[a], p[a]);
-      hi[a] = std::max(hi[a], p[a]);
-    }
-  }
-  bool valid() const { return lo[0] <= hi[0] && lo[1] <= hi[1] && lo[2] <= hi[2]; }  // false for NaN and empty
-};
+using geometry::Box;
 
 // Binned SAH tree over `boxes` (all valid): nodes in depth-first order (left child at
 // index + 1, right child at NvNode::first), leaves of up to kNvMaxLeafSize; `order` is

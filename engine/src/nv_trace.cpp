@@ -1,6 +1,9 @@
-// Traversal of NV objects (nv_trace.h): conservative double slab tests over the trees,
-// watertight double triangle tests, Vulkan's instance and ray flag rules.
+// Traversal of NV objects (nv_trace.h): the engine's conservative slab test over the
+// trees and its watertight triangle test (geometry/), Vulkan's instance and ray flag rules.
 #include "clastrace/engine/nv_trace.h"
+
+#include "geometry/slab.h"
+#include "geometry/triangle.h"
 
 #include <algorithm>
 #include <cmath>
@@ -10,9 +13,6 @@
 
 namespace clastrace::engine {
 namespace {
-
-constexpr double kEps = std::numeric_limits<double>::epsilon() * 0.5;
-constexpr double kFarScale = 1.0 + 2.0 * (3.0 * kEps) / (1.0 - 3.0 * kEps);  // Ize 2013
 
 struct Blas {
   std::vector<std::byte> bytes;
@@ -32,82 +32,10 @@ struct Instance {
   uint32_t flags = 0;
 };
 
-struct RayD {
-  double o[3], d[3], inv[3];
-  int kx, ky, kz;
-  double sx, sy, sz;
-};
-
-RayD prepare(const double o[3], const double d[3]) {
-  RayD r;
-  for (int a = 0; a < 3; ++a) {
-    r.o[a] = o[a];
-    r.d[a] = d[a];
-    r.inv[a] = d[a] == 0.0 ? std::numeric_limits<double>::infinity() : 1.0 / d[a];
-  }
-  int kz = 0;
-  if (std::fabs(d[1]) > std::fabs(d[kz])) kz = 1;
-  if (std::fabs(d[2]) > std::fabs(d[kz])) kz = 2;
-  int kx = (kz + 1) % 3, ky = (kx + 1) % 3;
-  if (d[kz] < 0.0) std::swap(kx, ky);
-  r.kx = kx;
-  r.ky = ky;
-  r.kz = kz;
-  r.sx = d[kx] / d[kz];
-  r.sy = d[ky] / d[kz];
-  r.sz = 1.0 / d[kz];
-  return r;
-}
-
-// Entry distance of the ray into the box within [tmin, tmax], or NaN for a miss.
-double box_entry(const RayD& r, const float lo[3], const float hi[3], double tmin, double tmax) {
-  double tn = tmin, tf = tmax;
-  for (int a = 0; a < 3; ++a) {
-    if (r.d[a] == 0.0) {
-      if (!(r.o[a] >= lo[a] && r.o[a] <= hi[a])) return std::numeric_limits<double>::quiet_NaN();
-      continue;
-    }
-    double t0 = (lo[a] - r.o[a]) * r.inv[a], t1 = (hi[a] - r.o[a]) * r.inv[a];
-    if (t0 > t1) std::swap(t0, t1);
-    t1 *= kFarScale;
-    if (!(t0 <= tf) || !(t1 >= tn)) return std::numeric_limits<double>::quiet_NaN();
-    tn = std::max(tn, t0);
-    tf = std::min(tf, t1);
-  }
-  return tn <= tf ? tn : std::numeric_limits<double>::quiet_NaN();
-}
-
-struct Candidate {
-  double t;
-  double u, v;
-  bool front;
-};
-
-bool intersect_triangle(const RayD& r, const float v[9], double tmin, double tmax, Candidate* out) {
-  double A[3], B[3], C[3];
-  for (int a = 0; a < 3; ++a) {
-    A[a] = double(v[a]) - r.o[a];
-    B[a] = double(v[3 + a]) - r.o[a];
-    C[a] = double(v[6 + a]) - r.o[a];
-  }
-  const double ax = A[r.kx] - r.sx * A[r.kz], ay = A[r.ky] - r.sy * A[r.kz];
-  const double bx = B[r.kx] - r.sx * B[r.kz], by = B[r.ky] - r.sy * B[r.kz];
-  const double cx = C[r.kx] - r.sx * C[r.kz], cy = C[r.ky] - r.sy * C[r.kz];
-  const double U = cx * by - cy * bx, V = ax * cy - ay * cx, W = bx * ay - by * ax;
-  if ((U < 0 || V < 0 || W < 0) && (U > 0 || V > 0 || W > 0)) return false;
-  const double det = U + V + W;
-  if (det == 0.0 || !std::isfinite(det)) return false;
-  const double T = U * (r.sz * A[r.kz]) + V * (r.sz * B[r.kz]) + W * (r.sz * C[r.kz]);
-  const double t = T / det;
-  if (!(t >= tmin && t <= tmax)) return false;
-  out->t = t;
-  out->u = V / det;
-  out->v = W / det;
-  const double e1[3] = {double(v[3]) - v[0], double(v[4]) - v[1], double(v[5]) - v[2]};
-  const double e2[3] = {double(v[6]) - v[0], double(v[7]) - v[1], double(v[8]) - v[2]};
-  const double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]};
-  out->front = r.d[0] * n[0] + r.d[1] * n[1] + r.d[2] * n[2] < 0.0;
-  return true;
+// Entry distance of the ray into the box within [r.tmin, tmax], or NaN for a miss.
+double box_entry(const geometry::PreparedRay& r, const float lo[3], const float hi[3], double tmax) {
+  double entry;
+  return geometry::slab_test<true>(r, lo, hi, tmax, &entry) ? entry : std::numeric_limits<double>::quiet_NaN();
 }
 
 bool invert(const float m[12], double out[12]) {
@@ -247,7 +175,7 @@ namespace {
 // stack covers every tree the builder makes; deeper (hostile but checked) trees spill into the
 // vector. `leaf` returns true to stop (first-hit queries).
 template <class Leaf>
-void walk_tree(const std::vector<NvNode>& nodes, const RayD& rd, double tmin, double* tmax, Leaf&& leaf) {
+void walk_tree(const std::vector<NvNode>& nodes, const geometry::PreparedRay& rd, double* tmax, Leaf&& leaf) {
   struct Entry {
     uint32_t node;
     double t;
@@ -260,7 +188,7 @@ void walk_tree(const std::vector<NvNode>& nodes, const RayD& rd, double tmin, do
     else overflow.push_back(Entry{node, t});
   };
   {
-    const double t0 = box_entry(rd, nodes[0].bounds_min, nodes[0].bounds_max, tmin, *tmax);
+    const double t0 = box_entry(rd, nodes[0].bounds_min, nodes[0].bounds_max, *tmax);
     if (!std::isnan(t0)) push(0, t0);
   }
   while (sp > 0 || !overflow.empty()) {
@@ -276,8 +204,8 @@ void walk_tree(const std::vector<NvNode>& nodes, const RayD& rd, double tmin, do
     const NvNode& n = nodes[ni];
     if (n.count == 0) {
       const NvNode &l = nodes[ni + 1], &r = nodes[n.first];
-      const double tl = box_entry(rd, l.bounds_min, l.bounds_max, tmin, *tmax);
-      const double tr = box_entry(rd, r.bounds_min, r.bounds_max, tmin, *tmax);
+      const double tl = box_entry(rd, l.bounds_min, l.bounds_max, *tmax);
+      const double tr = box_entry(rd, r.bounds_min, r.bounds_max, *tmax);
       const bool hl = !std::isnan(tl), hr = !std::isnan(tr);
       if (hl && hr) {
         if (tl <= tr) {
@@ -329,11 +257,11 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
     o[r] = m[0] * wo[0] + m[1] * wo[1] + m[2] * wo[2] + m[3];
     d[r] = m[0] * wd[0] + m[1] * wd[1] + m[2] * wd[2];
   }
-  const RayD rd = prepare(o, d);
+  const geometry::PreparedRay rd = geometry::prepare_ray(o, d, tmin, *tmax);
   const bool cull_disable = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_CULL_DISABLE_BIT_NV;
   const bool flip = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_FRONT_COUNTERCLOCKWISE_BIT_NV;
   bool found = false;
-  walk_tree(b.nodes, rd, tmin, tmax, [&](const NvNode& n) {
+  walk_tree(b.nodes, rd, tmax, [&](const NvNode& n) {
     for (uint32_t k = n.first; k < n.first + n.count; ++k) {
       const NvPrimitiveRecord& p = b.primitives[k];
       // Opacity: geometry flag < instance force flags < ray flags.
@@ -344,14 +272,14 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
       if (flags & kRayFlagNoOpaque) opaque = false;
       if ((flags & kRayFlagCullOpaque) && opaque) continue;
       if ((flags & kRayFlagCullNoOpaque) && !opaque) continue;
-      Candidate cand;
+      geometry::TriangleHit cand;
       uint32_t kind = 0;
       if (b.aabbs) {
-        const double t = box_entry(rd, p.v, p.v + 3, tmin, *tmax);
+        const double t = box_entry(rd, p.v, p.v + 3, *tmax);
         if (std::isnan(t)) continue;
-        cand = Candidate{t, 0.0, 0.0, true};
+        cand = geometry::TriangleHit{t, 0.0, 0.0, true};
       } else {
-        if (!intersect_triangle(rd, p.v, tmin, *tmax, &cand)) continue;
+        if (!geometry::intersect_triangle(rd, p.v, p.v + 3, p.v + 6, *tmax, &cand)) continue;
         const bool front = cand.front != flip;
         if (!cull_disable) {
           if ((flags & kRayFlagCullBackFacingTriangles) && !front) continue;
@@ -387,11 +315,11 @@ bool trace_scene(const NvScene::Data& s, const Ray& ray, uint32_t flags, uint32_
   if (s.nodes.empty() || std::isnan(ray.tmin) || std::isnan(ray.tmax) || !(ray.tmin <= ray.tmax)) return false;
   const double o[3] = {ray.origin[0], ray.origin[1], ray.origin[2]};
   const double d[3] = {ray.direction[0], ray.direction[1], ray.direction[2]};
-  const RayD rd = prepare(o, d);
+  const geometry::PreparedRay rd = geometry::prepare_ray(o, d, ray.tmin, ray.tmax);
   const double tmin = ray.tmin;
   double tmax = ray.tmax;
   bool found = false;
-  walk_tree(s.nodes, rd, tmin, &tmax, [&](const NvNode& n) {
+  walk_tree(s.nodes, rd, &tmax, [&](const NvNode& n) {
     for (uint32_t k = n.first; k < n.first + n.count; ++k) {
       const Instance& inst = s.instances[k];
       if (!inst.blas || !(inst.mask & cull_mask & 0xFFu)) continue;

@@ -1,13 +1,15 @@
-// Binned SAH (Wald 2007) over primitive or instance boxes, after Embree's builders: each
-// box is copied once into a 32-byte BoxRef (box + item id), every node bins its range in
-// one pass (32 bins x 3 axes, SSE), and the chosen split partitions the BoxRefs in place
-// while gathering both children's box and centroid bounds, so no pass recomputes them.
-// Object-median fallback when the centroids coincide or past depth 64. Split costs are
+// Binned SAH over primitive or instance boxes (the engine's SAH core,
+// geometry/binned_sah.h, chooses the splits): each box is copied once into a 32-byte
+// BoxRef (box + item id), every node bins its range in one pass (32 bins x 3 axes, SSE),
+// and the chosen split partitions the BoxRefs in place while gathering both children's
+// box and centroid bounds, so no pass recomputes them. Object-median fallback when the centroids coincide or past depth 64. Split costs are
 // evaluated in double so huge boxes (coordinates near FLT_MAX) still compare; infinite
 // areas never win a split. Large ranges build their two halves as TBB tasks into their own
 // node arrays, spliced in depth-first order: the tree depends only on the boxes, never on
 // the thread count.
 #include "nv_internal.h"
+
+#include "geometry/binned_sah.h"
 
 #include <emmintrin.h>
 #include <tbb/global_control.h>
@@ -22,8 +24,9 @@
 namespace clastrace::engine::nv {
 namespace {
 
-constexpr int kBins = 32;  // most bins per axis (ranges of up to 32 items use 16-32)
-constexpr double kInf = std::numeric_limits<double>::infinity();
+// Most bins per axis (ranges of up to 32 items use 16-32); items and nodes cost alike.
+constexpr geometry::SahParams kSah{32, 1.0, 1.0, kNvMaxLeafSize};
+constexpr int kBins = kSah.max_bins;
 // Below this many items a subtree is built on the calling thread.
 constexpr uint32_t kParallelItems = 16384;
 
@@ -122,11 +125,7 @@ struct BinMap {
   }
 };
 
-struct Split {
-  int axis = -1;
-  int bin = 0;
-  double cost = kInf;
-};
+using Split = geometry::SahSplit<double>;
 
 struct Builder {
   BoxRef* refs;
@@ -150,30 +149,9 @@ struct Builder {
         ++bin_count[a][k[a]];
       }
     }
-    Split best;
-    for (int a = 0; a < 3; ++a) {
-      if (!map.usable[a]) continue;
-      double right_area[kBins];
-      uint32_t right_count[kBins];
-      Bounds4 acc = Bounds4::empty();
-      uint32_t n = 0;
-      for (int k = bins - 1; k > 0; --k) {
-        acc.grow(bin_box[a][k]);
-        n += bin_count[a][k];
-        right_area[k] = n ? sweep_area(acc) : 0.0;
-        right_count[k] = n;
-      }
-      acc = Bounds4::empty();
-      n = 0;
-      for (int k = 0; k < bins - 1; ++k) {
-        acc.grow(bin_box[a][k]);
-        n += bin_count[a][k];
-        if (n == 0 || right_count[k + 1] == 0) continue;
-        const double cost = sweep_area(acc) * n + right_area[k + 1] * right_count[k + 1];
-        if (cost < best.cost) best = Split{a, k, cost};
-      }
-    }
-    return best;
+    return geometry::cheapest_split<double, kBins>(
+        bins, map.usable, [&](int a, int k) -> const Bounds4& { return bin_box[a][k]; },
+        [&](int a, int k) { return bin_count[a][k]; }, Bounds4::empty(), sweep_area);
   }
 
   // Hoare partition of [begin, end) by the split (left: bin <= split.bin), gathering both
@@ -251,7 +229,9 @@ struct Builder {
     const BinMap map(r.centroids, int(std::clamp<uint32_t>(count, 16, kBins)));
     const Split best = find_split(r, map);
     const double area = half_area(r.box);
-    if (count <= kNvMaxLeafSize && (best.axis < 0 || !(best.cost + area < area * count))) return leaf();
+    const bool split_cheaper = kSah.traversal_cost * area + kSah.intersection_cost * best.cost <
+                               kSah.intersection_cost * area * count;
+    if (count <= kSah.max_leaf_size && (best.axis < 0 || !split_cheaper)) return leaf();
     Range left, right;
     // Deep chains (e.g. exponentially spaced boxes) fall back to median splits so the
     // recursion stays shallow (depth <= 64 + log2 n).

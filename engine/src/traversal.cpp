@@ -1,8 +1,10 @@
-// Ray traversal of one CLAS: conservative box tests over the quantized BVH, watertight
-// triangle tests (Woop, Benthin & Wald 2013) in double precision.
+// Ray traversal of one CLAS: the engine's conservative slab test over the quantized BVH,
+// its watertight triangle test (geometry/).
 #include "clastrace/engine/traversal.h"
 
 #include "cluster_internal.h"
+#include "geometry/slab.h"
+#include "geometry/triangle.h"
 #include "clastrace/vk_cluster_abi.h"
 
 #include <cmath>
@@ -12,91 +14,10 @@ namespace clastrace::engine {
 
 namespace {
 
-constexpr double kEps = std::numeric_limits<double>::epsilon() * 0.5;
-// Ize 2013: scaling the far distance by 1 + 2*gamma(3) makes the slab test conservative.
-constexpr double kFarScale = 1.0 + 2.0 * (3.0 * kEps) / (1.0 - 3.0 * kEps);
-
-struct PreparedRay {
-  double o[3], d[3], inv[3];
-  bool zero[3];
-  int kx, ky, kz;
-  double sx, sy, sz;
-  double tmin, tmax;
-  uint32_t flags;
-};
-
-PreparedRay prepare(const Ray& ray, uint32_t flags) {
-  PreparedRay r;
-  for (int a = 0; a < 3; ++a) {
-    r.o[a] = ray.origin[a];
-    r.d[a] = ray.direction[a];
-    r.zero[a] = ray.direction[a] == 0.0f;
-    r.inv[a] = r.zero[a] ? 0.0 : 1.0 / r.d[a];
-  }
-  // Dimension permutation: z is the largest direction component; swapping x and y when
-  // it is negative keeps the triangles' winding.
-  int kz = 0;
-  if (std::fabs(r.d[1]) > std::fabs(r.d[kz])) kz = 1;
-  if (std::fabs(r.d[2]) > std::fabs(r.d[kz])) kz = 2;
-  int kx = (kz + 1) % 3, ky = (kx + 1) % 3;
-  if (r.d[kz] < 0.0) std::swap(kx, ky);
-  r.kx = kx;
-  r.ky = ky;
-  r.kz = kz;
-  r.sx = r.d[kx] / r.d[kz];
-  r.sy = r.d[ky] / r.d[kz];
-  r.sz = 1.0 / r.d[kz];
-  r.tmin = ray.tmin;
-  r.tmax = ray.tmax;
-  r.flags = flags;
-  return r;
-}
-
-bool box_hit(const PreparedRay& r, const float lo[3], const float hi[3], double tmax, double& tnear) {
-  double t0 = r.tmin, t1 = tmax;
-  for (int a = 0; a < 3; ++a) {
-    if (r.zero[a]) {
-      if (r.o[a] < lo[a] || r.o[a] > hi[a]) return false;
-      continue;
-    }
-    double ta = (double(lo[a]) - r.o[a]) * r.inv[a];
-    double tb = (double(hi[a]) - r.o[a]) * r.inv[a];
-    if (ta > tb) std::swap(ta, tb);
-    tb *= kFarScale;
-    t0 = ta > t0 ? ta : t0;
-    t1 = tb < t1 ? tb : t1;
-  }
-  tnear = t0;
-  return t0 <= t1;
-}
-
-struct TriangleHit {
-  double t, u, v;
-  bool front;
-};
-
-bool triangle_hit(const PreparedRay& r, const float* p0, const float* p1, const float* p2, double tmax, TriangleHit& h) {
-  const double A[3] = {p0[0] - r.o[0], p0[1] - r.o[1], p0[2] - r.o[2]};
-  const double B[3] = {p1[0] - r.o[0], p1[1] - r.o[1], p1[2] - r.o[2]};
-  const double C[3] = {p2[0] - r.o[0], p2[1] - r.o[1], p2[2] - r.o[2]};
-  const double Ax = A[r.kx] - r.sx * A[r.kz], Ay = A[r.ky] - r.sy * A[r.kz];
-  const double Bx = B[r.kx] - r.sx * B[r.kz], By = B[r.ky] - r.sy * B[r.kz];
-  const double Cx = C[r.kx] - r.sx * C[r.kz], Cy = C[r.ky] - r.sy * C[r.kz];
-  const double U = Cx * By - Cy * Bx;
-  const double V = Ax * Cy - Ay * Cx;
-  const double W = Bx * Ay - By * Ax;
-  if ((U < 0.0 || V < 0.0 || W < 0.0) && (U > 0.0 || V > 0.0 || W > 0.0)) return false;
-  const double det = U + V + W;
-  if (det == 0.0 || std::isnan(det)) return false;
-  const double T = U * (r.sz * A[r.kz]) + V * (r.sz * B[r.kz]) + W * (r.sz * C[r.kz]);
-  const double t = T / det;
-  if (!(t >= r.tmin && t <= tmax)) return false;
-  h.t = t;
-  h.u = V / det;
-  h.v = W / det;
-  // det > 0: v0 v1 v2 appear clockwise looking along the ray (Vulkan's front face).
-  h.front = det > 0.0;
-  return true;
+geometry::PreparedRay prepare(const Ray& ray) {
+  const double o[3] = {ray.origin[0], ray.origin[1], ray.origin[2]};
+  const double d[3] = {ray.direction[0], ray.direction[1], ray.direction[2]};
+  return geometry::prepare_ray(o, d, ray.tmin, ray.tmax);
 }
 
 template <bool kAny, bool kPlainFloats>
@@ -104,7 +25,7 @@ Hit traverse_impl(const ClasView& clas, const Ray& ray, uint32_t ray_flags) {
   Hit best;
   const ObjectHeader& h = clas.header;
   if (h.node_count == 0) return best;
-  const PreparedRay r = prepare(ray, ray_flags);
+  const geometry::PreparedRay r = prepare(ray);
   if (!(r.tmin <= r.tmax)) return best;
   const std::byte* base = clas.bytes.data();
   const std::byte* nodes = base + h.nodes_offset;
@@ -140,7 +61,7 @@ Hit traverse_impl(const ClasView& clas, const Ray& ray, uint32_t ray_flags) {
     float lo[3], hi[3];
     double tn;
     node_box(0, lo, hi);
-    if (!box_hit(r, lo, hi, tmax, tn)) return best;
+    if (!geometry::slab_test<true>(r, lo, hi, tmax, &tn)) return best;
   }
   while (sp > 0) {
     const uint32_t ni = stack[--sp];
@@ -162,8 +83,8 @@ Hit traverse_impl(const ClasView& clas, const Ray& ray, uint32_t ray_flags) {
             }
           }
         }
-        TriangleHit th;
-        if (!triangle_hit(r, v[0], v[1], v[2], tmax, th)) continue;
+        geometry::TriangleHit th;
+        if (!geometry::intersect_triangle(r, v[0], v[1], v[2], tmax, &th)) continue;
         if (!kAny && th.t >= tmax && best.hit) continue;
         const uint32_t gif = (h.header_flags & kHasTriangleData) ? detail::read_u32(base + h.triangle_data_offset + 4 * i)
                                                                  : h.base_geometry_index_and_flags;
@@ -197,8 +118,8 @@ Hit traverse_impl(const ClasView& clas, const Ray& ray, uint32_t ray_flags) {
     double tl, tr;
     node_box(left, llo, lhi);
     node_box(left + 1, rlo, rhi);
-    const bool hl = box_hit(r, llo, lhi, tmax, tl);
-    const bool hr = box_hit(r, rlo, rhi, tmax, tr);
+    const bool hl = geometry::slab_test<true>(r, llo, lhi, tmax, &tl);
+    const bool hr = geometry::slab_test<true>(r, rlo, rhi, tmax, &tr);
     if (hl && hr) {
       if (tl <= tr) {
         stack[sp++] = uint16_t(left + 1);
