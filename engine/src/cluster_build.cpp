@@ -193,26 +193,19 @@ struct TriangleDecode {
   Reporter& report;
 };
 
-// Reads and checks everything a build or template info names. Returns false when no
-// object can be built; findings say why.
-bool decode_triangle_info(const TriangleDecode& job) {
-  const MemoryImage& memory = job.memory;
+// Bytes of one index of a VkClusterAccelerationStructureIndexFormatFlagBitsNV value (1
+// for a value that is none, which the checks report).
+uint32_t index_size_of(uint32_t index_type) { return single_bit(index_type) && index_type <= 4 ? index_type : 1; }
+
+// The info's counts, flags, formats and strides against the properties and the input.
+// Returns false when no object can be built.
+bool check_triangle_info(const TriangleDecode& job, const VertexFormatInfo& vf) {
   const TriangleInfoView& info = job.info;
   const VkClusterAccelerationStructureTriangleClusterInputNV& input = job.input;
   const EngineProperties& p = job.properties;
   const InfoRules& rules = job.rules;
-  float* const positions = job.positions;
-  uint32_t* const indices = job.indices;
-  uint8_t* const inactive = job.inactive;
-  uint32_t* const geometry = job.geometry;
-  int32_t* const omm = job.omm;
-  Decoded& d = job.decoded;
   Reporter& r = job.report;
-  bool buildable = true;
-  check_input(input, p, r);
-  const VertexFormatInfo vf = vertex_format_info(input.vertexFormat);
-  if (!vf.supported) buildable = false;
-
+  bool buildable = vf.supported;
   if (info.clusterID == 0xFFFFFFFFu) r.add(rules.clusterID, "clusterID is 0xFFFFFFFF");
   if (info.clusterFlags & ~uint32_t(VK_CLUSTER_ACCELERATION_STRUCTURE_CLUSTER_ALLOW_DISABLE_OPACITY_MICROMAPS_NV))
     r.add(rules.clusterFlags, "clusterFlags " + hex(info.clusterFlags) + " has bits no VkClusterAccelerationStructureClusterFlagBitsNV defines");
@@ -250,7 +243,7 @@ bool decode_triangle_info(const TriangleDecode& job) {
     r.add(rules.positionTruncateBitCount, "positionTruncateBitCount " + std::to_string(info.positionTruncateBitCount) +
                                               " outside [minPositionTruncateBitCount " +
                                               std::to_string(input.minPositionTruncateBitCount) + ", 32]");
-  const uint32_t index_size = single_bit(info.indexType) && info.indexType <= 4 ? info.indexType : 1;
+  const uint32_t index_size = index_size_of(info.indexType);
   if (info.indexBufferStride % index_size != 0)
     r.add(rules.indexBufferStride, "indexBufferStride " + std::to_string(info.indexBufferStride) + " is not 0 or a multiple of " +
                                        std::to_string(index_size));
@@ -258,16 +251,19 @@ bool decode_triangle_info(const TriangleDecode& job) {
     r.add(rules.vertexBufferStride, "vertexBufferStride " + std::to_string(info.vertexBufferStride) +
                                         " is not 0 or a multiple of the vertex format's component size " +
                                         std::to_string(vf.component_size));
-  if (!buildable) return false;
+  return buildable;
+}
 
-  d.triangle_count = info.triangleCount;
-  d.vertex_count = info.vertexCount;
-  d.truncate_bits = std::min<uint32_t>(info.positionTruncateBitCount, 32);
-  const uint32_t T = d.triangle_count, V = d.vertex_count;
-
-  // Indices.
-  const auto idx = memory.read_array(info.indexBuffer, 3ull * T, info.indexBufferStride, index_size,
-                                     {"indexBuffer", r.op_index});
+// Indices widened to 32 bits; triangles with an index >= vertexCount are inactive.
+void decode_indices(const TriangleDecode& job) {
+  const TriangleInfoView& info = job.info;
+  uint32_t* const indices = job.indices;
+  uint8_t* const inactive = job.inactive;
+  Reporter& r = job.report;
+  const uint32_t T = job.decoded.triangle_count, V = job.decoded.vertex_count;
+  const uint32_t index_size = index_size_of(info.indexType);
+  const auto idx = job.memory.read_array(info.indexBuffer, 3ull * T, info.indexBufferStride, index_size,
+                                         {"indexBuffer", r.op_index});
   const uint32_t istep = info.indexBufferStride ? info.indexBufferStride : index_size;
   // Widen first (one loop per index size, no per-value switch), then range-check.
   const std::byte* const isrc = idx.data();
@@ -311,11 +307,19 @@ bool decode_triangle_info(const TriangleDecode& job) {
                                     "; first at index " + std::to_string(first_bad) + " (value " +
                                     std::to_string(indices[first_bad]) + "); those triangles are inactive",
           info.indexBuffer);
+}
 
-  // Positions: decoded, then truncated on their 32-bit patterns.
+// Positions: decoded, then truncated on their 32-bit patterns.
+void decode_positions(const TriangleDecode& job, const VertexFormatInfo& vf) {
+  const TriangleInfoView& info = job.info;
+  const VkClusterAccelerationStructureTriangleClusterInputNV& input = job.input;
+  float* const positions = job.positions;
+  Decoded& d = job.decoded;
+  const uint32_t V = d.vertex_count;
   d.has_positions = !(job.positions_optional && info.vertexBuffer == 0);
   if (d.has_positions && V > 0) {
-    const auto vb = memory.read_array(info.vertexBuffer, V, info.vertexBufferStride, vf.size, {"vertexBuffer", r.op_index});
+    const auto vb =
+        job.memory.read_array(info.vertexBuffer, V, info.vertexBufferStride, vf.size, {"vertexBuffer", job.report.op_index});
     const uint32_t vstep = info.vertexBufferStride ? info.vertexBufferStride : vf.size;
     if (input.vertexFormat == VK_FORMAT_R32G32B32_SFLOAT && vstep == 12) {
       std::memcpy(positions, vb.data(), size_t(V) * 12);
@@ -329,8 +333,18 @@ bool decode_triangle_info(const TriangleDecode& job) {
       for (uint32_t c = 0; c < 3 * V; ++c) positions[c] = std::bit_cast<float>(std::bit_cast<uint32_t>(positions[c]) & mask);
     }
   }
+}
 
-  // Geometry index and flags: base + per-triangle index; flags of both.
+// Geometry index and flags: base + per-triangle index; flags of both.
+void decode_geometry_indices(const TriangleDecode& job) {
+  const TriangleInfoView& info = job.info;
+  const VkClusterAccelerationStructureTriangleClusterInputNV& input = job.input;
+  const EngineProperties& p = job.properties;
+  const InfoRules& rules = job.rules;
+  uint32_t* const geometry = job.geometry;
+  Decoded& d = job.decoded;
+  Reporter& r = job.report;
+  const uint32_t T = d.triangle_count;
   constexpr uint32_t kReservedBits = 0x1F000000u;  // reserved:5 above geometryIndex:24
   constexpr const char* kReservedRule = "VUID-VkClusterAccelerationStructureGeometryIndexAndGeometryFlagsNV-reserved-10487";
   const uint32_t base = info.baseGeometryIndexAndFlags;
@@ -338,8 +352,8 @@ bool decode_triangle_info(const TriangleDecode& job) {
   uint32_t max_index = base & 0xFFFFFFu;
   d.has_geometry = info.geometryIndexAndFlagsBuffer != 0;
   if (d.has_geometry) {
-    const auto gb = memory.read_array(info.geometryIndexAndFlagsBuffer, T, info.geometryIndexAndFlagsBufferStride, 4,
-                                      {"geometryIndexAndFlagsBuffer", r.op_index});
+    const auto gb = job.memory.read_array(info.geometryIndexAndFlagsBuffer, T, info.geometryIndexAndFlagsBufferStride, 4,
+                                          {"geometryIndexAndFlagsBuffer", r.op_index});
     const uint32_t gstep = info.geometryIndexAndFlagsBufferStride ? info.geometryIndexAndFlagsBufferStride : 4;
     uint32_t unique[8];
     uint32_t n_unique = 0, reserved_set = 0;
@@ -372,15 +386,21 @@ bool decode_triangle_info(const TriangleDecode& job) {
     r.add(kRuleGeometryIndexAboveInput, "maximum geometry index " + std::to_string(max_index) +
                                             " > VkClusterAccelerationStructureTriangleClusterInputNV::maxGeometryIndexValue " +
                                             std::to_string(input.maxGeometryIndexValue));
+}
 
-  // Opacity micromaps: recorded (array address and per-triangle indices), not traced.
+// Opacity micromaps: recorded (array address and per-triangle indices), not traced.
+void decode_opacity_micromaps(const TriangleDecode& job) {
+  const TriangleInfoView& info = job.info;
+  int32_t* const omm = job.omm;
+  Decoded& d = job.decoded;
+  const uint32_t T = d.triangle_count;
   d.has_omm = info.opacityMicromapArray != 0;
   if (d.has_omm) {
     d.omm_index_type = info.opacityMicromapIndexType;
     const uint32_t osize = single_bit(info.opacityMicromapIndexType) && info.opacityMicromapIndexType <= 4 ? info.opacityMicromapIndexType : 4;
     if (info.opacityMicromapIndexBuffer != 0) {
-      const auto ob = memory.read_array(info.opacityMicromapIndexBuffer, T, info.opacityMicromapIndexBufferStride, osize,
-                                        {"opacityMicromapIndexBuffer", r.op_index});
+      const auto ob = job.memory.read_array(info.opacityMicromapIndexBuffer, T, info.opacityMicromapIndexBufferStride, osize,
+                                            {"opacityMicromapIndexBuffer", job.report.op_index});
       const uint32_t ostep = info.opacityMicromapIndexBufferStride ? info.opacityMicromapIndexBufferStride : osize;
       for (uint32_t t = 0; t < T; ++t) {
         const std::byte* src = ob.data() + size_t(t) * ostep;
@@ -394,6 +414,22 @@ bool decode_triangle_info(const TriangleDecode& job) {
       for (uint32_t t = 0; t < T; ++t) omm[t] = int32_t(t);  // no index buffer: triangle i uses micromap i
     }
   }
+}
+
+// Reads and checks everything a build or template info names. Returns false when no
+// object can be built; findings say why.
+bool decode_triangle_info(const TriangleDecode& job) {
+  check_input(job.input, job.properties, job.report);
+  const VertexFormatInfo vf = vertex_format_info(job.input.vertexFormat);
+  if (!check_triangle_info(job, vf)) return false;
+  Decoded& d = job.decoded;
+  d.triangle_count = job.info.triangleCount;
+  d.vertex_count = job.info.vertexCount;
+  d.truncate_bits = std::min<uint32_t>(job.info.positionTruncateBitCount, 32);
+  decode_indices(job);
+  decode_positions(job, vf);
+  decode_geometry_indices(job);
+  decode_opacity_micromaps(job);
   return true;
 }
 

@@ -69,17 +69,12 @@ void radix_sort3(const uint16_t (*key)[kMaxTriangles], uint32_t n, uint16_t (*hi
     }
 }
 
-}  // namespace
-
-void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
-  s.node_count = 0;
-  if (n == 0) return;
-
-  // Centroids (half-sums: no overflow near FLT_MAX; -inf..+inf gives NaN, taken as 0) and
-  // their bounds.
-  alignas(16) float centroid[kMaxTriangles][4];
+// Triangle centroids (half-sums: no overflow near FLT_MAX; -inf..+inf gives NaN, taken as
+// 0) and their bounds.
+void compute_centroids(const BvhScratch& s, uint32_t n, float (*centroid)[4], Float4& clo, Float4& chi) {
   const Float4 half = splat(0.5f);
-  Float4 clo = splat(INFINITY), chi = splat(-INFINITY);
+  clo = splat(INFINITY);
+  chi = splat(-INFINITY);
   for (uint32_t i = 0; i < n; ++i) {
     Float4 c = load4(s.tri_min[i]) * half + load4(s.tri_max[i]) * half;
     if (nan_lanes(c)) {
@@ -92,6 +87,42 @@ void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
     clo = min4(clo, c);
     chi = max4(chi, c);
   }
+}
+
+// Node boxes bottom-up: children always follow their parent.
+void fit_node_boxes(BvhScratch& s, const uint8_t* leaf_order) {
+  for (uint32_t ni = s.node_count; ni-- > 0;) {
+    BvhScratch::Node& node = s.nodes[ni];
+    Float4 lo, hi;
+    if (node.count) {
+      const uint8_t* tris = leaf_order + node.first;
+      lo = load4(s.tri_min[tris[0]]);
+      hi = load4(s.tri_max[tris[0]]);
+      for (uint32_t j = 1; j < node.count; ++j) {
+        lo = min4(lo, load4(s.tri_min[tris[j]]));
+        hi = max4(hi, load4(s.tri_max[tris[j]]));
+      }
+    } else {
+      const BvhScratch::Node& l = s.nodes[node.first];
+      const BvhScratch::Node& r = s.nodes[node.first + 1];
+      lo = min4(load4(l.lo), load4(r.lo));
+      hi = max4(load4(l.hi), load4(r.hi));
+    }
+    store4(node.lo, lo);
+    store4(node.hi, hi);
+  }
+}
+
+}  // namespace
+
+void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
+  s.node_count = 0;
+  if (n == 0) return;
+
+  alignas(16) float centroid[kMaxTriangles][4];
+  Float4 clo, chi;
+  compute_centroids(s, n, centroid, clo, chi);
+  const Float4 half = splat(0.5f);
 
   // 10-bit keys per axis, monotone in the centroid (so sorting them sorts the centroids up
   // to ties inside one step of extent / 1024). Halves again keep extents finite.
@@ -182,27 +213,7 @@ void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
     stack[sp++] = {left, uint16_t(b), uint16_t(m)};
   }
 
-  // Boxes bottom-up: children always follow their parent.
-  for (uint32_t ni = s.node_count; ni-- > 0;) {
-    BvhScratch::Node& node = s.nodes[ni];
-    Float4 lo, hi;
-    if (node.count) {
-      const uint8_t* tris = leaf_order + node.first;
-      lo = load4(s.tri_min[tris[0]]);
-      hi = load4(s.tri_max[tris[0]]);
-      for (uint32_t j = 1; j < node.count; ++j) {
-        lo = min4(lo, load4(s.tri_min[tris[j]]));
-        hi = max4(hi, load4(s.tri_max[tris[j]]));
-      }
-    } else {
-      const BvhScratch::Node& l = s.nodes[node.first];
-      const BvhScratch::Node& r = s.nodes[node.first + 1];
-      lo = min4(load4(l.lo), load4(r.lo));
-      hi = max4(load4(l.hi), load4(r.hi));
-    }
-    store4(node.lo, lo);
-    store4(node.hi, hi);
-  }
+  fit_node_boxes(s, leaf_order);
   for (uint32_t j = 0; j < n; ++j) s.perm[j] = active_list[leaf_order[j]];
 }
 

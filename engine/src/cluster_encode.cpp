@@ -132,6 +132,82 @@ void write_nodes(const QuantFrame& f, bool unbounded, const BvhScratch& s, uint3
 #endif
 }
 
+// Section offsets and flags of the header, and the object's size (also in the header).
+uint32_t lay_out_object(ObjectHeader& h, const EncodeInput& in, uint32_t n_nodes, bool identity, bool varying) {
+  const uint32_t T = in.triangle_count;
+  uint32_t size = sizeof(ObjectHeader);
+  if (n_nodes) {
+    h.nodes_offset = size;
+    h.node_count = uint16_t(n_nodes);
+    size += 8 * n_nodes;
+  }
+  const uint32_t pos_bytes = in.positions ? packed_section_size(in.vertex_count, h.position_bits) : 0;
+  if (in.positions) {
+    h.header_flags |= kHasPositions;
+    h.positions_offset = size;
+    size = align4(size + pos_bytes);
+  }
+  h.indices_offset = size;
+  size += 3 * T;
+  if (!identity) {
+    h.header_flags |= kHasTriangleOrder;
+    h.triangle_order_offset = size;
+    size += T;
+  }
+  size = align4(size);
+  if (varying) {
+    h.header_flags |= kHasTriangleData;
+    h.triangle_data_offset = size;
+    size += 4 * T;
+  }
+  if (in.has_omm) {
+    h.header_flags |= kHasOpacityMicromap;
+    size = (size + 7u) & ~7u;
+    h.omm_offset = size;
+    size += sizeof(OpacityMicromapSection) + 4 * T;
+  }
+  if (in.has_bounds_limit) {
+    h.header_flags |= kHasBoundsLimit;
+    h.bounds_limit_offset = size;
+    size += 24;
+  }
+  size = align4(size);
+  h.object_size = size;
+  return size;
+}
+
+// Per-triangle sections in stored order, one loop each (no per-triangle tests of which
+// sections exist).
+void write_triangle_sections(const EncodeInput& in, const ObjectHeader& h, const uint8_t* order, bool identity,
+                             bool varying, std::byte* base) {
+  const uint32_t T = in.triangle_count;
+  std::byte* const index_bytes = base + h.indices_offset;
+  const bool any_dead = in.inactive && std::memchr(in.inactive, 1, T) != nullptr;
+  for (uint32_t i = 0; i < T; ++i) {
+    const uint32_t* tri = in.indices + 3 * order[i];
+    index_bytes[3 * i + 0] = std::byte(uint8_t(tri[0]));
+    index_bytes[3 * i + 1] = std::byte(uint8_t(tri[1]));
+    index_bytes[3 * i + 2] = std::byte(uint8_t(tri[2]));
+  }
+  if (any_dead)
+    for (uint32_t i = 0; i < T; ++i)
+      if (in.inactive[order[i]])  // dead ones stay 0
+        for (int v = 0; v < 3; ++v) index_bytes[3 * i + v] = std::byte{0};
+  if (!identity) std::memcpy(base + h.triangle_order_offset, order, T);
+  if (varying)
+    for (uint32_t i = 0; i < T; ++i)
+      std::memcpy(base + h.triangle_data_offset + 4 * i, &in.geometry_index_and_flags[order[i]], 4);
+  if (in.has_omm)
+    for (uint32_t i = 0; i < T; ++i)
+      std::memcpy(base + h.omm_offset + sizeof(OpacityMicromapSection) + 4 * i, &in.omm_indices[order[i]], 4);
+  if (in.has_omm) {
+    OpacityMicromapSection sec{};
+    sec.opacity_micromap_array = in.omm_array;
+    sec.index_type = in.omm_index_type;
+    std::memcpy(base + h.omm_offset, &sec, sizeof sec);
+  }
+}
+
 }  // namespace
 
 uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::byte>& out) {
@@ -224,47 +300,9 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
   bool unbounded = !finite3(bmin) || !finite3(bmax);
   for (int a = 0; a < 3; ++a) unbounded |= !std::isfinite(frame.step[a]);
 
-  // Layout.
-  uint32_t size = sizeof(ObjectHeader);
-  if (n_nodes) {
-    h.nodes_offset = size;
-    h.node_count = uint16_t(n_nodes);
-    size += 8 * n_nodes;
-  }
-  const uint32_t pos_bytes = in.positions ? packed_section_size(in.vertex_count, h.position_bits) : 0;
-  if (in.positions) {
-    h.header_flags |= kHasPositions;
-    h.positions_offset = size;
-    size = align4(size + pos_bytes);
-  }
-  h.indices_offset = size;
-  size += 3 * T;
-  if (!identity) {
-    h.header_flags |= kHasTriangleOrder;
-    h.triangle_order_offset = size;
-    size += T;
-  }
-  size = align4(size);
-  if (varying) {
-    h.header_flags |= kHasTriangleData;
-    h.triangle_data_offset = size;
-    size += 4 * T;
-  }
-  if (in.has_omm) {
-    h.header_flags |= kHasOpacityMicromap;
-    size = (size + 7u) & ~7u;
-    h.omm_offset = size;
-    size += sizeof(OpacityMicromapSection) + 4 * T;
-  }
-  if (in.has_bounds_limit) {
-    h.header_flags |= kHasBoundsLimit;
-    h.bounds_limit_offset = size;
-    size += 24;
-  }
+  const uint32_t size = lay_out_object(h, in, n_nodes, identity, varying);
   if (unbounded) h.header_flags |= kUnboundedNodes;
   if (any_nan) h.header_flags |= kHasNaNTriangles;
-  size = align4(size);
-  h.object_size = size;
 
   out.assign(size, std::byte{0});
   std::byte* base = out.data();
@@ -272,33 +310,7 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
 
   write_nodes(frame, unbounded, s, n_nodes, base + h.nodes_offset);
   if (in.positions) pack_positions(in.positions, 3 * in.vertex_count, h.position_bits, in.truncate_bits, base + h.positions_offset);
-  // Per-triangle sections in stored order, one loop each (no per-triangle tests of which
-  // sections exist).
-  std::byte* const index_bytes = base + h.indices_offset;
-  const bool any_dead = in.inactive && std::memchr(in.inactive, 1, T) != nullptr;
-  for (uint32_t i = 0; i < T; ++i) {
-    const uint32_t* tri = in.indices + 3 * order[i];
-    index_bytes[3 * i + 0] = std::byte(uint8_t(tri[0]));
-    index_bytes[3 * i + 1] = std::byte(uint8_t(tri[1]));
-    index_bytes[3 * i + 2] = std::byte(uint8_t(tri[2]));
-  }
-  if (any_dead)
-    for (uint32_t i = 0; i < T; ++i)
-      if (in.inactive[order[i]])  // dead ones stay 0
-        for (int v = 0; v < 3; ++v) index_bytes[3 * i + v] = std::byte{0};
-  if (!identity) std::memcpy(base + h.triangle_order_offset, order, T);
-  if (varying)
-    for (uint32_t i = 0; i < T; ++i)
-      std::memcpy(base + h.triangle_data_offset + 4 * i, &in.geometry_index_and_flags[order[i]], 4);
-  if (in.has_omm)
-    for (uint32_t i = 0; i < T; ++i)
-      std::memcpy(base + h.omm_offset + sizeof(OpacityMicromapSection) + 4 * i, &in.omm_indices[order[i]], 4);
-  if (in.has_omm) {
-    OpacityMicromapSection sec{};
-    sec.opacity_micromap_array = in.omm_array;
-    sec.index_type = in.omm_index_type;
-    std::memcpy(base + h.omm_offset, &sec, sizeof sec);
-  }
+  write_triangle_sections(in, h, order, identity, varying, base);
   if (in.has_bounds_limit) std::memcpy(base + h.bounds_limit_offset, in.bounds_limit, 24);
   return size;
 }

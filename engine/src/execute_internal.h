@@ -1,4 +1,4 @@
-// Shared between execute.cpp (the command) and execute_ops.cpp (one op each).
+// Shared between the command's stages (execute*.cpp) and execute_ops.cpp (one op each).
 #ifndef CLASTRACE_ENGINE_SRC_EXECUTE_INTERNAL_H
 #define CLASTRACE_ENGINE_SRC_EXECUTE_INTERNAL_H
 
@@ -34,6 +34,7 @@ struct ResolvedCommand {
   const VkClusterAccelerationStructureInputInfoNV* input;
   uint64_t implicit_data = 0;
   uint64_t scratch = 0;
+  uint64_t count_address = 0;  // srcInfosCount, resolved
   VkStridedDeviceAddressRegionKHR dst_addresses{};
   VkStridedDeviceAddressRegionKHR dst_sizes{};
   VkStridedDeviceAddressRegionKHR src_infos{};

@@ -59,17 +59,11 @@ std::string hex(uint64_t v) {
   return buf;
 }
 
-// Command-level rules that need no memory. False when the build cannot run.
-bool check_command(Context& c) {
-  const NvBuildCommand& cmd = c.command;
-  const NvObjectInfo& info = cmd.info;
+// Flags and counts of pInfo against each other and the limits. False when the build cannot run.
+bool check_info_counts(Context& c) {
+  const NvObjectInfo& info = c.command.info;
   const bool top = info.type == VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV;
   bool ok = true;
-  if (info.type != VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV && info.type != VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV) {
-    c.finding("VUID-VkAccelerationStructureInfoNV-type-parameter",
-              "pInfo->type " + std::to_string(uint32_t(info.type)) + " is neither top nor bottom level");
-    return false;
-  }
   if ((info.flags & VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_NV) &&
       (info.flags & VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV))
     c.finding(kVuidInfoFastBoth, "pInfo->flags has both PREFER_FAST_TRACE and PREFER_FAST_BUILD");
@@ -105,7 +99,14 @@ bool check_command(Context& c) {
                                           " triangles, above maxTriangleCount " + std::to_string(c.options.limits.max_triangle_count));
     ok = false;
   }
-  // dst
+  return ok;
+}
+
+// dst bound, and compatible with what it was created for.
+bool check_dst(Context& c) {
+  const NvBuildCommand& cmd = c.command;
+  const NvObjectInfo& info = cmd.info;
+  bool ok = true;
   if (cmd.dst.handle == 0 || !cmd.dst.bound) {
     c.finding(kVuidNvDstBound, "dst " + hex(cmd.dst.handle) + " has no memory bound (vkBindAccelerationStructureMemoryNV)");
     ok = false;
@@ -128,7 +129,13 @@ bool check_command(Context& c) {
       ok = false;
     }
   }
-  // update / src
+  return ok;
+}
+
+// An update's src: given, built with ALLOW_UPDATE, not aliasing dst.
+bool check_update_source(Context& c) {
+  const NvBuildCommand& cmd = c.command;
+  bool ok = true;
   if (cmd.update) {
     if (cmd.src.handle == 0) {
       c.finding(kVuidNvUpdateNoSrc, "update is VK_TRUE but src is VK_NULL_HANDLE");
@@ -146,7 +153,13 @@ bool check_command(Context& c) {
                 std::max(cmd.src.address, cmd.dst.address));
     }
   }
-  // scratch
+  return ok;
+}
+
+// Scratch and instance buffer usage and the scratch size; records the scratch access.
+void check_scratch(Context& c) {
+  const NvBuildCommand& cmd = c.command;
+  const NvObjectInfo& info = cmd.info;
   const NvMemoryRequirements need = nv_memory_requirements(info);
   const uint64_t scratch_need = cmd.update ? need.update_scratch : need.build_scratch;
   if (!cmd.scratch_ray_tracing_usage) c.finding(kVuidNvScratchUsage, "scratch was created without VK_BUFFER_USAGE_RAY_TRACING_BIT_NV");
@@ -160,28 +173,49 @@ bool check_command(Context& c) {
   c.record.scratch_address = cmd.scratch_address;
   c.record.scratch_bytes_used = std::min(scratch_need, cmd.scratch_available);
   c.access(cmd.scratch_address, c.record.scratch_bytes_used, kAccessScratch, true, "scratch");
-  if (ok) {
-    // The worst case for these counts must fit before anything is allocated: hostile
-    // counts end here, not in a huge allocation.
-    uint64_t active_bound = 0;
-    for (const NvGeometry& g : info.geometries) active_bound += input_primitives(g);
-    if (top) active_bound = info.instance_count;
-    const uint64_t bound = nv_memory_requirements(top, info.geometries.size(), active_bound).object;
-    if (bound > cmd.dst.size) {
-      c.finding(kRuleNvObjectTooLarge, "the engine's object for this build may need " + std::to_string(bound) +
-                                           " bytes; dst " + hex(cmd.dst.handle) + " has " + std::to_string(cmd.dst.size) +
-                                           " bytes bound",
-                cmd.dst.address);
+}
+
+// The worst case for these counts must fit before anything is allocated: hostile counts
+// end here, not in a huge allocation.
+bool check_object_fits(Context& c) {
+  const NvBuildCommand& cmd = c.command;
+  const NvObjectInfo& info = cmd.info;
+  const bool top = info.type == VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV;
+  bool ok = true;
+  uint64_t active_bound = 0;
+  for (const NvGeometry& g : info.geometries) active_bound += input_primitives(g);
+  if (top) active_bound = info.instance_count;
+  const uint64_t bound = nv_memory_requirements(top, info.geometries.size(), active_bound).object;
+  if (bound > cmd.dst.size) {
+    c.finding(kRuleNvObjectTooLarge, "the engine's object for this build may need " + std::to_string(bound) +
+                                         " bytes; dst " + hex(cmd.dst.handle) + " has " + std::to_string(cmd.dst.size) +
+                                         " bytes bound",
+              cmd.dst.address);
+    ok = false;
+  } else {
+    try {
+      (void)c.memory.read_bytes(cmd.dst.address, bound, FieldRef{"dst", -1});
+    } catch (const MemoryFault& f) {
+      c.finding(kRuleNvMemoryFault, "dst " + hex(cmd.dst.handle) + ": " + f.message, cmd.dst.address);
       ok = false;
-    } else {
-      try {
-        (void)c.memory.read_bytes(cmd.dst.address, bound, FieldRef{"dst", -1});
-      } catch (const MemoryFault& f) {
-        c.finding(kRuleNvMemoryFault, "dst " + hex(cmd.dst.handle) + ": " + f.message, cmd.dst.address);
-        ok = false;
-      }
     }
   }
+  return ok;
+}
+
+// Command-level rules that need no memory. False when the build cannot run.
+bool check_command(Context& c) {
+  const NvObjectInfo& info = c.command.info;
+  if (info.type != VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV && info.type != VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV) {
+    c.finding("VUID-VkAccelerationStructureInfoNV-type-parameter",
+              "pInfo->type " + std::to_string(uint32_t(info.type)) + " is neither top nor bottom level");
+    return false;
+  }
+  bool ok = check_info_counts(c);
+  ok &= check_dst(c);
+  ok &= check_update_source(c);
+  check_scratch(c);
+  if (ok) ok = check_object_fits(c);
   return ok;
 }
 

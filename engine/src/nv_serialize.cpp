@@ -58,6 +58,72 @@ std::vector<std::byte> serialize_nv_object(const MemoryImage& memory, uint64_t a
   return out;
 }
 
+namespace {
+
+// The engine's own blob: decode, check, patch handles, write the object to dst.
+void deserialize_engine_blob(const NvDeserializeCommand& cmd, MemoryImage& memory, const NvDeserializeOptions& options,
+                             std::span<const std::byte> blob, NvDeserializeResult& r) {
+  const SerializedHeader& h = r.header;
+  const uint64_t object_offset = sizeof h + h.handle_count * 8;
+  if (h.serialized_size - object_offset != h.deserialized_size) {
+    add_finding(r, kVuidDeserializeContents, "serializedSize " + std::to_string(h.serialized_size) + " is not the header, " +
+                                                 std::to_string(h.handle_count) + " handles and deserializedSize " +
+                                                 std::to_string(h.deserialized_size),
+                cmd.src_address);
+    return;
+  }
+  std::vector<std::byte> object(blob.begin() + object_offset, blob.end());
+  std::string error;
+  auto view = open_nv_object(object, &error);
+  if (!view || view->header.object_size != object.size()) {
+    add_finding(r, kVuidDeserializeContents, "the serialized object at " + hex(cmd.src_address + object_offset) +
+                                                 " is damaged: " + (view ? "object_size differs from deserializedSize" : error),
+                cmd.src_address + object_offset);
+    return;
+  }
+  r.top_level = view->header.kind == uint8_t(NvObjectKind::kTopLevel);
+  const uint64_t expected_handles = r.top_level ? view->header.primitive_count : 0;
+  if (h.handle_count != expected_handles) {
+    add_finding(r, kVuidDeserializeContents, "handleCount " + std::to_string(h.handle_count) + " differs from the " +
+                                                 std::to_string(expected_handles) + " instance records of the object",
+                cmd.src_address);
+    return;
+  }
+  if (cmd.dst.created && (cmd.dst.created->type == VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV) != r.top_level)
+    add_finding(r, kRuleDeserializeTypeDiffers, std::string("the serialized object is ") +
+                                                    (r.top_level ? "top" : "bottom") + "-level; dst " + hex(cmd.dst.handle) +
+                                                    " was created as the other level",
+                cmd.dst.address);
+  for (uint32_t i = 0; r.top_level && i < expected_handles; ++i) {
+    const uint64_t at = view->header.primitives_offset + uint64_t(i) * sizeof(NvInstanceRecord);
+    NvInstanceRecord rec = view->instance(i);
+    rec.reference = r.handles[i];
+    rec.active = rec.reference != 0;
+    rec.blas_address = 0;
+    if (rec.active) {
+      std::optional<uint64_t> a = options.resolve_handle ? options.resolve_handle(rec.reference) : std::optional<uint64_t>(rec.reference);
+      if (a) rec.blas_address = *a;
+      else
+        add_finding(r, kRuleDeserializeHandleUnknown, "handle " + std::to_string(i) + " (" + hex(rec.reference) +
+                                                          ") names no acceleration structure created before the deserialization",
+                    cmd.src_address + sizeof h + 8ull * i);
+    }
+    std::memcpy(object.data() + at, &rec, sizeof rec);
+  }
+  try {
+    auto out = memory.write_bytes(cmd.dst.address, object.size(), FieldRef{"pInfo->dst", -1});
+    std::memcpy(out.data(), object.data(), object.size());
+  } catch (const MemoryFault& f) {
+    add_finding(r, kVuidDeserializeDstBound, "dst's memory cannot hold the object: " + f.message, cmd.dst.address);
+    return;
+  }
+  r.record.ops[0].executed = true;
+  r.record.ops[0].dst_address = cmd.dst.address;
+  r.record.ops[0].dst_size = object.size();
+}
+
+}  // namespace
+
 NvDeserializeResult execute_nv_deserialize(const NvDeserializeCommand& cmd, MemoryImage& memory,
                                            const NvDeserializeOptions& options) {
   NvDeserializeResult r;
@@ -141,63 +207,7 @@ NvDeserializeResult execute_nv_deserialize(const NvDeserializeCommand& cmd, Memo
                   cmd.src_address);
     return r;
   }
-  // The engine's own blob: decode, check, patch handles.
-  const uint64_t object_offset = sizeof h + h.handle_count * 8;
-  if (h.serialized_size - object_offset != h.deserialized_size) {
-    add_finding(r, kVuidDeserializeContents, "serializedSize " + std::to_string(h.serialized_size) + " is not the header, " +
-                                                 std::to_string(h.handle_count) + " handles and deserializedSize " +
-                                                 std::to_string(h.deserialized_size),
-                cmd.src_address);
-    return r;
-  }
-  std::vector<std::byte> object(blob.begin() + object_offset, blob.end());
-  std::string error;
-  auto view = open_nv_object(object, &error);
-  if (!view || view->header.object_size != object.size()) {
-    add_finding(r, kVuidDeserializeContents, "the serialized object at " + hex(cmd.src_address + object_offset) +
-                                                 " is damaged: " + (view ? "object_size differs from deserializedSize" : error),
-                cmd.src_address + object_offset);
-    return r;
-  }
-  r.top_level = view->header.kind == uint8_t(NvObjectKind::kTopLevel);
-  const uint64_t expected_handles = r.top_level ? view->header.primitive_count : 0;
-  if (h.handle_count != expected_handles) {
-    add_finding(r, kVuidDeserializeContents, "handleCount " + std::to_string(h.handle_count) + " differs from the " +
-                                                 std::to_string(expected_handles) + " instance records of the object",
-                cmd.src_address);
-    return r;
-  }
-  if (cmd.dst.created && (cmd.dst.created->type == VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV) != r.top_level)
-    add_finding(r, kRuleDeserializeTypeDiffers, std::string("the serialized object is ") +
-                                                    (r.top_level ? "top" : "bottom") + "-level; dst " + hex(cmd.dst.handle) +
-                                                    " was created as the other level",
-                cmd.dst.address);
-  for (uint32_t i = 0; r.top_level && i < expected_handles; ++i) {
-    const uint64_t at = view->header.primitives_offset + uint64_t(i) * sizeof(NvInstanceRecord);
-    NvInstanceRecord rec = view->instance(i);
-    rec.reference = r.handles[i];
-    rec.active = rec.reference != 0;
-    rec.blas_address = 0;
-    if (rec.active) {
-      std::optional<uint64_t> a = options.resolve_handle ? options.resolve_handle(rec.reference) : std::optional<uint64_t>(rec.reference);
-      if (a) rec.blas_address = *a;
-      else
-        add_finding(r, kRuleDeserializeHandleUnknown, "handle " + std::to_string(i) + " (" + hex(rec.reference) +
-                                                          ") names no acceleration structure created before the deserialization",
-                    cmd.src_address + sizeof h + 8ull * i);
-    }
-    std::memcpy(object.data() + at, &rec, sizeof rec);
-  }
-  try {
-    auto out = memory.write_bytes(cmd.dst.address, object.size(), FieldRef{"pInfo->dst", -1});
-    std::memcpy(out.data(), object.data(), object.size());
-  } catch (const MemoryFault& f) {
-    add_finding(r, kVuidDeserializeDstBound, "dst's memory cannot hold the object: " + f.message, cmd.dst.address);
-    return r;
-  }
-  r.record.ops[0].executed = true;
-  r.record.ops[0].dst_address = cmd.dst.address;
-  r.record.ops[0].dst_size = object.size();
+  deserialize_engine_blob(cmd, memory, options, blob, r);
   return r;
 }
 

@@ -180,6 +180,14 @@ private:
     };
 
     void on_record(const traces::RecordView& view);
+    // The families of records on_record dispatches to; each returns whether it took the record.
+    bool on_memory_record(fbs::RecordBody kind, const fbs::Record& r);
+    bool on_acceleration_structure_record(fbs::RecordBody kind, const fbs::Record& r);
+    bool on_command_buffer_record(fbs::RecordBody kind, const fbs::Record& r);
+    bool on_queue_record(fbs::RecordBody kind, const fbs::Record& r);
+    bool on_presentation_record(fbs::RecordBody kind, const fbs::Record& r);
+    bool on_check_record(fbs::RecordBody kind, const fbs::Record& r);
+    void record_command(const traces::RecordView& view);
     void on_submit(const fbs::QueueSubmit& submit);
     // Replays one execution of a command buffer (a primary listed in a batch, or a secondary
     // at its primary's vkCmdExecuteCommands: `inside` then names the execute command).
@@ -780,9 +788,20 @@ void Replay::execute_secondaries(const fbs::CmdExecuteCommands& execute, const C
     }
 }
 
+// Each record outside a command buffer goes to the handler of its family; the others are
+// commands, kept in their command buffer until it is submitted.
 void Replay::on_record(const traces::RecordView& view) {
     const fbs::Record& r = *view.record;
-    switch (view.kind) {
+    const fbs::RecordBody kind = view.kind;
+    if (on_memory_record(kind, r) || on_acceleration_structure_record(kind, r) || on_command_buffer_record(kind, r) ||
+        on_queue_record(kind, r) || on_presentation_record(kind, r) || on_check_record(kind, r))
+        return;
+    record_command(view);
+}
+
+// Buffers and device memory: the replay's address space, and the host's writes to mapped memory.
+bool Replay::on_memory_record(fbs::RecordBody kind, const fbs::Record& r) {
+    switch (kind) {
     case fbs::RecordBody::BufferCreate: {
         const auto* c = r.body_as_BufferCreate();
         memory_.create_buffer(c->buffer(), c->size(), c->usage());
@@ -794,10 +813,17 @@ void Replay::on_record(const traces::RecordView& view) {
         break;
     }
     case fbs::RecordBody::BufferDestroy: memory_freed(memory_.destroy_buffer(r.body_as_BufferDestroy()->buffer())); break;
-    case fbs::RecordBody::AccelerationStructureDestroy:
-        memory_.destroy_object(r.body_as_AccelerationStructureDestroy()->acceleration_structure());
-        break;
     case fbs::RecordBody::MemoryFree: memory_.free_memory(r.body_as_MemoryFree()->memory()); break;
+    case fbs::RecordBody::MemoryObservation: host_observation(*r.body_as_MemoryObservation()); break;
+    default: return false;
+    }
+    return true;
+}
+
+// Acceleration-structure objects (create, bind, destroy) and the size queries a build
+// is checked against.
+bool Replay::on_acceleration_structure_record(fbs::RecordBody kind, const fbs::Record& r) {
+    switch (kind) {
     case fbs::RecordBody::AccelerationStructureCreate: {
         const auto* c = r.body_as_AccelerationStructureCreate();
         memory_.create_object(c->acceleration_structure(), c->buffer(), c->offset(), c->size(), 0);
@@ -817,6 +843,9 @@ void Replay::on_record(const traces::RecordView& view) {
         nv_.on_bind(*b);
         break;
     }
+    case fbs::RecordBody::AccelerationStructureDestroy:
+        memory_.destroy_object(r.body_as_AccelerationStructureDestroy()->acceleration_structure());
+        break;
     case fbs::RecordBody::GetClusterBuildSizes: {
         const auto* q = r.body_as_GetClusterBuildSizes();
         if (q->input()) {
@@ -825,6 +854,15 @@ void Replay::on_record(const traces::RecordView& view) {
         }
         break;
     }
+    default: return false;
+    }
+    return true;
+}
+
+// Command buffers' lifetimes: a begin starts a recording (or a restatement of one), a reset
+// forgets it.
+bool Replay::on_command_buffer_record(fbs::RecordBody kind, const fbs::Record& r) {
+    switch (kind) {
     case fbs::RecordBody::CommandBufferBegin: {
         const fbs::CommandBufferBegin* begin = r.body_as_CommandBufferBegin();
         Recorded& cb = recorded_[begin->command_buffer()];
@@ -855,8 +893,15 @@ void Replay::on_record(const traces::RecordView& view) {
         break;
     }
     case fbs::RecordBody::CommandBufferReset: reset_command_buffers(*r.body_as_CommandBufferReset()); break;
-    case fbs::RecordBody::MemoryObservation: host_observation(*r.body_as_MemoryObservation()); break;
-    case fbs::RecordBody::RayQueryCheck: nv_.ray_check(*r.body_as_RayQueryCheck()); break;
+    default: return false;
+    }
+    return true;
+}
+
+// Queue work and what the host waits for: submissions run their command buffers; waits tell
+// the synchronization model what completed.
+bool Replay::on_queue_record(fbs::RecordBody kind, const fbs::Record& r) {
+    switch (kind) {
     case fbs::RecordBody::QueueSubmit: on_submit(*r.body_as_QueueSubmit()); break;
     case fbs::RecordBody::QueueWaitIdle:
         if (options_.check_hazards) sync_.queue_wait_idle(queue_id(r.body_as_QueueWaitIdle()->queue()));
@@ -875,6 +920,25 @@ void Replay::on_record(const traces::RecordView& view) {
         if (options_.check_hazards && s->result() == VK_SUCCESS) sync_.wait_for_fence(s->fence());
         break;
     }
+    case fbs::RecordBody::HostSemaphoreOp: {
+        const auto* h = r.body_as_HostSemaphoreOp();
+        if (!options_.check_hazards || !h->semaphores() || !h->values() || h->result() != VK_SUCCESS) break;
+        const size_t n = std::min(h->semaphores()->size(), h->values()->size());
+        for (size_t i = 0; i < n; ++i) {
+            auto k = static_cast<flatbuffers::uoffset_t>(i);
+            if (h->op() == 0) sync_.host_signal_semaphore(h->semaphores()->Get(k), h->values()->Get(k));
+            else if (!h->wait_any() || n == 1) sync_.host_wait_semaphore(h->semaphores()->Get(k), h->values()->Get(k));
+        }
+        break;
+    }
+    default: return false;
+    }
+    return true;
+}
+
+// Swapchain images: acquires signal, presents wait.
+bool Replay::on_presentation_record(fbs::RecordBody kind, const fbs::Record& r) {
+    switch (kind) {
     case fbs::RecordBody::AcquireNextImage: {
         const auto* a = r.body_as_AcquireNextImage();
         ++report_.counts.acquires;
@@ -914,26 +978,28 @@ void Replay::on_record(const traces::RecordView& view) {
             sync_.present_wait(std::span<const uint64_t>(p->wait_semaphores()->data(), p->wait_semaphores()->size()));
         break;
     }
-    case fbs::RecordBody::HostSemaphoreOp: {
-        const auto* h = r.body_as_HostSemaphoreOp();
-        if (!options_.check_hazards || !h->semaphores() || !h->values() || h->result() != VK_SUCCESS) break;
-        const size_t n = std::min(h->semaphores()->size(), h->values()->size());
-        for (size_t i = 0; i < n; ++i) {
-            auto k = static_cast<flatbuffers::uoffset_t>(i);
-            if (h->op() == 0) sync_.host_signal_semaphore(h->semaphores()->Get(k), h->values()->Get(k));
-            else if (!h->wait_any() || n == 1) sync_.host_wait_semaphore(h->semaphores()->Get(k), h->values()->Get(k));
-        }
-        break;
+    default: return false;
     }
-    default: {
-        if (uint64_t cb = command_buffer_of(r)) {
-            Recorded& recorded = recorded_[cb];
-            recorded.target().emplace_back(view.bytes, view.bytes + view.size);
-            recorded.bytes += view.size;
-            recorded_bytes_ += view.size;
-        }
-        break;
+    return true;
+}
+
+// Checks the capture made on the device, compared with the replay's own result.
+bool Replay::on_check_record(fbs::RecordBody kind, const fbs::Record& r) {
+    switch (kind) {
+    case fbs::RecordBody::RayQueryCheck: nv_.ray_check(*r.body_as_RayQueryCheck()); break;
+    default: return false;
     }
+    return true;
+}
+
+// A command: appended to the recording (or restatement) its command buffer is filling.
+void Replay::record_command(const traces::RecordView& view) {
+    const fbs::Record& r = *view.record;
+    if (uint64_t cb = command_buffer_of(r)) {
+        Recorded& recorded = recorded_[cb];
+        recorded.target().emplace_back(view.bytes, view.bytes + view.size);
+        recorded.bytes += view.size;
+        recorded_bytes_ += view.size;
     }
 }
 

@@ -1,5 +1,5 @@
 // The model's data layout: per-address access records, the per-queue barrier log, and the
-// semaphore/event bookkeeping. Internal to sync_model.cpp; kept apart so each file has one job.
+// semaphore/event bookkeeping. Internal to the sync_*.cpp files (sync_model_internal.hpp).
 #pragma once
 
 #include <array>

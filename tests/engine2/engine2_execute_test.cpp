@@ -230,6 +230,40 @@ TEST(Engine2Execute, BufferUsageRulesWhenTheTraceRecordedUsage) {
   EXPECT_TRUE(r.ops[0].executed);
 }
 
+// The usage table's rows keep the order findings always had: the address rows before the
+// op count is read (10453), the element-range rows after it.
+TEST(Engine2Execute, BufferUsageFindingsComeInStageOrder) {
+  Rig rig;
+  ClusteredMesh m = icosphere_meshlets(2);
+  const uint64_t uploaded = upload_cluster_infos(rig, m);
+  const uint32_t n = uint32_t(m.clusters.size());
+  const uint64_t info_bytes = uint64_t(n) * sizeof(VkClusterAccelerationStructureBuildTriangleClusterInfoNV);
+  const uint64_t infos = 0x630000000ull, dst_addresses = 0x640000000ull;
+  rig.memory.add_region(0x600000000ull, 1 << 16, VK_BUFFER_USAGE_TRANSFER_DST_BIT, "scratch without STORAGE");
+  rig.memory.add_region(0x610000000ull, 1 << 20, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, "implicit without AS_STORAGE");
+  rig.memory.add_region(0x620000000ull, 1 << 12, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, "count without BUILD_INPUT");
+  rig.memory.add_region(infos, info_bytes, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, "infos without BUILD_INPUT");
+  rig.memory.add_region(dst_addresses, 8 * n, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, "addresses without AS_STORAGE");
+  const auto bytes = rig.memory.read_bytes(uploaded, info_bytes, {"t", -1});
+  const std::vector<std::byte> copy(bytes.begin(), bytes.end());
+  std::copy(copy.begin(), copy.end(), rig.memory.write_bytes(infos, info_bytes, {"t", -1}).begin());
+  CommandSetup s;
+  setup_command(s, rig, VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV, kImplicit, n, infos);
+  s.cmd.scratchData = 0x600000000ull;
+  s.cmd.dstImplicitData = 0x610000000ull;
+  s.cmd.dstAddressesArray = {dst_addresses, 8, 8 * n};
+  rig.memory.write<uint32_t>(0x620000000ull, n + 1, {"t", -1});  // above the max: 10453
+  s.cmd.srcInfosCount = 0x620000000ull;
+  ExecutionRecord r = execute(s.cmd, rig.memory);
+  const std::string prefix = "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-";
+  std::vector<std::string> order;
+  for (const Finding& f : r.findings)
+    for (const char* number : {"12304", "12305", "12306", "12307", "12308", "10453"})
+      if (f.rule == prefix + number) order.push_back(number);
+  EXPECT_EQ(order, (std::vector<std::string>{"12304", "12306", "12308", "10453", "12305", "12307"}))
+      << describe(r.findings);
+}
+
 TEST(Engine2Execute, ZeroAlignmentsInCapturedPropertiesDoNotCrash) {
   Rig rig;
   ClusteredMesh m = icosphere_meshlets(2);

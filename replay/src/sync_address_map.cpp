@@ -1,0 +1,105 @@
+// SyncModel's address map: accesses recorded into the address segments they cover, each
+// segment checked against what it held.
+#include "sync_model_internal.hpp"
+
+#include <algorithm>
+#include <iterator>
+
+namespace clastrace::replay {
+
+void SyncModel::State::record(const Record& b, bool deserialize, std::vector<Finding>* collect) {
+    ++stats.accesses;
+    const uint64_t begin = b.range.begin, end = b.range.end;
+    if (end <= begin) return;
+    std::vector<Finding> found;
+    if (!found_index.empty()) found_index.clear();  // clear() would wipe every bucket each time
+    const Later later{&b, b.queue, deserialize};
+    segments.update(
+        begin, end, b.is_write,
+        [&](Segment& fresh, uint64_t, uint64_t) {
+            if (b.is_write) fresh.write = b;
+            else fresh.reads.push_back(b);
+        },
+        [&](Segment& seg, uint64_t seg_begin, uint64_t seg_end) {
+            check_and_update(seg, seg_begin, seg_end, later, found);
+        });
+    if (collect) collect->insert(collect->end(), std::make_move_iterator(found.begin()), std::make_move_iterator(found.end()));
+    else
+        for (const Finding& f : found) emit(f, b);
+    stats.segments = segments.size();
+    stats.peak_segments = std::max<uint64_t>(stats.peak_segments, segments.size());
+}
+
+void SyncModel::State::check_and_update(Segment& seg, uint64_t seg_begin, uint64_t seg_end, const Later& later,
+                                        std::vector<Finding>& found) {
+    const Record& b = *later.record;
+    if (b.is_write) {
+        bool any_read = false;
+        for (Record& r : seg.reads) {
+            if (r.tag == b.tag) continue;
+            // A read the host saw complete orders nothing and hides nothing: sweeps drop
+            // such reads lazily, so they must count as already gone.
+            if (r.queue != kHostSlot && r.tag < queues[r.queue].complete) continue;
+            any_read = true;
+            if (auto fix = unordered(r, later, false, seg_begin, seg_end))
+                note(found, later.deserialize ? HazardClass::kDeserializeInUse : HazardClass::kWriteAfterRead, r,
+                     b, *fix, seg_begin, seg_end);
+        }
+        if (!any_read && seg.write && seg.write->tag != b.tag) {
+            if (auto fix = unordered(*seg.write, later, true, seg_begin, seg_end))
+                note(found, later.deserialize ? HazardClass::kDeserializeInUse : HazardClass::kWriteAfterWrite,
+                     *seg.write, b, *fix, seg_begin, seg_end);
+        }
+        seg.write = b;
+        seg.reads.clear();
+        return;
+    }
+    if (seg.write && seg.write->tag != b.tag) {
+        if (auto fix = unordered(*seg.write, later, true, seg_begin, seg_end))
+            note(found, HazardClass::kReadAfterWrite, *seg.write, b, *fix, seg_begin, seg_end);
+    }
+    // A host read is over when the call returns: it orders itself before all later work
+    // and must not stand between the write and later writes.
+    if (b.queue == kHostSlot) return;
+    for (Record& r : seg.reads) {
+        if (r.queue == b.queue && r.stage == b.stage) {
+            r = b;  // a later read on the same queue and stage is ordered by whatever orders this one
+            return;
+        }
+    }
+    seg.reads.push_back(b);
+}
+
+Record SyncModel::State::make_record(const CommandRef& command, const Access& a, uint16_t queue, uint64_t t) {
+    Record r;
+    fill_record(r, command, a, queue, t);
+    return r;
+}
+
+void SyncModel::State::fill_record(Record& r, const CommandRef& command, const Access& a, uint16_t queue, uint64_t t) {
+    fill_record(r, command, a, queue, t, intern(a.field));
+}
+
+void SyncModel::State::fill_record(Record& r, const CommandRef& command, const Access& a, uint16_t queue, uint64_t t,
+                                   uint32_t field) {
+    r.element_bytes = 0;
+    r.first_element = 0;
+    r.field_suffix = 0;
+    r.completed = false;
+    r.sync.chain = 0;
+    r.sync.avail = 0;
+    r.sync.visible.clear();
+    r.sync.signals.clear();
+    r.tag = t;
+    r.command = command;
+    r.range = a.range;
+    r.stage = atomic_stages(a.stage) & ~kEventStageBits;
+    r.access = a.access;
+    r.atoms = atomic_accesses(a.access);
+    r.is_write = a.is_write;
+    r.field = field;
+    r.queue = queue;
+    r.log_pos = queue == kHostSlot ? 0 : queues[queue].log_end();
+}
+
+}  // namespace clastrace::replay
