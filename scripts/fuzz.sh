@@ -9,7 +9,7 @@ set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 build=${CLASTRACE_FUZZ_BUILD_DIR:-$root/build-fuzz}
 targets=(trace_reader info_integrity replay_bytes analyze_bytes layer_config replay_built_trace
-         engine_object engine2_execute engine_nv)
+         engine_object engine_execute engine_nv)
 
 if [[ $# -lt 1 || $1 == -h || $1 == --help ]]; then
   echo "usage: scripts/fuzz.sh TARGET|all [SECONDS] [libFuzzer options...]"

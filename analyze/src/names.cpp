@@ -1,4 +1,5 @@
 #include "clastrace/analyze/report.h"
+#include "clastrace/replay/replay_report.hpp"
 #include "clastrace/vk_cluster_abi.h"
 
 namespace clastrace::analyze {
@@ -20,18 +21,8 @@ static_assert(int(OpMode::explicit_destinations) ==
               VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV);
 static_assert(int(OpMode::compute_sizes) == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_COMPUTE_SIZES_NV);
 
-const char* op_type_name(OpType t) {
-  switch (t) {
-    case OpType::move_objects: return "move_objects";
-    case OpType::build_clusters_bottom_level: return "build_clusters_bottom_level";
-    case OpType::build_triangle_cluster: return "build_triangle_cluster";
-    case OpType::build_triangle_cluster_template: return "build_triangle_cluster_template";
-    case OpType::instantiate_triangle_cluster: return "instantiate_triangle_cluster";
-    case OpType::get_cluster_template_indices: return "get_cluster_template_indices";
-    case OpType::other: return "other";
-  }
-  return "other";
-}
+// OpType's values are the Vulkan op types (asserted above), so replay's table names them.
+const char* op_type_name(OpType t) { return replay::cluster_op_type_name(static_cast<uint32_t>(t)); }
 
 const char* op_type_short(OpType t) {
   switch (t) {

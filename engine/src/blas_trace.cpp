@@ -1,5 +1,5 @@
 // BLAS -> CLAS traversal: the engine's conservative slab test (geometry/slab.h) per BVH
-// node, then Engine I's CLAS traversal per referenced cluster. Children are visited nearest
+// node, then the CLAS traversal (traversal.h) per referenced cluster. Children are visited nearest
 // first; a later hit replaces the best only when strictly closer, so ties resolve by node
 // order.
 #include "clastrace/engine/blas.h"

@@ -57,7 +57,7 @@ uint64_t destination_alignment(VkClusterAccelerationStructureOpTypeNV op_type,
 namespace {
 
 // Sum of the objects of `count` clusters whose triangles and vertices add up to at most
-// the input's totals. The per-object size is probed from Engine I's bound as an affine
+// the input's totals. The per-object size is probed from max_cluster_object_size as an affine
 // worst case c + a*T + b*V (checked on a grid; if the format ever stops being affine
 // the per-object bound times count is used alone).
 uint64_t clusters_total_bound(uint64_t count, const VkClusterAccelerationStructureTriangleClusterInputNV& in,

@@ -1,6 +1,7 @@
 #include "clastrace/replay/replay_report.hpp"
 
 #include <clastrace/traces/utf8_text.h>
+#include <clastrace/vk_cluster_abi.h>
 #include <nlohmann/json.hpp>
 
 #include <cinttypes>
@@ -59,6 +60,18 @@ const char* finding_source_name(FindingSource source) {
     return "unknown";
 }
 
+const char* cluster_op_type_name(uint32_t op_type) {
+    switch (op_type) {
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV: return "move_objects";
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV: return "build_clusters_bottom_level";
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV: return "build_triangle_cluster";
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV: return "build_triangle_cluster_template";
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV: return "instantiate_triangle_cluster";
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV: return "get_cluster_template_indices";
+    }
+    return "other";
+}
+
 std::string ReplayFinding::format() const {
     std::string s = rule + ": " + where_text(where);
     if (op_index >= 0) s += ", op " + std::to_string(op_index);
@@ -80,13 +93,13 @@ std::string format_text(const ReplayReport& r) {
          ")\n";
     if (!r.sizes.empty()) {
         s += "  sizes, capture vs engine:\n";
-        std::snprintf(line, sizeof line, "  %-26s %7s %6s %8s %14s %14s %6s\n", "command", "op type", "ops", "compared",
+        std::snprintf(line, sizeof line, "  %-26s %-31s %6s %8s %14s %14s %6s\n", "command", "op type", "ops", "compared",
                       "captured bytes", "engine bytes", "equal");
         s += line;
         for (const SizeComparison& c : r.sizes) {
             const std::string where = short_where(c.where);
-            std::snprintf(line, sizeof line, "  %-26s %7u %6u %8u %14" PRIu64 " %14" PRIu64 " %6u\n", where.c_str(), c.op_type,
-                          c.ops, c.ops_compared, c.captured_bytes, c.engine_bytes, c.sizes_equal);
+            std::snprintf(line, sizeof line, "  %-26s %-31s %6u %8u %14" PRIu64 " %14" PRIu64 " %6u\n", where.c_str(),
+                          cluster_op_type_name(c.op_type), c.ops, c.ops_compared, c.captured_bytes, c.engine_bytes, c.sizes_equal);
             s += line;
         }
     }

@@ -13,7 +13,7 @@
 //   dot(d, cross(p1 - p0, p2 - p0)) (the NV traversal's copy);
 // plus both windings, degenerate and NaN triangles, huge and tiny coordinates, zero
 // direction components and a NaN origin.
-#include "engine2_test_util.h"
+#include "execute_rig.h"
 #include "geometry/box.h"
 #include "geometry/slab.h"
 #include "geometry/triangle.h"
@@ -33,7 +33,7 @@
 #include <string>
 #include <vector>
 
-namespace clastrace::engine::test2 {
+namespace clastrace::engine::execute_test {
 namespace {
 
 namespace geo = geometry;
@@ -304,4 +304,4 @@ TEST(GeometryOnce, ExtremesAgreeAcrossTraversals) {
 }
 
 }  // namespace
-}  // namespace clastrace::engine::test2
+}  // namespace clastrace::engine::execute_test

@@ -1,7 +1,7 @@
 // Test scenes for the NV engine: a MemoryImage with buffers, BLAS/TLAS built through
 // engine::execute_nv_build, the same scene in Embree 3 (instances of per-BLAS scenes,
 // user geometry for AABBs, filter functions for Vulkan's mask/facing/opacity rules), and
-// the agreement classes of tests/engine_proof.
+// the agreement classes of tests/engine_clas.
 #pragma once
 
 #include <clastrace/engine/nv_build.h>

@@ -488,6 +488,33 @@ TEST(ReplayE2E, ShippedSampleReplaysCleanWithDriverSizesSideBySide) {
     EXPECT_GT(r.counts.accesses, 10u);
 }
 
+// The sizes table names each command's op type as `clastrace analyze` does, not by number.
+TEST(ReplayE2E, SizesTableNamesEveryOpType) {
+    replay::ReplayReport r;
+    const std::vector<std::pair<uint32_t, std::string>> names = {
+        {VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV, "move_objects"},
+        {VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV, "build_clusters_bottom_level"},
+        {VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV, "build_triangle_cluster"},
+        {VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV, "build_triangle_cluster_template"},
+        {VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV, "instantiate_triangle_cluster"},
+        {VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV, "get_cluster_template_indices"},
+        {77, "other"}};
+    for (const auto& [type, name] : names) {
+        replay::SizeComparison row;
+        row.where.command = type;
+        row.op_type = type;
+        r.sizes.push_back(row);
+    }
+    const std::string text = replay::format_text(r);
+    for (const auto& [type, name] : names) {
+        const std::string row_start = "  s0 cb0 cmd" + std::to_string(type) + " ";
+        const size_t at = text.find(row_start);
+        ASSERT_NE(at, std::string::npos) << text;
+        const std::string row = text.substr(at, text.find('\n', at) - at);
+        EXPECT_NE(row.find(" " + name + " "), std::string::npos) << row;
+    }
+}
+
 // Damaged files (flipped bytes, cut tails): the reader skips what fails its checks and the
 // replay reports the damage; nothing crashes.
 TEST(ReplayE2E, FlippedAndTruncatedTraceFilesNeverCrash) {
@@ -530,6 +557,10 @@ TEST(ReplayCli, ExitCodesAndJsonShape) {
     std::string out;
     EXPECT_EQ(run_cli(std::string("replay ") + CLASTRACE_SAMPLE, &out), 0) << out;
     EXPECT_NE(out.find("result: clean"), std::string::npos) << out;
+    // The sample's one cluster command builds two CLAS: its row names the op type.
+    const size_t row = out.find("  s0 cb");
+    ASSERT_NE(row, std::string::npos) << out;
+    EXPECT_NE(out.substr(row, out.find('\n', row) - row).find(" build_triangle_cluster "), std::string::npos) << out;
 
     const std::string hazard = temp_path("cli_hazard.clt");
     scratch_scene(hazard, false);

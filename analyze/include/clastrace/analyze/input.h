@@ -9,7 +9,7 @@
 
 namespace clastrace::analyze {
 
-// Values 0..5 equal VkClusterAccelerationStructureOpTypeNV (checked in op_names.cpp);
+// Values 0..5 equal VkClusterAccelerationStructureOpTypeNV (checked in names.cpp);
 // `other` stands for commands outside the cluster extension (legacy NV builds, copies).
 enum class OpType : uint8_t {
   move_objects = 0,

@@ -2,7 +2,7 @@
 // CLAS it references, leaves naming each CLAS by device address (as the GPU object
 // does), so a BLAS moves by plain copy while the CLAS it names must stay put.
 //
-// Byte format (little-endian, position independent, docs/engine2-formats.md):
+// Byte format (little-endian, position independent, docs/engine-blas-formats.md):
 //   BottomLevelHeader (64 B) | node_count BottomLevelNode (32 B) | reference_count ClusterReference (16 B)
 // Nodes are in depth-first order, node 0 the root; an interior node's children are
 // `first` and `first + 1`; a leaf covers references [first, first + count).
@@ -86,7 +86,7 @@ struct BottomLevelCheck {
 // inside `bytes`, and that every node index / reference range is in bounds.
 BottomLevelCheck read_bottom_level_header(std::span<const std::byte> bytes);
 
-// A hit inside a BLAS: Engine I's hit plus which reference it came through.
+// A hit inside a BLAS: the CLAS traversal's hit plus which reference it came through.
 struct BottomLevelHit {
   Hit hit{};
   uint32_t reference_index = 0;
@@ -94,7 +94,7 @@ struct BottomLevelHit {
 };
 
 // Traces a ray through the BLAS at `blas_address`, descending into each CLAS with
-// Engine I's traversal. A reference whose address no longer holds a CLAS (judged by
+// the CLAS traversal. A reference whose address no longer holds a CLAS (judged by
 // `directory` when given, else by the bytes) is skipped and reported once per reference
 // in `findings` (rule kRuleStaleClusterReference). An address that holds no BLAS gives a
 // miss and one finding.

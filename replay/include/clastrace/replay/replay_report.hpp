@@ -34,6 +34,10 @@ enum class FindingSource : uint8_t {
 };
 const char* finding_source_name(FindingSource source);
 
+// A VkClusterAccelerationStructureOpTypeNV's name ("build_triangle_cluster", ...; "other" for
+// any other value): the one table `clastrace replay` and `clastrace analyze` both print.
+const char* cluster_op_type_name(uint32_t op_type);
+
 struct ReplayFinding {
     std::string rule;        // VUID string verbatim, or CLASTRACE-...
     std::string message;

@@ -1,15 +1,15 @@
 // Embree as the reference: one BVH over every triangle of a clustered mesh.
-#ifndef CLASTRACE_TESTS_ENGINE2_EMBREE_H
-#define CLASTRACE_TESTS_ENGINE2_EMBREE_H
+#ifndef CLASTRACE_TESTS_ENGINE_EXECUTE_EMBREE_SCENE_H
+#define CLASTRACE_TESTS_ENGINE_EXECUTE_EMBREE_SCENE_H
 
-#include "engine2_test_util.h"
+#include "execute_rig.h"
 
 #include <clastrace/testsupport/embree_reference.h>
 
 #include <cstdio>
 #include <cstring>
 
-namespace clastrace::engine::test2 {
+namespace clastrace::engine::execute_test {
 
 // Embree's BVH over every triangle of the mesh (one geometry: primID = the mesh's triangle).
 class EmbreeScene {
@@ -96,6 +96,6 @@ inline void expect_matches_embree(const Rig& rig, uint64_t blas, const Clustered
   EXPECT_LE(primitive_mismatch, hits / 500) << primitive_mismatch << " of " << hits;
 }
 
-}  // namespace clastrace::engine::test2
+}  // namespace clastrace::engine::execute_test
 
 #endif

@@ -1,11 +1,11 @@
 // Hostile commands: findings, never crashes, hangs or runaway memory.
-#include "engine2_test_util.h"
+#include "execute_rig.h"
 
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
 
-namespace clastrace::engine::test2 {
+namespace clastrace::engine::execute_test {
 namespace {
 
 const auto kBuild = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
@@ -15,7 +15,7 @@ const auto kExplicit = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTIN
 const auto kSizes = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_COMPUTE_SIZES_NV;
 const char* k10454 = "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-10454";
 
-TEST(Engine2Hostile, MaxCountOfFourBillionRunsOnlyWhatMemoryHolds) {
+TEST(HostileCommand, MaxCountOfFourBillionRunsOnlyWhatMemoryHolds) {
   Rig rig;
   ClusteredMesh m = icosphere_meshlets(3);
   uint64_t infos = upload_cluster_infos(rig, m);
@@ -42,7 +42,7 @@ TEST(Engine2Hostile, MaxCountOfFourBillionRunsOnlyWhatMemoryHolds) {
   EXPECT_EQ(r.op_count, 3u);
 }
 
-TEST(Engine2Hostile, FindingsPerRuleAreCapped) {
+TEST(HostileCommand, FindingsPerRuleAreCapped) {
   Rig rig(2);
   // 2^17 zero-filled BLAS infos (the whole inputs region): every op breaks the same rules.
   CommandSetup s;
@@ -62,7 +62,7 @@ TEST(Engine2Hostile, FindingsPerRuleAreCapped) {
   EXPECT_GE(count_rule(r.findings, kRuleFindingsTruncated), 1u) << describe(r.findings);
 }
 
-TEST(Engine2Hostile, OverflowingStridesAreFindings) {
+TEST(HostileCommand, OverflowingStridesAreFindings) {
   Rig rig;
   ClusteredMesh m = icosphere_meshlets(3);
   uint64_t infos = upload_cluster_infos(rig, m);
@@ -100,7 +100,7 @@ TEST(Engine2Hostile, OverflowingStridesAreFindings) {
   }
 }
 
-TEST(Engine2Hostile, HostileBottomLevelReferences) {
+TEST(HostileCommand, HostileBottomLevelReferences) {
   Rig rig;
   ObjectDirectory dir;
   ClusteredMesh m = icosphere_meshlets(2);
@@ -138,7 +138,7 @@ TEST(Engine2Hostile, HostileBottomLevelReferences) {
   EXPECT_TRUE(r.ops[5].executed);
 }
 
-TEST(Engine2Hostile, DestinationsPointingIntoTheCommandsOwnArrays) {
+TEST(HostileCommand, DestinationsPointingIntoTheCommandsOwnArrays) {
   Rig rig;
   ClusteredMesh m = icosphere_meshlets(3);
   uint64_t infos = upload_cluster_infos(rig, m);
@@ -168,7 +168,7 @@ TEST(Engine2Hostile, DestinationsPointingIntoTheCommandsOwnArrays) {
   EXPECT_EQ(r1.findings.size(), r2.findings.size());
 }
 
-TEST(Engine2Hostile, SelfReferentialIndirection) {
+TEST(HostileCommand, SelfReferentialIndirection) {
   Rig rig;
   ClusteredMesh m = icosphere_meshlets(3);
   uint64_t infos = upload_cluster_infos(rig, m);
@@ -194,7 +194,7 @@ TEST(Engine2Hostile, SelfReferentialIndirection) {
 }
 
 // Deterministic random mutation of whole commands' memory: findings, never a crash.
-TEST(Engine2Hostile, RandomMutationsNeverCrash) {
+TEST(HostileCommand, RandomMutationsNeverCrash) {
   std::mt19937_64 rng(12345);
   for (int type = 0; type < 6; ++type) {
     Rig rig(1);  // ops scale with the memory that exists: 1 MiB keeps this fast
@@ -240,7 +240,7 @@ TEST(Engine2Hostile, RandomMutationsNeverCrash) {
       auto t0 = std::chrono::steady_clock::now();
       ASSERT_NO_THROW(r = execute(s.cmd, rig.memory, o));
       double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-      if (getenv("ENGINE2_TRACE_SLOW") && ms > 200) std::printf("type %d trial %d: %.0f ms, %u ops, mode %d, stride %llu\n", type, trial, ms, r.op_count, trial % 3, (unsigned long long)s.cmd.srcInfosArray.stride);
+      if (getenv("HOSTILE_COMMAND_TRACE_SLOW") && ms > 200) std::printf("type %d trial %d: %.0f ms, %u ops, mode %d, stride %llu\n", type, trial, ms, r.op_count, trial % 3, (unsigned long long)s.cmd.srcInfosArray.stride);
       EXPECT_LE(r.findings.size(), 64u * 40);
       // Later commands may overwrite these outputs: that is part of the mutation.
       rig.objects.next = objects_reset;
@@ -251,4 +251,4 @@ TEST(Engine2Hostile, RandomMutationsNeverCrash) {
 }
 
 }  // namespace
-}  // namespace clastrace::engine::test2
+}  // namespace clastrace::engine::execute_test

@@ -1,8 +1,8 @@
-// Engine II at scale: CLAS and BLAS builds through execute() for 10^3..10^6 clusters on 1
+// engine::execute at scale: CLAS and BLAS builds through execute() for 10^3..10^6 clusters on 1
 // and 2 threads, beside Embree building one BVH (RTC_BUILD_QUALITY_LOW) over the same
 // triangles in the same process. Each size runs in a forked child so peak RSS is its own.
 //
-//   engine2_bench [max_clusters=1000000] [triangles_per_cluster=64]
+//   engine_execute_bench [max_clusters=1000000] [triangles_per_cluster=64]
 #include "clastrace/engine/blas.h"
 #include "clastrace/engine/cluster_build.h"
 #include "clastrace/engine/execute.h"
@@ -207,11 +207,11 @@ Row run(uint64_t n, uint32_t tris) {
 int main(int argc, char** argv) {
   uint64_t max_n = argc > 1 ? std::strtoull(argv[1], nullptr, 10) : 1000000;
   uint32_t tris = argc > 2 ? uint32_t(std::strtoul(argv[2], nullptr, 10)) : 64;
-  std::printf("Engine II: execute() on %u-triangle clusters (implicit destinations), vs Embree 3 one BVH over the same "
+  std::printf("engine::execute on %u-triangle clusters (implicit destinations), vs Embree 3 one BVH over the same "
               "triangles (RTC_BUILD_QUALITY_LOW)\n\n",
               tris);
   std::printf("Wall-clock columns, then CPU seconds of the process (the machine may be shared; CPU time is not "
-              "inflated by other load). Ratios < 1: Engine II faster.\n\n");
+              "inflated by other load). Ratios < 1: the engine faster.\n\n");
   std::printf("| clusters | threads | CLAS ops/s | CLAS Mtris/s | BLAS ms | Embree ms | BLAS/Embree | "
               "CLAS+BLAS/Embree | CLAS cpu s | BLAS cpu ms | Embree cpu ms | BLAS cpu us/(n log2 n) | peak RSS MiB |\n");
   std::printf("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");

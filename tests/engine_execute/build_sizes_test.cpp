@@ -1,9 +1,9 @@
 // Property: for random inputs within the limits, every actual size <= the build-sizes bound.
-#include "engine2_test_util.h"
+#include "execute_rig.h"
 
 #include <cstdio>
 
-namespace clastrace::engine::test2 {
+namespace clastrace::engine::execute_test {
 namespace {
 
 struct Slack {
@@ -108,7 +108,7 @@ ExecutionRecord run_and_check(Rig& rig, CommandSetup& s, ObjectDirectory& dir, S
   return r;
 }
 
-TEST(Engine2BuildSizes, RandomInputsStayWithinTheBounds) {
+TEST(BuildSizes, RandomInputsStayWithinTheBounds) {
   std::mt19937 rng(2024);
   Slack clas{"CLAS object"}, clas_total{"CLAS implicit total"}, tmpl{"template object"},
       tmpl_total{"template implicit total"}, inst{"instantiated CLAS object"}, inst_total{"instantiated implicit total"},
@@ -188,7 +188,7 @@ TEST(Engine2BuildSizes, RandomInputsStayWithinTheBounds) {
   }
 }
 
-TEST(Engine2BuildSizes, ModesAndBadInputs) {
+TEST(BuildSizes, ModesAndBadInputs) {
   EngineProperties p;
   VkClusterAccelerationStructureTriangleClusterInputNV tri = triangle_input();
   VkClusterAccelerationStructureInputInfoNV info{};
@@ -218,4 +218,4 @@ TEST(Engine2BuildSizes, ModesAndBadInputs) {
 }
 
 }  // namespace
-}  // namespace clastrace::engine::test2
+}  // namespace clastrace::engine::execute_test

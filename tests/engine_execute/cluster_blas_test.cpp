@@ -1,15 +1,15 @@
 // Bottom-level builds traced against Embree, instantiated clusters, determinism.
-#include "engine2_embree.h"
-#include "engine2_test_util.h"
+#include "embree_scene.h"
+#include "execute_rig.h"
 
 #include <tbb/task_arena.h>
 
 #include <cstdio>
 
-namespace clastrace::engine::test2 {
+namespace clastrace::engine::execute_test {
 namespace {
 
-TEST(Engine2Blas, TracesLikeEmbreeOverTheSameTriangles) {
+TEST(ClusterBlas, TracesLikeEmbreeOverTheSameTriangles) {
   Rig rig(16);
   ClusteredMesh m = icosphere_meshlets(5);  // 20480 triangles
   ASSERT_GT(m.clusters.size(), 100u);
@@ -22,7 +22,7 @@ TEST(Engine2Blas, TracesLikeEmbreeOverTheSameTriangles) {
   expect_matches_embree(rig, blas, m);
 }
 
-TEST(Engine2Blas, HitReportsTheReferenceIndexAndAddress) {
+TEST(ClusterBlas, HitReportsTheReferenceIndexAndAddress) {
   Rig rig;
   ClusteredMesh m = icosphere_meshlets(3);
   auto clas = build_clas(rig, m);
@@ -40,7 +40,7 @@ TEST(Engine2Blas, HitReportsTheReferenceIndexAndAddress) {
   EXPECT_FALSE(trace_bottom_level_any(rig.memory, blas, away, 0));
 }
 
-TEST(Engine2Blas, InstantiatedClustersTraceLikeEmbree) {
+TEST(ClusterBlas, InstantiatedClustersTraceLikeEmbree) {
   Rig rig(16);
   ClusteredMesh m = icosphere_meshlets(4);
   const uint32_t n = uint32_t(m.clusters.size());
@@ -103,7 +103,7 @@ std::map<uint64_t, std::vector<std::byte>> build_scene_bytes(int threads, Execut
   return out;
 }
 
-TEST(Engine2Blas, SameBytesOnOneAndTwoThreads) {
+TEST(ClusterBlas, SameBytesOnOneAndTwoThreads) {
   ExecutionRecord r1, r2;
   auto one = build_scene_bytes(1, &r1);
   auto two = build_scene_bytes(2, &r2);
@@ -119,7 +119,7 @@ TEST(Engine2Blas, SameBytesOnOneAndTwoThreads) {
   EXPECT_EQ(r1.implicit_bytes_used, r2.implicit_bytes_used);
 }
 
-TEST(Engine2Blas, LargeBuildIsParallelAndStillDeterministic) {
+TEST(ClusterBlas, LargeBuildIsParallelAndStillDeterministic) {
   // 60000 boxes: the top of the tree builds its halves on different threads.
   std::mt19937 rng(9);
   std::uniform_real_distribution<float> u(0.0f, 1000.0f);
@@ -160,7 +160,7 @@ TEST(Engine2Blas, LargeBuildIsParallelAndStillDeterministic) {
   for (int s : seen) ASSERT_EQ(s, 1);
 }
 
-TEST(Engine2Blas, EmptyAndDegenerateInputs) {
+TEST(ClusterBlas, EmptyAndDegenerateInputs) {
   // No references: a valid empty BLAS that never hits.
   Rig rig;
   uint64_t blas = build_blas(rig, {});
@@ -184,7 +184,7 @@ TEST(Engine2Blas, EmptyAndDegenerateInputs) {
   EXPECT_LE(bytes.size(), bottom_level_size_bound(100));
 }
 
-TEST(Engine2Blas, CorruptBottomLevelBytesAreRejected) {
+TEST(ClusterBlas, CorruptBottomLevelBytesAreRejected) {
   std::vector<ClusterBox> boxes;
   for (uint32_t i = 0; i < 50; ++i) boxes.push_back({{float(i), 0, 0}, {float(i) + 1, 1, 1}, 0x1000ull * i, i, i});
   auto good = build_bottom_level(boxes, 50);
@@ -214,4 +214,4 @@ TEST(Engine2Blas, CorruptBottomLevelBytesAreRejected) {
 }
 
 }  // namespace
-}  // namespace clastrace::engine::test2
+}  // namespace clastrace::engine::execute_test

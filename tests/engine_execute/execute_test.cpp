@@ -1,9 +1,9 @@
 // execute(): packing, the count rules, scratch, and the execution record.
-#include "engine2_test_util.h"
+#include "execute_rig.h"
 
 #include "clastrace/engine/cluster_format.h"
 
-namespace clastrace::engine::test2 {
+namespace clastrace::engine::execute_test {
 namespace {
 
 const auto kBuild = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
@@ -16,7 +16,7 @@ const MemoryAccess* find_access(const ExecutionRecord& r, const std::string& fie
   return nullptr;
 }
 
-TEST(Engine2Execute, ImplicitBuildPacksInOpOrderAtClusterAlignment) {
+TEST(Execute, ImplicitBuildPacksInOpOrderAtClusterAlignment) {
   Rig rig;
   ClusteredMesh m = icosphere_meshlets(2);
   ASSERT_GT(m.clusters.size(), 2u);
@@ -44,7 +44,7 @@ TEST(Engine2Execute, ImplicitBuildPacksInOpOrderAtClusterAlignment) {
   EXPECT_EQ(r.implicit_bytes_used, expect - s.cmd.dstImplicitData);
 }
 
-TEST(Engine2Execute, RecordNamesEveryRangeWithTheSpecStageAndAccess) {
+TEST(Execute, RecordNamesEveryRangeWithTheSpecStageAndAccess) {
   Rig rig;
   ClusteredMesh m = icosphere_meshlets(2);
   uint64_t infos = upload_cluster_infos(rig, m);
@@ -107,7 +107,7 @@ TEST(Engine2Execute, RecordNamesEveryRangeWithTheSpecStageAndAccess) {
   EXPECT_EQ(ds->end - ds->begin, 4u);
 }
 
-TEST(Engine2Execute, CountIsMinOfMemoryAndMaxAndZeroAddressMeansMax) {
+TEST(Execute, CountIsMinOfMemoryAndMaxAndZeroAddressMeansMax) {
   Rig rig;
   ClusteredMesh m = icosphere_meshlets(3);
   ASSERT_GT(m.clusters.size(), 5u);
@@ -142,7 +142,7 @@ TEST(Engine2Execute, CountIsMinOfMemoryAndMaxAndZeroAddressMeansMax) {
   }
 }
 
-TEST(Engine2Execute, ComputeSizesWritesSizesAndScratchOnly) {
+TEST(Execute, ComputeSizesWritesSizesAndScratchOnly) {
   Rig rig;
   ClusteredMesh m = icosphere_meshlets(2);
   uint64_t infos = upload_cluster_infos(rig, m);
@@ -176,7 +176,7 @@ TEST(Engine2Execute, ComputeSizesWritesSizesAndScratchOnly) {
     }
 }
 
-TEST(Engine2Execute, ScratchTooSmallAndMisalignedAreFindings) {
+TEST(Execute, ScratchTooSmallAndMisalignedAreFindings) {
   Rig rig;
   ClusteredMesh m = icosphere_meshlets(1);
   uint64_t infos = upload_cluster_infos(rig, m);
@@ -192,7 +192,7 @@ TEST(Engine2Execute, ScratchTooSmallAndMisalignedAreFindings) {
   EXPECT_TRUE(r.ops[0].executed);
 }
 
-TEST(Engine2Execute, ImplicitOverlappingScratchIs12303) {
+TEST(Execute, ImplicitOverlappingScratchIs12303) {
   Rig rig;
   ClusteredMesh m = icosphere_meshlets(1);
   uint64_t infos = upload_cluster_infos(rig, m);
@@ -205,7 +205,7 @@ TEST(Engine2Execute, ImplicitOverlappingScratchIs12303) {
       << describe(r.findings);
 }
 
-TEST(Engine2Execute, BufferUsageRulesWhenTheTraceRecordedUsage) {
+TEST(Execute, BufferUsageRulesWhenTheTraceRecordedUsage) {
   Rig rig;
   ClusteredMesh m = icosphere_meshlets(2);
   uint64_t infos = upload_cluster_infos(rig, m);
@@ -232,7 +232,7 @@ TEST(Engine2Execute, BufferUsageRulesWhenTheTraceRecordedUsage) {
 
 // The usage table's rows keep the order findings always had: the address rows before the
 // op count is read (10453), the element-range rows after it.
-TEST(Engine2Execute, BufferUsageFindingsComeInStageOrder) {
+TEST(Execute, BufferUsageFindingsComeInStageOrder) {
   Rig rig;
   ClusteredMesh m = icosphere_meshlets(2);
   const uint64_t uploaded = upload_cluster_infos(rig, m);
@@ -264,7 +264,7 @@ TEST(Engine2Execute, BufferUsageFindingsComeInStageOrder) {
       << describe(r.findings);
 }
 
-TEST(Engine2Execute, ZeroAlignmentsInCapturedPropertiesDoNotCrash) {
+TEST(Execute, ZeroAlignmentsInCapturedPropertiesDoNotCrash) {
   Rig rig;
   ClusteredMesh m = icosphere_meshlets(2);
   uint64_t infos = upload_cluster_infos(rig, m);
@@ -280,7 +280,7 @@ TEST(Engine2Execute, ZeroAlignmentsInCapturedPropertiesDoNotCrash) {
   EXPECT_GT(cluster_build_sizes(in, o.properties).acceleration_structure_size, 0u);
 }
 
-TEST(Engine2Execute, BadOpTypeModeAndMissingInputAreFindings) {
+TEST(Execute, BadOpTypeModeAndMissingInputAreFindings) {
   Rig rig;
   CommandSetup s;
   setup_command(s, rig, kBuild, kImplicit, 1, rig.inputs.base);
@@ -295,4 +295,4 @@ TEST(Engine2Execute, BadOpTypeModeAndMissingInputAreFindings) {
 }
 
 }  // namespace
-}  // namespace clastrace::engine::test2
+}  // namespace clastrace::engine::execute_test

@@ -1,6 +1,6 @@
-// A device memory layout and a meshlet-clustered procedural mesh for the Engine II tests.
-#ifndef CLASTRACE_TESTS_ENGINE2_TEST_UTIL_H
-#define CLASTRACE_TESTS_ENGINE2_TEST_UTIL_H
+// A device memory layout and a meshlet-clustered procedural mesh for the engine::execute tests.
+#ifndef CLASTRACE_TESTS_ENGINE_EXECUTE_RIG_H
+#define CLASTRACE_TESTS_ENGINE_EXECUTE_RIG_H
 
 #include "clastrace/engine/blas.h"
 #include "clastrace/engine/build_sizes.h"
@@ -18,7 +18,7 @@
 #include <string>
 #include <vector>
 
-namespace clastrace::engine::test2 {
+namespace clastrace::engine::execute_test {
 
 // Separate regions, so a test can aim an address at one kind of memory.
 struct Rig {
@@ -292,6 +292,6 @@ inline uint64_t build_blas(Rig& rig, const std::vector<uint64_t>& clas, ObjectDi
   return rig.get<uint64_t>(s.cmd.dstAddressesArray.deviceAddress);
 }
 
-}  // namespace clastrace::engine::test2
+}  // namespace clastrace::engine::execute_test
 
 #endif

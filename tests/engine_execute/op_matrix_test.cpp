@@ -1,9 +1,9 @@
 // Every op type x op mode x address-resolution flag: same objects, same sizes, no findings.
-#include "engine2_test_util.h"
+#include "execute_rig.h"
 
 #include <tuple>
 
-namespace clastrace::engine::test2 {
+namespace clastrace::engine::execute_test {
 namespace {
 
 using Type = VkClusterAccelerationStructureOpTypeNV;
@@ -99,9 +99,9 @@ struct World {
   }
 };
 
-class Engine2Matrix : public ::testing::TestWithParam<std::tuple<int, int, uint32_t>> {};
+class ExecuteOpMatrix : public ::testing::TestWithParam<std::tuple<int, int, uint32_t>> {};
 
-TEST_P(Engine2Matrix, SameObjectsInEveryModeAndIndirection) {
+TEST_P(ExecuteOpMatrix, SameObjectsInEveryModeAndIndirection) {
   const Type type = Type(std::get<0>(GetParam()));
   const Mode mode = Mode(std::get<1>(GetParam()));
   const uint32_t flags = std::get<2>(GetParam());
@@ -164,10 +164,10 @@ std::string name(const ::testing::TestParamInfo<std::tuple<int, int, uint32_t>>&
          std::to_string(std::get<2>(info.param));
 }
 
-INSTANTIATE_TEST_SUITE_P(AllOps, Engine2Matrix,
+INSTANTIATE_TEST_SUITE_P(AllOps, ExecuteOpMatrix,
                          ::testing::Combine(::testing::Range(0, 6), ::testing::Range(0, 3),
                                             ::testing::Values(0u, 1u, 2u, 4u, 8u, 16u, 32u, 63u)),
                          name);
 
 }  // namespace
-}  // namespace clastrace::engine::test2
+}  // namespace clastrace::engine::execute_test

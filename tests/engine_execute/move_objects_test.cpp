@@ -1,8 +1,8 @@
 // Moves of CLAS, templates and BLAS; references through old addresses become findings.
-#include "engine2_embree.h"
-#include "engine2_test_util.h"
+#include "embree_scene.h"
+#include "execute_rig.h"
 
-namespace clastrace::engine::test2 {
+namespace clastrace::engine::execute_test {
 namespace {
 
 const auto kMove = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV;
@@ -34,7 +34,7 @@ Moved move_implicit(Rig& rig, const std::vector<uint64_t>& sources, ObjectDirect
   return m;
 }
 
-TEST(Engine2Move, MovedClasWorksAndOldAddressesBecomeFindings) {
+TEST(MoveObjects, MovedClasWorksAndOldAddressesBecomeFindings) {
   Rig rig(16);
   ObjectDirectory dir;
   ClusteredMesh m = icosphere_meshlets(3);
@@ -68,7 +68,7 @@ TEST(Engine2Move, MovedClasWorksAndOldAddressesBecomeFindings) {
   EXPECT_NE(build_findings[1].message.find("clusterReferences[2]"), std::string::npos) << build_findings[1].message;
 }
 
-TEST(Engine2Move, NoMoveOverlapKeepsTheSourceValid) {
+TEST(MoveObjects, NoMoveOverlapKeepsTheSourceValid) {
   Rig rig;
   ObjectDirectory dir;
   ClusteredMesh m = icosphere_meshlets(2);
@@ -82,7 +82,7 @@ TEST(Engine2Move, NoMoveOverlapKeepsTheSourceValid) {
   EXPECT_TRUE(f.empty()) << describe(f);
 }
 
-TEST(Engine2Move, MovedBlasAndTemplateWorkAtTheirNewAddress) {
+TEST(MoveObjects, MovedBlasAndTemplateWorkAtTheirNewAddress) {
   Rig rig(16);
   ObjectDirectory dir;
   ClusteredMesh m = icosphere_meshlets(3);
@@ -139,7 +139,7 @@ TEST(Engine2Move, MovedBlasAndTemplateWorkAtTheirNewAddress) {
   }
 }
 
-TEST(Engine2Move, SwapInOneCommandIsDeterministicAndFlagged) {
+TEST(MoveObjects, SwapInOneCommandIsDeterministicAndFlagged) {
   Rig rig;
   ObjectDirectory dir;
   ClusteredMesh m = icosphere_meshlets(3);
@@ -166,7 +166,7 @@ TEST(Engine2Move, SwapInOneCommandIsDeterministicAndFlagged) {
   EXPECT_TRUE(f.empty()) << describe(f);
 }
 
-TEST(Engine2Move, BadSourcesAndLimitsAreFindings) {
+TEST(MoveObjects, BadSourcesAndLimitsAreFindings) {
   Rig rig;
   ObjectDirectory dir;
   ClusteredMesh m = icosphere_meshlets(2);
@@ -191,7 +191,7 @@ TEST(Engine2Move, BadSourcesAndLimitsAreFindings) {
   EXPECT_EQ(rig.get<uint32_t>(s.cmd.dstSizesArray.deviceAddress), 0u);
 }
 
-TEST(Engine2Move, OverwrittenClasIsAFinding) {
+TEST(MoveObjects, OverwrittenClasIsAFinding) {
   Rig rig;
   ObjectDirectory dir;
   ClusteredMesh m = icosphere_meshlets(3);
@@ -209,4 +209,4 @@ TEST(Engine2Move, OverwrittenClasIsAFinding) {
 }
 
 }  // namespace
-}  // namespace clastrace::engine::test2
+}  // namespace clastrace::engine::execute_test
