@@ -185,20 +185,27 @@ struct TraceReader::Impl {
 
     // Reads, checks and decompresses the chunk whose header is at `offset`.
     ChunkStatus read_chunk(uint64_t offset, format::ChunkHeader* h, std::vector<uint8_t>* out, TraceError* err) {
-        ChunkStatus status = read_chunk_with(decoder, offset, h, out, err);
+        ChunkStatus status = read_checked_payload(decoder, offset, h, err);
+        return status == ChunkStatus::ok ? decompress(offset, *h, out, err) : status;
+    }
+
+    // decompress_payload on the reader's own thread and decoder, noting a spent budget.
+    ChunkStatus decompress(uint64_t offset, const format::ChunkHeader& h, std::vector<uint8_t>* out, TraceError* err) {
+        ChunkStatus status = decompress_payload(decoder, offset, h, out, err);
         if (status == ChunkStatus::over_budget) budget_exhausted = true;
         return status;
     }
 
-    // Safe to run on the read-ahead task: touches only `d`, `out`, the budget and the (thread-safe) source.
-    ChunkStatus read_chunk_with(ChunkDecoder& d, uint64_t offset, format::ChunkHeader* h, std::vector<uint8_t>* out,
-                                TraceError* err) const {
-        ChunkStatus status = read_checked_payload(d, offset, h, err);
-        return status == ChunkStatus::ok ? decompress_payload(d, offset, *h, out, err) : status;
+    // Frees the bytes read_contents keeps of another chunk when they are big (one big buffer
+    // at a time); the chunk is read again when asked for.
+    void release_side_chunk_if_big() {
+        release_if_big(side_raw);
+        if (side_raw.capacity() == 0) side_offset = UINT64_MAX;
     }
 
     // Header and compressed payload of the chunk at `offset` into d.compressed, checksums
-    // checked, nothing decompressed.
+    // checked, nothing decompressed. This and decompress_payload are safe on the read-ahead
+    // task: they touch only `d`, their outputs, the budget and the (thread-safe) source.
     ChunkStatus read_checked_payload(ChunkDecoder& d, uint64_t offset, format::ChunkHeader* h, TraceError* err) const {
         std::vector<uint8_t>& compressed = d.compressed;
         if (offset > size || size - offset < format::kChunkHeaderSize) {
@@ -482,8 +489,7 @@ struct TraceReader::Impl {
 
     // The chunk being read, again, after read_contents freed its bytes for another big chunk.
     bool reload_evicted_chunk() {
-        release_if_big(side_raw);
-        if (side_raw.capacity() == 0) side_offset = UINT64_MAX;
+        release_side_chunk_if_big();
         format::ChunkHeader h{};
         TraceError err;
         if (read_chunk(chunk_offset, &h, &raw, &err) != ChunkStatus::ok) {
@@ -576,9 +582,8 @@ struct TraceReader::Impl {
                     continue;
                 }
                 if (!have_raw) {
-                    if (h.raw_size > kBigBufferBytes) release_if_big(side_raw), side_offset = UINT64_MAX;
-                    status = decompress_payload(decoder, here, h, &raw, &err);
-                    if (status == ChunkStatus::over_budget) budget_exhausted = true;
+                    if (h.raw_size > kBigBufferBytes) release_side_chunk_if_big();
+                    status = decompress(here, h, &raw, &err);
                 }
             }
             // Reading ahead pays for big chunks; for small ones a task costs more than it hides.
@@ -876,12 +881,9 @@ struct TraceReader::Impl {
                         std::vector<uint8_t>().swap(raw);
                         raw_evicted = true;
                     }
-                    status = decompress_payload(decoder, place.chunk_offset, h, &side_raw, &err);
+                    status = decompress(place.chunk_offset, h, &side_raw, &err);
                 }
-                if (status == ChunkStatus::over_budget) {
-                    budget_exhausted = true;
-                    report_budget_or(err);
-                }
+                if (status == ChunkStatus::over_budget) report_budget_or(err);
                 if (status != ChunkStatus::ok) return err;
                 side_offset = place.chunk_offset;
             }
