@@ -230,10 +230,12 @@ int adopt_output(int fd, const std::string& path, OutputTarget* target, std::str
     return fd;
 }
 
-bool start_output_in_place(int fd, const OutputTarget& target, std::string* error) {
-    if (target.kind != OutputKind::regular && target.kind != OutputKind::absent) return true;
+bool start_output_in_place(int fd, const std::string& path, std::string* error) {
+    struct stat st {};
+    if (::fstat(fd, &st) != 0) return fail(error, cannot_write(path, path) + system_reason(errno));
+    if (!S_ISREG(st.st_mode)) return true;
     if (::ftruncate(fd, 0) != 0 || ::lseek(fd, 0, SEEK_SET) != 0) {
-        return fail(error, cannot_write(target.path, target.path) + "cannot empty the earlier file: " + system_reason(errno));
+        return fail(error, cannot_write(path, path) + "cannot empty the earlier file: " + system_reason(errno));
     }
     return true;
 }

@@ -13,7 +13,6 @@
 #include <pthread.h>
 #include <sched.h>
 #include <sys/resource.h>
-#include <sys/stat.h>
 #include <sys/uio.h>
 #include <thread>
 #include <unistd.h>
@@ -495,11 +494,8 @@ std::unique_ptr<TraceWriter> TraceWriter::create_on(int fd, const std::string& p
     b.Finish(fbs::TraceHeader::Pack(b, &h));
     if (b.GetSize() > format::kMaxTraceHeaderBytes) return fail(TraceErrorCode::invalid_argument, "trace header over 16 MiB");
 
-    struct stat st {};
-    OutputTarget target{path, OutputKind::regular};
-    if (::fstat(fd, &st) == 0 && !S_ISREG(st.st_mode)) target.kind = OutputKind::character_device;
     std::string problem;
-    if (!start_output_in_place(fd, target, &problem)) {
+    if (!start_output_in_place(fd, path, &problem)) {
         ::close(fd);
         *error = output_error(problem);
         return nullptr;

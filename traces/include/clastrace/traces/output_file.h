@@ -51,8 +51,9 @@ int open_output_in_place(const std::string& path, OutputTarget* target, std::str
 // target of `path`, holds the lock on it and makes it close-on-exec. -1 with *error otherwise.
 int adopt_output(int fd, const std::string& path, OutputTarget* target, std::string* error);
 
-// Empties a regular file opened by open_output_in_place and puts its offset at 0 (the writer
-// starts the new content there); a device or FIFO is left as it is. False with *error.
-bool start_output_in_place(int fd, const OutputTarget& target, std::string* error);
+// Empties the regular file open on `fd` (by open_output_in_place or adopt_output for `path`)
+// and puts its offset at 0 (the writer starts the new content there); a device or FIFO is left
+// as it is. False with *error naming `path`.
+bool start_output_in_place(int fd, const std::string& path, std::string* error);
 
 }  // namespace clastrace::traces
