@@ -67,11 +67,7 @@ public:
             append(compress(raw), static_cast<uint32_t>(raw.size()), 2, 0, submissions_,
                    static_cast<uint32_t>(index_.chunks.size()));
         }
-        f::Trailer t{};
-        std::memcpy(t.magic, f::kTrailerMagic, 8);
-        t.index_offset = at;
-        t.trailer_offset = file_.size();
-        t.checksum = f::trailer_checksum(t);
+        const f::Trailer t = f::sealed_trailer(at, file_.size());
         const size_t end = file_.size();
         file_.resize(end + sizeof t);
         std::memcpy(file_.data() + end, &t, sizeof t);
@@ -81,16 +77,9 @@ public:
 private:
     void append(const std::vector<uint8_t>& compressed, uint32_t raw_size, uint16_t kind, uint32_t records,
                 uint64_t first_submission, uint32_t number) {
-        f::ChunkHeader h{};
-        h.magic = f::kChunkMagic;
-        h.kind = kind;
-        h.chunk_number = number;
-        h.record_count = records;
-        h.raw_size = raw_size;
-        h.compressed_size = static_cast<uint32_t>(compressed.size());
-        h.first_submission = first_submission;
-        h.payload_checksum = f::checksum(compressed.data(), compressed.size());
-        h.header_checksum = f::chunk_header_checksum(h);
+        const f::ChunkHeader h =
+            f::sealed_chunk_header(static_cast<f::ChunkKind>(kind), number, records, first_submission, raw_size,
+                                   compressed.data(), static_cast<uint32_t>(compressed.size()));
         const size_t at = file_.size();
         file_.resize(at + sizeof h);
         std::memcpy(file_.data() + at, &h, sizeof h);

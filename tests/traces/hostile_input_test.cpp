@@ -92,16 +92,9 @@ public:
         std::vector<uint8_t> compressed(ZSTD_compressBound(raw.size()));
         size_t n = ZSTD_compress(compressed.data(), compressed.size(), raw.data(), raw.size(), 1);
         compressed.resize(n);
-        f::ChunkHeader h{};
-        h.magic = f::kChunkMagic;
-        h.kind = static_cast<uint16_t>(kind);
-        h.chunk_number = number;
-        h.record_count = records;
-        h.raw_size = static_cast<uint32_t>(raw.size());
-        h.compressed_size = static_cast<uint32_t>(n);
-        h.first_submission = first_submission;
-        h.payload_checksum = f::checksum(compressed.data(), n);
-        h.header_checksum = f::chunk_header_checksum(h);
+        const f::ChunkHeader h = f::sealed_chunk_header(kind, number, records, first_submission,
+                                                        static_cast<uint32_t>(raw.size()), compressed.data(),
+                                                        static_cast<uint32_t>(n));
         const size_t at = file.size();
         file.resize(at + sizeof h);
         std::memcpy(file.data() + at, &h, sizeof h);
@@ -110,11 +103,7 @@ public:
     }
 
     static void append_trailer(std::vector<uint8_t>& file, uint64_t index_at) {
-        f::Trailer t{};
-        std::memcpy(t.magic, f::kTrailerMagic, 8);
-        t.index_offset = index_at;
-        t.trailer_offset = file.size();
-        t.checksum = f::trailer_checksum(t);
+        const f::Trailer t = f::sealed_trailer(index_at, file.size());
         const size_t at = file.size();
         file.resize(at + sizeof t);
         std::memcpy(file.data() + at, &t, sizeof t);

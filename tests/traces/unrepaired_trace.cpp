@@ -29,16 +29,9 @@ struct FileBytes {
         std::vector<uint8_t> compressed(ZSTD_compressBound(raw.size()));
         const size_t n = ZSTD_compress(compressed.data(), compressed.size(), raw.data(), raw.size(), 3);
         if (ZSTD_isError(n)) throw std::runtime_error("zstd failed");
-        f::ChunkHeader h{};
-        h.magic = f::kChunkMagic;
-        h.kind = static_cast<uint16_t>(kind);
-        h.chunk_number = number;
-        h.record_count = records;
-        h.raw_size = static_cast<uint32_t>(raw.size());
-        h.compressed_size = static_cast<uint32_t>(n);
-        h.first_submission = first_submission;
-        h.payload_checksum = f::checksum(compressed.data(), n);
-        h.header_checksum = f::chunk_header_checksum(h);
+        const f::ChunkHeader h = f::sealed_chunk_header(kind, number, records, first_submission,
+                                                        static_cast<uint32_t>(raw.size()), compressed.data(),
+                                                        static_cast<uint32_t>(n));
         append(&h, sizeof h);
         append(compressed.data(), n);
         return static_cast<uint32_t>(n);
@@ -110,13 +103,10 @@ void write_unrepaired_trace(const std::string& path, const fbs::TraceHeaderT& he
     ib.Finish(fbs::CreateTraceIndex(ib, ib.CreateVectorOfStructs(chunks), ib.CreateVectorOfStructs(contents),
                                     records.size(), submissions));
     const std::vector<uint8_t> index(ib.GetBufferPointer(), ib.GetBufferPointer() + ib.GetSize());
-    f::Trailer t{};
-    std::memcpy(t.magic, f::kTrailerMagic, sizeof t.magic);
-    t.index_offset = file.bytes.size();
+    const uint64_t index_offset = file.bytes.size();
     const uint32_t index_size =
         file.append_chunk(index, f::ChunkKind::index, static_cast<uint32_t>(chunks.size()), 0, submissions);
-    t.trailer_offset = t.index_offset + f::kChunkHeaderSize + index_size;
-    t.checksum = f::trailer_checksum(t);
+    const f::Trailer t = f::sealed_trailer(index_offset, index_offset + f::kChunkHeaderSize + index_size);
     file.append(&t, sizeof t);
 
     std::ofstream out(path, std::ios::binary | std::ios::trunc);

@@ -72,6 +72,14 @@ uint64_t file_header_checksum(const FileHeader& h, const uint8_t* trace_header, 
 uint64_t chunk_header_checksum(const ChunkHeader& h);
 uint64_t trailer_checksum(const Trailer& t);
 
+// A chunk header for `compressed`, the zstd payload of `raw_size` bytes, with both checksums
+// filled in: what the writer writes, and what a test or bench crafting a file writes.
+ChunkHeader sealed_chunk_header(ChunkKind kind, uint32_t chunk_number, uint32_t record_count,
+                                uint64_t first_submission, uint32_t raw_size, const void* compressed,
+                                uint32_t compressed_size);
+// The trailer at `trailer_offset` of a file whose index chunk starts at `index_offset`.
+Trailer sealed_trailer(uint64_t index_offset, uint64_t trailer_offset);
+
 // Content key: xxh3-64 of the bytes with `seed`, keeping the low `bits` bits.
 uint64_t content_key(const void* data, size_t size, uint64_t seed, unsigned bits);
 

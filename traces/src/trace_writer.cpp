@@ -179,16 +179,9 @@ struct TraceWriter::Impl {
             return make_trace_error(TraceErrorCode::io_error, path, offset,
                                     std::string("zstd compression failed: ") + ZSTD_getErrorName(csize));
         }
-        format::ChunkHeader h{};
-        h.magic = format::kChunkMagic;
-        h.kind = static_cast<uint16_t>(kind);
-        h.chunk_number = chunk_number;
-        h.record_count = record_count;
-        h.raw_size = static_cast<uint32_t>(size);
-        h.compressed_size = static_cast<uint32_t>(csize);
-        h.first_submission = first_submission;
-        h.payload_checksum = format::checksum(compressed.data(), csize);
-        h.header_checksum = format::chunk_header_checksum(h);
+        format::ChunkHeader h =
+            format::sealed_chunk_header(kind, chunk_number, record_count, first_submission, static_cast<uint32_t>(size),
+                                        compressed.data(), static_cast<uint32_t>(csize));
         iovec parts[2] = {{&h, sizeof h}, {compressed.data(), csize}};
         *compressed_size = static_cast<uint32_t>(csize);
         TraceError e = write_all(parts, 2, offset);
@@ -404,11 +397,8 @@ struct TraceWriter::Impl {
                                    next_chunk_number, 0, submissions, index_offset, &csize);
         ZSTD_freeCCtx(cctx);
         if (e) return e;
-        format::Trailer t{};
-        std::memcpy(t.magic, format::kTrailerMagic, sizeof t.magic);
-        t.index_offset = index_offset;
-        t.trailer_offset = index_offset + format::kChunkHeaderSize + csize;
-        t.checksum = format::trailer_checksum(t);
+        format::Trailer t =
+            format::sealed_trailer(index_offset, index_offset + format::kChunkHeaderSize + csize);
         iovec part{&t, sizeof t};
         e = write_all(&part, 1, t.trailer_offset);
         if (!e) file_offset = t.trailer_offset + sizeof t;
