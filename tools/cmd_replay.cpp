@@ -4,13 +4,13 @@
 #include "json_output.h"
 #include "reader_options.h"
 #include "trace_error_json.h"
+#include "whole_number_option.h"
 
 #include <clastrace/replay/replayer.hpp>
 #include <clastrace/traces/trace_reader.h>
 
 #include <nlohmann/json.hpp>
 
-#include <charconv>
 #include <chrono>
 #include <cstdio>
 #include <iostream>
@@ -55,22 +55,6 @@ bool parse_ops(const std::string& text, uint64_t* first, uint64_t* last) {
     } catch (const std::exception&) {
         return false;
     }
-}
-
-// CLI11's own range checks print their bounds in full, and the largest double has 309 digits.
-CLI::Validator whole_number_from(uint64_t least, uint64_t most, const std::string& what) {
-    return CLI::Validator(
-        [=](std::string& text) -> std::string {
-            uint64_t value = 0;
-            const char* end = text.data() + text.size();
-            auto [stop, ec] = std::from_chars(text.data(), end, value);
-            if (ec != std::errc{} || stop != end || value < least || value > most) {
-                return "takes " + what + ", a whole number from " + std::to_string(least) + " to " +
-                       std::to_string(most) + ", not '" + text + "'";
-            }
-            return {};
-        },
-        std::to_string(least) + ".." + std::to_string(most));
 }
 
 int refuse(const ReplayArgs& args, const traces::TraceError& error) {

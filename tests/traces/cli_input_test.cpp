@@ -53,6 +53,17 @@ TEST(ClastraceCliInput, MaxFindingsZeroIsRefusedWithAReadableRange) {
     EXPECT_EQ(run("replay --max-findings 1 " + kSample).exit_code, 0);
 }
 
+TEST(ClastraceCliInput, MaxRawMibZeroIsRefusedWithAReadableRangeByEveryReader) {
+    for (const char* command : kCommands) {
+        ProgramRun r = run(std::string(command) + " --max-raw-mib 0 " + kSample);
+        EXPECT_EQ(r.exit_code, 2) << command << ": " << r.output;
+        EXPECT_TRUE(has(r, "--max-raw-mib")) << r.output;
+        EXPECT_TRUE(has(r, "from 1 to 17592186044415, not '0'")) << r.output;
+        EXPECT_FALSE(has_a_huge_number(r.output)) << r.output;
+        EXPECT_EQ(run(std::string(command) + " --max-raw-mib 4096 " + kSample).exit_code, 0) << command;
+    }
+}
+
 TEST(ClastraceCliInput, NegativeSubmitIsRefusedWithAReadableRange) {
     ProgramRun r = run("replay --submit -1 " + kSample);
     EXPECT_EQ(r.exit_code, 2) << r.output;
