@@ -2,6 +2,7 @@
 // gigabytes of memory, or would hide damage behind a consistent-looking index. Each
 // gets bounded work (asserted on counts, never on time) and one verdict: damage.
 #include "trace_test_support.h"
+#include "unrepaired_trace.h"
 
 #include "file_format.h"
 
@@ -415,6 +416,57 @@ TEST(HostileTraceCli, DuplicatedChunkIsDamageNotUnreadable) {
     dup.insert(dup.end(), file.begin() + static_cast<long>(first), file.begin() + static_cast<long>(second));
     dup.insert(dup.end(), file.begin() + static_cast<long>(second), file.end());
     expect_damage_verdict(dup, "duplicated");
+}
+
+// A captured trace rewritten in 4 KiB chunks, so that its two submissions and the commands
+// before each land in different chunks.
+std::vector<uint8_t> two_queue_sample_in_small_chunks() {
+    TraceError error;
+    auto reader = TraceReader::open(CLASTRACE_TWO_QUEUES_SAMPLE, &error);
+    EXPECT_NE(reader, nullptr) << error.message;
+    if (!reader) return {};
+    fbs::TraceHeaderT header;
+    reader->header()->UnPackTo(&header);
+    header.capture->chunk_raw_bytes = 4096;
+    std::vector<fbs::RecordT> records;
+    RecordView v;
+    while (reader->next(&v)) v.record->UnPackTo(&records.emplace_back());
+    const std::string path = temp_path("two_queues_small_chunks.clt");
+    write_unrepaired_trace(path, header, records);
+    return read_file(path);
+}
+
+// The chunk holding submission 0 again after the chunk holding submission 1: handed out, its
+// QueueSubmit would take the submissions back, which analyze refuses as unreadable (exit 2).
+TEST(HostileTraceCli, CapturedChunkRepeatedAfterALaterSubmissionIsDamageNotUnreadable) {
+    std::vector<uint8_t> file = two_queue_sample_in_small_chunks();
+    ASSERT_FALSE(file.empty());
+    struct Place {
+        uint64_t at;
+        f::ChunkHeader header;
+    };
+    std::vector<Place> chunks;
+    for (uint64_t at = f::kFileHeaderSize + f::align8(f::load<uint32_t>(file.data() + 12));
+         at + f::kChunkHeaderSize <= file.size() && f::load<uint32_t>(file.data() + at) == f::kChunkMagic;) {
+        Place p{at, {}};
+        std::memcpy(&p.header, file.data() + at, sizeof p.header);
+        chunks.push_back(p);
+        at += f::kChunkHeaderSize + p.header.compressed_size;
+    }
+    ASSERT_GE(chunks.size(), 4u);
+    const Place& index = chunks.back();
+    ASSERT_EQ(index.header.kind, static_cast<uint16_t>(f::ChunkKind::index));
+    // The chunk before the first one starting at submission 1 holds QueueSubmit 0.
+    auto holding_first = std::find_if(chunks.begin(), chunks.end() - 1,
+                                      [](const Place& p) { return p.header.first_submission == 1; });
+    ASSERT_NE(holding_first, chunks.begin());
+    ASSERT_NE(holding_first, chunks.end() - 1);
+    const Place& repeated = *(holding_first - 1);
+    const auto repeated_begin = file.begin() + static_cast<long>(repeated.at);
+    const auto repeated_end = repeated_begin + static_cast<long>(f::kChunkHeaderSize + repeated.header.compressed_size);
+    const std::vector<uint8_t> copy(repeated_begin, repeated_end);
+    file.insert(file.begin() + static_cast<long>(index.at), copy.begin(), copy.end());
+    expect_damage_verdict(file, "repeated_captured_chunk");
 }
 
 }  // namespace
