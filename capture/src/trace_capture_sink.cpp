@@ -13,6 +13,9 @@
 #include "clastrace/capture/background_cpus.h"
 
 #include "clastrace/capture/capture_cost.h"
+#include "trace_record_encoding.h"
+
+#include <clastrace/traces/cluster_conversions.h>
 
 #include <clastrace/traces/output_file.h>
 #include <clastrace/traces/trace_writer.h>
@@ -44,71 +47,6 @@ namespace fbs = clastrace::fbs;
 using traces::TraceError;
 using traces::TraceWriter;
 
-template <class T>
-fbs::RecordT recordOf(T body) {
-  fbs::RecordT r;
-  r.body.Set(std::move(body));
-  return r;
-}
-
-std::unique_ptr<fbs::ClusterInputInfoT> inputInfo(const ClusterCommandParameters& p) {
-  auto in = std::make_unique<fbs::ClusterInputInfoT>();
-  const auto& i = p.info.input;
-  in->max_acceleration_structure_count = i.maxAccelerationStructureCount;
-  in->flags = i.flags;
-  in->op_type = uint32_t(i.opType);
-  in->op_mode = uint32_t(i.opMode);
-  if (!p.hasOpInput) return in;
-  switch (i.opType) {
-    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV: {
-      fbs::ClustersBottomLevelInputT b;
-      b.max_total_cluster_count = p.bottomLevelInput.maxTotalClusterCount;
-      b.max_cluster_count_per_acceleration_structure = p.bottomLevelInput.maxClusterCountPerAccelerationStructure;
-      in->op_input.Set(std::move(b));
-      break;
-    }
-    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV: {
-      fbs::MoveObjectsInputT m;
-      m.type = uint32_t(p.moveObjectsInput.type);
-      m.no_move_overlap = p.moveObjectsInput.noMoveOverlap == VK_TRUE;
-      m.max_moved_bytes = p.moveObjectsInput.maxMovedBytes;
-      in->op_input.Set(std::move(m));
-      break;
-    }
-    default: {
-      const auto& s = p.triangleClusterInput;
-      fbs::TriangleClusterInputT t;
-      t.vertex_format = uint32_t(s.vertexFormat);
-      t.max_geometry_index_value = s.maxGeometryIndexValue;
-      t.max_cluster_unique_geometry_count = s.maxClusterUniqueGeometryCount;
-      t.max_cluster_triangle_count = s.maxClusterTriangleCount;
-      t.max_cluster_vertex_count = s.maxClusterVertexCount;
-      t.max_total_triangle_count = s.maxTotalTriangleCount;
-      t.max_total_vertex_count = s.maxTotalVertexCount;
-      t.min_position_truncate_bit_count = s.minPositionTruncateBitCount;
-      in->op_input.Set(std::move(t));
-      break;
-    }
-  }
-  return in;
-}
-
-std::unique_ptr<fbs::StridedDeviceAddressRegion> region(const VkStridedDeviceAddressRegionKHR& r) {
-  return std::make_unique<fbs::StridedDeviceAddressRegion>(r.deviceAddress, r.stride, r.size);
-}
-
-std::unique_ptr<fbs::DependencyT> dependency(VkDependencyFlags flags, const std::vector<MemoryBarrier>& memory,
-                                             const std::vector<BufferBarrier>& buffers, uint32_t images) {
-  auto d = std::make_unique<fbs::DependencyT>();
-  d->dependency_flags = flags;
-  for (const auto& b : memory) d->memory_barriers.emplace_back(b.srcStage, b.srcAccess, b.dstStage, b.dstAccess);
-  for (const auto& b : buffers)
-    d->buffer_barriers.emplace_back(b.srcStage, b.srcAccess, b.dstStage, b.dstAccess, VK_QUEUE_FAMILY_IGNORED,
-                                    VK_QUEUE_FAMILY_IGNORED, b.buffer, b.offset, b.size);
-  d->image_barrier_count = images;
-  return d;
-}
-
 class TraceCaptureSink final : public CaptureSink {
  public:
   TraceCaptureSink(std::string path, int outputFd, int zstdLevel, uint32_t flushMilliseconds,
@@ -139,69 +77,10 @@ class TraceCaptureSink final : public CaptureSink {
     std::lock_guard write(writeMutex_);
     StateLock lock(*this);
     if (writer_ || failed_) return;  // the header describes the first device
-    fbs::TraceHeaderT header;
-    header.device = std::make_unique<fbs::DeviceInfoT>();
-    fbs::DeviceInfoT& info = *header.device;
-    info.name = d.deviceName;
-    info.vendor_id = d.vendorId;
-    info.device_id = d.deviceId;
-    info.driver_version = d.driverVersion;
-    info.api_version = d.apiVersion;
-    info.device_type = d.deviceType;
-    info.pipeline_cache_uuid = d.pipelineCacheUuid;
-    if (d.servedByLayer) {
-      // The cluster builds' outputs in this trace were written by clastrace's engine, not by
-      // the device's driver: replay compares them with the engine byte for byte.
-      info.driver_name = "clastrace engine";
-      info.driver_info = "VK_NV_cluster_acceleration_structure served by VK_LAYER_CLASTRACE_capture: cluster "
-                         "builds executed by clastrace's CPU engine on the host; the device's driver ran "
-                         "everything else";
-    } else if (!d.driverName.empty()) {
-      info.driver_id = d.driverId;
-      info.driver_name = d.driverName;
-      info.driver_info = d.driverInfo;
-    }
-    info.driver_uuid = d.driverUuid;
-    info.device_uuid = d.deviceUuid;
-    if (d.hasRayTracingPropertiesNV) {
-      const auto& rt = d.rayTracingPropertiesNV;
-      info.ray_tracing_properties_nv = std::make_unique<fbs::RayTracingPropertiesNVT>();
-      auto& o = *info.ray_tracing_properties_nv;
-      o.shader_group_handle_size = rt.shaderGroupHandleSize;
-      o.max_recursion_depth = rt.maxRecursionDepth;
-      o.max_shader_group_stride = rt.maxShaderGroupStride;
-      o.shader_group_base_alignment = rt.shaderGroupBaseAlignment;
-      o.max_geometry_count = rt.maxGeometryCount;
-      o.max_instance_count = rt.maxInstanceCount;
-      o.max_triangle_count = rt.maxTriangleCount;
-      o.max_descriptor_set_acceleration_structures = rt.maxDescriptorSetAccelerationStructures;
-    }
-    info.timestamp_period_ns = d.timestampPeriod;
-    for (const auto& t : d.memoryTypes) info.memory_types.emplace_back(t.propertyFlags, t.heapIndex);
-    for (const auto& h : d.memoryHeaps) info.memory_heaps.emplace_back(h.size, h.flags);
-    info.enabled_extensions = d.enabledExtensions;
-    info.cluster_features = std::make_unique<fbs::ClusterFeaturesT>();
-    info.cluster_features->cluster_acceleration_structure_supported = d.clusterProperties.maxTrianglesPerCluster != 0;
-    info.cluster_features->cluster_acceleration_structure_enabled = d.clusterFeatureEnabled;
-    info.cluster_properties = std::make_unique<fbs::ClusterPropertiesT>();
-    auto& p = *info.cluster_properties;
-    p.max_vertices_per_cluster = d.clusterProperties.maxVerticesPerCluster;
-    p.max_triangles_per_cluster = d.clusterProperties.maxTrianglesPerCluster;
-    p.cluster_scratch_byte_alignment = d.clusterProperties.clusterScratchByteAlignment;
-    p.cluster_byte_alignment = d.clusterProperties.clusterByteAlignment;
-    p.cluster_template_byte_alignment = d.clusterProperties.clusterTemplateByteAlignment;
-    p.cluster_bottom_level_byte_alignment = d.clusterProperties.clusterBottomLevelByteAlignment;
-    p.cluster_template_bounds_byte_alignment = d.clusterProperties.clusterTemplateBoundsByteAlignment;
-    p.max_cluster_geometry_index = d.clusterProperties.maxClusterGeometryIndex;
-    header.capture = std::make_unique<fbs::CaptureSettingsT>();
-    header.capture->application_name = d.applicationName;
-    header.capture->engine_name = d.engineName;
-    header.capture->capture_tool = d.servedByLayer ? "clastrace-capture 0.1.0 (serving the extension)"
-                                                   : "clastrace-capture 0.1.0";
-    header.capture->start_time_unix_ns = uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(
-                                                      std::chrono::system_clock::now().time_since_epoch())
-                                                      .count());
-    header.capture->snapshot_policy = "inputs+outputs";
+    const fbs::TraceHeaderT header =
+        traceHeaderOf(d, uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                      std::chrono::system_clock::now().time_since_epoch())
+                                      .count()));
     traces::TraceWriterOptions options;
     options.zstd_level = zstdLevel_;
     options.compressor_nice = kBackgroundNice;
@@ -267,7 +146,7 @@ class TraceCaptureSink final : public CaptureSink {
   }
   void buildSizesQueried(const BuildSizesQuery& q) override {
     fbs::GetClusterBuildSizesT r;
-    r.input = inputInfo(q.input);
+    r.input = traces::cluster_input_to_record(q.input.resolved().input);
     r.acceleration_structure_size = q.answer.accelerationStructureSize;
     r.update_scratch_size = q.answer.updateScratchSize;
     r.build_scratch_size = q.answer.buildScratchSize;
@@ -337,7 +216,7 @@ class TraceCaptureSink final : public CaptureSink {
   // application made the call after that vkQueueSubmit returned; a submission still waiting
   // for its builds holds it back with it, so the order in the trace is the order of the calls.
   void hostSynchronized(const HostSyncRecord& h) override {
-    fbs::RecordT record = hostSyncRecord(h);
+    fbs::RecordT record = hostSyncRecordOf(h);
     StateLock lock(*this);
     appendOrderedLocked(std::move(record));
   }
@@ -446,7 +325,7 @@ class TraceCaptureSink final : public CaptureSink {
     r->size = a.size;
     r->create_flags = a.createFlags;
     r->compacted_size = a.compactedSize;
-    if (!a.khr) r->info = nvInfo(a.infoType, a.infoFlags, a.instanceCount, a.geometries);
+    if (!a.khr) r->info = nvInfoOf(a.infoType, a.infoFlags, a.instanceCount, a.geometries);
     pendingObjects_[a.accelerationStructure].create = std::move(r);
   }
   void accelerationStructureBound(const AccelerationStructureBindingRecord& b) override {
@@ -494,27 +373,6 @@ class TraceCaptureSink final : public CaptureSink {
     std::vector<fbs::RecordT> after;  // binding, memory requirements
   };
 
-  static std::unique_ptr<fbs::AccelerationStructureInfoNVT> nvInfo(uint32_t type, uint32_t flags, uint32_t instances,
-                                                                   const std::vector<VkGeometryNV>& geometries) {
-    auto info = std::make_unique<fbs::AccelerationStructureInfoNVT>();
-    info->type = type;
-    info->flags = flags;
-    info->instance_count = instances;
-    for (const auto& g : geometries) {
-      auto geometry = std::make_unique<fbs::GeometryNVT>();
-      geometry->geometry_type = uint32_t(g.geometryType);
-      geometry->flags = g.flags;
-      const auto& t = g.geometry.triangles;
-      geometry->triangles = std::make_unique<fbs::GeometryTrianglesNV>(
-          uint64_t(t.vertexData), t.vertexOffset, t.vertexCount, uint32_t(t.vertexFormat), t.vertexStride,
-          uint64_t(t.indexData), t.indexOffset, t.indexCount, uint32_t(t.indexType), uint64_t(t.transformData),
-          t.transformOffset);
-      const auto& a = g.geometry.aabbs;
-      geometry->aabbs = std::make_unique<fbs::GeometryAabbNV>(uint64_t(a.aabbData), a.numAABBs, a.stride, a.offset);
-      info->geometries.push_back(std::move(geometry));
-    }
-    return info;
-  }
   void objectRecord(uint64_t as, fbs::RecordT record) {
     StateLock lock(*this);
     auto it = pendingObjects_.find(as);
@@ -530,21 +388,8 @@ class TraceCaptureSink final : public CaptureSink {
     while (!pendingObjects_.empty()) emitObjectLocked(pendingObjects_.begin());
   }
   void writeRayCheck(const RayCheckRecord& c) {
-    fbs::RayQueryCheckT r;
-    r.acceleration_structure = c.accelerationStructure;
-    r.device_handle = c.deviceHandle;
     auto index = traceSubmission_.find(c.submissionIndex);
-    r.after_submission = index == traceSubmission_.end() ? ~0ull : index->second;
-    for (const NvTracedRay& ray : c.rays)
-      r.rays.emplace_back(ray.origin[0], ray.origin[1], ray.origin[2], ray.tMin, ray.direction[0], ray.direction[1],
-                          ray.direction[2], ray.tMax, ray.rayFlags, ray.cullMask);
-    // NV GLSL has no gl_GeometryIndexEXT: the index comes from the hit record (stride 1), so it
-    // is the driver's answer too.
-    for (const NvRayHit& h : c.hits)
-      r.results.emplace_back(h.hit, h.t, h.instanceCustomIndex, h.instanceId, h.primitiveId,
-                             h.hit ? h.geometryIndex : 0xFFFFFFFFu, h.hitKind, h.u, h.v);
-    r.label = c.label;
-    writeRecord(recordOf(std::move(r)));
+    writeRecord(recordOf(rayQueryCheckOf(c, index == traceSubmission_.end() ? ~0ull : index->second)));
   }
 
   struct Pending {
@@ -560,85 +405,6 @@ class TraceCaptureSink final : public CaptureSink {
   static constexpr uint64_t kMaxPendingBytes = 256ull << 20;
   static constexpr int kBackgroundNice = 10;  // the sink's and the compressor's threads
 
-  static fbs::RecordT hostSyncRecord(const HostSyncRecord& h) {
-    using K = HostSyncRecord::Kind;
-    auto first = [&] { return h.handles.empty() ? 0 : h.handles[0]; };
-    switch (h.kind) {
-      case K::EventSet:
-      case K::EventReset:
-      case K::EventStatus: {
-        fbs::HostEventOpT r;
-        r.event = first();
-        r.op = h.kind == K::EventSet ? 0 : h.kind == K::EventReset ? 1 : 2;
-        r.result = h.result;
-        return recordOf(std::move(r));
-      }
-      case K::FenceWait: {
-        fbs::FenceWaitT r;
-        r.fences = h.handles;
-        r.wait_all = h.waitAll;
-        r.timeout = h.timeout;
-        r.result = h.result;
-        return recordOf(std::move(r));
-      }
-      case K::FenceReset: {
-        fbs::FenceResetT r;
-        r.fences = h.handles;
-        return recordOf(std::move(r));
-      }
-      case K::FenceStatus: {
-        fbs::FenceStatusT r;
-        r.fence = first();
-        r.result = h.result;
-        return recordOf(std::move(r));
-      }
-      case K::QueueWaitIdle: {
-        fbs::QueueWaitIdleT r;
-        r.queue = first();
-        r.result = h.result;
-        return recordOf(std::move(r));
-      }
-      case K::DeviceWaitIdle: {
-        fbs::DeviceWaitIdleT r;
-        r.result = h.result;
-        return recordOf(std::move(r));
-      }
-      case K::SemaphoreSignal:
-      case K::SemaphoreWait:
-        break;
-    }
-    fbs::HostSemaphoreOpT r;
-    r.op = h.kind == K::SemaphoreSignal ? 0 : 1;
-    r.semaphores = h.handles;
-    r.values = h.values;
-    r.wait_any = !h.waitAll;
-    r.timeout = h.timeout;
-    r.result = h.result;
-    return recordOf(std::move(r));
-  }
-
-  // What the build's capture found wrong, kept with the submission that ran it: the engine's
-  // findings when it served the build (errors), and ranges the capture could not read.
-  static void collectFindings(uint64_t commandBuffer, size_t index, const ClusterBuildCapture& captured,
-                              std::vector<fbs::CaptureFindingT>& out) {
-    auto finding = [&](uint8_t severity, const std::string& rule, const std::string& message, int64_t op) {
-      fbs::CaptureFindingT r;
-      r.command_buffer = commandBuffer;
-      r.command_index = uint32_t(index);
-      r.op_index = op < 0 || op > int64_t(UINT32_MAX) ? UINT32_MAX : uint32_t(op);
-      r.severity = severity;
-      r.rule = rule;
-      r.message = message;
-      out.push_back(std::move(r));
-    };
-    for (const EngineFindingRecord& f : captured.engineFindings) finding(2, f.rule, f.message, f.opIndex);
-    for (const CaptureIssue& i : captured.issues) {
-      char where[64];
-      std::snprintf(where, sizeof where, " (address 0x%llx, %llu bytes)", (unsigned long long)i.address,
-                    (unsigned long long)i.size);
-      finding(1, "CLASTRACE-capture-incomplete", i.rule + where, -1);
-    }
-  }
   // The pause that reads a command buffer's timestamps (0: it has none).
   static uint64_t timestampReadOf(const RecordedCommandBuffer& cb) {
     for (const auto& c : cb.commands)
@@ -896,35 +662,12 @@ class TraceCaptureSink final : public CaptureSink {
     }
     std::vector<fbs::CaptureFindingT>& findings = e.findings;
     if (!writer_ || failed_) return;
-    fbs::QueueSubmitT submit;
-    submit.queue = p.submission.queue;
-    submit.queue_family_index = p.submission.queueFamily;
-    submit.queue_index = p.submission.queueIndex;
-    submit.version = p.submission.synchronization2 ? 2 : 1;
-    for (const auto& b : p.submission.batches) {
-      auto batch = std::make_unique<fbs::SubmitBatchT>();
-      for (const auto& w : b.waits) batch->wait_semaphores.emplace_back(w.semaphore, w.value, w.stageMask, 0);
-      batch->command_buffers = b.commandBuffers;
-      for (const auto& s : b.signals) batch->signal_semaphores.emplace_back(s.semaphore, s.value, s.stageMask, 0);
-      submit.batches.push_back(std::move(batch));
-    }
-    submit.fence = p.submission.fence;
-    submit.submission_index = writer_->next_submission_index();
+    fbs::QueueSubmitT submit = queueSubmitOf(p.submission, writer_->next_submission_index());
     traceSubmission_[p.submission.index] = submit.submission_index;
-    submit.result = VK_SUCCESS;
     const uint64_t submission = submit.submission_index;
     writeRecord(recordOf(std::move(submit)));
     for (const RayCheckRecord& c : p.rayChecks) writeRayCheck(c);
-    for (const SubmissionRecord::Note& note : p.submission.notes) {
-      fbs::CaptureFindingT f;
-      f.command_buffer = note.commandBuffer;
-      f.command_index = UINT32_MAX;  // the whole command buffer
-      f.op_index = UINT32_MAX;
-      f.severity = 1;
-      f.rule = note.rule;
-      f.message = note.message;
-      findings.push_back(std::move(f));
-    }
+    for (const SubmissionRecord::Note& note : p.submission.notes) findings.push_back(submissionNoteFinding(note));
     for (fbs::CaptureFindingT& f : findings) {
       f.submission = submission;
       writeRecord(recordOf(std::move(f)));
@@ -984,15 +727,7 @@ class TraceCaptureSink final : public CaptureSink {
         collectFindings(cb.commandBuffer, index, *captured, found);
         for (auto& f : found) finding(std::move(f));
       } else if (pauseIdOf(command)) {  // emitted at the end without its pause: say so
-        fbs::CaptureFindingT f;
-        f.command_buffer = cb.commandBuffer;
-        f.command_index = uint32_t(index);
-        f.op_index = UINT32_MAX;
-        f.severity = 1;
-        f.rule = "CLASTRACE-capture-incomplete";
-        f.message = "the queue never reached this command's pause before the process or the capture ended: "
-                    "its memory was not captured";
-        finding(std::move(f));
+        finding(uncapturedCommandFinding(cb.commandBuffer, index));
       }
       writeCommand(cb.commandBuffer, command, captured);
     }
@@ -1002,132 +737,20 @@ class TraceCaptureSink final : public CaptureSink {
   }
 
   void writeCommand(uint64_t cb, const RecordedCommand& command, const ClusterBuildCapture* captured) {
-    if (const auto* c = std::get_if<BarrierCommand>(&command)) {
-      fbs::CmdPipelineBarrierT r;
-      r.command_buffer = cb;
-      r.version = c->synchronization2 ? 2 : 1;
-      r.src_stage_mask = c->srcStageMask;
-      r.dst_stage_mask = c->dstStageMask;
-      r.dependency = dependency(c->dependencyFlags, c->memoryBarriers, c->bufferBarriers, c->imageBarrierCount);
-      writeRecord(recordOf(std::move(r)));
-    } else if (const auto* c = std::get_if<EventCommand>(&command)) {
-      const uint8_t version = c->synchronization2 ? 2 : 1;
-      if (c->kind == EventCommand::Kind::Set) {
-        fbs::CmdSetEventT r;
-        r.command_buffer = cb;
-        r.event = c->events.empty() ? 0 : c->events[0];
-        r.version = version;
-        r.stage_mask = c->srcStageMask;
-        if (c->synchronization2) r.dependency = dependency(0, c->memoryBarriers, c->bufferBarriers, 0);
-        writeRecord(recordOf(std::move(r)));
-      } else if (c->kind == EventCommand::Kind::Reset) {
-        fbs::CmdResetEventT r;
-        r.command_buffer = cb;
-        r.event = c->events.empty() ? 0 : c->events[0];
-        r.version = version;
-        r.stage_mask = c->srcStageMask;
-        writeRecord(recordOf(std::move(r)));
-      } else {
-        fbs::CmdWaitEventsT r;
-        r.command_buffer = cb;
-        r.version = version;
-        r.events = c->events;
-        r.src_stage_mask = c->srcStageMask;
-        r.dst_stage_mask = c->dstStageMask;
-        // The per-event split of v2 dependencies is not kept by the layer: one dependency.
-        r.dependencies.push_back(dependency(0, c->memoryBarriers, c->bufferBarriers, 0));
-        writeRecord(recordOf(std::move(r)));
-      }
-    } else if (const auto* c = std::get_if<CopyBufferCommand>(&command)) {
-      fbs::CmdCopyBufferT r;
-      r.command_buffer = cb;
-      r.version = 1;
-      r.src_buffer = c->src;
-      r.dst_buffer = c->dst;
-      for (const auto& region : c->regions) r.regions.emplace_back(region.srcOffset, region.dstOffset, region.size);
-      writeRecord(recordOf(std::move(r)));
-    } else if (const auto* c = std::get_if<FillBufferCommand>(&command)) {
-      fbs::CmdFillBufferT r;
-      r.command_buffer = cb;
-      r.dst_buffer = c->dst;
-      r.dst_offset = c->offset;
-      r.size = c->size;
-      r.data = c->data;
-      writeRecord(recordOf(std::move(r)));
-    } else if (const auto* c = std::get_if<UpdateBufferCommand>(&command)) {
-      fbs::CmdUpdateBufferT r;
-      r.command_buffer = cb;
-      r.dst_buffer = c->dst;
-      r.dst_offset = c->offset;
-      r.data = c->data;
-      writeRecord(recordOf(std::move(r)));
-    } else if (const auto* c = std::get_if<DispatchCommand>(&command)) {
-      fbs::CmdDispatchT r;
-      r.command_buffer = cb;
-      r.group_count_x = c->groupCountX;
-      r.group_count_y = c->groupCountY;
-      r.group_count_z = c->groupCountZ;
-      r.pipeline = c->pipeline;
-      r.indirect_buffer = c->indirectBuffer;
-      r.indirect_offset = c->indirectOffset;
-      for (const auto& b : c->storageBuffers)
-        r.storage_buffers.emplace_back(b.set, b.binding, b.arrayElement, uint32_t(b.type), b.buffer, b.offset, b.range,
-                                       b.address);
-      writeRecord(recordOf(std::move(r)));
-    } else if (const auto* c = std::get_if<ClusterBuildCommand>(&command)) {
-      const auto& i = c->parameters.info;
-      fbs::CmdBuildClusterAccelerationStructureIndirectT r;
-      r.command_buffer = cb;
-      r.input = inputInfo(c->parameters);
-      r.dst_implicit_data = i.dstImplicitData;
-      r.scratch_data = i.scratchData;
-      r.dst_addresses_array = region(i.dstAddressesArray);
-      r.dst_sizes_array = region(i.dstSizesArray);
-      r.src_infos_array = region(i.srcInfosArray);
-      r.src_infos_count = i.srcInfosCount;
-      r.address_resolution_flags = i.addressResolutionFlags;
-      if (captured) {
-        snapshots(captured->inputs, r.inputs);
-        snapshots(captured->outputs, r.outputs);
-      }
-      writeRecord(recordOf(std::move(r)));
-    } else if (const auto* c = std::get_if<BuildAccelerationStructureNVCommand>(&command)) {
-      fbs::CmdBuildAccelerationStructureNVT r;
-      r.command_buffer = cb;
-      r.info = std::make_unique<fbs::AccelerationStructureInfoNVT>();
-      r.info->type = uint32_t(c->type);
-      r.info->flags = c->flags;
-      r.info->instance_count = c->instanceCount;
-      for (const auto& g : c->geometries) {
-        auto geometry = std::make_unique<fbs::GeometryNVT>();
-        geometry->geometry_type = uint32_t(g.geometryType);
-        geometry->flags = g.flags;
-        const auto& t = g.geometry.triangles;
-        geometry->triangles = std::make_unique<fbs::GeometryTrianglesNV>(
-            uint64_t(t.vertexData), t.vertexOffset, t.vertexCount, uint32_t(t.vertexFormat), t.vertexStride,
-            uint64_t(t.indexData), t.indexOffset, t.indexCount, uint32_t(t.indexType), uint64_t(t.transformData),
-            t.transformOffset);
-        const auto& a = g.geometry.aabbs;
-        geometry->aabbs = std::make_unique<fbs::GeometryAabbNV>(uint64_t(a.aabbData), a.numAABBs, a.stride, a.offset);
-        r.info->geometries.push_back(std::move(geometry));
-      }
-      r.instance_data = c->instanceData;
-      r.instance_offset = c->instanceOffset;
-      r.update = c->update == VK_TRUE;
-      r.dst = c->dst;
-      r.src = c->src;
-      r.scratch = c->scratch;
-      r.scratch_offset = c->scratchOffset;
-      if (captured) snapshots(captured->inputs, r.inputs);
-      writeRecord(recordOf(std::move(r)));
-    } else if (const auto* c = std::get_if<CopyMemoryToAccelerationStructureCommand>(&command)) {
-      fbs::CmdCopyMemoryToAccelerationStructureT r;
-      r.command_buffer = cb;
-      r.src_address = c->src;
-      r.dst = c->dst;
-      r.mode = uint32_t(c->mode);
-      if (captured) snapshots(captured->inputs, r.inputs);
-      writeRecord(recordOf(std::move(r)));
+    fbs::RecordT record = commandRecordOf(cb, command);
+    if (record.body.type == fbs::RecordBody::NONE) return;
+    if (captured) addSnapshots(*captured, record);
+    writeRecord(std::move(record));
+  }
+  // What a captured command read (and, for cluster builds, wrote), as the trace's snapshots.
+  void addSnapshots(const ClusterBuildCapture& captured, fbs::RecordT& record) {
+    if (auto* r = record.body.AsCmdBuildClusterAccelerationStructureIndirect()) {
+      snapshots(captured.inputs, r->inputs);
+      snapshots(captured.outputs, r->outputs);
+    } else if (auto* r = record.body.AsCmdBuildAccelerationStructureNV()) {
+      snapshots(captured.inputs, r->inputs);
+    } else if (auto* r = record.body.AsCmdCopyMemoryToAccelerationStructure()) {
+      snapshots(captured.inputs, r->inputs);
     }
   }
 

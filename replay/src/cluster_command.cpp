@@ -1,6 +1,7 @@
 #include "cluster_command.hpp"
 
 #include <clastrace/engine/execute.h>
+#include <clastrace/traces/cluster_conversions.h>
 
 #include <algorithm>
 #include <chrono>
@@ -20,61 +21,6 @@ std::string hex(uint64_t value) {
 }
 
 namespace {
-
-VkStridedDeviceAddressRegionKHR region(const fbs::StridedDeviceAddressRegion* r) {
-    if (!r) return {0, 0, 0};
-    return {r->device_address(), r->stride(), r->size()};
-}
-
-// The captured call as the engine takes it. The op input structs live in `storage`.
-struct CommandStorage {
-    VkClusterAccelerationStructureCommandsInfoNV info{};
-    VkClusterAccelerationStructureClustersBottomLevelInputNV bottom_level{};
-    VkClusterAccelerationStructureTriangleClusterInputNV triangles{};
-    VkClusterAccelerationStructureMoveObjectsInputNV move{};
-};
-
-void to_vulkan(const fbs::CmdBuildClusterAccelerationStructureIndirect& b, CommandStorage* s) {
-    VkClusterAccelerationStructureCommandsInfoNV& info = s->info;
-    info.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
-    info.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
-    if (const fbs::ClusterInputInfo* in = b.input()) {
-        info.input.maxAccelerationStructureCount = in->max_acceleration_structure_count();
-        info.input.flags = in->flags();
-        info.input.opType = static_cast<VkClusterAccelerationStructureOpTypeNV>(in->op_type());
-        info.input.opMode = static_cast<VkClusterAccelerationStructureOpModeNV>(in->op_mode());
-        if (const auto* t = in->op_input_as_TriangleClusterInput()) {
-            s->triangles.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
-            s->triangles.vertexFormat = static_cast<VkFormat>(t->vertex_format());
-            s->triangles.maxGeometryIndexValue = t->max_geometry_index_value();
-            s->triangles.maxClusterUniqueGeometryCount = t->max_cluster_unique_geometry_count();
-            s->triangles.maxClusterTriangleCount = t->max_cluster_triangle_count();
-            s->triangles.maxClusterVertexCount = t->max_cluster_vertex_count();
-            s->triangles.maxTotalTriangleCount = t->max_total_triangle_count();
-            s->triangles.maxTotalVertexCount = t->max_total_vertex_count();
-            s->triangles.minPositionTruncateBitCount = t->min_position_truncate_bit_count();
-            info.input.opInput.pTriangleClusters = &s->triangles;
-        } else if (const auto* c = in->op_input_as_ClustersBottomLevelInput()) {
-            s->bottom_level.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
-            s->bottom_level.maxTotalClusterCount = c->max_total_cluster_count();
-            s->bottom_level.maxClusterCountPerAccelerationStructure = c->max_cluster_count_per_acceleration_structure();
-            info.input.opInput.pClustersBottomLevel = &s->bottom_level;
-        } else if (const auto* m = in->op_input_as_MoveObjectsInput()) {
-            s->move.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_MOVE_OBJECTS_INPUT_NV;
-            s->move.type = static_cast<VkClusterAccelerationStructureTypeNV>(m->type());
-            s->move.noMoveOverlap = m->no_move_overlap() ? VK_TRUE : VK_FALSE;
-            s->move.maxMovedBytes = m->max_moved_bytes();
-            info.input.opInput.pMoveObjects = &s->move;
-        }
-    }
-    info.dstImplicitData = b.dst_implicit_data();
-    info.scratchData = b.scratch_data();
-    info.dstAddressesArray = region(b.dst_addresses_array());
-    info.dstSizesArray = region(b.dst_sizes_array());
-    info.srcInfosArray = region(b.src_infos_array());
-    info.srcInfosCount = b.src_infos_count();
-    info.addressResolutionFlags = b.address_resolution_flags();
-}
 
 // Element size of srcInfosArray and where object addresses sit in one element.
 struct InfoLayout {
@@ -300,9 +246,8 @@ void verify(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
 
 void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect& build, uint32_t queried_max_count,
                          ClusterCommandContext& c) {
-    CommandStorage storage;
-    to_vulkan(build, &storage);
-    const VkClusterAccelerationStructureCommandsInfoNV& info = storage.info;
+    traces::ClusterOpInputStorage op_inputs;  // what info.input.opInput points to
+    const VkClusterAccelerationStructureCommandsInfoNV info = traces::cluster_commands_from_record(build, op_inputs);
     Translator(c).run(info);
 
     engine::ExecuteOptions options;

@@ -1,4 +1,5 @@
-// VK_NV_cluster_acceleration_structure calls in their trace form, as a capture records them.
+// VK_NV_cluster_acceleration_structure calls in their trace form, as a capture records them: the
+// names the test traces use for traces/cluster_conversions.h, which the capture layer encodes with.
 #pragma once
 
 #include <clastrace/traces/trace_generated.h>
@@ -10,7 +11,6 @@
 namespace clastrace::trace_building {
 
 std::unique_ptr<fbs::ClusterInputInfoT> cluster_input(const VkClusterAccelerationStructureInputInfoNV& input);
-std::unique_ptr<fbs::StridedDeviceAddressRegion> strided_region(const VkStridedDeviceAddressRegionKHR& region);
 // vkCmdBuildClusterAccelerationStructureIndirectNV without snapshots (the caller adds them).
 fbs::CmdBuildClusterAccelerationStructureIndirectT cluster_build(uint64_t command_buffer,
                                                                  const VkClusterAccelerationStructureCommandsInfoNV& info);
