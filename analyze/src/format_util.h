@@ -6,6 +6,7 @@
 #include <optional>
 #include <string>
 
+#include <clastrace/common/hex.h>
 #include <fmt/format.h>
 
 namespace clastrace::analyze::fmtu {
@@ -29,7 +30,7 @@ inline std::string percent(std::optional<double> v) { return v ? fmt::format("{:
 
 inline std::string ms(uint64_t ns) { return fmt::format("{:.3f}", static_cast<double>(ns) / 1e6); }
 
-inline std::string hex(uint64_t address) { return fmt::format("0x{:x}", address); }
+using common::hex;
 
 // Signed difference a - b as text ("-12" when b > a).
 inline std::string difference(uint64_t a, uint64_t b) {

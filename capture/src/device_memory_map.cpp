@@ -1,4 +1,5 @@
 #include "clastrace/capture/device_memory_map.h"
+#include "clastrace/common/hex.h"
 
 #include <cstdio>
 #include <cstring>
@@ -6,11 +7,7 @@
 namespace clastrace::capture {
 namespace {
 
-std::string hex(uint64_t value) {
-  char text[24];
-  std::snprintf(text, sizeof text, "0x%llx", static_cast<unsigned long long>(value));
-  return text;
-}
+using common::hex;
 
 void eraseAddress(std::multimap<VkDeviceAddress, uint64_t>& byAddress, VkDeviceAddress address, uint64_t buffer) {
   auto [first, last] = byAddress.equal_range(address);

@@ -1,5 +1,6 @@
 #include "clastrace/capture/capture_sink.h"
 
+#include <clastrace/common/hex.h>
 #include <clastrace/traces/output_file.h>
 #include <nlohmann/json.hpp>
 
@@ -15,16 +16,7 @@ namespace {
 
 using nlohmann::json;
 
-std::string hexBytes(std::span<const uint8_t> bytes) {
-  static const char* digits = "0123456789abcdef";
-  std::string text;
-  text.reserve(bytes.size() * 2);
-  for (uint8_t b : bytes) {
-    text.push_back(digits[b >> 4]);
-    text.push_back(digits[b & 15]);
-  }
-  return text;
-}
+std::string hexBytes(std::span<const uint8_t> bytes) { return common::hex_bytes(bytes); }
 
 json parametersJson(const ClusterCommandParameters& p) {
   const auto& i = p.info;

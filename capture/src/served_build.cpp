@@ -1,4 +1,5 @@
 #include "clastrace/capture/served_build.h"
+#include "clastrace/common/hex.h"
 
 #include "clastrace/capture/cluster_input_walker.h"
 #include "clastrace/capture/cluster_limits.h"
@@ -16,11 +17,7 @@
 namespace clastrace::capture {
 namespace {
 
-std::string hex(uint64_t v) {
-  char text[24];
-  std::snprintf(text, sizeof text, "0x%llx", (unsigned long long)v);
-  return text;
-}
+using common::hex;
 
 // An empty image whose region bytes go back to `pool` with its last owner.
 std::shared_ptr<engine::MemoryImage> pooledImage(std::shared_ptr<ServedRegionPool> pool) {

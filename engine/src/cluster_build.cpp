@@ -2,6 +2,7 @@
 // spec's per-info rules (findings carry the VUID strings verbatim), decode and
 // truncate positions, and hand the result to the encoder.
 #include "clastrace/engine/cluster_build.h"
+#include "clastrace/common/hex.h"
 
 #include "clastrace/engine/cluster_format.h"
 #include "clastrace/engine/vertex_format.h"
@@ -34,11 +35,7 @@ ClusterBuilder& ClusterBuilder::operator=(ClusterBuilder&&) noexcept = default;
 
 namespace {
 
-std::string hex(uint64_t v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "0x%" PRIx64, v);
-  return buf;
-}
+using common::hex;
 
 // Collects findings for one op with the op's context in every message.
 struct Reporter {

@@ -2,6 +2,7 @@
 #ifndef CLASTRACE_ENGINE_SRC_EXECUTE_INTERNAL_H
 #define CLASTRACE_ENGINE_SRC_EXECUTE_INTERNAL_H
 
+#include "clastrace/common/hex.h"
 #include "clastrace/engine/cluster_build.h"
 #include "clastrace/engine/cluster_format.h"
 #include "clastrace/engine/execute.h"
@@ -14,7 +15,7 @@
 
 namespace clastrace::engine::detail {
 
-std::string hex(uint64_t v);
+using common::hex;
 
 // Accesses and findings of one op (or of the command), gathered without locks.
 struct Recorder {

@@ -11,12 +11,6 @@
 
 namespace clastrace::engine::detail {
 
-std::string hex(uint64_t v) {
-  std::ostringstream s;
-  s << "0x" << std::hex << v;
-  return s.str();
-}
-
 void Recorder::access(uint64_t begin, uint64_t size, VkAccessFlags2 access, bool is_write, std::string field) {
   if (size == 0) return;
   uint64_t end = begin + size;

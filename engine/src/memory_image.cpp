@@ -1,4 +1,6 @@
 #include "clastrace/engine/memory_image.h"
+#include "clastrace/common/debug_assert.h"
+#include "clastrace/common/hex.h"
 
 #include <sys/mman.h>
 
@@ -12,10 +14,29 @@
 namespace clastrace::engine {
 
 namespace {
-std::string hex(uint64_t v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "0x%" PRIx64, v);
-  return buf;
+using common::hex;
+
+// The counted run at `run` is non-empty, ends by `page_count` and neither meets nor overlaps
+// the runs beside it.
+bool run_fits(const std::map<uint64_t, uint64_t>& runs, std::map<uint64_t, uint64_t>::const_iterator run,
+              uint64_t page_count) {
+  if (run->first >= run->second || run->second > page_count) return false;
+  if (run != runs.begin() && std::prev(run)->second >= run->first) return false;
+  const auto next = std::next(run);
+  return next == runs.end() || run->second < next->first;
+}
+
+// The region keyed at `at` is keyed by its base, non-empty, inside 2^64 and clear of the
+// regions beside it.
+bool region_fits(const std::map<uint64_t, MemoryRegion>& regions, std::map<uint64_t, MemoryRegion>::const_iterator at) {
+  const MemoryRegion& r = at->second;
+  if (at->first != r.base || r.size == 0 || r.base + (r.size - 1) < r.base || r.bytes.size() != r.size) return false;
+  if (at != regions.begin()) {
+    const MemoryRegion& prev = std::prev(at)->second;
+    if (prev.base + (prev.size - 1) >= r.base) return false;
+  }
+  const auto next = std::next(at);
+  return next == regions.end() || r.base + (r.size - 1) < next->first;
 }
 }  // namespace
 
@@ -134,9 +155,10 @@ uint64_t RegionBytes::touch(uint64_t offset, uint64_t size) {
     covered += it->second - it->first;
     it = touched_.erase(it);
   }
-  touched_.emplace(first, last);
+  const auto run = touched_.emplace(first, last).first;
   const uint64_t added = (last - first - covered) * kPageBytes;
   resident_ += added;
+  CLASTRACE_DEBUG_ASSERT(run_fits(touched_, run, mapped_ / kPageBytes) && resident_ <= mapped_);
   return added;
 }
 
@@ -176,7 +198,17 @@ uint64_t RegionBytes::zero(uint64_t offset, uint64_t size) {
     if (e > page_end) it = touched_.emplace(page_end, e).first;
   }
   resident_ -= released * kPageBytes;
+  CLASTRACE_DEBUG_ASSERT(resident_ <= mapped_);
   return released * kPageBytes;
+}
+
+bool RegionBytes::invariants_hold() const {
+  uint64_t pages = 0;
+  for (auto run = touched_.begin(); run != touched_.end(); ++run) {
+    if (!run_fits(touched_, run, mapped_ / kPageBytes)) return false;
+    pages += run->second - run->first;
+  }
+  return resident_ == pages * kPageBytes && (!dense_ || resident_ == mapped_);
 }
 
 // ------------------------------------------------------------------------ MemoryImage
@@ -230,7 +262,18 @@ MemoryRegion& MemoryImage::add_region(uint64_t base, uint64_t size, VkBufferUsag
   r.bytes = reused ? std::move(storage) : RegionBytes(size);
   reserved_ += size;
   if (reused || r.bytes.dense()) written_ += r.bytes.resident_bytes();  // counted already / held whole from the start
-  return regions_.emplace(base, std::move(r)).first->second;
+  const auto added = regions_.emplace(base, std::move(r)).first;
+  CLASTRACE_DEBUG_ASSERT(region_fits(regions_, added));
+  return added->second;
+}
+
+bool MemoryImage::invariants_hold() const {
+  uint64_t reserved = 0;
+  for (auto at = regions_.begin(); at != regions_.end(); ++at) {
+    if (!region_fits(regions_, at) || !at->second.bytes.invariants_hold()) return false;
+    reserved += at->second.size;
+  }
+  return reserved == reserved_;
 }
 
 bool MemoryImage::remove_region(uint64_t base, RegionBytes* storage) {

@@ -1,6 +1,7 @@
 // vkCmdBuildAccelerationStructureNV: command checks, input gathering (nv_gather.cpp),
 // tree build or refit, and the write into dst's memory.
 #include "clastrace/engine/nv_build.h"
+#include "clastrace/common/hex.h"
 
 #include "nv_gather.h"
 #include "nv_internal.h"
@@ -53,11 +54,7 @@ bool overlaps(uint64_t a, uint64_t an, uint64_t b, uint64_t bn) {
   return a < be && b < ae;
 }
 
-std::string hex(uint64_t v) {
-  char buf[24];
-  std::snprintf(buf, sizeof buf, "0x%llx", static_cast<unsigned long long>(v));
-  return buf;
-}
+using common::hex;
 
 // Flags and counts of pInfo against each other and the limits. False when the build cannot run.
 bool check_info_counts(Context& c) {

@@ -2,6 +2,7 @@
 // byte is read (MemoryImage faults name the field), and every element count is bounded
 // by bytes that exist, so hostile counts and strides cannot allocate without limit.
 #include "nv_gather.h"
+#include "clastrace/common/hex.h"
 
 #include "clastrace/engine/vertex_format.h"
 #include "nv_internal.h"
@@ -13,11 +14,7 @@
 namespace clastrace::engine::nv {
 namespace {
 
-std::string hex(uint64_t v) {
-  char buf[24];
-  std::snprintf(buf, sizeof buf, "0x%llx", static_cast<unsigned long long>(v));
-  return buf;
-}
+using common::hex;
 
 // Bytes covering `count` elements of `size` at `stride` (count > 0), or nullopt on overflow.
 std::optional<uint64_t> strided_span(uint64_t count, uint64_t stride, uint64_t size) {

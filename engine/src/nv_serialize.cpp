@@ -1,16 +1,13 @@
 // Serialization of NV objects and the checks of a deserialization (nv_serialize.h).
 #include "clastrace/engine/nv_serialize.h"
+#include "clastrace/common/hex.h"
 
 #include <cstring>
 
 namespace clastrace::engine {
 namespace {
 
-std::string hex(uint64_t v) {
-  char buf[24];
-  std::snprintf(buf, sizeof buf, "0x%llx", static_cast<unsigned long long>(v));
-  return buf;
-}
+using common::hex;
 
 constexpr VkPipelineStageFlags2 kStageCopy = VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR;
 

@@ -1,4 +1,6 @@
 #include "clastrace/engine/object_directory.h"
+#include "clastrace/common/debug_assert.h"
+#include "clastrace/common/hex.h"
 
 #include "clastrace/engine/blas.h"
 
@@ -10,11 +12,7 @@
 namespace clastrace::engine {
 namespace {
 
-std::string hex(uint64_t v) {
-  std::ostringstream s;
-  s << "0x" << std::hex << v;
-  return s.str();
-}
+using common::hex;
 
 }  // namespace
 
@@ -92,9 +90,25 @@ ObjectLookup ObjectDirectory::lookup(const MemoryImage& memory, uint64_t address
   return r;
 }
 
+namespace {
+// A live object is one the engine built: one of the three types, its size what its header's
+// 32-bit size field can hold.
+bool live_entry_holds(ObjectType type, uint64_t size) {
+  return type >= ObjectType::TriangleCluster && type <= ObjectType::ClustersBottomLevel && size != 0 &&
+         size <= UINT32_MAX;
+}
+}  // namespace
+
 void ObjectDirectory::record_built(uint64_t address, ObjectType type, std::span<const std::byte> bytes) {
+  CLASTRACE_DEBUG_ASSERT(live_entry_holds(type, bytes.size()));
   live_[address] = Live{type, uint32_t(bytes.size()), object_hash(bytes)};
   moved_to_.erase(address);
+}
+
+bool ObjectDirectory::invariants_hold() const {
+  for (const auto& [address, live] : live_)
+    if (!live_entry_holds(live.type, live.size) || moved_to_.contains(address)) return false;
+  return true;
 }
 
 void ObjectDirectory::forget(uint64_t begin, uint64_t end) {

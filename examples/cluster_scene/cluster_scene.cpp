@@ -1,5 +1,7 @@
 #include "cluster_scene.h"
 
+#include <clastrace/common/hex.h>
+
 #include <algorithm>
 #include <cstring>
 #include <deque>
@@ -56,12 +58,7 @@ uint64_t fnv1a64(const uint8_t* data, size_t size) {
 
 namespace {
 
-std::string hex(const uint8_t* data, size_t size) {
-  static const char* digits = "0123456789abcdef";
-  std::string text;
-  for (size_t i = 0; i < size; ++i) text += digits[data[i] >> 4], text += digits[data[i] & 15];
-  return text;
-}
+std::string hex(const uint8_t* data, size_t size) { return clastrace::common::hex_bytes({data, size}); }
 
 // One vkCmdBuildClusterAccelerationStructureIndirectNV with its output buffers. `info`
 // points into the object itself, so commands live in a deque and never move.

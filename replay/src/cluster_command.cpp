@@ -14,12 +14,6 @@
 
 namespace clastrace::replay::detail {
 
-std::string hex(uint64_t value) {
-    char buf[24];
-    std::snprintf(buf, sizeof buf, "0x%" PRIx64, value);
-    return buf;
-}
-
 namespace {
 
 // Element size of srcInfosArray and where object addresses sit in one element.

@@ -5,6 +5,8 @@
 
 #include "replay_memory.hpp"
 
+#include <clastrace/common/hex.h>
+
 #include <clastrace/engine/execution_record.h>
 #include <clastrace/engine/object_directory.h>
 #include <clastrace/engine/properties.h>
@@ -21,7 +23,7 @@
 
 namespace clastrace::replay::detail {
 
-std::string hex(uint64_t value);
+using common::hex;
 
 // Captured object address -> the address the engine rebuilt that object at. In a trace
 // made by the engine itself every entry maps to itself.

@@ -1,4 +1,5 @@
 #include "clastrace/replay/hazard_report.hpp"
+#include "clastrace/common/hex.h"
 
 #include <cinttypes>
 #include <cstdio>
@@ -8,11 +9,7 @@
 namespace clastrace::replay {
 namespace {
 
-std::string hex(uint64_t v) {
-    char buf[24];
-    std::snprintf(buf, sizeof buf, "0x%" PRIx64, v);
-    return buf;
-}
+using common::hex;
 
 std::string where(const HazardAccess& a) {
     std::string s = a.command.name && *a.command.name ? a.command.name : "command";

@@ -1,4 +1,5 @@
 #include "clastrace/replay/replay_report.hpp"
+#include "clastrace/common/hex.h"
 
 #include <clastrace/traces/utf8_text.h>
 #include <clastrace/vk_cluster_abi.h>
@@ -12,11 +13,7 @@ namespace clastrace::replay {
 
 namespace {
 
-std::string hex(uint64_t v) {
-    char buf[24];
-    std::snprintf(buf, sizeof buf, "0x%" PRIx64, v);
-    return buf;
-}
+using common::hex;
 
 std::string where_text(const ReplayLocation& w) {
     std::string command = "command " + std::to_string(w.command);

@@ -12,12 +12,18 @@
 // template only so that tests can check it against a per-byte reference with a plain body.
 #pragma once
 
+#include <clastrace/common/debug_assert.h>
+
 #include <algorithm>
 #include <cstddef>
 #include <cstdint>
 #include <vector>
 
 namespace clastrace::replay::detail {
+
+// Tests only: reaches into a store to break it on purpose (segment_store_invariants_test.cpp).
+template <class Body>
+struct SegmentStoreTestAccess;
 
 template <class Body>
 class SegmentStore {
@@ -88,6 +94,7 @@ public:
             }
         }
         splice(first, next, pieces_);
+        CLASTRACE_DEBUG_ASSERT(entries_hold(first, first + pieces_.size()));
     }
 
     // Makes `at` a segment boundary if a segment straddles it.
@@ -100,6 +107,7 @@ public:
         entries_.insert(entries_.begin() + std::ptrdiff_t(i + 1), tail);
         ends_[i] = at;
         ends_.insert(ends_.begin() + std::ptrdiff_t(i + 1), tail.end);
+        CLASTRACE_DEBUG_ASSERT(entries_hold(i, i + 2));
     }
 
     // Calls fn(Body&, begin, end) on every segment meeting [lo, hi), in address order.
@@ -131,6 +139,7 @@ public:
             entries_.erase(entries_.begin() + std::ptrdiff_t(out), entries_.begin() + std::ptrdiff_t(in));
             ends_.erase(ends_.begin() + std::ptrdiff_t(out), ends_.begin() + std::ptrdiff_t(in));
         }
+        CLASTRACE_DEBUG_ASSERT(entries_hold(out, out));
     }
 
     // Bytes held: entries, bodies (pooled ones too) and whatever body_heap_bytes says a body
@@ -144,7 +153,40 @@ public:
         return bytes;
     }
 
+    // Every segment non-empty, sorted and disjoint, its end mirrored in the search array, and
+    // its body its own (no two segments share one, none is in the free pool). O(segments):
+    // for tests; the mutations check only the entries they wrote.
+    bool invariants_hold() const {
+        if (!entries_hold(0, entries_.size())) return false;
+        std::vector<bool> used(bodies_.size(), false);
+        for (uint32_t b : free_) {
+            if (b >= used.size() || used[b]) return false;
+            used[b] = true;
+        }
+        for (const Entry& e : entries_) {
+            if (used[e.body]) return false;
+            used[e.body] = true;
+        }
+        return true;
+    }
+
 private:
+    friend struct SegmentStoreTestAccess<Body>;
+
+    // Entries [from, to) are non-empty, mirrored in ends_ and own a body in range, and the
+    // entries from `from - 1` to `to` are sorted and disjoint (so the range meets its neighbours).
+    bool entries_hold(std::size_t from, std::size_t to) const {
+        if (ends_.size() != entries_.size() || to > entries_.size()) return false;
+        for (std::size_t k = from; k < to; ++k) {
+            const Entry& e = entries_[k];
+            if (e.begin >= e.end || ends_[k] != e.end || e.body >= bodies_.size()) return false;
+        }
+        const std::size_t last = std::min(to + 1, entries_.size());
+        for (std::size_t k = std::max<std::size_t>(from, 1); k < last; ++k)
+            if (entries_[k - 1].end > entries_[k].begin) return false;
+        return true;
+    }
+
     // Index of the first entry whose end lies past `at` (the one holding `at`, or the next).
     std::size_t first_ending_after(uint64_t at) const {
         // Entries are disjoint and sorted, so their ends are sorted too.

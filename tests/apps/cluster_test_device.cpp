@@ -1,5 +1,7 @@
 #include "cluster_test_device.h"
 
+#include <clastrace/common/hex.h>
+
 #include <cerrno>
 #include <cstdio>
 #include <cstdlib>
@@ -19,13 +21,7 @@ void check_result(VkResult result, const char* call) {
 }
 
 std::string hex(const void* data, size_t size) {
-  std::string text;
-  for (size_t i = 0; i < size; ++i) {
-    const uint8_t b = static_cast<const uint8_t*>(data)[i];
-    text.push_back("0123456789abcdef"[b >> 4]);
-    text.push_back("0123456789abcdef"[b & 15]);
-  }
-  return text;
+  return common::hex_bytes({static_cast<const uint8_t*>(data), size});
 }
 
 void ClusterTestDevice::createInstance(const char* applicationName, const std::vector<const char*>& extensions,

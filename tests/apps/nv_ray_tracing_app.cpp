@@ -18,6 +18,7 @@
 // Without VK_NV_ray_tracing (lavapipe) it prints "VK_NV_ray_tracing not available" and exits 0
 // (77 with --require). --probe prints the device, driver, extensions and NV ray-tracing limits.
 #include "clastrace/capture/nv_ray_tracer.h"
+#include "clastrace/common/hex.h"
 
 #include <vulkan/vulkan.h>
 
@@ -59,15 +60,7 @@ bool hasExtension(const std::vector<VkExtensionProperties>& list, const char* na
   return false;
 }
 
-std::string hex(const uint8_t* bytes, size_t n) {
-  std::string out;
-  char b[3];
-  for (size_t i = 0; i < n; ++i) {
-    std::snprintf(b, sizeof b, "%02x", bytes[i]);
-    out += b;
-  }
-  return out;
-}
+std::string hex(const uint8_t* bytes, size_t n) { return clastrace::common::hex_bytes({bytes, n}); }
 
 // splitmix64: the rays must be the same on every run and machine.
 struct Random {

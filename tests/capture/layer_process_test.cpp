@@ -4,6 +4,7 @@
 #include "layer_launch_test.h"
 #include "served_scene.h"
 
+#include <clastrace/common/hex.h>
 #include <clastrace/engine/build_sizes.h>
 #include <clastrace/engine/cluster_format.h>
 #include <clastrace/engine/execute.h>
@@ -88,11 +89,7 @@ class ServeRun : public LayerProcess {
  protected:
   json out;  // what cluster_capture_app `serve` read back after vkQueueWaitIdle
 
-  static std::string hexOf(std::span<const std::byte> bytes) {
-    std::string hex;
-    for (std::byte b : bytes) hex += "0123456789abcdef"[uint8_t(b) >> 4], hex += "0123456789abcdef"[uint8_t(b) & 15];
-    return hex;
-  }
+  static std::string hexOf(std::span<const std::byte> bytes) { return clastrace::common::hex_bytes(bytes); }
   static std::vector<uint8_t> bytesOf(const std::string& hex) {
     std::vector<uint8_t> bytes(hex.size() / 2);
     for (size_t i = 0; i < bytes.size(); ++i) bytes[i] = uint8_t(std::stoul(hex.substr(2 * i, 2), nullptr, 16));

@@ -1,5 +1,7 @@
 #include "layer_launch_test.h"
 
+#include <clastrace/common/hex.h>
+
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -30,11 +32,7 @@ size_t count(const std::string& text, const std::string& needle) {
   return n;
 }
 
-std::string hexOf(const std::vector<uint8_t>& bytes) {
-  std::string hex;
-  for (uint8_t b : bytes) hex += "0123456789abcdef"[b >> 4], hex += "0123456789abcdef"[b & 15];
-  return hex;
-}
+std::string hexOf(const std::vector<uint8_t>& bytes) { return clastrace::common::hex_bytes(bytes); }
 
 void LayerLaunchTest::SetUp() {
   if (!fs::exists(kLavapipeIcd)) GTEST_SKIP() << "lavapipe is not installed (scripts/deps.sh installs it)";

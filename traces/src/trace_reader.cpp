@@ -1,5 +1,8 @@
 #include <clastrace/traces/trace_reader.h>
 
+#include <clastrace/common/debug_assert.h>
+#include <clastrace/common/hex.h>
+
 #include <clastrace/traces/records.h>
 
 #include "byte_source.h"
@@ -33,11 +36,8 @@ constexpr uint64_t kIndexBytesPerChunk = 32;
 constexpr uint64_t kIndexBytesPerContent = 24;
 constexpr uint64_t kIndexFixedBytes = 64u << 10;
 
-std::string hex(uint64_t v) {
-    char buf[24];
-    std::snprintf(buf, sizeof buf, "0x%016" PRIx64, v);
-    return buf;
-}
+// Checksums, magics and hashes read best at their full width.
+std::string hex(uint64_t v) { return common::hex(v, 16); }
 
 // Where the bytes of one content live: which chunk, and where its frame starts in it.
 struct ContentPlace {
@@ -692,6 +692,7 @@ struct TraceReader::Impl {
                    "chunk " + std::to_string(h.chunk_number) + " is a records chunk the index does not list");
             return;
         }
+        CLASTRACE_DEBUG_ASSERT(it->second < index_chunk_read.size());
         const fbs::ChunkLocation* c = index->chunks()->Get(it->second);
         index_chunk_read[it->second] = true;
         std::string differs;
@@ -1071,6 +1072,7 @@ struct TraceReader::Impl {
                                                          c->raw_offset(), false});
             }
         }
+        CLASTRACE_DEBUG_ASSERT(chunk_index_holds());
     }
 
     // The index's chunk list on its own: offsets rising inside the records, each chunk
@@ -1107,6 +1109,19 @@ struct TraceReader::Impl {
                       std::to_string(index->submission_count());
         }
         if (!problem.empty()) report(TraceErrorCode::bad_index, index_offset, "index: " + problem);
+    }
+
+    // The reader's lookup of the index, whatever the file says: one read flag per entry, and
+    // each offset leads to an entry placing a chunk at that offset (a hostile index listing
+    // an offset twice keeps its first entry). Contents placed by the index lie in a listed chunk.
+    bool chunk_index_holds() const {
+        const auto* chunks = index->chunks();
+        if (index_chunk_read.size() != chunks->size() || index_position.size() > chunks->size()) return false;
+        for (const auto& [offset, place] : index_position)
+            if (place >= chunks->size() || chunks->Get(place)->file_offset() != offset) return false;
+        for (const auto& [hash, place] : contents)
+            if (!place.seen_in_scan && !index_position.contains(place.chunk_offset)) return false;
+        return true;
     }
 };
 

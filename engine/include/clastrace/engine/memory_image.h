@@ -82,6 +82,11 @@ class RegionBytes {
   bool dense() const { return dense_; }
   static constexpr uint64_t kDenseFallbackBytes = 1ull << 20;
 
+  // The counted runs are non-empty, disjoint, not adjacent and inside the region, and
+  // resident_bytes() is their sum. O(runs): for tests; touch() and zero() check the runs they
+  // change when debug checks are on (clastrace/common/debug_assert.h).
+  bool invariants_hold() const;
+
  private:
   void release();
   bool dense_ = false;
@@ -183,6 +188,11 @@ class MemoryImage {
   uint64_t resident_limit_faults() const { return resident_limit_faults_; }
 
   [[noreturn]] static void fault(uint64_t address, uint64_t size, FieldRef where, const std::string& what);
+
+  // Regions are keyed by their base, non-empty, inside 2^64, disjoint, hold bytes of their size
+  // (each with its own invariants), and reserved_bytes() is the sum of their sizes. O(regions):
+  // for tests; add_region checks the region it adds when debug checks are on.
+  bool invariants_hold() const;
 
  private:
   std::map<uint64_t, MemoryRegion> regions_;  // keyed by base

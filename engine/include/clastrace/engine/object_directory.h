@@ -44,7 +44,14 @@ class ObjectDirectory {
 
   size_t live_count() const { return live_.size(); }
 
+  // No address is both alive and moved away, and every live object has a known type and the
+  // size it was built with. O(objects): for tests; the record_* calls check the entry they
+  // change when debug checks are on (clastrace/common/debug_assert.h).
+  bool invariants_hold() const;
+
  private:
+  friend struct ObjectDirectoryTestAccess;  // tests only: breaks a directory on purpose
+
   struct Live {
     ObjectType type;
     uint32_t size;
