@@ -1,7 +1,7 @@
 // Binned SAH over cluster boxes (the engine's SAH core, geometry/binned_sah.h): 16 bins on
-// each axis of the centroid bounds, object-median fallback when centroids coincide.
-// Large subtrees split their halves across threads (TBB); the node layout depends only
-// on the subtree-size threshold, so the bytes never depend on the thread count.
+// each axis of the centroid bounds, object-median fallback when centroids coincide. The
+// core's top-down builder lays the nodes out in sibling pairs; large subtrees split their
+// halves across threads (TBB), and the bytes never depend on the thread count.
 #include "clastrace/engine/blas.h"
 
 #include "geometry/binned_sah.h"
@@ -12,8 +12,6 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
-
-#include <tbb/parallel_invoke.h>
 
 namespace clastrace::engine {
 namespace {
@@ -38,10 +36,11 @@ bool valid_box(const ClusterBox& c) {
 }
 
 
-struct Split {
-  bool leaf = false;
-  uint32_t mid = 0;
-  Box left_bounds, left_centroids, right_bounds, right_centroids;
+// A node's items [begin, end) with their box and centroid bounds.
+struct Range {
+  uint32_t begin = 0, end = 0;
+  Box bounds, centroids;
+  uint32_t count() const { return end - begin; }
 };
 
 struct Bin {
@@ -50,13 +49,11 @@ struct Bin {
 };
 
 // SAH over 16 bins on each axis, one pass over the items; partitions [begin, end) in place.
-Split split_node(std::vector<Item>& items, uint32_t begin, uint32_t end, const Box& bounds, const Box& centroids) {
-  Split r;
-  const uint32_t count = end - begin;
-  if (count == 1) {
-    r.leaf = true;
-    return r;
-  }
+// Returns false for a leaf.
+bool split_node(std::vector<Item>& items, const Range& range, Range* left, Range* right) {
+  const uint32_t begin = range.begin, end = range.end, count = range.count();
+  const Box &bounds = range.bounds, &centroids = range.centroids;
+  if (count == 1) return false;
   std::array<std::array<Bin, kBins>, 3> bins;
   float scale[3];
   bool axis_ok[3];
@@ -88,101 +85,69 @@ Split split_node(std::vector<Item>& items, uint32_t begin, uint32_t end, const B
     float split_cost = traversal_cost + (parent_area > 0.0f && std::isfinite(parent_area)
                                              ? cluster_cost * best.cost / parent_area
                                              : cluster_cost * float(count));
-    if (count <= kSah.max_leaf_size && float(count) * cluster_cost <= split_cost) {
-      r.leaf = true;
-      return r;
-    }
+    if (count <= kSah.max_leaf_size && float(count) * cluster_cost <= split_cost) return false;
     const float lo = centroids.lo[best_axis], sc = scale[best_axis];
     auto* pivot = std::partition(items.data() + begin, items.data() + end, [&](const Item& it) {
       return std::min(kBins - 1, int((it.centroid[best_axis] - lo) * sc)) <= best_plane;
     });
-    r.mid = uint32_t(pivot - items.data());
+    const uint32_t mid = uint32_t(pivot - items.data());
+    *left = Range{begin, mid, Box(), Box()};
+    *right = Range{mid, end, Box(), Box()};
     for (int b = 0; b < kBins; ++b) {
       const Bin& bin = bins[best_axis][b];
-      (b <= best_plane ? r.left_bounds : r.right_bounds).grow(bin.box);
-      (b <= best_plane ? r.left_centroids : r.right_centroids).grow(bin.centroids);
+      Range& side = b <= best_plane ? *left : *right;
+      side.bounds.grow(bin.box);
+      side.centroids.grow(bin.centroids);
     }
-    return r;
+    return true;
   }
   // All centroids coincide (or are not finite): object median by input order.
-  if (count <= kSah.max_leaf_size) {
-    r.leaf = true;
-    return r;
-  }
-  r.mid = begin + count / 2;
+  if (count <= kSah.max_leaf_size) return false;
+  const uint32_t mid = begin + count / 2;
+  *left = Range{begin, mid, Box(), Box()};
+  *right = Range{mid, end, Box(), Box()};
   for (uint32_t i = begin; i < end; ++i) {
-    (i < r.mid ? r.left_bounds : r.right_bounds).grow(items[i].box);
-    (i < r.mid ? r.left_centroids : r.right_centroids).grow_point(items[i].centroid);
+    Range& side = i < mid ? *left : *right;
+    side.bounds.grow(items[i].box);
+    side.centroids.grow_point(items[i].centroid);
   }
-  return r;
+  return true;
 }
 
-void set_box(BottomLevelNode& node, const Box& b) {
-  for (int a = 0; a < 3; ++a) {
-    node.bounds_min[a] = b.lo[a];
-    node.bounds_max[a] = b.hi[a];
+struct ClusterSplitter {
+  std::vector<Item>& items;
+  bool split(const Range& range, int /*depth*/, Range* left, Range* right) const {
+    return split_node(items, range, left, right);
   }
-}
+};
 
-// Depth-first layout of one subtree, root at index 0.
-std::vector<BottomLevelNode> build_sequential(std::vector<Item>& items, uint32_t begin, uint32_t end, const Box& bounds,
-                                              const Box& centroids) {
-  struct Pending {
-    uint32_t node, begin, end;
-    Box bounds, centroids;
-  };
-  std::vector<BottomLevelNode> nodes(1);
-  std::vector<Pending> stack{{0, begin, end, bounds, centroids}};
-  while (!stack.empty()) {
-    Pending p = stack.back();
-    stack.pop_back();
-    set_box(nodes[p.node], p.bounds);
-    Split sp = split_node(items, p.begin, p.end, p.bounds, p.centroids);
-    if (sp.leaf) {
-      nodes[p.node].first = p.begin;
-      nodes[p.node].count = p.end - p.begin;
-      continue;
+// The node emitter: BottomLevelNode, an inner node naming its left child (the right one
+// follows it).
+struct BottomLevelNodeEmitter {
+  using Node = BottomLevelNode;
+  static void set_box(Node& node, const Box& b) {
+    for (int a = 0; a < 3; ++a) {
+      node.bounds_min[a] = b.lo[a];
+      node.bounds_max[a] = b.hi[a];
     }
-    uint32_t left = uint32_t(nodes.size());
-    nodes[p.node].first = left;
-    nodes[p.node].count = 0;
-    nodes.resize(nodes.size() + 2);
-    stack.push_back({left + 1, sp.mid, p.end, sp.right_bounds, sp.right_centroids});
-    stack.push_back({left, p.begin, sp.mid, sp.left_bounds, sp.left_centroids});
   }
-  return nodes;
-}
+  void leaf(Node& node, const Range& r) const {
+    set_box(node, r.bounds);
+    node.first = r.begin;
+    node.count = r.count();
+  }
+  void inner(Node& node, const Range& r) const {
+    set_box(node, r.bounds);
+    node.count = 0;
+  }
+  void link(Node& node, uint32_t left_child) const { node.first = left_child; }
+  uint32_t linked(const Node& node) const { return node.first; }
+  bool is_inner(const Node& node) const { return node.count == 0; }
+};
 
-// Subtrees above this size build their two halves in parallel; the layout depends only on
-// this threshold, never on the thread count.
-constexpr uint32_t kParallelSubtree = 4096;
+// Subtrees of more than this many items build their two halves in parallel.
+constexpr uint32_t kSequentialSubtree = 4096;
 
-std::vector<BottomLevelNode> build_subtree(std::vector<Item>& items, uint32_t begin, uint32_t end, const Box& bounds,
-                                           const Box& centroids) {
-  if (end - begin <= kParallelSubtree) return build_sequential(items, begin, end, bounds, centroids);
-  Split sp = split_node(items, begin, end, bounds, centroids);
-  if (sp.leaf) return build_sequential(items, begin, end, bounds, centroids);
-  std::vector<BottomLevelNode> left, right;
-  tbb::parallel_invoke([&] { left = build_subtree(items, begin, sp.mid, sp.left_bounds, sp.left_centroids); },
-                       [&] { right = build_subtree(items, sp.mid, end, sp.right_bounds, sp.right_centroids); });
-  // Root, its two children, then the rest of the left subtree, then the rest of the right.
-  std::vector<BottomLevelNode> nodes(left.size() + right.size() + 1);
-  set_box(nodes[0], bounds);
-  nodes[0].first = 1;
-  nodes[0].count = 0;
-  const uint32_t left_rest = 3, right_rest = uint32_t(3 + left.size() - 1);
-  auto place = [&](const std::vector<BottomLevelNode>& sub, uint32_t root_at, uint32_t rest_at) {
-    auto map = [&](uint32_t k) { return k == 0 ? root_at : rest_at + k - 1; };
-    for (uint32_t k = 0; k < sub.size(); ++k) {
-      BottomLevelNode n = sub[k];
-      if (n.count == 0) n.first = map(n.first);
-      nodes[map(k)] = n;
-    }
-  };
-  place(left, 1, left_rest);
-  place(right, 2, right_rest);
-  return nodes;
-}
 }  // namespace
 
 uint64_t bottom_level_size_bound(uint64_t cluster_count) {
@@ -218,7 +183,10 @@ std::vector<std::byte> build_bottom_level(std::span<const ClusterBox> clusters, 
       bounds.grow(it.box);
       centroids.grow_point(it.centroid);
     }
-    nodes = build_subtree(items, 0, uint32_t(n), bounds, centroids);
+    const ClusterSplitter splitter{items};
+    geometry::TopDownBuilder<geometry::NodeLayout::kSiblingPairs, Range, ClusterSplitter, BottomLevelNodeEmitter>(
+        splitter, BottomLevelNodeEmitter{}, kSequentialSubtree + 1)
+        .append(nodes, Range{0, uint32_t(n), bounds, centroids}, 0);
   }
 
   BottomLevelHeader h{};

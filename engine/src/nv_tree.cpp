@@ -4,9 +4,9 @@
 // and the chosen split partitions the BoxRefs in place while gathering both children's
 // box and centroid bounds, so no pass recomputes them. Object-median fallback when the centroids coincide or past depth 64. Split costs are
 // evaluated in double so huge boxes (coordinates near FLT_MAX) still compare; infinite
-// areas never win a split. Large ranges build their two halves as TBB tasks into their own
-// node arrays, spliced in depth-first order: the tree depends only on the boxes, never on
-// the thread count.
+// areas never win a split. The core's top-down builder lays the nodes out in preorder;
+// large ranges build their two halves as TBB tasks into their own node arrays, spliced in
+// depth-first order: the tree depends only on the boxes, never on the thread count.
 #include "nv_internal.h"
 
 #include "geometry/binned_sah.h"
@@ -92,7 +92,7 @@ __m128 centroid(__m128 lo, __m128 hi) {
 
 // A node's items [begin, end) with their box and centroid bounds.
 struct Range {
-  uint32_t begin, end;
+  uint32_t begin = 0, end = 0;
   Bounds4 box, centroids;
   uint32_t count() const { return end - begin; }
 };
@@ -127,9 +127,33 @@ struct BinMap {
 
 using Split = geometry::SahSplit<double>;
 
-struct Builder {
+// The node emitter: NvNode, an inner node naming its right child (the left one follows it).
+struct NvNodeEmitter {
+  using Node = NvNode;
+  static void set_bounds(Node& n, const Bounds4& b) {
+    alignas(16) float lo[4], hi[4];
+    _mm_store_ps(lo, b.lo);
+    _mm_store_ps(hi, b.hi);
+    std::memcpy(n.bounds_min, lo, 12);
+    std::memcpy(n.bounds_max, hi, 12);
+  }
+  void leaf(Node& n, const Range& r) const {
+    set_bounds(n, r.box);
+    n.first = r.begin;
+    n.count = r.count();
+  }
+  void inner(Node& n, const Range& r) const {
+    set_bounds(n, r.box);
+    n.count = 0;
+  }
+  void link(Node& n, uint32_t right_child) const { n.first = right_child; }
+  uint32_t linked(const Node& n) const { return n.first; }
+  bool is_inner(const Node& n) const { return n.count == 0; }
+};
+
+// Chooses the SAH splits over the shared BoxRef array (leaf `first` indexes it).
+struct SahSplitter {
   BoxRef* refs;
-  uint32_t parallel_items;  // ranges this large build their halves as TBB tasks
 
   Split find_split(const Range& r, const BinMap& map) const {
     const int bins = map.bins_used;
@@ -204,26 +228,10 @@ struct Builder {
     return r;
   }
 
-  static void set_bounds(NvNode& n, const Bounds4& b) {
-    alignas(16) float lo[4], hi[4];
-    _mm_store_ps(lo, b.lo);
-    _mm_store_ps(hi, b.hi);
-    std::memcpy(n.bounds_min, lo, 12);
-    std::memcpy(n.bounds_max, hi, 12);
-  }
-
-  // Appends the subtree of `r` to `out` in depth-first order (its root at out.size()).
-  // Node indices are relative to `out`; leaf `first` indexes the shared BoxRef array.
-  void build(std::vector<NvNode>& out, const Range& r, int depth) const {
-    const uint32_t node = uint32_t(out.size());
-    out.emplace_back();
-    set_bounds(out[node], r.box);
+  // False for a leaf; otherwise the two children's ranges, the items reordered in place.
+  bool split(const Range& r, int depth, Range* left, Range* right) const {
     const uint32_t count = r.count();
-    auto leaf = [&] {
-      out[node].first = r.begin;
-      out[node].count = count;
-    };
-    if (count <= 1) return leaf();
+    if (count <= 1) return false;
     // Small ranges bin into fewer bins (one per item, at least 16): clearing and sweeping 32
     // bins would cost more than binning their few items; under 16 the trees traced slower.
     const BinMap map(r.centroids, int(std::clamp<uint32_t>(count, 16, kBins)));
@@ -231,37 +239,15 @@ struct Builder {
     const double area = half_area(r.box);
     const bool split_cheaper = kSah.traversal_cost * area + kSah.intersection_cost * best.cost <
                                kSah.intersection_cost * area * count;
-    if (count <= kSah.max_leaf_size && (best.axis < 0 || !split_cheaper)) return leaf();
-    Range left, right;
+    if (count <= kSah.max_leaf_size && (best.axis < 0 || !split_cheaper)) return false;
     // Deep chains (e.g. exponentially spaced boxes) fall back to median splits so the
     // recursion stays shallow (depth <= 64 + log2 n).
-    if (best.axis >= 0 && depth < 64) partition(r, map, best, &left, &right);
-    else split_middle(r, &left, &right);  // centroids coincide: any split is as good
-    if (left.count() == 0 || right.count() == 0) split_middle(r, &left, &right);
-    out[node].count = 0;
-    if (count < parallel_items) {
-      build(out, left, depth + 1);
-      out[node].first = uint32_t(out.size());
-      build(out, right, depth + 1);
-      return;
-    }
-    std::vector<NvNode> left_nodes, right_nodes;
-    left_nodes.reserve(2 * left.count());
-    right_nodes.reserve(2 * right.count());
-    tbb::parallel_invoke([&] { build(left_nodes, left, depth + 1); }, [&] { build(right_nodes, right, depth + 1); });
-    splice(out, left_nodes);
-    out[node].first = uint32_t(out.size());
-    splice(out, right_nodes);
-  }
-
-  static void splice(std::vector<NvNode>& out, const std::vector<NvNode>& sub) {
-    const uint32_t base = uint32_t(out.size());
-    out.insert(out.end(), sub.begin(), sub.end());
-    for (size_t k = base; k < out.size(); ++k)
-      if (out[k].count == 0) out[k].first += base;
+    if (best.axis >= 0 && depth < 64) partition(r, map, best, left, right);
+    else split_middle(r, left, right);  // centroids coincide: any split is as good
+    if (left->count() == 0 || right->count() == 0) split_middle(r, left, right);
+    return true;
   }
 };
-
 
 // Spreads the low 10 bits of x to every third bit.
 uint32_t spread_bits(uint32_t x) {
@@ -293,7 +279,7 @@ struct MortonBuilder {
         const Box& box = boxes[items[i]];
         b.grow(_mm_setr_ps(box.lo[0], box.lo[1], box.lo[2], 0.0f), _mm_setr_ps(box.hi[0], box.hi[1], box.hi[2], 0.0f));
       }
-      Builder::set_bounds(out[node], b);
+      NvNodeEmitter::set_bounds(out[node], b);
       out[node].first = begin;
       out[node].count = count;
       return b;
@@ -314,13 +300,13 @@ struct MortonBuilder {
       std::vector<NvNode> left_nodes, right_nodes;
       Bounds4 lb, rb;
       tbb::parallel_invoke([&] { lb = build(left_nodes, begin, mid); }, [&] { rb = build(right_nodes, mid, end); });
-      Builder::splice(out, left_nodes);
+      geometry::splice_preorder(NvNodeEmitter{}, out, left_nodes);
       out[node].first = uint32_t(out.size());
-      Builder::splice(out, right_nodes);
+      geometry::splice_preorder(NvNodeEmitter{}, out, right_nodes);
       b = lb;
       b.grow(rb);
     }
-    Builder::set_bounds(out[node], b);
+    NvNodeEmitter::set_bounds(out[node], b);
     return b;
   }
 };
@@ -399,9 +385,11 @@ Tree build_tree(std::span<const Box> boxes, TreeQuality quality) {
       r.id = i;
       r.pad = 0;
     }
-    Builder b{refs.data(), parallel_items};
+    const SahSplitter splitter{refs.data()};
     t.nodes.reserve(2 * size_t(n));
-    b.build(t.nodes, b.bounds_of(0, n), 0);
+    geometry::TopDownBuilder<geometry::NodeLayout::kPreorder, Range, SahSplitter, NvNodeEmitter>(
+        splitter, NvNodeEmitter{}, parallel_items)
+        .append(t.nodes, splitter.bounds_of(0, n), 0);
     t.order.resize(n);
     for (uint32_t i = 0; i < n; ++i) t.order[i] = refs[i].id;
     return t;

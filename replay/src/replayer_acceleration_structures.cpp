@@ -1,0 +1,81 @@
+// Acceleration structures: their objects and size queries, the builds and deserializations
+// that write them (cluster_command.cpp, nv_command.cpp do the work), and the captured ray checks.
+#include "replayer_internal.hpp"
+
+namespace clastrace::replay::detail {
+
+// Acceleration-structure objects (create, bind, destroy) and the size queries a build
+// is checked against.
+bool Replay::on_acceleration_structure_record(fbs::RecordBody kind, const fbs::Record& r) {
+    switch (kind) {
+    case fbs::RecordBody::AccelerationStructureCreate: {
+        const auto* c = r.body_as_AccelerationStructureCreate();
+        memory_.create_object(c->acceleration_structure(), c->buffer(), c->offset(), c->size(), 0);
+        nv_.on_create(*c);
+        break;
+    }
+    case fbs::RecordBody::AccelerationStructureMemoryRequirementsNV: {
+        const auto* q = r.body_as_AccelerationStructureMemoryRequirementsNV();
+        if (q->type() == VK_ACCELERATION_STRUCTURE_MEMORY_REQUIREMENTS_TYPE_OBJECT_NV)
+            memory_.object_requirement(q->acceleration_structure(), q->size());
+        nv_.on_requirement(*q);
+        break;
+    }
+    case fbs::RecordBody::AccelerationStructureBindMemory: {
+        const auto* b = r.body_as_AccelerationStructureBindMemory();
+        memory_.bind_object(b->acceleration_structure(), b->memory(), b->memory_offset());
+        nv_.on_bind(*b);
+        break;
+    }
+    case fbs::RecordBody::AccelerationStructureDestroy:
+        memory_.destroy_object(r.body_as_AccelerationStructureDestroy()->acceleration_structure());
+        break;
+    case fbs::RecordBody::GetClusterBuildSizes: {
+        const auto* q = r.body_as_GetClusterBuildSizes();
+        if (q->input()) {
+            uint32_t& m = queried_max_count_[{q->input()->op_type(), q->input()->op_mode()}];
+            m = std::max(m, q->input()->max_acceleration_structure_count());
+        }
+        break;
+    }
+    default: return false;
+    }
+    return true;
+}
+
+// A cluster build runs on the engine with its count checked against the largest
+// vkGetClusterAccelerationStructureBuildSizesNV query for its op type and mode.
+void Replay::build_clusters(const fbs::CmdBuildClusterAccelerationStructureIndirect& build, const CommandRef& ref,
+                            const ReplayLocation& where) {
+    lay_in_snapshots(build.inputs(), where);
+    uint32_t queried = 0;
+    if (build.input()) {
+        auto it = queried_max_count_.find({build.input()->op_type(), build.input()->op_mode()});
+        if (it != queried_max_count_.end()) queried = it->second;
+    }
+    ClusterCommandContext context{memory_, directory_, translation_, properties_, options_, report_, sync_,
+                                  ref,     where,      report_.engine_trace,
+                                  [this](ReplayFinding f) { add_finding(std::move(f)); },
+                                  [this](uint64_t hash, std::vector<uint8_t>* out) { return contents(hash, out); },
+                                  observed_execution_, observed_engine_ns_};
+    run_cluster_command(build, queried, context);
+}
+void Replay::build_nv(const fbs::CmdBuildAccelerationStructureNV& b, const CommandRef& ref, const ReplayLocation& where) {
+    nv_.build(b, ref, where);  // nv_command.cpp
+}
+
+void Replay::copy_to_object(const fbs::CmdCopyMemoryToAccelerationStructure& c, const CommandRef& ref,
+                            const ReplayLocation& where) {
+    nv_.deserialize(c, ref, where);  // nv_command.cpp
+}
+
+// Checks the capture made on the device, compared with the replay's own result.
+bool Replay::on_check_record(fbs::RecordBody kind, const fbs::Record& r) {
+    switch (kind) {
+    case fbs::RecordBody::RayQueryCheck: nv_.ray_check(*r.body_as_RayQueryCheck()); break;
+    default: return false;
+    }
+    return true;
+}
+
+}  // namespace clastrace::replay::detail

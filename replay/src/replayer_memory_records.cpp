@@ -1,0 +1,99 @@
+// Buffers and device memory: the replay's address space, the captured snapshots laid into it,
+// and the host's writes to mapped memory.
+#include "replayer_internal.hpp"
+
+namespace clastrace::replay::detail {
+
+// Buffers and device memory: the replay's address space, and the host's writes to mapped memory.
+bool Replay::on_memory_record(fbs::RecordBody kind, const fbs::Record& r) {
+    switch (kind) {
+    case fbs::RecordBody::BufferCreate: {
+        const auto* c = r.body_as_BufferCreate();
+        memory_.create_buffer(c->buffer(), c->size(), c->usage());
+        break;
+    }
+    case fbs::RecordBody::BufferBindMemory: {
+        const auto* b = r.body_as_BufferBindMemory();
+        memory_.bind_buffer(b->buffer(), b->memory(), b->memory_offset(), b->device_address());
+        break;
+    }
+    case fbs::RecordBody::BufferDestroy: memory_freed(memory_.destroy_buffer(r.body_as_BufferDestroy()->buffer())); break;
+    case fbs::RecordBody::MemoryFree: memory_.free_memory(r.body_as_MemoryFree()->memory()); break;
+    case fbs::RecordBody::MemoryObservation: host_observation(*r.body_as_MemoryObservation()); break;
+    default: return false;
+    }
+    return true;
+}
+
+// A destroyed buffer's memory: nothing the replay keeps about those bytes can matter to a
+// later command except accesses still in flight (the sync model keeps those).
+void Replay::memory_freed(std::optional<AddressRange> range) {
+    if (!range || range->empty()) return;
+    directory_.forget(range->begin, range->end);
+    auto inside = [&](uint64_t a) { return a >= range->begin && a < range->end; };
+    std::erase_if(translation_.rebuilt, inside);
+    std::erase_if(translation_.rebuilt_at, [&](const auto& e) { return inside(e.first) || inside(e.second); });
+    std::erase_if(translation_.translated_cells, [&](const auto& e) { return inside(e.first); });
+    if (options_.check_hazards) sync_.memory_freed(*range);
+}
+
+bool Replay::contents(uint64_t hash, std::vector<uint8_t>* bytes) {
+    return !reader_.read_contents(hash, bytes);
+}
+
+void Replay::lay_in_snapshots(const traces::SnapshotVector* snapshots, const ReplayLocation& where) {
+    if (!snapshots) return;
+    std::vector<uint8_t> bytes;
+    for (const fbs::MemorySnapshot* s : *snapshots) {
+        std::optional<uint64_t> address = memory_.snapshot_address(s->buffer(), s->offset(), s->address());
+        const uint64_t refused = memory_.writes_over_budget();
+        if (!address || !contents(s->hash(), &bytes) || !memory_.lay_in(*address, bytes)) {
+            ++report_.counts.snapshots_outside_memory;
+            if (memory_.writes_over_budget() != refused) continue;  // named once, by the budget finding
+            add_finding({"CLASTRACE-replay-snapshot-outside-memory",
+                         "captured snapshot of " + std::to_string(s->size()) + " bytes at buffer " +
+                             detail::hex(s->buffer()) + " offset " + std::to_string(s->offset()) + " address " +
+                             detail::hex(s->address()) +
+                             " lies in no bound buffer (or its contents are missing): not laid into memory",
+                         FindingSource::kReplay, where, -1, s->address()});
+            continue;
+        }
+        ++report_.counts.snapshots_applied;
+        report_.counts.snapshot_bytes += bytes.size();
+    }
+}
+
+void Replay::host_observation(const fbs::MemoryObservation& observation) {
+    if (!observation.snapshots()) return;
+    CommandRef ref{next_submission_, 0, 0, host_ops_++, "host write (mapped memory)"};
+    std::vector<uint8_t> bytes, before;
+    for (const fbs::MemorySnapshot* s : *observation.snapshots()) {
+        std::optional<uint64_t> address = memory_.snapshot_address(s->buffer(), s->offset(), s->address());
+        if (!address || !contents(s->hash(), &bytes)) {
+            ++report_.counts.snapshots_outside_memory;
+            continue;
+        }
+        // A capture may observe mapped memory the host did not touch: only bytes that
+        // changed count as a host write (unchanged ones would be false WAR/WAW hazards).
+        AddressRange written{*address, *address + bytes.size()};
+        if (memory_.read(*address, bytes.size(), &before)) {
+            size_t first = 0, last = bytes.size();
+            while (first < last && bytes[first] == before[first]) ++first;
+            while (last > first && bytes[last - 1] == before[last - 1]) --last;
+            written = {*address + first, *address + last};
+        }
+        if (!memory_.write(*address, bytes)) {
+            ++report_.counts.snapshots_outside_memory;
+            continue;
+        }
+        ++report_.counts.snapshots_applied;
+        report_.counts.snapshot_bytes += bytes.size();
+        if (options_.check_hazards && !written.empty()) {
+            ++report_.counts.accesses;
+            sync_.host_access(ref, Access{written, VK_PIPELINE_STAGE_2_HOST_BIT, VK_ACCESS_2_HOST_WRITE_BIT, true,
+                                          "mapped memory"});
+        }
+    }
+}
+
+}  // namespace clastrace::replay::detail
