@@ -115,6 +115,13 @@ struct Analyzer::State {
   }
 
   void close_command();
+  void add_command_sizes();
+  std::vector<uint64_t> meet_overlaps_with_hazards();
+  int hazard_of(const PendingOverlap& p) const;
+  void add_to_summary(const PendingOverlap& p, bool hazard);
+  OverlapRow* overlap_row_for(const PendingOverlap& p, bool hazard);
+  OverlapRow new_overlap_row(const PendingOverlap& p) const;
+  void list_hazards(const std::vector<uint64_t>& hazard_matches);
   void add_to_timeline(const CommandRow& c);
   void add_to_kinds(const CommandRow& c);
   void list_command(const CommandRow& c);
@@ -373,11 +380,30 @@ void Analyzer::on_note(std::string note) {
 }
 
 void Analyzer::State::close_command() {
-  AnalysisReport& r = report;
-  OpTypeSizes& t = r.by_op_type[static_cast<int>(current.op_type)];
-  const uint64_t cmd = current.ordinal;
+  add_command_sizes();
+  const std::vector<uint64_t> hazard_matches = meet_overlaps_with_hazards();
+  list_hazards(hazard_matches);
+  // A hazard's second command is listed even past the cap, so its link has a target.
+  bool force_list = !pending_hazards.empty() && report.hazards_not_listed == 0;
+  pending_overlaps.clear();
+  pending_hazards.clear();
 
-  // Build sizes: worst case (implicit: the whole buffer; explicit: per object) vs actual.
+  add_to_kinds(current);
+
+  if (report.commands_listed.size() < limits.max_listed_commands || force_list)
+    report.commands_listed.push_back(current);
+  recent.push_back(current);
+  if (recent.size() > limits.recent_command_rows) recent.pop_front();
+  top_gpu.offer(current, limits.top_commands);
+  top_replay.offer(current, limits.top_commands);
+  add_to_timeline(current);
+  open = false;
+}
+
+// Build sizes: worst case (implicit: the whole buffer; explicit: per object) vs actual, and
+// scratch, into the command's row and its op type's totals.
+void Analyzer::State::add_command_sizes() {
+  OpTypeSizes& t = report.by_op_type[static_cast<int>(current.op_type)];
   if (current_query && (current.op_mode == OpMode::implicit_destinations ||
                         current.op_mode == OpMode::explicit_destinations)) {
     const BuildSizesInfo& q = *current_query;
@@ -401,78 +427,102 @@ void Analyzer::State::close_command() {
   }
   t.scratch_allocated += current.scratch_allocated;
   if (current.scratch_used) t.scratch_used += *current.scratch_used;
+}
 
-  // Overlaps found during this command meet the hazards replay reported for it.
+// Overlaps found during this command meet the hazards replay reported for it; returns how many
+// overlaps each hazard met.
+std::vector<uint64_t> Analyzer::State::meet_overlaps_with_hazards() {
   std::vector<uint64_t> hazard_matches(pending_hazards.size(), 0);
   for (const PendingOverlap& p : pending_overlaps) {
-    int matched = -1;
-    for (std::size_t i = 0; i < pending_hazards.size(); ++i) {
-      const HazardSummary& h = pending_hazards[i];
-      if (h.first_command != p.older.command) continue;
-      if (h.size != 0 && !ranges_intersect(h.base, h.size, p.base, p.size)) continue;
-      matched = static_cast<int>(i);
-      break;
-    }
-    bool hazard = matched >= 0;
+    const int matched = hazard_of(p);
+    const bool hazard = matched >= 0;
     if (hazard) ++hazard_matches[matched];
-    ++r.overlap_events;
-    if (hazard) ++r.overlap_hazard_events;
-
-    SummaryKey key{static_cast<int>(p.older.role), static_cast<int>(p.newer_role), static_cast<int>(p.kind), hazard};
-    OverlapSummaryRow& sr = summary[key];
-    sr.older_role = p.older.role;
-    sr.newer_role = p.newer_role;
-    sr.kind = p.kind;
-    sr.hazard = hazard;
-    ++sr.events;
-    sr.bytes += p.size;
-
-    auto pair = std::make_pair(p.older.region, p.newer_region);
-    auto found = overlap_index.find(pair);
-    OverlapRow* row = nullptr;
-    if (found != overlap_index.end()) {
-      row = &r.overlaps[found->second];
-      uint64_t lo = std::min(row->base, p.base), hi = std::max(row->base + row->size, p.base + p.size);
-      row->base = lo;
-      row->size = hi - lo;
-    } else if (r.overlaps.size() < limits.max_listed_overlaps ||
-               (hazard && hazard_pairs_past_cap < limits.max_listed_hazards)) {
-      // Hazards are what a reader looks for: their pairs are listed past the cap, up to the
-      // hazard listing limit.
-      if (r.overlaps.size() >= limits.max_listed_overlaps) ++hazard_pairs_past_cap;
-      overlap_index.emplace(pair, r.overlaps.size());
-      OverlapRow o;
-      o.older_region = p.older.region;
-      o.newer_region = p.newer_region;
-      o.older_role = p.older.role;
-      o.newer_role = p.newer_role;
-      o.older_command = p.older.command;
-      o.newer_command = cmd;
-      o.base = p.base;
-      o.size = p.size;
-      o.kind = p.kind;
-      auto older_it = regions.find(p.older.region);
-      if (older_it != regions.end()) o.older_label = older_it->second.label;
-      auto newer_it = regions.find(p.newer_region);
-      if (newer_it != regions.end()) o.newer_label = newer_it->second.label;
-      r.overlaps.push_back(std::move(o));
-      row = &r.overlaps.back();
-    } else {
-      ++r.overlap_events_not_listed;
-    }
-    if (row) {
-      ++row->events;
-      if (p.kind == OverlapKind::aliasing) row->kind = OverlapKind::aliasing;
-      if (hazard && !row->hazard) {
-        row->hazard = true;
-        row->hazard_class = pending_hazards[matched].hazard_class;
-        if (r.hazards.size() + matched < limits.max_listed_hazards)
-          row->hazard_index = r.hazards.size() + matched;
-      }
+    ++report.overlap_events;
+    if (hazard) ++report.overlap_hazard_events;
+    add_to_summary(p, hazard);
+    OverlapRow* row = overlap_row_for(p, hazard);
+    if (!row) continue;
+    ++row->events;
+    if (p.kind == OverlapKind::aliasing) row->kind = OverlapKind::aliasing;
+    if (hazard && !row->hazard) {
+      row->hazard = true;
+      row->hazard_class = pending_hazards[matched].hazard_class;
+      if (report.hazards.size() + matched < limits.max_listed_hazards)
+        row->hazard_index = report.hazards.size() + matched;
     }
   }
+  return hazard_matches;
+}
 
-  // Hazards: listed (with their first command's row, if still recent) up to the cap.
+// The index of the first pending hazard from the overlap's older command over its bytes, or -1.
+int Analyzer::State::hazard_of(const PendingOverlap& p) const {
+  for (std::size_t i = 0; i < pending_hazards.size(); ++i) {
+    const HazardSummary& h = pending_hazards[i];
+    if (h.first_command != p.older.command) continue;
+    if (h.size != 0 && !ranges_intersect(h.base, h.size, p.base, p.size)) continue;
+    return static_cast<int>(i);
+  }
+  return -1;
+}
+
+void Analyzer::State::add_to_summary(const PendingOverlap& p, bool hazard) {
+  SummaryKey key{static_cast<int>(p.older.role), static_cast<int>(p.newer_role), static_cast<int>(p.kind), hazard};
+  OverlapSummaryRow& sr = summary[key];
+  sr.older_role = p.older.role;
+  sr.newer_role = p.newer_role;
+  sr.kind = p.kind;
+  sr.hazard = hazard;
+  ++sr.events;
+  sr.bytes += p.size;
+}
+
+// The listed row of the overlap's region pair, grown to cover it, or a new row while the
+// listing has room; null (counted as not listed) past the cap.
+OverlapRow* Analyzer::State::overlap_row_for(const PendingOverlap& p, bool hazard) {
+  AnalysisReport& r = report;
+  auto pair = std::make_pair(p.older.region, p.newer_region);
+  auto found = overlap_index.find(pair);
+  if (found != overlap_index.end()) {
+    OverlapRow* row = &r.overlaps[found->second];
+    uint64_t lo = std::min(row->base, p.base), hi = std::max(row->base + row->size, p.base + p.size);
+    row->base = lo;
+    row->size = hi - lo;
+    return row;
+  }
+  if (r.overlaps.size() < limits.max_listed_overlaps ||
+      (hazard && hazard_pairs_past_cap < limits.max_listed_hazards)) {
+    // Hazards are what a reader looks for: their pairs are listed past the cap, up to the
+    // hazard listing limit.
+    if (r.overlaps.size() >= limits.max_listed_overlaps) ++hazard_pairs_past_cap;
+    overlap_index.emplace(pair, r.overlaps.size());
+    r.overlaps.push_back(new_overlap_row(p));
+    return &r.overlaps.back();
+  }
+  ++r.overlap_events_not_listed;
+  return nullptr;
+}
+
+OverlapRow Analyzer::State::new_overlap_row(const PendingOverlap& p) const {
+  OverlapRow o;
+  o.older_region = p.older.region;
+  o.newer_region = p.newer_region;
+  o.older_role = p.older.role;
+  o.newer_role = p.newer_role;
+  o.older_command = p.older.command;
+  o.newer_command = current.ordinal;
+  o.base = p.base;
+  o.size = p.size;
+  o.kind = p.kind;
+  auto older_it = regions.find(p.older.region);
+  if (older_it != regions.end()) o.older_label = older_it->second.label;
+  auto newer_it = regions.find(p.newer_region);
+  if (newer_it != regions.end()) o.newer_label = newer_it->second.label;
+  return o;
+}
+
+// Hazards: listed (with their first command's row, if still recent) up to the cap.
+void Analyzer::State::list_hazards(const std::vector<uint64_t>& hazard_matches) {
+  AnalysisReport& r = report;
   for (std::size_t i = 0; i < pending_hazards.size(); ++i) {
     ++r.hazards_total;
     ++current.hazards;
@@ -481,27 +531,12 @@ void Analyzer::State::close_command() {
       const uint64_t first = pending_hazards[i].first_command;
       bool listed = std::any_of(r.commands_listed.begin(), r.commands_listed.end(),
                                 [&](const CommandRow& c) { return c.ordinal == first; });
-      if (!listed && first != cmd)
+      if (!listed && first != current.ordinal)
         if (const CommandRow* rc = find_recent(first)) r.commands_listed.push_back(*rc);
     } else {
       ++r.hazards_not_listed;
     }
   }
-  // A hazard's second command is listed even past the cap, so its link has a target.
-  bool force_list = !pending_hazards.empty() && r.hazards_not_listed == 0;
-  pending_overlaps.clear();
-  pending_hazards.clear();
-
-  add_to_kinds(current);
-
-  if (r.commands_listed.size() < limits.max_listed_commands || force_list)
-    r.commands_listed.push_back(current);
-  recent.push_back(current);
-  if (recent.size() > limits.recent_command_rows) recent.pop_front();
-  top_gpu.offer(current, limits.top_commands);
-  top_replay.offer(current, limits.top_commands);
-  add_to_timeline(current);
-  open = false;
 }
 
 void Analyzer::State::add_to_kinds(const CommandRow& c) {

@@ -217,6 +217,117 @@ class CapturedSizes {
   uint64_t base_ = 0, stride_ = 4, first_ = 0;
 };
 
+// The command's memory regions: engine accesses by role (merged), the objects a move reads and
+// the CLAS/template objects it touches one by one, and the implicit data it used. Returns each
+// op's srcInfosArray entry address (0 where the engine read none).
+std::vector<uint64_t> add_cluster_regions(const ExecutionRecord& e,
+                                          const fbs::CmdBuildClusterAccelerationStructureIndirect& b, bool implicit,
+                                          std::vector<RegionInfo>& regions) {
+  const fbs::ClusterInputInfo* input = b.input();
+  std::vector<std::vector<Span>> by_role(kRegionRoleCount);
+  std::vector<uint64_t> info_address(e.ops.size(), 0);
+  for (const MemoryAccess& a : e.accesses) {
+    if (a.end <= a.begin) continue;
+    const RegionRole role = access_role(a);
+    if (role == RegionRole::src_infos && a.op_index >= 0 && static_cast<uint64_t>(a.op_index) < info_address.size())
+      info_address[a.op_index] = a.begin;
+    if (starts_with(a.field, "dstImplicitData[op ") || starts_with(a.field, "*dstAddressesArray[")) continue;  // objects
+    if (contains(a.field, ".srcAccelerationStructure") && !a.is_write) {  // a move's source object
+      const auto* move = input ? input->op_input_as_MoveObjectsInput() : nullptr;
+      const RegionRole source = move ? object_role(static_cast<VkClusterAccelerationStructureTypeNV>(move->type()))
+                                     : RegionRole::other;
+      regions.push_back(region(source, a.begin, a.end - a.begin, false,
+                               fmt::format("{} 0x{:x}", role_label(source), a.begin)));
+      continue;
+    }
+    if (role == RegionRole::object_clas || role == RegionRole::object_template) {
+      regions.push_back(region(role, a.begin, a.end - a.begin, a.is_write,
+                               fmt::format("{} 0x{:x}", role_label(role), a.begin)));
+      continue;
+    }
+    by_role[static_cast<int>(role)].push_back(Span{a.begin, a.end, a.is_write});
+  }
+  if (implicit && e.implicit_bytes_used && b.dst_implicit_data())
+    regions.push_back(region(RegionRole::implicit_data, b.dst_implicit_data(), e.implicit_bytes_used, true,
+                             fmt::format("implicit data 0x{:x}", b.dst_implicit_data())));
+  for (int r = 0; r < kRegionRoleCount; ++r)
+    if (!by_role[r].empty()) add_merged(by_role[r], static_cast<RegionRole>(r), regions);
+  return info_address;
+}
+
+// What one cluster command's objects hold (triangles, vertices, truncation), read from their
+// srcInfosArray entries in replay memory, or for an instantiation from its template's shape.
+class ClusterObjectShapes {
+ public:
+  ClusterObjectShapes(DescribeContext& ctx, const engine::MemoryImage* memory, OpType op_type,
+                      const fbs::ClusterInputInfo* input)
+      : ctx_(ctx), memory_(memory), op_type_(op_type), input_(triangle_input(input)), budget_(ctx.rebuild_budget) {}
+
+  void read(const engine::OpResult& op, std::size_t op_index, uint64_t info_address, ObjectInfo& o) {
+    const auto i64 = static_cast<int64_t>(op_index);
+    if (op_type_ == OpType::build_triangle_cluster) {
+      if (auto t = read_info<VkClusterAccelerationStructureBuildTriangleClusterInfoNV>(memory_, info_address)) {
+        o.triangles = t->triangleCount;
+        o.vertices = t->vertexCount;
+        o.truncate_bits = t->positionTruncateBitCount;
+        rebuild_untruncated(*t, i64, o);
+      }
+    } else if (op_type_ == OpType::build_triangle_cluster_template) {
+      if (auto t = read_info<VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV>(memory_, info_address)) {
+        o.triangles = t->triangleCount;
+        o.vertices = t->vertexCount;
+        o.truncate_bits = t->positionTruncateBitCount;
+        if (op.dst_address && ctx_.templates.size() < (1u << 16))
+          ctx_.templates[op.dst_address] = TemplateShape{t->triangleCount, t->vertexCount, t->positionTruncateBitCount};
+        rebuild_untruncated(*t, i64, o);
+      }
+    } else if (op_type_ == OpType::instantiate_triangle_cluster) {
+      if (auto t = read_info<VkClusterAccelerationStructureInstantiateClusterInfoNV>(memory_, info_address))
+        read_instantiated(*t, op.dst_address, o);
+    }
+  }
+
+ private:
+  void read_instantiated(const VkClusterAccelerationStructureInstantiateClusterInfoNV& t, uint64_t dst_address,
+                         ObjectInfo& o) const {
+    auto shape = ctx_.templates.find(t.clusterTemplateAddress);
+    if (shape != ctx_.templates.end()) {
+      o.triangles = shape->second.triangles;
+      o.vertices = shape->second.vertices;
+      o.truncate_bits = shape->second.truncate_bits;
+    } else if (auto h = engine_object_header(memory_, dst_address)) {
+      // A template moved (or built before the trace) is not in ctx.templates: the
+      // instantiated object's own header says what it holds.
+      o.triangles = h->triangle_count;
+      o.vertices = h->vertex_count;
+      o.truncate_bits = h->position_truncate_bits;
+    }
+  }
+
+  // A truncated object is built again at positionTruncateBitCount 0 while the command's
+  // budget lasts, so that what truncation saved is measured, not estimated.
+  template <class Info>
+  void rebuild_untruncated(Info at_zero, int64_t op_index, ObjectInfo& o) {
+    if (o.truncate_bits == 0 || budget_ == 0 || !memory_) return;
+    --budget_;
+    at_zero.positionTruncateBitCount = 0;
+    auto in_zero = input_;
+    in_zero.minPositionTruncateBitCount = 0;
+    ignored_.clear();
+    if (build_object(ctx_.builder, *memory_, at_zero, in_zero, op_index, rebuilt_, ignored_))
+      o.engine_bytes_untruncated = rebuilt_.size();
+    ++ctx_.rebuilds;
+  }
+
+  DescribeContext& ctx_;
+  const engine::MemoryImage* memory_;
+  OpType op_type_;
+  VkClusterAccelerationStructureTriangleClusterInputNV input_;
+  uint32_t budget_;
+  std::vector<std::byte> rebuilt_;
+  std::vector<engine::Finding> ignored_;
+};
+
 void describe_cluster(const replay::ReplayedCommand& c, const fbs::CmdBuildClusterAccelerationStructureIndirect& b,
                       DescribeContext& ctx, HeldCommand* out) {
   CommandInfo& info = out->info;
@@ -236,42 +347,11 @@ void describe_cluster(const replay::ReplayedCommand& c, const fbs::CmdBuildClust
     info.implicit_allocated_bytes = available(ctx.recorded, b.dst_implicit_data());
     info.implicit_used_bytes = e->implicit_bytes_used;
   }
+  const std::vector<uint64_t> info_address = add_cluster_regions(*e, b, implicit, out->regions);
 
-  // Regions: engine accesses by role; objects one by one from the op results.
-  std::vector<std::vector<Span>> by_role(kRegionRoleCount);
-  std::vector<uint64_t> info_address(e->ops.size(), 0);
-  for (const MemoryAccess& a : e->accesses) {
-    if (a.end <= a.begin) continue;
-    const RegionRole role = access_role(a);
-    if (role == RegionRole::src_infos && a.op_index >= 0 && static_cast<uint64_t>(a.op_index) < info_address.size())
-      info_address[a.op_index] = a.begin;
-    if (starts_with(a.field, "dstImplicitData[op ") || starts_with(a.field, "*dstAddressesArray[")) continue;  // objects
-    if (contains(a.field, ".srcAccelerationStructure") && !a.is_write) {  // a move's source object
-      const auto* move = input ? input->op_input_as_MoveObjectsInput() : nullptr;
-      const RegionRole source = move ? object_role(static_cast<VkClusterAccelerationStructureTypeNV>(move->type()))
-                                     : RegionRole::other;
-      out->regions.push_back(region(source, a.begin, a.end - a.begin, false,
-                                    fmt::format("{} 0x{:x}", role_label(source), a.begin)));
-      continue;
-    }
-    if (role == RegionRole::object_clas || role == RegionRole::object_template) {
-      out->regions.push_back(region(role, a.begin, a.end - a.begin, a.is_write,
-                                    fmt::format("{} 0x{:x}", role_label(role), a.begin)));
-      continue;
-    }
-    by_role[static_cast<int>(role)].push_back(Span{a.begin, a.end, a.is_write});
-  }
-  if (implicit && e->implicit_bytes_used && b.dst_implicit_data())
-    out->regions.push_back(region(RegionRole::implicit_data, b.dst_implicit_data(), e->implicit_bytes_used, true,
-                                  fmt::format("implicit data 0x{:x}", b.dst_implicit_data())));
-  for (int r = 0; r < kRegionRoleCount; ++r)
-    if (!by_role[r].empty()) add_merged(by_role[r], static_cast<RegionRole>(r), out->regions);
-
+  // Objects one by one from the op results.
   const CapturedSizes captured(b, ctx, info.op_mode != OpMode::explicit_destinations);
-  const VkClusterAccelerationStructureTriangleClusterInputNV tri_input = triangle_input(input);
-  std::vector<std::byte> rebuilt;
-  std::vector<engine::Finding> ignored;
-  uint32_t budget = ctx.rebuild_budget;
+  ClusterObjectShapes shapes(ctx, c.memory, info.op_type, input);
   for (std::size_t i = 0; i < e->ops.size(); ++i) {
     const engine::OpResult& op = e->ops[i];
     if (!op.executed) continue;
@@ -284,52 +364,7 @@ void describe_cluster(const replay::ReplayedCommand& c, const fbs::CmdBuildClust
     o.address = op.dst_address;
     o.engine_bytes = op.dst_size;
     if (auto d = captured.at(i)) o.driver_bytes = *d;
-    const auto i64 = static_cast<int64_t>(i);
-    // A truncated object is built again at positionTruncateBitCount 0 while the command's
-    // budget lasts, so that what truncation saved is measured, not estimated.
-    auto rebuild_untruncated = [&](auto at_zero) {
-      if (o.truncate_bits == 0 || budget == 0 || !c.memory) return;
-      --budget;
-      at_zero.positionTruncateBitCount = 0;
-      auto in_zero = tri_input;
-      in_zero.minPositionTruncateBitCount = 0;
-      ignored.clear();
-      if (build_object(ctx.builder, *c.memory, at_zero, in_zero, i64, rebuilt, ignored))
-        o.engine_bytes_untruncated = rebuilt.size();
-      ++ctx.rebuilds;
-    };
-    if (info.op_type == OpType::build_triangle_cluster) {
-      if (auto t = read_info<VkClusterAccelerationStructureBuildTriangleClusterInfoNV>(c.memory, info_address[i])) {
-        o.triangles = t->triangleCount;
-        o.vertices = t->vertexCount;
-        o.truncate_bits = t->positionTruncateBitCount;
-        rebuild_untruncated(*t);
-      }
-    } else if (info.op_type == OpType::build_triangle_cluster_template) {
-      if (auto t = read_info<VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV>(c.memory, info_address[i])) {
-        o.triangles = t->triangleCount;
-        o.vertices = t->vertexCount;
-        o.truncate_bits = t->positionTruncateBitCount;
-        if (op.dst_address && ctx.templates.size() < (1u << 16))
-          ctx.templates[op.dst_address] = TemplateShape{t->triangleCount, t->vertexCount, t->positionTruncateBitCount};
-        rebuild_untruncated(*t);
-      }
-    } else if (info.op_type == OpType::instantiate_triangle_cluster) {
-      if (auto t = read_info<VkClusterAccelerationStructureInstantiateClusterInfoNV>(c.memory, info_address[i])) {
-        auto shape = ctx.templates.find(t->clusterTemplateAddress);
-        if (shape != ctx.templates.end()) {
-          o.triangles = shape->second.triangles;
-          o.vertices = shape->second.vertices;
-          o.truncate_bits = shape->second.truncate_bits;
-        } else if (auto h = engine_object_header(c.memory, op.dst_address)) {
-          // A template moved (or built before the trace) is not in ctx.templates: the
-          // instantiated object's own header says what it holds.
-          o.triangles = h->triangle_count;
-          o.vertices = h->vertex_count;
-          o.truncate_bits = h->position_truncate_bits;
-        }
-      }
-    }
+    shapes.read(op, i, info_address[i], o);
     info.triangles += o.triangles;
     if (!sizes_only && op.dst_size) {
       const RegionRole role = info.op_type == OpType::get_cluster_template_indices ? RegionRole::other : object_role(op.dst_type);

@@ -153,27 +153,14 @@ VkDeviceSize alignUp(VkDeviceSize value, VkDeviceSize alignment) {
   return alignment ? (value + alignment - 1) / alignment * alignment : value;
 }
 
-}  // namespace
+// The pipeline's resources: one descriptor set layout (top level, rays, hits, instance table,
+// geometry table, boxes) and the pipeline layout over it.
+struct RayCheckLayout {
+  VkDescriptorSetLayout setLayout = VK_NULL_HANDLE;
+  VkPipelineLayout pipelineLayout = VK_NULL_HANDLE;
+};
 
-bool traceRaysNV(const NvRayTracerContext& context, VkAccelerationStructureNV topLevel, const NvTraceScene& scene,
-                 const std::vector<NvTracedRay>& rays, std::vector<NvRayHit>& hits, std::string& error) {
-  hits.clear();
-  if (rays.empty()) return true;
-  Session s(context);
-  auto fail = [&] {
-    error = s.error;
-    return false;
-  };
-  if (!s.load()) return fail();
-  const VkDevice device = context.device;
-  auto& f = s.f;
-  const auto& rt = context.rayTracingProperties;
-  if (rt.shaderGroupHandleSize == 0) {
-    s.error = "VkPhysicalDeviceRayTracingPropertiesNV.shaderGroupHandleSize is 0";
-    return fail();
-  }
-
-  // Descriptor set: top level, rays, hits, instance table, geometry table, boxes.
+bool createRayCheckLayout(Session& s, RayCheckLayout& out) {
   const VkShaderStageFlags stages = VK_SHADER_STAGE_RAYGEN_BIT_NV | VK_SHADER_STAGE_MISS_BIT_NV |
                                     VK_SHADER_STAGE_CLOSEST_HIT_BIT_NV | VK_SHADER_STAGE_INTERSECTION_BIT_NV;
   VkDescriptorSetLayoutBinding bindings[6];
@@ -184,21 +171,28 @@ bool traceRaysNV(const NvRayTracerContext& context, VkAccelerationStructureNV to
   setInfo.bindingCount = 6;
   setInfo.pBindings = bindings;
   VkDescriptorSetLayout setLayout;
-  if (!s.check(f.CreateDescriptorSetLayout(device, &setInfo, nullptr, &setLayout), "vkCreateDescriptorSetLayout"))
-    return fail();
+  if (!s.check(s.f.CreateDescriptorSetLayout(s.device(), &setInfo, nullptr, &setLayout),
+               "vkCreateDescriptorSetLayout"))
+    return false;
   s.cleanup.push_back([&s, setLayout] { s.f.DestroyDescriptorSetLayout(s.device(), setLayout, nullptr); });
+  out.setLayout = setLayout;
   VkPipelineLayoutCreateInfo layoutInfo{VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO};
   layoutInfo.setLayoutCount = 1;
   layoutInfo.pSetLayouts = &setLayout;
   VkPipelineLayout pipelineLayout;
-  if (!s.check(f.CreatePipelineLayout(device, &layoutInfo, nullptr, &pipelineLayout), "vkCreatePipelineLayout"))
-    return fail();
+  if (!s.check(s.f.CreatePipelineLayout(s.device(), &layoutInfo, nullptr, &pipelineLayout), "vkCreatePipelineLayout"))
+    return false;
   s.cleanup.push_back([&s, pipelineLayout] { s.f.DestroyPipelineLayout(s.device(), pipelineLayout, nullptr); });
+  out.pipelineLayout = pipelineLayout;
+  return true;
+}
 
+// The ray-check pipeline; groups: 0 raygen, 1 miss, 2 triangles hit group, 3 procedural hit group.
+bool createRayCheckPipeline(Session& s, VkPipelineLayout pipelineLayout, VkPipeline& out) {
   VkShaderModule rgen, rmiss, rchit, rint;
   if (!s.shader(kRayCheck_rgen, sizeof kRayCheck_rgen, rgen) || !s.shader(kRayCheck_rmiss, sizeof kRayCheck_rmiss, rmiss) ||
       !s.shader(kRayCheck_rchit, sizeof kRayCheck_rchit, rchit) || !s.shader(kRayCheck_rint, sizeof kRayCheck_rint, rint))
-    return fail();
+    return false;
   VkPipelineShaderStageCreateInfo shaderStages[4] = {};
   const VkShaderStageFlagBits stageBits[4] = {VK_SHADER_STAGE_RAYGEN_BIT_NV, VK_SHADER_STAGE_MISS_BIT_NV,
                                               VK_SHADER_STAGE_CLOSEST_HIT_BIT_NV, VK_SHADER_STAGE_INTERSECTION_BIT_NV};
@@ -209,7 +203,6 @@ bool traceRaysNV(const NvRayTracerContext& context, VkAccelerationStructureNV to
     shaderStages[i].module = modules[i];
     shaderStages[i].pName = "main";
   }
-  // Groups: 0 raygen, 1 miss, 2 triangles hit group, 3 procedural hit group.
   VkRayTracingShaderGroupCreateInfoNV groups[4];
   for (auto& g : groups) {
     g = {VK_STRUCTURE_TYPE_RAY_TRACING_SHADER_GROUP_CREATE_INFO_NV};
@@ -233,41 +226,64 @@ bool traceRaysNV(const NvRayTracerContext& context, VkAccelerationStructureNV to
   pipelineInfo.layout = pipelineLayout;
   pipelineInfo.basePipelineIndex = -1;
   VkPipeline pipeline;
-  if (!s.check(f.CreateRayTracingPipelinesNV(device, VK_NULL_HANDLE, 1, &pipelineInfo, nullptr, &pipeline),
+  if (!s.check(s.f.CreateRayTracingPipelinesNV(s.device(), VK_NULL_HANDLE, 1, &pipelineInfo, nullptr, &pipeline),
                "vkCreateRayTracingPipelinesNV"))
-    return fail();
+    return false;
   s.cleanup.push_back([&s, pipeline] { s.f.DestroyPipeline(s.device(), pipeline, nullptr); });
+  out = pipeline;
+  return true;
+}
 
+// Shader binding table: raygen | miss | hit records (handle, then the record's index).
+struct ShaderBindingTable {
+  HostBuffer buffer;
+  VkDeviceSize handleSize = 0;
+  VkDeviceSize missOffset = 0;
+  VkDeviceSize hitOffset = 0;
+  VkDeviceSize hitStride = 0;
+};
+
+bool writeShaderBindingTable(Session& s, VkPipeline pipeline, const NvTraceScene& scene, ShaderBindingTable& out) {
+  const auto& rt = s.context.rayTracingProperties;
   const uint32_t handleSize = rt.shaderGroupHandleSize;
   std::vector<uint8_t> handles(size_t(handleSize) * 4);
-  if (!s.check(f.GetRayTracingShaderGroupHandlesNV(device, pipeline, 0, 4, handles.size(), handles.data()),
+  if (!s.check(s.f.GetRayTracingShaderGroupHandlesNV(s.device(), pipeline, 0, 4, handles.size(), handles.data()),
                "vkGetRayTracingShaderGroupHandlesNV"))
-    return fail();
-
-  // Shader binding table: raygen | miss | hit records (handle, then the record's index).
+    return false;
   const VkDeviceSize base = rt.shaderGroupBaseAlignment ? rt.shaderGroupBaseAlignment : 64;
   const VkDeviceSize hitStride = alignUp(handleSize + sizeof(uint32_t), handleSize);
   if (rt.maxShaderGroupStride && hitStride > rt.maxShaderGroupStride) {
     s.error = "hit record stride exceeds maxShaderGroupStride";
-    return fail();
+    return false;
   }
   const size_t recordCount = scene.recordIsProcedural.empty() ? 1 : scene.recordIsProcedural.size();
-  const VkDeviceSize missOffset = base;
-  const VkDeviceSize hitOffset = 2 * base;
-  HostBuffer sbt;
-  if (!s.hostBuffer(hitOffset + hitStride * recordCount, VK_BUFFER_USAGE_RAY_TRACING_BIT_NV, sbt)) return fail();
-  auto* table = static_cast<uint8_t*>(sbt.mapped);
+  out.handleSize = handleSize;
+  out.missOffset = base;
+  out.hitOffset = 2 * base;
+  out.hitStride = hitStride;
+  if (!s.hostBuffer(out.hitOffset + hitStride * recordCount, VK_BUFFER_USAGE_RAY_TRACING_BIT_NV, out.buffer))
+    return false;
+  auto* table = static_cast<uint8_t*>(out.buffer.mapped);
   std::memcpy(table, handles.data() + 0 * handleSize, handleSize);
-  std::memcpy(table + missOffset, handles.data() + 1 * handleSize, handleSize);
+  std::memcpy(table + out.missOffset, handles.data() + 1 * handleSize, handleSize);
   for (size_t r = 0; r < recordCount; ++r) {
     const bool procedural = r < scene.recordIsProcedural.size() && scene.recordIsProcedural[r];
-    uint8_t* record = table + hitOffset + r * hitStride;
+    uint8_t* record = table + out.hitOffset + r * hitStride;
     std::memcpy(record, handles.data() + (procedural ? 3 : 2) * handleSize, handleSize);
     const uint32_t index = uint32_t(r);
     std::memcpy(record + handleSize, &index, sizeof index);
   }
+  return true;
+}
 
-  // Per-instance and per-geometry tables the hit shaders read.
+// The storage buffers of bindings 1..5, in binding order.
+struct RayCheckBuffers {
+  HostBuffer rays, hits, instances, geometries, boxes;
+};
+
+// Uploads the rays and the per-instance and per-geometry tables the hit shaders read.
+bool uploadRayCheckBuffers(Session& s, const NvTraceScene& scene, const std::vector<NvTracedRay>& rays,
+                           RayCheckBuffers& out) {
   std::vector<uint32_t> instanceInfo;
   for (const auto& i : scene.instances) {
     instanceInfo.push_back(i.sbtRecordOffset);
@@ -277,13 +293,14 @@ bool traceRaysNV(const NvRayTracerContext& context, VkAccelerationStructureNV to
   for (size_t g = 0; g < scene.geometryIsAabb.size(); ++g)
     geometryTable.push_back(scene.geometryIsAabb[g] && g < scene.geometryFirstBox.size() ? scene.geometryFirstBox[g]
                                                                                          : 0xFFFFFFFFu);
-  HostBuffer rayBuffer, hitBuffer, instanceBuffer, geometryBuffer, boxBuffer;
   const VkBufferUsageFlags storage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
-  if (!s.upload(rays, storage, rayBuffer) || !s.hostBuffer(rays.size() * sizeof(NvRayHit), storage, hitBuffer) ||
-      !s.upload(instanceInfo, storage, instanceBuffer) || !s.upload(geometryTable, storage, geometryBuffer) ||
-      !s.upload(scene.boxes, storage, boxBuffer))
-    return fail();
+  return s.upload(rays, storage, out.rays) && s.hostBuffer(rays.size() * sizeof(NvRayHit), storage, out.hits) &&
+         s.upload(instanceInfo, storage, out.instances) && s.upload(geometryTable, storage, out.geometries) &&
+         s.upload(scene.boxes, storage, out.boxes);
+}
 
+bool writeDescriptorSet(Session& s, VkDescriptorSetLayout setLayout, VkAccelerationStructureNV topLevel,
+                        const RayCheckBuffers& buffers, VkDescriptorSet& out) {
   VkDescriptorPoolSize poolSizes[2] = {{VK_DESCRIPTOR_TYPE_ACCELERATION_STRUCTURE_NV, 1},
                                        {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 5}};
   VkDescriptorPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
@@ -291,18 +308,20 @@ bool traceRaysNV(const NvRayTracerContext& context, VkAccelerationStructureNV to
   poolInfo.poolSizeCount = 2;
   poolInfo.pPoolSizes = poolSizes;
   VkDescriptorPool pool;
-  if (!s.check(f.CreateDescriptorPool(device, &poolInfo, nullptr, &pool), "vkCreateDescriptorPool")) return fail();
+  if (!s.check(s.f.CreateDescriptorPool(s.device(), &poolInfo, nullptr, &pool), "vkCreateDescriptorPool"))
+    return false;
   s.cleanup.push_back([&s, pool] { s.f.DestroyDescriptorPool(s.device(), pool, nullptr); });
   VkDescriptorSetAllocateInfo setAllocate{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_ALLOCATE_INFO};
   setAllocate.descriptorPool = pool;
   setAllocate.descriptorSetCount = 1;
   setAllocate.pSetLayouts = &setLayout;
   VkDescriptorSet set;
-  if (!s.check(f.AllocateDescriptorSets(device, &setAllocate, &set), "vkAllocateDescriptorSets")) return fail();
+  if (!s.check(s.f.AllocateDescriptorSets(s.device(), &setAllocate, &set), "vkAllocateDescriptorSets")) return false;
   VkWriteDescriptorSetAccelerationStructureNV asWrite{VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET_ACCELERATION_STRUCTURE_NV};
   asWrite.accelerationStructureCount = 1;
   asWrite.pAccelerationStructures = &topLevel;
-  const HostBuffer* storageBuffers[5] = {&rayBuffer, &hitBuffer, &instanceBuffer, &geometryBuffer, &boxBuffer};
+  const HostBuffer* storageBuffers[5] = {&buffers.rays, &buffers.hits, &buffers.instances, &buffers.geometries,
+                                         &buffers.boxes};
   VkDescriptorBufferInfo bufferInfos[5];
   VkWriteDescriptorSet writes[6] = {};
   writes[0] = {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET, &asWrite, set, 0, 0, 1, VK_DESCRIPTOR_TYPE_ACCELERATION_STRUCTURE_NV};
@@ -311,26 +330,34 @@ bool traceRaysNV(const NvRayTracerContext& context, VkAccelerationStructureNV to
     writes[b + 1] = {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET, nullptr, set, b + 1, 0, 1,
                      VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, nullptr, &bufferInfos[b], nullptr};
   }
-  f.UpdateDescriptorSets(device, 6, writes, 0, nullptr);
+  s.f.UpdateDescriptorSets(s.device(), 6, writes, 0, nullptr);
+  out = set;
+  return true;
+}
 
+bool allocateCommandBuffer(Session& s, VkCommandBuffer& out) {
   VkCommandPoolCreateInfo commandPoolInfo{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO};
   commandPoolInfo.flags = VK_COMMAND_POOL_CREATE_TRANSIENT_BIT;
-  commandPoolInfo.queueFamilyIndex = context.queueFamilyIndex;
+  commandPoolInfo.queueFamilyIndex = s.context.queueFamilyIndex;
   VkCommandPool commandPool;
-  if (!s.check(f.CreateCommandPool(device, &commandPoolInfo, nullptr, &commandPool), "vkCreateCommandPool"))
-    return fail();
+  if (!s.check(s.f.CreateCommandPool(s.device(), &commandPoolInfo, nullptr, &commandPool), "vkCreateCommandPool"))
+    return false;
   s.cleanup.push_back([&s, commandPool] { s.f.DestroyCommandPool(s.device(), commandPool, nullptr); });
   VkCommandBufferAllocateInfo cbInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO};
   cbInfo.commandPool = commandPool;
   cbInfo.level = VK_COMMAND_BUFFER_LEVEL_PRIMARY;
   cbInfo.commandBufferCount = 1;
-  VkCommandBuffer cb;
-  if (!s.check(f.AllocateCommandBuffers(device, &cbInfo, &cb), "vkAllocateCommandBuffers")) return fail();
-  if (context.setCommandBufferDispatch) *reinterpret_cast<void**>(cb) = *reinterpret_cast<void**>(device);
+  if (!s.check(s.f.AllocateCommandBuffers(s.device(), &cbInfo, &out), "vkAllocateCommandBuffers")) return false;
+  if (s.context.setCommandBufferDispatch) *reinterpret_cast<void**>(out) = *reinterpret_cast<void**>(s.device());
+  return true;
+}
 
+bool recordTraceRays(Session& s, VkCommandBuffer cb, VkPipeline pipeline, VkPipelineLayout pipelineLayout,
+                     VkDescriptorSet set, const ShaderBindingTable& sbt, uint32_t rayCount) {
+  auto& f = s.f;
   VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO};
   begin.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
-  if (!s.check(f.BeginCommandBuffer(cb, &begin), "vkBeginCommandBuffer")) return fail();
+  if (!s.check(f.BeginCommandBuffer(cb, &begin), "vkBeginCommandBuffer")) return false;
   // Every earlier command of the queue (the builds) completes before the rays are traced.
   const VkMemoryBarrier before{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr, VK_ACCESS_MEMORY_WRITE_BIT,
                                VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_NV | VK_ACCESS_SHADER_READ_BIT |
@@ -339,29 +366,63 @@ bool traceRaysNV(const NvRayTracerContext& context, VkAccelerationStructureNV to
                        &before, 0, nullptr, 0, nullptr);
   f.CmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_RAY_TRACING_NV, pipeline);
   f.CmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_RAY_TRACING_NV, pipelineLayout, 0, 1, &set, 0, nullptr);
-  f.CmdTraceRaysNV(cb, sbt.buffer, 0, sbt.buffer, missOffset, handleSize, sbt.buffer, hitOffset, hitStride,
-                   VK_NULL_HANDLE, 0, 0, uint32_t(rays.size()), 1, 1);
+  const VkBuffer table = sbt.buffer.buffer;
+  f.CmdTraceRaysNV(cb, table, 0, table, sbt.missOffset, sbt.handleSize, table, sbt.hitOffset, sbt.hitStride,
+                   VK_NULL_HANDLE, 0, 0, rayCount, 1, 1);
   const VkMemoryBarrier after{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr, VK_ACCESS_SHADER_WRITE_BIT,
                               VK_ACCESS_HOST_READ_BIT};
   f.CmdPipelineBarrier(cb, VK_PIPELINE_STAGE_RAY_TRACING_SHADER_BIT_NV, VK_PIPELINE_STAGE_HOST_BIT, 0, 1, &after, 0,
                        nullptr, 0, nullptr);
-  if (!s.check(f.EndCommandBuffer(cb), "vkEndCommandBuffer")) return fail();
+  return s.check(f.EndCommandBuffer(cb), "vkEndCommandBuffer");
+}
 
+bool submitAndWait(Session& s, VkCommandBuffer cb) {
   VkFenceCreateInfo fenceInfo{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO};
   VkFence fence;
-  if (!s.check(f.CreateFence(device, &fenceInfo, nullptr, &fence), "vkCreateFence")) return fail();
+  if (!s.check(s.f.CreateFence(s.device(), &fenceInfo, nullptr, &fence), "vkCreateFence")) return false;
   s.cleanup.push_back([&s, fence] { s.f.DestroyFence(s.device(), fence, nullptr); });
   VkSubmitInfo submit{VK_STRUCTURE_TYPE_SUBMIT_INFO};
   submit.commandBufferCount = 1;
   submit.pCommandBuffers = &cb;
-  if (!s.check(f.QueueSubmit(context.queue, 1, &submit, fence), "vkQueueSubmit")) return fail();
-  if (!s.check(f.WaitForFences(device, 1, &fence, VK_TRUE, 10'000'000'000ull), "vkWaitForFences")) {
+  if (!s.check(s.f.QueueSubmit(s.context.queue, 1, &submit, fence), "vkQueueSubmit")) return false;
+  if (!s.check(s.f.WaitForFences(s.device(), 1, &fence, VK_TRUE, 10'000'000'000ull), "vkWaitForFences")) {
     // The queue still owns our objects: leaking them beats freeing what the GPU may use.
     s.cleanup.clear();
+    return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+bool traceRaysNV(const NvRayTracerContext& context, VkAccelerationStructureNV topLevel, const NvTraceScene& scene,
+                 const std::vector<NvTracedRay>& rays, std::vector<NvRayHit>& hits, std::string& error) {
+  hits.clear();
+  if (rays.empty()) return true;
+  Session s(context);
+  auto fail = [&] {
+    error = s.error;
+    return false;
+  };
+  if (!s.load()) return fail();
+  if (context.rayTracingProperties.shaderGroupHandleSize == 0) {
+    s.error = "VkPhysicalDeviceRayTracingPropertiesNV.shaderGroupHandleSize is 0";
     return fail();
   }
+  RayCheckLayout layout;
+  VkPipeline pipeline;
+  ShaderBindingTable sbt;
+  RayCheckBuffers buffers;
+  VkDescriptorSet set;
+  VkCommandBuffer cb;
+  if (!createRayCheckLayout(s, layout) || !createRayCheckPipeline(s, layout.pipelineLayout, pipeline) ||
+      !writeShaderBindingTable(s, pipeline, scene, sbt) || !uploadRayCheckBuffers(s, scene, rays, buffers) ||
+      !writeDescriptorSet(s, layout.setLayout, topLevel, buffers, set) || !allocateCommandBuffer(s, cb) ||
+      !recordTraceRays(s, cb, pipeline, layout.pipelineLayout, set, sbt, uint32_t(rays.size())) ||
+      !submitAndWait(s, cb))
+    return fail();
   hits.resize(rays.size());
-  std::memcpy(hits.data(), hitBuffer.mapped, rays.size() * sizeof(NvRayHit));
+  std::memcpy(hits.data(), buffers.hits.mapped, rays.size() * sizeof(NvRayHit));
   return true;
 }
 

@@ -46,6 +46,149 @@ struct Random {
   float uniform() { return float(next() >> 40) / float(1 << 24); }
 };
 
+// An axis-aligned box in world space, empty until its first point.
+struct WorldBox {
+  float lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};
+  bool bounded = false;
+};
+
+// The eight corners of each bounded geometry of a bottom level through the instance transform.
+WorldBox instanceWorldBox(const NvInstanceRecord& instance, const std::vector<NvGeometryModel>& geometries) {
+  WorldBox t;
+  for (const NvGeometryModel& g : geometries) {
+    if (!g.bounded) continue;
+    for (int corner = 0; corner < 8; ++corner) {
+      const float p[3] = {corner & 1 ? g.hi[0] : g.lo[0], corner & 2 ? g.hi[1] : g.lo[1], corner & 4 ? g.hi[2] : g.lo[2]};
+      float q[3];
+      transformPoint(instance.transform, p, q);
+      for (int k = 0; k < 3; ++k) {
+        t.lo[k] = t.bounded ? std::min(t.lo[k], q[k]) : q[k];
+        t.hi[k] = t.bounded ? std::max(t.hi[k], q[k]) : q[k];
+      }
+      t.bounded = true;
+    }
+  }
+  return t;
+}
+
+void growBox(WorldBox& into, const WorldBox& box) {
+  for (int k = 0; k < 3; ++k) {
+    into.lo[k] = into.bounded ? std::min(into.lo[k], box.lo[k]) : box.lo[k];
+    into.hi[k] = into.bounded ? std::max(into.hi[k], box.hi[k]) : box.hi[k];
+  }
+  into.bounded = true;
+}
+
+// A bottom level's geometries join the scene's geometry table the first time an instance names
+// it; returns the slot of its geometry 0.
+uint32_t geometrySlotOf(uint64_t bottomLevel, const std::vector<NvGeometryModel>& geometries,
+                        std::map<uint64_t, uint32_t>& firstSlot, NvTraceScene& scene) {
+  auto [slot, inserted] = firstSlot.try_emplace(bottomLevel, uint32_t(scene.geometryIsAabb.size()));
+  if (inserted)
+    for (const NvGeometryModel& g : geometries) {
+      scene.geometryIsAabb.push_back(g.aabbs);
+      scene.geometryFirstBox.push_back(uint32_t(scene.boxes.size() / 6));
+      scene.boxes.insert(scene.boxes.end(), g.boxes.begin(), g.boxes.end());
+    }
+  return slot->second;
+}
+
+// Marks the hit records the instance's geometries use as triangle (0) or box (1) records in
+// `recordKind` (-1: unused); false + `why` past the modelled records or on a record used by both.
+bool claimHitRecords(const NvInstanceRecord& instance, size_t instanceIndex,
+                     const std::vector<NvGeometryModel>& geometries, std::vector<int>& recordKind, std::string& why) {
+  const uint64_t end = uint64_t(instance.sbtRecordOffset) + geometries.size();
+  if (end > kMaxRayCheckHitRecords) {
+    why = "instance " + std::to_string(instanceIndex) + " uses hit records up to " + std::to_string(end) +
+          " (the check models " + std::to_string(kMaxRayCheckHitRecords) + ")";
+    return false;
+  }
+  recordKind.resize(std::max(recordKind.size(), size_t(end)), -1);
+  for (size_t g = 0; g < geometries.size(); ++g) {
+    const int kind = geometries[g].aabbs ? 1 : 0;
+    int& used = recordKind[instance.sbtRecordOffset + g];
+    if (used >= 0 && used != kind) {
+      why = "hit record " + std::to_string(instance.sbtRecordOffset + g) +
+            " serves both triangle and AABB geometries (the check needs one hit group kind per record)";
+      return false;
+    }
+    used = kind;
+  }
+  return true;
+}
+
+// Where the rays start and what they aim at.
+struct RayAim {
+  std::vector<WorldBox> targets;  // world boxes of the instances a ray can hit
+  WorldBox scene;
+  float center[3] = {0, 0, 0};
+  float radius = 0;
+};
+
+void randomUnitVector(Random& random, float d[3]) {
+  float len;
+  do {
+    for (int k = 0; k < 3; ++k) d[k] = 2.0f * random.uniform() - 1.0f;
+    len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+  } while (len < 0.05f || len > 1.0f);
+  for (int k = 0; k < 3; ++k) d[k] /= len;
+}
+
+// From a sphere around the scene towards a random point of `target`.
+void aimAtTarget(const RayAim& aim, const WorldBox& target, Random& random, NvTracedRay& r, float d[3]) {
+  float onSphere[3], point[3];
+  randomUnitVector(random, onSphere);
+  for (int k = 0; k < 3; ++k) {
+    r.origin[k] = aim.center[k] + 2.0f * aim.radius * onSphere[k];
+    point[k] = target.lo[k] + (target.hi[k] - target.lo[k]) * random.uniform();
+    d[k] = point[k] - r.origin[k];
+  }
+  const float len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+  for (int k = 0; k < 3; ++k) d[k] = len > 0 ? d[k] / len : (k == 1 ? -1.0f : 0.0f);
+}
+
+// From a random point of the scene's box (grown by half) in a random direction.
+void aimAnywhere(const RayAim& aim, Random& random, NvTracedRay& r, float d[3]) {
+  for (int k = 0; k < 3; ++k) {
+    const float half = 0.75f * (aim.scene.hi[k] - aim.scene.lo[k]) + 0.5f;
+    r.origin[k] = aim.center[k] - half + 2.0f * half * random.uniform();
+  }
+  randomUnitVector(random, d);
+}
+
+// Even rays come from a sphere around the scene at a random point of an instance's world box;
+// odd ones from random points of the scene's box (grown by half) in random directions.
+void aimRays(RayAim& aim, uint32_t rayCount, uint64_t seed, std::vector<NvTracedRay>& rays) {
+  for (int k = 0; k < 3; ++k) {
+    aim.center[k] = 0.5f * (aim.scene.lo[k] + aim.scene.hi[k]);
+    aim.radius = std::max(aim.radius, 0.5f * (aim.scene.hi[k] - aim.scene.lo[k]));
+  }
+  aim.radius = aim.radius * 1.7320508f + 1.0f;
+  Random random{seed};
+  for (uint32_t i = 0; i < rayCount; ++i) {
+    NvTracedRay r{};
+    float d[3];
+    if (i % 2 == 0 && !aim.targets.empty()) aimAtTarget(aim, aim.targets[(i / 2) % aim.targets.size()], random, r, d);
+    else aimAnywhere(aim, random, r, d);
+    for (int k = 0; k < 3; ++k) {
+      // No exact zero component: the AABB shader's slab test divides by it.
+      if (d[k] == 0.0f) d[k] = 1e-7f;
+      r.direction[k] = d[k];
+    }
+    r.tMin = (i % 16 == 7) ? 0.5f * aim.radius : 0.0f;
+    r.tMax = (i % 16 == 11) ? 2.5f * aim.radius : 8.0f * aim.radius;
+    r.rayFlags = 0;
+    r.cullMask = (i % 8 == 5) ? 0x01u : 0xFFu;
+    rays.push_back(r);
+  }
+}
+
+std::string hexHandle(uint64_t handle) {
+  char text[32];
+  std::snprintf(text, sizeof text, "%llx", (unsigned long long)handle);
+  return text;
+}
+
 }  // namespace
 
 void NvSceneModel::setHandle(uint64_t accelerationStructure, uint64_t deviceHandle) {
@@ -141,131 +284,30 @@ bool NvSceneModel::prepare(uint64_t topLevel, uint32_t rayCount, NvTraceScene& s
   deviceHandle = handle == deviceHandles_.end() ? 0 : handle->second;
 
   std::map<uint64_t, uint32_t> firstSlot;  // bottom level -> its geometry 0's slot
-  struct Target {
-    float lo[3], hi[3];
-  };
-  std::vector<Target> targets;  // world bounds of the instances a ray can hit
-  float sceneLo[3] = {0, 0, 0}, sceneHi[3] = {0, 0, 0};
-  bool sceneBounded = false;
-  uint32_t recordCount = 0;
+  RayAim aim;
   std::vector<int> recordKind;  // -1 unused, 0 triangles, 1 boxes
   for (size_t i = 0; i < top->second.size(); ++i) {
     const NvInstanceRecord& instance = top->second[i];
     auto blas = byDeviceHandle_.find(instance.reference);
     auto model = blas == byDeviceHandle_.end() ? bottomLevels_.end() : bottomLevels_.find(blas->second);
     if (model == bottomLevels_.end()) {
-      why = "instance " + std::to_string(i) + " names bottom level handle 0x" + [&] {
-        char text[32];
-        std::snprintf(text, sizeof text, "%llx", (unsigned long long)instance.reference);
-        return std::string(text);
-      }() + ", whose build the capture did not see";
+      why = "instance " + std::to_string(i) + " names bottom level handle 0x" + hexHandle(instance.reference) +
+            ", whose build the capture did not see";
       return false;
     }
-    auto [slot, inserted] = firstSlot.try_emplace(model->first, uint32_t(scene.geometryIsAabb.size()));
-    if (inserted)
-      for (const NvGeometryModel& g : model->second) {
-        scene.geometryIsAabb.push_back(g.aabbs);
-        scene.geometryFirstBox.push_back(uint32_t(scene.boxes.size() / 6));
-        scene.boxes.insert(scene.boxes.end(), g.boxes.begin(), g.boxes.end());
-      }
-    scene.instances.push_back({instance.sbtRecordOffset, slot->second});
-    const uint64_t end = uint64_t(instance.sbtRecordOffset) + model->second.size();
-    if (end > kMaxRayCheckHitRecords) {
-      why = "instance " + std::to_string(i) + " uses hit records up to " + std::to_string(end) + " (the check models " +
-            std::to_string(kMaxRayCheckHitRecords) + ")";
-      return false;
-    }
-    recordCount = std::max(recordCount, uint32_t(end));
-    recordKind.resize(recordCount, -1);
-    for (size_t g = 0; g < model->second.size(); ++g) {
-      const int kind = model->second[g].aabbs ? 1 : 0;
-      int& used = recordKind[instance.sbtRecordOffset + g];
-      if (used >= 0 && used != kind) {
-        why = "hit record " + std::to_string(instance.sbtRecordOffset + g) +
-              " serves both triangle and AABB geometries (the check needs one hit group kind per record)";
-        return false;
-      }
-      used = kind;
-    }
-    // World bounds: the eight corners of each bounded geometry through the instance transform.
-    Target t{};
-    bool bounded = false;
-    for (const NvGeometryModel& g : model->second) {
-      if (!g.bounded) continue;
-      for (int corner = 0; corner < 8; ++corner) {
-        const float p[3] = {corner & 1 ? g.hi[0] : g.lo[0], corner & 2 ? g.hi[1] : g.lo[1], corner & 4 ? g.hi[2] : g.lo[2]};
-        float q[3];
-        transformPoint(instance.transform, p, q);
-        for (int k = 0; k < 3; ++k) {
-          t.lo[k] = bounded ? std::min(t.lo[k], q[k]) : q[k];
-          t.hi[k] = bounded ? std::max(t.hi[k], q[k]) : q[k];
-        }
-        bounded = true;
-      }
-    }
-    if (!bounded) continue;
-    for (int k = 0; k < 3; ++k) {
-      sceneLo[k] = sceneBounded ? std::min(sceneLo[k], t.lo[k]) : t.lo[k];
-      sceneHi[k] = sceneBounded ? std::max(sceneHi[k], t.hi[k]) : t.hi[k];
-    }
-    sceneBounded = true;
-    if (instance.mask != 0) targets.push_back(t);
+    scene.instances.push_back({instance.sbtRecordOffset, geometrySlotOf(model->first, model->second, firstSlot, scene)});
+    if (!claimHitRecords(instance, i, model->second, recordKind, why)) return false;
+    const WorldBox box = instanceWorldBox(instance, model->second);
+    if (!box.bounded) continue;
+    growBox(aim.scene, box);
+    if (instance.mask != 0) aim.targets.push_back(box);
   }
   for (int kind : recordKind) scene.recordIsProcedural.push_back(kind == 1);
-  if (!sceneBounded) {
+  if (!aim.scene.bounded) {
     why = "no instance has bounded geometry to aim rays at";
     return false;
   }
-
-  // Rays: even ones from a sphere around the scene at a random point of an instance's world
-  // box; odd ones from random points of the scene's box (grown by half) in random directions.
-  float center[3], radius = 0;
-  for (int k = 0; k < 3; ++k) {
-    center[k] = 0.5f * (sceneLo[k] + sceneHi[k]);
-    radius = std::max(radius, 0.5f * (sceneHi[k] - sceneLo[k]));
-  }
-  radius = radius * 1.7320508f + 1.0f;
-  Random random{0x5EEDC1A5ull ^ uint64_t(top->second.size())};
-  auto unit = [&](float d[3]) {
-    float len;
-    do {
-      for (int k = 0; k < 3; ++k) d[k] = 2.0f * random.uniform() - 1.0f;
-      len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-    } while (len < 0.05f || len > 1.0f);
-    for (int k = 0; k < 3; ++k) d[k] /= len;
-  };
-  for (uint32_t i = 0; i < rayCount; ++i) {
-    NvTracedRay r{};
-    float d[3];
-    if (i % 2 == 0 && !targets.empty()) {
-      const Target& t = targets[(i / 2) % targets.size()];
-      float onSphere[3], aim[3];
-      unit(onSphere);
-      for (int k = 0; k < 3; ++k) {
-        r.origin[k] = center[k] + 2.0f * radius * onSphere[k];
-        aim[k] = t.lo[k] + (t.hi[k] - t.lo[k]) * random.uniform();
-        d[k] = aim[k] - r.origin[k];
-      }
-      const float len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-      for (int k = 0; k < 3; ++k) d[k] = len > 0 ? d[k] / len : (k == 1 ? -1.0f : 0.0f);
-    } else {
-      for (int k = 0; k < 3; ++k) {
-        const float half = 0.75f * (sceneHi[k] - sceneLo[k]) + 0.5f;
-        r.origin[k] = center[k] - half + 2.0f * half * random.uniform();
-      }
-      unit(d);
-    }
-    for (int k = 0; k < 3; ++k) {
-      // No exact zero component: the AABB shader's slab test divides by it.
-      if (d[k] == 0.0f) d[k] = 1e-7f;
-      r.direction[k] = d[k];
-    }
-    r.tMin = (i % 16 == 7) ? 0.5f * radius : 0.0f;
-    r.tMax = (i % 16 == 11) ? 2.5f * radius : 8.0f * radius;
-    r.rayFlags = 0;
-    r.cullMask = (i % 8 == 5) ? 0x01u : 0xFFu;
-    rays.push_back(r);
-  }
+  aimRays(aim, rayCount, 0x5EEDC1A5ull ^ uint64_t(top->second.size()), rays);
   return true;
 }
 

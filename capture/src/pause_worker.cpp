@@ -221,91 +221,133 @@ bool PauseWorker::handle(Expected& expected) {
   };
 
   ClusterBuildCapture* record = nullptr;
-  const auto openKey = std::make_tuple(expected.submissionIndex, pause.pauseId, pause.occurrence);
+  const OpenKey openKey = std::make_tuple(expected.submissionIndex, pause.pauseId, pause.occurrence);
   if (capture) {
     CostScope cost(CostPhase::PauseRead);
-    if (pause.phase == PausePhase::BeforeCommand) {
-      ClusterBuildCapture fresh;
-      fresh.pauseId = pause.pauseId;
-      fresh.occurrence = pause.occurrence;
-      fresh.submissionIndex = expected.submissionIndex;
-      fresh.commandBuffer = expected.commandBuffer;
-      ClusterMemoryWalk walk;
-      if (pause.buildNV) {
-        fresh.kind = CapturedCommandKind::BuildAccelerationStructureNV;
-        BufferMemoryReader bufferReader = [this](uint64_t buffer, VkDeviceSize offset, uint64_t size,
-                                                 CapturedBytes* out, std::string& why) {
-          auto range = device_.memoryMap.resolveBuffer(buffer, offset, size, why);
-          if (!range) return false;
-          if (!range->host && !(staging_ && staging_->find(range->buffer.handle))) {
-            why = kNotStaged;
-            return false;
-          }
-          return out ? readResolved(*range, size, *out) : true;
-        };
-        walk = walkBuildAccelerationStructureNVInputs(*pause.buildNV, bufferReader);
-        device_.nvScene.observeBuild(*pause.buildNV, walk.ranges);  // for the ray check
-      } else if (pause.copyToAccelerationStructure) {
-        fresh.kind = CapturedCommandKind::CopyMemoryToAccelerationStructure;
-        walk = walkCopyMemoryToAccelerationStructureInputs(*pause.copyToAccelerationStructure, reader);
-      } else {
-        fresh.parameters = *pause.parameters;
-        walk = walkClusterInputs(*pause.parameters, reader, [this](VkDeviceAddress address, uint32_t* vertices) {
-          auto it = templateVertexCounts_.find(address);
-          if (it == templateVertexCounts_.end()) return false;
-          *vertices = it->second;
-          return true;
-        });
-        if (!walk.templateVertexCounts.empty())
-          pendingTemplateVertexCounts_[pause.pauseId] = std::move(walk.templateVertexCounts);
-        else if (pause.parameters->info.input.opType == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV &&
-                 pause.parameters->moveObjectsInput.type == VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_TRIANGLE_CLUSTER_TEMPLATE_NV)
-          pendingTemplateVertexCounts_[pause.pauseId] = movedTemplateVertexCounts(*pause.parameters, walk.executedCount);
-      }
-      record = &open_.insert_or_assign(openKey, std::move(fresh)).first->second;
-      record->executedCount = walk.executedCount;
-      record->inputs = std::move(walk.ranges);
-      record->issues = std::move(walk.issues);
-    } else {
-      auto it = open_.find(openKey);
-      if (it != open_.end() && pause.parameters) {
-        record = &it->second;
-        ClusterMemoryWalk walk = walkClusterOutputs(*pause.parameters, record->executedCount, reader);
-        auto pending = pendingTemplateVertexCounts_.find(pause.pauseId);
-        if (pending != pendingTemplateVertexCounts_.end()) {
-          learnTemplates(*pause.parameters, pending->second);
-          pendingTemplateVertexCounts_.erase(pending);
-        }
-        record->outputs = std::move(walk.ranges);
-        for (auto& issue : walk.issues) record->issues.push_back(std::move(issue));
-      }
-    }
+    if (pause.phase == PausePhase::BeforeCommand) record = openRecord(expected, openKey, reader);
+    else record = addOutputsToOpenRecord(pause, openKey, reader);
   }
-  // Served, the command has executed once the engine returns, and its outputs are what a pause
-  // after it would read (the queue runs nothing in between). The engine's image holds them (and
-  // everything the command read), so they are walked there after the queue is released; if
-  // the engine could not run, from memory now.
   std::shared_ptr<const engine::MemoryImage> servedImage;
-  if (served) {
-    {
-      CostScope cost(CostPhase::PauseEngine);
-      servedImage = executeServed(pause, *served, record);
-    }
-    // No pause follows a served command: learn the templates it built (or moved) now, while
-    // its dstAddressesArray holds what the engine just wrote and the queue still waits.
-    if (pause.lastOfCommand) {
-      auto pending = pendingTemplateVertexCounts_.find(pause.pauseId);
-      if (pending != pendingTemplateVertexCounts_.end()) {
-        learnTemplates(*pause.parameters, pending->second);
-        pendingTemplateVertexCounts_.erase(pending);
-      }
-    }
-    if (record && pause.lastOfCommand && !servedImage) {
-      ClusterMemoryWalk walk = walkClusterOutputs(*pause.parameters, record->executedCount, reader);
-      record->outputs = std::move(walk.ranges);
-      for (auto& issue : walk.issues) record->issues.push_back(std::move(issue));
-    }
+  if (served) servedImage = finishServedCommand(pause, *served, record, reader);
+  const double stalled = releaseQueue(expected, started, startedCpu);
+  staging_ = nullptr;  // the queue may overwrite the staged copies from here on
+  if (!record) return true;
+  record->pauseMilliseconds += stalled;
+  if (!pause.lastOfCommand) {  // the record waits in open_ for the command's next pause
+    nameRanges(*record);
+    return true;
   }
+  passRecordOn(openKey, pause.parameters, std::move(servedImage), std::move(served));
+  return true;
+}
+
+// Opens the capture of a command at its pause before it, with the inputs the command reads.
+ClusterBuildCapture* PauseWorker::openRecord(const Expected& expected, const OpenKey& key,
+                                             const DeviceMemoryReader& reader) {
+  const PausePoint& pause = expected.pause;
+  ClusterBuildCapture fresh;
+  fresh.pauseId = pause.pauseId;
+  fresh.occurrence = pause.occurrence;
+  fresh.submissionIndex = expected.submissionIndex;
+  fresh.commandBuffer = expected.commandBuffer;
+  ClusterMemoryWalk walk = walkCommandInputs(pause, fresh, reader);
+  ClusterBuildCapture* record = &open_.insert_or_assign(key, std::move(fresh)).first->second;
+  record->executedCount = walk.executedCount;
+  record->inputs = std::move(walk.ranges);
+  record->issues = std::move(walk.issues);
+  return record;
+}
+
+// Walks the inputs of the pause's command, by its kind; sets `record`'s kind and parameters.
+ClusterMemoryWalk PauseWorker::walkCommandInputs(const PausePoint& pause, ClusterBuildCapture& record,
+                                                 const DeviceMemoryReader& reader) {
+  if (pause.buildNV) {
+    record.kind = CapturedCommandKind::BuildAccelerationStructureNV;
+    BufferMemoryReader bufferReader = [this](uint64_t buffer, VkDeviceSize offset, uint64_t size,
+                                             CapturedBytes* out, std::string& why) {
+      auto range = device_.memoryMap.resolveBuffer(buffer, offset, size, why);
+      if (!range) return false;
+      if (!range->host && !(staging_ && staging_->find(range->buffer.handle))) {
+        why = kNotStaged;
+        return false;
+      }
+      return out ? readResolved(*range, size, *out) : true;
+    };
+    ClusterMemoryWalk walk = walkBuildAccelerationStructureNVInputs(*pause.buildNV, bufferReader);
+    device_.nvScene.observeBuild(*pause.buildNV, walk.ranges);  // for the ray check
+    return walk;
+  }
+  if (pause.copyToAccelerationStructure) {
+    record.kind = CapturedCommandKind::CopyMemoryToAccelerationStructure;
+    return walkCopyMemoryToAccelerationStructureInputs(*pause.copyToAccelerationStructure, reader);
+  }
+  record.parameters = *pause.parameters;
+  ClusterMemoryWalk walk =
+      walkClusterInputs(*pause.parameters, reader, [this](VkDeviceAddress address, uint32_t* vertices) {
+        auto it = templateVertexCounts_.find(address);
+        if (it == templateVertexCounts_.end()) return false;
+        *vertices = it->second;
+        return true;
+      });
+  if (!walk.templateVertexCounts.empty())
+    pendingTemplateVertexCounts_[pause.pauseId] = std::move(walk.templateVertexCounts);
+  else if (pause.parameters->info.input.opType == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV &&
+           pause.parameters->moveObjectsInput.type == VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_TRIANGLE_CLUSTER_TEMPLATE_NV)
+    pendingTemplateVertexCounts_[pause.pauseId] = movedTemplateVertexCounts(*pause.parameters, walk.executedCount);
+  return walk;
+}
+
+// At the pause after a cluster command: its outputs join the record its first pause opened
+// (null when there is none).
+ClusterBuildCapture* PauseWorker::addOutputsToOpenRecord(const PausePoint& pause, const OpenKey& key,
+                                                         const DeviceMemoryReader& reader) {
+  auto it = open_.find(key);
+  if (it == open_.end() || !pause.parameters) return nullptr;
+  ClusterBuildCapture* record = &it->second;
+  addOutputs(*record, *pause.parameters, reader);
+  learnPendingTemplates(pause);
+  return record;
+}
+
+void PauseWorker::addOutputs(ClusterBuildCapture& record, const ClusterCommandParameters& parameters,
+                             const DeviceMemoryReader& reader) {
+  ClusterMemoryWalk walk = walkClusterOutputs(parameters, record.executedCount, reader);
+  record.outputs = std::move(walk.ranges);
+  for (auto& issue : walk.issues) record.issues.push_back(std::move(issue));
+}
+
+// The templates the pause's command built (or moved), once its dstAddressesArray is written.
+void PauseWorker::learnPendingTemplates(const PausePoint& pause) {
+  auto pending = pendingTemplateVertexCounts_.find(pause.pauseId);
+  if (pending == pendingTemplateVertexCounts_.end()) return;
+  learnTemplates(*pause.parameters, pending->second);
+  pendingTemplateVertexCounts_.erase(pending);
+}
+
+// Served, the command has executed once the engine returns, and its outputs are what a pause
+// after it would read (the queue runs nothing in between). The engine's image holds them (and
+// everything the command read), so they are walked there after the queue is released; if
+// the engine could not run, from memory now.
+std::shared_ptr<const engine::MemoryImage> PauseWorker::finishServedCommand(const PausePoint& pause,
+                                                                            ServedMemory& served,
+                                                                            ClusterBuildCapture* record,
+                                                                            const DeviceMemoryReader& reader) {
+  std::shared_ptr<const engine::MemoryImage> servedImage;
+  {
+    CostScope cost(CostPhase::PauseEngine);
+    servedImage = executeServed(pause, served, record);
+  }
+  // No pause follows a served command: learn the templates it built (or moved) now, while
+  // its dstAddressesArray holds what the engine just wrote and the queue still waits.
+  if (pause.lastOfCommand) learnPendingTemplates(pause);
+  if (record && pause.lastOfCommand && !servedImage) addOutputs(*record, *pause.parameters, reader);
+  return servedImage;
+}
+
+// Lets the queue run on past the pause; returns how long it was held, in milliseconds.
+double PauseWorker::releaseQueue(const Expected& expected, std::chrono::steady_clock::time_point started,
+                                 uint64_t startedCpu) {
+  const PausePoint& pause = expected.pause;
   device_.next.ResetEvent(device_.device, pause.signal);
   device_.next.SetEvent(device_.device, pause.release);
   if (pause.shared) {
@@ -318,23 +360,24 @@ bool PauseWorker::handle(Expected& expected) {
   const double stalled = std::chrono::duration<double, std::milli>(released - started).count();
   pauseMilliseconds_.push_back(float(stalled));
   addCost(CostPhase::PauseHeld, uint64_t(stalled * 1e6), releasedCpu - startedCpu);
-  staging_ = nullptr;  // the queue may overwrite the staged copies from here on
-  if (!record) return true;
-  record->pauseMilliseconds += stalled;
-  if (!pause.lastOfCommand) {  // the record waits in open_ for the command's next pause
-    nameRanges(*record);
-    return true;
-  }
-  // A served record leaves unfinished: the sink's thread walks its outputs in the engine's
-  // image and names its ranges by this pause's buffers (the application may destroy them once
-  // the queue moved on), while this thread takes the next pause. Any other record is named now,
-  // by the memory map, before the queue passes its last pause and the application may destroy
-  // the buffers that name the ranges.
-  ClusterBuildCapture work = std::move(*record);
-  open_.erase(openKey);
+  return stalled;
+}
+
+// Hands the finished record of the command to the sink.
+// A served record leaves unfinished: the sink's thread walks its outputs in the engine's
+// image and names its ranges by this pause's buffers (the application may destroy them once
+// the queue moved on), while this thread takes the next pause. Any other record is named now,
+// by the memory map, before the queue passes its last pause and the application may destroy
+// the buffers that name the ranges.
+void PauseWorker::passRecordOn(const OpenKey& key, std::shared_ptr<const ClusterCommandParameters> parameters,
+                               std::shared_ptr<const engine::MemoryImage> servedImage,
+                               std::unique_ptr<ServedMemory> served) {
+  auto it = open_.find(key);
+  ClusterBuildCapture work = std::move(it->second);
+  open_.erase(it);
   if (servedImage) {  // (set only when the build was served and ran)
     work.heldBytes = servedImage->resident_bytes();
-    work.complete = [image = std::move(servedImage), parameters = pause.parameters,
+    work.complete = [image = std::move(servedImage), parameters = std::move(parameters),
                      memory = std::shared_ptr<const ServedMemory>(std::move(served))](ClusterBuildCapture& r) {
       completeServedRecord(r, image, *parameters, *memory);
     };
@@ -342,7 +385,6 @@ bool PauseWorker::handle(Expected& expected) {
     nameRanges(work);
   }
   device_.sink->clusterBuildCaptured(std::move(work));
-  return true;
 }
 
 // By a buffer holding each, as the trace's snapshots do: the memory map now.

@@ -17,6 +17,7 @@
 #pragma once
 
 #include "clastrace/capture/capture_records.h"
+#include "clastrace/capture/cluster_input_walker.h"
 #include "clastrace/capture/device_memory_map.h"
 #include "clastrace/capture/shared_pause_tracker.h"
 #include "pause_staging.h"
@@ -88,8 +89,24 @@ class PauseWorker {
     uint64_t commandBuffer;
     bool capture;
   };
+  // (submission, pauseId, occurrence) of a command's capture between its pauses
+  using OpenKey = std::tuple<uint64_t, uint64_t, uint32_t>;
   void run();
   bool handle(Expected& expected);
+  ClusterBuildCapture* openRecord(const Expected& expected, const OpenKey& key, const DeviceMemoryReader& reader);
+  ClusterMemoryWalk walkCommandInputs(const PausePoint& pause, ClusterBuildCapture& record,
+                                      const DeviceMemoryReader& reader);
+  ClusterBuildCapture* addOutputsToOpenRecord(const PausePoint& pause, const OpenKey& key,
+                                              const DeviceMemoryReader& reader);
+  void addOutputs(ClusterBuildCapture& record, const ClusterCommandParameters& parameters,
+                  const DeviceMemoryReader& reader);
+  void learnPendingTemplates(const PausePoint& pause);
+  std::shared_ptr<const engine::MemoryImage> finishServedCommand(const PausePoint& pause, ServedMemory& served,
+                                                                 ClusterBuildCapture* record,
+                                                                 const DeviceMemoryReader& reader);
+  double releaseQueue(const Expected& expected, std::chrono::steady_clock::time_point started, uint64_t startedCpu);
+  void passRecordOn(const OpenKey& key, std::shared_ptr<const ClusterCommandParameters> parameters,
+                    std::shared_ptr<const engine::MemoryImage> servedImage, std::unique_ptr<ServedMemory> served);
   void nameRanges(ClusterBuildCapture& record);  // by the memory map, now
   bool checkMemory(VkDeviceAddress address, uint64_t size, std::string& why);
   bool readMemory(VkDeviceAddress address, uint64_t size, CapturedBytes& out, std::string& why);
@@ -111,8 +128,7 @@ class PauseWorker {
   std::mutex mutex_;
   std::condition_variable wake_;
   std::map<VkQueue, std::deque<Expected>> queues_;
-  // (submission, pauseId, occurrence) -> capture between its two pauses
-  std::map<std::tuple<uint64_t, uint64_t, uint32_t>, ClusterBuildCapture> open_;
+  std::map<OpenKey, ClusterBuildCapture> open_;
   std::vector<float> pauseMilliseconds_;
   const StagingSet* staging_ = nullptr;  // of the pause being handled  // host time of each pause, for the report at exit
   bool stop_ = false;

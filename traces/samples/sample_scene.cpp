@@ -123,53 +123,34 @@ std::vector<uint32_t> grid_indices() {
     return idx;
 }
 
-}  // namespace
+using ClusterInfo = VkClusterAccelerationStructureBuildTriangleClusterInfoNV;
 
-TraceError write_sample_trace(const std::string& path) {
-    TraceError error;
-    TraceWriterOptions options;
-    options.chunk_raw_bytes = 8192;  // small chunks so the sample shows several of them
-    options.zstd_level = 19;
-    auto writer = TraceWriter::create(path, sample_header(), options, &error);
-    if (!writer) return error;
-#define TRY(expr)                                   \
-    do {                                            \
-        if (TraceError e_ = (expr)) return e_;      \
-    } while (0)
-
-    const std::vector<float> vertices = grid_vertices();
-    const std::vector<uint32_t> local = grid_indices();
+// The scene's contents and the buffers that hold them, as the commands below read them.
+struct SampleScene {
+    std::vector<float> vertices;
     std::vector<uint8_t> index8;
     std::vector<uint32_t> index32;
-    for (uint32_t c = 0; c < kClusters; ++c) {
-        for (uint32_t i : local) {
-            index8.push_back(static_cast<uint8_t>(i));
-            index32.push_back(i + c * kClusterVertices);
-        }
+    std::vector<SceneBuffer> buffers;
+    std::vector<ClusterInfo> infos;  // srcInfosArray contents
+
+    uint64_t info_bytes() const { return infos.size() * sizeof(ClusterInfo); }
+    uint64_t address_of(uint64_t handle) const {
+        for (const SceneBuffer& b : buffers)
+            if (b.handle == handle) return b.address;
+        return uint64_t{0};
     }
+};
 
-    // Memory and buffers.
-    fbs::MemoryAllocateT device_memory;
-    device_memory.memory = kDeviceLocalMemory;
-    device_memory.size = 1 << 20;
-    device_memory.memory_type_index = 0;
-    device_memory.allocate_flags = VK_MEMORY_ALLOCATE_DEVICE_ADDRESS_BIT;
-    TRY(writer->append(record(device_memory)));
-    fbs::MemoryAllocateT host_memory;
-    host_memory.memory = kHostMemory;
-    host_memory.size = 64 << 10;
-    host_memory.memory_type_index = 1;
-    host_memory.allocate_flags = VK_MEMORY_ALLOCATE_DEVICE_ADDRESS_BIT;
-    TRY(writer->append(record(host_memory)));
-
+// The buffers, placed in their memory; those with device addresses get them from kAddressBase.
+std::vector<SceneBuffer> scene_buffers(const SampleScene& scene) {
     const uint64_t storage = VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
     const uint64_t build_input = storage | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
     const uint64_t as_storage = storage | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
-    const uint64_t info_bytes = kClusters * sizeof(VkClusterAccelerationStructureBuildTriangleClusterInfoNV);
+    const uint64_t info_bytes = kClusters * sizeof(ClusterInfo);
     std::vector<SceneBuffer> buffers = {
-        {kVertexBuffer, vertices.size() * sizeof(float), build_input | VK_BUFFER_USAGE_RAY_TRACING_BIT_NV, kDeviceLocalMemory, 0, 0},
-        {kIndex8Buffer, index8.size(), build_input, kDeviceLocalMemory, 0x1000, 0},
-        {kIndex32Buffer, index32.size() * 4, build_input | VK_BUFFER_USAGE_RAY_TRACING_BIT_NV, kDeviceLocalMemory, 0x2000, 0},
+        {kVertexBuffer, scene.vertices.size() * sizeof(float), build_input | VK_BUFFER_USAGE_RAY_TRACING_BIT_NV, kDeviceLocalMemory, 0, 0},
+        {kIndex8Buffer, scene.index8.size(), build_input, kDeviceLocalMemory, 0x1000, 0},
+        {kIndex32Buffer, scene.index32.size() * 4, build_input | VK_BUFFER_USAGE_RAY_TRACING_BIT_NV, kDeviceLocalMemory, 0x2000, 0},
         {kStagingBuffer, info_bytes, VK_BUFFER_USAGE_TRANSFER_SRC_BIT, kHostMemory, 0, 0},
         {kInfoBuffer, info_bytes, build_input | VK_BUFFER_USAGE_TRANSFER_DST_BIT, kDeviceLocalMemory, 0x3000, 0},
         {kClusterBuffer, 64 << 10, as_storage, kDeviceLocalMemory, 0x10000, 0},
@@ -182,88 +163,15 @@ TraceError write_sample_trace(const std::string& path) {
         b.address = (b.usage & VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT)
                         ? kAddressBase + (b.memory == kHostMemory ? 0x100000 : 0) + b.memory_offset
                         : 0;
-        fbs::BufferCreateT create;
-        create.buffer = b.handle;
-        create.size = b.size;
-        create.usage = b.usage;
-        create.sharing_mode = VK_SHARING_MODE_EXCLUSIVE;
-        TRY(writer->append(record(create)));
-        fbs::BufferBindMemoryT bind;
-        bind.buffer = b.handle;
-        bind.memory = b.memory;
-        bind.memory_offset = b.memory_offset;
-        bind.device_address = b.address;
-        TRY(writer->append(record(bind)));
     }
-    auto address_of = [&](uint64_t handle) {
-        for (const SceneBuffer& b : buffers)
-            if (b.handle == handle) return b.address;
-        return uint64_t{0};
-    };
+    return buffers;
+}
 
-    // The NV bottom-level structure over the same triangles (the classic path, for comparison).
-    auto blas_info = std::make_unique<fbs::AccelerationStructureInfoNVT>();
-    blas_info->type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV;
-    blas_info->flags = VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_NV;
-    auto geometry = std::make_unique<fbs::GeometryNVT>();
-    geometry->geometry_type = VK_GEOMETRY_TYPE_TRIANGLES_NV;
-    geometry->flags = VK_GEOMETRY_OPAQUE_BIT_NV;
-    geometry->triangles = std::make_unique<fbs::GeometryTrianglesNV>(
-        kVertexBuffer, 0, kClusters * kClusterVertices, VK_FORMAT_R32G32B32_SFLOAT, 12, kIndex32Buffer, 0,
-        static_cast<uint32_t>(index32.size()), VK_INDEX_TYPE_UINT32, 0, 0);
-    geometry->aabbs = std::make_unique<fbs::GeometryAabbNV>(0, 0, 24, 0);
-    blas_info->geometries.push_back(std::move(geometry));
-
-    fbs::AccelerationStructureCreateT blas;
-    blas.acceleration_structure = kBlas;
-    blas.api = 0;
-    blas.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV;
-    blas.info = std::make_unique<fbs::AccelerationStructureInfoNVT>(*blas_info);
-    blas.device_address = 0x00000000deadb000ull;
-    TRY(writer->append(record(std::move(blas))));
-    fbs::AccelerationStructureMemoryRequirementsNVT req;
-    req.acceleration_structure = kBlas;
-    req.type = VK_ACCELERATION_STRUCTURE_MEMORY_REQUIREMENTS_TYPE_OBJECT_NV;
-    req.size = 24576;
-    req.alignment = 256;
-    req.memory_type_bits = 0x1;
-    TRY(writer->append(record(req)));
-    fbs::AccelerationStructureBindMemoryT blas_bind;
-    blas_bind.acceleration_structure = kBlas;
-    blas_bind.memory = kDeviceLocalMemory;
-    blas_bind.memory_offset = 0x40000;
-    TRY(writer->append(record(blas_bind)));
-
-    // The cluster build's inputs, and the sizes the driver answered for them.
-    auto triangle_input = [&] {
-        auto in = std::make_unique<fbs::ClusterInputInfoT>();
-        in->max_acceleration_structure_count = kClusters;
-        in->flags = VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_KHR;
-        in->op_type = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
-        in->op_mode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
-        fbs::TriangleClusterInputT t;
-        t.vertex_format = VK_FORMAT_R32G32B32_SFLOAT;
-        t.max_geometry_index_value = 0;
-        t.max_cluster_unique_geometry_count = 1;
-        t.max_cluster_triangle_count = kClusterTriangles;
-        t.max_cluster_vertex_count = kClusterVertices;
-        t.max_total_triangle_count = kClusters * kClusterTriangles;
-        t.max_total_vertex_count = kClusters * kClusterVertices;
-        t.min_position_truncate_bit_count = 0;
-        in->op_input.Set(std::move(t));
-        return in;
-    };
-    fbs::GetClusterBuildSizesT sizes;
-    sizes.input = triangle_input();
-    sizes.acceleration_structure_size = 2 * 8192;
-    sizes.update_scratch_size = 0;
-    sizes.build_scratch_size = 12288;
-    TRY(writer->append(record(std::move(sizes))));
-
-    // srcInfosArray contents: one VkClusterAccelerationStructureBuildTriangleClusterInfoNV per cluster.
-    std::vector<VkClusterAccelerationStructureBuildTriangleClusterInfoNV> infos(kClusters);
+// One VkClusterAccelerationStructureBuildTriangleClusterInfoNV per cluster.
+std::vector<ClusterInfo> cluster_infos(const SampleScene& scene) {
+    std::vector<ClusterInfo> infos(kClusters);
     for (uint32_t c = 0; c < kClusters; ++c) {
-        VkClusterAccelerationStructureBuildTriangleClusterInfoNV& i = infos[c];
+        ClusterInfo& i = infos[c];
         std::memset(&i, 0, sizeof i);
         i.clusterID = 100 + c;
         i.triangleCount = kClusterTriangles;
@@ -274,43 +182,168 @@ TraceError write_sample_trace(const std::string& path) {
         i.baseGeometryIndexAndGeometryFlags.geometryFlags = VK_CLUSTER_ACCELERATION_STRUCTURE_GEOMETRY_OPAQUE_BIT_NV;
         i.indexBufferStride = 1;
         i.vertexBufferStride = 12;
-        i.indexBuffer = address_of(kIndex8Buffer) + c * kClusterTriangles * 3;
-        i.vertexBuffer = address_of(kVertexBuffer) + c * kClusterVertices * 12;
+        i.indexBuffer = scene.address_of(kIndex8Buffer) + c * kClusterTriangles * 3;
+        i.vertexBuffer = scene.address_of(kVertexBuffer) + c * kClusterVertices * 12;
     }
+    return infos;
+}
 
-    fbs::CpuTimestampT cpu_start;
-    cpu_start.clock = 0;
-    cpu_start.nanoseconds = 5'000'000'000ull;
-    cpu_start.label = "frame 0 begin";
-    TRY(writer->append(record(std::move(cpu_start))));
+SampleScene make_scene() {
+    SampleScene scene;
+    scene.vertices = grid_vertices();
+    const std::vector<uint32_t> local = grid_indices();
+    for (uint32_t c = 0; c < kClusters; ++c) {
+        for (uint32_t i : local) {
+            scene.index8.push_back(static_cast<uint8_t>(i));
+            scene.index32.push_back(i + c * kClusterVertices);
+        }
+    }
+    scene.buffers = scene_buffers(scene);
+    scene.infos = cluster_infos(scene);
+    return scene;
+}
 
-    fbs::CommandBufferBeginT begin;
-    begin.command_buffer = kCommandBuffer;
-    begin.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
-    TRY(writer->append(record(begin)));
+#define TRY(expr)                                   \
+    do {                                            \
+        if (TraceError e_ = (expr)) return e_;      \
+    } while (0)
 
-    fbs::GpuTimestampT ts_begin;
-    ts_begin.command_buffer = kCommandBuffer;
-    ts_begin.query_pool = kQueryPool;
-    ts_begin.query = 0;
-    ts_begin.stage_mask = VK_PIPELINE_STAGE_2_TOP_OF_PIPE_BIT;
-    ts_begin.ticks = 900'000'000ull;
-    ts_begin.ticks_valid = true;
-    TRY(writer->append(record(ts_begin)));
+TraceError write_memory(TraceWriter& writer) {
+    fbs::MemoryAllocateT device_memory;
+    device_memory.memory = kDeviceLocalMemory;
+    device_memory.size = 1 << 20;
+    device_memory.memory_type_index = 0;
+    device_memory.allocate_flags = VK_MEMORY_ALLOCATE_DEVICE_ADDRESS_BIT;
+    TRY(writer.append(record(device_memory)));
+    fbs::MemoryAllocateT host_memory;
+    host_memory.memory = kHostMemory;
+    host_memory.size = 64 << 10;
+    host_memory.memory_type_index = 1;
+    host_memory.allocate_flags = VK_MEMORY_ALLOCATE_DEVICE_ADDRESS_BIT;
+    return writer.append(record(host_memory));
+}
 
-    // Staging -> device copy of the infos: input and output hold the same bytes (stored once).
+TraceError write_buffers(TraceWriter& writer, const std::vector<SceneBuffer>& buffers) {
+    for (const SceneBuffer& b : buffers) {
+        fbs::BufferCreateT create;
+        create.buffer = b.handle;
+        create.size = b.size;
+        create.usage = b.usage;
+        create.sharing_mode = VK_SHARING_MODE_EXCLUSIVE;
+        TRY(writer.append(record(create)));
+        fbs::BufferBindMemoryT bind;
+        bind.buffer = b.handle;
+        bind.memory = b.memory;
+        bind.memory_offset = b.memory_offset;
+        bind.device_address = b.address;
+        TRY(writer.append(record(bind)));
+    }
+    return {};
+}
+
+// The NV bottom-level structure over the same triangles (the classic path, for comparison).
+std::unique_ptr<fbs::AccelerationStructureInfoNVT> blas_info(const SampleScene& scene) {
+    auto info = std::make_unique<fbs::AccelerationStructureInfoNVT>();
+    info->type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV;
+    info->flags = VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_NV;
+    auto geometry = std::make_unique<fbs::GeometryNVT>();
+    geometry->geometry_type = VK_GEOMETRY_TYPE_TRIANGLES_NV;
+    geometry->flags = VK_GEOMETRY_OPAQUE_BIT_NV;
+    geometry->triangles = std::make_unique<fbs::GeometryTrianglesNV>(
+        kVertexBuffer, 0, kClusters * kClusterVertices, VK_FORMAT_R32G32B32_SFLOAT, 12, kIndex32Buffer, 0,
+        static_cast<uint32_t>(scene.index32.size()), VK_INDEX_TYPE_UINT32, 0, 0);
+    geometry->aabbs = std::make_unique<fbs::GeometryAabbNV>(0, 0, 24, 0);
+    info->geometries.push_back(std::move(geometry));
+    return info;
+}
+
+// The bottom-level structure's creation, its memory requirements and its binding.
+TraceError write_blas_object(TraceWriter& writer, const SampleScene& scene) {
+    fbs::AccelerationStructureCreateT blas;
+    blas.acceleration_structure = kBlas;
+    blas.api = 0;
+    blas.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV;
+    blas.info = blas_info(scene);
+    blas.device_address = 0x00000000deadb000ull;
+    TRY(writer.append(record(std::move(blas))));
+    fbs::AccelerationStructureMemoryRequirementsNVT req;
+    req.acceleration_structure = kBlas;
+    req.type = VK_ACCELERATION_STRUCTURE_MEMORY_REQUIREMENTS_TYPE_OBJECT_NV;
+    req.size = 24576;
+    req.alignment = 256;
+    req.memory_type_bits = 0x1;
+    TRY(writer.append(record(req)));
+    fbs::AccelerationStructureBindMemoryT blas_bind;
+    blas_bind.acceleration_structure = kBlas;
+    blas_bind.memory = kDeviceLocalMemory;
+    blas_bind.memory_offset = 0x40000;
+    return writer.append(record(blas_bind));
+}
+
+// The cluster build's inputs.
+std::unique_ptr<fbs::ClusterInputInfoT> triangle_input() {
+    auto in = std::make_unique<fbs::ClusterInputInfoT>();
+    in->max_acceleration_structure_count = kClusters;
+    in->flags = VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_KHR;
+    in->op_type = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
+    in->op_mode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+    fbs::TriangleClusterInputT t;
+    t.vertex_format = VK_FORMAT_R32G32B32_SFLOAT;
+    t.max_geometry_index_value = 0;
+    t.max_cluster_unique_geometry_count = 1;
+    t.max_cluster_triangle_count = kClusterTriangles;
+    t.max_cluster_vertex_count = kClusterVertices;
+    t.max_total_triangle_count = kClusters * kClusterTriangles;
+    t.max_total_vertex_count = kClusters * kClusterVertices;
+    t.min_position_truncate_bit_count = 0;
+    in->op_input.Set(std::move(t));
+    return in;
+}
+
+// The sizes the driver answered for the cluster build's inputs.
+TraceError write_cluster_build_sizes(TraceWriter& writer) {
+    fbs::GetClusterBuildSizesT sizes;
+    sizes.input = triangle_input();
+    sizes.acceleration_structure_size = 2 * 8192;
+    sizes.update_scratch_size = 0;
+    sizes.build_scratch_size = 12288;
+    return writer.append(record(std::move(sizes)));
+}
+
+fbs::CpuTimestampT cpu_timestamp(uint64_t nanoseconds, const char* label) {
+    fbs::CpuTimestampT t;
+    t.clock = 0;
+    t.nanoseconds = nanoseconds;
+    t.label = label;
+    return t;
+}
+
+fbs::GpuTimestampT gpu_timestamp(uint32_t query, uint64_t stage_mask, uint64_t ticks) {
+    fbs::GpuTimestampT t;
+    t.command_buffer = kCommandBuffer;
+    t.query_pool = kQueryPool;
+    t.query = query;
+    t.stage_mask = stage_mask;
+    t.ticks = ticks;
+    t.ticks_valid = true;
+    return t;
+}
+
+// Staging -> device copy of the infos: input and output hold the same bytes (stored once).
+TraceError write_info_copy(TraceWriter& writer, const SampleScene& scene) {
     fbs::CmdCopyBufferT copy;
     copy.command_buffer = kCommandBuffer;
     copy.version = 1;
     copy.src_buffer = kStagingBuffer;
     copy.dst_buffer = kInfoBuffer;
-    copy.regions.emplace_back(0, 0, info_bytes);
+    copy.regions.emplace_back(0, 0, scene.info_bytes());
     fbs::MemorySnapshot snap;
-    TRY(writer->snapshot(kStagingBuffer, 0, address_of(kStagingBuffer), infos.data(), info_bytes, &snap));
+    TRY(writer.snapshot(kStagingBuffer, 0, scene.address_of(kStagingBuffer), scene.infos.data(), scene.info_bytes(),
+                        &snap));
     copy.inputs.push_back(snap);
-    TRY(writer->snapshot(kInfoBuffer, 0, address_of(kInfoBuffer), infos.data(), info_bytes, &snap));
+    TRY(writer.snapshot(kInfoBuffer, 0, scene.address_of(kInfoBuffer), scene.infos.data(), scene.info_bytes(), &snap));
     copy.outputs.push_back(snap);
-    TRY(writer->append(record(std::move(copy))));
+    TRY(writer.append(record(std::move(copy))));
 
     fbs::CmdPipelineBarrierT barrier;
     barrier.command_buffer = kCommandBuffer;
@@ -320,33 +353,46 @@ TraceError write_sample_trace(const std::string& path) {
         VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
         VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT,
         VK_QUEUE_FAMILY_IGNORED, VK_QUEUE_FAMILY_IGNORED, kInfoBuffer, 0, VK_WHOLE_SIZE);
-    TRY(writer->append(record(std::move(barrier))));
+    return writer.append(record(std::move(barrier)));
+}
 
-    // The cluster build: two triangle clusters into implicit destinations.
+// The cluster build: two triangle clusters into implicit destinations, with what it read and wrote.
+TraceError write_cluster_build(TraceWriter& writer, const SampleScene& scene) {
     fbs::CmdBuildClusterAccelerationStructureIndirectT build;
     build.command_buffer = kCommandBuffer;
     build.input = triangle_input();
-    build.dst_implicit_data = address_of(kClusterBuffer);
-    build.scratch_data = address_of(kScratchBuffer);
-    build.dst_addresses_array = std::make_unique<fbs::StridedDeviceAddressRegion>(address_of(kDstAddressBuffer), 8, kClusters * 8);
-    build.dst_sizes_array = std::make_unique<fbs::StridedDeviceAddressRegion>(address_of(kDstSizeBuffer), 4, kClusters * 4);
-    build.src_infos_array = std::make_unique<fbs::StridedDeviceAddressRegion>(
-        address_of(kInfoBuffer), sizeof(VkClusterAccelerationStructureBuildTriangleClusterInfoNV), info_bytes);
+    build.dst_implicit_data = scene.address_of(kClusterBuffer);
+    build.scratch_data = scene.address_of(kScratchBuffer);
+    build.dst_addresses_array =
+        std::make_unique<fbs::StridedDeviceAddressRegion>(scene.address_of(kDstAddressBuffer), 8, kClusters * 8);
+    build.dst_sizes_array =
+        std::make_unique<fbs::StridedDeviceAddressRegion>(scene.address_of(kDstSizeBuffer), 4, kClusters * 4);
+    build.src_infos_array = std::make_unique<fbs::StridedDeviceAddressRegion>(scene.address_of(kInfoBuffer),
+                                                                             sizeof(ClusterInfo), scene.info_bytes());
     build.src_infos_count = 0;
     build.address_resolution_flags = VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_NONE_NV;
-    TRY(writer->snapshot(kInfoBuffer, 0, address_of(kInfoBuffer), infos.data(), info_bytes, &snap));
-    build.inputs.push_back(snap);
-    TRY(writer->snapshot(kIndex8Buffer, 0, address_of(kIndex8Buffer), index8.data(), index8.size(), &snap));
-    build.inputs.push_back(snap);
-    TRY(writer->snapshot(kVertexBuffer, 0, address_of(kVertexBuffer), vertices.data(), vertices.size() * 4, &snap));
-    build.inputs.push_back(snap);
-    const uint64_t dst_addresses[kClusters] = {address_of(kClusterBuffer), address_of(kClusterBuffer) + 8192};
+    const uint64_t dst_addresses[kClusters] = {scene.address_of(kClusterBuffer), scene.address_of(kClusterBuffer) + 8192};
     const uint32_t dst_sizes[kClusters] = {7936, 7936};
-    TRY(writer->snapshot(kDstAddressBuffer, 0, address_of(kDstAddressBuffer), dst_addresses, sizeof dst_addresses, &snap));
-    build.outputs.push_back(snap);
-    TRY(writer->snapshot(kDstSizeBuffer, 0, address_of(kDstSizeBuffer), dst_sizes, sizeof dst_sizes, &snap));
-    build.outputs.push_back(snap);
-    TRY(writer->append(record(std::move(build))));
+    struct Piece {
+        uint64_t buffer;
+        const void* bytes;
+        size_t size;
+    };
+    const Piece inputs[] = {{kInfoBuffer, scene.infos.data(), scene.info_bytes()},
+                            {kIndex8Buffer, scene.index8.data(), scene.index8.size()},
+                            {kVertexBuffer, scene.vertices.data(), scene.vertices.size() * 4}};
+    const Piece outputs[] = {{kDstAddressBuffer, dst_addresses, sizeof dst_addresses},
+                             {kDstSizeBuffer, dst_sizes, sizeof dst_sizes}};
+    fbs::MemorySnapshot snap;
+    for (const Piece& p : inputs) {
+        TRY(writer.snapshot(p.buffer, 0, scene.address_of(p.buffer), p.bytes, p.size, &snap));
+        build.inputs.push_back(snap);
+    }
+    for (const Piece& p : outputs) {
+        TRY(writer.snapshot(p.buffer, 0, scene.address_of(p.buffer), p.bytes, p.size, &snap));
+        build.outputs.push_back(snap);
+    }
+    TRY(writer.append(record(std::move(build))));
 
     fbs::CmdPipelineBarrierT as_barrier;
     as_barrier.command_buffer = kCommandBuffer;
@@ -355,31 +401,47 @@ TraceError write_sample_trace(const std::string& path) {
     as_barrier.dependency->memory_barriers.emplace_back(
         VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
         VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR);
-    TRY(writer->append(record(std::move(as_barrier))));
+    return writer.append(record(std::move(as_barrier)));
+}
 
+TraceError write_blas_build(TraceWriter& writer, const SampleScene& scene) {
     fbs::CmdBuildAccelerationStructureNVT nv_build;
     nv_build.command_buffer = kCommandBuffer;
-    nv_build.info = std::move(blas_info);
+    nv_build.info = blas_info(scene);
     nv_build.update = false;
     nv_build.dst = kBlas;
     nv_build.scratch = kBlasScratchBuffer;
     nv_build.scratch_offset = 0;
-    TRY(writer->snapshot(kVertexBuffer, 0, address_of(kVertexBuffer), vertices.data(), vertices.size() * 4, &snap));
+    fbs::MemorySnapshot snap;
+    TRY(writer.snapshot(kVertexBuffer, 0, scene.address_of(kVertexBuffer), scene.vertices.data(),
+                        scene.vertices.size() * 4, &snap));
     nv_build.inputs.push_back(snap);
-    TRY(writer->snapshot(kIndex32Buffer, 0, address_of(kIndex32Buffer), index32.data(), index32.size() * 4, &snap));
+    TRY(writer.snapshot(kIndex32Buffer, 0, scene.address_of(kIndex32Buffer), scene.index32.data(),
+                        scene.index32.size() * 4, &snap));
     nv_build.inputs.push_back(snap);
-    TRY(writer->append(record(std::move(nv_build))));
+    return writer.append(record(std::move(nv_build)));
+}
 
-    fbs::GpuTimestampT ts_end = ts_begin;
-    ts_end.query = 1;
-    ts_end.stage_mask = VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR;
-    ts_end.ticks = 900'000'000ull + 48'250;
-    TRY(writer->append(record(ts_end)));
-
+// The frame's one command buffer: the infos' upload, the cluster build, the classic build,
+// between two GPU timestamps.
+TraceError write_command_buffer(TraceWriter& writer, const SampleScene& scene) {
+    fbs::CommandBufferBeginT begin;
+    begin.command_buffer = kCommandBuffer;
+    begin.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
+    TRY(writer.append(record(begin)));
+    TRY(writer.append(record(gpu_timestamp(0, VK_PIPELINE_STAGE_2_TOP_OF_PIPE_BIT, 900'000'000ull))));
+    TRY(write_info_copy(writer, scene));
+    TRY(write_cluster_build(writer, scene));
+    TRY(write_blas_build(writer, scene));
+    TRY(writer.append(
+        record(gpu_timestamp(1, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, 900'000'000ull + 48'250))));
     fbs::CommandBufferEndT end;
     end.command_buffer = kCommandBuffer;
-    TRY(writer->append(record(end)));
+    return writer.append(record(end));
+}
 
+// The command buffer's submission, the wait for its fence, and a calibration after it.
+TraceError write_submission(TraceWriter& writer) {
     fbs::QueueSubmitT submit;
     submit.queue = kQueue;
     submit.version = 2;
@@ -387,30 +449,44 @@ TraceError write_sample_trace(const std::string& path) {
     batch->command_buffers.push_back(kCommandBuffer);
     submit.batches.push_back(std::move(batch));
     submit.fence = kFence;
-    submit.submission_index = writer->next_submission_index();
+    submit.submission_index = writer.next_submission_index();
     submit.result = VK_SUCCESS;
-    TRY(writer->append(record(std::move(submit))));
+    TRY(writer.append(record(std::move(submit))));
 
     fbs::FenceWaitT wait;
     wait.fences.push_back(kFence);
     wait.wait_all = true;
     wait.timeout = UINT64_MAX;
     wait.result = VK_SUCCESS;
-    TRY(writer->append(record(std::move(wait))));
+    TRY(writer.append(record(std::move(wait))));
 
     fbs::CalibratedTimestampsT calibrated;
     calibrated.gpu_ticks = 900'100'000ull;
     calibrated.cpu_nanoseconds = 5'000'150'000ull;
     calibrated.max_deviation_ns = 1200;
-    TRY(writer->append(record(calibrated)));
+    return writer.append(record(calibrated));
+}
 
-    fbs::CpuTimestampT cpu_end;
-    cpu_end.clock = 0;
-    cpu_end.nanoseconds = 5'000'200'000ull;
-    cpu_end.label = "frame 0 end";
-    TRY(writer->append(record(std::move(cpu_end))));
-#undef TRY
+}  // namespace
+
+TraceError write_sample_trace(const std::string& path) {
+    TraceError error;
+    TraceWriterOptions options;
+    options.chunk_raw_bytes = 8192;  // small chunks so the sample shows several of them
+    options.zstd_level = 19;
+    auto writer = TraceWriter::create(path, sample_header(), options, &error);
+    if (!writer) return error;
+    const SampleScene scene = make_scene();
+    TRY(write_memory(*writer));
+    TRY(write_buffers(*writer, scene.buffers));
+    TRY(write_blas_object(*writer, scene));
+    TRY(write_cluster_build_sizes(*writer));
+    TRY(writer->append(record(cpu_timestamp(5'000'000'000ull, "frame 0 begin"))));
+    TRY(write_command_buffer(*writer, scene));
+    TRY(write_submission(*writer));
+    TRY(writer->append(record(cpu_timestamp(5'000'200'000ull, "frame 0 end"))));
     return writer->finish();
 }
+#undef TRY
 
 }  // namespace clastrace::samples
