@@ -1,4 +1,5 @@
 #include "clastrace/capture/nv_scene_model.h"
+#include <clastrace/common/hex.h>
 
 #include <algorithm>
 #include <cmath>
@@ -183,11 +184,6 @@ void aimRays(RayAim& aim, uint32_t rayCount, uint64_t seed, std::vector<NvTraced
   }
 }
 
-std::string hexHandle(uint64_t handle) {
-  char text[32];
-  std::snprintf(text, sizeof text, "%llx", (unsigned long long)handle);
-  return text;
-}
 
 }  // namespace
 
@@ -291,7 +287,7 @@ bool NvSceneModel::prepare(uint64_t topLevel, uint32_t rayCount, NvTraceScene& s
     auto blas = byDeviceHandle_.find(instance.reference);
     auto model = blas == byDeviceHandle_.end() ? bottomLevels_.end() : bottomLevels_.find(blas->second);
     if (model == bottomLevels_.end()) {
-      why = "instance " + std::to_string(i) + " names bottom level handle 0x" + hexHandle(instance.reference) +
+      why = "instance " + std::to_string(i) + " names bottom level handle " + common::hex(instance.reference) +
             ", whose build the capture did not see";
       return false;
     }
