@@ -1,21 +1,37 @@
 #!/usr/bin/env bash
-# Installs every package clastrace needs from Debian 12's archive, when missing.
+# Installs the packages clastrace needs from Debian 12's archive, when missing.
+#   scripts/deps.sh          what the tool, the layer and the sample application need to build
+#                            and run (scripts/quickstart.sh)
+#   scripts/deps.sh --tests  that, plus what the test suite and benchmarks use (scripts/test.sh)
 # A no-op when all are present; needs root (or sudo) only when something is missing.
 set -euo pipefail
 
-PACKAGES=(
+RUN_PACKAGES=(
   build-essential cmake ninja-build pkg-config git
-  libvulkan-dev vulkan-tools mesa-vulkan-drivers vulkan-validationlayers
+  libvulkan-dev mesa-vulkan-drivers glslang-tools
   libzstd-dev zstd flatbuffers-compiler libflatbuffers-dev libxxhash-dev
   libembree-dev libtbb-dev libmeshoptimizer-dev assimp-testmodels
   libcli11-dev nlohmann-json3-dev libfmt-dev
+)
+# GoogleTest and Google Benchmark; vulkaninfo and the validation layers, which the capture
+# tests run under the layer; an X server for the frame-range tests; chromium and a font for
+# the HTML report tests.
+TEST_PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev
-  glslang-tools xvfb xauth libxcb1-dev
+  vulkan-tools vulkan-validationlayers
+  xvfb xauth libxcb1-dev
   chromium fonts-dejavu-core
 )
 
+packages=("${RUN_PACKAGES[@]}")
+case "${1:-}" in
+  "") ;;
+  --tests) packages+=("${TEST_PACKAGES[@]}") ;;
+  *) echo "usage: scripts/deps.sh [--tests]" >&2; exit 2 ;;
+esac
+
 missing=()
-for p in "${PACKAGES[@]}"; do
+for p in "${packages[@]}"; do
   status=$(dpkg-query -W -f='${Status}' "$p" 2>/dev/null || true)
   [[ "$status" == "install ok installed" ]] || missing+=("$p")
 done

@@ -1,12 +1,14 @@
 #!/usr/bin/env bash
-# First README command: install, build, run the main job on the shipped sample trace, then
-# capture the sample application under the layer on lavapipe, replay and analyze that trace.
+# First README command: install and build only what it runs (scripts/build.sh --run-only: the
+# clastrace tool, the capture layer, the sample application), run the main job on the shipped
+# sample trace, then capture the sample application under the layer on lavapipe, replay and
+# analyze that trace. scripts/test.sh builds the tests into the same build directory.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 build=${CLASTRACE_BUILD_DIR:-$root/build}
 clastrace="$build/tools/clastrace"
 
-"$root/scripts/build.sh"
+"$root/scripts/build.sh" --run-only
 "$clastrace" info "$root/traces/samples/sample.clt"
 "$clastrace" replay "$root/traces/samples/sample.clt"
 "$clastrace" analyze "$root/traces/samples/sample.clt" --html "$build/sample-report.html"
