@@ -122,9 +122,9 @@ def collect_renames(fix_files, part):
             message = d.get("DiagnosticMessage") or {}
             if not message.get("FilePath", "").startswith(prefix):
                 continue
-            m = re.search(r"'([^']+)'", message.get("Message", ""))
+            m = re.search(r"for (.+) '([^']+)'", message.get("Message", ""))
             if m:
-                names.add(m.group(1))
+                names.add((m.group(1) == "enum constant", m.group(2)))
             for r in message.get("Replacements") or []:
                 target = os.path.normpath(r["FilePath"])
                 if not target.startswith(ROOT + os.sep):
@@ -176,7 +176,10 @@ def rename(part, build):
             return
         # Second round: units elsewhere that read one of the names (in their own file or in a
         # header of another part), so that their uses change with the declaration.
-        word = re.compile(r"\b(" + "|".join(map(re.escape, sorted(names))) + r")\b")
+        # Enum values are found by their qualified use (`Kind::value`): bare, names like `ok`
+        # would select nearly every unit.
+        word = re.compile("|".join(("::" if enum else r"\b") + re.escape(name) + r"\b"
+                                   for enum, name in sorted(names)))
         second = set()
         for u, d in deps.items():
             if u in first or not d or not any(p.startswith(part_dir) for p in d):
