@@ -11,6 +11,7 @@ PACKAGES=(
   libcli11-dev nlohmann-json3-dev libfmt-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   glslang-tools xvfb xauth libxcb1-dev
+  clang-format
   chromium fonts-dejavu-core
 )
 
