@@ -8,6 +8,8 @@
 # .hpp -> .h with includes and CMake lists following; #ifndef guards -> #pragma once; the SPDX
 # line first in every .cpp/.h/.c; clang-format -i. abi/ is only given SPDX and clang-format:
 # its names mirror Vulkan's. Idempotent: a second run changes nothing.
+# CLASTRACE_STYLE_NO_RENAME=1 skips the names (no clang-tidy, no compile database): layout,
+# headers and SPDX only.
 #
 # It configures its own build folder ($CLASTRACE_STYLE_BUILD, default build-style) for the
 # compile database and generates the FlatBuffers and SPIR-V headers; it compiles nothing else.
@@ -27,7 +29,7 @@ python3 scripts/style_pass.py files "$part" >/dev/null  # rejects an unknown par
 build=${CLASTRACE_STYLE_BUILD:-$root/build-style}
 start=$SECONDS
 
-if [[ "$part" != abi ]]; then
+if [[ "$part" != abi && -z "${CLASTRACE_STYLE_NO_RENAME:-}" ]]; then
   cmake -S . -B "$build" -G Ninja -DCMAKE_EXPORT_COMPILE_COMMANDS=ON >/dev/null
   # Headers made at build time (FlatBuffers, SPIR-V) must exist for clang-tidy to parse.
   generated=$(ninja -C "$build" -t targets all | awk -F: '/CUSTOM_COMMAND/ && $1 ~ /\.h$/ && $1 !~ /^\// {print $1}')

@@ -91,6 +91,24 @@ def dependencies(entry):
     return deps
 
 
+def cached_dependencies(build, units):
+    """dependencies() of every unit, kept in BUILD between parts: a part's pass changes no
+    include except .hpp -> .h, and an entry naming a file that is gone is scanned again."""
+    cache_path = os.path.join(build, "style_dependencies.json")
+    try:
+        with open(cache_path) as f:
+            cache = {u: set(d) for u, d in json.load(f).items()}
+    except (OSError, ValueError):
+        cache = {}
+    stale = [u for u in units if u not in cache or not all(map(os.path.exists, cache[u]))]
+    with ThreadPoolExecutor(JOBS * 2) as pool:
+        for u, d in zip(stale, pool.map(dependencies, (units[u] for u in stale))):
+            cache[u] = d
+    with open(cache_path, "w") as f:
+        json.dump({u: sorted(d) for u, d in cache.items() if d is not None and u in units}, f)
+    return {u: cache.get(u) for u in units}
+
+
 def run_tidy(build, files, part, fixes_dir):
     """clang-tidy over `files` in parallel; returns the exported-fix files."""
     header_filter = "^" + re.escape(os.path.join(ROOT, part)) + "/"
@@ -155,8 +173,7 @@ def rename(part, build):
     build = os.path.abspath(build)
     units = compile_commands(build)
     part_dir = os.path.join(ROOT, part) + os.sep
-    with ThreadPoolExecutor(JOBS * 2) as pool:
-        deps = dict(zip(units, pool.map(dependencies, units.values())))
+    deps = cached_dependencies(build, units)
     # First round: the part's own translation units, plus one unit for each of the part's
     # headers that none of them reads. It finds every name the part declares wrongly.
     first = {u for u in units if u.startswith(part_dir)}
