@@ -55,13 +55,18 @@ def write(path, text):
 # the part, applied wherever clang-tidy saw a use.
 
 
+def in_tree(path):
+    """A file of ours: under the root, not in a build folder (/build*/ in .gitignore)."""
+    return path.startswith(ROOT + os.sep) and not os.path.relpath(path, ROOT).startswith("build")
+
+
 def compile_commands(build):
     with open(os.path.join(build, "compile_commands.json")) as f:
         entries = json.load(f)
     by_file = {}
     for e in entries:
         path = os.path.normpath(os.path.join(e["directory"], e["file"]))
-        if path.startswith(ROOT + os.sep) and "/build" not in path[len(ROOT):]:
+        if in_tree(path):
             by_file[path] = e
     return by_file
 
@@ -86,7 +91,7 @@ def dependencies(entry):
     deps = set()
     for p in paths:
         p = os.path.normpath(os.path.join(entry["directory"], p))
-        if p.startswith(ROOT + os.sep) and "/build" not in p[len(ROOT):]:
+        if in_tree(p):
             deps.add(p)
     return deps
 
@@ -112,6 +117,8 @@ def cached_dependencies(build, units):
 def run_tidy(build, files, part, fixes_dir):
     """clang-tidy over `files` in parallel; returns the exported-fix files."""
     header_filter = "^" + re.escape(os.path.join(ROOT, part)) + "/"
+
+    os.makedirs(fixes_dir, exist_ok=True)
 
     def one(i_path):
         i, path = i_path
