@@ -158,6 +158,9 @@ def collect_renames(fix_files, part):
     return edits, names
 
 
+IDENTIFIER = re.compile(rb"[A-Za-z_]\w*")
+
+
 def apply_edits(edits):
     changed = 0
     for path, spans in edits.items():
@@ -165,6 +168,10 @@ def apply_edits(edits):
             data = f.read()
         last_start = len(data) + 1
         for (offset, length), text in sorted(spans.items(), reverse=True):
+            # clang-tidy 14 renames a variable that a lambda captures by default by replacing
+            # the capture default ('&' or '='): only identifiers are ever replaced.
+            if not IDENTIFIER.fullmatch(data[offset:offset + length]):
+                continue
             if offset + length > last_start:
                 sys.stderr.write(f"style: overlapping rename at {path}:{offset} skipped\n")
                 continue
