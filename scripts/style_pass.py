@@ -134,6 +134,9 @@ def run_tidy(build, files, part, fixes_dir):
         return [p for p in pool.map(one, enumerate(sorted(files))) if os.path.exists(p)]
 
 
+new_names = {}  # old spelling -> new, of every name renamed so far
+
+
 def collect_renames(fix_files, part):
     """{file: {(offset, length): text}} for the part's declarations; and the old names."""
     import yaml  # python3-yaml; imported here so that `files` needs nothing beyond Python
@@ -150,6 +153,8 @@ def collect_renames(fix_files, part):
             m = re.search(r"for (.+) '([^']+)'", message.get("Message", ""))
             if m:
                 names.add((m.group(1) == "enum constant", m.group(2)))
+                for r in message.get("Replacements") or []:
+                    new_names[m.group(2)] = r["ReplacementText"]
             for r in message.get("Replacements") or []:
                 target = os.path.normpath(r["FilePath"])
                 if not target.startswith(ROOT + os.sep):
@@ -222,8 +227,34 @@ def rename(part, build):
         for path, spans in more.items():
             edits.setdefault(path, {}).update(spans)
         changed = apply_edits(edits)
+        changed_macros = rename_in_macros()
         print(f"style: {part}: {len(names)} names changed in {changed} files "
-              f"({len(first)} + {len(second)} units checked)")
+              f"({len(first)} + {len(second)} units checked); macro bodies fixed in "
+              f"{changed_macros} files")
+
+
+MACRO = re.compile(r"^[ \t]*#[ \t]*define\b(?:[^\n]*\\\n)*[^\n]*", re.M)
+
+
+def rename_in_macros():
+    """clang-tidy leaves uses inside #define bodies alone: rename them by spelling. Only names
+    with an upper-case letter (the camelCase and PascalCase ones), so that a common word is
+    never touched; enum values only where qualified (`Kind::Value`)."""
+    spelled = {o: n for o, n in new_names.items() if re.search(r"[A-Z]", o) and o != n}
+    if not spelled:
+        return 0
+    word = re.compile(r"(?<![\w#])(" + "|".join(map(re.escape, sorted(spelled))) + r")\b")
+    count = 0
+    for part in PARTS:
+        for f in sources(part):
+            text = read(f)
+            if "#" not in text:
+                continue
+            new = MACRO.sub(lambda m: word.sub(lambda w: spelled[w.group(1)], m.group(0)), text)
+            if new != text:
+                write(f, new)
+                count += 1
+    return count
 
 
 # ---------------------------------------------------------------------------------------------
