@@ -154,7 +154,7 @@ def collect_renames(fix_files, part):
             if m:
                 names.add((m.group(1) == "enum constant", m.group(2)))
                 for r in message.get("Replacements") or []:
-                    new_names[m.group(2)] = r["ReplacementText"]
+                    new_names[(m.group(1) == "enum constant", m.group(2))] = r["ReplacementText"]
             for r in message.get("Replacements") or []:
                 target = os.path.normpath(r["FilePath"])
                 if not target.startswith(ROOT + os.sep):
@@ -237,20 +237,35 @@ MACRO = re.compile(r"^[ \t]*#[ \t]*define\b(?:[^\n]*\\\n)*[^\n]*", re.M)
 
 
 def rename_in_macros():
-    """clang-tidy leaves uses inside #define bodies alone: rename them by spelling. Only names
-    with an upper-case letter (the camelCase and PascalCase ones), so that a common word is
-    never touched; enum values only where qualified (`Kind::Value`)."""
-    spelled = {o: n for o, n in new_names.items() if re.search(r"[A-Z]", o) and o != n}
-    if not spelled:
+    """clang-tidy leaves uses inside #define bodies alone: rename them by spelling, only where
+    the spelling says what it is: members and methods after `.` or `->`, enum values after
+    `::`, and only camelCase or PascalCase spellings. A local variable used in a macro is left
+    alone (clang-tidy leaves its declaration alone too)."""
+    def pattern(after, names):
+        if not names:
+            return None
+        return re.compile(after + r"(" + "|".join(map(re.escape, sorted(names))) + r")\b")
+
+    members = {o: n for (enum, o), n in new_names.items() if not enum and re.search("[A-Z]", o)}
+    values = {o: n for (enum, o), n in new_names.items() if enum and o != n}
+    rules = [(p, m) for p, m in ((pattern(r"(?:(?<=\.)|(?<=->))", members), members),
+                                 (pattern(r"(?<=::)", values), values)) if p]
+    if not rules:
         return 0
-    word = re.compile(r"(?<![\w#])(" + "|".join(map(re.escape, sorted(spelled))) + r")\b")
     count = 0
     for part in PARTS:
         for f in sources(part):
             text = read(f)
             if "#" not in text:
                 continue
-            new = MACRO.sub(lambda m: word.sub(lambda w: spelled[w.group(1)], m.group(0)), text)
+
+            def fix(m):
+                body = m.group(0)
+                for p, names in rules:
+                    body = p.sub(lambda w: names[w.group(1)], body)
+                return body
+
+            new = MACRO.sub(fix, text)
             if new != text:
                 write(f, new)
                 count += 1
