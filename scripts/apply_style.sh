@@ -16,7 +16,7 @@
 # clang-tidy runs only where it must: first on the part's own translation units (plus one unit
 # for any header of the part none of them reads), then on units elsewhere that read a name
 # being changed. Times measured on the 2-core machine while six builds shared it (load ~12):
-# abi 1-4 s; capture 304 s (25 capture units, then 16 of tests/ and bench/; 703 names, 62
+# abi 1-4 s; capture 90-300 s (25 capture units, then 16 of tests/ and bench/; 618 names, 62
 # files); the dependency scan of all ~276 units is ~2 min of that and is cached in the build
 # folder for the next part. Not measured: traces and analyze (their snake_case enum values
 # become kPascalCase, so their second round reaches many tests: expect 10-20 min), tests (~150
