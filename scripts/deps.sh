@@ -15,11 +15,12 @@ RUN_PACKAGES=(
 )
 # GoogleTest and Google Benchmark; vulkaninfo and the validation layers, which the capture
 # tests run under the layer; an X server for the frame-range tests; chromium and a font for
-# the HTML report tests.
+# the HTML report tests; clang-format for the style check (style.format).
 TEST_PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev
   vulkan-tools vulkan-validationlayers
   xvfb xauth libxcb1-dev
+  clang-format
   chromium fonts-dejavu-core
 )
 
