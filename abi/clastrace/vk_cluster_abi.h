@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 /* VK_NV_cluster_acceleration_structure, declared for Vulkan headers that predate it.
  *
  * Debian 12 ships Vulkan headers 1.3.239; the extension arrived in 1.4.303 (spec
@@ -6,8 +7,7 @@
  * only the layout checks at the bottom of this file apply.
  *
  * This is the only header of ours that traces/ and engine/ depend on. */
-#ifndef CLASTRACE_VK_CLUSTER_ABI_H
-#define CLASTRACE_VK_CLUSTER_ABI_H
+#pragma once
 
 #include <vulkan/vulkan_core.h>
 
@@ -246,10 +246,10 @@ typedef struct VkRayTracingPipelineClusterAccelerationStructureCreateInfoNV {
     VkBool32        allowClusterAccelerationStructure;
 } VkRayTracingPipelineClusterAccelerationStructureCreateInfoNV;
 
-typedef void (VKAPI_PTR *PFN_vkGetClusterAccelerationStructureBuildSizesNV)(
+typedef void(VKAPI_PTR* PFN_vkGetClusterAccelerationStructureBuildSizesNV)(
     VkDevice device, const VkClusterAccelerationStructureInputInfoNV* pInfo,
     VkAccelerationStructureBuildSizesInfoKHR* pSizeInfo);
-typedef void (VKAPI_PTR *PFN_vkCmdBuildClusterAccelerationStructureIndirectNV)(
+typedef void(VKAPI_PTR* PFN_vkCmdBuildClusterAccelerationStructureIndirectNV)(
     VkCommandBuffer commandBuffer, const VkClusterAccelerationStructureCommandsInfoNV* pCommandInfos);
 
 #endif /* VK_NV_cluster_acceleration_structure */
@@ -279,18 +279,18 @@ CLASTRACE_ABI_ASSERT(sizeof(VkClusterAccelerationStructureBuildClustersBottomLev
 CLASTRACE_ABI_ASSERT(offsetof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV, clusterReferencesStride) == 4);
 CLASTRACE_ABI_ASSERT(offsetof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV, clusterReferences) == 8);
 
-#define CLASTRACE_ABI_TRIANGLE_INFO_OFFSETS(T)                                   \
-    CLASTRACE_ABI_ASSERT(offsetof(T, clusterID) == 0);                            \
-    CLASTRACE_ABI_ASSERT(offsetof(T, clusterFlags) == 4);                         \
-    CLASTRACE_ABI_ASSERT(offsetof(T, baseGeometryIndexAndGeometryFlags) == 12);   \
-    CLASTRACE_ABI_ASSERT(offsetof(T, indexBufferStride) == 16);                   \
-    CLASTRACE_ABI_ASSERT(offsetof(T, vertexBufferStride) == 18);                  \
-    CLASTRACE_ABI_ASSERT(offsetof(T, geometryIndexAndFlagsBufferStride) == 20);   \
-    CLASTRACE_ABI_ASSERT(offsetof(T, opacityMicromapIndexBufferStride) == 22);    \
-    CLASTRACE_ABI_ASSERT(offsetof(T, indexBuffer) == 24);                         \
-    CLASTRACE_ABI_ASSERT(offsetof(T, vertexBuffer) == 32);                        \
-    CLASTRACE_ABI_ASSERT(offsetof(T, geometryIndexAndFlagsBuffer) == 40);         \
-    CLASTRACE_ABI_ASSERT(offsetof(T, opacityMicromapArray) == 48);                \
+#define CLASTRACE_ABI_TRIANGLE_INFO_OFFSETS(T)                                  \
+    CLASTRACE_ABI_ASSERT(offsetof(T, clusterID) == 0);                          \
+    CLASTRACE_ABI_ASSERT(offsetof(T, clusterFlags) == 4);                       \
+    CLASTRACE_ABI_ASSERT(offsetof(T, baseGeometryIndexAndGeometryFlags) == 12); \
+    CLASTRACE_ABI_ASSERT(offsetof(T, indexBufferStride) == 16);                 \
+    CLASTRACE_ABI_ASSERT(offsetof(T, vertexBufferStride) == 18);                \
+    CLASTRACE_ABI_ASSERT(offsetof(T, geometryIndexAndFlagsBufferStride) == 20); \
+    CLASTRACE_ABI_ASSERT(offsetof(T, opacityMicromapIndexBufferStride) == 22);  \
+    CLASTRACE_ABI_ASSERT(offsetof(T, indexBuffer) == 24);                       \
+    CLASTRACE_ABI_ASSERT(offsetof(T, vertexBuffer) == 32);                      \
+    CLASTRACE_ABI_ASSERT(offsetof(T, geometryIndexAndFlagsBuffer) == 40);       \
+    CLASTRACE_ABI_ASSERT(offsetof(T, opacityMicromapArray) == 48);              \
     CLASTRACE_ABI_ASSERT(offsetof(T, opacityMicromapIndexBuffer) == 56)
 
 CLASTRACE_ABI_TRIANGLE_INFO_OFFSETS(VkClusterAccelerationStructureBuildTriangleClusterInfoNV);
@@ -321,5 +321,3 @@ CLASTRACE_ABI_ASSERT(sizeof(VkClusterAccelerationStructureTriangleClusterInputNV
 CLASTRACE_ABI_ASSERT(sizeof(VkClusterAccelerationStructureMoveObjectsInputNV) == 32);
 
 #undef CLASTRACE_ABI_TRIANGLE_INFO_OFFSETS
-
-#endif /* CLASTRACE_VK_CLUSTER_ABI_H */
