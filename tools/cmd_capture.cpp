@@ -102,8 +102,8 @@ struct HeldOutput {
   bool created = false;      // absent before: removed again when nothing was written
   struct stat before {};     // a regular file's state before the application ran
 
-  bool isFile() const { return target.kind == traces::OutputKind::absent || target.kind == traces::OutputKind::regular; }
-  bool hadTrace() const { return !created && target.kind == traces::OutputKind::regular && before.st_size > 0; }
+  bool isFile() const { return target.kind == traces::OutputKind::kAbsent || target.kind == traces::OutputKind::kRegular; }
+  bool hadTrace() const { return !created && target.kind == traces::OutputKind::kRegular && before.st_size > 0; }
 
   // Removes a file this run created and nobody wrote, then lets the lock go.
   void release() {
@@ -162,7 +162,7 @@ int runCapture(const CaptureOptions& o) {
       std::fprintf(stderr, "clastrace capture: %s\n", problem.c_str());
       return kExitUsage;
     }
-    held.created = held.target.kind == traces::OutputKind::absent;
+    held.created = held.target.kind == traces::OutputKind::kAbsent;
     ::fstat(held.fd, &held.before);
   }
   const std::string manifestDir = o.layerPath.empty() ? findManifestDir() : o.layerPath;

@@ -74,7 +74,7 @@ traces::TraceError submission_not_in_trace(const ReplayArgs& args, uint64_t subm
                                                  : std::to_string(submissions) + " submissions (--submit 0 to " +
                                                        std::to_string(submissions - 1) + ")";
     traces::TraceError error;  // not at a file offset: no "offset 0" in the message
-    error.code = traces::TraceErrorCode::invalid_argument;
+    error.code = traces::TraceErrorCode::kInvalidArgument;
     error.message = args.trace + ": --submit " + std::to_string(args.submit) + ": " +
                     (damaged ? "the readable part of the trace holds " + holds +
                                    "; the rest is damaged (clastrace info shows where)"

@@ -114,7 +114,7 @@ Layout layout_of(const Bytes& file) {
         l.chunks.push_back({at, h});
         at += f::kChunkHeaderSize + h.compressed_size;
     }
-    if (l.chunks.empty() || l.chunks.back().header.kind != uint16_t(f::ChunkKind::index)) fail("no index chunk");
+    if (l.chunks.empty() || l.chunks.back().header.kind != uint16_t(f::ChunkKind::kIndex)) fail("no index chunk");
     return l;
 }
 
@@ -153,7 +153,7 @@ Bytes rewrite_chunks(const Bytes& file, const std::function<void(Bytes&)>& patch
     for (const Chunk& c : l.chunks) {
         Bytes raw = decompress(file.data() + c.offset + f::kChunkHeaderSize, c.header.compressed_size, c.header.raw_size);
         Chunk now{out.size(), c.header};
-        if (c.header.kind == uint16_t(f::ChunkKind::records)) {
+        if (c.header.kind == uint16_t(f::ChunkKind::kRecords)) {
             patch_records(raw);
         } else {
             // ChunkLocation {file_offset u64, first_submission u64, 4 x u32 ..., compressed_size u32 at +28}.
@@ -275,7 +275,7 @@ int main(int argc, char** argv) {
     const Bytes prefix(base.begin(), base.begin() + l.data_start);
     f::ChunkHeader records{};
     records.magic = f::kChunkMagic;
-    records.kind = uint16_t(f::ChunkKind::records);
+    records.kind = uint16_t(f::ChunkKind::kRecords);
     records.record_count = 1;
     records.raw_size = f::kMaxChunkRawBytes;
     Bytes bomb = prefix;

@@ -66,7 +66,7 @@ std::vector<uint8_t> make_chunk(const std::vector<uint8_t>& raw, uint32_t number
     compressed.resize(n);
     f::ChunkHeader h{};
     h.magic = f::kChunkMagic;
-    h.kind = static_cast<uint16_t>(f::ChunkKind::records);
+    h.kind = static_cast<uint16_t>(f::ChunkKind::kRecords);
     h.chunk_number = number;
     h.record_count = records;
     h.raw_size = static_cast<uint32_t>(raw.size());
@@ -114,7 +114,7 @@ protected:
         file_ = read_file(path_);
         chunks_ = chunks_of(file_);
         ASSERT_GE(chunks_.size(), 6u);  // several record chunks + the index chunk
-        ASSERT_EQ(chunks_.back().header.kind, static_cast<uint16_t>(f::ChunkKind::index));
+        ASSERT_EQ(chunks_.back().header.kind, static_cast<uint16_t>(f::ChunkKind::kIndex));
         total_records_ = records_in(chunks_, chunks_.size() - 1);
         ReadResult clean = read_all_memory(file_);
         ASSERT_EQ(clean.damage_count, 0u) << describe(clean.damage);
@@ -131,7 +131,7 @@ protected:
 TEST(TraceDamage, EmptyFileIsAnError) {
     ReadResult r = read_all_memory({});
     EXPECT_FALSE(r.opened);
-    EXPECT_EQ(r.open_error.code, TraceErrorCode::truncated);
+    EXPECT_EQ(r.open_error.code, TraceErrorCode::kTruncated);
     EXPECT_NE(r.open_error.message.find("empty file"), std::string::npos) << r.open_error.message;
 }
 
@@ -140,10 +140,10 @@ TEST(TraceDamage, WrongMagicIsNotATrace) {
     file[0] = 'X';
     ReadResult r = read_all_memory(file);
     EXPECT_FALSE(r.opened);
-    EXPECT_EQ(r.open_error.code, TraceErrorCode::not_a_trace);
+    EXPECT_EQ(r.open_error.code, TraceErrorCode::kNotATrace);
     EXPECT_EQ(r.open_error.message, "memory.clt: offset 0: not a clastrace trace (wrong magic)");
     std::vector<uint8_t> text = {'h', 'e', 'l', 'l', 'o', ' ', 'w', 'o', 'r', 'l', 'd', '\n'};
-    EXPECT_EQ(read_all_memory(text).open_error.code, TraceErrorCode::not_a_trace);
+    EXPECT_EQ(read_all_memory(text).open_error.code, TraceErrorCode::kNotATrace);
 }
 
 TEST(TraceDamage, NewerMajorVersionIsRefused) {
@@ -152,7 +152,7 @@ TEST(TraceDamage, NewerMajorVersionIsRefused) {
     std::memcpy(file.data() + 8, &major, 2);
     ReadResult r = read_all_memory(file);
     EXPECT_FALSE(r.opened);
-    EXPECT_EQ(r.open_error.code, TraceErrorCode::unsupported_version);
+    EXPECT_EQ(r.open_error.code, TraceErrorCode::kUnsupportedVersion);
     EXPECT_EQ(r.open_error.file_offset, 8u);
     EXPECT_NE(r.open_error.message.find("format version 2."), std::string::npos) << r.open_error.message;
     EXPECT_NE(r.open_error.message.find("is not supported (this reader reads 1.x)"), std::string::npos) << r.open_error.message;
@@ -180,7 +180,7 @@ TEST_F(DamagedTrace, CutAtEveryChunkBoundaryKeepsEveryCompleteChunk) {
         ReadResult r = read_all_memory(cut);
         ASSERT_TRUE(r.opened) << i;
         EXPECT_EQ(r.records.size(), records_in(chunks_, i)) << "cut before chunk " << i;
-        EXPECT_TRUE(has_damage(r, TraceErrorCode::truncated, cut.size())) << describe(r.damage);
+        EXPECT_TRUE(has_damage(r, TraceErrorCode::kTruncated, cut.size())) << describe(r.damage);
         EXPECT_FALSE(r.has_index);
     }
 }
@@ -195,8 +195,8 @@ TEST_F(DamagedTrace, CutInsideChunksKeepsTheChunksBefore) {
             ASSERT_TRUE(r.opened);
             EXPECT_EQ(r.records.size(), records_in(chunks_, i)) << "cut at " << at << " inside chunk " << i;
             // The cut chunk is named by its own offset (header cut) or its size field.
-            bool named = has_damage(r, TraceErrorCode::truncated, c.offset) ||
-                         has_damage(r, TraceErrorCode::truncated, c.offset + offsetof(f::ChunkHeader, compressed_size));
+            bool named = has_damage(r, TraceErrorCode::kTruncated, c.offset) ||
+                         has_damage(r, TraceErrorCode::kTruncated, c.offset + offsetof(f::ChunkHeader, compressed_size));
             EXPECT_TRUE(named) << "cut at " << at << "\n" << describe(r.damage);
         }
     }
@@ -234,7 +234,7 @@ TEST_F(DamagedTrace, FlippedBitInAChunkIsReportedAndTheOtherChunksRead) {
         ReadResult r = read_all_memory(file);
         ASSERT_TRUE(r.opened);
         EXPECT_EQ(r.records.size(), total_records_ - c.header.record_count) << "flip in chunk " << i;
-        ASSERT_TRUE(has_damage(r, TraceErrorCode::checksum_mismatch, c.offset + f::kChunkHeaderSize)) << describe(r.damage);
+        ASSERT_TRUE(has_damage(r, TraceErrorCode::kChecksumMismatch, c.offset + f::kChunkHeaderSize)) << describe(r.damage);
         const std::string expect = "memory.clt: offset " + std::to_string(c.offset + f::kChunkHeaderSize) + ": chunk " +
                                    std::to_string(i) + " checksum mismatch (stored 0x";
         EXPECT_EQ(r.damage[0].message.rfind(expect, 0), 0u) << r.damage[0].message;
@@ -248,7 +248,7 @@ TEST_F(DamagedTrace, FlippedBitInAChunkHeaderIsReportedAndReadingResumes) {
         ReadResult r = read_all_memory(file);
         ASSERT_TRUE(r.opened);
         EXPECT_EQ(r.records.size(), total_records_ - chunks_[i].header.record_count);
-        EXPECT_TRUE(has_damage(r, TraceErrorCode::checksum_mismatch, chunks_[i].offset)) << describe(r.damage);
+        EXPECT_TRUE(has_damage(r, TraceErrorCode::kChecksumMismatch, chunks_[i].offset)) << describe(r.damage);
     }
 }
 
@@ -284,7 +284,7 @@ TEST_F(DamagedTrace, ChunkClaimingTwoGibibytesIsRefusedBeforeAllocating) {
         ReadResult r = read_all_memory(file);
         ASSERT_TRUE(r.opened);
         uint64_t field = chunks_[2].offset + (raw_field ? offsetof(f::ChunkHeader, raw_size) : offsetof(f::ChunkHeader, compressed_size));
-        EXPECT_TRUE(has_damage(r, TraceErrorCode::length_out_of_range, field)) << describe(r.damage);
+        EXPECT_TRUE(has_damage(r, TraceErrorCode::kLengthOutOfRange, field)) << describe(r.damage);
         // Resynchronisation finds chunk 3 again: only chunk 2's records are lost.
         EXPECT_EQ(r.records.size(), total_records_ - chunks_[2].header.record_count);
     }
@@ -296,7 +296,7 @@ TEST(TraceDamage, TraceHeaderClaimingTwoGibibytesIsReported) {
     std::memcpy(file.data() + 12, &huge, 4);
     ReadResult r = read_all_memory(file);
     ASSERT_TRUE(r.opened);
-    EXPECT_TRUE(has_damage(r, TraceErrorCode::length_out_of_range, 12)) << describe(r.damage);
+    EXPECT_TRUE(has_damage(r, TraceErrorCode::kLengthOutOfRange, 12)) << describe(r.damage);
 }
 
 TEST(TraceDamage, RecordClaimingTwoGibibytesIsReported) {
@@ -317,9 +317,9 @@ TEST(TraceDamage, RecordClaimingTwoGibibytesIsReported) {
     ReadResult read = read_all_memory(file);
     ASSERT_TRUE(read.opened);
     EXPECT_EQ(read.records.size(), 1u);
-    ASSERT_TRUE(has_damage(read, TraceErrorCode::length_out_of_range, chunk_at)) << describe(read.damage);
+    ASSERT_TRUE(has_damage(read, TraceErrorCode::kLengthOutOfRange, chunk_at)) << describe(read.damage);
     auto it = std::find_if(read.damage.begin(), read.damage.end(),
-                           [](const TraceError& e) { return e.code == TraceErrorCode::length_out_of_range; });
+                           [](const TraceError& e) { return e.code == TraceErrorCode::kLengthOutOfRange; });
     EXPECT_NE(it->message.find("record 1 (raw offset " + std::to_string(second) + "): claims 2147483648 bytes"),
               std::string::npos)
         << it->message;
@@ -342,7 +342,7 @@ TEST(TraceDamage, SnapshotOfMissingContentsIsReportedWithItsChunk) {
     file.insert(file.end(), chunk.begin(), chunk.end());
     ReadResult read = read_all_memory(file);
     ASSERT_TRUE(read.opened);
-    ASSERT_TRUE(has_damage(read, TraceErrorCode::missing_contents, chunk_at)) << describe(read.damage);
+    ASSERT_TRUE(has_damage(read, TraceErrorCode::kMissingContents, chunk_at)) << describe(read.damage);
     EXPECT_NE(describe(read.damage).find("refers to contents 0xfeedfacecafebeef that no earlier record defines"),
               std::string::npos);
     ASSERT_EQ(read.records.size(), 1u);  // the copy is not handed out, the record after it is
@@ -361,7 +361,7 @@ TEST(TraceDamage, ContentsThatDoNotHashToTheirKeyAreReported) {
     std::vector<uint8_t> chunk = make_chunk(raw, 0, 1);
     file.insert(file.end(), chunk.begin(), chunk.end());
     ReadResult read = read_all_memory(file);
-    EXPECT_TRUE(has_damage(read, TraceErrorCode::content_mismatch)) << describe(read.damage);
+    EXPECT_TRUE(has_damage(read, TraceErrorCode::kContentMismatch)) << describe(read.damage);
     EXPECT_TRUE(read.records.empty());
 
     // The faster setting trusts the writer's keys: the chunk checksum still holds, so
@@ -389,7 +389,7 @@ TEST(TraceDamage, RecordFailingTheVerifierIsSkippedAndTheNextOneRead) {
     std::vector<uint8_t> chunk = make_chunk(raw, 0, 2);
     file.insert(file.end(), chunk.begin(), chunk.end());
     ReadResult read = read_all_memory(file);
-    ASSERT_TRUE(has_damage(read, TraceErrorCode::invalid_record, chunk_at)) << describe(read.damage);
+    ASSERT_TRUE(has_damage(read, TraceErrorCode::kInvalidRecord, chunk_at)) << describe(read.damage);
     EXPECT_NE(describe(read.damage).find("fails the FlatBuffers verifier"), std::string::npos);
     ASSERT_EQ(read.records.size(), 1u);
 }
@@ -400,7 +400,7 @@ TEST_F(DamagedTrace, BytesAfterTheTrailerAreReported) {
     ReadResult r = read_all_memory(file);
     ASSERT_TRUE(r.opened);
     EXPECT_EQ(r.records.size(), total_records_);
-    EXPECT_TRUE(has_damage(r, TraceErrorCode::trailing_bytes, file_.size())) << describe(r.damage);
+    EXPECT_TRUE(has_damage(r, TraceErrorCode::kTrailingBytes, file_.size())) << describe(r.damage);
 }
 
 TEST_F(DamagedTrace, ReorderedChunksAreReported) {
@@ -411,16 +411,16 @@ TEST_F(DamagedTrace, ReorderedChunksAreReported) {
     file.insert(file.end(), file_.begin() + static_cast<long>(chunks_[3].offset), file_.end());
     ReadResult r = read_all_memory(file);
     ASSERT_TRUE(r.opened);
-    EXPECT_TRUE(has_damage(r, TraceErrorCode::bad_chunk)) << describe(r.damage);
+    EXPECT_TRUE(has_damage(r, TraceErrorCode::kBadChunk)) << describe(r.damage);
 }
 
 TEST(TraceDamage, UnreadableFileIsAnError) {
     TraceError e;
     EXPECT_FALSE(TraceReader::open("/nonexistent/dir/x.clt", &e));
-    EXPECT_EQ(e.code, TraceErrorCode::io_error);
+    EXPECT_EQ(e.code, TraceErrorCode::kIoError);
     EXPECT_EQ(e.message, "/nonexistent/dir/x.clt: offset 0: cannot open: No such file or directory");
     EXPECT_FALSE(TraceReader::open("/", &e));
-    EXPECT_EQ(e.code, TraceErrorCode::io_error);
+    EXPECT_EQ(e.code, TraceErrorCode::kIoError);
 }
 
 }  // namespace

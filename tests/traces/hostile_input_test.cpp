@@ -54,7 +54,7 @@ public:
     // A records chunk of any raw bytes (zeros, broken frames) claiming `records` records.
     uint64_t add_raw(const std::vector<uint8_t>& raw, uint32_t records, uint32_t submissions = 0) {
         const uint64_t at = file_.size();
-        f::ChunkHeader h = append_chunk(raw, f::ChunkKind::records, records, submissions_);
+        f::ChunkHeader h = append_chunk(raw, f::ChunkKind::kRecords, records, submissions_);
         index_.chunks.emplace_back(at, submissions_, submissions, records, h.raw_size, h.compressed_size);
         index_.record_count += records;
         submissions_ += submissions;
@@ -71,7 +71,7 @@ public:
         std::vector<uint8_t> raw(b.GetBufferPointer(), b.GetBufferPointer() + b.GetSize());
         std::vector<uint8_t> file = file_;
         const uint64_t index_at = file.size();
-        append_chunk_to(file, raw, f::ChunkKind::index, 0, index.submission_count,
+        append_chunk_to(file, raw, f::ChunkKind::kIndex, 0, index.submission_count,
                         static_cast<uint32_t>(index.chunks.size()));
         append_trailer(file, index_at);
         return file;
@@ -208,7 +208,7 @@ TEST(HostileTrace, ZeroBombChunksStopAtTheDecompressionBudget) {
     EXPECT_LE(r.stats.raw_bytes_decompressed, options.max_raw_bytes);
     EXPECT_EQ(r.stats.raw_budget, options.max_raw_bytes);
     // Chunks 0 and 1 fit, chunk 2 would pass 20 MiB: reading stops there, said once.
-    const TraceError* over = find_damage(r, TraceErrorCode::length_out_of_range, "past the budget");
+    const TraceError* over = find_damage(r, TraceErrorCode::kLengthOutOfRange, "past the budget");
     ASSERT_NE(over, nullptr) << describe(r.damage);
     EXPECT_EQ(over->file_offset, offsets[2]);
     EXPECT_NE(over->message.find("chunk 2 would inflate"), std::string::npos) << over->message;
@@ -224,7 +224,7 @@ TEST(HostileTrace, ChunkOfZerosCostsAFewProblemsNotOnePerFrame) {
     // 131072 frames of size 0 would each fail the verifier: the chunk stops after a few.
     EXPECT_LE(r.damage_count, 8u) << describe(r.damage);
     EXPECT_LE(r.stats.records_damaged, 8u);
-    const TraceError* stop = find_damage(r, TraceErrorCode::invalid_record, "broken record frames");
+    const TraceError* stop = find_damage(r, TraceErrorCode::kInvalidRecord, "broken record frames");
     ASSERT_NE(stop, nullptr) << describe(r.damage);
     EXPECT_EQ(stop->file_offset, zero_chunk);
     EXPECT_NE(stop->message.find("raw bytes of the chunk are skipped"), std::string::npos) << stop->message;
@@ -235,13 +235,13 @@ TEST(HostileTrace, IndexLargerThanTheFileCanNeedIsRefusedBeforeDecompressing) {
     CraftedTrace t = three_chunks();
     std::vector<uint8_t> file = t.file();
     const uint64_t index_at = file.size();
-    f::ChunkHeader h = CraftedTrace::append_chunk_to(file, std::vector<uint8_t>(64, 0), f::ChunkKind::index, 0, 6, 3);
+    f::ChunkHeader h = CraftedTrace::append_chunk_to(file, std::vector<uint8_t>(64, 0), f::ChunkKind::kIndex, 0, 6, 3);
     h.raw_size = 1u << 30;  // within the format's 1 GiB limit, far past what a small file indexes
     h.header_checksum = f::chunk_header_checksum(h);
     std::memcpy(file.data() + index_at, &h, sizeof h);
     CraftedTrace::append_trailer(file, index_at);
     Read r = read(file);
-    const TraceError* e = find_damage(r, TraceErrorCode::length_out_of_range, "an index of a file of");
+    const TraceError* e = find_damage(r, TraceErrorCode::kLengthOutOfRange, "an index of a file of");
     ASSERT_NE(e, nullptr) << describe(r.damage);
     EXPECT_EQ(e->file_offset, index_at + offsetof(f::ChunkHeader, raw_size));
     EXPECT_LT(r.stats.raw_bytes_decompressed, 1u << 20);
@@ -265,13 +265,13 @@ TEST(HostileTrace, RecordsChunkRelabelledAsIndexIsDamageAndLaterChunksStillRead)
         std::memcpy(relabelled.data() + at, &h, sizeof h);
         Read r = read(relabelled);
         EXPECT_EQ(r.submission_indices, (std::vector<uint64_t>{0, 1, 4, 5})) << "kind " << kind;
-        EXPECT_NE(find_damage(r, TraceErrorCode::bad_index, "that the scan did not read as one"), nullptr)
+        EXPECT_NE(find_damage(r, TraceErrorCode::kBadIndex, "that the scan did not read as one"), nullptr)
             << describe(r.damage);
         if (kind == 2) {
-            EXPECT_NE(find_damage(r, TraceErrorCode::bad_index, "index chunk here but the trailer points"), nullptr)
+            EXPECT_NE(find_damage(r, TraceErrorCode::kBadIndex, "index chunk here but the trailer points"), nullptr)
                 << describe(r.damage);
         } else {
-            EXPECT_NE(find_damage(r, TraceErrorCode::bad_chunk, "has kind 3, which format 1.2 does not define"),
+            EXPECT_NE(find_damage(r, TraceErrorCode::kBadChunk, "has kind 3, which format 1.2 does not define"),
                       nullptr)
                 << describe(r.damage);
         }
@@ -315,7 +315,7 @@ TEST(HostileTrace, IndexDisagreeingWithTheChunksIsBadIndex) {
     };
     for (const Case& c : cases) {
         Read r = read(three_chunks().finish(c.edit));
-        EXPECT_NE(find_damage(r, TraceErrorCode::bad_index, c.message), nullptr) << c.name << "\n" << describe(r.damage);
+        EXPECT_NE(find_damage(r, TraceErrorCode::kBadIndex, c.message), nullptr) << c.name << "\n" << describe(r.damage);
         EXPECT_EQ(r.submissions, 6u) << c.name;
     }
 }
@@ -337,7 +337,7 @@ TEST(HostileTrace, DuplicatedChunkIsSkippedSoNoSubmissionRepeats) {
     dup.insert(dup.end(), file.begin() + static_cast<long>(third), file.end());
     Read r = read(dup);
     EXPECT_EQ(r.submission_indices, (std::vector<uint64_t>{0, 1, 2, 3, 4, 5}));
-    const TraceError* e = find_damage(r, TraceErrorCode::bad_chunk, "records are skipped");
+    const TraceError* e = find_damage(r, TraceErrorCode::kBadChunk, "records are skipped");
     ASSERT_NE(e, nullptr) << describe(r.damage);
     EXPECT_EQ(e->file_offset, third);
 }
@@ -455,7 +455,7 @@ TEST(HostileTraceCli, CapturedChunkRepeatedAfterALaterSubmissionIsDamageNotUnrea
     }
     ASSERT_GE(chunks.size(), 4u);
     const Place& index = chunks.back();
-    ASSERT_EQ(index.header.kind, static_cast<uint16_t>(f::ChunkKind::index));
+    ASSERT_EQ(index.header.kind, static_cast<uint16_t>(f::ChunkKind::kIndex));
     // The chunk before the first one starting at submission 1 holds QueueSubmit 0.
     auto holding_first = std::find_if(chunks.begin(), chunks.end() - 1,
                                       [](const Place& p) { return p.header.first_submission == 1; });

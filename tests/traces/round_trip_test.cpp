@@ -116,7 +116,7 @@ TEST(TraceRoundTrip, IdenticalSnapshotsAreStoredOnce) {
     EXPECT_EQ(got, bytes);
     ASSERT_FALSE(reader->read_contents(s3.hash(), &got));
     EXPECT_EQ(got, copy);
-    EXPECT_EQ(reader->read_contents(0x1234, &got).code, TraceErrorCode::missing_contents);
+    EXPECT_EQ(reader->read_contents(0x1234, &got).code, TraceErrorCode::kMissingContents);
 }
 
 TEST(TraceRoundTrip, HashCollisionsGetDistinctKeysAndTheRightBytes) {
@@ -197,7 +197,7 @@ TEST(TraceRoundTrip, ManyChunksAndSeekToEverySubmission) {
             EXPECT_EQ(bytes.size(), 3u * 256u * 4u);
         }
     }
-    EXPECT_EQ(reader->seek_to_submission(40).code, TraceErrorCode::invalid_argument);
+    EXPECT_EQ(reader->seek_to_submission(40).code, TraceErrorCode::kInvalidArgument);
     EXPECT_EQ(reader->damage_count(), 0u) << describe(reader->damage());
 }
 
@@ -222,7 +222,7 @@ TEST(TraceWriterRules, RejectsMisuse) {
     TraceWriterOptions bad;
     bad.chunk_raw_bytes = 10;
     EXPECT_FALSE(TraceWriter::create(path, test_header(), bad, &e));
-    EXPECT_EQ(e.code, TraceErrorCode::invalid_argument);
+    EXPECT_EQ(e.code, TraceErrorCode::kInvalidArgument);
 
     auto w = TraceWriter::create(path, test_header(), {}, &e);
     ASSERT_TRUE(w);
@@ -230,21 +230,21 @@ TEST(TraceWriterRules, RejectsMisuse) {
     submit.submission_index = 3;  // the first must be 0
     fbs::RecordT r;
     r.body.Set(std::move(submit));
-    EXPECT_EQ(w->append(r).code, TraceErrorCode::invalid_argument);
+    EXPECT_EQ(w->append(r).code, TraceErrorCode::kInvalidArgument);
     fbs::MemoryContentsT contents;
     contents.hash = 1;
     fbs::RecordT c;
     c.body.Set(std::move(contents));
-    EXPECT_EQ(w->append(c).code, TraceErrorCode::invalid_argument);  // contents go through add_contents
+    EXPECT_EQ(w->append(c).code, TraceErrorCode::kInvalidArgument);  // contents go through add_contents
     fbs::RecordT empty;
-    EXPECT_EQ(w->append(empty).code, TraceErrorCode::invalid_argument);
+    EXPECT_EQ(w->append(empty).code, TraceErrorCode::kInvalidArgument);
     const uint8_t garbage[16] = {0xff, 0xff, 0xff, 0x7f};
-    EXPECT_EQ(w->append_record_bytes(garbage, sizeof garbage).code, TraceErrorCode::invalid_argument);
+    EXPECT_EQ(w->append_record_bytes(garbage, sizeof garbage).code, TraceErrorCode::kInvalidArgument);
     ASSERT_FALSE(w->finish());
     fbs::CommandBufferEndT end;
     fbs::RecordT er;
     er.body.Set(end);
-    EXPECT_EQ(w->append(er).code, TraceErrorCode::invalid_argument);  // after finish
+    EXPECT_EQ(w->append(er).code, TraceErrorCode::kInvalidArgument);  // after finish
 }
 
 TEST(TraceWriterRules, DiskFullSurfacesAsAnError) {
@@ -252,7 +252,7 @@ TEST(TraceWriterRules, DiskFullSurfacesAsAnError) {
     TraceError e;
     auto w = TraceWriter::create("/dev/full", test_header(), {}, &e);
     if (!w) {
-        EXPECT_EQ(e.code, TraceErrorCode::io_error);
+        EXPECT_EQ(e.code, TraceErrorCode::kIoError);
         EXPECT_NE(e.message.find("No space left"), std::string::npos) << e.message;
         return;
     }
@@ -286,13 +286,13 @@ TEST(TraceWriterRules, WriteFailureInTheBackgroundIsReportedByAppendOrFinish) {
         }
         TraceError at_finish = w->finish();
         if (!first) first = at_finish;
-        EXPECT_EQ(at_finish.code, TraceErrorCode::io_error) << at_finish.message;
+        EXPECT_EQ(at_finish.code, TraceErrorCode::kIoError) << at_finish.message;
     } else {
         first = e;
     }
     setrlimit(RLIMIT_FSIZE, &old);
     std::signal(SIGXFSZ, old_handler);
-    EXPECT_EQ(first.code, TraceErrorCode::io_error);
+    EXPECT_EQ(first.code, TraceErrorCode::kIoError);
     EXPECT_NE(first.message.find("File too large"), std::string::npos) << first.message;
     EXPECT_NE(first.message.find("efbig.clt: offset "), std::string::npos) << first.message;
     // What did reach the disk still reads back up to the damage.

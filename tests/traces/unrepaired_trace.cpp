@@ -71,7 +71,7 @@ void write_unrepaired_trace(const std::string& path, const fbs::TraceHeaderT& he
     auto seal = [&] {
         if (open.raw.empty()) return;
         const uint64_t offset = file.bytes.size();
-        const uint32_t csize = file.append_chunk(open.raw, f::ChunkKind::records, static_cast<uint32_t>(chunks.size()),
+        const uint32_t csize = file.append_chunk(open.raw, f::ChunkKind::kRecords, static_cast<uint32_t>(chunks.size()),
                                                  open.records, open.first_submission);
         chunks.emplace_back(offset, open.first_submission, open.submissions, open.records,
                             static_cast<uint32_t>(open.raw.size()), csize);
@@ -105,7 +105,7 @@ void write_unrepaired_trace(const std::string& path, const fbs::TraceHeaderT& he
     const std::vector<uint8_t> index(ib.GetBufferPointer(), ib.GetBufferPointer() + ib.GetSize());
     const uint64_t index_offset = file.bytes.size();
     const uint32_t index_size =
-        file.append_chunk(index, f::ChunkKind::index, static_cast<uint32_t>(chunks.size()), 0, submissions);
+        file.append_chunk(index, f::ChunkKind::kIndex, static_cast<uint32_t>(chunks.size()), 0, submissions);
     const f::Trailer t = f::sealed_trailer(index_offset, index_offset + f::kChunkHeaderSize + index_size);
     file.append(&t, sizeof t);
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "sample_scene.h"
 
 #include <clastrace/traces/trace_writer.h>
@@ -15,14 +16,16 @@ namespace {
 
 // Handles and device addresses as a driver might hand them out.
 constexpr uint64_t kDeviceLocalMemory = 0x1001, kHostMemory = 0x1002;
-constexpr uint64_t kVertexBuffer = 0x2001, kIndex8Buffer = 0x2002, kIndex32Buffer = 0x2003, kStagingBuffer = 0x2004,
-                   kInfoBuffer = 0x2005, kClusterBuffer = 0x2006, kDstAddressBuffer = 0x2007, kDstSizeBuffer = 0x2008,
-                   kScratchBuffer = 0x2009, kBlasScratchBuffer = 0x200a;
-constexpr uint64_t kBlas = 0x3001, kCommandBuffer = 0x4001, kQueue = 0x5001, kFence = 0x6001, kQueryPool = 0x7001;
+constexpr uint64_t kVertexBuffer = 0x2001, kIndex8Buffer = 0x2002, kIndex32Buffer = 0x2003,
+                   kStagingBuffer = 0x2004, kInfoBuffer = 0x2005, kClusterBuffer = 0x2006,
+                   kDstAddressBuffer = 0x2007, kDstSizeBuffer = 0x2008, kScratchBuffer = 0x2009,
+                   kBlasScratchBuffer = 0x200a;
+constexpr uint64_t kBlas = 0x3001, kCommandBuffer = 0x4001, kQueue = 0x5001, kFence = 0x6001,
+                   kQueryPool = 0x7001;
 constexpr uint64_t kAddressBase = 0x00007f3a00000000ull;
 
-constexpr uint32_t kGrid = 9;                               // 9x9 vertices per cluster
-constexpr uint32_t kClusterVertices = kGrid * kGrid;        // 81
+constexpr uint32_t kGrid = 9;                                          // 9x9 vertices per cluster
+constexpr uint32_t kClusterVertices = kGrid * kGrid;                   // 81
 constexpr uint32_t kClusterTriangles = (kGrid - 1) * (kGrid - 1) * 2;  // 128
 constexpr uint32_t kClusters = 2;
 
@@ -59,10 +62,14 @@ fbs::TraceHeaderT sample_header() {
     for (int i = 0; i < 16; ++i) d.pipeline_cache_uuid[i] = static_cast<uint8_t>(0xa0 + i);
     d.timestamp_period_ns = 1.0f;
     d.memory_types = {fbs::MemoryType(VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT, 0),
-                      fbs::MemoryType(VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT, 1)};
-    d.memory_heaps = {fbs::MemoryHeap(16ull << 30, VK_MEMORY_HEAP_DEVICE_LOCAL_BIT), fbs::MemoryHeap(64ull << 30, 0)};
-    d.enabled_extensions = {VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME, "VK_KHR_acceleration_structure",
-                            "VK_NV_ray_tracing", "VK_KHR_synchronization2", "VK_KHR_buffer_device_address"};
+                      fbs::MemoryType(VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT |
+                                          VK_MEMORY_PROPERTY_HOST_COHERENT_BIT,
+                                      1)};
+    d.memory_heaps = {fbs::MemoryHeap(16ull << 30, VK_MEMORY_HEAP_DEVICE_LOCAL_BIT),
+                      fbs::MemoryHeap(64ull << 30, 0)};
+    d.enabled_extensions = {VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME,
+                            "VK_KHR_acceleration_structure", "VK_NV_ray_tracing",
+                            "VK_KHR_synchronization2", "VK_KHR_buffer_device_address"};
     d.cluster_features = std::make_unique<fbs::ClusterFeaturesT>();
     d.cluster_features->cluster_acceleration_structure_supported = true;
     d.cluster_features->cluster_acceleration_structure_enabled = true;
@@ -89,7 +96,8 @@ fbs::TraceHeaderT sample_header() {
     h.capture->application_name = "cluster-grid";
     h.capture->engine_name = "clastrace sample generator";
     h.capture->capture_tool = "clastrace-make-sample";
-    h.capture->start_time_unix_ns = 1'764'000'000'000'000'000ull;  // fixed: the sample is reproducible
+    h.capture->start_time_unix_ns =
+        1'764'000'000'000'000'000ull;  // fixed: the sample is reproducible
     h.capture->snapshot_policy = "inputs+outputs";
     return h;
 }
@@ -143,21 +151,27 @@ struct SampleScene {
 
 // The buffers, placed in their memory; those with device addresses get them from kAddressBase.
 std::vector<SceneBuffer> scene_buffers(const SampleScene& scene) {
-    const uint64_t storage = VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
-    const uint64_t build_input = storage | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
+    const uint64_t storage =
+        VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
+    const uint64_t build_input =
+        storage | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
     const uint64_t as_storage = storage | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
     const uint64_t info_bytes = kClusters * sizeof(ClusterInfo);
     std::vector<SceneBuffer> buffers = {
-        {kVertexBuffer, scene.vertices.size() * sizeof(float), build_input | VK_BUFFER_USAGE_RAY_TRACING_BIT_NV, kDeviceLocalMemory, 0, 0},
+        {kVertexBuffer, scene.vertices.size() * sizeof(float),
+         build_input | VK_BUFFER_USAGE_RAY_TRACING_BIT_NV, kDeviceLocalMemory, 0, 0},
         {kIndex8Buffer, scene.index8.size(), build_input, kDeviceLocalMemory, 0x1000, 0},
-        {kIndex32Buffer, scene.index32.size() * 4, build_input | VK_BUFFER_USAGE_RAY_TRACING_BIT_NV, kDeviceLocalMemory, 0x2000, 0},
+        {kIndex32Buffer, scene.index32.size() * 4, build_input | VK_BUFFER_USAGE_RAY_TRACING_BIT_NV,
+         kDeviceLocalMemory, 0x2000, 0},
         {kStagingBuffer, info_bytes, VK_BUFFER_USAGE_TRANSFER_SRC_BIT, kHostMemory, 0, 0},
-        {kInfoBuffer, info_bytes, build_input | VK_BUFFER_USAGE_TRANSFER_DST_BIT, kDeviceLocalMemory, 0x3000, 0},
+        {kInfoBuffer, info_bytes, build_input | VK_BUFFER_USAGE_TRANSFER_DST_BIT,
+         kDeviceLocalMemory, 0x3000, 0},
         {kClusterBuffer, 64 << 10, as_storage, kDeviceLocalMemory, 0x10000, 0},
         {kDstAddressBuffer, kClusters * 8, as_storage, kDeviceLocalMemory, 0x4000, 0},
         {kDstSizeBuffer, kClusters * 4, storage, kDeviceLocalMemory, 0x4100, 0},
         {kScratchBuffer, 32 << 10, storage, kDeviceLocalMemory, 0x20000, 0},
-        {kBlasScratchBuffer, 32 << 10, VK_BUFFER_USAGE_RAY_TRACING_BIT_NV, kDeviceLocalMemory, 0x30000, 0},
+        {kBlasScratchBuffer, 32 << 10, VK_BUFFER_USAGE_RAY_TRACING_BIT_NV, kDeviceLocalMemory,
+         0x30000, 0},
     };
     for (SceneBuffer& b : buffers) {
         b.address = (b.usage & VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT)
@@ -179,7 +193,8 @@ std::vector<ClusterInfo> cluster_infos(const SampleScene& scene) {
         i.positionTruncateBitCount = 0;
         i.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_8BIT_NV;
         i.baseGeometryIndexAndGeometryFlags.geometryIndex = 0;
-        i.baseGeometryIndexAndGeometryFlags.geometryFlags = VK_CLUSTER_ACCELERATION_STRUCTURE_GEOMETRY_OPAQUE_BIT_NV;
+        i.baseGeometryIndexAndGeometryFlags.geometryFlags =
+            VK_CLUSTER_ACCELERATION_STRUCTURE_GEOMETRY_OPAQUE_BIT_NV;
         i.indexBufferStride = 1;
         i.vertexBufferStride = 12;
         i.indexBuffer = scene.address_of(kIndex8Buffer) + c * kClusterTriangles * 3;
@@ -203,9 +218,9 @@ SampleScene make_scene() {
     return scene;
 }
 
-#define TRY(expr)                                   \
-    do {                                            \
-        if (TraceError e_ = (expr)) return e_;      \
+#define TRY(expr)                              \
+    do {                                       \
+        if (TraceError e_ = (expr)) return e_; \
     } while (0)
 
 TraceError write_memory(TraceWriter& writer) {
@@ -249,9 +264,11 @@ std::unique_ptr<fbs::AccelerationStructureInfoNVT> blas_info(const SampleScene& 
     auto geometry = std::make_unique<fbs::GeometryNVT>();
     geometry->geometry_type = VK_GEOMETRY_TYPE_TRIANGLES_NV;
     geometry->flags = VK_GEOMETRY_OPAQUE_BIT_NV;
-    geometry->triangles = std::make_unique<fbs::GeometryTrianglesNV>(
-        kVertexBuffer, 0, kClusters * kClusterVertices, VK_FORMAT_R32G32B32_SFLOAT, 12, kIndex32Buffer, 0,
-        static_cast<uint32_t>(scene.index32.size()), VK_INDEX_TYPE_UINT32, 0, 0);
+    geometry->triangles =
+        std::make_unique<fbs::GeometryTrianglesNV>(kVertexBuffer, 0, kClusters * kClusterVertices,
+                                                   VK_FORMAT_R32G32B32_SFLOAT, 12, kIndex32Buffer,
+                                                   0, static_cast<uint32_t>(scene.index32.size()),
+                                                   VK_INDEX_TYPE_UINT32, 0, 0);
     geometry->aabbs = std::make_unique<fbs::GeometryAabbNV>(0, 0, 24, 0);
     info->geometries.push_back(std::move(geometry));
     return info;
@@ -338,10 +355,11 @@ TraceError write_info_copy(TraceWriter& writer, const SampleScene& scene) {
     copy.dst_buffer = kInfoBuffer;
     copy.regions.emplace_back(0, 0, scene.info_bytes());
     fbs::MemorySnapshot snap;
-    TRY(writer.snapshot(kStagingBuffer, 0, scene.address_of(kStagingBuffer), scene.infos.data(), scene.info_bytes(),
-                        &snap));
+    TRY(writer.snapshot(kStagingBuffer, 0, scene.address_of(kStagingBuffer), scene.infos.data(),
+                        scene.info_bytes(), &snap));
     copy.inputs.push_back(snap);
-    TRY(writer.snapshot(kInfoBuffer, 0, scene.address_of(kInfoBuffer), scene.infos.data(), scene.info_bytes(), &snap));
+    TRY(writer.snapshot(kInfoBuffer, 0, scene.address_of(kInfoBuffer), scene.infos.data(),
+                        scene.info_bytes(), &snap));
     copy.outputs.push_back(snap);
     TRY(writer.append(record(std::move(copy))));
 
@@ -351,8 +369,9 @@ TraceError write_info_copy(TraceWriter& writer, const SampleScene& scene) {
     barrier.dependency = std::make_unique<fbs::DependencyT>();
     barrier.dependency->buffer_barriers.emplace_back(
         VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
-        VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT,
-        VK_QUEUE_FAMILY_IGNORED, VK_QUEUE_FAMILY_IGNORED, kInfoBuffer, 0, VK_WHOLE_SIZE);
+        VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+        VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT, VK_QUEUE_FAMILY_IGNORED, VK_QUEUE_FAMILY_IGNORED,
+        kInfoBuffer, 0, VK_WHOLE_SIZE);
     return writer.append(record(std::move(barrier)));
 }
 
@@ -364,14 +383,18 @@ TraceError write_cluster_build(TraceWriter& writer, const SampleScene& scene) {
     build.dst_implicit_data = scene.address_of(kClusterBuffer);
     build.scratch_data = scene.address_of(kScratchBuffer);
     build.dst_addresses_array =
-        std::make_unique<fbs::StridedDeviceAddressRegion>(scene.address_of(kDstAddressBuffer), 8, kClusters * 8);
+        std::make_unique<fbs::StridedDeviceAddressRegion>(scene.address_of(kDstAddressBuffer), 8,
+                                                          kClusters * 8);
     build.dst_sizes_array =
-        std::make_unique<fbs::StridedDeviceAddressRegion>(scene.address_of(kDstSizeBuffer), 4, kClusters * 4);
-    build.src_infos_array = std::make_unique<fbs::StridedDeviceAddressRegion>(scene.address_of(kInfoBuffer),
-                                                                             sizeof(ClusterInfo), scene.info_bytes());
+        std::make_unique<fbs::StridedDeviceAddressRegion>(scene.address_of(kDstSizeBuffer), 4,
+                                                          kClusters * 4);
+    build.src_infos_array =
+        std::make_unique<fbs::StridedDeviceAddressRegion>(scene.address_of(kInfoBuffer),
+                                                          sizeof(ClusterInfo), scene.info_bytes());
     build.src_infos_count = 0;
     build.address_resolution_flags = VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_NONE_NV;
-    const uint64_t dst_addresses[kClusters] = {scene.address_of(kClusterBuffer), scene.address_of(kClusterBuffer) + 8192};
+    const uint64_t dst_addresses[kClusters] = {scene.address_of(kClusterBuffer),
+                                               scene.address_of(kClusterBuffer) + 8192};
     const uint32_t dst_sizes[kClusters] = {7936, 7936};
     struct Piece {
         uint64_t buffer;
@@ -399,8 +422,10 @@ TraceError write_cluster_build(TraceWriter& writer, const SampleScene& scene) {
     as_barrier.version = 2;
     as_barrier.dependency = std::make_unique<fbs::DependencyT>();
     as_barrier.dependency->memory_barriers.emplace_back(
-        VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
-        VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR);
+        VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+        VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
+        VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+        VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR);
     return writer.append(record(std::move(as_barrier)));
 }
 
@@ -429,12 +454,14 @@ TraceError write_command_buffer(TraceWriter& writer, const SampleScene& scene) {
     begin.command_buffer = kCommandBuffer;
     begin.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
     TRY(writer.append(record(begin)));
-    TRY(writer.append(record(gpu_timestamp(0, VK_PIPELINE_STAGE_2_TOP_OF_PIPE_BIT, 900'000'000ull))));
+    TRY(writer.append(
+        record(gpu_timestamp(0, VK_PIPELINE_STAGE_2_TOP_OF_PIPE_BIT, 900'000'000ull))));
     TRY(write_info_copy(writer, scene));
     TRY(write_cluster_build(writer, scene));
     TRY(write_blas_build(writer, scene));
     TRY(writer.append(
-        record(gpu_timestamp(1, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, 900'000'000ull + 48'250))));
+        record(gpu_timestamp(1, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                             900'000'000ull + 48'250))));
     fbs::CommandBufferEndT end;
     end.command_buffer = kCommandBuffer;
     return writer.append(record(end));

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The scene of traces/samples/sample.clt: a small, realistic capture built with the
 // writer API, standing in for a real capture until the capture layer exists.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Where a reader's bytes come from: a file (pread, so memory stays bounded) or a
 // caller's memory (fuzzing and mutation tests run thousands of files without disk).
 #pragma once

@@ -1,14 +1,17 @@
+// SPDX-License-Identifier: Apache-2.0
 #include <clastrace/traces/cluster_conversions.h>
 
 #include <utility>
 
 namespace clastrace::traces {
 
-fbs::StridedDeviceAddressRegion strided_region_to_record(const VkStridedDeviceAddressRegionKHR& region) {
+fbs::StridedDeviceAddressRegion strided_region_to_record(
+    const VkStridedDeviceAddressRegionKHR& region) {
     return {region.deviceAddress, region.stride, region.size};
 }
 
-VkStridedDeviceAddressRegionKHR strided_region_from_record(const fbs::StridedDeviceAddressRegion* record) {
+VkStridedDeviceAddressRegionKHR strided_region_from_record(
+    const fbs::StridedDeviceAddressRegion* record) {
     if (!record) return {0, 0, 0};
     return {record->device_address(), record->stride(), record->size()};
 }
@@ -17,7 +20,8 @@ fbs::ClustersBottomLevelInputT bottom_level_input_to_record(
     const VkClusterAccelerationStructureClustersBottomLevelInputNV& input) {
     fbs::ClustersBottomLevelInputT out;
     out.max_total_cluster_count = input.maxTotalClusterCount;
-    out.max_cluster_count_per_acceleration_structure = input.maxClusterCountPerAccelerationStructure;
+    out.max_cluster_count_per_acceleration_structure =
+        input.maxClusterCountPerAccelerationStructure;
     return out;
 }
 
@@ -26,7 +30,8 @@ VkClusterAccelerationStructureClustersBottomLevelInputNV bottom_level_input_from
     VkClusterAccelerationStructureClustersBottomLevelInputNV out{};
     out.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
     out.maxTotalClusterCount = record.max_total_cluster_count();
-    out.maxClusterCountPerAccelerationStructure = record.max_cluster_count_per_acceleration_structure();
+    out.maxClusterCountPerAccelerationStructure =
+        record.max_cluster_count_per_acceleration_structure();
     return out;
 }
 
@@ -59,7 +64,8 @@ VkClusterAccelerationStructureTriangleClusterInputNV triangle_cluster_input_from
     return out;
 }
 
-fbs::MoveObjectsInputT move_objects_input_to_record(const VkClusterAccelerationStructureMoveObjectsInputNV& input) {
+fbs::MoveObjectsInputT move_objects_input_to_record(
+    const VkClusterAccelerationStructureMoveObjectsInputNV& input) {
     fbs::MoveObjectsInputT out;
     out.type = uint32_t(input.type);
     out.no_move_overlap = input.noMoveOverlap == VK_TRUE;
@@ -67,7 +73,8 @@ fbs::MoveObjectsInputT move_objects_input_to_record(const VkClusterAccelerationS
     return out;
 }
 
-VkClusterAccelerationStructureMoveObjectsInputNV move_objects_input_from_record(const fbs::MoveObjectsInput& record) {
+VkClusterAccelerationStructureMoveObjectsInputNV move_objects_input_from_record(
+    const fbs::MoveObjectsInput& record) {
     VkClusterAccelerationStructureMoveObjectsInputNV out{};
     out.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_MOVE_OBJECTS_INPUT_NV;
     out.type = static_cast<VkClusterAccelerationStructureTypeNV>(record.type());
@@ -78,7 +85,8 @@ VkClusterAccelerationStructureMoveObjectsInputNV move_objects_input_from_record(
 
 namespace {
 
-void set_op_input(const VkClusterAccelerationStructureInputInfoNV& input, fbs::ClusterOpInputUnion& out) {
+void set_op_input(const VkClusterAccelerationStructureInputInfoNV& input,
+                  fbs::ClusterOpInputUnion& out) {
     // The union's member is chosen by opType; an unknown op type's input has an unknown layout.
     if (!input.opInput.pTriangleClusters) return;
     switch (input.opType) {
@@ -111,8 +119,8 @@ std::unique_ptr<fbs::ClusterInputInfoT> cluster_input_to_record(
     return out;
 }
 
-VkClusterAccelerationStructureInputInfoNV cluster_input_from_record(const fbs::ClusterInputInfo* record,
-                                                                    ClusterOpInputStorage& storage) {
+VkClusterAccelerationStructureInputInfoNV cluster_input_from_record(
+    const fbs::ClusterInputInfo* record, ClusterOpInputStorage& storage) {
     VkClusterAccelerationStructureInputInfoNV out{};
     out.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
     if (!record) return out;
@@ -152,7 +160,8 @@ fbs::CmdBuildClusterAccelerationStructureIndirectT cluster_commands_to_record(
 }
 
 VkClusterAccelerationStructureCommandsInfoNV cluster_commands_from_record(
-    const fbs::CmdBuildClusterAccelerationStructureIndirect& record, ClusterOpInputStorage& storage) {
+    const fbs::CmdBuildClusterAccelerationStructureIndirect& record,
+    ClusterOpInputStorage& storage) {
     VkClusterAccelerationStructureCommandsInfoNV out{};
     out.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
     out.input = cluster_input_from_record(record.input(), storage);

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "content_hash.h"
 
 namespace clastrace::traces {
@@ -8,7 +9,8 @@ struct KernelTable {
     size_t count = 0;
 
     KernelTable() {
-        kernels[count++] = {"baseline", detail::hash_content_baseline, detail::content_key_baseline};
+        kernels[count++] = {"baseline", detail::hash_content_baseline,
+                            detail::content_key_baseline};
 #if defined(CLASTRACE_CONTENT_HASH_X86)
         __builtin_cpu_init();  // (its checks include the OS saving the wider registers)
         if (__builtin_cpu_supports("avx2"))
@@ -20,8 +22,8 @@ struct KernelTable {
 };
 
 const KernelTable& table() {
-    static const KernelTable t;
-    return t;
+    static const KernelTable kT;
+    return kT;
 }
 
 }  // namespace
@@ -32,13 +34,13 @@ const ContentHashKernel* content_hash_kernels(size_t* count) {
 }
 
 ContentHashes hash_content(const ContentPiece* pieces, size_t count) {
-    static const auto hash = table().kernels[table().count - 1].hash;
-    return hash(pieces, count);
+    static const auto kHash = table().kernels[table().count - 1].hash;
+    return kHash(pieces, count);
 }
 
 uint64_t content_key_of(const ContentPiece* pieces, size_t count, uint64_t seed) {
-    static const auto key = table().kernels[table().count - 1].key;
-    return key(pieces, count, seed);
+    static const auto kEy = table().kernels[table().count - 1].key;
+    return kEy(pieces, count, seed);
 }
 
 }  // namespace clastrace::traces

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The trace writer's hashing of a content given in pieces, run with the widest vector unit the
 // CPU has: XXH3's values do not depend on it, its speed does (about 1.5x from SSE2 to AVX-512
 // on the development machine).
@@ -15,7 +16,7 @@ namespace clastrace::traces {
 
 struct ContentHashes {
     uint64_t fingerprint_low, fingerprint_high;  // XXH3-128: the writer's repeat finder
-    uint64_t key_seed0;                          // XXH3-64 at seed 0: format::content_key before masking
+    uint64_t key_seed0;  // XXH3-64 at seed 0: format::content_key before masking
 };
 
 // One pass over the pieces' concatenation gives both: XXH3's 64- and 128-bit variants share

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Compiled with -mavx2 (traces/CMakeLists.txt); run only where the CPU has AVX2.
 #include "content_hash.h"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Compiled with -mavx512f (traces/CMakeLists.txt); run only where the CPU and OS have AVX-512F.
 #include "content_hash.h"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The compiler's baseline vector unit (SSE2 on x86-64).
 #include "content_hash.h"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "file_format.h"
 
 #define XXH_INLINE_ALL
@@ -22,8 +23,8 @@ uint64_t chunk_header_checksum(const ChunkHeader& h) {
 uint64_t trailer_checksum(const Trailer& t) { return XXH3_64bits(&t, offsetof(Trailer, checksum)); }
 
 ChunkHeader sealed_chunk_header(ChunkKind kind, uint32_t chunk_number, uint32_t record_count,
-                                uint64_t first_submission, uint32_t raw_size, const void* compressed,
-                                uint32_t compressed_size) {
+                                uint64_t first_submission, uint32_t raw_size,
+                                const void* compressed, uint32_t compressed_size) {
     ChunkHeader h{};
     h.magic = kChunkMagic;
     h.kind = static_cast<uint16_t>(kind);

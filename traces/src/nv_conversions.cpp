@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include <clastrace/traces/nv_conversions.h>
 
 #include <cstdint>
@@ -10,13 +11,17 @@ namespace {
 // Non-dispatchable handles are pointers on 64-bit targets and uint64_t on 32-bit ones.
 template <class Handle>
 uint64_t handle_to_record(Handle handle) {
-    if constexpr (std::is_pointer_v<Handle>) return reinterpret_cast<uintptr_t>(handle);
-    else return uint64_t(handle);
+    if constexpr (std::is_pointer_v<Handle>)
+        return reinterpret_cast<uintptr_t>(handle);
+    else
+        return uint64_t(handle);
 }
 template <class Handle>
 Handle handle_from_record(uint64_t value) {
-    if constexpr (std::is_pointer_v<Handle>) return reinterpret_cast<Handle>(uintptr_t(value));
-    else return Handle(value);
+    if constexpr (std::is_pointer_v<Handle>)
+        return reinterpret_cast<Handle>(uintptr_t(value));
+    else
+        return Handle(value);
 }
 
 VkGeometryTrianglesNV triangles_from_record(const fbs::GeometryTrianglesNV* t) {
@@ -56,11 +61,12 @@ std::unique_ptr<fbs::GeometryNVT> nv_geometry_to_record(const VkGeometryNV& geom
     out->flags = geometry.flags;
     const VkGeometryTrianglesNV& t = geometry.geometry.triangles;
     out->triangles = std::make_unique<fbs::GeometryTrianglesNV>(
-        handle_to_record(t.vertexData), t.vertexOffset, t.vertexCount, uint32_t(t.vertexFormat), t.vertexStride,
-        handle_to_record(t.indexData), t.indexOffset, t.indexCount, uint32_t(t.indexType),
-        handle_to_record(t.transformData), t.transformOffset);
+        handle_to_record(t.vertexData), t.vertexOffset, t.vertexCount, uint32_t(t.vertexFormat),
+        t.vertexStride, handle_to_record(t.indexData), t.indexOffset, t.indexCount,
+        uint32_t(t.indexType), handle_to_record(t.transformData), t.transformOffset);
     const VkGeometryAABBNV& a = geometry.geometry.aabbs;
-    out->aabbs = std::make_unique<fbs::GeometryAabbNV>(handle_to_record(a.aabbData), a.numAABBs, a.stride, a.offset);
+    out->aabbs = std::make_unique<fbs::GeometryAabbNV>(handle_to_record(a.aabbData), a.numAABBs,
+                                                       a.stride, a.offset);
     return out;
 }
 
@@ -74,7 +80,8 @@ VkGeometryNV nv_geometry_from_record(const fbs::GeometryNV& record) {
     return out;
 }
 
-std::unique_ptr<fbs::AccelerationStructureInfoNVT> nv_info_to_record(const VkAccelerationStructureInfoNV& info) {
+std::unique_ptr<fbs::AccelerationStructureInfoNVT> nv_info_to_record(
+    const VkAccelerationStructureInfoNV& info) {
     auto out = std::make_unique<fbs::AccelerationStructureInfoNVT>();
     out->type = uint32_t(info.type);
     out->flags = info.flags;

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "clastrace/traces/output_file.h"
 
 #include <fcntl.h>
@@ -52,14 +53,16 @@ bool write_all(int fd, std::string_view bytes) {
 // Opens a device or FIFO for writing in place. A FIFO is opened without blocking (a missing
 // reader is an error, not a wait), then switched back to blocking writes.
 int open_special(const OutputTarget& target) {
-    const int flags = O_WRONLY | O_CLOEXEC | (target.kind == OutputKind::fifo ? O_NONBLOCK : 0);
+    const int flags = O_WRONLY | O_CLOEXEC | (target.kind == OutputKind::kFifo ? O_NONBLOCK : 0);
     const int fd = ::open(target.path.c_str(), flags);
-    if (fd >= 0 && target.kind == OutputKind::fifo) ::fcntl(fd, F_SETFL, ::fcntl(fd, F_GETFL) & ~O_NONBLOCK);
+    if (fd >= 0 && target.kind == OutputKind::kFifo)
+        ::fcntl(fd, F_SETFL, ::fcntl(fd, F_GETFL) & ~O_NONBLOCK);
     return fd;
 }
 
 std::string open_failure(const std::string& named, const OutputTarget& target, int err) {
-    if (target.kind == OutputKind::fifo && err == ENXIO) return named + "no process is reading this FIFO";
+    if (target.kind == OutputKind::kFifo && err == ENXIO)
+        return named + "no process is reading this FIFO";
     return named + system_reason(err);
 }
 
@@ -69,7 +72,9 @@ bool lock_exclusive(int fd, const std::string& named, std::string* error) {
     while (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
         if (errno == EINTR) continue;
         if (errno == EWOULDBLOCK) {
-            return fail(error, named + "another process (another capture?) is writing it and holds its lock");
+            return fail(error,
+                        named +
+                            "another process (another capture?) is writing it and holds its lock");
         }
         return true;
     }
@@ -97,9 +102,10 @@ bool replace_by_rename(const std::string& path, const OutputTarget& target, std:
     const std::string named = cannot_write(path, target.path);
     std::string temporary;
     const int fd = create_temporary(target.path, &temporary);
-    if (fd < 0) return fail(error, named + "cannot create a file beside it: " + system_reason(errno));
+    if (fd < 0)
+        return fail(error, named + "cannot create a file beside it: " + system_reason(errno));
     struct stat existing {};
-    if (target.kind == OutputKind::regular && ::stat(target.path.c_str(), &existing) == 0) {
+    if (target.kind == OutputKind::kRegular && ::stat(target.path.c_str(), &existing) == 0) {
         ::fchmod(fd, existing.st_mode & 07777);  // the replacement keeps the file's permissions
     }
     const bool written = write_all(fd, bytes);
@@ -121,10 +127,10 @@ bool replace_by_rename(const std::string& path, const OutputTarget& target, std:
 
 const char* output_kind_name(OutputKind kind) {
     switch (kind) {
-        case OutputKind::absent: return "new file";
-        case OutputKind::regular: return "regular file";
-        case OutputKind::character_device: return "character device";
-        case OutputKind::fifo: return "FIFO";
+    case OutputKind::kAbsent: return "new file";
+    case OutputKind::kRegular: return "regular file";
+    case OutputKind::kCharacterDevice: return "character device";
+    case OutputKind::kFifo: return "FIFO";
     }
     return "file";
 }
@@ -135,26 +141,37 @@ bool resolve_output(const std::string& path, OutputTarget* target, std::string* 
     for (int links = 0; links <= kMaxLinks; ++links) {
         struct stat st {};
         if (::lstat(current.c_str(), &st) != 0) {
-            if (errno != ENOENT) return fail(error, cannot_write(path, current) + system_reason(errno));
-            *target = {current, OutputKind::absent};
+            if (errno != ENOENT)
+                return fail(error, cannot_write(path, current) + system_reason(errno));
+            *target = {current, OutputKind::kAbsent};
             return true;
         }
         if (S_ISLNK(st.st_mode)) {
             std::string link(static_cast<size_t>(st.st_size > 0 ? st.st_size : 4096) + 1, '\0');
             const ssize_t n = ::readlink(current.c_str(), link.data(), link.size());
-            if (n < 0) return fail(error, cannot_write(path, current) + "cannot read the link: " + system_reason(errno));
+            if (n < 0)
+                return fail(error, cannot_write(path, current) +
+                                       "cannot read the link: " + system_reason(errno));
             link.resize(static_cast<size_t>(n));
             current = link.front() == '/' ? link : directory_of(current) + "/" + link;
             continue;
         }
         const std::string named = cannot_write(path, current);
-        if (S_ISREG(st.st_mode)) *target = {current, OutputKind::regular};
-        else if (S_ISCHR(st.st_mode)) *target = {current, OutputKind::character_device};
-        else if (S_ISFIFO(st.st_mode)) *target = {current, OutputKind::fifo};
-        else if (S_ISDIR(st.st_mode)) return fail(error, named + "it is a directory");
-        else if (S_ISBLK(st.st_mode)) return fail(error, named + "it is a block device (clastrace writes no output onto one)");
-        else if (S_ISSOCK(st.st_mode)) return fail(error, named + "it is a socket (clastrace writes no output onto one)");
-        else return fail(error, named + "it is not a file, device or FIFO");
+        if (S_ISREG(st.st_mode))
+            *target = {current, OutputKind::kRegular};
+        else if (S_ISCHR(st.st_mode))
+            *target = {current, OutputKind::kCharacterDevice};
+        else if (S_ISFIFO(st.st_mode))
+            *target = {current, OutputKind::kFifo};
+        else if (S_ISDIR(st.st_mode))
+            return fail(error, named + "it is a directory");
+        else if (S_ISBLK(st.st_mode))
+            return fail(error,
+                        named + "it is a block device (clastrace writes no output onto one)");
+        else if (S_ISSOCK(st.st_mode))
+            return fail(error, named + "it is a socket (clastrace writes no output onto one)");
+        else
+            return fail(error, named + "it is not a file, device or FIFO");
         return true;
     }
     return fail(error, cannot_write(path, path) + system_reason(ELOOP));
@@ -164,8 +181,9 @@ bool probe_output(const std::string& path, std::string* error) {
     OutputTarget target;
     if (!resolve_output(path, &target, error)) return false;
     const std::string named = cannot_write(path, target.path);
-    if (target.kind == OutputKind::character_device || target.kind == OutputKind::fifo) {
-        if (::access(target.path.c_str(), W_OK) != 0) return fail(error, named + system_reason(errno));
+    if (target.kind == OutputKind::kCharacterDevice || target.kind == OutputKind::kFifo) {
+        if (::access(target.path.c_str(), W_OK) != 0)
+            return fail(error, named + system_reason(errno));
         return true;
     }
     const std::string dir = directory_of(target.path);
@@ -178,7 +196,7 @@ bool probe_output(const std::string& path, std::string* error) {
 bool write_output_file(const std::string& path, std::string_view bytes, std::string* error) {
     OutputTarget target;
     if (!resolve_output(path, &target, error)) return false;
-    if (target.kind == OutputKind::absent || target.kind == OutputKind::regular) {
+    if (target.kind == OutputKind::kAbsent || target.kind == OutputKind::kRegular) {
         return replace_by_rename(path, target, bytes, error);
     }
     const std::string named = cannot_write(path, target.path);
@@ -195,7 +213,7 @@ bool write_output_file(const std::string& path, std::string_view bytes, std::str
 int open_output_in_place(const std::string& path, OutputTarget* target, std::string* error) {
     if (!resolve_output(path, target, error)) return -1;
     const std::string named = cannot_write(path, target->path);
-    if (target->kind == OutputKind::character_device || target->kind == OutputKind::fifo) {
+    if (target->kind == OutputKind::kCharacterDevice || target->kind == OutputKind::kFifo) {
         const int fd = open_special(*target);
         if (fd < 0) fail(error, open_failure(named, *target, errno));
         return fd;
@@ -217,15 +235,18 @@ int open_output_in_place(const std::string& path, OutputTarget* target, std::str
 int adopt_output(int fd, const std::string& path, OutputTarget* target, std::string* error) {
     if (!resolve_output(path, target, error)) return -1;
     const std::string named = cannot_write(path, target->path);
-    struct stat held {}, named_stat {};
+    struct stat held {
+    }, named_stat{};
     const int access_mode = ::fcntl(fd, F_GETFL);
-    if (access_mode < 0 || ((access_mode & O_ACCMODE) != O_WRONLY && (access_mode & O_ACCMODE) != O_RDWR) ||
+    if (access_mode < 0 ||
+        ((access_mode & O_ACCMODE) != O_WRONLY && (access_mode & O_ACCMODE) != O_RDWR) ||
         ::fstat(fd, &held) != 0 || ::stat(target->path.c_str(), &named_stat) != 0 ||
         held.st_dev != named_stat.st_dev || held.st_ino != named_stat.st_ino) {
-        fail(error, named + "descriptor " + std::to_string(fd) + " handed down for it is not this file open for writing");
+        fail(error, named + "descriptor " + std::to_string(fd) +
+                        " handed down for it is not this file open for writing");
         return -1;
     }
-    if (target->kind == OutputKind::regular && !lock_exclusive(fd, named, error)) return -1;
+    if (target->kind == OutputKind::kRegular && !lock_exclusive(fd, named, error)) return -1;
     ::fcntl(fd, F_SETFD, FD_CLOEXEC);  // the application's own children do not inherit it
     return fd;
 }
@@ -235,7 +256,8 @@ bool start_output_in_place(int fd, const std::string& path, std::string* error) 
     if (::fstat(fd, &st) != 0) return fail(error, cannot_write(path, path) + system_reason(errno));
     if (!S_ISREG(st.st_mode)) return true;
     if (::ftruncate(fd, 0) != 0 || ::lseek(fd, 0, SEEK_SET) != 0) {
-        return fail(error, cannot_write(path, path) + "cannot empty the earlier file: " + system_reason(errno));
+        return fail(error, cannot_write(path, path) +
+                               "cannot empty the earlier file: " + system_reason(errno));
     }
     return true;
 }

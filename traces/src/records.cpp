@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include <clastrace/traces/records.h>
 
 namespace clastrace::traces {
@@ -17,7 +18,8 @@ SnapshotLists record_snapshots(const fbs::Record& record) {
     case K::CmdDispatch: return lists_of(record.body_as_CmdDispatch());
     case K::CmdBuildClusterAccelerationStructureIndirect:
         return lists_of(record.body_as_CmdBuildClusterAccelerationStructureIndirect());
-    case K::CmdBuildAccelerationStructureNV: return lists_of(record.body_as_CmdBuildAccelerationStructureNV());
+    case K::CmdBuildAccelerationStructureNV:
+        return lists_of(record.body_as_CmdBuildAccelerationStructureNV());
     case K::CmdCopyMemoryToAccelerationStructure:
         return lists_of(record.body_as_CmdCopyMemoryToAccelerationStructure());
     case K::MemoryObservation: {

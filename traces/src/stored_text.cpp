@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "stored_text.h"
 
 #include <clastrace/traces/utf8_text.h>
@@ -37,47 +38,45 @@ void make_strings_valid_utf8(fbs::TraceHeaderT& header) {
 bool has_invalid_utf8(const fbs::Record& record) {
     using fbs::RecordBody;
     switch (record.body_type()) {
-        case RecordBody::CpuTimestamp: {
-            const auto* t = record.body_as_CpuTimestamp();
-            return t && invalid(t->label());
-        }
-        case RecordBody::DebugLabel: {
-            const auto* l = record.body_as_DebugLabel();
-            return l && invalid(l->text());
-        }
-        case RecordBody::RayQueryCheck: {
-            const auto* c = record.body_as_RayQueryCheck();
-            return c && invalid(c->label());
-        }
-        case RecordBody::CaptureFinding: {
-            const auto* f = record.body_as_CaptureFinding();
-            return f && (invalid(f->rule()) || invalid(f->message()));
-        }
-        default:
-            return false;
+    case RecordBody::CpuTimestamp: {
+        const auto* t = record.body_as_CpuTimestamp();
+        return t && invalid(t->label());
+    }
+    case RecordBody::DebugLabel: {
+        const auto* l = record.body_as_DebugLabel();
+        return l && invalid(l->text());
+    }
+    case RecordBody::RayQueryCheck: {
+        const auto* c = record.body_as_RayQueryCheck();
+        return c && invalid(c->label());
+    }
+    case RecordBody::CaptureFinding: {
+        const auto* f = record.body_as_CaptureFinding();
+        return f && (invalid(f->rule()) || invalid(f->message()));
+    }
+    default: return false;
     }
 }
 
 void make_strings_valid_utf8(fbs::RecordT& record) {
     using fbs::RecordBody;
     switch (record.body.type) {
-        case RecordBody::CpuTimestamp:
-            if (auto* t = record.body.AsCpuTimestamp()) repair(t->label);
-            break;
-        case RecordBody::DebugLabel:
-            if (auto* l = record.body.AsDebugLabel()) repair(l->text);
-            break;
-        case RecordBody::RayQueryCheck:
-            if (auto* c = record.body.AsRayQueryCheck()) repair(c->label);
-            break;
-        case RecordBody::CaptureFinding:
-            if (auto* f = record.body.AsCaptureFinding()) {
-                repair(f->rule);
-                repair(f->message);
-            }
-            break;
-        default:
-            break;
+    case RecordBody::CpuTimestamp:
+        if (auto* t = record.body.AsCpuTimestamp()) repair(t->label);
+        break;
+    case RecordBody::DebugLabel:
+        if (auto* l = record.body.AsDebugLabel()) repair(l->text);
+        break;
+    case RecordBody::RayQueryCheck:
+        if (auto* c = record.body.AsRayQueryCheck()) repair(c->label);
+        break;
+    case RecordBody::CaptureFinding:
+        if (auto* f = record.body.AsCaptureFinding()) {
+            repair(f->rule);
+            repair(f->message);
+        }
+        break;
+    default: break;
     }
 }
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The writer's rule for the strings a trace stores (docs/trace-format.md): UTF-8, whatever
 // bytes the application or the caller gave. A schema field of type string is listed here once
 // for the packed record and once for the object API, side by side in stored_text.cpp.

@@ -1,24 +1,25 @@
+// SPDX-License-Identifier: Apache-2.0
 #include <clastrace/traces/trace_error.h>
 
 namespace clastrace::traces {
 
 const char* trace_error_code_name(TraceErrorCode code) {
     switch (code) {
-    case TraceErrorCode::ok: return "ok";
-    case TraceErrorCode::io_error: return "io_error";
-    case TraceErrorCode::not_a_trace: return "not_a_trace";
-    case TraceErrorCode::unsupported_version: return "unsupported_version";
-    case TraceErrorCode::truncated: return "truncated";
-    case TraceErrorCode::bad_chunk: return "bad_chunk";
-    case TraceErrorCode::length_out_of_range: return "length_out_of_range";
-    case TraceErrorCode::checksum_mismatch: return "checksum_mismatch";
-    case TraceErrorCode::decompress_failed: return "decompress_failed";
-    case TraceErrorCode::invalid_record: return "invalid_record";
-    case TraceErrorCode::missing_contents: return "missing_contents";
-    case TraceErrorCode::content_mismatch: return "content_mismatch";
-    case TraceErrorCode::bad_index: return "bad_index";
-    case TraceErrorCode::trailing_bytes: return "trailing_bytes";
-    case TraceErrorCode::invalid_argument: return "invalid_argument";
+    case TraceErrorCode::kOk: return "ok";
+    case TraceErrorCode::kIoError: return "io_error";
+    case TraceErrorCode::kNotATrace: return "not_a_trace";
+    case TraceErrorCode::kUnsupportedVersion: return "unsupported_version";
+    case TraceErrorCode::kTruncated: return "truncated";
+    case TraceErrorCode::kBadChunk: return "bad_chunk";
+    case TraceErrorCode::kLengthOutOfRange: return "length_out_of_range";
+    case TraceErrorCode::kChecksumMismatch: return "checksum_mismatch";
+    case TraceErrorCode::kDecompressFailed: return "decompress_failed";
+    case TraceErrorCode::kInvalidRecord: return "invalid_record";
+    case TraceErrorCode::kMissingContents: return "missing_contents";
+    case TraceErrorCode::kContentMismatch: return "content_mismatch";
+    case TraceErrorCode::kBadIndex: return "bad_index";
+    case TraceErrorCode::kTrailingBytes: return "trailing_bytes";
+    case TraceErrorCode::kInvalidArgument: return "invalid_argument";
     }
     return "unknown";
 }

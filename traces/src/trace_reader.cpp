@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include <clastrace/traces/trace_reader.h>
 
 #include <clastrace/common/debug_assert.h>
@@ -48,23 +49,24 @@ struct ContentPlace {
 };
 
 enum class ChunkStatus {
-    ok,
-    bad_header,   // header unusable: look for the next chunk header byte by byte
-    bad_payload,  // header fine, payload not: skip exactly this chunk
-    truncated,    // the file ends inside this chunk
-    over_budget,  // decompressing it would pass TraceReaderOptions::max_raw_bytes: stop reading
+    kOk,
+    kBadHeader,   // header unusable: look for the next chunk header byte by byte
+    kBadPayload,  // header fine, payload not: skip exactly this chunk
+    kTruncated,   // the file ends inside this chunk
+    kOverBudget,  // decompressing it would pass TraceReaderOptions::max_raw_bytes: stop reading
 };
 
 enum class RecordStatus {
-    ok,
-    skip,        // the record breaks a rule; the frames around it are fine
-    broken,      // the frame itself is not a record (verifier, kind, body)
-    stop_chunk,
+    kOk,
+    kSkip,    // the record breaks a rule; the frames around it are fine
+    kBroken,  // the frame itself is not a record (verifier, kind, body)
+    kStopChunk,
 };
 
 // Frees a buffer whose capacity a big chunk left behind, so it does not linger.
 void release_if_big(std::vector<uint8_t>& buffer, size_t needed = 0) {
-    if (buffer.capacity() > kBigBufferBytes && buffer.capacity() > 2 * needed) std::vector<uint8_t>().swap(buffer);
+    if (buffer.capacity() > kBigBufferBytes && buffer.capacity() > 2 * needed)
+        std::vector<uint8_t>().swap(buffer);
 }
 
 // What one thread needs to read a chunk: the reader uses one set on its own thread
@@ -82,7 +84,7 @@ struct ChunkDecoder {
 struct ReadAhead {
     uint64_t offset = 0;
     format::ChunkHeader header{};
-    ChunkStatus status = ChunkStatus::ok;
+    ChunkStatus status = ChunkStatus::kOk;
     TraceError error;
     bool decompressed = false;  // false for chunks left to the reader's thread (big or not records)
 };
@@ -105,8 +107,9 @@ struct TraceReader::Impl {
     std::vector<uint8_t> index_raw;
     const fbs::TraceIndex* index = nullptr;
     uint64_t index_offset = 0;
-    std::unordered_map<uint64_t, uint32_t> index_position;  // chunk file offset -> place in index->chunks()
-    std::vector<bool> index_chunk_read;                      // by place: the scan read that records chunk
+    std::unordered_map<uint64_t, uint32_t>
+        index_position;                  // chunk file offset -> place in index->chunks()
+    std::vector<bool> index_chunk_read;  // by place: the scan read that records chunk
 
     // Decompression budget, shared with the read-ahead task.
     uint64_t raw_budget = 0;
@@ -133,7 +136,8 @@ struct TraceReader::Impl {
     uint32_t chunk_submissions = 0;
     uint32_t chunk_broken_frames = 0;
     bool chunk_cut_short = false;
-    bool raw_evicted = false;  // the loaded chunk's bytes were freed for read_contents: decompress again
+    bool raw_evicted =
+        false;  // the loaded chunk's bytes were freed for read_contents: decompress again
     uint64_t next_submission = 0;
     // The last records chunk handed out since the scan (re)started: a chunk numbered at or
     // below it, or starting before the submissions read, repeats records already handed out.
@@ -184,15 +188,17 @@ struct TraceReader::Impl {
     }
 
     // Reads, checks and decompresses the chunk whose header is at `offset`.
-    ChunkStatus read_chunk(uint64_t offset, format::ChunkHeader* h, std::vector<uint8_t>* out, TraceError* err) {
+    ChunkStatus read_chunk(uint64_t offset, format::ChunkHeader* h, std::vector<uint8_t>* out,
+                           TraceError* err) {
         ChunkStatus status = read_checked_payload(decoder, offset, h, err);
-        return status == ChunkStatus::ok ? decompress(offset, *h, out, err) : status;
+        return status == ChunkStatus::kOk ? decompress(offset, *h, out, err) : status;
     }
 
     // decompress_payload on the reader's own thread and decoder, noting a spent budget.
-    ChunkStatus decompress(uint64_t offset, const format::ChunkHeader& h, std::vector<uint8_t>* out, TraceError* err) {
+    ChunkStatus decompress(uint64_t offset, const format::ChunkHeader& h, std::vector<uint8_t>* out,
+                           TraceError* err) {
         ChunkStatus status = decompress_payload(decoder, offset, h, out, err);
-        if (status == ChunkStatus::over_budget) budget_exhausted = true;
+        if (status == ChunkStatus::kOverBudget) budget_exhausted = true;
         return status;
     }
 
@@ -206,70 +212,79 @@ struct TraceReader::Impl {
     // Header and compressed payload of the chunk at `offset` into d.compressed, checksums
     // checked, nothing decompressed. This and decompress_payload are safe on the read-ahead
     // task: they touch only `d`, their outputs, the budget and the (thread-safe) source.
-    ChunkStatus read_checked_payload(ChunkDecoder& d, uint64_t offset, format::ChunkHeader* h, TraceError* err) const {
+    ChunkStatus read_checked_payload(ChunkDecoder& d, uint64_t offset, format::ChunkHeader* h,
+                                     TraceError* err) const {
         std::vector<uint8_t>& compressed = d.compressed;
         if (offset > size || size - offset < format::kChunkHeaderSize) {
-            *err = error(TraceErrorCode::truncated, offset,
-                         "file ends inside a chunk header (" + std::to_string(size - std::min(size, offset)) +
-                             " of " + std::to_string(format::kChunkHeaderSize) + " bytes present)");
-            return ChunkStatus::truncated;
+            *err = error(TraceErrorCode::kTruncated, offset,
+                         "file ends inside a chunk header (" +
+                             std::to_string(size - std::min(size, offset)) + " of " +
+                             std::to_string(format::kChunkHeaderSize) + " bytes present)");
+            return ChunkStatus::kTruncated;
         }
         uint8_t bytes[format::kChunkHeaderSize];
         if (!src->read_at(offset, sizeof bytes, bytes)) {
-            *err = error(TraceErrorCode::io_error, offset, "read failed: " + src->last_error());
-            return ChunkStatus::truncated;
+            *err = error(TraceErrorCode::kIoError, offset, "read failed: " + src->last_error());
+            return ChunkStatus::kTruncated;
         }
         std::memcpy(h, bytes, sizeof *h);
         if (h->magic != format::kChunkMagic) {
-            *err = error(TraceErrorCode::bad_chunk, offset, "no chunk header here (magic " + hex(h->magic) + ")");
-            return ChunkStatus::bad_header;
+            *err = error(TraceErrorCode::kBadChunk, offset,
+                         "no chunk header here (magic " + hex(h->magic) + ")");
+            return ChunkStatus::kBadHeader;
         }
         uint64_t computed = format::chunk_header_checksum(*h);
         if (computed != h->header_checksum) {
-            *err = error(TraceErrorCode::checksum_mismatch, offset,
-                         "chunk header checksum mismatch (stored " + hex(h->header_checksum) + ", computed " +
-                             hex(computed) + ")");
-            return ChunkStatus::bad_header;
+            *err = error(TraceErrorCode::kChecksumMismatch, offset,
+                         "chunk header checksum mismatch (stored " + hex(h->header_checksum) +
+                             ", computed " + hex(computed) + ")");
+            return ChunkStatus::kBadHeader;
         }
         const std::string what = "chunk " + std::to_string(h->chunk_number);
-        const bool is_index = h->kind == static_cast<uint16_t>(format::ChunkKind::index);
+        const bool is_index = h->kind == static_cast<uint16_t>(format::ChunkKind::kIndex);
         const uint64_t max_raw = is_index ? plausible_index_raw_bytes() : format::kMaxChunkRawBytes;
         if (h->raw_size > max_raw) {
-            *err = error(TraceErrorCode::length_out_of_range, offset + offsetof(format::ChunkHeader, raw_size),
-                         what + " claims " + std::to_string(h->raw_size) + " raw bytes, over the limit of " +
-                             std::to_string(max_raw) +
-                             (is_index ? " (an index of a file of " + std::to_string(size) +
-                                             " bytes: one entry per chunk and per content it can hold)"
-                                       : std::string()));
-            return ChunkStatus::bad_header;
+            *err =
+                error(TraceErrorCode::kLengthOutOfRange,
+                      offset + offsetof(format::ChunkHeader, raw_size),
+                      what + " claims " + std::to_string(h->raw_size) +
+                          " raw bytes, over the limit of " + std::to_string(max_raw) +
+                          (is_index ? " (an index of a file of " + std::to_string(size) +
+                                          " bytes: one entry per chunk and per content it can hold)"
+                                    : std::string()));
+            return ChunkStatus::kBadHeader;
         }
         if (h->compressed_size > ZSTD_compressBound(h->raw_size)) {
-            *err = error(TraceErrorCode::length_out_of_range, offset + offsetof(format::ChunkHeader, compressed_size),
+            *err = error(TraceErrorCode::kLengthOutOfRange,
+                         offset + offsetof(format::ChunkHeader, compressed_size),
                          what + " claims " + std::to_string(h->compressed_size) +
-                             " compressed bytes, more than zstd can produce from " + std::to_string(h->raw_size));
-            return ChunkStatus::bad_header;
+                             " compressed bytes, more than zstd can produce from " +
+                             std::to_string(h->raw_size));
+            return ChunkStatus::kBadHeader;
         }
         uint64_t payload = offset + format::kChunkHeaderSize;
         if (h->compressed_size > size - payload) {
-            *err = error(TraceErrorCode::truncated, offset + offsetof(format::ChunkHeader, compressed_size),
-                         what + " claims " + std::to_string(h->compressed_size) + " compressed bytes but only " +
-                             std::to_string(size - payload) + " remain in the file");
-            return ChunkStatus::truncated;
+            *err = error(TraceErrorCode::kTruncated,
+                         offset + offsetof(format::ChunkHeader, compressed_size),
+                         what + " claims " + std::to_string(h->compressed_size) +
+                             " compressed bytes but only " + std::to_string(size - payload) +
+                             " remain in the file");
+            return ChunkStatus::kTruncated;
         }
         release_if_big(compressed, h->compressed_size);
         compressed.resize(h->compressed_size);
         if (!src->read_at(payload, compressed.size(), compressed.data())) {
-            *err = error(TraceErrorCode::io_error, payload, "read failed: " + src->last_error());
-            return ChunkStatus::truncated;
+            *err = error(TraceErrorCode::kIoError, payload, "read failed: " + src->last_error());
+            return ChunkStatus::kTruncated;
         }
         computed = format::checksum(compressed.data(), compressed.size());
         if (computed != h->payload_checksum) {
-            *err = error(TraceErrorCode::checksum_mismatch, payload,
-                         what + " checksum mismatch (stored " + hex(h->payload_checksum) + ", computed " +
-                             hex(computed) + ")");
-            return ChunkStatus::bad_payload;
+            *err = error(TraceErrorCode::kChecksumMismatch, payload,
+                         what + " checksum mismatch (stored " + hex(h->payload_checksum) +
+                             ", computed " + hex(computed) + ")");
+            return ChunkStatus::kBadPayload;
         }
-        return ChunkStatus::ok;
+        return ChunkStatus::kOk;
     }
 
     // Decompresses d.compressed (read by read_checked_payload for header h) into `out`.
@@ -280,36 +295,43 @@ struct TraceReader::Impl {
         const std::string what = "chunk " + std::to_string(h.chunk_number);
         unsigned long long content = ZSTD_getFrameContentSize(compressed.data(), compressed.size());
         if (content != h.raw_size) {
-            *err = error(TraceErrorCode::decompress_failed, payload,
-                         what + " zstd frame does not declare the chunk's " + std::to_string(h.raw_size) + " raw bytes");
-            return ChunkStatus::bad_payload;
+            *err = error(TraceErrorCode::kDecompressFailed, payload,
+                         what + " zstd frame does not declare the chunk's " +
+                             std::to_string(h.raw_size) + " raw bytes");
+            return ChunkStatus::kBadPayload;
         }
         if (!take_from_budget(h.raw_size)) {
-            *err = error(TraceErrorCode::length_out_of_range, offset,
-                         what + " would inflate " + std::to_string(compressed.size()) + " bytes to " +
-                             std::to_string(h.raw_size) + ", past the budget of " + std::to_string(raw_budget) +
-                             " decompressed bytes (" + std::to_string(raw_spent.load()) +
-                             " already spent; default 1024 x the file size, at least 1 GiB): the rest of the file is "
-                             "not read; raise the budget with --max-raw-mib (TraceReaderOptions::max_raw_bytes)");
-            return ChunkStatus::over_budget;
+            *err = error(TraceErrorCode::kLengthOutOfRange, offset,
+                         what + " would inflate " + std::to_string(compressed.size()) +
+                             " bytes to " + std::to_string(h.raw_size) + ", past the budget of " +
+                             std::to_string(raw_budget) + " decompressed bytes (" +
+                             std::to_string(raw_spent.load()) +
+                             " already spent; default 1024 x the file size, at least 1 GiB): the "
+                             "rest of the file is "
+                             "not read; raise the budget with --max-raw-mib "
+                             "(TraceReaderOptions::max_raw_bytes)");
+            return ChunkStatus::kOverBudget;
         }
         release_if_big(*out, h.raw_size);
         out->resize(h.raw_size);
-        size_t got = ZSTD_decompressDCtx(d.dctx, out->data(), out->size(), compressed.data(), compressed.size());
+        size_t got = ZSTD_decompressDCtx(d.dctx, out->data(), out->size(), compressed.data(),
+                                         compressed.size());
         if (ZSTD_isError(got) || got != h.raw_size) {
-            *err = error(TraceErrorCode::decompress_failed, payload,
+            *err = error(TraceErrorCode::kDecompressFailed, payload,
                          what + " does not decompress: " +
-                             (ZSTD_isError(got) ? ZSTD_getErrorName(got) : std::string("size differs")));
-            return ChunkStatus::bad_payload;
+                             (ZSTD_isError(got) ? ZSTD_getErrorName(got)
+                                                : std::string("size differs")));
+            return ChunkStatus::kBadPayload;
         }
-        return ChunkStatus::ok;
+        return ChunkStatus::kOk;
     }
 
     // The largest index a file of this size can need: an entry per chunk (each at least a
     // header) and per content (each costs the file at least its 8-byte key twice, in its
     // record and in the index; counted at 8 for margin), within the format's limit.
     uint64_t plausible_index_raw_bytes() const {
-        uint64_t plausible = kIndexFixedBytes + kIndexBytesPerChunk * (size / format::kChunkHeaderSize) +
+        uint64_t plausible = kIndexFixedBytes +
+                             kIndexBytesPerChunk * (size / format::kChunkHeaderSize) +
                              kIndexBytesPerContent * (size / 8);
         return std::min<uint64_t>(plausible, format::kMaxIndexRawBytes);
     }
@@ -326,7 +348,8 @@ struct TraceReader::Impl {
         while (at + format::kChunkHeaderSize <= size) {
             const size_t step = block_size;
             block_size = std::min(kMaxBlock, block_size * 2);
-            size_t n = static_cast<size_t>(std::min<uint64_t>(step + format::kChunkHeaderSize, size - at));
+            size_t n =
+                static_cast<size_t>(std::min<uint64_t>(step + format::kChunkHeaderSize, size - at));
             block.resize(n);
             if (!src->read_at(at, n, block.data())) return size;
             for (size_t i = 0; i + format::kChunkHeaderSize <= n; ++i) {
@@ -345,17 +368,20 @@ struct TraceReader::Impl {
         uint64_t found = find_next_chunk(from);
         if (found > from) {
             stats.bytes_skipped += found - from;
-            report(TraceErrorCode::bad_chunk, from,
-                   "skipped " + std::to_string(found - from) + " bytes up to offset " + std::to_string(found) +
-                       (found < size ? " to reach the next intact chunk header" : " (no further chunk header found)"));
+            report(TraceErrorCode::kBadChunk, from,
+                   "skipped " + std::to_string(found - from) + " bytes up to offset " +
+                       std::to_string(found) +
+                       (found < size ? " to reach the next intact chunk header"
+                                     : " (no further chunk header found)"));
         }
         pos = found;
         skipped_since_chunk = true;
     }
 
     std::string record_place(uint32_t raw_offset) const {
-        return "chunk " + std::to_string(chunk.chunk_number) + " record " + std::to_string(chunk_records_seen) +
-               " (raw offset " + std::to_string(raw_offset) + ")";
+        return "chunk " + std::to_string(chunk.chunk_number) + " record " +
+               std::to_string(chunk_records_seen) + " (raw offset " + std::to_string(raw_offset) +
+               ")";
     }
 
     // Decodes the record at `cursor` of the loaded chunk.
@@ -363,43 +389,46 @@ struct TraceReader::Impl {
         const uint32_t at = static_cast<uint32_t>(cursor);
         const size_t remaining = raw.size() - cursor;
         if (remaining < format::kRecordFrameSize) {
-            report(TraceErrorCode::invalid_record, chunk_offset,
-                   record_place(at) + ": frame needs 8 bytes, " + std::to_string(remaining) + " remain");
-            return RecordStatus::stop_chunk;
+            report(TraceErrorCode::kInvalidRecord, chunk_offset,
+                   record_place(at) + ": frame needs 8 bytes, " + std::to_string(remaining) +
+                       " remain");
+            return RecordStatus::kStopChunk;
         }
         uint32_t rsize = format::load<uint32_t>(raw.data() + cursor);
         uint32_t rkind = format::load<uint32_t>(raw.data() + cursor + 4);
         if (rsize > remaining - format::kRecordFrameSize) {
-            report(TraceErrorCode::length_out_of_range, chunk_offset,
+            report(TraceErrorCode::kLengthOutOfRange, chunk_offset,
                    record_place(at) + ": claims " + std::to_string(rsize) + " bytes, only " +
-                       std::to_string(remaining - format::kRecordFrameSize) + " remain in the chunk");
-            return RecordStatus::stop_chunk;
+                       std::to_string(remaining - format::kRecordFrameSize) +
+                       " remain in the chunk");
+            return RecordStatus::kStopChunk;
         }
         const uint8_t* bytes = raw.data() + cursor + format::kRecordFrameSize;
-        cursor = std::min<size_t>(raw.size(), cursor + format::kRecordFrameSize + format::align8(rsize));
+        cursor =
+            std::min<size_t>(raw.size(), cursor + format::kRecordFrameSize + format::align8(rsize));
         ++chunk_records_seen;
 
         flatbuffers::Verifier verifier(bytes, rsize, 64, 10'000'000);
         if (!fbs::VerifyRecordBuffer(verifier)) {
-            report_with(TraceErrorCode::invalid_record, chunk_offset,
+            report_with(TraceErrorCode::kInvalidRecord, chunk_offset,
                         [&] { return record_place(at) + ": fails the FlatBuffers verifier"; });
-            return RecordStatus::broken;
+            return RecordStatus::kBroken;
         }
         const fbs::Record* record = fbs::GetRecord(bytes);
         fbs::RecordBody kind = record->body_type();
         if (static_cast<uint32_t>(kind) != rkind) {
-            report_with(TraceErrorCode::invalid_record, chunk_offset, [&] {
-                return record_place(at) + ": frame says kind " + std::to_string(rkind) + ", record holds " +
-                       std::to_string(static_cast<unsigned>(kind));
+            report_with(TraceErrorCode::kInvalidRecord, chunk_offset, [&] {
+                return record_place(at) + ": frame says kind " + std::to_string(rkind) +
+                       ", record holds " + std::to_string(static_cast<unsigned>(kind));
             });
-            return RecordStatus::broken;
+            return RecordStatus::kBroken;
         }
         if (kind == fbs::RecordBody::NONE || record->body() == nullptr) {
-            report_with(TraceErrorCode::invalid_record, chunk_offset,
+            report_with(TraceErrorCode::kInvalidRecord, chunk_offset,
                         [&] { return record_place(at) + ": record has no body"; });
-            return RecordStatus::broken;
+            return RecordStatus::kBroken;
         }
-        if (!check_record(*record, at)) return RecordStatus::skip;
+        if (!check_record(*record, at)) return RecordStatus::kSkip;
 
         out->record = record;
         out->kind = kind;
@@ -408,7 +437,7 @@ struct TraceReader::Impl {
         out->chunk_offset = chunk_offset;
         out->chunk_number = chunk.chunk_number;
         out->raw_offset = at;
-        return RecordStatus::ok;
+        return RecordStatus::kOk;
     }
 
     // Rules beyond the verifier: content keys, snapshot references, submission order.
@@ -416,10 +445,13 @@ struct TraceReader::Impl {
         if (const auto* c = record.body_as_MemoryContents()) {
             const uint8_t* data = c->bytes() ? c->bytes()->data() : nullptr;
             size_t n = c->bytes() ? c->bytes()->size() : 0;
-            uint64_t key = options.verify_content_keys ? format::content_key(data, n, c->seed(), hash_bits) : c->hash();
+            uint64_t key = options.verify_content_keys
+                               ? format::content_key(data, n, c->seed(), hash_bits)
+                               : c->hash();
             if (key != c->hash()) {
-                report_with(TraceErrorCode::content_mismatch, chunk_offset, [&] {
-                    return record_place(at) + ": contents " + hex(c->hash()) + " hold bytes hashing to " + hex(key);
+                report_with(TraceErrorCode::kContentMismatch, chunk_offset, [&] {
+                    return record_place(at) + ": contents " + hex(c->hash()) +
+                           " hold bytes hashing to " + hex(key);
                 });
                 return false;
             }
@@ -433,16 +465,18 @@ struct TraceReader::Impl {
             for (const fbs::MemorySnapshot* s : *list) {
                 auto it = contents.find(s->hash());
                 if (it == contents.end() || (!it->second.seen_in_scan && !seeked)) {
-                    report_with(TraceErrorCode::missing_contents, chunk_offset, [&] {
+                    report_with(TraceErrorCode::kMissingContents, chunk_offset, [&] {
                         return record_place(at) + " (" + record_kind_name(record.body_type()) +
-                               "): snapshot of address " + hex(s->address()) + " refers to contents " +
-                               hex(s->hash()) + " that no earlier record defines";
+                               "): snapshot of address " + hex(s->address()) +
+                               " refers to contents " + hex(s->hash()) +
+                               " that no earlier record defines";
                     });
                     ok = false;
                 } else if (it->second.size != s->size()) {
-                    report_with(TraceErrorCode::content_mismatch, chunk_offset, [&] {
-                        return record_place(at) + ": snapshot size " + std::to_string(s->size()) + " but contents " +
-                               hex(s->hash()) + " hold " + std::to_string(it->second.size) + " bytes";
+                    report_with(TraceErrorCode::kContentMismatch, chunk_offset, [&] {
+                        return record_place(at) + ": snapshot size " + std::to_string(s->size()) +
+                               " but contents " + hex(s->hash()) + " hold " +
+                               std::to_string(it->second.size) + " bytes";
                     });
                     ok = false;
                 }
@@ -451,9 +485,10 @@ struct TraceReader::Impl {
         if (!ok) return false;
         if (const auto* q = record.body_as_QueueSubmit()) {
             if (q->submission_index() != next_submission) {
-                report_with(TraceErrorCode::invalid_record, chunk_offset, [&] {
-                    return record_place(at) + ": submission_index " + std::to_string(q->submission_index()) +
-                           ", expected " + std::to_string(next_submission);
+                report_with(TraceErrorCode::kInvalidRecord, chunk_offset, [&] {
+                    return record_place(at) + ": submission_index " +
+                           std::to_string(q->submission_index()) + ", expected " +
+                           std::to_string(next_submission);
                 });
             }
             next_submission = q->submission_index() + 1;
@@ -464,9 +499,10 @@ struct TraceReader::Impl {
 
     void close_chunk() {
         if (chunk_loaded && !chunk_cut_short && chunk_records_seen != chunk.record_count) {
-            report(TraceErrorCode::invalid_record, chunk_offset,
-                   "chunk " + std::to_string(chunk.chunk_number) + " header says " + std::to_string(chunk.record_count) +
-                       " records, its payload holds " + std::to_string(chunk_records_seen));
+            report(TraceErrorCode::kInvalidRecord, chunk_offset,
+                   "chunk " + std::to_string(chunk.chunk_number) + " header says " +
+                       std::to_string(chunk.record_count) + " records, its payload holds " +
+                       std::to_string(chunk_records_seen));
         }
         if (chunk_loaded && !chunk_cut_short && chunk_records_seen == chunk.record_count) {
             check_submissions_against_index();
@@ -478,10 +514,10 @@ struct TraceReader::Impl {
     // A chunk is cut short after its first few broken frames: the rest of a chunk that
     // breaks like that (a hostile one: 256 MiB of zeros is 2^25 broken frames) holds nothing.
     void stop_chunk_after_broken_frames() {
-        report(TraceErrorCode::invalid_record, chunk_offset,
-               "chunk " + std::to_string(chunk.chunk_number) + ": " + std::to_string(chunk_broken_frames) +
-                   " broken record frames; the remaining " + std::to_string(raw.size() - cursor) +
-                   " raw bytes of the chunk are skipped");
+        report(TraceErrorCode::kInvalidRecord, chunk_offset,
+               "chunk " + std::to_string(chunk.chunk_number) + ": " +
+                   std::to_string(chunk_broken_frames) + " broken record frames; the remaining " +
+                   std::to_string(raw.size() - cursor) + " raw bytes of the chunk are skipped");
         stats.bytes_skipped += raw.size() - cursor;
         chunk_cut_short = true;
         close_chunk();
@@ -492,7 +528,7 @@ struct TraceReader::Impl {
         release_side_chunk_if_big();
         format::ChunkHeader h{};
         TraceError err;
-        if (read_chunk(chunk_offset, &h, &raw, &err) != ChunkStatus::ok) {
+        if (read_chunk(chunk_offset, &h, &raw, &err) != ChunkStatus::kOk) {
             report_budget_or(std::move(err));
             chunk_cut_short = true;
             close_chunk();
@@ -504,7 +540,7 @@ struct TraceReader::Impl {
 
     // Budget damage is said once; other errors each time.
     void report_budget_or(TraceError err) {
-        if (err.code == TraceErrorCode::length_out_of_range && budget_exhausted) {
+        if (err.code == TraceErrorCode::kLengthOutOfRange && budget_exhausted) {
             if (budget_reported) return;
             budget_reported = true;
         }
@@ -522,10 +558,12 @@ struct TraceReader::Impl {
             ReadAhead r;
             r.offset = offset;
             r.status = read_checked_payload(ahead_decoder, offset, &r.header, &r.error);
-            if (r.status == ChunkStatus::ok && r.header.kind == static_cast<uint16_t>(format::ChunkKind::records) &&
+            if (r.status == ChunkStatus::kOk &&
+                r.header.kind == static_cast<uint16_t>(format::ChunkKind::kRecords) &&
                 r.header.raw_size <= kReadAheadMaxRawBytes) {
-                r.status = decompress_payload(ahead_decoder, offset, r.header, &ahead_raw, &r.error);
-                r.decompressed = r.status == ChunkStatus::ok;
+                r.status =
+                    decompress_payload(ahead_decoder, offset, r.header, &ahead_raw, &r.error);
+                r.decompressed = r.status == ChunkStatus::kOk;
             }
             return r;
         });
@@ -546,12 +584,12 @@ struct TraceReader::Impl {
             ahead_started_at = UINT64_MAX;
             *h = r.header;
             *err = std::move(r.error);
-            if (r.status == ChunkStatus::over_budget) budget_exhausted = true;
+            if (r.status == ChunkStatus::kOverBudget) budget_exhausted = true;
             if (r.decompressed) {
                 std::swap(raw, ahead_raw);
                 release_if_big(ahead_raw);
                 *have_raw = true;
-            } else if (r.status == ChunkStatus::ok) {
+            } else if (r.status == ChunkStatus::kOk) {
                 std::swap(decoder.compressed, ahead_decoder.compressed);
             }
             return r.status;
@@ -572,11 +610,11 @@ struct TraceReader::Impl {
             bool have_raw = false;
             ChunkStatus status = take_chunk(&h, &err, &have_raw);
             const uint64_t here = pos;
-            const bool is_records = h.kind == static_cast<uint16_t>(format::ChunkKind::records);
-            if ((status == ChunkStatus::ok || status == ChunkStatus::bad_payload) && is_records) {
+            const bool is_records = h.kind == static_cast<uint16_t>(format::ChunkKind::kRecords);
+            if ((status == ChunkStatus::kOk || status == ChunkStatus::kBadPayload) && is_records) {
                 check_chunk_against_index(here, h);
             }
-            if (status == ChunkStatus::ok && is_records) {
+            if (status == ChunkStatus::kOk && is_records) {
                 if (!in_order(here, h)) {
                     pos += format::kChunkHeaderSize + h.compressed_size;
                     continue;
@@ -587,34 +625,34 @@ struct TraceReader::Impl {
                 }
             }
             // Reading ahead pays for big chunks; for small ones a task costs more than it hides.
-            if (status == ChunkStatus::ok && is_records && h.raw_size >= kReadAheadMinRawBytes) {
+            if (status == ChunkStatus::kOk && is_records && h.raw_size >= kReadAheadMinRawBytes) {
                 start_read_ahead(pos + format::kChunkHeaderSize + h.compressed_size);
             }
             switch (status) {
-            case ChunkStatus::over_budget:
+            case ChunkStatus::kOverBudget:
                 report_budget_or(std::move(err));
                 ++stats.chunks_damaged;
                 pos = size;
                 return false;
-            case ChunkStatus::truncated:
+            case ChunkStatus::kTruncated:
                 report(std::move(err));
                 ++stats.chunks_damaged;
                 pos = size;
                 return false;
-            case ChunkStatus::bad_header:
+            case ChunkStatus::kBadHeader:
                 report(std::move(err));
                 resync(pos + 1);
                 continue;
-            case ChunkStatus::bad_payload:
+            case ChunkStatus::kBadPayload:
                 report(std::move(err));
                 ++stats.chunks_damaged;
                 pos += format::kChunkHeaderSize + h.compressed_size;
                 skipped_since_chunk = true;
                 continue;
-            case ChunkStatus::ok: break;
+            case ChunkStatus::kOk: break;
             }
             pos += format::kChunkHeaderSize + h.compressed_size;
-            if (h.kind == static_cast<uint16_t>(format::ChunkKind::index)) {
+            if (h.kind == static_cast<uint16_t>(format::ChunkKind::kIndex)) {
                 if (reached_index_chunk(here, pos)) {
                     finish_scan();
                     return false;
@@ -625,24 +663,27 @@ struct TraceReader::Impl {
                 // Kinds added by a newer minor version are skipped; in a file this reader
                 // fully knows, an unknown kind is a records chunk whose label was changed.
                 if (version_minor <= format::kVersionMinor) {
-                    report(TraceErrorCode::bad_chunk, here,
-                           "chunk " + std::to_string(h.chunk_number) + " has kind " + std::to_string(h.kind) +
-                               ", which format " + std::to_string(version_major) + "." + std::to_string(version_minor) +
-                               " does not define; its " + std::to_string(h.record_count) + " records are skipped");
+                    report(TraceErrorCode::kBadChunk, here,
+                           "chunk " + std::to_string(h.chunk_number) + " has kind " +
+                               std::to_string(h.kind) + ", which format " +
+                               std::to_string(version_major) + "." + std::to_string(version_minor) +
+                               " does not define; its " + std::to_string(h.record_count) +
+                               " records are skipped");
                     ++stats.chunks_damaged;
                 }
                 continue;
             }
             if (!skipped_since_chunk && h.chunk_number != expected_chunk_number) {
-                report(TraceErrorCode::bad_chunk, here,
+                report(TraceErrorCode::kBadChunk, here,
                        "chunk number " + std::to_string(h.chunk_number) + " where " +
-                           std::to_string(expected_chunk_number) + " was expected (chunks missing or reordered)");
+                           std::to_string(expected_chunk_number) +
+                           " was expected (chunks missing or reordered)");
             }
             if (!skipped_since_chunk && h.first_submission != next_submission) {
-                report(TraceErrorCode::bad_chunk, here,
+                report(TraceErrorCode::kBadChunk, here,
                        "chunk " + std::to_string(h.chunk_number) + " starts at submission " +
-                           std::to_string(h.first_submission) + " but " + std::to_string(next_submission) +
-                           " submissions precede it");
+                           std::to_string(h.first_submission) + " but " +
+                           std::to_string(next_submission) + " submissions precede it");
             }
             next_submission = h.first_submission;
             expected_chunk_number = h.chunk_number + 1;
@@ -669,14 +710,16 @@ struct TraceReader::Impl {
     // False for a chunk that repeats or goes back (a duplicated or reordered chunk): its
     // records would hand out submissions already handed out, so they are skipped.
     bool in_order(uint64_t at, const format::ChunkHeader& h) {
-        if (!have_last_chunk || (h.chunk_number > last_chunk_number && h.first_submission >= next_submission)) {
+        if (!have_last_chunk ||
+            (h.chunk_number > last_chunk_number && h.first_submission >= next_submission)) {
             return true;
         }
-        report(TraceErrorCode::bad_chunk, at,
-               "chunk " + std::to_string(h.chunk_number) + " (first submission " + std::to_string(h.first_submission) +
-                   ") comes after chunk " + std::to_string(last_chunk_number) + " and " +
-                   std::to_string(next_submission) +
-                   " submissions: a repeated or reordered chunk; its " + std::to_string(h.record_count) +
+        report(TraceErrorCode::kBadChunk, at,
+               "chunk " + std::to_string(h.chunk_number) + " (first submission " +
+                   std::to_string(h.first_submission) + ") comes after chunk " +
+                   std::to_string(last_chunk_number) + " and " + std::to_string(next_submission) +
+                   " submissions: a repeated or reordered chunk; its " +
+                   std::to_string(h.record_count) +
                    " records are skipped so that no record is handed out twice");
         ++stats.chunks_damaged;
         skipped_since_chunk = true;
@@ -688,8 +731,9 @@ struct TraceReader::Impl {
         if (!index) return;
         auto it = index_position.find(at);
         if (it == index_position.end()) {
-            report(TraceErrorCode::bad_index, at,
-                   "chunk " + std::to_string(h.chunk_number) + " is a records chunk the index does not list");
+            report(TraceErrorCode::kBadIndex, at,
+                   "chunk " + std::to_string(h.chunk_number) +
+                       " is a records chunk the index does not list");
             return;
         }
         CLASTRACE_DEBUG_ASSERT(it->second < index_chunk_read.size());
@@ -698,8 +742,9 @@ struct TraceReader::Impl {
         std::string differs;
         auto compare = [&](const char* field, uint64_t listed, uint64_t read) {
             if (listed != read) {
-                differs += std::string(differs.empty() ? "" : ", ") + field + " " + std::to_string(listed) +
-                           " in the index, " + std::to_string(read) + " in the chunk";
+                differs += std::string(differs.empty() ? "" : ", ") + field + " " +
+                           std::to_string(listed) + " in the index, " + std::to_string(read) +
+                           " in the chunk";
             }
         };
         compare("chunk number", it->second, h.chunk_number);
@@ -708,8 +753,9 @@ struct TraceReader::Impl {
         compare("raw size", c->raw_size(), h.raw_size);
         compare("compressed size", c->compressed_size(), h.compressed_size);
         if (!differs.empty()) {
-            report(TraceErrorCode::bad_index, at,
-                   "index entry " + std::to_string(it->second) + " disagrees with the chunk there: " + differs);
+            report(TraceErrorCode::kBadIndex, at,
+                   "index entry " + std::to_string(it->second) +
+                       " disagrees with the chunk there: " + differs);
         }
     }
 
@@ -720,10 +766,10 @@ struct TraceReader::Impl {
         if (it == index_position.end()) return;
         uint32_t listed = index->chunks()->Get(it->second)->submission_count();
         if (listed != chunk_submissions) {
-            report(TraceErrorCode::bad_index, chunk_offset,
-                   "index entry " + std::to_string(it->second) + " says chunk " + std::to_string(chunk.chunk_number) +
-                       " holds " + std::to_string(listed) + " submissions, it holds " +
-                       std::to_string(chunk_submissions));
+            report(TraceErrorCode::kBadIndex, chunk_offset,
+                   "index entry " + std::to_string(it->second) + " says chunk " +
+                       std::to_string(chunk.chunk_number) + " holds " + std::to_string(listed) +
+                       " submissions, it holds " + std::to_string(chunk_submissions));
         }
     }
 
@@ -735,17 +781,20 @@ struct TraceReader::Impl {
         const auto* chunks = index->chunks();
         for (uint32_t i = 0; i < chunks->size(); ++i) {
             if (index_chunk_read[i]) continue;
-            report_with(TraceErrorCode::bad_index, chunks->Get(i)->file_offset(), [&] {
+            report_with(TraceErrorCode::kBadIndex, chunks->Get(i)->file_offset(), [&] {
                 return "index entry " + std::to_string(i) + " lists a records chunk at offset " +
-                       std::to_string(chunks->Get(i)->file_offset()) + " that the scan did not read as one";
+                       std::to_string(chunks->Get(i)->file_offset()) +
+                       " that the scan did not read as one";
             });
         }
         if (damage_total != 0) return;
-        if (index->record_count() != scan_records_claimed || index->submission_count() != next_submission) {
-            report(TraceErrorCode::bad_index, index_offset,
+        if (index->record_count() != scan_records_claimed ||
+            index->submission_count() != next_submission) {
+            report(TraceErrorCode::kBadIndex, index_offset,
                    "index counts " + std::to_string(index->record_count()) + " records and " +
-                       std::to_string(index->submission_count()) + " submissions, the chunks hold " +
-                       std::to_string(scan_records_claimed) + " and " + std::to_string(next_submission));
+                       std::to_string(index->submission_count()) +
+                       " submissions, the chunks hold " + std::to_string(scan_records_claimed) +
+                       " and " + std::to_string(next_submission));
         }
     }
 
@@ -755,19 +804,21 @@ struct TraceReader::Impl {
     bool reached_index_chunk(uint64_t at, uint64_t after) {
         if (index) {
             if (at == index_offset) return true;
-            report(TraceErrorCode::bad_index, at,
-                   "index chunk here but the trailer points at offset " + std::to_string(index_offset) +
-                       "; the chunks after it are still read");
+            report(TraceErrorCode::kBadIndex, at,
+                   "index chunk here but the trailer points at offset " +
+                       std::to_string(index_offset) + "; the chunks after it are still read");
             return false;
         }
         if (after == size) return true;
         if (size - after >= format::kTrailerSize) {
             format::Trailer t{};
             if (src->read_at(after, sizeof t, reinterpret_cast<uint8_t*>(&t)) &&
-                std::memcmp(t.magic, format::kTrailerMagic, 8) == 0 && format::trailer_checksum(t) == t.checksum) {
+                std::memcmp(t.magic, format::kTrailerMagic, 8) == 0 &&
+                format::trailer_checksum(t) == t.checksum) {
                 if (after + format::kTrailerSize < size) {
-                    report(TraceErrorCode::trailing_bytes, after + format::kTrailerSize,
-                           std::to_string(size - after - format::kTrailerSize) + " bytes after the trailer");
+                    report(TraceErrorCode::kTrailingBytes, after + format::kTrailerSize,
+                           std::to_string(size - after - format::kTrailerSize) +
+                               " bytes after the trailer");
                 }
                 return true;
             }
@@ -786,14 +837,15 @@ struct TraceReader::Impl {
             if (chunk_loaded && raw_evicted && !reload_evicted_chunk()) continue;
             if (chunk_loaded && cursor < raw.size()) {
                 RecordStatus s = parse_record(out);
-                if (s == RecordStatus::ok) {
+                if (s == RecordStatus::kOk) {
                     ++stats.records;
                     return true;
                 }
                 ++stats.records_damaged;
-                if (s == RecordStatus::broken && ++chunk_broken_frames >= kMaxBrokenFramesPerChunk) {
+                if (s == RecordStatus::kBroken &&
+                    ++chunk_broken_frames >= kMaxBrokenFramesPerChunk) {
                     stop_chunk_after_broken_frames();
-                } else if (s == RecordStatus::stop_chunk) {
+                } else if (s == RecordStatus::kStopChunk) {
                     chunk_cut_short = true;
                     close_chunk();
                 }
@@ -824,20 +876,21 @@ struct TraceReader::Impl {
         seeked = true;
         if (index) {
             if (k >= index->submission_count()) {
-                return error(TraceErrorCode::invalid_argument, 0,
+                return error(TraceErrorCode::kInvalidArgument, 0,
                              "submission " + std::to_string(k) + " requested, the trace has " +
                                  std::to_string(index->submission_count()));
             }
             const auto* chunks = index->chunks();
             const fbs::ChunkLocation* found = nullptr;
             for (const fbs::ChunkLocation* c : *chunks) {
-                if (c->submission_count() > 0 && c->first_submission() <= k && k - c->first_submission() < c->submission_count()) {
+                if (c->submission_count() > 0 && c->first_submission() <= k &&
+                    k - c->first_submission() < c->submission_count()) {
                     found = c;
                     break;
                 }
             }
             if (!found || found->file_offset() < data_start || found->file_offset() >= size) {
-                return error(TraceErrorCode::bad_index, index_offset,
+                return error(TraceErrorCode::kBadIndex, index_offset,
                              "index lists no chunk holding submission " + std::to_string(k));
             }
             restart_at(found->file_offset());
@@ -856,14 +909,16 @@ struct TraceReader::Impl {
             }
             if (at > k) break;
         }
-        return error(TraceErrorCode::invalid_argument, 0,
-                     "submission " + std::to_string(k) + " not found" + (index ? "" : " (trace has no index)"));
+        return error(TraceErrorCode::kInvalidArgument, 0,
+                     "submission " + std::to_string(k) + " not found" +
+                         (index ? "" : " (trace has no index)"));
     }
 
     TraceError read_contents(uint64_t hash, std::vector<uint8_t>* out) {
         auto it = contents.find(hash);
         if (it == contents.end()) {
-            return error(TraceErrorCode::missing_contents, 0, "no contents with hash " + hex(hash) + " in the trace");
+            return error(TraceErrorCode::kMissingContents, 0,
+                         "no contents with hash " + hex(hash) + " in the trace");
         }
         const ContentPlace place = it->second;
         const std::vector<uint8_t>* source = nullptr;
@@ -875,29 +930,33 @@ struct TraceReader::Impl {
                 TraceError err;
                 side_offset = UINT64_MAX;
                 ChunkStatus status = read_checked_payload(decoder, place.chunk_offset, &h, &err);
-                if (status == ChunkStatus::ok) {
+                if (status == ChunkStatus::kOk) {
                     // Two big buffers at once would double the reader's memory: the chunk
                     // being read gives its bytes up and is decompressed again by next().
-                    if (h.raw_size > kBigBufferBytes && raw.capacity() > kBigBufferBytes && chunk_loaded) {
+                    if (h.raw_size > kBigBufferBytes && raw.capacity() > kBigBufferBytes &&
+                        chunk_loaded) {
                         std::vector<uint8_t>().swap(raw);
                         raw_evicted = true;
                     }
                     status = decompress(place.chunk_offset, h, &side_raw, &err);
                 }
-                if (status == ChunkStatus::over_budget) report_budget_or(err);
-                if (status != ChunkStatus::ok) return err;
+                if (status == ChunkStatus::kOverBudget) report_budget_or(err);
+                if (status != ChunkStatus::kOk) return err;
                 side_offset = place.chunk_offset;
             }
             source = &side_raw;
         }
         const std::vector<uint8_t>& r = *source;
         auto bad = [&](const std::string& why) {
-            return error(TraceErrorCode::bad_index, place.chunk_offset,
-                         "contents " + hex(hash) + " not found at raw offset " + std::to_string(place.raw_offset) + ": " + why);
+            return error(TraceErrorCode::kBadIndex, place.chunk_offset,
+                         "contents " + hex(hash) + " not found at raw offset " +
+                             std::to_string(place.raw_offset) + ": " + why);
         };
-        if (place.raw_offset > r.size() || r.size() - place.raw_offset < format::kRecordFrameSize) return bad("outside the chunk");
+        if (place.raw_offset > r.size() || r.size() - place.raw_offset < format::kRecordFrameSize)
+            return bad("outside the chunk");
         uint32_t rsize = format::load<uint32_t>(r.data() + place.raw_offset);
-        if (rsize > r.size() - place.raw_offset - format::kRecordFrameSize) return bad("frame overruns the chunk");
+        if (rsize > r.size() - place.raw_offset - format::kRecordFrameSize)
+            return bad("frame overruns the chunk");
         const uint8_t* bytes = r.data() + place.raw_offset + format::kRecordFrameSize;
         flatbuffers::Verifier verifier(bytes, rsize, 64, 10'000'000);
         if (!fbs::VerifyRecordBuffer(verifier)) return bad("record fails the verifier");
@@ -906,7 +965,7 @@ struct TraceReader::Impl {
         const uint8_t* data = c->bytes() ? c->bytes()->data() : nullptr;
         size_t n = c->bytes() ? c->bytes()->size() : 0;
         if (format::content_key(data, n, c->seed(), hash_bits) != hash) {
-            return error(TraceErrorCode::content_mismatch, place.chunk_offset,
+            return error(TraceErrorCode::kContentMismatch, place.chunk_offset,
                          "contents " + hex(hash) + " hold bytes that hash differently");
         }
         out->assign(data, data + n);
@@ -920,59 +979,71 @@ struct TraceReader::Impl {
         stats.file_size = size;
         raw_budget = options.max_raw_bytes ? options.max_raw_bytes : default_raw_budget(size);
         stats.raw_budget = raw_budget;
-        if (size == 0) return error(TraceErrorCode::truncated, 0, "empty file");
+        if (size == 0) return error(TraceErrorCode::kTruncated, 0, "empty file");
         if (size < format::kFileHeaderSize) {
             if (size >= 8 && std::memcmp(read_small(0, 8).data(), format::kFileMagic, 8) != 0) {
-                return error(TraceErrorCode::not_a_trace, 0, "not a clastrace trace (wrong magic)");
+                return error(TraceErrorCode::kNotATrace, 0, "not a clastrace trace (wrong magic)");
             }
-            return error(TraceErrorCode::truncated, size,
-                         "file of " + std::to_string(size) + " bytes is shorter than the 32-byte file header");
+            return error(TraceErrorCode::kTruncated, size,
+                         "file of " + std::to_string(size) +
+                             " bytes is shorter than the 32-byte file header");
         }
         format::FileHeader fh{};
         if (!src->read_at(0, sizeof fh, reinterpret_cast<uint8_t*>(&fh))) {
-            return error(TraceErrorCode::io_error, 0, "read failed: " + src->last_error());
+            return error(TraceErrorCode::kIoError, 0, "read failed: " + src->last_error());
         }
         if (std::memcmp(fh.magic, format::kFileMagic, 8) != 0) {
-            return error(TraceErrorCode::not_a_trace, 0, "not a clastrace trace (wrong magic)");
+            return error(TraceErrorCode::kNotATrace, 0, "not a clastrace trace (wrong magic)");
         }
         version_major = fh.version_major;
         version_minor = fh.version_minor;
         if (fh.version_major != format::kVersionMajor) {
-            return error(TraceErrorCode::unsupported_version, offsetof(format::FileHeader, version_major),
-                         "format version " + std::to_string(fh.version_major) + "." + std::to_string(fh.version_minor) +
-                             " is not supported (this reader reads " + std::to_string(format::kVersionMajor) + ".x)");
+            return error(TraceErrorCode::kUnsupportedVersion,
+                         offsetof(format::FileHeader, version_major),
+                         "format version " + std::to_string(fh.version_major) + "." +
+                             std::to_string(fh.version_minor) +
+                             " is not supported (this reader reads " +
+                             std::to_string(format::kVersionMajor) + ".x)");
         }
         if (fh.trace_header_size > format::kMaxTraceHeaderBytes ||
             fh.trace_header_size > size - format::kFileHeaderSize) {
-            report(TraceErrorCode::length_out_of_range, offsetof(format::FileHeader, trace_header_size),
-                   "trace header claims " + std::to_string(fh.trace_header_size) + " bytes (limit " +
-                       std::to_string(format::kMaxTraceHeaderBytes) + ", file has " +
-                       std::to_string(size - format::kFileHeaderSize) + " after the file header)");
+            report(TraceErrorCode::kLengthOutOfRange,
+                   offsetof(format::FileHeader, trace_header_size),
+                   "trace header claims " + std::to_string(fh.trace_header_size) +
+                       " bytes (limit " + std::to_string(format::kMaxTraceHeaderBytes) +
+                       ", file has " + std::to_string(size - format::kFileHeaderSize) +
+                       " after the file header)");
             data_start = format::kFileHeaderSize;
             restart_at(data_start);
             resync(data_start);
         } else {
             header_bytes.resize(fh.trace_header_size);
             if (!src->read_at(format::kFileHeaderSize, header_bytes.size(), header_bytes.data())) {
-                return error(TraceErrorCode::io_error, format::kFileHeaderSize, "read failed: " + src->last_error());
+                return error(TraceErrorCode::kIoError, format::kFileHeaderSize,
+                             "read failed: " + src->last_error());
             }
             data_start = format::kFileHeaderSize + format::align8(fh.trace_header_size);
             // The padding to 8 bytes is outside every checksum, so it must be zero.
             uint64_t pad_at = format::kFileHeaderSize + fh.trace_header_size;
             if (data_start <= size) {
-                std::vector<uint8_t> pad = read_small(pad_at, static_cast<size_t>(data_start - pad_at));
+                std::vector<uint8_t> pad =
+                    read_small(pad_at, static_cast<size_t>(data_start - pad_at));
                 if (std::any_of(pad.begin(), pad.end(), [](uint8_t b) { return b != 0; })) {
-                    report(TraceErrorCode::bad_chunk, pad_at, "non-zero padding after the trace header");
+                    report(TraceErrorCode::kBadChunk, pad_at,
+                           "non-zero padding after the trace header");
                 }
             }
-            uint64_t computed = format::file_header_checksum(fh, header_bytes.data(), header_bytes.size());
+            uint64_t computed =
+                format::file_header_checksum(fh, header_bytes.data(), header_bytes.size());
             if (computed != fh.checksum) {
-                report(TraceErrorCode::checksum_mismatch, offsetof(format::FileHeader, checksum),
-                       "file header checksum mismatch (stored " + hex(fh.checksum) + ", computed " + hex(computed) + ")");
+                report(TraceErrorCode::kChecksumMismatch, offsetof(format::FileHeader, checksum),
+                       "file header checksum mismatch (stored " + hex(fh.checksum) + ", computed " +
+                           hex(computed) + ")");
             } else {
-                flatbuffers::Verifier verifier(header_bytes.data(), header_bytes.size(), 64, 1'000'000);
+                flatbuffers::Verifier verifier(header_bytes.data(), header_bytes.size(), 64,
+                                               1'000'000);
                 if (!verifier.VerifyBuffer<fbs::TraceHeader>(nullptr)) {
-                    report(TraceErrorCode::invalid_record, format::kFileHeaderSize,
+                    report(TraceErrorCode::kInvalidRecord, format::kFileHeaderSize,
                            "trace header fails the FlatBuffers verifier");
                 } else {
                     header = flatbuffers::GetRoot<fbs::TraceHeader>(header_bytes.data());
@@ -997,57 +1068,64 @@ struct TraceReader::Impl {
 
     void open_index() {
         if (size < data_start + format::kTrailerSize) {
-            report(TraceErrorCode::truncated, size, "no trailer: the file was cut or its writer never finished");
+            report(TraceErrorCode::kTruncated, size,
+                   "no trailer: the file was cut or its writer never finished");
             return;
         }
         const uint64_t trailer_at = size - format::kTrailerSize;
         format::Trailer t{};
         if (!src->read_at(trailer_at, sizeof t, reinterpret_cast<uint8_t*>(&t))) return;
         if (std::memcmp(t.magic, format::kTrailerMagic, 8) != 0) {
-            report(TraceErrorCode::truncated, size,
+            report(TraceErrorCode::kTruncated, size,
                    "no trailer at the end of the file: it was cut or its writer never finished");
             return;
         }
         uint64_t computed = format::trailer_checksum(t);
         if (computed != t.checksum) {
-            report(TraceErrorCode::bad_index, trailer_at,
-                   "trailer checksum mismatch (stored " + hex(t.checksum) + ", computed " + hex(computed) + ")");
+            report(TraceErrorCode::kBadIndex, trailer_at,
+                   "trailer checksum mismatch (stored " + hex(t.checksum) + ", computed " +
+                       hex(computed) + ")");
             return;
         }
         if (t.trailer_offset != trailer_at || t.index_offset < data_start ||
-            t.index_offset > trailer_at - std::min<uint64_t>(trailer_at, format::kChunkHeaderSize)) {
-            report(TraceErrorCode::bad_index, trailer_at, "trailer points outside the file");
+            t.index_offset >
+                trailer_at - std::min<uint64_t>(trailer_at, format::kChunkHeaderSize)) {
+            report(TraceErrorCode::kBadIndex, trailer_at, "trailer points outside the file");
             return;
         }
         format::ChunkHeader h{};
         TraceError err;
-        if (read_chunk(t.index_offset, &h, &index_raw, &err) != ChunkStatus::ok) {
-            err.code = err.code == TraceErrorCode::truncated ? TraceErrorCode::bad_index : err.code;
+        if (read_chunk(t.index_offset, &h, &index_raw, &err) != ChunkStatus::kOk) {
+            err.code =
+                err.code == TraceErrorCode::kTruncated ? TraceErrorCode::kBadIndex : err.code;
             err.message += " (index chunk)";
             report(std::move(err));
             return;
         }
-        if (h.kind != static_cast<uint16_t>(format::ChunkKind::index) ||
+        if (h.kind != static_cast<uint16_t>(format::ChunkKind::kIndex) ||
             t.index_offset + format::kChunkHeaderSize + h.compressed_size != trailer_at) {
-            report(TraceErrorCode::bad_index, t.index_offset, "trailer does not point at the index chunk");
+            report(TraceErrorCode::kBadIndex, t.index_offset,
+                   "trailer does not point at the index chunk");
             return;
         }
         flatbuffers::Verifier verifier(index_raw.data(), index_raw.size(), 64, 10'000'000);
         if (!verifier.VerifyBuffer<fbs::TraceIndex>(nullptr)) {
-            report(TraceErrorCode::bad_index, t.index_offset, "index fails the FlatBuffers verifier");
+            report(TraceErrorCode::kBadIndex, t.index_offset,
+                   "index fails the FlatBuffers verifier");
             return;
         }
         const auto* idx = flatbuffers::GetRoot<fbs::TraceIndex>(index_raw.data());
         if (!idx->chunks()) {
-            report(TraceErrorCode::bad_index, t.index_offset, "index lists no chunks");
+            report(TraceErrorCode::kBadIndex, t.index_offset, "index lists no chunks");
             return;
         }
         // The index chunk's own header must agree with what it indexes.
         if (h.record_count != 0 || h.first_submission != idx->submission_count() ||
             h.chunk_number != idx->chunks()->size()) {
-            report(TraceErrorCode::bad_index, t.index_offset,
-                   "index chunk header disagrees with the index (record count " + std::to_string(h.record_count) +
-                       ", first submission " + std::to_string(h.first_submission) + ", chunk number " +
+            report(TraceErrorCode::kBadIndex, t.index_offset,
+                   "index chunk header disagrees with the index (record count " +
+                       std::to_string(h.record_count) + ", first submission " +
+                       std::to_string(h.first_submission) + ", chunk number " +
                        std::to_string(h.chunk_number) + ")");
             return;
         }
@@ -1061,15 +1139,17 @@ struct TraceReader::Impl {
             for (const fbs::ContentLocation* c : *places) {
                 if (c->chunk() >= chunks->size()) {
                     if (!reported) {
-                        report(TraceErrorCode::bad_index, index_offset,
-                               "index places contents " + hex(c->hash()) + " in chunk " + std::to_string(c->chunk()) +
-                                   ", it lists " + std::to_string(chunks->size()) + " chunks");
+                        report(TraceErrorCode::kBadIndex, index_offset,
+                               "index places contents " + hex(c->hash()) + " in chunk " +
+                                   std::to_string(c->chunk()) + ", it lists " +
+                                   std::to_string(chunks->size()) + " chunks");
                     }
                     reported = true;
                     continue;
                 }
-                contents.emplace(c->hash(), ContentPlace{c->size(), chunks->Get(c->chunk())->file_offset(),
-                                                         c->raw_offset(), false});
+                contents.emplace(c->hash(),
+                                 ContentPlace{c->size(), chunks->Get(c->chunk())->file_offset(),
+                                              c->raw_offset(), false});
             }
         }
         CLASTRACE_DEBUG_ASSERT(chunk_index_holds());
@@ -1088,27 +1168,30 @@ struct TraceReader::Impl {
         std::string problem;
         for (uint32_t i = 0; i < chunks->size(); ++i) {
             const fbs::ChunkLocation* c = chunks->Get(i);
-            if (problem.empty() && (c->file_offset() < previous_end || c->file_offset() >= index_offset)) {
+            if (problem.empty() &&
+                (c->file_offset() < previous_end || c->file_offset() >= index_offset)) {
                 problem = "entry " + std::to_string(i) + " places a chunk at offset " +
                           std::to_string(c->file_offset()) + ", outside the records after offset " +
                           std::to_string(previous_end);
             }
             if (problem.empty() && c->first_submission() != submissions) {
                 problem = "entry " + std::to_string(i) + " starts at submission " +
-                          std::to_string(c->first_submission()) + " after " + std::to_string(submissions) +
-                          " submissions";
+                          std::to_string(c->first_submission()) + " after " +
+                          std::to_string(submissions) + " submissions";
             }
             previous_end = c->file_offset() + format::kChunkHeaderSize + c->compressed_size();
             records += c->record_count();
             submissions += c->submission_count();
             index_position.emplace(c->file_offset(), i);
         }
-        if (problem.empty() && (records != index->record_count() || submissions != index->submission_count())) {
-            problem = "its chunks hold " + std::to_string(records) + " records and " + std::to_string(submissions) +
-                      " submissions, its totals say " + std::to_string(index->record_count()) + " and " +
+        if (problem.empty() &&
+            (records != index->record_count() || submissions != index->submission_count())) {
+            problem = "its chunks hold " + std::to_string(records) + " records and " +
+                      std::to_string(submissions) + " submissions, its totals say " +
+                      std::to_string(index->record_count()) + " and " +
                       std::to_string(index->submission_count());
         }
-        if (!problem.empty()) report(TraceErrorCode::bad_index, index_offset, "index: " + problem);
+        if (!problem.empty()) report(TraceErrorCode::kBadIndex, index_offset, "index: " + problem);
     }
 
     // The reader's lookup of the index, whatever the file says: one read flag per entry, and
@@ -1116,9 +1199,11 @@ struct TraceReader::Impl {
     // an offset twice keeps its first entry). Contents placed by the index lie in a listed chunk.
     bool chunk_index_holds() const {
         const auto* chunks = index->chunks();
-        if (index_chunk_read.size() != chunks->size() || index_position.size() > chunks->size()) return false;
+        if (index_chunk_read.size() != chunks->size() || index_position.size() > chunks->size())
+            return false;
         for (const auto& [offset, place] : index_position)
-            if (place >= chunks->size() || chunks->Get(place)->file_offset() != offset) return false;
+            if (place >= chunks->size() || chunks->Get(place)->file_offset() != offset)
+                return false;
         for (const auto& [hash, place] : contents)
             if (!place.seen_in_scan && !index_position.contains(place.chunk_offset)) return false;
         return true;
@@ -1126,16 +1211,18 @@ struct TraceReader::Impl {
 };
 
 uint64_t default_raw_budget(uint64_t file_size) {
-    const uint64_t relative =
-        file_size > UINT64_MAX / kRawBudgetPerFileByte ? UINT64_MAX : file_size * kRawBudgetPerFileByte;
+    const uint64_t relative = file_size > UINT64_MAX / kRawBudgetPerFileByte
+                                  ? UINT64_MAX
+                                  : file_size * kRawBudgetPerFileByte;
     return std::max(kRawBudgetFloorBytes, relative);
 }
 
 TraceReader::TraceReader(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 TraceReader::~TraceReader() = default;
 
-static std::unique_ptr<TraceReader::Impl> make_impl(std::unique_ptr<ByteSource> src, const std::string& name,
-                                                     const TraceReaderOptions& options) {
+static std::unique_ptr<TraceReader::Impl> make_impl(std::unique_ptr<ByteSource> src,
+                                                    const std::string& name,
+                                                    const TraceReaderOptions& options) {
     auto impl = std::make_unique<TraceReader::Impl>();
     impl->options = options;
     impl->src = std::move(src);
@@ -1148,7 +1235,7 @@ std::unique_ptr<TraceReader> TraceReader::open(const std::string& path, TraceErr
     std::string why;
     auto src = open_file_source(path, &why);
     if (!src) {
-        *error = make_trace_error(TraceErrorCode::io_error, path, 0, "cannot open: " + why);
+        *error = make_trace_error(TraceErrorCode::kIoError, path, 0, "cannot open: " + why);
         return nullptr;
     }
     auto impl = make_impl(std::move(src), path, options);
@@ -1159,8 +1246,9 @@ std::unique_ptr<TraceReader> TraceReader::open(const std::string& path, TraceErr
     return std::unique_ptr<TraceReader>(new TraceReader(std::move(impl)));
 }
 
-std::unique_ptr<TraceReader> TraceReader::open_memory(const uint8_t* data, size_t size, const std::string& name,
-                                                      TraceError* error, const TraceReaderOptions& options) {
+std::unique_ptr<TraceReader> TraceReader::open_memory(const uint8_t* data, size_t size,
+                                                      const std::string& name, TraceError* error,
+                                                      const TraceReaderOptions& options) {
     auto impl = make_impl(memory_source(data, size), name, options);
     if (TraceError e = impl->open()) {
         *error = std::move(e);
@@ -1178,7 +1266,9 @@ uint64_t TraceReader::indexed_submission_count() const {
 }
 bool TraceReader::next(RecordView* out) { return impl_->next(out); }
 TraceError TraceReader::seek_to_submission(uint64_t k) { return impl_->seek(k); }
-TraceError TraceReader::read_contents(uint64_t hash, std::vector<uint8_t>* out) { return impl_->read_contents(hash, out); }
+TraceError TraceReader::read_contents(uint64_t hash, std::vector<uint8_t>* out) {
+    return impl_->read_contents(hash, out);
+}
 const std::vector<TraceError>& TraceReader::damage() const { return impl_->damage; }
 uint64_t TraceReader::damage_count() const { return impl_->damage_total; }
 const TraceReadStats& TraceReader::stats() const {

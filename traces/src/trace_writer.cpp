@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include <clastrace/traces/trace_writer.h>
 
 #include "file_format.h"
@@ -38,7 +39,7 @@ template <class T>
 struct UninitializedAllocator : std::allocator<T> {
     template <class U>
     struct rebind {
-        using other = UninitializedAllocator<U>;
+        using Other = UninitializedAllocator<U>;
     };
     template <class U>
     void construct(U* p) noexcept {
@@ -88,7 +89,9 @@ struct Fingerprint {
     bool operator==(const Fingerprint&) const = default;
 };
 struct FingerprintHash {
-    size_t operator()(const Fingerprint& f) const { return static_cast<size_t>(f.low ^ (f.size * 0x9E3779B97F4A7C15ull)); }
+    size_t operator()(const Fingerprint& f) const {
+        return static_cast<size_t>(f.low ^ (f.size * 0x9E3779B97F4A7C15ull));
+    }
 };
 
 struct ContentPlace {
@@ -127,8 +130,8 @@ struct TraceWriter::Impl {
     std::vector<ChunkBytes> spare_buffers;  // recycled raw buffers
     bool worker_busy = false;
     bool stop = false;
-    TraceError error;            // first error; sticky
-    uint64_t file_offset = 0;    // next byte the worker writes
+    TraceError error;          // first error; sticky
+    uint64_t file_offset = 0;  // next byte the worker writes
     std::vector<fbs::ChunkLocation> chunk_locations;
     uint64_t compressed_bytes = 0;
     uint64_t raw_bytes = 0;
@@ -136,7 +139,7 @@ struct TraceWriter::Impl {
     std::thread worker;
 
     TraceError fail_io(const char* what, int err, uint64_t offset) {
-        return make_trace_error(TraceErrorCode::io_error, path, offset,
+        return make_trace_error(TraceErrorCode::kIoError, path, offset,
                                 std::string(what) + " failed: " + std::strerror(err));
     }
 
@@ -168,20 +171,24 @@ struct TraceWriter::Impl {
     }
 
     // Compresses and writes one chunk at file_offset; used by the worker and for the index.
-    TraceError write_chunk(ZSTD_CCtx* cctx, std::vector<uint8_t>& compressed, const uint8_t* data, size_t size,
-                           format::ChunkKind kind, uint32_t chunk_number, uint32_t record_count,
-                           uint64_t first_submission, uint64_t offset, uint32_t* compressed_size) {
+    TraceError write_chunk(ZSTD_CCtx* cctx, std::vector<uint8_t>& compressed, const uint8_t* data,
+                           size_t size, format::ChunkKind kind, uint32_t chunk_number,
+                           uint32_t record_count, uint64_t first_submission, uint64_t offset,
+                           uint32_t* compressed_size) {
         compressed.resize(ZSTD_compressBound(size));
         const uint64_t started = now_ns();
-        size_t csize = ZSTD_compressCCtx(cctx, compressed.data(), compressed.size(), data, size, options.zstd_level);
+        size_t csize = ZSTD_compressCCtx(cctx, compressed.data(), compressed.size(), data, size,
+                                         options.zstd_level);
         const uint64_t compressed_at = now_ns();
         if (ZSTD_isError(csize)) {
-            return make_trace_error(TraceErrorCode::io_error, path, offset,
-                                    std::string("zstd compression failed: ") + ZSTD_getErrorName(csize));
+            return make_trace_error(TraceErrorCode::kIoError, path, offset,
+                                    std::string("zstd compression failed: ") +
+                                        ZSTD_getErrorName(csize));
         }
         format::ChunkHeader h =
-            format::sealed_chunk_header(kind, chunk_number, record_count, first_submission, static_cast<uint32_t>(size),
-                                        compressed.data(), static_cast<uint32_t>(csize));
+            format::sealed_chunk_header(kind, chunk_number, record_count, first_submission,
+                                        static_cast<uint32_t>(size), compressed.data(),
+                                        static_cast<uint32_t>(csize));
         iovec parts[2] = {{&h, sizeof h}, {compressed.data(), csize}};
         *compressed_size = static_cast<uint32_t>(csize);
         TraceError e = write_all(parts, 2, offset);
@@ -196,10 +203,11 @@ struct TraceWriter::Impl {
     void worker_main() {
         // Best effort: without the right to either the thread keeps the caller's priority.
         sched_param idle{};
-        const bool idled =
-            options.compressor_idle_class && ::pthread_setschedparam(::pthread_self(), SCHED_IDLE, &idle) == 0;
+        const bool idled = options.compressor_idle_class &&
+                           ::pthread_setschedparam(::pthread_self(), SCHED_IDLE, &idle) == 0;
         if (!idled && options.compressor_nice != 0)
-            (void)::setpriority(PRIO_PROCESS, static_cast<id_t>(::gettid()), options.compressor_nice);
+            (void)::setpriority(PRIO_PROCESS, static_cast<id_t>(::gettid()),
+                                options.compressor_nice);
         pthread_setname_np(pthread_self(), "clastrace-zstd");  // for profilers and top
         if (!options.compressor_cpus.empty()) {
             cpu_set_t cpus;
@@ -226,17 +234,19 @@ struct TraceWriter::Impl {
             TraceError e;
             uint32_t csize = 0;
             if (!failed) {
-                e = write_chunk(cctx, compressed, chunk.raw.data(), chunk.raw.size(), format::ChunkKind::records,
-                                chunk.chunk_number, chunk.record_count, chunk.first_submission, offset, &csize);
+                e = write_chunk(cctx, compressed, chunk.raw.data(), chunk.raw.size(),
+                                format::ChunkKind::kRecords, chunk.chunk_number, chunk.record_count,
+                                chunk.first_submission, offset, &csize);
             }
 
             lock.lock();
             compressor_cpu_ns = thread_cpu_ns();
             if (!failed && e) error = std::move(e);
             if (!failed && !error) {
-                chunk_locations.push_back(fbs::ChunkLocation(offset, chunk.first_submission, chunk.submission_count,
-                                                             chunk.record_count,
-                                                             static_cast<uint32_t>(chunk.raw.size()), csize));
+                chunk_locations.push_back(
+                    fbs::ChunkLocation(offset, chunk.first_submission, chunk.submission_count,
+                                       chunk.record_count, static_cast<uint32_t>(chunk.raw.size()),
+                                       csize));
                 file_offset = offset + format::kChunkHeaderSize + csize;
                 compressed_bytes += csize;
                 raw_bytes += chunk.raw.size();
@@ -271,7 +281,9 @@ struct TraceWriter::Impl {
         std::unique_lock lock(mutex);
         if (queue.size() >= options.max_chunks_in_flight && !error) {
             const uint64_t started = now_ns();
-            queue_changed.wait(lock, [&] { return queue.size() < options.max_chunks_in_flight || error; });
+            queue_changed.wait(lock, [&] {
+                return queue.size() < options.max_chunks_in_flight || error;
+            });
             counters.append_blocked_ns += now_ns() - started;
         }
         if (error) return error;
@@ -287,9 +299,10 @@ struct TraceWriter::Impl {
     // Frames one verified Record FlatBuffer into the current chunk.
     TraceError add_frame(const uint8_t* data, size_t size, fbs::RecordBody kind) {
         if (size > format::kMaxRecordBytes) {
-            return make_trace_error(TraceErrorCode::invalid_argument, path, 0,
+            return make_trace_error(TraceErrorCode::kInvalidArgument, path, 0,
                                     "record of " + std::to_string(size) + " bytes exceeds the " +
-                                        std::to_string(format::kMaxRecordBytes) + "-byte record limit");
+                                        std::to_string(format::kMaxRecordBytes) +
+                                        "-byte record limit");
         }
         size_t framed = format::kRecordFrameSize + format::align8(size);
         if (!raw.empty() && raw.size() + framed > options.chunk_raw_bytes) {
@@ -301,7 +314,8 @@ struct TraceWriter::Impl {
         uint32_t frame[2] = {static_cast<uint32_t>(size), static_cast<uint32_t>(kind)};
         std::memcpy(raw.data() + at, frame, sizeof frame);
         std::memcpy(raw.data() + at + format::kRecordFrameSize, data, size);
-        std::memset(raw.data() + at + format::kRecordFrameSize + size, 0, framed - format::kRecordFrameSize - size);
+        std::memset(raw.data() + at + format::kRecordFrameSize + size, 0,
+                    framed - format::kRecordFrameSize - size);
         ++raw_records;
         ++records;
         if (kind == fbs::RecordBody::QueueSubmit) {
@@ -313,7 +327,8 @@ struct TraceWriter::Impl {
 
     TraceError check_usable() {
         if (finished) {
-            return make_trace_error(TraceErrorCode::invalid_argument, path, 0, "writer already finished");
+            return make_trace_error(TraceErrorCode::kInvalidArgument, path, 0,
+                                    "writer already finished");
         }
         return sticky_error();
     }
@@ -322,23 +337,28 @@ struct TraceWriter::Impl {
         if (TraceError e = check_usable()) return e;
         flatbuffers::Verifier verifier(data, size, 128, 100'000'000);
         if (!fbs::VerifyRecordBuffer(verifier)) {
-            return make_trace_error(TraceErrorCode::invalid_argument, path, 0,
+            return make_trace_error(TraceErrorCode::kInvalidArgument, path, 0,
                                     "record fails the FlatBuffers verifier");
         }
         const fbs::Record* record = fbs::GetRecord(data);
         fbs::RecordBody kind = record->body_type();
         if (kind == fbs::RecordBody::NONE) {
-            return make_trace_error(TraceErrorCode::invalid_argument, path, 0, "record has no body");
+            return make_trace_error(TraceErrorCode::kInvalidArgument, path, 0,
+                                    "record has no body");
         }
         if (kind == fbs::RecordBody::MemoryContents && !allow_contents) {
-            return make_trace_error(TraceErrorCode::invalid_argument, path, 0,
-                                    "MemoryContents records are written by add_contents, which deduplicates them");
+            return make_trace_error(
+                TraceErrorCode::kInvalidArgument, path, 0,
+                "MemoryContents records are written by add_contents, which deduplicates them");
         }
-        if (kind == fbs::RecordBody::QueueSubmit && record->body_as_QueueSubmit()->submission_index() != submissions) {
-            return make_trace_error(TraceErrorCode::invalid_argument, path, 0,
+        if (kind == fbs::RecordBody::QueueSubmit &&
+            record->body_as_QueueSubmit()->submission_index() != submissions) {
+            return make_trace_error(TraceErrorCode::kInvalidArgument, path, 0,
                                     "QueueSubmit.submission_index " +
-                                        std::to_string(record->body_as_QueueSubmit()->submission_index()) +
-                                        " but the next submission is " + std::to_string(submissions));
+                                        std::to_string(
+                                            record->body_as_QueueSubmit()->submission_index()) +
+                                        " but the next submission is " +
+                                        std::to_string(submissions));
         }
         if (has_invalid_utf8(*record)) return add_repaired_frame(*record, kind);
         return add_frame(data, size, kind);
@@ -382,19 +402,22 @@ struct TraceWriter::Impl {
     }
 
     TraceError write_index() {
-        flatbuffers::FlatBufferBuilder b(1024 + chunk_locations.size() * 32 + content_places.size() * 24);
+        flatbuffers::FlatBufferBuilder b(1024 + chunk_locations.size() * 32 +
+                                         content_places.size() * 24);
         std::vector<fbs::ContentLocation> places;
         places.reserve(content_places.size());
-        for (const ContentPlace& p : content_places) places.emplace_back(p.hash, p.size, p.chunk, p.raw_offset);
-        auto index = fbs::CreateTraceIndex(b, b.CreateVectorOfStructs(chunk_locations), b.CreateVectorOfStructs(places),
-                                           records, submissions);
+        for (const ContentPlace& p : content_places)
+            places.emplace_back(p.hash, p.size, p.chunk, p.raw_offset);
+        auto index = fbs::CreateTraceIndex(b, b.CreateVectorOfStructs(chunk_locations),
+                                           b.CreateVectorOfStructs(places), records, submissions);
         b.Finish(index);
         ZSTD_CCtx* cctx = ZSTD_createCCtx();
         std::vector<uint8_t> compressed;
         uint32_t csize = 0;
         uint64_t index_offset = file_offset;
-        TraceError e = write_chunk(cctx, compressed, b.GetBufferPointer(), b.GetSize(), format::ChunkKind::index,
-                                   next_chunk_number, 0, submissions, index_offset, &csize);
+        TraceError e = write_chunk(cctx, compressed, b.GetBufferPointer(), b.GetSize(),
+                                   format::ChunkKind::kIndex, next_chunk_number, 0, submissions,
+                                   index_offset, &csize);
         ZSTD_freeCCtx(cctx);
         if (e) return e;
         format::Trailer t =
@@ -426,7 +449,8 @@ const char* options_problem(const TraceWriterOptions& options) {
         return "chunk_raw_bytes must be in [4096, 256 MiB]";
     }
     if (options.max_chunks_in_flight == 0) return "max_chunks_in_flight must be >= 1";
-    if (options.content_hash_bits < 8 || options.content_hash_bits > 64) return "content_hash_bits must be in [8, 64]";
+    if (options.content_hash_bits < 8 || options.content_hash_bits > 64)
+        return "content_hash_bits must be in [8, 64]";
     if (options.zstd_level < ZSTD_minCLevel() || options.zstd_level > ZSTD_maxCLevel()) {
         return "zstd_level out of zstd's range";
     }
@@ -436,7 +460,7 @@ const char* options_problem(const TraceWriterOptions& options) {
 // An output refused or failed before any byte of the trace (its message names the path).
 TraceError output_error(const std::string& problem) {
     TraceError e;
-    e.code = TraceErrorCode::io_error;
+    e.code = TraceErrorCode::kIoError;
     e.message = problem;
     return e;
 }
@@ -449,10 +473,12 @@ TraceWriter::~TraceWriter() {
     if (impl_) impl_->abandon();
 }
 
-std::unique_ptr<TraceWriter> TraceWriter::create(const std::string& path, const fbs::TraceHeaderT& header,
-                                                 const TraceWriterOptions& options, TraceError* error) {
+std::unique_ptr<TraceWriter> TraceWriter::create(const std::string& path,
+                                                 const fbs::TraceHeaderT& header,
+                                                 const TraceWriterOptions& options,
+                                                 TraceError* error) {
     if (const char* bad = options_problem(options)) {  // refused before the file is touched
-        *error = make_trace_error(TraceErrorCode::invalid_argument, path, 0, bad);
+        *error = make_trace_error(TraceErrorCode::kInvalidArgument, path, 0, bad);
         return nullptr;
     }
     OutputTarget target;
@@ -465,14 +491,18 @@ std::unique_ptr<TraceWriter> TraceWriter::create(const std::string& path, const 
     return create_on(fd, path, header, options, error);
 }
 
-std::unique_ptr<TraceWriter> TraceWriter::create_on(int fd, const std::string& path, const fbs::TraceHeaderT& header,
-                                                    const TraceWriterOptions& options, TraceError* error) {
-    auto fail = [&](TraceErrorCode code, const std::string& problem) -> std::unique_ptr<TraceWriter> {
+std::unique_ptr<TraceWriter> TraceWriter::create_on(int fd, const std::string& path,
+                                                    const fbs::TraceHeaderT& header,
+                                                    const TraceWriterOptions& options,
+                                                    TraceError* error) {
+    auto fail = [&](TraceErrorCode code,
+                    const std::string& problem) -> std::unique_ptr<TraceWriter> {
         ::close(fd);
         *error = make_trace_error(code, path, 0, problem);
         return nullptr;
     };
-    if (const char* problem = options_problem(options)) return fail(TraceErrorCode::invalid_argument, problem);
+    if (const char* problem = options_problem(options))
+        return fail(TraceErrorCode::kInvalidArgument, problem);
 
     fbs::TraceHeaderT h = header;  // deep copy (object API) so the settings can be filled in
     if (!h.capture) h.capture = std::make_unique<fbs::CaptureSettingsT>();
@@ -482,7 +512,8 @@ std::unique_ptr<TraceWriter> TraceWriter::create_on(int fd, const std::string& p
     make_strings_valid_utf8(h);
     flatbuffers::FlatBufferBuilder b;
     b.Finish(fbs::TraceHeader::Pack(b, &h));
-    if (b.GetSize() > format::kMaxTraceHeaderBytes) return fail(TraceErrorCode::invalid_argument, "trace header over 16 MiB");
+    if (b.GetSize() > format::kMaxTraceHeaderBytes)
+        return fail(TraceErrorCode::kInvalidArgument, "trace header over 16 MiB");
 
     std::string problem;
     if (!start_output_in_place(fd, path, &problem)) {
@@ -502,9 +533,11 @@ std::unique_ptr<TraceWriter> TraceWriter::create_on(int fd, const std::string& p
     fh.version_minor = format::kVersionMinor;
     fh.trace_header_size = b.GetSize();
     fh.checksum = format::file_header_checksum(fh, b.GetBufferPointer(), b.GetSize());
-    static const uint8_t zeros[8] = {};
+    static const uint8_t kZeros[8] = {};
     size_t pad = format::align8(b.GetSize()) - b.GetSize();
-    iovec parts[3] = {{&fh, sizeof fh}, {b.GetBufferPointer(), b.GetSize()}, {const_cast<uint8_t*>(zeros), pad}};
+    iovec parts[3] = {{&fh, sizeof fh},
+                      {b.GetBufferPointer(), b.GetSize()},
+                      {const_cast<uint8_t*>(kZeros), pad}};
     if (TraceError e = impl->write_all(parts, 3, 0)) {
         *error = e;
         ::close(fd);
@@ -527,7 +560,7 @@ TraceError TraceWriter::add_contents(std::span<const ContentPiece> pieces, uint6
     size_t size = 0;
     for (const ContentPiece& p : pieces) size += p.size;
     if (size > format::kMaxRecordBytes - 128) {
-        return make_trace_error(TraceErrorCode::invalid_argument, w.path, 0,
+        return make_trace_error(TraceErrorCode::kInvalidArgument, w.path, 0,
                                 "contents of " + std::to_string(size) +
                                     " bytes exceed the per-record limit; snapshot it in parts");
     }
@@ -550,15 +583,18 @@ TraceError TraceWriter::add_contents(std::span<const ContentPiece> pieces, uint6
         return {};
     }
     // New contents are keyed and framed straight from their pieces: no gathered copy.
-    auto keyOf = [&](uint64_t seed) {
+    auto key_of = [&](uint64_t seed) {
         const unsigned bits = w.options.content_hash_bits;
-        const uint64_t h = seed == 0 ? hashes.key_seed0 : content_key_of(pieces.data(), pieces.size(), seed);
-        return bits >= 64 ? h : (h & ((uint64_t{1} << bits) - 1));  // as format::content_key over the whole
+        const uint64_t h =
+            seed == 0 ? hashes.key_seed0 : content_key_of(pieces.data(), pieces.size(), seed);
+        return bits >= 64
+                   ? h
+                   : (h & ((uint64_t{1} << bits) - 1));  // as format::content_key over the whole
     };
     // Seed 0 gives the key; a different byte string already holding that key (a real
     // collision) moves these bytes to the next seed until a free or matching key is found.
     for (uint64_t seed = 0;; ++seed) {
-        uint64_t key = keyOf(seed);
+        uint64_t key = key_of(seed);
         auto [it, inserted] = w.contents.try_emplace(key, StoredContents{size, fingerprint});
         if (!inserted) {
             if (it->second.size == size && XXH128_isEqual(it->second.fingerprint, fingerprint)) {
@@ -569,16 +605,17 @@ TraceError TraceWriter::add_contents(std::span<const ContentPiece> pieces, uint6
             }
             if (seed == 0) ++w.counters.hash_collisions;
             if (seed > 1'000'000) {
-                return make_trace_error(TraceErrorCode::invalid_argument, w.path, 0, "no free content key left");
+                return make_trace_error(TraceErrorCode::kInvalidArgument, w.path, 0,
+                                        "no free content key left");
             }
             continue;
         }
         w.fbb.Clear();
-        uint8_t* vecBytes = nullptr;
-        auto vec = w.fbb.CreateUninitializedVector(size, &vecBytes);
+        uint8_t* vec_bytes = nullptr;
+        auto vec = w.fbb.CreateUninitializedVector(size, &vec_bytes);
         for (const ContentPiece& p : pieces) {
-            if (p.size) std::memcpy(vecBytes, p.bytes, p.size);
-            vecBytes += p.size;
+            if (p.size) std::memcpy(vec_bytes, p.bytes, p.size);
+            vec_bytes += p.size;
         }
         auto body = fbs::CreateMemoryContents(w.fbb, key, seed, vec);
         w.fbb.Finish(fbs::CreateRecord(w.fbb, fbs::RecordBody::MemoryContents, body.Union()));
@@ -587,7 +624,8 @@ TraceError TraceWriter::add_contents(std::span<const ContentPiece> pieces, uint6
         bool seals = !w.raw.empty() && w.raw.size() + framed > w.options.chunk_raw_bytes;
         uint32_t chunk = w.next_chunk_number + (seals ? 1 : 0);
         uint32_t raw_offset = seals ? 0 : static_cast<uint32_t>(w.raw.size());
-        if (TraceError e = w.add_frame(w.fbb.GetBufferPointer(), w.fbb.GetSize(), fbs::RecordBody::MemoryContents)) {
+        if (TraceError e = w.add_frame(w.fbb.GetBufferPointer(), w.fbb.GetSize(),
+                                       fbs::RecordBody::MemoryContents)) {
             w.contents.erase(it);
             return e;
         }
@@ -600,8 +638,8 @@ TraceError TraceWriter::add_contents(std::span<const ContentPiece> pieces, uint6
     }
 }
 
-TraceError TraceWriter::snapshot(uint64_t buffer, uint64_t offset, uint64_t address, const void* bytes, size_t size,
-                                 fbs::MemorySnapshot* out) {
+TraceError TraceWriter::snapshot(uint64_t buffer, uint64_t offset, uint64_t address,
+                                 const void* bytes, size_t size, fbs::MemorySnapshot* out) {
     uint64_t hash = 0;
     if (TraceError e = add_contents(bytes, size, &hash)) return e;
     *out = fbs::MemorySnapshot(buffer, offset, address, size, hash);

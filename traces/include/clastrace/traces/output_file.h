@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The one rule for every file clastrace writes (reports, traces, the layer's JSON dump), so that
 // naming an output never destroys what is at that path:
 // - nothing or a regular file: a whole-file output is written beside it and renamed over it (a
@@ -13,11 +14,11 @@
 
 namespace clastrace::traces {
 
-enum class OutputKind { absent, regular, character_device, fifo };
+enum class OutputKind { kAbsent, kRegular, kCharacterDevice, kFifo };
 
 struct OutputTarget {
     std::string path;  // where the bytes land: the named path with its symbolic links followed
-    OutputKind kind = OutputKind::absent;
+    OutputKind kind = OutputKind::kAbsent;
 };
 
 // "regular file", "character device", ... for messages.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Small helpers over the generated record types that every consumer needs.
 #pragma once
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Errors of the trace format: one code per rule broken, the file offset where it was
 // found, and a message that names file, offset and problem. No exceptions cross this API.
 #pragma once
@@ -8,29 +9,29 @@
 namespace clastrace::traces {
 
 enum class TraceErrorCode : uint8_t {
-    ok = 0,
-    io_error,              // open/read/write/fsync failed (errno text in the message)
-    not_a_trace,           // wrong file magic
-    unsupported_version,   // format major version newer than this reader
-    truncated,             // the file ends inside a header, chunk or trailer, or has no trailer
-    bad_chunk,             // no chunk header where one must be, or chunks missing/out of order
-    length_out_of_range,   // a length/count field claims more than the limits or the file allow
-    checksum_mismatch,     // a header, chunk or payload checksum does not match
-    decompress_failed,     // zstd rejected a payload whose checksum matched (writer bug)
-    invalid_record,        // a record fails the FlatBuffers verifier or the framing rules
-    missing_contents,      // a snapshot refers to a content hash never defined before it
-    content_mismatch,      // contents whose bytes do not hash to their key, or snapshot size != contents size
-    bad_index,             // the index chunk or trailer is damaged or disagrees with the chunks
-    trailing_bytes,        // bytes after the trailer
-    invalid_argument,      // API misuse (bad options, unknown submission, finished writer)
+    kOk = 0,
+    kIoError,             // open/read/write/fsync failed (errno text in the message)
+    kNotATrace,           // wrong file magic
+    kUnsupportedVersion,  // format major version newer than this reader
+    kTruncated,           // the file ends inside a header, chunk or trailer, or has no trailer
+    kBadChunk,            // no chunk header where one must be, or chunks missing/out of order
+    kLengthOutOfRange,    // a length/count field claims more than the limits or the file allow
+    kChecksumMismatch,    // a header, chunk or payload checksum does not match
+    kDecompressFailed,    // zstd rejected a payload whose checksum matched (writer bug)
+    kInvalidRecord,       // a record fails the FlatBuffers verifier or the framing rules
+    kMissingContents,     // a snapshot refers to a content hash never defined before it
+    kContentMismatch,  // contents whose bytes do not hash to their key, or snapshot size != contents size
+    kBadIndex,         // the index chunk or trailer is damaged or disagrees with the chunks
+    kTrailingBytes,    // bytes after the trailer
+    kInvalidArgument,  // API misuse (bad options, unknown submission, finished writer)
 };
 
 struct TraceError {
-    TraceErrorCode code = TraceErrorCode::ok;
+    TraceErrorCode code = TraceErrorCode::kOk;
     uint64_t file_offset = 0;  // byte offset in the file the problem was found at
     std::string message;       // "<file>: offset <n>: <problem>"
 
-    explicit operator bool() const { return code != TraceErrorCode::ok; }
+    explicit operator bool() const { return code != TraceErrorCode::kOk; }
 };
 
 // Stable lower-case name of a code ("checksum_mismatch"), used in JSON output.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Reads a .clt trace chunk by chunk with bounded work and memory: one decompressed chunk,
 // one more of at most 16 MiB read ahead (on a task, so decompression overlaps the caller),
 // one for read_contents (at most one of the two above 32 MiB at a time), the index (bounded
@@ -24,22 +25,24 @@ struct RecordView {
     fbs::RecordBody kind = fbs::RecordBody::NONE;
     const uint8_t* bytes = nullptr;  // the Record FlatBuffer
     uint32_t size = 0;
-    uint64_t chunk_offset = 0;       // file offset of the chunk holding it
+    uint64_t chunk_offset = 0;  // file offset of the chunk holding it
     uint32_t chunk_number = 0;
-    uint32_t raw_offset = 0;         // offset of its frame in the chunk's decompressed bytes
+    uint32_t raw_offset = 0;  // offset of its frame in the chunk's decompressed bytes
 };
 
 struct TraceReadStats {
     uint64_t file_size = 0;
-    uint64_t chunks_read = 0;          // record chunks that passed their checksums
+    uint64_t chunks_read = 0;  // record chunks that passed their checksums
     uint64_t chunks_damaged = 0;
-    uint64_t raw_bytes = 0;            // decompressed bytes of the chunks read
-    uint64_t compressed_bytes = 0;     // their compressed payload bytes
-    uint64_t records = 0;              // records handed out
-    uint64_t records_damaged = 0;      // records skipped because they failed a check
-    uint64_t bytes_skipped = 0;        // bytes passed over while looking for the next chunk
-    uint64_t raw_bytes_decompressed = 0;  // every byte decompressed (read-ahead, read_contents, index included)
-    uint64_t raw_budget = 0;              // the limit on raw_bytes_decompressed (TraceReaderOptions::max_raw_bytes)
+    uint64_t raw_bytes = 0;         // decompressed bytes of the chunks read
+    uint64_t compressed_bytes = 0;  // their compressed payload bytes
+    uint64_t records = 0;           // records handed out
+    uint64_t records_damaged = 0;   // records skipped because they failed a check
+    uint64_t bytes_skipped = 0;     // bytes passed over while looking for the next chunk
+    uint64_t raw_bytes_decompressed =
+        0;  // every byte decompressed (read-ahead, read_contents, index included)
+    uint64_t raw_budget =
+        0;  // the limit on raw_bytes_decompressed (TraceReaderOptions::max_raw_bytes)
 };
 
 // Speed/accuracy knob (bench/traces measures it). The chunk checksums always prove the
@@ -70,8 +73,9 @@ public:
     static std::unique_ptr<TraceReader> open(const std::string& path, TraceError* error,
                                              const TraceReaderOptions& options = {});
     // Reads from memory that must outlive the reader; `name` is used in messages.
-    static std::unique_ptr<TraceReader> open_memory(const uint8_t* data, size_t size, const std::string& name,
-                                                    TraceError* error, const TraceReaderOptions& options = {});
+    static std::unique_ptr<TraceReader> open_memory(const uint8_t* data, size_t size,
+                                                    const std::string& name, TraceError* error,
+                                                    const TraceReaderOptions& options = {});
     ~TraceReader();
     TraceReader(const TraceReader&) = delete;
     TraceReader& operator=(const TraceReader&) = delete;

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Writes a .clt trace: records go into chunks that a background thread compresses and
 // appends, so the caller only pays for building records. Memory is bounded by
 // (max_chunks_in_flight + 1) chunks plus about 150 bytes per distinct content (its key,
@@ -26,8 +27,8 @@ namespace clastrace::traces {
 struct TraceWriterOptions {
     uint32_t chunk_raw_bytes = 4u << 20;  // a chunk is sealed once its records reach this size
     int zstd_level = 3;
-    uint32_t max_chunks_in_flight = 2;    // sealed chunks waiting for the compression thread
-    bool sync_on_finish = true;           // fsync before finish() reports success
+    uint32_t max_chunks_in_flight = 2;  // sealed chunks waiting for the compression thread
+    bool sync_on_finish = true;         // fsync before finish() reports success
     // Bits of the content hash kept. 64 for real traces; tests lower it to force collisions.
     unsigned content_hash_bits = 64;
     // Nice value of the compression thread (Linux: per thread; 0 leaves it as created). A
@@ -46,22 +47,22 @@ struct TraceWriterOptions {
 struct TraceWriterStats {
     uint64_t records = 0;
     uint64_t submissions = 0;
-    uint64_t chunks = 0;               // record chunks written so far (not counting the index)
-    uint64_t raw_bytes = 0;            // record bytes before compression, framing included
-    uint64_t compressed_bytes = 0;     // chunk payload bytes after compression
-    uint64_t contents_stored = 0;      // distinct MemoryContents records written
+    uint64_t chunks = 0;            // record chunks written so far (not counting the index)
+    uint64_t raw_bytes = 0;         // record bytes before compression, framing included
+    uint64_t compressed_bytes = 0;  // chunk payload bytes after compression
+    uint64_t contents_stored = 0;   // distinct MemoryContents records written
     uint64_t contents_bytes_stored = 0;
-    uint64_t contents_deduplicated = 0;      // add_contents calls answered by an existing record
+    uint64_t contents_deduplicated = 0;  // add_contents calls answered by an existing record
     uint64_t contents_bytes_deduplicated = 0;
-    uint64_t hash_collisions = 0;      // distinct bytes whose first-choice key was taken
+    uint64_t hash_collisions = 0;  // distinct bytes whose first-choice key was taken
     // Where the writer's time goes (nanoseconds; wall clock unless named CPU).
-    uint64_t contents_ns = 0;          // add_contents: hashing, dedup lookup, framing new contents
-    uint64_t compress_ns = 0;          // zstd on the compression thread(s)
-    uint64_t file_write_ns = 0;        // writev of compressed chunks
-    uint64_t compressor_cpu_ns = 0;    // CPU time of the compression thread(s)
-    uint64_t append_blocked_ns = 0;    // callers waiting for room in the compression queue
-    uint64_t flush_wait_ns = 0;        // flush()/finish() waiting for the compression thread(s)
-    bool compressor_placed = false;    // the compression thread runs on options.compressor_cpus
+    uint64_t contents_ns = 0;        // add_contents: hashing, dedup lookup, framing new contents
+    uint64_t compress_ns = 0;        // zstd on the compression thread(s)
+    uint64_t file_write_ns = 0;      // writev of compressed chunks
+    uint64_t compressor_cpu_ns = 0;  // CPU time of the compression thread(s)
+    uint64_t append_blocked_ns = 0;  // callers waiting for room in the compression queue
+    uint64_t flush_wait_ns = 0;      // flush()/finish() waiting for the compression thread(s)
+    bool compressor_placed = false;  // the compression thread runs on options.compressor_cpus
 };
 
 class TraceWriter {
@@ -71,13 +72,17 @@ public:
     // another writer holding the lock is refused. The writer fills header.capture's chunk
     // size, zstd level and hash bits from `options`.
     // Returns nullptr with *error set when the file cannot be created or options are bad.
-    static std::unique_ptr<TraceWriter> create(const std::string& path, const fbs::TraceHeaderT& header,
-                                               const TraceWriterOptions& options, TraceError* error);
+    static std::unique_ptr<TraceWriter> create(const std::string& path,
+                                               const fbs::TraceHeaderT& header,
+                                               const TraceWriterOptions& options,
+                                               TraceError* error);
     // The same on `fd`, already opened (and locked) by open_output_in_place or adopt_output for
     // `path`: the writer takes it over (closes it, on failure too) and empties a regular file
     // before writing the header.
-    static std::unique_ptr<TraceWriter> create_on(int fd, const std::string& path, const fbs::TraceHeaderT& header,
-                                                  const TraceWriterOptions& options, TraceError* error);
+    static std::unique_ptr<TraceWriter> create_on(int fd, const std::string& path,
+                                                  const fbs::TraceHeaderT& header,
+                                                  const TraceWriterOptions& options,
+                                                  TraceError* error);
     ~TraceWriter();  // without finish(): stops the thread, leaves a file without index
     TraceWriter(const TraceWriter&) = delete;
     TraceWriter& operator=(const TraceWriter&) = delete;
@@ -91,16 +96,18 @@ public:
     TraceError add_contents(std::span<const ContentPiece> pieces, uint64_t* hash);
 
     // add_contents, then describes the snapshot for a command's inputs/outputs.
-    TraceError snapshot(uint64_t buffer, uint64_t offset, uint64_t address, const void* bytes, size_t size,
-                        fbs::MemorySnapshot* out);
-    TraceError snapshot(uint64_t buffer, uint64_t offset, uint64_t address, std::span<const ContentPiece> pieces,
-                        fbs::MemorySnapshot* out);
+    TraceError snapshot(uint64_t buffer, uint64_t offset, uint64_t address, const void* bytes,
+                        size_t size, fbs::MemorySnapshot* out);
+    TraceError snapshot(uint64_t buffer, uint64_t offset, uint64_t address,
+                        std::span<const ContentPiece> pieces, fbs::MemorySnapshot* out);
 
     // Appends one record. MemoryContents must go through add_contents; a QueueSubmit's
     // submission_index must equal next_submission_index().
     TraceError append(const fbs::RecordT& record);
-    TraceError append(const fbs::Record* record);  // any verified Record (e.g. copied from a reader)
-    TraceError append_record_bytes(const uint8_t* data, size_t size);  // a finished Record FlatBuffer
+    TraceError append(
+        const fbs::Record* record);  // any verified Record (e.g. copied from a reader)
+    TraceError append_record_bytes(const uint8_t* data,
+                                   size_t size);  // a finished Record FlatBuffer
 
     uint64_t next_submission_index() const;
 

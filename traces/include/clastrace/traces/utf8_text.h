@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Text that comes from outside the tool (names an application passed to Vulkan, a trace's file
 // name, labels, messages) is bytes in whatever encoding its author used; what the tool stores in
 // a trace and prints as JSON or HTML is UTF-8. One rule turns the first into the second, here.
