@@ -135,7 +135,7 @@ Row run(uint64_t n, uint32_t tris) {
   in.maxTotalTriangleCount = uint32_t(std::min<uint64_t>(n * T, 0xFFFFFFFFu));
   in.maxTotalVertexCount = uint32_t(std::min<uint64_t>(n * V, 0xFFFFFFFFu));
   EngineProperties props;
-  mem.add_region(kObjects, n * (max_cluster_object_size(in, props, false) + props.clusterByteAlignment), 0, "clas");
+  mem.add_region(kObjects, n * (max_cluster_object_size(in, props, false) + props.cluster_byte_alignment), 0, "clas");
   mem.add_region(kArrays, n * 12 + 64, 0, "arrays");
   mem.add_region(kScratch, n * 16 + 256, 0, "scratch");
   const uint64_t addresses = kArrays, sizes = kArrays + n * 8;

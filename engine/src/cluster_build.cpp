@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The cluster ops: read an info struct's buffers through the MemoryImage, check the
 // spec's per-info rules (findings carry the VUID strings verbatim), decode and
 // truncate positions, and hand the result to the encoder.
@@ -19,12 +20,12 @@ using detail::kMaxTriangles;
 using detail::kMaxVertices;
 
 struct ClusterBuilder::Scratch {
-  float positions[kMaxVertices * 3];
-  uint32_t indices[kMaxTriangles * 3];
-  uint8_t inactive[kMaxTriangles];
-  uint32_t geometry[kMaxTriangles];
-  int32_t omm[kMaxTriangles];
-  detail::BvhScratch bvh;
+    float positions[kMaxVertices * 3];
+    uint32_t indices[kMaxTriangles * 3];
+    uint8_t inactive[kMaxTriangles];
+    uint32_t geometry[kMaxTriangles];
+    int32_t omm[kMaxTriangles];
+    detail::BvhScratch bvh;
 };
 
 ClusterBuilder::ClusterBuilder(const EngineProperties& properties)
@@ -39,82 +40,92 @@ using common::hex;
 
 // Collects findings for one op with the op's context in every message.
 struct Reporter {
-  std::vector<Finding>& out;
-  int64_t op_index;
-  const char* info_name;
-  void add(const char* rule, const std::string& what, uint64_t address = 0) {
-    out.push_back(Finding{rule, std::string(info_name) + ": " + what + " (op " + std::to_string(op_index) +
-                                    (address ? ", address " + hex(address) : std::string()) + ")",
-                          op_index, address});
-  }
+    std::vector<Finding>& out;
+    int64_t op_index;
+    const char* info_name;
+    void add(const char* rule, const std::string& what, uint64_t address = 0) {
+        out.push_back(Finding{rule,
+                              std::string(info_name) + ": " + what + " (op " +
+                                  std::to_string(op_index) +
+                                  (address ? ", address " + hex(address) : std::string()) + ")",
+                              op_index, address});
+    }
 };
 
 // The cluster template at `address`, read whole by the size its header gives. No header (and
 // kRuleNotATemplate reported) when the address holds something else.
 struct TemplateRead {
-  std::span<const std::byte> bytes;
-  std::optional<ObjectHeader> header;
+    std::span<const std::byte> bytes;
+    std::optional<ObjectHeader> header;
 };
-TemplateRead read_cluster_template(const MemoryImage& memory, uint64_t address, int64_t op_index, Reporter& r) {
-  const auto head = memory.read_bytes(address, sizeof(ObjectHeader), {"clusterTemplateAddress", op_index});
-  const uint32_t size = object_size_from_header(head);
-  TemplateRead t{memory.read_bytes(address, size ? size : sizeof(ObjectHeader), {"clusterTemplateAddress", op_index}), {}};
-  HeaderCheck hc = read_object_header(t.bytes);
-  if (!hc.header || hc.header->object_type != uint8_t(ObjectType::TriangleClusterTemplate)) {
-    r.add(kRuleNotATemplate,
-          "clusterTemplateAddress holds no cluster template: " + (hc.header ? std::string("object is a CLAS") : hc.error),
-          address);
+TemplateRead read_cluster_template(const MemoryImage& memory, uint64_t address, int64_t op_index,
+                                   Reporter& r) {
+    const auto head =
+        memory.read_bytes(address, sizeof(ObjectHeader), {"clusterTemplateAddress", op_index});
+    const uint32_t size = object_size_from_header(head);
+    TemplateRead t{memory.read_bytes(address, size ? size : sizeof(ObjectHeader),
+                                     {"clusterTemplateAddress", op_index}),
+                   {}};
+    HeaderCheck hc = read_object_header(t.bytes);
+    if (!hc.header || hc.header->object_type != uint8_t(ObjectType::kTriangleClusterTemplate)) {
+        r.add(kRuleNotATemplate,
+              "clusterTemplateAddress holds no cluster template: " +
+                  (hc.header ? std::string("object is a CLAS") : hc.error),
+              address);
+        return t;
+    }
+    t.header = hc.header;
     return t;
-  }
-  t.header = hc.header;
-  return t;
 }
 
 // The fields the build and the template info share (same layout up to offset 64).
 struct TriangleInfoView {
-  uint32_t clusterID, clusterFlags, triangleCount, vertexCount, positionTruncateBitCount, indexType, opacityMicromapIndexType;
-  uint32_t baseGeometryIndexAndFlags;
-  uint16_t indexBufferStride, vertexBufferStride, geometryIndexAndFlagsBufferStride, opacityMicromapIndexBufferStride;
-  uint64_t indexBuffer, vertexBuffer, geometryIndexAndFlagsBuffer, opacityMicromapArray, opacityMicromapIndexBuffer;
+    uint32_t cluster_id, cluster_flags, triangle_count, vertex_count, position_truncate_bit_count,
+        index_type, opacity_micromap_index_type;
+    uint32_t base_geometry_index_and_flags;
+    uint16_t index_buffer_stride, vertex_buffer_stride, geometry_index_and_flags_buffer_stride,
+        opacity_micromap_index_buffer_stride;
+    uint64_t index_buffer, vertex_buffer, geometry_index_and_flags_buffer, opacity_micromap_array,
+        opacity_micromap_index_buffer;
 };
 
 template <class Info>
 TriangleInfoView view_of(const Info& i) {
-  TriangleInfoView v;
-  v.clusterID = i.clusterID;
-  v.clusterFlags = i.clusterFlags;
-  v.triangleCount = i.triangleCount;
-  v.vertexCount = i.vertexCount;
-  v.positionTruncateBitCount = i.positionTruncateBitCount;
-  v.indexType = i.indexType;
-  v.opacityMicromapIndexType = i.opacityMicromapIndexType;
-  std::memcpy(&v.baseGeometryIndexAndFlags, &i.baseGeometryIndexAndGeometryFlags, 4);
-  v.indexBufferStride = i.indexBufferStride;
-  v.vertexBufferStride = i.vertexBufferStride;
-  v.geometryIndexAndFlagsBufferStride = i.geometryIndexAndFlagsBufferStride;
-  v.opacityMicromapIndexBufferStride = i.opacityMicromapIndexBufferStride;
-  v.indexBuffer = i.indexBuffer;
-  v.vertexBuffer = i.vertexBuffer;
-  v.geometryIndexAndFlagsBuffer = i.geometryIndexAndFlagsBuffer;
-  v.opacityMicromapArray = i.opacityMicromapArray;
-  v.opacityMicromapIndexBuffer = i.opacityMicromapIndexBuffer;
-  return v;
+    TriangleInfoView v;
+    v.cluster_id = i.clusterID;
+    v.cluster_flags = i.clusterFlags;
+    v.triangle_count = i.triangleCount;
+    v.vertex_count = i.vertexCount;
+    v.position_truncate_bit_count = i.positionTruncateBitCount;
+    v.index_type = i.indexType;
+    v.opacity_micromap_index_type = i.opacityMicromapIndexType;
+    std::memcpy(&v.base_geometry_index_and_flags, &i.baseGeometryIndexAndGeometryFlags, 4);
+    v.index_buffer_stride = i.indexBufferStride;
+    v.vertex_buffer_stride = i.vertexBufferStride;
+    v.geometry_index_and_flags_buffer_stride = i.geometryIndexAndFlagsBufferStride;
+    v.opacity_micromap_index_buffer_stride = i.opacityMicromapIndexBufferStride;
+    v.index_buffer = i.indexBuffer;
+    v.vertex_buffer = i.vertexBuffer;
+    v.geometry_index_and_flags_buffer = i.geometryIndexAndFlagsBuffer;
+    v.opacity_micromap_array = i.opacityMicromapArray;
+    v.opacity_micromap_index_buffer = i.opacityMicromapIndexBuffer;
+    return v;
 }
 
 // The VUID strings of one info struct: the build and the template info carry the same
 // rules under different numbers.
 struct InfoRules {
-  const char* name;
-  const char* clusterID;
-  const char* triangleCount;
-  const char* vertexCount;
-  const char* indexType;
-  const char* opacityMicromapIndexType;
-  const char* positionTruncateBitCount;
-  const char* indexBufferStride;
-  const char* vertexBufferStride;
-  const char* baseGeometryIndex;
-  const char* clusterFlags;
+    const char* name;
+    const char* cluster_id;
+    const char* triangle_count;
+    const char* vertex_count;
+    const char* index_type;
+    const char* opacity_micromap_index_type;
+    const char* position_truncate_bit_count;
+    const char* index_buffer_stride;
+    const char* vertex_buffer_stride;
+    const char* base_geometry_index;
+    const char* cluster_flags;
 };
 
 constexpr InfoRules kBuildRules{
@@ -137,10 +148,13 @@ constexpr InfoRules kTemplateRules{
     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-triangleCount-10498",
     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-vertexCount-10499",
     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-indexType-10500",
-    "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-opacityMicromapIndexType-10501",
-    "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-positionTruncateBitCount-10502",
+    "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-"
+    "opacityMicromapIndexType-10501",
+    "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-"
+    "positionTruncateBitCount-10502",
     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-indexBufferStride-10503",
-    "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-vertexBufferStride-10504",
+    "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-vertexBufferStride-"
+    "10504",
     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-baseGeometryIndex-10506",
     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-clusterFlags-parameter",
 };
@@ -148,585 +162,691 @@ constexpr InfoRules kTemplateRules{
 bool single_bit(uint32_t v) { return v != 0 && (v & (v - 1)) == 0; }
 
 // Rules on the TriangleClusterInput itself (checked with every op that uses it).
-void check_input(const VkClusterAccelerationStructureTriangleClusterInputNV& input, const EngineProperties& p, Reporter& r) {
-  if (!vertex_format_info(input.vertexFormat).supported)
-    r.add("VUID-VkClusterAccelerationStructureTriangleClusterInputNV-vertexFormat-10439",
-          "vertexFormat " + std::to_string(int(input.vertexFormat)) +
-              " lacks VK_FORMAT_FEATURE_ACCELERATION_STRUCTURE_VERTEX_BUFFER_BIT_KHR");
-  if (input.maxClusterTriangleCount > p.maxTrianglesPerCluster)
-    r.add("VUID-VkClusterAccelerationStructureTriangleClusterInputNV-maxClusterTriangleCount-10440",
-          "maxClusterTriangleCount " + std::to_string(input.maxClusterTriangleCount) + " > maxTrianglesPerCluster " +
-              std::to_string(p.maxTrianglesPerCluster));
-  if (input.maxClusterVertexCount > p.maxVerticesPerCluster)
-    r.add("VUID-VkClusterAccelerationStructureTriangleClusterInputNV-maxClusterVertexCount-10441",
-          "maxClusterVertexCount " + std::to_string(input.maxClusterVertexCount) + " > maxVerticesPerCluster " +
-              std::to_string(p.maxVerticesPerCluster));
-  if (input.minPositionTruncateBitCount > 32)
-    r.add("VUID-VkClusterAccelerationStructureTriangleClusterInputNV-minPositionTruncateBitCount-10442",
-          "minPositionTruncateBitCount " + std::to_string(input.minPositionTruncateBitCount) + " > 32");
+void check_input(const VkClusterAccelerationStructureTriangleClusterInputNV& input,
+                 const EngineProperties& p, Reporter& r) {
+    if (!vertex_format_info(input.vertexFormat).supported)
+        r.add("VUID-VkClusterAccelerationStructureTriangleClusterInputNV-vertexFormat-10439",
+              "vertexFormat " + std::to_string(int(input.vertexFormat)) +
+                  " lacks VK_FORMAT_FEATURE_ACCELERATION_STRUCTURE_VERTEX_BUFFER_BIT_KHR");
+    if (input.maxClusterTriangleCount > p.max_triangles_per_cluster)
+        r.add(
+            "VUID-VkClusterAccelerationStructureTriangleClusterInputNV-maxClusterTriangleCount-"
+            "10440",
+            "maxClusterTriangleCount " + std::to_string(input.maxClusterTriangleCount) +
+                " > maxTrianglesPerCluster " + std::to_string(p.max_triangles_per_cluster));
+    if (input.maxClusterVertexCount > p.max_vertices_per_cluster)
+        r.add(
+            "VUID-VkClusterAccelerationStructureTriangleClusterInputNV-maxClusterVertexCount-10441",
+            "maxClusterVertexCount " + std::to_string(input.maxClusterVertexCount) +
+                " > maxVerticesPerCluster " + std::to_string(p.max_vertices_per_cluster));
+    if (input.minPositionTruncateBitCount > 32)
+        r.add(
+            "VUID-VkClusterAccelerationStructureTriangleClusterInputNV-minPositionTruncateBitCount-"
+            "10442",
+            "minPositionTruncateBitCount " + std::to_string(input.minPositionTruncateBitCount) +
+                " > 32");
 }
 
 struct Decoded {
-  uint32_t triangle_count = 0, vertex_count = 0, truncate_bits = 0;
-  bool has_positions = false, has_geometry = false, has_omm = false;
-  uint32_t omm_index_type = 0;
+    uint32_t triangle_count = 0, vertex_count = 0, truncate_bits = 0;
+    bool has_positions = false, has_geometry = false, has_omm = false;
+    uint32_t omm_index_type = 0;
 };
 
 // One decode: what it reads, the rules it checks it by, and where it writes (the builder's
 // scratch arrays, sized for kMaxVertices / kMaxTriangles).
 struct TriangleDecode {
-  const MemoryImage& memory;
-  const TriangleInfoView& info;
-  const VkClusterAccelerationStructureTriangleClusterInputNV& input;
-  const EngineProperties& properties;
-  const InfoRules& rules;
-  bool positions_optional;  // a template may leave vertexBuffer 0
-  float* positions;
-  uint32_t* indices;
-  uint8_t* inactive;
-  uint32_t* geometry;
-  int32_t* omm;
-  Decoded& decoded;
-  Reporter& report;
+    const MemoryImage& memory;
+    const TriangleInfoView& info;
+    const VkClusterAccelerationStructureTriangleClusterInputNV& input;
+    const EngineProperties& properties;
+    const InfoRules& rules;
+    bool positions_optional;  // a template may leave vertexBuffer 0
+    float* positions;
+    uint32_t* indices;
+    uint8_t* inactive;
+    uint32_t* geometry;
+    int32_t* omm;
+    Decoded& decoded;
+    Reporter& report;
 };
 
 // Bytes of one index of a VkClusterAccelerationStructureIndexFormatFlagBitsNV value (1
 // for a value that is none, which the checks report).
-uint32_t index_size_of(uint32_t index_type) { return single_bit(index_type) && index_type <= 4 ? index_type : 1; }
+uint32_t index_size_of(uint32_t index_type) {
+    return single_bit(index_type) && index_type <= 4 ? index_type : 1;
+}
 
 // The info's counts, flags, formats and strides against the properties and the input.
 // Returns false when no object can be built.
 bool check_triangle_info(const TriangleDecode& job, const VertexFormatInfo& vf) {
-  const TriangleInfoView& info = job.info;
-  const VkClusterAccelerationStructureTriangleClusterInputNV& input = job.input;
-  const EngineProperties& p = job.properties;
-  const InfoRules& rules = job.rules;
-  Reporter& r = job.report;
-  bool buildable = vf.supported;
-  if (info.clusterID == 0xFFFFFFFFu) r.add(rules.clusterID, "clusterID is 0xFFFFFFFF");
-  if (info.clusterFlags & ~uint32_t(VK_CLUSTER_ACCELERATION_STRUCTURE_CLUSTER_ALLOW_DISABLE_OPACITY_MICROMAPS_NV))
-    r.add(rules.clusterFlags, "clusterFlags " + hex(info.clusterFlags) + " has bits no VkClusterAccelerationStructureClusterFlagBitsNV defines");
-  if (info.triangleCount > p.maxTrianglesPerCluster)
-    r.add(rules.triangleCount, "triangleCount " + std::to_string(info.triangleCount) + " > maxTrianglesPerCluster " +
-                                   std::to_string(p.maxTrianglesPerCluster));
-  if (info.vertexCount > p.maxVerticesPerCluster)
-    r.add(rules.vertexCount, "vertexCount " + std::to_string(info.vertexCount) + " > maxVerticesPerCluster " +
-                                 std::to_string(p.maxVerticesPerCluster));
-  if (info.triangleCount > kMaxTriangles || info.vertexCount > kMaxVertices) {
-    r.add(kRuleBeyondEngineFormat, "triangleCount " + std::to_string(info.triangleCount) + " / vertexCount " +
-                                       std::to_string(info.vertexCount) + " exceed the engine's 256 per cluster");
-    buildable = false;
-  }
-  if (info.triangleCount > input.maxClusterTriangleCount)
-    r.add(kRuleCountAboveInput, "triangleCount " + std::to_string(info.triangleCount) +
-                                    " > VkClusterAccelerationStructureTriangleClusterInputNV::maxClusterTriangleCount " +
-                                    std::to_string(input.maxClusterTriangleCount));
-  if (info.vertexCount > input.maxClusterVertexCount)
-    r.add(kRuleCountAboveInput, "vertexCount " + std::to_string(info.vertexCount) +
-                                    " > VkClusterAccelerationStructureTriangleClusterInputNV::maxClusterVertexCount " +
-                                    std::to_string(input.maxClusterVertexCount));
-  if (!single_bit(info.indexType)) {
-    r.add(rules.indexType, "indexType " + std::to_string(info.indexType) + " does not have exactly one bit set");
-    buildable = false;
-  } else if (info.indexType > 4) {
-    r.add(rules.indexType, "indexType " + std::to_string(info.indexType) + " is no VkClusterAccelerationStructureIndexFormatFlagBitsNV");
-    buildable = false;
-  }
-  const bool uses_omm = info.opacityMicromapArray != 0 || info.opacityMicromapIndexBuffer != 0;
-  if (uses_omm && !single_bit(info.opacityMicromapIndexType))
-    r.add(rules.opacityMicromapIndexType,
-          "opacityMicromapIndexType " + std::to_string(info.opacityMicromapIndexType) + " does not have exactly one bit set");
-  if (info.positionTruncateBitCount < input.minPositionTruncateBitCount || info.positionTruncateBitCount > 32)
-    r.add(rules.positionTruncateBitCount, "positionTruncateBitCount " + std::to_string(info.positionTruncateBitCount) +
-                                              " outside [minPositionTruncateBitCount " +
-                                              std::to_string(input.minPositionTruncateBitCount) + ", 32]");
-  const uint32_t index_size = index_size_of(info.indexType);
-  if (info.indexBufferStride % index_size != 0)
-    r.add(rules.indexBufferStride, "indexBufferStride " + std::to_string(info.indexBufferStride) + " is not 0 or a multiple of " +
-                                       std::to_string(index_size));
-  if (vf.supported && info.vertexBufferStride % vf.component_size != 0)
-    r.add(rules.vertexBufferStride, "vertexBufferStride " + std::to_string(info.vertexBufferStride) +
-                                        " is not 0 or a multiple of the vertex format's component size " +
-                                        std::to_string(vf.component_size));
-  return buildable;
+    const TriangleInfoView& info = job.info;
+    const VkClusterAccelerationStructureTriangleClusterInputNV& input = job.input;
+    const EngineProperties& p = job.properties;
+    const InfoRules& rules = job.rules;
+    Reporter& r = job.report;
+    bool buildable = vf.supported;
+    if (info.cluster_id == 0xFFFFFFFFu) r.add(rules.cluster_id, "clusterID is 0xFFFFFFFF");
+    if (info.cluster_flags &
+        ~uint32_t(VK_CLUSTER_ACCELERATION_STRUCTURE_CLUSTER_ALLOW_DISABLE_OPACITY_MICROMAPS_NV))
+        r.add(rules.cluster_flags,
+              "clusterFlags " + hex(info.cluster_flags) +
+                  " has bits no VkClusterAccelerationStructureClusterFlagBitsNV defines");
+    if (info.triangle_count > p.max_triangles_per_cluster)
+        r.add(rules.triangle_count, "triangleCount " + std::to_string(info.triangle_count) +
+                                        " > maxTrianglesPerCluster " +
+                                        std::to_string(p.max_triangles_per_cluster));
+    if (info.vertex_count > p.max_vertices_per_cluster)
+        r.add(rules.vertex_count, "vertexCount " + std::to_string(info.vertex_count) +
+                                      " > maxVerticesPerCluster " +
+                                      std::to_string(p.max_vertices_per_cluster));
+    if (info.triangle_count > kMaxTriangles || info.vertex_count > kMaxVertices) {
+        r.add(kRuleBeyondEngineFormat, "triangleCount " + std::to_string(info.triangle_count) +
+                                           " / vertexCount " + std::to_string(info.vertex_count) +
+                                           " exceed the engine's 256 per cluster");
+        buildable = false;
+    }
+    if (info.triangle_count > input.maxClusterTriangleCount)
+        r.add(kRuleCountAboveInput,
+              "triangleCount " + std::to_string(info.triangle_count) +
+                  " > "
+                  "VkClusterAccelerationStructureTriangleClusterInputNV::maxClusterTriangleCount " +
+                  std::to_string(input.maxClusterTriangleCount));
+    if (info.vertex_count > input.maxClusterVertexCount)
+        r.add(
+            kRuleCountAboveInput,
+            "vertexCount " + std::to_string(info.vertex_count) +
+                " > VkClusterAccelerationStructureTriangleClusterInputNV::maxClusterVertexCount " +
+                std::to_string(input.maxClusterVertexCount));
+    if (!single_bit(info.index_type)) {
+        r.add(rules.index_type, "indexType " + std::to_string(info.index_type) +
+                                    " does not have exactly one bit set");
+        buildable = false;
+    } else if (info.index_type > 4) {
+        r.add(rules.index_type, "indexType " + std::to_string(info.index_type) +
+                                    " is no VkClusterAccelerationStructureIndexFormatFlagBitsNV");
+        buildable = false;
+    }
+    const bool uses_omm =
+        info.opacity_micromap_array != 0 || info.opacity_micromap_index_buffer != 0;
+    if (uses_omm && !single_bit(info.opacity_micromap_index_type))
+        r.add(rules.opacity_micromap_index_type,
+              "opacityMicromapIndexType " + std::to_string(info.opacity_micromap_index_type) +
+                  " does not have exactly one bit set");
+    if (info.position_truncate_bit_count < input.minPositionTruncateBitCount ||
+        info.position_truncate_bit_count > 32)
+        r.add(rules.position_truncate_bit_count,
+              "positionTruncateBitCount " + std::to_string(info.position_truncate_bit_count) +
+                  " outside [minPositionTruncateBitCount " +
+                  std::to_string(input.minPositionTruncateBitCount) + ", 32]");
+    const uint32_t index_size = index_size_of(info.index_type);
+    if (info.index_buffer_stride % index_size != 0)
+        r.add(rules.index_buffer_stride,
+              "indexBufferStride " + std::to_string(info.index_buffer_stride) +
+                  " is not 0 or a multiple of " + std::to_string(index_size));
+    if (vf.supported && info.vertex_buffer_stride % vf.component_size != 0)
+        r.add(rules.vertex_buffer_stride,
+              "vertexBufferStride " + std::to_string(info.vertex_buffer_stride) +
+                  " is not 0 or a multiple of the vertex format's component size " +
+                  std::to_string(vf.component_size));
+    return buildable;
 }
 
 // Indices widened to 32 bits; triangles with an index >= vertexCount are inactive.
 void decode_indices(const TriangleDecode& job) {
-  const TriangleInfoView& info = job.info;
-  uint32_t* const indices = job.indices;
-  uint8_t* const inactive = job.inactive;
-  Reporter& r = job.report;
-  const uint32_t T = job.decoded.triangle_count, V = job.decoded.vertex_count;
-  const uint32_t index_size = index_size_of(info.indexType);
-  const auto idx = job.memory.read_array(info.indexBuffer, 3ull * T, info.indexBufferStride, index_size,
-                                         {"indexBuffer", r.op_index});
-  const uint32_t istep = info.indexBufferStride ? info.indexBufferStride : index_size;
-  // Widen first (one loop per index size, no per-value switch), then range-check.
-  const std::byte* const isrc = idx.data();
-  const uint32_t n_indices = 3 * T;
-  if (index_size == 1 && istep == 1) {
-    for (uint32_t i = 0; i < n_indices; ++i) indices[i] = uint8_t(isrc[i]);  // packed: vectorizes
-  } else if (index_size == 1) {
-    for (uint32_t i = 0; i < n_indices; ++i) indices[i] = uint8_t(isrc[size_t(i) * istep]);
-  } else if (index_size == 2) {
-    for (uint32_t i = 0; i < n_indices; ++i) {
-      uint16_t value;
-      std::memcpy(&value, isrc + size_t(i) * istep, 2);
-      indices[i] = value;
+    const TriangleInfoView& info = job.info;
+    uint32_t* const indices = job.indices;
+    uint8_t* const inactive = job.inactive;
+    Reporter& r = job.report;
+    const uint32_t t = job.decoded.triangle_count, v = job.decoded.vertex_count;
+    const uint32_t index_size = index_size_of(info.index_type);
+    const auto idx = job.memory.read_array(info.index_buffer, 3ull * t, info.index_buffer_stride,
+                                           index_size, {"indexBuffer", r.op_index});
+    const uint32_t istep = info.index_buffer_stride ? info.index_buffer_stride : index_size;
+    // Widen first (one loop per index size, no per-value switch), then range-check.
+    const std::byte* const isrc = idx.data();
+    const uint32_t n_indices = 3 * t;
+    if (index_size == 1 && istep == 1) {
+        for (uint32_t i = 0; i < n_indices; ++i)
+            indices[i] = uint8_t(isrc[i]);  // packed: vectorizes
+    } else if (index_size == 1) {
+        for (uint32_t i = 0; i < n_indices; ++i) indices[i] = uint8_t(isrc[size_t(i) * istep]);
+    } else if (index_size == 2) {
+        for (uint32_t i = 0; i < n_indices; ++i) {
+            uint16_t value;
+            std::memcpy(&value, isrc + size_t(i) * istep, 2);
+            indices[i] = value;
+        }
+    } else {
+        for (uint32_t i = 0; i < n_indices; ++i)
+            std::memcpy(&indices[i], isrc + size_t(i) * istep, 4);
     }
-  } else {
-    for (uint32_t i = 0; i < n_indices; ++i) std::memcpy(&indices[i], isrc + size_t(i) * istep, 4);
-  }
-  uint32_t out_of_range = 0, first_bad = 0;
-  uint32_t largest_index = 0;
-  for (uint32_t i = 0; i < n_indices; ++i) largest_index = std::max(largest_index, indices[i]);
-  // The common case, every index in range, costs one vectorized pass.
-  if (largest_index < V) {
-    std::memset(inactive, 0, T);
-  } else {
-    for (uint32_t t = 0; t < T; ++t) {
-      const uint32_t bad = uint32_t(indices[3 * t] >= V) + uint32_t(indices[3 * t + 1] >= V) + uint32_t(indices[3 * t + 2] >= V);
-      inactive[t] = bad != 0;
-      if (bad) {
-        if (out_of_range == 0)
-          for (int v = 0; v < 3; ++v)
-            if (indices[3 * t + v] >= V) {
-              first_bad = 3 * t + v;
-              break;
+    uint32_t out_of_range = 0, first_bad = 0;
+    uint32_t largest_index = 0;
+    for (uint32_t i = 0; i < n_indices; ++i) largest_index = std::max(largest_index, indices[i]);
+    // The common case, every index in range, costs one vectorized pass.
+    if (largest_index < v) {
+        std::memset(inactive, 0, t);
+    } else {
+        for (uint32_t t = 0; t < t; ++t) {
+            const uint32_t bad = uint32_t(indices[3 * t] >= v) + uint32_t(indices[3 * t + 1] >= v) +
+                                 uint32_t(indices[3 * t + 2] >= v);
+            inactive[t] = bad != 0;
+            if (bad) {
+                if (out_of_range == 0)
+                    for (int v = 0; v < 3; ++v)
+                        if (indices[3 * t + v] >= v) {
+                            first_bad = 3 * t + v;
+                            break;
+                        }
+                out_of_range += bad;
             }
-        out_of_range += bad;
-      }
+        }
     }
-  }
-  if (out_of_range)
-    r.add(kRuleIndexOutOfRange, std::to_string(out_of_range) + " index value(s) >= vertexCount " + std::to_string(V) +
-                                    "; first at index " + std::to_string(first_bad) + " (value " +
-                                    std::to_string(indices[first_bad]) + "); those triangles are inactive",
-          info.indexBuffer);
+    if (out_of_range)
+        r.add(kRuleIndexOutOfRange,
+              std::to_string(out_of_range) + " index value(s) >= vertexCount " + std::to_string(v) +
+                  "; first at index " + std::to_string(first_bad) + " (value " +
+                  std::to_string(indices[first_bad]) + "); those triangles are inactive",
+              info.index_buffer);
 }
 
 // Positions: decoded, then truncated on their 32-bit patterns.
 void decode_positions(const TriangleDecode& job, const VertexFormatInfo& vf) {
-  const TriangleInfoView& info = job.info;
-  const VkClusterAccelerationStructureTriangleClusterInputNV& input = job.input;
-  float* const positions = job.positions;
-  Decoded& d = job.decoded;
-  const uint32_t V = d.vertex_count;
-  d.has_positions = !(job.positions_optional && info.vertexBuffer == 0);
-  if (d.has_positions && V > 0) {
-    const auto vb =
-        job.memory.read_array(info.vertexBuffer, V, info.vertexBufferStride, vf.size, {"vertexBuffer", job.report.op_index});
-    const uint32_t vstep = info.vertexBufferStride ? info.vertexBufferStride : vf.size;
-    if (input.vertexFormat == VK_FORMAT_R32G32B32_SFLOAT && vstep == 12) {
-      std::memcpy(positions, vb.data(), size_t(V) * 12);
-    } else if (input.vertexFormat == VK_FORMAT_R32G32B32_SFLOAT || input.vertexFormat == VK_FORMAT_R32G32B32A32_SFLOAT) {
-      for (uint32_t v = 0; v < V; ++v) std::memcpy(positions + 3 * v, vb.data() + size_t(v) * vstep, 12);
-    } else {
-      for (uint32_t v = 0; v < V; ++v) decode_vertex(input.vertexFormat, vb.data() + size_t(v) * vstep, positions + 3 * v);
+    const TriangleInfoView& info = job.info;
+    const VkClusterAccelerationStructureTriangleClusterInputNV& input = job.input;
+    float* const positions = job.positions;
+    Decoded& d = job.decoded;
+    const uint32_t v = d.vertex_count;
+    d.has_positions = !(job.positions_optional && info.vertex_buffer == 0);
+    if (d.has_positions && v > 0) {
+        const auto vb = job.memory.read_array(info.vertex_buffer, v, info.vertex_buffer_stride,
+                                              vf.size, {"vertexBuffer", job.report.op_index});
+        const uint32_t vstep = info.vertex_buffer_stride ? info.vertex_buffer_stride : vf.size;
+        if (input.vertexFormat == VK_FORMAT_R32G32B32_SFLOAT && vstep == 12) {
+            std::memcpy(positions, vb.data(), size_t(v) * 12);
+        } else if (input.vertexFormat == VK_FORMAT_R32G32B32_SFLOAT ||
+                   input.vertexFormat == VK_FORMAT_R32G32B32A32_SFLOAT) {
+            for (uint32_t v = 0; v < v; ++v)
+                std::memcpy(positions + 3 * v, vb.data() + size_t(v) * vstep, 12);
+        } else {
+            for (uint32_t v = 0; v < v; ++v)
+                decode_vertex(input.vertexFormat, vb.data() + size_t(v) * vstep, positions + 3 * v);
+        }
+        if (d.truncate_bits) {
+            const uint32_t mask = d.truncate_bits >= 32 ? 0u : ~((1u << d.truncate_bits) - 1u);
+            for (uint32_t c = 0; c < 3 * v; ++c)
+                positions[c] = std::bit_cast<float>(std::bit_cast<uint32_t>(positions[c]) & mask);
+        }
     }
-    if (d.truncate_bits) {
-      const uint32_t mask = d.truncate_bits >= 32 ? 0u : ~((1u << d.truncate_bits) - 1u);
-      for (uint32_t c = 0; c < 3 * V; ++c) positions[c] = std::bit_cast<float>(std::bit_cast<uint32_t>(positions[c]) & mask);
-    }
-  }
 }
 
 // Geometry index and flags: base + per-triangle index; flags of both.
 void decode_geometry_indices(const TriangleDecode& job) {
-  const TriangleInfoView& info = job.info;
-  const VkClusterAccelerationStructureTriangleClusterInputNV& input = job.input;
-  const EngineProperties& p = job.properties;
-  const InfoRules& rules = job.rules;
-  uint32_t* const geometry = job.geometry;
-  Decoded& d = job.decoded;
-  Reporter& r = job.report;
-  const uint32_t T = d.triangle_count;
-  constexpr uint32_t kReservedBits = 0x1F000000u;  // reserved:5 above geometryIndex:24
-  constexpr const char* kReservedRule = "VUID-VkClusterAccelerationStructureGeometryIndexAndGeometryFlagsNV-reserved-10487";
-  const uint32_t base = info.baseGeometryIndexAndFlags;
-  if (base & kReservedBits) r.add(kReservedRule, "baseGeometryIndexAndGeometryFlags.reserved is not 0");
-  uint32_t max_index = base & 0xFFFFFFu;
-  d.has_geometry = info.geometryIndexAndFlagsBuffer != 0;
-  if (d.has_geometry) {
-    const auto gb = job.memory.read_array(info.geometryIndexAndFlagsBuffer, T, info.geometryIndexAndFlagsBufferStride, 4,
-                                          {"geometryIndexAndFlagsBuffer", r.op_index});
-    const uint32_t gstep = info.geometryIndexAndFlagsBufferStride ? info.geometryIndexAndFlagsBufferStride : 4;
-    uint32_t unique[8];
-    uint32_t n_unique = 0, reserved_set = 0;
-    bool many = false;
-    max_index = 0;
-    for (uint32_t t = 0; t < T; ++t) {
-      uint32_t g;
-      std::memcpy(&g, gb.data() + size_t(t) * gstep, 4);
-      reserved_set += (g & kReservedBits) != 0;
-      const uint32_t index = (base & 0xFFFFFFu) + (g & 0xFFFFFFu);
-      const uint32_t flags = (base | g) & 0xE0000000u;
-      max_index = std::max(max_index, index);
-      geometry[t] = (index & 0xFFFFFFu) | flags;
-      if (!many && std::find(unique, unique + n_unique, index) == unique + n_unique) {
-        if (n_unique == 8) many = true;
-        else unique[n_unique++] = index;
-      }
+    const TriangleInfoView& info = job.info;
+    const VkClusterAccelerationStructureTriangleClusterInputNV& input = job.input;
+    const EngineProperties& p = job.properties;
+    const InfoRules& rules = job.rules;
+    uint32_t* const geometry = job.geometry;
+    Decoded& d = job.decoded;
+    Reporter& r = job.report;
+    const uint32_t t = d.triangle_count;
+    constexpr uint32_t kReservedBits = 0x1F000000u;  // reserved:5 above geometryIndex:24
+    constexpr const char* kReservedRule =
+        "VUID-VkClusterAccelerationStructureGeometryIndexAndGeometryFlagsNV-reserved-10487";
+    const uint32_t base = info.base_geometry_index_and_flags;
+    if (base & kReservedBits)
+        r.add(kReservedRule, "baseGeometryIndexAndGeometryFlags.reserved is not 0");
+    uint32_t max_index = base & 0xFFFFFFu;
+    d.has_geometry = info.geometry_index_and_flags_buffer != 0;
+    if (d.has_geometry) {
+        const auto gb = job.memory.read_array(info.geometry_index_and_flags_buffer, t,
+                                              info.geometry_index_and_flags_buffer_stride, 4,
+                                              {"geometryIndexAndFlagsBuffer", r.op_index});
+        const uint32_t gstep = info.geometry_index_and_flags_buffer_stride
+                                   ? info.geometry_index_and_flags_buffer_stride
+                                   : 4;
+        uint32_t unique[8];
+        uint32_t n_unique = 0, reserved_set = 0;
+        bool many = false;
+        max_index = 0;
+        for (uint32_t t = 0; t < t; ++t) {
+            uint32_t g;
+            std::memcpy(&g, gb.data() + size_t(t) * gstep, 4);
+            reserved_set += (g & kReservedBits) != 0;
+            const uint32_t index = (base & 0xFFFFFFu) + (g & 0xFFFFFFu);
+            const uint32_t flags = (base | g) & 0xE0000000u;
+            max_index = std::max(max_index, index);
+            geometry[t] = (index & 0xFFFFFFu) | flags;
+            if (!many && std::find(unique, unique + n_unique, index) == unique + n_unique) {
+                if (n_unique == 8)
+                    many = true;
+                else
+                    unique[n_unique++] = index;
+            }
+        }
+        if (reserved_set)
+            r.add(kReservedRule,
+                  std::to_string(reserved_set) +
+                      " geometryIndexAndFlagsBuffer entries have reserved bits set",
+                  info.geometry_index_and_flags_buffer);
+        if (input.maxClusterUniqueGeometryCount &&
+            (many || n_unique > input.maxClusterUniqueGeometryCount))
+            r.add(kRuleUniqueGeometryCount,
+                  "more unique geometry indices than maxClusterUniqueGeometryCount " +
+                      std::to_string(input.maxClusterUniqueGeometryCount));
     }
-    if (reserved_set)
-      r.add(kReservedRule, std::to_string(reserved_set) + " geometryIndexAndFlagsBuffer entries have reserved bits set",
-            info.geometryIndexAndFlagsBuffer);
-    if (input.maxClusterUniqueGeometryCount && (many || n_unique > input.maxClusterUniqueGeometryCount))
-      r.add(kRuleUniqueGeometryCount, "more unique geometry indices than maxClusterUniqueGeometryCount " +
-                                          std::to_string(input.maxClusterUniqueGeometryCount));
-  }
-  if (max_index >= p.maxClusterGeometryIndex)
-    r.add(rules.baseGeometryIndex, "maximum geometry index " + std::to_string(max_index) + " is not less than maxClusterGeometryIndex " +
-                                       std::to_string(p.maxClusterGeometryIndex));
-  if (max_index > input.maxGeometryIndexValue)
-    r.add(kRuleGeometryIndexAboveInput, "maximum geometry index " + std::to_string(max_index) +
-                                            " > VkClusterAccelerationStructureTriangleClusterInputNV::maxGeometryIndexValue " +
-                                            std::to_string(input.maxGeometryIndexValue));
+    if (max_index >= p.max_cluster_geometry_index)
+        r.add(rules.base_geometry_index, "maximum geometry index " + std::to_string(max_index) +
+                                             " is not less than maxClusterGeometryIndex " +
+                                             std::to_string(p.max_cluster_geometry_index));
+    if (max_index > input.maxGeometryIndexValue)
+        r.add(
+            kRuleGeometryIndexAboveInput,
+            "maximum geometry index " + std::to_string(max_index) +
+                " > VkClusterAccelerationStructureTriangleClusterInputNV::maxGeometryIndexValue " +
+                std::to_string(input.maxGeometryIndexValue));
 }
 
 // Opacity micromaps: recorded (array address and per-triangle indices), not traced.
 void decode_opacity_micromaps(const TriangleDecode& job) {
-  const TriangleInfoView& info = job.info;
-  int32_t* const omm = job.omm;
-  Decoded& d = job.decoded;
-  const uint32_t T = d.triangle_count;
-  d.has_omm = info.opacityMicromapArray != 0;
-  if (d.has_omm) {
-    d.omm_index_type = info.opacityMicromapIndexType;
-    const uint32_t osize = single_bit(info.opacityMicromapIndexType) && info.opacityMicromapIndexType <= 4 ? info.opacityMicromapIndexType : 4;
-    if (info.opacityMicromapIndexBuffer != 0) {
-      const auto ob = job.memory.read_array(info.opacityMicromapIndexBuffer, T, info.opacityMicromapIndexBufferStride, osize,
-                                            {"opacityMicromapIndexBuffer", job.report.op_index});
-      const uint32_t ostep = info.opacityMicromapIndexBufferStride ? info.opacityMicromapIndexBufferStride : osize;
-      for (uint32_t t = 0; t < T; ++t) {
-        const std::byte* src = ob.data() + size_t(t) * ostep;
-        int32_t value;
-        if (osize == 1) value = int8_t(*src);
-        else if (osize == 2) { int16_t s; std::memcpy(&s, src, 2); value = s; }
-        else std::memcpy(&value, src, 4);
-        omm[t] = value;
-      }
-    } else {
-      for (uint32_t t = 0; t < T; ++t) omm[t] = int32_t(t);  // no index buffer: triangle i uses micromap i
+    const TriangleInfoView& info = job.info;
+    int32_t* const omm = job.omm;
+    Decoded& d = job.decoded;
+    const uint32_t t = d.triangle_count;
+    d.has_omm = info.opacity_micromap_array != 0;
+    if (d.has_omm) {
+        d.omm_index_type = info.opacity_micromap_index_type;
+        const uint32_t osize =
+            single_bit(info.opacity_micromap_index_type) && info.opacity_micromap_index_type <= 4
+                ? info.opacity_micromap_index_type
+                : 4;
+        if (info.opacity_micromap_index_buffer != 0) {
+            const auto ob =
+                job.memory.read_array(info.opacity_micromap_index_buffer, t,
+                                      info.opacity_micromap_index_buffer_stride, osize,
+                                      {"opacityMicromapIndexBuffer", job.report.op_index});
+            const uint32_t ostep = info.opacity_micromap_index_buffer_stride
+                                       ? info.opacity_micromap_index_buffer_stride
+                                       : osize;
+            for (uint32_t t = 0; t < t; ++t) {
+                const std::byte* src = ob.data() + size_t(t) * ostep;
+                int32_t value;
+                if (osize == 1)
+                    value = int8_t(*src);
+                else if (osize == 2) {
+                    int16_t s;
+                    std::memcpy(&s, src, 2);
+                    value = s;
+                } else
+                    std::memcpy(&value, src, 4);
+                omm[t] = value;
+            }
+        } else {
+            for (uint32_t t = 0; t < t; ++t)
+                omm[t] = int32_t(t);  // no index buffer: triangle i uses micromap i
+        }
     }
-  }
 }
 
 // Reads and checks everything a build or template info names. Returns false when no
 // object can be built; findings say why.
 bool decode_triangle_info(const TriangleDecode& job) {
-  check_input(job.input, job.properties, job.report);
-  const VertexFormatInfo vf = vertex_format_info(job.input.vertexFormat);
-  if (!check_triangle_info(job, vf)) return false;
-  Decoded& d = job.decoded;
-  d.triangle_count = job.info.triangleCount;
-  d.vertex_count = job.info.vertexCount;
-  d.truncate_bits = std::min<uint32_t>(job.info.positionTruncateBitCount, 32);
-  decode_indices(job);
-  decode_positions(job, vf);
-  decode_geometry_indices(job);
-  decode_opacity_micromaps(job);
-  return true;
+    check_input(job.input, job.properties, job.report);
+    const VertexFormatInfo vf = vertex_format_info(job.input.vertexFormat);
+    if (!check_triangle_info(job, vf)) return false;
+    Decoded& d = job.decoded;
+    d.triangle_count = job.info.triangle_count;
+    d.vertex_count = job.info.vertex_count;
+    d.truncate_bits = std::min<uint32_t>(job.info.position_truncate_bit_count, 32);
+    decode_indices(job);
+    decode_positions(job, vf);
+    decode_geometry_indices(job);
+    decode_opacity_micromaps(job);
+    return true;
 }
 
 void report_fault(const MemoryFault& f, Reporter& r) {
-  r.out.push_back(Finding{kRuleMemoryFault, std::string(r.info_name) + ": " + f.message, r.op_index, f.address});
+    r.out.push_back(Finding{kRuleMemoryFault, std::string(r.info_name) + ": " + f.message,
+                            r.op_index, f.address});
 }
 
 // The encoder fields a cluster and a template take alike from their info and its decoding;
 // the caller sets the object type, positions and inactive triangles, where the two differ.
-void set_shared_encode_fields(const TriangleInfoView& info, const VkClusterAccelerationStructureTriangleClusterInputNV& input,
-                              const Decoded& d, const uint32_t* indices, const uint32_t* geometry, const int32_t* omm,
-                              detail::EncodeInput& in) {
-  in.cluster_id = info.clusterID;
-  in.cluster_flags = info.clusterFlags;
-  in.triangle_count = d.triangle_count;
-  in.vertex_count = d.vertex_count;
-  in.truncate_bits = d.truncate_bits;
-  in.vertex_format = uint32_t(input.vertexFormat);
-  in.indices = indices;
-  in.base_geometry_index_and_flags = info.baseGeometryIndexAndFlags;
-  in.geometry_index_and_flags = d.has_geometry ? geometry : nullptr;
-  in.has_omm = d.has_omm;
-  in.omm_array = info.opacityMicromapArray;
-  in.omm_index_type = d.omm_index_type;
-  in.omm_indices = omm;
+void set_shared_encode_fields(const TriangleInfoView& info,
+                              const VkClusterAccelerationStructureTriangleClusterInputNV& input,
+                              const Decoded& d, const uint32_t* indices, const uint32_t* geometry,
+                              const int32_t* omm, detail::EncodeInput& in) {
+    in.cluster_id = info.cluster_id;
+    in.cluster_flags = info.cluster_flags;
+    in.triangle_count = d.triangle_count;
+    in.vertex_count = d.vertex_count;
+    in.truncate_bits = d.truncate_bits;
+    in.vertex_format = uint32_t(input.vertexFormat);
+    in.indices = indices;
+    in.base_geometry_index_and_flags = info.base_geometry_index_and_flags;
+    in.geometry_index_and_flags = d.has_geometry ? geometry : nullptr;
+    in.has_omm = d.has_omm;
+    in.omm_array = info.opacity_micromap_array;
+    in.omm_index_type = d.omm_index_type;
+    in.omm_indices = omm;
 }
 
 }  // namespace
 
-bool ClusterBuilder::build_triangle_cluster(const MemoryImage& memory,
-                                            const VkClusterAccelerationStructureBuildTriangleClusterInfoNV& info,
-                                            const VkClusterAccelerationStructureTriangleClusterInputNV& input, int64_t op_index,
-                                            std::vector<std::byte>& out, std::vector<Finding>& findings) {
-  Reporter r{findings, op_index, kBuildRules.name};
-  Scratch& s = *scratch_;
-  Decoded d;
-  out.clear();
-  try {
-    if (!decode_triangle_info({memory, view_of(info), input, properties_, kBuildRules, /*positions_optional=*/false,
-                               s.positions, s.indices, s.inactive, s.geometry, s.omm, d, r}))
-      return false;
-  } catch (const MemoryFault& f) {
-    report_fault(f, r);
-    return false;
-  }
-  detail::EncodeInput in;
-  in.type = ObjectType::TriangleCluster;
-  set_shared_encode_fields(view_of(info), input, d, s.indices, s.geometry, s.omm, in);
-  in.positions = s.positions;
-  in.inactive = s.inactive;
-  detail::encode_object(in, s.bvh, out);
-  return true;
-}
-
-bool ClusterBuilder::build_triangle_cluster_template(const MemoryImage& memory,
-                                                     const VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV& info,
-                                                     const VkClusterAccelerationStructureTriangleClusterInputNV& input,
-                                                     int64_t op_index, std::vector<std::byte>& out, std::vector<Finding>& findings) {
-  Reporter r{findings, op_index, kTemplateRules.name};
-  Scratch& s = *scratch_;
-  Decoded d;
-  out.clear();
-  detail::EncodeInput in;
-  try {
-    if (!decode_triangle_info({memory, view_of(info), input, properties_, kTemplateRules, /*positions_optional=*/true,
-                               s.positions, s.indices, s.inactive, s.geometry, s.omm, d, r}))
-      return false;
-    for (uint32_t t = 0; t < d.triangle_count; ++t)
-      if (s.inactive[t]) return false;  // a template must be instantiable: index findings already reported
-    if (info.instantiationBoundingBoxLimit != 0) {
-      const uint32_t align = properties_.clusterTemplateBoundsByteAlignment;
-      if (align && info.instantiationBoundingBoxLimit % align != 0)
-        r.add("VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-instantiationBoundingBoxLimit-10505",
-              "instantiationBoundingBoxLimit is not aligned to clusterTemplateBoundsByteAlignment " + std::to_string(align),
-              info.instantiationBoundingBoxLimit);
-      const auto b = memory.read_bytes(info.instantiationBoundingBoxLimit, 24, {"instantiationBoundingBoxLimit", op_index});
-      std::memcpy(in.bounds_limit, b.data(), 24);
-      in.has_bounds_limit = true;
-    }
-  } catch (const MemoryFault& f) {
-    report_fault(f, r);
-    return false;
-  }
-  in.type = ObjectType::TriangleClusterTemplate;
-  set_shared_encode_fields(view_of(info), input, d, s.indices, s.geometry, s.omm, in);
-  in.positions = d.has_positions ? s.positions : nullptr;
-  detail::encode_object(in, s.bvh, out);
-  return true;
-}
-
-bool ClusterBuilder::instantiate_triangle_cluster(const MemoryImage& memory,
-                                                  const VkClusterAccelerationStructureInstantiateClusterInfoNV& info,
-                                                  const VkClusterAccelerationStructureTriangleClusterInputNV& input,
-                                                  int64_t op_index, std::vector<std::byte>& out, std::vector<Finding>& findings) {
-  Reporter r{findings, op_index, "VkClusterAccelerationStructureInstantiateClusterInfoNV"};
-  Scratch& s = *scratch_;
-  out.clear();
-  check_input(input, properties_, r);
-  if (info.reserved != 0)
-    r.add("VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-reserved-10509",
-          "reserved is " + std::to_string(info.reserved) + ", not 0");
-  try {
-    const TemplateRead tmpl = read_cluster_template(memory, info.clusterTemplateAddress, op_index, r);
-    if (!tmpl.header) return false;
-    const std::span<const std::byte> bytes = tmpl.bytes;
-    const ObjectHeader& h = *tmpl.header;
-    const uint32_t T = h.triangle_count, V = h.vertex_count;
-    if (uint32_t(input.vertexFormat) != h.vertex_format)
-      r.add("VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-vertexBuffer-10508",
-            "vertexFormat " + std::to_string(int(input.vertexFormat)) + " differs from the template's " + std::to_string(h.vertex_format));
-    // Positions: the instance's vertex buffer, or the template's own.
-    if (info.vertexBuffer.startAddress == 0) {
-      if (!(h.header_flags & kHasPositions)) {
-        r.add("VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-vertexBuffer-10507",
-              "vertexBuffer is 0 but the template was built without vertex data", info.clusterTemplateAddress);
+bool ClusterBuilder::build_triangle_cluster(
+    const MemoryImage& memory, const VkClusterAccelerationStructureBuildTriangleClusterInfoNV& info,
+    const VkClusterAccelerationStructureTriangleClusterInputNV& input, int64_t op_index,
+    std::vector<std::byte>& out, std::vector<Finding>& findings) {
+    Reporter r{findings, op_index, kBuildRules.name};
+    Scratch& s = *scratch_;
+    Decoded d;
+    out.clear();
+    try {
+        if (!decode_triangle_info({memory, view_of(info), input, properties_, kBuildRules,
+                                   /*positions_optional=*/false, s.positions, s.indices, s.inactive,
+                                   s.geometry, s.omm, d, r}))
+            return false;
+    } catch (const MemoryFault& f) {
+        report_fault(f, r);
         return false;
-      }
-      for (uint32_t v = 0; v < V; ++v) decode_position(bytes, h, v, s.positions + 3 * v);
-    } else {
-      const VertexFormatInfo vf = vertex_format_info(input.vertexFormat);
-      if (!vf.supported) return false;  // 10439 reported by check_input
-      const auto vb = memory.read_array(info.vertexBuffer.startAddress, V, info.vertexBuffer.strideInBytes, vf.size,
-                                        {"vertexBuffer", op_index});
-      const uint64_t vstep = info.vertexBuffer.strideInBytes ? info.vertexBuffer.strideInBytes : vf.size;
-      for (uint32_t v = 0; v < V; ++v) {
-        decode_vertex(input.vertexFormat, vb.data() + size_t(v * vstep), s.positions + 3 * v);
-        for (int k = 0; k < 3; ++k) s.positions[3 * v + k] = truncate_position(s.positions[3 * v + k], h.position_truncate_bits);
-      }
     }
-    if (h.header_flags & kHasBoundsLimit) {
-      float lim[6];
-      std::memcpy(lim, bytes.data() + h.bounds_limit_offset, 24);
-      uint32_t outside = 0, first = 0;
-      for (uint32_t v = 0; v < V; ++v)
-        for (int k = 0; k < 3; ++k) {
-          const float c = s.positions[3 * v + k];
-          if (!(c >= lim[k] && c <= lim[3 + k])) {  // NaN is outside too
-            if (outside++ == 0) first = v;
-            break;
-          }
-        }
-      if (outside)
-        r.add(kRuleInstanceOutsideLimit, std::to_string(outside) + " instantiated vertex position(s) outside the template's "
-                                             "instantiationBoundingBoxLimit; first is vertex " + std::to_string(first),
-              info.vertexBuffer.startAddress);
-    }
-    // Geometry index offset: a signed 24-bit value.
-    const int32_t goff = int32_t(uint32_t(info.geometryIndexOffset) << 8) >> 8;
-    int64_t max_index = -1, min_index = INT64_MAX;
-    for (uint32_t i = 0; i < T; ++i) {
-      const DecodedTriangle tri = decode_triangle(bytes, h, i);
-      const uint32_t t = tri.original_index;
-      for (int v = 0; v < 3; ++v) s.indices[3 * t + v] = tri.local_indices[v];
-      const int64_t index = int64_t(tri.geometry_index_and_flags & 0xFFFFFFu) + goff;
-      max_index = std::max(max_index, index);
-      min_index = std::min(min_index, index);
-      s.geometry[t] = (uint32_t(index) & 0xFFFFFFu) | (tri.geometry_index_and_flags & 0xE0000000u);
-      s.inactive[t] = 0;
-    }
-    if (T && (max_index >= int64_t(properties_.maxClusterGeometryIndex) || min_index < 0))
-      r.add("VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-geometryIndexOffset-10510",
-            "geometry indices after geometryIndexOffset " + std::to_string(goff) + " span [" + std::to_string(min_index) + ", " +
-                std::to_string(max_index) + "], not within [0, maxClusterGeometryIndex " +
-                std::to_string(properties_.maxClusterGeometryIndex) + ")");
     detail::EncodeInput in;
-    in.type = ObjectType::TriangleCluster;
-    in.cluster_id = h.cluster_id + info.clusterIdOffset;
-    in.cluster_flags = h.cluster_flags;
-    in.triangle_count = T;
-    in.vertex_count = V;
-    in.truncate_bits = h.position_truncate_bits;
-    in.vertex_format = h.vertex_format;
+    in.type = ObjectType::kTriangleCluster;
+    set_shared_encode_fields(view_of(info), input, d, s.indices, s.geometry, s.omm, in);
+    in.positions = s.positions;
+    in.inactive = s.inactive;
+    detail::encode_object(in, s.bvh, out);
+    return true;
+}
+
+bool ClusterBuilder::build_triangle_cluster_template(
+    const MemoryImage& memory,
+    const VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV& info,
+    const VkClusterAccelerationStructureTriangleClusterInputNV& input, int64_t op_index,
+    std::vector<std::byte>& out, std::vector<Finding>& findings) {
+    Reporter r{findings, op_index, kTemplateRules.name};
+    Scratch& s = *scratch_;
+    Decoded d;
+    out.clear();
+    detail::EncodeInput in;
+    try {
+        if (!decode_triangle_info({memory, view_of(info), input, properties_, kTemplateRules,
+                                   /*positions_optional=*/true, s.positions, s.indices, s.inactive,
+                                   s.geometry, s.omm, d, r}))
+            return false;
+        for (uint32_t t = 0; t < d.triangle_count; ++t)
+            if (s.inactive[t])
+                return false;  // a template must be instantiable: index findings already reported
+        if (info.instantiationBoundingBoxLimit != 0) {
+            const uint32_t align = properties_.cluster_template_bounds_byte_alignment;
+            if (align && info.instantiationBoundingBoxLimit % align != 0)
+                r.add(
+                    "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-"
+                    "instantiationBoundingBoxLimit-10505",
+                    "instantiationBoundingBoxLimit is not aligned to "
+                    "clusterTemplateBoundsByteAlignment " +
+                        std::to_string(align),
+                    info.instantiationBoundingBoxLimit);
+            const auto b = memory.read_bytes(info.instantiationBoundingBoxLimit, 24,
+                                             {"instantiationBoundingBoxLimit", op_index});
+            std::memcpy(in.bounds_limit, b.data(), 24);
+            in.has_bounds_limit = true;
+        }
+    } catch (const MemoryFault& f) {
+        report_fault(f, r);
+        return false;
+    }
+    in.type = ObjectType::kTriangleClusterTemplate;
+    set_shared_encode_fields(view_of(info), input, d, s.indices, s.geometry, s.omm, in);
+    in.positions = d.has_positions ? s.positions : nullptr;
+    detail::encode_object(in, s.bvh, out);
+    return true;
+}
+
+bool ClusterBuilder::instantiate_triangle_cluster(
+    const MemoryImage& memory, const VkClusterAccelerationStructureInstantiateClusterInfoNV& info,
+    const VkClusterAccelerationStructureTriangleClusterInputNV& input, int64_t op_index,
+    std::vector<std::byte>& out, std::vector<Finding>& findings) {
+    Reporter r{findings, op_index, "VkClusterAccelerationStructureInstantiateClusterInfoNV"};
+    Scratch& s = *scratch_;
+    out.clear();
+    check_input(input, properties_, r);
+    if (info.reserved != 0)
+        r.add("VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-reserved-10509",
+              "reserved is " + std::to_string(info.reserved) + ", not 0");
+    try {
+        const TemplateRead tmpl =
+            read_cluster_template(memory, info.clusterTemplateAddress, op_index, r);
+        if (!tmpl.header) return false;
+        const std::span<const std::byte> bytes = tmpl.bytes;
+        const ObjectHeader& h = *tmpl.header;
+        const uint32_t t = h.triangle_count, v = h.vertex_count;
+        if (uint32_t(input.vertexFormat) != h.vertex_format)
+            r.add("VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-vertexBuffer-10508",
+                  "vertexFormat " + std::to_string(int(input.vertexFormat)) +
+                      " differs from the template's " + std::to_string(h.vertex_format));
+        // Positions: the instance's vertex buffer, or the template's own.
+        if (info.vertexBuffer.startAddress == 0) {
+            if (!(h.header_flags & kHasPositions)) {
+                r.add(
+                    "VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-vertexBuffer-"
+                    "10507",
+                    "vertexBuffer is 0 but the template was built without vertex data",
+                    info.clusterTemplateAddress);
+                return false;
+            }
+            for (uint32_t v = 0; v < v; ++v) decode_position(bytes, h, v, s.positions + 3 * v);
+        } else {
+            const VertexFormatInfo vf = vertex_format_info(input.vertexFormat);
+            if (!vf.supported) return false;  // 10439 reported by check_input
+            const auto vb = memory.read_array(info.vertexBuffer.startAddress, v,
+                                              info.vertexBuffer.strideInBytes, vf.size,
+                                              {"vertexBuffer", op_index});
+            const uint64_t vstep =
+                info.vertexBuffer.strideInBytes ? info.vertexBuffer.strideInBytes : vf.size;
+            for (uint32_t v = 0; v < v; ++v) {
+                decode_vertex(input.vertexFormat, vb.data() + size_t(v * vstep),
+                              s.positions + 3 * v);
+                for (int k = 0; k < 3; ++k)
+                    s.positions[3 * v + k] =
+                        truncate_position(s.positions[3 * v + k], h.position_truncate_bits);
+            }
+        }
+        if (h.header_flags & kHasBoundsLimit) {
+            float lim[6];
+            std::memcpy(lim, bytes.data() + h.bounds_limit_offset, 24);
+            uint32_t outside = 0, first = 0;
+            for (uint32_t v = 0; v < v; ++v)
+                for (int k = 0; k < 3; ++k) {
+                    const float c = s.positions[3 * v + k];
+                    if (!(c >= lim[k] && c <= lim[3 + k])) {  // NaN is outside too
+                        if (outside++ == 0) first = v;
+                        break;
+                    }
+                }
+            if (outside)
+                r.add(kRuleInstanceOutsideLimit,
+                      std::to_string(outside) +
+                          " instantiated vertex position(s) outside the template's "
+                          "instantiationBoundingBoxLimit; first is vertex " +
+                          std::to_string(first),
+                      info.vertexBuffer.startAddress);
+        }
+        // Geometry index offset: a signed 24-bit value.
+        const int32_t goff = int32_t(uint32_t(info.geometryIndexOffset) << 8) >> 8;
+        int64_t max_index = -1, min_index = INT64_MAX;
+        for (uint32_t i = 0; i < t; ++i) {
+            const DecodedTriangle tri = decode_triangle(bytes, h, i);
+            const uint32_t t = tri.original_index;
+            for (int v = 0; v < 3; ++v) s.indices[3 * t + v] = tri.local_indices[v];
+            const int64_t index = int64_t(tri.geometry_index_and_flags & 0xFFFFFFu) + goff;
+            max_index = std::max(max_index, index);
+            min_index = std::min(min_index, index);
+            s.geometry[t] =
+                (uint32_t(index) & 0xFFFFFFu) | (tri.geometry_index_and_flags & 0xE0000000u);
+            s.inactive[t] = 0;
+        }
+        if (t && (max_index >= int64_t(properties_.max_cluster_geometry_index) || min_index < 0))
+            r.add(
+                "VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-geometryIndexOffset-"
+                "10510",
+                "geometry indices after geometryIndexOffset " + std::to_string(goff) + " span [" +
+                    std::to_string(min_index) + ", " + std::to_string(max_index) +
+                    "], not within [0, maxClusterGeometryIndex " +
+                    std::to_string(properties_.max_cluster_geometry_index) + ")");
+        detail::EncodeInput in;
+        in.type = ObjectType::kTriangleCluster;
+        in.cluster_id = h.cluster_id + info.clusterIdOffset;
+        in.cluster_flags = h.cluster_flags;
+        in.triangle_count = t;
+        in.vertex_count = v;
+        in.truncate_bits = h.position_truncate_bits;
+        in.vertex_format = h.vertex_format;
+        in.positions = s.positions;
+        in.indices = s.indices;
+        in.inactive = s.inactive;
+        in.base_geometry_index_and_flags = t ? s.geometry[0] : h.base_geometry_index_and_flags;
+        in.geometry_index_and_flags = t ? s.geometry : nullptr;
+        if (h.header_flags & kHasOpacityMicromap) {
+            OpacityMicromapSection sec;
+            std::memcpy(&sec, bytes.data() + h.omm_offset, sizeof sec);
+            in.has_omm = true;
+            in.omm_array = sec.opacity_micromap_array;
+            in.omm_index_type = sec.index_type;
+            std::memcpy(s.omm, bytes.data() + h.omm_offset + sizeof sec,
+                        4 * size_t(t));  // template keeps app order
+            in.omm_indices = s.omm;
+        }
+        detail::encode_object(in, s.bvh, out);
+        return true;
+    } catch (const MemoryFault& f) {
+        report_fault(f, r);
+        return false;
+    }
+}
+
+bool ClusterBuilder::build_from_arrays(uint32_t cluster_id, std::span<const float> positions,
+                                       std::span<const uint32_t> indices, uint32_t truncate_bits,
+                                       uint32_t base_geometry_index_and_flags,
+                                       std::span<const uint32_t> geometry_index_and_flags,
+                                       std::vector<std::byte>& out,
+                                       std::vector<Finding>& findings) {
+    Reporter r{findings, -1, "build_from_arrays"};
+    out.clear();
+    Scratch& s = *scratch_;
+    const size_t v = positions.size() / 3, t = indices.size() / 3;
+    if (v > kMaxVertices || t > kMaxTriangles || positions.size() % 3 || indices.size() % 3 ||
+        truncate_bits > 32 ||
+        (!geometry_index_and_flags.empty() && geometry_index_and_flags.size() != t)) {
+        r.add(kRuleCountAboveInput, "arrays exceed 256 vertices/triangles or are malformed");
+        return false;
+    }
+    for (size_t c = 0; c < positions.size(); ++c)
+        s.positions[c] = truncate_position(positions[c], truncate_bits);
+    uint32_t bad = 0;
+    for (size_t t = 0; t < t; ++t) {
+        s.inactive[t] = 0;
+        for (int v = 0; v < 3; ++v) {
+            s.indices[3 * t + v] = indices[3 * t + v];
+            if (indices[3 * t + v] >= v) {
+                s.inactive[t] = 1;
+                ++bad;
+            }
+        }
+    }
+    if (bad)
+        r.add(kRuleIndexOutOfRange,
+              std::to_string(bad) +
+                  " index value(s) >= vertex count; those triangles are inactive");
+    detail::EncodeInput in;
+    in.cluster_id = cluster_id;
+    in.triangle_count = uint32_t(t);
+    in.vertex_count = uint32_t(v);
+    in.truncate_bits = truncate_bits;
+    in.vertex_format = VK_FORMAT_R32G32B32_SFLOAT;
     in.positions = s.positions;
     in.indices = s.indices;
     in.inactive = s.inactive;
-    in.base_geometry_index_and_flags = T ? s.geometry[0] : h.base_geometry_index_and_flags;
-    in.geometry_index_and_flags = T ? s.geometry : nullptr;
-    if (h.header_flags & kHasOpacityMicromap) {
-      OpacityMicromapSection sec;
-      std::memcpy(&sec, bytes.data() + h.omm_offset, sizeof sec);
-      in.has_omm = true;
-      in.omm_array = sec.opacity_micromap_array;
-      in.omm_index_type = sec.index_type;
-      std::memcpy(s.omm, bytes.data() + h.omm_offset + sizeof sec, 4 * size_t(T));  // template keeps app order
-      in.omm_indices = s.omm;
-    }
+    in.base_geometry_index_and_flags = base_geometry_index_and_flags;
+    in.geometry_index_and_flags =
+        geometry_index_and_flags.empty() ? nullptr : geometry_index_and_flags.data();
     detail::encode_object(in, s.bvh, out);
     return true;
-  } catch (const MemoryFault& f) {
-    report_fault(f, r);
-    return false;
-  }
 }
 
-bool ClusterBuilder::build_from_arrays(uint32_t cluster_id, std::span<const float> positions, std::span<const uint32_t> indices,
-                                       uint32_t truncate_bits, uint32_t base_geometry_index_and_flags,
-                                       std::span<const uint32_t> geometry_index_and_flags, std::vector<std::byte>& out,
-                                       std::vector<Finding>& findings) {
-  Reporter r{findings, -1, "build_from_arrays"};
-  out.clear();
-  Scratch& s = *scratch_;
-  const size_t V = positions.size() / 3, T = indices.size() / 3;
-  if (V > kMaxVertices || T > kMaxTriangles || positions.size() % 3 || indices.size() % 3 || truncate_bits > 32 ||
-      (!geometry_index_and_flags.empty() && geometry_index_and_flags.size() != T)) {
-    r.add(kRuleCountAboveInput, "arrays exceed 256 vertices/triangles or are malformed");
-    return false;
-  }
-  for (size_t c = 0; c < positions.size(); ++c) s.positions[c] = truncate_position(positions[c], truncate_bits);
-  uint32_t bad = 0;
-  for (size_t t = 0; t < T; ++t) {
-    s.inactive[t] = 0;
-    for (int v = 0; v < 3; ++v) {
-      s.indices[3 * t + v] = indices[3 * t + v];
-      if (indices[3 * t + v] >= V) {
-        s.inactive[t] = 1;
-        ++bad;
-      }
+ClusterObject build_triangle_cluster(
+    const MemoryImage& memory, const VkClusterAccelerationStructureBuildTriangleClusterInfoNV& info,
+    const VkClusterAccelerationStructureTriangleClusterInputNV& input,
+    const EngineProperties& properties, int64_t op_index) {
+    ClusterObject o;
+    ClusterBuilder b(properties);
+    o.ok = b.build_triangle_cluster(memory, info, input, op_index, o.bytes, o.findings);
+    return o;
+}
+
+ClusterObject build_triangle_cluster_template(
+    const MemoryImage& memory,
+    const VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV& info,
+    const VkClusterAccelerationStructureTriangleClusterInputNV& input,
+    const EngineProperties& properties, int64_t op_index) {
+    ClusterObject o;
+    ClusterBuilder b(properties);
+    o.ok = b.build_triangle_cluster_template(memory, info, input, op_index, o.bytes, o.findings);
+    return o;
+}
+
+ClusterObject instantiate_triangle_cluster(
+    const MemoryImage& memory, const VkClusterAccelerationStructureInstantiateClusterInfoNV& info,
+    const VkClusterAccelerationStructureTriangleClusterInputNV& input,
+    const EngineProperties& properties, int64_t op_index) {
+    ClusterObject o;
+    ClusterBuilder b(properties);
+    o.ok = b.instantiate_triangle_cluster(memory, info, input, op_index, o.bytes, o.findings);
+    return o;
+}
+
+ClusterObject get_cluster_template_indices(
+    const MemoryImage& memory, const VkClusterAccelerationStructureGetTemplateIndicesInfoNV& info,
+    int64_t op_index) {
+    ClusterObject o;
+    Reporter r{o.findings, op_index, "VkClusterAccelerationStructureGetTemplateIndicesInfoNV"};
+    try {
+        const TemplateRead tmpl =
+            read_cluster_template(memory, info.clusterTemplateAddress, op_index, r);
+        if (!tmpl.header) return o;
+        const std::span<const std::byte> bytes = tmpl.bytes;
+        const ObjectHeader& h = *tmpl.header;
+        o.bytes.assign(12 * size_t(h.triangle_count), std::byte{0});
+        for (uint32_t i = 0; i < h.triangle_count; ++i) {
+            const DecodedTriangle tri = decode_triangle(bytes, h, i);
+            for (int v = 0; v < 3; ++v) {
+                const uint32_t value = tri.local_indices[v];
+                std::memcpy(o.bytes.data() + 12 * size_t(tri.original_index) + 4 * v, &value, 4);
+            }
+        }
+        o.ok = true;
+    } catch (const MemoryFault& f) {
+        report_fault(f, r);
     }
-  }
-  if (bad) r.add(kRuleIndexOutOfRange, std::to_string(bad) + " index value(s) >= vertex count; those triangles are inactive");
-  detail::EncodeInput in;
-  in.cluster_id = cluster_id;
-  in.triangle_count = uint32_t(T);
-  in.vertex_count = uint32_t(V);
-  in.truncate_bits = truncate_bits;
-  in.vertex_format = VK_FORMAT_R32G32B32_SFLOAT;
-  in.positions = s.positions;
-  in.indices = s.indices;
-  in.inactive = s.inactive;
-  in.base_geometry_index_and_flags = base_geometry_index_and_flags;
-  in.geometry_index_and_flags = geometry_index_and_flags.empty() ? nullptr : geometry_index_and_flags.data();
-  detail::encode_object(in, s.bvh, out);
-  return true;
-}
-
-ClusterObject build_triangle_cluster(const MemoryImage& memory, const VkClusterAccelerationStructureBuildTriangleClusterInfoNV& info,
-                                     const VkClusterAccelerationStructureTriangleClusterInputNV& input,
-                                     const EngineProperties& properties, int64_t op_index) {
-  ClusterObject o;
-  ClusterBuilder b(properties);
-  o.ok = b.build_triangle_cluster(memory, info, input, op_index, o.bytes, o.findings);
-  return o;
-}
-
-ClusterObject build_triangle_cluster_template(const MemoryImage& memory,
-                                              const VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV& info,
-                                              const VkClusterAccelerationStructureTriangleClusterInputNV& input,
-                                              const EngineProperties& properties, int64_t op_index) {
-  ClusterObject o;
-  ClusterBuilder b(properties);
-  o.ok = b.build_triangle_cluster_template(memory, info, input, op_index, o.bytes, o.findings);
-  return o;
-}
-
-ClusterObject instantiate_triangle_cluster(const MemoryImage& memory, const VkClusterAccelerationStructureInstantiateClusterInfoNV& info,
-                                           const VkClusterAccelerationStructureTriangleClusterInputNV& input,
-                                           const EngineProperties& properties, int64_t op_index) {
-  ClusterObject o;
-  ClusterBuilder b(properties);
-  o.ok = b.instantiate_triangle_cluster(memory, info, input, op_index, o.bytes, o.findings);
-  return o;
-}
-
-ClusterObject get_cluster_template_indices(const MemoryImage& memory,
-                                           const VkClusterAccelerationStructureGetTemplateIndicesInfoNV& info, int64_t op_index) {
-  ClusterObject o;
-  Reporter r{o.findings, op_index, "VkClusterAccelerationStructureGetTemplateIndicesInfoNV"};
-  try {
-    const TemplateRead tmpl = read_cluster_template(memory, info.clusterTemplateAddress, op_index, r);
-    if (!tmpl.header) return o;
-    const std::span<const std::byte> bytes = tmpl.bytes;
-    const ObjectHeader& h = *tmpl.header;
-    o.bytes.assign(12 * size_t(h.triangle_count), std::byte{0});
-    for (uint32_t i = 0; i < h.triangle_count; ++i) {
-      const DecodedTriangle tri = decode_triangle(bytes, h, i);
-      for (int v = 0; v < 3; ++v) {
-        const uint32_t value = tri.local_indices[v];
-        std::memcpy(o.bytes.data() + 12 * size_t(tri.original_index) + 4 * v, &value, 4);
-      }
-    }
-    o.ok = true;
-  } catch (const MemoryFault& f) {
-    report_fault(f, r);
-  }
-  return o;
+    return o;
 }
 
 uint64_t max_cluster_object_size(const VkClusterAccelerationStructureTriangleClusterInputNV& input,
                                  const EngineProperties& properties, bool is_template) {
-  const uint64_t T = std::min(input.maxClusterTriangleCount, std::min(properties.maxTrianglesPerCluster, kMaxTriangles));
-  const uint64_t V = std::min(input.maxClusterVertexCount, std::min(properties.maxVerticesPerCluster, kMaxVertices));
-  const uint64_t bits = 32 - std::min<uint32_t>(input.minPositionTruncateBitCount, 32);
-  uint64_t size = sizeof(ObjectHeader);
-  if (!is_template) size += 8 * (T ? 2 * T - 1 : 0);
-  size += ((V * 3 * bits + 7) / 8 + 3) & ~3ull;
-  size += 3 * T + T + 3;             // indices, order, padding
-  size += 4 * T;                     // per-triangle geometry data
-  size += 8 + sizeof(OpacityMicromapSection) + 4 * T;  // OMM
-  if (is_template) size += 24;
-  return (size + 3) & ~3ull;
+    const uint64_t t = std::min(input.maxClusterTriangleCount,
+                                std::min(properties.max_triangles_per_cluster, kMaxTriangles));
+    const uint64_t v = std::min(input.maxClusterVertexCount,
+                                std::min(properties.max_vertices_per_cluster, kMaxVertices));
+    const uint64_t bits = 32 - std::min<uint32_t>(input.minPositionTruncateBitCount, 32);
+    uint64_t size = sizeof(ObjectHeader);
+    if (!is_template) size += 8 * (t ? 2 * t - 1 : 0);
+    size += ((v * 3 * bits + 7) / 8 + 3) & ~3ull;
+    size += 3 * t + t + 3;                               // indices, order, padding
+    size += 4 * t;                                       // per-triangle geometry data
+    size += 8 + sizeof(OpacityMicromapSection) + 4 * t;  // OMM
+    if (is_template) size += 24;
+    return (size + 3) & ~3ull;
 }
 
 }  // namespace clastrace::engine

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // BVH over the triangles of one cluster (at most 256): object-median splits along the
 // longest axis of the node's centroid bounds, rounded to whole leaves of kMaxLeafSize
 // triangles. No allocation: everything lives on the stack or in BvhScratch.
@@ -24,197 +25,202 @@ constexpr uint32_t kDigitBits = kKeyBits / 2;
 constexpr uint32_t kDigits = 1u << kDigitBits;
 
 struct Task {
-  uint16_t node, begin, end;
+    uint16_t node, begin, end;
 };
 
 // Sorts 0..n-1 by key[k] for each axis k into order[k] (stable: equal keys stay in
 // increasing index order). hist[2k] / hist[2k+1] hold the counts of the low / high digits.
 void radix_sort3(const uint16_t (*key)[kMaxTriangles], uint32_t n, uint16_t (*hist)[kDigits],
                  uint8_t (*order)[kMaxTriangles]) {
-  // Exclusive prefix sums (counts <= 256 fit 16 bits).
+    // Exclusive prefix sums (counts <= 256 fit 16 bits).
 #if defined(__SSE2__)
-  static_assert(kDigits % 8 == 0);
-  for (int h = 0; h < 6; ++h) {
-    __m128i carry = _mm_setzero_si128();
-    for (uint32_t d = 0; d < kDigits; d += 8) {
-      __m128i* const p = reinterpret_cast<__m128i*>(hist[h] + d);
-      __m128i x = _mm_loadu_si128(p);
-      x = _mm_add_epi16(x, _mm_slli_si128(x, 2));
-      x = _mm_add_epi16(x, _mm_slli_si128(x, 4));
-      x = _mm_add_epi16(x, _mm_slli_si128(x, 8));  // inclusive
-      _mm_storeu_si128(p, _mm_add_epi16(_mm_slli_si128(x, 2), carry));
-      const __m128i last = _mm_shufflehi_epi16(x, 0xFF);
-      carry = _mm_add_epi16(carry, _mm_unpackhi_epi64(last, last));
+    static_assert(kDigits % 8 == 0);
+    for (int h = 0; h < 6; ++h) {
+        __m128i carry = _mm_setzero_si128();
+        for (uint32_t d = 0; d < kDigits; d += 8) {
+            __m128i* const p = reinterpret_cast<__m128i*>(hist[h] + d);
+            __m128i x = _mm_loadu_si128(p);
+            x = _mm_add_epi16(x, _mm_slli_si128(x, 2));
+            x = _mm_add_epi16(x, _mm_slli_si128(x, 4));
+            x = _mm_add_epi16(x, _mm_slli_si128(x, 8));  // inclusive
+            _mm_storeu_si128(p, _mm_add_epi16(_mm_slli_si128(x, 2), carry));
+            const __m128i last = _mm_shufflehi_epi16(x, 0xFF);
+            carry = _mm_add_epi16(carry, _mm_unpackhi_epi64(last, last));
+        }
     }
-  }
 #else
-  for (int h = 0; h < 6; ++h) {
-    uint32_t sum = 0;
-    for (uint32_t d = 0; d < kDigits; ++d) {
-      const uint32_t c = hist[h][d];
-      hist[h][d] = uint16_t(sum);
-      sum += c;
+    for (int h = 0; h < 6; ++h) {
+        uint32_t sum = 0;
+        for (uint32_t d = 0; d < kDigits; ++d) {
+            const uint32_t c = hist[h][d];
+            hist[h][d] = uint16_t(sum);
+            sum += c;
+        }
     }
-  }
 #endif
-  // The three axes go through each pass together: three independent chains of counter
-  // updates for the out-of-order core to overlap.
-  uint8_t tmp[3][kMaxTriangles];
-  for (uint32_t i = 0; i < n; ++i)
-    for (int k = 0; k < 3; ++k) tmp[k][hist[2 * k][key[k][i] & (kDigits - 1)]++] = uint8_t(i);
-  for (uint32_t j = 0; j < n; ++j)
-    for (int k = 0; k < 3; ++k) {
-      const uint32_t i = tmp[k][j];
-      order[k][hist[2 * k + 1][key[k][i] >> kDigitBits]++] = uint8_t(i);
-    }
+    // The three axes go through each pass together: three independent chains of counter
+    // updates for the out-of-order core to overlap.
+    uint8_t tmp[3][kMaxTriangles];
+    for (uint32_t i = 0; i < n; ++i)
+        for (int k = 0; k < 3; ++k) tmp[k][hist[2 * k][key[k][i] & (kDigits - 1)]++] = uint8_t(i);
+    for (uint32_t j = 0; j < n; ++j)
+        for (int k = 0; k < 3; ++k) {
+            const uint32_t i = tmp[k][j];
+            order[k][hist[2 * k + 1][key[k][i] >> kDigitBits]++] = uint8_t(i);
+        }
 }
 
 // Triangle centroids (half-sums: no overflow near FLT_MAX; -inf..+inf gives NaN, taken as
 // 0) and their bounds.
-void compute_centroids(const BvhScratch& s, uint32_t n, float (*centroid)[4], Float4& clo, Float4& chi) {
-  const Float4 half = splat(0.5f);
-  clo = splat(INFINITY);
-  chi = splat(-INFINITY);
-  for (uint32_t i = 0; i < n; ++i) {
-    Float4 c = load4(s.tri_min[i]) * half + load4(s.tri_max[i]) * half;
-    if (nan_lanes(c)) {
-      store4(centroid[i], c);
-      for (int k = 0; k < 4; ++k)
-        if (centroid[i][k] != centroid[i][k]) centroid[i][k] = 0.0f;
-      c = load4(centroid[i]);
+void compute_centroids(const BvhScratch& s, uint32_t n, float (*centroid)[4], Float4& clo,
+                       Float4& chi) {
+    const Float4 half = splat(0.5f);
+    clo = splat(INFINITY);
+    chi = splat(-INFINITY);
+    for (uint32_t i = 0; i < n; ++i) {
+        Float4 c = load4(s.tri_min[i]) * half + load4(s.tri_max[i]) * half;
+        if (nan_lanes(c)) {
+            store4(centroid[i], c);
+            for (int k = 0; k < 4; ++k)
+                if (centroid[i][k] != centroid[i][k]) centroid[i][k] = 0.0f;
+            c = load4(centroid[i]);
+        }
+        store4(centroid[i], c);
+        clo = min4(clo, c);
+        chi = max4(chi, c);
     }
-    store4(centroid[i], c);
-    clo = min4(clo, c);
-    chi = max4(chi, c);
-  }
 }
 
 // Node boxes bottom-up: children always follow their parent.
 void fit_node_boxes(BvhScratch& s, const uint8_t* leaf_order) {
-  for (uint32_t ni = s.node_count; ni-- > 0;) {
-    BvhScratch::Node& node = s.nodes[ni];
-    Float4 lo, hi;
-    if (node.count) {
-      const uint8_t* tris = leaf_order + node.first;
-      lo = load4(s.tri_min[tris[0]]);
-      hi = load4(s.tri_max[tris[0]]);
-      for (uint32_t j = 1; j < node.count; ++j) {
-        lo = min4(lo, load4(s.tri_min[tris[j]]));
-        hi = max4(hi, load4(s.tri_max[tris[j]]));
-      }
-    } else {
-      const BvhScratch::Node& l = s.nodes[node.first];
-      const BvhScratch::Node& r = s.nodes[node.first + 1];
-      lo = min4(load4(l.lo), load4(r.lo));
-      hi = max4(load4(l.hi), load4(r.hi));
+    for (uint32_t ni = s.node_count; ni-- > 0;) {
+        BvhScratch::Node& node = s.nodes[ni];
+        Float4 lo, hi;
+        if (node.count) {
+            const uint8_t* tris = leaf_order + node.first;
+            lo = load4(s.tri_min[tris[0]]);
+            hi = load4(s.tri_max[tris[0]]);
+            for (uint32_t j = 1; j < node.count; ++j) {
+                lo = min4(lo, load4(s.tri_min[tris[j]]));
+                hi = max4(hi, load4(s.tri_max[tris[j]]));
+            }
+        } else {
+            const BvhScratch::Node& l = s.nodes[node.first];
+            const BvhScratch::Node& r = s.nodes[node.first + 1];
+            lo = min4(load4(l.lo), load4(r.lo));
+            hi = max4(load4(l.hi), load4(r.hi));
+        }
+        store4(node.lo, lo);
+        store4(node.hi, hi);
     }
-    store4(node.lo, lo);
-    store4(node.hi, hi);
-  }
 }
 
 }  // namespace
 
 void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
-  s.node_count = 0;
-  if (n == 0) return;
+    s.node_count = 0;
+    if (n == 0) return;
 
-  alignas(16) float centroid[kMaxTriangles][4];
-  Float4 clo, chi;
-  compute_centroids(s, n, centroid, clo, chi);
-  const Float4 half = splat(0.5f);
+    alignas(16) float centroid[kMaxTriangles][4];
+    Float4 clo, chi;
+    compute_centroids(s, n, centroid, clo, chi);
+    const Float4 half = splat(0.5f);
 
-  // 10-bit keys per axis, monotone in the centroid (so sorting them sorts the centroids up
-  // to ties inside one step of extent / 1024). Halves again keep extents finite.
-  uint16_t key[3][kMaxTriangles];
-  uint16_t hist[6][kDigits] = {};
-  {
-    const Float4 base = clo * half;
-    const Float4 scale = splat(float(1u << kKeyBits)) / (chi * half - base);  // inf or NaN for a flat axis: keys 0
-    const Float4 zero = splat(0.0f), top = splat(float((1u << kKeyBits) - 1));
-    for (uint32_t i = 0; i < n; ++i) {
-      alignas(16) int32_t q[4];
-      // max4(x, zero) turns NaN into 0.
-      store_int4(q, to_int(min4(max4((load4(centroid[i]) * half - base) * scale, zero), top)));
-      for (int k = 0; k < 3; ++k) {
-        key[k][i] = uint16_t(q[k]);
-        ++hist[2 * k][q[k] & (kDigits - 1)];
-        ++hist[2 * k + 1][q[k] >> kDigitBits];
-      }
+    // 10-bit keys per axis, monotone in the centroid (so sorting them sorts the centroids up
+    // to ties inside one step of extent / 1024). Halves again keep extents finite.
+    uint16_t key[3][kMaxTriangles];
+    uint16_t hist[6][kDigits] = {};
+    {
+        const Float4 base = clo * half;
+        const Float4 scale = splat(float(1u << kKeyBits)) /
+                             (chi * half - base);  // inf or NaN for a flat axis: keys 0
+        const Float4 zero = splat(0.0f), top = splat(float((1u << kKeyBits) - 1));
+        for (uint32_t i = 0; i < n; ++i) {
+            alignas(16) int32_t q[4];
+            // max4(x, zero) turns NaN into 0.
+            store_int4(q,
+                       to_int(min4(max4((load4(centroid[i]) * half - base) * scale, zero), top)));
+            for (int k = 0; k < 3; ++k) {
+                key[k][i] = uint16_t(q[k]);
+                ++hist[2 * k][q[k] & (kDigits - 1)];
+                ++hist[2 * k + 1][q[k] >> kDigitBits];
+            }
+        }
     }
-  }
-  uint8_t order[3][kMaxTriangles];
-  radix_sort3(key, n, hist, order);
+    uint8_t order[3][kMaxTriangles];
+    radix_sort3(key, n, hist, order);
 
-  // Top-down: node numbering is depth first, left subtree first, the two children of a node
-  // next to each other.
-  uint8_t side[kMaxTriangles];
-  uint8_t leaf_order[kMaxTriangles];  // each leaf's triangles at its range
-  Task stack[kMaxNodes];
-  int sp = 0;
-  s.node_count = 1;
-  stack[sp++] = {0, 0, uint16_t(n)};
-  while (sp > 0) {
-    const Task task = stack[--sp];
-    BvhScratch::Node& node = s.nodes[task.node];
-    const uint32_t b = task.begin, e = task.end, count = e - b;
-    if (count <= kMaxLeafSize) {
-      if (task.node == 0) std::memcpy(leaf_order, order[0], count);  // a root leaf
-      node.first = uint16_t(b);
-      node.count = uint16_t(count);
-      continue;
+    // Top-down: node numbering is depth first, left subtree first, the two children of a node
+    // next to each other.
+    uint8_t side[kMaxTriangles];
+    uint8_t leaf_order[kMaxTriangles];  // each leaf's triangles at its range
+    Task stack[kMaxNodes];
+    int sp = 0;
+    s.node_count = 1;
+    stack[sp++] = {0, 0, uint16_t(n)};
+    while (sp > 0) {
+        const Task task = stack[--sp];
+        BvhScratch::Node& node = s.nodes[task.node];
+        const uint32_t b = task.begin, e = task.end, count = e - b;
+        if (count <= kMaxLeafSize) {
+            if (task.node == 0) std::memcpy(leaf_order, order[0], count);  // a root leaf
+            node.first = uint16_t(b);
+            node.count = uint16_t(count);
+            continue;
+        }
+        int axis = 0;
+        float best = centroid[order[0][e - 1]][0] - centroid[order[0][b]][0];
+        for (int k = 1; k < 3; ++k) {
+            const float extent = centroid[order[k][e - 1]][k] - centroid[order[k][b]][k];
+            if (extent > best) {
+                best = extent;
+                axis = k;
+            }
+        }
+        // Object median rounded to whole leaves: left gets half of the leaves (full ones), so
+        // the tree has the fewest nodes (2 * ceil(n / 4) - 1) and stays balanced.
+        const uint32_t leaves = (count + kMaxLeafSize - 1) / kMaxLeafSize;
+        const uint32_t left_count = kMaxLeafSize * ((leaves + 1) / 2);
+        const uint32_t m = b + left_count;
+        if (count <= 2 * kMaxLeafSize) {
+            // Both children are leaves: they need no sorted orders, only their triangles.
+            std::memcpy(leaf_order + b, order[axis] + b, count);
+        } else {
+            for (uint32_t j = b; j < m; ++j) side[order[axis][j]] = 0;
+            for (uint32_t j = m; j < e; ++j) side[order[axis][j]] = 1;
+            // The other two orders, partitioned stably in one loop (two independent chains).
+            uint8_t* const o1 = order[axis == 0 ? 1 : 0] + b;
+            uint8_t* const o2 = order[axis == 2 ? 1 : 2] + b;
+            uint8_t t1[kMaxTriangles], t2[kMaxTriangles];
+            uint32_t l1 = 0, r1 = left_count, l2 = 0, r2 = left_count;
+            for (uint32_t j = 0; j < count; ++j) {
+                const uint8_t i1 = o1[j], i2 = o2[j];
+                const uint32_t s1 = side[i1], s2 = side[i2];
+                t1[s1 ? r1 : l1] = i1;
+                t2[s2 ? r2 : l2] = i2;
+                l1 += s1 ^ 1u;
+                r1 += s1;
+                l2 += s2 ^ 1u;
+                r2 += s2;
+            }
+            std::memcpy(o1, t1, count);
+            std::memcpy(o2, t2, count);
+            // A child that is a leaf already (an odd count) takes its triangles from any order.
+            if (left_count <= kMaxLeafSize)
+                std::memcpy(leaf_order + b, order[axis] + b, left_count);
+            if (count - left_count <= kMaxLeafSize)
+                std::memcpy(leaf_order + m, order[axis] + m, count - left_count);
+        }
+        const uint16_t left = uint16_t(s.node_count);
+        s.node_count += 2;
+        node.first = left;
+        node.count = 0;
+        stack[sp++] = {uint16_t(left + 1), uint16_t(m), uint16_t(e)};
+        stack[sp++] = {left, uint16_t(b), uint16_t(m)};
     }
-    int axis = 0;
-    float best = centroid[order[0][e - 1]][0] - centroid[order[0][b]][0];
-    for (int k = 1; k < 3; ++k) {
-      const float extent = centroid[order[k][e - 1]][k] - centroid[order[k][b]][k];
-      if (extent > best) {
-        best = extent;
-        axis = k;
-      }
-    }
-    // Object median rounded to whole leaves: left gets half of the leaves (full ones), so
-    // the tree has the fewest nodes (2 * ceil(n / 4) - 1) and stays balanced.
-    const uint32_t leaves = (count + kMaxLeafSize - 1) / kMaxLeafSize;
-    const uint32_t left_count = kMaxLeafSize * ((leaves + 1) / 2);
-    const uint32_t m = b + left_count;
-    if (count <= 2 * kMaxLeafSize) {
-      // Both children are leaves: they need no sorted orders, only their triangles.
-      std::memcpy(leaf_order + b, order[axis] + b, count);
-    } else {
-      for (uint32_t j = b; j < m; ++j) side[order[axis][j]] = 0;
-      for (uint32_t j = m; j < e; ++j) side[order[axis][j]] = 1;
-      // The other two orders, partitioned stably in one loop (two independent chains).
-      uint8_t* const o1 = order[axis == 0 ? 1 : 0] + b;
-      uint8_t* const o2 = order[axis == 2 ? 1 : 2] + b;
-      uint8_t t1[kMaxTriangles], t2[kMaxTriangles];
-      uint32_t l1 = 0, r1 = left_count, l2 = 0, r2 = left_count;
-      for (uint32_t j = 0; j < count; ++j) {
-        const uint8_t i1 = o1[j], i2 = o2[j];
-        const uint32_t s1 = side[i1], s2 = side[i2];
-        t1[s1 ? r1 : l1] = i1;
-        t2[s2 ? r2 : l2] = i2;
-        l1 += s1 ^ 1u;
-        r1 += s1;
-        l2 += s2 ^ 1u;
-        r2 += s2;
-      }
-      std::memcpy(o1, t1, count);
-      std::memcpy(o2, t2, count);
-      // A child that is a leaf already (an odd count) takes its triangles from any order.
-      if (left_count <= kMaxLeafSize) std::memcpy(leaf_order + b, order[axis] + b, left_count);
-      if (count - left_count <= kMaxLeafSize) std::memcpy(leaf_order + m, order[axis] + m, count - left_count);
-    }
-    const uint16_t left = uint16_t(s.node_count);
-    s.node_count += 2;
-    node.first = left;
-    node.count = 0;
-    stack[sp++] = {uint16_t(left + 1), uint16_t(m), uint16_t(e)};
-    stack[sp++] = {left, uint16_t(b), uint16_t(m)};
-  }
 
-  fit_node_boxes(s, leaf_order);
-  for (uint32_t j = 0; j < n; ++j) s.perm[j] = active_list[leaf_order[j]];
+    fit_node_boxes(s, leaf_order);
+    for (uint32_t j = 0; j < n; ++j) s.perm[j] = active_list[leaf_order[j]];
 }
 
 }  // namespace clastrace::engine::detail

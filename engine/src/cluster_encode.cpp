@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Lays out a CLAS or template object (docs/engine-formats.md) from decoded input.
 #include "cluster_internal.h"
 #include "simd4.h"
@@ -10,309 +11,327 @@ namespace clastrace::engine::detail {
 
 namespace {
 
-bool finite3(const float v[3]) { return std::isfinite(v[0]) && std::isfinite(v[1]) && std::isfinite(v[2]); }
+bool finite3(const float v[3]) {
+    return std::isfinite(v[0]) && std::isfinite(v[1]) && std::isfinite(v[2]);
+}
 
 // Packs each coordinate's top `bits` bits (the truncated low bits are zero) into a
 // little-endian bit stream.
-void pack_positions(const float* positions, uint32_t count, uint32_t bits, uint32_t truncate, std::byte* dst) {
-  if (bits == 32) {
-    std::memcpy(dst, positions, size_t(count) * 4);
-    return;
-  }
-  if (bits == 0) return;
-  uint64_t acc = 0;
-  uint32_t acc_bits = 0;
-  size_t out = 0;
-  for (uint32_t i = 0; i < count; ++i) {
-    const uint32_t pattern = std::bit_cast<uint32_t>(positions[i]) >> truncate;
-    acc |= uint64_t(pattern) << acc_bits;
-    acc_bits += bits;
-    while (acc_bits >= 8) {
-      dst[out++] = std::byte(acc & 0xFF);
-      acc >>= 8;
-      acc_bits -= 8;
+void pack_positions(const float* positions, uint32_t count, uint32_t bits, uint32_t truncate,
+                    std::byte* dst) {
+    if (bits == 32) {
+        std::memcpy(dst, positions, size_t(count) * 4);
+        return;
     }
-  }
-  if (acc_bits > 0) dst[out++] = std::byte(acc & 0xFF);
+    if (bits == 0) return;
+    uint64_t acc = 0;
+    uint32_t acc_bits = 0;
+    size_t out = 0;
+    for (uint32_t i = 0; i < count; ++i) {
+        const uint32_t pattern = std::bit_cast<uint32_t>(positions[i]) >> truncate;
+        acc |= uint64_t(pattern) << acc_bits;
+        acc_bits += bits;
+        while (acc_bits >= 8) {
+            dst[out++] = std::byte(acc & 0xFF);
+            acc >>= 8;
+            acc_bits -= 8;
+        }
+    }
+    if (acc_bits > 0) dst[out++] = std::byte(acc & 0xFF);
 }
 
 #if !defined(__SSE2__)
 // The first guess may be off by one either way (inv_step is rounded); the loops make it
 // conservative with the exact decoding traversal uses.
 uint8_t quantize_lo(const QuantFrame& f, const float inv_step[3], int a, float v) {
-  const float rel = (v - f.lo[a]) * inv_step[a];
-  int q = rel >= 255.0f ? 255 : (rel > 0.0f ? int(rel) : 0);
-  while (q > 0 && dequant_lo(f, a, uint32_t(q)) > v) --q;
-  return uint8_t(q);
+    const float rel = (v - f.lo[a]) * inv_step[a];
+    int q = rel >= 255.0f ? 255 : (rel > 0.0f ? int(rel) : 0);
+    while (q > 0 && dequant_lo(f, a, uint32_t(q)) > v) --q;
+    return uint8_t(q);
 }
 
 uint8_t quantize_hi(const QuantFrame& f, const float inv_step[3], int a, float v) {
-  const float rel = (v - f.lo[a]) * inv_step[a];
-  // ceil of rel in (0, 255) as truncation plus one when rel has a fraction (exact there,
-  // and no libm call on baseline x86-64, which lacks roundss).
-  int q = 0;
-  if (rel >= 255.0f) q = 255;
-  else if (rel > 0.0f) {
-    q = int(rel);
-    q += float(q) < rel;
-  }
-  while (q < 255 && dequant_hi(f, a, uint32_t(q)) < v) ++q;
-  return uint8_t(q);
+    const float rel = (v - f.lo[a]) * inv_step[a];
+    // ceil of rel in (0, 255) as truncation plus one when rel has a fraction (exact there,
+    // and no libm call on baseline x86-64, which lacks roundss).
+    int q = 0;
+    if (rel >= 255.0f)
+        q = 255;
+    else if (rel > 0.0f) {
+        q = int(rel);
+        q += float(q) < rel;
+    }
+    while (q < 255 && dequant_hi(f, a, uint32_t(q)) < v) ++q;
+    return uint8_t(q);
 }
 #endif
 
 // Every node's box quantized conservatively (quantize_lo/quantize_hi per bound) and its
 // link, written as BvhNode records. The SSE2 path does the three axes of a bound at once
 // with the same float operations, so it writes the same bytes.
-void write_nodes(const QuantFrame& f, bool unbounded, const BvhScratch& s, uint32_t n_nodes, std::byte* dst) {
-  if (unbounded) {
-    for (uint32_t i = 0; i < n_nodes; ++i) {
-      const BvhScratch::Node& sn = s.nodes[i];
-      BvhNode node{};
-      for (int a = 0; a < 3; ++a) {
-        node.qmin[a] = 0;
-        node.qmax[a] = 255;
-      }
-      node.link = sn.count ? uint16_t(kLeafBit | ((sn.count - 1u) << 8) | sn.first) : uint16_t(sn.first);
-      std::memcpy(dst + 8 * i, &node, 8);
+void write_nodes(const QuantFrame& f, bool unbounded, const BvhScratch& s, uint32_t n_nodes,
+                 std::byte* dst) {
+    if (unbounded) {
+        for (uint32_t i = 0; i < n_nodes; ++i) {
+            const BvhScratch::Node& sn = s.nodes[i];
+            BvhNode node{};
+            for (int a = 0; a < 3; ++a) {
+                node.qmin[a] = 0;
+                node.qmax[a] = 255;
+            }
+            node.link = sn.count ? uint16_t(kLeafBit | ((sn.count - 1u) << 8) | sn.first)
+                                 : uint16_t(sn.first);
+            std::memcpy(dst + 8 * i, &node, 8);
+        }
+        return;
     }
-    return;
-  }
 #if defined(__SSE2__)
-  // Lane 3 carries v = lo = 0, step = 1: it never moves.
-  const __m128 lo = _mm_setr_ps(f.lo[0], f.lo[1], f.lo[2], 0.0f);
-  const __m128 step = _mm_setr_ps(f.step[0], f.step[1], f.step[2], 1.0f);
-  const __m128 inv = _mm_div_ps(_mm_set1_ps(1.0f), step);
-  const __m128 zero = _mm_setzero_ps(), top = _mm_set1_ps(255.0f);
-  const __m128i izero = _mm_setzero_si128(), itop = _mm_set1_epi32(255);
-  auto dequant = [&](__m128i q) { return _mm_add_ps(lo, _mm_mul_ps(_mm_cvtepi32_ps(q), step)); };
-  for (uint32_t i = 0; i < n_nodes; ++i) {
-    const BvhScratch::Node& sn = s.nodes[i];
-    const __m128 vlo = _mm_load_ps(sn.lo), vhi = _mm_load_ps(sn.hi);
-    // max(x, 0) with x second-false takes 0 for NaN, like the scalar `rel > 0` test.
-    const __m128 xlo = _mm_min_ps(_mm_max_ps(_mm_mul_ps(_mm_sub_ps(vlo, lo), inv), zero), top);
-    const __m128 xhi = _mm_min_ps(_mm_max_ps(_mm_mul_ps(_mm_sub_ps(vhi, lo), inv), zero), top);
-    __m128i qlo = _mm_cvttps_epi32(xlo);
-    __m128i qhi = _mm_cvttps_epi32(xhi);
-    qhi = _mm_sub_epi32(qhi, _mm_castps_si128(_mm_cmplt_ps(_mm_cvtepi32_ps(qhi), xhi)));  // ceil
-    for (;;) {
-      const __m128i down = _mm_and_si128(_mm_cmpgt_epi32(qlo, izero), _mm_castps_si128(_mm_cmpgt_ps(dequant(qlo), vlo)));
-      if (!_mm_movemask_epi8(down)) break;
-      qlo = _mm_add_epi32(qlo, down);
+    // Lane 3 carries v = lo = 0, step = 1: it never moves.
+    const __m128 lo = _mm_setr_ps(f.lo[0], f.lo[1], f.lo[2], 0.0f);
+    const __m128 step = _mm_setr_ps(f.step[0], f.step[1], f.step[2], 1.0f);
+    const __m128 inv = _mm_div_ps(_mm_set1_ps(1.0f), step);
+    const __m128 zero = _mm_setzero_ps(), top = _mm_set1_ps(255.0f);
+    const __m128i izero = _mm_setzero_si128(), itop = _mm_set1_epi32(255);
+    auto dequant = [&](__m128i q) { return _mm_add_ps(lo, _mm_mul_ps(_mm_cvtepi32_ps(q), step)); };
+    for (uint32_t i = 0; i < n_nodes; ++i) {
+        const BvhScratch::Node& sn = s.nodes[i];
+        const __m128 vlo = _mm_load_ps(sn.lo), vhi = _mm_load_ps(sn.hi);
+        // max(x, 0) with x second-false takes 0 for NaN, like the scalar `rel > 0` test.
+        const __m128 xlo = _mm_min_ps(_mm_max_ps(_mm_mul_ps(_mm_sub_ps(vlo, lo), inv), zero), top);
+        const __m128 xhi = _mm_min_ps(_mm_max_ps(_mm_mul_ps(_mm_sub_ps(vhi, lo), inv), zero), top);
+        __m128i qlo = _mm_cvttps_epi32(xlo);
+        __m128i qhi = _mm_cvttps_epi32(xhi);
+        qhi =
+            _mm_sub_epi32(qhi, _mm_castps_si128(_mm_cmplt_ps(_mm_cvtepi32_ps(qhi), xhi)));  // ceil
+        for (;;) {
+            const __m128i down = _mm_and_si128(_mm_cmpgt_epi32(qlo, izero),
+                                               _mm_castps_si128(_mm_cmpgt_ps(dequant(qlo), vlo)));
+            if (!_mm_movemask_epi8(down)) break;
+            qlo = _mm_add_epi32(qlo, down);
+        }
+        for (;;) {
+            const __m128i up = _mm_and_si128(_mm_cmplt_epi32(qhi, itop),
+                                             _mm_castps_si128(_mm_cmplt_ps(dequant(qhi), vhi)));
+            if (!_mm_movemask_epi8(up)) break;
+            qhi = _mm_sub_epi32(qhi, up);
+        }
+        alignas(16) int32_t ql[4], qh[4];
+        _mm_store_si128(reinterpret_cast<__m128i*>(ql), qlo);
+        _mm_store_si128(reinterpret_cast<__m128i*>(qh), qhi);
+        BvhNode node{};
+        for (int a = 0; a < 3; ++a) {
+            node.qmin[a] = uint8_t(ql[a]);
+            node.qmax[a] = uint8_t(qh[a]);
+        }
+        node.link =
+            sn.count ? uint16_t(kLeafBit | ((sn.count - 1u) << 8) | sn.first) : uint16_t(sn.first);
+        std::memcpy(dst + 8 * i, &node, 8);
     }
-    for (;;) {
-      const __m128i up = _mm_and_si128(_mm_cmplt_epi32(qhi, itop), _mm_castps_si128(_mm_cmplt_ps(dequant(qhi), vhi)));
-      if (!_mm_movemask_epi8(up)) break;
-      qhi = _mm_sub_epi32(qhi, up);
-    }
-    alignas(16) int32_t ql[4], qh[4];
-    _mm_store_si128(reinterpret_cast<__m128i*>(ql), qlo);
-    _mm_store_si128(reinterpret_cast<__m128i*>(qh), qhi);
-    BvhNode node{};
-    for (int a = 0; a < 3; ++a) {
-      node.qmin[a] = uint8_t(ql[a]);
-      node.qmax[a] = uint8_t(qh[a]);
-    }
-    node.link = sn.count ? uint16_t(kLeafBit | ((sn.count - 1u) << 8) | sn.first) : uint16_t(sn.first);
-    std::memcpy(dst + 8 * i, &node, 8);
-  }
 #else
-  float inv_step[3];
-  for (int a = 0; a < 3; ++a) inv_step[a] = 1.0f / f.step[a];
-  for (uint32_t i = 0; i < n_nodes; ++i) {
-    const BvhScratch::Node& sn = s.nodes[i];
-    BvhNode node{};
-    for (int a = 0; a < 3; ++a) {
-      node.qmin[a] = quantize_lo(f, inv_step, a, sn.lo[a]);
-      node.qmax[a] = quantize_hi(f, inv_step, a, sn.hi[a]);
+    float inv_step[3];
+    for (int a = 0; a < 3; ++a) inv_step[a] = 1.0f / f.step[a];
+    for (uint32_t i = 0; i < n_nodes; ++i) {
+        const BvhScratch::Node& sn = s.nodes[i];
+        BvhNode node{};
+        for (int a = 0; a < 3; ++a) {
+            node.qmin[a] = quantize_lo(f, inv_step, a, sn.lo[a]);
+            node.qmax[a] = quantize_hi(f, inv_step, a, sn.hi[a]);
+        }
+        node.link =
+            sn.count ? uint16_t(kLeafBit | ((sn.count - 1u) << 8) | sn.first) : uint16_t(sn.first);
+        std::memcpy(dst + 8 * i, &node, 8);
     }
-    node.link = sn.count ? uint16_t(kLeafBit | ((sn.count - 1u) << 8) | sn.first) : uint16_t(sn.first);
-    std::memcpy(dst + 8 * i, &node, 8);
-  }
 #endif
 }
 
 // Section offsets and flags of the header, and the object's size (also in the header).
-uint32_t lay_out_object(ObjectHeader& h, const EncodeInput& in, uint32_t n_nodes, bool identity, bool varying) {
-  const uint32_t T = in.triangle_count;
-  uint32_t size = sizeof(ObjectHeader);
-  if (n_nodes) {
-    h.nodes_offset = size;
-    h.node_count = uint16_t(n_nodes);
-    size += 8 * n_nodes;
-  }
-  const uint32_t pos_bytes = in.positions ? packed_section_size(in.vertex_count, h.position_bits) : 0;
-  if (in.positions) {
-    h.header_flags |= kHasPositions;
-    h.positions_offset = size;
-    size = align4(size + pos_bytes);
-  }
-  h.indices_offset = size;
-  size += 3 * T;
-  if (!identity) {
-    h.header_flags |= kHasTriangleOrder;
-    h.triangle_order_offset = size;
-    size += T;
-  }
-  size = align4(size);
-  if (varying) {
-    h.header_flags |= kHasTriangleData;
-    h.triangle_data_offset = size;
-    size += 4 * T;
-  }
-  if (in.has_omm) {
-    h.header_flags |= kHasOpacityMicromap;
-    size = (size + 7u) & ~7u;
-    h.omm_offset = size;
-    size += sizeof(OpacityMicromapSection) + 4 * T;
-  }
-  if (in.has_bounds_limit) {
-    h.header_flags |= kHasBoundsLimit;
-    h.bounds_limit_offset = size;
-    size += 24;
-  }
-  size = align4(size);
-  h.object_size = size;
-  return size;
+uint32_t lay_out_object(ObjectHeader& h, const EncodeInput& in, uint32_t n_nodes, bool identity,
+                        bool varying) {
+    const uint32_t t = in.triangle_count;
+    uint32_t size = sizeof(ObjectHeader);
+    if (n_nodes) {
+        h.nodes_offset = size;
+        h.node_count = uint16_t(n_nodes);
+        size += 8 * n_nodes;
+    }
+    const uint32_t pos_bytes =
+        in.positions ? packed_section_size(in.vertex_count, h.position_bits) : 0;
+    if (in.positions) {
+        h.header_flags |= kHasPositions;
+        h.positions_offset = size;
+        size = align4(size + pos_bytes);
+    }
+    h.indices_offset = size;
+    size += 3 * t;
+    if (!identity) {
+        h.header_flags |= kHasTriangleOrder;
+        h.triangle_order_offset = size;
+        size += t;
+    }
+    size = align4(size);
+    if (varying) {
+        h.header_flags |= kHasTriangleData;
+        h.triangle_data_offset = size;
+        size += 4 * t;
+    }
+    if (in.has_omm) {
+        h.header_flags |= kHasOpacityMicromap;
+        size = (size + 7u) & ~7u;
+        h.omm_offset = size;
+        size += sizeof(OpacityMicromapSection) + 4 * t;
+    }
+    if (in.has_bounds_limit) {
+        h.header_flags |= kHasBoundsLimit;
+        h.bounds_limit_offset = size;
+        size += 24;
+    }
+    size = align4(size);
+    h.object_size = size;
+    return size;
 }
 
 // Per-triangle sections in stored order, one loop each (no per-triangle tests of which
 // sections exist).
-void write_triangle_sections(const EncodeInput& in, const ObjectHeader& h, const uint8_t* order, bool identity,
-                             bool varying, std::byte* base) {
-  const uint32_t T = in.triangle_count;
-  std::byte* const index_bytes = base + h.indices_offset;
-  const bool any_dead = in.inactive && std::memchr(in.inactive, 1, T) != nullptr;
-  for (uint32_t i = 0; i < T; ++i) {
-    const uint32_t* tri = in.indices + 3 * order[i];
-    index_bytes[3 * i + 0] = std::byte(uint8_t(tri[0]));
-    index_bytes[3 * i + 1] = std::byte(uint8_t(tri[1]));
-    index_bytes[3 * i + 2] = std::byte(uint8_t(tri[2]));
-  }
-  if (any_dead)
-    for (uint32_t i = 0; i < T; ++i)
-      if (in.inactive[order[i]])  // dead ones stay 0
-        for (int v = 0; v < 3; ++v) index_bytes[3 * i + v] = std::byte{0};
-  if (!identity) std::memcpy(base + h.triangle_order_offset, order, T);
-  if (varying)
-    for (uint32_t i = 0; i < T; ++i)
-      std::memcpy(base + h.triangle_data_offset + 4 * i, &in.geometry_index_and_flags[order[i]], 4);
-  if (in.has_omm)
-    for (uint32_t i = 0; i < T; ++i)
-      std::memcpy(base + h.omm_offset + sizeof(OpacityMicromapSection) + 4 * i, &in.omm_indices[order[i]], 4);
-  if (in.has_omm) {
-    OpacityMicromapSection sec{};
-    sec.opacity_micromap_array = in.omm_array;
-    sec.index_type = in.omm_index_type;
-    std::memcpy(base + h.omm_offset, &sec, sizeof sec);
-  }
+void write_triangle_sections(const EncodeInput& in, const ObjectHeader& h, const uint8_t* order,
+                             bool identity, bool varying, std::byte* base) {
+    const uint32_t t = in.triangle_count;
+    std::byte* const index_bytes = base + h.indices_offset;
+    const bool any_dead = in.inactive && std::memchr(in.inactive, 1, t) != nullptr;
+    for (uint32_t i = 0; i < t; ++i) {
+        const uint32_t* tri = in.indices + 3 * order[i];
+        index_bytes[3 * i + 0] = std::byte(uint8_t(tri[0]));
+        index_bytes[3 * i + 1] = std::byte(uint8_t(tri[1]));
+        index_bytes[3 * i + 2] = std::byte(uint8_t(tri[2]));
+    }
+    if (any_dead)
+        for (uint32_t i = 0; i < t; ++i)
+            if (in.inactive[order[i]])  // dead ones stay 0
+                for (int v = 0; v < 3; ++v) index_bytes[3 * i + v] = std::byte{0};
+    if (!identity) std::memcpy(base + h.triangle_order_offset, order, t);
+    if (varying)
+        for (uint32_t i = 0; i < t; ++i)
+            std::memcpy(base + h.triangle_data_offset + 4 * i,
+                        &in.geometry_index_and_flags[order[i]], 4);
+    if (in.has_omm)
+        for (uint32_t i = 0; i < t; ++i)
+            std::memcpy(base + h.omm_offset + sizeof(OpacityMicromapSection) + 4 * i,
+                        &in.omm_indices[order[i]], 4);
+    if (in.has_omm) {
+        OpacityMicromapSection sec{};
+        sec.opacity_micromap_array = in.omm_array;
+        sec.index_type = in.omm_index_type;
+        std::memcpy(base + h.omm_offset, &sec, sizeof sec);
+    }
 }
 
 }  // namespace
 
 uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::byte>& out) {
-  ObjectHeader h{};
-  h.magic = kObjectMagic;
-  h.object_type = uint8_t(in.type);
-  h.format_version = kFormatVersion;
-  h.cluster_id = in.cluster_id;
-  h.triangle_count = uint16_t(in.triangle_count);
-  h.vertex_count = uint16_t(in.vertex_count);
-  h.position_truncate_bits = uint8_t(in.truncate_bits);
-  h.position_bits = uint8_t(32 - in.truncate_bits);
-  h.cluster_flags = uint8_t(in.cluster_flags);
-  h.base_geometry_index_and_flags = in.base_geometry_index_and_flags;
-  h.vertex_format = in.vertex_format;
-  const uint32_t T = in.triangle_count;
-  const bool is_clas = in.type == ObjectType::TriangleCluster;
+    ObjectHeader h{};
+    h.magic = kObjectMagic;
+    h.object_type = uint8_t(in.type);
+    h.format_version = kFormatVersion;
+    h.cluster_id = in.cluster_id;
+    h.triangle_count = uint16_t(in.triangle_count);
+    h.vertex_count = uint16_t(in.vertex_count);
+    h.position_truncate_bits = uint8_t(in.truncate_bits);
+    h.position_bits = uint8_t(32 - in.truncate_bits);
+    h.cluster_flags = uint8_t(in.cluster_flags);
+    h.base_geometry_index_and_flags = in.base_geometry_index_and_flags;
+    h.vertex_format = in.vertex_format;
+    const uint32_t t = in.triangle_count;
+    const bool is_clas = in.type == ObjectType::kTriangleCluster;
 
-  // Active triangles: indices in range and no NaN coordinate (after truncation). One pass
-  // gathers each active triangle's box (what the BVH build starts from) and the object
-  // bounds over them, which are the bounds over the vertices active triangles use.
-  uint8_t active[kMaxTriangles];
-  uint32_t n_active = 0;
-  bool any_nan = false;
-  float bmin[3] = {0.0f, 0.0f, 0.0f}, bmax[3] = {0.0f, 0.0f, 0.0f};
-  if (in.positions) {
-    Float4 lo_all = splat(INFINITY), hi_all = splat(-INFINITY);
-    for (uint32_t t = 0; t < T; ++t) {
-      if (in.inactive && in.inactive[t]) continue;
-      const uint32_t* tri = in.indices + 3 * t;
-      const Float4 a = load3(in.positions + 3 * tri[0]);
-      const Float4 b = load3(in.positions + 3 * tri[1]);
-      const Float4 c = load3(in.positions + 3 * tri[2]);
-      if (nan_lanes(a) | nan_lanes(b) | nan_lanes(c)) {
-        any_nan = true;
-        continue;
-      }
-      const Float4 lo = min4(a, min4(b, c)), hi = max4(a, max4(b, c));
-      store4(s.tri_min[n_active], lo);
-      store4(s.tri_max[n_active], hi);
-      lo_all = min4(lo_all, lo);
-      hi_all = max4(hi_all, hi);
-      active[n_active++] = uint8_t(t);
+    // Active triangles: indices in range and no NaN coordinate (after truncation). One pass
+    // gathers each active triangle's box (what the BVH build starts from) and the object
+    // bounds over them, which are the bounds over the vertices active triangles use.
+    uint8_t active[kMaxTriangles];
+    uint32_t n_active = 0;
+    bool any_nan = false;
+    float bmin[3] = {0.0f, 0.0f, 0.0f}, bmax[3] = {0.0f, 0.0f, 0.0f};
+    if (in.positions) {
+        Float4 lo_all = splat(INFINITY), hi_all = splat(-INFINITY);
+        for (uint32_t t = 0; t < t; ++t) {
+            if (in.inactive && in.inactive[t]) continue;
+            const uint32_t* tri = in.indices + 3 * t;
+            const Float4 a = load3(in.positions + 3 * tri[0]);
+            const Float4 b = load3(in.positions + 3 * tri[1]);
+            const Float4 c = load3(in.positions + 3 * tri[2]);
+            if (nan_lanes(a) | nan_lanes(b) | nan_lanes(c)) {
+                any_nan = true;
+                continue;
+            }
+            const Float4 lo = min4(a, min4(b, c)), hi = max4(a, max4(b, c));
+            store4(s.tri_min[n_active], lo);
+            store4(s.tri_max[n_active], hi);
+            lo_all = min4(lo_all, lo);
+            hi_all = max4(hi_all, hi);
+            active[n_active++] = uint8_t(t);
+        }
+        if (n_active > 0) {
+            alignas(16) float lo4[4], hi4[4];
+            store4(lo4, lo_all);
+            store4(hi4, hi_all);
+            std::memcpy(bmin, lo4, sizeof bmin);
+            std::memcpy(bmax, hi4, sizeof bmax);
+        }
     }
-    if (n_active > 0) {
-      alignas(16) float lo4[4], hi4[4];
-      store4(lo4, lo_all);
-      store4(hi4, hi_all);
-      std::memcpy(bmin, lo4, sizeof bmin);
-      std::memcpy(bmax, hi4, sizeof bmax);
+    std::memcpy(h.bounds_min, bmin, sizeof bmin);
+    std::memcpy(h.bounds_max, bmax, sizeof bmax);
+
+    // Triangle order: BVH order for a CLAS (inactive triangles after the active ones),
+    // the application's order for a template.
+    uint8_t order[kMaxTriangles];
+    uint32_t n_nodes = 0;
+    if (is_clas && n_active > 0) {
+        build_bvh(active, n_active, s);
+        n_nodes = s.node_count;
+        std::memcpy(order, s.perm, n_active);
+        if (n_active < t) {
+            bool is_active[kMaxTriangles] = {};
+            for (uint32_t i = 0; i < n_active; ++i) is_active[active[i]] = true;
+            uint32_t k = n_active;
+            for (uint32_t t = 0; t < t; ++t)
+                if (!is_active[t]) order[k++] = uint8_t(t);
+        }
+    } else {
+        for (uint32_t t = 0; t < t; ++t) order[t] = uint8_t(t);
     }
-  }
-  std::memcpy(h.bounds_min, bmin, sizeof bmin);
-  std::memcpy(h.bounds_max, bmax, sizeof bmax);
+    bool identity = true;
+    for (uint32_t t = 0; t < t; ++t) identity &= order[t] == t;
 
-  // Triangle order: BVH order for a CLAS (inactive triangles after the active ones),
-  // the application's order for a template.
-  uint8_t order[kMaxTriangles];
-  uint32_t n_nodes = 0;
-  if (is_clas && n_active > 0) {
-    build_bvh(active, n_active, s);
-    n_nodes = s.node_count;
-    std::memcpy(order, s.perm, n_active);
-    if (n_active < T) {
-      bool is_active[kMaxTriangles] = {};
-      for (uint32_t i = 0; i < n_active; ++i) is_active[active[i]] = true;
-      uint32_t k = n_active;
-      for (uint32_t t = 0; t < T; ++t)
-        if (!is_active[t]) order[k++] = uint8_t(t);
+    bool varying = false;
+    uint32_t max_geometry_index = in.base_geometry_index_and_flags & 0xFFFFFFu;
+    if (in.geometry_index_and_flags && t > 0) {
+        max_geometry_index = 0;
+        for (uint32_t t = 0; t < t; ++t) {
+            varying |= in.geometry_index_and_flags[t] != in.geometry_index_and_flags[0];
+            max_geometry_index =
+                std::max(max_geometry_index, in.geometry_index_and_flags[t] & 0xFFFFFFu);
+        }
+        if (!varying) h.base_geometry_index_and_flags = in.geometry_index_and_flags[0];
     }
-  } else {
-    for (uint32_t t = 0; t < T; ++t) order[t] = uint8_t(t);
-  }
-  bool identity = true;
-  for (uint32_t t = 0; t < T; ++t) identity &= order[t] == t;
+    h.max_geometry_index = max_geometry_index;
 
-  bool varying = false;
-  uint32_t max_geometry_index = in.base_geometry_index_and_flags & 0xFFFFFFu;
-  if (in.geometry_index_and_flags && T > 0) {
-    max_geometry_index = 0;
-    for (uint32_t t = 0; t < T; ++t) {
-      varying |= in.geometry_index_and_flags[t] != in.geometry_index_and_flags[0];
-      max_geometry_index = std::max(max_geometry_index, in.geometry_index_and_flags[t] & 0xFFFFFFu);
-    }
-    if (!varying) h.base_geometry_index_and_flags = in.geometry_index_and_flags[0];
-  }
-  h.max_geometry_index = max_geometry_index;
+    const QuantFrame frame = make_frame(bmin, bmax);
+    bool unbounded = !finite3(bmin) || !finite3(bmax);
+    for (int a = 0; a < 3; ++a) unbounded |= !std::isfinite(frame.step[a]);
 
-  const QuantFrame frame = make_frame(bmin, bmax);
-  bool unbounded = !finite3(bmin) || !finite3(bmax);
-  for (int a = 0; a < 3; ++a) unbounded |= !std::isfinite(frame.step[a]);
+    const uint32_t size = lay_out_object(h, in, n_nodes, identity, varying);
+    if (unbounded) h.header_flags |= kUnboundedNodes;
+    if (any_nan) h.header_flags |= kHasNaNTriangles;
 
-  const uint32_t size = lay_out_object(h, in, n_nodes, identity, varying);
-  if (unbounded) h.header_flags |= kUnboundedNodes;
-  if (any_nan) h.header_flags |= kHasNaNTriangles;
+    out.assign(size, std::byte{0});
+    std::byte* base = out.data();
+    std::memcpy(base, &h, sizeof h);
 
-  out.assign(size, std::byte{0});
-  std::byte* base = out.data();
-  std::memcpy(base, &h, sizeof h);
-
-  write_nodes(frame, unbounded, s, n_nodes, base + h.nodes_offset);
-  if (in.positions) pack_positions(in.positions, 3 * in.vertex_count, h.position_bits, in.truncate_bits, base + h.positions_offset);
-  write_triangle_sections(in, h, order, identity, varying, base);
-  if (in.has_bounds_limit) std::memcpy(base + h.bounds_limit_offset, in.bounds_limit, 24);
-  return size;
+    write_nodes(frame, unbounded, s, n_nodes, base + h.nodes_offset);
+    if (in.positions)
+        pack_positions(in.positions, 3 * in.vertex_count, h.position_bits, in.truncate_bits,
+                       base + h.positions_offset);
+    write_triangle_sections(in, h, order, identity, varying, base);
+    if (in.has_bounds_limit) std::memcpy(base + h.bounds_limit_offset, in.bounds_limit, 24);
+    return size;
 }
 
 }  // namespace clastrace::engine::detail

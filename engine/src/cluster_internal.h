@@ -1,6 +1,6 @@
+// SPDX-License-Identifier: Apache-2.0
 // Internals shared by the cluster encoder, the decoder and traversal.
-#ifndef CLASTRACE_ENGINE_CLUSTER_INTERNAL_H
-#define CLASTRACE_ENGINE_CLUSTER_INTERNAL_H
+#pragma once
 
 #include "clastrace/engine/cluster_format.h"
 
@@ -17,39 +17,41 @@ inline constexpr uint32_t kMaxNodes = 2 * kMaxTriangles - 1;
 
 // Everything an object is encoded from, already decoded, truncated and validated.
 struct EncodeInput {
-  ObjectType type = ObjectType::TriangleCluster;
-  uint32_t cluster_id = 0;
-  uint32_t cluster_flags = 0;
-  uint32_t triangle_count = 0;
-  uint32_t vertex_count = 0;
-  uint32_t truncate_bits = 0;     // 0..32
-  uint32_t vertex_format = 0;
-  const float* positions = nullptr;  // vertex_count * 3 truncated floats, nullptr = none
-  const uint32_t* indices = nullptr; // triangle_count * 3, each < vertex_count unless inactive
-  const uint8_t* inactive = nullptr; // triangle_count flags (index out of range), nullptr = none
-  uint32_t base_geometry_index_and_flags = 0;
-  const uint32_t* geometry_index_and_flags = nullptr;  // triangle_count final values, nullptr = all base
-  bool has_omm = false;
-  uint64_t omm_array = 0;
-  uint32_t omm_index_type = 0;
-  const int32_t* omm_indices = nullptr;  // triangle_count
-  bool has_bounds_limit = false;
-  float bounds_limit[6] = {};
+    ObjectType type = ObjectType::kTriangleCluster;
+    uint32_t cluster_id = 0;
+    uint32_t cluster_flags = 0;
+    uint32_t triangle_count = 0;
+    uint32_t vertex_count = 0;
+    uint32_t truncate_bits = 0;  // 0..32
+    uint32_t vertex_format = 0;
+    const float* positions = nullptr;   // vertex_count * 3 truncated floats, nullptr = none
+    const uint32_t* indices = nullptr;  // triangle_count * 3, each < vertex_count unless inactive
+    const uint8_t* inactive = nullptr;  // triangle_count flags (index out of range), nullptr = none
+    uint32_t base_geometry_index_and_flags = 0;
+    const uint32_t* geometry_index_and_flags =
+        nullptr;  // triangle_count final values, nullptr = all base
+    bool has_omm = false;
+    uint64_t omm_array = 0;
+    uint32_t omm_index_type = 0;
+    const int32_t* omm_indices = nullptr;  // triangle_count
+    bool has_bounds_limit = false;
+    float bounds_limit[6] = {};
 };
 
 // Scratch for the BVH build, sized once for the largest cluster.
 struct BvhScratch {
-  // Boxes of the active triangles by their position in the active list (the caller fills
-  // them): xyz + padding, 16-byte aligned for 4-wide min/max.
-  alignas(16) float tri_min[kMaxTriangles][4];
-  alignas(16) float tri_max[kMaxTriangles][4];
-  uint8_t perm[kMaxTriangles];
-  struct Node {
-    alignas(16) float lo[4];
-    alignas(16) float hi[4];  // lane 3 unused
-    uint16_t first, count;  // leaf: first triangle in perm order, count >= 1; interior: count 0, first = left child
-  } nodes[kMaxNodes];
-  uint32_t node_count = 0;
+    // Boxes of the active triangles by their position in the active list (the caller fills
+    // them): xyz + padding, 16-byte aligned for 4-wide min/max.
+    alignas(16) float tri_min[kMaxTriangles][4];
+    alignas(16) float tri_max[kMaxTriangles][4];
+    uint8_t perm[kMaxTriangles];
+    struct Node {
+        alignas(16) float lo[4];
+        alignas(16) float hi[4];  // lane 3 unused
+        uint16_t first,
+            count;  // leaf: first triangle in perm order, count >= 1; interior: count 0, first = left child
+    } nodes[kMaxNodes];
+    uint32_t node_count = 0;
 };
 
 // Builds a BVH over the n active triangles (their indices in `active_list`, increasing;
@@ -62,79 +64,79 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& scratch, std::vector<s
 
 // Quantized box decoding: identical code for build and traversal (no FMA, see CMake).
 struct QuantFrame {
-  float lo[3];
-  float step[3];
-  float hi[3];
+    float lo[3];
+    float step[3];
+    float hi[3];
 };
 inline QuantFrame make_frame(const float bmin[3], const float bmax[3]) {
-  QuantFrame f;
-  for (int a = 0; a < 3; ++a) {
-    f.lo[a] = bmin[a];
-    f.hi[a] = bmax[a];
-    const float ext = bmax[a] - bmin[a];
-    f.step[a] = ext / 255.0f;
-  }
-  return f;
+    QuantFrame f;
+    for (int a = 0; a < 3; ++a) {
+        f.lo[a] = bmin[a];
+        f.hi[a] = bmax[a];
+        const float ext = bmax[a] - bmin[a];
+        f.step[a] = ext / 255.0f;
+    }
+    return f;
 }
 inline float dequant_lo(const QuantFrame& f, int a, uint32_t q) {
-  if (q == 0) return f.lo[a];
-  const float off = float(q) * f.step[a];
-  const float r = f.lo[a] + off;
-  return r;
+    if (q == 0) return f.lo[a];
+    const float off = float(q) * f.step[a];
+    const float r = f.lo[a] + off;
+    return r;
 }
 inline float dequant_hi(const QuantFrame& f, int a, uint32_t q) {
-  if (q == 255) return f.hi[a];
-  const float off = float(q) * f.step[a];
-  const float r = f.lo[a] + off;
-  return r;
+    if (q == 255) return f.hi[a];
+    const float off = float(q) * f.step[a];
+    const float r = f.lo[a] + off;
+    return r;
 }
 
 inline uint32_t read_u32(const std::byte* p) {
-  uint32_t v;
-  std::memcpy(&v, p, 4);
-  return v;
+    uint32_t v;
+    std::memcpy(&v, p, 4);
+    return v;
 }
 
 // Reads stored coordinate `c` (0-based over vertex*3 + axis) from a packed section.
-inline float unpack_coordinate(const std::byte* section, uint32_t section_size, uint32_t bits, uint32_t truncate, uint32_t c) {
-  if (bits == 32) {
+inline float unpack_coordinate(const std::byte* section, uint32_t section_size, uint32_t bits,
+                               uint32_t truncate, uint32_t c) {
+    if (bits == 32) {
+        float f;
+        std::memcpy(&f, section + 4 * size_t(c), 4);
+        return f;
+    }
+    if (bits == 0) return 0.0f;
+    const uint64_t bitpos = uint64_t(c) * bits;
+    const uint32_t byte = uint32_t(bitpos >> 3);
+    uint64_t word = 0;
+    const uint32_t avail = section_size - byte;
+    std::memcpy(&word, section + byte, avail < 8 ? avail : 8);
+    const uint32_t value = uint32_t(word >> (bitpos & 7)) & ((1u << bits) - 1u);
+    const uint32_t pattern = value << truncate;
     float f;
-    std::memcpy(&f, section + 4 * size_t(c), 4);
+    std::memcpy(&f, &pattern, 4);
     return f;
-  }
-  if (bits == 0) return 0.0f;
-  const uint64_t bitpos = uint64_t(c) * bits;
-  const uint32_t byte = uint32_t(bitpos >> 3);
-  uint64_t word = 0;
-  const uint32_t avail = section_size - byte;
-  std::memcpy(&word, section + byte, avail < 8 ? avail : 8);
-  const uint32_t value = uint32_t(word >> (bitpos & 7)) & ((1u << bits) - 1u);
-  const uint32_t pattern = value << truncate;
-  float f;
-  std::memcpy(&f, &pattern, 4);
-  return f;
 }
 
 // The three coordinates of vertex `v` from a packed section (bits 1..31).
-inline void unpack_vertex(const std::byte* section, uint32_t avail, uint32_t bits, uint32_t truncate, uint32_t v, float xyz[3]) {
-  const uint64_t mask = (uint64_t(1) << bits) - 1u;
-  uint64_t bitpos = uint64_t(v) * 3u * bits;
-  for (int k = 0; k < 3; ++k, bitpos += bits) {
-    const uint32_t byte = uint32_t(bitpos >> 3);
-    uint64_t word = 0;
-    const uint32_t left = avail - byte;
-    std::memcpy(&word, section + byte, left < 8 ? left : 8);
-    const uint32_t pattern = uint32_t((word >> (bitpos & 7)) & mask) << truncate;
-    std::memcpy(&xyz[k], &pattern, 4);
-  }
+inline void unpack_vertex(const std::byte* section, uint32_t avail, uint32_t bits,
+                          uint32_t truncate, uint32_t v, float xyz[3]) {
+    const uint64_t mask = (uint64_t(1) << bits) - 1u;
+    uint64_t bitpos = uint64_t(v) * 3u * bits;
+    for (int k = 0; k < 3; ++k, bitpos += bits) {
+        const uint32_t byte = uint32_t(bitpos >> 3);
+        uint64_t word = 0;
+        const uint32_t left = avail - byte;
+        std::memcpy(&word, section + byte, left < 8 ? left : 8);
+        const uint32_t pattern = uint32_t((word >> (bitpos & 7)) & mask) << truncate;
+        std::memcpy(&xyz[k], &pattern, 4);
+    }
 }
 
 inline uint32_t packed_section_size(uint32_t vertex_count, uint32_t bits) {
-  return uint32_t((uint64_t(vertex_count) * 3 * bits + 7) / 8);
+    return uint32_t((uint64_t(vertex_count) * 3 * bits + 7) / 8);
 }
 
 inline uint32_t align4(uint32_t v) { return (v + 3u) & ~3u; }
 
 }  // namespace clastrace::engine::detail
-
-#endif

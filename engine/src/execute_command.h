@@ -1,8 +1,8 @@
+// SPDX-License-Identifier: Apache-2.0
 // The stages of engine::execute and the state of one command they share. execute() runs
 // them in order: resolve the command, buffer-usage checks, scratch checks, running the
 // ops, whole-command checks, intra-command hazards.
-#ifndef CLASTRACE_ENGINE_SRC_EXECUTE_COMMAND_H
-#define CLASTRACE_ENGINE_SRC_EXECUTE_COMMAND_H
+#pragma once
 
 #include "execute_internal.h"
 
@@ -12,47 +12,47 @@ namespace clastrace::engine::detail {
 
 // Keeps at most `cap` findings per rule; counts the rest.
 struct FindingSink {
-  std::vector<Finding>& out;
-  uint32_t cap;
-  std::map<std::string, uint64_t> counts;
-  void add(Finding f);
-  void close();  // one kRuleFindingsTruncated finding per rule over the cap
+    std::vector<Finding>& out;
+    uint32_t cap;
+    std::map<std::string, uint64_t> counts;
+    void add(Finding f);
+    void close();  // one kRuleFindingsTruncated finding per rule over the cap
 };
 
 // A byte range an op wrote (or a move read), for the overlap checks.
 struct Written {
-  uint64_t begin, end;
-  int64_t op;
+    uint64_t begin, end;
+    int64_t op;
 };
 
 struct CommandState {
-  CommandState(const VkClusterAccelerationStructureCommandsInfoNV& command, MemoryImage& memory,
-               const ExecuteOptions& options, ExecutionRecord& record);
+    CommandState(const VkClusterAccelerationStructureCommandsInfoNV& command, MemoryImage& memory,
+                 const ExecuteOptions& options, ExecutionRecord& record);
 
-  const VkClusterAccelerationStructureInputInfoNV& input;
-  const VkClusterAccelerationStructureCommandsInfoNV& command;
-  MemoryImage& memory;
-  const ExecuteOptions& options;
-  ExecutionRecord& record;
-  FindingSink sink;
-  Recorder top;  // the command's own accesses and findings (op index -1)
-  ObjectDirectory local_directory;
-  ObjectDirectory& directory;  // options.directory, else local_directory
-  ResolvedCommand cmd;
+    const VkClusterAccelerationStructureInputInfoNV& input;
+    const VkClusterAccelerationStructureCommandsInfoNV& command;
+    MemoryImage& memory;
+    const ExecuteOptions& options;
+    ExecutionRecord& record;
+    FindingSink sink;
+    Recorder top;  // the command's own accesses and findings (op index -1)
+    ObjectDirectory local_directory;
+    ObjectDirectory& directory;  // options.directory, else local_directory
+    ResolvedCommand cmd;
 
-  bool implicit = false, explicit_mode = false, sizes_only = false, is_move = false;
-  uint64_t align = 0;           // destination alignment of the command's objects
-  bool scratch_usable = true;   // false once the scratch table cannot be written
+    bool implicit = false, explicit_mode = false, sizes_only = false, is_move = false;
+    uint64_t align = 0;          // destination alignment of the command's objects
+    bool scratch_usable = true;  // false once the scratch table cannot be written
 
-  // Filled while the ops run.
-  std::vector<MemoryAccess> op_accesses;
-  std::vector<Written> written;       // destination objects
-  std::vector<Written> move_sources;
-  uint64_t cursor = 0;  // implicit packing offset
-  uint64_t moved_bytes = 0, total_triangles = 0, total_vertices = 0, total_clusters = 0;
+    // Filled while the ops run.
+    std::vector<MemoryAccess> op_accesses;
+    std::vector<Written> written;  // destination objects
+    std::vector<Written> move_sources;
+    uint64_t cursor = 0;  // implicit packing offset
+    uint64_t moved_bytes = 0, total_triangles = 0, total_vertices = 0, total_clusters = 0;
 
-  // Hands the command's findings so far to the sink, keeping their order.
-  void flush_command_findings();
+    // Hands the command's findings so far to the sink, keeping their order.
+    void flush_command_findings();
 };
 
 // Resolve the command. Each returns false when nothing more is to be done: the record
@@ -63,8 +63,8 @@ void resolve_op_count(CommandState& s);   // srcInfosCount, stride, what srcInfo
 
 // Buffer usage (12304-12308): the rows of one extent, in table order.
 enum class UsageExtent {
-  FirstByte,     // the address's buffer (known before the op count)
-  UsedElements,  // every byte of the elements the ops use (needs the op count)
+    kFirstByte,     // the address's buffer (known before the op count)
+    kUsedElements,  // every byte of the elements the ops use (needs the op count)
 };
 void check_buffer_usage(CommandState& s, UsageExtent extent);
 
@@ -77,5 +77,3 @@ void check_whole_command(CommandState& s);  // overlaps, moved bytes, totals
 void check_intra_command_hazards(CommandState& s);
 
 }  // namespace clastrace::engine::detail
-
-#endif

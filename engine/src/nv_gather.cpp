@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Input reading for vkCmdBuildAccelerationStructureNV. Every range is checked before a
 // byte is read (MemoryImage faults name the field), and every element count is bounded
 // by bytes that exist, so hostile counts and strides cannot allocate without limit.
@@ -18,30 +19,32 @@ using common::hex;
 
 // Bytes covering `count` elements of `size` at `stride` (count > 0), or nullopt on overflow.
 std::optional<uint64_t> strided_span(uint64_t count, uint64_t stride, uint64_t size) {
-  const unsigned __int128 n = static_cast<unsigned __int128>(count - 1) * stride + size;
-  if (n > ~0ull) return std::nullopt;
-  return uint64_t(n);
+    const unsigned __int128 n = static_cast<unsigned __int128>(count - 1) * stride + size;
+    if (n > ~0ull) return std::nullopt;
+    return uint64_t(n);
 }
 
-std::span<const std::byte> read_span(Context& c, uint64_t address, uint64_t count, uint64_t stride, uint64_t size,
-                                     const std::string& field) {
-  std::optional<uint64_t> bytes = strided_span(count, stride, size);
-  if (!bytes) MemoryImage::fault(address, ~0ull, FieldRef{field.c_str(), -1}, "element count times stride overflows 64 bits");
-  auto span = c.memory.read_bytes(address, *bytes, FieldRef{field.c_str(), -1});
-  c.access(address, *bytes, kAccessInputBuffer, false, field);
-  return span;
+std::span<const std::byte> read_span(Context& c, uint64_t address, uint64_t count, uint64_t stride,
+                                     uint64_t size, const std::string& field) {
+    std::optional<uint64_t> bytes = strided_span(count, stride, size);
+    if (!bytes)
+        MemoryImage::fault(address, ~0ull, FieldRef{field.c_str(), -1},
+                           "element count times stride overflows 64 bits");
+    auto span = c.memory.read_bytes(address, *bytes, FieldRef{field.c_str(), -1});
+    c.access(address, *bytes, kAccessInputBuffer, false, field);
+    return span;
 }
 
 float load_float(const std::byte* p) {
-  float f;
-  std::memcpy(&f, p, 4);
-  return f;
+    float f;
+    std::memcpy(&f, p, 4);
+    return f;
 }
 
 }  // namespace
 
 uint32_t nv_vertex_size(VkFormat format) {
-  switch (format) {
+    switch (format) {
     case VK_FORMAT_R32G32B32_SFLOAT: return 12;
     case VK_FORMAT_R32G32_SFLOAT: return 8;
     case VK_FORMAT_R16G16B16_SFLOAT:
@@ -49,307 +52,359 @@ uint32_t nv_vertex_size(VkFormat format) {
     case VK_FORMAT_R16G16_SFLOAT:
     case VK_FORMAT_R16G16_SNORM: return 4;
     default: return 0;
-  }
+    }
 }
 
 uint32_t nv_component_size(VkFormat format) {
-  return format == VK_FORMAT_R32G32B32_SFLOAT || format == VK_FORMAT_R32G32_SFLOAT ? 4 : 2;
+    return format == VK_FORMAT_R32G32B32_SFLOAT || format == VK_FORMAT_R32G32_SFLOAT ? 4 : 2;
 }
 
 bool decode_nv_vertex(VkFormat format, const std::byte* src, float xyz[3]) {
-  if (format == VK_FORMAT_R16G16B16_SNORM) {
-    for (int a = 0; a < 3; ++a) {
-      int16_t v;
-      std::memcpy(&v, src + 2 * a, 2);
-      xyz[a] = std::max(float(v) / 32767.0f, -1.0f);
+    if (format == VK_FORMAT_R16G16B16_SNORM) {
+        for (int a = 0; a < 3; ++a) {
+            int16_t v;
+            std::memcpy(&v, src + 2 * a, 2);
+            xyz[a] = std::max(float(v) / 32767.0f, -1.0f);
+        }
+        return true;
     }
+    if (nv_vertex_size(format) == 0) return false;
+    decode_vertex(format, src, xyz);
     return true;
-  }
-  if (nv_vertex_size(format) == 0) return false;
-  decode_vertex(format, src, xyz);
-  return true;
 }
 
 namespace {
 
 uint32_t nv_index_size(VkIndexType type) {
-  return type == VK_INDEX_TYPE_UINT16 ? 2 : type == VK_INDEX_TYPE_UINT32 ? 4 : 0;
+    return type == VK_INDEX_TYPE_UINT16 ? 2 : type == VK_INDEX_TYPE_UINT32 ? 4 : 0;
 }
 
 // Geometry g's boxes; NaN or inverted boxes stay inactive.
 void gather_aabbs(Context& c, const NvAabbs& a, uint32_t g, const std::string& at, BottomInput& in,
                   NvGeometryRecord& rec) {
-  rec.input_primitives = a.count;
-  rec.vertex_count = a.stride;
-  if (a.address != 0 && a.available == 0)
-    c.finding(kVuidAabbOffset, at + ".geometry.aabbs.offset " + std::to_string(a.offset) + " is not below the size of aabbData");
-  if (a.offset % 8) c.finding(kVuidAabbOffsetAlign, at + ".geometry.aabbs.offset " + std::to_string(a.offset) + " is not a multiple of 8");
-  if (a.stride % 8) c.finding(kVuidAabbStride, at + ".geometry.aabbs.stride " + std::to_string(a.stride) + " is not a multiple of 8");
-  std::span<const std::byte> bytes;
-  if (a.count) bytes = read_span(c, a.address, a.count, a.stride, 24, at + ".geometry.aabbs.aabbData");
-  for (uint32_t i = 0; i < a.count; ++i) {
-    NvPrimitiveRecord p{};
-    for (int k = 0; k < 6; ++k) p.v[k] = load_float(bytes.data() + uint64_t(i) * a.stride + 4 * k);
-    p.geometry_index = g;
-    p.primitive_index = i;
-    bool active = !std::isnan(p.v[0]);
-    if (active) {
-      for (int k = 1; k < 6; ++k)
-        if (std::isnan(p.v[k])) {
-          c.finding(kRuleNvNanComponent, at + " AABB " + std::to_string(i) +
-                                             ": NaN in a component other than minX (undefined behaviour; the engine treats it as inactive)");
-          active = false;
-          break;
+    rec.input_primitives = a.count;
+    rec.vertex_count = a.stride;
+    if (a.address != 0 && a.available == 0)
+        c.finding(kVuidAabbOffset, at + ".geometry.aabbs.offset " + std::to_string(a.offset) +
+                                       " is not below the size of aabbData");
+    if (a.offset % 8)
+        c.finding(kVuidAabbOffsetAlign, at + ".geometry.aabbs.offset " + std::to_string(a.offset) +
+                                            " is not a multiple of 8");
+    if (a.stride % 8)
+        c.finding(kVuidAabbStride, at + ".geometry.aabbs.stride " + std::to_string(a.stride) +
+                                       " is not a multiple of 8");
+    std::span<const std::byte> bytes;
+    if (a.count)
+        bytes = read_span(c, a.address, a.count, a.stride, 24, at + ".geometry.aabbs.aabbData");
+    for (uint32_t i = 0; i < a.count; ++i) {
+        NvPrimitiveRecord p{};
+        for (int k = 0; k < 6; ++k)
+            p.v[k] = load_float(bytes.data() + uint64_t(i) * a.stride + 4 * k);
+        p.geometry_index = g;
+        p.primitive_index = i;
+        bool active = !std::isnan(p.v[0]);
+        if (active) {
+            for (int k = 1; k < 6; ++k)
+                if (std::isnan(p.v[k])) {
+                    c.finding(kRuleNvNanComponent,
+                              at + " AABB " + std::to_string(i) +
+                                  ": NaN in a component other than minX (undefined behaviour; the "
+                                  "engine treats it as inactive)");
+                    active = false;
+                    break;
+                }
         }
+        static const char* k_min_max[3] = {"VUID-VkAabbPositionsKHR-minX-03546",
+                                           "VUID-VkAabbPositionsKHR-minY-03547",
+                                           "VUID-VkAabbPositionsKHR-minZ-03548"};
+        for (int k = 0; active && k < 3; ++k)
+            if (p.v[k] > p.v[3 + k]) {
+                c.finding(k_min_max[k],
+                          at + " AABB " + std::to_string(i) + ": minimum above maximum on axis " +
+                              std::to_string(k) + " (the engine treats it as inactive)",
+                          a.address + uint64_t(i) * a.stride);
+                active = false;
+            }
+        in.primitives.push_back(p);
+        in.active.push_back(active);
+        rec.active_primitives += active;
     }
-    static const char* kMinMax[3] = {"VUID-VkAabbPositionsKHR-minX-03546", "VUID-VkAabbPositionsKHR-minY-03547",
-                                     "VUID-VkAabbPositionsKHR-minZ-03548"};
-    for (int k = 0; active && k < 3; ++k)
-      if (p.v[k] > p.v[3 + k]) {
-        c.finding(kMinMax[k], at + " AABB " + std::to_string(i) + ": minimum above maximum on axis " + std::to_string(k) +
-                                  " (the engine treats it as inactive)",
-                  a.address + uint64_t(i) * a.stride);
-        active = false;
-      }
-    in.primitives.push_back(p);
-    in.active.push_back(active);
-    rec.active_primitives += active;
-  }
 }
 
 // The triangle geometry's formats, offsets and counts. Returns false when its triangles
 // cannot be read.
 bool check_triangles(Context& c, const NvTriangles& t, const std::string& at) {
-  const uint32_t vsize = nv_vertex_size(t.vertex_format);
-  const bool none = t.index_type == VK_INDEX_TYPE_NONE_NV;
-  const uint32_t isize = nv_index_size(t.index_type);
-  bool usable = true;
-  if (vsize == 0) {
-    c.finding(kVuidVertexFormat, at + ".geometry.triangles.vertexFormat " + std::to_string(uint32_t(t.vertex_format)) +
-                                     " is not one NV ray tracing allows");
-    usable = false;
-  } else if (t.vertex_offset % nv_component_size(t.vertex_format)) {
-    c.finding(kVuidVertexOffsetAlign, at + ".geometry.triangles.vertexOffset " + std::to_string(t.vertex_offset) +
-                                          " is not a multiple of the component size");
-  }
-  if (t.vertex_address != 0 && t.vertex_available == 0)
-    c.finding(kVuidVertexOffset, at + ".geometry.triangles.vertexOffset " + std::to_string(t.vertex_offset) +
-                                     " is not below the size of vertexData");
-  if (!none && isize == 0) {
-    c.finding(kVuidIndexType, at + ".geometry.triangles.indexType " + std::to_string(uint32_t(t.index_type)) +
-                                  " is not UINT16, UINT32 or NONE_NV");
-    usable = false;
-  }
-  if (none && t.index_address != 0)
-    c.finding(kVuidIndexNoneData, at + ".geometry.triangles.indexType is VK_INDEX_TYPE_NONE_NV but indexData is not VK_NULL_HANDLE");
-  if (none && t.index_count != 0)
-    c.finding(kVuidIndexNoneCount, at + ".geometry.triangles.indexType is VK_INDEX_TYPE_NONE_NV but indexCount is " +
-                                       std::to_string(t.index_count));
-  if (!none && isize) {
-    if (t.index_address != 0 && t.index_available == 0)
-      c.finding(kVuidIndexOffset, at + ".geometry.triangles.indexOffset " + std::to_string(t.index_offset) +
-                                      " is not below the size of indexData");
-    if (t.index_offset % isize)
-      c.finding(kVuidIndexOffsetAlign, at + ".geometry.triangles.indexOffset " + std::to_string(t.index_offset) +
-                                           " is not a multiple of the index size");
-    if (t.index_count % 3)
-      c.finding(kRuleNvPartialTriangle, at + ".geometry.triangles.indexCount " + std::to_string(t.index_count) +
-                                            " is not a multiple of 3: the last indices form no triangle");
-  }
-  if (t.transform_address != 0) {
-    if (t.transform_available == 0)
-      c.finding(kVuidTransformOffset, at + ".geometry.triangles.transformOffset " + std::to_string(t.transform_offset) +
-                                          " is not below the size of transformData");
-    if (t.transform_offset % 16)
-      c.finding(kVuidTransformOffsetAlign, at + ".geometry.triangles.transformOffset " + std::to_string(t.transform_offset) +
-                                               " is not a multiple of 16");
-  }
-  return usable;
+    const uint32_t vsize = nv_vertex_size(t.vertex_format);
+    const bool none = t.index_type == VK_INDEX_TYPE_NONE_NV;
+    const uint32_t isize = nv_index_size(t.index_type);
+    bool usable = true;
+    if (vsize == 0) {
+        c.finding(kVuidVertexFormat, at + ".geometry.triangles.vertexFormat " +
+                                         std::to_string(uint32_t(t.vertex_format)) +
+                                         " is not one NV ray tracing allows");
+        usable = false;
+    } else if (t.vertex_offset % nv_component_size(t.vertex_format)) {
+        c.finding(kVuidVertexOffsetAlign, at + ".geometry.triangles.vertexOffset " +
+                                              std::to_string(t.vertex_offset) +
+                                              " is not a multiple of the component size");
+    }
+    if (t.vertex_address != 0 && t.vertex_available == 0)
+        c.finding(kVuidVertexOffset, at + ".geometry.triangles.vertexOffset " +
+                                         std::to_string(t.vertex_offset) +
+                                         " is not below the size of vertexData");
+    if (!none && isize == 0) {
+        c.finding(kVuidIndexType, at + ".geometry.triangles.indexType " +
+                                      std::to_string(uint32_t(t.index_type)) +
+                                      " is not UINT16, UINT32 or NONE_NV");
+        usable = false;
+    }
+    if (none && t.index_address != 0)
+        c.finding(kVuidIndexNoneData, at + ".geometry.triangles.indexType is VK_INDEX_TYPE_NONE_NV "
+                                           "but indexData is not VK_NULL_HANDLE");
+    if (none && t.index_count != 0)
+        c.finding(kVuidIndexNoneCount,
+                  at + ".geometry.triangles.indexType is VK_INDEX_TYPE_NONE_NV but indexCount is " +
+                      std::to_string(t.index_count));
+    if (!none && isize) {
+        if (t.index_address != 0 && t.index_available == 0)
+            c.finding(kVuidIndexOffset, at + ".geometry.triangles.indexOffset " +
+                                            std::to_string(t.index_offset) +
+                                            " is not below the size of indexData");
+        if (t.index_offset % isize)
+            c.finding(kVuidIndexOffsetAlign, at + ".geometry.triangles.indexOffset " +
+                                                 std::to_string(t.index_offset) +
+                                                 " is not a multiple of the index size");
+        if (t.index_count % 3)
+            c.finding(kRuleNvPartialTriangle,
+                      at + ".geometry.triangles.indexCount " + std::to_string(t.index_count) +
+                          " is not a multiple of 3: the last indices form no triangle");
+    }
+    if (t.transform_address != 0) {
+        if (t.transform_available == 0)
+            c.finding(kVuidTransformOffset, at + ".geometry.triangles.transformOffset " +
+                                                std::to_string(t.transform_offset) +
+                                                " is not below the size of transformData");
+        if (t.transform_offset % 16)
+            c.finding(kVuidTransformOffsetAlign, at + ".geometry.triangles.transformOffset " +
+                                                     std::to_string(t.transform_offset) +
+                                                     " is not a multiple of 16");
+    }
+    return usable;
 }
 
 // Geometry g's triangles, indexed, decoded and transformed; unreadable ones stay inactive.
-void gather_triangles(Context& c, const NvTriangles& t, uint32_t g, const std::string& at, BottomInput& in,
-                      NvGeometryRecord& rec) {
-  rec.vertex_format = uint32_t(t.vertex_format);
-  rec.index_type = uint32_t(t.index_type);
-  rec.vertex_count = t.vertex_count;
-  rec.has_transform = t.transform_address != 0;
-  const uint32_t vsize = nv_vertex_size(t.vertex_format);
-  const bool none = t.index_type == VK_INDEX_TYPE_NONE_NV;
-  const uint32_t isize = nv_index_size(t.index_type);
-  const bool usable = check_triangles(c, t, at);
-  const uint32_t count = none ? t.vertex_count / 3 : t.index_count / 3;
-  rec.input_primitives = count;
-  if (!usable || count == 0) {
-    // Nothing readable: every triangle of this geometry stays inactive.
+void gather_triangles(Context& c, const NvTriangles& t, uint32_t g, const std::string& at,
+                      BottomInput& in, NvGeometryRecord& rec) {
+    rec.vertex_format = uint32_t(t.vertex_format);
+    rec.index_type = uint32_t(t.index_type);
+    rec.vertex_count = t.vertex_count;
+    rec.has_transform = t.transform_address != 0;
+    const uint32_t vsize = nv_vertex_size(t.vertex_format);
+    const bool none = t.index_type == VK_INDEX_TYPE_NONE_NV;
+    const uint32_t isize = nv_index_size(t.index_type);
+    const bool usable = check_triangles(c, t, at);
+    const uint32_t count = none ? t.vertex_count / 3 : t.index_count / 3;
+    rec.input_primitives = count;
+    if (!usable || count == 0) {
+        // Nothing readable: every triangle of this geometry stays inactive.
+        for (uint32_t i = 0; i < count; ++i) {
+            NvPrimitiveRecord p{};
+            p.geometry_index = g;
+            p.primitive_index = i;
+            in.primitives.push_back(p);
+            in.active.push_back(0);
+        }
+        return;
+    }
+    std::span<const std::byte> vertices;
+    if (t.vertex_count)
+        vertices = read_span(c, t.vertex_address, t.vertex_count, t.vertex_stride, vsize,
+                             at + ".geometry.triangles.vertexData");
+    std::span<const std::byte> indices;
+    if (!none)
+        indices = read_span(c, t.index_address, uint64_t(count) * 3, isize, isize,
+                            at + ".geometry.triangles.indexData");
+    float m[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+    if (t.transform_address != 0) {
+        auto bytes =
+            read_span(c, t.transform_address, 1, 48, 48, at + ".geometry.triangles.transformData");
+        std::memcpy(m, bytes.data(), 48);
+    }
+    in.primitives.reserve(in.primitives.size() + count);
+    in.active.reserve(in.active.size() + count);
+    const bool float3 =
+        t.vertex_format == VK_FORMAT_R32G32B32_SFLOAT;  // the common format: a plain copy
     for (uint32_t i = 0; i < count; ++i) {
-      NvPrimitiveRecord p{};
-      p.geometry_index = g;
-      p.primitive_index = i;
-      in.primitives.push_back(p);
-      in.active.push_back(0);
-    }
-    return;
-  }
-  std::span<const std::byte> vertices;
-  if (t.vertex_count) vertices = read_span(c, t.vertex_address, t.vertex_count, t.vertex_stride, vsize, at + ".geometry.triangles.vertexData");
-  std::span<const std::byte> indices;
-  if (!none) indices = read_span(c, t.index_address, uint64_t(count) * 3, isize, isize, at + ".geometry.triangles.indexData");
-  float m[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
-  if (t.transform_address != 0) {
-    auto bytes = read_span(c, t.transform_address, 1, 48, 48, at + ".geometry.triangles.transformData");
-    std::memcpy(m, bytes.data(), 48);
-  }
-  in.primitives.reserve(in.primitives.size() + count);
-  in.active.reserve(in.active.size() + count);
-  const bool float3 = t.vertex_format == VK_FORMAT_R32G32B32_SFLOAT;  // the common format: a plain copy
-  for (uint32_t i = 0; i < count; ++i) {
-    NvPrimitiveRecord p{};
-    p.geometry_index = g;
-    p.primitive_index = i;
-    bool active = true;
-    for (int k = 0; k < 3; ++k) {
-      uint32_t index = 3 * i + k;
-      if (!none) {
-        if (isize == 2) {
-          uint16_t v;
-          std::memcpy(&v, indices.data() + 2 * (3 * uint64_t(i) + k), 2);
-          index = v;
-        } else {
-          std::memcpy(&index, indices.data() + 4 * (3 * uint64_t(i) + k), 4);
+        NvPrimitiveRecord p{};
+        p.geometry_index = g;
+        p.primitive_index = i;
+        bool active = true;
+        for (int k = 0; k < 3; ++k) {
+            uint32_t index = 3 * i + k;
+            if (!none) {
+                if (isize == 2) {
+                    uint16_t v;
+                    std::memcpy(&v, indices.data() + 2 * (3 * uint64_t(i) + k), 2);
+                    index = v;
+                } else {
+                    std::memcpy(&index, indices.data() + 4 * (3 * uint64_t(i) + k), 4);
+                }
+            }
+            if (index >= t.vertex_count) {
+                c.finding(kRuleNvIndexOutOfRange,
+                          at + " triangle " + std::to_string(i) + ": index " +
+                              std::to_string(index) + " is not below vertexCount " +
+                              std::to_string(t.vertex_count) +
+                              " (the engine treats the triangle as inactive)");
+                active = false;
+                break;
+            }
+            const std::byte* vertex = vertices.data() + uint64_t(index) * t.vertex_stride;
+            if (float3)
+                std::memcpy(p.v + 3 * k, vertex, 12);
+            else
+                decode_nv_vertex(t.vertex_format, vertex, p.v + 3 * k);
         }
-      }
-      if (index >= t.vertex_count) {
-        c.finding(kRuleNvIndexOutOfRange, at + " triangle " + std::to_string(i) + ": index " + std::to_string(index) +
-                                              " is not below vertexCount " + std::to_string(t.vertex_count) +
-                                              " (the engine treats the triangle as inactive)");
-        active = false;
-        break;
-      }
-      const std::byte* vertex = vertices.data() + uint64_t(index) * t.vertex_stride;
-      if (float3) std::memcpy(p.v + 3 * k, vertex, 12);
-      else decode_nv_vertex(t.vertex_format, vertex, p.v + 3 * k);
-    }
-    if (active) {
-      if (std::isnan(p.v[0]) || std::isnan(p.v[3]) || std::isnan(p.v[6])) {
-        active = false;  // the spec's inactive triangle
-      } else {
-        for (int k : {1, 2, 4, 5, 7, 8})
-          if (std::isnan(p.v[k])) {
-            c.finding(kRuleNvNanComponent, at + " triangle " + std::to_string(i) +
-                                               ": NaN in a Y or Z coordinate with X not NaN (undefined behaviour; the "
-                                               "engine treats it as inactive)");
-            active = false;
-            break;
-          }
-      }
-    }
-    if (active && t.transform_address != 0) {
-      for (int k = 0; k < 3; ++k) {
-        const float x = p.v[3 * k], y = p.v[3 * k + 1], z = p.v[3 * k + 2];
-        for (int r = 0; r < 3; ++r) p.v[3 * k + r] = m[4 * r] * x + m[4 * r + 1] * y + m[4 * r + 2] * z + m[4 * r + 3];
-      }
-      for (int k = 0; k < 9 && active; ++k)
-        if (std::isnan(p.v[k])) {
-          c.finding(kRuleNvNanComponent, at + " triangle " + std::to_string(i) +
-                                             ": the transform gives a NaN coordinate (the engine treats it as inactive)");
-          active = false;
+        if (active) {
+            if (std::isnan(p.v[0]) || std::isnan(p.v[3]) || std::isnan(p.v[6])) {
+                active = false;  // the spec's inactive triangle
+            } else {
+                for (int k : {1, 2, 4, 5, 7, 8})
+                    if (std::isnan(p.v[k])) {
+                        c.finding(kRuleNvNanComponent, at + " triangle " + std::to_string(i) +
+                                                           ": NaN in a Y or Z coordinate with X "
+                                                           "not NaN (undefined behaviour; the "
+                                                           "engine treats it as inactive)");
+                        active = false;
+                        break;
+                    }
+            }
         }
+        if (active && t.transform_address != 0) {
+            for (int k = 0; k < 3; ++k) {
+                const float x = p.v[3 * k], y = p.v[3 * k + 1], z = p.v[3 * k + 2];
+                for (int r = 0; r < 3; ++r)
+                    p.v[3 * k + r] =
+                        m[4 * r] * x + m[4 * r + 1] * y + m[4 * r + 2] * z + m[4 * r + 3];
+            }
+            for (int k = 0; k < 9 && active; ++k)
+                if (std::isnan(p.v[k])) {
+                    c.finding(kRuleNvNanComponent, at + " triangle " + std::to_string(i) +
+                                                       ": the transform gives a NaN coordinate "
+                                                       "(the engine treats it as inactive)");
+                    active = false;
+                }
+        }
+        in.primitives.push_back(p);
+        in.active.push_back(active);
+        rec.active_primitives += active;
     }
-    in.primitives.push_back(p);
-    in.active.push_back(active);
-    rec.active_primitives += active;
-  }
 }
 
 }  // namespace
 
 BottomInput gather_bottom(Context& c) {
-  BottomInput in;
-  const auto& geometries = c.command.info.geometries;
-  in.aabbs = !geometries.empty() && geometries[0].type == VK_GEOMETRY_TYPE_AABBS_NV;
-  for (uint32_t g = 0; g < geometries.size(); ++g) {
-    const NvGeometry& geo = geometries[g];
-    const std::string at = "pInfo->pGeometries[" + std::to_string(g) + "]";
-    NvGeometryRecord rec{};
-    rec.geometry_flags = geo.flags;
-    if (geo.type == VK_GEOMETRY_TYPE_AABBS_NV)
-      gather_aabbs(c, geo.aabbs, g, at, in, rec);
-    else
-      gather_triangles(c, geo.triangles, g, at, in, rec);
-    in.geometries.push_back(rec);
-  }
-  return in;
+    BottomInput in;
+    const auto& geometries = c.command.info.geometries;
+    in.aabbs = !geometries.empty() && geometries[0].type == VK_GEOMETRY_TYPE_AABBS_NV;
+    for (uint32_t g = 0; g < geometries.size(); ++g) {
+        const NvGeometry& geo = geometries[g];
+        const std::string at = "pInfo->pGeometries[" + std::to_string(g) + "]";
+        NvGeometryRecord rec{};
+        rec.geometry_flags = geo.flags;
+        if (geo.type == VK_GEOMETRY_TYPE_AABBS_NV)
+            gather_aabbs(c, geo.aabbs, g, at, in, rec);
+        else
+            gather_triangles(c, geo.triangles, g, at, in, rec);
+        in.geometries.push_back(rec);
+    }
+    return in;
 }
 
 TopInput gather_top(Context& c) {
-  TopInput in;
-  const uint32_t count = c.command.info.instance_count;
-  if (count == 0) return in;
-  if (c.command.instance_address == 0)
-    MemoryImage::fault(0, uint64_t(count) * 64, FieldRef{"instanceData", -1},
-                       "a top-level build with instanceCount > 0 needs instanceData");
-  auto bytes = read_span(c, c.command.instance_address, count, 64, 64, "instanceData");
-  std::unordered_map<uint64_t, std::optional<NvObjectHeader>> blas;  // address -> header (nullopt: none)
-  in.instances.resize(count);
-  for (uint32_t i = 0; i < count; ++i) {
-    const std::byte* src = bytes.data() + uint64_t(i) * 64;
-    NvInstanceRecord& r = in.instances[i];
-    r = NvInstanceRecord{};
-    std::memcpy(r.transform, src, 48);
-    std::memcpy(&r.custom_index_and_mask, src + 48, 4);
-    std::memcpy(&r.sbt_offset_and_flags, src + 52, 4);
-    std::memcpy(&r.reference, src + 56, 8);
-    Box empty = Box::empty();
-    std::memcpy(r.world_min, empty.lo, 12);
-    std::memcpy(r.world_max, empty.hi, 12);
-    r.active = r.reference != 0;
-    if (!r.active) continue;
-    const std::string field = "instanceData[" + std::to_string(i) + "].accelerationStructureReference";
-    std::optional<uint64_t> address =
-        c.options.resolve_handle ? c.options.resolve_handle(r.reference) : std::optional<uint64_t>(r.reference);
-    if (!address) {
-      c.finding(kVuidNvReference, field + " " + hex(r.reference) +
-                                      " is no handle vkGetAccelerationStructureHandleNV gave for a bottom-level object "
-                                      "(the instance is left out)",
-                c.command.instance_address + uint64_t(i) * 64 + 56);
-      continue;
+    TopInput in;
+    const uint32_t count = c.command.info.instance_count;
+    if (count == 0) return in;
+    if (c.command.instance_address == 0)
+        MemoryImage::fault(0, uint64_t(count) * 64, FieldRef{"instanceData", -1},
+                           "a top-level build with instanceCount > 0 needs instanceData");
+    auto bytes = read_span(c, c.command.instance_address, count, 64, 64, "instanceData");
+    std::unordered_map<uint64_t, std::optional<NvObjectHeader>>
+        blas;  // address -> header (nullopt: none)
+    in.instances.resize(count);
+    for (uint32_t i = 0; i < count; ++i) {
+        const std::byte* src = bytes.data() + uint64_t(i) * 64;
+        NvInstanceRecord& r = in.instances[i];
+        r = NvInstanceRecord{};
+        std::memcpy(r.transform, src, 48);
+        std::memcpy(&r.custom_index_and_mask, src + 48, 4);
+        std::memcpy(&r.sbt_offset_and_flags, src + 52, 4);
+        std::memcpy(&r.reference, src + 56, 8);
+        Box empty = Box::empty();
+        std::memcpy(r.world_min, empty.lo, 12);
+        std::memcpy(r.world_max, empty.hi, 12);
+        r.active = r.reference != 0;
+        if (!r.active) continue;
+        const std::string field =
+            "instanceData[" + std::to_string(i) + "].accelerationStructureReference";
+        std::optional<uint64_t> address = c.options.resolve_handle
+                                              ? c.options.resolve_handle(r.reference)
+                                              : std::optional<uint64_t>(r.reference);
+        if (!address) {
+            c.finding(kVuidNvReference,
+                      field + " " + hex(r.reference) +
+                          " is no handle vkGetAccelerationStructureHandleNV gave for a "
+                          "bottom-level object "
+                          "(the instance is left out)",
+                      c.command.instance_address + uint64_t(i) * 64 + 56);
+            continue;
+        }
+        auto [it, fresh] = blas.try_emplace(*address);
+        if (fresh) {
+            std::string error;
+            try {
+                auto head = c.memory.read_bytes(*address, sizeof(NvObjectHeader),
+                                                FieldRef{field.c_str(), -1});
+                it->second = read_nv_header(head, &error);
+            } catch (const MemoryFault& f) {
+                error = f.message;
+            }
+            if (it->second && it->second->kind != uint8_t(NvObjectKind::kBottomLevel)) {
+                c.finding(kVuidNvReference,
+                          field + " " + hex(r.reference) +
+                              " names a top-level object (the instance is left out)",
+                          *address);
+                it->second.reset();
+                error.clear();
+            }
+            if (!error.empty())
+                c.finding(kRuleNvBlasNotBuilt,
+                          field + " " + hex(r.reference) + " at " + hex(*address) +
+                              " holds no built bottom-level object: " + error +
+                              " (the instance is left out)",
+                          *address);
+            if (it->second)
+                c.access(*address, it->second->object_size, kAccessObjectRead, false, field);
+        }
+        if (!it->second) continue;
+        r.blas_address = *address;
+        for (float v : r.transform)
+            if (std::isnan(v)) {
+                c.finding(kRuleNvNanComponent,
+                          "instanceData[" + std::to_string(i) +
+                              "].transform holds NaN (the instance is left out of the tree)");
+                break;
+            }
+        const Box local{{it->second->bounds_min[0], it->second->bounds_min[1],
+                         it->second->bounds_min[2]},
+                        {it->second->bounds_max[0], it->second->bounds_max[1],
+                         it->second->bounds_max[2]}};
+        if (!local.valid()) continue;  // a BLAS with nothing active: never hit
+        const Box world = transform_box(local, r.transform);
+        std::memcpy(r.world_min, world.lo, 12);
+        std::memcpy(r.world_max, world.hi, 12);
     }
-    auto [it, fresh] = blas.try_emplace(*address);
-    if (fresh) {
-      std::string error;
-      try {
-        auto head = c.memory.read_bytes(*address, sizeof(NvObjectHeader), FieldRef{field.c_str(), -1});
-        it->second = read_nv_header(head, &error);
-      } catch (const MemoryFault& f) {
-        error = f.message;
-      }
-      if (it->second && it->second->kind != uint8_t(NvObjectKind::kBottomLevel)) {
-        c.finding(kVuidNvReference, field + " " + hex(r.reference) + " names a top-level object (the instance is left out)",
-                  *address);
-        it->second.reset();
-        error.clear();
-      }
-      if (!error.empty()) c.finding(kRuleNvBlasNotBuilt, field + " " + hex(r.reference) + " at " + hex(*address) +
-                                                             " holds no built bottom-level object: " + error + " (the instance is left out)",
-                                    *address);
-      if (it->second) c.access(*address, it->second->object_size, kAccessObjectRead, false, field);
-    }
-    if (!it->second) continue;
-    r.blas_address = *address;
-    for (float v : r.transform)
-      if (std::isnan(v)) {
-        c.finding(kRuleNvNanComponent, "instanceData[" + std::to_string(i) + "].transform holds NaN (the instance is left out of the tree)");
-        break;
-      }
-    const Box local{{it->second->bounds_min[0], it->second->bounds_min[1], it->second->bounds_min[2]},
-                    {it->second->bounds_max[0], it->second->bounds_max[1], it->second->bounds_max[2]}};
-    if (!local.valid()) continue;  // a BLAS with nothing active: never hit
-    const Box world = transform_box(local, r.transform);
-    std::memcpy(r.world_min, world.lo, 12);
-    std::memcpy(r.world_max, world.hi, 12);
-  }
-  return in;
+    return in;
 }
 
 }  // namespace clastrace::engine::nv

@@ -1,8 +1,8 @@
+// SPDX-License-Identifier: Apache-2.0
 // Reading a vkCmdBuildAccelerationStructureNV's inputs out of memory: triangles (every
 // vertex format and index type NV allows, strides, the 3x4 transform), AABBs and
 // instance records, with their checks and access ranges.
-#ifndef CLASTRACE_ENGINE_NV_GATHER_H
-#define CLASTRACE_ENGINE_NV_GATHER_H
+#pragma once
 
 #include "clastrace/engine/nv_build.h"
 
@@ -13,25 +13,26 @@
 namespace clastrace::engine::nv {
 
 struct Context {
-  const NvBuildCommand& command;
-  MemoryImage& memory;
-  const NvBuildOptions& options;
-  ExecutionRecord& record;
-  std::map<std::string, uint32_t> per_rule;
+    const NvBuildCommand& command;
+    MemoryImage& memory;
+    const NvBuildOptions& options;
+    ExecutionRecord& record;
+    std::map<std::string, uint32_t> per_rule;
 
-  void finding(const char* rule, std::string message, uint64_t address = 0);
-  void access(uint64_t begin, uint64_t size, VkAccessFlags2 access, bool write, std::string field);
-  void close();
+    void finding(const char* rule, std::string message, uint64_t address = 0);
+    void access(uint64_t begin, uint64_t size, VkAccessFlags2 access, bool write,
+                std::string field);
+    void close();
 };
 
 struct BottomInput {
-  bool aabbs = false;
-  std::vector<NvGeometryRecord> geometries;
-  std::vector<NvPrimitiveRecord> primitives;  // every input primitive, geometry then index order
-  std::vector<uint8_t> active;
+    bool aabbs = false;
+    std::vector<NvGeometryRecord> geometries;
+    std::vector<NvPrimitiveRecord> primitives;  // every input primitive, geometry then index order
+    std::vector<uint8_t> active;
 };
 struct TopInput {
-  std::vector<NvInstanceRecord> instances;  // input order
+    std::vector<NvInstanceRecord> instances;  // input order
 };
 
 // Throws MemoryFault when an input lies outside memory (the caller reports it).
@@ -40,9 +41,8 @@ TopInput gather_top(Context& c);
 
 // Decodes one vertex of the NV-allowed formats; false for any other format.
 bool decode_nv_vertex(VkFormat format, const std::byte* src, float xyz[3]);
-uint32_t nv_vertex_size(VkFormat format);   // 0: not allowed by VUID-VkGeometryTrianglesNV-vertexFormat-02430
+uint32_t nv_vertex_size(
+    VkFormat format);  // 0: not allowed by VUID-VkGeometryTrianglesNV-vertexFormat-02430
 uint32_t nv_component_size(VkFormat format);
 
 }  // namespace clastrace::engine::nv
-
-#endif

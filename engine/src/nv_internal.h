@@ -1,6 +1,6 @@
+// SPDX-License-Identifier: Apache-2.0
 // Pieces the NV build, update and serialization share.
-#ifndef CLASTRACE_ENGINE_NV_INTERNAL_H
-#define CLASTRACE_ENGINE_NV_INTERNAL_H
+#pragma once
 
 #include "clastrace/engine/nv_format.h"
 #include "geometry/box.h"
@@ -19,8 +19,8 @@ using geometry::Box;
 // index + 1, right child at NvNode::first), leaves of up to kNvMaxLeafSize; `order` is
 // the item order leaves refer to. Deterministic: same boxes, same tree.
 struct Tree {
-  std::vector<NvNode> nodes;
-  std::vector<uint32_t> order;
+    std::vector<NvNode> nodes;
+    std::vector<uint32_t> order;
 };
 // kSah: binned SAH (the default). kMorton: linear BVH over sorted Morton codes, several
 // times faster to build and slower to trace (VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV).
@@ -31,23 +31,23 @@ Tree build_tree(std::span<const Box> boxes, TreeQuality quality = TreeQuality::k
 // is the box of record i (the leaf ranges index records directly).
 template <class ItemBox>
 void refit_tree(std::span<NvNode> nodes, ItemBox item_box) {
-  for (size_t k = nodes.size(); k-- > 0;) {
-    NvNode& n = nodes[k];
-    Box b = Box::empty();
-    if (n.count == 0) {
-      for (uint32_t c : {uint32_t(k + 1), n.first}) {
-        const NvNode& child = nodes[c];
-        b.grow(Box{{child.bounds_min[0], child.bounds_min[1], child.bounds_min[2]},
-                   {child.bounds_max[0], child.bounds_max[1], child.bounds_max[2]}});
-      }
-    } else {
-      for (uint32_t i = 0; i < n.count; ++i) b.grow(item_box(n.first + i));
+    for (size_t k = nodes.size(); k-- > 0;) {
+        NvNode& n = nodes[k];
+        Box b = Box::empty();
+        if (n.count == 0) {
+            for (uint32_t c : {uint32_t(k + 1), n.first}) {
+                const NvNode& child = nodes[c];
+                b.grow(Box{{child.bounds_min[0], child.bounds_min[1], child.bounds_min[2]},
+                           {child.bounds_max[0], child.bounds_max[1], child.bounds_max[2]}});
+            }
+        } else {
+            for (uint32_t i = 0; i < n.count; ++i) b.grow(item_box(n.first + i));
+        }
+        for (int a = 0; a < 3; ++a) {
+            n.bounds_min[a] = b.lo[a];
+            n.bounds_max[a] = b.hi[a];
+        }
     }
-    for (int a = 0; a < 3; ++a) {
-      n.bounds_min[a] = b.lo[a];
-      n.bounds_max[a] = b.hi[a];
-    }
-  }
 }
 
 Box triangle_box(const float v[9]);
@@ -56,5 +56,3 @@ Box triangle_box(const float v[9]);
 Box transform_box(const Box& local, const float m[12]);
 
 }  // namespace clastrace::engine::nv
-
-#endif

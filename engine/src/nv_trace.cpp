@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Traversal of NV objects (nv_trace.h): the engine's conservative slab test over the
 // trees and its watertight triangle test (geometry/), Vulkan's instance and ray flag rules.
 #include "clastrace/engine/nv_trace.h"
@@ -15,153 +16,168 @@ namespace clastrace::engine {
 namespace {
 
 struct Blas {
-  std::vector<std::byte> bytes;
-  NvObjectView view;
-  std::vector<NvPrimitiveRecord> primitives;
-  std::vector<NvNode> nodes;
-  std::vector<uint32_t> geometry_flags;
-  bool aabbs = false;
+    std::vector<std::byte> bytes;
+    NvObjectView view;
+    std::vector<NvPrimitiveRecord> primitives;
+    std::vector<NvNode> nodes;
+    std::vector<uint32_t> geometry_flags;
+    bool aabbs = false;
 };
 
 struct Instance {
-  const Blas* blas = nullptr;  // nullptr: never visited
-  double inverse[12];
-  uint32_t mask = 0;
-  uint32_t custom_index = 0;
-  uint32_t sbt_offset = 0;
-  uint32_t flags = 0;
+    const Blas* blas = nullptr;  // nullptr: never visited
+    double inverse[12];
+    uint32_t mask = 0;
+    uint32_t custom_index = 0;
+    uint32_t sbt_offset = 0;
+    uint32_t flags = 0;
 };
 
 // Entry distance of the ray into the box within [r.tmin, tmax], or NaN for a miss.
-double box_entry(const geometry::PreparedRay& r, const float lo[3], const float hi[3], double tmax) {
-  double entry;
-  return geometry::slab_test<true>(r, lo, hi, tmax, &entry) ? entry : std::numeric_limits<double>::quiet_NaN();
+double box_entry(const geometry::PreparedRay& r, const float lo[3], const float hi[3],
+                 double tmax) {
+    double entry;
+    return geometry::slab_test<true>(r, lo, hi, tmax, &entry)
+               ? entry
+               : std::numeric_limits<double>::quiet_NaN();
 }
 
 bool invert(const float m[12], double out[12]) {
-  const double a = m[0], b = m[1], c = m[2], d = m[4], e = m[5], f = m[6], g = m[8], h = m[9], i = m[10];
-  const double det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g);
-  if (det == 0.0 || !std::isfinite(det)) return false;
-  const double s = 1.0 / det;
-  const double r[9] = {(e * i - f * h) * s, (c * h - b * i) * s, (b * f - c * e) * s,
-                       (f * g - d * i) * s, (a * i - c * g) * s, (c * d - a * f) * s,
-                       (d * h - e * g) * s, (b * g - a * h) * s, (a * e - b * d) * s};
-  const double t[3] = {m[3], m[7], m[11]};
-  for (int row = 0; row < 3; ++row) {
-    out[4 * row] = r[3 * row];
-    out[4 * row + 1] = r[3 * row + 1];
-    out[4 * row + 2] = r[3 * row + 2];
-    out[4 * row + 3] = -(r[3 * row] * t[0] + r[3 * row + 1] * t[1] + r[3 * row + 2] * t[2]);
-  }
-  return true;
+    const double a = m[0], b = m[1], c = m[2], d = m[4], e = m[5], f = m[6], g = m[8], h = m[9],
+                 i = m[10];
+    const double det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g);
+    if (det == 0.0 || !std::isfinite(det)) return false;
+    const double s = 1.0 / det;
+    const double r[9] = {(e * i - f * h) * s, (c * h - b * i) * s, (b * f - c * e) * s,
+                         (f * g - d * i) * s, (a * i - c * g) * s, (c * d - a * f) * s,
+                         (d * h - e * g) * s, (b * g - a * h) * s, (a * e - b * d) * s};
+    const double t[3] = {m[3], m[7], m[11]};
+    for (int row = 0; row < 3; ++row) {
+        out[4 * row] = r[3 * row];
+        out[4 * row + 1] = r[3 * row + 1];
+        out[4 * row + 2] = r[3 * row + 2];
+        out[4 * row + 3] = -(r[3 * row] * t[0] + r[3 * row + 1] * t[1] + r[3 * row + 2] * t[2]);
+    }
+    return true;
 }
 
 std::optional<Blas> load_blas(const MemoryImage& memory, uint64_t address, std::string* error) {
-  try {
-    auto head = memory.read_bytes(address, sizeof(NvObjectHeader), FieldRef{"bottom-level object", -1});
-    auto h = read_nv_header(head, error);
-    if (!h) return std::nullopt;
-    if (h->kind != uint8_t(NvObjectKind::kBottomLevel)) {
-      if (error) *error = "a top-level object where a bottom-level one was expected";
-      return std::nullopt;
+    try {
+        auto head =
+            memory.read_bytes(address, sizeof(NvObjectHeader), FieldRef{"bottom-level object", -1});
+        auto h = read_nv_header(head, error);
+        if (!h) return std::nullopt;
+        if (h->kind != uint8_t(NvObjectKind::kBottomLevel)) {
+            if (error) *error = "a top-level object where a bottom-level one was expected";
+            return std::nullopt;
+        }
+        auto bytes =
+            memory.read_bytes(address, h->object_size, FieldRef{"bottom-level object", -1});
+        Blas b;
+        b.bytes.assign(bytes.begin(), bytes.end());
+        auto view = open_nv_object(b.bytes, error);
+        if (!view) return std::nullopt;
+        b.view = *view;
+        b.aabbs = h->geometry_type == VK_GEOMETRY_TYPE_AABBS_NV;
+        b.primitives.resize(h->primitive_count);
+        for (uint32_t i = 0; i < h->primitive_count; ++i) b.primitives[i] = view->primitive(i);
+        b.nodes.resize(h->node_count);
+        for (uint32_t i = 0; i < h->node_count; ++i) b.nodes[i] = view->node(i);
+        b.geometry_flags.resize(h->geometry_count);
+        for (uint32_t g = 0; g < h->geometry_count; ++g)
+            b.geometry_flags[g] = view->geometry(g).geometry_flags;
+        return b;
+    } catch (const MemoryFault& f) {
+        if (error) *error = f.message;
+        return std::nullopt;
     }
-    auto bytes = memory.read_bytes(address, h->object_size, FieldRef{"bottom-level object", -1});
-    Blas b;
-    b.bytes.assign(bytes.begin(), bytes.end());
-    auto view = open_nv_object(b.bytes, error);
-    if (!view) return std::nullopt;
-    b.view = *view;
-    b.aabbs = h->geometry_type == VK_GEOMETRY_TYPE_AABBS_NV;
-    b.primitives.resize(h->primitive_count);
-    for (uint32_t i = 0; i < h->primitive_count; ++i) b.primitives[i] = view->primitive(i);
-    b.nodes.resize(h->node_count);
-    for (uint32_t i = 0; i < h->node_count; ++i) b.nodes[i] = view->node(i);
-    b.geometry_flags.resize(h->geometry_count);
-    for (uint32_t g = 0; g < h->geometry_count; ++g) b.geometry_flags[g] = view->geometry(g).geometry_flags;
-    return b;
-  } catch (const MemoryFault& f) {
-    if (error) *error = f.message;
-    return std::nullopt;
-  }
 }
 
 }  // namespace
 
 struct NvScene::Data {
-  std::vector<NvNode> nodes;  // top-level tree; empty for a single-BLAS scene
-  std::vector<Instance> instances;
-  std::unordered_map<uint64_t, std::unique_ptr<Blas>> blas;
-  uint32_t reached = 0;
+    std::vector<NvNode> nodes;  // top-level tree; empty for a single-BLAS scene
+    std::vector<Instance> instances;
+    std::unordered_map<uint64_t, std::unique_ptr<Blas>> blas;
+    uint32_t reached = 0;
 };
 
-std::optional<NvScene> NvScene::open(const MemoryImage& memory, uint64_t address, std::vector<Finding>* findings,
-                                     std::string* error) {
-  std::vector<std::byte> bytes;
-  std::optional<NvObjectView> view;
-  try {
-    auto head = memory.read_bytes(address, sizeof(NvObjectHeader), FieldRef{"top-level object", -1});
-    auto h = read_nv_header(head, error);
-    if (!h) return std::nullopt;
-    if (h->kind != uint8_t(NvObjectKind::kTopLevel)) {
-      if (error) *error = "a bottom-level object where a top-level one was expected";
-      return std::nullopt;
+std::optional<NvScene> NvScene::open(const MemoryImage& memory, uint64_t address,
+                                     std::vector<Finding>* findings, std::string* error) {
+    std::vector<std::byte> bytes;
+    std::optional<NvObjectView> view;
+    try {
+        auto head =
+            memory.read_bytes(address, sizeof(NvObjectHeader), FieldRef{"top-level object", -1});
+        auto h = read_nv_header(head, error);
+        if (!h) return std::nullopt;
+        if (h->kind != uint8_t(NvObjectKind::kTopLevel)) {
+            if (error) *error = "a bottom-level object where a top-level one was expected";
+            return std::nullopt;
+        }
+        auto span = memory.read_bytes(address, h->object_size, FieldRef{"top-level object", -1});
+        bytes.assign(span.begin(), span.end());
+    } catch (const MemoryFault& f) {
+        if (error) *error = f.message;
+        return std::nullopt;
     }
-    auto span = memory.read_bytes(address, h->object_size, FieldRef{"top-level object", -1});
-    bytes.assign(span.begin(), span.end());
-  } catch (const MemoryFault& f) {
-    if (error) *error = f.message;
-    return std::nullopt;
-  }
-  view = open_nv_object(bytes, error);
-  if (!view) return std::nullopt;
-  auto data = std::make_shared<Data>();
-  data->nodes.resize(view->header.node_count);
-  for (uint32_t i = 0; i < view->header.node_count; ++i) data->nodes[i] = view->node(i);
-  data->instances.resize(view->header.primitive_count);
-  for (uint32_t i = 0; i < view->header.primitive_count; ++i) {
-    const NvInstanceRecord r = view->instance(i);
-    Instance& inst = data->instances[i];
-    inst.mask = r.custom_index_and_mask >> 24;
-    inst.custom_index = r.custom_index_and_mask & 0xFFFFFFu;
-    inst.sbt_offset = r.sbt_offset_and_flags & 0xFFFFFFu;
-    inst.flags = r.sbt_offset_and_flags >> 24;
-    if (!r.active || r.blas_address == 0 || !invert(r.transform, inst.inverse)) continue;
-    auto it = data->blas.find(r.blas_address);
-    if (it == data->blas.end()) {
-      std::string why;
-      std::optional<Blas> b = load_blas(memory, r.blas_address, &why);
-      if (!b && findings)
-        findings->push_back(Finding{kRuleNvStaleInstance,
-                                    "instance " + std::to_string(i) + ": the bottom-level object it was built with is gone: " + why,
-                                    -1, r.blas_address});
-      it = data->blas.emplace(r.blas_address, b ? std::make_unique<Blas>(std::move(*b)) : nullptr).first;
+    view = open_nv_object(bytes, error);
+    if (!view) return std::nullopt;
+    auto data = std::make_shared<Data>();
+    data->nodes.resize(view->header.node_count);
+    for (uint32_t i = 0; i < view->header.node_count; ++i) data->nodes[i] = view->node(i);
+    data->instances.resize(view->header.primitive_count);
+    for (uint32_t i = 0; i < view->header.primitive_count; ++i) {
+        const NvInstanceRecord r = view->instance(i);
+        Instance& inst = data->instances[i];
+        inst.mask = r.custom_index_and_mask >> 24;
+        inst.custom_index = r.custom_index_and_mask & 0xFFFFFFu;
+        inst.sbt_offset = r.sbt_offset_and_flags & 0xFFFFFFu;
+        inst.flags = r.sbt_offset_and_flags >> 24;
+        if (!r.active || r.blas_address == 0 || !invert(r.transform, inst.inverse)) continue;
+        auto it = data->blas.find(r.blas_address);
+        if (it == data->blas.end()) {
+            std::string why;
+            std::optional<Blas> b = load_blas(memory, r.blas_address, &why);
+            if (!b && findings)
+                findings->push_back(
+                    Finding{kRuleNvStaleInstance,
+                            "instance " + std::to_string(i) +
+                                ": the bottom-level object it was built with is gone: " + why,
+                            -1, r.blas_address});
+            it = data->blas
+                     .emplace(r.blas_address, b ? std::make_unique<Blas>(std::move(*b)) : nullptr)
+                     .first;
+        }
+        inst.blas = it->second.get();
+        data->reached += inst.blas != nullptr;
     }
-    inst.blas = it->second.get();
-    data->reached += inst.blas != nullptr;
-  }
-  return NvScene(std::move(data));
+    return NvScene(std::move(data));
 }
 
-std::optional<NvScene> NvScene::open_bottom(const MemoryImage& memory, uint64_t address, std::string* error) {
-  std::optional<Blas> b = load_blas(memory, address, error);
-  if (!b) return std::nullopt;
-  auto data = std::make_shared<Data>();
-  Instance inst;
-  const double identity[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
-  std::memcpy(inst.inverse, identity, sizeof identity);
-  inst.mask = 0xFF;
-  auto& slot = data->blas[address];
-  slot = std::make_unique<Blas>(std::move(*b));
-  inst.blas = slot.get();
-  data->instances.push_back(inst);
-  NvNode root{};
-  root.bounds_min[0] = root.bounds_min[1] = root.bounds_min[2] = -std::numeric_limits<float>::infinity();
-  root.bounds_max[0] = root.bounds_max[1] = root.bounds_max[2] = std::numeric_limits<float>::infinity();
-  root.first = 0;
-  root.count = 1;
-  data->nodes.push_back(root);
-  data->reached = 1;
-  return NvScene(std::move(data));
+std::optional<NvScene> NvScene::open_bottom(const MemoryImage& memory, uint64_t address,
+                                            std::string* error) {
+    std::optional<Blas> b = load_blas(memory, address, error);
+    if (!b) return std::nullopt;
+    auto data = std::make_shared<Data>();
+    Instance inst;
+    const double identity[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+    std::memcpy(inst.inverse, identity, sizeof identity);
+    inst.mask = 0xFF;
+    auto& slot = data->blas[address];
+    slot = std::make_unique<Blas>(std::move(*b));
+    inst.blas = slot.get();
+    data->instances.push_back(inst);
+    NvNode root{};
+    root.bounds_min[0] = root.bounds_min[1] = root.bounds_min[2] =
+        -std::numeric_limits<float>::infinity();
+    root.bounds_max[0] = root.bounds_max[1] = root.bounds_max[2] =
+        std::numeric_limits<float>::infinity();
+    root.first = 0;
+    root.count = 1;
+    data->nodes.push_back(root);
+    data->reached = 1;
+    return NvScene(std::move(data));
 }
 
 uint32_t NvScene::instance_count() const { return uint32_t(data_->instances.size()); }
@@ -175,55 +191,58 @@ namespace {
 // stack covers every tree the builder makes; deeper (hostile but checked) trees spill into the
 // vector. `leaf` returns true to stop (first-hit queries).
 template <class Leaf>
-void walk_tree(const std::vector<NvNode>& nodes, const geometry::PreparedRay& rd, double* tmax, Leaf&& leaf) {
-  struct Entry {
-    uint32_t node;
-    double t;
-  };
-  Entry stack[192];
-  std::vector<Entry> overflow;
-  int sp = 0;
-  auto push = [&](uint32_t node, double t) {
-    if (sp < 192) stack[sp++] = Entry{node, t};
-    else overflow.push_back(Entry{node, t});
-  };
-  {
-    const double t0 = box_entry(rd, nodes[0].bounds_min, nodes[0].bounds_max, *tmax);
-    if (!std::isnan(t0)) push(0, t0);
-  }
-  while (sp > 0 || !overflow.empty()) {
-    Entry e;
-    if (!overflow.empty()) {
-      e = overflow.back();
-      overflow.pop_back();
-    } else {
-      e = stack[--sp];
+void walk_tree(const std::vector<NvNode>& nodes, const geometry::PreparedRay& rd, double* tmax,
+               Leaf&& leaf) {
+    struct Entry {
+        uint32_t node;
+        double t;
+    };
+    Entry stack[192];
+    std::vector<Entry> overflow;
+    int sp = 0;
+    auto push = [&](uint32_t node, double t) {
+        if (sp < 192)
+            stack[sp++] = Entry{node, t};
+        else
+            overflow.push_back(Entry{node, t});
+    };
+    {
+        const double t0 = box_entry(rd, nodes[0].bounds_min, nodes[0].bounds_max, *tmax);
+        if (!std::isnan(t0)) push(0, t0);
     }
-    if (e.t > *tmax) continue;
-    const uint32_t ni = e.node;
-    const NvNode& n = nodes[ni];
-    if (n.count == 0) {
-      const NvNode &l = nodes[ni + 1], &r = nodes[n.first];
-      const double tl = box_entry(rd, l.bounds_min, l.bounds_max, *tmax);
-      const double tr = box_entry(rd, r.bounds_min, r.bounds_max, *tmax);
-      const bool hl = !std::isnan(tl), hr = !std::isnan(tr);
-      if (hl && hr) {
-        if (tl <= tr) {
-          push(n.first, tr);
-          push(ni + 1, tl);
+    while (sp > 0 || !overflow.empty()) {
+        Entry e;
+        if (!overflow.empty()) {
+            e = overflow.back();
+            overflow.pop_back();
         } else {
-          push(ni + 1, tl);
-          push(n.first, tr);
+            e = stack[--sp];
         }
-      } else if (hl) {
-        push(ni + 1, tl);
-      } else if (hr) {
-        push(n.first, tr);
-      }
-      continue;
+        if (e.t > *tmax) continue;
+        const uint32_t ni = e.node;
+        const NvNode& n = nodes[ni];
+        if (n.count == 0) {
+            const NvNode &l = nodes[ni + 1], &r = nodes[n.first];
+            const double tl = box_entry(rd, l.bounds_min, l.bounds_max, *tmax);
+            const double tr = box_entry(rd, r.bounds_min, r.bounds_max, *tmax);
+            const bool hl = !std::isnan(tl), hr = !std::isnan(tr);
+            if (hl && hr) {
+                if (tl <= tr) {
+                    push(n.first, tr);
+                    push(ni + 1, tl);
+                } else {
+                    push(ni + 1, tl);
+                    push(n.first, tr);
+                }
+            } else if (hl) {
+                push(ni + 1, tl);
+            } else if (hr) {
+                push(n.first, tr);
+            }
+            continue;
+        }
+        if (leaf(n)) return;
     }
-    if (leaf(n)) return;
-  }
 }
 
 // The float32 error bound of NvHit::t_error: 8 ulps of the largest magnitude that enters
@@ -231,118 +250,124 @@ void walk_tree(const std::vector<NvNode>& nodes, const geometry::PreparedRay& rd
 // the world-to-object transform), over the largest direction component, plus 8 ulps of t.
 double float_t_error(const Instance& inst, const double wo[3], const double o[3], const double d[3],
                      const NvPrimitiveRecord& p, bool aabb, double t) {
-  double scale = 0.0;
-  for (int a = 0; a < 3; ++a) scale = std::max(scale, std::fabs(o[a]));
-  for (int i = 0; i < (aabb ? 6 : 9); ++i) scale = std::max(scale, std::fabs(double(p.v[i])));
-  for (int r = 0; r < 3; ++r) {
-    const double* m = inst.inverse + 4 * r;
-    scale = std::max(scale, std::fabs(m[0] * wo[0]) + std::fabs(m[1] * wo[1]) + std::fabs(m[2] * wo[2]) + std::fabs(m[3]));
-  }
-  const double dmax = std::max({std::fabs(d[0]), std::fabs(d[1]), std::fabs(d[2])});
-  const double ulp = std::numeric_limits<float>::epsilon();
-  return 8.0 * ulp * (dmax > 0.0 ? scale / dmax : 0.0) + 8.0 * ulp * std::fabs(t);
+    double scale = 0.0;
+    for (int a = 0; a < 3; ++a) scale = std::max(scale, std::fabs(o[a]));
+    for (int i = 0; i < (aabb ? 6 : 9); ++i) scale = std::max(scale, std::fabs(double(p.v[i])));
+    for (int r = 0; r < 3; ++r) {
+        const double* m = inst.inverse + 4 * r;
+        scale = std::max(scale, std::fabs(m[0] * wo[0]) + std::fabs(m[1] * wo[1]) +
+                                    std::fabs(m[2] * wo[2]) + std::fabs(m[3]));
+    }
+    const double dmax = std::max({std::fabs(d[0]), std::fabs(d[1]), std::fabs(d[2])});
+    const double ulp = std::numeric_limits<float>::epsilon();
+    return 8.0 * ulp * (dmax > 0.0 ? scale / dmax : 0.0) + 8.0 * ulp * std::fabs(t);
 }
 
 // One instance's BLAS: updates `best` (closest) or returns true at the first accepted
 // hit (any / terminate-on-first-hit).
-bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32_t flags, bool first_hit, double tmin,
-                    double* tmax, NvHit* best) {
-  const Blas& b = *inst.blas;
-  if (b.nodes.empty()) return false;
-  const double wo[3] = {ray.origin[0], ray.origin[1], ray.origin[2]};
-  const double wd[3] = {ray.direction[0], ray.direction[1], ray.direction[2]};
-  double o[3], d[3];
-  for (int r = 0; r < 3; ++r) {
-    const double* m = inst.inverse + 4 * r;
-    o[r] = m[0] * wo[0] + m[1] * wo[1] + m[2] * wo[2] + m[3];
-    d[r] = m[0] * wd[0] + m[1] * wd[1] + m[2] * wd[2];
-  }
-  const geometry::PreparedRay rd = geometry::prepare_ray(o, d, tmin, *tmax);
-  const bool cull_disable = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_CULL_DISABLE_BIT_NV;
-  const bool flip = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_FRONT_COUNTERCLOCKWISE_BIT_NV;
-  bool found = false;
-  walk_tree(b.nodes, rd, tmax, [&](const NvNode& n) {
-    for (uint32_t k = n.first; k < n.first + n.count; ++k) {
-      const NvPrimitiveRecord& p = b.primitives[k];
-      // Opacity: geometry flag < instance force flags < ray flags.
-      bool opaque = b.geometry_flags[p.geometry_index] & VK_GEOMETRY_OPAQUE_BIT_NV;
-      if (inst.flags & VK_GEOMETRY_INSTANCE_FORCE_OPAQUE_BIT_NV) opaque = true;
-      if (inst.flags & VK_GEOMETRY_INSTANCE_FORCE_NO_OPAQUE_BIT_NV) opaque = false;
-      if (flags & kRayFlagOpaque) opaque = true;
-      if (flags & kRayFlagNoOpaque) opaque = false;
-      if ((flags & kRayFlagCullOpaque) && opaque) continue;
-      if ((flags & kRayFlagCullNoOpaque) && !opaque) continue;
-      geometry::TriangleHit cand;
-      uint32_t kind = 0;
-      if (b.aabbs) {
-        const double t = box_entry(rd, p.v, p.v + 3, *tmax);
-        if (std::isnan(t)) continue;
-        cand = geometry::TriangleHit{t, 0.0, 0.0, true};
-      } else {
-        if (!geometry::intersect_triangle(rd, p.v, p.v + 3, p.v + 6, *tmax, &cand)) continue;
-        const bool front = cand.front != flip;
-        if (!cull_disable) {
-          if ((flags & kRayFlagCullBackFacingTriangles) && !front) continue;
-          if ((flags & kRayFlagCullFrontFacingTriangles) && front) continue;
-        }
-        kind = front ? kHitKindFrontFacing : kHitKindBackFacing;
-      }
-      if (best && best->hit && !(cand.t < double(*tmax))) continue;  // equal t: the first found stays
-      found = true;
-      if (best) {
-        best->hit = true;
-        best->t = float(cand.t);
-        best->instance_index = index;
-        best->instance_custom_index = inst.custom_index;
-        best->sbt_offset = inst.sbt_offset;
-        best->geometry_index = p.geometry_index;
-        best->primitive_index = p.primitive_index;
-        best->u = float(cand.u);
-        best->v = float(cand.v);
-        best->hit_kind = kind;
-        best->opaque = opaque;
-        best->t_error = float(float_t_error(inst, wo, o, d, p, b.aabbs, cand.t));
-      }
-      *tmax = cand.t;
-      if (first_hit) return true;
+bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32_t flags,
+                    bool first_hit, double tmin, double* tmax, NvHit* best) {
+    const Blas& b = *inst.blas;
+    if (b.nodes.empty()) return false;
+    const double wo[3] = {ray.origin[0], ray.origin[1], ray.origin[2]};
+    const double wd[3] = {ray.direction[0], ray.direction[1], ray.direction[2]};
+    double o[3], d[3];
+    for (int r = 0; r < 3; ++r) {
+        const double* m = inst.inverse + 4 * r;
+        o[r] = m[0] * wo[0] + m[1] * wo[1] + m[2] * wo[2] + m[3];
+        d[r] = m[0] * wd[0] + m[1] * wd[1] + m[2] * wd[2];
     }
-    return false;
-  });
-  return found;
+    const geometry::PreparedRay rd = geometry::prepare_ray(o, d, tmin, *tmax);
+    const bool cull_disable = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_CULL_DISABLE_BIT_NV;
+    const bool flip = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_FRONT_COUNTERCLOCKWISE_BIT_NV;
+    bool found = false;
+    walk_tree(b.nodes, rd, tmax, [&](const NvNode& n) {
+        for (uint32_t k = n.first; k < n.first + n.count; ++k) {
+            const NvPrimitiveRecord& p = b.primitives[k];
+            // Opacity: geometry flag < instance force flags < ray flags.
+            bool opaque = b.geometry_flags[p.geometry_index] & VK_GEOMETRY_OPAQUE_BIT_NV;
+            if (inst.flags & VK_GEOMETRY_INSTANCE_FORCE_OPAQUE_BIT_NV) opaque = true;
+            if (inst.flags & VK_GEOMETRY_INSTANCE_FORCE_NO_OPAQUE_BIT_NV) opaque = false;
+            if (flags & kRayFlagOpaque) opaque = true;
+            if (flags & kRayFlagNoOpaque) opaque = false;
+            if ((flags & kRayFlagCullOpaque) && opaque) continue;
+            if ((flags & kRayFlagCullNoOpaque) && !opaque) continue;
+            geometry::TriangleHit cand;
+            uint32_t kind = 0;
+            if (b.aabbs) {
+                const double t = box_entry(rd, p.v, p.v + 3, *tmax);
+                if (std::isnan(t)) continue;
+                cand = geometry::TriangleHit{t, 0.0, 0.0, true};
+            } else {
+                if (!geometry::intersect_triangle(rd, p.v, p.v + 3, p.v + 6, *tmax, &cand))
+                    continue;
+                const bool front = cand.front != flip;
+                if (!cull_disable) {
+                    if ((flags & kRayFlagCullBackFacingTriangles) && !front) continue;
+                    if ((flags & kRayFlagCullFrontFacingTriangles) && front) continue;
+                }
+                kind = front ? kHitKindFrontFacing : kHitKindBackFacing;
+            }
+            if (best && best->hit && !(cand.t < double(*tmax)))
+                continue;  // equal t: the first found stays
+            found = true;
+            if (best) {
+                best->hit = true;
+                best->t = float(cand.t);
+                best->instance_index = index;
+                best->instance_custom_index = inst.custom_index;
+                best->sbt_offset = inst.sbt_offset;
+                best->geometry_index = p.geometry_index;
+                best->primitive_index = p.primitive_index;
+                best->u = float(cand.u);
+                best->v = float(cand.v);
+                best->hit_kind = kind;
+                best->opaque = opaque;
+                best->t_error = float(float_t_error(inst, wo, o, d, p, b.aabbs, cand.t));
+            }
+            *tmax = cand.t;
+            if (first_hit) return true;
+        }
+        return false;
+    });
+    return found;
 }
 
-bool trace_scene(const NvScene::Data& s, const Ray& ray, uint32_t flags, uint32_t cull_mask, bool first_hit, NvHit* best) {
-  if (s.nodes.empty() || std::isnan(ray.tmin) || std::isnan(ray.tmax) || !(ray.tmin <= ray.tmax)) return false;
-  const double o[3] = {ray.origin[0], ray.origin[1], ray.origin[2]};
-  const double d[3] = {ray.direction[0], ray.direction[1], ray.direction[2]};
-  const geometry::PreparedRay rd = geometry::prepare_ray(o, d, ray.tmin, ray.tmax);
-  const double tmin = ray.tmin;
-  double tmax = ray.tmax;
-  bool found = false;
-  walk_tree(s.nodes, rd, &tmax, [&](const NvNode& n) {
-    for (uint32_t k = n.first; k < n.first + n.count; ++k) {
-      const Instance& inst = s.instances[k];
-      if (!inst.blas || !(inst.mask & cull_mask & 0xFFu)) continue;
-      if (trace_instance(inst, k, ray, flags, first_hit, tmin, &tmax, best)) {
-        found = true;
-        if (first_hit) return true;
-      }
-    }
-    return false;
-  });
-  return found;
+bool trace_scene(const NvScene::Data& s, const Ray& ray, uint32_t flags, uint32_t cull_mask,
+                 bool first_hit, NvHit* best) {
+    if (s.nodes.empty() || std::isnan(ray.tmin) || std::isnan(ray.tmax) || !(ray.tmin <= ray.tmax))
+        return false;
+    const double o[3] = {ray.origin[0], ray.origin[1], ray.origin[2]};
+    const double d[3] = {ray.direction[0], ray.direction[1], ray.direction[2]};
+    const geometry::PreparedRay rd = geometry::prepare_ray(o, d, ray.tmin, ray.tmax);
+    const double tmin = ray.tmin;
+    double tmax = ray.tmax;
+    bool found = false;
+    walk_tree(s.nodes, rd, &tmax, [&](const NvNode& n) {
+        for (uint32_t k = n.first; k < n.first + n.count; ++k) {
+            const Instance& inst = s.instances[k];
+            if (!inst.blas || !(inst.mask & cull_mask & 0xFFu)) continue;
+            if (trace_instance(inst, k, ray, flags, first_hit, tmin, &tmax, best)) {
+                found = true;
+                if (first_hit) return true;
+            }
+        }
+        return false;
+    });
+    return found;
 }
 
 }  // namespace
 
 NvHit NvScene::closest(const Ray& ray, uint32_t ray_flags, uint32_t cull_mask) const {
-  NvHit hit;
-  trace_scene(*data_, ray, ray_flags, cull_mask, (ray_flags & kRayFlagTerminateOnFirstHit) != 0, &hit);
-  return hit;
+    NvHit hit;
+    trace_scene(*data_, ray, ray_flags, cull_mask, (ray_flags & kRayFlagTerminateOnFirstHit) != 0,
+                &hit);
+    return hit;
 }
 
 bool NvScene::any(const Ray& ray, uint32_t ray_flags, uint32_t cull_mask) const {
-  return trace_scene(*data_, ray, ray_flags, cull_mask, true, nullptr);
+    return trace_scene(*data_, ray, ray_flags, cull_mask, true, nullptr);
 }
 
 }  // namespace clastrace::engine

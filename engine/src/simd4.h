@@ -1,8 +1,8 @@
+// SPDX-License-Identifier: Apache-2.0
 // Four float lanes for the cluster build's box arithmetic: SSE2 where the target has it,
 // plain C++ with the same lane semantics elsewhere (min/max return the second operand when
 // the comparison is false, as minps/maxps do), so both give the same bytes.
-#ifndef CLASTRACE_ENGINE_SIMD4_H
-#define CLASTRACE_ENGINE_SIMD4_H
+#pragma once
 
 #include <cstdint>
 #include <cstring>
@@ -16,10 +16,10 @@ namespace clastrace::engine::detail {
 #if defined(__SSE2__)
 
 struct Float4 {
-  __m128 v;
+    __m128 v;
 };
 struct Int4 {
-  __m128i v;
+    __m128i v;
 };
 
 inline Float4 splat(float x) { return {_mm_set1_ps(x)}; }
@@ -27,9 +27,9 @@ inline Float4 load4(const float* p) { return {_mm_load_ps(p)}; }  // 16-byte ali
 inline void store4(float* p, Float4 a) { _mm_store_ps(p, a.v); }
 // x, y, z from p[0..2] (reads exactly 12 bytes), lane 3 = 0.
 inline Float4 load3(const float* p) {
-  double xy;
-  std::memcpy(&xy, p, 8);
-  return {_mm_movelh_ps(_mm_castpd_ps(_mm_set_sd(xy)), _mm_set_ss(p[2]))};
+    double xy;
+    std::memcpy(&xy, p, 8);
+    return {_mm_movelh_ps(_mm_castpd_ps(_mm_set_sd(xy)), _mm_set_ss(p[2]))};
 }
 inline Float4 min4(Float4 a, Float4 b) { return {_mm_min_ps(a.v, b.v)}; }
 inline Float4 max4(Float4 a, Float4 b) { return {_mm_max_ps(a.v, b.v)}; }
@@ -47,20 +47,20 @@ inline void store_int4(int32_t* p, Int4 a) { _mm_storeu_si128(reinterpret_cast<_
 #else
 
 struct Float4 {
-  float v[4];
+    float v[4];
 };
 struct Int4 {
-  int32_t v[4];
+    int32_t v[4];
 };
 
 inline Float4 splat(float x) { return {{x, x, x, x}}; }
 inline Float4 load4(const float* p) { return {{p[0], p[1], p[2], p[3]}}; }
 inline void store4(float* p, Float4 a) { std::memcpy(p, a.v, 16); }
 inline Float4 load3(const float* p) { return {{p[0], p[1], p[2], 0.0f}}; }
-#define CLASTRACE_LANES(expr) \
-  Float4 r;                   \
-  for (int k = 0; k < 4; ++k) r.v[k] = (expr);  \
-  return r
+#define CLASTRACE_LANES(expr)                    \
+    Float4 r;                                    \
+    for (int k = 0; k < 4; ++k) r.v[k] = (expr); \
+    return r
 inline Float4 min4(Float4 a, Float4 b) { CLASTRACE_LANES(a.v[k] < b.v[k] ? a.v[k] : b.v[k]); }
 inline Float4 max4(Float4 a, Float4 b) { CLASTRACE_LANES(a.v[k] > b.v[k] ? a.v[k] : b.v[k]); }
 inline Float4 operator+(Float4 a, Float4 b) { CLASTRACE_LANES(a.v[k] + b.v[k]); }
@@ -69,16 +69,18 @@ inline Float4 operator*(Float4 a, Float4 b) { CLASTRACE_LANES(a.v[k] * b.v[k]); 
 inline Float4 operator/(Float4 a, Float4 b) { CLASTRACE_LANES(a.v[k] / b.v[k]); }
 #undef CLASTRACE_LANES
 inline unsigned nan_lanes(Float4 a) {
-  unsigned m = 0;
-  for (int k = 0; k < 4; ++k) m |= unsigned(a.v[k] != a.v[k]) << k;
-  return m;
+    unsigned m = 0;
+    for (int k = 0; k < 4; ++k) m |= unsigned(a.v[k] != a.v[k]) << k;
+    return m;
 }
-inline Int4 to_int(Float4 a) { return {{int32_t(a.v[0]), int32_t(a.v[1]), int32_t(a.v[2]), int32_t(a.v[3])}}; }
-inline Float4 to_float(Int4 a) { return {{float(a.v[0]), float(a.v[1]), float(a.v[2]), float(a.v[3])}}; }
+inline Int4 to_int(Float4 a) {
+    return {{int32_t(a.v[0]), int32_t(a.v[1]), int32_t(a.v[2]), int32_t(a.v[3])}};
+}
+inline Float4 to_float(Int4 a) {
+    return {{float(a.v[0]), float(a.v[1]), float(a.v[2]), float(a.v[3])}};
+}
 inline void store_int4(int32_t* p, Int4 a) { std::memcpy(p, a.v, 16); }
 
 #endif
 
 }  // namespace clastrace::engine::detail
-
-#endif

@@ -170,10 +170,10 @@ TEST(ClusterBuildRules, EachRuleFailsAndPasses) {
       {"VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-clusterID-10488",
        [](Arena&, BuildInfo& i, Input&, EngineProperties&) { i.clusterID = 0xFFFFFFFFu; }},
       {"VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-triangleCount-10489",
-       [](Arena&, BuildInfo&, Input&, EngineProperties& p) { p.maxTrianglesPerCluster = 31; },
+       [](Arena&, BuildInfo&, Input&, EngineProperties& p) { p.max_triangles_per_cluster = 31; },
        {"VUID-VkClusterAccelerationStructureTriangleClusterInputNV-maxClusterTriangleCount-10440"}},
       {"VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-vertexCount-10490",
-       [](Arena&, BuildInfo&, Input&, EngineProperties& p) { p.maxVerticesPerCluster = 24; },
+       [](Arena&, BuildInfo&, Input&, EngineProperties& p) { p.max_vertices_per_cluster = 24; },
        {"VUID-VkClusterAccelerationStructureTriangleClusterInputNV-maxClusterVertexCount-10441"}},
       {"VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-indexType-10491",
        [](Arena&, BuildInfo& i, Input&, EngineProperties&) { i.indexType = 6; }},
@@ -195,7 +195,7 @@ TEST(ClusterBuildRules, EachRuleFailsAndPasses) {
        [](Arena&, BuildInfo& i, Input&, EngineProperties&) { i.vertexBufferStride = 14; }},
       {"VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-baseGeometryIndex-10496",
        [](Arena&, BuildInfo& i, Input& in, EngineProperties& p) {
-         p.maxClusterGeometryIndex = 100;
+         p.max_cluster_geometry_index = 100;
          in.maxGeometryIndexValue = 1000;
          i.baseGeometryIndexAndGeometryFlags.geometryIndex = 100;
        }},
@@ -288,7 +288,7 @@ TEST(ClusterBuildRules, CountsBeyondTheFormatFailCleanly) {
   BuildInfo info = test::cluster_info(arena, m);
   info.triangleCount = 300;
   EngineProperties p;
-  p.maxTrianglesPerCluster = 511;
+  p.max_triangles_per_cluster = 511;
   const auto o = build_triangle_cluster(arena.memory, info, test::default_input(), p, 0);
   EXPECT_FALSE(o.ok);
   EXPECT_TRUE(o.bytes.empty());
@@ -424,7 +424,7 @@ TEST(EngineProperties, CapturedPropertiesOverrideDefaultsAndDriveTheRules) {
   vk.clusterByteAlignment = 256;
   vk.clusterTemplateByteAlignment = 64;
   const EngineProperties p = EngineProperties::from_vk(vk);
-  EXPECT_EQ(p.maxTrianglesPerCluster, 64u);
+  EXPECT_EQ(p.max_triangles_per_cluster, 64u);
   EXPECT_EQ(object_alignment(false, p), 256u);
   EXPECT_EQ(object_alignment(true, p), 64u);
   const auto round = p.to_vk();

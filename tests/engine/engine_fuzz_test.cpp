@@ -82,7 +82,7 @@ TEST(EngineFuzz, RandomBuildTemplateAndInstantiateInputs) {
       VkClusterAccelerationStructureBuildTriangleClusterInfoNV info{};
       randomize(rng, arena, idx, vtx, info);
       EngineProperties props;
-      if (trial % 4 == 0) props.maxTrianglesPerCluster = props.maxVerticesPerCluster = 511;
+      if (trial % 4 == 0) props.max_triangles_per_cluster = props.max_vertices_per_cluster = 511;
       const auto o = build_triangle_cluster(arena.memory, info, input, props, trial);
       expect_valid(o, true);
       (o.ok ? built : failed)++;

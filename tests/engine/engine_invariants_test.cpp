@@ -85,7 +85,7 @@ TEST(ObjectDirectoryInvariants, HoldOverBuildsMovesAndForgets) {
 TEST(ObjectDirectoryInvariants, LiveAndMovedAwayAtOnceBreaksThem) {
     ObjectDirectory directory;
     const std::vector<std::byte> bytes(64, std::byte{7});
-    directory.record_built(kBase, ObjectType::TriangleCluster, bytes);
+    directory.record_built(kBase, ObjectType::kTriangleCluster, bytes);
     ASSERT_TRUE(directory.invariants_hold());
     ObjectDirectoryTestAccess::mark_moved_while_live(directory, kBase);
     EXPECT_FALSE(directory.invariants_hold());
@@ -95,7 +95,7 @@ TEST(ObjectDirectoryInvariants, LiveAndMovedAwayAtOnceBreaksThem) {
 TEST(ObjectDirectoryInvariants, EmptyLiveObjectBreaksThem) {
     ObjectDirectory directory;
     const std::vector<std::byte> bytes(64, std::byte{7});
-    directory.record_built(kBase, ObjectType::TriangleCluster, bytes);
+    directory.record_built(kBase, ObjectType::kTriangleCluster, bytes);
     ObjectDirectoryTestAccess::shrink_to_nothing(directory, kBase);
     EXPECT_FALSE(directory.invariants_hold());
 }

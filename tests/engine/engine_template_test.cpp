@@ -45,7 +45,7 @@ TEST(ClusterTemplate, WithPositionsInstantiatesToTheDirectBuild) {
   EXPECT_TRUE(tmpl.findings.empty()) << tmpl.findings[0].message;
   const auto h = read_object_header(tmpl.bytes).header;
   ASSERT_TRUE(h);
-  EXPECT_EQ(h->object_type, uint8_t(ObjectType::TriangleClusterTemplate));
+  EXPECT_EQ(h->object_type, uint8_t(ObjectType::kTriangleClusterTemplate));
   EXPECT_TRUE(h->header_flags & kHasPositions);
   EXPECT_EQ(h->node_count, 0) << "templates are not traced: no BVH bytes";
   EXPECT_FALSE(open_clas(tmpl.bytes)) << "a template is no CLAS";
@@ -200,9 +200,9 @@ TEST(ClusterTemplateRules, TemplateInfoRules) {
       {"VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-clusterID-10497",
        [](auto&, auto& t, auto&, auto&) { t.clusterID = 0xFFFFFFFFu; }},
       {"VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-triangleCount-10498",
-       [](auto&, auto&, auto& in, auto& p) { p.maxTrianglesPerCluster = in.maxClusterTriangleCount = 20; }},
+       [](auto&, auto&, auto& in, auto& p) { p.max_triangles_per_cluster = in.maxClusterTriangleCount = 20; }},
       {"VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-vertexCount-10499",
-       [](auto&, auto&, auto& in, auto& p) { p.maxVerticesPerCluster = in.maxClusterVertexCount = 20; }},
+       [](auto&, auto&, auto& in, auto& p) { p.max_vertices_per_cluster = in.maxClusterVertexCount = 20; }},
       {"VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-indexType-10500",
        [](auto&, auto& t, auto&, auto&) { t.indexType = 0; }},
       {"VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-opacityMicromapIndexType-10501",
@@ -221,7 +221,7 @@ TEST(ClusterTemplateRules, TemplateInfoRules) {
        [](auto&, auto& t, auto&, auto&) { t.vertexBufferStride = 13; }},
       {"VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-baseGeometryIndex-10506",
        [](auto&, auto& t, auto&, auto& p) {
-         p.maxClusterGeometryIndex = 7;
+         p.max_cluster_geometry_index = 7;
          t.baseGeometryIndexAndGeometryFlags.geometryIndex = 7;
        }},
       {kRuleIndexOutOfRange,
@@ -280,7 +280,7 @@ TEST(ClusterTemplateRules, InstantiateRules) {
   o = instantiate_triangle_cluster(arena.memory, i, test::default_input(), EngineProperties{}, 0);
   EXPECT_TRUE(has_rule(o.findings, "VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-geometryIndexOffset-10510"));
   EngineProperties small;
-  small.maxClusterGeometryIndex = 9;
+  small.max_cluster_geometry_index = 9;
   i = good;
   i.geometryIndexOffset = 2;  // 7 + 2 = 9: not less than 9
   o = instantiate_triangle_cluster(arena.memory, i, test::default_input(), small, 0);

@@ -18,7 +18,7 @@ TEST(ClusterBlas, TracesLikeEmbreeOverTheSameTriangles) {
   auto check = read_bottom_level_header(rig.bytes(blas, rig.get<uint32_t>(blas + 8)));
   ASSERT_TRUE(check.header) << check.error;
   EXPECT_EQ(check.header->reference_count, m.clusters.size());
-  EXPECT_EQ(blas % EngineProperties{}.clusterBottomLevelByteAlignment, 0u);
+  EXPECT_EQ(blas % EngineProperties{}.cluster_bottom_level_byte_alignment, 0u);
   expect_matches_embree(rig, blas, m);
 }
 

@@ -28,7 +28,7 @@ TEST(Execute, ImplicitBuildPacksInOpOrderAtClusterAlignment) {
   ASSERT_TRUE(r.findings.empty()) << describe(r.findings);
   ASSERT_EQ(r.op_count, n);
   auto addrs = dst_addresses(rig, s.cmd, n);
-  const uint64_t align = EngineProperties{}.clusterByteAlignment;
+  const uint64_t align = EngineProperties{}.cluster_byte_alignment;
   uint64_t expect = s.cmd.dstImplicitData;
   for (uint32_t i = 0; i < n; ++i) {
     expect = (expect + align - 1) / align * align;
@@ -271,8 +271,8 @@ TEST(Execute, ZeroAlignmentsInCapturedPropertiesDoNotCrash) {
   CommandSetup s;
   setup_command(s, rig, kBuild, kImplicit, uint32_t(m.clusters.size()), infos);
   ExecuteOptions o;
-  o.properties.clusterByteAlignment = 0;
-  o.properties.clusterScratchByteAlignment = 0;
+  o.properties.cluster_byte_alignment = 0;
+  o.properties.cluster_scratch_byte_alignment = 0;
   ExecutionRecord r = execute(s.cmd, rig.memory, o);
   EXPECT_TRUE(r.findings.empty()) << describe(r.findings);
   EXPECT_TRUE(r.ops[0].executed);

@@ -44,7 +44,7 @@ TEST(MoveObjects, MovedClasWorksAndOldAddressesBecomeFindings) {
   ASSERT_TRUE(moved.record.findings.empty()) << describe(moved.record.findings);
   // Tightly packed at clusterByteAlignment, same bytes.
   for (size_t i = 0; i < clas.size(); ++i) {
-    EXPECT_EQ(moved.addresses[i] % EngineProperties{}.clusterByteAlignment, 0u);
+    EXPECT_EQ(moved.addresses[i] % EngineProperties{}.cluster_byte_alignment, 0u);
     EXPECT_EQ(rig.bytes(moved.addresses[i], moved.record.ops[i].dst_size), rig.bytes(clas[i], moved.record.ops[i].dst_size));
   }
   // A BLAS over the new addresses traces like Embree; the old BLAS's references are stale.
@@ -119,7 +119,7 @@ TEST(MoveObjects, MovedBlasAndTemplateWorkAtTheirNewAddress) {
   uint64_t tmpl = dst_addresses(rig, ts.cmd, 1)[0];
   Moved mt = move_implicit(rig, {tmpl}, dir, VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_TRIANGLE_CLUSTER_TEMPLATE_NV);
   ASSERT_TRUE(mt.record.findings.empty()) << describe(mt.record.findings);
-  EXPECT_EQ(mt.addresses[0] % EngineProperties{}.clusterTemplateByteAlignment, 0u);
+  EXPECT_EQ(mt.addresses[0] % EngineProperties{}.cluster_template_byte_alignment, 0u);
   for (uint64_t t : {mt.addresses[0], tmpl}) {
     VkClusterAccelerationStructureInstantiateClusterInfoNV inst{};
     inst.clusterTemplateAddress = t;

@@ -13,14 +13,14 @@ namespace {
 fbs::TraceHeaderT script_header(const ScriptDevice& device) {
     fbs::TraceHeaderT h = tb::trace_header(tb::kEngineDriver, tb::kEngineDriver, "replay_e2e_tests (trace_script)");
     engine::EngineProperties p;
-    p.maxVerticesPerCluster = device.max_vertices_per_cluster;
-    p.maxTrianglesPerCluster = device.max_triangles_per_cluster;
-    p.clusterScratchByteAlignment = device.cluster_scratch_byte_alignment;
-    p.clusterByteAlignment = device.cluster_byte_alignment;
-    p.clusterTemplateByteAlignment = device.cluster_template_byte_alignment;
-    p.clusterBottomLevelByteAlignment = device.cluster_bottom_level_byte_alignment;
-    p.clusterTemplateBoundsByteAlignment = device.cluster_template_bounds_byte_alignment;
-    p.maxClusterGeometryIndex = device.max_cluster_geometry_index;
+    p.max_vertices_per_cluster = device.max_vertices_per_cluster;
+    p.max_triangles_per_cluster = device.max_triangles_per_cluster;
+    p.cluster_scratch_byte_alignment = device.cluster_scratch_byte_alignment;
+    p.cluster_byte_alignment = device.cluster_byte_alignment;
+    p.cluster_template_byte_alignment = device.cluster_template_byte_alignment;
+    p.cluster_bottom_level_byte_alignment = device.cluster_bottom_level_byte_alignment;
+    p.cluster_template_bounds_byte_alignment = device.cluster_template_bounds_byte_alignment;
+    p.max_cluster_geometry_index = device.max_cluster_geometry_index;
     h.device->cluster_properties = tb::cluster_properties(p);
     return h;
 }

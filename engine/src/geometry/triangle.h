@@ -1,10 +1,10 @@
+// SPDX-License-Identifier: Apache-2.0
 // The engine's one ray/triangle test: watertight (Woop, Benthin & Wald 2013: dimension
 // permutation, shear, edge functions) in double precision, so that coordinates up to
 // ±FLT_MAX neither overflow nor lose the watertight property. Edge functions equal to
 // zero count as inside; a triangle whose edge functions are all zero (seen edge-on,
 // degenerate) or not finite is missed. Hits lie in the closed interval [tmin, tmax].
-#ifndef CLASTRACE_ENGINE_GEOMETRY_TRIANGLE_H
-#define CLASTRACE_ENGINE_GEOMETRY_TRIANGLE_H
+#pragma once
 
 #include "geometry/ray.h"
 
@@ -13,11 +13,11 @@
 namespace clastrace::engine::geometry {
 
 struct TriangleHit {
-  double t;
-  double u, v;  // barycentric weights of p1 and p2
-  // Vulkan's facing before any instance flag: front when p0, p1, p2 appear clockwise seen
-  // from the ray origin looking along the ray, i.e. dot(d, cross(p1 - p0, p2 - p0)) < 0.
-  bool front;
+    double t;
+    double u, v;  // barycentric weights of p1 and p2
+    // Vulkan's facing before any instance flag: front when p0, p1, p2 appear clockwise seen
+    // from the ray origin looking along the ray, i.e. dot(d, cross(p1 - p0, p2 - p0)) < 0.
+    bool front;
 };
 
 // The sign of dot(d, cross(p1 - p0, p2 - p0)) evaluated from the triangle's own edges: it
@@ -25,37 +25,36 @@ struct TriangleHit {
 // sheared edge functions of the hit test carry the origin's rounding and give the wrong
 // winding for nearly edge-on triangles far from the origin).
 inline bool front_facing(const double d[3], const float* p0, const float* p1, const float* p2) {
-  const double e1[3] = {double(p1[0]) - p0[0], double(p1[1]) - p0[1], double(p1[2]) - p0[2]};
-  const double e2[3] = {double(p2[0]) - p0[0], double(p2[1]) - p0[1], double(p2[2]) - p0[2]};
-  const double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]};
-  return d[0] * n[0] + d[1] * n[1] + d[2] * n[2] < 0.0;
+    const double e1[3] = {double(p1[0]) - p0[0], double(p1[1]) - p0[1], double(p1[2]) - p0[2]};
+    const double e2[3] = {double(p2[0]) - p0[0], double(p2[1]) - p0[1], double(p2[2]) - p0[2]};
+    const double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                         e1[0] * e2[1] - e1[1] * e2[0]};
+    return d[0] * n[0] + d[1] * n[1] + d[2] * n[2] < 0.0;
 }
 
-inline bool intersect_triangle(const PreparedRay& r, const float* p0, const float* p1, const float* p2, double tmax,
-                               TriangleHit* hit) {
-  double A[3], B[3], C[3];
-  for (int a = 0; a < 3; ++a) {
-    A[a] = double(p0[a]) - r.o[a];
-    B[a] = double(p1[a]) - r.o[a];
-    C[a] = double(p2[a]) - r.o[a];
-  }
-  const double ax = A[r.kx] - r.sx * A[r.kz], ay = A[r.ky] - r.sy * A[r.kz];
-  const double bx = B[r.kx] - r.sx * B[r.kz], by = B[r.ky] - r.sy * B[r.kz];
-  const double cx = C[r.kx] - r.sx * C[r.kz], cy = C[r.ky] - r.sy * C[r.kz];
-  const double U = cx * by - cy * bx, V = ax * cy - ay * cx, W = bx * ay - by * ax;
-  if ((U < 0.0 || V < 0.0 || W < 0.0) && (U > 0.0 || V > 0.0 || W > 0.0)) return false;
-  const double det = U + V + W;
-  if (det == 0.0 || !std::isfinite(det)) return false;
-  const double T = U * (r.sz * A[r.kz]) + V * (r.sz * B[r.kz]) + W * (r.sz * C[r.kz]);
-  const double t = T / det;
-  if (!(t >= r.tmin && t <= tmax)) return false;
-  hit->t = t;
-  hit->u = V / det;
-  hit->v = W / det;
-  hit->front = front_facing(r.d, p0, p1, p2);
-  return true;
+inline bool intersect_triangle(const PreparedRay& r, const float* p0, const float* p1,
+                               const float* p2, double tmax, TriangleHit* hit) {
+    double a[3], b[3], c[3];
+    for (int a = 0; a < 3; ++a) {
+        a[a] = double(p0[a]) - r.o[a];
+        b[a] = double(p1[a]) - r.o[a];
+        c[a] = double(p2[a]) - r.o[a];
+    }
+    const double ax = a[r.kx] - r.sx * a[r.kz], ay = a[r.ky] - r.sy * a[r.kz];
+    const double bx = b[r.kx] - r.sx * b[r.kz], by = b[r.ky] - r.sy * b[r.kz];
+    const double cx = c[r.kx] - r.sx * c[r.kz], cy = c[r.ky] - r.sy * c[r.kz];
+    const double u = cx * by - cy * bx, v = ax * cy - ay * cx, w = bx * ay - by * ax;
+    if ((u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0)) return false;
+    const double det = u + v + w;
+    if (det == 0.0 || !std::isfinite(det)) return false;
+    const double t = u * (r.sz * a[r.kz]) + v * (r.sz * b[r.kz]) + w * (r.sz * c[r.kz]);
+    const double t = t / det;
+    if (!(t >= r.tmin && t <= tmax)) return false;
+    hit->t = t;
+    hit->u = v / det;
+    hit->v = w / det;
+    hit->front = front_facing(r.d, p0, p1, p2);
+    return true;
 }
 
 }  // namespace clastrace::engine::geometry
-
-#endif

@@ -16,14 +16,14 @@ fbs::TraceHeaderT trace_header(std::string device_name, std::string driver_name,
 
 std::unique_ptr<fbs::ClusterPropertiesT> cluster_properties(const engine::EngineProperties& e) {
     auto p = std::make_unique<fbs::ClusterPropertiesT>();
-    p->max_vertices_per_cluster = e.maxVerticesPerCluster;
-    p->max_triangles_per_cluster = e.maxTrianglesPerCluster;
-    p->cluster_scratch_byte_alignment = e.clusterScratchByteAlignment;
-    p->cluster_byte_alignment = e.clusterByteAlignment;
-    p->cluster_template_byte_alignment = e.clusterTemplateByteAlignment;
-    p->cluster_bottom_level_byte_alignment = e.clusterBottomLevelByteAlignment;
-    p->cluster_template_bounds_byte_alignment = e.clusterTemplateBoundsByteAlignment;
-    p->max_cluster_geometry_index = e.maxClusterGeometryIndex;
+    p->max_vertices_per_cluster = e.max_vertices_per_cluster;
+    p->max_triangles_per_cluster = e.max_triangles_per_cluster;
+    p->cluster_scratch_byte_alignment = e.cluster_scratch_byte_alignment;
+    p->cluster_byte_alignment = e.cluster_byte_alignment;
+    p->cluster_template_byte_alignment = e.cluster_template_byte_alignment;
+    p->cluster_bottom_level_byte_alignment = e.cluster_bottom_level_byte_alignment;
+    p->cluster_template_bounds_byte_alignment = e.cluster_template_bounds_byte_alignment;
+    p->max_cluster_geometry_index = e.max_cluster_geometry_index;
     return p;
 }
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The bottom-level cluster acceleration structure (BLAS): a BVH over the bounds of the
 // CLAS it references, leaves naming each CLAS by device address (as the GPU object
 // does), so a BLAS moves by plain copy while the CLAS it names must stay put.
@@ -6,8 +7,7 @@
 //   BottomLevelHeader (64 B) | node_count BottomLevelNode (32 B) | reference_count ClusterReference (16 B)
 // Nodes are in depth-first order, node 0 the root; an interior node's children are
 // `first` and `first + 1`; a leaf covers references [first, first + count).
-#ifndef CLASTRACE_ENGINE_BLAS_H
-#define CLASTRACE_ENGINE_BLAS_H
+#pragma once
 
 #include "clastrace/engine/cluster_format.h"
 #include "clastrace/engine/finding.h"
@@ -30,57 +30,58 @@ inline constexpr uint32_t kBottomLevelMaxLeafSize = 4;
 // The first 12 bytes match ObjectHeader (magic, type, version, flags, size), so any
 // engine object is sized from its first bytes alone.
 struct BottomLevelHeader {
-  uint32_t magic;            // kObjectMagic
-  uint8_t object_type;       // ObjectType::ClustersBottomLevel
-  uint8_t format_version;    // kBottomLevelFormatVersion
-  uint16_t header_flags;     // 0
-  uint32_t object_size;      // whole object, header included
-  uint32_t reference_count;  // references stored (valid, non-empty clusters)
-  uint32_t node_count;       // 0 when reference_count == 0
-  uint32_t nodes_offset;
-  uint32_t references_offset;
-  uint32_t input_reference_count;  // clusterReferencesCount as given
-  float bounds_min[3];
-  float bounds_max[3];
-  uint32_t reserved[2];
+    uint32_t magic;            // kObjectMagic
+    uint8_t object_type;       // ObjectType::ClustersBottomLevel
+    uint8_t format_version;    // kBottomLevelFormatVersion
+    uint16_t header_flags;     // 0
+    uint32_t object_size;      // whole object, header included
+    uint32_t reference_count;  // references stored (valid, non-empty clusters)
+    uint32_t node_count;       // 0 when reference_count == 0
+    uint32_t nodes_offset;
+    uint32_t references_offset;
+    uint32_t input_reference_count;  // clusterReferencesCount as given
+    float bounds_min[3];
+    float bounds_max[3];
+    uint32_t reserved[2];
 };
 static_assert(sizeof(BottomLevelHeader) == 64);
 
 struct BottomLevelNode {
-  float bounds_min[3];
-  uint32_t first;  // interior: left child index; leaf: first reference
-  float bounds_max[3];
-  uint32_t count;  // 0: interior; 1..kBottomLevelMaxLeafSize: leaf
+    float bounds_min[3];
+    uint32_t first;  // interior: left child index; leaf: first reference
+    float bounds_max[3];
+    uint32_t count;  // 0: interior; 1..kBottomLevelMaxLeafSize: leaf
 };
 static_assert(sizeof(BottomLevelNode) == 32);
 
 struct ClusterReference {
-  uint64_t clas_address;     // device address of the CLAS
-  uint32_t reference_index;  // index into clusterReferences as the app gave it
-  uint32_t cluster_id;       // the CLAS's clusterID when built (for hit reports)
+    uint64_t clas_address;     // device address of the CLAS
+    uint32_t reference_index;  // index into clusterReferences as the app gave it
+    uint32_t cluster_id;       // the CLAS's clusterID when built (for hit reports)
 };
 static_assert(sizeof(ClusterReference) == 16);
 
 // One cluster to place in the BVH.
 struct ClusterBox {
-  float bounds_min[3];
-  float bounds_max[3];
-  uint64_t clas_address;
-  uint32_t reference_index;
-  uint32_t cluster_id;
+    float bounds_min[3];
+    float bounds_max[3];
+    uint64_t clas_address;
+    uint32_t reference_index;
+    uint32_t cluster_id;
 };
 
 // Builds the object bytes (binned SAH, deterministic: same boxes -> same bytes).
 // Boxes with min > max on any axis (empty clusters) are left out. The result is empty
 // when the object would exceed 4 GiB (the caller reports it).
-std::vector<std::byte> build_bottom_level(std::span<const ClusterBox> clusters, uint32_t input_reference_count);
+std::vector<std::byte> build_bottom_level(std::span<const ClusterBox> clusters,
+                                          uint32_t input_reference_count);
 
 // Worst-case object size for `cluster_count` references (every cluster a leaf).
 uint64_t bottom_level_size_bound(uint64_t cluster_count);
 
 struct BottomLevelCheck {
-  std::optional<BottomLevelHeader> header;
-  std::string error;
+    std::optional<BottomLevelHeader> header;
+    std::string error;
 };
 // Checks magic, type, version, and that nodes and references lie inside the object and
 // inside `bytes`, and that every node index / reference range is in bounds.
@@ -88,9 +89,9 @@ BottomLevelCheck read_bottom_level_header(std::span<const std::byte> bytes);
 
 // A hit inside a BLAS: the CLAS traversal's hit plus which reference it came through.
 struct BottomLevelHit {
-  Hit hit{};
-  uint32_t reference_index = 0;
-  uint64_t clas_address = 0;
+    Hit hit{};
+    uint32_t reference_index = 0;
+    uint64_t clas_address = 0;
 };
 
 // Traces a ray through the BLAS at `blas_address`, descending into each CLAS with
@@ -98,15 +99,16 @@ struct BottomLevelHit {
 // `directory` when given, else by the bytes) is skipped and reported once per reference
 // in `findings` (rule kRuleStaleClusterReference). An address that holds no BLAS gives a
 // miss and one finding.
-BottomLevelHit trace_bottom_level_closest(const MemoryImage& memory, uint64_t blas_address, const Ray& ray,
-                                          uint32_t ray_flags, const ObjectDirectory* directory = nullptr,
+BottomLevelHit trace_bottom_level_closest(const MemoryImage& memory, uint64_t blas_address,
+                                          const Ray& ray, uint32_t ray_flags,
+                                          const ObjectDirectory* directory = nullptr,
                                           std::vector<Finding>* findings = nullptr);
-bool trace_bottom_level_any(const MemoryImage& memory, uint64_t blas_address, const Ray& ray, uint32_t ray_flags,
-                            const ObjectDirectory* directory = nullptr, std::vector<Finding>* findings = nullptr);
+bool trace_bottom_level_any(const MemoryImage& memory, uint64_t blas_address, const Ray& ray,
+                            uint32_t ray_flags, const ObjectDirectory* directory = nullptr,
+                            std::vector<Finding>* findings = nullptr);
 
-inline constexpr const char* kRuleStaleClusterReference = "CLASTRACE-cluster-reference-holds-no-clas";
+inline constexpr const char* kRuleStaleClusterReference =
+    "CLASTRACE-cluster-reference-holds-no-clas";
 inline constexpr const char* kRuleNotABottomLevel = "CLASTRACE-not-a-clusters-bottom-level";
 
 }  // namespace clastrace::engine
-
-#endif

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // vkGetClusterAccelerationStructureBuildSizesNV for the engine's byte formats.
 //
 // Per the spec: IMPLICIT_DESTINATIONS returns the object size for all
@@ -6,8 +7,7 @@
 // COMPUTE_SIZES returns scratch only. Every size is a worst case over inputs within the
 // limits of `input` (maxClusterTriangleCount, maxTotalTriangleCount, ...); execute()
 // reports the slack between what it used and these bounds.
-#ifndef CLASTRACE_ENGINE_BUILD_SIZES_H
-#define CLASTRACE_ENGINE_BUILD_SIZES_H
+#pragma once
 
 #include "clastrace/engine/finding.h"
 #include "clastrace/engine/properties.h"
@@ -19,14 +19,15 @@
 namespace clastrace::engine {
 
 struct BuildSizes {
-  uint64_t acceleration_structure_size = 0;  // VkAccelerationStructureBuildSizesInfoKHR fields
-  uint64_t build_scratch_size = 0;
-  uint64_t update_scratch_size = 0;          // always 0: cluster ops have no update
-  uint64_t single_object_size = 0;           // worst single object (whatever the mode)
-  std::vector<Finding> findings;             // bad opType/opMode/opInput: sizes are 0
+    uint64_t acceleration_structure_size = 0;  // VkAccelerationStructureBuildSizesInfoKHR fields
+    uint64_t build_scratch_size = 0;
+    uint64_t update_scratch_size = 0;  // always 0: cluster ops have no update
+    uint64_t single_object_size = 0;   // worst single object (whatever the mode)
+    std::vector<Finding> findings;     // bad opType/opMode/opInput: sizes are 0
 };
 
-BuildSizes cluster_build_sizes(const VkClusterAccelerationStructureInputInfoNV& info, const EngineProperties& properties);
+BuildSizes cluster_build_sizes(const VkClusterAccelerationStructureInputInfoNV& info,
+                               const EngineProperties& properties);
 
 // Scratch the engine uses for `op_count` ops of the command: a 16-byte (offset, size)
 // entry per op, where execute() lays out the implicit destinations.
@@ -34,7 +35,8 @@ uint64_t scratch_bytes_for_ops(uint64_t op_count);
 
 // The alignment of the objects an op type writes (properties), or 8 for template indices.
 uint64_t destination_alignment(VkClusterAccelerationStructureOpTypeNV op_type,
-                               VkClusterAccelerationStructureTypeNV move_type, const EngineProperties& properties);
+                               VkClusterAccelerationStructureTypeNV move_type,
+                               const EngineProperties& properties);
 
 // Saturating helpers: sizes saturate at UINT64_MAX rather than wrap.
 uint64_t sat_add(uint64_t a, uint64_t b);
@@ -42,5 +44,3 @@ uint64_t sat_mul(uint64_t a, uint64_t b);
 uint64_t align_up_sat(uint64_t v, uint64_t alignment);
 
 }  // namespace clastrace::engine
-
-#endif

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Cluster-level ops of VK_NV_cluster_acceleration_structure, on the CPU.
 //
 // Each op reads its inputs through a MemoryImage and returns the object's bytes exactly
@@ -24,8 +25,7 @@
 // - instantiation: clusterID = template clusterID + clusterIdOffset (mod 2^32);
 //   geometryIndexOffset is a signed 24-bit offset; positions are truncated with the
 //   template's positionTruncateBitCount.
-#ifndef CLASTRACE_ENGINE_CLUSTER_BUILD_H
-#define CLASTRACE_ENGINE_CLUSTER_BUILD_H
+#pragma once
 
 #include "clastrace/engine/finding.h"
 #include "clastrace/engine/memory_image.h"
@@ -41,60 +41,70 @@
 namespace clastrace::engine {
 
 struct ClusterObject {
-  std::vector<std::byte> bytes;  // the object; bytes.size() is the size a driver reports
-  std::vector<Finding> findings;
-  bool ok = false;
+    std::vector<std::byte> bytes;  // the object; bytes.size() is the size a driver reports
+    std::vector<Finding> findings;
+    bool ok = false;
 };
 
 // Reusable build state: keeps its scratch between ops, so building many clusters does no
 // heap allocation per cluster once warmed up. Not thread safe; use one per thread.
 class ClusterBuilder {
- public:
-  explicit ClusterBuilder(const EngineProperties& properties = EngineProperties::nvidia_default());
-  ~ClusterBuilder();
-  ClusterBuilder(ClusterBuilder&&) noexcept;
-  ClusterBuilder& operator=(ClusterBuilder&&) noexcept;
+public:
+    explicit ClusterBuilder(
+        const EngineProperties& properties = EngineProperties::nvidia_default());
+    ~ClusterBuilder();
+    ClusterBuilder(ClusterBuilder&&) noexcept;
+    ClusterBuilder& operator=(ClusterBuilder&&) noexcept;
 
-  // Each op writes the object into `out` (resized; its capacity is reused) and appends
-  // findings to `findings`. Returns true when an object was built.
-  bool build_triangle_cluster(const MemoryImage& memory, const VkClusterAccelerationStructureBuildTriangleClusterInfoNV& info,
-                              const VkClusterAccelerationStructureTriangleClusterInputNV& input, int64_t op_index,
-                              std::vector<std::byte>& out, std::vector<Finding>& findings);
-  bool build_triangle_cluster_template(const MemoryImage& memory,
-                                       const VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV& info,
-                                       const VkClusterAccelerationStructureTriangleClusterInputNV& input, int64_t op_index,
-                                       std::vector<std::byte>& out, std::vector<Finding>& findings);
-  bool instantiate_triangle_cluster(const MemoryImage& memory, const VkClusterAccelerationStructureInstantiateClusterInfoNV& info,
-                                    const VkClusterAccelerationStructureTriangleClusterInputNV& input, int64_t op_index,
-                                    std::vector<std::byte>& out, std::vector<Finding>& findings);
+    // Each op writes the object into `out` (resized; its capacity is reused) and appends
+    // findings to `findings`. Returns true when an object was built.
+    bool build_triangle_cluster(
+        const MemoryImage& memory,
+        const VkClusterAccelerationStructureBuildTriangleClusterInfoNV& info,
+        const VkClusterAccelerationStructureTriangleClusterInputNV& input, int64_t op_index,
+        std::vector<std::byte>& out, std::vector<Finding>& findings);
+    bool build_triangle_cluster_template(
+        const MemoryImage& memory,
+        const VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV& info,
+        const VkClusterAccelerationStructureTriangleClusterInputNV& input, int64_t op_index,
+        std::vector<std::byte>& out, std::vector<Finding>& findings);
+    bool instantiate_triangle_cluster(
+        const MemoryImage& memory,
+        const VkClusterAccelerationStructureInstantiateClusterInfoNV& info,
+        const VkClusterAccelerationStructureTriangleClusterInputNV& input, int64_t op_index,
+        std::vector<std::byte>& out, std::vector<Finding>& findings);
 
-  // Builds a CLAS straight from host arrays (tests, benchmarks): positions are xyz floats
-  // (truncation applied here), indices 3 per triangle, geometry_index_and_flags one per
-  // triangle or empty (then `base_geometry_index_and_flags` applies to all).
-  bool build_from_arrays(uint32_t cluster_id, std::span<const float> positions, std::span<const uint32_t> indices,
-                         uint32_t truncate_bits, uint32_t base_geometry_index_and_flags,
-                         std::span<const uint32_t> geometry_index_and_flags, std::vector<std::byte>& out,
-                         std::vector<Finding>& findings);
+    // Builds a CLAS straight from host arrays (tests, benchmarks): positions are xyz floats
+    // (truncation applied here), indices 3 per triangle, geometry_index_and_flags one per
+    // triangle or empty (then `base_geometry_index_and_flags` applies to all).
+    bool build_from_arrays(uint32_t cluster_id, std::span<const float> positions,
+                           std::span<const uint32_t> indices, uint32_t truncate_bits,
+                           uint32_t base_geometry_index_and_flags,
+                           std::span<const uint32_t> geometry_index_and_flags,
+                           std::vector<std::byte>& out, std::vector<Finding>& findings);
 
-  const EngineProperties& properties() const { return properties_; }
+    const EngineProperties& properties() const { return properties_; }
 
- private:
-  struct Scratch;
-  EngineProperties properties_;
-  std::unique_ptr<Scratch> scratch_;
+private:
+    struct Scratch;
+    EngineProperties properties_;
+    std::unique_ptr<Scratch> scratch_;
 };
 
 // One-shot forms of the ops (allocate a builder per call; use ClusterBuilder in loops).
-ClusterObject build_triangle_cluster(const MemoryImage& memory, const VkClusterAccelerationStructureBuildTriangleClusterInfoNV& info,
-                                     const VkClusterAccelerationStructureTriangleClusterInputNV& input,
-                                     const EngineProperties& properties, int64_t op_index);
-ClusterObject build_triangle_cluster_template(const MemoryImage& memory,
-                                              const VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV& info,
-                                              const VkClusterAccelerationStructureTriangleClusterInputNV& input,
-                                              const EngineProperties& properties, int64_t op_index);
-ClusterObject instantiate_triangle_cluster(const MemoryImage& memory, const VkClusterAccelerationStructureInstantiateClusterInfoNV& info,
-                                           const VkClusterAccelerationStructureTriangleClusterInputNV& input,
-                                           const EngineProperties& properties, int64_t op_index);
+ClusterObject build_triangle_cluster(
+    const MemoryImage& memory, const VkClusterAccelerationStructureBuildTriangleClusterInfoNV& info,
+    const VkClusterAccelerationStructureTriangleClusterInputNV& input,
+    const EngineProperties& properties, int64_t op_index);
+ClusterObject build_triangle_cluster_template(
+    const MemoryImage& memory,
+    const VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV& info,
+    const VkClusterAccelerationStructureTriangleClusterInputNV& input,
+    const EngineProperties& properties, int64_t op_index);
+ClusterObject instantiate_triangle_cluster(
+    const MemoryImage& memory, const VkClusterAccelerationStructureInstantiateClusterInfoNV& info,
+    const VkClusterAccelerationStructureTriangleClusterInputNV& input,
+    const EngineProperties& properties, int64_t op_index);
 
 // VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV: "the vertex
 // indices of the cluster template ... will be fetched". The result, which the command
@@ -104,14 +114,15 @@ ClusterObject instantiate_triangle_cluster(const MemoryImage& memory, const VkCl
 // triangle order. Its size is therefore 12 * triangleCount bytes (COMPUTE_SIZES reports
 // that; the implicit-destination upper bound is 12 * maxClusterTriangleCount).
 // Fails (ok == false, finding kRuleNotATemplate) when the address holds no template.
-ClusterObject get_cluster_template_indices(const MemoryImage& memory,
-                                           const VkClusterAccelerationStructureGetTemplateIndicesInfoNV& info,
-                                           int64_t op_index);
+ClusterObject get_cluster_template_indices(
+    const MemoryImage& memory, const VkClusterAccelerationStructureGetTemplateIndicesInfoNV& info,
+    int64_t op_index);
 
 // Alignment of an object's address in device memory: clusterByteAlignment for a CLAS,
 // clusterTemplateByteAlignment for a template (implicit destinations pack objects so).
 inline uint32_t object_alignment(bool is_template, const EngineProperties& properties) {
-  return is_template ? properties.clusterTemplateByteAlignment : properties.clusterByteAlignment;
+    return is_template ? properties.cluster_template_byte_alignment
+                       : properties.cluster_byte_alignment;
 }
 
 // Upper bound of one object's size for the given input maxima (what
@@ -123,5 +134,3 @@ uint64_t max_cluster_object_size(const VkClusterAccelerationStructureTriangleClu
                                  const EngineProperties& properties, bool is_template);
 
 }  // namespace clastrace::engine
-
-#endif

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // engine::execute: one vkCmdBuildClusterAccelerationStructureIndirectNV against a
 // MemoryImage, exactly as the extension specifies, returning every range it read and
 // wrote (execution_record.h).
@@ -14,8 +15,7 @@
 // - Scratch holds a 16-byte (offset, size) entry per op: the implicit layout.
 // - A failed op writes no object; in implicit mode its dstAddressesArray/dstSizesArray
 //   entries are written as 0.
-#ifndef CLASTRACE_ENGINE_EXECUTE_H
-#define CLASTRACE_ENGINE_EXECUTE_H
+#pragma once
 
 #include "clastrace/engine/execution_record.h"
 #include "clastrace/engine/memory_image.h"
@@ -32,44 +32,50 @@ namespace clastrace::engine {
 inline constexpr uint32_t kOpsPerChunk = 16384;
 
 struct ExecuteOptions {
-  EngineProperties properties = EngineProperties::nvidia_default();
-  // Live objects across commands (replay keeps one). nullptr: a private directory for
-  // this call, so only this command's moves and builds are tracked.
-  ObjectDirectory* directory = nullptr;
-  // Findings kept per rule per command; the rest are counted in one summary finding.
-  uint32_t max_findings_per_rule = 64;
-  // The maxAccelerationStructureCount the app sized its buffers with (10445); 0: the
-  // command's own value.
-  uint32_t queried_max_count = 0;
-  // 12305/12307 require a whole "device address range" (srcInfosArray's, dstAddressesArray's
-  // elements) to come from buffers with a usage. The answer: the first byte of
-  // [begin, end) that some buffer holds but no buffer with `usage` (or of unknown usage)
-  // does, or nullopt. Replay passes its buffer list, aliased buffers included; without it
-  // the engine asks the image's regions (one usage per region).
-  std::function<std::optional<uint64_t>(uint64_t begin, uint64_t end, VkBufferUsageFlags usage)> first_without_usage;
+    EngineProperties properties = EngineProperties::nvidia_default();
+    // Live objects across commands (replay keeps one). nullptr: a private directory for
+    // this call, so only this command's moves and builds are tracked.
+    ObjectDirectory* directory = nullptr;
+    // Findings kept per rule per command; the rest are counted in one summary finding.
+    uint32_t max_findings_per_rule = 64;
+    // The maxAccelerationStructureCount the app sized its buffers with (10445); 0: the
+    // command's own value.
+    uint32_t queried_max_count = 0;
+    // 12305/12307 require a whole "device address range" (srcInfosArray's, dstAddressesArray's
+    // elements) to come from buffers with a usage. The answer: the first byte of
+    // [begin, end) that some buffer holds but no buffer with `usage` (or of unknown usage)
+    // does, or nullopt. Replay passes its buffer list, aliased buffers included; without it
+    // the engine asks the image's regions (one usage per region).
+    std::function<std::optional<uint64_t>(uint64_t begin, uint64_t end, VkBufferUsageFlags usage)>
+        first_without_usage;
 };
 
-ExecutionRecord execute(const VkClusterAccelerationStructureCommandsInfoNV& command, MemoryImage& memory,
-                        const ExecuteOptions& options = {});
+ExecutionRecord execute(const VkClusterAccelerationStructureCommandsInfoNV& command,
+                        MemoryImage& memory, const ExecuteOptions& options = {});
 
 // Rules of the engine itself (no VUID names them).
 inline constexpr const char* kRuleFindingsTruncated = "CLASTRACE-findings-truncated";
 inline constexpr const char* kRuleDestinationOverlap = "CLASTRACE-destinations-overlap";
 inline constexpr const char* kRuleDestinationMisaligned = "CLASTRACE-destination-misaligned";
-inline constexpr const char* kRuleDestinationTooSmall = "CLASTRACE-explicit-destination-smaller-than-object";
+inline constexpr const char* kRuleDestinationTooSmall =
+    "CLASTRACE-explicit-destination-smaller-than-object";
 inline constexpr const char* kRuleSrcInfosStride = "CLASTRACE-src-infos-stride-below-struct-size";
-inline constexpr const char* kRuleMoveTypeMismatch = "CLASTRACE-moved-object-type-differs-from-input";
-inline constexpr const char* kRuleMovedBytesAboveInput = "CLASTRACE-moved-bytes-above-maxMovedBytes";
+inline constexpr const char* kRuleMoveTypeMismatch =
+    "CLASTRACE-moved-object-type-differs-from-input";
+inline constexpr const char* kRuleMovedBytesAboveInput =
+    "CLASTRACE-moved-bytes-above-maxMovedBytes";
 inline constexpr const char* kRuleMoveOverlap = "CLASTRACE-move-overlaps-with-noMoveOverlap";
 inline constexpr const char* kRuleIntraCommandHazard = "CLASTRACE-op-reads-what-another-op-writes";
-inline constexpr const char* kRuleClusterCountAboveInput = "CLASTRACE-cluster-count-above-bottom-level-input";
+inline constexpr const char* kRuleClusterCountAboveInput =
+    "CLASTRACE-cluster-count-above-bottom-level-input";
 inline constexpr const char* kRuleTotalAboveInput = "CLASTRACE-total-count-above-input";
 inline constexpr const char* kRuleBottomLevelTooLarge = "CLASTRACE-bottom-level-over-4GiB";
-inline constexpr const char* kRuleMissingSizesArray = "CLASTRACE-compute-sizes-without-dstSizesArray";
+inline constexpr const char* kRuleMissingSizesArray =
+    "CLASTRACE-compute-sizes-without-dstSizesArray";
 inline constexpr const char* kRuleMissingInput = "CLASTRACE-missing-op-input";
-inline constexpr const char* kRuleScratchTooSmall = "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-scratchData-12300";
-inline constexpr const char* kRuleScratchMisaligned = "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-scratchData-12301";
+inline constexpr const char* kRuleScratchTooSmall =
+    "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-scratchData-12300";
+inline constexpr const char* kRuleScratchMisaligned =
+    "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-scratchData-12301";
 
 }  // namespace clastrace::engine
-
-#endif

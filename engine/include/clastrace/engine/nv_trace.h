@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Ray traversal of NV objects: top level -> instance transform -> bottom level.
 //
 // Vulkan's rules as the engine applies them (no shaders run):
@@ -18,8 +19,7 @@
 //   (max(t_entry, tmin); tmin when the origin is inside), hit kind 0, u = v = 0.
 // - Closest hit: the smallest t; on equal t the first found (deterministic for an object's
 //   bytes). TerminateOnFirstHit: the first accepted hit.
-#ifndef CLASTRACE_ENGINE_NV_TRACE_H
-#define CLASTRACE_ENGINE_NV_TRACE_H
+#pragma once
 
 #include "clastrace/engine/finding.h"
 #include "clastrace/engine/memory_image.h"
@@ -38,52 +38,51 @@ inline constexpr uint32_t kHitKindFrontFacing = 0xFE;
 inline constexpr uint32_t kHitKindBackFacing = 0xFF;
 
 struct NvHit {
-  bool hit = false;
-  float t = 0.0f;
-  uint32_t instance_index = 0;         // gl_InstanceID: index of the instance record
-  uint32_t instance_custom_index = 0;  // gl_InstanceCustomIndexEXT
-  uint32_t sbt_offset = 0;
-  uint32_t geometry_index = 0;
-  uint32_t primitive_index = 0;        // gl_PrimitiveID
-  float u = 0.0f, v = 0.0f;
-  uint32_t hit_kind = 0;
-  bool opaque = false;
-  // How far a float32 implementation's t may honestly sit from this t: a few units in the
-  // last place of the largest coordinate the hit involved (the primitive's object-space
-  // coordinates, the ray origin and its transform into object space), divided by the
-  // direction's size. Drivers trace in float; the engine in double. Replay compares a
-  // driver's t against this bound, not only against a relative tolerance of t.
-  float t_error = 0.0f;
+    bool hit = false;
+    float t = 0.0f;
+    uint32_t instance_index = 0;         // gl_InstanceID: index of the instance record
+    uint32_t instance_custom_index = 0;  // gl_InstanceCustomIndexEXT
+    uint32_t sbt_offset = 0;
+    uint32_t geometry_index = 0;
+    uint32_t primitive_index = 0;  // gl_PrimitiveID
+    float u = 0.0f, v = 0.0f;
+    uint32_t hit_kind = 0;
+    bool opaque = false;
+    // How far a float32 implementation's t may honestly sit from this t: a few units in the
+    // last place of the largest coordinate the hit involved (the primitive's object-space
+    // coordinates, the ray origin and its transform into object space), divided by the
+    // direction's size. Drivers trace in float; the engine in double. Replay compares a
+    // driver's t against this bound, not only against a relative tolerance of t.
+    float t_error = 0.0f;
 };
 
 // A top-level object opened once for many rays: its bytes and every BLAS it reaches are
 // copied and checked (open_nv_object), so tracing never touches memory again.
 class NvScene {
- public:
-  // The scene of the top-level object at `address`; nullopt with `error` when the bytes
-  // there are no checked NV top-level object. Instances whose BLAS is gone or damaged are
-  // left out, each with a finding.
-  static std::optional<NvScene> open(const MemoryImage& memory, uint64_t address, std::vector<Finding>* findings,
-                                     std::string* error);
-  // One bottom-level object as the scene of one instance (identity transform, mask 0xFF,
-  // instance index 0, custom index 0, flags 0).
-  static std::optional<NvScene> open_bottom(const MemoryImage& memory, uint64_t address, std::string* error);
+public:
+    // The scene of the top-level object at `address`; nullopt with `error` when the bytes
+    // there are no checked NV top-level object. Instances whose BLAS is gone or damaged are
+    // left out, each with a finding.
+    static std::optional<NvScene> open(const MemoryImage& memory, uint64_t address,
+                                       std::vector<Finding>* findings, std::string* error);
+    // One bottom-level object as the scene of one instance (identity transform, mask 0xFF,
+    // instance index 0, custom index 0, flags 0).
+    static std::optional<NvScene> open_bottom(const MemoryImage& memory, uint64_t address,
+                                              std::string* error);
 
-  NvHit closest(const Ray& ray, uint32_t ray_flags, uint32_t cull_mask) const;
-  bool any(const Ray& ray, uint32_t ray_flags, uint32_t cull_mask) const;
+    NvHit closest(const Ray& ray, uint32_t ray_flags, uint32_t cull_mask) const;
+    bool any(const Ray& ray, uint32_t ray_flags, uint32_t cull_mask) const;
 
-  uint32_t instance_count() const;
-  uint32_t instances_reached() const;  // instances with a usable BLAS
+    uint32_t instance_count() const;
+    uint32_t instances_reached() const;  // instances with a usable BLAS
 
-  struct Data;
-  NvScene(std::shared_ptr<const Data> data) : data_(std::move(data)) {}
+    struct Data;
+    NvScene(std::shared_ptr<const Data> data) : data_(std::move(data)) {}
 
- private:
-  std::shared_ptr<const Data> data_;
+private:
+    std::shared_ptr<const Data> data_;
 };
 
 inline constexpr const char* kRuleNvStaleInstance = "CLASTRACE-nv-instance-blas-gone";
 
 }  // namespace clastrace::engine
-
-#endif

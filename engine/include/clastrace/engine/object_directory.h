@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Which engine objects are alive where. A device address "holds a CLAS" only while the
 // object built there is intact: a move (without noMoveOverlap) retires its source, and
 // any later write over the bytes changes their hash. Replay keeps one directory across
@@ -6,8 +7,7 @@
 //
 // An address the directory has never seen is judged by its bytes alone (a header that
 // checks out), so objects already in a trace's first memory snapshot still work.
-#ifndef CLASTRACE_ENGINE_OBJECT_DIRECTORY_H
-#define CLASTRACE_ENGINE_OBJECT_DIRECTORY_H
+#pragma once
 
 #include "clastrace/engine/cluster_format.h"
 #include "clastrace/engine/memory_image.h"
@@ -21,49 +21,47 @@
 namespace clastrace::engine {
 
 struct ObjectLookup {
-  std::span<const std::byte> bytes;  // the whole object when found
-  ObjectType type{};
-  std::string error;  // empty when found; otherwise why the address holds no such object
-  bool found() const { return error.empty(); }
+    std::span<const std::byte> bytes;  // the whole object when found
+    ObjectType type{};
+    std::string error;  // empty when found; otherwise why the address holds no such object
+    bool found() const { return error.empty(); }
 };
 
 class ObjectDirectory {
- public:
-  // The object at `address`, which must be of type `expected` (or any type when
-  // `expected` is nullopt-like 0). Reads through `memory`; never throws.
-  ObjectLookup lookup(const MemoryImage& memory, uint64_t address, ObjectType expected, bool any_type,
-                      FieldRef where) const;
+public:
+    // The object at `address`, which must be of type `expected` (or any type when
+    // `expected` is nullopt-like 0). Reads through `memory`; never throws.
+    ObjectLookup lookup(const MemoryImage& memory, uint64_t address, ObjectType expected,
+                        bool any_type, FieldRef where) const;
 
-  // After `bytes` were written at `address` by op `op_index` of command `command`.
-  void record_built(uint64_t address, ObjectType type, std::span<const std::byte> bytes);
-  // After a move without noMoveOverlap: the source no longer holds an object.
-  void record_moved_away(uint64_t address, uint64_t new_address);
+    // After `bytes` were written at `address` by op `op_index` of command `command`.
+    void record_built(uint64_t address, ObjectType type, std::span<const std::byte> bytes);
+    // After a move without noMoveOverlap: the source no longer holds an object.
+    void record_moved_away(uint64_t address, uint64_t new_address);
 
-  // After the memory [begin, end) was freed (a destroyed buffer): nothing lives there now.
-  void forget(uint64_t begin, uint64_t end);
+    // After the memory [begin, end) was freed (a destroyed buffer): nothing lives there now.
+    void forget(uint64_t begin, uint64_t end);
 
-  size_t live_count() const { return live_.size(); }
+    size_t live_count() const { return live_.size(); }
 
-  // No address is both alive and moved away, and every live object has a known type and the
-  // size it was built with. O(objects): for tests; the record_* calls check the entry they
-  // change when debug checks are on (clastrace/common/debug_assert.h).
-  bool invariants_hold() const;
+    // No address is both alive and moved away, and every live object has a known type and the
+    // size it was built with. O(objects): for tests; the record_* calls check the entry they
+    // change when debug checks are on (clastrace/common/debug_assert.h).
+    bool invariants_hold() const;
 
- private:
-  friend struct ObjectDirectoryTestAccess;  // tests only: breaks a directory on purpose
+private:
+    friend struct ObjectDirectoryTestAccess;  // tests only: breaks a directory on purpose
 
-  struct Live {
-    ObjectType type;
-    uint32_t size;
-    uint64_t hash;
-  };
-  std::unordered_map<uint64_t, Live> live_;
-  std::unordered_map<uint64_t, uint64_t> moved_to_;  // retired source -> destination
+    struct Live {
+        ObjectType type;
+        uint32_t size;
+        uint64_t hash;
+    };
+    std::unordered_map<uint64_t, Live> live_;
+    std::unordered_map<uint64_t, uint64_t> moved_to_;  // retired source -> destination
 };
 
 uint64_t object_hash(std::span<const std::byte> bytes);
 const char* object_type_name(ObjectType type);
 
 }  // namespace clastrace::engine
-
-#endif

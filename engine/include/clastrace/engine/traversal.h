@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Ray queries against one CLAS, in the cluster's object space.
 //
 // Triangle test: watertight (Woop, Benthin & Wald 2013: dimension permutation, shear,
@@ -19,8 +20,7 @@
 // (forces opaque) or NoOpaque (forces non-opaque) overrides it. The engine runs no
 // any-hit shader: a non-opaque candidate that survives culling is accepted, as an
 // any-hit shader that does not ignore it would. Opacity micromaps are not evaluated.
-#ifndef CLASTRACE_ENGINE_TRAVERSAL_H
-#define CLASTRACE_ENGINE_TRAVERSAL_H
+#pragma once
 
 #include "clastrace/engine/cluster_format.h"
 
@@ -33,43 +33,43 @@
 namespace clastrace::engine {
 
 struct Ray {
-  float origin[3];
-  float tmin;
-  float direction[3];
-  float tmax;
+    float origin[3];
+    float tmin;
+    float direction[3];
+    float tmax;
 };
 
 // SPIR-V RayFlags values.
 enum RayFlag : uint32_t {
-  kRayFlagNone = 0,
-  kRayFlagOpaque = 0x1,
-  kRayFlagNoOpaque = 0x2,
-  kRayFlagTerminateOnFirstHit = 0x4,
-  kRayFlagSkipClosestHitShader = 0x8,
-  kRayFlagCullBackFacingTriangles = 0x10,
-  kRayFlagCullFrontFacingTriangles = 0x20,
-  kRayFlagCullOpaque = 0x40,
-  kRayFlagCullNoOpaque = 0x80,
+    kRayFlagNone = 0,
+    kRayFlagOpaque = 0x1,
+    kRayFlagNoOpaque = 0x2,
+    kRayFlagTerminateOnFirstHit = 0x4,
+    kRayFlagSkipClosestHitShader = 0x8,
+    kRayFlagCullBackFacingTriangles = 0x10,
+    kRayFlagCullFrontFacingTriangles = 0x20,
+    kRayFlagCullOpaque = 0x40,
+    kRayFlagCullNoOpaque = 0x80,
 };
 
 struct Hit {
-  bool hit = false;
-  float t = 0.0f;
-  float u = 0.0f;  // barycentric weight of v1 (Vulkan's HitAttribute.x)
-  float v = 0.0f;  // barycentric weight of v2
-  uint32_t triangle_index = 0;  // the triangle's index in the app's input (primitive index)
-  uint32_t cluster_id = 0;
-  uint32_t geometry_index = 0;
-  bool front_face = false;
-  bool opaque = false;
+    bool hit = false;
+    float t = 0.0f;
+    float u = 0.0f;               // barycentric weight of v1 (Vulkan's HitAttribute.x)
+    float v = 0.0f;               // barycentric weight of v2
+    uint32_t triangle_index = 0;  // the triangle's index in the app's input (primitive index)
+    uint32_t cluster_id = 0;
+    uint32_t geometry_index = 0;
+    bool front_face = false;
+    bool opaque = false;
 };
 
 // A CLAS whose header and sections were checked once (read_object_header: every
 // section, local index and BVH link lies inside the object), so tracing it is safe
 // however its bytes were produced.
 struct ClasView {
-  std::span<const std::byte> bytes;
-  ObjectHeader header;
+    std::span<const std::byte> bytes;
+    ObjectHeader header;
 };
 // The view, or nullopt with `error` set when the bytes are no CLAS.
 std::optional<ClasView> open_clas(std::span<const std::byte> bytes, std::string* error = nullptr);
@@ -84,5 +84,3 @@ Hit trace_closest(std::span<const std::byte> clas, const Ray& ray, uint32_t ray_
 bool trace_any(std::span<const std::byte> clas, const Ray& ray, uint32_t ray_flags);
 
 }  // namespace clastrace::engine
-
-#endif

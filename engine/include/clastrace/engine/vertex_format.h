@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Vertex formats a cluster input may use, decoded to float positions.
 //
 // VUID-VkClusterAccelerationStructureTriangleClusterInputNV-vertexFormat-10439 allows any
@@ -9,8 +10,7 @@
 // A2B10G10R10_UNORM_PACK32, R32G32B32A32_SFLOAT). Two-component formats give z = 0; the
 // fourth component is ignored. Truncation (positionTruncateBitCount) applies afterwards,
 // to the 32-bit float pattern of each decoded coordinate.
-#ifndef CLASTRACE_ENGINE_VERTEX_FORMAT_H
-#define CLASTRACE_ENGINE_VERTEX_FORMAT_H
+#pragma once
 
 #include "clastrace/vk_cluster_abi.h"
 
@@ -20,10 +20,10 @@
 namespace clastrace::engine {
 
 struct VertexFormatInfo {
-  bool supported = false;
-  uint32_t size = 0;            // bytes per vertex (tightly packed stride)
-  uint32_t component_size = 0;  // bytes of one component (10495/10504 stride rule)
-  uint32_t components = 0;      // position components read (2 or 3)
+    bool supported = false;
+    uint32_t size = 0;            // bytes per vertex (tightly packed stride)
+    uint32_t component_size = 0;  // bytes of one component (10495/10504 stride rule)
+    uint32_t components = 0;      // position components read (2 or 3)
 };
 
 VertexFormatInfo vertex_format_info(VkFormat format);
@@ -35,5 +35,3 @@ void decode_vertex(VkFormat format, const std::byte* src, float xyz[3]);
 float truncate_position(float value, uint32_t bits);
 
 }  // namespace clastrace::engine
-
-#endif
