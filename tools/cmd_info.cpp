@@ -3,7 +3,7 @@
 #include "json_output.h"
 #include "reader_options.h"
 
-#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/replayer.h>
 #include <clastrace/traces/records.h>
 #include <clastrace/traces/trace_reader.h>
 

@@ -6,7 +6,7 @@
 #include "trace_error_json.h"
 #include "whole_number_option.h"
 
-#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/replayer.h>
 #include <clastrace/traces/trace_reader.h>
 
 #include <nlohmann/json.hpp>

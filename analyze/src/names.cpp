@@ -1,5 +1,5 @@
 #include "clastrace/analyze/report.h"
-#include "clastrace/replay/replay_report.hpp"
+#include "clastrace/replay/replay_report.h"
 #include "clastrace/vk_cluster_abi.h"
 
 namespace clastrace::analyze {

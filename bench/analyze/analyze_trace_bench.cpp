@@ -15,7 +15,7 @@
 //   analyze_trace_bench --knob                the untruncated-rebuilds table only
 //   analyze_trace_bench --write TRACE OPS OPS_PER_COMMAND COMMANDS_PER_SUBMISSION
 #include <clastrace/analyze/replay_stream.h>
-#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/replayer.h>
 #include <clastrace/trace_building/cluster_records.h>
 #include <clastrace/trace_building/cluster_structs.h>
 #include <clastrace/trace_building/command_records.h>

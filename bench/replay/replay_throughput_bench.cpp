@@ -15,7 +15,7 @@
 // submission, not the trace length.
 #include "replay_bench_trace.h"
 
-#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/replayer.h>
 #include <clastrace/traces/trace_reader.h>
 
 #include <algorithm>

@@ -13,7 +13,7 @@
 #include <sys/resource.h>
 #include <time.h>
 
-#include "clastrace/replay/sync_model.hpp"
+#include "clastrace/replay/sync_model.h"
 
 using namespace clastrace::replay;
 

@@ -4,7 +4,7 @@
 // max RSS wait4 reports. Usage: hostile_input_bench [DIR] (default /tmp). The table is in
 // docs/benchmarks.md; the bound it checks: a few seconds per MB, 256 MiB + O(file size).
 #include <clastrace/analyze/replay_stream.h>
-#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/replayer.h>
 #include <clastrace/traces/trace_reader.h>
 
 #include "file_format.h"

@@ -1,4 +1,5 @@
-#include "cluster_command.hpp"
+// SPDX-License-Identifier: Apache-2.0
+#include "cluster_command.h"
 
 #include <clastrace/engine/execute.h>
 #include <clastrace/traces/cluster_conversions.h>
@@ -19,9 +20,10 @@ namespace {
 // Element size of srcInfosArray and where object addresses sit in one element.
 struct InfoLayout {
     uint64_t size = 0;
-    int64_t object_field = -1;        // offset of a VkDeviceAddress naming an object, -1 none
+    int64_t object_field = -1;  // offset of a VkDeviceAddress naming an object, -1 none
     const char* object_field_name = "";
-    bool cluster_references = false;  // VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV
+    bool cluster_references =
+        false;  // VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV
 };
 
 InfoLayout info_layout(VkClusterAccelerationStructureOpTypeNV type) {
@@ -31,14 +33,17 @@ InfoLayout info_layout(VkClusterAccelerationStructureOpTypeNV type) {
                 offsetof(VkClusterAccelerationStructureMoveObjectsInfoNV, srcAccelerationStructure),
                 "srcAccelerationStructure", false};
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV:
-        return {sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV), -1, "clusterReferences", true};
+        return {sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV), -1,
+                "clusterReferences", true};
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV:
         return {sizeof(VkClusterAccelerationStructureInstantiateClusterInfoNV),
-                offsetof(VkClusterAccelerationStructureInstantiateClusterInfoNV, clusterTemplateAddress),
+                offsetof(VkClusterAccelerationStructureInstantiateClusterInfoNV,
+                         clusterTemplateAddress),
                 "clusterTemplateAddress", false};
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV:
         return {sizeof(VkClusterAccelerationStructureGetTemplateIndicesInfoNV),
-                offsetof(VkClusterAccelerationStructureGetTemplateIndicesInfoNV, clusterTemplateAddress),
+                offsetof(VkClusterAccelerationStructureGetTemplateIndicesInfoNV,
+                         clusterTemplateAddress),
                 "clusterTemplateAddress", false};
     default: return {};
     }
@@ -67,13 +72,15 @@ public:
             if (layout.cluster_references) {
                 VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV blas{};
                 if (!read(element, &blas)) return;
-                const uint64_t ref_stride = blas.clusterReferencesStride ? blas.clusterReferencesStride : 8;
+                const uint64_t ref_stride =
+                    blas.clusterReferencesStride ? blas.clusterReferencesStride : 8;
                 for (uint64_t j = 0; j < blas.clusterReferencesCount; ++j) {
-                    if (!cell(blas.clusterReferences + j * ref_stride, static_cast<int64_t>(i), "clusterReferences", j))
+                    if (!cell(blas.clusterReferences + j * ref_stride, static_cast<int64_t>(i),
+                              "clusterReferences", j))
                         break;
                 }
-            } else if (!cell(element + static_cast<uint64_t>(layout.object_field), static_cast<int64_t>(i),
-                             layout.object_field_name, UINT64_MAX)) {
+            } else if (!cell(element + static_cast<uint64_t>(layout.object_field),
+                             static_cast<int64_t>(i), layout.object_field_name, UINT64_MAX)) {
                 return;
             }
         }
@@ -128,7 +135,8 @@ struct CapturedOutputs {
     template <class T>
     bool value(uint64_t address, T* out) const {
         for (const auto& [base, bytes] : snapshots) {
-            if (address >= base && address - base <= bytes.size() && bytes.size() - (address - base) >= sizeof(T)) {
+            if (address >= base && address - base <= bytes.size() &&
+                bytes.size() - (address - base) >= sizeof(T)) {
                 std::memcpy(out, bytes.data() + (address - base), sizeof(T));
                 return true;
             }
@@ -149,22 +157,27 @@ std::string field_at(const engine::ExecutionRecord& record, uint64_t address, in
 }
 
 void verify(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
-            const VkClusterAccelerationStructureCommandsInfoNV& info, const engine::ExecutionRecord& record,
-            ClusterCommandContext& c) {
+            const VkClusterAccelerationStructureCommandsInfoNV& info,
+            const engine::ExecutionRecord& record, ClusterCommandContext& c) {
     CapturedOutputs captured;
     if (build.outputs()) {
         for (const fbs::MemorySnapshot* s : *build.outputs()) {
             auto address = c.memory.snapshot_address(s->buffer(), s->offset(), s->address());
             std::vector<uint8_t> bytes;
-            if (address && c.contents(s->hash(), &bytes)) captured.snapshots.emplace_back(*address, std::move(bytes));
+            if (address && c.contents(s->hash(), &bytes))
+                captured.snapshots.emplace_back(*address, std::move(bytes));
         }
     }
-    const bool implicit = info.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
-    const bool sizes_written = info.input.opMode != VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
+    const bool implicit =
+        info.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+    const bool sizes_written =
+        info.input.opMode != VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
     const bool direct_addresses =
-        !(info.addressResolutionFlags & VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_ADDRESS_ARRAY_BIT_NV);
+        !(info.addressResolutionFlags &
+          VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_ADDRESS_ARRAY_BIT_NV);
     const bool direct_sizes =
-        !(info.addressResolutionFlags & VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_SIZES_ARRAY_BIT_NV);
+        !(info.addressResolutionFlags &
+          VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_SIZES_ARRAY_BIT_NV);
     const bool check = c.options.verify_outputs;
     SizeComparison sizes;
     sizes.where = c.where;
@@ -174,20 +187,27 @@ void verify(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
     for (size_t i = 0; i < record.ops.size(); ++i) {
         const engine::OpResult& op = record.ops[i];
         const auto op_index = static_cast<int64_t>(i);
-        if (op.executed && op.dst_address != 0 && info.input.opType != VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV) {
+        if (op.executed && op.dst_address != 0 &&
+            info.input.opType !=
+                VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV) {
             c.translation.rebuilt.insert(op.dst_address);
             c.memory.mark_engine_object({op.dst_address, op.dst_address + op.dst_size});
         }
         if (implicit && direct_addresses && info.dstAddressesArray.deviceAddress != 0) {
-            const uint64_t stride = info.dstAddressesArray.stride ? info.dstAddressesArray.stride : 8;
+            const uint64_t stride =
+                info.dstAddressesArray.stride ? info.dstAddressesArray.stride : 8;
             uint64_t captured_address = 0;
-            if (captured.value(info.dstAddressesArray.deviceAddress + i * stride, &captured_address) && captured_address != 0) {
-                if (op.executed && op.dst_address != 0) c.translation.rebuilt_at[captured_address] = op.dst_address;
+            if (captured.value(info.dstAddressesArray.deviceAddress + i * stride,
+                               &captured_address) &&
+                captured_address != 0) {
+                if (op.executed && op.dst_address != 0)
+                    c.translation.rebuilt_at[captured_address] = op.dst_address;
                 if (check && c.engine_trace && captured_address != op.dst_address) {
                     c.add_finding({"CLASTRACE-replay-output-differs",
-                                   "dstAddressesArray[" + std::to_string(i) + "]: captured " + hex(captured_address) +
-                                       ", engine " + hex(op.dst_address),
-                                   FindingSource::kVerify, c.where, op_index, info.dstAddressesArray.deviceAddress + i * stride});
+                                   "dstAddressesArray[" + std::to_string(i) + "]: captured " +
+                                       hex(captured_address) + ", engine " + hex(op.dst_address),
+                                   FindingSource::kVerify, c.where, op_index,
+                                   info.dstAddressesArray.deviceAddress + i * stride});
                 }
             }
         }
@@ -197,23 +217,28 @@ void verify(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
             if (captured.value(info.dstSizesArray.deviceAddress + i * stride, &captured_size)) {
                 ++sizes.ops_compared;
                 if (sizes.first_ops.size() < SizeComparison::kOpsListed)
-                    sizes.first_ops.push_back({static_cast<uint32_t>(i), captured_size, op.dst_size});
+                    sizes.first_ops.push_back(
+                        {static_cast<uint32_t>(i), captured_size, op.dst_size});
                 sizes.captured_bytes += captured_size;
                 sizes.engine_bytes += op.dst_size;
                 if (captured_size == op.dst_size) {
                     ++sizes.sizes_equal;
                 } else if (c.engine_trace) {
                     c.add_finding({"CLASTRACE-replay-output-differs",
-                                   "dstSizesArray[" + std::to_string(i) + "]: captured " + std::to_string(captured_size) +
-                                       " bytes, engine " + std::to_string(op.dst_size),
-                                   FindingSource::kVerify, c.where, op_index, info.dstSizesArray.deviceAddress + i * stride});
+                                   "dstSizesArray[" + std::to_string(i) + "]: captured " +
+                                       std::to_string(captured_size) + " bytes, engine " +
+                                       std::to_string(op.dst_size),
+                                   FindingSource::kVerify, c.where, op_index,
+                                   info.dstSizesArray.deviceAddress + i * stride});
                 }
             }
         }
     }
     if (check && (sizes.ops_compared || !record.ops.empty())) {
-        if (c.report.sizes.size() < c.options.max_command_rows) c.report.sizes.push_back(std::move(sizes));
-        else ++c.report.rows_over_cap;
+        if (c.report.sizes.size() < c.options.max_command_rows)
+            c.report.sizes.push_back(std::move(sizes));
+        else
+            ++c.report.rows_over_cap;
     }
 
     // A trace made by the engine must hold exactly the bytes the engine writes now.
@@ -229,8 +254,9 @@ void verify(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
         int64_t op = -1;
         const std::string field = field_at(record, at, &op);
         c.add_finding({"CLASTRACE-replay-output-differs",
-                       "captured output byte at " + hex(at) + " (" + field + ") is " + hex(*diff.first) +
-                           ", the engine wrote " + hex(*diff.second) + " (output snapshot at " + hex(address) + ", " +
+                       "captured output byte at " + hex(at) + " (" + field + ") is " +
+                           hex(*diff.first) + ", the engine wrote " + hex(*diff.second) +
+                           " (output snapshot at " + hex(address) + ", " +
                            std::to_string(bytes.size()) + " bytes)",
                        FindingSource::kVerify, c.where, op, at});
     }
@@ -238,10 +264,11 @@ void verify(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
 
 }  // namespace
 
-void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect& build, uint32_t queried_max_count,
-                         ClusterCommandContext& c) {
+void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
+                         uint32_t queried_max_count, ClusterCommandContext& c) {
     traces::ClusterOpInputStorage op_inputs;  // what info.input.opInput points to
-    const VkClusterAccelerationStructureCommandsInfoNV info = traces::cluster_commands_from_record(build, op_inputs);
+    const VkClusterAccelerationStructureCommandsInfoNV info =
+        traces::cluster_commands_from_record(build, op_inputs);
     Translator(c).run(info);
 
     engine::ExecuteOptions options;
@@ -257,27 +284,33 @@ void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect
     try {
         record = engine::execute(info, c.memory.image(), options);
         if (c.engine_ns)
-            *c.engine_ns = static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
-                                                     std::chrono::steady_clock::now() - started).count());
+            *c.engine_ns =
+                static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                          std::chrono::steady_clock::now() - started)
+                                          .count());
     } catch (const std::exception& e) {
-        c.add_finding({"CLASTRACE-replay-engine-failed", std::string("the engine stopped: ") + e.what(),
-                       FindingSource::kReplay, c.where, -1, 0});
+        c.add_finding({"CLASTRACE-replay-engine-failed",
+                       std::string("the engine stopped: ") + e.what(), FindingSource::kReplay,
+                       c.where, -1, 0});
         return;
     }
     ++c.report.counts.cluster_commands;
     c.report.counts.cluster_ops += record.ops.size();
     // The engine checks the command's VkClusterAccelerationStructureTriangleClusterInputNV with
     // every op that uses it; it is one struct of the command: reported once, for the command.
-    static constexpr std::string_view kInputRule = "VUID-VkClusterAccelerationStructureTriangleClusterInputNV-";
+    static constexpr std::string_view kInputRule =
+        "VUID-VkClusterAccelerationStructureTriangleClusterInputNV-";
     std::unordered_set<std::string> input_rules;
     for (const engine::Finding& f : record.findings) {
         if (f.rule.starts_with(kInputRule)) {
             if (input_rules.insert(f.rule).second)
-                c.add_finding({f.rule, "input.opInput.pTriangleClusters: " + f.message, FindingSource::kEngine, c.where,
-                               -1, f.address});
+                c.add_finding({f.rule, "input.opInput.pTriangleClusters: " + f.message,
+                               FindingSource::kEngine, c.where, -1, f.address});
             continue;
         }
-        if (f.rule == engine::kRuleFindingsTruncated && f.message.find(kInputRule) != std::string::npos) continue;
+        if (f.rule == engine::kRuleFindingsTruncated &&
+            f.message.find(kInputRule) != std::string::npos)
+            continue;
         c.add_finding({f.rule, f.message, FindingSource::kEngine, c.where, f.op_index, f.address});
     }
     if (c.options.check_hazards) {

@@ -1,4 +1,5 @@
-#include "clastrace/replay/hazard_report.hpp"
+// SPDX-License-Identifier: Apache-2.0
+#include "clastrace/replay/hazard_report.h"
 #include "clastrace/common/hex.h"
 
 #include <cinttypes>
@@ -14,10 +15,12 @@ using common::hex;
 std::string where(const HazardAccess& a) {
     std::string s = a.command.name && *a.command.name ? a.command.name : "command";
     if (a.queue == kHostQueue) return s + " (host)";
-    s += " (queue " + std::to_string(a.queue) + ", submit " + std::to_string(a.command.submission) + ", cb " +
-         std::to_string(a.command.command_buffer) + ", cmd " + std::to_string(a.command.command);
+    s += " (queue " + std::to_string(a.queue) + ", submit " + std::to_string(a.command.submission) +
+         ", cb " + std::to_string(a.command.command_buffer) + ", cmd " +
+         std::to_string(a.command.command);
     if (a.command.secondary_handle)
-        s += " > secondary " + std::to_string(a.command.secondary) + " (" + hex(a.command.secondary_handle) + "), cmd " +
+        s += " > secondary " + std::to_string(a.command.secondary) + " (" +
+             hex(a.command.secondary_handle) + "), cmd " +
              std::to_string(a.command.secondary_command);
     return s + ")";
 }
@@ -39,7 +42,8 @@ nlohmann::json side_json(const HazardAccess& a) {
         {"write", a.is_write},
         {"range", {hex(a.range.begin), hex(a.range.end)}},
     };
-    if (a.command.secondary_handle)  // a command of a secondary command buffer (vkCmdExecuteCommands)
+    if (a.command
+            .secondary_handle)  // a command of a secondary command buffer (vkCmdExecuteCommands)
         j["secondary"] = {{"index", a.command.secondary},
                           {"command_buffer_handle", hex(a.command.secondary_handle)},
                           {"command_index", a.command.secondary_command}};
@@ -77,19 +81,25 @@ std::string FixingBarrier::describe() const {
                                 ", dstAccessMask=" + access_flag_names(dst_access) + "}";
     switch (kind) {
     case FixKind::kPipelineBarrier:
-        return "vkCmdPipelineBarrier2 with a VkMemoryBarrier2 (or a VkBufferMemoryBarrier2 covering the range) " +
+        return "vkCmdPipelineBarrier2 with a VkMemoryBarrier2 (or a VkBufferMemoryBarrier2 "
+               "covering the range) " +
                barrier;
     case FixKind::kSemaphore:
-        return "signal a semaphore after the earlier command (stageMask=" + stage_flag_names(src_stages) +
-               ") and wait on it in the later submission with stageMask/pWaitDstStageMask including " +
+        return "signal a semaphore after the earlier command (stageMask=" +
+               stage_flag_names(src_stages) +
+               ") and wait on it in the later submission with stageMask/pWaitDstStageMask "
+               "including " +
                stage_flag_names(dst_stages);
     case FixKind::kHostWait:
-        return "wait for the earlier submission's fence (vkWaitForFences or vkQueueWaitIdle) before the host access";
+        return "wait for the earlier submission's fence (vkWaitForFences or vkQueueWaitIdle) "
+               "before the host access";
     case FixKind::kHostWaitAndBarrier:
         return "record vkCmdPipelineBarrier2 with a VkMemoryBarrier2 " + barrier +
-               " after the earlier command, then wait for the submission's fence before the host reads";
+               " after the earlier command, then wait for the submission's fence before the host "
+               "reads";
     case FixKind::kDisjointRanges:
-        return "no barrier can order a command against itself: use non-overlapping source and destination ranges";
+        return "no barrier can order a command against itself: use non-overlapping source and "
+               "destination ranges";
     }
     return "";
 }
@@ -104,19 +114,24 @@ std::string HazardReport::format() const {
              hex(prior.range.end) + ") into " + later.field + " [" + hex(later.range.begin) + ", " +
              hex(later.range.end) + "), which overlap in " + region + ".";
     } else {
-        s += where(later) + " " + verb(later) + " " + later.field + " " + region + " at " + stage_names(later.stage) +
-             " / " + access_names(later.access) + " after " + where(prior) + " " + past(prior) + " " + prior.field +
-             " at " + stage_names(prior.stage) + " / " + access_names(prior.access);
+        s += where(later) + " " + verb(later) + " " + later.field + " " + region + " at " +
+             stage_names(later.stage) + " / " + access_names(later.access) + " after " +
+             where(prior) + " " + past(prior) + " " + prior.field + " at " +
+             stage_names(prior.stage) + " / " + access_names(prior.access);
         switch (fix.kind) {
         case FixKind::kSemaphore:
-            s += " on another queue with no semaphore ordering them (a signal whose stage mask holds the earlier"
+            s += " on another queue with no semaphore ordering them (a signal whose stage mask "
+                 "holds the earlier"
                  " stage, waited on with a stage mask that holds the later one).";
             break;
         case FixKind::kHostWait:
-        case FixKind::kHostWaitAndBarrier: s += " with no completed host wait making it visible to the host."; break;
+        case FixKind::kHostWaitAndBarrier:
+            s += " with no completed host wait making it visible to the host.";
+            break;
         default:
-            s += hazard == HazardClass::kWriteAfterRead ? " with no execution dependency between them."
-                                                        : " with no barrier making it available and visible.";
+            s += hazard == HazardClass::kWriteAfterRead
+                     ? " with no execution dependency between them."
+                     : " with no barrier making it available and visible.";
         }
     }
     s += " Fix: " + fix.describe();

@@ -1,8 +1,9 @@
+// SPDX-License-Identifier: Apache-2.0
 // vkCmdBuildAccelerationStructureNV / vkCmdCopyMemoryToAccelerationStructureKHR replay and
 // the RayQueryCheck comparison (nv_command.hpp).
-#include "nv_command.hpp"
+#include "nv_command.h"
 
-#include "cluster_command.hpp"  // hex()
+#include "cluster_command.h"  // hex()
 
 #include <clastrace/engine/nv_serialize.h>
 #include <clastrace/engine/nv_trace.h>
@@ -79,10 +80,12 @@ void NvReplay::set_device(const fbs::DeviceInfo& device) {
         if (p->max_triangle_count()) limits_.max_triangle_count = p->max_triangle_count();
     }
     // The accelerationStructure feature cannot be enabled without its extension.
-    if (const auto* extensions = device.enabled_extensions(); extensions && extensions->size() > 0) {
+    if (const auto* extensions = device.enabled_extensions();
+        extensions && extensions->size() > 0) {
         khr_acceleration_structure_missing_ = true;
         for (const flatbuffers::String* e : *extensions)
-            if (e && e->str() == "VK_KHR_acceleration_structure") khr_acceleration_structure_missing_ = false;
+            if (e && e->str() == "VK_KHR_acceleration_structure")
+                khr_acceleration_structure_missing_ = false;
     }
 }
 
@@ -105,9 +108,15 @@ void NvReplay::on_requirement(const fbs::AccelerationStructureMemoryRequirements
     Object* o = object(r.acceleration_structure());
     if (!o) return;
     switch (r.type()) {
-    case VK_ACCELERATION_STRUCTURE_MEMORY_REQUIREMENTS_TYPE_OBJECT_NV: o->driver_object = r.size(); break;
-    case VK_ACCELERATION_STRUCTURE_MEMORY_REQUIREMENTS_TYPE_BUILD_SCRATCH_NV: o->driver_build_scratch = r.size(); break;
-    case VK_ACCELERATION_STRUCTURE_MEMORY_REQUIREMENTS_TYPE_UPDATE_SCRATCH_NV: o->driver_update_scratch = r.size(); break;
+    case VK_ACCELERATION_STRUCTURE_MEMORY_REQUIREMENTS_TYPE_OBJECT_NV:
+        o->driver_object = r.size();
+        break;
+    case VK_ACCELERATION_STRUCTURE_MEMORY_REQUIREMENTS_TYPE_BUILD_SCRATCH_NV:
+        o->driver_build_scratch = r.size();
+        break;
+    case VK_ACCELERATION_STRUCTURE_MEMORY_REQUIREMENTS_TYPE_UPDATE_SCRATCH_NV:
+        o->driver_update_scratch = r.size();
+        break;
     default: break;
     }
 }
@@ -123,8 +132,10 @@ bool NvReplay::ensure_shadow(Object& o, const ReplayLocation& where, uint64_t at
     const uint64_t budget = std::min(kShadowBudget, c_.options.memory_budget_bytes / 2);
     if (need > budget || next_shadow_ - kShadowBase > budget - need) {
         c_.add_finding({kRuleShadowBudget,
-                        "acceleration structure " + hex(o.handle) + " would need " + std::to_string(need) +
-                            " bytes of engine memory; all NV objects together may take " + std::to_string(budget) +
+                        "acceleration structure " + hex(o.handle) + " would need " +
+                            std::to_string(need) +
+                            " bytes of engine memory; all NV objects together may take " +
+                            std::to_string(budget) +
                             " (half of ReplayOptions::memory_budget_bytes, at most 4 GiB)",
                         FindingSource::kReplay, where, -1, 0});
         return false;
@@ -134,7 +145,9 @@ bool NvReplay::ensure_shadow(Object& o, const ReplayLocation& where, uint64_t at
     o.shadow = next_shadow_;
     o.shadow_size = need;
     c_.memory.image().add_region(o.shadow, need, 0, "engine NV object " + hex(o.handle));
-    next_shadow_ += (need + engine::kNvObjectAlignment - 1) / engine::kNvObjectAlignment * engine::kNvObjectAlignment + 4096;
+    next_shadow_ += (need + engine::kNvObjectAlignment - 1) / engine::kNvObjectAlignment *
+                        engine::kNvObjectAlignment +
+                    4096;
     shadow_owner_[o.shadow] = o.handle;
     return true;
 }
@@ -160,7 +173,9 @@ std::optional<uint64_t> NvReplay::resolve(uint64_t driver_handle, bool bottom_on
     if (it == by_driver_handle_.end()) return std::nullopt;
     Object* o = object(it->second);
     if (!o) return std::nullopt;
-    if (bottom_only && o->created && o->created->type != VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV) return std::nullopt;
+    if (bottom_only && o->created &&
+        o->created->type != VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV)
+        return std::nullopt;
     if (!o->bound || !ensure_shadow(*o, ReplayLocation{})) return std::nullopt;
     ++c_.report.counts.handles_translated;
     return o->shadow;
@@ -171,7 +186,8 @@ void NvReplay::engine_findings(const engine::ExecutionRecord& record, const Repl
         c_.add_finding({f.rule, f.message, FindingSource::kEngine, where, f.op_index, f.address});
 }
 
-void NvReplay::feed(const CommandRef& ref, const engine::ExecutionRecord& record, const ReplayLocation&) {
+void NvReplay::feed(const CommandRef& ref, const engine::ExecutionRecord& record,
+                    const ReplayLocation&) {
     if (!c_.options.check_hazards) return;
     for (const engine::MemoryAccess& a : record.accesses) {
         AddressRange range{a.begin, a.end};
@@ -189,14 +205,17 @@ void NvReplay::feed(const CommandRef& ref, const engine::ExecutionRecord& record
     }
 }
 
-void NvReplay::build(const fbs::CmdBuildAccelerationStructureNV& b, const CommandRef& ref, const ReplayLocation& where) {
+void NvReplay::build(const fbs::CmdBuildAccelerationStructureNV& b, const CommandRef& ref,
+                     const ReplayLocation& where) {
     c_.lay_in_snapshots(b.inputs(), where);
     ++c_.report.counts.nv_builds;
     auto buffer = [&](uint64_t handle, uint64_t offset, const std::string& field) -> Resolved {
         if (handle == 0) return {};
         auto whole = c_.memory.buffer_range(handle, 0, kWholeSize);
         if (!whole) {
-            c_.add_finding({kRuleUnknownBuffer, field + " names buffer " + hex(handle) + ", which is not bound to memory in the trace",
+            c_.add_finding({kRuleUnknownBuffer,
+                            field + " names buffer " + hex(handle) +
+                                ", which is not bound to memory in the trace",
                             FindingSource::kReplay, where, -1, 0});
             return {0, 0, 0};
         }
@@ -204,7 +223,8 @@ void NvReplay::build(const fbs::CmdBuildAccelerationStructureNV& b, const Comman
         const uint64_t size = whole->end - whole->begin;
         r.address = whole->begin + offset;
         r.available = offset >= size ? 0 : size - offset;
-        if (const engine::MemoryRegion* region = c_.memory.image().find_region(whole->begin)) r.usage = region->usage;
+        if (const engine::MemoryRegion* region = c_.memory.image().find_region(whole->begin))
+            r.usage = region->usage;
         return r;
     };
     engine::NvBuildCommand cmd;
@@ -214,18 +234,21 @@ void NvReplay::build(const fbs::CmdBuildAccelerationStructureNV& b, const Comman
         for (const fbs::GeometryNV* geo : *b.info()->geometries()) {
             engine::NvGeometry& out = cmd.info.geometries[g];
             const std::string at = "pInfo->pGeometries[" + std::to_string(g++) + "]";
-            if (const fbs::GeometryTrianglesNV* t = geo->triangles(); t && out.type == VK_GEOMETRY_TYPE_TRIANGLES_NV) {
+            if (const fbs::GeometryTrianglesNV* t = geo->triangles();
+                t && out.type == VK_GEOMETRY_TYPE_TRIANGLES_NV) {
                 Resolved v = buffer(t->vertex_data(), t->vertex_offset(), at + ".vertexData");
                 out.triangles.vertex_address = v.address;
                 out.triangles.vertex_available = v.available;
                 Resolved i = buffer(t->index_data(), t->index_offset(), at + ".indexData");
                 out.triangles.index_address = i.address;
                 out.triangles.index_available = i.available;
-                Resolved m = buffer(t->transform_data(), t->transform_offset(), at + ".transformData");
+                Resolved m =
+                    buffer(t->transform_data(), t->transform_offset(), at + ".transformData");
                 out.triangles.transform_address = m.address;
                 out.triangles.transform_available = m.available;
             }
-            if (const fbs::GeometryAabbNV* a = geo->aabbs(); a && out.type == VK_GEOMETRY_TYPE_AABBS_NV) {
+            if (const fbs::GeometryAabbNV* a = geo->aabbs();
+                a && out.type == VK_GEOMETRY_TYPE_AABBS_NV) {
                 Resolved r = buffer(a->aabb_data(), a->offset(), at + ".aabbData");
                 out.aabbs.address = r.address;
                 out.aabbs.available = r.available;
@@ -235,7 +258,8 @@ void NvReplay::build(const fbs::CmdBuildAccelerationStructureNV& b, const Comman
     const Resolved instances = buffer(b.instance_data(), b.instance_offset(), "instanceData");
     cmd.instance_address = instances.address;
     cmd.instance_available = instances.available;
-    cmd.instance_buffer_ray_tracing_usage = instances.usage == 0 || (instances.usage & kRayTracingUsage);
+    cmd.instance_buffer_ray_tracing_usage =
+        instances.usage == 0 || (instances.usage & kRayTracingUsage);
     const Resolved scratch = buffer(b.scratch(), b.scratch_offset(), "scratch");
     cmd.scratch_address = scratch.address;
     cmd.scratch_available = scratch.available;
@@ -243,22 +267,26 @@ void NvReplay::build(const fbs::CmdBuildAccelerationStructureNV& b, const Comman
     cmd.update = b.update();
     Object* dst = object(b.dst());
     if (!dst) {
-        c_.add_finding({kRuleUnknownObject, "dst " + hex(b.dst()) + " was never created in the trace", FindingSource::kReplay,
-                        where, -1, 0});
+        c_.add_finding({kRuleUnknownObject,
+                        "dst " + hex(b.dst()) + " was never created in the trace",
+                        FindingSource::kReplay, where, -1, 0});
         cmd.dst.handle = b.dst();
     } else {
         cmd.dst = binding(*dst, where);
     }
     if (b.src() != 0) {
-        if (Object* src = object(b.src())) cmd.src = binding(*src, where);
+        if (Object* src = object(b.src()))
+            cmd.src = binding(*src, where);
         else {
-            c_.add_finding({kRuleUnknownObject, "src " + hex(b.src()) + " was never created in the trace", FindingSource::kReplay,
-                            where, -1, 0});
+            c_.add_finding({kRuleUnknownObject,
+                            "src " + hex(b.src()) + " was never created in the trace",
+                            FindingSource::kReplay, where, -1, 0});
             cmd.src.handle = b.src();
         }
     }
     // The scratch rule is about the capturing driver's requirement when the trace holds it.
-    const uint64_t driver_scratch = dst ? (cmd.update ? dst->driver_update_scratch : dst->driver_build_scratch) : 0;
+    const uint64_t driver_scratch =
+        dst ? (cmd.update ? dst->driver_update_scratch : dst->driver_build_scratch) : 0;
     const bool driver_sizes = driver_scratch != 0 && !c_.report.engine_trace;
     const uint64_t available = cmd.scratch_available;
     if (driver_sizes) cmd.scratch_available = kWholeSize;
@@ -269,17 +297,20 @@ void NvReplay::build(const fbs::CmdBuildAccelerationStructureNV& b, const Comman
     const auto started = std::chrono::steady_clock::now();
     engine::ExecutionRecord record = engine::execute_nv_build(cmd, c_.memory.image(), options);
     const uint64_t engine_ns = uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(
-        std::chrono::steady_clock::now() - started).count());
+                                            std::chrono::steady_clock::now() - started)
+                                            .count());
     if (driver_sizes) {
         for (engine::MemoryAccess& a : record.accesses)
             if (a.field == "scratch") a.end = a.begin + std::min(available, driver_scratch);
         if (driver_scratch > available)
-            record.findings.push_back(engine::Finding{cmd.update ? engine::kVuidNvUpdateScratch : engine::kVuidNvBuildScratch,
-                                                      "scratch holds " + std::to_string(available) +
-                                                          " bytes after scratchOffset; the driver's " +
-                                                          (cmd.update ? "update" : "build") + " scratch requirement is " +
-                                                          std::to_string(driver_scratch),
-                                                      -1, cmd.scratch_address});
+            record.findings.push_back(
+                engine::Finding{cmd.update ? engine::kVuidNvUpdateScratch
+                                           : engine::kVuidNvBuildScratch,
+                                "scratch holds " + std::to_string(available) +
+                                    " bytes after scratchOffset; the driver's " +
+                                    (cmd.update ? "update" : "build") + " scratch requirement is " +
+                                    std::to_string(driver_scratch),
+                                -1, cmd.scratch_address});
     }
     engine_findings(record, where);
     feed(ref, record, where);
@@ -293,12 +324,14 @@ void NvReplay::build(const fbs::CmdBuildAccelerationStructureNV& b, const Comman
         s.where = where;
         s.handle = dst->handle;
         s.top_level = cmd.info.type == VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV;
-        const engine::NvMemoryRequirements need = engine::nv_memory_requirements(dst->created ? *dst->created : cmd.info);
+        const engine::NvMemoryRequirements need =
+            engine::nv_memory_requirements(dst->created ? *dst->created : cmd.info);
         s.primitives = s.top_level ? cmd.info.instance_count : 0;
         for (const engine::NvGeometry& g : cmd.info.geometries)
             s.primitives += g.type == VK_GEOMETRY_TYPE_AABBS_NV ? g.aabbs.count
-                            : g.triangles.index_type == VK_INDEX_TYPE_NONE_NV ? g.triangles.vertex_count / 3
-                                                                             : g.triangles.index_count / 3;
+                            : g.triangles.index_type == VK_INDEX_TYPE_NONE_NV
+                                ? g.triangles.vertex_count / 3
+                                : g.triangles.index_count / 3;
         s.driver_object = dst->driver_object;
         s.driver_build_scratch = dst->driver_build_scratch;
         s.engine_object = need.object;
@@ -309,13 +342,14 @@ void NvReplay::build(const fbs::CmdBuildAccelerationStructureNV& b, const Comman
     if (c_.observe) c_.observe(std::move(record), engine_ns);
 }
 
-void NvReplay::deserialize(const fbs::CmdCopyMemoryToAccelerationStructure& copy, const CommandRef& ref,
-                           const ReplayLocation& where) {
+void NvReplay::deserialize(const fbs::CmdCopyMemoryToAccelerationStructure& copy,
+                           const CommandRef& ref, const ReplayLocation& where) {
     c_.lay_in_snapshots(copy.inputs(), where);
     ++c_.report.counts.deserializations;
     if (khr_acceleration_structure_missing_)
         c_.add_finding({engine::kVuidDeserializeFeature,
-                        "the device's enabled extensions (recorded in the trace) do not include VK_KHR_acceleration_structure, "
+                        "the device's enabled extensions (recorded in the trace) do not include "
+                        "VK_KHR_acceleration_structure, "
                         "so its accelerationStructure feature cannot be enabled",
                         FindingSource::kEngine, where, -1, 0});
     engine::NvDeserializeCommand cmd;
@@ -323,7 +357,8 @@ void NvReplay::deserialize(const fbs::CmdCopyMemoryToAccelerationStructure& copy
     cmd.mode = copy.mode();
     Object* dst = object(copy.dst());
     if (!dst) {
-        c_.add_finding({kRuleUnknownObject, "pInfo->dst " + hex(copy.dst()) + " was never created in the trace",
+        c_.add_finding({kRuleUnknownObject,
+                        "pInfo->dst " + hex(copy.dst()) + " was never created in the trace",
                         FindingSource::kReplay, where, -1, 0});
         cmd.dst.handle = copy.dst();
     } else {
@@ -334,15 +369,17 @@ void NvReplay::deserialize(const fbs::CmdCopyMemoryToAccelerationStructure& copy
             r && cmd.src_address + 40 <= r->base + r->size) {
             engine::SerializedHeader h{};
             try {
-                h = c_.memory.image().read<engine::SerializedHeader>(cmd.src_address, {"pInfo->src.deviceAddress", -1});
+                h = c_.memory.image().read<engine::SerializedHeader>(cmd.src_address,
+                                                                     {"pInfo->src.deviceAddress",
+                                                                      -1});
                 deserialized = h.deserialized_size;
-            } catch (const engine::MemoryFault&) {
-            }
+            } catch (const engine::MemoryFault&) {}
         }
         // Grow the shadow only up to the size dst was created with: a larger deserializedSize
         // breaks dst-03746 and must not allocate what a hostile header asks for.
-        const uint64_t created = std::max({dst->driver_object, dst->khr_size,
-                                           dst->created ? engine::nv_memory_requirements(*dst->created).object : 0});
+        const uint64_t created =
+            std::max({dst->driver_object, dst->khr_size,
+                      dst->created ? engine::nv_memory_requirements(*dst->created).object : 0});
         if (dst->bound) ensure_shadow(*dst, where, deserialized <= created ? deserialized : 0);
         cmd.dst = binding(*dst, where);
     }
@@ -351,28 +388,33 @@ void NvReplay::deserialize(const fbs::CmdCopyMemoryToAccelerationStructure& copy
     const auto started = std::chrono::steady_clock::now();
     engine::NvDeserializeResult r = engine::execute_nv_deserialize(cmd, c_.memory.image(), options);
     const uint64_t engine_ns = uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(
-        std::chrono::steady_clock::now() - started).count());
+                                            std::chrono::steady_clock::now() - started)
+                                            .count());
     if (r.opaque && dst) {
         const uint64_t created = dst->driver_object ? dst->driver_object : dst->khr_size;
         if (created && r.header.deserialized_size > created)
-            r.record.findings.push_back(engine::Finding{engine::kVuidDeserializeDstSize,
-                                                        "deserializedSize " + std::to_string(r.header.deserialized_size) +
-                                                            " is above the " + std::to_string(created) + " bytes dst " +
-                                                            hex(dst->handle) + " was created with",
-                                                        -1, 0});
+            r.record.findings.push_back(
+                engine::Finding{engine::kVuidDeserializeDstSize,
+                                "deserializedSize " + std::to_string(r.header.deserialized_size) +
+                                    " is above the " + std::to_string(created) + " bytes dst " +
+                                    hex(dst->handle) + " was created with",
+                                -1, 0});
         for (uint64_t h : r.handles)
             if (h != 0 && !by_driver_handle_.count(h))
-                r.record.findings.push_back(engine::Finding{engine::kRuleDeserializeHandleUnknown,
-                                                            "handle " + hex(h) +
-                                                                " of the serialized data names no acceleration structure created "
-                                                                "before the deserialization",
-                                                            -1, cmd.src_address});
+                r.record.findings.push_back(engine::Finding{
+                    engine::kRuleDeserializeHandleUnknown,
+                    "handle " + hex(h) +
+                        " of the serialized data names no acceleration structure created "
+                        "before the deserialization",
+                    -1, cmd.src_address});
         dst->opaque = true;
         dst->built = false;
-        c_.add_finding({kRuleOpaqueObject,
-                        "dst " + hex(dst->handle) + " now holds another driver's object the engine cannot decode: builds and ray "
-                        "checks that read it are not replayed",
-                        FindingSource::kReplay, where, -1, 0});
+        c_.add_finding(
+            {kRuleOpaqueObject,
+             "dst " + hex(dst->handle) +
+                 " now holds another driver's object the engine cannot decode: builds and ray "
+                 "checks that read it are not replayed",
+             FindingSource::kReplay, where, -1, 0});
     }
     engine_findings(r.record, where);
     if (dst && r.record.ops[0].executed) {
@@ -388,7 +430,8 @@ void NvReplay::deserialize(const fbs::CmdCopyMemoryToAccelerationStructure& copy
         if (d) {
             c_.report.counts.accesses += 2;
             c_.sync.record_deserialize(ref, src_access,
-                                       Access{*d, r.record.accesses[1].stage, r.record.accesses[1].access, true, "pInfo->dst"});
+                                       Access{*d, r.record.accesses[1].stage,
+                                              r.record.accesses[1].access, true, "pInfo->dst"});
         } else {
             ++c_.report.counts.accesses;
             c_.sync.record_access(ref, src_access);
@@ -416,20 +459,25 @@ void NvReplay::ray_check(const fbs::RayQueryCheck& check) {
         if (it != by_driver_handle_.end()) o = object(it->second);
     }
     if (!o) return fail("the acceleration structure was never created in the trace");
-    if (o->opaque) return fail("it holds another driver's deserialized object, which the engine cannot decode");
-    if (!o->built || !o->shadow) return fail("the replay never built it (see the findings of its build)");
+    if (o->opaque)
+        return fail(
+            "it holds another driver's deserialized object, which the engine cannot decode");
+    if (!o->built || !o->shadow)
+        return fail("the replay never built it (see the findings of its build)");
     std::vector<engine::Finding> findings;
     std::string error;
     auto scene = engine::NvScene::open(c_.memory.image(), o->shadow, &findings, &error);
     if (!scene) return fail("the rebuilt object does not open: " + error);
-    for (const engine::Finding& f : findings) c_.add_finding({f.rule, f.message, FindingSource::kReplay, where, -1, f.address});
+    for (const engine::Finding& f : findings)
+        c_.add_finding({f.rule, f.message, FindingSource::kReplay, where, -1, f.address});
     const auto* rays = check.rays();
     const auto* results = check.results();
     const size_t n = std::min<size_t>(rays ? rays->size() : 0, results ? results->size() : 0);
     if (rays && results && rays->size() != results->size())
         c_.add_finding({kRuleRayDisagrees,
-                        "ray check '" + out.label + "' holds " + std::to_string(rays->size()) + " rays but " +
-                            std::to_string(results->size()) + " results: only the first " + std::to_string(n) + " compared",
+                        "ray check '" + out.label + "' holds " + std::to_string(rays->size()) +
+                            " rays but " + std::to_string(results->size()) +
+                            " results: only the first " + std::to_string(n) + " compared",
                         FindingSource::kReplay, where, -1, 0});
     out.checked = true;
     size_t reported = 0;
@@ -439,7 +487,10 @@ void NvReplay::ray_check(const fbs::RayQueryCheck& check) {
     for (size_t i = 0; i < n; ++i) {
         const fbs::TracedRay* r = rays->Get(flatbuffers::uoffset_t(i));
         const fbs::RayHitResult* d = results->Get(flatbuffers::uoffset_t(i));
-        const engine::Ray ray{{r->origin_x(), r->origin_y(), r->origin_z()}, r->t_min(), {r->dir_x(), r->dir_y(), r->dir_z()}, r->t_max()};
+        const engine::Ray ray{{r->origin_x(), r->origin_y(), r->origin_z()},
+                              r->t_min(),
+                              {r->dir_x(), r->dir_y(), r->dir_z()},
+                              r->t_max()};
         const engine::NvHit e = scene->closest(ray, r->ray_flags(), r->cull_mask());
         ++out.rays;
         const bool driver_hit = d->hit() != 0;
@@ -451,47 +502,60 @@ void NvReplay::ray_check(const fbs::RayQueryCheck& check) {
         if (!e.hit && !driver_hit) {
             ++out.agree_miss;
         } else if (e.hit && driver_hit) {
-            const double rel = std::fabs(double(e.t) - d->t()) / std::max(std::fabs(double(d->t())), 1e-30);
-            const bool same = e.instance_index == d->instance_id() && e.primitive_index == d->primitive_id() &&
-                              (d->geometry_index() == 0xFFFFFFFFu || d->geometry_index() == e.geometry_index);
+            const double rel =
+                std::fabs(double(e.t) - d->t()) / std::max(std::fabs(double(d->t())), 1e-30);
+            const bool same =
+                e.instance_index == d->instance_id() && e.primitive_index == d->primitive_id() &&
+                (d->geometry_index() == 0xFFFFFFFFu || d->geometry_index() == e.geometry_index);
             // A driver traces in float32: within the engine's bound of that error, the same
             // primitive at a t off by more than kRayCheckRelT still agrees (counted apart).
             const bool within_float = std::fabs(double(e.t) - d->t()) <= double(e.t_error);
             if (same && (rel <= kRayCheckRelT || within_float)) {
-                const bool attributes = e.instance_custom_index == d->instance_custom_index() && e.hit_kind == d->hit_kind() &&
-                                        (e.hit_kind == 0 || (std::fabs(e.u - d->barycentric_u()) <= 1e-3f &&
-                                                             std::fabs(e.v - d->barycentric_v()) <= 1e-3f));
+                const bool attributes =
+                    e.instance_custom_index == d->instance_custom_index() &&
+                    e.hit_kind == d->hit_kind() &&
+                    (e.hit_kind == 0 || (std::fabs(e.u - d->barycentric_u()) <= 1e-3f &&
+                                         std::fabs(e.v - d->barycentric_v()) <= 1e-3f));
                 if (attributes) {
                     ++out.agree_hit;
-                    if (rel > kRayCheckRelT) ++out.float_precision;
-                    else out.max_rel_t = std::max(out.max_rel_t, rel);
+                    if (rel > kRayCheckRelT)
+                        ++out.float_precision;
+                    else
+                        out.max_rel_t = std::max(out.max_rel_t, rel);
                 } else {
                     verdict = "same primitive and t, other custom index, hit kind or barycentrics";
                 }
             } else if (rel <= kRayCheckRelT) {
                 ++out.tie;
-            } else if (near_edge(e.u, e.v, e.hit_kind) || near_edge(d->barycentric_u(), d->barycentric_v(), d->hit_kind())) {
+            } else if (near_edge(e.u, e.v, e.hit_kind) ||
+                       near_edge(d->barycentric_u(), d->barycentric_v(), d->hit_kind())) {
                 ++out.edge;
             } else {
                 verdict = same ? "same primitive, other t" : "other primitive at another t";
             }
         } else if ((e.hit && near_edge(e.u, e.v, e.hit_kind)) ||
-                   (driver_hit && near_edge(d->barycentric_u(), d->barycentric_v(), d->hit_kind()))) {
+                   (driver_hit &&
+                    near_edge(d->barycentric_u(), d->barycentric_v(), d->hit_kind()))) {
             ++out.edge;
         } else {
-            verdict = e.hit ? "the engine hits, the driver missed" : "the driver hit, the engine misses";
+            verdict =
+                e.hit ? "the engine hits, the driver missed" : "the driver hit, the engine misses";
         }
         if (!verdict) continue;
         ++out.disagree;
         if (reported++ >= c_.options.max_findings_per_rule) continue;
         char text[768];
         std::snprintf(text, sizeof text,
-                      "ray %zu of check '%s' (origin %g %g %g, direction %g %g %g, t [%g, %g], flags 0x%x, cull mask 0x%x): %s; "
-                      "driver: %s t=%g instance %u primitive %u kind 0x%x; engine: %s t=%g instance %u primitive %u kind 0x%x",
-                      i, short_label.c_str(), ray.origin[0], ray.origin[1], ray.origin[2], ray.direction[0], ray.direction[1],
-                      ray.direction[2], ray.tmin, ray.tmax, r->ray_flags(), r->cull_mask(), verdict, driver_hit ? "hit" : "miss",
-                      double(d->t()), d->instance_id(), d->primitive_id(), d->hit_kind(), e.hit ? "hit" : "miss", double(e.t),
-                      e.instance_index, e.primitive_index, e.hit_kind);
+                      "ray %zu of check '%s' (origin %g %g %g, direction %g %g %g, t [%g, %g], "
+                      "flags 0x%x, cull mask 0x%x): %s; "
+                      "driver: %s t=%g instance %u primitive %u kind 0x%x; engine: %s t=%g "
+                      "instance %u primitive %u kind 0x%x",
+                      i, short_label.c_str(), ray.origin[0], ray.origin[1], ray.origin[2],
+                      ray.direction[0], ray.direction[1], ray.direction[2], ray.tmin, ray.tmax,
+                      r->ray_flags(), r->cull_mask(), verdict, driver_hit ? "hit" : "miss",
+                      double(d->t()), d->instance_id(), d->primitive_id(), d->hit_kind(),
+                      e.hit ? "hit" : "miss", double(e.t), e.instance_index, e.primitive_index,
+                      e.hit_kind);
         c_.add_finding({kRuleRayDisagrees, text, FindingSource::kVerify, where, int64_t(i), 0});
     }
     c_.report.ray_checks.push_back(out);

@@ -1,4 +1,5 @@
-#include "replay_memory.hpp"
+// SPDX-License-Identifier: Apache-2.0
+#include "replay_memory.h"
 
 #include <algorithm>
 #include <new>
@@ -9,7 +10,8 @@ namespace clastrace::replay::detail {
 
 namespace {
 constexpr uint64_t kWholeSize = ~0ull;
-constexpr uint64_t kPrivateSpan = 1ull << 40;  // address space per memory object without a device address
+constexpr uint64_t kPrivateSpan =
+    1ull << 40;  // address space per memory object without a device address
 }  // namespace
 
 void ReplayMemory::create_buffer(uint64_t buffer, uint64_t size, uint64_t usage) {
@@ -29,7 +31,8 @@ void ReplayMemory::unindex(uint64_t buffer) {
     }
 }
 
-std::optional<uint64_t> ReplayMemory::first_without_usage(uint64_t begin, uint64_t end, uint64_t usage) const {
+std::optional<uint64_t> ReplayMemory::first_without_usage(uint64_t begin, uint64_t end,
+                                                          uint64_t usage) const {
     std::vector<AddressRange> held, allowed;
     for (auto it = bound_at_.lower_bound(begin > largest_bound_ ? begin - largest_bound_ : 0);
          it != bound_at_.end() && it->first < end; ++it) {
@@ -44,13 +47,16 @@ std::optional<uint64_t> ReplayMemory::first_without_usage(uint64_t begin, uint64
     std::sort(allowed.begin(), allowed.end(), by_begin);
     std::vector<AddressRange> merged;  // the allowed bytes as disjoint, non-adjacent ranges
     for (const AddressRange& r : allowed) {
-        if (!merged.empty() && r.begin <= merged.back().end) merged.back().end = std::max(merged.back().end, r.end);
-        else merged.push_back(r);
+        if (!merged.empty() && r.begin <= merged.back().end)
+            merged.back().end = std::max(merged.back().end, r.end);
+        else
+            merged.push_back(r);
     }
     std::optional<uint64_t> first;
     for (const AddressRange& h : held) {
         uint64_t at = h.begin;
-        auto m = std::partition_point(merged.begin(), merged.end(), [&](const AddressRange& r) { return r.end <= at; });
+        auto m = std::partition_point(merged.begin(), merged.end(),
+                                      [&](const AddressRange& r) { return r.end <= at; });
         if (m != merged.end() && m->begin <= at) at = m->end;
         if (at < h.end && (!first || at < *first)) first = at;
     }
@@ -62,12 +68,14 @@ uint64_t ReplayMemory::memory_base(uint64_t memory) {
     if (it != memory_base_.end()) return it->second;
     uint64_t base = next_private_;
     next_private_ += kPrivateSpan;
-    if (next_private_ < kPrivateBase) next_private_ = kPrivateBase;  // wrapped: reuse (aliasing at worst)
+    if (next_private_ < kPrivateBase)
+        next_private_ = kPrivateBase;  // wrapped: reuse (aliasing at worst)
     memory_base_.emplace(memory, base);
     return base;
 }
 
-bool ReplayMemory::add_region(uint64_t address, uint64_t size, uint64_t usage, const std::string& label) {
+bool ReplayMemory::add_region(uint64_t address, uint64_t size, uint64_t usage,
+                              const std::string& label) {
     if (size == 0 || address + size < address) return true;
     if (size > kReservedLimit - std::min(kReservedLimit, image_.reserved_bytes())) return false;
     try {
@@ -100,7 +108,8 @@ std::optional<AddressRange> ReplayMemory::destroy_buffer(uint64_t buffer) {
         const uint64_t begin = region->base, end = region->base + region->size;
         bool shared = false;
         for (const auto& [handle, other] : buffers_)
-            if (other.bound && other.address < end && begin < other.address + other.size) shared = true;
+            if (other.bound && other.address < end && begin < other.address + other.size)
+                shared = true;
         if (!shared) image_.remove_region(begin);
     }
     unmark(range);
@@ -115,7 +124,8 @@ void ReplayMemory::destroy_object(uint64_t object) {
 bool ReplayMemory::fill(uint64_t address, uint64_t size, uint32_t value) {
     try {
         if (value == 0) {
-            image_.zero_bytes(address, size, {"vkCmdFillBuffer", -1});  // a cleared buffer costs no pages
+            image_.zero_bytes(address, size,
+                              {"vkCmdFillBuffer", -1});  // a cleared buffer costs no pages
         } else {
             std::span<std::byte> dst = image_.write_bytes(address, size, {"vkCmdFillBuffer", -1});
             for (uint64_t k = 0; k + 4 <= size; k += 4) std::memcpy(dst.data() + k, &value, 4);
@@ -127,12 +137,14 @@ bool ReplayMemory::fill(uint64_t address, uint64_t size, uint32_t value) {
     return true;
 }
 
-void ReplayMemory::bind_buffer(uint64_t buffer, uint64_t memory, uint64_t memory_offset, uint64_t device_address) {
+void ReplayMemory::bind_buffer(uint64_t buffer, uint64_t memory, uint64_t memory_offset,
+                               uint64_t device_address) {
     unindex(buffer);
     Buffer& b = buffers_[buffer];
     if (device_address != 0) {
         b.address = device_address;
-        if (memory != 0 && device_address >= memory_offset) memory_base_.emplace(memory, device_address - memory_offset);
+        if (memory != 0 && device_address >= memory_offset)
+            memory_base_.emplace(memory, device_address - memory_offset);
     } else {
         b.address = memory_base(memory) + memory_offset;
     }
@@ -152,14 +164,16 @@ void ReplayMemory::bind_object(uint64_t object, uint64_t memory, uint64_t memory
     o.bound = true;
 }
 
-void ReplayMemory::create_object(uint64_t object, uint64_t buffer, uint64_t offset, uint64_t size, uint64_t) {
+void ReplayMemory::create_object(uint64_t object, uint64_t buffer, uint64_t offset, uint64_t size,
+                                 uint64_t) {
     if (buffer == 0) return;  // NV objects are placed by bind_object
     if (auto r = buffer_range(buffer, offset, size ? size : kWholeSize)) {
         objects_[object] = Object{r->begin, r->end - r->begin, true};
     }
 }
 
-std::optional<AddressRange> ReplayMemory::buffer_range(uint64_t buffer, uint64_t offset, uint64_t size) const {
+std::optional<AddressRange> ReplayMemory::buffer_range(uint64_t buffer, uint64_t offset,
+                                                       uint64_t size) const {
     auto it = buffers_.find(buffer);
     if (it == buffers_.end() || !it->second.bound) return std::nullopt;
     const Buffer& b = it->second;
@@ -180,7 +194,8 @@ std::optional<AddressRange> ReplayMemory::object_range(uint64_t object) const {
     return AddressRange{it->second.address, it->second.address + size};
 }
 
-std::optional<uint64_t> ReplayMemory::snapshot_address(uint64_t buffer, uint64_t offset, uint64_t address) const {
+std::optional<uint64_t> ReplayMemory::snapshot_address(uint64_t buffer, uint64_t offset,
+                                                       uint64_t address) const {
     if (address != 0) return address;
     auto it = buffers_.find(buffer);
     if (it == buffers_.end() || !it->second.bound) return std::nullopt;
@@ -202,10 +217,14 @@ bool ReplayMemory::lay_in(uint64_t address, std::span<const uint8_t> bytes) {
     for (; it != engine_objects_.end() && it->first < end; ++it) {
         if (it->second <= cursor) continue;
         uint64_t skip_begin = std::max(it->first, cursor);
-        if (skip_begin > cursor) std::memcpy(dst.data() + (cursor - address), bytes.data() + (cursor - address), skip_begin - cursor);
+        if (skip_begin > cursor)
+            std::memcpy(dst.data() + (cursor - address), bytes.data() + (cursor - address),
+                        skip_begin - cursor);
         cursor = std::min(it->second, end);
     }
-    if (cursor < end) std::memcpy(dst.data() + (cursor - address), bytes.data() + (cursor - address), end - cursor);
+    if (cursor < end)
+        std::memcpy(dst.data() + (cursor - address), bytes.data() + (cursor - address),
+                    end - cursor);
     return true;
 }
 

@@ -1,4 +1,5 @@
-#include "clastrace/replay/replay_report.hpp"
+// SPDX-License-Identifier: Apache-2.0
+#include "clastrace/replay/replay_report.h"
 #include "clastrace/common/hex.h"
 
 #include <clastrace/traces/utf8_text.h>
@@ -18,10 +19,11 @@ using common::hex;
 std::string where_text(const ReplayLocation& w) {
     std::string command = "command " + std::to_string(w.command);
     if (w.secondary_handle)
-        command += " (vkCmdExecuteCommands) > secondary " + std::to_string(w.secondary) + " (" + hex(w.secondary_handle) +
-                   "), command " + std::to_string(w.secondary_command);
-    return "submission " + std::to_string(w.submission) + ", command buffer " + std::to_string(w.command_buffer) + " (" +
-           hex(w.command_buffer_handle) + "), " + command + " " + w.name + " [#" + std::to_string(w.sequence) + "]";
+        command += " (vkCmdExecuteCommands) > secondary " + std::to_string(w.secondary) + " (" +
+                   hex(w.secondary_handle) + "), command " + std::to_string(w.secondary_command);
+    return "submission " + std::to_string(w.submission) + ", command buffer " +
+           std::to_string(w.command_buffer) + " (" + hex(w.command_buffer_handle) + "), " +
+           command + " " + w.name + " [#" + std::to_string(w.sequence) + "]";
 }
 
 nlohmann::json where_json(const ReplayLocation& w) {
@@ -41,9 +43,10 @@ nlohmann::json where_json(const ReplayLocation& w) {
 // "s0 cb1 cmd3 [#8]", or "s0 cb1 cmd3>0.1 [#8]" for command 1 of secondary 0 of execute 3.
 std::string short_where(const ReplayLocation& w) {
     std::string command = std::to_string(w.command);
-    if (w.secondary_handle) command += ">" + std::to_string(w.secondary) + "." + std::to_string(w.secondary_command);
-    return "s" + std::to_string(w.submission) + " cb" + std::to_string(w.command_buffer) + " cmd" + command + " [#" +
-           std::to_string(w.sequence) + "]";
+    if (w.secondary_handle)
+        command += ">" + std::to_string(w.secondary) + "." + std::to_string(w.secondary_command);
+    return "s" + std::to_string(w.submission) + " cb" + std::to_string(w.command_buffer) + " cmd" +
+           command + " [#" + std::to_string(w.sequence) + "]";
 }
 
 }  // namespace
@@ -60,11 +63,16 @@ const char* finding_source_name(FindingSource source) {
 const char* cluster_op_type_name(uint32_t op_type) {
     switch (op_type) {
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV: return "move_objects";
-    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV: return "build_clusters_bottom_level";
-    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV: return "build_triangle_cluster";
-    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV: return "build_triangle_cluster_template";
-    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV: return "instantiate_triangle_cluster";
-    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV: return "get_cluster_template_indices";
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV:
+        return "build_clusters_bottom_level";
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV:
+        return "build_triangle_cluster";
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV:
+        return "build_triangle_cluster_template";
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV:
+        return "instantiate_triangle_cluster";
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV:
+        return "get_cluster_template_indices";
     }
     return "other";
 }
@@ -80,75 +88,94 @@ std::string format_text(const ReplayReport& r) {
     for (const std::string& d : r.trace_damage) s += "CLASTRACE-trace-damaged: " + d + "\n";
     for (const ReplayFinding& f : r.findings) s += f.format() + "\n";
     for (const HazardReport& h : r.hazards) s += h.format() + "\n";
-    if (r.findings_over_cap) s += "(" + std::to_string(r.findings_over_cap) + " more findings not kept)\n";
-    if (r.hazards_over_cap) s += "(" + std::to_string(r.hazards_over_cap) + " more hazards not kept)\n";
-    for (const NotReplayed& n : r.not_replayed) s += "note: " + where_text(n.where) + ": " + n.reason + "\n";
+    if (r.findings_over_cap)
+        s += "(" + std::to_string(r.findings_over_cap) + " more findings not kept)\n";
+    if (r.hazards_over_cap)
+        s += "(" + std::to_string(r.hazards_over_cap) + " more hazards not kept)\n";
+    for (const NotReplayed& n : r.not_replayed)
+        s += "note: " + where_text(n.where) + ": " + n.reason + "\n";
 
     char line[384];
-    s += "\nreplay of " + r.trace + " (" + (r.device.empty() ? std::string("unknown device") : r.device) +
-         (r.engine_trace ? ", made by clastrace's engine: outputs compared byte for byte" : ", captured on a driver: sizes compared side by side") +
+    s += "\nreplay of " + r.trace + " (" +
+         (r.device.empty() ? std::string("unknown device") : r.device) +
+         (r.engine_trace ? ", made by clastrace's engine: outputs compared byte for byte"
+                         : ", captured on a driver: sizes compared side by side") +
          ")\n";
     if (!r.sizes.empty()) {
         s += "  sizes, capture vs engine:\n";
-        std::snprintf(line, sizeof line, "  %-26s %-31s %6s %8s %14s %14s %6s\n", "command", "op type", "ops", "compared",
-                      "captured bytes", "engine bytes", "equal");
+        std::snprintf(line, sizeof line, "  %-26s %-31s %6s %8s %14s %14s %6s\n", "command",
+                      "op type", "ops", "compared", "captured bytes", "engine bytes", "equal");
         s += line;
         for (const SizeComparison& c : r.sizes) {
             const std::string where = short_where(c.where);
-            std::snprintf(line, sizeof line, "  %-26s %-31s %6u %8u %14" PRIu64 " %14" PRIu64 " %6u\n", where.c_str(),
-                          cluster_op_type_name(c.op_type), c.ops, c.ops_compared, c.captured_bytes, c.engine_bytes, c.sizes_equal);
+            std::snprintf(line, sizeof line,
+                          "  %-26s %-31s %6u %8u %14" PRIu64 " %14" PRIu64 " %6u\n", where.c_str(),
+                          cluster_op_type_name(c.op_type), c.ops, c.ops_compared, c.captured_bytes,
+                          c.engine_bytes, c.sizes_equal);
             s += line;
         }
     }
     if (r.rows_over_cap)
-        s += "  (" + std::to_string(r.rows_over_cap) + " more per-command rows not kept: ReplayOptions::max_command_rows)\n";
+        s += "  (" + std::to_string(r.rows_over_cap) +
+             " more per-command rows not kept: ReplayOptions::max_command_rows)\n";
     if (!r.nv_sizes.empty()) {
         s += "  NV objects, driver vs engine bytes:\n";
-        std::snprintf(line, sizeof line, "  %-26s %-6s %10s %14s %14s %14s\n", "command", "level", "primitives",
-                      "driver object", "engine object", "engine used");
+        std::snprintf(line, sizeof line, "  %-26s %-6s %10s %14s %14s %14s\n", "command", "level",
+                      "primitives", "driver object", "engine object", "engine used");
         s += line;
         for (const NvSizeComparison& c : r.nv_sizes) {
             const std::string where = short_where(c.where);
-            std::snprintf(line, sizeof line, "  %-26s %-6s %10" PRIu64 " %14s %14" PRIu64 " %14" PRIu64 "\n", where.c_str(),
-                          c.top_level ? "top" : "bottom", c.primitives,
-                          c.driver_object ? std::to_string(c.driver_object).c_str() : "-", c.engine_object, c.engine_bytes);
+            std::snprintf(line, sizeof line,
+                          "  %-26s %-6s %10" PRIu64 " %14s %14" PRIu64 " %14" PRIu64 "\n",
+                          where.c_str(), c.top_level ? "top" : "bottom", c.primitives,
+                          c.driver_object ? std::to_string(c.driver_object).c_str() : "-",
+                          c.engine_object, c.engine_bytes);
             s += line;
         }
     }
     for (const RayCheckResult& c : r.ray_checks) {
         if (!c.checked) {
-            s += "  ray check '" + c.label + "' on " + hex(c.acceleration_structure) + ": not checked: " + c.why_not + "\n";
+            s += "  ray check '" + c.label + "' on " + hex(c.acceleration_structure) +
+                 ": not checked: " + c.why_not + "\n";
             continue;
         }
         // Labels say how the rays were traced and can be long: the first words name the check.
         const std::string label =
             c.label.size() > 40 ? std::string(traces::utf8_prefix(c.label, 37)) + "..." : c.label;
         std::snprintf(line, sizeof line,
-                      "  ray check '%s' on %s: %" PRIu64 " rays, agree %" PRIu64 " (%" PRIu64 " hits, %" PRIu64
-                      " misses; %" PRIu64 " of the hits within float32 error only), tie %" PRIu64 ", edge %" PRIu64
+                      "  ray check '%s' on %s: %" PRIu64 " rays, agree %" PRIu64 " (%" PRIu64
+                      " hits, %" PRIu64 " misses; %" PRIu64
+                      " of the hits within float32 error only), tie %" PRIu64 ", edge %" PRIu64
                       ", disagree %" PRIu64 "\n",
-                      label.c_str(), hex(c.acceleration_structure).c_str(), c.rays, c.agree_hit + c.agree_miss, c.agree_hit,
-                      c.agree_miss, c.float_precision, c.tie, c.edge, c.disagree);
+                      label.c_str(), hex(c.acceleration_structure).c_str(), c.rays,
+                      c.agree_hit + c.agree_miss, c.agree_hit, c.agree_miss, c.float_precision,
+                      c.tie, c.edge, c.disagree);
         s += line;
     }
     const ReplayCounts& n = r.counts;
     std::map<std::string, uint64_t> by_rule;
     for (const ReplayFinding& f : r.findings) ++by_rule[f.rule];
-    for (const HazardReport& h : r.hazards) ++by_rule[std::string("SYNC-HAZARD-") + hazard_class_name(h.hazard)];
+    for (const HazardReport& h : r.hazards)
+        ++by_rule[std::string("SYNC-HAZARD-") + hazard_class_name(h.hazard)];
     std::snprintf(line, sizeof line,
-                  "  records %" PRIu64 ", submissions %" PRIu64 ", commands replayed %" PRIu64 " (skipped %" PRIu64
-                  "), cluster commands %" PRIu64 " (%" PRIu64 " ops), copies/fills/updates %" PRIu64 "\n",
-                  n.records, n.submissions, n.commands, n.skipped_commands, n.cluster_commands, n.cluster_ops, n.copies);
+                  "  records %" PRIu64 ", submissions %" PRIu64 ", commands replayed %" PRIu64
+                  " (skipped %" PRIu64 "), cluster commands %" PRIu64 " (%" PRIu64
+                  " ops), copies/fills/updates %" PRIu64 "\n",
+                  n.records, n.submissions, n.commands, n.skipped_commands, n.cluster_commands,
+                  n.cluster_ops, n.copies);
     s += line;
     std::snprintf(line, sizeof line,
-                  "  snapshots laid in %" PRIu64 " (%" PRIu64 " bytes, %" PRIu64 " outside memory), outputs compared %" PRIu64
-                  " (%" PRIu64 " bytes), addresses translated %" PRIu64 ", accesses checked %" PRIu64
+                  "  snapshots laid in %" PRIu64 " (%" PRIu64 " bytes, %" PRIu64
+                  " outside memory), outputs compared %" PRIu64 " (%" PRIu64
+                  " bytes), addresses translated %" PRIu64 ", accesses checked %" PRIu64
                   ", memory image peak %" PRIu64 " bytes\n",
-                  n.snapshots_applied, n.snapshot_bytes, n.snapshots_outside_memory, n.outputs_compared,
-                  n.output_bytes_compared, n.addresses_translated, n.accesses, n.peak_image_bytes);
+                  n.snapshots_applied, n.snapshot_bytes, n.snapshots_outside_memory,
+                  n.outputs_compared, n.output_bytes_compared, n.addresses_translated, n.accesses,
+                  n.peak_image_bytes);
     s += line;
     std::snprintf(line, sizeof line,
-                  "  presents %" PRIu64 ", acquires %" PRIu64 ", semaphore waits with no signal in the trace %" PRIu64 "\n",
+                  "  presents %" PRIu64 ", acquires %" PRIu64
+                  ", semaphore waits with no signal in the trace %" PRIu64 "\n",
                   n.presents, n.acquires, n.unsatisfied_semaphore_waits);
     s += line;
     s += "  not replayed yet: " + std::to_string(r.not_replayed.size()) + " command(s)" +
@@ -157,8 +184,11 @@ std::string format_text(const ReplayReport& r) {
     if (by_rule.empty() && r.trace_damage.empty()) {
         s += "  result: clean\n";
     } else {
-        s += "  result: " + std::to_string(r.findings.size() + r.hazards.size() + r.trace_damage.size()) + " finding(s)\n";
-        for (const auto& [rule, count] : by_rule) s += "    " + std::to_string(count) + "  " + rule + "\n";
+        s += "  result: " +
+             std::to_string(r.findings.size() + r.hazards.size() + r.trace_damage.size()) +
+             " finding(s)\n";
+        for (const auto& [rule, count] : by_rule)
+            s += "    " + std::to_string(count) + "  " + rule + "\n";
     }
     return s;
 }
@@ -214,7 +244,8 @@ nlohmann::json to_json(const ReplayReport& r) {
                               {"disagree", c.disagree},
                               {"max_rel_t", c.max_rel_t}});
     nlohmann::json not_replayed = nlohmann::json::array();
-    for (const NotReplayed& n : r.not_replayed) not_replayed.push_back({{"where", where_json(n.where)}, {"reason", n.reason}});
+    for (const NotReplayed& n : r.not_replayed)
+        not_replayed.push_back({{"where", where_json(n.where)}, {"reason", n.reason}});
     const ReplayCounts& n = r.counts;
     return {
         {"trace", r.trace},

@@ -1,21 +1,27 @@
+// SPDX-License-Identifier: Apache-2.0
 // replay_trace: streams the trace, queues each command buffer's commands until it is
-// submitted, then executes them in submission order (see replayer.hpp).
+// submitted, then executes them in submission order (see replayer.h).
 // Each family of records has its handlers in its own file (replayer_internal.hpp lists them);
 // this file keeps the public API, the stream and the dispatch.
-#include "clastrace/replay/replayer.hpp"
+#include "clastrace/replay/replayer.h"
 
-#include "replayer_internal.hpp"
+#include "replayer_internal.h"
 
 #include <chrono>
 
 namespace clastrace::replay {
 
-bool is_engine_device(const std::string& driver_name) { return driver_name.rfind("clastrace", 0) == 0; }
+bool is_engine_device(const std::string& driver_name) {
+    return driver_name.rfind("clastrace", 0) == 0;
+}
 
 namespace detail {
 
 Replay::Replay(TraceReader& reader, const std::string& name, const ReplayOptions& options)
-    : reader_(reader), options_(options), memory_(options.memory_budget_bytes), sync_(SyncOptions{options.max_findings}) {
+    : reader_(reader),
+      options_(options),
+      memory_(options.memory_budget_bytes),
+      sync_(SyncOptions{options.max_findings}) {
     report_.trace = name;
     report_.hazards_checked = options.check_hazards;
     report_.verified = options.verify_outputs;
@@ -44,8 +50,9 @@ Replay::Replay(TraceReader& reader, const std::string& name, const ReplayOptions
 void Replay::on_record(const traces::RecordView& view) {
     const fbs::Record& r = *view.record;
     const fbs::RecordBody kind = view.kind;
-    if (on_memory_record(kind, r) || on_acceleration_structure_record(kind, r) || on_command_buffer_record(kind, r) ||
-        on_queue_record(kind, r) || on_presentation_record(kind, r) || on_check_record(kind, r))
+    if (on_memory_record(kind, r) || on_acceleration_structure_record(kind, r) ||
+        on_command_buffer_record(kind, r) || on_queue_record(kind, r) ||
+        on_presentation_record(kind, r) || on_check_record(kind, r))
         return;
     record_command(view);
 }
@@ -58,9 +65,13 @@ void Replay::execute_command(const fbs::Record& record, const CommandRef& ref, u
     case fbs::RecordBody::CmdSetEvent:
     case fbs::RecordBody::CmdResetEvent:
     case fbs::RecordBody::CmdWaitEvents: barrier(record, ref); break;
-    case fbs::RecordBody::CmdCopyBuffer: copy_buffer(*record.body_as_CmdCopyBuffer(), ref, where); break;
+    case fbs::RecordBody::CmdCopyBuffer:
+        copy_buffer(*record.body_as_CmdCopyBuffer(), ref, where);
+        break;
     case fbs::RecordBody::CmdFillBuffer: fill_buffer(*record.body_as_CmdFillBuffer(), ref); break;
-    case fbs::RecordBody::CmdUpdateBuffer: update_buffer(*record.body_as_CmdUpdateBuffer(), ref); break;
+    case fbs::RecordBody::CmdUpdateBuffer:
+        update_buffer(*record.body_as_CmdUpdateBuffer(), ref);
+        break;
     case fbs::RecordBody::CmdDispatch: dispatch(*record.body_as_CmdDispatch(), ref, where); break;
     case fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect:
         build_clusters(*record.body_as_CmdBuildClusterAccelerationStructureIndirect(), ref, where);
@@ -77,9 +88,11 @@ void Replay::execute_command(const fbs::Record& record, const CommandRef& ref, u
 
 // Executes (or skips) one command and, with an observer, hands it the command, then the
 // findings and hazards the command produced.
-void Replay::replay_command(const fbs::Record& record, const CommandRef& ref, uint64_t sequence, bool selected) {
+void Replay::replay_command(const fbs::Record& record, const CommandRef& ref, uint64_t sequence,
+                            bool selected) {
     ReplayObserver* observer = options_.observer;
-    const size_t findings = report_.findings.size(), hazards = options_.check_hazards ? sync_.hazards().size() : 0;
+    const size_t findings = report_.findings.size(),
+                 hazards = options_.check_hazards ? sync_.hazards().size() : 0;
     const uint64_t engine_runs = report_.counts.cluster_commands;
     engine::ExecutionRecord execution;
     uint64_t engine_ns = 0;
@@ -97,15 +110,22 @@ void Replay::replay_command(const fbs::Record& record, const CommandRef& ref, ui
     if (!observer) return;
     observed_execution_ = nullptr;
     observed_engine_ns_ = nullptr;
-    ReplayedCommand c{location(ref, sequence), &record, selected,
-                      report_.counts.cluster_commands != engine_runs || observed_nv_ ? &execution : nullptr, engine_ns,
+    ReplayedCommand c{location(ref, sequence),
+                      &record,
+                      selected,
+                      report_.counts.cluster_commands != engine_runs || observed_nv_ ? &execution
+                                                                                     : nullptr,
+                      engine_ns,
                       static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
-                                                std::chrono::steady_clock::now() - started).count()),
+                                                std::chrono::steady_clock::now() - started)
+                                                .count()),
                       &memory_.image()};
     observer->on_command(c);
-    for (size_t i = findings; i < report_.findings.size(); ++i) observer->on_finding(report_.findings[i]);
+    for (size_t i = findings; i < report_.findings.size(); ++i)
+        observer->on_finding(report_.findings[i]);
     if (options_.check_hazards)
-        for (size_t i = hazards; i < sync_.hazards().size(); ++i) observer->on_hazard(sync_.hazards()[i]);
+        for (size_t i = hazards; i < sync_.hazards().size(); ++i)
+            observer->on_hazard(sync_.hazards()[i]);
 }
 
 void Replay::add_finding(ReplayFinding finding) {
@@ -135,14 +155,17 @@ ReplayReport Replay::run() {
     for (const auto& [buffer, size] : memory_.over_budget())
         add_finding({"CLASTRACE-replay-memory-budget",
                      "buffer " + detail::hex(buffer) + " (" + std::to_string(size) +
-                         " bytes) was left out of the replay's memory: the address space of all buffers would exceed " +
+                         " bytes) was left out of the replay's memory: the address space of all "
+                         "buffers would exceed " +
                          std::to_string(ReplayMemory::kReservedLimit) + " bytes",
                      FindingSource::kReplay, ReplayLocation{}, -1, 0});
     if (memory_.writes_over_budget())
         add_finding({"CLASTRACE-replay-memory-budget",
                      std::to_string(memory_.writes_over_budget()) +
-                         " write(s) to memory were refused: the replay's memory would hold more than the budget of " +
-                         std::to_string(options_.memory_budget_bytes) + " bytes (ReplayOptions::memory_budget_bytes)",
+                         " write(s) to memory were refused: the replay's memory would hold more "
+                         "than the budget of " +
+                         std::to_string(options_.memory_budget_bytes) +
+                         " bytes (ReplayOptions::memory_budget_bytes)",
                      FindingSource::kReplay, ReplayLocation{}, -1, 0});
     memory_.note_peak();
     report_.counts.peak_image_bytes = memory_.peak_resident_bytes();
@@ -156,7 +179,8 @@ ReplayReport Replay::run() {
 
 }  // namespace detail
 
-ReplayReport replay_trace(traces::TraceReader& reader, const std::string& trace_name, const ReplayOptions& options) {
+ReplayReport replay_trace(traces::TraceReader& reader, const std::string& trace_name,
+                          const ReplayOptions& options) {
     detail::Replay replay(reader, trace_name, options);
     return replay.run();
 }

@@ -1,6 +1,7 @@
+// SPDX-License-Identifier: Apache-2.0
 // Acceleration structures: their objects and size queries, the builds and deserializations
 // that write them (cluster_command.cpp, nv_command.cpp do the work), and the captured ray checks.
-#include "replayer_internal.hpp"
+#include "replayer_internal.h"
 
 namespace clastrace::replay::detail {
 
@@ -45,27 +46,39 @@ bool Replay::on_acceleration_structure_record(fbs::RecordBody kind, const fbs::R
 
 // A cluster build runs on the engine with its count checked against the largest
 // vkGetClusterAccelerationStructureBuildSizesNV query for its op type and mode.
-void Replay::build_clusters(const fbs::CmdBuildClusterAccelerationStructureIndirect& build, const CommandRef& ref,
-                            const ReplayLocation& where) {
+void Replay::build_clusters(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
+                            const CommandRef& ref, const ReplayLocation& where) {
     lay_in_snapshots(build.inputs(), where);
     uint32_t queried = 0;
     if (build.input()) {
         auto it = queried_max_count_.find({build.input()->op_type(), build.input()->op_mode()});
         if (it != queried_max_count_.end()) queried = it->second;
     }
-    ClusterCommandContext context{memory_, directory_, translation_, properties_, options_, report_, sync_,
-                                  ref,     where,      report_.engine_trace,
+    ClusterCommandContext context{memory_,
+                                  directory_,
+                                  translation_,
+                                  properties_,
+                                  options_,
+                                  report_,
+                                  sync_,
+                                  ref,
+                                  where,
+                                  report_.engine_trace,
                                   [this](ReplayFinding f) { add_finding(std::move(f)); },
-                                  [this](uint64_t hash, std::vector<uint8_t>* out) { return contents(hash, out); },
-                                  observed_execution_, observed_engine_ns_};
+                                  [this](uint64_t hash, std::vector<uint8_t>* out) {
+                                      return contents(hash, out);
+                                  },
+                                  observed_execution_,
+                                  observed_engine_ns_};
     run_cluster_command(build, queried, context);
 }
-void Replay::build_nv(const fbs::CmdBuildAccelerationStructureNV& b, const CommandRef& ref, const ReplayLocation& where) {
+void Replay::build_nv(const fbs::CmdBuildAccelerationStructureNV& b, const CommandRef& ref,
+                      const ReplayLocation& where) {
     nv_.build(b, ref, where);  // nv_command.cpp
 }
 
-void Replay::copy_to_object(const fbs::CmdCopyMemoryToAccelerationStructure& c, const CommandRef& ref,
-                            const ReplayLocation& where) {
+void Replay::copy_to_object(const fbs::CmdCopyMemoryToAccelerationStructure& c,
+                            const CommandRef& ref, const ReplayLocation& where) {
     nv_.deserialize(c, ref, where);  // nv_command.cpp
 }
 

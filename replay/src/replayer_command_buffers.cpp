@@ -1,6 +1,7 @@
+// SPDX-License-Identifier: Apache-2.0
 // Command buffers: recording (and restating) their commands, forgetting them on reset or past
 // the memory limit, and executing one at submission, secondaries inline.
-#include "replayer_internal.hpp"
+#include "replayer_internal.h"
 
 namespace clastrace::replay::detail {
 
@@ -18,8 +19,10 @@ const char* command_name(fbs::RecordBody kind) {
     case fbs::RecordBody::CmdDispatch: return "vkCmdDispatch";
     case fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect:
         return "vkCmdBuildClusterAccelerationStructureIndirectNV";
-    case fbs::RecordBody::CmdBuildAccelerationStructureNV: return "vkCmdBuildAccelerationStructureNV";
-    case fbs::RecordBody::CmdCopyMemoryToAccelerationStructure: return "vkCmdCopyMemoryToAccelerationStructureKHR";
+    case fbs::RecordBody::CmdBuildAccelerationStructureNV:
+        return "vkCmdBuildAccelerationStructureNV";
+    case fbs::RecordBody::CmdCopyMemoryToAccelerationStructure:
+        return "vkCmdCopyMemoryToAccelerationStructureKHR";
     case fbs::RecordBody::GpuTimestamp: return "vkCmdWriteTimestamp";
     case fbs::RecordBody::DebugLabel: return "vkCmdDebugUtilsLabelEXT";
     case fbs::RecordBody::CmdExecuteCommands: return "vkCmdExecuteCommands";
@@ -29,7 +32,8 @@ const char* command_name(fbs::RecordBody kind) {
 
 uint64_t command_buffer_of(const fbs::Record& r) {
     switch (r.body_type()) {
-    case fbs::RecordBody::CmdPipelineBarrier: return r.body_as_CmdPipelineBarrier()->command_buffer();
+    case fbs::RecordBody::CmdPipelineBarrier:
+        return r.body_as_CmdPipelineBarrier()->command_buffer();
     case fbs::RecordBody::CmdSetEvent: return r.body_as_CmdSetEvent()->command_buffer();
     case fbs::RecordBody::CmdResetEvent: return r.body_as_CmdResetEvent()->command_buffer();
     case fbs::RecordBody::CmdWaitEvents: return r.body_as_CmdWaitEvents()->command_buffer();
@@ -45,7 +49,8 @@ uint64_t command_buffer_of(const fbs::Record& r) {
         return r.body_as_CmdCopyMemoryToAccelerationStructure()->command_buffer();
     case fbs::RecordBody::GpuTimestamp: return r.body_as_GpuTimestamp()->command_buffer();
     case fbs::RecordBody::DebugLabel: return r.body_as_DebugLabel()->command_buffer();
-    case fbs::RecordBody::CmdExecuteCommands: return r.body_as_CmdExecuteCommands()->command_buffer();
+    case fbs::RecordBody::CmdExecuteCommands:
+        return r.body_as_CmdExecuteCommands()->command_buffer();
     default: return 0;
     }
 }
@@ -63,14 +68,17 @@ bool Replay::on_command_buffer_record(fbs::RecordBody kind, const fbs::Record& r
             // Copy k of the recording, for the (k+1)-th execution in the next submission; a
             // hostile index cannot make the list longer than the copies actually written.
             if (k > cb.restated.size() + 1) {
-                add_finding({"CLASTRACE-replay-restatement-out-of-order",
-                             "CommandBufferBegin of " + detail::hex(begin->command_buffer()) + " restates execution " +
-                                 std::to_string(k) + " but only " + std::to_string(cb.restated.size()) +
-                                 " restatement(s) precede it: its commands are kept as restatement " +
-                                 std::to_string(cb.restated.size() + 1),
-                             FindingSource::kReplay, ReplayLocation{sequence_, next_submission_, 0, 0,
-                                                                    begin->command_buffer(), "vkBeginCommandBuffer"},
-                             -1, 0});
+                add_finding(
+                    {"CLASTRACE-replay-restatement-out-of-order",
+                     "CommandBufferBegin of " + detail::hex(begin->command_buffer()) +
+                         " restates execution " + std::to_string(k) + " but only " +
+                         std::to_string(cb.restated.size()) +
+                         " restatement(s) precede it: its commands are kept as restatement " +
+                         std::to_string(cb.restated.size() + 1),
+                     FindingSource::kReplay,
+                     ReplayLocation{sequence_, next_submission_, 0, 0, begin->command_buffer(),
+                                    "vkBeginCommandBuffer"},
+                     -1, 0});
             }
             const size_t slot = std::min<size_t>(k, cb.restated.size() + 1);
             if (slot > cb.restated.size()) cb.restated.emplace_back();
@@ -85,7 +93,9 @@ bool Replay::on_command_buffer_record(fbs::RecordBody kind, const fbs::Record& r
         cb.secondary = begin->level() == 1;
         break;
     }
-    case fbs::RecordBody::CommandBufferReset: reset_command_buffers(*r.body_as_CommandBufferReset()); break;
+    case fbs::RecordBody::CommandBufferReset:
+        reset_command_buffers(*r.body_as_CommandBufferReset());
+        break;
     default: return false;
     }
     return true;
@@ -94,19 +104,23 @@ bool Replay::on_command_buffer_record(fbs::RecordBody kind, const fbs::Record& r
 void Replay::reset_command_buffers(const fbs::CommandBufferReset& reset) {
     if (reset.command_buffer() != 0) {
         forget_recorded(reset.command_buffer());
-        if (reset.command_pool() != 0) pool_members_[reset.command_pool()].insert(reset.command_buffer());
+        if (reset.command_pool() != 0)
+            pool_members_[reset.command_pool()].insert(reset.command_buffer());
         return;
     }
     if (reset.command_pool() == 0) return;
     auto members = pool_members_.find(reset.command_pool());
     if (members == pool_members_.end()) {
-        if (!pools_noted_.insert(reset.command_pool()).second) return;  // a pool reset every frame: noted once
+        if (!pools_noted_.insert(reset.command_pool()).second)
+            return;  // a pool reset every frame: noted once
         ReplayLocation where;
         where.submission = next_submission_;
         where.name = "vkResetCommandPool";
-        report_.not_replayed.push_back({where, "vkResetCommandPool(" + detail::hex(reset.command_pool()) +
-                                                   "): the trace does not say which command buffers the pool holds; "
-                                                   "a buffer submitted again without being re-recorded replays its old commands"});
+        report_.not_replayed.push_back(
+            {where,
+             "vkResetCommandPool(" + detail::hex(reset.command_pool()) +
+                 "): the trace does not say which command buffers the pool holds; "
+                 "a buffer submitted again without being re-recorded replays its old commands"});
         return;
     }
     for (uint64_t cb : members->second) forget_recorded(cb);
@@ -139,7 +153,8 @@ void Replay::limit_recorded() {
     }
 }
 
-void Replay::run_command_buffer(uint64_t handle, uint32_t submission, uint32_t cb_index, const CommandRef* inside) {
+void Replay::run_command_buffer(uint64_t handle, uint32_t submission, uint32_t cb_index,
+                                const CommandRef* inside) {
     const char* where_name = inside ? "vkCmdExecuteCommands" : "vkQueueSubmit";
     auto location_here = [&] {
         ReplayLocation where{sequence_, submission, cb_index, 0, handle, where_name};
@@ -154,12 +169,13 @@ void Replay::run_command_buffer(uint64_t handle, uint32_t submission, uint32_t c
     auto it = recorded_.find(handle);
     if (it == recorded_.end()) {
         if (dropped_.count(handle))
-            add_finding({"CLASTRACE-replay-command-buffer-dropped",
-                         "command buffer " + detail::hex(handle) +
-                             " is submitted again, but its commands were dropped to keep the replay within "
-                             "ReplayOptions::max_recorded_bytes (" + std::to_string(options_.max_recorded_bytes) +
-                             "): not replayed",
-                         FindingSource::kReplay, location_here(), -1, 0});
+            add_finding(
+                {"CLASTRACE-replay-command-buffer-dropped",
+                 "command buffer " + detail::hex(handle) +
+                     " is submitted again, but its commands were dropped to keep the replay within "
+                     "ReplayOptions::max_recorded_bytes (" +
+                     std::to_string(options_.max_recorded_bytes) + "): not replayed",
+                 FindingSource::kReplay, location_here(), -1, 0});
         else  // Reset (buffer or pool), never begun in the trace, or a one-time buffer submitted again.
             add_finding({"CLASTRACE-replay-command-buffer-not-recorded",
                          "command buffer " + detail::hex(handle) +
@@ -189,10 +205,11 @@ void Replay::run_command_buffer(uint64_t handle, uint32_t submission, uint32_t c
         if (record->body_type() == fbs::RecordBody::CmdExecuteCommands) {
             if (inside) {
                 if (selected(sequence, submission))
-                    report_.not_replayed.push_back({location(ref, sequence),
-                                                    "vkCmdExecuteCommands inside a secondary command buffer "
-                                                    "(VK_EXT_nested_command_buffer): the nested secondaries are not "
-                                                    "replayed"});
+                    report_.not_replayed.push_back(
+                        {location(ref, sequence),
+                         "vkCmdExecuteCommands inside a secondary command buffer "
+                         "(VK_EXT_nested_command_buffer): the nested secondaries are not "
+                         "replayed"});
             } else {
                 execute_secondaries(*record->body_as_CmdExecuteCommands(), ref);
             }
@@ -214,8 +231,10 @@ void Replay::execute_secondaries(const fbs::CmdExecuteCommands& execute, const C
         auto it = recorded_.find(secondary);
         if (it != recorded_.end() && !it->second.secondary)
             add_finding({"VUID-vkCmdExecuteCommands-pCommandBuffers-00088",
-                         "pCommandBuffers[" + std::to_string(inside.secondary) + "] (" + detail::hex(secondary) +
-                             ") was begun as a primary command buffer (CommandBufferBegin level 0): it is replayed "
+                         "pCommandBuffers[" + std::to_string(inside.secondary) + "] (" +
+                             detail::hex(secondary) +
+                             ") was begun as a primary command buffer (CommandBufferBegin level "
+                             "0): it is replayed "
                              "inline all the same",
                          FindingSource::kReplay, location(ref, sequence_), -1, 0});
         run_command_buffer(secondary, ref.submission, ref.command_buffer, &inside);

@@ -1,5 +1,6 @@
+// SPDX-License-Identifier: Apache-2.0
 // One report for the hazards one missing barrier causes once per op.
-#include "replayer_internal.hpp"
+#include "replayer_internal.h"
 
 #include <map>
 #include <tuple>
@@ -34,19 +35,21 @@ std::string any_index(const std::string& field) {
 // The engine reports accesses per op, so one missing barrier before a build would show
 // once per op. Hazards of one class between the same two commands over the same prior
 // field become one report whose later field names the ops as [*] and whose ranges cover them all.
-std::vector<HazardReport> merge_per_op_hazards(const std::vector<HazardReport>& hazards, uint64_t* merged) {
+std::vector<HazardReport> merge_per_op_hazards(const std::vector<HazardReport>& hazards,
+                                               uint64_t* merged) {
     std::vector<HazardReport> out;
     // A command is (submission, command buffer, command) and, inside a secondary, (secondary,
     // its command): commands of one secondary share the primary's execute index.
     auto command_key = [](const CommandRef& c) {
-        return std::make_tuple(c.submission, c.command_buffer, c.command, c.secondary_handle ? c.secondary + 1 : 0u,
-                               c.secondary_command);
+        return std::make_tuple(c.submission, c.command_buffer, c.command,
+                               c.secondary_handle ? c.secondary + 1 : 0u, c.secondary_command);
     };
     using CommandKey = decltype(command_key(CommandRef{}));
     std::map<std::tuple<int, CommandKey, CommandKey, std::string, std::string>, size_t> index;
     for (const HazardReport& h : hazards) {
-        auto key = std::make_tuple(int(h.hazard), command_key(h.prior.command), command_key(h.later.command),
-                                   any_index(h.prior.field), any_index(h.later.field));
+        auto key = std::make_tuple(int(h.hazard), command_key(h.prior.command),
+                                   command_key(h.later.command), any_index(h.prior.field),
+                                   any_index(h.later.field));
         auto [it, inserted] = index.emplace(key, out.size());
         if (inserted) {
             out.push_back(h);
@@ -56,9 +59,12 @@ std::vector<HazardReport> merge_per_op_hazards(const std::vector<HazardReport>& 
         HazardReport& m = out[it->second];
         if (m.later.field != h.later.field) m.later.field = std::get<4>(key);
         if (m.prior.field != h.prior.field) m.prior.field = std::get<3>(key);
-        m.later.range = {std::min(m.later.range.begin, h.later.range.begin), std::max(m.later.range.end, h.later.range.end)};
-        m.prior.range = {std::min(m.prior.range.begin, h.prior.range.begin), std::max(m.prior.range.end, h.prior.range.end)};
-        m.overlap = {std::min(m.overlap.begin, h.overlap.begin), std::max(m.overlap.end, h.overlap.end)};
+        m.later.range = {std::min(m.later.range.begin, h.later.range.begin),
+                         std::max(m.later.range.end, h.later.range.end)};
+        m.prior.range = {std::min(m.prior.range.begin, h.prior.range.begin),
+                         std::max(m.prior.range.end, h.prior.range.end)};
+        m.overlap = {std::min(m.overlap.begin, h.overlap.begin),
+                     std::max(m.overlap.end, h.overlap.end)};
     }
     return out;
 }

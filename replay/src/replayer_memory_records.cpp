@@ -1,6 +1,7 @@
+// SPDX-License-Identifier: Apache-2.0
 // Buffers and device memory: the replay's address space, the captured snapshots laid into it,
 // and the host's writes to mapped memory.
-#include "replayer_internal.hpp"
+#include "replayer_internal.h"
 
 namespace clastrace::replay::detail {
 
@@ -17,9 +18,13 @@ bool Replay::on_memory_record(fbs::RecordBody kind, const fbs::Record& r) {
         memory_.bind_buffer(b->buffer(), b->memory(), b->memory_offset(), b->device_address());
         break;
     }
-    case fbs::RecordBody::BufferDestroy: memory_freed(memory_.destroy_buffer(r.body_as_BufferDestroy()->buffer())); break;
+    case fbs::RecordBody::BufferDestroy:
+        memory_freed(memory_.destroy_buffer(r.body_as_BufferDestroy()->buffer()));
+        break;
     case fbs::RecordBody::MemoryFree: memory_.free_memory(r.body_as_MemoryFree()->memory()); break;
-    case fbs::RecordBody::MemoryObservation: host_observation(*r.body_as_MemoryObservation()); break;
+    case fbs::RecordBody::MemoryObservation:
+        host_observation(*r.body_as_MemoryObservation());
+        break;
     default: return false;
     }
     return true;
@@ -32,7 +37,8 @@ void Replay::memory_freed(std::optional<AddressRange> range) {
     directory_.forget(range->begin, range->end);
     auto inside = [&](uint64_t a) { return a >= range->begin && a < range->end; };
     std::erase_if(translation_.rebuilt, inside);
-    std::erase_if(translation_.rebuilt_at, [&](const auto& e) { return inside(e.first) || inside(e.second); });
+    std::erase_if(translation_.rebuilt_at,
+                  [&](const auto& e) { return inside(e.first) || inside(e.second); });
     std::erase_if(translation_.translated_cells, [&](const auto& e) { return inside(e.first); });
     if (options_.check_hazards) sync_.memory_freed(*range);
 }
@@ -41,21 +47,25 @@ bool Replay::contents(uint64_t hash, std::vector<uint8_t>* bytes) {
     return !reader_.read_contents(hash, bytes);
 }
 
-void Replay::lay_in_snapshots(const traces::SnapshotVector* snapshots, const ReplayLocation& where) {
+void Replay::lay_in_snapshots(const traces::SnapshotVector* snapshots,
+                              const ReplayLocation& where) {
     if (!snapshots) return;
     std::vector<uint8_t> bytes;
     for (const fbs::MemorySnapshot* s : *snapshots) {
-        std::optional<uint64_t> address = memory_.snapshot_address(s->buffer(), s->offset(), s->address());
+        std::optional<uint64_t> address =
+            memory_.snapshot_address(s->buffer(), s->offset(), s->address());
         const uint64_t refused = memory_.writes_over_budget();
         if (!address || !contents(s->hash(), &bytes) || !memory_.lay_in(*address, bytes)) {
             ++report_.counts.snapshots_outside_memory;
-            if (memory_.writes_over_budget() != refused) continue;  // named once, by the budget finding
-            add_finding({"CLASTRACE-replay-snapshot-outside-memory",
-                         "captured snapshot of " + std::to_string(s->size()) + " bytes at buffer " +
-                             detail::hex(s->buffer()) + " offset " + std::to_string(s->offset()) + " address " +
-                             detail::hex(s->address()) +
-                             " lies in no bound buffer (or its contents are missing): not laid into memory",
-                         FindingSource::kReplay, where, -1, s->address()});
+            if (memory_.writes_over_budget() != refused)
+                continue;  // named once, by the budget finding
+            add_finding(
+                {"CLASTRACE-replay-snapshot-outside-memory",
+                 "captured snapshot of " + std::to_string(s->size()) + " bytes at buffer " +
+                     detail::hex(s->buffer()) + " offset " + std::to_string(s->offset()) +
+                     " address " + detail::hex(s->address()) +
+                     " lies in no bound buffer (or its contents are missing): not laid into memory",
+                 FindingSource::kReplay, where, -1, s->address()});
             continue;
         }
         ++report_.counts.snapshots_applied;
@@ -68,7 +78,8 @@ void Replay::host_observation(const fbs::MemoryObservation& observation) {
     CommandRef ref{next_submission_, 0, 0, host_ops_++, "host write (mapped memory)"};
     std::vector<uint8_t> bytes, before;
     for (const fbs::MemorySnapshot* s : *observation.snapshots()) {
-        std::optional<uint64_t> address = memory_.snapshot_address(s->buffer(), s->offset(), s->address());
+        std::optional<uint64_t> address =
+            memory_.snapshot_address(s->buffer(), s->offset(), s->address());
         if (!address || !contents(s->hash(), &bytes)) {
             ++report_.counts.snapshots_outside_memory;
             continue;
@@ -90,8 +101,8 @@ void Replay::host_observation(const fbs::MemoryObservation& observation) {
         report_.counts.snapshot_bytes += bytes.size();
         if (options_.check_hazards && !written.empty()) {
             ++report_.counts.accesses;
-            sync_.host_access(ref, Access{written, VK_PIPELINE_STAGE_2_HOST_BIT, VK_ACCESS_2_HOST_WRITE_BIT, true,
-                                          "mapped memory"});
+            sync_.host_access(ref, Access{written, VK_PIPELINE_STAGE_2_HOST_BIT,
+                                          VK_ACCESS_2_HOST_WRITE_BIT, true, "mapped memory"});
         }
     }
 }

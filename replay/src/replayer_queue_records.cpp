@@ -1,6 +1,7 @@
+// SPDX-License-Identifier: Apache-2.0
 // Queue work and what the host waits for: submissions run their command buffers, waits tell
 // the synchronization model what completed, acquires signal and presents wait.
-#include "replayer_internal.hpp"
+#include "replayer_internal.h"
 
 namespace clastrace::replay::detail {
 
@@ -10,14 +11,16 @@ bool Replay::on_queue_record(fbs::RecordBody kind, const fbs::Record& r) {
     switch (kind) {
     case fbs::RecordBody::QueueSubmit: on_submit(*r.body_as_QueueSubmit()); break;
     case fbs::RecordBody::QueueWaitIdle:
-        if (options_.check_hazards) sync_.queue_wait_idle(queue_id(r.body_as_QueueWaitIdle()->queue()));
+        if (options_.check_hazards)
+            sync_.queue_wait_idle(queue_id(r.body_as_QueueWaitIdle()->queue()));
         break;
     case fbs::RecordBody::DeviceWaitIdle:
         if (options_.check_hazards) sync_.device_wait_idle();
         break;
     case fbs::RecordBody::FenceWait: {
         const auto* w = r.body_as_FenceWait();
-        if (options_.check_hazards && w->result() == VK_SUCCESS && w->fences() && (w->wait_all() || w->fences()->size() == 1))
+        if (options_.check_hazards && w->result() == VK_SUCCESS && w->fences() &&
+            (w->wait_all() || w->fences()->size() == 1))
             for (uint64_t f : *w->fences()) sync_.wait_for_fence(f);
         break;
     }
@@ -28,12 +31,16 @@ bool Replay::on_queue_record(fbs::RecordBody kind, const fbs::Record& r) {
     }
     case fbs::RecordBody::HostSemaphoreOp: {
         const auto* h = r.body_as_HostSemaphoreOp();
-        if (!options_.check_hazards || !h->semaphores() || !h->values() || h->result() != VK_SUCCESS) break;
+        if (!options_.check_hazards || !h->semaphores() || !h->values() ||
+            h->result() != VK_SUCCESS)
+            break;
         const size_t n = std::min(h->semaphores()->size(), h->values()->size());
         for (size_t i = 0; i < n; ++i) {
             auto k = static_cast<flatbuffers::uoffset_t>(i);
-            if (h->op() == 0) sync_.host_signal_semaphore(h->semaphores()->Get(k), h->values()->Get(k));
-            else if (!h->wait_any() || n == 1) sync_.host_wait_semaphore(h->semaphores()->Get(k), h->values()->Get(k));
+            if (h->op() == 0)
+                sync_.host_signal_semaphore(h->semaphores()->Get(k), h->values()->Get(k));
+            else if (!h->wait_any() || n == 1)
+                sync_.host_wait_semaphore(h->semaphores()->Get(k), h->values()->Get(k));
         }
         break;
     }
@@ -44,7 +51,8 @@ bool Replay::on_queue_record(fbs::RecordBody kind, const fbs::Record& r) {
 
 void Replay::on_submit(const fbs::QueueSubmit& submit) {
     const uint32_t submission = static_cast<uint32_t>(submit.submission_index());
-    if (submission != next_submission_) binary_signals_.forget_all();  // submissions left out of the trace
+    if (submission != next_submission_)
+        binary_signals_.forget_all();  // submissions left out of the trace
     next_submission_ = submission + 1;
     host_ops_ = 0;
     ++report_.counts.submissions;
@@ -55,19 +63,23 @@ void Replay::on_submit(const fbs::QueueSubmit& submit) {
     const size_t batch_count = batches ? batches->size() : 0;
     uint32_t cb_index = 0;
     for (size_t b = 0; b < std::max<size_t>(batch_count, 1); ++b) {
-        const fbs::SubmitBatch* batch = batch_count ? batches->Get(static_cast<flatbuffers::uoffset_t>(b)) : nullptr;
+        const fbs::SubmitBatch* batch =
+            batch_count ? batches->Get(static_cast<flatbuffers::uoffset_t>(b)) : nullptr;
         std::vector<SemaphoreWait> waits;
         std::vector<SemaphoreSignal> signals;
         if (batch && batch->wait_semaphores())
             for (const fbs::SemaphoreOp* w : *batch->wait_semaphores())
                 waits.push_back({w->semaphore(), w->value(),
-                                 w->stage_mask() ? w->stage_mask() : StageMask(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT)});
+                                 w->stage_mask()
+                                     ? w->stage_mask()
+                                     : StageMask(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT)});
         if (batch && batch->signal_semaphores())
             for (const fbs::SemaphoreOp* s : *batch->signal_semaphores())
                 // vkQueueSubmit signals are ALL_COMMANDS by the spec (their stage_mask is 0 or that).
                 signals.push_back({s->semaphore(), s->value(),
-                                   submit.version() >= 2 && s->stage_mask() ? StageMask(s->stage_mask())
-                                                                            : StageMask(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT)});
+                                   submit.version() >= 2 && s->stage_mask()
+                                       ? StageMask(s->stage_mask())
+                                       : StageMask(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT)});
         check_binary_signals(submit, static_cast<uint32_t>(b), waits, signals);
         if (options_.check_hazards) sync_.begin_submission(queue, submission, waits);
         if (batch && batch->command_buffers()) {
@@ -76,12 +88,14 @@ void Replay::on_submit(const fbs::QueueSubmit& submit) {
                 ++cb_index;
             }
         }
-        if (options_.check_hazards) sync_.end_submission(signals, b + 1 >= batch_count ? submit.fence() : 0);
+        if (options_.check_hazards)
+            sync_.end_submission(signals, b + 1 >= batch_count ? submit.fence() : 0);
         memory_.note_peak();
     }
     // Restated copies serve this submission only; the recording itself may be submitted again.
     for (const auto& [handle, count] : executions_)
-        if (auto it = recorded_.find(handle); it != recorded_.end() && !it->second.restated.empty()) {
+        if (auto it = recorded_.find(handle);
+            it != recorded_.end() && !it->second.restated.empty()) {
             uint64_t copies = 0;
             for (const Commands& copy : it->second.restated)
                 for (const auto& bytes : copy) copies += bytes.size();
@@ -96,7 +110,8 @@ void Replay::on_submit(const fbs::QueueSubmit& submit) {
     if (options_.observer) options_.observer->on_submission_end(submission);
 }
 
-void Replay::check_binary_signals(const fbs::QueueSubmit& submit, uint32_t batch, std::span<const SemaphoreWait> waits,
+void Replay::check_binary_signals(const fbs::QueueSubmit& submit, uint32_t batch,
+                                  std::span<const SemaphoreWait> waits,
                                   std::span<const SemaphoreSignal> signals) {
     // A wait value of 0 is a binary semaphore (timeline values start above 0), as in SyncModel.
     for (const SemaphoreWait& w : waits)
@@ -105,18 +120,22 @@ void Replay::check_binary_signals(const fbs::QueueSubmit& submit, uint32_t batch
     const uint32_t submission = static_cast<uint32_t>(submit.submission_index());
     for (size_t i = 0; i < signals.size(); ++i) {
         if (signals[i].value != 0) continue;
-        const std::string here = "submission " + std::to_string(submission) + " batch " + std::to_string(batch);
+        const std::string here =
+            "submission " + std::to_string(submission) + " batch " + std::to_string(batch);
         const std::string earlier = binary_signals_.signal(signals[i].semaphore, here);
         if (earlier.empty()) continue;
         ReplayLocation where;
         where.sequence = sequence_;
         where.submission = submission;
         where.name = v2 ? "vkQueueSubmit2" : "vkQueueSubmit";
-        const std::string field = v2 ? "pSubmits[" + std::to_string(batch) + "].pSignalSemaphoreInfos[" + std::to_string(i) + "]"
-                                     : "pSubmits[" + std::to_string(batch) + "].pSignalSemaphores[" + std::to_string(i) + "]";
-        add_finding({v2 ? "VUID-vkQueueSubmit2-semaphore-03868" : "VUID-vkQueueSubmit-pSignalSemaphores-00067",
-                     field + ": binary semaphore " + detail::hex(signals[i].semaphore) + " is signalled by " + here +
-                         " while still signalled by " + earlier +
+        const std::string field = v2 ? "pSubmits[" + std::to_string(batch) +
+                                           "].pSignalSemaphoreInfos[" + std::to_string(i) + "]"
+                                     : "pSubmits[" + std::to_string(batch) +
+                                           "].pSignalSemaphores[" + std::to_string(i) + "]";
+        add_finding({v2 ? "VUID-vkQueueSubmit2-semaphore-03868"
+                        : "VUID-vkQueueSubmit-pSignalSemaphores-00067",
+                     field + ": binary semaphore " + detail::hex(signals[i].semaphore) +
+                         " is signalled by " + here + " while still signalled by " + earlier +
                          " (no submission or present waited on it in between)",
                      FindingSource::kReplay, where, -1, 0});
     }
@@ -135,18 +154,21 @@ bool Replay::on_presentation_record(fbs::RecordBody kind, const fbs::Record& r) 
         const bool signals = a->result() == VK_SUCCESS || a->result() == VK_SUBOPTIMAL_KHR;
         if (a->semaphore()) {
             // Whatever the result, the semaphore had to be unsignalled at the call.
-            const std::string here = std::string(name) + " (swapchain " + detail::hex(a->swapchain()) + ", image " +
+            const std::string here = std::string(name) + " (swapchain " +
+                                     detail::hex(a->swapchain()) + ", image " +
                                      std::to_string(a->image_index()) + ")";
-            const std::string earlier =
-                signals ? binary_signals_.signal(a->semaphore(), here) : binary_signals_.signalled_by(a->semaphore());
+            const std::string earlier = signals ? binary_signals_.signal(a->semaphore(), here)
+                                                : binary_signals_.signalled_by(a->semaphore());
             if (!earlier.empty()) {
                 ReplayLocation where;
                 where.sequence = sequence_;
                 where.submission = next_submission_;
                 where.name = name;
-                add_finding({v2 ? "VUID-VkAcquireNextImageInfoKHR-semaphore-01288" : "VUID-vkAcquireNextImageKHR-semaphore-01286",
-                             std::string(v2 ? "pAcquireInfo->semaphore" : "semaphore") + ": binary semaphore " +
-                                 detail::hex(a->semaphore()) + " is still signalled by " + earlier +
+                add_finding({v2 ? "VUID-VkAcquireNextImageInfoKHR-semaphore-01288"
+                                : "VUID-vkAcquireNextImageKHR-semaphore-01286",
+                             std::string(v2 ? "pAcquireInfo->semaphore" : "semaphore") +
+                                 ": binary semaphore " + detail::hex(a->semaphore()) +
+                                 " is still signalled by " + earlier +
                                  " (no submission or present waited on it in between)",
                              FindingSource::kReplay, where, -1, 0});
             }
@@ -161,7 +183,8 @@ bool Replay::on_presentation_record(fbs::RecordBody kind, const fbs::Record& r) 
         if (p->wait_semaphores())
             for (uint64_t semaphore : *p->wait_semaphores()) binary_signals_.consume(semaphore);
         if (options_.check_hazards && p->wait_semaphores())
-            sync_.present_wait(std::span<const uint64_t>(p->wait_semaphores()->data(), p->wait_semaphores()->size()));
+            sync_.present_wait(std::span<const uint64_t>(p->wait_semaphores()->data(),
+                                                         p->wait_semaphores()->size()));
         break;
     }
     default: return false;

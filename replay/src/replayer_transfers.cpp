@@ -1,17 +1,19 @@
+// SPDX-License-Identifier: Apache-2.0
 // Transfer and compute commands: copies, fills and updates done in the replay's memory, and
 // dispatches whose effect is what the capture saw them write.
-#include "replayer_internal.hpp"
+#include "replayer_internal.h"
 
 namespace clastrace::replay::detail {
 
-void Replay::feed(const CommandRef& ref, const AddressRange& range, StageMask stage, AccessMask access, bool write,
-                  std::string_view field) {
+void Replay::feed(const CommandRef& ref, const AddressRange& range, StageMask stage,
+                  AccessMask access, bool write, std::string_view field) {
     if (!options_.check_hazards || range.empty()) return;
     ++report_.counts.accesses;
     sync_.record_access(ref, Access{range, stage, access, write, field});
 }
 
-void Replay::copy_buffer(const fbs::CmdCopyBuffer& copy, const CommandRef& ref, const ReplayLocation& where) {
+void Replay::copy_buffer(const fbs::CmdCopyBuffer& copy, const CommandRef& ref,
+                         const ReplayLocation& where) {
     ++report_.counts.copies;
     lay_in_snapshots(copy.inputs(), where);
     if (!copy.regions()) return;
@@ -21,13 +23,17 @@ void Replay::copy_buffer(const fbs::CmdCopyBuffer& copy, const CommandRef& ref, 
         auto src = memory_.buffer_range(copy.src_buffer(), region->src_offset(), region->size());
         auto dst = memory_.buffer_range(copy.dst_buffer(), region->dst_offset(), region->size());
         if (src && dst) {
-            if (memory_.read(src->begin, src->end - src->begin, &bytes)) memory_.write(dst->begin, bytes);
+            if (memory_.read(src->begin, src->end - src->begin, &bytes))
+                memory_.write(dst->begin, bytes);
             if (options_.check_hazards) {
                 report_.counts.accesses += 2;
                 std::string src_field = "pRegions[" + std::to_string(i) + "].srcOffset";
                 std::string dst_field = "pRegions[" + std::to_string(i) + "].dstOffset";
-                sync_.record_copy(ref, Access{*src, VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT, false, src_field},
-                                  Access{*dst, VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, true, dst_field});
+                sync_.record_copy(ref,
+                                  Access{*src, VK_PIPELINE_STAGE_2_COPY_BIT,
+                                         VK_ACCESS_2_TRANSFER_READ_BIT, false, src_field},
+                                  Access{*dst, VK_PIPELINE_STAGE_2_COPY_BIT,
+                                         VK_ACCESS_2_TRANSFER_WRITE_BIT, true, dst_field});
             }
         }
         ++i;
@@ -38,9 +44,11 @@ void Replay::fill_buffer(const fbs::CmdFillBuffer& fill, const CommandRef& ref) 
     ++report_.counts.copies;
     auto range = memory_.buffer_range(fill.dst_buffer(), fill.dst_offset(), fill.size());
     if (!range) return;
-    if (fill.size() == kWholeSize) range->end = range->begin + ((range->end - range->begin) & ~3ull);
+    if (fill.size() == kWholeSize)
+        range->end = range->begin + ((range->end - range->begin) & ~3ull);
     memory_.fill(range->begin, range->end - range->begin, fill.data());
-    feed(ref, *range, VK_PIPELINE_STAGE_2_CLEAR_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, true, "dstOffset");
+    feed(ref, *range, VK_PIPELINE_STAGE_2_CLEAR_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, true,
+         "dstOffset");
 }
 
 void Replay::update_buffer(const fbs::CmdUpdateBuffer& update, const CommandRef& ref) {
@@ -48,15 +56,18 @@ void Replay::update_buffer(const fbs::CmdUpdateBuffer& update, const CommandRef&
     const uint64_t size = update.data() ? update.data()->size() : 0;
     auto range = memory_.buffer_range(update.dst_buffer(), update.dst_offset(), size);
     if (!range || size == 0) return;
-    memory_.write(range->begin, std::span<const uint8_t>(update.data()->data(), range->end - range->begin));
+    memory_.write(range->begin,
+                  std::span<const uint8_t>(update.data()->data(), range->end - range->begin));
     feed(ref, *range, VK_PIPELINE_STAGE_2_CLEAR_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, true, "pData");
 }
 
-void Replay::dispatch(const fbs::CmdDispatch& d, const CommandRef& ref, const ReplayLocation& where) {
+void Replay::dispatch(const fbs::CmdDispatch& d, const CommandRef& ref,
+                      const ReplayLocation& where) {
     lay_in_snapshots(d.inputs(), where);
     if (d.indirect_buffer() != 0) {
         if (auto r = memory_.buffer_range(d.indirect_buffer(), d.indirect_offset(), 12))
-            feed(ref, *r, VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT, VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT, false, "indirect buffer");
+            feed(ref, *r, VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT,
+                 VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT, false, "indirect buffer");
     }
     if (d.storage_buffers()) {
         // Which bytes a shader writes is unknown: every bound storage range counts as read and written.
@@ -68,10 +79,12 @@ void Replay::dispatch(const fbs::CmdDispatch& d, const CommandRef& ref, const Re
                 r = memory_.buffer_range(b->buffer(), b->offset(), b->range());
             }
             if (!r) continue;
-            std::string field = "set " + std::to_string(b->set()) + " binding " + std::to_string(b->binding()) + "[" +
+            std::string field = "set " + std::to_string(b->set()) + " binding " +
+                                std::to_string(b->binding()) + "[" +
                                 std::to_string(b->array_element()) + "]";
             feed(ref, *r, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
-                 VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, true, field);
+                 VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, true,
+                 field);
         }
     }
     // The shader's effect is whatever the capture saw it write.

@@ -1,6 +1,7 @@
+// SPDX-License-Identifier: Apache-2.0
 // SyncModel's address map: accesses recorded into the address segments they cover, each
 // segment checked against what it held.
-#include "sync_model_internal.hpp"
+#include "sync_model_internal.h"
 
 #include <algorithm>
 #include <iterator>
@@ -17,21 +18,25 @@ void SyncModel::State::record(const Record& b, bool deserialize, std::vector<Fin
     segments.update(
         begin, end, b.is_write,
         [&](Segment& fresh, uint64_t, uint64_t) {
-            if (b.is_write) fresh.write = b;
-            else fresh.reads.push_back(b);
+            if (b.is_write)
+                fresh.write = b;
+            else
+                fresh.reads.push_back(b);
         },
         [&](Segment& seg, uint64_t seg_begin, uint64_t seg_end) {
             check_and_update(seg, seg_begin, seg_end, later, found);
         });
-    if (collect) collect->insert(collect->end(), std::make_move_iterator(found.begin()), std::make_move_iterator(found.end()));
+    if (collect)
+        collect->insert(collect->end(), std::make_move_iterator(found.begin()),
+                        std::make_move_iterator(found.end()));
     else
         for (const Finding& f : found) emit(f, b);
     stats.segments = segments.size();
     stats.peak_segments = std::max<uint64_t>(stats.peak_segments, segments.size());
 }
 
-void SyncModel::State::check_and_update(Segment& seg, uint64_t seg_begin, uint64_t seg_end, const Later& later,
-                                        std::vector<Finding>& found) {
+void SyncModel::State::check_and_update(Segment& seg, uint64_t seg_begin, uint64_t seg_end,
+                                        const Later& later, std::vector<Finding>& found) {
     const Record& b = *later.record;
     if (b.is_write) {
         bool any_read = false;
@@ -42,12 +47,16 @@ void SyncModel::State::check_and_update(Segment& seg, uint64_t seg_begin, uint64
             if (r.queue != kHostSlot && r.tag < queues[r.queue].complete) continue;
             any_read = true;
             if (auto fix = unordered(r, later, false, seg_begin, seg_end))
-                note(found, later.deserialize ? HazardClass::kDeserializeInUse : HazardClass::kWriteAfterRead, r,
-                     b, *fix, seg_begin, seg_end);
+                note(found,
+                     later.deserialize ? HazardClass::kDeserializeInUse
+                                       : HazardClass::kWriteAfterRead,
+                     r, b, *fix, seg_begin, seg_end);
         }
         if (!any_read && seg.write && seg.write->tag != b.tag) {
             if (auto fix = unordered(*seg.write, later, true, seg_begin, seg_end))
-                note(found, later.deserialize ? HazardClass::kDeserializeInUse : HazardClass::kWriteAfterWrite,
+                note(found,
+                     later.deserialize ? HazardClass::kDeserializeInUse
+                                       : HazardClass::kWriteAfterWrite,
                      *seg.write, b, *fix, seg_begin, seg_end);
         }
         seg.write = b;
@@ -70,18 +79,20 @@ void SyncModel::State::check_and_update(Segment& seg, uint64_t seg_begin, uint64
     seg.reads.push_back(b);
 }
 
-Record SyncModel::State::make_record(const CommandRef& command, const Access& a, uint16_t queue, uint64_t t) {
+Record SyncModel::State::make_record(const CommandRef& command, const Access& a, uint16_t queue,
+                                     uint64_t t) {
     Record r;
     fill_record(r, command, a, queue, t);
     return r;
 }
 
-void SyncModel::State::fill_record(Record& r, const CommandRef& command, const Access& a, uint16_t queue, uint64_t t) {
+void SyncModel::State::fill_record(Record& r, const CommandRef& command, const Access& a,
+                                   uint16_t queue, uint64_t t) {
     fill_record(r, command, a, queue, t, intern(a.field));
 }
 
-void SyncModel::State::fill_record(Record& r, const CommandRef& command, const Access& a, uint16_t queue, uint64_t t,
-                                   uint32_t field) {
+void SyncModel::State::fill_record(Record& r, const CommandRef& command, const Access& a,
+                                   uint16_t queue, uint64_t t, uint32_t field) {
     r.element_bytes = 0;
     r.first_element = 0;
     r.field_suffix = 0;

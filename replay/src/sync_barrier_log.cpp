@@ -1,13 +1,15 @@
+// SPDX-License-Identifier: Apache-2.0
 // SyncModel's lazy barrier log: a record's chain state catches up over its queue's log
 // only when a later access asks about it (and through semaphore waits, from other queues).
-#include "sync_model_internal.hpp"
+#include "sync_model_internal.h"
 
 #include <algorithm>
 
 namespace clastrace::replay {
 
-void SyncModel::State::apply_barriers(const Queue& q, const LogEntry& e, ChainState& s, const Record& r, bool home,
-                                      uint64_t seg_begin, uint64_t seg_end) {
+void SyncModel::State::apply_barriers(const Queue& q, const LogEntry& e, ChainState& s,
+                                      const Record& r, bool home, uint64_t seg_begin,
+                                      uint64_t seg_end) {
     // All barriers of one command act at once: decide each against the state before any.
     StageMask add_chain = 0, add_avail = 0;
     uint64_t makes_visible = 0;  // bit i: barrier i makes the write visible
@@ -34,8 +36,9 @@ void SyncModel::State::apply_barriers(const Queue& q, const LogEntry& e, ChainSt
     }
 }
 
-void SyncModel::State::apply_event_set(const Queue& q, const LogEntry& e, ChainState& s, const Record& r, bool home,
-                                       uint64_t seg_begin, uint64_t seg_end) {
+void SyncModel::State::apply_event_set(const Queue& q, const LogEntry& e, ChainState& s,
+                                       const Record& r, bool home, uint64_t seg_begin,
+                                       uint64_t seg_end) {
     // The slot may carry an older set of a reused event: this set starts it afresh.
     s.chain &= ~e.event_bits;
     s.avail &= ~e.event_bits;
@@ -47,13 +50,14 @@ void SyncModel::State::apply_event_set(const Queue& q, const LogEntry& e, ChainS
         if (!direct && !(s.chain & b.src_scope & ~kEventStageBits)) continue;
         s.chain |= e.event_bits;
         if (!r.is_write) continue;
-        const bool in_access_scope = direct && (e.v1_event || (write_atoms & b.src_atoms) == write_atoms);
+        const bool in_access_scope =
+            direct && (e.v1_event || (write_atoms & b.src_atoms) == write_atoms);
         if (in_access_scope || (s.avail & b.src_scope & ~kEventStageBits)) s.avail |= e.event_bits;
     }
 }
 
-void SyncModel::State::apply_event_wait(const Queue& q, const LogEntry& e, ChainState& s, const Record& r,
-                                        uint64_t seg_begin, uint64_t seg_end) {
+void SyncModel::State::apply_event_wait(const Queue& q, const LogEntry& e, ChainState& s,
+                                        const Record& r, uint64_t seg_begin, uint64_t seg_end) {
     if (!(s.chain & e.event_bits)) return;
     StageMask add_chain = 0, add_avail = 0;
     Visibility add_visible;
@@ -71,11 +75,12 @@ void SyncModel::State::apply_event_wait(const Queue& q, const LogEntry& e, Chain
     s.chain |= add_chain;
     s.avail |= add_avail;
     for (std::size_t i = 0; i < add_visible.size(); ++i)
-        stats.visibility_spills += s.visible.add(add_visible.at(i).stages, add_visible.at(i).accesses);
+        stats.visibility_spills +=
+            s.visible.add(add_visible.at(i).stages, add_visible.at(i).accesses);
 }
 
-void SyncModel::State::apply_entry(const Queue& q, uint32_t pos, ChainState& s, const Record& r, bool home,
-                                   uint64_t seg_begin, uint64_t seg_end) {
+void SyncModel::State::apply_entry(const Queue& q, uint32_t pos, ChainState& s, const Record& r,
+                                   bool home, uint64_t seg_begin, uint64_t seg_end) {
     const LogEntry& e = q.log[pos - q.log_base];
     ++stats.log_entries_applied;
     switch (e.kind) {
@@ -91,7 +96,8 @@ void SyncModel::State::apply_entry(const Queue& q, uint32_t pos, ChainState& s, 
     case EntryKind::kImport: {
         const Import& im = q.imports[e.import_index - q.imports_base];
         bool available = true;
-        if (covered(im.own, r.queue) > r.tag && (!im.signal || in_signal(im, r, seg_begin, seg_end, &available))) {
+        if (covered(im.own, r.queue) > r.tag &&
+            (!im.signal || in_signal(im, r, seg_begin, seg_end, &available))) {
             s.chain |= im.dst_scope;
             if (r.is_write && available) {
                 s.avail |= im.dst_scope;
@@ -133,7 +139,8 @@ void SyncModel::State::catch_up(Record& r, uint64_t seg_begin, uint64_t seg_end)
         auto sp = std::lower_bound(q.special_positions.begin(), q.special_positions.end(), pos);
         const uint32_t next_special = sp == q.special_positions.end() ? end : *sp;
         if (!settled(r)) {
-            auto f = std::lower_bound(q.full_positions.begin(), q.full_positions.end(), next_special);
+            auto f =
+                std::lower_bound(q.full_positions.begin(), q.full_positions.end(), next_special);
             if (f != q.full_positions.begin() && *(f - 1) >= pos) {
                 apply_full(r);
                 ++stats.log_entries_applied;
@@ -144,7 +151,8 @@ void SyncModel::State::catch_up(Record& r, uint64_t seg_begin, uint64_t seg_end)
                 apply_entry(q, pos, r.sync, r, true, seg_begin, seg_end);
                 uint32_t next = pos + 1;
                 if (e.run_start != kNoRun && e.run_start >= q.log_base)
-                    next = std::max(next, std::min(q.log[e.run_start - q.log_base].run_end, next_special));
+                    next = std::max(next, std::min(q.log[e.run_start - q.log_base].run_end,
+                                                   next_special));
                 pos = next;
             }
         }
@@ -154,19 +162,22 @@ void SyncModel::State::catch_up(Record& r, uint64_t seg_begin, uint64_t seg_end)
     r.log_pos = end;
 }
 
-std::optional<ChainState> SyncModel::State::foreign_view(const Record& r, const Queue& w, uint64_t seg_begin,
-                                                         uint64_t seg_end) {
-    auto it = std::partition_point(w.imports.begin(), w.imports.end(),
-                                   [&](const Import& im) { return covered(im.cumulative, r.queue) <= r.tag; });
+std::optional<ChainState> SyncModel::State::foreign_view(const Record& r, const Queue& w,
+                                                         uint64_t seg_begin, uint64_t seg_end) {
+    auto it = std::partition_point(w.imports.begin(), w.imports.end(), [&](const Import& im) {
+        return covered(im.cumulative, r.queue) <= r.tag;
+    });
     if (it == w.imports.end()) return std::nullopt;
     ChainState s;
-    for (uint32_t pos = it->log_pos; pos < w.log_end(); ++pos) apply_entry(w, pos, s, r, false, seg_begin, seg_end);
+    for (uint32_t pos = it->log_pos; pos < w.log_end(); ++pos)
+        apply_entry(w, pos, s, r, false, seg_begin, seg_end);
     return s;
 }
 
-bool SyncModel::State::in_signal(const Import& im, const Record& r, uint64_t seg_begin, uint64_t seg_end,
-                                 bool* available) {
-    const std::vector<SignalMembership>* list = &r.sync.signals;  // r's own queue signaled: caught up past it
+bool SyncModel::State::in_signal(const Import& im, const Record& r, uint64_t seg_begin,
+                                 uint64_t seg_end, bool* available) {
+    const std::vector<SignalMembership>* list =
+        &r.sync.signals;  // r's own queue signaled: caught up past it
     std::optional<ChainState> view;
     if (im.signal_queue != r.queue) {
         // A record of a third queue: what the signaling queue's log did with it.

@@ -1,19 +1,25 @@
+// SPDX-License-Identifier: Apache-2.0
 // SyncModel's barriers: pipeline barriers and event operations pooled and logged per queue.
-#include "sync_model_internal.hpp"
+#include "sync_model_internal.h"
 
 namespace clastrace::replay {
 
 uint32_t SyncModel::State::pool_barriers(Queue& q, const DependencyInfo& dep) {
     const uint32_t first = q.pool_base + uint32_t(q.pool.size());
     for (const MemoryBarrier& m : dep.memory_barriers) {
-        q.pool.push_back({source_scope_of(m.src_stages), destination_scope_of(m.dst_stages),
-                          atomic_accesses(m.src_access), atomic_accesses(m.dst_access), {}, true});
+        q.pool.push_back({source_scope_of(m.src_stages),
+                          destination_scope_of(m.dst_stages),
+                          atomic_accesses(m.src_access),
+                          atomic_accesses(m.dst_access),
+                          {},
+                          true});
     }
     for (const BufferBarrier& bb : dep.buffer_barriers) {
         if (bb.range.empty()) continue;
-        q.pool.push_back({source_scope_of(bb.masks.src_stages), destination_scope_of(bb.masks.dst_stages),
-                          atomic_accesses(bb.masks.src_access), atomic_accesses(bb.masks.dst_access), bb.range,
-                          false});
+        q.pool.push_back({source_scope_of(bb.masks.src_stages),
+                          destination_scope_of(bb.masks.dst_stages),
+                          atomic_accesses(bb.masks.src_access),
+                          atomic_accesses(bb.masks.dst_access), bb.range, false});
         // Segments must lie wholly inside or outside every buffer barrier's range.
         split_at(bb.range.begin);
         split_at(bb.range.end);
@@ -22,7 +28,8 @@ uint32_t SyncModel::State::pool_barriers(Queue& q, const DependencyInfo& dep) {
     return first;
 }
 
-void SyncModel::State::log_barrier_entry(EntryKind kind, const DependencyInfo& dep, StageMask event_bits, bool v1) {
+void SyncModel::State::log_barrier_entry(EntryKind kind, const DependencyInfo& dep,
+                                         StageMask event_bits, bool v1) {
     Queue& q = queues[current_queue];
     LogEntry e;
     e.kind = kind;
@@ -37,8 +44,9 @@ void SyncModel::State::log_barrier_entry(EntryKind kind, const DependencyInfo& d
     for (uint32_t i = 0; i < e.count; ++i) {
         const LoggedBarrier& b = q.pool[e.first + i - q.pool_base];
         special = special || (b.dst_scope & ~device);
-        full = full || (kind == EntryKind::kBarrier && b.global && (b.src_scope & device) == device &&
-                        (b.dst_scope & device) == device && (b.src_atoms & all_write_accesses()) == all_write_accesses() &&
+        full = full || (kind == EntryKind::kBarrier && b.global &&
+                        (b.src_scope & device) == device && (b.dst_scope & device) == device &&
+                        (b.src_atoms & all_write_accesses()) == all_write_accesses() &&
                         (b.dst_atoms & all) == all);
     }
     const uint32_t pos = q.log_end();

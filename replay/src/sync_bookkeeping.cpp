@@ -1,5 +1,6 @@
+// SPDX-License-Identifier: Apache-2.0
 // SyncModel's bookkeeping: queue slots and interned field names.
-#include "sync_model_internal.hpp"
+#include "sync_model_internal.h"
 
 #include <cstring>
 
@@ -10,14 +11,18 @@ namespace {
 // "srcInfosArray[12].vertexBuffer" -> "srcInfosArray[", 12, "].vertexBuffer". Only the
 // canonical spelling of the index (no leading zeros) counts, so the text rebuilt from the
 // parts is the field itself.
-bool split_indexed_field(std::string_view field, std::string_view* prefix, uint64_t* index, std::string_view* suffix) {
+bool split_indexed_field(std::string_view field, std::string_view* prefix, uint64_t* index,
+                         std::string_view* suffix) {
     const std::size_t open = field.find('[');
     if (open == std::string_view::npos) return false;
     std::size_t i = open + 1;
     uint64_t value = 0;
-    while (i < field.size() && field[i] >= '0' && field[i] <= '9' && i - open <= 9) value = value * 10 + uint64_t(field[i++] - '0');
+    while (i < field.size() && field[i] >= '0' && field[i] <= '9' && i - open <= 9)
+        value = value * 10 + uint64_t(field[i++] - '0');
     const std::size_t digits = i - open - 1;
-    if (digits == 0 || i >= field.size() || field[i] != ']' || (digits > 1 && field[open + 1] == '0')) return false;
+    if (digits == 0 || i >= field.size() || field[i] != ']' ||
+        (digits > 1 && field[open + 1] == '0'))
+        return false;
     *prefix = field.substr(0, open + 1);
     *index = value;
     *suffix = field.substr(i);
@@ -63,7 +68,8 @@ uint32_t SyncModel::State::intern(std::string_view field) {
         const FieldSlot& slot = field_table[i];
         if (slot.id == UINT32_MAX) break;
         if (slot.hash == h && slot.length == field.size() &&
-            (field.empty() || std::memcmp(field_arena.data() + slot.offset, field.data(), field.size()) == 0))
+            (field.empty() ||
+             std::memcmp(field_arena.data() + slot.offset, field.data(), field.size()) == 0))
             return slot.id;
     }
     const uint32_t id = uint32_t(field_names.size());

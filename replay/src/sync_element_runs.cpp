@@ -1,6 +1,7 @@
+// SPDX-License-Identifier: Apache-2.0
 // record_accesses' batching: accesses pinned by overlap, and element runs ("x[i]" for
 // consecutive i over adjacent bytes) recorded as one record each.
-#include "sync_model_internal.hpp"
+#include "sync_model_internal.h"
 
 #include <algorithm>
 
@@ -26,7 +27,8 @@ void SyncModel::State::pin_overlapping(std::span<const Access> accesses) {
     }
     if (fits) {
         std::sort(packed.begin(), packed.end());
-        for (uint64_t k : packed) by_begin.push_back({k >> kIndexBits, uint32_t(k & ((1u << kIndexBits) - 1))});
+        for (uint64_t k : packed)
+            by_begin.push_back({k >> kIndexBits, uint32_t(k & ((1u << kIndexBits) - 1))});
     } else {
         for (uint32_t i = 0; i < n; ++i)
             if (!accesses[i].range.empty()) by_begin.push_back({accesses[i].range.begin, i});
@@ -78,8 +80,8 @@ void SyncModel::State::form_element_runs(std::span<const Access> accesses) {
         for (std::size_t k = 0; k < open_count; ++k) {
             const Run& r = runs[open[k]];
             const Access& h = accesses[r.head];
-            if (r.prefix == prefix && r.suffix == suffix && h.stage == a.stage && h.access == a.access &&
-                h.is_write == a.is_write)
+            if (r.prefix == prefix && r.suffix == suffix && h.stage == a.stage &&
+                h.access == a.access && h.is_write == a.is_write)
                 slot = &open[k];
         }
         if (slot) {
@@ -97,15 +99,18 @@ void SyncModel::State::form_element_runs(std::span<const Access> accesses) {
         if (bytes > UINT32_MAX || index > UINT32_MAX) continue;
         runs.push_back({prefix, suffix, index, index + 1, bytes, a.range, i, i});
         run_of[i] = int32_t(runs.size() - 1);
-        if (slot) *slot = runs.size() - 1;
-        else if (open_count < std::size(open)) open[open_count++] = runs.size() - 1;
+        if (slot)
+            *slot = runs.size() - 1;
+        else if (open_count < std::size(open))
+            open[open_count++] = runs.size() - 1;
     }
     // Each run's members in one flat list: a finding on element k belongs to its k-th access.
     auto& members = batch.members;
     members.clear();
     for (Run& r : runs) {
         r.members_at = uint32_t(members.size());
-        for (int32_t m = int32_t(r.head); m >= 0; m = next_member[std::size_t(m)]) members.push_back(uint32_t(m));
+        for (int32_t m = int32_t(r.head); m >= 0; m = next_member[std::size_t(m)])
+            members.push_back(uint32_t(m));
     }
 }
 

@@ -1,19 +1,23 @@
+// SPDX-License-Identifier: Apache-2.0
 // SyncModel's hazard decisions: is an earlier access ordered before (and visible to) a later
 // one, and the findings and reports when it is not.
-#include "sync_model_internal.hpp"
+#include "sync_model_internal.h"
 
 #include <algorithm>
 #include <string>
 
 namespace clastrace::replay {
 
-std::optional<FixKind> SyncModel::State::unordered(Record& prior, const Later& later, bool need_visible,
-                                                   uint64_t seg_begin, uint64_t seg_end) {
+std::optional<FixKind> SyncModel::State::unordered(Record& prior, const Later& later,
+                                                   bool need_visible, uint64_t seg_begin,
+                                                   uint64_t seg_end) {
     const Record& b = *later.record;
-    if (prior.queue == kHostSlot) return std::nullopt;  // host work before the submit: ordered and visible
+    if (prior.queue == kHostSlot)
+        return std::nullopt;  // host work before the submit: ordered and visible
     const bool prior_complete = prior.completed || prior.tag < queues[prior.queue].complete;
     if (later.queue == kHostSlot) {
-        if (!prior_complete) return need_visible ? FixKind::kHostWaitAndBarrier : FixKind::kHostWait;
+        if (!prior_complete)
+            return need_visible ? FixKind::kHostWaitAndBarrier : FixKind::kHostWait;
         if (!need_visible || b.is_write) return std::nullopt;
         catch_up(prior, seg_begin, seg_end);
         return prior.sync.visible.covers(VK_PIPELINE_STAGE_2_HOST_BIT, b.atoms)
@@ -37,7 +41,8 @@ std::optional<FixKind> SyncModel::State::unordered(Record& prior, const Later& l
     return prior.queue == later.queue ? FixKind::kPipelineBarrier : FixKind::kSemaphore;
 }
 
-void SyncModel::State::element_of(const Record& r, uint64_t at, uint32_t* field, AddressRange* range) {
+void SyncModel::State::element_of(const Record& r, uint64_t at, uint32_t* field,
+                                  AddressRange* range) {
     if (!r.element_bytes) {
         *field = r.field;
         *range = r.range;
@@ -46,13 +51,15 @@ void SyncModel::State::element_of(const Record& r, uint64_t at, uint32_t* field,
     const uint64_t k = (at - r.range.begin) / r.element_bytes;
     range->begin = r.range.begin + k * r.element_bytes;
     range->end = range->begin + r.element_bytes;
-    const std::string name = field_names[r.field] + std::to_string(r.first_element + k) + field_names[r.field_suffix];
+    const std::string name =
+        field_names[r.field] + std::to_string(r.first_element + k) + field_names[r.field_suffix];
     *field = intern(name);
 }
 
 void SyncModel::State::note_one(std::vector<Finding>& found, HazardKey key, const Record& prior,
-                                const AddressRange& prior_range, const Record& later, const AddressRange& later_range,
-                                FixKind fix, uint64_t begin, uint64_t end) {
+                                const AddressRange& prior_range, const Record& later,
+                                const AddressRange& later_range, FixKind fix, uint64_t begin,
+                                uint64_t end) {
     Finding* same = nullptr;
     if (found.size() <= 16) {
         for (Finding& f : found)
@@ -86,11 +93,12 @@ void SyncModel::State::note_one(std::vector<Finding>& found, HazardKey key, cons
     found.push_back(std::move(f));
 }
 
-void SyncModel::State::note(std::vector<Finding>& found, HazardClass hazard, const Record& prior, const Record& later,
-                            FixKind fix, uint64_t seg_begin, uint64_t seg_end) {
+void SyncModel::State::note(std::vector<Finding>& found, HazardClass hazard, const Record& prior,
+                            const Record& later, FixKind fix, uint64_t seg_begin,
+                            uint64_t seg_end) {
     if (!prior.element_bytes && !later.element_bytes) {
-        note_one(found, {prior.tag, later.tag, prior.field, later.field, hazard}, prior, prior.range, later,
-                 later.range, fix, seg_begin, seg_end);
+        note_one(found, {prior.tag, later.tag, prior.field, later.field, hazard}, prior,
+                 prior.range, later, later.range, fix, seg_begin, seg_end);
         return;
     }
     // Per pair of elements whose bytes meet, in address order: what record_access on
@@ -105,8 +113,8 @@ void SyncModel::State::note(std::vector<Finding>& found, HazardClass hazard, con
             AddressRange later_range;
             element_of(later, l, &later_field, &later_range);
             const uint64_t l_end = std::min(p_end, later_range.end);
-            note_one(found, {prior.tag, later.tag, prior_field, later_field, hazard}, prior, prior_range, later,
-                     later_range, fix, l, l_end);
+            note_one(found, {prior.tag, later.tag, prior_field, later_field, hazard}, prior,
+                     prior_range, later, later_range, fix, l, l_end);
             l = l_end;
         }
         p = p_end;
@@ -153,7 +161,7 @@ void SyncModel::State::emit(const Finding& f, const Record& later) {
                         !(f.key.hazard == HazardClass::kDeserializeInUse && !f.prior.is_write);
     if (memory) {
         rep.fix.src_access = f.prior.access & (all_write_accesses() | VK_ACCESS_2_SHADER_WRITE_BIT |
-                                                VK_ACCESS_2_MEMORY_WRITE_BIT);
+                                               VK_ACCESS_2_MEMORY_WRITE_BIT);
         rep.fix.dst_access = later.access;
     }
     if (f.fix == FixKind::kHostWaitAndBarrier) {

@@ -1,6 +1,7 @@
+// SPDX-License-Identifier: Apache-2.0
 // SyncModel's host waits: work the host saw complete is retired, and logs no record needs
 // are trimmed.
-#include "sync_model_internal.hpp"
+#include "sync_model_internal.h"
 
 #include <algorithm>
 #include <iterator>
@@ -27,8 +28,10 @@ void SyncModel::State::prune_timelines() {
         auto& timeline = sem.timeline;
         for (auto it = timeline.begin(); it != timeline.end();) {
             auto next = std::next(it);
-            if (next != timeline.end() && all_complete(it->second) && all_complete(next->second)) it = timeline.erase(it);
-            else it = next;
+            if (next != timeline.end() && all_complete(it->second) && all_complete(next->second))
+                it = timeline.erase(it);
+            else
+                it = next;
         }
     }
 }
@@ -85,8 +88,10 @@ void SyncModel::State::trim_logs() {
         uint32_t import_keep = q.imports_base + uint32_t(q.imports.size());
         for (uint32_t k = drop; k < q.log.size(); ++k) {
             const LogEntry& e = q.log[k];
-            if (e.kind == EntryKind::kImport) import_keep = std::min(import_keep, e.import_index);
-            else pool_keep = std::min(pool_keep, e.first);
+            if (e.kind == EntryKind::kImport)
+                import_keep = std::min(import_keep, e.import_index);
+            else
+                pool_keep = std::min(pool_keep, e.first);
         }
         if (drop < q.log.size()) {
             // A run cut by the trim gets its first kept entry as new head.

@@ -1,4 +1,5 @@
-#include "clastrace/replay/sync_masks.hpp"
+// SPDX-License-Identifier: Apache-2.0
+#include "clastrace/replay/sync_masks.h"
 
 #include <array>
 #include <cstdio>
@@ -103,56 +104,61 @@ constexpr FlagName kAccessNames[] = {
     {0x200000000000ull, "MICROMAP_WRITE", "_BIT_EXT"},
 };
 
-constexpr uint64_t S_TOP = 0x1, S_DRAW_INDIRECT = 0x2, S_VERTEX_INPUT = 0x4, S_VS = 0x8, S_TCS = 0x10,
-                   S_TES = 0x20, S_GS = 0x40, S_FS = 0x80, S_EFT = 0x100, S_LFT = 0x200, S_COLOR = 0x400,
-                   S_COMPUTE = 0x800, S_ALL_TRANSFER = 0x1000, S_BOTTOM = 0x2000, S_HOST = 0x4000,
-                   S_ALL_GRAPHICS = 0x8000, S_ALL_COMMANDS = 0x10000, S_PREPROCESS = 0x20000,
-                   S_COND = 0x40000, S_TASK = 0x80000, S_MESH = 0x100000, S_RT = 0x200000, S_FSR = 0x400000,
-                   S_FDP = 0x800000, S_XFB = 0x1000000, S_AS_BUILD = 0x2000000, S_VDEC = 0x4000000,
-                   S_VENC = 0x8000000, S_AS_COPY = 0x10000000, S_OFLOW = 0x20000000, S_MICROMAP = 0x40000000,
-                   S_COPY = 0x100000000, S_RESOLVE = 0x200000000, S_BLIT = 0x400000000, S_CLEAR = 0x800000000,
-                   S_INDEX_INPUT = 0x1000000000, S_ATTR_INPUT = 0x2000000000, S_PRE_RASTER = 0x4000000000,
-                   S_SUBPASS = 0x8000000000, S_INVOCATION = 0x10000000000, S_CLUSTER_CULL = 0x20000000000;
+constexpr uint64_t kSTop = 0x1, kSDrawIndirect = 0x2, kSVertexInput = 0x4, kSVs = 0x8, kSTcs = 0x10,
+                   kSTes = 0x20, kSGs = 0x40, kSFs = 0x80, kSEft = 0x100, kSLft = 0x200,
+                   kSColor = 0x400, kSCompute = 0x800, kSAllTransfer = 0x1000, kSBottom = 0x2000,
+                   kSHost = 0x4000, kSAllGraphics = 0x8000, kSAllCommands = 0x10000,
+                   kSPreprocess = 0x20000, kSCond = 0x40000, kSTask = 0x80000, kSMesh = 0x100000,
+                   kSRt = 0x200000, kSFsr = 0x400000, kSFdp = 0x800000, kSXfb = 0x1000000,
+                   kSAsBuild = 0x2000000, kSVdec = 0x4000000, kSVenc = 0x8000000,
+                   kSAsCopy = 0x10000000, kSOflow = 0x20000000, kSMicromap = 0x40000000,
+                   kSCopy = 0x100000000, kSResolve = 0x200000000, kSBlit = 0x400000000,
+                   kSClear = 0x800000000, kSIndexInput = 0x1000000000, kSAttrInput = 0x2000000000,
+                   kSPreRaster = 0x4000000000, kSSubpass = 0x8000000000,
+                   kSInvocation = 0x10000000000, kSClusterCull = 0x20000000000;
 
 // Our constants must be the header's values, and v1 bits must equal their v2 twins.
-static_assert(S_AS_BUILD == VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR);
-static_assert(S_AS_COPY == VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR);
-static_assert(S_COPY == VK_PIPELINE_STAGE_2_COPY_BIT && S_CLEAR == VK_PIPELINE_STAGE_2_CLEAR_BIT);
-static_assert(S_INDEX_INPUT == VK_PIPELINE_STAGE_2_INDEX_INPUT_BIT);
-static_assert(S_PRE_RASTER == VK_PIPELINE_STAGE_2_PRE_RASTERIZATION_SHADERS_BIT);
-static_assert(S_MICROMAP == VK_PIPELINE_STAGE_2_MICROMAP_BUILD_BIT_EXT);
-static_assert(S_CLUSTER_CULL == VK_PIPELINE_STAGE_2_CLUSTER_CULLING_SHADER_BIT_HUAWEI);
-static_assert(uint64_t(VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR) == S_AS_BUILD);
-static_assert(uint64_t(VK_PIPELINE_STAGE_TRANSFER_BIT) == S_ALL_TRANSFER);
-static_assert(uint64_t(VK_PIPELINE_STAGE_ALL_COMMANDS_BIT) == S_ALL_COMMANDS);
-static_assert(uint64_t(VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_KHR) == VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR);
-static_assert(uint64_t(VK_ACCESS_INDIRECT_COMMAND_READ_BIT) == VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
+static_assert(kSAsBuild == VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR);
+static_assert(kSAsCopy == VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR);
+static_assert(kSCopy == VK_PIPELINE_STAGE_2_COPY_BIT && kSClear == VK_PIPELINE_STAGE_2_CLEAR_BIT);
+static_assert(kSIndexInput == VK_PIPELINE_STAGE_2_INDEX_INPUT_BIT);
+static_assert(kSPreRaster == VK_PIPELINE_STAGE_2_PRE_RASTERIZATION_SHADERS_BIT);
+static_assert(kSMicromap == VK_PIPELINE_STAGE_2_MICROMAP_BUILD_BIT_EXT);
+static_assert(kSClusterCull == VK_PIPELINE_STAGE_2_CLUSTER_CULLING_SHADER_BIT_HUAWEI);
+static_assert(uint64_t(VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR) == kSAsBuild);
+static_assert(uint64_t(VK_PIPELINE_STAGE_TRANSFER_BIT) == kSAllTransfer);
+static_assert(uint64_t(VK_PIPELINE_STAGE_ALL_COMMANDS_BIT) == kSAllCommands);
+static_assert(uint64_t(VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_KHR) ==
+              VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR);
+static_assert(uint64_t(VK_ACCESS_INDIRECT_COMMAND_READ_BIT) ==
+              VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
 static_assert(uint64_t(VK_ACCESS_MEMORY_WRITE_BIT) == VK_ACCESS_2_MEMORY_WRITE_BIT);
 
 constexpr uint64_t kAggregateStages =
-    S_TOP | S_BOTTOM | S_VERTEX_INPUT | S_ALL_TRANSFER | S_ALL_GRAPHICS | S_ALL_COMMANDS | S_PRE_RASTER;
+    kSTop | kSBottom | kSVertexInput | kSAllTransfer | kSAllGraphics | kSAllCommands | kSPreRaster;
 
 constexpr uint64_t known_stage_bits() {
     uint64_t m = 0;
     for (const FlagName& f : kStageNames) m |= f.bit;
     return m;
 }
-constexpr uint64_t kDeviceStages = known_stage_bits() & ~kAggregateStages & ~S_HOST;
+constexpr uint64_t kDeviceStages = known_stage_bits() & ~kAggregateStages & ~kSHost;
 
-constexpr uint64_t kGraphicsStages = S_DRAW_INDIRECT | S_INDEX_INPUT | S_ATTR_INPUT | S_VS | S_TCS | S_TES | S_GS |
-                                     S_FS | S_EFT | S_LFT | S_COLOR | S_COND | S_TASK | S_MESH | S_FSR | S_FDP |
-                                     S_XFB | S_SUBPASS | S_INVOCATION | S_CLUSTER_CULL;
+constexpr uint64_t kGraphicsStages = kSDrawIndirect | kSIndexInput | kSAttrInput | kSVs | kSTcs |
+                                     kSTes | kSGs | kSFs | kSEft | kSLft | kSColor | kSCond |
+                                     kSTask | kSMesh | kSFsr | kSFdp | kSXfb | kSSubpass |
+                                     kSInvocation | kSClusterCull;
 
 // The spec's pipeline stage orders ("Pipeline Stages" ordering rules), TOP/BOTTOM left out.
 const std::initializer_list<uint64_t> kOrders[] = {
-    {S_COND, S_DRAW_INDIRECT, S_INDEX_INPUT, S_ATTR_INPUT, S_VS, S_TCS, S_TES, S_GS, S_XFB, S_FSR, S_EFT, S_FS,
-     S_LFT, S_COLOR},
-    {S_COND, S_DRAW_INDIRECT, S_TASK, S_MESH, S_FSR, S_EFT, S_FS, S_LFT, S_COLOR},
-    {S_COND, S_DRAW_INDIRECT, S_COMPUTE},
-    {S_DRAW_INDIRECT, S_RT},
-    {S_FDP, S_EFT},
-    {S_SUBPASS, S_INVOCATION},
-    {S_DRAW_INDIRECT, S_CLUSTER_CULL, S_FS},
+    {kSCond, kSDrawIndirect, kSIndexInput, kSAttrInput, kSVs, kSTcs, kSTes, kSGs, kSXfb, kSFsr,
+     kSEft, kSFs, kSLft, kSColor},
+    {kSCond, kSDrawIndirect, kSTask, kSMesh, kSFsr, kSEft, kSFs, kSLft, kSColor},
+    {kSCond, kSDrawIndirect, kSCompute},
+    {kSDrawIndirect, kSRt},
+    {kSFdp, kSEft},
+    {kSSubpass, kSInvocation},
+    {kSDrawIndirect, kSClusterCull, kSFs},
 };
 
 struct StageTables {
@@ -174,29 +180,32 @@ struct StageTables {
     }
 };
 const StageTables& tables() {
-    static const StageTables t;
-    return t;
+    static const StageTables kT;
+    return kT;
 }
 
-constexpr uint64_t A_SHADER_READ = 0x20, A_SHADER_WRITE = 0x40, A_MEMORY_READ = 0x8000, A_MEMORY_WRITE = 0x10000,
-                   A_SAMPLED = 0x100000000, A_STORAGE_READ = 0x200000000, A_STORAGE_WRITE = 0x400000000;
-constexpr uint64_t kWriteAccesses = 0x40 | 0x100 | 0x400 | 0x1000 | 0x4000 | 0x10000 | 0x40000 | 0x400000 |
-                                    0x2000000 | 0x8000000 | 0x400000000 | 0x1000000000 | 0x4000000000 |
-                                    0x80000000000 | 0x200000000000;
+constexpr uint64_t kAShaderRead = 0x20, kAShaderWrite = 0x40, kAMemoryRead = 0x8000,
+                   kAMemoryWrite = 0x10000, kASampled = 0x100000000, kAStorageRead = 0x200000000,
+                   kAStorageWrite = 0x400000000;
+constexpr uint64_t kWriteAccesses = 0x40 | 0x100 | 0x400 | 0x1000 | 0x4000 | 0x10000 | 0x40000 |
+                                    0x400000 | 0x2000000 | 0x8000000 | 0x400000000 | 0x1000000000 |
+                                    0x4000000000 | 0x80000000000 | 0x200000000000;
 constexpr uint64_t known_access_bits() {
     uint64_t m = 0;
     for (const FlagName& f : kAccessNames) m |= f.bit;
     return m;
 }
-static_assert(A_STORAGE_WRITE == VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
-static_assert(A_SAMPLED == VK_ACCESS_2_SHADER_SAMPLED_READ_BIT);
+static_assert(kAStorageWrite == VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+static_assert(kASampled == VK_ACCESS_2_SHADER_SAMPLED_READ_BIT);
 static_assert((kWriteAccesses & VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR) &&
-              (kWriteAccesses & VK_ACCESS_2_MICROMAP_WRITE_BIT_EXT) && (kWriteAccesses & VK_ACCESS_2_TRANSFER_WRITE_BIT));
-constexpr uint64_t kAggregateAccesses = A_SHADER_READ | A_SHADER_WRITE | A_MEMORY_READ | A_MEMORY_WRITE;
+              (kWriteAccesses & VK_ACCESS_2_MICROMAP_WRITE_BIT_EXT) &&
+              (kWriteAccesses & VK_ACCESS_2_TRANSFER_WRITE_BIT));
+constexpr uint64_t kAggregateAccesses = kAShaderRead | kAShaderWrite | kAMemoryRead | kAMemoryWrite;
 constexpr uint64_t kAtomicWrites = kWriteAccesses & ~kAggregateAccesses;
 constexpr uint64_t kAtomicReads = known_access_bits() & ~kWriteAccesses & ~kAggregateAccesses;
 
-std::string names(uint64_t mask, const FlagName* table, std::size_t count, const char* prefix, bool full) {
+std::string names(uint64_t mask, const FlagName* table, std::size_t count, const char* prefix,
+                  bool full) {
     if (mask == 0) return full ? std::string(prefix) + "NONE" : std::string("NONE");
     std::string out;
     uint64_t covered = 0;
@@ -223,17 +232,17 @@ StageMask all_device_stages() { return kDeviceStages; }
 
 StageMask atomic_stages(StageMask mask) {
     uint64_t out = mask & ~kAggregateStages;
-    if (mask & (S_ALL_COMMANDS)) out |= kDeviceStages;
-    if (mask & S_ALL_GRAPHICS) out |= kGraphicsStages;
-    if (mask & S_ALL_TRANSFER) out |= S_COPY | S_RESOLVE | S_BLIT | S_CLEAR | S_AS_COPY;
-    if (mask & S_VERTEX_INPUT) out |= S_INDEX_INPUT | S_ATTR_INPUT;
-    if (mask & S_PRE_RASTER) out |= S_VS | S_TCS | S_TES | S_GS | S_TASK | S_MESH | S_CLUSTER_CULL;
+    if (mask & (kSAllCommands)) out |= kDeviceStages;
+    if (mask & kSAllGraphics) out |= kGraphicsStages;
+    if (mask & kSAllTransfer) out |= kSCopy | kSResolve | kSBlit | kSClear | kSAsCopy;
+    if (mask & kSVertexInput) out |= kSIndexInput | kSAttrInput;
+    if (mask & kSPreRaster) out |= kSVs | kSTcs | kSTes | kSGs | kSTask | kSMesh | kSClusterCull;
     return out;
 }
 
 StageMask source_scope(StageMask mask) {
     uint64_t atoms = atomic_stages(mask);
-    if (mask & S_BOTTOM) atoms |= kDeviceStages;
+    if (mask & kSBottom) atoms |= kDeviceStages;
     uint64_t out = atoms;
     const StageTables& t = tables();
     for (uint64_t m = atoms; m; m &= m - 1) out |= t.earlier[std::size_t(__builtin_ctzll(m))];
@@ -242,7 +251,7 @@ StageMask source_scope(StageMask mask) {
 
 StageMask destination_scope(StageMask mask) {
     uint64_t atoms = atomic_stages(mask);
-    if (mask & S_TOP) atoms |= kDeviceStages;
+    if (mask & kSTop) atoms |= kDeviceStages;
     uint64_t out = atoms;
     const StageTables& t = tables();
     for (uint64_t m = atoms; m; m &= m - 1) out |= t.later[std::size_t(__builtin_ctzll(m))];
@@ -251,10 +260,10 @@ StageMask destination_scope(StageMask mask) {
 
 AccessMask atomic_accesses(AccessMask mask) {
     uint64_t out = mask & ~kAggregateAccesses;
-    if (mask & A_MEMORY_READ) out |= kAtomicReads;
-    if (mask & A_MEMORY_WRITE) out |= kAtomicWrites;
-    if (mask & A_SHADER_READ) out |= A_SAMPLED | A_STORAGE_READ;
-    if (mask & A_SHADER_WRITE) out |= A_STORAGE_WRITE;
+    if (mask & kAMemoryRead) out |= kAtomicReads;
+    if (mask & kAMemoryWrite) out |= kAtomicWrites;
+    if (mask & kAShaderRead) out |= kASampled | kAStorageRead;
+    if (mask & kAShaderWrite) out |= kAStorageWrite;
     return out;
 }
 

@@ -1,6 +1,7 @@
-// SyncModel's public API (see sync_model.hpp); the model itself lives in the sync_*.cpp
-// files that sync_model_internal.hpp lists.
-#include "sync_model_internal.hpp"
+// SPDX-License-Identifier: Apache-2.0
+// SyncModel's public API (see sync_model.h); the model itself lives in the sync_*.cpp
+// files that sync_model_internal.h lists.
+#include "sync_model_internal.h"
 
 #include <algorithm>
 #include <iterator>
@@ -29,7 +30,8 @@ void SyncModel::begin_submission(QueueId queue, uint32_t, std::span<const Semaph
             sem.binary_narrow = {};
         } else if (auto it = sem.timeline.lower_bound(w.value); it != sem.timeline.end()) {
             clock = it->second;
-            if (auto n = sem.timeline_narrow.find(it->first); n != sem.timeline_narrow.end()) narrow = n->second;
+            if (auto n = sem.timeline_narrow.find(it->first); n != sem.timeline_narrow.end())
+                narrow = n->second;
         }
         if (!clock) {
             ++s.stats.unsatisfied_waits;
@@ -37,7 +39,8 @@ void SyncModel::begin_submission(QueueId queue, uint32_t, std::span<const Semaph
         }
         clock->resize(s.queues.size(), 0);
         Queue& q = s.queues[s.current_queue];
-        for (std::size_t i = 0; i < q.known.size(); ++i) q.known[i] = std::max(q.known[i], (*clock)[i]);
+        for (std::size_t i = 0; i < q.known.size(); ++i)
+            q.known[i] = std::max(q.known[i], (*clock)[i]);
         Import im;
         im.log_pos = q.log_end();
         im.own = std::move(*clock);
@@ -82,7 +85,8 @@ void SyncModel::record_accesses(const CommandRef& command, std::span<const Acces
     std::vector<Record> laters;
     for (uint32_t i = 0; i < n; ++i) {
         const int32_t ri = run_of[i];
-        const State::Run* run = ri >= 0 && runs[std::size_t(ri)].count > 1 ? &runs[std::size_t(ri)] : nullptr;
+        const State::Run* run =
+            ri >= 0 && runs[std::size_t(ri)].count > 1 ? &runs[std::size_t(ri)] : nullptr;
         if (run && run->head != i) continue;
         Record& rec = s.batch.record;
         if (run) {
@@ -102,18 +106,24 @@ void SyncModel::record_accesses(const CommandRef& command, std::span<const Acces
         for (State::Finding& f : each) {
             f.order = i;
             if (f.later_element)
-                f.order = members[run->members_at + std::size_t((f.later_range.begin - rec.range.begin) / rec.element_bytes)];
+                f.order =
+                    members[run->members_at + std::size_t((f.later_range.begin - rec.range.begin) /
+                                                          rec.element_bytes)];
             f.later_record = uint32_t(laters.size());
         }
         laters.push_back(rec);
-        found.insert(found.end(), std::make_move_iterator(each.begin()), std::make_move_iterator(each.end()));
+        found.insert(found.end(), std::make_move_iterator(each.begin()),
+                     std::make_move_iterator(each.end()));
     }
     std::stable_sort(found.begin(), found.end(),
-                     [](const State::Finding& a, const State::Finding& b) { return a.order < b.order; });
+                     [](const State::Finding& a, const State::Finding& b) {
+                         return a.order < b.order;
+                     });
     for (const State::Finding& f : found) s.emit(f, laters[f.later_record]);
 }
 
-void SyncModel::record_copy(const CommandRef& command, const Access& source, const Access& destination) {
+void SyncModel::record_copy(const CommandRef& command, const Access& source,
+                            const Access& destination) {
     State& s = *state_;
     const uint64_t t = s.command_tag(command, s.current_queue);
     Record src = s.make_record(command, source, s.current_queue, t);
@@ -131,7 +141,8 @@ void SyncModel::record_copy(const CommandRef& command, const Access& source, con
     s.record(dst, false);
 }
 
-void SyncModel::record_deserialize(const CommandRef& command, const Access& source, const Access& destination) {
+void SyncModel::record_deserialize(const CommandRef& command, const Access& source,
+                                   const Access& destination) {
     State& s = *state_;
     const uint64_t t = s.command_tag(command, s.current_queue);
     s.record(s.make_record(command, source, s.current_queue, t), false);
@@ -161,10 +172,12 @@ void SyncModel::set_event(const CommandRef&, uint64_t event, const DependencyInf
     }
     ev.set_serial = ++s.set_serial;
     ev.v1 = false;
-    s.log_barrier_entry(EntryKind::kEventSet, dependency, StageMask(1) << (kFirstEventBit + ev.slot), false);
+    s.log_barrier_entry(EntryKind::kEventSet, dependency,
+                        StageMask(1) << (kFirstEventBit + ev.slot), false);
 }
 
-void SyncModel::set_event_v1(const CommandRef& command, uint64_t event, VkPipelineStageFlags stages) {
+void SyncModel::set_event_v1(const CommandRef& command, uint64_t event,
+                             VkPipelineStageFlags stages) {
     const MemoryBarrier b = memory_barrier_v1(stages, 0, 0, 0);
     set_event(command, event, DependencyInfo{std::span(&b, 1), {}, 0});
     Queue& q = state_->queues[state_->current_queue];
@@ -181,14 +194,16 @@ void SyncModel::reset_event(const CommandRef&, uint64_t event) {
     it->second.slot = -1;
 }
 
-void SyncModel::wait_events(const CommandRef&, std::span<const uint64_t> events, const DependencyInfo& dependency) {
+void SyncModel::wait_events(const CommandRef&, std::span<const uint64_t> events,
+                            const DependencyInfo& dependency) {
     State& s = *state_;
     s.sync_tag();
     StageMask bits = 0;
     bool v1 = false;
     for (uint64_t event : events) {
         auto it = s.events.find(event);
-        if (it == s.events.end() || it->second.slot < 0) continue;  // never set on the device: orders nothing
+        if (it == s.events.end() || it->second.slot < 0)
+            continue;  // never set on the device: orders nothing
         bits |= StageMask(1) << (kFirstEventBit + it->second.slot);
         v1 = v1 || it->second.v1;
     }
@@ -213,7 +228,8 @@ void SyncModel::end_submission(std::span<const SemaphoreSignal> signals, uint64_
             e.kind = EntryKind::kSignal;
             e.event_bits = scope;
             e.signal = narrow.signal;
-            e.first = q.pool_base + uint32_t(q.pool.size());  // no barriers: keeps the pool trim valid
+            e.first =
+                q.pool_base + uint32_t(q.pool.size());  // no barriers: keeps the pool trim valid
             q.special_positions.push_back(q.log_end());
             q.log.push_back(e);
         }
@@ -223,8 +239,10 @@ void SyncModel::end_submission(std::span<const SemaphoreSignal> signals, uint64_
             sem.binary_narrow = narrow;
         } else {
             sem.timeline[sig.value] = clock;
-            if (narrow.signal) sem.timeline_narrow[sig.value] = narrow;
-            else sem.timeline_narrow.erase(sig.value);
+            if (narrow.signal)
+                sem.timeline_narrow[sig.value] = narrow;
+            else
+                sem.timeline_narrow.erase(sig.value);
         }
     }
     if (fence) s.fences[fence] = clock;
@@ -303,7 +321,8 @@ void SyncModel::present_wait(std::span<const uint64_t> semaphores) {
     State& s = *state_;
     for (uint64_t semaphore : semaphores) {
         auto sem = s.semaphores.find(semaphore);
-        if (sem == s.semaphores.end()) continue;  // signalled outside the trace (another frame range)
+        if (sem == s.semaphores.end())
+            continue;  // signalled outside the trace (another frame range)
         sem->second.binary_signal.reset();
         sem->second.binary_narrow = {};
     }
@@ -325,13 +344,14 @@ const SyncStats& SyncModel::stats() const { return state_->stats; }
 
 std::size_t SyncModel::memory_bytes() const {
     const State& s = *state_;
-    std::size_t bytes = s.segments.memory_bytes([](const Segment& seg) { return seg.reads.capacity() * sizeof(Record); });
+    std::size_t bytes = s.segments.memory_bytes(
+        [](const Segment& seg) { return seg.reads.capacity() * sizeof(Record); });
     for (const Queue& q : s.queues) {
         bytes += q.log.capacity() * sizeof(LogEntry) + q.pool.capacity() * sizeof(LoggedBarrier);
-        for (const Import& im : q.imports) bytes += sizeof(Import) + (im.own.size() + im.cumulative.size()) * 8;
+        for (const Import& im : q.imports)
+            bytes += sizeof(Import) + (im.own.size() + im.cumulative.size()) * 8;
     }
     return bytes;
 }
 
 }  // namespace clastrace::replay
-

@@ -7,7 +7,7 @@
 #include <clastrace/analyze/analyzer.h>
 #include <clastrace/analyze/render.h>
 #include <clastrace/analyze/replay_stream.h>
-#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/replayer.h>
 #include <clastrace/traces/trace_reader.h>
 
 #include <gtest/gtest.h>

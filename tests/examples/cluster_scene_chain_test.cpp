@@ -5,10 +5,10 @@
 // buffers must lose no command.
 #include "layer_launch_test.h"
 
-#include <clastrace/replay/hazard_report.hpp>
+#include <clastrace/replay/hazard_report.h>
 #include <clastrace/vk_cluster_abi.h>
-#include <clastrace/replay/replay_report.hpp>
-#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/replay_report.h>
+#include <clastrace/replay/replayer.h>
 #include <clastrace/traces/trace_reader.h>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>

@@ -8,7 +8,7 @@
 
 #include <clastrace/engine/execution_record.h>
 #include <clastrace/replay/replay_observer.h>
-#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/replayer.h>
 #include <clastrace/traces/trace_reader.h>
 
 #include <gtest/gtest.h>

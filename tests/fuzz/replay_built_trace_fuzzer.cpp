@@ -1,7 +1,7 @@
 // Fuzz target (docs/fuzzing.md): one cluster command whose every field and whose
 // srcInfosArray bytes come from the fuzzer, written as a valid trace, replayed end to end
 // (translation, engine, verification, sync model).
-#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/replayer.h>
 #include <clastrace/traces/trace_reader.h>
 #include <clastrace/traces/trace_writer.h>
 #include <clastrace/vk_cluster_abi.h>

@@ -3,7 +3,7 @@
 // program prints them. Damage and faults must become findings, never a crash or a throw.
 #include "fuzz_trace_name.h"
 
-#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/replayer.h>
 #include <clastrace/traces/trace_reader.h>
 
 #include <nlohmann/json.hpp>

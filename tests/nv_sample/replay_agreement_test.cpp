@@ -6,7 +6,7 @@
 // Built only once replay/src/nv_command.cpp exists (the engine helper's NV replay, issue 8);
 // the report fields used here (counts.nv_builds, counts.deserializations, ray_checks) are that
 // change's.
-#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/replayer.h>
 #include <clastrace/traces/trace_reader.h>
 
 #include <gtest/gtest.h>

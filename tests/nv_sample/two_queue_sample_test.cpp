@@ -4,7 +4,7 @@
 // of one family (lavapipe, our CI driver, has only one queue, so this is the two-queue case of
 // the capture tests). Nothing may be lost: every build of both command buffers is in the
 // trace, and the replay reproduces every output the application's device held.
-#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/replayer.h>
 #include <clastrace/traces/trace_reader.h>
 
 #include <gtest/gtest.h>

@@ -12,7 +12,7 @@
 #include <tuple>
 #include <vector>
 
-#include "clastrace/replay/sync_model.hpp"
+#include "clastrace/replay/sync_model.h"
 
 namespace clastrace::replay::test {
 

@@ -1,9 +1,9 @@
 // What a replay holds must follow what is live in the trace (buffers bound, command buffers
 // recorded, accesses in flight), not how long the trace is.
 #include "replay_bench_trace.h"
-#include "replay_memory.hpp"
+#include "replay_memory.h"
 
-#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/replayer.h>
 #include <clastrace/traces/trace_reader.h>
 #include <clastrace/traces/trace_writer.h>
 

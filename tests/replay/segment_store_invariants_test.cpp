@@ -6,7 +6,7 @@
 #include <random>
 #include <vector>
 
-#include "segment_store.hpp"
+#include "segment_store.h"
 
 static_assert(CLASTRACE_DEBUG_LEVEL == 1, "this test compiles SegmentStore's checks in");
 

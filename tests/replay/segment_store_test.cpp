@@ -13,7 +13,7 @@
 #include <tuple>
 #include <vector>
 
-#include "segment_store.hpp"
+#include "segment_store.h"
 
 namespace clastrace::replay::detail {
 namespace {

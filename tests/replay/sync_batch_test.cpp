@@ -2,7 +2,7 @@
 // exactly what record_access on each access reports (same hazards, order, fields, ranges).
 #include <gtest/gtest.h>
 
-#include <clastrace/replay/sync_model.hpp>
+#include <clastrace/replay/sync_model.h>
 
 #include <algorithm>
 #include <random>

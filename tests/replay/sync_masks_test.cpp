@@ -1,6 +1,6 @@
 #include <gtest/gtest.h>
 
-#include "clastrace/replay/sync_masks.hpp"
+#include "clastrace/replay/sync_masks.h"
 
 namespace clastrace::replay {
 namespace {

@@ -4,7 +4,7 @@
 #include <initializer_list>
 #include <vector>
 
-#include "clastrace/replay/sync_model.hpp"
+#include "clastrace/replay/sync_model.h"
 
 namespace clastrace::replay::test {
 

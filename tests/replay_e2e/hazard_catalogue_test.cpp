@@ -5,7 +5,7 @@
 #include <cstring>
 #include "catalogue_replay.h"
 
-#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/replayer.h>
 #include <clastrace/traces/trace_reader.h>
 
 #include <gtest/gtest.h>

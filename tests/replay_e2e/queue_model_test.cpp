@@ -3,7 +3,7 @@
 // recorded.
 #include "catalogue_replay.h"
 
-#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/replayer.h>
 #include <clastrace/traces/trace_reader.h>
 
 #include <gtest/gtest.h>

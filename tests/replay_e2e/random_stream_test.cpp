@@ -4,7 +4,7 @@
 #include "random_stream.h"
 #include "trace_files.h"
 
-#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/replayer.h>
 #include <clastrace/traces/trace_reader.h>
 
 #include <gtest/gtest.h>

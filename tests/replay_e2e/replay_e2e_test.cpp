@@ -3,7 +3,7 @@
 #include "scene_trace.h"
 #include "trace_files.h"
 
-#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/replayer.h>
 #include <clastrace/traces/trace_reader.h>
 
 #include <gtest/gtest.h>

@@ -2,7 +2,7 @@
 // use unless asked to keep them, and replayed with a trace that does not open failing the test.
 #pragma once
 
-#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/replayer.h>
 #include <clastrace/traces/trace_reader.h>
 
 #include <gtest/gtest.h>

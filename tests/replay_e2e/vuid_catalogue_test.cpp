@@ -6,7 +6,7 @@
 // docs/replay.md maps each VUID to its case name here.
 #include "catalogue_replay.h"
 
-#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/replayer.h>
 #include <clastrace/traces/trace_reader.h>
 
 #include <gtest/gtest.h>

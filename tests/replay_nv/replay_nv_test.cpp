@@ -7,7 +7,7 @@
 #include "trace_files.h"
 
 #include <clastrace/engine/nv_serialize.h>
-#include <clastrace/replay/replayer.hpp>
+#include <clastrace/replay/replayer.h>
 #include <clastrace/testsupport/rays.h>
 #include <clastrace/traces/trace_reader.h>
 

@@ -30,7 +30,7 @@
 
 #include "clastrace/analyze/analyzer.h"
 #include "clastrace/replay/replay_observer.h"
-#include "clastrace/replay/replayer.hpp"
+#include "clastrace/replay/replayer.h"
 
 namespace clastrace::traces {
 class TraceReader;

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // ReplayObserver: what a replay does, one event at a time, for consumers that fold a trace as
 // it streams (clastrace analyze) instead of reading the ReplayReport at the end.
 //
@@ -12,8 +13,8 @@
 
 #include <cstdint>
 
-#include "clastrace/replay/hazard_report.hpp"
-#include "clastrace/replay/replay_report.hpp"
+#include "clastrace/replay/hazard_report.h"
+#include "clastrace/replay/replay_report.h"
 
 namespace clastrace::fbs {
 struct Record;
@@ -36,7 +37,8 @@ struct ReplayedCommand {
     // per-op results (object address, size) and the scratch/implicit bytes used. Null otherwise.
     const engine::ExecutionRecord* execution = nullptr;
     uint64_t engine_ns = 0;  // wall time of engine::execute (0 where the engine did not run)
-    uint64_t replay_ns = 0;  // wall time of the whole command's replay (sync model and checks included)
+    uint64_t replay_ns =
+        0;  // wall time of the whole command's replay (sync model and checks included)
     // Replay memory after the command (inputs laid in, outputs written); for reading the
     // command's inputs, e.g. srcInfosArray elements.
     const engine::MemoryImage* memory = nullptr;

@@ -1,18 +1,19 @@
+// SPDX-License-Identifier: Apache-2.0
 // One vkCmdBuildClusterAccelerationStructureIndirectNV during replay: captured object
 // addresses translated to rebuilt ones, engine::execute, accesses to the sync model,
 // and the capture's outputs compared with the engine's.
 #pragma once
 
-#include "replay_memory.hpp"
+#include "replay_memory.h"
 
 #include <clastrace/common/hex.h>
 
 #include <clastrace/engine/execution_record.h>
 #include <clastrace/engine/object_directory.h>
 #include <clastrace/engine/properties.h>
-#include <clastrace/replay/replay_report.hpp>
-#include <clastrace/replay/replayer.hpp>
-#include <clastrace/replay/sync_model.hpp>
+#include <clastrace/replay/replay_report.h>
+#include <clastrace/replay/replayer.h>
+#include <clastrace/replay/sync_model.h>
 #include <clastrace/traces/trace_generated.h>
 
 #include <functional>
@@ -29,8 +30,9 @@ using common::hex;
 // made by the engine itself every entry maps to itself.
 struct AddressTranslation {
     std::unordered_map<uint64_t, uint64_t> rebuilt_at;
-    std::unordered_set<uint64_t> rebuilt;                     // every address the engine built an object at
-    std::unordered_map<uint64_t, uint64_t> translated_cells;  // memory cell -> value replay wrote there
+    std::unordered_set<uint64_t> rebuilt;  // every address the engine built an object at
+    std::unordered_map<uint64_t, uint64_t>
+        translated_cells;  // memory cell -> value replay wrote there
 };
 
 struct ClusterCommandContext {
@@ -51,7 +53,7 @@ struct ClusterCommandContext {
     uint64_t* engine_ns = nullptr;
 };
 
-void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect& build, uint32_t queried_max_count,
-                         ClusterCommandContext& context);
+void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
+                         uint32_t queried_max_count, ClusterCommandContext& context);
 
 }  // namespace clastrace::replay::detail

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The replayer's state, shared by the files that handle its record families (see
 // replayer.cpp for the stream and the dispatch): replayer_memory_records.cpp (buffers,
 // device memory, snapshots), replayer_acceleration_structures.cpp (objects, builds, checks),
@@ -6,16 +7,16 @@
 // replayer_transfers.cpp (copies, fills, updates, dispatches) and replayer_hazard_merge.cpp.
 #pragma once
 
-#include "binary_signals.hpp"
-#include "cluster_command.hpp"
-#include "nv_command.hpp"
-#include "replay_memory.hpp"
+#include "binary_signals.h"
+#include "cluster_command.h"
+#include "nv_command.h"
+#include "replay_memory.h"
 
 #include <clastrace/engine/execution_record.h>
 #include <clastrace/engine/object_directory.h>
 #include <clastrace/engine/properties.h>
-#include <clastrace/replay/replayer.hpp>
-#include <clastrace/replay/sync_model.hpp>
+#include <clastrace/replay/replayer.h>
+#include <clastrace/replay/sync_model.h>
 #include <clastrace/traces/records.h>
 #include <clastrace/traces/trace_reader.h>
 
@@ -40,7 +41,8 @@ constexpr uint64_t kWholeSize = ~0ull;  // VK_WHOLE_SIZE
 
 // Hazards of one class between the same two commands over the same fields, told once
 // (replayer_hazard_merge.cpp); *merged counts the reports folded into others.
-std::vector<HazardReport> merge_per_op_hazards(const std::vector<HazardReport>& hazards, uint64_t* merged);
+std::vector<HazardReport> merge_per_op_hazards(const std::vector<HazardReport>& hazards,
+                                               uint64_t* merged);
 
 class Replay {
 public:
@@ -49,21 +51,25 @@ public:
     ReplayReport run();
 
 private:
-    using Commands = std::vector<std::vector<uint8_t>>;  // Record FlatBuffers, copied out of the reader
+    using Commands =
+        std::vector<std::vector<uint8_t>>;  // Record FlatBuffers, copied out of the reader
     struct Recorded {
         Commands commands;
         // Restatements (format 1.2): restated[k - 1] is copy k of the recording, for the
         // (k+1)-th execution in the next submission that runs it (its own snapshots).
         std::vector<Commands> restated;
-        uint32_t filling = 0;                         // which copy the command records go to (0: commands)
-        bool one_time = false;                        // freed once submitted (memory stays bounded)
+        uint32_t filling = 0;   // which copy the command records go to (0: commands)
+        bool one_time = false;  // freed once submitted (memory stays bounded)
         bool secondary = false;
         uint64_t bytes = 0;
-        uint64_t submitted = 0;                       // 1 + submission_index of its last submission, 0 never
-        Commands& target() { return filling == 0 || filling > restated.size() ? commands : restated[filling - 1]; }
+        uint64_t submitted = 0;  // 1 + submission_index of its last submission, 0 never
+        Commands& target() {
+            return filling == 0 || filling > restated.size() ? commands : restated[filling - 1];
+        }
         // The copy the `execution`-th execution (0-based) in a submission runs.
         const Commands& copy_for(uint32_t execution) const {
-            return execution == 0 || execution > restated.size() ? commands : restated[execution - 1];
+            return execution == 0 || execution > restated.size() ? commands
+                                                                 : restated[execution - 1];
         }
     };
 
@@ -79,37 +85,46 @@ private:
     void on_submit(const fbs::QueueSubmit& submit);
     // Replays one execution of a command buffer (a primary listed in a batch, or a secondary
     // at its primary's vkCmdExecuteCommands: `inside` then names the execute command).
-    void run_command_buffer(uint64_t handle, uint32_t submission, uint32_t cb_index, const CommandRef* inside);
+    void run_command_buffer(uint64_t handle, uint32_t submission, uint32_t cb_index,
+                            const CommandRef* inside);
     void execute_secondaries(const fbs::CmdExecuteCommands& execute, const CommandRef& ref);
     void reset_command_buffers(const fbs::CommandBufferReset& reset);
     void execute_command(const fbs::Record& record, const CommandRef& ref, uint64_t sequence);
-    void replay_command(const fbs::Record& record, const CommandRef& ref, uint64_t sequence, bool selected);
+    void replay_command(const fbs::Record& record, const CommandRef& ref, uint64_t sequence,
+                        bool selected);
     void host_observation(const fbs::MemoryObservation& observation);
 
     // Memory helpers.
     bool contents(uint64_t hash, std::vector<uint8_t>* bytes);
     void lay_in_snapshots(const traces::SnapshotVector* snapshots, const ReplayLocation& where);
-    void feed(const CommandRef& ref, const AddressRange& range, StageMask stage, AccessMask access, bool write,
-              std::string_view field);
-    std::vector<BufferBarrier> buffer_barriers(const fbs::Dependency* dependency, std::vector<MemoryBarrier>* global);
+    void feed(const CommandRef& ref, const AddressRange& range, StageMask stage, AccessMask access,
+              bool write, std::string_view field);
+    std::vector<BufferBarrier> buffer_barriers(const fbs::Dependency* dependency,
+                                               std::vector<MemoryBarrier>* global);
 
-    void copy_buffer(const fbs::CmdCopyBuffer& copy, const CommandRef& ref, const ReplayLocation& where);
+    void copy_buffer(const fbs::CmdCopyBuffer& copy, const CommandRef& ref,
+                     const ReplayLocation& where);
     void fill_buffer(const fbs::CmdFillBuffer& fill, const CommandRef& ref);
     void update_buffer(const fbs::CmdUpdateBuffer& update, const CommandRef& ref);
-    void dispatch(const fbs::CmdDispatch& dispatch, const CommandRef& ref, const ReplayLocation& where);
-    void build_clusters(const fbs::CmdBuildClusterAccelerationStructureIndirect& build, const CommandRef& ref,
-                        const ReplayLocation& where);
-    void build_nv(const fbs::CmdBuildAccelerationStructureNV& build, const CommandRef& ref, const ReplayLocation& where);
-    void copy_to_object(const fbs::CmdCopyMemoryToAccelerationStructure& copy, const CommandRef& ref,
-                        const ReplayLocation& where);
+    void dispatch(const fbs::CmdDispatch& dispatch, const CommandRef& ref,
+                  const ReplayLocation& where);
+    void build_clusters(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
+                        const CommandRef& ref, const ReplayLocation& where);
+    void build_nv(const fbs::CmdBuildAccelerationStructureNV& build, const CommandRef& ref,
+                  const ReplayLocation& where);
+    void copy_to_object(const fbs::CmdCopyMemoryToAccelerationStructure& copy,
+                        const CommandRef& ref, const ReplayLocation& where);
     void barrier(const fbs::Record& record, const CommandRef& ref);
 
     void add_finding(ReplayFinding finding);
     // VUID-vkQueueSubmit-pSignalSemaphores-00067 / VUID-vkQueueSubmit2-semaphore-03868 for one batch.
-    void check_binary_signals(const fbs::QueueSubmit& submit, uint32_t batch, std::span<const SemaphoreWait> waits,
+    void check_binary_signals(const fbs::QueueSubmit& submit, uint32_t batch,
+                              std::span<const SemaphoreWait> waits,
                               std::span<const SemaphoreSignal> signals);
     void memory_freed(std::optional<AddressRange> range);
-    void drop_recorded(const Recorded& cb) { recorded_bytes_ -= std::min(recorded_bytes_, cb.bytes); }
+    void drop_recorded(const Recorded& cb) {
+        recorded_bytes_ -= std::min(recorded_bytes_, cb.bytes);
+    }
     void limit_recorded();
     void forget_recorded(uint64_t handle) {
         if (auto it = recorded_.find(handle); it != recorded_.end()) {
@@ -118,15 +133,23 @@ private:
         }
     }
     ReplayLocation location(const CommandRef& ref, uint64_t sequence) const {
-        return ReplayLocation{sequence,  ref.submission,       ref.command_buffer, ref.command, ref.command_buffer_handle,
-                              ref.name,  ref.secondary_handle, ref.secondary,      ref.secondary_command};
+        return ReplayLocation{sequence,
+                              ref.submission,
+                              ref.command_buffer,
+                              ref.command,
+                              ref.command_buffer_handle,
+                              ref.name,
+                              ref.secondary_handle,
+                              ref.secondary,
+                              ref.secondary_command};
     }
     QueueId queue_id(uint64_t queue) {
         auto [it, inserted] = queues_.emplace(queue, static_cast<QueueId>(queues_.size()));
         return it->second;
     }
     bool selected(uint64_t sequence, uint32_t submission) const {
-        if (options_.submission >= 0 && submission != static_cast<uint64_t>(options_.submission)) return false;
+        if (options_.submission >= 0 && submission != static_cast<uint64_t>(options_.submission))
+            return false;
         return sequence >= options_.first_command && sequence <= options_.last_command;
     }
 
@@ -142,9 +165,11 @@ private:
     // Pool membership, as far as the trace tells it: resets that name both a command buffer
     // and its pool. vkResetCommandPool (pool only) then resets those buffers.
     std::unordered_map<uint64_t, std::unordered_set<uint64_t>> pool_members_;
-    std::unordered_set<uint64_t> pools_noted_;  // pool resets of unknown membership already in not_replayed
+    std::unordered_set<uint64_t>
+        pools_noted_;  // pool resets of unknown membership already in not_replayed
     std::unordered_map<uint64_t, QueueId> queues_;
-    std::map<std::pair<uint32_t, uint32_t>, uint32_t> queried_max_count_;  // (opType, opMode) -> count
+    std::map<std::pair<uint32_t, uint32_t>, uint32_t>
+        queried_max_count_;  // (opType, opMode) -> count
     uint64_t sequence_ = 0;
     uint32_t next_submission_ = 0;
     uint32_t host_ops_ = 0;
@@ -156,8 +181,11 @@ private:
     // Executions so far of each command buffer in the submission being replayed (restatements).
     std::unordered_map<uint64_t, uint32_t> executions_;
     detail::BinarySignals binary_signals_;
-    detail::NvReplay nv_{{memory_, report_, sync_, options_, [this](ReplayFinding f) { add_finding(std::move(f)); },
-                          [this](const traces::SnapshotVector* s, const ReplayLocation& w) { lay_in_snapshots(s, w); },
+    detail::NvReplay nv_{{memory_, report_, sync_, options_,
+                          [this](ReplayFinding f) { add_finding(std::move(f)); },
+                          [this](const traces::SnapshotVector* s, const ReplayLocation& w) {
+                              lay_in_snapshots(s, w);
+                          },
                           [this](engine::ExecutionRecord&& r, uint64_t ns) {
                               if (!observed_execution_) return;
                               *observed_execution_ = std::move(r);

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // SyncModel's state, shared by the files that implement it, one concern each:
 //   sync_bookkeeping.cpp       queue slots, interned field names
 //   sync_barrier_log.cpp       the lazy per-queue barrier log records catch up over
@@ -7,10 +8,10 @@
 //   sync_barriers.cpp          barriers and events into the log
 //   sync_host_waits.cpp        host waits: retiring completed work, trimming the logs
 //   sync_model.cpp             the public API (SyncModel's members)
-// The data layout itself is in sync_state.hpp.
+// The data layout itself is in sync_state.h.
 #pragma once
 
-#include "clastrace/replay/sync_model.hpp"
+#include "clastrace/replay/sync_model.h"
 
 #include <optional>
 #include <span>
@@ -20,8 +21,8 @@
 #include <unordered_set>
 #include <vector>
 
-#include "segment_store.hpp"
-#include "sync_state.hpp"
+#include "segment_store.h"
+#include "sync_state.h"
 
 namespace clastrace::replay {
 
@@ -81,9 +82,10 @@ struct SyncModel::State {
     bool last_was_access = false;
     uint16_t current_queue = 0;
     bool in_submission = false;
-    uint32_t next_signal = 0;   // narrow semaphore signal ids
-    bool any_narrow = false;    // a narrow signal was seen: records are caught up before foreign views
-    int foreign_depth = 0;      // nesting of foreign views through chains of narrow signals
+    uint32_t next_signal = 0;  // narrow semaphore signal ids
+    bool any_narrow =
+        false;              // a narrow signal was seen: records are caught up before foreign views
+    int foreign_depth = 0;  // nesting of foreign views through chains of narrow signals
 
     // ------------------------------------------------------------------ bookkeeping (sync_bookkeeping.cpp)
     uint16_t queue_slot(QueueId id);
@@ -98,7 +100,7 @@ struct SyncModel::State {
         uint64_t hash = 0;
         uint32_t id = UINT32_MAX;  // UINT32_MAX: empty
         uint32_t length = 0;
-        std::size_t offset = 0;    // into field_arena
+        std::size_t offset = 0;  // into field_arena
     };
     std::string field_arena;
     std::vector<FieldSlot> field_table = std::vector<FieldSlot>(64);
@@ -122,17 +124,17 @@ struct SyncModel::State {
     }
 
     // ------------------------------------------------------------------ lazy barrier log (sync_barrier_log.cpp)
-    void apply_barriers(const Queue& q, const LogEntry& e, ChainState& s, const Record& r, bool home,
-                        uint64_t seg_begin, uint64_t seg_end);
+    void apply_barriers(const Queue& q, const LogEntry& e, ChainState& s, const Record& r,
+                        bool home, uint64_t seg_begin, uint64_t seg_end);
 
-    void apply_event_set(const Queue& q, const LogEntry& e, ChainState& s, const Record& r, bool home,
-                         uint64_t seg_begin, uint64_t seg_end);
+    void apply_event_set(const Queue& q, const LogEntry& e, ChainState& s, const Record& r,
+                         bool home, uint64_t seg_begin, uint64_t seg_end);
 
-    void apply_event_wait(const Queue& q, const LogEntry& e, ChainState& s, const Record& r, uint64_t seg_begin,
-                          uint64_t seg_end);
+    void apply_event_wait(const Queue& q, const LogEntry& e, ChainState& s, const Record& r,
+                          uint64_t seg_begin, uint64_t seg_end);
 
-    void apply_entry(const Queue& q, uint32_t pos, ChainState& s, const Record& r, bool home, uint64_t seg_begin,
-                     uint64_t seg_end);
+    void apply_entry(const Queue& q, uint32_t pos, ChainState& s, const Record& r, bool home,
+                     uint64_t seg_begin, uint64_t seg_end);
 
     static bool settled(const Record& r);
     static void apply_full(Record& r);
@@ -144,11 +146,13 @@ struct SyncModel::State {
 
     // The chain state of a record from another queue as seen from `w`: nothing until a
     // semaphore wait on `w` covers it, then that wait's stages and whatever follows on `w`.
-    std::optional<ChainState> foreign_view(const Record& r, const Queue& w, uint64_t seg_begin, uint64_t seg_end);
+    std::optional<ChainState> foreign_view(const Record& r, const Queue& w, uint64_t seg_begin,
+                                           uint64_t seg_end);
 
     // Did the narrow signal `im` waited on take `r` into its first scope (and, for a write,
     // its access scope: *available)? The signal's clock covers r; its stage mask decides.
-    bool in_signal(const Import& im, const Record& r, uint64_t seg_begin, uint64_t seg_end, bool* available);
+    bool in_signal(const Import& im, const Record& r, uint64_t seg_begin, uint64_t seg_end,
+                   bool* available);
 
     // ------------------------------------------------------------------ hazard decisions (sync_hazard_detection.cpp)
     struct Later {
@@ -159,8 +163,8 @@ struct SyncModel::State {
 
     // Is `prior` execution-ordered before `later`, and (when `need_visible`) is it visible?
     // Returns the fix to suggest when it is not; nullopt when ordered.
-    std::optional<FixKind> unordered(Record& prior, const Later& later, bool need_visible, uint64_t seg_begin,
-                                     uint64_t seg_end);
+    std::optional<FixKind> unordered(Record& prior, const Later& later, bool need_visible,
+                                     uint64_t seg_begin, uint64_t seg_end);
 
     struct Finding {
         HazardKey key;
@@ -171,7 +175,7 @@ struct SyncModel::State {
         bool later_element = false;
         uint32_t later_field = 0;
         AddressRange later_range;
-        uint32_t order = 0;         // record_accesses: index of the later access in the command's list
+        uint32_t order = 0;  // record_accesses: index of the later access in the command's list
         uint32_t later_record = 0;  // record_accesses: which of its records was the later access
     };
 
@@ -183,11 +187,12 @@ struct SyncModel::State {
     // pairs of elements are many, and a linear search for the key would be quadratic.
     std::unordered_map<HazardKey, std::size_t, HazardKeyHash> found_index;
 
-    void note_one(std::vector<Finding>& found, HazardKey key, const Record& prior, const AddressRange& prior_range,
-                  const Record& later, const AddressRange& later_range, FixKind fix, uint64_t begin, uint64_t end);
+    void note_one(std::vector<Finding>& found, HazardKey key, const Record& prior,
+                  const AddressRange& prior_range, const Record& later,
+                  const AddressRange& later_range, FixKind fix, uint64_t begin, uint64_t end);
 
-    void note(std::vector<Finding>& found, HazardClass hazard, const Record& prior, const Record& later, FixKind fix,
-              uint64_t seg_begin, uint64_t seg_end);
+    void note(std::vector<Finding>& found, HazardClass hazard, const Record& prior,
+              const Record& later, FixKind fix, uint64_t seg_begin, uint64_t seg_end);
 
     HazardAccess describe(const Record& r) const;
 
@@ -208,14 +213,16 @@ struct SyncModel::State {
 
     Record make_record(const CommandRef& command, const Access& a, uint16_t queue, uint64_t t);
     // make_record into an existing record (record_accesses reuses one, sparing its vectors).
-    void fill_record(Record& r, const CommandRef& command, const Access& a, uint16_t queue, uint64_t t);
-    void fill_record(Record& r, const CommandRef& command, const Access& a, uint16_t queue, uint64_t t,
-                     uint32_t field);
+    void fill_record(Record& r, const CommandRef& command, const Access& a, uint16_t queue,
+                     uint64_t t);
+    void fill_record(Record& r, const CommandRef& command, const Access& a, uint16_t queue,
+                     uint64_t t, uint32_t field);
 
     // ------------------------------------------------------------------ barriers (sync_barriers.cpp)
     uint32_t pool_barriers(Queue& q, const DependencyInfo& dep);
 
-    void log_barrier_entry(EntryKind kind, const DependencyInfo& dep, StageMask event_bits, bool v1);
+    void log_barrier_entry(EntryKind kind, const DependencyInfo& dep, StageMask event_bits,
+                           bool v1);
 
     // ------------------------------------------------------------------ host waits (sync_host_waits.cpp)
     // Accesses older than a queue's `complete` count as finished wherever they are met, so

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // SyncModel: decides which memory accesses of a captured stream are ordered and made
 // visible by the spec's execution and memory dependencies, and reports those that are not.
 //
@@ -19,8 +20,8 @@
 #include <span>
 #include <vector>
 
-#include "clastrace/replay/hazard_report.hpp"
-#include "clastrace/replay/sync_types.hpp"
+#include "clastrace/replay/hazard_report.h"
+#include "clastrace/replay/sync_types.h"
 
 namespace clastrace::replay {
 
@@ -31,15 +32,17 @@ struct SyncOptions {
 
 struct SyncStats {
     uint64_t accesses = 0;
-    uint64_t barriers = 0;              // memory and buffer barriers, events and semaphore waits included
-    uint64_t log_entries_applied = 0;   // lazy barrier applications (the model's main cost)
-    uint64_t segments = 0;              // live address segments now
+    uint64_t barriers = 0;  // memory and buffer barriers, events and semaphore waits included
+    uint64_t log_entries_applied = 0;  // lazy barrier applications (the model's main cost)
+    uint64_t segments = 0;             // live address segments now
     uint64_t peak_segments = 0;
-    uint64_t duplicate_hazards = 0;     // same command pair, class and fields as a kept report
-    uint64_t hazards_over_cap = 0;      // hazards found once SyncOptions::max_reports were kept
-    uint64_t unsatisfied_waits = 0;     // semaphore waits with no signal seen yet (no ordering assumed)
-    uint64_t event_slot_reuses = 0;     // >16 events pending at once: the oldest loses its ordering
-    uint64_t visibility_spills = 0;     // barrier applications leaving a write visible to >2 scopes (heap)
+    uint64_t duplicate_hazards = 0;  // same command pair, class and fields as a kept report
+    uint64_t hazards_over_cap = 0;   // hazards found once SyncOptions::max_reports were kept
+    uint64_t unsatisfied_waits =
+        0;  // semaphore waits with no signal seen yet (no ordering assumed)
+    uint64_t event_slot_reuses = 0;  // >16 events pending at once: the oldest loses its ordering
+    uint64_t visibility_spills =
+        0;  // barrier applications leaving a write visible to >2 scopes (heap)
 };
 
 class SyncModel {
@@ -51,7 +54,8 @@ public:
 
     // --- device work, one submission batch at a time -------------------------------
     // Waits happen before the batch's commands (pWaitSemaphoreInfos / pWaitDstStageMask).
-    void begin_submission(QueueId queue, uint32_t submission_index, std::span<const SemaphoreWait> waits = {});
+    void begin_submission(QueueId queue, uint32_t submission_index,
+                          std::span<const SemaphoreWait> waits = {});
     void record_access(const CommandRef& command, const Access& access);
     // All accesses of one command, in the command's order: the same hazards, reported in the
     // same order and naming the same fields and ranges, as record_access on each in turn.
@@ -66,14 +70,16 @@ public:
     void record_copy(const CommandRef& command, const Access& source, const Access& destination);
     // Deserialization (vkCmdCopyMemoryToAccelerationStructureKHR): write-after-read/write
     // hazards on the destination are reported as kDeserializeInUse.
-    void record_deserialize(const CommandRef& command, const Access& source, const Access& destination);
+    void record_deserialize(const CommandRef& command, const Access& source,
+                            const Access& destination);
     void pipeline_barrier(const CommandRef& command, const DependencyInfo& dependency);
     // vkCmdSetEvent2 (dependency as given) or vkCmdSetEvent (v1: one barrier with the stage
     // mask and no access masks; the waiting command's barriers then supply the accesses).
     void set_event(const CommandRef& command, uint64_t event, const DependencyInfo& dependency);
     void set_event_v1(const CommandRef& command, uint64_t event, VkPipelineStageFlags stages);
     void reset_event(const CommandRef& command, uint64_t event);
-    void wait_events(const CommandRef& command, std::span<const uint64_t> events, const DependencyInfo& dependency);
+    void wait_events(const CommandRef& command, std::span<const uint64_t> events,
+                     const DependencyInfo& dependency);
     // Signals happen after the batch's commands; fence 0 means none.
     void end_submission(std::span<const SemaphoreSignal> signals = {}, uint64_t fence = 0);
 

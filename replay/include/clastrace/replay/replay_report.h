@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // What a replay found: rule violations (VUIDs and clastrace rules, each at the command
 // and op that broke it), synchronization hazards, mismatches between the capturing
 // side's outputs and the engine's, and the commands this build does not replay yet.
@@ -9,7 +10,7 @@
 
 #include <nlohmann/json_fwd.hpp>
 
-#include "clastrace/replay/hazard_report.hpp"
+#include "clastrace/replay/hazard_report.h"
 
 namespace clastrace::replay {
 
@@ -20,7 +21,7 @@ struct ReplayLocation {
     uint32_t command_buffer = 0;  // command buffer within that submission
     uint32_t command = 0;         // command within its command buffer
     uint64_t command_buffer_handle = 0;
-    const char* name = "";        // Vulkan command name
+    const char* name = "";  // Vulkan command name
     // Inside a secondary command buffer (as CommandRef): `command` is the vkCmdExecuteCommands.
     uint64_t secondary_handle = 0;
     uint32_t secondary = 0;
@@ -28,9 +29,9 @@ struct ReplayLocation {
 };
 
 enum class FindingSource : uint8_t {
-    kEngine,   // a rule the engine checked while executing the command (VUID-... / CLASTRACE-...)
-    kVerify,   // the capturing side's outputs differ from the engine's
-    kReplay,   // the trace itself cannot be replayed as recorded (unknown memory, untranslated reference)
+    kEngine,  // a rule the engine checked while executing the command (VUID-... / CLASTRACE-...)
+    kVerify,  // the capturing side's outputs differ from the engine's
+    kReplay,  // the trace itself cannot be replayed as recorded (unknown memory, untranslated reference)
 };
 const char* finding_source_name(FindingSource source);
 
@@ -39,11 +40,11 @@ const char* finding_source_name(FindingSource source);
 const char* cluster_op_type_name(uint32_t op_type);
 
 struct ReplayFinding {
-    std::string rule;        // VUID string verbatim, or CLASTRACE-...
+    std::string rule;  // VUID string verbatim, or CLASTRACE-...
     std::string message;
     FindingSource source = FindingSource::kEngine;
     ReplayLocation where;
-    int64_t op_index = -1;   // element of srcInfosArray, -1 for the command as a whole
+    int64_t op_index = -1;  // element of srcInfosArray, -1 for the command as a whole
     uint64_t address = 0;
     // "VUID-... : submission 0, command buffer 0 (0x4001), command 3 vkCmd...: message"
     std::string format() const;
@@ -53,11 +54,11 @@ struct ReplayFinding {
 struct SizeComparison {
     ReplayLocation where;
     uint32_t op_type = 0;
-    uint32_t ops = 0;               // ops executed by the engine
-    uint32_t ops_compared = 0;      // ops whose captured size was in the trace
-    uint64_t captured_bytes = 0;    // sum of captured dstSizesArray entries (ops_compared)
-    uint64_t engine_bytes = 0;      // sum of the engine's sizes for the same ops
-    uint32_t sizes_equal = 0;       // ops with captured size == engine size
+    uint32_t ops = 0;             // ops executed by the engine
+    uint32_t ops_compared = 0;    // ops whose captured size was in the trace
+    uint64_t captured_bytes = 0;  // sum of captured dstSizesArray entries (ops_compared)
+    uint64_t engine_bytes = 0;    // sum of the engine's sizes for the same ops
+    uint32_t sizes_equal = 0;     // ops with captured size == engine size
     struct OpSize {
         uint32_t op = 0;
         uint32_t captured = 0;
@@ -73,12 +74,12 @@ struct NvSizeComparison {
     ReplayLocation where;
     uint64_t handle = 0;
     bool top_level = false;
-    uint64_t primitives = 0;          // triangles/AABBs given, or instances
-    uint64_t driver_object = 0;       // 0: not captured
+    uint64_t primitives = 0;     // triangles/AABBs given, or instances
+    uint64_t driver_object = 0;  // 0: not captured
     uint64_t driver_build_scratch = 0;
-    uint64_t engine_object = 0;       // the engine's requirement for the creation info
+    uint64_t engine_object = 0;  // the engine's requirement for the creation info
     uint64_t engine_build_scratch = 0;
-    uint64_t engine_bytes = 0;        // the object the engine built
+    uint64_t engine_bytes = 0;  // the object the engine built
 };
 
 // One RayQueryCheck record: the capture's rays traced through the rebuilt top level.
@@ -86,15 +87,15 @@ struct RayCheckResult {
     std::string label;
     uint64_t acceleration_structure = 0;
     uint64_t after_submission = 0;
-    bool checked = false;            // false: `why_not` says why no ray was traced
+    bool checked = false;  // false: `why_not` says why no ray was traced
     std::string why_not;
     uint64_t rays = 0;
     uint64_t agree_miss = 0, agree_hit = 0;
-    uint64_t float_precision = 0;    // of agree_hit: same primitive, t off by more than 1e-5
-                                     // relative but within the engine's float32 error bound
-    uint64_t tie = 0;                // other primitive at the same t (shared edges, overlaps)
-    uint64_t edge = 0;               // hit/miss or primitive differs within 1e-5 of an edge
-    uint64_t disagree = 0;           // each one also a finding (up to the cap)
+    uint64_t float_precision = 0;  // of agree_hit: same primitive, t off by more than 1e-5
+                                   // relative but within the engine's float32 error bound
+    uint64_t tie = 0;              // other primitive at the same t (shared edges, overlaps)
+    uint64_t edge = 0;             // hit/miss or primitive differs within 1e-5 of an edge
+    uint64_t disagree = 0;         // each one also a finding (up to the cap)
     double max_rel_t = 0;
 };
 
@@ -106,44 +107,45 @@ struct NotReplayed {
 struct ReplayCounts {
     uint64_t records = 0;
     uint64_t submissions = 0;
-    uint64_t commands = 0;             // commands executed (inside --ops/--submit)
-    uint64_t cluster_commands = 0;     // vkCmdBuildClusterAccelerationStructureIndirectNV executed
-    uint64_t cluster_ops = 0;          // ops they ran
-    uint64_t copies = 0;               // copy/fill/update commands applied to memory
-    uint64_t barriers = 0;             // barrier/event commands fed to the sync model
-    uint64_t accesses = 0;             // accesses fed to the sync model
-    uint64_t snapshots_applied = 0;    // captured memory snapshots laid into the image
+    uint64_t commands = 0;           // commands executed (inside --ops/--submit)
+    uint64_t cluster_commands = 0;   // vkCmdBuildClusterAccelerationStructureIndirectNV executed
+    uint64_t cluster_ops = 0;        // ops they ran
+    uint64_t copies = 0;             // copy/fill/update commands applied to memory
+    uint64_t barriers = 0;           // barrier/event commands fed to the sync model
+    uint64_t accesses = 0;           // accesses fed to the sync model
+    uint64_t snapshots_applied = 0;  // captured memory snapshots laid into the image
     uint64_t snapshot_bytes = 0;
     uint64_t snapshots_outside_memory = 0;  // snapshots no bound buffer holds (skipped)
-    uint64_t outputs_compared = 0;     // captured output snapshots compared byte for byte
+    uint64_t outputs_compared = 0;          // captured output snapshots compared byte for byte
     uint64_t output_bytes_compared = 0;
-    uint64_t addresses_translated = 0; // object addresses rewritten captured -> rebuilt
-    uint64_t skipped_commands = 0;     // commands outside --ops/--submit
-    uint64_t peak_image_bytes = 0;     // most bytes the memory image held at once (resident pages)
-    uint64_t nv_builds = 0;            // vkCmdBuildAccelerationStructureNV executed by the engine
-    uint64_t deserializations = 0;     // vkCmdCopyMemoryToAccelerationStructureKHR executed
-    uint64_t handles_translated = 0;   // instance/serialized handles mapped to rebuilt objects
-    uint64_t presents = 0;             // vkQueuePresentKHR records (format 1.2)
-    uint64_t acquires = 0;             // vkAcquireNextImage[2]KHR records (format 1.2)
+    uint64_t addresses_translated = 0;  // object addresses rewritten captured -> rebuilt
+    uint64_t skipped_commands = 0;      // commands outside --ops/--submit
+    uint64_t peak_image_bytes = 0;      // most bytes the memory image held at once (resident pages)
+    uint64_t nv_builds = 0;             // vkCmdBuildAccelerationStructureNV executed by the engine
+    uint64_t deserializations = 0;      // vkCmdCopyMemoryToAccelerationStructureKHR executed
+    uint64_t handles_translated = 0;    // instance/serialized handles mapped to rebuilt objects
+    uint64_t presents = 0;              // vkQueuePresentKHR records (format 1.2)
+    uint64_t acquires = 0;              // vkAcquireNextImage[2]KHR records (format 1.2)
     // Semaphore waits of submissions whose signal the trace does not hold (SyncStats): such a
     // wait orders nothing in the hazard check. 0 with --no-hazards (not counted).
     uint64_t unsatisfied_semaphore_waits = 0;
 };
 
 struct ReplayReport {
-    std::string trace;                 // file name as given
-    bool engine_trace = false;         // made by clastrace's own engine: outputs compared byte-exactly
-    std::string device;                // capturing device name
+    std::string trace;          // file name as given
+    bool engine_trace = false;  // made by clastrace's own engine: outputs compared byte-exactly
+    std::string device;         // capturing device name
     std::vector<ReplayFinding> findings;
     uint64_t findings_over_cap = 0;
     std::vector<HazardReport> hazards;
-    uint64_t hazards_over_cap = 0;     // over the cap (SyncStats)
-    uint64_t hazards_merged = 0;       // per-op hazards folded into one report per command pair and field
+    uint64_t hazards_over_cap = 0;  // over the cap (SyncStats)
+    uint64_t hazards_merged =
+        0;  // per-op hazards folded into one report per command pair and field
     bool hazards_checked = true;
     bool verified = true;
     std::vector<SizeComparison> sizes;
     std::vector<NotReplayed> not_replayed;
-    uint64_t rows_over_cap = 0;        // sizes and not_replayed rows past ReplayOptions::max_command_rows
+    uint64_t rows_over_cap = 0;  // sizes and not_replayed rows past ReplayOptions::max_command_rows
     std::vector<NvSizeComparison> nv_sizes;
     std::vector<RayCheckResult> ray_checks;
     std::vector<std::string> trace_damage;  // TraceError messages met while reading

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // SegmentStore: disjoint address segments [begin, end), each owning a Body, kept as one sorted
 // array of small entries plus a pool of bodies. It replaces a std::map keyed by begin: the
 // search runs over a few KB of contiguous keys instead of large tree nodes, splits and merges
@@ -48,7 +49,7 @@ public:
         std::size_t next = first;  // entries[next..] are not yet consumed
         pieces_.clear();
         uint64_t cursor = begin;
-        bool have_carry = false;   // a copy split off the straddling entry, not yet in pieces_
+        bool have_carry = false;  // a copy split off the straddling entry, not yet in pieces_
         Entry carry{};
         if (next < entries_.size() && entries_[next].begin < begin) {
             const Entry e = entries_[next++];
@@ -59,7 +60,8 @@ public:
         std::size_t inside_from = pieces_.size();
         while (cursor < end) {
             const bool have = have_carry || next < entries_.size();
-            const Entry seg_peek = have_carry ? carry : (next < entries_.size() ? entries_[next] : Entry{});
+            const Entry seg_peek =
+                have_carry ? carry : (next < entries_.size() ? entries_[next] : Entry{});
             if (!have || seg_peek.begin > cursor) {
                 const uint64_t gap_end = have ? std::min(end, seg_peek.begin) : end;
                 const uint32_t b = allocate();
@@ -69,8 +71,10 @@ public:
                 continue;
             }
             Entry seg = seg_peek;
-            if (have_carry) have_carry = false;
-            else ++next;
+            if (have_carry)
+                have_carry = false;
+            else
+                ++next;
             bool has_tail = false;
             Entry tail{};
             if (seg.end > end) {
@@ -90,7 +94,8 @@ public:
             if (inside_to - inside_from > 1) {
                 for (std::size_t k = inside_from + 1; k < inside_to; ++k) release(pieces_[k].body);
                 pieces_[inside_from].end = end;
-                pieces_.erase(pieces_.begin() + std::ptrdiff_t(inside_from + 1), pieces_.begin() + std::ptrdiff_t(inside_to));
+                pieces_.erase(pieces_.begin() + std::ptrdiff_t(inside_from + 1),
+                              pieces_.begin() + std::ptrdiff_t(inside_to));
             }
         }
         splice(first, next, pieces_);
@@ -113,7 +118,8 @@ public:
     // Calls fn(Body&, begin, end) on every segment meeting [lo, hi), in address order.
     template <class Fn>
     void for_each(Fn&& fn, uint64_t lo = 0, uint64_t hi = UINT64_MAX) {
-        for (std::size_t i = first_ending_after(lo); i < entries_.size() && entries_[i].begin < hi; ++i)
+        for (std::size_t i = first_ending_after(lo); i < entries_.size() && entries_[i].begin < hi;
+             ++i)
             fn(bodies_[entries_[i].body], entries_[i].begin, entries_[i].end);
     }
     template <class Fn>
@@ -136,7 +142,8 @@ public:
             }
         }
         if (out != in) {
-            entries_.erase(entries_.begin() + std::ptrdiff_t(out), entries_.begin() + std::ptrdiff_t(in));
+            entries_.erase(entries_.begin() + std::ptrdiff_t(out),
+                           entries_.begin() + std::ptrdiff_t(in));
             ends_.erase(ends_.begin() + std::ptrdiff_t(out), ends_.begin() + std::ptrdiff_t(in));
         }
         CLASTRACE_DEBUG_ASSERT(entries_hold(out, out));
@@ -146,9 +153,10 @@ public:
     // holds on the heap.
     template <class HeapBytes>
     std::size_t memory_bytes(HeapBytes&& body_heap_bytes) const {
-        std::size_t bytes = entries_.capacity() * sizeof(Entry) + ends_.capacity() * sizeof(uint64_t) +
-                            bodies_.capacity() * sizeof(Body) +
-                            free_.capacity() * sizeof(uint32_t) + pieces_.capacity() * sizeof(Entry);
+        std::size_t bytes =
+            entries_.capacity() * sizeof(Entry) + ends_.capacity() * sizeof(uint64_t) +
+            bodies_.capacity() * sizeof(Body) + free_.capacity() * sizeof(uint32_t) +
+            pieces_.capacity() * sizeof(Entry);
         for (const Body& b : bodies_) bytes += body_heap_bytes(b);
         return bytes;
     }
@@ -228,8 +236,10 @@ private:
             entries_.insert(entries_.begin() + std::ptrdiff_t(to), with.size() - old, Entry{});
             ends_.insert(ends_.begin() + std::ptrdiff_t(to), with.size() - old, 0);
         } else if (with.size() < old) {
-            entries_.erase(entries_.begin() + std::ptrdiff_t(from + with.size()), entries_.begin() + std::ptrdiff_t(to));
-            ends_.erase(ends_.begin() + std::ptrdiff_t(from + with.size()), ends_.begin() + std::ptrdiff_t(to));
+            entries_.erase(entries_.begin() + std::ptrdiff_t(from + with.size()),
+                           entries_.begin() + std::ptrdiff_t(to));
+            ends_.erase(ends_.begin() + std::ptrdiff_t(from + with.size()),
+                        ends_.begin() + std::ptrdiff_t(to));
         }
         std::copy(with.begin(), with.end(), entries_.begin() + std::ptrdiff_t(from));
         for (std::size_t k = 0; k < with.size(); ++k) ends_[from + k] = with[k].end;
@@ -238,8 +248,8 @@ private:
     std::vector<Entry> entries_;  // sorted by begin, disjoint
     std::vector<uint64_t> ends_;  // entries_[i].end, for the search
     std::vector<Body> bodies_;
-    std::vector<uint32_t> free_;   // released bodies, cleared
-    std::vector<Entry> pieces_;    // update's working list
+    std::vector<uint32_t> free_;  // released bodies, cleared
+    std::vector<Entry> pieces_;   // update's working list
 };
 
 }  // namespace clastrace::replay::detail

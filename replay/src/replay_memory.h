@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The address space a replay sees: every bound buffer as a region of one MemoryImage,
 // buffer/offset pairs resolved to device addresses, and the byte ranges the engine built
 // objects into (captured snapshots never overwrite those: in a driver trace they hold the
@@ -5,7 +6,7 @@
 #pragma once
 
 #include <clastrace/engine/memory_image.h>
-#include <clastrace/replay/sync_types.hpp>
+#include <clastrace/replay/sync_types.h>
 
 #include <algorithm>
 
@@ -32,9 +33,11 @@ public:
     // Binds and adds the buffer's region. Buffers without a device address get one: the
     // memory object's base (learned from an addressed buffer bound to it) plus the offset,
     // or a private range above kPrivateBase, so aliasing through memory still overlaps.
-    void bind_buffer(uint64_t buffer, uint64_t memory, uint64_t memory_offset, uint64_t device_address);
+    void bind_buffer(uint64_t buffer, uint64_t memory, uint64_t memory_offset,
+                     uint64_t device_address);
     void bind_object(uint64_t object, uint64_t memory, uint64_t memory_offset);  // NV AS
-    void create_object(uint64_t object, uint64_t buffer, uint64_t offset, uint64_t size, uint64_t requirement);
+    void create_object(uint64_t object, uint64_t buffer, uint64_t offset, uint64_t size,
+                       uint64_t requirement);
     void object_requirement(uint64_t object, uint64_t size) { object_size_[object] = size; }
     // vkDestroyBuffer: its region and bytes go (unless another live buffer overlaps them),
     // and the engine no longer owns bytes there. Returns the range it had, if bound.
@@ -45,7 +48,8 @@ public:
     // [offset, offset + size) of `buffer` as device addresses (VK_WHOLE_SIZE: to the end).
     std::optional<AddressRange> buffer_range(uint64_t buffer, uint64_t offset, uint64_t size) const;
     std::optional<AddressRange> object_range(uint64_t object) const;
-    std::optional<uint64_t> snapshot_address(uint64_t buffer, uint64_t offset, uint64_t address) const;
+    std::optional<uint64_t> snapshot_address(uint64_t buffer, uint64_t offset,
+                                             uint64_t address) const;
 
     // Writes `bytes` at `address`, leaving engine-built object bytes alone. False when no
     // region holds the range.

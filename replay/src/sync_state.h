@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The model's data layout: per-address access records, the per-queue barrier log, and the
 // semaphore/event bookkeeping. Internal to the sync_*.cpp files (sync_model_internal.hpp).
 #pragma once
@@ -8,9 +9,9 @@
 #include <optional>
 #include <vector>
 
-#include "clastrace/replay/hazard_report.hpp"
-#include "clastrace/replay/sync_masks.hpp"
-#include "clastrace/replay/sync_types.hpp"
+#include "clastrace/replay/hazard_report.h"
+#include "clastrace/replay/sync_masks.h"
+#include "clastrace/replay/sync_types.h"
 
 namespace clastrace::replay::detail {
 
@@ -22,7 +23,9 @@ constexpr int kFirstEventBit = 48;
 constexpr int kEventSlots = 16;
 
 inline StageMask source_scope_of(StageMask m) { return source_scope(m) & ~kEventStageBits; }
-inline StageMask destination_scope_of(StageMask m) { return destination_scope(m) & ~kEventStageBits; }
+inline StageMask destination_scope_of(StageMask m) {
+    return destination_scope(m) & ~kEventStageBits;
+}
 
 // The (stage, access) pairs a write was made visible to, as a union of rectangles
 // (destination stages x destination accesses of the barriers that made it visible). Almost
@@ -54,7 +57,9 @@ struct Visibility {
     }
 
     std::size_t size() const { return inline_count + more.size(); }
-    const Rect& at(std::size_t i) const { return i < inline_count ? inline_rects[i] : more[i - inline_count]; }
+    const Rect& at(std::size_t i) const {
+        return i < inline_count ? inline_rects[i] : more[i - inline_count];
+    }
     Rect& at(std::size_t i) { return i < inline_count ? inline_rects[i] : more[i - inline_count]; }
 
     // Returns true when the rectangle went to the heap.
@@ -63,8 +68,14 @@ struct Visibility {
         for (std::size_t i = 0; i < size(); ++i) {
             Rect& r = at(i);
             if ((r.stages & stages) == stages && (r.accesses & accesses) == accesses) return false;
-            if (r.stages == stages) { r.accesses |= accesses; return false; }
-            if (r.accesses == accesses) { r.stages |= stages; return false; }
+            if (r.stages == stages) {
+                r.accesses |= accesses;
+                return false;
+            }
+            if (r.accesses == accesses) {
+                r.stages |= stages;
+                return false;
+            }
         }
         if (inline_count < inline_rects.size()) {
             inline_rects[inline_count++] = {stages, accesses};
@@ -77,7 +88,8 @@ struct Visibility {
         for (AccessMask m = accesses; m; m &= m - 1) {
             const AccessMask bit = m & (~m + 1);
             bool found = false;
-            for (std::size_t i = 0; i < size() && !found; ++i) found = (at(i).stages & stage) && (at(i).accesses & bit);
+            for (std::size_t i = 0; i < size() && !found; ++i)
+                found = (at(i).stages & stage) && (at(i).accesses & bit);
             if (!found) return false;
         }
         return true;
@@ -89,8 +101,8 @@ struct Visibility {
 // (vkQueueSubmit2 with a narrow VkSemaphoreSubmitInfo::stageMask). Signals whose scope is
 // every stage need no bookkeeping: their clock alone says what they cover.
 struct SignalMembership {
-    uint32_t signal = 0;    // narrow signal id
-    bool available = false; // the write is in the signal's first access scope too
+    uint32_t signal = 0;     // narrow signal id
+    bool available = false;  // the write is in the signal's first access scope too
 };
 
 struct ChainState {
@@ -114,23 +126,23 @@ struct ChainState {
 };
 
 struct Record {
-    uint64_t tag = 0;            // unique per command; execution order on its queue
+    uint64_t tag = 0;  // unique per command; execution order on its queue
     CommandRef command;
-    AddressRange range;          // the whole access, for reports
-    StageMask stage = 0;         // one atomic stage
-    AccessMask access = 0;       // as given, for reports
-    AccessMask atoms = 0;        // atomic accesses, for checks
-    uint32_t field = 0;          // an element run: the field's text before the index, e.g. "srcInfosArray["
+    AddressRange range;     // the whole access, for reports
+    StageMask stage = 0;    // one atomic stage
+    AccessMask access = 0;  // as given, for reports
+    AccessMask atoms = 0;   // atomic accesses, for checks
+    uint32_t field = 0;  // an element run: the field's text before the index, e.g. "srcInfosArray["
     // An element run (SyncModel::record_accesses): element k is the byte range
     // [range.begin + k * element_bytes, +element_bytes), named field + (first_element + k) +
     // field_suffix. Hazards are decided per segment as for any record and named per element.
     uint32_t element_bytes = 0;  // 0: one access
     uint32_t first_element = 0;
     uint32_t field_suffix = 0;
-    uint32_t log_pos = 0;        // absolute position in its queue's log applied up to
-    uint16_t queue = 0;          // queue slot, or kHostSlot
+    uint32_t log_pos = 0;  // absolute position in its queue's log applied up to
+    uint16_t queue = 0;    // queue slot, or kHostSlot
     bool is_write = false;
-    bool completed = false;      // retired by a host wait, kept only because the host cannot see it
+    bool completed = false;  // retired by a host wait, kept only because the host cannot see it
     ChainState sync;
 };
 
@@ -164,8 +176,8 @@ enum class EntryKind : uint8_t { kBarrier, kImport, kEventSet, kEventWait, kSign
 
 struct LogEntry {
     EntryKind kind = EntryKind::kBarrier;
-    bool v1_event = false;      // event set without access masks (vkCmdSetEvent)
-    uint32_t first = 0;         // absolute index into the queue's barrier pool
+    bool v1_event = false;  // event set without access masks (vkCmdSetEvent)
+    uint32_t first = 0;     // absolute index into the queue's barrier pool
     uint32_t count = 0;
     uint32_t import_index = 0;  // absolute index into the queue's imports
     StageMask event_bits = 0;   // kSignal: the signal's first synchronization scope
@@ -183,8 +195,8 @@ struct Import {
     Clock own;         // what this wait's signal covers
     Clock cumulative;  // what all waits up to this one cover (monotone: binary search)
     StageMask dst_scope = 0;
-    uint32_t signal = 0;          // narrow signal id, 0 when the signal's scope is every stage
-    uint16_t signal_queue = 0;    // queue slot that signaled (narrow signals only)
+    uint32_t signal = 0;        // narrow signal id, 0 when the signal's scope is every stage
+    uint16_t signal_queue = 0;  // queue slot that signaled (narrow signals only)
 };
 
 struct Queue {

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Pipeline stage and access masks as the synchronization model sees them.
 //
 // Masks are Vulkan's synchronization2 flags (VkPipelineStageFlags2 / VkAccessFlags2).

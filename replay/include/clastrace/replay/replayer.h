@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Replayer: re-executes a captured trace on the built-in engine, in queue order.
 //
 // For every submitted command it lays the command's captured memory snapshots into one
@@ -18,7 +19,7 @@
 #include <string>
 
 #include "clastrace/replay/replay_observer.h"
-#include "clastrace/replay/replay_report.hpp"
+#include "clastrace/replay/replay_report.h"
 
 namespace clastrace::traces {
 class TraceReader;
@@ -27,7 +28,7 @@ class TraceReader;
 namespace clastrace::replay {
 
 struct ReplayProgress {
-    uint64_t bytes_read = 0;   // file offset of the chunk being replayed
+    uint64_t bytes_read = 0;  // file offset of the chunk being replayed
     uint64_t file_size = 0;
     uint64_t records = 0;
     uint64_t commands = 0;
@@ -41,7 +42,7 @@ struct ReplayOptions {
     uint64_t last_command = std::numeric_limits<uint64_t>::max();
     // Only this submission_index (-1: all).
     int64_t submission = -1;
-    std::size_t max_findings = 1000;   // findings kept (hazards: the same cap); the rest counted
+    std::size_t max_findings = 1000;      // findings kept (hazards: the same cap); the rest counted
     uint32_t max_findings_per_rule = 64;  // per command, passed to the engine
     // Bytes of captured memory the replay may hold. Every bound buffer is a sparse region
     // that costs only the pages written; a write past the budget is refused (a

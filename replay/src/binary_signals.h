@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // BinarySignals: which binary semaphores hold a signal no wait has consumed yet, as far as the
 // trace tells it, for VUID-vkQueueSubmit-pSignalSemaphores-00067 / VUID-vkQueueSubmit2-semaphore-03868
 // (a binary semaphore must be unsignalled when a submission signals it) and for

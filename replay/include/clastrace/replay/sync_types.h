@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The vocabulary the synchronization model is fed with: commands, accesses, barriers,
 // submissions. Replay produces these from a trace and from the engine's execution record;
 // nothing here depends on either.
@@ -7,7 +8,7 @@
 #include <span>
 #include <string_view>
 
-#include "clastrace/replay/sync_masks.hpp"
+#include "clastrace/replay/sync_masks.h"
 
 namespace clastrace::replay {
 
@@ -29,17 +30,18 @@ struct CommandRef {
     uint32_t submission = 0;      // index of the vkQueueSubmit(2) batch in the trace
     uint32_t command_buffer = 0;  // index of the command buffer within that submission
     uint64_t command_buffer_handle = 0;
-    uint32_t command = 0;         // index of the command within its command buffer
-    const char* name = "";        // e.g. "vkCmdBuildClusterAccelerationStructureIndirectNV"
+    uint32_t command = 0;   // index of the command within its command buffer
+    const char* name = "";  // e.g. "vkCmdBuildClusterAccelerationStructureIndirectNV"
     // A command of a secondary command buffer: `command` is the primary's vkCmdExecuteCommands,
     // `secondary` the position in its list, `secondary_command` the index within the secondary.
     uint64_t secondary_handle = 0;  // 0: a command of the primary itself
     uint32_t secondary = 0;
     uint32_t secondary_command = 0;
     friend bool operator==(const CommandRef& a, const CommandRef& b) {
-        return a.submission == b.submission && a.command_buffer == b.command_buffer && a.command == b.command &&
-               a.command_buffer_handle == b.command_buffer_handle && a.secondary_handle == b.secondary_handle &&
-               a.secondary == b.secondary && a.secondary_command == b.secondary_command;
+        return a.submission == b.submission && a.command_buffer == b.command_buffer &&
+               a.command == b.command && a.command_buffer_handle == b.command_buffer_handle &&
+               a.secondary_handle == b.secondary_handle && a.secondary == b.secondary &&
+               a.secondary_command == b.secondary_command;
     }
 };
 
@@ -82,18 +84,19 @@ inline MemoryBarrier memory_barrier_v1(VkPipelineStageFlags src_stages, VkAccess
             accesses_from_v1(dst_access)};
 }
 // A v1 vkCmdPipelineBarrier without memory barriers still is an execution dependency.
-inline MemoryBarrier execution_barrier_v1(VkPipelineStageFlags src_stages, VkPipelineStageFlags dst_stages) {
+inline MemoryBarrier execution_barrier_v1(VkPipelineStageFlags src_stages,
+                                          VkPipelineStageFlags dst_stages) {
     return memory_barrier_v1(src_stages, 0, dst_stages, 0);
 }
 
 struct SemaphoreWait {
     uint64_t semaphore = 0;
-    uint64_t value = 0;           // timeline value; ignored for binary semaphores
+    uint64_t value = 0;  // timeline value; ignored for binary semaphores
     StageMask dst_stages = VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT;  // pWaitDstStageMask / stageMask
 };
 struct SemaphoreSignal {
     uint64_t semaphore = 0;
-    uint64_t value = 0;           // timeline value; ignored for binary semaphores
+    uint64_t value = 0;  // timeline value; ignored for binary semaphores
     // VkSemaphoreSubmitInfo::stageMask: limits the signal's first synchronization scope.
     // vkQueueSubmit (v1) signals have none: the spec makes them ALL_COMMANDS.
     StageMask src_stages = VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT;

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Replay of the two older commands, vkCmdBuildAccelerationStructureNV and
 // vkCmdCopyMemoryToAccelerationStructureKHR, and of the capture's RayQueryCheck records.
 //
@@ -10,12 +11,12 @@
 // list names them.
 #pragma once
 
-#include "replay_memory.hpp"
+#include "replay_memory.h"
 
 #include <clastrace/engine/nv_build.h>
-#include <clastrace/replay/replay_report.hpp>
-#include <clastrace/replay/replayer.hpp>
-#include <clastrace/replay/sync_model.hpp>
+#include <clastrace/replay/replay_report.h>
+#include <clastrace/replay/replayer.h>
+#include <clastrace/replay/sync_model.h>
 #include <clastrace/traces/records.h>
 #include <clastrace/traces/trace_generated.h>
 
@@ -50,8 +51,10 @@ public:
     void on_create(const fbs::AccelerationStructureCreate& create);
     void on_requirement(const fbs::AccelerationStructureMemoryRequirementsNV& requirement);
     void on_bind(const fbs::AccelerationStructureBindMemory& bind);
-    void build(const fbs::CmdBuildAccelerationStructureNV& build, const CommandRef& ref, const ReplayLocation& where);
-    void deserialize(const fbs::CmdCopyMemoryToAccelerationStructure& copy, const CommandRef& ref, const ReplayLocation& where);
+    void build(const fbs::CmdBuildAccelerationStructureNV& build, const CommandRef& ref,
+               const ReplayLocation& where);
+    void deserialize(const fbs::CmdCopyMemoryToAccelerationStructure& copy, const CommandRef& ref,
+                     const ReplayLocation& where);
     void ray_check(const fbs::RayQueryCheck& check);
 
     static constexpr uint64_t kShadowBase = 0xE000'0000'0000'0000ull;
@@ -63,13 +66,13 @@ private:
         uint64_t handle = 0;
         bool nv = true;
         std::optional<engine::NvObjectInfo> created;
-        uint64_t driver_handle = 0;     // the 64-bit handle instance records and handle lists carry
-        uint64_t khr_size = 0;          // KHR objects: the size they were created with
+        uint64_t driver_handle = 0;  // the 64-bit handle instance records and handle lists carry
+        uint64_t khr_size = 0;       // KHR objects: the size they were created with
         bool bound = false;
-        uint64_t shadow = 0;            // 0: none yet
+        uint64_t shadow = 0;  // 0: none yet
         uint64_t shadow_size = 0;
         bool built = false;
-        bool opaque = false;            // deserialized from another driver's blob
+        bool opaque = false;  // deserialized from another driver's blob
         uint32_t built_flags = 0;
         uint64_t driver_object = 0, driver_build_scratch = 0, driver_update_scratch = 0;
     };
@@ -77,7 +80,8 @@ private:
     bool ensure_shadow(Object& o, const ReplayLocation& where, uint64_t at_least = 0);
     engine::NvObjectBinding binding(Object& o, const ReplayLocation& where);
     std::optional<uint64_t> resolve(uint64_t driver_handle, bool bottom_only);
-    void feed(const CommandRef& ref, const engine::ExecutionRecord& record, const ReplayLocation& where);
+    void feed(const CommandRef& ref, const engine::ExecutionRecord& record,
+              const ReplayLocation& where);
     void engine_findings(const engine::ExecutionRecord& record, const ReplayLocation& where);
 
     NvReplayContext c_;

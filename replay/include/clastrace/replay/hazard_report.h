@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // A synchronization hazard found in a captured stream, and how to print it.
 #pragma once
 
@@ -7,7 +8,7 @@
 
 #include <nlohmann/json_fwd.hpp>
 
-#include "clastrace/replay/sync_types.hpp"
+#include "clastrace/replay/sync_types.h"
 
 namespace clastrace::replay {
 
@@ -15,19 +16,19 @@ enum class HazardClass : uint8_t {
     kReadAfterWrite,
     kWriteAfterWrite,
     kWriteAfterRead,
-    kMoveOverlap,        // one command's source and destination overlap
-    kDeserializeInUse,   // deserialization into memory whose earlier accesses are not ordered before it
+    kMoveOverlap,       // one command's source and destination overlap
+    kDeserializeInUse,  // deserialization into memory whose earlier accesses are not ordered before it
 };
 // "READ-AFTER-WRITE", ... (the validation layers' SYNC-HAZARD-* spelling).
 const char* hazard_class_name(HazardClass c);
 
 // How the two accesses relate in time, which decides the kind of fix.
 enum class FixKind : uint8_t {
-    kPipelineBarrier,   // same queue: a barrier between them
-    kSemaphore,         // different queues: a semaphore signal/wait
-    kHostWait,          // device access then host access: wait on the submission's fence first
-    kHostWaitAndBarrier,// host reads a device write: barrier to HOST/HOST_READ, then a fence wait
-    kDisjointRanges,    // no barrier helps: use non-overlapping ranges
+    kPipelineBarrier,     // same queue: a barrier between them
+    kSemaphore,           // different queues: a semaphore signal/wait
+    kHostWait,            // device access then host access: wait on the submission's fence first
+    kHostWaitAndBarrier,  // host reads a device write: barrier to HOST/HOST_READ, then a fence wait
+    kDisjointRanges,      // no barrier helps: use non-overlapping ranges
 };
 
 struct FixingBarrier {
@@ -46,15 +47,15 @@ struct HazardAccess {
     StageMask stage = 0;
     AccessMask access = 0;
     bool is_write = false;
-    AddressRange range;      // the whole range this access covered
+    AddressRange range;  // the whole range this access covered
     std::string field;
 };
 
 struct HazardReport {
     HazardClass hazard = HazardClass::kReadAfterWrite;
-    HazardAccess prior;      // the earlier access (for kMoveOverlap: the source)
-    HazardAccess later;      // the access that found the hazard (for kMoveOverlap: the destination)
-    AddressRange overlap;    // bytes both touch
+    HazardAccess prior;    // the earlier access (for kMoveOverlap: the source)
+    HazardAccess later;    // the access that found the hazard (for kMoveOverlap: the destination)
+    AddressRange overlap;  // bytes both touch
     FixingBarrier fix;
     std::string format() const;
 };
