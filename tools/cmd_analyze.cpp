@@ -48,9 +48,9 @@ int run_analyze(const AnalyzeArgs& args) {
         return kExitUsage;
     }
     const analyze::AnalysisReport& report = analysis.report;
-    const analyze::ReportFormat format = args.json ? analyze::ReportFormat::json
-                                         : args.html.empty() ? analyze::ReportFormat::text
-                                                             : analyze::ReportFormat::html;
+    const analyze::ReportFormat format = args.json ? analyze::ReportFormat::kJson
+                                         : args.html.empty() ? analyze::ReportFormat::kText
+                                                             : analyze::ReportFormat::kHtml;
     std::string write_error;
     if (!analyze::write_report(report, format, args.html, &write_error)) {
         std::fprintf(stderr, "clastrace analyze: %s\n", write_error.c_str());

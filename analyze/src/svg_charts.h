@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // SVG charts of an AnalysisReport, as inline <svg> elements with stable ids (tests find them):
 // memory-map, hist-<op_type>, timeline.
 #pragma once
@@ -8,7 +9,7 @@
 
 namespace clastrace::analyze {
 
-inline constexpr std::size_t kMaxMapRegions = 3000;  // larger maps keep the largest regions
+inline constexpr std::size_t kMaxMapRegions = 3000;    // larger maps keep the largest regions
 inline constexpr std::size_t kMaxOutlinedReuse = 150;  // more ordered-reuse pairs are not outlined
 
 std::string svg_memory_map(const AnalysisReport& r);

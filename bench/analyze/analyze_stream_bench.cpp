@@ -45,7 +45,7 @@ void feed_store(Stored& s, const synthetic::StreamShape& shape) {
     ci.ordinal = c;
     ci.submission = c / shape.commands_per_submission;
     ci.name = "vkCmdBuildClusterAccelerationStructureIndirectNV";
-    ci.op_type = OpType::build_triangle_cluster;
+    ci.op_type = OpType::kBuildTriangleCluster;
     ci.op_count = shape.ops_per_command;
     ci.triangles = shape.ops_per_command * 64;
     ci.replay_ns = 1000 + (c * 7919) % 5000;
@@ -53,9 +53,9 @@ void feed_store(Stored& s, const synthetic::StreamShape& shape) {
     const uint64_t slot = c % shape.commands_per_submission;
     const uint64_t implicit_base = 0x100000000ull + slot * 0x10000000ull;
     s.regions.push_back(RegionInfo{next_region++, "implicit", implicit_base, shape.ops_per_command * 2048,
-                                   RegionRole::implicit_data, true});
+                                   RegionRole::kImplicitData, true});
     s.regions.push_back(RegionInfo{next_region++, "scratch", 0x900000000ull + slot * 0x1000000ull, 1 << 20,
-                                   RegionRole::scratch, true});
+                                   RegionRole::kScratch, true});
     uint64_t offset = 0;
     for (uint64_t op = 0; op < shape.ops_per_command; ++op) {
       ObjectInfo o;
@@ -65,7 +65,7 @@ void feed_store(Stored& s, const synthetic::StreamShape& shape) {
       o.triangles = 64;
       o.truncate_bits = static_cast<uint32_t>(op % 3) * 4;
       if (shape.with_object_regions)
-        s.regions.push_back(RegionInfo{next_region++, "clas", o.address, o.engine_bytes, RegionRole::object_clas, true});
+        s.regions.push_back(RegionInfo{next_region++, "clas", o.address, o.engine_bytes, RegionRole::kObjectClas, true});
       s.objects.push_back(o);
       offset += o.engine_bytes;
     }
@@ -85,7 +85,7 @@ int run_one(const std::string& mode, uint64_t ops, uint64_t ops_per_command) {
     Analyzer a("bench");
     synthetic::feed_stream(a, shape);
     AnalysisReport r = a.finish();
-    checksum = r.sizes(OpType::build_triangle_cluster).engine_bytes.median() + r.overlap_events;
+    checksum = r.sizes(OpType::kBuildTriangleCluster).engine_bytes.median() + r.overlap_events;
   } else {
     Stored s;
     feed_store(s, shape);

@@ -168,7 +168,7 @@ int run_one(const std::string& mode, const std::string& path, uint32_t rebuilds)
         }
         ops = a.report.ops;
         objects = a.report.objects;
-        bytes = a.report.sizes(analyze::OpType::build_triangle_cluster).engine_bytes.sum();
+        bytes = a.report.sizes(analyze::OpType::kBuildTriangleCluster).engine_bytes.sum();
         largest_ops = a.report.largest_submission_ops;
         largest_events = a.stream.largest_submission_events;
         held = a.stream.peak_held_bytes;
@@ -185,7 +185,7 @@ int run_one(const std::string& mode, const std::string& path, uint32_t rebuilds)
         const analyze::AnalysisReport report = analyzer.finish();
         ops = report.ops;
         objects = report.objects;
-        bytes = report.sizes(analyze::OpType::build_triangle_cluster).engine_bytes.sum();
+        bytes = report.sizes(analyze::OpType::kBuildTriangleCluster).engine_bytes.sum();
         largest_ops = report.largest_submission_ops;
         largest_events = feeder.stats().largest_submission_events;
         held = feeder.stats().peak_held_bytes;

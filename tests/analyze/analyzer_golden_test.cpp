@@ -32,7 +32,7 @@ TEST(AnalyzerGolden, Totals) {
 
 TEST(AnalyzerGolden, SizesPerOpType) {
   AnalysisReport r = small_report();
-  const OpTypeSizes& clas = r.sizes(OpType::build_triangle_cluster);
+  const OpTypeSizes& clas = r.sizes(OpType::kBuildTriangleCluster);
   EXPECT_EQ(clas.commands, 2u);
   EXPECT_EQ(clas.ops, 5u);
   EXPECT_EQ(clas.objects, 5u);
@@ -56,7 +56,7 @@ TEST(AnalyzerGolden, SizesPerOpType) {
   EXPECT_EQ(clas.scratch_allocated, 8192u);
   EXPECT_EQ(clas.scratch_required, 3072u);
 
-  const OpTypeSizes& blas = r.sizes(OpType::build_clusters_bottom_level);
+  const OpTypeSizes& blas = r.sizes(OpType::kBuildClustersBottomLevel);
   EXPECT_EQ(blas.objects, 1u);
   EXPECT_EQ(blas.worst_case_bytes, 1000u);  // explicit: 1000 per object x 1 op
   EXPECT_EQ(blas.actual_bytes_of_queried, 800u);
@@ -96,7 +96,7 @@ TEST(AnalyzerGolden, OverlapsAndHazards) {
     return none;
   };
   const OverlapRow& scratch_reuse = find(11, 21);
-  EXPECT_EQ(scratch_reuse.kind, OverlapKind::reuse);
+  EXPECT_EQ(scratch_reuse.kind, OverlapKind::kReuse);
   EXPECT_FALSE(scratch_reuse.hazard);
   EXPECT_EQ(scratch_reuse.size, 4096u);
   EXPECT_EQ(scratch_reuse.older_command, 0u);
@@ -126,7 +126,7 @@ TEST(AnalyzerGolden, OverlapsAndHazards) {
   EXPECT_FALSE(neighbour.hazard);  // same commands as the hazard, but outside its range
 
   const OverlapRow& aliasing = find(21, 11);
-  EXPECT_EQ(aliasing.kind, OverlapKind::aliasing);  // scratch A is live before and after B
+  EXPECT_EQ(aliasing.kind, OverlapKind::kAliasing);  // scratch A is live before and after B
   EXPECT_FALSE(aliasing.hazard);
 
   // Objects inside their own command's implicit data are contained by design, not overlaps.
@@ -168,7 +168,7 @@ TEST(AnalyzerGolden, RegionLifetimes) {
 TEST(AnalyzerGolden, Timing) {
   AnalysisReport r = small_report();
   EXPECT_TRUE(r.gpu_timing_present);
-  const OpTypeSizes& clas = r.sizes(OpType::build_triangle_cluster);
+  const OpTypeSizes& clas = r.sizes(OpType::kBuildTriangleCluster);
   EXPECT_EQ(clas.replay_ns, 250000u);
   EXPECT_EQ(clas.replay_ops, 5u);
   EXPECT_EQ(clas.gpu_ns, 50000u);

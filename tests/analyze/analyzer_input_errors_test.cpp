@@ -12,8 +12,8 @@ CommandInfo command(uint64_t ordinal, uint64_t submission = 0) {
   CommandInfo c;
   c.ordinal = ordinal;
   c.submission = submission;
-  c.op_type = OpType::build_triangle_cluster;
-  c.op_mode = OpMode::implicit_destinations;
+  c.op_type = OpType::kBuildTriangleCluster;
+  c.op_mode = OpMode::kImplicitDestinations;
   return c;
 }
 
@@ -28,7 +28,7 @@ void expect_error(const std::function<void()>& f, const std::string& fragment) {
 
 TEST(AnalyzerInputErrors, EventsOutsideACommand) {
   Analyzer a;
-  expect_error([&] { a.on_region(RegionInfo{1, "r", 0, 16, RegionRole::scratch, true}); }, "before any on_command");
+  expect_error([&] { a.on_region(RegionInfo{1, "r", 0, 16, RegionRole::kScratch, true}); }, "before any on_command");
   expect_error([&] { a.on_object(ObjectInfo{}); }, "before any on_command");
   expect_error([&] { a.on_hazard(HazardSummary{}); }, "before any on_command");
   expect_error([&] { a.on_build_sizes(BuildSizesInfo{}); }, "before any on_command");
@@ -50,18 +50,18 @@ TEST(AnalyzerInputErrors, SubmissionsMustNotDecrease) {
 TEST(AnalyzerInputErrors, RegionPastTheEndOfTheAddressSpace) {
   Analyzer a;
   a.on_command(command(0));
-  expect_error([&] { a.on_region(RegionInfo{9, "big", UINT64_MAX - 15, 17, RegionRole::scratch, true}); },
+  expect_error([&] { a.on_region(RegionInfo{9, "big", UINT64_MAX - 15, 17, RegionRole::kScratch, true}); },
                "region 9 'big' at 0xfffffffffffffff0 + 17 bytes passes the end");
   // The last byte, 2^64-1, cannot be covered: the end address must be representable.
-  a.on_region(RegionInfo{10, "fits", UINT64_MAX - 15, 15, RegionRole::scratch, true});
+  a.on_region(RegionInfo{10, "fits", UINT64_MAX - 15, 15, RegionRole::kScratch, true});
 }
 
 TEST(AnalyzerInputErrors, RegionIdReusedForAnotherRange) {
   Analyzer a;
   a.on_command(command(0));
-  a.on_region(RegionInfo{3, "a", 0x1000, 64, RegionRole::scratch, true});
+  a.on_region(RegionInfo{3, "a", 0x1000, 64, RegionRole::kScratch, true});
   a.on_command(command(1));
-  expect_error([&] { a.on_region(RegionInfo{3, "a", 0x2000, 64, RegionRole::scratch, true}); },
+  expect_error([&] { a.on_region(RegionInfo{3, "a", 0x2000, 64, RegionRole::kScratch, true}); },
                "region 3 reported as scratch 0x2000+64 but first seen at command 0 as scratch 0x1000+64");
 }
 
@@ -70,7 +70,7 @@ TEST(AnalyzerInputErrors, UnknownEnumValues) {
   CommandInfo c = command(0);
   c.op_type = static_cast<OpType>(42);
   expect_error([&] { a.on_command(c); }, "op_type 42");
-  c.op_type = OpType::other;
+  c.op_type = OpType::kOther;
   c.op_mode = static_cast<OpMode>(9);
   expect_error([&] { a.on_command(c); }, "op_mode 9");
   a.on_command(command(0));

@@ -27,7 +27,7 @@ TEST(AnalyzerLimits, ListsStayBoundedAndTotalsStayExact) {
   EXPECT_EQ(r.submissions, 250u);
   EXPECT_EQ(r.ops, 4000u);
   EXPECT_EQ(r.objects, 4000u);
-  EXPECT_EQ(r.sizes(OpType::build_triangle_cluster).engine_bytes.count(), 4000u);
+  EXPECT_EQ(r.sizes(OpType::kBuildTriangleCluster).engine_bytes.count(), 4000u);
 
   // 16 first commands plus the second commands of the 3 listed hazards (64, 128, 192) and
   // their first commands (60, 124, 188), still in the recent rows.

@@ -53,14 +53,14 @@ TEST(RenderText, LongAndHostileStringsStayWithinWidthAndOnOneLine) {
   CommandInfo c;
   c.ordinal = 1;
   c.name = std::string(400, 'n') + "\n\t";
-  c.op_type = OpType::build_triangle_cluster;
+  c.op_type = OpType::kBuildTriangleCluster;
   c.op_count = UINT64_MAX;
   c.triangles = UINT64_MAX;
   c.replay_ns = UINT64_MAX;
   c.gpu_ns = 1;
   a.on_command(c);
-  a.on_region(RegionInfo{1, std::string(300, 'L'), 0, 100, RegionRole::src_infos_count, true});
-  a.on_region(RegionInfo{2, "x\ny", 50, 100, RegionRole::object_template, true});
+  a.on_region(RegionInfo{1, std::string(300, 'L'), 0, 100, RegionRole::kSrcInfosCount, true});
+  a.on_region(RegionInfo{2, "x\ny", 50, 100, RegionRole::kObjectTemplate, true});
   a.on_hazard(HazardSummary{std::string(200, 'C'), 1, 1, 0, 0, "multi\nline\nmessage" + std::string(200, 'm')});
   ObjectInfo o;
   o.engine_bytes = UINT64_MAX;
@@ -149,7 +149,7 @@ TEST(RenderHtml, EscapesTraceText) {
   CommandInfo c;
   c.name = "<script>alert(1)</script>";
   a.on_command(c);
-  a.on_region(RegionInfo{1, "\"><img onerror=x>", 0, 64, RegionRole::scratch, true});
+  a.on_region(RegionInfo{1, "\"><img onerror=x>", 0, 64, RegionRole::kScratch, true});
   const std::string html = render_html(a.finish());
   EXPECT_EQ(html.find("<script>"), std::string::npos);
   EXPECT_EQ(html.find("<img"), std::string::npos);
@@ -175,7 +175,7 @@ TEST(ReportOutput, WritesTheChosenFormatToAFile) {
   const AnalysisReport r = a.finish();
   const std::string dir = ::testing::TempDir();
   std::string error;
-  ASSERT_TRUE(write_report(r, ReportFormat::html, dir + "/report.html", &error)) << error;
+  ASSERT_TRUE(write_report(r, ReportFormat::kHtml, dir + "/report.html", &error)) << error;
   std::ifstream in(dir + "/report.html");
   std::stringstream s;
   s << in.rdbuf();
@@ -187,7 +187,7 @@ TEST(ReportOutput, UnwritablePathIsAClearError) {
   Analyzer a("out");
   const AnalysisReport r = a.finish();
   std::string error;
-  EXPECT_FALSE(write_report(r, ReportFormat::json, "/nonexistent-dir/x/report.json", &error));
+  EXPECT_FALSE(write_report(r, ReportFormat::kJson, "/nonexistent-dir/x/report.json", &error));
   EXPECT_NE(error.find("cannot write '/nonexistent-dir/x/report.json': cannot create"), std::string::npos) << error;
   EXPECT_NE(error.find("No such file or directory"), std::string::npos) << error;
 }

@@ -75,48 +75,48 @@ inline void feed_small_scenario(Analyzer& a) {
   a.on_gpu_span(GpuSpan{0, 1, 2, 4, 120, 1000, 75000});
   a.on_note("a note for people");
 
-  CommandInfo c0 = cluster_command(0, 0, 7, 0, OpType::build_triangle_cluster, OpMode::implicit_destinations, 3, 60);
+  CommandInfo c0 = cluster_command(0, 0, 7, 0, OpType::kBuildTriangleCluster, OpMode::kImplicitDestinations, 3, 60);
   c0.gpu_ns = 50000;
   c0.replay_ns = 200000;
   a.on_command(c0);
   a.on_build_sizes(BuildSizesInfo{3, 60, 72, 30, 36, 0, 5000, 2048, 0});
-  region(1, "pool", 0x10000, 0x40000, RegionRole::buffer, false);
-  region(10, "implicit A", 0x10000, 5000, RegionRole::implicit_data, true);
-  region(11, "scratch A", 0x20000, 4096, RegionRole::scratch, true);
-  region(12, "infos A", 0x30000, 192, RegionRole::src_infos, false);
-  region(13, "addresses A", 0x31000, 24, RegionRole::dst_addresses, true);
-  region(100, "clas 0", 0x10000, 1000, RegionRole::object_clas, true);
-  region(101, "clas 1", 0x10400, 1200, RegionRole::object_clas, true);
-  region(102, "clas 2", 0x10900, 1400, RegionRole::object_clas, true);
-  object(0, ObjectType::clas, 0x10000, 1000, 1100, std::nullopt, 10, 12, 0);
-  object(1, ObjectType::clas, 0x10400, 1200, 1300, std::nullopt, 20, 24, 0);
-  object(2, ObjectType::clas, 0x10900, 1400, 1500, std::nullopt, 30, 36, 4);
+  region(1, "pool", 0x10000, 0x40000, RegionRole::kBuffer, false);
+  region(10, "implicit A", 0x10000, 5000, RegionRole::kImplicitData, true);
+  region(11, "scratch A", 0x20000, 4096, RegionRole::kScratch, true);
+  region(12, "infos A", 0x30000, 192, RegionRole::kSrcInfos, false);
+  region(13, "addresses A", 0x31000, 24, RegionRole::kDstAddresses, true);
+  region(100, "clas 0", 0x10000, 1000, RegionRole::kObjectClas, true);
+  region(101, "clas 1", 0x10400, 1200, RegionRole::kObjectClas, true);
+  region(102, "clas 2", 0x10900, 1400, RegionRole::kObjectClas, true);
+  object(0, ObjectType::kClas, 0x10000, 1000, 1100, std::nullopt, 10, 12, 0);
+  object(1, ObjectType::kClas, 0x10400, 1200, 1300, std::nullopt, 20, 24, 0);
+  object(2, ObjectType::kClas, 0x10900, 1400, 1500, std::nullopt, 30, 36, 4);
 
-  CommandInfo c1 = cluster_command(1, 0, 7, 1, OpType::build_clusters_bottom_level, OpMode::explicit_destinations, 1, 60);
+  CommandInfo c1 = cluster_command(1, 0, 7, 1, OpType::kBuildClustersBottomLevel, OpMode::kExplicitDestinations, 1, 60);
   c1.gpu_ns = 20000;
   c1.replay_ns = 100000;
   a.on_command(c1);
   a.on_build_sizes(BuildSizesInfo{1, 0, 0, 0, 0, 0, 1000, 512, 0});
-  region(21, "scratch B", 0x20000, 4096, RegionRole::scratch, true);
-  region(22, "infos B", 0x30000, 16, RegionRole::src_infos, false);
-  region(100, "clas 0", 0x10000, 1000, RegionRole::object_clas, false);
-  region(101, "clas 1", 0x10400, 1200, RegionRole::object_clas, false);
-  region(102, "clas 2", 0x10900, 1400, RegionRole::object_clas, false);
-  region(200, "blas 0", 0x40000, 800, RegionRole::object_blas, true);
-  object(0, ObjectType::blas, 0x40000, 800, std::nullopt, std::nullopt, 60, 0, 0);
+  region(21, "scratch B", 0x20000, 4096, RegionRole::kScratch, true);
+  region(22, "infos B", 0x30000, 16, RegionRole::kSrcInfos, false);
+  region(100, "clas 0", 0x10000, 1000, RegionRole::kObjectClas, false);
+  region(101, "clas 1", 0x10400, 1200, RegionRole::kObjectClas, false);
+  region(102, "clas 2", 0x10900, 1400, RegionRole::kObjectClas, false);
+  region(200, "blas 0", 0x40000, 800, RegionRole::kObjectBlas, true);
+  object(0, ObjectType::kBlas, 0x40000, 800, std::nullopt, std::nullopt, 60, 0, 0);
 
-  CommandInfo c2 = cluster_command(2, 1, 8, 0, OpType::build_triangle_cluster, OpMode::implicit_destinations, 2, 40);
+  CommandInfo c2 = cluster_command(2, 1, 8, 0, OpType::kBuildTriangleCluster, OpMode::kImplicitDestinations, 2, 40);
   c2.replay_ns = 50000;
   a.on_command(c2);
   a.on_build_sizes(BuildSizesInfo{2, 40, 48, 25, 30, 4, 2400, 1024, 0});
-  region(30, "implicit C", 0x10400, 2000, RegionRole::implicit_data, true);
-  region(11, "scratch A", 0x20000, 4096, RegionRole::scratch, true);
-  region(300, "clas 3", 0x10400, 900, RegionRole::object_clas, true);
-  region(301, "clas 4", 0x107d0, 1000, RegionRole::object_clas, true);
+  region(30, "implicit C", 0x10400, 2000, RegionRole::kImplicitData, true);
+  region(11, "scratch A", 0x20000, 4096, RegionRole::kScratch, true);
+  region(300, "clas 3", 0x10400, 900, RegionRole::kObjectClas, true);
+  region(301, "clas 4", 0x107d0, 1000, RegionRole::kObjectClas, true);
   a.on_hazard(HazardSummary{"WRITE_AFTER_READ", 1, 2, 0x10400, 1200,
                             "implicit data of cmd 2 overwrites clas 1 that cmd 1 reads, no barrier between"});
-  object(0, ObjectType::clas, 0x10400, 900, std::nullopt, 1000, 15, 18, 4);
-  object(1, ObjectType::clas, 0x107d0, 1000, std::nullopt, 1200, 25, 30, 8);
+  object(0, ObjectType::kClas, 0x10400, 900, std::nullopt, 1000, 15, 18, 4);
+  object(1, ObjectType::kClas, 0x107d0, 1000, std::nullopt, 1200, 25, 30, 8);
 }
 
 // A frame-like stream: `commands` commands of `ops_per_command` CLAS builds each, grouped
@@ -135,7 +135,7 @@ inline void feed_stream(Analyzer& a, const StreamShape& shape) {
   for (uint64_t c = 0; c < shape.commands; ++c) {
     const uint64_t submission = c / shape.commands_per_submission;
     CommandInfo ci = cluster_command(c, submission, submission, static_cast<uint32_t>(c % shape.commands_per_submission),
-                                     OpType::build_triangle_cluster, OpMode::implicit_destinations,
+                                     OpType::kBuildTriangleCluster, OpMode::kImplicitDestinations,
                                      shape.ops_per_command, shape.ops_per_command * 64);
     ci.replay_ns = 1000 + (c * 7919) % 5000;
     if (c % 2 == 0) ci.gpu_ns = 500 + (c * 104729) % 3000;
@@ -145,21 +145,21 @@ inline void feed_stream(Analyzer& a, const StreamShape& shape) {
     const uint64_t implicit_size = shape.ops_per_command * 2048;
     a.on_build_sizes(BuildSizesInfo{shape.ops_per_command, ci.triangles, ci.triangles * 2, 64, 128, 0,
                                     implicit_size, 1 << 20, 0});
-    a.on_region(RegionInfo{next_region++, "implicit", implicit_base, implicit_size, RegionRole::implicit_data, true});
+    a.on_region(RegionInfo{next_region++, "implicit", implicit_base, implicit_size, RegionRole::kImplicitData, true});
     a.on_region(RegionInfo{next_region++, "scratch", 0x900000000ull + slot * 0x1000000ull, 1 << 20,
-                           RegionRole::scratch, true});
+                           RegionRole::kScratch, true});
     uint64_t offset = 0;
     for (uint64_t op = 0; op < shape.ops_per_command; ++op) {
       ObjectInfo o;
       o.op_index = static_cast<uint32_t>(op);
-      o.type = ObjectType::clas;
+      o.type = ObjectType::kClas;
       o.address = implicit_base + offset;
       o.engine_bytes = 1024 + 32 * ((c + op) % 32);
       o.triangles = 64;
       o.vertices = 96;
       o.truncate_bits = static_cast<uint32_t>(op % 3) * 4;
       if (shape.with_object_regions)
-        a.on_region(RegionInfo{next_region++, "clas", o.address, o.engine_bytes, RegionRole::object_clas, true});
+        a.on_region(RegionInfo{next_region++, "clas", o.address, o.engine_bytes, RegionRole::kObjectClas, true});
       a.on_object(o);
       offset += o.engine_bytes;
     }

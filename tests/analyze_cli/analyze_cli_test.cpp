@@ -175,7 +175,7 @@ TEST(AnalyzeTrace, HazardNamesBothBuildsInSequenceOrder) {
     EXPECT_EQ(h.first_command, r.sizes[0].where.sequence);
     EXPECT_EQ(h.second_command, r.sizes[1].where.sequence);
     EXPECT_GT(h.size, 0u);
-    const analyze::OpTypeSizes& clas = a.report.sizes(analyze::OpType::build_triangle_cluster);
+    const analyze::OpTypeSizes& clas = a.report.sizes(analyze::OpType::kBuildTriangleCluster);
     EXPECT_EQ(clas.commands, 2u);
     EXPECT_EQ(clas.objects_with_driver_bytes, r.counts.cluster_ops);
     uint64_t engine = 0;
@@ -207,24 +207,24 @@ TEST(AnalyzeTrace, BlasAndMoveReadTheClasTheyName) {
     std::remove(path.c_str());
     const analyze::AnalysisReport& r = a.report;
     EXPECT_EQ(r.hazards_total, 0u);
-    EXPECT_EQ(r.sizes(analyze::OpType::build_clusters_bottom_level).objects, 1u);
-    EXPECT_EQ(r.sizes(analyze::OpType::move_objects).objects, 1u);
+    EXPECT_EQ(r.sizes(analyze::OpType::kBuildClustersBottomLevel).objects, 1u);
+    EXPECT_EQ(r.sizes(analyze::OpType::kMoveObjects).objects, 1u);
     const analyze::RegionRow* clas = nullptr;
     for (const auto& row : r.region_rows)
-        if (row.role == analyze::RegionRole::object_clas && row.base == test::SceneBuffers::kDst) clas = &row;
+        if (row.role == analyze::RegionRole::kObjectClas && row.base == test::SceneBuffers::kDst) clas = &row;
     ASSERT_NE(clas, nullptr);
     EXPECT_EQ(clas->first_command, 0u);
     EXPECT_EQ(clas->last_command, 4u);  // build 0, barrier 1, BLAS 2, barrier 3, move 4
     EXPECT_EQ(clas->uses, 3u);
     ASSERT_EQ(r.overlap_events, 2u) << analyze::render_text(r);
-    EXPECT_EQ(r.overlaps[0].older_role, analyze::RegionRole::scratch);
+    EXPECT_EQ(r.overlaps[0].older_role, analyze::RegionRole::kScratch);
     EXPECT_EQ(r.overlaps[0].size, 16u);
-    EXPECT_EQ(r.overlaps[1].older_role, analyze::RegionRole::object_blas);
+    EXPECT_EQ(r.overlaps[1].older_role, analyze::RegionRole::kObjectBlas);
     EXPECT_EQ(r.overlaps[1].older_command, 2u);
-    EXPECT_EQ(r.overlaps[1].newer_role, analyze::RegionRole::implicit_data);
+    EXPECT_EQ(r.overlaps[1].newer_role, analyze::RegionRole::kImplicitData);
     EXPECT_EQ(r.overlaps[1].newer_command, 4u);
     for (const auto& o : r.overlaps) {
-        EXPECT_EQ(o.kind, analyze::OverlapKind::reuse);
+        EXPECT_EQ(o.kind, analyze::OverlapKind::kReuse);
         EXPECT_FALSE(o.hazard);
     }
 }

@@ -126,7 +126,7 @@ TEST(StreamGolden, Totals) {
 
 TEST(StreamGolden, SizesByOpType) {
     const GoldenScene& g = ordered();
-    const analyze::OpTypeSizes& t = g.analysis.report.sizes(analyze::OpType::build_triangle_cluster);
+    const analyze::OpTypeSizes& t = g.analysis.report.sizes(analyze::OpType::kBuildTriangleCluster);
     EXPECT_EQ(t.commands, 3u);
     EXPECT_EQ(t.ops, 8u);
     EXPECT_EQ(t.objects, 8u);
@@ -257,25 +257,25 @@ TEST(StreamGolden, OrderedReuseIsSafe) {
     EXPECT_EQ(r.overlap_hazard_events, 0u);
     ASSERT_EQ(r.overlaps.size(), 2u);
     const analyze::OverlapRow& first = r.overlaps[0];
-    EXPECT_EQ(first.older_role, analyze::RegionRole::scratch);
-    EXPECT_EQ(first.newer_role, analyze::RegionRole::implicit_data);
+    EXPECT_EQ(first.older_role, analyze::RegionRole::kScratch);
+    EXPECT_EQ(first.newer_role, analyze::RegionRole::kImplicitData);
     EXPECT_EQ(first.older_command, 1u);
     EXPECT_EQ(first.newer_command, 4u);
     EXPECT_EQ(first.base, S::kPool + 0x20000);
     EXPECT_EQ(first.size, 48u);
-    EXPECT_EQ(first.kind, analyze::OverlapKind::reuse);
+    EXPECT_EQ(first.kind, analyze::OverlapKind::kReuse);
     EXPECT_FALSE(first.hazard);
     const analyze::OverlapRow& second = r.overlaps[1];
-    EXPECT_EQ(second.older_role, analyze::RegionRole::object_clas);
-    EXPECT_EQ(second.newer_role, analyze::RegionRole::scratch);
+    EXPECT_EQ(second.older_role, analyze::RegionRole::kObjectClas);
+    EXPECT_EQ(second.newer_role, analyze::RegionRole::kScratch);
     EXPECT_EQ(second.older_command, 4u);
     EXPECT_EQ(second.newer_command, 10u);
     EXPECT_EQ(second.size, 48u);
-    EXPECT_EQ(second.kind, analyze::OverlapKind::aliasing);
+    EXPECT_EQ(second.kind, analyze::OverlapKind::kAliasing);
     // Regions with roles and lifetimes: A's scratch lives from A to C.
     bool found = false;
     for (const auto& row : r.region_rows)
-      if (row.role == analyze::RegionRole::scratch && row.base == S::kPool + 0x20000) {
+      if (row.role == analyze::RegionRole::kScratch && row.base == S::kPool + 0x20000) {
         found = true;
         EXPECT_EQ(row.first_command, 1u);
         EXPECT_EQ(row.last_command, 10u);
@@ -284,11 +284,11 @@ TEST(StreamGolden, OrderedReuseIsSafe) {
     EXPECT_TRUE(found);
     std::set<analyze::RegionRole> roles;
     for (const auto& row : r.region_rows) roles.insert(row.role);
-    for (analyze::RegionRole role : {analyze::RegionRole::buffer, analyze::RegionRole::scratch,
-                                     analyze::RegionRole::implicit_data, analyze::RegionRole::dst_addresses,
-                                     analyze::RegionRole::dst_sizes, analyze::RegionRole::src_infos,
-                                     analyze::RegionRole::object_clas, analyze::RegionRole::object_blas,
-                                     analyze::RegionRole::vertex, analyze::RegionRole::index})
+    for (analyze::RegionRole role : {analyze::RegionRole::kBuffer, analyze::RegionRole::kScratch,
+                                     analyze::RegionRole::kImplicitData, analyze::RegionRole::kDstAddresses,
+                                     analyze::RegionRole::kDstSizes, analyze::RegionRole::kSrcInfos,
+                                     analyze::RegionRole::kObjectClas, analyze::RegionRole::kObjectBlas,
+                                     analyze::RegionRole::kVertex, analyze::RegionRole::kIndex})
         EXPECT_TRUE(roles.count(role)) << analyze::region_role_name(role);
 }
 
@@ -391,7 +391,7 @@ TEST(StreamGolden, ExplicitAndComputeSizesModes) {
     std::filesystem::remove(path);
     EXPECT_TRUE(a.replay.findings.empty()) << a.replay.findings[0].format();
     const analyze::AnalysisReport& r = a.report;
-    const analyze::OpTypeSizes& t = r.sizes(analyze::OpType::build_triangle_cluster);
+    const analyze::OpTypeSizes& t = r.sizes(analyze::OpType::kBuildTriangleCluster);
     EXPECT_EQ(t.commands, 2u);
     EXPECT_EQ(t.objects, 5u);
     EXPECT_EQ(t.engine_bytes.sum(), sum(ex.engine_sizes) + sum(sizes.engine_sizes));
@@ -403,14 +403,14 @@ TEST(StreamGolden, ExplicitAndComputeSizesModes) {
     EXPECT_EQ(t.implicit_allocated, 0u);
     EXPECT_EQ(t.implicit_used, 0u);
     ASSERT_GE(r.commands_listed.size(), 3u);
-    EXPECT_EQ(r.commands_listed[0].op_mode, analyze::OpMode::explicit_destinations);
+    EXPECT_EQ(r.commands_listed[0].op_mode, analyze::OpMode::kExplicitDestinations);
     EXPECT_EQ(r.commands_listed[0].worst_case_bytes, 3u * 0x400u);
-    EXPECT_EQ(r.commands_listed[2].op_mode, analyze::OpMode::compute_sizes);
+    EXPECT_EQ(r.commands_listed[2].op_mode, analyze::OpMode::kComputeSizes);
     EXPECT_FALSE(r.commands_listed[2].worst_case_bytes);
     int objects_at_slots = 0;
     for (const auto& row : r.region_rows) {
-        EXPECT_NE(row.role, analyze::RegionRole::implicit_data);
-        if (row.role == analyze::RegionRole::object_clas) {
+        EXPECT_NE(row.role, analyze::RegionRole::kImplicitData);
+        if (row.role == analyze::RegionRole::kObjectClas) {
             EXPECT_EQ((row.base - (S::kPool + 0x10000)) % 1024, 0u);
             ++objects_at_slots;
         }

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Renderers of an AnalysisReport. Text: aligned tables no wider than 100 columns.
 // JSON: stable field names, documented in docs/analyze.md, with schema_version.
 // HTML: one self-contained file, inline CSS and SVG, no script and no network reference.

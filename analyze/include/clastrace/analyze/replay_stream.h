@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Streaming analysis of a trace: replay runs with a ReplayStreamFeeder as its observer, and
 // the feeder turns each replayed command into analyzer events as it is replayed.
 //
@@ -40,55 +41,56 @@ struct TraceReadStats;
 namespace clastrace::analyze {
 
 struct StreamOptions {
-  // Truncated CLAS/templates per command rebuilt at positionTruncateBitCount 0 to measure
-  // what truncation saves (one more engine build each). 0 turns the measurement off.
-  uint32_t untruncated_rebuilds_per_command = 8;
-  // Commands remembered so a hazard can name its earlier command by ordinal.
-  std::size_t hazard_window_commands = 65536;
+    // Truncated CLAS/templates per command rebuilt at positionTruncateBitCount 0 to measure
+    // what truncation saves (one more engine build each). 0 turns the measurement off.
+    uint32_t untruncated_rebuilds_per_command = 8;
+    // Commands remembered so a hazard can name its earlier command by ordinal.
+    std::size_t hazard_window_commands = 65536;
 };
 
 struct StreamStats {
-  uint64_t records = 0, submissions = 0, commands = 0, commands_fed = 0;
-  uint64_t hazards = 0, hazards_merged = 0, hazards_prior_unknown = 0, findings = 0;
-  uint64_t untruncated_rebuilds = 0;
-  uint64_t largest_submission_events = 0;  // regions + objects + hazards held for one submission
-  uint64_t peak_held_bytes = 0;            // estimate of what those events occupied
+    uint64_t records = 0, submissions = 0, commands = 0, commands_fed = 0;
+    uint64_t hazards = 0, hazards_merged = 0, hazards_prior_unknown = 0, findings = 0;
+    uint64_t untruncated_rebuilds = 0;
+    uint64_t largest_submission_events = 0;  // regions + objects + hazards held for one submission
+    uint64_t peak_held_bytes = 0;            // estimate of what those events occupied
 };
 
 class ReplayStreamFeeder final : public replay::ReplayObserver {
- public:
-  // `contents` reads a MemoryContents by hash (captured output sizes); may be empty.
-  ReplayStreamFeeder(Analyzer& analyzer, double timestamp_period_ns, bool period_known,
-                     std::function<bool(uint64_t hash, std::vector<uint8_t>* bytes)> contents,
-                     StreamOptions options = {});
-  ~ReplayStreamFeeder() override;
+public:
+    // `contents` reads a MemoryContents by hash (captured output sizes); may be empty.
+    ReplayStreamFeeder(Analyzer& analyzer, double timestamp_period_ns, bool period_known,
+                       std::function<bool(uint64_t hash, std::vector<uint8_t>* bytes)> contents,
+                       StreamOptions options = {});
+    ~ReplayStreamFeeder() override;
 
-  void on_record(const traces::RecordView& view) override;
-  void on_submission_begin(uint32_t submission_index) override;
-  void on_command(const replay::ReplayedCommand& command) override;
-  void on_finding(const replay::ReplayFinding& finding) override;
-  void on_hazard(const replay::HazardReport& hazard) override;
-  void on_submission_end(uint32_t submission_index) override;
+    void on_record(const traces::RecordView& view) override;
+    void on_submission_begin(uint32_t submission_index) override;
+    void on_command(const replay::ReplayedCommand& command) override;
+    void on_finding(const replay::ReplayFinding& finding) override;
+    void on_hazard(const replay::HazardReport& hazard) override;
+    void on_submission_end(uint32_t submission_index) override;
 
-  // Feeds what is still held, the trace bytes and the notes. Call once, before Analyzer::finish().
-  void finish(const traces::TraceReadStats& read_stats);
-  const StreamStats& stats() const;
+    // Feeds what is still held, the trace bytes and the notes. Call once, before Analyzer::finish().
+    void finish(const traces::TraceReadStats& read_stats);
+    const StreamStats& stats() const;
 
- private:
-  struct State;
-  std::unique_ptr<State> state_;
+private:
+    struct State;
+    std::unique_ptr<State> state_;
 };
 
 struct AnalyzeOptions {
-  AnalyzerLimits limits;
-  StreamOptions stream;
-  replay::ReplayOptions replay;  // its observer is replaced by the feeder
+    AnalyzerLimits limits;
+    StreamOptions stream;
+    replay::ReplayOptions replay;  // its observer is replaced by the feeder
 };
 
 struct TraceAnalysis {
-  AnalysisReport report;
-  replay::ReplayReport replay;  // findings, hazards (merged), damage: what `clastrace replay` prints
-  StreamStats stream;
+    AnalysisReport report;
+    replay::ReplayReport
+        replay;  // findings, hazards (merged), damage: what `clastrace replay` prints
+    StreamStats stream;
 };
 
 // Replays `reader` from its current position with a feeder and returns the finished report.
