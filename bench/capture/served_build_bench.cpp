@@ -61,7 +61,7 @@ struct Scene {
     command.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
     command.input.opInput.pTriangleClusters = &triangles;
     VkAccelerationStructureBuildSizesInfoKHR sizes{};
-    servedClusterBuildSizes(command.input, sizes);
+    served_cluster_build_sizes(command.input, sizes);
 
     const VkBufferUsageFlags in = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
     const VkBufferUsageFlags st = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
@@ -158,7 +158,7 @@ int main(int argc, char** argv) {
       uint32_t runs = 0;
       const double served = best(repetitions, [&] {
         engine::ObjectDirectory directory;
-        ServedExecution e = executeServedBuild(scene.command, all, directory, servedEngineProperties());
+        ServedExecution e = execute_served_build(scene.command, all, directory, served_engine_properties());
         runs = e.attempts;
         if (!e.ran || !e.record.findings.empty()) {
           std::fprintf(stderr, "served build failed: %s %s\n", e.error.c_str(),

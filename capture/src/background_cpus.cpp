@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "clastrace/capture/background_cpus.h"
 
 #include "decimal_text.h"
@@ -12,105 +13,104 @@ namespace {
 
 constexpr unsigned kMaxCpu = 4096;  // the kernel's largest NR_CPUS default
 
-std::optional<unsigned> parseCpu(const std::string& text) {
-  const std::optional<uint64_t> value = parseDecimal(text, 4);
-  if (!value || *value >= kMaxCpu) return std::nullopt;
-  return unsigned(*value);
+std::optional<unsigned> parse_cpu(const std::string& text) {
+    const std::optional<uint64_t> value = parse_decimal(text, 4);
+    if (!value || *value >= kMaxCpu) return std::nullopt;
+    return unsigned(*value);
 }
 
 }  // namespace
 
-std::optional<std::vector<unsigned>> parseCpuList(const std::string& text) {
-  std::vector<unsigned> cpus;
-  size_t at = 0;
-  while (at <= text.size()) {
-    const size_t comma = std::min(text.find(',', at), text.size());
-    const std::string item = text.substr(at, comma - at);
-    const size_t dash = item.find('-');
-    const auto first = parseCpu(item.substr(0, dash));
-    const auto last = dash == std::string::npos ? first : parseCpu(item.substr(dash + 1));
-    if (!first || !last || *last < *first) return std::nullopt;
-    for (unsigned c = *first; c <= *last; ++c) cpus.push_back(c);
-    at = comma + 1;
-  }
-  std::sort(cpus.begin(), cpus.end());
-  cpus.erase(std::unique(cpus.begin(), cpus.end()), cpus.end());
-  return cpus;
+std::optional<std::vector<unsigned>> parse_cpu_list(const std::string& text) {
+    std::vector<unsigned> cpus;
+    size_t at = 0;
+    while (at <= text.size()) {
+        const size_t comma = std::min(text.find(',', at), text.size());
+        const std::string item = text.substr(at, comma - at);
+        const size_t dash = item.find('-');
+        const auto first = parse_cpu(item.substr(0, dash));
+        const auto last = dash == std::string::npos ? first : parse_cpu(item.substr(dash + 1));
+        if (!first || !last || *last < *first) return std::nullopt;
+        for (unsigned c = *first; c <= *last; ++c) cpus.push_back(c);
+        at = comma + 1;
+    }
+    std::sort(cpus.begin(), cpus.end());
+    cpus.erase(std::unique(cpus.begin(), cpus.end()), cpus.end());
+    return cpus;
 }
 
-std::string formatCpuList(const std::vector<unsigned>& cpus) {
-  if (cpus.empty()) return "none";
-  std::string text;
-  for (size_t i = 0; i < cpus.size();) {
-    size_t j = i;
-    while (j + 1 < cpus.size() && cpus[j + 1] == cpus[j] + 1) ++j;
-    if (!text.empty()) text += ',';
-    text += std::to_string(cpus[i]);
-    if (j > i) text += '-' + std::to_string(cpus[j]);
-    i = j + 1;
-  }
-  return text;
+std::string format_cpu_list(const std::vector<unsigned>& cpus) {
+    if (cpus.empty()) return "none";
+    std::string text;
+    for (size_t i = 0; i < cpus.size();) {
+        size_t j = i;
+        while (j + 1 < cpus.size() && cpus[j + 1] == cpus[j] + 1) ++j;
+        if (!text.empty()) text += ',';
+        text += std::to_string(cpus[i]);
+        if (j > i) text += '-' + std::to_string(cpus[j]);
+        i = j + 1;
+    }
+    return text;
 }
 
-std::vector<unsigned> backgroundCpusFor(const BackgroundCpus& setting, const std::vector<unsigned>& online,
-                                        const std::vector<unsigned>& allowed, const std::vector<unsigned>& reserved) {
-  switch (setting.mode) {
-    case BackgroundCpus::Mode::App:
-      return {};
-    case BackgroundCpus::Mode::List:
-      return setting.list;
-    case BackgroundCpus::Mode::Spare:
-      break;
-  }
-  if (allowed.empty()) return {};  // the application's CPUs unknown: nothing to keep clear of
-  std::vector<unsigned> spare;
-  for (unsigned cpu : online)
-    if (!std::binary_search(allowed.begin(), allowed.end(), cpu) &&
-        std::find(reserved.begin(), reserved.end(), cpu) == reserved.end())
-      spare.push_back(cpu);
-  return spare;
+std::vector<unsigned> background_cpus_for(const BackgroundCpus& setting,
+                                          const std::vector<unsigned>& online,
+                                          const std::vector<unsigned>& allowed,
+                                          const std::vector<unsigned>& reserved) {
+    switch (setting.mode) {
+    case BackgroundCpus::Mode::kApp: return {};
+    case BackgroundCpus::Mode::kList: return setting.list;
+    case BackgroundCpus::Mode::kSpare: break;
+    }
+    if (allowed.empty()) return {};  // the application's CPUs unknown: nothing to keep clear of
+    std::vector<unsigned> spare;
+    for (unsigned cpu : online)
+        if (!std::binary_search(allowed.begin(), allowed.end(), cpu) &&
+            std::find(reserved.begin(), reserved.end(), cpu) == reserved.end())
+            spare.push_back(cpu);
+    return spare;
 }
 
 namespace {
-std::vector<unsigned> cpuListFile(const char* path) {  // empty when missing, empty or unreadable
-  std::ifstream file(path);
-  std::string line;
-  if (!std::getline(file, line)) return {};
-  return parseCpuList(line).value_or(std::vector<unsigned>{});
+std::vector<unsigned> cpu_list_file(const char* path) {  // empty when missing, empty or unreadable
+    std::ifstream file(path);
+    std::string line;
+    if (!std::getline(file, line)) return {};
+    return parse_cpu_list(line).value_or(std::vector<unsigned>{});
 }
 }  // namespace
 
-std::vector<unsigned> onlineCpus() { return cpuListFile("/sys/devices/system/cpu/online"); }
+std::vector<unsigned> online_cpus() { return cpu_list_file("/sys/devices/system/cpu/online"); }
 
-std::vector<unsigned> reservedCpus() {
-  std::vector<unsigned> reserved = cpuListFile("/sys/devices/system/cpu/isolated");
-  for (unsigned c : cpuListFile("/sys/devices/system/cpu/nohz_full")) reserved.push_back(c);
-  return reserved;
+std::vector<unsigned> reserved_cpus() {
+    std::vector<unsigned> reserved = cpu_list_file("/sys/devices/system/cpu/isolated");
+    for (unsigned c : cpu_list_file("/sys/devices/system/cpu/nohz_full")) reserved.push_back(c);
+    return reserved;
 }
 
-std::vector<unsigned> callingThreadCpus() {
-  cpu_set_t* set = CPU_ALLOC(kMaxCpu);
-  if (!set) return {};
-  const size_t bytes = CPU_ALLOC_SIZE(kMaxCpu);
-  std::vector<unsigned> cpus;
-  if (sched_getaffinity(0, bytes, set) == 0)
-    for (unsigned c = 0; c < kMaxCpu; ++c)
-      if (CPU_ISSET_S(c, bytes, set)) cpus.push_back(c);
-  CPU_FREE(set);
-  return cpus;
+std::vector<unsigned> calling_thread_cpus() {
+    cpu_set_t* set = CPU_ALLOC(kMaxCpu);
+    if (!set) return {};
+    const size_t bytes = CPU_ALLOC_SIZE(kMaxCpu);
+    std::vector<unsigned> cpus;
+    if (sched_getaffinity(0, bytes, set) == 0)
+        for (unsigned c = 0; c < kMaxCpu; ++c)
+            if (CPU_ISSET_S(c, bytes, set)) cpus.push_back(c);
+    CPU_FREE(set);
+    return cpus;
 }
 
-bool placeCallingThread(const std::vector<unsigned>& cpus) {
-  if (cpus.empty()) return false;
-  cpu_set_t* set = CPU_ALLOC(kMaxCpu);
-  if (!set) return false;
-  const size_t bytes = CPU_ALLOC_SIZE(kMaxCpu);
-  CPU_ZERO_S(bytes, set);
-  for (unsigned c : cpus)
-    if (c < kMaxCpu) CPU_SET_S(c, bytes, set);
-  const bool placed = sched_setaffinity(0, bytes, set) == 0;  // 0: the calling thread (Linux)
-  CPU_FREE(set);
-  return placed;
+bool place_calling_thread(const std::vector<unsigned>& cpus) {
+    if (cpus.empty()) return false;
+    cpu_set_t* set = CPU_ALLOC(kMaxCpu);
+    if (!set) return false;
+    const size_t bytes = CPU_ALLOC_SIZE(kMaxCpu);
+    CPU_ZERO_S(bytes, set);
+    for (unsigned c : cpus)
+        if (c < kMaxCpu) CPU_SET_S(c, bytes, set);
+    const bool placed = sched_setaffinity(0, bytes, set) == 0;  // 0: the calling thread (Linux)
+    CPU_FREE(set);
+    return placed;
 }
 
 }  // namespace clastrace::capture

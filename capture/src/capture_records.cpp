@@ -1,88 +1,94 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "clastrace/capture/capture_records.h"
 
 namespace clastrace::capture {
 
-ClusterCommandParameters copyClusterInput(const VkClusterAccelerationStructureInputInfoNV& input) {
-  ClusterCommandParameters p;
-  p.info.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
-  p.info.input = input;
-  p.info.input.pNext = nullptr;
-  p.info.input.opInput.pTriangleClusters = nullptr;
-  // The union's member is chosen by opType; any member's pointer value is the same pointer.
-  const void* opInput = input.opInput.pTriangleClusters;
-  p.hasOpInput = opInput != nullptr;
-  if (!opInput) return p;
-  switch (input.opType) {
+ClusterCommandParameters copy_cluster_input(
+    const VkClusterAccelerationStructureInputInfoNV& input) {
+    ClusterCommandParameters p;
+    p.info.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+    p.info.input = input;
+    p.info.input.pNext = nullptr;
+    p.info.input.opInput.pTriangleClusters = nullptr;
+    // The union's member is chosen by opType; any member's pointer value is the same pointer.
+    const void* op_input = input.opInput.pTriangleClusters;
+    p.has_op_input = op_input != nullptr;
+    if (!op_input) return p;
+    switch (input.opType) {
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV:
-      p.bottomLevelInput = *input.opInput.pClustersBottomLevel;
-      p.bottomLevelInput.pNext = nullptr;
-      break;
+        p.bottom_level_input = *input.opInput.pClustersBottomLevel;
+        p.bottom_level_input.pNext = nullptr;
+        break;
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV:
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV:
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV:
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV:
-      p.triangleClusterInput = *input.opInput.pTriangleClusters;
-      p.triangleClusterInput.pNext = nullptr;
-      break;
+        p.triangle_cluster_input = *input.opInput.pTriangleClusters;
+        p.triangle_cluster_input.pNext = nullptr;
+        break;
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV:
-      p.moveObjectsInput = *input.opInput.pMoveObjects;
-      p.moveObjectsInput.pNext = nullptr;
-      break;
+        p.move_objects_input = *input.opInput.pMoveObjects;
+        p.move_objects_input.pNext = nullptr;
+        break;
     default:
-      p.hasOpInput = false;  // unknown op type: its input's layout is unknown, copy nothing
-      break;
-  }
-  return p;
+        p.has_op_input = false;  // unknown op type: its input's layout is unknown, copy nothing
+        break;
+    }
+    return p;
 }
 
-ClusterCommandParameters ClusterCommandParameters::copyOf(const VkClusterAccelerationStructureCommandsInfoNV& info) {
-  ClusterCommandParameters p = copyClusterInput(info.input);
-  const VkClusterAccelerationStructureInputInfoNV input = p.info.input;
-  p.info = info;
-  p.info.pNext = nullptr;
-  p.info.input = input;
-  return p;
+ClusterCommandParameters ClusterCommandParameters::copy_of(
+    const VkClusterAccelerationStructureCommandsInfoNV& info) {
+    ClusterCommandParameters p = copy_cluster_input(info.input);
+    const VkClusterAccelerationStructureInputInfoNV input = p.info.input;
+    p.info = info;
+    p.info.pNext = nullptr;
+    p.info.input = input;
+    return p;
 }
 
 VkClusterAccelerationStructureCommandsInfoNV ClusterCommandParameters::resolved() const {
-  VkClusterAccelerationStructureCommandsInfoNV out = info;
-  if (!hasOpInput) return out;
-  switch (info.input.opType) {
+    VkClusterAccelerationStructureCommandsInfoNV out = info;
+    if (!has_op_input) return out;
+    switch (info.input.opType) {
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV:
-      out.input.opInput.pClustersBottomLevel =
-          const_cast<VkClusterAccelerationStructureClustersBottomLevelInputNV*>(&bottomLevelInput);
-      break;
+        out.input.opInput.pClustersBottomLevel =
+            const_cast<VkClusterAccelerationStructureClustersBottomLevelInputNV*>(
+                &bottom_level_input);
+        break;
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV:
-      out.input.opInput.pMoveObjects = const_cast<VkClusterAccelerationStructureMoveObjectsInputNV*>(&moveObjectsInput);
-      break;
+        out.input.opInput.pMoveObjects =
+            const_cast<VkClusterAccelerationStructureMoveObjectsInputNV*>(&move_objects_input);
+        break;
     default:
-      out.input.opInput.pTriangleClusters =
-          const_cast<VkClusterAccelerationStructureTriangleClusterInputNV*>(&triangleClusterInput);
-      break;
-  }
-  return out;
+        out.input.opInput.pTriangleClusters =
+            const_cast<VkClusterAccelerationStructureTriangleClusterInputNV*>(
+                &triangle_cluster_input);
+        break;
+    }
+    return out;
 }
 
-const char* memoryRoleName(MemoryRole role) {
-  switch (role) {
-    case MemoryRole::SrcInfosCount: return "srcInfosCount";
-    case MemoryRole::SrcInfos: return "srcInfos";
-    case MemoryRole::IndexBuffer: return "indexBuffer";
-    case MemoryRole::VertexBuffer: return "vertexBuffer";
-    case MemoryRole::GeometryIndexAndFlags: return "geometryIndexAndFlagsBuffer";
-    case MemoryRole::OpacityMicromapIndices: return "opacityMicromapIndexBuffer";
-    case MemoryRole::InstantiationBoundingBox: return "instantiationBoundingBoxLimit";
-    case MemoryRole::ClusterReferences: return "clusterReferences";
-    case MemoryRole::IndirectAddress: return "indirectAddress";
-    case MemoryRole::DstAddresses: return "dstAddresses";
-    case MemoryRole::DstSizes: return "dstSizes";
-    case MemoryRole::DstObject: return "dstObject";
-    case MemoryRole::TransformData: return "transformData";
-    case MemoryRole::Aabbs: return "aabbData";
-    case MemoryRole::Instances: return "instanceData";
-    case MemoryRole::SerializedAccelerationStructure: return "serializedAccelerationStructure";
-  }
-  return "unknown";
+const char* memory_role_name(MemoryRole role) {
+    switch (role) {
+    case MemoryRole::kSrcInfosCount: return "srcInfosCount";
+    case MemoryRole::kSrcInfos: return "srcInfos";
+    case MemoryRole::kIndexBuffer: return "indexBuffer";
+    case MemoryRole::kVertexBuffer: return "vertexBuffer";
+    case MemoryRole::kGeometryIndexAndFlags: return "geometryIndexAndFlagsBuffer";
+    case MemoryRole::kOpacityMicromapIndices: return "opacityMicromapIndexBuffer";
+    case MemoryRole::kInstantiationBoundingBox: return "instantiationBoundingBoxLimit";
+    case MemoryRole::kClusterReferences: return "clusterReferences";
+    case MemoryRole::kIndirectAddress: return "indirectAddress";
+    case MemoryRole::kDstAddresses: return "dstAddresses";
+    case MemoryRole::kDstSizes: return "dstSizes";
+    case MemoryRole::kDstObject: return "dstObject";
+    case MemoryRole::kTransformData: return "transformData";
+    case MemoryRole::kAabbs: return "aabbData";
+    case MemoryRole::kInstances: return "instanceData";
+    case MemoryRole::kSerializedAccelerationStructure: return "serializedAccelerationStructure";
+    }
+    return "unknown";
 }
 
 }  // namespace clastrace::capture

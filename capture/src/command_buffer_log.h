@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // What the layer keeps per application command buffer between vkBeginCommandBuffer and its
 // reset: the recorded commands, and the pause points (with the layer's events) to expect when
 // it is submitted.
@@ -11,28 +12,29 @@
 namespace clastrace::capture {
 
 struct CommandBufferLog {
-  RecordedCommandBuffer recorded;
-  std::vector<PausePoint> pauses;  // in execution order, secondaries' included
-  std::vector<VkEvent> events;     // created by the layer for this recording
-  std::vector<std::shared_ptr<StagingSet>> staging;  // the pauses' staging buffers, likewise
-  // GPU timestamps around the captured commands (primary command buffers only): the layer's
-  // query pool for this recording, queries used, and the id its readback is known by.
-  VkQueryPool timestampPool = VK_NULL_HANDLE;
-  uint32_t timestampsWritten = 0;
-  uint64_t timestampReadPauseId = 0;
-  // The layer's objects of earlier recordings, reused by the next: creating and destroying
-  // events and query pools every frame costs driver work (on NVIDIA's driver, page-attribute
-  // changes whose TLB flushes interrupt every core).
-  std::vector<VkEvent> spareEvents;
-  VkQueryPool spareTimestampPool = VK_NULL_HANDLE;
-  // Compute binding state, for the storage buffers each dispatch sees.
-  uint64_t computePipeline = 0;
-  std::map<uint32_t, std::pair<VkDescriptorSet, std::vector<uint32_t>>> computeSets;  // set -> (set, dynamic offsets)
+    RecordedCommandBuffer recorded;
+    std::vector<PausePoint> pauses;                    // in execution order, secondaries' included
+    std::vector<VkEvent> events;                       // created by the layer for this recording
+    std::vector<std::shared_ptr<StagingSet>> staging;  // the pauses' staging buffers, likewise
+    // GPU timestamps around the captured commands (primary command buffers only): the layer's
+    // query pool for this recording, queries used, and the id its readback is known by.
+    VkQueryPool timestamp_pool = VK_NULL_HANDLE;
+    uint32_t timestamps_written = 0;
+    uint64_t timestamp_read_pause_id = 0;
+    // The layer's objects of earlier recordings, reused by the next: creating and destroying
+    // events and query pools every frame costs driver work (on NVIDIA's driver, page-attribute
+    // changes whose TLB flushes interrupt every core).
+    std::vector<VkEvent> spare_events;
+    VkQueryPool spare_timestamp_pool = VK_NULL_HANDLE;
+    // Compute binding state, for the storage buffers each dispatch sees.
+    uint64_t compute_pipeline = 0;
+    std::map<uint32_t, std::pair<VkDescriptorSet, std::vector<uint32_t>>>
+        compute_sets;  // set -> (set, dynamic offsets)
 };
 
 // Clears `log` for a new recording; its events and query pool become spares.
-void clearCommandBufferLog(DeviceState& device, CommandBufferLog& log);
+void clear_command_buffer_log(DeviceState& device, CommandBufferLog& log);
 // Clears `log` and destroys the layer's objects: the command buffer is freed (or the device).
-void releaseCommandBufferLog(DeviceState& device, CommandBufferLog& log);
+void release_command_buffer_log(DeviceState& device, CommandBufferLog& log);
 
 }  // namespace clastrace::capture

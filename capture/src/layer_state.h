@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The layer's per-instance and per-device state, found by the loader's dispatch key (the first
 // pointer-sized word of every dispatchable handle), and the next layer's entry points.
 #pragma once
@@ -28,239 +29,241 @@ struct CommandBufferLog;
 
 using DispatchKey = void*;
 template <typename Handle>
-DispatchKey dispatchKey(Handle handle) {
-  return *reinterpret_cast<DispatchKey*>(handle);
+DispatchKey dispatch_key(Handle handle) {
+    return *reinterpret_cast<DispatchKey*>(handle);
 }
 template <typename Handle>
-uint64_t handleId(Handle handle) {
-  return (uint64_t)(handle);
+uint64_t handle_id(Handle handle) {
+    return (uint64_t)(handle);
 }
 
-#define CLASTRACE_INSTANCE_FUNCTIONS(X)            \
-  X(GetInstanceProcAddr)                           \
-  X(DestroyInstance)                               \
-  X(EnumerateDeviceExtensionProperties)            \
-  X(GetPhysicalDeviceFeatures2)                    \
-  X(GetPhysicalDeviceFeatures2KHR)                 \
-  X(GetPhysicalDeviceProperties)                   \
-  X(GetPhysicalDeviceProperties2)                  \
-  X(GetPhysicalDeviceProperties2KHR)               \
-  X(GetPhysicalDeviceMemoryProperties)             \
-  X(GetPhysicalDeviceQueueFamilyProperties)        \
-  X(CreateDevice)
+#define CLASTRACE_INSTANCE_FUNCTIONS(X)       \
+    X(GetInstanceProcAddr)                    \
+    X(DestroyInstance)                        \
+    X(EnumerateDeviceExtensionProperties)     \
+    X(GetPhysicalDeviceFeatures2)             \
+    X(GetPhysicalDeviceFeatures2KHR)          \
+    X(GetPhysicalDeviceProperties)            \
+    X(GetPhysicalDeviceProperties2)           \
+    X(GetPhysicalDeviceProperties2KHR)        \
+    X(GetPhysicalDeviceMemoryProperties)      \
+    X(GetPhysicalDeviceQueueFamilyProperties) \
+    X(CreateDevice)
 
-#define CLASTRACE_DEVICE_FUNCTIONS(X)          \
-  X(GetDeviceProcAddr)                         \
-  X(DestroyDevice)                             \
-  X(AllocateMemory)                            \
-  X(FreeMemory)                                \
-  X(MapMemory)                                 \
-  X(UnmapMemory)                               \
-  X(InvalidateMappedMemoryRanges)              \
-  X(FlushMappedMemoryRanges)                   \
-  X(CreateBuffer)                              \
-  X(DestroyBuffer)                             \
-  X(BindBufferMemory)                          \
-  X(GetBufferMemoryRequirements)               \
-  X(BindBufferMemory2)                         \
-  X(BindBufferMemory2KHR)                      \
-  X(GetBufferDeviceAddress)                    \
-  X(GetBufferDeviceAddressKHR)                 \
-  X(GetBufferDeviceAddressEXT)                 \
-  X(CreateEvent)                               \
-  X(DestroyEvent)                              \
-  X(GetEventStatus)                            \
-  X(SetEvent)                                  \
-  X(ResetEvent)                                \
-  X(AllocateCommandBuffers)                    \
-  X(FreeCommandBuffers)                        \
-  X(ResetCommandPool)                          \
-  X(DestroyCommandPool)                        \
-  X(BeginCommandBuffer)                        \
-  X(EndCommandBuffer)                          \
-  X(ResetCommandBuffer)                        \
-  X(CmdPipelineBarrier)                        \
-  X(CmdPipelineBarrier2)                       \
-  X(CmdPipelineBarrier2KHR)                    \
-  X(CmdSetEvent)                               \
-  X(CmdSetEvent2)                              \
-  X(CmdSetEvent2KHR)                           \
-  X(CmdResetEvent)                             \
-  X(CmdResetEvent2)                            \
-  X(CmdResetEvent2KHR)                         \
-  X(CmdWaitEvents)                             \
-  X(CmdWaitEvents2)                            \
-  X(CmdWaitEvents2KHR)                         \
-  X(CmdCopyBuffer)                             \
-  X(CmdCopyBuffer2)                            \
-  X(CmdCopyBuffer2KHR)                         \
-  X(CmdFillBuffer)                             \
-  X(CmdUpdateBuffer)                           \
-  X(CmdDispatch)                               \
-  X(CmdDispatchIndirect)                       \
-  X(CmdBindPipeline)                           \
-  X(CmdBindDescriptorSets)                     \
-  X(UpdateDescriptorSets)                      \
-  X(CmdExecuteCommands)                        \
-  X(CmdBuildClusterAccelerationStructureIndirectNV) \
-  X(GetClusterAccelerationStructureBuildSizesNV)    \
-  X(CmdBuildAccelerationStructureNV)           \
-  X(CmdCopyMemoryToAccelerationStructureKHR)   \
-  X(QueueSubmit)                               \
-  X(QueueSubmit2)                              \
-  X(QueueSubmit2KHR)                           \
-  X(GetDeviceQueue)                            \
-  X(GetDeviceQueue2)                           \
-  X(CreateAccelerationStructureNV)             \
-  X(DestroyAccelerationStructureNV)            \
-  X(BindAccelerationStructureMemoryNV)         \
-  X(GetAccelerationStructureHandleNV)          \
-  X(GetAccelerationStructureMemoryRequirementsNV) \
-  X(CreateAccelerationStructureKHR)            \
-  X(DestroyAccelerationStructureKHR)           \
-  X(GetAccelerationStructureDeviceAddressKHR)  \
-  X(WaitForFences)                             \
-  X(ResetFences)                               \
-  X(GetFenceStatus)                            \
-  X(QueueWaitIdle)                             \
-  X(DeviceWaitIdle)                            \
-  X(SignalSemaphore)                           \
-  X(SignalSemaphoreKHR)                        \
-  X(WaitSemaphores)                            \
-  X(CreateQueryPool)                           \
-  X(DestroyQueryPool)                          \
-  X(CmdResetQueryPool)                         \
-  X(CmdWriteTimestamp)                         \
-  X(GetQueryPoolResults)                       \
-  X(WaitSemaphoresKHR)                         \
-  X(QueuePresentKHR)                           \
-  X(AcquireNextImageKHR)                       \
-  X(AcquireNextImage2KHR)
+#define CLASTRACE_DEVICE_FUNCTIONS(X)                 \
+    X(GetDeviceProcAddr)                              \
+    X(DestroyDevice)                                  \
+    X(AllocateMemory)                                 \
+    X(FreeMemory)                                     \
+    X(MapMemory)                                      \
+    X(UnmapMemory)                                    \
+    X(InvalidateMappedMemoryRanges)                   \
+    X(FlushMappedMemoryRanges)                        \
+    X(CreateBuffer)                                   \
+    X(DestroyBuffer)                                  \
+    X(BindBufferMemory)                               \
+    X(GetBufferMemoryRequirements)                    \
+    X(BindBufferMemory2)                              \
+    X(BindBufferMemory2KHR)                           \
+    X(GetBufferDeviceAddress)                         \
+    X(GetBufferDeviceAddressKHR)                      \
+    X(GetBufferDeviceAddressEXT)                      \
+    X(CreateEvent)                                    \
+    X(DestroyEvent)                                   \
+    X(GetEventStatus)                                 \
+    X(SetEvent)                                       \
+    X(ResetEvent)                                     \
+    X(AllocateCommandBuffers)                         \
+    X(FreeCommandBuffers)                             \
+    X(ResetCommandPool)                               \
+    X(DestroyCommandPool)                             \
+    X(BeginCommandBuffer)                             \
+    X(EndCommandBuffer)                               \
+    X(ResetCommandBuffer)                             \
+    X(CmdPipelineBarrier)                             \
+    X(CmdPipelineBarrier2)                            \
+    X(CmdPipelineBarrier2KHR)                         \
+    X(CmdSetEvent)                                    \
+    X(CmdSetEvent2)                                   \
+    X(CmdSetEvent2KHR)                                \
+    X(CmdResetEvent)                                  \
+    X(CmdResetEvent2)                                 \
+    X(CmdResetEvent2KHR)                              \
+    X(CmdWaitEvents)                                  \
+    X(CmdWaitEvents2)                                 \
+    X(CmdWaitEvents2KHR)                              \
+    X(CmdCopyBuffer)                                  \
+    X(CmdCopyBuffer2)                                 \
+    X(CmdCopyBuffer2KHR)                              \
+    X(CmdFillBuffer)                                  \
+    X(CmdUpdateBuffer)                                \
+    X(CmdDispatch)                                    \
+    X(CmdDispatchIndirect)                            \
+    X(CmdBindPipeline)                                \
+    X(CmdBindDescriptorSets)                          \
+    X(UpdateDescriptorSets)                           \
+    X(CmdExecuteCommands)                             \
+    X(CmdBuildClusterAccelerationStructureIndirectNV) \
+    X(GetClusterAccelerationStructureBuildSizesNV)    \
+    X(CmdBuildAccelerationStructureNV)                \
+    X(CmdCopyMemoryToAccelerationStructureKHR)        \
+    X(QueueSubmit)                                    \
+    X(QueueSubmit2)                                   \
+    X(QueueSubmit2KHR)                                \
+    X(GetDeviceQueue)                                 \
+    X(GetDeviceQueue2)                                \
+    X(CreateAccelerationStructureNV)                  \
+    X(DestroyAccelerationStructureNV)                 \
+    X(BindAccelerationStructureMemoryNV)              \
+    X(GetAccelerationStructureHandleNV)               \
+    X(GetAccelerationStructureMemoryRequirementsNV)   \
+    X(CreateAccelerationStructureKHR)                 \
+    X(DestroyAccelerationStructureKHR)                \
+    X(GetAccelerationStructureDeviceAddressKHR)       \
+    X(WaitForFences)                                  \
+    X(ResetFences)                                    \
+    X(GetFenceStatus)                                 \
+    X(QueueWaitIdle)                                  \
+    X(DeviceWaitIdle)                                 \
+    X(SignalSemaphore)                                \
+    X(SignalSemaphoreKHR)                             \
+    X(WaitSemaphores)                                 \
+    X(CreateQueryPool)                                \
+    X(DestroyQueryPool)                               \
+    X(CmdResetQueryPool)                              \
+    X(CmdWriteTimestamp)                              \
+    X(GetQueryPoolResults)                            \
+    X(WaitSemaphoresKHR)                              \
+    X(QueuePresentKHR)                                \
+    X(AcquireNextImageKHR)                            \
+    X(AcquireNextImage2KHR)
 
 #define CLASTRACE_DECLARE_PFN(name) PFN_vk##name name = nullptr;
 
 struct InstanceDispatch {
-  CLASTRACE_INSTANCE_FUNCTIONS(CLASTRACE_DECLARE_PFN)
+    CLASTRACE_INSTANCE_FUNCTIONS(CLASTRACE_DECLARE_PFN)
 };
 struct DeviceDispatch {
-  CLASTRACE_DEVICE_FUNCTIONS(CLASTRACE_DECLARE_PFN)
+    CLASTRACE_DEVICE_FUNCTIONS(CLASTRACE_DECLARE_PFN)
 };
 
 struct InstanceState {
-  VkInstance instance = VK_NULL_HANDLE;
-  InstanceDispatch next;
-  uint32_t apiVersion = VK_API_VERSION_1_0;
-  std::string applicationName, engineName;
+    VkInstance instance = VK_NULL_HANDLE;
+    InstanceDispatch next;
+    uint32_t api_version = VK_API_VERSION_1_0;
+    std::string application_name, engine_name;
 };
 
 struct DeviceState {
-  VkDevice device = VK_NULL_HANDLE;
-  VkPhysicalDevice physicalDevice = VK_NULL_HANDLE;
-  InstanceState* instance = nullptr;
-  DeviceDispatch next;
-  bool serving = false;           // the layer provides the cluster extension for this device
-  bool clusterEnabled = false;    // the application enabled the extension (served or native)
-  bool capturing = false;
-  // GPU timestamps around captured commands: CLASTRACE_TIMESTAMPS and every queue family the
-  // device was created with has timestampValidBits (a command buffer runs on one of them).
-  bool timestamps = false;
-  uint64_t timestampMask = ~0ull;  // the smallest family's valid bits
-  // Executions whose timestamps are still to be read: once the application learns they
-  // completed (fence, idle wait), or when their command buffer is reset, freed or re-begun.
-  struct PendingTimestampRead {
-    VkQueue queue = VK_NULL_HANDLE;
-    uint64_t fence = 0;
-    uint64_t submissionIndex = 0;
-    uint64_t commandBuffer = 0;
-    VkQueryPool pool = VK_NULL_HANDLE;
-    uint32_t count = 0;
-    uint64_t readPauseId = 0;
-    uint32_t occurrence = 0;
-  };
-  std::mutex timestampsMutex;
-  std::vector<PendingTimestampRead> pendingTimestampReads;
-  // Capture on and still writing (a sink that failed stops the capture work at once).
-  bool capturingNow() const { return sink && sink->active(); }
-  VkPhysicalDeviceClusterAccelerationStructurePropertiesNV clusterProperties{};
-  VkPhysicalDeviceMemoryProperties memoryProperties{};
-  VkDeviceSize nonCoherentAtomSize = 1;
-  DeviceMemoryMap memoryMap;
-  std::shared_ptr<CaptureSink> sink;  // null when not capturing
-  std::unique_ptr<PauseWorker> pauses;
-  // Held from the check that no other queue uses a submission's shared pause events until the
-  // worker expects its pauses (layer_submit.cpp), so two such submissions never overlap there.
-  std::mutex sharedPausesMutex;
-  std::atomic<uint64_t> pauseCounter{0};
-  std::mutex commandBuffersMutex;
-  std::unordered_map<VkCommandBuffer, std::shared_ptr<CommandBufferLog>> commandBuffers;
-  std::unordered_map<VkCommandPool, std::vector<VkCommandBuffer>> poolCommandBuffers;
-  std::unordered_set<VkCommandBuffer> secondaryCommandBuffers;
-  // Storage-buffer descriptors written with vkUpdateDescriptorSets: set -> (binding, element).
-  std::mutex descriptorsMutex;
-  std::unordered_map<VkDescriptorSet, std::map<std::pair<uint32_t, uint32_t>, BoundStorageBuffer>> storageDescriptors;
-  // The ray check (CLASTRACE_RAY_CHECK): queue families of the queues handed out, the NV ray
-  // tracing limits, and the NV structures the capture saw built.
-  std::mutex queuesMutex;
-  std::unordered_map<VkQueue, uint32_t> queueFamilies;
-  std::unordered_map<VkQueue, uint32_t> queueIndices;  // index within its family
-  bool nvRayTracingEnabled = false;
-  VkPhysicalDeviceRayTracingPropertiesNV rayTracingPropertiesNV{};
-  NvSceneModel nvScene;
-  ~DeviceState();
+    VkDevice device = VK_NULL_HANDLE;
+    VkPhysicalDevice physical_device = VK_NULL_HANDLE;
+    InstanceState* instance = nullptr;
+    DeviceDispatch next;
+    bool serving = false;          // the layer provides the cluster extension for this device
+    bool cluster_enabled = false;  // the application enabled the extension (served or native)
+    bool capturing = false;
+    // GPU timestamps around captured commands: CLASTRACE_TIMESTAMPS and every queue family the
+    // device was created with has timestampValidBits (a command buffer runs on one of them).
+    bool timestamps = false;
+    uint64_t timestamp_mask = ~0ull;  // the smallest family's valid bits
+    // Executions whose timestamps are still to be read: once the application learns they
+    // completed (fence, idle wait), or when their command buffer is reset, freed or re-begun.
+    struct PendingTimestampRead {
+        VkQueue queue = VK_NULL_HANDLE;
+        uint64_t fence = 0;
+        uint64_t submission_index = 0;
+        uint64_t command_buffer = 0;
+        VkQueryPool pool = VK_NULL_HANDLE;
+        uint32_t count = 0;
+        uint64_t read_pause_id = 0;
+        uint32_t occurrence = 0;
+    };
+    std::mutex timestamps_mutex;
+    std::vector<PendingTimestampRead> pending_timestamp_reads;
+    // Capture on and still writing (a sink that failed stops the capture work at once).
+    bool capturing_now() const { return sink && sink->active(); }
+    VkPhysicalDeviceClusterAccelerationStructurePropertiesNV cluster_properties{};
+    VkPhysicalDeviceMemoryProperties memory_properties{};
+    VkDeviceSize non_coherent_atom_size = 1;
+    DeviceMemoryMap memory_map;
+    std::shared_ptr<CaptureSink> sink;  // null when not capturing
+    std::unique_ptr<PauseWorker> pauses;
+    // Held from the check that no other queue uses a submission's shared pause events until the
+    // worker expects its pauses (layer_submit.cpp), so two such submissions never overlap there.
+    std::mutex shared_pauses_mutex;
+    std::atomic<uint64_t> pause_counter{0};
+    std::mutex command_buffers_mutex;
+    std::unordered_map<VkCommandBuffer, std::shared_ptr<CommandBufferLog>> command_buffers;
+    std::unordered_map<VkCommandPool, std::vector<VkCommandBuffer>> pool_command_buffers;
+    std::unordered_set<VkCommandBuffer> secondary_command_buffers;
+    // Storage-buffer descriptors written with vkUpdateDescriptorSets: set -> (binding, element).
+    std::mutex descriptors_mutex;
+    std::unordered_map<VkDescriptorSet, std::map<std::pair<uint32_t, uint32_t>, BoundStorageBuffer>>
+        storage_descriptors;
+    // The ray check (CLASTRACE_RAY_CHECK): queue families of the queues handed out, the NV ray
+    // tracing limits, and the NV structures the capture saw built.
+    std::mutex queues_mutex;
+    std::unordered_map<VkQueue, uint32_t> queue_families;
+    std::unordered_map<VkQueue, uint32_t> queue_indices;  // index within its family
+    bool nv_ray_tracing_enabled = false;
+    VkPhysicalDeviceRayTracingPropertiesNV ray_tracing_properties_nv{};
+    NvSceneModel nv_scene;
+    ~DeviceState();
 };
 
 // Submissions are counted per process, so indices from several devices never collide in
 // the one trace (CLASTRACE_SUBMIT_RANGE counts the same way).
-uint64_t nextSubmissionIndex();
+uint64_t next_submission_index();
 
 // Frames (CLASTRACE_FRAME_RANGE): vkQueuePresentKHR calls so far in this process, so the frame
 // a submission made now belongs to (layer_present.cpp).
-uint64_t currentFrame();
+uint64_t current_frame();
 
 // Registries keyed by dispatch key; lookups take a shared lock, creation/destruction exclusive.
-InstanceState* findInstance(DispatchKey key);
-DeviceState* findDevice(DispatchKey key);
-void registerInstance(DispatchKey key, std::unique_ptr<InstanceState> state);
-std::unique_ptr<InstanceState> unregisterInstance(DispatchKey key);
-void registerDevice(DispatchKey key, std::unique_ptr<DeviceState> state);
-std::unique_ptr<DeviceState> unregisterDevice(DispatchKey key);
+InstanceState* find_instance(DispatchKey key);
+DeviceState* find_device(DispatchKey key);
+void register_instance(DispatchKey key, std::unique_ptr<InstanceState> state);
+std::unique_ptr<InstanceState> unregister_instance(DispatchKey key);
+void register_device(DispatchKey key, std::unique_ptr<DeviceState> state);
+std::unique_ptr<DeviceState> unregister_device(DispatchKey key);
 
 // One line to stderr, prefixed "clastrace: ", when `level` is enabled by CLASTRACE_LOG.
-void logMessage(LogLevel level, const char* format, ...) __attribute__((format(printf, 2, 3)));
+void log_message(LogLevel level, const char* format, ...) __attribute__((format(printf, 2, 3)));
 
 // The process-wide sink (created on first device with capture on); null when capture is off or
 // the output cannot be written (the reason was printed once).
-std::shared_ptr<CaptureSink> processCaptureSink();
+std::shared_ptr<CaptureSink> process_capture_sink();
 
 // Interception tables: the layer's function for a name, or null.
-PFN_vkVoidFunction interceptInstanceFunction(const char* name);
-PFN_vkVoidFunction interceptDeviceFunction(const char* name, DeviceState* device);
+PFN_vkVoidFunction intercept_instance_function(const char* name);
+PFN_vkVoidFunction intercept_device_function(const char* name, DeviceState* device);
 
 // Defined by the part that owns each group of hooks.
-PFN_vkVoidFunction servingInstanceHook(const char* name);
-PFN_vkVoidFunction resourceHook(const char* name);
-PFN_vkVoidFunction commandHook(const char* name);
-PFN_vkVoidFunction submitHook(const char* name);
-PFN_vkVoidFunction clusterHook(const char* name);
-PFN_vkVoidFunction accelerationStructureHook(const char* name);
-PFN_vkVoidFunction presentHook(const char* name);
+PFN_vkVoidFunction serving_instance_hook(const char* name);
+PFN_vkVoidFunction resource_hook(const char* name);
+PFN_vkVoidFunction command_hook(const char* name);
+PFN_vkVoidFunction submit_hook(const char* name);
+PFN_vkVoidFunction cluster_hook(const char* name);
+PFN_vkVoidFunction acceleration_structure_hook(const char* name);
+PFN_vkVoidFunction present_hook(const char* name);
 
 // CLASTRACE_RAY_CHECK: after submission `submissionIndex` on `queue` (just submitted), waits
 // for the queue and traces the configured rays against each of `topLevels`, recording a
 // RayCheckRecord per top level. Called from the application's vkQueueSubmit.
-void runRayChecks(DeviceState& device, VkQueue queue, uint64_t submissionIndex, const std::vector<uint64_t>& topLevels);
-PFN_vkVoidFunction hostSyncHook(const char* name);
+void run_ray_checks(DeviceState& device, VkQueue queue, uint64_t submission_index,
+                    const std::vector<uint64_t>& top_levels);
+PFN_vkVoidFunction host_sync_hook(const char* name);
 
 // GPU timestamps (layer_timestamps.cpp): reads, and hands to the sink, the pending executions
 // `completed` says have finished (their queries are then final).
-void readCompletedTimestamps(DeviceState& device,
-                             const std::function<bool(const DeviceState::PendingTimestampRead&)>& completed);
+void read_completed_timestamps(
+    DeviceState& device,
+    const std::function<bool(const DeviceState::PendingTimestampRead&)>& completed);
 
 // Serving decisions, shared by the instance hooks and device creation.
-bool driverHasClusterExtension(InstanceState& instance, VkPhysicalDevice physicalDevice);
-bool shouldServe(InstanceState& instance, VkPhysicalDevice physicalDevice);
-VkPhysicalDeviceClusterAccelerationStructurePropertiesNV clusterPropertiesFor(InstanceState& instance,
-                                                                              VkPhysicalDevice physicalDevice,
-                                                                              bool serving);
+bool driver_has_cluster_extension(InstanceState& instance, VkPhysicalDevice physical_device);
+bool should_serve(InstanceState& instance, VkPhysicalDevice physical_device);
+VkPhysicalDeviceClusterAccelerationStructurePropertiesNV cluster_properties_for(
+    InstanceState& instance, VkPhysicalDevice physical_device, bool serving);
 
 }  // namespace clastrace::capture

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Stops the queue at each captured command and reads memory while it waits.
 //
 // Per captured command the layer records, around it in the application's command buffer:
@@ -42,108 +43,119 @@ namespace clastrace::capture {
 
 struct DeviceState;
 
-enum class PausePhase { BeforeCommand, AfterCommand };
+enum class PausePhase { kBeforeCommand, kAfterCommand };
 
 struct PausePoint {
-  uint64_t pauseId = 0;
-  PausePhase phase = PausePhase::BeforeCommand;
-  bool lastOfCommand = true;  // the capture of this command is complete after this pause
-  // Which execution of this pause within one submission (a simultaneous-use command buffer
-  // may run twice in one vkQueueSubmit; its pauses then come twice, in order).
-  uint32_t occurrence = 0;
-  // Its command buffer may run on two queues at once (a SIMULTANEOUS_USE primary, or a
-  // simultaneous-use secondary): submissions wait until no other queue uses its events.
-  bool shared = false;
-  VkEvent signal = VK_NULL_HANDLE;
-  VkEvent release = VK_NULL_HANDLE;
-  std::shared_ptr<const ClusterCommandParameters> parameters;  // a cluster build, or one of:
-  std::shared_ptr<const BuildAccelerationStructureNVCommand> buildNV;
-  std::shared_ptr<const CopyMemoryToAccelerationStructureCommand> copyToAccelerationStructure;
-  std::shared_ptr<const StagingSet> staging;  // copies of unmapped memory, or null (pause_staging.h)
+    uint64_t pause_id = 0;
+    PausePhase phase = PausePhase::kBeforeCommand;
+    bool last_of_command = true;  // the capture of this command is complete after this pause
+    // Which execution of this pause within one submission (a simultaneous-use command buffer
+    // may run twice in one vkQueueSubmit; its pauses then come twice, in order).
+    uint32_t occurrence = 0;
+    // Its command buffer may run on two queues at once (a SIMULTANEOUS_USE primary, or a
+    // simultaneous-use secondary): submissions wait until no other queue uses its events.
+    bool shared = false;
+    VkEvent signal = VK_NULL_HANDLE;
+    VkEvent release = VK_NULL_HANDLE;
+    std::shared_ptr<const ClusterCommandParameters> parameters;  // a cluster build, or one of:
+    std::shared_ptr<const BuildAccelerationStructureNVCommand> build_nv;
+    std::shared_ptr<const CopyMemoryToAccelerationStructureCommand> copy_to_acceleration_structure;
+    std::shared_ptr<const StagingSet>
+        staging;  // copies of unmapped memory, or null (pause_staging.h)
 };
 
 class PauseWorker {
- public:
-  explicit PauseWorker(DeviceState& device);
-  ~PauseWorker();  // stops the thread; pauses not reached are abandoned
+public:
+    explicit PauseWorker(DeviceState& device);
+    ~PauseWorker();  // stops the thread; pauses not reached are abandoned
 
-  // Called inside the application's vkQueueSubmit, in submission order per queue.
-  void expect(VkQueue queue, uint64_t submissionIndex, bool captureThisSubmission, uint64_t commandBuffer,
-              const std::vector<PausePoint>& pauses);
+    // Called inside the application's vkQueueSubmit, in submission order per queue.
+    void expect(VkQueue queue, uint64_t submission_index, bool capture_this_submission,
+                uint64_t command_buffer, const std::vector<PausePoint>& pauses);
 
-  // Waits until no queue other than `queue` uses any of the pause events `releases` (see
-  // shared_pause_tracker.h); false when `timeout` passed first (the other queue may wait for
-  // something the application does only after this submission).
-  bool waitUntilFree(VkQueue queue, const std::vector<uint64_t>& releases, std::chrono::milliseconds timeout);
-  // The command buffer owning these events was reset or freed.
-  void forgetEvents(const std::vector<VkEvent>& events);
+    // Waits until no queue other than `queue` uses any of the pause events `releases` (see
+    // shared_pause_tracker.h); false when `timeout` passed first (the other queue may wait for
+    // something the application does only after this submission).
+    bool wait_until_free(VkQueue queue, const std::vector<uint64_t>& releases,
+                         std::chrono::milliseconds timeout);
+    // The command buffer owning these events was reset or freed.
+    void forget_events(const std::vector<VkEvent>& events);
 
-  // Total pauses handled and the host time spent inside them, for the report line at exit.
-  uint64_t pausesHandled() const { return handled_; }
+    // Total pauses handled and the host time spent inside them, for the report line at exit.
+    uint64_t pauses_handled() const { return handled_; }
 
- private:
-  struct Expected {
-    VkQueue queue;
-    PausePoint pause;
-    uint64_t submissionIndex;
-    uint64_t commandBuffer;
-    bool capture;
-  };
-  // (submission, pauseId, occurrence) of a command's capture between its pauses
-  using OpenKey = std::tuple<uint64_t, uint64_t, uint32_t>;
-  void run();
-  bool handle(Expected& expected);
-  ClusterBuildCapture* openRecord(const Expected& expected, const OpenKey& key, const DeviceMemoryReader& reader);
-  ClusterMemoryWalk walkCommandInputs(const PausePoint& pause, ClusterBuildCapture& record,
-                                      const DeviceMemoryReader& reader);
-  ClusterBuildCapture* addOutputsToOpenRecord(const PausePoint& pause, const OpenKey& key,
-                                              const DeviceMemoryReader& reader);
-  void addOutputs(ClusterBuildCapture& record, const ClusterCommandParameters& parameters,
-                  const DeviceMemoryReader& reader);
-  void learnPendingTemplates(const PausePoint& pause);
-  std::shared_ptr<const engine::MemoryImage> finishServedCommand(const PausePoint& pause, ServedMemory& served,
-                                                                 ClusterBuildCapture* record,
-                                                                 const DeviceMemoryReader& reader);
-  double releaseQueue(const Expected& expected, std::chrono::steady_clock::time_point started, uint64_t startedCpu);
-  void passRecordOn(const OpenKey& key, std::shared_ptr<const ClusterCommandParameters> parameters,
-                    std::shared_ptr<const engine::MemoryImage> servedImage, std::unique_ptr<ServedMemory> served);
-  void nameRanges(ClusterBuildCapture& record);  // by the memory map, now
-  bool checkMemory(VkDeviceAddress address, uint64_t size, std::string& why);
-  bool readMemory(VkDeviceAddress address, uint64_t size, CapturedBytes& out, std::string& why);
-  bool readResolved(const ResolvedRange& range, uint64_t size, CapturedBytes& out);
-  // The host bytes of `range`: the layer's mapping, or the current pause's staged copy; null
-  // when neither holds it.
-  const uint8_t* stagedBytes(const ResolvedRange& range);
-  // Serving: runs the command in the engine against the application's memory and writes its
-  // outputs back, while the queue waits at the pause before it.
-  // Returns the engine's image of the run (null when it could not run).
-  std::shared_ptr<const engine::MemoryImage> executeServed(const PausePoint& pause, ServedMemory& memory,
-                                                           ClusterBuildCapture* record);
-  // The buffers a served build can reach (mapped ones, and the pause's staged copies), their
-  // non-coherent memory invalidated.
-  std::vector<ServedBuffer> prepareServedBuffers();
-  std::shared_ptr<ServedRegionPool> regionPool_ = std::make_shared<ServedRegionPool>();
+private:
+    struct Expected {
+        VkQueue queue;
+        PausePoint pause;
+        uint64_t submission_index;
+        uint64_t command_buffer;
+        bool capture;
+    };
+    // (submission, pauseId, occurrence) of a command's capture between its pauses
+    using OpenKey = std::tuple<uint64_t, uint64_t, uint32_t>;
+    void run();
+    bool handle(Expected& expected);
+    ClusterBuildCapture* open_record(const Expected& expected, const OpenKey& key,
+                                     const DeviceMemoryReader& reader);
+    ClusterMemoryWalk walk_command_inputs(const PausePoint& pause, ClusterBuildCapture& record,
+                                          const DeviceMemoryReader& reader);
+    ClusterBuildCapture* add_outputs_to_open_record(const PausePoint& pause, const OpenKey& key,
+                                                    const DeviceMemoryReader& reader);
+    void add_outputs(ClusterBuildCapture& record, const ClusterCommandParameters& parameters,
+                     const DeviceMemoryReader& reader);
+    void learn_pending_templates(const PausePoint& pause);
+    std::shared_ptr<const engine::MemoryImage> finish_served_command(
+        const PausePoint& pause, ServedMemory& served, ClusterBuildCapture* record,
+        const DeviceMemoryReader& reader);
+    double release_queue(const Expected& expected, std::chrono::steady_clock::time_point started,
+                         uint64_t started_cpu);
+    void pass_record_on(const OpenKey& key,
+                        std::shared_ptr<const ClusterCommandParameters> parameters,
+                        std::shared_ptr<const engine::MemoryImage> served_image,
+                        std::unique_ptr<ServedMemory> served);
+    void name_ranges(ClusterBuildCapture& record);  // by the memory map, now
+    bool check_memory(VkDeviceAddress address, uint64_t size, std::string& why);
+    bool read_memory(VkDeviceAddress address, uint64_t size, CapturedBytes& out, std::string& why);
+    bool read_resolved(const ResolvedRange& range, uint64_t size, CapturedBytes& out);
+    // The host bytes of `range`: the layer's mapping, or the current pause's staged copy; null
+    // when neither holds it.
+    const uint8_t* staged_bytes(const ResolvedRange& range);
+    // Serving: runs the command in the engine against the application's memory and writes its
+    // outputs back, while the queue waits at the pause before it.
+    // Returns the engine's image of the run (null when it could not run).
+    std::shared_ptr<const engine::MemoryImage> execute_served(const PausePoint& pause,
+                                                              ServedMemory& memory,
+                                                              ClusterBuildCapture* record);
+    // The buffers a served build can reach (mapped ones, and the pause's staged copies), their
+    // non-coherent memory invalidated.
+    std::vector<ServedBuffer> prepare_served_buffers();
+    std::shared_ptr<ServedRegionPool> region_pool_ = std::make_shared<ServedRegionPool>();
 
-  DeviceState& device_;
-  std::mutex mutex_;
-  std::condition_variable wake_;
-  std::map<VkQueue, std::deque<Expected>> queues_;
-  std::map<OpenKey, ClusterBuildCapture> open_;
-  std::vector<float> pauseMilliseconds_;
-  const StagingSet* staging_ = nullptr;  // of the pause being handled  // host time of each pause, for the report at exit
-  bool stop_ = false;
-  SharedPauseTracker shared_;  // guarded by mutex_
-  std::atomic<uint64_t> handled_{0};
-  std::map<std::string, uint64_t> findingsPerRule_;  // how often each engine rule was logged
-  engine::ObjectDirectory directory_;  // the served device's live objects, across its commands
-  // Templates built under the layer: address -> vertex count, so an instantiation's vertex
-  // array is captured at its real length. Pending: a template build's counts until its outputs.
-  void learnTemplates(const ClusterCommandParameters& parameters, const std::vector<uint32_t>& vertexCounts);
-  // A move of templates: the vertex count of each source, to be learned at its destination.
-  std::vector<uint32_t> movedTemplateVertexCounts(const ClusterCommandParameters& parameters, uint32_t executedCount);
-  std::map<uint64_t, std::vector<uint32_t>> pendingTemplateVertexCounts_;  // pauseId -> per entry
-  std::map<VkDeviceAddress, uint32_t> templateVertexCounts_;
-  std::thread thread_;
+    DeviceState& device_;
+    std::mutex mutex_;
+    std::condition_variable wake_;
+    std::map<VkQueue, std::deque<Expected>> queues_;
+    std::map<OpenKey, ClusterBuildCapture> open_;
+    std::vector<float> pause_milliseconds_;
+    const StagingSet* staging_ =
+        nullptr;  // of the pause being handled  // host time of each pause, for the report at exit
+    bool stop_ = false;
+    SharedPauseTracker shared_;  // guarded by mutex_
+    std::atomic<uint64_t> handled_{0};
+    std::map<std::string, uint64_t> findings_per_rule_;  // how often each engine rule was logged
+    engine::ObjectDirectory directory_;  // the served device's live objects, across its commands
+    // Templates built under the layer: address -> vertex count, so an instantiation's vertex
+    // array is captured at its real length. Pending: a template build's counts until its outputs.
+    void learn_templates(const ClusterCommandParameters& parameters,
+                         const std::vector<uint32_t>& vertex_counts);
+    // A move of templates: the vertex count of each source, to be learned at its destination.
+    std::vector<uint32_t> moved_template_vertex_counts(const ClusterCommandParameters& parameters,
+                                                       uint32_t executed_count);
+    std::map<uint64_t, std::vector<uint32_t>>
+        pending_template_vertex_counts_;  // pauseId -> per entry
+    std::map<VkDeviceAddress, uint32_t> template_vertex_counts_;
+    std::thread thread_;
 };
 
 }  // namespace clastrace::capture

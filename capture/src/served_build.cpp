@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "clastrace/capture/served_build.h"
 #include "clastrace/common/hex.h"
 
@@ -20,374 +21,419 @@ namespace {
 using common::hex;
 
 // An empty image whose region bytes go back to `pool` with its last owner.
-std::shared_ptr<engine::MemoryImage> pooledImage(std::shared_ptr<ServedRegionPool> pool) {
-  return std::shared_ptr<engine::MemoryImage>(new engine::MemoryImage, [pool = std::move(pool)](engine::MemoryImage* image) {
-    if (pool) pool->give(image->release_storage());
-    delete image;
-  });
+std::shared_ptr<engine::MemoryImage> pooled_image(std::shared_ptr<ServedRegionPool> pool) {
+    return std::shared_ptr<engine::MemoryImage>(new engine::MemoryImage,
+                                                [pool =
+                                                     std::move(pool)](engine::MemoryImage* image) {
+                                                    if (pool) pool->give(image->release_storage());
+                                                    delete image;
+                                                });
 }
 
 // [offset, offset + size) of `b`'s host bytes into `to`: plain loads for cached memory,
 // streaming loads for the rest (write-combined on most discrete GPUs).
-void copyFromHost(const ServedBuffer& b, uint64_t offset, uint64_t size, uint8_t* to) {
-  if (b.cached) std::memcpy(to, b.host + offset, size);
-  else copyFromUncached(to, b.host + offset, size);
+void copy_from_host(const ServedBuffer& b, uint64_t offset, uint64_t size, uint8_t* to) {
+    if (b.cached)
+        std::memcpy(to, b.host + offset, size);
+    else
+        copy_from_uncached(to, b.host + offset, size);
 }
 
 // All of [address, address + size) lies inside `b` (no sum may wrap).
 bool holds(const ServedBuffer& b, uint64_t address, uint64_t size) {
-  return address >= b.address && address - b.address <= b.size && size <= b.size - (address - b.address);
+    return address >= b.address && address - b.address <= b.size &&
+           size <= b.size - (address - b.address);
 }
 
 // The groups completeServedRecord reads besides those the command wrote into: the ones holding
 // the address and size arrays, and those holding the objects the arrays name (an object the
 // command did not write is still read as the memory holds it). With indirected fields, all.
-std::vector<bool> groupsTheOutputsName(const VkClusterAccelerationStructureCommandsInfoNV& command,
-                                              const ServedMemory& memory, uint32_t executed) {
-  const size_t count = memory.groups().size();
-  if (command.addressResolutionFlags != 0) return std::vector<bool>(count, true);
-  std::vector<bool> keep(count, false);
-  auto mark = [&](uint64_t address) {
-    const size_t g = address ? memory.groupOf(address) : count;
-    if (g < count) keep[g] = true;
-  };
-  const VkStridedDeviceAddressRegionKHR& addresses = command.dstAddressesArray;
-  const VkStridedDeviceAddressRegionKHR& sizes = command.dstSizesArray;
-  mark(addresses.deviceAddress);
-  mark(sizes.deviceAddress);
-  if (addresses.deviceAddress == 0 || sizes.deviceAddress == 0) return keep;
-  const engine::MemoryImage& image = memory.image();
-  for (uint32_t i = 0; i < executed; ++i) {
-    uint64_t address = 0;
-    uint32_t size = 0;
-    try {
-      const engine::FieldRef where{"dst arrays", int64_t(i)};
-      address = image.read<uint64_t>(engine::MemoryImage::strided_address(addresses, i, sizeof address, where), where);
-      size = image.read<uint32_t>(engine::MemoryImage::strided_address(sizes, i, sizeof size, where), where);
-    } catch (const engine::MemoryFault&) {
-      return std::vector<bool>(count, true);  // the walk reads what it can: keep it all
+std::vector<bool> groups_the_outputs_name(
+    const VkClusterAccelerationStructureCommandsInfoNV& command, const ServedMemory& memory,
+    uint32_t executed) {
+    const size_t count = memory.groups().size();
+    if (command.addressResolutionFlags != 0) return std::vector<bool>(count, true);
+    std::vector<bool> keep(count, false);
+    auto mark = [&](uint64_t address) {
+        const size_t g = address ? memory.group_of(address) : count;
+        if (g < count) keep[g] = true;
+    };
+    const VkStridedDeviceAddressRegionKHR& addresses = command.dstAddressesArray;
+    const VkStridedDeviceAddressRegionKHR& sizes = command.dstSizesArray;
+    mark(addresses.deviceAddress);
+    mark(sizes.deviceAddress);
+    if (addresses.deviceAddress == 0 || sizes.deviceAddress == 0) return keep;
+    const engine::MemoryImage& image = memory.image();
+    for (uint32_t i = 0; i < executed; ++i) {
+        uint64_t address = 0;
+        uint32_t size = 0;
+        try {
+            const engine::FieldRef where{"dst arrays", int64_t(i)};
+            address = image.read<uint64_t>(
+                engine::MemoryImage::strided_address(addresses, i, sizeof address, where), where);
+            size = image.read<uint32_t>(engine::MemoryImage::strided_address(sizes, i, sizeof size,
+                                                                             where),
+                                        where);
+        } catch (const engine::MemoryFault&) {
+            return std::vector<bool>(count, true);  // the walk reads what it can: keep it all
+        }
+        if (address != 0 && size != 0 && address + size > address)
+            for (size_t g = memory.group_of(address);
+                 g < count && memory.groups()[g].base < address + size; ++g)
+                keep[g] = true;
     }
-    if (address != 0 && size != 0 && address + size > address)
-      for (size_t g = memory.groupOf(address); g < count && memory.groups()[g].base < address + size; ++g) keep[g] = true;
-  }
-  return keep;
+    return keep;
 }
 
 }  // namespace
 
 engine::RegionBytes ServedRegionPool::take(uint64_t size) {
-  std::lock_guard lock(mutex_);
-  auto it = bySize_.find(size);
-  if (it == bySize_.end()) return {};
-  engine::RegionBytes bytes = std::move(it->second);
-  bySize_.erase(it);
-  held_ -= size;
-  return bytes;
+    std::lock_guard lock(mutex_);
+    auto it = by_size_.find(size);
+    if (it == by_size_.end()) return {};
+    engine::RegionBytes bytes = std::move(it->second);
+    by_size_.erase(it);
+    held_ -= size;
+    return bytes;
 }
 
 void ServedRegionPool::give(std::vector<engine::RegionBytes> storage) {
-  std::lock_guard lock(mutex_);
-  for (engine::RegionBytes& bytes : storage) {
-    // Dense regions (the heap fallback past vm.max_map_count) and what exceeds the bound are freed.
-    if (bytes.empty() || bytes.dense() || held_ + bytes.size() > kMaxBytes) continue;
-    held_ += bytes.size();
-    const uint64_t size = bytes.size();
-    bySize_.emplace(size, std::move(bytes));
-  }
+    std::lock_guard lock(mutex_);
+    for (engine::RegionBytes& bytes : storage) {
+        // Dense regions (the heap fallback past vm.max_map_count) and what exceeds the bound are freed.
+        if (bytes.empty() || bytes.dense() || held_ + bytes.size() > kMaxBytes) continue;
+        held_ += bytes.size();
+        const uint64_t size = bytes.size();
+        by_size_.emplace(size, std::move(bytes));
+    }
 }
 
-uint64_t ServedRegionPool::heldBytes() const {
-  std::lock_guard lock(mutex_);
-  return held_;
+uint64_t ServedRegionPool::held_bytes() const {
+    std::lock_guard lock(mutex_);
+    return held_;
 }
 
-ServedMemory::ServedMemory(std::vector<ServedBuffer> buffers, std::shared_ptr<ServedRegionPool> pool)
+ServedMemory::ServedMemory(std::vector<ServedBuffer> buffers,
+                           std::shared_ptr<ServedRegionPool> pool)
     : pool_(std::move(pool)), buffers_(std::move(buffers)) {
-  std::vector<const ServedBuffer*> sorted;
-  for (const ServedBuffer& b : buffers_)
-    if (b.address != 0 && b.size != 0 && b.host && b.address + b.size > b.address) sorted.push_back(&b);
-  std::stable_sort(sorted.begin(), sorted.end(), [](auto* a, auto* b) { return a->address < b->address; });
-  for (const ServedBuffer* b : sorted) {
-    if (groups_.empty() || b->address >= groups_.back().end) groups_.push_back({b->address, b->address, 0, {}});
-    Group& g = groups_.back();
-    g.end = std::max(g.end, b->address + b->size);
-    g.usage |= b->usage;
-    g.buffers.push_back(b);
-  }
-  reset();  // the first, empty image
+    std::vector<const ServedBuffer*> sorted;
+    for (const ServedBuffer& b : buffers_)
+        if (b.address != 0 && b.size != 0 && b.host && b.address + b.size > b.address)
+            sorted.push_back(&b);
+    std::stable_sort(sorted.begin(), sorted.end(),
+                     [](auto* a, auto* b) { return a->address < b->address; });
+    for (const ServedBuffer* b : sorted) {
+        if (groups_.empty() || b->address >= groups_.back().end)
+            groups_.push_back({b->address, b->address, 0, {}});
+        Group& g = groups_.back();
+        g.end = std::max(g.end, b->address + b->size);
+        g.usage |= b->usage;
+        g.buffers.push_back(b);
+    }
+    reset();  // the first, empty image
 }
 
-size_t ServedMemory::groupOf(uint64_t address) const {
-  auto it = std::upper_bound(groups_.begin(), groups_.end(), address,
-                             [](uint64_t a, const Group& g) { return a < g.base; });
-  if (it == groups_.begin()) return groups_.size();
-  --it;
-  return address < it->end ? size_t(it - groups_.begin()) : groups_.size();
+size_t ServedMemory::group_of(uint64_t address) const {
+    auto it = std::upper_bound(groups_.begin(), groups_.end(), address,
+                               [](uint64_t a, const Group& g) { return a < g.base; });
+    if (it == groups_.begin()) return groups_.size();
+    --it;
+    return address < it->end ? size_t(it - groups_.begin()) : groups_.size();
 }
 
-const ServedBuffer* ServedMemory::bufferHolding(VkDeviceAddress address, uint64_t size) const {
-  const size_t g = groupOf(address);
-  if (g == groups_.size()) return nullptr;
-  const std::vector<const ServedBuffer*>& buffers = groups_[g].buffers;  // by address, ascending
-  for (auto it = buffers.rbegin(); it != buffers.rend(); ++it)
-    if (holds(**it, address, size)) return *it;
-  return nullptr;
+const ServedBuffer* ServedMemory::buffer_holding(VkDeviceAddress address, uint64_t size) const {
+    const size_t g = group_of(address);
+    if (g == groups_.size()) return nullptr;
+    const std::vector<const ServedBuffer*>& buffers = groups_[g].buffers;  // by address, ascending
+    for (auto it = buffers.rbegin(); it != buffers.rend(); ++it)
+        if (holds(**it, address, size)) return *it;
+    return nullptr;
 }
 
 void ServedMemory::copy(size_t group) {
-  if (copied_[group]) return;
-  const Group& g = groups_[group];
-  engine::MemoryRegion& region =
-      image_->add_region(g.base, g.end - g.base, g.usage, "buffer " + hex(g.buffers[0]->buffer),
-                        pool_ ? pool_->take(g.end - g.base) : engine::RegionBytes());
-  for (const ServedBuffer* b : g.buffers) {
-    copyFromHost(*b, 0, b->size, reinterpret_cast<uint8_t*>(region.bytes.write_at(b->address - g.base, b->size)));
-    bytesCopied_ += b->size;
-  }
-  copied_[group] = true;
+    if (copied_[group]) return;
+    const Group& g = groups_[group];
+    engine::MemoryRegion& region =
+        image_->add_region(g.base, g.end - g.base, g.usage, "buffer " + hex(g.buffers[0]->buffer),
+                           pool_ ? pool_->take(g.end - g.base) : engine::RegionBytes());
+    for (const ServedBuffer* b : g.buffers) {
+        copy_from_host(*b, 0, b->size,
+                       reinterpret_cast<uint8_t*>(
+                           region.bytes.write_at(b->address - g.base, b->size)));
+        bytes_copied_ += b->size;
+    }
+    copied_[group] = true;
 }
 
 const uint8_t* ServedMemory::read(VkDeviceAddress address, uint64_t size) {
-  // A walk reads many small ranges of few buffers (a cluster's indices, then its vertices):
-  // the last buffer that answered usually answers again.
-  const ServedBuffer* b = lastRead_;
-  if (!(b && holds(*b, address, size))) {
-    b = bufferHolding(address, size);
-    if (!b) return nullptr;
-    lastRead_ = b;
-    lastGroup_ = groupOf(address);
-    lastGroupBytes_ = nullptr;
-  }
-  if (!lastGroupBytes_) {
-    copy(lastGroup_);
-    lastGroupBytes_ = reinterpret_cast<const uint8_t*>(
-        std::as_const(*image_).find_region(groups_[lastGroup_].base)->bytes.data());
-  }
-  return lastGroupBytes_ + (address - groups_[lastGroup_].base);
+    // A walk reads many small ranges of few buffers (a cluster's indices, then its vertices):
+    // the last buffer that answered usually answers again.
+    const ServedBuffer* b = last_read_;
+    if (!(b && holds(*b, address, size))) {
+        b = buffer_holding(address, size);
+        if (!b) return nullptr;
+        last_read_ = b;
+        last_group_ = group_of(address);
+        last_group_bytes_ = nullptr;
+    }
+    if (!last_group_bytes_) {
+        copy(last_group_);
+        last_group_bytes_ = reinterpret_cast<const uint8_t*>(
+            std::as_const(*image_).find_region(groups_[last_group_].base)->bytes.data());
+    }
+    return last_group_bytes_ + (address - groups_[last_group_].base);
 }
 
 bool ServedMemory::view(VkDeviceAddress address, uint64_t size, CapturedBytes* out) {
-  const uint8_t* bytes = read(address, size);
-  if (!bytes) return false;
-  if (!out) return true;
-  viewed_[lastGroup_] = true;
-  *out = CapturedBytes::view(image_, bytes, size);
-  return true;
+    const uint8_t* bytes = read(address, size);
+    if (!bytes) return false;
+    if (!out) return true;
+    viewed_[last_group_] = true;
+    *out = CapturedBytes::view(image_, bytes, size);
+    return true;
 }
 
-void ServedMemory::keepInputsAsRead(std::vector<CapturedRange>& inputs, const engine::ExecutionRecord* written) const {
-  std::vector<std::pair<uint64_t, uint64_t>> writes;  // merged [begin, end), ascending
-  if (written) {
-    for (const engine::MemoryAccess& a : written->accesses)
-      if (a.is_write && a.end > a.begin) writes.emplace_back(a.begin, a.end);
-    std::sort(writes.begin(), writes.end());
-    size_t kept = 0;
-    for (const auto& w : writes)
-      if (kept && w.first <= writes[kept - 1].second) writes[kept - 1].second = std::max(writes[kept - 1].second, w.second);
-      else writes[kept++] = w;
-    writes.resize(kept);
-  }
-  for (CapturedRange& r : inputs) {
-    if (!r.bytes.views(image_.get())) continue;
-    const uint64_t end = r.address + r.bytes.size();
+void ServedMemory::keep_inputs_as_read(std::vector<CapturedRange>& inputs,
+                                       const engine::ExecutionRecord* written) const {
+    std::vector<std::pair<uint64_t, uint64_t>> writes;  // merged [begin, end), ascending
     if (written) {
-      auto after = std::upper_bound(writes.begin(), writes.end(), std::make_pair(r.address, UINT64_MAX));
-      const bool overlaps = (after != writes.end() && after->first < end) ||
-                            (after != writes.begin() && std::prev(after)->second > r.address);
-      if (!overlaps) continue;
+        for (const engine::MemoryAccess& a : written->accesses)
+            if (a.is_write && a.end > a.begin) writes.emplace_back(a.begin, a.end);
+        std::sort(writes.begin(), writes.end());
+        size_t kept = 0;
+        for (const auto& w : writes)
+            if (kept && w.first <= writes[kept - 1].second)
+                writes[kept - 1].second = std::max(writes[kept - 1].second, w.second);
+            else
+                writes[kept++] = w;
+        writes.resize(kept);
     }
-    const ServedBuffer* b = bufferHolding(r.address, r.bytes.size());
-    if (!b) continue;  // (a view is only made inside one buffer)
-    const size_t size = r.bytes.size();
-    copyFromHost(*b, r.address - b->address, size, r.bytes.fill(size));
-  }
+    for (CapturedRange& r : inputs) {
+        if (!r.bytes.views(image_.get())) continue;
+        const uint64_t end = r.address + r.bytes.size();
+        if (written) {
+            auto after = std::upper_bound(writes.begin(), writes.end(),
+                                          std::make_pair(r.address, UINT64_MAX));
+            const bool overlaps = (after != writes.end() && after->first < end) ||
+                                  (after != writes.begin() && std::prev(after)->second > r.address);
+            if (!overlaps) continue;
+        }
+        const ServedBuffer* b = buffer_holding(r.address, r.bytes.size());
+        if (!b) continue;  // (a view is only made inside one buffer)
+        const size_t size = r.bytes.size();
+        copy_from_host(*b, r.address - b->address, size, r.bytes.fill(size));
+    }
 }
 
-ServedMemory::~ServedMemory() = default;  // (the image's bytes go back to the pool with its last owner)
+ServedMemory::~ServedMemory() =
+    default;  // (the image's bytes go back to the pool with its last owner)
 
 std::shared_ptr<const engine::MemoryImage> ServedMemory::share(const std::vector<bool>* keep) {
-  if (keep) {
-    std::vector<engine::RegionBytes> unneeded;
-    for (size_t g = 0; g < groups_.size(); ++g)
-      if (copied_[g] && !(*keep)[g] && !viewed_[g]) {
-        engine::RegionBytes bytes;
-        if (image_->remove_region(groups_[g].base, &bytes)) unneeded.push_back(std::move(bytes));
-      }
-    if (pool_) pool_->give(std::move(unneeded));
-  }
-  std::shared_ptr<const engine::MemoryImage> shared = std::move(image_);
-  reset();
-  return shared;
+    if (keep) {
+        std::vector<engine::RegionBytes> unneeded;
+        for (size_t g = 0; g < groups_.size(); ++g)
+            if (copied_[g] && !(*keep)[g] && !viewed_[g]) {
+                engine::RegionBytes bytes;
+                if (image_->remove_region(groups_[g].base, &bytes))
+                    unneeded.push_back(std::move(bytes));
+            }
+        if (pool_) pool_->give(std::move(unneeded));
+    }
+    std::shared_ptr<const engine::MemoryImage> shared = std::move(image_);
+    reset();
+    return shared;
 }
 
 void ServedMemory::reset() {
-  lastGroupBytes_ = nullptr;
-  image_ = pooledImage(pool_);
-  copied_.assign(groups_.size(), false);
-  viewed_.assign(groups_.size(), false);
-  bytesCopied_ = 0;
+    last_group_bytes_ = nullptr;
+    image_ = pooled_image(pool_);
+    copied_.assign(groups_.size(), false);
+    viewed_.assign(groups_.size(), false);
+    bytes_copied_ = 0;
 }
 
-ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command,
-                                   std::span<const ServedBuffer> buffers, engine::ObjectDirectory& directory,
-                                   const engine::EngineProperties& properties,
-                                   std::vector<CapturedRange>* inputWalk) {
-  ServedMemory memory({buffers.begin(), buffers.end()});
-  return executeServedBuild(command, memory, directory, properties, inputWalk);
+ServedExecution execute_served_build(const VkClusterAccelerationStructureCommandsInfoNV& command,
+                                     std::span<const ServedBuffer> buffers,
+                                     engine::ObjectDirectory& directory,
+                                     const engine::EngineProperties& properties,
+                                     std::vector<CapturedRange>* input_walk) {
+    ServedMemory memory({buffers.begin(), buffers.end()});
+    return execute_served_build(command, memory, directory, properties, input_walk);
 }
 
-ServedExecution executeServedBuild(const VkClusterAccelerationStructureCommandsInfoNV& command, ServedMemory& memory,
-                                   engine::ObjectDirectory& directory, const engine::EngineProperties& properties,
-                                   std::vector<CapturedRange>* inputWalk, std::optional<uint32_t> outputEntries) {
-  ServedExecution result;
-  const std::vector<ServedMemory::Group>& groups = memory.groups();
+ServedExecution execute_served_build(const VkClusterAccelerationStructureCommandsInfoNV& command,
+                                     ServedMemory& memory, engine::ObjectDirectory& directory,
+                                     const engine::EngineProperties& properties,
+                                     std::vector<CapturedRange>* input_walk,
+                                     std::optional<uint32_t> output_entries) {
+    ServedExecution result;
+    const std::vector<ServedMemory::Group>& groups = memory.groups();
 
-  // Start from the buffers the command names itself, those its pointers lead to and those
-  // read already; run; every finding about an address in a buffer left out adds that buffer,
-  // and the command runs again from the same state (the directory is copied per attempt). A run
-  // without findings read only memory that was there, so it equals a run over all buffers.
-  // With findings left, or with indirected fields (whose targets the seeds do not name), the
-  // last run is over all buffers: exact either way.
-  std::vector<bool> selected(groups.size(), false);
-  auto select = [&](uint64_t address) {
-    const size_t g = address ? memory.groupOf(address) : groups.size();
-    if (g == groups.size() || selected[g]) return false;
-    selected[g] = true;
-    return true;
-  };
-  if (command.addressResolutionFlags != 0) {
-    selected.assign(groups.size(), true);
-  } else {
-    for (uint64_t seed : {command.srcInfosArray.deviceAddress, command.srcInfosCount, command.dstImplicitData,
-                          command.scratchData, command.dstAddressesArray.deviceAddress,
-                          command.dstSizesArray.deviceAddress})
-      select(seed);
-    // The capture's pointer walk names most of the rest (index, vertex, geometry, reference
-    // arrays; the clusters a reference array names), so one engine run usually suffices.
-    DeviceMemoryReader read = [&](VkDeviceAddress address, uint64_t size, CapturedBytes* out, std::string& why) {
-      const uint8_t* bytes = memory.read(address, size);
-      if (!bytes) {
-        why = "not inside one buffer";
-        return false;
-      }
-      if (out) *out = CapturedBytes::borrow(bytes, size);  // (the walk ends before the engine runs)
-      return true;
+    // Start from the buffers the command names itself, those its pointers lead to and those
+    // read already; run; every finding about an address in a buffer left out adds that buffer,
+    // and the command runs again from the same state (the directory is copied per attempt). A run
+    // without findings read only memory that was there, so it equals a run over all buffers.
+    // With findings left, or with indirected fields (whose targets the seeds do not name), the
+    // last run is over all buffers: exact either way.
+    std::vector<bool> selected(groups.size(), false);
+    auto select = [&](uint64_t address) {
+        const size_t g = address ? memory.group_of(address) : groups.size();
+        if (g == groups.size() || selected[g]) return false;
+        selected[g] = true;
+        return true;
     };
-    ClusterMemoryWalk walk;
-    if (!inputWalk) walk = walkClusterInputs(ClusterCommandParameters::copyOf(command), read);
-    for (const CapturedRange& range : inputWalk ? *inputWalk : walk.ranges) {
-      select(range.address);
-      if (range.role != MemoryRole::ClusterReferences) continue;
-      for (size_t at = 0; at + 8 <= range.bytes.size(); at += 8) {
-        uint64_t reference;
-        std::memcpy(&reference, range.bytes.data() + at, 8);
-        select(reference);
-      }
+    if (command.addressResolutionFlags != 0) {
+        selected.assign(groups.size(), true);
+    } else {
+        for (uint64_t seed :
+             {command.srcInfosArray.deviceAddress, command.srcInfosCount, command.dstImplicitData,
+              command.scratchData, command.dstAddressesArray.deviceAddress,
+              command.dstSizesArray.deviceAddress})
+            select(seed);
+        // The capture's pointer walk names most of the rest (index, vertex, geometry, reference
+        // arrays; the clusters a reference array names), so one engine run usually suffices.
+        DeviceMemoryReader read = [&](VkDeviceAddress address, uint64_t size, CapturedBytes* out,
+                                      std::string& why) {
+            const uint8_t* bytes = memory.read(address, size);
+            if (!bytes) {
+                why = "not inside one buffer";
+                return false;
+            }
+            if (out)
+                *out =
+                    CapturedBytes::borrow(bytes, size);  // (the walk ends before the engine runs)
+            return true;
+        };
+        ClusterMemoryWalk walk;
+        if (!input_walk)
+            walk = walk_cluster_inputs(ClusterCommandParameters::copy_of(command), read);
+        for (const CapturedRange& range : input_walk ? *input_walk : walk.ranges) {
+            select(range.address);
+            if (range.role != MemoryRole::kClusterReferences) continue;
+            for (size_t at = 0; at + 8 <= range.bytes.size(); at += 8) {
+                uint64_t reference;
+                std::memcpy(&reference, range.bytes.data() + at, 8);
+                select(reference);
+            }
+        }
+        for (size_t g = 0; g < groups.size();
+             ++g)  // in the image already: more memory is never less exact
+            if (memory.copied(g)) selected[g] = true;
     }
-    for (size_t g = 0; g < groups.size(); ++g)  // in the image already: more memory is never less exact
-      if (memory.copied(g)) selected[g] = true;
-  }
 
-  engine::ExecuteOptions options;
-  options.properties = properties;
-  engine::ObjectDirectory attempt;
-  try {
-    for (bool last = false;;) {
-      if (result.attempts > 0) memory.reset();  // the engine wrote into the last image
-      for (size_t g = 0; g < groups.size(); ++g)
-        if (selected[g]) memory.copy(g);
-      result.bytesCopiedIn = memory.bytesCopied();
-      // Over every buffer no further attempt can follow: the device's directory itself.
-      last = last || std::find(selected.begin(), selected.end(), false) == selected.end();
-      if (!last) attempt = directory;
-      options.directory = last ? &directory : &attempt;
-      result.record = engine::execute(command, memory.image(), options);
-      ++result.attempts;
-      if (inputWalk) memory.keepInputsAsRead(*inputWalk, &result.record);  // before the write-back
-      if (last) break;
-      if (result.record.findings.empty()) {
-        directory = std::move(attempt);
-        break;
-      }
-      bool grew = false;
-      for (const engine::Finding& f : result.record.findings) grew |= select(f.address);
-      if (!grew) selected.assign(groups.size(), true);
+    engine::ExecuteOptions options;
+    options.properties = properties;
+    engine::ObjectDirectory attempt;
+    try {
+        for (bool last = false;;) {
+            if (result.attempts > 0) memory.reset();  // the engine wrote into the last image
+            for (size_t g = 0; g < groups.size(); ++g)
+                if (selected[g]) memory.copy(g);
+            result.bytes_copied_in = memory.bytes_copied();
+            // Over every buffer no further attempt can follow: the device's directory itself.
+            last = last || std::find(selected.begin(), selected.end(), false) == selected.end();
+            if (!last) attempt = directory;
+            options.directory = last ? &directory : &attempt;
+            result.record = engine::execute(command, memory.image(), options);
+            ++result.attempts;
+            if (input_walk)
+                memory.keep_inputs_as_read(*input_walk, &result.record);  // before the write-back
+            if (last) break;
+            if (result.record.findings.empty()) {
+                directory = std::move(attempt);
+                break;
+            }
+            bool grew = false;
+            for (const engine::Finding& f : result.record.findings) grew |= select(f.address);
+            if (!grew) selected.assign(groups.size(), true);
+        }
+    } catch (const std::exception& e) {
+        if (input_walk)
+            memory.keep_inputs_as_read(*input_walk, nullptr);  // it may have written anything
+        result.error = e.what();
+        return result;
     }
-  } catch (const std::exception& e) {
-    if (inputWalk) memory.keepInputsAsRead(*inputWalk, nullptr);  // it may have written anything
-    result.error = e.what();
+    result.ran = true;
+
+    // Back into every buffer that holds a written byte (aliases included: same memory or not,
+    // each view must show what the command wrote).
+    const engine::MemoryImage& image = memory.image();
+    // The capture's walk may count more entries than the engine ran (its own caps): both are kept.
+    std::vector<bool> keep;
+    if (output_entries)
+        keep = groups_the_outputs_name(command, memory,
+                                       std::max(result.record.op_count, *output_entries));
+    for (const engine::MemoryAccess& access : result.record.accesses) {
+        if (!access.is_write || access.end <= access.begin) continue;
+        for (size_t g = memory.group_of(access.begin);
+             g < groups.size() && groups[g].base < access.end; ++g) {
+            if (!selected[g]) continue;
+            if (output_entries) keep[g] = true;
+            for (const ServedBuffer* b : groups[g].buffers) {
+                const uint64_t begin = std::max(access.begin, b->address);
+                const uint64_t end = std::min(access.end, b->address + b->size);
+                if (begin >= end) continue;
+                const engine::MemoryRegion* region = image.find_region(begin);
+                if (!region || end > region->base + region->size)
+                    continue;  // the engine wrote only inside regions
+                std::memcpy(b->host + (begin - b->address),
+                            region->bytes.data() + (begin - region->base), end - begin);
+                result.bytes_written_back += end - begin;
+                if (std::find(result.written_memories.begin(), result.written_memories.end(),
+                              b->memory) == result.written_memories.end())
+                    result.written_memories.push_back(b->memory);
+            }
+        }
+    }
+    result.image = memory.share(output_entries ? &keep : nullptr);
     return result;
-  }
-  result.ran = true;
-
-  // Back into every buffer that holds a written byte (aliases included: same memory or not,
-  // each view must show what the command wrote).
-  const engine::MemoryImage& image = memory.image();
-  // The capture's walk may count more entries than the engine ran (its own caps): both are kept.
-  std::vector<bool> keep;
-  if (outputEntries)
-    keep = groupsTheOutputsName(command, memory, std::max(result.record.op_count, *outputEntries));
-  for (const engine::MemoryAccess& access : result.record.accesses) {
-    if (!access.is_write || access.end <= access.begin) continue;
-    for (size_t g = memory.groupOf(access.begin); g < groups.size() && groups[g].base < access.end; ++g) {
-      if (!selected[g]) continue;
-      if (outputEntries) keep[g] = true;
-      for (const ServedBuffer* b : groups[g].buffers) {
-        const uint64_t begin = std::max(access.begin, b->address);
-        const uint64_t end = std::min(access.end, b->address + b->size);
-        if (begin >= end) continue;
-        const engine::MemoryRegion* region = image.find_region(begin);
-        if (!region || end > region->base + region->size) continue;  // the engine wrote only inside regions
-        std::memcpy(b->host + (begin - b->address), region->bytes.data() + (begin - region->base), end - begin);
-        result.bytesWrittenBack += end - begin;
-        if (std::find(result.writtenMemories.begin(), result.writtenMemories.end(), b->memory) ==
-            result.writtenMemories.end())
-          result.writtenMemories.push_back(b->memory);
-      }
-    }
-  }
-  result.image = memory.share(outputEntries ? &keep : nullptr);
-  return result;
 }
 
-void completeServedRecord(ClusterBuildCapture& record, std::shared_ptr<const engine::MemoryImage> image,
-                          const ClusterCommandParameters& parameters, const ServedMemory& memory) {
-  DeviceMemoryReader fromImage = [&](VkDeviceAddress a, uint64_t s, CapturedBytes* o, std::string& why) {
-    const engine::MemoryRegion* region = image->find_region(a);
-    if (!region || a + s < a || a + s > region->base + region->size) {
-      why = "outside the memory the served build reached";
-      return false;
-    }
-    const auto* bytes = reinterpret_cast<const uint8_t*>(region->bytes.data()) + (a - region->base);
-    if (o) *o = CapturedBytes::view(image, bytes, s);  // nothing writes the image any more
-    return true;
-  };
-  ClusterMemoryWalk walk = walkClusterOutputs(parameters, record.executedCount, fromImage);
-  record.outputs = std::move(walk.ranges);
-  for (auto& issue : walk.issues) record.issues.push_back(std::move(issue));
-  // Ranges come in runs through one buffer (a cluster's indices, its vertices, the objects):
-  // the buffer that named the last range is tried first, unless a nested one could hold it.
-  const ServedBuffer* last = nullptr;
-  for (auto* list : {&record.inputs, &record.outputs})
-    for (CapturedRange& r : *list) {
-      if (r.address == 0) continue;
-      const ServedBuffer* b = last && holds(*last, r.address, r.bytes.size()) ? last : nullptr;
-      if (!b && (b = memory.bufferHolding(r.address, r.bytes.size())) != nullptr)
-        last = memory.groups()[memory.groupOf(b->address)].buffers.size() == 1 ? b : nullptr;
-      if (b) {
-        r.buffer = b->buffer;
-        r.bufferOffset = r.address - b->address;
-      }
-    }
+void complete_served_record(ClusterBuildCapture& record,
+                            std::shared_ptr<const engine::MemoryImage> image,
+                            const ClusterCommandParameters& parameters,
+                            const ServedMemory& memory) {
+    DeviceMemoryReader from_image = [&](VkDeviceAddress a, uint64_t s, CapturedBytes* o,
+                                        std::string& why) {
+        const engine::MemoryRegion* region = image->find_region(a);
+        if (!region || a + s < a || a + s > region->base + region->size) {
+            why = "outside the memory the served build reached";
+            return false;
+        }
+        const auto* bytes =
+            reinterpret_cast<const uint8_t*>(region->bytes.data()) + (a - region->base);
+        if (o) *o = CapturedBytes::view(image, bytes, s);  // nothing writes the image any more
+        return true;
+    };
+    ClusterMemoryWalk walk = walk_cluster_outputs(parameters, record.executed_count, from_image);
+    record.outputs = std::move(walk.ranges);
+    for (auto& issue : walk.issues) record.issues.push_back(std::move(issue));
+    // Ranges come in runs through one buffer (a cluster's indices, its vertices, the objects):
+    // the buffer that named the last range is tried first, unless a nested one could hold it.
+    const ServedBuffer* last = nullptr;
+    for (auto* list : {&record.inputs, &record.outputs})
+        for (CapturedRange& r : *list) {
+            if (r.address == 0) continue;
+            const ServedBuffer* b =
+                last && holds(*last, r.address, r.bytes.size()) ? last : nullptr;
+            if (!b && (b = memory.buffer_holding(r.address, r.bytes.size())) != nullptr)
+                last =
+                    memory.groups()[memory.group_of(b->address)].buffers.size() == 1 ? b : nullptr;
+            if (b) {
+                r.buffer = b->buffer;
+                r.buffer_offset = r.address - b->address;
+            }
+        }
 }
 
-bool servedClusterBuildSizes(const VkClusterAccelerationStructureInputInfoNV& input,
-                             VkAccelerationStructureBuildSizesInfoKHR& sizes) {
-  const engine::BuildSizes answer = engine::cluster_build_sizes(input, servedEngineProperties());
-  sizes.accelerationStructureSize = answer.acceleration_structure_size;
-  sizes.buildScratchSize = answer.build_scratch_size;
-  sizes.updateScratchSize = answer.update_scratch_size;
-  return answer.findings.empty();
+bool served_cluster_build_sizes(const VkClusterAccelerationStructureInputInfoNV& input,
+                                VkAccelerationStructureBuildSizesInfoKHR& sizes) {
+    const engine::BuildSizes answer =
+        engine::cluster_build_sizes(input, served_engine_properties());
+    sizes.accelerationStructureSize = answer.acceleration_structure_size;
+    sizes.buildScratchSize = answer.build_scratch_size;
+    sizes.updateScratchSize = answer.update_scratch_size;
+    return answer.findings.empty();
 }
 
 }  // namespace clastrace::capture

@@ -343,10 +343,10 @@ std::vector<NvTracedRay> sceneRays(uint32_t count) {
       r.direction[k] = d[k] / len;
       if (r.direction[k] == 0.0f) r.direction[k] = 1e-6f;  // no exact zero: 1/0 in the slab test
     }
-    r.tMin = (i % 7 == 3) ? 0.5f : 0.0f;
-    r.tMax = (i % 11 == 5) ? 14.0f : 1000.0f;
-    r.rayFlags = (i % 13 == 4) ? 0x10u : 0u;  // gl_RayFlagsCullBackFacingTrianglesNV
-    r.cullMask = (i % 5 == 2) ? 0x02u : 0xFFu;
+    r.t_min = (i % 7 == 3) ? 0.5f : 0.0f;
+    r.t_max = (i % 11 == 5) ? 14.0f : 1000.0f;
+    r.ray_flags = (i % 13 == 4) ? 0x10u : 0u;  // gl_RayFlagsCullBackFacingTrianglesNV
+    r.cull_mask = (i % 5 == 2) ? 0x02u : 0xFFu;
     rays.push_back(r);
   }
   return rays;
@@ -602,30 +602,30 @@ int main(int argc, char** argv) {
   // ---- The application's own rays ------------------------------------------------------------
   NvTraceScene scene;
   // Slots: 0-1 triangle bottom level's geometries, 2 the AABB geometry.
-  scene.geometryIsAabb = {0, 0, 1};
-  scene.geometryFirstBox = {0, 0, 0};
+  scene.geometry_is_aabb = {0, 0, 1};
+  scene.geometry_first_box = {0, 0, 0};
   for (const Box& b : lifted) scene.boxes.insert(scene.boxes.end(), {b.lo[0], b.lo[1], b.lo[2], b.hi[0], b.hi[1], b.hi[2]});
   for (uint32_t i = 0; i < kInstances; ++i)
     scene.instances.push_back({instances[i].instanceShaderBindingTableRecordOffset, (i == 2 || i == 3) ? 2u : 0u});
-  scene.recordIsProcedural = {0, 0, 1};
+  scene.record_is_procedural = {0, 0, 1};
   clastrace::capture::NvRayTracerContext context;
   context.device = v.device;
   context.queue = v.queue;
-  context.queueFamilyIndex = v.family;
-  context.getDeviceProcAddr = vkGetDeviceProcAddr;
-  context.memoryProperties = v.memory;
-  context.rayTracingProperties = v.rt;
+  context.queue_family_index = v.family;
+  context.get_device_proc_addr = vkGetDeviceProcAddr;
+  context.memory_properties = v.memory;
+  context.ray_tracing_properties = v.rt;
   const auto rays = sceneRays(rayCount);
   std::vector<NvRayHit> hits;
   std::string error;
-  if (!clastrace::capture::traceRaysNV(context, tlas.handle, scene, rays, hits, error)) die("tracing rays: " + error);
+  if (!clastrace::capture::trace_rays_nv(context, tlas.handle, scene, rays, hits, error)) die("tracing rays: " + error);
   uint32_t hitCount = 0, perInstance[kInstances] = {}, procedural = 0;
   uint64_t digest = 1469598103934665603ull;
   for (const NvRayHit& h : hits) {
     if (h.hit) {
       ++hitCount;
-      if (h.instanceId < kInstances) ++perInstance[h.instanceId];
-      procedural += h.hitKind == 0;
+      if (h.instance_id < kInstances) ++perInstance[h.instance_id];
+      procedural += h.hit_kind == 0;
     }
     // Fields only: the shaders leave the padding words undefined.
     for (size_t k = 0; k < offsetof(NvRayHit, pad); ++k)
@@ -638,8 +638,8 @@ int main(int argc, char** argv) {
   for (size_t i = 0; i < 3 && i < hits.size(); ++i)
     std::printf("nv_ray_tracing_app: ray %zu: hit %u t %.6f custom %u instance %u primitive %u geometry %u kind 0x%x "
                 "uv (%.4f %.4f)\n",
-                i, hits[i].hit, hits[i].t, hits[i].instanceCustomIndex, hits[i].instanceId, hits[i].primitiveId,
-                hits[i].geometryIndex, hits[i].hitKind, hits[i].u, hits[i].v);
+                i, hits[i].hit, hits[i].t, hits[i].instance_custom_index, hits[i].instance_id, hits[i].primitive_id,
+                hits[i].geometry_index, hits[i].hit_kind, hits[i].u, hits[i].v);
 
   // ---- KHR: build, serialize, deserialize ----------------------------------------------------
   if (v.khr) {

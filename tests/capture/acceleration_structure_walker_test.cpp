@@ -16,15 +16,15 @@ struct TwoBuffers : ::testing::Test {
   static constexpr uint64_t kGeometry = 0x21, kInstances = 0x22;
   void SetUp() override {
     for (size_t i = 0; i < host.size(); ++i) host[i] = uint8_t(i);
-    map.addMemory({0x10, 8192, 0, VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT, host.data()});
-    map.addBuffer({kGeometry, 4096, 0, 0, 0, 0, 0});
-    map.bindBuffer(kGeometry, 0x10, 0);
-    map.addBuffer({kInstances, 1024, 0, 0, 0, 0, 0});
-    map.bindBuffer(kInstances, 0x10, 4096);
+    map.add_memory({0x10, 8192, 0, VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT, host.data()});
+    map.add_buffer({kGeometry, 4096, 0, 0, 0, 0, 0});
+    map.bind_buffer(kGeometry, 0x10, 0);
+    map.add_buffer({kInstances, 1024, 0, 0, 0, 0, 0});
+    map.bind_buffer(kInstances, 0x10, 4096);
   }
   BufferMemoryReader reader() {
     return [this](uint64_t buffer, VkDeviceSize offset, uint64_t size, CapturedBytes* out, std::string& why) {
-      auto r = map.resolveBuffer(buffer, offset, size, why);
+      auto r = map.resolve_buffer(buffer, offset, size, why);
       if (!r) return false;
       if (out) out->assign(r->host, r->host + size);
       return true;
@@ -63,23 +63,23 @@ TEST_F(TwoBuffers, NVBuildCapturesVerticesIndicesTransformsAndInstances) {
   boxes.geometry.aabbs.stride = 32;
   boxes.geometry.aabbs.offset = 3000;
   c.geometries.push_back(boxes);
-  c.instanceData = kInstances;
-  c.instanceOffset = 64;
-  c.instanceCount = 2;
-  ClusterMemoryWalk walk = walkBuildAccelerationStructureNVInputs(c, reader());
+  c.instance_data = kInstances;
+  c.instance_offset = 64;
+  c.instance_count = 2;
+  ClusterMemoryWalk walk = walk_build_acceleration_structure_nv_inputs(c, reader());
   ASSERT_TRUE(walk.issues.empty()) << walk.issues[0].rule;
   ASSERT_EQ(walk.ranges.size(), 5u);
-  EXPECT_EQ(walk.ranges[0].role, MemoryRole::VertexBuffer);
-  EXPECT_EQ(walk.ranges[0].bufferOffset, 100u);
+  EXPECT_EQ(walk.ranges[0].role, MemoryRole::kVertexBuffer);
+  EXPECT_EQ(walk.ranges[0].buffer_offset, 100u);
   EXPECT_EQ(walk.ranges[0].bytes.size(), 2u * 16 + 12);
   EXPECT_EQ(walk.ranges[0].bytes[0], 100);
-  EXPECT_EQ(walk.ranges[1].role, MemoryRole::IndexBuffer);
+  EXPECT_EQ(walk.ranges[1].role, MemoryRole::kIndexBuffer);
   EXPECT_EQ(walk.ranges[1].bytes.size(), 12u);
-  EXPECT_EQ(walk.ranges[2].role, MemoryRole::TransformData);
+  EXPECT_EQ(walk.ranges[2].role, MemoryRole::kTransformData);
   EXPECT_EQ(walk.ranges[2].bytes.size(), 48u);
-  EXPECT_EQ(walk.ranges[3].role, MemoryRole::Aabbs);
+  EXPECT_EQ(walk.ranges[3].role, MemoryRole::kAabbs);
   EXPECT_EQ(walk.ranges[3].bytes.size(), 32u + 24);
-  EXPECT_EQ(walk.ranges[4].role, MemoryRole::Instances);
+  EXPECT_EQ(walk.ranges[4].role, MemoryRole::kInstances);
   EXPECT_EQ(walk.ranges[4].buffer, kInstances);
   EXPECT_EQ(walk.ranges[4].bytes.size(), 128u);
   EXPECT_EQ(walk.ranges[4].bytes[0], uint8_t(4096 + 64));
@@ -93,7 +93,7 @@ TEST_F(TwoBuffers, NVBuildRangesPastTheBufferAreIssues) {
   g.geometry.triangles.indexType = VK_INDEX_TYPE_NONE_NV;
   g.geometry.triangles.transformData = VK_NULL_HANDLE;
   c.geometries = {g};
-  ClusterMemoryWalk walk = walkBuildAccelerationStructureNVInputs(c, reader());
+  ClusterMemoryWalk walk = walk_build_acceleration_structure_nv_inputs(c, reader());
   ASSERT_EQ(walk.issues.size(), 1u);
   EXPECT_NE(walk.issues[0].rule.find("runs past the end of buffer 0x21"), std::string::npos) << walk.issues[0].rule;
   EXPECT_TRUE(walk.ranges.empty());
@@ -113,14 +113,14 @@ TEST(AccelerationStructureWalker, CopyMemoryReadsTheSizeTheHeaderStates) {
   };
   CopyMemoryToAccelerationStructureCommand c;
   c.src = 0x1000;
-  ClusterMemoryWalk walk = walkCopyMemoryToAccelerationStructureInputs(c, read);
+  ClusterMemoryWalk walk = walk_copy_memory_to_acceleration_structure_inputs(c, read);
   ASSERT_TRUE(walk.issues.empty());
   ASSERT_EQ(walk.ranges.size(), 1u);
   EXPECT_EQ(walk.ranges[0].bytes.size(), 300u);
 
   const uint64_t hostile = uint64_t(1) << 62;
   std::memcpy(serialized.data() + 2 * VK_UUID_SIZE, &hostile, 8);
-  walk = walkCopyMemoryToAccelerationStructureInputs(c, read);
+  walk = walk_copy_memory_to_acceleration_structure_inputs(c, read);
   ASSERT_EQ(walk.issues.size(), 1u);
   EXPECT_NE(walk.issues[0].rule.find("claims"), std::string::npos);
   ASSERT_EQ(walk.ranges.size(), 1u);

@@ -137,7 +137,7 @@ TEST_F(CaptureCostReport, NoReportUnlessAsked) {
 
 TEST(CaptureCostSetting, ParsesAndRejectsByName) {
   auto parse = [](const char* value) {
-    return clastrace::capture::parseLayerConfig(
+    return clastrace::capture::parse_layer_config(
         [value](const char* name) -> const char* { return std::string(name) == "CLASTRACE_STATS" ? value : nullptr; });
   };
   EXPECT_FALSE(parse(nullptr).stats);
@@ -153,9 +153,9 @@ TEST(CaptureCostSetting, ParsesAndRejectsByName) {
 // sink's and the compressor's threads leave it; `app` keeps them there; a list is obeyed. The
 // line reads back what the kernel gave the sink's thread, not what was asked.
 TEST_F(CaptureCostReport, BackgroundThreadsGoWhereTheSettingSays) {
-  const std::vector<unsigned> online = clastrace::capture::onlineCpus();
+  const std::vector<unsigned> online = clastrace::capture::online_cpus();
   if (online.size() < 2 || online[0] != 0) GTEST_SKIP() << "needs CPU 0 and another online CPU";
-  const std::string others = clastrace::capture::formatCpuList({online.begin() + 1, online.end()});
+  const std::string others = clastrace::capture::format_cpu_list({online.begin() + 1, online.end()});
   const std::string last = std::to_string(online.back());
   auto placementLine = [&](const char* setting) {
     std::map<std::string, std::string> env{{"CLASTRACE_OUTPUT", (dir / "placed.clt").string()}, {"CLASTRACE_STATS", "1"}};

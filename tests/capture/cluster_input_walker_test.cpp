@@ -64,7 +64,7 @@ ClusterCommandParameters triangleBuild(uint32_t maxCount, uint64_t stride, uint6
   info.srcInfosCount = kCount;
   info.dstAddressesArray = {kDst, 0, 0};
   info.dstSizesArray = {kSizes, 0, 0};
-  return ClusterCommandParameters::copyOf(info);
+  return ClusterCommandParameters::copy_of(info);
 }
 
 std::vector<const CapturedRange*> rangesOf(const ClusterMemoryWalk& walk, MemoryRole role) {
@@ -107,22 +107,22 @@ struct TwoClusters : ::testing::Test {
 }  // namespace
 
 TEST_F(TwoClusters, FollowsEveryPointerWithExactRanges) {
-  ClusterMemoryWalk walk = walkClusterInputs(triangleBuild(3, 96, 3 * 96), memory.reader());
+  ClusterMemoryWalk walk = walk_cluster_inputs(triangleBuild(3, 96, 3 * 96), memory.reader());
   EXPECT_TRUE(walk.issues.empty()) << walk.issues[0].rule;
-  EXPECT_EQ(walk.executedCount, 2u);
+  EXPECT_EQ(walk.executed_count, 2u);
 
-  auto count = rangesOf(walk, MemoryRole::SrcInfosCount);
+  auto count = rangesOf(walk, MemoryRole::kSrcInfosCount);
   ASSERT_EQ(count.size(), 1u);
   EXPECT_EQ(count[0]->bytes, (std::vector<uint8_t>{2, 0, 0, 0}));
 
-  auto infos = rangesOf(walk, MemoryRole::SrcInfos);  // stride 96 > 64: one range per entry
+  auto infos = rangesOf(walk, MemoryRole::kSrcInfos);  // stride 96 > 64: one range per entry
   ASSERT_EQ(infos.size(), 2u);
   EXPECT_EQ(infos[0]->address, kInfos);
   EXPECT_EQ(infos[1]->address, kInfos + 96);
   EXPECT_EQ(infos[1]->bytes.size(), 64u);
   EXPECT_EQ(0, std::memcmp(infos[1]->bytes.data(), &cluster[1], 64));
 
-  auto indices = rangesOf(walk, MemoryRole::IndexBuffer);
+  auto indices = rangesOf(walk, MemoryRole::kIndexBuffer);
   ASSERT_EQ(indices.size(), 4u);  // cluster 0 packed (1 range), cluster 1 strided (3 ranges)
   EXPECT_EQ(indices[0]->address, kIndices);
   EXPECT_EQ(indices[0]->bytes.size(), 12u);  // 2 triangles * 3 * 2 bytes
@@ -131,37 +131,37 @@ TEST_F(TwoClusters, FollowsEveryPointerWithExactRanges) {
   EXPECT_EQ(indices[2]->address, kIndices + 108);
   EXPECT_EQ(indices[3]->bytes, (std::vector<uint8_t>{116, 117, 118, 119}));
 
-  auto vertices = rangesOf(walk, MemoryRole::VertexBuffer);
+  auto vertices = rangesOf(walk, MemoryRole::kVertexBuffer);
   ASSERT_EQ(vertices.size(), 4u);
   EXPECT_EQ(vertices[0]->bytes.size(), 48u);
   EXPECT_EQ(vertices[3]->address, kVertices + 256 + 32);
   EXPECT_EQ(vertices[3]->bytes.size(), 12u);
 
-  auto geometry = rangesOf(walk, MemoryRole::GeometryIndexAndFlags);
+  auto geometry = rangesOf(walk, MemoryRole::kGeometryIndexAndFlags);
   ASSERT_EQ(geometry.size(), 1u);
   EXPECT_EQ(geometry[0]->bytes.size(), 8u);
 }
 
 TEST_F(TwoClusters, CountIsTheMinimumOfMemoryAndMaximum) {
-  ClusterMemoryWalk walk = walkClusterInputs(triangleBuild(1, 96, 0), memory.reader());
-  EXPECT_EQ(walk.executedCount, 1u);
+  ClusterMemoryWalk walk = walk_cluster_inputs(triangleBuild(1, 96, 0), memory.reader());
+  EXPECT_EQ(walk.executed_count, 1u);
   ASSERT_EQ(walk.issues.size(), 1u);
   EXPECT_NE(walk.issues[0].rule.find("VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-10453"),
             std::string::npos);
-  EXPECT_EQ(rangesOf(walk, MemoryRole::SrcInfos).size(), 1u);
+  EXPECT_EQ(rangesOf(walk, MemoryRole::kSrcInfos).size(), 1u);
 }
 
 TEST_F(TwoClusters, NullCountAddressMeansTheMaximum) {
   ClusterCommandParameters p = triangleBuild(2, 96, 0);
   p.info.srcInfosCount = 0;
-  ClusterMemoryWalk walk = walkClusterInputs(p, memory.reader());
-  EXPECT_EQ(walk.executedCount, 2u);
-  EXPECT_TRUE(rangesOf(walk, MemoryRole::SrcInfosCount).empty());
+  ClusterMemoryWalk walk = walk_cluster_inputs(p, memory.reader());
+  EXPECT_EQ(walk.executed_count, 2u);
+  EXPECT_TRUE(rangesOf(walk, MemoryRole::kSrcInfosCount).empty());
 }
 
 TEST_F(TwoClusters, TooSmallSrcInfosArrayIsReportedAndClamped) {
-  ClusterMemoryWalk walk = walkClusterInputs(triangleBuild(3, 96, 96), memory.reader());
-  EXPECT_EQ(walk.executedCount, 1u);
+  ClusterMemoryWalk walk = walk_cluster_inputs(triangleBuild(3, 96, 96), memory.reader());
+  EXPECT_EQ(walk.executed_count, 1u);
   ASSERT_FALSE(walk.issues.empty());
   EXPECT_NE(walk.issues[0].rule.find("pCommandInfos-10454"), std::string::npos) << walk.issues[0].rule;
 }
@@ -170,17 +170,17 @@ TEST_F(TwoClusters, BadIndexTypeAndUnmappedVerticesAreIssuesNotCrashes) {
   cluster[1].indexType = 3;  // two bits
   cluster[1].vertexBuffer = 0xDEAD0000;
   memory.put(kInfos + 96, cluster[1]);
-  ClusterMemoryWalk walk = walkClusterInputs(triangleBuild(3, 96, 0), memory.reader());
+  ClusterMemoryWalk walk = walk_cluster_inputs(triangleBuild(3, 96, 0), memory.reader());
   ASSERT_EQ(walk.issues.size(), 2u);
   EXPECT_NE(walk.issues[0].rule.find("indexType 3"), std::string::npos) << walk.issues[0].rule;
   EXPECT_NE(walk.issues[1].rule.find("vertexBuffer"), std::string::npos) << walk.issues[1].rule;
   EXPECT_EQ(walk.issues[1].address, 0xDEAD0000u);
-  EXPECT_EQ(rangesOf(walk, MemoryRole::IndexBuffer).size(), 1u);  // cluster 0's are still there
+  EXPECT_EQ(rangesOf(walk, MemoryRole::kIndexBuffer).size(), 1u);  // cluster 0's are still there
 }
 
 TEST_F(TwoClusters, HostileCountDoesNotReadPastMemory) {
   memory.put(kCount, uint32_t(0xFFFFFFFF));
-  ClusterMemoryWalk walk = walkClusterInputs(triangleBuild(0xFFFFFFFF, 0, 0), memory.reader());
+  ClusterMemoryWalk walk = walk_cluster_inputs(triangleBuild(0xFFFFFFFF, 0, 0), memory.reader());
   EXPECT_FALSE(walk.issues.empty());
   EXPECT_LT(memory.bytesRead, 1u << 20);
 }
@@ -191,9 +191,9 @@ TEST_F(TwoClusters, IndirectCountIsFollowedThroughItsAddress) {
   ClusterCommandParameters p = triangleBuild(3, 96, 0);
   p.info.srcInfosCount = 0xA0000;
   p.info.addressResolutionFlags = VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_SRC_INFOS_COUNT_BIT_NV;
-  ClusterMemoryWalk walk = walkClusterInputs(p, memory.reader());
-  EXPECT_EQ(walk.executedCount, 2u);
-  EXPECT_EQ(rangesOf(walk, MemoryRole::IndirectAddress).size(), 1u);
+  ClusterMemoryWalk walk = walk_cluster_inputs(p, memory.reader());
+  EXPECT_EQ(walk.executed_count, 2u);
+  EXPECT_EQ(rangesOf(walk, MemoryRole::kIndirectAddress).size(), 1u);
 }
 
 TEST(ClusterInputWalker, TemplateBoundsAndBottomLevelReferences) {
@@ -212,21 +212,21 @@ TEST(ClusterInputWalker, TemplateBoundsAndBottomLevelReferences) {
   ClusterCommandParameters p = triangleBuild(1, 0, 0);
   p.info.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV;
   p.info.srcInfosCount = 0;
-  ClusterMemoryWalk walk = walkClusterInputs(p, memory.reader());
+  ClusterMemoryWalk walk = walk_cluster_inputs(p, memory.reader());
   EXPECT_TRUE(walk.issues.empty());
-  EXPECT_EQ(rangesOf(walk, MemoryRole::SrcInfos)[0]->bytes.size(), 72u);
-  ASSERT_EQ(rangesOf(walk, MemoryRole::InstantiationBoundingBox).size(), 1u);
-  EXPECT_EQ(rangesOf(walk, MemoryRole::InstantiationBoundingBox)[0]->bytes.size(), 24u);
-  EXPECT_EQ(rangesOf(walk, MemoryRole::IndexBuffer)[0]->bytes.size(), 3u);
-  EXPECT_TRUE(rangesOf(walk, MemoryRole::VertexBuffer).empty());
+  EXPECT_EQ(rangesOf(walk, MemoryRole::kSrcInfos)[0]->bytes.size(), 72u);
+  ASSERT_EQ(rangesOf(walk, MemoryRole::kInstantiationBoundingBox).size(), 1u);
+  EXPECT_EQ(rangesOf(walk, MemoryRole::kInstantiationBoundingBox)[0]->bytes.size(), 24u);
+  EXPECT_EQ(rangesOf(walk, MemoryRole::kIndexBuffer)[0]->bytes.size(), 3u);
+  EXPECT_TRUE(rangesOf(walk, MemoryRole::kVertexBuffer).empty());
 
   VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV blas{3, 16, kRefs};
   memory.put(kInfos, blas);
   ClusterCommandParameters b = triangleBuild(1, 0, 0);
   b.info.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
   b.info.srcInfosCount = 0;
-  walk = walkClusterInputs(b, memory.reader());
-  auto refs = rangesOf(walk, MemoryRole::ClusterReferences);
+  walk = walk_cluster_inputs(b, memory.reader());
+  auto refs = rangesOf(walk, MemoryRole::kClusterReferences);
   ASSERT_EQ(refs.size(), 3u);
   EXPECT_EQ(refs[2]->address, kRefs + 32);
   EXPECT_EQ(refs[2]->bytes.size(), 8u);
@@ -251,7 +251,7 @@ TEST(ClusterInputWalker, InstantiationVerticesAreSizedByTheirTemplate) {
   ClusterCommandParameters t = triangleBuild(2, 0, 0);
   t.info.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV;
   t.info.srcInfosCount = 0;
-  EXPECT_EQ(walkClusterInputs(t, memory.reader()).templateVertexCounts, (std::vector<uint32_t>{3, 5}));
+  EXPECT_EQ(walk_cluster_inputs(t, memory.reader()).template_vertex_counts, (std::vector<uint32_t>{3, 5}));
 
   // Two instantiations of template 0xA000 (5 vertices): packed, and 32 bytes apart.
   VkClusterAccelerationStructureInstantiateClusterInfoNV instance[2]{};
@@ -265,7 +265,7 @@ TEST(ClusterInputWalker, InstantiationVerticesAreSizedByTheirTemplate) {
   p.info.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV;
   p.info.srcInfosCount = 0;
   std::vector<VkDeviceAddress> asked;
-  ClusterMemoryWalk walk = walkClusterInputs(p, memory.reader(), [&](VkDeviceAddress a, uint32_t* vertices) {
+  ClusterMemoryWalk walk = walk_cluster_inputs(p, memory.reader(), [&](VkDeviceAddress a, uint32_t* vertices) {
     asked.push_back(a);
     if (a != 0xA000) return false;
     *vertices = 5;
@@ -273,7 +273,7 @@ TEST(ClusterInputWalker, InstantiationVerticesAreSizedByTheirTemplate) {
   });
   EXPECT_TRUE(walk.issues.empty());
   EXPECT_EQ(asked, (std::vector<VkDeviceAddress>{0xA000, 0xA000}));
-  auto vertices = rangesOf(walk, MemoryRole::VertexBuffer);
+  auto vertices = rangesOf(walk, MemoryRole::kVertexBuffer);
   ASSERT_EQ(vertices.size(), 6u);  // one packed span, then five 12-byte elements 32 apart
   EXPECT_EQ(vertices[0]->address, kVertices);
   EXPECT_EQ(vertices[0]->bytes.size(), 60u);
@@ -282,8 +282,8 @@ TEST(ClusterInputWalker, InstantiationVerticesAreSizedByTheirTemplate) {
   EXPECT_EQ(vertices[5]->entry, 1u);
 
   // A template the layer never saw built: an issue naming the entry, no guessed length.
-  walk = walkClusterInputs(p, memory.reader(), [](VkDeviceAddress, uint32_t*) { return false; });
-  EXPECT_TRUE(rangesOf(walk, MemoryRole::VertexBuffer).empty());
+  walk = walk_cluster_inputs(p, memory.reader(), [](VkDeviceAddress, uint32_t*) { return false; });
+  EXPECT_TRUE(rangesOf(walk, MemoryRole::kVertexBuffer).empty());
   ASSERT_EQ(walk.issues.size(), 2u);
   EXPECT_NE(walk.issues[0].rule.find("vertexBuffer of srcInfosArray entry 0 not captured"), std::string::npos)
       << walk.issues[0].rule;
@@ -298,13 +298,13 @@ TEST(ClusterInputWalker, OutputsReadAddressesSizesAndTheObjects) {
   memory.put(kDst + 8, VkDeviceAddress(kObjects + 1024));
   memory.put(kSizes, uint32_t(256));
   memory.put(kSizes + 4, uint32_t(512));
-  ClusterMemoryWalk walk = walkClusterOutputs(triangleBuild(2, 0, 0), 2, memory.reader());
+  ClusterMemoryWalk walk = walk_cluster_outputs(triangleBuild(2, 0, 0), 2, memory.reader());
   EXPECT_TRUE(walk.issues.empty());
-  auto objects = rangesOf(walk, MemoryRole::DstObject);
+  auto objects = rangesOf(walk, MemoryRole::kDstObject);
   ASSERT_EQ(objects.size(), 2u);
   EXPECT_EQ(objects[1]->address, kObjects + 1024);
   EXPECT_EQ(objects[1]->bytes.size(), 512u);
-  EXPECT_EQ(rangesOf(walk, MemoryRole::DstAddresses)[0]->bytes.size(), 16u);
+  EXPECT_EQ(rangesOf(walk, MemoryRole::kDstAddresses)[0]->bytes.size(), 16u);
 }
 
 // Deterministic random mutation of the entries: the walker must neither crash nor read more
@@ -333,7 +333,7 @@ TEST(ClusterInputWalker, RandomEntriesNeverEscapeTheRegions) {
     memory.put(kCount, uint32_t(random() % 200));
     ClusterCommandParameters p = triangleBuild(uint32_t(random() % 300), (random() % 4) * 32, random() % 2 ? 0 : 8192);
     p.info.input.opType = ops[random() % 6];
-    ClusterMemoryWalk walk = walkClusterInputs(p, memory.reader());
+    ClusterMemoryWalk walk = walk_cluster_inputs(p, memory.reader());
     uint64_t total = 0;
     for (const auto& r : walk.ranges) total += r.bytes.size();
     EXPECT_LE(total, kMaxCapturedBytesPerCommand);

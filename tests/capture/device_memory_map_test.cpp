@@ -11,11 +11,11 @@ struct MapWithOneBuffer : ::testing::Test {
   DeviceMemoryMap map;
   void SetUp() override {
     for (size_t i = 0; i < hostMemory.size(); ++i) hostMemory[i] = uint8_t(i * 7);
-    map.addMemory({0x10, 4096, 1, VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT,
+    map.add_memory({0x10, 4096, 1, VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT,
                    hostMemory.data()});
-    map.addBuffer({0x20, 1024, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, 0, 0, 0, 0});
-    map.bindBuffer(0x20, 0x10, 512);
-    map.setBufferAddress(0x20, 0x100000);
+    map.add_buffer({0x20, 1024, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, 0, 0, 0, 0});
+    map.bind_buffer(0x20, 0x10, 512);
+    map.set_buffer_address(0x20, 0x100000);
   }
 };
 
@@ -26,7 +26,7 @@ TEST_F(MapWithOneBuffer, ResolvesAddressToBufferOffsetAndHostBytes) {
   auto r = map.resolve(0x100010, 16, why);
   ASSERT_TRUE(r) << why;
   EXPECT_EQ(r->buffer.handle, 0x20u);
-  EXPECT_EQ(r->offsetInBuffer, 0x10u);
+  EXPECT_EQ(r->offset_in_buffer, 0x10u);
   EXPECT_EQ(r->memory.handle, 0x10u);
   EXPECT_EQ(r->host, hostMemory.data() + 512 + 16);
   std::vector<uint8_t> bytes;
@@ -51,19 +51,19 @@ TEST_F(MapWithOneBuffer, UnknownAndWrappingAddressesNameTheAddress) {
 
 TEST_F(MapWithOneBuffer, DestroyedBufferAndFreedMemoryStopResolving) {
   std::string why;
-  map.removeMemory(0x10);
+  map.remove_memory(0x10);
   EXPECT_FALSE(map.resolve(0x100000, 4, why));
-  map.addMemory({0x10, 4096, 1, VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT, hostMemory.data()});
+  map.add_memory({0x10, 4096, 1, VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT, hostMemory.data()});
   EXPECT_TRUE(map.resolve(0x100000, 4, why));
-  map.removeBuffer(0x20);
+  map.remove_buffer(0x20);
   EXPECT_FALSE(map.resolve(0x100000, 4, why));
 }
 
 TEST_F(MapWithOneBuffer, AliasingBuffersAnyHoldingTheWholeRangeAnswers) {
   // A small buffer aliasing the start of the big one: a range beyond it still resolves.
-  map.addBuffer({0x21, 64, 0, 0, 0, 0, 0});
-  map.bindBuffer(0x21, 0x10, 512);
-  map.setBufferAddress(0x21, 0x100000);
+  map.add_buffer({0x21, 64, 0, 0, 0, 0, 0});
+  map.bind_buffer(0x21, 0x10, 512);
+  map.set_buffer_address(0x21, 0x100000);
   std::string why;
   auto r = map.resolve(0x100000, 512, why);
   ASSERT_TRUE(r) << why;
@@ -74,10 +74,10 @@ TEST_F(MapWithOneBuffer, AliasingBuffersAnyHoldingTheWholeRangeAnswers) {
 }
 
 TEST_F(MapWithOneBuffer, NonHostVisibleMemoryIsReportedNotRead) {
-  map.addMemory({0x11, 4096, 0, VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT, nullptr});
-  map.addBuffer({0x22, 256, 0, 0, 0, 0, 0});
-  map.bindBuffer(0x22, 0x11, 0);
-  map.setBufferAddress(0x22, 0x200000);
+  map.add_memory({0x11, 4096, 0, VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT, nullptr});
+  map.add_buffer({0x22, 256, 0, 0, 0, 0, 0});
+  map.bind_buffer(0x22, 0x11, 0);
+  map.set_buffer_address(0x22, 0x200000);
   std::string why;
   std::vector<uint8_t> bytes;
   EXPECT_FALSE(map.read(0x200000, 4, bytes, why));

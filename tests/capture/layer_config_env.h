@@ -10,7 +10,7 @@ namespace clastrace::capture::test {
 
 // Variables missing from `env` read as unset.
 inline LayerConfig parse(const std::map<std::string, std::string>& env) {
-  return parseLayerConfig([&](const char* name) -> const char* {
+  return parse_layer_config([&](const char* name) -> const char* {
     auto it = env.find(name);
     return it == env.end() ? nullptr : it->second.c_str();
   });

@@ -31,8 +31,8 @@ struct HostScene {
   HostScene() {
     served_scene::Commands sizing;
     served_scene::makeCommands({}, sizing);
-    EXPECT_TRUE(servedClusterBuildSizes(sizing.clusters.input, clusterSizes));
-    EXPECT_TRUE(servedClusterBuildSizes(sizing.blas.input, blasSizes));
+    EXPECT_TRUE(served_cluster_build_sizes(sizing.clusters.input, clusterSizes));
+    EXPECT_TRUE(served_cluster_build_sizes(sizing.blas.input, blasSizes));
     served_scene::Inputs probe = served_scene::makeInputs({});
     uint64_t next = 0x100000;
     auto add = [&](const char* name, uint64_t& address, uint64_t size, VkBufferUsageFlags usage) {
@@ -80,7 +80,7 @@ struct HostScene {
 }  // namespace
 
 TEST(ServedBuild, LimitsAreTheEngines) {
-  const auto served = servedClusterProperties();
+  const auto served = served_cluster_properties();
   const auto engine = engine::EngineProperties::nvidia_default().to_vk();
   EXPECT_EQ(served.sType, VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_PROPERTIES_NV);
   EXPECT_EQ(served.clusterByteAlignment, engine.clusterByteAlignment);
@@ -92,9 +92,9 @@ TEST(ServedBuild, LimitsAreTheEngines) {
 TEST(ServedBuild, BuildSizesAreTheEnginesAndHoldARealBuild) {
   HostScene scene;
   for (auto* command : {&scene.commands.clusters, &scene.commands.blas}) {
-    const engine::BuildSizes want = engine::cluster_build_sizes(command->input, servedEngineProperties());
+    const engine::BuildSizes want = engine::cluster_build_sizes(command->input, served_engine_properties());
     VkAccelerationStructureBuildSizesInfoKHR got{};
-    ASSERT_TRUE(servedClusterBuildSizes(command->input, got));
+    ASSERT_TRUE(served_cluster_build_sizes(command->input, got));
     EXPECT_EQ(got.accelerationStructureSize, want.acceleration_structure_size);
     EXPECT_EQ(got.buildScratchSize, want.build_scratch_size);
     EXPECT_EQ(got.updateScratchSize, 0u);
@@ -102,7 +102,7 @@ TEST(ServedBuild, BuildSizesAreTheEnginesAndHoldARealBuild) {
   engine::ObjectDirectory directory;
   for (auto [command, sizes] : {std::pair{&scene.commands.clusters, scene.clusterSizes},
                                 std::pair{&scene.commands.blas, scene.blasSizes}}) {
-    ServedExecution run = executeServedBuild(*command, scene.buffers, directory, servedEngineProperties());
+    ServedExecution run = execute_served_build(*command, scene.buffers, directory, served_engine_properties());
     ASSERT_TRUE(run.ran) << run.error;
     EXPECT_TRUE(run.record.findings.empty()) << run.record.findings[0].rule << ": " << run.record.findings[0].message;
     EXPECT_GT(run.record.implicit_bytes_used, 0u);
@@ -117,7 +117,7 @@ TEST(ServedBuild, RejectedInputAnswersZero) {
   input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
   VkAccelerationStructureBuildSizesInfoKHR sizes{};
   sizes.accelerationStructureSize = 5;
-  EXPECT_FALSE(servedClusterBuildSizes(input, sizes));  // no op input
+  EXPECT_FALSE(served_cluster_build_sizes(input, sizes));  // no op input
   EXPECT_EQ(sizes.accelerationStructureSize, 0u);
 }
 
@@ -134,16 +134,16 @@ TEST(ServedBuild, WritesBackExactlyWhatTheEngineWrote) {
   engine::ExecuteOptions options;
   options.directory = &direct;
   for (auto* command : {&scene.commands.clusters, &scene.commands.blas}) {
-    ServedExecution run = executeServedBuild(*command, scene.buffers, served, servedEngineProperties());
+    ServedExecution run = execute_served_build(*command, scene.buffers, served, served_engine_properties());
     ASSERT_TRUE(run.ran) << run.error;
-    EXPECT_EQ(run.writtenMemories, std::vector<uint64_t>{7});
+    EXPECT_EQ(run.written_memories, std::vector<uint64_t>{7});
     engine::execute(*command, image, options);
   }
   for (const ServedBuffer& b : scene.buffers) {
     auto want = image.read_bytes(b.address, b.size, {});
     EXPECT_EQ(std::memcmp(want.data(), b.host, b.size), 0) << "buffer " << b.buffer;
   }
-  const auto properties = servedClusterProperties();
+  const auto properties = served_cluster_properties();
   for (uint32_t i = 0; i < served_scene::kClusterCount; ++i) {
     const uint64_t address = scene.at<uint64_t>("dstAddresses", i);
     const uint32_t size = scene.at<uint32_t>("dstSizes", i);
@@ -168,7 +168,7 @@ TEST(ServedBuild, AliasedBuffersAreOneRegionAndAllReceiveTheWrites) {
   std::vector<uint8_t> alias(scene.bytes["dstSizes"]);
   scene.buffers.push_back({99, scene.a.dstSizes, alias.size(), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, alias.data(), 8});
   engine::ObjectDirectory directory;
-  ServedExecution run = executeServedBuild(scene.commands.clusters, scene.buffers, directory, servedEngineProperties());
+  ServedExecution run = execute_served_build(scene.commands.clusters, scene.buffers, directory, served_engine_properties());
   ASSERT_TRUE(run.ran) << run.error;
   EXPECT_TRUE(run.record.findings.empty());
   EXPECT_EQ(std::memcmp(alias.data(), scene.bytes["dstSizes"].data(), alias.size()), 0);
@@ -181,10 +181,10 @@ TEST(ServedBuild, MissingMemoryBecomesFindingsNotACrash) {
   HostScene scene;
   std::vector<ServedBuffer> none;
   engine::ObjectDirectory directory;
-  ServedExecution run = executeServedBuild(scene.commands.clusters, none, directory, servedEngineProperties());
+  ServedExecution run = execute_served_build(scene.commands.clusters, none, directory, served_engine_properties());
   ASSERT_TRUE(run.ran) << run.error;
   EXPECT_FALSE(run.record.findings.empty());
-  EXPECT_EQ(run.bytesWrittenBack, 0u);
+  EXPECT_EQ(run.bytes_written_back, 0u);
 }
 
 // Only the buffers the command reaches are copied: a large unrelated buffer is left alone, and
@@ -196,17 +196,17 @@ TEST(ServedBuild, CopiesOnlyTheBuffersTheCommandReaches) {
   uint64_t sceneBytes = 0;
   for (const auto& [name, bytes] : scene.bytes) sceneBytes += bytes.size();
   engine::ObjectDirectory directory;
-  ServedExecution clusters = executeServedBuild(scene.commands.clusters, scene.buffers, directory, servedEngineProperties());
+  ServedExecution clusters = execute_served_build(scene.commands.clusters, scene.buffers, directory, served_engine_properties());
   ASSERT_TRUE(clusters.ran) << clusters.error;
   EXPECT_TRUE(clusters.record.findings.empty());
   EXPECT_EQ(clusters.attempts, 1u);  // the pointer walk named the index and vertex buffers
-  EXPECT_LT(clusters.bytesCopiedIn, sceneBytes);
+  EXPECT_LT(clusters.bytes_copied_in, sceneBytes);
   // The bottom level: the walk names the reference array and the clusters it lists.
-  ServedExecution blas = executeServedBuild(scene.commands.blas, scene.buffers, directory, servedEngineProperties());
+  ServedExecution blas = execute_served_build(scene.commands.blas, scene.buffers, directory, served_engine_properties());
   ASSERT_TRUE(blas.ran) << blas.error;
   EXPECT_TRUE(blas.record.findings.empty()) << blas.record.findings[0].message;
   EXPECT_EQ(blas.attempts, 1u);
-  EXPECT_LT(blas.bytesCopiedIn, sceneBytes);
+  EXPECT_LT(blas.bytes_copied_in, sceneBytes);
   EXPECT_GT(scene.at<uint32_t>("blasDstSizes", 0), 0u);
   EXPECT_EQ(std::count(unrelated.begin(), unrelated.end(), 0x5A), long(unrelated.size()));
 }
@@ -219,10 +219,10 @@ TEST(ServedBuild, UnexplainedFindingsRunOverAllBuffers) {
   for (const auto& b : scene.buffers) allBytes += b.size;
   scene.commands.clusters.scratchData = 0;  // VUID-...-scratchData-12300
   engine::ObjectDirectory directory;
-  ServedExecution run = executeServedBuild(scene.commands.clusters, scene.buffers, directory, servedEngineProperties());
+  ServedExecution run = execute_served_build(scene.commands.clusters, scene.buffers, directory, served_engine_properties());
   ASSERT_TRUE(run.ran) << run.error;
   EXPECT_TRUE(engine::has_rule(run.record.findings, engine::kRuleScratchTooSmall));
-  EXPECT_EQ(run.bytesCopiedIn, allBytes);
+  EXPECT_EQ(run.bytes_copied_in, allBytes);
 }
 
 // What the walk does not follow (move sources) is found by running again: the first run's
@@ -230,7 +230,7 @@ TEST(ServedBuild, UnexplainedFindingsRunOverAllBuffers) {
 TEST(ServedBuild, BuffersTheWalkMissesAreFoundByRunningAgain) {
   HostScene scene;
   engine::ObjectDirectory directory;
-  ASSERT_TRUE(executeServedBuild(scene.commands.clusters, scene.buffers, directory, servedEngineProperties()).ran);
+  ASSERT_TRUE(execute_served_build(scene.commands.clusters, scene.buffers, directory, served_engine_properties()).ran);
   const uint64_t source = scene.at<uint64_t>("dstAddresses", 1);
   const uint32_t sourceSize = scene.at<uint32_t>("dstSizes", 1);
 
@@ -247,7 +247,7 @@ TEST(ServedBuild, BuffersTheWalkMissesAreFoundByRunningAgain) {
   move.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
   move.input.opInput.pMoveObjects = &moveInput;
   VkAccelerationStructureBuildSizesInfoKHR sizes{};
-  ASSERT_TRUE(servedClusterBuildSizes(move.input, sizes));
+  ASSERT_TRUE(served_cluster_build_sizes(move.input, sizes));
   std::vector<uint8_t> info(8), count(4), dstAddress(8), dstSize(4), dst(sizes.accelerationStructureSize),
       scratch(std::max<uint64_t>(sizes.buildScratchSize, 16));
   std::memcpy(info.data(), &source, 8);
@@ -268,7 +268,7 @@ TEST(ServedBuild, BuffersTheWalkMissesAreFoundByRunningAgain) {
   move.dstImplicitData = 0x7400000;
   move.scratchData = 0x7500000;
 
-  ServedExecution run = executeServedBuild(move, buffers, directory, servedEngineProperties());
+  ServedExecution run = execute_served_build(move, buffers, directory, served_engine_properties());
   ASSERT_TRUE(run.ran) << run.error;
   EXPECT_TRUE(run.record.findings.empty()) << run.record.findings[0].message;
   EXPECT_EQ(run.attempts, 2u);
@@ -291,12 +291,12 @@ TEST(ServedBuild, RegionPoolReusesBytesAndNeverLeaksStaleOnes) {
       for (size_t i = 0; i < scene->bytes["vertices"].size() / 4; i += 3) v[i] += 0.25f * float(frame + 1);
     }
     for (auto command : {&served_scene::Commands::clusters, &served_scene::Commands::blas}) {
-      const uint64_t heldBefore = pool->heldBytes();
+      const uint64_t heldBefore = pool->held_bytes();
       ServedMemory memory(pooled.buffers, pool);
       // (0: the completion walks no more entries than the engine ran)
       ServedExecution a =
-          executeServedBuild(pooled.commands.*command, memory, pooledDirectory, servedEngineProperties(), nullptr, 0u);
-      ServedExecution b = executeServedBuild(plain.commands.*command, plain.buffers, plainDirectory, servedEngineProperties());
+          execute_served_build(pooled.commands.*command, memory, pooledDirectory, served_engine_properties(), nullptr, 0u);
+      ServedExecution b = execute_served_build(plain.commands.*command, plain.buffers, plainDirectory, served_engine_properties());
       ASSERT_TRUE(a.ran && b.ran) << a.error << b.error;
       if (command == &served_scene::Commands::clusters) {
         // The inputs went back to the pool as the build ended, while its image lives on for the
@@ -306,17 +306,17 @@ TEST(ServedBuild, RegionPoolReusesBytesAndNeverLeaksStaleOnes) {
         EXPECT_NE(b.image->find_region(plain.a.vertices), nullptr) << "frame " << frame;
         EXPECT_NE(a.image->find_region(pooled.a.implicitData), nullptr) << "frame " << frame;
         EXPECT_NE(a.image->find_region(pooled.a.dstSizes), nullptr) << "frame " << frame;
-        EXPECT_GE(pool->heldBytes(), pooled.bytes["vertices"].size() + pooled.bytes["indices"].size());
+        EXPECT_GE(pool->held_bytes(), pooled.bytes["vertices"].size() + pooled.bytes["indices"].size());
         if (frame > 0) {
-          EXPECT_LE(pool->heldBytes(), heldBefore) << "frame " << frame << ": fresh bytes taken";
+          EXPECT_LE(pool->held_bytes(), heldBefore) << "frame " << frame << ": fresh bytes taken";
         }
       }
     }  // the images go back to the pool here
     for (const char* name : {"implicitData", "dstAddresses", "dstSizes", "blasImplicit", "blasDstSizes"})
       EXPECT_EQ(pooled.bytes[name], plain.bytes[name]) << name << ", frame " << frame;
   }
-  EXPECT_GT(pool->heldBytes(), 0u);
-  EXPECT_LE(pool->heldBytes(), ServedRegionPool::kMaxBytes);
+  EXPECT_GT(pool->held_bytes(), 0u);
+  EXPECT_LE(pool->held_bytes(), ServedRegionPool::kMaxBytes);
 }
 
 TEST(ServedBuild, RegionPoolMatchesExactSizesAndStaysBounded) {
@@ -326,11 +326,11 @@ TEST(ServedBuild, RegionPoolMatchesExactSizesAndStaysBounded) {
   given.emplace_back(8192);
   given.emplace_back(ServedRegionPool::kMaxBytes);  // does not fit beside the first
   pool.give(std::move(given));
-  EXPECT_EQ(pool.heldBytes(), 8192u);
+  EXPECT_EQ(pool.held_bytes(), 8192u);
   EXPECT_TRUE(pool.take(4096).empty());
   engine::RegionBytes back = pool.take(8192);
   EXPECT_EQ(back.size(), 8192u);
-  EXPECT_EQ(pool.heldBytes(), 0u);
+  EXPECT_EQ(pool.held_bytes(), 0u);
 }
 
 // The capture's walk and the served build read through one copy: a read copies the buffer's
@@ -344,19 +344,19 @@ TEST(ServedBuild, ServedMemoryCopiesAGroupOnFirstRead) {
   };
   ServedMemory memory(buffers);
   ASSERT_EQ(memory.groups().size(), 2u);
-  EXPECT_EQ(memory.bytesCopied(), 0u);
+  EXPECT_EQ(memory.bytes_copied(), 0u);
   const uint8_t* p = memory.read(0x10000, 16);
   ASSERT_NE(p, nullptr);
   EXPECT_EQ(p[0], 1);
-  EXPECT_EQ(memory.bytesCopied(), 8192u);  // both buffers of the group, once
+  EXPECT_EQ(memory.bytes_copied(), 8192u);  // both buffers of the group, once
   EXPECT_EQ(memory.read(0x10800, 16)[0], 2);  // the later buffer's bytes where they alias
-  EXPECT_EQ(memory.bytesCopied(), 8192u);
+  EXPECT_EQ(memory.bytes_copied(), 8192u);
   EXPECT_FALSE(memory.copied(1));
   EXPECT_EQ(memory.read(0x40000 + 90, 20), nullptr);  // runs past the buffer
   EXPECT_EQ(memory.read(0x30000, 4), nullptr);
-  EXPECT_EQ(memory.bufferHolding(0x10900, 16)->buffer, 2u);
-  EXPECT_EQ(memory.bufferHolding(0x10100, 16)->buffer, 1u);
-  EXPECT_EQ(memory.bufferHolding(0x107F8, 16)->buffer, 1u);  // only the first holds all of it
+  EXPECT_EQ(memory.buffer_holding(0x10900, 16)->buffer, 2u);
+  EXPECT_EQ(memory.buffer_holding(0x10100, 16)->buffer, 1u);
+  EXPECT_EQ(memory.buffer_holding(0x107F8, 16)->buffer, 1u);  // only the first holds all of it
 
   // A small buffer inside a large one: past its end only the large one holds a range (the
   // small one's end minus the address must not wrap into "holds").
@@ -364,8 +364,8 @@ TEST(ServedBuild, ServedMemoryCopiesAGroupOnFirstRead) {
   const std::vector<ServedBuffer> nested = {{1, 0x100000, 0x10000, 0, large.data(), 7, true},
                                             {2, 0x100800, 0x100, 0, small.data(), 7, true}};
   ServedMemory inside(nested);
-  EXPECT_EQ(inside.bufferHolding(0x105000, 16)->buffer, 1u);
-  EXPECT_EQ(inside.bufferHolding(0x100810, 16)->buffer, 2u);
+  EXPECT_EQ(inside.buffer_holding(0x105000, 16)->buffer, 1u);
+  EXPECT_EQ(inside.buffer_holding(0x100810, 16)->buffer, 2u);
   EXPECT_EQ(inside.read(0x100810, 4)[0], 5);
   EXPECT_EQ(inside.read(0x105000, 4)[0], 4);  // after a read of the small one (the cached buffer)
   EXPECT_EQ(inside.read(0x10F000, 0x2000), nullptr);
@@ -378,32 +378,32 @@ TEST(ServedBuild, CompletedRecordHoldsTheWrittenOutputsNamedByThePausesBuffers) 
   HostScene scene;
   ServedMemory memory(scene.buffers);
   engine::ObjectDirectory directory;
-  ServedExecution run = executeServedBuild(scene.commands.clusters, memory, directory, servedEngineProperties(),
+  ServedExecution run = execute_served_build(scene.commands.clusters, memory, directory, served_engine_properties(),
                                            nullptr, served_scene::kClusterCount);
   ASSERT_TRUE(run.ran) << run.error;
   ClusterBuildCapture record;
-  record.executedCount = served_scene::kClusterCount;
-  record.inputs.push_back({MemoryRole::VertexBuffer, 0, scene.a.vertices + 12, {1, 2, 3}});
-  record.inputs.push_back({MemoryRole::VertexBuffer, 0, 0x7FFF0000, {4}});  // in no buffer
-  const ClusterCommandParameters parameters = ClusterCommandParameters::copyOf(scene.commands.clusters);
-  completeServedRecord(record, run.image, parameters, memory);
+  record.executed_count = served_scene::kClusterCount;
+  record.inputs.push_back({MemoryRole::kVertexBuffer, 0, scene.a.vertices + 12, {1, 2, 3}});
+  record.inputs.push_back({MemoryRole::kVertexBuffer, 0, 0x7FFF0000, {4}});  // in no buffer
+  const ClusterCommandParameters parameters = ClusterCommandParameters::copy_of(scene.commands.clusters);
+  complete_served_record(record, run.image, parameters, memory);
   EXPECT_TRUE(record.issues.empty()) << record.issues[0].rule;
   EXPECT_EQ(record.inputs[0].buffer, 1u);  // "vertices", the scene's first buffer
-  EXPECT_EQ(record.inputs[0].bufferOffset, 12u);
+  EXPECT_EQ(record.inputs[0].buffer_offset, 12u);
   EXPECT_EQ(record.inputs[1].buffer, 0u);
   std::map<MemoryRole, size_t> roles;
   for (const CapturedRange& r : record.outputs) {
     ++roles[r.role];
-    const ServedBuffer* holder = memory.bufferHolding(r.address, r.bytes.size());
-    ASSERT_NE(holder, nullptr) << memoryRoleName(r.role);
+    const ServedBuffer* holder = memory.buffer_holding(r.address, r.bytes.size());
+    ASSERT_NE(holder, nullptr) << memory_role_name(r.role);
     EXPECT_EQ(r.buffer, holder->buffer);
-    EXPECT_EQ(r.bufferOffset, r.address - holder->address);
-    EXPECT_EQ(std::memcmp(r.bytes.data(), holder->host + r.bufferOffset, r.bytes.size()), 0)
-        << memoryRoleName(r.role) << ": not what was written back";
+    EXPECT_EQ(r.buffer_offset, r.address - holder->address);
+    EXPECT_EQ(std::memcmp(r.bytes.data(), holder->host + r.buffer_offset, r.bytes.size()), 0)
+        << memory_role_name(r.role) << ": not what was written back";
   }
-  EXPECT_EQ(roles[MemoryRole::DstAddresses], 1u);
-  EXPECT_EQ(roles[MemoryRole::DstSizes], 1u);
-  EXPECT_EQ(roles[MemoryRole::DstObject], size_t(served_scene::kClusterCount));
+  EXPECT_EQ(roles[MemoryRole::kDstAddresses], 1u);
+  EXPECT_EQ(roles[MemoryRole::kDstSizes], 1u);
+  EXPECT_EQ(roles[MemoryRole::kDstObject], size_t(served_scene::kClusterCount));
 }
 
 // The completed outputs are views into the engine's image, not copies: they stay valid (and
@@ -418,30 +418,30 @@ TEST(ServedBuild, CompletedOutputsViewTheImageAndKeepItUntilTheRecordGoes) {
     ClusterBuildCapture record;
     {
       ServedMemory memory(scene.buffers, pool);
-      ServedExecution run = executeServedBuild(scene.commands.clusters, memory, directory, servedEngineProperties(),
+      ServedExecution run = execute_served_build(scene.commands.clusters, memory, directory, served_engine_properties(),
                                                nullptr, served_scene::kClusterCount);
       ASSERT_TRUE(run.ran) << run.error;
-      record.executedCount = served_scene::kClusterCount;
-      completeServedRecord(record, std::move(run.image), ClusterCommandParameters::copyOf(scene.commands.clusters),
+      record.executed_count = served_scene::kClusterCount;
+      complete_served_record(record, std::move(run.image), ClusterCommandParameters::copy_of(scene.commands.clusters),
                            memory);
     }  // the run, its memory and the caller's reference to the image are gone
-    poolWhileHeld = pool->heldBytes();
+    poolWhileHeld = pool->held_bytes();
     ASSERT_FALSE(record.outputs.empty());
     uint64_t viewed = 0;
     for (const CapturedRange& r : record.outputs) {
-      EXPECT_TRUE(r.bytes.isView()) << memoryRoleName(r.role);
-      EXPECT_EQ(r.bytes.ownedSize(), 0u);
+      EXPECT_TRUE(r.bytes.is_view()) << memory_role_name(r.role);
+      EXPECT_EQ(r.bytes.owned_size(), 0u);
       viewed += r.bytes.size();
       const ServedBuffer* holder = nullptr;
       for (const ServedBuffer& b : scene.buffers)
         if (b.buffer == r.buffer) holder = &b;
-      ASSERT_NE(holder, nullptr) << memoryRoleName(r.role);
-      EXPECT_EQ(std::memcmp(r.bytes.data(), holder->host + r.bufferOffset, r.bytes.size()), 0)
-          << memoryRoleName(r.role) << ": the view no longer shows what was written back";
+      ASSERT_NE(holder, nullptr) << memory_role_name(r.role);
+      EXPECT_EQ(std::memcmp(r.bytes.data(), holder->host + r.buffer_offset, r.bytes.size()), 0)
+          << memory_role_name(r.role) << ": the view no longer shows what was written back";
     }
     EXPECT_GT(viewed, 0u);
   }  // the record and with it the last view
-  EXPECT_GT(pool->heldBytes(), poolWhileHeld) << "the image did not return to the pool with the record";
+  EXPECT_GT(pool->held_bytes(), poolWhileHeld) << "the image did not return to the pool with the record";
 }
 
 // The capture's input walk views the image the engine then runs on. Where the build writes
@@ -462,29 +462,29 @@ TEST(ServedBuild, InputViewsTheBuildWritesOverKeepWhatItRead) {
     why = "not served";
     return false;
   };
-  ClusterMemoryWalk walk = walkClusterInputs(ClusterCommandParameters::copyOf(command), read);
+  ClusterMemoryWalk walk = walk_cluster_inputs(ClusterCommandParameters::copy_of(command), read);
   ASSERT_TRUE(walk.issues.empty()) << walk.issues[0].rule;
   engine::ObjectDirectory directory;
-  ServedExecution run = executeServedBuild(command, memory, directory, servedEngineProperties(), &walk.ranges,
-                                           walk.executedCount);
+  ServedExecution run = execute_served_build(command, memory, directory, served_engine_properties(), &walk.ranges,
+                                           walk.executed_count);
   ASSERT_TRUE(run.ran) << run.error;
   ASSERT_NE(scene.bytes["infos"], infosBefore) << "the build did not write over its src infos: nothing tested";
 
   size_t infos = 0, vertexViews = 0;
   for (const CapturedRange& r : walk.ranges) {
-    const std::vector<uint8_t>* before = r.role == MemoryRole::SrcInfos       ? &infosBefore
-                                         : r.role == MemoryRole::VertexBuffer ? &verticesBefore
+    const std::vector<uint8_t>* before = r.role == MemoryRole::kSrcInfos       ? &infosBefore
+                                         : r.role == MemoryRole::kVertexBuffer ? &verticesBefore
                                                                               : nullptr;
     if (!before) continue;
-    const uint64_t base = r.role == MemoryRole::SrcInfos ? scene.a.infos : scene.a.vertices;
+    const uint64_t base = r.role == MemoryRole::kSrcInfos ? scene.a.infos : scene.a.vertices;
     ASSERT_LE(r.address - base + r.bytes.size(), before->size());
     EXPECT_EQ(std::memcmp(r.bytes.data(), before->data() + (r.address - base), r.bytes.size()), 0)
-        << memoryRoleName(r.role) << " at +" << (r.address - base) << ": not what the build read";
-    if (r.role == MemoryRole::SrcInfos) {
+        << memory_role_name(r.role) << " at +" << (r.address - base) << ": not what the build read";
+    if (r.role == MemoryRole::kSrcInfos) {
       ++infos;
-      EXPECT_FALSE(r.bytes.isView()) << "a written-over range stayed a view";
+      EXPECT_FALSE(r.bytes.is_view()) << "a written-over range stayed a view";
     } else {
-      vertexViews += r.bytes.isView();
+      vertexViews += r.bytes.is_view();
     }
   }
   EXPECT_GT(infos, 0u);
@@ -508,21 +508,21 @@ TEST(ServedBuild, InputViewsKeepTheirGroupsInTheSharedImage) {
       why = "not served";
       return false;
     };
-    ClusterMemoryWalk walk = walkClusterInputs(ClusterCommandParameters::copyOf(scene.commands.clusters), read);
+    ClusterMemoryWalk walk = walk_cluster_inputs(ClusterCommandParameters::copy_of(scene.commands.clusters), read);
     ASSERT_TRUE(walk.issues.empty()) << walk.issues[0].rule;
-    memory.copy(memory.groupOf(scene.a.blasInfos));  // read, not viewed: the reduction drops it
+    memory.copy(memory.group_of(scene.a.blasInfos));  // read, not viewed: the reduction drops it
     engine::ObjectDirectory directory;
-    ServedExecution run = executeServedBuild(scene.commands.clusters, memory, directory, servedEngineProperties(),
-                                             &walk.ranges, walk.executedCount);
+    ServedExecution run = execute_served_build(scene.commands.clusters, memory, directory, served_engine_properties(),
+                                             &walk.ranges, walk.executed_count);
     ASSERT_TRUE(run.ran) << run.error;
     EXPECT_EQ(run.attempts, 1u);
-    for (const CapturedRange& r : walk.ranges) EXPECT_TRUE(r.bytes.views(run.image.get())) << memoryRoleName(r.role);
+    for (const CapturedRange& r : walk.ranges) EXPECT_TRUE(r.bytes.views(run.image.get())) << memory_role_name(r.role);
     EXPECT_NE(run.image->find_region(scene.a.vertices), nullptr);
     EXPECT_NE(run.image->find_region(scene.a.indices), nullptr);
     EXPECT_EQ(run.image->find_region(scene.a.blasInfos), nullptr);
     inputs = std::move(walk.ranges);
   }
-  const uint64_t whileViewed = pool->heldBytes();
+  const uint64_t whileViewed = pool->held_bytes();
   inputs.clear();
-  EXPECT_GE(pool->heldBytes(), whileViewed + scene.bytes["vertices"].size() + scene.bytes["indices"].size());
+  EXPECT_GE(pool->held_bytes(), whileViewed + scene.bytes["vertices"].size() + scene.bytes["indices"].size());
 }

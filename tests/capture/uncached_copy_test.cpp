@@ -14,7 +14,7 @@ TEST(UncachedCopy, EqualsMemcpyAtEverySizeAndAlignment) {
     for (size_t destinationOffset : {0, 1, 8, 15})
       for (size_t size : {0, 1, 15, 16, 63, 64, 255, 256, 257, 300, 1023, 1024, 4096, 4900}) {
         std::vector<uint8_t> destination(size + 32, 0xEE);
-        clastrace::capture::copyFromUncached(destination.data() + destinationOffset, source.data() + sourceOffset,
+        clastrace::capture::copy_from_uncached(destination.data() + destinationOffset, source.data() + sourceOffset,
                                              size);
         for (size_t i = 0; i < destinationOffset; ++i) ASSERT_EQ(destination[i], 0xEE) << "wrote before the start";
         ASSERT_TRUE(std::equal(source.begin() + sourceOffset, source.begin() + sourceOffset + size,

@@ -30,21 +30,21 @@ TEST(SharedPauseTracker, SecondQueueWaitsUntilEveryPauseIsHandledAndReset) {
   t.expected(kQueueA, kRelease1);
   t.expected(kQueueA, kRelease2);
   const std::vector<uint64_t> both{kRelease1, kRelease2};
-  EXPECT_TRUE(t.busyElsewhere(kQueueB, both, events.isReset()));
-  EXPECT_FALSE(t.busyElsewhere(kQueueA, both, events.isReset()));  // one queue: its order keeps them apart
-  EXPECT_FALSE(t.busyElsewhere(kQueueB, {kOther}, events.isReset()));  // other events: no conflict
+  EXPECT_TRUE(t.busy_elsewhere(kQueueB, both, events.isReset()));
+  EXPECT_FALSE(t.busy_elsewhere(kQueueA, both, events.isReset()));  // one queue: its order keeps them apart
+  EXPECT_FALSE(t.busy_elsewhere(kQueueB, {kOther}, events.isReset()));  // other events: no conflict
 
   t.released(kQueueA, kRelease1);
   events.set.insert(kRelease1);
-  EXPECT_TRUE(t.busyElsewhere(kQueueB, both, events.isReset()));  // second pause still to come
+  EXPECT_TRUE(t.busy_elsewhere(kQueueB, both, events.isReset()));  // second pause still to come
   events.set.erase(kRelease1);
   t.released(kQueueA, kRelease2);
   events.set.insert(kRelease2);
   // Every pause handled, but queue A has not reset the last release: a new execution would
   // pass its wait on it unobserved.
-  EXPECT_TRUE(t.busyElsewhere(kQueueB, both, events.isReset()));
+  EXPECT_TRUE(t.busy_elsewhere(kQueueB, both, events.isReset()));
   events.set.erase(kRelease2);
-  EXPECT_FALSE(t.busyElsewhere(kQueueB, both, events.isReset()));
+  EXPECT_FALSE(t.busy_elsewhere(kQueueB, both, events.isReset()));
   EXPECT_TRUE(t.empty());
 }
 
@@ -54,9 +54,9 @@ TEST(SharedPauseTracker, TwoPendingExecutionsOnOneQueueBothCount) {
   t.expected(kQueueA, kRelease1);
   t.expected(kQueueA, kRelease1);  // the command buffer listed twice
   t.released(kQueueA, kRelease1);
-  EXPECT_TRUE(t.busyElsewhere(kQueueB, {kRelease1}, events.isReset()));  // reset seen, one execution left
+  EXPECT_TRUE(t.busy_elsewhere(kQueueB, {kRelease1}, events.isReset()));  // reset seen, one execution left
   t.released(kQueueA, kRelease1);
-  EXPECT_FALSE(t.busyElsewhere(kQueueB, {kRelease1}, events.isReset()));
+  EXPECT_FALSE(t.busy_elsewhere(kQueueB, {kRelease1}, events.isReset()));
 }
 
 TEST(SharedPauseTracker, BothOtherQueuesMustFinish) {
@@ -66,9 +66,9 @@ TEST(SharedPauseTracker, BothOtherQueuesMustFinish) {
   t.expected(kQueueB, kRelease1);
   constexpr uint64_t kQueueC = 0xc;
   t.released(kQueueA, kRelease1);
-  EXPECT_TRUE(t.busyElsewhere(kQueueC, {kRelease1}, events.isReset()));  // B still pending
+  EXPECT_TRUE(t.busy_elsewhere(kQueueC, {kRelease1}, events.isReset()));  // B still pending
   t.released(kQueueB, kRelease1);
-  EXPECT_FALSE(t.busyElsewhere(kQueueC, {kRelease1}, events.isReset()));
+  EXPECT_FALSE(t.busy_elsewhere(kQueueC, {kRelease1}, events.isReset()));
 }
 
 TEST(SharedPauseTracker, ResetCommandBufferForgetsItsEvents) {
@@ -76,7 +76,7 @@ TEST(SharedPauseTracker, ResetCommandBufferForgetsItsEvents) {
   Events events;
   t.expected(kQueueA, kRelease1);
   t.forget(kRelease1);
-  EXPECT_FALSE(t.busyElsewhere(kQueueB, {kRelease1}, events.isReset()));
+  EXPECT_FALSE(t.busy_elsewhere(kQueueB, {kRelease1}, events.isReset()));
   EXPECT_TRUE(t.empty());
 }
 
@@ -85,7 +85,7 @@ TEST(SharedPauseTracker, ReleaseOfUnknownEventIsIgnored) {
   Events events;
   t.released(kQueueA, kRelease1);
   EXPECT_TRUE(t.empty());
-  EXPECT_FALSE(t.busyElsewhere(kQueueB, {kRelease1}, events.isReset()));
+  EXPECT_FALSE(t.busy_elsewhere(kQueueB, {kRelease1}, events.isReset()));
 }
 
 }  // namespace

@@ -33,7 +33,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
         }
     }
     size_t set = 0;
-    const LayerConfig config = parseLayerConfig([&](const char* name) -> const char* {
+    const LayerConfig config = parse_layer_config([&](const char* name) -> const char* {
         for (size_t k = 0; k < std::size(kVariables) && k < values.size(); ++k) {
             if (std::strcmp(name, kVariables[k]) == 0 && !values[k].empty()) {
                 ++set;
@@ -43,10 +43,10 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
         return nullptr;
     });
     if (config.errors.size() > set) __builtin_trap();
-    if (config.submitRange.first > config.submitRange.last || config.frameRange.first > config.frameRange.last)
+    if (config.submit_range.first > config.submit_range.last || config.frame_range.first > config.frame_range.last)
         __builtin_trap();
-    if (config.zstdLevel < -100 || config.zstdLevel == 0 || config.zstdLevel > 22) __builtin_trap();
-    if (config.rayCheckRays > (1u << 20) || config.flushMilliseconds > 3600000 || config.sharedWaitMilliseconds > 3600000)
+    if (config.zstd_level < -100 || config.zstd_level == 0 || config.zstd_level > 22) __builtin_trap();
+    if (config.ray_check_rays > (1u << 20) || config.flush_milliseconds > 3600000 || config.shared_wait_milliseconds > 3600000)
         __builtin_trap();
     return 0;
 }

@@ -49,29 +49,29 @@ Instance instance(float tx, uint32_t custom, uint32_t mask, uint32_t sbt, uint64
 class NvSceneModelTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    model.setHandle(1, 0xB1);
-    model.setHandle(2, 0xB2);
-    model.setHandle(3, 0x70);
+    model.set_handle(1, 0xB1);
+    model.set_handle(2, 0xB2);
+    model.set_handle(3, 0x70);
     BuildAccelerationStructureNVCommand tri;
     tri.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV;
     tri.dst = 1;
     tri.geometries = {triangles(3, 16)};
     std::vector<float> vertices = {0, 0, 0, 9, 2, 0, 0, 9, 0, 0, 2, 9};
     std::vector<float> lift = {1, 0, 0, 0, 0, 1, 0, 5, 0, 0, 1, 0};
-    model.observeBuild(tri, {range(MemoryRole::VertexBuffer, 0, vertices), range(MemoryRole::TransformData, 0, lift)});
+    model.observe_build(tri, {range(MemoryRole::kVertexBuffer, 0, vertices), range(MemoryRole::kTransformData, 0, lift)});
     BuildAccelerationStructureNVCommand box;
     box.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV;
     box.dst = 2;
     box.geometries = {boxes(2, 32)};
     std::vector<float> data = {0, 0, 0, 1, 1, 1, 7, 7, 3, 3, 3, 4, 4, 4, 7, 7};
-    model.observeBuild(box, {range(MemoryRole::Aabbs, 0, data)});
+    model.observe_build(box, {range(MemoryRole::kAabbs, 0, data)});
   }
   void topLevel(const std::vector<Instance>& instances) {
     BuildAccelerationStructureNVCommand top;
     top.type = VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV;
     top.dst = 3;
-    top.instanceCount = uint32_t(instances.size());
-    model.observeBuild(top, {range(MemoryRole::Instances, 0, instances)});
+    top.instance_count = uint32_t(instances.size());
+    model.observe_build(top, {range(MemoryRole::kInstances, 0, instances)});
   }
   NvSceneModel model;
   NvTraceScene scene;
@@ -85,17 +85,17 @@ TEST_F(NvSceneModelTest, TablesNameEachInstancesGeometriesAndBoxes) {
   ASSERT_TRUE(model.prepare(3, 256, scene, rays, handle, why)) << why;
   EXPECT_EQ(handle, 0x70u);
   ASSERT_EQ(scene.instances.size(), 3u);
-  EXPECT_EQ(scene.instances[0].firstGeometrySlot, scene.instances[2].firstGeometrySlot);  // shared bottom level
-  EXPECT_EQ(scene.instances[1].sbtRecordOffset, 1u);
-  ASSERT_EQ(scene.geometryIsAabb.size(), 2u);
-  const uint32_t boxSlot = scene.instances[1].firstGeometrySlot;
-  EXPECT_TRUE(scene.geometryIsAabb[boxSlot]);
-  EXPECT_FALSE(scene.geometryIsAabb[scene.instances[0].firstGeometrySlot]);
+  EXPECT_EQ(scene.instances[0].first_geometry_slot, scene.instances[2].first_geometry_slot);  // shared bottom level
+  EXPECT_EQ(scene.instances[1].sbt_record_offset, 1u);
+  ASSERT_EQ(scene.geometry_is_aabb.size(), 2u);
+  const uint32_t boxSlot = scene.instances[1].first_geometry_slot;
+  EXPECT_TRUE(scene.geometry_is_aabb[boxSlot]);
+  EXPECT_FALSE(scene.geometry_is_aabb[scene.instances[0].first_geometry_slot]);
   // The boxes, with the stride's padding dropped.
   const std::vector<float> expected = {0, 0, 0, 1, 1, 1, 3, 3, 3, 4, 4, 4};
   EXPECT_EQ(scene.boxes, expected);
-  EXPECT_EQ(scene.geometryFirstBox[boxSlot], 0u);
-  EXPECT_EQ(scene.recordIsProcedural, (std::vector<uint8_t>{0, 1}));
+  EXPECT_EQ(scene.geometry_first_box[boxSlot], 0u);
+  EXPECT_EQ(scene.record_is_procedural, (std::vector<uint8_t>{0, 1}));
 }
 
 float slab(const NvTracedRay& r, const float lo[3], const float hi[3]) {
@@ -121,7 +121,7 @@ TEST_F(NvSceneModelTest, EvenRaysPassThroughAnInstancesWorldBoundsAndAreDetermin
     EXPECT_FALSE(std::isnan(t)) << "ray " << i;
     const float len = std::hypot(rays[i].direction[0], rays[i].direction[1], rays[i].direction[2]);
     EXPECT_NEAR(len, 1.0f, 1e-5f);
-    EXPECT_LT(rays[i].tMin, rays[i].tMax);
+    EXPECT_LT(rays[i].t_min, rays[i].t_max);
   }
   std::vector<NvTracedRay> again;
   NvTraceScene sceneAgain;
@@ -149,7 +149,7 @@ TEST_F(NvSceneModelTest, NonFiniteVerticesDoNotPoisonTheBounds) {
   tri.geometries = {triangles(3, 12)};
   const float inf = INFINITY;
   std::vector<float> vertices = {0, 0, 0, NAN, 1, 1, 1, inf, 1};
-  model.observeBuild(tri, {range(MemoryRole::VertexBuffer, 0, vertices)});
+  model.observe_build(tri, {range(MemoryRole::kVertexBuffer, 0, vertices)});
   topLevel({instance(0, 10, 0xFF, 0, 0xB1)});
   ASSERT_TRUE(model.prepare(3, 8, scene, rays, handle, why)) << why;
   for (const auto& r : rays)

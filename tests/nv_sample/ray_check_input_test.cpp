@@ -13,19 +13,19 @@ namespace clastrace::capture {
 namespace {
 
 LayerConfig parse(const char* value) {
-  return parseLayerConfig([&](const char* name) -> const char* {
+  return parse_layer_config([&](const char* name) -> const char* {
     return std::strcmp(name, "CLASTRACE_RAY_CHECK") == 0 ? value : nullptr;
   });
 }
 
 TEST(RayCheckConfig, AcceptsCountsUpToTheLimitAndNamesRejectedValues) {
-  EXPECT_EQ(parse(nullptr).rayCheckRays, 0u);
-  EXPECT_EQ(parse("4096").rayCheckRays, 4096u);
-  EXPECT_EQ(parse("0").rayCheckRays, 0u);
-  EXPECT_EQ(parse("1048576").rayCheckRays, 1048576u);
+  EXPECT_EQ(parse(nullptr).ray_check_rays, 0u);
+  EXPECT_EQ(parse("4096").ray_check_rays, 4096u);
+  EXPECT_EQ(parse("0").ray_check_rays, 0u);
+  EXPECT_EQ(parse("1048576").ray_check_rays, 1048576u);
   for (const char* bad : {"1048577", "-1", "many", "", "99999999999999999999"}) {
     const LayerConfig c = parse(bad);
-    EXPECT_EQ(c.rayCheckRays, 0u) << bad;
+    EXPECT_EQ(c.ray_check_rays, 0u) << bad;
     ASSERT_EQ(c.errors.size(), 1u) << bad;
     EXPECT_NE(c.errors[0].find("CLASTRACE_RAY_CHECK"), std::string::npos) << c.errors[0];
   }
@@ -40,8 +40,8 @@ CapturedRange bytes(MemoryRole role, uint32_t entry, size_t size, float fill) {
 
 TEST(RayCheckInputs, TruncatedRangesAreReadOnlyAsFarAsTheyGo) {
   NvSceneModel model;
-  model.setHandle(1, 0xB1);
-  model.setHandle(2, 0xB2);
+  model.set_handle(1, 0xB1);
+  model.set_handle(2, 0xB2);
   BuildAccelerationStructureNVCommand tri;
   tri.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV;
   tri.dst = 1;
@@ -50,8 +50,8 @@ TEST(RayCheckInputs, TruncatedRangesAreReadOnlyAsFarAsTheyGo) {
   g.geometry.triangles.vertexCount = 1000000;  // claims far more than captured
   g.geometry.triangles.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
   tri.geometries = {g};
-  model.observeBuild(tri, {bytes(MemoryRole::VertexBuffer, 0, 30, 1.0f),  // 2.5 vertices
-                           bytes(MemoryRole::TransformData, 0, 20, 2.0f)});  // short transform: ignored
+  model.observe_build(tri, {bytes(MemoryRole::kVertexBuffer, 0, 30, 1.0f),  // 2.5 vertices
+                           bytes(MemoryRole::kTransformData, 0, 20, 2.0f)});  // short transform: ignored
   BuildAccelerationStructureNVCommand box;
   box.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV;
   box.dst = 2;
@@ -60,12 +60,12 @@ TEST(RayCheckInputs, TruncatedRangesAreReadOnlyAsFarAsTheyGo) {
   a.geometry.aabbs.numAABBs = 3;
   a.geometry.aabbs.stride = 24;
   box.geometries = {a};
-  model.observeBuild(box, {bytes(MemoryRole::Aabbs, 0, 30, 1.0f)});  // one box and a quarter
+  model.observe_build(box, {bytes(MemoryRole::kAabbs, 0, 30, 1.0f)});  // one box and a quarter
   BuildAccelerationStructureNVCommand top;
   top.type = VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV;
   top.dst = 3;
-  top.instanceCount = 2;
-  CapturedRange instances{MemoryRole::Instances, 0, 0, {}};
+  top.instance_count = 2;
+  CapturedRange instances{MemoryRole::kInstances, 0, 0, {}};
   std::vector<uint8_t> records(64 + 40);  // one whole record and a torn one
   const float identity[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
   std::memcpy(records.data(), identity, 48);
@@ -75,7 +75,7 @@ TEST(RayCheckInputs, TruncatedRangesAreReadOnlyAsFarAsTheyGo) {
   std::memcpy(records.data() + 52, &sbt, 4);
   std::memcpy(records.data() + 56, &reference, 8);
   instances.bytes = records;
-  model.observeBuild(top, {instances});
+  model.observe_build(top, {instances});
 
   NvTraceScene scene;
   std::vector<NvTracedRay> rays;
@@ -92,7 +92,7 @@ TEST(RayCheckInputs, TruncatedRangesAreReadOnlyAsFarAsTheyGo) {
   const uint64_t boxReference = 0xB2;
   std::memcpy(records.data() + 56, &boxReference, 8);
   instances.bytes = records;
-  model.observeBuild(top, {instances});
+  model.observe_build(top, {instances});
   ASSERT_TRUE(model.prepare(4, 4, scene, rays, handle, why)) << why;
   ASSERT_EQ(scene.boxes.size(), 18u);
   EXPECT_EQ(scene.boxes[0], 1.0f);

@@ -22,18 +22,18 @@ std::string tempPath(const char* name) {
 DeviceRecord h100() {
   DeviceRecord d;
   d.device = 1;
-  d.deviceName = "NVIDIA H100 80GB HBM3";
-  d.vendorId = 0x10DE;
-  d.driverId = VK_DRIVER_ID_NVIDIA_PROPRIETARY;
-  d.driverName = "NVIDIA";
-  d.driverInfo = "580.159.04";
+  d.device_name = "NVIDIA H100 80GB HBM3";
+  d.vendor_id = 0x10DE;
+  d.driver_id = VK_DRIVER_ID_NVIDIA_PROPRIETARY;
+  d.driver_name = "NVIDIA";
+  d.driver_info = "580.159.04";
   for (uint8_t i = 0; i < 16; ++i) {
-    d.driverUuid.push_back(i);
-    d.deviceUuid.push_back(uint8_t(0xF0 + i));
+    d.driver_uuid.push_back(i);
+    d.device_uuid.push_back(uint8_t(0xF0 + i));
   }
-  d.hasRayTracingPropertiesNV = true;
-  d.rayTracingPropertiesNV.shaderGroupHandleSize = 32;
-  d.rayTracingPropertiesNV.maxInstanceCount = 16777215;
+  d.has_ray_tracing_properties_nv = true;
+  d.ray_tracing_properties_nv.shaderGroupHandleSize = 32;
+  d.ray_tracing_properties_nv.maxInstanceCount = 16777215;
   return d;
 }
 
@@ -49,9 +49,9 @@ std::vector<fbs::RecordBody> kinds(const std::string& path, std::unique_ptr<trac
 
 RayCheckRecord check(uint64_t submission) {
   RayCheckRecord c;
-  c.accelerationStructure = 0x30;
-  c.deviceHandle = 0xC000;
-  c.submissionIndex = submission;
+  c.acceleration_structure = 0x30;
+  c.device_handle = 0xC000;
+  c.submission_index = submission;
   c.label = "test";
   NvTracedRay ray{{1, 2, 3}, 0.5f, {0, 0, -1}, 100.0f, 0, 0xFF, {0, 0}};
   NvRayHit hit{1, 2.5f, 7, 1, 3, 0, 0xFE, 0.25f, 0.5f, {0, 0, 0}};
@@ -64,26 +64,26 @@ TEST(TraceSinkNv, ObjectsCarryTheirHandleAndHeaderTheDriverIdentity) {
   const std::string path = tempPath("sink_nv_objects");
   {
     std::string error;
-    auto sink = makeTraceCaptureSink(path, 3, error);
+    auto sink = make_trace_capture_sink(path, 3, error);
     ASSERT_TRUE(sink) << error;
-    sink->deviceCreated(h100());
+    sink->device_created(h100());
     AccelerationStructureRecord nv;
-    nv.accelerationStructure = 0x10;
+    nv.acceleration_structure = 0x10;
     nv.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV;
-    nv.infoType = nv.type;
+    nv.info_type = nv.type;
     nv.geometries.resize(2);
-    sink->accelerationStructureCreated(nv);
-    sink->accelerationStructureMemoryRequirements({0x10, 0, 4096, 256, 3});
-    sink->accelerationStructureBound({0x10, 0x99, 512});
-    sink->accelerationStructureAddressQueried({0x10, 0xABC000});
-    sink->accelerationStructureAddressQueried({0x10, 0xABC000});  // asked again: nothing new
+    sink->acceleration_structure_created(nv);
+    sink->acceleration_structure_memory_requirements({0x10, 0, 4096, 256, 3});
+    sink->acceleration_structure_bound({0x10, 0x99, 512});
+    sink->acceleration_structure_address_queried({0x10, 0xABC000});
+    sink->acceleration_structure_address_queried({0x10, 0xABC000});  // asked again: nothing new
     AccelerationStructureRecord khr;
-    khr.accelerationStructure = 0x20;
+    khr.acceleration_structure = 0x20;
     khr.khr = true;
     khr.buffer = 0x55;
     khr.size = 1408;
-    sink->accelerationStructureCreated(khr);  // never asked for its address: goes out at destroy
-    sink->accelerationStructureDestroyed(0x20);
+    sink->acceleration_structure_created(khr);  // never asked for its address: goes out at destroy
+    sink->acceleration_structure_destroyed(0x20);
   }
   std::unique_ptr<traces::TraceReader> reader;
   const auto got = kinds(path, reader);
@@ -119,30 +119,30 @@ TEST(TraceSinkNv, RayCheckFollowsItsSubmissionEvenWhenItArrivesFirst) {
   const std::string path = tempPath("sink_nv_ray_check");
   {
     std::string error;
-    auto sink = makeTraceCaptureSink(path, 3, error);
+    auto sink = make_trace_capture_sink(path, 3, error);
     ASSERT_TRUE(sink) << error;
-    sink->deviceCreated(h100());
+    sink->device_created(h100());
     // Submission 7 holds one captured NV build; its capture arrives after the ray check.
     RecordedCommandBuffer cb;
-    cb.commandBuffer = 0x77;
+    cb.command_buffer = 0x77;
     BuildAccelerationStructureNVCommand build;
     build.type = VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV;
     build.dst = 0x30;
-    build.pauseId = 1;
+    build.pause_id = 1;
     cb.commands.push_back(build);
-    sink->commandBufferRecorded(cb);
+    sink->command_buffer_recorded(cb);
     SubmissionRecord s;
     s.index = 7;
     s.batches.push_back({{}, {0x77}, {}});
-    sink->queueSubmitted(s);
-    sink->rayQueryChecked(check(7));
+    sink->queue_submitted(s);
+    sink->ray_query_checked(check(7));
     ClusterBuildCapture captured;
-    captured.kind = CapturedCommandKind::BuildAccelerationStructureNV;
-    captured.pauseId = 1;
-    captured.submissionIndex = 7;
-    sink->clusterBuildCaptured(captured);
+    captured.kind = CapturedCommandKind::kBuildAccelerationStructureNv;
+    captured.pause_id = 1;
+    captured.submission_index = 7;
+    sink->cluster_build_captured(captured);
     // A later ray check of an already written submission goes out at once.
-    sink->rayQueryChecked(check(7));
+    sink->ray_query_checked(check(7));
   }
   std::unique_ptr<traces::TraceReader> reader;
   const auto got = kinds(path, reader);

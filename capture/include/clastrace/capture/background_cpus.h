@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Where the capture's background threads run: the sink's (`clastrace-sink`) and the trace
 // compressor's (`clastrace-zstd`). Both already yield to every normal thread (SCHED_IDLE), but
 // on the application's own cores they still evict its caches and take the cores its engine
@@ -27,28 +28,29 @@
 namespace clastrace::capture {
 
 struct BackgroundCpus {
-  enum class Mode { Spare, App, List };
-  Mode mode = Mode::Spare;
-  std::vector<unsigned> list;  // Mode::List: ascending, no repeats
+    enum class Mode { kSpare, kApp, kList };
+    Mode mode = Mode::kSpare;
+    std::vector<unsigned> list;  // Mode::List: ascending, no repeats
 };
 
 // "0-3,8" -> {0,1,2,3,8}: comma-separated CPUs and inclusive ranges, each CPU below 4096.
-std::optional<std::vector<unsigned>> parseCpuList(const std::string& text);
+std::optional<std::vector<unsigned>> parse_cpu_list(const std::string& text);
 // The inverse, ranges folded: {0,1,2,3,8} -> "0-3,8"; "none" when empty.
-std::string formatCpuList(const std::vector<unsigned>& cpus);
+std::string format_cpu_list(const std::vector<unsigned>& cpus);
 
 // The CPUs the background threads should be given, from the machine's online CPUs, the
 // calling (application) thread's allowed ones and the reserved ones; empty means: leave them
 // where they were created.
-std::vector<unsigned> backgroundCpusFor(const BackgroundCpus& setting, const std::vector<unsigned>& online,
-                                        const std::vector<unsigned>& allowed,
-                                        const std::vector<unsigned>& reserved = {});
+std::vector<unsigned> background_cpus_for(const BackgroundCpus& setting,
+                                          const std::vector<unsigned>& online,
+                                          const std::vector<unsigned>& allowed,
+                                          const std::vector<unsigned>& reserved = {});
 
-std::vector<unsigned> onlineCpus();          // /sys/devices/system/cpu/online; empty if unknown
-std::vector<unsigned> reservedCpus();        // /sys/devices/system/cpu/{isolated,nohz_full}
-std::vector<unsigned> callingThreadCpus();   // the calling thread's affinity; empty if unknown
+std::vector<unsigned> online_cpus();          // /sys/devices/system/cpu/online; empty if unknown
+std::vector<unsigned> reserved_cpus();        // /sys/devices/system/cpu/{isolated,nohz_full}
+std::vector<unsigned> calling_thread_cpus();  // the calling thread's affinity; empty if unknown
 // Restricts the calling thread to `cpus`. False (and the thread as it was) when the kernel
 // refuses, e.g. none of them is in the process's cpuset.
-bool placeCallingThread(const std::vector<unsigned>& cpus);
+bool place_calling_thread(const std::vector<unsigned>& cpus);
 
 }  // namespace clastrace::capture

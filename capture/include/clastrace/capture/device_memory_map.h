@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The buffers and memory allocations of one VkDevice, and the lookup from a device address to
 // the bytes behind it: the layer follows the pointers a cluster build reads with it.
 #pragma once
@@ -15,71 +16,74 @@
 namespace clastrace::capture {
 
 struct TrackedMemory {
-  uint64_t handle = 0;
-  VkDeviceSize size = 0;
-  uint32_t typeIndex = 0;
-  VkMemoryPropertyFlags propertyFlags = 0;
-  uint8_t* hostBase = nullptr;  // the layer's persistent mapping of the whole allocation, if host visible
+    uint64_t handle = 0;
+    VkDeviceSize size = 0;
+    uint32_t type_index = 0;
+    VkMemoryPropertyFlags property_flags = 0;
+    uint8_t* host_base =
+        nullptr;  // the layer's persistent mapping of the whole allocation, if host visible
 };
 
 struct TrackedBuffer {
-  uint64_t handle = 0;
-  VkDeviceSize size = 0;
-  VkBufferUsageFlags usage = 0;
-  VkBufferCreateFlags flags = 0;
-  uint64_t memory = 0;  // 0 until bound
-  VkDeviceSize memoryOffset = 0;
-  VkDeviceAddress address = 0;  // 0 until the application asked for it
+    uint64_t handle = 0;
+    VkDeviceSize size = 0;
+    VkBufferUsageFlags usage = 0;
+    VkBufferCreateFlags flags = 0;
+    uint64_t memory = 0;  // 0 until bound
+    VkDeviceSize memory_offset = 0;
+    VkDeviceAddress address = 0;  // 0 until the application asked for it
 };
 
 // Where a device address range lives; `host` is null when the memory is not mapped by the layer.
 struct ResolvedRange {
-  TrackedBuffer buffer;
-  VkDeviceSize offsetInBuffer = 0;
-  TrackedMemory memory;
-  uint8_t* host = nullptr;
+    TrackedBuffer buffer;
+    VkDeviceSize offset_in_buffer = 0;
+    TrackedMemory memory;
+    uint8_t* host = nullptr;
 };
 
 class DeviceMemoryMap {
- public:
-  void addMemory(const TrackedMemory& memory);
-  void removeMemory(uint64_t handle);
-  std::optional<TrackedMemory> memory(uint64_t handle) const;
+public:
+    void add_memory(const TrackedMemory& memory);
+    void remove_memory(uint64_t handle);
+    std::optional<TrackedMemory> memory(uint64_t handle) const;
 
-  void addBuffer(const TrackedBuffer& buffer);
-  void bindBuffer(uint64_t buffer, uint64_t memory, VkDeviceSize offset);
-  void setBufferAddress(uint64_t buffer, VkDeviceAddress address);
-  void removeBuffer(uint64_t handle);
-  std::optional<TrackedBuffer> buffer(uint64_t handle) const;
+    void add_buffer(const TrackedBuffer& buffer);
+    void bind_buffer(uint64_t buffer, uint64_t memory, VkDeviceSize offset);
+    void set_buffer_address(uint64_t buffer, VkDeviceAddress address);
+    void remove_buffer(uint64_t handle);
+    std::optional<TrackedBuffer> buffer(uint64_t handle) const;
 
-  // The buffer (with a bound, live allocation) that holds all of [address, address + size).
-  // Aliasing buffers may share addresses; any one that holds the whole range is as good.
-  // On failure `why` names the rule broken, for the capture's issue list.
-  std::optional<ResolvedRange> resolve(VkDeviceAddress address, VkDeviceSize size, std::string& why) const;
+    // The buffer (with a bound, live allocation) that holds all of [address, address + size).
+    // Aliasing buffers may share addresses; any one that holds the whole range is as good.
+    // On failure `why` names the rule broken, for the capture's issue list.
+    std::optional<ResolvedRange> resolve(VkDeviceAddress address, VkDeviceSize size,
+                                         std::string& why) const;
 
-  // Copies [address, address + size) from the layer's mapping. False with `why` when the range
-  // is not inside one bound buffer or its memory is not host visible.
-  bool read(VkDeviceAddress address, VkDeviceSize size, std::vector<uint8_t>& out, std::string& why) const;
+    // Copies [address, address + size) from the layer's mapping. False with `why` when the range
+    // is not inside one bound buffer or its memory is not host visible.
+    bool read(VkDeviceAddress address, VkDeviceSize size, std::vector<uint8_t>& out,
+              std::string& why) const;
 
-  // The same for a range named by buffer handle and offset (commands that take VkBuffers).
-  std::optional<ResolvedRange> resolveBuffer(uint64_t buffer, VkDeviceSize offset, VkDeviceSize size,
-                                             std::string& why) const;
+    // The same for a range named by buffer handle and offset (commands that take VkBuffers).
+    std::optional<ResolvedRange> resolve_buffer(uint64_t buffer, VkDeviceSize offset,
+                                                VkDeviceSize size, std::string& why) const;
 
-  // Every buffer with a queried address and live host-mapped memory bound, from its first byte
-  // (offsetInBuffer 0): what a served build may touch.
-  std::vector<ResolvedRange> hostAddressedBuffers() const;
+    // Every buffer with a queried address and live host-mapped memory bound, from its first byte
+    // (offsetInBuffer 0): what a served build may touch.
+    std::vector<ResolvedRange> host_addressed_buffers() const;
 
-  // Every buffer with a queried address and live memory bound that the layer has not mapped
-  // (memory the host cannot map), whose usage has a bit of `usageMask`: what a pause must copy
-  // into host-visible staging to read it.
-  std::vector<TrackedBuffer> unmappedAddressedBuffers(VkBufferUsageFlags usageMask) const;
+    // Every buffer with a queried address and live memory bound that the layer has not mapped
+    // (memory the host cannot map), whose usage has a bit of `usageMask`: what a pause must copy
+    // into host-visible staging to read it.
+    std::vector<TrackedBuffer> unmapped_addressed_buffers(VkBufferUsageFlags usage_mask) const;
 
- private:
-  mutable std::mutex mutex_;
-  std::unordered_map<uint64_t, TrackedMemory> memories_;
-  std::unordered_map<uint64_t, TrackedBuffer> buffers_;
-  std::multimap<VkDeviceAddress, uint64_t> buffersByAddress_;
-  VkDeviceSize largestAddressedBuffer_ = 0;
+private:
+    mutable std::mutex mutex_;
+    std::unordered_map<uint64_t, TrackedMemory> memories_;
+    std::unordered_map<uint64_t, TrackedBuffer> buffers_;
+    std::multimap<VkDeviceAddress, uint64_t> buffers_by_address_;
+    VkDeviceSize largest_addressed_buffer_ = 0;
 };
 
 }  // namespace clastrace::capture

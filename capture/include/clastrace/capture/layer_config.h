@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The capture layer's settings, read once from the environment of the captured process.
 #pragma once
 
@@ -11,47 +12,54 @@
 
 namespace clastrace::capture {
 
-enum class ServeMode { Auto, Off, On };  // Auto: serve exactly when the driver lacks the extension
-enum class LogLevel { Quiet, Error, Info, Debug };
+enum class ServeMode {
+    kAuto,
+    kOff,
+    kOn
+};  // Auto: serve exactly when the driver lacks the extension
+enum class LogLevel { kQuiet, kError, kInfo, kDebug };
 
 struct IndexRange {  // inclusive, 0-based: queue-submission or frame indices
-  uint64_t first = 0;
-  uint64_t last = UINT64_MAX;
-  bool contains(uint64_t index) const { return index >= first && index <= last; }
+    uint64_t first = 0;
+    uint64_t last = UINT64_MAX;
+    bool contains(uint64_t index) const { return index >= first && index <= last; }
 };
 using SubmitRange = IndexRange;
 
 struct LayerConfig {
-  bool capture = true;              // CLASTRACE_CAPTURE
-  ServeMode serve = ServeMode::Auto;  // CLASTRACE_SERVE
-  std::string outputPath;           // CLASTRACE_OUTPUT (.clt trace)
-  // CLASTRACE_OUTPUT_FD: the output already opened and locked by `clastrace capture`, handed
-  // down to the application (traces::adopt_output checks it is CLASTRACE_OUTPUT); -1: none.
-  int outputFd = -1;
-  SubmitRange submitRange;          // CLASTRACE_SUBMIT_RANGE: "N", "A-B", "A-"
-  // CLASTRACE_FRAME_RANGE, same syntax: frame N is what is submitted after the N-th
-  // vkQueuePresentKHR and up to the (N+1)-th. A submission is captured only when it is in
-  // both ranges.
-  IndexRange frameRange;
-  int zstdLevel = 3;                // CLASTRACE_ZSTD_LEVEL: 1..22
-  LogLevel log = LogLevel::Error;   // CLASTRACE_LOG: quiet|error|info|debug
-  std::string debugJsonPath;        // CLASTRACE_DEBUG_JSON: readable dump for tests and debugging
-  uint32_t rayCheckRays = 0;        // CLASTRACE_RAY_CHECK: rays per NV top-level check, 0 = off
-  uint32_t flushMilliseconds = 1000;  // CLASTRACE_FLUSH_MS: a killed process loses at most this much (0: never)
-  bool forceStaging = false;        // CLASTRACE_FORCE_STAGING: treat all memory as not host visible (tests)
-  bool timestamps = true;           // CLASTRACE_TIMESTAMPS: GPU timestamps around each captured command
-  bool stats = false;               // CLASTRACE_STATS: where capture's time went, on stderr at vkDestroyDevice
-  // CLASTRACE_SHARED_WAIT_MS: how long a submission waits for another queue to finish with the
-  // pause events of a simultaneous-use command buffer (layer_submit.cpp) before it goes ahead.
-  uint32_t sharedWaitMilliseconds = 10000;
-  BackgroundCpus backgroundCpus;   // CLASTRACE_BACKGROUND_CPUS: spare|app|a CPU list (background_cpus.h)
-  std::vector<std::string> errors;  // one line per rejected variable; the default is kept
+    bool capture = true;                 // CLASTRACE_CAPTURE
+    ServeMode serve = ServeMode::kAuto;  // CLASTRACE_SERVE
+    std::string output_path;             // CLASTRACE_OUTPUT (.clt trace)
+    // CLASTRACE_OUTPUT_FD: the output already opened and locked by `clastrace capture`, handed
+    // down to the application (traces::adopt_output checks it is CLASTRACE_OUTPUT); -1: none.
+    int output_fd = -1;
+    SubmitRange submit_range;  // CLASTRACE_SUBMIT_RANGE: "N", "A-B", "A-"
+    // CLASTRACE_FRAME_RANGE, same syntax: frame N is what is submitted after the N-th
+    // vkQueuePresentKHR and up to the (N+1)-th. A submission is captured only when it is in
+    // both ranges.
+    IndexRange frame_range;
+    int zstd_level = 3;               // CLASTRACE_ZSTD_LEVEL: 1..22
+    LogLevel log = LogLevel::kError;  // CLASTRACE_LOG: quiet|error|info|debug
+    std::string debug_json_path;      // CLASTRACE_DEBUG_JSON: readable dump for tests and debugging
+    uint32_t ray_check_rays = 0;      // CLASTRACE_RAY_CHECK: rays per NV top-level check, 0 = off
+    uint32_t flush_milliseconds =
+        1000;  // CLASTRACE_FLUSH_MS: a killed process loses at most this much (0: never)
+    bool force_staging =
+        false;  // CLASTRACE_FORCE_STAGING: treat all memory as not host visible (tests)
+    bool timestamps = true;  // CLASTRACE_TIMESTAMPS: GPU timestamps around each captured command
+    bool stats = false;  // CLASTRACE_STATS: where capture's time went, on stderr at vkDestroyDevice
+    // CLASTRACE_SHARED_WAIT_MS: how long a submission waits for another queue to finish with the
+    // pause events of a simultaneous-use command buffer (layer_submit.cpp) before it goes ahead.
+    uint32_t shared_wait_milliseconds = 10000;
+    BackgroundCpus
+        background_cpus;  // CLASTRACE_BACKGROUND_CPUS: spare|app|a CPU list (background_cpus.h)
+    std::vector<std::string> errors;  // one line per rejected variable; the default is kept
 };
 
 // Parses the variables through `getenv` (injectable for tests). Never throws.
-LayerConfig parseLayerConfig(const std::function<const char*(const char*)>& getenv);
+LayerConfig parse_layer_config(const std::function<const char*(const char*)>& getenv);
 
 // The process-wide configuration: parsed on first use, its errors printed to stderr once.
-const LayerConfig& layerConfig();
+const LayerConfig& layer_config();
 
 }  // namespace clastrace::capture

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Copies out of host-visible memory that is not HOST_CACHED (on NVIDIA the first
 // HOST_VISIBLE|HOST_COHERENT type is write-combined system memory): ordinary loads there are
 // uncached, one line at a time, and run at a few GB/s; SSE4.1 streaming loads (MOVNTDQA) fetch
@@ -11,6 +12,6 @@
 
 namespace clastrace::capture {
 
-void copyFromUncached(uint8_t* destination, const uint8_t* source, size_t size);
+void copy_from_uncached(uint8_t* destination, const uint8_t* source, size_t size);
 
 }  // namespace clastrace::capture
