@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // clastrace analyze TRACE [--json | --html OUT.html]: replays the trace and, as each command
 // is replayed, folds it into a report of where the memory and time of its
 // acceleration-structure builds go (docs/analyze.md).
@@ -28,7 +29,8 @@ struct AnalyzeArgs {
 
 int run_analyze(const AnalyzeArgs& args) {
     traces::TraceError error;
-    std::unique_ptr<traces::TraceReader> reader = traces::TraceReader::open(args.trace, &error, args.reader);
+    std::unique_ptr<traces::TraceReader> reader =
+        traces::TraceReader::open(args.trace, &error, args.reader);
     if (!reader) {
         if (args.json) {
             print_trace_error_json(args.trace, error);
@@ -43,12 +45,12 @@ int run_analyze(const AnalyzeArgs& args) {
         options.stream.untruncated_rebuilds_per_command = args.truncation_rebuilds;
         analysis = analyze::analyze_trace(*reader, args.trace, options);
     } catch (const analyze::AnalysisInputError& e) {
-        std::fprintf(stderr, "clastrace analyze: %s: the replay could not be analyzed: %s\n", args.trace.c_str(),
-                     e.what());
+        std::fprintf(stderr, "clastrace analyze: %s: the replay could not be analyzed: %s\n",
+                     args.trace.c_str(), e.what());
         return kExitUsage;
     }
     const analyze::AnalysisReport& report = analysis.report;
-    const analyze::ReportFormat format = args.json ? analyze::ReportFormat::kJson
+    const analyze::ReportFormat format = args.json           ? analyze::ReportFormat::kJson
                                          : args.html.empty() ? analyze::ReportFormat::kText
                                                              : analyze::ReportFormat::kHtml;
     std::string write_error;
@@ -56,7 +58,8 @@ int run_analyze(const AnalyzeArgs& args) {
         std::fprintf(stderr, "clastrace analyze: %s\n", write_error.c_str());
         return kExitUsage;
     }
-    if (!args.html.empty() && args.html != "-") std::fprintf(stdout, "report written to %s\n", args.html.c_str());
+    if (!args.html.empty() && args.html != "-")
+        std::fprintf(stdout, "report written to %s\n", args.html.c_str());
     return analysis.replay.clean() && report.hazards_total == 0 ? kExitOk : kExitFindings;
 }
 
@@ -64,16 +67,20 @@ int run_analyze(const AnalyzeArgs& args) {
 
 Command register_analyze(CLI::App& app) {
     auto args = std::make_shared<AnalyzeArgs>();
-    CLI::App* sub = app.add_subcommand(
-        "analyze",
-        "Replay a trace and report object sizes (engine vs driver) per op type, hazards and timing, as text, "
-        "JSON or one self-contained HTML file. Exit: 0 clean, 1 hazards or findings, 2 usage error or "
-        "unreadable trace.");
+    CLI::App* sub = app.add_subcommand("analyze",
+                                       "Replay a trace and report object sizes (engine vs driver) "
+                                       "per op type, hazards and timing, as text, "
+                                       "JSON or one self-contained HTML file. Exit: 0 clean, 1 "
+                                       "hazards or findings, 2 usage error or "
+                                       "unreadable trace.");
     sub->add_option("TRACE", args->trace, "the .clt trace")->required();
-    CLI::Option* json = sub->add_flag("--json", args->json, "print the report as one JSON object (docs/analyze.md)");
-    CLI::Option* html = sub->add_option("--html", args->html, "write the report as a self-contained HTML file");
+    CLI::Option* json = sub->add_flag("--json", args->json,
+                                      "print the report as one JSON object (docs/analyze.md)");
+    CLI::Option* html =
+        sub->add_option("--html", args->html, "write the report as a self-contained HTML file");
     sub->add_option("--truncation-rebuilds", args->truncation_rebuilds,
-                    "truncated clusters per command rebuilt at positionTruncateBitCount 0 to measure what truncation "
+                    "truncated clusters per command rebuilt at positionTruncateBitCount 0 to "
+                    "measure what truncation "
                     "saves (one more engine build each; 0: none)")
         ->capture_default_str();
     add_max_raw_option(sub, &args->reader);

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // clastrace info TRACE [--json]: what a trace holds and whether it is intact.
 #include "commands.h"
 #include "json_output.h"
@@ -39,7 +40,8 @@ struct TraceSummary {
         uint32_t command_index, op_index;
         uint8_t severity;
         std::string rule, message;
-        uint64_t primary_command_buffer = 0;  // format 1.2: the primary that ran this secondary's command
+        uint64_t primary_command_buffer =
+            0;  // format 1.2: the primary that ran this secondary's command
         uint32_t execute_command_index = 0;
     };
     static constexpr size_t kMaxListed = 1000;
@@ -48,7 +50,7 @@ struct TraceSummary {
     // Frames (QueuePresent, format 1.2): a submission belongs to the frame the next present
     // ends (the last present's frame + 1 after it).
     uint64_t presents = 0;
-    uint64_t acquires = 0;                // AcquireNextImage records (format 1.2)
+    uint64_t acquires = 0;  // AcquireNextImage records (format 1.2)
     uint64_t first_frame = 0, last_frame = 0;
     uint64_t unassigned_submissions = 0;  // QueueSubmits since the last present
     std::map<uint64_t, uint64_t> submissions_by_frame;
@@ -71,8 +73,10 @@ TraceSummary summarize(TraceReader& reader) {
         }
         if (const auto* f = view.record->body_as_CaptureFinding()) {
             if (s.finding_count++ < TraceSummary::kMaxListed)
-                s.findings.push_back({f->submission(), f->command_buffer(), f->command_index(), f->op_index(),
-                                      f->severity(), f->rule() ? f->rule()->str() : "", f->message() ? f->message()->str() : "",
+                s.findings.push_back({f->submission(), f->command_buffer(), f->command_index(),
+                                      f->op_index(), f->severity(),
+                                      f->rule() ? f->rule()->str() : "",
+                                      f->message() ? f->message()->str() : "",
                                       f->primary_command_buffer(), f->execute_command_index()});
             continue;
         }
@@ -81,7 +85,8 @@ TraceSummary summarize(TraceReader& reader) {
         if (const auto* p = view.record->body_as_QueuePresent()) {
             if (s.presents++ == 0) s.first_frame = p->frame();
             s.last_frame = std::max(s.last_frame, p->frame());
-            if (s.unassigned_submissions) s.submissions_by_frame[p->frame()] += s.unassigned_submissions;
+            if (s.unassigned_submissions)
+                s.submissions_by_frame[p->frame()] += s.unassigned_submissions;
             s.unassigned_submissions = 0;
             continue;
         }
@@ -99,27 +104,34 @@ TraceSummary summarize(TraceReader& reader) {
             }
         }
     }
-    if (s.presents && s.unassigned_submissions) s.submissions_by_frame[s.last_frame + 1] += s.unassigned_submissions;
+    if (s.presents && s.unassigned_submissions)
+        s.submissions_by_frame[s.last_frame + 1] += s.unassigned_submissions;
     return s;
 }
 
 std::string version_string(uint32_t v) {
-    return fmt::format("{}.{}.{}", (v >> 22) & 0x7f, (v >> 12) & 0x3ff, v & 0xfff);  // VK_API_VERSION_*
+    return fmt::format("{}.{}.{}", (v >> 22) & 0x7f, (v >> 12) & 0x3ff,
+                       v & 0xfff);  // VK_API_VERSION_*
 }
 
 // NVIDIA packs its driver version 10.8.8.6 bits; everyone else uses the Vulkan packing.
 std::string driver_string(uint32_t vendor, uint32_t v) {
-    if (vendor == 0x10de) return fmt::format("{}.{}.{}", v >> 22, (v >> 14) & 0xff, (v >> 6) & 0xff);
+    if (vendor == 0x10de)
+        return fmt::format("{}.{}.{}", v >> 22, (v >> 14) & 0xff, (v >> 6) & 0xff);
     return version_string(v);
 }
 
-double ratio(uint64_t a, uint64_t b) { return b == 0 ? 0.0 : static_cast<double>(a) / static_cast<double>(b); }
+double ratio(uint64_t a, uint64_t b) {
+    return b == 0 ? 0.0 : static_cast<double>(a) / static_cast<double>(b);
+}
 
 const char* str(const flatbuffers::String* s) { return s ? s->c_str() : ""; }
 
 // The capture layer advertised the cluster feature and its engine executed the cluster builds
 // (the trace names the engine as the driver), whatever the driver has.
-bool served(const fbs::DeviceInfo* d) { return d->driver_name() && replay::is_engine_device(d->driver_name()->str()); }
+bool served(const fbs::DeviceInfo* d) {
+    return d->driver_name() && replay::is_engine_device(d->driver_name()->str());
+}
 
 nlohmann::json header_json(const fbs::TraceHeader* h) {
     using nlohmann::json;
@@ -184,7 +196,8 @@ nlohmann::json findings_json(const TraceSummary& s) {
         items.push_back({{"submission", f.submission},
                          {"command_buffer", f.command_buffer},
                          {"command_index", f.command_index},
-                         {"op_index", f.op_index == 0xFFFFFFFFu ? nlohmann::json(nullptr) : nlohmann::json(f.op_index)},
+                         {"op_index", f.op_index == 0xFFFFFFFFu ? nlohmann::json(nullptr)
+                                                                : nlohmann::json(f.op_index)},
                          {"severity", severity_name(f.severity)},
                          {"rule", f.rule},
                          {"message", f.message}});
@@ -201,10 +214,15 @@ nlohmann::json frames_json(const TraceSummary& s) {
     nlohmann::json captured = nlohmann::json::array();
     for (const auto& [frame, submissions] : s.submissions_by_frame)
         captured.push_back({{"frame", frame}, {"submissions", submissions}});
-    return {{"presents", s.presents}, {"acquires", s.acquires}, {"first", s.first_frame}, {"last", s.last_frame}, {"with_submissions", captured}};
+    return {{"presents", s.presents},
+            {"acquires", s.acquires},
+            {"first", s.first_frame},
+            {"last", s.last_frame},
+            {"with_submissions", captured}};
 }
 
-nlohmann::json info_json(const std::string& path, const TraceReader& reader, const TraceSummary& s) {
+nlohmann::json info_json(const std::string& path, const TraceReader& reader,
+                         const TraceSummary& s) {
     using nlohmann::json;
     const traces::TraceReadStats& st = reader.stats();
     json by_kind = json::object();
@@ -213,15 +231,22 @@ nlohmann::json info_json(const std::string& path, const TraceReader& reader, con
     }
     json damage = json::array();
     for (const traces::TraceError& e : reader.damage()) {
-        damage.push_back({{"code", traces::trace_error_code_name(e.code)}, {"offset", e.file_offset}, {"message", e.message}});
+        damage.push_back({{"code", traces::trace_error_code_name(e.code)},
+                          {"offset", e.file_offset},
+                          {"message", e.message}});
     }
     return {
         {"file", path},
         {"file_size", st.file_size},
         {"format_version", {{"major", reader.version_major()}, {"minor", reader.version_minor()}}},
         {"header", header_json(reader.header())},
-        {"index", {{"present", reader.has_index()}, {"submissions", reader.indexed_submission_count()}}},
-        {"records", {{"total", s.records}, {"damaged", st.records_damaged}, {"unknown_kind", s.unknown_kinds}, {"by_kind", by_kind}}},
+        {"index",
+         {{"present", reader.has_index()}, {"submissions", reader.indexed_submission_count()}}},
+        {"records",
+         {{"total", s.records},
+          {"damaged", st.records_damaged},
+          {"unknown_kind", s.unknown_kinds},
+          {"by_kind", by_kind}}},
         {"memory",
          {{"snapshots", s.snapshots},
           {"bytes_referenced", s.bytes_referenced},
@@ -247,50 +272,61 @@ void print_text(const std::string& path, const TraceReader& reader, const TraceS
     fmt::print("{:<12}{}.{}\n", "format", reader.version_major(), reader.version_minor());
     if (const fbs::TraceHeader* h = reader.header()) {
         if (const auto* d = h->device()) {
-            fmt::print("{:<12}{} (vendor {:#06x}, device {:#06x}), driver {} {}, Vulkan {}\n", "device", str(d->name()),
-                       d->vendor_id(), d->device_id(), str(d->driver_name()), driver_string(d->vendor_id(), d->driver_version()),
+            fmt::print("{:<12}{} (vendor {:#06x}, device {:#06x}), driver {} {}, Vulkan {}\n",
+                       "device", str(d->name()), d->vendor_id(), d->device_id(),
+                       str(d->driver_name()), driver_string(d->vendor_id(), d->driver_version()),
                        version_string(d->api_version()));
             if (const auto* f = d->cluster_features()) {
-                fmt::print("{:<12}clusterAccelerationStructure supported {}, enabled {}{}\n", "clusters",
-                           f->cluster_acceleration_structure_supported() ? "yes" : "no",
+                fmt::print("{:<12}clusterAccelerationStructure supported {}, enabled {}{}\n",
+                           "clusters", f->cluster_acceleration_structure_supported() ? "yes" : "no",
                            f->cluster_acceleration_structure_enabled() ? "yes" : "no",
-                           served(d) ? " (served: the capture layer advertised it and clastrace's engine ran the cluster "
-                                    "builds, not the driver)"
-                                  : "");
+                           served(d) ? " (served: the capture layer advertised it and clastrace's "
+                                       "engine ran the cluster "
+                                       "builds, not the driver)"
+                                     : "");
             }
             if (const auto* p = d->cluster_properties()) {
-                fmt::print("{:<12}maxVerticesPerCluster {}, maxTrianglesPerCluster {}, maxClusterGeometryIndex {}\n", "",
-                           p->max_vertices_per_cluster(), p->max_triangles_per_cluster(), p->max_cluster_geometry_index());
-                fmt::print("{:<12}alignments: scratch {}, cluster {}, template {}, bottom level {}, template bounds {}\n", "",
-                           p->cluster_scratch_byte_alignment(), p->cluster_byte_alignment(),
-                           p->cluster_template_byte_alignment(), p->cluster_bottom_level_byte_alignment(),
-                           p->cluster_template_bounds_byte_alignment());
+                fmt::print(
+                    "{:<12}maxVerticesPerCluster {}, maxTrianglesPerCluster {}, "
+                    "maxClusterGeometryIndex {}\n",
+                    "", p->max_vertices_per_cluster(), p->max_triangles_per_cluster(),
+                    p->max_cluster_geometry_index());
+                fmt::print(
+                    "{:<12}alignments: scratch {}, cluster {}, template {}, bottom level {}, "
+                    "template bounds {}\n",
+                    "", p->cluster_scratch_byte_alignment(), p->cluster_byte_alignment(),
+                    p->cluster_template_byte_alignment(), p->cluster_bottom_level_byte_alignment(),
+                    p->cluster_template_bounds_byte_alignment());
             }
         }
         if (const auto* c = h->capture()) {
-            fmt::print("{:<12}application \"{}\", tool \"{}\", snapshots \"{}\", chunks of {} bytes, zstd level {}\n",
-                       "capture", str(c->application_name()), str(c->capture_tool()), str(c->snapshot_policy()),
-                       c->chunk_raw_bytes(), c->zstd_level());
+            fmt::print(
+                "{:<12}application \"{}\", tool \"{}\", snapshots \"{}\", chunks of {} bytes, zstd "
+                "level {}\n",
+                "capture", str(c->application_name()), str(c->capture_tool()),
+                str(c->snapshot_policy()), c->chunk_raw_bytes(), c->zstd_level());
         }
     } else {
         fmt::print("{:<12}(damaged)\n", "header");
     }
     fmt::print("{:<12}{}\n", "index",
-               reader.has_index() ? fmt::format("present, {} submissions", reader.indexed_submission_count())
-                                  : std::string("absent"));
+               reader.has_index()
+                   ? fmt::format("present, {} submissions", reader.indexed_submission_count())
+                   : std::string("absent"));
 
     fmt::print("\n{:<46}{:>10}\n", "record kind", "count");
     for (unsigned k = 1; k < traces::kRecordKindCount; ++k) {
         if (s.by_kind[k] == 0) continue;
-        fmt::print("  {:<44}{:>10}\n", traces::record_kind_name(static_cast<fbs::RecordBody>(k)), s.by_kind[k]);
+        fmt::print("  {:<44}{:>10}\n", traces::record_kind_name(static_cast<fbs::RecordBody>(k)),
+                   s.by_kind[k]);
     }
     if (s.unknown_kinds) fmt::print("  {:<44}{:>10}\n", "(newer kinds, skipped)", s.unknown_kinds);
     fmt::print("  {:<44}{:>10}\n", "total", s.records);
     if (st.records_damaged) fmt::print("  {:<44}{:>10}\n", "damaged (skipped)", st.records_damaged);
 
     if (s.presents) {
-        fmt::print("\n{:<12}{} presents, ending frames {}-{}; submissions in frames:", "frames", s.presents,
-                   s.first_frame, s.last_frame);
+        fmt::print("\n{:<12}{} presents, ending frames {}-{}; submissions in frames:", "frames",
+                   s.presents, s.first_frame, s.last_frame);
         size_t listed = 0;
         for (const auto& [frame, submissions] : s.submissions_by_frame) {
             if (listed++ == 32) {
@@ -302,26 +338,36 @@ void print_text(const std::string& path, const TraceReader& reader, const TraceS
         fmt::print("{}\n", s.submissions_by_frame.empty() ? " none" : "");
     }
     // Acquires (format 1.2): the presentation engine's signals replay takes for the frames' waits.
-    if (s.acquires) fmt::print("{}{:<12}{} image acquires\n", s.presents ? "" : "\n", s.presents ? "" : "frames", s.acquires);
+    if (s.acquires)
+        fmt::print("{}{:<12}{} image acquires\n", s.presents ? "" : "\n",
+                   s.presents ? "" : "frames", s.acquires);
     if (s.finding_count) {
         fmt::print("\n{:<12}{} recorded while capturing\n", "findings", s.finding_count);
         for (const auto& f : s.findings) {
             std::string op = f.op_index == 0xFFFFFFFFu ? "" : fmt::format(" op {}", f.op_index);
             if (f.primary_command_buffer)  // a secondary's command: which primary ran it
-                op += fmt::format(" (executed by {:#x} command {})", f.primary_command_buffer, f.execute_command_index);
-            const std::string command =
-                f.command_index == 0xFFFFFFFFu ? std::string("(whole)") : std::to_string(f.command_index);
-            fmt::print("  submission {} command buffer {:#x} command {}{}: [{}] {}: {}\n", f.submission, f.command_buffer,
-                       command, op, severity_name(f.severity), f.rule, f.message);
+                op += fmt::format(" (executed by {:#x} command {})", f.primary_command_buffer,
+                                  f.execute_command_index);
+            const std::string command = f.command_index == 0xFFFFFFFFu
+                                            ? std::string("(whole)")
+                                            : std::to_string(f.command_index);
+            fmt::print("  submission {} command buffer {:#x} command {}{}: [{}] {}: {}\n",
+                       f.submission, f.command_buffer, command, op, severity_name(f.severity),
+                       f.rule, f.message);
         }
         if (s.finding_count > s.findings.size())
             fmt::print("  ... {} more not listed\n", s.finding_count - s.findings.size());
     }
 
-    fmt::print("\n{:<12}{} bytes referenced by {} snapshots, {} bytes stored in {} contents, dedup ratio {:.2f}x\n",
-               "memory", s.bytes_referenced, s.snapshots, s.bytes_stored, s.contents, ratio(s.bytes_referenced, s.bytes_stored));
-    fmt::print("{:<12}{} read, {} damaged; {} raw bytes, {} compressed bytes, compression ratio {:.2f}x\n", "chunks",
-               st.chunks_read, st.chunks_damaged, st.raw_bytes, st.compressed_bytes, ratio(st.raw_bytes, st.compressed_bytes));
+    fmt::print(
+        "\n{:<12}{} bytes referenced by {} snapshots, {} bytes stored in {} contents, dedup ratio "
+        "{:.2f}x\n",
+        "memory", s.bytes_referenced, s.snapshots, s.bytes_stored, s.contents,
+        ratio(s.bytes_referenced, s.bytes_stored));
+    fmt::print(
+        "{:<12}{} read, {} damaged; {} raw bytes, {} compressed bytes, compression ratio {:.2f}x\n",
+        "chunks", st.chunks_read, st.chunks_damaged, st.raw_bytes, st.compressed_bytes,
+        ratio(st.raw_bytes, st.compressed_bytes));
     if (reader.damage_count() == 0) {
         fmt::print("{:<12}none\n", "damage");
         return;
@@ -345,21 +391,25 @@ Command register_info(CLI::App& app) {
     };
     auto options = std::make_shared<Options>();
     CLI::App* sub = app.add_subcommand(
-        "info", "Show a trace's header, record counts, memory deduplication, compression and any damage.\n"
-                "Exit code: 0 intact, 1 damage found, 2 usage error or unreadable file.");
+        "info",
+        "Show a trace's header, record counts, memory deduplication, compression and any damage.\n"
+        "Exit code: 0 intact, 1 damage found, 2 usage error or unreadable file.");
     sub->add_option("TRACE", options->path, "the .clt trace file")->required();
-    sub->add_flag("--json", options->json, "print one JSON object (fields in docs/trace-format.md)");
+    sub->add_flag("--json", options->json,
+                  "print one JSON object (fields in docs/trace-format.md)");
     add_max_raw_option(sub, &options->reader);
 
     auto run = [options]() -> int {
         traces::TraceError error;
-        std::unique_ptr<TraceReader> reader = TraceReader::open(options->path, &error, options->reader);
+        std::unique_ptr<TraceReader> reader =
+            TraceReader::open(options->path, &error, options->reader);
         if (!reader) {
             if (options->json) {
                 nlohmann::json j = {{"file", options->path},
-                                    {"error", {{"code", traces::trace_error_code_name(error.code)},
-                                               {"offset", error.file_offset},
-                                               {"message", error.message}}}};
+                                    {"error",
+                                     {{"code", traces::trace_error_code_name(error.code)},
+                                      {"offset", error.file_offset},
+                                      {"message", error.message}}}};
                 std::cout << json_text(j) << "\n";
             }
             std::fprintf(stderr, "clastrace info: %s\n", error.message.c_str());

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // clastrace replay TRACE: re-executes the captured builds, moves and copies on the
 // built-in engine in queue order; reports hazards, broken rules and output mismatches.
 #include "commands.h"
@@ -68,11 +69,13 @@ int refuse(const ReplayArgs& args, const traces::TraceError& error) {
 
 // --submit K names a submission the trace does not hold: say how many it holds rather
 // than replay nothing and call that clean.
-traces::TraceError submission_not_in_trace(const ReplayArgs& args, uint64_t submissions, bool damaged) {
+traces::TraceError submission_not_in_trace(const ReplayArgs& args, uint64_t submissions,
+                                           bool damaged) {
     const std::string holds = submissions == 0 ? "no submissions"
-                              : submissions == 1 ? "1 submission (--submit 0)"
-                                                 : std::to_string(submissions) + " submissions (--submit 0 to " +
-                                                       std::to_string(submissions - 1) + ")";
+                              : submissions == 1
+                                  ? "1 submission (--submit 0)"
+                                  : std::to_string(submissions) + " submissions (--submit 0 to " +
+                                        std::to_string(submissions - 1) + ")";
     traces::TraceError error;  // not at a file offset: no "offset 0" in the message
     error.code = traces::TraceErrorCode::kInvalidArgument;
     error.message = args.trace + ": --submit " + std::to_string(args.submit) + ": " +
@@ -89,34 +92,42 @@ int run_replay(const ReplayArgs& args) {
     options.submission = args.submit;
     options.max_findings = args.max_findings;
     if (!args.ops.empty() && !parse_ops(args.ops, &options.first_command, &options.last_command)) {
-        std::fprintf(stderr, "clastrace replay: --ops takes N..M, N.. or N (command sequence numbers), not '%s'\n",
-                     args.ops.c_str());
+        std::fprintf(
+            stderr,
+            "clastrace replay: --ops takes N..M, N.. or N (command sequence numbers), not '%s'\n",
+            args.ops.c_str());
         return kExitUsage;
     }
     traces::TraceError error;
-    std::unique_ptr<traces::TraceReader> reader = traces::TraceReader::open(args.trace, &error, args.reader);
+    std::unique_ptr<traces::TraceReader> reader =
+        traces::TraceReader::open(args.trace, &error, args.reader);
     if (!reader) return refuse(args, error);
     // A finished trace's index says how many submissions it holds; an unfinished one is
     // counted by the replay itself (below).
-    if (args.submit >= 0 && reader->has_index() && uint64_t(args.submit) >= reader->indexed_submission_count()) {
-        return refuse(args, submission_not_in_trace(args, reader->indexed_submission_count(), false));
+    if (args.submit >= 0 && reader->has_index() &&
+        uint64_t(args.submit) >= reader->indexed_submission_count()) {
+        return refuse(args,
+                      submission_not_in_trace(args, reader->indexed_submission_count(), false));
     }
     const bool show_progress = args.progress || isatty(STDERR_FILENO);
     if (show_progress) {
         // At most five lines a second: a terminal redraw per 64 records would cost more than the replay.
-        options.progress = [last = std::chrono::steady_clock::time_point{}](const replay::ReplayProgress& p) mutable {
+        options.progress = [last = std::chrono::steady_clock::time_point{}](
+                               const replay::ReplayProgress& p) mutable {
             const auto now = std::chrono::steady_clock::now();
             if (now - last < std::chrono::milliseconds(200)) return;
             last = now;
-            const double pct = p.file_size ? 100.0 * double(p.bytes_read) / double(p.file_size) : 0.0;
-            std::fprintf(stderr, "\rreplay: %5.1f%%  %llu records, %llu commands", pct, (unsigned long long)p.records,
-                         (unsigned long long)p.commands);
+            const double pct =
+                p.file_size ? 100.0 * double(p.bytes_read) / double(p.file_size) : 0.0;
+            std::fprintf(stderr, "\rreplay: %5.1f%%  %llu records, %llu commands", pct,
+                         (unsigned long long)p.records, (unsigned long long)p.commands);
         };
     }
     replay::ReplayReport report = replay::replay_trace(*reader, args.trace, options);
     if (show_progress) std::fprintf(stderr, "\rreplay: done%40s\n", "");
     if (args.submit >= 0 && uint64_t(args.submit) >= report.counts.submissions) {
-        return refuse(args, submission_not_in_trace(args, report.counts.submissions, !report.trace_damage.empty()));
+        return refuse(args, submission_not_in_trace(args, report.counts.submissions,
+                                                    !report.trace_damage.empty()));
     }
     if (args.json) {
         std::cout << json_text(replay::to_json(report)) << "\n";
@@ -132,19 +143,25 @@ Command register_replay(CLI::App& app) {
     auto args = std::make_shared<ReplayArgs>();
     CLI::App* sub = app.add_subcommand(
         "replay",
-        "Re-execute every captured cluster build/move on the built-in engine in queue order and report "
+        "Re-execute every captured cluster build/move on the built-in engine in queue order and "
+        "report "
         "synchronization hazards, broken rules (VUIDs) and outputs that differ from the capture. "
         "Exit: 0 clean, 1 findings, 2 usage error or unreadable trace.");
     sub->add_option("TRACE", args->trace, "the .clt trace")->required();
     sub->add_flag("--json", args->json, "print one JSON object (docs/replay.md)");
-    sub->add_option("--ops", args->ops, "replay only commands N..M (execution sequence numbers, as printed [#N])");
-    sub->add_option("--submit", args->submit, "replay only the commands of submission K (0 is the first)")
+    sub->add_option("--ops", args->ops,
+                    "replay only commands N..M (execution sequence numbers, as printed [#N])");
+    sub->add_option("--submit", args->submit,
+                    "replay only the commands of submission K (0 is the first)")
         ->check(whole_number_from(0, UINT32_MAX, "a submission number"));
     sub->add_flag("--no-hazards", args->no_hazards, "skip the synchronization model");
-    sub->add_flag("--no-verify", args->no_verify, "skip comparing captured outputs with the engine's");
-    sub->add_flag("--progress", args->progress, "progress on stderr even when it is not a terminal");
+    sub->add_flag("--no-verify", args->no_verify,
+                  "skip comparing captured outputs with the engine's");
+    sub->add_flag("--progress", args->progress,
+                  "progress on stderr even when it is not a terminal");
     sub->add_option("--max-findings", args->max_findings,
-                    "findings and hazards kept, 1 to " + std::to_string(kMostFindingsKept) + " (the rest are counted)")
+                    "findings and hazards kept, 1 to " + std::to_string(kMostFindingsKept) +
+                        " (the rest are counted)")
         ->check(whole_number_from(1, kMostFindingsKept, "the number of findings kept"))
         ->capture_default_str();
     add_max_raw_option(sub, &args->reader);

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Subcommand registration for the clastrace program. A command adds its CLI11
 // subcommand to the app and returns the function main() calls when it was chosen.
 #pragma once
@@ -14,8 +15,8 @@ inline constexpr int kExitFindings = 1;  // ran, found damage or other findings
 inline constexpr int kExitUsage = 2;     // bad arguments or unreadable input
 
 struct Command {
-    CLI::App* app = nullptr;      // the subcommand
-    std::function<int()> run;     // runs it after parsing; returns an exit code
+    CLI::App* app = nullptr;   // the subcommand
+    std::function<int()> run;  // runs it after parsing; returns an exit code
 };
 
 Command register_info(CLI::App& app);

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // How the clastrace program prints a JSON document: indented, and valid UTF-8 whatever bytes its
 // strings hold (a Latin-1 file name, an application's name in an old trace). Each ill-formed
 // sequence becomes U+FFFD, the rule of traces::valid_utf8 (nlohmann's `replace` handler follows

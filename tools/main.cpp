@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // clastrace: capture, replay and analyze acceleration-structure builds.
 #include "commands.h"
 
@@ -6,7 +7,8 @@
 
 int main(int argc, char** argv) {
     using namespace clastrace::tools;
-    CLI::App app{"clastrace: capture, replay and analyze Vulkan (cluster) acceleration-structure builds"};
+    CLI::App app{
+        "clastrace: capture, replay and analyze Vulkan (cluster) acceleration-structure builds"};
     app.require_subcommand(1, 1);
     app.set_version_flag("--version", "clastrace 0.1.0");
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The check of a whole-number option. CLI11's own range checks print their bounds in full,
 // and the largest double has 309 digits: this one names the option's meaning and its range.
 #pragma once
