@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // `clastrace analyze` on the shipped sample (text, JSON, HTML, exit codes) and the streaming
 // feeder (analyze_trace) on a trace with a known hazard and on damaged traces.
 #include "analyze_scene.h"
@@ -34,7 +35,9 @@ constexpr uint64_t kAsRead = VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR;
 
 using test::damaged_copy;
 
-std::string temp_path(const std::string& name) { return test::temp_trace_path("analyze_cli", name); }
+std::string temp_path(const std::string& name) {
+    return test::temp_trace_path("analyze_cli", name);
+}
 
 std::string read_file(const std::string& path) {
     std::ifstream in(path, std::ios::binary);
@@ -43,7 +46,8 @@ std::string read_file(const std::string& path) {
 
 int run_cli(const std::string& args, std::string* out) {
     const std::string out_path = temp_path("cli.out");
-    const std::string cmd = std::string(CLASTRACE_BIN) + " " + args + " > " + out_path + " 2>/dev/null";
+    const std::string cmd =
+        std::string(CLASTRACE_BIN) + " " + args + " > " + out_path + " 2>/dev/null";
     int status = std::system(cmd.c_str());
     *out = read_file(out_path);
     std::remove(out_path.c_str());
@@ -68,13 +72,17 @@ TEST(AnalyzeCli, TextHasSizeTables) {
     std::string out;
     ASSERT_EQ(run_cli(std::string("analyze ") + CLASTRACE_SAMPLE, &out), 0) << out;
     EXPECT_NE(out.find("Sizes by op type (engine bytes per object)"), std::string::npos) << out;
-    EXPECT_NE(out.find("Driver sizes (objects whose dstSizesArray was captured)"), std::string::npos) << out;
+    EXPECT_NE(out.find("Driver sizes (objects whose dstSizesArray was captured)"),
+              std::string::npos)
+        << out;
 }
 
 TEST(AnalyzeCli, JsonCountsMatchReplay) {
     std::string replay_out, analyze_out;
-    ASSERT_EQ(run_cli(std::string("replay --json ") + CLASTRACE_SAMPLE, &replay_out), 0) << replay_out;
-    ASSERT_EQ(run_cli(std::string("analyze --json ") + CLASTRACE_SAMPLE, &analyze_out), 0) << analyze_out;
+    ASSERT_EQ(run_cli(std::string("replay --json ") + CLASTRACE_SAMPLE, &replay_out), 0)
+        << replay_out;
+    ASSERT_EQ(run_cli(std::string("analyze --json ") + CLASTRACE_SAMPLE, &analyze_out), 0)
+        << analyze_out;
     const nlohmann::json r = nlohmann::json::parse(replay_out);
     const nlohmann::json a = nlohmann::json::parse(analyze_out);
     EXPECT_EQ(a["schema_version"], 2);
@@ -101,9 +109,11 @@ TEST(AnalyzeCli, JsonCountsMatchReplay) {
     // "other"); the cluster objects are the ones replay compared.
     uint64_t nv_objects = 0;
     for (const auto& k : a["commands"]["kinds"])
-        if (k["name"] == "vkCmdBuildAccelerationStructureNV") nv_objects = k["objects"].get<uint64_t>();
+        if (k["name"] == "vkCmdBuildAccelerationStructureNV")
+            nv_objects = k["objects"].get<uint64_t>();
     EXPECT_EQ(nv_objects, r["counts"]["nv_builds"]);
-    EXPECT_EQ(a["totals"]["objects"], compared_ops + nv_objects);  // the sample has < 64 ops per command
+    EXPECT_EQ(a["totals"]["objects"],
+              compared_ops + nv_objects);  // the sample has < 64 ops per command
     uint64_t objects = 0, engine = 0, driver = 0;
     for (const auto& t : a["sizes"]["by_op_type"]) {
         if (t["op_type"] == "other") continue;  // the NV object
@@ -123,13 +133,15 @@ TEST(AnalyzeCli, JsonCountsMatchReplay) {
 TEST(AnalyzeCli, HtmlIsSelfContainedWithSvg) {
     const std::string html_path = temp_path("report.html");
     std::string out;
-    ASSERT_EQ(run_cli(std::string("analyze ") + CLASTRACE_SAMPLE + " --html " + html_path, &out), 0) << out;
+    ASSERT_EQ(run_cli(std::string("analyze ") + CLASTRACE_SAMPLE + " --html " + html_path, &out), 0)
+        << out;
     EXPECT_NE(out.find(html_path), std::string::npos) << out;  // says where the report is
     const std::string html = read_file(html_path);
     EXPECT_EQ(html.rfind("<!DOCTYPE html>", 0), 0u) << html.substr(0, 80);
     EXPECT_NE(html.find("<svg"), std::string::npos);
     EXPECT_EQ(html.find("<script"), std::string::npos);
-    EXPECT_EQ(html.find("http://"), html.find("http://www.w3.org/2000/svg"));  // only the SVG namespace
+    EXPECT_EQ(html.find("http://"),
+              html.find("http://www.w3.org/2000/svg"));  // only the SVG namespace
     EXPECT_EQ(html.find("https://"), std::string::npos);
     std::remove(html_path.c_str());
 }
@@ -141,9 +153,15 @@ TEST(AnalyzeCli, ExitCodes) {
     EXPECT_EQ(run_cli("analyze", &out), 2);
     EXPECT_EQ(run_cli("analyze --help", &out), 0);
     EXPECT_NE(out.find("--truncation-rebuilds"), std::string::npos) << out;
-    EXPECT_EQ(run_cli(std::string("analyze --truncation-rebuilds -1 ") + CLASTRACE_SAMPLE, &out), 2);
-    EXPECT_EQ(run_cli(std::string("analyze --truncation-rebuilds 0 --json ") + CLASTRACE_SAMPLE, &out), 0);
-    EXPECT_EQ(run_cli(std::string("analyze ") + CLASTRACE_SAMPLE + " --html /nonexistent-dir/r.html", &out), 2);
+    EXPECT_EQ(run_cli(std::string("analyze --truncation-rebuilds -1 ") + CLASTRACE_SAMPLE, &out),
+              2);
+    EXPECT_EQ(run_cli(std::string("analyze --truncation-rebuilds 0 --json ") + CLASTRACE_SAMPLE,
+                      &out),
+              0);
+    EXPECT_EQ(run_cli(std::string("analyze ") + CLASTRACE_SAMPLE +
+                          " --html /nonexistent-dir/r.html",
+                      &out),
+              2);
 
     const std::string hazard = temp_path("hazard.clt");
     scratch_scene(hazard, false);
@@ -211,7 +229,8 @@ TEST(AnalyzeTrace, BlasAndMoveReadTheClasTheyName) {
     EXPECT_EQ(r.sizes(analyze::OpType::kMoveObjects).objects, 1u);
     const analyze::RegionRow* clas = nullptr;
     for (const auto& row : r.region_rows)
-        if (row.role == analyze::RegionRole::kObjectClas && row.base == test::SceneBuffers::kDst) clas = &row;
+        if (row.role == analyze::RegionRole::kObjectClas && row.base == test::SceneBuffers::kDst)
+            clas = &row;
     ASSERT_NE(clas, nullptr);
     EXPECT_EQ(clas->first_command, 0u);
     EXPECT_EQ(clas->last_command, 4u);  // build 0, barrier 1, BLAS 2, barrier 3, move 4
@@ -255,8 +274,10 @@ class AnalyzeDamaged : public ::testing::TestWithParam<int> {};
 
 TEST_P(AnalyzeDamaged, StillFeedValidEvents) {
     const std::string clean = temp_path("mutate_clean.clt");
-    if (GetParam() == 0) scratch_scene(clean, false);
-    else every_kind_scene(clean);
+    if (GetParam() == 0)
+        scratch_scene(clean, false);
+    else
+        every_kind_scene(clean);
     const std::string bytes_text = read_file(clean);
     const std::vector<char> bytes(bytes_text.begin(), bytes_text.end());
     ASSERT_GT(bytes.size(), 200u);
@@ -273,10 +294,12 @@ TEST_P(AnalyzeDamaged, StillFeedValidEvents) {
         analyze::TraceAnalysis a;
         ASSERT_NO_THROW(a = analyze::analyze_trace(*reader, path)) << "round " << round;
         std::istringstream lines(analyze::render_text(a.report));
-        for (std::string line; std::getline(lines, line);) EXPECT_LE(line.size(), analyze::kTextColumns) << line;
+        for (std::string line; std::getline(lines, line);)
+            EXPECT_LE(line.size(), analyze::kTextColumns) << line;
         EXPECT_TRUE(nlohmann::json::accept(analyze::render_json(a.report))) << "round " << round;
         EXPECT_NE(analyze::render_html(a.report).find("</html>"), std::string::npos);
-        EXPECT_EQ(a.report.commands, a.replay.counts.commands + a.replay.counts.skipped_commands) << "round " << round;
+        EXPECT_EQ(a.report.commands, a.replay.counts.commands + a.replay.counts.skipped_commands)
+            << "round " << round;
         EXPECT_LE(a.report.hazards_total, a.stream.hazards);
     }
     EXPECT_GT(replayed, 0);

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "analyze_scene.h"
 
 #include <clastrace/trace_building/cluster_records.h>
@@ -26,7 +27,8 @@ fbs::TraceHeaderT driver_header(float timestamp_period_ns) {
 
 AnalyzeSceneWriter::~AnalyzeSceneWriter() = default;
 
-void AnalyzeSceneWriter::add_buffer(uint64_t handle, uint64_t address, uint64_t size, uint64_t usage) {
+void AnalyzeSceneWriter::add_buffer(uint64_t handle, uint64_t address, uint64_t size,
+                                    uint64_t usage) {
     writer_.buffer(handle, address, size, usage, kMemory, address - 0x10000000);
     mirror_.add_buffer(address, size, usage);
 }
@@ -34,22 +36,27 @@ void AnalyzeSceneWriter::add_buffer(uint64_t handle, uint64_t address, uint64_t 
 AnalyzeSceneWriter::AnalyzeSceneWriter(const std::string& path, float timestamp_period_ns)
     : writer_(path, driver_header(timestamp_period_ns)) {
     const uint64_t sda = VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT;
-    const uint64_t input = sda | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
-    const uint64_t storage = sda | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR | VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
+    const uint64_t input =
+        sda | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
+    const uint64_t storage = sda | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR |
+                             VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
     using S = AnalyzeScene;
     add_buffer(S::kVertexBuffer, S::kVertices, 0x10000, input);
     add_buffer(S::kIndexBuffer, S::kIndices, 0x10000, input);
     add_buffer(0x2003, S::kInfos, 0x4000, input);
-    add_buffer(0x2004, S::kArrays, 0x4000, storage | VK_BUFFER_USAGE_TRANSFER_SRC_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT);
-    add_buffer(S::kPoolBuffer, S::kPool, S::kPoolSize, storage | VK_BUFFER_USAGE_TRANSFER_SRC_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT |
-                                                      VK_BUFFER_USAGE_RAY_TRACING_BIT_NV);  // also the NV build's scratch
+    add_buffer(0x2004, S::kArrays, 0x4000,
+               storage | VK_BUFFER_USAGE_TRANSFER_SRC_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT);
+    add_buffer(S::kPoolBuffer, S::kPool, S::kPoolSize,
+               storage | VK_BUFFER_USAGE_TRANSFER_SRC_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT |
+                   VK_BUFFER_USAGE_RAY_TRACING_BIT_NV);  // also the NV build's scratch
     add_buffer(0x2007, S::kSerialized, 0x1000, input);
     add_buffer(S::kAsBuffer, S::kAsStorage, 0x10000, storage);
     begin();
 }
 
 void AnalyzeSceneWriter::begin() {
-    writer_.append(tb::command_buffer_begin(command_buffer_, VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT));
+    writer_.append(
+        tb::command_buffer_begin(command_buffer_, VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT));
 }
 
 BuiltClusters AnalyzeSceneWriter::build(const ClusterBuild& call) {
@@ -78,11 +85,14 @@ BuiltClusters AnalyzeSceneWriter::build(const ClusterBuild& call) {
         max_tris = std::max(max_tris, t);
         max_verts = std::max(max_verts, v);
     }
-    const auto tri = tb::triangle_cluster_limits(max_tris, max_verts, static_cast<uint32_t>(built.triangles),
-                                                 static_cast<uint32_t>(built.vertices));
+    const auto tri =
+        tb::triangle_cluster_limits(max_tris, max_verts, static_cast<uint32_t>(built.triangles),
+                                    static_cast<uint32_t>(built.vertices));
     auto info = tb::cluster_commands(tb::cluster_op_input(n, &tri, call.mode));
-    const bool implicit = call.mode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
-    const bool explicit_mode = call.mode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
+    const bool implicit =
+        call.mode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+    const bool explicit_mode =
+        call.mode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
     info.dstImplicitData = implicit ? call.dst : 0;
     info.scratchData = call.scratch;
     info.dstAddressesArray = {call.arrays, 8, n * 8ull};
@@ -98,7 +108,9 @@ BuiltClusters AnalyzeSceneWriter::build(const ClusterBuild& call) {
     }
 
     std::vector<std::pair<uint64_t, std::vector<uint8_t>>> inputs = {
-        {S::kInfos, tb::bytes_of(infos)}, {S::kIndices, tb::bytes_of(indices)}, {S::kVertices, tb::bytes_of(vertices)}};
+        {S::kInfos, tb::bytes_of(infos)},
+        {S::kIndices, tb::bytes_of(indices)},
+        {S::kVertices, tb::bytes_of(vertices)}};
     if (explicit_mode) {
         std::vector<uint64_t> slots(n);
         std::vector<uint32_t> room(n, 1024);
@@ -108,7 +120,8 @@ BuiltClusters AnalyzeSceneWriter::build(const ClusterBuild& call) {
     }
     for (const auto& [address, bytes] : inputs) mirror_.write(address, bytes);
     const engine::ExecutionRecord r = mirror_.execute(info);
-    if (!r.findings.empty()) throw std::runtime_error("scene build has findings: " + r.findings[0].message);
+    if (!r.findings.empty())
+        throw std::runtime_error("scene build has findings: " + r.findings[0].message);
     built.implicit_used = r.implicit_bytes_used;
     built.scratch_used = r.scratch_bytes_used;
     std::vector<uint64_t> addresses(n);
@@ -120,9 +133,11 @@ BuiltClusters AnalyzeSceneWriter::build(const ClusterBuild& call) {
     }
 
     fbs::CmdBuildClusterAccelerationStructureIndirectT b = tb::cluster_build(command_buffer_, info);
-    for (const auto& [address, bytes] : inputs) b.inputs.push_back(writer_.snapshot(address, bytes));
+    for (const auto& [address, bytes] : inputs)
+        b.inputs.push_back(writer_.snapshot(address, bytes));
     if (implicit) b.outputs.push_back(writer_.snapshot(call.arrays, tb::bytes_of(addresses)));
-    if (!explicit_mode) b.outputs.push_back(writer_.snapshot(call.arrays + 0x200, tb::bytes_of(driver_sizes)));
+    if (!explicit_mode)
+        b.outputs.push_back(writer_.snapshot(call.arrays + 0x200, tb::bytes_of(driver_sizes)));
     writer_.append(std::move(b));
     return built;
 }
@@ -138,9 +153,12 @@ void AnalyzeSceneWriter::timestamp(uint64_t ticks) {
 }
 
 void AnalyzeSceneWriter::build_to_build_barrier() {
-    const uint64_t as = VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR | VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR;
-    writer_.append(tb::memory_barrier(command_buffer_, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, as,
-                                      VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, as));
+    const uint64_t as = VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR |
+                        VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR;
+    writer_.append(tb::memory_barrier(command_buffer_,
+                                      VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, as,
+                                      VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                                      as));
 }
 
 void AnalyzeSceneWriter::copy_buffer() {
@@ -156,24 +174,31 @@ void AnalyzeSceneWriter::copy_buffer() {
 static std::unique_ptr<fbs::GeometryNVT> nv_triangles(uint32_t index_count) {
     auto g = std::make_unique<fbs::GeometryNVT>();
     g->geometry_type = VK_GEOMETRY_TYPE_TRIANGLES_NV;
-    g->triangles = std::make_unique<fbs::GeometryTrianglesNV>(AnalyzeScene::kVertexBuffer, 0, 10, VK_FORMAT_R32G32B32_SFLOAT, 12,
-                                                              AnalyzeScene::kIndexBuffer, 0x8000, index_count,
-                                                              VK_INDEX_TYPE_UINT32, 0, 0);
+    g->triangles =
+        std::make_unique<fbs::GeometryTrianglesNV>(AnalyzeScene::kVertexBuffer, 0, 10,
+                                                   VK_FORMAT_R32G32B32_SFLOAT, 12,
+                                                   AnalyzeScene::kIndexBuffer, 0x8000, index_count,
+                                                   VK_INDEX_TYPE_UINT32, 0, 0);
     return g;
 }
 
-void AnalyzeSceneWriter::nv_build(uint32_t index_count, uint64_t object_bytes, uint64_t scratch_bytes) {
+void AnalyzeSceneWriter::nv_build(uint32_t index_count, uint64_t object_bytes,
+                                  uint64_t scratch_bytes) {
     if (!nv_declared_) {
         fbs::AccelerationStructureCreateT c;
         c.acceleration_structure = AnalyzeScene::kNvObject;
         c.api = 0;
         c.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV;
-        c.info = std::make_unique<fbs::AccelerationStructureInfoNVT>();  // room for the build's geometry
+        c.info =
+            std::make_unique<fbs::AccelerationStructureInfoNVT>();  // room for the build's geometry
         c.info->type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV;
         c.info->geometries.push_back(nv_triangles(index_count));
         writer_.append(std::move(c));
-        for (auto [type, size] : {std::pair<uint32_t, uint64_t>{VK_ACCELERATION_STRUCTURE_MEMORY_REQUIREMENTS_TYPE_OBJECT_NV, object_bytes},
-                                  {VK_ACCELERATION_STRUCTURE_MEMORY_REQUIREMENTS_TYPE_BUILD_SCRATCH_NV, scratch_bytes}}) {
+        for (auto [type, size] :
+             {std::pair<uint32_t, uint64_t>{
+                  VK_ACCELERATION_STRUCTURE_MEMORY_REQUIREMENTS_TYPE_OBJECT_NV, object_bytes},
+              {VK_ACCELERATION_STRUCTURE_MEMORY_REQUIREMENTS_TYPE_BUILD_SCRATCH_NV,
+               scratch_bytes}}) {
             fbs::AccelerationStructureMemoryRequirementsNVT q;
             q.acceleration_structure = AnalyzeScene::kNvObject;
             q.type = type;
@@ -200,9 +225,11 @@ void AnalyzeSceneWriter::nv_build(uint32_t index_count, uint64_t object_bytes, u
 
 // Another driver's serialized object (UUIDs not the engine's): opaque to the replay, but its
 // header must hold together (sizes, no handles) or the replay reports VUID 04960.
-static std::vector<uint8_t> foreign_serialized_blob(uint64_t serialized_bytes, uint64_t object_bytes) {
+static std::vector<uint8_t> foreign_serialized_blob(uint64_t serialized_bytes,
+                                                    uint64_t object_bytes) {
     std::vector<uint8_t> blob(std::max<uint64_t>(serialized_bytes, 56), 0x5a);
-    const uint64_t header[3] = {blob.size(), object_bytes, 0};  // serialized, deserialized size, handle count
+    const uint64_t header[3] = {blob.size(), object_bytes,
+                                0};  // serialized, deserialized size, handle count
     std::memcpy(blob.data() + 32, header, sizeof header);
     return blob;
 }
@@ -229,7 +256,8 @@ void AnalyzeSceneWriter::deserialize(uint64_t serialized_bytes, uint64_t object_
     writer_.append(std::move(k));
 }
 
-void AnalyzeSceneWriter::calibrate(uint64_t gpu_ticks, uint64_t host_ns, uint64_t max_deviation_ns) {
+void AnalyzeSceneWriter::calibrate(uint64_t gpu_ticks, uint64_t host_ns,
+                                   uint64_t max_deviation_ns) {
     fbs::CalibratedTimestampsT c;
     c.gpu_ticks = gpu_ticks;
     c.cpu_nanoseconds = host_ns;

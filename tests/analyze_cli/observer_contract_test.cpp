@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The ReplayObserver contract (replay_observer.h) as the streaming analysis relies on it: every
 // record once, submissions balanced, commands in sequence order inside their submission, a
 // cluster build's execution record and engine time present, and each hazard delivered right
@@ -44,7 +45,8 @@ struct Recorder final : replay::ReplayObserver {
     }
     void on_hazard(const replay::HazardReport& h) override {
         ++hazards;
-        hazard_ok &= h.later.command.submission == last.submission && h.later.command.command == last.command &&
+        hazard_ok &= h.later.command.submission == last.submission &&
+                     h.later.command.command == last.command &&
                      h.later.command.command_buffer == last.command_buffer;
     }
     void on_submission_end(uint32_t) override {
@@ -55,8 +57,9 @@ struct Recorder final : replay::ReplayObserver {
 };
 
 TEST(ReplayObserverContract, EventsArriveInOrder) {
-    const std::string path =
-        (std::filesystem::temp_directory_path() / ("observer_" + std::to_string(::getpid()) + ".clt")).string();
+    const std::string path = (std::filesystem::temp_directory_path() /
+                              ("observer_" + std::to_string(::getpid()) + ".clt"))
+                                 .string();
     {
         test::AnalyzeSceneWriter w(path, 1.0f);
         test::ClusterBuild a;
@@ -90,9 +93,11 @@ TEST(ReplayObserverContract, EventsArriveInOrder) {
     EXPECT_EQ(rec.ends, 2u);
     EXPECT_TRUE(rec.order_ok);
     EXPECT_FALSE(rec.open);
-    EXPECT_EQ(rec.commands, 6u);  // 2 timestamps, A, B, the NV build; A again in the second submission
+    EXPECT_EQ(rec.commands,
+              6u);  // 2 timestamps, A, B, the NV build; A again in the second submission
     // Every command the engine ran hands its record over: the cluster builds and the NV build.
-    EXPECT_EQ(rec.executions, r.counts.cluster_commands + r.counts.nv_builds + r.counts.deserializations);
+    EXPECT_EQ(rec.executions,
+              r.counts.cluster_commands + r.counts.nv_builds + r.counts.deserializations);
     EXPECT_EQ(r.counts.nv_builds, 1u);
     EXPECT_EQ(rec.ops, r.counts.cluster_ops + r.counts.nv_builds);  // an NV build is one op
     EXPECT_GT(rec.engine_ns, 0u);

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // `clastrace analyze --html OUT` follows the output-file rule (clastrace/traces/output_file.h):
 // a symbolic link keeps being a link to the new report, a device stays a device.
 #include <gtest/gtest.h>
@@ -25,15 +26,16 @@ std::string read_text(const fs::path& path) {
 }
 
 fs::path fresh_dir(const std::string& name) {
-    const fs::path dir = fs::temp_directory_path() / ("clastrace_report_output_" + std::to_string(::getpid())) / name;
+    const fs::path dir = fs::temp_directory_path() /
+                         ("clastrace_report_output_" + std::to_string(::getpid())) / name;
     fs::remove_all(dir);
     fs::create_directories(dir);
     return dir;
 }
 
 int analyze_html(const std::string& out, const fs::path& log) {
-    const std::string cmd = std::string(CLASTRACE_BIN) + " analyze " + CLASTRACE_SAMPLE + " --html '" + out +
-                            "' >'" + log.string() + "' 2>&1";
+    const std::string cmd = std::string(CLASTRACE_BIN) + " analyze " + CLASTRACE_SAMPLE +
+                            " --html '" + out + "' >'" + log.string() + "' 2>&1";
     const int status = std::system(cmd.c_str());
     return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
 }
@@ -43,7 +45,8 @@ TEST(AnalyzeReportOutput, HtmlThroughASymbolicLinkReplacesTheTargetAndKeepsTheLi
     fs::create_directories(dir / "reports");
     std::ofstream(dir / "reports" / "latest.html") << "an earlier report";
     fs::create_symlink("reports/latest.html", dir / "report.html");
-    ASSERT_EQ(analyze_html((dir / "report.html").string(), dir / "log.txt"), 0) << read_text(dir / "log.txt");
+    ASSERT_EQ(analyze_html((dir / "report.html").string(), dir / "log.txt"), 0)
+        << read_text(dir / "log.txt");
     EXPECT_TRUE(fs::is_symlink(dir / "report.html"));
     EXPECT_EQ(fs::read_symlink(dir / "report.html"), "reports/latest.html");
     EXPECT_EQ(read_text(dir / "reports" / "latest.html").rfind("<!DOCTYPE html>", 0), 0u);
@@ -75,7 +78,8 @@ TEST(AnalyzeReportOutput, HtmlOntoADirectoryIsRefusedWithExit2) {
     const fs::path dir = fresh_dir("directory");
     fs::create_directories(dir / "out.html");
     EXPECT_EQ(analyze_html((dir / "out.html").string(), dir / "log.txt"), 2);
-    EXPECT_NE(read_text(dir / "log.txt").find("it is a directory"), std::string::npos) << read_text(dir / "log.txt");
+    EXPECT_NE(read_text(dir / "log.txt").find("it is a directory"), std::string::npos)
+        << read_text(dir / "log.txt");
     EXPECT_TRUE(fs::is_directory(dir / "out.html"));
 }
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The HTML report of a generated trace (analyze_scene.h: a safe scratch reuse, GPU timestamp
 // spans, all command kinds) loaded in headless Chromium: the DOM must hold the GPU timeline,
 // the command-kind table, the memory map's regions and the numbers the trace implies.
@@ -40,7 +41,8 @@ std::size_t count(const std::string& s, const std::string& what) {
 TEST(StreamHtmlInChromium, GpuTimelineKindsAndMap) {
     int status = -1;
     run("command -v chromium", &status);
-    ASSERT_EQ(status, 0) << "chromium is not installed: scripts/deps.sh installs it (apt-get install chromium)";
+    ASSERT_EQ(status, 0)
+        << "chromium is not installed: scripts/deps.sh installs it (apt-get install chromium)";
     const fs::path dir(CLASTRACE_ANALYZE_ARTIFACT_DIR);
     fs::create_directories(dir);
     const std::string trace = (dir / "stream_scene.clt").string();
@@ -78,39 +80,56 @@ TEST(StreamHtmlInChromium, GpuTimelineKindsAndMap) {
     ASSERT_NE(mkdtemp(tmpl), nullptr);
     const std::string chromium =
         "timeout 60 chromium --headless --no-sandbox --disable-gpu --disable-quic --no-first-run "
-        "--disable-background-networking --disable-component-update --disable-sync --disable-extensions "
-        "--user-data-dir=" + std::string(tmpl);
+        "--disable-background-networking --disable-component-update --disable-sync "
+        "--disable-extensions "
+        "--user-data-dir=" +
+        std::string(tmpl);
     const std::string dom = run(chromium + " --dump-dom file://" + page.string(), &status);
     ASSERT_EQ(status, 0) << "chromium --dump-dom failed";
 
     ASSERT_NE(dom.find("<svg id=\"gpu-timeline\""), std::string::npos) << dom.substr(0, 2000);
     EXPECT_EQ(count(dom, "<rect class=\"gpu-span gpu\""), 3u);
-    EXPECT_NE(dom.find("data-first=\"1\" data-last=\"1\" data-start-ns=\"0\" data-ns=\"1200\""), std::string::npos);
-    EXPECT_NE(dom.find("data-first=\"3\" data-last=\"4\" data-start-ns=\"1200\" data-ns=\"2000\""), std::string::npos);
-    EXPECT_NE(dom.find("data-first=\"6\" data-last=\"7\" data-start-ns=\"3200\" data-ns=\"1000\" data-ops=\"2\""),
+    EXPECT_NE(dom.find("data-first=\"1\" data-last=\"1\" data-start-ns=\"0\" data-ns=\"1200\""),
+              std::string::npos);
+    EXPECT_NE(dom.find("data-first=\"3\" data-last=\"4\" data-start-ns=\"1200\" data-ns=\"2000\""),
+              std::string::npos);
+    EXPECT_NE(dom.find("data-first=\"6\" data-last=\"7\" data-start-ns=\"3200\" data-ns=\"1000\" "
+                       "data-ops=\"2\""),
               std::string::npos);
     // GPU spans table: the last span on the host clock (tick 1000 = 5 ms, 2 ns per tick).
-    EXPECT_NE(dom.find("<td class=\"num\">3200</td><td class=\"num\">5003200</td><td class=\"num\">1000</td>"),
-              std::string::npos);
+    EXPECT_NE(
+        dom.find(
+            "<td class=\"num\">3200</td><td class=\"num\">5003200</td><td class=\"num\">1000</td>"),
+        std::string::npos);
     // Command kinds, all of them.
-    EXPECT_NE(dom.find("<tr data-name=\"vkCmdBuildClusterAccelerationStructureIndirectNV\">"
-                       "<td>vkCmdBuildClusterAccelerationStructureIndirectNV</td><td class=\"num\">2</td>"
-                       "<td class=\"num\">5</td><td class=\"num\">36</td><td class=\"num\">5</td><td class=\"num\">" +
-                       std::to_string(engine_bytes) + "</td><td class=\"num\">" + std::to_string(engine_bytes + 5 * 128) +
-                       "</td>"),
-              std::string::npos);
+    EXPECT_NE(
+        dom.find("<tr data-name=\"vkCmdBuildClusterAccelerationStructureIndirectNV\">"
+                 "<td>vkCmdBuildClusterAccelerationStructureIndirectNV</td><td class=\"num\">2</td>"
+                 "<td class=\"num\">5</td><td class=\"num\">36</td><td class=\"num\">5</td><td "
+                 "class=\"num\">" +
+                 std::to_string(engine_bytes) + "</td><td class=\"num\">" +
+                 std::to_string(engine_bytes + 5 * 128) + "</td>"),
+        std::string::npos);
     {
         // The NV build: 1 command, 1 op, 8 triangles, the one bottom level the replay rebuilt
         // (engine bytes are the engine's), and the driver's 12345-byte requirement.
-        const size_t row = dom.find("<tr data-name=\"vkCmdBuildAccelerationStructureNV\"><td>vkCmdBuildAccelerationStructureNV</td>");
+        const size_t row = dom.find(
+            "<tr "
+            "data-name=\"vkCmdBuildAccelerationStructureNV\"><td>vkCmdBuildAccelerationStructureNV<"
+            "/td>");
         ASSERT_NE(row, std::string::npos);
         const std::string cells = dom.substr(row, dom.find("</tr>", row) - row);
-        EXPECT_NE(cells.find("<td class=\"num\">1</td><td class=\"num\">1</td><td class=\"num\">8</td><td class=\"num\">1</td>"),
-                  std::string::npos) << cells;
+        EXPECT_NE(cells.find("<td class=\"num\">1</td><td class=\"num\">1</td><td "
+                             "class=\"num\">8</td><td class=\"num\">1</td>"),
+                  std::string::npos)
+            << cells;
         EXPECT_NE(cells.find("</td><td class=\"num\">12345</td>"), std::string::npos) << cells;
-        EXPECT_EQ(cells.find("<td class=\"num\">0</td><td class=\"num\">12345</td>"), std::string::npos) << cells;
+        EXPECT_EQ(cells.find("<td class=\"num\">0</td><td class=\"num\">12345</td>"),
+                  std::string::npos)
+            << cells;
     }
-    EXPECT_NE(dom.find("<tr data-name=\"vkCmdCopyMemoryToAccelerationStructureKHR\">"), std::string::npos);
+    EXPECT_NE(dom.find("<tr data-name=\"vkCmdCopyMemoryToAccelerationStructureKHR\">"),
+              std::string::npos);
     EXPECT_NE(dom.find("<tr data-name=\"vkCmdPipelineBarrier\">"), std::string::npos);
     // The memory map draws the scratch, implicit data and objects; the reuse is outlined, not a hazard.
     EXPECT_NE(dom.find("<svg id=\"memory-map\""), std::string::npos);
@@ -119,12 +138,14 @@ TEST(StreamHtmlInChromium, GpuTimelineKindsAndMap) {
     EXPECT_GT(count(dom, "role-object_clas"), 0u);
     EXPECT_EQ(count(dom, "<rect class=\"overlap hazard\""), 0u);
     EXPECT_EQ(count(dom, "<rect class=\"overlap reuse\""), 1u);
-    EXPECT_NE(dom.find("<p id=\"largest-submission\" data-submission=\"0\" data-commands=\"5\" data-ops=\"7\">"),
+    EXPECT_NE(dom.find("<p id=\"largest-submission\" data-submission=\"0\" data-commands=\"5\" "
+                       "data-ops=\"7\">"),
               std::string::npos);
 
     const fs::path png = dir / "stream_scene_report.png";
     fs::remove(png);
-    run(chromium + " --hide-scrollbars --window-size=1280,2400 --screenshot=" + png.string() + " file://" + page.string(),
+    run(chromium + " --hide-scrollbars --window-size=1280,2400 --screenshot=" + png.string() +
+            " file://" + page.string(),
         &status);
     EXPECT_EQ(status, 0);
     EXPECT_TRUE(fs::exists(png));

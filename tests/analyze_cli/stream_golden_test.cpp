@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Golden tests of the streaming analysis on generated traces (analyze_scene.h) whose numbers
 // are known: object sizes from the engine run by the writer, driver sizes = engine + 128,
 // build-sizes answers, buffer sizes, timestamps 2 ns per tick, one scratch reused as implicit
@@ -24,9 +25,13 @@ namespace {
 
 using S = test::AnalyzeScene;
 
-std::string temp_path(const std::string& name) { return test::temp_trace_path("analyze_golden", name); }
+std::string temp_path(const std::string& name) {
+    return test::temp_trace_path("analyze_golden", name);
+}
 
-uint64_t sum(const std::vector<uint64_t>& v) { return std::accumulate(v.begin(), v.end(), uint64_t{0}); }
+uint64_t sum(const std::vector<uint64_t>& v) {
+    return std::accumulate(v.begin(), v.end(), uint64_t{0});
+}
 
 // Submission 0: ts 1000 | A: 3 clusters (2, 8, 18 triangles) | ts 1600 | [barrier] | B: 2
 // clusters of 4 triangles at truncate bits 8, implicit data on A's scratch | ts 2600 | copy,
@@ -101,12 +106,13 @@ TEST(StreamGolden, SceneIsWhatTheTestsAssume) {
     ASSERT_EQ(g.b.engine_sizes.size(), 2u);
     EXPECT_EQ(g.a.triangles, 28u);
     EXPECT_EQ(g.a.vertices, 34u);
-    EXPECT_EQ(g.a.scratch_used, 48u);  // 16 bytes per op (engine/build_sizes.h)
+    EXPECT_EQ(g.a.scratch_used, 48u);     // 16 bytes per op (engine/build_sizes.h)
     EXPECT_GE(g.b.engine_sizes[0], 48u);  // C's scratch lands inside B's first object
     // The scene deserializes another driver's blob: the replay notes it as opaque (two
     // information findings), and nothing else.
     for (const auto& f : g.analysis.replay.findings)
-        EXPECT_TRUE(f.rule == "CLASTRACE-replay-nv-opaque-object" || f.rule == "CLASTRACE-serialized-blob-from-another-driver")
+        EXPECT_TRUE(f.rule == "CLASTRACE-replay-nv-opaque-object" ||
+                    f.rule == "CLASTRACE-serialized-blob-from-another-driver")
             << f.format();
 }
 
@@ -153,7 +159,8 @@ TEST(StreamGolden, SizesByOpType) {
     // dstImplicitData: from its address to the end of the 256 KiB pool; used = the engine's packing.
     EXPECT_EQ(t.implicit_allocated, S::kPoolSize + (S::kPoolSize - 0x20000) + S::kPoolSize);
     EXPECT_EQ(t.implicit_used, 2 * g.a.implicit_used + g.b.implicit_used);
-    EXPECT_EQ(t.scratch_allocated, (S::kPoolSize - 0x20000) + (S::kPoolSize - 0x30000) + (S::kPoolSize - 0x20000));
+    EXPECT_EQ(t.scratch_allocated,
+              (S::kPoolSize - 0x20000) + (S::kPoolSize - 0x30000) + (S::kPoolSize - 0x20000));
     EXPECT_EQ(t.scratch_required, 3u * 0x1000u);
     EXPECT_EQ(t.scratch_used, 48u + 32u + 48u);
 }
@@ -190,8 +197,8 @@ TEST(StreamGolden, AllCommandKindsListed) {
     EXPECT_EQ(clas.gpu_ns, 1200u + 2000u);
     const auto& nv = kinds.at("vkCmdBuildAccelerationStructureNV");
     EXPECT_EQ(nv.commands, 1u);
-    EXPECT_EQ(nv.ops, 1u);         // one geometry
-    EXPECT_EQ(nv.triangles, 8u);   // 24 indices
+    EXPECT_EQ(nv.ops, 1u);               // one geometry
+    EXPECT_EQ(nv.triangles, 8u);         // 24 indices
     EXPECT_EQ(nv.driver_bytes, 12345u);  // its memory requirement (OBJECT)
     const auto& deser = kinds.at("vkCmdCopyMemoryToAccelerationStructureKHR");
     EXPECT_EQ(deser.commands, 1u);
@@ -275,20 +282,21 @@ TEST(StreamGolden, OrderedReuseIsSafe) {
     // Regions with roles and lifetimes: A's scratch lives from A to C.
     bool found = false;
     for (const auto& row : r.region_rows)
-      if (row.role == analyze::RegionRole::kScratch && row.base == S::kPool + 0x20000) {
-        found = true;
-        EXPECT_EQ(row.first_command, 1u);
-        EXPECT_EQ(row.last_command, 10u);
-        EXPECT_EQ(row.uses, 2u);
-      }
+        if (row.role == analyze::RegionRole::kScratch && row.base == S::kPool + 0x20000) {
+            found = true;
+            EXPECT_EQ(row.first_command, 1u);
+            EXPECT_EQ(row.last_command, 10u);
+            EXPECT_EQ(row.uses, 2u);
+        }
     EXPECT_TRUE(found);
     std::set<analyze::RegionRole> roles;
     for (const auto& row : r.region_rows) roles.insert(row.role);
-    for (analyze::RegionRole role : {analyze::RegionRole::kBuffer, analyze::RegionRole::kScratch,
-                                     analyze::RegionRole::kImplicitData, analyze::RegionRole::kDstAddresses,
-                                     analyze::RegionRole::kDstSizes, analyze::RegionRole::kSrcInfos,
-                                     analyze::RegionRole::kObjectClas, analyze::RegionRole::kObjectBlas,
-                                     analyze::RegionRole::kVertex, analyze::RegionRole::kIndex})
+    for (analyze::RegionRole role :
+         {analyze::RegionRole::kBuffer, analyze::RegionRole::kScratch,
+          analyze::RegionRole::kImplicitData, analyze::RegionRole::kDstAddresses,
+          analyze::RegionRole::kDstSizes, analyze::RegionRole::kSrcInfos,
+          analyze::RegionRole::kObjectClas, analyze::RegionRole::kObjectBlas,
+          analyze::RegionRole::kVertex, analyze::RegionRole::kIndex})
         EXPECT_TRUE(roles.count(role)) << analyze::region_role_name(role);
 }
 
@@ -312,21 +320,27 @@ TEST(StreamGolden, TextShowsTheNumbers) {
     const GoldenScene& g = ordered();
     const std::string text = analyze::render_text(g.analysis.report);
     std::istringstream lines(text);
-    for (std::string line; std::getline(lines, line);) EXPECT_LE(line.size(), analyze::kTextColumns) << line;
+    for (std::string line; std::getline(lines, line);)
+        EXPECT_LE(line.size(), analyze::kTextColumns) << line;
     EXPECT_NE(text.find("largest submission: #0, 6 commands, 7 ops"), std::string::npos) << text;
-    EXPECT_NE(text.find("GPU timestamp spans: 3 spans, 0.004 ms, 7 ops (1666667 ops/s), 44 triangles"), std::string::npos)
+    EXPECT_NE(text.find(
+                  "GPU timestamp spans: 3 spans, 0.004 ms, 7 ops (1666667 ops/s), 44 triangles"),
+              std::string::npos)
         << text;
-    EXPECT_NE(text.find("calibrated: tick 1000 = host 5000000 ns +- 250 ns"), std::string::npos) << text;
+    EXPECT_NE(text.find("calibrated: tick 1000 = host 5000000 ns +- 250 ns"), std::string::npos)
+        << text;
     EXPECT_NE(text.find("\nCopyMemoryToAccelerationStructureKHR "), std::string::npos) << text;
     EXPECT_NE(text.find("\nBuildAccelerationStructureNV "), std::string::npos) << text;
-    EXPECT_NE(text.find("\nBuildClusterAccelerationStructureIndirectNV "), std::string::npos) << text;
+    EXPECT_NE(text.find("\nBuildClusterAccelerationStructureIndirectNV "), std::string::npos)
+        << text;
     // The sizes row of build_triangle_cluster: commands, ops, objects, triangles, bytes.
     const std::size_t sizes = text.find("Sizes by op type");
     ASSERT_NE(sizes, std::string::npos);
     std::istringstream row(text.substr(text.find("\nclas ", sizes) + 1));
     std::vector<std::string> cells(6);
     for (std::string& c : cells) row >> c;
-    EXPECT_EQ(cells, (std::vector<std::string>{"clas", "3", "8", "8", "64", std::to_string(g.engine_bytes())}));
+    EXPECT_EQ(cells, (std::vector<std::string>{"clas", "3", "8", "8", "64",
+                                               std::to_string(g.engine_bytes())}));
 }
 
 TEST(StreamGolden, JsonHoldsTheNumbers) {
@@ -448,7 +462,8 @@ TEST(StreamGolden, BackwardTimestampsAndMissingPeriodAreNotes) {
     EXPECT_EQ(r.gpu_clock->timestamp_period_ns, 1.0);
     bool backwards = false, assumed = false;
     for (const std::string& n : r.notes) {
-        backwards |= n.find("1 GPU timestamps are earlier than the timestamp before them") != std::string::npos;
+        backwards |= n.find("1 GPU timestamps are earlier than the timestamp before them") !=
+                     std::string::npos;
         assumed |= n.find("no timestampPeriod: 1 ns per tick assumed") != std::string::npos;
     }
     EXPECT_TRUE(backwards);
@@ -456,7 +471,8 @@ TEST(StreamGolden, BackwardTimestampsAndMissingPeriodAreNotes) {
     const std::string text = analyze::render_text(r);
     EXPECT_NE(text.find("\nNotes\n"), std::string::npos);
     std::istringstream lines(text);
-    for (std::string line; std::getline(lines, line);) EXPECT_LE(line.size(), analyze::kTextColumns) << line;
+    for (std::string line; std::getline(lines, line);)
+        EXPECT_LE(line.size(), analyze::kTextColumns) << line;
 }
 
 // Peak memory follows the largest submission: the feeder holds one submission's events, so

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // A headless compute-only Vulkan program that uses VK_NV_cluster_acceleration_structure through
 // the loader, for the capture layer's tests. Modes:
 //   limits OUT.json        queries the extension, its feature and properties, and build sizes
@@ -32,69 +33,75 @@ using namespace clastrace::testapp;
 
 // Everything it made is destroyed when a mode returns.
 struct Context : ClusterTestDevice {
-  ~Context() { destroy(); }
+    ~Context() { destroy(); }
 };
 
 void transferToBuildBarrier(VkCommandBuffer cb) {
-  VkMemoryBarrier barrier{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr, VK_ACCESS_TRANSFER_WRITE_BIT,
-                          VK_ACCESS_MEMORY_READ_BIT};
-  vkCmdPipelineBarrier(cb, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, 0, 1, &barrier, 0,
-                       nullptr, 0, nullptr);
+    VkMemoryBarrier barrier{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr, VK_ACCESS_TRANSFER_WRITE_BIT,
+                            VK_ACCESS_MEMORY_READ_BIT};
+    vkCmdPipelineBarrier(cb, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, 0,
+                         1, &barrier, 0, nullptr, 0, nullptr);
 }
 
 void buildToTransferBarrier(VkCommandBuffer cb) {
-  VkMemoryBarrier barrier{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr, VK_ACCESS_MEMORY_READ_BIT | VK_ACCESS_MEMORY_WRITE_BIT,
-                          VK_ACCESS_TRANSFER_WRITE_BIT};
-  vkCmdPipelineBarrier(cb, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_PIPELINE_STAGE_TRANSFER_BIT, 0, 1, &barrier, 0,
-                       nullptr, 0, nullptr);
+    VkMemoryBarrier barrier{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr,
+                            VK_ACCESS_MEMORY_READ_BIT | VK_ACCESS_MEMORY_WRITE_BIT,
+                            VK_ACCESS_TRANSFER_WRITE_BIT};
+    vkCmdPipelineBarrier(cb, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_PIPELINE_STAGE_TRANSFER_BIT, 0,
+                         1, &barrier, 0, nullptr, 0, nullptr);
 }
 
 int limits(const char* outPath) {
-  Context c;
-  c.createInstance();
-  nlohmann::json out;
-  out["extensionListed"] = c.hasClusterExtension();
-  VkPhysicalDeviceClusterAccelerationStructureFeaturesNV features{
-      VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_FEATURES_NV, nullptr, VK_FALSE};
-  VkPhysicalDeviceFeatures2 features2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2, &features, {}};
-  vkGetPhysicalDeviceFeatures2(c.physicalDevice, &features2);
-  out["clusterAccelerationStructure"] = features.clusterAccelerationStructure == VK_TRUE;
-  VkPhysicalDeviceClusterAccelerationStructurePropertiesNV p{};
-  p.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_PROPERTIES_NV;
-  VkPhysicalDeviceProperties2 properties2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2, &p, {}};
-  vkGetPhysicalDeviceProperties2(c.physicalDevice, &properties2);
-  out["deviceName"] = properties2.properties.deviceName;
-  out["properties"] = {{"maxVerticesPerCluster", p.maxVerticesPerCluster},
-                       {"maxTrianglesPerCluster", p.maxTrianglesPerCluster},
-                       {"clusterScratchByteAlignment", p.clusterScratchByteAlignment},
-                       {"clusterByteAlignment", p.clusterByteAlignment},
-                       {"clusterTemplateByteAlignment", p.clusterTemplateByteAlignment},
-                       {"clusterBottomLevelByteAlignment", p.clusterBottomLevelByteAlignment},
-                       {"clusterTemplateBoundsByteAlignment", p.clusterTemplateBoundsByteAlignment},
-                       {"maxClusterGeometryIndex", p.maxClusterGeometryIndex}};
-  if (out["extensionListed"]) {
-    c.createDevice();
-    VkClusterAccelerationStructureTriangleClusterInputNV tri{};
-    tri.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
-    tri.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
-    tri.maxClusterTriangleCount = 128;
-    tri.maxClusterVertexCount = 128;
-    tri.maxTotalTriangleCount = 1024;
-    tri.maxTotalVertexCount = 1024;
-    VkClusterAccelerationStructureInputInfoNV input{};
-    input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
-    input.maxAccelerationStructureCount = 8;
-    input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
-    input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
-    input.opInput.pTriangleClusters = &tri;
-    VkAccelerationStructureBuildSizesInfoKHR sizes{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr, 0, 0, 0};
-    c.getBuildSizes(c.device, &input, &sizes);
-    out["buildSizes"] = {{"accelerationStructureSize", sizes.accelerationStructureSize},
-                         {"buildScratchSize", sizes.buildScratchSize},
-                         {"updateScratchSize", sizes.updateScratchSize}};
-  }
-  std::ofstream(outPath) << out.dump(1);
-  return 0;
+    Context c;
+    c.createInstance();
+    nlohmann::json out;
+    out["extensionListed"] = c.hasClusterExtension();
+    VkPhysicalDeviceClusterAccelerationStructureFeaturesNV features{
+        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_FEATURES_NV, nullptr,
+        VK_FALSE};
+    VkPhysicalDeviceFeatures2 features2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2,
+                                        &features,
+                                        {}};
+    vkGetPhysicalDeviceFeatures2(c.physicalDevice, &features2);
+    out["clusterAccelerationStructure"] = features.clusterAccelerationStructure == VK_TRUE;
+    VkPhysicalDeviceClusterAccelerationStructurePropertiesNV p{};
+    p.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_PROPERTIES_NV;
+    VkPhysicalDeviceProperties2 properties2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2, &p, {}};
+    vkGetPhysicalDeviceProperties2(c.physicalDevice, &properties2);
+    out["deviceName"] = properties2.properties.deviceName;
+    out["properties"] = {{"maxVerticesPerCluster", p.maxVerticesPerCluster},
+                         {"maxTrianglesPerCluster", p.maxTrianglesPerCluster},
+                         {"clusterScratchByteAlignment", p.clusterScratchByteAlignment},
+                         {"clusterByteAlignment", p.clusterByteAlignment},
+                         {"clusterTemplateByteAlignment", p.clusterTemplateByteAlignment},
+                         {"clusterBottomLevelByteAlignment", p.clusterBottomLevelByteAlignment},
+                         {"clusterTemplateBoundsByteAlignment",
+                          p.clusterTemplateBoundsByteAlignment},
+                         {"maxClusterGeometryIndex", p.maxClusterGeometryIndex}};
+    if (out["extensionListed"]) {
+        c.createDevice();
+        VkClusterAccelerationStructureTriangleClusterInputNV tri{};
+        tri.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
+        tri.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+        tri.maxClusterTriangleCount = 128;
+        tri.maxClusterVertexCount = 128;
+        tri.maxTotalTriangleCount = 1024;
+        tri.maxTotalVertexCount = 1024;
+        VkClusterAccelerationStructureInputInfoNV input{};
+        input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+        input.maxAccelerationStructureCount = 8;
+        input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
+        input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+        input.opInput.pTriangleClusters = &tri;
+        VkAccelerationStructureBuildSizesInfoKHR sizes{
+            VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr, 0, 0, 0};
+        c.getBuildSizes(c.device, &input, &sizes);
+        out["buildSizes"] = {{"accelerationStructureSize", sizes.accelerationStructureSize},
+                             {"buildScratchSize", sizes.buildScratchSize},
+                             {"updateScratchSize", sizes.updateScratchSize}};
+    }
+    std::ofstream(outPath) << out.dump(1);
+    return 0;
 }
 
 // Layout of the exactness scene: two triangle clusters (srcInfosCount says 2 of at most 3),
@@ -102,422 +109,469 @@ int limits(const char* outPath) {
 constexpr VkDeviceSize kInfoStride = 80;
 
 int exactness(const char* outPath) {
-  Context c;
-  c.createInstance();
-  c.createDevice();
-  nlohmann::json out;
+    Context c;
+    c.createInstance();
+    c.createDevice();
+    nlohmann::json out;
 
-  Buffer staging = c.makeBuffer(4096, 0, 0xEE);
-  Buffer infos = c.makeBuffer(4096, 0, 0xEE);
-  Buffer counts = c.makeBuffer(256, 0, 0xEE);
-  Buffer vertices = c.makeBuffer(1024, 0, 0xEE);
-  Buffer indices = c.makeBuffer(256, 0, 0xEE);
-  Buffer geometry = c.makeBuffer(256, 0, 0xEE);
-  Buffer references = c.makeBuffer(256, 0, 0xEE);
-  Buffer dstAddresses = c.makeBuffer(256, 0, 0xEE);
-  Buffer dstSizes = c.makeBuffer(256, 0, 0xEE);
-  Buffer implicitData = c.makeBuffer(1 << 16, 0, 0);
-  Buffer scratch = c.makeBuffer(1 << 16, 0, 0);
+    Buffer staging = c.makeBuffer(4096, 0, 0xEE);
+    Buffer infos = c.makeBuffer(4096, 0, 0xEE);
+    Buffer counts = c.makeBuffer(256, 0, 0xEE);
+    Buffer vertices = c.makeBuffer(1024, 0, 0xEE);
+    Buffer indices = c.makeBuffer(256, 0, 0xEE);
+    Buffer geometry = c.makeBuffer(256, 0, 0xEE);
+    Buffer references = c.makeBuffer(256, 0, 0xEE);
+    Buffer dstAddresses = c.makeBuffer(256, 0, 0xEE);
+    Buffer dstSizes = c.makeBuffer(256, 0, 0xEE);
+    Buffer implicitData = c.makeBuffer(1 << 16, 0, 0);
+    Buffer scratch = c.makeBuffer(1 << 16, 0, 0);
 
-  // Cluster 0: a quad, 4 vertices packed (stride 0), 16-bit indices, per-triangle geometry words.
-  // Cluster 1: one triangle, 3 vertices 16 bytes apart, 32-bit indices 8 bytes apart.
-  const float quad[4][3] = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}};
-  const float tri[3][4] = {{2, 0, 0, -1}, {3, 0, 0, -1}, {2, 1, 0.5f, -1}};  // 4th float is padding
-  const uint16_t quadIndices[6] = {0, 1, 2, 0, 2, 3};
-  const uint32_t triIndices[6] = {0, 0xAAAAAAAA, 1, 0xAAAAAAAA, 2, 0xAAAAAAAA};  // stride 8
-  const uint32_t geometryWords[2] = {(1u << 29) | 5u, (4u << 29) | 6u};
+    // Cluster 0: a quad, 4 vertices packed (stride 0), 16-bit indices, per-triangle geometry words.
+    // Cluster 1: one triangle, 3 vertices 16 bytes apart, 32-bit indices 8 bytes apart.
+    const float quad[4][3] = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}};
+    const float tri[3][4] = {{2, 0, 0, -1},
+                             {3, 0, 0, -1},
+                             {2, 1, 0.5f, -1}};  // 4th float is padding
+    const uint16_t quadIndices[6] = {0, 1, 2, 0, 2, 3};
+    const uint32_t triIndices[6] = {0, 0xAAAAAAAA, 1, 0xAAAAAAAA, 2, 0xAAAAAAAA};  // stride 8
+    const uint32_t geometryWords[2] = {(1u << 29) | 5u, (4u << 29) | 6u};
 
-  const VkDeviceSize quadOffset = 0, triOffset = 64, quadIndexOffset = 0, triIndexOffset = 64;
-  VkClusterAccelerationStructureBuildTriangleClusterInfoNV cluster[2]{};
-  cluster[0].clusterID = 100;
-  cluster[0].triangleCount = 2;
-  cluster[0].vertexCount = 4;
-  cluster[0].indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_16BIT_NV;
-  cluster[0].indexBuffer = indices.address + quadIndexOffset;
-  cluster[0].vertexBuffer = vertices.address + quadOffset;
-  cluster[0].geometryIndexAndFlagsBuffer = geometry.address;
-  cluster[1].clusterID = 101;
-  cluster[1].triangleCount = 1;
-  cluster[1].vertexCount = 3;
-  cluster[1].indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
-  cluster[1].indexBufferStride = 8;
-  cluster[1].vertexBufferStride = 16;
-  cluster[1].indexBuffer = indices.address + triIndexOffset;
-  cluster[1].vertexBuffer = vertices.address + triOffset;
-  cluster[1].baseGeometryIndexAndGeometryFlags.geometryIndex = 9;
+    const VkDeviceSize quadOffset = 0, triOffset = 64, quadIndexOffset = 0, triIndexOffset = 64;
+    VkClusterAccelerationStructureBuildTriangleClusterInfoNV cluster[2]{};
+    cluster[0].clusterID = 100;
+    cluster[0].triangleCount = 2;
+    cluster[0].vertexCount = 4;
+    cluster[0].indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_16BIT_NV;
+    cluster[0].indexBuffer = indices.address + quadIndexOffset;
+    cluster[0].vertexBuffer = vertices.address + quadOffset;
+    cluster[0].geometryIndexAndFlagsBuffer = geometry.address;
+    cluster[1].clusterID = 101;
+    cluster[1].triangleCount = 1;
+    cluster[1].vertexCount = 3;
+    cluster[1].indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
+    cluster[1].indexBufferStride = 8;
+    cluster[1].vertexBufferStride = 16;
+    cluster[1].indexBuffer = indices.address + triIndexOffset;
+    cluster[1].vertexBuffer = vertices.address + triOffset;
+    cluster[1].baseGeometryIndexAndGeometryFlags.geometryIndex = 9;
 
-  uint8_t infoBytes[2 * kInfoStride];
-  std::memset(infoBytes, 0xCD, sizeof infoBytes);  // the gap between entries is not referenced
-  std::memcpy(infoBytes, &cluster[0], sizeof cluster[0]);
-  std::memcpy(infoBytes + kInfoStride, &cluster[1], sizeof cluster[1]);
+    uint8_t infoBytes[2 * kInfoStride];
+    std::memset(infoBytes, 0xCD, sizeof infoBytes);  // the gap between entries is not referenced
+    std::memcpy(infoBytes, &cluster[0], sizeof cluster[0]);
+    std::memcpy(infoBytes + kInfoStride, &cluster[1], sizeof cluster[1]);
 
-  const VkDeviceAddress clusterRefs[2] = {0x1000, 0x2000};
-  VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV blas{};
-  blas.clusterReferencesCount = 2;
-  blas.clusterReferences = references.address;
+    const VkDeviceAddress clusterRefs[2] = {0x1000, 0x2000};
+    VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV blas{};
+    blas.clusterReferencesCount = 2;
+    blas.clusterReferences = references.address;
 
-  VkCommandBuffer cb = c.beginCommands();
-  vkCmdFillBuffer(cb, counts.buffer, 0, 4, 2);             // srcInfosCount of the cluster build: 2
-  vkCmdFillBuffer(cb, counts.buffer, 4, 4, 1);             // srcInfosCount of the bottom-level build: 1
-  vkCmdUpdateBuffer(cb, staging.buffer, 0, sizeof infoBytes, infoBytes);
-  VkBufferCopy copy{0, 0, sizeof infoBytes};
-  transferToBuildBarrier(cb);
-  vkCmdCopyBuffer(cb, staging.buffer, infos.buffer, 1, &copy);  // entries reach srcInfosArray by copy
-  vkCmdUpdateBuffer(cb, infos.buffer, 1024, sizeof blas, &blas);
-  vkCmdUpdateBuffer(cb, vertices.buffer, quadOffset, sizeof quad, quad);
-  vkCmdUpdateBuffer(cb, vertices.buffer, triOffset, sizeof tri, tri);
-  vkCmdUpdateBuffer(cb, indices.buffer, quadIndexOffset, sizeof quadIndices, quadIndices);
-  vkCmdUpdateBuffer(cb, indices.buffer, triIndexOffset, sizeof triIndices, triIndices);
-  vkCmdUpdateBuffer(cb, geometry.buffer, 0, sizeof geometryWords, geometryWords);
-  vkCmdUpdateBuffer(cb, references.buffer, 0, sizeof clusterRefs, clusterRefs);
-  vkCmdFillBuffer(cb, dstSizes.buffer, 0, 256, 0x77777777);  // what the "after" pause must see
-  transferToBuildBarrier(cb);
+    VkCommandBuffer cb = c.beginCommands();
+    vkCmdFillBuffer(cb, counts.buffer, 0, 4, 2);  // srcInfosCount of the cluster build: 2
+    vkCmdFillBuffer(cb, counts.buffer, 4, 4, 1);  // srcInfosCount of the bottom-level build: 1
+    vkCmdUpdateBuffer(cb, staging.buffer, 0, sizeof infoBytes, infoBytes);
+    VkBufferCopy copy{0, 0, sizeof infoBytes};
+    transferToBuildBarrier(cb);
+    vkCmdCopyBuffer(cb, staging.buffer, infos.buffer, 1,
+                    &copy);  // entries reach srcInfosArray by copy
+    vkCmdUpdateBuffer(cb, infos.buffer, 1024, sizeof blas, &blas);
+    vkCmdUpdateBuffer(cb, vertices.buffer, quadOffset, sizeof quad, quad);
+    vkCmdUpdateBuffer(cb, vertices.buffer, triOffset, sizeof tri, tri);
+    vkCmdUpdateBuffer(cb, indices.buffer, quadIndexOffset, sizeof quadIndices, quadIndices);
+    vkCmdUpdateBuffer(cb, indices.buffer, triIndexOffset, sizeof triIndices, triIndices);
+    vkCmdUpdateBuffer(cb, geometry.buffer, 0, sizeof geometryWords, geometryWords);
+    vkCmdUpdateBuffer(cb, references.buffer, 0, sizeof clusterRefs, clusterRefs);
+    vkCmdFillBuffer(cb, dstSizes.buffer, 0, 256, 0x77777777);  // what the "after" pause must see
+    transferToBuildBarrier(cb);
 
-  VkClusterAccelerationStructureTriangleClusterInputNV triangleInput{};
-  triangleInput.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
-  triangleInput.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
-  triangleInput.maxGeometryIndexValue = 16;
-  triangleInput.maxClusterUniqueGeometryCount = 2;
-  triangleInput.maxClusterTriangleCount = 2;
-  triangleInput.maxClusterVertexCount = 4;
-  triangleInput.maxTotalTriangleCount = 3;
-  triangleInput.maxTotalVertexCount = 7;
-  VkClusterAccelerationStructureCommandsInfoNV build{};
-  build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
-  build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
-  build.input.maxAccelerationStructureCount = 3;
-  build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
-  build.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
-  build.input.opInput.pTriangleClusters = &triangleInput;
-  build.dstImplicitData = implicitData.address;
-  build.scratchData = scratch.address;
-  build.dstAddressesArray = {dstAddresses.address, 8, 24};
-  build.dstSizesArray = {dstSizes.address, 4, 12};
-  build.srcInfosArray = {infos.address, kInfoStride, 3 * kInfoStride};
-  build.srcInfosCount = counts.address;
-  c.cmdBuildClusters(cb, &build);
+    VkClusterAccelerationStructureTriangleClusterInputNV triangleInput{};
+    triangleInput.sType =
+        VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
+    triangleInput.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+    triangleInput.maxGeometryIndexValue = 16;
+    triangleInput.maxClusterUniqueGeometryCount = 2;
+    triangleInput.maxClusterTriangleCount = 2;
+    triangleInput.maxClusterVertexCount = 4;
+    triangleInput.maxTotalTriangleCount = 3;
+    triangleInput.maxTotalVertexCount = 7;
+    VkClusterAccelerationStructureCommandsInfoNV build{};
+    build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+    build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+    build.input.maxAccelerationStructureCount = 3;
+    build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
+    build.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+    build.input.opInput.pTriangleClusters = &triangleInput;
+    build.dstImplicitData = implicitData.address;
+    build.scratchData = scratch.address;
+    build.dstAddressesArray = {dstAddresses.address, 8, 24};
+    build.dstSizesArray = {dstSizes.address, 4, 12};
+    build.srcInfosArray = {infos.address, kInfoStride, 3 * kInfoStride};
+    build.srcInfosCount = counts.address;
+    c.cmdBuildClusters(cb, &build);
 
-  VkClusterAccelerationStructureClustersBottomLevelInputNV blasInput{};
-  blasInput.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
-  blasInput.maxTotalClusterCount = 2;
-  blasInput.maxClusterCountPerAccelerationStructure = 2;
-  VkClusterAccelerationStructureCommandsInfoNV blasBuild{};
-  blasBuild.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
-  blasBuild.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
-  blasBuild.input.maxAccelerationStructureCount = 1;
-  blasBuild.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
-  blasBuild.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
-  blasBuild.input.opInput.pClustersBottomLevel = &blasInput;
-  blasBuild.dstImplicitData = implicitData.address + 32768;
-  blasBuild.scratchData = scratch.address + 32768;
-  blasBuild.srcInfosArray = {infos.address + 1024, 0, sizeof blas};
-  blasBuild.srcInfosCount = counts.address + 4;
-  c.cmdBuildClusters(cb, &blasBuild);
+    VkClusterAccelerationStructureClustersBottomLevelInputNV blasInput{};
+    blasInput.sType =
+        VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
+    blasInput.maxTotalClusterCount = 2;
+    blasInput.maxClusterCountPerAccelerationStructure = 2;
+    VkClusterAccelerationStructureCommandsInfoNV blasBuild{};
+    blasBuild.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+    blasBuild.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+    blasBuild.input.maxAccelerationStructureCount = 1;
+    blasBuild.input.opType =
+        VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
+    blasBuild.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+    blasBuild.input.opInput.pClustersBottomLevel = &blasInput;
+    blasBuild.dstImplicitData = implicitData.address + 32768;
+    blasBuild.scratchData = scratch.address + 32768;
+    blasBuild.srcInfosArray = {infos.address + 1024, 0, sizeof blas};
+    blasBuild.srcInfosCount = counts.address + 4;
+    c.cmdBuildClusters(cb, &blasBuild);
 
-  // Overwrite everything the builds read: a capture taken at any other moment shows these.
-  buildToTransferBarrier(cb);
-  vkCmdFillBuffer(cb, counts.buffer, 0, 8, 7);
-  vkCmdFillBuffer(cb, vertices.buffer, 0, 1024, 0x3F800000);
-  vkCmdFillBuffer(cb, indices.buffer, 0, 256, 0x01010101);
-  vkCmdFillBuffer(cb, dstSizes.buffer, 0, 256, 0x99999999);
-  c.submitAndWait(cb);
+    // Overwrite everything the builds read: a capture taken at any other moment shows these.
+    buildToTransferBarrier(cb);
+    vkCmdFillBuffer(cb, counts.buffer, 0, 8, 7);
+    vkCmdFillBuffer(cb, vertices.buffer, 0, 1024, 0x3F800000);
+    vkCmdFillBuffer(cb, indices.buffer, 0, 256, 0x01010101);
+    vkCmdFillBuffer(cb, dstSizes.buffer, 0, 256, 0x99999999);
+    c.submitAndWait(cb);
 
-  auto range = [](VkDeviceAddress address, const void* data, size_t size) {
-    return nlohmann::json{{"address", address}, {"bytes", hex(data, size)}};
-  };
-  const uint32_t two = 2, one = 1;
-  out["clusterBuild"] = {
-      {"srcInfosCount", range(counts.address, &two, 4)},
-      {"srcInfos", {range(infos.address, &cluster[0], 64), range(infos.address + kInfoStride, &cluster[1], 64)}},
-      {"indexBuffer", {range(cluster[0].indexBuffer, quadIndices, sizeof quadIndices),
-                       range(cluster[1].indexBuffer, &triIndices[0], 4), range(cluster[1].indexBuffer + 8, &triIndices[2], 4),
-                       range(cluster[1].indexBuffer + 16, &triIndices[4], 4)}},
-      {"vertexBuffer", {range(cluster[0].vertexBuffer, quad, sizeof quad), range(cluster[1].vertexBuffer, tri[0], 12),
-                        range(cluster[1].vertexBuffer + 16, tri[1], 12), range(cluster[1].vertexBuffer + 32, tri[2], 12)}},
-      {"geometryIndexAndFlagsBuffer", {range(geometry.address, geometryWords, sizeof geometryWords)}},
-      {"dstSizesAfter", range(dstSizes.address, std::vector<uint8_t>(8, 0x77).data(), 8)},
-  };
-  out["bottomLevelBuild"] = {
-      {"srcInfosCount", range(counts.address + 4, &one, 4)},
-      {"srcInfos", {range(infos.address + 1024, &blas, sizeof blas)}},
-      {"clusterReferences", {range(references.address, clusterRefs, sizeof clusterRefs)}},
-  };
-  out["finalMemory"] = {{"srcInfosCount", range(counts.address, counts.mapped, 4)},
-                        {"vertexBuffer", range(vertices.address, vertices.mapped, sizeof quad)},
-                        {"dstSizes", range(dstSizes.address, dstSizes.mapped, 8)}};
-  std::ofstream(outPath) << out.dump(1);
-  return 0;
+    auto range = [](VkDeviceAddress address, const void* data, size_t size) {
+        return nlohmann::json{{"address", address}, {"bytes", hex(data, size)}};
+    };
+    const uint32_t two = 2, one = 1;
+    out["clusterBuild"] = {
+        {"srcInfosCount", range(counts.address, &two, 4)},
+        {"srcInfos",
+         {range(infos.address, &cluster[0], 64),
+          range(infos.address + kInfoStride, &cluster[1], 64)}},
+        {"indexBuffer",
+         {range(cluster[0].indexBuffer, quadIndices, sizeof quadIndices),
+          range(cluster[1].indexBuffer, &triIndices[0], 4),
+          range(cluster[1].indexBuffer + 8, &triIndices[2], 4),
+          range(cluster[1].indexBuffer + 16, &triIndices[4], 4)}},
+        {"vertexBuffer",
+         {range(cluster[0].vertexBuffer, quad, sizeof quad),
+          range(cluster[1].vertexBuffer, tri[0], 12),
+          range(cluster[1].vertexBuffer + 16, tri[1], 12),
+          range(cluster[1].vertexBuffer + 32, tri[2], 12)}},
+        {"geometryIndexAndFlagsBuffer",
+         {range(geometry.address, geometryWords, sizeof geometryWords)}},
+        {"dstSizesAfter", range(dstSizes.address, std::vector<uint8_t>(8, 0x77).data(), 8)},
+    };
+    out["bottomLevelBuild"] = {
+        {"srcInfosCount", range(counts.address + 4, &one, 4)},
+        {"srcInfos", {range(infos.address + 1024, &blas, sizeof blas)}},
+        {"clusterReferences", {range(references.address, clusterRefs, sizeof clusterRefs)}},
+    };
+    out["finalMemory"] = {{"srcInfosCount", range(counts.address, counts.mapped, 4)},
+                          {"vertexBuffer", range(vertices.address, vertices.mapped, sizeof quad)},
+                          {"dstSizes", range(dstSizes.address, dstSizes.mapped, 8)}};
+    std::ofstream(outPath) << out.dump(1);
+    return 0;
 }
 
 // One command buffer submitted `times` times; before each submission the host writes the
 // build's count (1, 2, 3, 1, ...) into mapped memory. Each execution must be captured with
 // its own count, and the layer's events must be ready again for the next submission.
 int resubmit(int times) {
-  Context c;
-  c.createInstance();
-  c.createDevice();
-  Buffer counts = c.makeBuffer(256, 0, 0);
-  Buffer infos = c.makeBuffer(1024, 0, 0);
-  Buffer vertices = c.makeBuffer(256, 0, 0);
-  Buffer indices = c.makeBuffer(256, 0, 0);
-  VkClusterAccelerationStructureBuildTriangleClusterInfoNV cluster{};
-  cluster.triangleCount = 1;
-  cluster.vertexCount = 3;
-  cluster.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
-  cluster.indexBuffer = indices.address;
-  cluster.vertexBuffer = vertices.address;
-  for (int i = 0; i < 3; ++i) {
-    cluster.clusterID = 10 + i;
-    std::memcpy(infos.mapped + i * sizeof cluster, &cluster, sizeof cluster);
-  }
-  VkClusterAccelerationStructureTriangleClusterInputNV triangleInput{};
-  triangleInput.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
-  triangleInput.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
-  VkClusterAccelerationStructureCommandsInfoNV build{};
-  build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
-  build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
-  build.input.maxAccelerationStructureCount = 3;
-  build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
-  build.input.opInput.pTriangleClusters = &triangleInput;
-  build.srcInfosArray = {infos.address, 0, 3 * sizeof cluster};
-  build.srcInfosCount = counts.address;
+    Context c;
+    c.createInstance();
+    c.createDevice();
+    Buffer counts = c.makeBuffer(256, 0, 0);
+    Buffer infos = c.makeBuffer(1024, 0, 0);
+    Buffer vertices = c.makeBuffer(256, 0, 0);
+    Buffer indices = c.makeBuffer(256, 0, 0);
+    VkClusterAccelerationStructureBuildTriangleClusterInfoNV cluster{};
+    cluster.triangleCount = 1;
+    cluster.vertexCount = 3;
+    cluster.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
+    cluster.indexBuffer = indices.address;
+    cluster.vertexBuffer = vertices.address;
+    for (int i = 0; i < 3; ++i) {
+        cluster.clusterID = 10 + i;
+        std::memcpy(infos.mapped + i * sizeof cluster, &cluster, sizeof cluster);
+    }
+    VkClusterAccelerationStructureTriangleClusterInputNV triangleInput{};
+    triangleInput.sType =
+        VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
+    triangleInput.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+    VkClusterAccelerationStructureCommandsInfoNV build{};
+    build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+    build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+    build.input.maxAccelerationStructureCount = 3;
+    build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
+    build.input.opInput.pTriangleClusters = &triangleInput;
+    build.srcInfosArray = {infos.address, 0, 3 * sizeof cluster};
+    build.srcInfosCount = counts.address;
 
-  VkCommandBufferAllocateInfo allocInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr, c.pool,
-                                        VK_COMMAND_BUFFER_LEVEL_PRIMARY, 1};
-  VkCommandBuffer cb;
-  CHECK(vkAllocateCommandBuffers(c.device, &allocInfo, &cb));
-  VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr, 0, nullptr};
-  CHECK(vkBeginCommandBuffer(cb, &begin));
-  c.cmdBuildClusters(cb, &build);
-  CHECK(vkEndCommandBuffer(cb));
-  VkFenceCreateInfo fenceInfo{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO, nullptr, 0};
-  VkFence fence;
-  CHECK(vkCreateFence(c.device, &fenceInfo, nullptr, &fence));
-  for (int i = 0; i < times; ++i) {
-    const uint32_t count = uint32_t(i % 3) + 1;
-    std::memcpy(counts.mapped, &count, 4);
-    VkSubmitInfo submit{};
-    submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
-    submit.commandBufferCount = 1;
-    submit.pCommandBuffers = &cb;
-    CHECK(vkQueueSubmit(c.queue, 1, &submit, fence));
-    CHECK(vkWaitForFences(c.device, 1, &fence, VK_TRUE, 30ull * 1000 * 1000 * 1000));
-    CHECK(vkResetFences(c.device, 1, &fence));
-  }
-  vkDestroyFence(c.device, fence, nullptr);
-  return 0;
+    VkCommandBufferAllocateInfo allocInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr,
+                                          c.pool, VK_COMMAND_BUFFER_LEVEL_PRIMARY, 1};
+    VkCommandBuffer cb;
+    CHECK(vkAllocateCommandBuffers(c.device, &allocInfo, &cb));
+    VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr, 0,
+                                   nullptr};
+    CHECK(vkBeginCommandBuffer(cb, &begin));
+    c.cmdBuildClusters(cb, &build);
+    CHECK(vkEndCommandBuffer(cb));
+    VkFenceCreateInfo fenceInfo{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO, nullptr, 0};
+    VkFence fence;
+    CHECK(vkCreateFence(c.device, &fenceInfo, nullptr, &fence));
+    for (int i = 0; i < times; ++i) {
+        const uint32_t count = uint32_t(i % 3) + 1;
+        std::memcpy(counts.mapped, &count, 4);
+        VkSubmitInfo submit{};
+        submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
+        submit.commandBufferCount = 1;
+        submit.pCommandBuffers = &cb;
+        CHECK(vkQueueSubmit(c.queue, 1, &submit, fence));
+        CHECK(vkWaitForFences(c.device, 1, &fence, VK_TRUE, 30ull * 1000 * 1000 * 1000));
+        CHECK(vkResetFences(c.device, 1, &fence));
+    }
+    vkDestroyFence(c.device, fence, nullptr);
+    return 0;
 }
 
 // A compute dispatch with two storage buffers bound (one dynamic), for the layer's record of
 // what a dispatch can write. The shader does nothing: only the binding state matters.
 int dispatch(const char* outPath) {
-  Context c;
-  c.createInstance();
-  c.createDevice();
-  Buffer a = c.makeBuffer(1024, 0, 0);
-  Buffer b = c.makeBuffer(4096, 0, 0);
-  // OpCapability Shader; OpMemoryModel Logical GLSL450; OpEntryPoint GLCompute %1 "main";
-  // OpExecutionMode %1 LocalSize 1 1 1; void main() {}
-  const uint32_t spirv[] = {0x07230203, 0x00010000, 0, 5, 0,
-                            0x00020011, 1,
-                            0x0003000E, 0, 1,
-                            0x0005000F, 5, 1, 0x6E69616D, 0,
-                            0x00060010, 1, 17, 1, 1, 1,
-                            0x00020013, 2,
-                            0x00030021, 3, 2,
-                            0x00050036, 2, 1, 0, 3,
-                            0x000200F8, 4,
-                            0x000100FD,
-                            0x00010038};
-  VkShaderModuleCreateInfo moduleInfo{VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO, nullptr, 0, sizeof spirv, spirv};
-  VkShaderModule module;
-  CHECK(vkCreateShaderModule(c.device, &moduleInfo, nullptr, &module));
-  const VkDescriptorSetLayoutBinding bindings[2] = {
-      {0, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1, VK_SHADER_STAGE_COMPUTE_BIT, nullptr},
-      {1, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC, 1, VK_SHADER_STAGE_COMPUTE_BIT, nullptr}};
-  VkDescriptorSetLayoutCreateInfo layoutInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO, nullptr, 0, 2, bindings};
-  VkDescriptorSetLayout setLayout;
-  CHECK(vkCreateDescriptorSetLayout(c.device, &layoutInfo, nullptr, &setLayout));
-  VkPipelineLayoutCreateInfo pipelineLayoutInfo{VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO, nullptr, 0, 1, &setLayout, 0,
-                                                nullptr};
-  VkPipelineLayout pipelineLayout;
-  CHECK(vkCreatePipelineLayout(c.device, &pipelineLayoutInfo, nullptr, &pipelineLayout));
-  VkComputePipelineCreateInfo pipelineInfo{};
-  pipelineInfo.sType = VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO;
-  pipelineInfo.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT,
-                        module, "main", nullptr};
-  pipelineInfo.layout = pipelineLayout;
-  VkPipeline pipeline;
-  CHECK(vkCreateComputePipelines(c.device, VK_NULL_HANDLE, 1, &pipelineInfo, nullptr, &pipeline));
-  const VkDescriptorPoolSize sizes[2] = {{VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1},
-                                         {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC, 1}};
-  VkDescriptorPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO, nullptr, 0, 1, 2, sizes};
-  VkDescriptorPool pool;
-  CHECK(vkCreateDescriptorPool(c.device, &poolInfo, nullptr, &pool));
-  VkDescriptorSetAllocateInfo setInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_ALLOCATE_INFO, nullptr, pool, 1, &setLayout};
-  VkDescriptorSet set;
-  CHECK(vkAllocateDescriptorSets(c.device, &setInfo, &set));
-  const VkDescriptorBufferInfo infoA{a.buffer, 256, 512};
-  const VkDescriptorBufferInfo infoB{b.buffer, 0, 1024};
-  const VkWriteDescriptorSet writes[2] = {
-      {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET, nullptr, set, 0, 0, 1, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, nullptr, &infoA,
-       nullptr},
-      {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET, nullptr, set, 1, 0, 1, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC, nullptr,
-       &infoB, nullptr}};
-  vkUpdateDescriptorSets(c.device, 2, writes, 0, nullptr);
+    Context c;
+    c.createInstance();
+    c.createDevice();
+    Buffer a = c.makeBuffer(1024, 0, 0);
+    Buffer b = c.makeBuffer(4096, 0, 0);
+    // OpCapability Shader; OpMemoryModel Logical GLSL450; OpEntryPoint GLCompute %1 "main";
+    // OpExecutionMode %1 LocalSize 1 1 1; void main() {}
+    const uint32_t spirv[] = {0x07230203, 0x00010000, 0,          5, 0, 0x00020011, 1, 0x0003000E,
+                              0,          1,          0x0005000F, 5, 1, 0x6E69616D, 0, 0x00060010,
+                              1,          17,         1,          1, 1, 0x00020013, 2, 0x00030021,
+                              3,          2,          0x00050036, 2, 1, 0,          3, 0x000200F8,
+                              4,          0x000100FD, 0x00010038};
+    VkShaderModuleCreateInfo moduleInfo{VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO, nullptr, 0,
+                                        sizeof spirv, spirv};
+    VkShaderModule module;
+    CHECK(vkCreateShaderModule(c.device, &moduleInfo, nullptr, &module));
+    const VkDescriptorSetLayoutBinding bindings[2] = {{0, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1,
+                                                       VK_SHADER_STAGE_COMPUTE_BIT, nullptr},
+                                                      {1, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC,
+                                                       1, VK_SHADER_STAGE_COMPUTE_BIT, nullptr}};
+    VkDescriptorSetLayoutCreateInfo layoutInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO,
+                                               nullptr, 0, 2, bindings};
+    VkDescriptorSetLayout setLayout;
+    CHECK(vkCreateDescriptorSetLayout(c.device, &layoutInfo, nullptr, &setLayout));
+    VkPipelineLayoutCreateInfo pipelineLayoutInfo{
+        VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO, nullptr, 0, 1, &setLayout, 0, nullptr};
+    VkPipelineLayout pipelineLayout;
+    CHECK(vkCreatePipelineLayout(c.device, &pipelineLayoutInfo, nullptr, &pipelineLayout));
+    VkComputePipelineCreateInfo pipelineInfo{};
+    pipelineInfo.sType = VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO;
+    pipelineInfo.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO,
+                          nullptr,
+                          0,
+                          VK_SHADER_STAGE_COMPUTE_BIT,
+                          module,
+                          "main",
+                          nullptr};
+    pipelineInfo.layout = pipelineLayout;
+    VkPipeline pipeline;
+    CHECK(vkCreateComputePipelines(c.device, VK_NULL_HANDLE, 1, &pipelineInfo, nullptr, &pipeline));
+    const VkDescriptorPoolSize sizes[2] = {{VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1},
+                                           {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC, 1}};
+    VkDescriptorPoolCreateInfo poolInfo{
+        VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO, nullptr, 0, 1, 2, sizes};
+    VkDescriptorPool pool;
+    CHECK(vkCreateDescriptorPool(c.device, &poolInfo, nullptr, &pool));
+    VkDescriptorSetAllocateInfo setInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_ALLOCATE_INFO, nullptr,
+                                        pool, 1, &setLayout};
+    VkDescriptorSet set;
+    CHECK(vkAllocateDescriptorSets(c.device, &setInfo, &set));
+    const VkDescriptorBufferInfo infoA{a.buffer, 256, 512};
+    const VkDescriptorBufferInfo infoB{b.buffer, 0, 1024};
+    const VkWriteDescriptorSet writes[2] = {{VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET, nullptr, set,
+                                             0, 0, 1, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, nullptr,
+                                             &infoA, nullptr},
+                                            {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET, nullptr, set,
+                                             1, 0, 1, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC,
+                                             nullptr, &infoB, nullptr}};
+    vkUpdateDescriptorSets(c.device, 2, writes, 0, nullptr);
 
-  VkCommandBuffer cb = c.beginCommands();
-  vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline);
-  uint32_t dynamicOffset = 256;
-  vkCmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, pipelineLayout, 0, 1, &set, 1, &dynamicOffset);
-  vkCmdDispatch(cb, 2, 3, 4);
-  dynamicOffset = 1024;
-  vkCmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, pipelineLayout, 0, 1, &set, 1, &dynamicOffset);
-  vkCmdDispatch(cb, 1, 1, 1);
-  c.submitAndWait(cb);
+    VkCommandBuffer cb = c.beginCommands();
+    vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline);
+    uint32_t dynamicOffset = 256;
+    vkCmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, pipelineLayout, 0, 1, &set, 1,
+                            &dynamicOffset);
+    vkCmdDispatch(cb, 2, 3, 4);
+    dynamicOffset = 1024;
+    vkCmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, pipelineLayout, 0, 1, &set, 1,
+                            &dynamicOffset);
+    vkCmdDispatch(cb, 1, 1, 1);
+    c.submitAndWait(cb);
 
-  nlohmann::json out = {{"pipeline", (uint64_t)pipeline},
-                        {"a", {{"buffer", (uint64_t)a.buffer}, {"address", a.address}}},
-                        {"b", {{"buffer", (uint64_t)b.buffer}, {"address", b.address}}}};
-  std::ofstream(outPath) << out.dump(1);
-  vkDestroyPipeline(c.device, pipeline, nullptr);
-  vkDestroyDescriptorPool(c.device, pool, nullptr);
-  vkDestroyPipelineLayout(c.device, pipelineLayout, nullptr);
-  vkDestroyDescriptorSetLayout(c.device, setLayout, nullptr);
-  vkDestroyShaderModule(c.device, module, nullptr);
-  return 0;
+    nlohmann::json out = {{"pipeline", (uint64_t)pipeline},
+                          {"a", {{"buffer", (uint64_t)a.buffer}, {"address", a.address}}},
+                          {"b", {{"buffer", (uint64_t)b.buffer}, {"address", b.address}}}};
+    std::ofstream(outPath) << out.dump(1);
+    vkDestroyPipeline(c.device, pipeline, nullptr);
+    vkDestroyDescriptorPool(c.device, pool, nullptr);
+    vkDestroyPipelineLayout(c.device, pipelineLayout, nullptr);
+    vkDestroyDescriptorSetLayout(c.device, setLayout, nullptr);
+    vkDestroyShaderModule(c.device, module, nullptr);
+    return 0;
 }
 
 int pauseCost(int builds) {
-  Context c;
-  c.createInstance();
-  c.createDevice();
-  Buffer counts = c.makeBuffer(256, 0, 0);  // srcInfosCount 0: the builds execute nothing
-  Buffer infos = c.makeBuffer(256, 0, 0);
-  VkClusterAccelerationStructureTriangleClusterInputNV triangleInput{};
-  triangleInput.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
-  triangleInput.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
-  VkClusterAccelerationStructureCommandsInfoNV build{};
-  build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
-  build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
-  build.input.maxAccelerationStructureCount = 1;
-  build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
-  build.input.opInput.pTriangleClusters = &triangleInput;
-  build.srcInfosArray = {infos.address, 0, 64};
-  build.srcInfosCount = counts.address;
-  double seconds[2] = {0, 0};
-  for (int pass = 0; pass < 2; ++pass) {
-    const int n = pass == 0 ? 0 : builds;
-    VkCommandBuffer cb = c.beginCommands();
-    vkCmdFillBuffer(cb, counts.buffer, 0, 4, 0);
-    for (int i = 0; i < n; ++i) c.cmdBuildClusters(cb, &build);
-    const auto start = std::chrono::steady_clock::now();
-    c.submitAndWait(cb);
-    seconds[pass] = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  }
-  std::printf("builds=%d empty_submit_ms=%.3f submit_ms=%.3f per_build_ms=%.4f\n", builds, seconds[0] * 1e3,
-              seconds[1] * 1e3, (seconds[1] - seconds[0]) * 1e3 / builds);
-  return 0;
+    Context c;
+    c.createInstance();
+    c.createDevice();
+    Buffer counts = c.makeBuffer(256, 0, 0);  // srcInfosCount 0: the builds execute nothing
+    Buffer infos = c.makeBuffer(256, 0, 0);
+    VkClusterAccelerationStructureTriangleClusterInputNV triangleInput{};
+    triangleInput.sType =
+        VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
+    triangleInput.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+    VkClusterAccelerationStructureCommandsInfoNV build{};
+    build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+    build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+    build.input.maxAccelerationStructureCount = 1;
+    build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
+    build.input.opInput.pTriangleClusters = &triangleInput;
+    build.srcInfosArray = {infos.address, 0, 64};
+    build.srcInfosCount = counts.address;
+    double seconds[2] = {0, 0};
+    for (int pass = 0; pass < 2; ++pass) {
+        const int n = pass == 0 ? 0 : builds;
+        VkCommandBuffer cb = c.beginCommands();
+        vkCmdFillBuffer(cb, counts.buffer, 0, 4, 0);
+        for (int i = 0; i < n; ++i) c.cmdBuildClusters(cb, &build);
+        const auto start = std::chrono::steady_clock::now();
+        c.submitAndWait(cb);
+        seconds[pass] =
+            std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    }
+    std::printf("builds=%d empty_submit_ms=%.3f submit_ms=%.3f per_build_ms=%.4f\n", builds,
+                seconds[0] * 1e3, seconds[1] * 1e3, (seconds[1] - seconds[0]) * 1e3 / builds);
+    return 0;
 }
 
 int serve(const char* outPath) {
-  Context c;
-  c.createInstance();
-  if (!c.hasClusterExtension()) {
-    std::printf("VK_NV_cluster_acceleration_structure is not supported\n");
-    return 3;
-  }
-  c.createDevice();
-  VkPhysicalDeviceClusterAccelerationStructurePropertiesNV p{};
-  p.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_PROPERTIES_NV;
-  VkPhysicalDeviceProperties2 properties2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2, &p, {}};
-  vkGetPhysicalDeviceProperties2(c.physicalDevice, &properties2);
+    Context c;
+    c.createInstance();
+    if (!c.hasClusterExtension()) {
+        std::printf("VK_NV_cluster_acceleration_structure is not supported\n");
+        return 3;
+    }
+    c.createDevice();
+    VkPhysicalDeviceClusterAccelerationStructurePropertiesNV p{};
+    p.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_PROPERTIES_NV;
+    VkPhysicalDeviceProperties2 properties2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2, &p, {}};
+    vkGetPhysicalDeviceProperties2(c.physicalDevice, &properties2);
 
-  served_scene::Commands sizing;
-  served_scene::makeCommands({}, sizing);
-  VkAccelerationStructureBuildSizesInfoKHR clusterSizes{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr, 0, 0, 0};
-  VkAccelerationStructureBuildSizesInfoKHR blasSizes{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr, 0, 0, 0};
-  c.getBuildSizes(c.device, &sizing.clusters.input, &clusterSizes);
-  c.getBuildSizes(c.device, &sizing.blas.input, &blasSizes);
-  if (!clusterSizes.accelerationStructureSize || !blasSizes.accelerationStructureSize) fail("build sizes of 0");
+    served_scene::Commands sizing;
+    served_scene::makeCommands({}, sizing);
+    VkAccelerationStructureBuildSizesInfoKHR clusterSizes{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr, 0, 0, 0};
+    VkAccelerationStructureBuildSizesInfoKHR blasSizes{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr, 0, 0, 0};
+    c.getBuildSizes(c.device, &sizing.clusters.input, &clusterSizes);
+    c.getBuildSizes(c.device, &sizing.blas.input, &blasSizes);
+    if (!clusterSizes.accelerationStructureSize || !blasSizes.accelerationStructureSize)
+        fail("build sizes of 0");
 
-  const VkBufferUsageFlags input = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
-  const VkBufferUsageFlags storage = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
-  served_scene::Inputs probe = served_scene::makeInputs({});
-  Buffer vertices = c.makeBuffer(probe.vertices.size() * 4, input, 0xEE);
-  Buffer indices = c.makeBuffer(probe.indices.size() * 4, input, 0xEE);
-  Buffer infos = c.makeBuffer(served_scene::kInfoStride * served_scene::kMaxClusters, input, 0xEE);
-  Buffer counts = c.makeBuffer(8, input, 0xEE);
-  Buffer dstAddresses = c.makeBuffer(8 * served_scene::kMaxClusters, storage | input, 0xEE);
-  Buffer dstSizes = c.makeBuffer(4 * served_scene::kMaxClusters, storage, 0xEE);
-  Buffer implicitData = c.makeBuffer(clusterSizes.accelerationStructureSize, storage, 0xEE);
-  Buffer scratch = c.makeBuffer(clusterSizes.buildScratchSize, 0, 0xEE);
-  Buffer blasInfos = c.makeBuffer(sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV), input, 0xEE);
-  Buffer blasDstAddresses = c.makeBuffer(8, storage, 0xEE);
-  Buffer blasDstSizes = c.makeBuffer(4, storage, 0xEE);
-  Buffer blasImplicit = c.makeBuffer(blasSizes.accelerationStructureSize, storage, 0xEE);
-  Buffer blasScratch = c.makeBuffer(blasSizes.buildScratchSize, 0, 0xEE);
+    const VkBufferUsageFlags input =
+        VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
+    const VkBufferUsageFlags storage = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
+    served_scene::Inputs probe = served_scene::makeInputs({});
+    Buffer vertices = c.makeBuffer(probe.vertices.size() * 4, input, 0xEE);
+    Buffer indices = c.makeBuffer(probe.indices.size() * 4, input, 0xEE);
+    Buffer infos =
+        c.makeBuffer(served_scene::kInfoStride * served_scene::kMaxClusters, input, 0xEE);
+    Buffer counts = c.makeBuffer(8, input, 0xEE);
+    Buffer dstAddresses = c.makeBuffer(8 * served_scene::kMaxClusters, storage | input, 0xEE);
+    Buffer dstSizes = c.makeBuffer(4 * served_scene::kMaxClusters, storage, 0xEE);
+    Buffer implicitData = c.makeBuffer(clusterSizes.accelerationStructureSize, storage, 0xEE);
+    Buffer scratch = c.makeBuffer(clusterSizes.buildScratchSize, 0, 0xEE);
+    Buffer blasInfos =
+        c.makeBuffer(sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV), input,
+                     0xEE);
+    Buffer blasDstAddresses = c.makeBuffer(8, storage, 0xEE);
+    Buffer blasDstSizes = c.makeBuffer(4, storage, 0xEE);
+    Buffer blasImplicit = c.makeBuffer(blasSizes.accelerationStructureSize, storage, 0xEE);
+    Buffer blasScratch = c.makeBuffer(blasSizes.buildScratchSize, 0, 0xEE);
 
-  served_scene::Addresses a{vertices.address, indices.address, infos.address, counts.address,
-                            dstAddresses.address, dstSizes.address, implicitData.address, scratch.address,
-                            blasInfos.address, blasDstAddresses.address, blasDstSizes.address, blasImplicit.address,
-                            blasScratch.address};
-  served_scene::Inputs in = served_scene::makeInputs(a);
-  std::memcpy(vertices.mapped, in.vertices.data(), in.vertices.size() * 4);
-  std::memcpy(indices.mapped, in.indices.data(), in.indices.size() * 4);
-  std::memcpy(infos.mapped, in.infos.data(), in.infos.size() * served_scene::kInfoStride);
-  std::memcpy(counts.mapped, in.counts, sizeof in.counts);
-  std::memcpy(blasInfos.mapped, &in.blasInfo, sizeof in.blasInfo);
-  served_scene::Commands commands;
-  served_scene::makeCommands(a, commands);
+    served_scene::Addresses a{vertices.address,         indices.address,      infos.address,
+                              counts.address,           dstAddresses.address, dstSizes.address,
+                              implicitData.address,     scratch.address,      blasInfos.address,
+                              blasDstAddresses.address, blasDstSizes.address, blasImplicit.address,
+                              blasScratch.address};
+    served_scene::Inputs in = served_scene::makeInputs(a);
+    std::memcpy(vertices.mapped, in.vertices.data(), in.vertices.size() * 4);
+    std::memcpy(indices.mapped, in.indices.data(), in.indices.size() * 4);
+    std::memcpy(infos.mapped, in.infos.data(), in.infos.size() * served_scene::kInfoStride);
+    std::memcpy(counts.mapped, in.counts, sizeof in.counts);
+    std::memcpy(blasInfos.mapped, &in.blasInfo, sizeof in.blasInfo);
+    served_scene::Commands commands;
+    served_scene::makeCommands(a, commands);
 
-  VkCommandBuffer cb = c.beginCommands();
-  c.cmdBuildClusters(cb, &commands.clusters);
-  // The bottom level reads the cluster objects and the addresses the first build wrote.
-  VkMemoryBarrier barrier{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr, VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
-                          VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_KHR | VK_ACCESS_SHADER_READ_BIT |
-                              VK_ACCESS_INDIRECT_COMMAND_READ_BIT};
-  vkCmdPipelineBarrier(cb, VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
-                       VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, 0, 1, &barrier, 0, nullptr, 0, nullptr);
-  c.cmdBuildClusters(cb, &commands.blas);
-  VkMemoryBarrier toHost{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr, VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
-                         VK_ACCESS_HOST_READ_BIT};
-  vkCmdPipelineBarrier(cb, VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_PIPELINE_STAGE_HOST_BIT, 0, 1,
-                       &toHost, 0, nullptr, 0, nullptr);
-  c.submitAndWait(cb);
-  CHECK(vkQueueWaitIdle(c.queue));
+    VkCommandBuffer cb = c.beginCommands();
+    c.cmdBuildClusters(cb, &commands.clusters);
+    // The bottom level reads the cluster objects and the addresses the first build wrote.
+    VkMemoryBarrier barrier{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr,
+                            VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
+                            VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_KHR |
+                                VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_INDIRECT_COMMAND_READ_BIT};
+    vkCmdPipelineBarrier(cb, VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                         VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, 0, 1, &barrier, 0,
+                         nullptr, 0, nullptr);
+    c.cmdBuildClusters(cb, &commands.blas);
+    VkMemoryBarrier toHost{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr,
+                           VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR, VK_ACCESS_HOST_READ_BIT};
+    vkCmdPipelineBarrier(cb, VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                         VK_PIPELINE_STAGE_HOST_BIT, 0, 1, &toHost, 0, nullptr, 0, nullptr);
+    c.submitAndWait(cb);
+    CHECK(vkQueueWaitIdle(c.queue));
 
-  auto bufferJson = [](const Buffer& b) {
-    return nlohmann::json{{"address", b.address}, {"size", b.size}, {"bytes", hex(b.mapped, b.size)}};
-  };
-  nlohmann::json out;
-  out["properties"] = {{"clusterByteAlignment", p.clusterByteAlignment},
-                       {"clusterBottomLevelByteAlignment", p.clusterBottomLevelByteAlignment}};
-  out["buildSizes"] = {{"clusters", {{"accelerationStructureSize", clusterSizes.accelerationStructureSize},
-                                     {"buildScratchSize", clusterSizes.buildScratchSize}}},
-                       {"blas", {{"accelerationStructureSize", blasSizes.accelerationStructureSize},
-                                 {"buildScratchSize", blasSizes.buildScratchSize}}}};
-  // Addresses for the host recomputation; bytes as the builds left them.
-  out["buffers"] = {{"vertices", bufferJson(vertices)},         {"indices", bufferJson(indices)},
-                    {"infos", bufferJson(infos)},               {"counts", bufferJson(counts)},
-                    {"dstAddresses", bufferJson(dstAddresses)}, {"dstSizes", bufferJson(dstSizes)},
-                    {"implicitData", bufferJson(implicitData)}, {"scratch", bufferJson(scratch)},
-                    {"blasInfos", bufferJson(blasInfos)},       {"blasDstAddresses", bufferJson(blasDstAddresses)},
-                    {"blasDstSizes", bufferJson(blasDstSizes)}, {"blasImplicit", bufferJson(blasImplicit)},
-                    {"blasScratch", bufferJson(blasScratch)}};
-  std::ofstream(outPath) << out.dump(1);
-  return 0;
+    auto bufferJson = [](const Buffer& b) {
+        return nlohmann::json{{"address", b.address},
+                              {"size", b.size},
+                              {"bytes", hex(b.mapped, b.size)}};
+    };
+    nlohmann::json out;
+    out["properties"] = {{"clusterByteAlignment", p.clusterByteAlignment},
+                         {"clusterBottomLevelByteAlignment", p.clusterBottomLevelByteAlignment}};
+    out["buildSizes"] = {{"clusters",
+                          {{"accelerationStructureSize", clusterSizes.accelerationStructureSize},
+                           {"buildScratchSize", clusterSizes.buildScratchSize}}},
+                         {"blas",
+                          {{"accelerationStructureSize", blasSizes.accelerationStructureSize},
+                           {"buildScratchSize", blasSizes.buildScratchSize}}}};
+    // Addresses for the host recomputation; bytes as the builds left them.
+    out["buffers"] = {{"vertices", bufferJson(vertices)},
+                      {"indices", bufferJson(indices)},
+                      {"infos", bufferJson(infos)},
+                      {"counts", bufferJson(counts)},
+                      {"dstAddresses", bufferJson(dstAddresses)},
+                      {"dstSizes", bufferJson(dstSizes)},
+                      {"implicitData", bufferJson(implicitData)},
+                      {"scratch", bufferJson(scratch)},
+                      {"blasInfos", bufferJson(blasInfos)},
+                      {"blasDstAddresses", bufferJson(blasDstAddresses)},
+                      {"blasDstSizes", bufferJson(blasDstSizes)},
+                      {"blasImplicit", bufferJson(blasImplicit)},
+                      {"blasScratch", bufferJson(blasScratch)}};
+    std::ofstream(outPath) << out.dump(1);
+    return 0;
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  if (argc == 3 && std::strcmp(argv[1], "limits") == 0) return limits(argv[2]);
-  if (argc == 3 && std::strcmp(argv[1], "serve") == 0) return serve(argv[2]);
-  if (argc == 3 && std::strcmp(argv[1], "exactness") == 0) return exactness(argv[2]);
-  if (argc == 3 && std::strcmp(argv[1], "dispatch") == 0) return dispatch(argv[2]);
-  if (argc == 3 && std::strcmp(argv[1], "resubmit") == 0) return resubmit(std::max(1, std::atoi(argv[2])));
-  if (argc == 3 && std::strcmp(argv[1], "pause-cost") == 0) return pauseCost(std::max(1, std::atoi(argv[2])));
-  std::fprintf(stderr, "usage: cluster_capture_app limits|exactness OUT.json | pause-cost N\n");
-  return 1;
+    if (argc == 3 && std::strcmp(argv[1], "limits") == 0) return limits(argv[2]);
+    if (argc == 3 && std::strcmp(argv[1], "serve") == 0) return serve(argv[2]);
+    if (argc == 3 && std::strcmp(argv[1], "exactness") == 0) return exactness(argv[2]);
+    if (argc == 3 && std::strcmp(argv[1], "dispatch") == 0) return dispatch(argv[2]);
+    if (argc == 3 && std::strcmp(argv[1], "resubmit") == 0)
+        return resubmit(std::max(1, std::atoi(argv[2])));
+    if (argc == 3 && std::strcmp(argv[1], "pause-cost") == 0)
+        return pauseCost(std::max(1, std::atoi(argv[2])));
+    std::fprintf(stderr, "usage: cluster_capture_app limits|exactness OUT.json | pause-cost N\n");
+    return 1;
 }

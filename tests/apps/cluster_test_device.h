@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The Vulkan set-up the headless test programs share (tests/apps, tests/capture): the first
 // physical device, one compute queue with VK_NV_cluster_acceleration_structure and buffer
 // device addresses enabled, a resettable command pool, and host-visible coherent buffers with
@@ -22,41 +23,43 @@ void check_result(VkResult result, const char* call);
 std::string hex(const void* data, size_t size);
 
 struct Buffer {
-  VkBuffer buffer = VK_NULL_HANDLE;
-  VkDeviceMemory memory = VK_NULL_HANDLE;
-  VkDeviceAddress address = 0;
-  uint8_t* mapped = nullptr;
-  VkDeviceSize size = 0;
+    VkBuffer buffer = VK_NULL_HANDLE;
+    VkDeviceMemory memory = VK_NULL_HANDLE;
+    VkDeviceAddress address = 0;
+    uint8_t* mapped = nullptr;
+    VkDeviceSize size = 0;
 };
 
 struct ClusterTestDevice {
-  VkInstance instance = VK_NULL_HANDLE;
-  VkPhysicalDevice physicalDevice = VK_NULL_HANDLE;
-  VkDevice device = VK_NULL_HANDLE;
-  VkQueue queue = VK_NULL_HANDLE;
-  VkQueue secondQueue = VK_NULL_HANDLE;  // queue 1 of the family, when two are asked for
-  uint32_t queueFamily = 0;
-  VkCommandPool pool = VK_NULL_HANDLE;
-  PFN_vkCmdBuildClusterAccelerationStructureIndirectNV cmdBuildClusters = nullptr;
-  PFN_vkGetClusterAccelerationStructureBuildSizesNV getBuildSizes = nullptr;
-  std::vector<Buffer> buffers;  // destroyed with the device
+    VkInstance instance = VK_NULL_HANDLE;
+    VkPhysicalDevice physicalDevice = VK_NULL_HANDLE;
+    VkDevice device = VK_NULL_HANDLE;
+    VkQueue queue = VK_NULL_HANDLE;
+    VkQueue secondQueue = VK_NULL_HANDLE;  // queue 1 of the family, when two are asked for
+    uint32_t queueFamily = 0;
+    VkCommandPool pool = VK_NULL_HANDLE;
+    PFN_vkCmdBuildClusterAccelerationStructureIndirectNV cmdBuildClusters = nullptr;
+    PFN_vkGetClusterAccelerationStructureBuildSizesNV getBuildSizes = nullptr;
+    std::vector<Buffer> buffers;  // destroyed with the device
 
-  // applicationName nullptr: the program's own name. `extensions`: instance extensions a
-  // program needs beyond ours (a window surface's). engineName nullptr: none.
-  void createInstance(const char* applicationName = nullptr, const std::vector<const char*>& extensions = {},
-                      const char* engineName = nullptr);
-  // The device lists the extension at the spec version of our ABI header.
-  bool hasClusterExtension() const;
-  // presentTo: a surface the queue must also present to; the device then enables VK_KHR_swapchain.
-  void createDevice(bool timelineSemaphores = false, uint32_t queues = 1, VkSurfaceKHR presentTo = VK_NULL_HANDLE);
-  // STORAGE, TRANSFER_SRC/DST and SHADER_DEVICE_ADDRESS usage plus `usage`; every byte `fill`
-  // (a marker the GPU commands must replace, where a test checks that they did).
-  Buffer makeBuffer(VkDeviceSize size, VkBufferUsageFlags usage, uint8_t fill = 0);
-  // A one-time-submit primary command buffer, begun.
-  VkCommandBuffer beginCommands();
-  void submitAndWait(VkCommandBuffer cb);
-  // Waits for the device, then destroys the buffers made, the pool, the device and the instance.
-  void destroy();
+    // applicationName nullptr: the program's own name. `extensions`: instance extensions a
+    // program needs beyond ours (a window surface's). engineName nullptr: none.
+    void createInstance(const char* applicationName = nullptr,
+                        const std::vector<const char*>& extensions = {},
+                        const char* engineName = nullptr);
+    // The device lists the extension at the spec version of our ABI header.
+    bool hasClusterExtension() const;
+    // presentTo: a surface the queue must also present to; the device then enables VK_KHR_swapchain.
+    void createDevice(bool timelineSemaphores = false, uint32_t queues = 1,
+                      VkSurfaceKHR presentTo = VK_NULL_HANDLE);
+    // STORAGE, TRANSFER_SRC/DST and SHADER_DEVICE_ADDRESS usage plus `usage`; every byte `fill`
+    // (a marker the GPU commands must replace, where a test checks that they did).
+    Buffer makeBuffer(VkDeviceSize size, VkBufferUsageFlags usage, uint8_t fill = 0);
+    // A one-time-submit primary command buffer, begun.
+    VkCommandBuffer beginCommands();
+    void submitAndWait(VkCommandBuffer cb);
+    // Waits for the device, then destroys the buffers made, the pool, the device and the instance.
+    void destroy();
 };
 
 }  // namespace clastrace::testapp

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // CLASTRACE_STATS=1: the layer's account of where capture's time went, on lavapipe through the
 // loader. The counts it reports must agree with the trace it wrote (records, chunks, stored and
 // deduplicated contents, submissions) and with the frames the application ran.
@@ -22,180 +23,201 @@
 namespace {
 
 namespace fs = std::filesystem;
-using clastrace::layer_launch::readText;
 using clastrace::fbs::RecordBody;
+using clastrace::layer_launch::readText;
 
 // The report's lines, without the "clastrace: stats: " prefix.
 std::vector<std::string> statsLines(const std::string& err) {
-  std::vector<std::string> lines;
-  std::istringstream in(err);
-  for (std::string line; std::getline(in, line);)
-    if (line.rfind("clastrace: stats: ", 0) == 0) lines.push_back(line.substr(18));
-  return lines;
+    std::vector<std::string> lines;
+    std::istringstream in(err);
+    for (std::string line; std::getline(in, line);)
+        if (line.rfind("clastrace: stats: ", 0) == 0) lines.push_back(line.substr(18));
+    return lines;
 }
 
 // The count column of the phase line named `phase` (-1: no such line).
 long long phaseCount(const std::vector<std::string>& lines, const std::string& phase) {
-  for (const std::string& line : lines)
-    if (line.rfind(phase + " | ", 0) == 0) return std::atoll(line.c_str() + phase.size() + 3);
-  return -1;
+    for (const std::string& line : lines)
+        if (line.rfind(phase + " | ", 0) == 0) return std::atoll(line.c_str() + phase.size() + 3);
+    return -1;
 }
 
 struct TraceLine {
-  bool found = false;
-  unsigned long long records = 0, chunks = 0, raw = 0, compressed = 0, stored = 0, storedBytes = 0, deduplicated = 0,
-                     deduplicatedBytes = 0;
-  int level = 0;
+    bool found = false;
+    unsigned long long records = 0, chunks = 0, raw = 0, compressed = 0, stored = 0,
+                       storedBytes = 0, deduplicated = 0, deduplicatedBytes = 0;
+    int level = 0;
 };
 
 TraceLine traceLine(const std::vector<std::string>& lines) {
-  TraceLine t;
-  for (const std::string& line : lines)
-    if (std::sscanf(line.c_str(),
-                    "trace: %llu records, %llu chunks, %llu raw bytes -> %llu compressed (zstd level %d); contents: %llu "
-                    "stored (%llu bytes), %llu deduplicated (%llu bytes)",
-                    &t.records, &t.chunks, &t.raw, &t.compressed, &t.level, &t.stored, &t.storedBytes,
-                    &t.deduplicated, &t.deduplicatedBytes) == 9)
-      t.found = true;
-  return t;
+    TraceLine t;
+    for (const std::string& line : lines)
+        if (std::sscanf(line.c_str(),
+                        "trace: %llu records, %llu chunks, %llu raw bytes -> %llu compressed (zstd "
+                        "level %d); contents: %llu "
+                        "stored (%llu bytes), %llu deduplicated (%llu bytes)",
+                        &t.records, &t.chunks, &t.raw, &t.compressed, &t.level, &t.stored,
+                        &t.storedBytes, &t.deduplicated, &t.deduplicatedBytes) == 9)
+            t.found = true;
+    return t;
 }
 
 class CaptureCostReport : public clastrace::layer_launch::LayerLaunchTest {
- protected:
-  static constexpr int kFrames = 5;
-  CaptureCostReport() : LayerLaunchTest("clastrace_cost") {}
+protected:
+    static constexpr int kFrames = 5;
+    CaptureCostReport() : LayerLaunchTest("clastrace_cost") {}
 
-  // Runs the frames app under the layer (behind `prefix`, e.g. a taskset); returns its stderr.
-  std::string run(const std::map<std::string, std::string>& env, const std::string& prefix = "") {
-    const clastrace::layer_launch::ProcessResult r =
-        LayerLaunchTest::run(prefix + CLASTRACE_FRAMES_APP + " frames " + std::to_string(kFrames) + " --clusters 24", env);
-    EXPECT_EQ(r.exitCode, 0) << r.err;
-    return r.err;
-  }
+    // Runs the frames app under the layer (behind `prefix`, e.g. a taskset); returns its stderr.
+    std::string run(const std::map<std::string, std::string>& env, const std::string& prefix = "") {
+        const clastrace::layer_launch::ProcessResult r =
+            LayerLaunchTest::run(prefix + CLASTRACE_FRAMES_APP + " frames " +
+                                     std::to_string(kFrames) + " --clusters 24",
+                                 env);
+        EXPECT_EQ(r.exitCode, 0) << r.err;
+        return r.err;
+    }
 };
 
 TEST_F(CaptureCostReport, CountsAgreeWithTheTraceWritten) {
-  const fs::path trace = dir / "out.clt";
-  const std::vector<std::string> lines = statsLines(run({{"CLASTRACE_OUTPUT", trace.string()}, {"CLASTRACE_STATS", "1"}}));
-  ASSERT_FALSE(lines.empty());
+    const fs::path trace = dir / "out.clt";
+    const std::vector<std::string> lines =
+        statsLines(run({{"CLASTRACE_OUTPUT", trace.string()}, {"CLASTRACE_STATS", "1"}}));
+    ASSERT_FALSE(lines.empty());
 
-  clastrace::traces::TraceError error;
-  auto reader = clastrace::traces::TraceReader::open(trace.string(), &error);
-  ASSERT_TRUE(reader) << error.message;
-  unsigned long long records = 0, submissions = 0, contents = 0, contentBytes = 0, snapshots = 0;
-  clastrace::traces::RecordView view;
-  while (reader->next(&view)) {
-    ++records;
-    if (view.kind == RecordBody::QueueSubmit) ++submissions;
-    if (const auto* c = view.record->body_as_MemoryContents()) {
-      ++contents;
-      contentBytes += c->bytes() ? c->bytes()->size() : 0;
+    clastrace::traces::TraceError error;
+    auto reader = clastrace::traces::TraceReader::open(trace.string(), &error);
+    ASSERT_TRUE(reader) << error.message;
+    unsigned long long records = 0, submissions = 0, contents = 0, contentBytes = 0, snapshots = 0;
+    clastrace::traces::RecordView view;
+    while (reader->next(&view)) {
+        ++records;
+        if (view.kind == RecordBody::QueueSubmit) ++submissions;
+        if (const auto* c = view.record->body_as_MemoryContents()) {
+            ++contents;
+            contentBytes += c->bytes() ? c->bytes()->size() : 0;
+        }
+        auto lists = clastrace::traces::record_snapshots(*view.record);
+        for (const auto* list : {lists.inputs, lists.outputs})
+            if (list) {
+                snapshots += list->size();
+                // Every range the app's buffers hold is named by its buffer (and so merged with its
+                // neighbours), however late the layer's threads ran.
+                for (const auto* s : *list)
+                    EXPECT_NE(s->buffer(), 0u) << "snapshot at 0x" << std::hex << s->address();
+            }
     }
-    auto lists = clastrace::traces::record_snapshots(*view.record);
-    for (const auto* list : {lists.inputs, lists.outputs})
-      if (list) {
-        snapshots += list->size();
-        // Every range the app's buffers hold is named by its buffer (and so merged with its
-        // neighbours), however late the layer's threads ran.
-        for (const auto* s : *list) EXPECT_NE(s->buffer(), 0u) << "snapshot at 0x" << std::hex << s->address();
-      }
-  }
-  ASSERT_TRUE(reader->damage().empty());
+    ASSERT_TRUE(reader->damage().empty());
 
-  // Each frame's two served builds stop the queue once each; each submission is emitted once.
-  EXPECT_EQ(phaseCount(lines, "pause held (queue stalled)"), 2 * kFrames);
-  EXPECT_EQ(phaseCount(lines, "served records completed"), 2 * kFrames);  // on the sink's thread
-  EXPECT_EQ(phaseCount(lines, "sink: emitting submissions"), (long long)submissions);
-  EXPECT_GE(submissions, (unsigned long long)kFrames);
-  EXPECT_EQ(phaseCount(lines, "vkDestroyDevice flush"), 1);
+    // Each frame's two served builds stop the queue once each; each submission is emitted once.
+    EXPECT_EQ(phaseCount(lines, "pause held (queue stalled)"), 2 * kFrames);
+    EXPECT_EQ(phaseCount(lines, "served records completed"), 2 * kFrames);  // on the sink's thread
+    EXPECT_EQ(phaseCount(lines, "sink: emitting submissions"), (long long)submissions);
+    EXPECT_GE(submissions, (unsigned long long)kFrames);
+    EXPECT_EQ(phaseCount(lines, "vkDestroyDevice flush"), 1);
 
-  const TraceLine t = traceLine(lines);
-  ASSERT_TRUE(t.found);
-  EXPECT_EQ(t.records, records);
-  EXPECT_EQ(t.chunks, reader->stats().chunks_read);
-  EXPECT_EQ(t.level, 3);
-  EXPECT_EQ(t.stored, contents);
-  EXPECT_EQ(t.storedBytes, contentBytes);
-  // Every snapshot's bytes were either stored or found stored already.
-  EXPECT_EQ(t.stored + t.deduplicated, snapshots);
-  EXPECT_GT(t.deduplicated, 0u);  // the frames repeat most of their geometry
-  EXPECT_GT(t.raw, t.compressed);
+    const TraceLine t = traceLine(lines);
+    ASSERT_TRUE(t.found);
+    EXPECT_EQ(t.records, records);
+    EXPECT_EQ(t.chunks, reader->stats().chunks_read);
+    EXPECT_EQ(t.level, 3);
+    EXPECT_EQ(t.stored, contents);
+    EXPECT_EQ(t.storedBytes, contentBytes);
+    // Every snapshot's bytes were either stored or found stored already.
+    EXPECT_EQ(t.stored + t.deduplicated, snapshots);
+    EXPECT_GT(t.deduplicated, 0u);  // the frames repeat most of their geometry
+    EXPECT_GT(t.raw, t.compressed);
 }
 
 TEST_F(CaptureCostReport, ServingOnlyReportsThePausesAndNoTrace) {
-  const std::vector<std::string> lines = statsLines(run({{"CLASTRACE_CAPTURE", "0"}, {"CLASTRACE_STATS", "1"}}));
-  EXPECT_EQ(phaseCount(lines, "pause held (queue stalled)"), 2 * kFrames);
-  EXPECT_EQ(phaseCount(lines, "  engine (served build)"), 2 * kFrames);
-  EXPECT_EQ(phaseCount(lines, "  reading inputs/outputs"), -1);
-  EXPECT_EQ(phaseCount(lines, "sink: emitting submissions"), -1);
-  EXPECT_FALSE(traceLine(lines).found);
+    const std::vector<std::string> lines =
+        statsLines(run({{"CLASTRACE_CAPTURE", "0"}, {"CLASTRACE_STATS", "1"}}));
+    EXPECT_EQ(phaseCount(lines, "pause held (queue stalled)"), 2 * kFrames);
+    EXPECT_EQ(phaseCount(lines, "  engine (served build)"), 2 * kFrames);
+    EXPECT_EQ(phaseCount(lines, "  reading inputs/outputs"), -1);
+    EXPECT_EQ(phaseCount(lines, "sink: emitting submissions"), -1);
+    EXPECT_FALSE(traceLine(lines).found);
 }
 
 TEST_F(CaptureCostReport, NoReportUnlessAsked) {
-  EXPECT_TRUE(statsLines(run({{"CLASTRACE_OUTPUT", (dir / "quiet.clt").string()}})).empty());
+    EXPECT_TRUE(statsLines(run({{"CLASTRACE_OUTPUT", (dir / "quiet.clt").string()}})).empty());
 }
 
 TEST(CaptureCostSetting, ParsesAndRejectsByName) {
-  auto parse = [](const char* value) {
-    return clastrace::capture::parse_layer_config(
-        [value](const char* name) -> const char* { return std::string(name) == "CLASTRACE_STATS" ? value : nullptr; });
-  };
-  EXPECT_FALSE(parse(nullptr).stats);
-  EXPECT_TRUE(parse("1").stats);
-  EXPECT_FALSE(parse("0").stats);
-  const auto bad = parse("sometimes");
-  EXPECT_FALSE(bad.stats);
-  ASSERT_EQ(bad.errors.size(), 1u);
-  EXPECT_NE(bad.errors[0].find("CLASTRACE_STATS='sometimes'"), std::string::npos);
+    auto parse = [](const char* value) {
+        return clastrace::capture::parse_layer_config([value](const char* name) -> const char* {
+            return std::string(name) == "CLASTRACE_STATS" ? value : nullptr;
+        });
+    };
+    EXPECT_FALSE(parse(nullptr).stats);
+    EXPECT_TRUE(parse("1").stats);
+    EXPECT_FALSE(parse("0").stats);
+    const auto bad = parse("sometimes");
+    EXPECT_FALSE(bad.stats);
+    ASSERT_EQ(bad.errors.size(), 1u);
+    EXPECT_NE(bad.errors[0].find("CLASTRACE_STATS='sometimes'"), std::string::npos);
 }
 
 // CLASTRACE_BACKGROUND_CPUS with the application confined to CPU 0: by default (spare) the
 // sink's and the compressor's threads leave it; `app` keeps them there; a list is obeyed. The
 // line reads back what the kernel gave the sink's thread, not what was asked.
 TEST_F(CaptureCostReport, BackgroundThreadsGoWhereTheSettingSays) {
-  const std::vector<unsigned> online = clastrace::capture::online_cpus();
-  if (online.size() < 2 || online[0] != 0) GTEST_SKIP() << "needs CPU 0 and another online CPU";
-  const std::string others = clastrace::capture::format_cpu_list({online.begin() + 1, online.end()});
-  const std::string last = std::to_string(online.back());
-  auto placementLine = [&](const char* setting) {
-    std::map<std::string, std::string> env{{"CLASTRACE_OUTPUT", (dir / "placed.clt").string()}, {"CLASTRACE_STATS", "1"}};
-    if (setting) env["CLASTRACE_BACKGROUND_CPUS"] = setting;
-    for (const std::string& line : statsLines(run(env, "taskset -c 0 ")))
-      if (line.rfind("background threads: ", 0) == 0) return line;
-    return std::string("(no placement line)");
-  };
-  const std::string spare =
-      "background threads: asked for CPUs " + others + " (the application's: 0); sink on " + others + ", compressor placed";
-  EXPECT_EQ(placementLine(nullptr), spare);
-  EXPECT_EQ(placementLine("spare"), spare);
-  EXPECT_EQ(placementLine("app"), "background threads: with the application (CPUs 0); sink on 0, compressor as created");
-  EXPECT_EQ(placementLine(last.c_str()), "background threads: asked for CPUs " + last +
-                                             " (the application's: 0); sink on " + last + ", compressor placed");
-  // A CPU the kernel refuses (none such here; a cpuset would do the same): both threads stay
-  // with the application and the line says so.
-  if (online.back() < 4095)
-    EXPECT_EQ(placementLine("4095"),
-              "background threads: asked for CPUs 4095 (the application's: 0); sink on 0, compressor refused (as created)");
+    const std::vector<unsigned> online = clastrace::capture::online_cpus();
+    if (online.size() < 2 || online[0] != 0) GTEST_SKIP() << "needs CPU 0 and another online CPU";
+    const std::string others =
+        clastrace::capture::format_cpu_list({online.begin() + 1, online.end()});
+    const std::string last = std::to_string(online.back());
+    auto placementLine = [&](const char* setting) {
+        std::map<std::string, std::string> env{{"CLASTRACE_OUTPUT", (dir / "placed.clt").string()},
+                                               {"CLASTRACE_STATS", "1"}};
+        if (setting) env["CLASTRACE_BACKGROUND_CPUS"] = setting;
+        for (const std::string& line : statsLines(run(env, "taskset -c 0 ")))
+            if (line.rfind("background threads: ", 0) == 0) return line;
+        return std::string("(no placement line)");
+    };
+    const std::string spare = "background threads: asked for CPUs " + others +
+                              " (the application's: 0); sink on " + others + ", compressor placed";
+    EXPECT_EQ(placementLine(nullptr), spare);
+    EXPECT_EQ(placementLine("spare"), spare);
+    EXPECT_EQ(
+        placementLine("app"),
+        "background threads: with the application (CPUs 0); sink on 0, compressor as created");
+    EXPECT_EQ(placementLine(last.c_str()), "background threads: asked for CPUs " + last +
+                                               " (the application's: 0); sink on " + last +
+                                               ", compressor placed");
+    // A CPU the kernel refuses (none such here; a cpuset would do the same): both threads stay
+    // with the application and the line says so.
+    if (online.back() < 4095)
+        EXPECT_EQ(placementLine("4095"),
+                  "background threads: asked for CPUs 4095 (the application's: 0); sink on 0, "
+                  "compressor refused (as created)");
 }
 
 // `clastrace capture --background-cpus` passes the setting to the layer, and a malformed value
 // stops before the application runs, naming the option.
 TEST_F(CaptureCostReport, CaptureCommandSetsTheBackgroundCpusAndRejectsABadValue) {
-  const std::string trace = (dir / "cli.clt").string();
-  const std::string app = std::string(CLASTRACE_FRAMES_APP) + " frames 2 --clusters 8";
-  clastrace::layer_launch::ProcessResult r = LayerLaunchTest::run(
-      std::string(CLASTRACE_CLI) + " capture -o " + trace + " --background-cpus app -- " + app, {{"CLASTRACE_STATS", "1"}}, false);
-  ASSERT_EQ(r.exitCode, 0) << r.err;
-  EXPECT_NE(r.err.find("clastrace: stats: background threads: with the application"), std::string::npos) << r.err;
-  for (const char* bad : {"3-1", "x", "1,", "4096", "idle"}) {
-    clastrace::layer_launch::ProcessResult b = LayerLaunchTest::run(
-        std::string(CLASTRACE_CLI) + " capture -o " + trace + " --background-cpus " + bad + " -- " + app, {}, false);
-    EXPECT_EQ(b.exitCode, 2) << bad;
-    EXPECT_NE(b.err.find(std::string("--background-cpus: '") + bad + "' is not spare, app or a CPU list"),
+    const std::string trace = (dir / "cli.clt").string();
+    const std::string app = std::string(CLASTRACE_FRAMES_APP) + " frames 2 --clusters 8";
+    clastrace::layer_launch::ProcessResult r =
+        LayerLaunchTest::run(std::string(CLASTRACE_CLI) + " capture -o " + trace +
+                                 " --background-cpus app -- " + app,
+                             {{"CLASTRACE_STATS", "1"}}, false);
+    ASSERT_EQ(r.exitCode, 0) << r.err;
+    EXPECT_NE(r.err.find("clastrace: stats: background threads: with the application"),
               std::string::npos)
-        << b.err;
-    EXPECT_EQ(b.out.find("frames="), std::string::npos) << "the application ran despite --background-cpus " << bad;
-  }
+        << r.err;
+    for (const char* bad : {"3-1", "x", "1,", "4096", "idle"}) {
+        clastrace::layer_launch::ProcessResult b =
+            LayerLaunchTest::run(std::string(CLASTRACE_CLI) + " capture -o " + trace +
+                                     " --background-cpus " + bad + " -- " + app,
+                                 {}, false);
+        EXPECT_EQ(b.exitCode, 2) << bad;
+        EXPECT_NE(b.err.find(std::string("--background-cpus: '") + bad +
+                             "' is not spare, app or a CPU list"),
+                  std::string::npos)
+            << b.err;
+        EXPECT_EQ(b.out.find("frames="), std::string::npos)
+            << "the application ran despite --background-cpus " << bad;
+    }
 }
 
 }  // namespace

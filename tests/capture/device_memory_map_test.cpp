@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "clastrace/capture/device_memory_map.h"
 
 #include <gtest/gtest.h>
@@ -7,79 +8,81 @@ using namespace clastrace::capture;
 namespace {
 
 struct MapWithOneBuffer : ::testing::Test {
-  std::vector<uint8_t> hostMemory = std::vector<uint8_t>(4096);
-  DeviceMemoryMap map;
-  void SetUp() override {
-    for (size_t i = 0; i < hostMemory.size(); ++i) hostMemory[i] = uint8_t(i * 7);
-    map.add_memory({0x10, 4096, 1, VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT,
-                   hostMemory.data()});
-    map.add_buffer({0x20, 1024, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, 0, 0, 0, 0});
-    map.bind_buffer(0x20, 0x10, 512);
-    map.set_buffer_address(0x20, 0x100000);
-  }
+    std::vector<uint8_t> hostMemory = std::vector<uint8_t>(4096);
+    DeviceMemoryMap map;
+    void SetUp() override {
+        for (size_t i = 0; i < hostMemory.size(); ++i) hostMemory[i] = uint8_t(i * 7);
+        map.add_memory({0x10, 4096, 1,
+                        VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT,
+                        hostMemory.data()});
+        map.add_buffer({0x20, 1024, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, 0, 0, 0, 0});
+        map.bind_buffer(0x20, 0x10, 512);
+        map.set_buffer_address(0x20, 0x100000);
+    }
 };
 
 }  // namespace
 
 TEST_F(MapWithOneBuffer, ResolvesAddressToBufferOffsetAndHostBytes) {
-  std::string why;
-  auto r = map.resolve(0x100010, 16, why);
-  ASSERT_TRUE(r) << why;
-  EXPECT_EQ(r->buffer.handle, 0x20u);
-  EXPECT_EQ(r->offset_in_buffer, 0x10u);
-  EXPECT_EQ(r->memory.handle, 0x10u);
-  EXPECT_EQ(r->host, hostMemory.data() + 512 + 16);
-  std::vector<uint8_t> bytes;
-  ASSERT_TRUE(map.read(0x100010, 4, bytes, why));
-  EXPECT_EQ(bytes, (std::vector<uint8_t>{uint8_t(528 * 7), uint8_t(529 * 7), uint8_t(530 * 7), uint8_t(531 * 7)}));
+    std::string why;
+    auto r = map.resolve(0x100010, 16, why);
+    ASSERT_TRUE(r) << why;
+    EXPECT_EQ(r->buffer.handle, 0x20u);
+    EXPECT_EQ(r->offset_in_buffer, 0x10u);
+    EXPECT_EQ(r->memory.handle, 0x10u);
+    EXPECT_EQ(r->host, hostMemory.data() + 512 + 16);
+    std::vector<uint8_t> bytes;
+    ASSERT_TRUE(map.read(0x100010, 4, bytes, why));
+    EXPECT_EQ(bytes, (std::vector<uint8_t>{uint8_t(528 * 7), uint8_t(529 * 7), uint8_t(530 * 7),
+                                           uint8_t(531 * 7)}));
 }
 
 TEST_F(MapWithOneBuffer, RangeEndingAtBufferEndIsInsideOnePastIsNot) {
-  std::string why;
-  EXPECT_TRUE(map.resolve(0x100000 + 1020, 4, why));
-  EXPECT_FALSE(map.resolve(0x100000 + 1020, 5, why));
-  EXPECT_NE(why.find("runs past the end"), std::string::npos) << why;
+    std::string why;
+    EXPECT_TRUE(map.resolve(0x100000 + 1020, 4, why));
+    EXPECT_FALSE(map.resolve(0x100000 + 1020, 5, why));
+    EXPECT_NE(why.find("runs past the end"), std::string::npos) << why;
 }
 
 TEST_F(MapWithOneBuffer, UnknownAndWrappingAddressesNameTheAddress) {
-  std::string why;
-  EXPECT_FALSE(map.resolve(0xFFFFF, 1, why));
-  EXPECT_NE(why.find("0xfffff"), std::string::npos) << why;
-  EXPECT_FALSE(map.resolve(UINT64_MAX - 2, 8, why));
-  EXPECT_NE(why.find("wraps"), std::string::npos) << why;
+    std::string why;
+    EXPECT_FALSE(map.resolve(0xFFFFF, 1, why));
+    EXPECT_NE(why.find("0xfffff"), std::string::npos) << why;
+    EXPECT_FALSE(map.resolve(UINT64_MAX - 2, 8, why));
+    EXPECT_NE(why.find("wraps"), std::string::npos) << why;
 }
 
 TEST_F(MapWithOneBuffer, DestroyedBufferAndFreedMemoryStopResolving) {
-  std::string why;
-  map.remove_memory(0x10);
-  EXPECT_FALSE(map.resolve(0x100000, 4, why));
-  map.add_memory({0x10, 4096, 1, VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT, hostMemory.data()});
-  EXPECT_TRUE(map.resolve(0x100000, 4, why));
-  map.remove_buffer(0x20);
-  EXPECT_FALSE(map.resolve(0x100000, 4, why));
+    std::string why;
+    map.remove_memory(0x10);
+    EXPECT_FALSE(map.resolve(0x100000, 4, why));
+    map.add_memory({0x10, 4096, 1, VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT, hostMemory.data()});
+    EXPECT_TRUE(map.resolve(0x100000, 4, why));
+    map.remove_buffer(0x20);
+    EXPECT_FALSE(map.resolve(0x100000, 4, why));
 }
 
 TEST_F(MapWithOneBuffer, AliasingBuffersAnyHoldingTheWholeRangeAnswers) {
-  // A small buffer aliasing the start of the big one: a range beyond it still resolves.
-  map.add_buffer({0x21, 64, 0, 0, 0, 0, 0});
-  map.bind_buffer(0x21, 0x10, 512);
-  map.set_buffer_address(0x21, 0x100000);
-  std::string why;
-  auto r = map.resolve(0x100000, 512, why);
-  ASSERT_TRUE(r) << why;
-  EXPECT_EQ(r->buffer.handle, 0x20u);
-  auto small = map.resolve(0x100000 + 8, 8, why);
-  ASSERT_TRUE(small);
-  EXPECT_EQ(small->host, hostMemory.data() + 520);
+    // A small buffer aliasing the start of the big one: a range beyond it still resolves.
+    map.add_buffer({0x21, 64, 0, 0, 0, 0, 0});
+    map.bind_buffer(0x21, 0x10, 512);
+    map.set_buffer_address(0x21, 0x100000);
+    std::string why;
+    auto r = map.resolve(0x100000, 512, why);
+    ASSERT_TRUE(r) << why;
+    EXPECT_EQ(r->buffer.handle, 0x20u);
+    auto small = map.resolve(0x100000 + 8, 8, why);
+    ASSERT_TRUE(small);
+    EXPECT_EQ(small->host, hostMemory.data() + 520);
 }
 
 TEST_F(MapWithOneBuffer, NonHostVisibleMemoryIsReportedNotRead) {
-  map.add_memory({0x11, 4096, 0, VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT, nullptr});
-  map.add_buffer({0x22, 256, 0, 0, 0, 0, 0});
-  map.bind_buffer(0x22, 0x11, 0);
-  map.set_buffer_address(0x22, 0x200000);
-  std::string why;
-  std::vector<uint8_t> bytes;
-  EXPECT_FALSE(map.read(0x200000, 4, bytes, why));
-  EXPECT_NE(why.find("not host visible"), std::string::npos) << why;
+    map.add_memory({0x11, 4096, 0, VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT, nullptr});
+    map.add_buffer({0x22, 256, 0, 0, 0, 0, 0});
+    map.bind_buffer(0x22, 0x11, 0);
+    map.set_buffer_address(0x22, 0x200000);
+    std::string why;
+    std::vector<uint8_t> bytes;
+    EXPECT_FALSE(map.read(0x200000, 4, bytes, why));
+    EXPECT_NE(why.find("not host visible"), std::string::npos) << why;
 }

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // CLASTRACE_DEBUG_ASSERT at level 0, as Release and RelWithDebInfo builds compile it: the
 // condition is never evaluated, so a broken one neither aborts nor has side effects.
 #undef CLASTRACE_DEBUG_LEVEL

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // CLASTRACE_DEBUG_ASSERT with the checks on (this target defines CLASTRACE_DEBUG_LEVEL=1).
 #include <clastrace/common/debug_assert.h>
 

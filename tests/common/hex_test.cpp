@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Exact text of the shared hex helpers, at the edges every former copy had to get right.
 #include <clastrace/common/hex.h>
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The invariants of MemoryImage (with its regions' page accounting) and ObjectDirectory hold
 // over real use, and a state broken on purpose fails them and aborts CLASTRACE_DEBUG_ASSERT.
 #include "clastrace/common/debug_assert.h"
@@ -33,7 +34,8 @@ TEST(MemoryImageInvariants, HoldOverRandomAddsWritesZerosAndRemovals) {
     std::vector<bool> present(16, false);
     for (int op = 0; op < 3000; ++op) {
         const uint64_t slot = random() % present.size(), base = kBase + slot * 2 * kRegionBytes;
-        const uint64_t offset = random() % kRegionBytes, size = 1 + random() % (kRegionBytes - offset);
+        const uint64_t offset = random() % kRegionBytes,
+                       size = 1 + random() % (kRegionBytes - offset);
         if (!present[slot]) {
             image.add_region(base, kRegionBytes, 0, "region");
             present[slot] = true;
@@ -57,7 +59,8 @@ TEST(MemoryImageInvariants, OverlappingRegionBreaksThem) {
     ASSERT_TRUE(image.invariants_hold());
     image.find_region(kBase)->size = kRegionBytes + 1;  // a caller bug: the regions now overlap
     EXPECT_FALSE(image.invariants_hold());
-    EXPECT_DEATH(CLASTRACE_DEBUG_ASSERT(image.invariants_hold()), "invariant broken: image.invariants_hold\\(\\)");
+    EXPECT_DEATH(CLASTRACE_DEBUG_ASSERT(image.invariants_hold()),
+                 "invariant broken: image.invariants_hold\\(\\)");
 }
 
 TEST(MemoryImageInvariants, RegionKeyedAwayFromItsBaseBreaksThem) {

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Inputs a replay cannot trust: rays with NaN/Inf/zero parts, build inputs whose buffers are
 // too small or missing, and CLAS bytes corrupted in device memory. Each is a finding or a
 // miss, never a crash or an out-of-bounds read (run under ASan).
@@ -30,8 +31,8 @@ std::vector<std::byte> build_icosphere_cluster(unsigned truncate_bits = 0) {
     return scene.objects.at(0);
 }
 
-eng::Hit trace(std::span<const std::byte> clas, std::array<float, 3> o, std::array<float, 3> d, float tmin = 0,
-               float tmax = kInf) {
+eng::Hit trace(std::span<const std::byte> clas, std::array<float, 3> o, std::array<float, 3> d,
+               float tmin = 0, float tmax = kInf) {
     eng::Ray r{{o[0], o[1], o[2]}, tmin, {d[0], d[1], d[2]}, tmax};
     return eng::trace_closest(clas, r, 0);
 }
@@ -45,15 +46,17 @@ struct Inputs {
 // 8 triangles / 9 vertices, with the vertex region sized `vertex_region_bytes`.
 Inputs small_cluster(uint64_t vertex_region_bytes) {
     Inputs in;
-    const VkBufferUsageFlags usage = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR |
-                                     VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT;
+    const VkBufferUsageFlags usage =
+        VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR |
+        VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT;
     auto& vr = in.memory.add_region(0x4000, vertex_region_bytes, usage, "vertices");
     auto& ir = in.memory.add_region(0x8000, 24, usage, "indices");
     std::vector<float> pos;
     for (int y = 0; y < 3; ++y)
         for (int x = 0; x < 3; ++x) pos.insert(pos.end(), {float(x), float(y), 1.0f});
     std::memcpy(vr.bytes.data(), pos.data(), std::min<size_t>(vr.bytes.size(), pos.size() * 4));
-    const uint8_t idx[24] = {0, 1, 4, 0, 4, 3, 1, 2, 5, 1, 5, 4, 3, 4, 7, 3, 7, 6, 4, 5, 8, 4, 8, 7};
+    const uint8_t idx[24] = {0, 1, 4, 0, 4, 3, 1, 2, 5, 1, 5, 4,
+                             3, 4, 7, 3, 7, 6, 4, 5, 8, 4, 8, 7};
     std::memcpy(ir.bytes.data(), idx, 24);
     in.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
     in.input.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
@@ -76,7 +79,7 @@ std::string text(const std::vector<eng::Finding>& fs) {
     return s;
 }
 
-} // namespace
+}  // namespace
 
 TEST(HostileInput, DegenerateRaysMissWithoutCrashing) {
     const auto clas = build_icosphere_cluster();
@@ -89,7 +92,8 @@ TEST(HostileInput, DegenerateRaysMissWithoutCrashing) {
     EXPECT_FALSE(trace(clas, {0, 0, -5}, {0, 0, 1}, kNaN, 10).hit);  // NaN tmin
     EXPECT_FALSE(trace(clas, {-kInf, 0, 0}, {1, 0, 0}).hit);         // infinite origin
     // Infinite and huge direction components: no crash, and no NaN t.
-    for (std::array<float, 3> d : {std::array<float, 3>{0, 0, kInf}, std::array<float, 3>{3e38f, 0, 3e38f}}) {
+    for (std::array<float, 3> d :
+         {std::array<float, 3>{0, 0, kInf}, std::array<float, 3>{3e38f, 0, 3e38f}}) {
         const eng::Hit h = trace(clas, {0, 0, -5}, d);
         if (h.hit) {
             EXPECT_FALSE(std::isnan(h.t));
@@ -99,7 +103,8 @@ TEST(HostileInput, DegenerateRaysMissWithoutCrashing) {
     // Denormal directions: the sphere is 4 / 1e-40 = 4e40 away, beyond FLT_MAX. With
     // tmax = FLT_MAX that is a miss; with tmax = inf, a hit may only report t = inf (the
     // float rounding of 4e40).
-    for (std::array<float, 3> d : {std::array<float, 3>{0, 0, 1e-40f}, std::array<float, 3>{1e-45f, 1e-45f, 1e-44f}}) {
+    for (std::array<float, 3> d :
+         {std::array<float, 3>{0, 0, 1e-40f}, std::array<float, 3>{1e-45f, 1e-45f, 1e-44f}}) {
         EXPECT_FALSE(trace(clas, {0, 0, -5}, d, 0, std::numeric_limits<float>::max()).hit);
         const eng::Hit h = trace(clas, {0, 0, -5}, d);
         if (h.hit) {
@@ -112,7 +117,8 @@ TEST(HostileInput, DegenerateRaysMissWithoutCrashing) {
 TEST(HostileInput, TooSmallVertexBufferIsAFindingNamingTheAddress) {
     Inputs in = small_cluster(9 * 12 - 4);  // the last vertex runs off the region
     const eng::ClusterObject obj =
-        eng::build_triangle_cluster(in.memory, in.info, in.input, eng::EngineProperties::nvidia_default(), 3);
+        eng::build_triangle_cluster(in.memory, in.info, in.input,
+                                    eng::EngineProperties::nvidia_default(), 3);
     EXPECT_FALSE(obj.ok);
     ASSERT_FALSE(obj.findings.empty());
     bool named = false;
@@ -126,7 +132,8 @@ TEST(HostileInput, MissingOrWrappingBuffersAreFindings) {
         Inputs in = small_cluster(9 * 12);
         in.info.indexBuffer = index_address;
         const eng::ClusterObject obj =
-            eng::build_triangle_cluster(in.memory, in.info, in.input, eng::EngineProperties::nvidia_default(), 0);
+            eng::build_triangle_cluster(in.memory, in.info, in.input,
+                                        eng::EngineProperties::nvidia_default(), 0);
         EXPECT_FALSE(obj.ok) << std::hex << index_address;
         EXPECT_FALSE(obj.findings.empty());
     }
@@ -134,7 +141,8 @@ TEST(HostileInput, MissingOrWrappingBuffersAreFindings) {
     Inputs in = small_cluster(9 * 12);
     in.info.vertexBufferStride = 16;
     const eng::ClusterObject obj =
-        eng::build_triangle_cluster(in.memory, in.info, in.input, eng::EngineProperties::nvidia_default(), 0);
+        eng::build_triangle_cluster(in.memory, in.info, in.input,
+                                    eng::EngineProperties::nvidia_default(), 0);
     EXPECT_FALSE(obj.ok);
     EXPECT_FALSE(obj.findings.empty());
 }
@@ -143,9 +151,11 @@ TEST(HostileInput, MisalignedStridesAreFindings) {
     Inputs in = small_cluster(9 * 14);
     in.info.vertexBufferStride = 14;  // not a multiple of the 4-byte component
     const eng::ClusterObject obj =
-        eng::build_triangle_cluster(in.memory, in.info, in.input, eng::EngineProperties::nvidia_default(), 0);
+        eng::build_triangle_cluster(in.memory, in.info, in.input,
+                                    eng::EngineProperties::nvidia_default(), 0);
     bool vuid = false;
-    for (const auto& f : obj.findings) vuid = vuid || f.rule.find("vertexBufferStride") != std::string::npos;
+    for (const auto& f : obj.findings)
+        vuid = vuid || f.rule.find("vertexBufferStride") != std::string::npos;
     EXPECT_TRUE(vuid) << text(obj.findings);
 }
 
@@ -164,13 +174,18 @@ TEST(HostileInput, CorruptedClasBytesNeverCrashTraversal) {
         for (int k = 0; k < flips; ++k) {
             const size_t at = rng() % bad.size();
             // Half the time, aim at the header and node area where offsets and links live.
-            const size_t pos = (rng() & 1) ? at % std::min<size_t>(bad.size(), 96 + 8 * hc.header->node_count + 64) : at;
+            const size_t pos =
+                (rng() & 1) ? at % std::min<size_t>(bad.size(), 96 + 8 * hc.header->node_count + 64)
+                            : at;
             bad[pos] = std::byte(rng());
         }
         if ((rng() & 7) == 0) bad.resize(rng() % bad.size());  // truncated object
         if (!eng::read_object_header(bad).header) ++rejected;
         for (const auto& r : rays) {
-            eng::Ray er{{r.origin[0], r.origin[1], r.origin[2]}, 0, {r.direction[0], r.direction[1], r.direction[2]}, kInf};
+            eng::Ray er{{r.origin[0], r.origin[1], r.origin[2]},
+                        0,
+                        {r.direction[0], r.direction[1], r.direction[2]},
+                        kInf};
             const eng::Hit h = eng::trace_closest(bad, er, 0);
             (void)eng::trace_any(bad, er, 0);
             if (h.hit) {
@@ -179,6 +194,7 @@ TEST(HostileInput, CorruptedClasBytesNeverCrashTraversal) {
             ++traced;
         }
     }
-    std::cout << "[corrupt] objects 3000, header rejected " << rejected << ", rays traced " << traced << "\n";
+    std::cout << "[corrupt] objects 3000, header rejected " << rejected << ", rays traced "
+              << traced << "\n";
     EXPECT_GT(rejected, 0u);
 }

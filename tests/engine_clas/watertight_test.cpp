@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Closed meshes leak nowhere: rays aimed exactly at shared edges (midpoints and other sample
 // points) and vertices, from inside and from outside, always hit before passing the target
 // point, across cluster boundaries too, with and without position truncation. Shared
@@ -35,7 +36,8 @@ struct LeakCounts {
 
 // Shoots origin -> target with the unnormalized direction target - origin, so the surface is
 // met at t ~= 1; anything beyond 1 + 1e-4 would be another part of the surface, i.e. a leak.
-void shoot(const ts::ClusterScene& scene, const ts::Float3& origin, const ts::Float3& target, LeakCounts& out) {
+void shoot(const ts::ClusterScene& scene, const ts::Float3& origin, const ts::Float3& target,
+           LeakCounts& out) {
     ts::TestRay r;
     r.origin = origin;
     const auto d = sub(target, origin);
@@ -49,8 +51,8 @@ void shoot(const ts::ClusterScene& scene, const ts::Float3& origin, const ts::Fl
         if (out.examples.size() < 5) {
             std::ostringstream s;
             s.precision(9);
-            s << "leak: o=(" << origin[0] << "," << origin[1] << "," << origin[2] << ") target=(" << target[0] << ","
-              << target[1] << "," << target[2] << ")";
+            s << "leak: o=(" << origin[0] << "," << origin[1] << "," << origin[2] << ") target=("
+              << target[0] << "," << target[1] << "," << target[2] << ")";
             out.examples.push_back(s.str());
         }
     }
@@ -62,7 +64,8 @@ LeakCounts leak_check(const Shape& shape, unsigned truncate_bits) {
     const ts::ClusterScene scene = ts::build_cluster_scene(m, clusters, {1, 0, 0, truncate_bits});
     EXPECT_EQ(scene.failed_builds, 0u);
     std::vector<ts::Float3> p(m.positions.size());
-    for (size_t i = 0; i < p.size(); ++i) p[i] = ts::truncate_position(m.positions[i], truncate_bits);
+    for (size_t i = 0; i < p.size(); ++i)
+        p[i] = ts::truncate_position(m.positions[i], truncate_bits);
 
     std::set<std::pair<uint32_t, uint32_t>> edges;
     for (const ts::Triangle& t : m.triangles)
@@ -72,7 +75,8 @@ LeakCounts leak_check(const Shape& shape, unsigned truncate_bits) {
     for (const ts::Float3& v : p) targets.push_back(v);  // exactly at the shared vertex
     const float fractions[] = {0.5f, 0.25f, 0.75f, 1.0f / 3.0f, 0.001f, 0.999f};
     for (const auto& [a, b] : edges)
-        for (float s : fractions)  // points on the edge, in float as an application would compute them
+        for (float s :
+             fractions)  // points on the edge, in float as an application would compute them
             targets.push_back({p[a][0] + s * (p[b][0] - p[a][0]), p[a][1] + s * (p[b][1] - p[a][1]),
                                p[a][2] + s * (p[b][2] - p[a][2])});
 
@@ -81,7 +85,8 @@ LeakCounts leak_check(const Shape& shape, unsigned truncate_bits) {
         for (int variant = 0; variant < 3; ++variant) {
             const ts::Float3 in = shape.inside_point(target, variant);
             shoot(scene, in, target, counts);  // inside -> out
-            const ts::Float3 out{2 * target[0] - in[0], 2 * target[1] - in[1], 2 * target[2] - in[2]};
+            const ts::Float3 out{2 * target[0] - in[0], 2 * target[1] - in[1],
+                                 2 * target[2] - in[2]};
             shoot(scene, out, target, counts);  // outside -> in
         }
     return counts;
@@ -114,8 +119,8 @@ TEST_P(Watertight, NoRayThroughSharedEdgesOrVerticesLeaks) {
     const unsigned bits = GetParam();
     for (const Shape& shape : {icosphere(), torus()}) {
         const LeakCounts c = leak_check(shape, bits);
-        std::cout << "[watertight] " << shape.mesh.name << " truncate " << bits << ": rays " << c.rays << ", leaks "
-                  << c.leaks << "\n";
+        std::cout << "[watertight] " << shape.mesh.name << " truncate " << bits << ": rays "
+                  << c.rays << ", leaks " << c.leaks << "\n";
         for (const auto& e : c.examples) std::cout << "    " << e << "\n";
         EXPECT_EQ(c.leaks, 0u) << shape.mesh.name << " truncate " << bits;
         EXPECT_GT(c.rays, 10000u);
@@ -138,7 +143,10 @@ TEST(WatertightExtremes, DiagonalOfSplitQuadAtEveryScale) {
     for (float scale : {1e-40f, 1e-38f, 1e-20f, 1.0f, 1e20f, 1e38f, 3.0e38f}) {
         ts::TriangleMesh m;
         m.name = "quad";
-        m.positions = {{-scale, -scale, 0}, {scale, -scale, 0}, {scale, scale, 0}, {-scale, scale, 0}};
+        m.positions = {{-scale, -scale, 0},
+                       {scale, -scale, 0},
+                       {scale, scale, 0},
+                       {-scale, scale, 0}};
         m.triangles = {{0, 1, 2}, {0, 2, 3}};
         std::vector<ts::MeshCluster> clusters(2);
         clusters[0].vertices = {0, 1, 2};
@@ -164,4 +172,4 @@ TEST(WatertightExtremes, DiagonalOfSplitQuadAtEveryScale) {
     }
 }
 
-} // namespace
+}  // namespace

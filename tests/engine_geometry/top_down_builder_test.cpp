@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The binned-SAH core's top-down builder (engine/src/geometry/binned_sah.h) on a toy range
 // splitter and node emitter: each NodeLayout puts the nodes where its format says, and the
 // parallel build (its subtrees spliced) lays out the same array as the sequential one.
@@ -59,13 +60,15 @@ constexpr uint32_t kNever = ~0u;  // parallel_from: build everything on the call
 
 TEST(TopDownBuilder, SiblingPairsPutBothChildrenTogetherAndLinkTheLeftOne) {
     // [0,5) -> [0,2) [2,5); [0,2) -> [0,1) [1,2); [2,5) -> [2,3) [3,5); [3,5) -> [3,4) [4,5).
-    const std::vector<ToyNode> expected{{1, 0}, {3, 0}, {5, 0}, {0, 1}, {1, 1}, {2, 1}, {7, 0}, {3, 1}, {4, 1}};
+    const std::vector<ToyNode> expected{{1, 0}, {3, 0}, {5, 0}, {0, 1}, {1, 1},
+                                        {2, 1}, {7, 0}, {3, 1}, {4, 1}};
     EXPECT_EQ(build<NodeLayout::kSiblingPairs>(5, 2, kNever), expected);
     EXPECT_EQ(build<NodeLayout::kSiblingPairs>(5, 2, 2), expected);  // every split spliced
 }
 
 TEST(TopDownBuilder, PreorderPutsTheLeftSubtreeNextAndLinksTheRightChild) {
-    const std::vector<ToyNode> expected{{4, 0}, {3, 0}, {0, 1}, {1, 1}, {6, 0}, {2, 1}, {8, 0}, {3, 1}, {4, 1}};
+    const std::vector<ToyNode> expected{{4, 0}, {3, 0}, {0, 1}, {1, 1}, {6, 0},
+                                        {2, 1}, {8, 0}, {3, 1}, {4, 1}};
     EXPECT_EQ(build<NodeLayout::kPreorder>(5, 2, kNever), expected);
     EXPECT_EQ(build<NodeLayout::kPreorder>(5, 2, 2), expected);
 }
@@ -76,7 +79,8 @@ TEST(TopDownBuilder, ParallelSubtreesSpliceIntoTheSequentialLayout) {
         EXPECT_EQ(build<NodeLayout::kSiblingPairs>(1000, 3, parallel_from),
                   build<NodeLayout::kSiblingPairs>(1000, 3, kNever))
             << parallel_from;
-        EXPECT_EQ(build<NodeLayout::kPreorder>(1000, 3, parallel_from), build<NodeLayout::kPreorder>(1000, 3, kNever))
+        EXPECT_EQ(build<NodeLayout::kPreorder>(1000, 3, parallel_from),
+                  build<NodeLayout::kPreorder>(1000, 3, kNever))
             << parallel_from;
     }
 }

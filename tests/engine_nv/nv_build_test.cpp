@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // vkCmdBuildAccelerationStructureNV semantics: sizes, every vertex format / index type /
 // stride / transform NV allows, the access list the hazard checker reads, and every rule
 // the command and the structs it names put on memory contents and object state.
@@ -38,11 +39,13 @@ TEST(NvBuild, BottomLevelSizeWithinRequirementAndHeaderCounts) {
     const auto r = w.build(info, obj);
     ASSERT_TRUE(r.ops[0].executed) << rules(r);
     EXPECT_TRUE(r.findings.empty()) << rules(r);
-    const size_t tris = spec.geometries[0].mesh.triangles.size() + spec.geometries[1].mesh.triangles.size();
+    const size_t tris =
+        spec.geometries[0].mesh.triangles.size() + spec.geometries[1].mesh.triangles.size();
     EXPECT_LE(r.ops[0].dst_size, eng::nv_memory_requirements(info).object);
     EXPECT_GE(r.ops[0].dst_size, 96 + 2 * 32 + tris * 48);
     std::string error;
-    auto view = eng::open_nv_object(w.memory.read_bytes(obj.address, r.ops[0].dst_size, {}), &error);
+    auto view =
+        eng::open_nv_object(w.memory.read_bytes(obj.address, r.ops[0].dst_size, {}), &error);
     ASSERT_TRUE(view) << error;
     EXPECT_EQ(view->header.primitive_count, tris);
     EXPECT_EQ(view->header.geometry_count, 2u);
@@ -68,7 +71,8 @@ TEST(NvBuild, BytesDoNotDependOnThreadCountForEitherBuilder) {
         return std::vector<std::byte>(span.begin(), span.end());
     };
     const auto fast = VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV;
-    const auto sah1 = bytes_at(1, 0), sah2 = bytes_at(2, 0), morton1 = bytes_at(1, fast), morton2 = bytes_at(2, fast);
+    const auto sah1 = bytes_at(1, 0), sah2 = bytes_at(2, 0), morton1 = bytes_at(1, fast),
+               morton2 = bytes_at(2, fast);
     EXPECT_EQ(sah1, sah2);
     EXPECT_EQ(morton1, morton2);
     ASSERT_EQ(sah1.size() > 0, true);
@@ -91,7 +95,8 @@ uint16_t to_half(float f) {  // exact for the values used (multiples of 1/64 in 
     if (f == 0.0f) return std::signbit(f) ? 0x8000 : 0;
     uint32_t bits;
     std::memcpy(&bits, &f, 4);
-    const uint32_t sign = (bits >> 16) & 0x8000, exp = ((bits >> 23) & 0xFF) - 127 + 15, mant = (bits >> 13) & 0x3FF;
+    const uint32_t sign = (bits >> 16) & 0x8000, exp = ((bits >> 23) & 0xFF) - 127 + 15,
+                   mant = (bits >> 13) & 0x3FF;
     return uint16_t(sign | (exp << 10) | mant);
 }
 
@@ -101,7 +106,9 @@ TEST(NvBuild, EveryVertexFormatIndexTypeStrideAndTransformMatchesFloatReference)
     std::mt19937 rng(5);
     std::vector<std::array<float, 3>> base;
     for (int y = 0; y <= n; ++y)
-        for (int x = 0; x <= n; ++x) base.push_back({(x - n / 2) / 8.0f, (y - n / 2) / 8.0f, float(int(rng() % 17) - 8) / 64.0f});
+        for (int x = 0; x <= n; ++x)
+            base.push_back(
+                {(x - n / 2) / 8.0f, (y - n / 2) / 8.0f, float(int(rng() % 17) - 8) / 64.0f});
     std::vector<uint32_t> tri;
     for (int y = 0; y < n; ++y)
         for (int x = 0; x < n; ++x) {
@@ -109,16 +116,21 @@ TEST(NvBuild, EveryVertexFormatIndexTypeStrideAndTransformMatchesFloatReference)
             tri.insert(tri.end(), {a, b, d, a, d, c});
         }
     const float transform[12] = {0.5f, 0.25f, 0, 1.0f, -0.25f, 0.5f, 0, -2.0f, 0, 0, 2.0f, 0.5f};
-    const VkFormat formats[] = {VK_FORMAT_R32G32B32_SFLOAT, VK_FORMAT_R32G32_SFLOAT, VK_FORMAT_R16G16B16_SFLOAT,
-                                VK_FORMAT_R16G16_SFLOAT,    VK_FORMAT_R16G16_SNORM,  VK_FORMAT_R16G16B16_SNORM};
-    const VkIndexType index_types[] = {VK_INDEX_TYPE_UINT16, VK_INDEX_TYPE_UINT32, VK_INDEX_TYPE_NONE_NV};
+    const VkFormat formats[] = {VK_FORMAT_R32G32B32_SFLOAT, VK_FORMAT_R32G32_SFLOAT,
+                                VK_FORMAT_R16G16B16_SFLOAT, VK_FORMAT_R16G16_SFLOAT,
+                                VK_FORMAT_R16G16_SNORM,     VK_FORMAT_R16G16B16_SNORM};
+    const VkIndexType index_types[] = {VK_INDEX_TYPE_UINT16, VK_INDEX_TYPE_UINT32,
+                                       VK_INDEX_TYPE_NONE_NV};
     ts::Bounds box;
     box.extend({-1.5f, -3.5f, -1.5f});
     box.extend({2.5f, 1.5f, 1.5f});
     const auto rays = ts::random_rays(box, 3000, 8);
     int combos = 0;
     for (VkFormat f : formats) {
-        const uint32_t comps = (f == VK_FORMAT_R32G32_SFLOAT || f == VK_FORMAT_R16G16_SFLOAT || f == VK_FORMAT_R16G16_SNORM) ? 2 : 3;
+        const uint32_t comps = (f == VK_FORMAT_R32G32_SFLOAT || f == VK_FORMAT_R16G16_SFLOAT ||
+                                f == VK_FORMAT_R16G16_SNORM)
+                                   ? 2
+                                   : 3;
         const bool snorm = f == VK_FORMAT_R16G16_SNORM || f == VK_FORMAT_R16G16B16_SNORM;
         const bool half = f == VK_FORMAT_R16G16B16_SFLOAT || f == VK_FORMAT_R16G16_SFLOAT;
         const uint32_t csize = (snorm || half) ? 2 : 4;
@@ -128,7 +140,8 @@ TEST(NvBuild, EveryVertexFormatIndexTypeStrideAndTransformMatchesFloatReference)
                     NvWorld w;
                     // Decoded reference positions (the values the GPU sees).
                     std::vector<std::array<float, 3>> dec(base.size());
-                    const uint32_t stride = comps * csize + pad;  // pad keeps the component alignment
+                    const uint32_t stride =
+                        comps * csize + pad;  // pad keeps the component alignment
                     std::vector<uint8_t> vb;
                     const std::vector<uint32_t>& order = tri;
                     std::vector<uint32_t> seq;  // vertex order for NONE_NV: one vertex per corner
@@ -165,7 +178,8 @@ TEST(NvBuild, EveryVertexFormatIndexTypeStrideAndTransformMatchesFloatReference)
                     g.triangles.vertex_stride = stride;
                     g.triangles.index_type = it;
                     if (it != VK_INDEX_TYPE_NONE_NV) {
-                        std::vector<uint8_t> ib(order.size() * (it == VK_INDEX_TYPE_UINT16 ? 2 : 4));
+                        std::vector<uint8_t> ib(order.size() *
+                                                (it == VK_INDEX_TYPE_UINT16 ? 2 : 4));
                         for (size_t k = 0; k < order.size(); ++k) {
                             if (it == VK_INDEX_TYPE_UINT16) {
                                 const uint16_t s = uint16_t(order[k]);
@@ -177,7 +191,8 @@ TEST(NvBuild, EveryVertexFormatIndexTypeStrideAndTransformMatchesFloatReference)
                         g.triangles.index_address = w.put(ib.data(), ib.size(), "ib");
                         g.triangles.index_count = uint32_t(order.size());
                     }
-                    if (with_transform) g.triangles.transform_address = w.put(transform, 48, "transform");
+                    if (with_transform)
+                        g.triangles.transform_address = w.put(transform, 48, "transform");
                     info.geometries.push_back(g);
                     auto obj = w.make_object(info, "blas");
                     const auto r = w.build(info, obj);
@@ -190,14 +205,17 @@ TEST(NvBuild, EveryVertexFormatIndexTypeStrideAndTransformMatchesFloatReference)
                         if (with_transform) {
                             const float x = p[0], y = p[1], z = p[2];
                             for (int row = 0; row < 3; ++row)
-                                p[row] = transform[4 * row] * x + transform[4 * row + 1] * y + transform[4 * row + 2] * z +
-                                         transform[4 * row + 3];
+                                p[row] = transform[4 * row] * x + transform[4 * row + 1] * y +
+                                         transform[4 * row + 2] * z + transform[4 * row + 3];
                         }
                         gs.mesh.positions.push_back({p[0], p[1], p[2]});
                     }
                     for (size_t k = 0; k + 2 < order.size(); k += 3) {
-                        if (it == VK_INDEX_TYPE_NONE_NV) gs.mesh.triangles.push_back({uint32_t(k), uint32_t(k + 1), uint32_t(k + 2)});
-                        else gs.mesh.triangles.push_back({order[k], order[k + 1], order[k + 2]});
+                        if (it == VK_INDEX_TYPE_NONE_NV)
+                            gs.mesh.triangles.push_back(
+                                {uint32_t(k), uint32_t(k + 1), uint32_t(k + 2)});
+                        else
+                            gs.mesh.triangles.push_back({order[k], order[k + 1], order[k + 2]});
                     }
                     spec.geometries.push_back(gs);
                     auto ref_info = w.blas_info(spec);
@@ -208,9 +226,12 @@ TEST(NvBuild, EveryVertexFormatIndexTypeStrideAndTransformMatchesFloatReference)
                     ASSERT_TRUE(a && b);
                     size_t hits = 0;
                     for (const auto& tr : rays) {
-                        const eng::Ray ray{{tr.origin[0], tr.origin[1], tr.origin[2]}, 0.0f,
-                                           {tr.direction[0], tr.direction[1], tr.direction[2]}, tr.tmax};
-                        const eng::NvHit ha = a->closest(ray, 0, 0xFF), hb = b->closest(ray, 0, 0xFF);
+                        const eng::Ray ray{{tr.origin[0], tr.origin[1], tr.origin[2]},
+                                           0.0f,
+                                           {tr.direction[0], tr.direction[1], tr.direction[2]},
+                                           tr.tmax};
+                        const eng::NvHit ha = a->closest(ray, 0, 0xFF),
+                                         hb = b->closest(ray, 0, 0xFF);
                         ASSERT_EQ(ha.hit, hb.hit) << "format " << f << " index type " << it;
                         if (!ha.hit) continue;
                         ++hits;
@@ -262,7 +283,8 @@ TEST(NvBuild, AccessesNameEveryRangeWithStageAndAccess) {
     EXPECT_TRUE(saw_instances && saw_blas && saw_scratch && saw_dst);
     // One BLAS referenced twice is read once.
     size_t blas_reads = 0;
-    for (const auto& a : r.accesses) blas_reads += a.field.find("accelerationStructureReference") != std::string::npos;
+    for (const auto& a : r.accesses)
+        blas_reads += a.field.find("accelerationStructureReference") != std::string::npos;
     EXPECT_EQ(blas_reads, 1u);
 }
 
@@ -328,7 +350,9 @@ TEST(NvBuild, EveryRuleFiresOnItsInput) {
         cmd.scratch_available = need.build_scratch;
         return cmd;
     };
-    auto tri = [](eng::NvBuildCommand& c) -> eng::NvTriangles& { return c.info.geometries[0].triangles; };
+    auto tri = [](eng::NvBuildCommand& c) -> eng::NvTriangles& {
+        return c.info.geometries[0].triangles;
+    };
     const std::vector<RuleCase> cases = {
         {eng::kVuidNvUpdateNoSrc, [](auto& c, auto&, auto&) { c.update = true; }, false},
         {eng::kVuidNvUpdateNotAllowed,
@@ -340,16 +364,23 @@ TEST(NvBuild, EveryRuleFiresOnItsInput) {
          },
          false},
         {eng::kVuidNvBuildScratch, [](auto& c, auto&, auto&) { c.scratch_available = 64; }, true},
-        {eng::kVuidNvScratchUsage, [](auto& c, auto&, auto&) { c.scratch_ray_tracing_usage = false; }, true},
+        {eng::kVuidNvScratchUsage,
+         [](auto& c, auto&, auto&) { c.scratch_ray_tracing_usage = false; }, true},
         {eng::kVuidNvDstBound, [](auto& c, auto&, auto&) { c.dst.bound = false; }, false},
-        {eng::kVuidNvDstCompatible, [](auto& c, auto&, auto&) { c.dst.created->geometries[0].triangles.index_count = 3; }, false},
+        {eng::kVuidNvDstCompatible,
+         [](auto& c, auto&, auto&) { c.dst.created->geometries[0].triangles.index_count = 3; },
+         false},
         {eng::kVuidNvDstCompatible, [](auto& c, auto&, auto&) { c.dst.created->flags = 0; }, false},
-        {eng::kVuidNvGeometryCount, [](auto&, auto&, auto& o) { o.limits.max_geometry_count = 0; }, false},
-        {eng::kVuidInfoTriangleCount, [](auto&, auto&, auto& o) { o.limits.max_triangle_count = 10; }, false},
-        {eng::kVuidInfoBottomInstances, [](auto& c, auto&, auto&) { c.info.instance_count = 1; }, false},
+        {eng::kVuidNvGeometryCount, [](auto&, auto&, auto& o) { o.limits.max_geometry_count = 0; },
+         false},
+        {eng::kVuidInfoTriangleCount,
+         [](auto&, auto&, auto& o) { o.limits.max_triangle_count = 10; }, false},
+        {eng::kVuidInfoBottomInstances, [](auto& c, auto&, auto&) { c.info.instance_count = 1; },
+         false},
         {eng::kVuidInfoFastBoth,
          [](auto& c, auto&, auto&) {
-             c.info.flags |= VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_NV | VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV;
+             c.info.flags |= VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_NV |
+                             VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV;
              c.dst.created->flags = c.info.flags;
          },
          true},
@@ -361,10 +392,13 @@ TEST(NvBuild, EveryRuleFiresOnItsInput) {
              c.dst.created->geometries.push_back(g);
          },
          false},
-        {eng::kVuidVertexFormat, [&](auto& c, auto&, auto&) { tri(c).vertex_format = VK_FORMAT_R8G8B8A8_UNORM; }, true},
+        {eng::kVuidVertexFormat,
+         [&](auto& c, auto&, auto&) { tri(c).vertex_format = VK_FORMAT_R8G8B8A8_UNORM; }, true},
         {eng::kVuidVertexOffset, [&](auto& c, auto&, auto&) { tri(c).vertex_available = 0; }, true},
-        {eng::kVuidVertexOffsetAlign, [&](auto& c, auto&, auto&) { tri(c).vertex_offset = 2; }, true},
-        {eng::kVuidIndexType, [&](auto& c, auto&, auto&) { tri(c).index_type = VK_INDEX_TYPE_UINT8_EXT; }, true},
+        {eng::kVuidVertexOffsetAlign, [&](auto& c, auto&, auto&) { tri(c).vertex_offset = 2; },
+         true},
+        {eng::kVuidIndexType,
+         [&](auto& c, auto&, auto&) { tri(c).index_type = VK_INDEX_TYPE_UINT8_EXT; }, true},
         {eng::kVuidIndexOffset, [&](auto& c, auto&, auto&) { tri(c).index_available = 0; }, true},
         {eng::kVuidIndexOffsetAlign, [&](auto& c, auto&, auto&) { tri(c).index_offset = 2; }, true},
         {eng::kVuidIndexNoneData,
@@ -379,7 +413,8 @@ TEST(NvBuild, EveryRuleFiresOnItsInput) {
              tri(c).index_address = 0;
          },
          true},
-        {eng::kRuleNvPartialTriangle, [&](auto& c, auto&, auto&) { tri(c).index_count -= 1; }, true},
+        {eng::kRuleNvPartialTriangle, [&](auto& c, auto&, auto&) { tri(c).index_count -= 1; },
+         true},
         {eng::kVuidTransformOffset,
          [&](auto& c, auto& w, auto&) {
              const float m[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
@@ -394,15 +429,18 @@ TEST(NvBuild, EveryRuleFiresOnItsInput) {
              tri(c).transform_offset = 8;
          },
          true},
-        {eng::kRuleNvMemoryFault, [&](auto& c, auto&, auto&) { tri(c).vertex_address = 0x10; }, false},
-        {eng::kRuleNvMemoryFault, [&](auto& c, auto&, auto&) { tri(c).vertex_stride = 1ull << 62; }, false},
+        {eng::kRuleNvMemoryFault, [&](auto& c, auto&, auto&) { tri(c).vertex_address = 0x10; },
+         false},
+        {eng::kRuleNvMemoryFault, [&](auto& c, auto&, auto&) { tri(c).vertex_stride = 1ull << 62; },
+         false},
         {eng::kRuleNvObjectTooLarge, [](auto& c, auto&, auto&) { c.dst.size = 200; }, false},
         {eng::kRuleNvScratchOverlap,
          [](auto& c, auto&, auto&) {
              c.scratch_address = c.info.geometries[0].triangles.vertex_address;
          },
          true},
-        {eng::kRuleNvIndexOutOfRange, [&](auto& c, auto&, auto&) { tri(c).vertex_count = 3; }, true},
+        {eng::kRuleNvIndexOutOfRange, [&](auto& c, auto&, auto&) { tri(c).vertex_count = 3; },
+         true},
     };
     for (size_t i = 0; i < cases.size(); ++i) {
         NvWorld w;
@@ -417,8 +455,12 @@ TEST(NvBuild, EveryRuleFiresOnItsInput) {
         }
         cases[i].change(cmd, w, options);
         const auto r = eng::execute_nv_build(cmd, w.memory, options);
-        EXPECT_TRUE(has(r, cases[i].rule)) << "case " << i << " expected " << cases[i].rule << ", got:\n" << rules(r);
-        EXPECT_EQ(r.ops[0].executed, cases[i].builds) << "case " << i << " " << cases[i].rule << "\n" << rules(r);
+        EXPECT_TRUE(has(r, cases[i].rule))
+            << "case " << i << " expected " << cases[i].rule << ", got:\n"
+            << rules(r);
+        EXPECT_EQ(r.ops[0].executed, cases[i].builds)
+            << "case " << i << " " << cases[i].rule << "\n"
+            << rules(r);
         for (const auto& f : r.findings) EXPECT_FALSE(f.message.empty());
     }
 }
@@ -443,7 +485,8 @@ TEST(NvBuild, TopLevelRulesOnInstanceReferences) {
         };
         const auto r = w.build(top, dst, ia, false, nullptr, o);
         ASSERT_TRUE(r.ops[0].executed) << rules(r);
-        const char* expected = bad == 0xDEAD0000 || bad == tlas_handle ? eng::kVuidNvReference : eng::kRuleNvBlasNotBuilt;
+        const char* expected = bad == 0xDEAD0000 || bad == tlas_handle ? eng::kVuidNvReference
+                                                                       : eng::kRuleNvBlasNotBuilt;
         EXPECT_TRUE(has(r, expected)) << rules(r);
         auto scene = eng::NvScene::open(w.memory, dst.address, nullptr, nullptr);
         ASSERT_TRUE(scene);

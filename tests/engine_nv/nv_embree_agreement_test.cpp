@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The NV engine against Embree 3 instancing: a top-level object of mirrored, scaled and
 // rotated instances over triangle BLAS (several geometries, opaque and not) and an AABB
 // BLAS, traced with every ray flag that changes the answer, random cull masks, and the
@@ -20,7 +21,8 @@ std::vector<BlasSpec> mixed_blas() {
     ts::TriangleMesh terrain = ts::make_terrain(12, 12, 7);
     for (auto& p : terrain.positions) p = {p[0] * 0.1f - 0.6f, p[2] * 0.1f - 0.6f, p[1] * 0.1f};
     out[1].geometries.push_back({terrain, {}, VK_GEOMETRY_OPAQUE_BIT_NV});
-    out[2].geometries.push_back({ts::make_random_soup(400, 11, 1.0f, 0.4f), {}, VK_GEOMETRY_OPAQUE_BIT_NV});
+    out[2].geometries.push_back(
+        {ts::make_random_soup(400, 11, 1.0f, 0.4f), {}, VK_GEOMETRY_OPAQUE_BIT_NV});
     out[3].aabbs = true;
     out[3].geometries.push_back({{}, random_boxes(120, 5), 0});
     out[3].geometries.push_back({{}, random_boxes(60, 6), VK_GEOMETRY_OPAQUE_BIT_NV});
@@ -36,8 +38,9 @@ constexpr uint32_t kFlagSets[] = {0,
                                   eng::kRayFlagCullNoOpaque,
                                   eng::kRayFlagCullBackFacingTriangles | eng::kRayFlagNoOpaque};
 
-Agreement run(const std::vector<BlasSpec>& blas, const std::vector<InstanceSpec>& instances, size_t ray_count,
-              float extent, uint64_t seed, VkBuildAccelerationStructureFlagsNV build_flags = 0) {
+Agreement run(const std::vector<BlasSpec>& blas, const std::vector<InstanceSpec>& instances,
+              size_t ray_count, float extent, uint64_t seed,
+              VkBuildAccelerationStructureFlagsNV build_flags = 0) {
     auto built = build_scene(blas, instances, build_flags);
     EXPECT_TRUE(built->findings.empty()) << built->findings.front();
     std::vector<eng::Finding> findings;
@@ -53,14 +56,18 @@ Agreement run(const std::vector<BlasSpec>& blas, const std::vector<InstanceSpec>
     std::mt19937_64 rng(seed);
     Agreement a;
     for (size_t i = 0; i < rays.size(); ++i) {
-        const eng::Ray r{{rays[i].origin[0], rays[i].origin[1], rays[i].origin[2]}, rays[i].tmin,
-                         {rays[i].direction[0], rays[i].direction[1], rays[i].direction[2]}, rays[i].tmax};
+        const eng::Ray r{{rays[i].origin[0], rays[i].origin[1], rays[i].origin[2]},
+                         rays[i].tmin,
+                         {rays[i].direction[0], rays[i].direction[1], rays[i].direction[2]},
+                         rays[i].tmax};
         const uint32_t flags = kFlagSets[i % std::size(kFlagSets)];
         const uint32_t mask = i % 3 == 0 ? uint32_t(rng() & 0xFF) : 0xFFu;
         classify(a, scene->closest(r, flags, mask), embree.closest(r, flags, mask), 1e-5,
-                 "ray " + std::to_string(i) + " flags " + std::to_string(flags) + " mask " + std::to_string(mask));
+                 "ray " + std::to_string(i) + " flags " + std::to_string(flags) + " mask " +
+                     std::to_string(mask));
         if (i % 4 == 0) {
-            (scene->any(r, flags, mask) == embree.any(r, flags, mask) ? a.any_agree : a.any_disagree)++;
+            (scene->any(r, flags, mask) == embree.any(r, flags, mask) ? a.any_agree
+                                                                      : a.any_disagree)++;
         }
     }
     return a;
@@ -85,7 +92,8 @@ TEST(NvEmbreeAgreement, InstancedMixedSceneWithEveryRayFlag) {
 TEST(NvEmbreeAgreement, FastBuildMortonTreesAgree) {
     const auto blas = mixed_blas();
     const auto instances = random_instances(48, int(blas.size()), 5.0f, 3);
-    const Agreement a = run(blas, instances, 40000, 8.0f, 22, VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV);
+    const Agreement a = run(blas, instances, 40000, 8.0f, 22,
+                            VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV);
     for (const auto& e : a.examples) ADD_FAILURE() << e;
     std::printf("[ nv-embree ] fast build: %s\n", a.summary().c_str());
     EXPECT_EQ(a.disagree, 0u) << a.summary();

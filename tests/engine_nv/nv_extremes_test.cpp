@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The NV engine at the extremes: NaN vertices, degenerate triangles, coordinates near
 // FLT_MAX and in the denormal range, huge instance scales, zero-instance and all-inactive
 // objects, hostile counts/strides/handles, and random damage to object bytes.
@@ -37,9 +38,12 @@ ts::TriangleMesh quad(float half, float z) {
 TEST(NvExtremes, NanVerticesMakeTrianglesInactiveAsTheSpecSays) {
     ts::TriangleMesh m = ts::make_icosphere(2, 1.0f);
     const float nan = std::nanf("");
-    for (size_t v = 0; v < m.positions.size(); v += 3) m.positions[v][0] = nan;  // X NaN: inactive, silently
-    for (const auto& t : m.triangles)  // Z NaN only, in a triangle with no X NaN: undefined, reported
-        if (!std::isnan(m.positions[t[0]][0]) && !std::isnan(m.positions[t[1]][0]) && !std::isnan(m.positions[t[2]][0])) {
+    for (size_t v = 0; v < m.positions.size(); v += 3)
+        m.positions[v][0] = nan;  // X NaN: inactive, silently
+    for (const auto& t :
+         m.triangles)  // Z NaN only, in a triangle with no X NaN: undefined, reported
+        if (!std::isnan(m.positions[t[0]][0]) && !std::isnan(m.positions[t[1]][0]) &&
+            !std::isnan(m.positions[t[2]][0])) {
             m.positions[t[1]][2] = nan;
             break;
         }
@@ -60,7 +64,12 @@ TEST(NvExtremes, NanVerticesMakeTrianglesInactiveAsTheSpecSays) {
     box.extend({-2, -2, -2});
     box.extend({2, 2, 2});
     for (const auto& t : ts::random_rays(box, 4000, 3)) {
-        const eng::NvHit hit = scene->closest(eng::Ray{{t.origin[0], t.origin[1], t.origin[2]}, 0, {t.direction[0], t.direction[1], t.direction[2]}, t.tmax}, 0, 0xFF);
+        const eng::NvHit hit =
+            scene->closest(eng::Ray{{t.origin[0], t.origin[1], t.origin[2]},
+                                    0,
+                                    {t.direction[0], t.direction[1], t.direction[2]},
+                                    t.tmax},
+                           0, 0xFF);
         if (!hit.hit) continue;
         const auto& tri = m.triangles[hit.primitive_index];
         for (uint32_t v : tri) {
@@ -81,9 +90,9 @@ TEST(NvExtremes, NanVerticesMakeTrianglesInactiveAsTheSpecSays) {
 
 TEST(NvExtremes, DegenerateTrianglesAreNeverHit) {
     ts::TriangleMesh m;
-    m.positions = {{0, 0, 0}, {1, 0, 0}, {2, 0, 0},     // collinear
-                   {1, 1, 0}, {1, 1, 0}, {1, 1, 0},     // one point
-                   {0, 2, 0}, {0, 2, 0}, {1, 3, 0}};    // two equal vertices
+    m.positions = {{0, 0, 0}, {1, 0, 0}, {2, 0, 0},   // collinear
+                   {1, 1, 0}, {1, 1, 0}, {1, 1, 0},   // one point
+                   {0, 2, 0}, {0, 2, 0}, {1, 3, 0}};  // two equal vertices
     m.triangles = {{0, 1, 2}, {3, 4, 5}, {6, 7, 8}};
     NvWorld w;
     auto info = w.blas_info(one_mesh(m));
@@ -92,9 +101,10 @@ TEST(NvExtremes, DegenerateTrianglesAreNeverHit) {
     auto scene = eng::NvScene::open_bottom(w.memory, obj.address, nullptr);
     ASSERT_TRUE(scene);
     // Rays straight at the points and segments, and grazing along the line.
-    for (const eng::Ray& r : {eng::Ray{{1, 0, 5}, 0, {0, 0, -1}, 10}, eng::Ray{{1, 1, 5}, 0, {0, 0, -1}, 10},
-                              eng::Ray{{0, 2, 5}, 0, {0, 0, -1}, 10}, eng::Ray{{-1, 0, 0}, 0, {1, 0, 0}, 10},
-                              eng::Ray{{0.5f, 2.5f, 5}, 0, {0, 0, -1}, 10}})
+    for (const eng::Ray& r :
+         {eng::Ray{{1, 0, 5}, 0, {0, 0, -1}, 10}, eng::Ray{{1, 1, 5}, 0, {0, 0, -1}, 10},
+          eng::Ray{{0, 2, 5}, 0, {0, 0, -1}, 10}, eng::Ray{{-1, 0, 0}, 0, {1, 0, 0}, 10},
+          eng::Ray{{0.5f, 2.5f, 5}, 0, {0, 0, -1}, 10}})
         EXPECT_FALSE(scene->closest(r, 0, 0xFF).hit);
 }
 
@@ -106,7 +116,8 @@ TEST(NvExtremes, HugeAndTinyCoordinatesKeepTheirT) {
         ASSERT_TRUE(w.build(info, obj).ops[0].executed);
         auto scene = eng::NvScene::open_bottom(w.memory, obj.address, nullptr);
         ASSERT_TRUE(scene);
-        const eng::NvHit h = scene->closest(eng::Ray{{0.25f * z, -0.5f * z, 0}, 0, {0, 0, 1}, FLT_MAX}, 0, 0xFF);
+        const eng::NvHit h =
+            scene->closest(eng::Ray{{0.25f * z, -0.5f * z, 0}, 0, {0, 0, 1}, FLT_MAX}, 0, 0xFF);
         ASSERT_TRUE(h.hit) << z;
         EXPECT_EQ(h.t, z);
     }
@@ -117,7 +128,8 @@ TEST(NvExtremes, HugeAndTinyCoordinatesKeepTheirT) {
         ASSERT_TRUE(w.build(info, obj).ops[0].executed);
         auto scene = eng::NvScene::open_bottom(w.memory, obj.address, nullptr);
         ASSERT_TRUE(scene);
-        const eng::NvHit h = scene->closest(eng::Ray{{0.25f * s, 0.5f * s, 0}, 0, {0, 0, 1}, 1}, 0, 0xFF);
+        const eng::NvHit h =
+            scene->closest(eng::Ray{{0.25f * s, 0.5f * s, 0}, 0, {0, 0, 1}, 1}, 0, 0xFF);
         ASSERT_TRUE(h.hit) << s;
         EXPECT_EQ(h.t, s);
     }
@@ -143,7 +155,8 @@ TEST(NvExtremes, HugeAndTinyCoordinatesKeepTheirT) {
     // A singular instance transform (scale 0) is never entered.
     inst[0].transform[0] = 0;
     auto singular = build_scene(blas, {inst[0]});
-    auto top2 = eng::NvScene::open(singular->world.memory, singular->tlas.address, nullptr, nullptr);
+    auto top2 =
+        eng::NvScene::open(singular->world.memory, singular->tlas.address, nullptr, nullptr);
     ASSERT_TRUE(top2);
     EXPECT_FALSE(top2->closest(eng::Ray{{0, 0, 0}, 0, {0, 0, 1}, FLT_MAX}, 0, 0xFF).hit);
 }
@@ -157,7 +170,8 @@ TEST(NvExtremes, HugeAndTinyCoordinatesKeepTheirT) {
 // hit at t = s.
 TEST(NvExtremes, BothBuildersSplitHugeAndTinyGrids) {
     constexpr int n = 24;
-    for (VkBuildAccelerationStructureFlagsNV flags : {0u, uint32_t(VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV)}) {
+    for (VkBuildAccelerationStructureFlagsNV flags :
+         {0u, uint32_t(VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV)}) {
         for (float s : {3.0e38f, 1e30f, 1.0f, 1e-30f, 1e-40f /*denormal*/}) {
             ts::TriangleMesh m;
             auto coord = [&](int i) { return s * (float(i) / n * 2.0f - 1.0f); };
@@ -165,7 +179,8 @@ TEST(NvExtremes, BothBuildersSplitHugeAndTinyGrids) {
                 for (int i = 0; i <= n; ++i) m.positions.push_back({coord(i), coord(j), s});
             for (int j = 0; j < n; ++j)
                 for (int i = 0; i < n; ++i) {
-                    const uint32_t a = uint32_t(j * (n + 1) + i), b = a + 1, c = a + n + 1, d = c + 1;
+                    const uint32_t a = uint32_t(j * (n + 1) + i), b = a + 1, c = a + n + 1,
+                                   d = c + 1;
                     m.triangles.push_back({a, b, d});
                     m.triangles.push_back({a, d, c});
                 }
@@ -175,7 +190,9 @@ TEST(NvExtremes, BothBuildersSplitHugeAndTinyGrids) {
             const auto r = w.build(info, obj);
             ASSERT_TRUE(r.ops[0].executed) << s;
             std::string error;
-            const auto view = eng::open_nv_object(w.memory.read_bytes(obj.address, r.ops[0].dst_size, {}), &error);
+            const auto view =
+                eng::open_nv_object(w.memory.read_bytes(obj.address, r.ops[0].dst_size, {}),
+                                    &error);
             ASSERT_TRUE(view) << error;
             EXPECT_GT(view->header.node_count, 2u * n * n / 4) << s;  // split down to small leaves
             auto scene = eng::NvScene::open_bottom(w.memory, obj.address, nullptr);
@@ -183,8 +200,10 @@ TEST(NvExtremes, BothBuildersSplitHugeAndTinyGrids) {
             int hits = 0;
             for (int j = 0; j < n; ++j)
                 for (int i = 0; i < n; ++i) {
-                    const float x = 0.5f * coord(i) + 0.5f * coord(i + 1), y = 0.5f * coord(j) + 0.5f * coord(j + 1);
-                    const eng::NvHit h = scene->closest(eng::Ray{{x, y, 0}, 0, {0, 0, 1}, FLT_MAX}, 0, 0xFF);
+                    const float x = 0.5f * coord(i) + 0.5f * coord(i + 1),
+                                y = 0.5f * coord(j) + 0.5f * coord(j + 1);
+                    const eng::NvHit h =
+                        scene->closest(eng::Ray{{x, y, 0}, 0, {0, 0, 1}, FLT_MAX}, 0, 0xFF);
                     hits += h.hit && h.t == s && h.primitive_index / 2 == uint32_t(j * n + i);
                 }
             EXPECT_EQ(hits, n * n) << "scale " << s << " flags " << flags;
@@ -193,25 +212,26 @@ TEST(NvExtremes, BothBuildersSplitHugeAndTinyGrids) {
 }
 
 TEST(NvExtremes, InfiniteCoordinatesBuildAndFiniteTrianglesStillHit) {
-  for (VkBuildAccelerationStructureFlagsNV flags : {0u, uint32_t(VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV)}) {
-    ts::TriangleMesh m = quad(1, 0);
-    const float inf = INFINITY;
-    const uint32_t base = uint32_t(m.positions.size());
-    m.positions.push_back({inf, 0, 0});
-    m.positions.push_back({inf, 1, 0});
-    m.positions.push_back({-inf, inf, inf});
-    for (int k = 0; k < 6; ++k) m.triangles.push_back({base, base + 1, base + 2});
-    NvWorld w;
-    auto info = w.blas_info(one_mesh(m), flags);
-    auto obj = w.make_object(info, "blas");
-    ASSERT_TRUE(w.build(info, obj).ops[0].executed);
-    auto scene = eng::NvScene::open_bottom(w.memory, obj.address, nullptr);
-    ASSERT_TRUE(scene);
-    const eng::NvHit h = scene->closest(eng::Ray{{0.2f, 0.3f, 5}, 0, {0, 0, -1}, 10}, 0, 0xFF);
-    ASSERT_TRUE(h.hit);
-    EXPECT_LT(h.primitive_index, 2u);
-    EXPECT_FLOAT_EQ(h.t, 5.0f);
-  }
+    for (VkBuildAccelerationStructureFlagsNV flags :
+         {0u, uint32_t(VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV)}) {
+        ts::TriangleMesh m = quad(1, 0);
+        const float inf = INFINITY;
+        const uint32_t base = uint32_t(m.positions.size());
+        m.positions.push_back({inf, 0, 0});
+        m.positions.push_back({inf, 1, 0});
+        m.positions.push_back({-inf, inf, inf});
+        for (int k = 0; k < 6; ++k) m.triangles.push_back({base, base + 1, base + 2});
+        NvWorld w;
+        auto info = w.blas_info(one_mesh(m), flags);
+        auto obj = w.make_object(info, "blas");
+        ASSERT_TRUE(w.build(info, obj).ops[0].executed);
+        auto scene = eng::NvScene::open_bottom(w.memory, obj.address, nullptr);
+        ASSERT_TRUE(scene);
+        const eng::NvHit h = scene->closest(eng::Ray{{0.2f, 0.3f, 5}, 0, {0, 0, -1}, 10}, 0, 0xFF);
+        ASSERT_TRUE(h.hit);
+        EXPECT_LT(h.primitive_index, 2u);
+        EXPECT_FLOAT_EQ(h.t, 5.0f);
+    }
 }
 
 TEST(NvExtremes, RaysWithNanInfOrEmptyIntervalsMissQuietly) {
@@ -219,9 +239,10 @@ TEST(NvExtremes, RaysWithNanInfOrEmptyIntervalsMissQuietly) {
     auto top = eng::NvScene::open(s->world.memory, s->tlas.address, nullptr, nullptr);
     ASSERT_TRUE(top);
     const float nan = std::nanf(""), inf = INFINITY;
-    for (const eng::Ray& r : {eng::Ray{{nan, 0, 5}, 0, {0, 0, -1}, 10}, eng::Ray{{0, 0, 5}, 0, {nan, 0, -1}, 10},
-                              eng::Ray{{0, 0, 5}, nan, {0, 0, -1}, 10}, eng::Ray{{0, 0, 5}, 5, {0, 0, -1}, 1},
-                              eng::Ray{{0, 0, 5}, 0, {0, 0, 0}, 10}, eng::Ray{{inf, 0, 5}, 0, {0, 0, -1}, 10}})
+    for (const eng::Ray& r :
+         {eng::Ray{{nan, 0, 5}, 0, {0, 0, -1}, 10}, eng::Ray{{0, 0, 5}, 0, {nan, 0, -1}, 10},
+          eng::Ray{{0, 0, 5}, nan, {0, 0, -1}, 10}, eng::Ray{{0, 0, 5}, 5, {0, 0, -1}, 1},
+          eng::Ray{{0, 0, 5}, 0, {0, 0, 0}, 10}, eng::Ray{{inf, 0, 5}, 0, {0, 0, -1}, 10}})
         EXPECT_FALSE(top->closest(r, 0, 0xFF).hit);
     EXPECT_TRUE(top->closest(eng::Ray{{0, 0, 5}, 0, {0, 0, -1}, inf}, 0, 0xFF).hit);
 }
@@ -318,7 +339,8 @@ TEST(NvExtremes, RandomDamageToObjectBytesIsRejectedOrTracedSafely) {
     size_t opened = 0, rejected = 0;
     for (int round = 0; round < 2000; ++round) {
         const auto& target = round % 2 ? s->tlas : s->blas[size_t(round / 2) % 2];
-        auto head = eng::read_nv_header(s->world.memory.read_bytes(target.address, 96, {}), nullptr);
+        auto head =
+            eng::read_nv_header(s->world.memory.read_bytes(target.address, 96, {}), nullptr);
         ASSERT_TRUE(head);
         const uint64_t size = head->object_size;
         std::vector<std::byte> saved(size);
@@ -326,7 +348,8 @@ TEST(NvExtremes, RandomDamageToObjectBytesIsRejectedOrTracedSafely) {
         std::memcpy(saved.data(), live.data(), size);
         for (int k = 0, n = 1 + int(rng() % 6); k < n; ++k) {
             const uint64_t at = rng() % size;
-            if (rng() % 2) live[at] = std::byte(rng());
+            if (rng() % 2)
+                live[at] = std::byte(rng());
             else if (at + 4 <= size) {
                 const uint32_t v = rng() % 3 ? uint32_t(rng() % 64) : uint32_t(rng());
                 std::memcpy(live.data() + at, &v, 4);
@@ -337,14 +360,18 @@ TEST(NvExtremes, RandomDamageToObjectBytesIsRejectedOrTracedSafely) {
         if (scene) {
             ++opened;
             for (int k = 0; k < 10; ++k) {
-                const eng::Ray r{{float(int(rng() % 7)) - 3, float(int(rng() % 7)) - 3, 6}, 0, {0.05f, 0.1f, -1}, 100};
+                const eng::Ray r{{float(int(rng() % 7)) - 3, float(int(rng() % 7)) - 3, 6},
+                                 0,
+                                 {0.05f, 0.1f, -1},
+                                 100};
                 (void)scene->closest(r, uint32_t(rng() % 256), 0xFF);
                 (void)scene->any(r, 0, 0xFF);
             }
         } else {
             ++rejected;
         }
-        std::memcpy(s->world.memory.write_bytes(target.address, size, {}).data(), saved.data(), size);
+        std::memcpy(s->world.memory.write_bytes(target.address, size, {}).data(), saved.data(),
+                    size);
     }
     EXPECT_GT(opened, 0u);
     EXPECT_GT(rejected, 0u);

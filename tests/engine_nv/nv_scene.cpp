@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "nv_scene.h"
 
 #include <algorithm>
@@ -35,7 +36,8 @@ eng::NvObjectBinding NvWorld::make_object(const eng::NvObjectInfo& info, const s
 
 uint64_t NvWorld::scratch(uint64_t size) { return alloc(size, "scratch"); }
 
-eng::NvObjectInfo NvWorld::blas_info(const BlasSpec& spec, VkBuildAccelerationStructureFlagsNV flags) {
+eng::NvObjectInfo NvWorld::blas_info(const BlasSpec& spec,
+                                     VkBuildAccelerationStructureFlagsNV flags) {
     eng::NvObjectInfo info;
     info.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV;
     info.flags = flags;
@@ -49,11 +51,13 @@ eng::NvObjectInfo NvWorld::blas_info(const BlasSpec& spec, VkBuildAccelerationSt
             geo.aabbs.stride = 24;
         } else {
             geo.type = VK_GEOMETRY_TYPE_TRIANGLES_NV;
-            geo.triangles.vertex_address = put(g.mesh.positions.data(), g.mesh.positions.size() * 12, "vertices");
+            geo.triangles.vertex_address =
+                put(g.mesh.positions.data(), g.mesh.positions.size() * 12, "vertices");
             geo.triangles.vertex_count = uint32_t(g.mesh.positions.size());
             geo.triangles.vertex_stride = 12;
             geo.triangles.vertex_format = VK_FORMAT_R32G32B32_SFLOAT;
-            geo.triangles.index_address = put(g.mesh.triangles.data(), g.mesh.triangles.size() * 12, "indices");
+            geo.triangles.index_address =
+                put(g.mesh.triangles.data(), g.mesh.triangles.size() * 12, "indices");
             geo.triangles.index_count = uint32_t(g.mesh.triangles.size() * 3);
             geo.triangles.index_type = VK_INDEX_TYPE_UINT32;
         }
@@ -69,7 +73,8 @@ std::vector<uint8_t> NvWorld::instance_bytes(const std::vector<InstanceSpec>& in
         const InstanceSpec& s = instances[i];
         uint8_t* p = out.data() + 64 * i;
         std::memcpy(p, s.transform, 48);
-        const uint32_t a = (s.custom_index & 0xFFFFFF) | (s.mask << 24), b = (s.sbt_offset & 0xFFFFFF) | (s.flags << 24);
+        const uint32_t a = (s.custom_index & 0xFFFFFF) | (s.mask << 24),
+                       b = (s.sbt_offset & 0xFFFFFF) | (s.flags << 24);
         const uint64_t ref = s.blas < 0 ? 0 : handles[size_t(s.blas)];
         std::memcpy(p + 48, &a, 4);
         std::memcpy(p + 52, &b, 4);
@@ -78,8 +83,10 @@ std::vector<uint8_t> NvWorld::instance_bytes(const std::vector<InstanceSpec>& in
     return out;
 }
 
-eng::ExecutionRecord NvWorld::build(const eng::NvObjectInfo& info, eng::NvObjectBinding& dst, uint64_t instance_address,
-                                    bool update, const eng::NvObjectBinding* src, const eng::NvBuildOptions& options) {
+eng::ExecutionRecord NvWorld::build(const eng::NvObjectInfo& info, eng::NvObjectBinding& dst,
+                                    uint64_t instance_address, bool update,
+                                    const eng::NvObjectBinding* src,
+                                    const eng::NvBuildOptions& options) {
     eng::NvBuildCommand cmd;
     cmd.info = info;
     cmd.instance_address = instance_address;
@@ -89,7 +96,8 @@ eng::ExecutionRecord NvWorld::build(const eng::NvObjectInfo& info, eng::NvObject
     const eng::NvMemoryRequirements need = eng::nv_memory_requirements(info);
     // Hostile counts ask for huge scratch: the test world gives at most 16 MiB (the engine
     // then reports the scratch rule, which is what such a command breaks).
-    const uint64_t s = std::min<uint64_t>(update ? need.update_scratch : need.build_scratch, 16ull << 20);
+    const uint64_t s =
+        std::min<uint64_t>(update ? need.update_scratch : need.build_scratch, 16ull << 20);
     cmd.scratch_address = scratch(s);
     cmd.scratch_available = s;
     eng::ExecutionRecord r = eng::execute_nv_build(cmd, memory, options);
@@ -100,7 +108,8 @@ eng::ExecutionRecord NvWorld::build(const eng::NvObjectInfo& info, eng::NvObject
     return r;
 }
 
-std::unique_ptr<BuiltScene> build_scene(const std::vector<BlasSpec>& blas, const std::vector<InstanceSpec>& instances,
+std::unique_ptr<BuiltScene> build_scene(const std::vector<BlasSpec>& blas,
+                                        const std::vector<InstanceSpec>& instances,
                                         VkBuildAccelerationStructureFlagsNV flags) {
     auto s = std::make_unique<BuiltScene>();
     std::vector<uint64_t> handles;
@@ -146,7 +155,8 @@ struct RayContext {
 };
 
 // Vulkan's mask, opacity and facing rules for one candidate; the hit kind on accept.
-bool accept(const RayContext& c, uint32_t inst_id, const EmbreeNvScene::Geometry& g, uint32_t prim, uint32_t* kind) {
+bool accept(const RayContext& c, uint32_t inst_id, const EmbreeNvScene::Geometry& g, uint32_t prim,
+            uint32_t* kind) {
     const EmbreeNvScene::Instance& in = (*c.instances)[inst_id];
     if (!(in.spec.mask & c.cull_mask & 0xFFu)) return false;
     bool opaque = g.flags & VK_GEOMETRY_OPAQUE_BIT_NV;
@@ -160,12 +170,14 @@ bool accept(const RayContext& c, uint32_t inst_id, const EmbreeNvScene::Geometry
     if (g.aabbs) return true;
     double d[3];
     for (int r = 0; r < 3; ++r)
-        d[r] = in.inverse[4 * r] * c.wdir[0] + in.inverse[4 * r + 1] * c.wdir[1] + in.inverse[4 * r + 2] * c.wdir[2];
+        d[r] = in.inverse[4 * r] * c.wdir[0] + in.inverse[4 * r + 1] * c.wdir[1] +
+               in.inverse[4 * r + 2] * c.wdir[2];
     const ts::Triangle& t = g.triangles[prim];
     const ts::Float3 &a = g.positions[t[0]], &b = g.positions[t[1]], &cc = g.positions[t[2]];
     const double e1[3] = {double(b[0]) - a[0], double(b[1]) - a[1], double(b[2]) - a[2]};
     const double e2[3] = {double(cc[0]) - a[0], double(cc[1]) - a[1], double(cc[2]) - a[2]};
-    const double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]};
+    const double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                         e1[0] * e2[1] - e1[1] * e2[0]};
     bool front = d[0] * n[0] + d[1] * n[1] + d[2] * n[2] < 0.0;
     if (in.spec.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_FRONT_COUNTERCLOCKWISE_BIT_NV) front = !front;
     if (!(in.spec.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_CULL_DISABLE_BIT_NV)) {
@@ -184,7 +196,8 @@ void triangle_filter(const RTCFilterFunctionNArguments* args) {
     if (!accept(c, hit->instID[0], g, hit->primID, &kind)) args->valid[0] = 0;
 }
 
-double slab_entry(const float o[3], const float d[3], const float lo[3], const float hi[3], double tn, double tf) {
+double slab_entry(const float o[3], const float d[3], const float lo[3], const float hi[3],
+                  double tn, double tf) {
     for (int a = 0; a < 3; ++a) {
         if (d[a] == 0.0f) {
             if (!(o[a] >= lo[a] && o[a] <= hi[a])) return -1;
@@ -210,7 +223,8 @@ void box_intersect(const RTCIntersectFunctionNArguments* args) {
     const auto& g = *static_cast<const EmbreeNvScene::Geometry*>(args->geometryUserPtr);
     auto* rh = reinterpret_cast<RTCRayHit*>(args->rayhit);
     const auto& b = g.boxes[args->primID];
-    const float o[3] = {rh->ray.org_x, rh->ray.org_y, rh->ray.org_z}, d[3] = {rh->ray.dir_x, rh->ray.dir_y, rh->ray.dir_z};
+    const float o[3] = {rh->ray.org_x, rh->ray.org_y, rh->ray.org_z},
+                d[3] = {rh->ray.dir_x, rh->ray.dir_y, rh->ray.dir_z};
     const double t = slab_entry(o, d, b.data(), b.data() + 3, rh->ray.tnear, rh->ray.tfar);
     if (t < 0 || std::isnan(t) || b[0] > b[3]) return;
     uint32_t kind;
@@ -231,7 +245,8 @@ void box_occluded(const RTCOccludedFunctionNArguments* args) {
     const auto& g = *static_cast<const EmbreeNvScene::Geometry*>(args->geometryUserPtr);
     auto* ray = reinterpret_cast<RTCRay*>(args->ray);
     const auto& b = g.boxes[args->primID];
-    const float o[3] = {ray->org_x, ray->org_y, ray->org_z}, d[3] = {ray->dir_x, ray->dir_y, ray->dir_z};
+    const float o[3] = {ray->org_x, ray->org_y, ray->org_z},
+                d[3] = {ray->dir_x, ray->dir_y, ray->dir_z};
     const double t = slab_entry(o, d, b.data(), b.data() + 3, ray->tnear, ray->tfar);
     if (t < 0 || std::isnan(t) || b[0] > b[3]) return;
     uint32_t kind;
@@ -240,7 +255,8 @@ void box_occluded(const RTCOccludedFunctionNArguments* args) {
 }
 
 bool invert(const float m[12], double out[12]) {
-    const double a = m[0], b = m[1], c = m[2], d = m[4], e = m[5], f = m[6], g = m[8], h = m[9], i = m[10];
+    const double a = m[0], b = m[1], c = m[2], d = m[4], e = m[5], f = m[6], g = m[8], h = m[9],
+                 i = m[10];
     const double det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g);
     if (det == 0.0) return false;
     const double r[9] = {(e * i - f * h) / det, (c * h - b * i) / det, (b * f - c * e) / det,
@@ -253,8 +269,8 @@ bool invert(const float m[12], double out[12]) {
     return true;
 }
 
-RayContext context_for(const std::vector<EmbreeNvScene::Instance>& instances, const eng::Ray& ray, uint32_t flags,
-                       uint32_t cull_mask) {
+RayContext context_for(const std::vector<EmbreeNvScene::Instance>& instances, const eng::Ray& ray,
+                       uint32_t flags, uint32_t cull_mask) {
     RayContext c;
     rtcInitIntersectContext(&c.base);
     c.instances = &instances;
@@ -280,7 +296,8 @@ RTCRay embree_ray(const eng::Ray& r) {
 
 }  // namespace
 
-EmbreeNvScene::EmbreeNvScene(const std::vector<BlasSpec>& blas, const std::vector<InstanceSpec>& instances) {
+EmbreeNvScene::EmbreeNvScene(const std::vector<BlasSpec>& blas,
+                             const std::vector<InstanceSpec>& instances) {
     device_ = rtcNewDevice("threads=1");
     if (!device_) throw std::runtime_error("rtcNewDevice failed");
     for (const BlasSpec& b : blas) {
@@ -303,10 +320,12 @@ EmbreeNvScene::EmbreeNvScene(const std::vector<BlasSpec>& blas, const std::vecto
                 geo->positions = spec.mesh.positions;
                 geo->triangles = spec.mesh.triangles;
                 g = rtcNewGeometry(device_, RTC_GEOMETRY_TYPE_TRIANGLE);
-                auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 12,
+                auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0,
+                                                                      RTC_FORMAT_FLOAT3, 12,
                                                                       geo->positions.size()));
                 std::memcpy(v, geo->positions.data(), geo->positions.size() * 12);
-                auto* ix = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 12,
+                auto* ix = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX,
+                                                                          0, RTC_FORMAT_UINT3, 12,
                                                                           geo->triangles.size()));
                 std::memcpy(ix, geo->triangles.data(), geo->triangles.size() * 12);
                 rtcSetGeometryIntersectFilterFunction(g, triangle_filter);
@@ -361,7 +380,8 @@ RefHit EmbreeNvScene::closest(const eng::Ray& ray, uint32_t flags, uint32_t cull
     out.primitive = rh.hit.primID;
     out.u = rh.hit.u;
     out.v = rh.hit.v;
-    const Geometry* g = static_cast<const Geometry*>(rtcGetGeometryUserData(rtcGetGeometry(blas_[size_t(instances_[out.instance].spec.blas)], out.geometry)));
+    const Geometry* g = static_cast<const Geometry*>(rtcGetGeometryUserData(
+        rtcGetGeometry(blas_[size_t(instances_[out.instance].spec.blas)], out.geometry)));
     accept(c, out.instance, *g, out.primitive, &out.hit_kind);
     return out;
 }
@@ -377,9 +397,9 @@ bool EmbreeNvScene::any(const eng::Ray& ray, uint32_t flags, uint32_t cull_mask)
 
 std::string Agreement::summary() const {
     std::ostringstream s;
-    s << "rays " << rays << ": agree-miss " << agree_miss << ", agree-hit " << agree_hit << ", tie " << tie << ", edge " << edge
-      << ", disagree " << disagree << "; any-hit agree " << any_agree << ", disagree " << any_disagree
-      << "; max relative t error " << max_rel_t;
+    s << "rays " << rays << ": agree-miss " << agree_miss << ", agree-hit " << agree_hit << ", tie "
+      << tie << ", edge " << edge << ", disagree " << disagree << "; any-hit agree " << any_agree
+      << ", disagree " << any_disagree << "; max relative t error " << max_rel_t;
     return s.str();
 }
 
@@ -390,15 +410,18 @@ bool near_edge(float u, float v, uint32_t kind) {
 }
 }  // namespace
 
-void classify(Agreement& a, const eng::NvHit& e, const RefHit& r, double tol, const std::string& what) {
+void classify(Agreement& a, const eng::NvHit& e, const RefHit& r, double tol,
+              const std::string& what) {
     ++a.rays;
     auto example = [&](const char* kind) {
         if (a.examples.size() >= 8) return;
         std::ostringstream s;
-        s << kind << " " << what << ": engine " << (e.hit ? "hit" : "miss") << " t=" << e.t << " inst " << e.instance_index
-          << " geom " << e.geometry_index << " prim " << e.primitive_index << " kind " << e.hit_kind << " uv " << e.u << ","
-          << e.v << " | embree " << (r.hit ? "hit" : "miss") << " t=" << r.t << " inst " << r.instance << " geom "
-          << r.geometry << " prim " << r.primitive << " kind " << r.hit_kind << " uv " << r.u << "," << r.v;
+        s << kind << " " << what << ": engine " << (e.hit ? "hit" : "miss") << " t=" << e.t
+          << " inst " << e.instance_index << " geom " << e.geometry_index << " prim "
+          << e.primitive_index << " kind " << e.hit_kind << " uv " << e.u << "," << e.v
+          << " | embree " << (r.hit ? "hit" : "miss") << " t=" << r.t << " inst " << r.instance
+          << " geom " << r.geometry << " prim " << r.primitive << " kind " << r.hit_kind << " uv "
+          << r.u << "," << r.v;
         a.examples.push_back(s.str());
     };
     if (!e.hit && !r.hit) {
@@ -407,11 +430,13 @@ void classify(Agreement& a, const eng::NvHit& e, const RefHit& r, double tol, co
     }
     if (e.hit && r.hit) {
         const double rel = std::fabs(double(e.t) - r.t) / std::max(std::fabs(double(r.t)), 1e-30);
-        const bool same = e.instance_index == r.instance && e.geometry_index == r.geometry && e.primitive_index == r.primitive;
+        const bool same = e.instance_index == r.instance && e.geometry_index == r.geometry &&
+                          e.primitive_index == r.primitive;
         if (same && rel <= tol) {
             a.max_rel_t = std::max(a.max_rel_t, rel);
             if (e.hit_kind != r.hit_kind || e.instance_custom_index != r.custom_index ||
-                (e.hit_kind != 0 && (std::fabs(e.u - r.u) > 1e-3f || std::fabs(e.v - r.v) > 1e-3f))) {
+                (e.hit_kind != 0 &&
+                 (std::fabs(e.u - r.u) > 1e-3f || std::fabs(e.v - r.v) > 1e-3f))) {
                 ++a.disagree;
                 example("attributes");
                 return;
@@ -434,7 +459,8 @@ void classify(Agreement& a, const eng::NvHit& e, const RefHit& r, double tol, co
 
 // ---------------------------------------------------------------------------- random scenes
 
-std::vector<InstanceSpec> random_instances(size_t count, int blas_count, float extent, uint64_t seed) {
+std::vector<InstanceSpec> random_instances(size_t count, int blas_count, float extent,
+                                           uint64_t seed) {
     std::mt19937_64 rng(seed);
     std::uniform_real_distribution<float> u(-1.0f, 1.0f);
     std::uniform_real_distribution<float> scale(0.5f, 2.0f);
@@ -442,14 +468,23 @@ std::vector<InstanceSpec> random_instances(size_t count, int blas_count, float e
     for (size_t i = 0; i < count; ++i) {
         InstanceSpec& s = out[i];
         float axis[3] = {u(rng), u(rng), u(rng)};
-        const float len = std::sqrt(axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]) + 1e-6f;
+        const float len =
+            std::sqrt(axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]) + 1e-6f;
         for (float& x : axis) x /= len;
-        const float angle = u(rng) * 3.14159265f, c = std::cos(angle), sn = std::sin(angle), t = 1 - c;
-        const float R[9] = {t * axis[0] * axis[0] + c,           t * axis[0] * axis[1] - sn * axis[2], t * axis[0] * axis[2] + sn * axis[1],
-                            t * axis[0] * axis[1] + sn * axis[2], t * axis[1] * axis[1] + c,           t * axis[1] * axis[2] - sn * axis[0],
-                            t * axis[0] * axis[2] - sn * axis[1], t * axis[1] * axis[2] + sn * axis[0], t * axis[2] * axis[2] + c};
+        const float angle = u(rng) * 3.14159265f, c = std::cos(angle), sn = std::sin(angle),
+                    t = 1 - c;
+        const float R[9] = {t * axis[0] * axis[0] + c,
+                            t * axis[0] * axis[1] - sn * axis[2],
+                            t * axis[0] * axis[2] + sn * axis[1],
+                            t * axis[0] * axis[1] + sn * axis[2],
+                            t * axis[1] * axis[1] + c,
+                            t * axis[1] * axis[2] - sn * axis[0],
+                            t * axis[0] * axis[2] - sn * axis[1],
+                            t * axis[1] * axis[2] + sn * axis[0],
+                            t * axis[2] * axis[2] + c};
         float S[3] = {scale(rng), scale(rng), scale(rng)};
-        if (rng() % 5 == 0) S[rng() % 3] *= -1.0f;  // mirrored instance: facing stays in object space
+        if (rng() % 5 == 0)
+            S[rng() % 3] *= -1.0f;  // mirrored instance: facing stays in object space
         for (int r = 0; r < 3; ++r) {
             for (int k = 0; k < 3; ++k) s.transform[4 * r + k] = R[3 * r + k] * S[k];
             s.transform[4 * r + 3] = u(rng) * extent;

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Test scenes for the NV engine: a MemoryImage with buffers, BLAS/TLAS built through
 // engine::execute_nv_build, the same scene in Embree 3 (instances of per-BLAS scenes,
 // user geometry for AABBs, filter functions for Vulkan's mask/facing/opacity rules), and
@@ -22,8 +23,8 @@ namespace eng = clastrace::engine;
 namespace ts = clastrace::testsupport;
 
 struct GeometrySpec {
-    ts::TriangleMesh mesh;                      // triangles (positions are object space)
-    std::vector<std::array<float, 6>> boxes;    // AABBs (min xyz, max xyz) when aabbs
+    ts::TriangleMesh mesh;                    // triangles (positions are object space)
+    std::vector<std::array<float, 6>> boxes;  // AABBs (min xyz, max xyz) when aabbs
     uint32_t flags = VK_GEOMETRY_OPAQUE_BIT_NV;
 };
 struct BlasSpec {
@@ -35,8 +36,8 @@ struct InstanceSpec {
     uint32_t custom_index = 0;  // 24 bits
     uint32_t mask = 0xFF;
     uint32_t sbt_offset = 0;
-    uint32_t flags = 0;         // VkGeometryInstanceFlagsNV
-    int blas = 0;               // index into the BLAS list; -1: reference 0 (inactive)
+    uint32_t flags = 0;  // VkGeometryInstanceFlagsNV
+    int blas = 0;        // index into the BLAS list; -1: reference 0 (inactive)
 };
 
 // A device address space with bump-allocated buffers (256-aligned, gaps between them).
@@ -50,11 +51,14 @@ struct NvWorld {
     uint64_t scratch(uint64_t size);
 
     // Writes the BLAS inputs (R32G32B32 vertices, UINT32 indices) and returns the info.
-    eng::NvObjectInfo blas_info(const BlasSpec& spec, VkBuildAccelerationStructureFlagsNV flags = 0);
-    std::vector<uint8_t> instance_bytes(const std::vector<InstanceSpec>& instances, const std::vector<uint64_t>& handles) const;
+    eng::NvObjectInfo blas_info(const BlasSpec& spec,
+                                VkBuildAccelerationStructureFlagsNV flags = 0);
+    std::vector<uint8_t> instance_bytes(const std::vector<InstanceSpec>& instances,
+                                        const std::vector<uint64_t>& handles) const;
 
-    eng::ExecutionRecord build(const eng::NvObjectInfo& info, eng::NvObjectBinding& dst, uint64_t instance_address = 0,
-                               bool update = false, const eng::NvObjectBinding* src = nullptr,
+    eng::ExecutionRecord build(const eng::NvObjectInfo& info, eng::NvObjectBinding& dst,
+                               uint64_t instance_address = 0, bool update = false,
+                               const eng::NvObjectBinding* src = nullptr,
                                const eng::NvBuildOptions& options = {});
 };
 
@@ -66,7 +70,8 @@ struct BuiltScene {
     uint64_t instance_address = 0;
     std::vector<std::string> findings;  // every finding of every build, "rule: message"
 };
-std::unique_ptr<BuiltScene> build_scene(const std::vector<BlasSpec>& blas, const std::vector<InstanceSpec>& instances,
+std::unique_ptr<BuiltScene> build_scene(const std::vector<BlasSpec>& blas,
+                                        const std::vector<InstanceSpec>& instances,
                                         VkBuildAccelerationStructureFlagsNV flags = 0);
 
 struct RefHit {
@@ -110,11 +115,13 @@ struct Agreement {
     std::vector<std::string> examples;
     std::string summary() const;
 };
-void classify(Agreement& a, const eng::NvHit& engine, const RefHit& ref, double rel_t_tolerance, const std::string& what);
+void classify(Agreement& a, const eng::NvHit& engine, const RefHit& ref, double rel_t_tolerance,
+              const std::string& what);
 
 // Instances with random rotations, scales (some mirrored), translations, masks, custom
 // indices and flags over `blas_count` BLAS, spread inside [-extent, extent]^3.
-std::vector<InstanceSpec> random_instances(size_t count, int blas_count, float extent, uint64_t seed);
+std::vector<InstanceSpec> random_instances(size_t count, int blas_count, float extent,
+                                           uint64_t seed);
 // Random boxes inside [-1, 1]^3.
 std::vector<std::array<float, 6>> random_boxes(size_t count, uint64_t seed);
 

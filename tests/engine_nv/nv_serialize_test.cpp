@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Serialization with the KHR header and vkCmdCopyMemoryToAccelerationStructureKHR:
 // round trips (BLAS, and TLAS with the handle list patched to relocated BLAS), every
 // header/size/alignment/state rule, another driver's blob, and random damage.
@@ -48,7 +49,8 @@ TEST(NvSerialize, HeaderLayoutIsTheKhrOne) {
     uint64_t handles[5];
     std::memcpy(handles, blob.data() + 56, sizeof handles);
     auto instances = random_instances(5, 2, 3.0f, 1);
-    for (int i = 0; i < 5; ++i) EXPECT_EQ(handles[i], s->blas[size_t(instances[size_t(i)].blas)].handle);
+    for (int i = 0; i < 5; ++i)
+        EXPECT_EQ(handles[i], s->blas[size_t(instances[size_t(i)].blas)].handle);
     const auto blas_blob = eng::serialize_nv_object(s->world.memory, s->blas[0].address, &error);
     std::memcpy(&h, blas_blob.data(), sizeof h);
     EXPECT_EQ(h.handle_count, 0u);
@@ -95,7 +97,8 @@ TEST(NvSerialize, RoundTripRelocatesBottomLevelsThroughThePatchedHandles) {
     EXPECT_EQ(r.record.accesses[0].access, VK_ACCESS_2_TRANSFER_READ_BIT);
     EXPECT_EQ(r.record.accesses[1].access, VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR);
     // The original BLAS are wiped: the copy can only answer through the relocated ones.
-    for (const auto& b : s->blas) std::memset(w.memory.write_bytes(b.address, b.size, {}).data(), 0, b.size);
+    for (const auto& b : s->blas)
+        std::memset(w.memory.write_bytes(b.address, b.size, {}).data(), 0, b.size);
     auto copy = eng::NvScene::open(w.memory, cmd.dst.address, nullptr, nullptr);
     ASSERT_TRUE(copy);
     EXPECT_EQ(copy->instances_reached(), 30u);
@@ -109,7 +112,10 @@ TEST(NvSerialize, RoundTripRelocatesBottomLevelsThroughThePatchedHandles) {
     box.extend({-6, -6, -6});
     box.extend({6, 6, 6});
     for (const auto& tr : ts::random_rays(box, 6000, 3)) {
-        const eng::Ray ray{{tr.origin[0], tr.origin[1], tr.origin[2]}, 0.0f, {tr.direction[0], tr.direction[1], tr.direction[2]}, tr.tmax};
+        const eng::Ray ray{{tr.origin[0], tr.origin[1], tr.origin[2]},
+                           0.0f,
+                           {tr.direction[0], tr.direction[1], tr.direction[2]},
+                           tr.tmax};
         classify(a, copy->closest(ray, 0, 0xFF), embree.closest(ray, 0, 0xFF), 1e-5, "copy");
     }
     EXPECT_EQ(a.disagree, 0u) << a.summary();
@@ -139,17 +145,20 @@ TEST(NvSerialize, EveryDeserializeRule) {
     {
         DeserializeSetup x = setup();
         x.cmd.mode = VK_COPY_ACCELERATION_STRUCTURE_MODE_CLONE_KHR;
-        EXPECT_TRUE(has(eng::execute_nv_deserialize(x.cmd, x.s->world.memory), eng::kVuidDeserializeMode));
+        EXPECT_TRUE(
+            has(eng::execute_nv_deserialize(x.cmd, x.s->world.memory), eng::kVuidDeserializeMode));
     }
     {
         DeserializeSetup x = setup();
         x.cmd.src_address = 0x10;
-        EXPECT_TRUE(has(eng::execute_nv_deserialize(x.cmd, x.s->world.memory), eng::kVuidDeserializeSrcAddress));
+        EXPECT_TRUE(has(eng::execute_nv_deserialize(x.cmd, x.s->world.memory),
+                        eng::kVuidDeserializeSrcAddress));
     }
     {
         DeserializeSetup x = setup();
         const uint64_t off = x.s->world.put(x.blob.data(), x.blob.size() + 8, "unaligned") + 8;
-        std::memcpy(x.s->world.memory.write_bytes(off, x.blob.size(), {}).data(), x.blob.data(), x.blob.size());
+        std::memcpy(x.s->world.memory.write_bytes(off, x.blob.size(), {}).data(), x.blob.data(),
+                    x.blob.size());
         x.cmd.src_address = off;
         const auto r = eng::execute_nv_deserialize(x.cmd, x.s->world.memory);
         EXPECT_TRUE(has(r, eng::kVuidDeserializeSrcAlign)) << rules(r);
@@ -158,7 +167,8 @@ TEST(NvSerialize, EveryDeserializeRule) {
     {
         DeserializeSetup x = setup();
         x.cmd.dst.bound = false;
-        EXPECT_TRUE(has(eng::execute_nv_deserialize(x.cmd, x.s->world.memory), eng::kVuidDeserializeDstBound));
+        EXPECT_TRUE(has(eng::execute_nv_deserialize(x.cmd, x.s->world.memory),
+                        eng::kVuidDeserializeDstBound));
     }
     {
         DeserializeSetup x = setup();
@@ -179,13 +189,15 @@ TEST(NvSerialize, EveryDeserializeRule) {
         DeserializeSetup x = setup();  // handle count that fits the size but not the object
         const uint64_t n = 2;
         patch(x, 48, &n, 8);
-        EXPECT_TRUE(has(eng::execute_nv_deserialize(x.cmd, x.s->world.memory), eng::kVuidDeserializeContents));
+        EXPECT_TRUE(has(eng::execute_nv_deserialize(x.cmd, x.s->world.memory),
+                        eng::kVuidDeserializeContents));
     }
     {
         DeserializeSetup x = setup();  // serializedSize past the buffer
         const uint64_t n = x.blob.size() + 100000;
         patch(x, 32, &n, 8);
-        EXPECT_TRUE(has(eng::execute_nv_deserialize(x.cmd, x.s->world.memory), eng::kVuidDeserializeSrcBound));
+        EXPECT_TRUE(has(eng::execute_nv_deserialize(x.cmd, x.s->world.memory),
+                        eng::kVuidDeserializeSrcBound));
     }
     {
         DeserializeSetup x = setup();  // damaged object bytes: a node child index out of order
@@ -194,7 +206,8 @@ TEST(NvSerialize, EveryDeserializeRule) {
         std::memcpy(&h, x.blob.data() + object, sizeof h);
         const uint32_t bad = 0;
         patch(x, object + h.nodes_offset + 12, &bad, 4);
-        EXPECT_TRUE(has(eng::execute_nv_deserialize(x.cmd, x.s->world.memory), eng::kVuidDeserializeContents));
+        EXPECT_TRUE(has(eng::execute_nv_deserialize(x.cmd, x.s->world.memory),
+                        eng::kVuidDeserializeContents));
     }
     {
         DeserializeSetup x = setup();  // a handle that names nothing
@@ -216,7 +229,8 @@ TEST(NvSerialize, EveryDeserializeRule) {
         x.s->world.memory.add_region(x.s->world.next, 1 << 20, 0, "big");
         x.cmd.dst.address = x.s->world.next;
         x.s->world.next += 2 << 20;
-        EXPECT_TRUE(has(eng::execute_nv_deserialize(x.cmd, x.s->world.memory), eng::kRuleDeserializeTypeDiffers));
+        EXPECT_TRUE(has(eng::execute_nv_deserialize(x.cmd, x.s->world.memory),
+                        eng::kRuleDeserializeTypeDiffers));
     }
     {
         DeserializeSetup x = setup();  // src overlapping dst
@@ -242,9 +256,11 @@ TEST(NvSerialize, AnotherDriversBlobIsOpaqueButChecked) {
     eng::NvDeserializeOptions o;
     o.device_compatibility_uuid = eng::Uuid{};
     std::memcpy(o.device_compatibility_uuid->data(), uuid, 16);
-    EXPECT_FALSE(has(eng::execute_nv_deserialize(x.cmd, x.s->world.memory, o), eng::kVuidDeserializeCompatible));
+    EXPECT_FALSE(has(eng::execute_nv_deserialize(x.cmd, x.s->world.memory, o),
+                     eng::kVuidDeserializeCompatible));
     (*o.device_compatibility_uuid)[0] ^= 1;
-    EXPECT_TRUE(has(eng::execute_nv_deserialize(x.cmd, x.s->world.memory, o), eng::kVuidDeserializeCompatible));
+    EXPECT_TRUE(has(eng::execute_nv_deserialize(x.cmd, x.s->world.memory, o),
+                    eng::kVuidDeserializeCompatible));
     // Its header is checked all the same.
     const uint64_t n = 1ull << 61;
     patch(x, 48, &n, 8);
@@ -278,7 +294,10 @@ TEST(NvSerialize, RandomMutationsNeverCrash) {
         if (!scene) continue;
         ++opened;
         for (int k = 0; k < 20; ++k) {
-            const eng::Ray ray{{float(rng() % 9) - 4, float(rng() % 9) - 4, 6}, 0, {0.1f, -0.05f, -1}, 100};
+            const eng::Ray ray{{float(rng() % 9) - 4, float(rng() % 9) - 4, 6},
+                               0,
+                               {0.1f, -0.05f, -1},
+                               100};
             (void)scene->closest(ray, 0, 0xFF);
         }
     }

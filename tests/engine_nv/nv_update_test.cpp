@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Update (refit) of NV objects: the refit tree answers like a fresh build of the moved
 // input, in place and into another object; topology changes, active/inactive changes and
 // a src built without ALLOW_UPDATE are reported.
@@ -24,13 +25,18 @@ std::string rules(const eng::ExecutionRecord& r) {
     return s;
 }
 
-constexpr VkBuildAccelerationStructureFlagsNV kAllowUpdate = VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_NV;
+constexpr VkBuildAccelerationStructureFlagsNV kAllowUpdate =
+    VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_NV;
 
 // Hits of `rays` through both scenes agree: same primitive and t, or both miss.
-void expect_same_answers(const eng::NvScene& a, const eng::NvScene& b, const std::vector<ts::TestRay>& rays, size_t* hits) {
+void expect_same_answers(const eng::NvScene& a, const eng::NvScene& b,
+                         const std::vector<ts::TestRay>& rays, size_t* hits) {
     *hits = 0;
     for (const auto& tr : rays) {
-        const eng::Ray ray{{tr.origin[0], tr.origin[1], tr.origin[2]}, 0.0f, {tr.direction[0], tr.direction[1], tr.direction[2]}, tr.tmax};
+        const eng::Ray ray{{tr.origin[0], tr.origin[1], tr.origin[2]},
+                           0.0f,
+                           {tr.direction[0], tr.direction[1], tr.direction[2]},
+                           tr.tmax};
         const eng::NvHit x = a.closest(ray, 0, 0xFF), y = b.closest(ray, 0, 0xFF);
         ASSERT_EQ(x.hit, y.hit);
         if (!x.hit) continue;
@@ -42,7 +48,8 @@ void expect_same_answers(const eng::NvScene& a, const eng::NvScene& b, const std
 }
 
 void move_mesh(ts::TriangleMesh& m, float t) {
-    for (auto& p : m.positions) p = {p[0] * 1.3f + t, p[1] * (1.0f + 0.2f * std::sin(p[0] * 3)), p[2] - 0.5f * t};
+    for (auto& p : m.positions)
+        p = {p[0] * 1.3f + t, p[1] * (1.0f + 0.2f * std::sin(p[0] * 3)), p[2] - 0.5f * t};
 }
 
 TEST(NvUpdate, BottomLevelRefitAnswersLikeAFreshBuildInPlaceAndIntoAnotherObject) {
@@ -50,7 +57,8 @@ TEST(NvUpdate, BottomLevelRefitAnswersLikeAFreshBuildInPlaceAndIntoAnotherObject
         NvWorld w;
         BlasSpec spec;
         spec.geometries.push_back({ts::make_icosphere(3, 1.0f), {}, VK_GEOMETRY_OPAQUE_BIT_NV});
-        spec.geometries.push_back({ts::make_torus(16, 8, 2.0f, 0.3f), {}, VK_GEOMETRY_OPAQUE_BIT_NV});
+        spec.geometries.push_back(
+            {ts::make_torus(16, 8, 2.0f, 0.3f), {}, VK_GEOMETRY_OPAQUE_BIT_NV});
         auto info = w.blas_info(spec, kAllowUpdate);
         auto obj = w.make_object(info, "blas");
         ASSERT_TRUE(w.build(info, obj).ops[0].executed);
@@ -86,7 +94,8 @@ TEST(NvUpdate, BottomLevelRefitAnswersLikeAFreshBuildInPlaceAndIntoAnotherObject
 TEST(NvUpdate, TopLevelRefitFollowsMovedInstances) {
     std::vector<BlasSpec> blas(2);
     blas[0].geometries.push_back({ts::make_icosphere(2, 1.0f), {}, VK_GEOMETRY_OPAQUE_BIT_NV});
-    blas[1].geometries.push_back({ts::make_torus(12, 8, 1.0f, 0.3f), {}, VK_GEOMETRY_OPAQUE_BIT_NV});
+    blas[1].geometries.push_back(
+        {ts::make_torus(12, 8, 1.0f, 0.3f), {}, VK_GEOMETRY_OPAQUE_BIT_NV});
     auto instances = random_instances(40, 2, 4.0f, 17);
     auto s = build_scene(blas, instances, kAllowUpdate);
     ASSERT_TRUE(s->findings.empty());
@@ -116,7 +125,10 @@ TEST(NvUpdate, TopLevelRefitFollowsMovedInstances) {
     EmbreeNvScene embree(blas, instances);
     Agreement agreement;
     for (const auto& tr : ts::random_rays(box, 8000, 6)) {
-        const eng::Ray ray{{tr.origin[0], tr.origin[1], tr.origin[2]}, 0.0f, {tr.direction[0], tr.direction[1], tr.direction[2]}, tr.tmax};
+        const eng::Ray ray{{tr.origin[0], tr.origin[1], tr.origin[2]},
+                           0.0f,
+                           {tr.direction[0], tr.direction[1], tr.direction[2]},
+                           tr.tmax};
         classify(agreement, a->closest(ray, 0, 0xFF), embree.closest(ray, 0, 0xFF), 1e-5, "moved");
     }
     EXPECT_EQ(agreement.disagree, 0u) << agreement.summary();
@@ -162,12 +174,14 @@ TEST(NvUpdate, ActiveStateChangesAndMissingAllowUpdate) {
     NvWorld w;
     BlasSpec spec;
     spec.geometries.push_back({ts::make_icosphere(1, 1.0f), {}, VK_GEOMETRY_OPAQUE_BIT_NV});
-    spec.geometries[0].mesh.positions[0][0] = std::nanf("");  // triangles using vertex 0 start inactive
+    spec.geometries[0].mesh.positions[0][0] =
+        std::nanf("");  // triangles using vertex 0 start inactive
     auto info = w.blas_info(spec, kAllowUpdate);
     auto obj = w.make_object(info, "blas");
     auto r = w.build(info, obj);
     ASSERT_TRUE(r.ops[0].executed);
-    EXPECT_TRUE(r.findings.empty()) << rules(r);  // X NaN is the spec's inactive triangle, no finding
+    EXPECT_TRUE(r.findings.empty())
+        << rules(r);  // X NaN is the spec's inactive triangle, no finding
     BlasSpec changed = spec;
     changed.geometries[0].mesh.positions[0][0] = 0.5f;           // inactive -> active
     changed.geometries[0].mesh.positions[5][0] = std::nanf("");  // active -> inactive

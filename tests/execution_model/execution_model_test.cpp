@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // How the replay executes command buffers (format 1.2): a command buffer listed twice in one
 // submission runs each execution with its own restated recording, and a secondary command
 // buffer runs inline at its primary's vkCmdExecuteCommands, in the primary's command-buffer
@@ -47,14 +48,16 @@ struct ClusterRuns : replay::ReplayObserver {
     std::vector<uint32_t> op_counts;
     std::vector<replay::ReplayLocation> where;
     void on_command(const replay::ReplayedCommand& c) override {
-        if (!c.execution || !c.record || c.record->body_type() != fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect)
+        if (!c.execution || !c.record ||
+            c.record->body_type() != fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect)
             return;
         op_counts.push_back(c.execution->op_count);
         where.push_back(c.where);
     }
 };
 
-replay::ReplayReport replay_file(const std::string& path, replay::ReplayObserver* observer = nullptr) {
+replay::ReplayReport replay_file(const std::string& path,
+                                 replay::ReplayObserver* observer = nullptr) {
     traces::TraceError e;
     auto reader = traces::TraceReader::open(path, &e);
     EXPECT_TRUE(reader) << e.message;
@@ -98,8 +101,8 @@ std::string write_trace(const std::string& name, Body body) {
 
 // Two recordings of one command buffer, each a full barrier then a build: `first`, then a
 // build counting 2, the second written as restatement `second_restatement`.
-void record_two_executions(TraceScript& t, uint64_t command_buffer, uint32_t level, uint32_t second_restatement,
-                           ClusterCommand first) {
+void record_two_executions(TraceScript& t, uint64_t command_buffer, uint32_t level,
+                           uint32_t second_restatement, ClusterCommand first) {
     t.begin(command_buffer, kSimultaneous, level, 0);
     t.full_barrier();  // orders each execution after the one before
     first.emit(t);
@@ -118,18 +121,20 @@ void secondary_executed_twice(TraceScript& t) {
     edit_info<TriangleInfo>(bad, 0, [](TriangleInfo& i) { i.clusterID = 0xFFFFFFFFu; });
     record_two_executions(t, kSecondary, 1, 1, bad);
     t.begin(kPrimary, 0, 0, 0);
-    t.full_barrier();                               // primary command 0
+    t.full_barrier();                              // primary command 0
     t.execute_commands({kSecondary, kSecondary});  // primary command 1
     t.end();
     t.submit_listed(kQueue, {kPrimary});
 }
 
 // Replays with `options` (no second pass) and removes the file.
-replay::ReplayReport replay_file_with(const std::string& path, const replay::ReplayOptions& options) {
+replay::ReplayReport replay_file_with(const std::string& path,
+                                      const replay::ReplayOptions& options) {
     traces::TraceError e;
     auto reader = traces::TraceReader::open(path, &e);
     EXPECT_TRUE(reader) << e.message;
-    replay::ReplayReport report = reader ? replay::replay_trace(*reader, path, options) : replay::ReplayReport{};
+    replay::ReplayReport report =
+        reader ? replay::replay_trace(*reader, path, options) : replay::ReplayReport{};
     std::remove(path.c_str());
     return report;
 }
@@ -192,10 +197,12 @@ TEST(ExecutionModel, RestatementOutOfOrderIsReported) {
     });
     ClusterRuns runs;
     replay::ReplayReport r = replay_file(path, &runs);
-    EXPECT_EQ(runs.op_counts, (std::vector<uint32_t>{1, 2, 1}));  // a third execution has no copy: the recording
+    EXPECT_EQ(runs.op_counts,
+              (std::vector<uint32_t>{1, 2, 1}));  // a third execution has no copy: the recording
     ASSERT_EQ(r.findings.size(), 1u) << describe(r);
     EXPECT_EQ(r.findings[0].rule, "CLASTRACE-replay-restatement-out-of-order");
-    EXPECT_NE(r.findings[0].message.find("execution 7"), std::string::npos) << r.findings[0].message;
+    EXPECT_NE(r.findings[0].message.find("execution 7"), std::string::npos)
+        << r.findings[0].message;
 }
 
 // ---- Secondary command buffers --------------------------------------------------------------
@@ -204,7 +211,8 @@ TEST(ExecutionModel, RestatementOutOfOrderIsReported) {
 // vkCmdExecuteCommands: without a barrier a read-after-write whose earlier command is named as
 // primary > secondary > command; a barrier in the primary after the execute fixes it.
 void copy_in_secondary_build_in_primary(TraceScript& t, bool fixed, uint32_t* build_index) {
-    const std::vector<uint8_t> infos = bytes_of(std::vector<TriangleInfo>{triangle_info(0), triangle_info(1)});
+    const std::vector<uint8_t> infos =
+        bytes_of(std::vector<TriangleInfo>{triangle_info(0), triangle_info(1)});
     t.begin(kSecondary, 0, 1, 0);
     t.fill(kScratchBuffer, 0x4000, 16, 0);  // command 0 of the secondary: unrelated
     t.copy(kStagingBuffer, 0, kInfosBuffer, 0, infos.size(), {{kStaging, infos}});
@@ -221,9 +229,10 @@ TEST(ExecutionModel, HazardFromSecondaryIntoPrimaryIsFound) {
     for (const bool fixed : {false, true}) {
         SCOPED_TRACE(fixed ? "barriered twin" : "missing barrier");
         uint32_t build = 0;
-        const std::optional<replay::HazardReport> h = twin_hazard("sec_to_pri", fixed, [&](TraceScript& t) {
-            copy_in_secondary_build_in_primary(t, fixed, &build);
-        });
+        const std::optional<replay::HazardReport> h =
+            twin_hazard("sec_to_pri", fixed, [&](TraceScript& t) {
+                copy_in_secondary_build_in_primary(t, fixed, &build);
+            });
         if (!h) continue;
         EXPECT_EQ(h->hazard, HazardClass::kReadAfterWrite);
         EXPECT_STREQ(h->prior.command.name, "vkCmdCopyBuffer");
@@ -248,18 +257,20 @@ TEST(ExecutionModel, HazardFromSecondaryIntoPrimaryIsFound) {
 TEST(ExecutionModel, HazardFromPrimaryIntoSecondaryIsFound) {
     for (const bool fixed : {false, true}) {
         SCOPED_TRACE(fixed ? "barriered twin" : "missing barrier");
-        const std::optional<replay::HazardReport> h = twin_hazard("pri_to_sec", fixed, [&](TraceScript& t) {
-            const std::vector<uint8_t> infos = bytes_of(std::vector<TriangleInfo>{triangle_info(0), triangle_info(1)});
-            t.begin(kSecondary, 0, 1, 0);
-            if (fixed) t.barrier(kCopy, kTransferWrite, kBuild, kIndirect);
-            triangle_clusters(Destinations::kImplicit).emit(t);
-            t.end();
-            t.begin(kPrimary, 0, 0, 0);
-            t.copy(kStagingBuffer, 0, kInfosBuffer, 0, infos.size(), {{kStaging, infos}});
-            t.execute_commands({kSecondary});
-            t.end();
-            t.submit_listed(kQueue, {kPrimary});
-        });
+        const std::optional<replay::HazardReport> h =
+            twin_hazard("pri_to_sec", fixed, [&](TraceScript& t) {
+                const std::vector<uint8_t> infos =
+                    bytes_of(std::vector<TriangleInfo>{triangle_info(0), triangle_info(1)});
+                t.begin(kSecondary, 0, 1, 0);
+                if (fixed) t.barrier(kCopy, kTransferWrite, kBuild, kIndirect);
+                triangle_clusters(Destinations::kImplicit).emit(t);
+                t.end();
+                t.begin(kPrimary, 0, 0, 0);
+                t.copy(kStagingBuffer, 0, kInfosBuffer, 0, infos.size(), {{kStaging, infos}});
+                t.execute_commands({kSecondary});
+                t.end();
+                t.submit_listed(kQueue, {kPrimary});
+            });
         if (!h) continue;
         EXPECT_EQ(h->hazard, HazardClass::kReadAfterWrite);
         EXPECT_STREQ(h->prior.command.name, "vkCmdCopyBuffer");
@@ -275,25 +286,27 @@ TEST(ExecutionModel, HazardFromPrimaryIntoSecondaryIsFound) {
 TEST(ExecutionModel, HazardBetweenTwoSecondariesIsFound) {
     for (const bool fixed : {false, true}) {
         SCOPED_TRACE(fixed ? "barriered twin" : "missing barrier");
-        const std::optional<replay::HazardReport> h = twin_hazard("sec_sec", fixed, [&](TraceScript& t) {
-            t.begin(kSecondary, 0, 1, 0);
-            triangle_clusters(Destinations::kImplicit).emit(t);
-            t.end();
-            t.begin(kOtherSecondary, 0, 1, 0);
-            if (fixed)
-                t.barrier(kBuild, VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR, kBuild,
-                          VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR | VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR);
-            ClusterCommand second = triangle_clusters(Destinations::kImplicit);
-            second.info.dstImplicitData = kDst2;
-            second.info.dstAddressesArray.deviceAddress = kOut + 0x400;
-            second.info.dstSizesArray.deviceAddress = kSizes + 0x400;
-            second.emit(t);
-            t.end();
-            t.begin(kPrimary, 0, 0, 0);
-            t.execute_commands({kSecondary, kOtherSecondary});
-            t.end();
-            t.submit_listed(kQueue, {kPrimary});
-        });
+        const std::optional<replay::HazardReport> h =
+            twin_hazard("sec_sec", fixed, [&](TraceScript& t) {
+                t.begin(kSecondary, 0, 1, 0);
+                triangle_clusters(Destinations::kImplicit).emit(t);
+                t.end();
+                t.begin(kOtherSecondary, 0, 1, 0);
+                if (fixed)
+                    t.barrier(kBuild, VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR, kBuild,
+                              VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR |
+                                  VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR);
+                ClusterCommand second = triangle_clusters(Destinations::kImplicit);
+                second.info.dstImplicitData = kDst2;
+                second.info.dstAddressesArray.deviceAddress = kOut + 0x400;
+                second.info.dstSizesArray.deviceAddress = kSizes + 0x400;
+                second.emit(t);
+                t.end();
+                t.begin(kPrimary, 0, 0, 0);
+                t.execute_commands({kSecondary, kOtherSecondary});
+                t.end();
+                t.submit_listed(kQueue, {kPrimary});
+            });
         if (!h) continue;
         EXPECT_EQ(h->hazard, HazardClass::kWriteAfterWrite);
         EXPECT_EQ(h->prior.command.secondary_handle, kSecondary);

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Random command streams replayed twice: once with runs of commands moved into secondary
 // command buffers (executed in place by vkCmdExecuteCommands), once all in the primary. A
 // secondary's commands are part of the primary's command-buffer order, so both must give the
@@ -31,21 +32,26 @@ enum class Op { kCopyInfos, kFillOutputs, kBuild, kFullBarrier, kCopyToBuildBarr
 struct Runs : replay::ReplayObserver {
     std::vector<uint32_t> op_counts;
     void on_command(const replay::ReplayedCommand& c) override {
-        if (c.execution && c.record->body_type() == fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect)
+        if (c.execution &&
+            c.record->body_type() == fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect)
             op_counts.push_back(c.execution->op_count);
     }
 };
 
 void emit(TraceScript& t, Op op) {
-    static const std::vector<uint8_t> infos = bytes_of(std::vector<TriangleInfo>{triangle_info(0), triangle_info(1)});
+    static const std::vector<uint8_t> infos =
+        bytes_of(std::vector<TriangleInfo>{triangle_info(0), triangle_info(1)});
     switch (op) {
-    case Op::kCopyInfos: t.copy(kStagingBuffer, 0, kInfosBuffer, 0, infos.size(), {{kStaging, infos}}); break;
+    case Op::kCopyInfos:
+        t.copy(kStagingBuffer, 0, kInfosBuffer, 0, infos.size(), {{kStaging, infos}});
+        break;
     case Op::kFillOutputs: t.fill(kOutBuffer, 0, 64, 0); break;
     case Op::kBuild: triangle_clusters(Destinations::kImplicit).emit(t); break;
     case Op::kFullBarrier: t.full_barrier(); break;
     case Op::kCopyToBuildBarrier:
         t.barrier(VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
-                  VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
+                  VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                  VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
         break;
     }
 }
@@ -53,7 +59,8 @@ void emit(TraceScript& t, Op op) {
 // `secondary[i]`: 0 for a command of the primary, else the secondary (1, 2, ...) holding it;
 // consecutive commands of one secondary are recorded together, consecutive secondaries run
 // from one vkCmdExecuteCommands. With `nested` false everything goes into the primary.
-void write(const std::string& path, const std::vector<Op>& ops, const std::vector<uint32_t>& secondary, bool nested) {
+void write(const std::string& path, const std::vector<Op>& ops,
+           const std::vector<uint32_t>& secondary, bool nested) {
     TraceScript t(path, device());
     add_buffers(t);
     constexpr uint64_t kPrimary = 0xc100, kSecondaryBase = 0x5c00;
@@ -76,7 +83,8 @@ void write(const std::string& path, const std::vector<Op>& ops, const std::vecto
         }
         std::vector<uint64_t> run;
         for (; i < ops.size() && secondary[i]; ++i)
-            if (run.empty() || run.back() != kSecondaryBase + secondary[i]) run.push_back(kSecondaryBase + secondary[i]);
+            if (run.empty() || run.back() != kSecondaryBase + secondary[i])
+                run.push_back(kSecondaryBase + secondary[i]);
         t.execute_commands(run);
     }
     t.end();
@@ -85,7 +93,9 @@ void write(const std::string& path, const std::vector<Op>& ops, const std::vecto
 }
 
 struct Outcome {
-    std::vector<std::tuple<int, std::string, std::string, std::string, std::string, uint64_t, uint64_t>> hazards;
+    std::vector<
+        std::tuple<int, std::string, std::string, std::string, std::string, uint64_t, uint64_t>>
+        hazards;
     std::vector<uint32_t> op_counts;
     std::vector<std::string> rules;
 };
@@ -101,8 +111,8 @@ Outcome replay_of(const std::string& path) {
     options.observer = &runs;
     replay::ReplayReport r = replay::replay_trace(*reader, path, options);
     for (const auto& h : r.hazards)
-        o.hazards.emplace_back(int(h.hazard), h.prior.command.name, h.later.command.name, h.prior.field, h.later.field,
-                               h.overlap.begin, h.overlap.end);
+        o.hazards.emplace_back(int(h.hazard), h.prior.command.name, h.later.command.name,
+                               h.prior.field, h.later.field, h.overlap.begin, h.overlap.end);
     for (const auto& f : r.findings) o.rules.push_back(f.rule);
     o.op_counts = runs.op_counts;
     std::remove(path.c_str());
@@ -123,9 +133,10 @@ TEST(SecondaryEquivalence, RandomStreamsMatchTheirFlattenedTwin) {
             if (rng() % 3 == 0) current = rng() % 2 ? 0 : next++;  // switch primary/new secondary
             secondary.push_back(current);
         }
-        const std::string base = (std::filesystem::temp_directory_path() /
-                                  ("secondary_equivalence_" + std::to_string(::getpid()) + "_" + std::to_string(seed)))
-                                     .string();
+        const std::string base =
+            (std::filesystem::temp_directory_path() /
+             ("secondary_equivalence_" + std::to_string(::getpid()) + "_" + std::to_string(seed)))
+                .string();
         write(base + "_nested.clt", ops, secondary, true);
         write(base + "_flat.clt", ops, secondary, false);
         const Outcome nested = replay_of(base + "_nested.clt");

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Fuzz target: arbitrary bytes as the trace of `clastrace analyze`: the replay feeding the
 // analyzer and the report in its three formats. analyze_trace throws AnalysisInputError only
 // when the feeder breaks the analyzer's contract, so any throw is a finding.
@@ -15,7 +16,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     if (!reader) return 0;
     analyze::AnalyzeOptions options;
     options.replay.memory_budget_bytes = 64u << 20;
-    const analyze::TraceAnalysis analysis = analyze::analyze_trace(*reader, kFuzzTraceName, options);
+    const analyze::TraceAnalysis analysis =
+        analyze::analyze_trace(*reader, kFuzzTraceName, options);
     (void)analyze::render_text(analysis.report);
     (void)analyze::render_json(analysis.report);
     (void)analyze::render_html(analysis.report);

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Fuzz target (docs/fuzzing.md): one cluster command whose every field and whose
 // srcInfosArray bytes come from the fuzzer, written as a valid trace, replayed end to end
 // (translation, engine, verification, sync model).
@@ -52,8 +53,9 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
         writer->append(record(bind));
     }
     auto address = [&] {
-        return in.ConsumeBool() ? in.ConsumeIntegral<uint64_t>()
-                                : kBase + in.ConsumeIntegralInRange<uint64_t>(0, kBuffers * kBufferSize);
+        return in.ConsumeBool()
+                   ? in.ConsumeIntegral<uint64_t>()
+                   : kBase + in.ConsumeIntegralInRange<uint64_t>(0, kBuffers * kBufferSize);
     };
     fbs::CommandBufferBeginT begin;
     begin.command_buffer = 0xc0;
@@ -80,7 +82,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
         case 1: {
             fbs::ClustersBottomLevelInputT t;
             t.max_total_cluster_count = in.ConsumeIntegralInRange<uint32_t>(0, 1000);
-            t.max_cluster_count_per_acceleration_structure = in.ConsumeIntegralInRange<uint32_t>(0, 1000);
+            t.max_cluster_count_per_acceleration_structure =
+                in.ConsumeIntegralInRange<uint32_t>(0, 1000);
             b.input->op_input.Set(std::move(t));
             break;
         }
@@ -96,20 +99,30 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
         }
         b.dst_implicit_data = address();
         b.scratch_data = address();
-        b.dst_addresses_array = std::make_unique<fbs::StridedDeviceAddressRegion>(address(), in.ConsumeIntegralInRange(0, 64),
-                                                                                  in.ConsumeIntegralInRange(0, 4096));
-        b.dst_sizes_array = std::make_unique<fbs::StridedDeviceAddressRegion>(address(), in.ConsumeIntegralInRange(0, 64),
-                                                                              in.ConsumeIntegralInRange(0, 4096));
+        b.dst_addresses_array =
+            std::make_unique<fbs::StridedDeviceAddressRegion>(address(),
+                                                              in.ConsumeIntegralInRange(0, 64),
+                                                              in.ConsumeIntegralInRange(0, 4096));
+        b.dst_sizes_array =
+            std::make_unique<fbs::StridedDeviceAddressRegion>(address(),
+                                                              in.ConsumeIntegralInRange(0, 64),
+                                                              in.ConsumeIntegralInRange(0, 4096));
         const uint64_t infos = kBase + in.ConsumeIntegralInRange<uint64_t>(0, kBufferSize);
-        b.src_infos_array = std::make_unique<fbs::StridedDeviceAddressRegion>(infos, in.ConsumeIntegralInRange(0, 128),
-                                                                              in.ConsumeIntegralInRange(0, 8192));
+        b.src_infos_array =
+            std::make_unique<fbs::StridedDeviceAddressRegion>(infos,
+                                                              in.ConsumeIntegralInRange(0, 128),
+                                                              in.ConsumeIntegralInRange(0, 8192));
         b.src_infos_count = in.ConsumeBool() ? address() : 0;
-        b.address_resolution_flags = in.ConsumeBool() ? in.ConsumeIntegralInRange<uint32_t>(0, 63) : 0;
-        std::vector<uint8_t> bytes = in.ConsumeBytes<uint8_t>(in.ConsumeIntegralInRange<size_t>(0, 2048));
+        b.address_resolution_flags =
+            in.ConsumeBool() ? in.ConsumeIntegralInRange<uint32_t>(0, 63) : 0;
+        std::vector<uint8_t> bytes =
+            in.ConsumeBytes<uint8_t>(in.ConsumeIntegralInRange<size_t>(0, 2048));
         if (!bytes.empty()) {
             fbs::MemorySnapshot snap;
-            if (!writer->snapshot(0, 0, infos, bytes.data(), bytes.size(), &snap)) b.inputs.push_back(snap);
-            if (in.ConsumeBool() && !writer->snapshot(0, 0, address(), bytes.data(), bytes.size(), &snap))
+            if (!writer->snapshot(0, 0, infos, bytes.data(), bytes.size(), &snap))
+                b.inputs.push_back(snap);
+            if (in.ConsumeBool() &&
+                !writer->snapshot(0, 0, address(), bytes.data(), bytes.size(), &snap))
                 b.outputs.push_back(snap);
         }
         writer->append(record(std::move(b)));

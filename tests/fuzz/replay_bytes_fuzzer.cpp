@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Fuzz target: arbitrary bytes as the trace of `clastrace replay`: the reader's damage
 // handling, the replayer's translation of whatever records survive, and both reports as the
 // program prints them. Damage and faults must become findings, never a crash or a throw.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Writes the seed classes the shipped traces lack into a folder, for the fuzz targets:
 //   utf8-*.clt  intact traces whose strings are not UTF-8 (Latin-1 device, application and
 //               engine names; ray-check, debug and timestamp labels; capture findings),
@@ -33,7 +34,8 @@ namespace {
 
 // Ill-formed UTF-8 of every kind a reader meets: Latin-1 letters, a lone continuation byte,
 // an overlong '/', a UTF-16 surrogate, a sequence cut short, bytes UTF-8 never uses.
-const std::vector<std::string> kIllFormed = {"\xe9", "\x80", "\xc0\xaf", "\xed\xa0\x80", "\xe2\x82", "\xff\xfe"};
+const std::vector<std::string> kIllFormed = {"\xe9",         "\x80",     "\xc0\xaf",
+                                             "\xed\xa0\x80", "\xe2\x82", "\xff\xfe"};
 
 // `text` with ill-formed bytes written over its letters, same length (so FlatBuffers offsets hold).
 void make_latin1(char* text, size_t size, size_t variant) {
@@ -53,7 +55,8 @@ std::string placeholder(int n) { return "@@NOT-UTF8-" + std::to_string(10 + n) +
 void replace_placeholders(uint8_t* data, size_t size) {
     for (int n = 0; n < 20; ++n) {
         const std::string p = placeholder(n);
-        for (uint8_t* at = data; (at = static_cast<uint8_t*>(memmem(at, size - (at - data), p.data(), p.size())));) {
+        for (uint8_t* at = data;
+             (at = static_cast<uint8_t*>(memmem(at, size - (at - data), p.data(), p.size())));) {
             make_latin1(reinterpret_cast<char*>(at), p.size(), size_t(n));
             at += p.size();
         }
@@ -114,7 +117,8 @@ Layout layout_of(const Bytes& file) {
         l.chunks.push_back({at, h});
         at += f::kChunkHeaderSize + h.compressed_size;
     }
-    if (l.chunks.empty() || l.chunks.back().header.kind != uint16_t(f::ChunkKind::kIndex)) fail("no index chunk");
+    if (l.chunks.empty() || l.chunks.back().header.kind != uint16_t(f::ChunkKind::kIndex))
+        fail("no index chunk");
     return l;
 }
 
@@ -145,13 +149,15 @@ void reseal_file_header(Bytes& file) {
 
 // The file with `patch` applied to the raw bytes of every records chunk (same length) and
 // to the index (given the chunks' new sizes). Chunks move; the index is rewritten to match.
-Bytes rewrite_chunks(const Bytes& file, const std::function<void(Bytes&)>& patch_records,
-                     const std::function<Bytes(const Bytes& raw, uint32_t* raw_size)>& index_payload) {
+Bytes rewrite_chunks(
+    const Bytes& file, const std::function<void(Bytes&)>& patch_records,
+    const std::function<Bytes(const Bytes& raw, uint32_t* raw_size)>& index_payload) {
     const Layout l = layout_of(file);
     Bytes out(file.begin(), file.begin() + l.data_start);
     std::vector<std::pair<Chunk, Chunk>> moved;  // old, new
     for (const Chunk& c : l.chunks) {
-        Bytes raw = decompress(file.data() + c.offset + f::kChunkHeaderSize, c.header.compressed_size, c.header.raw_size);
+        Bytes raw = decompress(file.data() + c.offset + f::kChunkHeaderSize,
+                               c.header.compressed_size, c.header.raw_size);
         Chunk now{out.size(), c.header};
         if (c.header.kind == uint16_t(f::ChunkKind::kRecords)) {
             patch_records(raw);
@@ -188,12 +194,12 @@ void save_seed(const std::filesystem::path& dir, const std::string& name, const 
 
 void check_intact(const Bytes& file, const std::string& name) {
     traces::TraceError e;
-    auto reader = traces::TraceReader::open_memory(file.data(), file.size(), name, &e,
-                                                   traces::TraceReaderOptions{.verify_content_keys = true});
+    auto reader =
+        traces::TraceReader::open_memory(file.data(), file.size(), name, &e,
+                                         traces::TraceReaderOptions{.verify_content_keys = true});
     if (!reader) fail(name + " does not open: " + e.message);
     traces::RecordView v;
-    while (reader->next(&v)) {
-    }
+    while (reader->next(&v)) {}
     if (reader->damage_count()) fail(name + " is damaged: " + reader->damage().front().message);
 }
 
@@ -233,7 +239,8 @@ Bytes written_with_placeholders(const std::filesystem::path& dir) {
 Bytes with_latin1_header(Bytes file) {
     const uint32_t size = f::load<uint32_t>(file.data() + 12);
     if (f::kFileHeaderSize + uint64_t(size) > file.size()) fail("sample header too short");
-    const auto* h = flatbuffers::GetRoot<fbs::TraceHeader>(file.data() + f::kFileHeaderSize);  // bytes of our own copy
+    const auto* h = flatbuffers::GetRoot<fbs::TraceHeader>(
+        file.data() + f::kFileHeaderSize);  // bytes of our own copy
     size_t variant = 0;
     auto spoil = [&](const flatbuffers::String* s) {
         if (s) make_latin1(const_cast<char*>(s->c_str()), s->size(), variant++);
@@ -259,7 +266,8 @@ int main(int argc, char** argv) {
 
     const Bytes base = written_with_placeholders(dir);
     check_intact(base, "the placeholder trace");
-    Bytes utf8 = rewrite_chunks(base, [](Bytes& raw) { replace_placeholders(raw.data(), raw.size()); }, compress_index);
+    Bytes utf8 = rewrite_chunks(
+        base, [](Bytes& raw) { replace_placeholders(raw.data(), raw.size()); }, compress_index);
     replace_placeholders(utf8.data(), layout_of(utf8).data_start);
     reseal_file_header(utf8);
     check_intact(utf8, "utf8-every-kind.clt");
@@ -288,10 +296,12 @@ int main(int argc, char** argv) {
 
     const Bytes zeros_1g = zeros_frame(uint64_t(f::kMaxIndexRawBytes));
     save_seed(dir, "bomb-index-1GiB-of-zeros.clt",
-          rewrite_chunks(base, [](Bytes&) {}, [&](const Bytes&, uint32_t* raw_size) {
-              *raw_size = f::kMaxIndexRawBytes;
-              return zeros_1g;
-          }));
+              rewrite_chunks(
+                  base, [](Bytes&) {},
+                  [&](const Bytes&, uint32_t* raw_size) {
+                      *raw_size = f::kMaxIndexRawBytes;
+                      return zeros_1g;
+                  }));
     // The intact index payload under a header claiming 1 GiB: checked before allocating?
     Bytes claim = base;
     const Chunk& index = l.chunks.back();

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Runs one fuzz target (its LLVMFuzzerTestOneInput) without libFuzzer, so the normal gcc
 // build fuzzes too and ctest can run every target for a fixed time. It runs each seed once,
 // then seeded mutations of them until the time is up. Blind (no coverage feedback), so it
@@ -58,8 +59,8 @@ constexpr size_t kMaxInputBytes = 4u << 20;
 
 // What the crash handler and the watchdog need, set before each input runs.
 const Bytes* g_input = nullptr;
-char g_history[512];       // where the running input came from
-char g_findings[4096];     // folder of findings
+char g_history[512];    // where the running input came from
+char g_findings[4096];  // folder of findings
 char g_target[128];
 std::atomic<int64_t> g_started_ns{0};  // 0 between inputs
 
@@ -131,13 +132,15 @@ void watch(const Settings& s) {
         const double ran = double(Clock::now().time_since_epoch().count() - started) * 1e-9;
         if (ran > s.input_seconds) {
             char why[128];
-            std::snprintf(why, sizeof why, "the input ran longer than %.0f s (--input-seconds)", s.input_seconds);
+            std::snprintf(why, sizeof why, "the input ran longer than %.0f s (--input-seconds)",
+                          s.input_seconds);
             save_finding("slow", why);
             ::_exit(1);
         }
         if (const uint64_t mb = resident_mb(); mb > s.rss_limit_mb) {
             char why[128];
-            std::snprintf(why, sizeof why, "the input took %llu MiB of memory (--rss-limit-mb %llu)",
+            std::snprintf(why, sizeof why,
+                          "the input took %llu MiB of memory (--rss-limit-mb %llu)",
                           (unsigned long long)mb, (unsigned long long)s.rss_limit_mb);
             save_finding("memory", why);
             ::_exit(1);
@@ -184,7 +187,8 @@ void reseal(Bytes& b) {
     if (b.size() >= f::kFileHeaderSize && std::memcmp(b.data(), f::kFileMagic, 8) == 0) {
         f::FileHeader h = f::load<f::FileHeader>(b.data());
         if (f::kFileHeaderSize + uint64_t(h.trace_header_size) <= b.size()) {
-            h.checksum = f::file_header_checksum(h, b.data() + f::kFileHeaderSize, h.trace_header_size);
+            h.checksum =
+                f::file_header_checksum(h, b.data() + f::kFileHeaderSize, h.trace_header_size);
             std::memcpy(b.data(), &h, sizeof h);
         }
     }
@@ -192,14 +196,16 @@ void reseal(Bytes& b) {
     for (size_t at : starts) {
         f::ChunkHeader h = f::load<f::ChunkHeader>(b.data() + at);
         if (at + f::kChunkHeaderSize + uint64_t(h.compressed_size) <= b.size())
-            h.payload_checksum = f::checksum(b.data() + at + f::kChunkHeaderSize, h.compressed_size);
+            h.payload_checksum =
+                f::checksum(b.data() + at + f::kChunkHeaderSize, h.compressed_size);
         h.header_checksum = f::chunk_header_checksum(h);
         std::memcpy(b.data() + at, &h, sizeof h);
     }
 }
 
-const std::vector<std::string> kIllFormedUtf8 = {"\xe9", "\xff", "\x80", "\xc3\x28", "\xc0\xaf",
-                                                  "\xed\xa0\x80", "\xf4\x90\x80\x80", "\xe2\x82", "\xfe\xfe\xff"};
+const std::vector<std::string> kIllFormedUtf8 = {
+    "\xe9",     "\xff",        "\x80", "\xc3\x28", "\xc0\xaf", "\xed\xa0\x80", "\xf4\x90\x80\x80",
+    "\xe2\x82", "\xfe\xfe\xff"};
 
 class Mutator {
 public:
@@ -252,7 +258,8 @@ private:
     std::string splice_bytes(Bytes& b) {
         const Bytes& other = corpus_[rng_.below(corpus_.size())].bytes;
         if (other.empty()) return "splice(empty)";
-        const size_t from = rng_.below(other.size()), n = 1 + rng_.below(std::min<size_t>(other.size() - from, 4096));
+        const size_t from = rng_.below(other.size()),
+                     n = 1 + rng_.below(std::min<size_t>(other.size() - from, 4096));
         const size_t at = rng_.below(b.size() + 1);
         if (rng_.chance(50)) {
             b.insert(b.begin() + at, other.begin() + from, other.begin() + from + n);
@@ -291,8 +298,10 @@ private:
     }
     // Length fields the reader must check before it allocates or loops.
     std::string huge_length(Bytes& b) {
-        static const uint64_t values[] = {0xffffffffull, 0x80000000ull, 0x7fffffffull, 0x40000000ull,
-                                          0x10000001ull, 0xffffffffffffffffull, 0x8000000000000000ull};
+        static const uint64_t values[] = {0xffffffffull,        0x80000000ull,
+                                          0x7fffffffull,        0x40000000ull,
+                                          0x10000001ull,        0xffffffffffffffffull,
+                                          0x8000000000000000ull};
         const uint64_t v = values[rng_.below(std::size(values))];
         const std::vector<size_t> starts = chunk_starts(b);
         size_t at;
@@ -317,7 +326,8 @@ private:
         size_t at = rng_.below(b.size() + 1);
         for (int tries = 0; tries < 64 && b.size() >= 4; ++tries) {
             const size_t p = rng_.below(b.size() - 3);
-            if (std::all_of(b.begin() + p, b.begin() + p + 4, [](uint8_t c) { return c >= 0x20 && c < 0x7f; })) {
+            if (std::all_of(b.begin() + p, b.begin() + p + 4,
+                            [](uint8_t c) { return c >= 0x20 && c < 0x7f; })) {
                 at = p;
                 break;
             }
@@ -335,10 +345,12 @@ private:
         if (starts.empty()) return flip_bit(b);
         const size_t at = starts[rng_.below(starts.size())];
         f::ChunkHeader h = f::load<f::ChunkHeader>(b.data() + at);
-        if (h.raw_size > (16u << 20) || at + f::kChunkHeaderSize + uint64_t(h.compressed_size) > b.size())
+        if (h.raw_size > (16u << 20) ||
+            at + f::kChunkHeaderSize + uint64_t(h.compressed_size) > b.size())
             return huge_length(b);
         Bytes raw(h.raw_size);
-        const size_t got = ZSTD_decompress(raw.data(), raw.size(), b.data() + at + f::kChunkHeaderSize, h.compressed_size);
+        const size_t got = ZSTD_decompress(raw.data(), raw.size(),
+                                           b.data() + at + f::kChunkHeaderSize, h.compressed_size);
         if (ZSTD_isError(got)) return flip_bit(b);
         raw.resize(got);
         std::string what = "payload@" + std::to_string(at) + "[";
@@ -373,7 +385,8 @@ private:
 };
 
 bool skipped(const std::string& name, const Settings& s) {
-    return std::any_of(s.skip.begin(), s.skip.end(), [&](const std::string& t) { return name.find(t) != std::string::npos; });
+    return std::any_of(s.skip.begin(), s.skip.end(),
+                       [&](const std::string& t) { return name.find(t) != std::string::npos; });
 }
 
 std::vector<Seed> load_seeds(const Settings& s) {
@@ -390,7 +403,8 @@ std::vector<Seed> load_seeds(const Settings& s) {
             std::exit(2);
         }
     }
-    std::sort(files.begin(), files.end());  // the same order every run: mutations repeat with --seed
+    std::sort(files.begin(),
+              files.end());  // the same order every run: mutations repeat with --seed
     std::vector<Seed> seeds;
     for (const auto& path : files) {
         if (skipped(path.string(), s)) continue;
@@ -413,16 +427,24 @@ Settings parse(int argc, char** argv) {
             }
             return argv[++i];
         };
-        if (a == "--seconds") s.seconds = std::stod(value());
-        else if (a == "--input-seconds") s.input_seconds = std::stod(value());
-        else if (a == "--rss-limit-mb") s.rss_limit_mb = std::stoull(value());
-        else if (a == "--seed") s.seed = std::stoull(value());
-        else if (a == "--findings") s.findings = value();
-        else if (a == "--skip") s.skip.push_back(value());
+        if (a == "--seconds")
+            s.seconds = std::stod(value());
+        else if (a == "--input-seconds")
+            s.input_seconds = std::stod(value());
+        else if (a == "--rss-limit-mb")
+            s.rss_limit_mb = std::stoull(value());
+        else if (a == "--seed")
+            s.seed = std::stoull(value());
+        else if (a == "--findings")
+            s.findings = value();
+        else if (a == "--skip")
+            s.skip.push_back(value());
         else if (a.rfind("--", 0) == 0) {
-            std::fprintf(stderr, "%s: unknown option %s (see tests/fuzz/standalone_driver.cpp)\n", g_target, a.c_str());
+            std::fprintf(stderr, "%s: unknown option %s (see tests/fuzz/standalone_driver.cpp)\n",
+                         g_target, a.c_str());
             std::exit(2);
-        } else s.inputs.push_back(a);
+        } else
+            s.inputs.push_back(a);
     }
     return s;
 }
@@ -430,7 +452,8 @@ Settings parse(int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
-    std::snprintf(g_target, sizeof g_target, "%s", std::filesystem::path(argv[0]).filename().c_str());
+    std::snprintf(g_target, sizeof g_target, "%s",
+                  std::filesystem::path(argv[0]).filename().c_str());
     const Settings s = parse(argc, argv);
     std::filesystem::create_directories(s.findings);
     std::snprintf(g_findings, sizeof g_findings, "%s", s.findings.c_str());
@@ -461,10 +484,12 @@ int main(int argc, char** argv) {
         mutator.next(input, history);
         run_one();
     }
-    std::printf("%s: %llu inputs (%zu seeds, then mutations with --seed %llu) in %.1f s: no crash, no input over "
-                "%.0f s or %llu MiB\n",
-                g_target, (unsigned long long)runs, corpus.size(), (unsigned long long)s.seed,
-                std::chrono::duration<double>(Clock::now() - start).count(), s.input_seconds,
-                (unsigned long long)s.rss_limit_mb);
+    std::printf(
+        "%s: %llu inputs (%zu seeds, then mutations with --seed %llu) in %.1f s: no crash, no "
+        "input over "
+        "%.0f s or %llu MiB\n",
+        g_target, (unsigned long long)runs, corpus.size(), (unsigned long long)s.seed,
+        std::chrono::duration<double>(Clock::now() - start).count(), s.input_seconds,
+        (unsigned long long)s.rss_limit_mb);
     return 0;
 }

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Replays traces/samples/h100_nv_ray_tracing.clt (captured on an H100) on clastrace's engine:
 // every NV object must be rebuilt from the captured inputs, the deserialization of the
 // driver's blob must be recognised as foreign, and the engine's answers for the rays the
@@ -19,63 +20,68 @@ namespace {
 using namespace clastrace;
 
 replay::ReplayReport replaySample(const char* path) {
-  traces::TraceError error;
-  auto reader = traces::TraceReader::open(path, &error);
-  EXPECT_TRUE(reader) << error.message;
-  if (!reader) return {};
-  replay::ReplayOptions options;
-  options.max_findings_per_rule = 100000;  // every disagreeing ray listed
-  options.max_findings = 100000;
-  return replay::replay_trace(*reader, path, options);
+    traces::TraceError error;
+    auto reader = traces::TraceReader::open(path, &error);
+    EXPECT_TRUE(reader) << error.message;
+    if (!reader) return {};
+    replay::ReplayOptions options;
+    options.max_findings_per_rule = 100000;  // every disagreeing ray listed
+    options.max_findings = 100000;
+    return replay::replay_trace(*reader, path, options);
 }
 
 const replay::ReplayReport& report() {
-  static const replay::ReplayReport r = replaySample(CLASTRACE_NV_SAMPLE);
-  return r;
+    static const replay::ReplayReport r = replaySample(CLASTRACE_NV_SAMPLE);
+    return r;
 }
 
 TEST(NvSampleReplay, RebuildsEveryObjectAndRefit) {
-  const auto& r = report();
-  EXPECT_TRUE(r.trace_damage.empty());
-  EXPECT_FALSE(r.engine_trace);  // the driver's own capture: outputs are not the engine's bytes
-  EXPECT_EQ(r.counts.nv_builds, 6u);  // 2 bottom levels + top level, built then updated
-  EXPECT_EQ(r.counts.deserializations, 1u);
-  EXPECT_GE(r.counts.handles_translated, 5u);  // each instance record names a bottom level
-  for (const auto& n : r.not_replayed) {
-    const std::string name = n.where.name;
-    EXPECT_NE(name, "vkCmdBuildAccelerationStructureNV") << n.reason;
-    EXPECT_NE(name, "vkCmdCopyMemoryToAccelerationStructureKHR") << n.reason;
-  }
+    const auto& r = report();
+    EXPECT_TRUE(r.trace_damage.empty());
+    EXPECT_FALSE(r.engine_trace);  // the driver's own capture: outputs are not the engine's bytes
+    EXPECT_EQ(r.counts.nv_builds, 6u);  // 2 bottom levels + top level, built then updated
+    EXPECT_EQ(r.counts.deserializations, 1u);
+    EXPECT_GE(r.counts.handles_translated, 5u);  // each instance record names a bottom level
+    for (const auto& n : r.not_replayed) {
+        const std::string name = n.where.name;
+        EXPECT_NE(name, "vkCmdBuildAccelerationStructureNV") << n.reason;
+        EXPECT_NE(name, "vkCmdCopyMemoryToAccelerationStructureKHR") << n.reason;
+    }
 }
 
 TEST(NvSampleReplay, DriverBlobIsForeignButChecked) {
-  bool opaque = false;
-  for (const auto& f : report().findings) {
-    opaque |= f.rule == "CLASTRACE-replay-nv-opaque-object";
-    // The blob is well formed: no header, size, alignment or handle rule may fire.
-    EXPECT_EQ(f.rule.find("VUID-vkCmdCopyMemoryToAccelerationStructureKHR"), std::string::npos) << f.format();
-  }
-  EXPECT_TRUE(opaque);
+    bool opaque = false;
+    for (const auto& f : report().findings) {
+        opaque |= f.rule == "CLASTRACE-replay-nv-opaque-object";
+        // The blob is well formed: no header, size, alignment or handle rule may fire.
+        EXPECT_EQ(f.rule.find("VUID-vkCmdCopyMemoryToAccelerationStructureKHR"), std::string::npos)
+            << f.format();
+    }
+    EXPECT_TRUE(opaque);
 }
 
 TEST(NvSampleReplay, EveryRayAgreesWithTheDriver) {
-  const auto& r = report();
-  ASSERT_EQ(r.ray_checks.size(), 2u);  // after the build and after the refit
-  for (const auto& c : r.ray_checks) {
-    std::printf("ray check after submission %llu: %llu rays, %llu hits agree, %llu misses agree, %llu ties, %llu near "
-                "edges, %llu disagree, max relative t difference %.3g\n",
-                (unsigned long long)c.after_submission, (unsigned long long)c.rays, (unsigned long long)c.agree_hit,
-                (unsigned long long)c.agree_miss, (unsigned long long)c.tie, (unsigned long long)c.edge,
-                (unsigned long long)c.disagree, c.max_rel_t);
-    ASSERT_TRUE(c.checked) << c.why_not;
-    EXPECT_EQ(c.rays, 4096u);
-    EXPECT_EQ(c.disagree, 0u) << c.label;
-    EXPECT_EQ(c.agree_hit + c.agree_miss + c.tie + c.edge, c.rays);
-    EXPECT_GT(c.agree_hit, 1400u);  // the driver hit 1545 and 1585 of them
-    EXPECT_LT(c.tie + c.edge, c.rays / 100);  // shared edges and equal-t overlaps stay rare
-    EXPECT_LT(c.max_rel_t, 1e-4);
-  }
-  for (const auto& f : r.findings) EXPECT_NE(f.rule, "CLASTRACE-replay-ray-check-disagrees") << f.format();
+    const auto& r = report();
+    ASSERT_EQ(r.ray_checks.size(), 2u);  // after the build and after the refit
+    for (const auto& c : r.ray_checks) {
+        std::printf(
+            "ray check after submission %llu: %llu rays, %llu hits agree, %llu misses agree, %llu "
+            "ties, %llu near "
+            "edges, %llu disagree, max relative t difference %.3g\n",
+            (unsigned long long)c.after_submission, (unsigned long long)c.rays,
+            (unsigned long long)c.agree_hit, (unsigned long long)c.agree_miss,
+            (unsigned long long)c.tie, (unsigned long long)c.edge, (unsigned long long)c.disagree,
+            c.max_rel_t);
+        ASSERT_TRUE(c.checked) << c.why_not;
+        EXPECT_EQ(c.rays, 4096u);
+        EXPECT_EQ(c.disagree, 0u) << c.label;
+        EXPECT_EQ(c.agree_hit + c.agree_miss + c.tie + c.edge, c.rays);
+        EXPECT_GT(c.agree_hit, 1400u);            // the driver hit 1545 and 1585 of them
+        EXPECT_LT(c.tie + c.edge, c.rays / 100);  // shared edges and equal-t overlaps stay rare
+        EXPECT_LT(c.max_rel_t, 1e-4);
+    }
+    for (const auto& f : r.findings)
+        EXPECT_NE(f.rule, "CLASTRACE-replay-ray-check-disagrees") << f.format();
 }
 
 // The extremes sample (traces/samples/README.md): every object still rebuilds and every ray is
@@ -85,27 +91,29 @@ TEST(NvSampleReplay, EveryRayAgreesWithTheDriver) {
 // still differ (one on barycentrics of the 1e-3 triangle, one thin box in the 1e-2-scaled
 // instance that the driver hits and the double slab test misses); the bound keeps it there.
 TEST(NvExtremesReplay, EveryRayComparedAndTheFloat32GapDoesNotGrow) {
-  const replay::ReplayReport r = replaySample(CLASTRACE_NV_EXTREMES);
-  EXPECT_TRUE(r.trace_damage.empty());
-  EXPECT_EQ(r.counts.nv_builds, 6u);
-  EXPECT_EQ(r.counts.deserializations, 1u);
-  ASSERT_EQ(r.ray_checks.size(), 2u);
-  uint64_t disagree = 0;
-  for (const auto& c : r.ray_checks) {
-    std::printf("extremes ray check after submission %llu: %llu hits agree, %llu misses agree, %llu ties, %llu near "
-                "edges, %llu disagree\n",
-                (unsigned long long)c.after_submission, (unsigned long long)c.agree_hit,
-                (unsigned long long)c.agree_miss, (unsigned long long)c.tie, (unsigned long long)c.edge,
-                (unsigned long long)c.disagree);
-    ASSERT_TRUE(c.checked) << c.why_not;
-    EXPECT_EQ(c.rays, 4096u);
-    EXPECT_EQ(c.agree_hit + c.agree_miss + c.tie + c.edge + c.disagree, c.rays);
-    EXPECT_GT(c.agree_hit, 1600u);  // the driver hit 1788 of each
-    EXPECT_GT(c.float_precision, 0u);  // the 1e4-wide floor: within float32 error, not 1e-5
-    EXPECT_LT(c.float_precision, c.agree_hit / 10);
-    disagree += c.disagree;
-  }
-  EXPECT_LE(disagree, 2u);
+    const replay::ReplayReport r = replaySample(CLASTRACE_NV_EXTREMES);
+    EXPECT_TRUE(r.trace_damage.empty());
+    EXPECT_EQ(r.counts.nv_builds, 6u);
+    EXPECT_EQ(r.counts.deserializations, 1u);
+    ASSERT_EQ(r.ray_checks.size(), 2u);
+    uint64_t disagree = 0;
+    for (const auto& c : r.ray_checks) {
+        std::printf(
+            "extremes ray check after submission %llu: %llu hits agree, %llu misses agree, %llu "
+            "ties, %llu near "
+            "edges, %llu disagree\n",
+            (unsigned long long)c.after_submission, (unsigned long long)c.agree_hit,
+            (unsigned long long)c.agree_miss, (unsigned long long)c.tie, (unsigned long long)c.edge,
+            (unsigned long long)c.disagree);
+        ASSERT_TRUE(c.checked) << c.why_not;
+        EXPECT_EQ(c.rays, 4096u);
+        EXPECT_EQ(c.agree_hit + c.agree_miss + c.tie + c.edge + c.disagree, c.rays);
+        EXPECT_GT(c.agree_hit, 1600u);     // the driver hit 1788 of each
+        EXPECT_GT(c.float_precision, 0u);  // the 1e4-wide floor: within float32 error, not 1e-5
+        EXPECT_LT(c.float_precision, c.agree_hit / 10);
+        disagree += c.disagree;
+    }
+    EXPECT_LE(disagree, 2u);
 }
 
 }  // namespace

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // What a replay holds must follow what is live in the trace (buffers bound, command buffers
 // recorded, accesses in flight), not how long the trace is.
 #include "replay_bench_trace.h"
@@ -22,8 +23,8 @@ namespace {
 constexpr uint64_t kPage = engine::RegionBytes::kPageBytes;
 
 std::string temp_path(const std::string& name) {
-    return (testing::TempDir().empty() ? std::string("/tmp/") : testing::TempDir()) + "replay_memory_" +
-           std::to_string(getpid()) + "_" + name;
+    return (testing::TempDir().empty() ? std::string("/tmp/") : testing::TempDir()) +
+           "replay_memory_" + std::to_string(getpid()) + "_" + name;
 }
 
 ReplayReport replay_file(const std::string& path, const ReplayOptions& options = {}) {
@@ -122,7 +123,8 @@ TEST(ReplayMemory, PeakImageDoesNotGrowWithTraceLength) {
     }
     EXPECT_GE(destroyed[1], 4 * destroyed[0] - 4);
     EXPECT_GT(peak[0], 0u);
-    EXPECT_LE(peak[1], peak[0] + 4 * kPage) << "short trace " << peak[0] << " bytes, 4x longer " << peak[1];
+    EXPECT_LE(peak[1], peak[0] + 4 * kPage)
+        << "short trace " << peak[0] << " bytes, 4x longer " << peak[1];
 }
 
 // Command buffers that are never re-begun or reset (new handles every frame, not
@@ -216,7 +218,8 @@ TEST(ReplayMemory, GiBBufferWithOneMiBReferencedCostsAboutOneMiB) {
             r.body.Set(std::move(body));
             ASSERT_FALSE(w->append(r));
         };
-        for (const auto& [handle, address, size] : {std::tuple{0xb1ull, kBig, 1ull << 30}, {0xb2ull, kStaging, kMiB}}) {
+        for (const auto& [handle, address, size] :
+             {std::tuple{0xb1ull, kBig, 1ull << 30}, {0xb2ull, kStaging, kMiB}}) {
             fbs::BufferCreateT create;
             create.buffer = handle;
             create.size = size;

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // SegmentStore with its debug checks compiled in: random updates, splits and erasures keep every
 // invariant, and a store whose entries are broken on purpose aborts at the next mutation.
 #include <gtest/gtest.h>
@@ -34,8 +35,9 @@ using Store = SegmentStore<Ids>;
 using Access = SegmentStoreTestAccess<Ids>;
 
 void add(Store& store, uint64_t begin, uint64_t end, int id, bool merge) {
-    store.update(begin, end, merge, [&](Ids& b, uint64_t, uint64_t) { b.ids = {id}; },
-                 [&](Ids& b, uint64_t, uint64_t) { b.ids.push_back(id); });
+    store.update(
+        begin, end, merge, [&](Ids& b, uint64_t, uint64_t) { b.ids = {id}; },
+        [&](Ids& b, uint64_t, uint64_t) { b.ids.push_back(id); });
 }
 
 TEST(SegmentStoreInvariants, HoldOverRandomUpdatesSplitsAndErasures) {
@@ -48,7 +50,8 @@ TEST(SegmentStoreInvariants, HoldOverRandomUpdatesSplitsAndErasures) {
         case 1: add(store, begin, end, op, random() % 2 == 0); break;
         case 2: store.split_at(begin); break;
         default:
-            store.erase_if([&](Ids& b, uint64_t, uint64_t) { return b.ids.size() % 3 == 0; }, begin, end);
+            store.erase_if([&](Ids& b, uint64_t, uint64_t) { return b.ids.size() % 3 == 0; }, begin,
+                           end);
         }
         ASSERT_TRUE(store.invariants_hold()) << "after operation " << op;
     }

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // SegmentStore (the synchronization model's address map) against two references over random
 // operation streams: the std::map-keyed store it replaced, written out here as it was (same
 // splits, same merges, same visiting order), and a per-byte model that knows nothing of
@@ -24,7 +25,8 @@ struct Ids {
     friend bool operator==(const Ids&, const Ids&) = default;
 };
 
-using Visit = std::tuple<uint64_t, uint64_t, bool, std::vector<int>>;  // begin, end, fresh, body after
+using Visit =
+    std::tuple<uint64_t, uint64_t, bool, std::vector<int>>;  // begin, end, fresh, body after
 
 // The old store: std::map<begin, Segment{end, body}>, with the replay's original record() loop.
 class MapStore {
@@ -86,8 +88,11 @@ public:
     template <class Drop>
     void erase_if(Drop&& drop, uint64_t lo, uint64_t hi) {
         for (auto it = map_.begin(); it != map_.end();) {
-            if (it->second.end > lo && it->first < hi && drop(it->second.body, it->first, it->second.end)) it = map_.erase(it);
-            else ++it;
+            if (it->second.end > lo && it->first < hi &&
+                drop(it->second.body, it->first, it->second.end))
+                it = map_.erase(it);
+            else
+                ++it;
         }
     }
     std::vector<std::tuple<uint64_t, uint64_t, std::vector<int>>> list() const {
@@ -125,10 +130,12 @@ void run_stream(uint32_t seed, uint64_t space, int ops, int bytes_every = 1) {
     for (int op = 1; op <= ops; ++op) {
         const int kind = int(rng() % 10);
         uint64_t a = rng() % space, b = rng() % (space + 1);
-        if (rng() % 4 == 0) b = std::min<uint64_t>(space, a + 1 + rng() % 4);  // short accesses are common
+        if (rng() % 4 == 0)
+            b = std::min<uint64_t>(space, a + 1 + rng() % 4);  // short accesses are common
         if (a > b) std::swap(a, b);
-        SCOPED_TRACE("seed " + std::to_string(seed) + " op " + std::to_string(op) + " kind " + std::to_string(kind) +
-                     " [" + std::to_string(a) + "," + std::to_string(b) + ")");
+        SCOPED_TRACE("seed " + std::to_string(seed) + " op " + std::to_string(op) + " kind " +
+                     std::to_string(kind) + " [" + std::to_string(a) + "," + std::to_string(b) +
+                     ")");
         if (kind < 7) {
             const bool merge = kind < 3;  // a write: every touched segment ends up equal, then one
             std::vector<Visit> seen_new, seen_ref;
@@ -139,8 +146,10 @@ void run_stream(uint32_t seed, uint64_t space, int ops, int bytes_every = 1) {
                     seen->emplace_back(s, e, true, body.ids);
                 };
                 auto touch = [op, merge, seen](Ids& body, uint64_t s, uint64_t e) {
-                    if (merge) body.ids = {op};
-                    else body.ids.push_back(op);
+                    if (merge)
+                        body.ids = {op};
+                    else
+                        body.ids.push_back(op);
                     seen->emplace_back(s, e, false, body.ids);
                 };
                 return std::make_pair(fresh, touch);
@@ -151,16 +160,20 @@ void run_stream(uint32_t seed, uint64_t space, int ops, int bytes_every = 1) {
             reference.update(a, b, merge, f2, t2);
             ASSERT_EQ(seen_new, seen_ref) << "visits differ";
             for (uint64_t x = a; x < b; ++x) {
-                if (!bytes[x] || merge) bytes[x] = std::vector<int>{op};
-                else bytes[x]->push_back(op);
+                if (!bytes[x] || merge)
+                    bytes[x] = std::vector<int>{op};
+                else
+                    bytes[x]->push_back(op);
             }
         } else if (kind < 8) {
             store.split_at(a);
             reference.split_at(a);
         } else {
             const int salt = op;
-            store.erase_if([&](Ids& body, uint64_t, uint64_t) { return drop_rule(body, salt); }, a, b);
-            reference.erase_if([&](Ids& body, uint64_t, uint64_t) { return drop_rule(body, salt); }, a, b);
+            store.erase_if([&](Ids& body, uint64_t, uint64_t) { return drop_rule(body, salt); }, a,
+                           b);
+            reference.erase_if([&](Ids& body, uint64_t, uint64_t) { return drop_rule(body, salt); },
+                               a, b);
             // Which bytes go depends on how they are grouped into segments, which the per-byte
             // model does not know: it takes the map store's answer (checked just below).
             for (uint64_t x = 0; x < space; ++x) bytes[x].reset();
@@ -214,10 +227,13 @@ TEST(SegmentStore, ReleasedBodiesComeBackClearedAndKeepTheirCapacity) {
     store.erase_if([](Ids&, uint64_t, uint64_t) { return true; });
     EXPECT_EQ(store.size(), 0u);
     std::size_t capacity = 0;
-    store.update(0, 10, true, [&](Ids& b, uint64_t, uint64_t) {
-        EXPECT_TRUE(b.ids.empty());
-        capacity = b.ids.capacity();
-    }, none);
+    store.update(
+        0, 10, true,
+        [&](Ids& b, uint64_t, uint64_t) {
+            EXPECT_TRUE(b.ids.empty());
+            capacity = b.ids.capacity();
+        },
+        none);
     EXPECT_GE(capacity, 100u);
 }
 

@@ -1,10 +1,11 @@
+// SPDX-License-Identifier: Apache-2.0
 // vkAcquireNextImageKHR in the synchronization model: the presentation engine signals the
 // binary semaphore (and fence) from outside every queue. A wait on it is satisfied, and the
 // signal consumed, but it orders no device work: nothing a queue did before the acquire is
 // made visible by it.
 #include <gtest/gtest.h>
 
-#include "sync_stream.hpp"
+#include "sync_stream.h"
 
 namespace clastrace::replay::test {
 namespace {

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // SyncModel::record_accesses keeps per-op array elements as one range: it must report
 // exactly what record_access on each access reports (same hazards, order, fields, ranges).
 #include <gtest/gtest.h>
@@ -18,9 +19,12 @@ struct Kind {
     bool write;
 };
 constexpr Kind kKinds[] = {
-    {VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT, false},
-    {VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR, false},
-    {VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR, true},
+    {VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+     VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT, false},
+    {VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+     VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR, false},
+    {VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+     VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR, true},
     {VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, true},
     {VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_READ_BIT, false},
 };
@@ -60,14 +64,24 @@ struct TwoModels {
                 if (pick(12) == 0) continue;  // an op without this field
                 const uint64_t begin = a.base + uint64_t(i) * (a.bytes + a.gap);
                 const uint64_t bytes = pick(15) == 0 ? a.bytes + 1 : a.bytes;
-                names.push_back(a.prefix + std::to_string(first + i + (pick(20) == 0 ? 1 : 0)) + a.suffix);
-                out.push_back({{begin, begin + bytes}, a.kind.stage, a.kind.access, a.kind.write, names.back()});
+                names.push_back(a.prefix + std::to_string(first + i + (pick(20) == 0 ? 1 : 0)) +
+                                a.suffix);
+                out.push_back({{begin, begin + bytes},
+                               a.kind.stage,
+                               a.kind.access,
+                               a.kind.write,
+                               names.back()});
             }
             if (pick(3) == 0) {  // a field without an index, e.g. an object write
                 const Kind& k = kKinds[pick(std::size(kKinds))];
                 const uint64_t begin = uint64_t(pick(int(space)));
-                names.push_back(pick(2) ? "scratchData" : "dstImplicitData[op " + std::to_string(i) + "]");
-                out.push_back({{begin, begin + 1 + uint64_t(pick(8))}, k.stage, k.access, k.write, names.back()});
+                names.push_back(pick(2) ? "scratchData"
+                                        : "dstImplicitData[op " + std::to_string(i) + "]");
+                out.push_back({{begin, begin + 1 + uint64_t(pick(8))},
+                               k.stage,
+                               k.access,
+                               k.write,
+                               names.back()});
             }
         }
         return out;
@@ -89,7 +103,8 @@ struct TwoModels {
                 std::vector<BufferBarrier> buf;
                 const Kind& from = kKinds[pick(std::size(kKinds))];
                 const Kind& to = kKinds[pick(std::size(kKinds))];
-                const MemoryBarrier m{from.stage, from.write ? from.access : 0, to.stage, to.access};
+                const MemoryBarrier m{from.stage, from.write ? from.access : 0, to.stage,
+                                      to.access};
                 if (pick(2)) {
                     const uint64_t begin = uint64_t(pick(int(space)));
                     buf.push_back({m, {begin, begin + 1 + uint64_t(pick(24))}});
@@ -117,7 +132,8 @@ std::vector<std::string> later_accesses(const SyncModel& m) {
     std::vector<std::string> out;
     for (const HazardReport& h : m.hazards())
         out.push_back(std::to_string(h.later.command.command) + " " + h.later.field + " " +
-                      std::to_string(h.later.range.begin) + "-" + std::to_string(h.later.range.end));
+                      std::to_string(h.later.range.begin) + "-" +
+                      std::to_string(h.later.range.end));
     return out;
 }
 
@@ -135,11 +151,13 @@ TEST(SyncBatch, RecordAccessesReportsExactlyWhatRecordAccessReports) {
         std::size_t first = 0;
         while (first < a.size() && first < b.size() && a[first] == b[first]) ++first;
         ASSERT_TRUE(first == a.size() && first == b.size())
-            << "seed " << seed << ": " << a.size() << " vs " << b.size() << " hazards, first difference at " << first
+            << "seed " << seed << ": " << a.size() << " vs " << b.size()
+            << " hazards, first difference at " << first
             << "\n  per access: " << (first < a.size() ? a[first] : "-")
             << "\n  per command: " << (first < b.size() ? b[first] : "-");
         ASSERT_EQ(t.single.stats().accesses, t.batched.stats().accesses) << "seed " << seed;
-        ASSERT_EQ(t.single.stats().duplicate_hazards, t.batched.stats().duplicate_hazards) << "seed " << seed;
+        ASSERT_EQ(t.single.stats().duplicate_hazards, t.batched.stats().duplicate_hazards)
+            << "seed " << seed;
         hazards += a.size();
     }
     EXPECT_GT(hazards, 1000u);  // the streams do collide: the comparison is not vacuous
@@ -153,11 +171,18 @@ TEST(SyncBatch, HazardOnAnElementRunNamesTheElement) {
     std::vector<Access> writes;
     for (int i = 0; i < 8; ++i) names.push_back("dstAddressesArray[" + std::to_string(i) + "]");
     for (int i = 0; i < 8; ++i)
-        writes.push_back({{0x1000 + 8u * i, 0x1008 + 8u * i}, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
-                          VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR, true, names[std::size_t(i)]});
+        writes.push_back({{0x1000 + 8u * i, 0x1008 + 8u * i},
+                          VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                          VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
+                          true,
+                          names[std::size_t(i)]});
     m.record_accesses(writer, writes);
     // Reads bytes 4..11 of element 5 and 6's first half: two hazards, one per element.
-    m.record_access(reader, {{0x102c, 0x1034}, VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT, false, "src"});
+    m.record_access(reader, {{0x102c, 0x1034},
+                             VK_PIPELINE_STAGE_2_COPY_BIT,
+                             VK_ACCESS_2_TRANSFER_READ_BIT,
+                             false,
+                             "src"});
     m.end_submission();
     ASSERT_EQ(m.hazards().size(), 2u);
     EXPECT_EQ(m.hazards()[0].prior.field, "dstAddressesArray[5]");

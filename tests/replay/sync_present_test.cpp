@@ -1,9 +1,10 @@
+// SPDX-License-Identifier: Apache-2.0
 // vkQueuePresentKHR in the synchronization model: the presentation engine's wait consumes a
 // binary semaphore's signal, so a later wait on it finds no signal instead of a stale one
 // (which would order work that nothing orders).
 #include <gtest/gtest.h>
 
-#include "sync_stream.hpp"
+#include "sync_stream.h"
 
 namespace clastrace::replay::test {
 namespace {

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Random streams: the interval model against the brute-force reference, and long valid
 // streams that must stay silent.
 #include <gtest/gtest.h>
@@ -6,16 +7,18 @@
 #include <random>
 #include <string>
 
-#include "reference_sync_model.hpp"
-#include "sync_stream.hpp"
+#include "reference_sync_model.h"
+#include "sync_stream.h"
 
 namespace clastrace::replay::test {
 namespace {
 
-constexpr StageMask kAccessStages[] = {
-    VK_PIPELINE_STAGE_2_COPY_BIT, VK_PIPELINE_STAGE_2_CLEAR_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
-    VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR,
-    VK_PIPELINE_STAGE_2_RAY_TRACING_SHADER_BIT_KHR};
+constexpr StageMask kAccessStages[] = {VK_PIPELINE_STAGE_2_COPY_BIT,
+                                       VK_PIPELINE_STAGE_2_CLEAR_BIT,
+                                       VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                                       VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                                       VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR,
+                                       VK_PIPELINE_STAGE_2_RAY_TRACING_SHADER_BIT_KHR};
 
 struct AccessKind {
     StageMask stage;
@@ -29,36 +32,49 @@ constexpr AccessKind kAccessKinds[] = {
     {VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_READ_BIT, false},
     {VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, true},
     {VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_UNIFORM_READ_BIT, false},
-    {VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT, false},
-    {VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR, false},
-    {VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR, true},
     {VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
-     VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR | VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR, true},
-    {VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR, VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR, true},
+     VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT, false},
+    {VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+     VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR, false},
+    {VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+     VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR, true},
+    {VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+     VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR |
+         VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
+     true},
+    {VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR,
+     VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR, true},
     {VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR, VK_ACCESS_2_TRANSFER_READ_BIT, false},
-    {VK_PIPELINE_STAGE_2_RAY_TRACING_SHADER_BIT_KHR, VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR, false},
+    {VK_PIPELINE_STAGE_2_RAY_TRACING_SHADER_BIT_KHR,
+     VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR, false},
     {VK_PIPELINE_STAGE_2_RAY_TRACING_SHADER_BIT_KHR, VK_ACCESS_2_SHADER_STORAGE_READ_BIT, false},
 };
 
-constexpr StageMask kBarrierStages[] = {
-    VK_PIPELINE_STAGE_2_COPY_BIT, VK_PIPELINE_STAGE_2_CLEAR_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
-    VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR,
-    VK_PIPELINE_STAGE_2_RAY_TRACING_SHADER_BIT_KHR, VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT,
-    VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_PIPELINE_STAGE_2_TOP_OF_PIPE_BIT,
-    VK_PIPELINE_STAGE_2_BOTTOM_OF_PIPE_BIT, VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT, VK_PIPELINE_STAGE_2_HOST_BIT};
-constexpr AccessMask kBarrierAccesses[] = {
-    0,
-    VK_ACCESS_2_TRANSFER_WRITE_BIT,
-    VK_ACCESS_2_SHADER_WRITE_BIT,
-    VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
-    VK_ACCESS_2_MEMORY_WRITE_BIT,
-    VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT,
-    VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR,
-    VK_ACCESS_2_SHADER_READ_BIT,
-    VK_ACCESS_2_TRANSFER_READ_BIT,
-    VK_ACCESS_2_MEMORY_READ_BIT,
-    VK_ACCESS_2_UNIFORM_READ_BIT,
-    VK_ACCESS_2_HOST_READ_BIT};
+constexpr StageMask kBarrierStages[] = {VK_PIPELINE_STAGE_2_COPY_BIT,
+                                        VK_PIPELINE_STAGE_2_CLEAR_BIT,
+                                        VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                                        VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                                        VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR,
+                                        VK_PIPELINE_STAGE_2_RAY_TRACING_SHADER_BIT_KHR,
+                                        VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT,
+                                        VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT,
+                                        VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
+                                        VK_PIPELINE_STAGE_2_TOP_OF_PIPE_BIT,
+                                        VK_PIPELINE_STAGE_2_BOTTOM_OF_PIPE_BIT,
+                                        VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT,
+                                        VK_PIPELINE_STAGE_2_HOST_BIT};
+constexpr AccessMask kBarrierAccesses[] = {0,
+                                           VK_ACCESS_2_TRANSFER_WRITE_BIT,
+                                           VK_ACCESS_2_SHADER_WRITE_BIT,
+                                           VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
+                                           VK_ACCESS_2_MEMORY_WRITE_BIT,
+                                           VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT,
+                                           VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR,
+                                           VK_ACCESS_2_SHADER_READ_BIT,
+                                           VK_ACCESS_2_TRANSFER_READ_BIT,
+                                           VK_ACCESS_2_MEMORY_READ_BIT,
+                                           VK_ACCESS_2_UNIFORM_READ_BIT,
+                                           VK_ACCESS_2_HOST_READ_BIT};
 
 // Drives SyncModel and the reference with the same random stream.
 class RandomStream {
@@ -73,7 +89,8 @@ public:
             std::vector<std::pair<uint64_t, StageMask>> ref_waits;
             for (auto it = pending_.begin(); it != pending_.end();) {
                 if (chance(70)) {
-                    const StageMask stages = chance(50) ? VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT : barrier_stages();
+                    const StageMask stages =
+                        chance(50) ? VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT : barrier_stages();
                     waits.push_back({*it, 0, stages});
                     ref_waits.push_back({*it, stages});
                     it = pending_.erase(it);
@@ -91,7 +108,8 @@ public:
             if (queues_ > 1 && chance(60)) {
                 const uint64_t sem = next_semaphore_++;
                 // vkQueueSubmit2 signals may narrow their first scope to some stages.
-                const StageMask stages = chance(30) ? barrier_stages() : StageMask(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT);
+                const StageMask stages =
+                    chance(30) ? barrier_stages() : StageMask(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT);
                 signals.push_back({sem, 0, stages});
                 ref_signals.push_back(sem);
                 ref_stages.push_back(stages);
@@ -131,7 +149,8 @@ public:
     std::vector<ReferenceHazard> model_hazards() const {
         std::vector<ReferenceHazard> out;
         for (const HazardReport& h : model.hazards())
-            out.push_back({h.prior.command.command, h.later.command.command, h.hazard, h.overlap.begin, h.overlap.end});
+            out.push_back({h.prior.command.command, h.later.command.command, h.hazard,
+                           h.overlap.begin, h.overlap.end});
         std::sort(out.begin(), out.end());
         return out;
     }
@@ -154,7 +173,8 @@ private:
     }
     MemoryBarrier random_barrier() {
         if (chance(15))
-            return {VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_WRITE_BIT, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
+            return {VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_WRITE_BIT,
+                    VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
                     VK_ACCESS_2_MEMORY_READ_BIT | VK_ACCESS_2_MEMORY_WRITE_BIT};
         return {barrier_stages(), barrier_access(), barrier_stages(), barrier_access()};
     }
@@ -167,8 +187,10 @@ private:
     void random_dependency(std::vector<MemoryBarrier>& mem, std::vector<BufferBarrier>& buf) {
         const int n = 1 + pick(2);
         for (int i = 0; i < n; ++i) {
-            if (chance(40)) buf.push_back({random_barrier(), random_range()});
-            else mem.push_back(random_barrier());
+            if (chance(40))
+                buf.push_back({random_barrier(), random_range()});
+            else
+                mem.push_back(random_barrier());
         }
     }
 
@@ -200,7 +222,8 @@ private:
             reference.barrier(dep);
         } else if (roll < 88) {
             if (chance(25)) {
-                const StageMask stages = kBarrierStages[pick(std::size(kBarrierStages))] & 0xFFFFFFFFull;
+                const StageMask stages =
+                    kBarrierStages[pick(std::size(kBarrierStages))] & 0xFFFFFFFFull;
                 model.set_event_v1(ref, event, VkPipelineStageFlags(stages));
                 const MemoryBarrier b{stages, 0, 0, 0};
                 reference.set_event(event, DependencyInfo{std::span(&b, 1), {}, 0}, true);
@@ -237,8 +260,9 @@ private:
 std::string describe(const std::vector<ReferenceHazard>& hs) {
     std::string s;
     for (const ReferenceHazard& h : hs)
-        s += "  " + std::string(hazard_class_name(h.hazard)) + " cmd " + std::to_string(h.prior_command) + " -> " +
-             std::to_string(h.later_command) + " [" + std::to_string(h.begin) + ", " + std::to_string(h.end) + ")\n";
+        s += "  " + std::string(hazard_class_name(h.hazard)) + " cmd " +
+             std::to_string(h.prior_command) + " -> " + std::to_string(h.later_command) + " [" +
+             std::to_string(h.begin) + ", " + std::to_string(h.end) + ")\n";
     return s;
 }
 
@@ -250,17 +274,21 @@ void cross_check(int queues, int seeds, int submissions, int ops, bool host = fa
         const auto got = stream.model_hazards();
         const auto want = stream.reference.hazards();
         if (got != want) {
-            for (const HazardReport& h : stream.model.hazards()) std::printf("%s\n", h.format().c_str());
+            for (const HazardReport& h : stream.model.hazards())
+                std::printf("%s\n", h.format().c_str());
         }
-        ASSERT_EQ(got, want) << "seed " << seed << "\nmodel:\n" << describe(got) << "reference:\n" << describe(want);
+        ASSERT_EQ(got, want) << "seed " << seed << "\nmodel:\n"
+                             << describe(got) << "reference:\n"
+                             << describe(want);
         ordered += stream.reference.ordered_checks;
         unordered += stream.reference.unordered_checks;
     }
     // The streams must exercise both outcomes, or the comparison proves little.
     EXPECT_GT(ordered, uint64_t(seeds) * 5);
     EXPECT_GT(unordered, uint64_t(seeds) * 5);
-    std::printf("%d queue(s)%s: %llu ordered and %llu unordered byte-pair decisions agreed\n", queues, host ? " + host" : "",
-                (unsigned long long)ordered, (unsigned long long)unordered);
+    std::printf("%d queue(s)%s: %llu ordered and %llu unordered byte-pair decisions agreed\n",
+                queues, host ? " + host" : "", (unsigned long long)ordered,
+                (unsigned long long)unordered);
 }
 
 TEST(SyncRandom, OneQueueAgreesWithBruteForce) { cross_check(1, 400, 3, 25); }
@@ -279,7 +307,9 @@ TEST(SyncRandom, LongValidStreamHasNoFindings) {
             s.full_barrier();
             const AccessKind& k = kAccessKinds[rng() % std::size(kAccessKinds)];
             const uint64_t begin = (rng() % 4096) * 64;
-            s.model.record_access(s.next("cmd"), {{begin, begin + 64 + rng() % 4096}, k.stage, k.access, k.write, "f"});
+            s.model.record_access(
+                s.next("cmd"),
+                {{begin, begin + 64 + rng() % 4096}, k.stage, k.access, k.write, "f"});
         }
         s.end({}, 1);
         if (sub % 10 == 9) s.model.wait_for_fence(1);
@@ -297,7 +327,8 @@ TEST(SyncRandom, LongStreamWithoutBarriersFindsEveryConflictOnce) {
                               Stream::write(0x100, 0x140, kClear, kTransferWrite, "dstBuffer"));
     s.end();
     EXPECT_EQ(s.hazards().size(), 999u);
-    for (const HazardReport& h : s.hazards()) EXPECT_EQ(h.later.command.command, h.prior.command.command + 1);
+    for (const HazardReport& h : s.hazards())
+        EXPECT_EQ(h.later.command.command, h.prior.command.command + 1);
 }
 
 }  // namespace

@@ -1,9 +1,10 @@
+// SPDX-License-Identifier: Apache-2.0
 // The hazard catalogue: each scenario once with the bug and once correctly synchronized.
 #include <gtest/gtest.h>
 
 #include <nlohmann/json.hpp>
 
-#include "sync_stream.hpp"
+#include "sync_stream.h"
 
 namespace clastrace::replay::test {
 namespace {
@@ -158,7 +159,8 @@ TEST(SyncScenarios, SrcInfosCopiedThenReadWithShaderReadBarrier) {
     Stream s;
     s.submit();
     s.copy_buffer(kStaging, kInfos);
-    s.barrier(VK_PIPELINE_STAGE_2_TRANSFER_BIT, kTransferWrite, kAsBuild, VK_ACCESS_2_SHADER_READ_BIT);
+    s.barrier(VK_PIPELINE_STAGE_2_TRANSFER_BIT, kTransferWrite, kAsBuild,
+              VK_ACCESS_2_SHADER_READ_BIT);
     s.build(clas_build());
     s.end();
     const HazardReport& h = only(s);
@@ -173,9 +175,11 @@ TEST(SyncScenarios, SrcInfosCopiedThenReadWithShaderReadBarrier) {
     const std::string text = h.format();
     EXPECT_NE(text.find("SYNC-HAZARD-READ-AFTER-WRITE"), std::string::npos) << text;
     EXPECT_NE(text.find("srcInfosArray [0x1000, 0x1040)"), std::string::npos) << text;
-    EXPECT_NE(text.find("ACCELERATION_STRUCTURE_BUILD / INDIRECT_COMMAND_READ"), std::string::npos) << text;
+    EXPECT_NE(text.find("ACCELERATION_STRUCTURE_BUILD / INDIRECT_COMMAND_READ"), std::string::npos)
+        << text;
     EXPECT_NE(text.find("COPY / TRANSFER_WRITE"), std::string::npos) << text;
-    EXPECT_NE(text.find("srcStageMask=VK_PIPELINE_STAGE_2_COPY_BIT, srcAccessMask=VK_ACCESS_2_TRANSFER_WRITE_BIT, "
+    EXPECT_NE(text.find("srcStageMask=VK_PIPELINE_STAGE_2_COPY_BIT, "
+                        "srcAccessMask=VK_ACCESS_2_TRANSFER_WRITE_BIT, "
                         "dstStageMask=VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, "
                         "dstAccessMask=VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT"),
               std::string::npos)
@@ -242,8 +246,8 @@ TEST(SyncScenarios, ShaderWrittenInfosNeedIndirectRead) {
     Stream s;
     s.submit();
     s.model.record_access(s.next("vkCmdDispatch"),
-                          Stream::write(kInfos.begin, kInfos.end, kCompute, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
-                                        "binding 0"));
+                          Stream::write(kInfos.begin, kInfos.end, kCompute,
+                                        VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, "binding 0"));
     s.barrier(kCompute, VK_ACCESS_2_SHADER_WRITE_BIT, kAsBuild, VK_ACCESS_2_SHADER_READ_BIT);
     s.build(clas_build());
     s.barrier(kCompute, VK_ACCESS_2_SHADER_WRITE_BIT, kAsBuild, kIndirect);
@@ -384,9 +388,11 @@ TEST(SyncScenarios, EventSetAgainWithNarrowerScopeDropsEarlierMembers) {
     const MemoryBarrier from_copy{kCopy, kTransferWrite, kAsBuild, kIndirect};
     const MemoryBarrier from_compute{kCompute, VK_ACCESS_2_SHADER_WRITE_BIT, kAsBuild, kIndirect};
     s.model.set_event(s.next("vkCmdSetEvent2"), 5, DependencyInfo{std::span(&from_copy, 1), {}, 0});
-    s.model.set_event(s.next("vkCmdSetEvent2"), 5, DependencyInfo{std::span(&from_compute, 1), {}, 0});
+    s.model.set_event(s.next("vkCmdSetEvent2"), 5,
+                      DependencyInfo{std::span(&from_compute, 1), {}, 0});
     const uint64_t events[] = {5};
-    s.model.wait_events(s.next("vkCmdWaitEvents2"), events, DependencyInfo{std::span(&from_compute, 1), {}, 0});
+    s.model.wait_events(s.next("vkCmdWaitEvents2"), events,
+                        DependencyInfo{std::span(&from_compute, 1), {}, 0});
     s.build(clas_build());
     s.end();
     EXPECT_EQ(s.hazards().size(), 1u);
@@ -397,11 +403,13 @@ TEST(SyncScenarios, EventsV1UseTheWaitsAccessMasks) {
     good.submit();
     good.copy_buffer(kStaging, kInfos);
     good.model.set_event_v1(good.next("vkCmdSetEvent"), 9, VK_PIPELINE_STAGE_TRANSFER_BIT);
-    const MemoryBarrier wait = memory_barrier_v1(VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
-                                                 VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
-                                                 VK_ACCESS_INDIRECT_COMMAND_READ_BIT);
+    const MemoryBarrier wait =
+        memory_barrier_v1(VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
+                          VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                          VK_ACCESS_INDIRECT_COMMAND_READ_BIT);
     const uint64_t events[] = {9};
-    good.model.wait_events(good.next("vkCmdWaitEvents"), events, DependencyInfo{std::span(&wait, 1), {}, 0});
+    good.model.wait_events(good.next("vkCmdWaitEvents"), events,
+                           DependencyInfo{std::span(&wait, 1), {}, 0});
     good.build(clas_build());
     good.end();
     EXPECT_TRUE(good.hazards().empty());
@@ -410,10 +418,12 @@ TEST(SyncScenarios, EventsV1UseTheWaitsAccessMasks) {
     bad.submit();
     bad.copy_buffer(kStaging, kInfos);
     bad.model.set_event_v1(bad.next("vkCmdSetEvent"), 9, VK_PIPELINE_STAGE_TRANSFER_BIT);
-    const MemoryBarrier wrong = memory_barrier_v1(VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_SHADER_WRITE_BIT,
-                                                  VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
-                                                  VK_ACCESS_INDIRECT_COMMAND_READ_BIT);
-    bad.model.wait_events(bad.next("vkCmdWaitEvents"), events, DependencyInfo{std::span(&wrong, 1), {}, 0});
+    const MemoryBarrier wrong =
+        memory_barrier_v1(VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_SHADER_WRITE_BIT,
+                          VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                          VK_ACCESS_INDIRECT_COMMAND_READ_BIT);
+    bad.model.wait_events(bad.next("vkCmdWaitEvents"), events,
+                          DependencyInfo{std::span(&wrong, 1), {}, 0});
     bad.build(clas_build());
     bad.end();
     EXPECT_EQ(bad.hazards().size(), 1u);
@@ -451,9 +461,12 @@ TEST(SyncScenarios, CrossQueueWriteAfterReadNeedsSemaphoreBack) {
         Stream s;
         s.submit(0);
         s.build(clas_build());  // reads srcInfos on the compute queue
-        s.end(signal_back ? std::initializer_list<SemaphoreSignal>{{9, 0}} : std::initializer_list<SemaphoreSignal>{});
-        if (signal_back) s.submit(1, {{9, 0, kCopy}});
-        else s.submit(1);
+        s.end(signal_back ? std::initializer_list<SemaphoreSignal>{{9, 0}}
+                          : std::initializer_list<SemaphoreSignal>{});
+        if (signal_back)
+            s.submit(1, {{9, 0, kCopy}});
+        else
+            s.submit(1);
         s.copy_buffer(kStaging, kInfos);  // the transfer queue overwrites them
         s.end();
         return s.hazards();
@@ -477,7 +490,8 @@ TEST(SyncScenarios, SemaphoreWaitStageMustCoverTheReader) {
     bad.end();
     EXPECT_EQ(only(bad).fix.kind, FixKind::kSemaphore);
 
-    Stream chained;  // a barrier on the waiting queue chains COMPUTE to the build, with the right access
+    Stream
+        chained;  // a barrier on the waiting queue chains COMPUTE to the build, with the right access
     chained.submit(0);
     chained.copy_buffer(kStaging, kInfos);
     chained.end({{0x5E, 0}});
@@ -617,7 +631,8 @@ TEST(SyncScenarios, HostReadOfSizesNeedsHostBarrierAndFence) {
 }
 
 TEST(SyncScenarios, BarrierChainsCompose) {
-    Stream good;  // COPY -> COMPUTE -> RAY_TRACING -> AS_BUILD, availability in the first, visibility in the last
+    Stream
+        good;  // COPY -> COMPUTE -> RAY_TRACING -> AS_BUILD, availability in the first, visibility in the last
     good.submit();
     good.copy_buffer(kStaging, kInfos);
     good.barrier(kCopy, kTransferWrite, kCompute, 0);
@@ -631,13 +646,15 @@ TEST(SyncScenarios, BarrierChainsCompose) {
     broken.submit();
     broken.copy_buffer(kStaging, kInfos);
     broken.barrier(kCopy, kTransferWrite, kCompute, 0);
-    broken.barrier(VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT, 0, VK_PIPELINE_STAGE_2_RAY_TRACING_SHADER_BIT_KHR, 0);
+    broken.barrier(VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT, 0,
+                   VK_PIPELINE_STAGE_2_RAY_TRACING_SHADER_BIT_KHR, 0);
     broken.barrier(VK_PIPELINE_STAGE_2_RAY_TRACING_SHADER_BIT_KHR, 0, kAsBuild, kIndirect);
     broken.build(clas_build());
     broken.end();
     EXPECT_EQ(broken.hazards().size(), 1u);
 
-    Stream never_available;  // exec chain complete but no barrier's source access includes the write
+    Stream
+        never_available;  // exec chain complete but no barrier's source access includes the write
     never_available.submit();
     never_available.copy_buffer(kStaging, kInfos);
     never_available.barrier(kCopy, 0, kCompute, 0);
@@ -663,7 +680,8 @@ TEST(SyncScenarios, BarriersOfOneCommandDoNotChainEachOther) {
     Stream s;
     s.submit();
     s.copy_buffer(kStaging, kInfos);
-    const MemoryBarrier two[] = {{kCopy, kTransferWrite, kCompute, 0}, {kCompute, 0, kAsBuild, kIndirect}};
+    const MemoryBarrier two[] = {{kCopy, kTransferWrite, kCompute, 0},
+                                 {kCompute, 0, kAsBuild, kIndirect}};
     s.model.pipeline_barrier(s.next("vkCmdPipelineBarrier2"), DependencyInfo{two, {}, 0});
     s.build(clas_build());
     s.end();
@@ -709,10 +727,12 @@ TEST(SyncScenarios, V1BarrierMasks) {
     Stream good;
     good.submit();
     good.copy_buffer(kStaging, kInfos);
-    const MemoryBarrier b = memory_barrier_v1(VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
-                                              VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
-                                              VK_ACCESS_INDIRECT_COMMAND_READ_BIT);
-    good.model.pipeline_barrier(good.next("vkCmdPipelineBarrier"), DependencyInfo{std::span(&b, 1), {}, 0});
+    const MemoryBarrier b =
+        memory_barrier_v1(VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
+                          VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                          VK_ACCESS_INDIRECT_COMMAND_READ_BIT);
+    good.model.pipeline_barrier(good.next("vkCmdPipelineBarrier"),
+                                DependencyInfo{std::span(&b, 1), {}, 0});
     good.build(clas_build());
     good.end();
     EXPECT_TRUE(good.hazards().empty());
@@ -721,9 +741,11 @@ TEST(SyncScenarios, V1BarrierMasks) {
     Stream exec_only;
     exec_only.submit();
     exec_only.build(clas_build());
-    const MemoryBarrier e = execution_barrier_v1(VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT);
-    exec_only.model.pipeline_barrier(exec_only.next("vkCmdPipelineBarrier"), DependencyInfo{std::span(&e, 1), {}, 0});
-    exec_only.copy_buffer(kStaging, kInfos);  // WAR on srcInfos: ordered
+    const MemoryBarrier e = execution_barrier_v1(VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT,
+                                                 VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT);
+    exec_only.model.pipeline_barrier(exec_only.next("vkCmdPipelineBarrier"),
+                                     DependencyInfo{std::span(&e, 1), {}, 0});
+    exec_only.copy_buffer(kStaging, kInfos);          // WAR on srcInfos: ordered
     exec_only.copy_buffer(kSizes, {0xB000, 0xB020});  // RAW on dstSizesArray: not visible
     exec_only.end();
     const HazardReport& h = only(exec_only);
@@ -734,8 +756,10 @@ TEST(SyncScenarios, V1BarrierMasks) {
     Stream top;
     top.submit();
     top.build(clas_build());
-    const MemoryBarrier t = execution_barrier_v1(VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, VK_PIPELINE_STAGE_TRANSFER_BIT);
-    top.model.pipeline_barrier(top.next("vkCmdPipelineBarrier"), DependencyInfo{std::span(&t, 1), {}, 0});
+    const MemoryBarrier t =
+        execution_barrier_v1(VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, VK_PIPELINE_STAGE_TRANSFER_BIT);
+    top.model.pipeline_barrier(top.next("vkCmdPipelineBarrier"),
+                               DependencyInfo{std::span(&t, 1), {}, 0});
     top.copy_buffer(kStaging, kInfos);
     top.end();
     EXPECT_EQ(only(top).hazard, HazardClass::kWriteAfterRead);
@@ -744,8 +768,9 @@ TEST(SyncScenarios, V1BarrierMasks) {
 TEST(SyncScenarios, PartialOverlapReportsExactRegion) {
     Stream s;
     s.submit();
-    s.model.record_access(s.next("vkCmdDispatch"), Stream::write(0x100, 0x140, kCompute,
-                                                                 VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, "binding 1"));
+    s.model.record_access(s.next("vkCmdDispatch"),
+                          Stream::write(0x100, 0x140, kCompute,
+                                        VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, "binding 1"));
     s.model.record_access(s.next(kBuildName), Stream::read(0x120, 0x180, kAsBuild, kAsRead,
                                                            "srcInfosArray[0].indexBuffer"));
     s.end();
@@ -759,8 +784,11 @@ TEST(SyncScenarios, MoveWithOverlappingSourceAndDestination) {
     Stream bad;
     bad.submit();
     const CommandRef c = bad.next(kBuildName);
-    bad.model.record_copy(c, Stream::read(0x1000, 0x1400, kAsBuild, kAsRead, "srcInfosArray[3].srcAccelerationStructure"),
-                          Stream::write(0x1200, 0x1600, kAsBuild, kAsWrite, "dstAddressesArray[3]"));
+    bad.model.record_copy(c,
+                          Stream::read(0x1000, 0x1400, kAsBuild, kAsRead,
+                                       "srcInfosArray[3].srcAccelerationStructure"),
+                          Stream::write(0x1200, 0x1600, kAsBuild, kAsWrite,
+                                        "dstAddressesArray[3]"));
     bad.end();
     const HazardReport& h = only(bad);
     EXPECT_EQ(h.hazard, HazardClass::kMoveOverlap);
@@ -771,8 +799,10 @@ TEST(SyncScenarios, MoveWithOverlappingSourceAndDestination) {
     Stream good;
     good.submit();
     good.model.record_copy(good.next(kBuildName),
-                           Stream::read(0x1000, 0x1400, kAsBuild, kAsRead, "srcInfosArray[3].srcAccelerationStructure"),
-                           Stream::write(0x1400, 0x1800, kAsBuild, kAsWrite, "dstAddressesArray[3]"));
+                           Stream::read(0x1000, 0x1400, kAsBuild, kAsRead,
+                                        "srcInfosArray[3].srcAccelerationStructure"),
+                           Stream::write(0x1400, 0x1800, kAsBuild, kAsWrite,
+                                         "dstAddressesArray[3]"));
     good.end();
     EXPECT_TRUE(good.hazards().empty());
 }
@@ -782,12 +812,14 @@ TEST(SyncScenarios, DeserializeIntoMemoryStillInUse) {
         Stream s;
         s.submit();
         s.build(blas_build());  // reads the CLAS memory
-        if (with_barrier) s.barrier(kAsBuild, 0, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR, 0);
+        if (with_barrier)
+            s.barrier(kAsBuild, 0, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR, 0);
         s.model.record_deserialize(
             s.next("vkCmdCopyMemoryToAccelerationStructureKHR"),
-            Stream::read(0x90000, 0x94000, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR, kTransferRead,
-                         "pInfo->src"),
-            Stream::write(kClas.begin, kClas.end, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR, kAsWrite,
+            Stream::read(0x90000, 0x94000, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR,
+                         kTransferRead, "pInfo->src"),
+            Stream::write(kClas.begin, kClas.end,
+                          VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR, kAsWrite,
                           "pInfo->dst"));
         s.end();
         return s.hazards();
@@ -805,7 +837,8 @@ TEST(SyncScenarios, SameCommandDoesNotConflictWithItself) {
     s.submit();
     const CommandRef c = s.next(kBuildName);
     s.model.record_access(c, Stream::read(0x100, 0x200, kAsBuild, kAsRead, "scratchData"));
-    s.model.record_access(c, Stream::write(0x100, 0x200, kAsBuild, kAsRead | kAsWrite, "scratchData"));
+    s.model.record_access(c,
+                          Stream::write(0x100, 0x200, kAsBuild, kAsRead | kAsWrite, "scratchData"));
     s.end();
     EXPECT_TRUE(s.hazards().empty());
 }
@@ -840,14 +873,16 @@ TEST(SyncScenarios, DuplicatesAreCountedNotRepeatedAndCapHolds) {
     Stream s(options);
     s.submit();
     const CommandRef w = s.next("vkCmdDispatch");
-    s.model.record_access(w, Stream::write(0, 0x1000, kCompute, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, "binding 0"));
+    s.model.record_access(w, Stream::write(0, 0x1000, kCompute,
+                                           VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, "binding 0"));
     const CommandRef r = s.next(kBuildName);
     // The same read, split into pieces by the same command: one finding.
     for (uint64_t a = 0; a < 0x1000; a += 0x100)
         s.model.record_access(r, Stream::read(a, a + 0x100, kAsBuild, kAsRead, "vertexBuffer"));
     // Ten distinct readers: 3 kept, the rest counted over the cap.
     for (int i = 0; i < 10; ++i)
-        s.model.record_access(s.next(kBuildName), Stream::read(0, 0x10, kAsBuild, kAsRead, "vertexBuffer"));
+        s.model.record_access(s.next(kBuildName),
+                              Stream::read(0, 0x10, kAsBuild, kAsRead, "vertexBuffer"));
     s.end();
     EXPECT_EQ(s.hazards().size(), 3u);
     EXPECT_EQ(s.model.stats().duplicate_hazards, 15u);
@@ -933,12 +968,17 @@ TEST(SyncEdges, ExtremeAndEmptyRanges) {
     Stream s;
     s.submit();
     const uint64_t top = ~uint64_t(0);
-    s.model.record_access(s.next("vkCmdFillBuffer"), Stream::write(top - 16, top, kClear, kTransferWrite, "dstBuffer"));
-    s.model.record_access(s.next("vkCmdFillBuffer"), Stream::write(0, 0, kClear, kTransferWrite, "empty"));
-    s.model.record_access(s.next("vkCmdFillBuffer"), Stream::write(100, 50, kClear, kTransferWrite, "inverted"));
+    s.model.record_access(s.next("vkCmdFillBuffer"),
+                          Stream::write(top - 16, top, kClear, kTransferWrite, "dstBuffer"));
+    s.model.record_access(s.next("vkCmdFillBuffer"),
+                          Stream::write(0, 0, kClear, kTransferWrite, "empty"));
+    s.model.record_access(s.next("vkCmdFillBuffer"),
+                          Stream::write(100, 50, kClear, kTransferWrite, "inverted"));
     s.buffer_barrier({200, 100}, kClear, kTransferWrite, kAsBuild, kAsRead);  // inverted: ignored
-    s.model.record_access(s.next(kBuildName), Stream::read(top - 8, top, kAsBuild, kAsRead, "vertexBuffer"));
-    s.model.record_access(s.next(kBuildName), Stream::read(0, top, kAsBuild, kAsRead, "everything"));
+    s.model.record_access(s.next(kBuildName),
+                          Stream::read(top - 8, top, kAsBuild, kAsRead, "vertexBuffer"));
+    s.model.record_access(s.next(kBuildName),
+                          Stream::read(0, top, kAsBuild, kAsRead, "everything"));
     s.end();
     ASSERT_EQ(s.hazards().size(), 2u);
     EXPECT_EQ(s.hazards()[0].overlap, (AddressRange{top - 8, top}));
@@ -947,13 +987,14 @@ TEST(SyncEdges, ExtremeAndEmptyRanges) {
 
 TEST(SyncEdges, WaitsOnThingsNeverSignalled) {
     Stream s;
-    s.model.wait_for_fence(12345);             // unknown fence: no effect
-    s.model.host_wait_semaphore(777, 3);       // unknown semaphore: no effect
-    s.submit(0, {{0xDEAD, 0, kAsBuild}});      // binary semaphore nobody signalled
+    s.model.wait_for_fence(12345);         // unknown fence: no effect
+    s.model.host_wait_semaphore(777, 3);   // unknown semaphore: no effect
+    s.submit(0, {{0xDEAD, 0, kAsBuild}});  // binary semaphore nobody signalled
     s.copy_buffer(kStaging, kInfos);
     const uint64_t never_set[] = {4242};
     const MemoryBarrier b{kCopy, kTransferWrite, kAsBuild, kIndirect};
-    s.model.wait_events(s.next("vkCmdWaitEvents2"), never_set, DependencyInfo{std::span(&b, 1), {}, 0});
+    s.model.wait_events(s.next("vkCmdWaitEvents2"), never_set,
+                        DependencyInfo{std::span(&b, 1), {}, 0});
     s.build(clas_build());
     s.end();
     EXPECT_EQ(s.model.stats().unsatisfied_waits, 1u);
@@ -966,9 +1007,11 @@ TEST(SyncEdges, LogStaysBoundedWithoutHostWaits) {
     s.submit();
     std::size_t at_10k = 0;
     for (int i = 0; i < 100000; ++i) {
-        s.barrier(i % 3 ? kAsBuild : kCopy, kAsWrite | kTransferWrite, kAsBuild, kAsRead | kAsWrite);
+        s.barrier(i % 3 ? kAsBuild : kCopy, kAsWrite | kTransferWrite, kAsBuild,
+                  kAsRead | kAsWrite);
         const uint64_t a = uint64_t(i % 64) * 0x1000;
-        s.model.record_access(s.next(kBuildName), Stream::write(a, a + 0x800, kAsBuild, kAsRead | kAsWrite, "scratchData"));
+        s.model.record_access(s.next(kBuildName), Stream::write(a, a + 0x800, kAsBuild,
+                                                                kAsRead | kAsWrite, "scratchData"));
         if (i == 10000) at_10k = s.model.memory_bytes();
     }
     s.end();

@@ -1,9 +1,10 @@
+// SPDX-License-Identifier: Apache-2.0
 // Semaphore signal stage masks (vkQueueSubmit2's VkSemaphoreSubmitInfo::stageMask): the
 // signal's first synchronization scope holds only the work in those stages, or chained
 // into them by earlier barriers; writes outside it are neither ordered nor made available.
 #include <gtest/gtest.h>
 
-#include "sync_stream.hpp"
+#include "sync_stream.h"
 
 namespace clastrace::replay::test {
 namespace {
@@ -79,8 +80,8 @@ TEST(SyncSignalMask, NarrowSignalOrdersOnlyItsStagesOfTheSameSubmission) {
     s.submit(1, {{0x5E, 0, kAll}});
     Stream::Build reader;
     reader.src_infos = kInfos;
-    s.build(reader);          // reads the copied infos: ordered and visible
-    s.build(scratch_build()); // reuses scratch: the first build is outside the signal
+    s.build(reader);           // reads the copied infos: ordered and visible
+    s.build(scratch_build());  // reuses scratch: the first build is outside the signal
     s.end();
     ASSERT_EQ(s.hazards().size(), 1u);
     EXPECT_EQ(s.hazards()[0].later.field, "scratchData");

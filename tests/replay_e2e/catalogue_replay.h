@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // A catalogue scene end to end: written with TraceScript over the catalogue's buffers, replayed
 // and removed (CLASTRACE_KEEP_TRACES=1 keeps it).
 #pragma once

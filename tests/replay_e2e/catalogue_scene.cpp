@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "catalogue_scene.h"
 
 namespace clastrace::test::catalogue {
@@ -29,15 +30,17 @@ std::vector<uint8_t> geometry_bytes() {
     return g;
 }
 
-VkClusterAccelerationStructureCommandsInfoNV command_info(VkClusterAccelerationStructureOpTypeNV type, Destinations mode,
-                                                         uint32_t count, uint64_t info_size) {
+VkClusterAccelerationStructureCommandsInfoNV command_info(
+    VkClusterAccelerationStructureOpTypeNV type, Destinations mode, uint32_t count,
+    uint64_t info_size) {
     VkClusterAccelerationStructureCommandsInfoNV info{};
     info.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
     info.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
     info.input.maxAccelerationStructureCount = count;
     info.input.opType = type;
-    info.input.opMode = mode == Destinations::kImplicit ? VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV
-                                                        : VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
+    info.input.opMode = mode == Destinations::kImplicit
+                            ? VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV
+                            : VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
     info.dstImplicitData = mode == Destinations::kImplicit ? kDst : 0;
     info.scratchData = kScratch;
     info.dstAddressesArray = {kOut, 8, count * 8ull};
@@ -79,7 +82,8 @@ void add_buffers(TraceScript& t) {
         {0xb00b, kNoAsStorage, 0x20000, kSda | kInput | kStorage},
         {kStagingBuffer, kStaging, 0x10000, kSda | VK_BUFFER_USAGE_TRANSFER_SRC_BIT},
     };
-    for (const B& b : buffers) t.buffer(b.handle, b.address, b.size, b.usage, 0x1001, b.address - kBase);
+    for (const B& b : buffers)
+        t.buffer(b.handle, b.address, b.size, b.usage, 0x1001, b.address - kBase);
 }
 
 ScriptDevice device() { return ScriptDevice{}; }
@@ -121,7 +125,9 @@ VkClusterAccelerationStructureTriangleClusterInputNV triangle_input() {
 
 uint32_t ClusterCommand::emit(TraceScript& t) {
     switch (info.input.opType) {
-    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV: info.input.opInput.pMoveObjects = &move; break;
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV:
+        info.input.opInput.pMoveObjects = &move;
+        break;
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV:
         info.input.opInput.pClustersBottomLevel = &bottom_level;
         break;
@@ -136,7 +142,8 @@ uint32_t ClusterCommand::emit(TraceScript& t) {
 
 ClusterCommand triangle_clusters(Destinations mode, uint32_t count) {
     ClusterCommand c;
-    c.info = command_info(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV, mode, count, sizeof(TriangleInfo));
+    c.info = command_info(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV, mode,
+                          count, sizeof(TriangleInfo));
     c.triangles = triangle_input();
     c.infos = infos_of<TriangleInfo>(count, triangle_info);
     c.inputs.push_back({kGeometry, geometry_bytes()});
@@ -146,8 +153,9 @@ ClusterCommand triangle_clusters(Destinations mode, uint32_t count) {
 
 ClusterCommand triangle_templates(Destinations mode, uint32_t count) {
     ClusterCommand c;
-    c.info = command_info(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV, mode, count,
-                          sizeof(TemplateInfo));
+    c.info =
+        command_info(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV,
+                     mode, count, sizeof(TemplateInfo));
     c.triangles = triangle_input();
     c.infos = infos_of<TemplateInfo>(count, template_info);
     c.inputs.push_back({kGeometry, geometry_bytes()});
@@ -157,8 +165,8 @@ ClusterCommand triangle_templates(Destinations mode, uint32_t count) {
 
 ClusterCommand instantiate(uint32_t count) {
     ClusterCommand c;
-    c.info = command_info(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV, Destinations::kImplicit,
-                          count, sizeof(InstantiateInfo));
+    c.info = command_info(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV,
+                          Destinations::kImplicit, count, sizeof(InstantiateInfo));
     c.info.dstImplicitData = kDst2;
     c.triangles = triangle_input();
     std::vector<InstantiateInfo> infos(count);
@@ -175,22 +183,25 @@ ClusterCommand instantiate(uint32_t count) {
 
 ClusterCommand template_indices(uint32_t count) {
     ClusterCommand c;
-    c.info = command_info(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV, Destinations::kImplicit,
-                          count, sizeof(VkClusterAccelerationStructureGetTemplateIndicesInfoNV));
+    c.info = command_info(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV,
+                          Destinations::kImplicit, count,
+                          sizeof(VkClusterAccelerationStructureGetTemplateIndicesInfoNV));
     c.info.dstImplicitData = kDst2;
     c.triangles = triangle_input();
     std::vector<VkClusterAccelerationStructureGetTemplateIndicesInfoNV> infos(count);
-    for (uint32_t i = 0; i < count; ++i) infos[i].clusterTemplateAddress = kDst + i * kExplicitStride;
+    for (uint32_t i = 0; i < count; ++i)
+        infos[i].clusterTemplateAddress = kDst + i * kExplicitStride;
     c.infos = bytes_of(infos);
     return c;
 }
 
 ClusterCommand bottom_level(std::vector<uint64_t> references) {
     ClusterCommand c;
-    c.info = command_info(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV, Destinations::kImplicit, 1,
-                          sizeof(BottomLevelInfo));
+    c.info = command_info(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV,
+                          Destinations::kImplicit, 1, sizeof(BottomLevelInfo));
     c.info.dstImplicitData = kDst2;
-    c.bottom_level.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
+    c.bottom_level.sType =
+        VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
     c.bottom_level.maxTotalClusterCount = 16;
     c.bottom_level.maxClusterCountPerAccelerationStructure = 16;
     BottomLevelInfo info{};
@@ -204,7 +215,8 @@ ClusterCommand bottom_level(std::vector<uint64_t> references) {
 
 ClusterCommand move_clusters(uint32_t count) {
     ClusterCommand c;
-    c.info = command_info(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV, Destinations::kImplicit, count,
+    c.info = command_info(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV,
+                          Destinations::kImplicit, count,
                           sizeof(VkClusterAccelerationStructureMoveObjectsInfoNV));
     c.info.dstImplicitData = kDst2;
     c.move.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_MOVE_OBJECTS_INPUT_NV;

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The memory layout and cluster commands the VUID and hazard catalogues are written with:
 // fixed device addresses (so a test can name bytes), one buffer per role, and buffers that
 // each lack one usage flag (for 12304-12308).
@@ -15,31 +16,34 @@ namespace clastrace::test::catalogue {
 
 // Device addresses. Every buffer lives in memory 0x1001 at offset (address - kBase).
 inline constexpr uint64_t kBase = 0x10000000;
-inline constexpr uint64_t kGeometry = 0x10000000;      // 64 KiB: vertices, indices, geometry indices, bounds
-inline constexpr uint64_t kVertices = kGeometry;       // 64 float3 vertices
-inline constexpr uint64_t kIndices = kGeometry + 0x8000;     // 8-bit indices
-inline constexpr uint64_t kIndices16 = kGeometry + 0xA000;   // zero bytes: 16-bit indices, all 0
+inline constexpr uint64_t kGeometry =
+    0x10000000;  // 64 KiB: vertices, indices, geometry indices, bounds
+inline constexpr uint64_t kVertices = kGeometry;            // 64 float3 vertices
+inline constexpr uint64_t kIndices = kGeometry + 0x8000;    // 8-bit indices
+inline constexpr uint64_t kIndices16 = kGeometry + 0xA000;  // zero bytes: 16-bit indices, all 0
 inline constexpr uint64_t kGeometryIndices = kGeometry + 0xC000;
 inline constexpr uint64_t kMicromaps = kGeometry + 0xD000;
-inline constexpr uint64_t kBounds = kGeometry + 0xE000;      // 6 floats
-inline constexpr uint64_t kInfos = 0x10010000;         // 64 KiB: srcInfosArray, references, count
+inline constexpr uint64_t kBounds = kGeometry + 0xE000;  // 6 floats
+inline constexpr uint64_t kInfos = 0x10010000;           // 64 KiB: srcInfosArray, references, count
 inline constexpr uint64_t kReferences = kInfos + 0x4000;
 inline constexpr uint64_t kCount = kInfos + 0x8000;
-inline constexpr uint64_t kDst = 0x10020000;           // 128 KiB each: objects
+inline constexpr uint64_t kDst = 0x10020000;  // 128 KiB each: objects
 inline constexpr uint64_t kDst2 = 0x10040000;
-inline constexpr uint64_t kOut = 0x10060000;           // 4 KiB: dstAddressesArray, dstSizesArray
+inline constexpr uint64_t kOut = 0x10060000;  // 4 KiB: dstAddressesArray, dstSizesArray
 inline constexpr uint64_t kSizes = kOut + 0x800;
-inline constexpr uint64_t kScratch = 0x10070000;       // 64 KiB
+inline constexpr uint64_t kScratch = 0x10070000;  // 64 KiB
 inline constexpr uint64_t kScratch2 = kScratch + 0x8000;
 inline constexpr uint64_t kSmallScratch = 0x10080000;  // 16 bytes: one op's scratch entry
 inline constexpr uint64_t kNoStorage = 0x10090000;     // lacks STORAGE_BUFFER
-inline constexpr uint64_t kNoInput = 0x100A0000;       // lacks ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY
-inline constexpr uint64_t kNoAsStorage = 0x100C0000;   // lacks ACCELERATION_STRUCTURE_STORAGE
-inline constexpr uint64_t kStaging = 0x100E0000;       // TRANSFER_SRC only
+inline constexpr uint64_t kNoInput =
+    0x100A0000;  // lacks ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY
+inline constexpr uint64_t kNoAsStorage = 0x100C0000;  // lacks ACCELERATION_STRUCTURE_STORAGE
+inline constexpr uint64_t kStaging = 0x100E0000;      // TRANSFER_SRC only
 
 // Buffer handles (vkCmdCopyBuffer/vkCmdFillBuffer name buffers, not addresses).
-inline constexpr uint64_t kGeometryBuffer = 0xb001, kInfosBuffer = 0xb002, kDstBuffer = 0xb003, kDst2Buffer = 0xb004,
-                          kOutBuffer = 0xb005, kScratchBuffer = 0xb006, kStagingBuffer = 0xb00a;
+inline constexpr uint64_t kGeometryBuffer = 0xb001, kInfosBuffer = 0xb002, kDstBuffer = 0xb003,
+                          kDst2Buffer = 0xb004, kOutBuffer = 0xb005, kScratchBuffer = 0xb006,
+                          kStagingBuffer = 0xb00a;
 
 inline constexpr uint32_t kDefaultOps = 2;
 inline constexpr uint64_t kExplicitStride = 0x1000;  // explicit destinations: kDst + i * this

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The hazard catalogue: for every hazard class of the issue, one trace whose two commands
 // lack the dependency the spec demands, and a twin that adds exactly the barrier (or
 // semaphore, or disjoint range) the report suggests. The report must name the class, both
@@ -56,11 +57,11 @@ struct HazardCase {
     const char* prior_command;  // Vulkan command name of the earlier access
     const char* prior_field;    // substrings of the fields the report names
     const char* later_field;
-    uint64_t overlap_begin;     // the overlap lies in [overlap_begin, overlap_end)
+    uint64_t overlap_begin;  // the overlap lies in [overlap_begin, overlap_end)
     uint64_t overlap_end;
     FixKind fix;
-    uint64_t fix_dst_stage;     // must be in the suggested fix
-    uint64_t fix_dst_access;    // 0: an execution dependency suffices (write-after-read)
+    uint64_t fix_dst_stage;   // must be in the suggested fix
+    uint64_t fix_dst_access;  // 0: an execution dependency suffices (write-after-read)
 };
 
 // Second command of a pair: its own scratch, outputs and destinations, so the only shared
@@ -73,7 +74,9 @@ ClusterCommand disjoint(ClusterCommand c) {
     return c;
 }
 
-void build_barrier(TraceScript& t, uint64_t dst_access) { t.barrier(kBuild, kAsWrite, kBuild, dst_access); }
+void build_barrier(TraceScript& t, uint64_t dst_access) {
+    t.barrier(kBuild, kAsWrite, kBuild, dst_access);
+}
 
 std::vector<uint8_t> triangle_infos() {
     std::vector<TriangleInfo> infos{triangle_info(0), triangle_info(1)};
@@ -82,16 +85,24 @@ std::vector<uint8_t> triangle_infos() {
 
 // `writer` builds objects at kDst that `reader`'s build then reads; the twin puts a build
 // barrier between them.
-HazardCase build_output_read_by_build(const char* name, ClusterCommand (*writer)(), ClusterCommand (*reader)(),
-                                      const char* prior_field, const char* later_field, uint64_t overlap_end) {
-    return {name, HazardClass::kReadAfterWrite,
+HazardCase build_output_read_by_build(const char* name, ClusterCommand (*writer)(),
+                                      ClusterCommand (*reader)(), const char* prior_field,
+                                      const char* later_field, uint64_t overlap_end) {
+    return {name,
+            HazardClass::kReadAfterWrite,
             [writer, reader](TraceScript& t, bool fixed, Commands& at) {
                 at.prior = writer().emit(t);
                 if (fixed) build_barrier(t, kAsRead);
                 at.later = disjoint(reader()).emit(t);
             },
-            "vkCmdBuildClusterAccelerationStructureIndirectNV", prior_field, later_field, kDst, overlap_end,
-            FixKind::kPipelineBarrier, kBuild, kAsRead};
+            "vkCmdBuildClusterAccelerationStructureIndirectNV",
+            prior_field,
+            later_field,
+            kDst,
+            overlap_end,
+            FixKind::kPipelineBarrier,
+            kBuild,
+            kAsRead};
 }
 
 // A transfer or dispatch (`write`, in `src_stage` with `src_access`) writes bytes the next
@@ -102,16 +113,25 @@ struct InputWrite {
     const char* command;
     const char* field;
 };
-HazardCase input_written_before_build(const char* name, InputWrite w, uint64_t read_access, const char* later_field,
-                                      uint64_t overlap_begin, uint64_t overlap_end) {
-    return {name, HazardClass::kReadAfterWrite,
+HazardCase input_written_before_build(const char* name, InputWrite w, uint64_t read_access,
+                                      const char* later_field, uint64_t overlap_begin,
+                                      uint64_t overlap_end) {
+    return {name,
+            HazardClass::kReadAfterWrite,
             [w, read_access](TraceScript& t, bool fixed, Commands& at) {
                 at.prior = t.next_command();
                 w.write(t);
                 if (fixed) t.barrier(w.src_stage, w.src_access, kBuild, read_access);
                 at.later = triangle_clusters(Destinations::kImplicit).emit(t);
             },
-            w.command, w.field, later_field, overlap_begin, overlap_end, FixKind::kPipelineBarrier, kBuild, read_access};
+            w.command,
+            w.field,
+            later_field,
+            overlap_begin,
+            overlap_end,
+            FixKind::kPipelineBarrier,
+            kBuild,
+            read_access};
 }
 
 ClusterCommand explicit_clusters() { return triangle_clusters(Destinations::kExplicit); }
@@ -126,29 +146,36 @@ const HazardCase kCases[] = {
          second.info.scratchData = kScratch;
          at.later = second.emit(t);
      },
-     "vkCmdBuildClusterAccelerationStructureIndirectNV", "scratchData", "scratchData", kScratch, kScratch + 32,
-     FixKind::kPipelineBarrier, kBuild, kAsWrite},
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "scratchData", "scratchData", kScratch,
+     kScratch + 32, FixKind::kPipelineBarrier, kBuild, kAsWrite},
     {"ScratchReusedAcrossQueuesWithoutSemaphore", HazardClass::kWriteAfterWrite,
      [](TraceScript& t, bool fixed, Commands& at) {
          at.prior = triangle_clusters(Destinations::kImplicit).emit(t);
-         t.submit(0x9001, {}, fixed ? std::vector<SemaphoreUse>{{0x5e1, 0, kBuild}} : std::vector<SemaphoreUse>{});
+         t.submit(0x9001, {},
+                  fixed ? std::vector<SemaphoreUse>{{0x5e1, 0, kBuild}}
+                        : std::vector<SemaphoreUse>{});
          ClusterCommand second = disjoint(triangle_clusters(Destinations::kImplicit));
          second.info.scratchData = kScratch;
          at.later = second.emit(t);
          at.later_submission = 1;
-         t.submit(0x9002, fixed ? std::vector<SemaphoreUse>{{0x5e1, 0, kBuild}} : std::vector<SemaphoreUse>{});
+         t.submit(0x9002, fixed ? std::vector<SemaphoreUse>{{0x5e1, 0, kBuild}}
+                                : std::vector<SemaphoreUse>{});
      },
-     "vkCmdBuildClusterAccelerationStructureIndirectNV", "scratchData", "scratchData", kScratch, kScratch + 32,
-     FixKind::kSemaphore, kBuild, kAsWrite},
-    build_output_read_by_build("ClusterReadByBottomLevelBeforeVisible", explicit_clusters, [] { return bottom_level(); },
-                               "*dstAddressesArray[", "clusterReferences[*]", kDst + 2 * kExplicitStride),
-    build_output_read_by_build("TemplateReadByInstantiateBeforeVisible", explicit_templates, [] { return instantiate(); },
-                               "*dstAddressesArray[0]", "clusterTemplateAddress", kDst + kExplicitStride),
-    build_output_read_by_build("TemplateReadByTemplateIndicesBeforeVisible", explicit_templates,
-                               [] { return template_indices(); }, "*dstAddressesArray[", "clusterTemplateAddress",
-                               kDst + 2 * kExplicitStride),
-    build_output_read_by_build("ClusterReadByMoveBeforeVisible", explicit_clusters, [] { return move_clusters(); },
-                               "*dstAddressesArray[", "srcAccelerationStructure", kDst + 2 * kExplicitStride),
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "scratchData", "scratchData", kScratch,
+     kScratch + 32, FixKind::kSemaphore, kBuild, kAsWrite},
+    build_output_read_by_build(
+        "ClusterReadByBottomLevelBeforeVisible", explicit_clusters, [] { return bottom_level(); },
+        "*dstAddressesArray[", "clusterReferences[*]", kDst + 2 * kExplicitStride),
+    build_output_read_by_build(
+        "TemplateReadByInstantiateBeforeVisible", explicit_templates, [] { return instantiate(); },
+        "*dstAddressesArray[0]", "clusterTemplateAddress", kDst + kExplicitStride),
+    build_output_read_by_build(
+        "TemplateReadByTemplateIndicesBeforeVisible", explicit_templates,
+        [] { return template_indices(); }, "*dstAddressesArray[", "clusterTemplateAddress",
+        kDst + 2 * kExplicitStride),
+    build_output_read_by_build(
+        "ClusterReadByMoveBeforeVisible", explicit_clusters, [] { return move_clusters(); },
+        "*dstAddressesArray[", "srcAccelerationStructure", kDst + 2 * kExplicitStride),
     {"BottomLevelReadByMoveBeforeVisible", HazardClass::kReadAfterWrite,
      [](TraceScript& t, bool fixed, Commands& at) {
          triangle_clusters(Destinations::kExplicit).emit(t);
@@ -161,15 +188,17 @@ const HazardCase kCases[] = {
          move.info.dstImplicitData = kDst2 + 0x10000;
          at.later = move.emit(t);
      },
-     "vkCmdBuildClusterAccelerationStructureIndirectNV", "dstImplicitData[op 0]", "srcAccelerationStructure", kDst2,
-     kDst2 + 0x10000, FixKind::kPipelineBarrier, kBuild, kAsRead},
-    input_written_before_build("InfosWrittenByCopy",
-                               {[](TraceScript& t) {
-                                    const std::vector<uint8_t> infos = triangle_infos();
-                                    t.copy(kStagingBuffer, 0, kInfosBuffer, 0, infos.size(), {{kStaging, infos}});
-                                },
-                                kCopy, kTransferWrite, "vkCmdCopyBuffer", "pRegions[0].dstOffset"},
-                               kIndirect, "srcInfosArray[*]", kInfos, kInfos + 2 * sizeof(TriangleInfo)),
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "dstImplicitData[op 0]",
+     "srcAccelerationStructure", kDst2, kDst2 + 0x10000, FixKind::kPipelineBarrier, kBuild,
+     kAsRead},
+    input_written_before_build(
+        "InfosWrittenByCopy",
+        {[](TraceScript& t) {
+             const std::vector<uint8_t> infos = triangle_infos();
+             t.copy(kStagingBuffer, 0, kInfosBuffer, 0, infos.size(), {{kStaging, infos}});
+         },
+         kCopy, kTransferWrite, "vkCmdCopyBuffer", "pRegions[0].dstOffset"},
+        kIndirect, "srcInfosArray[*]", kInfos, kInfos + 2 * sizeof(TriangleInfo)),
     {"InfosWrittenByCopyBarrierWithoutIndirectRead", HazardClass::kReadAfterWrite,
      [](TraceScript& t, bool fixed, Commands& at) {
          const std::vector<uint8_t> infos = triangle_infos();
@@ -179,37 +208,45 @@ const HazardCase kCases[] = {
          t.barrier(kCopy, kTransferWrite, kBuild, fixed ? kIndirect : kAsRead);
          at.later = triangle_clusters(Destinations::kImplicit).emit(t);
      },
-     "vkCmdCopyBuffer", "pRegions[0].dstOffset", "srcInfosArray[*]", kInfos, kInfos + 2 * sizeof(TriangleInfo),
-     FixKind::kPipelineBarrier, kBuild, kIndirect},
+     "vkCmdCopyBuffer", "pRegions[0].dstOffset", "srcInfosArray[*]", kInfos,
+     kInfos + 2 * sizeof(TriangleInfo), FixKind::kPipelineBarrier, kBuild, kIndirect},
     input_written_before_build("InfosWrittenByFill",
-                               {[](TraceScript& t) { t.fill(kInfosBuffer, 0, 0x1000, 0); }, kClear, kTransferWrite,
-                                "vkCmdFillBuffer", "dstOffset"},
-                               kIndirect, "srcInfosArray[*]", kInfos, kInfos + 2 * sizeof(TriangleInfo)),
+                               {[](TraceScript& t) { t.fill(kInfosBuffer, 0, 0x1000, 0); }, kClear,
+                                kTransferWrite, "vkCmdFillBuffer", "dstOffset"},
+                               kIndirect, "srcInfosArray[*]", kInfos,
+                               kInfos + 2 * sizeof(TriangleInfo)),
     {"CountWrittenByUpdate", HazardClass::kReadAfterWrite,
      [](TraceScript& t, bool fixed, Commands& at) {
          at.prior = t.next_command();
          t.update(kInfosBuffer, kCount - kInfos, bytes_of(std::vector<uint32_t>{2}));
-         if (fixed) t.buffer_barrier(kInfosBuffer, kCount - kInfos, 4, kClear, kTransferWrite, kBuild, kIndirect);
+         if (fixed)
+             t.buffer_barrier(kInfosBuffer, kCount - kInfos, 4, kClear, kTransferWrite, kBuild,
+                              kIndirect);
          ClusterCommand c = triangle_clusters(Destinations::kImplicit);
          c.info.srcInfosCount = kCount;
          at.later = c.emit(t);
      },
-     "vkCmdUpdateBuffer", "pData", "srcInfosCount", kCount, kCount + 4, FixKind::kPipelineBarrier, kBuild, kIndirect},
+     "vkCmdUpdateBuffer", "pData", "srcInfosCount", kCount, kCount + 4, FixKind::kPipelineBarrier,
+     kBuild, kIndirect},
     {"CountWrittenByCopy", HazardClass::kReadAfterWrite,
      [](TraceScript& t, bool fixed, Commands& at) {
          at.prior = t.next_command();
-         t.copy(kStagingBuffer, 0, kInfosBuffer, kCount - kInfos, 4, {{kStaging, bytes_of(std::vector<uint32_t>{2})}});
+         t.copy(kStagingBuffer, 0, kInfosBuffer, kCount - kInfos, 4,
+                {{kStaging, bytes_of(std::vector<uint32_t>{2})}});
          if (fixed) t.barrier(kCopy, kTransferWrite, kBuild, kIndirect);
          ClusterCommand c = triangle_clusters(Destinations::kImplicit);
          c.info.srcInfosCount = kCount;
          at.later = c.emit(t);
      },
-     "vkCmdCopyBuffer", "pRegions[0].dstOffset", "srcInfosCount", kCount, kCount + 4, FixKind::kPipelineBarrier, kBuild,
-     kIndirect},
-    input_written_before_build("InfosWrittenByDispatch",
-                               {[](TraceScript& t) { t.dispatch(kInfosBuffer, 0, 0x1000, {{kInfos, triangle_infos()}}); },
-                                kCompute, kStorageWrite, "vkCmdDispatch", "set 0 binding 0[0]"},
-                               kIndirect, "srcInfosArray[*]", kInfos, kInfos + 2 * sizeof(TriangleInfo)),
+     "vkCmdCopyBuffer", "pRegions[0].dstOffset", "srcInfosCount", kCount, kCount + 4,
+     FixKind::kPipelineBarrier, kBuild, kIndirect},
+    input_written_before_build(
+        "InfosWrittenByDispatch",
+        {[](TraceScript& t) {
+             t.dispatch(kInfosBuffer, 0, 0x1000, {{kInfos, triangle_infos()}});
+         },
+         kCompute, kStorageWrite, "vkCmdDispatch", "set 0 binding 0[0]"},
+        kIndirect, "srcInfosArray[*]", kInfos, kInfos + 2 * sizeof(TriangleInfo)),
     input_written_before_build("VerticesWrittenByCopy",
                                {[](TraceScript& t) {
                                     t.copy(kStagingBuffer, 0, kGeometryBuffer, 0, 0x300,
@@ -218,11 +255,15 @@ const HazardCase kCases[] = {
                                 kCopy, kTransferWrite, "vkCmdCopyBuffer", "pRegions[0].dstOffset"},
                                kShaderRead, "vertexBuffer", kVertices, kVertices + 0x300),
     input_written_before_build("VerticesWrittenByUpdate",
-                               {[](TraceScript& t) { t.update(kGeometryBuffer, 0, std::vector<uint8_t>(96, 0)); }, kClear,
-                                kTransferWrite, "vkCmdUpdateBuffer", "pData"},
+                               {[](TraceScript& t) {
+                                    t.update(kGeometryBuffer, 0, std::vector<uint8_t>(96, 0));
+                                },
+                                kClear, kTransferWrite, "vkCmdUpdateBuffer", "pData"},
                                kShaderRead, "vertexBuffer", kVertices, kVertices + 96),
     input_written_before_build("IndicesWrittenByDispatch",
-                               {[](TraceScript& t) { t.dispatch(kGeometryBuffer, kIndices - kGeometry, 0x100); },
+                               {[](TraceScript& t) {
+                                    t.dispatch(kGeometryBuffer, kIndices - kGeometry, 0x100);
+                                },
                                 kCompute, kStorageWrite, "vkCmdDispatch", "set 0 binding 0[0]"},
                                kShaderRead, "indexBuffer", kIndices, kIndices + 6),
     {"SizesReadByCopyBeforeVisible", HazardClass::kReadAfterWrite,
@@ -232,8 +273,8 @@ const HazardCase kCases[] = {
          at.later = t.next_command();
          t.copy(kOutBuffer, kSizes - kOut, kDst2Buffer, 0, 8);
      },
-     "vkCmdBuildClusterAccelerationStructureIndirectNV", "dstSizesArray[", "pRegions[0].srcOffset", kSizes, kSizes + 8,
-     FixKind::kPipelineBarrier, kCopy, kTransferRead},
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "dstSizesArray[", "pRegions[0].srcOffset",
+     kSizes, kSizes + 8, FixKind::kPipelineBarrier, kCopy, kTransferRead},
     {"AddressesOverwrittenByFill", HazardClass::kWriteAfterWrite,
      [](TraceScript& t, bool fixed, Commands& at) {
          at.prior = triangle_clusters(Destinations::kImplicit).emit(t);
@@ -241,8 +282,8 @@ const HazardCase kCases[] = {
          at.later = t.next_command();
          t.fill(kOutBuffer, 0, 16, 0);
      },
-     "vkCmdBuildClusterAccelerationStructureIndirectNV", "dstAddressesArray[", "dstOffset", kOut, kOut + 16,
-     FixKind::kPipelineBarrier, kClear, kTransferWrite},
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "dstAddressesArray[", "dstOffset", kOut,
+     kOut + 16, FixKind::kPipelineBarrier, kClear, kTransferWrite},
     {"ObjectsOverwrittenByNextBuild", HazardClass::kWriteAfterWrite,
      [](TraceScript& t, bool fixed, Commands& at) {
          at.prior = triangle_clusters(Destinations::kImplicit).emit(t);
@@ -251,8 +292,8 @@ const HazardCase kCases[] = {
          second.info.dstImplicitData = kDst;
          at.later = second.emit(t);
      },
-     "vkCmdBuildClusterAccelerationStructureIndirectNV", "dstImplicitData[op ", "dstImplicitData[op ", kDst, kDst + 0x10000,
-     FixKind::kPipelineBarrier, kBuild, kAsWrite},
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "dstImplicitData[op ",
+     "dstImplicitData[op ", kDst, kDst + 0x10000, FixKind::kPipelineBarrier, kBuild, kAsWrite},
     {"InfosOverwrittenWhileBuildReadsThem", HazardClass::kWriteAfterRead,
      [](TraceScript& t, bool fixed, Commands& at) {
          at.prior = triangle_clusters(Destinations::kImplicit).emit(t);
@@ -260,13 +301,15 @@ const HazardCase kCases[] = {
          at.later = t.next_command();
          t.fill(kInfosBuffer, 0, 64, 0);
      },
-     "vkCmdBuildClusterAccelerationStructureIndirectNV", "srcInfosArray[0]", "dstOffset", kInfos, kInfos + 64,
-     FixKind::kPipelineBarrier, kClear, 0},
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "srcInfosArray[0]", "dstOffset", kInfos,
+     kInfos + 64, FixKind::kPipelineBarrier, kClear, 0},
     {"DeserializeOverObjectsStillBeingBuilt", HazardClass::kDeserializeInUse,
      [](TraceScript& t, bool fixed, Commands& at) {
          t.acceleration_structure(0xa5001, kDstBuffer, 0, 0x1000);  // over the CLAS at kDst
          at.prior = triangle_clusters(Destinations::kExplicit).emit(t);
-         if (fixed) t.barrier(kBuild, kAsWrite, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR, kAsWrite);
+         if (fixed)
+             t.barrier(kBuild, kAsWrite, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR,
+                       kAsWrite);
          at.later = t.next_command();
          // Another driver's blob (opaque, but a header that holds together: 0x100 bytes
          // serialized, 0x800 deserialized, no handles).
@@ -275,8 +318,9 @@ const HazardCase kCases[] = {
          std::memcpy(blob.data() + 32, header, sizeof header);
          t.deserialize(kStaging, 0xa5001, blob);
      },
-     "vkCmdBuildClusterAccelerationStructureIndirectNV", "*dstAddressesArray[0]", "pInfo->dst", kDst, kDst + 0x1000,
-     FixKind::kPipelineBarrier, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR, kAsWrite},
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "*dstAddressesArray[0]", "pInfo->dst",
+     kDst, kDst + 0x1000, FixKind::kPipelineBarrier,
+     VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR, kAsWrite},
     {"CopySourceOverlapsDestination", HazardClass::kMoveOverlap,
      [](TraceScript& t, bool fixed, Commands& at) {
          at.prior = at.later = t.next_command();
@@ -289,7 +333,8 @@ const HazardCase kCases[] = {
 class HazardCatalogue : public ::testing::TestWithParam<HazardCase> {
 protected:
     replay::ReplayReport run(bool fixed, Commands* at) {
-        return replay_catalogue_scene(temp_path(std::string(GetParam().name) + (fixed ? "_fixed.clt" : "_broken.clt")),
+        return replay_catalogue_scene(temp_path(std::string(GetParam().name) +
+                                                (fixed ? "_fixed.clt" : "_broken.clt")),
                                       [&](TraceScript& t) { GetParam().scene(t, fixed, *at); });
     }
 };
@@ -297,7 +342,8 @@ protected:
 // A foreign blob (the deserialization case) is reported as opaque: information, not a fault.
 replay::ReplayReport without_opaque_notes(replay::ReplayReport r) {
     std::erase_if(r.findings, [](const replay::ReplayFinding& f) {
-        return f.rule == "CLASTRACE-replay-nv-opaque-object" || f.rule == "CLASTRACE-serialized-blob-from-another-driver";
+        return f.rule == "CLASTRACE-replay-nv-opaque-object" ||
+               f.rule == "CLASTRACE-serialized-blob-from-another-driver";
     });
     return r;
 }
@@ -325,7 +371,9 @@ TEST_P(HazardCatalogue, MissingDependencyIsOneHazardNamingBothCommandsFieldsAndF
     EXPECT_EQ(h.fix.dst_stages & c.fix_dst_stage, c.fix_dst_stage) << text;
     EXPECT_EQ(h.fix.dst_access & c.fix_dst_access, c.fix_dst_access) << text;
     const std::string line = h.format();
-    EXPECT_NE(line.find(std::string("SYNC-HAZARD-") + replay::hazard_class_name(c.hazard)), std::string::npos) << line;
+    EXPECT_NE(line.find(std::string("SYNC-HAZARD-") + replay::hazard_class_name(c.hazard)),
+              std::string::npos)
+        << line;
     EXPECT_NE(line.find(h.later.field), std::string::npos) << line;
     EXPECT_NE(line.find(h.prior.field), std::string::npos) << line;
 }
@@ -337,7 +385,9 @@ TEST_P(HazardCatalogue, TwinWithTheFixIsClean) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Replay, HazardCatalogue, ::testing::ValuesIn(kCases),
-                         [](const ::testing::TestParamInfo<HazardCase>& info) { return std::string(info.param.name); });
+                         [](const ::testing::TestParamInfo<HazardCase>& info) {
+                             return std::string(info.param.name);
+                         });
 
 // A cluster move with noMoveOverlap whose destination overlaps its source: the engine's rule
 // (the spec allows overlap only without noMoveOverlap).
@@ -345,14 +395,16 @@ TEST(HazardCatalogueMove, MoveOntoItsOwnSourceWithNoMoveOverlapIsReported) {
     for (bool broken : {true, false}) {
         uint32_t move_command = 0;
         const replay::ReplayReport r =
-            replay_catalogue_scene(temp_path(broken ? "move_overlap.clt" : "move_disjoint.clt"), [&](TraceScript& t) {
-                triangle_clusters(Destinations::kExplicit).emit(t);
-                build_barrier(t, kAsRead | kAsWrite);
-                ClusterCommand move = move_clusters(1);
-                move.info.dstImplicitData = broken ? kDst + 128 : kDst2;  // the source is at kDst
-                move.info.scratchData = kScratch2;
-                move_command = move.emit(t);
-            });
+            replay_catalogue_scene(temp_path(broken ? "move_overlap.clt" : "move_disjoint.clt"),
+                                   [&](TraceScript& t) {
+                                       triangle_clusters(Destinations::kExplicit).emit(t);
+                                       build_barrier(t, kAsRead | kAsWrite);
+                                       ClusterCommand move = move_clusters(1);
+                                       move.info.dstImplicitData =
+                                           broken ? kDst + 128 : kDst2;  // the source is at kDst
+                                       move.info.scratchData = kScratch2;
+                                       move_command = move.emit(t);
+                                   });
         if (!broken) {
             EXPECT_TRUE(r.clean()) << replay::format_text(r);
             continue;

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // What the replay models of queues and command buffers beyond barriers: semaphore signal
 // stage masks (vkQueueSubmit2), command pool resets, command buffers submitted with nothing
 // recorded.
@@ -38,12 +39,14 @@ ClusterCommand second_build() {
 
 // Queue A builds and signals with `stages`; queue B waits (all stages) and reuses the scratch.
 replay::ReplayReport scratch_across_queues(uint64_t stages, uint8_t submit_version) {
-    return replay_scene("signal_" + std::to_string(stages) + "_v" + std::to_string(submit_version) + ".clt",
+    return replay_scene("signal_" + std::to_string(stages) + "_v" + std::to_string(submit_version) +
+                            ".clt",
                         [&](TraceScript& t) {
                             triangle_clusters(Destinations::kImplicit).emit(t);
                             t.submit(kQueueA, {}, {{0x5e1, 0, stages}}, 0, submit_version);
                             second_build().emit(t);
-                            t.submit(kQueueB, {{0x5e1, 0, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT}}, {}, 0, submit_version);
+                            t.submit(kQueueB, {{0x5e1, 0, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT}},
+                                     {}, 0, submit_version);
                         });
 }
 
@@ -113,7 +116,8 @@ TEST(QueueModel, PoolResetOfUnknownMembershipIsNotedAndOldCommandsReplay) {
     EXPECT_EQ(r.counts.cluster_commands, 2u);
     ASSERT_EQ(r.not_replayed.size(), 1u);
     EXPECT_EQ(std::string(r.not_replayed[0].where.name), "vkResetCommandPool");
-    EXPECT_NE(r.not_replayed[0].reason.find("0x9900"), std::string::npos) << r.not_replayed[0].reason;
+    EXPECT_NE(r.not_replayed[0].reason.find("0x9900"), std::string::npos)
+        << r.not_replayed[0].reason;
 }
 
 TEST(QueueModel, OneTimeBufferSubmittedTwiceIsReported) {

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "random_stream.h"
 
 #include "catalogue_scene.h"
@@ -16,7 +17,7 @@ using namespace catalogue;
 constexpr uint64_t kArena = 0x10100000;  // 1 MiB: every implicit destination
 constexpr uint64_t kArenaBuffer = 0xb0a0;
 constexpr uint64_t kExplicitAddresses = kOut + 0x200;
-constexpr uint32_t kSlots = 64;          // explicit objects: kDst (CLAS) and kDst2 (templates), 0x800 apart
+constexpr uint32_t kSlots = 64;  // explicit objects: kDst (CLAS) and kDst2 (templates), 0x800 apart
 constexpr uint64_t kSlot = 0x800;
 
 enum class Kind { kBuild, kCopy, kClear, kDispatch };
@@ -28,13 +29,17 @@ struct KindMasks {
 KindMasks masks(Kind k) {
     switch (k) {
     case Kind::kBuild:
-        return {VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
+        return {VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
                 VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_2_SHADER_READ_BIT |
-                    VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR | VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR};
+                    VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR |
+                    VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR};
     case Kind::kCopy:
         return {VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
                 VK_ACCESS_2_TRANSFER_READ_BIT | VK_ACCESS_2_TRANSFER_WRITE_BIT};
-    case Kind::kClear: return {VK_PIPELINE_STAGE_2_CLEAR_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT};
+    case Kind::kClear:
+        return {VK_PIPELINE_STAGE_2_CLEAR_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
+                VK_ACCESS_2_TRANSFER_WRITE_BIT};
     case Kind::kDispatch:
         return {VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
                 VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT};
@@ -48,7 +53,8 @@ public:
         : o_(o), rng_(o.seed), t_(path, device()) {
         add_buffers(t_);
         t_.buffer(kArenaBuffer, kArena, 1u << 20,
-                  VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR |
+                  VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT |
+                      VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR |
                       VK_BUFFER_USAGE_STORAGE_BUFFER_BIT,
                   0x1001, kArena - kBase);
         queue_ = queue_handle(0);
@@ -101,7 +107,8 @@ private:
             pending_event_ = 0xe000 + below(8);
             // The next command's kind is not known yet: the second scope is every stage and access.
             ++stats_.events;
-            t_.set_event(pending_event_, masks(kind).stage, masks(kind).writes, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
+            t_.set_event(pending_event_, masks(kind).stage, masks(kind).writes,
+                         VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
                          VK_ACCESS_2_MEMORY_READ_BIT | VK_ACCESS_2_MEMORY_WRITE_BIT);
             ++stats_.commands;
         }
@@ -117,7 +124,8 @@ private:
         std::vector<SemaphoreUse> signals;
         if (hop && has_prev_) {
             const uint64_t semaphore = 0x5e000 + ++semaphores_;
-            const uint64_t stages = chance(0.5) ? masks(prev_).stage : uint64_t(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT);
+            const uint64_t stages =
+                chance(0.5) ? masks(prev_).stage : uint64_t(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT);
             signals.push_back({semaphore, 0, stages});
             ++stats_.semaphores;
             stats_.narrow_signals += stages != VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT;
@@ -204,7 +212,8 @@ private:
     void dispatch_vertices() {
         before(Kind::kDispatch);
         ClusterCommand any = triangle_clusters(Destinations::kImplicit, 1);
-        std::vector<uint8_t> vertices(any.inputs[0].bytes.begin(), any.inputs[0].bytes.begin() + 64 * 12);
+        std::vector<uint8_t> vertices(any.inputs[0].bytes.begin(),
+                                      any.inputs[0].bytes.begin() + 64 * 12);
         t_.dispatch(kGeometryBuffer, 0, vertices.size(), {{kVertices, vertices}});
         after(Kind::kDispatch);
     }
@@ -216,17 +225,20 @@ private:
         c.emit(t_);
         after(Kind::kBuild);
         ++stats_.cluster_commands;
-        if (c.info.input.opType <= VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV)
+        if (c.info.input.opType <=
+            VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV)
             ++stats_.commands_by_op_type[c.info.input.opType];
-        stats_.cluster_ops += ops_in_memory_ ? std::min(ops_in_memory_, c.info.input.maxAccelerationStructureCount)
-                                             : c.info.input.maxAccelerationStructureCount;
+        stats_.cluster_ops +=
+            ops_in_memory_ ? std::min(ops_in_memory_, c.info.input.maxAccelerationStructureCount)
+                           : c.info.input.maxAccelerationStructureCount;
         ops_in_memory_ = 0;
     }
 
     void damage(ClusterCommand& c) {
         switch (below(7)) {
         case 0:
-            if (!c.infos.empty()) c.infos[below(uint32_t(c.infos.size()))] ^= uint8_t(1u << below(8));
+            if (!c.infos.empty())
+                c.infos[below(uint32_t(c.infos.size()))] ^= uint8_t(1u << below(8));
             break;
         case 1: c.info.srcInfosArray.stride = below(80); break;
         case 2:
@@ -256,7 +268,8 @@ private:
         const uint32_t first = below(kSlots - count + 1);
         std::vector<uint64_t> addresses;
         for (uint32_t i = 0; i < count; ++i) addresses.push_back(arena + (first + i) * kSlot);
-        c.inputs.erase(std::remove_if(c.inputs.begin(), c.inputs.end(), [](const InputSnapshot& s) { return s.address == kOut; }),
+        c.inputs.erase(std::remove_if(c.inputs.begin(), c.inputs.end(),
+                                      [](const InputSnapshot& s) { return s.address == kOut; }),
                        c.inputs.end());
         c.inputs.push_back({kExplicitAddresses, bytes_of(addresses)});
         c.info.dstAddressesArray = {kExplicitAddresses, 8, count * 8ull};
@@ -294,7 +307,8 @@ private:
     }
     // 1..16 objects that `make` builds into explicit destinations among the `live` slots of `arena`.
     template <class Info>
-    void explicit_objects(ClusterCommand (*make)(Destinations, uint32_t), uint64_t arena, std::array<bool, kSlots>& live) {
+    void explicit_objects(ClusterCommand (*make)(Destinations, uint32_t), uint64_t arena,
+                          std::array<bool, kSlots>& live) {
         const uint32_t count = 1 + below(16);
         ClusterCommand c = make(Destinations::kExplicit, count);
         randomize_ids<Info>(c, count);
@@ -304,7 +318,9 @@ private:
         for (uint32_t i = 0; i < count; ++i) live[first + i] = true;
     }
     void explicit_clusters() { explicit_objects<TriangleInfo>(triangle_clusters, kDst, clas_); }
-    void explicit_templates() { explicit_objects<TemplateInfo>(triangle_templates, kDst2, templates_); }
+    void explicit_templates() {
+        explicit_objects<TemplateInfo>(triangle_templates, kDst2, templates_);
+    }
     std::vector<uint32_t> live(const std::array<bool, kSlots>& slots) const {
         std::vector<uint32_t> out;
         for (uint32_t i = 0; i < kSlots; ++i)
@@ -332,9 +348,11 @@ private:
         const uint32_t count = 1 + below(64);
         ClusterCommand c = template_indices(count);
         for (uint32_t i = 0; i < count; ++i)
-            edit_info<VkClusterAccelerationStructureGetTemplateIndicesInfoNV>(c, i, [&](auto& info) {
-                info.clusterTemplateAddress = kDst2 + alive[below(uint32_t(alive.size()))] * kSlot;
-            });
+            edit_info<VkClusterAccelerationStructureGetTemplateIndicesInfoNV>(
+                c, i, [&](auto& info) {
+                    info.clusterTemplateAddress =
+                        kDst2 + alive[below(uint32_t(alive.size()))] * kSlot;
+                });
         implicit_outputs(c);
         emit(c);
     }
@@ -368,7 +386,8 @@ private:
         const uint32_t count = 1 + below(16);
         ClusterCommand c = move_clusters(count);
         std::vector<uint64_t> sources;
-        for (uint32_t i = 0; i < count; ++i) sources.push_back(kDst + alive[below(uint32_t(alive.size()))] * kSlot);
+        for (uint32_t i = 0; i < count; ++i)
+            sources.push_back(kDst + alive[below(uint32_t(alive.size()))] * kSlot);
         c.infos = bytes_of(sources);
         c.move.maxMovedBytes = 64ull * count * kSlot;
         implicit_outputs(c);

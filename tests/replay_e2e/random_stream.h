@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Random, correctly synchronized traces: cluster builds of every op type (scratch shared
 // by all of them), copies, fills, updates and dispatches over the same buffers, on several
 // queues handed over by semaphores, with host writes after fence waits.
@@ -28,7 +29,7 @@ struct RandomStreamOptions {
 struct RandomStreamStats {
     uint64_t cluster_ops = 0;
     uint64_t cluster_commands = 0;
-    uint64_t commands = 0;       // every command, barriers included
+    uint64_t commands = 0;  // every command, barriers included
     uint64_t submissions = 0;
     uint64_t command_buffers = 0;  // beyond one per submission
     uint64_t mutations = 0;

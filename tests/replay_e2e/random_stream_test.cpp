@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Long random streams: correctly synchronized ones must replay with no finding and no
 // hazard; damaged ones (dropped dependencies, hostile infos/counts/strides/addresses,
 // flipped file bytes) must replay to the end with well-formed findings, never crash.
@@ -20,7 +21,9 @@ namespace {
 
 using namespace clastrace;
 
-std::string temp_path(const std::string& name) { return test::temp_trace_path("random_stream", name); }
+std::string temp_path(const std::string& name) {
+    return test::temp_trace_path("random_stream", name);
+}
 
 replay::ReplayReport replay_file(const std::string& path) {
     traces::TraceError e;
@@ -31,7 +34,8 @@ replay::ReplayReport replay_file(const std::string& path) {
 
 bool well_formed(const replay::ReplayFinding& f) {
     const std::string& r = f.rule;
-    return (r.rfind("VUID-", 0) == 0 || r.rfind("CLASTRACE-", 0) == 0) && !f.message.empty() && !f.format().empty();
+    return (r.rfind("VUID-", 0) == 0 || r.rfind("CLASTRACE-", 0) == 0) && !f.message.empty() &&
+           !f.format().empty();
 }
 
 TEST(RandomStreams, TenThousandOpsOfValidStreamReplayWithoutFindingOrHazard) {
@@ -97,7 +101,8 @@ TEST(RandomStreams, FlippedBytesOfAStreamFileNeverCrash) {
     const std::string path = temp_path("flip.clt");
     for (int round = 0; round < 30; ++round) {
         std::vector<char> mutant = bytes;
-        for (int k = 0, n = 1 + int(rng() % 6); k < n; ++k) mutant[rng() % mutant.size()] ^= char(1 << (rng() % 8));
+        for (int k = 0, n = 1 + int(rng() % 6); k < n; ++k)
+            mutant[rng() % mutant.size()] ^= char(1 << (rng() % 8));
         std::ofstream(path, std::ios::binary).write(mutant.data(), std::streamsize(mutant.size()));
         const replay::ReplayReport r = replay_file(path);
         for (const replay::ReplayFinding& f : r.findings) EXPECT_TRUE(well_formed(f)) << f.format();

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // End-to-end replay: traces written with the TraceWriter, replayed through the engine and
 // the synchronization model. Each broken scene has a correctly synchronized/valid twin.
 #include "scene_trace.h"
@@ -122,10 +123,12 @@ enum class Sync { kNone, kBarrierV1, kEvent, kEventSetBeforeTheFirstBuild };
 
 void scratch_scene_with(const std::string& path, Sync sync) {
     SceneTrace t(path, true);
-    if (sync == Sync::kEventSetBeforeTheFirstBuild) t.set_event(0xe1, kBuild, kAsWrite, kBuild, kAsRead | kAsWrite);
+    if (sync == Sync::kEventSetBeforeTheFirstBuild)
+        t.set_event(0xe1, kBuild, kAsWrite, kBuild, kAsRead | kAsWrite);
     t.build({});
     if (sync == Sync::kBarrierV1)
-        t.barrier_v1(uint32_t(kBuild), uint32_t(kAsWrite), uint32_t(kBuild), uint32_t(kAsRead | kAsWrite));
+        t.barrier_v1(uint32_t(kBuild), uint32_t(kAsWrite), uint32_t(kBuild),
+                     uint32_t(kAsRead | kAsWrite));
     if (sync == Sync::kEvent) t.set_event(0xe1, kBuild, kAsWrite, kBuild, kAsRead | kAsWrite);
     if (sync == Sync::kEvent || sync == Sync::kEventSetBeforeTheFirstBuild)
         t.wait_event(0xe1, kBuild, kAsWrite, kBuild, kAsRead | kAsWrite);
@@ -159,7 +162,8 @@ void copy_scene(const std::string& path, bool with_barrier) {
     SceneTrace t(path, true);
     t.copy_infos();
     if (with_barrier)
-        t.barrier(VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, kBuild, VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
+        t.barrier(VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, kBuild,
+                  VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
     t.build({});
     t.finish();
 }
@@ -211,7 +215,8 @@ TEST(ReplayE2E, ClusterIdAllOnesIsTheEngineVuidAtThatOp) {
     }
     replay::ReplayReport r = replay_file(path);
     ASSERT_EQ(r.findings.size(), 1u) << describe(r);
-    EXPECT_EQ(r.findings[0].rule, "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-clusterID-10488");
+    EXPECT_EQ(r.findings[0].rule,
+              "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-clusterID-10488");
     EXPECT_EQ(r.findings[0].op_index, 1);
     EXPECT_EQ(r.findings[0].source, replay::FindingSource::kEngine);
     EXPECT_TRUE(replay_file(twin).clean());
@@ -231,7 +236,8 @@ TEST(ReplayE2E, ScratchTooSmallIs12300AndEnoughScratchIsClean) {
     }
     replay::ReplayReport r = replay_file(path);
     ASSERT_FALSE(r.findings.empty()) << describe(r);
-    EXPECT_EQ(r.findings[0].rule, "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-scratchData-12300");
+    EXPECT_EQ(r.findings[0].rule,
+              "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-scratchData-12300");
     EXPECT_TRUE(replay_file(twin).clean()) << describe(replay_file(twin));
     std::remove(path.c_str());
     std::remove(twin.c_str());
@@ -254,7 +260,8 @@ TEST(ReplayE2E, DriverAddressesInClusterReferencesAreTranslated) {
     EXPECT_FALSE(r.engine_trace);
     // The second reference (0) is the engine's business; the first must translate.
     EXPECT_EQ(r.counts.addresses_translated, 1u) << describe(r);
-    for (const auto& f : r.findings) EXPECT_NE(f.rule, "CLASTRACE-replay-reference-not-rebuilt") << f.format();
+    for (const auto& f : r.findings)
+        EXPECT_NE(f.rule, "CLASTRACE-replay-reference-not-rebuilt") << f.format();
     EXPECT_EQ(r.counts.cluster_commands, 2u);
     std::remove(path.c_str());
 }
@@ -339,10 +346,13 @@ TEST(ReplayE2E, RandomValidStreamsHaveNoFalsePositives) {
             SceneTrace t(path, true);
             for (int step = 0; step < 40; ++step) {
                 t.barrier(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_WRITE_BIT,
-                          VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_READ_BIT | VK_ACCESS_2_MEMORY_WRITE_BIT);
+                          VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
+                          VK_ACCESS_2_MEMORY_READ_BIT | VK_ACCESS_2_MEMORY_WRITE_BIT);
                 switch (rng() % 4) {
                 case 0: t.copy_infos(); break;
-                case 1: t.submit(0x9001); break;  // same queue: the next barrier orders across submissions
+                case 1:
+                    t.submit(0x9001);
+                    break;  // same queue: the next barrier orders across submissions
                 default: {
                     BuildCall call;
                     const bool second = rng() % 2;
@@ -406,7 +416,8 @@ TEST(ReplayE2E, BuffersBeyondTheMemoryBudgetAreReportedNotAllocated) {
         t.finish();
     }
     replay::ReplayOptions o;
-    o.memory_budget_bytes = 0x3000;  // three pages: the input snapshots fit, the engine's outputs do not
+    o.memory_budget_bytes =
+        0x3000;  // three pages: the input snapshots fit, the engine's outputs do not
     replay::ReplayReport r = replay_file(path, o);
     bool budget = false;
     for (const auto& f : r.findings) budget |= f.rule == "CLASTRACE-replay-memory-budget";
@@ -448,7 +459,8 @@ TEST(ReplayE2E, RandomMutationsOfAValidSceneNeverCrash) {
             t.driver_address_shift = (rng() % 4) * 0x100;
             auto* bytes = reinterpret_cast<uint8_t*>(t.infos.data());
             const size_t n = t.infos.size() * sizeof t.infos[0];
-            for (int k = 0, flips = 1 + int(rng() % 8); k < flips; ++k) bytes[rng() % n] ^= uint8_t(1u << (rng() % 8));
+            for (int k = 0, flips = 1 + int(rng() % 8); k < flips; ++k)
+                bytes[rng() % n] ^= uint8_t(1u << (rng() % 8));
             if (rng() % 3 == 0) t.infos[rng() % 2].vertexBuffer = rng();
             BuildCall call;
             call.capture_outputs = rng() % 2;
@@ -479,7 +491,8 @@ TEST(ReplayE2E, ShippedSampleReplaysCleanWithDriverSizesSideBySide) {
     ASSERT_EQ(r.sizes[0].first_ops.size(), 2u);
     EXPECT_EQ(r.sizes[0].first_ops[1].op, 1u);
     EXPECT_EQ(r.sizes[0].first_ops[1].captured, 7936u);
-    EXPECT_EQ(r.sizes[0].first_ops[0].engine + r.sizes[0].first_ops[1].engine, r.sizes[0].engine_bytes);
+    EXPECT_EQ(r.sizes[0].first_ops[0].engine + r.sizes[0].first_ops[1].engine,
+              r.sizes[0].engine_bytes);
     // Its vkCmdBuildAccelerationStructureNV is replayed by the engine (nv_command.cpp).
     EXPECT_TRUE(r.not_replayed.empty());
     EXPECT_EQ(r.counts.nv_builds, 1u);
@@ -493,11 +506,16 @@ TEST(ReplayE2E, SizesTableNamesEveryOpType) {
     replay::ReplayReport r;
     const std::vector<std::pair<uint32_t, std::string>> names = {
         {VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV, "move_objects"},
-        {VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV, "build_clusters_bottom_level"},
-        {VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV, "build_triangle_cluster"},
-        {VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV, "build_triangle_cluster_template"},
-        {VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV, "instantiate_triangle_cluster"},
-        {VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV, "get_cluster_template_indices"},
+        {VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV,
+         "build_clusters_bottom_level"},
+        {VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV,
+         "build_triangle_cluster"},
+        {VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV,
+         "build_triangle_cluster_template"},
+        {VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV,
+         "instantiate_triangle_cluster"},
+        {VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV,
+         "get_cluster_template_indices"},
         {77, "other"}};
     for (const auto& [type, name] : names) {
         replay::SizeComparison row;
@@ -545,7 +563,8 @@ TEST(ReplayE2E, FlippedAndTruncatedTraceFilesNeverCrash) {
 
 int run_cli(const std::string& args, std::string* out) {
     const std::string out_path = temp_path("cli.out");
-    const std::string cmd = std::string(CLASTRACE_BIN) + " " + args + " > " + out_path + " 2>/dev/null";
+    const std::string cmd =
+        std::string(CLASTRACE_BIN) + " " + args + " > " + out_path + " 2>/dev/null";
     int status = std::system(cmd.c_str());
     std::ifstream in(out_path);
     out->assign(std::istreambuf_iterator<char>(in), {});
@@ -560,7 +579,9 @@ TEST(ReplayCli, ExitCodesAndJsonShape) {
     // The sample's one cluster command builds two CLAS: its row names the op type.
     const size_t row = out.find("  s0 cb");
     ASSERT_NE(row, std::string::npos) << out;
-    EXPECT_NE(out.substr(row, out.find('\n', row) - row).find(" build_triangle_cluster "), std::string::npos) << out;
+    EXPECT_NE(out.substr(row, out.find('\n', row) - row).find(" build_triangle_cluster "),
+              std::string::npos)
+        << out;
 
     const std::string hazard = temp_path("cli_hazard.clt");
     scratch_scene(hazard, false);

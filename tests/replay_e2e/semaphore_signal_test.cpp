@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Binary semaphores in a replayed trace (format 1.2 records): a successful
 // vkAcquireNextImageKHR is the presentation engine's signal of its semaphore, so the frame's
 // submission that waits on it is no longer an unsatisfied wait; and a binary semaphore
@@ -26,7 +27,8 @@ constexpr uint64_t kTransfer = VK_PIPELINE_STAGE_2_TRANSFER_BIT;
 constexpr const char* kSubmitVuid = "VUID-vkQueueSubmit-pSignalSemaphores-00067";
 constexpr const char* kSubmit2Vuid = "VUID-vkQueueSubmit2-semaphore-03868";
 
-std::vector<const replay::ReplayFinding*> findings_of(const replay::ReplayReport& r, const std::string& rule) {
+std::vector<const replay::ReplayFinding*> findings_of(const replay::ReplayReport& r,
+                                                      const std::string& rule) {
     std::vector<const replay::ReplayFinding*> out;
     for (const replay::ReplayFinding& f : r.findings)
         if (f.rule == rule) out.push_back(&f);
@@ -37,7 +39,8 @@ class SemaphoreSignals : public ::testing::Test {
 protected:
     std::string path;
     void SetUp() override {
-        path = temp_trace_path("semaphore_signals", ::testing::UnitTest::GetInstance()->current_test_info()->name());
+        path = temp_trace_path("semaphore_signals",
+                               ::testing::UnitTest::GetInstance()->current_test_info()->name());
     }
     void TearDown() override { discard_trace(path); }
 };
@@ -123,8 +126,10 @@ TEST_F(SemaphoreSignals, SignalledAgainBeforeAnyWaitIsReportedForQueueSubmit) {
     ASSERT_EQ(found.size(), 1u);
     EXPECT_EQ(found[0]->where.submission, 1u);
     EXPECT_STREQ(found[0]->where.name, "vkQueueSubmit");
-    EXPECT_NE(found[0]->message.find("pSubmits[0].pSignalSemaphores[1]"), std::string::npos) << found[0]->message;
-    EXPECT_NE(found[0]->message.find("submission 0 batch 0"), std::string::npos) << found[0]->message;
+    EXPECT_NE(found[0]->message.find("pSubmits[0].pSignalSemaphores[1]"), std::string::npos)
+        << found[0]->message;
+    EXPECT_NE(found[0]->message.find("submission 0 batch 0"), std::string::npos)
+        << found[0]->message;
     EXPECT_TRUE(findings_of(r, kSubmit2Vuid).empty());
 }
 
@@ -135,7 +140,8 @@ TEST_F(SemaphoreSignals, SignalledAgainBeforeAnyWaitIsReportedForQueueSubmit2) {
     ASSERT_EQ(found.size(), 1u);
     EXPECT_EQ(found[0]->where.submission, 1u);
     EXPECT_STREQ(found[0]->where.name, "vkQueueSubmit2");
-    EXPECT_NE(found[0]->message.find("pSubmits[0].pSignalSemaphoreInfos[1]"), std::string::npos) << found[0]->message;
+    EXPECT_NE(found[0]->message.find("pSubmits[0].pSignalSemaphoreInfos[1]"), std::string::npos)
+        << found[0]->message;
     EXPECT_TRUE(findings_of(r, kSubmitVuid).empty());
 }
 
@@ -163,18 +169,22 @@ TEST_F(SemaphoreSignals, ASignalAfterAnUnconsumedAcquireIsReported) {
     const replay::ReplayReport r = replay_file(path);
     const auto found = findings_of(r, kSubmitVuid);
     ASSERT_EQ(found.size(), 1u);
-    EXPECT_NE(found[0]->message.find("vkAcquireNextImageKHR"), std::string::npos) << found[0]->message;
+    EXPECT_NE(found[0]->message.find("vkAcquireNextImageKHR"), std::string::npos)
+        << found[0]->message;
 }
 
 // An acquire given a semaphore still signalled: VUID-vkAcquireNextImageKHR-semaphore-01286, or
 // VUID-VkAcquireNextImageInfoKHR-semaphore-01288 for vkAcquireNextImage2KHR (deviceMask set),
 // whatever the call returned. Valid twin: the frame's submission waits on it in between.
-void write_double_acquire(const std::string& path, uint32_t device_mask, bool wait_between, int32_t second_result) {
+void write_double_acquire(const std::string& path, uint32_t device_mask, bool wait_between,
+                          int32_t second_result) {
     TraceScript s(path);
     s.buffer(kTarget, 0x10000, 0x100, VK_BUFFER_USAGE_TRANSFER_DST_BIT);
     s.acquire(kImageAvailable, 0, VK_SUCCESS, device_mask);
     s.fill(kTarget, 0, 0x100, 1);
-    s.submit(kQueue, wait_between ? std::vector<SemaphoreUse>{{kImageAvailable, 0, kTransfer}} : std::vector<SemaphoreUse>{},
+    s.submit(kQueue,
+             wait_between ? std::vector<SemaphoreUse>{{kImageAvailable, 0, kTransfer}}
+                          : std::vector<SemaphoreUse>{},
              {}, 0, 1);
     s.acquire(kImageAvailable, 0, second_result, device_mask);
     s.finish();
@@ -194,7 +204,8 @@ TEST_F(SemaphoreSignals, AnAcquireOfAStillSignalledSemaphoreIsReported) {
     found = findings_of(r, "VUID-VkAcquireNextImageInfoKHR-semaphore-01288");
     ASSERT_EQ(found.size(), 1u);
     EXPECT_STREQ(found[0]->where.name, "vkAcquireNextImage2KHR");
-    EXPECT_NE(found[0]->message.find("vkAcquireNextImage2KHR (swapchain"), std::string::npos) << found[0]->message;
+    EXPECT_NE(found[0]->message.find("vkAcquireNextImage2KHR (swapchain"), std::string::npos)
+        << found[0]->message;
 }
 
 TEST_F(SemaphoreSignals, AnAcquireAfterTheWaitIsValid) {
@@ -211,7 +222,8 @@ TEST_F(SemaphoreSignals, UnknownAndTimelineSemaphoresAreNotReported) {
     TraceScript s(path);
     s.buffer(kTarget, 0x10000, 0x100, VK_BUFFER_USAGE_TRANSFER_DST_BIT);
     s.fill(kTarget, 0, 0x100, 1);
-    s.submit(kQueue, {{0x99, 0, kTransfer}}, {{0x99, 0}, {0x72, 5}}, 0, 2);  // 0x99: signalled outside the trace
+    s.submit(kQueue, {{0x99, 0, kTransfer}}, {{0x99, 0}, {0x72, 5}}, 0,
+             2);  // 0x99: signalled outside the trace
     s.fill(kTarget, 0, 0x100, 2);
     s.submit(kQueue, {}, {{0x72, 5}}, 0, 2);  // a timeline value twice is a different rule
     s.finish();

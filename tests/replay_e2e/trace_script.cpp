@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "trace_script.h"
 
 #include <clastrace/trace_building/cluster_records.h>
@@ -11,7 +12,8 @@ namespace tb = trace_building;
 namespace {
 
 fbs::TraceHeaderT script_header(const ScriptDevice& device) {
-    fbs::TraceHeaderT h = tb::trace_header(tb::kEngineDriver, tb::kEngineDriver, "replay_e2e_tests (trace_script)");
+    fbs::TraceHeaderT h =
+        tb::trace_header(tb::kEngineDriver, tb::kEngineDriver, "replay_e2e_tests (trace_script)");
     engine::EngineProperties p;
     p.max_vertices_per_cluster = device.max_vertices_per_cluster;
     p.max_triangles_per_cluster = device.max_triangles_per_cluster;
@@ -25,7 +27,8 @@ fbs::TraceHeaderT script_header(const ScriptDevice& device) {
     return h;
 }
 
-std::vector<fbs::MemorySnapshot> snapshots_of(tb::RecordWriter& writer, const std::vector<InputSnapshot>& list) {
+std::vector<fbs::MemorySnapshot> snapshots_of(tb::RecordWriter& writer,
+                                              const std::vector<InputSnapshot>& list) {
     std::vector<fbs::MemorySnapshot> out;
     for (const InputSnapshot& s : list) out.push_back(writer.snapshot(s.address, s.bytes));
     return out;
@@ -33,12 +36,13 @@ std::vector<fbs::MemorySnapshot> snapshots_of(tb::RecordWriter& writer, const st
 
 }  // namespace
 
-TraceScript::TraceScript(const std::string& path, const ScriptDevice& device) : writer_(path, script_header(device)) {}
+TraceScript::TraceScript(const std::string& path, const ScriptDevice& device)
+    : writer_(path, script_header(device)) {}
 
 TraceScript::~TraceScript() = default;
 
-void TraceScript::buffer(uint64_t handle, uint64_t address, uint64_t size, uint64_t usage, uint64_t memory,
-                         uint64_t memory_offset) {
+void TraceScript::buffer(uint64_t handle, uint64_t address, uint64_t size, uint64_t usage,
+                         uint64_t memory, uint64_t memory_offset) {
     writer_.buffer(handle, address, size, usage, memory, memory_offset);
 }
 
@@ -48,7 +52,8 @@ void TraceScript::query_build_sizes(const VkClusterAccelerationStructureInputInf
     writer_.append(std::move(q));
 }
 
-void TraceScript::acceleration_structure(uint64_t handle, uint64_t buffer, uint64_t offset, uint64_t size) {
+void TraceScript::acceleration_structure(uint64_t handle, uint64_t buffer, uint64_t offset,
+                                         uint64_t size) {
     fbs::AccelerationStructureCreateT c;
     c.acceleration_structure = handle;
     c.api = 1;
@@ -59,7 +64,8 @@ void TraceScript::acceleration_structure(uint64_t handle, uint64_t buffer, uint6
     writer_.append(std::move(c));
 }
 
-void TraceScript::deserialize(uint64_t src_address, uint64_t dst_object, const std::vector<uint8_t>& serialized) {
+void TraceScript::deserialize(uint64_t src_address, uint64_t dst_object,
+                              const std::vector<uint8_t>& serialized) {
     ensure_begun();
     fbs::CmdCopyMemoryToAccelerationStructureT c;
     c.command_buffer = command_buffer_;
@@ -85,7 +91,8 @@ void TraceScript::begin(uint64_t command_buffer, uint32_t flags) {
     commands_ = 0;
 }
 
-void TraceScript::begin(uint64_t command_buffer, uint32_t flags, uint32_t level, uint32_t restatement) {
+void TraceScript::begin(uint64_t command_buffer, uint32_t flags, uint32_t level,
+                        uint32_t restatement) {
     command_buffer_ = command_buffer;
     fbs::CommandBufferBeginT begin;
     begin.command_buffer = command_buffer;
@@ -115,7 +122,8 @@ void TraceScript::execute_commands(const std::vector<uint64_t>& secondaries) {
     writer_.append(std::move(e));
 }
 
-void TraceScript::submit_listed(uint64_t queue, const std::vector<uint64_t>& command_buffers, uint64_t fence) {
+void TraceScript::submit_listed(uint64_t queue, const std::vector<uint64_t>& command_buffers,
+                                uint64_t fence) {
     fbs::QueueSubmitT s;
     s.queue = queue;
     s.version = 2;
@@ -133,14 +141,16 @@ void TraceScript::ensure_begun() {
     ++commands_;
 }
 
-void TraceScript::cluster(const VkClusterAccelerationStructureCommandsInfoNV& info, const std::vector<InputSnapshot>& inputs) {
+void TraceScript::cluster(const VkClusterAccelerationStructureCommandsInfoNV& info,
+                          const std::vector<InputSnapshot>& inputs) {
     ensure_begun();
     fbs::CmdBuildClusterAccelerationStructureIndirectT b = tb::cluster_build(command_buffer_, info);
     b.inputs = snapshots_of(writer_, inputs);
     writer_.append(std::move(b));
 }
 
-void TraceScript::copy(uint64_t src_buffer, uint64_t src_offset, uint64_t dst_buffer, uint64_t dst_offset, uint64_t size,
+void TraceScript::copy(uint64_t src_buffer, uint64_t src_offset, uint64_t dst_buffer,
+                       uint64_t dst_offset, uint64_t size,
                        const std::vector<InputSnapshot>& inputs) {
     ensure_begun();
     fbs::CmdCopyBufferT c;
@@ -174,48 +184,57 @@ void TraceScript::update(uint64_t dst_buffer, uint64_t offset, const std::vector
     writer_.append(std::move(u));
 }
 
-void TraceScript::dispatch(uint64_t storage_buffer, uint64_t offset, uint64_t range, const std::vector<InputSnapshot>& outputs) {
+void TraceScript::dispatch(uint64_t storage_buffer, uint64_t offset, uint64_t range,
+                           const std::vector<InputSnapshot>& outputs) {
     ensure_begun();
     fbs::CmdDispatchT d;
     d.command_buffer = command_buffer_;
     d.pipeline = 0x7001;
     d.group_count_x = d.group_count_y = d.group_count_z = 1;
-    d.storage_buffers.emplace_back(0, 0, 0, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, storage_buffer, offset, range, 0);
+    d.storage_buffers.emplace_back(0, 0, 0, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, storage_buffer,
+                                   offset, range, 0);
     d.outputs = snapshots_of(writer_, outputs);
     writer_.append(std::move(d));
 }
 
-void TraceScript::barrier(uint64_t src_stages, uint64_t src_access, uint64_t dst_stages, uint64_t dst_access) {
+void TraceScript::barrier(uint64_t src_stages, uint64_t src_access, uint64_t dst_stages,
+                          uint64_t dst_access) {
     ensure_begun();
-    writer_.append(tb::memory_barrier(command_buffer_, src_stages, src_access, dst_stages, dst_access));
+    writer_.append(
+        tb::memory_barrier(command_buffer_, src_stages, src_access, dst_stages, dst_access));
 }
 
-void TraceScript::buffer_barrier(uint64_t buffer, uint64_t offset, uint64_t size, uint64_t src_stages, uint64_t src_access,
-                                 uint64_t dst_stages, uint64_t dst_access) {
+void TraceScript::buffer_barrier(uint64_t buffer, uint64_t offset, uint64_t size,
+                                 uint64_t src_stages, uint64_t src_access, uint64_t dst_stages,
+                                 uint64_t dst_access) {
     ensure_begun();
     fbs::CmdPipelineBarrierT b;
     b.command_buffer = command_buffer_;
     b.version = 2;
     b.dependency = std::make_unique<fbs::DependencyT>();
-    b.dependency->buffer_barriers.emplace_back(src_stages, src_access, dst_stages, dst_access, VK_QUEUE_FAMILY_IGNORED,
-                                               VK_QUEUE_FAMILY_IGNORED, buffer, offset, size);
+    b.dependency->buffer_barriers.emplace_back(src_stages, src_access, dst_stages, dst_access,
+                                               VK_QUEUE_FAMILY_IGNORED, VK_QUEUE_FAMILY_IGNORED,
+                                               buffer, offset, size);
     writer_.append(std::move(b));
 }
 
-void TraceScript::set_event(uint64_t event, uint64_t src_stages, uint64_t src_access, uint64_t dst_stages,
-                            uint64_t dst_access) {
+void TraceScript::set_event(uint64_t event, uint64_t src_stages, uint64_t src_access,
+                            uint64_t dst_stages, uint64_t dst_access) {
     ensure_begun();
-    writer_.append(tb::set_event(command_buffer_, event, src_stages, src_access, dst_stages, dst_access));
+    writer_.append(
+        tb::set_event(command_buffer_, event, src_stages, src_access, dst_stages, dst_access));
 }
 
-void TraceScript::wait_event(uint64_t event, uint64_t src_stages, uint64_t src_access, uint64_t dst_stages,
-                             uint64_t dst_access) {
+void TraceScript::wait_event(uint64_t event, uint64_t src_stages, uint64_t src_access,
+                             uint64_t dst_stages, uint64_t dst_access) {
     ensure_begun();
-    writer_.append(tb::wait_event(command_buffer_, event, src_stages, src_access, dst_stages, dst_access));
+    writer_.append(
+        tb::wait_event(command_buffer_, event, src_stages, src_access, dst_stages, dst_access));
 }
 
 void TraceScript::full_barrier() {
-    barrier(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_WRITE_BIT, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
+    barrier(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_WRITE_BIT,
+            VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
             VK_ACCESS_2_MEMORY_READ_BIT | VK_ACCESS_2_MEMORY_WRITE_BIT);
 }
 
@@ -228,20 +247,24 @@ void TraceScript::next_command_buffer() {
     recorded_ = false;
 }
 
-void TraceScript::submit(uint64_t queue, const std::vector<SemaphoreUse>& waits, const std::vector<SemaphoreUse>& signals,
-                         uint64_t fence, uint8_t version) {
+void TraceScript::submit(uint64_t queue, const std::vector<SemaphoreUse>& waits,
+                         const std::vector<SemaphoreUse>& signals, uint64_t fence,
+                         uint8_t version) {
     ensure_begun();
     writer_.append(tb::command_buffer_end(command_buffer_));
     std::vector<uint64_t> command_buffers = std::move(batch_);
     batch_.clear();
     command_buffers.push_back(command_buffer_);
-    fbs::QueueSubmitT s = tb::queue_submit(queue, std::move(command_buffers), fence, writer_.next_submission_index());
+    fbs::QueueSubmitT s =
+        tb::queue_submit(queue, std::move(command_buffers), fence, writer_.next_submission_index());
     s.version = version;
     fbs::SubmitBatchT& batch = *s.batches[0];
-    for (const SemaphoreUse& w : waits) batch.wait_semaphores.emplace_back(w.semaphore, w.value, w.stages, 0);
+    for (const SemaphoreUse& w : waits)
+        batch.wait_semaphores.emplace_back(w.semaphore, w.value, w.stages, 0);
     // vkQueueSubmit has no signal stage mask (the capture records ALL_COMMANDS); a v1 record
     // with another mask tests that replay ignores it.
-    for (const SemaphoreUse& g : signals) batch.signal_semaphores.emplace_back(g.semaphore, g.value, g.stages, 0);
+    for (const SemaphoreUse& g : signals)
+        batch.signal_semaphores.emplace_back(g.semaphore, g.value, g.stages, 0);
     writer_.append(std::move(s));
     command_buffer_ = next_command_buffer_++;
     begun_ = false;
@@ -249,7 +272,8 @@ void TraceScript::submit(uint64_t queue, const std::vector<SemaphoreUse>& waits,
 }
 
 void TraceScript::resubmit(uint64_t queue, uint64_t command_buffer, uint64_t fence) {
-    writer_.append(tb::queue_submit(queue, {command_buffer}, fence, writer_.next_submission_index()));
+    writer_.append(
+        tb::queue_submit(queue, {command_buffer}, fence, writer_.next_submission_index()));
 }
 
 void TraceScript::wait_fence(uint64_t fence) { writer_.wait_fence(fence); }
@@ -266,7 +290,8 @@ void TraceScript::present(uint64_t queue, const std::vector<uint64_t>& waits, ui
     writer_.append(std::move(p));
 }
 
-void TraceScript::acquire(uint64_t semaphore, uint64_t fence, int32_t result, uint32_t device_mask) {
+void TraceScript::acquire(uint64_t semaphore, uint64_t fence, int32_t result,
+                          uint32_t device_mask) {
     fbs::AcquireNextImageT a;
     a.swapchain = 0x5c;
     a.timeout = ~0ull;

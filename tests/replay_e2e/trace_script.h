@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // A trace written command by command with the TraceWriter, as a capture would record it:
 // buffers with their usage, cluster commands with their input snapshots, copies, fills,
 // updates, dispatches, barriers, submissions with semaphores, host waits. No mirror
@@ -48,8 +49,8 @@ public:
 
     // --- memory ---------------------------------------------------------------------
     // A buffer bound to `memory` at `memory_offset` with device address `address` (0: none).
-    void buffer(uint64_t handle, uint64_t address, uint64_t size, uint64_t usage, uint64_t memory = 0x1001,
-                uint64_t memory_offset = 0);
+    void buffer(uint64_t handle, uint64_t address, uint64_t size, uint64_t usage,
+                uint64_t memory = 0x1001, uint64_t memory_offset = 0);
     // vkGetClusterAccelerationStructureBuildSizesNV with this input (10445).
     void query_build_sizes(const VkClusterAccelerationStructureInputInfoNV& input);
     // vkCreateAccelerationStructureKHR over [offset, offset + size) of `buffer`.
@@ -58,29 +59,36 @@ public:
     void host_write(uint64_t address, const std::vector<uint8_t>& bytes);
 
     // --- commands of the current command buffer ---------------------------------------
-    void cluster(const VkClusterAccelerationStructureCommandsInfoNV& info, const std::vector<InputSnapshot>& inputs);
-    void copy(uint64_t src_buffer, uint64_t src_offset, uint64_t dst_buffer, uint64_t dst_offset, uint64_t size,
-              const std::vector<InputSnapshot>& inputs = {});
+    void cluster(const VkClusterAccelerationStructureCommandsInfoNV& info,
+                 const std::vector<InputSnapshot>& inputs);
+    void copy(uint64_t src_buffer, uint64_t src_offset, uint64_t dst_buffer, uint64_t dst_offset,
+              uint64_t size, const std::vector<InputSnapshot>& inputs = {});
     void fill(uint64_t dst_buffer, uint64_t offset, uint64_t size, uint32_t data);
     // vkCmdCopyMemoryToAccelerationStructureKHR (deserialize) of `serialized` at src_address.
-    void deserialize(uint64_t src_address, uint64_t dst_object, const std::vector<uint8_t>& serialized);
+    void deserialize(uint64_t src_address, uint64_t dst_object,
+                     const std::vector<uint8_t>& serialized);
     void update(uint64_t dst_buffer, uint64_t offset, const std::vector<uint8_t>& data);
     // A dispatch with one storage buffer range bound; `outputs` is what the capture saw it write.
-    void dispatch(uint64_t storage_buffer, uint64_t offset, uint64_t range, const std::vector<InputSnapshot>& outputs = {});
-    void barrier(uint64_t src_stages, uint64_t src_access, uint64_t dst_stages, uint64_t dst_access);
-    void buffer_barrier(uint64_t buffer, uint64_t offset, uint64_t size, uint64_t src_stages, uint64_t src_access,
-                        uint64_t dst_stages, uint64_t dst_access);
+    void dispatch(uint64_t storage_buffer, uint64_t offset, uint64_t range,
+                  const std::vector<InputSnapshot>& outputs = {});
+    void barrier(uint64_t src_stages, uint64_t src_access, uint64_t dst_stages,
+                 uint64_t dst_access);
+    void buffer_barrier(uint64_t buffer, uint64_t offset, uint64_t size, uint64_t src_stages,
+                        uint64_t src_access, uint64_t dst_stages, uint64_t dst_access);
     // vkCmdSetEvent2 / vkCmdWaitEvents2 with one VkMemoryBarrier2.
-    void set_event(uint64_t event, uint64_t src_stages, uint64_t src_access, uint64_t dst_stages, uint64_t dst_access);
-    void wait_event(uint64_t event, uint64_t src_stages, uint64_t src_access, uint64_t dst_stages, uint64_t dst_access);
+    void set_event(uint64_t event, uint64_t src_stages, uint64_t src_access, uint64_t dst_stages,
+                   uint64_t dst_access);
+    void wait_event(uint64_t event, uint64_t src_stages, uint64_t src_access, uint64_t dst_stages,
+                    uint64_t dst_access);
     // ALL_COMMANDS/MEMORY_WRITE -> ALL_COMMANDS/MEMORY_READ|WRITE.
     void full_barrier();
 
     // --- queues ---------------------------------------------------------------------
     // Ends the current command buffer and submits it (version 1: vkQueueSubmit, whose
     // signals carry no stage mask; 2: vkQueueSubmit2). Later commands go into a fresh one.
-    void submit(uint64_t queue, const std::vector<SemaphoreUse>& waits = {}, const std::vector<SemaphoreUse>& signals = {},
-                uint64_t fence = 0, uint8_t version = 2);
+    void submit(uint64_t queue, const std::vector<SemaphoreUse>& waits = {},
+                const std::vector<SemaphoreUse>& signals = {}, uint64_t fence = 0,
+                uint8_t version = 2);
     // Ends the current command buffer; the next commands go into a fresh one, submitted in
     // the same batch as this one by the next submit().
     void next_command_buffer();
@@ -92,7 +100,8 @@ public:
     // signalling `semaphore` and `fence` (0: none) with `result` (`device_mask` not 0:
     // vkAcquireNextImage2KHR).
     void present(uint64_t queue, const std::vector<uint64_t>& waits, uint64_t frame = 0);
-    void acquire(uint64_t semaphore, uint64_t fence = 0, int32_t result = 0, uint32_t device_mask = 0);
+    void acquire(uint64_t semaphore, uint64_t fence = 0, int32_t result = 0,
+                 uint32_t device_mask = 0);
     // vkResetCommandBuffer (pool 0) or, with command_buffer 0, vkResetCommandPool.
     void reset(uint64_t command_buffer, uint64_t pool);
     // The command buffer commands go into now (begun on first use).
@@ -109,7 +118,8 @@ public:
     // vkCmdExecuteCommands in the current command buffer.
     void execute_commands(const std::vector<uint64_t>& secondaries);
     // One vkQueueSubmit of one batch listing `command_buffers` (already recorded), in this order.
-    void submit_listed(uint64_t queue, const std::vector<uint64_t>& command_buffers, uint64_t fence = 0);
+    void submit_listed(uint64_t queue, const std::vector<uint64_t>& command_buffers,
+                       uint64_t fence = 0);
 
     // Submits what is recorded (if anything), waits for the device, finishes the file.
     void finish();

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // VUIDs 12305 and 12307 over whole ranges: srcInfosArray and dstAddressesArray must be a
 // "device address range" from buffers with the usage, not just their first byte. Each case is
 // a broken/valid twin over aliased buffers: a large buffer without the usage, and over its
@@ -34,16 +35,18 @@ std::string temp_path(const std::string& name) { return temp_trace_path("usage_r
 struct RangeCase {
     const char* name;
     const char* vuid;
-    uint64_t wide_usage;    // the large buffer: lacks the rule's usage
-    uint64_t alias_usage;   // the alias over its start: has it
-    uint64_t element;       // bytes of one element of the array
-    bool infos;             // srcInfosArray (12305) or dstAddressesArray (12307)
+    uint64_t wide_usage;   // the large buffer: lacks the rule's usage
+    uint64_t alias_usage;  // the alias over its start: has it
+    uint64_t element;      // bytes of one element of the array
+    bool infos;            // srcInfosArray (12305) or dstAddressesArray (12307)
 };
 
 const RangeCase kCases[] = {
-    {"InfosRangeLeavesTheBufferWithBuildInputUsage", "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12305",
+    {"InfosRangeLeavesTheBufferWithBuildInputUsage",
+     "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12305",
      kSda | kStorage | kAsStorage, kSda | kInput, sizeof(TriangleInfo), true},
-    {"AddressesRangeLeavesTheBufferWithStorageUsage", "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12307",
+    {"AddressesRangeLeavesTheBufferWithStorageUsage",
+     "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12307",
      kSda | kStorage | kInput, kSda | kAsStorage, 8, false},
 };
 
@@ -57,10 +60,13 @@ uint32_t write_twin(const RangeCase& rc, bool broken, const std::string& path) {
     add_buffers(t);
     t.buffer(0xc001, kRangeBase, kWide, rc.wide_usage, 0x2003, 0);
     // The alias is bound after the large buffer, so the image's region is the large one's.
-    t.buffer(0xc002, kRangeBase, broken ? rc.element : kDefaultOps * rc.element, rc.alias_usage, 0x2003, 0);
+    t.buffer(0xc002, kRangeBase, broken ? rc.element : kDefaultOps * rc.element, rc.alias_usage,
+             0x2003, 0);
     ClusterCommand c = triangle_clusters(Destinations::kImplicit);
-    if (rc.infos) c.info.srcInfosArray.deviceAddress = c.infos_address = kRangeBase;
-    else c.info.dstAddressesArray.deviceAddress = kRangeBase;
+    if (rc.infos)
+        c.info.srcInfosArray.deviceAddress = c.infos_address = kRangeBase;
+    else
+        c.info.dstAddressesArray.deviceAddress = kRangeBase;
     const uint32_t at = c.emit(t);
     t.finish();
     return at;
@@ -92,7 +98,9 @@ TEST_P(UsageRange, ValidTwinIsClean) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Replay, UsageRange, ::testing::ValuesIn(kCases),
-                         [](const ::testing::TestParamInfo<RangeCase>& info) { return std::string(info.param.name); });
+                         [](const ::testing::TestParamInfo<RangeCase>& info) {
+                             return std::string(info.param.name);
+                         });
 
 // Two adjacent buffers both with the usage serve one range between them: every byte is
 // covered, so a range crossing from one buffer into the next is no finding.

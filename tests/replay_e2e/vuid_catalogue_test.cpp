@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The VUID catalogue: for every valid-usage rule of vkCmdBuildClusterAccelerationStructureIndirectNV,
 // VkClusterAccelerationStructureCommandsInfoNV and the per-op info structs that needs the
 // memory contents or the capture's state, one trace that breaks exactly that rule and a
@@ -103,7 +104,8 @@ const VuidCase kCases[] = {
          c.inputs.push_back({kCount, bytes_of(std::vector<uint32_t>{2})});
          at = {c.emit(t), -1};
      }},
-    {"ScratchSmallerThanQueried", "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-scratchData-12300",
+    {"ScratchSmallerThanQueried",
+     "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-scratchData-12300",
      [](TraceScript& t, bool broken, Expected& at) {
          ClusterCommand c = triangle_clusters(Destinations::kImplicit);
          if (broken) c.info.scratchData = kSmallScratch;
@@ -115,103 +117,120 @@ const VuidCase kCases[] = {
          if (broken) c.info.scratchData = kScratch + 64;
          at = {c.emit(t), -1};
      }},
-    {"MoveInfosStrideBelowStruct", "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-10448",
+    {"MoveInfosStrideBelowStruct",
+     "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-10448",
      [](TraceScript& t, bool broken, Expected& at) {
          prior_clusters(t);
          ClusterCommand c = move_clusters();
          short_stride(c, broken);
          at = {c.emit(t), -1};
      }},
-    {"BottomLevelInfosStrideBelowStruct", "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-10449",
+    {"BottomLevelInfosStrideBelowStruct",
+     "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-10449",
      [](TraceScript& t, bool broken, Expected& at) {
          prior_clusters(t);
          ClusterCommand c = bottom_level();
          short_stride(c, broken);
          at = {c.emit(t), -1};
      }},
-    {"TriangleInfosStrideBelowStruct", "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-10450",
+    {"TriangleInfosStrideBelowStruct",
+     "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-10450",
      [](TraceScript& t, bool broken, Expected& at) {
          ClusterCommand c = triangle_clusters(Destinations::kImplicit);
          short_stride(c, broken);
          at = {c.emit(t), -1};
      }},
-    {"TemplateInfosStrideBelowStruct", "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-10451",
+    {"TemplateInfosStrideBelowStruct",
+     "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-10451",
      [](TraceScript& t, bool broken, Expected& at) {
          ClusterCommand c = triangle_templates(Destinations::kImplicit);
          short_stride(c, broken);
          at = {c.emit(t), -1};
      }},
-    {"InstantiateInfosStrideBelowStruct", "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-10452",
+    {"InstantiateInfosStrideBelowStruct",
+     "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-10452",
      [](TraceScript& t, bool broken, Expected& at) {
          prior_templates(t);
          ClusterCommand c = instantiate();
          short_stride(c, broken);
          at = {c.emit(t), -1};
      }},
-    {"TemplateIndicesInfosStrideBelowStruct", "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-10832",
+    {"TemplateIndicesInfosStrideBelowStruct",
+     "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-10832",
      [](TraceScript& t, bool broken, Expected& at) {
          prior_templates(t);
          ClusterCommand c = template_indices();
          short_stride(c, broken);
          at = {c.emit(t), -1};
      }},
-    {"CountInMemoryAboveMax", "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-10453",
+    {"CountInMemoryAboveMax",
+     "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-10453",
      [](TraceScript& t, bool broken, Expected& at) {
          ClusterCommand c = triangle_clusters(Destinations::kImplicit);
          c.info.srcInfosCount = kCount;
          c.inputs.push_back({kCount, bytes_of(std::vector<uint32_t>{broken ? 5u : 2u})});
          at = {c.emit(t), -1};
      }},
-    {"InfosArrayShorterThanCount", "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-10454",
+    {"InfosArrayShorterThanCount",
+     "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-10454",
      [](TraceScript& t, bool broken, Expected& at) {
          ClusterCommand c = triangle_clusters(Destinations::kImplicit);
-         if (broken) c.info.srcInfosArray.size = c.info.srcInfosArray.stride;  // one info for two ops
+         if (broken)
+             c.info.srcInfosArray.size = c.info.srcInfosArray.stride;  // one info for two ops
          at = {c.emit(t), -1};
      }},
-    {"ExplicitDestinationsOverlap", "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-dstAddressesArray-12302",
+    {"ExplicitDestinationsOverlap",
+     "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-dstAddressesArray-12302",
      [](TraceScript& t, bool broken, Expected& at) {
          ClusterCommand c = triangle_clusters(Destinations::kExplicit);
          if (broken) c.inputs.back() = {kOut, bytes_of(std::vector<uint64_t>{kDst, kDst + 128})};
          at = {c.emit(t), -1};
      }},
-    {"ExplicitDestinationOverlapsScratch", "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-dstAddressesArray-12302",
+    {"ExplicitDestinationOverlapsScratch",
+     "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-dstAddressesArray-12302",
      [](TraceScript& t, bool broken, Expected& at) {
          ClusterCommand c = triangle_clusters(Destinations::kExplicit);
          if (broken) c.inputs.back() = {kOut, bytes_of(std::vector<uint64_t>{kDst, kScratch})};
          at = {c.emit(t), -1};
      }},
-    {"ImplicitDataOverlapsScratch", "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-dstImplicitData-12303",
+    {"ImplicitDataOverlapsScratch",
+     "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-dstImplicitData-12303",
      [](TraceScript& t, bool broken, Expected& at) {
          ClusterCommand c = triangle_clusters(Destinations::kImplicit);
          if (broken) c.info.dstImplicitData = kScratch;
          at = {c.emit(t), -1};
      }},
-    {"ScratchWithoutStorageUsage", "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12304",
+    {"ScratchWithoutStorageUsage",
+     "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12304",
      [](TraceScript& t, bool broken, Expected& at) {
          ClusterCommand c = triangle_clusters(Destinations::kImplicit);
          if (broken) c.info.scratchData = kNoStorage;
          at = {c.emit(t), -1};
      }},
-    {"InfosWithoutBuildInputUsage", "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12305",
+    {"InfosWithoutBuildInputUsage",
+     "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12305",
      [](TraceScript& t, bool broken, Expected& at) {
          ClusterCommand c = triangle_clusters(Destinations::kImplicit);
          if (broken) c.info.srcInfosArray.deviceAddress = c.infos_address = kNoInput;
          at = {c.emit(t), -1};
      }},
-    {"CountWithoutBuildInputUsage", "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12306",
+    {"CountWithoutBuildInputUsage",
+     "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12306",
      [](TraceScript& t, bool broken, Expected& at) {
          ClusterCommand c = triangle_clusters(Destinations::kImplicit);
          c.info.srcInfosCount = broken ? kNoInput + 0x8000 : kCount;
          c.inputs.push_back({c.info.srcInfosCount, bytes_of(std::vector<uint32_t>{2})});
          at = {c.emit(t), -1};
      }},
-    {"AddressesWithoutStorageUsage", "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12307",
+    {"AddressesWithoutStorageUsage",
+     "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12307",
      [](TraceScript& t, bool broken, Expected& at) {
          ClusterCommand c = triangle_clusters(Destinations::kImplicit);
          if (broken) c.info.dstAddressesArray.deviceAddress = kNoAsStorage;
          at = {c.emit(t), -1};
      }},
-    {"ImplicitDataWithoutStorageUsage", "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12308",
+    {"ImplicitDataWithoutStorageUsage",
+     "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12308",
      [](TraceScript& t, bool broken, Expected& at) {
          ClusterCommand c = triangle_clusters(Destinations::kImplicit);
          if (broken) c.info.dstImplicitData = kNoAsStorage;
@@ -219,41 +238,50 @@ const VuidCase kCases[] = {
      }},
 
     // ---- VkClusterAccelerationStructureTriangleClusterInputNV --------------------------
-    {"InputVertexFormatUnsupported", "VUID-VkClusterAccelerationStructureTriangleClusterInputNV-vertexFormat-10439",
+    {"InputVertexFormatUnsupported",
+     "VUID-VkClusterAccelerationStructureTriangleClusterInputNV-vertexFormat-10439",
      [](TraceScript& t, bool broken, Expected& at) {
          broken_input(t, broken, at, [](auto& in) { in.vertexFormat = VK_FORMAT_R8_UNORM; });
      }},
-    {"InputMaxTrianglesAboveDevice", "VUID-VkClusterAccelerationStructureTriangleClusterInputNV-maxClusterTriangleCount-10440",
+    {"InputMaxTrianglesAboveDevice",
+     "VUID-VkClusterAccelerationStructureTriangleClusterInputNV-maxClusterTriangleCount-10440",
      [](TraceScript& t, bool broken, Expected& at) {
          broken_input(t, broken, at, [](auto& in) { in.maxClusterTriangleCount = 17; });
      }},
-    {"InputMaxVerticesAboveDevice", "VUID-VkClusterAccelerationStructureTriangleClusterInputNV-maxClusterVertexCount-10441",
+    {"InputMaxVerticesAboveDevice",
+     "VUID-VkClusterAccelerationStructureTriangleClusterInputNV-maxClusterVertexCount-10441",
      [](TraceScript& t, bool broken, Expected& at) {
          broken_input(t, broken, at, [](auto& in) { in.maxClusterVertexCount = 17; });
      }},
-    {"InputMinTruncateAbove32", "VUID-VkClusterAccelerationStructureTriangleClusterInputNV-minPositionTruncateBitCount-10442",
+    {"InputMinTruncateAbove32",
+     "VUID-VkClusterAccelerationStructureTriangleClusterInputNV-minPositionTruncateBitCount-10442",
      [](TraceScript& t, bool broken, Expected& at) {
          broken_input(t, broken, at, [](auto& in) { in.minPositionTruncateBitCount = 33; });
      },
      // Every info's positionTruncateBitCount (<= 32) is then below the minimum.
-     {"VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-positionTruncateBitCount-10493"}},
+     {"VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-positionTruncateBitCount-"
+      "10493"}},
 
     // ---- VkClusterAccelerationStructureBuildTriangleClusterInfoNV ----------------------
-    {"TriangleClusterIdAllOnes", "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-clusterID-10488",
+    {"TriangleClusterIdAllOnes",
+     "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-clusterID-10488",
      [](TraceScript& t, bool broken, Expected& at) {
          broken_triangle_op(t, broken, at, [](TriangleInfo& i) { i.clusterID = 0xFFFFFFFFu; });
      }},
-    {"TriangleCountAboveDevice", "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-triangleCount-10489",
+    {"TriangleCountAboveDevice",
+     "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-triangleCount-10489",
      [](TraceScript& t, bool broken, Expected& at) {
          broken_triangle_op(t, broken, at, [](TriangleInfo& i) { i.triangleCount = 17; });
      },
      {kCountAboveInput}},
-    {"TriangleVertexCountAboveDevice", "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-vertexCount-10490",
+    {"TriangleVertexCountAboveDevice",
+     "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-vertexCount-10490",
      [](TraceScript& t, bool broken, Expected& at) {
          broken_triangle_op(t, broken, at, [](TriangleInfo& i) { i.vertexCount = 17; });
      },
      {kCountAboveInput}},
-    {"TriangleIndexTypeTwoBits", "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-indexType-10491",
+    {"TriangleIndexTypeTwoBits",
+     "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-indexType-10491",
      [](TraceScript& t, bool broken, Expected& at) {
          broken_triangle_op(t, broken, at, [](TriangleInfo& i) { i.indexType = 3; });
      }},
@@ -267,11 +295,14 @@ const VuidCase kCases[] = {
          });
          at = {c.emit(t), 1};
      }},
-    {"TriangleTruncateAbove32", "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-positionTruncateBitCount-10493",
+    {"TriangleTruncateAbove32",
+     "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-positionTruncateBitCount-10493",
      [](TraceScript& t, bool broken, Expected& at) {
-         broken_triangle_op(t, broken, at, [](TriangleInfo& i) { i.positionTruncateBitCount = 40; });
+         broken_triangle_op(t, broken, at,
+                            [](TriangleInfo& i) { i.positionTruncateBitCount = 40; });
      }},
-    {"TriangleIndexStrideNotMultiple", "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-indexBufferStride-10494",
+    {"TriangleIndexStrideNotMultiple",
+     "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-indexBufferStride-10494",
      [](TraceScript& t, bool broken, Expected& at) {
          ClusterCommand c = triangle_clusters(Destinations::kImplicit);
          edit_info<TriangleInfo>(c, 1, [&](TriangleInfo& i) {
@@ -281,46 +312,59 @@ const VuidCase kCases[] = {
          });
          at = {c.emit(t), 1};
      }},
-    {"TriangleVertexStrideNotMultiple", "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-vertexBufferStride-10495",
+    {"TriangleVertexStrideNotMultiple",
+     "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-vertexBufferStride-10495",
      [](TraceScript& t, bool broken, Expected& at) {
          broken_triangle_op(t, broken, at, [](TriangleInfo& i) { i.vertexBufferStride = 14; });
      }},
-    {"TriangleGeometryIndexAtDeviceLimit", "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-baseGeometryIndex-10496",
+    {"TriangleGeometryIndexAtDeviceLimit",
+     "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-baseGeometryIndex-10496",
      [](TraceScript& t, bool broken, Expected& at) {
          ClusterCommand c = triangle_clusters(Destinations::kImplicit);
-         edit_info<TriangleInfo>(c, 1, [&](TriangleInfo& i) { i.baseGeometryIndexAndGeometryFlags.geometryIndex = broken ? 1000 : 999; });
+         edit_info<TriangleInfo>(c, 1, [&](TriangleInfo& i) {
+             i.baseGeometryIndexAndGeometryFlags.geometryIndex = broken ? 1000 : 999;
+         });
          at = {c.emit(t), 1};
      }},
-    {"TriangleGeometryReservedBits", "VUID-VkClusterAccelerationStructureGeometryIndexAndGeometryFlagsNV-reserved-10487",
+    {"TriangleGeometryReservedBits",
+     "VUID-VkClusterAccelerationStructureGeometryIndexAndGeometryFlagsNV-reserved-10487",
      [](TraceScript& t, bool broken, Expected& at) {
-         broken_triangle_op(t, broken, at, [](TriangleInfo& i) { i.baseGeometryIndexAndGeometryFlags.reserved = 1; });
+         broken_triangle_op(t, broken, at, [](TriangleInfo& i) {
+             i.baseGeometryIndexAndGeometryFlags.reserved = 1;
+         });
      }},
-    {"TriangleClusterFlagsUnknownBit", "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-clusterFlags-parameter",
+    {"TriangleClusterFlagsUnknownBit",
+     "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-clusterFlags-parameter",
      [](TraceScript& t, bool broken, Expected& at) {
          broken_triangle_op(t, broken, at, [](TriangleInfo& i) { i.clusterFlags = 0x8; });
      }},
 
     // ---- VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV --------------
-    {"TemplateClusterIdAllOnes", "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-clusterID-10497",
+    {"TemplateClusterIdAllOnes",
+     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-clusterID-10497",
      [](TraceScript& t, bool broken, Expected& at) {
          broken_template_op(t, broken, at, [](TemplateInfo& i) { i.clusterID = 0xFFFFFFFFu; });
      }},
-    {"TemplateTriangleCountAboveDevice", "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-triangleCount-10498",
+    {"TemplateTriangleCountAboveDevice",
+     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-triangleCount-10498",
      [](TraceScript& t, bool broken, Expected& at) {
          broken_template_op(t, broken, at, [](TemplateInfo& i) { i.triangleCount = 17; });
      },
      {kCountAboveInput}},
-    {"TemplateVertexCountAboveDevice", "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-vertexCount-10499",
+    {"TemplateVertexCountAboveDevice",
+     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-vertexCount-10499",
      [](TraceScript& t, bool broken, Expected& at) {
          broken_template_op(t, broken, at, [](TemplateInfo& i) { i.vertexCount = 17; });
      },
      {kCountAboveInput}},
-    {"TemplateIndexTypeTwoBits", "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-indexType-10500",
+    {"TemplateIndexTypeTwoBits",
+     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-indexType-10500",
      [](TraceScript& t, bool broken, Expected& at) {
          broken_template_op(t, broken, at, [](TemplateInfo& i) { i.indexType = 3; });
      }},
     {"TemplateMicromapIndexTypeTwoBits",
-     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-opacityMicromapIndexType-10501",
+     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-"
+     "opacityMicromapIndexType-10501",
      [](TraceScript& t, bool broken, Expected& at) {
          ClusterCommand c = triangle_templates(Destinations::kImplicit);
          edit_info<TemplateInfo>(c, 1, [&](TemplateInfo& i) {
@@ -330,12 +374,15 @@ const VuidCase kCases[] = {
          at = {c.emit(t), 1};
      }},
     {"TemplateTruncateAbove32",
-     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-positionTruncateBitCount-10502",
+     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-"
+     "positionTruncateBitCount-10502",
      [](TraceScript& t, bool broken, Expected& at) {
-         broken_template_op(t, broken, at, [](TemplateInfo& i) { i.positionTruncateBitCount = 40; });
+         broken_template_op(t, broken, at,
+                            [](TemplateInfo& i) { i.positionTruncateBitCount = 40; });
      }},
     {"TemplateIndexStrideNotMultiple",
-     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-indexBufferStride-10503",
+     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-indexBufferStride-"
+     "10503",
      [](TraceScript& t, bool broken, Expected& at) {
          ClusterCommand c = triangle_templates(Destinations::kImplicit);
          edit_info<TemplateInfo>(c, 1, [&](TemplateInfo& i) {
@@ -346,22 +393,29 @@ const VuidCase kCases[] = {
          at = {c.emit(t), 1};
      }},
     {"TemplateVertexStrideNotMultiple",
-     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-vertexBufferStride-10504",
+     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-vertexBufferStride-"
+     "10504",
      [](TraceScript& t, bool broken, Expected& at) {
          broken_template_op(t, broken, at, [](TemplateInfo& i) { i.vertexBufferStride = 14; });
      }},
     {"TemplateBoundsMisaligned",
-     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-instantiationBoundingBoxLimit-10505",
+     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-"
+     "instantiationBoundingBoxLimit-10505",
      [](TraceScript& t, bool broken, Expected& at) {
          ClusterCommand c = triangle_templates(Destinations::kImplicit);
-         edit_info<TemplateInfo>(c, 1, [&](TemplateInfo& i) { i.instantiationBoundingBoxLimit = broken ? kBounds + 8 : kBounds; });
+         edit_info<TemplateInfo>(c, 1, [&](TemplateInfo& i) {
+             i.instantiationBoundingBoxLimit = broken ? kBounds + 8 : kBounds;
+         });
          at = {c.emit(t), 1};
      }},
     {"TemplateGeometryIndexAtDeviceLimit",
-     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-baseGeometryIndex-10506",
+     "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-baseGeometryIndex-"
+     "10506",
      [](TraceScript& t, bool broken, Expected& at) {
          ClusterCommand c = triangle_templates(Destinations::kImplicit);
-         edit_info<TemplateInfo>(c, 1, [&](TemplateInfo& i) { i.baseGeometryIndexAndGeometryFlags.geometryIndex = broken ? 1000 : 999; });
+         edit_info<TemplateInfo>(c, 1, [&](TemplateInfo& i) {
+             i.baseGeometryIndexAndGeometryFlags.geometryIndex = broken ? 1000 : 999;
+         });
          at = {c.emit(t), 1};
      }},
     {"TemplateClusterFlagsUnknownBit",
@@ -371,24 +425,28 @@ const VuidCase kCases[] = {
      }},
 
     // ---- VkClusterAccelerationStructureInstantiateClusterInfoNV ------------------------
-    {"InstantiateWithoutPositions", "VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-vertexBuffer-10507",
+    {"InstantiateWithoutPositions",
+     "VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-vertexBuffer-10507",
      [](TraceScript& t, bool broken, Expected& at) {
          ClusterCommand templates = triangle_templates(Destinations::kExplicit);
          edit_info<TemplateInfo>(templates, 0, [](TemplateInfo& i) { i.vertexBuffer = 0; });
          templates.emit(t);
          t.full_barrier();
          ClusterCommand c = instantiate();
-         if (broken) edit_info<InstantiateInfo>(c, 1, [](InstantiateInfo& i) { i.vertexBuffer = {0, 0}; });
+         if (broken)
+             edit_info<InstantiateInfo>(c, 1, [](InstantiateInfo& i) { i.vertexBuffer = {0, 0}; });
          at = {c.emit(t), 1};
      }},
-    {"InstantiateVertexFormatDiffers", "VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-vertexBuffer-10508",
+    {"InstantiateVertexFormatDiffers",
+     "VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-vertexBuffer-10508",
      [](TraceScript& t, bool broken, Expected& at) {
          prior_templates(t);
          ClusterCommand c = instantiate();
          if (broken) c.triangles.vertexFormat = VK_FORMAT_R32G32B32A32_SFLOAT;
          at = {c.emit(t), 0};  // every op instantiates with the command's format: op 0 first
      }},
-    {"InstantiateReservedNotZero", "VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-reserved-10509",
+    {"InstantiateReservedNotZero",
+     "VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-reserved-10509",
      [](TraceScript& t, bool broken, Expected& at) {
          broken_instantiate_op(t, broken, at, [](InstantiateInfo& i) { i.reserved = 1; });
      }},
@@ -397,15 +455,20 @@ const VuidCase kCases[] = {
      [](TraceScript& t, bool broken, Expected& at) {
          prior_templates(t);
          ClusterCommand c = instantiate();
-         edit_info<InstantiateInfo>(c, 1, [&](InstantiateInfo& i) { i.geometryIndexOffset = broken ? 1000 : 999; });
+         edit_info<InstantiateInfo>(c, 1, [&](InstantiateInfo& i) {
+             i.geometryIndexOffset = broken ? 1000 : 999;
+         });
          at = {c.emit(t), 1};
      }},
 
     // ---- VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV ------------------
-    {"BottomLevelReferencesTwice", "VUID-VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV-clusterReferences-10484",
+    {"BottomLevelReferencesTwice",
+     "VUID-VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV-clusterReferences-10484",
      [](TraceScript& t, bool broken, Expected& at) {
          prior_clusters(t);
-         ClusterCommand c = bottom_level(broken ? std::vector<uint64_t>{kDst, kDst} : std::vector<uint64_t>{kDst, kDst + kExplicitStride});
+         ClusterCommand c =
+             bottom_level(broken ? std::vector<uint64_t>{kDst, kDst}
+                                 : std::vector<uint64_t>{kDst, kDst + kExplicitStride});
          at = {c.emit(t), 0};
      }},
     {"BottomLevelReferencesOutsideMemory",
@@ -413,24 +476,33 @@ const VuidCase kCases[] = {
      [](TraceScript& t, bool broken, Expected& at) {
          prior_clusters(t);
          ClusterCommand c = bottom_level();
-         if (broken) edit_info<BottomLevelInfo>(c, 0, [](BottomLevelInfo& i) { i.clusterReferences = 0x70000000; });
+         if (broken)
+             edit_info<BottomLevelInfo>(c, 0, [](BottomLevelInfo& i) {
+                 i.clusterReferences = 0x70000000;
+             });
          at = {c.emit(t), 0};
      }},
     {"BottomLevelReferenceStrideBelow8",
-     "VUID-VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV-clusterReferencesStride-10486",
+     "VUID-VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV-clusterReferencesStride-"
+     "10486",
      [](TraceScript& t, bool broken, Expected& at) {
          prior_clusters(t);
          ClusterCommand c = bottom_level();
-         if (broken) edit_info<BottomLevelInfo>(c, 0, [](BottomLevelInfo& i) { i.clusterReferencesStride = 4; });
+         if (broken)
+             edit_info<BottomLevelInfo>(c, 0,
+                                        [](BottomLevelInfo& i) { i.clusterReferencesStride = 4; });
          at = {c.emit(t), 0};
      }},
 
     // ---- VkClusterAccelerationStructureMoveObjectsInfoNV -------------------------------
-    {"MoveSourceIsNoObject", "VUID-VkClusterAccelerationStructureMoveObjectsInfoNV-srcAccelerationStructure-10483",
+    {"MoveSourceIsNoObject",
+     "VUID-VkClusterAccelerationStructureMoveObjectsInfoNV-srcAccelerationStructure-10483",
      [](TraceScript& t, bool broken, Expected& at) {
          prior_clusters(t);
          ClusterCommand c = move_clusters();
-         if (broken) edit_info<uint64_t>(c, 1, [](uint64_t& source) { source = kDst + kExplicitStride + 0x800; });
+         if (broken)
+             edit_info<uint64_t>(c, 1,
+                                 [](uint64_t& source) { source = kDst + kExplicitStride + 0x800; });
          at = {c.emit(t), 1};
      }},
 };
@@ -438,7 +510,8 @@ const VuidCase kCases[] = {
 class VuidCatalogue : public ::testing::TestWithParam<VuidCase> {
 protected:
     replay::ReplayReport run(bool broken, Expected* at) {
-        return replay_catalogue_scene(temp_path(std::string(GetParam().name) + (broken ? "_broken.clt" : "_twin.clt")),
+        return replay_catalogue_scene(temp_path(std::string(GetParam().name) +
+                                                (broken ? "_broken.clt" : "_twin.clt")),
                                       [&](TraceScript& t) { GetParam().scene(t, broken, *at); });
     }
 };
@@ -448,7 +521,8 @@ TEST_P(VuidCatalogue, BrokenTraceReportsItsVuidAtTheCommandAndOp) {
     Expected at;
     const replay::ReplayReport r = run(true, &at);
     const std::string text = replay::format_text(r);
-    auto it = std::find_if(r.findings.begin(), r.findings.end(), [&](const replay::ReplayFinding& f) { return f.rule == c.vuid; });
+    auto it = std::find_if(r.findings.begin(), r.findings.end(),
+                           [&](const replay::ReplayFinding& f) { return f.rule == c.vuid; });
     ASSERT_NE(it, r.findings.end()) << "expected " << c.vuid << "\n" << text;
     EXPECT_EQ(it->where.command, at.command) << text;
     EXPECT_EQ(it->op_index, at.op) << text;
@@ -457,10 +531,14 @@ TEST_P(VuidCatalogue, BrokenTraceReportsItsVuidAtTheCommandAndOp) {
     // Nothing else: only the rule itself and the rules the same value must break too.
     std::set<std::string> allowed(c.companions.begin(), c.companions.end());
     allowed.insert(c.vuid);
-    for (const replay::ReplayFinding& f : r.findings) EXPECT_TRUE(allowed.count(f.rule)) << f.rule << "\n" << text;
+    for (const replay::ReplayFinding& f : r.findings)
+        EXPECT_TRUE(allowed.count(f.rule)) << f.rule << "\n" << text;
     // Rules of the command's input struct are one finding however many ops use the input.
-    if (std::string(c.vuid).starts_with("VUID-VkClusterAccelerationStructureTriangleClusterInputNV-")) {
-        EXPECT_EQ(std::count_if(r.findings.begin(), r.findings.end(), [&](const auto& f) { return f.rule == c.vuid; }), 1)
+    if (std::string(c.vuid).starts_with(
+            "VUID-VkClusterAccelerationStructureTriangleClusterInputNV-")) {
+        EXPECT_EQ(std::count_if(r.findings.begin(), r.findings.end(),
+                                [&](const auto& f) { return f.rule == c.vuid; }),
+                  1)
             << text;
     }
     EXPECT_TRUE(r.hazards.empty()) << text;
@@ -475,17 +553,21 @@ TEST_P(VuidCatalogue, ValidTwinIsClean) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Replay, VuidCatalogue, ::testing::ValuesIn(kCases),
-                         [](const ::testing::TestParamInfo<VuidCase>& info) { return std::string(info.param.name); });
+                         [](const ::testing::TestParamInfo<VuidCase>& info) {
+                             return std::string(info.param.name);
+                         });
 
 // Every VUID the issue lists has a case (the catalogue is the list).
 TEST(VuidCatalogueCoverage, EveryListedVuidHasACase) {
-    const char* listed[] = {"10445", "12300", "12301", "12302", "12303", "12304", "12305", "12306", "12307", "12308",
-                            "10448", "10449", "10450", "10451", "10452", "10832", "10453", "10454", "10488", "10489",
-                            "10490", "10491", "10492", "10493", "10494", "10495", "10496", "10497", "10498", "10499",
-                            "10500", "10501", "10502", "10503", "10504", "10505", "10506"};
+    const char* listed[] = {"10445", "12300", "12301", "12302", "12303", "12304", "12305", "12306",
+                            "12307", "12308", "10448", "10449", "10450", "10451", "10452", "10832",
+                            "10453", "10454", "10488", "10489", "10490", "10491", "10492", "10493",
+                            "10494", "10495", "10496", "10497", "10498", "10499", "10500", "10501",
+                            "10502", "10503", "10504", "10505", "10506"};
     for (const char* number : listed) {
         bool found = false;
-        for (const VuidCase& c : kCases) found |= std::string(c.vuid).ends_with(std::string("-") + number);
+        for (const VuidCase& c : kCases)
+            found |= std::string(c.vuid).ends_with(std::string("-") + number);
         EXPECT_TRUE(found) << number;
     }
 }
@@ -496,13 +578,16 @@ TEST(VuidCatalogueCoverage, EveryListedVuidHasACase) {
 TEST(VuidCatalogueUsage, AliasedBufferWithTheUsageSatisfiesTheRule) {
     constexpr uint64_t kAliased = 0x20000000;
     for (bool with_alias : {true, false}) {
-        const replay::ReplayReport r =
-            replay_catalogue_scene(temp_path(with_alias ? "aliased.clt" : "unaliased.clt"), [&](TraceScript& t) {
+        const replay::ReplayReport r = replay_catalogue_scene(
+            temp_path(with_alias ? "aliased.clt" : "unaliased.clt"), [&](TraceScript& t) {
                 t.buffer(0xa001, kAliased, 0x10000,
-                         VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, 0x2002, 0);
+                         VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT |
+                             VK_BUFFER_USAGE_STORAGE_BUFFER_BIT,
+                         0x2002, 0);
                 if (with_alias)
                     t.buffer(0xa002, kAliased, 0x10000,
-                             VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR,
+                             VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT |
+                                 VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR,
                              0x2002, 0);
                 ClusterCommand c = triangle_clusters(Destinations::kImplicit);
                 c.info.dstImplicitData = kAliased;
@@ -512,7 +597,8 @@ TEST(VuidCatalogueUsage, AliasedBufferWithTheUsageSatisfiesTheRule) {
             EXPECT_TRUE(r.clean()) << replay::format_text(r);
         } else {
             ASSERT_EQ(r.findings.size(), 1u) << replay::format_text(r);
-            EXPECT_EQ(r.findings[0].rule, "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12308");
+            EXPECT_EQ(r.findings[0].rule,
+                      "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-12308");
         }
     }
 }

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Replay of vkCmdBuildAccelerationStructureNV / vkCmdCopyMemoryToAccelerationStructureKHR
 // traces written here with TraceWriter as a driver capture would be, with RayQueryCheck
 // records whose "driver" answers come from Embree: every object rebuilt, driver handles
@@ -35,7 +36,8 @@ std::vector<BlasSpec> scene_blas() {
     std::vector<BlasSpec> out(3);
     out[0].geometries.push_back({ts::make_icosphere(2, 1.0f), {}, VK_GEOMETRY_OPAQUE_BIT_NV});
     out[1].geometries.push_back({ts::make_torus(16, 8, 1.0f, 0.3f), {}, 0});
-    out[1].geometries.push_back({ts::make_random_soup(100, 3, 0.5f, 0.3f), {}, VK_GEOMETRY_OPAQUE_BIT_NV});
+    out[1].geometries.push_back(
+        {ts::make_random_soup(100, 3, 0.5f, 0.3f), {}, VK_GEOMETRY_OPAQUE_BIT_NV});
     out[2].aabbs = true;
     out[2].geometries.push_back({{}, random_boxes(40, 9), VK_GEOMETRY_OPAQUE_BIT_NV});
     return out;
@@ -46,16 +48,21 @@ struct RaySet {
     std::vector<uint32_t> flags, masks;
     std::vector<RefHit> answers;
 };
-RaySet driver_rays(const std::vector<BlasSpec>& blas, const std::vector<InstanceSpec>& instances, size_t n, uint64_t seed) {
+RaySet driver_rays(const std::vector<BlasSpec>& blas, const std::vector<InstanceSpec>& instances,
+                   size_t n, uint64_t seed) {
     EmbreeNvScene embree(blas, instances);
     ts::Bounds box;
     box.extend({-7, -7, -7});
     box.extend({7, 7, 7});
     RaySet s;
     std::mt19937_64 rng(seed);
-    const uint32_t flag_sets[] = {0, eng::kRayFlagOpaque, eng::kRayFlagCullBackFacingTriangles, eng::kRayFlagCullNoOpaque};
+    const uint32_t flag_sets[] = {0, eng::kRayFlagOpaque, eng::kRayFlagCullBackFacingTriangles,
+                                  eng::kRayFlagCullNoOpaque};
     for (const auto& t : ts::random_rays(box, n, seed)) {
-        const eng::Ray r{{t.origin[0], t.origin[1], t.origin[2]}, 0.0f, {t.direction[0], t.direction[1], t.direction[2]}, t.tmax};
+        const eng::Ray r{{t.origin[0], t.origin[1], t.origin[2]},
+                         0.0f,
+                         {t.direction[0], t.direction[1], t.direction[2]},
+                         t.tmax};
         const uint32_t f = flag_sets[rng() % 4], m = rng() % 3 ? 0xFFu : uint32_t(rng() & 0xFF);
         s.rays.push_back(r);
         s.flags.push_back(f);
@@ -73,7 +80,8 @@ struct Written {
 };
 
 // BLAS builds, a barrier, the TLAS build, submit; instance records carry driver handles.
-Written write_scene(NvTraceBuilder& t, size_t instance_count, uint64_t seed, uint64_t bad_handle = 0) {
+Written write_scene(NvTraceBuilder& t, size_t instance_count, uint64_t seed,
+                    uint64_t bad_handle = 0) {
     Written w;
     w.blas = scene_blas();
     w.instances = random_instances(instance_count, int(w.blas.size()), 4.0f, seed);
@@ -150,9 +158,9 @@ TEST(ReplayNv, WrongDriverAnswersAreCountedAndReported) {
         for (size_t i = 0; i < s.answers.size() && changed < 20; ++i) {
             RefHit& a = s.answers[i];
             if (!a.hit || a.hit_kind == 0) continue;
-            a.t *= 1.01f;                        // another t ...
-            if (changed % 2) a.primitive += 1;   // ... and for half of them another primitive
-            a.u = a.v = 0.3f;                    // away from the edges
+            a.t *= 1.01f;                       // another t ...
+            if (changed % 2) a.primitive += 1;  // ... and for half of them another primitive
+            a.u = a.v = 0.3f;                   // away from the edges
             ++changed;
         }
         // A miss the driver reported as a hit far from any edge.
@@ -185,7 +193,9 @@ TEST(ReplayNv, InstanceHandleThatTranslatesToNothingIsAFinding) {
         t.finish();
     }
     const replay::ReplayReport r = replay_file(path);
-    EXPECT_EQ(count_rule(r, "VUID-vkCmdBuildAccelerationStructureNV-accelerationStructureReference-12264"), 1u)
+    EXPECT_EQ(count_rule(
+                  r, "VUID-vkCmdBuildAccelerationStructureNV-accelerationStructureReference-12264"),
+              1u)
         << replay::format_text(r);
 }
 
@@ -197,7 +207,8 @@ TEST(ReplayNv, TheCapturingDevicesLimitsApply) {
         t.finish();
     }
     const replay::ReplayReport r = replay_file(path);
-    EXPECT_EQ(count_rule(r, "VUID-VkAccelerationStructureInfoNV-instanceCount-02422"), 1u) << replay::format_text(r);
+    EXPECT_EQ(count_rule(r, "VUID-VkAccelerationStructureInfoNV-instanceCount-02422"), 1u)
+        << replay::format_text(r);
     // A deserialization on a device whose recorded extensions lack VK_KHR_acceleration_structure.
     for (bool with_khr : {false, true}) {
         {
@@ -212,7 +223,10 @@ TEST(ReplayNv, TheCapturingDevicesLimitsApply) {
             t.finish();
         }
         const replay::ReplayReport r2 = replay_file(path);
-        EXPECT_EQ(count_rule(r2, "VUID-vkCmdCopyMemoryToAccelerationStructureKHR-accelerationStructure-08927"), with_khr ? 0u : 1u)
+        EXPECT_EQ(count_rule(
+                      r2,
+                      "VUID-vkCmdCopyMemoryToAccelerationStructureKHR-accelerationStructure-08927"),
+                  with_khr ? 0u : 1u)
             << replay::format_text(r2);
     }
     std::filesystem::remove(path);
@@ -280,19 +294,26 @@ TEST(ReplayNv, AnotherDriversBlobIsOpaqueButItsHeaderIsChecked) {
             std::memcpy(blob.data() + 56 + 8 * i, &handle, 8);
         }
         const uint64_t src = t.buffer(blob.data(), blob.size() + 64);
-        auto copy = t.create(NvTraceBuilder::tlas_info(4), 400);  // the driver said 400 bytes: too small for 512
+        auto copy = t.create(NvTraceBuilder::tlas_info(4),
+                             400);  // the driver said 400 bytes: too small for 512
         t.deserialize(src, copy);
         t.barrier();
-        t.deserialize(src, copy, VK_COPY_ACCELERATION_STRUCTURE_MODE_DESERIALIZE_KHR, 8);  // misaligned source
+        t.deserialize(src, copy, VK_COPY_ACCELERATION_STRUCTURE_MODE_DESERIALIZE_KHR,
+                      8);  // misaligned source
         t.submit();
-        t.ray_check(copy, {eng::Ray{{0, 0, 9}, 0, {0, 0, -1}, 100}}, {0}, {0xFF}, {RefHit{}}, "opaque");
+        t.ray_check(copy, {eng::Ray{{0, 0, 9}, 0, {0, 0, -1}, 100}}, {0}, {0xFF}, {RefHit{}},
+                    "opaque");
         t.finish();
     }
     const replay::ReplayReport r = replay_file(path);
-    EXPECT_GE(count_rule(r, "CLASTRACE-serialized-blob-from-another-driver"), 1u) << replay::format_text(r);
-    EXPECT_GE(count_rule(r, "VUID-VkCopyMemoryToAccelerationStructureInfoKHR-dst-03746"), 1u) << replay::format_text(r);
-    EXPECT_EQ(count_rule(r, "CLASTRACE-deserialize-handle-names-no-created-object"), 1u) << replay::format_text(r);
-    EXPECT_EQ(count_rule(r, "VUID-vkCmdCopyMemoryToAccelerationStructureKHR-pInfo-03743"), 1u) << replay::format_text(r);
+    EXPECT_GE(count_rule(r, "CLASTRACE-serialized-blob-from-another-driver"), 1u)
+        << replay::format_text(r);
+    EXPECT_GE(count_rule(r, "VUID-VkCopyMemoryToAccelerationStructureInfoKHR-dst-03746"), 1u)
+        << replay::format_text(r);
+    EXPECT_EQ(count_rule(r, "CLASTRACE-deserialize-handle-names-no-created-object"), 1u)
+        << replay::format_text(r);
+    EXPECT_EQ(count_rule(r, "VUID-vkCmdCopyMemoryToAccelerationStructureKHR-pInfo-03743"), 1u)
+        << replay::format_text(r);
     ASSERT_EQ(r.ray_checks.size(), 1u);
     EXPECT_FALSE(r.ray_checks[0].checked);
     EXPECT_NE(r.ray_checks[0].why_not.find("another driver"), std::string::npos);
@@ -349,8 +370,10 @@ TEST(ReplayNv, HostileCreationCountsAndDeserializedSizesAllocateNothing) {
         auto info = t.blas_info(blas[0]);
         auto huge = info;
         const auto& o = *huge.geometries[0]->triangles;
-        huge.geometries[0]->triangles = std::make_unique<fbs::GeometryTrianglesNV>(
-            o.vertex_data(), 0, 0xFFFFFFFFu, o.vertex_format(), 12, o.index_data(), 0, 0xFFFFFFFFu, o.index_type(), 0, 0);
+        huge.geometries[0]->triangles =
+            std::make_unique<fbs::GeometryTrianglesNV>(o.vertex_data(), 0, 0xFFFFFFFFu,
+                                                       o.vertex_format(), 12, o.index_data(), 0,
+                                                       0xFFFFFFFFu, o.index_type(), 0, 0);
         auto obj = t.create(huge, 1000);
         t.build(info, obj);
         std::vector<uint8_t> blob(256, 0);
@@ -367,7 +390,8 @@ TEST(ReplayNv, HostileCreationCountsAndDeserializedSizesAllocateNothing) {
         t.finish();
     }
     const replay::ReplayReport r = replay_file(path);
-    EXPECT_EQ(count_rule(r, "CLASTRACE-replay-nv-object-over-budget"), 1u) << replay::format_text(r);
+    EXPECT_EQ(count_rule(r, "CLASTRACE-replay-nv-object-over-budget"), 1u)
+        << replay::format_text(r);
     EXPECT_GE(count_rule(r, "VUID-VkCopyMemoryToAccelerationStructureInfoKHR-dst-03746") +
                   count_rule(r, "VUID-VkCopyMemoryToAccelerationStructureInfoKHR-src-04960"),
               1u)
@@ -388,25 +412,29 @@ TEST(ReplayNv, RandomMutationsOfInstanceRecordsNeverCrash) {
                 auto& g = *info.geometries[0];
                 const auto& o = *g.triangles;
                 g.triangles = std::make_unique<fbs::GeometryTrianglesNV>(
-                    o.vertex_data(), o.vertex_offset(), rng() % 2 ? uint32_t(rng()) : o.vertex_count(), o.vertex_format(),
-                    rng() % 3 ? rng() : 0, o.index_data(), rng() % 2 ? rng() % 64 : 0, o.index_count(), o.index_type(), 0, 0);
+                    o.vertex_data(), o.vertex_offset(),
+                    rng() % 2 ? uint32_t(rng()) : o.vertex_count(), o.vertex_format(),
+                    rng() % 3 ? rng() : 0, o.index_data(), rng() % 2 ? rng() % 64 : 0,
+                    o.index_count(), o.index_type(), 0, 0);
                 const auto& a = *g.aabbs;
-                g.aabbs = std::make_unique<fbs::GeometryAabbNV>(a.aabb_data(), uint32_t(rng()), uint32_t(rng() % 64), a.offset());
+                g.aabbs = std::make_unique<fbs::GeometryAabbNV>(a.aabb_data(), uint32_t(rng()),
+                                                                uint32_t(rng() % 64), a.offset());
             }
             auto obj = t.create(info, 1000);
             t.build(info, obj);
             std::vector<InstanceSpec> inst = random_instances(8, 1, 3.0f, rng());
             NvWorld side;
             auto bytes = side.instance_bytes(inst, {rng() % 2 ? obj.driver_handle : rng()});
-            for (int k = 0, n = 1 + int(rng() % 10); k < n; ++k) bytes[rng() % bytes.size()] = uint8_t(rng());
+            for (int k = 0, n = 1 + int(rng() % 10); k < n; ++k)
+                bytes[rng() % bytes.size()] = uint8_t(rng());
             const uint64_t ib = t.buffer(bytes.data(), bytes.size());
             auto tinfo = NvTraceBuilder::tlas_info(rng() % 4 ? 8 : uint32_t(rng()));
             auto tlas = t.create(tinfo, 4000);
             t.build(tinfo, tlas, ib, rng() % 4 == 0, rng() % 2 ? &tlas : nullptr);
             t.submit();
             std::vector<eng::Ray> rays(50, eng::Ray{{0, 0, 9}, 0, {0.01f, 0.02f, -1}, 100});
-            t.ray_check(tlas, rays, std::vector<uint32_t>(50, 0), std::vector<uint32_t>(50, 0xFF), std::vector<RefHit>(50),
-                        "mutant");
+            t.ray_check(tlas, rays, std::vector<uint32_t>(50, 0), std::vector<uint32_t>(50, 0xFF),
+                        std::vector<RefHit>(50), "mutant");
             t.finish();
         }
         const replay::ReplayReport r = replay_file(path);

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // `clastrace` on arguments and inputs it must refuse: out-of-range options, a submission the
 // trace does not hold, paths that are not regular files (FIFO, pipe, device, directory), and
 // traces that cannot be opened under --json. Each is exit 2 with one clear line, never a
@@ -25,7 +26,8 @@ struct ProgramRun {
 // `timeout` turns a hang (the FIFO case before its fix) into exit 124 instead of a stuck test.
 ProgramRun run(const std::string& args, const std::string& stderr_to = "&1") {
     ProgramRun r;
-    const std::string cmd = "timeout 20 " + std::string(CLASTRACE_BIN) + " " + args + " 2>" + stderr_to;
+    const std::string cmd =
+        "timeout 20 " + std::string(CLASTRACE_BIN) + " " + args + " 2>" + stderr_to;
     FILE* p = popen(cmd.c_str(), "r");
     if (!p) return r;
     std::array<char, 4096> buf;
@@ -36,9 +38,13 @@ ProgramRun run(const std::string& args, const std::string& stderr_to = "&1") {
     return r;
 }
 
-bool has(const ProgramRun& r, const std::string& text) { return r.output.find(text) != std::string::npos; }
+bool has(const ProgramRun& r, const std::string& text) {
+    return r.output.find(text) != std::string::npos;
+}
 
-bool has_a_huge_number(const std::string& text) { return std::regex_search(text, std::regex("[0-9]{21,}")); }
+bool has_a_huge_number(const std::string& text) {
+    return std::regex_search(text, std::regex("[0-9]{21,}"));
+}
 
 const std::string kSample = CLASTRACE_SAMPLE;  // one submission, finished (indexed)
 const char* const kCommands[] = {"info", "replay", "analyze"};
@@ -60,7 +66,8 @@ TEST(ClastraceCliInput, MaxRawMibZeroIsRefusedWithAReadableRangeByEveryReader) {
         EXPECT_TRUE(has(r, "--max-raw-mib")) << r.output;
         EXPECT_TRUE(has(r, "from 1 to 17592186044415, not '0'")) << r.output;
         EXPECT_FALSE(has_a_huge_number(r.output)) << r.output;
-        EXPECT_EQ(run(std::string(command) + " --max-raw-mib 4096 " + kSample).exit_code, 0) << command;
+        EXPECT_EQ(run(std::string(command) + " --max-raw-mib 4096 " + kSample).exit_code, 0)
+            << command;
     }
 }
 
@@ -82,7 +89,8 @@ TEST(ClastraceCliInput, SubmitBeyondTheTraceSaysHowManyItHolds) {
     nlohmann::json j = nlohmann::json::parse(json.output);
     EXPECT_EQ(j["trace"], kSample);
     EXPECT_EQ(j["error"]["code"], "invalid_argument");
-    EXPECT_NE(j["error"]["message"].get<std::string>().find("holds 1 submission"), std::string::npos);
+    EXPECT_NE(j["error"]["message"].get<std::string>().find("holds 1 submission"),
+              std::string::npos);
 }
 
 // Without its index (trailer cut off) the count comes from the replay itself.
@@ -94,7 +102,9 @@ TEST(ClastraceCliInput, SubmitBeyondATraceWithoutIndexSaysHowManyWereRead) {
     write_file(path, bytes);
     ProgramRun r = run("replay --submit 7 " + path);
     EXPECT_EQ(r.exit_code, 2) << r.output;
-    EXPECT_TRUE(has(r, "--submit 7: the readable part of the trace holds 3 submissions (--submit 0 to 2)")) << r.output;
+    EXPECT_TRUE(
+        has(r, "--submit 7: the readable part of the trace holds 3 submissions (--submit 0 to 2)"))
+        << r.output;
     std::filesystem::remove(path);
 }
 
@@ -105,14 +115,17 @@ TEST(ClastraceCliInput, FifoWithoutWriterIsRefusedAtOnce) {
     for (const char* command : kCommands) {
         ProgramRun r = run(std::string(command) + " " + fifo);
         EXPECT_EQ(r.exit_code, 2) << command << ": " << r.output;
-        EXPECT_TRUE(has(r, "not a regular file (a FIFO or pipe): clastrace reads traces from regular files"))
+        EXPECT_TRUE(
+            has(r,
+                "not a regular file (a FIFO or pipe): clastrace reads traces from regular files"))
             << command << ": " << r.output;
     }
     std::filesystem::remove(fifo);
 }
 
 TEST(ClastraceCliInput, PipeIsRefusedNotCalledEmpty) {
-    const std::string cmd = "cat " + kSample + " | timeout 20 " + std::string(CLASTRACE_BIN) + " info /dev/stdin 2>&1";
+    const std::string cmd =
+        "cat " + kSample + " | timeout 20 " + std::string(CLASTRACE_BIN) + " info /dev/stdin 2>&1";
     FILE* p = popen(cmd.c_str(), "r");
     ASSERT_TRUE(p);
     std::string out;
@@ -128,9 +141,11 @@ TEST(ClastraceCliInput, DevZeroAndDirectoriesAreRefused) {
     for (const char* command : kCommands) {
         ProgramRun zero = run(std::string(command) + " /dev/zero");
         EXPECT_EQ(zero.exit_code, 2) << command << ": " << zero.output;
-        EXPECT_TRUE(has(zero, "not a regular file (a character device)")) << command << ": " << zero.output;
+        EXPECT_TRUE(has(zero, "not a regular file (a character device)"))
+            << command << ": " << zero.output;
         EXPECT_FALSE(has(zero, "empty file")) << command << ": " << zero.output;
-        ProgramRun dir = run(std::string(command) + " " + std::filesystem::temp_directory_path().string());
+        ProgramRun dir =
+            run(std::string(command) + " " + std::filesystem::temp_directory_path().string());
         EXPECT_EQ(dir.exit_code, 2) << command << ": " << dir.output;
         EXPECT_TRUE(has(dir, "not a regular file (a directory)")) << command << ": " << dir.output;
     }
@@ -148,7 +163,8 @@ TEST(ClastraceCliInput, AnalyzeJsonPrintsAnErrorObjectWhenTheTraceCannotBeOpened
 
     ProgramRun fifo_kind = run("analyze --json /dev/zero", "/dev/null");
     EXPECT_EQ(fifo_kind.exit_code, 2);
-    EXPECT_NE(nlohmann::json::parse(fifo_kind.output)["error"]["message"].get<std::string>().find("not a regular file"),
+    EXPECT_NE(nlohmann::json::parse(fifo_kind.output)["error"]["message"].get<std::string>().find(
+                  "not a regular file"),
               std::string::npos);
 }
 

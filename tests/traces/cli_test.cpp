@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Runs the built `clastrace` program on good, damaged and unreadable traces and checks
 // its exit codes (0 intact, 1 damage, 2 usage/unreadable) and what it prints.
 #include "trace_test_support.h"
@@ -20,7 +21,8 @@ struct ProgramRun {
 
 ProgramRun run(const std::string& args, bool merge_stderr = true) {
     ProgramRun r;
-    std::string cmd = std::string(CLASTRACE_BIN) + " " + args + (merge_stderr ? " 2>&1" : " 2>/dev/null");
+    std::string cmd =
+        std::string(CLASTRACE_BIN) + " " + args + (merge_stderr ? " 2>&1" : " 2>/dev/null");
     FILE* p = popen(cmd.c_str(), "r");
     if (!p) return r;
     std::array<char, 4096> buf;
@@ -54,10 +56,12 @@ TEST(ClastraceCli, UsageErrorsExitWithTwo) {
 TEST(ClastraceCli, InfoOnTheSampleIsCleanAndComplete) {
     ProgramRun r = run("info " + kSample);
     EXPECT_EQ(r.exit_code, 0) << r.output;
-    for (const char* text : {"NVIDIA GeForce RTX 4080 (sample)", "maxVerticesPerCluster 256",
-                             "CmdBuildClusterAccelerationStructureIndirect", "CmdBuildAccelerationStructureNV",
-                             "QueueSubmit", "dedup ratio", "compression ratio", "damage      none"}) {
-        EXPECT_NE(r.output.find(text), std::string::npos) << "missing \"" << text << "\" in\n" << r.output;
+    for (const char* text :
+         {"NVIDIA GeForce RTX 4080 (sample)", "maxVerticesPerCluster 256",
+          "CmdBuildClusterAccelerationStructureIndirect", "CmdBuildAccelerationStructureNV",
+          "QueueSubmit", "dedup ratio", "compression ratio", "damage      none"}) {
+        EXPECT_NE(r.output.find(text), std::string::npos) << "missing \"" << text << "\" in\n"
+                                                          << r.output;
     }
 }
 
@@ -70,15 +74,18 @@ TEST(ClastraceCli, InfoJsonHasTheDocumentedFields) {
     EXPECT_EQ(j["header"]["device"]["cluster_properties"]["maxVerticesPerCluster"], 256);
     EXPECT_EQ(j["header"]["device"]["cluster_properties"]["clusterBottomLevelByteAlignment"], 256);
     EXPECT_EQ(j["header"]["device"]["cluster_features"]["enabled"], true);
-    EXPECT_EQ(j["header"]["device"]["cluster_features"]["served"], false);  // the sample's driver built them
+    EXPECT_EQ(j["header"]["device"]["cluster_features"]["served"],
+              false);  // the sample's driver built them
     EXPECT_EQ(j["index"]["present"], true);
     EXPECT_EQ(j["index"]["submissions"], 1);
     EXPECT_EQ(j["records"]["by_kind"]["QueueSubmit"], 1);
     EXPECT_EQ(j["records"]["by_kind"]["CmdBuildClusterAccelerationStructureIndirect"], 1);
     EXPECT_EQ(j["records"]["by_kind"]["DebugLabel"], 0);  // every kind is listed, zero or not
-    EXPECT_GT(j["memory"]["bytes_referenced"].get<uint64_t>(), j["memory"]["bytes_stored"].get<uint64_t>());
+    EXPECT_GT(j["memory"]["bytes_referenced"].get<uint64_t>(),
+              j["memory"]["bytes_stored"].get<uint64_t>());
     EXPECT_GT(j["memory"]["dedup_ratio"].get<double>(), 1.0);
-    EXPECT_GT(j["chunks"]["raw_bytes"].get<uint64_t>(), j["chunks"]["compressed_bytes"].get<uint64_t>());
+    EXPECT_GT(j["chunks"]["raw_bytes"].get<uint64_t>(),
+              j["chunks"]["compressed_bytes"].get<uint64_t>());
     EXPECT_EQ(j["damage"]["count"], 0);
     EXPECT_TRUE(j["damage"]["items"].empty());
 }
@@ -112,12 +119,15 @@ TEST(ClastraceCli, DamagedTraceExitsWithOneAndNamesTheOffset) {
 TEST(ClastraceCli, UnreadableInputExitsWithTwo) {
     ProgramRun missing = run("info /nonexistent/trace.clt");
     EXPECT_EQ(missing.exit_code, 2);
-    EXPECT_NE(missing.output.find("/nonexistent/trace.clt: offset 0: cannot open"), std::string::npos) << missing.output;
+    EXPECT_NE(missing.output.find("/nonexistent/trace.clt: offset 0: cannot open"),
+              std::string::npos)
+        << missing.output;
     const std::string text = temp_path("text.clt");
     write_file(text, std::vector<uint8_t>(100, 'a'));
     ProgramRun not_trace = run("info " + text);
     EXPECT_EQ(not_trace.exit_code, 2);
-    EXPECT_NE(not_trace.output.find("not a clastrace trace"), std::string::npos) << not_trace.output;
+    EXPECT_NE(not_trace.output.find("not a clastrace trace"), std::string::npos)
+        << not_trace.output;
     const std::string empty = temp_path("empty.clt");
     write_file(empty, {});
     ProgramRun e = run("info --json " + empty);

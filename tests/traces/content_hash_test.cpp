@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The writer's content hashing (traces/src/content_hash.h): every kernel this CPU runs gives
 // XXH3's own values for the pieces' concatenation, however it is cut, at every length class of
 // XXH3 (0, 1-3, 4-8, 9-16, 17-128, 129-240, long, across its 1 KiB stripes' blocks).
@@ -17,7 +18,8 @@ std::vector<ContentPiece> cut(const std::vector<uint8_t>& bytes, std::mt19937& r
     std::vector<ContentPiece> pieces;
     size_t at = 0;
     while (at < bytes.size()) {
-        const size_t n = std::min<size_t>(bytes.size() - at, std::uniform_int_distribution<size_t>(0, 700)(random));
+        const size_t n = std::min<size_t>(bytes.size() - at,
+                                          std::uniform_int_distribution<size_t>(0, 700)(random));
         pieces.push_back({bytes.data() + at, n});  // an empty piece now and then
         at += n;
     }
@@ -43,12 +45,14 @@ TEST(ContentHash, EveryKernelGivesXxh3sValuesForTheConcatenation) {
             const uint64_t key = XXH3_64bits(bytes.data(), size);
             for (int cuts = 0; cuts < 3; ++cuts) {
                 const std::vector<ContentPiece> pieces =
-                    cuts == 0 ? std::vector<ContentPiece>{{bytes.data(), size}} : cut(bytes, random);
+                    cuts == 0 ? std::vector<ContentPiece>{{bytes.data(), size}}
+                              : cut(bytes, random);
                 const ContentHashes got = kernels[k].hash(pieces.data(), pieces.size());
                 ASSERT_EQ(got.fingerprint_low, wide.low64) << "size " << size;
                 ASSERT_EQ(got.fingerprint_high, wide.high64) << "size " << size;
                 ASSERT_EQ(got.key_seed0, key) << "size " << size;
-                ASSERT_EQ(kernels[k].key(pieces.data(), pieces.size(), 5), XXH3_64bits_withSeed(bytes.data(), size, 5))
+                ASSERT_EQ(kernels[k].key(pieces.data(), pieces.size(), 5),
+                          XXH3_64bits_withSeed(bytes.data(), size, 5))
                     << "size " << size;
             }
         }

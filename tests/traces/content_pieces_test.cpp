@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Contents given in pieces (a snapshot merged from adjacent ranges read separately): the key,
 // the stored bytes and the deduplication must be those of the same bytes given whole.
 #include "trace_test_support.h"
@@ -28,7 +29,8 @@ TEST(ContentPieces, SameKeyAndBytesAsWholeAndDeduplicatedAcrossCuts) {
     uint64_t whole_key = 0;
     ASSERT_FALSE(w->add_contents(whole.data(), whole.size(), &whole_key));
     // The same bytes cut three ways (an empty piece included): the stored record is found again.
-    for (std::vector<size_t> cuts : std::vector<std::vector<size_t>>{{1, 4999}, {240, 0, 1000, 3760}, {4999, 1}}) {
+    for (std::vector<size_t> cuts :
+         std::vector<std::vector<size_t>>{{1, 4999}, {240, 0, 1000, 3760}, {4999, 1}}) {
         std::vector<ContentPiece> pieces;
         size_t at = 0;
         for (size_t n : cuts) {
@@ -42,7 +44,8 @@ TEST(ContentPieces, SameKeyAndBytesAsWholeAndDeduplicatedAcrossCuts) {
     }
     // New bytes first given in pieces get the key of the whole string, and are stored whole.
     const std::vector<uint8_t> other = pattern(3000, 99);
-    const ContentPiece halves[] = {{other.data(), 1234}, {other.data() + 1234, other.size() - 1234}};
+    const ContentPiece halves[] = {{other.data(), 1234},
+                                   {other.data() + 1234, other.size() - 1234}};
     uint64_t pieces_key = 0;
     ASSERT_FALSE(w->add_contents(halves, &pieces_key));
     uint64_t again = 0;

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Vulkan structs -> trace records -> Vulkan structs (traces/cluster_conversions.h,
 // traces/nv_conversions.h): every field comes back, at zero, at its maximum and with every flag
 // bit set, through the bytes a trace stores (each record is packed and read back).
@@ -51,7 +52,8 @@ void expect_equal(const VkClusterAccelerationStructureTriangleClusterInputNV& a,
     EXPECT_EQ(a.minPositionTruncateBitCount, b.minPositionTruncateBitCount);
 }
 
-void expect_equal(const VkStridedDeviceAddressRegionKHR& a, const VkStridedDeviceAddressRegionKHR& b) {
+void expect_equal(const VkStridedDeviceAddressRegionKHR& a,
+                  const VkStridedDeviceAddressRegionKHR& b) {
     EXPECT_EQ(a.deviceAddress, b.deviceAddress);
     EXPECT_EQ(a.stride, b.stride);
     EXPECT_EQ(a.size, b.size);
@@ -67,7 +69,8 @@ void expect_equal_header(const VkClusterAccelerationStructureInputInfoNV& a,
     EXPECT_EQ(a.opMode, b.opMode);
 }
 
-VkClusterAccelerationStructureInputInfoNV input_info(VkClusterAccelerationStructureOpTypeNV type, uint32_t value) {
+VkClusterAccelerationStructureInputInfoNV input_info(VkClusterAccelerationStructureOpTypeNV type,
+                                                     uint32_t value) {
     VkClusterAccelerationStructureInputInfoNV in{};
     in.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
     in.maxAccelerationStructureCount = value;
@@ -78,9 +81,9 @@ VkClusterAccelerationStructureInputInfoNV input_info(VkClusterAccelerationStruct
 }
 
 // The input info as replay sees it: packed, read back, decoded.
-VkClusterAccelerationStructureInputInfoNV round_trip(const VkClusterAccelerationStructureInputInfoNV& in,
-                                                     ClusterOpInputStorage& storage,
-                                                     flatbuffers::FlatBufferBuilder& fbb) {
+VkClusterAccelerationStructureInputInfoNV round_trip(
+    const VkClusterAccelerationStructureInputInfoNV& in, ClusterOpInputStorage& storage,
+    flatbuffers::FlatBufferBuilder& fbb) {
     const auto record = cluster_input_to_record(in);
     return cluster_input_from_record(&packed<fbs::ClusterInputInfo>(*record, fbb), storage);
 }
@@ -94,7 +97,8 @@ TEST(ClusterConversions, TriangleClusterInputOfEveryTriangleOpTypeRoundTrips) {
             SCOPED_TRACE(testing::Message() << "op type " << type << ", value " << value);
             const auto limits = triangle_limits(value);
             auto in = input_info(type, value);
-            in.opInput.pTriangleClusters = const_cast<VkClusterAccelerationStructureTriangleClusterInputNV*>(&limits);
+            in.opInput.pTriangleClusters =
+                const_cast<VkClusterAccelerationStructureTriangleClusterInputNV*>(&limits);
             ClusterOpInputStorage storage;
             flatbuffers::FlatBufferBuilder fbb;
             const auto out = round_trip(in, storage, fbb);
@@ -107,10 +111,13 @@ TEST(ClusterConversions, TriangleClusterInputOfEveryTriangleOpTypeRoundTrips) {
 TEST(ClusterConversions, BottomLevelInputRoundTrips) {
     for (uint32_t value : {0u, kMax32}) {
         VkClusterAccelerationStructureClustersBottomLevelInputNV bottom{};
-        bottom.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
+        bottom.sType =
+            VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
         bottom.maxTotalClusterCount = value;
         bottom.maxClusterCountPerAccelerationStructure = value ^ 9;
-        auto in = input_info(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV, value);
+        auto in =
+            input_info(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV,
+                       value);
         in.opInput.pClustersBottomLevel = &bottom;
         ClusterOpInputStorage storage;
         flatbuffers::FlatBufferBuilder fbb;
@@ -118,7 +125,8 @@ TEST(ClusterConversions, BottomLevelInputRoundTrips) {
         expect_equal_header(out, in);
         ASSERT_EQ(out.opInput.pClustersBottomLevel, &storage.bottom_level);
         EXPECT_EQ(out.opInput.pClustersBottomLevel->sType, bottom.sType);
-        EXPECT_EQ(out.opInput.pClustersBottomLevel->maxTotalClusterCount, bottom.maxTotalClusterCount);
+        EXPECT_EQ(out.opInput.pClustersBottomLevel->maxTotalClusterCount,
+                  bottom.maxTotalClusterCount);
         EXPECT_EQ(out.opInput.pClustersBottomLevel->maxClusterCountPerAccelerationStructure,
                   bottom.maxClusterCountPerAccelerationStructure);
     }
@@ -149,8 +157,10 @@ TEST(ClusterConversions, MoveObjectsInputRoundTrips) {
 TEST(ClusterConversions, NoOpInputIsRecordedForANullPointerOrAnUnknownOpType) {
     const auto limits = triangle_limits(5);
     auto unknown = input_info(static_cast<VkClusterAccelerationStructureOpTypeNV>(0x7fff), 1);
-    unknown.opInput.pTriangleClusters = const_cast<VkClusterAccelerationStructureTriangleClusterInputNV*>(&limits);
-    const auto null_input = input_info(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV, 1);
+    unknown.opInput.pTriangleClusters =
+        const_cast<VkClusterAccelerationStructureTriangleClusterInputNV*>(&limits);
+    const auto null_input =
+        input_info(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV, 1);
     for (const auto& in : {unknown, null_input}) {
         EXPECT_EQ(cluster_input_to_record(in)->op_input.type, fbs::ClusterOpInput::NONE);
         ClusterOpInputStorage storage;
@@ -176,7 +186,8 @@ TEST(ClusterConversions, CommandsInfoRoundTripsWithEveryField) {
         const auto limits = triangle_limits(uint32_t(value));
         VkClusterAccelerationStructureCommandsInfoNV info{};
         info.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
-        info.input = input_info(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV, uint32_t(value));
+        info.input = input_info(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV,
+                                uint32_t(value));
         info.input.opInput.pTriangleClusters =
             const_cast<VkClusterAccelerationStructureTriangleClusterInputNV*>(&limits);
         info.dstImplicitData = value;
@@ -209,8 +220,10 @@ TEST(ClusterConversions, CommandsInfoRoundTripsWithEveryField) {
 
 template <class Handle>
 Handle handle(uint64_t value) {
-    if constexpr (std::is_pointer_v<Handle>) return reinterpret_cast<Handle>(uintptr_t(value));
-    else return Handle(value);
+    if constexpr (std::is_pointer_v<Handle>)
+        return reinterpret_cast<Handle>(uintptr_t(value));
+    else
+        return Handle(value);
 }
 
 VkGeometryNV geometry(VkGeometryTypeNV type, uint64_t value) {
@@ -272,7 +285,9 @@ TEST(NvConversions, GeometryRoundTripsBothMembersWhateverItsType) {
             SCOPED_TRACE(testing::Message() << "type " << type << ", value " << value);
             const VkGeometryNV in = geometry(type, value);
             flatbuffers::FlatBufferBuilder fbb;
-            expect_equal(nv_geometry_from_record(packed<fbs::GeometryNV>(*nv_geometry_to_record(in), fbb)), in);
+            expect_equal(nv_geometry_from_record(
+                             packed<fbs::GeometryNV>(*nv_geometry_to_record(in), fbb)),
+                         in);
         }
 }
 
@@ -290,8 +305,8 @@ TEST(NvConversions, InfoRoundTripsWithNoneOrSeveralGeometries) {
         in.pGeometries = geometries.empty() ? nullptr : geometries.data();
         flatbuffers::FlatBufferBuilder fbb;
         std::vector<VkGeometryNV> decoded;
-        const auto out =
-            nv_info_from_record(packed<fbs::AccelerationStructureInfoNV>(*nv_info_to_record(in), fbb), decoded);
+        const auto out = nv_info_from_record(
+            packed<fbs::AccelerationStructureInfoNV>(*nv_info_to_record(in), fbb), decoded);
         EXPECT_EQ(out.sType, in.sType);
         EXPECT_EQ(out.pNext, nullptr);
         EXPECT_EQ(out.type, in.type);
@@ -299,7 +314,8 @@ TEST(NvConversions, InfoRoundTripsWithNoneOrSeveralGeometries) {
         EXPECT_EQ(out.instanceCount, in.instanceCount);
         ASSERT_EQ(out.geometryCount, in.geometryCount);
         EXPECT_EQ(out.pGeometries, geometries.empty() ? nullptr : decoded.data());
-        for (uint32_t g = 0; g < out.geometryCount; ++g) expect_equal(out.pGeometries[g], in.pGeometries[g]);
+        for (uint32_t g = 0; g < out.geometryCount; ++g)
+            expect_equal(out.pGeometries[g], in.pGeometries[g]);
     }
 }
 

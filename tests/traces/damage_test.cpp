@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Damaged files: each kind of damage gets its own error naming the file offset, and
 // everything intact around the damage still reads.
 #include "trace_test_support.h"
@@ -40,11 +41,13 @@ std::vector<ChunkSpan> chunks_of(const std::vector<uint8_t>& file) {
 }
 
 bool has_damage(const ReadResult& r, TraceErrorCode code, uint64_t offset) {
-    return std::any_of(r.damage.begin(), r.damage.end(),
-                       [&](const TraceError& e) { return e.code == code && e.file_offset == offset; });
+    return std::any_of(r.damage.begin(), r.damage.end(), [&](const TraceError& e) {
+        return e.code == code && e.file_offset == offset;
+    });
 }
 bool has_damage(const ReadResult& r, TraceErrorCode code) {
-    return std::any_of(r.damage.begin(), r.damage.end(), [&](const TraceError& e) { return e.code == code; });
+    return std::any_of(r.damage.begin(), r.damage.end(),
+                       [&](const TraceError& e) { return e.code == code; });
 }
 
 size_t records_in(const std::vector<ChunkSpan>& chunks, size_t count) {
@@ -60,7 +63,8 @@ void rewrite_chunk_header(std::vector<uint8_t>& file, uint64_t at, const f::Chun
 }
 
 // A records chunk around `raw` (already framed), with correct checksums.
-std::vector<uint8_t> make_chunk(const std::vector<uint8_t>& raw, uint32_t number, uint32_t records) {
+std::vector<uint8_t> make_chunk(const std::vector<uint8_t>& raw, uint32_t number,
+                                uint32_t records) {
     std::vector<uint8_t> compressed(ZSTD_compressBound(raw.size()));
     size_t n = ZSTD_compress(compressed.data(), compressed.size(), raw.data(), raw.size(), 3);
     compressed.resize(n);
@@ -154,8 +158,11 @@ TEST(TraceDamage, NewerMajorVersionIsRefused) {
     EXPECT_FALSE(r.opened);
     EXPECT_EQ(r.open_error.code, TraceErrorCode::kUnsupportedVersion);
     EXPECT_EQ(r.open_error.file_offset, 8u);
-    EXPECT_NE(r.open_error.message.find("format version 2."), std::string::npos) << r.open_error.message;
-    EXPECT_NE(r.open_error.message.find("is not supported (this reader reads 1.x)"), std::string::npos) << r.open_error.message;
+    EXPECT_NE(r.open_error.message.find("format version 2."), std::string::npos)
+        << r.open_error.message;
+    EXPECT_NE(r.open_error.message.find("is not supported (this reader reads 1.x)"),
+              std::string::npos)
+        << r.open_error.message;
 }
 
 TEST_F(DamagedTrace, NewerMinorVersionStillReads) {
@@ -176,7 +183,8 @@ TEST_F(DamagedTrace, NewerMinorVersionStillReads) {
 
 TEST_F(DamagedTrace, CutAtEveryChunkBoundaryKeepsEveryCompleteChunk) {
     for (size_t i = 0; i < chunks_.size(); ++i) {
-        std::vector<uint8_t> cut(file_.begin(), file_.begin() + static_cast<long>(chunks_[i].offset));
+        std::vector<uint8_t> cut(file_.begin(),
+                                 file_.begin() + static_cast<long>(chunks_[i].offset));
         ReadResult r = read_all_memory(cut);
         ASSERT_TRUE(r.opened) << i;
         EXPECT_EQ(r.records.size(), records_in(chunks_, i)) << "cut before chunk " << i;
@@ -188,15 +196,18 @@ TEST_F(DamagedTrace, CutAtEveryChunkBoundaryKeepsEveryCompleteChunk) {
 TEST_F(DamagedTrace, CutInsideChunksKeepsTheChunksBefore) {
     for (size_t i = 0; i + 1 < chunks_.size(); ++i) {
         const ChunkSpan& c = chunks_[i];
-        for (uint64_t at : {c.offset + 1, c.offset + 20, c.offset + f::kChunkHeaderSize, c.offset + f::kChunkHeaderSize + 1,
-                            (c.offset + c.end()) / 2, c.end() - 1}) {
+        for (uint64_t at :
+             {c.offset + 1, c.offset + 20, c.offset + f::kChunkHeaderSize,
+              c.offset + f::kChunkHeaderSize + 1, (c.offset + c.end()) / 2, c.end() - 1}) {
             std::vector<uint8_t> cut(file_.begin(), file_.begin() + static_cast<long>(at));
             ReadResult r = read_all_memory(cut);
             ASSERT_TRUE(r.opened);
-            EXPECT_EQ(r.records.size(), records_in(chunks_, i)) << "cut at " << at << " inside chunk " << i;
+            EXPECT_EQ(r.records.size(), records_in(chunks_, i))
+                << "cut at " << at << " inside chunk " << i;
             // The cut chunk is named by its own offset (header cut) or its size field.
             bool named = has_damage(r, TraceErrorCode::kTruncated, c.offset) ||
-                         has_damage(r, TraceErrorCode::kTruncated, c.offset + offsetof(f::ChunkHeader, compressed_size));
+                         has_damage(r, TraceErrorCode::kTruncated,
+                                    c.offset + offsetof(f::ChunkHeader, compressed_size));
             EXPECT_TRUE(named) << "cut at " << at << "\n" << describe(r.damage);
         }
     }
@@ -217,7 +228,8 @@ TEST_F(SmallDamagedTrace, CutAtEveryByteNeverLosesACompleteChunk) {
         size_t complete = 0;
         while (complete < chunks_.size() - 1 && chunks_[complete].end() <= at) ++complete;
         if (!r.opened) {
-            ASSERT_LT(at, data_start(file_) + 8) << "only a cut header may make the file unopenable";
+            ASSERT_LT(at, data_start(file_) + 8)
+                << "only a cut header may make the file unopenable";
             continue;
         }
         ASSERT_EQ(r.records.size(), records_in(chunks_, complete)) << "cut at " << at;
@@ -233,9 +245,13 @@ TEST_F(DamagedTrace, FlippedBitInAChunkIsReportedAndTheOtherChunksRead) {
         file[at] ^= 0x10;
         ReadResult r = read_all_memory(file);
         ASSERT_TRUE(r.opened);
-        EXPECT_EQ(r.records.size(), total_records_ - c.header.record_count) << "flip in chunk " << i;
-        ASSERT_TRUE(has_damage(r, TraceErrorCode::kChecksumMismatch, c.offset + f::kChunkHeaderSize)) << describe(r.damage);
-        const std::string expect = "memory.clt: offset " + std::to_string(c.offset + f::kChunkHeaderSize) + ": chunk " +
+        EXPECT_EQ(r.records.size(), total_records_ - c.header.record_count)
+            << "flip in chunk " << i;
+        ASSERT_TRUE(
+            has_damage(r, TraceErrorCode::kChecksumMismatch, c.offset + f::kChunkHeaderSize))
+            << describe(r.damage);
+        const std::string expect = "memory.clt: offset " +
+                                   std::to_string(c.offset + f::kChunkHeaderSize) + ": chunk " +
                                    std::to_string(i) + " checksum mismatch (stored 0x";
         EXPECT_EQ(r.damage[0].message.rfind(expect, 0), 0u) << r.damage[0].message;
     }
@@ -248,7 +264,8 @@ TEST_F(DamagedTrace, FlippedBitInAChunkHeaderIsReportedAndReadingResumes) {
         ReadResult r = read_all_memory(file);
         ASSERT_TRUE(r.opened);
         EXPECT_EQ(r.records.size(), total_records_ - chunks_[i].header.record_count);
-        EXPECT_TRUE(has_damage(r, TraceErrorCode::kChecksumMismatch, chunks_[i].offset)) << describe(r.damage);
+        EXPECT_TRUE(has_damage(r, TraceErrorCode::kChecksumMismatch, chunks_[i].offset))
+            << describe(r.damage);
     }
 }
 
@@ -266,7 +283,8 @@ TEST_F(SmallDamagedTrace, EverySingleBitFlipIsReported) {
                 ASSERT_LT(at, 16u) << "only magic/version flips may refuse the file";
                 continue;
             }
-            ASSERT_GT(r.damage_count, 0u) << "flip of bit " << bit << " at offset " << at << " went unnoticed";
+            ASSERT_GT(r.damage_count, 0u)
+                << "flip of bit " << bit << " at offset " << at << " went unnoticed";
         }
     }
 }
@@ -283,7 +301,9 @@ TEST_F(DamagedTrace, ChunkClaimingTwoGibibytesIsRefusedBeforeAllocating) {
         rewrite_chunk_header(file, chunks_[2].offset, h);
         ReadResult r = read_all_memory(file);
         ASSERT_TRUE(r.opened);
-        uint64_t field = chunks_[2].offset + (raw_field ? offsetof(f::ChunkHeader, raw_size) : offsetof(f::ChunkHeader, compressed_size));
+        uint64_t field =
+            chunks_[2].offset + (raw_field ? offsetof(f::ChunkHeader, raw_size)
+                                           : offsetof(f::ChunkHeader, compressed_size));
         EXPECT_TRUE(has_damage(r, TraceErrorCode::kLengthOutOfRange, field)) << describe(r.damage);
         // Resynchronisation finds chunk 3 again: only chunk 2's records are lost.
         EXPECT_EQ(r.records.size(), total_records_ - chunks_[2].header.record_count);
@@ -317,10 +337,13 @@ TEST(TraceDamage, RecordClaimingTwoGibibytesIsReported) {
     ReadResult read = read_all_memory(file);
     ASSERT_TRUE(read.opened);
     EXPECT_EQ(read.records.size(), 1u);
-    ASSERT_TRUE(has_damage(read, TraceErrorCode::kLengthOutOfRange, chunk_at)) << describe(read.damage);
-    auto it = std::find_if(read.damage.begin(), read.damage.end(),
-                           [](const TraceError& e) { return e.code == TraceErrorCode::kLengthOutOfRange; });
-    EXPECT_NE(it->message.find("record 1 (raw offset " + std::to_string(second) + "): claims 2147483648 bytes"),
+    ASSERT_TRUE(has_damage(read, TraceErrorCode::kLengthOutOfRange, chunk_at))
+        << describe(read.damage);
+    auto it = std::find_if(read.damage.begin(), read.damage.end(), [](const TraceError& e) {
+        return e.code == TraceErrorCode::kLengthOutOfRange;
+    });
+    EXPECT_NE(it->message.find("record 1 (raw offset " + std::to_string(second) +
+                               "): claims 2147483648 bytes"),
               std::string::npos)
         << it->message;
 }
@@ -342,8 +365,10 @@ TEST(TraceDamage, SnapshotOfMissingContentsIsReportedWithItsChunk) {
     file.insert(file.end(), chunk.begin(), chunk.end());
     ReadResult read = read_all_memory(file);
     ASSERT_TRUE(read.opened);
-    ASSERT_TRUE(has_damage(read, TraceErrorCode::kMissingContents, chunk_at)) << describe(read.damage);
-    EXPECT_NE(describe(read.damage).find("refers to contents 0xfeedfacecafebeef that no earlier record defines"),
+    ASSERT_TRUE(has_damage(read, TraceErrorCode::kMissingContents, chunk_at))
+        << describe(read.damage);
+    EXPECT_NE(describe(read.damage)
+                  .find("refers to contents 0xfeedfacecafebeef that no earlier record defines"),
               std::string::npos);
     ASSERT_EQ(read.records.size(), 1u);  // the copy is not handed out, the record after it is
     EXPECT_EQ(read.records[0].body.type, fbs::RecordBody::CommandBufferEnd);
@@ -389,7 +414,8 @@ TEST(TraceDamage, RecordFailingTheVerifierIsSkippedAndTheNextOneRead) {
     std::vector<uint8_t> chunk = make_chunk(raw, 0, 2);
     file.insert(file.end(), chunk.begin(), chunk.end());
     ReadResult read = read_all_memory(file);
-    ASSERT_TRUE(has_damage(read, TraceErrorCode::kInvalidRecord, chunk_at)) << describe(read.damage);
+    ASSERT_TRUE(has_damage(read, TraceErrorCode::kInvalidRecord, chunk_at))
+        << describe(read.damage);
     EXPECT_NE(describe(read.damage).find("fails the FlatBuffers verifier"), std::string::npos);
     ASSERT_EQ(read.records.size(), 1u);
 }
@@ -406,8 +432,10 @@ TEST_F(DamagedTrace, BytesAfterTheTrailerAreReported) {
 TEST_F(DamagedTrace, ReorderedChunksAreReported) {
     // Swap chunks 1 and 2 (both intact): numbering and submission counts disagree.
     std::vector<uint8_t> file(file_.begin(), file_.begin() + static_cast<long>(chunks_[1].offset));
-    file.insert(file.end(), file_.begin() + static_cast<long>(chunks_[2].offset), file_.begin() + static_cast<long>(chunks_[2].end()));
-    file.insert(file.end(), file_.begin() + static_cast<long>(chunks_[1].offset), file_.begin() + static_cast<long>(chunks_[1].end()));
+    file.insert(file.end(), file_.begin() + static_cast<long>(chunks_[2].offset),
+                file_.begin() + static_cast<long>(chunks_[2].end()));
+    file.insert(file.end(), file_.begin() + static_cast<long>(chunks_[1].offset),
+                file_.begin() + static_cast<long>(chunks_[1].end()));
     file.insert(file.end(), file_.begin() + static_cast<long>(chunks_[3].offset), file_.end());
     ReadResult r = read_all_memory(file);
     ASSERT_TRUE(r.opened);
@@ -418,7 +446,8 @@ TEST(TraceDamage, UnreadableFileIsAnError) {
     TraceError e;
     EXPECT_FALSE(TraceReader::open("/nonexistent/dir/x.clt", &e));
     EXPECT_EQ(e.code, TraceErrorCode::kIoError);
-    EXPECT_EQ(e.message, "/nonexistent/dir/x.clt: offset 0: cannot open: No such file or directory");
+    EXPECT_EQ(e.message,
+              "/nonexistent/dir/x.clt: offset 0: cannot open: No such file or directory");
     EXPECT_FALSE(TraceReader::open("/", &e));
     EXPECT_EQ(e.code, TraceErrorCode::kIoError);
 }

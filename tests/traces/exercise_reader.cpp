@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "exercise_reader.h"
 
 #include <clastrace/traces/records.h>
@@ -23,7 +24,8 @@ ExerciseResult exercise_reader(const uint8_t* data, size_t size) {
     while (reader->next(&v)) {
         ++result.records;
         SnapshotLists lists = record_snapshots(*v.record);
-        if (lists.inputs && lists.inputs->size() > 0 && hashes.size() < 8) hashes.push_back(lists.inputs->Get(0)->hash());
+        if (lists.inputs && lists.inputs->size() > 0 && hashes.size() < 8)
+            hashes.push_back(lists.inputs->Get(0)->hash());
     }
     std::vector<uint8_t> bytes;
     for (uint64_t h : hashes) (void)reader->read_contents(h, &bytes);
@@ -31,8 +33,7 @@ ExerciseResult exercise_reader(const uint8_t* data, size_t size) {
     for (uint64_t k : {uint64_t{0}, submissions / 2, submissions + 1}) {
         if (!reader->seek_to_submission(k)) {
             int n = 0;
-            while (n++ < 16 && reader->next(&v)) {
-            }
+            while (n++ < 16 && reader->next(&v)) {}
         }
     }
     result.damage = reader->damage_count();

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Drives every reader entry point over untrusted bytes; shared by the mutation test
 // and the libFuzzer target so both cover the same paths.
 #pragma once

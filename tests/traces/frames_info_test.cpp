@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // QueuePresent (format 1.2) without a GPU: `clastrace info` assigns each submission to the
 // frame of the next present (after the last, to the frame after it), and `clastrace replay`
 // accepts the record.
@@ -59,14 +60,16 @@ std::string write_trace(const std::string& name, const std::string& layout) {
         // The frame this submission belongs to: the next present's, else the last one's + 1.
         uint64_t frame = 0;
         const size_t next = layout.find_first_not_of('S', i);
-        if (next != std::string::npos) frame = uint64_t(layout[next] - '0');
+        if (next != std::string::npos)
+            frame = uint64_t(layout[next] - '0');
         else if (const size_t last = layout.find_last_not_of('S'); last != std::string::npos)
             frame = uint64_t(layout[last] - '0') + 1;
         fbs::QueueSubmitT s;
         s.queue = 0x9e;
         s.version = 1;
         auto batch = std::make_unique<fbs::SubmitBatchT>();
-        if (i + 1 == layout.size() || layout[i + 1] != 'S') batch->signal_semaphores.emplace_back(0x5e0 + frame, 0, 0, 0);
+        if (i + 1 == layout.size() || layout[i + 1] != 'S')
+            batch->signal_semaphores.emplace_back(0x5e0 + frame, 0, 0, 0);
         s.batches.push_back(std::move(batch));
         s.submission_index = w->next_submission_index();
         fbs::RecordT r;
@@ -88,11 +91,14 @@ TEST(FramesInfo, SubmissionsBelongToTheNextPresentsFrame) {
     EXPECT_EQ(j["frames"]["first"], 5);
     EXPECT_EQ(j["frames"]["last"], 7);
     EXPECT_EQ(j["frames"]["with_submissions"],
-              nlohmann::json::parse(R"([{"frame": 5, "submissions": 1}, {"frame": 7, "submissions": 2},
+              nlohmann::json::parse(
+                  R"([{"frame": 5, "submissions": 1}, {"frame": 7, "submissions": 2},
                                         {"frame": 8, "submissions": 1}])"));
     ProgramRun text = run("info " + path);
-    EXPECT_NE(text.output.find("frames      3 presents, ending frames 5-7; submissions in frames: 5 (1) 7 (2) 8 (1)"),
-              std::string::npos)
+    EXPECT_NE(
+        text.output.find(
+            "frames      3 presents, ending frames 5-7; submissions in frames: 5 (1) 7 (2) 8 (1)"),
+        std::string::npos)
         << text.output;
 
     // Replay takes the presents' waits: each present consumes its frame's signal.
@@ -106,14 +112,17 @@ TEST(FramesInfo, PresentsWithoutSubmissionsAndNoPresentsAtAll) {
     const std::string onlyPresents = write_trace("presents.clt", "0123");
     ProgramRun text = run("info " + onlyPresents);
     EXPECT_EQ(text.exit_code, 0) << text.output;
-    EXPECT_NE(text.output.find("4 presents, ending frames 0-3; submissions in frames: none"), std::string::npos)
+    EXPECT_NE(text.output.find("4 presents, ending frames 0-3; submissions in frames: none"),
+              std::string::npos)
         << text.output;
 
     const std::string noPresents = write_trace("nopresents.clt", "SS");
     ProgramRun json = run("info --json " + noPresents);
     ASSERT_EQ(json.exit_code, 0) << json.output;
-    EXPECT_EQ(nlohmann::json::parse(json.output)["frames"], nlohmann::json::parse(R"({"presents": 0})"));
-    EXPECT_EQ(run("info " + noPresents).output.find("frames "), std::string::npos);  // no frames line
+    EXPECT_EQ(nlohmann::json::parse(json.output)["frames"],
+              nlohmann::json::parse(R"({"presents": 0})"));
+    EXPECT_EQ(run("info " + noPresents).output.find("frames "),
+              std::string::npos);  // no frames line
     std::remove(onlyPresents.c_str());
     std::remove(noPresents.c_str());
 }

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Hostile traces: files crafted so that reading them would cost minutes of CPU or
 // gigabytes of memory, or would hide damage behind a consistent-looking index. Each
 // gets bounded work (asserted on counts, never on time) and one verdict: damage.
@@ -40,7 +41,8 @@ public:
         uint32_t submissions = 0;
         for (const fbs::RecordT& r : records) {
             if (const auto* c = r.body.AsMemoryContents()) {
-                index_.contents.emplace_back(c->hash, c->bytes.size(), static_cast<uint32_t>(index_.chunks.size()),
+                index_.contents.emplace_back(c->hash, c->bytes.size(),
+                                             static_cast<uint32_t>(index_.chunks.size()),
                                              static_cast<uint32_t>(raw.size()));
             }
             if (r.body.type == fbs::RecordBody::QueueSubmit) ++submissions;
@@ -55,7 +57,8 @@ public:
     uint64_t add_raw(const std::vector<uint8_t>& raw, uint32_t records, uint32_t submissions = 0) {
         const uint64_t at = file_.size();
         f::ChunkHeader h = append_chunk(raw, f::ChunkKind::kRecords, records, submissions_);
-        index_.chunks.emplace_back(at, submissions_, submissions, records, h.raw_size, h.compressed_size);
+        index_.chunks.emplace_back(at, submissions_, submissions, records, h.raw_size,
+                                   h.compressed_size);
         index_.record_count += records;
         submissions_ += submissions;
         index_.submission_count = submissions_;
@@ -87,15 +90,17 @@ public:
         std::memcpy(raw.data() + at + 8, data, size);
     }
 
-    static f::ChunkHeader append_chunk_to(std::vector<uint8_t>& file, const std::vector<uint8_t>& raw,
-                                          f::ChunkKind kind, uint32_t records, uint64_t first_submission,
+    static f::ChunkHeader append_chunk_to(std::vector<uint8_t>& file,
+                                          const std::vector<uint8_t>& raw, f::ChunkKind kind,
+                                          uint32_t records, uint64_t first_submission,
                                           uint32_t number) {
         std::vector<uint8_t> compressed(ZSTD_compressBound(raw.size()));
         size_t n = ZSTD_compress(compressed.data(), compressed.size(), raw.data(), raw.size(), 1);
         compressed.resize(n);
-        const f::ChunkHeader h = f::sealed_chunk_header(kind, number, records, first_submission,
-                                                        static_cast<uint32_t>(raw.size()), compressed.data(),
-                                                        static_cast<uint32_t>(n));
+        const f::ChunkHeader h =
+            f::sealed_chunk_header(kind, number, records, first_submission,
+                                   static_cast<uint32_t>(raw.size()), compressed.data(),
+                                   static_cast<uint32_t>(n));
         const size_t at = file.size();
         file.resize(at + sizeof h);
         std::memcpy(file.data() + at, &h, sizeof h);
@@ -111,8 +116,8 @@ public:
     }
 
 private:
-    f::ChunkHeader append_chunk(const std::vector<uint8_t>& raw, f::ChunkKind kind, uint32_t records,
-                                uint64_t first_submission) {
+    f::ChunkHeader append_chunk(const std::vector<uint8_t>& raw, f::ChunkKind kind,
+                                uint32_t records, uint64_t first_submission) {
         return append_chunk_to(file_, raw, kind, records, first_submission,
                                static_cast<uint32_t>(index_.chunks.size()));
     }
@@ -156,7 +161,8 @@ struct Read {
     TraceReadStats stats;
 };
 
-Read read(const std::vector<uint8_t>& file, TraceReaderOptions options = {.verify_content_keys = true}) {
+Read read(const std::vector<uint8_t>& file,
+          TraceReaderOptions options = {.verify_content_keys = true}) {
     Read out;
     TraceError e;
     auto reader = TraceReader::open_memory(file.data(), file.size(), "hostile.clt", &e, options);
@@ -227,7 +233,8 @@ TEST(HostileTrace, ChunkOfZerosCostsAFewProblemsNotOnePerFrame) {
     const TraceError* stop = find_damage(r, TraceErrorCode::kInvalidRecord, "broken record frames");
     ASSERT_NE(stop, nullptr) << describe(r.damage);
     EXPECT_EQ(stop->file_offset, zero_chunk);
-    EXPECT_NE(stop->message.find("raw bytes of the chunk are skipped"), std::string::npos) << stop->message;
+    EXPECT_NE(stop->message.find("raw bytes of the chunk are skipped"), std::string::npos)
+        << stop->message;
     EXPECT_EQ(r.submissions, 1u);  // the chunk after it still reads
 }
 
@@ -235,13 +242,15 @@ TEST(HostileTrace, IndexLargerThanTheFileCanNeedIsRefusedBeforeDecompressing) {
     CraftedTrace t = three_chunks();
     std::vector<uint8_t> file = t.file();
     const uint64_t index_at = file.size();
-    f::ChunkHeader h = CraftedTrace::append_chunk_to(file, std::vector<uint8_t>(64, 0), f::ChunkKind::kIndex, 0, 6, 3);
+    f::ChunkHeader h = CraftedTrace::append_chunk_to(file, std::vector<uint8_t>(64, 0),
+                                                     f::ChunkKind::kIndex, 0, 6, 3);
     h.raw_size = 1u << 30;  // within the format's 1 GiB limit, far past what a small file indexes
     h.header_checksum = f::chunk_header_checksum(h);
     std::memcpy(file.data() + index_at, &h, sizeof h);
     CraftedTrace::append_trailer(file, index_at);
     Read r = read(file);
-    const TraceError* e = find_damage(r, TraceErrorCode::kLengthOutOfRange, "an index of a file of");
+    const TraceError* e =
+        find_damage(r, TraceErrorCode::kLengthOutOfRange, "an index of a file of");
     ASSERT_NE(e, nullptr) << describe(r.damage);
     EXPECT_EQ(e->file_offset, index_at + offsetof(f::ChunkHeader, raw_size));
     EXPECT_LT(r.stats.raw_bytes_decompressed, 1u << 20);
@@ -265,13 +274,17 @@ TEST(HostileTrace, RecordsChunkRelabelledAsIndexIsDamageAndLaterChunksStillRead)
         std::memcpy(relabelled.data() + at, &h, sizeof h);
         Read r = read(relabelled);
         EXPECT_EQ(r.submission_indices, (std::vector<uint64_t>{0, 1, 4, 5})) << "kind " << kind;
-        EXPECT_NE(find_damage(r, TraceErrorCode::kBadIndex, "that the scan did not read as one"), nullptr)
+        EXPECT_NE(find_damage(r, TraceErrorCode::kBadIndex, "that the scan did not read as one"),
+                  nullptr)
             << describe(r.damage);
         if (kind == 2) {
-            EXPECT_NE(find_damage(r, TraceErrorCode::kBadIndex, "index chunk here but the trailer points"), nullptr)
+            EXPECT_NE(find_damage(r, TraceErrorCode::kBadIndex,
+                                  "index chunk here but the trailer points"),
+                      nullptr)
                 << describe(r.damage);
         } else {
-            EXPECT_NE(find_damage(r, TraceErrorCode::kBadChunk, "has kind 3, which format 1.2 does not define"),
+            EXPECT_NE(find_damage(r, TraceErrorCode::kBadChunk,
+                                  "has kind 3, which format 1.2 does not define"),
                       nullptr)
                 << describe(r.damage);
         }
@@ -284,11 +297,11 @@ struct Location {
     uint32_t submission_count, record_count, raw_size, compressed_size;
 };
 void edit_location(fbs::ChunkLocation& c, const std::function<void(Location&)>& edit) {
-    Location l{c.file_offset(), c.first_submission(), c.submission_count(), c.record_count(), c.raw_size(),
-               c.compressed_size()};
+    Location l{c.file_offset(),  c.first_submission(), c.submission_count(),
+               c.record_count(), c.raw_size(),         c.compressed_size()};
     edit(l);
-    c = fbs::ChunkLocation(l.file_offset, l.first_submission, l.submission_count, l.record_count, l.raw_size,
-                           l.compressed_size);
+    c = fbs::ChunkLocation(l.file_offset, l.first_submission, l.submission_count, l.record_count,
+                           l.raw_size, l.compressed_size);
 }
 
 TEST(HostileTrace, IndexDisagreeingWithTheChunksIsBadIndex) {
@@ -298,7 +311,11 @@ TEST(HostileTrace, IndexDisagreeingWithTheChunksIsBadIndex) {
         const char* message;
     };
     const std::vector<Case> cases = {
-        {"record count", [](fbs::TraceIndexT& i) { edit_location(i.chunks[1], [](Location& l) { l.record_count = 3; }); i.record_count += 1; },
+        {"record count",
+         [](fbs::TraceIndexT& i) {
+             edit_location(i.chunks[1], [](Location& l) { l.record_count = 3; });
+             i.record_count += 1;
+         },
          "record count 3 in the index, 2 in the chunk"},
         {"submission count",
          [](fbs::TraceIndexT& i) {
@@ -307,15 +324,23 @@ TEST(HostileTrace, IndexDisagreeingWithTheChunksIsBadIndex) {
              i.submission_count = 7;
          },
          "holds 3 submissions, it holds 2"},
-        {"raw size", [](fbs::TraceIndexT& i) { edit_location(i.chunks[2], [](Location& l) { l.raw_size += 8; }); },
+        {"raw size",
+         [](fbs::TraceIndexT& i) {
+             edit_location(i.chunks[2], [](Location& l) { l.raw_size += 8; });
+         },
          "raw size"},
-        {"offset", [](fbs::TraceIndexT& i) { edit_location(i.chunks[2], [](Location& l) { l.file_offset += 8; }); },
+        {"offset",
+         [](fbs::TraceIndexT& i) {
+             edit_location(i.chunks[2], [](Location& l) { l.file_offset += 8; });
+         },
          "is a records chunk the index does not list"},
         {"totals", [](fbs::TraceIndexT& i) { i.record_count += 5; }, "its totals say"},
     };
     for (const Case& c : cases) {
         Read r = read(three_chunks().finish(c.edit));
-        EXPECT_NE(find_damage(r, TraceErrorCode::kBadIndex, c.message), nullptr) << c.name << "\n" << describe(r.damage);
+        EXPECT_NE(find_damage(r, TraceErrorCode::kBadIndex, c.message), nullptr)
+            << c.name << "\n"
+            << describe(r.damage);
         EXPECT_EQ(r.submissions, 6u) << c.name;
     }
 }
@@ -332,8 +357,10 @@ TEST(HostileTrace, DuplicatedChunkIsSkippedSoNoSubmissionRepeats) {
     const uint64_t third = second + f::kChunkHeaderSize + h1.compressed_size;
     // chunk 0, chunk 1, chunk 1 again, chunk 0 again, chunk 2 ...
     std::vector<uint8_t> dup(file.begin(), file.begin() + static_cast<long>(third));
-    dup.insert(dup.end(), file.begin() + static_cast<long>(second), file.begin() + static_cast<long>(third));
-    dup.insert(dup.end(), file.begin() + static_cast<long>(first), file.begin() + static_cast<long>(second));
+    dup.insert(dup.end(), file.begin() + static_cast<long>(second),
+               file.begin() + static_cast<long>(third));
+    dup.insert(dup.end(), file.begin() + static_cast<long>(first),
+               file.begin() + static_cast<long>(second));
     dup.insert(dup.end(), file.begin() + static_cast<long>(third), file.end());
     Read r = read(dup);
     EXPECT_EQ(r.submission_indices, (std::vector<uint64_t>{0, 1, 2, 3, 4, 5}));
@@ -396,7 +423,9 @@ TEST(HostileTraceCli, RelabelledChunkIsDamage) {
 }
 
 TEST(HostileTraceCli, InconsistentIndexIsDamage) {
-    expect_damage_verdict(three_chunks().finish([](fbs::TraceIndexT& i) { edit_location(i.chunks[0], [](Location& l) { l.raw_size = 1; }); }),
+    expect_damage_verdict(three_chunks().finish([](fbs::TraceIndexT& i) {
+        edit_location(i.chunks[0], [](Location& l) { l.raw_size = 1; });
+    }),
                           "inconsistent_index");
 }
 
@@ -413,7 +442,8 @@ TEST(HostileTraceCli, DuplicatedChunkIsDamageNotUnreadable) {
     std::memcpy(&h0, file.data() + first, sizeof h0);
     const uint64_t second = first + f::kChunkHeaderSize + h0.compressed_size;
     std::vector<uint8_t> dup(file.begin(), file.begin() + static_cast<long>(second));
-    dup.insert(dup.end(), file.begin() + static_cast<long>(first), file.begin() + static_cast<long>(second));
+    dup.insert(dup.end(), file.begin() + static_cast<long>(first),
+               file.begin() + static_cast<long>(second));
     dup.insert(dup.end(), file.begin() + static_cast<long>(second), file.end());
     expect_damage_verdict(dup, "duplicated");
 }
@@ -447,7 +477,8 @@ TEST(HostileTraceCli, CapturedChunkRepeatedAfterALaterSubmissionIsDamageNotUnrea
     };
     std::vector<Place> chunks;
     for (uint64_t at = f::kFileHeaderSize + f::align8(f::load<uint32_t>(file.data() + 12));
-         at + f::kChunkHeaderSize <= file.size() && f::load<uint32_t>(file.data() + at) == f::kChunkMagic;) {
+         at + f::kChunkHeaderSize <= file.size() &&
+         f::load<uint32_t>(file.data() + at) == f::kChunkMagic;) {
         Place p{at, {}};
         std::memcpy(&p.header, file.data() + at, sizeof p.header);
         chunks.push_back(p);
@@ -457,13 +488,15 @@ TEST(HostileTraceCli, CapturedChunkRepeatedAfterALaterSubmissionIsDamageNotUnrea
     const Place& index = chunks.back();
     ASSERT_EQ(index.header.kind, static_cast<uint16_t>(f::ChunkKind::kIndex));
     // The chunk before the first one starting at submission 1 holds QueueSubmit 0.
-    auto holding_first = std::find_if(chunks.begin(), chunks.end() - 1,
-                                      [](const Place& p) { return p.header.first_submission == 1; });
+    auto holding_first = std::find_if(chunks.begin(), chunks.end() - 1, [](const Place& p) {
+        return p.header.first_submission == 1;
+    });
     ASSERT_NE(holding_first, chunks.begin());
     ASSERT_NE(holding_first, chunks.end() - 1);
     const Place& repeated = *(holding_first - 1);
     const auto repeated_begin = file.begin() + static_cast<long>(repeated.at);
-    const auto repeated_end = repeated_begin + static_cast<long>(f::kChunkHeaderSize + repeated.header.compressed_size);
+    const auto repeated_end =
+        repeated_begin + static_cast<long>(f::kChunkHeaderSize + repeated.header.compressed_size);
     const std::vector<uint8_t> copy(repeated_begin, repeated_end);
     file.insert(file.begin() + static_cast<long>(index.at), copy.begin(), copy.end());
     expect_damage_verdict(file, "repeated_captured_chunk");

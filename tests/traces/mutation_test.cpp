@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Thousands of deterministic random mutations of a valid trace: the reader never
 // crashes or hangs, and any change to the bytes is either refused or reported.
 #include "exercise_reader.h"
@@ -17,7 +18,8 @@ namespace f = clastrace::traces::format;
 std::vector<uint64_t> chunk_offsets(const std::vector<uint8_t>& file) {
     std::vector<uint64_t> out;
     uint64_t at = f::kFileHeaderSize + f::align8(f::load<uint32_t>(file.data() + 12));
-    while (at + f::kChunkHeaderSize <= file.size() && f::load<uint32_t>(file.data() + at) == f::kChunkMagic) {
+    while (at + f::kChunkHeaderSize <= file.size() &&
+           f::load<uint32_t>(file.data() + at) == f::kChunkMagic) {
         out.push_back(at);
         at += f::kChunkHeaderSize + f::load<uint32_t>(file.data() + at + 20);
     }
@@ -26,21 +28,24 @@ std::vector<uint64_t> chunk_offsets(const std::vector<uint8_t>& file) {
 
 enum class Mutation { bit_flips, truncate, splice, insert_delete, length_field, count };
 
-std::vector<uint8_t> mutate(const std::vector<uint8_t>& original, const std::vector<uint64_t>& chunks, std::mt19937_64& rng,
+std::vector<uint8_t> mutate(const std::vector<uint8_t>& original,
+                            const std::vector<uint64_t>& chunks, std::mt19937_64& rng,
                             Mutation kind) {
     std::vector<uint8_t> file = original;
     auto pick = [&](uint64_t n) { return n == 0 ? uint64_t{0} : rng() % n; };
     switch (kind) {
     case Mutation::bit_flips: {
         int flips = 1 + static_cast<int>(pick(8));
-        for (int i = 0; i < flips; ++i) file[pick(file.size())] ^= static_cast<uint8_t>(1u << pick(8));
+        for (int i = 0; i < flips; ++i)
+            file[pick(file.size())] ^= static_cast<uint8_t>(1u << pick(8));
         break;
     }
     case Mutation::truncate: file.resize(pick(file.size())); break;
     case Mutation::splice: {
         uint64_t len = 1 + pick(256);
         uint64_t from = pick(file.size() - len), to = pick(file.size() - len);
-        std::copy(original.begin() + static_cast<long>(from), original.begin() + static_cast<long>(from + len),
+        std::copy(original.begin() + static_cast<long>(from),
+                  original.begin() + static_cast<long>(from + len),
                   file.begin() + static_cast<long>(to));
         break;
     }
@@ -48,7 +53,8 @@ std::vector<uint8_t> mutate(const std::vector<uint8_t>& original, const std::vec
         uint64_t at = pick(file.size());
         uint64_t len = 1 + pick(64);
         if (rng() & 1) {
-            file.erase(file.begin() + static_cast<long>(at), file.begin() + static_cast<long>(std::min<uint64_t>(file.size(), at + len)));
+            file.erase(file.begin() + static_cast<long>(at),
+                       file.begin() + static_cast<long>(std::min<uint64_t>(file.size(), at + len)));
         } else {
             std::vector<uint8_t> junk(len);
             for (auto& b : junk) b = static_cast<uint8_t>(rng());
@@ -59,14 +65,16 @@ std::vector<uint8_t> mutate(const std::vector<uint8_t>& original, const std::vec
     case Mutation::length_field: {
         // A size/count field gets a hostile value; half the time its checksum is made
         // to match so the limits themselves are what must catch it.
-        const uint32_t values[] = {0, 1, 0x7fffffffu, 0x80000000u, 0xffffffffu, static_cast<uint32_t>(rng())};
+        const uint32_t values[] = {0,           1,           0x7fffffffu,
+                                   0x80000000u, 0xffffffffu, static_cast<uint32_t>(rng())};
         uint32_t v = values[pick(6)];
         if (chunks.empty() || pick(5) == 0) {
             std::memcpy(file.data() + 12, &v, 4);  // trace header size
             break;
         }
         uint64_t at = chunks[pick(chunks.size())];
-        const size_t fields[] = {offsetof(f::ChunkHeader, raw_size), offsetof(f::ChunkHeader, compressed_size),
+        const size_t fields[] = {offsetof(f::ChunkHeader, raw_size),
+                                 offsetof(f::ChunkHeader, compressed_size),
                                  offsetof(f::ChunkHeader, record_count)};
         std::memcpy(file.data() + at + fields[pick(3)], &v, 4);
         if (rng() & 1) {
@@ -108,7 +116,8 @@ TEST(TraceMutation, ThousandsOfRandomMutationsAreReadOrReported) {
             ++refused;
             continue;
         }
-        ASSERT_GT(r.damage, 0u) << "mutation " << i << " (kind " << static_cast<int>(kind) << ") went unnoticed";
+        ASSERT_GT(r.damage, 0u) << "mutation " << i << " (kind " << static_cast<int>(kind)
+                                << ") went unnoticed";
         ++reported;
     }
     EXPECT_EQ(refused + reported + unchanged, kMutations);

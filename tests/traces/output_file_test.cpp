@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The output-file rule (clastrace/traces/output_file.h): what writing an output does to each
 // kind of thing already at the path.
 #include "trace_test_support.h"
@@ -26,7 +27,9 @@ std::string read_text(const std::string& path) {
     return std::string(std::istreambuf_iterator<char>(in), {});
 }
 
-void write_text(const std::string& path, const std::string& text) { std::ofstream(path, std::ios::binary) << text; }
+void write_text(const std::string& path, const std::string& text) {
+    std::ofstream(path, std::ios::binary) << text;
+}
 
 // A fresh directory for one test.
 std::string fresh_dir(const std::string& name) {
@@ -135,7 +138,8 @@ TEST(OutputFile, DeviceThatRefusesBytesIsAFailureNamingIt) {
     const std::string device = own_device(fresh_dir("output_devfull"), "full", 7);
     std::string error;
     EXPECT_FALSE(write_output_file(device, "x", &error));
-    EXPECT_NE(error.find("cannot write '" + device + "': write failed: No space left on device"), std::string::npos)
+    EXPECT_NE(error.find("cannot write '" + device + "': write failed: No space left on device"),
+              std::string::npos)
         << error;
     EXPECT_TRUE(fs::is_character_file(device));
 }
@@ -160,7 +164,8 @@ TEST(OutputFile, ProbeCreatesAndEmptiesNothing) {
     EXPECT_TRUE(probe_output(dir + "/kept.json", &error)) << error;
     EXPECT_EQ(read_text(dir + "/kept.json"), "kept");
     EXPECT_FALSE(probe_output(dir + "/missing-dir/x.json", &error));
-    EXPECT_NE(error.find("cannot write '" + dir + "/missing-dir/x.json': "), std::string::npos) << error;
+    EXPECT_NE(error.find("cannot write '" + dir + "/missing-dir/x.json': "), std::string::npos)
+        << error;
 }
 
 // A trace is written in place under a lock: the earlier file is untouched until the writer
@@ -177,7 +182,8 @@ TEST(OutputFile, InPlaceOutputIsLockedAndEmptiedOnlyWhenWritingStarts) {
 
     OutputTarget second;
     EXPECT_LT(open_output_in_place(path, &second, &error), 0);
-    EXPECT_NE(error.find("another process (another capture?) is writing it"), std::string::npos) << error;
+    EXPECT_NE(error.find("another process (another capture?) is writing it"), std::string::npos)
+        << error;
     TraceError trace_error;
     EXPECT_FALSE(TraceWriter::create(path, test_header(), {}, &trace_error));
     EXPECT_NE(trace_error.message.find("holds its lock"), std::string::npos) << trace_error.message;

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Writing then reading gives back exactly what was written: every record kind, the
 // header, memory contents (stored once), and seeking by submission.
 #include "trace_test_support.h"
@@ -29,14 +30,16 @@ TEST(TraceRoundTrip, EveryRecordKindComesBackEqual) {
     auto w = TraceWriter::create(path, test_header(), options, &e);
     ASSERT_TRUE(w) << e.message;
     std::vector<fbs::RecordT> written = one_of_every_kind(*w);
-    for (const fbs::RecordT& r : written) ASSERT_FALSE(w->append(r)) << record_kind_name(r.body.type);
+    for (const fbs::RecordT& r : written)
+        ASSERT_FALSE(w->append(r)) << record_kind_name(r.body.type);
     ASSERT_FALSE(w->finish());
 
     // The list covers every kind the schema has (MemoryContents comes from add_contents).
     std::set<fbs::RecordBody> kinds;
     for (const fbs::RecordT& r : written) kinds.insert(r.body.type);
     kinds.insert(fbs::RecordBody::MemoryContents);
-    EXPECT_EQ(kinds.size(), kRecordKindCount - 1) << "a record kind was added without a round-trip case";
+    EXPECT_EQ(kinds.size(), kRecordKindCount - 1)
+        << "a record kind was added without a round-trip case";
 
     ReadResult read = read_all(path);
     ASSERT_TRUE(read.opened) << read.open_error.message;
@@ -45,8 +48,9 @@ TEST(TraceRoundTrip, EveryRecordKindComesBackEqual) {
     std::vector<fbs::RecordT> back = without_contents(read.records);
     ASSERT_EQ(back.size(), written.size());
     for (size_t i = 0; i < written.size(); ++i) {
-        EXPECT_TRUE(back[i] == written[i]) << "record " << i << " (" << record_kind_name(written[i].body.type)
-                                           << ") differs after the round trip";
+        EXPECT_TRUE(back[i] == written[i])
+            << "record " << i << " (" << record_kind_name(written[i].body.type)
+            << ") differs after the round trip";
     }
 }
 
@@ -106,7 +110,8 @@ TEST(TraceRoundTrip, IdenticalSnapshotsAreStoredOnce) {
     ASSERT_TRUE(read.opened);
     EXPECT_EQ(read.damage_count, 0u) << describe(read.damage);
     int contents = 0;
-    for (const fbs::RecordT& rec : read.records) contents += rec.body.type == fbs::RecordBody::MemoryContents;
+    for (const fbs::RecordT& rec : read.records)
+        contents += rec.body.type == fbs::RecordBody::MemoryContents;
     EXPECT_EQ(contents, 2);
 
     auto reader = TraceReader::open(path, &e);
@@ -152,8 +157,7 @@ TEST(TraceRoundTrip, HashCollisionsGetDistinctKeysAndTheRightBytes) {
     auto reader = TraceReader::open(path, &e);
     ASSERT_TRUE(reader) << e.message;
     RecordView v;
-    while (reader->next(&v)) {
-    }
+    while (reader->next(&v)) {}
     EXPECT_EQ(reader->damage_count(), 0u) << describe(reader->damage());
     std::vector<uint8_t> got;
     for (int i = 0; i < 200; ++i) {
@@ -192,7 +196,8 @@ TEST(TraceRoundTrip, ManyChunksAndSeekToEverySubmission) {
             } while (v.kind == fbs::RecordBody::MemoryContents);
             ASSERT_EQ(v.kind, fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect);
             std::vector<uint8_t> bytes;
-            const auto* in = v.record->body_as_CmdBuildClusterAccelerationStructureIndirect()->inputs();
+            const auto* in =
+                v.record->body_as_CmdBuildClusterAccelerationStructureIndirect()->inputs();
             ASSERT_FALSE(reader->read_contents(in->Get(0)->hash(), &bytes));
             EXPECT_EQ(bytes.size(), 3u * 256u * 4u);
         }
@@ -235,11 +240,13 @@ TEST(TraceWriterRules, RejectsMisuse) {
     contents.hash = 1;
     fbs::RecordT c;
     c.body.Set(std::move(contents));
-    EXPECT_EQ(w->append(c).code, TraceErrorCode::kInvalidArgument);  // contents go through add_contents
+    EXPECT_EQ(w->append(c).code,
+              TraceErrorCode::kInvalidArgument);  // contents go through add_contents
     fbs::RecordT empty;
     EXPECT_EQ(w->append(empty).code, TraceErrorCode::kInvalidArgument);
     const uint8_t garbage[16] = {0xff, 0xff, 0xff, 0x7f};
-    EXPECT_EQ(w->append_record_bytes(garbage, sizeof garbage).code, TraceErrorCode::kInvalidArgument);
+    EXPECT_EQ(w->append_record_bytes(garbage, sizeof garbage).code,
+              TraceErrorCode::kInvalidArgument);
     ASSERT_FALSE(w->finish());
     fbs::CommandBufferEndT end;
     fbs::RecordT er;

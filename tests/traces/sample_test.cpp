@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The committed sample trace reads back clean and holds what its generator writes now.
 #include "sample_scene.h"
 #include "trace_test_support.h"
@@ -33,9 +34,11 @@ TEST(SampleTrace, CommittedSampleEqualsWhatTheGeneratorWritesNow) {
     ReadResult now = read_all(fresh);
     ReadResult committed = read_all(CLASTRACE_SAMPLE);
     ASSERT_TRUE(now.opened && committed.opened);
-    ASSERT_EQ(now.records.size(), committed.records.size()) << "regenerate traces/samples/sample.clt with clastrace-make-sample";
+    ASSERT_EQ(now.records.size(), committed.records.size())
+        << "regenerate traces/samples/sample.clt with clastrace-make-sample";
     for (size_t i = 0; i < now.records.size(); ++i) {
-        EXPECT_TRUE(now.records[i] == committed.records[i]) << "record " << i << " differs: regenerate the sample";
+        EXPECT_TRUE(now.records[i] == committed.records[i])
+            << "record " << i << " differs: regenerate the sample";
     }
     TraceError e;
     auto a = TraceReader::open(fresh, &e);

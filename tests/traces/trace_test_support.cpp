@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "trace_test_support.h"
 
 #include <gtest/gtest.h>
@@ -24,7 +25,8 @@ std::unique_ptr<fbs::DependencyT> dependency(uint64_t salt) {
     auto d = std::make_unique<fbs::DependencyT>();
     d->dependency_flags = 1;
     d->memory_barriers.emplace_back(0x1000 + salt, 0x2000, 0x02000000, 0x200000);
-    d->buffer_barriers.emplace_back(0x1000, 0x1000, 0x02000000, 0x1, 7, 8, 0xb0f + salt, 64, ~uint64_t{0});
+    d->buffer_barriers.emplace_back(0x1000, 0x1000, 0x02000000, 0x1, 7, 8, 0xb0f + salt, 64,
+                                    ~uint64_t{0});
     d->image_barrier_count = 2;
     return d;
 }
@@ -94,49 +96,192 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
     for (size_t i = 0; i < a.size(); ++i) a[i] = static_cast<uint8_t>(i * 7);
     for (size_t i = 0; i < b.size(); ++i) b[i] = static_cast<uint8_t>(255 - i);
 
-    { fbs::MemoryAllocateT r; r.memory = 0x10; r.size = 1 << 20; r.memory_type_index = 1; r.allocate_flags = 2; r.opaque_capture_address = 0x5000; out.push_back(record(r)); }
-    { fbs::MemoryFreeT r; r.memory = 0x10; out.push_back(record(r)); }
-    { fbs::MemoryObservationT r; r.memory = 0x10; r.memory_offset = 64; r.reason = 1; r.snapshots = {snap(0x7000, a)}; out.push_back(record(r)); }
-    { fbs::BufferCreateT r; r.buffer = 0xb0f; r.size = 4096; r.usage = 0x20000 | (1ull << 40); r.create_flags = 0x10; r.sharing_mode = 1; r.queue_family_indices = {0, 2}; out.push_back(record(r)); }
-    { fbs::BufferBindMemoryT r; r.buffer = 0xb0f; r.memory = 0x10; r.memory_offset = 256; r.device_address = 0x7000; out.push_back(record(r)); }
-    { fbs::BufferDestroyT r; r.buffer = 0xb0f; out.push_back(record(r)); }
+    {
+        fbs::MemoryAllocateT r;
+        r.memory = 0x10;
+        r.size = 1 << 20;
+        r.memory_type_index = 1;
+        r.allocate_flags = 2;
+        r.opaque_capture_address = 0x5000;
+        out.push_back(record(r));
+    }
+    {
+        fbs::MemoryFreeT r;
+        r.memory = 0x10;
+        out.push_back(record(r));
+    }
+    {
+        fbs::MemoryObservationT r;
+        r.memory = 0x10;
+        r.memory_offset = 64;
+        r.reason = 1;
+        r.snapshots = {snap(0x7000, a)};
+        out.push_back(record(r));
+    }
+    {
+        fbs::BufferCreateT r;
+        r.buffer = 0xb0f;
+        r.size = 4096;
+        r.usage = 0x20000 | (1ull << 40);
+        r.create_flags = 0x10;
+        r.sharing_mode = 1;
+        r.queue_family_indices = {0, 2};
+        out.push_back(record(r));
+    }
+    {
+        fbs::BufferBindMemoryT r;
+        r.buffer = 0xb0f;
+        r.memory = 0x10;
+        r.memory_offset = 256;
+        r.device_address = 0x7000;
+        out.push_back(record(r));
+    }
+    {
+        fbs::BufferDestroyT r;
+        r.buffer = 0xb0f;
+        out.push_back(record(r));
+    }
     {
         fbs::AccelerationStructureCreateT r;
-        r.acceleration_structure = 0xa5; r.api = 1; r.type = 0; r.buffer = 0xb0f; r.offset = 512; r.size = 8192;
-        r.create_flags = 1; r.compacted_size = 99; r.device_address = 0x7200;
+        r.acceleration_structure = 0xa5;
+        r.api = 1;
+        r.type = 0;
+        r.buffer = 0xb0f;
+        r.offset = 512;
+        r.size = 8192;
+        r.create_flags = 1;
+        r.compacted_size = 99;
+        r.device_address = 0x7200;
         r.info = std::make_unique<fbs::AccelerationStructureInfoNVT>();
-        r.info->type = 1; r.info->instance_count = 3;
+        r.info->type = 1;
+        r.info->instance_count = 3;
         out.push_back(record(std::move(r)));
     }
-    { fbs::AccelerationStructureBindMemoryT r; r.acceleration_structure = 0xa5; r.memory = 0x10; r.memory_offset = 1024; out.push_back(record(r)); }
-    { fbs::AccelerationStructureDestroyT r; r.acceleration_structure = 0xa5; out.push_back(record(r)); }
-    { fbs::AccelerationStructureMemoryRequirementsNVT r; r.acceleration_structure = 0xa5; r.type = 2; r.size = 4096; r.alignment = 256; r.memory_type_bits = 3; out.push_back(record(r)); }
-    { fbs::CommandBufferBeginT r; r.command_buffer = 0xcb; r.flags = 1; r.level = 1; r.restatement = 2; out.push_back(record(r)); }
-    { fbs::CommandBufferEndT r; r.command_buffer = 0xcb; out.push_back(record(r)); }
-    { fbs::CommandBufferResetT r; r.command_buffer = 0xcb; r.flags = 1; r.command_pool = 0xc0; out.push_back(record(r)); }
-    { fbs::CmdPipelineBarrierT r; r.command_buffer = 0xcb; r.version = 1; r.src_stage_mask = 0x1000; r.dst_stage_mask = 0x02000000; r.dependency = dependency(1); out.push_back(record(std::move(r))); }
-    { fbs::CmdSetEventT r; r.command_buffer = 0xcb; r.event = 0xe1; r.version = 2; r.stage_mask = 0; r.dependency = dependency(2); out.push_back(record(std::move(r))); }
-    { fbs::CmdResetEventT r; r.command_buffer = 0xcb; r.event = 0xe1; r.version = 1; r.stage_mask = 0x1000; out.push_back(record(r)); }
     {
-        fbs::CmdWaitEventsT r; r.command_buffer = 0xcb; r.version = 2; r.events = {0xe1, 0xe2};
-        r.src_stage_mask = 4; r.dst_stage_mask = 8;
+        fbs::AccelerationStructureBindMemoryT r;
+        r.acceleration_structure = 0xa5;
+        r.memory = 0x10;
+        r.memory_offset = 1024;
+        out.push_back(record(r));
+    }
+    {
+        fbs::AccelerationStructureDestroyT r;
+        r.acceleration_structure = 0xa5;
+        out.push_back(record(r));
+    }
+    {
+        fbs::AccelerationStructureMemoryRequirementsNVT r;
+        r.acceleration_structure = 0xa5;
+        r.type = 2;
+        r.size = 4096;
+        r.alignment = 256;
+        r.memory_type_bits = 3;
+        out.push_back(record(r));
+    }
+    {
+        fbs::CommandBufferBeginT r;
+        r.command_buffer = 0xcb;
+        r.flags = 1;
+        r.level = 1;
+        r.restatement = 2;
+        out.push_back(record(r));
+    }
+    {
+        fbs::CommandBufferEndT r;
+        r.command_buffer = 0xcb;
+        out.push_back(record(r));
+    }
+    {
+        fbs::CommandBufferResetT r;
+        r.command_buffer = 0xcb;
+        r.flags = 1;
+        r.command_pool = 0xc0;
+        out.push_back(record(r));
+    }
+    {
+        fbs::CmdPipelineBarrierT r;
+        r.command_buffer = 0xcb;
+        r.version = 1;
+        r.src_stage_mask = 0x1000;
+        r.dst_stage_mask = 0x02000000;
+        r.dependency = dependency(1);
+        out.push_back(record(std::move(r)));
+    }
+    {
+        fbs::CmdSetEventT r;
+        r.command_buffer = 0xcb;
+        r.event = 0xe1;
+        r.version = 2;
+        r.stage_mask = 0;
+        r.dependency = dependency(2);
+        out.push_back(record(std::move(r)));
+    }
+    {
+        fbs::CmdResetEventT r;
+        r.command_buffer = 0xcb;
+        r.event = 0xe1;
+        r.version = 1;
+        r.stage_mask = 0x1000;
+        out.push_back(record(r));
+    }
+    {
+        fbs::CmdWaitEventsT r;
+        r.command_buffer = 0xcb;
+        r.version = 2;
+        r.events = {0xe1, 0xe2};
+        r.src_stage_mask = 4;
+        r.dst_stage_mask = 8;
         r.dependencies.push_back(dependency(3));
         r.dependencies.push_back(dependency(4));
         out.push_back(record(std::move(r)));
     }
-    { fbs::HostEventOpT r; r.event = 0xe1; r.op = 2; r.result = 3; out.push_back(record(r)); }
     {
-        fbs::CmdCopyBufferT r; r.command_buffer = 0xcb; r.version = 2; r.src_buffer = 0xb1; r.dst_buffer = 0xb2;
+        fbs::HostEventOpT r;
+        r.event = 0xe1;
+        r.op = 2;
+        r.result = 3;
+        out.push_back(record(r));
+    }
+    {
+        fbs::CmdCopyBufferT r;
+        r.command_buffer = 0xcb;
+        r.version = 2;
+        r.src_buffer = 0xb1;
+        r.dst_buffer = 0xb2;
         r.regions = {fbs::BufferCopy(0, 16, 300), fbs::BufferCopy(400, 800, 77)};
         r.inputs = {snap(0x8000, a), snap(0x8190, b)};
         r.outputs = {snap(0x9010, a)};  // same bytes as an input: stored once
         out.push_back(record(std::move(r)));
     }
-    { fbs::CmdFillBufferT r; r.command_buffer = 0xcb; r.dst_buffer = 0xb2; r.dst_offset = 4; r.size = ~uint64_t{0}; r.data = 0xdeadbeef; out.push_back(record(r)); }
-    { fbs::CmdUpdateBufferT r; r.command_buffer = 0xcb; r.dst_buffer = 0xb2; r.dst_offset = 8; r.data = {1, 2, 3, 4, 5, 6, 7, 8}; out.push_back(record(r)); }
     {
-        fbs::CmdDispatchT r; r.command_buffer = 0xcb; r.pipeline = 0x91; r.group_count_x = 64; r.group_count_y = 2; r.group_count_z = 1;
-        r.indirect_buffer = 0xb3; r.indirect_offset = 12; r.base_group_x = 1; r.base_group_y = 2; r.base_group_z = 3;
+        fbs::CmdFillBufferT r;
+        r.command_buffer = 0xcb;
+        r.dst_buffer = 0xb2;
+        r.dst_offset = 4;
+        r.size = ~uint64_t{0};
+        r.data = 0xdeadbeef;
+        out.push_back(record(r));
+    }
+    {
+        fbs::CmdUpdateBufferT r;
+        r.command_buffer = 0xcb;
+        r.dst_buffer = 0xb2;
+        r.dst_offset = 8;
+        r.data = {1, 2, 3, 4, 5, 6, 7, 8};
+        out.push_back(record(r));
+    }
+    {
+        fbs::CmdDispatchT r;
+        r.command_buffer = 0xcb;
+        r.pipeline = 0x91;
+        r.group_count_x = 64;
+        r.group_count_y = 2;
+        r.group_count_z = 1;
+        r.indirect_buffer = 0xb3;
+        r.indirect_offset = 12;
+        r.base_group_x = 1;
+        r.base_group_y = 2;
+        r.base_group_z = 3;
         r.storage_buffers = {fbs::BoundBufferRange(0, 1, 2, 7, 0xb1, 0, 300, 0x8000)};
         r.push_constants = {9, 9, 9, 9};
         r.inputs = {snap(0x8000, a)};
@@ -145,12 +290,16 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
     }
     {
         fbs::CmdBuildClusterAccelerationStructureIndirectT r;
-        r.command_buffer = 0xcb; r.input = cluster_input(0);
-        r.dst_implicit_data = 0xa000; r.scratch_data = 0xb000;
+        r.command_buffer = 0xcb;
+        r.input = cluster_input(0);
+        r.dst_implicit_data = 0xa000;
+        r.scratch_data = 0xb000;
         r.dst_addresses_array = std::make_unique<fbs::StridedDeviceAddressRegion>(0xc000, 8, 64);
         r.dst_sizes_array = std::make_unique<fbs::StridedDeviceAddressRegion>(0xd000, 4, 32);
         r.src_infos_array = std::make_unique<fbs::StridedDeviceAddressRegion>(0xe000, 64, 512);
-        r.src_infos_count = 0xf000; r.address_resolution_flags = 0x3f; r.unrecorded_next_stypes = {7};
+        r.src_infos_count = 0xf000;
+        r.address_resolution_flags = 0x3f;
+        r.unrecorded_next_stypes = {7};
         r.inputs = {snap(0xe000, a), snap(0xf000, b)};
         r.outputs = {snap(0xc000, b)};
         out.push_back(record(std::move(r)));
@@ -159,29 +308,56 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
         fbs::CmdBuildAccelerationStructureNVT r;
         r.command_buffer = 0xcb;
         r.info = std::make_unique<fbs::AccelerationStructureInfoNVT>();
-        r.info->type = 1; r.info->flags = 0x4; r.info->instance_count = 0;
+        r.info->type = 1;
+        r.info->flags = 0x4;
+        r.info->instance_count = 0;
         auto tri = std::make_unique<fbs::GeometryNVT>();
-        tri->geometry_type = 0; tri->flags = 1;
-        tri->triangles = std::make_unique<fbs::GeometryTrianglesNV>(0xb1, 16, 100, 106, 12, 0xb2, 32, 300, 1, 0xb3, 48);
+        tri->geometry_type = 0;
+        tri->flags = 1;
+        tri->triangles = std::make_unique<fbs::GeometryTrianglesNV>(0xb1, 16, 100, 106, 12, 0xb2,
+                                                                    32, 300, 1, 0xb3, 48);
         tri->aabbs = std::make_unique<fbs::GeometryAabbNV>(0, 0, 24, 0);
         auto box = std::make_unique<fbs::GeometryNVT>();
-        box->geometry_type = 1; box->flags = 2;
+        box->geometry_type = 1;
+        box->flags = 2;
         box->triangles = std::make_unique<fbs::GeometryTrianglesNV>();
         box->aabbs = std::make_unique<fbs::GeometryAabbNV>(0xb4, 10, 32, 64);
         r.info->geometries.push_back(std::move(tri));
         r.info->geometries.push_back(std::move(box));
-        r.instance_data = 0; r.instance_offset = 0; r.update = true; r.dst = 0xa6; r.src = 0xa5; r.scratch = 0xb5; r.scratch_offset = 256;
+        r.instance_data = 0;
+        r.instance_offset = 0;
+        r.update = true;
+        r.dst = 0xa6;
+        r.src = 0xa5;
+        r.scratch = 0xb5;
+        r.scratch_offset = 256;
         r.inputs = {snap(0x8000, a)};
         out.push_back(record(std::move(r)));
     }
     {
-        fbs::CmdCopyMemoryToAccelerationStructureT r; r.command_buffer = 0xcb; r.src_address = 0x10000; r.dst = 0xa6; r.mode = 3;
+        fbs::CmdCopyMemoryToAccelerationStructureT r;
+        r.command_buffer = 0xcb;
+        r.src_address = 0x10000;
+        r.dst = 0xa6;
+        r.mode = 3;
         r.inputs = {snap(0x10000, b)};
         out.push_back(record(std::move(r)));
     }
-    { fbs::GetClusterBuildSizesT r; r.input = cluster_input(1); r.acceleration_structure_size = 1 << 20; r.update_scratch_size = 5; r.build_scratch_size = 1 << 16; out.push_back(record(std::move(r))); }
     {
-        fbs::QueueSubmitT r; r.queue = 0x51; r.queue_family_index = 1; r.queue_index = 2; r.version = 2; r.fence = 0xf1;
+        fbs::GetClusterBuildSizesT r;
+        r.input = cluster_input(1);
+        r.acceleration_structure_size = 1 << 20;
+        r.update_scratch_size = 5;
+        r.build_scratch_size = 1 << 16;
+        out.push_back(record(std::move(r)));
+    }
+    {
+        fbs::QueueSubmitT r;
+        r.queue = 0x51;
+        r.queue_family_index = 1;
+        r.queue_index = 2;
+        r.version = 2;
+        r.fence = 0xf1;
         auto batch = std::make_unique<fbs::SubmitBatchT>();
         batch->wait_semaphores = {fbs::SemaphoreOp(0x5e1, 10, 0x02000000, 0)};
         batch->command_buffers = {0xcb, 0xcc};
@@ -192,39 +368,122 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
         r.result = 0;
         out.push_back(record(std::move(r)));
     }
-    { fbs::QueueWaitIdleT r; r.queue = 0x51; r.result = -4; out.push_back(record(r)); }
-    { fbs::DeviceWaitIdleT r; r.result = -4; out.push_back(record(r)); }
-    { fbs::FenceWaitT r; r.fences = {0xf1, 0xf2}; r.wait_all = true; r.timeout = 1000; r.result = 2; out.push_back(record(r)); }
-    { fbs::FenceResetT r; r.fences = {0xf1}; out.push_back(record(r)); }
-    { fbs::FenceStatusT r; r.fence = 0xf1; r.result = 1; out.push_back(record(r)); }
-    { fbs::HostSemaphoreOpT r; r.op = 1; r.semaphores = {0x5e1}; r.values = {12}; r.wait_any = true; r.timeout = 5; r.result = 2; out.push_back(record(r)); }
-    { fbs::GpuTimestampT r; r.command_buffer = 0xcb; r.query_pool = 0x9; r.query = 3; r.stage_mask = 0x2000; r.ticks = 123456789; r.ticks_valid = true; out.push_back(record(r)); }
-    { fbs::CpuTimestampT r; r.clock = 1; r.nanoseconds = 987654321; r.label = "submit"; out.push_back(record(r)); }
-    { fbs::CalibratedTimestampsT r; r.gpu_ticks = 1; r.cpu_nanoseconds = 2; r.max_deviation_ns = 3; out.push_back(record(r)); }
-    { fbs::DebugLabelT r; r.command_buffer = 0xcb; r.queue = 0; r.op = 0; r.text = "build clusters"; out.push_back(record(r)); }
+    {
+        fbs::QueueWaitIdleT r;
+        r.queue = 0x51;
+        r.result = -4;
+        out.push_back(record(r));
+    }
+    {
+        fbs::DeviceWaitIdleT r;
+        r.result = -4;
+        out.push_back(record(r));
+    }
+    {
+        fbs::FenceWaitT r;
+        r.fences = {0xf1, 0xf2};
+        r.wait_all = true;
+        r.timeout = 1000;
+        r.result = 2;
+        out.push_back(record(r));
+    }
+    {
+        fbs::FenceResetT r;
+        r.fences = {0xf1};
+        out.push_back(record(r));
+    }
+    {
+        fbs::FenceStatusT r;
+        r.fence = 0xf1;
+        r.result = 1;
+        out.push_back(record(r));
+    }
+    {
+        fbs::HostSemaphoreOpT r;
+        r.op = 1;
+        r.semaphores = {0x5e1};
+        r.values = {12};
+        r.wait_any = true;
+        r.timeout = 5;
+        r.result = 2;
+        out.push_back(record(r));
+    }
+    {
+        fbs::GpuTimestampT r;
+        r.command_buffer = 0xcb;
+        r.query_pool = 0x9;
+        r.query = 3;
+        r.stage_mask = 0x2000;
+        r.ticks = 123456789;
+        r.ticks_valid = true;
+        out.push_back(record(r));
+    }
+    {
+        fbs::CpuTimestampT r;
+        r.clock = 1;
+        r.nanoseconds = 987654321;
+        r.label = "submit";
+        out.push_back(record(r));
+    }
+    {
+        fbs::CalibratedTimestampsT r;
+        r.gpu_ticks = 1;
+        r.cpu_nanoseconds = 2;
+        r.max_deviation_ns = 3;
+        out.push_back(record(r));
+    }
+    {
+        fbs::DebugLabelT r;
+        r.command_buffer = 0xcb;
+        r.queue = 0;
+        r.op = 0;
+        r.text = "build clusters";
+        out.push_back(record(r));
+    }
     {
         fbs::RayQueryCheckT r;
-        r.acceleration_structure = 0xa5; r.device_handle = 0x7000100; r.after_submission = 4; r.label = "fixed rays";
+        r.acceleration_structure = 0xa5;
+        r.device_handle = 0x7000100;
+        r.after_submission = 4;
+        r.label = "fixed rays";
         r.rays.push_back(fbs::TracedRay(0.f, 1.f, -5.f, 0.001f, 0.f, 0.f, 1.f, 1e30f, 1u, 0xffu));
         r.results.push_back(fbs::RayHitResult(1u, 5.25f, 7u, 2u, 31u, 0u, 0xfeu, 0.25f, 0.5f));
         out.push_back(record(r));
     }
     {
         fbs::CaptureFindingT r;
-        r.command_buffer = 0xcb; r.command_index = 3; r.submission = 2; r.op_index = 17; r.severity = 2;
-        r.rule = "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-clusterID-10487"; r.message = "clusterID is 0xFFFFFFFF";
+        r.command_buffer = 0xcb;
+        r.command_index = 3;
+        r.submission = 2;
+        r.op_index = 17;
+        r.severity = 2;
+        r.rule = "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-clusterID-10487";
+        r.message = "clusterID is 0xFFFFFFFF";
         out.push_back(record(r));
     }
     {
         fbs::QueuePresentT r;
-        r.queue = 0x9e; r.frame = 41; r.wait_semaphores = {0x5e2, 0x5e3}; r.swapchains = {0x5c};
-        r.image_indices = {2}; r.result = 1000001003;  // VK_SUBOPTIMAL_KHR
+        r.queue = 0x9e;
+        r.frame = 41;
+        r.wait_semaphores = {0x5e2, 0x5e3};
+        r.swapchains = {0x5c};
+        r.image_indices = {2};
+        r.result = 1000001003;  // VK_SUBOPTIMAL_KHR
         out.push_back(record(r));
     }
-    { fbs::CmdExecuteCommandsT r; r.command_buffer = 0xcb; r.secondaries = {0x5c1, 0x5c2, 0x5c1}; out.push_back(record(r)); }
+    {
+        fbs::CmdExecuteCommandsT r;
+        r.command_buffer = 0xcb;
+        r.secondaries = {0x5c1, 0x5c2, 0x5c1};
+        out.push_back(record(r));
+    }
     {
         fbs::AcquireNextImageT r;
-        r.swapchain = 0x5c; r.timeout = ~0ull; r.semaphore = 0x5e4; r.fence = 0xf3; r.image_index = 2;
+        r.swapchain = 0x5c;
+        r.timeout = ~0ull;
+        r.semaphore = 0x5e4;
+        r.fence = 0xf3;
+        r.image_index = 2;
         r.result = 1000001003;  // VK_SUBOPTIMAL_KHR
         r.device_mask = 1;
         out.push_back(record(r));
@@ -236,18 +495,21 @@ std::string temp_path(const std::string& name) {
     auto dir = std::filesystem::temp_directory_path() / "clastrace-trace-tests";
     std::filesystem::create_directories(dir);
     const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    std::string prefix = info ? std::string(info->test_suite_name()) + "." + info->name() + "." : "";
+    std::string prefix =
+        info ? std::string(info->test_suite_name()) + "." + info->name() + "." : "";
     return (dir / (prefix + name)).string();
 }
 
 std::vector<uint8_t> read_file(const std::string& path) {
     std::ifstream in(path, std::ios::binary);
-    return std::vector<uint8_t>(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+    return std::vector<uint8_t>(std::istreambuf_iterator<char>(in),
+                                std::istreambuf_iterator<char>());
 }
 
 void write_file(const std::string& path, const std::vector<uint8_t>& bytes) {
     std::ofstream out(path, std::ios::binary | std::ios::trunc);
-    out.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+    out.write(reinterpret_cast<const char*>(bytes.data()),
+              static_cast<std::streamsize>(bytes.size()));
 }
 
 static ReadResult drain(std::unique_ptr<TraceReader> reader, TraceError error) {
@@ -277,12 +539,13 @@ ReadResult read_all(const std::string& path) {
 
 ReadResult read_all_memory(const std::vector<uint8_t>& bytes) {
     TraceError e;
-    auto reader = TraceReader::open_memory(bytes.data(), bytes.size(), "memory.clt", &e, kVerifyEverything);
+    auto reader =
+        TraceReader::open_memory(bytes.data(), bytes.size(), "memory.clt", &e, kVerifyEverything);
     return drain(std::move(reader), e);
 }
 
-std::vector<fbs::RecordT> write_frames_trace(const std::string& path, int submissions, uint32_t chunk_bytes,
-                                             TraceWriterOptions options) {
+std::vector<fbs::RecordT> write_frames_trace(const std::string& path, int submissions,
+                                             uint32_t chunk_bytes, TraceWriterOptions options) {
     options.chunk_raw_bytes = chunk_bytes;
     TraceError e;
     auto w = TraceWriter::create(path, test_header(), options, &e);
@@ -295,8 +558,10 @@ std::vector<fbs::RecordT> write_frames_trace(const std::string& path, int submis
     for (int s = 0; s < submissions; ++s) {
         // Every third frame reuses the previous geometry: realistic repetition to dedup.
         if (s % 3 != 2) {
-            for (size_t i = 0; i < vertices.size(); ++i) vertices[i] = std::sin(0.01f * static_cast<float>(i + 1000 * s));
-            for (size_t i = 0; i < indices.size(); ++i) indices[i] = static_cast<uint8_t>(rng() % 256);
+            for (size_t i = 0; i < vertices.size(); ++i)
+                vertices[i] = std::sin(0.01f * static_cast<float>(i + 1000 * s));
+            for (size_t i = 0; i < indices.size(); ++i)
+                indices[i] = static_cast<uint8_t>(rng() % 256);
         }
         fbs::CommandBufferBeginT begin;
         begin.command_buffer = 0xcb;
@@ -334,7 +599,8 @@ std::vector<fbs::RecordT> write_frames_trace(const std::string& path, int submis
 
 std::string describe(const std::vector<TraceError>& damage) {
     std::string s;
-    for (const TraceError& e : damage) s += "  [" + std::string(trace_error_code_name(e.code)) + "] " + e.message + "\n";
+    for (const TraceError& e : damage)
+        s += "  [" + std::string(trace_error_code_name(e.code)) + "] " + e.message + "\n";
     return s;
 }
 

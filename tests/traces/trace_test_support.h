@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Shared helpers of the trace tests: a device header, one record of every kind, and
 // small file utilities.
 #pragma once
@@ -37,8 +38,8 @@ ReadResult read_all_memory(const std::vector<uint8_t>& bytes);
 
 // Writes a trace of `submissions` frames with realistic contents (some repeated) and
 // chunks of `chunk_bytes`. Returns the records appended (MemoryContents excluded).
-std::vector<fbs::RecordT> write_frames_trace(const std::string& path, int submissions, uint32_t chunk_bytes,
-                                             TraceWriterOptions options = {});
+std::vector<fbs::RecordT> write_frames_trace(const std::string& path, int submissions,
+                                             uint32_t chunk_bytes, TraceWriterOptions options = {});
 
 std::string describe(const std::vector<TraceError>& damage);
 

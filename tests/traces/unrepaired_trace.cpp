@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "unrepaired_trace.h"
 
 #include "file_format.h"
@@ -24,14 +25,16 @@ struct FileBytes {
     void pad8() { bytes.resize(f::align8(bytes.size()), 0); }
 
     // One chunk (header and zstd payload) at the end; returns its compressed size.
-    uint32_t append_chunk(const std::vector<uint8_t>& raw, f::ChunkKind kind, uint32_t number, uint32_t records,
-                          uint64_t first_submission) {
+    uint32_t append_chunk(const std::vector<uint8_t>& raw, f::ChunkKind kind, uint32_t number,
+                          uint32_t records, uint64_t first_submission) {
         std::vector<uint8_t> compressed(ZSTD_compressBound(raw.size()));
-        const size_t n = ZSTD_compress(compressed.data(), compressed.size(), raw.data(), raw.size(), 3);
+        const size_t n =
+            ZSTD_compress(compressed.data(), compressed.size(), raw.data(), raw.size(), 3);
         if (ZSTD_isError(n)) throw std::runtime_error("zstd failed");
-        const f::ChunkHeader h = f::sealed_chunk_header(kind, number, records, first_submission,
-                                                        static_cast<uint32_t>(raw.size()), compressed.data(),
-                                                        static_cast<uint32_t>(n));
+        const f::ChunkHeader h =
+            f::sealed_chunk_header(kind, number, records, first_submission,
+                                   static_cast<uint32_t>(raw.size()), compressed.data(),
+                                   static_cast<uint32_t>(n));
         append(&h, sizeof h);
         append(compressed.data(), n);
         return static_cast<uint32_t>(n);
@@ -62,8 +65,9 @@ void write_unrepaired_trace(const std::string& path, const fbs::TraceHeaderT& he
     file.append(hb.GetBufferPointer(), hb.GetSize());
     file.pad8();
 
-    const uint32_t chunk_limit = header.capture && header.capture->chunk_raw_bytes ? header.capture->chunk_raw_bytes
-                                                                                    : 4u << 20;
+    const uint32_t chunk_limit = header.capture && header.capture->chunk_raw_bytes
+                                     ? header.capture->chunk_raw_bytes
+                                     : 4u << 20;
     std::vector<fbs::ChunkLocation> chunks;
     std::vector<fbs::ContentLocation> contents;
     uint64_t submissions = 0;
@@ -71,8 +75,9 @@ void write_unrepaired_trace(const std::string& path, const fbs::TraceHeaderT& he
     auto seal = [&] {
         if (open.raw.empty()) return;
         const uint64_t offset = file.bytes.size();
-        const uint32_t csize = file.append_chunk(open.raw, f::ChunkKind::kRecords, static_cast<uint32_t>(chunks.size()),
-                                                 open.records, open.first_submission);
+        const uint32_t csize = file.append_chunk(open.raw, f::ChunkKind::kRecords,
+                                                 static_cast<uint32_t>(chunks.size()), open.records,
+                                                 open.first_submission);
         chunks.emplace_back(offset, open.first_submission, open.submissions, open.records,
                             static_cast<uint32_t>(open.raw.size()), csize);
         open = OpenChunk{{}, 0, 0, submissions};
@@ -100,17 +105,21 @@ void write_unrepaired_trace(const std::string& path, const fbs::TraceHeaderT& he
     seal();
 
     flatbuffers::FlatBufferBuilder ib;
-    ib.Finish(fbs::CreateTraceIndex(ib, ib.CreateVectorOfStructs(chunks), ib.CreateVectorOfStructs(contents),
-                                    records.size(), submissions));
+    ib.Finish(fbs::CreateTraceIndex(ib, ib.CreateVectorOfStructs(chunks),
+                                    ib.CreateVectorOfStructs(contents), records.size(),
+                                    submissions));
     const std::vector<uint8_t> index(ib.GetBufferPointer(), ib.GetBufferPointer() + ib.GetSize());
     const uint64_t index_offset = file.bytes.size();
     const uint32_t index_size =
-        file.append_chunk(index, f::ChunkKind::kIndex, static_cast<uint32_t>(chunks.size()), 0, submissions);
-    const f::Trailer t = f::sealed_trailer(index_offset, index_offset + f::kChunkHeaderSize + index_size);
+        file.append_chunk(index, f::ChunkKind::kIndex, static_cast<uint32_t>(chunks.size()), 0,
+                          submissions);
+    const f::Trailer t =
+        f::sealed_trailer(index_offset, index_offset + f::kChunkHeaderSize + index_size);
     file.append(&t, sizeof t);
 
     std::ofstream out(path, std::ios::binary | std::ios::trunc);
-    out.write(reinterpret_cast<const char*>(file.bytes.data()), static_cast<std::streamsize>(file.bytes.size()));
+    out.write(reinterpret_cast<const char*>(file.bytes.data()),
+              static_cast<std::streamsize>(file.bytes.size()));
     if (!out) throw std::runtime_error("cannot write " + path);
 }
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // A .clt file laid out as TraceWriter lays it out (chunks, index, trailer) but with the header
 // and records stored exactly as given: what an older or foreign writer leaves, whose strings
 // need not be UTF-8. TraceWriter itself repairs them (stored_text.h), so tests that need such

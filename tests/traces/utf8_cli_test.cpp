@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Names that are not UTF-8 through the built `clastrace` program: a Latin-1 trace file name, and
 // a trace from an older or foreign writer whose application, engine and device names and ray
 // check labels are Latin-1. Every JSON document and HTML page it prints or writes stays valid
@@ -52,7 +53,9 @@ json run_json(const std::string& command, const std::string& trace, int* exit_co
     try {
         return json::parse(r.out);
     } catch (const json::exception& e) {
-        ADD_FAILURE() << command << " on " << trace << " (exit " << r.exit_code << "): " << e.what() << "\n" << r.out;
+        ADD_FAILURE() << command << " on " << trace << " (exit " << r.exit_code << "): " << e.what()
+                      << "\n"
+                      << r.out;
         return json();
     }
 }
@@ -65,7 +68,8 @@ std::string text_at(const json& j, const char* key) {
 // `analyze --html` into `page`, returning the exit code and the page.
 std::pair<int, std::string> run_html(const std::string& trace, const fs::path& page) {
     fs::remove(page);
-    const int exit_code = run("analyze --html " + word(page.string()) + " " + word(trace)).exit_code;
+    const int exit_code =
+        run("analyze --html " + word(page.string()) + " " + word(trace)).exit_code;
     const std::vector<uint8_t> bytes = read_file(page.string());
     return {exit_code, std::string(bytes.begin(), bytes.end())};
 }
@@ -143,7 +147,8 @@ protected:
         ASSERT_EQ(read.damage_count, 0u);
         size_t checks = 0;
         for (fbs::RecordT& r : read.records)
-            if (fbs::RayQueryCheckT* c = r.body.AsRayQueryCheck()) c->label = "rayons " + e_acute + std::to_string(checks++);
+            if (fbs::RayQueryCheckT* c = r.body.AsRayQueryCheck())
+                c->label = "rayons " + e_acute + std::to_string(checks++);
         ASSERT_GT(checks, 0u);
         write_unrepaired_trace(path, header, read.records);
     }

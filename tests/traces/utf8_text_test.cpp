@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The one rule that makes text UTF-8 (traces::valid_utf8), and the writer applying it to every
 // string a trace stores.
 #include "trace_test_support.h"
@@ -23,41 +24,58 @@ struct Repair {
 // Ill-formed input and what it becomes: one U+FFFD per maximal ill-formed subpart.
 const std::vector<Repair>& ill_formed() {
     static const std::vector<Repair> cases = {
-        {"caf\xE9", "caf" + R},                 // Latin-1 é at the end: a 3-byte lead cut short
-        {"caf\xE9.clt", "caf" + R + ".clt"},    // ... followed by what cannot continue it
+        {"caf\xE9", "caf" + R},               // Latin-1 é at the end: a 3-byte lead cut short
+        {"caf\xE9.clt", "caf" + R + ".clt"},  // ... followed by what cannot continue it
         {"\xE9t\xE9", R + "t" + R},
-        {"\x80", R},                            // continuation bytes without a lead
+        {"\x80", R},  // continuation bytes without a lead
         {"\x80\xBF", R + R},
-        {"\xC0\x80", R + R},                    // overlong forms: C0, C1 start nothing ...
+        {"\xC0\x80", R + R},  // overlong forms: C0, C1 start nothing ...
         {"\xC1\xBF", R + R},
-        {"\xE0\x80\x80", R + R + R},            // ... E0 and F0 only with their narrow second byte
+        {"\xE0\x80\x80", R + R + R},  // ... E0 and F0 only with their narrow second byte
         {"\xE0\x9F\xBF", R + R + R},
         {"\xF0\x80\x80\x80", R + R + R + R},
         {"\xF0\x8F\xBF\xBF", R + R + R + R},
-        {"\xED\xA0\x80", R + R + R},            // surrogates U+D800, U+DFFF
+        {"\xED\xA0\x80", R + R + R},  // surrogates U+D800, U+DFFF
         {"\xED\xBF\xBF", R + R + R},
-        {"\xF4\x90\x80\x80", R + R + R + R},    // above U+10FFFF
+        {"\xF4\x90\x80\x80", R + R + R + R},  // above U+10FFFF
         {"\xF5\x80\x80\x80", R + R + R + R},
         {"\xFE", R},
         {"\xFF", R},
-        {"\xC3", R},                            // cut short at the end, at every length
+        {"\xC3", R},  // cut short at the end, at every length
         {"\xE2\x82", R},
         {"\xF0\x9F\x98", R},
-        {"\xE2\x82x", R + "x"},                 // cut short by a byte that starts something else
+        {"\xE2\x82x", R + "x"},  // cut short by a byte that starts something else
         {"\xF0\x9F\x98\xC3\xA9", R + "\xC3\xA9"},
-        {"a\xE2\x82\xAC" "b\xFF" "c", "a\xE2\x82\xAC" "b" + R + "c"},
+        {"a\xE2\x82\xAC"
+         "b\xFF"
+         "c",
+         "a\xE2\x82\xAC"
+         "b" +
+             R + "c"},
         // Unicode's own example of the practice (chapter 3, U+FFFD substitution of maximal subparts)
-        {"\x61\xF1\x80\x80\xE1\x80\xC2\x62\x80\x63\x80\xBF\x64", "a" + R + R + R + "b" + R + "c" + R + R + "d"},
+        {"\x61\xF1\x80\x80\xE1\x80\xC2\x62\x80\x63\x80\xBF\x64",
+         "a" + R + R + R + "b" + R + "c" + R + R + "d"},
     };
     return cases;
 }
 
 const std::vector<std::string>& well_formed() {
     static const std::vector<std::string> texts = {
-        "", "plain ASCII", std::string("with\0nul", 8), "caf\xC3\xA9", "\xE2\x82\xAC", "\xF0\x9F\x98\x80",
-        "\x7F", "\xC2\x80", "\xDF\xBF",                  // first and last of one and two bytes
-        "\xE0\xA0\x80", "\xED\x9F\xBF", "\xEE\x80\x80",  // around the surrogates
-        "\xEF\xBF\xBF", "\xF0\x90\x80\x80", "\xF4\x8F\xBF\xBF"};
+        "",
+        "plain ASCII",
+        std::string("with\0nul", 8),
+        "caf\xC3\xA9",
+        "\xE2\x82\xAC",
+        "\xF0\x9F\x98\x80",
+        "\x7F",
+        "\xC2\x80",
+        "\xDF\xBF",  // first and last of one and two bytes
+        "\xE0\xA0\x80",
+        "\xED\x9F\xBF",
+        "\xEE\x80\x80",  // around the surrogates
+        "\xEF\xBF\xBF",
+        "\xF0\x90\x80\x80",
+        "\xF4\x8F\xBF\xBF"};
     return texts;
 }
 
@@ -78,14 +96,20 @@ TEST(Utf8Text, EachMaximalIllFormedSubpartBecomesOneReplacementCharacter) {
 }
 
 TEST(Utf8Text, PrefixesDoNotCutACharacter) {
-    const std::string text = "ab\xE2\x82\xAC" "c\xF0\x9F\x98\x80";  // a b € c 😀
+    const std::string text =
+        "ab\xE2\x82\xAC"
+        "c\xF0\x9F\x98\x80";  // a b € c 😀
     EXPECT_EQ(utf8_prefix(text, 100), text);
     EXPECT_EQ(utf8_prefix(text, 2), "ab");
     EXPECT_EQ(utf8_prefix(text, 3), "ab");
     EXPECT_EQ(utf8_prefix(text, 4), "ab");
     EXPECT_EQ(utf8_prefix(text, 5), "ab\xE2\x82\xAC");
-    EXPECT_EQ(utf8_prefix(text, 8), "ab\xE2\x82\xAC" "c");
-    EXPECT_EQ(utf8_prefix(text, 9), "ab\xE2\x82\xAC" "c");
+    EXPECT_EQ(utf8_prefix(text, 8),
+              "ab\xE2\x82\xAC"
+              "c");
+    EXPECT_EQ(utf8_prefix(text, 9),
+              "ab\xE2\x82\xAC"
+              "c");
     EXPECT_EQ(utf8_prefix(text, 10), text);
     EXPECT_EQ(utf8_prefix("\xF0\x9F\x98\x80", 3), "");
     EXPECT_EQ(utf8_prefix("caf\xE9 au lait", 4), "caf\xE9");  // ill-formed bytes are cut as bytes
@@ -96,7 +120,8 @@ TEST(Utf8Text, PrefixesDoNotCutACharacter) {
 // same rule, so that a name reads the same in JSON, in HTML and in a trace written today.
 TEST(Utf8Text, NlohmannsReplaceHandlerFollowsTheSameRule) {
     for (const Repair& c : ill_formed()) {
-        const std::string dumped = nlohmann::json(c.bytes).dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
+        const std::string dumped =
+            nlohmann::json(c.bytes).dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
         EXPECT_EQ(dumped, "\"" + valid_utf8(c.bytes) + "\"") << "from " << c.bytes;
     }
 }
@@ -142,17 +167,21 @@ std::vector<fbs::RecordT> latin1_records() {
 
 void expect_repaired(const fbs::RecordT& r) {
     switch (r.body.type) {
-        case fbs::RecordBody::CpuTimestamp: EXPECT_EQ(r.body.AsCpuTimestamp()->label, "t " + kRepaired); break;
-        case fbs::RecordBody::DebugLabel: EXPECT_EQ(r.body.AsDebugLabel()->text, "label " + kRepaired); break;
-        case fbs::RecordBody::RayQueryCheck:
-            EXPECT_EQ(r.body.AsRayQueryCheck()->label, "rays " + kRepaired);
-            EXPECT_EQ(r.body.AsRayQueryCheck()->results.size(), 1u);  // the rest of the record is kept
-            break;
-        case fbs::RecordBody::CaptureFinding:
-            EXPECT_EQ(r.body.AsCaptureFinding()->rule, "rule " + kRepaired);
-            EXPECT_EQ(r.body.AsCaptureFinding()->message, "message " + kRepaired);
-            break;
-        default: ADD_FAILURE() << "unexpected record kind " << int(r.body.type);
+    case fbs::RecordBody::CpuTimestamp:
+        EXPECT_EQ(r.body.AsCpuTimestamp()->label, "t " + kRepaired);
+        break;
+    case fbs::RecordBody::DebugLabel:
+        EXPECT_EQ(r.body.AsDebugLabel()->text, "label " + kRepaired);
+        break;
+    case fbs::RecordBody::RayQueryCheck:
+        EXPECT_EQ(r.body.AsRayQueryCheck()->label, "rays " + kRepaired);
+        EXPECT_EQ(r.body.AsRayQueryCheck()->results.size(), 1u);  // the rest of the record is kept
+        break;
+    case fbs::RecordBody::CaptureFinding:
+        EXPECT_EQ(r.body.AsCaptureFinding()->rule, "rule " + kRepaired);
+        EXPECT_EQ(r.body.AsCaptureFinding()->message, "message " + kRepaired);
+        break;
+    default: ADD_FAILURE() << "unexpected record kind " << int(r.body.type);
     }
 }
 
@@ -163,7 +192,7 @@ TEST(Utf8Writer, LatinOneNamesAndLabelsAreStoredAsUtf8WhicheverWayRecordsArrive)
     ASSERT_TRUE(w) << e.message;
     const std::vector<fbs::RecordT> records = latin1_records();
     for (const fbs::RecordT& r : records) ASSERT_FALSE(w->append(r));  // the object API
-    for (const fbs::RecordT& r : records) {                           // a finished FlatBuffer, and a Record
+    for (const fbs::RecordT& r : records) {  // a finished FlatBuffer, and a Record
         flatbuffers::FlatBufferBuilder b;
         b.Finish(fbs::Record::Pack(b, &r));
         ASSERT_FALSE(w->append_record_bytes(b.GetBufferPointer(), b.GetSize()));
@@ -213,7 +242,8 @@ TEST(Utf8Writer, Utf8NamesAreStoredAsGiven) {
     TraceError open_error;
     auto reader = TraceReader::open(path, &open_error);
     ASSERT_TRUE(reader) << open_error.message;
-    EXPECT_EQ(reader->header()->capture()->application_name()->str(), "caf\xC3\xA9 \xF0\x9F\x98\x80");
+    EXPECT_EQ(reader->header()->capture()->application_name()->str(),
+              "caf\xC3\xA9 \xF0\x9F\x98\x80");
 }
 
 // stored_text.cpp lists the schema's string fields by hand; a new one must be added there (and
@@ -225,9 +255,11 @@ TEST(Utf8Writer, EveryStringFieldOfTheSchemaIsRepaired) {
     schema << in.rdbuf();
     const std::string text = schema.str();
     const std::regex string_field(R"(\b\w+\s*:\s*\[?\s*string\s*\]?\s*[;=(])");
-    const auto fields = std::distance(std::sregex_iterator(text.begin(), text.end(), string_field), std::sregex_iterator());
+    const auto fields = std::distance(std::sregex_iterator(text.begin(), text.end(), string_field),
+                                      std::sregex_iterator());
     // DeviceInfo 4, CaptureSettings 4, CpuTimestamp 1, DebugLabel 1, RayQueryCheck 1, CaptureFinding 2
-    EXPECT_EQ(fields, 13) << "a string field was added to or removed from trace.fbs: update stored_text.cpp";
+    EXPECT_EQ(fields, 13)
+        << "a string field was added to or removed from trace.fbs: update stored_text.cpp";
 }
 
 }  // namespace

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "clastrace/testsupport/cluster_scene.h"
 
 #include "clastrace/engine/traversal.h"
@@ -17,13 +18,15 @@ namespace {
 constexpr uint64_t kVertexBase = 0x1000'0000ull;
 constexpr uint64_t kIndexBase = 0x8000'0000ull;
 constexpr VkBufferUsageFlags kInputUsage =
-    VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR | VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT;
+    VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR |
+    VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT;
 
 uint64_t align_up(uint64_t v, uint64_t a) { return (v + a - 1) / a * a; }
 
-} // namespace
+}  // namespace
 
-ClusterSceneInputs write_cluster_inputs(const TriangleMesh& mesh, const std::vector<MeshCluster>& clusters,
+ClusterSceneInputs write_cluster_inputs(const TriangleMesh& mesh,
+                                        const std::vector<MeshCluster>& clusters,
                                         const ClusterInputLayout& layout) {
     ClusterSceneInputs out;
     const uint64_t vstride = layout.vertex_stride ? layout.vertex_stride : 12;
@@ -33,8 +36,10 @@ ClusterSceneInputs write_cluster_inputs(const TriangleMesh& mesh, const std::vec
         vbytes += align_up(c.vertices.size() * vstride, 16);
         ibytes += align_up(c.triangles.size() * 3 * istride, 16);
     }
-    engine::MemoryRegion& vr = out.memory.add_region(kVertexBase, std::max<uint64_t>(vbytes, 16), kInputUsage, "vertices");
-    engine::MemoryRegion& ir = out.memory.add_region(kIndexBase, std::max<uint64_t>(ibytes, 16), kInputUsage, "indices");
+    engine::MemoryRegion& vr =
+        out.memory.add_region(kVertexBase, std::max<uint64_t>(vbytes, 16), kInputUsage, "vertices");
+    engine::MemoryRegion& ir =
+        out.memory.add_region(kIndexBase, std::max<uint64_t>(ibytes, 16), kInputUsage, "indices");
     std::memset(vr.bytes.data(), 0xCD, vr.bytes.size());
     std::memset(ir.bytes.data(), 0xCD, ir.bytes.size());
 
@@ -53,22 +58,27 @@ ClusterSceneInputs write_cluster_inputs(const TriangleMesh& mesh, const std::vec
         info.vertexCount = uint32_t(c.vertices.size()) & 0x1FF;
         info.positionTruncateBitCount = layout.truncate_bits & 0x3F;
         info.indexType = layout.index_bytes;  // the flag bits are 1, 2, 4 = the byte counts
-        info.baseGeometryIndexAndGeometryFlags.geometryFlags = VK_CLUSTER_ACCELERATION_STRUCTURE_GEOMETRY_OPAQUE_BIT_NV;
+        info.baseGeometryIndexAndGeometryFlags.geometryFlags =
+            VK_CLUSTER_ACCELERATION_STRUCTURE_GEOMETRY_OPAQUE_BIT_NV;
         info.indexBufferStride = layout.index_stride;
         info.vertexBufferStride = layout.vertex_stride;
         info.vertexBuffer = kVertexBase + voff;
         info.indexBuffer = kIndexBase + ioff;
         for (size_t v = 0; v < c.vertices.size(); ++v)
-            std::memcpy(vr.bytes.data() + voff + v * vstride, mesh.positions[c.vertices[v]].data(), 12);
+            std::memcpy(vr.bytes.data() + voff + v * vstride, mesh.positions[c.vertices[v]].data(),
+                        12);
         for (size_t t = 0; t < c.triangles.size(); ++t)
             for (int k = 0; k < 3; ++k) {
                 const uint32_t idx = c.triangles[t][k];
-                std::memcpy(ir.bytes.data() + ioff + (3 * t + k) * istride, &idx, layout.index_bytes);  // little endian
+                std::memcpy(ir.bytes.data() + ioff + (3 * t + k) * istride, &idx,
+                            layout.index_bytes);  // little endian
             }
         voff += align_up(c.vertices.size() * vstride, 16);
         ioff += align_up(c.triangles.size() * 3 * istride, 16);
-        out.input.maxClusterTriangleCount = std::max<uint32_t>(out.input.maxClusterTriangleCount, info.triangleCount);
-        out.input.maxClusterVertexCount = std::max<uint32_t>(out.input.maxClusterVertexCount, info.vertexCount);
+        out.input.maxClusterTriangleCount =
+            std::max<uint32_t>(out.input.maxClusterTriangleCount, info.triangleCount);
+        out.input.maxClusterVertexCount =
+            std::max<uint32_t>(out.input.maxClusterVertexCount, info.vertexCount);
         out.input.maxTotalTriangleCount += info.triangleCount;
         out.input.maxTotalVertexCount += info.vertexCount;
         out.infos.push_back(info);
@@ -88,11 +98,13 @@ ClusterScene build_cluster_scene(const TriangleMesh& mesh, const std::vector<Mes
     scene.triangles.resize(n);
     engine::ClusterBuilder builder;
     for (size_t ci = 0; ci < n; ++ci) {
-        if (!builder.build_triangle_cluster(in.memory, in.infos[ci], in.input, int64_t(ci), scene.objects[ci],
-                                            scene.findings[ci]))
+        if (!builder.build_triangle_cluster(in.memory, in.infos[ci], in.input, int64_t(ci),
+                                            scene.objects[ci], scene.findings[ci]))
             ++scene.failed_builds;
         const MeshCluster& c = clusters[ci];
-        for (uint32_t v : c.vertices) scene.positions[ci].push_back(truncate_position(mesh.positions[v], layout.truncate_bits));
+        for (uint32_t v : c.vertices)
+            scene.positions[ci].push_back(
+                truncate_position(mesh.positions[v], layout.truncate_bits));
         for (const auto& t : c.triangles) {
             scene.triangles[ci].push_back({t[0], t[1], t[2]});
             for (uint8_t k : t) scene.bounds[ci].extend(scene.positions[ci][k]);
@@ -102,7 +114,8 @@ ClusterScene build_cluster_scene(const TriangleMesh& mesh, const std::vector<Mes
 }
 
 void add_to_embree(const ClusterScene& scene, EmbreeReference& embree) {
-    for (size_t ci = 0; ci < scene.objects.size(); ++ci) embree.add_cluster(scene.positions[ci], scene.triangles[ci]);
+    for (size_t ci = 0; ci < scene.objects.size(); ++ci)
+        embree.add_cluster(scene.positions[ci], scene.triangles[ci]);
     embree.commit();
 }
 
@@ -127,7 +140,8 @@ std::vector<PaddedBox> padded_boxes(const ClusterScene& scene) {
 }
 
 // Entry distance of the ray into the box, or +inf when it misses.
-double box_entry(const PaddedBox& b, const double o[3], const double inv[3], double tmin, double tmax) {
+double box_entry(const PaddedBox& b, const double o[3], const double inv[3], double tmin,
+                 double tmax) {
     double t0 = tmin, t1 = tmax;
     for (int k = 0; k < 3; ++k) {
         if (std::isinf(inv[k])) {  // direction 0 on this axis
@@ -154,7 +168,8 @@ engine::Ray to_engine(const TestRay& ray) {
     return er;
 }
 
-SceneHit trace_boxes(const ClusterScene& scene, const std::vector<PaddedBox>& boxes, const TestRay& ray) {
+SceneHit trace_boxes(const ClusterScene& scene, const std::vector<PaddedBox>& boxes,
+                     const TestRay& ray) {
     thread_local std::vector<std::pair<double, uint32_t>> order;
     order.clear();
     double o[3], inv[3];
@@ -187,7 +202,7 @@ SceneHit trace_boxes(const ClusterScene& scene, const std::vector<PaddedBox>& bo
     return best;
 }
 
-} // namespace
+}  // namespace
 
 SceneHit trace_scene(const ClusterScene& scene, const TestRay& ray) {
     return trace_boxes(scene, padded_boxes(scene), ray);
@@ -202,7 +217,8 @@ bool trace_scene_any(const ClusterScene& scene, const TestRay& ray) {
     }
     const engine::Ray er = to_engine(ray);
     for (uint32_t ci = 0; ci < boxes.size(); ++ci)
-        if (!scene.objects[ci].empty() && box_entry(boxes[ci], o, inv, ray.tmin, ray.tmax) != INFINITY &&
+        if (!scene.objects[ci].empty() &&
+            box_entry(boxes[ci], o, inv, ray.tmin, ray.tmax) != INFINITY &&
             engine::trace_any(scene.objects[ci], er, 0))
             return true;
     return false;
@@ -210,10 +226,11 @@ bool trace_scene_any(const ClusterScene& scene, const TestRay& ray) {
 
 std::string AgreementCounts::summary() const {
     std::ostringstream s;
-    s << "rays " << rays << ": agree-miss " << agree_miss << ", agree-hit " << agree_hit << ", tie " << tie
-      << ", disagree-hit/miss " << disagree_hit_miss << ", disagree-t " << disagree_t << ", disagree-prim "
-      << disagree_prim << ", embree-off " << embree_off << " (t " << embree_off_t << ", hit/miss "
-      << embree_off_hit_miss << ", prim " << embree_off_prim << "), max rel t error " << max_rel_t_error;
+    s << "rays " << rays << ": agree-miss " << agree_miss << ", agree-hit " << agree_hit << ", tie "
+      << tie << ", disagree-hit/miss " << disagree_hit_miss << ", disagree-t " << disagree_t
+      << ", disagree-prim " << disagree_prim << ", embree-off " << embree_off << " (t "
+      << embree_off_t << ", hit/miss " << embree_off_hit_miss << ", prim " << embree_off_prim
+      << "), max rel t error " << max_rel_t_error;
     return s.str();
 }
 
@@ -222,13 +239,19 @@ namespace {
 std::string describe(const TestRay& r, const SceneHit& e, const ReferenceHit& ref) {
     std::ostringstream s;
     s.precision(9);
-    s << "ray o=(" << r.origin[0] << "," << r.origin[1] << "," << r.origin[2] << ") d=(" << r.direction[0] << ","
-      << r.direction[1] << "," << r.direction[2] << ") engine ";
-    if (e.hit) s << "hit c" << e.cluster << " t" << e.triangle << " t=" << e.t << " uv=" << e.u << "," << e.v;
-    else s << "miss";
+    s << "ray o=(" << r.origin[0] << "," << r.origin[1] << "," << r.origin[2] << ") d=("
+      << r.direction[0] << "," << r.direction[1] << "," << r.direction[2] << ") engine ";
+    if (e.hit)
+        s << "hit c" << e.cluster << " t" << e.triangle << " t=" << e.t << " uv=" << e.u << ","
+          << e.v;
+    else
+        s << "miss";
     s << " embree ";
-    if (ref.hit) s << "hit c" << ref.cluster << " t" << ref.triangle << " t=" << ref.t << " uv=" << ref.u << "," << ref.v;
-    else s << "miss";
+    if (ref.hit)
+        s << "hit c" << ref.cluster << " t" << ref.triangle << " t=" << ref.t << " uv=" << ref.u
+          << "," << ref.v;
+    else
+        s << "miss";
     return s.str();
 }
 
@@ -238,10 +261,12 @@ struct ExactHit {
     long double t = 0, margin = 0;  // margin: min barycentric (negative outside)
 };
 
-ExactHit exact_hit(const ClusterScene& scene, uint32_t cluster, uint32_t triangle, const TestRay& r) {
+ExactHit exact_hit(const ClusterScene& scene, uint32_t cluster, uint32_t triangle,
+                   const TestRay& r) {
     using L = long double;
     ExactHit out;
-    if (cluster >= scene.positions.size() || triangle >= scene.triangles[cluster].size()) return out;
+    if (cluster >= scene.positions.size() || triangle >= scene.triangles[cluster].size())
+        return out;
     const auto& tri = scene.triangles[cluster][triangle];
     const auto& P = scene.positions[cluster];
     L a[3], e1[3], e2[3], d[3], T[3];
@@ -275,8 +300,8 @@ ExactHit exact_hit(const ClusterScene& scene, uint32_t cluster, uint32_t triangl
 // verdict well clear of it counts.
 constexpr long double kClear = 1e-12L;
 
-bool engine_clearly_right(const ClusterScene& scene, const TestRay& r, const SceneHit& e, const ReferenceHit& ref,
-                          double tol) {
+bool engine_clearly_right(const ClusterScene& scene, const TestRay& r, const SceneHit& e,
+                          const ReferenceHit& ref, double tol) {
     if (e.hit && !ref.hit) {
         const ExactHit x = exact_hit(scene, e.cluster, e.triangle, r);
         return x.inside && x.margin > kClear;
@@ -300,7 +325,8 @@ bool engine_clearly_right(const ClusterScene& scene, const TestRay& r, const Sce
            std::fabs(xr.t - xe.t) <= tol * std::fabs(xe.t);
 }
 
-std::string arbiter_text(const ClusterScene& scene, const TestRay& r, const SceneHit& e, const ReferenceHit& ref) {
+std::string arbiter_text(const ClusterScene& scene, const TestRay& r, const SceneHit& e,
+                         const ReferenceHit& ref) {
     std::ostringstream s;
     s.precision(12);
     if (e.hit) {
@@ -333,7 +359,7 @@ void merge(AgreementCounts& a, const AgreementCounts& b) {
         if (a.examples.size() < 8) a.examples.push_back(e);
 }
 
-} // namespace
+}  // namespace
 
 AgreementCounts compare_with_embree(const ClusterScene& scene, const EmbreeReference& embree,
                                     const std::vector<TestRay>& rays, double tol) {
@@ -346,28 +372,41 @@ AgreementCounts compare_with_embree(const ClusterScene& scene, const EmbreeRefer
                 const SceneHit e = trace_boxes(scene, boxes, r);
                 const ReferenceHit ref = embree.intersect(r);
                 ++acc.rays;
-                if (!e.hit && !ref.hit) { ++acc.agree_miss; continue; }
+                if (!e.hit && !ref.hit) {
+                    ++acc.agree_miss;
+                    continue;
+                }
                 auto off = [&](const char* what) {
                     if (!engine_clearly_right(scene, r, e, ref, tol)) return false;
                     ++acc.embree_off;
-                    ++(what[0] == 't' ? acc.embree_off_t : what[0] == 'h' ? acc.embree_off_hit_miss : acc.embree_off_prim);
+                    ++(what[0] == 't'   ? acc.embree_off_t
+                       : what[0] == 'h' ? acc.embree_off_hit_miss
+                                        : acc.embree_off_prim);
                     if (acc.embree_off_examples.size() < 8 || what[0] != 't')
-                        acc.embree_off_examples.push_back(std::string(what) + ": " + describe(r, e, ref) + arbiter_text(scene, r, e, ref));
+                        acc.embree_off_examples.push_back(std::string(what) + ": " +
+                                                          describe(r, e, ref) +
+                                                          arbiter_text(scene, r, e, ref));
                     return true;
                 };
                 if (e.hit != ref.hit) {
                     if (off("hit/miss")) continue;
                     ++acc.disagree_hit_miss;
-                    if (acc.examples.size() < 8) acc.examples.push_back("hit/miss: " + describe(r, e, ref) + arbiter_text(scene, r, e, ref));
+                    if (acc.examples.size() < 8)
+                        acc.examples.push_back("hit/miss: " + describe(r, e, ref) +
+                                               arbiter_text(scene, r, e, ref));
                     continue;
                 }
-                const double rel = std::fabs(double(e.t) - ref.t) / std::max(std::fabs(double(ref.t)), 1e-30);
+                const double rel =
+                    std::fabs(double(e.t) - ref.t) / std::max(std::fabs(double(ref.t)), 1e-30);
                 acc.max_rel_t_error = std::max(acc.max_rel_t_error, rel);
                 if (e.cluster == ref.cluster && e.triangle == ref.triangle) {
-                    if (rel <= tol) ++acc.agree_hit;
+                    if (rel <= tol)
+                        ++acc.agree_hit;
                     else if (!off("t")) {
                         ++acc.disagree_t;
-                        if (acc.examples.size() < 8) acc.examples.push_back("t: " + describe(r, e, ref) + arbiter_text(scene, r, e, ref));
+                        if (acc.examples.size() < 8)
+                            acc.examples.push_back("t: " + describe(r, e, ref) +
+                                                   arbiter_text(scene, r, e, ref));
                     }
                     continue;
                 }
@@ -376,10 +415,13 @@ AgreementCounts compare_with_embree(const ClusterScene& scene, const EmbreeRefer
                 if (rel <= tol)
                     for (const ReferenceHit& h : embree.hits_near(r, ref.t, float(tol)))
                         if (h.cluster == e.cluster && h.triangle == e.triangle) tied = true;
-                if (tied) ++acc.tie;
+                if (tied)
+                    ++acc.tie;
                 else if (!off("prim")) {
                     ++acc.disagree_prim;
-                    if (acc.examples.size() < 8) acc.examples.push_back("prim: " + describe(r, e, ref) + arbiter_text(scene, r, e, ref));
+                    if (acc.examples.size() < 8)
+                        acc.examples.push_back("prim: " + describe(r, e, ref) +
+                                               arbiter_text(scene, r, e, ref));
                 }
             }
             return acc;
@@ -390,4 +432,4 @@ AgreementCounts compare_with_embree(const ClusterScene& scene, const EmbreeRefer
         });
 }
 
-} // namespace clastrace::testsupport
+}  // namespace clastrace::testsupport

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "clastrace/testsupport/cluster_scene.h"
 #include "clastrace/testsupport/embree_ray.h"
 
@@ -28,8 +29,10 @@ void cluster_intersect(const RTCIntersectFunctionNArguments* args) {
     if (!args->valid[0]) return;
     const auto* scene = static_cast<const ClusterScene*>(args->geometryUserPtr);
     auto* rh = reinterpret_cast<RTCRayHit*>(args->rayhit);  // N == 1 under rtcIntersect1
-    engine::Ray r{{rh->ray.org_x, rh->ray.org_y, rh->ray.org_z}, rh->ray.tnear,
-                  {rh->ray.dir_x, rh->ray.dir_y, rh->ray.dir_z}, rh->ray.tfar};
+    engine::Ray r{{rh->ray.org_x, rh->ray.org_y, rh->ray.org_z},
+                  rh->ray.tnear,
+                  {rh->ray.dir_x, rh->ray.dir_y, rh->ray.dir_z},
+                  rh->ray.tfar};
     const engine::Hit h = engine::trace_closest(scene->objects[args->primID], r, 0);
     if (!h.hit || h.t >= rh->ray.tfar) return;
     rh->ray.tfar = h.t;
@@ -41,9 +44,10 @@ void cluster_intersect(const RTCIntersectFunctionNArguments* args) {
     rh->hit.instID[0] = args->context->instID[0];
 }
 
-} // namespace
+}  // namespace
 
-ClusterSceneTracer::ClusterSceneTracer(const ClusterScene& scene, RTCDevice device) : scene_(scene) {
+ClusterSceneTracer::ClusterSceneTracer(const ClusterScene& scene, RTCDevice device)
+    : scene_(scene) {
     rtc_ = rtcNewScene(device);
     RTCGeometry g = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_USER);
     rtcSetGeometryUserPrimitiveCount(g, unsigned(scene.objects.size()));
@@ -56,9 +60,7 @@ ClusterSceneTracer::ClusterSceneTracer(const ClusterScene& scene, RTCDevice devi
     rtcCommitScene(rtc_);
 }
 
-ClusterSceneTracer::~ClusterSceneTracer() {
-    rtcReleaseScene(rtc_);
-}
+ClusterSceneTracer::~ClusterSceneTracer() { rtcReleaseScene(rtc_); }
 
 SceneHit ClusterSceneTracer::trace(const TestRay& ray) const {
     RTCIntersectContext ctx;
@@ -76,4 +78,4 @@ SceneHit ClusterSceneTracer::trace(const TestRay& ray) const {
     return out;
 }
 
-} // namespace clastrace::testsupport
+}  // namespace clastrace::testsupport

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "clastrace/testsupport/embree_reference.h"
 
 #include "clastrace/testsupport/embree_ray.h"
@@ -33,11 +34,13 @@ void collect_filter(const RTCFilterFunctionNArguments* args) {
     args->valid[0] = 0;  // reject, so traversal goes on and reports every candidate
 }
 
-} // namespace
+}  // namespace
 
 RTCDevice make_embree_device(const std::string& config) {
     RTCDevice d = rtcNewDevice(config.empty() ? nullptr : config.c_str());
-    if (!d) throw std::runtime_error("rtcNewDevice failed: " + std::to_string(int(rtcGetDeviceError(nullptr))));
+    if (!d)
+        throw std::runtime_error("rtcNewDevice failed: " +
+                                 std::to_string(int(rtcGetDeviceError(nullptr))));
     return d;
 }
 
@@ -46,7 +49,8 @@ RTCDevice embree_device() {
     return device;
 }
 
-EmbreeReference::EmbreeReference(bool robust, RTCDevice device, RTCBuildQuality quality) : quality_(quality) {
+EmbreeReference::EmbreeReference(bool robust, RTCDevice device, RTCBuildQuality quality)
+    : quality_(quality) {
     scene_ = rtcNewScene(device);
     int flags = RTC_SCENE_FLAG_CONTEXT_FILTER_FUNCTION;
     if (robust) flags |= RTC_SCENE_FLAG_ROBUST;
@@ -54,19 +58,20 @@ EmbreeReference::EmbreeReference(bool robust, RTCDevice device, RTCBuildQuality 
     rtcSetSceneBuildQuality(scene_, quality);
 }
 
-EmbreeReference::~EmbreeReference() {
-    rtcReleaseScene(scene_);
-}
+EmbreeReference::~EmbreeReference() { rtcReleaseScene(scene_); }
 
-uint32_t EmbreeReference::add_cluster(std::span<const Float3> positions, std::span<const Triangle> triangles) {
+uint32_t EmbreeReference::add_cluster(std::span<const Float3> positions,
+                                      std::span<const Triangle> triangles) {
     RTCGeometry geom = rtcNewGeometry(rtcGetSceneDevice(scene_), RTC_GEOMETRY_TYPE_TRIANGLE);
     rtcSetGeometryBuildQuality(geom, quality_);
     // Embree may read 16 bytes at the last vertex: allocate its own padded buffers.
-    auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                                          sizeof(Float3), positions.size()));
+    auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0,
+                                                          RTC_FORMAT_FLOAT3, sizeof(Float3),
+                                                          positions.size()));
     std::memcpy(v, positions.data(), positions.size_bytes());
-    auto* idx = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                                                              sizeof(Triangle), triangles.size()));
+    auto* idx = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0,
+                                                               RTC_FORMAT_UINT3, sizeof(Triangle),
+                                                               triangles.size()));
     std::memcpy(idx, triangles.data(), triangles.size_bytes());
     rtcCommitGeometry(geom);
     const uint32_t id = rtcAttachGeometry(scene_, geom);
@@ -76,9 +81,7 @@ uint32_t EmbreeReference::add_cluster(std::span<const Float3> positions, std::sp
     return id;
 }
 
-void EmbreeReference::commit() {
-    rtcCommitScene(scene_);
-}
+void EmbreeReference::commit() { rtcCommitScene(scene_); }
 
 ReferenceHit EmbreeReference::intersect(const TestRay& ray) const {
     RTCIntersectContext ctx;
@@ -118,4 +121,4 @@ std::vector<ReferenceHit> EmbreeReference::hits_near(const TestRay& ray, float t
     return out;
 }
 
-} // namespace clastrace::testsupport
+}  // namespace clastrace::testsupport

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Minimal OBJ and PLY readers: positions and faces only, every malformed input a MeshLoadError
 // that names the file and the line or byte offset.
 #include "clastrace/testsupport/mesh.h"
@@ -20,7 +21,8 @@ std::string read_file(const std::filesystem::path& path) {
     return ss.str();
 }
 
-[[noreturn]] void fail(const std::filesystem::path& path, const std::string& where, const std::string& what) {
+[[noreturn]] void fail(const std::filesystem::path& path, const std::string& where,
+                       const std::string& what) {
     throw MeshLoadError(path.string() + ":" + where + ": " + what);
 }
 
@@ -45,7 +47,7 @@ std::vector<std::string_view> split_ws(std::string_view line) {
     return out;
 }
 
-} // namespace
+}  // namespace
 
 TriangleMesh load_obj(const std::filesystem::path& path) {
     const std::string text = read_file(path);
@@ -65,13 +67,15 @@ TriangleMesh load_obj(const std::filesystem::path& path) {
             if (tok.size() < 4) fail(path, where, "vertex needs 3 coordinates");
             Float3 p{};
             for (int k = 0; k < 3; ++k)
-                if (!parse_float(tok[1 + k], p[k])) fail(path, where, "bad coordinate '" + std::string(tok[1 + k]) + "'");
+                if (!parse_float(tok[1 + k], p[k]))
+                    fail(path, where, "bad coordinate '" + std::string(tok[1 + k]) + "'");
             mesh.positions.push_back(p);
         } else if (tok[0] == "f") {
             if (tok.size() < 4) fail(path, where, "face needs at least 3 vertices");
             std::vector<uint32_t> face;
             for (size_t k = 1; k < tok.size(); ++k) {
-                std::string_view ref = tok[k].substr(0, tok[k].find('/'));  // "v/vt/vn": position only
+                std::string_view ref =
+                    tok[k].substr(0, tok[k].find('/'));  // "v/vt/vn": position only
                 long long idx = 0;
                 auto [p, ec] = std::from_chars(ref.data(), ref.data() + ref.size(), idx);
                 if (ec != std::errc() || p != ref.data() + ref.size() || idx == 0)
@@ -79,10 +83,13 @@ TriangleMesh load_obj(const std::filesystem::path& path) {
                 const long long n = static_cast<long long>(mesh.positions.size());
                 const long long resolved = idx > 0 ? idx - 1 : n + idx;
                 if (resolved < 0 || resolved >= n)
-                    fail(path, where, "face index " + std::to_string(idx) + " out of range (" + std::to_string(n) + " vertices so far)");
+                    fail(path, where,
+                         "face index " + std::to_string(idx) + " out of range (" +
+                             std::to_string(n) + " vertices so far)");
                 face.push_back(static_cast<uint32_t>(resolved));
             }
-            for (size_t k = 1; k + 1 < face.size(); ++k) mesh.triangles.push_back({face[0], face[k], face[k + 1]});
+            for (size_t k = 1; k + 1 < face.size(); ++k)
+                mesh.triangles.push_back({face[0], face[k], face[k + 1]});
         }
     }
     return mesh;
@@ -94,20 +101,29 @@ enum class PlyType { i8, u8, i16, u16, i32, u32, f32, f64 };
 
 bool ply_type(std::string_view s, PlyType& t) {
     static const std::pair<const char*, PlyType> names[] = {
-        {"char", PlyType::i8},   {"int8", PlyType::i8},     {"uchar", PlyType::u8},   {"uint8", PlyType::u8},
-        {"short", PlyType::i16}, {"int16", PlyType::i16},   {"ushort", PlyType::u16}, {"uint16", PlyType::u16},
-        {"int", PlyType::i32},   {"int32", PlyType::i32},   {"uint", PlyType::u32},   {"uint32", PlyType::u32},
-        {"float", PlyType::f32}, {"float32", PlyType::f32}, {"double", PlyType::f64}, {"float64", PlyType::f64}};
+        {"char", PlyType::i8},    {"int8", PlyType::i8},     {"uchar", PlyType::u8},
+        {"uint8", PlyType::u8},   {"short", PlyType::i16},   {"int16", PlyType::i16},
+        {"ushort", PlyType::u16}, {"uint16", PlyType::u16},  {"int", PlyType::i32},
+        {"int32", PlyType::i32},  {"uint", PlyType::u32},    {"uint32", PlyType::u32},
+        {"float", PlyType::f32},  {"float32", PlyType::f32}, {"double", PlyType::f64},
+        {"float64", PlyType::f64}};
     for (auto& [n, v] : names)
-        if (s == n) { t = v; return true; }
+        if (s == n) {
+            t = v;
+            return true;
+        }
     return false;
 }
 
 size_t ply_size(PlyType t) {
     switch (t) {
-    case PlyType::i8: case PlyType::u8: return 1;
-    case PlyType::i16: case PlyType::u16: return 2;
-    case PlyType::i32: case PlyType::u32: case PlyType::f32: return 4;
+    case PlyType::i8:
+    case PlyType::u8: return 1;
+    case PlyType::i16:
+    case PlyType::u16: return 2;
+    case PlyType::i32:
+    case PlyType::u32:
+    case PlyType::f32: return 4;
     case PlyType::f64: return 8;
     }
     return 0;
@@ -133,29 +149,65 @@ public:
     double value(PlyType t) {
         if (binary_) {
             const size_t n = ply_size(t);
-            if (pos_ + n > data_.size()) fail(path_, "byte " + std::to_string(pos_), "file ends inside a binary value");
+            if (pos_ + n > data_.size())
+                fail(path_, "byte " + std::to_string(pos_), "file ends inside a binary value");
             const char* p = data_.data() + pos_;
             pos_ += n;
             switch (t) {
-            case PlyType::i8: { int8_t v; std::memcpy(&v, p, 1); return v; }
-            case PlyType::u8: { uint8_t v; std::memcpy(&v, p, 1); return v; }
-            case PlyType::i16: { int16_t v; std::memcpy(&v, p, 2); return v; }
-            case PlyType::u16: { uint16_t v; std::memcpy(&v, p, 2); return v; }
-            case PlyType::i32: { int32_t v; std::memcpy(&v, p, 4); return v; }
-            case PlyType::u32: { uint32_t v; std::memcpy(&v, p, 4); return v; }
-            case PlyType::f32: { float v; std::memcpy(&v, p, 4); return v; }
-            case PlyType::f64: { double v; std::memcpy(&v, p, 8); return v; }
+            case PlyType::i8: {
+                int8_t v;
+                std::memcpy(&v, p, 1);
+                return v;
+            }
+            case PlyType::u8: {
+                uint8_t v;
+                std::memcpy(&v, p, 1);
+                return v;
+            }
+            case PlyType::i16: {
+                int16_t v;
+                std::memcpy(&v, p, 2);
+                return v;
+            }
+            case PlyType::u16: {
+                uint16_t v;
+                std::memcpy(&v, p, 2);
+                return v;
+            }
+            case PlyType::i32: {
+                int32_t v;
+                std::memcpy(&v, p, 4);
+                return v;
+            }
+            case PlyType::u32: {
+                uint32_t v;
+                std::memcpy(&v, p, 4);
+                return v;
+            }
+            case PlyType::f32: {
+                float v;
+                std::memcpy(&v, p, 4);
+                return v;
+            }
+            case PlyType::f64: {
+                double v;
+                std::memcpy(&v, p, 8);
+                return v;
+            }
             }
             return 0;
         }
         while (pos_ < data_.size() && std::isspace(static_cast<unsigned char>(data_[pos_]))) ++pos_;
         const size_t start = pos_;
-        while (pos_ < data_.size() && !std::isspace(static_cast<unsigned char>(data_[pos_]))) ++pos_;
-        if (start == pos_) fail(path_, "byte " + std::to_string(start), "file ends inside the ascii body");
+        while (pos_ < data_.size() && !std::isspace(static_cast<unsigned char>(data_[pos_])))
+            ++pos_;
+        if (start == pos_)
+            fail(path_, "byte " + std::to_string(start), "file ends inside the ascii body");
         std::string tok(data_.data() + start, pos_ - start);
         char* end = nullptr;
         const double v = std::strtod(tok.c_str(), &end);
-        if (*end != '\0') fail(path_, "byte " + std::to_string(start), "bad ascii value '" + tok + "'");
+        if (*end != '\0')
+            fail(path_, "byte " + std::to_string(start), "bad ascii value '" + tok + "'");
         return v;
     }
     size_t offset() const { return pos_; }
@@ -167,7 +219,7 @@ private:
     bool binary_;
 };
 
-} // namespace
+}  // namespace
 
 TriangleMesh load_ply(const std::filesystem::path& path) {
     const std::string data = read_file(path);
@@ -192,9 +244,12 @@ TriangleMesh load_ply(const std::filesystem::path& path) {
         if (tok.empty() || tok[0] == "comment" || tok[0] == "obj_info" || tok[0] == "ply") continue;
         if (tok[0] == "format") {
             if (tok.size() < 2) fail(path, where, "format line incomplete");
-            if (tok[1] == "ascii") binary = false;
-            else if (tok[1] == "binary_little_endian") binary = true;
-            else fail(path, where, "unsupported format '" + std::string(tok[1]) + "'");
+            if (tok[1] == "ascii")
+                binary = false;
+            else if (tok[1] == "binary_little_endian")
+                binary = true;
+            else
+                fail(path, where, "unsupported format '" + std::string(tok[1]) + "'");
         } else if (tok[0] == "element") {
             if (tok.size() < 3) fail(path, where, "element line incomplete");
             PlyElement e;
@@ -207,10 +262,12 @@ TriangleMesh load_ply(const std::filesystem::path& path) {
             PlyProperty prop;
             if (tok.size() >= 5 && tok[1] == "list") {
                 prop.is_list = true;
-                if (!ply_type(tok[2], prop.count_type) || !ply_type(tok[3], prop.type)) fail(path, where, "bad list types");
+                if (!ply_type(tok[2], prop.count_type) || !ply_type(tok[3], prop.type))
+                    fail(path, where, "bad list types");
                 prop.name = std::string(tok[4]);
             } else if (tok.size() >= 3) {
-                if (!ply_type(tok[1], prop.type)) fail(path, where, "bad property type '" + std::string(tok[1]) + "'");
+                if (!ply_type(tok[1], prop.type))
+                    fail(path, where, "bad property type '" + std::string(tok[1]) + "'");
                 prop.name = std::string(tok[2]);
             } else {
                 fail(path, where, "property line incomplete");
@@ -222,7 +279,9 @@ TriangleMesh load_ply(const std::filesystem::path& path) {
     // Hostile counts must not reserve memory the file cannot back: every value takes >= 1 byte.
     PlyReader reader(path, data, body, binary);
     for (const PlyElement& e : elements) {
-        if (e.count > data.size()) fail(path, "element " + e.name, "count " + std::to_string(e.count) + " exceeds file size");
+        if (e.count > data.size())
+            fail(path, "element " + e.name,
+                 "count " + std::to_string(e.count) + " exceeds file size");
         const bool is_vertex = e.name == "vertex";
         const bool is_face = e.name == "face";
         int xyz[3] = {-1, -1, -1};
@@ -231,7 +290,8 @@ TriangleMesh load_ply(const std::filesystem::path& path) {
             if (e.properties[k].name == "y") xyz[1] = int(k);
             if (e.properties[k].name == "z") xyz[2] = int(k);
         }
-        if (is_vertex && (xyz[0] < 0 || xyz[1] < 0 || xyz[2] < 0)) fail(path, "element vertex", "needs x, y and z properties");
+        if (is_vertex && (xyz[0] < 0 || xyz[1] < 0 || xyz[2] < 0))
+            fail(path, "element vertex", "needs x, y and z properties");
         for (uint64_t i = 0; i < e.count; ++i) {
             Float3 p{};
             for (size_t k = 0; k < e.properties.size(); ++k) {
@@ -243,14 +303,16 @@ TriangleMesh load_ply(const std::filesystem::path& path) {
                     continue;
                 }
                 const double count = reader.value(prop.count_type);
-                if (count < 0 || count > 1e6) fail(path, "byte " + std::to_string(reader.offset()), "bad list length");
+                if (count < 0 || count > 1e6)
+                    fail(path, "byte " + std::to_string(reader.offset()), "bad list length");
                 std::vector<uint32_t> face;
                 for (int j = 0; j < int(count); ++j) {
                     const double v = reader.value(prop.type);
                     face.push_back(static_cast<uint32_t>(v < 0 ? UINT32_MAX : v));
                 }
                 if (is_face && (prop.name == "vertex_indices" || prop.name == "vertex_index")) {
-                    for (size_t j = 1; j + 1 < face.size(); ++j) mesh.triangles.push_back({face[0], face[j], face[j + 1]});
+                    for (size_t j = 1; j + 1 < face.size(); ++j)
+                        mesh.triangles.push_back({face[0], face[j], face[j + 1]});
                 }
             }
             if (is_vertex) mesh.positions.push_back(p);
@@ -259,8 +321,9 @@ TriangleMesh load_ply(const std::filesystem::path& path) {
     for (size_t t = 0; t < mesh.triangles.size(); ++t)
         for (uint32_t v : mesh.triangles[t])
             if (v >= mesh.positions.size())
-                fail(path, "face " + std::to_string(t), "vertex index " + std::to_string(v) + " out of range (" +
-                                                            std::to_string(mesh.positions.size()) + " vertices)");
+                fail(path, "face " + std::to_string(t),
+                     "vertex index " + std::to_string(v) + " out of range (" +
+                         std::to_string(mesh.positions.size()) + " vertices)");
     return mesh;
 }
 
@@ -274,20 +337,26 @@ TriangleMesh load_mesh(const std::filesystem::path& path) {
 void save_obj(const TriangleMesh& mesh, const std::filesystem::path& path) {
     std::ofstream out(path);
     out.precision(9);  // 9 significant digits round-trip every float exactly
-    for (const Float3& p : mesh.positions) out << "v " << p[0] << ' ' << p[1] << ' ' << p[2] << '\n';
-    for (const Triangle& t : mesh.triangles) out << "f " << t[0] + 1 << ' ' << t[1] + 1 << ' ' << t[2] + 1 << '\n';
+    for (const Float3& p : mesh.positions)
+        out << "v " << p[0] << ' ' << p[1] << ' ' << p[2] << '\n';
+    for (const Triangle& t : mesh.triangles)
+        out << "f " << t[0] + 1 << ' ' << t[1] + 1 << ' ' << t[2] + 1 << '\n';
     if (!out) throw MeshLoadError(path.string() + ": write failed");
 }
 
 void save_ply(const TriangleMesh& mesh, const std::filesystem::path& path, bool binary) {
     std::ofstream out(path, std::ios::binary);
     out << "ply\nformat " << (binary ? "binary_little_endian" : "ascii") << " 1.0\n"
-        << "element vertex " << mesh.positions.size() << "\nproperty float x\nproperty float y\nproperty float z\n"
-        << "element face " << mesh.triangles.size() << "\nproperty list uchar uint vertex_indices\nend_header\n";
+        << "element vertex " << mesh.positions.size()
+        << "\nproperty float x\nproperty float y\nproperty float z\n"
+        << "element face " << mesh.triangles.size()
+        << "\nproperty list uchar uint vertex_indices\nend_header\n";
     out.precision(9);
     for (const Float3& p : mesh.positions) {
-        if (binary) out.write(reinterpret_cast<const char*>(p.data()), 12);
-        else out << p[0] << ' ' << p[1] << ' ' << p[2] << '\n';
+        if (binary)
+            out.write(reinterpret_cast<const char*>(p.data()), 12);
+        else
+            out << p[0] << ' ' << p[1] << ' ' << p[2] << '\n';
     }
     for (const Triangle& t : mesh.triangles) {
         if (binary) {
@@ -301,8 +370,6 @@ void save_ply(const TriangleMesh& mesh, const std::filesystem::path& path, bool 
     if (!out) throw MeshLoadError(path.string() + ": write failed");
 }
 
-std::filesystem::path assimp_models_dir() {
-    return "/usr/share/assimp/models";
-}
+std::filesystem::path assimp_models_dir() { return "/usr/share/assimp/models"; }
 
-} // namespace clastrace::testsupport
+}  // namespace clastrace::testsupport

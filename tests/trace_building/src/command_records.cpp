@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "clastrace/trace_building/command_records.h"
 
 #include <memory>
@@ -13,7 +14,8 @@ fbs::BufferCreateT buffer_create(uint64_t buffer, uint64_t size, uint64_t usage)
     return c;
 }
 
-fbs::BufferBindMemoryT buffer_bind(uint64_t buffer, uint64_t memory, uint64_t memory_offset, uint64_t device_address) {
+fbs::BufferBindMemoryT buffer_bind(uint64_t buffer, uint64_t memory, uint64_t memory_offset,
+                                   uint64_t device_address) {
     fbs::BufferBindMemoryT b;
     b.buffer = buffer;
     b.memory = memory;
@@ -36,16 +38,17 @@ fbs::CommandBufferEndT command_buffer_end(uint64_t command_buffer) {
 }
 
 namespace {
-std::unique_ptr<fbs::DependencyT> one_memory_barrier(uint64_t src_stages, uint64_t src_access, uint64_t dst_stages,
-                                                     uint64_t dst_access) {
+std::unique_ptr<fbs::DependencyT> one_memory_barrier(uint64_t src_stages, uint64_t src_access,
+                                                     uint64_t dst_stages, uint64_t dst_access) {
     auto d = std::make_unique<fbs::DependencyT>();
     d->memory_barriers.emplace_back(src_stages, src_access, dst_stages, dst_access);
     return d;
 }
 }  // namespace
 
-fbs::CmdPipelineBarrierT memory_barrier(uint64_t command_buffer, uint64_t src_stages, uint64_t src_access,
-                                        uint64_t dst_stages, uint64_t dst_access) {
+fbs::CmdPipelineBarrierT memory_barrier(uint64_t command_buffer, uint64_t src_stages,
+                                        uint64_t src_access, uint64_t dst_stages,
+                                        uint64_t dst_access) {
     fbs::CmdPipelineBarrierT b;
     b.command_buffer = command_buffer;
     b.version = 2;
@@ -53,8 +56,8 @@ fbs::CmdPipelineBarrierT memory_barrier(uint64_t command_buffer, uint64_t src_st
     return b;
 }
 
-fbs::CmdSetEventT set_event(uint64_t command_buffer, uint64_t event, uint64_t src_stages, uint64_t src_access,
-                            uint64_t dst_stages, uint64_t dst_access) {
+fbs::CmdSetEventT set_event(uint64_t command_buffer, uint64_t event, uint64_t src_stages,
+                            uint64_t src_access, uint64_t dst_stages, uint64_t dst_access) {
     fbs::CmdSetEventT e;
     e.command_buffer = command_buffer;
     e.event = event;
@@ -63,8 +66,8 @@ fbs::CmdSetEventT set_event(uint64_t command_buffer, uint64_t event, uint64_t sr
     return e;
 }
 
-fbs::CmdWaitEventsT wait_event(uint64_t command_buffer, uint64_t event, uint64_t src_stages, uint64_t src_access,
-                               uint64_t dst_stages, uint64_t dst_access) {
+fbs::CmdWaitEventsT wait_event(uint64_t command_buffer, uint64_t event, uint64_t src_stages,
+                               uint64_t src_access, uint64_t dst_stages, uint64_t dst_access) {
     fbs::CmdWaitEventsT w;
     w.command_buffer = command_buffer;
     w.version = 2;
@@ -73,8 +76,8 @@ fbs::CmdWaitEventsT wait_event(uint64_t command_buffer, uint64_t event, uint64_t
     return w;
 }
 
-fbs::QueueSubmitT queue_submit(uint64_t queue, std::vector<uint64_t> command_buffers, uint64_t fence,
-                               uint64_t submission_index) {
+fbs::QueueSubmitT queue_submit(uint64_t queue, std::vector<uint64_t> command_buffers,
+                               uint64_t fence, uint64_t submission_index) {
     fbs::QueueSubmitT s;
     s.queue = queue;
     s.version = 2;

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "clastrace/trace_building/engine_mirror.h"
 
 #include <cstring>
@@ -18,7 +19,8 @@ std::vector<uint8_t> EngineMirror::read(uint64_t address, uint64_t size) const {
     return {p, p + bytes.size()};
 }
 
-engine::ExecutionRecord EngineMirror::execute(const VkClusterAccelerationStructureCommandsInfoNV& info) {
+engine::ExecutionRecord EngineMirror::execute(
+    const VkClusterAccelerationStructureCommandsInfoNV& info) {
     engine::ExecuteOptions options;
     options.directory = &directory_;
     return engine::execute(info, image_, options);

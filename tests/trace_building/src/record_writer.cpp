@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "clastrace/trace_building/record_writer.h"
 
 #include "clastrace/trace_building/command_records.h"
@@ -16,7 +17,8 @@ traces::TraceWriterOptions RecordWriter::quick() {
     return o;
 }
 
-RecordWriter::RecordWriter(const std::string& path, const fbs::TraceHeaderT& header, traces::TraceWriterOptions options) {
+RecordWriter::RecordWriter(const std::string& path, const fbs::TraceHeaderT& header,
+                           traces::TraceWriterOptions options) {
     traces::TraceError e;
     writer_ = traces::TraceWriter::create(path, header, options, &e);
     throw_if_error(e);
@@ -24,15 +26,15 @@ RecordWriter::RecordWriter(const std::string& path, const fbs::TraceHeaderT& hea
 
 void RecordWriter::append(const fbs::RecordT& r) { throw_if_error(writer_->append(r)); }
 
-fbs::MemorySnapshot RecordWriter::snapshot(uint64_t address, const void* bytes, size_t size, uint64_t buffer,
-                                           uint64_t offset) {
+fbs::MemorySnapshot RecordWriter::snapshot(uint64_t address, const void* bytes, size_t size,
+                                           uint64_t buffer, uint64_t offset) {
     fbs::MemorySnapshot s;
     throw_if_error(writer_->snapshot(buffer, offset, address, bytes, size, &s));
     return s;
 }
 
-void RecordWriter::buffer(uint64_t handle, uint64_t address, uint64_t size, uint64_t usage, uint64_t memory,
-                          uint64_t memory_offset) {
+void RecordWriter::buffer(uint64_t handle, uint64_t address, uint64_t size, uint64_t usage,
+                          uint64_t memory, uint64_t memory_offset) {
     append(buffer_create(handle, size, usage));
     append(buffer_bind(handle, memory, memory_offset, address));
 }

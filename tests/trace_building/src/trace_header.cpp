@@ -1,10 +1,12 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "clastrace/trace_building/trace_header.h"
 
 #include <utility>
 
 namespace clastrace::trace_building {
 
-fbs::TraceHeaderT trace_header(std::string device_name, std::string driver_name, std::string capture_tool) {
+fbs::TraceHeaderT trace_header(std::string device_name, std::string driver_name,
+                               std::string capture_tool) {
     fbs::TraceHeaderT h;
     h.device = std::make_unique<fbs::DeviceInfoT>();
     h.device->name = std::move(device_name);

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // A mesh's clusters written into a MemoryImage the way an application fills its build-input
 // buffers, built into CLAS objects by the engine, and traced as one scene (every cluster's
 // AABB tested, the closest hit kept): the engine side of the Embree comparison.
@@ -12,9 +13,9 @@
 namespace clastrace::testsupport {
 
 struct ClusterInputLayout {
-    uint32_t index_bytes = 1;   // 1, 2 or 4 (indexType 8/16/32 bit)
-    uint16_t index_stride = 0;  // bytes, 0 = packed
-    uint16_t vertex_stride = 0; // bytes, 0 = packed (12)
+    uint32_t index_bytes = 1;    // 1, 2 or 4 (indexType 8/16/32 bit)
+    uint16_t index_stride = 0;   // bytes, 0 = packed
+    uint16_t vertex_stride = 0;  // bytes, 0 = packed (12)
     uint32_t truncate_bits = 0;
 };
 
@@ -26,15 +27,17 @@ struct ClusterSceneInputs {
 
 // Addresses: vertex data from 0x1000'0000, index data from 0x8000'0000 (one region each);
 // the bytes between strided elements hold 0xCD so a reader that ignores the stride shows.
-ClusterSceneInputs write_cluster_inputs(const TriangleMesh& mesh, const std::vector<MeshCluster>& clusters,
+ClusterSceneInputs write_cluster_inputs(const TriangleMesh& mesh,
+                                        const std::vector<MeshCluster>& clusters,
                                         const ClusterInputLayout& layout);
 
 struct ClusterScene {
-    std::vector<std::vector<std::byte>> objects;  // one CLAS per cluster (clusterID = cluster index)
+    std::vector<std::vector<std::byte>>
+        objects;  // one CLAS per cluster (clusterID = cluster index)
     std::vector<std::vector<engine::Finding>> findings;
-    std::vector<Bounds> bounds;                   // of the truncated positions
-    std::vector<std::vector<Float3>> positions;   // truncated, cluster-local (what Embree gets)
-    std::vector<std::vector<Triangle>> triangles; // cluster-local
+    std::vector<Bounds> bounds;                    // of the truncated positions
+    std::vector<std::vector<Float3>> positions;    // truncated, cluster-local (what Embree gets)
+    std::vector<std::vector<Triangle>> triangles;  // cluster-local
     size_t failed_builds = 0;
 };
 
@@ -74,7 +77,7 @@ private:
 struct AgreementCounts {
     size_t rays = 0;
     size_t agree_miss = 0, agree_hit = 0;
-    size_t tie = 0;            // different triangle, but Embree sees both at the same t
+    size_t tie = 0;  // different triangle, but Embree sees both at the same t
     // Embree's float result is the wrong one: a long-double evaluation of the same float
     // triangle (Moller-Trumbore, 64-bit mantissa) sides with the engine, clearly (its
     // barycentric margin or t error is far above long double's rounding).
@@ -88,6 +91,7 @@ struct AgreementCounts {
     std::vector<std::string> embree_off_examples;
 };
 AgreementCounts compare_with_embree(const ClusterScene& scene, const EmbreeReference& embree,
-                                    const std::vector<TestRay>& rays, double rel_t_tolerance = 1e-6);
+                                    const std::vector<TestRay>& rays,
+                                    double rel_t_tolerance = 1e-6);
 
-} // namespace clastrace::testsupport
+}  // namespace clastrace::testsupport

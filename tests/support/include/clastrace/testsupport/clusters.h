@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Splits a mesh into clusters with meshoptimizer, the way a Mega-Geometry style engine would
 // before it builds one CLAS per cluster.
 #pragma once
@@ -14,8 +15,9 @@ struct MeshCluster {
 
 // meshopt_buildMeshlets (0.18: max_vertices <= 255, max_triangles <= 512 and a multiple of 4).
 // Soups are spatially sorted first so that clusters stay compact.
-std::vector<MeshCluster> build_clusters(const TriangleMesh& mesh, size_t max_vertices, size_t max_triangles);
+std::vector<MeshCluster> build_clusters(const TriangleMesh& mesh, size_t max_vertices,
+                                        size_t max_triangles);
 
 size_t total_triangles(const std::vector<MeshCluster>& clusters);
 
-} // namespace clastrace::testsupport
+}  // namespace clastrace::testsupport

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // One ray as Embree's rtcIntersect1/rtcOccluded1 take it: no hit yet, every mask bit set.
 // For any ray type with origin[3], direction[3], tmin and tmax (the engine's Ray, TestRay).
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Embree 3 as the reference tracer: one geometry per cluster (geomID = cluster index,
 // primID = triangle index inside the cluster), built from exactly the float positions the
 // CLAS holds after truncation.
@@ -48,4 +49,4 @@ private:
     uint32_t count_ = 0;
 };
 
-} // namespace clastrace::testsupport
+}  // namespace clastrace::testsupport

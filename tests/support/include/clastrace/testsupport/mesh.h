@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Triangle meshes for tests and benchmarks: loaders for real files, generators for closed
 // procedural shapes and random soups. Positions only: that is all a cluster build reads.
 #pragma once
@@ -37,7 +38,8 @@ void save_ply(const TriangleMesh& mesh, const std::filesystem::path& path, bool 
 
 // Closed 2-manifold shapes with shared vertices (every edge has exactly two triangles).
 TriangleMesh make_icosphere(int subdivisions, float radius);
-TriangleMesh make_torus(int major_segments, int minor_segments, float major_radius, float minor_radius);
+TriangleMesh make_torus(int major_segments, int minor_segments, float major_radius,
+                        float minor_radius);
 // Height-field grid, open, shared vertices; nx*ny quads = 2*nx*ny triangles.
 TriangleMesh make_terrain(int nx, int ny, uint64_t seed);
 // Independent triangles (no shared vertices) of edge length up to max_edge inside [-box, box]^3.
@@ -47,8 +49,8 @@ TriangleMesh make_random_soup(size_t triangle_count, uint64_t seed, float box, f
 std::filesystem::path assimp_models_dir();
 
 struct Bounds {
-    Float3 lo{ {  3.4028235e38f,  3.4028235e38f,  3.4028235e38f } };
-    Float3 hi{ { -3.4028235e38f, -3.4028235e38f, -3.4028235e38f } };
+    Float3 lo{{3.4028235e38f, 3.4028235e38f, 3.4028235e38f}};
+    Float3 hi{{-3.4028235e38f, -3.4028235e38f, -3.4028235e38f}};
     void extend(const Float3& p);
     Float3 center() const;
     float diagonal() const;
@@ -59,4 +61,4 @@ Bounds bounds_of(const TriangleMesh& mesh);
 float truncate_float(float value, unsigned bits);
 Float3 truncate_position(const Float3& p, unsigned bits);
 
-} // namespace clastrace::testsupport
+}  // namespace clastrace::testsupport

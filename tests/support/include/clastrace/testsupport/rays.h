@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Ray sets: a pinhole camera grid (coherent) and sphere-to-box rays (random), deterministic by seed.
 #pragma once
 
@@ -18,4 +19,4 @@ std::vector<TestRay> camera_rays(const Bounds& box, int width, int height, uint6
 // Origins uniform on the bounding sphere (radius 1.5x half-diagonal), aimed at uniform points in the box.
 std::vector<TestRay> random_rays(const Bounds& box, size_t count, uint64_t seed);
 
-} // namespace clastrace::testsupport
+}  // namespace clastrace::testsupport

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // A TraceWriter for traces that tests and benchmarks write by hand: every error throws
 // std::runtime_error, so a trace that could not be written never reaches an assertion.
 #pragma once
@@ -25,7 +26,8 @@ fbs::RecordT record(Body body) {
 class RecordWriter {
 public:
     // No fsync on finish: test traces are read back at once and thrown away.
-    RecordWriter(const std::string& path, const fbs::TraceHeaderT& header, traces::TraceWriterOptions options = quick());
+    RecordWriter(const std::string& path, const fbs::TraceHeaderT& header,
+                 traces::TraceWriterOptions options = quick());
     static traces::TraceWriterOptions quick();
 
     void append(const fbs::RecordT& r);
@@ -34,8 +36,8 @@ public:
         append(record(std::move(body)));
     }
     // The bytes a command's capture saw at `address` (stored once per distinct content).
-    fbs::MemorySnapshot snapshot(uint64_t address, const void* bytes, size_t size, uint64_t buffer = 0,
-                                 uint64_t offset = 0);
+    fbs::MemorySnapshot snapshot(uint64_t address, const void* bytes, size_t size,
+                                 uint64_t buffer = 0, uint64_t offset = 0);
     fbs::MemorySnapshot snapshot(uint64_t address, const std::vector<uint8_t>& bytes) {
         return snapshot(address, bytes.data(), bytes.size());
     }

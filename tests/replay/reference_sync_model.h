@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // A deliberately naive reference for SyncModel: it keeps the whole stream and decides every
 // pair of accesses byte by byte, walking all operations between them (O(n^2) and worse).
 // It shares only the stage/access mask expansions with the model; no lazy log, no address
@@ -22,13 +23,17 @@ struct ReferenceHazard {
     HazardClass hazard;
     uint64_t begin, end;  // hull of the conflicting bytes
     auto key() const { return std::tie(prior_command, later_command, hazard, begin, end); }
-    friend bool operator<(const ReferenceHazard& a, const ReferenceHazard& b) { return a.key() < b.key(); }
-    friend bool operator==(const ReferenceHazard& a, const ReferenceHazard& b) { return a.key() == b.key(); }
+    friend bool operator<(const ReferenceHazard& a, const ReferenceHazard& b) {
+        return a.key() < b.key();
+    }
+    friend bool operator==(const ReferenceHazard& a, const ReferenceHazard& b) {
+        return a.key() == b.key();
+    }
 };
 
 inline void PrintTo(const ReferenceHazard& h, std::ostream* os) {
-    *os << hazard_class_name(h.hazard) << " cmd " << h.prior_command << "->" << h.later_command << " [" << h.begin
-        << "," << h.end << ")";
+    *os << hazard_class_name(h.hazard) << " cmd " << h.prior_command << "->" << h.later_command
+        << " [" << h.begin << "," << h.end << ")";
 }
 
 class ReferenceSyncModel {
@@ -42,7 +47,8 @@ public:
             op.kind = Op::kWait;
             op.queue = queue;
             op.signal_op = it->second;
-            op.wait_scope = destination_scope(stages) & all_device_stages();  // waits never reach HOST
+            op.wait_scope =
+                destination_scope(stages) & all_device_stages();  // waits never reach HOST
             pending_signal_.erase(it);
             ops_.push_back(op);
         }
@@ -54,14 +60,16 @@ public:
             op.kind = Op::kSignal;
             op.queue = queue_;
             const StageMask scope =
-                source_scope(i < stages.size() ? stages[i] : VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT) & all_device_stages();
+                source_scope(i < stages.size() ? stages[i] : VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT) &
+                all_device_stages();
             op.narrow = scope != all_device_stages();
             op.signal_scope = scope;
             pending_signal_[signals[i]] = ops_.size();
             ops_.push_back(op);
         }
     }
-    void end_submission_with_fence(std::vector<uint64_t> signals, uint64_t fence, std::vector<StageMask> stages = {}) {
+    void end_submission_with_fence(std::vector<uint64_t> signals, uint64_t fence,
+                                   std::vector<StageMask> stages = {}) {
         end_submission(std::move(signals), std::move(stages));
         if (!fence) return;
         Op op;
@@ -121,7 +129,9 @@ public:
         ops_.push_back(op);
     }
     void barrier(const DependencyInfo& dep) { push_barriers(Op::kBarrier, dep, 0, false); }
-    void set_event(uint64_t event, const DependencyInfo& dep, bool v1) { push_barriers(Op::kSetEvent, dep, event, v1); }
+    void set_event(uint64_t event, const DependencyInfo& dep, bool v1) {
+        push_barriers(Op::kSetEvent, dep, event, v1);
+    }
     void reset_event(uint64_t event) {
         Op op;
         op.kind = Op::kResetEvent;
@@ -129,7 +139,9 @@ public:
         op.event = event;
         ops_.push_back(op);
     }
-    void wait_event(uint64_t event, const DependencyInfo& dep) { push_barriers(Op::kWaitEvent, dep, event, false); }
+    void wait_event(uint64_t event, const DependencyInfo& dep) {
+        push_barriers(Op::kWaitEvent, dep, event, false);
+    }
 
     std::vector<ReferenceHazard> hazards() const {
         std::map<std::tuple<uint32_t, uint32_t, HazardClass>, std::pair<uint64_t, uint64_t>> found;
@@ -161,17 +173,21 @@ public:
                     if (!ok) add(prior, c);
                 };
                 if (b.is_write) {
-                    for (auto [k, r] : reads) decide(ordered(r, j, x, false), r, HazardClass::kWriteAfterRead);
+                    for (auto [k, r] : reads)
+                        decide(ordered(r, j, x, false), r, HazardClass::kWriteAfterRead);
                     if (reads.empty() && w >= 0)
-                        decide(ordered(std::size_t(w), j, x, true), std::size_t(w), HazardClass::kWriteAfterWrite);
+                        decide(ordered(std::size_t(w), j, x, true), std::size_t(w),
+                               HazardClass::kWriteAfterWrite);
                 } else if (w >= 0) {
-                    decide(ordered(std::size_t(w), j, x, true), std::size_t(w), HazardClass::kReadAfterWrite);
+                    decide(ordered(std::size_t(w), j, x, true), std::size_t(w),
+                           HazardClass::kReadAfterWrite);
                 }
             }
         }
         std::vector<ReferenceHazard> out;
         for (const auto& [key, hull] : found)
-            out.push_back({std::get<0>(key), std::get<1>(key), std::get<2>(key), hull.first, hull.second});
+            out.push_back(
+                {std::get<0>(key), std::get<1>(key), std::get<2>(key), hull.first, hull.second});
         std::sort(out.begin(), out.end());
         return out;
     }
@@ -188,7 +204,16 @@ private:
         bool covers(uint64_t x) const { return global || (range.begin <= x && x < range.end); }
     };
     struct Op {
-        enum Kind { kAccess, kBarrier, kSetEvent, kResetEvent, kWaitEvent, kWait, kSignal, kHostWait } kind = kAccess;
+        enum Kind {
+            kAccess,
+            kBarrier,
+            kSetEvent,
+            kResetEvent,
+            kWaitEvent,
+            kWait,
+            kSignal,
+            kHostWait
+        } kind = kAccess;
         bool all = false;  // kHostWait: vkDeviceWaitIdle
         QueueId queue = 0;
         uint32_t command = 0;
@@ -201,8 +226,8 @@ private:
         bool v1 = false;
         std::size_t signal_op = 0;
         StageMask wait_scope = 0;
-        bool narrow = false;        // kSignal: a stage mask that leaves device stages out
-        StageMask signal_scope = 0; // kSignal: its first synchronization scope
+        bool narrow = false;         // kSignal: a stage mask that leaves device stages out
+        StageMask signal_scope = 0;  // kSignal: its first synchronization scope
     };
     struct PairState {
         StageMask chain = 0, avail = 0;
@@ -230,14 +255,18 @@ private:
         const QueueId q = ops_[signal].queue;
         if (q == ops_[a].queue && signal > a) return true;
         for (std::size_t k = 0; k < signal; ++k)
-            if (ops_[k].kind == Op::kWait && ops_[k].queue == q && signal_covers(ops_[k].signal_op, a)) return true;
+            if (ops_[k].kind == Op::kWait && ops_[k].queue == q &&
+                signal_covers(ops_[k].signal_op, a))
+                return true;
         return false;
     }
 
     // The first host wait after ops_[a] and before ops_[b] that covers ops_[a], or b.
     std::size_t completion(std::size_t a, std::size_t b) const {
         for (std::size_t k = a + 1; k < b; ++k)
-            if (ops_[k].kind == Op::kHostWait && (ops_[k].all || signal_covers(ops_[k].signal_op, a))) return k;
+            if (ops_[k].kind == Op::kHostWait &&
+                (ops_[k].all || signal_covers(ops_[k].signal_op, a)))
+                return k;
         return b;
     }
 
@@ -245,7 +274,8 @@ private:
     bool ordered(std::size_t a, std::size_t b, uint64_t x, bool memory) const {
         const Op& A = ops_[a];
         const Op& B = ops_[b];
-        if (A.queue == kHostQueue) return true;  // host work precedes later submissions and host work
+        if (A.queue == kHostQueue)
+            return true;  // host work precedes later submissions and host work
         const std::size_t done = completion(a, b);
         if (B.queue == kHostQueue) {
             if (done == b) return false;
@@ -279,7 +309,8 @@ private:
                     const bool direct = home && (br.src & A.stage);
                     if (!direct && !(s.chain & br.src)) continue;
                     next.chain |= br.dst;
-                    if (A.is_write && ((direct && (writes & br.src_atoms) == writes) || (s.avail & br.src))) {
+                    if (A.is_write &&
+                        ((direct && (writes & br.src_atoms) == writes) || (s.avail & br.src))) {
                         next.avail |= br.dst;
                         next.make_visible(br.dst, br.dst_atoms);
                     }
@@ -294,7 +325,8 @@ private:
                     const bool direct = home && (br.src & A.stage);
                     if (!direct && !(s.chain & br.src)) continue;
                     snap.in = true;
-                    if (A.is_write && ((direct && (op.v1 || (writes & br.src_atoms) == writes)) || (s.avail & br.src)))
+                    if (A.is_write && ((direct && (op.v1 || (writes & br.src_atoms) == writes)) ||
+                                       (s.avail & br.src)))
                         snap.avail = true;
                 }
                 events[op.event] = snap;
@@ -348,12 +380,17 @@ private:
         op.event = event;
         op.v1 = v1;
         for (const MemoryBarrier& m : dep.memory_barriers)
-            op.barriers.push_back({source_scope(m.src_stages), destination_scope(m.dst_stages),
-                                   atomic_accesses(m.src_access), atomic_accesses(m.dst_access), true, {}});
+            op.barriers.push_back({source_scope(m.src_stages),
+                                   destination_scope(m.dst_stages),
+                                   atomic_accesses(m.src_access),
+                                   atomic_accesses(m.dst_access),
+                                   true,
+                                   {}});
         for (const BufferBarrier& bb : dep.buffer_barriers)
-            op.barriers.push_back({source_scope(bb.masks.src_stages), destination_scope(bb.masks.dst_stages),
-                                   atomic_accesses(bb.masks.src_access), atomic_accesses(bb.masks.dst_access), false,
-                                   bb.range});
+            op.barriers.push_back({source_scope(bb.masks.src_stages),
+                                   destination_scope(bb.masks.dst_stages),
+                                   atomic_accesses(bb.masks.src_access),
+                                   atomic_accesses(bb.masks.dst_access), false, bb.range});
         ops_.push_back(std::move(op));
     }
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // A small builder for the streams the synchronization tests feed to SyncModel.
 #pragma once
 
@@ -41,37 +42,48 @@ struct Stream {
         ++command_buffer;
         command = 0;
     }
-    CommandRef next(const char* name) { return {submission, command_buffer, 0xC0 + command_buffer, command++, name}; }
+    CommandRef next(const char* name) {
+        return {submission, command_buffer, 0xC0 + command_buffer, command++, name};
+    }
 
-    static Access read(uint64_t begin, uint64_t end, StageMask stage, AccessMask access, const char* field) {
+    static Access read(uint64_t begin, uint64_t end, StageMask stage, AccessMask access,
+                       const char* field) {
         return {{begin, end}, stage, access, false, field};
     }
-    static Access write(uint64_t begin, uint64_t end, StageMask stage, AccessMask access, const char* field) {
+    static Access write(uint64_t begin, uint64_t end, StageMask stage, AccessMask access,
+                        const char* field) {
         return {{begin, end}, stage, access, true, field};
     }
 
     // One cluster build command: reads its infos and count, uses scratch, writes its outputs.
     struct Build {
-        AddressRange src_infos{}, src_count{}, scratch{}, dst_implicit{}, dst_addresses{}, dst_sizes{};
-        std::vector<std::pair<AddressRange, const char*>> inputs;  // e.g. CLAS references, vertex data
+        AddressRange src_infos{}, src_count{}, scratch{}, dst_implicit{}, dst_addresses{},
+            dst_sizes{};
+        std::vector<std::pair<AddressRange, const char*>>
+            inputs;  // e.g. CLAS references, vertex data
     };
     CommandRef build(const Build& b) {
         const CommandRef c = next(kBuildName);
         if (!b.src_infos.empty())
-            model.record_access(c, read(b.src_infos.begin, b.src_infos.end, kAsBuild, kIndirect, "srcInfosArray"));
+            model.record_access(c, read(b.src_infos.begin, b.src_infos.end, kAsBuild, kIndirect,
+                                        "srcInfosArray"));
         if (!b.src_count.empty())
-            model.record_access(c, read(b.src_count.begin, b.src_count.end, kAsBuild, kIndirect, "srcInfosCount"));
+            model.record_access(c, read(b.src_count.begin, b.src_count.end, kAsBuild, kIndirect,
+                                        "srcInfosCount"));
         for (const auto& [range, field] : b.inputs)
             model.record_access(c, read(range.begin, range.end, kAsBuild, kAsRead, field));
         if (!b.scratch.empty())
-            model.record_access(c, write(b.scratch.begin, b.scratch.end, kAsBuild, kAsRead | kAsWrite, "scratchData"));
+            model.record_access(c, write(b.scratch.begin, b.scratch.end, kAsBuild,
+                                         kAsRead | kAsWrite, "scratchData"));
         if (!b.dst_implicit.empty())
-            model.record_access(c, write(b.dst_implicit.begin, b.dst_implicit.end, kAsBuild, kAsWrite, "dstImplicitData"));
+            model.record_access(c, write(b.dst_implicit.begin, b.dst_implicit.end, kAsBuild,
+                                         kAsWrite, "dstImplicitData"));
         if (!b.dst_addresses.empty())
-            model.record_access(c, write(b.dst_addresses.begin, b.dst_addresses.end, kAsBuild, kAsWrite,
-                                         "dstAddressesArray"));
+            model.record_access(c, write(b.dst_addresses.begin, b.dst_addresses.end, kAsBuild,
+                                         kAsWrite, "dstAddressesArray"));
         if (!b.dst_sizes.empty())
-            model.record_access(c, write(b.dst_sizes.begin, b.dst_sizes.end, kAsBuild, kAsWrite, "dstSizesArray"));
+            model.record_access(c, write(b.dst_sizes.begin, b.dst_sizes.end, kAsBuild, kAsWrite,
+                                         "dstSizesArray"));
         return c;
     }
     CommandRef copy_buffer(AddressRange src, AddressRange dst) {
@@ -87,14 +99,18 @@ struct Stream {
     }
     void barrier(StageMask src, AccessMask src_access, StageMask dst, AccessMask dst_access) {
         const MemoryBarrier b{src, src_access, dst, dst_access};
-        model.pipeline_barrier(next("vkCmdPipelineBarrier2"), DependencyInfo{std::span(&b, 1), {}, 0});
+        model.pipeline_barrier(next("vkCmdPipelineBarrier2"),
+                               DependencyInfo{std::span(&b, 1), {}, 0});
     }
-    void buffer_barrier(AddressRange range, StageMask src, AccessMask src_access, StageMask dst, AccessMask dst_access) {
+    void buffer_barrier(AddressRange range, StageMask src, AccessMask src_access, StageMask dst,
+                        AccessMask dst_access) {
         const BufferBarrier b{{src, src_access, dst, dst_access}, range};
-        model.pipeline_barrier(next("vkCmdPipelineBarrier2"), DependencyInfo{{}, std::span(&b, 1), 0});
+        model.pipeline_barrier(next("vkCmdPipelineBarrier2"),
+                               DependencyInfo{{}, std::span(&b, 1), 0});
     }
     void full_barrier() {
-        barrier(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_WRITE_BIT, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
+        barrier(VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, VK_ACCESS_2_MEMORY_WRITE_BIT,
+                VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT,
                 VK_ACCESS_2_MEMORY_READ_BIT | VK_ACCESS_2_MEMORY_WRITE_BIT);
     }
 
