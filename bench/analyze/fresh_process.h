@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The analyze benchmarks measure each run in a fresh process (the program re-executed with
 // --one ...), so that a run's peak resident memory (VmHWM) is its own and not a high-water
 // mark left by an earlier run.
@@ -27,7 +28,8 @@ inline uint64_t status_kib(const char* field) {
 
 // Runs `self --one args...` and returns what it printed (up to 511 bytes), or nothing when
 // it could not be started or did not exit with status 0.
-inline std::optional<std::string> run_fresh_process(const char* self, const std::vector<std::string>& args) {
+inline std::optional<std::string> run_fresh_process(const char* self,
+                                                    const std::vector<std::string>& args) {
     int fd[2];
     if (pipe(fd) != 0) return std::nullopt;
     pid_t pid = fork();

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // What capturing costs an application, on lavapipe through the loader: the capture frame app
 // (tests/capture/capture_frames_app) runs under VK_LAYER_CLASTRACE_capture with serving only
 // (CLASTRACE_CAPTURE=0, the peer) and with capture on, and the tables give
@@ -40,295 +41,379 @@ const char* kLavapipe = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json";
 // and CLASTRACE_BENCH_FRAMES_APP point the bench at another driver and a carried bundle (the
 // numbers in capture/README.md from a GPU machine were taken that way).
 std::string setting(const char* variable, const char* fallback) {
-  const char* v = std::getenv(variable);
-  return v && *v ? v : fallback;
+    const char* v = std::getenv(variable);
+    return v && *v ? v : fallback;
 }
 
 std::string readText(const fs::path& path) {
-  std::ifstream in(path);
-  std::stringstream text;
-  text << in.rdbuf();
-  return text.str();
+    std::ifstream in(path);
+    std::stringstream text;
+    text << in.rdbuf();
+    return text.str();
 }
 
 struct Run {
-  double loopMs = 0, loopCpuMs = 0;
-  uint64_t pauses = 0;
-  double pauseMedianMs = 0, pauseP90Ms = 0;
-  std::vector<std::string> stats;  // the layer's "clastrace: stats: " lines
+    double loopMs = 0, loopCpuMs = 0;
+    uint64_t pauses = 0;
+    double pauseMedianMs = 0, pauseP90Ms = 0;
+    std::vector<std::string> stats;  // the layer's "clastrace: stats: " lines
 };
 
 bool parseRun(const std::string& out, const std::string& err, Run& run) {
-  size_t at = out.find("loop_ms=");
-  if (at == std::string::npos) return false;
-  run.loopMs = std::atof(out.c_str() + at + 8);
-  at = out.find("loop_cpu_ms=");
-  if (at != std::string::npos) run.loopCpuMs = std::atof(out.c_str() + at + 12);
-  at = err.find("clastrace: pauses: ");
-  if (at != std::string::npos) {
-    unsigned long long count = 0;
-    double median = 0, p90 = 0;
-    if (std::sscanf(err.c_str() + at, "clastrace: pauses: %llu handled; host time per pause: median %lf ms, p90 %lf ms",
-                    &count, &median, &p90) == 3) {
-      run.pauses = count;
-      run.pauseMedianMs = median;
-      run.pauseP90Ms = p90;
+    size_t at = out.find("loop_ms=");
+    if (at == std::string::npos) return false;
+    run.loopMs = std::atof(out.c_str() + at + 8);
+    at = out.find("loop_cpu_ms=");
+    if (at != std::string::npos) run.loopCpuMs = std::atof(out.c_str() + at + 12);
+    at = err.find("clastrace: pauses: ");
+    if (at != std::string::npos) {
+        unsigned long long count = 0;
+        double median = 0, p90 = 0;
+        if (std::sscanf(
+                err.c_str() + at,
+                "clastrace: pauses: %llu handled; host time per pause: median %lf ms, p90 %lf ms",
+                &count, &median, &p90) == 3) {
+            run.pauses = count;
+            run.pauseMedianMs = median;
+            run.pauseP90Ms = p90;
+        }
     }
-  }
-  std::istringstream lines(err);
-  for (std::string line; std::getline(lines, line);)
-    if (line.rfind("clastrace: stats: ", 0) == 0) run.stats.push_back(line.substr(18));
-  return true;
+    std::istringstream lines(err);
+    for (std::string line; std::getline(lines, line);)
+        if (line.rfind("clastrace: stats: ", 0) == 0) run.stats.push_back(line.substr(18));
+    return true;
 }
 
-Run runApp(const fs::path& dir, const std::string& args, const std::map<std::string, std::string>& env) {
-  std::string line = "env -u CLASTRACE_OUTPUT -u CLASTRACE_CAPTURE -u CLASTRACE_DEBUG_JSON -u CLASTRACE_BACKGROUND_CPUS "
-                     "-u VK_ICD_FILENAMES";
-  line += " VK_DRIVER_FILES=" + setting("CLASTRACE_BENCH_DRIVER_FILES", kLavapipe) +
-          " VK_ADD_LAYER_PATH=" + setting("CLASTRACE_BENCH_LAYER_DIR", CLASTRACE_LAYER_MANIFEST_DIR) +
-          " VK_INSTANCE_LAYERS=VK_LAYER_CLASTRACE_capture CLASTRACE_STATS=1";
-  for (const auto& [k, v] : env) line += " " + k + "=" + v;
-  const fs::path out = dir / "out.txt", err = dir / "err.txt";
-  line += " " + setting("CLASTRACE_BENCH_FRAMES_APP", CLASTRACE_FRAMES_APP) + " " + args + " >" + out.string() + " 2>" + err.string();
-  Run run;
-  if (std::system(line.c_str()) != 0 || !parseRun(readText(out), readText(err), run)) {
-    std::fprintf(stderr, "capture_overhead_bench: the app failed:\n%s\n", readText(err).c_str());
-    std::exit(1);
-  }
-  return run;
+Run runApp(const fs::path& dir, const std::string& args,
+           const std::map<std::string, std::string>& env) {
+    std::string line =
+        "env -u CLASTRACE_OUTPUT -u CLASTRACE_CAPTURE -u CLASTRACE_DEBUG_JSON -u "
+        "CLASTRACE_BACKGROUND_CPUS "
+        "-u VK_ICD_FILENAMES";
+    line +=
+        " VK_DRIVER_FILES=" + setting("CLASTRACE_BENCH_DRIVER_FILES", kLavapipe) +
+        " VK_ADD_LAYER_PATH=" + setting("CLASTRACE_BENCH_LAYER_DIR", CLASTRACE_LAYER_MANIFEST_DIR) +
+        " VK_INSTANCE_LAYERS=VK_LAYER_CLASTRACE_capture CLASTRACE_STATS=1";
+    for (const auto& [k, v] : env) line += " " + k + "=" + v;
+    const fs::path out = dir / "out.txt", err = dir / "err.txt";
+    line += " " + setting("CLASTRACE_BENCH_FRAMES_APP", CLASTRACE_FRAMES_APP) + " " + args + " >" +
+            out.string() + " 2>" + err.string();
+    Run run;
+    if (std::system(line.c_str()) != 0 || !parseRun(readText(out), readText(err), run)) {
+        std::fprintf(stderr, "capture_overhead_bench: the app failed:\n%s\n",
+                     readText(err).c_str());
+        std::exit(1);
+    }
+    return run;
 }
 
 // Best of the runs: on a shared machine other load only ever adds time, so the minimum is the
 // least disturbed measurement of each mode.
 double best(const std::vector<double>& v) { return *std::min_element(v.begin(), v.end()); }
 double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  return v[v.size() / 2];
+    std::sort(v.begin(), v.end());
+    return v[v.size() / 2];
 }
 
 // How far the median-wall ratio could move with other runs of the same machine: the 2.5th and
 // 97.5th percentiles of the ratio over resampled repetitions (rounds drawn with replacement,
 // each round's two runs kept together). A fixed seed keeps the printed interval reproducible.
-std::pair<double, double> bootstrapRatioInterval(const std::vector<double>& peer, const std::vector<double>& mode) {
-  std::mt19937 random(20261123);
-  std::uniform_int_distribution<size_t> pick(0, peer.size() - 1);
-  std::vector<double> ratios, a(peer.size()), b(peer.size());
-  for (int k = 0; k < 2000; ++k) {
-    for (size_t i = 0; i < peer.size(); ++i) {
-      const size_t r = pick(random);
-      a[i] = peer[r];
-      b[i] = mode[r];
+std::pair<double, double> bootstrapRatioInterval(const std::vector<double>& peer,
+                                                 const std::vector<double>& mode) {
+    std::mt19937 random(20261123);
+    std::uniform_int_distribution<size_t> pick(0, peer.size() - 1);
+    std::vector<double> ratios, a(peer.size()), b(peer.size());
+    for (int k = 0; k < 2000; ++k) {
+        for (size_t i = 0; i < peer.size(); ++i) {
+            const size_t r = pick(random);
+            a[i] = peer[r];
+            b[i] = mode[r];
+        }
+        ratios.push_back(median(b) / median(a));
     }
-    ratios.push_back(median(b) / median(a));
-  }
-  std::sort(ratios.begin(), ratios.end());
-  return {ratios[ratios.size() * 25 / 1000], ratios[ratios.size() * 975 / 1000]};
+    std::sort(ratios.begin(), ratios.end());
+    return {ratios[ratios.size() * 25 / 1000], ratios[ratios.size() * 975 / 1000]};
 }
 
 struct TraceBytes {
-  uint64_t fileBytes = 0, referenced = 0, stored = 0, snapshots = 0, zstdOfReferenced = 0, chunks = 0;
+    uint64_t fileBytes = 0, referenced = 0, stored = 0, snapshots = 0, zstdOfReferenced = 0,
+             chunks = 0;
 };
 
 // Reads every snapshot's bytes back in trace order and compresses their concatenation with
 // plain zstd at the trace's level: what a capture without deduplication would have cost.
 TraceBytes measureTrace(const fs::path& path, int zstdLevel) {
-  TraceBytes t;
-  t.fileBytes = fs::file_size(path);
-  clastrace::traces::TraceError error;
-  auto reader = clastrace::traces::TraceReader::open(path.string(), &error);
-  if (!reader) {
-    std::fprintf(stderr, "capture_overhead_bench: %s\n", error.message.c_str());
-    std::exit(1);
-  }
-  std::vector<uint64_t> hashes;
-  clastrace::traces::RecordView view;
-  while (reader->next(&view)) {
-    if (const auto* c = view.record->body_as_MemoryContents()) {
-      t.stored += c->bytes() ? c->bytes()->size() : 0;
-      continue;
+    TraceBytes t;
+    t.fileBytes = fs::file_size(path);
+    clastrace::traces::TraceError error;
+    auto reader = clastrace::traces::TraceReader::open(path.string(), &error);
+    if (!reader) {
+        std::fprintf(stderr, "capture_overhead_bench: %s\n", error.message.c_str());
+        std::exit(1);
     }
-    auto lists = clastrace::traces::record_snapshots(*view.record);
-    for (const auto* list : {lists.inputs, lists.outputs})
-      if (list)
-        for (const auto* s : *list) {
-          ++t.snapshots;
-          t.referenced += s->size();
-          hashes.push_back(s->hash());
+    std::vector<uint64_t> hashes;
+    clastrace::traces::RecordView view;
+    while (reader->next(&view)) {
+        if (const auto* c = view.record->body_as_MemoryContents()) {
+            t.stored += c->bytes() ? c->bytes()->size() : 0;
+            continue;
         }
-  }
-  t.chunks = reader->stats().chunks_read;
-  ZSTD_CCtx* cctx = ZSTD_createCCtx();
-  ZSTD_CCtx_setParameter(cctx, ZSTD_c_compressionLevel, zstdLevel);
-  std::vector<uint8_t> bytes, compressed(ZSTD_CStreamOutSize());
-  for (size_t i = 0; i <= hashes.size(); ++i) {
-    const bool last = i == hashes.size();
-    bytes.clear();
-    if (!last && reader->read_contents(hashes[i], &bytes)) continue;
-    ZSTD_inBuffer in{bytes.data(), bytes.size(), 0};
-    for (;;) {
-      ZSTD_outBuffer out{compressed.data(), compressed.size(), 0};
-      const size_t left = ZSTD_compressStream2(cctx, &out, &in, last ? ZSTD_e_end : ZSTD_e_continue);
-      t.zstdOfReferenced += out.pos;
-      if (last ? left == 0 : in.pos == in.size) break;
+        auto lists = clastrace::traces::record_snapshots(*view.record);
+        for (const auto* list : {lists.inputs, lists.outputs})
+            if (list)
+                for (const auto* s : *list) {
+                    ++t.snapshots;
+                    t.referenced += s->size();
+                    hashes.push_back(s->hash());
+                }
     }
-  }
-  ZSTD_freeCCtx(cctx);
-  return t;
+    t.chunks = reader->stats().chunks_read;
+    ZSTD_CCtx* cctx = ZSTD_createCCtx();
+    ZSTD_CCtx_setParameter(cctx, ZSTD_c_compressionLevel, zstdLevel);
+    std::vector<uint8_t> bytes, compressed(ZSTD_CStreamOutSize());
+    for (size_t i = 0; i <= hashes.size(); ++i) {
+        const bool last = i == hashes.size();
+        bytes.clear();
+        if (!last && reader->read_contents(hashes[i], &bytes)) continue;
+        ZSTD_inBuffer in{bytes.data(), bytes.size(), 0};
+        for (;;) {
+            ZSTD_outBuffer out{compressed.data(), compressed.size(), 0};
+            const size_t left =
+                ZSTD_compressStream2(cctx, &out, &in, last ? ZSTD_e_end : ZSTD_e_continue);
+            t.zstdOfReferenced += out.pos;
+            if (last ? left == 0 : in.pos == in.size) break;
+        }
+    }
+    ZSTD_freeCCtx(cctx);
+    return t;
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  const int frames = argc > 1 ? std::max(1, std::atoi(argv[1])) : 60;
-  const int clusters = argc > 2 ? std::clamp(std::atoi(argv[2]), 1, 4096) : 256;
-  const int repetitions = argc > 3 ? std::max(1, std::atoi(argv[3])) : 5;
-  const std::string driver = setting("CLASTRACE_BENCH_DRIVER_FILES", kLavapipe);
-  if (!fs::exists(driver)) {
-    std::fprintf(stderr, "capture_overhead_bench: the driver manifest %s is missing (lavapipe: apt-get install "
-                 "mesa-vulkan-drivers)\n", driver.c_str());
-    return 1;
-  }
-  const fs::path dir = fs::temp_directory_path() / ("clastrace_capture_bench_" + std::to_string(getpid()));
-  fs::create_directories(dir);
-  const fs::path trace = dir / "bench.clt";
-  const std::string args = "frames " + std::to_string(frames) + " --clusters " + std::to_string(clusters);
-
-  struct Mode {
-    const char* name;
-    std::map<std::string, std::string> env;
-    std::vector<double> loops, cpu;
-    Run last;
-    TraceBytes bytes;
-  };
-  auto traceOf = [&](const char* name) { return (dir / (std::string(name) + ".clt")).string(); };
-  std::vector<Mode> modes = {
-      {"serving only (CLASTRACE_CAPTURE=0)", {{"CLASTRACE_CAPTURE", "0"}}, {}, {}, {}, {}},
-      {"capture + serving", {{"CLASTRACE_OUTPUT", traceOf("default")}}, {}, {}, {}, {}},
-      {"capture + serving, forced staging",
-       {{"CLASTRACE_OUTPUT", traceOf("staging")}, {"CLASTRACE_FORCE_STAGING", "1"}}, {}, {}, {}, {}},
-      {"capture + serving, CLASTRACE_FLUSH_MS=0",
-       {{"CLASTRACE_OUTPUT", traceOf("flush0")}, {"CLASTRACE_FLUSH_MS", "0"}}, {}, {}, {}, {}},
-      {"capture + serving, CLASTRACE_FLUSH_MS=50",
-       {{"CLASTRACE_OUTPUT", traceOf("flush50")}, {"CLASTRACE_FLUSH_MS", "50"}}, {}, {}, {}, {}},
-      {"capture + serving, CLASTRACE_ZSTD_LEVEL=1",
-       {{"CLASTRACE_OUTPUT", traceOf("zstd1")}, {"CLASTRACE_ZSTD_LEVEL", "1"}}, {}, {}, {}, {}},
-      {"capture + serving, CLASTRACE_ZSTD_LEVEL=9",
-       {{"CLASTRACE_OUTPUT", traceOf("zstd9")}, {"CLASTRACE_ZSTD_LEVEL", "9"}}, {}, {}, {}, {}},
-      {"capture + serving, CLASTRACE_ZSTD_LEVEL=-1",
-       {{"CLASTRACE_OUTPUT", traceOf("zstdm1")}, {"CLASTRACE_ZSTD_LEVEL", "-1"}}, {}, {}, {}, {}},
-      {"capture + serving, CLASTRACE_ZSTD_LEVEL=-5",
-       {{"CLASTRACE_OUTPUT", traceOf("zstdm5")}, {"CLASTRACE_ZSTD_LEVEL", "-5"}}, {}, {}, {}, {}},
-      {"capture + serving, CLASTRACE_BACKGROUND_CPUS=app",
-       {{"CLASTRACE_OUTPUT", traceOf("bgapp")}, {"CLASTRACE_BACKGROUND_CPUS", "app"}}, {}, {}, {}, {}},
-  };
-  // Interleaved, so drift of a shared machine spreads over every mode alike.
-  for (int r = 0; r < repetitions; ++r)
-    for (Mode& m : modes) {
-      m.last = runApp(dir, args, m.env);
-      m.loops.push_back(m.last.loopMs);
-      m.cpu.push_back(m.last.loopCpuMs);
+    const int frames = argc > 1 ? std::max(1, std::atoi(argv[1])) : 60;
+    const int clusters = argc > 2 ? std::clamp(std::atoi(argv[2]), 1, 4096) : 256;
+    const int repetitions = argc > 3 ? std::max(1, std::atoi(argv[3])) : 5;
+    const std::string driver = setting("CLASTRACE_BENCH_DRIVER_FILES", kLavapipe);
+    if (!fs::exists(driver)) {
+        std::fprintf(
+            stderr,
+            "capture_overhead_bench: the driver manifest %s is missing (lavapipe: apt-get install "
+            "mesa-vulkan-drivers)\n",
+            driver.c_str());
+        return 1;
     }
-  for (Mode& m : modes)
-    if (m.env.count("CLASTRACE_OUTPUT")) m.bytes = measureTrace(m.env["CLASTRACE_OUTPUT"], 3);
-  const TraceBytes& bytes = modes[1].bytes;
+    const fs::path dir =
+        fs::temp_directory_path() / ("clastrace_capture_bench_" + std::to_string(getpid()));
+    fs::create_directories(dir);
+    const fs::path trace = dir / "bench.clt";
+    const std::string args =
+        "frames " + std::to_string(frames) + " --clusters " + std::to_string(clusters);
 
-  std::printf("capture overhead: %d frames x (1 triangle-cluster build of %d clusters + 1 bottom-level build), "
-              "%s, best of %d runs each (interleaved)\n\n", frames, clusters,
-              driver == kLavapipe ? "lavapipe" : driver.c_str(), repetitions);
-  // Wall time is what the application feels, but on a machine shared with other work it swings
-  // by tens of percent run to run; the process's CPU time (all threads: application, driver,
-  // layer worker, trace writer) is the steadier measure of the work capture adds.
-  const double peer = best(modes[0].loops), peerCpu = median(modes[0].cpu);
-  std::printf("| mode                                  | wall ms (best) | ratio  | CPU ms (median) | ratio  |\n");
-  std::printf("|---------------------------------------|---------------:|-------:|----------------:|-------:|\n");
-  for (size_t i = 0; i < 3; ++i) {
-    const double ms = best(modes[i].loops), cpu = median(modes[i].cpu);
-    std::printf("| %-37s | %14.1f | %5.3fx | %15.1f | %5.3fx |\n", modes[i].name, ms, ms / peer, cpu, cpu / peerCpu);
-  }
-  // Each repetition ran serving only and capture back to back: the median of those pairs'
-  // ratios is less moved by slow spells of a shared machine than the ratio of two minimums.
-  std::vector<double> pairWall, pairCpu;
-  for (int r = 0; r < repetitions; ++r) {
-    pairWall.push_back(modes[1].loops[r] / modes[0].loops[r]);
-    pairCpu.push_back(modes[1].cpu[r] / modes[0].cpu[r]);
-  }
-  std::printf("| %-37s | %14s | %5.3fx | %15s | %5.3fx |\n", "capture + serving, median pairwise", "", median(pairWall),
-              "", median(pairCpu));
-  // The goal's statistic (capture/README.md): the median wall time of each mode over all runs.
-  const double medianServe = median(modes[0].loops), medianCapture = median(modes[1].loops);
-  const auto atGoal = std::count_if(pairWall.begin(), pairWall.end(), [](double r) { return r <= 1.10; });
-  std::printf("| %-37s | %14.1f | %5.3fx | %15s | %6s |\n", "capture + serving, median wall", medianCapture,
-              medianCapture / medianServe, "", "");
-  const auto [low, high] = bootstrapRatioInterval(modes[0].loops, modes[1].loops);
-  std::printf("\nserving only median wall %.1f ms; pairs with capture <= 1.10x: %lld of %d; median wall ratio "
-              "%.3fx, 95%% bootstrap interval %.3fx-%.3fx\n",
-              medianServe, (long long)atGoal, repetitions, medianCapture / medianServe, low, high);
-  std::printf("\n| trace bytes                                    |       bytes | vs referenced |\n");
-  std::printf("|------------------------------------------------|------------:|--------------:|\n");
-  auto row = [&](const char* name, uint64_t v) {
-    std::printf("| %-46s | %11llu | %12.4fx |\n", name, (unsigned long long)v,
-                bytes.referenced ? double(v) / double(bytes.referenced) : 0.0);
-  };
-  std::printf("| raw bytes referenced by %6llu snapshots       | %11llu | %12.4fx |\n",
-              (unsigned long long)bytes.snapshots, (unsigned long long)bytes.referenced, 1.0);
-  row("after dedup (distinct contents)", bytes.stored);
-  row("plain zstd -3 over the referenced bytes (peer)", bytes.zstdOfReferenced);
-  row(".clt file (dedup + zstd -3, whole trace)", bytes.fileBytes);
-  std::printf("\n| mode                                  | pauses | median ms/pause | p90 ms/pause |\n");
-  std::printf("|---------------------------------------|-------:|----------------:|-------------:|\n");
-  for (size_t i = 0; i < 3; ++i)
-    std::printf("| %-37s | %6llu | %15.3f | %12.3f |\n", modes[i].name, (unsigned long long)modes[i].last.pauses,
-                modes[i].last.pauseMedianMs, modes[i].last.pauseP90Ms);
-  std::printf("\n| flush interval (loses at most)         | chunks | .clt bytes | CPU ms (median) | ratio vs serving only |\n");
-  std::printf("|----------------------------------------|-------:|-----------:|----------------:|----------------------:|\n");
-  for (size_t i : {3, 1, 4}) {
-    const Mode& m = modes[i];
-    const char* label = i == 3 ? "0: full 4 MiB chunks only" : i == 1 ? "1000 ms (default)" : "50 ms";
-    const double cpu = median(m.cpu);
-    std::printf("| %-38s | %6llu | %10llu | %15.1f | %20.3fx |\n", label, (unsigned long long)m.bytes.chunks,
-                (unsigned long long)m.bytes.fileBytes, cpu, cpu / peerCpu);
-  }
-  // Compression runs on its own thread (at a lower priority than the application): the level
-  // trades trace bytes against that thread's CPU, which the application feels only when the
-  // machine has no idle core.
-  std::printf("\n| CLASTRACE_ZSTD_LEVEL | .clt bytes | compressor CPU ms (last run) | wall ms (best) | ratio | CPU ms (median) | ratio |\n");
-  std::printf("|---------------------:|-----------:|-----------------------------:|---------------:|------:|----------------:|------:|\n");
-  for (size_t i : {8, 7, 5, 1, 6}) {
-    const Mode& m = modes[i];
-    double compressorCpu = 0;
-    for (const std::string& line : m.last.stats) {
-      const size_t at = line.find("compressor CPU ");
-      if (at != std::string::npos) compressorCpu = std::atof(line.c_str() + at + 15);
+    struct Mode {
+        const char* name;
+        std::map<std::string, std::string> env;
+        std::vector<double> loops, cpu;
+        Run last;
+        TraceBytes bytes;
+    };
+    auto traceOf = [&](const char* name) { return (dir / (std::string(name) + ".clt")).string(); };
+    std::vector<Mode> modes = {
+        {"serving only (CLASTRACE_CAPTURE=0)", {{"CLASTRACE_CAPTURE", "0"}}, {}, {}, {}, {}},
+        {"capture + serving", {{"CLASTRACE_OUTPUT", traceOf("default")}}, {}, {}, {}, {}},
+        {"capture + serving, forced staging",
+         {{"CLASTRACE_OUTPUT", traceOf("staging")}, {"CLASTRACE_FORCE_STAGING", "1"}},
+         {},
+         {},
+         {},
+         {}},
+        {"capture + serving, CLASTRACE_FLUSH_MS=0",
+         {{"CLASTRACE_OUTPUT", traceOf("flush0")}, {"CLASTRACE_FLUSH_MS", "0"}},
+         {},
+         {},
+         {},
+         {}},
+        {"capture + serving, CLASTRACE_FLUSH_MS=50",
+         {{"CLASTRACE_OUTPUT", traceOf("flush50")}, {"CLASTRACE_FLUSH_MS", "50"}},
+         {},
+         {},
+         {},
+         {}},
+        {"capture + serving, CLASTRACE_ZSTD_LEVEL=1",
+         {{"CLASTRACE_OUTPUT", traceOf("zstd1")}, {"CLASTRACE_ZSTD_LEVEL", "1"}},
+         {},
+         {},
+         {},
+         {}},
+        {"capture + serving, CLASTRACE_ZSTD_LEVEL=9",
+         {{"CLASTRACE_OUTPUT", traceOf("zstd9")}, {"CLASTRACE_ZSTD_LEVEL", "9"}},
+         {},
+         {},
+         {},
+         {}},
+        {"capture + serving, CLASTRACE_ZSTD_LEVEL=-1",
+         {{"CLASTRACE_OUTPUT", traceOf("zstdm1")}, {"CLASTRACE_ZSTD_LEVEL", "-1"}},
+         {},
+         {},
+         {},
+         {}},
+        {"capture + serving, CLASTRACE_ZSTD_LEVEL=-5",
+         {{"CLASTRACE_OUTPUT", traceOf("zstdm5")}, {"CLASTRACE_ZSTD_LEVEL", "-5"}},
+         {},
+         {},
+         {},
+         {}},
+        {"capture + serving, CLASTRACE_BACKGROUND_CPUS=app",
+         {{"CLASTRACE_OUTPUT", traceOf("bgapp")}, {"CLASTRACE_BACKGROUND_CPUS", "app"}},
+         {},
+         {},
+         {},
+         {}},
+    };
+    // Interleaved, so drift of a shared machine spreads over every mode alike.
+    for (int r = 0; r < repetitions; ++r)
+        for (Mode& m : modes) {
+            m.last = runApp(dir, args, m.env);
+            m.loops.push_back(m.last.loopMs);
+            m.cpu.push_back(m.last.loopCpuMs);
+        }
+    for (Mode& m : modes)
+        if (m.env.count("CLASTRACE_OUTPUT")) m.bytes = measureTrace(m.env["CLASTRACE_OUTPUT"], 3);
+    const TraceBytes& bytes = modes[1].bytes;
+
+    std::printf(
+        "capture overhead: %d frames x (1 triangle-cluster build of %d clusters + 1 bottom-level "
+        "build), "
+        "%s, best of %d runs each (interleaved)\n\n",
+        frames, clusters, driver == kLavapipe ? "lavapipe" : driver.c_str(), repetitions);
+    // Wall time is what the application feels, but on a machine shared with other work it swings
+    // by tens of percent run to run; the process's CPU time (all threads: application, driver,
+    // layer worker, trace writer) is the steadier measure of the work capture adds.
+    const double peer = best(modes[0].loops), peerCpu = median(modes[0].cpu);
+    std::printf(
+        "| mode                                  | wall ms (best) | ratio  | CPU ms (median) | "
+        "ratio  |\n");
+    std::printf(
+        "|---------------------------------------|---------------:|-------:|----------------:|-----"
+        "--:|\n");
+    for (size_t i = 0; i < 3; ++i) {
+        const double ms = best(modes[i].loops), cpu = median(modes[i].cpu);
+        std::printf("| %-37s | %14.1f | %5.3fx | %15.1f | %5.3fx |\n", modes[i].name, ms, ms / peer,
+                    cpu, cpu / peerCpu);
     }
-    const double ms = best(m.loops), cpu = median(m.cpu);
-    std::printf("| %20s | %10llu | %28.1f | %14.1f | %4.3fx | %15.1f | %4.3fx |\n",
-                i == 8 ? "-5" : i == 7 ? "-1" : i == 5 ? "1" : i == 1 ? "3 (default)" : "9", (unsigned long long)m.bytes.fileBytes, compressorCpu, ms,
-                ms / peer, cpu, cpu / peerCpu);
-  }
-  // Where the sink's and the compressor's threads run: by default on the CPUs the application
-  // may not use (the bench runs confined by taskset on the device), with `app` on its own,
-  // where their SCHED_IDLE work still shares the engine's cores and caches. Without spare CPUs
-  // (an unconfined run) both rows run the same placement.
-  std::printf("\n| CLASTRACE_BACKGROUND_CPUS | wall ms (best) | ratio | median wall ratio | median pairwise | CPU ms (median) | ratio |\n");
-  std::printf("|---------------------------|---------------:|------:|------------------:|----------------:|----------------:|------:|\n");
-  for (size_t i : {1, 9}) {
-    const Mode& m = modes[i];
-    std::vector<double> pairs;
-    for (int r = 0; r < repetitions; ++r) pairs.push_back(m.loops[r] / modes[0].loops[r]);
-    const double ms = best(m.loops), cpu = median(m.cpu);
-    std::printf("| %-25s | %14.1f | %4.3fx | %16.3fx | %14.3fx | %15.1f | %4.3fx |\n", i == 1 ? "spare (default)" : "app",
-                ms, ms / peer, median(m.loops) / medianServe, median(pairs), cpu, cpu / peerCpu);
-  }
-  for (size_t i : {1, 9})
-    for (const std::string& line : modes[i].last.stats)
-      if (line.rfind("background threads:", 0) == 0) std::printf("\n    %s", line.c_str());
-  std::printf("\n");
-  // The layer's own account (CLASTRACE_STATS=1, capture/README.md): wall and CPU time per
-  // phase over the whole process, the vkDestroyDevice flush included (after the frame loop).
-  for (size_t i : {0, 1}) {
-    std::printf("\nwhere the time went, %s (last run, CLASTRACE_STATS=1):\n\n", modes[i].name);
-    for (const std::string& line : modes[i].last.stats) std::printf("    %s\n", line.c_str());
-  }
-  fs::remove_all(dir);
-  return 0;
+    // Each repetition ran serving only and capture back to back: the median of those pairs'
+    // ratios is less moved by slow spells of a shared machine than the ratio of two minimums.
+    std::vector<double> pairWall, pairCpu;
+    for (int r = 0; r < repetitions; ++r) {
+        pairWall.push_back(modes[1].loops[r] / modes[0].loops[r]);
+        pairCpu.push_back(modes[1].cpu[r] / modes[0].cpu[r]);
+    }
+    std::printf("| %-37s | %14s | %5.3fx | %15s | %5.3fx |\n", "capture + serving, median pairwise",
+                "", median(pairWall), "", median(pairCpu));
+    // The goal's statistic (capture/README.md): the median wall time of each mode over all runs.
+    const double medianServe = median(modes[0].loops), medianCapture = median(modes[1].loops);
+    const auto atGoal =
+        std::count_if(pairWall.begin(), pairWall.end(), [](double r) { return r <= 1.10; });
+    std::printf("| %-37s | %14.1f | %5.3fx | %15s | %6s |\n", "capture + serving, median wall",
+                medianCapture, medianCapture / medianServe, "", "");
+    const auto [low, high] = bootstrapRatioInterval(modes[0].loops, modes[1].loops);
+    std::printf(
+        "\nserving only median wall %.1f ms; pairs with capture <= 1.10x: %lld of %d; median wall "
+        "ratio "
+        "%.3fx, 95%% bootstrap interval %.3fx-%.3fx\n",
+        medianServe, (long long)atGoal, repetitions, medianCapture / medianServe, low, high);
+    std::printf(
+        "\n| trace bytes                                    |       bytes | vs referenced |\n");
+    std::printf(
+        "|------------------------------------------------|------------:|--------------:|\n");
+    auto row = [&](const char* name, uint64_t v) {
+        std::printf("| %-46s | %11llu | %12.4fx |\n", name, (unsigned long long)v,
+                    bytes.referenced ? double(v) / double(bytes.referenced) : 0.0);
+    };
+    std::printf("| raw bytes referenced by %6llu snapshots       | %11llu | %12.4fx |\n",
+                (unsigned long long)bytes.snapshots, (unsigned long long)bytes.referenced, 1.0);
+    row("after dedup (distinct contents)", bytes.stored);
+    row("plain zstd -3 over the referenced bytes (peer)", bytes.zstdOfReferenced);
+    row(".clt file (dedup + zstd -3, whole trace)", bytes.fileBytes);
+    std::printf(
+        "\n| mode                                  | pauses | median ms/pause | p90 ms/pause |\n");
+    std::printf(
+        "|---------------------------------------|-------:|----------------:|-------------:|\n");
+    for (size_t i = 0; i < 3; ++i)
+        std::printf("| %-37s | %6llu | %15.3f | %12.3f |\n", modes[i].name,
+                    (unsigned long long)modes[i].last.pauses, modes[i].last.pauseMedianMs,
+                    modes[i].last.pauseP90Ms);
+    std::printf(
+        "\n| flush interval (loses at most)         | chunks | .clt bytes | CPU ms (median) | "
+        "ratio vs serving only |\n");
+    std::printf(
+        "|----------------------------------------|-------:|-----------:|----------------:|--------"
+        "--------------:|\n");
+    for (size_t i : {3, 1, 4}) {
+        const Mode& m = modes[i];
+        const char* label = i == 3   ? "0: full 4 MiB chunks only"
+                            : i == 1 ? "1000 ms (default)"
+                                     : "50 ms";
+        const double cpu = median(m.cpu);
+        std::printf("| %-38s | %6llu | %10llu | %15.1f | %20.3fx |\n", label,
+                    (unsigned long long)m.bytes.chunks, (unsigned long long)m.bytes.fileBytes, cpu,
+                    cpu / peerCpu);
+    }
+    // Compression runs on its own thread (at a lower priority than the application): the level
+    // trades trace bytes against that thread's CPU, which the application feels only when the
+    // machine has no idle core.
+    std::printf(
+        "\n| CLASTRACE_ZSTD_LEVEL | .clt bytes | compressor CPU ms (last run) | wall ms (best) | "
+        "ratio | CPU ms (median) | ratio |\n");
+    std::printf(
+        "|---------------------:|-----------:|-----------------------------:|---------------:|-----"
+        "-:|----------------:|------:|\n");
+    for (size_t i : {8, 7, 5, 1, 6}) {
+        const Mode& m = modes[i];
+        double compressorCpu = 0;
+        for (const std::string& line : m.last.stats) {
+            const size_t at = line.find("compressor CPU ");
+            if (at != std::string::npos) compressorCpu = std::atof(line.c_str() + at + 15);
+        }
+        const double ms = best(m.loops), cpu = median(m.cpu);
+        std::printf("| %20s | %10llu | %28.1f | %14.1f | %4.3fx | %15.1f | %4.3fx |\n",
+                    i == 8   ? "-5"
+                    : i == 7 ? "-1"
+                    : i == 5 ? "1"
+                    : i == 1 ? "3 (default)"
+                             : "9",
+                    (unsigned long long)m.bytes.fileBytes, compressorCpu, ms, ms / peer, cpu,
+                    cpu / peerCpu);
+    }
+    // Where the sink's and the compressor's threads run: by default on the CPUs the application
+    // may not use (the bench runs confined by taskset on the device), with `app` on its own,
+    // where their SCHED_IDLE work still shares the engine's cores and caches. Without spare CPUs
+    // (an unconfined run) both rows run the same placement.
+    std::printf(
+        "\n| CLASTRACE_BACKGROUND_CPUS | wall ms (best) | ratio | median wall ratio | median "
+        "pairwise | CPU ms (median) | ratio |\n");
+    std::printf(
+        "|---------------------------|---------------:|------:|------------------:|----------------"
+        ":|----------------:|------:|\n");
+    for (size_t i : {1, 9}) {
+        const Mode& m = modes[i];
+        std::vector<double> pairs;
+        for (int r = 0; r < repetitions; ++r) pairs.push_back(m.loops[r] / modes[0].loops[r]);
+        const double ms = best(m.loops), cpu = median(m.cpu);
+        std::printf("| %-25s | %14.1f | %4.3fx | %16.3fx | %14.3fx | %15.1f | %4.3fx |\n",
+                    i == 1 ? "spare (default)" : "app", ms, ms / peer,
+                    median(m.loops) / medianServe, median(pairs), cpu, cpu / peerCpu);
+    }
+    for (size_t i : {1, 9})
+        for (const std::string& line : modes[i].last.stats)
+            if (line.rfind("background threads:", 0) == 0) std::printf("\n    %s", line.c_str());
+    std::printf("\n");
+    // The layer's own account (CLASTRACE_STATS=1, capture/README.md): wall and CPU time per
+    // phase over the whole process, the vkDestroyDevice flush included (after the frame loop).
+    for (size_t i : {0, 1}) {
+        std::printf("\nwhere the time went, %s (last run, CLASTRACE_STATS=1):\n\n", modes[i].name);
+        for (const std::string& line : modes[i].last.stats) std::printf("    %s\n", line.c_str());
+    }
+    fs::remove_all(dir);
+    return 0;
 }

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // NV bottom-level build throughput (Mtris/s) and closest-hit ray throughput (Mrays/s), one
 // thread, next to Embree 3 on the same triangles. The engine's two builders face the Embree
 // builder of the same kind: the default SAH tree against RTC_BUILD_QUALITY_MEDIUM (binned
@@ -19,23 +20,30 @@ using Clock = std::chrono::steady_clock;
 
 namespace {
 
-double since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+double since(Clock::time_point t0) {
+    return std::chrono::duration<double>(Clock::now() - t0).count();
+}
 
-double embree_build(RTCDevice device, const ts::TriangleMesh& m, RTCBuildQuality quality, RTCScene* keep) {
+double embree_build(RTCDevice device, const ts::TriangleMesh& m, RTCBuildQuality quality,
+                    RTCScene* keep) {
     RTCScene scene = rtcNewScene(device);
     rtcSetSceneBuildQuality(scene, quality);
     RTCGeometry g = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
     rtcSetGeometryBuildQuality(g, quality);
-    rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, m.positions.data(), 0, 12, m.positions.size());
-    rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, m.triangles.data(), 0, 12, m.triangles.size());
+    rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, m.positions.data(),
+                               0, 12, m.positions.size());
+    rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, m.triangles.data(), 0,
+                               12, m.triangles.size());
     rtcCommitGeometry(g);
     rtcAttachGeometry(scene, g);
     rtcReleaseGeometry(g);
     const auto t0 = Clock::now();
     rtcCommitScene(scene);
     const double s = since(t0);
-    if (keep) *keep = scene;
-    else rtcReleaseScene(scene);
+    if (keep)
+        *keep = scene;
+    else
+        rtcReleaseScene(scene);
     return s;
 }
 
@@ -68,7 +76,12 @@ struct EngineMode {
         auto nv = eng::NvScene::open_bottom(world->memory, cmd.dst.address, nullptr);
         const auto t0 = Clock::now();
         for (const auto& t : rays)
-            run.hits += nv->closest(eng::Ray{{t.origin[0], t.origin[1], t.origin[2]}, 0, {t.direction[0], t.direction[1], t.direction[2]}, t.tmax}, 0, 0xFF).hit;
+            run.hits += nv->closest(eng::Ray{{t.origin[0], t.origin[1], t.origin[2]},
+                                             0,
+                                             {t.direction[0], t.direction[1], t.direction[2]},
+                                             t.tmax},
+                                    0, 0xFF)
+                            .hit;
         run.rays_s = since(t0);
     }
 };
@@ -77,7 +90,8 @@ void row(const char* name, ts::TriangleMesh mesh) {
     // Embree's shared vertex buffers are read 16 bytes at a time: keep one spare vertex of capacity.
     mesh.positions.reserve(mesh.positions.size() + 2);
     NvWorld w;
-    EngineMode sah(w, mesh, 0), morton(w, mesh, VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV);
+    EngineMode sah(w, mesh, 0),
+        morton(w, mesh, VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV);
     RTCDevice device = rtcNewDevice("threads=1");
     EngineRun sah_run, morton_run;
     double low = 1e30, medium = 1e30;
@@ -100,7 +114,18 @@ void row(const char* name, ts::TriangleMesh mesh) {
     const auto t0 = Clock::now();
     for (const auto& t : rays) {
         RTCRayHit rh{};
-        rh.ray = RTCRay{t.origin[0], t.origin[1], t.origin[2], 0, t.direction[0], t.direction[1], t.direction[2], 0, t.tmax, ~0u, 0, 0};
+        rh.ray = RTCRay{t.origin[0],
+                        t.origin[1],
+                        t.origin[2],
+                        0,
+                        t.direction[0],
+                        t.direction[1],
+                        t.direction[2],
+                        0,
+                        t.tmax,
+                        ~0u,
+                        0,
+                        0};
         rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
         rtcIntersect1(scene, &ctx, &rh);
         hits_embree += rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
@@ -109,11 +134,14 @@ void row(const char* name, ts::TriangleMesh mesh) {
     rtcReleaseScene(scene);
     rtcReleaseDevice(device);
     const double n = double(rays.size()) / 1e6;
-    std::printf("%-14s %7zu %6.1f | %7.2f %7.2f %7.2f %6.2fx | %7.2f %7.2f %7.2f %6.2fx | %7.2f %7.2f %7.2f | %zu/%zu/%zu\n", name,
-                mesh.triangles.size(), double(sah_run.bytes) / mesh.triangles.size(), mtris / sah_run.build_s, mtris / medium,
-                n / sah_run.rays_s, sah_run.build_s / medium, mtris / morton_run.build_s, mtris / low, n / morton_run.rays_s,
-                morton_run.build_s / low, n / embree_rays, sah_run.rays_s / embree_rays, morton_run.rays_s / embree_rays,
-                sah_run.hits, morton_run.hits, hits_embree);
+    std::printf(
+        "%-14s %7zu %6.1f | %7.2f %7.2f %7.2f %6.2fx | %7.2f %7.2f %7.2f %6.2fx | %7.2f %7.2f "
+        "%7.2f | %zu/%zu/%zu\n",
+        name, mesh.triangles.size(), double(sah_run.bytes) / mesh.triangles.size(),
+        mtris / sah_run.build_s, mtris / medium, n / sah_run.rays_s, sah_run.build_s / medium,
+        mtris / morton_run.build_s, mtris / low, n / morton_run.rays_s, morton_run.build_s / low,
+        n / embree_rays, sah_run.rays_s / embree_rays, morton_run.rays_s / embree_rays,
+        sah_run.hits, morton_run.hits, hits_embree);
 }
 
 }  // namespace
@@ -121,13 +149,18 @@ void row(const char* name, ts::TriangleMesh mesh) {
 int main() {
     // The engine's builders use TBB for large ranges: hold them to one thread like Embree.
     tbb::global_control one_thread(tbb::global_control::max_allowed_parallelism, 1);
-    std::printf("NV bottom-level build and closest-hit rays, 1 thread, best of 5 (build) / 200k random rays\n"
-                "SAH: default flags, next to Embree MEDIUM (binned SAH); Morton: PREFER_FAST_BUILD, next to Embree LOW\n"
-                "(its fastest build). x columns: engine time / Embree time (below 1: engine faster).\n");
-    std::printf("%-14s %7s %6s | %7s %7s %7s %7s | %7s %7s %7s %7s | %7s %7s %7s | %s\n", "mesh", "tris", "B/tri", "SAH", "emb MED",
-                "SAH", "SAH/MED", "Morton", "emb LOW", "Morton", "Mor/LOW", "emb", "SAH/emb", "Mor/emb", "hits SAH/Morton/Embree");
-    std::printf("%-14s %7s %6s | %7s %7s %7s %7s | %7s %7s %7s %7s | %7s %7s %7s |\n", "", "", "", "Mtris/s", "Mtris/s", "Mray/s",
-                "build", "Mtris/s", "Mtris/s", "Mray/s", "build", "Mray/s", "rays", "rays");
+    std::printf(
+        "NV bottom-level build and closest-hit rays, 1 thread, best of 5 (build) / 200k random "
+        "rays\n"
+        "SAH: default flags, next to Embree MEDIUM (binned SAH); Morton: PREFER_FAST_BUILD, next "
+        "to Embree LOW\n"
+        "(its fastest build). x columns: engine time / Embree time (below 1: engine faster).\n");
+    std::printf("%-14s %7s %6s | %7s %7s %7s %7s | %7s %7s %7s %7s | %7s %7s %7s | %s\n", "mesh",
+                "tris", "B/tri", "SAH", "emb MED", "SAH", "SAH/MED", "Morton", "emb LOW", "Morton",
+                "Mor/LOW", "emb", "SAH/emb", "Mor/emb", "hits SAH/Morton/Embree");
+    std::printf("%-14s %7s %6s | %7s %7s %7s %7s | %7s %7s %7s %7s | %7s %7s %7s |\n", "", "", "",
+                "Mtris/s", "Mtris/s", "Mray/s", "build", "Mtris/s", "Mtris/s", "Mray/s", "build",
+                "Mray/s", "rays", "rays");
     row("icosphere-6", ts::make_icosphere(6, 1.0f));
     row("terrain-300", ts::make_terrain(300, 300, 1));
     row("soup-200k", ts::make_random_soup(200000, 5, 1.0f, 0.05f));

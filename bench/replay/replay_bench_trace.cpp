@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 #include "replay_bench_trace.h"
 
 #include <clastrace/engine/build_sizes.h>
@@ -25,18 +26,22 @@ using BlasInfo = VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV;
 
 constexpr uint64_t kQueue = 0x9001, kDeviceMemory = 0x1001, kHostMemory = 0x1002;
 constexpr uint64_t kCommandBuffer0 = 0xc000, kFence0 = 0xfe00;
-constexpr uint32_t kSlots = 2;          // frames in flight
-constexpr uint32_t kMoveEvery = 4;      // frames between cluster moves
-constexpr uint32_t kStreamEvery = 16;   // frames between re-creations of the move buffer
+constexpr uint32_t kSlots = 2;         // frames in flight
+constexpr uint32_t kMoveEvery = 4;     // frames between cluster moves
+constexpr uint32_t kStreamEvery = 16;  // frames between re-creations of the move buffer
 
 constexpr uint64_t kSda = VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT;
-constexpr uint64_t kInput = kSda | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
-constexpr uint64_t kStorage = kSda | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR | VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
+constexpr uint64_t kInput =
+    kSda | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
+constexpr uint64_t kStorage = kSda | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR |
+                              VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
 
 constexpr uint64_t kBuild = VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR;
 constexpr uint64_t kTransfer = VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT;
-constexpr uint64_t kAsRead = VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR | VK_ACCESS_2_SHADER_READ_BIT;
-constexpr uint64_t kAsWrite = VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR | VK_ACCESS_2_SHADER_WRITE_BIT;
+constexpr uint64_t kAsRead =
+    VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR | VK_ACCESS_2_SHADER_READ_BIT;
+constexpr uint64_t kAsWrite =
+    VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR | VK_ACCESS_2_SHADER_WRITE_BIT;
 constexpr uint64_t kBuildReads = kAsRead | VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT;
 
 uint64_t align_up(uint64_t v, uint64_t a) { return (v + a - 1) / a * a; }
@@ -65,8 +70,10 @@ public:
 
 private:
     static fbs::TraceHeaderT header() {
-        fbs::TraceHeaderT h = tb::trace_header(tb::kEngineDriver, tb::kEngineDriver, "replay_throughput_bench");
-        h.device->cluster_properties = tb::cluster_properties(engine::EngineProperties::nvidia_default());
+        fbs::TraceHeaderT h =
+            tb::trace_header(tb::kEngineDriver, tb::kEngineDriver, "replay_throughput_bench");
+        h.device->cluster_properties =
+            tb::cluster_properties(engine::EngineProperties::nvidia_default());
         return h;
     }
 
@@ -110,7 +117,8 @@ private:
                 }
             for (uint32_t y = 0; y < h; ++y)
                 for (uint32_t x = 0; x < w; ++x) {
-                    const auto a = uint8_t(y * (w + 1) + x), b = uint8_t(a + 1), d = uint8_t(a + w + 1), e = uint8_t(d + 1);
+                    const auto a = uint8_t(y * (w + 1) + x), b = uint8_t(a + 1),
+                               d = uint8_t(a + w + 1), e = uint8_t(d + 1);
                     for (uint8_t v : {a, b, d, b, e, d}) indices_.push_back(v);
                 }
             geometry_.push_back(g);
@@ -123,7 +131,8 @@ private:
         const uint32_t per_frame = k * shape_.builds_per_frame;
 
         tri_ = tb::triangle_cluster_limits(128, 81, 128 * k, 81 * k);
-        blas_in_.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
+        blas_in_.sType =
+            VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
         blas_in_.maxTotalClusterCount = per_frame;
         blas_in_.maxClusterCountPerAccelerationStructure = per_frame;
         move_in_.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_MOVE_OBJECTS_INPUT_NV;
@@ -137,8 +146,11 @@ private:
         const engine::BuildSizes move = engine::cluster_build_sizes(move_input(k), props);
         blas_bytes_ = align_up(blas.acceleration_structure_size, 256);
         const uint64_t scratch =
-            align_up(std::max({clas.build_scratch_size, blas.build_scratch_size, move.build_scratch_size}), 256);
-        for (const auto& [input, sizes] : {std::pair{clas_input(k), clas}, {blas_input(), blas}, {move_input(k), move}}) {
+            align_up(std::max({clas.build_scratch_size, blas.build_scratch_size,
+                               move.build_scratch_size}),
+                     256);
+        for (const auto& [input, sizes] :
+             {std::pair{clas_input(k), clas}, {blas_input(), blas}, {move_input(k), move}}) {
             fbs::GetClusterBuildSizesT q;
             q.input = tb::cluster_input(input);
             q.acceleration_structure_size = sizes.acceleration_structure_size;
@@ -156,17 +168,21 @@ private:
         vertex_address_ = place(vertices_.size() * 4, kInput, kDeviceMemory, &vertex_buffer_);
         index_address_ = place(indices_.size(), kInput, kDeviceMemory, &index_buffer_);
         scratch_address_ = place(scratch, kStorage, kDeviceMemory, &scratch_buffer_);
-        staging_address_ = place(kSlots * per_frame * sizeof(Info), VK_BUFFER_USAGE_TRANSFER_SRC_BIT | kSda, kHostMemory,
-                                 &staging_buffer_);
+        staging_address_ =
+            place(kSlots * per_frame * sizeof(Info), VK_BUFFER_USAGE_TRANSFER_SRC_BIT | kSda,
+                  kHostMemory, &staging_buffer_);
         for (uint32_t s = 0; s < kSlots; ++s) {
             Slot& slot = slots_[s];
-            slot.infos = place(per_frame * sizeof(Info) + 256, kInput | VK_BUFFER_USAGE_TRANSFER_DST_BIT, kDeviceMemory,
-                               &slot.infos_buffer);
-            slot.clas = place(clas_bytes_ * shape_.builds_per_frame, kStorage, kDeviceMemory, &slot.clas_buffer);
+            slot.infos =
+                place(per_frame * sizeof(Info) + 256, kInput | VK_BUFFER_USAGE_TRANSFER_DST_BIT,
+                      kDeviceMemory, &slot.infos_buffer);
+            slot.clas = place(clas_bytes_ * shape_.builds_per_frame, kStorage, kDeviceMemory,
+                              &slot.clas_buffer);
             // Also read as build input: BLAS cluster references and move sources point here.
-            slot.addresses = place((per_frame + k + 1) * 8, kStorage | kInput, kDeviceMemory, &slot.addresses_buffer);
-            slot.sizes = place((per_frame + k + 1) * 4, kStorage | VK_BUFFER_USAGE_TRANSFER_DST_BIT, kDeviceMemory,
-                               &slot.sizes_buffer);
+            slot.addresses = place((per_frame + k + 1) * 8, kStorage | kInput, kDeviceMemory,
+                                   &slot.addresses_buffer);
+            slot.sizes = place((per_frame + k + 1) * 4, kStorage | VK_BUFFER_USAGE_TRANSFER_DST_BIT,
+                               kDeviceMemory, &slot.sizes_buffer);
             slot.blas = place(blas_bytes_, kStorage, kDeviceMemory, &slot.blas_buffer);
         }
         stream_bytes_ = align_up(move.acceleration_structure_size, 256) * kSlots;
@@ -176,18 +192,26 @@ private:
         stream_at_ += align_up(stream_bytes_, 0x100000);
     }
 
-    VkClusterAccelerationStructureInputInfoNV clas_input(uint32_t k) const { return tb::cluster_op_input(k, &tri_); }
-    VkClusterAccelerationStructureInputInfoNV blas_input() const { return tb::cluster_op_input(1, &blas_in_); }
-    VkClusterAccelerationStructureInputInfoNV move_input(uint32_t k) const { return tb::cluster_op_input(k, &move_in_); }
+    VkClusterAccelerationStructureInputInfoNV clas_input(uint32_t k) const {
+        return tb::cluster_op_input(k, &tri_);
+    }
+    VkClusterAccelerationStructureInputInfoNV blas_input() const {
+        return tb::cluster_op_input(1, &blas_in_);
+    }
+    VkClusterAccelerationStructureInputInfoNV move_input(uint32_t k) const {
+        return tb::cluster_op_input(k, &move_in_);
+    }
 
     void barrier(uint64_t src_stage, uint64_t src_access, uint64_t dst_stage, uint64_t dst_access) {
-        append(record(tb::memory_barrier(command_buffer_, src_stage, src_access, dst_stage, dst_access)));
+        append(record(
+            tb::memory_barrier(command_buffer_, src_stage, src_access, dst_stage, dst_access)));
         ++stats_.ops;
         ++stats_.commands;
     }
 
-    void build(const VkClusterAccelerationStructureInputInfoNV& input, uint64_t dst, uint64_t addresses, uint64_t sizes,
-               uint64_t infos, uint64_t info_stride, std::vector<fbs::MemorySnapshot> inputs) {
+    void build(const VkClusterAccelerationStructureInputInfoNV& input, uint64_t dst,
+               uint64_t addresses, uint64_t sizes, uint64_t infos, uint64_t info_stride,
+               std::vector<fbs::MemorySnapshot> inputs) {
         const uint64_t n = input.maxAccelerationStructureCount;
         auto info = tb::cluster_commands(input);
         info.dstImplicitData = dst;
@@ -195,7 +219,8 @@ private:
         info.dstAddressesArray = {addresses, 8, n * 8};
         info.dstSizesArray = {sizes, 4, n * 4};
         info.srcInfosArray = {infos, info_stride, n * info_stride};
-        fbs::CmdBuildClusterAccelerationStructureIndirectT b = tb::cluster_build(command_buffer_, info);
+        fbs::CmdBuildClusterAccelerationStructureIndirectT b =
+            tb::cluster_build(command_buffer_, info);
         b.inputs = std::move(inputs);
         append(record(std::move(b)));
         stats_.ops += n;
@@ -232,7 +257,8 @@ private:
 
         // Last frame's builds (same queue) may still use the scratch and this slot's buffers.
         barrier(kBuild | kTransfer, kAsWrite | VK_ACCESS_2_TRANSFER_WRITE_BIT, kBuild | kTransfer,
-                kBuildReads | kAsWrite | VK_ACCESS_2_TRANSFER_WRITE_BIT | VK_ACCESS_2_TRANSFER_READ_BIT);
+                kBuildReads | kAsWrite | VK_ACCESS_2_TRANSFER_WRITE_BIT |
+                    VK_ACCESS_2_TRANSFER_READ_BIT);
 
         // The frame's cluster infos: picked from the pool, uploaded from staging.
         std::vector<Info> infos(per_frame);
@@ -241,8 +267,10 @@ private:
         for (uint32_t i = 0; i < per_frame; ++i) {
             picked[i] = pick(rng_);
             const ClusterGeometry& g = geometry_[picked[i]];
-            infos[i] = tb::triangle_cluster_info(uint32_t(frame * per_frame + i) & 0xFFFFFFu, g.triangles, g.vertices,
-                                                 index_address_ + g.index_offset, 1, vertex_address_ + g.vertex_offset);
+            infos[i] =
+                tb::triangle_cluster_info(uint32_t(frame * per_frame + i) & 0xFFFFFFu, g.triangles,
+                                          g.vertices, index_address_ + g.index_offset, 1,
+                                          vertex_address_ + g.vertex_offset);
         }
         const uint64_t info_bytes = per_frame * sizeof(Info);
         fbs::CmdCopyBufferT copy;
@@ -251,7 +279,8 @@ private:
         copy.src_buffer = staging_buffer_;
         copy.dst_buffer = slot.infos_buffer;
         copy.regions.emplace_back(s * info_bytes, 0, info_bytes);
-        copy.inputs.push_back(snapshot(staging_address_ + s * info_bytes, infos.data(), info_bytes));
+        copy.inputs.push_back(
+            snapshot(staging_address_ + s * info_bytes, infos.data(), info_bytes));
         append(record(std::move(copy)));
         ++stats_.ops;
         ++stats_.commands;
@@ -284,41 +313,49 @@ private:
             if (b > 0) barrier(kBuild, kAsWrite, kBuild, kBuildReads | kAsWrite);  // scratch reuse
             const uint64_t first = uint64_t(b) * k;
             std::vector<fbs::MemorySnapshot> inputs;
-            inputs.push_back(snapshot(slot.infos + first * sizeof(Info), infos.data() + first, k * sizeof(Info)));
+            inputs.push_back(snapshot(slot.infos + first * sizeof(Info), infos.data() + first,
+                                      k * sizeof(Info)));
             for (uint32_t i = 0; i < k; ++i) {
                 const ClusterGeometry& g = geometry_[picked[first + i]];
                 inputs.push_back(snapshot(vertex_address_ + g.vertex_offset,
-                                          vertices_.data() + g.vertex_offset / 4, g.vertices * 12ull));
-                inputs.push_back(snapshot(index_address_ + g.index_offset, indices_.data() + g.index_offset,
-                                          g.triangles * 3ull));
+                                          vertices_.data() + g.vertex_offset / 4,
+                                          g.vertices * 12ull));
+                inputs.push_back(snapshot(index_address_ + g.index_offset,
+                                          indices_.data() + g.index_offset, g.triangles * 3ull));
             }
-            build(clas_input(k), slot.clas + b * clas_bytes_, slot.addresses + first * 8, slot.sizes + first * 4,
-                  slot.infos + first * sizeof(Info), sizeof(Info), std::move(inputs));
+            build(clas_input(k), slot.clas + b * clas_bytes_, slot.addresses + first * 8,
+                  slot.sizes + first * 4, slot.infos + first * sizeof(Info), sizeof(Info),
+                  std::move(inputs));
         }
 
         barrier(kBuild, kAsWrite, kBuild, kBuildReads | kAsWrite);
         {
             std::vector<fbs::MemorySnapshot> inputs;
             inputs.push_back(snapshot(slot.infos + info_bytes, &blas, sizeof blas));
-            build(blas_input(), slot.blas, slot.addresses + per_frame * 8, slot.sizes + per_frame * 4,
-                  slot.infos + info_bytes, sizeof blas, std::move(inputs));
+            build(blas_input(), slot.blas, slot.addresses + per_frame * 8,
+                  slot.sizes + per_frame * 4, slot.infos + info_bytes, sizeof blas,
+                  std::move(inputs));
         }
         if (frame % kMoveEvery == kMoveEvery - 1) {
             // Compaction: the first batch's clusters move into the streamed buffer.
             barrier(kBuild, kAsWrite, kBuild, kBuildReads | kAsWrite);
-            build(move_input(k), stream_address_ + s * (stream_bytes_ / kSlots), slot.addresses + (per_frame + 1) * 8,
-                  slot.sizes + (per_frame + 1) * 4, slot.addresses, 8, {});
+            build(move_input(k), stream_address_ + s * (stream_bytes_ / kSlots),
+                  slot.addresses + (per_frame + 1) * 8, slot.sizes + (per_frame + 1) * 4,
+                  slot.addresses, 8, {});
         }
 
         append(record(tb::command_buffer_end(command_buffer_)));
-        append(record(tb::queue_submit(kQueue, {command_buffer_}, kFence0 + s, writer_.next_submission_index())));
+        append(record(tb::queue_submit(kQueue, {command_buffer_}, kFence0 + s,
+                                       writer_.next_submission_index())));
         ++stats_.submissions;
-        stats_.largest_submission_bytes = std::max(stats_.largest_submission_bytes, submission_bytes_);
+        stats_.largest_submission_bytes =
+            std::max(stats_.largest_submission_bytes, submission_bytes_);
     }
 
     struct Slot {
         uint64_t infos = 0, clas = 0, addresses = 0, sizes = 0, blas = 0;
-        uint64_t infos_buffer = 0, clas_buffer = 0, addresses_buffer = 0, sizes_buffer = 0, blas_buffer = 0;
+        uint64_t infos_buffer = 0, clas_buffer = 0, addresses_buffer = 0, sizes_buffer = 0,
+                 blas_buffer = 0;
     };
 
     BenchTraceShape shape_;

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // replay_throughput_bench [--ops N] [--max-ops M] [--dir D] [--threads T] | --write-trace PATH OPS
 // | --child-replay PATH: replay throughput with and
 // without hazard checking next to plain zstd decompression of the same trace, then how
@@ -40,14 +41,16 @@ using namespace clastrace;
 namespace {
 
 double now() {
-    return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+    return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch())
+        .count();
 }
 
 // CPU seconds of the whole process (all threads): steadier than wall time on a busy machine.
 double cpu_now() {
     rusage u{};
     getrusage(RUSAGE_SELF, &u);
-    return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) + 1e-6 * double(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+    return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) +
+           1e-6 * double(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
 }
 
 // The high-water mark of this process image's memory (VmHWM). Not getrusage's ru_maxrss,
@@ -129,7 +132,8 @@ ZstdRun zstd_once(const std::string& path) {
         if (std::fread(payload.data(), 1, compressed_size, f) != compressed_size) break;
         if (kind != 1) continue;  // the index chunk: the replay does not decompress it either
         raw.resize(raw_size);
-        const size_t n = ZSTD_decompressDCtx(dctx, raw.data(), raw.size(), payload.data(), payload.size());
+        const size_t n =
+            ZSTD_decompressDCtx(dctx, raw.data(), raw.size(), payload.data(), payload.size());
         if (ZSTD_isError(n) || n != raw_size) {
             std::fprintf(stderr, "zstd: %s\n", ZSTD_getErrorName(n));
             std::exit(1);
@@ -146,10 +150,12 @@ ZstdRun zstd_once(const std::string& path) {
 
 void require_clean(const replay::ReplayReport& r, const char* what) {
     if (r.clean()) return;
-    std::fprintf(stderr, "warning: %s replay is not clean: %zu findings, %zu hazards, %zu damage\n", what,
-                 r.findings.size(), r.hazards.size(), r.trace_damage.size());
-    if (!r.findings.empty()) std::fprintf(stderr, "  first finding: %s\n", r.findings[0].format().c_str());
-    if (!r.hazards.empty()) std::fprintf(stderr, "  first hazard: %s\n", r.hazards[0].format().c_str());
+    std::fprintf(stderr, "warning: %s replay is not clean: %zu findings, %zu hazards, %zu damage\n",
+                 what, r.findings.size(), r.hazards.size(), r.trace_damage.size());
+    if (!r.findings.empty())
+        std::fprintf(stderr, "  first finding: %s\n", r.findings[0].format().c_str());
+    if (!r.hazards.empty())
+        std::fprintf(stderr, "  first hazard: %s\n", r.hazards[0].format().c_str());
 }
 
 std::string trace_path(const std::string& dir, uint64_t ops) {
@@ -195,8 +201,8 @@ ChildResult run_child(const char* self, const std::string& path) {
     waitpid(pid, &status, 0);
     const size_t at = out.find("RESULT ");
     unsigned long long peak = 0, base = 0, image = 0, commands = 0;
-    if (at != std::string::npos &&
-        std::sscanf(out.c_str() + at, "RESULT %lf %llu %llu %llu %llu", &r.seconds, &peak, &base, &image, &commands) == 5) {
+    if (at != std::string::npos && std::sscanf(out.c_str() + at, "RESULT %lf %llu %llu %llu %llu",
+                                               &r.seconds, &peak, &base, &image, &commands) == 5) {
         r.peak_kb = peak;
         r.base_kb = base;
         r.image_peak = image;
@@ -219,22 +225,28 @@ int main(int argc, char** argv) {
     for (int i = 1; i < argc; ++i) {
         const std::string a = argv[i];
         if (a == "--child-replay" && i + 1 < argc) return child_replay(argv[i + 1]);
-        if (a == "--write-trace" && i + 2 < argc) {  // keep one generated trace, e.g. for a profiler
+        if (a == "--write-trace" &&
+            i + 2 < argc) {  // keep one generated trace, e.g. for a profiler
             bench::BenchTraceShape shape;
             shape.target_ops = std::strtoull(argv[i + 2], nullptr, 10);
             const bench::BenchTraceStats stats = bench::write_bench_trace(argv[i + 1], shape);
-            std::printf("%s: %llu ops, %llu submissions\n", argv[i + 1], (unsigned long long)stats.ops,
-                        (unsigned long long)stats.submissions);
+            std::printf("%s: %llu ops, %llu submissions\n", argv[i + 1],
+                        (unsigned long long)stats.ops, (unsigned long long)stats.submissions);
             return 0;
         }
-        if (a == "--ops" && i + 1 < argc) table_ops = std::strtoull(argv[++i], nullptr, 10);
-        else if (a == "--max-ops" && i + 1 < argc) max_ops = std::strtoull(argv[++i], nullptr, 10);
-        else if (a == "--dir" && i + 1 < argc) dir = argv[++i];
+        if (a == "--ops" && i + 1 < argc)
+            table_ops = std::strtoull(argv[++i], nullptr, 10);
+        else if (a == "--max-ops" && i + 1 < argc)
+            max_ops = std::strtoull(argv[++i], nullptr, 10);
+        else if (a == "--dir" && i + 1 < argc)
+            dir = argv[++i];
         else if (a == "--threads" && i + 1 < argc)
-            threads = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
-                                                            std::strtoull(argv[++i], nullptr, 10));
+            threads =
+                std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
+                                                      std::strtoull(argv[++i], nullptr, 10));
         else {
-            std::fprintf(stderr, "usage: %s [--ops N] [--max-ops M] [--dir D] [--threads T]\n", argv[0]);
+            std::fprintf(stderr, "usage: %s [--ops N] [--max-ops M] [--dir D] [--threads T]\n",
+                         argv[0]);
             return 2;
         }
     }
@@ -267,34 +279,48 @@ int main(int argc, char** argv) {
         require_clean(last_off.report, "hazards-off");
         const double raw = mb(last_on.raw_bytes);
         const double laid = mb(last_on.report.counts.snapshot_bytes);
-        std::printf("replay throughput, %llu ops (%llu cluster ops, %llu commands, %llu submissions), "
-                    "trace %.2f MB on disk, %.2f MB decompressed, %.2f MB of memory laid in; best of %d, engine threads: %s\n",
-                    (unsigned long long)stats.ops, (unsigned long long)stats.cluster_ops,
-                    (unsigned long long)last_on.report.counts.commands, (unsigned long long)stats.submissions,
-                    mb(stats.file_bytes), raw, laid, kRepeats,
-                    threads ? std::to_string(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)).c_str()
-                            : "TBB default");
-        std::printf("| run | wall s | CPU s (all threads) | ops/s (wall) | trace MB/s (decompressed, wall) "
-                    "| memory MB/s (laid in, wall) | wall vs zstd | CPU vs zstd |\n");
+        std::printf(
+            "replay throughput, %llu ops (%llu cluster ops, %llu commands, %llu submissions), "
+            "trace %.2f MB on disk, %.2f MB decompressed, %.2f MB of memory laid in; best of %d, "
+            "engine threads: %s\n",
+            (unsigned long long)stats.ops, (unsigned long long)stats.cluster_ops,
+            (unsigned long long)last_on.report.counts.commands,
+            (unsigned long long)stats.submissions, mb(stats.file_bytes), raw, laid, kRepeats,
+            threads ? std::to_string(tbb::global_control::active_value(
+                                         tbb::global_control::max_allowed_parallelism))
+                          .c_str()
+                    : "TBB default");
+        std::printf(
+            "| run | wall s | CPU s (all threads) | ops/s (wall) | trace MB/s (decompressed, wall) "
+            "| memory MB/s (laid in, wall) | wall vs zstd | CPU vs zstd |\n");
         std::printf("|---|---:|---:|---:|---:|---:|---:|---:|\n");
         auto row = [&](const char* name, double wall, double cpu) {
-            std::printf("| %s | %.3f | %.3f | %.0f | %.1f | %.1f | %.0fx | %.0fx |\n", name, wall, cpu,
-                        double(stats.ops) / wall, raw / wall, laid / wall, wall / z, cpu / std::max(z_cpu, 1e-6));
+            std::printf("| %s | %.3f | %.3f | %.0f | %.1f | %.1f | %.0fx | %.0fx |\n", name, wall,
+                        cpu, double(stats.ops) / wall, raw / wall, laid / wall, wall / z,
+                        cpu / std::max(z_cpu, 1e-6));
         };
         row("replay, hazards on", on, on_cpu);
         row("replay, hazards off (--no-hazards)", off, off_cpu);
-        std::printf("| zstd: read + ZSTD_decompress each chunk (%llu chunks) | %.4f | %.4f | %.0f | %.1f | - | 1x | 1x |\n",
-                    (unsigned long long)zr.chunks, z, z_cpu, double(stats.ops) / z, mb(zr.raw_bytes) / z);
-        std::printf("hazards on / hazards off: %.2fx wall, %.2fx CPU (goal <= 1.2x); accesses checked: %llu\n\n", on / off,
-                    on_cpu / off_cpu, (unsigned long long)last_on.report.counts.accesses);
+        std::printf(
+            "| zstd: read + ZSTD_decompress each chunk (%llu chunks) | %.4f | %.4f | %.0f | %.1f | "
+            "- | 1x | 1x |\n",
+            (unsigned long long)zr.chunks, z, z_cpu, double(stats.ops) / z, mb(zr.raw_bytes) / z);
+        std::printf(
+            "hazards on / hazards off: %.2fx wall, %.2fx CPU (goal <= 1.2x); accesses checked: "
+            "%llu\n\n",
+            on / off, on_cpu / off_cpu, (unsigned long long)last_on.report.counts.accesses);
         std::remove(path.c_str());
     }
 
     // ---- Table 2: growth with trace length, one child process per size.
     if (max_ops > 0) {
-        std::printf("replay time and peak memory by trace length (hazards on; each size in a fresh process)\n");
-        std::printf("| ops | submissions | buffers destroyed | trace MB | replay s | ops/s | peak RSS MB | RSS over start MB "
-                    "| image peak MB | largest submission MB | distinct contents |\n");
+        std::printf(
+            "replay time and peak memory by trace length (hazards on; each size in a fresh "
+            "process)\n");
+        std::printf(
+            "| ops | submissions | buffers destroyed | trace MB | replay s | ops/s | peak RSS MB | "
+            "RSS over start MB "
+            "| image peak MB | largest submission MB | distinct contents |\n");
         std::printf("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
         for (uint64_t ops = 100; ops <= max_ops; ops *= 10) {
             const std::string path = trace_path(dir, ops);
@@ -307,12 +333,13 @@ int main(int argc, char** argv) {
                 std::printf("| %llu | child replay failed |\n", (unsigned long long)ops);
                 continue;
             }
-            std::printf("| %llu | %llu | %llu | %.2f | %.3f | %.0f | %.1f | %.1f | %.2f | %.3f | %llu |\n",
-                        (unsigned long long)stats.ops, (unsigned long long)stats.submissions,
-                        (unsigned long long)stats.buffers_destroyed, mb(stats.file_bytes), c.seconds,
-                        double(stats.ops) / c.seconds, double(c.peak_kb) / 1024.0,
-                        double(c.peak_kb - std::min(c.peak_kb, c.base_kb)) / 1024.0, mb(c.image_peak),
-                        mb(stats.largest_submission_bytes), (unsigned long long)stats.contents);
+            std::printf(
+                "| %llu | %llu | %llu | %.2f | %.3f | %.0f | %.1f | %.1f | %.2f | %.3f | %llu |\n",
+                (unsigned long long)stats.ops, (unsigned long long)stats.submissions,
+                (unsigned long long)stats.buffers_destroyed, mb(stats.file_bytes), c.seconds,
+                double(stats.ops) / c.seconds, double(c.peak_kb) / 1024.0,
+                double(c.peak_kb - std::min(c.peak_kb, c.base_kb)) / 1024.0, mb(c.image_peak),
+                mb(stats.largest_submission_bytes), (unsigned long long)stats.contents);
             std::fflush(stdout);
         }
     }

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Hostile traces against the reader's bounds: for each crafted file, the CPU seconds and
 // peak memory of the reader's full pass with content keys verified (what `clastrace info`
 // does), of replay_trace and of analyze_trace. Each pass runs in a forked child, whose
@@ -50,16 +51,19 @@ public:
         index_.chunks.emplace_back(file_.size(), submissions_, submissions, records, raw_size,
                                    static_cast<uint32_t>(compressed.size()));
         index_.record_count += records;
-        append(compressed, raw_size, kind, records, submissions_, static_cast<uint32_t>(index_.chunks.size() - 1));
+        append(compressed, raw_size, kind, records, submissions_,
+               static_cast<uint32_t>(index_.chunks.size() - 1));
         submissions_ += submissions;
         index_.submission_count = submissions_;
     }
 
     // Index chunk (its payload given, or the real index) and trailer.
-    std::vector<uint8_t> finish(const std::vector<uint8_t>* index_payload = nullptr, uint32_t index_raw = 0) {
+    std::vector<uint8_t> finish(const std::vector<uint8_t>* index_payload = nullptr,
+                                uint32_t index_raw = 0) {
         const uint64_t at = file_.size();
         if (index_payload) {
-            append(*index_payload, index_raw, 2, 0, submissions_, static_cast<uint32_t>(index_.chunks.size()));
+            append(*index_payload, index_raw, 2, 0, submissions_,
+                   static_cast<uint32_t>(index_.chunks.size()));
         } else {
             flatbuffers::FlatBufferBuilder b;
             b.Finish(fbs::TraceIndex::Pack(b, &index_));
@@ -75,11 +79,12 @@ public:
     }
 
 private:
-    void append(const std::vector<uint8_t>& compressed, uint32_t raw_size, uint16_t kind, uint32_t records,
-                uint64_t first_submission, uint32_t number) {
+    void append(const std::vector<uint8_t>& compressed, uint32_t raw_size, uint16_t kind,
+                uint32_t records, uint64_t first_submission, uint32_t number) {
         const f::ChunkHeader h =
-            f::sealed_chunk_header(static_cast<f::ChunkKind>(kind), number, records, first_submission, raw_size,
-                                   compressed.data(), static_cast<uint32_t>(compressed.size()));
+            f::sealed_chunk_header(static_cast<f::ChunkKind>(kind), number, records,
+                                   first_submission, raw_size, compressed.data(),
+                                   static_cast<uint32_t>(compressed.size()));
         const size_t at = file_.size();
         file_.resize(at + sizeof h);
         std::memcpy(file_.data() + at, &h, sizeof h);
@@ -112,7 +117,8 @@ std::vector<uint8_t> submits(uint64_t first, uint32_t count) {
 
 void write(const std::string& path, const std::vector<uint8_t>& bytes) {
     FILE* out = std::fopen(path.c_str(), "wb");
-    if (!out || std::fwrite(bytes.data(), 1, bytes.size(), out) != bytes.size() || std::fclose(out) != 0) {
+    if (!out || std::fwrite(bytes.data(), 1, bytes.size(), out) != bytes.size() ||
+        std::fclose(out) != 0) {
         std::fprintf(stderr, "cannot write %s\n", path.c_str());
         std::exit(2);
     }
@@ -156,7 +162,8 @@ Cost measure(const std::function<void()>& pass) {
     rusage use{};
     wait4(pid, &status, 0, &use);
     Cost c;
-    c.cpu_s = double(use.ru_utime.tv_sec + use.ru_stime.tv_sec) + 1e-6 * double(use.ru_utime.tv_usec + use.ru_stime.tv_usec);
+    c.cpu_s = double(use.ru_utime.tv_sec + use.ru_stime.tv_sec) +
+              1e-6 * double(use.ru_utime.tv_usec + use.ru_stime.tv_usec);
     c.peak_mib = double(use.ru_maxrss) / 1024.0;
     c.status = status;
     return c;
@@ -164,7 +171,9 @@ Cost measure(const std::function<void()>& pass) {
 
 std::unique_ptr<TraceReader> open(const std::string& path) {
     clastrace::traces::TraceError e;
-    auto reader = TraceReader::open(path, &e, clastrace::traces::TraceReaderOptions{.verify_content_keys = true});
+    auto reader =
+        TraceReader::open(path, &e,
+                          clastrace::traces::TraceReaderOptions{.verify_content_keys = true});
     if (!reader) {
         std::fprintf(stderr, "%s\n", e.message.c_str());
         _exit(2);
@@ -183,14 +192,15 @@ int main(int argc, char** argv) {
          [] {
              HostileFile file;
              small_chunks(file, 3);
-             const std::vector<uint8_t> payload = compress(std::vector<uint8_t>(f::kMaxIndexRawBytes, 0));
+             const std::vector<uint8_t> payload =
+                 compress(std::vector<uint8_t>(f::kMaxIndexRawBytes, 0));
              return file.finish(&payload, f::kMaxIndexRawBytes);
          }},
         {"broken frames (256 MiB chunk)",
          [] {
              HostileFile file;
              std::vector<uint8_t> raw(f::kMaxChunkRawBytes, 0xff);  // frames claiming 4 GiB records
-             std::vector<uint8_t> zeros(f::kMaxChunkRawBytes, 0);     // frames of size 0
+             std::vector<uint8_t> zeros(f::kMaxChunkRawBytes, 0);   // frames of size 0
              file.add_chunk(compress(raw), f::kMaxChunkRawBytes, 1, 0);
              file.add_chunk(compress(zeros), f::kMaxChunkRawBytes, 1, 0);
              return file.finish();
@@ -200,7 +210,8 @@ int main(int argc, char** argv) {
              HostileFile file;
              for (int i = 0; i < 3; ++i) {
                  std::vector<uint8_t> raw = submits(uint64_t(i) * 4, 4);
-                 file.add_chunk(compress(raw), static_cast<uint32_t>(raw.size()), 4, 4, i == 1 ? 3 : 1);
+                 file.add_chunk(compress(raw), static_cast<uint32_t>(raw.size()), 4, 4,
+                                i == 1 ? 3 : 1);
              }
              return file.finish();
          }},
@@ -222,8 +233,7 @@ int main(int argc, char** argv) {
              [&] {
                  auto reader = open(path);
                  clastrace::traces::RecordView v;
-                 while (reader->next(&v)) {
-                 }
+                 while (reader->next(&v)) {}
                  _exit(reader->damage_count() > 255 ? 255 : int(reader->damage_count()));
              }},
             {"replay_trace",
@@ -244,9 +254,10 @@ int main(int argc, char** argv) {
         };
         for (const auto& [name, pass] : passes) {
             Cost cost = measure(pass);
-            if (std::string(name) == "reader (info)") damage = WIFEXITED(cost.status) ? WEXITSTATUS(cost.status) : 0;
-            std::printf("| %s | %.3f MB | %s | %.2f | %.2f | %.0f | %s |\n", c.name, mb, name, cost.cpu_s,
-                        cost.cpu_s / mb, cost.peak_mib,
+            if (std::string(name) == "reader (info)")
+                damage = WIFEXITED(cost.status) ? WEXITSTATUS(cost.status) : 0;
+            std::printf("| %s | %.3f MB | %s | %.2f | %.2f | %.0f | %s |\n", c.name, mb, name,
+                        cost.cpu_s, cost.cpu_s / mb, cost.peak_mib,
                         std::string(name) == "reader (info)" ? std::to_string(damage).c_str() : "");
             std::fflush(stdout);
         }

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // trace_throughput_bench [MB] [DIR]: trace write and read throughput next to plain zstd
 // at the same level on the same bytes. Goal: both ratios >= 0.8.
 //
@@ -47,7 +48,8 @@ struct Elapsed {
     double wall, cpu;
 };
 Elapsed seconds_since(Stamp t) {
-    return {std::chrono::duration<double>(std::chrono::steady_clock::now() - t.wall).count(), cpu_now() - t.cpu};
+    return {std::chrono::duration<double>(std::chrono::steady_clock::now() - t.wall).count(),
+            cpu_now() - t.cpu};
 }
 
 struct Frame {
@@ -67,7 +69,8 @@ Frame make_frame(int frame, int clusters, std::mt19937& rng) {
                 float fx = ox + x / 8.0f, fy = oy + y / 8.0f;
                 v.push_back(fx);
                 v.push_back(fy);
-                v.push_back(0.25f * std::sin(fx * 0.7f + frame * 0.05f) * std::cos(fy * 0.3f) + noise(rng));
+                v.push_back(0.25f * std::sin(fx * 0.7f + frame * 0.05f) * std::cos(fy * 0.3f) +
+                            noise(rng));
             }
     }
     f.vertices.resize(v.size() * 4);
@@ -106,8 +109,8 @@ struct Result {
     Elapsed write, zstd_c, read, read_keys, zstd_d;  // read: default options
 };
 
-Result run(const std::vector<Frame>& frames, const std::vector<int>& repeat_of, int level, uint32_t chunk,
-           const std::string& path) {
+Result run(const std::vector<Frame>& frames, const std::vector<int>& repeat_of, int level,
+           uint32_t chunk, const std::string& path) {
     Result r{};
     // Trace write: every frame's snapshots go through add_contents and one build record.
     TraceError e;
@@ -155,7 +158,8 @@ Result run(const std::vector<Frame>& frames, const std::vector<int>& repeat_of, 
         if (seen[repeat_of[i]]) continue;
         seen[repeat_of[i]] = true;
         const Frame& f = frames[repeat_of[i]];
-        for (const std::vector<uint8_t>* bytes : {&f.infos, &f.indices, &f.vertices}) plain.insert(plain.end(), bytes->begin(), bytes->end());
+        for (const std::vector<uint8_t>* bytes : {&f.infos, &f.indices, &f.vertices})
+            plain.insert(plain.end(), bytes->begin(), bytes->end());
     }
     ZSTD_CCtx* cctx = ZSTD_createCCtx();
     std::vector<std::vector<uint8_t>> blocks;
@@ -203,8 +207,9 @@ Result run(const std::vector<Frame>& frames, const std::vector<int>& repeat_of, 
         }
         (verify ? r.read_keys : r.read) = seconds_since(t0);
         if (reader->damage_count() != 0 || read_bytes != raw) {
-            std::fprintf(stderr, "read back %llu of %llu bytes, %llu damage\n", (unsigned long long)read_bytes,
-                         (unsigned long long)raw, (unsigned long long)reader->damage_count());
+            std::fprintf(stderr, "read back %llu of %llu bytes, %llu damage\n",
+                         (unsigned long long)read_bytes, (unsigned long long)raw,
+                         (unsigned long long)reader->damage_count());
             std::exit(1);
         }
     }
@@ -225,30 +230,40 @@ int main(int argc, char** argv) {
     double stored = 0;
     for (int i = 0; stored < target_mb * 1e6; ++i) {
         if (i % 4 == 3) {
-            repeat_of.push_back(static_cast<int>(frames.size()) - 1);  // the previous geometry again
+            repeat_of.push_back(static_cast<int>(frames.size()) -
+                                1);  // the previous geometry again
             frames.push_back({});
             continue;
         }
         frames.push_back(make_frame(i, clusters, rng));
         repeat_of.push_back(i);
-        stored += frames.back().vertices.size() + frames.back().indices.size() + frames.back().infos.size();
+        stored += frames.back().vertices.size() + frames.back().indices.size() +
+                  frames.back().infos.size();
     }
-    std::printf("trace throughput vs plain zstd (same level, same stored bytes, %u-byte chunks; %zu frames, every 4th repeated)\n",
-                4u << 20, frames.size());
-    std::printf("MB/s of stored bytes; 'wall' = elapsed time, 'cpu' = process CPU time of all threads\n");
-    std::printf("%-5s %7s | %-27s | %-27s | %-27s | %-27s | %6s %6s\n", "level", "raw MB", "trace write MB/s wall (cpu)",
-                "zstd compress MB/s wall(cpu)", "trace read MB/s wall (cpu)", "zstd decomp MB/s wall (cpu)", "trace", "zstd");
+    std::printf(
+        "trace throughput vs plain zstd (same level, same stored bytes, %u-byte chunks; %zu "
+        "frames, every 4th repeated)\n",
+        4u << 20, frames.size());
+    std::printf(
+        "MB/s of stored bytes; 'wall' = elapsed time, 'cpu' = process CPU time of all threads\n");
+    std::printf("%-5s %7s | %-27s | %-27s | %-27s | %-27s | %6s %6s\n", "level", "raw MB",
+                "trace write MB/s wall (cpu)", "zstd compress MB/s wall(cpu)",
+                "trace read MB/s wall (cpu)", "zstd decomp MB/s wall (cpu)", "trace", "zstd");
     for (int level : {1, 3, 9}) {
         Result r = run(frames, repeat_of, level, 4u << 20, dir + "/clastrace-bench.clt");
         auto mbs = [&](double s) { return r.raw_mb / s; };
-        std::printf("%-5d %7.1f | %7.1f (%7.1f)           | %7.1f (%7.1f)           | %7.1f (%7.1f)           | %7.1f (%7.1f)           | %5.2fx %5.2fx\n",
-                    level, r.raw_mb, mbs(r.write.wall), mbs(r.write.cpu), mbs(r.zstd_c.wall), mbs(r.zstd_c.cpu),
-                    mbs(r.read.wall), mbs(r.read.cpu), mbs(r.zstd_d.wall), mbs(r.zstd_d.cpu), r.trace_ratio, r.zstd_ratio);
-        std::printf("      ratio vs zstd: write %.2fx wall, %.2fx cpu;  read %.2fx wall, %.2fx cpu"
-                    "  (with content-key check: %.1f MB/s wall, %.2fx wall, %.2fx cpu)\n",
-                    r.zstd_c.wall / r.write.wall, r.zstd_c.cpu / r.write.cpu, r.zstd_d.wall / r.read.wall,
-                    r.zstd_d.cpu / r.read.cpu, mbs(r.read_keys.wall), r.zstd_d.wall / r.read_keys.wall,
-                    r.zstd_d.cpu / r.read_keys.cpu);
+        std::printf(
+            "%-5d %7.1f | %7.1f (%7.1f)           | %7.1f (%7.1f)           | %7.1f (%7.1f)        "
+            "   | %7.1f (%7.1f)           | %5.2fx %5.2fx\n",
+            level, r.raw_mb, mbs(r.write.wall), mbs(r.write.cpu), mbs(r.zstd_c.wall),
+            mbs(r.zstd_c.cpu), mbs(r.read.wall), mbs(r.read.cpu), mbs(r.zstd_d.wall),
+            mbs(r.zstd_d.cpu), r.trace_ratio, r.zstd_ratio);
+        std::printf(
+            "      ratio vs zstd: write %.2fx wall, %.2fx cpu;  read %.2fx wall, %.2fx cpu"
+            "  (with content-key check: %.1f MB/s wall, %.2fx wall, %.2fx cpu)\n",
+            r.zstd_c.wall / r.write.wall, r.zstd_c.cpu / r.write.cpu, r.zstd_d.wall / r.read.wall,
+            r.zstd_d.cpu / r.read.cpu, mbs(r.read_keys.wall), r.zstd_d.wall / r.read_keys.wall,
+            r.zstd_d.cpu / r.read_keys.cpu);
     }
     return 0;
 }
