@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The sample's scene: every op of VK_NV_cluster_acceleration_structure over one clustered
 // mesh, recorded in one command buffer whose src infos are written by GPU copies from a
 // staging buffer, with the barriers the spec requires (each can be left out by name).
@@ -15,38 +16,39 @@ namespace cluster_scene {
 
 // A barrier the scene records, and what leaving it out breaks.
 struct BarrierInfo {
-  const char* name;
-  const char* orders;  // "<earlier command> -> <later command>: <what>"
+    const char* name;
+    const char* orders;  // "<earlier command> -> <later command>: <what>"
 };
 const std::vector<BarrierInfo>& barrierCatalogue();
 
 struct SceneOptions {
-  std::set<std::string> skipBarriers;  // names from barrierCatalogue()
-  uint32_t queueIndex = 0;             // which of the context's queues to submit to
-  std::function<void()> beforeRecording;  // called once resources exist (threads line up here)
+    std::set<std::string> skipBarriers;     // names from barrierCatalogue()
+    uint32_t queueIndex = 0;                // which of the context's queues to submit to
+    std::function<void()> beforeRecording;  // called once resources exist (threads line up here)
 };
 
 // What one vkCmdBuildClusterAccelerationStructureIndirectNV wrote, read back after the fence.
 struct BuildOutputs {
-  std::string label;
-  uint32_t opType = 0, opMode = 0, ops = 0;
-  uint64_t dstAddressesArray = 0, dstSizesArray = 0, dstImplicitData = 0;
-  std::vector<uint64_t> addresses;       // implicit mode: where each object went
-  std::vector<uint32_t> sizes;           // bytes of each object
-  std::vector<uint64_t> objectDigests;   // FNV-1a 64 of each object's bytes (implicit mode)
-  std::string addressesHex, sizesHex;    // the two arrays' bytes as read back
+    std::string label;
+    uint32_t opType = 0, opMode = 0, ops = 0;
+    uint64_t dstAddressesArray = 0, dstSizesArray = 0, dstImplicitData = 0;
+    std::vector<uint64_t> addresses;      // implicit mode: where each object went
+    std::vector<uint32_t> sizes;          // bytes of each object
+    std::vector<uint64_t> objectDigests;  // FNV-1a 64 of each object's bytes (implicit mode)
+    std::string addressesHex, sizesHex;   // the two arrays' bytes as read back
 };
 
 struct SceneResult {
-  uint64_t commandBuffer = 0;               // the handle, as the trace names it
-  std::vector<std::string> commands;        // "copy:...", "barrier:NAME", "build:..." in record order
-  uint32_t copies = 0, barriers = 0, builds = 0;
-  std::vector<BuildOutputs> outputs;        // one per build, in record order
+    uint64_t commandBuffer = 0;         // the handle, as the trace names it
+    std::vector<std::string> commands;  // "copy:...", "barrier:NAME", "build:..." in record order
+    uint32_t copies = 0, barriers = 0, builds = 0;
+    std::vector<BuildOutputs> outputs;  // one per build, in record order
 };
 
 // Creates the scene's buffers, records and submits its command buffer, waits, reads back
 // and frees everything. Throws VulkanError / std::runtime_error with the reason.
-SceneResult runScene(VulkanContext& context, const ClusteredMesh& mesh, const SceneOptions& options);
+SceneResult runScene(VulkanContext& context, const ClusteredMesh& mesh,
+                     const SceneOptions& options);
 
 uint64_t fnv1a64(const uint8_t* data, size_t size);
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // cluster_scene: a sample application for VK_NV_cluster_acceleration_structure.
 //
 // Loads an OBJ mesh, clusters it with meshoptimizer and runs every op of the extension over
@@ -28,155 +29,177 @@ constexpr const char* kDefaultMesh = "/usr/share/assimp/models/OBJ/WusonOBJ.obj"
 constexpr int kExitFailure = 2, kExitNoExtension = 3;
 
 const char* opTypeName(uint32_t type) {
-  static const char* names[] = {"move", "bottom-level", "triangle-cluster", "template", "instantiate", "template-indices"};
-  return type < 6 ? names[type] : "?";
+    static const char* names[] = {"move",     "bottom-level", "triangle-cluster",
+                                  "template", "instantiate",  "template-indices"};
+    return type < 6 ? names[type] : "?";
 }
 const char* opModeName(uint32_t mode) {
-  static const char* names[] = {"implicit", "explicit", "compute-sizes"};
-  return mode < 3 ? names[mode] : "?";
+    static const char* names[] = {"implicit", "explicit", "compute-sizes"};
+    return mode < 3 ? names[mode] : "?";
 }
 
 std::string hex64(uint64_t v) {
-  char text[24];
-  std::snprintf(text, sizeof text, "0x%016" PRIx64, v);
-  return text;
+    char text[24];
+    std::snprintf(text, sizeof text, "0x%016" PRIx64, v);
+    return text;
 }
 
 nlohmann::json toJson(const SceneResult& scene) {
-  nlohmann::json builds = nlohmann::json::array();
-  for (const BuildOutputs& b : scene.outputs) {
-    nlohmann::json digests = nlohmann::json::array();
-    for (uint64_t d : b.objectDigests) digests.push_back(hex64(d));
-    builds.push_back({{"label", b.label},
-                      {"opType", b.opType},
-                      {"opTypeName", opTypeName(b.opType)},
-                      {"opMode", b.opMode},
-                      {"opModeName", opModeName(b.opMode)},
-                      {"ops", b.ops},
-                      {"dstAddressesArray", b.dstAddressesArray},
-                      {"dstSizesArray", b.dstSizesArray},
-                      {"dstImplicitData", b.dstImplicitData},
-                      {"addresses", b.addresses},
-                      {"sizes", b.sizes},
-                      {"objectDigests", digests},
-                      {"addressesBytes", b.addressesHex},
-                      {"sizesBytes", b.sizesHex}});
-  }
-  return {{"commandBuffer", scene.commandBuffer},
-          {"commands", scene.commands},
-          {"counts", {{"copies", scene.copies}, {"barriers", scene.barriers}, {"builds", scene.builds}}},
-          {"builds", builds}};
+    nlohmann::json builds = nlohmann::json::array();
+    for (const BuildOutputs& b : scene.outputs) {
+        nlohmann::json digests = nlohmann::json::array();
+        for (uint64_t d : b.objectDigests) digests.push_back(hex64(d));
+        builds.push_back({{"label", b.label},
+                          {"opType", b.opType},
+                          {"opTypeName", opTypeName(b.opType)},
+                          {"opMode", b.opMode},
+                          {"opModeName", opModeName(b.opMode)},
+                          {"ops", b.ops},
+                          {"dstAddressesArray", b.dstAddressesArray},
+                          {"dstSizesArray", b.dstSizesArray},
+                          {"dstImplicitData", b.dstImplicitData},
+                          {"addresses", b.addresses},
+                          {"sizes", b.sizes},
+                          {"objectDigests", digests},
+                          {"addressesBytes", b.addressesHex},
+                          {"sizesBytes", b.sizesHex}});
+    }
+    return {{"commandBuffer", scene.commandBuffer},
+            {"commands", scene.commands},
+            {"counts",
+             {{"copies", scene.copies}, {"barriers", scene.barriers}, {"builds", scene.builds}}},
+            {"builds", builds}};
 }
 
 void printText(const SceneResult& scene, size_t index) {
-  std::printf("command buffer %zu: %u copies, %u barriers, %u builds\n", index, scene.copies, scene.barriers, scene.builds);
-  for (const BuildOutputs& b : scene.outputs) {
-    uint64_t bytes = 0, digest = 0xcbf29ce484222325ull;
-    for (uint32_t s : b.sizes) bytes += s;
-    for (uint64_t d : b.objectDigests) digest = fnv1a64(reinterpret_cast<const uint8_t*>(&d), 8) ^ (digest * 31);
-    std::printf("  %-17s %-16s %-13s ops %3u  bytes %8" PRIu64, b.label.c_str(), opTypeName(b.opType),
-                opModeName(b.opMode), b.ops, bytes);
-    if (!b.addresses.empty())
-      std::printf("  first %s  objects digest %s", hex64(b.addresses[0]).c_str(), hex64(digest).c_str());
-    std::printf("\n");
-  }
+    std::printf("command buffer %zu: %u copies, %u barriers, %u builds\n", index, scene.copies,
+                scene.barriers, scene.builds);
+    for (const BuildOutputs& b : scene.outputs) {
+        uint64_t bytes = 0, digest = 0xcbf29ce484222325ull;
+        for (uint32_t s : b.sizes) bytes += s;
+        for (uint64_t d : b.objectDigests)
+            digest = fnv1a64(reinterpret_cast<const uint8_t*>(&d), 8) ^ (digest * 31);
+        std::printf("  %-17s %-16s %-13s ops %3u  bytes %8" PRIu64, b.label.c_str(),
+                    opTypeName(b.opType), opModeName(b.opMode), b.ops, bytes);
+        if (!b.addresses.empty())
+            std::printf("  first %s  objects digest %s", hex64(b.addresses[0]).c_str(),
+                        hex64(digest).c_str());
+        std::printf("\n");
+    }
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{
-      "cluster_scene: every op of VK_NV_cluster_acceleration_structure over a clustered OBJ mesh, with src infos "
-      "written by GPU copies and the barriers they need. Without the extension in the driver, run it under the "
-      "capture layer: clastrace capture -o scene.clt -- cluster_scene"};
-  std::string meshPath = kDefaultMesh;
-  uint32_t maxClusters = 0, clusterVertices = 64, clusterTriangles = 124, threads = 1;
-  std::vector<std::string> skip;
-  bool listBarriers = false, json = false;
-  app.add_option("mesh", meshPath, "OBJ file to cluster")->capture_default_str();
-  app.add_option("--max-clusters", maxClusters, "build only the first N clusters (0: all)")->capture_default_str();
-  app.add_option("--cluster-vertices", clusterVertices, "vertices per cluster, at most")
-      ->check(CLI::Range(3u, 255u))->capture_default_str();
-  app.add_option("--cluster-triangles", clusterTriangles, "triangles per cluster, at most (a multiple of 4)")
-      ->check(CLI::Range(4u, 256u))->capture_default_str();
-  app.add_option("--skip-barrier", skip, "leave out the barrier NAME (repeatable; --list-barriers prints the names)");
-  app.add_flag("--list-barriers", listBarriers, "print the barriers that can be left out and exit");
-  app.add_option("--threads", threads, "record this many command buffers on as many threads (1 or 2)")
-      ->check(CLI::Range(1u, 2u))->capture_default_str();
-  app.add_flag("--json", json, "print one JSON object with everything the builds wrote");
-  CLI11_PARSE(app, argc, argv);
+    CLI::App app{
+        "cluster_scene: every op of VK_NV_cluster_acceleration_structure over a clustered OBJ "
+        "mesh, with src infos "
+        "written by GPU copies and the barriers they need. Without the extension in the driver, "
+        "run it under the "
+        "capture layer: clastrace capture -o scene.clt -- cluster_scene"};
+    std::string meshPath = kDefaultMesh;
+    uint32_t maxClusters = 0, clusterVertices = 64, clusterTriangles = 124, threads = 1;
+    std::vector<std::string> skip;
+    bool listBarriers = false, json = false;
+    app.add_option("mesh", meshPath, "OBJ file to cluster")->capture_default_str();
+    app.add_option("--max-clusters", maxClusters, "build only the first N clusters (0: all)")
+        ->capture_default_str();
+    app.add_option("--cluster-vertices", clusterVertices, "vertices per cluster, at most")
+        ->check(CLI::Range(3u, 255u))
+        ->capture_default_str();
+    app.add_option("--cluster-triangles", clusterTriangles,
+                   "triangles per cluster, at most (a multiple of 4)")
+        ->check(CLI::Range(4u, 256u))
+        ->capture_default_str();
+    app.add_option("--skip-barrier", skip,
+                   "leave out the barrier NAME (repeatable; --list-barriers prints the names)");
+    app.add_flag("--list-barriers", listBarriers,
+                 "print the barriers that can be left out and exit");
+    app.add_option("--threads", threads,
+                   "record this many command buffers on as many threads (1 or 2)")
+        ->check(CLI::Range(1u, 2u))
+        ->capture_default_str();
+    app.add_flag("--json", json, "print one JSON object with everything the builds wrote");
+    CLI11_PARSE(app, argc, argv);
 
-  if (listBarriers) {
-    for (const BarrierInfo& b : barrierCatalogue()) std::printf("%-30s %s\n", b.name, b.orders);
-    return 0;
-  }
-  if (clusterTriangles % 4 != 0) {
-    std::fprintf(stderr, "cluster_scene: --cluster-triangles %u is not a multiple of 4 (meshoptimizer needs it)\n",
-                 clusterTriangles);
-    return 1;
-  }
-  try {
-    TriangleMesh mesh;
-    std::string error;
-    if (!loadObj(meshPath, mesh, error)) {
-      std::fprintf(stderr, "cluster_scene: %s\n", error.c_str());
-      return kExitFailure;
+    if (listBarriers) {
+        for (const BarrierInfo& b : barrierCatalogue()) std::printf("%-30s %s\n", b.name, b.orders);
+        return 0;
     }
-    const ClusteredMesh clusters = clusterMesh(mesh, clusterVertices, clusterTriangles, maxClusters);
-    VulkanContext context;
-    std::vector<SceneResult> scenes(threads);
-    SceneOptions options;
-    options.skipBarriers = {skip.begin(), skip.end()};
-    if (threads == 1) {
-      scenes[0] = runScene(context, clusters, options);
-    } else {
-      // Each thread records (and submits) its own command buffer from its own pool; they
-      // start recording together so the layer sees the calls interleaved.
-      std::barrier<> start{std::ptrdiff_t(threads)};
-      std::vector<std::exception_ptr> failures(threads);
-      std::vector<std::thread> workers;
-      for (uint32_t t = 0; t < threads; ++t)
-        workers.emplace_back([&, t] {
-          SceneOptions mine = options;
-          mine.queueIndex = t;
-          mine.beforeRecording = [&] { start.arrive_and_wait(); };
-          try {
-            scenes[t] = runScene(context, clusters, mine);
-          } catch (...) {
-            failures[t] = std::current_exception();
-            start.arrive_and_drop();  // harmless if it already arrived: the run is failing anyway
-          }
-        });
-      for (auto& w : workers) w.join();
-      for (auto& f : failures)
-        if (f) std::rethrow_exception(f);
+    if (clusterTriangles % 4 != 0) {
+        std::fprintf(stderr,
+                     "cluster_scene: --cluster-triangles %u is not a multiple of 4 (meshoptimizer "
+                     "needs it)\n",
+                     clusterTriangles);
+        return 1;
     }
+    try {
+        TriangleMesh mesh;
+        std::string error;
+        if (!loadObj(meshPath, mesh, error)) {
+            std::fprintf(stderr, "cluster_scene: %s\n", error.c_str());
+            return kExitFailure;
+        }
+        const ClusteredMesh clusters =
+            clusterMesh(mesh, clusterVertices, clusterTriangles, maxClusters);
+        VulkanContext context;
+        std::vector<SceneResult> scenes(threads);
+        SceneOptions options;
+        options.skipBarriers = {skip.begin(), skip.end()};
+        if (threads == 1) {
+            scenes[0] = runScene(context, clusters, options);
+        } else {
+            // Each thread records (and submits) its own command buffer from its own pool; they
+            // start recording together so the layer sees the calls interleaved.
+            std::barrier<> start{std::ptrdiff_t(threads)};
+            std::vector<std::exception_ptr> failures(threads);
+            std::vector<std::thread> workers;
+            for (uint32_t t = 0; t < threads; ++t)
+                workers.emplace_back([&, t] {
+                    SceneOptions mine = options;
+                    mine.queueIndex = t;
+                    mine.beforeRecording = [&] { start.arrive_and_wait(); };
+                    try {
+                        scenes[t] = runScene(context, clusters, mine);
+                    } catch (...) {
+                        failures[t] = std::current_exception();
+                        start
+                            .arrive_and_drop();  // harmless if it already arrived: the run is failing anyway
+                    }
+                });
+            for (auto& w : workers) w.join();
+            for (auto& f : failures)
+                if (f) std::rethrow_exception(f);
+        }
 
-    if (json) {
-      nlohmann::json out = {{"mesh", meshPath},
-                            {"device", context.deviceName()},
-                            {"vertices", mesh.vertexCount()},
-                            {"triangles", mesh.triangleCount()},
-                            {"clusters", clusters.clusters.size()},
-                            {"clusterVertices", clusters.totalVertices()},
-                            {"clusterTriangles", clusters.totalTriangles()},
-                            {"queues", context.queueCount()},
-                            {"skippedBarriers", skip},
-                            {"scenes", nlohmann::json::array()}};
-      for (const SceneResult& s : scenes) out["scenes"].push_back(toJson(s));
-      std::printf("%s\n", out.dump(1).c_str());
-    } else {
-      std::printf("%s: %zu vertices, %zu triangles -> %zu clusters (%u vertices, %u triangles) on %s\n", meshPath.c_str(),
-                  mesh.vertexCount(), mesh.triangleCount(), clusters.clusters.size(), clusters.totalVertices(),
-                  clusters.totalTriangles(), context.deviceName().c_str());
-      for (size_t i = 0; i < scenes.size(); ++i) printText(scenes[i], i);
+        if (json) {
+            nlohmann::json out = {{"mesh", meshPath},
+                                  {"device", context.deviceName()},
+                                  {"vertices", mesh.vertexCount()},
+                                  {"triangles", mesh.triangleCount()},
+                                  {"clusters", clusters.clusters.size()},
+                                  {"clusterVertices", clusters.totalVertices()},
+                                  {"clusterTriangles", clusters.totalTriangles()},
+                                  {"queues", context.queueCount()},
+                                  {"skippedBarriers", skip},
+                                  {"scenes", nlohmann::json::array()}};
+            for (const SceneResult& s : scenes) out["scenes"].push_back(toJson(s));
+            std::printf("%s\n", out.dump(1).c_str());
+        } else {
+            std::printf(
+                "%s: %zu vertices, %zu triangles -> %zu clusters (%u vertices, %u triangles) on "
+                "%s\n",
+                meshPath.c_str(), mesh.vertexCount(), mesh.triangleCount(),
+                clusters.clusters.size(), clusters.totalVertices(), clusters.totalTriangles(),
+                context.deviceName().c_str());
+            for (size_t i = 0; i < scenes.size(); ++i) printText(scenes[i], i);
+        }
+        return 0;
+    } catch (const MissingExtension& e) {
+        std::fprintf(stderr, "cluster_scene: %s\n", e.what());
+        return kExitNoExtension;
+    } catch (const std::exception& e) {
+        std::fprintf(stderr, "cluster_scene: %s\n", e.what());
+        return kExitFailure;
     }
-    return 0;
-  } catch (const MissingExtension& e) {
-    std::fprintf(stderr, "cluster_scene: %s\n", e.what());
-    return kExitNoExtension;
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "cluster_scene: %s\n", e.what());
-    return kExitFailure;
-  }
 }

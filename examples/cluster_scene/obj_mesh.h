@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // A Wavefront OBJ reader for the sample: positions and faces only (normals, texture
 // coordinates, groups and materials are skipped), polygons fanned into triangles.
 #pragma once
@@ -9,10 +10,10 @@
 namespace cluster_scene {
 
 struct TriangleMesh {
-  std::vector<float> positions;   // xyz per vertex
-  std::vector<uint32_t> indices;  // three per triangle
-  size_t vertexCount() const { return positions.size() / 3; }
-  size_t triangleCount() const { return indices.size() / 3; }
+    std::vector<float> positions;   // xyz per vertex
+    std::vector<uint32_t> indices;  // three per triangle
+    size_t vertexCount() const { return positions.size() / 3; }
+    size_t triangleCount() const { return indices.size() / 3; }
 };
 
 // Reads `path`. On failure returns false and sets `error` to "FILE:LINE: what is wrong".
