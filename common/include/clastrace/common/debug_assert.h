@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // CLASTRACE_DEBUG_ASSERT(condition): an invariant of an internal data structure, checked only in
 // builds made to find bugs. CMake defines CLASTRACE_DEBUG_LEVEL=1 for Debug, sanitizer
 // (CLASTRACE_SANITIZE) and libFuzzer (CLASTRACE_FUZZ) builds, or when -DCLASTRACE_DEBUG_LEVEL=1
@@ -28,8 +29,8 @@ namespace clastrace::common {
 
 }  // namespace clastrace::common
 
-#define CLASTRACE_DEBUG_ASSERT(condition)                                                          \
-    ((condition) ? static_cast<void>(0)                                                            \
+#define CLASTRACE_DEBUG_ASSERT(condition) \
+    ((condition) ? static_cast<void>(0)   \
                  : ::clastrace::common::debug_assert_failed(__FILE__, __LINE__, #condition))
 
 #else

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Hexadecimal text of numbers and byte strings, the one spelling every part uses in its
 // messages: lowercase digits, numbers with a 0x prefix, bytes without one.
 #pragma once
