@@ -132,7 +132,9 @@ void followTriangleCluster(Walker& walker, uint32_t entry, const uint8_t* bytes,
   const uint32_t indexBytes = indexFormatBytes(info.indexType);
   if (indexBytes == 0)
     walker.issue(info.indexBuffer, 0,
-                 "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-indexType-10495: indexType " +
+                 std::string(isTemplate ? "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-indexType-10500"
+                                        : "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-indexType-10491") +
+                     ": indexType " +
                      std::to_string(info.indexType) + " of srcInfosArray entry " + std::to_string(entry) +
                      " is not a single index format bit");
   else
@@ -156,7 +158,10 @@ void followTriangleCluster(Walker& walker, uint32_t entry, const uint8_t* bytes,
     const uint32_t ommIndexBytes = indexFormatBytes(info.opacityMicromapIndexType);
     if (ommIndexBytes == 0)
       walker.issue(info.opacityMicromapIndexBuffer, 0,
-                   "opacityMicromapIndexType of srcInfosArray entry " + std::to_string(entry) +
+                   std::string(isTemplate
+                                   ? "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-opacityMicromapIndexType-10501"
+                                   : "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-opacityMicromapIndexType-10492") +
+                       ": opacityMicromapIndexType of srcInfosArray entry " + std::to_string(entry) +
                        " is not a single index format bit");
     else
       walker.captureStrided(MemoryRole::OpacityMicromapIndices, entry, info.opacityMicromapIndexBuffer, triangles,
@@ -215,11 +220,38 @@ bool resolveIndirectAddress(Walker& walker, VkDeviceAddress& address) {
   return true;
 }
 
-bool resolveIndirectRegion(Walker& walker, VkStridedDeviceAddressRegionKHR& region) {
-  if (region.deviceAddress == 0) return true;
-  if (!walker.capture(MemoryRole::IndirectAddress, 0, region.deviceAddress, sizeof region)) return false;
-  std::memcpy(&region, walker.lastBytes()->data(), sizeof region);
-  return true;
+// A strided region's cell holds its deviceAddress only; stride and size stay the command's
+// (docs/spec-readings.md). Cells of fields the walk does not follow are captured too: replay
+// reads them again.
+void captureIndirectCells(Walker& walker, const Info& info) {
+  const auto flags = info.addressResolutionFlags;
+  const auto mode = info.input.opMode;
+  VkDeviceAddress scratch = info.scratchData, implicitData = info.dstImplicitData,
+                  sizes = info.dstSizesArray.deviceAddress;
+  if (flags & VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_SCRATCH_DATA_BIT_NV)
+    resolveIndirectAddress(walker, scratch);
+  if (mode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV &&
+      (flags & VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_IMPLICIT_DATA_BIT_NV))
+    resolveIndirectAddress(walker, implicitData);
+  if (flags & VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_SIZES_ARRAY_BIT_NV)
+    resolveIndirectAddress(walker, sizes);
+}
+
+// dstAddressesArray's address after its indirection, if any (the cell is captured).
+bool resolveDstAddresses(Walker& walker, const Info& info, VkDeviceAddress& address) {
+  address = info.dstAddressesArray.deviceAddress;
+  if (!(info.addressResolutionFlags & VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_ADDRESS_ARRAY_BIT_NV))
+    return true;
+  return resolveIndirectAddress(walker, address);
+}
+
+// The outputs walk reads a cell again to find its array; the cell is an input, kept by the
+// inputs walk, so it is not kept here.
+bool followIndirectCell(Walker& walker, VkDeviceAddress& address) {
+  const size_t before = walker.result().ranges.size();
+  const bool ok = resolveIndirectAddress(walker, address);
+  walker.result().ranges.resize(before);
+  return ok;
 }
 
 }  // namespace
@@ -265,7 +297,8 @@ ClusterMemoryWalk walkClusterInputs(const ClusterCommandParameters& p, const Dev
   }
   VkStridedDeviceAddressRegionKHR src = info.srcInfosArray;
   if (flags & VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_SRC_INFOS_ARRAY_BIT_NV)
-    if (!resolveIndirectRegion(walker, src)) return out;
+    if (!resolveIndirectAddress(walker, src.deviceAddress)) return out;
+  captureIndirectCells(walker, info);
   const uint64_t stride = src.stride ? src.stride : entryBytes;
   if (src.size != 0) {
     const uint64_t available = src.size < entryBytes ? 0 : (src.size - entryBytes) / stride + 1;
@@ -304,9 +337,13 @@ ClusterMemoryWalk walkClusterInputs(const ClusterCommandParameters& p, const Dev
   for (uint32_t i = 0; i < count; ++i) followEntry(walker, i, entries.data() + uint64_t(i) * entryBytes, p, templateVertexCount);
 
   // Explicit destinations are read by the command, not written.
+  VkDeviceAddress dstAddresses = 0;
+  if (info.input.opMode != VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_COMPUTE_SIZES_NV &&
+      !resolveDstAddresses(walker, info, dstAddresses))
+    return out;
   if (info.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV) {
-    walker.captureStrided(MemoryRole::DstAddresses, 0, info.dstAddressesArray.deviceAddress, count,
-                          info.dstAddressesArray.stride, sizeof(VkDeviceAddress));
+    walker.captureStrided(MemoryRole::DstAddresses, 0, dstAddresses, count, info.dstAddressesArray.stride,
+                          sizeof(VkDeviceAddress));
   }
   return out;
 }
@@ -321,16 +358,24 @@ ClusterMemoryWalk walkClusterOutputs(const ClusterCommandParameters& p, uint32_t
   const bool computeSizes = info.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_COMPUTE_SIZES_NV;
   const bool implicit = info.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
 
+  VkDeviceAddress dstAddresses = info.dstAddressesArray.deviceAddress, dstSizes = info.dstSizesArray.deviceAddress;
+  const auto flags = info.addressResolutionFlags;
+  if ((flags & VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_ADDRESS_ARRAY_BIT_NV) &&
+      !followIndirectCell(walker, dstAddresses))
+    dstAddresses = 0;
+  if ((flags & VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_SIZES_ARRAY_BIT_NV) &&
+      !followIndirectCell(walker, dstSizes))
+    dstSizes = 0;
   std::vector<uint64_t> addresses, sizes;
-  if (!computeSizes && info.dstAddressesArray.deviceAddress != 0) {
+  if (!computeSizes && dstAddresses != 0) {
     const size_t before = out.ranges.size();
-    addresses = walker.captureStridedValues(MemoryRole::DstAddresses, info.dstAddressesArray.deviceAddress,
-                                            executedCount, info.dstAddressesArray.stride, sizeof(VkDeviceAddress));
+    addresses = walker.captureStridedValues(MemoryRole::DstAddresses, dstAddresses, executedCount,
+                                            info.dstAddressesArray.stride, sizeof(VkDeviceAddress));
     if (!implicit) out.ranges.resize(before);  // explicit addresses were inputs, captured before
   }
-  if (info.dstSizesArray.deviceAddress != 0)
-    sizes = walker.captureStridedValues(MemoryRole::DstSizes, info.dstSizesArray.deviceAddress, executedCount,
-                                        info.dstSizesArray.stride, sizeof(uint32_t));
+  if (dstSizes != 0)
+    sizes = walker.captureStridedValues(MemoryRole::DstSizes, dstSizes, executedCount, info.dstSizesArray.stride,
+                                        sizeof(uint32_t));
   // The objects themselves, where both their address and size are known.
   if (!computeSizes && addresses.size() == executedCount && sizes.size() == executedCount) {
     out.ranges.reserve(out.ranges.size() + executedCount);  // (as many values were read already)
