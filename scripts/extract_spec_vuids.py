@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-# SPDX-License-Identifier: MIT
+# SPDX-License-Identifier: Apache-2.0
 """Extracts the VUIDs of stored Vulkan reference pages into docs/spec/vuids.tsv.
 
     scripts/extract_spec_vuids.py [SPEC_DIR] [--output FILE]
