@@ -139,11 +139,16 @@ void follow_triangle_cluster(Walker& walker, uint32_t entry, const uint8_t* byte
 
     const uint32_t index_bytes = index_format_bytes(info.indexType);
     if (index_bytes == 0)
-        walker.issue(info.indexBuffer, 0,
-                     "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-indexType-"
-                     "10495: indexType " +
-                         std::to_string(info.indexType) + " of srcInfosArray entry " +
-                         std::to_string(entry) + " is not a single index format bit");
+        walker.issue(
+            info.indexBuffer, 0,
+            std::string(
+                is_template
+                    ? "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-"
+                      "indexType-10500"
+                    : "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-indexType-"
+                      "10491") +
+                ": indexType " + std::to_string(info.indexType) + " of srcInfosArray entry " +
+                std::to_string(entry) + " is not a single index format bit");
     else
         walker.capture_strided(MemoryRole::kIndexBuffer, entry, info.indexBuffer,
                                uint64_t(triangles) * 3, info.indexBufferStride, index_bytes);
@@ -167,9 +172,16 @@ void follow_triangle_cluster(Walker& walker, uint32_t entry, const uint8_t* byte
     if (info.opacityMicromapIndexBuffer != 0) {
         const uint32_t omm_index_bytes = index_format_bytes(info.opacityMicromapIndexType);
         if (omm_index_bytes == 0)
-            walker.issue(info.opacityMicromapIndexBuffer, 0,
-                         "opacityMicromapIndexType of srcInfosArray entry " +
-                             std::to_string(entry) + " is not a single index format bit");
+            walker.issue(
+                info.opacityMicromapIndexBuffer, 0,
+                std::string(
+                    is_template
+                        ? "VUID-VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV-"
+                          "opacityMicromapIndexType-10501"
+                        : "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-"
+                          "opacityMicromapIndexType-10492") +
+                    ": opacityMicromapIndexType of srcInfosArray entry " + std::to_string(entry) +
+                    " is not a single index format bit");
         else
             walker.capture_strided(MemoryRole::kOpacityMicromapIndices, entry,
                                    info.opacityMicromapIndexBuffer, triangles,
@@ -235,12 +247,41 @@ bool resolve_indirect_address(Walker& walker, VkDeviceAddress& address) {
     return true;
 }
 
-bool resolve_indirect_region(Walker& walker, VkStridedDeviceAddressRegionKHR& region) {
-    if (region.deviceAddress == 0) return true;
-    if (!walker.capture(MemoryRole::kIndirectAddress, 0, region.deviceAddress, sizeof region))
-        return false;
-    std::memcpy(&region, walker.last_bytes()->data(), sizeof region);
-    return true;
+// A strided region's cell holds its deviceAddress only; stride and size stay the command's
+// (docs/spec-readings.md). Cells of fields the walk does not follow are captured too: replay
+// reads them again.
+void capture_indirect_cells(Walker& walker, const Info& info) {
+    const auto flags = info.addressResolutionFlags;
+    const auto mode = info.input.opMode;
+    VkDeviceAddress scratch = info.scratchData, implicit_data = info.dstImplicitData,
+                    sizes = info.dstSizesArray.deviceAddress;
+    if (flags & VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_SCRATCH_DATA_BIT_NV)
+        resolve_indirect_address(walker, scratch);
+    if (mode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV &&
+        (flags &
+         VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_IMPLICIT_DATA_BIT_NV))
+        resolve_indirect_address(walker, implicit_data);
+    if (flags &
+        VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_SIZES_ARRAY_BIT_NV)
+        resolve_indirect_address(walker, sizes);
+}
+
+// dstAddressesArray's address after its indirection, if any (the cell is captured).
+bool resolve_dst_addresses(Walker& walker, const Info& info, VkDeviceAddress& address) {
+    address = info.dstAddressesArray.deviceAddress;
+    if (!(info.addressResolutionFlags &
+          VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_ADDRESS_ARRAY_BIT_NV))
+        return true;
+    return resolve_indirect_address(walker, address);
+}
+
+// The outputs walk reads a cell again to find its array; the cell is an input, kept by the
+// inputs walk, so it is not kept here.
+bool follow_indirect_cell(Walker& walker, VkDeviceAddress& address) {
+    const size_t before = walker.result().ranges.size();
+    const bool ok = resolve_indirect_address(walker, address);
+    walker.result().ranges.resize(before);
+    return ok;
 }
 
 }  // namespace
@@ -295,7 +336,8 @@ ClusterMemoryWalk walk_cluster_inputs(const ClusterCommandParameters& p,
     VkStridedDeviceAddressRegionKHR src = info.srcInfosArray;
     if (flags &
         VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_SRC_INFOS_ARRAY_BIT_NV)
-        if (!resolve_indirect_region(walker, src)) return out;
+        if (!resolve_indirect_address(walker, src.deviceAddress)) return out;
+    capture_indirect_cells(walker, info);
     const uint64_t stride = src.stride ? src.stride : entry_bytes;
     if (src.size != 0) {
         const uint64_t available =
@@ -343,9 +385,13 @@ ClusterMemoryWalk walk_cluster_inputs(const ClusterCommandParameters& p,
                      template_vertex_count);
 
     // Explicit destinations are read by the command, not written.
+    VkDeviceAddress dst_addresses = 0;
+    if (info.input.opMode != VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_COMPUTE_SIZES_NV &&
+        !resolve_dst_addresses(walker, info, dst_addresses))
+        return out;
     if (info.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV) {
-        walker.capture_strided(MemoryRole::kDstAddresses, 0, info.dstAddressesArray.deviceAddress,
-                               count, info.dstAddressesArray.stride, sizeof(VkDeviceAddress));
+        walker.capture_strided(MemoryRole::kDstAddresses, 0, dst_addresses, count,
+                               info.dstAddressesArray.stride, sizeof(VkDeviceAddress));
     }
     return out;
 }
@@ -362,19 +408,28 @@ ClusterMemoryWalk walk_cluster_outputs(const ClusterCommandParameters& p, uint32
     const bool implicit =
         info.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
 
+    VkDeviceAddress dst_addresses = info.dstAddressesArray.deviceAddress,
+                    dst_sizes = info.dstSizesArray.deviceAddress;
+    const auto flags = info.addressResolutionFlags;
+    if ((flags &
+         VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_ADDRESS_ARRAY_BIT_NV) &&
+        !follow_indirect_cell(walker, dst_addresses))
+        dst_addresses = 0;
+    if ((flags &
+         VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_SIZES_ARRAY_BIT_NV) &&
+        !follow_indirect_cell(walker, dst_sizes))
+        dst_sizes = 0;
     std::vector<uint64_t> addresses, sizes;
-    if (!compute_sizes && info.dstAddressesArray.deviceAddress != 0) {
+    if (!compute_sizes && dst_addresses != 0) {
         const size_t before = out.ranges.size();
         addresses =
-            walker.capture_strided_values(MemoryRole::kDstAddresses,
-                                          info.dstAddressesArray.deviceAddress, executed_count,
+            walker.capture_strided_values(MemoryRole::kDstAddresses, dst_addresses, executed_count,
                                           info.dstAddressesArray.stride, sizeof(VkDeviceAddress));
         if (!implicit)
             out.ranges.resize(before);  // explicit addresses were inputs, captured before
     }
-    if (info.dstSizesArray.deviceAddress != 0)
-        sizes = walker.capture_strided_values(MemoryRole::kDstSizes,
-                                              info.dstSizesArray.deviceAddress, executed_count,
+    if (dst_sizes != 0)
+        sizes = walker.capture_strided_values(MemoryRole::kDstSizes, dst_sizes, executed_count,
                                               info.dstSizesArray.stride, sizeof(uint32_t));
     // The objects themselves, where both their address and size are known.
     if (!compute_sizes && addresses.size() == executed_count && sizes.size() == executed_count) {

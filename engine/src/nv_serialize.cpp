@@ -173,7 +173,7 @@ NvDeserializeResult execute_nv_deserialize(const NvDeserializeCommand& cmd, Memo
     try {
         r.header = memory.read<SerializedHeader>(cmd.src_address, src_field);
     } catch (const MemoryFault& f) {
-        add_finding(r, kVuidDeserializeSrcBound,
+        add_finding(r, kRuleDeserializeSrcPastBuffer,
                     "the 56-byte serialization header at " + hex(cmd.src_address) +
                         " runs past the end of its buffer: " + f.message,
                     cmd.src_address);
@@ -196,7 +196,7 @@ NvDeserializeResult execute_nv_deserialize(const NvDeserializeCommand& cmd, Memo
     try {
         blob = memory.read_bytes(cmd.src_address, h.serialized_size, src_field);
     } catch (const MemoryFault& f) {
-        add_finding(r, kVuidDeserializeSrcBound,
+        add_finding(r, kRuleDeserializeSrcPastBuffer,
                     "serializedSize " + std::to_string(h.serialized_size) + " at " +
                         hex(cmd.src_address) + " runs past the end of its buffer: " + f.message,
                     cmd.src_address);

@@ -52,13 +52,13 @@ constexpr VkDeviceAddress kInfos = 0x10000, kCount = 0x20000, kIndices = 0x30000
                           kVertices = 0x40000, kGeometry = 0x50000, kRefs = 0x60000, kDst = 0x70000,
                           kSizes = 0x80000, kObjects = 0x90000;
 
-ClusterCommandParameters triangleBuild(uint32_t maxCount, uint64_t stride, uint64_t size) {
+ClusterCommandParameters triangleBuild(uint32_t max_count, uint64_t stride, uint64_t size) {
     VkClusterAccelerationStructureTriangleClusterInputNV input{};
     input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
     input.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
     VkClusterAccelerationStructureCommandsInfoNV info{};
     info.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
-    info.input.maxAccelerationStructureCount = maxCount;
+    info.input.maxAccelerationStructureCount = max_count;
     info.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
     info.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
     info.input.opInput.pTriangleClusters = &input;
@@ -199,6 +199,92 @@ TEST_F(TwoClusters, IndirectCountIsFollowedThroughItsAddress) {
     ClusterMemoryWalk walk = walk_cluster_inputs(p, memory.reader());
     EXPECT_EQ(walk.executed_count, 2u);
     EXPECT_EQ(rangesOf(walk, MemoryRole::kIndirectAddress).size(), 1u);
+}
+
+// INDIRECTED_SRC_INFOS_ARRAY: the cell holds srcInfosArray.deviceAddress alone (8 bytes); the
+// stride and size stay the command's (docs/spec-readings.md). The cell's region is 8 bytes, so
+// reading a whole 24-byte region through it fails.
+TEST_F(TwoClusters, IndirectSrcInfosCellHoldsTheAddressOnly) {
+    memory.region(0xA0000, 8);
+    memory.put(0xA0000, VkDeviceAddress(kInfos));
+    ClusterCommandParameters p = triangleBuild(3, 96, 3 * 96);
+    p.info.srcInfosArray.deviceAddress = 0xA0000;
+    p.info.addressResolutionFlags =
+        VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_SRC_INFOS_ARRAY_BIT_NV;
+    ClusterMemoryWalk walk = walk_cluster_inputs(p, memory.reader());
+    EXPECT_TRUE(walk.issues.empty()) << walk.issues[0].rule;
+    EXPECT_EQ(walk.executed_count, 2u);
+    auto cells = rangesOf(walk, MemoryRole::kIndirectAddress);
+    ASSERT_EQ(cells.size(), 1u);
+    EXPECT_EQ(cells[0]->bytes.size(), 8u);
+    auto infos = rangesOf(walk, MemoryRole::kSrcInfos);  // the command's stride 96
+    ASSERT_EQ(infos.size(), 2u);
+    EXPECT_EQ(infos[1]->address, kInfos + 96);
+}
+
+// INDIRECTED_DST_ADDRESS_ARRAY in explicit mode: the addresses the command reads are behind the
+// cell, and the cell is captured too (replay reads it again).
+TEST_F(TwoClusters, ExplicitDstAddressesAreReadThroughTheirCell) {
+    memory.region(0xA0000, 8);
+    memory.put(0xA0000, VkDeviceAddress(kDst));
+    memory.region(kDst, 64);
+    memory.put(kDst, VkDeviceAddress(kObjects));
+    memory.put(kDst + 8, VkDeviceAddress(kObjects + 1024));
+    ClusterCommandParameters p = triangleBuild(3, 96, 0);
+    p.info.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
+    p.info.dstAddressesArray = {0xA0000, 8, 0};
+    p.info.addressResolutionFlags =
+        VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_ADDRESS_ARRAY_BIT_NV;
+    ClusterMemoryWalk walk = walk_cluster_inputs(p, memory.reader());
+    EXPECT_TRUE(walk.issues.empty()) << walk.issues[0].rule;
+    auto addresses = rangesOf(walk, MemoryRole::kDstAddresses);
+    ASSERT_EQ(addresses.size(), 1u);
+    EXPECT_EQ(addresses[0]->address, kDst);
+    EXPECT_EQ(addresses[0]->bytes.size(), 16u);
+    EXPECT_EQ(rangesOf(walk, MemoryRole::kIndirectAddress).size(), 1u);
+}
+
+// Implicit outputs behind INDIRECTED_DST_ADDRESS_ARRAY and INDIRECTED_DST_SIZES_ARRAY: the outputs
+// walk follows both cells, keeps the arrays and objects, and leaves the cells to the inputs walk.
+TEST(ClusterInputWalker, OutputsAreFollowedThroughIndirectCells) {
+    FakeDeviceMemory memory;
+    memory.region(0xA0000, 16);
+    memory.put(0xA0000, VkDeviceAddress(kDst));
+    memory.put(0xA0008, VkDeviceAddress(kSizes));
+    memory.region(kDst, 64);
+    memory.region(kSizes, 64);
+    memory.region(kObjects, 4096);
+    memory.put(kDst, VkDeviceAddress(kObjects));
+    memory.put(kSizes, uint32_t(256));
+    ClusterCommandParameters p = triangleBuild(1, 0, 0);
+    p.info.dstAddressesArray = {0xA0000, 0, 0};
+    p.info.dstSizesArray = {0xA0008, 0, 0};
+    p.info.addressResolutionFlags =
+        VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_ADDRESS_ARRAY_BIT_NV |
+        VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_SIZES_ARRAY_BIT_NV;
+    ClusterMemoryWalk walk = walk_cluster_outputs(p, 1, memory.reader());
+    EXPECT_TRUE(walk.issues.empty()) << walk.issues[0].rule;
+    EXPECT_TRUE(rangesOf(walk, MemoryRole::kIndirectAddress).empty());
+    ASSERT_EQ(rangesOf(walk, MemoryRole::kDstSizes).size(), 1u);
+    EXPECT_EQ(rangesOf(walk, MemoryRole::kDstSizes)[0]->address, kSizes);
+    auto objects = rangesOf(walk, MemoryRole::kDstObject);
+    ASSERT_EQ(objects.size(), 1u);
+    EXPECT_EQ(objects[0]->address, kObjects);
+    EXPECT_EQ(objects[0]->bytes.size(), 256u);
+}
+
+// A bad indexType is its info struct's indexType rule (10491; 10500 for templates), not the
+// vertex-stride rule 10495.
+TEST_F(TwoClusters, BadIndexTypeNamesTheIndexTypeRule) {
+    cluster[1].indexType = 3;
+    memory.put(kInfos + 96, cluster[1]);
+    ClusterMemoryWalk walk = walk_cluster_inputs(triangleBuild(3, 96, 0), memory.reader());
+    ASSERT_FALSE(walk.issues.empty());
+    EXPECT_EQ(walk.issues[0].rule.rfind(
+                  "VUID-VkClusterAccelerationStructureBuildTriangleClusterInfoNV-indexType-10491: ",
+                  0),
+              0u)
+        << walk.issues[0].rule;
 }
 
 TEST(ClusterInputWalker, TemplateBoundsAndBottomLevelReferences) {

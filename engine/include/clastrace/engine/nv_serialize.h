@@ -80,8 +80,10 @@ inline constexpr const char* kVuidDeserializeSrcAddress =
     "VUID-vkCmdCopyMemoryToAccelerationStructureKHR-pInfo-03742";
 inline constexpr const char* kVuidDeserializeSrcAlign =
     "VUID-vkCmdCopyMemoryToAccelerationStructureKHR-pInfo-03743";
-inline constexpr const char* kVuidDeserializeSrcBound =
-    "VUID-vkCmdCopyMemoryToAccelerationStructureKHR-pInfo-03744";
+// No VUID says the source buffer must hold serializedSize bytes (03744 is about binding):
+// the tool's own rule (docs/spec-readings.md).
+inline constexpr const char* kRuleDeserializeSrcPastBuffer =
+    "CLASTRACE-deserialize-source-past-buffer";
 inline constexpr const char* kVuidDeserializeDstBound =
     "VUID-vkCmdCopyMemoryToAccelerationStructureKHR-buffer-03745";
 inline constexpr const char* kVuidDeserializeContents =
