@@ -64,15 +64,15 @@ struct DeviceState {
     PFN_vkGetDeviceProcAddr next_gdpa = nullptr;
     VkPhysicalDeviceMemoryProperties memory_types{};
 #define STANDIN_NEXT(name) PFN_vk##name name = nullptr;
-#define STANDIN_DEVICE_CALLS(X)                                                             \
-    X(DestroyDevice)                                                                        \
-    X(AllocateMemory)                                                                       \
-    X(FreeMemory)                                                                           \
-    X(MapMemory) X(UnmapMemory) X(CreateBuffer) X(DestroyBuffer) X(BindBufferMemory)        \
-        X(BindBufferMemory2) X(GetBufferDeviceAddress) X(BeginCommandBuffer) X(QueueSubmit) \
-            X(QueueSubmit2) X(CreateEvent) X(DestroyEvent) X(GetEventStatus) X(SetEvent)    \
-                X(ResetEvent) X(CmdPipelineBarrier) X(CmdSetEvent) X(CmdWaitEvents)         \
-                    X(CmdResetEvent) X(DeviceWaitIdle)
+    // An X-macro list, which clang-format re-wraps differently on each run.
+    // clang-format off
+#define STANDIN_DEVICE_CALLS(X) \
+    X(DestroyDevice) X(AllocateMemory) X(FreeMemory) X(MapMemory) X(UnmapMemory) X(CreateBuffer) \
+    X(DestroyBuffer) X(BindBufferMemory) X(BindBufferMemory2) X(GetBufferDeviceAddress) \
+    X(BeginCommandBuffer) X(QueueSubmit) X(QueueSubmit2) X(CreateEvent) X(DestroyEvent) \
+    X(GetEventStatus) X(SetEvent) X(ResetEvent) X(CmdPipelineBarrier) X(CmdSetEvent) \
+    X(CmdWaitEvents) X(CmdResetEvent) X(DeviceWaitIdle)
+    // clang-format on
     struct Next {
         STANDIN_DEVICE_CALLS(STANDIN_NEXT)
     } next;
