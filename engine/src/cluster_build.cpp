@@ -298,14 +298,15 @@ void decode_indices(const TriangleDecode& job) {
     uint32_t* const indices = job.indices;
     uint8_t* const inactive = job.inactive;
     Reporter& r = job.report;
-    const uint32_t t = job.decoded.triangle_count, v = job.decoded.vertex_count;
+    const uint32_t n_triangles = job.decoded.triangle_count, n_vertices = job.decoded.vertex_count;
     const uint32_t index_size = index_size_of(info.index_type);
-    const auto idx = job.memory.read_array(info.index_buffer, 3ull * t, info.index_buffer_stride,
-                                           index_size, {"indexBuffer", r.op_index});
+    const auto idx =
+        job.memory.read_array(info.index_buffer, 3ull * n_triangles, info.index_buffer_stride,
+                              index_size, {"indexBuffer", r.op_index});
     const uint32_t istep = info.index_buffer_stride ? info.index_buffer_stride : index_size;
     // Widen first (one loop per index size, no per-value switch), then range-check.
     const std::byte* const isrc = idx.data();
-    const uint32_t n_indices = 3 * t;
+    const uint32_t n_indices = 3 * n_triangles;
     if (index_size == 1 && istep == 1) {
         for (uint32_t i = 0; i < n_indices; ++i)
             indices[i] = uint8_t(isrc[i]);  // packed: vectorizes
@@ -325,17 +326,18 @@ void decode_indices(const TriangleDecode& job) {
     uint32_t largest_index = 0;
     for (uint32_t i = 0; i < n_indices; ++i) largest_index = std::max(largest_index, indices[i]);
     // The common case, every index in range, costs one vectorized pass.
-    if (largest_index < v) {
-        std::memset(inactive, 0, t);
+    if (largest_index < n_vertices) {
+        std::memset(inactive, 0, n_triangles);
     } else {
-        for (uint32_t t = 0; t < t; ++t) {
-            const uint32_t bad = uint32_t(indices[3 * t] >= v) + uint32_t(indices[3 * t + 1] >= v) +
-                                 uint32_t(indices[3 * t + 2] >= v);
+        for (uint32_t t = 0; t < n_triangles; ++t) {
+            const uint32_t bad = uint32_t(indices[3 * t] >= n_vertices) +
+                                 uint32_t(indices[3 * t + 1] >= n_vertices) +
+                                 uint32_t(indices[3 * t + 2] >= n_vertices);
             inactive[t] = bad != 0;
             if (bad) {
                 if (out_of_range == 0)
                     for (int v = 0; v < 3; ++v)
-                        if (indices[3 * t + v] >= v) {
+                        if (indices[3 * t + v] >= n_vertices) {
                             first_bad = 3 * t + v;
                             break;
                         }
@@ -345,9 +347,10 @@ void decode_indices(const TriangleDecode& job) {
     }
     if (out_of_range)
         r.add(kRuleIndexOutOfRange,
-              std::to_string(out_of_range) + " index value(s) >= vertexCount " + std::to_string(v) +
-                  "; first at index " + std::to_string(first_bad) + " (value " +
-                  std::to_string(indices[first_bad]) + "); those triangles are inactive",
+              std::to_string(out_of_range) + " index value(s) >= vertexCount " +
+                  std::to_string(n_vertices) + "; first at index " + std::to_string(first_bad) +
+                  " (value " + std::to_string(indices[first_bad]) +
+                  "); those triangles are inactive",
               info.index_buffer);
 }
 
@@ -357,25 +360,26 @@ void decode_positions(const TriangleDecode& job, const VertexFormatInfo& vf) {
     const VkClusterAccelerationStructureTriangleClusterInputNV& input = job.input;
     float* const positions = job.positions;
     Decoded& d = job.decoded;
-    const uint32_t v = d.vertex_count;
+    const uint32_t n_vertices = d.vertex_count;
     d.has_positions = !(job.positions_optional && info.vertex_buffer == 0);
-    if (d.has_positions && v > 0) {
-        const auto vb = job.memory.read_array(info.vertex_buffer, v, info.vertex_buffer_stride,
-                                              vf.size, {"vertexBuffer", job.report.op_index});
+    if (d.has_positions && n_vertices > 0) {
+        const auto vb =
+            job.memory.read_array(info.vertex_buffer, n_vertices, info.vertex_buffer_stride,
+                                  vf.size, {"vertexBuffer", job.report.op_index});
         const uint32_t vstep = info.vertex_buffer_stride ? info.vertex_buffer_stride : vf.size;
         if (input.vertexFormat == VK_FORMAT_R32G32B32_SFLOAT && vstep == 12) {
-            std::memcpy(positions, vb.data(), size_t(v) * 12);
+            std::memcpy(positions, vb.data(), size_t(n_vertices) * 12);
         } else if (input.vertexFormat == VK_FORMAT_R32G32B32_SFLOAT ||
                    input.vertexFormat == VK_FORMAT_R32G32B32A32_SFLOAT) {
-            for (uint32_t v = 0; v < v; ++v)
+            for (uint32_t v = 0; v < n_vertices; ++v)
                 std::memcpy(positions + 3 * v, vb.data() + size_t(v) * vstep, 12);
         } else {
-            for (uint32_t v = 0; v < v; ++v)
+            for (uint32_t v = 0; v < n_vertices; ++v)
                 decode_vertex(input.vertexFormat, vb.data() + size_t(v) * vstep, positions + 3 * v);
         }
         if (d.truncate_bits) {
             const uint32_t mask = d.truncate_bits >= 32 ? 0u : ~((1u << d.truncate_bits) - 1u);
-            for (uint32_t c = 0; c < 3 * v; ++c)
+            for (uint32_t c = 0; c < 3 * n_vertices; ++c)
                 positions[c] = std::bit_cast<float>(std::bit_cast<uint32_t>(positions[c]) & mask);
         }
     }
@@ -390,7 +394,7 @@ void decode_geometry_indices(const TriangleDecode& job) {
     uint32_t* const geometry = job.geometry;
     Decoded& d = job.decoded;
     Reporter& r = job.report;
-    const uint32_t t = d.triangle_count;
+    const uint32_t n_triangles = d.triangle_count;
     constexpr uint32_t kReservedBits = 0x1F000000u;  // reserved:5 above geometryIndex:24
     constexpr const char* kReservedRule =
         "VUID-VkClusterAccelerationStructureGeometryIndexAndGeometryFlagsNV-reserved-10487";
@@ -400,7 +404,7 @@ void decode_geometry_indices(const TriangleDecode& job) {
     uint32_t max_index = base & 0xFFFFFFu;
     d.has_geometry = info.geometry_index_and_flags_buffer != 0;
     if (d.has_geometry) {
-        const auto gb = job.memory.read_array(info.geometry_index_and_flags_buffer, t,
+        const auto gb = job.memory.read_array(info.geometry_index_and_flags_buffer, n_triangles,
                                               info.geometry_index_and_flags_buffer_stride, 4,
                                               {"geometryIndexAndFlagsBuffer", r.op_index});
         const uint32_t gstep = info.geometry_index_and_flags_buffer_stride
@@ -410,7 +414,7 @@ void decode_geometry_indices(const TriangleDecode& job) {
         uint32_t n_unique = 0, reserved_set = 0;
         bool many = false;
         max_index = 0;
-        for (uint32_t t = 0; t < t; ++t) {
+        for (uint32_t t = 0; t < n_triangles; ++t) {
             uint32_t g;
             std::memcpy(&g, gb.data() + size_t(t) * gstep, 4);
             reserved_set += (g & kReservedBits) != 0;
@@ -453,7 +457,7 @@ void decode_opacity_micromaps(const TriangleDecode& job) {
     const TriangleInfoView& info = job.info;
     int32_t* const omm = job.omm;
     Decoded& d = job.decoded;
-    const uint32_t t = d.triangle_count;
+    const uint32_t n_triangles = d.triangle_count;
     d.has_omm = info.opacity_micromap_array != 0;
     if (d.has_omm) {
         d.omm_index_type = info.opacity_micromap_index_type;
@@ -463,13 +467,13 @@ void decode_opacity_micromaps(const TriangleDecode& job) {
                 : 4;
         if (info.opacity_micromap_index_buffer != 0) {
             const auto ob =
-                job.memory.read_array(info.opacity_micromap_index_buffer, t,
+                job.memory.read_array(info.opacity_micromap_index_buffer, n_triangles,
                                       info.opacity_micromap_index_buffer_stride, osize,
                                       {"opacityMicromapIndexBuffer", job.report.op_index});
             const uint32_t ostep = info.opacity_micromap_index_buffer_stride
                                        ? info.opacity_micromap_index_buffer_stride
                                        : osize;
-            for (uint32_t t = 0; t < t; ++t) {
+            for (uint32_t t = 0; t < n_triangles; ++t) {
                 const std::byte* src = ob.data() + size_t(t) * ostep;
                 int32_t value;
                 if (osize == 1)
@@ -483,7 +487,7 @@ void decode_opacity_micromaps(const TriangleDecode& job) {
                 omm[t] = value;
             }
         } else {
-            for (uint32_t t = 0; t < t; ++t)
+            for (uint32_t t = 0; t < n_triangles; ++t)
                 omm[t] = int32_t(t);  // no index buffer: triangle i uses micromap i
         }
     }
@@ -621,7 +625,7 @@ bool ClusterBuilder::instantiate_triangle_cluster(
         if (!tmpl.header) return false;
         const std::span<const std::byte> bytes = tmpl.bytes;
         const ObjectHeader& h = *tmpl.header;
-        const uint32_t t = h.triangle_count, v = h.vertex_count;
+        const uint32_t n_triangles = h.triangle_count, n_vertices = h.vertex_count;
         if (uint32_t(input.vertexFormat) != h.vertex_format)
             r.add("VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-vertexBuffer-10508",
                   "vertexFormat " + std::to_string(int(input.vertexFormat)) +
@@ -636,16 +640,17 @@ bool ClusterBuilder::instantiate_triangle_cluster(
                     info.clusterTemplateAddress);
                 return false;
             }
-            for (uint32_t v = 0; v < v; ++v) decode_position(bytes, h, v, s.positions + 3 * v);
+            for (uint32_t v = 0; v < n_vertices; ++v)
+                decode_position(bytes, h, v, s.positions + 3 * v);
         } else {
             const VertexFormatInfo vf = vertex_format_info(input.vertexFormat);
             if (!vf.supported) return false;  // 10439 reported by check_input
-            const auto vb = memory.read_array(info.vertexBuffer.startAddress, v,
+            const auto vb = memory.read_array(info.vertexBuffer.startAddress, n_vertices,
                                               info.vertexBuffer.strideInBytes, vf.size,
                                               {"vertexBuffer", op_index});
             const uint64_t vstep =
                 info.vertexBuffer.strideInBytes ? info.vertexBuffer.strideInBytes : vf.size;
-            for (uint32_t v = 0; v < v; ++v) {
+            for (uint32_t v = 0; v < n_vertices; ++v) {
                 decode_vertex(input.vertexFormat, vb.data() + size_t(v * vstep),
                               s.positions + 3 * v);
                 for (int k = 0; k < 3; ++k)
@@ -657,7 +662,7 @@ bool ClusterBuilder::instantiate_triangle_cluster(
             float lim[6];
             std::memcpy(lim, bytes.data() + h.bounds_limit_offset, 24);
             uint32_t outside = 0, first = 0;
-            for (uint32_t v = 0; v < v; ++v)
+            for (uint32_t v = 0; v < n_vertices; ++v)
                 for (int k = 0; k < 3; ++k) {
                     const float c = s.positions[3 * v + k];
                     if (!(c >= lim[k] && c <= lim[3 + k])) {  // NaN is outside too
@@ -676,7 +681,7 @@ bool ClusterBuilder::instantiate_triangle_cluster(
         // Geometry index offset: a signed 24-bit value.
         const int32_t goff = int32_t(uint32_t(info.geometryIndexOffset) << 8) >> 8;
         int64_t max_index = -1, min_index = INT64_MAX;
-        for (uint32_t i = 0; i < t; ++i) {
+        for (uint32_t i = 0; i < n_triangles; ++i) {
             const DecodedTriangle tri = decode_triangle(bytes, h, i);
             const uint32_t t = tri.original_index;
             for (int v = 0; v < 3; ++v) s.indices[3 * t + v] = tri.local_indices[v];
@@ -687,7 +692,8 @@ bool ClusterBuilder::instantiate_triangle_cluster(
                 (uint32_t(index) & 0xFFFFFFu) | (tri.geometry_index_and_flags & 0xE0000000u);
             s.inactive[t] = 0;
         }
-        if (t && (max_index >= int64_t(properties_.max_cluster_geometry_index) || min_index < 0))
+        if (n_triangles &&
+            (max_index >= int64_t(properties_.max_cluster_geometry_index) || min_index < 0))
             r.add(
                 "VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-geometryIndexOffset-"
                 "10510",
@@ -699,15 +705,16 @@ bool ClusterBuilder::instantiate_triangle_cluster(
         in.type = ObjectType::kTriangleCluster;
         in.cluster_id = h.cluster_id + info.clusterIdOffset;
         in.cluster_flags = h.cluster_flags;
-        in.triangle_count = t;
-        in.vertex_count = v;
+        in.triangle_count = n_triangles;
+        in.vertex_count = n_vertices;
         in.truncate_bits = h.position_truncate_bits;
         in.vertex_format = h.vertex_format;
         in.positions = s.positions;
         in.indices = s.indices;
         in.inactive = s.inactive;
-        in.base_geometry_index_and_flags = t ? s.geometry[0] : h.base_geometry_index_and_flags;
-        in.geometry_index_and_flags = t ? s.geometry : nullptr;
+        in.base_geometry_index_and_flags =
+            n_triangles ? s.geometry[0] : h.base_geometry_index_and_flags;
+        in.geometry_index_and_flags = n_triangles ? s.geometry : nullptr;
         if (h.header_flags & kHasOpacityMicromap) {
             OpacityMicromapSection sec;
             std::memcpy(&sec, bytes.data() + h.omm_offset, sizeof sec);
@@ -715,7 +722,7 @@ bool ClusterBuilder::instantiate_triangle_cluster(
             in.omm_array = sec.opacity_micromap_array;
             in.omm_index_type = sec.index_type;
             std::memcpy(s.omm, bytes.data() + h.omm_offset + sizeof sec,
-                        4 * size_t(t));  // template keeps app order
+                        4 * size_t(n_triangles));  // template keeps app order
             in.omm_indices = s.omm;
         }
         detail::encode_object(in, s.bvh, out);
@@ -735,21 +742,21 @@ bool ClusterBuilder::build_from_arrays(uint32_t cluster_id, std::span<const floa
     Reporter r{findings, -1, "build_from_arrays"};
     out.clear();
     Scratch& s = *scratch_;
-    const size_t v = positions.size() / 3, t = indices.size() / 3;
-    if (v > kMaxVertices || t > kMaxTriangles || positions.size() % 3 || indices.size() % 3 ||
-        truncate_bits > 32 ||
-        (!geometry_index_and_flags.empty() && geometry_index_and_flags.size() != t)) {
+    const size_t n_vertices = positions.size() / 3, n_triangles = indices.size() / 3;
+    if (n_vertices > kMaxVertices || n_triangles > kMaxTriangles || positions.size() % 3 ||
+        indices.size() % 3 || truncate_bits > 32 ||
+        (!geometry_index_and_flags.empty() && geometry_index_and_flags.size() != n_triangles)) {
         r.add(kRuleCountAboveInput, "arrays exceed 256 vertices/triangles or are malformed");
         return false;
     }
     for (size_t c = 0; c < positions.size(); ++c)
         s.positions[c] = truncate_position(positions[c], truncate_bits);
     uint32_t bad = 0;
-    for (size_t t = 0; t < t; ++t) {
+    for (size_t t = 0; t < n_triangles; ++t) {
         s.inactive[t] = 0;
         for (int v = 0; v < 3; ++v) {
             s.indices[3 * t + v] = indices[3 * t + v];
-            if (indices[3 * t + v] >= v) {
+            if (indices[3 * t + v] >= n_vertices) {
                 s.inactive[t] = 1;
                 ++bad;
             }
@@ -761,8 +768,8 @@ bool ClusterBuilder::build_from_arrays(uint32_t cluster_id, std::span<const floa
                   " index value(s) >= vertex count; those triangles are inactive");
     detail::EncodeInput in;
     in.cluster_id = cluster_id;
-    in.triangle_count = uint32_t(t);
-    in.vertex_count = uint32_t(v);
+    in.triangle_count = uint32_t(n_triangles);
+    in.vertex_count = uint32_t(n_vertices);
     in.truncate_bits = truncate_bits;
     in.vertex_format = VK_FORMAT_R32G32B32_SFLOAT;
     in.positions = s.positions;
@@ -834,17 +841,19 @@ ClusterObject get_cluster_template_indices(
 
 uint64_t max_cluster_object_size(const VkClusterAccelerationStructureTriangleClusterInputNV& input,
                                  const EngineProperties& properties, bool is_template) {
-    const uint64_t t = std::min(input.maxClusterTriangleCount,
-                                std::min(properties.max_triangles_per_cluster, kMaxTriangles));
-    const uint64_t v = std::min(input.maxClusterVertexCount,
-                                std::min(properties.max_vertices_per_cluster, kMaxVertices));
+    const uint64_t n_triangles =
+        std::min(input.maxClusterTriangleCount,
+                 std::min(properties.max_triangles_per_cluster, kMaxTriangles));
+    const uint64_t n_vertices =
+        std::min(input.maxClusterVertexCount,
+                 std::min(properties.max_vertices_per_cluster, kMaxVertices));
     const uint64_t bits = 32 - std::min<uint32_t>(input.minPositionTruncateBitCount, 32);
     uint64_t size = sizeof(ObjectHeader);
-    if (!is_template) size += 8 * (t ? 2 * t - 1 : 0);
-    size += ((v * 3 * bits + 7) / 8 + 3) & ~3ull;
-    size += 3 * t + t + 3;                               // indices, order, padding
-    size += 4 * t;                                       // per-triangle geometry data
-    size += 8 + sizeof(OpacityMicromapSection) + 4 * t;  // OMM
+    if (!is_template) size += 8 * (n_triangles ? 2 * n_triangles - 1 : 0);
+    size += ((n_vertices * 3 * bits + 7) / 8 + 3) & ~3ull;
+    size += 3 * n_triangles + n_triangles + 3;                     // indices, order, padding
+    size += 4 * n_triangles;                                       // per-triangle geometry data
+    size += 8 + sizeof(OpacityMicromapSection) + 4 * n_triangles;  // OMM
     if (is_template) size += 24;
     return (size + 3) & ~3ull;
 }

@@ -147,7 +147,7 @@ void write_nodes(const QuantFrame& f, bool unbounded, const BvhScratch& s, uint3
 // Section offsets and flags of the header, and the object's size (also in the header).
 uint32_t lay_out_object(ObjectHeader& h, const EncodeInput& in, uint32_t n_nodes, bool identity,
                         bool varying) {
-    const uint32_t t = in.triangle_count;
+    const uint32_t n_triangles = in.triangle_count;
     uint32_t size = sizeof(ObjectHeader);
     if (n_nodes) {
         h.nodes_offset = size;
@@ -162,23 +162,23 @@ uint32_t lay_out_object(ObjectHeader& h, const EncodeInput& in, uint32_t n_nodes
         size = align4(size + pos_bytes);
     }
     h.indices_offset = size;
-    size += 3 * t;
+    size += 3 * n_triangles;
     if (!identity) {
         h.header_flags |= kHasTriangleOrder;
         h.triangle_order_offset = size;
-        size += t;
+        size += n_triangles;
     }
     size = align4(size);
     if (varying) {
         h.header_flags |= kHasTriangleData;
         h.triangle_data_offset = size;
-        size += 4 * t;
+        size += 4 * n_triangles;
     }
     if (in.has_omm) {
         h.header_flags |= kHasOpacityMicromap;
         size = (size + 7u) & ~7u;
         h.omm_offset = size;
-        size += sizeof(OpacityMicromapSection) + 4 * t;
+        size += sizeof(OpacityMicromapSection) + 4 * n_triangles;
     }
     if (in.has_bounds_limit) {
         h.header_flags |= kHasBoundsLimit;
@@ -194,26 +194,26 @@ uint32_t lay_out_object(ObjectHeader& h, const EncodeInput& in, uint32_t n_nodes
 // sections exist).
 void write_triangle_sections(const EncodeInput& in, const ObjectHeader& h, const uint8_t* order,
                              bool identity, bool varying, std::byte* base) {
-    const uint32_t t = in.triangle_count;
+    const uint32_t n_triangles = in.triangle_count;
     std::byte* const index_bytes = base + h.indices_offset;
-    const bool any_dead = in.inactive && std::memchr(in.inactive, 1, t) != nullptr;
-    for (uint32_t i = 0; i < t; ++i) {
+    const bool any_dead = in.inactive && std::memchr(in.inactive, 1, n_triangles) != nullptr;
+    for (uint32_t i = 0; i < n_triangles; ++i) {
         const uint32_t* tri = in.indices + 3 * order[i];
         index_bytes[3 * i + 0] = std::byte(uint8_t(tri[0]));
         index_bytes[3 * i + 1] = std::byte(uint8_t(tri[1]));
         index_bytes[3 * i + 2] = std::byte(uint8_t(tri[2]));
     }
     if (any_dead)
-        for (uint32_t i = 0; i < t; ++i)
+        for (uint32_t i = 0; i < n_triangles; ++i)
             if (in.inactive[order[i]])  // dead ones stay 0
                 for (int v = 0; v < 3; ++v) index_bytes[3 * i + v] = std::byte{0};
-    if (!identity) std::memcpy(base + h.triangle_order_offset, order, t);
+    if (!identity) std::memcpy(base + h.triangle_order_offset, order, n_triangles);
     if (varying)
-        for (uint32_t i = 0; i < t; ++i)
+        for (uint32_t i = 0; i < n_triangles; ++i)
             std::memcpy(base + h.triangle_data_offset + 4 * i,
                         &in.geometry_index_and_flags[order[i]], 4);
     if (in.has_omm)
-        for (uint32_t i = 0; i < t; ++i)
+        for (uint32_t i = 0; i < n_triangles; ++i)
             std::memcpy(base + h.omm_offset + sizeof(OpacityMicromapSection) + 4 * i,
                         &in.omm_indices[order[i]], 4);
     if (in.has_omm) {
@@ -239,7 +239,7 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
     h.cluster_flags = uint8_t(in.cluster_flags);
     h.base_geometry_index_and_flags = in.base_geometry_index_and_flags;
     h.vertex_format = in.vertex_format;
-    const uint32_t t = in.triangle_count;
+    const uint32_t n_triangles = in.triangle_count;
     const bool is_clas = in.type == ObjectType::kTriangleCluster;
 
     // Active triangles: indices in range and no NaN coordinate (after truncation). One pass
@@ -251,7 +251,7 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
     float bmin[3] = {0.0f, 0.0f, 0.0f}, bmax[3] = {0.0f, 0.0f, 0.0f};
     if (in.positions) {
         Float4 lo_all = splat(INFINITY), hi_all = splat(-INFINITY);
-        for (uint32_t t = 0; t < t; ++t) {
+        for (uint32_t t = 0; t < n_triangles; ++t) {
             if (in.inactive && in.inactive[t]) continue;
             const uint32_t* tri = in.indices + 3 * t;
             const Float4 a = load3(in.positions + 3 * tri[0]);
@@ -287,24 +287,24 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
         build_bvh(active, n_active, s);
         n_nodes = s.node_count;
         std::memcpy(order, s.perm, n_active);
-        if (n_active < t) {
+        if (n_active < n_triangles) {
             bool is_active[kMaxTriangles] = {};
             for (uint32_t i = 0; i < n_active; ++i) is_active[active[i]] = true;
             uint32_t k = n_active;
-            for (uint32_t t = 0; t < t; ++t)
+            for (uint32_t t = 0; t < n_triangles; ++t)
                 if (!is_active[t]) order[k++] = uint8_t(t);
         }
     } else {
-        for (uint32_t t = 0; t < t; ++t) order[t] = uint8_t(t);
+        for (uint32_t t = 0; t < n_triangles; ++t) order[t] = uint8_t(t);
     }
     bool identity = true;
-    for (uint32_t t = 0; t < t; ++t) identity &= order[t] == t;
+    for (uint32_t t = 0; t < n_triangles; ++t) identity &= order[t] == t;
 
     bool varying = false;
     uint32_t max_geometry_index = in.base_geometry_index_and_flags & 0xFFFFFFu;
-    if (in.geometry_index_and_flags && t > 0) {
+    if (in.geometry_index_and_flags && n_triangles > 0) {
         max_geometry_index = 0;
-        for (uint32_t t = 0; t < t; ++t) {
+        for (uint32_t t = 0; t < n_triangles; ++t) {
             varying |= in.geometry_index_and_flags[t] != in.geometry_index_and_flags[0];
             max_geometry_index =
                 std::max(max_geometry_index, in.geometry_index_and_flags[t] & 0xFFFFFFu);

@@ -41,20 +41,23 @@ HeaderCheck read_object_header(std::span<const std::byte> bytes) {
                   std::to_string(bytes.size()) + " bytes available";
         return r;
     }
-    const uint32_t t = h.triangle_count, v = h.vertex_count;
-    if (t > detail::kMaxTriangles || v > detail::kMaxVertices || h.position_truncate_bits > 32 ||
-        h.position_bits != 32 - h.position_truncate_bits) {
+    const uint32_t n_triangles = h.triangle_count, n_vertices = h.vertex_count;
+    if (n_triangles > detail::kMaxTriangles || n_vertices > detail::kMaxVertices ||
+        h.position_truncate_bits > 32 || h.position_bits != 32 - h.position_truncate_bits) {
         r.error = "counts or position bits out of range";
         return r;
     }
     const uint32_t s = h.object_size;
-    bool ok = section_fits(h.indices_offset, 3ull * t, s);
+    bool ok = section_fits(h.indices_offset, 3ull * n_triangles, s);
     if (h.header_flags & kHasPositions)
-        ok &= section_fits(h.positions_offset, detail::packed_section_size(v, h.position_bits), s);
-    if (h.header_flags & kHasTriangleOrder) ok &= section_fits(h.triangle_order_offset, t, s);
-    if (h.header_flags & kHasTriangleData) ok &= section_fits(h.triangle_data_offset, 4ull * t, s);
+        ok &= section_fits(h.positions_offset,
+                           detail::packed_section_size(n_vertices, h.position_bits), s);
+    if (h.header_flags & kHasTriangleOrder)
+        ok &= section_fits(h.triangle_order_offset, n_triangles, s);
+    if (h.header_flags & kHasTriangleData)
+        ok &= section_fits(h.triangle_data_offset, 4ull * n_triangles, s);
     if (h.header_flags & kHasOpacityMicromap)
-        ok &= section_fits(h.omm_offset, sizeof(OpacityMicromapSection) + 4ull * t, s);
+        ok &= section_fits(h.omm_offset, sizeof(OpacityMicromapSection) + 4ull * n_triangles, s);
     if (h.header_flags & kHasBoundsLimit) ok &= section_fits(h.bounds_limit_offset, 24, s);
     if (h.node_count)
         ok &= section_fits(h.nodes_offset, 8ull * h.node_count, s) &&
@@ -66,15 +69,15 @@ HeaderCheck read_object_header(std::span<const std::byte> bytes) {
     // Local indices must name stored vertices, and BVH links must stay inside the object,
     // so that tracing a corrupt object can never read out of bounds.
     // (A cluster without vertices keeps its inactive triangles' indices at 0 and has no BVH.)
-    if (v == 0 && h.node_count != 0) {
+    if (n_vertices == 0 && h.node_count != 0) {
         r.error = "BVH over a cluster without vertices";
         return r;
     }
     const std::byte* idx = bytes.data() + h.indices_offset;
-    for (uint32_t i = 0; i < 3 * t; ++i)
-        if (uint32_t(idx[i]) >= (v ? v : 1)) {
+    for (uint32_t i = 0; i < 3 * n_triangles; ++i)
+        if (uint32_t(idx[i]) >= (n_vertices ? n_vertices : 1)) {
             r.error = "local index " + std::to_string(uint32_t(idx[i])) + " >= vertex count " +
-                      std::to_string(v);
+                      std::to_string(n_vertices);
             return r;
         }
     bool referenced[detail::kMaxNodes] = {};
@@ -83,7 +86,7 @@ HeaderCheck read_object_header(std::span<const std::byte> bytes) {
         std::memcpy(&n, bytes.data() + h.nodes_offset + 8 * i, 8);
         if (n.link & kLeafBit) {
             const uint32_t first = n.link & 0xFF, count = ((n.link >> 8) & 3) + 1;
-            if (first + count > t) {
+            if (first + count > n_triangles) {
                 r.error =
                     "BVH leaf " + std::to_string(i) + " names triangles beyond the triangle count";
                 return r;

@@ -35,10 +35,10 @@ inline bool front_facing(const double d[3], const float* p0, const float* p1, co
 inline bool intersect_triangle(const PreparedRay& r, const float* p0, const float* p1,
                                const float* p2, double tmax, TriangleHit* hit) {
     double a[3], b[3], c[3];
-    for (int a = 0; a < 3; ++a) {
-        a[a] = double(p0[a]) - r.o[a];
-        b[a] = double(p1[a]) - r.o[a];
-        c[a] = double(p2[a]) - r.o[a];
+    for (int k = 0; k < 3; ++k) {
+        a[k] = double(p0[k]) - r.o[k];
+        b[k] = double(p1[k]) - r.o[k];
+        c[k] = double(p2[k]) - r.o[k];
     }
     const double ax = a[r.kx] - r.sx * a[r.kz], ay = a[r.ky] - r.sy * a[r.kz];
     const double bx = b[r.kx] - r.sx * b[r.kz], by = b[r.ky] - r.sy * b[r.kz];
@@ -47,8 +47,8 @@ inline bool intersect_triangle(const PreparedRay& r, const float* p0, const floa
     if ((u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0)) return false;
     const double det = u + v + w;
     if (det == 0.0 || !std::isfinite(det)) return false;
-    const double t = u * (r.sz * a[r.kz]) + v * (r.sz * b[r.kz]) + w * (r.sz * c[r.kz]);
-    const double t = t / det;
+    const double t_scaled = u * (r.sz * a[r.kz]) + v * (r.sz * b[r.kz]) + w * (r.sz * c[r.kz]);
+    const double t = t_scaled / det;
     if (!(t >= r.tmin && t <= tmax)) return false;
     hit->t = t;
     hit->u = v / det;
