@@ -34,8 +34,8 @@ protected:
 
 VkAccelerationStructureBuildSizesInfoKHR sizes_of(
     ClusterTestDevice& gpu, const VkClusterAccelerationStructureInputInfoNV& input) {
-    VkAccelerationStructureBuildSizesInfoKHR sizes{
-        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR};
+    VkAccelerationStructureBuildSizesInfoKHR sizes{};
+    sizes.sType = VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR;
     gpu.getBuildSizes(gpu.device, &input, &sizes);
     return sizes;
 }
@@ -120,9 +120,9 @@ TEST_F(StandinDriver, BuildsClustersAndABottomLevelAtItsOwnLayout) {
         SCOPED_TRACE(i);
         EXPECT_GE(addresses[i], implicit.address + clastrace::standin::kImplicitLeadingBytes);
         EXPECT_GE(addresses[i], previous_end);
-        EXPECT_EQ(addresses[i] % properties.clusterByteAlignment, 0u);
+        EXPECT_EQ(addresses[i] % properties.cluster_byte_alignment, 0u);
         EXPECT_GT(sizes[i], clastrace::standin::kObjectPaddingBytes);
-        EXPECT_EQ(sizes[i] % properties.clusterByteAlignment, 0u);
+        EXPECT_EQ(sizes[i] % properties.cluster_byte_alignment, 0u);
         EXPECT_LE(addresses[i] + sizes[i], implicit.address + implicit.size);
         previous_end = addresses[i] + sizes[i];
     }
