@@ -20,23 +20,6 @@ namespace {
 
 using detail::HeldCommand;
 
-// "srcInfosArray[3].vertexBuffer" -> "srcInfosArray[*].vertexBuffer": per-op hazards of one
-// command against one earlier field fold into one row.
-std::string any_index(const std::string& field) {
-    std::string out;
-    for (std::size_t i = 0; i < field.size(); ++i) {
-        out += field[i];
-        if (field[i] != '[') continue;
-        std::size_t j = i + 1;
-        while (j < field.size() && field[j] >= '0' && field[j] <= '9') ++j;
-        if (j > i + 1 && j < field.size() && field[j] == ']') {
-            out += '*';
-            i = j - 1;
-        }
-    }
-    return out;
-}
-
 uint64_t command_key(uint32_t submission, uint32_t command_buffer, uint32_t command,
                      uint64_t secondary_handle, uint32_t secondary, uint32_t secondary_command) {
     // 24 bits of command buffer and command: a hazard naming a command past that is unknown.
@@ -175,8 +158,9 @@ void ReplayStreamFeeder::on_hazard(const replay::HazardReport& h) {
         return;
     }
     const std::string hazard_class = replay::hazard_class_name(h.hazard);
-    auto key = std::make_tuple(hazard_class, prior->second, any_index(h.prior.field),
-                               any_index(h.later.field));
+    auto key =
+        std::make_tuple(hazard_class, prior->second, replay::hazard_field_family(h.prior.field),
+                        replay::hazard_field_family(h.later.field));
     const uint64_t base = h.overlap.begin,
                    size = h.overlap.empty() ? 0 : h.overlap.end - h.overlap.begin;
     auto [it, inserted] = s.hazard_fold.emplace(key, cmd.hazards.size());

@@ -44,9 +44,9 @@ std::vector<uint64_t> input_key(const VkClusterAccelerationStructureInputInfoNV&
 std::string ClusterDriverSizes::source() const {
     return queried ? "answered by the trace's vkGetClusterAccelerationStructureBuildSizesNV "
                      "query for this input"
-                   : "assumed (the engine's worst case: no "
+                   : "assumed as the engine's worst case, since no "
                      "vkGetClusterAccelerationStructureBuildSizesNV query in the trace matches "
-                     "this input)";
+                     "this input";
 }
 
 engine::ExecuteOptions::AnsweredSizes ClusterDriverSizes::answered() const {

@@ -161,4 +161,58 @@ nlohmann::json to_json(const std::vector<HazardReport>& reports, uint64_t suppre
     return {{"hazards", std::move(list)}, {"suppressed", suppressed}};
 }
 
+namespace {
+
+std::string without_size_note(const std::string& field) {
+    return field.substr(0, field.find(" ("));
+}
+
+std::string size_note(const std::string& field) {
+    const std::size_t at = field.find(" (");
+    return at == std::string::npos ? std::string() : field.substr(at);
+}
+
+// "srcInfosArray[3].vertexBuffer" -> "srcInfosArray[*].vertexBuffer",
+// "dstImplicitData[op 3]" -> "dstImplicitData[op *]".
+std::string any_index(const std::string& field) {
+    std::string out;
+    for (std::size_t i = 0; i < field.size(); ++i) {
+        out += field[i];
+        if (field[i] != '[') continue;
+        if (field.compare(i + 1, 3, "op ") == 0) {
+            out += "op ";
+            i += 3;
+        }
+        std::size_t j = i + 1;
+        while (j < field.size() && field[j] >= '0' && field[j] <= '9') ++j;
+        if (j > i + 1 && j < field.size() && field[j] == ']') {
+            out += '*';
+            i = j - 1;
+        }
+    }
+    return out;
+}
+
+// "dstImplicitData[op *]" -> "dstImplicitData": an op's objects and the region's unpacked bytes
+// are one field.
+std::string without_op_index(const std::string& field) {
+    std::string out = field;
+    for (std::size_t at; (at = out.find("[op *]")) != std::string::npos;) out.erase(at, 6);
+    return out;
+}
+
+}  // namespace
+
+std::string hazard_field_family(const std::string& field) {
+    return without_op_index(any_index(without_size_note(field)));
+}
+
+std::string folded_hazard_field(const std::string& a, const std::string& b) {
+    if (a == b) return a;
+    const std::string note = size_note(a).empty() ? size_note(b) : size_note(a);
+    const std::string base_a = any_index(without_size_note(a));
+    const std::string base_b = any_index(without_size_note(b));
+    return (base_a == base_b ? base_a : without_op_index(base_a)) + note;
+}
+
 }  // namespace clastrace::replay

@@ -7,30 +7,6 @@
 
 namespace clastrace::replay::detail {
 
-namespace {
-
-// "srcInfosArray[3].vertexBuffer" -> "srcInfosArray[*].vertexBuffer",
-// "dstImplicitData[op 3]" -> "dstImplicitData[op *]".
-std::string any_index(const std::string& field) {
-    std::string out;
-    for (size_t i = 0; i < field.size(); ++i) {
-        out += field[i];
-        if (field[i] != '[') continue;
-        if (field.compare(i + 1, 3, "op ") == 0) {
-            out += "op ";
-            i += 3;
-        }
-        size_t j = i + 1;
-        while (j < field.size() && field[j] >= '0' && field[j] <= '9') ++j;
-        if (j > i + 1 && j < field.size() && field[j] == ']') {
-            out += '*';
-            i = j - 1;
-        }
-    }
-    return out;
-}
-
-}  // namespace
 
 // The engine reports accesses per op, so one missing barrier before a build would show
 // once per op. Hazards of one class between the same two commands over the same prior
@@ -48,8 +24,8 @@ std::vector<HazardReport> merge_per_op_hazards(const std::vector<HazardReport>& 
     std::map<std::tuple<int, CommandKey, CommandKey, std::string, std::string>, size_t> index;
     for (const HazardReport& h : hazards) {
         auto key = std::make_tuple(int(h.hazard), command_key(h.prior.command),
-                                   command_key(h.later.command), any_index(h.prior.field),
-                                   any_index(h.later.field));
+                                   command_key(h.later.command), hazard_field_family(h.prior.field),
+                                   hazard_field_family(h.later.field));
         auto [it, inserted] = index.emplace(key, out.size());
         if (inserted) {
             out.push_back(h);
@@ -57,8 +33,8 @@ std::vector<HazardReport> merge_per_op_hazards(const std::vector<HazardReport>& 
         }
         ++*merged;
         HazardReport& m = out[it->second];
-        if (m.later.field != h.later.field) m.later.field = std::get<4>(key);
-        if (m.prior.field != h.prior.field) m.prior.field = std::get<3>(key);
+        m.later.field = folded_hazard_field(m.later.field, h.later.field);
+        m.prior.field = folded_hazard_field(m.prior.field, h.prior.field);
         m.later.range = {std::min(m.later.range.begin, h.later.range.begin),
                          std::max(m.later.range.end, h.later.range.end)};
         m.prior.range = {std::min(m.prior.range.begin, h.prior.range.begin),

@@ -292,8 +292,8 @@ const HazardCase kCases[] = {
          second.info.dstImplicitData = kDst;
          at.later = second.emit(t);
      },
-     "vkCmdBuildClusterAccelerationStructureIndirectNV", "dstImplicitData[op ",
-     "dstImplicitData[op ", kDst, kDst + 0x10000, FixKind::kPipelineBarrier, kBuild, kAsWrite},
+     "vkCmdBuildClusterAccelerationStructureIndirectNV", "dstImplicitData", "dstImplicitData", kDst,
+     kDst + 0x10000, FixKind::kPipelineBarrier, kBuild, kAsWrite},
     {"InfosOverwrittenWhileBuildReadsThem", HazardClass::kWriteAfterRead,
      [](TraceScript& t, bool fixed, Commands& at) {
          at.prior = triangle_clusters(Destinations::kImplicit).emit(t);

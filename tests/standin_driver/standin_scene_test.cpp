@@ -160,10 +160,12 @@ private:
                 return "not the application's: command " + std::to_string(c.command);
             return labels[c.command];
         };
+        // The field without its size note: the driver's sizes differ from the engine's by design.
+        auto field = [](const std::string& f) { return clastrace::replay::hazard_field_family(f); };
         HazardSet found;
         for (const auto& h : run_result.report.hazards)
             found.insert({clastrace::replay::hazard_class_name(h.hazard), label(h.prior.command),
-                          h.prior.field, label(h.later.command), h.later.field});
+                          field(h.prior.field), label(h.later.command), field(h.later.field)});
         return found;
     }
 };

@@ -60,6 +60,17 @@ struct HazardReport {
     std::string format() const;
 };
 
+// The field a hazard names, without its op index or its size note, so that the hazards one
+// missing barrier causes over one field fold into one report:
+// "srcInfosArray[3].vertexBuffer" -> "srcInfosArray[*].vertexBuffer",
+// "dstImplicitData[op 3]" and "dstImplicitData (the 4096-byte implicit region ...)" ->
+// "dstImplicitData".
+std::string hazard_field_family(const std::string& field);
+
+// The field of two folded hazards: the same field stays, two op indices become [*], and the
+// size note one of them carries is kept.
+std::string folded_hazard_field(const std::string& a, const std::string& b);
+
 nlohmann::json to_json(const HazardReport& report);
 nlohmann::json to_json(const std::vector<HazardReport>& reports, uint64_t suppressed);
 
