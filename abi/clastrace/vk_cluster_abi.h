@@ -321,3 +321,32 @@ CLASTRACE_ABI_ASSERT(sizeof(VkClusterAccelerationStructureTriangleClusterInputNV
 CLASTRACE_ABI_ASSERT(sizeof(VkClusterAccelerationStructureMoveObjectsInputNV) == 32);
 
 #undef CLASTRACE_ABI_TRIANGLE_INFO_OFFSETS
+
+#ifdef __cplusplus
+#include <cstdint>
+
+/* Bytes of one srcInfosArray entry per op type: the element the GPU reads at the array's
+ * stride (capture's walker and the engine's resolver both step by it). */
+namespace clastrace {
+
+// 0 for an op type spec version 4 does not define.
+constexpr uint32_t cluster_src_info_size(VkClusterAccelerationStructureOpTypeNV op) {
+    switch (op) {
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV:
+        return sizeof(VkClusterAccelerationStructureMoveObjectsInfoNV);
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV:
+        return sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV);
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV:
+        return sizeof(VkClusterAccelerationStructureBuildTriangleClusterInfoNV);
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV:
+        return sizeof(VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV);
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV:
+        return sizeof(VkClusterAccelerationStructureInstantiateClusterInfoNV);
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV:
+        return sizeof(VkClusterAccelerationStructureGetTemplateIndicesInfoNV);
+    default: return 0;
+    }
+}
+
+}  // namespace clastrace
+#endif /* __cplusplus */

@@ -108,24 +108,6 @@ private:
     uint64_t total_ = 0;
 };
 
-uint32_t src_info_bytes(VkClusterAccelerationStructureOpTypeNV op) {
-    switch (op) {
-    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV:
-        return sizeof(VkClusterAccelerationStructureMoveObjectsInfoNV);
-    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV:
-        return sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV);
-    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV:
-        return sizeof(VkClusterAccelerationStructureBuildTriangleClusterInfoNV);
-    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV:
-        return sizeof(VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV);
-    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV:
-        return sizeof(VkClusterAccelerationStructureInstantiateClusterInfoNV);
-    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV:
-        return sizeof(VkClusterAccelerationStructureGetTemplateIndicesInfoNV);
-    default: return 0;
-    }
-}
-
 // The triangle cluster info and its template variant share their first 64 bytes (the ABI
 // header checks the offsets), so one reader serves both.
 void follow_triangle_cluster(Walker& walker, uint32_t entry, const uint8_t* bytes, bool is_template,
@@ -326,7 +308,7 @@ ClusterMemoryWalk walk_cluster_inputs(const ClusterCommandParameters& p,
                              std::to_string(max_count));
         count = value < max_count ? value : max_count;
     }
-    const uint32_t entry_bytes = src_info_bytes(info.input.opType);
+    const uint32_t entry_bytes = cluster_src_info_size(info.input.opType);
     if (entry_bytes == 0) {
         walker.issue(0, 0,
                      "opType " + std::to_string(int(info.input.opType)) +

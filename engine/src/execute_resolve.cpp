@@ -24,22 +24,6 @@ const char* src_infos_vuid(VkClusterAccelerationStructureOpTypeNV t) {
     }
 }
 
-uint64_t src_info_size(VkClusterAccelerationStructureOpTypeNV t) {
-    switch (t) {
-    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV:
-        return sizeof(VkClusterAccelerationStructureMoveObjectsInfoNV);
-    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV:
-        return sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV);
-    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV:
-        return sizeof(VkClusterAccelerationStructureBuildTriangleClusterInfoNV);
-    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV:
-        return sizeof(VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV);
-    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV:
-        return sizeof(VkClusterAccelerationStructureInstantiateClusterInfoNV);
-    default: return sizeof(VkClusterAccelerationStructureGetTemplateIndicesInfoNV);
-    }
-}
-
 // How many whole elements of `element` bytes at `stride` fit in `bytes`.
 uint64_t elements_in(uint64_t bytes, uint64_t stride, uint64_t element) {
     if (bytes < element) return 0;
@@ -205,7 +189,7 @@ bool resolve_addresses(CommandState& s) {
     cmd.input = &input;
     cmd.properties = &s.options.properties;
     cmd.directory = &s.directory;
-    cmd.info_size = src_info_size(input.opType);
+    cmd.info_size = cluster_src_info_size(input.opType);
     cmd.src_infos = command.srcInfosArray;
     cmd.src_infos.deviceAddress = resolve_field(
         s, command.srcInfosArray.deviceAddress,
