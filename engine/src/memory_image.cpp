@@ -312,16 +312,8 @@ uint64_t MemoryImage::resident_bytes() const {
 }
 
 void MemoryImage::zero_bytes(uint64_t address, uint64_t size, FieldRef where) {
-    MemoryRegion* r = find_region(address);
-    if (!r)
-        fault(address, size, where,
-              address == 0 ? "null device address write"
-                           : "write to an address outside every memory region");
+    MemoryRegion* r = &region_holding(address, size, where, "write");
     const uint64_t offset = address - r->base;
-    if (size > r->size - offset)
-        fault(address, size, where,
-              "write runs off the end of region '" + r->label + "' [" + hex(r->base) + ", +" +
-                  std::to_string(r->size) + ")");
     const uint64_t before = r->bytes.resident_bytes();
     r->bytes.zero(offset, size);
     const uint64_t after = r->bytes.resident_bytes();
@@ -343,32 +335,37 @@ MemoryRegion* MemoryImage::find_region(uint64_t address) {
     return const_cast<MemoryRegion*>(static_cast<const MemoryImage*>(this)->find_region(address));
 }
 
-std::span<const std::byte> MemoryImage::read_bytes(uint64_t address, uint64_t size,
-                                                   FieldRef where) const {
+const MemoryRegion& MemoryImage::region_holding(uint64_t address, uint64_t size, FieldRef where,
+                                                const char* access) const {
     const MemoryRegion* r = find_region(address);
+    if (r && size <= r->size - (address - r->base)) return *r;
+    const std::string what = access;
     if (!r)
         fault(address, size, where,
-              address == 0 ? "null device address read"
-                           : "read from an address outside every memory region");
+              address == 0 ? "null device address " + what
+                           : what + (what == "read" ? " from" : " to") +
+                                 " an address outside every memory region");
+    fault(address, size, where,
+          what + " runs off the end of region '" + r->label + "' [" + hex(r->base) + ", +" +
+              std::to_string(r->size) + ")");
+}
+
+MemoryRegion& MemoryImage::region_holding(uint64_t address, uint64_t size, FieldRef where,
+                                          const char* access) {
+    return const_cast<MemoryRegion&>(
+        static_cast<const MemoryImage*>(this)->region_holding(address, size, where, access));
+}
+
+std::span<const std::byte> MemoryImage::read_bytes(uint64_t address, uint64_t size,
+                                                   FieldRef where) const {
+    const MemoryRegion* r = &region_holding(address, size, where, "read");
     const uint64_t offset = address - r->base;
-    if (size > r->size - offset)
-        fault(address, size, where,
-              "read runs off the end of region '" + r->label + "' [" + hex(r->base) + ", +" +
-                  std::to_string(r->size) + ")");
     return {r->bytes.data() + offset, static_cast<size_t>(size)};
 }
 
 std::span<std::byte> MemoryImage::write_bytes(uint64_t address, uint64_t size, FieldRef where) {
-    MemoryRegion* r = find_region(address);
-    if (!r)
-        fault(address, size, where,
-              address == 0 ? "null device address write"
-                           : "write to an address outside every memory region");
+    MemoryRegion* r = &region_holding(address, size, where, "write");
     const uint64_t offset = address - r->base;
-    if (size > r->size - offset)
-        fault(address, size, where,
-              "write runs off the end of region '" + r->label + "' [" + hex(r->base) + ", +" +
-                  std::to_string(r->size) + ")");
     if (resident_limit_ != ~0ull) {
         const uint64_t added = r->bytes.untouched_bytes(offset, size);
         if (added > 0 && written_ + added > resident_limit_) {

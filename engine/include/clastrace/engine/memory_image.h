@@ -205,6 +205,13 @@ public:
     bool invariants_hold() const;
 
 private:
+    // The region holding all of [address, address + size), or a fault naming the access
+    // ("read" or "write") and why it does not fit.
+    const MemoryRegion& region_holding(uint64_t address, uint64_t size, FieldRef where,
+                                       const char* access) const;
+    MemoryRegion& region_holding(uint64_t address, uint64_t size, FieldRef where,
+                                 const char* access);
+
     std::map<uint64_t, MemoryRegion> regions_;  // keyed by base
     uint64_t reserved_ = 0;
     uint64_t written_ = 0;  // pages counted through write_bytes, for the limit
