@@ -35,6 +35,48 @@ TEST(MemoryImage, FaultNamesAddressFieldAndOp) {
     EXPECT_THROW((void)m.read<uint8_t>(0, {"x", 1}), MemoryFault);
 }
 
+// Each access kind says what it did and why the bytes are not there.
+TEST(MemoryImage, FaultSaysReadOrWriteAndWhy) {
+    MemoryImage m;
+    m.add_region(0x1000, 64, 0, "buf");
+    auto message = [&](auto access) {
+        try {
+            access();
+        } catch (const MemoryFault& f) {
+            return f.message;
+        }
+        return std::string("no fault");
+    };
+    auto contains = [](const std::string& text, const char* part) {
+        return text.find(part) != std::string::npos;
+    };
+    EXPECT_TRUE(contains(message([&] {
+                             (void)m.read_bytes(0, 4, {"x", 0});
+                         }),
+                         "null device address read"));
+    EXPECT_TRUE(contains(message([&] {
+                             (void)m.write_bytes(0, 4, {"x", 0});
+                         }),
+                         "null device address write"));
+    EXPECT_TRUE(contains(message([&] {
+                             (void)m.read_bytes(0x9000, 4, {"x", 0});
+                         }),
+                         "read from an address outside every memory region"));
+    EXPECT_TRUE(contains(message([&] {
+                             m.zero_bytes(0x9000, 4, {"x", 0});
+                         }),
+                         "write to an address outside every memory region"));
+    EXPECT_TRUE(contains(message([&] {
+                             (void)m.read_bytes(0x1038, 16, {"x", 0});
+                         }),
+                         "read runs off the end of region 'buf' [0x1000, +64)"));
+    EXPECT_TRUE(contains(message([&] {
+                             (void)m.write_bytes(0x1038, 16, {"x", 0});
+                         }),
+                         "write runs off the end of region 'buf' [0x1000, +64)"));
+    EXPECT_EQ(message([&] { m.zero_bytes(0x1000, 64, {"x", 0}); }), "no fault");
+}
+
 TEST(MemoryImage, SizeWrappingTwoToThe64IsAFault) {
     MemoryImage m;
     m.add_region(0x1000, 64, 0, "buf");
