@@ -142,6 +142,16 @@ void check_rays(DeviceState& d, VkQueue queue, const SubmissionPlan& plan) {
     run_ray_checks(d, queue, plan.record.index, top_levels);
 }
 
+// Host writes (host_write_watch.h): before the driver call, so the hashes are of what the host
+// wrote before it submitted.
+void watch_host_writes(DeviceState& d, const SubmissionPlan& plan) {
+    if (!plan.capture || !d.capturing_now() || !layer_config().host_writes) return;
+    std::vector<const PausePoint*> pauses;
+    for (const PendingPauses& p : plan.pauses)
+        for (const PausePoint& pause : p.pauses) pauses.push_back(&pause);
+    d.host_writes.submitting(d, plan.record, pauses);
+}
+
 VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit(VkQueue queue, uint32_t submit_count,
                                            const VkSubmitInfo* p_submits, VkFence fence) {
     DeviceState& d = *find_device(dispatch_key(queue));
@@ -175,9 +185,13 @@ VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit(VkQueue queue, uint32_t submit_count,
         }
         plan.record.batches.push_back(std::move(batch));
     }
+    watch_host_writes(d, plan);
     auto admitted = admit_shared_pauses(d, queue, plan);
     VkResult result = d.next.QueueSubmit(queue, submit_count, p_submits, fence);
-    if (result != VK_SUCCESS) return result;
+    if (result != VK_SUCCESS) {
+        d.host_writes.submit_failed(plan.record.index);
+        return result;
+    }
     announce(d, queue, plan);
     if (admitted.owns_lock())
         admitted.unlock();  // the worker tracks this submission's shared pauses now
@@ -209,9 +223,13 @@ VkResult queue_submit2(VkQueue queue, uint32_t submit_count, const VkSubmitInfo2
         }
         plan.record.batches.push_back(std::move(batch));
     }
+    watch_host_writes(d, plan);
     auto admitted = admit_shared_pauses(d, queue, plan);
     VkResult result = next(queue, submit_count, p_submits, fence);
-    if (result != VK_SUCCESS) return result;
+    if (result != VK_SUCCESS) {
+        d.host_writes.submit_failed(plan.record.index);
+        return result;
+    }
     announce(d, queue, plan);
     if (admitted.owns_lock())
         admitted.unlock();  // the worker tracks this submission's shared pauses now
