@@ -8,6 +8,10 @@
 //   dispatch OUT.json      a compute dispatch with storage buffers bound (one dynamic)
 //   resubmit N             one command buffer submitted N times, the host changing the count
 //   pause-cost N           N builds in one submission; prints the time per build
+//   host-rewrite WHEN      one build of a cluster from src infos in mapped memory; the host
+//                          rewrites the infos after vkQueueSubmit, WHEN = before-wait (a race:
+//                          the build may read either bytes) or after-wait (the fence wait
+//                          ordered the build first), then submits once more and waits
 //   serve OUT.json         served_scene.h: triangle clusters, then a bottom level over the
 //                          addresses the first build wrote, in one command buffer; OUT.json
 //                          holds every buffer's address and what the builds wrote. Exit 3
@@ -331,6 +335,71 @@ int resubmit(int times) {
     return 0;
 }
 
+// The host rewrites the src infos a submitted build reads, before or after the fence wait that
+// orders the build (capture/README.md, "Host writes").
+int hostRewrite(bool beforeWait) {
+    Context c;
+    c.createInstance();
+    c.createDevice();
+    Buffer counts = c.makeBuffer(256, 0, 0);
+    Buffer infos = c.makeBuffer(1024, 0, 0);
+    Buffer vertices = c.makeBuffer(256, 0, 0);
+    Buffer indices = c.makeBuffer(256, 0, 0);
+    const uint32_t one = 1;
+    std::memcpy(counts.mapped, &one, 4);
+    VkClusterAccelerationStructureBuildTriangleClusterInfoNV cluster{};
+    cluster.clusterID = 10;
+    cluster.triangleCount = 1;
+    cluster.vertexCount = 3;
+    cluster.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
+    cluster.indexBuffer = indices.address;
+    cluster.vertexBuffer = vertices.address;
+    std::memcpy(infos.mapped, &cluster, sizeof cluster);
+    VkClusterAccelerationStructureTriangleClusterInputNV triangleInput{};
+    triangleInput.sType =
+        VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
+    triangleInput.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+    VkClusterAccelerationStructureCommandsInfoNV build{};
+    build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+    build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+    build.input.maxAccelerationStructureCount = 1;
+    build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
+    build.input.opInput.pTriangleClusters = &triangleInput;
+    build.srcInfosArray = {infos.address, 0, sizeof cluster};
+    build.srcInfosCount = counts.address;
+
+    VkCommandBufferAllocateInfo allocInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr,
+                                          c.pool, VK_COMMAND_BUFFER_LEVEL_PRIMARY, 1};
+    VkCommandBuffer cb;
+    CHECK(vkAllocateCommandBuffers(c.device, &allocInfo, &cb));
+    VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr, 0,
+                                   nullptr};
+    CHECK(vkBeginCommandBuffer(cb, &begin));
+    c.cmdBuildClusters(cb, &build);
+    CHECK(vkEndCommandBuffer(cb));
+    VkFenceCreateInfo fenceInfo{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO, nullptr, 0};
+    VkFence fence;
+    CHECK(vkCreateFence(c.device, &fenceInfo, nullptr, &fence));
+    VkSubmitInfo submit{};
+    submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
+    submit.commandBufferCount = 1;
+    submit.pCommandBuffers = &cb;
+    auto rewrite = [&] {
+        cluster.clusterID = 20;  // the next frame's infos, written over this frame's
+        std::memcpy(infos.mapped, &cluster, sizeof cluster);
+    };
+    const uint64_t kForever = 30ull * 1000 * 1000 * 1000;
+    CHECK(vkQueueSubmit(c.queue, 1, &submit, fence));
+    if (beforeWait) rewrite();
+    CHECK(vkWaitForFences(c.device, 1, &fence, VK_TRUE, kForever));
+    if (!beforeWait) rewrite();
+    CHECK(vkResetFences(c.device, 1, &fence));
+    CHECK(vkQueueSubmit(c.queue, 1, &submit, fence));
+    CHECK(vkWaitForFences(c.device, 1, &fence, VK_TRUE, kForever));
+    vkDestroyFence(c.device, fence, nullptr);
+    return 0;
+}
+
 // A compute dispatch with two storage buffers bound (one dynamic), for the layer's record of
 // what a dispatch can write. The shader does nothing: only the binding state matters.
 int dispatch(const char* outPath) {
@@ -570,6 +639,8 @@ int main(int argc, char** argv) {
     if (argc == 3 && std::strcmp(argv[1], "dispatch") == 0) return dispatch(argv[2]);
     if (argc == 3 && std::strcmp(argv[1], "resubmit") == 0)
         return resubmit(std::max(1, std::atoi(argv[2])));
+    if (argc == 3 && std::strcmp(argv[1], "host-rewrite") == 0)
+        return hostRewrite(std::strcmp(argv[2], "before-wait") == 0);
     if (argc == 3 && std::strcmp(argv[1], "pause-cost") == 0)
         return pauseCost(std::max(1, std::atoi(argv[2])));
     std::fprintf(stderr, "usage: cluster_capture_app limits|exactness OUT.json | pause-cost N\n");
