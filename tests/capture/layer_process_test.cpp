@@ -457,12 +457,12 @@ TEST_F(ExactnessRun, HostRewriteBeforeTheFenceWaitIsOneHostWriteRace) {
         for (size_t at = replayed.out.find("HOST-WRITE race"); at != std::string::npos;
              at = replayed.out.find("HOST-WRITE race", at + 1))
             ++races;
+        // (The app's build, like resubmit's, leaves limits and usages unset: replay lists those
+        // findings in both runs, so only the races are compared.)
         if (std::string(when) == "before-wait") {
-            EXPECT_EQ(replayed.exitCode, 1) << replayed.out << replayed.err;
             EXPECT_EQ(races, 1u) << replayed.out;
             EXPECT_NE(replayed.out.find("double-buffer"), std::string::npos) << replayed.out;
         } else {
-            EXPECT_EQ(replayed.exitCode, 0) << replayed.out << replayed.err;
             EXPECT_EQ(races, 0u) << replayed.out;
         }
     }
