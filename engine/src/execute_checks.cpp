@@ -132,12 +132,19 @@ void check_overlaps(CommandState& s, std::vector<Written> v, const char* rule, c
 void check_scratch_overlaps(CommandState& s) {
     const ResolvedCommand& cmd = s.cmd;
     if (cmd.scratch == 0 || s.record.scratch_bytes_used == 0) return;
-    uint64_t s0 = cmd.scratch, s1 = cmd.scratch + s.record.scratch_bytes_used;
-    if (s.implicit && s.cursor > 0 && cmd.implicit_data < s1 && s0 < cmd.implicit_data + s.cursor)
+    // A driver may touch every byte it answered: with answered sizes the ranges span them.
+    const auto& answered = s.options.answered_sizes;
+    const uint64_t scratch_size =
+        answered ? std::max(answered->build_scratch_size, s.record.scratch_bytes_used)
+                 : s.record.scratch_bytes_used;
+    const uint64_t implicit_size =
+        answered ? std::max(answered->acceleration_structure_size, s.cursor) : s.cursor;
+    const uint64_t s0 = cmd.scratch, s1 = sat_add(cmd.scratch, scratch_size);
+    const uint64_t i0 = cmd.implicit_data, i1 = sat_add(cmd.implicit_data, implicit_size);
+    if (s.implicit && s.cursor > 0 && i0 < s1 && s0 < i1)
         s.top.finding("VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-dstImplicitData-12303",
-                      "dstImplicitData [" + hex(cmd.implicit_data) + ", " +
-                          hex(cmd.implicit_data + s.cursor) + ") overlaps scratchData [" + hex(s0) +
-                          ", " + hex(s1) + ")",
+                      "dstImplicitData [" + hex(i0) + ", " + hex(i1) + ") overlaps scratchData [" +
+                          hex(s0) + ", " + hex(s1) + ")",
                       cmd.implicit_data);
     if (s.explicit_mode)
         for (const Written& w : s.written)
@@ -239,23 +246,29 @@ void check_buffer_usage(CommandState& s, UsageExtent extent) {
     }
 }
 
-// The engine's (offset, size) table in scratch; 12300 against the queried size.
+// The engine's (offset, size) table in scratch; 12300 against the answered size when the
+// caller has one, else against the engine's own worst case for the (queried) input.
 void check_scratch(CommandState& s) {
     const ResolvedCommand& cmd = s.cmd;
     const EngineProperties& props = s.options.properties;
-    VkClusterAccelerationStructureInputInfoNV queried_input = s.input;
-    if (s.options.queried_max_count != 0)
-        queried_input.maxAccelerationStructureCount = s.options.queried_max_count;
-    const BuildSizes queried = cluster_build_sizes(queried_input, props);
-    if (queried.build_scratch_size == 0) return;
+    uint64_t required = 0;
+    std::string origin = " bytes the build sizes require";
+    if (s.options.answered_sizes) {
+        required = s.options.answered_sizes->build_scratch_size;
+        origin = "-byte buildScratchSize " + s.options.answered_sizes->source;
+    } else {
+        VkClusterAccelerationStructureInputInfoNV queried_input = s.input;
+        if (s.options.queried_max_count != 0)
+            queried_input.maxAccelerationStructureCount = s.options.queried_max_count;
+        required = cluster_build_sizes(queried_input, props).build_scratch_size;
+    }
+    if (required == 0) return;
     const MemoryRegion* region = s.memory.find_region(cmd.scratch);
     uint64_t available = region ? region->base + region->size - cmd.scratch : 0;
-    if (available < queried.build_scratch_size) {
+    if (available < required) {
         s.top.finding(kRuleScratchTooSmall,
                       "scratchData " + hex(cmd.scratch) + " has " + std::to_string(available) +
-                          " bytes of memory, less than the " +
-                          std::to_string(queried.build_scratch_size) +
-                          " bytes the build sizes require",
+                          " bytes of memory, less than the " + std::to_string(required) + origin,
                       cmd.scratch);
         s.scratch_usable = available >= scratch_bytes_for_ops(cmd.count);
     }

@@ -237,6 +237,7 @@ bool resolve_addresses(CommandState& s) {
         VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_SRC_INFOS_COUNT_BIT_NV,
         "srcInfosCount", ok);
     s.record.scratch_address = cmd.scratch;
+    s.record.implicit_address = cmd.implicit_data;
     if (!ok) {
         s.flush_command_findings();
         s.record.accesses = std::move(s.top.accesses);

@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "cluster_command.h"
 
+#include <clastrace/engine/build_sizes.h>
 #include <clastrace/engine/execute.h>
 #include <clastrace/traces/cluster_conversions.h>
 
@@ -158,7 +159,8 @@ std::string field_at(const engine::ExecutionRecord& record, uint64_t address, in
 
 void verify(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
             const VkClusterAccelerationStructureCommandsInfoNV& info,
-            const engine::ExecutionRecord& record, ClusterCommandContext& c) {
+            const engine::ExecutionRecord& record, const ClusterDriverSizes& driver_sizes,
+            ClusterCommandContext& c) {
     CapturedOutputs captured;
     if (build.outputs()) {
         for (const fbs::MemorySnapshot* s : *build.outputs()) {
@@ -183,6 +185,9 @@ void verify(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
     sizes.where = c.where;
     sizes.op_type = info.input.opType;
     sizes.ops = static_cast<uint32_t>(record.ops.size());
+    sizes.scratch_span = driver_sizes.build_scratch_size;
+    sizes.destination_span = driver_sizes.acceleration_structure_size;
+    sizes.spans_queried = driver_sizes.queried;
 
     for (size_t i = 0; i < record.ops.size(); ++i) {
         const engine::OpResult& op = record.ops[i];
@@ -262,20 +267,110 @@ void verify(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
     }
 }
 
+// Explicit mode: the bytes each op's destination may take, as the driver reads them from
+// dstSizesArray (when the command has one) or, without it, the answered per-object maximum.
+std::vector<uint64_t> explicit_destination_spans(
+    const VkClusterAccelerationStructureCommandsInfoNV& info, const engine::ExecutionRecord& record,
+    const ClusterDriverSizes& sizes, ReplayMemory& memory) {
+    std::vector<uint64_t> spans(record.ops.size(), sizes.acceleration_structure_size);
+    const VkStridedDeviceAddressRegionKHR& array = info.dstSizesArray;
+    if (array.deviceAddress == 0 ||
+        (info.addressResolutionFlags &
+         VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_SIZES_ARRAY_BIT_NV))
+        return spans;
+    const uint64_t stride = array.stride ? array.stride : 4;
+    for (size_t i = 0; i < spans.size(); ++i) {
+        try {
+            spans[i] = memory.image().read<uint32_t>(array.deviceAddress + i * stride,
+                                                     {"dstSizesArray", int64_t(i)});
+        } catch (const engine::MemoryFault&) {
+            break;  // the engine reports the fault; the rest keep the answered maximum
+        }
+    }
+    return spans;
+}
+
+// The command's accesses for the sync model at the sizes a driver may touch: scratch spans the
+// answered buildScratchSize; in implicit mode the answered region from dstImplicitData is
+// written whole (the engine's packed objects keep their per-op fields, the bytes around them
+// are named as the region, with its size and where the size comes from); in explicit mode each
+// destination spans its explicit_destination_spans() entry.
+struct DriverSizedAccesses {
+    std::vector<Access> accesses;
+    std::string scratch_field, region_field;  // what Access::field of those accesses views
+
+    DriverSizedAccesses(const engine::ExecutionRecord& record, bool implicit,
+                        const std::vector<uint64_t>& explicit_spans,
+                        const ClusterDriverSizes& sizes) {
+        scratch_field = "scratchData (the " + std::to_string(sizes.build_scratch_size) +
+                        "-byte buildScratchSize " + sizes.source() + ")";
+        region_field = "dstImplicitData (the " + std::to_string(sizes.acceleration_structure_size) +
+                       "-byte implicit region " + sizes.source() + ")";
+        std::vector<AddressRange> packed;
+        accesses.reserve(record.accesses.size() + 1);
+        for (const engine::MemoryAccess& a : record.accesses) {
+            if (a.end <= a.begin) continue;
+            Access access{{a.begin, a.end}, a.stage, a.access, a.is_write, a.field};
+            if (a.op_index < 0 && a.field == "scratchData") {
+                access.range.end =
+                    std::max(a.end, engine::sat_add(a.begin, sizes.build_scratch_size));
+                access.field = scratch_field;
+            } else if (implicit && a.is_write && a.field.starts_with("dstImplicitData[")) {
+                packed.push_back(access.range);
+            } else if (a.is_write && a.op_index >= 0 &&
+                       size_t(a.op_index) < explicit_spans.size() &&
+                       a.field.starts_with("*dstAddressesArray[")) {
+                access.range.end =
+                    std::max(a.end, engine::sat_add(a.begin, explicit_spans[size_t(a.op_index)]));
+            }
+            accesses.push_back(access);
+        }
+        if (implicit && !record.ops.empty()) add_unpacked_region(record, sizes, packed);
+    }
+
+private:
+    // The answered region less the engine's packed objects, as writes of the region.
+    void add_unpacked_region(const engine::ExecutionRecord& record, const ClusterDriverSizes& sizes,
+                             std::vector<AddressRange>& packed) {
+        const uint64_t begin = record.implicit_address;
+        const uint64_t end = engine::sat_add(begin, std::max(sizes.acceleration_structure_size,
+                                                             record.implicit_bytes_used));
+        std::sort(packed.begin(), packed.end(),
+                  [](const AddressRange& a, const AddressRange& b) { return a.begin < b.begin; });
+        uint64_t cursor = begin;
+        auto unpacked = [&](uint64_t to) {
+            if (cursor < to)
+                accesses.push_back(Access{{cursor, to},
+                                          engine::kStageBuild,
+                                          engine::kAccessObjectWrite,
+                                          true,
+                                          region_field});
+        };
+        for (const AddressRange& r : packed) {
+            unpacked(std::min(r.begin, end));
+            cursor = std::max(cursor, r.end);
+        }
+        unpacked(end);
+    }
+};
+
 }  // namespace
 
 void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
-                         uint32_t queried_max_count, ClusterCommandContext& c) {
+                         uint32_t queried_max_count, const ClusterSizeQueries& queries,
+                         ClusterCommandContext& c) {
     traces::ClusterOpInputStorage op_inputs;  // what info.input.opInput points to
     const VkClusterAccelerationStructureCommandsInfoNV info =
         traces::cluster_commands_from_record(build, op_inputs);
     Translator(c).run(info);
+    const ClusterDriverSizes sizes = queries.sizes_for(info.input, c.properties);
 
     engine::ExecuteOptions options;
     options.properties = c.properties;
     options.directory = &c.directory;
     options.max_findings_per_rule = c.options.max_findings_per_rule;
     options.queried_max_count = queried_max_count;
+    options.answered_sizes = sizes.answered();
     options.first_without_usage = [&c](uint64_t begin, uint64_t end, VkBufferUsageFlags usage) {
         return c.memory.first_without_usage(begin, end, usage);
     };
@@ -315,16 +410,19 @@ void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect
     }
     if (c.options.check_hazards) {
         // One call for the command: the model keeps each per-op array as one range.
-        std::vector<Access> accesses;
-        accesses.reserve(record.accesses.size());
-        for (const engine::MemoryAccess& a : record.accesses) {
-            if (a.end <= a.begin) continue;
-            accesses.push_back(Access{{a.begin, a.end}, a.stage, a.access, a.is_write, a.field});
-        }
-        c.report.counts.accesses += accesses.size();
-        c.sync.record_accesses(c.ref, accesses);
+        const bool implicit =
+            info.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+        const bool explicit_mode =
+            info.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
+        const DriverSizedAccesses sized(record, implicit,
+                                        explicit_mode ? explicit_destination_spans(info, record,
+                                                                                   sizes, c.memory)
+                                                      : std::vector<uint64_t>{},
+                                        sizes);
+        c.report.counts.accesses += sized.accesses.size();
+        c.sync.record_accesses(c.ref, sized.accesses);
     }
-    verify(build, info, record, c);
+    verify(build, info, record, sizes, c);
     if (c.executed) *c.executed = std::move(record);
 }
 

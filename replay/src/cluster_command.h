@@ -4,6 +4,7 @@
 // and the capture's outputs compared with the engine's.
 #pragma once
 
+#include "cluster_size_queries.h"
 #include "replay_memory.h"
 
 #include <clastrace/common/hex.h>
@@ -53,7 +54,10 @@ struct ClusterCommandContext {
     uint64_t* engine_ns = nullptr;
 };
 
+// queried_max_count: the largest count queried for the command's op type and mode (10445);
+// queries: the answers that size its scratch and implicit ranges (cluster_size_queries.h).
 void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
-                         uint32_t queried_max_count, ClusterCommandContext& context);
+                         uint32_t queried_max_count, const ClusterSizeQueries& queries,
+                         ClusterCommandContext& context);
 
 }  // namespace clastrace::replay::detail

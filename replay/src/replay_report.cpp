@@ -148,15 +148,19 @@ std::string format_text(const ReplayReport& r) {
          ")\n";
     if (!r.sizes.empty()) {
         s += "  sizes, capture vs engine:\n";
-        std::snprintf(line, sizeof line, "  %-26s %-31s %6s %8s %14s %14s %6s\n", "command",
-                      "op type", "ops", "compared", "captured bytes", "engine bytes", "equal");
+        std::snprintf(line, sizeof line, "  %-26s %-31s %6s %8s %14s %14s %6s %12s %12s %s\n",
+                      "command", "op type", "ops", "compared", "captured bytes", "engine bytes",
+                      "equal", "scratch", "dst span", "spans");
         s += line;
         for (const SizeComparison& c : r.sizes) {
             const std::string where = short_where(c.where);
             std::snprintf(line, sizeof line,
-                          "  %-26s %-31s %6u %8u %14" PRIu64 " %14" PRIu64 " %6u\n", where.c_str(),
-                          cluster_op_type_name(c.op_type), c.ops, c.ops_compared, c.captured_bytes,
-                          c.engine_bytes, c.sizes_equal);
+                          "  %-26s %-31s %6u %8u %14" PRIu64 " %14" PRIu64 " %6u %12" PRIu64
+                          " %12" PRIu64 " %s\n",
+                          where.c_str(), cluster_op_type_name(c.op_type), c.ops, c.ops_compared,
+                          c.captured_bytes, c.engine_bytes, c.sizes_equal, c.scratch_span,
+                          c.destination_span,
+                          c.spans_queried ? "queried" : "assumed (engine worst case)");
             s += line;
         }
     }
@@ -270,7 +274,10 @@ nlohmann::json to_json(const ReplayReport& r) {
                          {"ops_compared", c.ops_compared},
                          {"captured_bytes", c.captured_bytes},
                          {"engine_bytes", c.engine_bytes},
-                         {"sizes_equal", c.sizes_equal}});
+                         {"sizes_equal", c.sizes_equal},
+                         {"scratch_span", c.scratch_span},
+                         {"destination_span", c.destination_span},
+                         {"spans_queried", c.spans_queried}});
     }
     nlohmann::json nv_sizes = nlohmann::json::array();
     for (const NvSizeComparison& c : r.nv_sizes)

@@ -32,11 +32,7 @@ bool Replay::on_acceleration_structure_record(fbs::RecordBody kind, const fbs::R
         memory_.destroy_object(r.body_as_AccelerationStructureDestroy()->acceleration_structure());
         break;
     case fbs::RecordBody::GetClusterBuildSizes: {
-        const auto* q = r.body_as_GetClusterBuildSizes();
-        if (q->input()) {
-            uint32_t& m = queried_max_count_[{q->input()->op_type(), q->input()->op_mode()}];
-            m = std::max(m, q->input()->max_acceleration_structure_count());
-        }
+        cluster_queries_.on_query(*r.body_as_GetClusterBuildSizes());
         break;
     }
     default: return false;
@@ -45,15 +41,16 @@ bool Replay::on_acceleration_structure_record(fbs::RecordBody kind, const fbs::R
 }
 
 // A cluster build runs on the engine with its count checked against the largest
-// vkGetClusterAccelerationStructureBuildSizesNV query for its op type and mode.
+// vkGetClusterAccelerationStructureBuildSizesNV query for its op type and mode, and its
+// scratch and implicit ranges sized by the query that matches its input
+// (cluster_size_queries.h).
 void Replay::build_clusters(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
                             const CommandRef& ref, const ReplayLocation& where) {
     lay_in_snapshots(build.inputs(), where);
     uint32_t queried = 0;
-    if (build.input()) {
-        auto it = queried_max_count_.find({build.input()->op_type(), build.input()->op_mode()});
-        if (it != queried_max_count_.end()) queried = it->second;
-    }
+    if (build.input())
+        queried =
+            cluster_queries_.largest_count(build.input()->op_type(), build.input()->op_mode());
     ClusterCommandContext context{memory_,
                                   directory_,
                                   translation_,
@@ -70,7 +67,7 @@ void Replay::build_clusters(const fbs::CmdBuildClusterAccelerationStructureIndir
                                   },
                                   observed_execution_,
                                   observed_engine_ns_};
-    run_cluster_command(build, queried, context);
+    run_cluster_command(build, queried, cluster_queries_, context);
 }
 void Replay::build_nv(const fbs::CmdBuildAccelerationStructureNV& b, const CommandRef& ref,
                       const ReplayLocation& where) {

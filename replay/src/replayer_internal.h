@@ -168,8 +168,7 @@ private:
     std::unordered_set<uint64_t>
         pools_noted_;  // pool resets of unknown membership already in not_replayed
     std::unordered_map<uint64_t, QueueId> queues_;
-    std::map<std::pair<uint32_t, uint32_t>, uint32_t>
-        queried_max_count_;  // (opType, opMode) -> count
+    detail::ClusterSizeQueries cluster_queries_;  // what build-size queries answered
     uint64_t sequence_ = 0;
     uint32_t next_submission_ = 0;
     uint32_t host_ops_ = 0;

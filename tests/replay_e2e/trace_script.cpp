@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "trace_script.h"
 
+#include <clastrace/engine/build_sizes.h>
 #include <clastrace/trace_building/cluster_records.h>
 #include <clastrace/trace_building/command_records.h>
 #include <clastrace/trace_building/trace_header.h>
@@ -11,9 +12,7 @@ namespace tb = trace_building;
 
 namespace {
 
-fbs::TraceHeaderT script_header(const ScriptDevice& device) {
-    fbs::TraceHeaderT h =
-        tb::trace_header(tb::kEngineDriver, tb::kEngineDriver, "replay_e2e_tests (trace_script)");
+engine::EngineProperties script_properties(const ScriptDevice& device) {
     engine::EngineProperties p;
     p.max_vertices_per_cluster = device.max_vertices_per_cluster;
     p.max_triangles_per_cluster = device.max_triangles_per_cluster;
@@ -23,7 +22,13 @@ fbs::TraceHeaderT script_header(const ScriptDevice& device) {
     p.cluster_bottom_level_byte_alignment = device.cluster_bottom_level_byte_alignment;
     p.cluster_template_bounds_byte_alignment = device.cluster_template_bounds_byte_alignment;
     p.max_cluster_geometry_index = device.max_cluster_geometry_index;
-    h.device->cluster_properties = tb::cluster_properties(p);
+    return p;
+}
+
+fbs::TraceHeaderT script_header(const ScriptDevice& device) {
+    const char* driver = device.driver_name ? device.driver_name : tb::kEngineDriver;
+    fbs::TraceHeaderT h = tb::trace_header(driver, driver, "replay_e2e_tests (trace_script)");
+    h.device->cluster_properties = tb::cluster_properties(script_properties(device));
     return h;
 }
 
@@ -37,7 +42,7 @@ std::vector<fbs::MemorySnapshot> snapshots_of(tb::RecordWriter& writer,
 }  // namespace
 
 TraceScript::TraceScript(const std::string& path, const ScriptDevice& device)
-    : writer_(path, script_header(device)) {}
+    : writer_(path, script_header(device)), properties_(script_properties(device)) {}
 
 TraceScript::~TraceScript() = default;
 
@@ -47,8 +52,17 @@ void TraceScript::buffer(uint64_t handle, uint64_t address, uint64_t size, uint6
 }
 
 void TraceScript::query_build_sizes(const VkClusterAccelerationStructureInputInfoNV& input) {
+    const engine::BuildSizes answer = engine::cluster_build_sizes(input, properties_);
+    query_build_sizes(input, answer.acceleration_structure_size, answer.build_scratch_size);
+}
+
+void TraceScript::query_build_sizes(const VkClusterAccelerationStructureInputInfoNV& input,
+                                    uint64_t acceleration_structure_size,
+                                    uint64_t build_scratch_size) {
     fbs::GetClusterBuildSizesT q;
     q.input = tb::cluster_input(input);
+    q.acceleration_structure_size = acceleration_structure_size;
+    q.build_scratch_size = build_scratch_size;
     writer_.append(std::move(q));
 }
 

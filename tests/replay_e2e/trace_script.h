@@ -6,6 +6,7 @@
 #pragma once
 
 #include <clastrace/trace_building/cluster_structs.h>
+#include <clastrace/engine/properties.h>
 #include <clastrace/trace_building/record_writer.h>
 #include <clastrace/vk_cluster_abi.h>
 
@@ -40,6 +41,9 @@ struct ScriptDevice {
     uint32_t cluster_bottom_level_byte_alignment = 256;
     uint32_t cluster_template_bounds_byte_alignment = 32;
     uint32_t max_cluster_geometry_index = 1000;
+    // The trace's driverName: null names the engine (an engine trace); anything else makes it
+    // a driver trace, whose sizes replay compares rather than checks.
+    const char* driver_name = nullptr;
 };
 
 class TraceScript {
@@ -51,8 +55,12 @@ public:
     // A buffer bound to `memory` at `memory_offset` with device address `address` (0: none).
     void buffer(uint64_t handle, uint64_t address, uint64_t size, uint64_t usage,
                 uint64_t memory = 0x1001, uint64_t memory_offset = 0);
-    // vkGetClusterAccelerationStructureBuildSizesNV with this input (10445).
+    // vkGetClusterAccelerationStructureBuildSizesNV with this input (10445), answered as the
+    // engine answers it on this device.
     void query_build_sizes(const VkClusterAccelerationStructureInputInfoNV& input);
+    // The same query answered with a driver's own sizes.
+    void query_build_sizes(const VkClusterAccelerationStructureInputInfoNV& input,
+                           uint64_t acceleration_structure_size, uint64_t build_scratch_size);
     // vkCreateAccelerationStructureKHR over [offset, offset + size) of `buffer`.
     void acceleration_structure(uint64_t handle, uint64_t buffer, uint64_t offset, uint64_t size);
     // Host write to mapped memory observed between submissions.
@@ -130,6 +138,7 @@ public:
 private:
     void ensure_begun();
     trace_building::RecordWriter writer_;
+    engine::EngineProperties properties_;  // the device the header describes
     uint64_t command_buffer_ = 0xc000;
     uint64_t next_command_buffer_ = 0xc001;
     bool begun_ = false;

@@ -26,6 +26,7 @@
 #include <cstdint>
 #include <functional>
 #include <optional>
+#include <string>
 
 namespace clastrace::engine {
 
@@ -41,6 +42,19 @@ struct ExecuteOptions {
     // The maxAccelerationStructureCount the app sized its buffers with (10445); 0: the
     // command's own value.
     uint32_t queried_max_count = 0;
+    // The sizes vkGetClusterAccelerationStructureBuildSizesNV answered for this command's
+    // input (replay passes the trace's matching query, else the worst case it assumed). A
+    // driver may touch all of them, so 12300 compares scratch with build_scratch_size and
+    // 12302/12303 take scratch (and, implicit mode, dstImplicitData) at these sizes. Unset:
+    // 12300 against the engine's own worst case, 12302/12303 on the bytes the engine used.
+    struct AnsweredSizes {
+        uint64_t build_scratch_size = 0;
+        uint64_t acceleration_structure_size = 0;  // implicit: the whole region
+        // Where they come from, as findings say it after the size: "answered by the trace's
+        // vkGetClusterAccelerationStructureBuildSizesNV query for this input".
+        std::string source;
+    };
+    std::optional<AnsweredSizes> answered_sizes;
     // 12305/12307 require a whole "device address range" (srcInfosArray's, dstAddressesArray's
     // elements) to come from buffers with a usage. The answer: the first byte of
     // [begin, end) that some buffer holds but no buffer with `usage` (or of unknown usage)

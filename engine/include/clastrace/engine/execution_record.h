@@ -66,6 +66,7 @@ struct ExecutionRecord {
     uint32_t op_count = 0;         // min(count in memory, maxAccelerationStructureCount)
     uint64_t scratch_address = 0;  // resolved (after indirection)
     uint64_t scratch_bytes_used = 0;
+    uint64_t implicit_address = 0;       // dstImplicitData, resolved (after indirection)
     uint64_t implicit_bytes_used = 0;    // implicit mode: bytes packed from dstImplicitData
     std::vector<OpResult> ops;           // op_count entries, op index order
     std::vector<MemoryAccess> accesses;  // command-level first, then by op index; deterministic

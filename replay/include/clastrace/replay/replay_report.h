@@ -67,6 +67,12 @@ struct SizeComparison {
     uint64_t captured_bytes = 0;  // sum of captured dstSizesArray entries (ops_compared)
     uint64_t engine_bytes = 0;    // sum of the engine's sizes for the same ops
     uint32_t sizes_equal = 0;     // ops with captured size == engine size
+    // The sizes the model gave the command's ranges: buildScratchSize and
+    // accelerationStructureSize (implicit: the region; explicit: one object) of the matching
+    // build-size query, or, with spans_queried false, the engine's worst case assumed.
+    uint64_t scratch_span = 0;
+    uint64_t destination_span = 0;
+    bool spans_queried = false;
     struct OpSize {
         uint32_t op = 0;
         uint32_t captured = 0;
