@@ -44,11 +44,13 @@ uint64_t hash_of(const CapturedBytes& bytes) { return XXH3_64bits(bytes.data(), 
 }  // namespace
 
 void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
-                                const std::vector<const PausePoint*>& pauses) {
+                                const std::vector<const PausePoint*>& pauses,
+                                std::vector<MemorySpan> device_writes) {
     CostScope cost(CostPhase::kHostWrites);
     std::lock_guard lock(mutex_);
     for (Submission& s : watched_) look(d, s, HostWriteSeen::kAtSubmit);
-    Submission fresh{record.index, record.queue, record.fence, {}, {}};
+    Submission fresh{
+        record.index, record.queue, record.fence, {}, {}, std::move(device_writes), {}};
     for (const SubmitBatch& b : record.batches)
         fresh.signals.insert(fresh.signals.end(), b.signals.begin(), b.signals.end());
     DeviceMemoryReader host_view = [&d](VkDeviceAddress a, uint64_t size, CapturedBytes* out,
@@ -58,14 +60,24 @@ void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
     for (const PausePoint* pause : pauses) {
         if (!pause->parameters || pause->phase != PausePhase::kBeforeCommand) continue;
         ClusterMemoryWalk walk = walk_cluster_inputs(*pause->parameters, host_view);
-        for (const CapturedRange& r : walk.ranges)
-            if (r.address && r.bytes.size())
-                fresh.ranges.push_back(
-                    {pause->pause_id, r.address, r.bytes.size(), hash_of(r.bytes), 0, false});
+        for (const CapturedRange& r : walk.ranges) {
+            if (!r.address || !r.bytes.size()) continue;
+            ResolvedRange where;
+            std::string why;
+            if (!read_host_view(d, r.address, r.bytes.size(), nullptr, why, &where)) continue;
+            const VkDeviceSize at = where.buffer.memory_offset + where.offset_in_buffer;
+            fresh.ranges.push_back({pause->pause_id, r.address, r.bytes.size(),
+                                    MemorySpan{where.memory.handle, at, at + r.bytes.size()},
+                                    hash_of(r.bytes), 0, false});
+        }
     }
-    if (fresh.ranges.empty()) return;
+    // A submission that only writes is kept too: its writes may change another's inputs.
+    if (fresh.ranges.empty() && fresh.device_writes.empty()) return;
     watched_.push_back(std::move(fresh));
-    while (watched_.size() > kMaxWatchedSubmissions) watched_.pop_front();
+    if (watched_.size() > kMaxWatchedSubmissions) {
+        const uint64_t oldest = watched_.front().index;
+        forget([oldest](const Submission& s) { return s.index == oldest; });
+    }
 }
 
 void HostWriteWatch::submit_failed(uint64_t index) {
@@ -85,6 +97,7 @@ void HostWriteWatch::paused(uint64_t submission, uint64_t pause_id,
                 return c.address == r.address && c.bytes.size() == r.size;
             });
             if (read == inputs.end()) continue;
+            r.paused = true;
             r.pause_hash = hash_of(read->bytes);
             r.read_changed = r.pause_hash != r.hash;
         }
@@ -103,7 +116,26 @@ void HostWriteWatch::waited(DeviceState& d, const std::function<bool(const Submi
     };
     for (Submission& s : watched_)
         if (ordered(s)) look(d, s, HostWriteSeen::kAtWait);
-    std::erase_if(watched_, ordered);
+    forget(ordered);
+}
+
+void HostWriteWatch::forget(const std::function<bool(const Submission&)>& gone) {
+    std::vector<MemorySpan> written;
+    for (const Submission& s : watched_)
+        if (gone(s)) written.insert(written.end(), s.device_writes.begin(), s.device_writes.end());
+    std::erase_if(watched_, gone);
+    // Those submissions ran while the remaining ones were pending: a remaining one's input may
+    // have changed by their writes, which its own wait only sees later.
+    if (!written.empty())
+        for (Submission& s : watched_)
+            s.others_writes.insert(s.others_writes.end(), written.begin(), written.end());
+}
+
+bool HostWriteWatch::device_may_have_written(const Submission& s, const MemorySpan& span) const {
+    if (overlaps_any(s.device_writes, span) || overlaps_any(s.others_writes, span)) return true;
+    return std::any_of(watched_.begin(), watched_.end(), [&](const Submission& other) {
+        return overlaps_any(other.device_writes, span);
+    });
 }
 
 void HostWriteWatch::look(DeviceState& d, Submission& s, HostWriteSeen seen) {
@@ -114,10 +146,20 @@ void HostWriteWatch::look(DeviceState& d, Submission& s, HostWriteSeen seen) {
         if (!read_host_view(d, r.address, r.size, &now, why, &where)) continue;  // freed, unmapped
         const uint64_t hash = hash_of(now);
         if (hash == r.hash && !r.read_changed) continue;
+        if (device_may_have_written(s, r.span)) {
+            // Bytes the device may have changed: not claimed as a host write (a limit, in
+            // capture/README.md), and the new bytes are what a later look compares with.
+            r.hash = hash;
+            r.read_changed = false;
+            continue;
+        }
         HostWriteRecord w;
-        // The command read the changed bytes: replay's image already holds them, so it counts
-        // the whole range as written rather than the bytes that differ from its image.
-        w.seen = r.read_changed && hash == r.pause_hash ? HostWriteSeen::kReadByCommand : seen;
+        // The command read the changed bytes, or its pause has not come yet (a later submission
+        // saw the write while the command waited): the pause reads the new bytes, so replay's
+        // image holds them by the time it meets this record, and it counts the whole range as
+        // written rather than the bytes that differ from its image.
+        const bool read_new_bytes = (r.read_changed && hash == r.pause_hash) || !r.paused;
+        w.seen = read_new_bytes ? HostWriteSeen::kReadByCommand : seen;
         w.memory = where.memory.handle;
         w.memory_offset = where.buffer.memory_offset + where.offset_in_buffer;
         w.buffer = where.buffer.handle;
