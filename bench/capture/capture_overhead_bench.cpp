@@ -14,7 +14,10 @@
 //   6. where capture's time went (the layer's CLASTRACE_STATS report of the last run of the
 //      serving-only and capture modes).
 //
-//   capture_overhead_bench [frames=60] [clusters=256] [repetitions=5]
+//   7. the host-write watch on against off (CLASTRACE_HOST_WRITES=0).
+//
+//   capture_overhead_bench [frames=60] [clusters=256] [repetitions=5] [host-writes]
+//   (host-writes: run and print only table 7)
 #include <clastrace/traces/records.h>
 #include <clastrace/traces/trace_reader.h>
 #include <zstd.h>
@@ -188,6 +191,33 @@ TraceBytes measureTrace(const fs::path& path, int zstdLevel) {
     return t;
 }
 
+// The host-write watch (capture/README.md, "Host writes"): capture with it on against capture
+// with CLASTRACE_HOST_WRITES=0, medians of the interleaved runs, and the watch's own time from
+// the layer's stats (last run with the watch on).
+void printHostWriteTable(const std::vector<double>& on_wall, const std::vector<double>& on_cpu,
+                         const std::vector<double>& off_wall, const std::vector<double>& off_cpu,
+                         const std::vector<std::string>& on_stats, int frames, int clusters) {
+    std::vector<double> pair_wall, pair_cpu;
+    for (size_t r = 0; r < on_wall.size() && r < off_wall.size(); ++r) {
+        pair_wall.push_back(on_wall[r] / off_wall[r]);
+        pair_cpu.push_back(on_cpu[r] / off_cpu[r]);
+    }
+    std::printf(
+        "\nhost-write watch, %d frames x %d clusters, %zu interleaved runs each:\n\n"
+        "| capture + serving          | wall ms (median) | CPU ms (median) |\n"
+        "|----------------------------|-----------------:|----------------:|\n"
+        "| watch on (default)         | %16.1f | %15.1f |\n"
+        "| watch off (HOST_WRITES=0)  | %16.1f | %15.1f |\n"
+        "| ratio on / off (medians)   | %15.3fx | %14.3fx |\n"
+        "| ratio on / off (pairwise)  | %15.3fx | %14.3fx |\n",
+        frames, clusters, on_wall.size(), median(on_wall), median(on_cpu), median(off_wall),
+        median(off_cpu), median(on_wall) / median(off_wall), median(on_cpu) / median(off_cpu),
+        median(pair_wall), median(pair_cpu));
+    for (const std::string& line : on_stats)
+        if (line.find("host-write watch") != std::string::npos)
+            std::printf("\n    %s\n", line.c_str());
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -217,6 +247,7 @@ int main(int argc, char** argv) {
         Run last;
         TraceBytes bytes;
     };
+    constexpr size_t kHostWritesOff = 10;  // index of the watch-off mode below
     auto traceOf = [&](const char* name) { return (dir / (std::string(name) + ".clt")).string(); };
     std::vector<Mode> modes = {
         {"serving only (CLASTRACE_CAPTURE=0)", {{"CLASTRACE_CAPTURE", "0"}}, {}, {}, {}, {}},
@@ -269,7 +300,17 @@ int main(int argc, char** argv) {
          {},
          {},
          {}},
+        {"capture + serving, CLASTRACE_HOST_WRITES=0",
+         {{"CLASTRACE_OUTPUT", traceOf("nohostwrites")}, {"CLASTRACE_HOST_WRITES", "0"}},
+         {},
+         {},
+         {},
+         {}},
     };
+    // `host-writes` as the 4th argument: only the host-write watch's table (watch on against
+    // off, with serving only as the floor), for its cost without the other knobs' runs.
+    const bool host_writes_only = argc > 4 && std::string(argv[4]) == "host-writes";
+    if (host_writes_only) modes = {modes[0], modes[1], modes[kHostWritesOff]};
     // Interleaved, so drift of a shared machine spreads over every mode alike.
     for (int r = 0; r < repetitions; ++r)
         for (Mode& m : modes) {
@@ -277,6 +318,12 @@ int main(int argc, char** argv) {
             m.loops.push_back(m.last.loopMs);
             m.cpu.push_back(m.last.loopCpuMs);
         }
+    if (host_writes_only) {
+        printHostWriteTable(modes[1].loops, modes[1].cpu, modes[2].loops, modes[2].cpu,
+                            modes[1].last.stats, frames, clusters);
+        fs::remove_all(dir);
+        return 0;
+    }
     for (Mode& m : modes)
         if (m.env.count("CLASTRACE_OUTPUT")) m.bytes = measureTrace(m.env["CLASTRACE_OUTPUT"], 3);
     const TraceBytes& bytes = modes[1].bytes;
@@ -410,6 +457,8 @@ int main(int argc, char** argv) {
     std::printf("\n");
     // The layer's own account (CLASTRACE_STATS=1, capture/README.md): wall and CPU time per
     // phase over the whole process, the vkDestroyDevice flush included (after the frame loop).
+    printHostWriteTable(modes[1].loops, modes[1].cpu, modes[kHostWritesOff].loops,
+                        modes[kHostWritesOff].cpu, modes[1].last.stats, frames, clusters);
     for (size_t i : {0, 1}) {
         std::printf("\nwhere the time went, %s (last run, CLASTRACE_STATS=1):\n\n", modes[i].name);
         for (const std::string& line : modes[i].last.stats) std::printf("    %s\n", line.c_str());

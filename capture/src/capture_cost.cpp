@@ -16,10 +16,19 @@ std::array<std::atomic<uint64_t>, size_t(CostThread::kCount)> threads{};
 thread_local bool layerThread = false;
 
 const char* const kPhaseNames[] = {
-    "pause held (queue stalled)",       "  reading inputs/outputs", "  engine (served build)",
-    "served records completed",         "worker waiting for sink",  "app threads in sink",
-    "  waiting for sink lock",          "timestamp readback",       "sink: emitting submissions",
-    "  snapshots (merge, hash, store)", "periodic flush",           "vkDestroyDevice flush",
+    "pause held (queue stalled)",
+    "  reading inputs/outputs",
+    "  engine (served build)",
+    "served records completed",
+    "worker waiting for sink",
+    "app threads in sink",
+    "  waiting for sink lock",
+    "timestamp readback",
+    "sink: emitting submissions",
+    "  snapshots (merge, hash, store)",
+    "periodic flush",
+    "vkDestroyDevice flush",
+    "host-write watch",
 };
 static_assert(sizeof kPhaseNames / sizeof kPhaseNames[0] == size_t(CostPhase::kCount));
 

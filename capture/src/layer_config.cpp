@@ -153,6 +153,12 @@ LayerConfig parse_layer_config(const std::function<const char*(const char*)>& ge
         else
             reject("CLASTRACE_STATS", *v, "0 or 1");
     }
+    if (auto v = value("CLASTRACE_HOST_WRITES")) {
+        if (auto on = parse_switch(*v))
+            config.host_writes = *on;
+        else
+            reject("CLASTRACE_HOST_WRITES", *v, "0 or 1");
+    }
     return config;
 }
 

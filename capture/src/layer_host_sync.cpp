@@ -5,6 +5,7 @@
 #include "layer_state.h"
 
 #include <algorithm>
+#include <functional>
 #include <map>
 
 namespace clastrace::capture {
@@ -53,6 +54,18 @@ void fences_completed(DeviceState& d, uint32_t count, const VkFence* fences) {
     });
 }
 
+// A wait that ordered watched submissions: their host writes go out ahead of the wait's record.
+void look_for_host_writes(DeviceState& d,
+                          const std::function<bool(const HostWriteWatch::Submission&)>& orders) {
+    if (d.capturing_now() && layer_config().host_writes) d.host_writes.waited(d, orders);
+}
+
+bool signals_reached(const HostWriteWatch::Submission& s, uint64_t semaphore, uint64_t value) {
+    return std::any_of(s.signals.begin(), s.signals.end(), [&](const SemaphoreUse& signal) {
+        return signal.semaphore == semaphore && signal.value <= value;
+    });
+}
+
 VKAPI_ATTR VkResult VKAPI_CALL SetEvent(VkDevice device, VkEvent event) {
     DeviceState& d = device_of(device);
     VkResult result = d.next.SetEvent(device, event);
@@ -76,7 +89,13 @@ VKAPI_ATTR VkResult VKAPI_CALL WaitForFences(VkDevice device, uint32_t count, co
                                              VkBool32 wait_all, uint64_t timeout) {
     DeviceState& d = device_of(device);
     VkResult result = d.next.WaitForFences(device, count, fences, wait_all, timeout);
-    if (result == VK_SUCCESS && (wait_all || count == 1)) fences_completed(d, count, fences);
+    if (result == VK_SUCCESS && (wait_all || count == 1)) {
+        fences_completed(d, count, fences);
+        look_for_host_writes(d, [&](const HostWriteWatch::Submission& s) {
+            return s.fence && std::any_of(fences, fences + count,
+                                          [&](VkFence f) { return handle_id(f) == s.fence; });
+        });
+    }
     record(d, Kind::kFenceWait, ids(count, fences), result, {}, wait_all == VK_TRUE, timeout);
     return result;
 }
@@ -89,7 +108,12 @@ VKAPI_ATTR VkResult VKAPI_CALL ResetFences(VkDevice device, uint32_t count, cons
 VKAPI_ATTR VkResult VKAPI_CALL GetFenceStatus(VkDevice device, VkFence fence) {
     DeviceState& d = device_of(device);
     VkResult result = d.next.GetFenceStatus(device, fence);
-    if (result == VK_SUCCESS) fences_completed(d, 1, &fence);
+    if (result == VK_SUCCESS) {
+        fences_completed(d, 1, &fence);
+        look_for_host_writes(d, [&](const HostWriteWatch::Submission& s) {
+            return s.fence && s.fence == handle_id(fence);
+        });
+    }
     record(d, Kind::kFenceStatus, {handle_id(fence)}, result);
     return result;
 }
@@ -101,6 +125,10 @@ VKAPI_ATTR VkResult VKAPI_CALL QueueWaitIdle(VkQueue queue) {
         read_completed_timestamps(d, [queue](const DeviceState::PendingTimestampRead& r) {
             return r.queue == queue;
         });
+    if (result == VK_SUCCESS)
+        look_for_host_writes(d, [&](const HostWriteWatch::Submission& s) {
+            return s.queue == handle_id(queue);
+        });
     record(d, Kind::kQueueWaitIdle, {handle_id(queue)}, result);
     return result;
 }
@@ -109,6 +137,8 @@ VKAPI_ATTR VkResult VKAPI_CALL DeviceWaitIdle(VkDevice device) {
     VkResult result = d.next.DeviceWaitIdle(device);
     if (result == VK_SUCCESS)
         read_completed_timestamps(d, [](const DeviceState::PendingTimestampRead&) { return true; });
+    if (result == VK_SUCCESS)
+        look_for_host_writes(d, [](const HostWriteWatch::Submission&) { return true; });
     record(d, Kind::kDeviceWaitIdle, {}, result);
     return result;
 }
@@ -132,6 +162,14 @@ VkResult wait_semaphores(VkDevice device, const VkSemaphoreWaitInfo* info, uint6
                          PFN_vkWaitSemaphores next) {
     DeviceState& d = device_of(device);
     VkResult result = next(device, info, timeout);
+    const bool all = !(info->flags & VK_SEMAPHORE_WAIT_ANY_BIT) || info->semaphoreCount == 1;
+    if (result == VK_SUCCESS && all && info->pValues)
+        look_for_host_writes(d, [&](const HostWriteWatch::Submission& s) {
+            for (uint32_t i = 0; i < info->semaphoreCount; ++i)
+                if (signals_reached(s, handle_id(info->pSemaphores[i]), info->pValues[i]))
+                    return true;
+            return false;
+        });
     std::vector<uint64_t> values;
     for (uint32_t i = 0; i < info->semaphoreCount && info->pValues; ++i)
         values.push_back(info->pValues[i]);

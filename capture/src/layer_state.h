@@ -5,6 +5,7 @@
 
 #include "clastrace/capture/capture_sink.h"
 #include "clastrace/capture/device_memory_map.h"
+#include "host_write_watch.h"
 #include "clastrace/capture/layer_config.h"
 #include "clastrace/capture/nv_scene_model.h"
 
@@ -188,6 +189,7 @@ struct DeviceState {
     DeviceMemoryMap memory_map;
     std::shared_ptr<CaptureSink> sink;  // null when not capturing
     std::unique_ptr<PauseWorker> pauses;
+    HostWriteWatch host_writes;  // host writes to mapped inputs of submitted commands
     // Held from the check that no other queue uses a submission's shared pause events until the
     // worker expects its pauses (layer_submit.cpp), so two such submissions never overlap there.
     std::mutex shared_pauses_mutex;

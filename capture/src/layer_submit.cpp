@@ -2,6 +2,7 @@
 // Queue submissions: recorded with their semaphores and fence, and announced to the pause
 // worker (inside the application's call, so the order per queue is the queue's order).
 #include "command_buffer_log.h"
+#include "host_write_device_writes.h"
 #include "layer_state.h"
 
 #include <algorithm>
@@ -142,6 +143,22 @@ void check_rays(DeviceState& d, VkQueue queue, const SubmissionPlan& plan) {
     run_ray_checks(d, queue, plan.record.index, top_levels);
 }
 
+// Host writes (host_write_watch.h): before the driver call, so the hashes are of what the host
+// wrote before it submitted. A submission outside the captured range is still followed for what
+// its commands may write, so those writes are not taken for the host's.
+void watch_host_writes(DeviceState& d, const SubmissionPlan& plan) {
+    if (!d.capturing_now() || !layer_config().host_writes) return;
+    std::vector<const PausePoint*> pauses;
+    if (plan.capture)
+        for (const PendingPauses& p : plan.pauses)
+            for (const PausePoint& pause : p.pauses) pauses.push_back(&pause);
+    std::vector<uint64_t> command_buffers;
+    for (const SubmitBatch& b : plan.record.batches)
+        command_buffers.insert(command_buffers.end(), b.command_buffers.begin(),
+                               b.command_buffers.end());
+    d.host_writes.submitting(d, plan.record, pauses, device_writes_of(d, command_buffers));
+}
+
 VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit(VkQueue queue, uint32_t submit_count,
                                            const VkSubmitInfo* p_submits, VkFence fence) {
     DeviceState& d = *find_device(dispatch_key(queue));
@@ -175,9 +192,13 @@ VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit(VkQueue queue, uint32_t submit_count,
         }
         plan.record.batches.push_back(std::move(batch));
     }
+    watch_host_writes(d, plan);
     auto admitted = admit_shared_pauses(d, queue, plan);
     VkResult result = d.next.QueueSubmit(queue, submit_count, p_submits, fence);
-    if (result != VK_SUCCESS) return result;
+    if (result != VK_SUCCESS) {
+        d.host_writes.submit_failed(plan.record.index);
+        return result;
+    }
     announce(d, queue, plan);
     if (admitted.owns_lock())
         admitted.unlock();  // the worker tracks this submission's shared pauses now
@@ -209,9 +230,13 @@ VkResult queue_submit2(VkQueue queue, uint32_t submit_count, const VkSubmitInfo2
         }
         plan.record.batches.push_back(std::move(batch));
     }
+    watch_host_writes(d, plan);
     auto admitted = admit_shared_pauses(d, queue, plan);
     VkResult result = next(queue, submit_count, p_submits, fence);
-    if (result != VK_SUCCESS) return result;
+    if (result != VK_SUCCESS) {
+        d.host_writes.submit_failed(plan.record.index);
+        return result;
+    }
     announce(d, queue, plan);
     if (admitted.owns_lock())
         admitted.unlock();  // the worker tracks this submission's shared pauses now

@@ -242,9 +242,12 @@ bool PauseWorker::handle(Expected& expected) {
         std::make_tuple(expected.submission_index, pause.pause_id, pause.occurrence);
     if (capture) {
         CostScope cost(CostPhase::kPauseRead);
-        if (pause.phase == PausePhase::kBeforeCommand)
+        if (pause.phase == PausePhase::kBeforeCommand) {
             record = open_record(expected, open_key, reader);
-        else
+            if (layer_config().host_writes)
+                device_.host_writes.paused(expected.submission_index, pause.pause_id,
+                                           record->inputs);
+        } else
             record = add_outputs_to_open_record(pause, open_key, reader);
     }
     std::shared_ptr<const engine::MemoryImage> served_image;

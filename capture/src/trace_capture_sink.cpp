@@ -226,6 +226,24 @@ public:
         StateLock lock(*this);
         append_ordered_locked(std::move(record));
     }
+    // Ordered like host synchronization (the layer reports it from the host call that saw it);
+    // its bytes go to the content store at once, ahead of the record that names them.
+    void host_write_observed(const HostWriteRecord& w) override {
+        fbs::MemoryObservationT r;
+        r.memory = w.memory;
+        r.memory_offset = w.memory_offset;
+        r.reason = uint32_t(w.seen);
+        {
+            std::lock_guard write(write_mutex_);
+            if (!writer_ || failed_) return;
+            fbs::MemorySnapshot snap;
+            if (!check(writer_->snapshot(w.buffer, w.buffer_offset, w.address, w.bytes.data(),
+                                         w.bytes.size(), &snap)))
+                return;
+            r.snapshots.push_back(snap);
+        }
+        append(record_of(std::move(r)));
+    }
     // Ordered like host synchronization: after the submissions of the frame it ends.
     void queue_presented(const PresentRecord& p) override {
         fbs::QueuePresentT r;

@@ -126,6 +126,12 @@ std::string HazardReport::format() const {
             break;
         case FixKind::kHostWait:
         case FixKind::kHostWaitAndBarrier:
+            if (later.queue == kHostQueue && later.is_write && prior.queue != kHostQueue)
+                return s +
+                       " with no completed host wait ordering the write after it: a HOST-WRITE "
+                       "race (the host changed bytes a submission reads while it may still "
+                       "run). Fix: wait on that submission's fence (vkWaitForFences) before "
+                       "writing, or double-buffer (write a copy the submission does not read).";
             s += " with no completed host wait making it visible to the host.";
             break;
         default:

@@ -76,6 +76,10 @@ void Replay::lay_in_snapshots(const traces::SnapshotVector* snapshots,
 void Replay::host_observation(const fbs::MemoryObservation& observation) {
     if (!observation.snapshots()) return;
     CommandRef ref{next_submission_, 0, 0, host_ops_++, "host write (mapped memory)"};
+    // Reason 4: the capture saw the command read bytes the host changed after vkQueueSubmit, so
+    // the image holds them already; the whole range is the host's write (capture/README.md).
+    constexpr uint32_t kReadByCommand = 4;
+    const bool read_by_command = observation.reason() == kReadByCommand;
     std::vector<uint8_t> bytes, before;
     for (const fbs::MemorySnapshot* s : *observation.snapshots()) {
         std::optional<uint64_t> address =
@@ -87,7 +91,7 @@ void Replay::host_observation(const fbs::MemoryObservation& observation) {
         // A capture may observe mapped memory the host did not touch: only bytes that
         // changed count as a host write (unchanged ones would be false WAR/WAW hazards).
         AddressRange written{*address, *address + bytes.size()};
-        if (memory_.read(*address, bytes.size(), &before)) {
+        if (!read_by_command && memory_.read(*address, bytes.size(), &before)) {
             size_t first = 0, last = bytes.size();
             while (first < last && bytes[first] == before[first]) ++first;
             while (last > first && bytes[last - 1] == before[last - 1]) --last;

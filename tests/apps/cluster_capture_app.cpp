@@ -8,6 +8,12 @@
 //   dispatch OUT.json      a compute dispatch with storage buffers bound (one dynamic)
 //   resubmit N             one command buffer submitted N times, the host changing the count
 //   pause-cost N           N builds in one submission; prints the time per build
+//   host-rewrite WHEN      one build of a cluster from src infos in mapped memory; the host
+//                          rewrites the infos after vkQueueSubmit, WHEN = before-wait (a race:
+//                          the build may read either bytes) or after-wait (the fence wait
+//                          ordered the build first), then submits once more and waits;
+//                          before-run: the build waits for a timeline value the host signals
+//                          after the rewrite and one more (empty) submission
 //   serve OUT.json         served_scene.h: triangle clusters, then a bottom level over the
 //                          addresses the first build wrote, in one command buffer; OUT.json
 //                          holds every buffer's address and what the builds wrote. Exit 3
@@ -331,6 +337,131 @@ int resubmit(int times) {
     return 0;
 }
 
+// The host rewrites the src infos a submitted build reads, before or after the fence wait that
+// orders the build (capture/README.md, "Host writes"). A correct program apart from that one
+// rewrite: limits that hold the cluster, sizes from the driver's query, the usages the build
+// needs, destinations and scratch of their own.
+enum class Rewrite { kBeforeWait, kAfterWait, kBeforeRun };
+
+int hostRewrite(Rewrite when) {
+    Context c;
+    c.createInstance();
+    c.createDevice(/*timelineSemaphores=*/true);
+    VkClusterAccelerationStructureTriangleClusterInputNV triangleInput{};
+    triangleInput.sType =
+        VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
+    triangleInput.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+    triangleInput.maxGeometryIndexValue = 0;
+    triangleInput.maxClusterUniqueGeometryCount = 1;
+    triangleInput.maxClusterTriangleCount = 1;
+    triangleInput.maxClusterVertexCount = 3;
+    triangleInput.maxTotalTriangleCount = 1;
+    triangleInput.maxTotalVertexCount = 3;
+    VkClusterAccelerationStructureCommandsInfoNV build{};
+    build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+    build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+    build.input.maxAccelerationStructureCount = 1;
+    build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
+    build.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+    build.input.opInput.pTriangleClusters = &triangleInput;
+    VkAccelerationStructureBuildSizesInfoKHR sizes{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr, 0, 0, 0};
+    c.getBuildSizes(c.device, &build.input, &sizes);
+    if (!sizes.accelerationStructureSize || !sizes.buildScratchSize) fail("build sizes of 0");
+
+    const VkBufferUsageFlags input =
+        VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
+    const VkBufferUsageFlags storage = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
+    Buffer counts = c.makeBuffer(4, input);
+    Buffer infos =
+        c.makeBuffer(sizeof(VkClusterAccelerationStructureBuildTriangleClusterInfoNV), input);
+    Buffer vertices = c.makeBuffer(9 * sizeof(float), input);
+    Buffer indices = c.makeBuffer(3 * sizeof(uint32_t), input);
+    Buffer implicitData = c.makeBuffer(sizes.accelerationStructureSize, storage);
+    Buffer scratch = c.makeBuffer(sizes.buildScratchSize, 0);
+    Buffer dstAddresses = c.makeBuffer(sizeof(VkDeviceAddress), storage);
+    Buffer dstSizes = c.makeBuffer(sizeof(uint32_t), storage);
+    const uint32_t one = 1;
+    std::memcpy(counts.mapped, &one, sizeof one);
+    const float triangle[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    std::memcpy(vertices.mapped, triangle, sizeof triangle);
+    const uint32_t corners[3] = {0, 1, 2};
+    std::memcpy(indices.mapped, corners, sizeof corners);
+    VkClusterAccelerationStructureBuildTriangleClusterInfoNV cluster{};
+    cluster.clusterID = 10;
+    cluster.triangleCount = 1;
+    cluster.vertexCount = 3;
+    cluster.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
+    cluster.vertexBufferStride = 3 * sizeof(float);
+    cluster.indexBuffer = indices.address;
+    cluster.vertexBuffer = vertices.address;
+    std::memcpy(infos.mapped, &cluster, sizeof cluster);
+    build.dstImplicitData = implicitData.address;
+    build.scratchData = scratch.address;
+    build.dstAddressesArray = {dstAddresses.address, sizeof(VkDeviceAddress),
+                               sizeof(VkDeviceAddress)};
+    build.dstSizesArray = {dstSizes.address, sizeof(uint32_t), sizeof(uint32_t)};
+    build.srcInfosArray = {infos.address, sizeof cluster, sizeof cluster};
+    build.srcInfosCount = counts.address;
+
+    VkCommandBufferAllocateInfo allocInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr,
+                                          c.pool, VK_COMMAND_BUFFER_LEVEL_PRIMARY, 1};
+    VkCommandBuffer cb;
+    CHECK(vkAllocateCommandBuffers(c.device, &allocInfo, &cb));
+    VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr, 0,
+                                   nullptr};
+    CHECK(vkBeginCommandBuffer(cb, &begin));
+    c.cmdBuildClusters(cb, &build);
+    CHECK(vkEndCommandBuffer(cb));
+    VkFenceCreateInfo fenceInfo{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO, nullptr, 0};
+    VkFence fence;
+    CHECK(vkCreateFence(c.device, &fenceInfo, nullptr, &fence));
+    VkSubmitInfo submit{};
+    submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
+    submit.commandBufferCount = 1;
+    submit.pCommandBuffers = &cb;
+    auto rewrite = [&] {
+        cluster.clusterID = 20;  // the next frame's infos, written over this frame's
+        std::memcpy(infos.mapped, &cluster, sizeof cluster);
+    };
+    const uint64_t kForever = 30ull * 1000 * 1000 * 1000;
+    if (when == Rewrite::kBeforeRun) {
+        // The build waits for a timeline value the host signals only after rewriting the infos
+        // and making one more (empty) submission: the build has not run when the layer looks.
+        VkSemaphoreTypeCreateInfo type{VK_STRUCTURE_TYPE_SEMAPHORE_TYPE_CREATE_INFO, nullptr,
+                                       VK_SEMAPHORE_TYPE_TIMELINE, 0};
+        VkSemaphoreCreateInfo semaphoreInfo{VK_STRUCTURE_TYPE_SEMAPHORE_CREATE_INFO, &type, 0};
+        VkSemaphore gate;
+        CHECK(vkCreateSemaphore(c.device, &semaphoreInfo, nullptr, &gate));
+        const uint64_t open = 1;
+        VkTimelineSemaphoreSubmitInfo values{
+            VK_STRUCTURE_TYPE_TIMELINE_SEMAPHORE_SUBMIT_INFO, nullptr, 1, &open, 0, nullptr};
+        const VkPipelineStageFlags stage = VK_PIPELINE_STAGE_ALL_COMMANDS_BIT;
+        submit.pNext = &values;
+        submit.waitSemaphoreCount = 1;
+        submit.pWaitSemaphores = &gate;
+        submit.pWaitDstStageMask = &stage;
+        CHECK(vkQueueSubmit(c.queue, 1, &submit, fence));
+        rewrite();
+        CHECK(vkQueueSubmit(c.queue, 0, nullptr, VK_NULL_HANDLE));
+        VkSemaphoreSignalInfo signal{VK_STRUCTURE_TYPE_SEMAPHORE_SIGNAL_INFO, nullptr, gate, open};
+        CHECK(vkSignalSemaphore(c.device, &signal));
+        CHECK(vkWaitForFences(c.device, 1, &fence, VK_TRUE, kForever));
+        vkDestroySemaphore(c.device, gate, nullptr);
+        vkDestroyFence(c.device, fence, nullptr);
+        return 0;
+    }
+    CHECK(vkQueueSubmit(c.queue, 1, &submit, fence));
+    if (when == Rewrite::kBeforeWait) rewrite();
+    CHECK(vkWaitForFences(c.device, 1, &fence, VK_TRUE, kForever));
+    if (when == Rewrite::kAfterWait) rewrite();
+    CHECK(vkResetFences(c.device, 1, &fence));
+    CHECK(vkQueueSubmit(c.queue, 1, &submit, fence));
+    CHECK(vkWaitForFences(c.device, 1, &fence, VK_TRUE, kForever));
+    vkDestroyFence(c.device, fence, nullptr);
+    return 0;
+}
+
 // A compute dispatch with two storage buffers bound (one dynamic), for the layer's record of
 // what a dispatch can write. The shader does nothing: only the binding state matters.
 int dispatch(const char* outPath) {
@@ -570,6 +701,11 @@ int main(int argc, char** argv) {
     if (argc == 3 && std::strcmp(argv[1], "dispatch") == 0) return dispatch(argv[2]);
     if (argc == 3 && std::strcmp(argv[1], "resubmit") == 0)
         return resubmit(std::max(1, std::atoi(argv[2])));
+    if (argc == 3 && std::strcmp(argv[1], "host-rewrite") == 0) {
+        if (std::strcmp(argv[2], "before-wait") == 0) return hostRewrite(Rewrite::kBeforeWait);
+        if (std::strcmp(argv[2], "after-wait") == 0) return hostRewrite(Rewrite::kAfterWait);
+        if (std::strcmp(argv[2], "before-run") == 0) return hostRewrite(Rewrite::kBeforeRun);
+    }
     if (argc == 3 && std::strcmp(argv[1], "pause-cost") == 0)
         return pauseCost(std::max(1, std::atoi(argv[2])));
     std::fprintf(stderr, "usage: cluster_capture_app limits|exactness OUT.json | pause-cost N\n");

@@ -408,6 +408,43 @@ TEST(ReplayE2E, HostRewriteOfBuildInputsNeedsAFenceWait) {
     std::remove(path.c_str());
 }
 
+// The capture saw the build read src infos the host rewrote after vkQueueSubmit (reason 4): the
+// replay's image already holds those bytes (they are the build's input snapshot), yet the whole
+// range is the host's write, racing with the build unless the host waited for the fence first.
+// Returns the bytes observed.
+size_t host_rewrite_read_by_build(const std::string& path, bool wait) {
+    SceneTrace t(path, true);
+    t.build({});
+    t.submit(0x9001, 0, 0, 0xfe2);
+    if (wait) t.wait_fence(0xfe2);
+    const auto* p = reinterpret_cast<const uint8_t*>(t.infos.data());
+    t.observe(SceneBuffers::kInfos, std::vector<uint8_t>(p, p + t.infos.size() * sizeof t.infos[0]),
+              4);
+    t.finish();
+    return t.infos.size() * sizeof t.infos[0];
+}
+
+TEST(ReplayE2E, HostRewriteTheBuildReadIsAHostWriteRace) {
+    const std::string path = temp_path("host_read_by_build.clt");
+    const size_t observed = host_rewrite_read_by_build(path, false);
+    replay::ReplayReport r = replay_file(path);
+    ASSERT_EQ(r.hazards.size(), 1u) << describe(r);
+    const replay::HazardReport& h = r.hazards[0];
+    EXPECT_EQ(h.hazard, replay::HazardClass::kWriteAfterRead);
+    EXPECT_EQ(h.later.queue, replay::kHostQueue);
+    EXPECT_EQ(h.later.range.begin, SceneBuffers::kInfos);
+    EXPECT_EQ(h.later.range.end, SceneBuffers::kInfos + observed);
+    const std::string text = h.format();
+    EXPECT_NE(text.find("HOST-WRITE race"), std::string::npos) << text;
+    EXPECT_NE(text.find("submit 0"), std::string::npos) << text;
+    EXPECT_NE(text.find("wait on that submission's fence"), std::string::npos) << text;
+    EXPECT_NE(text.find("double-buffer"), std::string::npos) << text;
+    host_rewrite_read_by_build(path, true);
+    r = replay_file(path);
+    EXPECT_TRUE(r.clean()) << describe(r);
+    std::remove(path.c_str());
+}
+
 // Memory beyond the budget is refused and named, not allocated (regions are sparse: the
 // budget counts the pages written).
 TEST(ReplayE2E, BuffersBeyondTheMemoryBudgetAreReportedNotAllocated) {

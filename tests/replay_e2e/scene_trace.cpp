@@ -203,9 +203,10 @@ void SceneTrace::build_blas(const std::vector<uint64_t>& cluster_addresses) {
 
 void SceneTrace::wait_fence(uint64_t fence) { writer_.wait_fence(fence); }
 
-void SceneTrace::observe(uint64_t address, const std::vector<uint8_t>& bytes) {
+void SceneTrace::observe(uint64_t address, const std::vector<uint8_t>& bytes, uint32_t reason) {
     fbs::MemoryObservationT o;
     o.memory = kMemory;
+    o.reason = reason;
     o.snapshots.push_back(writer_.snapshot(address, bytes));
     writer_.append(std::move(o));
 }

@@ -60,7 +60,8 @@ public:
                 uint64_t fence = 0);
     void wait_fence(uint64_t fence);
     // The capture saw mapped memory at `address` hold `bytes` (a host write, between submissions).
-    void observe(uint64_t address, const std::vector<uint8_t>& bytes);
+    // `reason` as MemoryObservation.reason (4: the command read these bytes, changed after submit).
+    void observe(uint64_t address, const std::vector<uint8_t>& bytes, uint32_t reason = 0);
     // Ends the command buffer, submits, waits on the fence, finishes the file.
     void finish();
 

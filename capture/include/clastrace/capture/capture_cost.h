@@ -26,6 +26,7 @@ enum class CostPhase : uint8_t {
     kSnapshot,       //   of which: merging ranges, hashing and storing contents
     kPeriodicFlush,  // sink thread: CLASTRACE_FLUSH_MS chunk ends (waits for the compressor)
     kDeviceFlush,    // vkDestroyDevice: writing out everything captured (the application waits)
+    kHostWrites,     // host-write watch: hashing mapped inputs at submit, pauses and waits
     kCount
 };
 

@@ -376,6 +376,27 @@ struct HostSyncRecord {
     int32_t result = 0;  // the call's VkResult (EventStatus: VK_EVENT_SET/VK_EVENT_RESET)
 };
 
+// Mapped memory a submitted command reads, found changed by the host after vkQueueSubmit
+// (capture/README.md, "Host writes"): written as a MemoryObservation where the layer saw it,
+// before the host call (a wait, the next submission) that saw it.
+enum class HostWriteSeen : uint32_t {
+    kAtSubmit = 0,       // before a later submission, while the reading one may still run
+    kAtWait = 3,         // at the host wait that orders the reading submission
+    kReadByCommand = 4,  // at that wait, and the command itself read the changed bytes
+};
+
+struct HostWriteRecord {
+    HostWriteSeen seen = HostWriteSeen::kAtWait;
+    uint64_t memory = 0;
+    VkDeviceSize memory_offset = 0;
+    uint64_t buffer = 0;  // a buffer holding the range, and its offset there
+    VkDeviceSize buffer_offset = 0;
+    VkDeviceAddress address = 0;
+    std::vector<uint8_t> bytes;     // what the range holds now
+    uint64_t submission_index = 0;  // the layer's index of the submission that reads the range
+    uint64_t pause_id = 0;          // its command (ClusterBuildCommand::pause_id)
+};
+
 // Everything one vkCmdBuildClusterAccelerationStructureIndirectNV read, as it was when the
 // command executed on the queue, and everything it wrote, read after it completed.
 // Timestamps: not a command but the readback of one command buffer's timestamps (ticks below).

@@ -29,6 +29,8 @@ public:
     virtual void cluster_build_captured(
         ClusterBuildCapture) = 0;  // by value: the worker moves it in
     virtual void host_synchronized(const HostSyncRecord&) = 0;
+    // A host write to mapped memory a submitted command reads (no-op unless a sink records it).
+    virtual void host_write_observed(const HostWriteRecord&) {}
     // False once the sink stopped writing (its one message printed): the layer then saves the
     // work of capturing, and the application runs on as with capture off.
     virtual bool active() const { return true; }

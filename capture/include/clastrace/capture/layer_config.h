@@ -48,6 +48,9 @@ struct LayerConfig {
         false;  // CLASTRACE_FORCE_STAGING: treat all memory as not host visible (tests)
     bool timestamps = true;  // CLASTRACE_TIMESTAMPS: GPU timestamps around each captured command
     bool stats = false;  // CLASTRACE_STATS: where capture's time went, on stderr at vkDestroyDevice
+    // CLASTRACE_HOST_WRITES: watch the mapped inputs of captured commands for host writes
+    // between vkQueueSubmit and the wait that orders them (host_write_watch.h).
+    bool host_writes = true;
     // CLASTRACE_SHARED_WAIT_MS: how long a submission waits for another queue to finish with the
     // pause events of a simultaneous-use command buffer (layer_submit.cpp) before it goes ahead.
     uint32_t shared_wait_milliseconds = 10000;

@@ -1,0 +1,75 @@
+// SPDX-License-Identifier: Apache-2.0
+// Host writes a submitted command can observe (capture/README.md, "Host writes"): inside
+// vkQueueSubmit, before the driver sees it, the mapped ranges the submission's captured cluster
+// commands read are walked and hashed (XXH3). A later host call that could have let the host
+// write them safely (the wait that orders the submission) or unsafely (the next submission,
+// while this one may run) hashes them again; a range whose bytes changed since the submission
+// goes to the sink as a HostWriteRecord, ahead of that call's own record, so replay orders the
+// write against the waits. The pause before each command hashes what the command read: a range
+// that changed before the command ran is marked as read by it. A changed range that a command
+// in flight may have written (the submission's own, or another submission pending meanwhile)
+// is not claimed as the host's: the layer cannot tell whose write it saw
+// (host_write_device_writes.h).
+#pragma once
+
+#include "clastrace/capture/capture_records.h"
+#include "host_write_device_writes.h"
+#include "pause_worker.h"
+
+#include <deque>
+#include <functional>
+#include <mutex>
+#include <vector>
+
+namespace clastrace::capture {
+
+struct DeviceState;
+
+class HostWriteWatch {
+public:
+    struct Range {
+        uint64_t pause_id = 0;
+        VkDeviceAddress address = 0;
+        uint64_t size = 0;
+        MemorySpan span;            // where it lies in device memory
+        uint64_t hash = 0;          // at the submission, then at the last look
+        uint64_t pause_hash = 0;    // what the command read, once its pause came
+        bool read_changed = false;  // the command read bytes unlike those at the submission
+        bool paused = false;        // its pause came: the trace holds what the command read
+    };
+    struct Submission {
+        uint64_t index = 0;
+        uint64_t queue = 0;
+        uint64_t fence = 0;
+        std::vector<SemaphoreUse> signals;
+        std::vector<Range> ranges;
+        std::vector<MemorySpan> device_writes;  // what its own commands may write
+        // What submissions pending beside it wrote, kept once they stopped being watched.
+        std::vector<MemorySpan> others_writes;
+    };
+
+    // Inside vkQueueSubmit, before the driver call: reports host writes to the submissions still
+    // watched, then watches the mapped inputs of this one's cluster pauses.
+    // `device_writes`: what the submission's commands may write (device_writes_of).
+    void submitting(DeviceState& d, const SubmissionRecord& record,
+                    const std::vector<const PausePoint*>& pauses,
+                    std::vector<MemorySpan> device_writes);
+    void submit_failed(uint64_t index);
+    // The pause before a watched command, with what it read.
+    void paused(uint64_t submission, uint64_t pause_id, const std::vector<CapturedRange>& inputs);
+    // A host wait succeeded: reports host writes to the submissions it orders, then stops
+    // watching them. `orders` says which it completed directly; earlier ones on their queues too.
+    void waited(DeviceState& d, const std::function<bool(const Submission&)>& orders);
+
+private:
+    // Hashes each range again; a changed one goes to the sink as `seen`.
+    void look(DeviceState& d, Submission& s, HostWriteSeen seen);
+    // A command of `s` or of a submission pending beside it may have written `span`.
+    bool device_may_have_written(const Submission& s, const MemorySpan& span) const;
+    // Stops watching the submissions `gone` picks; the others keep what those may have written.
+    void forget(const std::function<bool(const Submission&)>& gone);
+    std::mutex mutex_;
+    std::deque<Submission> watched_;  // oldest first
+};
+
+}  // namespace clastrace::capture
