@@ -81,6 +81,11 @@ private:
     bool on_queue_record(fbs::RecordBody kind, const fbs::Record& r);
     bool on_presentation_record(fbs::RecordBody kind, const fbs::Record& r);
     bool on_check_record(fbs::RecordBody kind, const fbs::Record& r);
+    // vkQueueBindSparse (replayer_sparse_binds.cpp).
+    bool on_sparse_record(fbs::RecordBody kind, const fbs::Record& r);
+    void apply_sparse_binds(const fbs::SparseBindBatch& batch);
+    // SyncModel's UnboundHandler: an access to a sparse buffer's unbound part is a finding.
+    void unbound_access(const CommandRef& ref, const Access& access, AddressRange unbound);
     void record_command(const traces::RecordView& view);
     void on_submit(const fbs::QueueSubmit& submit);
     // Replays one execution of a command buffer (a primary listed in a batch, or a secondary
