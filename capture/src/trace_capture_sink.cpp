@@ -17,6 +17,7 @@
 #include "trace_record_encoding.h"
 
 #include <clastrace/traces/cluster_conversions.h>
+#include <clastrace/traces/sparse_conversions.h>
 
 #include <clastrace/traces/output_file.h>
 #include <clastrace/traces/trace_writer.h>
@@ -223,6 +224,15 @@ public:
     // for its builds holds it back with it, so the order in the trace is the order of the calls.
     void host_synchronized(const HostSyncRecord& h) override {
         fbs::RecordT record = host_sync_record_of(h);
+        StateLock lock(*this);
+        append_ordered_locked(std::move(record));
+    }
+    // A queue operation like a submission: after the submissions made before the call (a
+    // submission waiting on its semaphore is made after it).
+    void sparse_bound(const SparseBindRecord& b) override {
+        fbs::RecordT record =
+            record_of(traces::queue_bind_sparse_to_record(b.queue, std::span(b.infos, b.info_count),
+                                                          b.fence, b.result, b.address_of));
         StateLock lock(*this);
         append_ordered_locked(std::move(record));
     }
