@@ -365,6 +365,22 @@ bool ReplayMemory::resolve(AddressRange range, std::vector<ResolvedRange>* parts
     return true;
 }
 
+std::optional<ReplayMemory::BufferExtent> ReplayMemory::buffer_extent(uint64_t buffer) const {
+    auto it = buffers_.find(buffer);
+    if (it == buffers_.end()) return std::nullopt;
+    BufferExtent extent{it->second.size, std::nullopt};
+    if (it->second.bound) extent.address = it->second.address;
+    return extent;
+}
+
+bool ReplayMemory::meets_sparse_buffer(uint64_t address, uint64_t size) const {
+    const uint64_t end = address + size;
+    auto span = sparse_spans_.lower_bound(end);
+    if (span == sparse_spans_.begin()) return false;
+    --span;
+    return span->second.end > address;
+}
+
 std::optional<std::pair<uint64_t, uint64_t>> ReplayMemory::sparse_buffer_at(
     uint64_t address) const {
     auto span = sparse_spans_.upper_bound(address);

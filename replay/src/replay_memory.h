@@ -50,6 +50,17 @@ public:
     bool resolve(AddressRange range, std::vector<ResolvedRange>* parts) override;
     // The sparse buffer holding `address` and the offset in it, if one does.
     std::optional<std::pair<uint64_t, uint64_t>> sparse_buffer_at(uint64_t address) const;
+    // What a sparse bind is checked against: a created buffer's size, and its address once
+    // placed (bound, or a sparse buffer's first bind); nullopt for a buffer never created.
+    struct BufferExtent {
+        uint64_t size = 0;
+        std::optional<uint64_t> address;
+    };
+    std::optional<BufferExtent> buffer_extent(uint64_t buffer) const;
+    // Whether [address, address + size) meets a placed sparse buffer's addresses.
+    bool meets_sparse_buffer(uint64_t address, uint64_t size) const;
+    // Bound parts of all sparse buffers (each resolve() walks those under its range).
+    size_t sparse_page_count() const { return sparse_pages_.size(); }
     void create_object(uint64_t object, uint64_t buffer, uint64_t offset, uint64_t size,
                        uint64_t requirement);
     void object_requirement(uint64_t object, uint64_t size) { object_size_[object] = size; }

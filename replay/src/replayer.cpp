@@ -56,7 +56,7 @@ void Replay::on_record(const traces::RecordView& view) {
     const fbs::RecordBody kind = view.kind;
     if (on_memory_record(kind, r) || on_acceleration_structure_record(kind, r) ||
         on_command_buffer_record(kind, r) || on_queue_record(kind, r) ||
-        on_presentation_record(kind, r) || on_check_record(kind, r) || on_sparse_record(kind, r))
+        on_presentation_record(kind, r) || on_check_record(kind, r) || on_sparse_record(view))
         return;
     record_command(view);
 }

@@ -105,4 +105,150 @@ TEST(SparseMemory, BuildIntoAnUnboundPageIsAFinding) {
     EXPECT_EQ(std::string(f->where.name), "vkCmdBuildClusterAccelerationStructureIndirectNV");
 }
 
+// --- two sparse buffers over one memory, and a rebind -------------------------------------
+
+constexpr uint64_t kSecondSparse = 0xd002;
+constexpr uint64_t kSecondAddress = 0x60000000;
+constexpr uint64_t kSparseUsage =
+    VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | VK_BUFFER_USAGE_STORAGE_BUFFER_BIT |
+    VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR | VK_BUFFER_USAGE_TRANSFER_SRC_BIT;
+constexpr uint64_t kDst2MemoryOffset = kDst2 - kBase;
+
+VkSparseMemoryBind whole_at(uint64_t memory_offset) {
+    return {0, kSparseSize, VkDeviceMemory(kMemory), memory_offset, 0};
+}
+
+// The build writes its destination through the first sparse buffer; the copy reads the second,
+// bound over the same memory: the two addresses never meet, the memory does.
+TEST(SparseMemory, TwoSparseBuffersOverOneMemoryMeetThere) {
+    const replay::ReplayReport r =
+        replay_catalogue_scene(temp_trace_path("sparse_memory", "two_buffers.clt"), [](auto& t) {
+            t.sparse_buffer(kSparseBuffer, kSparseSize, kSparseUsage);
+            t.sparse_buffer(kSecondSparse, kSparseSize, kSparseUsage);
+            t.bind_sparse(kQueue, kSparseBuffer, kSparseAddress, {whole_at(kDstMemoryOffset)});
+            t.bind_sparse(kQueue, kSecondSparse, kSecondAddress, {whole_at(kDstMemoryOffset)},
+                          kBindDone);
+            ClusterCommand c = triangle_clusters(Destinations::kImplicit);
+            c.info.dstImplicitData = kSparseAddress;
+            c.emit(t);
+            t.copy(kSecondSparse, 0, kStagingBuffer, 0, 256);
+            t.submit(kQueue, {{kBindDone, 0, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT}});
+        });
+    ASSERT_EQ(r.hazards.size(), 1u);
+    EXPECT_EQ(r.hazards[0].hazard, HazardClass::kReadAfterWrite);
+    EXPECT_EQ(std::string(r.hazards[0].prior.command.name),
+              "vkCmdBuildClusterAccelerationStructureIndirectNV");
+    EXPECT_EQ(std::string(r.hazards[0].later.command.name), "vkCmdCopyBuffer");
+    EXPECT_EQ(r.hazards[0].overlap.begin, kDst);
+    EXPECT_TRUE(r.findings.empty()) << r.findings[0].format();
+}
+
+// The build writes through the sparse buffer in one submission; the next submission reads the
+// sparse buffer's first bytes. Rebound in between to other memory, the read reaches that memory
+// and meets nothing; not rebound, it reads what the build wrote, with no barrier.
+replay::ReplayReport replay_rebind(bool rebind) {
+    return replay_catalogue_scene(
+        temp_trace_path("sparse_memory", rebind ? "rebind.clt" : "no_rebind.clt"), [&](auto& t) {
+            t.sparse_buffer(kSparseBuffer, kSparseSize, kSparseUsage);
+            t.bind_sparse(kQueue, kSparseBuffer, kSparseAddress, {whole_at(kDstMemoryOffset)});
+            ClusterCommand c = triangle_clusters(Destinations::kImplicit);
+            c.info.dstImplicitData = kSparseAddress;
+            c.emit(t);
+            t.submit(kQueue);
+            if (rebind)
+                t.bind_sparse(kQueue, kSparseBuffer, kSparseAddress,
+                              {{0, kPage, VkDeviceMemory(kMemory), kDst2MemoryOffset, 0}});
+            t.copy(kSparseBuffer, 0, kStagingBuffer, 0, 256);
+            t.submit(kQueue);
+        });
+}
+
+TEST(SparseMemory, ReadAfterARebindReachesTheNewMemory) {
+    const replay::ReplayReport rebound = replay_rebind(true);
+    EXPECT_TRUE(rebound.hazards.empty()) << rebound.hazards[0].format();
+    const replay::ReplayReport kept = replay_rebind(false);
+    ASSERT_EQ(kept.hazards.size(), 1u);
+    EXPECT_EQ(kept.hazards[0].hazard, HazardClass::kReadAfterWrite);
+    EXPECT_EQ(kept.hazards[0].overlap.begin, kDst);
+}
+
+// --- binds the replay cannot apply: findings naming the record -----------------------------
+
+const replay::ReplayFinding* finding(const replay::ReplayReport& r, const std::string& rule) {
+    auto f = std::find_if(r.findings.begin(), r.findings.end(),
+                          [&](const replay::ReplayFinding& f) { return f.rule == rule; });
+    return f == r.findings.end() ? nullptr : &*f;
+}
+
+replay::ReplayReport replay_binds(const std::string& name, uint64_t buffer, uint64_t address,
+                                  const std::vector<VkSparseMemoryBind>& binds) {
+    return replay_catalogue_scene(temp_trace_path("sparse_memory", name + ".clt"), [&](auto& t) {
+        t.sparse_buffer(kSparseBuffer, kSparseSize, kSparseUsage);
+        t.sparse_buffer(kSecondSparse, kSparseSize, kSparseUsage);
+        t.bind_sparse(kQueue, kSecondSparse, kSecondAddress, {whole_at(kDst2MemoryOffset)});
+        t.bind_sparse(kQueue, buffer, address, binds);
+    });
+}
+
+void expect_damage(const replay::ReplayReport& r, const std::string& rule,
+                   const std::string& says) {
+    const replay::ReplayFinding* f = finding(r, rule);
+    ASSERT_NE(f, nullptr) << rule;
+    EXPECT_NE(f->message.find("QueueBindSparse record in chunk "), std::string::npos) << f->message;
+    EXPECT_NE(f->message.find(", batch 0"), std::string::npos) << f->message;
+    EXPECT_NE(f->message.find(says), std::string::npos) << f->message;
+    EXPECT_EQ(std::string(f->where.name), "vkQueueBindSparse");
+    EXPECT_FALSE(r.clean());
+}
+
+TEST(SparseMemory, BindPastTheBufferEndIsDamageNamingTheBind) {
+    const replay::ReplayReport r =
+        replay_binds("past_end", kSparseBuffer, kSparseAddress,
+                     {whole_at(kDstMemoryOffset),
+                      {kSparseSize - kPage, 2 * kPage, VkDeviceMemory(kMemory), 0, 0}});
+    expect_damage(r, "CLASTRACE-sparse-bind-damaged",
+                  "buffer bind 0 (buffer 0xd001), bind 1: resourceOffset 0x10000 size 0x20000 "
+                  "runs past the buffer's 0x20000 bytes");
+}
+
+TEST(SparseMemory, HostileSizesAndAnUnknownBufferAreDamage) {
+    expect_damage(replay_binds("wrap", kSparseBuffer, kSparseAddress,
+                               {{0, kPage, VkDeviceMemory(kMemory), ~uint64_t(0) - 8, 0}}),
+                  "CLASTRACE-sparse-bind-damaged", "wraps past 2^64");
+    expect_damage(replay_binds("huge", kSparseBuffer, kSparseAddress,
+                               {{8, ~uint64_t(0), VkDeviceMemory(kMemory), 0, 0}}),
+                  "CLASTRACE-sparse-bind-damaged", "runs past the buffer");
+    expect_damage(replay_binds("unknown", 0xdead, kSparseAddress, {whole_at(0)}),
+                  "CLASTRACE-sparse-bind-damaged",
+                  "(buffer 0xdead): no vkCreateBuffer of this buffer precedes the bind");
+}
+
+TEST(SparseMemory, HostileAddressesAreDamage) {
+    // Over the second sparse buffer's addresses, and past the end of the address space.
+    expect_damage(replay_binds("overlapping_address", kSparseBuffer, kSecondAddress + kPage,
+                               {whole_at(kDstMemoryOffset)}),
+                  "CLASTRACE-sparse-bind-damaged", "overlap another sparse buffer's");
+    expect_damage(replay_binds("address_wraps", kSparseBuffer, ~uint64_t(0) - kPage,
+                               {whole_at(kDstMemoryOffset)}),
+                  "CLASTRACE-sparse-bind-damaged", "runs past the device address space");
+    // A later record giving the placed buffer another address.
+    expect_damage(replay_binds("moved", kSecondSparse, kSecondAddress + 0x100000,
+                               {whole_at(kDstMemoryOffset)}),
+                  "CLASTRACE-sparse-bind-damaged", "differs from 0x60000000");
+}
+
+TEST(SparseMemory, ARangeBoundTwiceInOneBatchIsAFinding) {
+    const replay::ReplayReport r =
+        replay_binds("twice", kSparseBuffer, kSparseAddress,
+                     {whole_at(kDstMemoryOffset), {kPage, kPage, VkDeviceMemory(kMemory), 0, 0}});
+    expect_damage(r, "CLASTRACE-sparse-bind-overlap",
+                  "buffer bind 0 bind 0 and buffer bind 0 bind 1 both bind bytes [0x10000, "
+                  "0x20000) of sparse buffer 0xd001");
+    // Binds of one range in two batches (two calls) are a rebind, not a fault.
+    const replay::ReplayReport rebind =
+        replay_binds("twice_apart", kSecondSparse, kSecondAddress, {whole_at(kDstMemoryOffset)});
+    EXPECT_EQ(finding(rebind, "CLASTRACE-sparse-bind-overlap"), nullptr);
+    EXPECT_EQ(finding(rebind, "CLASTRACE-sparse-bind-damaged"), nullptr);
+}
+
 }  // namespace
