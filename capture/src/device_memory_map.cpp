@@ -70,6 +70,7 @@ void DeviceMemoryMap::remove_buffer(uint64_t handle) {
     if (it == buffers_.end()) return;
     if (it->second.address != 0) erase_address(buffers_by_address_, it->second.address, handle);
     buffers_.erase(it);
+    sparse_pages_.erase(handle);
 }
 
 std::optional<TrackedBuffer> DeviceMemoryMap::buffer(uint64_t handle) const {
@@ -98,15 +99,11 @@ std::optional<ResolvedRange> DeviceMemoryMap::resolve(VkDeviceAddress address, V
         if (offset >= b.size && !(offset == b.size && size == 0)) continue;
         saw_containing_start = true;
         if (size > b.size - offset) continue;
-        auto mem = memories_.find(b.memory);
-        if (b.memory == 0 || mem == memories_.end()) continue;
-        ResolvedRange r;
-        r.buffer = b;
-        r.offset_in_buffer = offset;
-        r.memory = mem->second;
-        if (mem->second.host_base) r.host = mem->second.host_base + b.memory_offset + offset;
-        return r;
+        std::string sparse_why;
+        if (auto r = resolve_in(b, offset, size, sparse_why)) return r;
+        if (b.flags & VK_BUFFER_CREATE_SPARSE_BINDING_BIT) why = sparse_why;
     }
+    if (!why.empty()) return std::nullopt;  // the sparse buffer holding it said why
     why = saw_containing_start
               ? "address range " + hex(address) + "+" + hex(size) +
                     " runs past the end of its buffer or the buffer has no live memory bound"
@@ -130,17 +127,85 @@ std::optional<ResolvedRange> DeviceMemoryMap::resolve_buffer(uint64_t buffer, Vk
               hex(buffer) + " (size " + hex(b.size) + ")";
         return std::nullopt;
     }
-    auto mem = memories_.find(b.memory);
-    if (b.memory == 0 || mem == memories_.end()) {
-        why = "buffer " + hex(buffer) + " has no live memory bound";
+    return resolve_in(b, offset, size, why);
+}
+
+std::optional<ResolvedRange> DeviceMemoryMap::resolve_in(const TrackedBuffer& b,
+                                                         VkDeviceSize offset, VkDeviceSize size,
+                                                         std::string& why) const {
+    uint64_t memory = b.memory;
+    VkDeviceSize memory_offset = b.memory_offset + offset;
+    if (b.flags & VK_BUFFER_CREATE_SPARSE_BINDING_BIT) {
+        // The pages over the range must follow each other in one allocation: the capture
+        // reads them with one copy from the layer's mapping.
+        auto pages = sparse_pages_.find(b.handle);
+        memory = 0;
+        if (pages != sparse_pages_.end()) {
+            auto page = pages->second.upper_bound(offset);
+            if (page != pages->second.begin()) --page;
+            VkDeviceSize at = offset;
+            while (page != pages->second.end() && page->first <= at && page->second.end > at) {
+                const VkDeviceSize page_memory_offset =
+                    page->second.memory_offset + (at - page->first);
+                if (at == offset) {
+                    memory = page->second.memory;
+                    memory_offset = page_memory_offset;
+                } else if (page->second.memory != memory ||
+                           page_memory_offset != memory_offset + (at - offset)) {
+                    break;
+                }
+                at = page->second.end;
+                if (at >= offset + size) break;
+                ++page;
+            }
+            if (at < offset + size || (size == 0 && at == offset)) memory = 0;
+        }
+        if (memory == 0) {
+            why = "range " + hex(offset) + "+" + hex(size) + " of sparse buffer " + hex(b.handle) +
+                  " is not bound contiguously to one memory object (unbound pages, or several "
+                  "allocations)";
+            return std::nullopt;
+        }
+    }
+    auto mem = memories_.find(memory);
+    if (memory == 0 || mem == memories_.end()) {
+        why = "buffer " + hex(b.handle) + " has no live memory bound";
         return std::nullopt;
     }
     ResolvedRange r;
     r.buffer = b;
+    // The memory the range is in, as if the whole buffer were bound there (so readers that add
+    // offset_in_buffer to memory_offset land on the range's memory).
+    r.buffer.memory = memory;
+    r.buffer.memory_offset = memory_offset - offset;
     r.offset_in_buffer = offset;
     r.memory = mem->second;
-    if (mem->second.host_base) r.host = mem->second.host_base + b.memory_offset + offset;
+    if (mem->second.host_base) r.host = mem->second.host_base + memory_offset;
     return r;
+}
+
+void DeviceMemoryMap::bind_sparse(uint64_t buffer, VkDeviceSize resource_offset, VkDeviceSize size,
+                                  uint64_t memory, VkDeviceSize memory_offset) {
+    std::lock_guard lock(mutex_);
+    if (size == 0 || resource_offset + size < resource_offset) return;
+    std::map<VkDeviceSize, SparsePage>& pages = sparse_pages_[buffer];
+    const VkDeviceSize end = resource_offset + size;
+    // A rebind replaces what was bound over its range: cut those parts back to the rest.
+    auto it = pages.upper_bound(resource_offset);
+    if (it != pages.begin() && std::prev(it)->second.end > resource_offset) --it;
+    while (it != pages.end() && it->first < end) {
+        const VkDeviceSize begin = it->first;
+        const SparsePage page = it->second;
+        it = pages.erase(it);
+        if (begin < resource_offset)
+            pages.emplace(begin, SparsePage{resource_offset, page.memory, page.memory_offset});
+        if (page.end > end)
+            it = pages
+                     .emplace(end,
+                              SparsePage{page.end, page.memory, page.memory_offset + (end - begin)})
+                     .first;
+    }
+    if (memory != 0) pages.emplace(resource_offset, SparsePage{end, memory, memory_offset});
 }
 
 bool DeviceMemoryMap::read(VkDeviceAddress address, VkDeviceSize size, std::vector<uint8_t>& out,

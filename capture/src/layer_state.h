@@ -137,7 +137,8 @@ uint64_t handle_id(Handle handle) {
     X(WaitSemaphoresKHR)                              \
     X(QueuePresentKHR)                                \
     X(AcquireNextImageKHR)                            \
-    X(AcquireNextImage2KHR)
+    X(AcquireNextImage2KHR)                           \
+    X(QueueBindSparse)
 
 #define CLASTRACE_DECLARE_PFN(name) PFN_vk##name name = nullptr;
 
@@ -248,6 +249,7 @@ PFN_vkVoidFunction submit_hook(const char* name);
 PFN_vkVoidFunction cluster_hook(const char* name);
 PFN_vkVoidFunction acceleration_structure_hook(const char* name);
 PFN_vkVoidFunction present_hook(const char* name);
+PFN_vkVoidFunction sparse_hook(const char* name);
 
 // CLASTRACE_RAY_CHECK: after submission `submissionIndex` on `queue` (just submitted), waits
 // for the queue and traces the configured rays against each of `topLevels`, recording a

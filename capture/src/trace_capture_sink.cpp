@@ -17,6 +17,7 @@
 #include "trace_record_encoding.h"
 
 #include <clastrace/traces/cluster_conversions.h>
+#include <clastrace/traces/sparse_conversions.h>
 
 #include <clastrace/traces/output_file.h>
 #include <clastrace/traces/trace_writer.h>
@@ -243,6 +244,15 @@ public:
             r.snapshots.push_back(snap);
         }
         append(record_of(std::move(r)));
+    }
+    // A queue operation like a submission: after the submissions made before the call (a
+    // submission waiting on its semaphore is made after it).
+    void sparse_bound(const SparseBindRecord& b) override {
+        fbs::RecordT record =
+            record_of(traces::queue_bind_sparse_to_record(b.queue, std::span(b.infos, b.info_count),
+                                                          b.fence, b.result, b.address_of));
+        StateLock lock(*this);
+        append_ordered_locked(std::move(record));
     }
     // Ordered like host synchronization: after the submissions of the frame it ends.
     void queue_presented(const PresentRecord& p) override {

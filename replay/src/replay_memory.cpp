@@ -113,6 +113,7 @@ std::optional<AddressRange> ReplayMemory::destroy_buffer(uint64_t buffer) {
         if (!shared) image_.remove_region(begin);
     }
     unmark(range);
+    forget_sparse(buffer, range);
     return range;
 }
 
@@ -270,6 +271,123 @@ void ReplayMemory::mark_engine_object(AddressRange range) {
     if (range.empty()) return;
     unmark(range);
     engine_objects_.emplace(range.begin, range.end);
+}
+
+}  // namespace clastrace::replay::detail
+
+namespace clastrace::replay::detail {
+
+void ReplayMemory::place_sparse(uint64_t buffer, uint64_t device_address) {
+    Buffer& b = buffers_[buffer];
+    if (b.bound) return;
+    if (device_address != 0) {
+        b.address = device_address;
+    } else {
+        b.address = next_private_;  // its own range: only resolve() makes it meet memory
+        next_private_ += kPrivateSpan;
+    }
+    b.bound = true;
+    bound_at_.emplace(b.address, buffer);
+    largest_bound_ = std::max(largest_bound_, b.size);
+    char label[48];
+    std::snprintf(label, sizeof label, "sparse buffer 0x%llx",
+                  static_cast<unsigned long long>(buffer));
+    if (!add_region(b.address, b.size, b.usage, label)) over_budget_.emplace_back(buffer, b.size);
+    if (b.size != 0 && b.address + b.size > b.address)
+        sparse_spans_[b.address] = SparseSpan{b.address + b.size, buffer};
+}
+
+void ReplayMemory::bind_sparse(uint64_t buffer, uint64_t device_address, uint64_t resource_offset,
+                               uint64_t size, uint64_t memory, uint64_t memory_offset) {
+    place_sparse(buffer, device_address);
+    const Buffer& b = buffers_[buffer];
+    if (resource_offset >= b.size || !sparse_spans_.count(b.address)) return;
+    const uint64_t begin = b.address + resource_offset;
+    const uint64_t end = begin + std::min(size, b.size - resource_offset);
+    // A rebind replaces whatever was bound over its range: cut those parts back to the rest.
+    auto it = sparse_pages_.upper_bound(begin);
+    if (it != sparse_pages_.begin() && std::prev(it)->second.end > begin) --it;
+    while (it != sparse_pages_.end() && it->first < end) {
+        const uint64_t page_begin = it->first;
+        const SparsePage page = it->second;
+        it = sparse_pages_.erase(it);
+        if (page_begin < begin)
+            sparse_pages_.emplace(page_begin, SparsePage{begin, page.memory, page.memory_offset});
+        if (page.end > end)
+            it = sparse_pages_
+                     .emplace(end, SparsePage{page.end, page.memory,
+                                              page.memory_offset + (end - page_begin)})
+                     .first;
+    }
+    if (memory != 0) sparse_pages_.emplace(begin, SparsePage{end, memory, memory_offset});
+}
+
+void ReplayMemory::forget_sparse(uint64_t buffer, AddressRange range) {
+    auto span = sparse_spans_.find(range.begin);
+    if (span == sparse_spans_.end() || span->second.buffer != buffer) return;
+    sparse_spans_.erase(span);
+    sparse_pages_.erase(sparse_pages_.lower_bound(range.begin),
+                        sparse_pages_.lower_bound(range.end));
+}
+
+bool ReplayMemory::resolve(AddressRange range, std::vector<ResolvedRange>* parts) {
+    if (sparse_spans_.empty() || range.empty()) return false;
+    auto span = sparse_spans_.upper_bound(range.begin);
+    if (span != sparse_spans_.begin() && std::prev(span)->second.end > range.begin) --span;
+    if (span == sparse_spans_.end() || span->first >= range.end) return false;
+    parts->clear();
+    uint64_t at = range.begin;
+    for (; span != sparse_spans_.end() && span->first < range.end; ++span) {
+        if (at < span->first) parts->push_back({{at, span->first}, true});
+        at = std::max(at, span->first);
+        const uint64_t span_end = std::min(span->second.end, range.end);
+        auto page = sparse_pages_.upper_bound(at);
+        if (page != sparse_pages_.begin() && std::prev(page)->second.end > at) --page;
+        while (at < span_end) {
+            if (page == sparse_pages_.end() || page->first >= span_end) {
+                parts->push_back({{at, span_end}, false});
+                break;
+            }
+            if (page->first > at) {
+                parts->push_back({{at, page->first}, false});
+                at = page->first;
+            }
+            const uint64_t part_end = std::min(page->second.end, span_end);
+            const uint64_t base =
+                memory_base(page->second.memory) + page->second.memory_offset + (at - page->first);
+            parts->push_back({{base, base + (part_end - at)}, true});
+            at = part_end;
+            ++page;
+        }
+        at = span_end;
+    }
+    if (at < range.end) parts->push_back({{at, range.end}, true});
+    return true;
+}
+
+std::optional<ReplayMemory::BufferExtent> ReplayMemory::buffer_extent(uint64_t buffer) const {
+    auto it = buffers_.find(buffer);
+    if (it == buffers_.end()) return std::nullopt;
+    BufferExtent extent{it->second.size, std::nullopt};
+    if (it->second.bound) extent.address = it->second.address;
+    return extent;
+}
+
+bool ReplayMemory::meets_sparse_buffer(uint64_t address, uint64_t size) const {
+    const uint64_t end = address + size;
+    auto span = sparse_spans_.lower_bound(end);
+    if (span == sparse_spans_.begin()) return false;
+    --span;
+    return span->second.end > address;
+}
+
+std::optional<std::pair<uint64_t, uint64_t>> ReplayMemory::sparse_buffer_at(
+    uint64_t address) const {
+    auto span = sparse_spans_.upper_bound(address);
+    if (span == sparse_spans_.begin()) return std::nullopt;
+    --span;
+    if (address >= span->second.end) return std::nullopt;
+    return std::pair{span->second.buffer, address - span->first};
 }
 
 }  // namespace clastrace::replay::detail

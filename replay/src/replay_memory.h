@@ -21,7 +21,7 @@
 
 namespace clastrace::replay::detail {
 
-class ReplayMemory {
+class ReplayMemory : public AddressResolver {
 public:
     // Bytes the image may hold in all. Regions are sparse (engine::RegionBytes): binding a
     // buffer reserves address space only, and the budget counts the pages written.
@@ -36,6 +36,31 @@ public:
     void bind_buffer(uint64_t buffer, uint64_t memory, uint64_t memory_offset,
                      uint64_t device_address);
     void bind_object(uint64_t object, uint64_t memory, uint64_t memory_offset);  // NV AS
+    // One VkSparseMemoryBind of a sparse buffer (vkQueueBindSparse), in queue order: from now
+    // on [resource_offset, + size) of the buffer is memory `memory` at `memory_offset` (0:
+    // unbound), replacing what was bound there. The buffer's first bind places it: at
+    // `device_address`, or in a private range when it has none. Its bytes stay at its own
+    // addresses in the image (the engine reads and writes there); resolve() tells the
+    // synchronization model which memory each address reaches.
+    void bind_sparse(uint64_t buffer, uint64_t device_address, uint64_t resource_offset,
+                     uint64_t size, uint64_t memory, uint64_t memory_offset);
+    // AddressResolver: a sparse buffer's bound parts resolve to their memory object's base
+    // (the device address of a buffer bound to it at offset 0, as bind_buffer learns it) plus
+    // the memory offset, so an access through another buffer aliasing that memory meets them.
+    bool resolve(AddressRange range, std::vector<ResolvedRange>* parts) override;
+    // The sparse buffer holding `address` and the offset in it, if one does.
+    std::optional<std::pair<uint64_t, uint64_t>> sparse_buffer_at(uint64_t address) const;
+    // What a sparse bind is checked against: a created buffer's size, and its address once
+    // placed (bound, or a sparse buffer's first bind); nullopt for a buffer never created.
+    struct BufferExtent {
+        uint64_t size = 0;
+        std::optional<uint64_t> address;
+    };
+    std::optional<BufferExtent> buffer_extent(uint64_t buffer) const;
+    // Whether [address, address + size) meets a placed sparse buffer's addresses.
+    bool meets_sparse_buffer(uint64_t address, uint64_t size) const;
+    // Bound parts of all sparse buffers (each resolve() walks those under its range).
+    size_t sparse_page_count() const { return sparse_pages_.size(); }
     void create_object(uint64_t object, uint64_t buffer, uint64_t offset, uint64_t size,
                        uint64_t requirement);
     void object_requirement(uint64_t object, uint64_t size) { object_size_[object] = size; }
@@ -98,6 +123,8 @@ private:
     // Adds the region (an alias of an existing one is served by it); false when over the limit.
     bool add_region(uint64_t address, uint64_t size, uint64_t usage, const std::string& label);
     uint64_t memory_base(uint64_t memory);
+    void place_sparse(uint64_t buffer, uint64_t device_address);
+    void forget_sparse(uint64_t buffer, AddressRange range);
 
     engine::MemoryImage image_;
     std::unordered_map<uint64_t, Buffer> buffers_;
@@ -106,6 +133,17 @@ private:
     std::unordered_map<uint64_t, Object> objects_;
     std::unordered_map<uint64_t, uint64_t> object_size_;
     std::unordered_map<uint64_t, uint64_t> memory_base_;
+    struct SparseSpan {  // a placed sparse buffer's addresses
+        uint64_t end = 0;
+        uint64_t buffer = 0;
+    };
+    std::map<uint64_t, SparseSpan> sparse_spans_;  // begin -> span, disjoint
+    struct SparsePage {                            // a bound part of a sparse buffer
+        uint64_t end = 0;
+        uint64_t memory = 0;
+        uint64_t memory_offset = 0;
+    };
+    std::map<uint64_t, SparsePage> sparse_pages_;  // begin address -> bound part, disjoint
     uint64_t next_private_ = kPrivateBase;
     uint64_t aliased_buffers_ = 0;
     std::map<uint64_t, uint64_t> engine_objects_;  // begin -> end, disjoint

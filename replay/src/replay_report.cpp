@@ -79,6 +79,7 @@ bool is_replay_limit(std::string_view rule) {
         "CLASTRACE-replay-reference-not-rebuilt",    // an object built before the capture
         "CLASTRACE-replay-snapshot-outside-memory",  // captured bytes no buffer of it holds
         "CLASTRACE-replay-engine-failed",            // the engine stopped on the command
+        "CLASTRACE-replay-sparse-bind-budget",       // sparse binds past the parts kept
     };
     for (std::string_view limit : kLimits)
         if (rule == limit) return true;

@@ -23,6 +23,10 @@ Replay::Replay(TraceReader& reader, const std::string& name, const ReplayOptions
       memory_(options.memory_budget_bytes),
       sync_(SyncOptions{options.max_findings}) {
     report_.trace = name;
+    sync_.set_address_resolver(&memory_, [this](const CommandRef& ref, const Access& access,
+                                                AddressRange unbound) {
+        unbound_access(ref, access, unbound);
+    });
     report_.hazards_checked = options.check_hazards;
     report_.verified = options.verify_outputs;
     if (const fbs::TraceHeader* h = reader.header(); h && h->device()) {
@@ -52,7 +56,7 @@ void Replay::on_record(const traces::RecordView& view) {
     const fbs::RecordBody kind = view.kind;
     if (on_memory_record(kind, r) || on_acceleration_structure_record(kind, r) ||
         on_command_buffer_record(kind, r) || on_queue_record(kind, r) ||
-        on_presentation_record(kind, r) || on_check_record(kind, r))
+        on_presentation_record(kind, r) || on_check_record(kind, r) || on_sparse_record(view))
         return;
     record_command(view);
 }

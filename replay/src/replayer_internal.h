@@ -81,6 +81,17 @@ private:
     bool on_queue_record(fbs::RecordBody kind, const fbs::Record& r);
     bool on_presentation_record(fbs::RecordBody kind, const fbs::Record& r);
     bool on_check_record(fbs::RecordBody kind, const fbs::Record& r);
+    // vkQueueBindSparse (replayer_sparse_binds.cpp).
+    bool on_sparse_record(const traces::RecordView& view);
+    // Applies a batch's buffer binds in order; a bind the replay cannot apply (damaged) or a
+    // range bound twice in the batch is a finding naming the record `place`.
+    void apply_sparse_binds(const fbs::SparseBindBatch& batch, const std::string& place);
+    // The binds of one buffer bind entry that can be applied: checks the buffer and its
+    // address; false (and a finding) when the whole entry must be skipped.
+    bool sparse_buffer_usable(const fbs::SparseBufferBind& entry, const std::string& place);
+    void sparse_bind_finding(const char* rule, const std::string& message);
+    // SyncModel's UnboundHandler: an access to a sparse buffer's unbound part is a finding.
+    void unbound_access(const CommandRef& ref, const Access& access, AddressRange unbound);
     void record_command(const traces::RecordView& view);
     void on_submit(const fbs::QueueSubmit& submit);
     // Replays one execution of a command buffer (a primary listed in a batch, or a secondary

@@ -79,6 +79,48 @@ void SyncModel::State::check_and_update(Segment& seg, uint64_t seg_begin, uint64
     seg.reads.push_back(b);
 }
 
+bool SyncModel::State::resolves_elsewhere(AddressRange range) {
+    return resolver && resolver->resolve(range, &resolved);
+}
+
+void SyncModel::State::record_resolved(const Record& b, const Access& access, bool deserialize) {
+    if (!resolves_elsewhere(b.range)) {
+        record(b, deserialize);
+        return;
+    }
+    const std::vector<ResolvedRange> parts = resolved;
+    for (const ResolvedRange& part : parts) {
+        if (!part.bound) {
+            if (on_unbound) on_unbound(b.command, access, part.range);
+            continue;
+        }
+        Record piece = b;
+        piece.range = part.range;
+        record(piece, deserialize);
+    }
+}
+
+DependencyInfo SyncModel::State::resolve_barriers(const DependencyInfo& dependency,
+                                                  std::vector<BufferBarrier>& storage) {
+    if (!resolver) return dependency;
+    storage.clear();
+    bool any = false;
+    for (const BufferBarrier& b : dependency.buffer_barriers) {
+        if (!resolves_elsewhere(b.range)) {
+            storage.push_back(b);
+            continue;
+        }
+        any = true;
+        // An unbound part holds no memory, so the barrier orders no access there.
+        for (const ResolvedRange& part : resolved)
+            if (part.bound) storage.push_back({b.masks, part.range});
+    }
+    if (!any) return dependency;
+    DependencyInfo out = dependency;
+    out.buffer_barriers = storage;
+    return out;
+}
+
 Record SyncModel::State::make_record(const CommandRef& command, const Access& a, uint16_t queue,
                                      uint64_t t) {
     Record r;

@@ -14,6 +14,11 @@ SyncModel::SyncModel(SyncOptions options) : state_(std::make_unique<State>()) {
 }
 SyncModel::~SyncModel() = default;
 
+void SyncModel::set_address_resolver(AddressResolver* resolver, UnboundHandler on_unbound) {
+    state_->resolver = resolver;
+    state_->on_unbound = std::move(on_unbound);
+}
+
 void SyncModel::begin_submission(QueueId queue, uint32_t, std::span<const SemaphoreWait> waits) {
     State& s = *state_;
     s.current_queue = s.queue_slot(queue);
@@ -61,13 +66,18 @@ void SyncModel::begin_submission(QueueId queue, uint32_t, std::span<const Semaph
 void SyncModel::record_access(const CommandRef& command, const Access& access) {
     State& s = *state_;
     const uint64_t t = s.command_tag(command, s.current_queue);
-    s.record(s.make_record(command, access, s.current_queue, t), false);
+    s.record_resolved(s.make_record(command, access, s.current_queue, t), access, false);
 }
 
 void SyncModel::record_accesses(const CommandRef& command, std::span<const Access> accesses) {
     State& s = *state_;
     const std::size_t n = accesses.size();
-    if (n < 2) {
+    // Element runs need each access at its own addresses: one that resolves elsewhere (sparse
+    // memory) takes the one-by-one path, which reports the same hazards.
+    const bool resolving = std::any_of(accesses.begin(), accesses.end(), [&](const Access& a) {
+        return s.resolves_elsewhere(a.range);
+    });
+    if (n < 2 || resolving) {
         for (const Access& a : accesses) record_access(command, a);
         return;
     }
@@ -137,22 +147,23 @@ void SyncModel::record_copy(const CommandRef& command, const Access& source,
                      std::min(source.range.end, destination.range.end)};
         s.emit(f, dst);
     }
-    s.record(src, false);
-    s.record(dst, false);
+    s.record_resolved(src, source, false);
+    s.record_resolved(dst, destination, false);
 }
 
 void SyncModel::record_deserialize(const CommandRef& command, const Access& source,
                                    const Access& destination) {
     State& s = *state_;
     const uint64_t t = s.command_tag(command, s.current_queue);
-    s.record(s.make_record(command, source, s.current_queue, t), false);
-    s.record(s.make_record(command, destination, s.current_queue, t), true);
+    s.record_resolved(s.make_record(command, source, s.current_queue, t), source, false);
+    s.record_resolved(s.make_record(command, destination, s.current_queue, t), destination, true);
 }
 
 void SyncModel::pipeline_barrier(const CommandRef&, const DependencyInfo& dependency) {
     State& s = *state_;
     s.sync_tag();
-    s.log_barrier_entry(EntryKind::kBarrier, dependency, 0, false);
+    std::vector<BufferBarrier> resolved;
+    s.log_barrier_entry(EntryKind::kBarrier, s.resolve_barriers(dependency, resolved), 0, false);
 }
 
 void SyncModel::set_event(const CommandRef&, uint64_t event, const DependencyInfo& dependency) {
@@ -172,7 +183,8 @@ void SyncModel::set_event(const CommandRef&, uint64_t event, const DependencyInf
     }
     ev.set_serial = ++s.set_serial;
     ev.v1 = false;
-    s.log_barrier_entry(EntryKind::kEventSet, dependency,
+    std::vector<BufferBarrier> resolved;
+    s.log_barrier_entry(EntryKind::kEventSet, s.resolve_barriers(dependency, resolved),
                         StageMask(1) << (kFirstEventBit + ev.slot), false);
 }
 
@@ -208,7 +220,8 @@ void SyncModel::wait_events(const CommandRef&, std::span<const uint64_t> events,
         v1 = v1 || it->second.v1;
     }
     if (!bits) return;
-    s.log_barrier_entry(EntryKind::kEventWait, dependency, bits, v1);
+    std::vector<BufferBarrier> resolved;
+    s.log_barrier_entry(EntryKind::kEventWait, s.resolve_barriers(dependency, resolved), bits, v1);
 }
 
 void SyncModel::end_submission(std::span<const SemaphoreSignal> signals, uint64_t fence) {
@@ -256,7 +269,7 @@ void SyncModel::host_access(const CommandRef& command, const Access& access) {
     a.stage = VK_PIPELINE_STAGE_2_HOST_BIT;
     a.access = a.is_write ? VK_ACCESS_2_HOST_WRITE_BIT : VK_ACCESS_2_HOST_READ_BIT;
     const uint64_t t = s.command_tag(command, kHostSlot);
-    s.record(s.make_record(command, a, kHostSlot, t), false);
+    s.record_resolved(s.make_record(command, a, kHostSlot, t), a, false);
 }
 
 void SyncModel::wait_for_fence(uint64_t fence) {

@@ -211,6 +211,20 @@ struct SyncModel::State {
     void check_and_update(Segment& seg, uint64_t seg_begin, uint64_t seg_end, const Later& later,
                           std::vector<Finding>& found);
 
+    // Memory the addresses resolve to (SyncModel::set_address_resolver); null: none.
+    AddressResolver* resolver = nullptr;
+    UnboundHandler on_unbound;
+    std::vector<ResolvedRange> resolved;  // resolve()'s working list
+    // Whether `range` reaches memory somewhere other than at its own addresses.
+    bool resolves_elsewhere(AddressRange range);
+    // record() at each bound part of the memory `b`'s range resolves to (the same command and
+    // tag); unbound parts go to on_unbound with `access`.
+    void record_resolved(const Record& b, const Access& access, bool deserialize);
+    // `dependency` with its buffer barriers over the memory their ranges resolve to, kept in
+    // `storage`.
+    DependencyInfo resolve_barriers(const DependencyInfo& dependency,
+                                    std::vector<BufferBarrier>& storage);
+
     Record make_record(const CommandRef& command, const Access& a, uint16_t queue, uint64_t t);
     // make_record into an existing record (record_accesses reuses one, sparing its vectors).
     void fill_record(Record& r, const CommandRef& command, const Access& a, uint16_t queue,

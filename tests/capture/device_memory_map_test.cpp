@@ -86,3 +86,47 @@ TEST_F(MapWithOneBuffer, NonHostVisibleMemoryIsReportedNotRead) {
     EXPECT_FALSE(map.read(0x200000, 4, bytes, why));
     EXPECT_NE(why.find("not host visible"), std::string::npos) << why;
 }
+
+// A sparse buffer of two 1 KiB pages over the fixture's memory: page 0 bound at memory offset
+// 2048, page 1 at 1024 (out of order), so the buffer's addresses map piecewise to the memory.
+struct MapWithSparseBuffer : MapWithOneBuffer {
+    void SetUp() override {
+        MapWithOneBuffer::SetUp();
+        map.add_buffer({0x30, 2048, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT,
+                        VK_BUFFER_CREATE_SPARSE_BINDING_BIT, 0, 0, 0});
+        map.set_buffer_address(0x30, 0x200000);
+    }
+};
+
+TEST_F(MapWithSparseBuffer, AddressesResolveToTheMemoryBoundUnderEachPage) {
+    std::string why;
+    EXPECT_FALSE(map.resolve(0x200000, 16, why));  // nothing bound yet
+    EXPECT_NE(why.find("sparse buffer 0x30"), std::string::npos) << why;
+    map.bind_sparse(0x30, 0, 1024, 0x10, 2048);
+    map.bind_sparse(0x30, 1024, 1024, 0x10, 1024);
+    auto first = map.resolve(0x200010, 16, why);
+    ASSERT_TRUE(first) << why;
+    EXPECT_EQ(first->host, hostMemory.data() + 2048 + 16);
+    auto second = map.resolve(0x200400 + 8, 16, why);
+    ASSERT_TRUE(second) << why;
+    EXPECT_EQ(second->host, hostMemory.data() + 1024 + 8);
+    EXPECT_EQ(second->buffer.memory_offset + second->offset_in_buffer, 1024u + 8);
+    // Across the page boundary the memory is not contiguous: refused, with the reason.
+    EXPECT_FALSE(map.resolve(0x200400 - 8, 16, why));
+    EXPECT_NE(why.find("not bound contiguously"), std::string::npos) << why;
+}
+
+TEST_F(MapWithSparseBuffer, RebindReplacesAndUnbindRemovesThePages) {
+    std::string why;
+    map.bind_sparse(0x30, 0, 2048, 0x10, 0);  // contiguous: one read across both pages
+    ASSERT_TRUE(map.resolve(0x200400 - 8, 16, why)) << why;
+    map.bind_sparse(0x30, 1024, 1024, 0x10, 3072);  // a rebind of page 1 elsewhere
+    auto rebound = map.resolve(0x200400, 4, why);
+    ASSERT_TRUE(rebound) << why;
+    EXPECT_EQ(rebound->host, hostMemory.data() + 3072);
+    EXPECT_TRUE(map.resolve(0x200000, 1024, why));  // page 0 kept its memory
+    map.bind_sparse(0x30, 0, 1024, 0, 0);           // unbind page 0
+    EXPECT_FALSE(map.resolve(0x200000, 4, why));
+    EXPECT_TRUE(map.resolve_buffer(0x30, 1024, 16, why)) << why;
+    EXPECT_FALSE(map.resolve_buffer(0x30, 0, 16, why));
+}

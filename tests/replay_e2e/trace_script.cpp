@@ -51,6 +51,19 @@ void TraceScript::buffer(uint64_t handle, uint64_t address, uint64_t size, uint6
     writer_.buffer(handle, address, size, usage, memory, memory_offset);
 }
 
+void TraceScript::sparse_buffer(uint64_t handle, uint64_t size, uint64_t usage) {
+    fbs::BufferCreateT c = tb::buffer_create(handle, size, usage);
+    c.create_flags = VK_BUFFER_CREATE_SPARSE_BINDING_BIT;
+    writer_.append(std::move(c));
+}
+
+void TraceScript::bind_sparse(uint64_t queue, uint64_t buffer, uint64_t address,
+                              const std::vector<VkSparseMemoryBind>& binds, uint64_t signal) {
+    std::vector<uint64_t> signals;
+    if (signal) signals.push_back(signal);
+    writer_.append(tb::queue_bind_sparse(queue, buffer, address, binds, {}, signals, 0));
+}
+
 void TraceScript::query_build_sizes(const VkClusterAccelerationStructureInputInfoNV& input) {
     const engine::BuildSizes answer = engine::cluster_build_sizes(input, properties_);
     query_build_sizes(input, answer.acceleration_structure_size, answer.build_scratch_size);

@@ -55,6 +55,8 @@ public:
     // A buffer bound to `memory` at `memory_offset` with device address `address` (0: none).
     void buffer(uint64_t handle, uint64_t address, uint64_t size, uint64_t usage,
                 uint64_t memory = 0x1001, uint64_t memory_offset = 0);
+    // A buffer created with VK_BUFFER_CREATE_SPARSE_BINDING_BIT: no memory until bind_sparse.
+    void sparse_buffer(uint64_t handle, uint64_t size, uint64_t usage);
     // vkGetClusterAccelerationStructureBuildSizesNV with this input (10445), answered as the
     // engine answers it on this device.
     void query_build_sizes(const VkClusterAccelerationStructureInputInfoNV& input);
@@ -105,6 +107,10 @@ public:
     void next_command_buffer();
     // Submits an already recorded command buffer again (or one that was reset).
     void resubmit(uint64_t queue, uint64_t command_buffer, uint64_t fence = 0);
+    // vkQueueBindSparse of one batch binding `binds` under the sparse buffer `buffer`, whose
+    // device address is `address`; signals `signal` (binary, 0: none).
+    void bind_sparse(uint64_t queue, uint64_t buffer, uint64_t address,
+                     const std::vector<VkSparseMemoryBind>& binds, uint64_t signal = 0);
     void wait_fence(uint64_t fence);
     void device_wait_idle();
     // Format 1.2: vkQueuePresentKHR waiting on binary `waits`, and vkAcquireNextImageKHR

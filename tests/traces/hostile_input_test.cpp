@@ -260,7 +260,8 @@ TEST(HostileTrace, IndexLargerThanTheFileCanNeedIsRefusedBeforeDecompressing) {
 TEST(HostileTrace, RecordsChunkRelabelledAsIndexIsDamageAndLaterChunksStillRead) {
     CraftedTrace t = three_chunks();
     std::vector<uint8_t> file = t.finish();
-    // Relabel chunk 1 with a consistent header checksum: as an index chunk, then as a kind 1.2 lacks.
+    // Relabel chunk 1 with a consistent header checksum: as an index chunk, then as a kind the
+    // format lacks.
     uint64_t at = f::kFileHeaderSize + f::align8(f::load<uint32_t>(file.data() + 12));
     f::ChunkHeader h0;
     std::memcpy(&h0, file.data() + at, sizeof h0);
@@ -284,7 +285,8 @@ TEST(HostileTrace, RecordsChunkRelabelledAsIndexIsDamageAndLaterChunksStillRead)
                 << describe(r.damage);
         } else {
             EXPECT_NE(find_damage(r, TraceErrorCode::kBadChunk,
-                                  "has kind 3, which format 1.2 does not define"),
+                                  "has kind 3, which format 1." + std::to_string(f::kVersionMinor) +
+                                      " does not define"),
                       nullptr)
                 << describe(r.damage);
         }

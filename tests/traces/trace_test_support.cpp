@@ -488,6 +488,34 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
         r.device_mask = 1;
         out.push_back(record(r));
     }
+    {
+        // Two batches: binary waits and two buffers' binds (an unbind, a bind at a memory
+        // offset, one with a flag), counted image binds; then timeline signals and the fence.
+        fbs::QueueBindSparseT r;
+        r.queue = 0x9a;
+        auto first = std::make_unique<fbs::SparseBindBatchT>();
+        first->wait_semaphores = {fbs::SemaphoreOp(0x5e1, 0, 0, 0)};
+        auto sparse = std::make_unique<fbs::SparseBufferBindT>();
+        sparse->buffer = 0xd01;
+        sparse->device_address = 0x50000000;
+        sparse->binds = {fbs::SparseMemoryBind(0, 0x10000, 0x10, 0x20000, 0),
+                         fbs::SparseMemoryBind(0x10000, 0x10000, 0, 0, 0),
+                         fbs::SparseMemoryBind(0x20000, 0x10000, 0x11, 0, 1)};
+        first->buffer_binds.push_back(std::move(sparse));
+        auto other = std::make_unique<fbs::SparseBufferBindT>();
+        other->buffer = 0xd02;
+        other->binds = {fbs::SparseMemoryBind(0x4000, 0x1000, 0x10, 0x8000, 0)};
+        first->buffer_binds.push_back(std::move(other));
+        first->image_opaque_bind_count = 2;
+        first->image_bind_count = 1;
+        r.batches.push_back(std::move(first));
+        auto second = std::make_unique<fbs::SparseBindBatchT>();
+        second->signal_semaphores = {fbs::SemaphoreOp(0x5e2, 7, 0, 0)};
+        r.batches.push_back(std::move(second));
+        r.fence = 0xf4;
+        r.result = 0;
+        out.push_back(record(r));
+    }
     return out;
 }
 

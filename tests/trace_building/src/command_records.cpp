@@ -1,7 +1,12 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "clastrace/trace_building/command_records.h"
 
+#include <clastrace/traces/sparse_conversions.h>
+
+#include <cstdint>
 #include <memory>
+#include <span>
+#include <type_traits>
 #include <utility>
 
 namespace clastrace::trace_building {
@@ -106,6 +111,43 @@ fbs::FenceWaitT fence_wait(uint64_t fence) {
     w.fences.push_back(fence);
     w.wait_all = true;
     return w;
+}
+
+namespace {
+template <class Handle>
+Handle handle_of(uint64_t value) {
+    if constexpr (std::is_pointer_v<Handle>)
+        return reinterpret_cast<Handle>(uintptr_t(value));
+    else
+        return Handle(value);
+}
+std::vector<VkSemaphore> semaphores_of(const std::vector<uint64_t>& handles) {
+    std::vector<VkSemaphore> out;
+    for (uint64_t h : handles) out.push_back(handle_of<VkSemaphore>(h));
+    return out;
+}
+}  // namespace
+
+fbs::QueueBindSparseT queue_bind_sparse(uint64_t queue, uint64_t buffer, uint64_t address,
+                                        const std::vector<VkSparseMemoryBind>& binds,
+                                        const std::vector<uint64_t>& wait_semaphores,
+                                        const std::vector<uint64_t>& signal_semaphores,
+                                        uint64_t fence) {
+    const VkSparseBufferMemoryBindInfo buffer_bind{handle_of<VkBuffer>(buffer),
+                                                   uint32_t(binds.size()), binds.data()};
+    const std::vector<VkSemaphore> waits = semaphores_of(wait_semaphores);
+    const std::vector<VkSemaphore> signals = semaphores_of(signal_semaphores);
+    VkBindSparseInfo info{};
+    info.sType = VK_STRUCTURE_TYPE_BIND_SPARSE_INFO;
+    info.waitSemaphoreCount = uint32_t(waits.size());
+    info.pWaitSemaphores = waits.data();
+    info.bufferBindCount = 1;
+    info.pBufferBinds = &buffer_bind;
+    info.signalSemaphoreCount = uint32_t(signals.size());
+    info.pSignalSemaphores = signals.data();
+    return traces::queue_bind_sparse_to_record(reinterpret_cast<VkQueue>(uintptr_t(queue)),
+                                               std::span(&info, 1), handle_of<VkFence>(fence),
+                                               VK_SUCCESS, [&](VkBuffer) { return address; });
 }
 
 }  // namespace clastrace::trace_building

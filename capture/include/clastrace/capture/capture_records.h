@@ -353,6 +353,18 @@ struct AcquireRecord {
     uint32_t device_mask = 0;  // vkAcquireNextImage2KHR only
 };
 
+// vkQueueBindSparse as the application called it: a view of its arguments, valid only during the
+// sink's sparse_bound() call (the sink encodes it there, traces/sparse_conversions.h).
+struct SparseBindRecord {
+    VkQueue queue = VK_NULL_HANDLE;
+    const VkBindSparseInfo* infos = nullptr;
+    uint32_t info_count = 0;
+    VkFence fence = VK_NULL_HANDLE;
+    VkResult result = VK_SUCCESS;
+    // A sparse buffer's device address (0 when the application never asked for it).
+    std::function<uint64_t(VkBuffer)> address_of;
+};
+
 // A host call that synchronizes with the device: replay needs them to know which submissions
 // had completed when the host next wrote memory (FenceWait) or what the host signalled.
 struct HostSyncRecord {

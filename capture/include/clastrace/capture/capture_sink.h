@@ -47,6 +47,8 @@ public:
     virtual void queue_presented(const PresentRecord&) {}
     // vkAcquireNextImage[2]KHR, recorded like presents (in call order, whatever the range).
     virtual void image_acquired(const AcquireRecord&) {}
+    // vkQueueBindSparse, in queue order with the submissions (read during the call).
+    virtual void sparse_bound(const SparseBindRecord&) {}
     // Frees the captured bytes of records already written, on the calling thread. The pause
     // worker calls it when idle: the bytes were allocated on its thread, and freeing them there
     // spares the sink's thread the allocator's cross-thread path (and the worker's allocations

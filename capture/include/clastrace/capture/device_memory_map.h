@@ -51,6 +51,11 @@ public:
     void add_buffer(const TrackedBuffer& buffer);
     void bind_buffer(uint64_t buffer, uint64_t memory, VkDeviceSize offset);
     void set_buffer_address(uint64_t buffer, VkDeviceAddress address);
+    // One VkSparseMemoryBind of a sparse buffer (vkQueueBindSparse): [resource_offset, + size)
+    // of the buffer is now `memory` at `memory_offset` (0: unbound), replacing what was there.
+    // resolve() then maps the buffer's addresses piece by piece to the memory bound under them.
+    void bind_sparse(uint64_t buffer, VkDeviceSize resource_offset, VkDeviceSize size,
+                     uint64_t memory, VkDeviceSize memory_offset);
     void remove_buffer(uint64_t handle);
     std::optional<TrackedBuffer> buffer(uint64_t handle) const;
 
@@ -79,6 +84,18 @@ public:
     std::vector<TrackedBuffer> unmapped_addressed_buffers(VkBufferUsageFlags usage_mask) const;
 
 private:
+    // [offset, offset + size) of `b` in its memory (mutex_ held): a plain buffer's bound
+    // memory, or for a sparse buffer the one memory its binds put the whole range in,
+    // contiguously (a range over unbound pages or over several allocations is refused).
+    std::optional<ResolvedRange> resolve_in(const TrackedBuffer& b, VkDeviceSize offset,
+                                            VkDeviceSize size, std::string& why) const;
+    struct SparsePage {  // a bound part of a sparse buffer
+        VkDeviceSize end = 0;
+        uint64_t memory = 0;
+        VkDeviceSize memory_offset = 0;
+    };
+    // Sparse buffer -> its bound parts, keyed by the offset in the buffer where each begins.
+    std::unordered_map<uint64_t, std::map<VkDeviceSize, SparsePage>> sparse_pages_;
     mutable std::mutex mutex_;
     std::unordered_map<uint64_t, TrackedMemory> memories_;
     std::unordered_map<uint64_t, TrackedBuffer> buffers_;

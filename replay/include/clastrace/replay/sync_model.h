@@ -16,6 +16,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <span>
 #include <vector>
@@ -51,6 +52,13 @@ public:
     ~SyncModel();
     SyncModel(const SyncModel&) = delete;
     SyncModel& operator=(const SyncModel&) = delete;
+
+    // Accesses and buffer barriers go to the memory `resolver` maps their addresses to (null:
+    // every address is its own memory). A part of an access with no memory bound is recorded
+    // nowhere and given to `on_unbound` with the access and that part's addresses.
+    using UnboundHandler =
+        std::function<void(const CommandRef&, const Access&, AddressRange unbound)>;
+    void set_address_resolver(AddressResolver* resolver, UnboundHandler on_unbound);
 
     // --- device work, one submission batch at a time -------------------------------
     // Waits happen before the batch's commands (pWaitSemaphoreInfos / pWaitDstStageMask).

@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <span>
 #include <string_view>
+#include <vector>
 
 #include "clastrace/replay/sync_masks.h"
 
@@ -19,6 +20,24 @@ struct AddressRange {
     bool empty() const { return end <= begin; }
     bool overlaps(const AddressRange& o) const { return begin < o.end && o.begin < end; }
     friend bool operator==(const AddressRange&, const AddressRange&) = default;
+};
+
+// One part of an access's range as memory sees it (SyncModel::set_address_resolver).
+struct ResolvedRange {
+    AddressRange range;  // in memory's address space when bound; the range as given when not
+    bool bound = true;
+};
+
+// Maps device addresses to the memory under them where that memory is not simply at the
+// address: a sparse buffer's pages are bound to memory objects (vkQueueBindSparse) that other
+// buffers may alias, so two accesses meet when they reach the same memory, whatever address
+// each went through.
+class AddressResolver {
+public:
+    virtual ~AddressResolver() = default;
+    // False when `range` is the address of its own memory (nothing to resolve); otherwise
+    // `parts` gets the parts of `range` in order, each resolved or marked unbound.
+    virtual bool resolve(AddressRange range, std::vector<ResolvedRange>* parts) = 0;
 };
 
 using QueueId = uint32_t;

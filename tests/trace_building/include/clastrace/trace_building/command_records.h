@@ -5,6 +5,7 @@
 #pragma once
 
 #include <clastrace/traces/trace_generated.h>
+#include <clastrace/vk_cluster_abi.h>
 
 #include <cstdint>
 #include <vector>
@@ -36,6 +37,14 @@ fbs::CmdWaitEventsT wait_event(uint64_t command_buffer, uint64_t event, uint64_t
 // vkQueueSubmit2 of one batch (no semaphores); `submission_index` is the writer's next one.
 fbs::QueueSubmitT queue_submit(uint64_t queue, std::vector<uint64_t> command_buffers,
                                uint64_t fence, uint64_t submission_index);
+// vkQueueBindSparse of one batch binding `binds` under `buffer` (device address `address`, 0:
+// none), encoded as the capture layer encodes it (traces/sparse_conversions.h). Semaphore
+// handles are binary (value 0).
+fbs::QueueBindSparseT queue_bind_sparse(uint64_t queue, uint64_t buffer, uint64_t address,
+                                        const std::vector<VkSparseMemoryBind>& binds,
+                                        const std::vector<uint64_t>& wait_semaphores,
+                                        const std::vector<uint64_t>& signal_semaphores,
+                                        uint64_t fence);
 // vkWaitForFences of one fence, waitAll.
 fbs::FenceWaitT fence_wait(uint64_t fence);
 
