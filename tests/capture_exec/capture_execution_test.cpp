@@ -94,7 +94,7 @@ protected:
         auto reader = clastrace::traces::TraceReader::open(trace.string(), &e);
         EXPECT_TRUE(reader) << e.message;
         if (!reader) return {};
-        EXPECT_EQ(reader->version_minor(), 3);
+        EXPECT_EQ(reader->version_minor(), clastrace::traces::TraceReader::current_version_minor());
         clastrace::replay::ReplayOptions options;
         options.observer = runs;
         return clastrace::replay::replay_trace(*reader, trace.string(), options);

@@ -82,6 +82,8 @@ public:
 
     uint16_t version_major() const;
     uint16_t version_minor() const;
+    // The format version this library writes (a file's minor may be lower: older, still read).
+    static uint16_t current_version_minor();
     // The TraceHeader, or nullptr when it is damaged (see damage()).
     const fbs::TraceHeader* header() const;
 
