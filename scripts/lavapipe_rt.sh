@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # The test suite's ray-tracing driver: Mesa 25.0.7's lavapipe from Debian 12's bookworm-backports
 # (Vulkan 1.4.305 with VK_KHR_acceleration_structure, VK_KHR_ray_query,
 # VK_KHR_ray_tracing_pipeline, VK_EXT_mesh_shader and sparse binding, on Debian 12's own LLVM 15),
