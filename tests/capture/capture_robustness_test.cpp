@@ -200,7 +200,7 @@ TEST_F(CaptureRobustness, WriteFailureMidTraceStopsCaptureOnceAndTheApplicationR
     // There the limit cannot single out the trace's writes; the shim of
     // DiskFullMidTraceStopsCaptureOnceAndTheApplicationRuns fails them on every driver.
     if (run("frames 12 --clusters 32", {{"CLASTRACE_CAPTURE", "0"}}, limit).exitCode == -SIGBUS)
-        GTEST_SKIP() << "the driver itself dies of SIGBUS under a 8 KiB file size limit (lavapipe "
+        GTEST_SKIP() << "the driver itself dies of SIGBUS under an 8 KiB file size limit (lavapipe "
                         "25's device memory is a memfd, which RLIMIT_FSIZE caps)";
     const fs::path trace = dir / "limited.clt";
     ProcessResult r =
