@@ -18,6 +18,7 @@
 //
 //   capture_overhead_bench [frames=60] [clusters=256] [repetitions=5] [host-writes]
 //   (host-writes: run and print only table 7)
+#include <clastrace/testsupport/test_driver.h>
 #include <clastrace/traces/records.h>
 #include <clastrace/traces/trace_reader.h>
 #include <zstd.h>
@@ -38,14 +39,20 @@ namespace fs = std::filesystem;
 
 namespace {
 
-const char* kLavapipe = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json";
-
-// Lavapipe and the build tree by default; CLASTRACE_BENCH_DRIVER_FILES, CLASTRACE_BENCH_LAYER_DIR
-// and CLASTRACE_BENCH_FRAMES_APP point the bench at another driver and a carried bundle (the
-// numbers in capture/README.md from a GPU machine were taken that way).
+// The test driver (clastrace/testsupport/test_driver.h: lavapipe unless
+// CLASTRACE_TEST_DRIVER_FILES says otherwise) and the build tree by default;
+// CLASTRACE_BENCH_DRIVER_FILES, CLASTRACE_BENCH_LAYER_DIR and CLASTRACE_BENCH_FRAMES_APP point the
+// bench at another driver and a carried bundle (the numbers in capture/README.md from a GPU
+// machine were taken that way).
 std::string setting(const char* variable, const char* fallback) {
     const char* v = std::getenv(variable);
     return v && *v ? v : fallback;
+}
+
+clastrace::testsupport::TestDriver bench_driver() {
+    const std::string files = setting("CLASTRACE_BENCH_DRIVER_FILES", "");
+    if (files.empty()) return clastrace::testsupport::test_driver();
+    return {files, ""};
 }
 
 std::string readText(const fs::path& path) {
@@ -93,10 +100,9 @@ Run runApp(const fs::path& dir, const std::string& args,
         "env -u CLASTRACE_OUTPUT -u CLASTRACE_CAPTURE -u CLASTRACE_DEBUG_JSON -u "
         "CLASTRACE_BACKGROUND_CPUS "
         "-u VK_ICD_FILENAMES";
-    line +=
-        " VK_DRIVER_FILES=" + setting("CLASTRACE_BENCH_DRIVER_FILES", kLavapipe) +
-        " VK_ADD_LAYER_PATH=" + setting("CLASTRACE_BENCH_LAYER_DIR", CLASTRACE_LAYER_MANIFEST_DIR) +
-        " VK_INSTANCE_LAYERS=VK_LAYER_CLASTRACE_capture CLASTRACE_STATS=1";
+    line += bench_driver().environment_words() + " VK_ADD_LAYER_PATH=" +
+            setting("CLASTRACE_BENCH_LAYER_DIR", CLASTRACE_LAYER_MANIFEST_DIR) +
+            " VK_INSTANCE_LAYERS=VK_LAYER_CLASTRACE_capture CLASTRACE_STATS=1";
     for (const auto& [k, v] : env) line += " " + k + "=" + v;
     const fs::path out = dir / "out.txt", err = dir / "err.txt";
     line += " " + setting("CLASTRACE_BENCH_FRAMES_APP", CLASTRACE_FRAMES_APP) + " " + args + " >" +
@@ -224,13 +230,10 @@ int main(int argc, char** argv) {
     const int frames = argc > 1 ? std::max(1, std::atoi(argv[1])) : 60;
     const int clusters = argc > 2 ? std::clamp(std::atoi(argv[2]), 1, 4096) : 256;
     const int repetitions = argc > 3 ? std::max(1, std::atoi(argv[3])) : 5;
-    const std::string driver = setting("CLASTRACE_BENCH_DRIVER_FILES", kLavapipe);
-    if (!fs::exists(driver)) {
-        std::fprintf(
-            stderr,
-            "capture_overhead_bench: the driver manifest %s is missing (lavapipe: apt-get install "
-            "mesa-vulkan-drivers)\n",
-            driver.c_str());
+    const std::string driver = bench_driver().driver_files;
+    if (!bench_driver().installed()) {
+        std::fprintf(stderr, "capture_overhead_bench: the driver manifest %s is missing (%s)\n",
+                     driver.c_str(), bench_driver().missing_message().c_str());
         return 1;
     }
     const fs::path dir =
@@ -332,7 +335,9 @@ int main(int argc, char** argv) {
         "capture overhead: %d frames x (1 triangle-cluster build of %d clusters + 1 bottom-level "
         "build), "
         "%s, best of %d runs each (interleaved)\n\n",
-        frames, clusters, driver == kLavapipe ? "lavapipe" : driver.c_str(), repetitions);
+        frames, clusters,
+        driver == clastrace::testsupport::kSystemLavapipe ? "lavapipe" : driver.c_str(),
+        repetitions);
     // Wall time is what the application feels, but on a machine shared with other work it swings
     // by tens of percent run to run; the process's CPU time (all threads: application, driver,
     // layer worker, trace writer) is the steadier measure of the work capture adds.

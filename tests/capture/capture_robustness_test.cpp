@@ -194,10 +194,18 @@ TEST_F(CaptureRobustness, FullDiskAtTheStartGivesOneMessageAndServingContinues) 
 // one message naming the file and the error, the application finishes its frames, and what
 // was written before the failure still reads back.
 TEST_F(CaptureRobustness, WriteFailureMidTraceStopsCaptureOnceAndTheApplicationRuns) {
+    const std::string limit = "ulimit -f 16; trap '' XFSZ; ";
+    // Lavapipe 25 keeps device memory in a memfd, which the limit caps as well: its ftruncate
+    // fails with EFBIG, unchecked, and the driver dies of SIGBUS on the mapping, capture or not.
+    // There the limit cannot single out the trace's writes; the shim of
+    // DiskFullMidTraceStopsCaptureOnceAndTheApplicationRuns fails them on every driver.
+    if (run("frames 12 --clusters 32", {{"CLASTRACE_CAPTURE", "0"}}, limit).exitCode == -SIGBUS)
+        GTEST_SKIP() << "the driver itself dies of SIGBUS under an 8 KiB file size limit (lavapipe "
+                        "25's device memory is a memfd, which RLIMIT_FSIZE caps)";
     const fs::path trace = dir / "limited.clt";
-    ProcessResult r = run("frames 12 --clusters 32",
-                          {{"CLASTRACE_OUTPUT", trace.string()}, {"CLASTRACE_FLUSH_MS", "5"}},
-                          "ulimit -f 16; trap '' XFSZ; ");
+    ProcessResult r =
+        run("frames 12 --clusters 32",
+            {{"CLASTRACE_OUTPUT", trace.string()}, {"CLASTRACE_FLUSH_MS", "5"}}, limit);
     EXPECT_EQ(r.exitCode, 0) << r.err;
     EXPECT_NE(r.out.find("frames=12"), std::string::npos) << r.out;
     EXPECT_EQ(count(r.err, "clastrace:"), 1u) << r.err;

@@ -4,6 +4,7 @@
 // lavapipe, which serves the cluster extension. Frame f's builds carry clusterIDs
 // 1000 * f + 500.., so the trace's srcInfosArray snapshots say which frames were captured.
 #include "layer_launch_test.h"
+#include <clastrace/testsupport/test_driver.h>
 #include <clastrace/traces/trace_reader.h>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -30,7 +31,6 @@ using clastrace::layer_launch::quote;
 using clastrace::layer_launch::readText;
 namespace fbs = clastrace::fbs;
 
-const char* kLavapipe = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json";
 const char* kXvfb = "/usr/bin/Xvfb";
 constexpr uint32_t kFrameIdStride = 1000;  // present_frames_app's clusterID step per frame
 constexpr uint32_t kTriangleClusterOp =
@@ -197,17 +197,17 @@ protected:
     FrameRange() : LayerLaunchTest("clastrace_frames") {}
 
     static void SetUpTestSuite() {
-        if (fs::exists(kLavapipe)) xvfbError = xvfb.start();
+        if (clastrace::testsupport::test_driver().installed()) xvfbError = xvfb.start();
     }
     static void TearDownTestSuite() { xvfb.stop(); }
 
     void SetUp() override {
-        LayerLaunchTest::SetUp();  // skips the test when lavapipe is not installed
+        LayerLaunchTest::SetUp();  // skips the test when the test driver is not installed
         if (IsSkipped()) return;
         ASSERT_TRUE(xvfbError.empty()) << xvfbError;
     }
 
-    // Runs `command` on the Xvfb display with lavapipe, the layer and `env` over a clean
+    // Runs `command` on the Xvfb display with the test driver, the layer and `env` over a clean
     // CLASTRACE_* environment.
     ProcessResult run(const std::string& command, std::map<std::string, std::string> env) {
         env["DISPLAY"] = xvfb.display();

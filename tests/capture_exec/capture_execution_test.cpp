@@ -8,6 +8,7 @@
 #include <clastrace/engine/execution_record.h>
 #include <clastrace/replay/replay_observer.h>
 #include <clastrace/replay/replayer.h>
+#include <clastrace/testsupport/test_driver.h>
 #include <clastrace/traces/trace_reader.h>
 #include <gtest/gtest.h>
 
@@ -26,8 +27,6 @@ namespace fs = std::filesystem;
 using clastrace::fbs::RecordBody;
 using clastrace::layer_launch::quote;
 using clastrace::layer_launch::readText;
-
-const char* kLavapipe = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json";
 
 struct ClusterRuns : clastrace::replay::ReplayObserver {
     std::vector<uint32_t> opCounts;
@@ -51,10 +50,10 @@ std::string describe(const clastrace::replay::ReplayReport& r) {
 class CaptureExecution : public ::testing::Test {
 protected:
     fs::path dir;
+    const clastrace::testsupport::TestDriver driver = clastrace::testsupport::test_driver();
 
     void SetUp() override {
-        if (!fs::exists(kLavapipe))
-            GTEST_SKIP() << "lavapipe is not installed (scripts/deps.sh installs it)";
+        if (!driver.installed()) GTEST_SKIP() << driver.missing_message();
         const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
         dir = fs::temp_directory_path() /
               ("clastrace_exec_" + std::to_string(getpid()) + "_" + info->name());
@@ -80,7 +79,7 @@ protected:
         const std::string layers =
             twoQueues ? "VK_LAYER_CLASTRACE_capture:VK_LAYER_CLASTRACE_test_two_queues"
                       : "VK_LAYER_CLASTRACE_capture";
-        line += " VK_DRIVER_FILES=" + quote(kLavapipe) + " XDG_RUNTIME_DIR=" + quote(dir.string()) +
+        line += driver.environment_words() + " XDG_RUNTIME_DIR=" + quote(dir.string()) +
                 " VK_ADD_LAYER_PATH=" + quote(layerPath) + " VK_INSTANCE_LAYERS=" + layers + " " +
                 extraEnv + " CLASTRACE_LOG=error CLASTRACE_OUTPUT=" + quote(trace.string());
         line += std::string(" ") + CLASTRACE_FRAMES_APP + " " + args + " >" +

@@ -2,6 +2,7 @@
 #include "layer_launch_test.h"
 
 #include <clastrace/common/hex.h>
+#include <clastrace/testsupport/test_driver.h>
 
 #include <sys/wait.h>
 #include <unistd.h>
@@ -37,8 +38,8 @@ size_t count(const std::string& text, const std::string& needle) {
 std::string hexOf(const std::vector<uint8_t>& bytes) { return clastrace::common::hex_bytes(bytes); }
 
 void LayerLaunchTest::SetUp() {
-    if (!fs::exists(kLavapipeIcd))
-        GTEST_SKIP() << "lavapipe is not installed (scripts/deps.sh installs it)";
+    const auto driver = clastrace::testsupport::test_driver();
+    if (!driver.installed()) GTEST_SKIP() << driver.missing_message();
     // Parameterized tests' names hold '/'.
     std::string name = ::testing::UnitTest::GetInstance()->current_test_info()->name();
     for (char& c : name)
@@ -63,7 +64,8 @@ std::string LayerLaunchTest::cleanEnvironment(std::map<std::string, std::string>
           "CLASTRACE_STATS", "CLASTRACE_SHARED_WAIT_MS", "CLASTRACE_FRAME_RANGE",
           "CLASTRACE_BACKGROUND_CPUS"})
         line += std::string(" -u ") + v;
-    env["VK_DRIVER_FILES"] = kLavapipeIcd;
+    for (const auto& [name, value] : clastrace::testsupport::test_driver().environment())
+        env[name] = value;
     env["XDG_RUNTIME_DIR"] = dir.string();
     env["VK_LOADER_DEBUG"] = "";  // the loader's own warnings are not the programs' output
     if (!layers.empty()) {

@@ -1,5 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
-// Tests that run programs as applications run them: on lavapipe through the Vulkan loader, with
+// Tests that run programs as applications run them: on the test driver (lavapipe unless
+// CLASTRACE_TEST_DRIVER_FILES names another: clastrace/testsupport/test_driver.h) through the
+// Vulkan loader, with
 // the capture layer found through VK_ADD_LAYER_PATH (or without it), each test in a directory of
 // its own that is kept when the test fails.
 #pragma once
@@ -15,7 +17,6 @@
 
 namespace clastrace::layer_launch {
 
-inline constexpr const char* kLavapipeIcd = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json";
 inline constexpr const char* kCaptureLayer = "VK_LAYER_CLASTRACE_capture";
 inline constexpr const char* kValidationLayerManifest =
     "/usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json";
@@ -40,11 +41,11 @@ public:
 protected:
     explicit LayerLaunchTest(std::string directoryPrefix)
         : directoryPrefix_(std::move(directoryPrefix)) {}
-    void SetUp() override;  // skips the test when lavapipe is not installed
+    void SetUp() override;  // skips the test when the test driver is not installed
     void TearDown() override;
 
     // "env -u ... NAME=VALUE ...": every layer setting and loader variable of the caller cleared,
-    // lavapipe the only driver, `layers` enabled from the build tree's manifest (none when empty),
+    // the test driver the only driver, `layers` enabled from the build tree's manifest (none when empty),
     // `env` on top.
     std::string cleanEnvironment(std::map<std::string, std::string> env,
                                  const std::string& layers) const;

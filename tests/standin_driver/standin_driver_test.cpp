@@ -8,6 +8,7 @@
 
 #include <clastrace/engine/build_sizes.h>
 #include <clastrace/engine/properties.h>
+#include <clastrace/testsupport/test_driver.h>
 
 #include <gtest/gtest.h>
 
@@ -25,6 +26,9 @@ using clastrace::testapp::ClusterTestDevice;
 class StandinDriver : public ::testing::Test {
 protected:
     void SetUp() override {
+        const auto driver = clastrace::testsupport::test_driver();
+        if (!driver.installed()) GTEST_SKIP() << driver.missing_message();
+        driver.select_in_this_process();
         setenv("VK_ADD_LAYER_PATH", CLASTRACE_STANDIN_MANIFEST_DIR, 1);
         setenv("VK_INSTANCE_LAYERS", "VK_LAYER_CLASTRACE_standin_driver", 1);
         gpu.createInstance("standin_driver_test");
