@@ -88,19 +88,21 @@ std::vector<unsigned> reserved_cpus() {
     return reserved;
 }
 
-std::vector<unsigned> calling_thread_cpus() {
+std::vector<unsigned> thread_cpus(pthread_t thread) {
     cpu_set_t* set = CPU_ALLOC(kMaxCpu);
     if (!set) return {};
     const size_t bytes = CPU_ALLOC_SIZE(kMaxCpu);
     std::vector<unsigned> cpus;
-    if (sched_getaffinity(0, bytes, set) == 0)
+    if (pthread_getaffinity_np(thread, bytes, set) == 0)
         for (unsigned c = 0; c < kMaxCpu; ++c)
             if (CPU_ISSET_S(c, bytes, set)) cpus.push_back(c);
     CPU_FREE(set);
     return cpus;
 }
 
-bool place_calling_thread(const std::vector<unsigned>& cpus) {
+std::vector<unsigned> calling_thread_cpus() { return thread_cpus(pthread_self()); }
+
+bool place_thread(pthread_t thread, const std::vector<unsigned>& cpus) {
     if (cpus.empty()) return false;
     cpu_set_t* set = CPU_ALLOC(kMaxCpu);
     if (!set) return false;
@@ -108,9 +110,13 @@ bool place_calling_thread(const std::vector<unsigned>& cpus) {
     CPU_ZERO_S(bytes, set);
     for (unsigned c : cpus)
         if (c < kMaxCpu) CPU_SET_S(c, bytes, set);
-    const bool placed = sched_setaffinity(0, bytes, set) == 0;  // 0: the calling thread (Linux)
+    const bool placed = pthread_setaffinity_np(thread, bytes, set) == 0;
     CPU_FREE(set);
     return placed;
+}
+
+bool place_calling_thread(const std::vector<unsigned>& cpus) {
+    return place_thread(pthread_self(), cpus);
 }
 
 }  // namespace clastrace::capture

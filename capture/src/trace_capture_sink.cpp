@@ -59,6 +59,11 @@ public:
           flush_milliseconds_(flush_milliseconds),
           placement_(std::move(placement)) {
         emitter_ = std::thread([this] { emit_in_background(); });
+        // Placed from here, not from the thread: the stats line must not depend on whether the
+        // idle-priority thread has run yet.
+        if (!placement_.cpus.empty()) (void)place_thread(emitter_.native_handle(), placement_.cpus);
+        std::lock_guard lock(placement_mutex_);
+        sink_cpus_ = thread_cpus(emitter_.native_handle());  // what the kernel gave
     }
     ~TraceCaptureSink() override {
         {
@@ -492,11 +497,6 @@ private:
         if (pthread_setschedparam(pthread_self(), SCHED_IDLE, &idle) != 0)
             (void)setpriority(PRIO_PROCESS, id_t(gettid()), kBackgroundNice);
         pthread_setname_np(pthread_self(), "clastrace-sink");  // for profilers and top
-        if (!placement_.cpus.empty()) (void)place_calling_thread(placement_.cpus);
-        {
-            std::lock_guard lock(placement_mutex_);
-            sink_cpus_ = calling_thread_cpus();  // what the kernel gave, for the stats line
-        }
         using Clock = std::chrono::steady_clock;
         auto last_flush = Clock::now();
         const auto interval =

@@ -3,6 +3,10 @@
 
 #include <gtest/gtest.h>
 
+#include <thread>
+
+#include <mutex>
+
 using namespace clastrace::capture;
 using clastrace::capture::test::parse;
 
@@ -134,6 +138,21 @@ TEST(BackgroundCpus, SpareIsTheOnlineCpusTheApplicationLacks) {
             .empty());
     EXPECT_EQ(background_cpus_for({BackgroundCpus::Mode::kList, {9}}, online, online),
               (std::vector<unsigned>{9}));
+}
+
+// The sink places its thread from the creating thread, before that thread has run: the
+// affinity read back is the one set, whatever the new thread is doing.
+TEST(BackgroundCpus, AnotherThreadIsPlacedWithoutWaitingForIt) {
+    const std::vector<unsigned> mine = calling_thread_cpus();
+    ASSERT_FALSE(mine.empty());
+    std::mutex gate;
+    std::unique_lock hold(gate);
+    std::thread blocked([&] { std::lock_guard wait(gate); });
+    EXPECT_TRUE(place_thread(blocked.native_handle(), {mine.back()}));
+    EXPECT_EQ(thread_cpus(blocked.native_handle()), std::vector<unsigned>{mine.back()});
+    EXPECT_EQ(calling_thread_cpus(), mine);  // the creator stays where it was
+    hold.unlock();
+    blocked.join();
 }
 
 TEST(BackgroundCpus, TheCallingThreadCanBePlacedOnItsOwnCpusAndBack) {

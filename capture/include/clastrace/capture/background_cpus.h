@@ -21,6 +21,8 @@
 // and the threads then keep the application's CPUs (the stats line says which they got).
 #pragma once
 
+#include <pthread.h>
+
 #include <optional>
 #include <string>
 #include <vector>
@@ -46,11 +48,15 @@ std::vector<unsigned> background_cpus_for(const BackgroundCpus& setting,
                                           const std::vector<unsigned>& allowed,
                                           const std::vector<unsigned>& reserved = {});
 
-std::vector<unsigned> online_cpus();          // /sys/devices/system/cpu/online; empty if unknown
-std::vector<unsigned> reserved_cpus();        // /sys/devices/system/cpu/{isolated,nohz_full}
-std::vector<unsigned> calling_thread_cpus();  // the calling thread's affinity; empty if unknown
-// Restricts the calling thread to `cpus`. False (and the thread as it was) when the kernel
-// refuses, e.g. none of them is in the process's cpuset.
+std::vector<unsigned> online_cpus();    // /sys/devices/system/cpu/online; empty if unknown
+std::vector<unsigned> reserved_cpus();  // /sys/devices/system/cpu/{isolated,nohz_full}
+// A thread's affinity; empty if unknown.
+std::vector<unsigned> thread_cpus(pthread_t thread);
+std::vector<unsigned> calling_thread_cpus();
+// Restricts a thread to `cpus`. False (and the thread as it was) when the kernel refuses, e.g.
+// none of them is in the process's cpuset. Placing a thread from its creator does not wait for
+// it to run (a SCHED_IDLE thread may not run for a long time on a busy machine).
+bool place_thread(pthread_t thread, const std::vector<unsigned>& cpus);
 bool place_calling_thread(const std::vector<unsigned>& cpus);
 
 }  // namespace clastrace::capture
