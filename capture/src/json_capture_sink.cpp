@@ -133,7 +133,8 @@ struct CommandToJson {
                 {"pipeline", c.pipeline},
                 {"indirectBuffer", c.indirect_buffer},
                 {"indirectOffset", c.indirect_offset},
-                {"storageBuffers", buffers}};
+                {"storageBuffers", buffers},
+                {"mayWriteDeviceAddresses", c.may_write_device_addresses}};
     }
     json operator()(const ClusterBuildCommand& c) const {
         return {{"kind", "BuildClusterAccelerationStructureIndirectNV"},

@@ -448,6 +448,7 @@ VKAPI_ATTR void VKAPI_CALL CmdDispatch(VkCommandBuffer cb, uint32_t x, uint32_t 
     if (!d.sink) return;
     auto log = log_of(d, cb);
     DispatchCommand c{x, y, z, log->compute_pipeline, 0, 0, bound_storage_buffers(d, *log)};
+    c.may_write_device_addresses = pipeline_may_write_addresses(d, log->compute_pipeline);
     log->recorded.commands.push_back(std::move(c));
 }
 
@@ -459,6 +460,7 @@ VKAPI_ATTR void VKAPI_CALL CmdDispatchIndirect(VkCommandBuffer cb, VkBuffer buff
     auto log = log_of(d, cb);
     DispatchCommand c{
         0, 0, 0, log->compute_pipeline, handle_id(buffer), offset, bound_storage_buffers(d, *log)};
+    c.may_write_device_addresses = pipeline_may_write_addresses(d, log->compute_pipeline);
     log->recorded.commands.push_back(std::move(c));
 }
 

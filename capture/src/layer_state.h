@@ -99,6 +99,10 @@ uint64_t handle_id(Handle handle) {
     X(CmdUpdateBuffer)                                \
     X(CmdDispatch)                                    \
     X(CmdDispatchIndirect)                            \
+    X(CreateShaderModule)                             \
+    X(DestroyShaderModule)                            \
+    X(CreateComputePipelines)                         \
+    X(DestroyPipeline)                                \
     X(CmdBindPipeline)                                \
     X(CmdBindDescriptorSets)                          \
     X(UpdateDescriptorSets)                           \
@@ -200,6 +204,12 @@ struct DeviceState {
     std::mutex descriptors_mutex;
     std::unordered_map<VkDescriptorSet, std::map<std::pair<uint32_t, uint32_t>, BoundStorageBuffer>>
         storage_descriptors;
+    // Shader modules and compute pipelines whose SPIR-V may write through buffer device
+    // addresses (spirv_pipelines.cpp): a dispatch with such a pipeline is recorded as a possible
+    // writer of all device-address memory.
+    std::mutex pipelines_mutex;
+    std::unordered_set<uint64_t> address_writing_modules;
+    std::unordered_set<uint64_t> address_writing_pipelines;
     // The ray check (CLASTRACE_RAY_CHECK): queue families of the queues handed out, the NV ray
     // tracing limits, and the NV structures the capture saw built.
     std::mutex queues_mutex;
@@ -242,6 +252,9 @@ PFN_vkVoidFunction intercept_device_function(const char* name, DeviceState* devi
 PFN_vkVoidFunction serving_instance_hook(const char* name);
 PFN_vkVoidFunction resource_hook(const char* name);
 PFN_vkVoidFunction command_hook(const char* name);
+PFN_vkVoidFunction pipeline_hook(const char* name);
+// A compute pipeline whose shader may write through buffer device addresses (spirv_pipelines.cpp).
+bool pipeline_may_write_addresses(DeviceState& d, uint64_t pipeline);
 PFN_vkVoidFunction submit_hook(const char* name);
 PFN_vkVoidFunction cluster_hook(const char* name);
 PFN_vkVoidFunction acceleration_structure_hook(const char* name);

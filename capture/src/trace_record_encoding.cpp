@@ -111,6 +111,7 @@ fbs::RecordT encode(uint64_t cb, const DispatchCommand& c) {
     for (const auto& b : c.storage_buffers)
         r.storage_buffers.emplace_back(b.set, b.binding, b.array_element, uint32_t(b.type),
                                        b.buffer, b.offset, b.range, b.address);
+    r.may_write_device_addresses = c.may_write_device_addresses;
     return record_of(std::move(r));
 }
 

@@ -240,6 +240,9 @@ struct DispatchCommand {
     uint64_t indirect_buffer = 0;  // vkCmdDispatchIndirect
     VkDeviceSize indirect_offset = 0;
     std::vector<BoundStorageBuffer> storage_buffers;  // from vkUpdateDescriptorSets writes
+    // The pipeline's SPIR-V uses physical storage buffer pointers (spirv_scan.h): the dispatch
+    // may write any device-address memory.
+    bool may_write_device_addresses = false;
 };
 
 struct ClusterBuildCommand {
