@@ -106,6 +106,7 @@ private:
                      const ReplayLocation& where);
     void fill_buffer(const fbs::CmdFillBuffer& fill, const CommandRef& ref);
     void update_buffer(const fbs::CmdUpdateBuffer& update, const CommandRef& ref);
+    void record_address_writes(const CommandRef& ref);
     void dispatch(const fbs::CmdDispatch& dispatch, const CommandRef& ref,
                   const ReplayLocation& where);
     void build_clusters(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,

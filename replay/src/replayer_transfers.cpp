@@ -5,6 +5,9 @@
 
 namespace clastrace::replay::detail {
 
+// The field a possible device-address write names in hazard reports.
+constexpr std::string_view kAnyDeviceAddress = "any memory through a buffer device address";
+
 void Replay::feed(const CommandRef& ref, const AddressRange& range, StageMask stage,
                   AccessMask access, bool write, std::string_view field) {
     if (!options_.check_hazards || range.empty()) return;
@@ -61,6 +64,18 @@ void Replay::update_buffer(const fbs::CmdUpdateBuffer& update, const CommandRef&
     feed(ref, *range, VK_PIPELINE_STAGE_2_CLEAR_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, true, "pData");
 }
 
+// Cheap mode for shaders that write through buffer device addresses: the trace does not say
+// which bytes, so the dispatch is a possible writer of every device address. Later accesses
+// that are not ordered after it get possible hazards (docs/replay.md, "Possible hazards").
+void Replay::record_address_writes(const CommandRef& ref) {
+    if (!options_.check_hazards) return;
+    ++report_.counts.accesses;
+    Access everywhere{AddressRange{1, ~0ull}, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                      VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, true, kAnyDeviceAddress};
+    everywhere.possible = true;
+    sync_.record_access(ref, everywhere);
+}
+
 void Replay::dispatch(const fbs::CmdDispatch& d, const CommandRef& ref,
                       const ReplayLocation& where) {
     lay_in_snapshots(d.inputs(), where);
@@ -87,6 +102,7 @@ void Replay::dispatch(const fbs::CmdDispatch& d, const CommandRef& ref,
                  field);
         }
     }
+    if (d.may_write_device_addresses()) record_address_writes(ref);
     // The shader's effect is whatever the capture saw it write.
     if (d.outputs()) {
         std::vector<uint8_t> bytes;

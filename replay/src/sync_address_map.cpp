@@ -108,6 +108,7 @@ void SyncModel::State::fill_record(Record& r, const CommandRef& command, const A
     r.access = a.access;
     r.atoms = atomic_accesses(a.access);
     r.is_write = a.is_write;
+    r.possible = a.possible;
     r.field = field;
     r.queue = queue;
     r.log_pos = queue == kHostSlot ? 0 : queues[queue].log_end();

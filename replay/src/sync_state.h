@@ -142,6 +142,7 @@ struct Record {
     uint32_t log_pos = 0;  // absolute position in its queue's log applied up to
     uint16_t queue = 0;    // queue slot, or kHostSlot
     bool is_write = false;
+    bool possible = false;   // Access::possible
     bool completed = false;  // retired by a host wait, kept only because the host cannot see it
     ChainState sync;
 };

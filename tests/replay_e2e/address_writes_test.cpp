@@ -1,0 +1,111 @@
+// SPDX-License-Identifier: Apache-2.0
+// Cheap mode for GPU-written inputs: a dispatch whose pipeline may write through buffer device
+// addresses is a possible writer of all device-address memory. A build reading its inputs with
+// no barrier after it gets a POSSIBLE hazard, counted apart from certain ones; the barrier the
+// report suggests makes it clean; a dispatch without the mark (bound storage buffers only) is
+// not a writer of the build's inputs at all.
+#include "catalogue_replay.h"
+
+#include <clastrace/replay/replayer.h>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <string>
+
+namespace {
+
+using namespace clastrace;
+using namespace clastrace::test;
+using namespace clastrace::test::catalogue;
+using replay::HazardClass;
+
+constexpr uint64_t kBuild = VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR;
+constexpr uint64_t kCompute = VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT;
+constexpr uint64_t kStorageWrite = VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT;
+constexpr uint64_t kInputReads = VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT |
+                                 VK_ACCESS_2_SHADER_READ_BIT |
+                                 VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR;
+
+std::string temp_path(const std::string& name) { return temp_trace_path("address_writes", name); }
+
+std::vector<uint8_t> triangle_infos() {
+    std::vector<TriangleInfo> infos{triangle_info(0), triangle_info(1)};
+    return bytes_of(infos);
+}
+
+// The compute pass writes the src infos through an address (what the capture saw it write is
+// its output), then the build reads them; `barrier` puts COMPUTE/STORAGE_WRITE -> BUILD between.
+replay::ReplayReport infos_written_through_address(const std::string& name, bool barrier) {
+    return replay_catalogue_scene(temp_path(name), [&](TraceScript& t) {
+        t.dispatch_through_addresses({{kInfos, triangle_infos()}});
+        if (barrier) t.barrier(kCompute, kStorageWrite, kBuild, kInputReads);
+        triangle_clusters(Destinations::kImplicit).emit(t);
+    });
+}
+
+TEST(AddressWrites, BuildAfterAddressWritingDispatchWithoutBarrierIsAPossibleHazard) {
+    const replay::ReplayReport r = infos_written_through_address("no_barrier.clt", false);
+    const std::string text = replay::format_text(r);
+    ASSERT_FALSE(r.hazards.empty()) << text;
+    for (const replay::HazardReport& h : r.hazards) {
+        EXPECT_TRUE(h.possible()) << h.format();
+        EXPECT_EQ(h.hazard, HazardClass::kReadAfterWrite) << h.format();
+        EXPECT_STREQ(h.prior.command.name, "vkCmdDispatch");
+        EXPECT_TRUE(h.prior.possible);
+        EXPECT_EQ(h.prior.stage, kCompute);
+        EXPECT_STREQ(h.later.command.name, "vkCmdBuildClusterAccelerationStructureIndirectNV");
+        EXPECT_EQ(h.fix.src_stages, kCompute) << h.format();
+        EXPECT_EQ(h.fix.dst_stages, kBuild) << h.format();
+    }
+    bool infos_named = false;
+    for (const replay::HazardReport& h : r.hazards)
+        if (h.later.field.find("srcInfosArray") != std::string::npos) {
+            infos_named = true;
+            EXPECT_GE(h.overlap.begin, kInfos);
+            EXPECT_LE(h.overlap.end, kInfos + triangle_infos().size());
+            const std::string line = h.format();
+            EXPECT_EQ(line.rfind("POSSIBLE-SYNC-HAZARD-READ-AFTER-WRITE: ", 0), 0u) << line;
+            EXPECT_NE(line.find("Possible, not certain"), std::string::npos) << line;
+        }
+    EXPECT_TRUE(infos_named) << text;
+    // Counted apart: the summary's rule and the JSON's counts.
+    EXPECT_NE(text.find("POSSIBLE-SYNC-HAZARD-READ-AFTER-WRITE"), std::string::npos) << text;
+    const nlohmann::json j = replay::to_json(r);
+    EXPECT_EQ(j["hazards"]["possible"], r.hazards.size());
+    EXPECT_EQ(j["hazards"]["certain"], 0u);
+    EXPECT_EQ(j["hazards"]["hazards"][0]["possible"], true);
+}
+
+TEST(AddressWrites, TheSuggestedBarrierMakesItClean) {
+    const replay::ReplayReport r = infos_written_through_address("barrier.clt", true);
+    EXPECT_TRUE(r.clean()) << replay::format_text(r);
+}
+
+// A certain hazard after the possible writer stays certain, and the two are counted apart.
+TEST(AddressWrites, CertainHazardsAreCountedApartFromPossibleOnes) {
+    const replay::ReplayReport r =
+        replay_catalogue_scene(temp_path("both.clt"), [](TraceScript& t) {
+            t.dispatch_through_addresses({{kInfos, triangle_infos()}});
+            triangle_clusters(Destinations::kImplicit).emit(t);
+            ClusterCommand second = triangle_clusters(Destinations::kImplicit);  // same scratch
+            second.info.dstImplicitData = kDst2;
+            second.info.dstAddressesArray.deviceAddress = kOut + 0x400;
+            second.emit(t);
+        });
+    const std::string text = replay::format_text(r);
+    uint64_t certain = 0, possible = 0;
+    for (const replay::HazardReport& h : r.hazards) (h.possible() ? possible : certain) += 1;
+    EXPECT_GE(possible, 1u) << text;
+    ASSERT_GE(certain, 1u) << text;
+    for (const replay::HazardReport& h : r.hazards)
+        if (!h.possible()) {
+            EXPECT_STREQ(h.prior.command.name, "vkCmdBuildClusterAccelerationStructureIndirectNV");
+            EXPECT_EQ(h.format().rfind("SYNC-HAZARD-", 0), 0u) << h.format();
+        }
+    const nlohmann::json j = replay::to_json(r);
+    EXPECT_EQ(j["hazards"]["certain"], certain);
+    EXPECT_EQ(j["hazards"]["possible"], possible);
+}
+
+}  // namespace
