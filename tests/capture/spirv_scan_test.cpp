@@ -109,14 +109,18 @@ TEST(SpirvScan, TruncatedAndCorruptedModulesStayInBounds) {
     for (std::size_t n = 0; n <= words.size(); ++n) {
         std::vector<uint32_t> cut(words.begin(), words.begin() + n);  // own buffer: exact bounds
         const SpirvScan scan = scan_spirv(cut);
-        if (scan.valid) EXPECT_GE(n, 5u);
+        if (scan.valid) {
+            EXPECT_GE(n, 5u);
+        }
     }
     std::mt19937 random(19);
     for (int round = 0; round < 2000; ++round) {
         std::vector<uint32_t> bent = words;
         bent[5 + random() % (bent.size() - 5)] = uint32_t(random());
         const SpirvScan scan = scan_spirv(bent);
-        if (!scan.valid) EXPECT_LT(scan.error_word, bent.size());
+        if (!scan.valid) {
+            EXPECT_LT(scan.error_word, bent.size());
+        }
     }
 }
 
