@@ -166,7 +166,31 @@ def collect_renames(fix_files, part):
 IDENTIFIER = re.compile(rb"[A-Za-z_]\w*")
 
 
+BARE_IDENTIFIER = re.compile(rb"(?<![\w.>:])([A-Za-z_]\w*)")
+
+
+def collisions(edits):
+    """Renames whose new name the file already uses as a bare name: T -> t beside a loop counter
+    t compiles and silently changes what the code means, so such a rename is refused."""
+    found = []
+    for path, spans in edits.items():
+        with open(path, "rb") as f:
+            data = f.read()
+        bare = {m.group(1).decode() for m in BARE_IDENTIFIER.finditer(data)}
+        for (offset, length), text in spans.items():
+            old = data[offset:offset + length].decode(errors="replace")
+            start = data[max(0, offset - 2):offset]
+            if text != old and text in bare and not start.endswith((b".", b">", b"::")):
+                found.append(f"{os.path.relpath(path, ROOT)}: {old} -> {text}")
+    return sorted(set(found))
+
+
 def apply_edits(edits):
+    clash = collisions(edits)
+    if clash:
+        sys.stderr.write("style: these renames would collide with names already in the file; "
+                         "rename them by hand first:\n  " + "\n  ".join(clash) + "\n")
+        sys.exit(1)
     changed = 0
     for path, spans in edits.items():
         with open(path, "rb") as f:

@@ -70,9 +70,9 @@ Command register_analyze(CLI::App& app) {
     CLI::App* sub = app.add_subcommand("analyze",
                                        "Replay a trace and report object sizes (engine vs driver) "
                                        "per op type, hazards and timing, as text, "
-                                       "JSON or one self-contained HTML file. Exit: 0 clean, 1 "
-                                       "hazards or findings, 2 usage error or "
-                                       "unreadable trace.");
+                                       "JSON or one self-contained HTML file. Exit: 0 clean (the "
+                                       "replay's notes on its own limits allowed), 1 hazards or "
+                                       "findings, 2 usage error or unreadable trace.");
     sub->add_option("TRACE", args->trace, "the .clt trace")->required();
     CLI::Option* json = sub->add_flag("--json", args->json,
                                       "print the report as one JSON object (docs/analyze.md)");

@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 // clastrace replay TRACE: re-executes the captured builds, moves and copies on the
-// built-in engine in queue order; reports hazards, broken rules and output mismatches.
+// built-in engine in queue order; reports hazards, broken rules and output mismatches, and
+// apart from them the notes on the replay's own limits (which leave the exit status 0).
 #include "commands.h"
 #include "json_output.h"
 #include "reader_options.h"
@@ -144,11 +145,14 @@ Command register_replay(CLI::App& app) {
     CLI::App* sub = app.add_subcommand(
         "replay",
         "Re-execute every captured cluster build/move on the built-in engine in queue order and "
-        "report "
-        "synchronization hazards, broken rules (VUIDs) and outputs that differ from the capture. "
-        "Exit: 0 clean, 1 findings, 2 usage error or unreadable trace.");
+        "report synchronization hazards, broken rules (VUIDs) and outputs that differ from the "
+        "capture; what the replay itself cannot do (another driver's serialized object, its "
+        "memory budget, commands not replayed) is listed apart as notes. "
+        "Exit: 0 clean (notes allowed), 1 findings, hazards or damage, 2 usage error or "
+        "unreadable trace.");
     sub->add_option("TRACE", args->trace, "the .clt trace")->required();
-    sub->add_flag("--json", args->json, "print one JSON object (docs/replay.md)");
+    sub->add_flag("--json", args->json,
+                  "print one JSON object (docs/replay.md): findings, hazards and notes apart");
     sub->add_option("--ops", args->ops,
                     "replay only commands N..M (execution sequence numbers, as printed [#N])");
     sub->add_option("--submit", args->submit,
@@ -160,8 +164,8 @@ Command register_replay(CLI::App& app) {
     sub->add_flag("--progress", args->progress,
                   "progress on stderr even when it is not a terminal");
     sub->add_option("--max-findings", args->max_findings,
-                    "findings and hazards kept, 1 to " + std::to_string(kMostFindingsKept) +
-                        " (the rest are counted)")
+                    "findings, hazards and notes kept (each), 1 to " +
+                        std::to_string(kMostFindingsKept) + " (the rest are counted)")
         ->check(whole_number_from(1, kMostFindingsKept, "the number of findings kept"))
         ->capture_default_str();
     add_max_raw_option(sub, &args->reader);

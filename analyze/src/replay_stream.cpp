@@ -315,6 +315,24 @@ void ReplayStreamFeeder::finish(const traces::TraceReadStats& read) {
             fmt::format("replay made {} {} findings (clastrace replay lists them)", n, source));
 }
 
+namespace {
+
+// The replay's own limits (replay::is_replay_limit), counted by rule: notes, not findings.
+std::string replay_limits_note(const replay::ReplayReport& r) {
+    if (r.notes.empty() && r.notes_over_cap == 0) return "";
+    std::map<std::string, uint64_t> by_rule;
+    for (const replay::ReplayNote& n : r.notes) ++by_rule[n.rule];
+    std::string rules;
+    for (const auto& [rule, n] : by_rule)
+        rules += fmt::format("{}{} x{}", rules.empty() ? "" : ", ", rule, n);
+    return fmt::format(
+        "replay met {} limit(s) of its own, not findings ({}{}; clastrace replay lists them)",
+        r.notes.size() + r.notes_over_cap, rules,
+        r.notes_over_cap ? fmt::format(", {} more not kept", r.notes_over_cap) : "");
+}
+
+}  // namespace
+
 TraceAnalysis analyze_trace(traces::TraceReader& reader, const std::string& trace_name,
                             const AnalyzeOptions& options) {
     double period = 1.0;
@@ -341,6 +359,8 @@ TraceAnalysis analyze_trace(traces::TraceReader& reader, const std::string& trac
             "{} hazards past replay's cap of {} distinct hazards were counted by replay only "
             "(not in this report)",
             result.replay.hazards_over_cap, replay_options.max_findings));
+    if (const std::string limits = replay_limits_note(result.replay); !limits.empty())
+        analyzer.on_note(limits);
     if (!result.replay.trace_damage.empty())
         analyzer.on_note(fmt::format(
             "the trace is damaged ({} problems; clastrace info lists them): the report covers what "

@@ -2,6 +2,9 @@
 #include "clastrace/replay/replay_report.h"
 #include "clastrace/common/hex.h"
 
+#include <clastrace/engine/execute.h>
+#include <clastrace/engine/finding.h>
+#include <clastrace/engine/nv_serialize.h>
 #include <clastrace/traces/utf8_text.h>
 #include <clastrace/vk_cluster_abi.h>
 #include <nlohmann/json.hpp>
@@ -9,6 +12,7 @@
 #include <cinttypes>
 #include <cstdio>
 #include <map>
+#include <string_view>
 
 namespace clastrace::replay {
 
@@ -60,6 +64,27 @@ const char* finding_source_name(FindingSource source) {
     return "unknown";
 }
 
+bool is_replay_limit(std::string_view rule) {
+    // Each one says what the replay could not do, never what the application did wrong: a
+    // correct application's trace may meet any of them (docs/replay.md, "Notes").
+    static constexpr std::string_view kLimits[] = {
+        engine::kRuleSerializedOpaque,        // another driver's serialized object: not decoded
+        engine::kRuleBeyondEngineFormat,      // more than the engine's 256 per cluster
+        engine::kRuleUnsupportedFormat,       // a vertex format the engine does not read
+        engine::kRuleFindingsTruncated,       // findings of one rule past the per-command cap
+        "CLASTRACE-replay-nv-opaque-object",  // dst now holds such an object
+        "CLASTRACE-replay-nv-object-over-budget",    // NV objects past the replay's budget
+        "CLASTRACE-replay-memory-budget",            // buffers or writes past the budget
+        "CLASTRACE-replay-command-buffer-dropped",   // recordings past max_recorded_bytes
+        "CLASTRACE-replay-reference-not-rebuilt",    // an object built before the capture
+        "CLASTRACE-replay-snapshot-outside-memory",  // captured bytes no buffer of it holds
+        "CLASTRACE-replay-engine-failed",            // the engine stopped on the command
+    };
+    for (std::string_view limit : kLimits)
+        if (rule == limit) return true;
+    return false;
+}
+
 const char* cluster_op_type_name(uint32_t op_type) {
     switch (op_type) {
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV: return "move_objects";
@@ -83,6 +108,27 @@ std::string ReplayFinding::format() const {
     return s + ": " + message;
 }
 
+std::string ReplayNote::format() const {
+    std::string s = rule + ": " + where_text(where);
+    if (op_index >= 0) s += ", op " + std::to_string(op_index);
+    return s + ": " + message;
+}
+
+namespace {
+
+// The limits of the replay, apart from the findings: they do not change the exit status.
+std::string notes_text(const ReplayReport& r) {
+    if (r.notes.empty() && r.not_replayed.empty() && !r.notes_over_cap) return "";
+    std::string s = "\nNotes (limits of this replay, not findings):\n";
+    for (const ReplayNote& n : r.notes) s += "  " + n.format() + "\n";
+    if (r.notes_over_cap) s += "  (" + std::to_string(r.notes_over_cap) + " more notes not kept)\n";
+    for (const NotReplayed& n : r.not_replayed)
+        s += "  not replayed: " + where_text(n.where) + ": " + n.reason + "\n";
+    return s;
+}
+
+}  // namespace
+
 std::string format_text(const ReplayReport& r) {
     std::string s;
     for (const std::string& d : r.trace_damage) s += "CLASTRACE-trace-damaged: " + d + "\n";
@@ -92,8 +138,7 @@ std::string format_text(const ReplayReport& r) {
         s += "(" + std::to_string(r.findings_over_cap) + " more findings not kept)\n";
     if (r.hazards_over_cap)
         s += "(" + std::to_string(r.hazards_over_cap) + " more hazards not kept)\n";
-    for (const NotReplayed& n : r.not_replayed)
-        s += "note: " + where_text(n.where) + ": " + n.reason + "\n";
+    s += notes_text(r);
 
     char line[384];
     s += "\nreplay of " + r.trace + " (" +
@@ -180,6 +225,9 @@ std::string format_text(const ReplayReport& r) {
     s += "  not replayed yet: " + std::to_string(r.not_replayed.size()) + " command(s)" +
          (r.hazards_checked ? "" : "; hazards not checked (--no-hazards)") +
          (r.verified ? "" : "; outputs not verified (--no-verify)") + "\n";
+    if (const uint64_t notes = r.notes.size() + r.notes_over_cap)
+        s += "  notes: " + std::to_string(notes) +
+             " limit(s) of this replay (not findings; listed under Notes)\n";
     if (by_rule.empty() && r.trace_damage.empty()) {
         s += "  result: clean\n";
     } else {
@@ -201,6 +249,13 @@ nlohmann::json to_json(const ReplayReport& r) {
                             {"op_index", f.op_index},
                             {"address", hex(f.address)},
                             {"message", f.message}});
+    nlohmann::json notes = nlohmann::json::array();
+    for (const ReplayNote& n : r.notes)
+        notes.push_back({{"rule", n.rule},
+                         {"where", where_json(n.where)},
+                         {"op_index", n.op_index},
+                         {"address", hex(n.address)},
+                         {"message", n.message}});
     nlohmann::json hazards = to_json(r.hazards, r.hazards_over_cap);
     nlohmann::json sizes = nlohmann::json::array();
     for (const SizeComparison& c : r.sizes) {
@@ -257,6 +312,8 @@ nlohmann::json to_json(const ReplayReport& r) {
         {"findings_over_cap", r.findings_over_cap},
         {"hazards_merged", r.hazards_merged},
         {"hazards", hazards},
+        {"notes", notes},
+        {"notes_over_cap", r.notes_over_cap},
         {"sizes", sizes},
         {"not_replayed", not_replayed},
         {"rows_over_cap", r.rows_over_cap},

@@ -129,6 +129,16 @@ void Replay::replay_command(const fbs::Record& record, const CommandRef& ref, ui
 }
 
 void Replay::add_finding(ReplayFinding finding) {
+    // One place decides what is a limit of the replay: every caller reports through here.
+    if (is_replay_limit(finding.rule)) {
+        if (report_.notes.size() >= options_.max_findings) {
+            ++report_.notes_over_cap;
+            return;
+        }
+        report_.notes.push_back({std::move(finding.rule), std::move(finding.message), finding.where,
+                                 finding.op_index, finding.address});
+        return;
+    }
     if (report_.findings.size() >= options_.max_findings) {
         ++report_.findings_over_cap;
         return;

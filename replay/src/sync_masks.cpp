@@ -226,6 +226,15 @@ std::string names(uint64_t mask, const FlagName* table, std::size_t count, const
     return out;
 }
 
+// The acceleration-structure copy commands run at ACCELERATION_STRUCTURE_COPY, which the model
+// records as their accesses' stage; their spec pages let those accesses be synchronized with
+// ACCELERATION_STRUCTURE_BUILD instead (the stage they ran in before VK_KHR_ray_tracing_
+// maintenance1 added the copy stage, which v1 stage masks cannot name). So a scope that names
+// the build stage takes the copy stage in too; naming the copy stage does not take builds in.
+constexpr uint64_t with_copy_stage(uint64_t atoms) {
+    return atoms & kSAsBuild ? atoms | kSAsCopy : atoms;
+}
+
 }  // namespace
 
 StageMask all_device_stages() { return kDeviceStages; }
@@ -241,7 +250,7 @@ StageMask atomic_stages(StageMask mask) {
 }
 
 StageMask source_scope(StageMask mask) {
-    uint64_t atoms = atomic_stages(mask);
+    uint64_t atoms = with_copy_stage(atomic_stages(mask));
     if (mask & kSBottom) atoms |= kDeviceStages;
     uint64_t out = atoms;
     const StageTables& t = tables();
@@ -250,7 +259,7 @@ StageMask source_scope(StageMask mask) {
 }
 
 StageMask destination_scope(StageMask mask) {
-    uint64_t atoms = atomic_stages(mask);
+    uint64_t atoms = with_copy_stage(atomic_stages(mask));
     if (mask & kSTop) atoms |= kDeviceStages;
     uint64_t out = atoms;
     const StageTables& t = tables();

@@ -186,10 +186,11 @@ TEST_F(CaptureCostReport, BackgroundThreadsGoWhereTheSettingSays) {
                                                ", compressor placed");
     // A CPU the kernel refuses (none such here; a cpuset would do the same): both threads stay
     // with the application and the line says so.
-    if (online.back() < 4095)
+    if (online.back() < 4095) {
         EXPECT_EQ(placementLine("4095"),
                   "background threads: asked for CPUs 4095 (the application's: 0); sink on 0, "
                   "compressor refused (as created)");
+    }
 }
 
 // `clastrace capture --background-cpus` passes the setting to the layer, and a malformed value

@@ -78,7 +78,7 @@ TEST(SegmentStoreInvariantsDeathTest, MutationNextToOverlappingSegmentsAborts) {
     add(store, 0, 16, 1, false);
     add(store, 16, 32, 2, false);
     Access::overlap_first_two(store);
-    EXPECT_DEATH(store.split_at(8), "segment_store\\.hpp:[0-9]+: invariant broken: entries_hold");
+    EXPECT_DEATH(store.split_at(8), "segment_store\\.h:[0-9]+: invariant broken: entries_hold");
 }
 
 TEST(SegmentStoreInvariantsDeathTest, UpdateOverAnEmptySegmentAborts) {

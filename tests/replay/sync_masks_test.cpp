@@ -11,11 +11,17 @@ TEST(SyncMasks, SourceScopeAddsLogicallyEarlierStages) {
     EXPECT_TRUE(compute & VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT);
     EXPECT_TRUE(compute & VK_PIPELINE_STAGE_2_CONDITIONAL_RENDERING_BIT_EXT);
     EXPECT_FALSE(compute & VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR);
-    // The AS build stage stands alone: nothing is logically earlier or later.
+    // Nothing is logically earlier or later than the AS build stage, but it also names the
+    // acceleration-structure copy stage (the KHR copy may be synchronized with either; its
+    // spec page says so); the copy stage does not name the build stage.
+    const StageMask build_and_copy = VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR |
+                                     VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR;
     EXPECT_EQ(source_scope(VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR),
-              VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR);
+              build_and_copy);
     EXPECT_EQ(destination_scope(VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR),
-              VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR);
+              build_and_copy);
+    EXPECT_FALSE(source_scope(VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_COPY_BIT_KHR) &
+                 VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR);
 }
 
 TEST(SyncMasks, DestinationScopeAddsLogicallyLaterStages) {

@@ -215,6 +215,13 @@ void TraceScript::barrier(uint64_t src_stages, uint64_t src_access, uint64_t dst
         tb::memory_barrier(command_buffer_, src_stages, src_access, dst_stages, dst_access));
 }
 
+void TraceScript::barrier_v1(uint32_t src_stages, uint32_t src_access, uint32_t dst_stages,
+                             uint32_t dst_access) {
+    ensure_begun();
+    writer_.append(
+        tb::memory_barrier_v1(command_buffer_, src_stages, src_access, dst_stages, dst_access));
+}
+
 void TraceScript::buffer_barrier(uint64_t buffer, uint64_t offset, uint64_t size,
                                  uint64_t src_stages, uint64_t src_access, uint64_t dst_stages,
                                  uint64_t dst_access) {

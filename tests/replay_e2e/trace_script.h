@@ -76,6 +76,9 @@ public:
     void dispatch_through_addresses(const std::vector<InputSnapshot>& outputs = {});
     void barrier(uint64_t src_stages, uint64_t src_access, uint64_t dst_stages,
                  uint64_t dst_access);
+    // vkCmdPipelineBarrier (synchronization 1) with one VkMemoryBarrier.
+    void barrier_v1(uint32_t src_stages, uint32_t src_access, uint32_t dst_stages,
+                    uint32_t dst_access);
     void buffer_barrier(uint64_t buffer, uint64_t offset, uint64_t size, uint64_t src_stages,
                         uint64_t src_access, uint64_t dst_stages, uint64_t dst_access);
     // vkCmdSetEvent2 / vkCmdWaitEvents2 with one VkMemoryBarrier2.

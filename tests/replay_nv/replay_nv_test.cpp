@@ -29,6 +29,7 @@ std::string temp_path(const std::string& name) { return test::temp_trace_path("r
 size_t count_rule(const replay::ReplayReport& r, const std::string& rule) {
     size_t n = 0;
     for (const auto& f : r.findings) n += f.rule == rule;
+    for (const auto& note : r.notes) n += note.rule == rule;  // the replay's own limits
     return n;
 }
 

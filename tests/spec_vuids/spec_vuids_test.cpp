@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <cctype>
 #include <regex>
 #include <set>
 #include <sstream>
@@ -70,10 +71,20 @@ std::vector<Literal> string_literals(const std::string& source) {
             for (++i; i < source.size() && source[i] != '\''; ++i)
                 if (source[i] == '\\') ++i;
         } else if (c == '"') {
+            // Adjacent literals are one string, as the compiler joins them: clang-format splits
+            // long VUID names across lines ("VUID-...-" "10484").
             Literal literal{{}, line};
-            for (++i; i < source.size() && source[i] != '"'; ++i) {
-                if (source[i] == '\\') ++i;
-                literal.text += source[i];
+            for (bool more = true; more;) {
+                for (++i; i < source.size() && source[i] != '"'; ++i) {
+                    if (source[i] == '\\') ++i;
+                    literal.text += source[i];
+                }
+                size_t next = i + 1;
+                int newlines = 0;
+                for (; next < source.size() && std::isspace(uint8_t(source[next])); ++next)
+                    newlines += source[next] == '\n';
+                more = next < source.size() && source[next] == '"';
+                if (more) i = next, line += newlines;
             }
             literals.push_back(literal);
         }
@@ -128,6 +139,11 @@ TEST(SpecVuids, ScannerFindsTheKnownEmitSites) {
     ASSERT_EQ(literals.size(), 1u);
     EXPECT_EQ(literals[0].text, "VUID-c-d-2");
     EXPECT_EQ(literals[0].line, 2);
+    // Adjacent literals join, as the compiler joins them.
+    const auto joined = string_literals("f(\"VUID-a-b-\"\n  \"10484\", \"x\");");
+    ASSERT_EQ(joined.size(), 2u);
+    EXPECT_EQ(joined[0].text, "VUID-a-b-10484");
+    EXPECT_EQ(joined[1].text, "x");
 }
 
 TEST(SpecVuids, CatalogueRowsAreWholeEntries) {

@@ -145,6 +145,56 @@ size_t execute_implicit(const VkClusterAccelerationStructureCommandsInfoNV& info
     return record.findings.size();
 }
 
+// The indirected fields the stand-in writes through (or places objects in); the source
+// fields stay indirected for the engine to read.
+constexpr VkClusterAccelerationStructureAddressResolutionFlagsNV kDestinationIndirections =
+    VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_IMPLICIT_DATA_BIT_NV |
+    VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_SCRATCH_DATA_BIT_NV |
+    VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_ADDRESS_ARRAY_BIT_NV |
+    VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_SIZES_ARRAY_BIT_NV;
+
+bool destinations_resolved(const VkClusterAccelerationStructureCommandsInfoNV& info) {
+    return (info.addressResolutionFlags & kDestinationIndirections) == 0;
+}
+
+// The 8-byte cell at `address` (docs/spec-readings.md: an indirected field's value is the
+// address of a cell holding the real address); false when no buffer holds all of it.
+bool read_cell(const std::vector<HostBuffer>& buffers, uint64_t address, uint64_t* value) {
+    for (const HostBuffer& b : buffers)
+        if (address >= b.address && address - b.address + 8 <= b.size) {
+            std::memcpy(value, b.host + (address - b.address), 8);
+            return true;
+        }
+    return false;
+}
+
+// `info` with each indirected destination field replaced by the address its cell holds, so
+// the stand-in lays out and reports at its own layout as for a direct field. A field whose
+// cell no buffer holds stays indirected (the engine then reports the bad cell).
+VkClusterAccelerationStructureCommandsInfoNV with_destinations_resolved(
+    const VkClusterAccelerationStructureCommandsInfoNV& recorded,
+    const std::vector<HostBuffer>& buffers) {
+    VkClusterAccelerationStructureCommandsInfoNV info = recorded;
+    const auto resolve = [&](VkDeviceAddress& field, uint32_t bit) {
+        uint64_t value = 0;
+        if (!(info.addressResolutionFlags & bit) || field == 0) return;
+        if (!read_cell(buffers, field, &value)) return;
+        field = value;
+        info.addressResolutionFlags &= ~bit;
+    };
+    resolve(
+        info.dstImplicitData,
+        VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_IMPLICIT_DATA_BIT_NV);
+    resolve(info.scratchData,
+            VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_SCRATCH_DATA_BIT_NV);
+    resolve(
+        info.dstAddressesArray.deviceAddress,
+        VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_ADDRESS_ARRAY_BIT_NV);
+    resolve(info.dstSizesArray.deviceAddress,
+            VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_SIZES_ARRAY_BIT_NV);
+    return info;
+}
+
 }  // namespace
 
 RecordedBuild::RecordedBuild(const VkClusterAccelerationStructureCommandsInfoNV& recorded)
@@ -170,15 +220,15 @@ RecordedBuild::RecordedBuild(const VkClusterAccelerationStructureCommandsInfoNV&
 
 size_t execute_on_host(const RecordedBuild& build, const std::vector<HostBuffer>& buffers,
                        engine::ObjectDirectory& directory) {
-    const VkClusterAccelerationStructureCommandsInfoNV& info = build.info;
-    // Indirected fields are built at the engine's own layout (README.md: not covered).
+    const VkClusterAccelerationStructureCommandsInfoNV info =
+        with_destinations_resolved(build.info, buffers);
     if (info.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV &&
-        info.addressResolutionFlags == 0)
+        destinations_resolved(info))
         return execute_implicit(info, buffers, directory);
     engine::MemoryImage image = snapshot(buffers);
     const engine::ExecutionRecord record = engine::execute(info, image, options_with(directory));
     std::vector<Range> written = writes_of(record);
-    if (info.addressResolutionFlags == 0 &&
+    if (destinations_resolved(info) &&
         info.input.opType !=
             VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV)
         report_padded_sizes(info, sizes_of(record), image, written);

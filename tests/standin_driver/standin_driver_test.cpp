@@ -11,6 +11,9 @@
 
 #include <gtest/gtest.h>
 
+#include <dlfcn.h>
+
+#include <cstdint>
 #include <cstdlib>
 #include <cstring>
 
@@ -34,8 +37,8 @@ protected:
 
 VkAccelerationStructureBuildSizesInfoKHR sizes_of(
     ClusterTestDevice& gpu, const VkClusterAccelerationStructureInputInfoNV& input) {
-    VkAccelerationStructureBuildSizesInfoKHR sizes{
-        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR};
+    VkAccelerationStructureBuildSizesInfoKHR sizes{};
+    sizes.sType = VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR;
     gpu.getBuildSizes(gpu.device, &input, &sizes);
     return sizes;
 }
@@ -67,7 +70,40 @@ TEST_F(StandinDriver, AnswersItsOwnSizesLargerThanTheEngines) {
     }
 }
 
-TEST_F(StandinDriver, BuildsClustersAndABottomLevelAtItsOwnLayout) {
+// The pause events the stand-in holds (its test hook, found in the library the loader loaded).
+size_t live_pause_events() {
+    void* layer = dlopen(CLASTRACE_STANDIN_LIBRARY, RTLD_NOW | RTLD_NOLOAD);
+    EXPECT_NE(layer, nullptr) << "the stand-in layer is not loaded";
+    if (!layer) return SIZE_MAX;
+    auto count =
+        reinterpret_cast<size_t (*)()>(dlsym(layer, "clastrace_standin_live_pause_events"));
+    EXPECT_NE(count, nullptr);
+    const size_t events = count ? count() : SIZE_MAX;
+    dlclose(layer);
+    return events;
+}
+
+// The clusters' destinations given through indirection cells: the stand-in must still place
+// and report at its own layout.
+void indirect_destinations(const Buffer& cells,
+                           VkClusterAccelerationStructureCommandsInfoNV& info) {
+    auto* cell = reinterpret_cast<uint64_t*>(cells.mapped);
+    cell[0] = info.dstImplicitData, cell[1] = info.scratchData;
+    cell[2] = info.dstAddressesArray.deviceAddress, cell[3] = info.dstSizesArray.deviceAddress;
+    info.dstImplicitData = cells.address, info.scratchData = cells.address + 8;
+    info.dstAddressesArray.deviceAddress = cells.address + 16;
+    info.dstSizesArray.deviceAddress = cells.address + 24;
+    info.addressResolutionFlags =
+        VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_IMPLICIT_DATA_BIT_NV |
+        VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_SCRATCH_DATA_BIT_NV |
+        VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_ADDRESS_ARRAY_BIT_NV |
+        VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_SIZES_ARRAY_BIT_NV;
+}
+
+// Builds the served scene's clusters and bottom level (the clusters' destinations through
+// indirection cells when `indirected`), checks the stand-in's layout, then frees the command
+// buffer and checks that its pause events went with it.
+void build_at_own_layout(ClusterTestDevice& gpu, bool indirected) {
     gpu.createDevice();
     served_scene::Commands c;
     served_scene::makeCommands({}, c);
@@ -102,6 +138,8 @@ TEST_F(StandinDriver, BuildsClustersAndABottomLevelAtItsOwnLayout) {
     a.blasInfos = blas_infos.address;
     a.counts = counts.address;
     served_scene::makeCommands(a, c);
+    Buffer cells = gpu.makeBuffer(32, 0);
+    if (indirected) indirect_destinations(cells, c.clusters);
 
     VkCommandBuffer cb = gpu.beginCommands();
     gpu.cmdBuildClusters(cb, &c.clusters);
@@ -120,9 +158,9 @@ TEST_F(StandinDriver, BuildsClustersAndABottomLevelAtItsOwnLayout) {
         SCOPED_TRACE(i);
         EXPECT_GE(addresses[i], implicit.address + clastrace::standin::kImplicitLeadingBytes);
         EXPECT_GE(addresses[i], previous_end);
-        EXPECT_EQ(addresses[i] % properties.clusterByteAlignment, 0u);
+        EXPECT_EQ(addresses[i] % properties.cluster_byte_alignment, 0u);
         EXPECT_GT(sizes[i], clastrace::standin::kObjectPaddingBytes);
-        EXPECT_EQ(sizes[i] % properties.clusterByteAlignment, 0u);
+        EXPECT_EQ(sizes[i] % properties.cluster_byte_alignment, 0u);
         EXPECT_LE(addresses[i] + sizes[i], implicit.address + implicit.size);
         previous_end = addresses[i] + sizes[i];
     }
@@ -134,6 +172,18 @@ TEST_F(StandinDriver, BuildsClustersAndABottomLevelAtItsOwnLayout) {
     EXPECT_LE(*blas_address + *blas_size, blas_implicit.address + blas_implicit.size);
     // The first bytes of the region stay as the application left them.
     EXPECT_EQ(implicit.mapped[0], 0);
+
+    EXPECT_EQ(live_pause_events(), 4u);  // two builds, two events each
+    vkFreeCommandBuffers(gpu.device, gpu.pool, 1, &cb);
+    EXPECT_EQ(live_pause_events(), 0u);
+}
+
+TEST_F(StandinDriver, BuildsClustersAndABottomLevelAtItsOwnLayout) {
+    build_at_own_layout(gpu, false);
+}
+
+TEST_F(StandinDriver, IndirectedDestinationsAreBuiltAtItsOwnLayoutToo) {
+    build_at_own_layout(gpu, true);
 }
 
 }  // namespace

@@ -71,7 +71,8 @@ struct DeviceState {
     X(DestroyBuffer) X(BindBufferMemory) X(BindBufferMemory2) X(GetBufferDeviceAddress) \
     X(BeginCommandBuffer) X(QueueSubmit) X(QueueSubmit2) X(CreateEvent) X(DestroyEvent) \
     X(GetEventStatus) X(SetEvent) X(ResetEvent) X(CmdPipelineBarrier) X(CmdSetEvent) \
-    X(CmdWaitEvents) X(CmdResetEvent) X(DeviceWaitIdle)
+    X(CmdWaitEvents) X(CmdResetEvent) X(DeviceWaitIdle) X(AllocateCommandBuffers) \
+    X(FreeCommandBuffers) X(ResetCommandBuffer) X(ResetCommandPool) X(DestroyCommandPool)
     // clang-format on
     struct Next {
         STANDIN_DEVICE_CALLS(STANDIN_NEXT)
@@ -81,6 +82,7 @@ struct DeviceState {
     std::unordered_map<VkDeviceMemory, MemoryState> memories;
     std::unordered_map<VkBuffer, BufferState> buffers;
     std::unordered_map<VkCommandBuffer, std::vector<std::shared_ptr<PausedBuild>>> recorded;
+    std::unordered_map<VkCommandBuffer, VkCommandPool> pools;  // for vkResetCommandPool & co
     engine::ObjectDirectory directory;
 
     std::mutex queue_mutex;  // the builds submitted, in submission order
@@ -207,18 +209,85 @@ void destroy_events(DeviceState& d, const std::vector<std::shared_ptr<PausedBuil
     }
 }
 
+// The pauses recorded in `cb`, which is being begun, reset or freed (so not pending), go.
+// Takes d.mutex.
+void forget_recorded(DeviceState& d, VkCommandBuffer cb) {
+    auto it = d.recorded.find(cb);
+    if (it == d.recorded.end()) return;
+    destroy_events(d, it->second);
+    d.recorded.erase(it);
+}
+
 VKAPI_ATTR VkResult VKAPI_CALL BeginCommandBuffer(VkCommandBuffer cb,
                                                   const VkCommandBufferBeginInfo* info) {
     DeviceState& d = device_of(cb);
     {
         std::lock_guard lock(d.mutex);
-        auto it = d.recorded.find(cb);
-        if (it != d.recorded.end()) {
-            destroy_events(d, it->second);  // a command buffer being begun is not pending
-            d.recorded.erase(it);
-        }
+        forget_recorded(d, cb);
     }
     return d.next.BeginCommandBuffer(cb, info);
+}
+
+VKAPI_ATTR VkResult VKAPI_CALL ResetCommandBuffer(VkCommandBuffer cb,
+                                                  VkCommandBufferResetFlags flags) {
+    DeviceState& d = device_of(cb);
+    {
+        std::lock_guard lock(d.mutex);
+        forget_recorded(d, cb);
+    }
+    return d.next.ResetCommandBuffer(cb, flags);
+}
+
+VKAPI_ATTR VkResult VKAPI_CALL AllocateCommandBuffers(VkDevice device,
+                                                      const VkCommandBufferAllocateInfo* info,
+                                                      VkCommandBuffer* buffers) {
+    DeviceState& d = device_of(device);
+    const VkResult result = d.next.AllocateCommandBuffers(device, info, buffers);
+    if (result != VK_SUCCESS) return result;
+    std::lock_guard lock(d.mutex);
+    for (uint32_t i = 0; i < info->commandBufferCount; ++i) d.pools[buffers[i]] = info->commandPool;
+    return result;
+}
+
+VKAPI_ATTR void VKAPI_CALL FreeCommandBuffers(VkDevice device, VkCommandPool pool, uint32_t count,
+                                              const VkCommandBuffer* buffers) {
+    DeviceState& d = device_of(device);
+    {
+        std::lock_guard lock(d.mutex);
+        for (uint32_t i = 0; i < count; ++i) {
+            if (!buffers[i]) continue;
+            forget_recorded(d, buffers[i]);
+            d.pools.erase(buffers[i]);
+        }
+    }
+    d.next.FreeCommandBuffers(device, pool, count, buffers);
+}
+
+// Every command buffer of `pool` forgets its pauses; `freed`: and is forgotten itself.
+void forget_pool(DeviceState& d, VkCommandPool pool, bool freed) {
+    std::lock_guard lock(d.mutex);
+    for (auto it = d.pools.begin(); it != d.pools.end();) {
+        if (it->second != pool) {
+            ++it;
+            continue;
+        }
+        forget_recorded(d, it->first);
+        it = freed ? d.pools.erase(it) : std::next(it);
+    }
+}
+
+VKAPI_ATTR VkResult VKAPI_CALL ResetCommandPool(VkDevice device, VkCommandPool pool,
+                                                VkCommandPoolResetFlags flags) {
+    DeviceState& d = device_of(device);
+    forget_pool(d, pool, false);
+    return d.next.ResetCommandPool(device, pool, flags);
+}
+
+VKAPI_ATTR void VKAPI_CALL DestroyCommandPool(VkDevice device, VkCommandPool pool,
+                                              const VkAllocationCallbacks* allocator) {
+    DeviceState& d = device_of(device);
+    forget_pool(d, pool, true);
+    d.next.DestroyCommandPool(device, pool, allocator);
 }
 
 VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit(VkQueue queue, uint32_t count,
@@ -387,6 +456,11 @@ PFN_vkVoidFunction device_call(const char* name) {
         {"vkCmdBuildClusterAccelerationStructureIndirectNV",
          reinterpret_cast<PFN_vkVoidFunction>(CmdBuildClusterAccelerationStructureIndirectNV)},
         {"vkBeginCommandBuffer", reinterpret_cast<PFN_vkVoidFunction>(BeginCommandBuffer)},
+        {"vkResetCommandBuffer", reinterpret_cast<PFN_vkVoidFunction>(ResetCommandBuffer)},
+        {"vkAllocateCommandBuffers", reinterpret_cast<PFN_vkVoidFunction>(AllocateCommandBuffers)},
+        {"vkFreeCommandBuffers", reinterpret_cast<PFN_vkVoidFunction>(FreeCommandBuffers)},
+        {"vkResetCommandPool", reinterpret_cast<PFN_vkVoidFunction>(ResetCommandPool)},
+        {"vkDestroyCommandPool", reinterpret_cast<PFN_vkVoidFunction>(DestroyCommandPool)},
         {"vkQueueSubmit", reinterpret_cast<PFN_vkVoidFunction>(QueueSubmit)},
         {"vkQueueSubmit2", reinterpret_cast<PFN_vkVoidFunction>(QueueSubmit2)},
         {"vkQueueSubmit2KHR", reinterpret_cast<PFN_vkVoidFunction>(QueueSubmit2)},
@@ -652,6 +726,17 @@ clastrace_standin_GetInstanceProcAddr(VkInstance instance, const char* name) {
 __attribute__((visibility("default"))) VKAPI_ATTR PFN_vkVoidFunction VKAPI_CALL
 clastrace_standin_GetDeviceProcAddr(VkDevice device, const char* name) {
     return GetDeviceProcAddr(device, name);
+}
+
+// For tests (found with dlsym): the pause events the stand-in holds over all devices.
+__attribute__((visibility("default"))) size_t clastrace_standin_live_pause_events() {
+    std::lock_guard lock(g_mutex);
+    size_t events = 0;
+    for (const auto& [key, d] : g_devices) {
+        std::lock_guard device_lock(d->mutex);
+        for (const auto& [cb, builds] : d->recorded) events += 2 * builds.size();
+    }
+    return events;
 }
 
 __attribute__((visibility("default"))) VKAPI_ATTR VkResult VKAPI_CALL

@@ -56,6 +56,18 @@ fbs::CmdPipelineBarrierT memory_barrier(uint64_t command_buffer, uint64_t src_st
     return b;
 }
 
+fbs::CmdPipelineBarrierT memory_barrier_v1(uint64_t command_buffer, uint32_t src_stages,
+                                           uint32_t src_access, uint32_t dst_stages,
+                                           uint32_t dst_access) {
+    fbs::CmdPipelineBarrierT b;
+    b.command_buffer = command_buffer;
+    b.version = 1;
+    b.src_stage_mask = src_stages;
+    b.dst_stage_mask = dst_stages;
+    b.dependency = one_memory_barrier(src_stages, src_access, dst_stages, dst_access);
+    return b;
+}
+
 fbs::CmdSetEventT set_event(uint64_t command_buffer, uint64_t event, uint64_t src_stages,
                             uint64_t src_access, uint64_t dst_stages, uint64_t dst_access) {
     fbs::CmdSetEventT e;

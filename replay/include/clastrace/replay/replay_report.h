@@ -1,11 +1,13 @@
 // SPDX-License-Identifier: Apache-2.0
 // What a replay found: rule violations (VUIDs and clastrace rules, each at the command
 // and op that broke it), synchronization hazards, mismatches between the capturing
-// side's outputs and the engine's, and the commands this build does not replay yet.
+// side's outputs and the engine's; and, apart from those, notes: the limits of the replay
+// itself (what it cannot decode or did not replay), which never make a trace unclean.
 #pragma once
 
 #include <cstdint>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include <nlohmann/json_fwd.hpp>
@@ -31,9 +33,15 @@ struct ReplayLocation {
 enum class FindingSource : uint8_t {
     kEngine,  // a rule the engine checked while executing the command (VUID-... / CLASTRACE-...)
     kVerify,  // the capturing side's outputs differ from the engine's
-    kReplay,  // the trace itself cannot be replayed as recorded (unknown memory, untranslated reference)
+    kReplay,  // the trace itself cannot be replayed as recorded (unknown object or buffer)
 };
 const char* finding_source_name(FindingSource source);
+
+// Rules that name a limit of the replay or its engine, not a fault of the application or the
+// trace: another driver's serialized object the engine cannot decode, the replay's memory
+// budgets, a reference to an object built before the capture began, a cluster larger than the
+// engine's format, findings past the per-rule cap. Reported as notes, never as findings.
+bool is_replay_limit(std::string_view rule);
 
 // A VkClusterAccelerationStructureOpTypeNV's name ("build_triangle_cluster", ...; "other" for
 // any other value): the one table `clastrace replay` and `clastrace analyze` both print.
@@ -99,6 +107,17 @@ struct RayCheckResult {
     double max_rel_t = 0;
 };
 
+// A limit met at one command (is_replay_limit): what the replay could not do there.
+struct ReplayNote {
+    std::string rule;  // CLASTRACE-... naming the limit
+    std::string message;
+    ReplayLocation where;
+    int64_t op_index = -1;
+    uint64_t address = 0;
+    // "CLASTRACE-... : submission 0, command buffer 0 (0x4001), command 3 vkCmd...: message"
+    std::string format() const;
+};
+
 struct NotReplayed {
     ReplayLocation where;
     std::string reason;
@@ -149,12 +168,17 @@ struct ReplayReport {
     std::vector<NvSizeComparison> nv_sizes;
     std::vector<RayCheckResult> ray_checks;
     std::vector<std::string> trace_damage;  // TraceError messages met while reading
+    // Limits of the replay (is_replay_limit), kept apart from the findings: they never make
+    // the report unclean, and `clastrace replay` exits 0 on a trace with notes only.
+    std::vector<ReplayNote> notes;
+    uint64_t notes_over_cap = 0;
     ReplayCounts counts;
 
     bool clean() const { return findings.empty() && hazards.empty() && trace_damage.empty(); }
 };
 
-// Text: one line per finding (rule first, as the validation layers print), then a summary.
+// Text: one line per finding (rule first, as the validation layers print), the notes apart
+// under "Notes", then a summary.
 std::string format_text(const ReplayReport& report);
 nlohmann::json to_json(const ReplayReport& report);
 

@@ -42,7 +42,8 @@ struct ReplayOptions {
     uint64_t last_command = std::numeric_limits<uint64_t>::max();
     // Only this submission_index (-1: all).
     int64_t submission = -1;
-    std::size_t max_findings = 1000;      // findings kept (hazards: the same cap); the rest counted
+    std::size_t max_findings =
+        1000;  // findings kept (hazards and notes: the same cap); the rest counted
     uint32_t max_findings_per_rule = 64;  // per command, passed to the engine
     // Bytes of captured memory the replay may hold. Every bound buffer is a sparse region
     // that costs only the pages written; a write past the budget is refused (a

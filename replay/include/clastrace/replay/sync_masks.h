@@ -24,7 +24,9 @@ StageMask all_device_stages();
 // Atomic stages of `mask` (aggregates expanded, TOP/BOTTOM dropped). HOST stays HOST.
 StageMask atomic_stages(StageMask mask);
 // First synchronization scope of a source stage mask: atomic stages plus every logically
-// earlier stage (BOTTOM_OF_PIPE = ALL_COMMANDS, TOP_OF_PIPE = NONE).
+// earlier stage (BOTTOM_OF_PIPE = ALL_COMMANDS, TOP_OF_PIPE = NONE). Both scopes take
+// ACCELERATION_STRUCTURE_COPY in with ACCELERATION_STRUCTURE_BUILD: the copy commands may be
+// synchronized with either stage (vkCmdCopyMemoryToAccelerationStructureKHR).
 StageMask source_scope(StageMask mask);
 // Second synchronization scope of a destination stage mask: atomic stages plus every
 // logically later stage (TOP_OF_PIPE = ALL_COMMANDS, BOTTOM_OF_PIPE = NONE).

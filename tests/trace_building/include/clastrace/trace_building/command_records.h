@@ -22,6 +22,11 @@ fbs::CommandBufferEndT command_buffer_end(uint64_t command_buffer);
 fbs::CmdPipelineBarrierT memory_barrier(uint64_t command_buffer, uint64_t src_stages,
                                         uint64_t src_access, uint64_t dst_stages,
                                         uint64_t dst_access);
+// vkCmdPipelineBarrier (version 1) with one VkMemoryBarrier: the command's stage masks, also
+// copied into the barrier as the capture records them.
+fbs::CmdPipelineBarrierT memory_barrier_v1(uint64_t command_buffer, uint32_t src_stages,
+                                           uint32_t src_access, uint32_t dst_stages,
+                                           uint32_t dst_access);
 // vkCmdSetEvent2 / vkCmdWaitEvents2 of one event with one VkMemoryBarrier2.
 fbs::CmdSetEventT set_event(uint64_t command_buffer, uint64_t event, uint64_t src_stages,
                             uint64_t src_access, uint64_t dst_stages, uint64_t dst_access);
