@@ -136,6 +136,12 @@ struct CommandToJson {
                 {"storageBuffers", buffers},
                 {"mayWriteDeviceAddresses", c.may_write_device_addresses}};
     }
+    json operator()(const DrawCommand& c) const {
+        return {{"kind", "Draw"},
+                {"entryPoint", c.entry_point},
+                {"pipeline", c.pipeline},
+                {"addressStages", c.address_stages}};
+    }
     json operator()(const ClusterBuildCommand& c) const {
         return {{"kind", "BuildClusterAccelerationStructureIndirectNV"},
                 {"pauseId", c.pause_id},

@@ -115,6 +115,15 @@ fbs::RecordT encode(uint64_t cb, const DispatchCommand& c) {
     return record_of(std::move(r));
 }
 
+fbs::RecordT encode(uint64_t cb, const DrawCommand& c) {
+    fbs::CmdDrawT r;
+    r.command_buffer = cb;
+    r.pipeline = c.pipeline;
+    r.entry_point = c.entry_point;
+    r.address_stages = c.address_stages;
+    return record_of(std::move(r));
+}
+
 fbs::RecordT encode(uint64_t cb, const ClusterBuildCommand& c) {
     return record_of(traces::cluster_commands_to_record(cb, c.parameters.resolved()));
 }

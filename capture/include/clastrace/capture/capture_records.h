@@ -245,6 +245,14 @@ struct DispatchCommand {
     bool may_write_device_addresses = false;
 };
 
+// A draw whose graphics pipeline may write through buffer device addresses (only such draws
+// are recorded).
+struct DrawCommand {
+    uint64_t pipeline = 0;
+    const char* entry_point = "";              // "vkCmdDraw", "vkCmdDrawMeshTasksEXT", ... (static)
+    VkPipelineStageFlags2 address_stages = 0;  // stages whose shaders use addresses
+};
+
 struct ClusterBuildCommand {
     ClusterCommandParameters parameters;
     uint64_t pause_id = 0;           // links this command to its ClusterBuildCapture
@@ -292,7 +300,7 @@ using RecordedCommand =
     std::variant<BarrierCommand, EventCommand, CopyBufferCommand, FillBufferCommand,
                  UpdateBufferCommand, DispatchCommand, ClusterBuildCommand,
                  BuildAccelerationStructureNVCommand, CopyMemoryToAccelerationStructureCommand,
-                 TimestampWriteCommand, ExecuteCommandsCommand>;
+                 TimestampWriteCommand, ExecuteCommandsCommand, DrawCommand>;
 
 struct RecordedCommandBuffer {
     uint64_t command_buffer = 0;
