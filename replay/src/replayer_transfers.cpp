@@ -67,13 +67,18 @@ void Replay::update_buffer(const fbs::CmdUpdateBuffer& update, const CommandRef&
 // Cheap mode for shaders that write through buffer device addresses: the trace does not say
 // which bytes, so the dispatch is a possible writer of every device address. Later accesses
 // that are not ordered after it get possible hazards (docs/replay.md, "Possible hazards").
-void Replay::record_address_writes(const CommandRef& ref) {
+void Replay::record_address_writes(const CommandRef& ref, uint64_t stages) {
     if (!options_.check_hazards) return;
-    ++report_.counts.accesses;
-    Access everywhere{AddressRange{1, ~0ull}, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
-                      VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, true, kAnyDeviceAddress};
-    everywhere.possible = true;
-    sync_.record_access(ref, everywhere);
+    if (stages == 0) stages = VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT;  // a record that names none
+    // One access per stage: a barrier orders an access when its first scope holds the access's
+    // stage, so a draw's vertex-shader write must not pass as ordered by a fragment-only barrier.
+    for (uint64_t rest = stages; rest != 0; rest &= rest - 1) {
+        ++report_.counts.accesses;
+        Access everywhere{AddressRange{1, ~0ull}, rest & (~rest + 1),
+                          VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, true, kAnyDeviceAddress};
+        everywhere.possible = true;
+        sync_.record_access(ref, everywhere);
+    }
 }
 
 void Replay::dispatch(const fbs::CmdDispatch& d, const CommandRef& ref,
@@ -102,7 +107,8 @@ void Replay::dispatch(const fbs::CmdDispatch& d, const CommandRef& ref,
                  field);
         }
     }
-    if (d.may_write_device_addresses()) record_address_writes(ref);
+    if (d.may_write_device_addresses())
+        record_address_writes(ref, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT);
     // The shader's effect is whatever the capture saw it write.
     if (d.outputs()) {
         std::vector<uint8_t> bytes;

@@ -108,4 +108,45 @@ TEST(AddressWrites, CertainHazardsAreCountedApartFromPossibleOnes) {
     EXPECT_EQ(j["hazards"]["possible"], possible);
 }
 
+// Draws: a mesh pipeline whose mesh and fragment shaders use addresses is a possible writer at
+// both stages; a barrier from the fragment stage alone leaves the mesh-shader write unordered.
+replay::ReplayReport mesh_draw_then_build(const std::string& name, uint64_t barrier_stages) {
+    return replay_catalogue_scene(temp_path(name), [&](TraceScript& t) {
+        t.draw_through_addresses("vkCmdDrawMeshTasksEXT",
+                                 VK_PIPELINE_STAGE_2_MESH_SHADER_BIT_EXT |
+                                     VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT);
+        if (barrier_stages) t.barrier(barrier_stages, kStorageWrite, kBuild, kInputReads);
+        triangle_clusters(Destinations::kImplicit).emit(t);
+    });
+}
+
+TEST(AddressWrites, MeshDrawWritingThroughAddressesIsAPossibleWriterAtItsShaderStages) {
+    const replay::ReplayReport r = mesh_draw_then_build("mesh_draw.clt", 0);
+    const std::string text = replay::format_text(r);
+    ASSERT_FALSE(r.hazards.empty()) << text;
+    bool mesh = false, fragment = false;
+    for (const replay::HazardReport& h : r.hazards) {
+        EXPECT_TRUE(h.possible()) << h.format();
+        EXPECT_STREQ(h.prior.command.name, "vkCmdDrawMeshTasksEXT");
+        mesh |= h.prior.stage == VK_PIPELINE_STAGE_2_MESH_SHADER_BIT_EXT;
+        fragment |= h.prior.stage == VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT;
+    }
+    EXPECT_TRUE(mesh || fragment) << text;
+    EXPECT_NE(text.find("vkCmdDrawMeshTasksEXT"), std::string::npos) << text;
+}
+
+TEST(AddressWrites, ABarrierFromOneOfTheDrawsStagesLeavesTheOtherUnordered) {
+    const replay::ReplayReport partial =
+        mesh_draw_then_build("mesh_draw_fragment_barrier.clt",
+                             VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT);
+    ASSERT_FALSE(partial.hazards.empty()) << replay::format_text(partial);
+    for (const replay::HazardReport& h : partial.hazards)
+        EXPECT_EQ(h.prior.stage, VK_PIPELINE_STAGE_2_MESH_SHADER_BIT_EXT) << h.format();
+    const replay::ReplayReport both =
+        mesh_draw_then_build("mesh_draw_both_barrier.clt",
+                             VK_PIPELINE_STAGE_2_MESH_SHADER_BIT_EXT |
+                                 VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT);
+    EXPECT_TRUE(both.clean()) << replay::format_text(both);
+}
+
 }  // namespace

@@ -208,6 +208,16 @@ void TraceScript::dispatch_through_addresses(const std::vector<InputSnapshot>& o
     writer_.append(std::move(d));
 }
 
+void TraceScript::draw_through_addresses(const std::string& entry_point, uint64_t stages) {
+    ensure_begun();
+    fbs::CmdDrawT d;
+    d.command_buffer = command_buffer_;
+    d.pipeline = 0x7003;
+    d.entry_point = entry_point;
+    d.address_stages = stages;
+    writer_.append(std::move(d));
+}
+
 void TraceScript::barrier(uint64_t src_stages, uint64_t src_access, uint64_t dst_stages,
                           uint64_t dst_access) {
     ensure_begun();

@@ -74,6 +74,9 @@ public:
     // A dispatch with no storage buffer whose pipeline may write through buffer device
     // addresses (CmdDispatch.may_write_device_addresses); `outputs` as above.
     void dispatch_through_addresses(const std::vector<InputSnapshot>& outputs = {});
+    // A draw (CmdDraw, `entry_point` such as "vkCmdDrawMeshTasksEXT") whose shaders at `stages`
+    // (VkPipelineStageFlags2) may write through buffer device addresses.
+    void draw_through_addresses(const std::string& entry_point, uint64_t stages);
     void barrier(uint64_t src_stages, uint64_t src_access, uint64_t dst_stages,
                  uint64_t dst_access);
     // vkCmdPipelineBarrier (synchronization 1) with one VkMemoryBarrier.
