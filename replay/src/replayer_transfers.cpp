@@ -70,15 +70,14 @@ void Replay::update_buffer(const fbs::CmdUpdateBuffer& update, const CommandRef&
 void Replay::record_address_writes(const CommandRef& ref, uint64_t stages) {
     if (!options_.check_hazards) return;
     if (stages == 0) stages = VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT;  // a record that names none
-    // One access per stage: a barrier orders an access when its first scope holds the access's
-    // stage, so a draw's vertex-shader write must not pass as ordered by a fragment-only barrier.
-    for (uint64_t rest = stages; rest != 0; rest &= rest - 1) {
-        ++report_.counts.accesses;
-        Access everywhere{AddressRange{1, ~0ull}, rest & (~rest + 1),
-                          VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, true, kAnyDeviceAddress};
-        everywhere.possible = true;
-        sync_.record_access(ref, everywhere);
-    }
+    // One access in all of the stages: a barrier orders it only when its first scope holds every
+    // one (sync_barrier_log.cpp), so a draw's mesh-shader write is not taken as ordered by a
+    // barrier from the fragment stage alone, and the fix names all the stages.
+    ++report_.counts.accesses;
+    Access everywhere{AddressRange{1, ~0ull}, stages, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, true,
+                      kAnyDeviceAddress};
+    everywhere.possible = true;
+    sync_.record_access(ref, everywhere);
 }
 
 void Replay::dispatch(const fbs::CmdDispatch& d, const CommandRef& ref,

@@ -5,14 +5,16 @@
 // an address in a push constant (shaders/address_draw.vert), one whose shader reaches no memory
 // (shaders/plain_draw.vert). One command buffer draws 4 vertices with each; after the fence the
 // program checks the 4 words the first wrote. Exit 0 and "ok" when they are 1..4; 2 otherwise.
-#include "address_draw_vert.h"  // kAddressDrawVert (compiled at build time)
-#include "plain_draw_vert.h"    // kPlainDrawVert
-
 #include <vulkan/vulkan.h>
 
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+
+// The shaders' SPIR-V as uint32_t arrays, compiled at build time (tests/apps/CMakeLists.txt).
+#include "address_draw_vert.h"  // kAddressDrawVert
+#include "plain_draw_vert.h"    // kPlainDrawVert
 
 namespace {
 

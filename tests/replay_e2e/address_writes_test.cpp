@@ -110,11 +110,12 @@ TEST(AddressWrites, CertainHazardsAreCountedApartFromPossibleOnes) {
 
 // Draws: a mesh pipeline whose mesh and fragment shaders use addresses is a possible writer at
 // both stages; a barrier from the fragment stage alone leaves the mesh-shader write unordered.
+constexpr uint64_t kMeshAndFragment =
+    VK_PIPELINE_STAGE_2_MESH_SHADER_BIT_EXT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT;
+
 replay::ReplayReport mesh_draw_then_build(const std::string& name, uint64_t barrier_stages) {
     return replay_catalogue_scene(temp_path(name), [&](TraceScript& t) {
-        t.draw_through_addresses("vkCmdDrawMeshTasksEXT",
-                                 VK_PIPELINE_STAGE_2_MESH_SHADER_BIT_EXT |
-                                     VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT);
+        t.draw_through_addresses("vkCmdDrawMeshTasksEXT", kMeshAndFragment);
         if (barrier_stages) t.barrier(barrier_stages, kStorageWrite, kBuild, kInputReads);
         triangle_clusters(Destinations::kImplicit).emit(t);
     });
@@ -124,14 +125,12 @@ TEST(AddressWrites, MeshDrawWritingThroughAddressesIsAPossibleWriterAtItsShaderS
     const replay::ReplayReport r = mesh_draw_then_build("mesh_draw.clt", 0);
     const std::string text = replay::format_text(r);
     ASSERT_FALSE(r.hazards.empty()) << text;
-    bool mesh = false, fragment = false;
     for (const replay::HazardReport& h : r.hazards) {
         EXPECT_TRUE(h.possible()) << h.format();
         EXPECT_STREQ(h.prior.command.name, "vkCmdDrawMeshTasksEXT");
-        mesh |= h.prior.stage == VK_PIPELINE_STAGE_2_MESH_SHADER_BIT_EXT;
-        fragment |= h.prior.stage == VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT;
+        EXPECT_EQ(h.prior.stage, kMeshAndFragment) << h.format();
+        EXPECT_EQ(h.fix.src_stages, kMeshAndFragment) << h.format();  // the fix names both
     }
-    EXPECT_TRUE(mesh || fragment) << text;
     EXPECT_NE(text.find("vkCmdDrawMeshTasksEXT"), std::string::npos) << text;
 }
 
