@@ -85,14 +85,25 @@ std::string describe(const clastrace::replay::ReplayReport& report) {
     return clastrace::replay::format_text(report);
 }
 
-TEST_F(ComputeWrittenInfos, WithTheBarrierNothingIsReported) {
+// With the barrier nothing certain and nothing on the bytes the dispatch wrote. What remains is
+// cheap mode's false reports: the barrier's second scope is the build's INDIRECT_COMMAND_READ |
+// ACCELERATION_STRUCTURE_READ, so the build's vertex/index reads (SHADER_READ), its scratch and
+// dstSizesArray writes, and the later copies are not ordered after the whole-address-space
+// possible write (docs/benchmarks.md counts them).
+TEST_F(ComputeWrittenInfos, WithTheBarrierNothingOnTheBytesTheDispatchWrote) {
     TracedDispatches traced;
     const auto report = capture_and_replay("", "", &traced);
     EXPECT_EQ(traced.dispatches, 1u);
     EXPECT_EQ(traced.marked, 1u);  // the shader uses PhysicalStorageBuffer pointers
     EXPECT_TRUE(report.findings.empty()) << describe(report);
-    EXPECT_TRUE(report.hazards.empty()) << describe(report);
-    EXPECT_TRUE(report.clean()) << describe(report);
+    for (const auto& h : report.hazards) {
+        EXPECT_TRUE(h.possible()) << h.format();
+        const bool on_infos =
+            h.overlap.begin < traced.infos_end && traced.infos_begin < h.overlap.end;
+        const bool on_count =
+            h.overlap.begin <= traced.count_address && traced.count_address < h.overlap.end;
+        EXPECT_FALSE(on_infos || on_count) << h.format();
+    }
 }
 
 TEST_F(ComputeWrittenInfos, WithoutTheBarrierAPossibleHazardNamesDispatchBuildAndSrcInfos) {
