@@ -86,10 +86,11 @@ std::string describe(const clastrace::replay::ReplayReport& report) {
 }
 
 // With the barrier nothing certain and nothing on the bytes the dispatch wrote. What remains is
-// cheap mode's false reports: the barrier's second scope is the build's INDIRECT_COMMAND_READ |
-// ACCELERATION_STRUCTURE_READ, so the build's vertex/index reads (SHADER_READ), its scratch and
-// dstSizesArray writes, and the later copies are not ordered after the whole-address-space
-// possible write (docs/benchmarks.md counts them).
+// cheap mode's false reports, all READ-AFTER-WRITE: the barrier's second scope is the build's
+// INDIRECT_COMMAND_READ | ACCELERATION_STRUCTURE_READ, so the build's vertex/index reads
+// (SHADER_READ) and the later copies' reads are not ordered after the whole-address-space
+// possible write (docs/benchmarks.md counts them). The builds' scratch and destination writes
+// raise nothing: possible writes meet reads only (docs/replay.md, "Possible hazards").
 TEST_F(ComputeWrittenInfos, WithTheBarrierNothingOnTheBytesTheDispatchWrote) {
     TracedDispatches traced;
     const auto report = capture_and_replay("", "", &traced);
@@ -98,6 +99,7 @@ TEST_F(ComputeWrittenInfos, WithTheBarrierNothingOnTheBytesTheDispatchWrote) {
     EXPECT_TRUE(report.findings.empty()) << describe(report);
     for (const auto& h : report.hazards) {
         EXPECT_TRUE(h.possible()) << h.format();
+        EXPECT_EQ(h.hazard, clastrace::replay::HazardClass::kReadAfterWrite) << h.format();
         const bool on_infos =
             h.overlap.begin < traced.infos_end && traced.infos_begin < h.overlap.end;
         const bool on_count =
