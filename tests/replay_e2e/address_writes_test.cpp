@@ -120,6 +120,29 @@ TEST(AddressWrites, AnEarlierReadIsAPossibleWriteAfterRead) {
     EXPECT_TRUE(infos) << replay::format_text(r);
 }
 
+// The possible write sits beside the bytes' certain write and hides nothing: a copy writes the
+// infos, the dispatch runs unordered after it, and the barrier orders only the dispatch before
+// the build; the copy-to-build READ-AFTER-WRITE is still found, certain.
+TEST(AddressWrites, APossibleWriteDoesNotHideAnEarlierCertainWrite) {
+    const replay::ReplayReport r =
+        replay_catalogue_scene(temp_path("copy_then_dispatch.clt"), [](TraceScript& t) {
+            const std::vector<uint8_t> infos = triangle_infos();
+            t.copy(kStagingBuffer, 0, kInfosBuffer, 0, infos.size(), {{kStaging, infos}});
+            t.dispatch_through_addresses();
+            t.barrier(kCompute, kStorageWrite, kBuild, kInputReads);
+            triangle_clusters(Destinations::kImplicit).emit(t);
+        });
+    bool copy_to_build = false;
+    for (const replay::HazardReport& h : r.hazards) {
+        EXPECT_NE(std::string(h.prior.command.name), "vkCmdDispatch") << h.format();
+        if (!h.possible() && h.hazard == HazardClass::kReadAfterWrite &&
+            std::string(h.prior.command.name) == "vkCmdCopyBuffer" &&
+            h.later.field == "srcInfosArray[*]")
+            copy_to_build = true;
+    }
+    EXPECT_TRUE(copy_to_build) << replay::format_text(r);
+}
+
 // A certain hazard after the possible writer stays certain, and the two are counted apart.
 TEST(AddressWrites, CertainHazardsAreCountedApartFromPossibleOnes) {
     const replay::ReplayReport r =
