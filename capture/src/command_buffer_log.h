@@ -28,6 +28,7 @@ struct CommandBufferLog {
     VkQueryPool spare_timestamp_pool = VK_NULL_HANDLE;
     // Compute binding state, for the storage buffers each dispatch sees.
     uint64_t compute_pipeline = 0;
+    uint64_t graphics_pipeline = 0;  // for draws that may write through device addresses
     std::map<uint32_t, std::pair<VkDescriptorSet, std::vector<uint32_t>>>
         compute_sets;  // set -> (set, dynamic offsets)
 };

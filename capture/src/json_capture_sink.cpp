@@ -133,7 +133,14 @@ struct CommandToJson {
                 {"pipeline", c.pipeline},
                 {"indirectBuffer", c.indirect_buffer},
                 {"indirectOffset", c.indirect_offset},
-                {"storageBuffers", buffers}};
+                {"storageBuffers", buffers},
+                {"mayWriteDeviceAddresses", c.may_write_device_addresses}};
+    }
+    json operator()(const DrawCommand& c) const {
+        return {{"kind", "Draw"},
+                {"entryPoint", c.entry_point},
+                {"pipeline", c.pipeline},
+                {"addressStages", c.address_stages}};
     }
     json operator()(const ClusterBuildCommand& c) const {
         return {{"kind", "BuildClusterAccelerationStructureIndirectNV"},

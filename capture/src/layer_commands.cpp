@@ -392,6 +392,8 @@ VKAPI_ATTR void VKAPI_CALL CmdBindPipeline(VkCommandBuffer cb, VkPipelineBindPoi
     d.next.CmdBindPipeline(cb, bind_point, pipeline);
     if (bind_point == VK_PIPELINE_BIND_POINT_COMPUTE)
         log_of(d, cb)->compute_pipeline = handle_id(pipeline);
+    else if (bind_point == VK_PIPELINE_BIND_POINT_GRAPHICS)
+        log_of(d, cb)->graphics_pipeline = handle_id(pipeline);
 }
 
 VKAPI_ATTR void VKAPI_CALL CmdBindDescriptorSets(VkCommandBuffer cb, VkPipelineBindPoint bind_point,
@@ -448,6 +450,7 @@ VKAPI_ATTR void VKAPI_CALL CmdDispatch(VkCommandBuffer cb, uint32_t x, uint32_t 
     if (!d.sink) return;
     auto log = log_of(d, cb);
     DispatchCommand c{x, y, z, log->compute_pipeline, 0, 0, bound_storage_buffers(d, *log)};
+    c.may_write_device_addresses = address_writing_stages(d, log->compute_pipeline) != 0;
     log->recorded.commands.push_back(std::move(c));
 }
 
@@ -459,8 +462,23 @@ VKAPI_ATTR void VKAPI_CALL CmdDispatchIndirect(VkCommandBuffer cb, VkBuffer buff
     auto log = log_of(d, cb);
     DispatchCommand c{
         0, 0, 0, log->compute_pipeline, handle_id(buffer), offset, bound_storage_buffers(d, *log)};
+    c.may_write_device_addresses = address_writing_stages(d, log->compute_pipeline) != 0;
     log->recorded.commands.push_back(std::move(c));
 }
+
+}  // namespace
+
+// Only draws that may write through addresses are recorded: replay needs nothing else of them.
+void record_draw_through_addresses(VkCommandBuffer cb, const char* entry_point) {
+    DeviceState& d = device_of(cb);
+    if (!d.sink) return;
+    auto log = log_of(d, cb);
+    const VkPipelineStageFlags2 stages = address_writing_stages(d, log->graphics_pipeline);
+    if (stages)
+        log->recorded.commands.push_back(DrawCommand{log->graphics_pipeline, entry_point, stages});
+}
+
+namespace {
 
 VKAPI_ATTR void VKAPI_CALL CmdExecuteCommands(VkCommandBuffer cb, uint32_t count,
                                               const VkCommandBuffer* secondaries) {
@@ -734,6 +752,7 @@ void clear_command_buffer_log(DeviceState& d, CommandBufferLog& log) {
     log.timestamp_read_pause_id = 0;
     log.recorded.commands.clear();
     log.compute_pipeline = 0;
+    log.graphics_pipeline = 0;
     log.compute_sets.clear();
 }
 

@@ -137,6 +137,13 @@ LayerConfig parse_layer_config(const std::function<const char*(const char*)>& ge
         else
             reject("CLASTRACE_TIMESTAMPS", *v, "0 or 1");
     }
+    if (auto v = value("CLASTRACE_DEVICE_ADDRESS_WRITES")) {
+        if (*v == "cheap" || *v == "off")
+            config.mark_device_address_writers = *v == "cheap";
+        else
+            reject("CLASTRACE_DEVICE_ADDRESS_WRITES", *v,
+                   "cheap or off (exact, which bytes a shader wrote, is not implemented)");
+    }
     if (auto v = value("CLASTRACE_BACKGROUND_CPUS")) {
         if (*v == "spare")
             config.background_cpus = {BackgroundCpus::Mode::kSpare, {}};

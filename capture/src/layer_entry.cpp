@@ -429,6 +429,8 @@ PFN_vkVoidFunction intercept_device_function(const char* name, DeviceState* devi
     PFN_vkVoidFunction hook = resource_hook(name);
     if (!hook) hook = acceleration_structure_hook(name);
     if (!hook) hook = command_hook(name);
+    if (!hook) hook = pipeline_hook(name);
+    if (!hook) hook = draw_hook(name);
     if (!hook) hook = submit_hook(name);
     if (!hook) hook = host_sync_hook(name);
     if (!hook) hook = present_hook(name);

@@ -100,6 +100,23 @@ uint64_t handle_id(Handle handle) {
     X(CmdUpdateBuffer)                                \
     X(CmdDispatch)                                    \
     X(CmdDispatchIndirect)                            \
+    X(CreateShaderModule)                             \
+    X(DestroyShaderModule)                            \
+    X(CreateComputePipelines)                         \
+    X(CreateGraphicsPipelines)                        \
+    X(CmdDraw)                                        \
+    X(CmdDrawIndexed)                                 \
+    X(CmdDrawIndirect)                                \
+    X(CmdDrawIndexedIndirect)                         \
+    X(CmdDrawIndirectCount)                           \
+    X(CmdDrawIndexedIndirectCount)                    \
+    X(CmdDrawMeshTasksEXT)                            \
+    X(CmdDrawMeshTasksIndirectEXT)                    \
+    X(CmdDrawMeshTasksIndirectCountEXT)               \
+    X(CmdDrawMeshTasksNV)                             \
+    X(CmdDrawMeshTasksIndirectNV)                     \
+    X(CmdDrawMeshTasksIndirectCountNV)                \
+    X(DestroyPipeline)                                \
     X(CmdBindPipeline)                                \
     X(CmdBindDescriptorSets)                          \
     X(UpdateDescriptorSets)                           \
@@ -203,6 +220,13 @@ struct DeviceState {
     std::mutex descriptors_mutex;
     std::unordered_map<VkDescriptorSet, std::map<std::pair<uint32_t, uint32_t>, BoundStorageBuffer>>
         storage_descriptors;
+    // Shader modules and pipelines whose SPIR-V may write through buffer device addresses
+    // (spirv_pipelines.cpp), each pipeline with the stages (VkPipelineStageFlags2) of such
+    // shaders: a dispatch or draw with one is recorded as a possible writer of all
+    // device-address memory.
+    std::mutex pipelines_mutex;
+    std::unordered_set<uint64_t> address_writing_modules;
+    std::unordered_map<uint64_t, VkPipelineStageFlags2> address_writing_pipelines;
     // The ray check (CLASTRACE_RAY_CHECK): queue families of the queues handed out, the NV ray
     // tracing limits, and the NV structures the capture saw built.
     std::mutex queues_mutex;
@@ -245,6 +269,14 @@ PFN_vkVoidFunction intercept_device_function(const char* name, DeviceState* devi
 PFN_vkVoidFunction serving_instance_hook(const char* name);
 PFN_vkVoidFunction resource_hook(const char* name);
 PFN_vkVoidFunction command_hook(const char* name);
+PFN_vkVoidFunction pipeline_hook(const char* name);
+PFN_vkVoidFunction draw_hook(const char* name);
+// The stages of `pipeline` whose shaders may write through buffer device addresses (0: none;
+// spirv_pipelines.cpp).
+VkPipelineStageFlags2 address_writing_stages(DeviceState& d, uint64_t pipeline);
+// Records a draw (`entry_point`) when the bound graphics pipeline may write through device
+// addresses (layer_commands.cpp; the draw hooks are in spirv_draws.cpp).
+void record_draw_through_addresses(VkCommandBuffer cb, const char* entry_point);
 PFN_vkVoidFunction submit_hook(const char* name);
 PFN_vkVoidFunction cluster_hook(const char* name);
 PFN_vkVoidFunction acceleration_structure_hook(const char* name);

@@ -111,6 +111,16 @@ fbs::RecordT encode(uint64_t cb, const DispatchCommand& c) {
     for (const auto& b : c.storage_buffers)
         r.storage_buffers.emplace_back(b.set, b.binding, b.array_element, uint32_t(b.type),
                                        b.buffer, b.offset, b.range, b.address);
+    r.may_write_device_addresses = c.may_write_device_addresses;
+    return record_of(std::move(r));
+}
+
+fbs::RecordT encode(uint64_t cb, const DrawCommand& c) {
+    fbs::CmdDrawT r;
+    r.command_buffer = cb;
+    r.pipeline = c.pipeline;
+    r.entry_point = c.entry_point;
+    r.address_stages = c.address_stages;
     return record_of(std::move(r));
 }
 

@@ -1,6 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "cluster_scene.h"
 
+#include "copy_words_spirv.h"  // kCopyWordsSpirv: shaders/copy_words.comp, compiled at build time
+
 #include <clastrace/common/hex.h>
 
 #include <algorithm>
@@ -28,8 +30,8 @@ const VkBufferUsageFlags kStorage = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORA
 
 }  // namespace
 
-const std::vector<BarrierInfo>& barrierCatalogue() {
-    static const std::vector<BarrierInfo> barriers = {
+const std::vector<BarrierInfo>& barrierCatalogue(bool computeInfos) {
+    static const std::vector<BarrierInfo> copied = {
         // Both cluster builds read the copied infos; the barrier between them orders builds only.
         {"copy-to-sizes",
          "copy:cluster-infos -> build:cluster-sizes, build:clusters: the copied srcInfosArray and "
@@ -55,7 +57,17 @@ const std::vector<BarrierInfo>& barrierCatalogue() {
         {"move-to-blas",
          "build:move -> build:blas: moved cluster addresses and objects, scratch reuse"},
     };
-    return barriers;
+    // --compute-infos: compute dispatches write the cluster infos, so dispatch-to-sizes takes
+    // copy-to-sizes' place; the rest is the same.
+    static const std::vector<BarrierInfo> computed = [] {
+        std::vector<BarrierInfo> barriers = copied;
+        barriers.front() = {"dispatch-to-sizes",
+                            "dispatch:cluster-infos -> build:cluster-sizes, build:clusters: the "
+                            "srcInfosArray and count a compute shader wrote through buffer device "
+                            "addresses"};
+        return barriers;
+    }();
+    return computeInfos ? computed : copied;
 }
 
 uint64_t fnv1a64(const uint8_t* data, size_t size) {
@@ -102,12 +114,15 @@ public:
             for (Buffer* b : {&command.addresses, &command.sizes, &command.implicitData})
                 c_.destroyBuffer(*b);
         if (pool_) vkDestroyCommandPool(c_.device(), pool_, nullptr);
+        if (copyPipeline_) vkDestroyPipeline(c_.device(), copyPipeline_, nullptr);
+        if (copyLayout_) vkDestroyPipelineLayout(c_.device(), copyLayout_, nullptr);
     }
 
     SceneResult run() {
         if (n_ == 0) throw std::runtime_error("the mesh has no cluster to build");
         createInputs();
         defineCommands();
+        if (options_.computeInfos) createCopyPipeline();
         if (options_.beforeRecording) options_.beforeRecording();
         record();
         c_.submitAndWait(cb_, options_.queueIndex);
@@ -337,6 +352,54 @@ private:
               {layout_.counts + countOffset, layout_.counts + countOffset, 4}});
     }
 
+    // The compute pipeline of shaders/copy_words.comp: four device addresses and a word count
+    // in push constants, no descriptor.
+    struct CopyWordsConstants {
+        VkDeviceAddress source, target, countSource, countTarget;
+        uint32_t words;
+    };
+    void createCopyPipeline() {
+        VkShaderModuleCreateInfo moduleInfo{VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO, nullptr, 0,
+                                            sizeof kCopyWordsSpirv, kCopyWordsSpirv};
+        VkShaderModule module = VK_NULL_HANDLE;
+        CLUSTER_SCENE_CHECK(vkCreateShaderModule(c_.device(), &moduleInfo, nullptr, &module));
+        const VkPushConstantRange range{VK_SHADER_STAGE_COMPUTE_BIT, 0,
+                                        uint32_t(sizeof(CopyWordsConstants))};
+        VkPipelineLayoutCreateInfo layoutInfo{
+            VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO, nullptr, 0, 0, nullptr, 1, &range};
+        CLUSTER_SCENE_CHECK(
+            vkCreatePipelineLayout(c_.device(), &layoutInfo, nullptr, &copyLayout_));
+        VkComputePipelineCreateInfo pipelineInfo{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
+        pipelineInfo.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO,
+                              nullptr,
+                              0,
+                              VK_SHADER_STAGE_COMPUTE_BIT,
+                              module,
+                              "main",
+                              nullptr};
+        pipelineInfo.layout = copyLayout_;
+        const VkResult created = vkCreateComputePipelines(c_.device(), VK_NULL_HANDLE, 1,
+                                                          &pipelineInfo, nullptr, &copyPipeline_);
+        vkDestroyShaderModule(c_.device(), module, nullptr);
+        CLUSTER_SCENE_CHECK(created);
+    }
+    // Copies staging bytes [offset, offset + size) and the 4-byte count at countOffset to the
+    // same offsets of infos_ with one dispatch that reaches them only through device addresses.
+    void dispatchCopy(const char* label, VkDeviceSize offset, VkDeviceSize size,
+                      VkDeviceSize countOffset) {
+        const CopyWordsConstants constants{staging_.address + offset, infos_.address + offset,
+                                           staging_.address + countOffset,
+                                           infos_.address + countOffset, uint32_t(size / 4)};
+        vkCmdBindPipeline(cb_, VK_PIPELINE_BIND_POINT_COMPUTE, copyPipeline_);
+        vkCmdPushConstants(cb_, copyLayout_, VK_SHADER_STAGE_COMPUTE_BIT, 0, sizeof constants,
+                           &constants);
+        vkCmdDispatch(cb_, (constants.words + 63) / 64, 1, 1);
+        result_.computeWrites.push_back({constants.target, size});
+        result_.computeWrites.push_back({constants.countTarget, 4});
+        result_.commands.push_back(std::string("dispatch:") + label);
+        ++result_.dispatches;
+    }
+
     void barrier(const char* name, VkPipelineStageFlags srcStage, VkAccessFlags srcAccess,
                  VkPipelineStageFlags dstStage, VkAccessFlags dstAccess) {
         if (options_.skipBarriers.count(name)) return;
@@ -380,8 +443,17 @@ private:
         constexpr VkDeviceSize kInstance =
             sizeof(VkClusterAccelerationStructureInstantiateClusterInfoNV);
 
-        copyInfos("cluster-infos", layout_.clusters, clusterInfos, InfoLayout::kClusterCount);
-        copyToBuild("copy-to-sizes");
+        if (options_.computeInfos) {
+            dispatchCopy("cluster-infos", layout_.clusters, clusterInfos,
+                         layout_.counts + InfoLayout::kClusterCount);
+            barrier("dispatch-to-sizes", VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                    VK_ACCESS_SHADER_WRITE_BIT, kBuildStage,
+                    VK_ACCESS_INDIRECT_COMMAND_READ_BIT |
+                        VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_KHR);
+        } else {
+            copyInfos("cluster-infos", layout_.clusters, clusterInfos, InfoLayout::kClusterCount);
+            copyToBuild("copy-to-sizes");
+        }
         build(*sizes_);
         buildToBuild("sizes-to-clusters");
         build(*clusters_);
@@ -486,6 +558,8 @@ private:
                    *templateMove_ = nullptr, *instantiate_ = nullptr, *templateIndices_ = nullptr,
                    *move_ = nullptr, *blas_ = nullptr;
     VkCommandPool pool_ = VK_NULL_HANDLE;
+    VkPipelineLayout copyLayout_ = VK_NULL_HANDLE;
+    VkPipeline copyPipeline_ = VK_NULL_HANDLE;
     VkCommandBuffer cb_ = VK_NULL_HANDLE;
     SceneResult result_;
 };
@@ -495,7 +569,7 @@ private:
 SceneResult runScene(VulkanContext& context, const ClusteredMesh& mesh,
                      const SceneOptions& options) {
     for (const std::string& name : options.skipBarriers) {
-        const auto& all = barrierCatalogue();
+        const auto& all = barrierCatalogue(options.computeInfos);
         if (std::none_of(all.begin(), all.end(),
                          [&](const BarrierInfo& b) { return name == b.name; }))
             throw std::runtime_error("no barrier is named '" + name +

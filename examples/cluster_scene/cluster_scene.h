@@ -19,10 +19,14 @@ struct BarrierInfo {
     const char* name;
     const char* orders;  // "<earlier command> -> <later command>: <what>"
 };
-const std::vector<BarrierInfo>& barrierCatalogue();
+// The barriers of the copy variant, or of --compute-infos (dispatch-to-sizes for copy-to-sizes).
+const std::vector<BarrierInfo>& barrierCatalogue(bool computeInfos = false);
 
 struct SceneOptions {
-    std::set<std::string> skipBarriers;     // names from barrierCatalogue()
+    std::set<std::string> skipBarriers;  // names from barrierCatalogue()
+    // The cluster infos and their count are written by a compute dispatch through buffer device
+    // addresses (shaders/copy_words.comp) instead of vkCmdCopyBuffer; barrier dispatch-to-sizes.
+    bool computeInfos = false;
     uint32_t queueIndex = 0;                // which of the context's queues to submit to
     std::function<void()> beforeRecording;  // called once resources exist (threads line up here)
 };
@@ -40,9 +44,12 @@ struct BuildOutputs {
 
 struct SceneResult {
     uint64_t commandBuffer = 0;         // the handle, as the trace names it
-    std::vector<std::string> commands;  // "copy:...", "barrier:NAME", "build:..." in record order
-    uint32_t copies = 0, barriers = 0, builds = 0;
+    std::vector<std::string> commands;  // "copy:...", "dispatch:...", "barrier:NAME", "build:..."
+    uint32_t copies = 0, dispatches = 0, barriers = 0, builds = 0;
     std::vector<BuildOutputs> outputs;  // one per build, in record order
+    // --compute-infos: the device-address ranges (address, bytes) the dispatch writes, so a
+    // replay's hazards can be judged true or false (scripts/address_writes_table.py).
+    std::vector<std::pair<uint64_t, uint64_t>> computeWrites;
 };
 
 // Creates the scene's buffers, records and submits its command buffer, waits, reads back

@@ -66,14 +66,18 @@ nlohmann::json toJson(const SceneResult& scene) {
     }
     return {{"commandBuffer", scene.commandBuffer},
             {"commands", scene.commands},
+            {"computeWrites", scene.computeWrites},
             {"counts",
-             {{"copies", scene.copies}, {"barriers", scene.barriers}, {"builds", scene.builds}}},
+             {{"copies", scene.copies},
+              {"dispatches", scene.dispatches},
+              {"barriers", scene.barriers},
+              {"builds", scene.builds}}},
             {"builds", builds}};
 }
 
 void printText(const SceneResult& scene, size_t index) {
-    std::printf("command buffer %zu: %u copies, %u barriers, %u builds\n", index, scene.copies,
-                scene.barriers, scene.builds);
+    std::printf("command buffer %zu: %u copies, %u dispatches, %u barriers, %u builds\n", index,
+                scene.copies, scene.dispatches, scene.barriers, scene.builds);
     for (const BuildOutputs& b : scene.outputs) {
         uint64_t bytes = 0, digest = 0xcbf29ce484222325ull;
         for (uint32_t s : b.sizes) bytes += s;
@@ -100,7 +104,7 @@ int main(int argc, char** argv) {
     std::string meshPath = kDefaultMesh;
     uint32_t maxClusters = 0, clusterVertices = 64, clusterTriangles = 124, threads = 1;
     std::vector<std::string> skip;
-    bool listBarriers = false, json = false;
+    bool listBarriers = false, json = false, computeInfos = false;
     app.add_option("mesh", meshPath, "OBJ file to cluster")->capture_default_str();
     app.add_option("--max-clusters", maxClusters, "build only the first N clusters (0: all)")
         ->capture_default_str();
@@ -113,6 +117,10 @@ int main(int argc, char** argv) {
         ->capture_default_str();
     app.add_option("--skip-barrier", skip,
                    "leave out the barrier NAME (repeatable; --list-barriers prints the names)");
+    app.add_flag("--compute-infos", computeInfos,
+                 "write the cluster infos and their count with a compute dispatch through buffer "
+                 "device addresses (push constants) instead of vkCmdCopyBuffer; their barrier is "
+                 "dispatch-to-sizes (--list-barriers --compute-infos)");
     app.add_flag("--list-barriers", listBarriers,
                  "print the barriers that can be left out and exit");
     app.add_option("--threads", threads,
@@ -123,7 +131,8 @@ int main(int argc, char** argv) {
     CLI11_PARSE(app, argc, argv);
 
     if (listBarriers) {
-        for (const BarrierInfo& b : barrierCatalogue()) std::printf("%-30s %s\n", b.name, b.orders);
+        for (const BarrierInfo& b : barrierCatalogue(computeInfos))
+            std::printf("%-30s %s\n", b.name, b.orders);
         return 0;
     }
     if (clusterTriangles % 4 != 0) {
@@ -146,6 +155,7 @@ int main(int argc, char** argv) {
         std::vector<SceneResult> scenes(threads);
         SceneOptions options;
         options.skipBarriers = {skip.begin(), skip.end()};
+        options.computeInfos = computeInfos;
         if (threads == 1) {
             scenes[0] = runScene(context, clusters, options);
         } else {
@@ -182,6 +192,7 @@ int main(int argc, char** argv) {
                                   {"clusterTriangles", clusters.totalTriangles()},
                                   {"queues", context.queueCount()},
                                   {"skippedBarriers", skip},
+                                  {"computeInfos", computeInfos},
                                   {"scenes", nlohmann::json::array()}};
             for (const SceneResult& s : scenes) out["scenes"].push_back(toJson(s));
             std::printf("%s\n", out.dump(1).c_str());

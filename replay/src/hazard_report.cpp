@@ -40,6 +40,7 @@ nlohmann::json side_json(const HazardAccess& a) {
         {"stage", stage_names(a.stage)},
         {"access", access_names(a.access)},
         {"write", a.is_write},
+        {"possible", a.possible},
         {"range", {hex(a.range.begin), hex(a.range.end)}},
     };
     if (a.command
@@ -104,10 +105,13 @@ std::string FixingBarrier::describe() const {
     return "";
 }
 
+std::string hazard_rule_name(const HazardReport& report) {
+    return std::string(report.possible() ? "POSSIBLE-" : "") + "SYNC-HAZARD-" +
+           hazard_class_name(report.hazard);
+}
+
 std::string HazardReport::format() const {
-    std::string s = "SYNC-HAZARD-";
-    s += hazard_class_name(hazard);
-    s += ": ";
+    std::string s = hazard_rule_name(*this) + ": ";
     const std::string region = "[" + hex(overlap.begin) + ", " + hex(overlap.end) + ")";
     if (hazard == HazardClass::kMoveOverlap) {
         s += where(later) + " copies " + prior.field + " " + "[" + hex(prior.range.begin) + ", " +
@@ -140,6 +144,10 @@ std::string HazardReport::format() const {
                      : " with no barrier making it available and visible.";
         }
     }
+    if (possible())
+        s += " Possible, not certain: the dispatch's shader may write through buffer device "
+             "addresses (its SPIR-V uses PhysicalStorageBuffer pointers), and the trace does not "
+             "show which bytes it wrote.";
     s += " Fix: " + fix.describe();
     return s;
 }
@@ -147,6 +155,7 @@ std::string HazardReport::format() const {
 nlohmann::json to_json(const HazardReport& r) {
     return {
         {"class", hazard_class_name(r.hazard)},
+        {"possible", r.possible()},
         {"prior", side_json(r.prior)},
         {"later", side_json(r.later)},
         {"overlap", {hex(r.overlap.begin), hex(r.overlap.end)}},
@@ -163,8 +172,15 @@ nlohmann::json to_json(const HazardReport& r) {
 
 nlohmann::json to_json(const std::vector<HazardReport>& reports, uint64_t suppressed) {
     nlohmann::json list = nlohmann::json::array();
-    for (const HazardReport& r : reports) list.push_back(to_json(r));
-    return {{"hazards", std::move(list)}, {"suppressed", suppressed}};
+    uint64_t possible = 0;
+    for (const HazardReport& r : reports) {
+        list.push_back(to_json(r));
+        possible += r.possible() ? 1 : 0;
+    }
+    return {{"hazards", std::move(list)},
+            {"certain", reports.size() - possible},
+            {"possible", possible},
+            {"suppressed", suppressed}};
 }
 
 namespace {

@@ -205,8 +205,7 @@ std::string format_text(const ReplayReport& r) {
     const ReplayCounts& n = r.counts;
     std::map<std::string, uint64_t> by_rule;
     for (const ReplayFinding& f : r.findings) ++by_rule[f.rule];
-    for (const HazardReport& h : r.hazards)
-        ++by_rule[std::string("SYNC-HAZARD-") + hazard_class_name(h.hazard)];
+    for (const HazardReport& h : r.hazards) ++by_rule[hazard_rule_name(h)];
     std::snprintf(line, sizeof line,
                   "  records %" PRIu64 ", submissions %" PRIu64 ", commands replayed %" PRIu64
                   " (skipped %" PRIu64 "), cluster commands %" PRIu64 " (%" PRIu64

@@ -77,6 +77,9 @@ void Replay::execute_command(const fbs::Record& record, const CommandRef& ref, u
         update_buffer(*record.body_as_CmdUpdateBuffer(), ref);
         break;
     case fbs::RecordBody::CmdDispatch: dispatch(*record.body_as_CmdDispatch(), ref, where); break;
+    case fbs::RecordBody::CmdDraw:
+        record_address_writes(ref, record.body_as_CmdDraw()->address_stages());
+        break;
     case fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect:
         build_clusters(*record.body_as_CmdBuildClusterAccelerationStructureIndirect(), ref, where);
         break;

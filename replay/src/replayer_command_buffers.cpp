@@ -26,8 +26,34 @@ const char* command_name(fbs::RecordBody kind) {
     case fbs::RecordBody::GpuTimestamp: return "vkCmdWriteTimestamp";
     case fbs::RecordBody::DebugLabel: return "vkCmdDebugUtilsLabelEXT";
     case fbs::RecordBody::CmdExecuteCommands: return "vkCmdExecuteCommands";
+    case fbs::RecordBody::CmdDraw: return "vkCmdDraw";
     default: return "command";
     }
+}
+
+// A draw's entry point as a static string (findings keep the name after the recording is gone).
+const char* draw_entry_point(const fbs::CmdDraw& draw) {
+    static const char* const kDraws[] = {"vkCmdDraw",
+                                         "vkCmdDrawIndexed",
+                                         "vkCmdDrawIndirect",
+                                         "vkCmdDrawIndexedIndirect",
+                                         "vkCmdDrawIndirectCount",
+                                         "vkCmdDrawIndexedIndirectCount",
+                                         "vkCmdDrawMeshTasksEXT",
+                                         "vkCmdDrawMeshTasksIndirectEXT",
+                                         "vkCmdDrawMeshTasksIndirectCountEXT",
+                                         "vkCmdDrawMeshTasksNV",
+                                         "vkCmdDrawMeshTasksIndirectNV",
+                                         "vkCmdDrawMeshTasksIndirectCountNV"};
+    if (draw.entry_point())
+        for (const char* name : kDraws)
+            if (draw.entry_point()->str() == name) return name;
+    return "vkCmdDraw";
+}
+
+const char* command_name(const fbs::Record& record) {
+    if (const fbs::CmdDraw* draw = record.body_as_CmdDraw()) return draw_entry_point(*draw);
+    return command_name(record.body_type());
 }
 
 uint64_t command_buffer_of(const fbs::Record& r) {
@@ -51,6 +77,7 @@ uint64_t command_buffer_of(const fbs::Record& r) {
     case fbs::RecordBody::DebugLabel: return r.body_as_DebugLabel()->command_buffer();
     case fbs::RecordBody::CmdExecuteCommands:
         return r.body_as_CmdExecuteCommands()->command_buffer();
+    case fbs::RecordBody::CmdDraw: return r.body_as_CmdDraw()->command_buffer();
     default: return 0;
     }
 }
@@ -192,10 +219,10 @@ void Replay::run_command_buffer(uint64_t handle, uint32_t submission, uint32_t c
     for (const std::vector<uint8_t>& bytes : commands) {
         const fbs::Record* record = flatbuffers::GetRoot<fbs::Record>(bytes.data());
         const uint64_t sequence = sequence_++;
-        CommandRef ref{submission, cb_index, handle, command, command_name(record->body_type())};
+        CommandRef ref{submission, cb_index, handle, command, command_name(*record)};
         if (inside) {
             ref = *inside;
-            ref.name = command_name(record->body_type());
+            ref.name = command_name(*record);
             ref.secondary_handle = handle;
             ref.secondary_command = command;
         }

@@ -117,6 +117,9 @@ private:
                      const ReplayLocation& where);
     void fill_buffer(const fbs::CmdFillBuffer& fill, const CommandRef& ref);
     void update_buffer(const fbs::CmdUpdateBuffer& update, const CommandRef& ref);
+    // A dispatch or draw whose shaders (at `stages`, VkPipelineStageFlags2) may write through
+    // buffer device addresses: a possible write of all device-address memory.
+    void record_address_writes(const CommandRef& ref, uint64_t stages);
     void dispatch(const fbs::CmdDispatch& dispatch, const CommandRef& ref,
                   const ReplayLocation& where);
     void build_clusters(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,

@@ -5,6 +5,9 @@
 
 namespace clastrace::replay::detail {
 
+// The field a possible device-address write names in hazard reports.
+constexpr std::string_view kAnyDeviceAddress = "any memory through a buffer device address";
+
 void Replay::feed(const CommandRef& ref, const AddressRange& range, StageMask stage,
                   AccessMask access, bool write, std::string_view field) {
     if (!options_.check_hazards || range.empty()) return;
@@ -61,6 +64,22 @@ void Replay::update_buffer(const fbs::CmdUpdateBuffer& update, const CommandRef&
     feed(ref, *range, VK_PIPELINE_STAGE_2_CLEAR_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, true, "pData");
 }
 
+// Cheap mode for shaders that write through buffer device addresses: the trace does not say
+// which bytes, so the dispatch is a possible writer of every device address. Later accesses
+// that are not ordered after it get possible hazards (docs/replay.md, "Possible hazards").
+void Replay::record_address_writes(const CommandRef& ref, uint64_t stages) {
+    if (!options_.check_hazards) return;
+    if (stages == 0) stages = VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT;  // a record that names none
+    // One access in all of the stages: a barrier orders it only when its first scope holds every
+    // one (sync_barrier_log.cpp), so a draw's mesh-shader write is not taken as ordered by a
+    // barrier from the fragment stage alone, and the fix names all the stages.
+    ++report_.counts.accesses;
+    Access everywhere{AddressRange{1, ~0ull}, stages, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, true,
+                      kAnyDeviceAddress};
+    everywhere.possible = true;
+    sync_.record_access(ref, everywhere);
+}
+
 void Replay::dispatch(const fbs::CmdDispatch& d, const CommandRef& ref,
                       const ReplayLocation& where) {
     lay_in_snapshots(d.inputs(), where);
@@ -87,6 +106,8 @@ void Replay::dispatch(const fbs::CmdDispatch& d, const CommandRef& ref,
                  field);
         }
     }
+    if (d.may_write_device_addresses())
+        record_address_writes(ref, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT);
     // The shader's effect is whatever the capture saw it write.
     if (d.outputs()) {
         std::vector<uint8_t> bytes;

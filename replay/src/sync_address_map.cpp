@@ -15,10 +15,14 @@ void SyncModel::State::record(const Record& b, bool deserialize, std::vector<Fin
     std::vector<Finding> found;
     if (!found_index.empty()) found_index.clear();  // clear() would wipe every bucket each time
     const Later later{&b, b.queue, deserialize};
+    // A possible write leaves each segment's certain write and reads in place, so the segments
+    // it covers stay apart.
     segments.update(
-        begin, end, b.is_write,
+        begin, end, b.is_write && !b.possible,
         [&](Segment& fresh, uint64_t, uint64_t) {
-            if (b.is_write)
+            if (b.possible)
+                fresh.possible_write = b;
+            else if (b.is_write)
                 fresh.write = b;
             else
                 fresh.reads.push_back(b);
@@ -52,6 +56,14 @@ void SyncModel::State::check_and_update(Segment& seg, uint64_t seg_begin, uint64
                                        : HazardClass::kWriteAfterRead,
                      r, b, *fix, seg_begin, seg_end);
         }
+        // Cheap mode's possible writes meet reads only: a pass writing build inputs through
+        // addresses and a barrier to the build's reads is the normal pattern, and the build's
+        // own scratch and destination writes would otherwise be a possible WRITE-AFTER-WRITE in
+        // every correct program (docs/replay.md, "Possible hazards").
+        if (b.possible) {
+            seg.possible_write = b;
+            return;
+        }
         if (!any_read && seg.write && seg.write->tag != b.tag) {
             if (auto fix = unordered(*seg.write, later, true, seg_begin, seg_end))
                 note(found,
@@ -60,12 +72,15 @@ void SyncModel::State::check_and_update(Segment& seg, uint64_t seg_begin, uint64
                      *seg.write, b, *fix, seg_begin, seg_end);
         }
         seg.write = b;
+        seg.possible_write.reset();  // the bytes now hold this write's values
         seg.reads.clear();
         return;
     }
-    if (seg.write && seg.write->tag != b.tag) {
-        if (auto fix = unordered(*seg.write, later, true, seg_begin, seg_end))
-            note(found, HazardClass::kReadAfterWrite, *seg.write, b, *fix, seg_begin, seg_end);
+    for (std::optional<Record>* w : {&seg.write, &seg.possible_write}) {
+        if (*w && (*w)->tag != b.tag) {
+            if (auto fix = unordered(**w, later, true, seg_begin, seg_end))
+                note(found, HazardClass::kReadAfterWrite, **w, b, *fix, seg_begin, seg_end);
+        }
     }
     // A host read is over when the call returns: it orders itself before all later work
     // and must not stand between the write and later writes.
@@ -150,6 +165,7 @@ void SyncModel::State::fill_record(Record& r, const CommandRef& command, const A
     r.access = a.access;
     r.atoms = atomic_accesses(a.access);
     r.is_write = a.is_write;
+    r.possible = a.possible;
     r.field = field;
     r.queue = queue;
     r.log_pos = queue == kHostSlot ? 0 : queues[queue].log_end();

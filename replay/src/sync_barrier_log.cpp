@@ -7,6 +7,17 @@
 
 namespace clastrace::replay {
 
+namespace {
+
+// An access is in a first synchronization scope when every stage it runs in is: a draw whose
+// mesh and fragment shaders may both write (replay's CmdDraw) is not ordered by a barrier from
+// the fragment stage alone. Every other access runs in one stage, where this is `scope & stage`.
+bool in_first_scope(StageMask scope, StageMask stage) {
+    return stage != 0 && (scope & stage) == stage;
+}
+
+}  // namespace
+
 void SyncModel::State::apply_barriers(const Queue& q, const LogEntry& e, ChainState& s,
                                       const Record& r, bool home, uint64_t seg_begin,
                                       uint64_t seg_end) {
@@ -18,7 +29,7 @@ void SyncModel::State::apply_barriers(const Queue& q, const LogEntry& e, ChainSt
     for (uint32_t i = 0; i < count; ++i) {
         const LoggedBarrier& b = q.pool[e.first + i - q.pool_base];
         if (!b.global && !contains(b.range, seg_begin, seg_end)) continue;
-        const bool direct = home && (b.src_scope & r.stage);
+        const bool direct = home && in_first_scope(b.src_scope, r.stage);
         if (!direct && !(s.chain & b.src_scope)) continue;
         add_chain |= b.dst_scope;
         if (!r.is_write) continue;
@@ -46,7 +57,7 @@ void SyncModel::State::apply_event_set(const Queue& q, const LogEntry& e, ChainS
     for (uint32_t i = 0; i < e.count; ++i) {
         const LoggedBarrier& b = q.pool[e.first + i - q.pool_base];
         if (!b.global && !contains(b.range, seg_begin, seg_end)) continue;
-        const bool direct = home && (b.src_scope & r.stage);
+        const bool direct = home && in_first_scope(b.src_scope, r.stage);
         if (!direct && !(s.chain & b.src_scope & ~kEventStageBits)) continue;
         s.chain |= e.event_bits;
         if (!r.is_write) continue;
@@ -88,7 +99,7 @@ void SyncModel::State::apply_entry(const Queue& q, uint32_t pos, ChainState& s, 
     case EntryKind::kEventSet: apply_event_set(q, e, s, r, home, seg_begin, seg_end); break;
     case EntryKind::kEventWait: apply_event_wait(q, e, s, r, seg_begin, seg_end); break;
     case EntryKind::kSignal: {
-        const bool direct = home && (r.stage & e.event_bits);
+        const bool direct = home && in_first_scope(e.event_bits, r.stage);
         if (direct || (s.chain & e.event_bits))
             s.signals.push_back({e.signal, !r.is_write || direct || (s.avail & e.event_bits) != 0});
         break;

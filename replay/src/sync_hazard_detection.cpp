@@ -128,6 +128,7 @@ HazardAccess SyncModel::State::describe(const Record& r) const {
     a.stage = r.stage;
     a.access = r.access;
     a.is_write = r.is_write;
+    a.possible = r.possible;
     a.range = r.range;
     a.field = field_names[r.field];
     return a;

@@ -41,19 +41,20 @@ void SyncModel::State::retire() {
         std::erase_if(seg.reads, [&](const Record& r) {
             return r.queue == kHostSlot || r.tag < queues[r.queue].complete;
         });
-        if (seg.write) {
-            Record& w = *seg.write;
+        for (std::optional<Record>* slot : {&seg.write, &seg.possible_write}) {
+            if (!*slot) continue;
+            Record& w = **slot;
             if (w.queue == kHostSlot) {
-                seg.write.reset();
+                slot->reset();
             } else if (!w.completed && w.tag < queues[w.queue].complete) {
                 catch_up(w, seg_begin, seg_end);
                 if (w.sync.visible.covers(VK_PIPELINE_STAGE_2_HOST_BIT, VK_ACCESS_2_HOST_READ_BIT))
-                    seg.write.reset();
+                    slot->reset();
                 else
                     w.completed = true;
             }
         }
-        return !seg.write && seg.reads.empty();
+        return seg.empty();
     });
     trim_logs();
     for (Queue& q : queues) q.log_size_after_trim = q.log.size();
@@ -77,6 +78,7 @@ void SyncModel::State::trim_logs() {
     };
     segments.for_each([&](const Segment& seg, uint64_t, uint64_t) {
         if (seg.write) need(*seg.write);
+        if (seg.possible_write) need(*seg.possible_write);
         for (const Record& r : seg.reads) need(r);
     });
     for (std::size_t i = 0; i < queues.size(); ++i) {
@@ -126,6 +128,7 @@ void SyncModel::State::maybe_compact(const Queue& q) {
 void SyncModel::State::compact() {
     segments.for_each([&](Segment& seg, uint64_t begin, uint64_t end) {
         if (seg.write) catch_up(*seg.write, begin, end);
+        if (seg.possible_write) catch_up(*seg.possible_write, begin, end);
         for (Record& r : seg.reads) catch_up(r, begin, end);
     });
     trim_logs();

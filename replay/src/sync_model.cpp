@@ -305,10 +305,11 @@ void SyncModel::memory_freed(AddressRange range) {
             std::erase_if(seg.reads, [&](const Record& r) {
                 return r.queue == kHostSlot || r.tag < s.queues[r.queue].complete;
             });
-            if (seg.write && (seg.write->queue == kHostSlot || seg.write->completed ||
-                              seg.write->tag < s.queues[seg.write->queue].complete))
-                seg.write.reset();
-            return !seg.write && seg.reads.empty();
+            for (std::optional<Record>* w : {&seg.write, &seg.possible_write})
+                if (*w && ((*w)->queue == kHostSlot || (*w)->completed ||
+                           (*w)->tag < s.queues[(*w)->queue].complete))
+                    w->reset();
+            return seg.empty();
         },
         range.begin, range.end);
     s.stats.segments = s.segments.size();

@@ -142,6 +142,7 @@ struct Record {
     uint32_t log_pos = 0;  // absolute position in its queue's log applied up to
     uint16_t queue = 0;    // queue slot, or kHostSlot
     bool is_write = false;
+    bool possible = false;   // Access::possible
     bool completed = false;  // retired by a host wait, kept only because the host cannot see it
     ChainState sync;
 };
@@ -152,8 +153,14 @@ constexpr uint16_t kHostSlot = 0xFFFF;
 struct Segment {
     std::optional<Record> write;
     std::vector<Record> reads;  // the latest read per (queue, stage) since the write
+    // Cheap mode's possible write of all device-address memory (a dispatch or draw whose shaders
+    // may write through addresses), held beside the certain write so it never hides one from
+    // later reads; only later reads are checked against it (docs/replay.md, "Possible hazards").
+    std::optional<Record> possible_write;
+    bool empty() const { return !write && !possible_write && reads.empty(); }
     void clear() {
         write.reset();
+        possible_write.reset();
         reads.clear();
     }
 };

@@ -93,6 +93,18 @@ TEST(LayerConfig, TimestampsOnByDefaultAndSwitchedByZeroOrOne) {
     EXPECT_NE(bad.errors[0].find("CLASTRACE_TIMESTAMPS='sometimes'"), std::string::npos);
 }
 
+TEST(LayerConfig, DeviceAddressWritesCheapByDefaultOffOrCheap) {
+    EXPECT_TRUE(parse({}).mark_device_address_writers);
+    EXPECT_FALSE(parse({{"CLASTRACE_DEVICE_ADDRESS_WRITES", "off"}}).mark_device_address_writers);
+    EXPECT_TRUE(parse({{"CLASTRACE_DEVICE_ADDRESS_WRITES", "cheap"}}).mark_device_address_writers);
+    // exact is not implemented: rejected by name, the default kept, never silently cheap.
+    LayerConfig exact = parse({{"CLASTRACE_DEVICE_ADDRESS_WRITES", "exact"}});
+    EXPECT_TRUE(exact.mark_device_address_writers);
+    ASSERT_EQ(exact.errors.size(), 1u);
+    EXPECT_NE(exact.errors[0].find("CLASTRACE_DEVICE_ADDRESS_WRITES='exact'"), std::string::npos);
+    EXPECT_NE(exact.errors[0].find("not implemented"), std::string::npos);
+}
+
 TEST(LayerConfig, BackgroundCpusSpareByDefaultAppOrAList) {
     EXPECT_EQ(parse({}).background_cpus.mode, BackgroundCpus::Mode::kSpare);
     EXPECT_EQ(parse({{"CLASTRACE_BACKGROUND_CPUS", "app"}}).background_cpus.mode,

@@ -62,7 +62,7 @@ std::string LayerLaunchTest::cleanEnvironment(std::map<std::string, std::string>
           "CLASTRACE_ZSTD_LEVEL", "CLASTRACE_LOG", "CLASTRACE_DEBUG_JSON", "CLASTRACE_FLUSH_MS",
           "CLASTRACE_FORCE_STAGING", "CLASTRACE_TIMESTAMPS", "CLASTRACE_RAY_CHECK",
           "CLASTRACE_STATS", "CLASTRACE_SHARED_WAIT_MS", "CLASTRACE_FRAME_RANGE",
-          "CLASTRACE_BACKGROUND_CPUS"})
+          "CLASTRACE_BACKGROUND_CPUS", "CLASTRACE_DEVICE_ADDRESS_WRITES"})
         line += std::string(" -u ") + v;
     for (const auto& [name, value] : clastrace::testsupport::test_driver().environment())
         env[name] = value;

@@ -224,6 +224,27 @@ void TraceScript::dispatch(uint64_t storage_buffer, uint64_t offset, uint64_t ra
     writer_.append(std::move(d));
 }
 
+void TraceScript::dispatch_through_addresses(const std::vector<InputSnapshot>& outputs) {
+    ensure_begun();
+    fbs::CmdDispatchT d;
+    d.command_buffer = command_buffer_;
+    d.pipeline = 0x7002;
+    d.group_count_x = d.group_count_y = d.group_count_z = 1;
+    d.may_write_device_addresses = true;
+    d.outputs = snapshots_of(writer_, outputs);
+    writer_.append(std::move(d));
+}
+
+void TraceScript::draw_through_addresses(const std::string& entry_point, uint64_t stages) {
+    ensure_begun();
+    fbs::CmdDrawT d;
+    d.command_buffer = command_buffer_;
+    d.pipeline = 0x7003;
+    d.entry_point = entry_point;
+    d.address_stages = stages;
+    writer_.append(std::move(d));
+}
+
 void TraceScript::barrier(uint64_t src_stages, uint64_t src_access, uint64_t dst_stages,
                           uint64_t dst_access) {
     ensure_begun();

@@ -81,6 +81,12 @@ public:
     // A dispatch with one storage buffer range bound; `outputs` is what the capture saw it write.
     void dispatch(uint64_t storage_buffer, uint64_t offset, uint64_t range,
                   const std::vector<InputSnapshot>& outputs = {});
+    // A dispatch with no storage buffer whose pipeline may write through buffer device
+    // addresses (CmdDispatch.may_write_device_addresses); `outputs` as above.
+    void dispatch_through_addresses(const std::vector<InputSnapshot>& outputs = {});
+    // A draw (CmdDraw, `entry_point` such as "vkCmdDrawMeshTasksEXT") whose shaders at `stages`
+    // (VkPipelineStageFlags2) may write through buffer device addresses.
+    void draw_through_addresses(const std::string& entry_point, uint64_t stages);
     void barrier(uint64_t src_stages, uint64_t src_access, uint64_t dst_stages,
                  uint64_t dst_access);
     // vkCmdPipelineBarrier (synchronization 1) with one VkMemoryBarrier.

@@ -240,6 +240,17 @@ struct DispatchCommand {
     uint64_t indirect_buffer = 0;  // vkCmdDispatchIndirect
     VkDeviceSize indirect_offset = 0;
     std::vector<BoundStorageBuffer> storage_buffers;  // from vkUpdateDescriptorSets writes
+    // The pipeline's SPIR-V uses physical storage buffer pointers (spirv_scan.h): the dispatch
+    // may write any device-address memory.
+    bool may_write_device_addresses = false;
+};
+
+// A draw whose graphics pipeline may write through buffer device addresses (only such draws
+// are recorded).
+struct DrawCommand {
+    uint64_t pipeline = 0;
+    const char* entry_point = "";              // "vkCmdDraw", "vkCmdDrawMeshTasksEXT", ... (static)
+    VkPipelineStageFlags2 address_stages = 0;  // stages whose shaders use addresses
 };
 
 struct ClusterBuildCommand {
@@ -289,7 +300,7 @@ using RecordedCommand =
     std::variant<BarrierCommand, EventCommand, CopyBufferCommand, FillBufferCommand,
                  UpdateBufferCommand, DispatchCommand, ClusterBuildCommand,
                  BuildAccelerationStructureNVCommand, CopyMemoryToAccelerationStructureCommand,
-                 TimestampWriteCommand, ExecuteCommandsCommand>;
+                 TimestampWriteCommand, ExecuteCommandsCommand, DrawCommand>;
 
 struct RecordedCommandBuffer {
     uint64_t command_buffer = 0;

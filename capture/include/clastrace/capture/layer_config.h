@@ -46,6 +46,9 @@ struct LayerConfig {
         1000;  // CLASTRACE_FLUSH_MS: a killed process loses at most this much (0: never)
     bool force_staging =
         false;  // CLASTRACE_FORCE_STAGING: treat all memory as not host visible (tests)
+    // CLASTRACE_DEVICE_ADDRESS_WRITES: `cheap` marks dispatches and draws whose pipeline's SPIR-V
+    // may write through buffer device addresses (replay: possible hazards); `off` does not.
+    bool mark_device_address_writers = true;
     bool timestamps = true;  // CLASTRACE_TIMESTAMPS: GPU timestamps around each captured command
     bool stats = false;  // CLASTRACE_STATS: where capture's time went, on stderr at vkDestroyDevice
     // CLASTRACE_HOST_WRITES: watch the mapped inputs of captured commands for host writes

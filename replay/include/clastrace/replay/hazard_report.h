@@ -47,7 +47,8 @@ struct HazardAccess {
     StageMask stage = 0;
     AccessMask access = 0;
     bool is_write = false;
-    AddressRange range;  // the whole range this access covered
+    bool possible = false;  // an access the trace only allows (Access::possible)
+    AddressRange range;     // the whole range this access covered
     std::string field;
 };
 
@@ -57,8 +58,14 @@ struct HazardReport {
     HazardAccess later;    // the access that found the hazard (for kMoveOverlap: the destination)
     AddressRange overlap;  // bytes both touch
     FixingBarrier fix;
+    // Possible, not certain: one side is an access the trace only allows (a dispatch that may
+    // write through device addresses), so the bytes may never have been touched.
+    bool possible() const { return prior.possible || later.possible; }
     std::string format() const;
 };
+// "SYNC-HAZARD-READ-AFTER-WRITE", or "POSSIBLE-SYNC-HAZARD-READ-AFTER-WRITE" for a possible one:
+// the name summaries count it under, so possible hazards are counted apart from certain ones.
+std::string hazard_rule_name(const HazardReport& report);
 
 // The field a hazard names, without its op index or its size note, so that the hazards one
 // missing barrier causes over one field fold into one report:

@@ -72,6 +72,9 @@ struct Access {
     AccessMask access = 0;
     bool is_write = false;
     std::string_view field;  // which field of which info, e.g. "srcInfosArray[2]"; copied
+    // An access the trace cannot pin down, only allow: a dispatch whose shader may write through
+    // device addresses. Hazards with it on either side are reported as possible.
+    bool possible = false;
 };
 
 // One memory dependency of a barrier (VkMemoryBarrier2, or a v1 barrier with the

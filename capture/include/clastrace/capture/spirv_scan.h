@@ -1,0 +1,44 @@
+// SPDX-License-Identifier: Apache-2.0
+// A bounds-checked reader of a SPIR-V module's word stream that answers one question: may the
+// module's shaders reach memory through buffer device addresses (physical storage buffer
+// pointers)? The capture marks a dispatch whose pipeline has such a shader as a possible writer
+// of all device-address memory (docs/replay.md, "Possible hazards").
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <span>
+#include <string>
+
+namespace clastrace::capture {
+
+// SPIR-V numbers the scan looks for (the SPIR-V specification, sections 3.31 and 3.7).
+inline constexpr uint32_t kSpirvMagic = 0x07230203u;
+inline constexpr uint32_t kSpirvCapabilityPhysicalStorageBufferAddresses = 5347u;
+inline constexpr uint32_t kSpirvStorageClassPhysicalStorageBuffer = 5349u;
+
+struct SpirvScan {
+    bool valid = false;
+    // The module declares OpCapability PhysicalStorageBufferAddresses.
+    bool declares_address_capability = false;
+    // An OpTypePointer, OpTypeForwardPointer or OpVariable names the PhysicalStorageBuffer
+    // storage class: some instruction can load or store through a device address.
+    bool uses_address_pointers = false;
+    // Where the scan stopped on a malformed module: the word index and the rule broken.
+    std::size_t error_word = 0;
+    std::string error;
+    // What the capture records: the shader may write through a device address. The scan does
+    // not follow which pointers are stored to, so a shader that only reads through addresses
+    // counts too (a possible writer, never a missed one).
+    bool may_write_through_addresses() const {
+        return valid && declares_address_capability && uses_address_pointers;
+    }
+};
+
+// Scans `words` (a whole module, header first, either byte order). Never reads past the span.
+SpirvScan scan_spirv(std::span<const uint32_t> words);
+// The same over raw bytes as vkCreateShaderModule receives them (codeSize bytes); a size that
+// is not a multiple of 4 is malformed.
+SpirvScan scan_spirv_bytes(const void* code, std::size_t code_size);
+
+}  // namespace clastrace::capture

@@ -1,0 +1,103 @@
+// SPDX-License-Identifier: Apache-2.0
+// The SPIR-V word-stream scan (spirv_scan.h). Every instruction is read through its own word
+// count, checked against the words left, so a truncated or hostile module ends the scan with an
+// error instead of a read past the buffer.
+#include "clastrace/capture/spirv_scan.h"
+
+#include <cstring>
+#include <vector>
+
+namespace clastrace::capture {
+namespace {
+
+constexpr std::size_t kHeaderWords = 5;
+constexpr uint32_t kOpCapability = 17;
+constexpr uint32_t kOpTypePointer = 32;         // result id, storage class, type
+constexpr uint32_t kOpTypeForwardPointer = 39;  // pointer type, storage class
+constexpr uint32_t kOpVariable = 59;            // result type, result id, storage class
+
+uint32_t byte_swapped(uint32_t w) { return __builtin_bswap32(w); }
+
+// The operand of an instruction at `operand` (0 = the word after the opcode word), or none.
+bool operand(std::span<const uint32_t> instruction, std::size_t index, uint32_t* out) {
+    if (index + 1 >= instruction.size()) return false;
+    *out = instruction[index + 1];
+    return true;
+}
+
+void note_instruction(std::span<const uint32_t> instruction, uint32_t opcode, SpirvScan* scan) {
+    uint32_t value = 0;
+    switch (opcode) {
+    case kOpCapability:
+        if (operand(instruction, 0, &value) &&
+            value == kSpirvCapabilityPhysicalStorageBufferAddresses)
+            scan->declares_address_capability = true;
+        break;
+    case kOpTypePointer:
+    case kOpTypeForwardPointer:
+        if (operand(instruction, 1, &value) && value == kSpirvStorageClassPhysicalStorageBuffer)
+            scan->uses_address_pointers = true;
+        break;
+    case kOpVariable:
+        if (operand(instruction, 2, &value) && value == kSpirvStorageClassPhysicalStorageBuffer)
+            scan->uses_address_pointers = true;
+        break;
+    default: break;
+    }
+}
+
+SpirvScan fail(SpirvScan scan, std::size_t word, std::string rule) {
+    scan.valid = false;
+    scan.error_word = word;
+    scan.error = std::move(rule);
+    return scan;
+}
+
+}  // namespace
+
+SpirvScan scan_spirv(std::span<const uint32_t> words) {
+    SpirvScan scan;
+    if (words.size() < kHeaderWords)
+        return fail(scan, words.size(), "module shorter than the 5-word SPIR-V header");
+    bool swapped = false;
+    if (words[0] != kSpirvMagic) {
+        if (byte_swapped(words[0]) != kSpirvMagic)
+            return fail(scan, 0, "first word is not the SPIR-V magic number 0x07230203");
+        swapped = true;
+    }
+    std::vector<uint32_t> native;
+    if (swapped) {  // rare: a module written on a machine of the other byte order
+        native.reserve(words.size());
+        for (uint32_t w : words) native.push_back(byte_swapped(w));
+        words = native;
+    }
+    for (std::size_t at = kHeaderWords; at < words.size();) {
+        const uint32_t count = words[at] >> 16;
+        const uint32_t opcode = words[at] & 0xFFFFu;
+        if (count == 0) return fail(scan, at, "instruction with a word count of 0");
+        if (count > words.size() - at)
+            return fail(scan, at,
+                        "instruction's word count " + std::to_string(count) + " runs past the " +
+                            std::to_string(words.size()) + "-word module");
+        note_instruction(words.subspan(at, count), opcode, &scan);
+        at += count;
+    }
+    scan.valid = true;
+    return scan;
+}
+
+SpirvScan scan_spirv_bytes(const void* code, std::size_t code_size) {
+    if (code_size % 4 != 0) {
+        SpirvScan scan;
+        return fail(scan, code_size / 4,
+                    "codeSize " + std::to_string(code_size) + " is not a multiple of 4");
+    }
+    if (!code) return fail(SpirvScan{}, 0, "no code");
+    // pCode is uint32_t-aligned by the spec, but a copy costs little and keeps the scan safe on
+    // any pointer a fuzzer hands in.
+    std::vector<uint32_t> words(code_size / 4);
+    if (code_size) std::memcpy(words.data(), code, code_size);
+    return scan_spirv(words);
+}
+
+}  // namespace clastrace::capture
