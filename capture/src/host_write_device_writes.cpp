@@ -4,6 +4,8 @@
 #include "command_buffer_log.h"
 #include "layer_state.h"
 
+#include "clastrace/capture/layer_config.h"
+
 #include <algorithm>
 #include <memory>
 #include <string>
@@ -45,6 +47,12 @@ private:
             // The layer does not know which bound storage buffers a shader writes: all may be.
             for (const BoundStorageBuffer& b : dispatch->storage_buffers)
                 add_buffer(b.buffer, b.offset, b.range);
+            // With CLASTRACE_DEVICE_ADDRESS_WRITES=off no shader is scanned: any dispatch may
+            // write through an address, so none of its submission's changes is claimed.
+            if (dispatch->may_write_device_addresses || !layer_config().mark_device_address_writers)
+                add_any_memory();
+        } else if (std::holds_alternative<DrawCommand>(command)) {
+            add_any_memory();  // only draws whose pipeline may write through addresses are kept
         } else if (const auto* build = std::get_if<ClusterBuildCommand>(&command)) {
             const VkClusterAccelerationStructureCommandsInfoNV& info = build->parameters.info;
             for (VkDeviceAddress a :
@@ -58,6 +66,8 @@ private:
                 add_command_buffer(secondary, depth + 1);
         }
     }
+
+    void add_any_memory() { spans.push_back({MemorySpan::kAnyMemory, 0, ~VkDeviceSize{0}}); }
 
     // VK_WHOLE_SIZE (or a size past the buffer) runs to the buffer's end.
     void add_buffer(uint64_t handle, VkDeviceSize offset, VkDeviceSize size) {

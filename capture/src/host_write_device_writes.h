@@ -17,9 +17,12 @@ struct DeviceState;
 
 // Bytes [begin, end) of one device memory allocation.
 struct MemorySpan {
+    // A shader that writes through buffer device addresses may write any memory.
+    static constexpr uint64_t kAnyMemory = ~0ull;
     uint64_t memory = 0;
     VkDeviceSize begin = 0, end = 0;
     bool overlaps(const MemorySpan& o) const {
+        if (memory == kAnyMemory || o.memory == kAnyMemory) return true;
         return memory == o.memory && begin < o.end && o.begin < end;
     }
 };

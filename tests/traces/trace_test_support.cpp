@@ -516,6 +516,15 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
         r.result = 0;
         out.push_back(record(r));
     }
+    {
+        // A mesh-shader draw whose task and mesh stages write through device addresses.
+        fbs::CmdDrawT r;
+        r.command_buffer = 0xcb1;
+        r.pipeline = 0x91;
+        r.entry_point = "vkCmdDrawMeshTasksEXT";
+        r.address_stages = 0x80000ull | 0x100000ull;  // TASK_SHADER_EXT | MESH_SHADER_EXT
+        out.push_back(record(r));
+    }
     return out;
 }
 

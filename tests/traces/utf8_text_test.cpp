@@ -146,7 +146,7 @@ fbs::TraceHeaderT latin1_header() {
 
 // Every record kind with strings, each string Latin-1.
 std::vector<fbs::RecordT> latin1_records() {
-    std::vector<fbs::RecordT> out(4);
+    std::vector<fbs::RecordT> out(5);
     fbs::CpuTimestampT t;
     t.label = "t " + kLatin1;
     out[0].body.Set(std::move(t));
@@ -162,6 +162,10 @@ std::vector<fbs::RecordT> latin1_records() {
     f.rule = "rule " + kLatin1;
     f.message = "message " + kLatin1;
     out[3].body.Set(std::move(f));
+    fbs::CmdDrawT d;
+    d.entry_point = "draw " + kLatin1;
+    d.pipeline = 0x91;
+    out[4].body.Set(std::move(d));
     return out;
 }
 
@@ -180,6 +184,10 @@ void expect_repaired(const fbs::RecordT& r) {
     case fbs::RecordBody::CaptureFinding:
         EXPECT_EQ(r.body.AsCaptureFinding()->rule, "rule " + kRepaired);
         EXPECT_EQ(r.body.AsCaptureFinding()->message, "message " + kRepaired);
+        break;
+    case fbs::RecordBody::CmdDraw:
+        EXPECT_EQ(r.body.AsCmdDraw()->entry_point, "draw " + kRepaired);
+        EXPECT_EQ(r.body.AsCmdDraw()->pipeline, 0x91u);
         break;
     default: ADD_FAILURE() << "unexpected record kind " << int(r.body.type);
     }
@@ -257,8 +265,9 @@ TEST(Utf8Writer, EveryStringFieldOfTheSchemaIsRepaired) {
     const std::regex string_field(R"(\b\w+\s*:\s*\[?\s*string\s*\]?\s*[;=(])");
     const auto fields = std::distance(std::sregex_iterator(text.begin(), text.end(), string_field),
                                       std::sregex_iterator());
-    // DeviceInfo 4, CaptureSettings 4, CpuTimestamp 1, DebugLabel 1, RayQueryCheck 1, CaptureFinding 2
-    EXPECT_EQ(fields, 13)
+    // DeviceInfo 4, CaptureSettings 4, CpuTimestamp 1, DebugLabel 1, RayQueryCheck 1,
+    // CaptureFinding 2, CmdDraw 1
+    EXPECT_EQ(fields, 14)
         << "a string field was added to or removed from trace.fbs: update stored_text.cpp";
 }
 

@@ -54,6 +54,10 @@ bool has_invalid_utf8(const fbs::Record& record) {
         const auto* f = record.body_as_CaptureFinding();
         return f && (invalid(f->rule()) || invalid(f->message()));
     }
+    case RecordBody::CmdDraw: {
+        const auto* d = record.body_as_CmdDraw();
+        return d && invalid(d->entry_point());
+    }
     default: return false;
     }
 }
@@ -75,6 +79,9 @@ void make_strings_valid_utf8(fbs::RecordT& record) {
             repair(f->rule);
             repair(f->message);
         }
+        break;
+    case RecordBody::CmdDraw:
+        if (auto* d = record.body.AsCmdDraw()) repair(d->entry_point);
         break;
     default: break;
     }
