@@ -596,7 +596,7 @@ void check_overlaps(Context& c, uint64_t dst_size) {
                       std::max(a.begin, cmd.dst.address));
     }
     if (overlaps(cmd.dst.address, dst_size, cmd.scratch_address, c.scratch_used))
-        c.finding(c.dialect.scratch_overlap,
+        c.finding(c.dialect.dst_overlaps_scratch,
                   c.dialect.scratch + " overlaps " + c.dialect.dst + "'s memory",
                   std::max(cmd.dst.address, cmd.scratch_address));
 }

@@ -45,6 +45,7 @@ struct Dialect {
     const char* memory_fault = kRuleNvMemoryFault;
     const char* object_too_large = kRuleNvObjectTooLarge;
     const char* scratch_overlap = kRuleNvScratchOverlap;
+    const char* dst_overlaps_scratch = kRuleNvScratchOverlap;
     const char* input_overlaps_dst = kRuleNvInputOverlapsDst;
     bool instance_pointers = false;  // instances are read through an array of addresses
 };
