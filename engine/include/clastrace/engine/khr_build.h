@@ -110,6 +110,8 @@ struct KhrBuildOptions {
 // The record has one op per info (dst_address, dst_size); its accesses and findings carry
 // the info's index, fields named as in the Vulkan structs
 // ("pInfos[0].pGeometries[1].geometry.triangles.vertexData").
+// record.scratch_address / scratch_bytes_used describe pInfos[0]'s scratch only; every
+// info's scratch is among the accesses ("pInfos[i].scratchData").
 ExecutionRecord execute_khr_build(const KhrBuildCommand& command, MemoryImage& memory,
                                   const KhrBuildOptions& options = {});
 
