@@ -19,7 +19,7 @@ namespace nv {
 void Context::finding(const char* rule, std::string message, uint64_t address) {
     uint32_t& n = per_rule[rule];
     if (++n > options.max_findings_per_rule) return;
-    record.findings.push_back(Finding{rule, std::move(message), -1, address});
+    record.findings.push_back(Finding{rule, std::move(message), op_index, address});
 }
 
 void Context::access(uint64_t begin, uint64_t size, VkAccessFlags2 access, bool write,
@@ -27,7 +27,7 @@ void Context::access(uint64_t begin, uint64_t size, VkAccessFlags2 access, bool 
     if (size == 0) return;
     const uint64_t end = begin + size < begin ? ~0ull : begin + size;
     record.accesses.push_back(
-        MemoryAccess{begin, end, kStageBuild, access, write, std::move(field), -1});
+        MemoryAccess{begin, end, kStageBuild, access, write, std::move(field), op_index});
 }
 
 void Context::close() {
@@ -196,7 +196,8 @@ void check_scratch(Context& c) {
                   cmd.scratch_address);
     c.record.scratch_address = cmd.scratch_address;
     c.record.scratch_bytes_used = std::min(scratch_need, cmd.scratch_available);
-    c.access(cmd.scratch_address, c.record.scratch_bytes_used, kAccessScratch, true, "scratch");
+    c.scratch_used = c.record.scratch_bytes_used;
+    c.access(cmd.scratch_address, c.scratch_used, kAccessScratch, true, c.dialect.scratch);
 }
 
 // The worst case for these counts must fit before anything is allocated: hostile counts
@@ -410,19 +411,21 @@ std::optional<std::vector<std::byte>> read_src(Context& c) {
     const NvObjectBinding& src = c.command.src;
     std::string error;
     try {
-        auto head = c.memory.read_bytes(src.address, sizeof(NvObjectHeader), FieldRef{"src", -1});
+        auto head = c.memory.read_bytes(src.address, sizeof(NvObjectHeader),
+                                        FieldRef{c.dialect.src.c_str(), -1});
         if (auto h = read_nv_header(head, &error)) {
-            auto bytes = c.memory.read_bytes(src.address, h->object_size, FieldRef{"src", -1});
+            auto bytes = c.memory.read_bytes(src.address, h->object_size,
+                                             FieldRef{c.dialect.src.c_str(), -1});
             if (open_nv_object(bytes, &error)) {
-                c.access(src.address, h->object_size, kAccessObjectRead, false, "src");
+                c.access(src.address, h->object_size, kAccessObjectRead, false, c.dialect.src);
                 return std::vector<std::byte>(bytes.begin(), bytes.end());
             }
         }
     } catch (const MemoryFault& f) {
         error = f.message;
     }
-    c.finding(kRuleNvSrcNotBuilt,
-              "update source src " + hex(src.handle) + " at " + hex(src.address) +
+    c.finding(c.dialect.src_not_built,
+              "update source " + c.dialect.src + " " + hex(src.handle) + " at " + hex(src.address) +
                   " holds no engine NV object: " + error,
               src.address);
     return std::nullopt;
@@ -477,7 +480,7 @@ std::optional<std::vector<std::byte>> update_bottom(Context& c, const NvObjectVi
                                                     const nv::BottomInput& in) {
     const std::string change = topology_change(src, in);
     if (!change.empty()) {
-        c.finding(kRuleNvUpdateTopology,
+        c.finding(c.dialect.update_topology,
                   "update: " + change + "; the engine rebuilds dst from scratch",
                   c.command.src.address);
         return std::nullopt;
@@ -497,15 +500,15 @@ std::optional<std::vector<std::byte>> update_bottom(Context& c, const NvObjectVi
         was_active[index] = 1;
         records[k] = in.primitives[index];
         if (!in.active[index])
-            c.finding(kVuidNvMadeInactive, "update: pGeometries[" +
-                                               std::to_string(old.geometry_index) + "] primitive " +
-                                               std::to_string(old.primitive_index) +
-                                               " was active in src and is inactive now");
+            c.finding(c.dialect.made_inactive,
+                      "update: pGeometries[" + std::to_string(old.geometry_index) + "] primitive " +
+                          std::to_string(old.primitive_index) +
+                          " was active in src and is inactive now");
     }
     for (size_t i = 0; i < in.primitives.size(); ++i)
         if (in.active[i] && !was_active[i])
             c.finding(
-                kVuidNvMadeActive,
+                c.dialect.made_active,
                 "update: pGeometries[" + std::to_string(in.primitives[i].geometry_index) +
                     "] primitive " + std::to_string(in.primitives[i].primitive_index) +
                     " was inactive in src and is active now (it stays out of the refit tree)");
@@ -527,7 +530,7 @@ std::optional<std::vector<std::byte>> update_top(Context& c, const NvObjectView&
     if (src.header.kind != uint8_t(NvObjectKind::kTopLevel) ||
         src.header.primitive_count != in.instances.size()) {
         c.finding(
-            kRuleNvUpdateTopology,
+            c.dialect.update_topology,
             src.header.kind != uint8_t(NvObjectKind::kTopLevel)
                 ? std::string(
                       "update: src is a bottom-level object; the engine rebuilds dst from scratch")
@@ -547,11 +550,11 @@ std::optional<std::vector<std::byte>> update_top(Context& c, const NvObjectView&
     for (uint32_t i = 0; i < records.size(); ++i) {
         const NvInstanceRecord old = src.instance(i);
         if (old.active && !records[i].active)
-            c.finding(kVuidNvMadeInactive, "update: instance " + std::to_string(i) +
-                                               " was active in src and its reference is 0 now");
+            c.finding(c.dialect.made_inactive, "update: instance " + std::to_string(i) +
+                                                   " was active in src and its reference is 0 now");
         if (!old.active && records[i].active)
             c.finding(
-                kVuidNvMadeActive,
+                c.dialect.made_active,
                 "update: instance " + std::to_string(i) +
                     " was inactive in src and is active now (it stays out of the refit tree)");
         if (!in_tree[i]) {  // keep the topology: an instance outside the tree stays outside
@@ -576,26 +579,96 @@ std::optional<std::vector<std::byte>> update_top(Context& c, const NvObjectView&
 // Whole-command overlap rules: scratch against everything else, inputs against dst.
 void check_overlaps(Context& c, uint64_t dst_size) {
     const NvBuildCommand& cmd = c.command;
-    for (const MemoryAccess& a : c.record.accesses) {
-        if (a.field == "scratch") continue;
-        if (overlaps(a.begin, a.end - a.begin, cmd.scratch_address, c.record.scratch_bytes_used))
-            c.finding(kRuleNvScratchOverlap,
-                      "scratch [" + hex(cmd.scratch_address) + ", +" +
-                          std::to_string(c.record.scratch_bytes_used) + ") overlaps " + a.field +
-                          " [" + hex(a.begin) + ", " + hex(a.end) + ")",
+    const std::vector<MemoryAccess> accesses = c.record.accesses;  // findings do not add any
+    for (const MemoryAccess& a : accesses) {
+        if (a.field == c.dialect.scratch || a.op_index != c.op_index) continue;
+        if (overlaps(a.begin, a.end - a.begin, cmd.scratch_address, c.scratch_used))
+            c.finding(c.dialect.scratch_overlap,
+                      c.dialect.scratch + " [" + hex(cmd.scratch_address) + ", +" +
+                          std::to_string(c.scratch_used) + ") overlaps " + a.field + " [" +
+                          hex(a.begin) + ", " + hex(a.end) + ")",
                       std::max(a.begin, cmd.scratch_address));
-        if (!a.is_write && a.field != "src" &&
+        if (!a.is_write && a.field != c.dialect.src &&
             overlaps(a.begin, a.end - a.begin, cmd.dst.address, dst_size))
-            c.finding(kRuleNvInputOverlapsDst,
-                      a.field + " [" + hex(a.begin) + ", " + hex(a.end) + ") overlaps dst's memory",
+            c.finding(c.dialect.input_overlaps_dst,
+                      a.field + " [" + hex(a.begin) + ", " + hex(a.end) + ") overlaps " +
+                          c.dialect.dst + "'s memory",
                       std::max(a.begin, cmd.dst.address));
     }
-    if (overlaps(cmd.dst.address, dst_size, cmd.scratch_address, c.record.scratch_bytes_used))
-        c.finding(kRuleNvScratchOverlap, "scratch overlaps dst's memory",
+    if (overlaps(cmd.dst.address, dst_size, cmd.scratch_address, c.scratch_used))
+        c.finding(c.dialect.dst_overlaps_scratch,
+                  c.dialect.scratch + " overlaps " + c.dialect.dst + "'s memory",
                   std::max(cmd.dst.address, cmd.scratch_address));
 }
 
 }  // namespace
+
+namespace nv {
+
+void run_build(Context& c) {
+    const bool top = c.command.info.type == VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV;
+    std::optional<ObjectBytes> object;
+    nv::TopInput top_in;
+    nv::BottomInput bottom_in;  // read by object->write
+    try {
+        std::optional<std::vector<std::byte>> src;
+        if (c.command.update) src = read_src(c);
+        std::optional<NvObjectView> src_view;
+        if (src) {
+            src_view = open_nv_object(*src, nullptr);
+            if (!(src_view->header.build_flags &
+                  VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_NV)) {
+                c.finding(c.dialect.update_not_allowed,
+                          "update from " + c.dialect.src + " " + hex(c.command.src.handle) +
+                              ": the build that wrote its bytes had no ALLOW_UPDATE flag");
+                src_view.reset();
+            }
+        }
+        if (c.command.update && !src_view) {
+            return;  // nothing defined to update from
+        }
+        if (top) {
+            top_in = nv::gather_top(c);
+            if (src_view)
+                if (auto updated = update_top(c, *src_view, top_in))
+                    object = bytes_of(std::move(*updated));
+            if (!object) object = bytes_of(build_top(top_in, c.command.info.flags));
+        } else {
+            bottom_in = nv::gather_bottom(c);
+            if (src_view)
+                if (auto updated = update_bottom(c, *src_view, bottom_in))
+                    object = bytes_of(std::move(*updated));
+            if (!object) object = build_bottom(bottom_in, c.command.info.flags);
+        }
+    } catch (const MemoryFault& f) {
+        c.finding(c.dialect.memory_fault, f.message, f.address);
+        return;
+    }
+    if (object->size > c.command.dst.size) {
+        c.finding(c.dialect.object_too_large,
+                  "the engine's object needs " + std::to_string(object->size) + " bytes; " +
+                      c.dialect.dst + " " + hex(c.command.dst.handle) + " has " +
+                      std::to_string(c.command.dst.size) + " bytes bound",
+                  c.command.dst.address);
+        return;
+    }
+    check_overlaps(c, object->size);
+    try {
+        auto out = c.memory.write_bytes(c.command.dst.address, object->size,
+                                        FieldRef{c.dialect.dst.c_str(), -1});
+        object->write(out.data());
+    } catch (const MemoryFault& f) {
+        c.finding(c.dialect.memory_fault, f.message, f.address);
+        return;
+    }
+    c.access(c.command.dst.address, object->size, kAccessObjectWrite, true, c.dialect.dst);
+    OpResult& op = c.record.ops[c.op_index < 0 ? 0 : size_t(c.op_index)];
+    op.executed = true;
+    op.dst_address = c.command.dst.address;
+    op.dst_size = object->size;
+}
+
+}  // namespace nv
 
 NvMemoryRequirements nv_memory_requirements(const NvObjectInfo& info) {
     const bool top = info.type == VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV;
@@ -611,72 +684,11 @@ ExecutionRecord execute_nv_build(const NvBuildCommand& command, MemoryImage& mem
     record.op_count = 1;
     record.ops.resize(1);
     Context c{command, memory, options, record, {}};
-    const bool top = command.info.type == VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV;
     if (!check_command(c)) {
         c.close();
         return record;
     }
-    std::optional<ObjectBytes> object;
-    nv::TopInput top_in;
-    nv::BottomInput bottom_in;  // read by object->write
-    try {
-        std::optional<std::vector<std::byte>> src;
-        if (command.update) src = read_src(c);
-        std::optional<NvObjectView> src_view;
-        if (src) {
-            src_view = open_nv_object(*src, nullptr);
-            if (!(src_view->header.build_flags &
-                  VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_NV)) {
-                c.finding(kVuidNvUpdateNotAllowed,
-                          "update from src " + hex(command.src.handle) +
-                              ": the build that wrote its bytes had no ALLOW_UPDATE flag");
-                src_view.reset();
-            }
-        }
-        if (command.update && !src_view) {
-            c.close();
-            return record;  // nothing defined to update from
-        }
-        if (top) {
-            top_in = nv::gather_top(c);
-            if (src_view)
-                if (auto updated = update_top(c, *src_view, top_in))
-                    object = bytes_of(std::move(*updated));
-            if (!object) object = bytes_of(build_top(top_in, command.info.flags));
-        } else {
-            bottom_in = nv::gather_bottom(c);
-            if (src_view)
-                if (auto updated = update_bottom(c, *src_view, bottom_in))
-                    object = bytes_of(std::move(*updated));
-            if (!object) object = build_bottom(bottom_in, command.info.flags);
-        }
-    } catch (const MemoryFault& f) {
-        c.finding(kRuleNvMemoryFault, f.message, f.address);
-        c.close();
-        return record;
-    }
-    if (object->size > command.dst.size) {
-        c.finding(kRuleNvObjectTooLarge,
-                  "the engine's object needs " + std::to_string(object->size) + " bytes; dst " +
-                      hex(command.dst.handle) + " has " + std::to_string(command.dst.size) +
-                      " bytes bound",
-                  command.dst.address);
-        c.close();
-        return record;
-    }
-    check_overlaps(c, object->size);
-    try {
-        auto out = memory.write_bytes(command.dst.address, object->size, FieldRef{"dst", -1});
-        object->write(out.data());
-    } catch (const MemoryFault& f) {
-        c.finding(kRuleNvMemoryFault, f.message, f.address);
-        c.close();
-        return record;
-    }
-    c.access(command.dst.address, object->size, kAccessObjectWrite, true, "dst");
-    record.ops[0].executed = true;
-    record.ops[0].dst_address = command.dst.address;
-    record.ops[0].dst_size = object->size;
+    nv::run_build(c);
     c.close();
     return record;
 }

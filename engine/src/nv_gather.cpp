@@ -106,7 +106,7 @@ void gather_aabbs(Context& c, const NvAabbs& a, uint32_t g, const std::string& a
         if (active) {
             for (int k = 1; k < 6; ++k)
                 if (std::isnan(p.v[k])) {
-                    c.finding(kRuleNvNanComponent,
+                    c.finding(c.dialect.nan_component,
                               at + " AABB " + std::to_string(i) +
                                   ": NaN in a component other than minX (undefined behaviour; the "
                                   "engine treats it as inactive)");
@@ -134,16 +134,16 @@ void gather_aabbs(Context& c, const NvAabbs& a, uint32_t g, const std::string& a
 // The triangle geometry's formats, offsets and counts. Returns false when its triangles
 // cannot be read.
 bool check_triangles(Context& c, const NvTriangles& t, const std::string& at) {
-    const uint32_t vsize = nv_vertex_size(t.vertex_format);
+    const uint32_t vsize = c.dialect.vertex_size(t.vertex_format);
     const bool none = t.index_type == VK_INDEX_TYPE_NONE_NV;
     const uint32_t isize = nv_index_size(t.index_type);
     bool usable = true;
     if (vsize == 0) {
-        c.finding(kVuidVertexFormat, at + ".geometry.triangles.vertexFormat " +
-                                         std::to_string(uint32_t(t.vertex_format)) +
-                                         " is not one NV ray tracing allows");
+        c.finding(c.dialect.vertex_format, at + ".geometry.triangles.vertexFormat " +
+                                               std::to_string(uint32_t(t.vertex_format)) +
+                                               " is not one " + c.dialect.formats_by + " allows");
         usable = false;
-    } else if (t.vertex_offset % nv_component_size(t.vertex_format)) {
+    } else if (t.vertex_offset % c.dialect.component_size(t.vertex_format)) {
         c.finding(kVuidVertexOffsetAlign, at + ".geometry.triangles.vertexOffset " +
                                               std::to_string(t.vertex_offset) +
                                               " is not a multiple of the component size");
@@ -199,7 +199,7 @@ void gather_triangles(Context& c, const NvTriangles& t, uint32_t g, const std::s
     rec.index_type = uint32_t(t.index_type);
     rec.vertex_count = t.vertex_count;
     rec.has_transform = t.transform_address != 0;
-    const uint32_t vsize = nv_vertex_size(t.vertex_format);
+    const uint32_t vsize = c.dialect.vertex_size(t.vertex_format);
     const bool none = t.index_type == VK_INDEX_TYPE_NONE_NV;
     const uint32_t isize = nv_index_size(t.index_type);
     const bool usable = check_triangles(c, t, at);
@@ -251,10 +251,10 @@ void gather_triangles(Context& c, const NvTriangles& t, uint32_t g, const std::s
                 }
             }
             if (index >= t.vertex_count) {
-                c.finding(kRuleNvIndexOutOfRange,
+                c.finding(c.dialect.index_out_of_range,
                           at + " triangle " + std::to_string(i) + ": index " +
-                              std::to_string(index) + " is not below vertexCount " +
-                              std::to_string(t.vertex_count) +
+                              std::to_string(index) + " is not below " + c.dialect.vertex_count +
+                              " " + std::to_string(t.vertex_count) +
                               " (the engine treats the triangle as inactive)");
                 active = false;
                 break;
@@ -263,7 +263,7 @@ void gather_triangles(Context& c, const NvTriangles& t, uint32_t g, const std::s
             if (float3)
                 std::memcpy(p.v + 3 * k, vertex, 12);
             else
-                decode_nv_vertex(t.vertex_format, vertex, p.v + 3 * k);
+                c.dialect.decode_vertex(t.vertex_format, vertex, p.v + 3 * k);
         }
         if (active) {
             if (std::isnan(p.v[0]) || std::isnan(p.v[3]) || std::isnan(p.v[6])) {
@@ -271,10 +271,11 @@ void gather_triangles(Context& c, const NvTriangles& t, uint32_t g, const std::s
             } else {
                 for (int k : {1, 2, 4, 5, 7, 8})
                     if (std::isnan(p.v[k])) {
-                        c.finding(kRuleNvNanComponent, at + " triangle " + std::to_string(i) +
-                                                           ": NaN in a Y or Z coordinate with X "
-                                                           "not NaN (undefined behaviour; the "
-                                                           "engine treats it as inactive)");
+                        c.finding(c.dialect.nan_component,
+                                  at + " triangle " + std::to_string(i) +
+                                      ": NaN in a Y or Z coordinate with X "
+                                      "not NaN (undefined behaviour; the "
+                                      "engine treats it as inactive)");
                         active = false;
                         break;
                     }
@@ -289,9 +290,9 @@ void gather_triangles(Context& c, const NvTriangles& t, uint32_t g, const std::s
             }
             for (int k = 0; k < 9 && active; ++k)
                 if (std::isnan(p.v[k])) {
-                    c.finding(kRuleNvNanComponent, at + " triangle " + std::to_string(i) +
-                                                       ": the transform gives a NaN coordinate "
-                                                       "(the engine treats it as inactive)");
+                    c.finding(c.dialect.nan_component, at + " triangle " + std::to_string(i) +
+                                                           ": the transform gives a NaN coordinate "
+                                                           "(the engine treats it as inactive)");
                     active = false;
                 }
         }
@@ -309,7 +310,7 @@ BottomInput gather_bottom(Context& c) {
     in.aabbs = !geometries.empty() && geometries[0].type == VK_GEOMETRY_TYPE_AABBS_NV;
     for (uint32_t g = 0; g < geometries.size(); ++g) {
         const NvGeometry& geo = geometries[g];
-        const std::string at = "pInfo->pGeometries[" + std::to_string(g) + "]";
+        const std::string at = c.dialect.geometries + "[" + std::to_string(g) + "]";
         NvGeometryRecord rec{};
         rec.geometry_flags = geo.flags;
         if (geo.type == VK_GEOMETRY_TYPE_AABBS_NV)
@@ -321,14 +322,43 @@ BottomInput gather_bottom(Context& c) {
     return in;
 }
 
+namespace {
+
+// The 64-byte instance records, packed in input order, and the address each was read at.
+// Instances given through an array of addresses are read one by one.
+std::vector<std::byte> read_instances(Context& c, uint32_t count, std::vector<uint64_t>& at) {
+    const std::string& field = c.dialect.instances;
+    at.resize(count);
+    if (!c.dialect.instance_pointers) {
+        auto bytes = read_span(c, c.command.instance_address, count, 64, 64, field);
+        for (uint32_t i = 0; i < count; ++i) at[i] = c.command.instance_address + uint64_t(i) * 64;
+        return std::vector<std::byte>(bytes.begin(), bytes.end());
+    }
+    auto pointers = read_span(c, c.command.instance_address, count, 8, 8, field);
+    std::vector<std::byte> packed(uint64_t(count) * 64);
+    for (uint32_t i = 0; i < count; ++i) {
+        std::memcpy(&at[i], pointers.data() + uint64_t(i) * 8, 8);
+        const std::string element = field + "[" + std::to_string(i) + "]";
+        if (at[i] % 16 && c.dialect.reference_alignment)
+            c.finding(c.dialect.reference_alignment,
+                      element + " " + hex(at[i]) + " is not aligned to 16 bytes", at[i]);
+        auto bytes = read_span(c, at[i], 1, 64, 64, element + "->");
+        std::memcpy(packed.data() + uint64_t(i) * 64, bytes.data(), 64);
+    }
+    return packed;
+}
+
+}  // namespace
+
 TopInput gather_top(Context& c) {
     TopInput in;
     const uint32_t count = c.command.info.instance_count;
     if (count == 0) return in;
     if (c.command.instance_address == 0)
-        MemoryImage::fault(0, uint64_t(count) * 64, FieldRef{"instanceData", -1},
+        MemoryImage::fault(0, uint64_t(count) * 64, FieldRef{c.dialect.instances.c_str(), -1},
                            "a top-level build with instanceCount > 0 needs instanceData");
-    auto bytes = read_span(c, c.command.instance_address, count, 64, 64, "instanceData");
+    std::vector<uint64_t> record_address;
+    const std::vector<std::byte> bytes = read_instances(c, count, record_address);
     std::unordered_map<uint64_t, std::optional<NvObjectHeader>>
         blas;  // address -> header (nullopt: none)
     in.instances.resize(count);
@@ -346,17 +376,15 @@ TopInput gather_top(Context& c) {
         r.active = r.reference != 0;
         if (!r.active) continue;
         const std::string field =
-            "instanceData[" + std::to_string(i) + "].accelerationStructureReference";
+            c.dialect.instances + "[" + std::to_string(i) + "].accelerationStructureReference";
         std::optional<uint64_t> address = c.options.resolve_handle
                                               ? c.options.resolve_handle(r.reference)
                                               : std::optional<uint64_t>(r.reference);
         if (!address) {
-            c.finding(kVuidNvReference,
-                      field + " " + hex(r.reference) +
-                          " is no handle vkGetAccelerationStructureHandleNV gave for a "
-                          "bottom-level object "
-                          "(the instance is left out)",
-                      c.command.instance_address + uint64_t(i) * 64 + 56);
+            c.finding(c.dialect.reference,
+                      field + " " + hex(r.reference) + " is no " + c.dialect.reference_source +
+                          " for a bottom-level object (the instance is left out)",
+                      record_address[i] + 56);
             continue;
         }
         auto [it, fresh] = blas.try_emplace(*address);
@@ -370,7 +398,7 @@ TopInput gather_top(Context& c) {
                 error = f.message;
             }
             if (it->second && it->second->kind != uint8_t(NvObjectKind::kBottomLevel)) {
-                c.finding(kVuidNvReference,
+                c.finding(c.dialect.reference,
                           field + " " + hex(r.reference) +
                               " names a top-level object (the instance is left out)",
                           *address);
@@ -378,7 +406,7 @@ TopInput gather_top(Context& c) {
                 error.clear();
             }
             if (!error.empty())
-                c.finding(kRuleNvBlasNotBuilt,
+                c.finding(c.dialect.blas_not_built,
                           field + " " + hex(r.reference) + " at " + hex(*address) +
                               " holds no built bottom-level object: " + error +
                               " (the instance is left out)",
@@ -390,8 +418,8 @@ TopInput gather_top(Context& c) {
         r.blas_address = *address;
         for (float v : r.transform)
             if (std::isnan(v)) {
-                c.finding(kRuleNvNanComponent,
-                          "instanceData[" + std::to_string(i) +
+                c.finding(c.dialect.nan_component,
+                          c.dialect.instances + "[" + std::to_string(i) +
                               "].transform holds NaN (the instance is left out of the tree)");
                 break;
             }
