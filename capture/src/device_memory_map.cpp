@@ -227,6 +227,10 @@ std::vector<ResolvedRange> DeviceMemoryMap::host_addressed_buffers() const {
     std::vector<ResolvedRange> out;
     for (const auto& [address, handle] : buffers_by_address_) {
         const TrackedBuffer& b = buffers_.at(handle);
+        if (b.flags & VK_BUFFER_CREATE_SPARSE_BINDING_BIT) {
+            append_host_mapped_sparse_runs(b, out);
+            continue;
+        }
         auto mem = memories_.find(b.memory);
         if (b.memory == 0 || mem == memories_.end() || !mem->second.host_base) continue;
         if (b.memory_offset > mem->second.size || b.size > mem->second.size - b.memory_offset)
@@ -238,6 +242,47 @@ std::vector<ResolvedRange> DeviceMemoryMap::host_addressed_buffers() const {
         out.push_back(r);
     }
     return out;
+}
+
+void DeviceMemoryMap::append_host_mapped_sparse_runs(const TrackedBuffer& b,
+                                                     std::vector<ResolvedRange>& out) const {
+    auto pages = sparse_pages_.find(b.handle);
+    if (pages == sparse_pages_.end()) return;
+    // Pages that follow each other in the buffer and in one allocation make one run: a served
+    // build writes an object across a page boundary of a buffer bound in one piece.
+    auto emit = [&](VkDeviceSize begin, VkDeviceSize end, uint64_t memory,
+                    VkDeviceSize memory_offset) {
+        auto mem = memories_.find(memory);
+        if (mem == memories_.end() || !mem->second.host_base) return;
+        if (memory_offset > mem->second.size || end - begin > mem->second.size - memory_offset)
+            return;
+        ResolvedRange r;
+        r.buffer = b;
+        r.buffer.address = b.address + begin;
+        r.buffer.size = end - begin;
+        r.buffer.memory = memory;
+        r.buffer.memory_offset = memory_offset;
+        r.memory = mem->second;
+        r.host = mem->second.host_base + memory_offset;
+        out.push_back(r);
+    };
+    bool open = false;
+    VkDeviceSize begin = 0, end = 0, memory_offset = 0;
+    uint64_t memory = 0;
+    for (const auto& [offset, page] : pages->second) {
+        if (open && offset == end && page.memory == memory &&
+            page.memory_offset == memory_offset + (end - begin)) {
+            end = page.end;
+            continue;
+        }
+        if (open) emit(begin, end, memory, memory_offset);
+        open = true;
+        begin = offset;
+        end = page.end;
+        memory = page.memory;
+        memory_offset = page.memory_offset;
+    }
+    if (open) emit(begin, end, memory, memory_offset);
 }
 
 std::vector<TrackedBuffer> DeviceMemoryMap::unmapped_addressed_buffers(

@@ -71,11 +71,14 @@ void ClusterTestDevice::createDevice(bool timelineSemaphores, uint32_t queues,
         if (presentTo)
             CHECK(vkGetPhysicalDeviceSurfaceSupportKHR(physicalDevice, queueFamily, presentTo,
                                                        &presents));
-        if (presents && (families[queueFamily].queueFlags & VK_QUEUE_COMPUTE_BIT)) break;
+        const VkQueueFlags needed =
+            VK_QUEUE_COMPUTE_BIT | (sparseBinding ? VK_QUEUE_SPARSE_BINDING_BIT : 0);
+        if (presents && (families[queueFamily].queueFlags & needed) == needed) break;
     }
     if (queueFamily == familyCount)
-        fail(presentTo ? "no queue family both computes and presents to the window"
-                       : "no compute queue");
+        fail(presentTo       ? "no queue family both computes and presents to the window"
+             : sparseBinding ? "no queue family both computes and binds sparse memory"
+                             : "no compute queue");
     if (queues < 1 || queues > 2 || families[queueFamily].queueCount < queues)
         fail("not enough queues in the compute family");
     const float priorities[2] = {1.0f, 1.0f};
@@ -91,6 +94,8 @@ void ClusterTestDevice::createDevice(bool timelineSemaphores, uint32_t queues,
     v12.timelineSemaphore = timelineSemaphores ? VK_TRUE : VK_FALSE;
     const char* extensions[] = {VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME,
                                 VK_KHR_SWAPCHAIN_EXTENSION_NAME};
+    VkPhysicalDeviceFeatures core{};
+    core.sparseBinding = sparseBinding ? VK_TRUE : VK_FALSE;
     VkDeviceCreateInfo info{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO,
                             &v12,
                             0,
@@ -100,7 +105,7 @@ void ClusterTestDevice::createDevice(bool timelineSemaphores, uint32_t queues,
                             nullptr,
                             presentTo ? 2u : 1u,
                             extensions,
-                            nullptr};
+                            &core};
     CHECK(vkCreateDevice(physicalDevice, &info, nullptr, &device));
     vkGetDeviceQueue(device, queueFamily, 0, &queue);
     if (queues == 2) vkGetDeviceQueue(device, queueFamily, 1, &secondQueue);

@@ -41,6 +41,8 @@ struct ClusterTestDevice {
     PFN_vkCmdBuildClusterAccelerationStructureIndirectNV cmdBuildClusters = nullptr;
     PFN_vkGetClusterAccelerationStructureBuildSizesNV getBuildSizes = nullptr;
     std::vector<Buffer> buffers;  // destroyed with the device
+    // Set before createDevice: enables sparseBinding (the queue family must offer sparse binds).
+    bool sparseBinding = false;
 
     // applicationName nullptr: the program's own name. `extensions`: instance extensions a
     // program needs beyond ours (a window surface's). engineName nullptr: none.

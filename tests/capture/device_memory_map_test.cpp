@@ -130,3 +130,35 @@ TEST_F(MapWithSparseBuffer, RebindReplacesAndUnbindRemovesThePages) {
     EXPECT_TRUE(map.resolve_buffer(0x30, 1024, 16, why)) << why;
     EXPECT_FALSE(map.resolve_buffer(0x30, 0, 16, why));
 }
+
+// A served build touches what host_addressed_buffers() lists: a sparse buffer is listed as the
+// runs of its bound pages, each at its own addresses over the memory bound there, so the engine's
+// outputs reach that memory; pages bound one after another in one allocation are one run.
+TEST_F(MapWithSparseBuffer, ServedBuffersAreTheBoundRunsOfASparseBuffer) {
+    auto sparseEntries = [&] {
+        std::vector<ResolvedRange> runs;
+        for (const ResolvedRange& r : map.host_addressed_buffers())
+            if (r.buffer.handle == 0x30) runs.push_back(r);
+        return runs;
+    };
+    EXPECT_TRUE(sparseEntries().empty());  // nothing bound
+    map.bind_sparse(0x30, 0, 1024, 0x10, 1024);
+    map.bind_sparse(0x30, 1024, 1024, 0x10, 2048);  // follows page 0 in the memory: one run
+    auto whole = sparseEntries();
+    ASSERT_EQ(whole.size(), 1u);
+    EXPECT_EQ(whole[0].buffer.address, 0x200000u);
+    EXPECT_EQ(whole[0].buffer.size, 2048u);
+    EXPECT_EQ(whole[0].host, hostMemory.data() + 1024);
+    EXPECT_EQ(whole[0].memory.handle, 0x10u);
+
+    map.bind_sparse(0x30, 0, 1024, 0x10, 3072);  // page 0 moves: two runs, in buffer order
+    map.bind_sparse(0x30, 1024, 512, 0, 0);      // and the first half of page 1 is unbound
+    auto runs = sparseEntries();
+    ASSERT_EQ(runs.size(), 2u);
+    EXPECT_EQ(runs[0].buffer.address, 0x200000u);
+    EXPECT_EQ(runs[0].buffer.size, 1024u);
+    EXPECT_EQ(runs[0].host, hostMemory.data() + 3072);
+    EXPECT_EQ(runs[1].buffer.address, 0x200000u + 1536);
+    EXPECT_EQ(runs[1].buffer.size, 512u);
+    EXPECT_EQ(runs[1].host, hostMemory.data() + 2048 + 512);
+}

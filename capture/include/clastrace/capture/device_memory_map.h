@@ -75,7 +75,10 @@ public:
                                                 VkDeviceSize size, std::string& why) const;
 
     // Every buffer with a queried address and live host-mapped memory bound, from its first byte
-    // (offsetInBuffer 0): what a served build may touch.
+    // (offsetInBuffer 0): what a served build may touch. A sparse buffer gives one entry per run
+    // of its bound pages that lie one after another in one allocation, each as if it were a
+    // buffer of its own at the run's addresses (buffer.address, size and memory_offset are the
+    // run's), so a served build reads and writes the memory bound there; unbound pages none.
     std::vector<ResolvedRange> host_addressed_buffers() const;
 
     // Every buffer with a queried address and live memory bound that the layer has not mapped
@@ -89,6 +92,9 @@ private:
     // contiguously (a range over unbound pages or over several allocations is refused).
     std::optional<ResolvedRange> resolve_in(const TrackedBuffer& b, VkDeviceSize offset,
                                             VkDeviceSize size, std::string& why) const;
+    // host_addressed_buffers' entries for the sparse buffer `b` (mutex_ held).
+    void append_host_mapped_sparse_runs(const TrackedBuffer& b,
+                                        std::vector<ResolvedRange>& out) const;
     struct SparsePage {  // a bound part of a sparse buffer
         VkDeviceSize end = 0;
         uint64_t memory = 0;
