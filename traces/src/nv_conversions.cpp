@@ -1,6 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
 #include <clastrace/traces/nv_conversions.h>
 
+#include "vk_handle_record.h"
+
 #include <cstdint>
 #include <type_traits>
 
@@ -8,21 +10,8 @@ namespace clastrace::traces {
 
 namespace {
 
-// Non-dispatchable handles are pointers on 64-bit targets and uint64_t on 32-bit ones.
-template <class Handle>
-uint64_t handle_to_record(Handle handle) {
-    if constexpr (std::is_pointer_v<Handle>)
-        return reinterpret_cast<uintptr_t>(handle);
-    else
-        return uint64_t(handle);
-}
-template <class Handle>
-Handle handle_from_record(uint64_t value) {
-    if constexpr (std::is_pointer_v<Handle>)
-        return reinterpret_cast<Handle>(uintptr_t(value));
-    else
-        return Handle(value);
-}
+using detail::handle_from_record;
+using detail::handle_to_record;
 
 VkGeometryTrianglesNV triangles_from_record(const fbs::GeometryTrianglesNV* t) {
     VkGeometryTrianglesNV out{};
