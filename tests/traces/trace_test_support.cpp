@@ -85,6 +85,129 @@ fbs::TraceHeaderT test_header() {
     return h;
 }
 
+
+// Format 1.4: KHR builds (a bottom level from indexed triangles, an indirect top level), the
+// copies, property queries and their answers, a size query, a ray-query dispatch, rays traced
+// indirectly, and the exact writes of a dispatch.
+static void append_acceleration_structure_use_records(std::vector<fbs::RecordT>& out) {
+    auto triangles = std::make_unique<fbs::GeometryKHRT>();
+    triangles->geometry_type = 0;  // VK_GEOMETRY_TYPE_TRIANGLES_KHR
+    triangles->flags = 1;          // OPAQUE
+    // R32G32B32_SFLOAT vertices, UINT32 indices.
+    triangles->triangles =
+        std::make_unique<fbs::GeometryTrianglesKHR>(106, 0x7000, 12, 35, 1, 0x7800, 0);
+    auto bottom = std::make_unique<fbs::AccelerationStructureBuildInfoKHRT>();
+    bottom->type = 1;  // BOTTOM_LEVEL
+    bottom->flags = 2 | 8;
+    bottom->dst = 0xa51;
+    bottom->scratch_address = 0x9000;
+    bottom->geometries.push_back(std::move(triangles));
+    bottom->ranges = {fbs::BuildRangeInfoKHR(12, 0, 0, 0)};
+    bottom->unrecorded_next_stypes = {1000150013};
+    auto instances = std::make_unique<fbs::GeometryKHRT>();
+    instances->geometry_type = 2;  // INSTANCES
+    instances->instances = std::make_unique<fbs::GeometryInstancesKHR>(false, 0xb000);
+    auto top = std::make_unique<fbs::AccelerationStructureBuildInfoKHRT>();
+    top->type = 0;  // TOP_LEVEL
+    top->mode = 1;  // UPDATE
+    top->src = 0xa52;
+    top->dst = 0xa52;
+    top->scratch_address = 0x9400;
+    top->geometries.push_back(std::move(instances));
+    top->ranges = {fbs::BuildRangeInfoKHR(3, 64, 0, 0)};
+    top->indirect_address = 0xc000;
+    top->indirect_stride = 16;
+    top->max_primitive_counts = {8};
+    {
+        fbs::CmdBuildAccelerationStructuresKHRT r;
+        r.command_buffer = 0xcb2;
+        r.indirect = true;
+        r.infos.push_back(std::move(bottom));
+        r.infos.push_back(std::move(top));
+        r.inputs = {fbs::MemorySnapshot(0xb0, 0, 0xb000, 192, 0x1234)};
+        r.outputs = {fbs::MemorySnapshot(0xa0, 256, 0xa100, 1024, 0x5678)};
+        out.push_back(record(r));
+    }
+    {
+        fbs::CmdCopyAccelerationStructureT r;
+        r.command_buffer = 0xcb2;
+        r.api = 1;
+        r.src = 0xa51;
+        r.dst = 0xa53;
+        r.mode = 1;  // COMPACT
+        out.push_back(record(r));
+    }
+    {
+        fbs::CmdCopyAccelerationStructureToMemoryT r;
+        r.command_buffer = 0xcb2;
+        r.src = 0xa53;
+        r.dst_address = 0xd000;
+        r.mode = 2;  // SERIALIZE
+        out.push_back(record(r));
+    }
+    {
+        fbs::CmdWriteAccelerationStructuresPropertiesT r;
+        r.command_buffer = 0xcb2;
+        r.api = 1;
+        r.acceleration_structures = {0xa51, 0xa52};
+        r.query_type = 1000150000;  // ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR
+        r.query_pool = 0x9001;
+        r.first_query = 4;
+        out.push_back(record(r));
+    }
+    {
+        fbs::QueryPoolResultsT r;
+        r.query_pool = 0x9001;
+        r.first_query = 4;
+        r.values = {896, 1536};
+        out.push_back(record(r));
+    }
+    {
+        fbs::GetAccelerationStructureBuildSizesKHRT r;
+        r.build_type = 1;  // DEVICE
+        r.info = std::make_unique<fbs::AccelerationStructureBuildInfoKHRT>();
+        r.info->type = 1;
+        r.max_primitive_counts = {12};
+        r.acceleration_structure_size = 4096;
+        r.update_scratch_size = 512;
+        r.build_scratch_size = 2048;
+        out.push_back(record(r));
+    }
+    {
+        fbs::CmdDispatchT r;
+        r.command_buffer = 0xcb3;
+        r.pipeline = 0x92;
+        r.group_count_x = 16;
+        r.ray_query = true;
+        r.acceleration_structures = {fbs::AccelerationStructureBinding(0, 1, 0, 0, 0xa52, 0xa200),
+                                     fbs::AccelerationStructureBinding(0, 0, 0, 3, 0, 0xa300)};
+        out.push_back(record(r));
+    }
+    {
+        fbs::CmdTraceRaysT r;
+        r.command_buffer = 0xcb3;
+        r.pipeline = 0x93;
+        r.entry_point = "vkCmdTraceRaysIndirect2KHR";
+        r.indirect_address = 0xe000;
+        r.shader_binding_tables = {fbs::StridedDeviceAddressRegion(0xf000, 64, 64),
+                                   fbs::StridedDeviceAddressRegion(0xf040, 32, 64),
+                                   {},
+                                   {}};
+        r.acceleration_structures = {fbs::AccelerationStructureBinding(1, 0, 2, 1, 0xa52, 0xa200)};
+        r.inputs = {fbs::MemorySnapshot(0xe0, 0, 0xe000, 104, 0x9abc)};
+        out.push_back(record(r));
+    }
+    {
+        fbs::DeviceAddressWritesT r;
+        r.submission = 7;
+        r.command_buffer = 0xcb3;
+        r.command_index = 2;
+        r.writes = {fbs::MemorySnapshot(0xb0, 64, 0xb040, 48, 0xdef0)};
+        r.compared_bytes = 1 << 20;
+        out.push_back(record(r));
+    }
+}
+
 std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
     std::vector<fbs::RecordT> out;
     auto snap = [&](uint64_t address, const std::vector<uint8_t>& bytes) {
@@ -525,6 +648,7 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
         r.address_stages = 0x80000ull | 0x100000ull;  // TASK_SHADER_EXT | MESH_SHADER_EXT
         out.push_back(record(r));
     }
+    append_acceleration_structure_use_records(out);
     return out;
 }
 

@@ -146,7 +146,7 @@ fbs::TraceHeaderT latin1_header() {
 
 // Every record kind with strings, each string Latin-1.
 std::vector<fbs::RecordT> latin1_records() {
-    std::vector<fbs::RecordT> out(5);
+    std::vector<fbs::RecordT> out(6);
     fbs::CpuTimestampT t;
     t.label = "t " + kLatin1;
     out[0].body.Set(std::move(t));
@@ -166,6 +166,10 @@ std::vector<fbs::RecordT> latin1_records() {
     d.entry_point = "draw " + kLatin1;
     d.pipeline = 0x91;
     out[4].body.Set(std::move(d));
+    fbs::CmdTraceRaysT rays;
+    rays.entry_point = "rays " + kLatin1;
+    rays.width = 640;
+    out[5].body.Set(std::move(rays));
     return out;
 }
 
@@ -188,6 +192,10 @@ void expect_repaired(const fbs::RecordT& r) {
     case fbs::RecordBody::CmdDraw:
         EXPECT_EQ(r.body.AsCmdDraw()->entry_point, "draw " + kRepaired);
         EXPECT_EQ(r.body.AsCmdDraw()->pipeline, 0x91u);
+        break;
+    case fbs::RecordBody::CmdTraceRays:
+        EXPECT_EQ(r.body.AsCmdTraceRays()->entry_point, "rays " + kRepaired);
+        EXPECT_EQ(r.body.AsCmdTraceRays()->width, 640u);
         break;
     default: ADD_FAILURE() << "unexpected record kind " << int(r.body.type);
     }
@@ -266,8 +274,8 @@ TEST(Utf8Writer, EveryStringFieldOfTheSchemaIsRepaired) {
     const auto fields = std::distance(std::sregex_iterator(text.begin(), text.end(), string_field),
                                       std::sregex_iterator());
     // DeviceInfo 4, CaptureSettings 4, CpuTimestamp 1, DebugLabel 1, RayQueryCheck 1,
-    // CaptureFinding 2, CmdDraw 1
-    EXPECT_EQ(fields, 14)
+    // CaptureFinding 2, CmdDraw 1, CmdTraceRays 1
+    EXPECT_EQ(fields, 15)
         << "a string field was added to or removed from trace.fbs: update stored_text.cpp";
 }
 

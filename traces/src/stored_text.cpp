@@ -58,6 +58,10 @@ bool has_invalid_utf8(const fbs::Record& record) {
         const auto* d = record.body_as_CmdDraw();
         return d && invalid(d->entry_point());
     }
+    case RecordBody::CmdTraceRays: {
+        const auto* t = record.body_as_CmdTraceRays();
+        return t && invalid(t->entry_point());
+    }
     default: return false;
     }
 }
@@ -82,6 +86,9 @@ void make_strings_valid_utf8(fbs::RecordT& record) {
         break;
     case RecordBody::CmdDraw:
         if (auto* d = record.body.AsCmdDraw()) repair(d->entry_point);
+        break;
+    case RecordBody::CmdTraceRays:
+        if (auto* t = record.body.AsCmdTraceRays()) repair(t->entry_point);
         break;
     default: break;
     }
