@@ -6,12 +6,9 @@
 // shows up as disagreements.
 #include "khr_scene.h"
 
-#include <clastrace/testsupport/rays.h>
-
 #include <gtest/gtest.h>
 
-#include <cmath>
-#include <random>
+#include <string>
 
 namespace clastrace::khrtest {
 namespace {
@@ -40,14 +37,6 @@ std::vector<BlasSpec> with_aabbs(std::vector<BlasSpec> blas) {
     return blas;
 }
 
-constexpr uint32_t kFlagSets[] = {0,
-                                  eng::kRayFlagOpaque,
-                                  eng::kRayFlagNoOpaque,
-                                  eng::kRayFlagCullBackFacingTriangles,
-                                  eng::kRayFlagCullFrontFacingTriangles,
-                                  eng::kRayFlagCullOpaque,
-                                  eng::kRayFlagCullNoOpaque};
-
 Agreement run(const std::vector<BlasSpec>& blas, const std::vector<InstanceSpec>& instances,
               const Layout& layout, size_t ray_count, float extent, uint64_t seed,
               VkBuildAccelerationStructureFlagsKHR build_flags = 0, float ray_scale = 1.0f) {
@@ -59,40 +48,17 @@ Agreement run(const std::vector<BlasSpec>& blas, const std::vector<InstanceSpec>
     EXPECT_TRUE(scene) << error;
     if (!scene) return {};
     EXPECT_EQ(scene->instances_reached(), instances.size());
-    EmbreeNvScene embree(blas, instances);
-    ts::Bounds box;
-    box.extend({-extent, -extent, -extent});
-    box.extend({extent, extent, extent});
-    const auto rays = ts::random_rays(box, ray_count, seed);
-    std::mt19937_64 rng(seed);
-    Agreement a;
-    for (size_t i = 0; i < rays.size(); ++i) {
-        // Scaled origins and interval, unit directions: the same rays around a scaled scene.
-        const float s = ray_scale;
-        const eng::Ray r{{rays[i].origin[0] * s, rays[i].origin[1] * s, rays[i].origin[2] * s},
-                         rays[i].tmin * s,
-                         {rays[i].direction[0], rays[i].direction[1], rays[i].direction[2]},
-                         rays[i].tmax * s};
-        const uint32_t flags = kFlagSets[i % std::size(kFlagSets)];
-        const uint32_t mask = i % 3 == 0 ? uint32_t(rng() & 0xFF) : 0xFFu;
-        nvtest::classify(a, scene->closest(r, flags, mask), embree.closest(r, flags, mask), 1e-5,
-                         "ray " + std::to_string(i) + " flags " + std::to_string(flags));
-        if (i % 4 == 0)
-            (scene->any(r, flags, mask) == embree.any(r, flags, mask) ? a.any_agree
-                                                                      : a.any_disagree)++;
-    }
-    return a;
+    // The first seven flag sets, as this test has always cycled them: with the eighth, ray 6156 of
+    // NonIndexedTransformedPointersAndAabbs hits with a 6e-5 relative t gap between the engine's
+    // double and Embree's float triangle test (an accuracy question for issue 22, not of layout).
+    const auto flag_sets = std::span(nvtest::kAnswerChangingRayFlags).first(7);
+    return nvtest::compare_with_embree(*scene, EmbreeNvScene(blas, instances), ray_count, extent,
+                                       seed, flag_sets, ray_scale);
 }
 
 void expect_agreement(const Agreement& a, size_t rays, const char* what) {
-    for (const auto& e : a.examples) ADD_FAILURE() << e;
-    std::printf("[ khr-embree ] %s: %s\n", what, a.summary().c_str());
     EXPECT_EQ(a.rays, rays);
-    EXPECT_EQ(a.disagree, 0u) << a.summary();
-    EXPECT_EQ(a.any_disagree, 0u) << a.summary();
-    EXPECT_GT(a.agree_hit, a.rays / 5) << a.summary();  // the scene is actually hit
-    EXPECT_GT(a.agree_miss, a.rays / 20) << a.summary();
-    EXPECT_LT(a.tie + a.edge, a.rays / 200) << a.summary();
+    nvtest::expect_agreement(a, std::string("khr ") + what);
 }
 
 // 32-bit indices after junk (primitiveOffset), vertices after junk (firstVertex), packed
@@ -147,10 +113,8 @@ TEST(KhrEmbreeAgreement, HugeTinyAndDegenerateCoordinates) {
         Layout layout;
         layout.first_vertex = 1;
         const Agreement a = run(blas, instances, layout, 20000, 2.0f, 31, 0, scale);
-        for (const auto& e : a.examples) ADD_FAILURE() << e;
-        std::printf("[ khr-embree ] scale %g: %s\n", double(scale), a.summary().c_str());
-        EXPECT_EQ(a.disagree, 0u) << a.summary();
-        EXPECT_GT(a.agree_hit, a.rays / 10) << a.summary();
+        nvtest::expect_agreement(a, "khr scale " + std::to_string(scale),
+                                 {.hit_divisor = 10, .miss_divisor = 0});
     }
 }
 

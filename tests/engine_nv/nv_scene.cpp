@@ -1,7 +1,12 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "nv_scene.h"
 
+#include <clastrace/testsupport/rays.h>
+
+#include <gtest/gtest.h>
+
 #include <algorithm>
+#include <cstdio>
 #include <cmath>
 #include <cstring>
 #include <random>
@@ -514,6 +519,47 @@ std::vector<std::array<float, 6>> random_boxes(size_t count, uint64_t seed) {
         }
     }
     return out;
+}
+
+Agreement compare_with_embree(const eng::NvScene& scene, const EmbreeNvScene& embree,
+                              size_t ray_count, float extent, uint64_t seed,
+                              std::span<const uint32_t> flag_sets, float ray_scale) {
+    ts::Bounds box;
+    box.extend({-extent, -extent, -extent});
+    box.extend({extent, extent, extent});
+    const auto rays = ts::random_rays(box, ray_count, seed);
+    std::mt19937_64 rng(seed);
+    Agreement a;
+    const float s = ray_scale;
+    for (size_t i = 0; i < rays.size(); ++i) {
+        const eng::Ray r{{rays[i].origin[0] * s, rays[i].origin[1] * s, rays[i].origin[2] * s},
+                         rays[i].tmin * s,
+                         {rays[i].direction[0], rays[i].direction[1], rays[i].direction[2]},
+                         rays[i].tmax * s};
+        const uint32_t flags = flag_sets[i % flag_sets.size()];
+        const uint32_t mask = i % 3 == 0 ? uint32_t(rng() & 0xFF) : 0xFFu;
+        classify(a, scene.closest(r, flags, mask), embree.closest(r, flags, mask), 1e-5,
+                 "ray " + std::to_string(i) + " flags " + std::to_string(flags) + " mask " +
+                     std::to_string(mask));
+        if (i % 4 == 0)
+            (scene.any(r, flags, mask) == embree.any(r, flags, mask) ? a.any_agree
+                                                                     : a.any_disagree)++;
+    }
+    return a;
+}
+
+void expect_agreement(const Agreement& a, const std::string& what, AgreementFloor floor) {
+    for (const auto& e : a.examples) ADD_FAILURE() << what << ": " << e;
+    std::printf("[ embree agreement ] %s: %s\n", what.c_str(), a.summary().c_str());
+    EXPECT_EQ(a.disagree, 0u) << what << ": " << a.summary();
+    EXPECT_EQ(a.any_disagree, 0u) << what << ": " << a.summary();
+    EXPECT_LT(a.tie + a.edge, a.rays / 200 + 1) << what << ": " << a.summary();
+    if (floor.hit_divisor) {
+        EXPECT_GT(a.agree_hit, a.rays / floor.hit_divisor) << what << ": " << a.summary();
+    }
+    if (floor.miss_divisor) {
+        EXPECT_GT(a.agree_miss, a.rays / floor.miss_divisor) << what << ": " << a.summary();
+    }
 }
 
 }  // namespace clastrace::nvtest

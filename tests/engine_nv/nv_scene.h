@@ -14,6 +14,7 @@
 #include <array>
 #include <cstdint>
 #include <memory>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -117,6 +118,34 @@ struct Agreement {
 };
 void classify(Agreement& a, const eng::NvHit& engine, const RefHit& ref, double rel_t_tolerance,
               const std::string& what);
+
+// Every ray-flag set that changes the answer, in the order the agreement runs cycle them.
+inline constexpr uint32_t kAnswerChangingRayFlags[] = {0,
+                                                       eng::kRayFlagOpaque,
+                                                       eng::kRayFlagNoOpaque,
+                                                       eng::kRayFlagCullBackFacingTriangles,
+                                                       eng::kRayFlagCullFrontFacingTriangles,
+                                                       eng::kRayFlagCullOpaque,
+                                                       eng::kRayFlagCullNoOpaque,
+                                                       eng::kRayFlagCullBackFacingTriangles |
+                                                           eng::kRayFlagNoOpaque};
+
+// Traces `ray_count` random rays inside [-extent, extent]^3 through the engine's scene and
+// Embree's, origins and intervals times `ray_scale` (directions stay unit): ray i takes flag
+// set i mod |flag_sets|, every third a random cull mask, every fourth an any-hit query too.
+Agreement compare_with_embree(const eng::NvScene& scene, const EmbreeNvScene& embree,
+                              size_t ray_count, float extent, uint64_t seed,
+                              std::span<const uint32_t> flag_sets = kAnswerChangingRayFlags,
+                              float ray_scale = 1.0f);
+
+// What the agreement tests ask of a run: the examples reported as failures, no closest-hit or
+// any-hit disagreement, few ties and edge cases, and at least rays / hit_divisor agreed hits
+// and rays / miss_divisor agreed misses (0: not checked), so the scene was really reached.
+struct AgreementFloor {
+    size_t hit_divisor = 5;
+    size_t miss_divisor = 20;
+};
+void expect_agreement(const Agreement& a, const std::string& what, AgreementFloor floor = {});
 
 // Instances with random rotations, scales (some mirrored), translations, masks, custom
 // indices and flags over `blas_count` BLAS, spread inside [-extent, extent]^3.
