@@ -87,13 +87,26 @@ void ClusterTestDevice::createDevice(bool timelineSemaphores, uint32_t queues,
     VkPhysicalDeviceClusterAccelerationStructureFeaturesNV cluster{
         VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_FEATURES_NV, nullptr,
         VK_TRUE};
+    VkPhysicalDeviceRayQueryFeaturesKHR rayQuery{
+        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_RAY_QUERY_FEATURES_KHR, clusters ? &cluster : nullptr,
+        VK_TRUE};
+    VkPhysicalDeviceAccelerationStructureFeaturesKHR accelerationStructure{
+        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_ACCELERATION_STRUCTURE_FEATURES_KHR, &rayQuery};
+    accelerationStructure.accelerationStructure = VK_TRUE;
     VkPhysicalDeviceVulkan12Features v12{};
     v12.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_2_FEATURES;
-    v12.pNext = &cluster;
+    v12.pNext = rayTracing ? static_cast<void*>(&accelerationStructure)
+                           : (clusters ? static_cast<void*>(&cluster) : nullptr);
     v12.bufferDeviceAddress = VK_TRUE;
     v12.timelineSemaphore = timelineSemaphores ? VK_TRUE : VK_FALSE;
-    const char* extensions[] = {VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME,
-                                VK_KHR_SWAPCHAIN_EXTENSION_NAME};
+    std::vector<const char*> extensions;
+    if (clusters) extensions.push_back(VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME);
+    if (presentTo) extensions.push_back(VK_KHR_SWAPCHAIN_EXTENSION_NAME);
+    if (rayTracing) {
+        extensions.push_back(VK_KHR_ACCELERATION_STRUCTURE_EXTENSION_NAME);
+        extensions.push_back(VK_KHR_RAY_QUERY_EXTENSION_NAME);
+        extensions.push_back(VK_KHR_DEFERRED_HOST_OPERATIONS_EXTENSION_NAME);
+    }
     VkPhysicalDeviceFeatures core{};
     core.sparseBinding = sparseBinding ? VK_TRUE : VK_FALSE;
     VkDeviceCreateInfo info{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO,
@@ -103,20 +116,21 @@ void ClusterTestDevice::createDevice(bool timelineSemaphores, uint32_t queues,
                             &queueInfo,
                             0,
                             nullptr,
-                            presentTo ? 2u : 1u,
-                            extensions,
+                            uint32_t(extensions.size()),
+                            extensions.data(),
                             &core};
     CHECK(vkCreateDevice(physicalDevice, &info, nullptr, &device));
     vkGetDeviceQueue(device, queueFamily, 0, &queue);
     if (queues == 2) vkGetDeviceQueue(device, queueFamily, 1, &secondQueue);
+    VkCommandPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO, nullptr,
+                                     VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT, queueFamily};
+    CHECK(vkCreateCommandPool(device, &poolInfo, nullptr, &pool));
+    if (!clusters) return;
     cmdBuildClusters = (PFN_vkCmdBuildClusterAccelerationStructureIndirectNV)
         vkGetDeviceProcAddr(device, "vkCmdBuildClusterAccelerationStructureIndirectNV");
     getBuildSizes = (PFN_vkGetClusterAccelerationStructureBuildSizesNV)
         vkGetDeviceProcAddr(device, "vkGetClusterAccelerationStructureBuildSizesNV");
     if (!cmdBuildClusters || !getBuildSizes) fail("the cluster entry points are missing");
-    VkCommandPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO, nullptr,
-                                     VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT, queueFamily};
-    CHECK(vkCreateCommandPool(device, &poolInfo, nullptr, &pool));
 }
 
 Buffer ClusterTestDevice::makeBuffer(VkDeviceSize size, VkBufferUsageFlags usage, uint8_t fill) {

@@ -43,6 +43,11 @@ struct ClusterTestDevice {
     std::vector<Buffer> buffers;  // destroyed with the device
     // Set before createDevice: enables sparseBinding (the queue family must offer sparse binds).
     bool sparseBinding = false;
+    // Set before createDevice: enables VK_KHR_acceleration_structure and VK_KHR_ray_query with
+    // their features (lavapipe 25 has them).
+    bool rayTracing = false;
+    // Set to false before createDevice for a program that runs without the layer's extension.
+    bool clusters = true;
 
     // applicationName nullptr: the program's own name. `extensions`: instance extensions a
     // program needs beyond ours (a window surface's). engineName nullptr: none.
