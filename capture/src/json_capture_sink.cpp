@@ -134,7 +134,8 @@ struct CommandToJson {
                 {"indirectBuffer", c.indirect_buffer},
                 {"indirectOffset", c.indirect_offset},
                 {"storageBuffers", buffers},
-                {"mayWriteDeviceAddresses", c.may_write_device_addresses}};
+                {"mayWriteDeviceAddresses", c.may_write_device_addresses},
+                {"pauseId", c.pause_id}};
     }
     json operator()(const DrawCommand& c) const {
         return {{"kind", "Draw"},
@@ -304,6 +305,15 @@ public:
                                    {"commandBuffer", c.command_buffer},
                                    {"ticks", c.timestamp_ticks},
                                    {"valid", c.timestamp_valid}});
+            return;
+        }
+        if (c.kind == CapturedCommandKind::kDeviceAddressWrites) {  // exact mode, per execution
+            add("deviceAddressWrites", {{"pauseId", c.pause_id},
+                                        {"submissionIndex", c.submission_index},
+                                        {"commandBuffer", c.command_buffer},
+                                        {"writes", ranges_json(c.outputs)},
+                                        {"comparedBytes", c.compared_bytes},
+                                        {"pauseMilliseconds", c.pause_milliseconds}});
             return;
         }
         json issues = json::array();

@@ -5,6 +5,7 @@
 #include "command_buffer_log.h"
 #include "layer_state.h"
 
+#include <atomic>
 #include <optional>
 
 #include <cstring>
@@ -444,25 +445,55 @@ std::vector<BoundStorageBuffer> bound_storage_buffers(DeviceState& d, const Comm
     return out;
 }
 
+void record_pause(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log, PausePoint pause);
+
+// CLASTRACE_DEVICE_ADDRESS_WRITES=exact: a dispatch that may write through device addresses gets
+// a pause before and after it, where the worker compares memory (exact_address_writes.h).
+// Returns the pause id that links the dispatch to its captures (0: no pauses).
+uint64_t pause_before_address_writer(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log,
+                                     bool marked) {
+    if (!marked || !layer_config().exact_device_address_writes || !d.capturing_now()) return 0;
+    PausePoint before;
+    before.pause_id = ++d.pause_counter;
+    before.phase = PausePhase::kBeforeCommand;
+    before.last_of_command = false;
+    before.address_writes = true;
+    record_pause(d, cb, log, before);
+    return before.pause_id;
+}
+void pause_after_address_writer(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log,
+                                uint64_t pause_id) {
+    if (!pause_id) return;
+    PausePoint after;
+    after.pause_id = pause_id;
+    after.phase = PausePhase::kAfterCommand;
+    after.address_writes = true;
+    record_pause(d, cb, log, after);
+}
+
 VKAPI_ATTR void VKAPI_CALL CmdDispatch(VkCommandBuffer cb, uint32_t x, uint32_t y, uint32_t z) {
     DeviceState& d = device_of(cb);
-    d.next.CmdDispatch(cb, x, y, z);
-    if (!d.sink) return;
+    if (!d.sink) return d.next.CmdDispatch(cb, x, y, z);
     auto log = log_of(d, cb);
     DispatchCommand c{x, y, z, log->compute_pipeline, 0, 0, bound_storage_buffers(d, *log)};
     c.may_write_device_addresses = address_writing_stages(d, log->compute_pipeline) != 0;
+    c.pause_id = pause_before_address_writer(d, cb, *log, c.may_write_device_addresses);
+    d.next.CmdDispatch(cb, x, y, z);
+    pause_after_address_writer(d, cb, *log, c.pause_id);
     log->recorded.commands.push_back(std::move(c));
 }
 
 VKAPI_ATTR void VKAPI_CALL CmdDispatchIndirect(VkCommandBuffer cb, VkBuffer buffer,
                                                VkDeviceSize offset) {
     DeviceState& d = device_of(cb);
-    d.next.CmdDispatchIndirect(cb, buffer, offset);
-    if (!d.sink) return;
+    if (!d.sink) return d.next.CmdDispatchIndirect(cb, buffer, offset);
     auto log = log_of(d, cb);
     DispatchCommand c{
         0, 0, 0, log->compute_pipeline, handle_id(buffer), offset, bound_storage_buffers(d, *log)};
     c.may_write_device_addresses = address_writing_stages(d, log->compute_pipeline) != 0;
+    c.pause_id = pause_before_address_writer(d, cb, *log, c.may_write_device_addresses);
+    d.next.CmdDispatchIndirect(cb, buffer, offset);
+    pause_after_address_writer(d, cb, *log, c.pause_id);
     log->recorded.commands.push_back(std::move(c));
 }
 
@@ -474,8 +505,17 @@ void record_draw_through_addresses(VkCommandBuffer cb, const char* entry_point) 
     if (!d.sink) return;
     auto log = log_of(d, cb);
     const VkPipelineStageFlags2 stages = address_writing_stages(d, log->graphics_pipeline);
-    if (stages)
-        log->recorded.commands.push_back(DrawCommand{log->graphics_pipeline, entry_point, stages});
+    if (!stages) return;
+    // Exact mode pauses around dispatches only: a pause cannot stop the queue inside a render
+    // pass, so a draw stays a possible writer of all device-address memory (capture/README.md).
+    static std::atomic<bool> said_draws_stay_cheap{false};
+    if (layer_config().exact_device_address_writes && !said_draws_stay_cheap.exchange(true))
+        log_message(LogLevel::kInfo,
+                    "CLASTRACE_DEVICE_ADDRESS_WRITES=exact: draws (%s) whose shaders may write "
+                    "through device addresses are recorded as in cheap mode (possible writers of "
+                    "all device-address memory); only dispatches are compared",
+                    entry_point);
+    log->recorded.commands.push_back(DrawCommand{log->graphics_pipeline, entry_point, stages});
 }
 
 namespace {

@@ -138,11 +138,12 @@ LayerConfig parse_layer_config(const std::function<const char*(const char*)>& ge
             reject("CLASTRACE_TIMESTAMPS", *v, "0 or 1");
     }
     if (auto v = value("CLASTRACE_DEVICE_ADDRESS_WRITES")) {
-        if (*v == "cheap" || *v == "off")
-            config.mark_device_address_writers = *v == "cheap";
-        else
-            reject("CLASTRACE_DEVICE_ADDRESS_WRITES", *v,
-                   "cheap or off (exact, which bytes a shader wrote, is not implemented)");
+        if (*v == "cheap" || *v == "off" || *v == "exact") {
+            config.mark_device_address_writers = *v != "off";
+            config.exact_device_address_writes = *v == "exact";
+        } else {
+            reject("CLASTRACE_DEVICE_ADDRESS_WRITES", *v, "cheap, exact or off");
+        }
     }
     if (auto v = value("CLASTRACE_BACKGROUND_CPUS")) {
         if (*v == "spare")

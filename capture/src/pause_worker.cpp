@@ -218,6 +218,7 @@ bool PauseWorker::read_memory(VkDeviceAddress address, uint64_t size, CapturedBy
 
 bool PauseWorker::handle(Expected& expected) {
     const PausePoint& pause = expected.pause;
+    if (pause.address_writes) return handle_address_writes(expected);
     if (device_.next.GetEventStatus(device_.device, pause.signal) != VK_EVENT_SET) return false;
     const auto started = std::chrono::steady_clock::now();
     const uint64_t started_cpu = thread_cpu_ns();
@@ -261,6 +262,41 @@ bool PauseWorker::handle(Expected& expected) {
         return true;
     }
     pass_record_on(open_key, pause.parameters, std::move(served_image), std::move(served));
+    return true;
+}
+
+bool PauseWorker::handle_address_writes(Expected& expected) {
+    const PausePoint& pause = expected.pause;
+    if (device_.next.GetEventStatus(device_.device, pause.signal) != VK_EVENT_SET) return false;
+    const auto started = std::chrono::steady_clock::now();
+    const uint64_t started_cpu = thread_cpu_ns();
+    staging_ = pause.staging.get();
+    const bool capture = expected.capture && device_.capturing_now();
+    const OpenKey key =
+        std::make_tuple(expected.submission_index, pause.pause_id, pause.occurrence);
+    AddressWriteComparison compared;
+    if (capture) {
+        CostScope cost(CostPhase::kPauseRead);
+        const std::vector<ServedBuffer> buffers = prepare_served_buffers();
+        if (pause.phase == PausePhase::kBeforeCommand)
+            address_writes_.before(key, buffers);
+        else
+            compared = address_writes_.after(key, buffers);
+    }
+    const double stalled = release_queue(expected, started, started_cpu);
+    staging_ = nullptr;  // the queue may overwrite the staged copies from here on
+    // Every execution the sink expects gets its record, empty where nothing was compared.
+    if (!capture || pause.phase != PausePhase::kAfterCommand) return true;
+    ClusterBuildCapture record;
+    record.kind = CapturedCommandKind::kDeviceAddressWrites;
+    record.pause_id = pause.pause_id;
+    record.occurrence = pause.occurrence;
+    record.submission_index = expected.submission_index;
+    record.command_buffer = expected.command_buffer;
+    record.outputs = std::move(compared.changed);
+    record.compared_bytes = compared.compared_bytes;
+    record.pause_milliseconds = stalled;
+    device_.sink->cluster_build_captured(std::move(record));
     return true;
 }
 

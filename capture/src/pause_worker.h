@@ -21,6 +21,7 @@
 #include "clastrace/capture/cluster_input_walker.h"
 #include "clastrace/capture/device_memory_map.h"
 #include "clastrace/capture/shared_pause_tracker.h"
+#include "clastrace/capture/exact_address_writes.h"
 #include "pause_staging.h"
 #include "clastrace/capture/served_build.h"
 
@@ -60,6 +61,9 @@ struct PausePoint {
     std::shared_ptr<const ClusterCommandParameters> parameters;  // a cluster build, or one of:
     std::shared_ptr<const BuildAccelerationStructureNVCommand> build_nv;
     std::shared_ptr<const CopyMemoryToAccelerationStructureCommand> copy_to_acceleration_structure;
+    // Or a dispatch that may write through device addresses, under
+    // CLASTRACE_DEVICE_ADDRESS_WRITES=exact: its two pauses compare memory.
+    bool address_writes = false;
     std::shared_ptr<const StagingSet>
         staging;  // copies of unmapped memory, or null (pause_staging.h)
 };
@@ -96,6 +100,8 @@ private:
     using OpenKey = std::tuple<uint64_t, uint64_t, uint32_t>;
     void run();
     bool handle(Expected& expected);
+    // A pause of `address_writes`: copies memory before, compares after (exact_address_writes.h).
+    bool handle_address_writes(Expected& expected);
     ClusterBuildCapture* open_record(const Expected& expected, const OpenKey& key,
                                      const DeviceMemoryReader& reader);
     ClusterMemoryWalk walk_command_inputs(const PausePoint& pause, ClusterBuildCapture& record,
@@ -137,6 +143,7 @@ private:
     std::condition_variable wake_;
     std::map<VkQueue, std::deque<Expected>> queues_;
     std::map<OpenKey, ClusterBuildCapture> open_;
+    ExactAddressWrites address_writes_;  // copies taken at the pauses before marked dispatches
     std::vector<float> pause_milliseconds_;
     const StagingSet* staging_ =
         nullptr;  // of the pause being handled  // host time of each pause, for the report at exit

@@ -474,6 +474,7 @@ private:
             return c->pause_id;
         if (const auto* c = std::get_if<CopyMemoryToAccelerationStructureCommand>(&command))
             return c->pause_id;
+        if (const auto* c = std::get_if<DispatchCommand>(&command)) return c->pause_id;
         return 0;
     }
 
@@ -712,12 +713,15 @@ private:
         std::map<uint64_t, uint32_t>
             restatements;  // command buffer -> blocks emitted (CommandBufferBegin.restatement)
         std::vector<fbs::CaptureFindingT> findings;
+        // Exact mode: what each marked dispatch of this submission wrote (its `submission` is
+        // set when written, just before the QueueSubmit).
+        std::vector<fbs::DeviceAddressWritesT> address_writes;
     };
 
     void write_submission(Pending& p) {
         CostScope cost(CostPhase::kEmit, true);
         for (auto& [key, build] : p.builds) complete_build(build);
-        SubmissionEmit e{p, {}, {}, {}};
+        SubmissionEmit e{p, {}, {}, {}, {}};
         for (const auto& cb : p.command_buffers) {
             // A secondary's block goes before its primary's, once per execution, so every recording
             // is in the trace before the QueueSubmit that runs it (format 1.2).
@@ -731,6 +735,12 @@ private:
         }
         std::vector<fbs::CaptureFindingT>& findings = e.findings;
         if (!writer_ || failed_) return;
+        // Ahead of the QueueSubmit: replay runs a submission at its record, so what the run
+        // needs (as the command buffers' blocks) comes before it.
+        for (fbs::DeviceAddressWritesT& w : e.address_writes) {
+            w.submission = writer_->next_submission_index();
+            write_record(record_of(std::move(w)));
+        }
         fbs::QueueSubmitT submit = queue_submit_of(p.submission, writer_->next_submission_index());
         trace_submission_[p.submission.index] = submit.submission_index;
         const uint64_t submission = submit.submission_index;
@@ -793,7 +803,14 @@ private:
                 auto it = p.builds.find({pause_id, e.executions[pause_id]++});
                 if (it != p.builds.end()) captured = &it->second;
             }
-            if (captured) {
+            if (captured && captured->kind == CapturedCommandKind::kDeviceAddressWrites) {
+                fbs::DeviceAddressWritesT w;
+                w.command_buffer = cb.command_buffer;
+                w.command_index = uint32_t(index);  // as CaptureFinding.command_index
+                w.compared_bytes = captured->compared_bytes;
+                snapshots(captured->outputs, w.writes);
+                e.address_writes.push_back(std::move(w));
+            } else if (captured) {
                 std::vector<fbs::CaptureFindingT> found;
                 collect_findings(cb.command_buffer, index, *captured, found);
                 for (auto& f : found) finding(std::move(f));

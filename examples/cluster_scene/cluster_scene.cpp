@@ -132,7 +132,8 @@ public:
 
 private:
     std::vector<Buffer*> ownedBuffers() {
-        return {&vertices_, &indices_, &instanceVertices_, &staging_, &infos_, &scratch_};
+        return {&vertices_, &indices_, &instanceVertices_, &staging_,
+                &infos_,    &scratch_, &elsewhere_};
     }
 
     void createInputs() {
@@ -171,6 +172,8 @@ private:
         // 0xEE: what a build would read if a copy had not landed yet is visibly not an info.
         infos_ =
             c_.createBuffer(layout_.size, kInput | VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, 64, 0xEE);
+        if (options_.computeInfos && options_.computeElsewhere)
+            elsewhere_ = c_.createBuffer(layout_.size, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, 64);
     }
 
     ClusterCommand& addCommand(const char* label, VkClusterAccelerationStructureOpTypeNV type,
@@ -385,11 +388,11 @@ private:
     }
     // Copies staging bytes [offset, offset + size) and the 4-byte count at countOffset to the
     // same offsets of infos_ with one dispatch that reaches them only through device addresses.
-    void dispatchCopy(const char* label, VkDeviceSize offset, VkDeviceSize size,
-                      VkDeviceSize countOffset) {
-        const CopyWordsConstants constants{staging_.address + offset, infos_.address + offset,
+    void dispatchCopy(const char* label, const Buffer& target, VkDeviceSize offset,
+                      VkDeviceSize size, VkDeviceSize countOffset) {
+        const CopyWordsConstants constants{staging_.address + offset, target.address + offset,
                                            staging_.address + countOffset,
-                                           infos_.address + countOffset, uint32_t(size / 4)};
+                                           target.address + countOffset, uint32_t(size / 4)};
         vkCmdBindPipeline(cb_, VK_PIPELINE_BIND_POINT_COMPUTE, copyPipeline_);
         vkCmdPushConstants(cb_, copyLayout_, VK_SHADER_STAGE_COMPUTE_BIT, 0, sizeof constants,
                            &constants);
@@ -444,12 +447,15 @@ private:
             sizeof(VkClusterAccelerationStructureInstantiateClusterInfoNV);
 
         if (options_.computeInfos) {
-            dispatchCopy("cluster-infos", layout_.clusters, clusterInfos,
+            dispatchCopy("cluster-infos", infos_, layout_.clusters, clusterInfos,
                          layout_.counts + InfoLayout::kClusterCount);
             barrier("dispatch-to-sizes", VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
                     VK_ACCESS_SHADER_WRITE_BIT, kBuildStage,
                     VK_ACCESS_INDIRECT_COMMAND_READ_BIT |
                         VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_KHR);
+            if (options_.computeElsewhere)  // no barrier: nothing reads what it writes
+                dispatchCopy("cluster-infos-elsewhere", elsewhere_, layout_.clusters, clusterInfos,
+                             layout_.counts + InfoLayout::kClusterCount);
         } else {
             copyInfos("cluster-infos", layout_.clusters, clusterInfos, InfoLayout::kClusterCount);
             copyToBuild("copy-to-sizes");
@@ -551,6 +557,7 @@ private:
     const uint32_t n_;
     InfoLayout layout_;
     Buffer vertices_, indices_, instanceVertices_, staging_, infos_, scratch_;
+    Buffer elsewhere_;  // --compute-elsewhere: written, never read
     VkDeviceSize scratchSize_ = 0;
     std::deque<ClusterCommand> commands_;
     std::vector<ClusterCommand*> recorded_;

@@ -27,6 +27,9 @@ struct SceneOptions {
     // The cluster infos and their count are written by a compute dispatch through buffer device
     // addresses (shaders/copy_words.comp) instead of vkCmdCopyBuffer; barrier dispatch-to-sizes.
     bool computeInfos = false;
+    // With computeInfos: one more dispatch of the same shader copies the cluster infos into a
+    // buffer no command reads, with no barrier after it (a writer whose bytes no build sees).
+    bool computeElsewhere = false;
     uint32_t queueIndex = 0;                // which of the context's queues to submit to
     std::function<void()> beforeRecording;  // called once resources exist (threads line up here)
 };
@@ -48,7 +51,7 @@ struct SceneResult {
     uint32_t copies = 0, dispatches = 0, barriers = 0, builds = 0;
     std::vector<BuildOutputs> outputs;  // one per build, in record order
     // --compute-infos: the device-address ranges (address, bytes) the dispatch writes, so a
-    // replay's hazards can be judged true or false (scripts/address_writes_table.py).
+    // replay's hazards can be judged true or false (bench/capture/address_writes_bench.cpp).
     std::vector<std::pair<uint64_t, uint64_t>> computeWrites;
 };
 

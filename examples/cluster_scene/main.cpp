@@ -104,7 +104,7 @@ int main(int argc, char** argv) {
     std::string meshPath = kDefaultMesh;
     uint32_t maxClusters = 0, clusterVertices = 64, clusterTriangles = 124, threads = 1;
     std::vector<std::string> skip;
-    bool listBarriers = false, json = false, computeInfos = false;
+    bool listBarriers = false, json = false, computeInfos = false, computeElsewhere = false;
     app.add_option("mesh", meshPath, "OBJ file to cluster")->capture_default_str();
     app.add_option("--max-clusters", maxClusters, "build only the first N clusters (0: all)")
         ->capture_default_str();
@@ -121,6 +121,10 @@ int main(int argc, char** argv) {
                  "write the cluster infos and their count with a compute dispatch through buffer "
                  "device addresses (push constants) instead of vkCmdCopyBuffer; their barrier is "
                  "dispatch-to-sizes (--list-barriers --compute-infos)");
+    app.add_flag("--compute-elsewhere", computeElsewhere,
+                 "with --compute-infos: a second dispatch copies the cluster infos into a buffer "
+                 "no command reads, with no barrier after it (its writes reach no build)")
+        ->needs("--compute-infos");
     app.add_flag("--list-barriers", listBarriers,
                  "print the barriers that can be left out and exit");
     app.add_option("--threads", threads,
@@ -156,6 +160,7 @@ int main(int argc, char** argv) {
         SceneOptions options;
         options.skipBarriers = {skip.begin(), skip.end()};
         options.computeInfos = computeInfos;
+        options.computeElsewhere = computeElsewhere;
         if (threads == 1) {
             scenes[0] = runScene(context, clusters, options);
         } else {

@@ -22,11 +22,13 @@
 
 #include <algorithm>
 #include <cstdint>
+#include <deque>
 #include <map>
 #include <optional>
 #include <span>
 #include <string>
 #include <string_view>
+#include <tuple>
 #include <unordered_map>
 #include <unordered_set>
 #include <utility>
@@ -122,6 +124,16 @@ private:
     void record_address_writes(const CommandRef& ref, uint64_t stages);
     void dispatch(const fbs::CmdDispatch& dispatch, const CommandRef& ref,
                   const ReplayLocation& where);
+    // CLASTRACE_DEVICE_ADDRESS_WRITES=exact: a DeviceAddressWrites record, kept until the
+    // dispatch it names runs (its submission's QueueSubmit follows it).
+    void keep_exact_address_writes(const fbs::DeviceAddressWrites& writes);
+    // The writes kept for the dispatch at `ref` (this execution), or nothing: then the trace
+    // is a cheap one for it. Each is handed out once.
+    std::optional<std::vector<fbs::MemorySnapshot>> take_exact_address_writes(
+        const CommandRef& ref);
+    // Feeds them as the dispatch's certain writes and lays their new bytes in memory.
+    void record_exact_address_writes(const CommandRef& ref,
+                                     const std::vector<fbs::MemorySnapshot>& writes);
     void build_clusters(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
                         const CommandRef& ref, const ReplayLocation& where);
     void build_nv(const fbs::CmdBuildAccelerationStructureNV& build, const CommandRef& ref,
@@ -194,6 +206,10 @@ private:
     // Executions so far of each command buffer in the submission being replayed (restatements).
     std::unordered_map<uint64_t, uint32_t> executions_;
     detail::BinarySignals binary_signals_;
+    // DeviceAddressWrites by (submission, command buffer, command index), in record order (a
+    // command buffer run twice in one submission has two); dropped at the end of the submission.
+    std::map<std::tuple<uint32_t, uint64_t, uint32_t>, std::deque<std::vector<fbs::MemorySnapshot>>>
+        exact_address_writes_;
     detail::NvReplay nv_{{memory_, report_, sync_, options_,
                           [this](ReplayFinding f) { add_finding(std::move(f)); },
                           [this](const traces::SnapshotVector* s, const ReplayLocation& w) {

@@ -10,6 +10,9 @@ namespace clastrace::replay::detail {
 bool Replay::on_queue_record(fbs::RecordBody kind, const fbs::Record& r) {
     switch (kind) {
     case fbs::RecordBody::QueueSubmit: on_submit(*r.body_as_QueueSubmit()); break;
+    case fbs::RecordBody::DeviceAddressWrites:
+        keep_exact_address_writes(*r.body_as_DeviceAddressWrites());
+        break;
     case fbs::RecordBody::QueueWaitIdle:
         if (options_.check_hazards)
             sync_.queue_wait_idle(queue_id(r.body_as_QueueWaitIdle()->queue()));
@@ -106,6 +109,10 @@ void Replay::on_submit(const fbs::QueueSubmit& submit) {
             it->second.filling = 0;
         }
     executions_.clear();
+    // Writes kept for dispatches not replayed (left out by --ops, or of a submission that
+    // failed): not kept past this submission.
+    exact_address_writes_.erase(exact_address_writes_.begin(),
+                                exact_address_writes_.lower_bound({submission + 1, 0, 0}));
     limit_recorded();
     if (options_.observer) options_.observer->on_submission_end(submission);
 }

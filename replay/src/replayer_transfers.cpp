@@ -7,6 +7,8 @@ namespace clastrace::replay::detail {
 
 // The field a possible device-address write names in hazard reports.
 constexpr std::string_view kAnyDeviceAddress = "any memory through a buffer device address";
+// The field of a write the exact mode saw (DeviceAddressWrites).
+constexpr std::string_view kWrittenThroughAddress = "bytes written through a buffer device address";
 
 void Replay::feed(const CommandRef& ref, const AddressRange& range, StageMask stage,
                   AccessMask access, bool write, std::string_view field) {
@@ -80,6 +82,43 @@ void Replay::record_address_writes(const CommandRef& ref, uint64_t stages) {
     sync_.record_access(ref, everywhere);
 }
 
+void Replay::keep_exact_address_writes(const fbs::DeviceAddressWrites& writes) {
+    std::vector<fbs::MemorySnapshot> kept;
+    if (writes.writes())
+        for (const fbs::MemorySnapshot* s : *writes.writes()) kept.push_back(*s);
+    exact_address_writes_[{static_cast<uint32_t>(writes.submission()), writes.command_buffer(),
+                           writes.command_index()}]
+        .push_back(std::move(kept));
+}
+
+std::optional<std::vector<fbs::MemorySnapshot>> Replay::take_exact_address_writes(
+    const CommandRef& ref) {
+    if (exact_address_writes_.empty()) return std::nullopt;
+    // By the command buffer that holds the dispatch and its index there (a secondary's own).
+    const uint64_t handle = ref.secondary_handle ? ref.secondary_handle : ref.command_buffer_handle;
+    const uint32_t index = ref.secondary_handle ? ref.secondary_command : ref.command;
+    auto it = exact_address_writes_.find({ref.submission, handle, index});
+    if (it == exact_address_writes_.end() || it->second.empty()) return std::nullopt;
+    std::vector<fbs::MemorySnapshot> writes = std::move(it->second.front());
+    it->second.pop_front();
+    return writes;
+}
+
+// Exact mode: the bytes the capture saw the dispatch change are ordinary (certain) shader
+// storage writes, and replay's memory takes their new bytes for the commands after it.
+void Replay::record_exact_address_writes(const CommandRef& ref,
+                                         const std::vector<fbs::MemorySnapshot>& writes) {
+    std::vector<uint8_t> bytes;
+    for (const fbs::MemorySnapshot& s : writes) {
+        auto address = memory_.snapshot_address(s.buffer(), s.offset(), s.address());
+        if (!address) continue;
+        feed(ref, AddressRange{*address, *address + s.size()},
+             VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, true,
+             kWrittenThroughAddress);
+        if (contents(s.hash(), &bytes)) memory_.write(*address, bytes);
+    }
+}
+
 void Replay::dispatch(const fbs::CmdDispatch& d, const CommandRef& ref,
                       const ReplayLocation& where) {
     lay_in_snapshots(d.inputs(), where);
@@ -106,7 +145,9 @@ void Replay::dispatch(const fbs::CmdDispatch& d, const CommandRef& ref,
                  field);
         }
     }
-    if (d.may_write_device_addresses())
+    if (auto exact = take_exact_address_writes(ref))
+        record_exact_address_writes(ref, *exact);
+    else if (d.may_write_device_addresses())
         record_address_writes(ref, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT);
     // The shader's effect is whatever the capture saw it write.
     if (d.outputs()) {

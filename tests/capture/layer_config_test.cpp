@@ -93,16 +93,21 @@ TEST(LayerConfig, TimestampsOnByDefaultAndSwitchedByZeroOrOne) {
     EXPECT_NE(bad.errors[0].find("CLASTRACE_TIMESTAMPS='sometimes'"), std::string::npos);
 }
 
-TEST(LayerConfig, DeviceAddressWritesCheapByDefaultOffOrCheap) {
+TEST(LayerConfig, DeviceAddressWritesCheapByDefaultOffCheapOrExact) {
     EXPECT_TRUE(parse({}).mark_device_address_writers);
+    EXPECT_FALSE(parse({}).exact_device_address_writes);
     EXPECT_FALSE(parse({{"CLASTRACE_DEVICE_ADDRESS_WRITES", "off"}}).mark_device_address_writers);
     EXPECT_TRUE(parse({{"CLASTRACE_DEVICE_ADDRESS_WRITES", "cheap"}}).mark_device_address_writers);
-    // exact is not implemented: rejected by name, the default kept, never silently cheap.
+    // exact marks as cheap does (draws stay cheap) and compares around marked dispatches.
     LayerConfig exact = parse({{"CLASTRACE_DEVICE_ADDRESS_WRITES", "exact"}});
+    EXPECT_TRUE(exact.errors.empty());
     EXPECT_TRUE(exact.mark_device_address_writers);
-    ASSERT_EQ(exact.errors.size(), 1u);
-    EXPECT_NE(exact.errors[0].find("CLASTRACE_DEVICE_ADDRESS_WRITES='exact'"), std::string::npos);
-    EXPECT_NE(exact.errors[0].find("not implemented"), std::string::npos);
+    EXPECT_TRUE(exact.exact_device_address_writes);
+    LayerConfig bad = parse({{"CLASTRACE_DEVICE_ADDRESS_WRITES", "precise"}});
+    EXPECT_TRUE(bad.mark_device_address_writers);  // the default is kept
+    EXPECT_FALSE(bad.exact_device_address_writes);
+    ASSERT_EQ(bad.errors.size(), 1u);
+    EXPECT_NE(bad.errors[0].find("CLASTRACE_DEVICE_ADDRESS_WRITES='precise'"), std::string::npos);
 }
 
 TEST(LayerConfig, BackgroundCpusSpareByDefaultAppOrAList) {

@@ -214,3 +214,59 @@ TEST(AddressWrites, ABarrierFromOneOfTheDrawsStagesLeavesTheOtherUnordered) {
 }
 
 }  // namespace
+
+// Exact mode (CLASTRACE_DEVICE_ADDRESS_WRITES=exact): a DeviceAddressWrites record ahead of the
+// QueueSubmit says which bytes the dispatch changed in that execution. Those are certain
+// writes: the missing barrier is an ordinary hazard on exactly those bytes, and nothing else is
+// taken as written.
+replay::ReplayReport exact_infos_written(const std::string& name, bool barrier,
+                                         uint64_t written_at) {
+    return replay_catalogue_scene(temp_path(name), [&](TraceScript& t) {
+        t.dispatch_through_addresses();
+        t.exact_address_writes({{written_at, triangle_infos()}});
+        if (barrier) t.barrier(kCompute, kStorageWrite, kBuild, kInputReads);
+        triangle_clusters(Destinations::kImplicit).emit(t);
+    });
+}
+
+TEST(AddressWrites, ExactWritesWithoutTheBarrierAreACertainHazardOnTheirBytes) {
+    const replay::ReplayReport r = exact_infos_written("exact_no_barrier.clt", false, kInfos);
+    const std::string text = replay::format_text(r);
+    ASSERT_FALSE(r.hazards.empty()) << text;
+    bool infos_named = false;
+    for (const replay::HazardReport& h : r.hazards) {
+        EXPECT_FALSE(h.possible()) << h.format();
+        EXPECT_EQ(h.hazard, HazardClass::kReadAfterWrite) << h.format();
+        EXPECT_STREQ(h.prior.command.name, "vkCmdDispatch");
+        EXPECT_EQ(h.prior.stage, kCompute);
+        EXPECT_EQ(h.prior.access, kStorageWrite);
+        EXPECT_STREQ(h.later.command.name, "vkCmdBuildClusterAccelerationStructureIndirectNV");
+        // Only the bytes the dispatch changed: the vertex reads are not touched.
+        EXPECT_GE(h.overlap.begin, kInfos) << h.format();
+        EXPECT_LE(h.overlap.end, kInfos + triangle_infos().size()) << h.format();
+        if (h.later.field == "srcInfosArray[*]") {
+            infos_named = true;
+            EXPECT_EQ(h.format().rfind("SYNC-HAZARD-READ-AFTER-WRITE: ", 0), 0u) << h.format();
+            EXPECT_EQ(h.fix.src_stages, kCompute) << h.format();
+            EXPECT_EQ(h.fix.dst_stages, kBuild) << h.format();
+        }
+    }
+    EXPECT_TRUE(infos_named) << text;
+    const nlohmann::json j = replay::to_json(r);
+    EXPECT_EQ(j["hazards"]["possible"], 0u);
+    EXPECT_EQ(j["hazards"]["certain"], r.hazards.size());
+}
+
+TEST(AddressWrites, ExactWritesWithTheBarrierAreClean) {
+    const replay::ReplayReport r = exact_infos_written("exact_barrier.clt", true, kInfos);
+    EXPECT_TRUE(r.clean()) << replay::format_text(r);
+}
+
+// The same marked dispatch whose writes landed where nothing reads: no report, where cheap mode
+// (the same trace without the record) reports possible hazards on every later read.
+TEST(AddressWrites, ExactWritesElsewhereRaiseNothing) {
+    const replay::ReplayReport r = exact_infos_written("exact_elsewhere.clt", false, kStaging);
+    EXPECT_TRUE(r.clean()) << replay::format_text(r);
+    const replay::ReplayReport cheap = infos_written_through_address("cheap_elsewhere.clt", false);
+    EXPECT_FALSE(cheap.hazards.empty());
+}

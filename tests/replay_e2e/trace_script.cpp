@@ -235,6 +235,15 @@ void TraceScript::dispatch_through_addresses(const std::vector<InputSnapshot>& o
     writer_.append(std::move(d));
 }
 
+void TraceScript::exact_address_writes(const std::vector<InputSnapshot>& writes) {
+    fbs::DeviceAddressWritesT w;
+    w.command_buffer = command_buffer_;
+    w.command_index = commands_ - 1;
+    w.writes = snapshots_of(writer_, writes);
+    for (const InputSnapshot& s : writes) w.compared_bytes += s.bytes.size();
+    exact_writes_.push_back(std::move(w));
+}
+
 void TraceScript::draw_through_addresses(const std::string& entry_point, uint64_t stages) {
     ensure_begun();
     fbs::CmdDrawT d;
@@ -310,6 +319,11 @@ void TraceScript::submit(uint64_t queue, const std::vector<SemaphoreUse>& waits,
     std::vector<uint64_t> command_buffers = std::move(batch_);
     batch_.clear();
     command_buffers.push_back(command_buffer_);
+    for (fbs::DeviceAddressWritesT& w : exact_writes_) {
+        w.submission = writer_.next_submission_index();
+        writer_.append(std::move(w));
+    }
+    exact_writes_.clear();
     fbs::QueueSubmitT s =
         tb::queue_submit(queue, std::move(command_buffers), fence, writer_.next_submission_index());
     s.version = version;

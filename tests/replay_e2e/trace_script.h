@@ -87,6 +87,10 @@ public:
     // A draw (CmdDraw, `entry_point` such as "vkCmdDrawMeshTasksEXT") whose shaders at `stages`
     // (VkPipelineStageFlags2) may write through buffer device addresses.
     void draw_through_addresses(const std::string& entry_point, uint64_t stages);
+    // CLASTRACE_DEVICE_ADDRESS_WRITES=exact: what the previous command (a dispatch) changed in
+    // this execution, as a DeviceAddressWrites record written, as the capture does, just before
+    // the QueueSubmit that runs the command buffer.
+    void exact_address_writes(const std::vector<InputSnapshot>& writes);
     void barrier(uint64_t src_stages, uint64_t src_access, uint64_t dst_stages,
                  uint64_t dst_access);
     // vkCmdPipelineBarrier (synchronization 1) with one VkMemoryBarrier.
@@ -157,6 +161,7 @@ private:
     bool recorded_ = false;
     uint32_t commands_ = 0;
     std::vector<uint64_t> batch_;  // ended command buffers waiting for the next submit()
+    std::vector<fbs::DeviceAddressWritesT> exact_writes_;  // for the next submit()
 };
 
 }  // namespace clastrace::test

@@ -51,6 +51,7 @@ enum class MemoryRole {
     kAabbs,
     kInstances,
     kSerializedAccelerationStructure,  // vkCmdCopyMemoryToAccelerationStructureKHR source
+    kShaderWrite,  // exact mode: bytes a dispatch changed through device addresses
 };
 const char* memory_role_name(MemoryRole role);
 
@@ -243,6 +244,9 @@ struct DispatchCommand {
     // The pipeline's SPIR-V uses physical storage buffer pointers (spirv_scan.h): the dispatch
     // may write any device-address memory.
     bool may_write_device_addresses = false;
+    // CLASTRACE_DEVICE_ADDRESS_WRITES=exact: the pauses around it (0: none); links the dispatch
+    // to the ClusterBuildCapture (kind kDeviceAddressWrites) of each execution.
+    uint64_t pause_id = 0;
 };
 
 // A draw whose graphics pipeline may write through buffer device addresses (only such draws
@@ -427,7 +431,8 @@ enum class CapturedCommandKind {
     kClusterBuild,
     kBuildAccelerationStructureNv,
     kCopyMemoryToAccelerationStructure,
-    kTimestamps
+    kTimestamps,
+    kDeviceAddressWrites  // exact mode: `outputs` are the bytes a dispatch changed (new bytes)
 };
 
 struct ClusterBuildCapture {
@@ -447,6 +452,7 @@ struct ClusterBuildCapture {
     bool executed_by_engine = false;
     std::vector<EngineFindingRecord> engine_findings;
     double pause_milliseconds = 0;  // queue stall the capture caused (both pauses)
+    uint64_t compared_bytes = 0;    // kDeviceAddressWrites: bytes compared across the pauses
     // Timestamps: the ticks of queries 0..n-1 of the command buffer's layer-owned pool, masked
     // to the queue's valid bits; valid false where the driver reported no result.
     std::vector<uint64_t> timestamp_ticks;

@@ -49,6 +49,9 @@ struct LayerConfig {
     // CLASTRACE_DEVICE_ADDRESS_WRITES: `cheap` marks dispatches and draws whose pipeline's SPIR-V
     // may write through buffer device addresses (replay: possible hazards); `off` does not.
     bool mark_device_address_writers = true;
+    // `exact`: marked dispatches are also paused before and after, and the bytes they changed
+    // are written as a DeviceAddressWrites record (exact_address_writes.h); draws stay cheap.
+    bool exact_device_address_writes = false;
     bool timestamps = true;  // CLASTRACE_TIMESTAMPS: GPU timestamps around each captured command
     bool stats = false;  // CLASTRACE_STATS: where capture's time went, on stderr at vkDestroyDevice
     // CLASTRACE_HOST_WRITES: watch the mapped inputs of captured commands for host writes
