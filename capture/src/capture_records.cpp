@@ -87,6 +87,9 @@ const char* memory_role_name(MemoryRole role) {
     case MemoryRole::kAabbs: return "aabbData";
     case MemoryRole::kInstances: return "instanceData";
     case MemoryRole::kSerializedAccelerationStructure: return "serializedAccelerationStructure";
+    case MemoryRole::kBuildRanges: return "buildRangeInfos";
+    case MemoryRole::kInstancePointers: return "instancePointers";
+    case MemoryRole::kSourceAccelerationStructure: return "srcAccelerationStructure";
     }
     return "unknown";
 }
