@@ -233,11 +233,16 @@ json semaphores_json(const std::vector<SemaphoreUse>& uses) {
 class JsonCaptureSink final : public CaptureSink {
 public:
     explicit JsonCaptureSink(std::string path) : path_(std::move(path)) {
-        for (const char* key :
-             {"devices", "memories", "freedMemories", "buffers", "bindings", "addresses",
-              "destroyedBuffers", "buildSizes", "commandBuffers", "resets", "submissions",
-              "clusterBuilds", "destroyedDevices", "accelerationStructures", "rayChecks",
-              "hostSync", "presents", "acquires", "queryPoolResults", "khrBuildSizes"})
+        for (const char* key : {"devices",          "memories",
+                                "freedMemories",    "buffers",
+                                "bindings",         "addresses",
+                                "destroyedBuffers", "buildSizes",
+                                "commandBuffers",   "resets",
+                                "submissions",      "clusterBuilds",
+                                "destroyedDevices", "accelerationStructures",
+                                "rayChecks",        "hostSync",
+                                "presents",         "acquires",
+                                "queryPoolResults", "khrBuildSizes"})
             root_[key] = json::array();
     }
     ~JsonCaptureSink() override {  // the application may exit without destroying its device

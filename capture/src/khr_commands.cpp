@@ -94,9 +94,10 @@ VKAPI_ATTR void VKAPI_CALL CmdBuildAccelerationStructuresIndirectKHR(
         c->infos.push_back(std::move(info));
     }
     record_build(cb, std::move(c), [&] {
-        device_of(cb).next.CmdBuildAccelerationStructuresIndirectKHR(
-            cb, info_count, p_infos, p_indirect_device_addresses, p_indirect_strides,
-            pp_max_primitive_counts);
+        device_of(cb).next.CmdBuildAccelerationStructuresIndirectKHR(cb, info_count, p_infos,
+                                                                     p_indirect_device_addresses,
+                                                                     p_indirect_strides,
+                                                                     pp_max_primitive_counts);
     });
 }
 
@@ -164,13 +165,15 @@ VKAPI_ATTR void VKAPI_CALL CmdWriteAccelerationStructuresPropertiesKHR(
     VkCommandBuffer cb, uint32_t count, const VkAccelerationStructureKHR* p_structures,
     VkQueryType query_type, VkQueryPool query_pool, uint32_t first_query) {
     WriteAccelerationStructuresPropertiesCommand c;
-    for (uint32_t i = 0; i < count; ++i) c.acceleration_structures.push_back(handle_id(p_structures[i]));
+    for (uint32_t i = 0; i < count; ++i)
+        c.acceleration_structures.push_back(handle_id(p_structures[i]));
     c.query_type = query_type;
     c.query_pool = handle_id(query_pool);
     c.first_query = first_query;
     record_property_write(cb, std::move(c), [&] {
-        device_of(cb).next.CmdWriteAccelerationStructuresPropertiesKHR(
-            cb, count, p_structures, query_type, query_pool, first_query);
+        device_of(cb).next.CmdWriteAccelerationStructuresPropertiesKHR(cb, count, p_structures,
+                                                                       query_type, query_pool,
+                                                                       first_query);
     });
 }
 
@@ -179,13 +182,15 @@ VKAPI_ATTR void VKAPI_CALL CmdWriteAccelerationStructuresPropertiesNV(
     VkQueryType query_type, VkQueryPool query_pool, uint32_t first_query) {
     WriteAccelerationStructuresPropertiesCommand c;
     c.khr = false;
-    for (uint32_t i = 0; i < count; ++i) c.acceleration_structures.push_back(handle_id(p_structures[i]));
+    for (uint32_t i = 0; i < count; ++i)
+        c.acceleration_structures.push_back(handle_id(p_structures[i]));
     c.query_type = query_type;
     c.query_pool = handle_id(query_pool);
     c.first_query = first_query;
     record_property_write(cb, std::move(c), [&] {
-        device_of(cb).next.CmdWriteAccelerationStructuresPropertiesNV(
-            cb, count, p_structures, query_type, query_pool, first_query);
+        device_of(cb).next.CmdWriteAccelerationStructuresPropertiesNV(cb, count, p_structures,
+                                                                      query_type, query_pool,
+                                                                      first_query);
     });
 }
 

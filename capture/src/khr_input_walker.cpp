@@ -121,8 +121,8 @@ struct KhrWalker {
                                       " was created before capture: its storage is unknown"});
             return;
         }
-        CapturedRange range{MemoryRole::kSourceAccelerationStructure, entry, 0, {}, s.buffer,
-                            s.offset};
+        CapturedRange range{
+            MemoryRole::kSourceAccelerationStructure, entry, 0, {}, s.buffer, s.offset};
         std::string why;
         if (!within_limit(s.size)) return;
         if (!read_buffer(s.buffer, s.offset, s.size, &range.bytes, why)) {
@@ -162,8 +162,8 @@ void KhrWalker::triangles(uint32_t entry, const VkAccelerationStructureGeometryT
                 (uint64_t(r.primitiveCount) * 3 - 1) * stride + element);
     }
     if (t.transformData.deviceAddress)
-        capture(MemoryRole::kTransformData, entry, t.transformData.deviceAddress + r.transformOffset,
-                sizeof(VkTransformMatrixKHR));
+        capture(MemoryRole::kTransformData, entry,
+                t.transformData.deviceAddress + r.transformOffset, sizeof(VkTransformMatrixKHR));
 }
 
 // Packed: primitiveCount instances at data + primitiveOffset. Array of pointers: that many
@@ -191,9 +191,9 @@ bool read_indirect_ranges(KhrWalker& walker, const KhrBuildInfo& info, uint32_t 
     const uint32_t count = uint32_t(info.geometries.size());
     if (count == 0) return true;
     const uint64_t step = info.indirect_stride ? info.indirect_stride : kKhrBuildRangeBytes;
-    const CapturedRange* bytes = walker.capture(MemoryRole::kBuildRanges, entry,
-                                                info.indirect_address,
-                                                (count - 1) * step + kKhrBuildRangeBytes);
+    const CapturedRange* bytes =
+        walker.capture(MemoryRole::kBuildRanges, entry, info.indirect_address,
+                       (count - 1) * step + kKhrBuildRangeBytes);
     if (!bytes) return false;
     std::string why;
     if (khr_ranges_from_indirect_bytes(bytes->bytes.data(), bytes->bytes.size(), count,
@@ -230,7 +230,8 @@ ClusterMemoryWalk walk_build_acceleration_structures_khr_inputs(
                 const auto& a = geometry.geometry.aabbs;
                 const uint64_t stride = a.stride ? a.stride : sizeof(VkAabbPositionsKHR);
                 if (range.primitiveCount)
-                    walker.capture(MemoryRole::kAabbs, g, a.data.deviceAddress + range.primitiveOffset,
+                    walker.capture(MemoryRole::kAabbs, g,
+                                   a.data.deviceAddress + range.primitiveOffset,
                                    (uint64_t(range.primitiveCount) - 1) * stride +
                                        sizeof(VkAabbPositionsKHR));
                 break;

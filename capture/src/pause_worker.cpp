@@ -298,7 +298,8 @@ ClusterMemoryWalk PauseWorker::walk_command_inputs(const PausePoint& pause,
     };
     if (pause.build_khr) {
         record.kind = CapturedCommandKind::kBuildAccelerationStructuresKhr;
-        return walk_build_acceleration_structures_khr_inputs(*pause.build_khr, reader, buffer_reader,
+        return walk_build_acceleration_structures_khr_inputs(*pause.build_khr, reader,
+                                                             buffer_reader,
                                                              record.khr_indirect_ranges);
     }
     if (pause.copy_acceleration_structure) {

@@ -333,7 +333,8 @@ std::unique_ptr<fbs::AccelerationStructureInfoNVT> nv_info_of(
     return traces::nv_info_to_record(info);
 }
 
-std::unique_ptr<fbs::AccelerationStructureBuildInfoKHRT> khr_build_info_of(const KhrBuildInfo& info) {
+std::unique_ptr<fbs::AccelerationStructureBuildInfoKHRT> khr_build_info_of(
+    const KhrBuildInfo& info) {
     const VkAccelerationStructureBuildGeometryInfoKHR resolved = info.resolved();
     auto r = traces::khr_build_info_to_record(resolved,
                                               info.ranges.empty() ? nullptr : info.ranges.data());

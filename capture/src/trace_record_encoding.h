@@ -37,7 +37,8 @@ std::unique_ptr<fbs::AccelerationStructureInfoNVT> nv_info_of(
 fbs::RecordT command_record_of(uint64_t command_buffer, const RecordedCommand& command);
 
 // A KHR build info (its direct ranges, indirect fields and unrecorded pNext sTypes).
-std::unique_ptr<fbs::AccelerationStructureBuildInfoKHRT> khr_build_info_of(const KhrBuildInfo& info);
+std::unique_ptr<fbs::AccelerationStructureBuildInfoKHRT> khr_build_info_of(
+    const KhrBuildInfo& info);
 // An indirect build's ranges as the capture read them at execution, into its record's infos.
 void set_indirect_ranges(
     const std::vector<std::vector<VkAccelerationStructureBuildRangeInfoKHR>>& ranges,

@@ -188,10 +188,10 @@ void barrier(VkCommandBuffer cb) {
     VkMemoryBarrier b{VK_STRUCTURE_TYPE_MEMORY_BARRIER};
     b.srcAccessMask = VK_ACCESS_TRANSFER_WRITE_BIT | VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR;
     b.dstAccessMask = VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_KHR |
-                      VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR |
-                      VK_ACCESS_TRANSFER_READ_BIT | VK_ACCESS_SHADER_READ_BIT;
-    const VkPipelineStageFlags stages = VK_PIPELINE_STAGE_TRANSFER_BIT |
-                                        VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR;
+                      VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR | VK_ACCESS_TRANSFER_READ_BIT |
+                      VK_ACCESS_SHADER_READ_BIT;
+    const VkPipelineStageFlags stages =
+        VK_PIPELINE_STAGE_TRANSFER_BIT | VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR;
     vkCmdPipelineBarrier(cb, stages, stages, 0, 1, &b, 0, nullptr, 0, nullptr);
 }
 
@@ -216,7 +216,8 @@ Structure create_structure(const Device& d, const Buffer& storage, VkDeviceSize&
     s.offset = used;
     s.size = size;
     used = (used + size + 255) / 256 * 256;
-    VkAccelerationStructureCreateInfoKHR info{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_CREATE_INFO_KHR};
+    VkAccelerationStructureCreateInfoKHR info{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_CREATE_INFO_KHR};
     info.buffer = storage.buffer;
     info.offset = s.offset;
     info.size = size;
@@ -228,9 +229,8 @@ Structure create_structure(const Device& d, const Buffer& storage, VkDeviceSize&
     return s;
 }
 
-VkAccelerationStructureBuildSizesInfoKHR sizes_of(const Device& d,
-                                                  const VkAccelerationStructureBuildGeometryInfoKHR& info,
-                                                  uint32_t primitives) {
+VkAccelerationStructureBuildSizesInfoKHR sizes_of(
+    const Device& d, const VkAccelerationStructureBuildGeometryInfoKHR& info, uint32_t primitives) {
     VkAccelerationStructureBuildSizesInfoKHR sizes{
         VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR};
     d.build_sizes(d.device, VK_ACCELERATION_STRUCTURE_BUILD_TYPE_DEVICE_KHR, &info, &primitives,
@@ -273,7 +273,8 @@ int main(int argc, char** argv) {
     std::memcpy(staging.mapped + kTransform, kTransform3x4, sizeof kTransform3x4);
 
     // The two bottom levels.
-    VkAccelerationStructureGeometryKHR triangles{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_KHR};
+    VkAccelerationStructureGeometryKHR triangles{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_KHR};
     triangles.geometryType = VK_GEOMETRY_TYPE_TRIANGLES_KHR;
     triangles.flags = VK_GEOMETRY_OPAQUE_BIT_KHR;
     auto& t = triangles.geometry.triangles;
@@ -305,8 +306,9 @@ int main(int argc, char** argv) {
     const auto triangle_sizes = sizes_of(d, blas[0], 2);
     const auto box_sizes = sizes_of(d, blas[1], 2);
     VkDeviceSize used = 0;
-    Structure triangle_blas = create_structure(d, storage, used, triangle_sizes.accelerationStructureSize,
-                                               VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR);
+    Structure triangle_blas =
+        create_structure(d, storage, used, triangle_sizes.accelerationStructureSize,
+                         VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR);
     Structure box_blas = create_structure(d, storage, used, box_sizes.accelerationStructureSize,
                                           VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR);
     blas[0].dstAccelerationStructure = triangle_blas.handle;
@@ -410,10 +412,14 @@ int main(int argc, char** argv) {
                     {"indices", hex(kQuadIndices, sizeof kQuadIndices)},
                     {"aabbs", hex(kBoxes, sizeof kBoxes)},
                     {"transform", hex(kTransform3x4, sizeof kTransform3x4)}};
-    out["offsets"] = {{"vertices", kVertices}, {"indices", kIndices}, {"aabbs", kAabbs},
+    out["offsets"] = {{"vertices", kVertices},
+                      {"indices", kIndices},
+                      {"aabbs", kAabbs},
                       {"transform", kTransform}};
     auto structure_json = [](const Structure& s) {
-        return json{{"handle", id(s.handle)}, {"address", s.address}, {"offset", s.offset},
+        return json{{"handle", id(s.handle)},
+                    {"address", s.address},
+                    {"offset", s.offset},
                     {"size", s.size}};
     };
     out["triangleBlas"] = structure_json(triangle_blas);

@@ -86,7 +86,7 @@ protected:
     }
 
     std::vector<Snapshot> snapshots(clastrace::traces::TraceReader& reader,
-                                     const flatbuffers::Vector<const fbs::MemorySnapshot*>* list) {
+                                    const flatbuffers::Vector<const fbs::MemorySnapshot*>* list) {
         std::vector<Snapshot> result;
         if (!list) return result;
         for (const fbs::MemorySnapshot* s : *list) {
@@ -135,8 +135,7 @@ protected:
                 break;
             case fbs::RecordBody::GetAccelerationStructureBuildSizesKHR:
                 captured.sizes.emplace_back();
-                r.body_as_GetAccelerationStructureBuildSizesKHR()->UnPackTo(
-                    &captured.sizes.back());
+                r.body_as_GetAccelerationStructureBuildSizesKHR()->UnPackTo(&captured.sizes.back());
                 break;
             default: break;
             }
@@ -313,9 +312,9 @@ TEST_F(KhrBuildCapture, ReplayAndInfoReadTheTrace) {
     ProcessResult info =
         run(std::string(CLASTRACE_CAPTURE_LAUNCHER) + " info " + quote(trace.string()), {}, false);
     EXPECT_EQ(info.exitCode, 0) << info.out << info.err;
-    ProcessResult replay = run(
-        std::string(CLASTRACE_CAPTURE_LAUNCHER) + " replay --json " + quote(trace.string()), {},
-        false);
+    ProcessResult replay =
+        run(std::string(CLASTRACE_CAPTURE_LAUNCHER) + " replay --json " + quote(trace.string()), {},
+            false);
     EXPECT_NE(replay.exitCode, 2) << replay.out << replay.err;
 }
 

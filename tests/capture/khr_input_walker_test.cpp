@@ -20,16 +20,16 @@ struct KhrWalkerMemory : ::testing::Test {
         for (size_t i = 0; i < bytes.size(); ++i) bytes[i] = uint8_t(i * 7);
     }
     DeviceMemoryReader reader() {
-        return [this](VkDeviceAddress address, uint64_t size, CapturedBytes* out,
-                      std::string& why) {
-            if (address < kBase || address + size > kBase + bytes.size()) {
-                why = "outside memory";
-                return false;
-            }
-            reads.emplace_back(address, size);
-            if (out) out->assign(&bytes[address - kBase], &bytes[address - kBase] + size);
-            return true;
-        };
+        return
+            [this](VkDeviceAddress address, uint64_t size, CapturedBytes* out, std::string& why) {
+                if (address < kBase || address + size > kBase + bytes.size()) {
+                    why = "outside memory";
+                    return false;
+                }
+                reads.emplace_back(address, size);
+                if (out) out->assign(&bytes[address - kBase], &bytes[address - kBase] + size);
+                return true;
+            };
     }
     BufferMemoryReader no_buffers() {
         return [](uint64_t, VkDeviceSize, uint64_t, CapturedBytes*, std::string& why) {

@@ -54,11 +54,10 @@ void expect_same(const VkAccelerationStructureGeometryKHR& a,
     EXPECT_EQ(a.geometryType, b.geometryType);
     EXPECT_EQ(a.flags, b.flags);
     // The union member geometryType names, byte for byte (its sType included).
-    const size_t size = a.geometryType == VK_GEOMETRY_TYPE_TRIANGLES_KHR
-                            ? sizeof a.geometry.triangles
-                        : a.geometryType == VK_GEOMETRY_TYPE_AABBS_KHR
-                            ? sizeof a.geometry.aabbs
-                            : sizeof a.geometry.instances;
+    const size_t size =
+        a.geometryType == VK_GEOMETRY_TYPE_TRIANGLES_KHR ? sizeof a.geometry.triangles
+        : a.geometryType == VK_GEOMETRY_TYPE_AABBS_KHR   ? sizeof a.geometry.aabbs
+                                                         : sizeof a.geometry.instances;
     EXPECT_EQ(std::memcmp(&a.geometry, &b.geometry, size), 0) << a.geometryType;
 }
 
@@ -91,7 +90,8 @@ void round_trip(uint64_t value, bool pointers) {
     flatbuffers::FlatBufferBuilder fbb;
     std::vector<VkAccelerationStructureGeometryKHR> back_geometries;
     std::vector<VkAccelerationStructureBuildRangeInfoKHR> back_ranges;
-    const auto back = khr_build_info_from_record(packed(*record, fbb), back_geometries, back_ranges);
+    const auto back =
+        khr_build_info_from_record(packed(*record, fbb), back_geometries, back_ranges);
     EXPECT_EQ(back.type, info.type);
     EXPECT_EQ(back.flags, info.flags);
     EXPECT_EQ(back.mode, info.mode);

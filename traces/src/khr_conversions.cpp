@@ -48,8 +48,8 @@ std::unique_ptr<fbs::GeometryKHRT> khr_geometry_to_record(
     const auto& a = geometry.geometry.aabbs;
     out->aabbs = std::make_unique<fbs::GeometryAabbsKHR>(a.data.deviceAddress, a.stride);
     const auto& i = geometry.geometry.instances;
-    out->instances =
-        std::make_unique<fbs::GeometryInstancesKHR>(i.arrayOfPointers != VK_FALSE, i.data.deviceAddress);
+    out->instances = std::make_unique<fbs::GeometryInstancesKHR>(i.arrayOfPointers != VK_FALSE,
+                                                                 i.data.deviceAddress);
     return out;
 }
 
@@ -87,7 +87,8 @@ fbs::BuildRangeInfoKHR khr_range_to_record(const VkAccelerationStructureBuildRan
                                   range.transformOffset);
 }
 
-VkAccelerationStructureBuildRangeInfoKHR khr_range_from_record(const fbs::BuildRangeInfoKHR& range) {
+VkAccelerationStructureBuildRangeInfoKHR khr_range_from_record(
+    const fbs::BuildRangeInfoKHR& range) {
     return {range.primitive_count(), range.primitive_offset(), range.first_vertex(),
             range.transform_offset()};
 }
