@@ -27,15 +27,6 @@ KhrDirectory& directory() {
     return instance;
 }
 
-KhrStructureStorage storage_of(const DeviceState& d, uint64_t acceleration_structure) {
-    if (acceleration_structure == 0) return {};
-    KhrDirectory& dir = directory();
-    std::lock_guard lock(dir.mutex);
-    auto it = dir.structures.find({&d, acceleration_structure});
-    if (it == dir.structures.end()) return {acceleration_structure};
-    return it->second;
-}
-
 DeviceState& device_of(VkCommandBuffer cb) { return *find_device(dispatch_key(cb)); }
 
 bool is_property_query(VkQueryType type) {
@@ -57,7 +48,8 @@ void record_build(VkCommandBuffer cb, std::shared_ptr<BuildAccelerationStructure
     DeviceState& d = device_of(cb);
     for (KhrBuildInfo& info : c->infos)
         if (info.info.mode == VK_BUILD_ACCELERATION_STRUCTURE_MODE_UPDATE_KHR)
-            info.update_source = storage_of(d, handle_id(info.info.srcAccelerationStructure));
+            info.update_source =
+                khr_structure_storage(d, handle_id(info.info.srcAccelerationStructure));
     c->pause_id = next_pause_id(d);
     PausePoint before;
     before.pause_id = c->pause_id;
@@ -108,7 +100,7 @@ void record_copy(VkCommandBuffer cb, std::shared_ptr<CopyAccelerationStructureCo
         record_command_with_pause(cb, nullptr, forward, *c);
         return;
     }
-    c->source = storage_of(d, c->src);
+    c->source = khr_structure_storage(d, c->src);
     c->pause_id = next_pause_id(d);
     PausePoint before;
     before.pause_id = c->pause_id;
@@ -265,6 +257,16 @@ void remember_khr_structure(DeviceState& device, const KhrStructureStorage& stor
     KhrDirectory& dir = directory();
     std::lock_guard lock(dir.mutex);
     dir.structures[{&device, storage.acceleration_structure}] = storage;
+}
+
+KhrStructureStorage khr_structure_storage(const DeviceState& device,
+                                          uint64_t acceleration_structure) {
+    if (acceleration_structure == 0) return {};
+    KhrDirectory& dir = directory();
+    std::lock_guard lock(dir.mutex);
+    auto it = dir.structures.find({&device, acceleration_structure});
+    if (it == dir.structures.end()) return {acceleration_structure};
+    return it->second;
 }
 
 void forget_khr_structure(DeviceState& device, uint64_t acceleration_structure) {

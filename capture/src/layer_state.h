@@ -295,6 +295,9 @@ PFN_vkVoidFunction sparse_hook(const char* name);
 PFN_vkVoidFunction khr_acceleration_structure_hook(const char* name);
 void remember_khr_structure(DeviceState& device, const KhrStructureStorage& storage);
 void forget_khr_structure(DeviceState& device, uint64_t acceleration_structure);
+// Where a KHR structure lives ({handle} alone when the layer did not see it created).
+KhrStructureStorage khr_structure_storage(const DeviceState& device,
+                                          uint64_t acceleration_structure);
 
 // CLASTRACE_RAY_CHECK: after submission `submissionIndex` on `queue` (just submitted), waits
 // for the queue and traces the configured rays against each of `topLevels`, recording a
