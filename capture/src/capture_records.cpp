@@ -69,6 +69,39 @@ VkClusterAccelerationStructureCommandsInfoNV ClusterCommandParameters::resolved(
     return out;
 }
 
+KhrBuildInfo KhrBuildInfo::copy_of(const VkAccelerationStructureBuildGeometryInfoKHR& info,
+                                   const VkAccelerationStructureBuildRangeInfoKHR* ranges) {
+    KhrBuildInfo copy;
+    copy.info = info;
+    copy.info.pNext = nullptr;
+    copy.info.pGeometries = nullptr;
+    copy.info.ppGeometries = nullptr;
+    for (auto* s = static_cast<const VkBaseInStructure*>(info.pNext); s; s = s->pNext)
+        copy.next_stypes.push_back(uint32_t(s->sType));
+    for (uint32_t g = 0; g < info.geometryCount; ++g) {
+        VkAccelerationStructureGeometryKHR geometry =
+            info.pGeometries ? info.pGeometries[g] : *info.ppGeometries[g];
+        geometry.pNext = nullptr;
+        // The union's active member's pNext (e.g. motion or micromap data) is not kept either.
+        if (geometry.geometryType == VK_GEOMETRY_TYPE_TRIANGLES_KHR)
+            geometry.geometry.triangles.pNext = nullptr;
+        else if (geometry.geometryType == VK_GEOMETRY_TYPE_AABBS_KHR)
+            geometry.geometry.aabbs.pNext = nullptr;
+        else if (geometry.geometryType == VK_GEOMETRY_TYPE_INSTANCES_KHR)
+            geometry.geometry.instances.pNext = nullptr;
+        copy.geometries.push_back(geometry);
+        if (ranges) copy.ranges.push_back(ranges[g]);
+    }
+    return copy;
+}
+
+VkAccelerationStructureBuildGeometryInfoKHR KhrBuildInfo::resolved() const {
+    VkAccelerationStructureBuildGeometryInfoKHR out = info;
+    out.geometryCount = uint32_t(geometries.size());
+    out.pGeometries = geometries.data();
+    return out;
+}
+
 const char* memory_role_name(MemoryRole role) {
     switch (role) {
     case MemoryRole::kSrcInfosCount: return "srcInfosCount";
@@ -88,6 +121,9 @@ const char* memory_role_name(MemoryRole role) {
     case MemoryRole::kInstances: return "instanceData";
     case MemoryRole::kSerializedAccelerationStructure: return "serializedAccelerationStructure";
     case MemoryRole::kShaderWrite: return "shaderWrite";
+    case MemoryRole::kBuildRanges: return "buildRangeInfos";
+    case MemoryRole::kInstancePointers: return "instancePointers";
+    case MemoryRole::kSourceAccelerationStructure: return "srcAccelerationStructure";
     }
     return "unknown";
 }

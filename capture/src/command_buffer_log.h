@@ -6,6 +6,7 @@
 
 #include "pause_worker.h"
 
+#include <functional>
 #include <map>
 #include <vector>
 
@@ -32,6 +33,12 @@ struct CommandBufferLog {
     std::map<uint32_t, std::pair<VkDescriptorSet, std::vector<uint32_t>>>
         compute_sets;  // set -> (set, dynamic offsets)
 };
+
+// Forwards a command (`forward`) and logs `command` (khr_commands.cpp). With `pause`: a captured
+// command, between the layer's timestamps, after `pause` (recorded when its pause_id is not 0,
+// i.e. when capturing now). Without: logged only.
+void record_command_with_pause(VkCommandBuffer cb, PausePoint* pause,
+                               const std::function<void()>& forward, RecordedCommand command);
 
 // Clears `log` for a new recording; its events and query pool become spares.
 void clear_command_buffer_log(DeviceState& device, CommandBufferLog& log);

@@ -61,10 +61,26 @@ private:
                 add_address_to_buffer_end(a);
         } else if (const auto* nv = std::get_if<BuildAccelerationStructureNVCommand>(&command)) {
             add_buffer(nv->scratch, nv->scratch_offset, VK_WHOLE_SIZE);
+        } else if (const auto* khr = std::get_if<BuildAccelerationStructuresKHRCommand>(&command)) {
+            for (const KhrBuildInfo& info : khr->infos) {
+                add_address_to_buffer_end(info.info.scratchData.deviceAddress);
+                add_structure(uint64_t(info.info.dstAccelerationStructure));
+            }
+        } else if (const auto* copy = std::get_if<CopyAccelerationStructureCommand>(&command)) {
+            if (copy->to_memory)
+                add_address_to_buffer_end(copy->dst_address);
+            else if (copy->khr)
+                add_structure(copy->dst);
         } else if (const auto* execute = std::get_if<ExecuteCommandsCommand>(&command)) {
             for (uint64_t secondary : execute->secondaries)
                 add_command_buffer(secondary, depth + 1);
         }
+    }
+
+    // A KHR structure's storage in its buffer (NV structures own memory the layer cannot map).
+    void add_structure(uint64_t acceleration_structure) {
+        const KhrStructureStorage s = khr_structure_storage(d_, acceleration_structure);
+        if (s.buffer) add_buffer(s.buffer, s.offset, s.size);
     }
 
     void add_any_memory() { spans.push_back({MemorySpan::kAnyMemory, 0, ~VkDeviceSize{0}}); }

@@ -170,6 +170,50 @@ struct CommandToJson {
     json operator()(const TimestampWriteCommand& c) const {
         return {{"kind", "WriteTimestamp"}, {"query", c.query}, {"stageMask", c.stage_mask}};
     }
+    json operator()(const BuildAccelerationStructuresKHRCommand& c) const {
+        json infos = json::array();
+        for (const KhrBuildInfo& i : c.infos) {
+            json ranges = json::array();
+            for (const auto& r : i.ranges)
+                ranges.push_back(
+                    {r.primitiveCount, r.primitiveOffset, r.firstVertex, r.transformOffset});
+            json geometry_types = json::array();
+            for (const auto& g : i.geometries) geometry_types.push_back(int(g.geometryType));
+            infos.push_back({{"type", int(i.info.type)},
+                             {"flags", i.info.flags},
+                             {"mode", int(i.info.mode)},
+                             {"src", (uint64_t)(i.info.srcAccelerationStructure)},
+                             {"dst", (uint64_t)(i.info.dstAccelerationStructure)},
+                             {"geometryTypes", geometry_types},
+                             {"scratch", i.info.scratchData.deviceAddress},
+                             {"ranges", ranges},
+                             {"indirectAddress", i.indirect_address},
+                             {"indirectStride", i.indirect_stride},
+                             {"maxPrimitiveCounts", i.max_primitive_counts}});
+        }
+        return {{"kind", c.indirect ? "BuildAccelerationStructuresIndirectKHR"
+                                    : "BuildAccelerationStructuresKHR"},
+                {"infos", infos},
+                {"pauseId", c.pause_id}};
+    }
+    json operator()(const CopyAccelerationStructureCommand& c) const {
+        return {{"kind", c.to_memory ? "CopyAccelerationStructureToMemoryKHR"
+                         : c.khr     ? "CopyAccelerationStructureKHR"
+                                     : "CopyAccelerationStructureNV"},
+                {"src", c.src},
+                {"dst", c.dst},
+                {"dstAddress", c.dst_address},
+                {"mode", int(c.mode)},
+                {"pauseId", c.pause_id}};
+    }
+    json operator()(const WriteAccelerationStructuresPropertiesCommand& c) const {
+        return {{"kind", c.khr ? "WriteAccelerationStructuresPropertiesKHR"
+                               : "WriteAccelerationStructuresPropertiesNV"},
+                {"accelerationStructures", c.acceleration_structures},
+                {"queryType", int(c.query_type)},
+                {"queryPool", c.query_pool},
+                {"firstQuery", c.first_query}};
+    }
     json operator()(const CopyMemoryToAccelerationStructureCommand& c) const {
         return {{"kind", "CopyMemoryToAccelerationStructureKHR"},
                 {"src", c.src},
@@ -190,11 +234,16 @@ json semaphores_json(const std::vector<SemaphoreUse>& uses) {
 class JsonCaptureSink final : public CaptureSink {
 public:
     explicit JsonCaptureSink(std::string path) : path_(std::move(path)) {
-        for (const char* key :
-             {"devices", "memories", "freedMemories", "buffers", "bindings", "addresses",
-              "destroyedBuffers", "buildSizes", "commandBuffers", "resets", "submissions",
-              "clusterBuilds", "destroyedDevices", "accelerationStructures", "rayChecks",
-              "hostSync", "presents", "acquires"})
+        for (const char* key : {"devices",          "memories",
+                                "freedMemories",    "buffers",
+                                "bindings",         "addresses",
+                                "destroyedBuffers", "buildSizes",
+                                "commandBuffers",   "resets",
+                                "submissions",      "clusterBuilds",
+                                "destroyedDevices", "accelerationStructures",
+                                "rayChecks",        "hostSync",
+                                "presents",         "acquires",
+                                "queryPoolResults", "khrBuildSizes"})
             root_[key] = json::array();
     }
     ~JsonCaptureSink() override {  // the application may exit without destroying its device
@@ -280,6 +329,21 @@ public:
                                {"timestamps", timestamps}});
     }
     void command_buffer_reset(uint64_t command_buffer) override { add("resets", command_buffer); }
+    void query_pool_results_read(const QueryPoolResultsRecord& q) override {
+        add("queryPoolResults", {{"queryPool", q.query_pool},
+                                 {"firstQuery", q.first_query},
+                                 {"values", q.values},
+                                 {"result", q.result}});
+    }
+    void khr_build_sizes_queried(const KhrBuildSizesQuery& q) override {
+        add("khrBuildSizes", {{"buildType", int(q.build_type)},
+                              {"type", int(q.info.info.type)},
+                              {"geometryCount", q.info.geometries.size()},
+                              {"maxPrimitiveCounts", q.max_primitive_counts},
+                              {"accelerationStructureSize", q.answer.accelerationStructureSize},
+                              {"buildScratchSize", q.answer.buildScratchSize},
+                              {"updateScratchSize", q.answer.updateScratchSize}});
+    }
     void queue_submitted(const SubmissionRecord& s) override {
         json batches = json::array();
         for (const auto& b : s.batches)

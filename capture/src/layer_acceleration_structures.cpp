@@ -98,6 +98,10 @@ VKAPI_ATTR VkResult VKAPI_CALL CreateAccelerationStructureKHR(
     DeviceState& d = device_of(device);
     VkResult result = d.next.CreateAccelerationStructureKHR(device, p_create_info, p_allocator,
                                                             p_acceleration_structure);
+    if (result == VK_SUCCESS)
+        remember_khr_structure(d, {handle_id(*p_acceleration_structure),
+                                   handle_id(p_create_info->buffer), p_create_info->offset,
+                                   p_create_info->size});
     if (result != VK_SUCCESS || !d.sink) return result;
     AccelerationStructureRecord r;
     r.acceleration_structure = handle_id(*p_acceleration_structure);
@@ -114,6 +118,7 @@ VKAPI_ATTR VkResult VKAPI_CALL CreateAccelerationStructureKHR(
 VKAPI_ATTR void VKAPI_CALL DestroyAccelerationStructureKHR(
     VkDevice device, VkAccelerationStructureKHR as, const VkAllocationCallbacks* p_allocator) {
     DeviceState& d = device_of(device);
+    if (as) forget_khr_structure(d, handle_id(as));
     if (as && d.sink) d.sink->acceleration_structure_destroyed(handle_id(as));
     d.next.DestroyAccelerationStructureKHR(device, as, p_allocator);
 }

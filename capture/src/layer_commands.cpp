@@ -805,6 +805,23 @@ void release_command_buffer_log(DeviceState& d, CommandBufferLog& log) {
     log.spare_timestamp_pool = VK_NULL_HANDLE;
 }
 
+void record_command_with_pause(VkCommandBuffer cb, PausePoint* pause,
+                               const std::function<void()>& forward, RecordedCommand command) {
+    DeviceState& d = device_of(cb);
+    auto log = log_of(d, cb);
+    if (!pause) {
+        forward();
+        if (d.sink) log->recorded.commands.push_back(std::move(command));
+        return;
+    }
+    if (pause->pause_id) record_pause(d, cb, *log, *pause);
+    const bool started = timestamp_before(d, cb, *log).has_value();
+    forward();
+    auto ended = timestamp_after(d, cb, *log, started);
+    if (d.sink) log->recorded.commands.push_back(std::move(command));
+    if (ended) log->recorded.commands.push_back(*ended);
+}
+
 PFN_vkVoidFunction command_hook(const char* name) {
 #define HOOK(fn) \
     { "vk" #fn, (PFN_vkVoidFunction)fn }

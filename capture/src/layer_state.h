@@ -155,7 +155,15 @@ uint64_t handle_id(Handle handle) {
     X(QueuePresentKHR)                                \
     X(AcquireNextImageKHR)                            \
     X(AcquireNextImage2KHR)                           \
-    X(QueueBindSparse)
+    X(QueueBindSparse)                                \
+    X(CmdBuildAccelerationStructuresKHR)              \
+    X(CmdBuildAccelerationStructuresIndirectKHR)      \
+    X(CmdCopyAccelerationStructureKHR)                \
+    X(CmdCopyAccelerationStructureNV)                 \
+    X(CmdCopyAccelerationStructureToMemoryKHR)        \
+    X(CmdWriteAccelerationStructuresPropertiesKHR)    \
+    X(CmdWriteAccelerationStructuresPropertiesNV)     \
+    X(GetAccelerationStructureBuildSizesKHR)
 
 #define CLASTRACE_DECLARE_PFN(name) PFN_vk##name name = nullptr;
 
@@ -282,6 +290,14 @@ PFN_vkVoidFunction cluster_hook(const char* name);
 PFN_vkVoidFunction acceleration_structure_hook(const char* name);
 PFN_vkVoidFunction present_hook(const char* name);
 PFN_vkVoidFunction sparse_hook(const char* name);
+// KHR acceleration-structure builds, copies, property queries and size queries
+// (khr_commands.cpp); the layer learns where each KHR structure lives from its creation.
+PFN_vkVoidFunction khr_acceleration_structure_hook(const char* name);
+void remember_khr_structure(DeviceState& device, const KhrStructureStorage& storage);
+void forget_khr_structure(DeviceState& device, uint64_t acceleration_structure);
+// Where a KHR structure lives ({handle} alone when the layer did not see it created).
+KhrStructureStorage khr_structure_storage(const DeviceState& device,
+                                          uint64_t acceleration_structure);
 
 // CLASTRACE_RAY_CHECK: after submission `submissionIndex` on `queue` (just submitted), waits
 // for the queue and traces the configured rays against each of `topLevels`, recording a

@@ -10,6 +10,7 @@
 #include <pthread.h>
 
 #include "clastrace/capture/acceleration_structure_walker.h"
+#include "clastrace/capture/khr_input_walker.h"
 #include "clastrace/capture/capture_cost.h"
 #include "clastrace/capture/cluster_limits.h"
 #include "clastrace/capture/served_build.h"
@@ -321,19 +322,29 @@ ClusterBuildCapture* PauseWorker::open_record(const Expected& expected, const Op
 ClusterMemoryWalk PauseWorker::walk_command_inputs(const PausePoint& pause,
                                                    ClusterBuildCapture& record,
                                                    const DeviceMemoryReader& reader) {
+    BufferMemoryReader buffer_reader = [this](uint64_t buffer, VkDeviceSize offset, uint64_t size,
+                                              CapturedBytes* out, std::string& why) {
+        auto range = device_.memory_map.resolve_buffer(buffer, offset, size, why);
+        if (!range) return false;
+        if (!range->host && !(staging_ && staging_->find(range->buffer.handle))) {
+            why = kNotStaged;
+            return false;
+        }
+        return out ? read_resolved(*range, size, *out) : true;
+    };
+    if (pause.build_khr) {
+        record.kind = CapturedCommandKind::kBuildAccelerationStructuresKhr;
+        return walk_build_acceleration_structures_khr_inputs(*pause.build_khr, reader,
+                                                             buffer_reader,
+                                                             record.khr_indirect_ranges);
+    }
+    if (pause.copy_acceleration_structure) {
+        record.kind = CapturedCommandKind::kCopyAccelerationStructure;
+        return walk_copy_acceleration_structure_inputs(*pause.copy_acceleration_structure,
+                                                       buffer_reader);
+    }
     if (pause.build_nv) {
         record.kind = CapturedCommandKind::kBuildAccelerationStructureNv;
-        BufferMemoryReader buffer_reader = [this](uint64_t buffer, VkDeviceSize offset,
-                                                  uint64_t size, CapturedBytes* out,
-                                                  std::string& why) {
-            auto range = device_.memory_map.resolve_buffer(buffer, offset, size, why);
-            if (!range) return false;
-            if (!range->host && !(staging_ && staging_->find(range->buffer.handle))) {
-                why = kNotStaged;
-                return false;
-            }
-            return out ? read_resolved(*range, size, *out) : true;
-        };
         ClusterMemoryWalk walk =
             walk_build_acceleration_structure_nv_inputs(*pause.build_nv, buffer_reader);
         device_.nv_scene.observe_build(*pause.build_nv, walk.ranges);  // for the ray check

@@ -64,6 +64,8 @@ struct PausePoint {
     // Or a dispatch that may write through device addresses, under
     // CLASTRACE_DEVICE_ADDRESS_WRITES=exact: its two pauses compare memory.
     bool address_writes = false;
+    std::shared_ptr<const BuildAccelerationStructuresKHRCommand> build_khr;
+    std::shared_ptr<const CopyAccelerationStructureCommand> copy_acceleration_structure;
     std::shared_ptr<const StagingSet>
         staging;  // copies of unmapped memory, or null (pause_staging.h)
 };

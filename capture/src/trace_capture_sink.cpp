@@ -163,6 +163,13 @@ public:
         r.build_scratch_size = q.answer.buildScratchSize;
         append(record_of(std::move(r)));
     }
+    // After the submissions announced before the call (the results read their queries).
+    void query_pool_results_read(const QueryPoolResultsRecord& q) override {
+        append(record_of(query_pool_results_of(q)));
+    }
+    void khr_build_sizes_queried(const KhrBuildSizesQuery& q) override {
+        append(record_of(khr_build_sizes_of(q)));
+    }
     void command_buffer_recorded(const RecordedCommandBuffer& cb) override {
         auto copy = std::make_shared<RecordedCommandBuffer>(cb);  // outside the lock
         StateLock lock(*this);
@@ -475,6 +482,10 @@ private:
         if (const auto* c = std::get_if<CopyMemoryToAccelerationStructureCommand>(&command))
             return c->pause_id;
         if (const auto* c = std::get_if<DispatchCommand>(&command)) return c->pause_id;
+        if (const auto* c = std::get_if<BuildAccelerationStructuresKHRCommand>(&command))
+            return c->pause_id;
+        if (const auto* c = std::get_if<CopyAccelerationStructureCommand>(&command))
+            return c->pause_id;
         return 0;
     }
 
@@ -839,6 +850,13 @@ private:
         } else if (auto* r = record.body.AsCmdBuildAccelerationStructureNV()) {
             snapshots(captured.inputs, r->inputs);
         } else if (auto* r = record.body.AsCmdCopyMemoryToAccelerationStructure()) {
+            snapshots(captured.inputs, r->inputs);
+        } else if (auto* r = record.body.AsCmdBuildAccelerationStructuresKHR()) {
+            snapshots(captured.inputs, r->inputs);
+            if (r->indirect) set_indirect_ranges(captured.khr_indirect_ranges, *r);
+        } else if (auto* r = record.body.AsCmdCopyAccelerationStructure()) {
+            snapshots(captured.inputs, r->inputs);
+        } else if (auto* r = record.body.AsCmdCopyAccelerationStructureToMemory()) {
             snapshots(captured.inputs, r->inputs);
         }
     }

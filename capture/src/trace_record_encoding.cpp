@@ -3,6 +3,7 @@
 #include "trace_record_encoding.h"
 
 #include <clastrace/traces/cluster_conversions.h>
+#include <clastrace/traces/khr_conversions.h>
 #include <clastrace/traces/nv_conversions.h>
 
 #include <cstdio>
@@ -151,6 +152,43 @@ fbs::RecordT encode(uint64_t cb, const CopyMemoryToAccelerationStructureCommand&
     return record_of(std::move(r));
 }
 
+fbs::RecordT encode(uint64_t cb, const BuildAccelerationStructuresKHRCommand& c) {
+    fbs::CmdBuildAccelerationStructuresKHRT r;
+    r.command_buffer = cb;
+    r.indirect = c.indirect;
+    for (const KhrBuildInfo& info : c.infos) r.infos.push_back(khr_build_info_of(info));
+    return record_of(std::move(r));
+}
+
+fbs::RecordT encode(uint64_t cb, const CopyAccelerationStructureCommand& c) {
+    if (c.to_memory) {
+        fbs::CmdCopyAccelerationStructureToMemoryT r;
+        r.command_buffer = cb;
+        r.src = c.src;
+        r.dst_address = c.dst_address;
+        r.mode = uint32_t(c.mode);
+        return record_of(std::move(r));
+    }
+    fbs::CmdCopyAccelerationStructureT r;
+    r.command_buffer = cb;
+    r.api = c.khr ? 1 : 0;
+    r.src = c.src;
+    r.dst = c.dst;
+    r.mode = uint32_t(c.mode);
+    return record_of(std::move(r));
+}
+
+fbs::RecordT encode(uint64_t cb, const WriteAccelerationStructuresPropertiesCommand& c) {
+    fbs::CmdWriteAccelerationStructuresPropertiesT r;
+    r.command_buffer = cb;
+    r.api = c.khr ? 1 : 0;
+    r.acceleration_structures = c.acceleration_structures;
+    r.query_type = uint32_t(c.query_type);
+    r.query_pool = c.query_pool;
+    r.first_query = c.first_query;
+    return record_of(std::move(r));
+}
+
 // Written by the sink itself: the ticks and the secondaries' blocks depend on the submission.
 fbs::RecordT encode(uint64_t, const TimestampWriteCommand&) { return {}; }
 fbs::RecordT encode(uint64_t, const ExecuteCommandsCommand&) { return {}; }
@@ -293,6 +331,48 @@ std::unique_ptr<fbs::AccelerationStructureInfoNVT> nv_info_of(
     info.geometryCount = uint32_t(geometries.size());
     info.pGeometries = geometries.data();
     return traces::nv_info_to_record(info);
+}
+
+std::unique_ptr<fbs::AccelerationStructureBuildInfoKHRT> khr_build_info_of(
+    const KhrBuildInfo& info) {
+    const VkAccelerationStructureBuildGeometryInfoKHR resolved = info.resolved();
+    auto r = traces::khr_build_info_to_record(resolved,
+                                              info.ranges.empty() ? nullptr : info.ranges.data());
+    r->indirect_address = info.indirect_address;
+    r->indirect_stride = info.indirect_stride;
+    r->max_primitive_counts = info.max_primitive_counts;
+    r->unrecorded_next_stypes = info.next_stypes;
+    return r;
+}
+
+void set_indirect_ranges(
+    const std::vector<std::vector<VkAccelerationStructureBuildRangeInfoKHR>>& ranges,
+    fbs::CmdBuildAccelerationStructuresKHRT& record) {
+    for (size_t i = 0; i < ranges.size() && i < record.infos.size(); ++i) {
+        record.infos[i]->ranges.clear();
+        for (const auto& range : ranges[i])
+            record.infos[i]->ranges.push_back(traces::khr_range_to_record(range));
+    }
+}
+
+fbs::QueryPoolResultsT query_pool_results_of(const QueryPoolResultsRecord& q) {
+    fbs::QueryPoolResultsT r;
+    r.query_pool = q.query_pool;
+    r.first_query = q.first_query;
+    r.values = q.values;
+    r.result = q.result;
+    return r;
+}
+
+fbs::GetAccelerationStructureBuildSizesKHRT khr_build_sizes_of(const KhrBuildSizesQuery& q) {
+    fbs::GetAccelerationStructureBuildSizesKHRT r;
+    r.build_type = uint32_t(q.build_type);
+    r.info = khr_build_info_of(q.info);
+    r.max_primitive_counts = q.max_primitive_counts;
+    r.acceleration_structure_size = q.answer.accelerationStructureSize;
+    r.update_scratch_size = q.answer.updateScratchSize;
+    r.build_scratch_size = q.answer.buildScratchSize;
+    return r;
 }
 
 fbs::RecordT command_record_of(uint64_t command_buffer, const RecordedCommand& command) {

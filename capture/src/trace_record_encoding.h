@@ -36,6 +36,16 @@ std::unique_ptr<fbs::AccelerationStructureInfoNVT> nv_info_of(
 // record with no body for the commands the sink writes itself (timestamps, vkCmdExecuteCommands).
 fbs::RecordT command_record_of(uint64_t command_buffer, const RecordedCommand& command);
 
+// A KHR build info (its direct ranges, indirect fields and unrecorded pNext sTypes).
+std::unique_ptr<fbs::AccelerationStructureBuildInfoKHRT> khr_build_info_of(
+    const KhrBuildInfo& info);
+// An indirect build's ranges as the capture read them at execution, into its record's infos.
+void set_indirect_ranges(
+    const std::vector<std::vector<VkAccelerationStructureBuildRangeInfoKHR>>& ranges,
+    fbs::CmdBuildAccelerationStructuresKHRT& record);
+fbs::QueryPoolResultsT query_pool_results_of(const QueryPoolResultsRecord& q);
+fbs::GetAccelerationStructureBuildSizesKHRT khr_build_sizes_of(const KhrBuildSizesQuery& q);
+
 // The QueueSubmit of a submission, numbered `submissionIndex` in the trace.
 fbs::QueueSubmitT queue_submit_of(const SubmissionRecord& s, uint64_t submission_index);
 

@@ -22,6 +22,12 @@ SnapshotLists record_snapshots(const fbs::Record& record) {
         return lists_of(record.body_as_CmdBuildAccelerationStructureNV());
     case K::CmdCopyMemoryToAccelerationStructure:
         return lists_of(record.body_as_CmdCopyMemoryToAccelerationStructure());
+    case K::CmdBuildAccelerationStructuresKHR:
+        return lists_of(record.body_as_CmdBuildAccelerationStructuresKHR());
+    case K::CmdCopyAccelerationStructure:
+        return lists_of(record.body_as_CmdCopyAccelerationStructure());
+    case K::CmdCopyAccelerationStructureToMemory:
+        return lists_of(record.body_as_CmdCopyAccelerationStructureToMemory());
     case K::MemoryObservation: {
         const auto* o = record.body_as_MemoryObservation();
         return o ? SnapshotLists{o->snapshots(), nullptr} : SnapshotLists{};

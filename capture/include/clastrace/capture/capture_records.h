@@ -51,7 +51,10 @@ enum class MemoryRole {
     kAabbs,
     kInstances,
     kSerializedAccelerationStructure,  // vkCmdCopyMemoryToAccelerationStructureKHR source
-    kShaderWrite,  // exact mode: bytes a dispatch changed through device addresses
+    kShaderWrite,                  // exact mode: bytes a dispatch changed through device addresses
+    kBuildRanges,                  // KHR indirect builds: the ranges read at execution
+    kInstancePointers,             // KHR instances given as an array of pointers
+    kSourceAccelerationStructure,  // a KHR update's or copy's source structure
 };
 const char* memory_role_name(MemoryRole role);
 
@@ -300,11 +303,86 @@ struct ExecuteCommandsCommand {
     std::vector<uint64_t> secondaries;
 };
 
+// ---- KHR acceleration structures in use (khr_commands.cpp) ---------------------------------
+
+// Where a KHR acceleration structure lives (vkCreateAccelerationStructureKHR): its storage is
+// read from there when a command reads the structure (an update's source, a copy's source).
+struct KhrStructureStorage {
+    uint64_t acceleration_structure = 0;
+    uint64_t buffer = 0;  // 0: unknown (created before the layer saw it)
+    VkDeviceSize offset = 0, size = 0;
+};
+
+// VkAccelerationStructureBuildGeometryInfoKHR copied by value, geometries flattened from
+// pGeometries or ppGeometries (pNext cleared; the chain's sTypes kept in next_stypes).
+struct KhrBuildInfo {
+    VkAccelerationStructureBuildGeometryInfoKHR info{};  // pGeometries/ppGeometries/pNext null
+    std::vector<VkAccelerationStructureGeometryKHR> geometries;
+    // The direct command's ranges, one per geometry; empty for an indirect build (read at
+    // execution from indirect_address, see ClusterBuildCapture::khr_indirect_ranges).
+    std::vector<VkAccelerationStructureBuildRangeInfoKHR> ranges;
+    VkDeviceAddress indirect_address = 0;
+    uint32_t indirect_stride = 0;
+    std::vector<uint32_t> max_primitive_counts;  // indirect builds and size queries
+    std::vector<uint32_t> next_stypes;
+    KhrStructureStorage update_source;  // mode UPDATE: where srcAccelerationStructure lives
+
+    static KhrBuildInfo copy_of(const VkAccelerationStructureBuildGeometryInfoKHR& info,
+                                const VkAccelerationStructureBuildRangeInfoKHR* ranges);
+    // The info as a driver reads it: pGeometries pointing into this copy.
+    VkAccelerationStructureBuildGeometryInfoKHR resolved() const;
+};
+
+// vkCmdBuildAccelerationStructuresKHR / vkCmdBuildAccelerationStructuresIndirectKHR.
+struct BuildAccelerationStructuresKHRCommand {
+    bool indirect = false;
+    std::vector<KhrBuildInfo> infos;
+    uint64_t pause_id = 0;  // 0: recorded without capture
+};
+
+// vkCmdCopyAccelerationStructureKHR/NV and vkCmdCopyAccelerationStructureToMemoryKHR.
+struct CopyAccelerationStructureCommand {
+    bool khr = true;
+    bool to_memory = false;  // vkCmdCopyAccelerationStructureToMemoryKHR: dst_address is set
+    uint64_t src = 0, dst = 0;
+    VkDeviceAddress dst_address = 0;
+    VkCopyAccelerationStructureModeKHR mode{};
+    KhrStructureStorage source;  // where src lives (KHR only)
+    uint64_t pause_id = 0;
+};
+
+// vkCmdWriteAccelerationStructuresPropertiesKHR/NV.
+struct WriteAccelerationStructuresPropertiesCommand {
+    bool khr = true;
+    std::vector<uint64_t> acceleration_structures;
+    VkQueryType query_type{};
+    uint64_t query_pool = 0;
+    uint32_t first_query = 0;
+};
+
+// vkGetQueryPoolResults of a pool that holds acceleration-structure property queries.
+struct QueryPoolResultsRecord {
+    uint64_t query_pool = 0;
+    uint32_t first_query = 0;
+    std::vector<uint64_t> values;  // each query's value (and availability word, if asked)
+    int32_t result = 0;
+};
+
+// vkGetAccelerationStructureBuildSizesKHR and the driver's answer.
+struct KhrBuildSizesQuery {
+    VkAccelerationStructureBuildTypeKHR build_type{};
+    KhrBuildInfo info;
+    std::vector<uint32_t> max_primitive_counts;
+    VkAccelerationStructureBuildSizesInfoKHR answer{};
+};
+
 using RecordedCommand =
     std::variant<BarrierCommand, EventCommand, CopyBufferCommand, FillBufferCommand,
                  UpdateBufferCommand, DispatchCommand, ClusterBuildCommand,
                  BuildAccelerationStructureNVCommand, CopyMemoryToAccelerationStructureCommand,
-                 TimestampWriteCommand, ExecuteCommandsCommand, DrawCommand>;
+                 TimestampWriteCommand, ExecuteCommandsCommand, DrawCommand,
+                 BuildAccelerationStructuresKHRCommand, CopyAccelerationStructureCommand,
+                 WriteAccelerationStructuresPropertiesCommand>;
 
 struct RecordedCommandBuffer {
     uint64_t command_buffer = 0;
@@ -432,7 +510,9 @@ enum class CapturedCommandKind {
     kBuildAccelerationStructureNv,
     kCopyMemoryToAccelerationStructure,
     kTimestamps,
-    kDeviceAddressWrites  // exact mode: `outputs` are the bytes a dispatch changed (new bytes)
+    kDeviceAddressWrites,  // exact mode: `outputs` are the bytes a dispatch changed (new bytes)
+    kBuildAccelerationStructuresKhr,
+    kCopyAccelerationStructure,
 };
 
 struct ClusterBuildCapture {
@@ -464,6 +544,8 @@ struct ClusterBuildCapture {
     // outputs are views into that image and keep it (still `heldBytes`) until they are freed.
     std::function<void(ClusterBuildCapture&)> complete;
     uint64_t held_bytes = 0;
+    // vkCmdBuildAccelerationStructuresIndirectKHR: each info's ranges as read at execution.
+    std::vector<std::vector<VkAccelerationStructureBuildRangeInfoKHR>> khr_indirect_ranges;
 };
 
 }  // namespace clastrace::capture

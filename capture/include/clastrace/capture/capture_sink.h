@@ -49,6 +49,10 @@ public:
     virtual void image_acquired(const AcquireRecord&) {}
     // vkQueueBindSparse, in queue order with the submissions (read during the call).
     virtual void sparse_bound(const SparseBindRecord&) {}
+    // vkGetQueryPoolResults of acceleration-structure property queries, and
+    // vkGetAccelerationStructureBuildSizesKHR, in call order (no-ops unless a sink records them).
+    virtual void query_pool_results_read(const QueryPoolResultsRecord&) {}
+    virtual void khr_build_sizes_queried(const KhrBuildSizesQuery&) {}
     // Frees the captured bytes of records already written, on the calling thread. The pause
     // worker calls it when idle: the bytes were allocated on its thread, and freeing them there
     // spares the sink's thread the allocator's cross-thread path (and the worker's allocations

@@ -1,0 +1,442 @@
+// SPDX-License-Identifier: Apache-2.0
+// A headless VK_KHR_acceleration_structure program for the capture test of KHR builds
+// (tests/capture/khr_build_capture_test.cpp; lavapipe 25 in CI). Submission 1: vertices, indices,
+// a transform and AABBs copied with vkCmdCopyBuffer into a build-input buffer; an indexed-triangle
+// BLAS (allowing compaction and update) and an AABB BLAS built by one
+// vkCmdBuildAccelerationStructuresKHR; their compacted and serialization sizes queried; a TLAS over
+// two instances (one per BLAS). Submission 2: the triangle BLAS compacted into a new structure,
+// the TLAS serialized to memory, and the triangle BLAS updated in place from moved vertices.
+// Writes what it passed (handles, addresses, the bytes of each input) to OUT.json. Exit 0; 2
+// when a Vulkan call fails.
+#include <nlohmann/json.hpp>
+#include <vulkan/vulkan.h>
+
+#include <cstdint>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <string>
+#include <vector>
+
+namespace {
+
+using nlohmann::json;
+
+void check(VkResult result, const char* call) {
+    if (result == VK_SUCCESS) return;
+    std::fprintf(stderr, "khr_build_app: %s failed: %d\n", call, int(result));
+    std::exit(2);
+}
+#define CHECK(call) check((call), #call)
+
+std::string hex(const void* data, size_t size) {
+    static const char kDigits[] = "0123456789abcdef";
+    std::string out;
+    for (size_t i = 0; i < size; ++i) {
+        const uint8_t b = static_cast<const uint8_t*>(data)[i];
+        out += kDigits[b >> 4];
+        out += kDigits[b & 15];
+    }
+    return out;
+}
+
+struct Device {
+    VkInstance instance = VK_NULL_HANDLE;
+    VkPhysicalDevice physical = VK_NULL_HANDLE;
+    VkDevice device = VK_NULL_HANDLE;
+    VkQueue queue = VK_NULL_HANDLE;
+    VkCommandPool pool = VK_NULL_HANDLE;
+    PFN_vkCreateAccelerationStructureKHR create_structure = nullptr;
+    PFN_vkGetAccelerationStructureBuildSizesKHR build_sizes = nullptr;
+    PFN_vkGetAccelerationStructureDeviceAddressKHR structure_address = nullptr;
+    PFN_vkCmdBuildAccelerationStructuresKHR cmd_build = nullptr;
+    PFN_vkCmdWriteAccelerationStructuresPropertiesKHR cmd_write_properties = nullptr;
+    PFN_vkCmdCopyAccelerationStructureKHR cmd_copy = nullptr;
+    PFN_vkCmdCopyAccelerationStructureToMemoryKHR cmd_copy_to_memory = nullptr;
+};
+
+Device create_device() {
+    Device d;
+    VkApplicationInfo app{VK_STRUCTURE_TYPE_APPLICATION_INFO};
+    app.pApplicationName = "khr_build_app";
+    app.apiVersion = VK_API_VERSION_1_3;
+    VkInstanceCreateInfo instance_info{VK_STRUCTURE_TYPE_INSTANCE_CREATE_INFO};
+    instance_info.pApplicationInfo = &app;
+    CHECK(vkCreateInstance(&instance_info, nullptr, &d.instance));
+    uint32_t count = 1;
+    VkResult listed = vkEnumeratePhysicalDevices(d.instance, &count, &d.physical);
+    if ((listed != VK_SUCCESS && listed != VK_INCOMPLETE) || count == 0) {
+        std::fprintf(stderr, "khr_build_app: no Vulkan device\n");
+        std::exit(2);
+    }
+    const float priority = 1.0f;
+    VkDeviceQueueCreateInfo queue_info{VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO};
+    queue_info.queueFamilyIndex = 0;
+    queue_info.queueCount = 1;
+    queue_info.pQueuePriorities = &priority;
+    VkPhysicalDeviceAccelerationStructureFeaturesKHR structures{
+        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_ACCELERATION_STRUCTURE_FEATURES_KHR};
+    structures.accelerationStructure = VK_TRUE;
+    VkPhysicalDeviceVulkan12Features v12{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_2_FEATURES};
+    v12.pNext = &structures;
+    v12.bufferDeviceAddress = VK_TRUE;
+    VkPhysicalDeviceFeatures2 features{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2};
+    features.pNext = &v12;
+    const char* extensions[] = {VK_KHR_ACCELERATION_STRUCTURE_EXTENSION_NAME,
+                                VK_KHR_DEFERRED_HOST_OPERATIONS_EXTENSION_NAME};
+    VkDeviceCreateInfo device_info{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO};
+    device_info.pNext = &features;
+    device_info.queueCreateInfoCount = 1;
+    device_info.pQueueCreateInfos = &queue_info;
+    device_info.enabledExtensionCount = 2;
+    device_info.ppEnabledExtensionNames = extensions;
+    CHECK(vkCreateDevice(d.physical, &device_info, nullptr, &d.device));
+    vkGetDeviceQueue(d.device, 0, 0, &d.queue);
+    VkCommandPoolCreateInfo pool_info{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO};
+    CHECK(vkCreateCommandPool(d.device, &pool_info, nullptr, &d.pool));
+#define LOAD(member, name) \
+    d.member = reinterpret_cast<PFN_##name>(vkGetDeviceProcAddr(d.device, #name))
+    LOAD(create_structure, vkCreateAccelerationStructureKHR);
+    LOAD(build_sizes, vkGetAccelerationStructureBuildSizesKHR);
+    LOAD(structure_address, vkGetAccelerationStructureDeviceAddressKHR);
+    LOAD(cmd_build, vkCmdBuildAccelerationStructuresKHR);
+    LOAD(cmd_write_properties, vkCmdWriteAccelerationStructuresPropertiesKHR);
+    LOAD(cmd_copy, vkCmdCopyAccelerationStructureKHR);
+    LOAD(cmd_copy_to_memory, vkCmdCopyAccelerationStructureToMemoryKHR);
+#undef LOAD
+    if (!d.cmd_build || !d.cmd_copy_to_memory) {
+        std::fprintf(stderr, "khr_build_app: no VK_KHR_acceleration_structure\n");
+        std::exit(2);
+    }
+    return d;
+}
+
+struct Buffer {
+    VkBuffer buffer = VK_NULL_HANDLE;
+    VkDeviceAddress address = 0;
+    uint8_t* mapped = nullptr;
+};
+
+// Every buffer can be copied, built from, hold structures and has an address; host-visible
+// coherent memory (lavapipe's only kind), mapped.
+Buffer make_buffer(const Device& d, VkDeviceSize size) {
+    Buffer b;
+    VkBufferCreateInfo info{VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO};
+    info.size = size;
+    info.usage = VK_BUFFER_USAGE_TRANSFER_SRC_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT |
+                 VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT |
+                 VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR |
+                 VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
+    CHECK(vkCreateBuffer(d.device, &info, nullptr, &b.buffer));
+    VkMemoryRequirements requirements;
+    vkGetBufferMemoryRequirements(d.device, b.buffer, &requirements);
+    VkPhysicalDeviceMemoryProperties memory;
+    vkGetPhysicalDeviceMemoryProperties(d.physical, &memory);
+    const VkMemoryPropertyFlags want =
+        VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT;
+    uint32_t type = 0;
+    while (type < memory.memoryTypeCount &&
+           (!(requirements.memoryTypeBits & (1u << type)) ||
+            (memory.memoryTypes[type].propertyFlags & want) != want))
+        ++type;
+    VkMemoryAllocateFlagsInfo flags{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_FLAGS_INFO};
+    flags.flags = VK_MEMORY_ALLOCATE_DEVICE_ADDRESS_BIT;
+    VkMemoryAllocateInfo allocate{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_INFO, &flags, requirements.size,
+                                  type};
+    VkDeviceMemory bound;
+    CHECK(vkAllocateMemory(d.device, &allocate, nullptr, &bound));
+    CHECK(vkBindBufferMemory(d.device, b.buffer, bound, 0));
+    VkBufferDeviceAddressInfo address{VK_STRUCTURE_TYPE_BUFFER_DEVICE_ADDRESS_INFO, nullptr,
+                                      b.buffer};
+    b.address = vkGetBufferDeviceAddress(d.device, &address);
+    void* mapped = nullptr;
+    CHECK(vkMapMemory(d.device, bound, 0, VK_WHOLE_SIZE, 0, &mapped));
+    b.mapped = static_cast<uint8_t*>(mapped);
+    std::memset(mapped, 0, size);
+    return b;
+}
+
+VkCommandBuffer begin(const Device& d) {
+    VkCommandBufferAllocateInfo info{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO};
+    info.commandPool = d.pool;
+    info.level = VK_COMMAND_BUFFER_LEVEL_PRIMARY;
+    info.commandBufferCount = 1;
+    VkCommandBuffer cb;
+    CHECK(vkAllocateCommandBuffers(d.device, &info, &cb));
+    VkCommandBufferBeginInfo begin_info{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO};
+    begin_info.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
+    CHECK(vkBeginCommandBuffer(cb, &begin_info));
+    return cb;
+}
+
+void submit_and_wait(const Device& d, VkCommandBuffer cb) {
+    CHECK(vkEndCommandBuffer(cb));
+    VkSubmitInfo submit{VK_STRUCTURE_TYPE_SUBMIT_INFO};
+    submit.commandBufferCount = 1;
+    submit.pCommandBuffers = &cb;
+    VkFenceCreateInfo fence_info{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO};
+    VkFence fence;
+    CHECK(vkCreateFence(d.device, &fence_info, nullptr, &fence));
+    CHECK(vkQueueSubmit(d.queue, 1, &submit, fence));
+    CHECK(vkWaitForFences(d.device, 1, &fence, VK_TRUE, UINT64_MAX));
+    vkDestroyFence(d.device, fence, nullptr);
+}
+
+// Everything between commands: copies and builds made visible to the builds and copies after.
+void barrier(VkCommandBuffer cb) {
+    VkMemoryBarrier b{VK_STRUCTURE_TYPE_MEMORY_BARRIER};
+    b.srcAccessMask = VK_ACCESS_TRANSFER_WRITE_BIT | VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR;
+    b.dstAccessMask = VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_KHR |
+                      VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR | VK_ACCESS_TRANSFER_READ_BIT |
+                      VK_ACCESS_SHADER_READ_BIT;
+    const VkPipelineStageFlags stages =
+        VK_PIPELINE_STAGE_TRANSFER_BIT | VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR;
+    vkCmdPipelineBarrier(cb, stages, stages, 0, 1, &b, 0, nullptr, 0, nullptr);
+}
+
+// The layout of the build-input buffer (and of the staging buffer it is copied from).
+constexpr VkDeviceSize kVertices = 0, kIndices = 64, kAabbs = 128, kTransform = 192,
+                       kInputBytes = 256;
+const float kQuad[4][3] = {{-1, -1, 2}, {1, -1, 2}, {1, 1, 2}, {-1, 1, 2}};
+const float kMovedQuad[4][3] = {{-1, -1, 3}, {1, -1, 3}, {1, 1, 3}, {-1, 1, 3}};
+const uint32_t kQuadIndices[6] = {0, 1, 2, 0, 2, 3};
+const float kBoxes[2][6] = {{-3, -1, 4, -2, 1, 5}, {2, -1, 4, 3, 1, 5}};
+const float kTransform3x4[12] = {1, 0, 0, 0.5f, 0, 1, 0, 0, 0, 0, 1, 0};
+
+struct Structure {
+    VkAccelerationStructureKHR handle = VK_NULL_HANDLE;
+    VkDeviceAddress address = 0;
+    VkDeviceSize offset = 0, size = 0;
+};
+
+Structure create_structure(const Device& d, const Buffer& storage, VkDeviceSize& used,
+                           VkDeviceSize size, VkAccelerationStructureTypeKHR type) {
+    Structure s;
+    s.offset = used;
+    s.size = size;
+    used = (used + size + 255) / 256 * 256;
+    VkAccelerationStructureCreateInfoKHR info{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_CREATE_INFO_KHR};
+    info.buffer = storage.buffer;
+    info.offset = s.offset;
+    info.size = size;
+    info.type = type;
+    CHECK(d.create_structure(d.device, &info, nullptr, &s.handle));
+    VkAccelerationStructureDeviceAddressInfoKHR address{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_DEVICE_ADDRESS_INFO_KHR, nullptr, s.handle};
+    s.address = d.structure_address(d.device, &address);
+    return s;
+}
+
+VkAccelerationStructureBuildSizesInfoKHR sizes_of(
+    const Device& d, const VkAccelerationStructureBuildGeometryInfoKHR& info, uint32_t primitives) {
+    VkAccelerationStructureBuildSizesInfoKHR sizes{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR};
+    d.build_sizes(d.device, VK_ACCELERATION_STRUCTURE_BUILD_TYPE_DEVICE_KHR, &info, &primitives,
+                  &sizes);
+    return sizes;
+}
+
+VkQueryPool query_pool(const Device& d, VkQueryType type) {
+    VkQueryPoolCreateInfo info{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
+    info.queryType = type;
+    info.queryCount = 1;
+    VkQueryPool pool;
+    CHECK(vkCreateQueryPool(d.device, &info, nullptr, &pool));
+    return pool;
+}
+
+uint64_t query_result(const Device& d, VkQueryPool pool) {
+    uint64_t value = 0;
+    CHECK(vkGetQueryPoolResults(d.device, pool, 0, 1, sizeof value, &value, sizeof value,
+                                VK_QUERY_RESULT_64_BIT | VK_QUERY_RESULT_WAIT_BIT));
+    return value;
+}
+
+uint64_t id(const void* handle) { return uint64_t(reinterpret_cast<uintptr_t>(handle)); }
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    if (argc != 2) {
+        std::fprintf(stderr, "usage: khr_build_app OUT.json\n");
+        return 2;
+    }
+    Device d = create_device();
+    Buffer staging = make_buffer(d, kInputBytes), input = make_buffer(d, kInputBytes);
+    Buffer storage = make_buffer(d, 1 << 20), scratch = make_buffer(d, 1 << 20);
+    Buffer instances = make_buffer(d, 2 * sizeof(VkAccelerationStructureInstanceKHR));
+    std::memcpy(staging.mapped + kVertices, kQuad, sizeof kQuad);
+    std::memcpy(staging.mapped + kIndices, kQuadIndices, sizeof kQuadIndices);
+    std::memcpy(staging.mapped + kAabbs, kBoxes, sizeof kBoxes);
+    std::memcpy(staging.mapped + kTransform, kTransform3x4, sizeof kTransform3x4);
+
+    // The two bottom levels.
+    VkAccelerationStructureGeometryKHR triangles{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_KHR};
+    triangles.geometryType = VK_GEOMETRY_TYPE_TRIANGLES_KHR;
+    triangles.flags = VK_GEOMETRY_OPAQUE_BIT_KHR;
+    auto& t = triangles.geometry.triangles;
+    t.sType = VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_TRIANGLES_DATA_KHR;
+    t.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+    t.vertexData.deviceAddress = input.address + kVertices;
+    t.vertexStride = 12;
+    t.maxVertex = 3;
+    t.indexType = VK_INDEX_TYPE_UINT32;
+    t.indexData.deviceAddress = input.address + kIndices;
+    t.transformData.deviceAddress = input.address + kTransform;
+    VkAccelerationStructureGeometryKHR boxes{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_KHR};
+    boxes.geometryType = VK_GEOMETRY_TYPE_AABBS_KHR;
+    boxes.geometry.aabbs.sType = VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_AABBS_DATA_KHR;
+    boxes.geometry.aabbs.data.deviceAddress = input.address + kAabbs;
+    boxes.geometry.aabbs.stride = 24;
+
+    VkAccelerationStructureBuildGeometryInfoKHR blas[2] = {
+        {VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_GEOMETRY_INFO_KHR},
+        {VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_GEOMETRY_INFO_KHR}};
+    blas[0].type = blas[1].type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR;
+    blas[0].flags = VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_COMPACTION_BIT_KHR |
+                    VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_KHR;
+    blas[1].flags = VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_KHR;
+    blas[0].mode = blas[1].mode = VK_BUILD_ACCELERATION_STRUCTURE_MODE_BUILD_KHR;
+    blas[0].geometryCount = blas[1].geometryCount = 1;
+    blas[0].pGeometries = &triangles;
+    blas[1].pGeometries = &boxes;
+    const auto triangle_sizes = sizes_of(d, blas[0], 2);
+    const auto box_sizes = sizes_of(d, blas[1], 2);
+    VkDeviceSize used = 0;
+    Structure triangle_blas =
+        create_structure(d, storage, used, triangle_sizes.accelerationStructureSize,
+                         VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR);
+    Structure box_blas = create_structure(d, storage, used, box_sizes.accelerationStructureSize,
+                                          VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR);
+    blas[0].dstAccelerationStructure = triangle_blas.handle;
+    blas[1].dstAccelerationStructure = box_blas.handle;
+    blas[0].scratchData.deviceAddress = scratch.address;
+    blas[1].scratchData.deviceAddress = scratch.address + (256 << 10);
+    const VkAccelerationStructureBuildRangeInfoKHR triangle_range{2, 0, 0, 0};
+    const VkAccelerationStructureBuildRangeInfoKHR box_range{2, 0, 0, 0};
+    const VkAccelerationStructureBuildRangeInfoKHR* blas_ranges[2] = {&triangle_range, &box_range};
+
+    // The top level over one instance of each.
+    VkAccelerationStructureInstanceKHR instance_data[2]{};
+    const Structure* targets[2] = {&triangle_blas, &box_blas};
+    for (uint32_t i = 0; i < 2; ++i) {
+        auto& m = instance_data[i].transform.matrix;
+        m[0][0] = m[1][1] = m[2][2] = 1;
+        m[0][3] = float(i) * 4;
+        instance_data[i].instanceCustomIndex = 10 + i;
+        instance_data[i].mask = 0xff;
+        instance_data[i].flags = VK_GEOMETRY_INSTANCE_TRIANGLE_FACING_CULL_DISABLE_BIT_KHR;
+        instance_data[i].accelerationStructureReference = targets[i]->address;
+    }
+    std::memcpy(instances.mapped, instance_data, sizeof instance_data);
+    VkAccelerationStructureGeometryKHR instance_geometry{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_KHR};
+    instance_geometry.geometryType = VK_GEOMETRY_TYPE_INSTANCES_KHR;
+    instance_geometry.geometry.instances.sType =
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_INSTANCES_DATA_KHR;
+    instance_geometry.geometry.instances.data.deviceAddress = instances.address;
+    VkAccelerationStructureBuildGeometryInfoKHR tlas{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_GEOMETRY_INFO_KHR};
+    tlas.type = VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_KHR;
+    tlas.mode = VK_BUILD_ACCELERATION_STRUCTURE_MODE_BUILD_KHR;
+    tlas.geometryCount = 1;
+    tlas.pGeometries = &instance_geometry;
+    const auto tlas_sizes = sizes_of(d, tlas, 2);
+    Structure top = create_structure(d, storage, used, tlas_sizes.accelerationStructureSize,
+                                     VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_KHR);
+    tlas.dstAccelerationStructure = top.handle;
+    tlas.scratchData.deviceAddress = scratch.address + (512 << 10);
+    const VkAccelerationStructureBuildRangeInfoKHR tlas_range{2, 0, 0, 0};
+    const VkAccelerationStructureBuildRangeInfoKHR* tlas_ranges[1] = {&tlas_range};
+
+    VkQueryPool compacted = query_pool(d, VK_QUERY_TYPE_ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR);
+    VkQueryPool serialized =
+        query_pool(d, VK_QUERY_TYPE_ACCELERATION_STRUCTURE_SERIALIZATION_SIZE_KHR);
+
+    VkCommandBuffer first = begin(d);
+    const VkBufferCopy upload{0, 0, kInputBytes};
+    vkCmdCopyBuffer(first, staging.buffer, input.buffer, 1, &upload);
+    barrier(first);
+    d.cmd_build(first, 2, blas, blas_ranges);
+    barrier(first);
+    vkCmdResetQueryPool(first, compacted, 0, 1);
+    d.cmd_write_properties(first, 1, &triangle_blas.handle,
+                           VK_QUERY_TYPE_ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR, compacted, 0);
+    d.cmd_build(first, 1, &tlas, tlas_ranges);
+    barrier(first);
+    vkCmdResetQueryPool(first, serialized, 0, 1);
+    d.cmd_write_properties(first, 1, &top.handle,
+                           VK_QUERY_TYPE_ACCELERATION_STRUCTURE_SERIALIZATION_SIZE_KHR, serialized,
+                           0);
+    submit_and_wait(d, first);
+    const uint64_t compacted_size = query_result(d, compacted);
+    const uint64_t serialized_size = query_result(d, serialized);
+
+    // Compaction, serialization, and an update of the triangle BLAS from moved vertices.
+    Structure compact = create_structure(d, storage, used, compacted_size,
+                                         VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR);
+    Buffer serial = make_buffer(d, serialized_size);
+    std::memcpy(staging.mapped + kVertices, kMovedQuad, sizeof kMovedQuad);
+    VkCommandBuffer second = begin(d);
+    VkCopyAccelerationStructureInfoKHR copy{VK_STRUCTURE_TYPE_COPY_ACCELERATION_STRUCTURE_INFO_KHR};
+    copy.src = triangle_blas.handle;
+    copy.dst = compact.handle;
+    copy.mode = VK_COPY_ACCELERATION_STRUCTURE_MODE_COMPACT_KHR;
+    d.cmd_copy(second, &copy);
+    VkCopyAccelerationStructureToMemoryInfoKHR to_memory{
+        VK_STRUCTURE_TYPE_COPY_ACCELERATION_STRUCTURE_TO_MEMORY_INFO_KHR};
+    to_memory.src = top.handle;
+    to_memory.dst.deviceAddress = serial.address;
+    to_memory.mode = VK_COPY_ACCELERATION_STRUCTURE_MODE_SERIALIZE_KHR;
+    d.cmd_copy_to_memory(second, &to_memory);
+    const VkBufferCopy moved{kVertices, kVertices, sizeof kMovedQuad};
+    vkCmdCopyBuffer(second, staging.buffer, input.buffer, 1, &moved);
+    barrier(second);
+    VkAccelerationStructureBuildGeometryInfoKHR update = blas[0];
+    update.mode = VK_BUILD_ACCELERATION_STRUCTURE_MODE_UPDATE_KHR;
+    update.srcAccelerationStructure = triangle_blas.handle;
+    update.dstAccelerationStructure = triangle_blas.handle;
+    d.cmd_build(second, 1, &update, blas_ranges);
+    submit_and_wait(d, second);
+
+    json out;
+    out["input"] = {{"buffer", id(input.buffer)}, {"address", input.address}};
+    out["instances"] = {{"buffer", id(instances.buffer)},
+                        {"address", instances.address},
+                        {"bytes", hex(instance_data, sizeof instance_data)}};
+    out["bytes"] = {{"vertices", hex(kQuad, sizeof kQuad)},
+                    {"movedVertices", hex(kMovedQuad, sizeof kMovedQuad)},
+                    {"indices", hex(kQuadIndices, sizeof kQuadIndices)},
+                    {"aabbs", hex(kBoxes, sizeof kBoxes)},
+                    {"transform", hex(kTransform3x4, sizeof kTransform3x4)}};
+    out["offsets"] = {{"vertices", kVertices},
+                      {"indices", kIndices},
+                      {"aabbs", kAabbs},
+                      {"transform", kTransform}};
+    auto structure_json = [](const Structure& s) {
+        return json{{"handle", id(s.handle)},
+                    {"address", s.address},
+                    {"offset", s.offset},
+                    {"size", s.size}};
+    };
+    out["triangleBlas"] = structure_json(triangle_blas);
+    out["boxBlas"] = structure_json(box_blas);
+    out["tlas"] = structure_json(top);
+    out["compact"] = structure_json(compact);
+    out["storage"] = id(storage.buffer);
+    out["scratch"] = scratch.address;
+    out["serial"] = serial.address;
+    out["queryPools"] = {{"compacted", id(compacted)}, {"serialized", id(serialized)}};
+    out["compactedSize"] = compacted_size;
+    out["serializedSize"] = serialized_size;
+    out["sizes"] = {{"triangle", triangle_sizes.accelerationStructureSize},
+                    {"box", box_sizes.accelerationStructureSize},
+                    {"tlas", tlas_sizes.accelerationStructureSize}};
+    std::ofstream(argv[1]) << out.dump(1);
+    vkDeviceWaitIdle(d.device);
+    std::printf("ok\n");
+    return 0;
+}
