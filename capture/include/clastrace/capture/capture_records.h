@@ -234,6 +234,20 @@ struct BoundStorageBuffer {
     VkDeviceAddress address = 0;  // buffer address + offset, when the buffer's address is known
 };
 
+// An acceleration structure a consumer (rays, ray queries) can reach through what it binds.
+struct ReachableAccelerationStructure {
+    enum class Source : uint32_t {
+        kDescriptorSet = 0,
+        kPushDescriptor = 1,
+        kDescriptorBuffer = 2,  // not followed by the layer (capture/README.md)
+        kPushConstants = 3,     // an 8-byte push-constant value equal to a known address
+    };
+    uint32_t set = 0, binding = 0, array_element = 0;
+    Source source = Source::kDescriptorSet;
+    uint64_t acceleration_structure = 0;  // handle; 0 when only the address is known
+    VkDeviceAddress address = 0;          // KHR device address, NV handle; 0 when unknown
+};
+
 struct DispatchCommand {
     uint32_t group_count_x = 0, group_count_y = 0, group_count_z = 0;
     uint64_t pipeline = 0;
@@ -243,14 +257,33 @@ struct DispatchCommand {
     // The pipeline's SPIR-V uses physical storage buffer pointers (spirv_scan.h): the dispatch
     // may write any device-address memory.
     bool may_write_device_addresses = false;
+    // The pipeline's SPIR-V uses ray queries: the structures the dispatch can reach.
+    bool ray_query = false;
+    std::vector<ReachableAccelerationStructure> acceleration_structures;
 };
 
-// A draw whose graphics pipeline may write through buffer device addresses (only such draws
-// are recorded).
+// A draw whose graphics pipeline may write through buffer device addresses or uses ray queries
+// (only such draws are recorded).
 struct DrawCommand {
     uint64_t pipeline = 0;
     const char* entry_point = "";              // "vkCmdDraw", "vkCmdDrawMeshTasksEXT", ... (static)
     VkPipelineStageFlags2 address_stages = 0;  // stages whose shaders use addresses
+    VkPipelineStageFlags2 ray_query_stages = 0;  // stages whose shaders use ray queries
+    std::vector<ReachableAccelerationStructure> acceleration_structures;
+};
+
+// vkCmdTraceRaysKHR, ...IndirectKHR, ...Indirect2KHR, vkCmdTraceRaysNV.
+struct TraceRaysCommand {
+    uint64_t pipeline = 0;
+    const char* entry_point = "";  // "vkCmdTraceRaysKHR", ... (static)
+    uint32_t width = 0, height = 0, depth = 0;
+    VkDeviceAddress indirect_address = 0;  // the indirect forms
+    // raygen, miss, hit, callable; zero for Indirect2KHR (they are in its indirect struct)
+    VkStridedDeviceAddressRegionKHR shader_binding_tables[4] = {};
+    std::vector<ReachableAccelerationStructure> acceleration_structures;
+    std::vector<BoundStorageBuffer> storage_buffers;
+    // A shader of the pipeline uses physical storage buffer pointers (spirv_scan.h).
+    bool may_write_device_addresses = false;
 };
 
 struct ClusterBuildCommand {
@@ -300,7 +333,7 @@ using RecordedCommand =
     std::variant<BarrierCommand, EventCommand, CopyBufferCommand, FillBufferCommand,
                  UpdateBufferCommand, DispatchCommand, ClusterBuildCommand,
                  BuildAccelerationStructureNVCommand, CopyMemoryToAccelerationStructureCommand,
-                 TimestampWriteCommand, ExecuteCommandsCommand, DrawCommand>;
+                 TimestampWriteCommand, ExecuteCommandsCommand, DrawCommand, TraceRaysCommand>;
 
 struct RecordedCommandBuffer {
     uint64_t command_buffer = 0;
