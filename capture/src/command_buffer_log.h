@@ -40,6 +40,15 @@ struct CommandBufferLog {
         pushed_acceleration_structures[3];
     std::vector<uint8_t> push_constants;  // the bytes vkCmdPushConstants set so far
 
+    // vkCmdBindDescriptorSets bound sets [first, first + count) at `bind_point`: what was pushed
+    // there before is no longer bound.
+    void forget_pushed_sets(int index, uint32_t first, uint32_t count) {
+        auto& pushed = pushed_acceleration_structures[index];
+        for (auto it = pushed.begin(); it != pushed.end();) {
+            const uint32_t set = std::get<0>(it->first);
+            it = set >= first && set - first < count ? pushed.erase(it) : std::next(it);
+        }
+    }
     // The sets bound at `bind_point` (null for bind points the layer does not follow).
     BoundSets* sets_at(VkPipelineBindPoint bind_point) {
         switch (bind_point) {

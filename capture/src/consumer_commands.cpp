@@ -282,6 +282,7 @@ void track_pushed_descriptor_write(DeviceState& d, VkCommandBuffer cb,
     const int index = bind_point_index(bind_point);
     if (!d.sink || index < 0) return;
     auto log = log_of(d, cb);
+    log->sets_at(bind_point)->erase(set);  // a push replaces the set bound there
     auto& pushed = log->pushed_acceleration_structures[index];
     // A push replaces what the same elements held, whatever their type now.
     for (uint32_t i = 0; i < write.descriptorCount; ++i)

@@ -425,6 +425,7 @@ VKAPI_ATTR void VKAPI_CALL CmdBindDescriptorSets(VkCommandBuffer cb, VkPipelineB
     auto log = log_of(d, cb);
     CommandBufferLog::BoundSets* bound_sets = log->sets_at(bind_point);
     if (!bound_sets) return;
+    log->forget_pushed_sets(bind_point_index(bind_point), first_set, set_count);
     // Dynamic offsets are consumed set by set, in binding order, by every dynamic descriptor;
     // the layer knows only the storage ones, so with dynamic uniform buffers in the same set
     // the split is approximate (see README).

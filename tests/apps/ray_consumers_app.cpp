@@ -4,7 +4,7 @@
 // query, ray-tracing pipelines). It builds a one-triangle BLAS and a TLAS over it, then in one
 // command buffer: a compute dispatch with a ray query against the TLAS bound in a descriptor set
 // (the TLAS address also in the push constants), the same through a set written with an update
-// template, a plain dispatch, vkCmdTraceRaysKHR (4x2x1)
+// template and through pushed descriptors, a plain dispatch, vkCmdTraceRaysKHR (4x2x1)
 // and, when the device has rayTracingPipelineTraceRaysIndirect, vkCmdTraceRaysIndirectKHR with
 // the same dimensions. After the fence it checks what the shaders wrote.
 // Usage: ray_consumers_app OUT.json. OUT.json names the handles and addresses the capture must
@@ -52,6 +52,7 @@ struct Functions {
     PFN_vkGetRayTracingShaderGroupHandlesKHR group_handles;
     PFN_vkCmdTraceRaysKHR trace_rays;
     PFN_vkCmdTraceRaysIndirectKHR trace_rays_indirect;
+    PFN_vkCmdPushDescriptorSetKHR push_descriptor_set;
 };
 
 struct Device {
@@ -93,6 +94,8 @@ void load_functions(Device& d) {
     d.fn.trace_rays = device_function<PFN_vkCmdTraceRaysKHR>(d.device, "vkCmdTraceRaysKHR");
     d.fn.trace_rays_indirect =
         device_function<PFN_vkCmdTraceRaysIndirectKHR>(d.device, "vkCmdTraceRaysIndirectKHR");
+    d.fn.push_descriptor_set =
+        device_function<PFN_vkCmdPushDescriptorSetKHR>(d.device, "vkCmdPushDescriptorSetKHR");
 }
 
 Device create_device() {
@@ -137,11 +140,12 @@ Device create_device() {
     v12.bufferDeviceAddress = VK_TRUE;
     VkPhysicalDeviceFeatures2 features{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2, &v12};
     const char* extensions[] = {"VK_KHR_acceleration_structure", "VK_KHR_ray_query",
-                                "VK_KHR_ray_tracing_pipeline", "VK_KHR_deferred_host_operations"};
+                                "VK_KHR_ray_tracing_pipeline", "VK_KHR_deferred_host_operations",
+                                "VK_KHR_push_descriptor"};
     VkDeviceCreateInfo device_info{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO, &features};
     device_info.queueCreateInfoCount = 1;
     device_info.pQueueCreateInfos = &queue_info;
-    device_info.enabledExtensionCount = 4;
+    device_info.enabledExtensionCount = 5;
     device_info.ppEnabledExtensionNames = extensions;
     CHECK(vkCreateDevice(d.physical, &device_info, nullptr, &d.device));
     vkGetDeviceQueue(d.device, d.family, 0, &d.queue);
@@ -307,8 +311,53 @@ struct Pipelines {
     VkPipelineLayout layout = VK_NULL_HANDLE;
     VkDescriptorSet set = VK_NULL_HANDLE;
     VkDescriptorSet template_set = VK_NULL_HANDLE;  // written with an update template
+    VkPipelineLayout push_layout = VK_NULL_HANDLE;  // set 0 pushed (vkCmdPushDescriptorSetKHR)
     VkPipeline ray_query = VK_NULL_HANDLE, plain = VK_NULL_HANDLE, rays = VK_NULL_HANDLE;
+    VkPipeline pushed_ray_query = VK_NULL_HANDLE;  // the ray query over pushed descriptors
 };
+
+constexpr VkShaderStageFlags kStages = VK_SHADER_STAGE_COMPUTE_BIT | VK_SHADER_STAGE_RAYGEN_BIT_KHR;
+
+// One set, and the push constants of every shader here.
+VkPipelineLayout pipeline_layout_of(const Device& d, VkDescriptorSetLayout set_layout) {
+    VkPushConstantRange range{kStages, 0, sizeof(Constants)};
+    VkPipelineLayoutCreateInfo info{VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO};
+    info.setLayoutCount = 1;
+    info.pSetLayouts = &set_layout;
+    info.pushConstantRangeCount = 1;
+    info.pPushConstantRanges = &range;
+    VkPipelineLayout layout;
+    CHECK(vkCreatePipelineLayout(d.device, &info, nullptr, &layout));
+    return layout;
+}
+
+// The TLAS (binding 0) and the results (binding 1) as writes into a set; the struct owns what
+// they point to (filled in place by `scene_writes`).
+struct SceneWrites {
+    VkAccelerationStructureKHR top = VK_NULL_HANDLE;
+    VkWriteDescriptorSetAccelerationStructureKHR structure{
+        VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET_ACCELERATION_STRUCTURE_KHR};
+    VkDescriptorBufferInfo buffer{};
+    VkWriteDescriptorSet writes[2] = {{VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET},
+                                      {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET}};
+};
+void scene_writes(VkDescriptorSet set, VkAccelerationStructureKHR top, VkBuffer results,
+                  SceneWrites& out) {
+    out.top = top;
+    out.structure.accelerationStructureCount = 1;
+    out.structure.pAccelerationStructures = &out.top;
+    out.buffer = {results, 0, VK_WHOLE_SIZE};
+    out.writes[0].pNext = &out.structure;
+    out.writes[0].dstSet = set;
+    out.writes[0].dstBinding = 0;
+    out.writes[0].descriptorCount = 1;
+    out.writes[0].descriptorType = VK_DESCRIPTOR_TYPE_ACCELERATION_STRUCTURE_KHR;
+    out.writes[1].dstSet = set;
+    out.writes[1].dstBinding = 1;
+    out.writes[1].descriptorCount = 1;
+    out.writes[1].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+    out.writes[1].pBufferInfo = &out.buffer;
+}
 
 // The same two descriptors as `create_set` writes, through vkUpdateDescriptorSetWithTemplate.
 void write_with_template(const Device& d, const Pipelines& p, VkAccelerationStructureKHR top,
@@ -333,7 +382,7 @@ void write_with_template(const Device& d, const Pipelines& p, VkAccelerationStru
 
 // Binding 0: the TLAS; binding 1: the results. Written with vkUpdateDescriptorSets.
 void create_set(const Device& d, Pipelines& p, VkAccelerationStructureKHR top, VkBuffer results) {
-    const VkShaderStageFlags stages = VK_SHADER_STAGE_COMPUTE_BIT | VK_SHADER_STAGE_RAYGEN_BIT_KHR;
+    const VkShaderStageFlags stages = kStages;
     VkDescriptorSetLayoutBinding bindings[2] = {{0, VK_DESCRIPTOR_TYPE_ACCELERATION_STRUCTURE_KHR,
                                                  1, stages, nullptr},
                                                 {1, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1, stages,
@@ -342,13 +391,11 @@ void create_set(const Device& d, Pipelines& p, VkAccelerationStructureKHR top, V
     layout.bindingCount = 2;
     layout.pBindings = bindings;
     CHECK(vkCreateDescriptorSetLayout(d.device, &layout, nullptr, &p.set_layout));
-    VkPushConstantRange range{stages, 0, sizeof(Constants)};
-    VkPipelineLayoutCreateInfo pipeline_layout{VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO};
-    pipeline_layout.setLayoutCount = 1;
-    pipeline_layout.pSetLayouts = &p.set_layout;
-    pipeline_layout.pushConstantRangeCount = 1;
-    pipeline_layout.pPushConstantRanges = &range;
-    CHECK(vkCreatePipelineLayout(d.device, &pipeline_layout, nullptr, &p.layout));
+    layout.flags = VK_DESCRIPTOR_SET_LAYOUT_CREATE_PUSH_DESCRIPTOR_BIT_KHR;
+    VkDescriptorSetLayout push_set_layout;
+    CHECK(vkCreateDescriptorSetLayout(d.device, &layout, nullptr, &push_set_layout));
+    p.push_layout = pipeline_layout_of(d, push_set_layout);
+    p.layout = pipeline_layout_of(d, p.set_layout);
     VkDescriptorPoolSize sizes[2] = {{VK_DESCRIPTOR_TYPE_ACCELERATION_STRUCTURE_KHR, 2},
                                      {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 2}};
     VkDescriptorPoolCreateInfo pool_info{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
@@ -363,23 +410,9 @@ void create_set(const Device& d, Pipelines& p, VkAccelerationStructureKHR top, V
     allocate.pSetLayouts = &p.set_layout;
     CHECK(vkAllocateDescriptorSets(d.device, &allocate, &p.set));
     CHECK(vkAllocateDescriptorSets(d.device, &allocate, &p.template_set));
-    VkWriteDescriptorSetAccelerationStructureKHR structure{
-        VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET_ACCELERATION_STRUCTURE_KHR};
-    structure.accelerationStructureCount = 1;
-    structure.pAccelerationStructures = &top;
-    VkDescriptorBufferInfo buffer{results, 0, VK_WHOLE_SIZE};
-    VkWriteDescriptorSet writes[2] = {{VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET, &structure},
-                                      {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET}};
-    writes[0].dstSet = p.set;
-    writes[0].dstBinding = 0;
-    writes[0].descriptorCount = 1;
-    writes[0].descriptorType = VK_DESCRIPTOR_TYPE_ACCELERATION_STRUCTURE_KHR;
-    writes[1].dstSet = p.set;
-    writes[1].dstBinding = 1;
-    writes[1].descriptorCount = 1;
-    writes[1].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
-    writes[1].pBufferInfo = &buffer;
-    vkUpdateDescriptorSets(d.device, 2, writes, 0, nullptr);
+    SceneWrites scene;
+    scene_writes(p.set, top, results, scene);
+    vkUpdateDescriptorSets(d.device, 2, scene.writes, 0, nullptr);
     write_with_template(d, p, top, results);
 }
 
@@ -457,7 +490,7 @@ BindingTable binding_table(const Device& d, VkPipeline pipeline) {
 }
 
 void record_consumers(const Device& d, VkCommandBuffer cb, const Pipelines& p, const Scene& scene,
-                      const BindingTable& table, const Buffer& indirect) {
+                      VkBuffer results, const BindingTable& table, const Buffer& indirect) {
     Constants constants{scene.top.address, 0, 0};
     vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, p.ray_query);
     vkCmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, p.layout, 0, 1, &p.set, 0, nullptr);
@@ -466,6 +499,12 @@ void record_consumers(const Device& d, VkCommandBuffer cb, const Pipelines& p, c
     vkCmdDispatch(cb, 1, 1, 1);
     vkCmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, p.layout, 0, 1, &p.template_set, 0,
                             nullptr);
+    vkCmdDispatch(cb, 1, 1, 1);
+    vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, p.pushed_ray_query);
+    SceneWrites pushed;
+    scene_writes(VK_NULL_HANDLE, scene.top.handle, results, pushed);
+    d.fn.push_descriptor_set(cb, VK_PIPELINE_BIND_POINT_COMPUTE, p.push_layout, 0, 2,
+                             pushed.writes);
     vkCmdDispatch(cb, 1, 1, 1);
     vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, p.plain);
     vkCmdDispatch(cb, 1, 1, 1);
@@ -558,12 +597,13 @@ int main(int argc, char** argv) {
     Pipelines p;
     create_set(d, p, scene.top.handle, results.buffer);
     p.ray_query = compute_pipeline(d, p.layout, kRayQueryComp, sizeof kRayQueryComp);
+    p.pushed_ray_query = compute_pipeline(d, p.push_layout, kRayQueryComp, sizeof kRayQueryComp);
     p.plain = compute_pipeline(d, p.layout, kPlainComp, sizeof kPlainComp);
     p.rays = ray_tracing_pipeline(d, p.layout);
     const BindingTable table = binding_table(d, p.rays);
 
     VkCommandBuffer cb = begin(d, pool);
-    record_consumers(d, cb, p, scene, table, indirect);
+    record_consumers(d, cb, p, scene, results.buffer, table, indirect);
     CHECK(vkEndCommandBuffer(cb));
     submit_and_wait(d, cb);
 
@@ -573,14 +613,16 @@ int main(int argc, char** argv) {
     if (!out) fail("cannot write OUT.json");
     std::fprintf(out,
                  "{\"topLevel\": %llu, \"topLevelAddress\": %llu, \"bottomLevel\": %llu, "
-                 "\"rayQueryPipeline\": %llu, \"plainPipeline\": %llu, \"rayTracingPipeline\": "
+                 "\"rayQueryPipeline\": %llu, \"pushedRayQueryPipeline\": %llu, \"plainPipeline\": "
+                 "%llu, \"rayTracingPipeline\": "
                  "%llu, \"raygenAddress\": %llu, \"indirectAddress\": %llu, \"indirect\": %s, "
                  "\"results\": %s}\n",
                  (unsigned long long)(uint64_t)scene.top.handle,
                  (unsigned long long)scene.top.address,
                  (unsigned long long)(uint64_t)scene.bottom.handle,
-                 (unsigned long long)(uint64_t)p.ray_query, (unsigned long long)(uint64_t)p.plain,
-                 (unsigned long long)(uint64_t)p.rays,
+                 (unsigned long long)(uint64_t)p.ray_query,
+                 (unsigned long long)(uint64_t)p.pushed_ray_query,
+                 (unsigned long long)(uint64_t)p.plain, (unsigned long long)(uint64_t)p.rays,
                  (unsigned long long)table.regions[0].deviceAddress,
                  (unsigned long long)(d.trace_rays_indirect ? indirect.address : 0),
                  d.trace_rays_indirect ? "true" : "false", right ? "true" : "false");

@@ -2,7 +2,7 @@
 // The commands that read acceleration structures, captured for real: tests/apps'
 // ray_consumers_app builds a BLAS and a TLAS on lavapipe 25, then runs a ray-query dispatch over
 // the TLAS bound in a descriptor set (its address also in the push constants), the same with a
-// set written through an update template, a plain dispatch,
+// set written through an update template and with pushed descriptors, a plain dispatch,
 // vkCmdTraceRaysKHR and vkCmdTraceRaysIndirectKHR, under the capture layer. The trace's records
 // must say which dispatch uses ray queries, the rays' entry points, dimensions, tables and
 // indirect address, and for each consumer the TLAS by handle and address with set, binding and
@@ -27,6 +27,7 @@ using nlohmann::json;
 using namespace clastrace::layer_launch;
 
 constexpr uint32_t kSourceDescriptorSet = 0;
+constexpr uint32_t kSourcePushDescriptor = 1;
 constexpr uint32_t kSourcePushConstants = 3;
 
 struct Binding {
@@ -111,11 +112,12 @@ protected:
     }
 
     // The TLAS bound at set 0, binding 0, then found again in the push constants at offset 0.
-    void expect_the_top_level(const std::vector<Binding>& structures) {
+    void expect_the_top_level(const std::vector<Binding>& structures,
+                              uint32_t source = kSourceDescriptorSet) {
         ASSERT_EQ(structures.size(), 2u);
         const uint64_t top = out["topLevel"], address = out["topLevelAddress"];
         EXPECT_NE(address, 0u);
-        EXPECT_EQ(structures[0].source, kSourceDescriptorSet);
+        EXPECT_EQ(structures[0].source, source);
         EXPECT_EQ(structures[0].set, 0u);
         EXPECT_EQ(structures[0].binding, 0u);
         EXPECT_EQ(structures[0].array_element, 0u);
@@ -136,16 +138,19 @@ protected:
 
 TEST_F(RayConsumersCapture, RayQueryDispatchReachesTheBoundTopLevelAndThePlainOneNothing) {
     capture();
-    ASSERT_EQ(dispatches.size(), 3u);
+    ASSERT_EQ(dispatches.size(), 4u);
     for (size_t i = 0; i < 2; ++i) {  // a set written with vkUpdateDescriptorSets, a template
         SCOPED_TRACE(i);
         EXPECT_EQ(dispatches[i].pipeline, out["rayQueryPipeline"].get<uint64_t>());
         EXPECT_TRUE(dispatches[i].ray_query);
         expect_the_top_level(dispatches[i].structures);
     }
-    EXPECT_EQ(dispatches[2].pipeline, out["plainPipeline"].get<uint64_t>());
-    EXPECT_FALSE(dispatches[2].ray_query);
-    EXPECT_TRUE(dispatches[2].structures.empty());
+    EXPECT_EQ(dispatches[2].pipeline, out["pushedRayQueryPipeline"].get<uint64_t>());
+    EXPECT_TRUE(dispatches[2].ray_query);
+    expect_the_top_level(dispatches[2].structures, kSourcePushDescriptor);
+    EXPECT_EQ(dispatches[3].pipeline, out["plainPipeline"].get<uint64_t>());
+    EXPECT_FALSE(dispatches[3].ray_query);
+    EXPECT_TRUE(dispatches[3].structures.empty());
 }
 
 TEST_F(RayConsumersCapture, TraceRaysRecordsEntryPointDimensionsTablesAndTheTopLevel) {
