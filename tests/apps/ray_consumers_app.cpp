@@ -4,7 +4,8 @@
 // query, ray-tracing pipelines). It builds a one-triangle BLAS and a TLAS over it, then in one
 // command buffer: a compute dispatch with a ray query against the TLAS bound in a descriptor set
 // (the TLAS address also in the push constants), the same through a set written with an update
-// template and through pushed descriptors, a plain dispatch, vkCmdTraceRaysKHR (4x2x1)
+// template and through pushed descriptors, a plain dispatch, a draw whose vertex shader runs the
+// same ray query, vkCmdTraceRaysKHR (4x2x1)
 // and, when the device has rayTracingPipelineTraceRaysIndirect, vkCmdTraceRaysIndirectKHR with
 // the same dimensions. After the fence it checks what the shaders wrote.
 // Usage: ray_consumers_app OUT.json. OUT.json names the handles and addresses the capture must
@@ -21,6 +22,7 @@
 // The shaders' SPIR-V as uint32_t arrays, compiled at build time (tests/apps/CMakeLists.txt).
 #include "plain_comp.h"      // kPlainComp
 #include "ray_query_comp.h"  // kRayQueryComp
+#include "ray_query_vert.h"  // kRayQueryVert
 #include "rays_rchit.h"      // kRaysRchit
 #include "rays_rgen.h"       // kRaysRgen
 #include "rays_rmiss.h"      // kRaysRmiss
@@ -138,7 +140,12 @@ Device create_device() {
     VkPhysicalDeviceVulkan12Features v12{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_2_FEATURES,
                                          &structures};
     v12.bufferDeviceAddress = VK_TRUE;
+    VkPhysicalDeviceVulkan13Features v13{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_3_FEATURES};
+    v13.dynamicRendering = VK_TRUE;
+    structures.pNext = &v13;
+    v13.pNext = &pipeline;
     VkPhysicalDeviceFeatures2 features{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2, &v12};
+    features.features.vertexPipelineStoresAndAtomics = VK_TRUE;
     const char* extensions[] = {"VK_KHR_acceleration_structure", "VK_KHR_ray_query",
                                 "VK_KHR_ray_tracing_pipeline", "VK_KHR_deferred_host_operations",
                                 "VK_KHR_push_descriptor"};
@@ -314,9 +321,11 @@ struct Pipelines {
     VkPipelineLayout push_layout = VK_NULL_HANDLE;  // set 0 pushed (vkCmdPushDescriptorSetKHR)
     VkPipeline ray_query = VK_NULL_HANDLE, plain = VK_NULL_HANDLE, rays = VK_NULL_HANDLE;
     VkPipeline pushed_ray_query = VK_NULL_HANDLE;  // the ray query over pushed descriptors
+    VkPipeline draw_ray_query = VK_NULL_HANDLE;    // a vertex shader's ray query
 };
 
-constexpr VkShaderStageFlags kStages = VK_SHADER_STAGE_COMPUTE_BIT | VK_SHADER_STAGE_RAYGEN_BIT_KHR;
+constexpr VkShaderStageFlags kStages =
+    VK_SHADER_STAGE_COMPUTE_BIT | VK_SHADER_STAGE_RAYGEN_BIT_KHR | VK_SHADER_STAGE_VERTEX_BIT;
 
 // One set, and the push constants of every shader here.
 VkPipelineLayout pipeline_layout_of(const Device& d, VkDescriptorSetLayout set_layout) {
@@ -429,6 +438,34 @@ VkPipeline compute_pipeline(const Device& d, VkPipelineLayout layout, const uint
     return pipeline;
 }
 
+// One vertex shader, rasterizer discard, no attachment (dynamic rendering).
+VkPipeline draw_pipeline(const Device& d, VkPipelineLayout layout) {
+    VkPipelineShaderStageCreateInfo stage{VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO};
+    stage.stage = VK_SHADER_STAGE_VERTEX_BIT;
+    stage.module = shader(d, kRayQueryVert, sizeof kRayQueryVert);
+    stage.pName = "main";
+    VkPipelineVertexInputStateCreateInfo vertex_input{
+        VK_STRUCTURE_TYPE_PIPELINE_VERTEX_INPUT_STATE_CREATE_INFO};
+    VkPipelineInputAssemblyStateCreateInfo assembly{
+        VK_STRUCTURE_TYPE_PIPELINE_INPUT_ASSEMBLY_STATE_CREATE_INFO};
+    assembly.topology = VK_PRIMITIVE_TOPOLOGY_POINT_LIST;
+    VkPipelineRasterizationStateCreateInfo raster{
+        VK_STRUCTURE_TYPE_PIPELINE_RASTERIZATION_STATE_CREATE_INFO};
+    raster.rasterizerDiscardEnable = VK_TRUE;
+    raster.lineWidth = 1.0f;
+    VkPipelineRenderingCreateInfo rendering{VK_STRUCTURE_TYPE_PIPELINE_RENDERING_CREATE_INFO};
+    VkGraphicsPipelineCreateInfo info{VK_STRUCTURE_TYPE_GRAPHICS_PIPELINE_CREATE_INFO, &rendering};
+    info.stageCount = 1;
+    info.pStages = &stage;
+    info.pVertexInputState = &vertex_input;
+    info.pInputAssemblyState = &assembly;
+    info.pRasterizationState = &raster;
+    info.layout = layout;
+    VkPipeline pipeline;
+    CHECK(vkCreateGraphicsPipelines(d.device, VK_NULL_HANDLE, 1, &info, nullptr, &pipeline));
+    return pipeline;
+}
+
 VkPipeline ray_tracing_pipeline(const Device& d, VkPipelineLayout layout) {
     VkPipelineShaderStageCreateInfo stages[3] = {};
     const VkShaderStageFlagBits kinds[3] = {VK_SHADER_STAGE_RAYGEN_BIT_KHR,
@@ -494,8 +531,7 @@ void record_consumers(const Device& d, VkCommandBuffer cb, const Pipelines& p, c
     Constants constants{scene.top.address, 0, 0};
     vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, p.ray_query);
     vkCmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, p.layout, 0, 1, &p.set, 0, nullptr);
-    vkCmdPushConstants(cb, p.layout, VK_SHADER_STAGE_COMPUTE_BIT | VK_SHADER_STAGE_RAYGEN_BIT_KHR,
-                       0, sizeof constants, &constants);
+    vkCmdPushConstants(cb, p.layout, kStages, 0, sizeof constants, &constants);
     vkCmdDispatch(cb, 1, 1, 1);
     vkCmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, p.layout, 0, 1, &p.template_set, 0,
                             nullptr);
@@ -508,6 +544,15 @@ void record_consumers(const Device& d, VkCommandBuffer cb, const Pipelines& p, c
     vkCmdDispatch(cb, 1, 1, 1);
     vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, p.plain);
     vkCmdDispatch(cb, 1, 1, 1);
+    VkRenderingInfo rendering{VK_STRUCTURE_TYPE_RENDERING_INFO};
+    rendering.renderArea.extent = {1, 1};
+    rendering.layerCount = 1;
+    vkCmdBeginRendering(cb, &rendering);
+    vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_GRAPHICS, p.draw_ray_query);
+    vkCmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_GRAPHICS, p.layout, 0, 1, &p.set, 0,
+                            nullptr);
+    vkCmdDraw(cb, 1, 1, 0, 0);
+    vkCmdEndRendering(cb);
     VkMemoryBarrier written{VK_STRUCTURE_TYPE_MEMORY_BARRIER};
     written.srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT;
     written.dstAccessMask = VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT;
@@ -518,8 +563,7 @@ void record_consumers(const Device& d, VkCommandBuffer cb, const Pipelines& p, c
     vkCmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_RAY_TRACING_KHR, p.layout, 0, 1, &p.set, 0,
                             nullptr);
     constants.first = 2;
-    vkCmdPushConstants(cb, p.layout, VK_SHADER_STAGE_COMPUTE_BIT | VK_SHADER_STAGE_RAYGEN_BIT_KHR,
-                       0, sizeof constants, &constants);
+    vkCmdPushConstants(cb, p.layout, kStages, 0, sizeof constants, &constants);
     d.fn.trace_rays(cb, &table.regions[0], &table.regions[1], &table.regions[2], &table.regions[3],
                     4, 2, 1);
     if (!d.trace_rays_indirect) return;
@@ -527,8 +571,7 @@ void record_consumers(const Device& d, VkCommandBuffer cb, const Pipelines& p, c
                          VK_PIPELINE_STAGE_RAY_TRACING_SHADER_BIT_KHR, 0, 1, &written, 0, nullptr,
                          0, nullptr);
     constants.first = 10;
-    vkCmdPushConstants(cb, p.layout, VK_SHADER_STAGE_COMPUTE_BIT | VK_SHADER_STAGE_RAYGEN_BIT_KHR,
-                       0, sizeof constants, &constants);
+    vkCmdPushConstants(cb, p.layout, kStages, 0, sizeof constants, &constants);
     d.fn.trace_rays_indirect(cb, &table.regions[0], &table.regions[1], &table.regions[2],
                              &table.regions[3], indirect.address);
 }
@@ -558,10 +601,10 @@ VkCommandBuffer begin(const Device& d, VkCommandPool pool) {
     return cb;
 }
 
-// The results: [0] ray query (1 hit), [1] plain dispatch (7), [2..9] direct rays and [10..17]
-// indirect rays (1 where x + y < 1 for the cell's ray, 2 elsewhere).
+// The results: [0] ray query (1 hit), [1] plain dispatch (7), [18] the draw's ray query (1),
+// [2..9] direct rays and [10..17] indirect rays (1 where x + y < 1 for the cell's ray, 2 elsewhere).
 bool results_right(const uint32_t* values, bool indirect) {
-    bool right = values[0] == 1 && values[1] == 7;
+    bool right = values[0] == 1 && values[1] == 7 && values[18] == 1;
     for (uint32_t cell = 0; cell < 8; ++cell) {
         const float x = (float(cell % 4) + 0.5f) / 4, y = (float(cell / 4) + 0.5f) / 2;
         const uint32_t expected = x + y < 1 ? 1u : 2u;
@@ -599,6 +642,7 @@ int main(int argc, char** argv) {
     p.ray_query = compute_pipeline(d, p.layout, kRayQueryComp, sizeof kRayQueryComp);
     p.pushed_ray_query = compute_pipeline(d, p.push_layout, kRayQueryComp, sizeof kRayQueryComp);
     p.plain = compute_pipeline(d, p.layout, kPlainComp, sizeof kPlainComp);
+    p.draw_ray_query = draw_pipeline(d, p.layout);
     p.rays = ray_tracing_pipeline(d, p.layout);
     const BindingTable table = binding_table(d, p.rays);
 
@@ -613,7 +657,8 @@ int main(int argc, char** argv) {
     if (!out) fail("cannot write OUT.json");
     std::fprintf(out,
                  "{\"topLevel\": %llu, \"topLevelAddress\": %llu, \"bottomLevel\": %llu, "
-                 "\"rayQueryPipeline\": %llu, \"pushedRayQueryPipeline\": %llu, \"plainPipeline\": "
+                 "\"rayQueryPipeline\": %llu, \"pushedRayQueryPipeline\": %llu, \"drawPipeline\": "
+                 "%llu, \"plainPipeline\": "
                  "%llu, \"rayTracingPipeline\": "
                  "%llu, \"raygenAddress\": %llu, \"indirectAddress\": %llu, \"indirect\": %s, "
                  "\"results\": %s}\n",
@@ -622,6 +667,7 @@ int main(int argc, char** argv) {
                  (unsigned long long)(uint64_t)scene.bottom.handle,
                  (unsigned long long)(uint64_t)p.ray_query,
                  (unsigned long long)(uint64_t)p.pushed_ray_query,
+                 (unsigned long long)(uint64_t)p.draw_ray_query,
                  (unsigned long long)(uint64_t)p.plain, (unsigned long long)(uint64_t)p.rays,
                  (unsigned long long)table.regions[0].deviceAddress,
                  (unsigned long long)(d.trace_rays_indirect ? indirect.address : 0),

@@ -2,7 +2,8 @@
 // The commands that read acceleration structures, captured for real: tests/apps'
 // ray_consumers_app builds a BLAS and a TLAS on lavapipe 25, then runs a ray-query dispatch over
 // the TLAS bound in a descriptor set (its address also in the push constants), the same with a
-// set written through an update template and with pushed descriptors, a plain dispatch,
+// set written through an update template and with pushed descriptors, a plain dispatch, a draw
+// whose vertex shader runs the ray query,
 // vkCmdTraceRaysKHR and vkCmdTraceRaysIndirectKHR, under the capture layer. The trace's records
 // must say which dispatch uses ray queries, the rays' entry points, dimensions, tables and
 // indirect address, and for each consumer the TLAS by handle and address with set, binding and
@@ -13,6 +14,7 @@
 #include <clastrace/traces/trace_reader.h>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
+#include <vulkan/vulkan_core.h>
 
 #include <cstdint>
 #include <filesystem>
@@ -38,6 +40,12 @@ struct Binding {
 struct Dispatch {
     uint64_t pipeline = 0;
     bool ray_query = false;
+    std::vector<Binding> structures;
+};
+
+struct Draw {
+    std::string entry_point;
+    uint64_t pipeline = 0, address_stages = 0, ray_query_stages = 0;
     std::vector<Binding> structures;
 };
 
@@ -93,6 +101,11 @@ protected:
                 const auto* c = view.record->body_as_CmdDispatch();
                 dispatches.push_back(
                     {c->pipeline(), c->ray_query(), bindings_of(c->acceleration_structures())});
+            } else if (view.kind == clastrace::fbs::RecordBody::CmdDraw) {
+                const auto* c = view.record->body_as_CmdDraw();
+                draws.push_back({c->entry_point() ? c->entry_point()->str() : "", c->pipeline(),
+                                 c->address_stages(), c->ray_query_stages(),
+                                 bindings_of(c->acceleration_structures())});
             } else if (view.kind == clastrace::fbs::RecordBody::CmdTraceRays) {
                 const auto* c = view.record->body_as_CmdTraceRays();
                 Rays r;
@@ -133,6 +146,7 @@ protected:
     fs::path trace;
     json out;
     std::vector<Dispatch> dispatches;
+    std::vector<Draw> draws;
     std::vector<Rays> rays;
 };
 
@@ -151,6 +165,18 @@ TEST_F(RayConsumersCapture, RayQueryDispatchReachesTheBoundTopLevelAndThePlainOn
     EXPECT_EQ(dispatches[3].pipeline, out["plainPipeline"].get<uint64_t>());
     EXPECT_FALSE(dispatches[3].ray_query);
     EXPECT_TRUE(dispatches[3].structures.empty());
+}
+
+// A draw is recorded for its vertex shader's ray query alone (no address writes), with the
+// stage and what the graphics bind point reaches.
+TEST_F(RayConsumersCapture, RayQueryDrawIsRecordedWithItsStageAndTheTopLevel) {
+    capture();
+    ASSERT_EQ(draws.size(), 1u);
+    EXPECT_EQ(draws[0].entry_point, "vkCmdDraw");
+    EXPECT_EQ(draws[0].pipeline, out["drawPipeline"].get<uint64_t>());
+    EXPECT_EQ(draws[0].address_stages, 0u);
+    EXPECT_EQ(draws[0].ray_query_stages, uint64_t(VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT));
+    expect_the_top_level(draws[0].structures);
 }
 
 TEST_F(RayConsumersCapture, TraceRaysRecordsEntryPointDimensionsTablesAndTheTopLevel) {
