@@ -87,6 +87,7 @@ const char* memory_role_name(MemoryRole role) {
     case MemoryRole::kAabbs: return "aabbData";
     case MemoryRole::kInstances: return "instanceData";
     case MemoryRole::kSerializedAccelerationStructure: return "serializedAccelerationStructure";
+    case MemoryRole::kTraceRaysIndirect: return "traceRaysIndirect";
     }
     return "unknown";
 }

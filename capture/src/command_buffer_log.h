@@ -74,6 +74,11 @@ inline int bind_point_index(VkPipelineBindPoint bind_point) {
 // The log of `cb`, created on first use (layer_commands.cpp).
 std::shared_ptr<CommandBufferLog> command_buffer_log_of(DeviceState& d, VkCommandBuffer cb);
 
+// Records a pause (pause_worker.h) into `cb` here: the queue stops before the next command
+// (layer_commands.cpp).
+void record_pause_before_command(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log,
+                                 PausePoint pause);
+
 // The storage-buffer descriptors of the bound `sets` (dynamic offsets applied;
 // layer_commands.cpp).
 std::vector<BoundStorageBuffer> bound_storage_buffers(DeviceState& d,

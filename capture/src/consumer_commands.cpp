@@ -135,6 +135,18 @@ void set_tables(TraceRaysCommand& c, const VkStridedDeviceAddressRegionKHR* rayg
         if (regions[i]) c.shader_binding_tables[i] = *regions[i];
 }
 
+// The indirect forms: a pause before the rays reads their parameters as the device will (the
+// application's barriers make them visible to the rays, and so to the pause's host read).
+void pause_for_indirect_parameters(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log,
+                                   TraceRaysCommand& c) {
+    if (!d.capturing_now() || !c.indirect_address || !c.indirect_size) return;
+    c.pause_id = ++d.pause_counter;
+    PausePoint before;
+    before.pause_id = c.pause_id;
+    before.trace_rays = std::make_shared<const TraceRaysCommand>(c);
+    record_pause_before_command(d, cb, log, before);
+}
+
 void record_trace_rays(VkCommandBuffer cb, DeviceState& d,
                        const std::function<void(TraceRaysCommand&)>& fill,
                        const char* entry_point) {
@@ -142,6 +154,7 @@ void record_trace_rays(VkCommandBuffer cb, DeviceState& d,
     auto log = log_of(d, cb);
     TraceRaysCommand c = trace_rays_command(d, *log, entry_point);
     fill(c);
+    pause_for_indirect_parameters(d, cb, *log, c);
     log->recorded.commands.push_back(std::move(c));
 }
 
@@ -171,23 +184,29 @@ VKAPI_ATTR void VKAPI_CALL CmdTraceRaysIndirectKHR(VkCommandBuffer cb,
                                                    const VkStridedDeviceAddressRegionKHR* callable,
                                                    VkDeviceAddress indirect_address) {
     DeviceState& d = device_of(cb);
-    d.next.CmdTraceRaysIndirectKHR(cb, raygen, miss, hit, callable, indirect_address);
+    // Recorded first: its pause must come before the rays in the command buffer.
     record_trace_rays(
         cb, d,
         [&](TraceRaysCommand& c) {
             set_tables(c, raygen, miss, hit, callable);
             c.indirect_address = indirect_address;
+            c.indirect_size = sizeof(VkTraceRaysIndirectCommandKHR);
         },
         "vkCmdTraceRaysIndirectKHR");
+    d.next.CmdTraceRaysIndirectKHR(cb, raygen, miss, hit, callable, indirect_address);
 }
 
 VKAPI_ATTR void VKAPI_CALL CmdTraceRaysIndirect2KHR(VkCommandBuffer cb,
                                                     VkDeviceAddress indirect_address) {
     DeviceState& d = device_of(cb);
-    d.next.CmdTraceRaysIndirect2KHR(cb, indirect_address);
-    record_trace_rays(
-        cb, d, [&](TraceRaysCommand& c) { c.indirect_address = indirect_address; },
+    record_trace_rays(  // first, as vkCmdTraceRaysIndirectKHR
+        cb, d,
+        [&](TraceRaysCommand& c) {
+            c.indirect_address = indirect_address;
+            c.indirect_size = sizeof(VkTraceRaysIndirectCommand2KHR);
+        },
         "vkCmdTraceRaysIndirect2KHR");
+    d.next.CmdTraceRaysIndirect2KHR(cb, indirect_address);
 }
 
 // NV names its tables by buffer and offset: the region's address is the buffer's address plus

@@ -173,7 +173,8 @@ struct CommandToJson {
                 {"shaderBindingTables", tables},
                 {"accelerationStructures", structures_json(c.acceleration_structures)},
                 {"storageBuffers", buffers_json(c.storage_buffers)},
-                {"mayWriteDeviceAddresses", c.may_write_device_addresses}};
+                {"mayWriteDeviceAddresses", c.may_write_device_addresses},
+                {"pauseId", c.pause_id}};
     }
     json operator()(const ClusterBuildCommand& c) const {
         return {{"kind", "BuildClusterAccelerationStructureIndirectNV"},

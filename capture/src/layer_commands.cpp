@@ -781,6 +781,11 @@ VKAPI_ATTR void VKAPI_CALL CmdCopyMemoryToAccelerationStructureKHR(
 
 }  // namespace
 
+void record_pause_before_command(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log,
+                                 PausePoint pause) {
+    record_pause(d, cb, log, std::move(pause));
+}
+
 void clear_command_buffer_log(DeviceState& d, CommandBufferLog& log) {
     if (d.pauses) d.pauses->forget_events(log.events);
     // No execution is pending (the command buffer is re-begun, reset or freed): an abandoned

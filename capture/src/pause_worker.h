@@ -60,6 +60,7 @@ struct PausePoint {
     std::shared_ptr<const ClusterCommandParameters> parameters;  // a cluster build, or one of:
     std::shared_ptr<const BuildAccelerationStructureNVCommand> build_nv;
     std::shared_ptr<const CopyMemoryToAccelerationStructureCommand> copy_to_acceleration_structure;
+    std::shared_ptr<const TraceRaysCommand> trace_rays;  // an indirect form
     std::shared_ptr<const StagingSet>
         staging;  // copies of unmapped memory, or null (pause_staging.h)
 };

@@ -474,6 +474,7 @@ private:
             return c->pause_id;
         if (const auto* c = std::get_if<CopyMemoryToAccelerationStructureCommand>(&command))
             return c->pause_id;
+        if (const auto* c = std::get_if<TraceRaysCommand>(&command)) return c->pause_id;
         return 0;
     }
 
@@ -822,6 +823,8 @@ private:
         } else if (auto* r = record.body.AsCmdBuildAccelerationStructureNV()) {
             snapshots(captured.inputs, r->inputs);
         } else if (auto* r = record.body.AsCmdCopyMemoryToAccelerationStructure()) {
+            snapshots(captured.inputs, r->inputs);
+        } else if (auto* r = record.body.AsCmdTraceRays()) {
             snapshots(captured.inputs, r->inputs);
         }
     }

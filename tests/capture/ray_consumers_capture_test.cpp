@@ -55,6 +55,7 @@ struct Rays {
     uint32_t width = 0, height = 0, depth = 0;
     size_t storage_buffers = 0;
     std::vector<Binding> structures;
+    std::vector<std::pair<uint64_t, uint64_t>> inputs;  // (address, size) of each snapshot
 };
 
 template <typename Vector>
@@ -119,6 +120,9 @@ protected:
                 r.depth = c->depth();
                 r.storage_buffers = c->storage_buffers() ? c->storage_buffers()->size() : 0;
                 r.structures = bindings_of(c->acceleration_structures());
+                if (c->inputs())
+                    for (const auto* snapshot : *c->inputs())
+                        r.inputs.push_back({snapshot->address(), snapshot->size()});
                 rays.push_back(r);
             }
         }
@@ -192,12 +196,16 @@ TEST_F(RayConsumersCapture, TraceRaysRecordsEntryPointDimensionsTablesAndTheTopL
     EXPECT_EQ(direct.indirect_address, 0u);
     EXPECT_EQ(direct.raygen_address, out["raygenAddress"].get<uint64_t>());
     EXPECT_EQ(direct.storage_buffers, 1u);  // the results, bound at the ray-tracing bind point
+    EXPECT_TRUE(direct.inputs.empty());
     expect_the_top_level(direct.structures);
     if (!indirect) return;
     const Rays& from_memory = rays[1];
     EXPECT_EQ(from_memory.entry_point, "vkCmdTraceRaysIndirectKHR");
     EXPECT_EQ(from_memory.indirect_address, out["indirectAddress"].get<uint64_t>());
-    EXPECT_EQ(from_memory.width, 0u);  // read by the device; the record's inputs are not taken
+    EXPECT_EQ(from_memory.width, 0u);  // read by the device: in the record's inputs
+    ASSERT_EQ(from_memory.inputs.size(), 1u);
+    EXPECT_EQ(from_memory.inputs[0].first, from_memory.indirect_address);
+    EXPECT_EQ(from_memory.inputs[0].second, sizeof(VkTraceRaysIndirectCommandKHR));
     EXPECT_EQ(from_memory.raygen_address, out["raygenAddress"].get<uint64_t>());
     expect_the_top_level(from_memory.structures);
 }

@@ -51,6 +51,7 @@ enum class MemoryRole {
     kAabbs,
     kInstances,
     kSerializedAccelerationStructure,  // vkCmdCopyMemoryToAccelerationStructureKHR source
+    kTraceRaysIndirect,  // what vkCmdTraceRaysIndirect(2)KHR read at its indirect address
 };
 const char* memory_role_name(MemoryRole role);
 
@@ -284,6 +285,10 @@ struct TraceRaysCommand {
     std::vector<BoundStorageBuffer> storage_buffers;
     // A shader of the pipeline uses physical storage buffer pointers (spirv_scan.h).
     bool may_write_device_addresses = false;
+    // The indirect forms under capture: the pause before the rays reads the parameters
+    // (`indirect_size` bytes at `indirect_address`); 0 otherwise.
+    uint64_t pause_id = 0;
+    uint32_t indirect_size = 0;
 };
 
 struct ClusterBuildCommand {
@@ -460,7 +465,8 @@ enum class CapturedCommandKind {
     kClusterBuild,
     kBuildAccelerationStructureNv,
     kCopyMemoryToAccelerationStructure,
-    kTimestamps
+    kTimestamps,
+    kTraceRays,
 };
 
 struct ClusterBuildCapture {
