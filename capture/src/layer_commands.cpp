@@ -473,12 +473,18 @@ std::vector<BoundStorageBuffer> bound_storage_buffers(DeviceState& d,
 
 namespace {
 
-// The ray-query part of a dispatch: whether its pipeline uses ray queries, and what it reaches.
-void note_ray_queries(DeviceState& d, const CommandBufferLog& log, DispatchCommand& c) {
+// A dispatch of the bound compute pipeline: the storage buffers it sees, whether its shader may
+// write through addresses or uses ray queries, and the structures it then reaches.
+DispatchCommand dispatch_command(DeviceState& d, const CommandBufferLog& log) {
+    DispatchCommand c;
+    c.pipeline = log.compute_pipeline;
+    c.storage_buffers = bound_storage_buffers(d, log.compute_sets);
+    c.may_write_device_addresses = address_writing_stages(d, log.compute_pipeline) != 0;
     c.ray_query = ray_query_stages(d, log.compute_pipeline) != 0;
     if (c.ray_query)
         c.acceleration_structures =
             reachable_acceleration_structures(d, log, VK_PIPELINE_BIND_POINT_COMPUTE);
+    return c;
 }
 
 VKAPI_ATTR void VKAPI_CALL CmdDispatch(VkCommandBuffer cb, uint32_t x, uint32_t y, uint32_t z) {
@@ -486,11 +492,10 @@ VKAPI_ATTR void VKAPI_CALL CmdDispatch(VkCommandBuffer cb, uint32_t x, uint32_t 
     d.next.CmdDispatch(cb, x, y, z);
     if (!d.sink) return;
     auto log = log_of(d, cb);
-    DispatchCommand c{
-        x,     y,     z, log->compute_pipeline, 0, 0, bound_storage_buffers(d, log->compute_sets),
-        false, false, {}};
-    c.may_write_device_addresses = address_writing_stages(d, log->compute_pipeline) != 0;
-    note_ray_queries(d, *log, c);
+    DispatchCommand c = dispatch_command(d, *log);
+    c.group_count_x = x;
+    c.group_count_y = y;
+    c.group_count_z = z;
     log->recorded.commands.push_back(std::move(c));
 }
 
@@ -500,18 +505,9 @@ VKAPI_ATTR void VKAPI_CALL CmdDispatchIndirect(VkCommandBuffer cb, VkBuffer buff
     d.next.CmdDispatchIndirect(cb, buffer, offset);
     if (!d.sink) return;
     auto log = log_of(d, cb);
-    DispatchCommand c{0,
-                      0,
-                      0,
-                      log->compute_pipeline,
-                      handle_id(buffer),
-                      offset,
-                      bound_storage_buffers(d, log->compute_sets),
-                      false,
-                      false,
-                      {}};
-    c.may_write_device_addresses = address_writing_stages(d, log->compute_pipeline) != 0;
-    note_ray_queries(d, *log, c);
+    DispatchCommand c = dispatch_command(d, *log);
+    c.indirect_buffer = handle_id(buffer);
+    c.indirect_offset = offset;
     log->recorded.commands.push_back(std::move(c));
 }
 
@@ -526,7 +522,11 @@ void record_draw_through_addresses(VkCommandBuffer cb, const char* entry_point) 
     const VkPipelineStageFlags2 stages = address_writing_stages(d, log->graphics_pipeline);
     const VkPipelineStageFlags2 ray_stages = ray_query_stages(d, log->graphics_pipeline);
     if (!stages && !ray_stages) return;
-    DrawCommand c{log->graphics_pipeline, entry_point, stages, ray_stages, {}};
+    DrawCommand c;
+    c.pipeline = log->graphics_pipeline;
+    c.entry_point = entry_point;
+    c.address_stages = stages;
+    c.ray_query_stages = ray_stages;
     if (ray_stages)
         c.acceleration_structures =
             reachable_acceleration_structures(d, *log, VK_PIPELINE_BIND_POINT_GRAPHICS);
