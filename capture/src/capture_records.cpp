@@ -124,6 +124,7 @@ const char* memory_role_name(MemoryRole role) {
     case MemoryRole::kBuildRanges: return "buildRangeInfos";
     case MemoryRole::kInstancePointers: return "instancePointers";
     case MemoryRole::kSourceAccelerationStructure: return "srcAccelerationStructure";
+    case MemoryRole::kTraceRaysIndirect: return "traceRaysIndirect";
     }
     return "unknown";
 }

@@ -8,6 +8,7 @@
 
 #include <functional>
 #include <map>
+#include <tuple>
 #include <vector>
 
 namespace clastrace::capture {
@@ -30,8 +31,34 @@ struct CommandBufferLog {
     // Compute binding state, for the storage buffers each dispatch sees.
     uint64_t compute_pipeline = 0;
     uint64_t graphics_pipeline = 0;  // for draws that may write through device addresses
-    std::map<uint32_t, std::pair<VkDescriptorSet, std::vector<uint32_t>>>
-        compute_sets;  // set -> (set, dynamic offsets)
+    uint64_t ray_tracing_pipeline = 0;
+    using BoundSets = std::map<uint32_t, std::pair<VkDescriptorSet, std::vector<uint32_t>>>;
+    BoundSets compute_sets;  // set -> (set, dynamic offsets)
+    BoundSets graphics_sets, ray_tracing_sets;
+    // Acceleration structures pushed with vkCmdPushDescriptorSet*KHR, per bind point (compute,
+    // graphics, ray tracing), keyed by (set, binding, element).
+    std::map<std::tuple<uint32_t, uint32_t, uint32_t>, ReachableAccelerationStructure>
+        pushed_acceleration_structures[3];
+    std::vector<uint8_t> push_constants;  // the bytes vkCmdPushConstants set so far
+
+    // vkCmdBindDescriptorSets bound sets [first, first + count) at `bind_point`: what was pushed
+    // there before is no longer bound.
+    void forget_pushed_sets(int index, uint32_t first, uint32_t count) {
+        auto& pushed = pushed_acceleration_structures[index];
+        for (auto it = pushed.begin(); it != pushed.end();) {
+            const uint32_t set = std::get<0>(it->first);
+            it = set >= first && set - first < count ? pushed.erase(it) : std::next(it);
+        }
+    }
+    // The sets bound at `bind_point` (null for bind points the layer does not follow).
+    BoundSets* sets_at(VkPipelineBindPoint bind_point) {
+        switch (bind_point) {
+        case VK_PIPELINE_BIND_POINT_COMPUTE: return &compute_sets;
+        case VK_PIPELINE_BIND_POINT_GRAPHICS: return &graphics_sets;
+        case VK_PIPELINE_BIND_POINT_RAY_TRACING_KHR: return &ray_tracing_sets;
+        default: return nullptr;
+        }
+    }
 };
 
 // Forwards a command (`forward`) and logs `command` (khr_commands.cpp). With `pause`: a captured
@@ -39,6 +66,35 @@ struct CommandBufferLog {
 // i.e. when capturing now). Without: logged only.
 void record_command_with_pause(VkCommandBuffer cb, PausePoint* pause,
                                const std::function<void()>& forward, RecordedCommand command);
+// Index of a followed bind point in per-bind-point arrays (0 compute, 1 graphics, 2 ray
+// tracing; -1 for others).
+inline int bind_point_index(VkPipelineBindPoint bind_point) {
+    switch (bind_point) {
+    case VK_PIPELINE_BIND_POINT_COMPUTE: return 0;
+    case VK_PIPELINE_BIND_POINT_GRAPHICS: return 1;
+    case VK_PIPELINE_BIND_POINT_RAY_TRACING_KHR: return 2;
+    default: return -1;
+    }
+}
+
+// The log of `cb`, created on first use (layer_commands.cpp).
+std::shared_ptr<CommandBufferLog> command_buffer_log_of(DeviceState& d, VkCommandBuffer cb);
+
+// Records a pause (pause_worker.h) into `cb` here: the queue stops before the next command
+// (layer_commands.cpp).
+void record_pause_before_command(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log,
+                                 PausePoint pause);
+
+// The storage-buffer descriptors of the bound `sets` (dynamic offsets applied;
+// layer_commands.cpp).
+std::vector<BoundStorageBuffer> bound_storage_buffers(DeviceState& d,
+                                                      const CommandBufferLog::BoundSets& sets);
+
+// What a consumer at `bind_point` can reach: the acceleration-structure descriptors of the
+// bound sets, the pushed ones, and push-constant values equal to a known address
+// (consumer_commands.cpp).
+std::vector<ReachableAccelerationStructure> reachable_acceleration_structures(
+    DeviceState& d, const CommandBufferLog& log, VkPipelineBindPoint bind_point);
 
 // Clears `log` for a new recording; its events and query pool become spares.
 void clear_command_buffer_log(DeviceState& device, CommandBufferLog& log);

@@ -51,8 +51,15 @@ private:
             // write through an address, so none of its submission's changes is claimed.
             if (dispatch->may_write_device_addresses || !layer_config().mark_device_address_writers)
                 add_any_memory();
-        } else if (std::holds_alternative<DrawCommand>(command)) {
-            add_any_memory();  // only draws whose pipeline may write through addresses are kept
+        } else if (const auto* draw = std::get_if<DrawCommand>(&command)) {
+            // Draws are kept when their pipeline may write through addresses or uses ray queries.
+            if (draw->address_stages || !layer_config().mark_device_address_writers)
+                add_any_memory();
+        } else if (const auto* rays = std::get_if<TraceRaysCommand>(&command)) {
+            for (const BoundStorageBuffer& b : rays->storage_buffers)
+                add_buffer(b.buffer, b.offset, b.range);
+            if (rays->may_write_device_addresses || !layer_config().mark_device_address_writers)
+                add_any_memory();
         } else if (const auto* build = std::get_if<ClusterBuildCommand>(&command)) {
             const VkClusterAccelerationStructureCommandsInfoNV& info = build->parameters.info;
             for (VkDeviceAddress a :

@@ -117,9 +117,9 @@ struct CommandToJson {
                 {"offset", c.offset},
                 {"bytes", hex_bytes(c.data)}};
     }
-    json operator()(const DispatchCommand& c) const {
+    static json buffers_json(const std::vector<BoundStorageBuffer>& storage_buffers) {
         json buffers = json::array();
-        for (const auto& b : c.storage_buffers)
+        for (const auto& b : storage_buffers)
             buffers.push_back({{"set", b.set},
                                {"binding", b.binding},
                                {"arrayElement", b.array_element},
@@ -128,6 +128,21 @@ struct CommandToJson {
                                {"offset", b.offset},
                                {"range", b.range},
                                {"address", b.address}});
+        return buffers;
+    }
+    static json structures_json(const std::vector<ReachableAccelerationStructure>& reachable) {
+        json out = json::array();
+        for (const auto& r : reachable)
+            out.push_back({{"set", r.set},
+                           {"binding", r.binding},
+                           {"arrayElement", r.array_element},
+                           {"source", uint32_t(r.source)},
+                           {"accelerationStructure", r.acceleration_structure},
+                           {"address", r.address}});
+        return out;
+    }
+    json operator()(const DispatchCommand& c) const {
+        const json buffers = buffers_json(c.storage_buffers);
         return {{"kind", "Dispatch"},
                 {"groups", {c.group_count_x, c.group_count_y, c.group_count_z}},
                 {"pipeline", c.pipeline},
@@ -135,13 +150,32 @@ struct CommandToJson {
                 {"indirectOffset", c.indirect_offset},
                 {"storageBuffers", buffers},
                 {"mayWriteDeviceAddresses", c.may_write_device_addresses},
-                {"pauseId", c.pause_id}};
+                {"pauseId", c.pause_id},
+                {"rayQuery", c.ray_query},
+                {"accelerationStructures", structures_json(c.acceleration_structures)}};
     }
     json operator()(const DrawCommand& c) const {
         return {{"kind", "Draw"},
                 {"entryPoint", c.entry_point},
                 {"pipeline", c.pipeline},
-                {"addressStages", c.address_stages}};
+                {"addressStages", c.address_stages},
+                {"rayQueryStages", c.ray_query_stages},
+                {"accelerationStructures", structures_json(c.acceleration_structures)}};
+    }
+    json operator()(const TraceRaysCommand& c) const {
+        json tables = json::array();
+        for (const VkStridedDeviceAddressRegionKHR& t : c.shader_binding_tables)
+            tables.push_back({t.deviceAddress, t.stride, t.size});
+        return {{"kind", "TraceRays"},
+                {"entryPoint", c.entry_point},
+                {"pipeline", c.pipeline},
+                {"dimensions", {c.width, c.height, c.depth}},
+                {"indirectAddress", c.indirect_address},
+                {"shaderBindingTables", tables},
+                {"accelerationStructures", structures_json(c.acceleration_structures)},
+                {"storageBuffers", buffers_json(c.storage_buffers)},
+                {"mayWriteDeviceAddresses", c.may_write_device_addresses},
+                {"pauseId", c.pause_id}};
     }
     json operator()(const ClusterBuildCommand& c) const {
         return {{"kind", "BuildClusterAccelerationStructureIndirectNV"},

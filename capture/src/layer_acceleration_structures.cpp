@@ -47,6 +47,7 @@ VKAPI_ATTR void VKAPI_CALL DestroyAccelerationStructureNV(
     DeviceState& d = device_of(device);
     if (as) {
         d.nv_scene.forget(handle_id(as));
+        forget_acceleration_structure_address(d, handle_id(as));
         if (d.sink) d.sink->acceleration_structure_destroyed(handle_id(as));
     }
     d.next.DestroyAccelerationStructureNV(device, as, p_allocator);
@@ -73,6 +74,7 @@ VKAPI_ATTR VkResult VKAPI_CALL GetAccelerationStructureHandleNV(VkDevice device,
     uint64_t handle;
     std::memcpy(&handle, p_data, sizeof handle);
     d.nv_scene.set_handle(handle_id(as), handle);
+    remember_acceleration_structure_address(d, handle_id(as), handle);
     if (d.sink) d.sink->acceleration_structure_address_queried({handle_id(as), handle});
     return result;
 }
@@ -120,6 +122,7 @@ VKAPI_ATTR void VKAPI_CALL DestroyAccelerationStructureKHR(
     DeviceState& d = device_of(device);
     if (as) forget_khr_structure(d, handle_id(as));
     if (as && d.sink) d.sink->acceleration_structure_destroyed(handle_id(as));
+    if (as) forget_acceleration_structure_address(d, handle_id(as));
     d.next.DestroyAccelerationStructureKHR(device, as, p_allocator);
 }
 
@@ -127,6 +130,7 @@ VKAPI_ATTR VkDeviceAddress VKAPI_CALL GetAccelerationStructureDeviceAddressKHR(
     VkDevice device, const VkAccelerationStructureDeviceAddressInfoKHR* p_info) {
     DeviceState& d = device_of(device);
     VkDeviceAddress address = d.next.GetAccelerationStructureDeviceAddressKHR(device, p_info);
+    remember_acceleration_structure_address(d, handle_id(p_info->accelerationStructure), address);
     if (d.sink)
         d.sink->acceleration_structure_address_queried(
             {handle_id(p_info->accelerationStructure), address});

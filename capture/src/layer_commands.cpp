@@ -331,7 +331,42 @@ VKAPI_ATTR void VKAPI_CALL CmdUpdateBuffer(VkCommandBuffer cb, VkBuffer dst, VkD
     auto* bytes = static_cast<const uint8_t*>(p_data);
     record(cb, UpdateBufferCommand{handle_id(dst), offset, {bytes, bytes + size}});
 }
-// ---- Compute state: which storage buffers a dispatch sees ----------------------------------
+
+// ---- Binding state: the storage buffers a dispatch sees, the structures a consumer reaches ---
+
+}  // namespace
+
+std::shared_ptr<CommandBufferLog> command_buffer_log_of(DeviceState& d, VkCommandBuffer cb) {
+    return log_of(d, cb);
+}
+
+void track_descriptor_write(DeviceState& d, const VkWriteDescriptorSet& write) {
+    std::lock_guard lock(d.descriptors_mutex);
+    const bool storage = write.descriptorType == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER ||
+                         write.descriptorType == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC;
+    auto& set = d.descriptors[write.dstSet];
+    if (track_acceleration_structure_write(d, write, set)) return;
+    // Consecutive descriptors continue at element + i of the same binding (overflow into the
+    // next binding is not followed).
+    for (uint32_t i = 0; i < write.descriptorCount; ++i) {
+        const std::pair<uint32_t, uint32_t> key{write.dstBinding, write.dstArrayElement + i};
+        if (!storage || !write.pBufferInfo) {
+            set.erase(key);
+            continue;
+        }
+        const VkDescriptorBufferInfo& info = write.pBufferInfo[i];
+        BoundStorageBuffer b;
+        b.binding = write.dstBinding;
+        b.array_element = write.dstArrayElement + i;
+        b.type = write.descriptorType;
+        b.buffer = handle_id(info.buffer);
+        b.offset = info.offset;
+        b.range = info.range;
+        set[key] = b;
+    }
+}
+
+namespace {
 
 VKAPI_ATTR void VKAPI_CALL UpdateDescriptorSets(VkDevice device, uint32_t write_count,
                                                 const VkWriteDescriptorSet* writes,
@@ -339,38 +374,15 @@ VKAPI_ATTR void VKAPI_CALL UpdateDescriptorSets(VkDevice device, uint32_t write_
                                                 const VkCopyDescriptorSet* copies) {
     DeviceState& d = *find_device(dispatch_key(device));
     d.next.UpdateDescriptorSets(device, write_count, writes, copy_count, copies);
+    for (uint32_t w = 0; w < write_count; ++w) track_descriptor_write(d, writes[w]);
     std::lock_guard lock(d.descriptors_mutex);
-    for (uint32_t w = 0; w < write_count; ++w) {
-        const VkWriteDescriptorSet& write = writes[w];
-        const bool storage = write.descriptorType == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER ||
-                             write.descriptorType == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC;
-        auto& set = d.storage_descriptors[write.dstSet];
-        // Consecutive descriptors continue at element + i of the same binding (overflow into the
-        // next binding is not followed).
-        for (uint32_t i = 0; i < write.descriptorCount; ++i) {
-            const std::pair<uint32_t, uint32_t> key{write.dstBinding, write.dstArrayElement + i};
-            if (!storage || !write.pBufferInfo) {
-                set.erase(key);
-                continue;
-            }
-            const VkDescriptorBufferInfo& info = write.pBufferInfo[i];
-            BoundStorageBuffer b;
-            b.binding = write.dstBinding;
-            b.array_element = write.dstArrayElement + i;
-            b.type = write.descriptorType;
-            b.buffer = handle_id(info.buffer);
-            b.offset = info.offset;
-            b.range = info.range;
-            set[key] = b;
-        }
-    }
     for (uint32_t c = 0; c < copy_count; ++c) {
         const VkCopyDescriptorSet& copy = copies[c];
-        auto source = d.storage_descriptors.find(copy.srcSet);
+        auto source = d.descriptors.find(copy.srcSet);
         for (uint32_t i = 0; i < copy.descriptorCount; ++i) {
             const std::pair<uint32_t, uint32_t> to{copy.dstBinding, copy.dstArrayElement + i};
-            auto& dst = d.storage_descriptors[copy.dstSet];
-            if (source == d.storage_descriptors.end()) {
+            auto& dst = d.descriptors[copy.dstSet];
+            if (source == d.descriptors.end()) {
                 dst.erase(to);
                 continue;
             }
@@ -379,10 +391,14 @@ VKAPI_ATTR void VKAPI_CALL UpdateDescriptorSets(VkDevice device, uint32_t write_
                 dst.erase(to);
                 continue;
             }
-            BoundStorageBuffer b = from->second;
-            b.binding = to.first;
-            b.array_element = to.second;
-            dst[to] = b;
+            TrackedDescriptor copied = from->second;
+            std::visit(
+                [&](auto& descriptor) {
+                    descriptor.binding = to.first;
+                    descriptor.array_element = to.second;
+                },
+                copied);
+            dst[to] = copied;
         }
     }
 }
@@ -395,6 +411,8 @@ VKAPI_ATTR void VKAPI_CALL CmdBindPipeline(VkCommandBuffer cb, VkPipelineBindPoi
         log_of(d, cb)->compute_pipeline = handle_id(pipeline);
     else if (bind_point == VK_PIPELINE_BIND_POINT_GRAPHICS)
         log_of(d, cb)->graphics_pipeline = handle_id(pipeline);
+    else if (bind_point == VK_PIPELINE_BIND_POINT_RAY_TRACING_KHR)
+        log_of(d, cb)->ray_tracing_pipeline = handle_id(pipeline);
 }
 
 VKAPI_ATTR void VKAPI_CALL CmdBindDescriptorSets(VkCommandBuffer cb, VkPipelineBindPoint bind_point,
@@ -405,8 +423,10 @@ VKAPI_ATTR void VKAPI_CALL CmdBindDescriptorSets(VkCommandBuffer cb, VkPipelineB
     DeviceState& d = device_of(cb);
     d.next.CmdBindDescriptorSets(cb, bind_point, layout, first_set, set_count, sets,
                                  dynamic_offset_count, dynamic_offsets);
-    if (bind_point != VK_PIPELINE_BIND_POINT_COMPUTE) return;
     auto log = log_of(d, cb);
+    CommandBufferLog::BoundSets* bound_sets = log->sets_at(bind_point);
+    if (!bound_sets) return;
+    log->forget_pushed_sets(bind_point_index(bind_point), first_set, set_count);
     // Dynamic offsets are consumed set by set, in binding order, by every dynamic descriptor;
     // the layer knows only the storage ones, so with dynamic uniform buffers in the same set
     // the split is approximate (see README).
@@ -414,25 +434,32 @@ VKAPI_ATTR void VKAPI_CALL CmdBindDescriptorSets(VkCommandBuffer cb, VkPipelineB
     std::lock_guard lock(d.descriptors_mutex);
     for (uint32_t s = 0; s < set_count; ++s) {
         std::vector<uint32_t> offsets;
-        auto known = d.storage_descriptors.find(sets[s]);
-        if (known != d.storage_descriptors.end())
-            for (const auto& [key, b] : known->second)
-                if (b.type == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC &&
+        auto known = d.descriptors.find(sets[s]);
+        if (known != d.descriptors.end())
+            for (const auto& [key, descriptor] : known->second) {
+                const auto* b = std::get_if<BoundStorageBuffer>(&descriptor);
+                if (b && b->type == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC &&
                     next_offset < dynamic_offset_count)
                     offsets.push_back(dynamic_offsets[next_offset++]);
-        log->compute_sets[first_set + s] = {sets[s], offsets};
+            }
+        (*bound_sets)[first_set + s] = {sets[s], offsets};
     }
 }
 
-std::vector<BoundStorageBuffer> bound_storage_buffers(DeviceState& d, const CommandBufferLog& log) {
+}  // namespace
+
+std::vector<BoundStorageBuffer> bound_storage_buffers(DeviceState& d,
+                                                      const CommandBufferLog::BoundSets& sets) {
     std::vector<BoundStorageBuffer> out;
     std::lock_guard lock(d.descriptors_mutex);
-    for (const auto& [setIndex, bound] : log.compute_sets) {
-        auto known = d.storage_descriptors.find(bound.first);
-        if (known == d.storage_descriptors.end()) continue;
+    for (const auto& [setIndex, bound] : sets) {
+        auto known = d.descriptors.find(bound.first);
+        if (known == d.descriptors.end()) continue;
         size_t dynamic = 0;
-        for (const auto& [key, descriptor] : known->second) {
-            BoundStorageBuffer b = descriptor;
+        for (const auto& [key, tracked] : known->second) {
+            const auto* storage = std::get_if<BoundStorageBuffer>(&tracked);
+            if (!storage) continue;
+            BoundStorageBuffer b = *storage;
             b.set = setIndex;
             if (b.type == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC &&
                 dynamic < bound.second.size())
@@ -444,6 +471,8 @@ std::vector<BoundStorageBuffer> bound_storage_buffers(DeviceState& d, const Comm
     }
     return out;
 }
+
+namespace {
 
 void record_pause(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log, PausePoint pause);
 
@@ -471,12 +500,28 @@ void pause_after_address_writer(DeviceState& d, VkCommandBuffer cb, CommandBuffe
     record_pause(d, cb, log, after);
 }
 
+// A dispatch of the bound compute pipeline: the storage buffers it sees, whether its shader may
+// write through addresses or uses ray queries, and the structures it then reaches.
+DispatchCommand dispatch_command(DeviceState& d, const CommandBufferLog& log) {
+    DispatchCommand c;
+    c.pipeline = log.compute_pipeline;
+    c.storage_buffers = bound_storage_buffers(d, log.compute_sets);
+    c.may_write_device_addresses = address_writing_stages(d, log.compute_pipeline) != 0;
+    c.ray_query = ray_query_stages(d, log.compute_pipeline) != 0;
+    if (c.ray_query)
+        c.acceleration_structures =
+            reachable_acceleration_structures(d, log, VK_PIPELINE_BIND_POINT_COMPUTE);
+    return c;
+}
+
 VKAPI_ATTR void VKAPI_CALL CmdDispatch(VkCommandBuffer cb, uint32_t x, uint32_t y, uint32_t z) {
     DeviceState& d = device_of(cb);
     if (!d.sink) return d.next.CmdDispatch(cb, x, y, z);
     auto log = log_of(d, cb);
-    DispatchCommand c{x, y, z, log->compute_pipeline, 0, 0, bound_storage_buffers(d, *log)};
-    c.may_write_device_addresses = address_writing_stages(d, log->compute_pipeline) != 0;
+    DispatchCommand c = dispatch_command(d, *log);
+    c.group_count_x = x;
+    c.group_count_y = y;
+    c.group_count_z = z;
     c.pause_id = pause_before_address_writer(d, cb, *log, c.may_write_device_addresses);
     d.next.CmdDispatch(cb, x, y, z);
     pause_after_address_writer(d, cb, *log, c.pause_id);
@@ -488,9 +533,9 @@ VKAPI_ATTR void VKAPI_CALL CmdDispatchIndirect(VkCommandBuffer cb, VkBuffer buff
     DeviceState& d = device_of(cb);
     if (!d.sink) return d.next.CmdDispatchIndirect(cb, buffer, offset);
     auto log = log_of(d, cb);
-    DispatchCommand c{
-        0, 0, 0, log->compute_pipeline, handle_id(buffer), offset, bound_storage_buffers(d, *log)};
-    c.may_write_device_addresses = address_writing_stages(d, log->compute_pipeline) != 0;
+    DispatchCommand c = dispatch_command(d, *log);
+    c.indirect_buffer = handle_id(buffer);
+    c.indirect_offset = offset;
     c.pause_id = pause_before_address_writer(d, cb, *log, c.may_write_device_addresses);
     d.next.CmdDispatchIndirect(cb, buffer, offset);
     pause_after_address_writer(d, cb, *log, c.pause_id);
@@ -499,23 +544,34 @@ VKAPI_ATTR void VKAPI_CALL CmdDispatchIndirect(VkCommandBuffer cb, VkBuffer buff
 
 }  // namespace
 
-// Only draws that may write through addresses are recorded: replay needs nothing else of them.
+// Only draws that may write through addresses or use ray queries are recorded: replay needs
+// nothing else of them.
 void record_draw_through_addresses(VkCommandBuffer cb, const char* entry_point) {
     DeviceState& d = device_of(cb);
     if (!d.sink) return;
     auto log = log_of(d, cb);
     const VkPipelineStageFlags2 stages = address_writing_stages(d, log->graphics_pipeline);
-    if (!stages) return;
+    const VkPipelineStageFlags2 ray_stages = ray_query_stages(d, log->graphics_pipeline);
+    if (!stages && !ray_stages) return;
     // Exact mode pauses around dispatches only: a pause cannot stop the queue inside a render
     // pass, so a draw stays a possible writer of all device-address memory (capture/README.md).
     static std::atomic<bool> said_draws_stay_cheap{false};
-    if (layer_config().exact_device_address_writes && !said_draws_stay_cheap.exchange(true))
+    if (stages && layer_config().exact_device_address_writes &&
+        !said_draws_stay_cheap.exchange(true))
         log_message(LogLevel::kInfo,
                     "CLASTRACE_DEVICE_ADDRESS_WRITES=exact: draws (%s) whose shaders may write "
                     "through device addresses are recorded as in cheap mode (possible writers of "
                     "all device-address memory); only dispatches are compared",
                     entry_point);
-    log->recorded.commands.push_back(DrawCommand{log->graphics_pipeline, entry_point, stages});
+    DrawCommand c;
+    c.pipeline = log->graphics_pipeline;
+    c.entry_point = entry_point;
+    c.address_stages = stages;
+    c.ray_query_stages = ray_stages;
+    if (ray_stages)
+        c.acceleration_structures =
+            reachable_acceleration_structures(d, *log, VK_PIPELINE_BIND_POINT_GRAPHICS);
+    log->recorded.commands.push_back(std::move(c));
 }
 
 namespace {
@@ -766,6 +822,11 @@ VKAPI_ATTR void VKAPI_CALL CmdCopyMemoryToAccelerationStructureKHR(
 
 }  // namespace
 
+void record_pause_before_command(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log,
+                                 PausePoint pause) {
+    record_pause(d, cb, log, std::move(pause));
+}
+
 void clear_command_buffer_log(DeviceState& d, CommandBufferLog& log) {
     if (d.pauses) d.pauses->forget_events(log.events);
     // No execution is pending (the command buffer is re-begun, reset or freed): an abandoned
@@ -793,7 +854,12 @@ void clear_command_buffer_log(DeviceState& d, CommandBufferLog& log) {
     log.recorded.commands.clear();
     log.compute_pipeline = 0;
     log.graphics_pipeline = 0;
+    log.ray_tracing_pipeline = 0;
     log.compute_sets.clear();
+    log.graphics_sets.clear();
+    log.ray_tracing_sets.clear();
+    for (auto& pushed : log.pushed_acceleration_structures) pushed.clear();
+    log.push_constants.clear();
 }
 
 void release_command_buffer_log(DeviceState& d, CommandBufferLog& log) {

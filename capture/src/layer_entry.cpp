@@ -436,6 +436,9 @@ PFN_vkVoidFunction intercept_device_function(const char* name, DeviceState* devi
     if (!hook) hook = present_hook(name);
     if (!hook) hook = sparse_hook(name);
     if (!hook) hook = khr_acceleration_structure_hook(name);
+    if (!hook) hook = consumer_hook(name);
+    if (!hook) hook = consumer_pipeline_hook(name);
+    if (!hook) hook = descriptor_template_hook(name);
     if (!hook || !device) return hook;
     // Forward only what the driver chain has: the hook would call a null pointer otherwise.
     return device->next.GetDeviceProcAddr(device->device, name) ? hook : nullptr;

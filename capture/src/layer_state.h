@@ -21,6 +21,7 @@
 #include <map>
 #include <unordered_map>
 #include <unordered_set>
+#include <variant>
 #include <vector>
 
 namespace clastrace::capture {
@@ -163,9 +164,29 @@ uint64_t handle_id(Handle handle) {
     X(CmdCopyAccelerationStructureToMemoryKHR)        \
     X(CmdWriteAccelerationStructuresPropertiesKHR)    \
     X(CmdWriteAccelerationStructuresPropertiesNV)     \
-    X(GetAccelerationStructureBuildSizesKHR)
+    X(GetAccelerationStructureBuildSizesKHR)          \
+    X(CmdTraceRaysKHR)                                \
+    X(CmdTraceRaysIndirectKHR)                        \
+    X(CmdTraceRaysIndirect2KHR)                       \
+    X(CmdTraceRaysNV)                                 \
+    X(CreateRayTracingPipelinesKHR)                   \
+    X(CreateRayTracingPipelinesNV)                    \
+    X(CmdPushConstants)                               \
+    X(CmdPushDescriptorSetKHR)                        \
+    X(CmdPushDescriptorSetWithTemplateKHR)            \
+    X(CreateDescriptorUpdateTemplate)                 \
+    X(CreateDescriptorUpdateTemplateKHR)              \
+    X(DestroyDescriptorUpdateTemplate)                \
+    X(DestroyDescriptorUpdateTemplateKHR)             \
+    X(UpdateDescriptorSetWithTemplate)                \
+    X(UpdateDescriptorSetWithTemplateKHR)
 
 #define CLASTRACE_DECLARE_PFN(name) PFN_vk##name name = nullptr;
+
+// A descriptor the layer follows: a storage buffer (dispatches' storage_buffers) or an
+// acceleration structure (what a consumer can reach).
+using TrackedDescriptor = std::variant<BoundStorageBuffer, ReachableAccelerationStructure>;
+using DescriptorsOfSet = std::map<std::pair<uint32_t, uint32_t>, TrackedDescriptor>;
 
 struct InstanceDispatch {
     CLASTRACE_INSTANCE_FUNCTIONS(CLASTRACE_DECLARE_PFN)
@@ -224,10 +245,23 @@ struct DeviceState {
     std::unordered_map<VkCommandBuffer, std::shared_ptr<CommandBufferLog>> command_buffers;
     std::unordered_map<VkCommandPool, std::vector<VkCommandBuffer>> pool_command_buffers;
     std::unordered_set<VkCommandBuffer> secondary_command_buffers;
-    // Storage-buffer descriptors written with vkUpdateDescriptorSets: set -> (binding, element).
+    // Storage-buffer and acceleration-structure descriptors written with vkUpdateDescriptorSets
+    // (and templates), copied with its copies: set -> (binding, element) -> descriptor.
     std::mutex descriptors_mutex;
-    std::unordered_map<VkDescriptorSet, std::map<std::pair<uint32_t, uint32_t>, BoundStorageBuffer>>
-        storage_descriptors;
+    std::unordered_map<VkDescriptorSet, DescriptorsOfSet> descriptors;
+    // Descriptor update templates' entries, turned back into writes at each update
+    // (descriptor_templates.cpp).
+    struct DescriptorTemplate {
+        std::vector<VkDescriptorUpdateTemplateEntry> entries;
+        VkPipelineBindPoint bind_point = VK_PIPELINE_BIND_POINT_GRAPHICS;  // push templates
+    };
+    std::unordered_map<uint64_t, DescriptorTemplate> descriptor_templates;
+    // KHR structures' device addresses (vkGetAccelerationStructureDeviceAddressKHR answers, or
+    // the layer's own asks) and NV structures' handles, both ways: consumers name the structures
+    // they reach by handle and address (consumer_commands.cpp).
+    std::mutex acceleration_structure_addresses_mutex;
+    std::unordered_map<uint64_t, VkDeviceAddress> acceleration_structure_addresses;
+    std::unordered_map<VkDeviceAddress, uint64_t> acceleration_structures_by_address;
     // Shader modules and pipelines whose SPIR-V may write through buffer device addresses
     // (spirv_pipelines.cpp), each pipeline with the stages (VkPipelineStageFlags2) of such
     // shaders: a dispatch or draw with one is recorded as a possible writer of all
@@ -235,6 +269,9 @@ struct DeviceState {
     std::mutex pipelines_mutex;
     std::unordered_set<uint64_t> address_writing_modules;
     std::unordered_map<uint64_t, VkPipelineStageFlags2> address_writing_pipelines;
+    // Likewise for ray queries (SPIR-V RayQueryKHR): modules, and pipelines with their stages.
+    std::unordered_set<uint64_t> ray_query_modules;
+    std::unordered_map<uint64_t, VkPipelineStageFlags2> ray_query_pipelines;
     // The ray check (CLASTRACE_RAY_CHECK): queue families of the queues handed out, the NV ray
     // tracing limits, and the NV structures the capture saw built.
     std::mutex queues_mutex;
@@ -298,6 +335,43 @@ void forget_khr_structure(DeviceState& device, uint64_t acceleration_structure);
 // Where a KHR structure lives ({handle} alone when the layer did not see it created).
 KhrStructureStorage khr_structure_storage(const DeviceState& device,
                                           uint64_t acceleration_structure);
+// Consumers of acceleration structures (consumer_commands.cpp: rays, push constants and
+// descriptors; consumer_pipelines.cpp: ray-tracing pipelines; descriptor_templates.cpp).
+PFN_vkVoidFunction consumer_hook(const char* name);
+PFN_vkVoidFunction consumer_pipeline_hook(const char* name);
+PFN_vkVoidFunction descriptor_template_hook(const char* name);
+// The stages of `pipeline` whose shaders use ray queries (0: none; spirv_pipelines.cpp).
+VkPipelineStageFlags2 ray_query_stages(DeviceState& d, uint64_t pipeline);
+// What the SPIR-V of one shader stage says (spirv_pipelines.cpp): the module's marks, or the
+// scan of a VkShaderModuleCreateInfo chained to the stage.
+struct ShaderStageMarks {
+    bool may_write_through_addresses = false;
+    bool uses_ray_queries = false;
+};
+// pipelines_mutex held by the caller of both.
+ShaderStageMarks shader_stage_marks(DeviceState& d, const VkPipelineShaderStageCreateInfo& stage);
+// Marks `pipeline` with the pipeline stages of its shader stages that write through addresses
+// or use ray queries.
+void mark_pipeline_stages(DeviceState& d, uint64_t pipeline,
+                          const VkPipelineShaderStageCreateInfo* stages, uint32_t stage_count);
+// The acceleration structure `handle` (KHR when `khr`, else NV) as a consumer names it: its
+// KHR device address (asking the driver once when the application never did) or NV handle;
+// 0 when unknown. Remember/forget keep the registry (layer_acceleration_structures.cpp).
+VkDeviceAddress acceleration_structure_address(DeviceState& d, uint64_t handle, bool khr);
+void remember_acceleration_structure_address(DeviceState& d, uint64_t handle,
+                                             VkDeviceAddress address);
+void forget_acceleration_structure_address(DeviceState& d, uint64_t handle);
+// Follows one descriptor write (vkUpdateDescriptorSets, a template's entry): storage buffers
+// and acceleration structures are kept, anything else written there is forgotten.
+void track_descriptor_write(DeviceState& d, const VkWriteDescriptorSet& write);
+// The acceleration structures of a push-descriptor write at `bind_point` (consumer_commands.cpp).
+void track_pushed_descriptor_write(DeviceState& d, VkCommandBuffer cb,
+                                   VkPipelineBindPoint bind_point, uint32_t set,
+                                   const VkWriteDescriptorSet& write);
+// Writes acceleration-structure descriptors of `write` into `set` (descriptors_mutex held),
+// resolving each handle's address; false when `write` is not of that type.
+bool track_acceleration_structure_write(DeviceState& d, const VkWriteDescriptorSet& write,
+                                        DescriptorsOfSet& set);
 
 // CLASTRACE_RAY_CHECK: after submission `submissionIndex` on `queue` (just submitted), waits
 // for the queue and traces the configured rays against each of `topLevels`, recording a

@@ -350,6 +350,19 @@ ClusterMemoryWalk PauseWorker::walk_command_inputs(const PausePoint& pause,
         device_.nv_scene.observe_build(*pause.build_nv, walk.ranges);  // for the ray check
         return walk;
     }
+    if (pause.trace_rays) {
+        record.kind = CapturedCommandKind::kTraceRays;
+        ClusterMemoryWalk walk;
+        const TraceRaysCommand& c = *pause.trace_rays;
+        CapturedRange range{MemoryRole::kTraceRaysIndirect, 0, c.indirect_address, {}};
+        std::string why;
+        if (reader(c.indirect_address, c.indirect_size, &range.bytes, why))
+            walk.ranges.push_back(std::move(range));
+        else
+            walk.issues.push_back(
+                {c.indirect_address, c.indirect_size, "indirect ray dimensions: " + why});
+        return walk;
+    }
     if (pause.copy_to_acceleration_structure) {
         record.kind = CapturedCommandKind::kCopyMemoryToAccelerationStructure;
         return walk_copy_memory_to_acceleration_structure_inputs(

@@ -66,6 +66,7 @@ struct PausePoint {
     bool address_writes = false;
     std::shared_ptr<const BuildAccelerationStructuresKHRCommand> build_khr;
     std::shared_ptr<const CopyAccelerationStructureCommand> copy_acceleration_structure;
+    std::shared_ptr<const TraceRaysCommand> trace_rays;  // an indirect form
     std::shared_ptr<const StagingSet>
         staging;  // copies of unmapped memory, or null (pause_staging.h)
 };

@@ -29,10 +29,13 @@ void note_instruction(std::span<const uint32_t> instruction, uint32_t opcode, Sp
     uint32_t value = 0;
     switch (opcode) {
     case kOpCapability:
-        if (operand(instruction, 0, &value) &&
-            value == kSpirvCapabilityPhysicalStorageBufferAddresses)
+        if (!operand(instruction, 0, &value)) break;
+        if (value == kSpirvCapabilityPhysicalStorageBufferAddresses)
             scan->declares_address_capability = true;
+        if (value == kSpirvCapabilityRayQueryKHR || value == kSpirvCapabilityRayQueryProvisionalKHR)
+            scan->uses_ray_queries = true;
         break;
+    case kSpirvOpTypeRayQueryKHR: scan->uses_ray_queries = true; break;
     case kOpTypePointer:
     case kOpTypeForwardPointer:
         if (operand(instruction, 1, &value) && value == kSpirvStorageClassPhysicalStorageBuffer)

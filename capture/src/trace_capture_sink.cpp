@@ -486,6 +486,7 @@ private:
             return c->pause_id;
         if (const auto* c = std::get_if<CopyAccelerationStructureCommand>(&command))
             return c->pause_id;
+        if (const auto* c = std::get_if<TraceRaysCommand>(&command)) return c->pause_id;
         return 0;
     }
 
@@ -857,6 +858,8 @@ private:
         } else if (auto* r = record.body.AsCmdCopyAccelerationStructure()) {
             snapshots(captured.inputs, r->inputs);
         } else if (auto* r = record.body.AsCmdCopyAccelerationStructureToMemory()) {
+            snapshots(captured.inputs, r->inputs);
+        } else if (auto* r = record.body.AsCmdTraceRays()) {
             snapshots(captured.inputs, r->inputs);
         }
     }

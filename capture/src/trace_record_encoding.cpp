@@ -100,6 +100,23 @@ fbs::RecordT encode(uint64_t cb, const UpdateBufferCommand& c) {
     return record_of(std::move(r));
 }
 
+std::vector<fbs::AccelerationStructureBinding> bindings_of(
+    const std::vector<ReachableAccelerationStructure>& reachable) {
+    std::vector<fbs::AccelerationStructureBinding> out;
+    for (const auto& r : reachable)
+        out.emplace_back(r.set, r.binding, r.array_element, uint32_t(r.source),
+                         r.acceleration_structure, r.address);
+    return out;
+}
+
+std::vector<fbs::BoundBufferRange> ranges_of(const std::vector<BoundStorageBuffer>& buffers) {
+    std::vector<fbs::BoundBufferRange> out;
+    for (const auto& b : buffers)
+        out.emplace_back(b.set, b.binding, b.array_element, uint32_t(b.type), b.buffer, b.offset,
+                         b.range, b.address);
+    return out;
+}
+
 fbs::RecordT encode(uint64_t cb, const DispatchCommand& c) {
     fbs::CmdDispatchT r;
     r.command_buffer = cb;
@@ -109,10 +126,10 @@ fbs::RecordT encode(uint64_t cb, const DispatchCommand& c) {
     r.pipeline = c.pipeline;
     r.indirect_buffer = c.indirect_buffer;
     r.indirect_offset = c.indirect_offset;
-    for (const auto& b : c.storage_buffers)
-        r.storage_buffers.emplace_back(b.set, b.binding, b.array_element, uint32_t(b.type),
-                                       b.buffer, b.offset, b.range, b.address);
+    r.storage_buffers = ranges_of(c.storage_buffers);
     r.may_write_device_addresses = c.may_write_device_addresses;
+    r.ray_query = c.ray_query;
+    r.acceleration_structures = bindings_of(c.acceleration_structures);
     return record_of(std::move(r));
 }
 
@@ -122,6 +139,25 @@ fbs::RecordT encode(uint64_t cb, const DrawCommand& c) {
     r.pipeline = c.pipeline;
     r.entry_point = c.entry_point;
     r.address_stages = c.address_stages;
+    r.ray_query_stages = c.ray_query_stages;
+    r.acceleration_structures = bindings_of(c.acceleration_structures);
+    return record_of(std::move(r));
+}
+
+fbs::RecordT encode(uint64_t cb, const TraceRaysCommand& c) {
+    fbs::CmdTraceRaysT r;
+    r.command_buffer = cb;
+    r.pipeline = c.pipeline;
+    r.entry_point = c.entry_point;
+    r.width = c.width;
+    r.height = c.height;
+    r.depth = c.depth;
+    r.indirect_address = c.indirect_address;
+    for (const VkStridedDeviceAddressRegionKHR& t : c.shader_binding_tables)
+        r.shader_binding_tables.emplace_back(t.deviceAddress, t.stride, t.size);
+    r.acceleration_structures = bindings_of(c.acceleration_structures);
+    r.storage_buffers = ranges_of(c.storage_buffers);
+    r.may_write_device_addresses = c.may_write_device_addresses;
     return record_of(std::move(r));
 }
 

@@ -101,6 +101,30 @@ TEST(SpirvScan, MalformedModulesNameTheWordAndRule) {
     EXPECT_EQ(scan_spirv_bytes(past.data(), 7).error, "codeSize 7 is not a multiple of 4");
 }
 
+// Ray queries: the capability alone (a module whose queries sit in functions the scan does not
+// follow), the type alone (the provisional capability's modules), or both mark the module; a
+// module that traces with neither is not marked.
+TEST(SpirvScan, RayQueryCapabilityOrTypeMarksARayQueryUser) {
+    constexpr uint32_t kCapabilityRayTracingKHR = 4479;
+    const auto capability = module({kCapabilityShader, kSpirvCapabilityRayQueryKHR}, {});
+    const SpirvScan by_capability = scan_spirv(capability);
+    ASSERT_TRUE(by_capability.valid) << by_capability.error;
+    EXPECT_TRUE(by_capability.uses_ray_queries);
+    EXPECT_FALSE(by_capability.may_write_through_addresses());
+
+    // %rq = OpTypeRayQueryKHR (one result id).
+    const auto type = module({kCapabilityShader, kSpirvCapabilityRayQueryProvisionalKHR},
+                             {op(2, kSpirvOpTypeRayQueryKHR), 9});
+    EXPECT_TRUE(scan_spirv(type).uses_ray_queries);
+    const auto type_only = module({kCapabilityShader}, {op(2, kSpirvOpTypeRayQueryKHR), 9});
+    EXPECT_TRUE(scan_spirv(type_only).uses_ray_queries);
+
+    const auto pipeline_rays = module({kCapabilityShader, kCapabilityRayTracingKHR},
+                                      pointer_and_store(kStorageClassStorageBuffer));
+    EXPECT_FALSE(scan_spirv(pipeline_rays).uses_ray_queries);
+    EXPECT_FALSE(scan_spirv(module({kCapabilityShader}, {})).uses_ray_queries);
+}
+
 // What a fuzzer would try, deterministically: every truncation and many random corruptions of a
 // marked module scan without reading outside the span (ASan/UBSan builds check that).
 TEST(SpirvScan, TruncatedAndCorruptedModulesStayInBounds) {

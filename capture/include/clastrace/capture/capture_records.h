@@ -55,6 +55,7 @@ enum class MemoryRole {
     kBuildRanges,                  // KHR indirect builds: the ranges read at execution
     kInstancePointers,             // KHR instances given as an array of pointers
     kSourceAccelerationStructure,  // a KHR update's or copy's source structure
+    kTraceRaysIndirect,            // what vkCmdTraceRaysIndirect(2)KHR read at its indirect address
 };
 const char* memory_role_name(MemoryRole role);
 
@@ -238,6 +239,20 @@ struct BoundStorageBuffer {
     VkDeviceAddress address = 0;  // buffer address + offset, when the buffer's address is known
 };
 
+// An acceleration structure a consumer (rays, ray queries) can reach through what it binds.
+struct ReachableAccelerationStructure {
+    enum class Source : uint32_t {
+        kDescriptorSet = 0,
+        kPushDescriptor = 1,
+        kDescriptorBuffer = 2,  // not followed by the layer (capture/README.md)
+        kPushConstants = 3,     // an 8-byte push-constant value equal to a known address
+    };
+    uint32_t set = 0, binding = 0, array_element = 0;
+    Source source = Source::kDescriptorSet;
+    uint64_t acceleration_structure = 0;  // handle; 0 when only the address is known
+    VkDeviceAddress address = 0;          // KHR device address, NV handle; 0 when unknown
+};
+
 struct DispatchCommand {
     uint32_t group_count_x = 0, group_count_y = 0, group_count_z = 0;
     uint64_t pipeline = 0;
@@ -250,14 +265,37 @@ struct DispatchCommand {
     // CLASTRACE_DEVICE_ADDRESS_WRITES=exact: the pauses around it (0: none); links the dispatch
     // to the ClusterBuildCapture (kind kDeviceAddressWrites) of each execution.
     uint64_t pause_id = 0;
+    // The pipeline's SPIR-V uses ray queries: the structures the dispatch can reach.
+    bool ray_query = false;
+    std::vector<ReachableAccelerationStructure> acceleration_structures;
 };
 
-// A draw whose graphics pipeline may write through buffer device addresses (only such draws
-// are recorded).
+// A draw whose graphics pipeline may write through buffer device addresses or uses ray queries
+// (only such draws are recorded).
 struct DrawCommand {
     uint64_t pipeline = 0;
     const char* entry_point = "";              // "vkCmdDraw", "vkCmdDrawMeshTasksEXT", ... (static)
     VkPipelineStageFlags2 address_stages = 0;  // stages whose shaders use addresses
+    VkPipelineStageFlags2 ray_query_stages = 0;  // stages whose shaders use ray queries
+    std::vector<ReachableAccelerationStructure> acceleration_structures;
+};
+
+// vkCmdTraceRaysKHR, ...IndirectKHR, ...Indirect2KHR, vkCmdTraceRaysNV.
+struct TraceRaysCommand {
+    uint64_t pipeline = 0;
+    const char* entry_point = "";  // "vkCmdTraceRaysKHR", ... (static)
+    uint32_t width = 0, height = 0, depth = 0;
+    VkDeviceAddress indirect_address = 0;  // the indirect forms
+    // raygen, miss, hit, callable; zero for Indirect2KHR (they are in its indirect struct)
+    VkStridedDeviceAddressRegionKHR shader_binding_tables[4] = {};
+    std::vector<ReachableAccelerationStructure> acceleration_structures;
+    std::vector<BoundStorageBuffer> storage_buffers;
+    // A shader of the pipeline uses physical storage buffer pointers (spirv_scan.h).
+    bool may_write_device_addresses = false;
+    // The indirect forms under capture: the pause before the rays reads the parameters
+    // (`indirect_size` bytes at `indirect_address`); 0 otherwise.
+    uint64_t pause_id = 0;
+    uint32_t indirect_size = 0;
 };
 
 struct ClusterBuildCommand {
@@ -382,7 +420,7 @@ using RecordedCommand =
                  BuildAccelerationStructureNVCommand, CopyMemoryToAccelerationStructureCommand,
                  TimestampWriteCommand, ExecuteCommandsCommand, DrawCommand,
                  BuildAccelerationStructuresKHRCommand, CopyAccelerationStructureCommand,
-                 WriteAccelerationStructuresPropertiesCommand>;
+                 WriteAccelerationStructuresPropertiesCommand, TraceRaysCommand>;
 
 struct RecordedCommandBuffer {
     uint64_t command_buffer = 0;
@@ -513,6 +551,7 @@ enum class CapturedCommandKind {
     kDeviceAddressWrites,  // exact mode: `outputs` are the bytes a dispatch changed (new bytes)
     kBuildAccelerationStructuresKhr,
     kCopyAccelerationStructure,
+    kTraceRays,
 };
 
 struct ClusterBuildCapture {

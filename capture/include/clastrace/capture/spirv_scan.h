@@ -1,8 +1,10 @@
 // SPDX-License-Identifier: Apache-2.0
-// A bounds-checked reader of a SPIR-V module's word stream that answers one question: may the
+// A bounds-checked reader of a SPIR-V module's word stream that answers two questions: may the
 // module's shaders reach memory through buffer device addresses (physical storage buffer
 // pointers)? The capture marks a dispatch whose pipeline has such a shader as a possible writer
-// of all device-address memory (docs/replay.md, "Possible hazards").
+// of all device-address memory (docs/replay.md, "Possible hazards"). Do they trace rays with ray
+// queries? The capture then records the dispatch or draw with the acceleration structures it
+// can reach (capture/README.md, "Consumers of acceleration structures").
 #pragma once
 
 #include <cstddef>
@@ -16,6 +18,9 @@ namespace clastrace::capture {
 inline constexpr uint32_t kSpirvMagic = 0x07230203u;
 inline constexpr uint32_t kSpirvCapabilityPhysicalStorageBufferAddresses = 5347u;
 inline constexpr uint32_t kSpirvStorageClassPhysicalStorageBuffer = 5349u;
+inline constexpr uint32_t kSpirvCapabilityRayQueryProvisionalKHR = 4471u;
+inline constexpr uint32_t kSpirvCapabilityRayQueryKHR = 4472u;
+inline constexpr uint32_t kSpirvOpTypeRayQueryKHR = 4472u;  // same number, an opcode
 
 struct SpirvScan {
     bool valid = false;
@@ -24,6 +29,9 @@ struct SpirvScan {
     // An OpTypePointer, OpTypeForwardPointer or OpVariable names the PhysicalStorageBuffer
     // storage class: some instruction can load or store through a device address.
     bool uses_address_pointers = false;
+    // OpCapability RayQueryKHR (or the provisional one) or an OpTypeRayQueryKHR: the shader
+    // may trace rays through ray queries, reading acceleration structures.
+    bool uses_ray_queries = false;
     // Where the scan stopped on a malformed module: the word index and the rule broken.
     std::size_t error_word = 0;
     std::string error;

@@ -1,0 +1,355 @@
+// SPDX-License-Identifier: Apache-2.0
+// The commands that read acceleration structures (issue 20): vkCmdTraceRays* are recorded as
+// TraceRaysCommand, with the structures their bound sets, pushed descriptors and push constants
+// reach; ray-query dispatches and draws ask `reachable_acceleration_structures` the same way
+// (layer_commands.cpp). Also the acceleration-structure address registry, the descriptors'
+// acceleration-structure writes, push descriptors and push constants.
+#include "command_buffer_log.h"
+#include "layer_state.h"
+
+#include <cstring>
+#include <map>
+#include <string>
+
+namespace clastrace::capture {
+namespace {
+
+using Source = ReachableAccelerationStructure::Source;
+
+DeviceState& device_of(VkCommandBuffer cb) { return *find_device(dispatch_key(cb)); }
+
+std::shared_ptr<CommandBufferLog> log_of(DeviceState& d, VkCommandBuffer cb) {
+    return command_buffer_log_of(d, cb);
+}
+
+// The handles of an acceleration-structure write (KHR or NV, from its pNext), or none.
+std::vector<std::pair<uint64_t, bool>> written_structures(const VkWriteDescriptorSet& write) {
+    std::vector<std::pair<uint64_t, bool>> out;  // (handle, khr)
+    for (auto* next = static_cast<const VkBaseInStructure*>(write.pNext); next;
+         next = next->pNext) {
+        if (next->sType == VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET_ACCELERATION_STRUCTURE_KHR) {
+            auto* khr = reinterpret_cast<const VkWriteDescriptorSetAccelerationStructureKHR*>(next);
+            for (uint32_t i = 0; i < khr->accelerationStructureCount; ++i)
+                out.push_back({handle_id(khr->pAccelerationStructures[i]), true});
+        } else if (next->sType ==
+                   VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET_ACCELERATION_STRUCTURE_NV) {
+            auto* nv = reinterpret_cast<const VkWriteDescriptorSetAccelerationStructureNV*>(next);
+            for (uint32_t i = 0; i < nv->accelerationStructureCount; ++i)
+                out.push_back({handle_id(nv->pAccelerationStructures[i]), false});
+        }
+    }
+    return out;
+}
+
+bool writes_acceleration_structures(const VkWriteDescriptorSet& write) {
+    return write.descriptorType == VK_DESCRIPTOR_TYPE_ACCELERATION_STRUCTURE_KHR ||
+           write.descriptorType == VK_DESCRIPTOR_TYPE_ACCELERATION_STRUCTURE_NV;
+}
+
+// The descriptors of an acceleration-structure `write`, with `source`; `set` left 0.
+std::vector<ReachableAccelerationStructure> structures_of_write(DeviceState& d,
+                                                                const VkWriteDescriptorSet& write,
+                                                                Source source) {
+    std::vector<ReachableAccelerationStructure> out;
+    const auto handles = written_structures(write);
+    for (uint32_t i = 0; i < write.descriptorCount && i < handles.size(); ++i) {
+        ReachableAccelerationStructure r;
+        r.binding = write.dstBinding;
+        r.array_element = write.dstArrayElement + i;
+        r.source = source;
+        r.acceleration_structure = handles[i].first;
+        r.address = acceleration_structure_address(d, handles[i].first, handles[i].second);
+        out.push_back(r);
+    }
+    return out;
+}
+
+// 8-byte values in the push constants equal to a known KHR address. Scanned at every 4-byte
+// offset: scalar block layout lets a uint64_t member sit there.
+void add_push_constant_addresses(DeviceState& d, const std::vector<uint8_t>& bytes,
+                                 std::vector<ReachableAccelerationStructure>& out) {
+    if (bytes.size() < sizeof(uint64_t)) return;
+    std::lock_guard lock(d.acceleration_structure_addresses_mutex);
+    if (d.acceleration_structures_by_address.empty()) return;
+    for (size_t offset = 0; offset + sizeof(uint64_t) <= bytes.size(); offset += 4) {
+        uint64_t value = 0;
+        std::memcpy(&value, bytes.data() + offset, sizeof value);
+        if (value == 0) continue;
+        auto it = d.acceleration_structures_by_address.find(value);
+        if (it == d.acceleration_structures_by_address.end()) continue;
+        ReachableAccelerationStructure r;
+        r.array_element = uint32_t(offset);  // the byte offset in the push constants
+        r.source = Source::kPushConstants;
+        r.acceleration_structure = it->second;
+        r.address = value;
+        out.push_back(r);
+    }
+}
+
+// ---- Push constants and push descriptors ----------------------------------------------------
+
+VKAPI_ATTR void VKAPI_CALL CmdPushConstants(VkCommandBuffer cb, VkPipelineLayout layout,
+                                            VkShaderStageFlags stages, uint32_t offset,
+                                            uint32_t size, const void* values) {
+    DeviceState& d = device_of(cb);
+    d.next.CmdPushConstants(cb, layout, stages, offset, size, values);
+    if (!d.sink || !values) return;
+    auto log = log_of(d, cb);
+    if (log->push_constants.size() < size_t(offset) + size)
+        log->push_constants.resize(size_t(offset) + size);
+    std::memcpy(log->push_constants.data() + offset, values, size);
+}
+
+VKAPI_ATTR void VKAPI_CALL CmdPushDescriptorSetKHR(VkCommandBuffer cb,
+                                                   VkPipelineBindPoint bind_point,
+                                                   VkPipelineLayout layout, uint32_t set,
+                                                   uint32_t write_count,
+                                                   const VkWriteDescriptorSet* writes) {
+    DeviceState& d = device_of(cb);
+    d.next.CmdPushDescriptorSetKHR(cb, bind_point, layout, set, write_count, writes);
+    for (uint32_t w = 0; w < write_count; ++w)
+        track_pushed_descriptor_write(d, cb, bind_point, set, writes[w]);
+}
+
+// ---- Rays -----------------------------------------------------------------------------------
+
+// The command for the bound ray-tracing pipeline, with what it can reach.
+TraceRaysCommand trace_rays_command(DeviceState& d, const CommandBufferLog& log,
+                                    const char* entry_point) {
+    TraceRaysCommand c;
+    c.pipeline = log.ray_tracing_pipeline;
+    c.entry_point = entry_point;
+    c.acceleration_structures =
+        reachable_acceleration_structures(d, log, VK_PIPELINE_BIND_POINT_RAY_TRACING_KHR);
+    c.storage_buffers = bound_storage_buffers(d, log.ray_tracing_sets);
+    c.may_write_device_addresses = address_writing_stages(d, log.ray_tracing_pipeline) != 0;
+    return c;
+}
+
+void set_tables(TraceRaysCommand& c, const VkStridedDeviceAddressRegionKHR* raygen,
+                const VkStridedDeviceAddressRegionKHR* miss,
+                const VkStridedDeviceAddressRegionKHR* hit,
+                const VkStridedDeviceAddressRegionKHR* callable) {
+    const VkStridedDeviceAddressRegionKHR* regions[4] = {raygen, miss, hit, callable};
+    for (int i = 0; i < 4; ++i)
+        if (regions[i]) c.shader_binding_tables[i] = *regions[i];
+}
+
+// The indirect forms: a pause before the rays reads their parameters as the device will (the
+// application's barriers make them visible to the rays, and so to the pause's host read).
+void pause_for_indirect_parameters(DeviceState& d, VkCommandBuffer cb, CommandBufferLog& log,
+                                   TraceRaysCommand& c) {
+    if (!d.capturing_now() || !c.indirect_address || !c.indirect_size) return;
+    c.pause_id = ++d.pause_counter;
+    PausePoint before;
+    before.pause_id = c.pause_id;
+    before.trace_rays = std::make_shared<const TraceRaysCommand>(c);
+    record_pause_before_command(d, cb, log, before);
+}
+
+void record_trace_rays(VkCommandBuffer cb, DeviceState& d,
+                       const std::function<void(TraceRaysCommand&)>& fill,
+                       const char* entry_point) {
+    if (!d.sink) return;
+    auto log = log_of(d, cb);
+    TraceRaysCommand c = trace_rays_command(d, *log, entry_point);
+    fill(c);
+    pause_for_indirect_parameters(d, cb, *log, c);
+    log->recorded.commands.push_back(std::move(c));
+}
+
+VKAPI_ATTR void VKAPI_CALL CmdTraceRaysKHR(VkCommandBuffer cb,
+                                           const VkStridedDeviceAddressRegionKHR* raygen,
+                                           const VkStridedDeviceAddressRegionKHR* miss,
+                                           const VkStridedDeviceAddressRegionKHR* hit,
+                                           const VkStridedDeviceAddressRegionKHR* callable,
+                                           uint32_t width, uint32_t height, uint32_t depth) {
+    DeviceState& d = device_of(cb);
+    d.next.CmdTraceRaysKHR(cb, raygen, miss, hit, callable, width, height, depth);
+    record_trace_rays(
+        cb, d,
+        [&](TraceRaysCommand& c) {
+            set_tables(c, raygen, miss, hit, callable);
+            c.width = width;
+            c.height = height;
+            c.depth = depth;
+        },
+        "vkCmdTraceRaysKHR");
+}
+
+VKAPI_ATTR void VKAPI_CALL CmdTraceRaysIndirectKHR(VkCommandBuffer cb,
+                                                   const VkStridedDeviceAddressRegionKHR* raygen,
+                                                   const VkStridedDeviceAddressRegionKHR* miss,
+                                                   const VkStridedDeviceAddressRegionKHR* hit,
+                                                   const VkStridedDeviceAddressRegionKHR* callable,
+                                                   VkDeviceAddress indirect_address) {
+    DeviceState& d = device_of(cb);
+    // Recorded first: its pause must come before the rays in the command buffer.
+    record_trace_rays(
+        cb, d,
+        [&](TraceRaysCommand& c) {
+            set_tables(c, raygen, miss, hit, callable);
+            c.indirect_address = indirect_address;
+            c.indirect_size = sizeof(VkTraceRaysIndirectCommandKHR);
+        },
+        "vkCmdTraceRaysIndirectKHR");
+    d.next.CmdTraceRaysIndirectKHR(cb, raygen, miss, hit, callable, indirect_address);
+}
+
+VKAPI_ATTR void VKAPI_CALL CmdTraceRaysIndirect2KHR(VkCommandBuffer cb,
+                                                    VkDeviceAddress indirect_address) {
+    DeviceState& d = device_of(cb);
+    record_trace_rays(  // first, as vkCmdTraceRaysIndirectKHR
+        cb, d,
+        [&](TraceRaysCommand& c) {
+            c.indirect_address = indirect_address;
+            c.indirect_size = sizeof(VkTraceRaysIndirectCommand2KHR);
+        },
+        "vkCmdTraceRaysIndirect2KHR");
+    d.next.CmdTraceRaysIndirect2KHR(cb, indirect_address);
+}
+
+// NV names its tables by buffer and offset: the region's address is the buffer's address plus
+// the offset when the application asked for the buffer's address, else 0; sizes are unknown.
+VkStridedDeviceAddressRegionKHR nv_region(DeviceState& d, VkBuffer buffer, VkDeviceSize offset,
+                                          VkDeviceSize stride) {
+    VkStridedDeviceAddressRegionKHR r{0, stride, 0};
+    if (auto b = d.memory_map.buffer(handle_id(buffer)); b && b->address)
+        r.deviceAddress = b->address + offset;
+    return r;
+}
+
+VKAPI_ATTR void VKAPI_CALL CmdTraceRaysNV(
+    VkCommandBuffer cb, VkBuffer raygen, VkDeviceSize raygen_offset, VkBuffer miss,
+    VkDeviceSize miss_offset, VkDeviceSize miss_stride, VkBuffer hit, VkDeviceSize hit_offset,
+    VkDeviceSize hit_stride, VkBuffer callable, VkDeviceSize callable_offset,
+    VkDeviceSize callable_stride, uint32_t width, uint32_t height, uint32_t depth) {
+    DeviceState& d = device_of(cb);
+    d.next.CmdTraceRaysNV(cb, raygen, raygen_offset, miss, miss_offset, miss_stride, hit,
+                          hit_offset, hit_stride, callable, callable_offset, callable_stride, width,
+                          height, depth);
+    record_trace_rays(
+        cb, d,
+        [&](TraceRaysCommand& c) {
+            c.shader_binding_tables[0] = nv_region(d, raygen, raygen_offset, 0);
+            c.shader_binding_tables[1] = nv_region(d, miss, miss_offset, miss_stride);
+            c.shader_binding_tables[2] = nv_region(d, hit, hit_offset, hit_stride);
+            c.shader_binding_tables[3] = nv_region(d, callable, callable_offset, callable_stride);
+            c.width = width;
+            c.height = height;
+            c.depth = depth;
+        },
+        "vkCmdTraceRaysNV");
+}
+
+}  // namespace
+
+// ---- The address registry -------------------------------------------------------------------
+
+VkDeviceAddress acceleration_structure_address(DeviceState& d, uint64_t handle, bool khr) {
+    if (!handle) return 0;
+    {
+        std::lock_guard lock(d.acceleration_structure_addresses_mutex);
+        auto it = d.acceleration_structure_addresses.find(handle);
+        if (it != d.acceleration_structure_addresses.end()) return it->second;
+    }
+    // Asking for a KHR structure's address has no side effect: the layer asks itself, once.
+    if (!khr || !d.next.GetAccelerationStructureDeviceAddressKHR) return 0;
+    VkAccelerationStructureDeviceAddressInfoKHR info{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_DEVICE_ADDRESS_INFO_KHR, nullptr,
+        reinterpret_cast<VkAccelerationStructureKHR>(handle)};
+    const VkDeviceAddress address =
+        d.next.GetAccelerationStructureDeviceAddressKHR(d.device, &info);
+    remember_acceleration_structure_address(d, handle, address);
+    return address;
+}
+
+void remember_acceleration_structure_address(DeviceState& d, uint64_t handle,
+                                             VkDeviceAddress address) {
+    if (!handle || !address) return;
+    std::lock_guard lock(d.acceleration_structure_addresses_mutex);
+    d.acceleration_structure_addresses[handle] = address;
+    d.acceleration_structures_by_address[address] = handle;
+}
+
+void forget_acceleration_structure_address(DeviceState& d, uint64_t handle) {
+    std::lock_guard lock(d.acceleration_structure_addresses_mutex);
+    auto it = d.acceleration_structure_addresses.find(handle);
+    if (it == d.acceleration_structure_addresses.end()) return;
+    auto back = d.acceleration_structures_by_address.find(it->second);
+    if (back != d.acceleration_structures_by_address.end() && back->second == handle)
+        d.acceleration_structures_by_address.erase(back);
+    d.acceleration_structure_addresses.erase(it);
+}
+
+// ---- Descriptors ----------------------------------------------------------------------------
+
+bool track_acceleration_structure_write(DeviceState& d, const VkWriteDescriptorSet& write,
+                                        DescriptorsOfSet& set) {
+    if (!writes_acceleration_structures(write)) return false;
+    for (uint32_t i = 0; i < write.descriptorCount; ++i)
+        set.erase({write.dstBinding, write.dstArrayElement + i});
+    for (const ReachableAccelerationStructure& r :
+         structures_of_write(d, write, Source::kDescriptorSet))
+        set[{r.binding, r.array_element}] = r;
+    return true;
+}
+
+void track_pushed_descriptor_write(DeviceState& d, VkCommandBuffer cb,
+                                   VkPipelineBindPoint bind_point, uint32_t set,
+                                   const VkWriteDescriptorSet& write) {
+    const int index = bind_point_index(bind_point);
+    if (!d.sink || index < 0) return;
+    auto log = log_of(d, cb);
+    log->sets_at(bind_point)->erase(set);  // a push replaces the set bound there
+    auto& pushed = log->pushed_acceleration_structures[index];
+    // A push replaces what the same elements held, whatever their type now.
+    for (uint32_t i = 0; i < write.descriptorCount; ++i)
+        pushed.erase({set, write.dstBinding, write.dstArrayElement + i});
+    if (!writes_acceleration_structures(write)) return;
+    for (ReachableAccelerationStructure r :
+         structures_of_write(d, write, Source::kPushDescriptor)) {
+        r.set = set;
+        pushed[{set, r.binding, r.array_element}] = r;
+    }
+}
+
+std::vector<ReachableAccelerationStructure> reachable_acceleration_structures(
+    DeviceState& d, const CommandBufferLog& log, VkPipelineBindPoint bind_point) {
+    std::vector<ReachableAccelerationStructure> out;
+    const int index = bind_point_index(bind_point);
+    if (index < 0) return out;
+    const CommandBufferLog::BoundSets& sets = index == 0   ? log.compute_sets
+                                              : index == 1 ? log.graphics_sets
+                                                           : log.ray_tracing_sets;
+    {
+        std::lock_guard lock(d.descriptors_mutex);
+        for (const auto& [set_index, bound] : sets) {
+            auto known = d.descriptors.find(bound.first);
+            if (known == d.descriptors.end()) continue;
+            for (const auto& [key, tracked] : known->second)
+                if (const auto* r = std::get_if<ReachableAccelerationStructure>(&tracked)) {
+                    out.push_back(*r);
+                    out.back().set = set_index;
+                }
+        }
+    }
+    for (const auto& [key, r] : log.pushed_acceleration_structures[index]) out.push_back(r);
+    add_push_constant_addresses(d, log.push_constants, out);
+    return out;
+}
+
+PFN_vkVoidFunction consumer_hook(const char* name) {
+#define CLASTRACE_CONSUMER_HOOK(fn) \
+    if (std::strcmp(name, "vk" #fn) == 0) return (PFN_vkVoidFunction)fn;
+    CLASTRACE_CONSUMER_HOOK(CmdPushConstants)
+    CLASTRACE_CONSUMER_HOOK(CmdPushDescriptorSetKHR)
+    CLASTRACE_CONSUMER_HOOK(CmdTraceRaysKHR)
+    CLASTRACE_CONSUMER_HOOK(CmdTraceRaysIndirectKHR)
+    CLASTRACE_CONSUMER_HOOK(CmdTraceRaysIndirect2KHR)
+    CLASTRACE_CONSUMER_HOOK(CmdTraceRaysNV)
+#undef CLASTRACE_CONSUMER_HOOK
+    return nullptr;
+}
+
+}  // namespace clastrace::capture
