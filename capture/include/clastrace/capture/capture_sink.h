@@ -49,6 +49,8 @@ public:
     virtual void image_acquired(const AcquireRecord&) {}
     // vkQueueBindSparse, in queue order with the submissions (read during the call).
     virtual void sparse_bound(const SparseBindRecord&) {}
+    // VkFrameBoundaryEXT on a submission or present, recorded like presents (whatever the range).
+    virtual void frame_boundary_marked(const FrameBoundaryRecord&) {}
     // Frees the captured bytes of records already written, on the calling thread. The pause
     // worker calls it when idle: the bytes were allocated on its thread, and freeing them there
     // spares the sink's thread the allocator's cross-thread path (and the worker's allocations
