@@ -23,9 +23,10 @@ std::atomic<uint64_t> frameEnds{0};
 uint64_t current_frame() { return std::max(presentCalls.load(), frameEnds.load()); }
 
 uint64_t count_present() {
-    const uint64_t frame = current_frame();
+    const uint64_t before = current_frame();
     presentCalls.fetch_add(1);
-    return frame;
+    // Marks ahead of presents: the frame ended at its mark, and this present is that frame's.
+    return current_frame() > before ? before : before - 1;
 }
 
 const VkFrameBoundaryEXT* find_frame_boundary(const void* chain) {
@@ -39,10 +40,12 @@ void frame_boundary_marked(DeviceState& d, VkQueue queue, const VkFrameBoundaryE
                            uint64_t frame) {
     if (boundary.flags & VK_FRAME_BOUNDARY_FRAME_END_BIT_EXT) {
         // A present carrying the mark was counted as a present already: one frame, not two.
-        if (carrier == FrameBoundaryCarrier::kPresent)
-            frameEnds.store(std::max(frameEnds.load(), presentCalls.load()));
-        else
-            frameEnds.store(std::max(frameEnds.load(), frame) + 1);
+        uint64_t ends = frameEnds.load();
+        uint64_t raised;
+        do {
+            raised = carrier == FrameBoundaryCarrier::kPresent ? std::max(ends, presentCalls.load())
+                                                               : std::max(ends, frame) + 1;
+        } while (!frameEnds.compare_exchange_weak(ends, raised));
     }
     if (!d.capturing_now()) return;
     FrameBoundaryRecord record;

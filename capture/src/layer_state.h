@@ -253,7 +253,8 @@ uint64_t current_frame();
 uint64_t count_present();
 const VkFrameBoundaryEXT* find_frame_boundary(const void* chain);
 // Records `boundary` (whatever the frame range) and, for a frame end, advances the frame
-// counter. `frame` is current_frame() when the carrying call was made.
+// counter. `frame` is the frame of the carrying call (current_frame() when a submission was
+// made; what count_present() returned for a present).
 void frame_boundary_marked(DeviceState& d, VkQueue queue, const VkFrameBoundaryEXT& boundary,
                            FrameBoundaryCarrier carrier, uint64_t submission, uint32_t batch,
                            uint64_t frame);

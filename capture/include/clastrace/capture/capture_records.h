@@ -461,8 +461,8 @@ struct ClusterBuildCapture {
 };
 
 // VkFrameBoundaryEXT (VK_EXT_frame_boundary) chained to a submission or a present: a headless
-// program's frame marks (layer_frame_boundary.cpp). `frame` is the layer's frame counter when
-// the call was made.
+// program's frame marks (layer_frame_boundary.cpp). `frame` is the frame the carrying
+// call belongs to (the one a frame-end mark ends).
 enum class FrameBoundaryCarrier : uint32_t {
     kSubmit = 0,
     kSubmit2 = 1,
