@@ -328,7 +328,8 @@ Command register_capture(CLI::App& app) {
     sub->add_option(
            "--frames", options->frames,
            "frames to capture: N, A-B or A- (0-based; frame N is what is submitted after the N-th "
-           "vkQueuePresentKHR and up to the next). With --submit-range too, a submission is "
+           "vkQueuePresentKHR and up to the next, or, in a program that does not present, after "
+           "the N-th VkFrameBoundaryEXT frame end). With --submit-range too, a submission is "
            "captured only "
            "when it is in both")
         ->check(index_range_validator("frame"));

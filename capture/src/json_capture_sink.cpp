@@ -513,6 +513,19 @@ public:
                          {"imageIndices", p.image_indices},
                          {"result", p.result}});
     }
+    void frame_boundary_marked(const FrameBoundaryRecord& b) override {
+        add("frameBoundaries", {{"queue", b.queue},
+                                {"carrier", uint32_t(b.carrier)},
+                                {"submission", b.submission},
+                                {"batch", b.batch},
+                                {"flags", b.flags},
+                                {"frameId", b.frame_id},
+                                {"frame", b.frame},
+                                {"images", b.images},
+                                {"buffers", b.buffers},
+                                {"tagName", b.tag_name},
+                                {"tagSize", b.tag.size()}});
+    }
     void image_acquired(const AcquireRecord& a) override {
         add("acquires", {{"swapchain", a.swapchain},
                          {"timeout", a.timeout},

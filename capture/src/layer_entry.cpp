@@ -74,27 +74,6 @@ VKAPI_ATTR void VKAPI_CALL DestroyInstance(VkInstance instance,
     if (state && state->next.DestroyInstance) state->next.DestroyInstance(instance, p_allocator);
 }
 
-// Removes `target` from a const pNext chain for the duration of one call, then restores it.
-struct ChainUnlink {
-    VkBaseOutStructure* previous = nullptr;
-    VkBaseOutStructure* removed = nullptr;
-    ChainUnlink(const void* head, VkStructureType type) {
-        auto* prev = (VkBaseOutStructure*)head;
-        while (prev && prev->pNext) {
-            if (prev->pNext->sType == type) {
-                previous = prev;
-                removed = prev->pNext;
-                prev->pNext = removed->pNext;
-                return;
-            }
-            prev = prev->pNext;
-        }
-    }
-    ~ChainUnlink() {
-        if (previous) previous->pNext = removed;
-    }
-};
-
 // Driver name, UUIDs and NV ray-tracing limits (Vulkan 1.2 devices): what tells a serialized
 // acceleration structure of this driver from another's, and what the ray check builds on.
 void fill_driver_identity(InstanceState& instance, VkPhysicalDevice physical_device,
@@ -141,12 +120,21 @@ VKAPI_ATTR VkResult VKAPI_CALL CreateDevice(VkPhysicalDevice physical_device,
 
     const bool serving = should_serve(*instance, physical_device);
     bool cluster_extension_requested = false;
+    bool frame_boundary_served = false;
     std::vector<const char*> extensions;
     for (uint32_t i = 0; i < p_create_info->enabledExtensionCount; ++i) {
         if (std::strcmp(p_create_info->ppEnabledExtensionNames[i],
                         VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME) == 0) {
             cluster_extension_requested = true;
             if (serving) continue;  // the driver does not know it; the layer provides it
+        }
+        // VK_EXT_frame_boundary: the layer provides it where the driver lacks it.
+        if (std::strcmp(p_create_info->ppEnabledExtensionNames[i],
+                        VK_EXT_FRAME_BOUNDARY_EXTENSION_NAME) == 0 &&
+            !driver_lists_extension(*instance, physical_device,
+                                    VK_EXT_FRAME_BOUNDARY_EXTENSION_NAME)) {
+            frame_boundary_served = true;
+            continue;
         }
         extensions.push_back(p_create_info->ppEnabledExtensionNames[i]);
     }
@@ -167,6 +155,9 @@ VKAPI_ATTR VkResult VKAPI_CALL CreateDevice(VkPhysicalDevice physical_device,
         ChainUnlink hide_features(
             serving ? &driver_info : nullptr,
             VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_FEATURES_NV);
+        ChainUnlink hide_frame_boundary(
+            frame_boundary_served ? &driver_info : nullptr,
+            VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FRAME_BOUNDARY_FEATURES_EXT);
         result = next_create(physical_device, &driver_info, p_allocator, pDevice);
     }
     if (result != VK_SUCCESS) return result;
@@ -185,6 +176,7 @@ VKAPI_ATTR VkResult VKAPI_CALL CreateDevice(VkPhysicalDevice physical_device,
     }
     state->serving = serving;
     state->cluster_enabled = cluster_extension_requested;
+    state->frame_boundary_served = frame_boundary_served;
 
     VkPhysicalDeviceProperties properties{};
     instance->next.GetPhysicalDeviceProperties(physical_device, &properties);

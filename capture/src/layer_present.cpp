@@ -1,27 +1,33 @@
 // SPDX-License-Identifier: Apache-2.0
 // vkQueuePresentKHR: the frame boundary. Frames are counted per process (as submissions are):
 // frame N is what is submitted after the N-th present call and up to the (N+1)-th, which is
-// what CLASTRACE_FRAME_RANGE selects. Every present is recorded, in or out of the range, so a
+// what CLASTRACE_FRAME_RANGE selects (headless programs: VkFrameBoundaryEXT,
+// layer_frame_boundary.cpp). Every present is recorded, in or out of the range, so a
 // trace says where each frame ended and which semaphores the presentation engine consumed.
 // vkAcquireNextImage[2]KHR are recorded too (the semaphores and fences they signal), in the
 // selected frames only.
 #include "layer_state.h"
 
-#include <atomic>
 #include <cstring>
 
 namespace clastrace::capture {
 namespace {
 
-std::atomic<uint64_t> presentCalls{0};
-
 VKAPI_ATTR VkResult VKAPI_CALL QueuePresentKHR(VkQueue queue,
                                                const VkPresentInfoKHR* p_present_info) {
     DeviceState& d = *find_device(dispatch_key(queue));
-    const VkResult result = d.next.QueuePresentKHR(queue, p_present_info);
+    const VkFrameBoundaryEXT* boundary = find_frame_boundary(p_present_info->pNext);
+    VkResult result;
+    {
+        ChainUnlink hide_boundary(d.frame_boundary_served ? p_present_info : nullptr,
+                                  VK_STRUCTURE_TYPE_FRAME_BOUNDARY_EXT);
+        result = d.next.QueuePresentKHR(queue, p_present_info);
+    }
     // A rejected present (VK_ERROR_OUT_OF_DATE_KHR, ...) still waits on its semaphores, and the
     // application has finished its frame either way: every call ends one.
-    const uint64_t frame = presentCalls.fetch_add(1);
+    const uint64_t frame = count_present();
+    if (boundary)
+        frame_boundary_marked(d, queue, *boundary, FrameBoundaryCarrier::kPresent, 0, 0, frame);
     if (d.capturing_now()) {
         PresentRecord record;
         record.queue = handle_id(queue);
@@ -84,8 +90,6 @@ VKAPI_ATTR VkResult VKAPI_CALL AcquireNextImage2KHR(VkDevice device,
 }
 
 }  // namespace
-
-uint64_t current_frame() { return presentCalls.load(); }
 
 PFN_vkVoidFunction present_hook(const char* name) {
     if (std::strcmp(name, "vkQueuePresentKHR") == 0) return (PFN_vkVoidFunction)QueuePresentKHR;

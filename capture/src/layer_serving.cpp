@@ -20,70 +20,91 @@ T* find_in_chain(void* head, VkStructureType type) {
     return nullptr;
 }
 
-VKAPI_ATTR VkResult VKAPI_CALL EnumerateDeviceExtensionProperties(
-    VkPhysicalDevice physical_device, const char* p_layer_name, uint32_t* p_property_count,
-    VkExtensionProperties* p_properties) {
-    InstanceState* instance = find_instance(dispatch_key(physical_device));
-    if (!instance) return VK_ERROR_INITIALIZATION_FAILED;
-    const VkExtensionProperties served{VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME,
-                                       VK_NV_CLUSTER_ACCELERATION_STRUCTURE_SPEC_VERSION};
-    if (p_layer_name && std::strcmp(p_layer_name, "VK_LAYER_CLASTRACE_capture") == 0) {
-        if (!p_properties) {
-            *p_property_count = 1;
-            return VK_SUCCESS;
-        }
-        if (*p_property_count < 1) return VK_INCOMPLETE;
-        p_properties[0] = served;
-        *p_property_count = 1;
-        return VK_SUCCESS;
-    }
-    if (p_layer_name || !should_serve(*instance, physical_device))
-        return instance->next.EnumerateDeviceExtensionProperties(physical_device, p_layer_name,
-                                                                 p_property_count, p_properties);
+// What the layer adds to the driver's device extensions: the cluster extension where it serves
+// it, VK_EXT_frame_boundary where the driver lacks it (layer_frame_boundary.cpp).
+std::vector<VkExtensionProperties> layer_provided_extensions(InstanceState& instance,
+                                                             VkPhysicalDevice physical_device) {
+    std::vector<VkExtensionProperties> provided;
+    if (should_serve(instance, physical_device))
+        provided.push_back({VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME,
+                            VK_NV_CLUSTER_ACCELERATION_STRUCTURE_SPEC_VERSION});
+    if (!driver_lists_extension(instance, physical_device, VK_EXT_FRAME_BOUNDARY_EXTENSION_NAME))
+        provided.push_back(
+            {VK_EXT_FRAME_BOUNDARY_EXTENSION_NAME, VK_EXT_FRAME_BOUNDARY_SPEC_VERSION});
+    return provided;
+}
 
-    uint32_t driver_count = 0;
-    VkResult result = instance->next.EnumerateDeviceExtensionProperties(physical_device, nullptr,
-                                                                        &driver_count, nullptr);
-    if (result != VK_SUCCESS) return result;
+VkResult copy_extensions(const std::vector<VkExtensionProperties>& all, uint32_t* p_property_count,
+                         VkExtensionProperties* p_properties) {
     if (!p_properties) {
-        *p_property_count = driver_count + 1;
+        *p_property_count = uint32_t(all.size());
         return VK_SUCCESS;
     }
-    std::vector<VkExtensionProperties> all(driver_count);
-    result = instance->next.EnumerateDeviceExtensionProperties(physical_device, nullptr,
-                                                               &driver_count, all.data());
-    if (result < 0) return result;
-    all.resize(driver_count);
-    all.push_back(served);
     const uint32_t written = std::min<uint32_t>(*p_property_count, uint32_t(all.size()));
     std::memcpy(p_properties, all.data(), written * sizeof(VkExtensionProperties));
     *p_property_count = written;
     return written < all.size() ? VK_INCOMPLETE : VK_SUCCESS;
 }
 
-// The driver never sees the served structs: they are unlinked for its call and filled after.
+VKAPI_ATTR VkResult VKAPI_CALL EnumerateDeviceExtensionProperties(
+    VkPhysicalDevice physical_device, const char* p_layer_name, uint32_t* p_property_count,
+    VkExtensionProperties* p_properties) {
+    InstanceState* instance = find_instance(dispatch_key(physical_device));
+    if (!instance) return VK_ERROR_INITIALIZATION_FAILED;
+    if (p_layer_name && std::strcmp(p_layer_name, "VK_LAYER_CLASTRACE_capture") == 0)
+        return copy_extensions({{VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME,
+                                 VK_NV_CLUSTER_ACCELERATION_STRUCTURE_SPEC_VERSION},
+                                {VK_EXT_FRAME_BOUNDARY_EXTENSION_NAME,
+                                 VK_EXT_FRAME_BOUNDARY_SPEC_VERSION}},
+                               p_property_count, p_properties);
+    const std::vector<VkExtensionProperties> provided =
+        p_layer_name ? std::vector<VkExtensionProperties>{}
+                     : layer_provided_extensions(*instance, physical_device);
+    if (provided.empty())
+        return instance->next.EnumerateDeviceExtensionProperties(physical_device, p_layer_name,
+                                                                 p_property_count, p_properties);
+    uint32_t driver_count = 0;
+    VkResult result = instance->next.EnumerateDeviceExtensionProperties(physical_device, nullptr,
+                                                                        &driver_count, nullptr);
+    if (result != VK_SUCCESS) return result;
+    std::vector<VkExtensionProperties> all(driver_count);
+    result = instance->next.EnumerateDeviceExtensionProperties(physical_device, nullptr,
+                                                               &driver_count, all.data());
+    if (result < 0) return result;
+    all.resize(driver_count);
+    all.insert(all.end(), provided.begin(), provided.end());
+    return copy_extensions(all, p_property_count, p_properties);
+}
+
+// The driver never sees the provided features' structs: they are unlinked for its call and
+// filled after.
 void features_common(VkPhysicalDevice physical_device, VkPhysicalDeviceFeatures2* p_features,
                      bool khr) {
     InstanceState* instance = find_instance(dispatch_key(physical_device));
     if (!instance) return;
     auto next = khr ? instance->next.GetPhysicalDeviceFeatures2KHR
                     : instance->next.GetPhysicalDeviceFeatures2;
-    if (!should_serve(*instance, physical_device)) {
+    auto* cluster =
+        should_serve(*instance, physical_device)
+            ? find_in_chain<VkPhysicalDeviceClusterAccelerationStructureFeaturesNV>(
+                  p_features,
+                  VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_FEATURES_NV)
+            : nullptr;
+    auto* boundary = find_in_chain<VkPhysicalDeviceFrameBoundaryFeaturesEXT>(
+        p_features, VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FRAME_BOUNDARY_FEATURES_EXT);
+    if (boundary &&
+        driver_lists_extension(*instance, physical_device, VK_EXT_FRAME_BOUNDARY_EXTENSION_NAME))
+        boundary = nullptr;
+    {
+        ChainUnlink hide_cluster(
+            cluster ? p_features : nullptr,
+            VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_FEATURES_NV);
+        ChainUnlink hide_boundary(boundary ? p_features : nullptr,
+                                  VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FRAME_BOUNDARY_FEATURES_EXT);
         next(physical_device, p_features);
-        return;
     }
-    auto* served = find_in_chain<VkPhysicalDeviceClusterAccelerationStructureFeaturesNV>(
-        p_features, VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_FEATURES_NV);
-    if (!served) {
-        next(physical_device, p_features);
-        return;
-    }
-    VkBaseOutStructure* previous = (VkBaseOutStructure*)p_features;
-    while (previous->pNext != (VkBaseOutStructure*)served) previous = previous->pNext;
-    previous->pNext = (VkBaseOutStructure*)served->pNext;
-    next(physical_device, p_features);
-    previous->pNext = (VkBaseOutStructure*)served;
-    served->clusterAccelerationStructure = VK_TRUE;
+    if (cluster) cluster->clusterAccelerationStructure = VK_TRUE;
+    if (boundary) boundary->frameBoundary = VK_TRUE;
 }
 
 VKAPI_ATTR void VKAPI_CALL GetPhysicalDeviceFeatures2(VkPhysicalDevice pd,
@@ -133,23 +154,29 @@ VKAPI_ATTR void VKAPI_CALL GetPhysicalDeviceProperties2KHR(VkPhysicalDevice pd,
 
 }  // namespace
 
+bool driver_lists_extension(InstanceState& instance, VkPhysicalDevice physical_device,
+                            const char* name) {
+    uint32_t count = 0;
+    if (instance.next.EnumerateDeviceExtensionProperties(physical_device, nullptr, &count,
+                                                         nullptr) != VK_SUCCESS)
+        return false;
+    std::vector<VkExtensionProperties> all(count);
+    if (instance.next.EnumerateDeviceExtensionProperties(physical_device, nullptr, &count,
+                                                         all.data()) < 0)
+        return false;
+    for (uint32_t i = 0; i < count; ++i)
+        if (std::strcmp(all[i].extensionName, name) == 0) return true;
+    return false;
+}
+
 bool driver_has_cluster_extension(InstanceState& instance, VkPhysicalDevice physical_device) {
     {
         std::lock_guard lock(nativeMutex);
         auto it = nativeSupport.find(physical_device);
         if (it != nativeSupport.end()) return it->second;
     }
-    uint32_t count = 0;
-    bool found = false;
-    if (instance.next.EnumerateDeviceExtensionProperties(physical_device, nullptr, &count,
-                                                         nullptr) == VK_SUCCESS) {
-        std::vector<VkExtensionProperties> all(count);
-        if (instance.next.EnumerateDeviceExtensionProperties(physical_device, nullptr, &count,
-                                                             all.data()) >= 0)
-            for (uint32_t i = 0; i < count; ++i)
-                found |= std::strcmp(all[i].extensionName,
-                                     VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME) == 0;
-    }
+    const bool found = driver_lists_extension(instance, physical_device,
+                                              VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME);
     std::lock_guard lock(nativeMutex);
     nativeSupport[physical_device] = found;
     return found;

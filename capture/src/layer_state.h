@@ -10,6 +10,7 @@
 #include "clastrace/capture/nv_scene_model.h"
 
 #include <clastrace/vk_cluster_abi.h>
+#include <clastrace/vk_frame_boundary_abi.h>
 #include <vulkan/vk_layer.h>
 
 #include <atomic>
@@ -209,6 +210,8 @@ struct DeviceState {
     DeviceDispatch next;
     bool serving = false;          // the layer provides the cluster extension for this device
     bool cluster_enabled = false;  // the application enabled the extension (served or native)
+    // VK_EXT_frame_boundary enabled and provided by the layer: its structs never reach the driver.
+    bool frame_boundary_served = false;
     bool capturing = false;
     // GPU timestamps around captured commands: CLASTRACE_TIMESTAMPS and every queue family the
     // device was created with has timestampValidBits (a command buffer runs on one of them).
@@ -287,9 +290,42 @@ struct DeviceState {
 // the one trace (CLASTRACE_SUBMIT_RANGE counts the same way).
 uint64_t next_submission_index();
 
-// Frames (CLASTRACE_FRAME_RANGE): vkQueuePresentKHR calls so far in this process, so the frame
-// a submission made now belongs to (layer_present.cpp).
+// Frames (CLASTRACE_FRAME_RANGE; layer_frame_boundary.cpp): the frame a submission made now
+// belongs to: vkQueuePresentKHR calls so far in this process, or frame-end VkFrameBoundaryEXT
+// marks so far, whichever is ahead (a program marking and presenting each frame counts it once).
 uint64_t current_frame();
+// A vkQueuePresentKHR call ends a frame: returns the frame it ended.
+uint64_t count_present();
+const VkFrameBoundaryEXT* find_frame_boundary(const void* chain);
+// Records `boundary` (whatever the frame range) and, for a frame end, advances the frame
+// counter. `frame` is the frame of the carrying call (current_frame() when a submission was
+// made; what count_present() returned for a present).
+void frame_boundary_marked(DeviceState& d, VkQueue queue, const VkFrameBoundaryEXT& boundary,
+                           FrameBoundaryCarrier carrier, uint64_t submission, uint32_t batch,
+                           uint64_t frame);
+// Removes `type` from a const pNext chain for the duration of one call, then restores it (a
+// null head removes nothing). Not copyable: the restore must happen once.
+struct ChainUnlink {
+    VkBaseOutStructure* previous = nullptr;
+    VkBaseOutStructure* removed = nullptr;
+    ChainUnlink(const void* head, VkStructureType type) {
+        auto* prev = (VkBaseOutStructure*)head;
+        while (prev && prev->pNext) {
+            if (prev->pNext->sType == type) {
+                previous = prev;
+                removed = prev->pNext;
+                prev->pNext = removed->pNext;
+                return;
+            }
+            prev = prev->pNext;
+        }
+    }
+    ChainUnlink(const ChainUnlink&) = delete;
+    ChainUnlink& operator=(const ChainUnlink&) = delete;
+    ~ChainUnlink() {
+        if (previous) previous->pNext = removed;
+    }
+};
 
 // Registries keyed by dispatch key; lookups take a shared lock, creation/destruction exclusive.
 InstanceState* find_instance(DispatchKey key);
@@ -388,6 +424,9 @@ void read_completed_timestamps(
 
 // Serving decisions, shared by the instance hooks and device creation.
 bool driver_has_cluster_extension(InstanceState& instance, VkPhysicalDevice physical_device);
+// Whether the driver chain below the layer lists device extension `name`.
+bool driver_lists_extension(InstanceState& instance, VkPhysicalDevice physical_device,
+                            const char* name);
 bool should_serve(InstanceState& instance, VkPhysicalDevice physical_device);
 VkPhysicalDeviceClusterAccelerationStructurePropertiesNV cluster_properties_for(
     InstanceState& instance, VkPhysicalDevice physical_device, bool serving);

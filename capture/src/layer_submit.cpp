@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <deque>
 #include <map>
 
 namespace clastrace::capture {
@@ -159,6 +160,33 @@ void watch_host_writes(DeviceState& d, const SubmissionPlan& plan) {
     d.host_writes.submitting(d, plan.record, pauses, device_writes_of(d, command_buffers));
 }
 
+// VkFrameBoundaryEXT on the infos of one submission call (layer_frame_boundary.cpp): found
+// before the driver call, hidden from a driver without the extension during it, recorded after
+// the submission's own record.
+class SubmittedFrameBoundaries {
+public:
+    template <typename Info>
+    SubmittedFrameBoundaries(const DeviceState& d, const Info* infos, uint32_t count) {
+        for (uint32_t i = 0; i < count; ++i)
+            if (const VkFrameBoundaryEXT* b = find_frame_boundary(infos[i].pNext)) {
+                found_.push_back({i, b});
+                if (d.frame_boundary_served)
+                    hidden_.emplace_back(&infos[i], VK_STRUCTURE_TYPE_FRAME_BOUNDARY_EXT);
+            }
+    }
+    // The driver call returned: the application's chains are whole again.
+    void restore() { hidden_.clear(); }
+    void record(DeviceState& d, VkQueue queue, FrameBoundaryCarrier carrier, uint64_t submission) {
+        for (const auto& [batch, boundary] : found_)
+            frame_boundary_marked(d, queue, *boundary, carrier, submission, batch, frame_);
+    }
+
+private:
+    uint64_t frame_ = current_frame();
+    std::vector<std::pair<uint32_t, const VkFrameBoundaryEXT*>> found_;
+    std::deque<ChainUnlink> hidden_;
+};
+
 VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit(VkQueue queue, uint32_t submit_count,
                                            const VkSubmitInfo* p_submits, VkFence fence) {
     DeviceState& d = *find_device(dispatch_key(queue));
@@ -194,7 +222,9 @@ VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit(VkQueue queue, uint32_t submit_count,
     }
     watch_host_writes(d, plan);
     auto admitted = admit_shared_pauses(d, queue, plan);
+    SubmittedFrameBoundaries boundaries(d, p_submits, submit_count);
     VkResult result = d.next.QueueSubmit(queue, submit_count, p_submits, fence);
+    boundaries.restore();
     if (result != VK_SUCCESS) {
         d.host_writes.submit_failed(plan.record.index);
         return result;
@@ -204,6 +234,7 @@ VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit(VkQueue queue, uint32_t submit_count,
         admitted.unlock();  // the worker tracks this submission's shared pauses now
     expect_timestamps(d, queue, plan);
     if (plan.capture) d.sink->queue_submitted(plan.record);
+    boundaries.record(d, queue, FrameBoundaryCarrier::kSubmit, plan.record.index);
     check_rays(d, queue, plan);
     return result;
 }
@@ -232,7 +263,9 @@ VkResult queue_submit2(VkQueue queue, uint32_t submit_count, const VkSubmitInfo2
     }
     watch_host_writes(d, plan);
     auto admitted = admit_shared_pauses(d, queue, plan);
+    SubmittedFrameBoundaries boundaries(d, p_submits, submit_count);
     VkResult result = next(queue, submit_count, p_submits, fence);
+    boundaries.restore();
     if (result != VK_SUCCESS) {
         d.host_writes.submit_failed(plan.record.index);
         return result;
@@ -242,6 +275,7 @@ VkResult queue_submit2(VkQueue queue, uint32_t submit_count, const VkSubmitInfo2
         admitted.unlock();  // the worker tracks this submission's shared pauses now
     expect_timestamps(d, queue, plan);
     if (plan.capture) d.sink->queue_submitted(plan.record);
+    boundaries.record(d, queue, FrameBoundaryCarrier::kSubmit2, plan.record.index);
     check_rays(d, queue, plan);
     return result;
 }

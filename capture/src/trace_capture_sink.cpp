@@ -277,6 +277,22 @@ public:
         r.result = p.result;
         append(record_of(std::move(r)));
     }
+    // Ordered like presents: after the submission (or present) that carried it.
+    void frame_boundary_marked(const FrameBoundaryRecord& b) override {
+        fbs::FrameBoundaryT r;
+        r.queue = b.queue;
+        r.carrier = uint32_t(b.carrier);
+        r.submission = b.submission;
+        r.batch = b.batch;
+        r.flags = b.flags;
+        r.frame_id = b.frame_id;
+        r.frame = b.frame;
+        r.images = b.images;
+        r.buffers = b.buffers;
+        r.tag_name = b.tag_name;
+        r.tag = b.tag;
+        append(record_of(std::move(r)));
+    }
     // Ordered like presents: the submission that waits on the semaphore comes after it.
     void image_acquired(const AcquireRecord& a) override {
         fbs::AcquireNextImageT r;

@@ -194,6 +194,9 @@ bool Replay::on_presentation_record(fbs::RecordBody kind, const fbs::Record& r) 
                                                          p->wait_semaphores()->size()));
         break;
     }
+    // VkFrameBoundaryEXT marks (format 1.4): frame numbers for headless programs; nothing to
+    // replay (the consumer sync model reads the frame from them).
+    case fbs::RecordBody::FrameBoundary: break;
     default: return false;
     }
     return true;

@@ -595,6 +595,21 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
         out.push_back(record(r));
     }
     {
+        fbs::FrameBoundaryT r;
+        r.queue = 0x9e;
+        r.carrier = 1;  // vkQueueSubmit2
+        r.submission = 12;
+        r.batch = 1;
+        r.flags = 1;  // VK_FRAME_BOUNDARY_FRAME_END_BIT_EXT
+        r.frame_id = 0x1234567890ull;
+        r.frame = 6;
+        r.images = {0x1a};
+        r.buffers = {0xb1, 0xb2};
+        r.tag_name = 0x7a6;
+        r.tag = {0, 0xff, 0x10};
+        out.push_back(record(r));
+    }
+    {
         fbs::CmdExecuteCommandsT r;
         r.command_buffer = 0xcb;
         r.secondaries = {0x5c1, 0x5c2, 0x5c1};

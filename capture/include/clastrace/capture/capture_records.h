@@ -587,4 +587,27 @@ struct ClusterBuildCapture {
     std::vector<std::vector<VkAccelerationStructureBuildRangeInfoKHR>> khr_indirect_ranges;
 };
 
+// VkFrameBoundaryEXT (VK_EXT_frame_boundary) chained to a submission or a present: a headless
+// program's frame marks (layer_frame_boundary.cpp). `frame` is the frame the carrying
+// call belongs to (the one a frame-end mark ends).
+enum class FrameBoundaryCarrier : uint32_t {
+    kSubmit = 0,
+    kSubmit2 = 1,
+    kPresent = 2,
+    kBindSparse = 3
+};
+struct FrameBoundaryRecord {
+    uint64_t queue = 0;
+    FrameBoundaryCarrier carrier = FrameBoundaryCarrier::kSubmit;
+    uint64_t submission = 0;  // submissions only
+    uint32_t batch = 0;       // which info of the call carried it
+    uint32_t flags = 0;       // VkFrameBoundaryFlagsEXT
+    uint64_t frame_id = 0;
+    uint64_t frame = 0;
+    std::vector<uint64_t> images;
+    std::vector<uint64_t> buffers;
+    uint64_t tag_name = 0;
+    std::vector<uint8_t> tag;
+};
+
 }  // namespace clastrace::capture

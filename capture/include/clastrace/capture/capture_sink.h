@@ -53,6 +53,8 @@ public:
     // vkGetAccelerationStructureBuildSizesKHR, in call order (no-ops unless a sink records them).
     virtual void query_pool_results_read(const QueryPoolResultsRecord&) {}
     virtual void khr_build_sizes_queried(const KhrBuildSizesQuery&) {}
+    // VkFrameBoundaryEXT on a submission or present, recorded like presents (whatever the range).
+    virtual void frame_boundary_marked(const FrameBoundaryRecord&) {}
     // Frees the captured bytes of records already written, on the calling thread. The pause
     // worker calls it when idle: the bytes were allocated on its thread, and freeing them there
     // spares the sink's thread the allocator's cross-thread path (and the worker's allocations
