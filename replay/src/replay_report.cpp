@@ -352,7 +352,10 @@ nlohmann::json to_json(const ReplayReport& r) {
           {"handles_translated", n.handles_translated},
           {"presents", n.presents},
           {"acquires", n.acquires},
-          {"unsatisfied_semaphore_waits", n.unsatisfied_semaphore_waits}}},
+          {"unsatisfied_semaphore_waits", n.unsatisfied_semaphore_waits},
+          {"khr_builds", n.khr_builds},
+          {"khr_copies", n.khr_copies},
+          {"query_answers", n.query_answers}}},
     };
 }
 
