@@ -163,7 +163,7 @@ KhrTrace::Object KhrTrace::nv_triangle_blas() {
     return o;
 }
 
-uint64_t KhrTrace::cluster_triangle_blas(bool null_reference) {
+uint64_t KhrTrace::cluster_triangle_blas(bool null_reference, uint64_t driver_address) {
     // The CLAS: one triangle over three vertices, at an explicit destination.
     const std::vector<float> v = triangle_vertices();
     const uint8_t indices[3] = {0, 1, 2};
@@ -197,23 +197,31 @@ uint64_t KhrTrace::cluster_triangle_blas(bool null_reference) {
     bottom.clusterReferences = reference_buffer;
     const uint64_t bottom_info = address_of(buffer(&bottom, sizeof bottom, kClusterBuffers));
     const uint64_t blas = address_of(buffer(nullptr, 1 << 16, kClusterBuffers));
-    const uint64_t blas_destination = address_of(buffer(&blas, 8, kClusterBuffers));
+    const bool implicit = driver_address != 0;
+    const uint64_t destination_buffer =
+        buffer(implicit ? nullptr : &blas, 8, kClusterBuffers);  // implicit: the command writes it
+    const uint64_t blas_destination = address_of(destination_buffer);
     VkClusterAccelerationStructureClustersBottomLevelInputNV bottom_limits{};
     bottom_limits.sType =
         VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
     bottom_limits.maxTotalClusterCount = 16;
     bottom_limits.maxClusterCountPerAccelerationStructure = 16;
-    const auto blas_input =
-        tb::cluster_op_input(1, &bottom_limits,
-                             VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV);
+    const auto blas_input = tb::cluster_op_input(
+        1, &bottom_limits,
+        implicit ? VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV
+                 : VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV);
     VkClusterAccelerationStructureCommandsInfoNV blas_build = tb::cluster_commands(blas_input);
     blas_build.scratchData = scratch();
     blas_build.dstAddressesArray = {blas_destination, 8, 8};
     blas_build.srcInfosArray = {bottom_info, sizeof bottom, sizeof bottom};
+    if (implicit) blas_build.dstImplicitData = blas;
     auto blas_record = tb::cluster_build(command_buffer_, blas_build);
     blas_record.inputs = take_inputs();
+    if (implicit)
+        blas_record.outputs.push_back(
+            writer_.snapshot(blas_destination, &driver_address, 8, destination_buffer));
     writer_.append(std::move(blas_record));
-    return blas;
+    return implicit ? driver_address : blas;
 }
 
 void KhrTrace::copy_buffer(uint64_t src, uint64_t dst, uint64_t size) {

@@ -54,8 +54,9 @@ public:
     Object nv_triangle_blas();
     // A cluster BLAS over the same triangle, through a CLAS build and a BLAS build with
     // explicit destinations; `null_reference` adds a second, null, cluster reference.
-    // Returns the BLAS address.
-    uint64_t cluster_triangle_blas(bool null_reference = false);
+    // Returns the BLAS address. `driver_address` != 0: the BLAS is built in implicit mode and
+    // the capture saw the driver write that address into dstAddressesArray (returned).
+    uint64_t cluster_triangle_blas(bool null_reference = false, uint64_t driver_address = 0);
 
     void copy_buffer(uint64_t src, uint64_t dst, uint64_t size);
     void barrier(uint64_t src_stages, uint64_t src_access, uint64_t dst_stages,

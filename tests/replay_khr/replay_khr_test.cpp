@@ -80,6 +80,24 @@ TEST(ReplayKhr, TopLevelInstancesReachKhrNvAndClusterBottomLevels) {
     EXPECT_EQ(r.ray_checks[0].disagree, 0u) << describe(r);
 }
 
+// A driver's trace: the instance names the cluster BLAS by the address the driver wrote into
+// dstAddressesArray (implicit mode); replay finds the BLAS where the engine rebuilt it.
+TEST(ReplayKhr, InstanceNamingADriversClusterBlasAddressReachesTheRebuiltOne) {
+    constexpr uint64_t kDriverAddress = 0x7F12'3400'0000ull;
+    KhrTrace t(temp_path("driver_cluster.clt"), false);
+    const auto tlas = t.create(VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_KHR);
+    ASSERT_EQ(t.cluster_triangle_blas(false, kDriverAddress), kDriverAddress);
+    t.build_barrier();
+    t.build(one(t.top_level(tlas, {instance_at(0, kDriverAddress)})));
+    t.submit();
+    t.ray_check(tlas, {ray_through(0.25f, 0.25f, 0)});
+    const replay::ReplayReport r = t.replay();
+    EXPECT_TRUE(r.findings.empty()) << describe(r);
+    EXPECT_GE(r.counts.handles_translated, 1u);
+    ASSERT_EQ(r.ray_checks.size(), 1u) << describe(r);
+    EXPECT_EQ(r.ray_checks[0].agree_hit, 1u) << describe(r);
+}
+
 TEST(ReplayKhr, InstanceNamingAnUnbuiltBottomLevelIsAFindingAtTheTopLevelBuild) {
     KhrTrace t(temp_path("unbuilt.clt"), true);
     const auto built = t.create(VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR);
