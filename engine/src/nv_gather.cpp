@@ -5,6 +5,7 @@
 #include "nv_gather.h"
 #include "clastrace/common/hex.h"
 
+#include "clastrace/engine/blas.h"
 #include "clastrace/engine/vertex_format.h"
 #include "nv_internal.h"
 
@@ -348,6 +349,38 @@ std::vector<std::byte> read_instances(Context& c, uint32_t count, std::vector<ui
     return packed;
 }
 
+// The header of the bottom level an instance names: an NV or KHR object's own, or one made
+// from a cluster BLAS's (blas.h), whose kind, size and bounds are all an instance needs.
+// Throws MemoryFault when the address is outside memory.
+std::optional<NvObjectHeader> instance_blas_header(const MemoryImage& memory, uint64_t address,
+                                                   const std::string& field, std::string* error) {
+    uint32_t magic = 0;
+    std::memcpy(&magic, memory.read_bytes(address, 4, FieldRef{field.c_str(), -1}).data(), 4);
+    if (magic != kObjectMagic)
+        return read_nv_header(memory.read_bytes(address, sizeof(NvObjectHeader),
+                                                FieldRef{field.c_str(), -1}),
+                              error);
+    const ObjectDirectory bytes_only;  // judged by the bytes: the replay's objects all check
+    const ObjectLookup found = bytes_only.lookup(memory, address, ObjectType::kClustersBottomLevel,
+                                                 false, FieldRef{field.c_str(), -1});
+    if (!found.found()) {
+        *error = found.error;
+        return std::nullopt;
+    }
+    const BottomLevelCheck check = read_bottom_level_header(found.bytes);
+    if (!check.header) {
+        *error = "a cluster BLAS that does not check out: " + check.error;
+        return std::nullopt;
+    }
+    NvObjectHeader h{};
+    h.magic = kNvObjectMagic;
+    h.kind = uint8_t(NvObjectKind::kBottomLevel);
+    h.object_size = check.header->object_size;
+    std::memcpy(h.bounds_min, check.header->bounds_min, sizeof h.bounds_min);
+    std::memcpy(h.bounds_max, check.header->bounds_max, sizeof h.bounds_max);
+    return h;
+}
+
 }  // namespace
 
 TopInput gather_top(Context& c) {
@@ -391,9 +424,7 @@ TopInput gather_top(Context& c) {
         if (fresh) {
             std::string error;
             try {
-                auto head = c.memory.read_bytes(*address, sizeof(NvObjectHeader),
-                                                FieldRef{field.c_str(), -1});
-                it->second = read_nv_header(head, &error);
+                it->second = instance_blas_header(c.memory, *address, field, &error);
             } catch (const MemoryFault& f) {
                 error = f.message;
             }

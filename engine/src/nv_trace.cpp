@@ -3,6 +3,9 @@
 // trees and its watertight triangle test (geometry/), Vulkan's instance and ray flag rules.
 #include "clastrace/engine/nv_trace.h"
 
+#include "clastrace/common/hex.h"
+#include "clastrace/engine/blas.h"
+
 #include "geometry/slab.h"
 #include "geometry/triangle.h"
 
@@ -15,6 +18,8 @@
 namespace clastrace::engine {
 namespace {
 
+using common::hex;
+
 struct Blas {
     std::vector<std::byte> bytes;
     NvObjectView view;
@@ -22,6 +27,10 @@ struct Blas {
     std::vector<NvNode> nodes;
     std::vector<uint32_t> geometry_flags;
     bool aabbs = false;
+    // A cluster BLAS (blas.h): `bytes` is that object, `clas` the CLAS its references name
+    // (address -> bytes; a reference whose address holds no CLAS is absent and never hit).
+    bool clusters = false;
+    std::unordered_map<uint64_t, std::vector<std::byte>> clas;
 };
 
 struct Instance {
@@ -61,8 +70,55 @@ bool invert(const float m[12], double out[12]) {
     return true;
 }
 
-std::optional<Blas> load_blas(const MemoryImage& memory, uint64_t address, std::string* error) {
+// A cluster BLAS an instance names, copied with the CLAS it references; each reference
+// whose address holds no CLAS now is one finding (the same rule the cluster traversal uses).
+std::optional<Blas> load_cluster_blas(const MemoryImage& memory, uint64_t address,
+                                      std::vector<Finding>* findings, std::string* error) {
+    ObjectDirectory bytes_only;  // judged by the bytes, as for objects of a first snapshot
+    const FieldRef where{"bottom-level object", -1};
+    ObjectLookup found =
+        bytes_only.lookup(memory, address, ObjectType::kClustersBottomLevel, false, where);
+    if (!found.found()) {
+        if (error) *error = found.error;
+        return std::nullopt;
+    }
+    BottomLevelCheck check = read_bottom_level_header(found.bytes);
+    if (!check.header) {
+        if (error) *error = "a cluster BLAS that does not check out: " + check.error;
+        return std::nullopt;
+    }
+    Blas b;
+    b.clusters = true;
+    b.bytes.assign(found.bytes.begin(), found.bytes.end());
+    for (uint32_t k = 0; k < check.header->reference_count; ++k) {
+        ClusterReference ref;
+        std::memcpy(&ref,
+                    b.bytes.data() + check.header->references_offset + uint64_t(k) * sizeof ref,
+                    sizeof ref);
+        if (b.clas.count(ref.clas_address)) continue;
+        ObjectLookup clas =
+            bytes_only.lookup(memory, ref.clas_address, ObjectType::kTriangleCluster, false, where);
+        if (clas.found() && open_clas(clas.bytes)) {
+            b.clas.emplace(ref.clas_address,
+                           std::vector<std::byte>(clas.bytes.begin(), clas.bytes.end()));
+        } else if (findings) {
+            findings->push_back(Finding{kRuleStaleClusterReference,
+                                        "cluster BLAS " + hex(address) + ", cluster reference " +
+                                            std::to_string(ref.reference_index) + ": " +
+                                            (clas.found() ? "not a checked CLAS" : clas.error),
+                                        -1, ref.clas_address});
+        }
+    }
+    return b;
+}
+
+std::optional<Blas> load_blas(const MemoryImage& memory, uint64_t address,
+                              std::vector<Finding>* findings, std::string* error) {
     try {
+        uint32_t magic = 0;
+        std::memcpy(&magic,
+                    memory.read_bytes(address, 4, FieldRef{"bottom-level object", -1}).data(), 4);
+        if (magic == kObjectMagic) return load_cluster_blas(memory, address, findings, error);
         auto head =
             memory.read_bytes(address, sizeof(NvObjectHeader), FieldRef{"bottom-level object", -1});
         auto h = read_nv_header(head, error);
@@ -138,7 +194,7 @@ std::optional<NvScene> NvScene::open(const MemoryImage& memory, uint64_t address
         auto it = data->blas.find(r.blas_address);
         if (it == data->blas.end()) {
             std::string why;
-            std::optional<Blas> b = load_blas(memory, r.blas_address, &why);
+            std::optional<Blas> b = load_blas(memory, r.blas_address, findings, &why);
             if (!b && findings)
                 findings->push_back(
                     Finding{kRuleNvStaleInstance,
@@ -157,7 +213,7 @@ std::optional<NvScene> NvScene::open(const MemoryImage& memory, uint64_t address
 
 std::optional<NvScene> NvScene::open_bottom(const MemoryImage& memory, uint64_t address,
                                             std::string* error) {
-    std::optional<Blas> b = load_blas(memory, address, error);
+    std::optional<Blas> b = load_blas(memory, address, nullptr, error);
     if (!b) return std::nullopt;
     auto data = std::make_shared<Data>();
     Instance inst;
@@ -263,12 +319,72 @@ double float_t_error(const Instance& inst, const double wo[3], const double o[3]
     return 8.0 * ulp * (dmax > 0.0 ? scale / dmax : 0.0) + 8.0 * ulp * std::fabs(t);
 }
 
+// The ray flags a cluster BLAS's traversal applies for this instance: its flags put into the
+// ray's terms (FORCE_(NO_)OPAQUE unless the ray forces opacity itself, CULL_DISABLE drops the
+// facing culls, FRONT_COUNTERCLOCKWISE swaps them), as the NV traversal applies them per
+// primitive.
+uint32_t cluster_ray_flags(uint32_t flags, uint32_t instance_flags) {
+    if (!(flags & (kRayFlagOpaque | kRayFlagNoOpaque))) {
+        if (instance_flags & VK_GEOMETRY_INSTANCE_FORCE_OPAQUE_BIT_NV) flags |= kRayFlagOpaque;
+        if (instance_flags & VK_GEOMETRY_INSTANCE_FORCE_NO_OPAQUE_BIT_NV) flags |= kRayFlagNoOpaque;
+    }
+    const uint32_t facing = kRayFlagCullBackFacingTriangles | kRayFlagCullFrontFacingTriangles;
+    if (instance_flags & VK_GEOMETRY_INSTANCE_TRIANGLE_CULL_DISABLE_BIT_NV) {
+        flags &= ~facing;
+    } else if (instance_flags & VK_GEOMETRY_INSTANCE_TRIANGLE_FRONT_COUNTERCLOCKWISE_BIT_NV) {
+        const uint32_t back = flags & kRayFlagCullBackFacingTriangles,
+                       front = flags & kRayFlagCullFrontFacingTriangles;
+        flags = (flags & ~facing) | (back ? uint32_t(kRayFlagCullFrontFacingTriangles) : 0u) |
+                (front ? uint32_t(kRayFlagCullBackFacingTriangles) : 0u);
+    }
+    return flags;
+}
+
+// An instance of a cluster BLAS: the ray in object space through the cluster traversal
+// (blas.h), its hit reported in the NV terms (primitive = the triangle's input index).
+bool trace_cluster_instance(const Instance& inst, uint32_t index, const double o[3],
+                            const double d[3], uint32_t flags, bool first_hit, double tmin,
+                            double* tmax, NvHit* best) {
+    const Blas& b = *inst.blas;
+    const Ray object_ray{{float(o[0]), float(o[1]), float(o[2])},
+                         float(tmin),
+                         {float(d[0]), float(d[1]), float(d[2])},
+                         float(*tmax)};
+    auto clas_at = [&b](uint64_t address) -> std::span<const std::byte> {
+        auto it = b.clas.find(address);
+        return it == b.clas.end() ? std::span<const std::byte>{} : it->second;
+    };
+    const BottomLevelHit h =
+        trace_bottom_level_bytes(b.bytes, clas_at, object_ray, cluster_ray_flags(flags, inst.flags),
+                                 first_hit);
+    if (!h.hit.hit || !(double(h.hit.t) < *tmax) || double(h.hit.t) < tmin) return false;
+    const bool flip = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_FRONT_COUNTERCLOCKWISE_BIT_NV;
+    if (best) {
+        best->hit = true;
+        best->t = h.hit.t;
+        best->instance_index = index;
+        best->instance_custom_index = inst.custom_index;
+        best->sbt_offset = inst.sbt_offset;
+        best->geometry_index = h.hit.geometry_index;
+        best->primitive_index = h.hit.triangle_index;
+        best->cluster_id = h.hit.cluster_id;
+        best->u = h.hit.u;
+        best->v = h.hit.v;
+        best->hit_kind = h.hit.front_face != flip ? kHitKindFrontFacing : kHitKindBackFacing;
+        best->opaque = h.hit.opaque;
+        // The object-space ray was rounded to float once more: a few ulps of t.
+        best->t_error = 16.0f * std::numeric_limits<float>::epsilon() * std::fabs(h.hit.t);
+    }
+    *tmax = h.hit.t;
+    return true;
+}
+
 // One instance's BLAS: updates `best` (closest) or returns true at the first accepted
 // hit (any / terminate-on-first-hit).
 bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32_t flags,
                     bool first_hit, double tmin, double* tmax, NvHit* best) {
     const Blas& b = *inst.blas;
-    if (b.nodes.empty()) return false;
+    if (b.nodes.empty() && !b.clusters) return false;
     const double wo[3] = {ray.origin[0], ray.origin[1], ray.origin[2]};
     const double wd[3] = {ray.direction[0], ray.direction[1], ray.direction[2]};
     double o[3], d[3];
@@ -277,6 +393,8 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
         o[r] = m[0] * wo[0] + m[1] * wo[1] + m[2] * wo[2] + m[3];
         d[r] = m[0] * wd[0] + m[1] * wd[1] + m[2] * wd[2];
     }
+    if (b.clusters)
+        return trace_cluster_instance(inst, index, o, d, flags, first_hit, tmin, tmax, best);
     const geometry::PreparedRay rd = geometry::prepare_ray(o, d, tmin, *tmax);
     const bool cull_disable = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_CULL_DISABLE_BIT_NV;
     const bool flip = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_FRONT_COUNTERCLOCKWISE_BIT_NV;

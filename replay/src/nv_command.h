@@ -62,6 +62,7 @@ public:
     static constexpr uint64_t kShadowBudget = 4ull << 30;
 
 private:
+    friend class KhrReplay;  // KHR objects share these objects, shadows and translations
     struct Object {
         uint64_t handle = 0;
         bool nv = true;

@@ -73,13 +73,15 @@ bool is_replay_limit(std::string_view rule) {
         engine::kRuleUnsupportedFormat,       // a vertex format the engine does not read
         engine::kRuleFindingsTruncated,       // findings of one rule past the per-command cap
         "CLASTRACE-replay-nv-opaque-object",  // dst now holds such an object
-        "CLASTRACE-replay-nv-object-over-budget",    // NV objects past the replay's budget
-        "CLASTRACE-replay-memory-budget",            // buffers or writes past the budget
-        "CLASTRACE-replay-command-buffer-dropped",   // recordings past max_recorded_bytes
-        "CLASTRACE-replay-reference-not-rebuilt",    // an object built before the capture
-        "CLASTRACE-replay-snapshot-outside-memory",  // captured bytes no buffer of it holds
-        "CLASTRACE-replay-engine-failed",            // the engine stopped on the command
-        "CLASTRACE-replay-sparse-bind-budget",       // sparse binds past the parts kept
+        "CLASTRACE-replay-nv-object-over-budget",     // NV objects past the replay's budget
+        "CLASTRACE-replay-memory-budget",             // buffers or writes past the budget
+        "CLASTRACE-replay-command-buffer-dropped",    // recordings past max_recorded_bytes
+        "CLASTRACE-replay-reference-not-rebuilt",     // an object built before the capture
+        "CLASTRACE-replay-snapshot-outside-memory",   // captured bytes no buffer of it holds
+        "CLASTRACE-replay-engine-failed",             // the engine stopped on the command
+        "CLASTRACE-replay-sparse-bind-budget",        // sparse binds past the parts kept
+        "CLASTRACE-replay-khr-query-answer-differs",  // engine layout vs the driver's
+        "CLASTRACE-replay-khr-serialized-past-dst",   // the engine's blob outgrows the driver's
     };
     for (std::string_view limit : kLimits)
         if (rule == limit) return true;
@@ -350,7 +352,10 @@ nlohmann::json to_json(const ReplayReport& r) {
           {"handles_translated", n.handles_translated},
           {"presents", n.presents},
           {"acquires", n.acquires},
-          {"unsatisfied_semaphore_waits", n.unsatisfied_semaphore_waits}}},
+          {"unsatisfied_semaphore_waits", n.unsatisfied_semaphore_waits},
+          {"khr_builds", n.khr_builds},
+          {"khr_copies", n.khr_copies},
+          {"query_answers", n.query_answers}}},
     };
 }
 

@@ -56,7 +56,8 @@ void Replay::on_record(const traces::RecordView& view) {
     const fbs::RecordBody kind = view.kind;
     if (on_memory_record(kind, r) || on_acceleration_structure_record(kind, r) ||
         on_command_buffer_record(kind, r) || on_queue_record(kind, r) ||
-        on_presentation_record(kind, r) || on_check_record(kind, r) || on_sparse_record(view))
+        on_presentation_record(kind, r) || on_check_record(kind, r) || on_khr_record(kind, r) ||
+        on_sparse_record(view))
         return;
     record_command(view);
 }
@@ -89,7 +90,10 @@ void Replay::execute_command(const fbs::Record& record, const CommandRef& ref, u
     case fbs::RecordBody::CmdCopyMemoryToAccelerationStructure:
         copy_to_object(*record.body_as_CmdCopyMemoryToAccelerationStructure(), ref, where);
         break;
-    default: --report_.counts.commands; break;  // timestamps, labels: nothing to replay
+    default:
+        if (!execute_khr_command(record, ref, where))
+            --report_.counts.commands;  // timestamps, labels: nothing to replay
+        break;
     }
 }
 

@@ -13,6 +13,7 @@ bool Replay::on_acceleration_structure_record(fbs::RecordBody kind, const fbs::R
         const auto* c = r.body_as_AccelerationStructureCreate();
         memory_.create_object(c->acceleration_structure(), c->buffer(), c->offset(), c->size(), 0);
         nv_.on_create(*c);
+        khr_.on_create(*c);
         break;
     }
     case fbs::RecordBody::AccelerationStructureMemoryRequirementsNV: {

@@ -27,6 +27,8 @@ const char* command_name(fbs::RecordBody kind) {
     case fbs::RecordBody::DebugLabel: return "vkCmdDebugUtilsLabelEXT";
     case fbs::RecordBody::CmdExecuteCommands: return "vkCmdExecuteCommands";
     case fbs::RecordBody::CmdDraw: return "vkCmdDraw";
+    case fbs::RecordBody::CmdCopyAccelerationStructureToMemory:
+        return "vkCmdCopyAccelerationStructureToMemoryKHR";
     default: return "command";
     }
 }
@@ -53,6 +55,15 @@ const char* draw_entry_point(const fbs::CmdDraw& draw) {
 
 const char* command_name(const fbs::Record& record) {
     if (const fbs::CmdDraw* draw = record.body_as_CmdDraw()) return draw_entry_point(*draw);
+    if (const auto* b = record.body_as_CmdBuildAccelerationStructuresKHR())
+        return b->indirect() ? "vkCmdBuildAccelerationStructuresIndirectKHR"
+                             : "vkCmdBuildAccelerationStructuresKHR";
+    if (const auto* c = record.body_as_CmdCopyAccelerationStructure())
+        return c->api() == 0 ? "vkCmdCopyAccelerationStructureNV"
+                             : "vkCmdCopyAccelerationStructureKHR";
+    if (const auto* q = record.body_as_CmdWriteAccelerationStructuresProperties())
+        return q->api() == 0 ? "vkCmdWriteAccelerationStructuresPropertiesNV"
+                             : "vkCmdWriteAccelerationStructuresPropertiesKHR";
     return command_name(record.body_type());
 }
 
@@ -78,6 +89,14 @@ uint64_t command_buffer_of(const fbs::Record& r) {
     case fbs::RecordBody::CmdExecuteCommands:
         return r.body_as_CmdExecuteCommands()->command_buffer();
     case fbs::RecordBody::CmdDraw: return r.body_as_CmdDraw()->command_buffer();
+    case fbs::RecordBody::CmdBuildAccelerationStructuresKHR:
+        return r.body_as_CmdBuildAccelerationStructuresKHR()->command_buffer();
+    case fbs::RecordBody::CmdCopyAccelerationStructure:
+        return r.body_as_CmdCopyAccelerationStructure()->command_buffer();
+    case fbs::RecordBody::CmdCopyAccelerationStructureToMemory:
+        return r.body_as_CmdCopyAccelerationStructureToMemory()->command_buffer();
+    case fbs::RecordBody::CmdWriteAccelerationStructuresProperties:
+        return r.body_as_CmdWriteAccelerationStructuresProperties()->command_buffer();
     default: return 0;
     }
 }

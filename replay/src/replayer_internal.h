@@ -9,6 +9,7 @@
 
 #include "binary_signals.h"
 #include "cluster_command.h"
+#include "khr_command.h"
 #include "nv_command.h"
 #include "replay_memory.h"
 
@@ -83,6 +84,11 @@ private:
     bool on_queue_record(fbs::RecordBody kind, const fbs::Record& r);
     bool on_presentation_record(fbs::RecordBody kind, const fbs::Record& r);
     bool on_check_record(fbs::RecordBody kind, const fbs::Record& r);
+    // VK_KHR_acceleration_structure's host records and commands (replayer_khr_records.cpp);
+    // execute_khr_command returns whether the command was one of them.
+    bool on_khr_record(fbs::RecordBody kind, const fbs::Record& r);
+    bool execute_khr_command(const fbs::Record& record, const CommandRef& ref,
+                             const ReplayLocation& where);
     // vkQueueBindSparse (replayer_sparse_binds.cpp).
     bool on_sparse_record(const traces::RecordView& view);
     // Applies a batch's buffer binds in order; a bind the replay cannot apply (damaged) or a
@@ -222,6 +228,7 @@ private:
                               observed_nv_ = true;
                           }}};
     bool observed_nv_ = false;  // the command in replay_command was an NV build or deserialization
+    detail::KhrReplay khr_{{nv_, translation_}};  // KHR commands, on nv_'s objects (khr_command.h)
 };
 
 }  // namespace clastrace::replay::detail

@@ -17,6 +17,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <optional>
 #include <span>
 #include <string>
@@ -106,6 +107,15 @@ BottomLevelHit trace_bottom_level_closest(const MemoryImage& memory, uint64_t bl
 bool trace_bottom_level_any(const MemoryImage& memory, uint64_t blas_address, const Ray& ray,
                             uint32_t ray_flags, const ObjectDirectory* directory = nullptr,
                             std::vector<Finding>* findings = nullptr);
+
+// The same traversal over a BLAS already read out of memory and checked with
+// read_bottom_level_header (a KHR or NV top level copies what it reaches once, nv_trace.h):
+// `clas_at` gives the bytes of the CLAS a reference names, or an empty span when that
+// address holds none (the reference is skipped). `first_hit`: stop at the first accepted hit.
+BottomLevelHit trace_bottom_level_bytes(
+    std::span<const std::byte> blas,
+    const std::function<std::span<const std::byte>(uint64_t clas_address)>& clas_at, const Ray& ray,
+    uint32_t ray_flags, bool first_hit);
 
 inline constexpr const char* kRuleStaleClusterReference =
     "CLASTRACE-cluster-reference-holds-no-clas";

@@ -1,5 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
-// Ray traversal of NV objects: top level -> instance transform -> bottom level.
+// Ray traversal of NV objects: top level -> instance transform -> bottom level. A top level
+// (NV or KHR: the same objects, khr_build.h) may name a cluster BLAS (blas.h) too: one
+// traversal entry per instance dispatches on the object's kind, and a cluster BLAS is
+// traced through its CLAS (the instance flags put into the ray's flags).
 //
 // Vulkan's rules as the engine applies them (no shaders run):
 // - An instance is visited when (mask & cullMask & 0xFF) != 0 and it is active (reference
@@ -44,7 +47,8 @@ struct NvHit {
     uint32_t instance_custom_index = 0;  // gl_InstanceCustomIndexEXT
     uint32_t sbt_offset = 0;
     uint32_t geometry_index = 0;
-    uint32_t primitive_index = 0;  // gl_PrimitiveID
+    uint32_t primitive_index = 0;       // gl_PrimitiveID
+    uint32_t cluster_id = 0xFFFFFFFFu;  // a cluster BLAS's hit: the CLAS's clusterID; else ~0
     float u = 0.0f, v = 0.0f;
     uint32_t hit_kind = 0;
     bool opaque = false;

@@ -154,6 +154,9 @@ struct ReplayCounts {
     // Semaphore waits of submissions whose signal the trace does not hold (SyncStats): such a
     // wait orders nothing in the hazard check. 0 with --no-hazards (not counted).
     uint64_t unsatisfied_semaphore_waits = 0;
+    uint64_t khr_builds = 0;     // vkCmdBuildAccelerationStructures[Indirect]KHR executed
+    uint64_t khr_copies = 0;     // acceleration-structure copies and serializations executed
+    uint64_t query_answers = 0;  // property-query answers compared with the driver's
 };
 
 struct ReplayReport {
