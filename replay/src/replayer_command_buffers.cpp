@@ -53,6 +53,8 @@ const char* draw_entry_point(const fbs::CmdDraw& draw) {
 
 const char* command_name(const fbs::Record& record) {
     if (const fbs::CmdDraw* draw = record.body_as_CmdDraw()) return draw_entry_point(*draw);
+    if (const fbs::CmdTraceRays* rays = record.body_as_CmdTraceRays())
+        return trace_rays_entry_point(*rays);
     return command_name(record.body_type());
 }
 
@@ -78,6 +80,7 @@ uint64_t command_buffer_of(const fbs::Record& r) {
     case fbs::RecordBody::CmdExecuteCommands:
         return r.body_as_CmdExecuteCommands()->command_buffer();
     case fbs::RecordBody::CmdDraw: return r.body_as_CmdDraw()->command_buffer();
+    case fbs::RecordBody::CmdTraceRays: return r.body_as_CmdTraceRays()->command_buffer();
     default: return 0;
     }
 }
