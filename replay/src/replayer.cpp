@@ -108,6 +108,9 @@ void Replay::execute_command(const fbs::Record& record, const CommandRef& ref, u
         break;
     default: --report_.counts.commands; break;  // timestamps, labels: nothing to replay
     }
+    // After the build ran (when replay runs it): what its top levels' instances name.
+    if (record.body_type() == fbs::RecordBody::CmdBuildAccelerationStructuresKHR)
+        note_khr_top_level_builds(*record.body_as_CmdBuildAccelerationStructuresKHR(), where);
 }
 
 // Executes (or skips) one command and, with an observer, hands it the command, then the

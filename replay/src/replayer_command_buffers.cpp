@@ -27,6 +27,8 @@ const char* command_name(fbs::RecordBody kind) {
     case fbs::RecordBody::DebugLabel: return "vkCmdDebugUtilsLabelEXT";
     case fbs::RecordBody::CmdExecuteCommands: return "vkCmdExecuteCommands";
     case fbs::RecordBody::CmdDraw: return "vkCmdDraw";
+    case fbs::RecordBody::CmdBuildAccelerationStructuresKHR:
+        return "vkCmdBuildAccelerationStructuresKHR";
     default: return "command";
     }
 }
@@ -81,6 +83,8 @@ uint64_t command_buffer_of(const fbs::Record& r) {
         return r.body_as_CmdExecuteCommands()->command_buffer();
     case fbs::RecordBody::CmdDraw: return r.body_as_CmdDraw()->command_buffer();
     case fbs::RecordBody::CmdTraceRays: return r.body_as_CmdTraceRays()->command_buffer();
+    case fbs::RecordBody::CmdBuildAccelerationStructuresKHR:
+        return r.body_as_CmdBuildAccelerationStructuresKHR()->command_buffer();
     default: return 0;
     }
 }

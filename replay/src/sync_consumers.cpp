@@ -11,6 +11,7 @@
 #include <clastrace/engine/blas.h>
 #include <clastrace/engine/cluster_format.h>
 
+#include <cstring>
 #include <unordered_set>
 
 namespace clastrace::replay {
@@ -223,6 +224,52 @@ void Replay::note_top_level_build(const fbs::CmdBuildAccelerationStructureNV& bu
     if (!range || !memory_.read(range->begin, range->end - range->begin, &bytes)) bytes.clear();
     reachability_.on_top_level_built(build.dst(),
                                      packed_instance_references(bytes, info->instance_count()));
+}
+
+// The references of a KHR top level's instances as the build reads them: packed instances at
+// data + primitiveOffset, or (arrayOfPointers) an array of 8-byte addresses of instances.
+std::vector<uint64_t> Replay::khr_instance_references(const fbs::GeometryInstancesKHR& instances,
+                                                      const fbs::BuildRangeInfoKHR& range) const {
+    const uint64_t at = instances.data() + range.primitive_offset();
+    const uint32_t count = range.primitive_count();
+    std::vector<uint8_t> bytes;
+    if (!instances.array_of_pointers()) {
+        if (!memory_.read(at, uint64_t(count) * kInstanceBytes, &bytes)) return {};
+        return packed_instance_references(bytes, count);
+    }
+    std::vector<uint64_t> out;
+    if (!memory_.read(at, uint64_t(count) * 8, &bytes)) return out;
+    std::vector<uint8_t> reference;
+    for (uint32_t i = 0; i < count; ++i) {
+        uint64_t pointer = 0;
+        std::memcpy(&pointer, bytes.data() + uint64_t(i) * 8, 8);
+        uint64_t value = 0;
+        if (pointer && memory_.read(pointer + kInstanceReferenceOffset, 8, &reference))
+            std::memcpy(&value, reference.data(), 8);
+        out.push_back(value);
+    }
+    return out;
+}
+
+// After vkCmdBuildAccelerationStructuresKHR (or its indirect form): each top-level info's
+// references, read from the instances the command's input snapshots hold.
+void Replay::note_khr_top_level_builds(const fbs::CmdBuildAccelerationStructuresKHR& build,
+                                       const ReplayLocation& where) {
+    if (!build.infos()) return;
+    bool laid_in = false;
+    for (const fbs::AccelerationStructureBuildInfoKHR* info : *build.infos()) {
+        if (info->type() != VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_KHR || !info->geometries() ||
+            info->geometries()->size() == 0 || !info->ranges() || info->ranges()->size() == 0)
+            continue;
+        const fbs::GeometryKHR* geometry = info->geometries()->Get(0);
+        if (geometry->geometry_type() != VK_GEOMETRY_TYPE_INSTANCES_KHR || !geometry->instances())
+            continue;
+        if (!laid_in) lay_in_snapshots(build.inputs(), where);
+        laid_in = true;
+        reachability_.on_top_level_built(info->dst(),
+                                         khr_instance_references(*geometry->instances(),
+                                                                 *info->ranges()->Get(0)));
+    }
 }
 
 }  // namespace detail

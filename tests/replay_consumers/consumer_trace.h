@@ -28,6 +28,14 @@ public:
     };
     Object bottom_level();                 // created and bound, not built
     Object top_level(uint32_t instances);  // created and bound, not built
+    // A KHR structure in a buffer of its own; driver_handle holds its device address and
+    // `buffer` the buffer.
+    Object khr_structure(bool top_level, uint64_t* buffer = nullptr);
+    // vkCmdBuildAccelerationStructuresKHR of a KHR top level over `blas` (their addresses),
+    // packed or as an array of pointers. Not executed by this replay: only what it names counts.
+    void build_khr_top(const Object& tlas, const std::vector<Object>& blas, bool array_of_pointers);
+    // vkCmdFillBuffer over the whole buffer.
+    void fill(uint64_t buffer);
     // vkCmdBuildAccelerationStructureNV of a one-triangle bottom level into `blas`.
     void build_bottom(const Object& blas);
     // vkCmdBuildAccelerationStructureNV of `tlas` over instances of `blas`, in order.
@@ -35,6 +43,7 @@ public:
     void barrier(uint64_t src_stages, uint64_t src_access, uint64_t dst_stages,
                  uint64_t dst_access);
     void trace_rays(const Object& tlas);
+    void trace_rays_at(uint64_t address);  // bound by device address only
     void ray_query_dispatch(const Object& tlas);
     void ray_query_draw(const Object& tlas, uint64_t stages);
     // Ends the open command buffer and submits it with `fence` (no wait).
@@ -47,11 +56,13 @@ public:
 private:
     uint64_t buffer(const void* bytes, uint64_t size);  // bound; bytes go into the next inputs
     uint64_t open();
+    Object create_nv(const fbs::AccelerationStructureInfoNVT& info);
 
     trace_building::RecordWriter writer_;
     std::vector<fbs::MemorySnapshot> inputs_;
     uint64_t next_buffer_ = 0x5000, next_address_ = 0x10000000, next_object_ = 0xA5000,
              next_object_offset_ = 0, command_buffer_ = 0xC000;
+    uint64_t last_address_ = 0;  // of the buffer buffer() made last
     bool open_ = false;
 };
 

@@ -11,6 +11,7 @@
 
 #include <gtest/gtest.h>
 
+#include <cstdio>
 #include <string>
 #include <vector>
 
@@ -32,6 +33,12 @@ std::vector<HazardReport> of_class(const ReplayReport& r, HazardClass c) {
     for (const HazardReport& h : r.hazards)
         if (h.hazard == c) out.push_back(h);
     return out;
+}
+
+std::string replay_hex(uint64_t v) {
+    char text[24];
+    std::snprintf(text, sizeof text, "0x%llx", static_cast<unsigned long long>(v));
+    return text;
 }
 
 std::string all_hazards(const ReplayReport& r) {
@@ -223,6 +230,41 @@ TEST(ReplayConsumers, BottomLevelDestroyedWhileRaysMayReadItIsAFinding) {
     EXPECT_NE(f.message.find("frame 1"), std::string::npos) << f.message;
     EXPECT_NE(f.message.find("top level 0xa5002 > instance 1"), std::string::npos) << f.message;
     EXPECT_TRUE(destroyed_in_frame_2("destroy_waited.clt", true).findings.empty());
+}
+
+// A KHR top level names its bottom levels by device address: overwriting a bottom level's
+// buffer after rays that bind only the top level's address is a WRITE-AFTER-READ, whether the
+// instances were packed or given as an array of pointers.
+TEST(ReplayConsumers, KhrTopLevelReachesItsBottomLevelsByAddress) {
+    for (const bool pointers : {false, true}) {
+        const std::string path = temp_path(pointers ? "khr_pointers.clt" : "khr_packed.clt");
+        uint64_t second_buffer = 0;
+        ConsumerTrace::Object tlas, second;
+        {
+            ConsumerTrace t(path);
+            ConsumerTrace::Object first = t.khr_structure(false);
+            second = t.khr_structure(false, &second_buffer);
+            tlas = t.khr_structure(true);
+            t.build_khr_top(tlas, {first, second}, pointers);
+            t.barrier(kBuildStages, kStructureWrite, kRayStages, kStructureRead);
+            t.trace_rays_at(tlas.driver_handle);
+            t.fill(second_buffer);
+            t.submit(kSetupFence);
+            t.wait(kSetupFence);
+            t.finish();
+        }
+        const ReplayReport r = test::replay_file(path);
+        test::discard_trace(path);
+        const auto war = of_class(r, HazardClass::kWriteAfterRead);
+        ASSERT_EQ(war.size(), 1u) << all_hazards(r);
+        EXPECT_STREQ(war[0].later.command.name, "vkCmdFillBuffer");
+        // The pointers list the instances in reverse: the second bottom level is instance 0.
+        const std::string expected = "top level " + replay_hex(tlas.handle) + " > instance " +
+                                     (pointers ? "0" : "1") + ": bottom level " +
+                                     replay_hex(second.handle);
+        EXPECT_NE(war[0].prior.field.find(expected), std::string::npos)
+            << war[0].prior.field << " (arrayOfPointers " << pointers << ")";
+    }
 }
 
 }  // namespace
