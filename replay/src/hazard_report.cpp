@@ -18,6 +18,7 @@ std::string where(const HazardAccess& a) {
     s += " (queue " + std::to_string(a.queue) + ", submit " + std::to_string(a.command.submission) +
          ", cb " + std::to_string(a.command.command_buffer) + ", cmd " +
          std::to_string(a.command.command);
+    if (a.frame) s += ", frame " + std::to_string(*a.frame);
     if (a.command.secondary_handle)
         s += " > secondary " + std::to_string(a.command.secondary) + " (" +
              hex(a.command.secondary_handle) + "), cmd " +
@@ -43,6 +44,7 @@ nlohmann::json side_json(const HazardAccess& a) {
         {"possible", a.possible},
         {"range", {hex(a.range.begin), hex(a.range.end)}},
     };
+    if (a.frame) j["frame"] = *a.frame;
     if (a.command
             .secondary_handle)  // a command of a secondary command buffer (vkCmdExecuteCommands)
         j["secondary"] = {{"index", a.command.secondary},
@@ -149,6 +151,7 @@ std::string HazardReport::format() const {
              "addresses (its SPIR-V uses PhysicalStorageBuffer pointers), and the trace does not "
              "show which bytes it wrote.";
     s += " Fix: " + fix.describe();
+    if (!advice.empty()) s += " " + advice;
     return s;
 }
 
@@ -165,7 +168,8 @@ nlohmann::json to_json(const HazardReport& r) {
           {"srcAccessMask", access_flag_names(r.fix.src_access)},
           {"dstStageMask", stage_flag_names(r.fix.dst_stages)},
           {"dstAccessMask", access_flag_names(r.fix.dst_access)},
-          {"text", r.fix.describe()}}},
+          {"text", r.fix.describe()},
+          {"advice", r.advice}}},
         {"message", r.format()},
     };
 }

@@ -54,6 +54,7 @@ Replay::Replay(TraceReader& reader, const std::string& name, const ReplayOptions
 void Replay::on_record(const traces::RecordView& view) {
     const fbs::Record& r = *view.record;
     const fbs::RecordBody kind = view.kind;
+    on_consumer_bookkeeping(kind, r);  // before the families: a destroy checks what still reads
     if (on_memory_record(kind, r) || on_acceleration_structure_record(kind, r) ||
         on_command_buffer_record(kind, r) || on_queue_record(kind, r) ||
         on_presentation_record(kind, r) || on_check_record(kind, r) || on_khr_record(kind, r) ||
@@ -77,15 +78,31 @@ void Replay::execute_command(const fbs::Record& record, const CommandRef& ref, u
     case fbs::RecordBody::CmdUpdateBuffer:
         update_buffer(*record.body_as_CmdUpdateBuffer(), ref);
         break;
-    case fbs::RecordBody::CmdDispatch: dispatch(*record.body_as_CmdDispatch(), ref, where); break;
-    case fbs::RecordBody::CmdDraw:
-        record_address_writes(ref, record.body_as_CmdDraw()->address_stages());
+    case fbs::RecordBody::CmdDispatch: {
+        const fbs::CmdDispatch& d = *record.body_as_CmdDispatch();
+        dispatch(d, ref, where);
+        if (d.ray_query())
+            consumer_reads(ref, d.acceleration_structures(),
+                           VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT);
+        break;
+    }
+    case fbs::RecordBody::CmdDraw: {
+        const fbs::CmdDraw& d = *record.body_as_CmdDraw();
+        // A draw naming neither stage mask is a format 1.3 record: a draw that uses addresses.
+        if (d.address_stages() || !d.ray_query_stages())
+            record_address_writes(ref, d.address_stages());
+        consumer_reads(ref, d.acceleration_structures(), d.ray_query_stages());
+        break;
+    }
+    case fbs::RecordBody::CmdTraceRays:
+        trace_rays(*record.body_as_CmdTraceRays(), ref, where);
         break;
     case fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect:
         build_clusters(*record.body_as_CmdBuildClusterAccelerationStructureIndirect(), ref, where);
         break;
     case fbs::RecordBody::CmdBuildAccelerationStructureNV:
         build_nv(*record.body_as_CmdBuildAccelerationStructureNV(), ref, where);
+        note_top_level_build(*record.body_as_CmdBuildAccelerationStructureNV());
         break;
     case fbs::RecordBody::CmdCopyMemoryToAccelerationStructure:
         copy_to_object(*record.body_as_CmdCopyMemoryToAccelerationStructure(), ref, where);
@@ -95,6 +112,9 @@ void Replay::execute_command(const fbs::Record& record, const CommandRef& ref, u
             --report_.counts.commands;  // timestamps, labels: nothing to replay
         break;
     }
+    // After the build ran (when replay runs it): what its top levels' instances name.
+    if (record.body_type() == fbs::RecordBody::CmdBuildAccelerationStructuresKHR)
+        note_khr_top_level_builds(*record.body_as_CmdBuildAccelerationStructuresKHR(), where);
 }
 
 // Executes (or skips) one command and, with an observer, hands it the command, then the
@@ -192,6 +212,7 @@ ReplayReport Replay::run() {
     report_.counts.peak_image_bytes = memory_.peak_resident_bytes();
     if (options_.check_hazards) {
         report_.hazards = merge_per_op_hazards(sync_.hazards(), &report_.hazards_merged);
+        annotate_consumer_hazards(report_.hazards, frames_);
         report_.hazards_over_cap = sync_.stats().hazards_over_cap;
         report_.counts.unsatisfied_semaphore_waits = sync_.stats().unsatisfied_waits;
     }

@@ -29,6 +29,8 @@ const char* command_name(fbs::RecordBody kind) {
     case fbs::RecordBody::CmdDraw: return "vkCmdDraw";
     case fbs::RecordBody::CmdCopyAccelerationStructureToMemory:
         return "vkCmdCopyAccelerationStructureToMemoryKHR";
+    case fbs::RecordBody::CmdBuildAccelerationStructuresKHR:
+        return "vkCmdBuildAccelerationStructuresKHR";
     default: return "command";
     }
 }
@@ -64,6 +66,8 @@ const char* command_name(const fbs::Record& record) {
     if (const auto* q = record.body_as_CmdWriteAccelerationStructuresProperties())
         return q->api() == 0 ? "vkCmdWriteAccelerationStructuresPropertiesNV"
                              : "vkCmdWriteAccelerationStructuresPropertiesKHR";
+    if (const fbs::CmdTraceRays* rays = record.body_as_CmdTraceRays())
+        return trace_rays_entry_point(*rays);
     return command_name(record.body_type());
 }
 
@@ -97,6 +101,7 @@ uint64_t command_buffer_of(const fbs::Record& r) {
         return r.body_as_CmdCopyAccelerationStructureToMemory()->command_buffer();
     case fbs::RecordBody::CmdWriteAccelerationStructuresProperties:
         return r.body_as_CmdWriteAccelerationStructuresProperties()->command_buffer();
+    case fbs::RecordBody::CmdTraceRays: return r.body_as_CmdTraceRays()->command_buffer();
     default: return 0;
     }
 }

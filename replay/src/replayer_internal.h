@@ -12,6 +12,8 @@
 #include "khr_command.h"
 #include "nv_command.h"
 #include "replay_memory.h"
+#include "structure_reachability.h"
+#include "sync_consumers.h"
 
 #include <clastrace/engine/execution_record.h>
 #include <clastrace/engine/object_directory.h>
@@ -46,6 +48,9 @@ constexpr uint64_t kWholeSize = ~0ull;  // VK_WHOLE_SIZE
 // (replayer_hazard_merge.cpp); *merged counts the reports folded into others.
 std::vector<HazardReport> merge_per_op_hazards(const std::vector<HazardReport>& hazards,
                                                uint64_t* merged);
+
+// "vkCmdTraceRaysKHR", ... as a static string (sync_consumers.cpp).
+const char* trace_rays_entry_point(const fbs::CmdTraceRays& rays);
 
 class Replay {
 public:
@@ -148,6 +153,22 @@ private:
                         const CommandRef& ref, const ReplayLocation& where);
     void barrier(const fbs::Record& record, const CommandRef& ref);
 
+    // Consumers of acceleration structures (sync_consumers.cpp).
+    using ConsumerBindings = flatbuffers::Vector<const fbs::AccelerationStructureBinding*>;
+    void on_consumer_bookkeeping(fbs::RecordBody kind, const fbs::Record& r);
+    void trace_rays(const fbs::CmdTraceRays& rays, const CommandRef& ref,
+                    const ReplayLocation& where);
+    void consumer_reads(const CommandRef& ref, const ConsumerBindings* bindings, StageMask stages);
+    void note_top_level_build(const fbs::CmdBuildAccelerationStructureNV& build);
+    void note_khr_top_level_builds(const fbs::CmdBuildAccelerationStructuresKHR& build,
+                                   const ReplayLocation& where);
+    std::vector<uint64_t> khr_instance_references(const fbs::GeometryInstancesKHR& instances,
+                                                  const fbs::BuildRangeInfoKHR& range) const;
+    void check_consumers_done(const AddressRange& range, const char* call, const char* rule,
+                              const std::string& what);
+    std::optional<AddressRange> structure_range(uint64_t handle) const;
+    std::optional<ClusterBottomLevel> cluster_bottom_level(uint64_t address) const;
+
     void add_finding(ReplayFinding finding);
     // VUID-vkQueueSubmit-pSignalSemaphores-00067 / VUID-vkQueueSubmit2-semaphore-03868 for one batch.
     void check_binary_signals(const fbs::QueueSubmit& submit, uint32_t batch,
@@ -229,6 +250,13 @@ private:
                           }}};
     bool observed_nv_ = false;  // the command in replay_command was an NV build or deserialization
     detail::KhrReplay khr_{{nv_, translation_}};  // KHR commands, on nv_'s objects (khr_command.h)
+    // What consumers of acceleration structures reach, and the frames their hazards name.
+    StructureReachability reachability_{[this](uint64_t handle) { return structure_range(handle); },
+                                        [this](uint64_t address) {
+                                            return cluster_bottom_level(address);
+                                        }};
+    std::unordered_map<uint64_t, uint8_t> structure_api_;  // handle -> 0 NV, 1 KHR
+    FrameBoundaries frames_;
 };
 
 }  // namespace clastrace::replay::detail

@@ -190,6 +190,11 @@ void TraceScript::copy(uint64_t src_buffer, uint64_t src_offset, uint64_t dst_bu
     writer_.append(std::move(c));
 }
 
+void TraceScript::command(const fbs::RecordT& record) {
+    ensure_begun();
+    writer_.append(record);
+}
+
 void TraceScript::fill(uint64_t dst_buffer, uint64_t offset, uint64_t size, uint32_t data) {
     ensure_begun();
     fbs::CmdFillBufferT f;

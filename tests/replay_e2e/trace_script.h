@@ -105,6 +105,9 @@ public:
                     uint64_t dst_access);
     // ALL_COMMANDS/MEMORY_WRITE -> ALL_COMMANDS/MEMORY_READ|WRITE.
     void full_barrier();
+    // A command record the caller built (its body names command_buffer()), appended to the
+    // current command buffer: records this script has no method for (tests/replay_consumers).
+    void command(const fbs::RecordT& record);
 
     // --- queues ---------------------------------------------------------------------
     // Ends the current command buffer and submits it (version 1: vkQueueSubmit, whose

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -50,6 +51,7 @@ struct HazardAccess {
     bool possible = false;  // an access the trace only allows (Access::possible)
     AddressRange range;     // the whole range this access covered
     std::string field;
+    std::optional<uint64_t> frame;  // the frame of its submission, where the trace tells frames
 };
 
 struct HazardReport {
@@ -58,6 +60,9 @@ struct HazardReport {
     HazardAccess later;    // the access that found the hazard (for kMoveOverlap: the destination)
     AddressRange overlap;  // bytes both touch
     FixingBarrier fix;
+    // What else fixes it, beyond the barrier: for a consumer of acceleration structures, the
+    // frame-level fix (a fence wait before rebuilding, a double-buffered pool). May be empty.
+    std::string advice;
     // Possible, not certain: one side is an access the trace only allows (a dispatch that may
     // write through device addresses), so the bytes may never have been touched.
     bool possible() const { return prior.possible || later.possible; }

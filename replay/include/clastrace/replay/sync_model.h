@@ -112,6 +112,10 @@ public:
     // vkDestroyBuffer / vkFreeMemory: forgets the completed accesses inside `range`.
     void memory_freed(AddressRange range);
 
+    // Device accesses meeting `range` that no host wait has seen complete yet, one per command
+    // and stage (sync_consumers.cpp): what vkDestroy* and vkFreeMemory must wait for.
+    std::vector<HazardAccess> pending_accesses(AddressRange range) const;
+
     // --- results -------------------------------------------------------------------
     const std::vector<HazardReport>& hazards() const;
     const SyncStats& stats() const;

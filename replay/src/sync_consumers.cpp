@@ -1,0 +1,276 @@
+// SPDX-License-Identifier: Apache-2.0
+// Consumers of acceleration structures (docs/replay.md, "Consumers"): vkCmdTraceRays* and the
+// dispatches and draws whose shaders use ray queries read every structure reachable from what
+// they bind (structure_reachability.h), at their shader stages, in the synchronization model;
+// a structure destroyed while a consumer that reads it may still run is a finding.
+#include "replayer_internal.h"
+#include "structure_reachability.h"
+#include "sync_consumers.h"
+#include "sync_model_internal.h"
+
+#include <clastrace/engine/blas.h>
+#include <clastrace/engine/cluster_format.h>
+
+#include <cstring>
+#include <unordered_set>
+
+namespace clastrace::replay {
+
+std::vector<HazardAccess> SyncModel::pending_accesses(AddressRange range) const {
+    std::vector<HazardAccess> out;
+    std::unordered_set<uint64_t> seen;  // (tag, stage) already listed
+    State& s = *state_;
+    auto consider = [&](const Record& r) {
+        if (r.queue == kHostSlot || r.completed || r.tag < s.queues[r.queue].complete) return;
+        if (!seen.insert(r.tag * 0x9E3779B97F4A7C15ull ^ r.stage).second) return;
+        out.push_back(s.describe(r));
+    };
+    s.segments.for_each(
+        [&](const Segment& seg, uint64_t, uint64_t) {
+            if (seg.write) consider(*seg.write);
+            for (const Record& r : seg.reads) consider(r);
+        },
+        range.begin, range.end);
+    return out;
+}
+
+namespace detail {
+
+const char* trace_rays_entry_point(const fbs::CmdTraceRays& rays) {
+    static const char* const kEntryPoints[] = {"vkCmdTraceRaysKHR", "vkCmdTraceRaysIndirectKHR",
+                                               "vkCmdTraceRaysIndirect2KHR", "vkCmdTraceRaysNV"};
+    if (rays.entry_point())
+        for (const char* name : kEntryPoints)
+            if (rays.entry_point()->str() == name) return name;
+    return "vkCmdTraceRaysKHR";
+}
+
+namespace {
+
+constexpr uint64_t kTraceRaysIndirectBytes = 12;    // VkTraceRaysIndirectCommandKHR
+constexpr uint64_t kTraceRaysIndirect2Bytes = 104;  // VkTraceRaysIndirectCommand2KHR
+constexpr const char* kSbtNames[] = {"raygen", "miss", "hit", "callable"};
+
+std::string binding_name(const fbs::AccelerationStructureBinding& b, size_t index) {
+    static const char* const kSources[] = {"descriptor set", "push descriptor", "descriptor buffer",
+                                           "push constants", "memory"};
+    const std::string where = b.source() < 3 ? "set " + std::to_string(b.set()) + ", binding " +
+                                                   std::to_string(b.binding()) + "[" +
+                                                   std::to_string(b.array_element()) + "]"
+                              : b.source() < 5 ? std::string("address in ") + kSources[b.source()]
+                                               : std::string("unknown source");
+    return std::string(kConsumerField) + std::to_string(index) + "] (" + where + ")";
+}
+
+}  // namespace
+
+// The closure's lookups: a structure's bytes as the model sees them, and a cluster bottom level
+// in the engine's bytes (captured addresses translated to where the engine rebuilt it).
+std::optional<AddressRange> Replay::structure_range(uint64_t handle) const {
+    return memory_.object_range(handle);
+}
+
+std::optional<ClusterBottomLevel> Replay::cluster_bottom_level(uint64_t address) const {
+    if (auto it = translation_.rebuilt_at.find(address); it != translation_.rebuilt_at.end())
+        address = it->second;
+    const engine::MemoryImage& image = memory_.image();
+    try {
+        const auto header = image.read<engine::BottomLevelHeader>(address, {"reachability", -1});
+        if (header.magic != engine::kObjectMagic ||
+            header.object_type != uint8_t(engine::ObjectType::kClustersBottomLevel))
+            return std::nullopt;
+        ClusterBottomLevel blas;
+        blas.range = {address, address + header.object_size};
+        for (uint32_t i = 0; i < header.reference_count; ++i) {
+            const auto reference = image.read<engine::ClusterReference>(
+                address + header.references_offset + uint64_t(i) * sizeof(engine::ClusterReference),
+                {"reachability", -1});
+            const auto clas =
+                image.read<engine::ObjectHeader>(reference.clas_address, {"reachability", -1});
+            if (clas.magic != engine::kObjectMagic) continue;
+            blas.clusters.push_back(
+                {reference.reference_index,
+                 {reference.clas_address, reference.clas_address + clas.object_size}});
+        }
+        return blas;
+    } catch (const engine::MemoryFault&) {
+        return std::nullopt;
+    }
+}
+
+// Records outside command buffers that the consumers' bookkeeping watches; the families in
+// replayer*.cpp handle them too.
+void Replay::on_consumer_bookkeeping(fbs::RecordBody kind, const fbs::Record& r) {
+    switch (kind) {
+    case fbs::RecordBody::AccelerationStructureCreate: {
+        const auto* c = r.body_as_AccelerationStructureCreate();
+        uint64_t reference = c->device_address();
+        if (reference == 0 && c->api() == 1)  // a KHR address never queried: where it lives
+            if (auto range = memory_.buffer_range(c->buffer(), c->offset(), c->size()))
+                reference = range->begin;
+        reachability_.on_created(c->acceleration_structure(), reference);
+        structure_api_[c->acceleration_structure()] = c->api();
+        break;
+    }
+    case fbs::RecordBody::AccelerationStructureDestroy: {
+        const uint64_t handle = r.body_as_AccelerationStructureDestroy()->acceleration_structure();
+        const bool nv = structure_api_[handle] == 0;
+        if (auto range = memory_.object_range(handle))
+            check_consumers_done(
+                *range,
+                nv ? "vkDestroyAccelerationStructureNV" : "vkDestroyAccelerationStructureKHR",
+                nv ? "VUID-vkDestroyAccelerationStructureNV-accelerationStructure-03752"
+                   : "VUID-vkDestroyAccelerationStructureKHR-accelerationStructure-02442",
+                "acceleration structure " + hex(handle));
+        reachability_.on_destroyed(handle);
+        structure_api_.erase(handle);
+        break;
+    }
+    case fbs::RecordBody::BufferDestroy: {
+        const uint64_t buffer = r.body_as_BufferDestroy()->buffer();
+        if (auto range = memory_.buffer_range(buffer, 0, kWholeSize))
+            check_consumers_done(*range, "vkDestroyBuffer", "VUID-vkDestroyBuffer-buffer-00922",
+                                 "buffer " + hex(buffer));
+        break;
+    }
+    case fbs::RecordBody::QueuePresent:
+        frames_.on_boundary(r.body_as_QueuePresent()->frame(), next_submission_);
+        break;
+    default: break;
+    }
+}
+
+// A consumer still pending (no host wait saw it complete) that reads bytes of `range`: the
+// destroyed object was in use. One finding per pending consumer command.
+void Replay::check_consumers_done(const AddressRange& range, const char* call, const char* rule,
+                                  const std::string& what) {
+    if (!options_.check_hazards) return;
+    std::vector<HazardAccess> pending = sync_.pending_accesses(range);
+    std::erase_if(pending, [](const HazardAccess& a) { return !is_consumer_read(a); });
+    std::unordered_set<uint64_t> told;
+    for (const HazardAccess& a : pending) {
+        const CommandRef& c = a.command;
+        if (!told.insert(uint64_t(c.submission) << 32 | c.command).second) continue;
+        const std::optional<uint64_t> frame = frames_.frame_of(c.submission);
+        ReplayLocation where;
+        where.sequence = sequence_;
+        where.submission = next_submission_;
+        where.name = call;
+        add_finding({rule,
+                     what + " is destroyed while " + (c.name ? c.name : "a command") +
+                         " (submission " + std::to_string(c.submission) + ", command buffer " +
+                         std::to_string(c.command_buffer) + ", command " +
+                         std::to_string(c.command) +
+                         (frame ? ", frame " + std::to_string(*frame) : std::string()) +
+                         "), which reads it through " + a.field +
+                         ", has not completed: no fence wait or idle wait saw that submission "
+                         "finish. Wait for its fence (vkWaitForFences) before destroying, or "
+                         "destroy the structure a frame in flight later.",
+                     FindingSource::kReplay, where, -1, range.begin});
+    }
+}
+
+// Every structure each binding reaches is read with ACCELERATION_STRUCTURE_READ in each of
+// `stages` (one access per stage: a barrier must cover each stage that reads).
+void Replay::consumer_reads(const CommandRef& ref, const ConsumerBindings* bindings,
+                            StageMask stages) {
+    if (!options_.check_hazards || !bindings) return;
+    for (size_t i = 0; i < bindings->size(); ++i) {
+        const fbs::AccelerationStructureBinding* b =
+            bindings->Get(static_cast<flatbuffers::uoffset_t>(i));
+        for (const ReachedStructure& s :
+             reachability_.reach(b->acceleration_structure(), b->address(), binding_name(*b, i)))
+            for (StageMask m = stages; m; m &= m - 1) {
+                ++report_.counts.accesses;
+                sync_.record_access(ref, Access{s.range, m & (~m + 1),
+                                                VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR,
+                                                false, s.path});
+            }
+    }
+}
+
+void Replay::trace_rays(const fbs::CmdTraceRays& rays, const CommandRef& ref,
+                        const ReplayLocation& where) {
+    lay_in_snapshots(rays.inputs(), where);
+    const StageMask stage = VK_PIPELINE_STAGE_2_RAY_TRACING_SHADER_BIT_KHR;
+    if (rays.indirect_address() != 0) {
+        const bool whole_struct =
+            rays.entry_point() && rays.entry_point()->str() == "vkCmdTraceRaysIndirect2KHR";
+        const uint64_t size = whole_struct ? kTraceRaysIndirect2Bytes : kTraceRaysIndirectBytes;
+        feed(ref, {rays.indirect_address(), rays.indirect_address() + size},
+             VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT, VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT, false,
+             "indirectDeviceAddress");
+    }
+    if (const auto* tables = rays.shader_binding_tables())
+        for (size_t i = 0; i < tables->size() && i < std::size(kSbtNames); ++i) {
+            const fbs::StridedDeviceAddressRegion* t =
+                tables->Get(static_cast<flatbuffers::uoffset_t>(i));
+            if (t->device_address() != 0 && t->size() != 0)
+                feed(ref, {t->device_address(), t->device_address() + t->size()}, stage,
+                     VK_ACCESS_2_SHADER_BINDING_TABLE_READ_BIT_KHR, false,
+                     std::string("shader binding table (") + kSbtNames[i] + ")");
+        }
+    consumer_reads(ref, rays.acceleration_structures(), stage);
+}
+
+// After vkCmdBuildAccelerationStructureNV: a top level's references are those its instance
+// buffer held when it was built.
+void Replay::note_top_level_build(const fbs::CmdBuildAccelerationStructureNV& build) {
+    const fbs::AccelerationStructureInfoNV* info = build.info();
+    if (!info || info->type() != VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV) return;
+    std::vector<uint8_t> bytes;
+    auto range = memory_.buffer_range(build.instance_data(), build.instance_offset(),
+                                      uint64_t(info->instance_count()) * kInstanceBytes);
+    if (!range || !memory_.read(range->begin, range->end - range->begin, &bytes)) bytes.clear();
+    reachability_.on_top_level_built(build.dst(),
+                                     packed_instance_references(bytes, info->instance_count()));
+}
+
+// The references of a KHR top level's instances as the build reads them: packed instances at
+// data + primitiveOffset, or (arrayOfPointers) an array of 8-byte addresses of instances.
+std::vector<uint64_t> Replay::khr_instance_references(const fbs::GeometryInstancesKHR& instances,
+                                                      const fbs::BuildRangeInfoKHR& range) const {
+    const uint64_t at = instances.data() + range.primitive_offset();
+    const uint32_t count = range.primitive_count();
+    std::vector<uint8_t> bytes;
+    if (!instances.array_of_pointers()) {
+        if (!memory_.read(at, uint64_t(count) * kInstanceBytes, &bytes)) return {};
+        return packed_instance_references(bytes, count);
+    }
+    std::vector<uint64_t> out;
+    if (!memory_.read(at, uint64_t(count) * 8, &bytes)) return out;
+    std::vector<uint8_t> reference;
+    for (uint32_t i = 0; i < count; ++i) {
+        uint64_t pointer = 0;
+        std::memcpy(&pointer, bytes.data() + uint64_t(i) * 8, 8);
+        uint64_t value = 0;
+        if (pointer && memory_.read(pointer + kInstanceReferenceOffset, 8, &reference))
+            std::memcpy(&value, reference.data(), 8);
+        out.push_back(value);
+    }
+    return out;
+}
+
+// After vkCmdBuildAccelerationStructuresKHR (or its indirect form): each top-level info's
+// references, read from the instances the command's input snapshots hold.
+void Replay::note_khr_top_level_builds(const fbs::CmdBuildAccelerationStructuresKHR& build,
+                                       const ReplayLocation& where) {
+    if (!build.infos()) return;
+    bool laid_in = false;
+    for (const fbs::AccelerationStructureBuildInfoKHR* info : *build.infos()) {
+        if (info->type() != VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_KHR || !info->geometries() ||
+            info->geometries()->size() == 0 || !info->ranges() || info->ranges()->size() == 0)
+            continue;
+        const fbs::GeometryKHR* geometry = info->geometries()->Get(0);
+        if (geometry->geometry_type() != VK_GEOMETRY_TYPE_INSTANCES_KHR || !geometry->instances())
+            continue;
+        if (!laid_in) lay_in_snapshots(build.inputs(), where);
+        laid_in = true;
+        reachability_.on_top_level_built(info->dst(),
+                                         khr_instance_references(*geometry->instances(),
+                                                                 *info->ranges()->Get(0)));
+    }
+}
+
+}  // namespace detail
+}  // namespace clastrace::replay
