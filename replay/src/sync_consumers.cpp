@@ -136,6 +136,13 @@ void Replay::on_consumer_bookkeeping(fbs::RecordBody kind, const fbs::Record& r)
     case fbs::RecordBody::QueuePresent:
         frames_.on_boundary(r.body_as_QueuePresent()->frame(), next_submission_);
         break;
+    case fbs::RecordBody::FrameBoundary: {
+        // A headless program's frame-end mark (VK_FRAME_BOUNDARY_FRAME_END_BIT_EXT), written after
+        // the QueueSubmit that carried it: it ends its frame as a present does.
+        const auto* mark = r.body_as_FrameBoundary();
+        if (mark->flags() & 1u) frames_.on_boundary(mark->frame(), next_submission_);
+        break;
+    }
     default: break;
     }
 }
