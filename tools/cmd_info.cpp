@@ -47,9 +47,11 @@ struct TraceSummary {
     static constexpr size_t kMaxListed = 1000;
     std::vector<Finding> findings;
     uint64_t finding_count = 0;
-    // Frames (QueuePresent, format 1.2): a submission belongs to the frame the next present
-    // ends (the last present's frame + 1 after it).
+    // Frames (QueuePresent, format 1.2; FrameBoundary frame-end marks, format 1.4): a submission
+    // belongs to the frame the next present or mark ends (the last one's frame + 1 after it).
     uint64_t presents = 0;
+    uint64_t frame_marks = 0;  // FrameBoundary records with VK_FRAME_BOUNDARY_FRAME_END_BIT_EXT
+    uint64_t frame_ends() const { return presents + frame_marks; }
     uint64_t acquires = 0;  // AcquireNextImage records (format 1.2)
     uint64_t first_frame = 0, last_frame = 0;
     uint64_t unassigned_submissions = 0;  // QueueSubmits since the last present
@@ -82,11 +84,14 @@ TraceSummary summarize(TraceReader& reader) {
         }
         if (view.kind == fbs::RecordBody::QueueSubmit) ++s.unassigned_submissions;
         if (view.kind == fbs::RecordBody::AcquireNextImage) ++s.acquires;
-        if (const auto* p = view.record->body_as_QueuePresent()) {
-            if (s.presents++ == 0) s.first_frame = p->frame();
-            s.last_frame = std::max(s.last_frame, p->frame());
-            if (s.unassigned_submissions)
-                s.submissions_by_frame[p->frame()] += s.unassigned_submissions;
+        const auto* present = view.record->body_as_QueuePresent();
+        const auto* mark = view.record->body_as_FrameBoundary();
+        if (present || (mark && (mark->flags() & 1u))) {
+            const uint64_t frame = present ? present->frame() : mark->frame();
+            if (s.frame_ends() == 0) s.first_frame = frame;
+            ++(present ? s.presents : s.frame_marks);
+            s.last_frame = std::max(s.last_frame, frame);
+            if (s.unassigned_submissions) s.submissions_by_frame[frame] += s.unassigned_submissions;
             s.unassigned_submissions = 0;
             continue;
         }
@@ -104,7 +109,7 @@ TraceSummary summarize(TraceReader& reader) {
             }
         }
     }
-    if (s.presents && s.unassigned_submissions)
+    if (s.frame_ends() && s.unassigned_submissions)
         s.submissions_by_frame[s.last_frame + 1] += s.unassigned_submissions;
     return s;
 }
@@ -209,16 +214,14 @@ nlohmann::json findings_json(const TraceSummary& s) {
 }
 
 nlohmann::json frames_json(const TraceSummary& s) {
-    if (s.presents == 0 && s.acquires == 0) return {{"presents", 0}};
-    if (s.presents == 0) return {{"presents", 0}, {"acquires", s.acquires}};
+    if (s.frame_ends() == 0 && s.acquires == 0) return {{"presents", 0}};
+    if (s.frame_ends() == 0) return {{"presents", 0}, {"acquires", s.acquires}};
     nlohmann::json captured = nlohmann::json::array();
     for (const auto& [frame, submissions] : s.submissions_by_frame)
         captured.push_back({{"frame", frame}, {"submissions", submissions}});
-    return {{"presents", s.presents},
-            {"acquires", s.acquires},
-            {"first", s.first_frame},
-            {"last", s.last_frame},
-            {"with_submissions", captured}};
+    return {{"presents", s.presents}, {"frame_marks", s.frame_marks},
+            {"acquires", s.acquires}, {"first", s.first_frame},
+            {"last", s.last_frame},   {"with_submissions", captured}};
 }
 
 nlohmann::json info_json(const std::string& path, const TraceReader& reader,
@@ -324,9 +327,14 @@ void print_text(const std::string& path, const TraceReader& reader, const TraceS
     fmt::print("  {:<44}{:>10}\n", "total", s.records);
     if (st.records_damaged) fmt::print("  {:<44}{:>10}\n", "damaged (skipped)", st.records_damaged);
 
-    if (s.presents) {
-        fmt::print("\n{:<12}{} presents, ending frames {}-{}; submissions in frames:", "frames",
-                   s.presents, s.first_frame, s.last_frame);
+    if (s.frame_ends()) {
+        const std::string ends =
+            s.frame_marks == 0 ? fmt::format("{} presents", s.presents)
+            : s.presents == 0
+                ? fmt::format("{} frame-end marks", s.frame_marks)
+                : fmt::format("{} presents and {} frame-end marks", s.presents, s.frame_marks);
+        fmt::print("\n{:<12}{}, ending frames {}-{}; submissions in frames:", "frames", ends,
+                   s.first_frame, s.last_frame);
         size_t listed = 0;
         for (const auto& [frame, submissions] : s.submissions_by_frame) {
             if (listed++ == 32) {
@@ -339,8 +347,8 @@ void print_text(const std::string& path, const TraceReader& reader, const TraceS
     }
     // Acquires (format 1.2): the presentation engine's signals replay takes for the frames' waits.
     if (s.acquires)
-        fmt::print("{}{:<12}{} image acquires\n", s.presents ? "" : "\n",
-                   s.presents ? "" : "frames", s.acquires);
+        fmt::print("{}{:<12}{} image acquires\n", s.frame_ends() ? "" : "\n",
+                   s.frame_ends() ? "" : "frames", s.acquires);
     if (s.finding_count) {
         fmt::print("\n{:<12}{} recorded while capturing\n", "findings", s.finding_count);
         for (const auto& f : s.findings) {

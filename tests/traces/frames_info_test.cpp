@@ -43,9 +43,26 @@ fbs::RecordT present(uint64_t frame) {
     return r;
 }
 
+// A VkFrameBoundaryEXT of a headless program (format 1.4) ending `frame`, or with `frame_end`
+// false a mark that ends nothing.
+fbs::RecordT frame_mark(uint64_t frame, bool frame_end = true) {
+    fbs::FrameBoundaryT m;
+    m.queue = 0x9e;
+    m.flags = frame_end ? 1u : 0u;  // VK_FRAME_BOUNDARY_FRAME_END_BIT_EXT
+    m.frame_id = 100 + frame;
+    m.frame = frame;
+    fbs::RecordT r;
+    r.body.Set(std::move(m));
+    return r;
+}
+
+// The frame a layout character ends: a digit (present) or a..j (frame-end mark).
+uint64_t ended_frame(char c) { return c >= 'a' ? uint64_t(c - 'a') : uint64_t(c - '0'); }
+
 // `layout`: 'S' a submission (the last of its frame signalling semaphore 0x5e0 + the frame it
 // belongs to: a second signal before the present's wait would be VUID-vkQueueSubmit-
-// pSignalSemaphores-00067), a digit a present ending that frame.
+// pSignalSemaphores-00067), a digit a present ending that frame, a..j a frame-end mark ending
+// frame 0..9, 'x' a mark without the frame-end flag.
 std::string write_trace(const std::string& name, const std::string& layout) {
     const std::string path = temp_path(name);
     TraceError error;
@@ -53,17 +70,22 @@ std::string write_trace(const std::string& name, const std::string& layout) {
     EXPECT_TRUE(w) << error.message;
     if (!w) return path;
     for (size_t i = 0; i < layout.size(); ++i) {
+        if (layout[i] == 'x') {
+            EXPECT_FALSE(w->append(frame_mark(9, false)));
+            continue;
+        }
         if (layout[i] != 'S') {
-            EXPECT_FALSE(w->append(present(uint64_t(layout[i] - '0'))));
+            EXPECT_FALSE(w->append(layout[i] >= 'a' ? frame_mark(ended_frame(layout[i]))
+                                                    : present(ended_frame(layout[i]))));
             continue;
         }
         // The frame this submission belongs to: the next present's, else the last one's + 1.
         uint64_t frame = 0;
-        const size_t next = layout.find_first_not_of('S', i);
+        const size_t next = layout.find_first_not_of("Sx", i);
         if (next != std::string::npos)
-            frame = uint64_t(layout[next] - '0');
-        else if (const size_t last = layout.find_last_not_of('S'); last != std::string::npos)
-            frame = uint64_t(layout[last] - '0') + 1;
+            frame = ended_frame(layout[next]);
+        else if (const size_t last = layout.find_last_not_of("Sx"); last != std::string::npos)
+            frame = ended_frame(layout[last]) + 1;
         fbs::QueueSubmitT s;
         s.queue = 0x9e;
         s.version = 1;
@@ -105,6 +127,29 @@ TEST(FramesInfo, SubmissionsBelongToTheNextPresentsFrame) {
     ProgramRun replay = run("replay " + path);
     EXPECT_EQ(replay.exit_code, 0) << replay.output;
     EXPECT_NE(replay.output.find("submissions 4"), std::string::npos) << replay.output;
+    std::remove(path.c_str());
+}
+
+// A headless program's frame-end marks end frames as presents do; a mark without the frame-end
+// flag ends nothing.
+TEST(FramesInfo, FrameEndMarksEndFramesLikePresents) {
+    const std::string path = write_trace("marks.clt", "SaSSxbS");
+    ProgramRun json = run("info --json " + path);
+    ASSERT_EQ(json.exit_code, 0) << json.output;
+    const nlohmann::json frames = nlohmann::json::parse(json.output)["frames"];
+    EXPECT_EQ(frames["presents"], 0);
+    EXPECT_EQ(frames["frame_marks"], 2);
+    EXPECT_EQ(frames["first"], 0);
+    EXPECT_EQ(frames["last"], 1);
+    EXPECT_EQ(frames["with_submissions"], nlohmann::json::parse(R"([{"frame": 0, "submissions": 1},
+                                        {"frame": 1, "submissions": 2},
+                                        {"frame": 2, "submissions": 1}])"));
+    ProgramRun text = run("info " + path);
+    EXPECT_NE(text.output.find("frames      2 frame-end marks, ending frames 0-1; submissions in "
+                               "frames: 0 (1) 1 (2) 2 (1)"),
+              std::string::npos)
+        << text.output;
+    EXPECT_EQ(run("replay " + path).exit_code, 0);
     std::remove(path.c_str());
 }
 
