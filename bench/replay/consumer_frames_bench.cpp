@@ -66,7 +66,8 @@ uint64_t status_kb(const char* key) {
 struct RunResult {
     double wall = 0, cpu = 0;
     uint64_t peak_kb = 0, start_kb = 0, image_peak = 0, accesses = 0, khr_builds = 0;
-    uint64_t problems = 0;  // findings + hazards + damage: a clean trace has none
+    uint64_t raw_bytes = 0;  // the trace's decompressed chunk bytes
+    uint64_t problems = 0;   // findings + hazards + damage: a clean trace has none
     bool ok = false;
 };
 
@@ -88,11 +89,11 @@ int child_replay(const std::string& path, bool consumers) {
         std::fprintf(stderr, "first finding: %s\n", r.findings[0].format().c_str());
     if (!r.hazards.empty())
         std::fprintf(stderr, "first hazard: %s\n", r.hazards[0].format().c_str());
-    std::printf("RESULT %.6f %.6f %llu %llu %llu %llu %llu %llu\n", wall, cpu,
+    std::printf("RESULT %.6f %.6f %llu %llu %llu %llu %llu %llu %llu\n", wall, cpu,
                 (unsigned long long)status_kb("VmHWM"), (unsigned long long)start_kb,
                 (unsigned long long)r.counts.peak_image_bytes,
                 (unsigned long long)r.counts.accesses, (unsigned long long)r.counts.khr_builds,
-                (unsigned long long)problems);
+                (unsigned long long)problems, (unsigned long long)reader->stats().raw_bytes);
     return 0;
 }
 
@@ -119,16 +120,17 @@ RunResult run_child(const std::string& path, bool consumers, const std::string& 
     int status = 0;
     waitpid(pid, &status, 0);
     const size_t at = out.find("RESULT ");
-    unsigned long long v[6] = {};
+    unsigned long long v[7] = {};
     if (at != std::string::npos &&
-        std::sscanf(out.c_str() + at, "RESULT %lf %lf %llu %llu %llu %llu %llu %llu", &r.wall,
-                    &r.cpu, &v[0], &v[1], &v[2], &v[3], &v[4], &v[5]) == 8) {
+        std::sscanf(out.c_str() + at, "RESULT %lf %lf %llu %llu %llu %llu %llu %llu %llu", &r.wall,
+                    &r.cpu, &v[0], &v[1], &v[2], &v[3], &v[4], &v[5], &v[6]) == 9) {
         r.peak_kb = v[0];
         r.start_kb = v[1];
         r.image_peak = v[2];
         r.accesses = v[3];
         r.khr_builds = v[4];
         r.problems = v[5];
+        r.raw_bytes = v[6];
         r.ok = WIFEXITED(status) && WEXITSTATUS(status) == 0;
     }
     return r;
@@ -188,13 +190,15 @@ bool bench_size(const Options& o, uint32_t frames) {
         });
         const RunResult& last = runs->back();
         std::printf(
-            "| %u | %s | %.2f | %.3f | %.3f | %.2fx | %.2fx | %.1f | %.1f | %.2f | %.3f | %.3f | "
-            "%llu | %llu | %llu |\n",
-            frames, runs == &on ? "on" : "off", mib(double(stats.file_bytes)), wall, cpu,
-            wall / off_wall, cpu / off_cpu, peak / 1024.0, over / 1024.0,
-            mib(double(last.image_peak)), mib(double(stats.largest_frame_snapshot_bytes)),
-            mib(double(stats.working_set_bytes)), (unsigned long long)last.accesses,
-            (unsigned long long)last.khr_builds, (unsigned long long)last.problems);
+            "| %u | %s | %.2f | %.2f | %.3f | %.3f | %.2fx | %.2fx | %.1f | %.1f | %.2f | %.3f | "
+            "%.3f | %.3f | %llu | %llu | %llu |\n",
+            frames, runs == &on ? "on" : "off", mib(double(stats.file_bytes)),
+            mib(double(last.raw_bytes)), wall, cpu, wall / off_wall, cpu / off_cpu, peak / 1024.0,
+            over / 1024.0, mib(double(last.image_peak)),
+            mib(double(stats.largest_frame_snapshot_bytes)),
+            mib(double(last.raw_bytes) / double(frames)), mib(double(stats.working_set_bytes)),
+            (unsigned long long)last.accesses, (unsigned long long)last.khr_builds,
+            (unsigned long long)last.problems);
     }
     std::fflush(stdout);
     return true;
@@ -256,10 +260,13 @@ int main(int argc, char** argv) {
         bench::RtFrameShape{}.meshes, o.triangles, o.runs,
         o.threads == "0" ? "TBB default" : o.threads.c_str());
     std::printf(
-        "| frames | consumers | trace MiB | wall s | CPU s | wall vs off | CPU vs off | peak RSS "
-        "MiB | RSS over start MiB | image peak MiB | largest frame's snapshots MiB | working set "
-        "MiB | accesses | KHR builds | findings+hazards |\n");
-    std::printf("|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+        "| frames | consumers | trace MiB | decompressed MiB | wall s | CPU s | wall vs off | CPU "
+        "vs off | peak RSS "
+        "MiB | RSS over start MiB | image peak MiB | largest frame's snapshots MiB | decompressed "
+        "MiB "
+        "per frame | working set MiB | accesses | KHR builds | findings+hazards |\n");
+    std::printf(
+        "|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
     bool ok = true;
     if (o.small_frames > 0 && o.small_frames != o.frames) ok &= bench_size(o, o.small_frames);
     ok &= bench_size(o, o.frames);
