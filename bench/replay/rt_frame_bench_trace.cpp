@@ -9,10 +9,12 @@
 #include <clastrace/trace_building/record_writer.h>
 #include <clastrace/trace_building/trace_header.h>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <span>
 #include <vector>
 
 namespace clastrace::bench {
