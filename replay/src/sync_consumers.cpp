@@ -181,7 +181,7 @@ void Replay::check_consumers_done(const AddressRange& range, const char* call, c
 // `stages` (one access per stage: a barrier must cover each stage that reads).
 void Replay::consumer_reads(const CommandRef& ref, const ConsumerBindings* bindings,
                             StageMask stages) {
-    if (!options_.check_hazards || !bindings) return;
+    if (!options_.check_hazards || !options_.check_consumers || !bindings) return;
     for (size_t i = 0; i < bindings->size(); ++i) {
         const fbs::AccelerationStructureBinding* b =
             bindings->Get(static_cast<flatbuffers::uoffset_t>(i));

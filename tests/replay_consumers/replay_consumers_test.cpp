@@ -72,19 +72,23 @@ Pool setup_and_rays(ConsumerTrace& t) {
     return p;
 }
 
-ReplayReport pool_rebuilt_in_frame_2(const std::string& name, bool wait_for_frame_1) {
+// `twice`: frame 2 rebuilds the BLAS a second time with no barrier between the builds (a
+// WRITE-AFTER-WRITE that owes nothing to the consumers).
+ReplayReport pool_rebuilt_in_frame_2(const std::string& name, bool wait_for_frame_1,
+                                     replay::ReplayOptions options = {}, bool twice = false) {
     const std::string path = temp_path(name);
     {
         ConsumerTrace t(path);
         Pool p = setup_and_rays(t);
         if (wait_for_frame_1) t.wait(kFrame1Fence);
         t.build_bottom(p.blas[0]);  // the single-buffered pool: frame 2 rebuilds frame 1's BLAS
+        if (twice) t.build_bottom(p.blas[0]);
         t.submit(kFrame2Fence);
         t.wait(kFrame2Fence);
         t.present(2);
         t.finish();
     }
-    ReplayReport r = test::replay_file(path);
+    ReplayReport r = test::replay_file(path, options);
     test::discard_trace(path);
     return r;
 }
@@ -111,6 +115,26 @@ TEST(ReplayConsumers, PoolRebuiltWhileEarlierFramesRaysArePendingIsOneWriteAfter
     EXPECT_NE(message.find("vkWaitForFences"), std::string::npos) << message;
     EXPECT_NE(message.find("double-buffer the pool"), std::string::npos) << message;
     EXPECT_NE(message.find("SYNC-HAZARD-WRITE-AFTER-READ"), std::string::npos) << message;
+}
+
+// ReplayOptions::check_consumers = false (the consumer bench's peer): the rays' reads leave the
+// hazard model, the builds stay in it and still replay.
+TEST(ReplayConsumers, ConsumersOffDropsTheRaysReadsButKeepsTheBuildsHazards) {
+    replay::ReplayOptions off;
+    off.check_consumers = false;
+    const ReplayReport on_report = pool_rebuilt_in_frame_2("consumers_on.clt", false, {}, true);
+    const ReplayReport off_report = pool_rebuilt_in_frame_2("consumers_off.clt", false, off, true);
+    EXPECT_EQ(of_class(on_report, HazardClass::kWriteAfterRead).size(), 1u)
+        << all_hazards(on_report);
+    EXPECT_TRUE(of_class(off_report, HazardClass::kWriteAfterRead).empty())
+        << all_hazards(off_report);
+    const auto waw = of_class(off_report, HazardClass::kWriteAfterWrite);
+    ASSERT_FALSE(waw.empty()) << all_hazards(off_report);
+    EXPECT_STREQ(waw[0].prior.command.name, "vkCmdBuildAccelerationStructureNV");
+    EXPECT_STREQ(waw[0].later.command.name, "vkCmdBuildAccelerationStructureNV");
+    EXPECT_EQ(off_report.counts.nv_builds, on_report.counts.nv_builds);
+    EXPECT_EQ(off_report.counts.nv_builds, 5u);
+    EXPECT_LT(off_report.counts.accesses, on_report.counts.accesses);
 }
 
 TEST(ReplayConsumers, PoolRebuiltAfterTheFenceWaitIsClean) {

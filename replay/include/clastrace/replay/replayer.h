@@ -36,6 +36,10 @@ struct ReplayProgress {
 
 struct ReplayOptions {
     bool check_hazards = true;
+    // With check_hazards: consumers (rays, ray-query dispatches and draws) read every
+    // structure they reach in the hazard model. false leaves those reads out; builds, copies
+    // and every other access are still replayed and checked (the consumer bench's peer).
+    bool check_consumers = true;
     bool verify_outputs = true;
     // Commands executed, by execution sequence number (ReplayLocation::sequence), inclusive.
     uint64_t first_command = 0;
