@@ -35,7 +35,7 @@ struct CaptureOptions {
     bool no_capture = false;
     std::string log = "error";
     std::string layer_path;
-    uint32_t ray_check = 0;       // CLASTRACE_RAY_CHECK: rays per NV top level, 0 = off
+    uint32_t ray_check = 0;       // CLASTRACE_RAY_CHECK: rays per NV/KHR top level, 0 = off
     std::string background_cpus;  // CLASTRACE_BACKGROUND_CPUS
     std::vector<std::string> command;
 };
@@ -349,8 +349,9 @@ Command register_capture(CLI::App& app) {
         ->check(CLI::IsMember({"quiet", "error", "info", "debug"}));
     sub->add_option(
            "--ray-check", options->ray_check,
-           "after each NV top-level build, trace N rays with the driver and record its hits "
-           "(RayQueryCheck; needs VK_NV_ray_tracing)")
+           "after each NV or KHR top-level build, trace N rays with the driver and record its "
+           "hits (RayQueryCheck; NV needs VK_NV_ray_tracing, KHR VK_KHR_ray_query, which the "
+           "layer enables where the device has it)")
         ->check(CLI::Range(0, 1048576));
     sub->add_option("--background-cpus", options->background_cpus,
                     "CPUs for the capture's background threads (trace writing and compression): "

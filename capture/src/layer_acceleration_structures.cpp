@@ -5,6 +5,8 @@
 #include "command_buffer_log.h"
 #include "layer_state.h"
 
+#include "clastrace/capture/khr_ray_tracer.h"
+
 #include <chrono>
 #include <cinttypes>
 #include <cstring>
@@ -121,6 +123,7 @@ VKAPI_ATTR void VKAPI_CALL DestroyAccelerationStructureKHR(
     VkDevice device, VkAccelerationStructureKHR as, const VkAllocationCallbacks* p_allocator) {
     DeviceState& d = device_of(device);
     if (as) forget_khr_structure(d, handle_id(as));
+    if (as) d.nv_scene.forget(handle_id(as));
     if (as && d.sink) d.sink->acceleration_structure_destroyed(handle_id(as));
     if (as) forget_acceleration_structure_address(d, handle_id(as));
     d.next.DestroyAccelerationStructureKHR(device, as, p_allocator);
@@ -131,6 +134,8 @@ VKAPI_ATTR VkDeviceAddress VKAPI_CALL GetAccelerationStructureDeviceAddressKHR(
     DeviceState& d = device_of(device);
     VkDeviceAddress address = d.next.GetAccelerationStructureDeviceAddressKHR(device, p_info);
     remember_acceleration_structure_address(d, handle_id(p_info->accelerationStructure), address);
+    // KHR instances name their bottom level by this address (the ray check's scene model).
+    if (address) d.nv_scene.set_handle(handle_id(p_info->accelerationStructure), address);
     if (d.sink)
         d.sink->acceleration_structure_address_queried(
             {handle_id(p_info->accelerationStructure), address});
@@ -188,15 +193,63 @@ bool wait_for_queue(DeviceState& d, VkQueue queue, std::string& why) {
     return true;
 }
 
+// One top level's rays, traced by the NV pipeline or (KHR top levels) the ray-query shader;
+// recorded as a RayQueryCheck.
+void check_top_level(DeviceState& d, const NvRayTracerContext& context, uint64_t top_level,
+                     uint64_t submission_index, uint32_t ray_count) {
+    const auto started = std::chrono::steady_clock::now();
+    const bool khr = d.nv_scene.is_khr_top_level(top_level);
+    std::string why;
+    if (khr ? !d.ray_query_enabled : !d.nv_ray_tracing_enabled) {
+        log_message(LogLevel::kError, "ray check of top level 0x%llx skipped: %s",
+                    (unsigned long long)top_level,
+                    khr ? "the device has no VK_KHR_ray_query with rayQuery enabled (the layer "
+                          "enables it at vkCreateDevice where the device supports it)"
+                        : "the device was created without VK_NV_ray_tracing");
+        return;
+    }
+    RayCheckRecord record;
+    record.acceleration_structure = top_level;
+    record.submission_index = submission_index;
+    record.label = khr ? kKhrRayCheckRule : kNvRayCheckRule;
+    NvTraceScene scene;
+    if (!d.nv_scene.prepare(top_level, ray_count, scene, record.rays, record.device_handle, why)) {
+        log_message(LogLevel::kError, "ray check of top level 0x%llx skipped: %s",
+                    (unsigned long long)top_level, why.c_str());
+        return;
+    }
+    const bool traced = khr ? trace_rays_khr(context, (VkAccelerationStructureKHR)top_level, scene,
+                                             record.rays, record.hits, why)
+                            : trace_rays_nv(context, (VkAccelerationStructureNV)top_level, scene,
+                                            record.rays, record.hits, why);
+    if (!traced) {
+        log_message(LogLevel::kError, "ray check of top level 0x%llx failed: %s",
+                    (unsigned long long)top_level, why.c_str());
+        return;
+    }
+    size_t hits = 0;
+    for (const NvRayHit& h : record.hits) hits += h.hit != 0;
+    const double ms =
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - started)
+            .count();
+    log_message(LogLevel::kInfo,
+                "ray check of %s top level 0x%llx after submission %llu: %zu rays, %zu hits, "
+                "%.2f ms",
+                khr ? "KHR" : "NV", (unsigned long long)top_level,
+                (unsigned long long)submission_index, record.rays.size(), hits, ms);
+    d.sink->ray_query_checked(record);
+}
+
 }  // namespace
 
 void run_ray_checks(DeviceState& d, VkQueue queue, uint64_t submission_index,
                     const std::vector<uint64_t>& top_levels) {
     const uint32_t ray_count = layer_config().ray_check_rays;
     if (ray_count == 0 || top_levels.empty() || !d.sink) return;
-    if (!d.nv_ray_tracing_enabled) {
+    if (!d.nv_ray_tracing_enabled && !d.ray_query_enabled) {
         log_message(LogLevel::kError,
-                    "ray check skipped: the device was created without VK_NV_ray_tracing");
+                    "ray check skipped: the device was created without VK_NV_ray_tracing and "
+                    "without VK_KHR_ray_query");
         return;
     }
     uint32_t family;
@@ -227,37 +280,8 @@ void run_ray_checks(DeviceState& d, VkQueue queue, uint64_t submission_index,
     context.memory_properties = d.memory_properties;
     context.ray_tracing_properties = d.ray_tracing_properties_nv;
     context.set_command_buffer_dispatch = true;
-    for (uint64_t top_level : top_levels) {
-        const auto started = std::chrono::steady_clock::now();
-        RayCheckRecord record;
-        record.acceleration_structure = top_level;
-        record.submission_index = submission_index;
-        record.label = kNvRayCheckRule;
-        NvTraceScene scene;
-        if (!d.nv_scene.prepare(top_level, ray_count, scene, record.rays, record.device_handle,
-                                why)) {
-            log_message(LogLevel::kError, "ray check of top level 0x%llx skipped: %s",
-                        (unsigned long long)top_level, why.c_str());
-            continue;
-        }
-        if (!trace_rays_nv(context, (VkAccelerationStructureNV)top_level, scene, record.rays,
-                           record.hits, why)) {
-            log_message(LogLevel::kError, "ray check of top level 0x%llx failed: %s",
-                        (unsigned long long)top_level, why.c_str());
-            continue;
-        }
-        size_t hits = 0;
-        for (const NvRayHit& h : record.hits) hits += h.hit != 0;
-        const double ms =
-            std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - started)
-                .count();
-        log_message(
-            LogLevel::kInfo,
-            "ray check of top level 0x%llx after submission %llu: %zu rays, %zu hits, %.2f ms",
-            (unsigned long long)top_level, (unsigned long long)submission_index, record.rays.size(),
-            hits, ms);
-        d.sink->ray_query_checked(record);
-    }
+    for (uint64_t top_level : top_levels)
+        check_top_level(d, context, top_level, submission_index, ray_count);
 }
 
 PFN_vkVoidFunction acceleration_structure_hook(const char* name) {

@@ -104,6 +104,49 @@ void fill_driver_identity(InstanceState& instance, VkPhysicalDevice physical_dev
     }
 }
 
+// CLASTRACE_RAY_CHECK traces KHR top levels with a ray-query compute shader: where the
+// application did not enable VK_KHR_ray_query with rayQuery and the device lists it, the layer
+// enables both on the driver's device (`feature` heads driver_info's chain; it must outlive the
+// vkCreateDevice). True when the device will have rayQuery.
+bool enable_ray_query_for_check(InstanceState& instance, VkPhysicalDevice physical_device,
+                                std::vector<const char*>& extensions,
+                                VkDeviceCreateInfo& driver_info,
+                                VkPhysicalDeviceRayQueryFeaturesKHR& feature) {
+    bool extension = false, acceleration_structure = false;
+    for (const char* name : extensions) {
+        extension = extension || std::strcmp(name, VK_KHR_RAY_QUERY_EXTENSION_NAME) == 0;
+        acceleration_structure =
+            acceleration_structure ||
+            std::strcmp(name, VK_KHR_ACCELERATION_STRUCTURE_EXTENSION_NAME) == 0;
+    }
+    const VkPhysicalDeviceRayQueryFeaturesKHR* asked = nullptr;
+    for (auto* s = (const VkBaseInStructure*)driver_info.pNext; s; s = s->pNext)
+        if (s->sType == VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_RAY_QUERY_FEATURES_KHR)
+            asked = (const VkPhysicalDeviceRayQueryFeaturesKHR*)s;
+    if (extension && asked && asked->rayQuery) return true;  // the application's own
+    // Without VK_KHR_acceleration_structure there are no KHR top levels to check.
+    if (layer_config().ray_check_rays == 0 || !acceleration_structure) return false;
+    if (asked ||
+        !driver_lists_extension(instance, physical_device, VK_KHR_RAY_QUERY_EXTENSION_NAME)) {
+        log_message(LogLevel::kInfo, "ray check: %s; KHR top levels will not be checked",
+                    asked ? "the application turned rayQuery off"
+                          : "the device lacks VK_KHR_ray_query");
+        return false;
+    }
+    if (!extension) extensions.push_back(VK_KHR_RAY_QUERY_EXTENSION_NAME);
+    driver_info.enabledExtensionCount = uint32_t(extensions.size());
+    driver_info.ppEnabledExtensionNames = extensions.data();
+    feature = VkPhysicalDeviceRayQueryFeaturesKHR{};
+    feature.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_RAY_QUERY_FEATURES_KHR;
+    feature.rayQuery = VK_TRUE;
+    feature.pNext = const_cast<void*>(driver_info.pNext);
+    driver_info.pNext = &feature;
+    log_message(LogLevel::kInfo,
+                "ray check: the layer enables VK_KHR_ray_query with rayQuery on the device (not "
+                "enabled by the application) to trace KHR top levels");
+    return true;
+}
+
 VKAPI_ATTR VkResult VKAPI_CALL CreateDevice(VkPhysicalDevice physical_device,
                                             const VkDeviceCreateInfo* p_create_info,
                                             const VkAllocationCallbacks* p_allocator,
@@ -149,6 +192,9 @@ VKAPI_ATTR VkResult VKAPI_CALL CreateDevice(VkPhysicalDevice physical_device,
     VkDeviceCreateInfo driver_info = *p_create_info;
     driver_info.enabledExtensionCount = uint32_t(extensions.size());
     driver_info.ppEnabledExtensionNames = extensions.data();
+    VkPhysicalDeviceRayQueryFeaturesKHR ray_query_feature{};
+    const bool ray_query = enable_ray_query_for_check(*instance, physical_device, extensions,
+                                                      driver_info, ray_query_feature);
     VkResult result;
     {
         // A served feature struct is unknown to the driver: hide it from the driver's view only.
@@ -177,6 +223,7 @@ VKAPI_ATTR VkResult VKAPI_CALL CreateDevice(VkPhysicalDevice physical_device,
     state->serving = serving;
     state->cluster_enabled = cluster_extension_requested;
     state->frame_boundary_served = frame_boundary_served;
+    state->ray_query_enabled = ray_query;
 
     VkPhysicalDeviceProperties properties{};
     instance->next.GetPhysicalDeviceProperties(physical_device, &properties);

@@ -281,6 +281,9 @@ struct DeviceState {
     std::unordered_map<VkQueue, uint32_t> queue_families;
     std::unordered_map<VkQueue, uint32_t> queue_indices;  // index within its family
     bool nv_ray_tracing_enabled = false;
+    // VK_KHR_ray_query with rayQuery, enabled by the application or by the layer for the ray
+    // check of KHR top levels (CLASTRACE_RAY_CHECK).
+    bool ray_query_enabled = false;
     VkPhysicalDeviceRayTracingPropertiesNV ray_tracing_properties_nv{};
     NvSceneModel nv_scene;
     ~DeviceState();

@@ -129,18 +129,25 @@ void expect_timestamps(DeviceState& d, VkQueue queue, const SubmissionPlan& plan
                  p.timestamps, p.timestamp_read_pause_id, executions[p.timestamp_read_pause_id]++});
 }
 
-// CLASTRACE_RAY_CHECK: the top levels this submission built (or updated) get their rays traced
-// once it completed.
+// CLASTRACE_RAY_CHECK: the top levels this submission built (or updated), NV or KHR, get their
+// rays traced once it completed.
 void check_rays(DeviceState& d, VkQueue queue, const SubmissionPlan& plan) {
     if (!plan.capture || layer_config().ray_check_rays == 0) return;
     std::vector<uint64_t> top_levels;
+    auto add = [&](uint64_t top_level) {
+        if (std::find(top_levels.begin(), top_levels.end(), top_level) == top_levels.end())
+            top_levels.push_back(top_level);
+    };
     for (const PendingPauses& p : plan.pauses)
-        for (const PausePoint& pause : p.pauses)
+        for (const PausePoint& pause : p.pauses) {
             if (pause.build_nv &&
-                pause.build_nv->type == VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV &&
-                std::find(top_levels.begin(), top_levels.end(), pause.build_nv->dst) ==
-                    top_levels.end())
-                top_levels.push_back(pause.build_nv->dst);
+                pause.build_nv->type == VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV)
+                add(pause.build_nv->dst);
+            if (pause.build_khr)
+                for (const KhrBuildInfo& info : pause.build_khr->infos)
+                    if (info.info.type == VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_KHR)
+                        add(handle_id(info.info.dstAccelerationStructure));
+        }
     run_ray_checks(d, queue, plan.record.index, top_levels);
 }
 

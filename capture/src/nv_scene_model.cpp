@@ -16,6 +16,14 @@ const CapturedRange* find_range(const std::vector<CapturedRange>& inputs, Memory
     return nullptr;
 }
 
+// A KHR build's ranges name their geometry but not their info: the address tells them apart.
+const CapturedRange* find_range_at(const std::vector<CapturedRange>& inputs, MemoryRole role,
+                                   uint32_t entry, VkDeviceAddress address) {
+    for (const auto& r : inputs)
+        if (r.role == role && r.entry == entry && r.address == address) return &r;
+    return nullptr;
+}
+
 float read_float(const CapturedBytes& bytes, size_t offset) {
     float f = 0;
     if (offset + 4 <= bytes.size()) std::memcpy(&f, bytes.data() + offset, 4);
@@ -196,6 +204,120 @@ void aim_rays(RayAim& aim, uint32_t ray_count, uint64_t seed, std::vector<NvTrac
     }
 }
 
+// VkAccelerationStructureInstanceNV and VkAccelerationStructureInstanceKHR: the same 64 bytes.
+NvInstanceRecord instance_from(const uint8_t* p) {
+    NvInstanceRecord i;
+    std::memcpy(i.transform, p, 48);
+    uint32_t a, b;
+    std::memcpy(&a, p + 48, 4);
+    std::memcpy(&b, p + 52, 4);
+    std::memcpy(&i.reference, p + 56, 8);
+    i.custom_index = a & 0xFFFFFF;
+    i.mask = a >> 24;
+    i.sbt_record_offset = b & 0xFFFFFF;
+    i.flags = b >> 24;
+    return i;
+}
+
+void append_instances(const CapturedRange& range, std::vector<NvInstanceRecord>& out) {
+    for (size_t at = 0; at + 64 <= range.bytes.size(); at += 64)
+        out.push_back(instance_from(range.bytes.data() + at));
+}
+
+// `count` boxes of 6 floats, `stride` bytes apart from the start of `range`.
+NvGeometryModel aabb_geometry(const CapturedRange* range, uint32_t count, uint64_t stride) {
+    NvGeometryModel model;
+    model.aabbs = true;
+    for (uint32_t i = 0; range && i < count; ++i) {
+        const size_t at = size_t(i) * stride;
+        float box[6];
+        for (int k = 0; k < 6; ++k) box[k] = read_float(range->bytes, at + 4 * k);
+        model.boxes.insert(model.boxes.end(), box, box + 6);
+        grow(model, box);
+        grow(model, box + 3);
+    }
+    return model;
+}
+
+// Grows `model` by up to `count` vertices of `range` through the geometry's transform (a
+// VkTransformMatrixKHR, row-major 3x4, when `transform_range` holds one). Formats other than
+// two or three 32-bit floats leave it unbounded: rays are not aimed at it.
+void grow_by_vertices(NvGeometryModel& model, const CapturedRange* vertices, VkFormat format,
+                      uint64_t stride, uint64_t count, const CapturedRange* transform_range) {
+    const int components = format == VK_FORMAT_R32G32B32_SFLOAT ? 3
+                           : format == VK_FORMAT_R32G32_SFLOAT  ? 2
+                                                                : 0;
+    if (!vertices || components == 0) return;
+    if (stride == 0) stride = uint64_t(components) * 4;
+    float transform[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+    if (transform_range && transform_range->bytes.size() >= 48)
+        std::memcpy(transform, transform_range->bytes.data(), 48);
+    for (uint64_t v = 0; v < count; ++v) {
+        const size_t at = size_t(v * stride);
+        if (at + size_t(components) * 4 > vertices->bytes.size()) break;
+        float p[3] = {read_float(vertices->bytes, at), read_float(vertices->bytes, at + 4),
+                      components == 3 ? read_float(vertices->bytes, at + 8) : 0.0f};
+        float q[3];
+        transform_point(transform, p, q);
+        grow(model, q);
+    }
+}
+
+// The geometry one KHR triangles or AABBs geometry of a bottom-level build read, from the ranges
+// khr_input_walker.cpp captured at the addresses it read (its ranges rule).
+NvGeometryModel khr_geometry(const VkAccelerationStructureGeometryKHR& geometry, uint32_t g,
+                             const VkAccelerationStructureBuildRangeInfoKHR& r,
+                             const std::vector<CapturedRange>& inputs) {
+    if (geometry.geometryType == VK_GEOMETRY_TYPE_AABBS_KHR) {
+        const auto& a = geometry.geometry.aabbs;
+        return aabb_geometry(find_range_at(inputs, MemoryRole::kAabbs, g,
+                                           a.data.deviceAddress + r.primitiveOffset),
+                             r.primitiveCount, a.stride ? a.stride : sizeof(VkAabbPositionsKHR));
+    }
+    NvGeometryModel model;
+    if (geometry.geometryType != VK_GEOMETRY_TYPE_TRIANGLES_KHR) return model;
+    const auto& t = geometry.geometry.triangles;
+    // Formats the model does not read get 0 here; their geometry stays unbounded anyway.
+    const uint64_t element = t.vertexFormat == VK_FORMAT_R32G32B32_SFLOAT ? 12
+                             : t.vertexFormat == VK_FORMAT_R32G32_SFLOAT  ? 8
+                                                                          : 0;
+    const uint64_t stride = t.vertexStride ? t.vertexStride : element;
+    const bool indexed = t.indexType != VK_INDEX_TYPE_NONE_KHR;
+    const VkDeviceAddress first = t.vertexData.deviceAddress + (indexed ? 0 : r.primitiveOffset) +
+                                  uint64_t(r.firstVertex) * stride;
+    const uint64_t count = indexed ? uint64_t(t.maxVertex) + 1 : uint64_t(r.primitiveCount) * 3;
+    const CapturedRange* transform =
+        t.transformData.deviceAddress
+            ? find_range_at(inputs, MemoryRole::kTransformData, g,
+                            t.transformData.deviceAddress + r.transformOffset)
+            : nullptr;
+    grow_by_vertices(model, find_range_at(inputs, MemoryRole::kVertexBuffer, g, first),
+                     t.vertexFormat, stride, count, transform);
+    return model;
+}
+
+// The instance records a KHR top-level build read: packed, or through an array of pointers.
+std::vector<NvInstanceRecord> khr_instances(const VkAccelerationStructureGeometryKHR& geometry,
+                                            const VkAccelerationStructureBuildRangeInfoKHR& r,
+                                            const std::vector<CapturedRange>& inputs) {
+    std::vector<NvInstanceRecord> instances;
+    const auto& i = geometry.geometry.instances;
+    const VkDeviceAddress at = i.data.deviceAddress + r.primitiveOffset;
+    if (!i.arrayOfPointers) {
+        if (const CapturedRange* range = find_range_at(inputs, MemoryRole::kInstances, 0, at))
+            append_instances(*range, instances);
+        return instances;
+    }
+    const CapturedRange* pointers = find_range_at(inputs, MemoryRole::kInstancePointers, 0, at);
+    for (size_t p = 0; pointers && p + 8 <= pointers->bytes.size(); p += 8) {
+        VkDeviceAddress address;
+        std::memcpy(&address, pointers->bytes.data() + p, 8);
+        if (const CapturedRange* one = find_range_at(inputs, MemoryRole::kInstances, 0, address);
+            one && one->bytes.size() >= 64)
+            instances.push_back(instance_from(one->bytes.data()));
+    }
+    return instances;
+}
 
 }  // namespace
 
@@ -209,6 +331,7 @@ void NvSceneModel::forget(uint64_t acceleration_structure) {
     std::lock_guard lock(mutex_);
     bottom_levels_.erase(acceleration_structure);
     top_levels_.erase(acceleration_structure);
+    khr_top_levels_.erase(acceleration_structure);
     auto it = device_handles_.find(acceleration_structure);
     if (it == device_handles_.end()) return;
     by_device_handle_.erase(it->second);
@@ -220,66 +343,62 @@ void NvSceneModel::observe_build(const BuildAccelerationStructureNVCommand& c,
     if (c.type == VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV) {
         std::vector<NvInstanceRecord> instances;
         if (const CapturedRange* r = find_range(inputs, MemoryRole::kInstances, 0))
-            for (size_t at = 0; at + 64 <= r->bytes.size(); at += 64) {
-                NvInstanceRecord i;
-                const uint8_t* p = r->bytes.data() + at;
-                std::memcpy(i.transform, p, 48);
-                uint32_t a, b;
-                std::memcpy(&a, p + 48, 4);
-                std::memcpy(&b, p + 52, 4);
-                std::memcpy(&i.reference, p + 56, 8);
-                i.custom_index = a & 0xFFFFFF;
-                i.mask = a >> 24;
-                i.sbt_record_offset = b & 0xFFFFFF;
-                i.flags = b >> 24;
-                instances.push_back(i);
-            }
+            append_instances(*r, instances);
         std::lock_guard lock(mutex_);
         top_levels_[c.dst] = std::move(instances);
+        khr_top_levels_[c.dst] = false;
         return;
     }
     std::vector<NvGeometryModel> geometries(c.geometries.size());
     for (uint32_t g = 0; g < c.geometries.size(); ++g) {
-        NvGeometryModel& model = geometries[g];
         const VkGeometryNV& geometry = c.geometries[g];
         if (geometry.geometryType == VK_GEOMETRY_TYPE_AABBS_NV) {
-            model.aabbs = true;
             const auto& a = geometry.geometry.aabbs;
-            const CapturedRange* r = find_range(inputs, MemoryRole::kAabbs, g);
-            const uint64_t stride = a.stride ? a.stride : 24;
-            for (uint32_t i = 0; r && i < a.numAABBs; ++i) {
-                const size_t at = size_t(i) * stride;
-                float box[6];
-                for (int k = 0; k < 6; ++k) box[k] = read_float(r->bytes, at + 4 * k);
-                model.boxes.insert(model.boxes.end(), box, box + 6);
-                grow(model, box);
-                grow(model, box + 3);
-            }
+            geometries[g] = aabb_geometry(find_range(inputs, MemoryRole::kAabbs, g), a.numAABBs,
+                                          a.stride ? a.stride : 24);
             continue;
         }
         const auto& t = geometry.geometry.triangles;
-        const CapturedRange* vertices = find_range(inputs, MemoryRole::kVertexBuffer, g);
-        const int components = t.vertexFormat == VK_FORMAT_R32G32B32_SFLOAT ? 3
-                               : t.vertexFormat == VK_FORMAT_R32G32_SFLOAT  ? 2
-                                                                            : 0;
-        if (!vertices || components == 0) continue;  // unbounded: rays are not aimed at it
-        const uint64_t stride = t.vertexStride ? t.vertexStride : uint64_t(components) * 4;
-        float transform[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
-        if (const CapturedRange* m = find_range(inputs, MemoryRole::kTransformData, g);
-            m && m->bytes.size() >= 48)
-            std::memcpy(transform, m->bytes.data(), 48);
-        for (uint32_t v = 0; v < t.vertexCount; ++v) {
-            const size_t at = size_t(v) * stride;
-            if (at + size_t(components) * 4 > vertices->bytes.size()) break;
-            float p[3] = {read_float(vertices->bytes, at), read_float(vertices->bytes, at + 4),
-                          components == 3 ? read_float(vertices->bytes, at + 8) : 0.0f};
-            float q[3];
-            transform_point(transform, p, q);
-            grow(model, q);
-        }
+        grow_by_vertices(geometries[g], find_range(inputs, MemoryRole::kVertexBuffer, g),
+                         t.vertexFormat, t.vertexStride, t.vertexCount,
+                         find_range(inputs, MemoryRole::kTransformData, g));
     }
     std::lock_guard lock(mutex_);
     bottom_levels_[c.dst] = std::move(geometries);
+}
+
+void NvSceneModel::observe_khr_build(
+    const BuildAccelerationStructuresKHRCommand& c,
+    const std::vector<std::vector<VkAccelerationStructureBuildRangeInfoKHR>>& indirect_ranges,
+    const std::vector<CapturedRange>& inputs) {
+    for (size_t n = 0; n < c.infos.size(); ++n) {
+        const KhrBuildInfo& info = c.infos[n];
+        static const std::vector<VkAccelerationStructureBuildRangeInfoKHR> kNotRead;
+        const auto& ranges = !c.indirect                  ? info.ranges
+                             : n < indirect_ranges.size() ? indirect_ranges[n]
+                                                          : kNotRead;
+        const uint64_t dst = uint64_t(info.info.dstAccelerationStructure);
+        if (info.info.type == VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_KHR) {
+            std::vector<NvInstanceRecord> instances;
+            if (!info.geometries.empty() && !ranges.empty())
+                instances = khr_instances(info.geometries[0], ranges[0], inputs);
+            std::lock_guard lock(mutex_);
+            top_levels_[dst] = std::move(instances);
+            khr_top_levels_[dst] = true;
+            continue;
+        }
+        std::vector<NvGeometryModel> geometries(info.geometries.size());
+        for (uint32_t g = 0; g < info.geometries.size() && g < ranges.size(); ++g)
+            geometries[g] = khr_geometry(info.geometries[g], g, ranges[g], inputs);
+        std::lock_guard lock(mutex_);
+        bottom_levels_[dst] = std::move(geometries);
+    }
+}
+
+bool NvSceneModel::is_khr_top_level(uint64_t top_level) const {
+    std::lock_guard lock(mutex_);
+    auto it = khr_top_levels_.find(top_level);
+    return it != khr_top_levels_.end() && it->second;
 }
 
 bool NvSceneModel::prepare(uint64_t top_level, uint32_t ray_count, NvTraceScene& scene,
@@ -293,6 +412,8 @@ bool NvSceneModel::prepare(uint64_t top_level, uint32_t ray_count, NvTraceScene&
         why = "its build's instance records were not captured";
         return false;
     }
+    auto kind = khr_top_levels_.find(top_level);
+    const bool khr = kind != khr_top_levels_.end() && kind->second;
     auto handle = device_handles_.find(top_level);
     device_handle = handle == device_handles_.end() ? 0 : handle->second;
 
@@ -312,7 +433,8 @@ bool NvSceneModel::prepare(uint64_t top_level, uint32_t ray_count, NvTraceScene&
         scene.instances.push_back(
             {instance.sbt_record_offset,
              geometry_slot_of(model->first, model->second, first_slot, scene)});
-        if (!claim_hit_records(instance, i, model->second, record_kind, why)) return false;
+        // A ray query has no hit groups: only the NV pipeline's records need one kind each.
+        if (!khr && !claim_hit_records(instance, i, model->second, record_kind, why)) return false;
         const WorldBox box = instance_world_box(instance, model->second);
         if (!box.bounded) continue;
         grow_box(aim.scene, box);

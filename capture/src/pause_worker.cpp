@@ -334,9 +334,12 @@ ClusterMemoryWalk PauseWorker::walk_command_inputs(const PausePoint& pause,
     };
     if (pause.build_khr) {
         record.kind = CapturedCommandKind::kBuildAccelerationStructuresKhr;
-        return walk_build_acceleration_structures_khr_inputs(*pause.build_khr, reader,
-                                                             buffer_reader,
-                                                             record.khr_indirect_ranges);
+        ClusterMemoryWalk walk =
+            walk_build_acceleration_structures_khr_inputs(*pause.build_khr, reader, buffer_reader,
+                                                          record.khr_indirect_ranges);
+        device_.nv_scene.observe_khr_build(*pause.build_khr, record.khr_indirect_ranges,
+                                           walk.ranges);  // for the ray check
+        return walk;
     }
     if (pause.copy_acceleration_structure) {
         record.kind = CapturedCommandKind::kCopyAccelerationStructure;

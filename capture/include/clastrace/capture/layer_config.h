@@ -41,7 +41,8 @@ struct LayerConfig {
     int zstd_level = 3;               // CLASTRACE_ZSTD_LEVEL: 1..22
     LogLevel log = LogLevel::kError;  // CLASTRACE_LOG: quiet|error|info|debug
     std::string debug_json_path;      // CLASTRACE_DEBUG_JSON: readable dump for tests and debugging
-    uint32_t ray_check_rays = 0;      // CLASTRACE_RAY_CHECK: rays per NV top-level check, 0 = off
+    uint32_t ray_check_rays =
+        0;  // CLASTRACE_RAY_CHECK: rays per NV or KHR top-level check, 0 = off
     uint32_t flush_milliseconds =
         1000;  // CLASTRACE_FLUSH_MS: a killed process loses at most this much (0: never)
     bool force_staging =

@@ -1,8 +1,11 @@
 // SPDX-License-Identifier: Apache-2.0
-// What the layer knows of the NV acceleration structures an application built, from the bytes
-// the capture read at each vkCmdBuildAccelerationStructureNV: per bottom level its geometries'
-// kinds, boxes and bounds; per top level its instance records. The ray check (CLASTRACE_RAY_CHECK)
-// turns that into the tables its hit shaders read and into rays aimed at the instances.
+// What the layer knows of the NV and KHR acceleration structures an application built, from the
+// bytes the capture read at each vkCmdBuildAccelerationStructureNV and each info of a
+// vkCmdBuildAccelerationStructures(Indirect)KHR: per bottom level its geometries' kinds, boxes
+// and bounds; per top level its instance records (the NV and KHR instance layouts are the same
+// 64 bytes; the reference is an NV handle or a KHR device address, both registered with
+// set_handle). The ray check (CLASTRACE_RAY_CHECK) turns that into the tables its shaders read
+// and into rays aimed at the instances.
 #pragma once
 
 #include "clastrace/capture/capture_records.h"
@@ -25,7 +28,9 @@ struct NvGeometryModel {
 struct NvInstanceRecord {  // VkAccelerationStructureInstanceNV, unpacked
     float transform[12] = {};
     uint32_t custom_index = 0, mask = 0, sbt_record_offset = 0, flags = 0;
-    uint64_t reference = 0;  // the bottom level's handle from vkGetAccelerationStructureHandleNV
+    // The bottom level's handle from vkGetAccelerationStructureHandleNV, or its
+    // vkGetAccelerationStructureDeviceAddressKHR address.
+    uint64_t reference = 0;
 };
 
 class NvSceneModel {
@@ -35,6 +40,14 @@ public:
     // Records what the build read (the capture's input ranges for `command`).
     void observe_build(const BuildAccelerationStructureNVCommand& command,
                        const std::vector<CapturedRange>& inputs);
+    // Records what each info of a KHR build read. `indirect_ranges` holds an indirect build's
+    // ranges as read at execution (one row per info; empty for a direct build).
+    void observe_khr_build(
+        const BuildAccelerationStructuresKHRCommand& command,
+        const std::vector<std::vector<VkAccelerationStructureBuildRangeInfoKHR>>& indirect_ranges,
+        const std::vector<CapturedRange>& inputs);
+    // Whether `top_level`'s last observed build was a KHR one (traced with the ray-query shader).
+    bool is_khr_top_level(uint64_t top_level) const;
     // The hit-shader tables for `topLevel` and `rayCount` deterministic rays aimed at its
     // instances; false + `why` when the model cannot describe it (unknown bottom level, an SBT
     // record used by both triangles and boxes, too many records).
@@ -46,6 +59,7 @@ private:
     std::map<uint64_t, std::vector<NvGeometryModel>>
         bottom_levels_;  // by VkAccelerationStructureNV
     std::map<uint64_t, std::vector<NvInstanceRecord>> top_levels_;
+    std::map<uint64_t, bool> khr_top_levels_;        // top level -> built by a KHR build
     std::map<uint64_t, uint64_t> by_device_handle_;  // device handle -> acceleration structure
     std::map<uint64_t, uint64_t> device_handles_;    // acceleration structure -> device handle
 };
