@@ -431,7 +431,9 @@ public:
             emit_object_locked(it);
         fbs::AccelerationStructureDestroyT r;
         r.acceleration_structure = as;
-        append_locked(record_of(std::move(r)));
+        // After the submissions announced before it, as a buffer's destroy: a submission still
+        // waiting for its captures must not find its structures destroyed before it runs.
+        append_ordered_locked(record_of(std::move(r)));
     }
     void ray_query_checked(const RayCheckRecord& c) override {
         StateLock lock(*this);

@@ -255,10 +255,10 @@ void check_between_infos(const KhrBuildCommand& command, ExecutionRecord& record
     };
     auto scratch_size = [](const KhrBuildInfo& b) {
         const KhrBuildSizes s = khr_build_sizes(b.type, b.geometries, primitive_counts(b));
-        return std::min(b.scratch_available,
-                        b.mode == VK_BUILD_ACCELERATION_STRUCTURE_MODE_UPDATE_KHR
-                            ? s.update_scratch_size
-                            : s.build_scratch_size);
+        return std::min({b.scratch_available, b.scratch_claim,
+                         b.mode == VK_BUILD_ACCELERATION_STRUCTURE_MODE_UPDATE_KHR
+                             ? s.update_scratch_size
+                             : s.build_scratch_size});
     };
     for (size_t i = 0; i < infos.size(); ++i) {
         const KhrBuildInfo& a = infos[i];

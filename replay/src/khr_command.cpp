@@ -124,6 +124,8 @@ engine::KhrBuildInfo KhrReplay::build_info(const fbs::AccelerationStructureBuild
     // own claim is not held against it (its accesses are cut to the buffer below).
     info.scratch_available =
         k_.nv.c_.report.engine_trace ? bytes_to_end_of_buffer(info.scratch_address) : ~0ull;
+    if (!k_.nv.c_.report.engine_trace)
+        if (const uint64_t claim = driver_scratch(in, counts)) info.scratch_claim = claim;
     const uint64_t need = info.ranges.size() == info.geometries.size()
                               ? engine::khr_build_sizes(info.type, info.geometries, counts)
                                     .acceleration_structure_size
@@ -134,6 +136,41 @@ engine::KhrBuildInfo KhrReplay::build_info(const fbs::AccelerationStructureBuild
     if (in.src() != 0)
         info.src = khr_object(in.src(), (field + ".srcAccelerationStructure").c_str(), 0, where);
     return info;
+}
+
+void KhrReplay::build_sizes(const fbs::GetAccelerationStructureBuildSizesKHR& sizes) {
+    if (!sizes.info()) return;
+    DriverSizes d{
+        sizes.info()->type(), {}, {}, sizes.build_scratch_size(), sizes.update_scratch_size()};
+    if (sizes.info()->geometries())
+        for (const fbs::GeometryKHR* g : *sizes.info()->geometries())
+            d.geometry_types.push_back(g->geometry_type());
+    if (sizes.max_primitive_counts())
+        d.max_primitive_counts.assign(sizes.max_primitive_counts()->begin(),
+                                      sizes.max_primitive_counts()->end());
+    driver_sizes_.push_back(std::move(d));
+}
+
+// The smallest scratch the driver named for a build of this shape (same type and geometry
+// types, at least these primitive counts): the application sized its region by such an
+// answer. 0 when it asked for none.
+uint64_t KhrReplay::driver_scratch(const fbs::AccelerationStructureBuildInfoKHR& in,
+                                   const std::vector<uint32_t>& counts) const {
+    const bool update = in.mode() == VK_BUILD_ACCELERATION_STRUCTURE_MODE_UPDATE_KHR;
+    uint64_t best = 0;
+    for (const DriverSizes& d : driver_sizes_) {
+        if (d.type != in.type() || !in.geometries() ||
+            d.geometry_types.size() != in.geometries()->size() ||
+            d.max_primitive_counts.size() != counts.size())
+            continue;
+        bool covers = true;
+        for (size_t g = 0; g < counts.size() && covers; ++g)
+            covers = d.geometry_types[g] == in.geometries()->Get(uint32_t(g))->geometry_type() &&
+                     d.max_primitive_counts[g] >= counts[g];
+        const uint64_t scratch = update ? d.update_scratch : d.build_scratch;
+        if (covers && scratch != 0 && (best == 0 || scratch < best)) best = scratch;
+    }
+    return best;
 }
 
 void KhrReplay::mark_built(uint64_t handle, uint32_t flags) {
@@ -165,6 +202,10 @@ void KhrReplay::build(const fbs::CmdBuildAccelerationStructuresKHR& b, const Com
             if (a.field.ends_with(".scratchData") && a.begin != 0) {
                 const uint64_t in_buffer = bytes_to_end_of_buffer(a.begin);
                 if (in_buffer && a.end - a.begin > in_buffer) a.end = a.begin + in_buffer;
+                // The driver's scratch, not the engine's: the region the application sized.
+                if (a.op_index >= 0 && size_t(a.op_index) < cmd.infos.size())
+                    a.end = a.begin +
+                            std::min(a.end - a.begin, cmd.infos[size_t(a.op_index)].scratch_claim);
             }
     k_.nv.engine_findings(record, where);
     k_.nv.feed(ref, record, where);

@@ -46,6 +46,8 @@ public:
                           const CommandRef& ref, const ReplayLocation& where);
     // The driver's answers, compared with the engine's (notes).
     void query_results(const fbs::QueryPoolResults& results);
+    // A driver's vkGetAccelerationStructureBuildSizesKHR answer: the scratch its builds claim.
+    void build_sizes(const fbs::GetAccelerationStructureBuildSizesKHR& sizes);
 
     // accelerationStructureReference -> the engine address of a bottom level (nullopt: none).
     std::optional<uint64_t> resolve_reference(uint64_t reference);
@@ -65,11 +67,19 @@ private:
     // The engine object in `handle`'s shadow: its size (0 when it holds none) and kind.
     uint64_t engine_object_size(uint64_t handle, bool* top_level = nullptr);
     void mark_built(uint64_t handle, uint32_t flags);
+    uint64_t driver_scratch(const fbs::AccelerationStructureBuildInfoKHR& in,
+                            const std::vector<uint32_t>& counts) const;
     void note(std::string rule, std::string message, const ReplayLocation& where);
 
     KhrReplayContext k_;
     std::unordered_map<uint64_t, uint32_t> types_;  // object -> VkAccelerationStructureTypeKHR
     std::map<std::pair<uint64_t, uint32_t>, Answer> answers_;  // (pool, query) -> engine answer
+    struct DriverSizes {
+        uint32_t type = 0;
+        std::vector<uint32_t> geometry_types, max_primitive_counts;
+        uint64_t build_scratch = 0, update_scratch = 0;
+    };
+    std::vector<DriverSizes> driver_sizes_;
 };
 
 inline constexpr const char* kRuleKhrQueryAnswer = "CLASTRACE-replay-khr-query-answer-differs";

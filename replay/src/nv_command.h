@@ -56,6 +56,12 @@ public:
     void deserialize(const fbs::CmdCopyMemoryToAccelerationStructure& copy, const CommandRef& ref,
                      const ReplayLocation& where);
     void ray_check(const fbs::RayQueryCheck& check);
+    // The shadow holding the engine's build of `handle`, or 0 when none is built (ReplayObserver).
+    uint64_t built_shadow(uint64_t handle) const {
+        const auto it = objects_.find(handle);
+        return it != objects_.end() && it->second.built && !it->second.opaque ? it->second.shadow
+                                                                              : 0;
+    }
 
     static constexpr uint64_t kShadowBase = 0xE000'0000'0000'0000ull;
     // Bytes all shadows together may take (hostile creation counts end here).

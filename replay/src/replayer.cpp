@@ -150,7 +150,8 @@ void Replay::replay_command(const fbs::Record& record, const CommandRef& ref, ui
                       static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
                                                 std::chrono::steady_clock::now() - started)
                                                 .count()),
-                      &memory_.image()};
+                      &memory_.image(),
+                      [this](uint64_t handle) { return nv_.built_shadow(handle); }};
     observer->on_command(c);
     for (size_t i = findings; i < report_.findings.size(); ++i)
         observer->on_finding(report_.findings[i]);

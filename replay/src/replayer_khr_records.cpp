@@ -10,8 +10,11 @@ bool Replay::on_khr_record(fbs::RecordBody kind, const fbs::Record& r) {
     case fbs::RecordBody::QueryPoolResults:
         khr_.query_results(*r.body_as_QueryPoolResults());
         break;
-    // The driver's sizes are the application's business; the engine sizes its own shadows.
-    case fbs::RecordBody::GetAccelerationStructureBuildSizesKHR: break;
+    // The engine sizes its own shadows; the driver's scratch sizes are what the application's
+    // scratch regions are held to (khr_command.cpp).
+    case fbs::RecordBody::GetAccelerationStructureBuildSizesKHR:
+        khr_.build_sizes(*r.body_as_GetAccelerationStructureBuildSizesKHR());
+        break;
     default: return false;
     }
     return true;

@@ -5,15 +5,13 @@
 // after each frame's QueueSubmit), counts those marks as frames for --frames (no presents), and
 // `clastrace replay` reads the trace without damage.
 #include "frame_scene.h"
-#include "layer_launch_test.h"
+#include "rt_frame_loop_launch.h"
 
-#include <clastrace/testsupport/test_driver.h>
 #include <clastrace/traces/trace_reader.h>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
 #include <filesystem>
-#include <optional>
 #include <regex>
 #include <string>
 #include <vector>
@@ -36,33 +34,9 @@ struct TracedFrames {
     std::vector<Boundary> boundaries;
 };
 
-class RtFrameLoop : public LayerLaunchTest {
+class RtFrameLoop : public rt_frame_loop_test::RtFrameLoopLaunch {
 protected:
-    RtFrameLoop() : LayerLaunchTest("clastrace_rt_frame_loop") {}
-
-    void SetUp() override {
-        LayerLaunchTest::SetUp();
-        if (IsSkipped()) return;
-        driver_ = clastrace::testsupport::ray_tracing_driver();
-        if (!driver_) GTEST_SKIP() << clastrace::testsupport::kNoRayTracingDriver;
-    }
-
-    std::string app(const std::string& args) const {
-        return std::string(RT_FRAME_LOOP_APP) + " --frames " + std::to_string(kFrames) +
-               " --width " + std::to_string(kWidth) + " --height " + std::to_string(kHeight) + " " +
-               args;
-    }
-    // The program on lavapipe 25 without the layer.
-    ProcessResult run_alone(const std::string& args) {
-        return run("env" + driver_->environment_words() + " " + app(args), {}, false);
-    }
-    // The program under `clastrace capture` writing dir/frames.clt.
-    ProcessResult capture(const std::string& options, const std::string& args) {
-        return run("env" + driver_->environment_words() + " " + CLASTRACE_CLI + " capture -o " +
-                       quote((dir / "frames.clt").string()) + " --layer-path " +
-                       CLASTRACE_LAYER_MANIFEST_DIR + " " + options + " -- " + app(args),
-                   {}, false);
-    }
+    RtFrameLoop() : RtFrameLoopLaunch("clastrace_rt_frame_loop", kFrames, kWidth, kHeight) {}
 
     TracedFrames read_trace() {
         TracedFrames t;
@@ -82,8 +56,6 @@ protected:
         EXPECT_TRUE(reader->damage().empty());
         return t;
     }
-
-    std::optional<clastrace::testsupport::TestDriver> driver_;
 };
 
 // Pixels of `image` that differ from the reference, edges (ambiguous pixels) left out.

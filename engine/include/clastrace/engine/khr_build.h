@@ -85,6 +85,10 @@ struct KhrBuildInfo {
     uint64_t scratch_address = 0;        // scratchData.deviceAddress
     uint64_t scratch_available = ~0ull;  // bytes from there to the end of its buffer
     std::vector<KhrBuildRange> ranges;   // one per geometry
+    // The scratch size the application was told (a driver's trace: that driver's
+    // vkGetAccelerationStructureBuildSizesKHR answer), which the checks between infos hold
+    // against it instead of the engine's own need. ~0: none known.
+    uint64_t scratch_claim = ~0ull;
 };
 struct KhrBuildCommand {
     std::vector<KhrBuildInfo> infos;

@@ -12,6 +12,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 
 #include "clastrace/replay/hazard_report.h"
 #include "clastrace/replay/replay_report.h"
@@ -42,6 +43,10 @@ struct ReplayedCommand {
     // Replay memory after the command (inputs laid in, outputs written); for reading the
     // command's inputs, e.g. srcInfosArray elements.
     const engine::MemoryImage* memory = nullptr;
+    // The engine's copy of acceleration structure `handle` in `memory` after the command (the
+    // object replay built for it, at an address of its own): where engine::NvScene::open traces
+    // rays through the replayed structures. 0 when replay holds no built object for it.
+    std::function<uint64_t(uint64_t handle)> engine_structure_address;
 };
 
 class ReplayObserver {
