@@ -45,29 +45,15 @@ bool create_ray_query_pipeline(Session& s, VkPipelineLayout pipeline_layout, VkP
 
 bool record_ray_queries(Session& s, VkCommandBuffer cb, VkPipeline pipeline,
                         VkPipelineLayout pipeline_layout, VkDescriptorSet set, uint32_t ray_count) {
-    auto& f = s.f;
-    VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO};
-    begin.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
-    if (!s.check(f.BeginCommandBuffer(cb, &begin), "vkBeginCommandBuffer")) return false;
-    // Every earlier command of the queue (the builds) completes before the rays are traced.
-    const VkMemoryBarrier before{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr,
-                                 VK_ACCESS_MEMORY_WRITE_BIT,
-                                 VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_KHR |
-                                     VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT};
-    f.CmdPipelineBarrier(cb, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT,
-                         VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, 0, 1, &before, 0, nullptr, 0,
-                         nullptr);
-    f.CmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline);
-    f.CmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline_layout, 0, 1, &set, 0,
-                            nullptr);
-    f.CmdPushConstants(cb, pipeline_layout, VK_SHADER_STAGE_COMPUTE_BIT, 0, sizeof ray_count,
-                       &ray_count);
-    f.CmdDispatch(cb, (ray_count + kGroupSize - 1) / kGroupSize, 1, 1);
-    const VkMemoryBarrier after{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr,
-                                VK_ACCESS_SHADER_WRITE_BIT, VK_ACCESS_HOST_READ_BIT};
-    f.CmdPipelineBarrier(cb, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_PIPELINE_STAGE_HOST_BIT, 0, 1,
-                         &after, 0, nullptr, 0, nullptr);
-    return s.check(f.EndCommandBuffer(cb), "vkEndCommandBuffer");
+    return record_ray_check(s, cb, VK_PIPELINE_BIND_POINT_COMPUTE,
+                            VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, pipeline, pipeline_layout, set,
+                            [&] {
+                                s.f.CmdPushConstants(cb, pipeline_layout,
+                                                     VK_SHADER_STAGE_COMPUTE_BIT, 0,
+                                                     sizeof ray_count, &ray_count);
+                                s.f.CmdDispatch(cb, (ray_count + kGroupSize - 1) / kGroupSize, 1,
+                                                1);
+                            });
 }
 
 }  // namespace

@@ -138,29 +138,15 @@ bool write_shader_binding_table(Session& s, VkPipeline pipeline, const NvTraceSc
 bool record_trace_rays(Session& s, VkCommandBuffer cb, VkPipeline pipeline,
                        VkPipelineLayout pipeline_layout, VkDescriptorSet set,
                        const ShaderBindingTable& sbt, uint32_t ray_count) {
-    auto& f = s.f;
-    VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO};
-    begin.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
-    if (!s.check(f.BeginCommandBuffer(cb, &begin), "vkBeginCommandBuffer")) return false;
-    // Every earlier command of the queue (the builds) completes before the rays are traced.
-    const VkMemoryBarrier before{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr,
-                                 VK_ACCESS_MEMORY_WRITE_BIT,
-                                 VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_NV |
-                                     VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT};
-    f.CmdPipelineBarrier(cb, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT,
-                         VK_PIPELINE_STAGE_RAY_TRACING_SHADER_BIT_NV, 0, 1, &before, 0, nullptr, 0,
-                         nullptr);
-    f.CmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_RAY_TRACING_NV, pipeline);
-    f.CmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_RAY_TRACING_NV, pipeline_layout, 0, 1, &set,
-                            0, nullptr);
-    const VkBuffer table = sbt.buffer.buffer;
-    f.CmdTraceRaysNV(cb, table, 0, table, sbt.miss_offset, sbt.handle_size, table, sbt.hit_offset,
-                     sbt.hit_stride, VK_NULL_HANDLE, 0, 0, ray_count, 1, 1);
-    const VkMemoryBarrier after{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr,
-                                VK_ACCESS_SHADER_WRITE_BIT, VK_ACCESS_HOST_READ_BIT};
-    f.CmdPipelineBarrier(cb, VK_PIPELINE_STAGE_RAY_TRACING_SHADER_BIT_NV,
-                         VK_PIPELINE_STAGE_HOST_BIT, 0, 1, &after, 0, nullptr, 0, nullptr);
-    return s.check(f.EndCommandBuffer(cb), "vkEndCommandBuffer");
+    return record_ray_check(s, cb, VK_PIPELINE_BIND_POINT_RAY_TRACING_NV,
+                            VK_PIPELINE_STAGE_RAY_TRACING_SHADER_BIT_NV, pipeline, pipeline_layout,
+                            set, [&] {
+                                const VkBuffer table = sbt.buffer.buffer;
+                                s.f.CmdTraceRaysNV(cb, table, 0, table, sbt.miss_offset,
+                                                   sbt.handle_size, table, sbt.hit_offset,
+                                                   sbt.hit_stride, VK_NULL_HANDLE, 0, 0, ray_count,
+                                                   1, 1);
+                            });
 }
 
 }  // namespace

@@ -199,6 +199,31 @@ bool allocate_command_buffer(Session& s, VkCommandBuffer& out) {
 }
 
 
+bool record_ray_check(Session& s, VkCommandBuffer cb, VkPipelineBindPoint bind_point,
+                      VkPipelineStageFlags stage, VkPipeline pipeline,
+                      VkPipelineLayout pipeline_layout, VkDescriptorSet set,
+                      const std::function<void()>& trace) {
+    auto& f = s.f;
+    VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO};
+    begin.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
+    if (!s.check(f.BeginCommandBuffer(cb, &begin), "vkBeginCommandBuffer")) return false;
+    // Every earlier command of the queue (the builds) completes before the rays are traced.
+    const VkMemoryBarrier before{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr,
+                                 VK_ACCESS_MEMORY_WRITE_BIT,
+                                 VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_KHR |
+                                     VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT};
+    f.CmdPipelineBarrier(cb, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, stage, 0, 1, &before, 0, nullptr,
+                         0, nullptr);
+    f.CmdBindPipeline(cb, bind_point, pipeline);
+    f.CmdBindDescriptorSets(cb, bind_point, pipeline_layout, 0, 1, &set, 0, nullptr);
+    trace();
+    const VkMemoryBarrier after{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr,
+                                VK_ACCESS_SHADER_WRITE_BIT, VK_ACCESS_HOST_READ_BIT};
+    f.CmdPipelineBarrier(cb, stage, VK_PIPELINE_STAGE_HOST_BIT, 0, 1, &after, 0, nullptr, 0,
+                         nullptr);
+    return s.check(f.EndCommandBuffer(cb), "vkEndCommandBuffer");
+}
+
 bool submit_and_wait(Session& s, VkCommandBuffer cb) {
     VkFenceCreateInfo fence_info{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO};
     VkFence fence;

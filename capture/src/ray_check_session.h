@@ -127,6 +127,14 @@ bool write_descriptor_set(Session& s, VkDescriptorSetLayout set_layout,
 
 bool allocate_command_buffer(Session& s, VkCommandBuffer& out);
 
+// Records `cb` for one trace: a full barrier after every earlier command of the queue (the
+// builds), the pipeline and set bound at `bind_point`, `trace` (the dispatch or traceRays at
+// `stage`), and a barrier making the hits visible to the host.
+bool record_ray_check(Session& s, VkCommandBuffer cb, VkPipelineBindPoint bind_point,
+                      VkPipelineStageFlags stage, VkPipeline pipeline,
+                      VkPipelineLayout pipeline_layout, VkDescriptorSet set,
+                      const std::function<void()>& trace);
+
 // Submits `cb` on the context's queue and waits up to 10 s; on a timeout the session's objects
 // are leaked rather than freed under the GPU.
 bool submit_and_wait(Session& s, VkCommandBuffer cb);
