@@ -161,6 +161,7 @@ int main() {
     keep.push_back(vk.makeBuffer(blasSize.accelerationStructureSize + 256,
                                  VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR));
     const uint64_t blas = (keep.back().address + 255) / 256 * 256;
+    std::printf("blas at %llu\n", (unsigned long long)blas);
     build_clusters_and_blas(vk, blas, uint32_t(blasSize.accelerationStructureSize), keep);
     const VkAccelerationStructureKHR tlas = build_top_level(vk, blas, keep);
 
