@@ -747,6 +747,7 @@ VKAPI_ATTR void VKAPI_CALL GetClusterAccelerationStructureBuildSizesNV(
     BuildSizesQuery query;
     if (d.serving || !d.next.GetClusterAccelerationStructureBuildSizesNV) {
         served_cluster_build_sizes(*p_info, *p_size_info);
+        cover_traceable_blas(d, *p_info, *p_size_info);
         query.answered_by_layer = true;
     } else {
         d.next.GetClusterAccelerationStructureBuildSizesNV(device, p_info, p_size_info);

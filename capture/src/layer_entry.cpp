@@ -257,6 +257,7 @@ VKAPI_ATTR VkResult VKAPI_CALL CreateDevice(VkPhysicalDevice physical_device,
                             state->next.GetQueryPoolResults;
         state->timestamp_mask = valid_bits >= 64 ? ~0ull : (1ull << valid_bits) - 1;
     }
+    set_up_traceable_clusters(*state);  // before the pause worker, which builds with it
     if (state->capturing || serving) state->pauses = std::make_unique<PauseWorker>(*state);
     log_message(LogLevel::kInfo, "device %s: serving %s, capture %s, timestamps %s",
                 properties.deviceName, serving ? "on" : "off", state->capturing ? "on" : "off",

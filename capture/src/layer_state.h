@@ -25,9 +25,15 @@
 #include <variant>
 #include <vector>
 
+namespace clastrace::engine {
+class MemoryImage;
+}
+
 namespace clastrace::capture {
 
 class PauseWorker;
+class TraceableDriver;
+class ServedMemory;
 struct CommandBufferLog;
 
 using DispatchKey = void*;
@@ -284,6 +290,8 @@ struct DeviceState {
     // VK_KHR_ray_query with rayQuery, enabled by the application or by the layer for the ray
     // check of KHR top levels (CLASTRACE_RAY_CHECK).
     bool ray_query_enabled = false;
+    // Served cluster BLASes also get the driver's BLAS (traceable_serving.cpp); null: off.
+    std::shared_ptr<TraceableDriver> traceable;
     VkPhysicalDeviceRayTracingPropertiesNV ray_tracing_properties_nv{};
     NvSceneModel nv_scene;
     ~DeviceState();
@@ -431,6 +439,16 @@ bool driver_has_cluster_extension(InstanceState& instance, VkPhysicalDevice phys
 bool driver_lists_extension(InstanceState& instance, VkPhysicalDevice physical_device,
                             const char* name);
 bool should_serve(InstanceState& instance, VkPhysicalDevice physical_device);
+// Traceable cluster BLASes (traceable_serving.cpp): the probe at device creation, the served
+// size answers, and the driver's build after the engine's in a pause.
+void set_up_traceable_clusters(DeviceState& state);
+void cover_traceable_blas(DeviceState& state,
+                          const VkClusterAccelerationStructureInputInfoNV& input,
+                          VkAccelerationStructureBuildSizesInfoKHR& sizes);
+void build_traceable_blases(DeviceState& state, uint64_t pause_id,
+                            const VkClusterAccelerationStructureCommandsInfoNV& command,
+                            const engine::MemoryImage& image, const ServedMemory& memory,
+                            uint32_t op_count);
 VkPhysicalDeviceClusterAccelerationStructurePropertiesNV cluster_properties_for(
     InstanceState& instance, VkPhysicalDevice physical_device, bool serving);
 

@@ -575,7 +575,12 @@ std::shared_ptr<const engine::MemoryImage> PauseWorker::execute_served(
         execute_served_build(pause.parameters->resolved(), memory, directory_,
                              served_engine_properties(), record ? &record->inputs : nullptr,
                              record ? std::optional<uint32_t>(record->executed_count)
-                                    : std::nullopt);
+                                    : std::nullopt,
+                             [&](const engine::MemoryImage& image, uint32_t ops) {
+                                 build_traceable_blases(device_, pause.pause_id,
+                                                        pause.parameters->resolved(), image, memory,
+                                                        ops);
+                             });
     if (!served.ran) {
         log_message(LogLevel::kError, "served build (pause %llu) could not run in the engine: %s",
                     (unsigned long long)pause.pause_id, served.error.c_str());

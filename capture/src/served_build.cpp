@@ -265,7 +265,8 @@ ServedExecution execute_served_build(const VkClusterAccelerationStructureCommand
                                      ServedMemory& memory, engine::ObjectDirectory& directory,
                                      const engine::EngineProperties& properties,
                                      std::vector<CapturedRange>* input_walk,
-                                     std::optional<uint32_t> output_entries) {
+                                     std::optional<uint32_t> output_entries,
+                                     const AfterServedWriteBack& after_write_back) {
     ServedExecution result;
     const std::vector<ServedMemory::Group>& groups = memory.groups();
 
@@ -385,6 +386,7 @@ ServedExecution execute_served_build(const VkClusterAccelerationStructureCommand
             }
         }
     }
+    if (after_write_back) after_write_back(image, result.record.op_count);
     result.image = memory.share(output_entries ? &keep : nullptr);
     return result;
 }

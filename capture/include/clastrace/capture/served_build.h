@@ -17,6 +17,7 @@
 #include <clastrace/vk_cluster_abi.h>
 
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -147,11 +148,15 @@ struct ServedExecution {
 // used up: its image becomes the result's. `outputEntries`: the dst array entries a later
 // completeServedRecord walks (the record's executedCount), to keep only what it reads; none
 // when nothing reads the image afterwards (serving only: the image is kept whole).
+// `after_write_back`, when given, runs once the engine's writes are in the host bytes, with the
+// whole image of the run and its op count (the traceable mode builds the driver's BLASes there).
+using AfterServedWriteBack = std::function<void(const engine::MemoryImage& image, uint32_t ops)>;
 ServedExecution execute_served_build(const VkClusterAccelerationStructureCommandsInfoNV& command,
                                      ServedMemory& memory, engine::ObjectDirectory& directory,
                                      const engine::EngineProperties& properties,
                                      std::vector<CapturedRange>* input_walk = nullptr,
-                                     std::optional<uint32_t> output_entries = std::nullopt);
+                                     std::optional<uint32_t> output_entries = std::nullopt,
+                                     const AfterServedWriteBack& after_write_back = {});
 // The same over a fresh ServedMemory of `buffers`.
 ServedExecution execute_served_build(const VkClusterAccelerationStructureCommandsInfoNV& command,
                                      std::span<const ServedBuffer> buffers,
