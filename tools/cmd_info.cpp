@@ -18,6 +18,7 @@
 #include <map>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace clastrace::tools {
@@ -56,10 +57,33 @@ struct TraceSummary {
     uint64_t first_frame = 0, last_frame = 0;
     uint64_t unassigned_submissions = 0;  // QueueSubmits since the last present
     std::map<uint64_t, uint64_t> submissions_by_frame;
+    // The layer's pre-range label: the trace starts with a frame range's state from before it; its prelude
+    // submission belongs to no frame.
+    bool pre_range = false;
+    bool prelude_pending = false;
+    uint64_t pre_range_first_frame = 0, pre_range_bytes = 0;
+    uint32_t pre_range_structures = 0, pre_range_commands = 0;
 };
 
 const char* severity_name(uint8_t severity) {
     return severity == 0 ? "info" : severity == 1 ? "warning" : "error";
+}
+
+// The layer's queue label before a frame range's prelude (capture/README.md, "Frame ranges").
+bool read_pre_range_label(const fbs::DebugLabel& label, TraceSummary& s) {
+    if (!label.text()) return false;
+    unsigned long long structures = 0, commands = 0, bytes = 0, frame = 0;
+    if (std::sscanf(label.text()->c_str(),
+                    "clastrace pre-range state: %llu structures, %llu commands, %llu input bytes, "
+                    "before frame %llu",
+                    &structures, &commands, &bytes, &frame) != 4)
+        return false;
+    s.pre_range = true;
+    s.pre_range_structures = uint32_t(structures);
+    s.pre_range_commands = uint32_t(commands);
+    s.pre_range_bytes = bytes;
+    s.pre_range_first_frame = frame;
+    return true;
 }
 
 TraceSummary summarize(TraceReader& reader) {
@@ -82,6 +106,13 @@ TraceSummary summarize(TraceReader& reader) {
                                       f->primary_command_buffer(), f->execute_command_index()});
             continue;
         }
+        if (const auto* label = view.record->body_as_DebugLabel();
+            label && label->command_buffer() == 0 && read_pre_range_label(*label, s)) {
+            s.prelude_pending = true;
+            continue;
+        }
+        if (view.kind == fbs::RecordBody::QueueSubmit && std::exchange(s.prelude_pending, false))
+            continue;
         if (view.kind == fbs::RecordBody::QueueSubmit) ++s.unassigned_submissions;
         if (view.kind == fbs::RecordBody::AcquireNextImage) ++s.acquires;
         const auto* present = view.record->body_as_QueuePresent();
@@ -219,9 +250,15 @@ nlohmann::json frames_json(const TraceSummary& s) {
     nlohmann::json captured = nlohmann::json::array();
     for (const auto& [frame, submissions] : s.submissions_by_frame)
         captured.push_back({{"frame", frame}, {"submissions", submissions}});
-    return {{"presents", s.presents}, {"frame_marks", s.frame_marks},
-            {"acquires", s.acquires}, {"first", s.first_frame},
-            {"last", s.last_frame},   {"with_submissions", captured}};
+    nlohmann::json frames = {{"presents", s.presents}, {"frame_marks", s.frame_marks},
+                             {"acquires", s.acquires}, {"first", s.first_frame},
+                             {"last", s.last_frame},   {"with_submissions", captured}};
+    if (s.pre_range)
+        frames["pre_range_state"] = {{"before_frame", s.pre_range_first_frame},
+                                     {"structures", s.pre_range_structures},
+                                     {"commands", s.pre_range_commands},
+                                     {"bytes", s.pre_range_bytes}};
+    return frames;
 }
 
 nlohmann::json info_json(const std::string& path, const TraceReader& reader,
@@ -345,6 +382,13 @@ void print_text(const std::string& path, const TraceReader& reader, const TraceS
         }
         fmt::print("{}\n", s.submissions_by_frame.empty() ? " none" : "");
     }
+    if (s.pre_range)
+        fmt::print(
+            "{:<12}the trace starts with the state from before the range: {} acceleration "
+            "structures rebuilt by {} "
+            "commands ({} input bytes) from before frame {}, one prelude submission\n",
+            "pre-range", s.pre_range_structures, s.pre_range_commands, s.pre_range_bytes,
+            s.pre_range_first_frame);
     // Acquires (format 1.2): the presentation engine's signals replay takes for the frames' waits.
     if (s.acquires)
         fmt::print("{}{:<12}{} image acquires\n", s.frame_ends() ? "" : "\n",

@@ -3,6 +3,7 @@
 // replay to rebuild them and translate instance records), the queues' families, and the ray
 // check that traces rays against a top level after the submission that built it.
 #include "command_buffer_log.h"
+#include "layer_pre_range.h"
 #include "layer_state.h"
 
 #include "clastrace/capture/khr_ray_tracer.h"
@@ -50,6 +51,7 @@ VKAPI_ATTR void VKAPI_CALL DestroyAccelerationStructureNV(
     if (as) {
         d.nv_scene.forget(handle_id(as));
         forget_acceleration_structure_address(d, handle_id(as));
+        forget_pre_range_structure(d, handle_id(as));
         if (d.sink) d.sink->acceleration_structure_destroyed(handle_id(as));
     }
     d.next.DestroyAccelerationStructureNV(device, as, p_allocator);
@@ -123,6 +125,7 @@ VKAPI_ATTR void VKAPI_CALL DestroyAccelerationStructureKHR(
     VkDevice device, VkAccelerationStructureKHR as, const VkAllocationCallbacks* p_allocator) {
     DeviceState& d = device_of(device);
     if (as) forget_khr_structure(d, handle_id(as));
+    if (as) forget_pre_range_structure(d, handle_id(as));
     if (as) d.nv_scene.forget(handle_id(as));
     if (as && d.sink) d.sink->acceleration_structure_destroyed(handle_id(as));
     if (as) forget_acceleration_structure_address(d, handle_id(as));

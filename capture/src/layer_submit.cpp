@@ -3,6 +3,7 @@
 // worker (inside the application's call, so the order per queue is the queue's order).
 #include "command_buffer_log.h"
 #include "host_write_device_writes.h"
+#include "layer_pre_range.h"
 #include "layer_state.h"
 
 #include <algorithm>
@@ -45,6 +46,8 @@ struct SubmissionPlan {
     SubmissionRecord record;
     std::vector<PendingPauses> pauses;
     bool capture = false;
+    bool before_range = false;   // its structure builds are read for the pre-range state
+    uint64_t prelude_index = 0;  // the first captured one: the pre-range prelude's index, if due
 };
 
 void announce(DeviceState& d, VkQueue queue, SubmissionPlan& plan) {
@@ -52,11 +55,22 @@ void announce(DeviceState& d, VkQueue queue, SubmissionPlan& plan) {
     // A simultaneous-use command buffer listed twice runs its pauses twice: number them so each
     // execution is captured on its own.
     std::map<std::pair<uint64_t, PausePhase>, uint32_t> executions;
+    std::vector<const PausePoint*> pre_range;
     for (PendingPauses& p : plan.pauses) {
         for (PausePoint& pause : p.pauses)
             pause.occurrence = executions[{pause.pause_id, pause.phase}]++;
-        d.pauses->expect(queue, plan.record.index, plan.capture, p.command_buffer, p.pauses);
+        if (!plan.before_range) {
+            d.pauses->expect(queue, plan.record.index, plan.capture, p.command_buffer, p.pauses);
+            continue;
+        }
+        // Before the range only the structure builds and copies are read (layer_pre_range.h).
+        for (const PausePoint& pause : p.pauses) {
+            const bool read = produces_pre_range_state(pause);
+            if (read) pre_range.push_back(&pause);
+            d.pauses->expect(queue, plan.record.index, read, p.command_buffer, {pause});
+        }
     }
+    if (plan.before_range) note_pre_range_submission(d, plan.record.index, pre_range);
 }
 
 // Executions of one command buffer on two queues would share its pause events (pause_worker.h,
@@ -114,6 +128,11 @@ SubmissionPlan plan_for(DeviceState& d, VkQueue queue, VkFence fence, bool synch
     plan.record.synchronization2 = synchronization2;
     plan.capture = d.sink && layer_config().submit_range.contains(plan.record.index) &&
                    layer_config().frame_range.contains(current_frame());
+    plan.before_range = !plan.capture && before_frame_range(d, plan.record.index);
+    if (plan.capture && pre_range_prelude_due(d)) {  // the prelude goes first
+        plan.prelude_index = plan.record.index;
+        plan.record.index = next_submission_index();
+    }
     return plan;
 }
 
@@ -240,6 +259,7 @@ VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit(VkQueue queue, uint32_t submit_count,
     if (admitted.owns_lock())
         admitted.unlock();  // the worker tracks this submission's shared pauses now
     expect_timestamps(d, queue, plan);
+    if (plan.prelude_index) write_pre_range_prelude(d, plan.record, plan.prelude_index);
     if (plan.capture) d.sink->queue_submitted(plan.record);
     boundaries.record(d, queue, FrameBoundaryCarrier::kSubmit, plan.record.index);
     check_rays(d, queue, plan);
@@ -281,6 +301,7 @@ VkResult queue_submit2(VkQueue queue, uint32_t submit_count, const VkSubmitInfo2
     if (admitted.owns_lock())
         admitted.unlock();  // the worker tracks this submission's shared pauses now
     expect_timestamps(d, queue, plan);
+    if (plan.prelude_index) write_pre_range_prelude(d, plan.record, plan.prelude_index);
     if (plan.capture) d.sink->queue_submitted(plan.record);
     boundaries.record(d, queue, FrameBoundaryCarrier::kSubmit2, plan.record.index);
     check_rays(d, queue, plan);

@@ -15,6 +15,7 @@
 #include "clastrace/capture/cluster_limits.h"
 #include "clastrace/capture/served_build.h"
 #include "clastrace/capture/uncached_copy.h"
+#include "layer_pre_range.h"
 
 namespace clastrace::capture {
 
@@ -483,6 +484,7 @@ void PauseWorker::pass_record_on(const OpenKey& key,
     } else {
         name_ranges(work);
     }
+    if (take_pre_range_capture(device_, work)) return;  // kept for the frame range's prelude
     device_.sink->cluster_build_captured(std::move(work));
 }
 

@@ -293,6 +293,15 @@ public:
         r.tag = b.tag;
         append(record_of(std::move(r)));
     }
+    // Before the prelude's submission (layer_pre_range.cpp), which has no submission ahead of
+    // it: a queue label (format 1.0's DebugLabel, no command buffer) whose text says what follows.
+    void pre_range_state_written(const PreRangeStateRecord& m) override {
+        fbs::DebugLabelT r;
+        r.queue = m.queue;
+        r.op = 2;  // insert
+        r.text = pre_range_label_text(m);
+        append(record_of(std::move(r)));
+    }
     // Ordered like presents: the submission that waits on the semaphore comes after it.
     void image_acquired(const AcquireRecord& a) override {
         fbs::AcquireNextImageT r;

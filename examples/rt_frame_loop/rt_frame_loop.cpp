@@ -400,13 +400,38 @@ void memory_barrier(VkCommandBuffer cb, VkPipelineStageFlags src_stage, VkAccess
 
 struct Options {
     uint32_t frames = 8, width = 96, height = 64;
+    uint32_t build_frames = UINT32_MAX;  // frames from this one on trace what earlier ones built
     bool single_buffered_pool = false, skip_vertex_barrier = false;
     std::string image;
 };
 
+void record_dispatch(const Pipeline& pipe, const Options& o, const RingSlot& r) {
+    VkCommandBuffer cb = r.cb;
+    vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, pipe.pipeline);
+    vkCmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, pipe.layout, 0, 1, &r.set, 0,
+                            nullptr);
+    const uint32_t size[2] = {o.width, o.height};
+    vkCmdPushConstants(cb, pipe.layout, VK_SHADER_STAGE_COMPUTE_BIT, 0, sizeof(size), size);
+    vkCmdDispatch(cb, (o.width + 7) / 8, (o.height + 7) / 8, 1);
+    memory_barrier(cb, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_ACCESS_SHADER_WRITE_BIT,
+                   VK_PIPELINE_STAGE_HOST_BIT, VK_ACCESS_HOST_READ_BIT);
+}
+
+// --build-frames: a later frame only traces the ring slot's TLAS (over the BLASes) that an
+// earlier frame built and that nothing has changed since.
+void record_trace_only(const Pipeline& pipe, const Options& o, RingSlot& r) {
+    CHECK(vkResetCommandBuffer(r.cb, 0));
+    VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO};
+    begin.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
+    CHECK(vkBeginCommandBuffer(r.cb, &begin));
+    record_dispatch(pipe, o, r);
+    CHECK(vkEndCommandBuffer(r.cb));
+}
+
 // The frame's host work (vertices, instances) and its one command buffer.
 void record_frame(const Context& c, const Layout& l, const Pipeline& pipe, const Options& o,
                   uint64_t frame, RingSlot& r, const PoolSlot& p) {
+    if (frame >= o.build_frames) return record_trace_only(pipe, o, r);
     for (uint32_t m = 0; m < kMeshCount; ++m) {
         const std::vector<Vec3> v = mesh_vertices(m, frame);
         std::memcpy((char*)r.staging.mapped + m * l.vertices_per_mesh * sizeof(Vec3), v.data(),
@@ -460,14 +485,7 @@ void record_frame(const Context& c, const Layout& l, const Pipeline& pipe, const
                    VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
                    VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
                    VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_KHR);
-    vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, pipe.pipeline);
-    vkCmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, pipe.layout, 0, 1, &r.set, 0,
-                            nullptr);
-    const uint32_t size[2] = {o.width, o.height};
-    vkCmdPushConstants(cb, pipe.layout, VK_SHADER_STAGE_COMPUTE_BIT, 0, sizeof(size), size);
-    vkCmdDispatch(cb, (o.width + 7) / 8, (o.height + 7) / 8, 1);
-    memory_barrier(cb, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_ACCESS_SHADER_WRITE_BIT,
-                   VK_PIPELINE_STAGE_HOST_BIT, VK_ACCESS_HOST_READ_BIT);
+    record_dispatch(pipe, o, r);
     CHECK(vkEndCommandBuffer(cb));
 }
 
@@ -571,6 +589,11 @@ int main(int argc, char** argv) {
     app.add_flag("--skip-vertex-barrier", o.skip_vertex_barrier,
                  "no barrier between the vertex copy and the BLAS builds "
                  "(Vulkan-ValidationLayers #7372)");
+    app.add_option("--build-frames", o.build_frames,
+                   "build the BLASes and TLASes only in frames 0..N-1 (N >= 2, the ring slots); "
+                   "later frames trace what "
+                   "their ring slot's earlier frame built (default: build every frame)")
+        ->check(CLI::Range(2u, UINT32_MAX));
     try {
         app.parse(argc, argv);
     } catch (const CLI::ParseError& e) {

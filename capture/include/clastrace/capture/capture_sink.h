@@ -55,6 +55,8 @@ public:
     virtual void khr_build_sizes_queried(const KhrBuildSizesQuery&) {}
     // VkFrameBoundaryEXT on a submission or present, recorded like presents (whatever the range).
     virtual void frame_boundary_marked(const FrameBoundaryRecord&) {}
+    // The prelude of a frame range follows (its submission, then a device wait).
+    virtual void pre_range_state_written(const PreRangeStateRecord&) {}
     // Frees the captured bytes of records already written, on the calling thread. The pause
     // worker calls it when idle: the bytes were allocated on its thread, and freeing them there
     // spares the sink's thread the allocator's cross-thread path (and the worker's allocations

@@ -1,0 +1,198 @@
+// SPDX-License-Identifier: Apache-2.0
+// Pre-range state (capture/README.md, "Frame ranges") on lavapipe 25 (label rt-driver):
+// examples/rt_frame_loop --build-frames 2 builds its BLASes and TLASes in frames 0 and 1 only;
+// frames 2 and 3 trace them. `clastrace capture --frames 2-3` must carry those structures' last
+// builds as the prelude: the replay is clean, the ray queries reach both BLASes through the
+// replayed top level, and the engine traces the driver's image from them.
+#include "frame_scene.h"
+#include "rt_frame_loop_launch.h"
+
+#include <clastrace/engine/nv_trace.h>
+#include <clastrace/replay/replay_observer.h>
+#include <clastrace/replay/replayer.h>
+#include <clastrace/traces/trace_generated.h>
+#include <clastrace/traces/trace_reader.h>
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace {
+
+namespace fs = std::filesystem;
+using clastrace::layer_launch::ProcessResult;
+using clastrace::layer_launch::quote;
+using nlohmann::json;
+
+constexpr uint32_t kFrames = 4, kWidth = 64, kHeight = 48;
+const std::string kArgs = "--build-frames 2";
+
+// Traces each ray-query dispatch's camera rays through the engine's replayed top level (set 0,
+// binding 0), as shaders/trace_pixels.comp shades them; keeps the last image.
+class EngineImage : public clastrace::replay::ReplayObserver {
+public:
+    void on_command(const clastrace::replay::ReplayedCommand& c) override {
+        const auto* dispatch = c.record->body_as_CmdDispatch();
+        if (!dispatch || !dispatch->ray_query() || !dispatch->acceleration_structures()) return;
+        ++dispatches;
+        uint64_t top_level = 0;
+        for (const auto* b : *dispatch->acceleration_structures())
+            if (b->set() == 0 && b->binding() == 0 && b->source() == 0)
+                top_level = c.engine_structure_address(b->acceleration_structure());
+        std::string error;
+        std::vector<clastrace::engine::Finding> findings;
+        auto scene = clastrace::engine::NvScene::open(*c.memory, top_level, &findings, &error);
+        if (!scene) {
+            errors.push_back(error.empty() ? "no top level" : error);
+            return;
+        }
+        instances_reached = scene->instances_reached();
+        pixels.assign(size_t(kWidth) * kHeight, 0);
+        for (uint32_t y = 0; y < kHeight; ++y)
+            for (uint32_t x = 0; x < kWidth; ++x) {
+                rt_frame_loop::Vec3 o, d;
+                rt_frame_loop::pixel_ray(x, y, kWidth, kHeight, o, d);
+                const clastrace::engine::Ray ray{{o.x, o.y, o.z}, 0.0f, {d.x, d.y, d.z}, 100.0f};
+                const clastrace::engine::NvHit hit =
+                    scene->closest(ray, clastrace::engine::kRayFlagOpaque, 0xff);
+                pixels[size_t(y) * kWidth + x] =
+                    hit.hit
+                        ? rt_frame_loop::hit_colour(hit.instance_custom_index, hit.primitive_index)
+                        : rt_frame_loop::kBackground;
+            }
+    }
+
+    size_t dispatches = 0;
+    uint32_t instances_reached = 0;
+    std::vector<std::string> errors;
+    std::vector<uint32_t> pixels;
+};
+
+EngineImage replay_image(const fs::path& trace) {
+    EngineImage engine;
+    clastrace::traces::TraceError error;
+    auto reader = clastrace::traces::TraceReader::open(trace.string(), &error);
+    EXPECT_TRUE(reader) << error.message;
+    if (!reader) return engine;
+    clastrace::replay::ReplayOptions options;
+    options.observer = &engine;
+    clastrace::replay::replay_trace(*reader, trace.filename().string(), options);
+    return engine;
+}
+
+// What the start of a trace says: the layer's pre-range label, and the submissions.
+struct TraceStart {
+    std::string label;  // the pre-range label's text, empty without
+    size_t submissions = 0;
+    size_t submissions_before_label = 0;
+    size_t khr_builds = 0;
+};
+
+TraceStart read_start(const fs::path& trace) {
+    TraceStart t;
+    clastrace::traces::TraceError error;
+    auto reader = clastrace::traces::TraceReader::open(trace.string(), &error);
+    EXPECT_TRUE(reader) << error.message;
+    if (!reader) return t;
+    clastrace::traces::RecordView view;
+    while (reader->next(&view)) {
+        if (const auto* l = view.record->body_as_DebugLabel(); l && l->text() && t.label.empty()) {
+            t.label = l->text()->str();
+            t.submissions_before_label = t.submissions;
+        }
+        t.submissions += view.kind == clastrace::fbs::RecordBody::QueueSubmit;
+        t.khr_builds += view.kind == clastrace::fbs::RecordBody::CmdBuildAccelerationStructuresKHR;
+    }
+    return t;
+}
+
+class PreRangeState : public rt_frame_loop_test::RtFrameLoopLaunch {
+protected:
+    PreRangeState() : RtFrameLoopLaunch("clastrace_pre_range_state", kFrames, kWidth, kHeight) {}
+
+    // Captures with `options` into `name` (and the driver's last image into name.ppm).
+    fs::path capture_as(const std::string& name, const std::string& options) {
+        const fs::path image = dir / (name + ".ppm");
+        ProcessResult r = capture(options, kArgs + " --image " + quote(image.string()));
+        EXPECT_EQ(r.exitCode, 0) << r.out << r.err;
+        fs::rename(dir / "frames.clt", dir / name);
+        return dir / name;
+    }
+    json replay_json(const fs::path& trace, int* exit_code) {
+        ProcessResult r =
+            run(std::string(CLASTRACE_CLI) + " replay --json " + quote(trace.string()), {}, false);
+        *exit_code = r.exitCode;
+        json report = json::parse(r.out, nullptr, false);
+        EXPECT_FALSE(report.is_discarded()) << r.out << r.err;
+        return report.is_discarded() ? json::object() : report;
+    }
+};
+
+TEST_F(PreRangeState, FrameRangeReplaysStructuresBuiltBeforeIt) {
+    const fs::path range = capture_as("range.clt", "--frames 2-3");
+    const TraceStart start = read_start(range);
+    // Both ring slots' BLAS pairs (one build command each) and TLASes: 6 structures, 4 commands;
+    // the prelude is the first submission, then the two captured frames.
+    EXPECT_EQ(start.label.rfind("clastrace pre-range state: 6 structures, 4 commands, ", 0), 0u)
+        << start.label;
+    EXPECT_NE(start.label.find("before frame 2"), std::string::npos) << start.label;
+    EXPECT_EQ(start.submissions_before_label, 0u);
+    EXPECT_EQ(start.submissions, 3u);
+    EXPECT_EQ(start.khr_builds, 4u);
+
+    int exit_code = -1;
+    const json report = replay_json(range, &exit_code);
+    EXPECT_EQ(exit_code, 0) << report.dump(1);
+    EXPECT_EQ(report.value("findings", json::array()).size(), 0u) << report.dump(1);
+    EXPECT_EQ(report.value("trace_damage", json::array()).size(), 0u) << report.dump(1);
+    if (report.contains("hazards")) {
+        EXPECT_EQ(report["hazards"].value("hazards", json::array()).size(), 0u) << report.dump(1);
+    }
+
+    // The engine's image of frame 3 from the replayed structures is the driver's.
+    const EngineImage engine = replay_image(range);
+    EXPECT_EQ(engine.dispatches, 2u);
+    ASSERT_TRUE(engine.errors.empty()) << engine.errors.front();
+    EXPECT_EQ(engine.instances_reached, rt_frame_loop::kMeshCount);
+    std::vector<uint32_t> driver;
+    uint32_t width = 0, height = 0;
+    std::string error;
+    ASSERT_TRUE(
+        rt_frame_loop::read_ppm((dir / "range.clt.ppm").string(), driver, width, height, error))
+        << error;
+    ASSERT_EQ(engine.pixels.size(), driver.size());
+    // Frame 3 traces ring slot 1, built in frame 1: edge pixels are those of frame 1's scene.
+    const rt_frame_loop::ReferenceImage built = rt_frame_loop::trace_reference(1, kWidth, kHeight);
+    size_t different = 0, hits = 0;
+    for (size_t i = 0; i < driver.size(); ++i) {
+        if (built.ambiguous[i]) continue;
+        different += engine.pixels[i] != driver[i];
+        hits += engine.pixels[i] != rt_frame_loop::kBackground;
+    }
+    EXPECT_EQ(different, 0u);
+    EXPECT_GT(hits, 100u);
+
+    // The same image as the full capture's replay gives.
+    const fs::path full = capture_as("full.clt", "");
+    EXPECT_EQ(read_start(full).label, "");
+    const EngineImage whole = replay_image(full);
+    EXPECT_EQ(whole.dispatches, size_t(kFrames));
+    EXPECT_EQ(whole.pixels, engine.pixels);
+
+    // `clastrace info` says the trace starts with the state from before the range.
+    ProcessResult info =
+        run(std::string(CLASTRACE_CLI) + " info --json " + quote(range.string()), {}, false);
+    const json summary = json::parse(info.out, nullptr, false);
+    ASSERT_FALSE(summary.is_discarded()) << info.out << info.err;
+    const json& pre = summary["frames"]["pre_range_state"];
+    EXPECT_EQ(pre.value("structures", 0), 6) << summary["frames"];
+    EXPECT_EQ(pre.value("commands", 0), 4);
+    EXPECT_EQ(pre.value("before_frame", 0), 2);
+    EXPECT_GT(pre.value("bytes", 0), 0);
+    EXPECT_EQ(summary["frames"]["with_submissions"],
+              json::parse(R"([{"frame":2,"submissions":1},{"frame":3,"submissions":1}])"));
+}
+
+}  // namespace
