@@ -13,6 +13,21 @@
 
 namespace clastrace::capture {
 
+using BoundDescriptorSets =
+    std::map<uint32_t, std::pair<VkDescriptorSet, std::vector<uint32_t>>>;  // set -> (set, offsets)
+using PushedAccelerationStructures =  // (set, binding, element) -> structure
+    std::map<std::tuple<uint32_t, uint32_t, uint32_t>, ReachableAccelerationStructure>;
+
+// What one consumer (rays, a ray-query dispatch or draw) was recorded with, kept so that the
+// structures it reaches are read again at each submission (refresh_consumer_structures): a set
+// updated after binding (UPDATE_AFTER_BIND) holds, when the command runs, what was written last.
+struct ConsumerBindings {
+    int bind_point = 0;  // bind_point_index
+    BoundDescriptorSets sets;
+    PushedAccelerationStructures pushed;
+    std::vector<uint8_t> push_constants;
+};
+
 struct CommandBufferLog {
     RecordedCommandBuffer recorded;
     std::vector<PausePoint> pauses;                    // in execution order, secondaries' included
@@ -32,14 +47,16 @@ struct CommandBufferLog {
     uint64_t compute_pipeline = 0;
     uint64_t graphics_pipeline = 0;  // for draws that may write through device addresses
     uint64_t ray_tracing_pipeline = 0;
-    using BoundSets = std::map<uint32_t, std::pair<VkDescriptorSet, std::vector<uint32_t>>>;
+    using BoundSets = BoundDescriptorSets;
     BoundSets compute_sets;  // set -> (set, dynamic offsets)
     BoundSets graphics_sets, ray_tracing_sets;
     // Acceleration structures pushed with vkCmdPushDescriptorSet*KHR, per bind point (compute,
     // graphics, ray tracing), keyed by (set, binding, element).
-    std::map<std::tuple<uint32_t, uint32_t, uint32_t>, ReachableAccelerationStructure>
-        pushed_acceleration_structures[3];
+    PushedAccelerationStructures pushed_acceleration_structures[3];
     std::vector<uint8_t> push_constants;  // the bytes vkCmdPushConstants set so far
+    // One entry per consumer recorded, in recording order (reachable_acceleration_structures,
+    // which reads a const log, appends them).
+    mutable std::vector<ConsumerBindings> consumers;
 
     // vkCmdBindDescriptorSets bound sets [first, first + count) at `bind_point`: what was pushed
     // there before is no longer bound.

@@ -11,6 +11,7 @@
 
 #include <clastrace/vk_cluster_abi.h>
 #include <clastrace/vk_frame_boundary_abi.h>
+#include <clastrace/vk_maintenance6_abi.h>
 #include <vulkan/vk_layer.h>
 
 #include <atomic>
@@ -175,6 +176,10 @@ uint64_t handle_id(Handle handle) {
     X(CmdPushConstants)                               \
     X(CmdPushDescriptorSetKHR)                        \
     X(CmdPushDescriptorSetWithTemplateKHR)            \
+    X(CmdBindDescriptorSets2KHR)                      \
+    X(CmdPushConstants2KHR)                           \
+    X(CmdPushDescriptorSet2KHR)                       \
+    X(CmdPushDescriptorSetWithTemplate2KHR)           \
     X(CreateDescriptorUpdateTemplate)                 \
     X(CreateDescriptorUpdateTemplateKHR)              \
     X(DestroyDescriptorUpdateTemplate)                \
@@ -411,6 +416,12 @@ void track_pushed_descriptor_write(DeviceState& d, VkCommandBuffer cb,
 // resolving each handle's address; false when `write` is not of that type.
 bool track_acceleration_structure_write(DeviceState& d, const VkWriteDescriptorSet& write,
                                         DescriptorsOfSet& set);
+
+// Reads again, at submission, the structures each consumer of the submitted command buffers (and
+// the secondaries they execute) can reach: sets updated after binding change them between
+// recording and submission. A command buffer whose answer changed is handed to the sink again
+// (consumer_commands.cpp).
+void refresh_consumer_structures(DeviceState& d, const SubmissionRecord& record);
 
 // CLASTRACE_RAY_CHECK: after submission `submissionIndex` on `queue` (just submitted), waits
 // for the queue and traces the configured rays against each of `topLevels`, recording a
