@@ -7,7 +7,9 @@
 // vkCmdTraceRaysKHR and vkCmdTraceRaysIndirectKHR, under the capture layer. The trace's records
 // must say which dispatch uses ray queries, the rays' entry points, dimensions, tables and
 // indirect address, and for each consumer the TLAS by handle and address with set, binding and
-// source. Label rt-driver: skipped where lavapipe 25 is not unpacked.
+// source. In "sources" mode the app binds and pushes with VK_KHR_maintenance6 and rewrites an
+// UPDATE_AFTER_BIND set between recording and submission. Label rt-driver: skipped where
+// lavapipe 25 is not unpacked.
 #include "layer_launch_test.h"
 
 #include <clastrace/testsupport/test_driver.h>
@@ -81,11 +83,12 @@ protected:
     }
 
     // The app under the capture layer on lavapipe 25; then reads what it says and the trace.
-    void capture() {
+    void capture(const std::string& mode = "") {
         // The driver inside the command: the layer launch puts the suite's test driver first.
-        ProcessResult r = run("env" + driver->environment_words() + " " + RAY_CONSUMERS_APP + " " +
-                                  quote((dir / "out.json").string()),
-                              {{"CLASTRACE_CAPTURE", "1"}, {"CLASTRACE_OUTPUT", trace.string()}});
+        ProcessResult r =
+            run("env" + driver->environment_words() + " " + RAY_CONSUMERS_APP + " " +
+                    quote((dir / "out.json").string()) + (mode.empty() ? "" : " " + mode),
+                {{"CLASTRACE_CAPTURE", "1"}, {"CLASTRACE_OUTPUT", trace.string()}});
         ASSERT_EQ(r.exitCode, 0) << r.out << r.err;
         EXPECT_EQ(r.out, "ok\n");
         out = json::parse(readText(dir / "out.json"));
@@ -208,6 +211,25 @@ TEST_F(RayConsumersCapture, TraceRaysRecordsEntryPointDimensionsTablesAndTheTopL
     EXPECT_EQ(from_memory.inputs[0].second, sizeof(VkTraceRaysIndirectCommandKHR));
     EXPECT_EQ(from_memory.raygen_address, out["raygenAddress"].get<uint64_t>());
     expect_the_top_level(from_memory.structures);
+}
+
+// VK_KHR_maintenance6: vkCmdBindDescriptorSets2KHR and vkCmdPushConstants2KHR feed the same
+// state as their 1.0 forms. A set created UPDATE_AFTER_BIND and rewritten between recording and
+// submission: the dispatch reaches what the set names at submission, not at binding.
+TEST_F(RayConsumersCapture, InfoStructFormsAndSetsUpdatedAfterBindReachTheTopLevel) {
+    capture("sources");
+    ASSERT_EQ(dispatches.size(), 2u);
+    EXPECT_EQ(dispatches[0].pipeline, out["rayQueryPipeline"].get<uint64_t>());
+    expect_the_top_level(dispatches[0].structures);
+    EXPECT_EQ(dispatches[1].pipeline, out["updateAfterBindPipeline"].get<uint64_t>());
+    ASSERT_EQ(dispatches[1].structures.size(), 1u);
+    const Binding& late = dispatches[1].structures[0];
+    EXPECT_EQ(late.source, kSourceDescriptorSet);
+    EXPECT_EQ(late.set, 0u);
+    EXPECT_EQ(late.binding, 0u);
+    EXPECT_NE(late.acceleration_structure, out["otherTopLevel"].get<uint64_t>());
+    EXPECT_EQ(late.acceleration_structure, out["topLevel"].get<uint64_t>());
+    EXPECT_EQ(late.address, out["topLevelAddress"].get<uint64_t>());
 }
 
 }  // namespace
