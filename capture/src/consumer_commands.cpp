@@ -413,6 +413,7 @@ std::vector<ReachableAccelerationStructure> structures_reached(DeviceState& d,
         }
     }
     for (const auto& [key, r] : bindings.pushed) out.push_back(r);
+    add_descriptor_buffer_structures(d, bindings.buffer_sets, out);
     add_push_constant_addresses(d, bindings.push_constants, out);
     return out;
 }
@@ -479,6 +480,7 @@ std::vector<ReachableAccelerationStructure> reachable_acceleration_structures(
                                  : log.ray_tracing_sets;
     bindings.pushed = log.pushed_acceleration_structures[index];
     bindings.push_constants = log.push_constants;
+    bindings.buffer_sets = descriptor_buffer_sets_at(log, index);
     log.consumers.push_back(std::move(bindings));
     return structures_reached(d, log.consumers.back());
 }
@@ -510,7 +512,7 @@ PFN_vkVoidFunction consumer_hook(const char* name) {
     CLASTRACE_CONSUMER_HOOK(CmdTraceRaysIndirect2KHR)
     CLASTRACE_CONSUMER_HOOK(CmdTraceRaysNV)
 #undef CLASTRACE_CONSUMER_HOOK
-    return nullptr;
+    return descriptor_buffer_hook(name);  // VK_EXT_descriptor_buffer
 }
 
 }  // namespace clastrace::capture

@@ -5,6 +5,7 @@
 
 #include "clastrace/capture/capture_sink.h"
 #include "clastrace/capture/device_memory_map.h"
+#include "consumer_descriptor_buffers.h"
 #include "host_write_watch.h"
 #include "clastrace/capture/layer_config.h"
 #include "clastrace/capture/nv_scene_model.h"
@@ -180,6 +181,12 @@ uint64_t handle_id(Handle handle) {
     X(CmdPushConstants2KHR)                           \
     X(CmdPushDescriptorSet2KHR)                       \
     X(CmdPushDescriptorSetWithTemplate2KHR)           \
+    X(CreateDescriptorSetLayout)                      \
+    X(CreatePipelineLayout)                           \
+    X(GetDescriptorSetLayoutBindingOffsetEXT)         \
+    X(GetDescriptorEXT)                               \
+    X(CmdBindDescriptorBuffersEXT)                    \
+    X(CmdSetDescriptorBufferOffsetsEXT)               \
     X(CreateDescriptorUpdateTemplate)                 \
     X(CreateDescriptorUpdateTemplateKHR)              \
     X(DestroyDescriptorUpdateTemplate)                \
@@ -264,6 +271,9 @@ struct DeviceState {
         VkPipelineBindPoint bind_point = VK_PIPELINE_BIND_POINT_GRAPHICS;  // push templates
     };
     std::unordered_map<uint64_t, DescriptorTemplate> descriptor_templates;
+    // VK_EXT_descriptor_buffer: descriptors' bytes, set and pipeline layouts
+    // (consumer_descriptor_buffers.cpp).
+    DescriptorBufferRegistry descriptor_buffers;
     // KHR structures' device addresses (vkGetAccelerationStructureDeviceAddressKHR answers, or
     // the layer's own asks) and NV structures' handles, both ways: consumers name the structures
     // they reach by handle and address (consumer_commands.cpp).
@@ -384,6 +394,8 @@ KhrStructureStorage khr_structure_storage(const DeviceState& device,
 PFN_vkVoidFunction consumer_hook(const char* name);
 PFN_vkVoidFunction consumer_pipeline_hook(const char* name);
 PFN_vkVoidFunction descriptor_template_hook(const char* name);
+// VK_EXT_descriptor_buffer (consumer_descriptor_buffers.cpp; consumer_hook asks it).
+PFN_vkVoidFunction descriptor_buffer_hook(const char* name);
 // The stages of `pipeline` whose shaders use ray queries (0: none; spirv_pipelines.cpp).
 VkPipelineStageFlags2 ray_query_stages(DeviceState& d, uint64_t pipeline);
 // What the SPIR-V of one shader stage says (spirv_pipelines.cpp): the module's marks, or the

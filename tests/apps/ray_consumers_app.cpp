@@ -11,7 +11,9 @@
 // With "sources": only a dispatch bound and pushed with VK_KHR_maintenance6's
 // vkCmdBindDescriptorSets2KHR / vkCmdPushConstants2KHR, and one whose UPDATE_AFTER_BIND set is
 // rewritten between recording and submission.
-// Usage: ray_consumers_app OUT.json [sources]. OUT.json names the handles and addresses the capture must
+// With "descriptor-buffer": one ray-query dispatch whose set comes from a descriptor buffer
+// (VK_EXT_descriptor_buffer), the TLAS descriptor written there with vkGetDescriptorEXT.
+// Usage: ray_consumers_app OUT.json [sources|descriptor-buffer]. OUT.json names the handles and addresses the capture must
 // report. Exit 0 and "ok" when every result is right; 2 otherwise.
 #include <clastrace/vk_maintenance6_abi.h>
 #include <vulkan/vulkan.h>
@@ -61,6 +63,12 @@ struct Functions {
     PFN_vkCmdPushDescriptorSetKHR push_descriptor_set;
     PFN_vkCmdBindDescriptorSets2KHR bind_descriptor_sets2;
     PFN_vkCmdPushConstants2KHR push_constants2;
+    // VK_EXT_descriptor_buffer ("descriptor-buffer" mode only).
+    PFN_vkGetDescriptorSetLayoutSizeEXT set_layout_size;
+    PFN_vkGetDescriptorSetLayoutBindingOffsetEXT binding_offset;
+    PFN_vkGetDescriptorEXT get_descriptor;
+    PFN_vkCmdBindDescriptorBuffersEXT bind_descriptor_buffers;
+    PFN_vkCmdSetDescriptorBufferOffsetsEXT set_descriptor_buffer_offsets;
 };
 
 struct Device {
@@ -70,6 +78,9 @@ struct Device {
     VkQueue queue = VK_NULL_HANDLE;
     uint32_t family = 0;
     bool trace_rays_indirect = false;
+    bool descriptor_buffer = false;  // VK_EXT_descriptor_buffer enabled
+    VkPhysicalDeviceDescriptorBufferPropertiesEXT descriptor_buffer_properties{
+        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_DESCRIPTOR_BUFFER_PROPERTIES_EXT};
     VkPhysicalDeviceRayTracingPipelinePropertiesKHR rt{
         VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_RAY_TRACING_PIPELINE_PROPERTIES_KHR};
     VkPhysicalDeviceAccelerationStructurePropertiesKHR as{
@@ -108,10 +119,23 @@ void load_functions(Device& d) {
         device_function<PFN_vkCmdBindDescriptorSets2KHR>(d.device, "vkCmdBindDescriptorSets2KHR");
     d.fn.push_constants2 =
         device_function<PFN_vkCmdPushConstants2KHR>(d.device, "vkCmdPushConstants2KHR");
+    if (!d.descriptor_buffer) return;
+    d.fn.set_layout_size =
+        device_function<PFN_vkGetDescriptorSetLayoutSizeEXT>(d.device,
+                                                             "vkGetDescriptorSetLayoutSizeEXT");
+    d.fn.binding_offset = device_function<PFN_vkGetDescriptorSetLayoutBindingOffsetEXT>(
+        d.device, "vkGetDescriptorSetLayoutBindingOffsetEXT");
+    d.fn.get_descriptor = device_function<PFN_vkGetDescriptorEXT>(d.device, "vkGetDescriptorEXT");
+    d.fn.bind_descriptor_buffers =
+        device_function<PFN_vkCmdBindDescriptorBuffersEXT>(d.device,
+                                                           "vkCmdBindDescriptorBuffersEXT");
+    d.fn.set_descriptor_buffer_offsets = device_function<PFN_vkCmdSetDescriptorBufferOffsetsEXT>(
+        d.device, "vkCmdSetDescriptorBufferOffsetsEXT");
 }
 
-Device create_device() {
+Device create_device(bool descriptor_buffer = false) {
     Device d;
+    d.descriptor_buffer = descriptor_buffer;
     VkApplicationInfo app{VK_STRUCTURE_TYPE_APPLICATION_INFO};
     app.pApplicationName = "ray_consumers_app";
     app.apiVersion = VK_API_VERSION_1_3;
@@ -122,6 +146,7 @@ Device create_device() {
     VkResult listed = vkEnumeratePhysicalDevices(d.instance, &count, &d.physical);
     if ((listed != VK_SUCCESS && listed != VK_INCOMPLETE) || count == 0) fail("no Vulkan device");
     d.rt.pNext = &d.as;
+    d.as.pNext = &d.descriptor_buffer_properties;
     VkPhysicalDeviceProperties2 properties{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2, &d.rt};
     vkGetPhysicalDeviceProperties2(d.physical, &properties);
 
@@ -158,6 +183,10 @@ Device create_device() {
         VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_MAINTENANCE_6_FEATURES_KHR, &pipeline};
     maintenance6.maintenance6 = VK_TRUE;
     v13.pNext = &maintenance6;
+    VkPhysicalDeviceDescriptorBufferFeaturesEXT descriptor_buffers{
+        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_DESCRIPTOR_BUFFER_FEATURES_EXT, &pipeline};
+    descriptor_buffers.descriptorBuffer = VK_TRUE;
+    if (descriptor_buffer) maintenance6.pNext = &descriptor_buffers;
     VkPhysicalDeviceFeatures2 features{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2, &v12};
     features.features.vertexPipelineStoresAndAtomics = VK_TRUE;
     const char* extensions[] = {"VK_KHR_acceleration_structure",
@@ -165,11 +194,12 @@ Device create_device() {
                                 "VK_KHR_ray_tracing_pipeline",
                                 "VK_KHR_deferred_host_operations",
                                 "VK_KHR_push_descriptor",
-                                VK_KHR_MAINTENANCE_6_EXTENSION_NAME};
+                                VK_KHR_MAINTENANCE_6_EXTENSION_NAME,
+                                VK_EXT_DESCRIPTOR_BUFFER_EXTENSION_NAME};
     VkDeviceCreateInfo device_info{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO, &features};
     device_info.queueCreateInfoCount = 1;
     device_info.pQueueCreateInfos = &queue_info;
-    device_info.enabledExtensionCount = 6;
+    device_info.enabledExtensionCount = descriptor_buffer ? 7 : 6;
     device_info.ppEnabledExtensionNames = extensions;
     CHECK(vkCreateDevice(d.physical, &device_info, nullptr, &d.device));
     vkGetDeviceQueue(d.device, d.family, 0, &d.queue);
@@ -443,8 +473,9 @@ void create_set(const Device& d, Pipelines& p, VkAccelerationStructureKHR top, V
 }
 
 VkPipeline compute_pipeline(const Device& d, VkPipelineLayout layout, const uint32_t* code,
-                            size_t size) {
+                            size_t size, VkPipelineCreateFlags flags = 0) {
     VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
+    info.flags = flags;
     info.stage.sType = VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO;
     info.stage.stage = VK_SHADER_STAGE_COMPUTE_BIT;
     info.stage.module = shader(d, code, size);
@@ -765,12 +796,114 @@ int sources_main(const char* out_path) {
     return 0;
 }
 
+// ---- "descriptor-buffer" mode: the TLAS descriptor in a descriptor buffer -----------------------
+
+// The set layout (binding 0 the TLAS, binding 1 the results) for descriptor buffers, written at
+// `base` bytes into `descriptors` with vkGetDescriptorEXT; the ray-query pipeline over it.
+struct BufferSet {
+    VkPipelineLayout layout = VK_NULL_HANDLE;
+    VkPipeline pipeline = VK_NULL_HANDLE;
+    Buffer descriptors;
+    VkDeviceSize base = 0;
+};
+
+BufferSet buffer_set(const Device& d, const Structure& top, const Buffer& results) {
+    const VkShaderStageFlags stages = kStages;
+    VkDescriptorSetLayoutBinding bindings[2] = {{0, VK_DESCRIPTOR_TYPE_ACCELERATION_STRUCTURE_KHR,
+                                                 1, stages, nullptr},
+                                                {1, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1, stages,
+                                                 nullptr}};
+    VkDescriptorSetLayoutCreateInfo info{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
+    info.flags = VK_DESCRIPTOR_SET_LAYOUT_CREATE_DESCRIPTOR_BUFFER_BIT_EXT;
+    info.bindingCount = 2;
+    info.pBindings = bindings;
+    VkDescriptorSetLayout set_layout;
+    CHECK(vkCreateDescriptorSetLayout(d.device, &info, nullptr, &set_layout));
+    BufferSet b;
+    b.layout = pipeline_layout_of(d, set_layout);
+    b.pipeline = compute_pipeline(d, b.layout, kRayQueryComp, sizeof kRayQueryComp,
+                                  VK_PIPELINE_CREATE_DESCRIPTOR_BUFFER_BIT_EXT);
+    VkDeviceSize size = 0, offsets[2] = {0, 0};
+    d.fn.set_layout_size(d.device, set_layout, &size);
+    for (uint32_t binding = 0; binding < 2; ++binding)
+        d.fn.binding_offset(d.device, set_layout, binding, &offsets[binding]);
+    // The set starts past the buffer's start, so that the offset given at binding counts.
+    b.base = align_up(64, d.descriptor_buffer_properties.descriptorBufferOffsetAlignment);
+    b.descriptors =
+        create_buffer(d, b.base + size, VK_BUFFER_USAGE_RESOURCE_DESCRIPTOR_BUFFER_BIT_EXT);
+    auto* bytes = static_cast<uint8_t*>(b.descriptors.mapped) + b.base;
+    VkDescriptorGetInfoEXT structure{VK_STRUCTURE_TYPE_DESCRIPTOR_GET_INFO_EXT};
+    structure.type = VK_DESCRIPTOR_TYPE_ACCELERATION_STRUCTURE_KHR;
+    structure.data.accelerationStructure = top.address;
+    d.fn.get_descriptor(d.device, &structure,
+                        d.descriptor_buffer_properties.accelerationStructureDescriptorSize,
+                        bytes + offsets[0]);
+    VkDescriptorAddressInfoEXT range{VK_STRUCTURE_TYPE_DESCRIPTOR_ADDRESS_INFO_EXT};
+    range.address = results.address;
+    range.range = 32 * sizeof(uint32_t);
+    VkDescriptorGetInfoEXT storage{VK_STRUCTURE_TYPE_DESCRIPTOR_GET_INFO_EXT};
+    storage.type = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+    storage.data.pStorageBuffer = &range;
+    d.fn.get_descriptor(d.device, &storage,
+                        d.descriptor_buffer_properties.storageBufferDescriptorSize,
+                        bytes + offsets[1]);
+    return b;
+}
+
+// One ray-query dispatch whose set 0 comes from the descriptor buffer at `base`.
+bool run_descriptor_buffer(const Device& d, VkCommandPool pool, const BufferSet& b,
+                           const Buffer& results) {
+    VkCommandBuffer cb = begin(d, pool);
+    vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, b.pipeline);
+    VkDescriptorBufferBindingInfoEXT binding{VK_STRUCTURE_TYPE_DESCRIPTOR_BUFFER_BINDING_INFO_EXT};
+    binding.address = b.descriptors.address;
+    binding.usage = VK_BUFFER_USAGE_RESOURCE_DESCRIPTOR_BUFFER_BIT_EXT;
+    d.fn.bind_descriptor_buffers(cb, 1, &binding);
+    const uint32_t buffer_index = 0;
+    d.fn.set_descriptor_buffer_offsets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, b.layout, 0, 1,
+                                       &buffer_index, &b.base);
+    vkCmdDispatch(cb, 1, 1, 1);
+    CHECK(vkEndCommandBuffer(cb));
+    submit_and_wait(d, cb);
+    return static_cast<const uint32_t*>(results.mapped)[0] == 1;
+}
+
+// The descriptor-buffer mode: OUT.json names the TLAS and the pipeline.
+int descriptor_buffer_main(const char* out_path) {
+    Device d = create_device(true);
+    VkCommandPoolCreateInfo pool_info{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO};
+    pool_info.queueFamilyIndex = d.family;
+    VkCommandPool pool;
+    CHECK(vkCreateCommandPool(d.device, &pool_info, nullptr, &pool));
+    VkCommandBuffer build_cb = begin(d, pool);
+    const Scene scene = build_scene(d, build_cb);
+    CHECK(vkEndCommandBuffer(build_cb));
+    submit_and_wait(d, build_cb);
+    Buffer results = create_buffer(d, 32 * sizeof(uint32_t), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT);
+    const BufferSet b = buffer_set(d, scene.top, results);
+    const bool right = run_descriptor_buffer(d, pool, b, results);
+    FILE* out = std::fopen(out_path, "w");
+    if (!out) fail("cannot write OUT.json");
+    std::fprintf(out,
+                 "{\"topLevel\": %llu, \"topLevelAddress\": %llu, \"descriptorBufferPipeline\": "
+                 "%llu}\n",
+                 (unsigned long long)(uint64_t)scene.top.handle,
+                 (unsigned long long)scene.top.address, (unsigned long long)(uint64_t)b.pipeline);
+    std::fclose(out);
+    vkDeviceWaitIdle(d.device);
+    if (!right) fail("the shaders' results are wrong");
+    std::printf("ok\n");
+    return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
     if (argc == 3 && std::strcmp(argv[2], "sources") == 0) return sources_main(argv[1]);
+    if (argc == 3 && std::strcmp(argv[2], "descriptor-buffer") == 0)
+        return descriptor_buffer_main(argv[1]);
     if (argc != 2) {
-        std::fprintf(stderr, "usage: ray_consumers_app OUT.json [sources]\n");
+        std::fprintf(stderr, "usage: ray_consumers_app OUT.json [sources|descriptor-buffer]\n");
         return 2;
     }
     Device d = create_device();

@@ -8,7 +8,8 @@
 // must say which dispatch uses ray queries, the rays' entry points, dimensions, tables and
 // indirect address, and for each consumer the TLAS by handle and address with set, binding and
 // source. In "sources" mode the app binds and pushes with VK_KHR_maintenance6 and rewrites an
-// UPDATE_AFTER_BIND set between recording and submission. Label rt-driver: skipped where
+// UPDATE_AFTER_BIND set between recording and submission; in "descriptor-buffer" mode the TLAS
+// descriptor lives in a descriptor buffer. Label rt-driver: skipped where
 // lavapipe 25 is not unpacked.
 #include "layer_launch_test.h"
 
@@ -32,6 +33,7 @@ using namespace clastrace::layer_launch;
 
 constexpr uint32_t kSourceDescriptorSet = 0;
 constexpr uint32_t kSourcePushDescriptor = 1;
+constexpr uint32_t kSourceDescriptorBuffer = 2;
 constexpr uint32_t kSourcePushConstants = 3;
 
 struct Binding {
@@ -230,6 +232,24 @@ TEST_F(RayConsumersCapture, InfoStructFormsAndSetsUpdatedAfterBindReachTheTopLev
     EXPECT_NE(late.acceleration_structure, out["otherTopLevel"].get<uint64_t>());
     EXPECT_EQ(late.acceleration_structure, out["topLevel"].get<uint64_t>());
     EXPECT_EQ(late.address, out["topLevelAddress"].get<uint64_t>());
+}
+
+// VK_EXT_descriptor_buffer: the TLAS descriptor, asked of vkGetDescriptorEXT and copied into a
+// descriptor buffer at the set layout's binding offset, the set bound at a non-zero offset. The
+// capture reads the buffer and names the TLAS by handle and address at set 0, binding 0.
+TEST_F(RayConsumersCapture, DescriptorBufferReachesTheTopLevelItsDescriptorNames) {
+    capture("descriptor-buffer");
+    ASSERT_EQ(dispatches.size(), 1u);
+    EXPECT_EQ(dispatches[0].pipeline, out["descriptorBufferPipeline"].get<uint64_t>());
+    EXPECT_TRUE(dispatches[0].ray_query);
+    ASSERT_EQ(dispatches[0].structures.size(), 1u);
+    const Binding& found = dispatches[0].structures[0];
+    EXPECT_EQ(found.source, kSourceDescriptorBuffer);
+    EXPECT_EQ(found.set, 0u);
+    EXPECT_EQ(found.binding, 0u);
+    EXPECT_EQ(found.array_element, 0u);
+    EXPECT_EQ(found.acceleration_structure, out["topLevel"].get<uint64_t>());
+    EXPECT_EQ(found.address, out["topLevelAddress"].get<uint64_t>());
 }
 
 }  // namespace
