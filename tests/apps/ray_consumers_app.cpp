@@ -10,7 +10,7 @@
 // the same dimensions. After the fence it checks what the shaders wrote.
 // With "sources": only a dispatch bound and pushed with VK_KHR_maintenance6's
 // vkCmdBindDescriptorSets2KHR / vkCmdPushConstants2KHR, and one whose UPDATE_AFTER_BIND set is
-// rewritten between recording and submission.
+// rewritten between recording and submission, and one pushed with vkCmdPushDescriptorSet2KHR.
 // With "descriptor-buffer": one ray-query dispatch whose set comes from a descriptor buffer
 // (VK_EXT_descriptor_buffer), the TLAS descriptor written there with vkGetDescriptorEXT.
 // Usage: ray_consumers_app OUT.json [sources|descriptor-buffer]. OUT.json names the handles and addresses the capture must
@@ -63,6 +63,7 @@ struct Functions {
     PFN_vkCmdPushDescriptorSetKHR push_descriptor_set;
     PFN_vkCmdBindDescriptorSets2KHR bind_descriptor_sets2;
     PFN_vkCmdPushConstants2KHR push_constants2;
+    PFN_vkCmdPushDescriptorSet2KHR push_descriptor_set2;
     // VK_EXT_descriptor_buffer ("descriptor-buffer" mode only).
     PFN_vkGetDescriptorSetLayoutSizeEXT set_layout_size;
     PFN_vkGetDescriptorSetLayoutBindingOffsetEXT binding_offset;
@@ -119,6 +120,8 @@ void load_functions(Device& d) {
         device_function<PFN_vkCmdBindDescriptorSets2KHR>(d.device, "vkCmdBindDescriptorSets2KHR");
     d.fn.push_constants2 =
         device_function<PFN_vkCmdPushConstants2KHR>(d.device, "vkCmdPushConstants2KHR");
+    d.fn.push_descriptor_set2 =
+        device_function<PFN_vkCmdPushDescriptorSet2KHR>(d.device, "vkCmdPushDescriptorSet2KHR");
     if (!d.descriptor_buffer) return;
     d.fn.set_layout_size =
         device_function<PFN_vkGetDescriptorSetLayoutSizeEXT>(d.device,
@@ -712,7 +715,8 @@ LateSet late_set(const Device& d) {
 
 // Command buffer 1: the set bound with vkCmdBindDescriptorSets2KHR and the TLAS address pushed
 // with vkCmdPushConstants2KHR. Command buffer 2: the late set bound while it names `other`, then
-// (after recording, before submission) rewritten to name the TLAS. Each must reach the TLAS.
+// (after recording, before submission) rewritten to name the TLAS. Command buffer 3: the TLAS
+// pushed with vkCmdPushDescriptorSet2KHR. Each must reach the TLAS.
 bool run_sources(const Device& d, VkCommandPool pool, const Scene& scene, const Buffer& results,
                  const Pipelines& p, const LateSet& late, VkAccelerationStructureKHR other) {
     uint32_t* values = static_cast<uint32_t*>(results.mapped);
@@ -750,6 +754,22 @@ bool run_sources(const Device& d, VkCommandPool pool, const Scene& scene, const 
     scene_writes(late.set, scene.top.handle, results.buffer, after);
     vkUpdateDescriptorSets(d.device, 1, after.writes, 0, nullptr);  // binding 0 only
     submit_and_wait(d, cb);
+    right = right && values[0] == 1;
+    values[0] = 0;
+
+    cb = begin(d, pool);
+    vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, p.pushed_ray_query);
+    SceneWrites pushed;
+    scene_writes(VK_NULL_HANDLE, scene.top.handle, results.buffer, pushed);
+    VkPushDescriptorSetInfoKHR push_set{VK_STRUCTURE_TYPE_PUSH_DESCRIPTOR_SET_INFO_KHR};
+    push_set.stageFlags = VK_SHADER_STAGE_COMPUTE_BIT;
+    push_set.layout = p.push_layout;
+    push_set.descriptorWriteCount = 2;
+    push_set.pDescriptorWrites = pushed.writes;
+    d.fn.push_descriptor_set2(cb, &push_set);
+    vkCmdDispatch(cb, 1, 1, 1);
+    CHECK(vkEndCommandBuffer(cb));
+    submit_and_wait(d, cb);
     return right && values[0] == 1;
 }
 
@@ -778,17 +798,20 @@ int sources_main(const char* out_path) {
     Pipelines p;
     create_set(d, p, scene.top.handle, results.buffer);
     p.ray_query = compute_pipeline(d, p.layout, kRayQueryComp, sizeof kRayQueryComp);
+    p.pushed_ray_query = compute_pipeline(d, p.push_layout, kRayQueryComp, sizeof kRayQueryComp);
     const LateSet late = late_set(d);
     const bool right = run_sources(d, pool, scene, results, p, late, other.handle);
     FILE* out = std::fopen(out_path, "w");
     if (!out) fail("cannot write OUT.json");
     std::fprintf(out,
                  "{\"topLevel\": %llu, \"topLevelAddress\": %llu, \"otherTopLevel\": %llu, "
-                 "\"rayQueryPipeline\": %llu, \"updateAfterBindPipeline\": %llu}\n",
+                 "\"rayQueryPipeline\": %llu, \"updateAfterBindPipeline\": %llu, "
+                 "\"pushedRayQueryPipeline\": %llu}\n",
                  (unsigned long long)(uint64_t)scene.top.handle,
                  (unsigned long long)scene.top.address, (unsigned long long)(uint64_t)other.handle,
                  (unsigned long long)(uint64_t)p.ray_query,
-                 (unsigned long long)(uint64_t)late.pipeline);
+                 (unsigned long long)(uint64_t)late.pipeline,
+                 (unsigned long long)(uint64_t)p.pushed_ray_query);
     std::fclose(out);
     vkDeviceWaitIdle(d.device);
     if (!right) fail("the shaders' results are wrong");

@@ -215,12 +215,13 @@ TEST_F(RayConsumersCapture, TraceRaysRecordsEntryPointDimensionsTablesAndTheTopL
     expect_the_top_level(from_memory.structures);
 }
 
-// VK_KHR_maintenance6: vkCmdBindDescriptorSets2KHR and vkCmdPushConstants2KHR feed the same
-// state as their 1.0 forms. A set created UPDATE_AFTER_BIND and rewritten between recording and
-// submission: the dispatch reaches what the set names at submission, not at binding.
+// VK_KHR_maintenance6: vkCmdBindDescriptorSets2KHR, vkCmdPushConstants2KHR and
+// vkCmdPushDescriptorSet2KHR feed the same state as their 1.0 forms. A set created
+// UPDATE_AFTER_BIND and rewritten between recording and submission: the dispatch reaches what the
+// set names at submission, not at binding.
 TEST_F(RayConsumersCapture, InfoStructFormsAndSetsUpdatedAfterBindReachTheTopLevel) {
     capture("sources");
-    ASSERT_EQ(dispatches.size(), 2u);
+    ASSERT_EQ(dispatches.size(), 3u);
     EXPECT_EQ(dispatches[0].pipeline, out["rayQueryPipeline"].get<uint64_t>());
     expect_the_top_level(dispatches[0].structures);
     EXPECT_EQ(dispatches[1].pipeline, out["updateAfterBindPipeline"].get<uint64_t>());
@@ -232,6 +233,15 @@ TEST_F(RayConsumersCapture, InfoStructFormsAndSetsUpdatedAfterBindReachTheTopLev
     EXPECT_NE(late.acceleration_structure, out["otherTopLevel"].get<uint64_t>());
     EXPECT_EQ(late.acceleration_structure, out["topLevel"].get<uint64_t>());
     EXPECT_EQ(late.address, out["topLevelAddress"].get<uint64_t>());
+    // vkCmdPushDescriptorSet2KHR: the pushed TLAS (no push constants in that command buffer).
+    EXPECT_EQ(dispatches[2].pipeline, out["pushedRayQueryPipeline"].get<uint64_t>());
+    ASSERT_EQ(dispatches[2].structures.size(), 1u);
+    const Binding& pushed = dispatches[2].structures[0];
+    EXPECT_EQ(pushed.source, kSourcePushDescriptor);
+    EXPECT_EQ(pushed.set, 0u);
+    EXPECT_EQ(pushed.binding, 0u);
+    EXPECT_EQ(pushed.acceleration_structure, out["topLevel"].get<uint64_t>());
+    EXPECT_EQ(pushed.address, out["topLevelAddress"].get<uint64_t>());
 }
 
 // VK_EXT_descriptor_buffer: the TLAS descriptor, asked of vkGetDescriptorEXT and copied into a
