@@ -13,6 +13,30 @@
 
 namespace clastrace::capture {
 
+using BoundDescriptorSets =
+    std::map<uint32_t, std::pair<VkDescriptorSet, std::vector<uint32_t>>>;  // set -> (set, offsets)
+using PushedAccelerationStructures =  // (set, binding, element) -> structure
+    std::map<std::tuple<uint32_t, uint32_t, uint32_t>, ReachableAccelerationStructure>;
+
+// A set taken from a descriptor buffer (vkCmdSetDescriptorBufferOffsetsEXT): its layout and the
+// address its descriptors start at (the bound buffer's address plus the offset).
+struct DescriptorBufferSet {
+    uint64_t set_layout = 0;
+    VkDeviceAddress address = 0;
+};
+using DescriptorBufferSets = std::map<uint32_t, DescriptorBufferSet>;  // set -> where
+
+// What one consumer (rays, a ray-query dispatch or draw) was recorded with, kept so that the
+// structures it reaches are read again at each submission (refresh_consumer_structures): a set
+// updated after binding (UPDATE_AFTER_BIND) holds, when the command runs, what was written last.
+struct ConsumerBindings {
+    int bind_point = 0;  // bind_point_index
+    BoundDescriptorSets sets;
+    PushedAccelerationStructures pushed;
+    std::vector<uint8_t> push_constants;
+    DescriptorBufferSets buffer_sets;
+};
+
 struct CommandBufferLog {
     RecordedCommandBuffer recorded;
     std::vector<PausePoint> pauses;                    // in execution order, secondaries' included
@@ -32,23 +56,40 @@ struct CommandBufferLog {
     uint64_t compute_pipeline = 0;
     uint64_t graphics_pipeline = 0;  // for draws that may write through device addresses
     uint64_t ray_tracing_pipeline = 0;
-    using BoundSets = std::map<uint32_t, std::pair<VkDescriptorSet, std::vector<uint32_t>>>;
+    using BoundSets = BoundDescriptorSets;
     BoundSets compute_sets;  // set -> (set, dynamic offsets)
     BoundSets graphics_sets, ray_tracing_sets;
     // Acceleration structures pushed with vkCmdPushDescriptorSet*KHR, per bind point (compute,
     // graphics, ray tracing), keyed by (set, binding, element).
-    std::map<std::tuple<uint32_t, uint32_t, uint32_t>, ReachableAccelerationStructure>
-        pushed_acceleration_structures[3];
+    PushedAccelerationStructures pushed_acceleration_structures[3];
     std::vector<uint8_t> push_constants;  // the bytes vkCmdPushConstants set so far
+    // VK_EXT_descriptor_buffer: the bound descriptor buffers' addresses (by binding index), and
+    // per bind point the sets taken from them: set -> (set layout, buffer index, offset).
+    std::vector<VkDeviceAddress> descriptor_buffers;
+    struct BufferSetOffset {
+        uint64_t set_layout = 0;
+        uint32_t buffer_index = 0;
+        VkDeviceSize offset = 0;
+    };
+    std::map<uint32_t, BufferSetOffset> descriptor_buffer_offsets[3];
+    // One entry per consumer recorded, in recording order (reachable_acceleration_structures,
+    // which reads a const log, appends them).
+    mutable std::vector<ConsumerBindings> consumers;
 
-    // vkCmdBindDescriptorSets bound sets [first, first + count) at `bind_point`: what was pushed
-    // there before is no longer bound.
+    // vkCmdBindDescriptorSets (or vkCmdSetDescriptorBufferOffsetsEXT) bound sets [first, first +
+    // count) at `bind_point`: what was pushed or taken from a descriptor buffer there before is
+    // no longer bound.
     void forget_pushed_sets(int index, uint32_t first, uint32_t count) {
+        if (index < 0) return;
         auto& pushed = pushed_acceleration_structures[index];
         for (auto it = pushed.begin(); it != pushed.end();) {
             const uint32_t set = std::get<0>(it->first);
             it = set >= first && set - first < count ? pushed.erase(it) : std::next(it);
         }
+        auto& from_buffers = descriptor_buffer_offsets[index];
+        for (auto it = from_buffers.begin(); it != from_buffers.end();)
+            it = it->first >= first && it->first - first < count ? from_buffers.erase(it)
+                                                                 : std::next(it);
     }
     // The sets bound at `bind_point` (null for bind points the layer does not follow).
     BoundSets* sets_at(VkPipelineBindPoint bind_point) {
@@ -95,6 +136,14 @@ std::vector<BoundStorageBuffer> bound_storage_buffers(DeviceState& d,
 // (consumer_commands.cpp).
 std::vector<ReachableAccelerationStructure> reachable_acceleration_structures(
     DeviceState& d, const CommandBufferLog& log, VkPipelineBindPoint bind_point);
+
+// The sets taken from descriptor buffers at bind point `index`, with the addresses their
+// descriptors start at now (consumer_descriptor_buffers.cpp).
+DescriptorBufferSets descriptor_buffer_sets_at(const CommandBufferLog& log, int index);
+// The acceleration structures whose descriptors (vkGetDescriptorEXT answers) `sets` hold now, read
+// from host-visible memory; source kDescriptorBuffer (consumer_descriptor_buffers.cpp).
+void add_descriptor_buffer_structures(DeviceState& d, const DescriptorBufferSets& sets,
+                                      std::vector<ReachableAccelerationStructure>& out);
 
 // Clears `log` for a new recording; its events and query pool become spares.
 void clear_command_buffer_log(DeviceState& device, CommandBufferLog& log);

@@ -7,8 +7,12 @@
 #include "command_buffer_log.h"
 #include "layer_state.h"
 
+#include <algorithm>
+#include <atomic>
 #include <cstring>
 #include <map>
+#include <set>
+#include <tuple>
 #include <string>
 
 namespace clastrace::capture {
@@ -109,6 +113,81 @@ VKAPI_ATTR void VKAPI_CALL CmdPushDescriptorSetKHR(VkCommandBuffer cb,
     d.next.CmdPushDescriptorSetKHR(cb, bind_point, layout, set, write_count, writes);
     for (uint32_t w = 0; w < write_count; ++w)
         track_pushed_descriptor_write(d, cb, bind_point, set, writes[w]);
+}
+
+// ---- VK_KHR_maintenance6: the info-struct forms, each turned into its 1.0 form ---------------
+// One call per bind point its stage flags name, as the extension defines them; a chain on the
+// info (a pipeline layout given by VkPipelineLayoutCreateInfo) has no 1.0 form: forwarded as is,
+// and not followed.
+
+std::vector<VkPipelineBindPoint> bind_points_of(VkShaderStageFlags stages) {
+    constexpr VkShaderStageFlags kGraphics =
+        VK_SHADER_STAGE_ALL_GRAPHICS | VK_SHADER_STAGE_TASK_BIT_EXT | VK_SHADER_STAGE_MESH_BIT_EXT;
+    constexpr VkShaderStageFlags kRays =
+        VK_SHADER_STAGE_RAYGEN_BIT_KHR | VK_SHADER_STAGE_ANY_HIT_BIT_KHR |
+        VK_SHADER_STAGE_CLOSEST_HIT_BIT_KHR | VK_SHADER_STAGE_MISS_BIT_KHR |
+        VK_SHADER_STAGE_INTERSECTION_BIT_KHR | VK_SHADER_STAGE_CALLABLE_BIT_KHR;
+    std::vector<VkPipelineBindPoint> out;
+    if (stages & VK_SHADER_STAGE_COMPUTE_BIT) out.push_back(VK_PIPELINE_BIND_POINT_COMPUTE);
+    if (stages & kGraphics) out.push_back(VK_PIPELINE_BIND_POINT_GRAPHICS);
+    if (stages & kRays) out.push_back(VK_PIPELINE_BIND_POINT_RAY_TRACING_KHR);
+    return out;
+}
+
+void say_chained_info_not_followed(const char* entry_point) {
+    static std::atomic<bool> said{false};
+    if (!said.exchange(true))
+        log_message(LogLevel::kInfo,
+                    "%s with a pNext chain (a pipeline layout given by its create info): "
+                    "forwarded as is; the acceleration structures it binds are not followed",
+                    entry_point);
+}
+
+VKAPI_ATTR void VKAPI_CALL CmdBindDescriptorSets2KHR(VkCommandBuffer cb,
+                                                     const VkBindDescriptorSetsInfoKHR* info) {
+    DeviceState& d = device_of(cb);
+    if (info->pNext) {
+        say_chained_info_not_followed("vkCmdBindDescriptorSets2KHR");
+        return d.next.CmdBindDescriptorSets2KHR(cb, info);
+    }
+    // The layer's own vkCmdBindDescriptorSets (layer_commands.cpp): it forwards and follows.
+    const auto bind =
+        reinterpret_cast<PFN_vkCmdBindDescriptorSets>(command_hook("vkCmdBindDescriptorSets"));
+    for (VkPipelineBindPoint bind_point : bind_points_of(info->stageFlags))
+        bind(cb, bind_point, info->layout, info->firstSet, info->descriptorSetCount,
+             info->pDescriptorSets, info->dynamicOffsetCount, info->pDynamicOffsets);
+}
+
+VKAPI_ATTR void VKAPI_CALL CmdPushConstants2KHR(VkCommandBuffer cb,
+                                                const VkPushConstantsInfoKHR* info) {
+    if (info->pNext) {
+        say_chained_info_not_followed("vkCmdPushConstants2KHR");
+        return device_of(cb).next.CmdPushConstants2KHR(cb, info);
+    }
+    CmdPushConstants(cb, info->layout, info->stageFlags, info->offset, info->size, info->pValues);
+}
+
+VKAPI_ATTR void VKAPI_CALL CmdPushDescriptorSet2KHR(VkCommandBuffer cb,
+                                                    const VkPushDescriptorSetInfoKHR* info) {
+    if (info->pNext) {
+        say_chained_info_not_followed("vkCmdPushDescriptorSet2KHR");
+        return device_of(cb).next.CmdPushDescriptorSet2KHR(cb, info);
+    }
+    for (VkPipelineBindPoint bind_point : bind_points_of(info->stageFlags))
+        CmdPushDescriptorSetKHR(cb, bind_point, info->layout, info->set, info->descriptorWriteCount,
+                                info->pDescriptorWrites);
+}
+
+VKAPI_ATTR void VKAPI_CALL CmdPushDescriptorSetWithTemplate2KHR(
+    VkCommandBuffer cb, const VkPushDescriptorSetWithTemplateInfoKHR* info) {
+    if (info->pNext) {
+        say_chained_info_not_followed("vkCmdPushDescriptorSetWithTemplate2KHR");
+        return device_of(cb).next.CmdPushDescriptorSetWithTemplate2KHR(cb, info);
+    }
+    // The template names its bind point (descriptor_templates.cpp follows it).
+    const auto push = reinterpret_cast<PFN_vkCmdPushDescriptorSetWithTemplateKHR>(
+        descriptor_template_hook("vkCmdPushDescriptorSetWithTemplateKHR"));
+    push(cb, info->descriptorUpdateTemplate, info->layout, info->set, info->pData);
 }
 
 // ---- Rays -----------------------------------------------------------------------------------
@@ -314,17 +393,16 @@ void track_pushed_descriptor_write(DeviceState& d, VkCommandBuffer cb,
     }
 }
 
-std::vector<ReachableAccelerationStructure> reachable_acceleration_structures(
-    DeviceState& d, const CommandBufferLog& log, VkPipelineBindPoint bind_point) {
+namespace {
+
+// What `bindings` reach now: the acceleration-structure descriptors the bound sets hold at this
+// moment, the pushed ones, and push-constant values equal to a known address.
+std::vector<ReachableAccelerationStructure> structures_reached(DeviceState& d,
+                                                               const ConsumerBindings& bindings) {
     std::vector<ReachableAccelerationStructure> out;
-    const int index = bind_point_index(bind_point);
-    if (index < 0) return out;
-    const CommandBufferLog::BoundSets& sets = index == 0   ? log.compute_sets
-                                              : index == 1 ? log.graphics_sets
-                                                           : log.ray_tracing_sets;
     {
         std::lock_guard lock(d.descriptors_mutex);
-        for (const auto& [set_index, bound] : sets) {
+        for (const auto& [set_index, bound] : bindings.sets) {
             auto known = d.descriptors.find(bound.first);
             if (known == d.descriptors.end()) continue;
             for (const auto& [key, tracked] : known->second)
@@ -334,9 +412,90 @@ std::vector<ReachableAccelerationStructure> reachable_acceleration_structures(
                 }
         }
     }
-    for (const auto& [key, r] : log.pushed_acceleration_structures[index]) out.push_back(r);
-    add_push_constant_addresses(d, log.push_constants, out);
+    for (const auto& [key, r] : bindings.pushed) out.push_back(r);
+    add_descriptor_buffer_structures(d, bindings.buffer_sets, out);
+    add_push_constant_addresses(d, bindings.push_constants, out);
     return out;
+}
+
+bool same_structures(const std::vector<ReachableAccelerationStructure>& a,
+                     const std::vector<ReachableAccelerationStructure>& b) {
+    auto fields = [](const ReachableAccelerationStructure& r) {
+        return std::tuple(r.set, r.binding, r.array_element, r.source, r.acceleration_structure,
+                          r.address);
+    };
+    return std::equal(a.begin(), a.end(), b.begin(), b.end(),
+                      [&](const auto& x, const auto& y) { return fields(x) == fields(y); });
+}
+
+// The reachable structures of a recorded consumer, or null for any other command. The order
+// matches the calls of reachable_acceleration_structures (layer_commands.cpp asks for ray-query
+// dispatches and draws only; rays always ask).
+std::vector<ReachableAccelerationStructure>* consumer_structures(RecordedCommand& command) {
+    if (auto* c = std::get_if<DispatchCommand>(&command))
+        return c->ray_query ? &c->acceleration_structures : nullptr;
+    if (auto* c = std::get_if<DrawCommand>(&command))
+        return c->ray_query_stages ? &c->acceleration_structures : nullptr;
+    if (auto* c = std::get_if<TraceRaysCommand>(&command)) return &c->acceleration_structures;
+    return nullptr;
+}
+
+// Reads the structures of `cb`'s consumers again; hands the recording to the sink when one
+// changed. Appends the secondaries it executes to `secondaries`.
+void refresh_command_buffer(DeviceState& d, uint64_t cb, std::vector<uint64_t>& secondaries) {
+    std::shared_ptr<CommandBufferLog> log;
+    {
+        std::lock_guard lock(d.command_buffers_mutex);
+        auto it = d.command_buffers.find(reinterpret_cast<VkCommandBuffer>(cb));
+        if (it == d.command_buffers.end()) return;
+        log = it->second;
+    }
+    size_t next = 0;
+    bool changed = false;
+    for (RecordedCommand& command : log->recorded.commands) {
+        if (const auto* execute = std::get_if<ExecuteCommandsCommand>(&command))
+            secondaries.insert(secondaries.end(), execute->secondaries.begin(),
+                               execute->secondaries.end());
+        std::vector<ReachableAccelerationStructure>* recorded = consumer_structures(command);
+        if (!recorded || next >= log->consumers.size()) continue;
+        std::vector<ReachableAccelerationStructure> now =
+            structures_reached(d, log->consumers[next++]);
+        if (same_structures(now, *recorded)) continue;
+        *recorded = std::move(now);
+        changed = true;
+    }
+    if (changed) d.sink->command_buffer_recorded(log->recorded);
+}
+
+}  // namespace
+
+std::vector<ReachableAccelerationStructure> reachable_acceleration_structures(
+    DeviceState& d, const CommandBufferLog& log, VkPipelineBindPoint bind_point) {
+    const int index = bind_point_index(bind_point);
+    if (index < 0) return {};
+    ConsumerBindings bindings;
+    bindings.bind_point = index;
+    bindings.sets = index == 0   ? log.compute_sets
+                    : index == 1 ? log.graphics_sets
+                                 : log.ray_tracing_sets;
+    bindings.pushed = log.pushed_acceleration_structures[index];
+    bindings.push_constants = log.push_constants;
+    bindings.buffer_sets = descriptor_buffer_sets_at(log, index);
+    log.consumers.push_back(std::move(bindings));
+    return structures_reached(d, log.consumers.back());
+}
+
+void refresh_consumer_structures(DeviceState& d, const SubmissionRecord& record) {
+    if (!d.sink) return;
+    std::vector<uint64_t> pending;
+    for (const SubmitBatch& batch : record.batches)
+        pending.insert(pending.end(), batch.command_buffers.begin(), batch.command_buffers.end());
+    std::set<uint64_t> done;
+    while (!pending.empty()) {
+        const uint64_t cb = pending.back();
+        pending.pop_back();
+        if (done.insert(cb).second) refresh_command_buffer(d, cb, pending);
+    }
 }
 
 PFN_vkVoidFunction consumer_hook(const char* name) {
@@ -344,12 +503,16 @@ PFN_vkVoidFunction consumer_hook(const char* name) {
     if (std::strcmp(name, "vk" #fn) == 0) return (PFN_vkVoidFunction)fn;
     CLASTRACE_CONSUMER_HOOK(CmdPushConstants)
     CLASTRACE_CONSUMER_HOOK(CmdPushDescriptorSetKHR)
+    CLASTRACE_CONSUMER_HOOK(CmdBindDescriptorSets2KHR)
+    CLASTRACE_CONSUMER_HOOK(CmdPushConstants2KHR)
+    CLASTRACE_CONSUMER_HOOK(CmdPushDescriptorSet2KHR)
+    CLASTRACE_CONSUMER_HOOK(CmdPushDescriptorSetWithTemplate2KHR)
     CLASTRACE_CONSUMER_HOOK(CmdTraceRaysKHR)
     CLASTRACE_CONSUMER_HOOK(CmdTraceRaysIndirectKHR)
     CLASTRACE_CONSUMER_HOOK(CmdTraceRaysIndirect2KHR)
     CLASTRACE_CONSUMER_HOOK(CmdTraceRaysNV)
 #undef CLASTRACE_CONSUMER_HOOK
-    return nullptr;
+    return descriptor_buffer_hook(name);  // VK_EXT_descriptor_buffer
 }
 
 }  // namespace clastrace::capture

@@ -861,6 +861,9 @@ void clear_command_buffer_log(DeviceState& d, CommandBufferLog& log) {
     log.ray_tracing_sets.clear();
     for (auto& pushed : log.pushed_acceleration_structures) pushed.clear();
     log.push_constants.clear();
+    log.consumers.clear();
+    log.descriptor_buffers.clear();
+    for (auto& offsets : log.descriptor_buffer_offsets) offsets.clear();
 }
 
 void release_command_buffer_log(DeviceState& d, CommandBufferLog& log) {

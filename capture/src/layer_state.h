@@ -5,12 +5,14 @@
 
 #include "clastrace/capture/capture_sink.h"
 #include "clastrace/capture/device_memory_map.h"
+#include "consumer_descriptor_buffers.h"
 #include "host_write_watch.h"
 #include "clastrace/capture/layer_config.h"
 #include "clastrace/capture/nv_scene_model.h"
 
 #include <clastrace/vk_cluster_abi.h>
 #include <clastrace/vk_frame_boundary_abi.h>
+#include <clastrace/vk_maintenance6_abi.h>
 #include <vulkan/vk_layer.h>
 
 #include <atomic>
@@ -181,6 +183,16 @@ uint64_t handle_id(Handle handle) {
     X(CmdPushConstants)                               \
     X(CmdPushDescriptorSetKHR)                        \
     X(CmdPushDescriptorSetWithTemplateKHR)            \
+    X(CmdBindDescriptorSets2KHR)                      \
+    X(CmdPushConstants2KHR)                           \
+    X(CmdPushDescriptorSet2KHR)                       \
+    X(CmdPushDescriptorSetWithTemplate2KHR)           \
+    X(CreateDescriptorSetLayout)                      \
+    X(CreatePipelineLayout)                           \
+    X(GetDescriptorSetLayoutBindingOffsetEXT)         \
+    X(GetDescriptorEXT)                               \
+    X(CmdBindDescriptorBuffersEXT)                    \
+    X(CmdSetDescriptorBufferOffsetsEXT)               \
     X(CreateDescriptorUpdateTemplate)                 \
     X(CreateDescriptorUpdateTemplateKHR)              \
     X(DestroyDescriptorUpdateTemplate)                \
@@ -265,6 +277,9 @@ struct DeviceState {
         VkPipelineBindPoint bind_point = VK_PIPELINE_BIND_POINT_GRAPHICS;  // push templates
     };
     std::unordered_map<uint64_t, DescriptorTemplate> descriptor_templates;
+    // VK_EXT_descriptor_buffer: descriptors' bytes, set and pipeline layouts
+    // (consumer_descriptor_buffers.cpp).
+    DescriptorBufferRegistry descriptor_buffers;
     // KHR structures' device addresses (vkGetAccelerationStructureDeviceAddressKHR answers, or
     // the layer's own asks) and NV structures' handles, both ways: consumers name the structures
     // they reach by handle and address (consumer_commands.cpp).
@@ -387,6 +402,8 @@ KhrStructureStorage khr_structure_storage(const DeviceState& device,
 PFN_vkVoidFunction consumer_hook(const char* name);
 PFN_vkVoidFunction consumer_pipeline_hook(const char* name);
 PFN_vkVoidFunction descriptor_template_hook(const char* name);
+// VK_EXT_descriptor_buffer (consumer_descriptor_buffers.cpp; consumer_hook asks it).
+PFN_vkVoidFunction descriptor_buffer_hook(const char* name);
 // The stages of `pipeline` whose shaders use ray queries (0: none; spirv_pipelines.cpp).
 VkPipelineStageFlags2 ray_query_stages(DeviceState& d, uint64_t pipeline);
 // What the SPIR-V of one shader stage says (spirv_pipelines.cpp): the module's marks, or the
@@ -419,6 +436,12 @@ void track_pushed_descriptor_write(DeviceState& d, VkCommandBuffer cb,
 // resolving each handle's address; false when `write` is not of that type.
 bool track_acceleration_structure_write(DeviceState& d, const VkWriteDescriptorSet& write,
                                         DescriptorsOfSet& set);
+
+// Reads again, at submission, the structures each consumer of the submitted command buffers (and
+// the secondaries they execute) can reach: sets updated after binding change them between
+// recording and submission. A command buffer whose answer changed is handed to the sink again
+// (consumer_commands.cpp).
+void refresh_consumer_structures(DeviceState& d, const SubmissionRecord& record);
 
 // CLASTRACE_RAY_CHECK: after submission `submissionIndex` on `queue` (just submitted), waits
 // for the queue and traces the configured rays against each of `topLevels`, recording a

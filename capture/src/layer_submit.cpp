@@ -246,6 +246,7 @@ VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit(VkQueue queue, uint32_t submit_count,
         }
         plan.record.batches.push_back(std::move(batch));
     }
+    if (plan.capture) refresh_consumer_structures(d, plan.record);
     watch_host_writes(d, plan);
     auto admitted = admit_shared_pauses(d, queue, plan);
     SubmittedFrameBoundaries boundaries(d, p_submits, submit_count);
@@ -288,6 +289,7 @@ VkResult queue_submit2(VkQueue queue, uint32_t submit_count, const VkSubmitInfo2
         }
         plan.record.batches.push_back(std::move(batch));
     }
+    if (plan.capture) refresh_consumer_structures(d, plan.record);
     watch_host_writes(d, plan);
     auto admitted = admit_shared_pauses(d, queue, plan);
     SubmittedFrameBoundaries boundaries(d, p_submits, submit_count);

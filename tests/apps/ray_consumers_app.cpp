@@ -8,8 +8,14 @@
 // same ray query, vkCmdTraceRaysKHR (4x2x1)
 // and, when the device has rayTracingPipelineTraceRaysIndirect, vkCmdTraceRaysIndirectKHR with
 // the same dimensions. After the fence it checks what the shaders wrote.
-// Usage: ray_consumers_app OUT.json. OUT.json names the handles and addresses the capture must
+// With "sources": only a dispatch bound and pushed with VK_KHR_maintenance6's
+// vkCmdBindDescriptorSets2KHR / vkCmdPushConstants2KHR, and one whose UPDATE_AFTER_BIND set is
+// rewritten between recording and submission, and one pushed with vkCmdPushDescriptorSet2KHR.
+// With "descriptor-buffer": one ray-query dispatch whose set comes from a descriptor buffer
+// (VK_EXT_descriptor_buffer), the TLAS descriptor written there with vkGetDescriptorEXT.
+// Usage: ray_consumers_app OUT.json [sources|descriptor-buffer]. OUT.json names the handles and addresses the capture must
 // report. Exit 0 and "ok" when every result is right; 2 otherwise.
+#include <clastrace/vk_maintenance6_abi.h>
 #include <vulkan/vulkan.h>
 
 #include <cstddef>
@@ -55,6 +61,15 @@ struct Functions {
     PFN_vkCmdTraceRaysKHR trace_rays;
     PFN_vkCmdTraceRaysIndirectKHR trace_rays_indirect;
     PFN_vkCmdPushDescriptorSetKHR push_descriptor_set;
+    PFN_vkCmdBindDescriptorSets2KHR bind_descriptor_sets2;
+    PFN_vkCmdPushConstants2KHR push_constants2;
+    PFN_vkCmdPushDescriptorSet2KHR push_descriptor_set2;
+    // VK_EXT_descriptor_buffer ("descriptor-buffer" mode only).
+    PFN_vkGetDescriptorSetLayoutSizeEXT set_layout_size;
+    PFN_vkGetDescriptorSetLayoutBindingOffsetEXT binding_offset;
+    PFN_vkGetDescriptorEXT get_descriptor;
+    PFN_vkCmdBindDescriptorBuffersEXT bind_descriptor_buffers;
+    PFN_vkCmdSetDescriptorBufferOffsetsEXT set_descriptor_buffer_offsets;
 };
 
 struct Device {
@@ -64,6 +79,9 @@ struct Device {
     VkQueue queue = VK_NULL_HANDLE;
     uint32_t family = 0;
     bool trace_rays_indirect = false;
+    bool descriptor_buffer = false;  // VK_EXT_descriptor_buffer enabled
+    VkPhysicalDeviceDescriptorBufferPropertiesEXT descriptor_buffer_properties{
+        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_DESCRIPTOR_BUFFER_PROPERTIES_EXT};
     VkPhysicalDeviceRayTracingPipelinePropertiesKHR rt{
         VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_RAY_TRACING_PIPELINE_PROPERTIES_KHR};
     VkPhysicalDeviceAccelerationStructurePropertiesKHR as{
@@ -98,10 +116,29 @@ void load_functions(Device& d) {
         device_function<PFN_vkCmdTraceRaysIndirectKHR>(d.device, "vkCmdTraceRaysIndirectKHR");
     d.fn.push_descriptor_set =
         device_function<PFN_vkCmdPushDescriptorSetKHR>(d.device, "vkCmdPushDescriptorSetKHR");
+    d.fn.bind_descriptor_sets2 =
+        device_function<PFN_vkCmdBindDescriptorSets2KHR>(d.device, "vkCmdBindDescriptorSets2KHR");
+    d.fn.push_constants2 =
+        device_function<PFN_vkCmdPushConstants2KHR>(d.device, "vkCmdPushConstants2KHR");
+    d.fn.push_descriptor_set2 =
+        device_function<PFN_vkCmdPushDescriptorSet2KHR>(d.device, "vkCmdPushDescriptorSet2KHR");
+    if (!d.descriptor_buffer) return;
+    d.fn.set_layout_size =
+        device_function<PFN_vkGetDescriptorSetLayoutSizeEXT>(d.device,
+                                                             "vkGetDescriptorSetLayoutSizeEXT");
+    d.fn.binding_offset = device_function<PFN_vkGetDescriptorSetLayoutBindingOffsetEXT>(
+        d.device, "vkGetDescriptorSetLayoutBindingOffsetEXT");
+    d.fn.get_descriptor = device_function<PFN_vkGetDescriptorEXT>(d.device, "vkGetDescriptorEXT");
+    d.fn.bind_descriptor_buffers =
+        device_function<PFN_vkCmdBindDescriptorBuffersEXT>(d.device,
+                                                           "vkCmdBindDescriptorBuffersEXT");
+    d.fn.set_descriptor_buffer_offsets = device_function<PFN_vkCmdSetDescriptorBufferOffsetsEXT>(
+        d.device, "vkCmdSetDescriptorBufferOffsetsEXT");
 }
 
-Device create_device() {
+Device create_device(bool descriptor_buffer = false) {
     Device d;
+    d.descriptor_buffer = descriptor_buffer;
     VkApplicationInfo app{VK_STRUCTURE_TYPE_APPLICATION_INFO};
     app.pApplicationName = "ray_consumers_app";
     app.apiVersion = VK_API_VERSION_1_3;
@@ -112,6 +149,7 @@ Device create_device() {
     VkResult listed = vkEnumeratePhysicalDevices(d.instance, &count, &d.physical);
     if ((listed != VK_SUCCESS && listed != VK_INCOMPLETE) || count == 0) fail("no Vulkan device");
     d.rt.pNext = &d.as;
+    d.as.pNext = &d.descriptor_buffer_properties;
     VkPhysicalDeviceProperties2 properties{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2, &d.rt};
     vkGetPhysicalDeviceProperties2(d.physical, &properties);
 
@@ -137,22 +175,34 @@ Device create_device() {
     VkPhysicalDeviceAccelerationStructureFeaturesKHR structures{
         VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_ACCELERATION_STRUCTURE_FEATURES_KHR, &pipeline};
     structures.accelerationStructure = VK_TRUE;
+    structures.descriptorBindingAccelerationStructureUpdateAfterBind = VK_TRUE;
     VkPhysicalDeviceVulkan12Features v12{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_2_FEATURES,
                                          &structures};
     v12.bufferDeviceAddress = VK_TRUE;
     VkPhysicalDeviceVulkan13Features v13{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_3_FEATURES};
     v13.dynamicRendering = VK_TRUE;
     structures.pNext = &v13;
-    v13.pNext = &pipeline;
+    VkPhysicalDeviceMaintenance6FeaturesKHR maintenance6{
+        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_MAINTENANCE_6_FEATURES_KHR, &pipeline};
+    maintenance6.maintenance6 = VK_TRUE;
+    v13.pNext = &maintenance6;
+    VkPhysicalDeviceDescriptorBufferFeaturesEXT descriptor_buffers{
+        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_DESCRIPTOR_BUFFER_FEATURES_EXT, &pipeline};
+    descriptor_buffers.descriptorBuffer = VK_TRUE;
+    if (descriptor_buffer) maintenance6.pNext = &descriptor_buffers;
     VkPhysicalDeviceFeatures2 features{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2, &v12};
     features.features.vertexPipelineStoresAndAtomics = VK_TRUE;
-    const char* extensions[] = {"VK_KHR_acceleration_structure", "VK_KHR_ray_query",
-                                "VK_KHR_ray_tracing_pipeline", "VK_KHR_deferred_host_operations",
-                                "VK_KHR_push_descriptor"};
+    const char* extensions[] = {"VK_KHR_acceleration_structure",
+                                "VK_KHR_ray_query",
+                                "VK_KHR_ray_tracing_pipeline",
+                                "VK_KHR_deferred_host_operations",
+                                "VK_KHR_push_descriptor",
+                                VK_KHR_MAINTENANCE_6_EXTENSION_NAME,
+                                VK_EXT_DESCRIPTOR_BUFFER_EXTENSION_NAME};
     VkDeviceCreateInfo device_info{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO, &features};
     device_info.queueCreateInfoCount = 1;
     device_info.pQueueCreateInfos = &queue_info;
-    device_info.enabledExtensionCount = 5;
+    device_info.enabledExtensionCount = descriptor_buffer ? 7 : 6;
     device_info.ppEnabledExtensionNames = extensions;
     CHECK(vkCreateDevice(d.physical, &device_info, nullptr, &d.device));
     vkGetDeviceQueue(d.device, d.family, 0, &d.queue);
@@ -426,8 +476,9 @@ void create_set(const Device& d, Pipelines& p, VkAccelerationStructureKHR top, V
 }
 
 VkPipeline compute_pipeline(const Device& d, VkPipelineLayout layout, const uint32_t* code,
-                            size_t size) {
+                            size_t size, VkPipelineCreateFlags flags = 0) {
     VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
+    info.flags = flags;
     info.stage.sType = VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO;
     info.stage.stage = VK_SHADER_STAGE_COMPUTE_BIT;
     info.stage.module = shader(d, code, size);
@@ -614,11 +665,268 @@ bool results_right(const uint32_t* values, bool indirect) {
     return right;
 }
 
+// ---- "sources" mode: the other ways a consumer reaches a structure ----------------------------
+
+// A set whose binding 0 (the TLAS) may be written after the set is bound (UPDATE_AFTER_BIND),
+// with its own pipeline layout and ray-query pipeline.
+struct LateSet {
+    VkPipelineLayout layout = VK_NULL_HANDLE;
+    VkDescriptorSet set = VK_NULL_HANDLE;
+    VkPipeline pipeline = VK_NULL_HANDLE;
+};
+
+LateSet late_set(const Device& d) {
+    const VkShaderStageFlags stages = kStages;
+    VkDescriptorSetLayoutBinding bindings[2] = {{0, VK_DESCRIPTOR_TYPE_ACCELERATION_STRUCTURE_KHR,
+                                                 1, stages, nullptr},
+                                                {1, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1, stages,
+                                                 nullptr}};
+    const VkDescriptorBindingFlags flags[2] = {VK_DESCRIPTOR_BINDING_UPDATE_AFTER_BIND_BIT, 0};
+    VkDescriptorSetLayoutBindingFlagsCreateInfo binding_flags{
+        VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_BINDING_FLAGS_CREATE_INFO};
+    binding_flags.bindingCount = 2;
+    binding_flags.pBindingFlags = flags;
+    VkDescriptorSetLayoutCreateInfo layout{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO,
+                                           &binding_flags};
+    layout.flags = VK_DESCRIPTOR_SET_LAYOUT_CREATE_UPDATE_AFTER_BIND_POOL_BIT;
+    layout.bindingCount = 2;
+    layout.pBindings = bindings;
+    VkDescriptorSetLayout set_layout;
+    CHECK(vkCreateDescriptorSetLayout(d.device, &layout, nullptr, &set_layout));
+    LateSet late;
+    late.layout = pipeline_layout_of(d, set_layout);
+    VkDescriptorPoolSize sizes[2] = {{VK_DESCRIPTOR_TYPE_ACCELERATION_STRUCTURE_KHR, 1},
+                                     {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1}};
+    VkDescriptorPoolCreateInfo pool_info{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
+    pool_info.flags = VK_DESCRIPTOR_POOL_CREATE_UPDATE_AFTER_BIND_BIT;
+    pool_info.maxSets = 1;
+    pool_info.poolSizeCount = 2;
+    pool_info.pPoolSizes = sizes;
+    VkDescriptorPool pool;
+    CHECK(vkCreateDescriptorPool(d.device, &pool_info, nullptr, &pool));
+    VkDescriptorSetAllocateInfo allocate{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_ALLOCATE_INFO};
+    allocate.descriptorPool = pool;
+    allocate.descriptorSetCount = 1;
+    allocate.pSetLayouts = &set_layout;
+    CHECK(vkAllocateDescriptorSets(d.device, &allocate, &late.set));
+    late.pipeline = compute_pipeline(d, late.layout, kRayQueryComp, sizeof kRayQueryComp);
+    return late;
+}
+
+// Command buffer 1: the set bound with vkCmdBindDescriptorSets2KHR and the TLAS address pushed
+// with vkCmdPushConstants2KHR. Command buffer 2: the late set bound while it names `other`, then
+// (after recording, before submission) rewritten to name the TLAS. Command buffer 3: the TLAS
+// pushed with vkCmdPushDescriptorSet2KHR. Each must reach the TLAS.
+bool run_sources(const Device& d, VkCommandPool pool, const Scene& scene, const Buffer& results,
+                 const Pipelines& p, const LateSet& late, VkAccelerationStructureKHR other) {
+    uint32_t* values = static_cast<uint32_t*>(results.mapped);
+    VkCommandBuffer cb = begin(d, pool);
+    vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, p.ray_query);
+    VkBindDescriptorSetsInfoKHR bind{VK_STRUCTURE_TYPE_BIND_DESCRIPTOR_SETS_INFO_KHR};
+    bind.stageFlags = VK_SHADER_STAGE_COMPUTE_BIT;
+    bind.layout = p.layout;
+    bind.descriptorSetCount = 1;
+    bind.pDescriptorSets = &p.set;
+    d.fn.bind_descriptor_sets2(cb, &bind);
+    const Constants constants{scene.top.address, 0, 0};
+    VkPushConstantsInfoKHR push{VK_STRUCTURE_TYPE_PUSH_CONSTANTS_INFO_KHR};
+    push.layout = p.layout;
+    push.stageFlags = kStages;
+    push.size = sizeof constants;
+    push.pValues = &constants;
+    d.fn.push_constants2(cb, &push);
+    vkCmdDispatch(cb, 1, 1, 1);
+    CHECK(vkEndCommandBuffer(cb));
+    submit_and_wait(d, cb);
+    bool right = values[0] == 1;
+    values[0] = 0;
+
+    SceneWrites before;
+    scene_writes(late.set, other, results.buffer, before);
+    vkUpdateDescriptorSets(d.device, 2, before.writes, 0, nullptr);
+    cb = begin(d, pool);
+    vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, late.pipeline);
+    vkCmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, late.layout, 0, 1, &late.set, 0,
+                            nullptr);
+    vkCmdDispatch(cb, 1, 1, 1);
+    CHECK(vkEndCommandBuffer(cb));
+    SceneWrites after;
+    scene_writes(late.set, scene.top.handle, results.buffer, after);
+    vkUpdateDescriptorSets(d.device, 1, after.writes, 0, nullptr);  // binding 0 only
+    submit_and_wait(d, cb);
+    right = right && values[0] == 1;
+    values[0] = 0;
+
+    cb = begin(d, pool);
+    vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, p.pushed_ray_query);
+    SceneWrites pushed;
+    scene_writes(VK_NULL_HANDLE, scene.top.handle, results.buffer, pushed);
+    VkPushDescriptorSetInfoKHR push_set{VK_STRUCTURE_TYPE_PUSH_DESCRIPTOR_SET_INFO_KHR};
+    push_set.stageFlags = VK_SHADER_STAGE_COMPUTE_BIT;
+    push_set.layout = p.push_layout;
+    push_set.descriptorWriteCount = 2;
+    push_set.pDescriptorWrites = pushed.writes;
+    d.fn.push_descriptor_set2(cb, &push_set);
+    vkCmdDispatch(cb, 1, 1, 1);
+    CHECK(vkEndCommandBuffer(cb));
+    submit_and_wait(d, cb);
+    return right && values[0] == 1;
+}
+
+// The sources mode: OUT.json names the TLAS, the other TLAS and the two pipelines.
+int sources_main(const char* out_path) {
+    Device d = create_device();
+    VkCommandPoolCreateInfo pool_info{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO};
+    pool_info.queueFamilyIndex = d.family;
+    VkCommandPool pool;
+    CHECK(vkCreateCommandPool(d.device, &pool_info, nullptr, &pool));
+    VkCommandBuffer build_cb = begin(d, pool);
+    const Scene scene = build_scene(d, build_cb);
+    // A second top level over the same instance: what the late set names when it is bound.
+    VkAccelerationStructureGeometryKHR instances{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_KHR};
+    instances.geometryType = VK_GEOMETRY_TYPE_INSTANCES_KHR;
+    instances.geometry.instances.sType =
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_INSTANCES_DATA_KHR;
+    instances.geometry.instances.data.deviceAddress = scene.instances.address;
+    const Structure other =
+        build_structure(d, build_cb, VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_KHR, instances, 1);
+    CHECK(vkEndCommandBuffer(build_cb));
+    submit_and_wait(d, build_cb);
+
+    Buffer results = create_buffer(d, 32 * sizeof(uint32_t), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT);
+    Pipelines p;
+    create_set(d, p, scene.top.handle, results.buffer);
+    p.ray_query = compute_pipeline(d, p.layout, kRayQueryComp, sizeof kRayQueryComp);
+    p.pushed_ray_query = compute_pipeline(d, p.push_layout, kRayQueryComp, sizeof kRayQueryComp);
+    const LateSet late = late_set(d);
+    const bool right = run_sources(d, pool, scene, results, p, late, other.handle);
+    FILE* out = std::fopen(out_path, "w");
+    if (!out) fail("cannot write OUT.json");
+    std::fprintf(out,
+                 "{\"topLevel\": %llu, \"topLevelAddress\": %llu, \"otherTopLevel\": %llu, "
+                 "\"rayQueryPipeline\": %llu, \"updateAfterBindPipeline\": %llu, "
+                 "\"pushedRayQueryPipeline\": %llu}\n",
+                 (unsigned long long)(uint64_t)scene.top.handle,
+                 (unsigned long long)scene.top.address, (unsigned long long)(uint64_t)other.handle,
+                 (unsigned long long)(uint64_t)p.ray_query,
+                 (unsigned long long)(uint64_t)late.pipeline,
+                 (unsigned long long)(uint64_t)p.pushed_ray_query);
+    std::fclose(out);
+    vkDeviceWaitIdle(d.device);
+    if (!right) fail("the shaders' results are wrong");
+    std::printf("ok\n");
+    return 0;
+}
+
+// ---- "descriptor-buffer" mode: the TLAS descriptor in a descriptor buffer -----------------------
+
+// The set layout (binding 0 the TLAS, binding 1 the results) for descriptor buffers, written at
+// `base` bytes into `descriptors` with vkGetDescriptorEXT; the ray-query pipeline over it.
+struct BufferSet {
+    VkPipelineLayout layout = VK_NULL_HANDLE;
+    VkPipeline pipeline = VK_NULL_HANDLE;
+    Buffer descriptors;
+    VkDeviceSize base = 0;
+};
+
+BufferSet buffer_set(const Device& d, const Structure& top, const Buffer& results) {
+    const VkShaderStageFlags stages = kStages;
+    VkDescriptorSetLayoutBinding bindings[2] = {{0, VK_DESCRIPTOR_TYPE_ACCELERATION_STRUCTURE_KHR,
+                                                 1, stages, nullptr},
+                                                {1, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1, stages,
+                                                 nullptr}};
+    VkDescriptorSetLayoutCreateInfo info{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
+    info.flags = VK_DESCRIPTOR_SET_LAYOUT_CREATE_DESCRIPTOR_BUFFER_BIT_EXT;
+    info.bindingCount = 2;
+    info.pBindings = bindings;
+    VkDescriptorSetLayout set_layout;
+    CHECK(vkCreateDescriptorSetLayout(d.device, &info, nullptr, &set_layout));
+    BufferSet b;
+    b.layout = pipeline_layout_of(d, set_layout);
+    b.pipeline = compute_pipeline(d, b.layout, kRayQueryComp, sizeof kRayQueryComp,
+                                  VK_PIPELINE_CREATE_DESCRIPTOR_BUFFER_BIT_EXT);
+    VkDeviceSize size = 0, offsets[2] = {0, 0};
+    d.fn.set_layout_size(d.device, set_layout, &size);
+    for (uint32_t binding = 0; binding < 2; ++binding)
+        d.fn.binding_offset(d.device, set_layout, binding, &offsets[binding]);
+    // The set starts past the buffer's start, so that the offset given at binding counts.
+    b.base = align_up(64, d.descriptor_buffer_properties.descriptorBufferOffsetAlignment);
+    b.descriptors =
+        create_buffer(d, b.base + size, VK_BUFFER_USAGE_RESOURCE_DESCRIPTOR_BUFFER_BIT_EXT);
+    auto* bytes = static_cast<uint8_t*>(b.descriptors.mapped) + b.base;
+    VkDescriptorGetInfoEXT structure{VK_STRUCTURE_TYPE_DESCRIPTOR_GET_INFO_EXT};
+    structure.type = VK_DESCRIPTOR_TYPE_ACCELERATION_STRUCTURE_KHR;
+    structure.data.accelerationStructure = top.address;
+    d.fn.get_descriptor(d.device, &structure,
+                        d.descriptor_buffer_properties.accelerationStructureDescriptorSize,
+                        bytes + offsets[0]);
+    VkDescriptorAddressInfoEXT range{VK_STRUCTURE_TYPE_DESCRIPTOR_ADDRESS_INFO_EXT};
+    range.address = results.address;
+    range.range = 32 * sizeof(uint32_t);
+    VkDescriptorGetInfoEXT storage{VK_STRUCTURE_TYPE_DESCRIPTOR_GET_INFO_EXT};
+    storage.type = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+    storage.data.pStorageBuffer = &range;
+    d.fn.get_descriptor(d.device, &storage,
+                        d.descriptor_buffer_properties.storageBufferDescriptorSize,
+                        bytes + offsets[1]);
+    return b;
+}
+
+// One ray-query dispatch whose set 0 comes from the descriptor buffer at `base`.
+bool run_descriptor_buffer(const Device& d, VkCommandPool pool, const BufferSet& b,
+                           const Buffer& results) {
+    VkCommandBuffer cb = begin(d, pool);
+    vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, b.pipeline);
+    VkDescriptorBufferBindingInfoEXT binding{VK_STRUCTURE_TYPE_DESCRIPTOR_BUFFER_BINDING_INFO_EXT};
+    binding.address = b.descriptors.address;
+    binding.usage = VK_BUFFER_USAGE_RESOURCE_DESCRIPTOR_BUFFER_BIT_EXT;
+    d.fn.bind_descriptor_buffers(cb, 1, &binding);
+    const uint32_t buffer_index = 0;
+    d.fn.set_descriptor_buffer_offsets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, b.layout, 0, 1,
+                                       &buffer_index, &b.base);
+    vkCmdDispatch(cb, 1, 1, 1);
+    CHECK(vkEndCommandBuffer(cb));
+    submit_and_wait(d, cb);
+    return static_cast<const uint32_t*>(results.mapped)[0] == 1;
+}
+
+// The descriptor-buffer mode: OUT.json names the TLAS and the pipeline.
+int descriptor_buffer_main(const char* out_path) {
+    Device d = create_device(true);
+    VkCommandPoolCreateInfo pool_info{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO};
+    pool_info.queueFamilyIndex = d.family;
+    VkCommandPool pool;
+    CHECK(vkCreateCommandPool(d.device, &pool_info, nullptr, &pool));
+    VkCommandBuffer build_cb = begin(d, pool);
+    const Scene scene = build_scene(d, build_cb);
+    CHECK(vkEndCommandBuffer(build_cb));
+    submit_and_wait(d, build_cb);
+    Buffer results = create_buffer(d, 32 * sizeof(uint32_t), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT);
+    const BufferSet b = buffer_set(d, scene.top, results);
+    const bool right = run_descriptor_buffer(d, pool, b, results);
+    FILE* out = std::fopen(out_path, "w");
+    if (!out) fail("cannot write OUT.json");
+    std::fprintf(out,
+                 "{\"topLevel\": %llu, \"topLevelAddress\": %llu, \"descriptorBufferPipeline\": "
+                 "%llu}\n",
+                 (unsigned long long)(uint64_t)scene.top.handle,
+                 (unsigned long long)scene.top.address, (unsigned long long)(uint64_t)b.pipeline);
+    std::fclose(out);
+    vkDeviceWaitIdle(d.device);
+    if (!right) fail("the shaders' results are wrong");
+    std::printf("ok\n");
+    return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
+    if (argc == 3 && std::strcmp(argv[2], "sources") == 0) return sources_main(argv[1]);
+    if (argc == 3 && std::strcmp(argv[2], "descriptor-buffer") == 0)
+        return descriptor_buffer_main(argv[1]);
     if (argc != 2) {
-        std::fprintf(stderr, "usage: ray_consumers_app OUT.json\n");
+        std::fprintf(stderr, "usage: ray_consumers_app OUT.json [sources|descriptor-buffer]\n");
         return 2;
     }
     Device d = create_device();

@@ -7,7 +7,10 @@
 // vkCmdTraceRaysKHR and vkCmdTraceRaysIndirectKHR, under the capture layer. The trace's records
 // must say which dispatch uses ray queries, the rays' entry points, dimensions, tables and
 // indirect address, and for each consumer the TLAS by handle and address with set, binding and
-// source. Label rt-driver: skipped where lavapipe 25 is not unpacked.
+// source. In "sources" mode the app binds and pushes with VK_KHR_maintenance6 and rewrites an
+// UPDATE_AFTER_BIND set between recording and submission; in "descriptor-buffer" mode the TLAS
+// descriptor lives in a descriptor buffer. Label rt-driver: skipped where
+// lavapipe 25 is not unpacked.
 #include "layer_launch_test.h"
 
 #include <clastrace/testsupport/test_driver.h>
@@ -30,6 +33,7 @@ using namespace clastrace::layer_launch;
 
 constexpr uint32_t kSourceDescriptorSet = 0;
 constexpr uint32_t kSourcePushDescriptor = 1;
+constexpr uint32_t kSourceDescriptorBuffer = 2;
 constexpr uint32_t kSourcePushConstants = 3;
 
 struct Binding {
@@ -81,11 +85,12 @@ protected:
     }
 
     // The app under the capture layer on lavapipe 25; then reads what it says and the trace.
-    void capture() {
+    void capture(const std::string& mode = "") {
         // The driver inside the command: the layer launch puts the suite's test driver first.
-        ProcessResult r = run("env" + driver->environment_words() + " " + RAY_CONSUMERS_APP + " " +
-                                  quote((dir / "out.json").string()),
-                              {{"CLASTRACE_CAPTURE", "1"}, {"CLASTRACE_OUTPUT", trace.string()}});
+        ProcessResult r =
+            run("env" + driver->environment_words() + " " + RAY_CONSUMERS_APP + " " +
+                    quote((dir / "out.json").string()) + (mode.empty() ? "" : " " + mode),
+                {{"CLASTRACE_CAPTURE", "1"}, {"CLASTRACE_OUTPUT", trace.string()}});
         ASSERT_EQ(r.exitCode, 0) << r.out << r.err;
         EXPECT_EQ(r.out, "ok\n");
         out = json::parse(readText(dir / "out.json"));
@@ -208,6 +213,53 @@ TEST_F(RayConsumersCapture, TraceRaysRecordsEntryPointDimensionsTablesAndTheTopL
     EXPECT_EQ(from_memory.inputs[0].second, sizeof(VkTraceRaysIndirectCommandKHR));
     EXPECT_EQ(from_memory.raygen_address, out["raygenAddress"].get<uint64_t>());
     expect_the_top_level(from_memory.structures);
+}
+
+// VK_KHR_maintenance6: vkCmdBindDescriptorSets2KHR, vkCmdPushConstants2KHR and
+// vkCmdPushDescriptorSet2KHR feed the same state as their 1.0 forms. A set created
+// UPDATE_AFTER_BIND and rewritten between recording and submission: the dispatch reaches what the
+// set names at submission, not at binding.
+TEST_F(RayConsumersCapture, InfoStructFormsAndSetsUpdatedAfterBindReachTheTopLevel) {
+    capture("sources");
+    ASSERT_EQ(dispatches.size(), 3u);
+    EXPECT_EQ(dispatches[0].pipeline, out["rayQueryPipeline"].get<uint64_t>());
+    expect_the_top_level(dispatches[0].structures);
+    EXPECT_EQ(dispatches[1].pipeline, out["updateAfterBindPipeline"].get<uint64_t>());
+    ASSERT_EQ(dispatches[1].structures.size(), 1u);
+    const Binding& late = dispatches[1].structures[0];
+    EXPECT_EQ(late.source, kSourceDescriptorSet);
+    EXPECT_EQ(late.set, 0u);
+    EXPECT_EQ(late.binding, 0u);
+    EXPECT_NE(late.acceleration_structure, out["otherTopLevel"].get<uint64_t>());
+    EXPECT_EQ(late.acceleration_structure, out["topLevel"].get<uint64_t>());
+    EXPECT_EQ(late.address, out["topLevelAddress"].get<uint64_t>());
+    // vkCmdPushDescriptorSet2KHR: the pushed TLAS (no push constants in that command buffer).
+    EXPECT_EQ(dispatches[2].pipeline, out["pushedRayQueryPipeline"].get<uint64_t>());
+    ASSERT_EQ(dispatches[2].structures.size(), 1u);
+    const Binding& pushed = dispatches[2].structures[0];
+    EXPECT_EQ(pushed.source, kSourcePushDescriptor);
+    EXPECT_EQ(pushed.set, 0u);
+    EXPECT_EQ(pushed.binding, 0u);
+    EXPECT_EQ(pushed.acceleration_structure, out["topLevel"].get<uint64_t>());
+    EXPECT_EQ(pushed.address, out["topLevelAddress"].get<uint64_t>());
+}
+
+// VK_EXT_descriptor_buffer: the TLAS descriptor, asked of vkGetDescriptorEXT and copied into a
+// descriptor buffer at the set layout's binding offset, the set bound at a non-zero offset. The
+// capture reads the buffer and names the TLAS by handle and address at set 0, binding 0.
+TEST_F(RayConsumersCapture, DescriptorBufferReachesTheTopLevelItsDescriptorNames) {
+    capture("descriptor-buffer");
+    ASSERT_EQ(dispatches.size(), 1u);
+    EXPECT_EQ(dispatches[0].pipeline, out["descriptorBufferPipeline"].get<uint64_t>());
+    EXPECT_TRUE(dispatches[0].ray_query);
+    ASSERT_EQ(dispatches[0].structures.size(), 1u);
+    const Binding& found = dispatches[0].structures[0];
+    EXPECT_EQ(found.source, kSourceDescriptorBuffer);
+    EXPECT_EQ(found.set, 0u);
+    EXPECT_EQ(found.binding, 0u);
+    EXPECT_EQ(found.array_element, 0u);
+    EXPECT_EQ(found.acceleration_structure, out["topLevel"].get<uint64_t>());
+    EXPECT_EQ(found.address, out["topLevelAddress"].get<uint64_t>());
 }
 
 }  // namespace

@@ -244,7 +244,7 @@ struct ReachableAccelerationStructure {
     enum class Source : uint32_t {
         kDescriptorSet = 0,
         kPushDescriptor = 1,
-        kDescriptorBuffer = 2,  // not followed by the layer (capture/README.md)
+        kDescriptorBuffer = 2,  // a vkGetDescriptorEXT answer read from a descriptor buffer
         kPushConstants = 3,     // an 8-byte push-constant value equal to a known address
     };
     uint32_t set = 0, binding = 0, array_element = 0;
