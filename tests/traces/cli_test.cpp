@@ -154,8 +154,8 @@ TEST(ClastraceCli, BadSnapshotsOfRaysAndAddressWritesExitWithOneAndNameTheRule) 
         for (bool truncated : {false, true}) {
             const std::string path = trace_with_bad_snapshot(kind, truncated);
             const std::string rule = truncated ? "[content_mismatch]" : "[missing_contents]";
-            const std::string what =
-                std::string("(") + fbs::EnumNameRecordBody(kind) + "): snapshot of address 0xe000";
+            const std::string what = std::string("(") + fbs::EnumNameRecordBody(kind) +
+                                     "): snapshot of address 0x000000000000e000";
             for (const char* command : {"info", "replay"}) {
                 ProgramRun r = run(std::string(command) + " " + path);
                 SCOPED_TRACE(std::string(command) + " " + path);

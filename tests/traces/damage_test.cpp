@@ -417,12 +417,12 @@ TEST(TraceDamage, BadSnapshotsOfRaysAndAddressWritesAreReportedWithTheirChunk) {
             const TraceErrorCode code =
                 truncated ? TraceErrorCode::kContentMismatch : TraceErrorCode::kMissingContents;
             EXPECT_TRUE(has_damage(read, code, chunk_at)) << describe(read.damage);
-            EXPECT_NE(describe(read.damage).find("chunk 0 record 1 (raw offset "),
+            EXPECT_NE(describe(read.damage).find("chunk 0 record 2 (raw offset "),
                       std::string::npos)
                 << describe(read.damage);
             EXPECT_NE(describe(read.damage)
                           .find(std::string("(") + fbs::EnumNameRecordBody(kind) +
-                                "): snapshot of address 0xb008"),
+                                "): snapshot of address 0x000000000000b008"),
                       std::string::npos)
                 << describe(read.damage);
             ASSERT_EQ(read.records.size(), 2u);  // the contents and the end, not the bad record
