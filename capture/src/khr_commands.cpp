@@ -275,6 +275,13 @@ void forget_khr_structure(DeviceState& device, uint64_t acceleration_structure) 
     dir.structures.erase({&device, acceleration_structure});
 }
 
+void forget_khr_device(const DeviceState& device) {
+    KhrDirectory& dir = directory();
+    std::lock_guard lock(dir.mutex);
+    std::erase_if(dir.structures, [&](const auto& e) { return e.first.first == &device; });
+    std::erase_if(dir.property_pools, [&](const auto& e) { return e.first == &device; });
+}
+
 PFN_vkVoidFunction khr_acceleration_structure_hook(const char* name) {
 #define HOOK(fn) \
     { "vk" #fn, (PFN_vkVoidFunction)fn }

@@ -9,6 +9,7 @@
 #include "pause_worker.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cstdio>
 #include <cstring>
 #include <string>
@@ -104,6 +105,16 @@ void fill_driver_identity(InstanceState& instance, VkPhysicalDevice physical_dev
     }
 }
 
+// Why the KHR ray check is off, said once per process at info level (an application may create
+// many devices).
+enum RayCheckOffReason { kRayCheckNoKhrStructures, kRayCheckRayQueryOff, kRayCheckNoRayQuery };
+void log_once(RayCheckOffReason reason, const char* message) {
+    static std::atomic<uint32_t> said{0};
+    const uint32_t bit = 1u << reason;
+    if (said.fetch_or(bit) & bit) return;
+    log_message(LogLevel::kInfo, "%s", message);
+}
+
 // CLASTRACE_RAY_CHECK traces KHR top levels with a ray-query compute shader: where the
 // application did not enable VK_KHR_ray_query with rayQuery and the device lists it, the layer
 // enables both on the driver's device (`feature` heads driver_info's chain; it must outlive the
@@ -124,13 +135,28 @@ bool enable_ray_query_for_check(InstanceState& instance, VkPhysicalDevice physic
         if (s->sType == VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_RAY_QUERY_FEATURES_KHR)
             asked = (const VkPhysicalDeviceRayQueryFeaturesKHR*)s;
     if (extension && asked && asked->rayQuery) return true;  // the application's own
+    if (layer_config().ray_check_rays == 0) return false;
     // Without VK_KHR_acceleration_structure there are no KHR top levels to check.
-    if (layer_config().ray_check_rays == 0 || !acceleration_structure) return false;
-    if (asked ||
-        !driver_lists_extension(instance, physical_device, VK_KHR_RAY_QUERY_EXTENSION_NAME)) {
-        log_message(LogLevel::kInfo, "ray check: %s; KHR top levels will not be checked",
-                    asked ? "the application turned rayQuery off"
-                          : "the device lacks VK_KHR_ray_query");
+    if (!acceleration_structure) {
+        log_once(kRayCheckNoKhrStructures,
+                 "ray check: the application did not enable VK_KHR_acceleration_structure, so "
+                 "there are no KHR top levels to check; NV top levels are checked where the "
+                 "application enabled VK_NV_ray_tracing");
+        return false;
+    }
+    if (asked) {
+        log_once(kRayCheckRayQueryOff,
+                 "ray check: the application chained VkPhysicalDeviceRayQueryFeaturesKHR with "
+                 "rayQuery off, which the layer leaves as asked; KHR top levels will not be "
+                 "checked (the check traces them with ray queries)");
+        return false;
+    }
+    if (!driver_lists_extension(instance, physical_device, VK_KHR_RAY_QUERY_EXTENSION_NAME)) {
+        log_once(kRayCheckNoRayQuery,
+                 "ray check: the application enabled VK_KHR_acceleration_structure, but the "
+                 "driver does not list VK_KHR_ray_query, which the check needs to trace KHR top "
+                 "levels: they will not be checked (NV top levels still are, where the "
+                 "application enabled VK_NV_ray_tracing)");
         return false;
     }
     if (!extension) extensions.push_back(VK_KHR_RAY_QUERY_EXTENSION_NAME);
@@ -313,6 +339,7 @@ VKAPI_ATTR void VKAPI_CALL DestroyDevice(VkDevice device,
     }
     for (auto& [commandBuffer, log] : state->command_buffers)
         release_command_buffer_log(*state, *log);
+    forget_khr_device(*state);  // the one per-device table kept outside DeviceState
     PFN_vkDestroyDevice destroy = state->next.DestroyDevice;
     state.reset();  // frees the layer's events and mappings while the device still exists
     destroy(device, p_allocator);

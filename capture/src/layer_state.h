@@ -394,6 +394,9 @@ PFN_vkVoidFunction sparse_hook(const char* name);
 PFN_vkVoidFunction khr_acceleration_structure_hook(const char* name);
 void remember_khr_structure(DeviceState& device, const KhrStructureStorage& storage);
 void forget_khr_structure(DeviceState& device, uint64_t acceleration_structure);
+// vkDestroyDevice: drops the device's KHR structures and property query pools, so a device
+// created later (whose state may reuse the address, whose handles may repeat) sees none of them.
+void forget_khr_device(const DeviceState& device);
 // Where a KHR structure lives ({handle} alone when the layer did not see it created).
 KhrStructureStorage khr_structure_storage(const DeviceState& device,
                                           uint64_t acceleration_structure);

@@ -114,7 +114,7 @@ void Replay::execute_command(const fbs::Record& record, const CommandRef& ref, u
     }
     // After the build ran (when replay runs it): what its top levels' instances name.
     if (record.body_type() == fbs::RecordBody::CmdBuildAccelerationStructuresKHR)
-        note_khr_top_level_builds(*record.body_as_CmdBuildAccelerationStructuresKHR(), where);
+        note_khr_top_level_builds(*record.body_as_CmdBuildAccelerationStructuresKHR());
 }
 
 // Executes (or skips) one command and, with an observer, hands it the command, then the

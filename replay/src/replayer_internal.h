@@ -160,8 +160,7 @@ private:
                     const ReplayLocation& where);
     void consumer_reads(const CommandRef& ref, const ConsumerBindings* bindings, StageMask stages);
     void note_top_level_build(const fbs::CmdBuildAccelerationStructureNV& build);
-    void note_khr_top_level_builds(const fbs::CmdBuildAccelerationStructuresKHR& build,
-                                   const ReplayLocation& where);
+    void note_khr_top_level_builds(const fbs::CmdBuildAccelerationStructuresKHR& build);
     std::vector<uint64_t> khr_instance_references(const fbs::GeometryInstancesKHR& instances,
                                                   const fbs::BuildRangeInfoKHR& range) const;
     void check_consumers_done(const AddressRange& range, const char* call, const char* rule,

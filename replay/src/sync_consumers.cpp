@@ -259,11 +259,10 @@ std::vector<uint64_t> Replay::khr_instance_references(const fbs::GeometryInstanc
 }
 
 // After vkCmdBuildAccelerationStructuresKHR (or its indirect form): each top-level info's
-// references, read from the instances the command's input snapshots hold.
-void Replay::note_khr_top_level_builds(const fbs::CmdBuildAccelerationStructuresKHR& build,
-                                       const ReplayLocation& where) {
+// references, read from the instances in replay memory. The build (KhrReplay::build) laid the
+// command's input snapshots in already: laying them in again would count them twice.
+void Replay::note_khr_top_level_builds(const fbs::CmdBuildAccelerationStructuresKHR& build) {
     if (!build.infos()) return;
-    bool laid_in = false;
     for (const fbs::AccelerationStructureBuildInfoKHR* info : *build.infos()) {
         if (info->type() != VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_KHR || !info->geometries() ||
             info->geometries()->size() == 0 || !info->ranges() || info->ranges()->size() == 0)
@@ -271,8 +270,6 @@ void Replay::note_khr_top_level_builds(const fbs::CmdBuildAccelerationStructures
         const fbs::GeometryKHR* geometry = info->geometries()->Get(0);
         if (geometry->geometry_type() != VK_GEOMETRY_TYPE_INSTANCES_KHR || !geometry->instances())
             continue;
-        if (!laid_in) lay_in_snapshots(build.inputs(), where);
-        laid_in = true;
         reachability_.on_top_level_built(info->dst(),
                                          khr_instance_references(*geometry->instances(),
                                                                  *info->ranges()->Get(0)));

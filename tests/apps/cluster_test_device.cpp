@@ -87,11 +87,12 @@ void ClusterTestDevice::createDevice(bool timelineSemaphores, uint32_t queues,
     VkPhysicalDeviceClusterAccelerationStructureFeaturesNV cluster{
         VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_FEATURES_NV, nullptr,
         VK_TRUE};
-    VkPhysicalDeviceRayQueryFeaturesKHR rayQuery{
+    VkPhysicalDeviceRayQueryFeaturesKHR rayQueryFeatures{
         VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_RAY_QUERY_FEATURES_KHR, clusters ? &cluster : nullptr,
         VK_TRUE};
     VkPhysicalDeviceAccelerationStructureFeaturesKHR accelerationStructure{
-        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_ACCELERATION_STRUCTURE_FEATURES_KHR, &rayQuery};
+        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_ACCELERATION_STRUCTURE_FEATURES_KHR,
+        rayQuery ? static_cast<void*>(&rayQueryFeatures) : rayQueryFeatures.pNext};
     accelerationStructure.accelerationStructure = VK_TRUE;
     VkPhysicalDeviceVulkan12Features v12{};
     v12.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_2_FEATURES;
@@ -104,7 +105,7 @@ void ClusterTestDevice::createDevice(bool timelineSemaphores, uint32_t queues,
     if (presentTo) extensions.push_back(VK_KHR_SWAPCHAIN_EXTENSION_NAME);
     if (rayTracing) {
         extensions.push_back(VK_KHR_ACCELERATION_STRUCTURE_EXTENSION_NAME);
-        extensions.push_back(VK_KHR_RAY_QUERY_EXTENSION_NAME);
+        if (rayQuery) extensions.push_back(VK_KHR_RAY_QUERY_EXTENSION_NAME);
         extensions.push_back(VK_KHR_DEFERRED_HOST_OPERATIONS_EXTENSION_NAME);
     }
     VkPhysicalDeviceFeatures core{};

@@ -46,6 +46,9 @@ struct ClusterTestDevice {
     // Set before createDevice: enables VK_KHR_acceleration_structure and VK_KHR_ray_query with
     // their features (lavapipe 25 has them).
     bool rayTracing = false;
+    // Set to false (with rayTracing) before createDevice: acceleration structures without
+    // VK_KHR_ray_query, for a program whose capture test sees the layer enable ray queries itself.
+    bool rayQuery = true;
     // Set to false before createDevice for a program that runs without the layer's extension.
     bool clusters = true;
 

@@ -8,12 +8,12 @@
 // the TLAS serialized to memory, and the triangle BLAS updated in place from moved vertices.
 // Writes what it passed (handles, addresses, the bytes of each input) to OUT.json. Exit 0; 2
 // when a Vulkan call fails.
+#include "cluster_test_device.h"
+
 #include <nlohmann/json.hpp>
-#include <vulkan/vulkan.h>
 
 #include <cstdint>
 #include <cstdio>
-#include <cstdlib>
 #include <cstring>
 #include <fstream>
 #include <string>
@@ -21,32 +21,14 @@
 
 namespace {
 
+using clastrace::testapp::Buffer;
+using clastrace::testapp::ClusterTestDevice;
+using clastrace::testapp::hex;
 using nlohmann::json;
 
-void check(VkResult result, const char* call) {
-    if (result == VK_SUCCESS) return;
-    std::fprintf(stderr, "khr_build_app: %s failed: %d\n", call, int(result));
-    std::exit(2);
-}
-#define CHECK(call) check((call), #call)
-
-std::string hex(const void* data, size_t size) {
-    static const char kDigits[] = "0123456789abcdef";
-    std::string out;
-    for (size_t i = 0; i < size; ++i) {
-        const uint8_t b = static_cast<const uint8_t*>(data)[i];
-        out += kDigits[b >> 4];
-        out += kDigits[b & 15];
-    }
-    return out;
-}
-
-struct Device {
-    VkInstance instance = VK_NULL_HANDLE;
-    VkPhysicalDevice physical = VK_NULL_HANDLE;
-    VkDevice device = VK_NULL_HANDLE;
-    VkQueue queue = VK_NULL_HANDLE;
-    VkCommandPool pool = VK_NULL_HANDLE;
+// The shared set-up with acceleration structures (no ray queries: the ray-check test sees the
+// layer enable them) and the KHR entry points this program calls.
+struct Device : ClusterTestDevice {
     PFN_vkCreateAccelerationStructureKHR create_structure = nullptr;
     PFN_vkGetAccelerationStructureBuildSizesKHR build_sizes = nullptr;
     PFN_vkGetAccelerationStructureDeviceAddressKHR structure_address = nullptr;
@@ -56,45 +38,12 @@ struct Device {
     PFN_vkCmdCopyAccelerationStructureToMemoryKHR cmd_copy_to_memory = nullptr;
 };
 
-Device create_device() {
-    Device d;
-    VkApplicationInfo app{VK_STRUCTURE_TYPE_APPLICATION_INFO};
-    app.pApplicationName = "khr_build_app";
-    app.apiVersion = VK_API_VERSION_1_3;
-    VkInstanceCreateInfo instance_info{VK_STRUCTURE_TYPE_INSTANCE_CREATE_INFO};
-    instance_info.pApplicationInfo = &app;
-    CHECK(vkCreateInstance(&instance_info, nullptr, &d.instance));
-    uint32_t count = 1;
-    VkResult listed = vkEnumeratePhysicalDevices(d.instance, &count, &d.physical);
-    if ((listed != VK_SUCCESS && listed != VK_INCOMPLETE) || count == 0) {
-        std::fprintf(stderr, "khr_build_app: no Vulkan device\n");
-        std::exit(2);
-    }
-    const float priority = 1.0f;
-    VkDeviceQueueCreateInfo queue_info{VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO};
-    queue_info.queueFamilyIndex = 0;
-    queue_info.queueCount = 1;
-    queue_info.pQueuePriorities = &priority;
-    VkPhysicalDeviceAccelerationStructureFeaturesKHR structures{
-        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_ACCELERATION_STRUCTURE_FEATURES_KHR};
-    structures.accelerationStructure = VK_TRUE;
-    VkPhysicalDeviceVulkan12Features v12{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_2_FEATURES};
-    v12.pNext = &structures;
-    v12.bufferDeviceAddress = VK_TRUE;
-    VkPhysicalDeviceFeatures2 features{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2};
-    features.pNext = &v12;
-    const char* extensions[] = {VK_KHR_ACCELERATION_STRUCTURE_EXTENSION_NAME,
-                                VK_KHR_DEFERRED_HOST_OPERATIONS_EXTENSION_NAME};
-    VkDeviceCreateInfo device_info{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO};
-    device_info.pNext = &features;
-    device_info.queueCreateInfoCount = 1;
-    device_info.pQueueCreateInfos = &queue_info;
-    device_info.enabledExtensionCount = 2;
-    device_info.ppEnabledExtensionNames = extensions;
-    CHECK(vkCreateDevice(d.physical, &device_info, nullptr, &d.device));
-    vkGetDeviceQueue(d.device, 0, 0, &d.queue);
-    VkCommandPoolCreateInfo pool_info{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO};
-    CHECK(vkCreateCommandPool(d.device, &pool_info, nullptr, &d.pool));
+void create_device(Device& d) {
+    d.createInstance();
+    d.clusters = false;
+    d.rayTracing = true;
+    d.rayQuery = false;
+    d.createDevice();
 #define LOAD(member, name) \
     d.member = reinterpret_cast<PFN_##name>(vkGetDeviceProcAddr(d.device, #name))
     LOAD(create_structure, vkCreateAccelerationStructureKHR);
@@ -105,82 +54,14 @@ Device create_device() {
     LOAD(cmd_copy, vkCmdCopyAccelerationStructureKHR);
     LOAD(cmd_copy_to_memory, vkCmdCopyAccelerationStructureToMemoryKHR);
 #undef LOAD
-    if (!d.cmd_build || !d.cmd_copy_to_memory) {
-        std::fprintf(stderr, "khr_build_app: no VK_KHR_acceleration_structure\n");
-        std::exit(2);
-    }
-    return d;
+    if (!d.cmd_build || !d.cmd_copy_to_memory)
+        clastrace::testapp::fail("no VK_KHR_acceleration_structure");
 }
 
-struct Buffer {
-    VkBuffer buffer = VK_NULL_HANDLE;
-    VkDeviceAddress address = 0;
-    uint8_t* mapped = nullptr;
-};
-
-// Every buffer can be copied, built from, hold structures and has an address; host-visible
-// coherent memory (lavapipe's only kind), mapped.
-Buffer make_buffer(const Device& d, VkDeviceSize size) {
-    Buffer b;
-    VkBufferCreateInfo info{VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO};
-    info.size = size;
-    info.usage = VK_BUFFER_USAGE_TRANSFER_SRC_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT |
-                 VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT |
-                 VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR |
-                 VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
-    CHECK(vkCreateBuffer(d.device, &info, nullptr, &b.buffer));
-    VkMemoryRequirements requirements;
-    vkGetBufferMemoryRequirements(d.device, b.buffer, &requirements);
-    VkPhysicalDeviceMemoryProperties memory;
-    vkGetPhysicalDeviceMemoryProperties(d.physical, &memory);
-    const VkMemoryPropertyFlags want =
-        VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT;
-    uint32_t type = 0;
-    while (type < memory.memoryTypeCount &&
-           (!(requirements.memoryTypeBits & (1u << type)) ||
-            (memory.memoryTypes[type].propertyFlags & want) != want))
-        ++type;
-    VkMemoryAllocateFlagsInfo flags{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_FLAGS_INFO};
-    flags.flags = VK_MEMORY_ALLOCATE_DEVICE_ADDRESS_BIT;
-    VkMemoryAllocateInfo allocate{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_INFO, &flags, requirements.size,
-                                  type};
-    VkDeviceMemory bound;
-    CHECK(vkAllocateMemory(d.device, &allocate, nullptr, &bound));
-    CHECK(vkBindBufferMemory(d.device, b.buffer, bound, 0));
-    VkBufferDeviceAddressInfo address{VK_STRUCTURE_TYPE_BUFFER_DEVICE_ADDRESS_INFO, nullptr,
-                                      b.buffer};
-    b.address = vkGetBufferDeviceAddress(d.device, &address);
-    void* mapped = nullptr;
-    CHECK(vkMapMemory(d.device, bound, 0, VK_WHOLE_SIZE, 0, &mapped));
-    b.mapped = static_cast<uint8_t*>(mapped);
-    std::memset(mapped, 0, size);
-    return b;
-}
-
-VkCommandBuffer begin(const Device& d) {
-    VkCommandBufferAllocateInfo info{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO};
-    info.commandPool = d.pool;
-    info.level = VK_COMMAND_BUFFER_LEVEL_PRIMARY;
-    info.commandBufferCount = 1;
-    VkCommandBuffer cb;
-    CHECK(vkAllocateCommandBuffers(d.device, &info, &cb));
-    VkCommandBufferBeginInfo begin_info{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO};
-    begin_info.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
-    CHECK(vkBeginCommandBuffer(cb, &begin_info));
-    return cb;
-}
-
-void submit_and_wait(const Device& d, VkCommandBuffer cb) {
-    CHECK(vkEndCommandBuffer(cb));
-    VkSubmitInfo submit{VK_STRUCTURE_TYPE_SUBMIT_INFO};
-    submit.commandBufferCount = 1;
-    submit.pCommandBuffers = &cb;
-    VkFenceCreateInfo fence_info{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO};
-    VkFence fence;
-    CHECK(vkCreateFence(d.device, &fence_info, nullptr, &fence));
-    CHECK(vkQueueSubmit(d.queue, 1, &submit, fence));
-    CHECK(vkWaitForFences(d.device, 1, &fence, VK_TRUE, UINT64_MAX));
-    vkDestroyFence(d.device, fence, nullptr);
+// Every buffer can also be built from and hold structures (host-visible coherent, mapped, zeros).
+Buffer make_buffer(Device& d, VkDeviceSize size) {
+    return d.makeBuffer(size, VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR |
+                                  VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR);
 }
 
 // Everything between commands: copies and builds made visible to the builds and copies after.
@@ -263,7 +144,8 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "usage: khr_build_app OUT.json\n");
         return 2;
     }
-    Device d = create_device();
+    Device d;
+    create_device(d);
     Buffer staging = make_buffer(d, kInputBytes), input = make_buffer(d, kInputBytes);
     Buffer storage = make_buffer(d, 1 << 20), scratch = make_buffer(d, 1 << 20);
     Buffer instances = make_buffer(d, 2 * sizeof(VkAccelerationStructureInstanceKHR));
@@ -356,7 +238,7 @@ int main(int argc, char** argv) {
     VkQueryPool serialized =
         query_pool(d, VK_QUERY_TYPE_ACCELERATION_STRUCTURE_SERIALIZATION_SIZE_KHR);
 
-    VkCommandBuffer first = begin(d);
+    VkCommandBuffer first = d.beginCommands();
     const VkBufferCopy upload{0, 0, kInputBytes};
     vkCmdCopyBuffer(first, staging.buffer, input.buffer, 1, &upload);
     barrier(first);
@@ -371,7 +253,7 @@ int main(int argc, char** argv) {
     d.cmd_write_properties(first, 1, &top.handle,
                            VK_QUERY_TYPE_ACCELERATION_STRUCTURE_SERIALIZATION_SIZE_KHR, serialized,
                            0);
-    submit_and_wait(d, first);
+    d.submitAndWait(first);
     const uint64_t compacted_size = query_result(d, compacted);
     const uint64_t serialized_size = query_result(d, serialized);
 
@@ -380,7 +262,7 @@ int main(int argc, char** argv) {
                                          VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR);
     Buffer serial = make_buffer(d, serialized_size);
     std::memcpy(staging.mapped + kVertices, kMovedQuad, sizeof kMovedQuad);
-    VkCommandBuffer second = begin(d);
+    VkCommandBuffer second = d.beginCommands();
     VkCopyAccelerationStructureInfoKHR copy{VK_STRUCTURE_TYPE_COPY_ACCELERATION_STRUCTURE_INFO_KHR};
     copy.src = triangle_blas.handle;
     copy.dst = compact.handle;
@@ -400,7 +282,7 @@ int main(int argc, char** argv) {
     update.srcAccelerationStructure = triangle_blas.handle;
     update.dstAccelerationStructure = triangle_blas.handle;
     d.cmd_build(second, 1, &update, blas_ranges);
-    submit_and_wait(d, second);
+    d.submitAndWait(second);
 
     json out;
     out["input"] = {{"buffer", id(input.buffer)}, {"address", input.address}};

@@ -51,6 +51,22 @@ TEST(ReplayKhr, BottomAndTopLevelReplayCleanAndTheirRaysAgree) {
     EXPECT_EQ(r.ray_checks[0].disagree, 0u);
 }
 
+// Each build's input snapshots (the vertices, the top level's instances) are laid into replay
+// memory once, by the build: noting what the top level's instances name reads them from there.
+TEST(ReplayKhr, EachBuildInputIsLaidIntoMemoryOnce) {
+    KhrTrace t(temp_path("laid_once.clt"), true);
+    const auto blas = t.create(VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR);
+    const auto tlas = t.create(VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_KHR);
+    t.build(one(t.triangle_blas(blas)));
+    t.build_barrier();
+    t.build(one(t.top_level(tlas, {instance_at(0, blas.address)})));
+    t.submit();
+    const replay::ReplayReport r = t.replay();
+    EXPECT_TRUE(r.clean()) << describe(r);
+    EXPECT_EQ(r.counts.snapshots_applied, 2u) << describe(r);
+    EXPECT_EQ(r.counts.snapshot_bytes, 9 * sizeof(float) + 64) << describe(r);
+}
+
 // One top level over a KHR BLAS (x = 0), an NV BLAS (x = 10, named by its NV handle) and a
 // cluster BLAS (x = 20, named by the address its cluster build wrote): a ray through each
 // instance hits that instance's triangle.

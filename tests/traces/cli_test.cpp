@@ -116,6 +116,61 @@ TEST(ClastraceCli, DamagedTraceExitsWithOneAndNamesTheOffset) {
     EXPECT_NE(c.output.find("[truncated]"), std::string::npos) << c.output;
 }
 
+// A trace whose CmdTraceRays inputs or DeviceAddressWrites writes name contents badly: a wrong
+// hash (contents no record defines) or contents shorter than the snapshot says (truncated).
+std::string trace_with_bad_snapshot(fbs::RecordBody kind, bool truncated) {
+    const std::string path = temp_path(std::string(fbs::EnumNameRecordBody(kind)) +
+                                       (truncated ? ".truncated.clt" : ".wrong_hash.clt"));
+    TraceError e;
+    auto w = TraceWriter::create(path, test_header(), {}, &e);
+    EXPECT_TRUE(w) << e.message;
+    if (!w) return path;
+    std::vector<uint8_t> bytes(32, 0x5a);
+    fbs::MemorySnapshot s;
+    EXPECT_FALSE(w->snapshot(0xb0, 0, 0xe000, bytes.data(), bytes.size(), &s));
+    // Truncated: the contents hold 32 bytes, the snapshot says 64.
+    s = fbs::MemorySnapshot(s.buffer(), s.offset(), s.address(), truncated ? 64 : s.size(),
+                            truncated ? s.hash() : s.hash() ^ 1);
+    fbs::RecordT r;
+    if (kind == fbs::RecordBody::CmdTraceRays) {
+        fbs::CmdTraceRaysT rays;
+        rays.entry_point = "vkCmdTraceRaysIndirectKHR";
+        rays.indirect_address = 0xe000;
+        rays.inputs = {s};
+        r.body.Set(std::move(rays));
+    } else {
+        fbs::DeviceAddressWritesT writes;
+        writes.writes = {s};
+        r.body.Set(std::move(writes));
+    }
+    EXPECT_FALSE(w->append(r));
+    EXPECT_FALSE(w->finish());
+    return path;
+}
+
+TEST(ClastraceCli, BadSnapshotsOfRaysAndAddressWritesExitWithOneAndNameTheRule) {
+    for (fbs::RecordBody kind :
+         {fbs::RecordBody::CmdTraceRays, fbs::RecordBody::DeviceAddressWrites})
+        for (bool truncated : {false, true}) {
+            const std::string path = trace_with_bad_snapshot(kind, truncated);
+            // info names the reader's rule; replay reports the damage as its finding.
+            const std::string code = truncated ? "[content_mismatch]" : "[missing_contents]";
+            const std::string what = std::string("(") + fbs::EnumNameRecordBody(kind) +
+                                     "): snapshot of address 0x000000000000e000";
+            for (const char* command : {"info", "replay"}) {
+                ProgramRun r = run(std::string(command) + " " + path);
+                SCOPED_TRACE(std::string(command) + " " + path);
+                EXPECT_EQ(r.exit_code, 1) << r.output;
+                EXPECT_NE(r.output.find(path + ": offset "), std::string::npos) << r.output;
+                const std::string rule = command == std::string("info")
+                                             ? code
+                                             : "CLASTRACE-trace-damaged: " + path + ": offset ";
+                EXPECT_NE(r.output.find(rule), std::string::npos) << r.output;
+                EXPECT_NE(r.output.find(what), std::string::npos) << r.output;
+            }
+        }
+}
+
 TEST(ClastraceCli, UnreadableInputExitsWithTwo) {
     ProgramRun missing = run("info /nonexistent/trace.clt");
     EXPECT_EQ(missing.exit_code, 2);

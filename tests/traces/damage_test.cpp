@@ -374,6 +374,63 @@ TEST(TraceDamage, SnapshotOfMissingContentsIsReportedWithItsChunk) {
     EXPECT_EQ(read.records[0].body.type, fbs::RecordBody::CommandBufferEnd);
 }
 
+// CmdTraceRays inputs and DeviceAddressWrites writes are checked like every other snapshot: a
+// wrong hash names missing contents, a size the contents do not hold (cut short) a mismatch.
+// The record is not handed out; the record after it is.
+TEST(TraceDamage, BadSnapshotsOfRaysAndAddressWritesAreReportedWithTheirChunk) {
+    for (fbs::RecordBody kind :
+         {fbs::RecordBody::CmdTraceRays, fbs::RecordBody::DeviceAddressWrites})
+        for (bool truncated : {false, true}) {
+            SCOPED_TRACE(std::string(fbs::EnumNameRecordBody(kind)) +
+                         (truncated ? " truncated" : " wrong hash"));
+            std::vector<uint8_t> raw;
+            fbs::MemoryContentsT c;
+            c.bytes.assign(24, 0x3c);
+            c.hash = f::content_key(c.bytes.data(), c.bytes.size(), 0, 64);
+            const uint64_t stored = c.hash;
+            fbs::RecordT cr;
+            cr.body.Set(std::move(c));
+            frame(raw, cr);
+            const fbs::MemorySnapshot snapshot(0xb0, 8, 0xb008, truncated ? 48 : 24,
+                                               truncated ? stored : stored ^ 0x10);
+            fbs::RecordT bad;
+            if (kind == fbs::RecordBody::CmdTraceRays) {
+                fbs::CmdTraceRaysT rays;
+                rays.inputs = {snapshot};
+                bad.body.Set(std::move(rays));
+            } else {
+                fbs::DeviceAddressWritesT writes;
+                writes.writes = {snapshot};
+                bad.body.Set(std::move(writes));
+            }
+            frame(raw, bad);
+            fbs::CommandBufferEndT end;
+            fbs::RecordT er;
+            er.body.Set(end);
+            frame(raw, er);
+            std::vector<uint8_t> file = header_only_prefix();
+            const uint64_t chunk_at = file.size();
+            std::vector<uint8_t> chunk = make_chunk(raw, 0, 3);
+            file.insert(file.end(), chunk.begin(), chunk.end());
+            ReadResult read = read_all_memory(file);
+            ASSERT_TRUE(read.opened);
+            const TraceErrorCode code =
+                truncated ? TraceErrorCode::kContentMismatch : TraceErrorCode::kMissingContents;
+            EXPECT_TRUE(has_damage(read, code, chunk_at)) << describe(read.damage);
+            EXPECT_NE(describe(read.damage).find("chunk 0 record 2 (raw offset "),
+                      std::string::npos)
+                << describe(read.damage);
+            EXPECT_NE(describe(read.damage)
+                          .find(std::string("(") + fbs::EnumNameRecordBody(kind) +
+                                "): snapshot of address 0x000000000000b008"),
+                      std::string::npos)
+                << describe(read.damage);
+            ASSERT_EQ(read.records.size(), 2u);  // the contents and the end, not the bad record
+            EXPECT_EQ(read.records[0].body.type, fbs::RecordBody::MemoryContents);
+            EXPECT_EQ(read.records[1].body.type, fbs::RecordBody::CommandBufferEnd);
+        }
+}
+
 TEST(TraceDamage, ContentsThatDoNotHashToTheirKeyAreReported) {
     std::vector<uint8_t> raw;
     fbs::MemoryContentsT c;

@@ -664,12 +664,18 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
         out.push_back(record(r));
     }
     append_acceleration_structure_use_records(out);
-    // The reader checks the KHR build's snapshots (traces::record_snapshots): contents stored here.
-    for (fbs::RecordT& r : out)
+    // The reader checks the snapshots of these records (traces::record_snapshots): contents
+    // stored here.
+    for (fbs::RecordT& r : out) {
         if (auto* build = r.body.AsCmdBuildAccelerationStructuresKHR()) {
             build->inputs = {snap(0xb000, a)};
             build->outputs = {snap(0xa100, b)};
+        } else if (auto* rays = r.body.AsCmdTraceRays()) {
+            rays->inputs = {snap(0xe000, b)};
+        } else if (auto* writes = r.body.AsDeviceAddressWrites()) {
+            writes->writes = {snap(0xb040, a)};
         }
+    }
     return out;
 }
 

@@ -28,9 +28,17 @@ SnapshotLists record_snapshots(const fbs::Record& record) {
         return lists_of(record.body_as_CmdCopyAccelerationStructure());
     case K::CmdCopyAccelerationStructureToMemory:
         return lists_of(record.body_as_CmdCopyAccelerationStructureToMemory());
+    case K::CmdTraceRays: {  // inputs only: the indirect parameters as read at execution
+        const auto* rays = record.body_as_CmdTraceRays();
+        return rays ? SnapshotLists{rays->inputs(), nullptr} : SnapshotLists{};
+    }
     case K::MemoryObservation: {
         const auto* o = record.body_as_MemoryObservation();
         return o ? SnapshotLists{o->snapshots(), nullptr} : SnapshotLists{};
+    }
+    case K::DeviceAddressWrites: {  // the bytes the dispatch wrote: outputs
+        const auto* w = record.body_as_DeviceAddressWrites();
+        return w ? SnapshotLists{nullptr, w->writes()} : SnapshotLists{};
     }
     default: return {};
     }

@@ -474,9 +474,10 @@ struct TraceReader::Impl {
                     ok = false;
                 } else if (it->second.size != s->size()) {
                     report_with(TraceErrorCode::kContentMismatch, chunk_offset, [&] {
-                        return record_place(at) + ": snapshot size " + std::to_string(s->size()) +
-                               " but contents " + hex(s->hash()) + " hold " +
-                               std::to_string(it->second.size) + " bytes";
+                        return record_place(at) + " (" + record_kind_name(record.body_type()) +
+                               "): snapshot of address " + hex(s->address()) + " has size " +
+                               std::to_string(s->size()) + " but contents " + hex(s->hash()) +
+                               " hold " + std::to_string(it->second.size) + " bytes";
                     });
                     ok = false;
                 }

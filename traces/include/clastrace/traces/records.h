@@ -9,7 +9,8 @@ namespace clastrace::traces {
 using SnapshotVector = flatbuffers::Vector<const fbs::MemorySnapshot*>;
 
 // The memory snapshots a record refers to: what it read and what it wrote.
-// MemoryObservation's snapshots count as inputs. Either may be null.
+// MemoryObservation's snapshots count as inputs, DeviceAddressWrites' writes as outputs;
+// CmdTraceRays has inputs only. Either may be null.
 struct SnapshotLists {
     const SnapshotVector* inputs = nullptr;
     const SnapshotVector* outputs = nullptr;
