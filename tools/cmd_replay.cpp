@@ -36,6 +36,7 @@ struct ReplayArgs {
     bool no_verify = false;
     bool progress = false;
     std::size_t max_findings = 1000;
+    std::string traversal;  // "", "float32" or "double" (CLI11 checks the value)
     traces::TraceReaderOptions reader{.verify_content_keys = true};
 };
 
@@ -92,6 +93,10 @@ int run_replay(const ReplayArgs& args) {
     options.verify_outputs = !args.no_verify;
     options.submission = args.submit;
     options.max_findings = args.max_findings;
+    if (args.traversal == "double")
+        options.ray_check_traversal = replay::RayCheckTraversal::kDouble;
+    if (args.traversal == "float32")
+        options.ray_check_traversal = replay::RayCheckTraversal::kFloat32;
     if (!args.ops.empty() && !parse_ops(args.ops, &options.first_command, &options.last_command)) {
         std::fprintf(
             stderr,
@@ -168,6 +173,10 @@ Command register_replay(CLI::App& app) {
                         std::to_string(kMostFindingsKept) + " (the rest are counted)")
         ->check(whole_number_from(1, kMostFindingsKept, "the number of findings kept"))
         ->capture_default_str();
+    sub->add_option("--traversal", args->traversal,
+                    "arithmetic of the engine's traversal for the trace's ray checks: float32 "
+                    "(the default: as the drivers that answered them trace) or double")
+        ->check(CLI::IsMember({"float32", "double"}));
     add_max_raw_option(sub, &args->reader);
     return Command{sub, [args] { return run_replay(*args); }};
 }

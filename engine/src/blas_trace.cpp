@@ -24,7 +24,8 @@ bool hit_box(const geometry::PreparedRay& r, const BottomLevelNode& n, double tm
 // of the CLAS a reference names (empty: skipped); `visit(clas, reference, tmax)` returns false
 // to stop.
 template <class ClasAt, class Visit>
-void walk_bytes(std::span<const std::byte> blas, const Ray& ray, ClasAt&& clas_at, Visit&& visit) {
+void walk_bytes(std::span<const std::byte> blas, const Ray& ray, TraversalMode mode,
+                ClasAt&& clas_at, Visit&& visit) {
     BottomLevelHeader h;
     std::memcpy(&h, blas.data(), sizeof h);
     if (h.node_count == 0) return;
@@ -35,7 +36,8 @@ void walk_bytes(std::span<const std::byte> blas, const Ray& ray, ClasAt&& clas_a
     };
     const double origin[3] = {ray.origin[0], ray.origin[1], ray.origin[2]};
     const double direction[3] = {ray.direction[0], ray.direction[1], ray.direction[2]};
-    const geometry::PreparedRay rb = geometry::prepare_ray(origin, direction, ray.tmin, ray.tmax);
+    const geometry::PreparedRay rb =
+        geometry::prepare_ray(origin, direction, ray.tmin, ray.tmax, mode);
     std::vector<uint32_t> stack{0};
     double tmax = ray.tmax;
     while (!stack.empty()) {
@@ -77,7 +79,7 @@ void walk_bytes(std::span<const std::byte> blas, const Ray& ray, ClasAt&& clas_a
 
 // The BLAS at `blas_address` in memory, its CLAS judged by `directory` (or by their bytes).
 template <class Visit>
-void walk(const MemoryImage& memory, uint64_t blas_address, const Ray& ray,
+void walk(const MemoryImage& memory, uint64_t blas_address, const Ray& ray, TraversalMode mode,
           const ObjectDirectory* directory, std::vector<Finding>* findings, Visit&& visit) {
     ObjectDirectory empty;
     const ObjectDirectory& dir = directory ? *directory : empty;
@@ -104,7 +106,7 @@ void walk(const MemoryImage& memory, uint64_t blas_address, const Ray& ray,
         }
         return {};
     };
-    walk_bytes(blas.bytes, ray, clas_at, visit);
+    walk_bytes(blas.bytes, ray, mode, clas_at, visit);
 }
 
 // A visitor keeping the closest hit (the first with kRayFlagTerminateOnFirstHit or `first`).
@@ -112,11 +114,12 @@ struct ClosestVisitor {
     const Ray& ray;
     uint32_t ray_flags;
     bool first;
+    TraversalMode mode;
     BottomLevelHit& best;
     bool operator()(std::span<const std::byte> clas, const ClusterReference& ref, double& tmax) {
         Ray r = ray;
         r.tmax = float(tmax);
-        Hit h = trace_closest(clas, r, ray_flags);
+        Hit h = trace_closest(clas, r, ray_flags, mode);
         if (h.hit && (!best.hit.hit || h.t < best.hit.t)) {
             best.hit = h;
             best.reference_index = ref.reference_index;
@@ -133,31 +136,31 @@ struct ClosestVisitor {
 BottomLevelHit trace_bottom_level_closest(const MemoryImage& memory, uint64_t blas_address,
                                           const Ray& ray, uint32_t ray_flags,
                                           const ObjectDirectory* directory,
-                                          std::vector<Finding>* findings) {
+                                          std::vector<Finding>* findings, TraversalMode mode) {
     BottomLevelHit best;
-    walk(memory, blas_address, ray, directory, findings,
-         ClosestVisitor{ray, ray_flags, false, best});
+    walk(memory, blas_address, ray, mode, directory, findings,
+         ClosestVisitor{ray, ray_flags, false, mode, best});
     return best;
 }
 
 BottomLevelHit trace_bottom_level_bytes(
     std::span<const std::byte> blas,
     const std::function<std::span<const std::byte>(uint64_t clas_address)>& clas_at, const Ray& ray,
-    uint32_t ray_flags, bool first_hit) {
+    uint32_t ray_flags, bool first_hit, TraversalMode mode) {
     BottomLevelHit best;
     walk_bytes(
-        blas, ray, [&](const ClusterReference& ref) { return clas_at(ref.clas_address); },
-        ClosestVisitor{ray, ray_flags, first_hit, best});
+        blas, ray, mode, [&](const ClusterReference& ref) { return clas_at(ref.clas_address); },
+        ClosestVisitor{ray, ray_flags, first_hit, mode, best});
     return best;
 }
 
 bool trace_bottom_level_any(const MemoryImage& memory, uint64_t blas_address, const Ray& ray,
                             uint32_t ray_flags, const ObjectDirectory* directory,
-                            std::vector<Finding>* findings) {
+                            std::vector<Finding>* findings, TraversalMode mode) {
     bool any = false;
-    walk(memory, blas_address, ray, directory, findings,
+    walk(memory, blas_address, ray, mode, directory, findings,
          [&](std::span<const std::byte> clas, const ClusterReference&, double&) {
-             any = trace_any(clas, ray, ray_flags);
+             any = trace_any(clas, ray, ray_flags, mode);
              return !any;
          });
     return any;

@@ -6,6 +6,7 @@
 #include "clastrace/common/hex.h"
 #include "clastrace/engine/blas.h"
 
+#include "geometry/float32.h"
 #include "geometry/slab.h"
 #include "geometry/triangle.h"
 
@@ -36,6 +37,9 @@ struct Blas {
 struct Instance {
     const Blas* blas = nullptr;  // nullptr: never visited
     double inverse[12];
+    // The world-to-object matrix a float32 pipeline holds: `inverse` rounded to float, i.e.
+    // the driver inverts the 3x4 matrix exactly (or closely enough) and stores floats.
+    float inverse_float[12];
     uint32_t mask = 0;
     uint32_t custom_index = 0;
     uint32_t sbt_offset = 0;
@@ -191,6 +195,7 @@ std::optional<NvScene> NvScene::open(const MemoryImage& memory, uint64_t address
         inst.sbt_offset = r.sbt_offset_and_flags & 0xFFFFFFu;
         inst.flags = r.sbt_offset_and_flags >> 24;
         if (!r.active || r.blas_address == 0 || !invert(r.transform, inst.inverse)) continue;
+        for (int k = 0; k < 12; ++k) inst.inverse_float[k] = float(inst.inverse[k]);
         auto it = data->blas.find(r.blas_address);
         if (it == data->blas.end()) {
             std::string why;
@@ -219,6 +224,7 @@ std::optional<NvScene> NvScene::open_bottom(const MemoryImage& memory, uint64_t 
     Instance inst;
     const double identity[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
     std::memcpy(inst.inverse, identity, sizeof identity);
+    for (int k = 0; k < 12; ++k) inst.inverse_float[k] = float(identity[k]);
     inst.mask = 0xFF;
     auto& slot = data->blas[address];
     slot = std::make_unique<Blas>(std::move(*b));
@@ -319,6 +325,40 @@ double float_t_error(const Instance& inst, const double wo[3], const double o[3]
     return 8.0 * ulp * (dmax > 0.0 ? scale / dmax : 0.0) + 8.0 * ulp * std::fabs(t);
 }
 
+// The world ray in the instance's object space. kDouble: through the double inverse.
+// kFloat32: through the float world-to-object matrix, each row evaluated in float as
+// ((m0 x + m1 y) + m2 z) + m3 without fused multiply-adds (the results are floats).
+void to_object_space(const Instance& inst, const Ray& ray, TraversalMode mode, double o[3],
+                     double d[3]) {
+    for (int r = 0; r < 3; ++r) {
+        if (mode == TraversalMode::kFloat32) {
+            const float* m = inst.inverse_float + 4 * r;
+            const float* wo = ray.origin;
+            const float* wd = ray.direction;
+            o[r] = ((m[0] * wo[0] + m[1] * wo[1]) + m[2] * wo[2]) + m[3];
+            d[r] = (m[0] * wd[0] + m[1] * wd[1]) + m[2] * wd[2];
+        } else {
+            const double* m = inst.inverse + 4 * r;
+            o[r] = m[0] * double(ray.origin[0]) + m[1] * double(ray.origin[1]) +
+                   m[2] * double(ray.origin[2]) + m[3];
+            d[r] = m[0] * double(ray.direction[0]) + m[1] * double(ray.direction[1]) +
+                   m[2] * double(ray.direction[2]);
+        }
+    }
+}
+
+// Where the engine, standing in for the ray check's intersection shader, reports an AABB
+// primitive's hit: kDouble the conservative slab entry; kFloat32 the shader's own float slab
+// test (geometry/float32.h). NaN for none within [tmin, tmax].
+double aabb_primitive_entry(const geometry::PreparedRay& r, const float lo[3], const float hi[3],
+                            double tmax) {
+    if (r.mode != TraversalMode::kFloat32) return box_entry(r, lo, hi, tmax);
+    double t;
+    if (!geometry::aabb_shader_float32(r, lo, hi, &t) || t > tmax)
+        return std::numeric_limits<double>::quiet_NaN();
+    return t;
+}
+
 // The ray flags a cluster BLAS's traversal applies for this instance: its flags put into the
 // ray's terms (FORCE_(NO_)OPAQUE unless the ray forces opacity itself, CULL_DISABLE drops the
 // facing culls, FRONT_COUNTERCLOCKWISE swaps them), as the NV traversal applies them per
@@ -344,7 +384,7 @@ uint32_t cluster_ray_flags(uint32_t flags, uint32_t instance_flags) {
 // (blas.h), its hit reported in the NV terms (primitive = the triangle's input index).
 bool trace_cluster_instance(const Instance& inst, uint32_t index, const double o[3],
                             const double d[3], uint32_t flags, bool first_hit, double tmin,
-                            double* tmax, NvHit* best) {
+                            double* tmax, NvHit* best, TraversalMode mode) {
     const Blas& b = *inst.blas;
     const Ray object_ray{{float(o[0]), float(o[1]), float(o[2])},
                          float(tmin),
@@ -356,7 +396,7 @@ bool trace_cluster_instance(const Instance& inst, uint32_t index, const double o
     };
     const BottomLevelHit h =
         trace_bottom_level_bytes(b.bytes, clas_at, object_ray, cluster_ray_flags(flags, inst.flags),
-                                 first_hit);
+                                 first_hit, mode);
     if (!h.hit.hit || !(double(h.hit.t) < *tmax) || double(h.hit.t) < tmin) return false;
     const bool flip = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_FRONT_COUNTERCLOCKWISE_BIT_NV;
     if (best) {
@@ -370,6 +410,7 @@ bool trace_cluster_instance(const Instance& inst, uint32_t index, const double o
         best->cluster_id = h.hit.cluster_id;
         best->u = h.hit.u;
         best->v = h.hit.v;
+        best->uv_error = h.hit.uv_error;
         best->hit_kind = h.hit.front_face != flip ? kHitKindFrontFacing : kHitKindBackFacing;
         best->opaque = h.hit.opaque;
         // The object-space ray was rounded to float once more: a few ulps of t.
@@ -382,20 +423,15 @@ bool trace_cluster_instance(const Instance& inst, uint32_t index, const double o
 // One instance's BLAS: updates `best` (closest) or returns true at the first accepted
 // hit (any / terminate-on-first-hit).
 bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32_t flags,
-                    bool first_hit, double tmin, double* tmax, NvHit* best) {
+                    bool first_hit, double tmin, double* tmax, NvHit* best, TraversalMode mode) {
     const Blas& b = *inst.blas;
     if (b.nodes.empty() && !b.clusters) return false;
     const double wo[3] = {ray.origin[0], ray.origin[1], ray.origin[2]};
-    const double wd[3] = {ray.direction[0], ray.direction[1], ray.direction[2]};
     double o[3], d[3];
-    for (int r = 0; r < 3; ++r) {
-        const double* m = inst.inverse + 4 * r;
-        o[r] = m[0] * wo[0] + m[1] * wo[1] + m[2] * wo[2] + m[3];
-        d[r] = m[0] * wd[0] + m[1] * wd[1] + m[2] * wd[2];
-    }
+    to_object_space(inst, ray, mode, o, d);
     if (b.clusters)
-        return trace_cluster_instance(inst, index, o, d, flags, first_hit, tmin, tmax, best);
-    const geometry::PreparedRay rd = geometry::prepare_ray(o, d, tmin, *tmax);
+        return trace_cluster_instance(inst, index, o, d, flags, first_hit, tmin, tmax, best, mode);
+    const geometry::PreparedRay rd = geometry::prepare_ray(o, d, tmin, *tmax, mode);
     const bool cull_disable = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_CULL_DISABLE_BIT_NV;
     const bool flip = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_FRONT_COUNTERCLOCKWISE_BIT_NV;
     bool found = false;
@@ -413,9 +449,9 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
             geometry::TriangleHit cand;
             uint32_t kind = 0;
             if (b.aabbs) {
-                const double t = box_entry(rd, p.v, p.v + 3, *tmax);
+                const double t = aabb_primitive_entry(rd, p.v, p.v + 3, *tmax);
                 if (std::isnan(t)) continue;
-                cand = geometry::TriangleHit{t, 0.0, 0.0, true};
+                cand = geometry::TriangleHit{t, 0.0, 0.0, 0.0, true};
             } else {
                 if (!geometry::intersect_triangle(rd, p.v, p.v + 3, p.v + 6, *tmax, &cand))
                     continue;
@@ -439,6 +475,7 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
                 best->primitive_index = p.primitive_index;
                 best->u = float(cand.u);
                 best->v = float(cand.v);
+                best->uv_error = float(cand.uv_error);
                 best->hit_kind = kind;
                 best->opaque = opaque;
                 best->t_error = float(float_t_error(inst, wo, o, d, p, b.aabbs, cand.t));
@@ -452,12 +489,12 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
 }
 
 bool trace_scene(const NvScene::Data& s, const Ray& ray, uint32_t flags, uint32_t cull_mask,
-                 bool first_hit, NvHit* best) {
+                 bool first_hit, NvHit* best, TraversalMode mode) {
     if (s.nodes.empty() || std::isnan(ray.tmin) || std::isnan(ray.tmax) || !(ray.tmin <= ray.tmax))
         return false;
     const double o[3] = {ray.origin[0], ray.origin[1], ray.origin[2]};
     const double d[3] = {ray.direction[0], ray.direction[1], ray.direction[2]};
-    const geometry::PreparedRay rd = geometry::prepare_ray(o, d, ray.tmin, ray.tmax);
+    const geometry::PreparedRay rd = geometry::prepare_ray(o, d, ray.tmin, ray.tmax, mode);
     const double tmin = ray.tmin;
     double tmax = ray.tmax;
     bool found = false;
@@ -465,7 +502,7 @@ bool trace_scene(const NvScene::Data& s, const Ray& ray, uint32_t flags, uint32_
         for (uint32_t k = n.first; k < n.first + n.count; ++k) {
             const Instance& inst = s.instances[k];
             if (!inst.blas || !(inst.mask & cull_mask & 0xFFu)) continue;
-            if (trace_instance(inst, k, ray, flags, first_hit, tmin, &tmax, best)) {
+            if (trace_instance(inst, k, ray, flags, first_hit, tmin, &tmax, best, mode)) {
                 found = true;
                 if (first_hit) return true;
             }
@@ -477,15 +514,17 @@ bool trace_scene(const NvScene::Data& s, const Ray& ray, uint32_t flags, uint32_
 
 }  // namespace
 
-NvHit NvScene::closest(const Ray& ray, uint32_t ray_flags, uint32_t cull_mask) const {
+NvHit NvScene::closest(const Ray& ray, uint32_t ray_flags, uint32_t cull_mask,
+                       TraversalMode mode) const {
     NvHit hit;
     trace_scene(*data_, ray, ray_flags, cull_mask, (ray_flags & kRayFlagTerminateOnFirstHit) != 0,
-                &hit);
+                &hit, mode);
     return hit;
 }
 
-bool NvScene::any(const Ray& ray, uint32_t ray_flags, uint32_t cull_mask) const {
-    return trace_scene(*data_, ray, ray_flags, cull_mask, true, nullptr);
+bool NvScene::any(const Ray& ray, uint32_t ray_flags, uint32_t cull_mask,
+                  TraversalMode mode) const {
+    return trace_scene(*data_, ray, ray_flags, cull_mask, true, nullptr, mode);
 }
 
 }  // namespace clastrace::engine

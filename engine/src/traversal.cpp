@@ -15,18 +15,18 @@ namespace clastrace::engine {
 
 namespace {
 
-geometry::PreparedRay prepare(const Ray& ray) {
+geometry::PreparedRay prepare(const Ray& ray, TraversalMode mode) {
     const double o[3] = {ray.origin[0], ray.origin[1], ray.origin[2]};
     const double d[3] = {ray.direction[0], ray.direction[1], ray.direction[2]};
-    return geometry::prepare_ray(o, d, ray.tmin, ray.tmax);
+    return geometry::prepare_ray(o, d, ray.tmin, ray.tmax, mode);
 }
 
 template <bool KAny, bool KPlainFloats>
-Hit traverse_impl(const ClasView& clas, const Ray& ray, uint32_t ray_flags) {
+Hit traverse_impl(const ClasView& clas, const Ray& ray, uint32_t ray_flags, TraversalMode mode) {
     Hit best;
     const ObjectHeader& h = clas.header;
     if (h.node_count == 0) return best;
-    const geometry::PreparedRay r = prepare(ray);
+    const geometry::PreparedRay r = prepare(ray, mode);
     if (!(r.tmin <= r.tmax)) return best;
     const std::byte* base = clas.bytes.data();
     const std::byte* nodes = base + h.nodes_offset;
@@ -109,6 +109,7 @@ Hit traverse_impl(const ClasView& clas, const Ray& ray, uint32_t ray_flags) {
                 best.t = float(th.t);
                 best.u = float(th.u);
                 best.v = float(th.v);
+                best.uv_error = float(th.uv_error);
                 best.triangle_index = (h.header_flags & kHasTriangleOrder)
                                           ? uint32_t(uint8_t(base[h.triangle_order_offset + i]))
                                           : i;
@@ -146,12 +147,16 @@ Hit traverse_impl(const ClasView& clas, const Ray& ray, uint32_t ray_flags) {
 }
 
 template <bool KAny>
-Hit traverse(const ClasView& clas, const Ray& ray, uint32_t ray_flags) {
-    return clas.header.position_bits == 32 ? traverse_impl<KAny, true>(clas, ray, ray_flags)
-                                           : traverse_impl<KAny, false>(clas, ray, ray_flags);
+Hit traverse(const ClasView& clas, const Ray& ray, uint32_t ray_flags, TraversalMode mode) {
+    return clas.header.position_bits == 32 ? traverse_impl<KAny, true>(clas, ray, ray_flags, mode)
+                                           : traverse_impl<KAny, false>(clas, ray, ray_flags, mode);
 }
 
 }  // namespace
+
+const char* traversal_mode_name(TraversalMode mode) {
+    return mode == TraversalMode::kFloat32 ? "float32" : "double";
+}
 
 std::optional<ClasView> open_clas(std::span<const std::byte> bytes, std::string* error) {
     HeaderCheck hc = read_object_header(bytes);
@@ -166,20 +171,22 @@ std::optional<ClasView> open_clas(std::span<const std::byte> bytes, std::string*
     return ClasView{bytes.first(hc.header->object_size), *hc.header};
 }
 
-Hit trace_closest(const ClasView& clas, const Ray& ray, uint32_t ray_flags) {
-    return traverse<false>(clas, ray, ray_flags);
+Hit trace_closest(const ClasView& clas, const Ray& ray, uint32_t ray_flags, TraversalMode mode) {
+    return traverse<false>(clas, ray, ray_flags, mode);
 }
-bool trace_any(const ClasView& clas, const Ray& ray, uint32_t ray_flags) {
-    return traverse<true>(clas, ray, ray_flags).hit;
+bool trace_any(const ClasView& clas, const Ray& ray, uint32_t ray_flags, TraversalMode mode) {
+    return traverse<true>(clas, ray, ray_flags, mode).hit;
 }
 
-Hit trace_closest(std::span<const std::byte> clas, const Ray& ray, uint32_t ray_flags) {
+Hit trace_closest(std::span<const std::byte> clas, const Ray& ray, uint32_t ray_flags,
+                  TraversalMode mode) {
     const auto view = open_clas(clas);
-    return view ? trace_closest(*view, ray, ray_flags) : Hit{};
+    return view ? trace_closest(*view, ray, ray_flags, mode) : Hit{};
 }
-bool trace_any(std::span<const std::byte> clas, const Ray& ray, uint32_t ray_flags) {
+bool trace_any(std::span<const std::byte> clas, const Ray& ray, uint32_t ray_flags,
+               TraversalMode mode) {
     const auto view = open_clas(clas);
-    return view ? trace_any(*view, ray, ray_flags) : false;
+    return view ? trace_any(*view, ray, ray_flags, mode) : false;
 }
 
 }  // namespace clastrace::engine

@@ -66,6 +66,38 @@ engine::NvObjectInfo counts_of(const fbs::AccelerationStructureInfoNV* info) {
     return out;
 }
 
+enum class DisagreementCause { kFarTiny, kDegenerate, kUnexplained };
+
+// Why a ray's answers may honestly differ: a NaN or zero direction or a hit whose float32 error
+// bound is unbounded (degenerate geometry); a hit whose float32 error is large against the
+// comparison's tolerances, or a ray from far away (|origin| or the hit distance over 1e4 of
+// the direction: float ulps there reach 1e-3), where a float pipeline's rounding decides
+// (far/tiny); otherwise unexplained.
+DisagreementCause disagreement_cause(const engine::Ray& ray, const engine::NvHit& e,
+                                     const fbs::RayHitResult& d) {
+    const float dmax = std::max(
+        {std::fabs(ray.direction[0]), std::fabs(ray.direction[1]), std::fabs(ray.direction[2])});
+    bool nan = !(dmax > 0.0f);
+    for (int a = 0; a < 3; ++a) nan |= std::isnan(ray.origin[a]) || std::isnan(ray.direction[a]);
+    if (nan || (e.hit && !std::isfinite(e.uv_error))) return DisagreementCause::kDegenerate;
+    if (e.hit && (e.t_error > 1e-4f * std::fabs(e.t) || e.uv_error > 1e-3f))
+        return DisagreementCause::kFarTiny;
+    const float omax =
+        std::max({std::fabs(ray.origin[0]), std::fabs(ray.origin[1]), std::fabs(ray.origin[2])});
+    const float t = std::max(e.hit ? e.t : 0.0f, d.hit() ? d.t() : 0.0f);
+    if (omax > 1e4f || t * dmax > 1e4f) return DisagreementCause::kFarTiny;
+    return DisagreementCause::kUnexplained;
+}
+
+const char* cause_name(DisagreementCause c) {
+    switch (c) {
+    case DisagreementCause::kFarTiny: return "far/tiny";
+    case DisagreementCause::kDegenerate: return "NaN/degenerate";
+    case DisagreementCause::kUnexplained: break;
+    }
+    return "unexplained";
+}
+
 }  // namespace
 
 NvReplay::Object* NvReplay::object(uint64_t handle) {
@@ -480,6 +512,10 @@ void NvReplay::ray_check(const fbs::RayQueryCheck& check) {
                             " results: only the first " + std::to_string(n) + " compared",
                         FindingSource::kReplay, where, -1, 0});
     out.checked = true;
+    const engine::TraversalMode mode = c_.options.ray_check_traversal == RayCheckTraversal::kDouble
+                                           ? engine::TraversalMode::kDouble
+                                           : engine::TraversalMode::kFloat32;
+    out.traversal = engine::traversal_mode_name(mode);
     size_t reported = 0;
     // Labels say how the rays were traced and can be long: the first words name the check.
     const std::string short_label =
@@ -491,7 +527,7 @@ void NvReplay::ray_check(const fbs::RayQueryCheck& check) {
                               r->t_min(),
                               {r->dir_x(), r->dir_y(), r->dir_z()},
                               r->t_max()};
-        const engine::NvHit e = scene->closest(ray, r->ray_flags(), r->cull_mask());
+        const engine::NvHit e = scene->closest(ray, r->ray_flags(), r->cull_mask(), mode);
         ++out.rays;
         const bool driver_hit = d->hit() != 0;
         auto near_edge = [](float u, float v, uint32_t kind) {
@@ -511,14 +547,18 @@ void NvReplay::ray_check(const fbs::RayQueryCheck& check) {
             // primitive at a t off by more than kRayCheckRelT still agrees (counted apart).
             const bool within_float = std::fabs(double(e.t) - d->t()) <= double(e.t_error);
             if (same && (rel <= kRayCheckRelT || within_float)) {
-                const bool attributes =
-                    e.instance_custom_index == d->instance_custom_index() &&
-                    e.hit_kind == d->hit_kind() &&
-                    (e.hit_kind == 0 || (std::fabs(e.u - d->barycentric_u()) <= 1e-3f &&
-                                         std::fabs(e.v - d->barycentric_v()) <= 1e-3f));
+                // Barycentrics within 1e-3, or within their float32 error bound (a tiny
+                // triangle far away: float noise on both sides), counted apart as t is.
+                const float du = std::fabs(e.u - d->barycentric_u()),
+                            dv = std::fabs(e.v - d->barycentric_v());
+                const bool uv_close = du <= 1e-3f && dv <= 1e-3f;
+                const bool uv_within_float = du <= e.uv_error && dv <= e.uv_error;
+                const bool attributes = e.instance_custom_index == d->instance_custom_index() &&
+                                        e.hit_kind == d->hit_kind() &&
+                                        (e.hit_kind == 0 || uv_close || uv_within_float);
                 if (attributes) {
                     ++out.agree_hit;
-                    if (rel > kRayCheckRelT)
+                    if (rel > kRayCheckRelT || (e.hit_kind != 0 && !uv_close))
                         ++out.float_precision;
                     else
                         out.max_rel_t = std::max(out.max_rel_t, rel);
@@ -543,19 +583,26 @@ void NvReplay::ray_check(const fbs::RayQueryCheck& check) {
         }
         if (!verdict) continue;
         ++out.disagree;
+        const DisagreementCause cause = disagreement_cause(ray, e, *d);
+        ++(cause == DisagreementCause::kFarTiny      ? out.disagree_far_tiny
+           : cause == DisagreementCause::kDegenerate ? out.disagree_degenerate
+                                                     : out.disagree_unexplained);
         if (reported++ >= c_.options.max_findings_per_rule) continue;
         char text[768];
         std::snprintf(text, sizeof text,
                       "ray %zu of check '%s' (origin %g %g %g, direction %g %g %g, t [%g, %g], "
-                      "flags 0x%x, cull mask 0x%x): %s; "
-                      "driver: %s t=%g instance %u primitive %u kind 0x%x; engine: %s t=%g "
-                      "instance %u primitive %u kind 0x%x",
+                      "flags 0x%x, cull mask 0x%x): %s (cause class %s, %s traversal); "
+                      "driver: %s t=%g instance %u primitive %u kind 0x%x u %g v %g; engine: %s "
+                      "t=%g instance %u primitive %u kind 0x%x u %g v %g (float32 error of u, v "
+                      "%g)",
                       i, short_label.c_str(), ray.origin[0], ray.origin[1], ray.origin[2],
                       ray.direction[0], ray.direction[1], ray.direction[2], ray.tmin, ray.tmax,
-                      r->ray_flags(), r->cull_mask(), verdict, driver_hit ? "hit" : "miss",
-                      double(d->t()), d->instance_id(), d->primitive_id(), d->hit_kind(),
+                      r->ray_flags(), r->cull_mask(), verdict, cause_name(cause),
+                      out.traversal.c_str(), driver_hit ? "hit" : "miss", double(d->t()),
+                      d->instance_id(), d->primitive_id(), d->hit_kind(),
+                      double(d->barycentric_u()), double(d->barycentric_v()),
                       e.hit ? "hit" : "miss", double(e.t), e.instance_index, e.primitive_index,
-                      e.hit_kind);
+                      e.hit_kind, double(e.u), double(e.v), double(e.uv_error));
         c_.add_finding({kRuleRayDisagrees, text, FindingSource::kVerify, where, int64_t(i), 0});
     }
     c_.report.ray_checks.push_back(out);

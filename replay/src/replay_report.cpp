@@ -198,10 +198,12 @@ std::string format_text(const ReplayReport& r) {
                       "  ray check '%s' on %s: %" PRIu64 " rays, agree %" PRIu64 " (%" PRIu64
                       " hits, %" PRIu64 " misses; %" PRIu64
                       " of the hits within float32 error only), tie %" PRIu64 ", edge %" PRIu64
-                      ", disagree %" PRIu64 "\n",
+                      ", disagree %" PRIu64 " (far/tiny %" PRIu64 ", NaN/degenerate %" PRIu64
+                      ", unexplained %" PRIu64 "); %s traversal\n",
                       label.c_str(), hex(c.acceleration_structure).c_str(), c.rays,
                       c.agree_hit + c.agree_miss, c.agree_hit, c.agree_miss, c.float_precision,
-                      c.tie, c.edge, c.disagree);
+                      c.tie, c.edge, c.disagree, c.disagree_far_tiny, c.disagree_degenerate,
+                      c.disagree_unexplained, c.traversal.c_str());
         s += line;
     }
     const ReplayCounts& n = r.counts;
@@ -306,6 +308,10 @@ nlohmann::json to_json(const ReplayReport& r) {
                               {"tie", c.tie},
                               {"edge", c.edge},
                               {"disagree", c.disagree},
+                              {"disagree_far_tiny", c.disagree_far_tiny},
+                              {"disagree_degenerate", c.disagree_degenerate},
+                              {"disagree_unexplained", c.disagree_unexplained},
+                              {"traversal", c.traversal},
                               {"max_rel_t", c.max_rel_t}});
     nlohmann::json not_replayed = nlohmann::json::array();
     for (const NotReplayed& n : r.not_replayed)

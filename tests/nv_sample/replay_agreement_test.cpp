@@ -19,7 +19,9 @@ namespace {
 
 using namespace clastrace;
 
-replay::ReplayReport replaySample(const char* path) {
+replay::ReplayReport replaySample(
+    const char* path,
+    replay::RayCheckTraversal traversal = replay::RayCheckTraversal::kCapturingDevice) {
     traces::TraceError error;
     auto reader = traces::TraceReader::open(path, &error);
     EXPECT_TRUE(reader) << error.message;
@@ -27,6 +29,7 @@ replay::ReplayReport replaySample(const char* path) {
     replay::ReplayOptions options;
     options.max_findings_per_rule = 100000;  // every disagreeing ray listed
     options.max_findings = 100000;
+    options.ray_check_traversal = traversal;
     return replay::replay_trace(*reader, path, options);
 }
 
@@ -86,35 +89,58 @@ TEST(NvSampleReplay, EveryRayAgreesWithTheDriver) {
 }
 
 // The extremes sample (traces/samples/README.md): every object still rebuilds and every ray is
-// compared. The engine traces in double, the driver in float32: at 1e4 coordinates ~75 hits
-// per check differ in t by more than 1e-5 relative but within the engine's float32 error bound
-// (NvHit::t_error), counted apart; without that bound 152 of 8192 rays disagreed. Two rays
-// still differ (one on barycentrics of the 1e-3 triangle, one thin box in the 1e-2-scaled
-// instance that the driver hits and the double slab test misses); the bound keeps it there.
-TEST(NvExtremesReplay, EveryRayComparedAndTheFloat32GapDoesNotGrow) {
+// compared. Replay's ray checks trace in float32 by default, as the driver did: 0 of the 8192
+// rays disagree. At 1e4 coordinates some hits still differ in t by more than 1e-5 relative
+// but within the float32 error bound (NvHit::t_error), counted apart.
+TEST(NvExtremesReplay, Float32TraversalAgreesWithTheDriverOnEveryRay) {
     const replay::ReplayReport r = replaySample(CLASTRACE_NV_EXTREMES);
     EXPECT_TRUE(r.trace_damage.empty());
     EXPECT_EQ(r.counts.nv_builds, 6u);
     EXPECT_EQ(r.counts.deserializations, 1u);
     ASSERT_EQ(r.ray_checks.size(), 2u);
-    uint64_t disagree = 0;
     for (const auto& c : r.ray_checks) {
         std::printf(
-            "extremes ray check after submission %llu: %llu hits agree, %llu misses agree, %llu "
-            "ties, %llu near "
-            "edges, %llu disagree\n",
-            (unsigned long long)c.after_submission, (unsigned long long)c.agree_hit,
+            "extremes ray check after submission %llu (%s): %llu hits agree (%llu within "
+            "float32 error), %llu misses agree, %llu ties, %llu near edges, %llu "
+            "disagree\n",
+            (unsigned long long)c.after_submission, c.traversal.c_str(),
+            (unsigned long long)c.agree_hit, (unsigned long long)c.float_precision,
             (unsigned long long)c.agree_miss, (unsigned long long)c.tie, (unsigned long long)c.edge,
             (unsigned long long)c.disagree);
         ASSERT_TRUE(c.checked) << c.why_not;
+        EXPECT_EQ(c.traversal, "float32");
         EXPECT_EQ(c.rays, 4096u);
         EXPECT_EQ(c.agree_hit + c.agree_miss + c.tie + c.edge + c.disagree, c.rays);
-        EXPECT_GT(c.agree_hit, 1600u);     // the driver hit 1788 of each
-        EXPECT_GT(c.float_precision, 0u);  // the 1e4-wide floor: within float32 error, not 1e-5
-        EXPECT_LT(c.float_precision, c.agree_hit / 10);
-        disagree += c.disagree;
+        EXPECT_GT(c.agree_hit, 1700u);  // the driver hit 1788 of each
+        EXPECT_EQ(c.disagree, 0u);
     }
+    for (const auto& f : r.findings)
+        EXPECT_NE(f.rule, "CLASTRACE-replay-ray-check-disagrees") << f.format();
+}
+
+// The same in double (`--traversal double`): the two rays a double traversal cannot give as the
+// driver did (the thin slab of the 1e-2-scaled instance seen from 4e4, and the 1e-3 triangle's
+// barycentrics unless within their float bound) are named by their cause class, far/tiny.
+TEST(NvExtremesReplay, DoubleTraversalNamesTheCauseOfWhatIsLeft) {
+    const replay::ReplayReport r =
+        replaySample(CLASTRACE_NV_EXTREMES, replay::RayCheckTraversal::kDouble);
+    ASSERT_EQ(r.ray_checks.size(), 2u);
+    uint64_t disagree = 0, far_tiny = 0;
+    for (const auto& c : r.ray_checks) {
+        ASSERT_TRUE(c.checked) << c.why_not;
+        EXPECT_EQ(c.traversal, "double");
+        EXPECT_EQ(c.disagree_far_tiny + c.disagree_degenerate + c.disagree_unexplained, c.disagree);
+        disagree += c.disagree;
+        far_tiny += c.disagree_far_tiny;
+    }
+    EXPECT_GE(disagree, 1u);
     EXPECT_LE(disagree, 2u);
+    EXPECT_EQ(far_tiny, disagree);
+    for (const auto& f : r.findings)
+        if (f.rule == "CLASTRACE-replay-ray-check-disagrees") {
+            EXPECT_NE(f.message.find("cause class far/tiny, double traversal"), std::string::npos)
+                << f.message;
+        }
 }
 
 }  // namespace

@@ -2,6 +2,7 @@
 // The ray/box slab test of every traversal.
 #pragma once
 
+#include "geometry/float32.h"
 #include "geometry/ray.h"
 
 #include <limits>
@@ -23,6 +24,8 @@ inline constexpr double kConservativeFarScale =
 template <bool Robust>
 inline bool slab_test(const PreparedRay& r, const float lo[3], const float hi[3], double tmax,
                       double* entry) {
+    // The float32 mode is always conservative (its widening is what it rounds by).
+    if (r.mode == TraversalMode::kFloat32) return slab_test_float32(r, lo, hi, tmax, entry);
     double t_near = r.tmin, t_far = tmax;
     // One verdict at the end instead of a branch per axis: traversals run this on every
     // child box, where early exits mispredict. An interval that ends before it starts only

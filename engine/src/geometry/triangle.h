@@ -1,20 +1,31 @@
 // SPDX-License-Identifier: Apache-2.0
-// The engine's one ray/triangle test: watertight (Woop, Benthin & Wald 2013: dimension
-// permutation, shear, edge functions) in double precision, so that coordinates up to
-// ±FLT_MAX neither overflow nor lose the watertight property. Edge functions equal to
-// zero count as inside; a triangle whose edge functions are all zero (seen edge-on,
-// degenerate) or not finite is missed. Hits lie in the closed interval [tmin, tmax].
+// The engine's ray/triangle test, one per traversal mode, both watertight (Woop, Benthin &
+// Wald 2013: dimension permutation, shear, edge functions):
+// - kDouble: double precision throughout, so that coordinates up to ±FLT_MAX neither
+//   overflow nor lose the watertight property;
+// - kFloat32: the paper's float version, as a float32 pipeline runs it; where an edge
+//   function comes out exactly 0 (the paper's fallback: float cannot tell the sign there)
+//   or not finite, the double test answers, so shared edges and vertices stay closed and
+//   coordinates beyond float's products (~1e19, ~1e-19) are not lost.
+// Edge functions equal to zero count as inside; a triangle whose edge functions are all
+// zero (seen edge-on, degenerate) or not finite is missed. Hits lie in the closed interval
+// [tmin, tmax]. Facing comes from the triangle's own edges in both modes (front_facing).
 #pragma once
 
 #include "geometry/ray.h"
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace clastrace::engine::geometry {
 
 struct TriangleHit {
     double t;
     double u, v;  // barycentric weights of p1 and p2
+    // How far a float32 evaluation's u, v may sit from these (barycentric_float_error): a
+    // tiny triangle seen from far away has float-noise edge functions, u, v then are too.
+    double uv_error;
     // Vulkan's facing before any instance flag: front when p0, p1, p2 appear clockwise seen
     // from the ray origin looking along the ray, i.e. dot(d, cross(p1 - p0, p2 - p0)) < 0.
     bool front;
@@ -32,8 +43,22 @@ inline bool front_facing(const double d[3], const float* p0, const float* p1, co
     return d[0] * n[0] + d[1] * n[1] + d[2] * n[2] < 0.0;
 }
 
-inline bool intersect_triangle(const PreparedRay& r, const float* p0, const float* p1,
-                               const float* p2, double tmax, TriangleHit* hit) {
+// The error bound of a float evaluation's barycentrics. Shearing rounds each sheared
+// coordinate by about 3u of the largest unsheared one (`unsheared`: |vertex - origin|, 4e4 for
+// a triangle 4e4 away however small it is); each edge function multiplies two sheared
+// coordinates (largest `sheared`), so it is off by about 6u * unsheared * sheared + 2u *
+// sheared^2, and u = V / det by four times that over |det|. Rounded up: 16 float epsilons.
+inline double barycentric_float_error(const double a[3], const double b[3], const double c[3],
+                                      double sheared, double det) {
+    double unsheared = 0.0;
+    for (int k = 0; k < 3; ++k)
+        unsheared = std::max({unsheared, std::fabs(a[k]), std::fabs(b[k]), std::fabs(c[k])});
+    const double eps = std::numeric_limits<float>::epsilon();
+    return 16.0 * eps * (unsheared * sheared + sheared * sheared) / std::fabs(det);
+}
+
+inline bool intersect_triangle_double(const PreparedRay& r, const float* p0, const float* p1,
+                                      const float* p2, double tmax, TriangleHit* hit) {
     double a[3], b[3], c[3];
     for (int k = 0; k < 3; ++k) {
         a[k] = double(p0[k]) - r.o[k];
@@ -53,8 +78,57 @@ inline bool intersect_triangle(const PreparedRay& r, const float* p0, const floa
     hit->t = t;
     hit->u = v / det;
     hit->v = w / det;
+    hit->uv_error = barycentric_float_error(a, b, c,
+                                            std::max({std::fabs(ax), std::fabs(ay), std::fabs(bx),
+                                                      std::fabs(by), std::fabs(cx), std::fabs(cy)}),
+                                            det);
     hit->front = front_facing(r.d, p0, p1, p2);
     return true;
+}
+
+// The paper's float code path: det and t stay float, t = t_scaled * (1 / det).
+inline bool intersect_triangle_float32(const PreparedRay& r, const float* p0, const float* p1,
+                                       const float* p2, double tmax, TriangleHit* hit) {
+    float a[3], b[3], c[3];
+    for (int k = 0; k < 3; ++k) {
+        a[k] = p0[k] - r.fo[k];
+        b[k] = p1[k] - r.fo[k];
+        c[k] = p2[k] - r.fo[k];
+    }
+    const float ax = a[r.kx] - r.fsx * a[r.kz], ay = a[r.ky] - r.fsy * a[r.kz];
+    const float bx = b[r.kx] - r.fsx * b[r.kz], by = b[r.ky] - r.fsy * b[r.kz];
+    const float cx = c[r.kx] - r.fsx * c[r.kz], cy = c[r.ky] - r.fsy * c[r.kz];
+    const float u = cx * by - cy * bx, v = ax * cy - ay * cx, w = bx * ay - by * ax;
+    // An edge function exactly 0 (the paper's fallback: float cannot tell its sign; also
+    // products below float's range, coordinates under ~1e-19) or past FLT_MAX (beyond ~1e19):
+    // the double test answers instead of leaking a shared edge or losing the triangle.
+    if (u == 0.0f || v == 0.0f || w == 0.0f || !std::isfinite(u) || !std::isfinite(v) ||
+        !std::isfinite(w))
+        return intersect_triangle_double(r, p0, p1, p2, tmax, hit);
+    if ((u < 0.0f || v < 0.0f || w < 0.0f) && (u > 0.0f || v > 0.0f || w > 0.0f)) return false;
+    const float det = u + v + w;
+    if (det == 0.0f || !std::isfinite(det)) return false;
+    const float az = r.fsz * a[r.kz], bz = r.fsz * b[r.kz], cz = r.fsz * c[r.kz];
+    const float t_scaled = u * az + v * bz + w * cz;
+    const float rcp_det = 1.0f / det;
+    const float t = t_scaled * rcp_det;
+    if (!(double(t) >= r.tmin && double(t) <= tmax)) return false;
+    hit->t = t;
+    hit->u = v * rcp_det;
+    hit->v = w * rcp_det;
+    const double da[3] = {a[0], a[1], a[2]}, db[3] = {b[0], b[1], b[2]}, dc[3] = {c[0], c[1], c[2]};
+    hit->uv_error = barycentric_float_error(da, db, dc,
+                                            std::max({std::fabs(ax), std::fabs(ay), std::fabs(bx),
+                                                      std::fabs(by), std::fabs(cx), std::fabs(cy)}),
+                                            det);
+    hit->front = front_facing(r.d, p0, p1, p2);
+    return true;
+}
+
+inline bool intersect_triangle(const PreparedRay& r, const float* p0, const float* p1,
+                               const float* p2, double tmax, TriangleHit* hit) {
+    return r.mode == TraversalMode::kFloat32 ? intersect_triangle_float32(r, p0, p1, p2, tmax, hit)
+                                             : intersect_triangle_double(r, p0, p1, p2, tmax, hit);
 }
 
 }  // namespace clastrace::engine::geometry

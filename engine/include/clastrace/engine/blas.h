@@ -103,10 +103,12 @@ struct BottomLevelHit {
 BottomLevelHit trace_bottom_level_closest(const MemoryImage& memory, uint64_t blas_address,
                                           const Ray& ray, uint32_t ray_flags,
                                           const ObjectDirectory* directory = nullptr,
-                                          std::vector<Finding>* findings = nullptr);
+                                          std::vector<Finding>* findings = nullptr,
+                                          TraversalMode mode = TraversalMode::kDouble);
 bool trace_bottom_level_any(const MemoryImage& memory, uint64_t blas_address, const Ray& ray,
                             uint32_t ray_flags, const ObjectDirectory* directory = nullptr,
-                            std::vector<Finding>* findings = nullptr);
+                            std::vector<Finding>* findings = nullptr,
+                            TraversalMode mode = TraversalMode::kDouble);
 
 // The same traversal over a BLAS already read out of memory and checked with
 // read_bottom_level_header (a KHR or NV top level copies what it reaches once, nv_trace.h):
@@ -115,7 +117,7 @@ bool trace_bottom_level_any(const MemoryImage& memory, uint64_t blas_address, co
 BottomLevelHit trace_bottom_level_bytes(
     std::span<const std::byte> blas,
     const std::function<std::span<const std::byte>(uint64_t clas_address)>& clas_at, const Ray& ray,
-    uint32_t ray_flags, bool first_hit);
+    uint32_t ray_flags, bool first_hit, TraversalMode mode = TraversalMode::kDouble);
 
 inline constexpr const char* kRuleStaleClusterReference =
     "CLASTRACE-cluster-reference-holds-no-clas";

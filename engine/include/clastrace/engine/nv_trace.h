@@ -8,8 +8,9 @@
 // - An instance is visited when (mask & cullMask & 0xFF) != 0 and it is active (reference
 //   not 0, its BLAS found when the TLAS was built and still a bottom-level object now).
 // - The ray enters the BLAS through the inverse of the instance's 3x4 transform (double
-//   precision); t is the same parameter in both spaces (the direction is not normalized).
-// - Triangles: watertight test (Woop, Benthin & Wald 2013) in double precision. Facing is
+//   precision; TraversalMode::kFloat32: that inverse rounded to float, applied in float);
+//   t is the same parameter in both spaces (the direction is not normalized).
+// - Triangles: watertight test (Woop, Benthin & Wald 2013) in the mode's precision. Facing is
 //   decided in object space: front-facing when dot(direction, cross(v1 - v0, v2 - v0)) < 0,
 //   inverted by the instance flag TRIANGLE_FRONT_COUNTERCLOCKWISE (FLIP_FACING). Culling by
 //   the ray flags CullBack/CullFrontFacing unless the instance has TRIANGLE_CULL_DISABLE.
@@ -19,7 +20,8 @@
 //   CullNoOpaque. A non-opaque candidate is accepted (as by an any-hit shader that
 //   does not ignore it).
 // - AABBs: the engine stands in for the intersection shader: it reports the box entry
-//   (max(t_entry, tmin); tmin when the origin is inside), hit kind 0, u = v = 0.
+//   (max(t_entry, tmin); tmin when the origin is inside), hit kind 0, u = v = 0;
+//   kFloat32 evaluates it as the ray check's shader does, in float without widening.
 // - Closest hit: the smallest t; on equal t the first found (deterministic for an object's
 //   bytes). TerminateOnFirstHit: the first accepted hit.
 #pragma once
@@ -58,6 +60,8 @@ struct NvHit {
     // direction's size. Drivers trace in float; the engine in double. Replay compares a
     // driver's t against this bound, not only against a relative tolerance of t.
     float t_error = 0.0f;
+    // How far a float32 implementation's u, v may sit from these (Hit::uv_error).
+    float uv_error = 0.0f;
 };
 
 // A top-level object opened once for many rays: its bytes and every BLAS it reaches are
@@ -74,8 +78,10 @@ public:
     static std::optional<NvScene> open_bottom(const MemoryImage& memory, uint64_t address,
                                               std::string* error);
 
-    NvHit closest(const Ray& ray, uint32_t ray_flags, uint32_t cull_mask) const;
-    bool any(const Ray& ray, uint32_t ray_flags, uint32_t cull_mask) const;
+    NvHit closest(const Ray& ray, uint32_t ray_flags, uint32_t cull_mask,
+                  TraversalMode mode = TraversalMode::kDouble) const;
+    bool any(const Ray& ray, uint32_t ray_flags, uint32_t cull_mask,
+             TraversalMode mode = TraversalMode::kDouble) const;
 
     uint32_t instance_count() const;
     uint32_t instances_reached() const;  // instances with a usable BLAS

@@ -32,6 +32,20 @@
 
 namespace clastrace::engine {
 
+// How a traversal rounds (docs/engine-nv-formats.md, "Traversal modes"). Both modes walk the
+// same trees with the same rules; only the box, triangle and instance arithmetic differs.
+enum class TraversalMode : uint8_t {
+    // Double precision throughout (this header's and nv_trace.h's description): the
+    // answer for the exact float inputs, as far as double can give it.
+    kDouble,
+    // A float32 hardware pipeline: the ray enters an instance through the float
+    // world-to-object matrix in float, the watertight triangle test runs in float (double
+    // only where an edge function is exactly 0), box tests in float widened by a few ulps.
+    // Drivers (NVIDIA's, lavapipe's) trace in float32; their answers are this mode's.
+    kFloat32,
+};
+const char* traversal_mode_name(TraversalMode mode);  // "double" / "float32"
+
 struct Ray {
     float origin[3];
     float tmin;
@@ -57,6 +71,7 @@ struct Hit {
     float t = 0.0f;
     float u = 0.0f;               // barycentric weight of v1 (Vulkan's HitAttribute.x)
     float v = 0.0f;               // barycentric weight of v2
+    float uv_error = 0.0f;        // how far a float32 evaluation's u, v may sit from these
     uint32_t triangle_index = 0;  // the triangle's index in the app's input (primitive index)
     uint32_t cluster_id = 0;
     uint32_t geometry_index = 0;
@@ -75,12 +90,16 @@ struct ClasView {
 std::optional<ClasView> open_clas(std::span<const std::byte> bytes, std::string* error = nullptr);
 
 // Closest hit in [tmin, tmax]; with kRayFlagTerminateOnFirstHit the first accepted hit.
-Hit trace_closest(const ClasView& clas, const Ray& ray, uint32_t ray_flags);
+Hit trace_closest(const ClasView& clas, const Ray& ray, uint32_t ray_flags,
+                  TraversalMode mode = TraversalMode::kDouble);
 // Whether any accepted hit exists in [tmin, tmax].
-bool trace_any(const ClasView& clas, const Ray& ray, uint32_t ray_flags);
+bool trace_any(const ClasView& clas, const Ray& ray, uint32_t ray_flags,
+               TraversalMode mode = TraversalMode::kDouble);
 
 // Convenience forms that check the object on every call (bytes that are no CLAS never hit).
-Hit trace_closest(std::span<const std::byte> clas, const Ray& ray, uint32_t ray_flags);
-bool trace_any(std::span<const std::byte> clas, const Ray& ray, uint32_t ray_flags);
+Hit trace_closest(std::span<const std::byte> clas, const Ray& ray, uint32_t ray_flags,
+                  TraversalMode mode = TraversalMode::kDouble);
+bool trace_any(std::span<const std::byte> clas, const Ray& ray, uint32_t ray_flags,
+               TraversalMode mode = TraversalMode::kDouble);
 
 }  // namespace clastrace::engine

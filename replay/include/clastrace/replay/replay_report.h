@@ -106,10 +106,16 @@ struct RayCheckResult {
     uint64_t rays = 0;
     uint64_t agree_miss = 0, agree_hit = 0;
     uint64_t float_precision = 0;  // of agree_hit: same primitive, t off by more than 1e-5
-                                   // relative but within the engine's float32 error bound
+                                   // relative but within the engine's float32 error bound,
+                                   // or barycentrics off by more than 1e-3 but within theirs
     uint64_t tie = 0;              // other primitive at the same t (shared edges, overlaps)
     uint64_t edge = 0;             // hit/miss or primitive differs within 1e-5 of an edge
     uint64_t disagree = 0;         // each one also a finding (up to the cap)
+    // Of `disagree`, by cause class (each finding names its class too): the float32 error of
+    // the hit is large (far away or tiny primitives, huge coordinates); the ray or the hit
+    // primitive has NaN or zero-area geometry; none of those.
+    uint64_t disagree_far_tiny = 0, disagree_degenerate = 0, disagree_unexplained = 0;
+    std::string traversal;  // the engine's TraversalMode for these rays: "float32" or "double"
     double max_rel_t = 0;
 };
 

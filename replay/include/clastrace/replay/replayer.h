@@ -34,6 +34,14 @@ struct ReplayProgress {
     uint64_t commands = 0;
 };
 
+// The arithmetic of the engine's traversal for ray checks (engine::TraversalMode).
+enum class RayCheckTraversal : uint8_t {
+    kCapturingDevice,  // the capturing device's: float32 (every driver that answers ray checks
+                       // traces in float32: NVIDIA's, lavapipe's)
+    kFloat32,
+    kDouble,
+};
+
 struct ReplayOptions {
     bool check_hazards = true;
     // With check_hazards: consumers (rays, ray-query dispatches and draws) read every
@@ -66,6 +74,9 @@ struct ReplayOptions {
     // Sees every record, submission, command, finding and hazard as the replay meets them
     // (replay_observer.h); may be null. Not owned.
     ReplayObserver* observer = nullptr;
+    // How ray checks (RayQueryCheck records) trace the rebuilt structures;
+    // `clastrace replay --traversal float32|double` sets it.
+    RayCheckTraversal ray_check_traversal = RayCheckTraversal::kCapturingDevice;
 };
 
 // A trace "was made by clastrace's own engine" when its device's driver_name starts with
