@@ -231,8 +231,9 @@ bool resolve_indirect_address(Walker& walker, VkDeviceAddress& address) {
 
 // A strided region's cell holds its deviceAddress only; stride and size stay the command's
 // (docs/spec-readings.md). Cells of fields the walk does not follow are captured too: replay
-// reads them again.
-void capture_indirect_cells(Walker& walker, const Info& info) {
+// reads them again. Returns dstSizesArray's address after its indirection (0 where the cell
+// could not be read): explicit destinations read that array.
+VkDeviceAddress capture_indirect_cells(Walker& walker, const Info& info) {
     const auto flags = info.addressResolutionFlags;
     const auto mode = info.input.opMode;
     VkDeviceAddress scratch = info.scratchData, implicit_data = info.dstImplicitData,
@@ -245,7 +246,8 @@ void capture_indirect_cells(Walker& walker, const Info& info) {
         resolve_indirect_address(walker, implicit_data);
     if (flags &
         VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_SIZES_ARRAY_BIT_NV)
-        resolve_indirect_address(walker, sizes);
+        if (!resolve_indirect_address(walker, sizes)) sizes = 0;
+    return sizes;
 }
 
 // dstAddressesArray's address after its indirection, if any (the cell is captured).
@@ -319,7 +321,7 @@ ClusterMemoryWalk walk_cluster_inputs(const ClusterCommandParameters& p,
     if (flags &
         VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_SRC_INFOS_ARRAY_BIT_NV)
         if (!resolve_indirect_address(walker, src.deviceAddress)) return out;
-    capture_indirect_cells(walker, info);
+    const VkDeviceAddress dst_sizes = capture_indirect_cells(walker, info);
     const uint64_t stride = src.stride ? src.stride : entry_bytes;
     if (src.size != 0) {
         const uint64_t available =
@@ -366,7 +368,8 @@ ClusterMemoryWalk walk_cluster_inputs(const ClusterCommandParameters& p,
         follow_entry(walker, i, entries.data() + uint64_t(i) * entry_bytes, p,
                      template_vertex_count);
 
-    // Explicit destinations are read by the command, not written.
+    // Explicit destinations and their sizes are read by the command, not written (the
+    // VkClusterAccelerationStructureCommandsInfoNV::dstSizesArray text).
     VkDeviceAddress dst_addresses = 0;
     if (info.input.opMode != VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_COMPUTE_SIZES_NV &&
         !resolve_dst_addresses(walker, info, dst_addresses))
@@ -374,6 +377,9 @@ ClusterMemoryWalk walk_cluster_inputs(const ClusterCommandParameters& p,
     if (info.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV) {
         walker.capture_strided(MemoryRole::kDstAddresses, 0, dst_addresses, count,
                                info.dstAddressesArray.stride, sizeof(VkDeviceAddress));
+        if (dst_sizes != 0)
+            walker.capture_strided(MemoryRole::kDstSizes, 0, dst_sizes, count,
+                                   info.dstSizesArray.stride, sizeof(uint32_t));
     }
     return out;
 }
@@ -410,9 +416,13 @@ ClusterMemoryWalk walk_cluster_outputs(const ClusterCommandParameters& p, uint32
         if (!implicit)
             out.ranges.resize(before);  // explicit addresses were inputs, captured before
     }
-    if (dst_sizes != 0)
+    if (dst_sizes != 0) {
+        const size_t before = out.ranges.size();
         sizes = walker.capture_strided_values(MemoryRole::kDstSizes, dst_sizes, executed_count,
                                               info.dstSizesArray.stride, sizeof(uint32_t));
+        if (!implicit && !compute_sizes)
+            out.ranges.resize(before);  // explicit sizes were inputs, captured before
+    }
     // The objects themselves, where both their address and size are known.
     if (!compute_sizes && addresses.size() == executed_count && sizes.size() == executed_count) {
         out.ranges.reserve(out.ranges.size() +

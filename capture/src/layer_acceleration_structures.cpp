@@ -230,6 +230,7 @@ void check_top_level(DeviceState& d, const NvRayTracerContext& context, uint64_t
                     (unsigned long long)top_level, why.c_str());
         return;
     }
+    if (khr) d.nv_scene.to_cluster_geometry_indices(top_level, record.hits);
     size_t hits = 0;
     for (const NvRayHit& h : record.hits) hits += h.hit != 0;
     const double ms =

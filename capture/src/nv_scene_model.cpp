@@ -395,10 +395,51 @@ void NvSceneModel::observe_khr_build(
     }
 }
 
+void NvSceneModel::observe_cluster_blas(uint64_t address,
+                                        const std::vector<std::vector<float>>& triangles,
+                                        std::vector<std::vector<uint32_t>> geometry_indices) {
+    ClusterBlasModel model;
+    model.geometries.resize(triangles.size());
+    for (size_t g = 0; g < triangles.size(); ++g)
+        for (size_t v = 0; v + 3 <= triangles[g].size(); v += 3)
+            grow(model.geometries[g], &triangles[g][v]);  // (NaN vertices are left out)
+    model.geometry_indices = std::move(geometry_indices);
+    std::lock_guard lock(mutex_);
+    cluster_blases_[address] = std::move(model);
+}
+
+void NvSceneModel::to_cluster_geometry_indices(uint64_t top_level,
+                                               std::vector<NvRayHit>& hits) const {
+    std::lock_guard lock(mutex_);
+    auto top = top_levels_.find(top_level);
+    if (top == top_levels_.end()) return;
+    for (NvRayHit& h : hits) {
+        if (!h.hit || h.instance_id >= top->second.size()) continue;
+        const uint64_t reference = top->second[h.instance_id].reference;
+        if (by_device_handle_.count(reference)) continue;  // a KHR BLAS: the driver's own index
+        auto blas = cluster_blases_.find(reference);
+        if (blas == cluster_blases_.end()) continue;
+        const auto& indices = blas->second.geometry_indices;
+        h.geometry_index =
+            h.geometry_index < indices.size() && h.primitive_id < indices[h.geometry_index].size()
+                ? indices[h.geometry_index][h.primitive_id]
+                : 0xFFFFFFFFu;
+    }
+}
+
 bool NvSceneModel::is_khr_top_level(uint64_t top_level) const {
     std::lock_guard lock(mutex_);
     auto it = khr_top_levels_.find(top_level);
     return it != khr_top_levels_.end() && it->second;
+}
+
+const std::vector<NvGeometryModel>* NvSceneModel::bottom_level_of(uint64_t reference) const {
+    if (auto blas = by_device_handle_.find(reference); blas != by_device_handle_.end()) {
+        auto model = bottom_levels_.find(blas->second);
+        return model == bottom_levels_.end() ? nullptr : &model->second;
+    }
+    auto cluster_blas = cluster_blases_.find(reference);  // a traceable served cluster BLAS
+    return cluster_blas == cluster_blases_.end() ? nullptr : &cluster_blas->second.geometries;
 }
 
 bool NvSceneModel::prepare(uint64_t top_level, uint32_t ray_count, NvTraceScene& scene,
@@ -417,25 +458,23 @@ bool NvSceneModel::prepare(uint64_t top_level, uint32_t ray_count, NvTraceScene&
     auto handle = device_handles_.find(top_level);
     device_handle = handle == device_handles_.end() ? 0 : handle->second;
 
-    std::map<uint64_t, uint32_t> first_slot;  // bottom level -> its geometry 0's slot
+    std::map<uint64_t, uint32_t> first_slot;  // bottom level (reference) -> its geometry 0's slot
     RayAim aim;
     std::vector<int> record_kind;  // -1 unused, 0 triangles, 1 boxes
     for (size_t i = 0; i < top->second.size(); ++i) {
         const NvInstanceRecord& instance = top->second[i];
-        auto blas = by_device_handle_.find(instance.reference);
-        auto model = blas == by_device_handle_.end() ? bottom_levels_.end()
-                                                     : bottom_levels_.find(blas->second);
-        if (model == bottom_levels_.end()) {
+        const std::vector<NvGeometryModel>* geometries = bottom_level_of(instance.reference);
+        if (!geometries) {
             why = "instance " + std::to_string(i) + " names bottom level handle " +
                   common::hex(instance.reference) + ", whose build the capture did not see";
             return false;
         }
         scene.instances.push_back(
             {instance.sbt_record_offset,
-             geometry_slot_of(model->first, model->second, first_slot, scene)});
+             geometry_slot_of(instance.reference, *geometries, first_slot, scene)});
         // A ray query has no hit groups: only the NV pipeline's records need one kind each.
-        if (!khr && !claim_hit_records(instance, i, model->second, record_kind, why)) return false;
-        const WorldBox box = instance_world_box(instance, model->second);
+        if (!khr && !claim_hit_records(instance, i, *geometries, record_kind, why)) return false;
+        const WorldBox box = instance_world_box(instance, *geometries);
         if (!box.bounded) continue;
         grow_box(aim.scene, box);
         if (instance.mask != 0) aim.targets.push_back(box);

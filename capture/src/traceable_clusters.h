@@ -37,6 +37,8 @@ struct TraceableBlasGeometry {
     uint8_t* host = nullptr;  // where its bytes are in host memory (the app's, or staged)
     uint64_t room = 0;        // bytes from `host` to the end of the buffer holding it
     std::vector<std::vector<float>> clusters;
+    // Per cluster, each triangle's geometry index (0xFFFFFFFF: inactive), for the ray check.
+    std::vector<std::vector<uint32_t>> geometry_indices;
 };
 
 // The BLAS ops of a command the engine just ran, read from its image: the destination of each

@@ -24,21 +24,23 @@ std::span<const std::byte> object_bytes(const engine::MemoryImage& image, uint64
     return size == 0 || size > rest.size() ? std::span<const std::byte>{} : rest.first(size);
 }
 
-// One cluster's triangles at their original indices; a triangle the cluster does not store
-// (inactive) stays NaN, which the driver treats as inactive too.
-std::vector<float> cluster_triangles(std::span<const std::byte> clas,
-                                     const engine::ObjectHeader& header) {
+// One cluster's triangles at their original indices into `triangles`, and their geometry
+// indices; a triangle the cluster does not store (inactive) stays NaN, which the driver treats
+// as inactive too, with geometry index 0xFFFFFFFF.
+void cluster_triangles(std::span<const std::byte> clas, const engine::ObjectHeader& header,
+                       std::vector<float>& triangles, std::vector<uint32_t>& geometry_indices) {
     uint32_t count = 0;
     for (uint32_t i = 0; i < header.triangle_count; ++i)
         count = std::max(count, engine::decode_triangle(clas, header, i).original_index + 1);
-    std::vector<float> triangles(size_t(count) * 9, std::numeric_limits<float>::quiet_NaN());
+    triangles.assign(size_t(count) * 9, std::numeric_limits<float>::quiet_NaN());
+    geometry_indices.assign(count, 0xFFFFFFFFu);
     for (uint32_t i = 0; i < header.triangle_count; ++i) {
         const engine::DecodedTriangle t = engine::decode_triangle(clas, header, i);
         for (int v = 0; v < 3; ++v)
             for (int axis = 0; axis < 3; ++axis)
                 triangles[size_t(t.original_index) * 9 + v * 3 + axis] = t.v[v][axis];
+        geometry_indices[t.original_index] = t.geometry_index_and_flags & 0xFFFFFFu;
     }
-    return triangles;
 }
 
 }  // namespace
@@ -53,6 +55,7 @@ bool decode_cluster_blas(const engine::MemoryImage& image, uint64_t address,
     }
     const engine::BottomLevelHeader& header = *check.header;
     out.clusters.assign(header.input_reference_count, {});
+    out.geometry_indices.assign(header.input_reference_count, {});
     for (uint32_t r = 0; r < header.reference_count; ++r) {
         engine::ClusterReference reference;
         std::memcpy(&reference,
@@ -65,7 +68,8 @@ bool decode_cluster_blas(const engine::MemoryImage& image, uint64_t address,
                   " names no cluster in the engine's image";
             return false;
         }
-        out.clusters[reference.reference_index] = cluster_triangles(clas, *clas_check.header);
+        cluster_triangles(clas, *clas_check.header, out.clusters[reference.reference_index],
+                          out.geometry_indices[reference.reference_index]);
     }
     return true;
 }

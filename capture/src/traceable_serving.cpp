@@ -77,9 +77,13 @@ void build_traceable_blases(DeviceState& state, uint64_t pause_id,
     if (!state.traceable->build(batch, why))
         log_message(LogLevel::kError, "served build (pause %llu): the driver's BLASes: %s",
                     (unsigned long long)pause_id, why.c_str());
-    else if (!batch.blases.empty())
+    else if (!batch.blases.empty()) {
         log_message(LogLevel::kDebug, "served build (pause %llu): %zu driver BLASes built",
                     (unsigned long long)pause_id, batch.blases.size());
+        // The ray check traces top levels over them (their instances name these addresses).
+        for (const TraceableBlasGeometry& blas : batch.blases)
+            state.nv_scene.observe_cluster_blas(blas.address, blas.clusters, blas.geometry_indices);
+    }
     if (batch.skipped)
         log_message(LogLevel::kError,
                     "served build (pause %llu): %u BLASes not traceable by the driver: %s",

@@ -121,11 +121,14 @@ engine::KhrBuildInfo KhrReplay::build_info(const fbs::AccelerationStructureBuild
         }
     info.scratch_address = in.scratch_address();
     // A driver's trace sized scratch by the driver's answer, not the engine's: the engine's
-    // own claim is not held against it (its accesses are cut to the buffer below).
-    info.scratch_available =
-        k_.nv.c_.report.engine_trace ? bytes_to_end_of_buffer(info.scratch_address) : ~0ull;
-    if (!k_.nv.c_.report.engine_trace)
-        if (const uint64_t claim = driver_scratch(in, counts)) info.scratch_claim = claim;
+    // own claim is not held against it (its accesses are cut to the buffer below). So did any
+    // application that asked the driver for this build's sizes, in an engine trace too: a
+    // served trace's KHR builds ran on the device's driver, and its answer is in the trace.
+    const uint64_t answer = driver_scratch(in, counts);
+    info.scratch_available = k_.nv.c_.report.engine_trace && answer == 0
+                                 ? bytes_to_end_of_buffer(info.scratch_address)
+                                 : ~0ull;
+    if (answer) info.scratch_claim = answer;
     const uint64_t need = info.ranges.size() == info.geometries.size()
                               ? engine::khr_build_sizes(info.type, info.geometries, counts)
                                     .acceleration_structure_size
@@ -197,16 +200,18 @@ void KhrReplay::build(const fbs::CmdBuildAccelerationStructuresKHR& b, const Com
     const auto started = std::chrono::steady_clock::now();
     engine::ExecutionRecord record = engine::execute_khr_build(cmd, c.memory.image(), options);
     const uint64_t engine_ns = elapsed_ns(started);
-    if (!c.report.engine_trace)
-        for (engine::MemoryAccess& a : record.accesses)
-            if (a.field.ends_with(".scratchData") && a.begin != 0) {
-                const uint64_t in_buffer = bytes_to_end_of_buffer(a.begin);
-                if (in_buffer && a.end - a.begin > in_buffer) a.end = a.begin + in_buffer;
-                // The driver's scratch, not the engine's: the region the application sized.
-                if (a.op_index >= 0 && size_t(a.op_index) < cmd.infos.size())
-                    a.end = a.begin +
-                            std::min(a.end - a.begin, cmd.infos[size_t(a.op_index)].scratch_claim);
-            }
+    for (engine::MemoryAccess& a : record.accesses)
+        if (a.field.ends_with(".scratchData") && a.begin != 0) {
+            const bool by_answer = a.op_index >= 0 && size_t(a.op_index) < cmd.infos.size() &&
+                                   cmd.infos[size_t(a.op_index)].scratch_claim != ~0ull;
+            if (c.report.engine_trace && !by_answer) continue;  // the engine's own sizes hold
+            const uint64_t in_buffer = bytes_to_end_of_buffer(a.begin);
+            if (in_buffer && a.end - a.begin > in_buffer) a.end = a.begin + in_buffer;
+            // The driver's scratch, not the engine's: the region the application sized.
+            if (a.op_index >= 0 && size_t(a.op_index) < cmd.infos.size())
+                a.end = a.begin +
+                        std::min(a.end - a.begin, cmd.infos[size_t(a.op_index)].scratch_claim);
+        }
     k_.nv.engine_findings(record, where);
     k_.nv.feed(ref, record, where);
     for (size_t i = 0; i < cmd.infos.size() && i < record.ops.size(); ++i)

@@ -223,13 +223,14 @@ TEST_F(TwoClusters, IndirectSrcInfosCellHoldsTheAddressOnly) {
 }
 
 // INDIRECTED_DST_ADDRESS_ARRAY in explicit mode: the addresses the command reads are behind the
-// cell, and the cell is captured too (replay reads it again).
+// cell, and the cell is captured too (replay reads it again). The sizes array is read too.
 TEST_F(TwoClusters, ExplicitDstAddressesAreReadThroughTheirCell) {
     memory.region(0xA0000, 8);
     memory.put(0xA0000, VkDeviceAddress(kDst));
     memory.region(kDst, 64);
     memory.put(kDst, VkDeviceAddress(kObjects));
     memory.put(kDst + 8, VkDeviceAddress(kObjects + 1024));
+    memory.region(kSizes, 64);
     ClusterCommandParameters p = triangleBuild(3, 96, 0);
     p.info.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
     p.info.dstAddressesArray = {0xA0000, 8, 0};
@@ -241,6 +242,10 @@ TEST_F(TwoClusters, ExplicitDstAddressesAreReadThroughTheirCell) {
     ASSERT_EQ(addresses.size(), 1u);
     EXPECT_EQ(addresses[0]->address, kDst);
     EXPECT_EQ(addresses[0]->bytes.size(), 16u);
+    auto sizes = rangesOf(walk, MemoryRole::kDstSizes);
+    ASSERT_EQ(sizes.size(), 1u);
+    EXPECT_EQ(sizes[0]->address, kSizes);
+    EXPECT_EQ(sizes[0]->bytes.size(), 8u);
     EXPECT_EQ(rangesOf(walk, MemoryRole::kIndirectAddress).size(), 1u);
 }
 

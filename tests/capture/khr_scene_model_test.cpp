@@ -9,6 +9,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <limits>
 
 namespace clastrace::capture {
 namespace {
@@ -151,6 +152,38 @@ TEST_F(KhrSceneModelTest, UnknownAddressAndDestroyedBottomLevelAreRefused) {
     ASSERT_TRUE(model.prepare(3, 16, scene, rays, handle, why)) << why;
     model.forget(1);
     EXPECT_FALSE(model.prepare(3, 16, scene, rays, handle, why));
+}
+
+// A traceable cluster BLAS (capture/README.md "Traceable cluster BLASes") is known by its
+// address: a top level naming it is prepared (rays aimed at its clusters' triangles), and the
+// driver's geometry index (the cluster's reference index) becomes the triangle's own geometry
+// index; hits on KHR BLASes keep the driver's.
+TEST_F(KhrSceneModelTest, TraceableClusterBlasIsKnownByItsAddress) {
+    constexpr uint64_t kClusterBlas = 0xC1000;
+    topLevel({instance(0, 10, 0xFF, kClusterBlas), instance(10, 11, 0xFF, 0xB100)});
+    EXPECT_FALSE(model.prepare(3, 16, scene, rays, handle, why));  // not observed yet
+    const float nan = std::numeric_limits<float>::quiet_NaN();
+    model.observe_cluster_blas(kClusterBlas,
+                               {{0, 0, 0, 1, 0, 0, 0, 1, 0, nan, nan, nan, nan, nan, nan, nan, nan,
+                                 nan},
+                                {0, 0, 2, 1, 0, 2, 0, 1, 2}},
+                               {{7, 0xFFFFFFFFu}, {9}});
+    ASSERT_TRUE(model.prepare(3, 400, scene, rays, handle, why)) << why;
+    ASSERT_EQ(scene.instances.size(), 2u);
+    const float lo[3] = {0, 0, 0}, hi[3] = {1, 1, 2};  // both clusters, the NaN triangle left out
+    // Rays 0, 4, 8... aim at instance 0 (2, 6, 10... at instance 1, the KHR BLAS).
+    for (size_t i = 0; i < rays.size(); i += 4) EXPECT_TRUE(passes(rays[i], lo, hi)) << i;
+
+    std::vector<NvRayHit> hits(4, NvRayHit{});
+    hits[0] = {1, 1.0f, 10, 0, 0, 0, 0xFE, 0, 0, {}};  // cluster reference 0, triangle 0
+    hits[1] = {1, 1.0f, 10, 0, 0, 1, 0xFE, 0, 0, {}};  // cluster reference 1, triangle 0
+    hits[2] = {1, 1.0f, 10, 0, 5, 1, 0xFE, 0, 0, {}};  // a triangle the model does not know
+    hits[3] = {1, 1.0f, 11, 1, 0, 0, 0xFE, 0, 0, {}};  // the KHR BLAS: the driver's own index
+    model.to_cluster_geometry_indices(3, hits);
+    EXPECT_EQ(hits[0].geometry_index, 7u);
+    EXPECT_EQ(hits[1].geometry_index, 9u);
+    EXPECT_EQ(hits[2].geometry_index, 0xFFFFFFFFu);
+    EXPECT_EQ(hits[3].geometry_index, 0u);
 }
 
 }  // namespace

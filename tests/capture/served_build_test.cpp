@@ -583,3 +583,67 @@ TEST(ServedBuild, InputViewsKeepTheirGroupsInTheSharedImage) {
     EXPECT_GE(pool->held_bytes(),
               whileViewed + scene.bytes["vertices"].size() + scene.bytes["indices"].size());
 }
+
+// With explicit destinations the build reads dstSizesArray (the spec's
+// VkClusterAccelerationStructureCommandsInfoNV::dstSizesArray): the record holds the sizes the
+// application wrote as an input, as read at execution, and not as an output (the engine writes
+// none there). Without it replay saw zeros there and reported every destination too small.
+TEST(ServedBuild, ExplicitDestinationSizesAreRecordedAsRead) {
+    HostScene scene;
+    VkClusterAccelerationStructureCommandsInfoNV command = scene.commands.clusters;
+    command.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
+    VkAccelerationStructureBuildSizesInfoKHR one{};
+    VkClusterAccelerationStructureInputInfoNV oneInput = command.input;
+    oneInput.maxAccelerationStructureCount = 1;
+    ASSERT_TRUE(served_cluster_build_sizes(oneInput, one));
+    const uint64_t slot = (one.accelerationStructureSize + 255) / 256 * 256;
+    ASSERT_LE(served_scene::kClusterCount * slot, scene.bytes["implicitData"].size());
+    for (uint32_t i = 0; i < served_scene::kClusterCount; ++i) {
+        const uint64_t address = scene.a.implicitData + i * slot;
+        const uint32_t size = uint32_t(one.accelerationStructureSize);
+        std::memcpy(scene.bytes["dstAddresses"].data() + 8 * i, &address, 8);
+        std::memcpy(scene.bytes["dstSizes"].data() + 4 * i, &size, 4);
+    }
+
+    ServedMemory memory(scene.buffers);
+    DeviceMemoryReader read = [&](VkDeviceAddress a, uint64_t s, CapturedBytes* o,
+                                  std::string& why) {
+        if (memory.view(a, s, o)) return true;
+        why = "not served";
+        return false;
+    };
+    ClusterMemoryWalk walk = walk_cluster_inputs(ClusterCommandParameters::copy_of(command), read);
+    ASSERT_TRUE(walk.issues.empty()) << walk.issues[0].rule;
+    engine::ObjectDirectory directory;
+    ServedExecution run =
+        execute_served_build(command, memory, directory, served_engine_properties(), &walk.ranges,
+                             walk.executed_count);
+    ASSERT_TRUE(run.ran) << run.error;
+    EXPECT_TRUE(run.record.findings.empty())
+        << run.record.findings[0].rule << ": " << run.record.findings[0].message;
+    ClusterBuildCapture record;
+    record.executed_count = walk.executed_count;
+    record.inputs = std::move(walk.ranges);
+    complete_served_record(record, std::move(run.image), ClusterCommandParameters::copy_of(command),
+                           memory);
+
+    std::vector<const CapturedRange*> sizesRead;
+    for (const CapturedRange& r : record.inputs)
+        if (r.role == MemoryRole::kDstSizes) sizesRead.push_back(&r);
+    ASSERT_EQ(sizesRead.size(), 1u) << "dstSizesArray is not among the inputs";
+    EXPECT_EQ(sizesRead[0]->address, scene.a.dstSizes);
+    ASSERT_EQ(sizesRead[0]->bytes.size(), 4u * served_scene::kClusterCount);
+    EXPECT_EQ(std::memcmp(sizesRead[0]->bytes.data(), scene.bytes["dstSizes"].data(),
+                          4u * served_scene::kClusterCount),
+              0);
+    size_t objects = 0;
+    for (const CapturedRange& r : record.outputs) {
+        EXPECT_NE(r.role, MemoryRole::kDstSizes) << "dstSizesArray recorded as written";
+        EXPECT_NE(r.role, MemoryRole::kDstAddresses) << "dstAddressesArray recorded as written";
+        if (r.role == MemoryRole::kDstObject) {
+            EXPECT_EQ(r.bytes.size(), one.accelerationStructureSize);
+            ++objects;
+        }
+    }
+    EXPECT_EQ(objects, served_scene::kClusterCount);
+}

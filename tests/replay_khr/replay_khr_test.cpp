@@ -255,3 +255,50 @@ TEST(ReplayKhr, CompactingAStructureBuiltWithoutAllowCompactionIsAFinding) {
 
 }  // namespace
 }  // namespace clastrace::khrtest
+
+namespace clastrace::khrtest {
+namespace {
+
+// A top level whose scratch holds exactly what the driver answered for it (64 bytes, less
+// than the engine's own build scratch) replays clean in an engine trace too: a served trace's
+// KHR builds ran on the device's driver, and the application sized scratch by its answer
+// (GetAccelerationStructureBuildSizesKHR), as in a driver's trace. Without an answer in the
+// trace, an engine trace's scratch is held to the engine's own size.
+replay::ReplayReport replay_top_level_with_small_scratch(const std::string& name,
+                                                         bool with_answer) {
+    KhrTrace t(temp_path(name), true);
+    const auto blas = t.create(VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR);
+    const auto tlas = t.create(VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_KHR);
+    t.build(one(t.triangle_blas(blas)));
+    t.build_barrier();
+    constexpr uint64_t kDriverScratch = 64;
+    engine::KhrBuildInfo top = t.top_level(tlas, {instance_at(0, blas.address)});
+    top.scratch_address =
+        t.address_of(t.buffer(nullptr, kDriverScratch, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT));
+    if (with_answer) {
+        fbs::GetAccelerationStructureBuildSizesKHRT sizes;
+        sizes.build_type = VK_ACCELERATION_STRUCTURE_BUILD_TYPE_DEVICE_KHR;
+        sizes.info = std::move(tb::khr_build(0, one(top)).infos[0]);
+        sizes.max_primitive_counts = {1};
+        sizes.acceleration_structure_size = 1 << 12;
+        sizes.build_scratch_size = kDriverScratch;
+        t.host(std::move(sizes));
+    }
+    t.build(one(std::move(top)));
+    t.submit();
+    return t.replay();
+}
+
+TEST(ReplayKhr, EngineTracesJudgeKhrScratchByTheDriversAnswerWhereTheyHoldOne) {
+    constexpr const char* kScratchRule = "VUID-vkCmdBuildAccelerationStructuresKHR-pInfos-03671";
+    const replay::ReplayReport answered = replay_top_level_with_small_scratch("answered.clt", true);
+    EXPECT_EQ(count_rule(answered, kScratchRule), 0u) << describe(answered);
+    EXPECT_TRUE(answered.clean()) << describe(answered);
+    EXPECT_EQ(answered.counts.khr_builds, 2u);
+    const replay::ReplayReport unanswered =
+        replay_top_level_with_small_scratch("unanswered.clt", false);
+    EXPECT_EQ(count_rule(unanswered, kScratchRule), 1u) << describe(unanswered);
+}
+
+}  // namespace
+}  // namespace clastrace::khrtest

@@ -46,6 +46,16 @@ public:
         const BuildAccelerationStructuresKHRCommand& command,
         const std::vector<std::vector<VkAccelerationStructureBuildRangeInfoKHR>>& indirect_ranges,
         const std::vector<CapturedRange>& inputs);
+    // A served cluster BLAS the driver can traverse (capture/README.md "Traceable cluster
+    // BLASes"): a KHR BLAS at `address` with one triangle geometry per cluster reference,
+    // `triangles[g]` its 9 floats per triangle (NaN: inactive) and `geometry_indices[g]` each
+    // triangle's geometry index in the cluster (the extension's gl_GeometryIndexEXT).
+    void observe_cluster_blas(uint64_t address, const std::vector<std::vector<float>>& triangles,
+                              std::vector<std::vector<uint32_t>> geometry_indices);
+    // The driver reports a cluster BLAS's reference index as the geometry index: hits on an
+    // instance of `top_level` that names one get the extension's (the triangle's geometry
+    // index), or 0xFFFFFFFF where the model does not know it.
+    void to_cluster_geometry_indices(uint64_t top_level, std::vector<NvRayHit>& hits) const;
     // Whether `top_level`'s last observed build was a KHR one (traced with the ray-query shader).
     bool is_khr_top_level(uint64_t top_level) const;
     // The hit-shader tables for `topLevel` and `rayCount` deterministic rays aimed at its
@@ -55,11 +65,20 @@ public:
                  std::vector<NvTracedRay>& rays, uint64_t& device_handle, std::string& why) const;
 
 private:
+    // The geometries of the bottom level an instance reference names (a structure's handle or
+    // address, or a traceable cluster BLAS's address); null when unknown. Under mutex_.
+    const std::vector<NvGeometryModel>* bottom_level_of(uint64_t reference) const;
+
     mutable std::mutex mutex_;
     std::map<uint64_t, std::vector<NvGeometryModel>>
         bottom_levels_;  // by VkAccelerationStructureNV
     std::map<uint64_t, std::vector<NvInstanceRecord>> top_levels_;
-    std::map<uint64_t, bool> khr_top_levels_;        // top level -> built by a KHR build
+    struct ClusterBlasModel {
+        std::vector<NvGeometryModel> geometries;              // one per cluster reference
+        std::vector<std::vector<uint32_t>> geometry_indices;  // [reference][triangle]
+    };
+    std::map<uint64_t, ClusterBlasModel> cluster_blases_;  // by device address
+    std::map<uint64_t, bool> khr_top_levels_;              // top level -> built by a KHR build
     std::map<uint64_t, uint64_t> by_device_handle_;  // device handle -> acceleration structure
     std::map<uint64_t, uint64_t> device_handles_;    // acceleration structure -> device handle
 };
