@@ -17,6 +17,8 @@ using BoundDescriptorSets =
     std::map<uint32_t, std::pair<VkDescriptorSet, std::vector<uint32_t>>>;  // set -> (set, offsets)
 using PushedAccelerationStructures =  // (set, binding, element) -> structure
     std::map<std::tuple<uint32_t, uint32_t, uint32_t>, ReachableAccelerationStructure>;
+using PushedBuffers =  // (set, binding, element) -> storage buffer
+    std::map<std::tuple<uint32_t, uint32_t, uint32_t>, BoundStorageBuffer>;
 
 // A set taken from a descriptor buffer (vkCmdSetDescriptorBufferOffsetsEXT): its layout and the
 // address its descriptors start at (the bound buffer's address plus the offset).
@@ -35,6 +37,10 @@ struct ConsumerBindings {
     PushedAccelerationStructures pushed;
     std::vector<uint8_t> push_constants;
     DescriptorBufferSets buffer_sets;
+    // The pipeline converts values from memory into structures: its bound storage buffers (the
+    // sets' and the pushed ones) are searched for structure addresses.
+    bool search_bound_buffers = false;
+    PushedBuffers pushed_buffers;
 };
 
 struct CommandBufferLog {
@@ -62,6 +68,7 @@ struct CommandBufferLog {
     // Acceleration structures pushed with vkCmdPushDescriptorSet*KHR, per bind point (compute,
     // graphics, ray tracing), keyed by (set, binding, element).
     PushedAccelerationStructures pushed_acceleration_structures[3];
+    PushedBuffers pushed_buffers[3];      // storage buffers pushed likewise
     std::vector<uint8_t> push_constants;  // the bytes vkCmdPushConstants set so far
     // VK_EXT_descriptor_buffer: the bound descriptor buffers' addresses (by binding index), and
     // per bind point the sets taken from them: set -> (set layout, buffer index, offset).
@@ -85,6 +92,11 @@ struct CommandBufferLog {
         for (auto it = pushed.begin(); it != pushed.end();) {
             const uint32_t set = std::get<0>(it->first);
             it = set >= first && set - first < count ? pushed.erase(it) : std::next(it);
+        }
+        auto& buffers = pushed_buffers[index];
+        for (auto it = buffers.begin(); it != buffers.end();) {
+            const uint32_t set = std::get<0>(it->first);
+            it = set >= first && set - first < count ? buffers.erase(it) : std::next(it);
         }
         auto& from_buffers = descriptor_buffer_offsets[index];
         for (auto it = from_buffers.begin(); it != from_buffers.end();)
@@ -144,6 +156,12 @@ DescriptorBufferSets descriptor_buffer_sets_at(const CommandBufferLog& log, int 
 // from host-visible memory; source kDescriptorBuffer (consumer_descriptor_buffers.cpp).
 void add_descriptor_buffer_structures(DeviceState& d, const DescriptorBufferSets& sets,
                                       std::vector<ReachableAccelerationStructure>& out);
+
+// The acceleration structures whose addresses the storage buffers of `bindings` hold now, when
+// its pipeline converts values from memory into structures; source kMemory
+// (consumer_buffer_addresses.cpp).
+void add_buffer_structure_addresses(DeviceState& d, const ConsumerBindings& bindings,
+                                    std::vector<ReachableAccelerationStructure>& out);
 
 // Clears `log` for a new recording; its events and query pool become spares.
 void clear_command_buffer_log(DeviceState& device, CommandBufferLog& log);

@@ -45,6 +45,11 @@ std::vector<std::pair<uint64_t, bool>> written_structures(const VkWriteDescripto
     return out;
 }
 
+// A push descriptor cannot be dynamic: plain storage buffers only.
+bool is_storage_buffer_write(const VkWriteDescriptorSet& write) {
+    return write.descriptorType == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER && write.pBufferInfo;
+}
+
 bool writes_acceleration_structures(const VkWriteDescriptorSet& write) {
     return write.descriptorType == VK_DESCRIPTOR_TYPE_ACCELERATION_STRUCTURE_KHR ||
            write.descriptorType == VK_DESCRIPTOR_TYPE_ACCELERATION_STRUCTURE_NV;
@@ -382,9 +387,26 @@ void track_pushed_descriptor_write(DeviceState& d, VkCommandBuffer cb,
     auto log = log_of(d, cb);
     log->sets_at(bind_point)->erase(set);  // a push replaces the set bound there
     auto& pushed = log->pushed_acceleration_structures[index];
+    auto& buffers = log->pushed_buffers[index];
     // A push replaces what the same elements held, whatever their type now.
-    for (uint32_t i = 0; i < write.descriptorCount; ++i)
+    for (uint32_t i = 0; i < write.descriptorCount; ++i) {
         pushed.erase({set, write.dstBinding, write.dstArrayElement + i});
+        buffers.erase({set, write.dstBinding, write.dstArrayElement + i});
+    }
+    if (is_storage_buffer_write(write)) {
+        for (uint32_t i = 0; i < write.descriptorCount; ++i) {
+            BoundStorageBuffer b;
+            b.set = set;
+            b.binding = write.dstBinding;
+            b.array_element = write.dstArrayElement + i;
+            b.type = write.descriptorType;
+            b.buffer = handle_id(write.pBufferInfo[i].buffer);
+            b.offset = write.pBufferInfo[i].offset;
+            b.range = write.pBufferInfo[i].range;
+            buffers[{set, b.binding, b.array_element}] = b;
+        }
+        return;
+    }
     if (!writes_acceleration_structures(write)) return;
     for (ReachableAccelerationStructure r :
          structures_of_write(d, write, Source::kPushDescriptor)) {
@@ -415,6 +437,7 @@ std::vector<ReachableAccelerationStructure> structures_reached(DeviceState& d,
     for (const auto& [key, r] : bindings.pushed) out.push_back(r);
     add_descriptor_buffer_structures(d, bindings.buffer_sets, out);
     add_push_constant_addresses(d, bindings.push_constants, out);
+    add_buffer_structure_addresses(d, bindings, out);
     return out;
 }
 
@@ -481,6 +504,11 @@ std::vector<ReachableAccelerationStructure> reachable_acceleration_structures(
     bindings.pushed = log.pushed_acceleration_structures[index];
     bindings.push_constants = log.push_constants;
     bindings.buffer_sets = descriptor_buffer_sets_at(log, index);
+    const uint64_t pipeline = index == 0   ? log.compute_pipeline
+                              : index == 1 ? log.graphics_pipeline
+                                           : log.ray_tracing_pipeline;
+    bindings.search_bound_buffers = converts_structure_addresses_from_memory(d, pipeline);
+    if (bindings.search_bound_buffers) bindings.pushed_buffers = log.pushed_buffers[index];
     log.consumers.push_back(std::move(bindings));
     return structures_reached(d, log.consumers.back());
 }

@@ -860,6 +860,7 @@ void clear_command_buffer_log(DeviceState& d, CommandBufferLog& log) {
     log.graphics_sets.clear();
     log.ray_tracing_sets.clear();
     for (auto& pushed : log.pushed_acceleration_structures) pushed.clear();
+    for (auto& pushed : log.pushed_buffers) pushed.clear();
     log.push_constants.clear();
     log.consumers.clear();
     log.descriptor_buffers.clear();

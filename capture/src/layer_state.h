@@ -296,6 +296,11 @@ struct DeviceState {
     // Likewise for ray queries (SPIR-V RayQueryKHR): modules, and pipelines with their stages.
     std::unordered_set<uint64_t> ray_query_modules;
     std::unordered_map<uint64_t, VkPipelineStageFlags2> ray_query_pipelines;
+    // Modules and pipelines whose SPIR-V converts a value that may come from memory into an
+    // acceleration structure (OpConvertUToAccelerationStructureKHR): their consumers' bound
+    // buffers are searched for structure addresses (consumer_buffer_addresses.cpp).
+    std::unordered_set<uint64_t> structure_address_modules;
+    std::unordered_set<uint64_t> structure_address_pipelines;
     // The ray check (CLASTRACE_RAY_CHECK): queue families of the queues handed out, the NV ray
     // tracing limits, and the NV structures the capture saw built.
     std::mutex queues_mutex;
@@ -414,7 +419,11 @@ VkPipelineStageFlags2 ray_query_stages(DeviceState& d, uint64_t pipeline);
 struct ShaderStageMarks {
     bool may_write_through_addresses = false;
     bool uses_ray_queries = false;
+    bool converts_addresses_from_memory = false;  // SpirvScan's, when the capture is on
 };
+// Whether a shader of `pipeline` converts a value that may come from memory into an acceleration
+// structure (spirv_pipelines.cpp).
+bool converts_structure_addresses_from_memory(DeviceState& d, uint64_t pipeline);
 // pipelines_mutex held by the caller of both.
 ShaderStageMarks shader_stage_marks(DeviceState& d, const VkPipelineShaderStageCreateInfo& stage);
 // Marks `pipeline` with the pipeline stages of its shader stages that write through addresses

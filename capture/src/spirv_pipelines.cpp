@@ -6,7 +6,9 @@
 // (layer_commands.cpp, spirv_draws.cpp) ask `address_writing_stages`. With
 // CLASTRACE_DEVICE_ADDRESS_WRITES=off nothing is marked for addresses. Ray queries are marked
 // the same way whenever the capture is on (`ray_query_stages`), so ray-query dispatches and
-// draws are recorded with the acceleration structures they reach (consumer_commands.cpp).
+// draws are recorded with the acceleration structures they reach (consumer_commands.cpp), and
+// so are shaders that turn a value from memory into a structure (their bound buffers are then
+// searched for structure addresses: consumer_buffer_addresses.cpp).
 #include "layer_state.h"
 
 #include "clastrace/capture/spirv_scan.h"
@@ -64,6 +66,8 @@ VKAPI_ATTR VkResult VKAPI_CALL CreateShaderModule(VkDevice device,
     if (scan.may_write_through_addresses() && marking_on())
         d.address_writing_modules.insert(handle_id(*module));
     if (scan.uses_ray_queries && d.sink) d.ray_query_modules.insert(handle_id(*module));
+    if (scan.converts_addresses_from_memory && d.sink)
+        d.structure_address_modules.insert(handle_id(*module));
     return result;
 }
 
@@ -74,6 +78,7 @@ VKAPI_ATTR void VKAPI_CALL DestroyShaderModule(VkDevice device, VkShaderModule m
         std::lock_guard lock(d.pipelines_mutex);
         d.address_writing_modules.erase(handle_id(module));
         d.ray_query_modules.erase(handle_id(module));
+        d.structure_address_modules.erase(handle_id(module));
     }
     d.next.DestroyShaderModule(device, module, allocator);
 }
@@ -97,6 +102,8 @@ VKAPI_ATTR VkResult VKAPI_CALL CreateComputePipelines(VkDevice device, VkPipelin
                 VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT;
         if (marks.uses_ray_queries)
             d.ray_query_pipelines[handle_id(pipelines[i])] = VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT;
+        if (marks.converts_addresses_from_memory)
+            d.structure_address_pipelines.insert(handle_id(pipelines[i]));
     }
     return result;
 }
@@ -127,6 +134,7 @@ VKAPI_ATTR void VKAPI_CALL DestroyPipeline(VkDevice device, VkPipeline pipeline,
         std::lock_guard lock(d.pipelines_mutex);
         d.address_writing_pipelines.erase(handle_id(pipeline));
         d.ray_query_pipelines.erase(handle_id(pipeline));
+        d.structure_address_pipelines.erase(handle_id(pipeline));
     }
     d.next.DestroyPipeline(device, pipeline, allocator);
 }
@@ -136,13 +144,14 @@ VKAPI_ATTR void VKAPI_CALL DestroyPipeline(VkDevice device, VkPipeline pipeline,
 ShaderStageMarks shader_stage_marks(DeviceState& d, const VkPipelineShaderStageCreateInfo& stage) {
     if (stage.module != VK_NULL_HANDLE)
         return {d.address_writing_modules.count(handle_id(stage.module)) != 0,
-                d.ray_query_modules.count(handle_id(stage.module)) != 0};
+                d.ray_query_modules.count(handle_id(stage.module)) != 0,
+                d.structure_address_modules.count(handle_id(stage.module)) != 0};
     for (auto* next = static_cast<const VkBaseInStructure*>(stage.pNext); next; next = next->pNext)
         if (next->sType == VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO) {
             auto* info = reinterpret_cast<const VkShaderModuleCreateInfo*>(next);
             const SpirvScan scan = scan_spirv_bytes(info->pCode, info->codeSize);
             return {scan.may_write_through_addresses() && marking_on(),
-                    scan.uses_ray_queries && d.sink};
+                    scan.uses_ray_queries && d.sink, scan.converts_addresses_from_memory && d.sink};
         }
     return {};
 }
@@ -150,20 +159,28 @@ ShaderStageMarks shader_stage_marks(DeviceState& d, const VkPipelineShaderStageC
 void mark_pipeline_stages(DeviceState& d, uint64_t pipeline,
                           const VkPipelineShaderStageCreateInfo* stages, uint32_t stage_count) {
     VkPipelineStageFlags2 address_stages = 0, ray_stages = 0;
+    bool structure_addresses = false;
     for (uint32_t s = 0; s < stage_count; ++s) {
         const ShaderStageMarks marks = shader_stage_marks(d, stages[s]);
         const VkPipelineStageFlags2 stage = pipeline_stage_of(stages[s].stage);
         if (marks.may_write_through_addresses) address_stages |= stage;
         if (marks.uses_ray_queries) ray_stages |= stage;
+        structure_addresses = structure_addresses || marks.converts_addresses_from_memory;
     }
     if (address_stages) d.address_writing_pipelines[pipeline] = address_stages;
     if (ray_stages) d.ray_query_pipelines[pipeline] = ray_stages;
+    if (structure_addresses) d.structure_address_pipelines.insert(pipeline);
 }
 
 VkPipelineStageFlags2 ray_query_stages(DeviceState& d, uint64_t pipeline) {
     std::lock_guard lock(d.pipelines_mutex);
     auto it = d.ray_query_pipelines.find(pipeline);
     return it == d.ray_query_pipelines.end() ? 0 : it->second;
+}
+
+bool converts_structure_addresses_from_memory(DeviceState& d, uint64_t pipeline) {
+    std::lock_guard lock(d.pipelines_mutex);
+    return d.structure_address_pipelines.count(pipeline) != 0;
 }
 
 VkPipelineStageFlags2 address_writing_stages(DeviceState& d, uint64_t pipeline) {

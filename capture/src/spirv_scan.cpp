@@ -5,6 +5,7 @@
 #include "clastrace/capture/spirv_scan.h"
 
 #include <cstring>
+#include <unordered_map>
 #include <vector>
 
 namespace clastrace::capture {
@@ -15,6 +16,28 @@ constexpr uint32_t kOpCapability = 17;
 constexpr uint32_t kOpTypePointer = 32;         // result id, storage class, type
 constexpr uint32_t kOpTypeForwardPointer = 39;  // pointer type, storage class
 constexpr uint32_t kOpVariable = 59;            // result type, result id, storage class
+constexpr uint32_t kOpLoad = 61;                // result type, result id, pointer
+constexpr uint32_t kOpAccessChain = 65;         // result type, result id, base, indexes
+constexpr uint32_t kOpInBoundsAccessChain = 66;
+constexpr uint32_t kOpPtrAccessChain = 67;
+constexpr uint32_t kOpInBoundsPtrAccessChain = 70;
+constexpr uint32_t kOpCompositeExtract = 81;  // result type, result id, composite, indexes
+constexpr uint32_t kOpCopyObject = 83;        // result type, result id, operand
+constexpr uint32_t kOpUConvert = 113;
+constexpr uint32_t kOpBitcast = 124;
+constexpr uint32_t kStorageClassPushConstant = 9;
+
+// Where the values an OpConvertUToAccelerationStructureKHR may convert come from: the storage
+// class of each pointer (variables and the access chains into them) and of the memory each
+// loaded value was read from, carried through extracts, copies and bitcasts. Definitions come
+// before uses in SPIR-V (OpPhi aside), so one pass in module order sees every one it needs.
+struct AddressOrigins {
+    std::unordered_map<uint32_t, uint32_t> pointer_class;  // pointer id -> storage class
+    std::unordered_map<uint32_t, uint32_t> loaded_from;    // value id -> storage class
+
+    void note(std::span<const uint32_t> instruction, uint32_t opcode, SpirvScan* scan);
+    void converted(uint32_t value, SpirvScan* scan) const;
+};
 
 uint32_t byte_swapped(uint32_t w) { return __builtin_bswap32(w); }
 
@@ -23,6 +46,50 @@ bool operand(std::span<const uint32_t> instruction, std::size_t index, uint32_t*
     if (index + 1 >= instruction.size()) return false;
     *out = instruction[index + 1];
     return true;
+}
+
+// The class `map` holds for `id`, or none.
+bool class_of(const std::unordered_map<uint32_t, uint32_t>& map, uint32_t id, uint32_t* out) {
+    auto it = map.find(id);
+    if (it == map.end()) return false;
+    *out = it->second;
+    return true;
+}
+
+void AddressOrigins::note(std::span<const uint32_t> instruction, uint32_t opcode, SpirvScan* scan) {
+    uint32_t result = 0, source = 0, storage_class = 0;
+    if (!operand(instruction, 1, &result) || !operand(instruction, 2, &source)) return;
+    switch (opcode) {
+    case kOpVariable: pointer_class[result] = source; break;
+    case kOpAccessChain:
+    case kOpInBoundsAccessChain:
+    case kOpPtrAccessChain:
+    case kOpInBoundsPtrAccessChain:
+        if (class_of(pointer_class, source, &storage_class)) pointer_class[result] = storage_class;
+        break;
+    case kOpLoad:
+        if (class_of(pointer_class, source, &storage_class)) loaded_from[result] = storage_class;
+        break;
+    case kOpCompositeExtract:
+    case kOpCopyObject:
+    case kOpUConvert:
+    case kOpBitcast:
+        if (class_of(loaded_from, source, &storage_class)) loaded_from[result] = storage_class;
+        break;
+    case kSpirvOpConvertUToAccelerationStructureKHR: converted(source, scan); break;
+    default: break;
+    }
+}
+
+// A value read from push constants is followed already (every push-constant value is compared
+// with the known addresses); any other one, loaded from a buffer or of an origin this pass does
+// not follow (arithmetic, a function parameter, a phi), may come from memory.
+void AddressOrigins::converted(uint32_t value, SpirvScan* scan) const {
+    uint32_t storage_class = 0;
+    if (class_of(loaded_from, value, &storage_class) && storage_class == kStorageClassPushConstant)
+        scan->converts_push_constant_addresses = true;
+    else
+        scan->converts_addresses_from_memory = true;
 }
 
 void note_instruction(std::span<const uint32_t> instruction, uint32_t opcode, SpirvScan* scan) {
@@ -74,6 +141,7 @@ SpirvScan scan_spirv(std::span<const uint32_t> words) {
         for (uint32_t w : words) native.push_back(byte_swapped(w));
         words = native;
     }
+    AddressOrigins origins;
     for (std::size_t at = kHeaderWords; at < words.size();) {
         const uint32_t count = words[at] >> 16;
         const uint32_t opcode = words[at] & 0xFFFFu;
@@ -83,6 +151,7 @@ SpirvScan scan_spirv(std::span<const uint32_t> words) {
                         "instruction's word count " + std::to_string(count) + " runs past the " +
                             std::to_string(words.size()) + "-word module");
         note_instruction(words.subspan(at, count), opcode, &scan);
+        origins.note(words.subspan(at, count), opcode, &scan);
         at += count;
     }
     scan.valid = true;

@@ -13,8 +13,12 @@
 // rewritten between recording and submission, and one pushed with vkCmdPushDescriptorSet2KHR.
 // With "descriptor-buffer": one ray-query dispatch whose set comes from a descriptor buffer
 // (VK_EXT_descriptor_buffer), the TLAS descriptor written there with vkGetDescriptorEXT.
-// Usage: ray_consumers_app OUT.json [sources|descriptor-buffer]. OUT.json names the handles and addresses the capture must
-// report. Exit 0 and "ok" when every result is right; 2 otherwise.
+// With "address-in-buffer": ray-query dispatches whose shader reads the TLAS address from a
+// storage buffer (accelerationStructureEXT(uint64_t)): one through a bound set, one through pushed
+// descriptors whose buffer gets the address only after recording, and one whose buffer holds a
+// value that is no structure's address (that shader does not trace).
+// Usage: ray_consumers_app OUT.json [sources|descriptor-buffer|address-in-buffer]. OUT.json
+// names the handles and addresses the capture must report. Exit 0 and "ok" when every result is right; 2 otherwise.
 #include <clastrace/vk_maintenance6_abi.h>
 #include <vulkan/vulkan.h>
 
@@ -26,12 +30,13 @@
 #include <vector>
 
 // The shaders' SPIR-V as uint32_t arrays, compiled at build time (tests/apps/CMakeLists.txt).
-#include "plain_comp.h"      // kPlainComp
-#include "ray_query_comp.h"  // kRayQueryComp
-#include "ray_query_vert.h"  // kRayQueryVert
-#include "rays_rchit.h"      // kRaysRchit
-#include "rays_rgen.h"       // kRaysRgen
-#include "rays_rmiss.h"      // kRaysRmiss
+#include "address_in_buffer_comp.h"  // kAddressInBufferComp
+#include "plain_comp.h"              // kPlainComp
+#include "ray_query_comp.h"          // kRayQueryComp
+#include "ray_query_vert.h"          // kRayQueryVert
+#include "rays_rchit.h"              // kRaysRchit
+#include "rays_rgen.h"               // kRaysRgen
+#include "rays_rmiss.h"              // kRaysRmiss
 
 namespace {
 
@@ -192,6 +197,7 @@ Device create_device(bool descriptor_buffer = false) {
     if (descriptor_buffer) maintenance6.pNext = &descriptor_buffers;
     VkPhysicalDeviceFeatures2 features{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2, &v12};
     features.features.vertexPipelineStoresAndAtomics = VK_TRUE;
+    features.features.shaderInt64 = VK_TRUE;  // address_in_buffer.comp's uint64_t
     const char* extensions[] = {"VK_KHR_acceleration_structure",
                                 "VK_KHR_ray_query",
                                 "VK_KHR_ray_tracing_pipeline",
@@ -919,14 +925,166 @@ int descriptor_buffer_main(const char* out_path) {
     return 0;
 }
 
+// ---- "address-in-buffer" mode: the TLAS address read from a storage buffer ----------------------
+
+// What address_in_buffer.comp reads at set 0, binding 0.
+struct SceneAddress {
+    VkDeviceAddress address;
+    uint32_t trace;  // 0: the shader does not convert `address`
+    uint32_t slot;   // where it writes its result
+};
+
+// The set layout (binding 0 the scene address, binding 1 the results), as a set and pushed.
+struct AddressSets {
+    VkPipelineLayout layout = VK_NULL_HANDLE, push_layout = VK_NULL_HANDLE;
+    VkPipeline pipeline = VK_NULL_HANDLE, pushed_pipeline = VK_NULL_HANDLE;
+    VkDescriptorSet bound = VK_NULL_HANDLE, not_an_address = VK_NULL_HANDLE;
+};
+
+void write_address_set(const Device& d, VkDescriptorSet set, VkBuffer scene, VkBuffer results) {
+    VkDescriptorBufferInfo infos[2] = {{scene, 0, VK_WHOLE_SIZE}, {results, 0, VK_WHOLE_SIZE}};
+    VkWriteDescriptorSet writes[2] = {{VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET},
+                                      {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET}};
+    for (uint32_t i = 0; i < 2; ++i) {
+        writes[i].dstSet = set;
+        writes[i].dstBinding = i;
+        writes[i].descriptorCount = 1;
+        writes[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+        writes[i].pBufferInfo = &infos[i];
+    }
+    vkUpdateDescriptorSets(d.device, 2, writes, 0, nullptr);
+}
+
+AddressSets address_sets(const Device& d, VkBuffer bound, VkBuffer not_an_address,
+                         VkBuffer results) {
+    VkDescriptorSetLayoutBinding bindings[2] = {{0, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1,
+                                                 VK_SHADER_STAGE_COMPUTE_BIT, nullptr},
+                                                {1, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1,
+                                                 VK_SHADER_STAGE_COMPUTE_BIT, nullptr}};
+    VkDescriptorSetLayoutCreateInfo info{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
+    info.bindingCount = 2;
+    info.pBindings = bindings;
+    VkDescriptorSetLayout set_layout, push_set_layout;
+    CHECK(vkCreateDescriptorSetLayout(d.device, &info, nullptr, &set_layout));
+    info.flags = VK_DESCRIPTOR_SET_LAYOUT_CREATE_PUSH_DESCRIPTOR_BIT_KHR;
+    CHECK(vkCreateDescriptorSetLayout(d.device, &info, nullptr, &push_set_layout));
+    AddressSets a;
+    // No push constants: the address can only come from the buffer.
+    VkPipelineLayoutCreateInfo layout{VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO};
+    layout.setLayoutCount = 1;
+    layout.pSetLayouts = &set_layout;
+    CHECK(vkCreatePipelineLayout(d.device, &layout, nullptr, &a.layout));
+    layout.pSetLayouts = &push_set_layout;
+    CHECK(vkCreatePipelineLayout(d.device, &layout, nullptr, &a.push_layout));
+    a.pipeline = compute_pipeline(d, a.layout, kAddressInBufferComp, sizeof kAddressInBufferComp);
+    a.pushed_pipeline =
+        compute_pipeline(d, a.push_layout, kAddressInBufferComp, sizeof kAddressInBufferComp);
+    VkDescriptorPoolSize size{VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 4};
+    VkDescriptorPoolCreateInfo pool_info{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
+    pool_info.maxSets = 2;
+    pool_info.poolSizeCount = 1;
+    pool_info.pPoolSizes = &size;
+    VkDescriptorPool pool;
+    CHECK(vkCreateDescriptorPool(d.device, &pool_info, nullptr, &pool));
+    VkDescriptorSetLayout layouts[2] = {set_layout, set_layout};
+    VkDescriptorSet sets[2];
+    VkDescriptorSetAllocateInfo allocate{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_ALLOCATE_INFO};
+    allocate.descriptorPool = pool;
+    allocate.descriptorSetCount = 2;
+    allocate.pSetLayouts = layouts;
+    CHECK(vkAllocateDescriptorSets(d.device, &allocate, sets));
+    a.bound = sets[0];
+    a.not_an_address = sets[1];
+    write_address_set(d, a.bound, bound, results);
+    write_address_set(d, a.not_an_address, not_an_address, results);
+    return a;
+}
+
+// Dispatch 1: the bound set's buffer holds the TLAS address. Dispatch 2: a buffer whose bytes
+// are no structure's address (not traced). Dispatch 3: pushed descriptors; their buffer gets
+// the address between recording and submission. Results 1, 3, 1 in slots 0, 1, 2.
+bool run_address_in_buffer(const Device& d, VkCommandPool pool, const AddressSets& a,
+                           const Buffer& bound, const Buffer& not_an_address, const Buffer& late,
+                           const Buffer& results, VkDeviceAddress top) {
+    const SceneAddress in_bound{top, 1, 0}, no_address{top + 8, 0, 1}, not_yet{0, 1, 2};
+    std::memcpy(bound.mapped, &in_bound, sizeof in_bound);
+    std::memcpy(not_an_address.mapped, &no_address, sizeof no_address);
+    std::memcpy(late.mapped, &not_yet, sizeof not_yet);
+    VkCommandBuffer cb = begin(d, pool);
+    vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, a.pipeline);
+    vkCmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, a.layout, 0, 1, &a.bound, 0,
+                            nullptr);
+    vkCmdDispatch(cb, 1, 1, 1);
+    vkCmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, a.layout, 0, 1, &a.not_an_address,
+                            0, nullptr);
+    vkCmdDispatch(cb, 1, 1, 1);
+    vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, a.pushed_pipeline);
+    VkDescriptorBufferInfo infos[2] = {{late.buffer, 0, VK_WHOLE_SIZE},
+                                       {results.buffer, 0, VK_WHOLE_SIZE}};
+    VkWriteDescriptorSet writes[2] = {{VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET},
+                                      {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET}};
+    for (uint32_t i = 0; i < 2; ++i) {
+        writes[i].dstBinding = i;
+        writes[i].descriptorCount = 1;
+        writes[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+        writes[i].pBufferInfo = &infos[i];
+    }
+    d.fn.push_descriptor_set(cb, VK_PIPELINE_BIND_POINT_COMPUTE, a.push_layout, 0, 2, writes);
+    vkCmdDispatch(cb, 1, 1, 1);
+    CHECK(vkEndCommandBuffer(cb));
+    const SceneAddress now{top, 1, 2};
+    std::memcpy(late.mapped, &now, sizeof now);
+    submit_and_wait(d, cb);
+    const auto* values = static_cast<const uint32_t*>(results.mapped);
+    return values[0] == 1 && values[1] == 3 && values[2] == 1;
+}
+
+// The address-in-buffer mode: OUT.json names the TLAS, the two pipelines and the buffers.
+int address_in_buffer_main(const char* out_path) {
+    Device d = create_device();
+    VkCommandPoolCreateInfo pool_info{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO};
+    pool_info.queueFamilyIndex = d.family;
+    VkCommandPool pool;
+    CHECK(vkCreateCommandPool(d.device, &pool_info, nullptr, &pool));
+    VkCommandBuffer build_cb = begin(d, pool);
+    const Scene scene = build_scene(d, build_cb);
+    CHECK(vkEndCommandBuffer(build_cb));
+    submit_and_wait(d, build_cb);
+    Buffer results = create_buffer(d, 32 * sizeof(uint32_t), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT);
+    const Buffer bound = create_buffer(d, sizeof(SceneAddress), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT);
+    const Buffer not_an_address =
+        create_buffer(d, sizeof(SceneAddress), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT);
+    const Buffer late = create_buffer(d, sizeof(SceneAddress), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT);
+    const AddressSets a = address_sets(d, bound.buffer, not_an_address.buffer, results.buffer);
+    const bool right =
+        run_address_in_buffer(d, pool, a, bound, not_an_address, late, results, scene.top.address);
+    FILE* out = std::fopen(out_path, "w");
+    if (!out) fail("cannot write OUT.json");
+    std::fprintf(out,
+                 "{\"topLevel\": %llu, \"topLevelAddress\": %llu, \"addressPipeline\": %llu, "
+                 "\"pushedAddressPipeline\": %llu}\n",
+                 (unsigned long long)(uint64_t)scene.top.handle,
+                 (unsigned long long)scene.top.address, (unsigned long long)(uint64_t)a.pipeline,
+                 (unsigned long long)(uint64_t)a.pushed_pipeline);
+    std::fclose(out);
+    vkDeviceWaitIdle(d.device);
+    if (!right) fail("the shaders' results are wrong");
+    std::printf("ok\n");
+    return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
+    if (argc == 3 && std::strcmp(argv[2], "address-in-buffer") == 0)
+        return address_in_buffer_main(argv[1]);
     if (argc == 3 && std::strcmp(argv[2], "sources") == 0) return sources_main(argv[1]);
     if (argc == 3 && std::strcmp(argv[2], "descriptor-buffer") == 0)
         return descriptor_buffer_main(argv[1]);
     if (argc != 2) {
-        std::fprintf(stderr, "usage: ray_consumers_app OUT.json [sources|descriptor-buffer]\n");
+        std::fprintf(stderr,
+                     "usage: ray_consumers_app OUT.json "
+                     "[sources|descriptor-buffer|address-in-buffer]\n");
         return 2;
     }
     Device d = create_device();

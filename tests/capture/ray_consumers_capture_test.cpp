@@ -9,7 +9,8 @@
 // indirect address, and for each consumer the TLAS by handle and address with set, binding and
 // source. In "sources" mode the app binds and pushes with VK_KHR_maintenance6 and rewrites an
 // UPDATE_AFTER_BIND set between recording and submission; in "descriptor-buffer" mode the TLAS
-// descriptor lives in a descriptor buffer. Label rt-driver: skipped where
+// descriptor lives in a descriptor buffer; in "address-in-buffer" mode the shader reads the TLAS
+// address from a storage buffer. Label rt-driver: skipped where
 // lavapipe 25 is not unpacked.
 #include "layer_launch_test.h"
 
@@ -35,6 +36,7 @@ constexpr uint32_t kSourceDescriptorSet = 0;
 constexpr uint32_t kSourcePushDescriptor = 1;
 constexpr uint32_t kSourceDescriptorBuffer = 2;
 constexpr uint32_t kSourcePushConstants = 3;
+constexpr uint32_t kSourceMemory = 4;
 
 struct Binding {
     uint32_t set = 0, binding = 0, array_element = 0, source = 0;
@@ -260,6 +262,33 @@ TEST_F(RayConsumersCapture, DescriptorBufferReachesTheTopLevelItsDescriptorNames
     EXPECT_EQ(found.array_element, 0u);
     EXPECT_EQ(found.acceleration_structure, out["topLevel"].get<uint64_t>());
     EXPECT_EQ(found.address, out["topLevelAddress"].get<uint64_t>());
+}
+
+// A shader that turns a uint64_t from a storage buffer into the TLAS: the capture finds the
+// TLAS address in the bound buffer (source 4, set 0, binding 0, byte offset 0 in
+// array_element), also in a pushed buffer that got the address only after recording (read
+// again at submission); a buffer whose bytes equal no structure's address gives no entry.
+TEST_F(RayConsumersCapture, AddressStoredInABoundBufferReachesTheTopLevel) {
+    capture("address-in-buffer");
+    ASSERT_EQ(dispatches.size(), 3u);
+    const uint64_t top = out["topLevel"], address = out["topLevelAddress"];
+    for (size_t i : {0u, 2u}) {
+        SCOPED_TRACE(i);
+        EXPECT_EQ(dispatches[i].pipeline,
+                  out[i == 0 ? "addressPipeline" : "pushedAddressPipeline"].get<uint64_t>());
+        EXPECT_TRUE(dispatches[i].ray_query);
+        ASSERT_EQ(dispatches[i].structures.size(), 1u);
+        const Binding& found = dispatches[i].structures[0];
+        EXPECT_EQ(found.source, kSourceMemory);
+        EXPECT_EQ(found.set, 0u);
+        EXPECT_EQ(found.binding, 0u);
+        EXPECT_EQ(found.array_element, 0u);  // the byte offset in the bound range
+        EXPECT_EQ(found.acceleration_structure, top);
+        EXPECT_EQ(found.address, address);
+    }
+    EXPECT_EQ(dispatches[1].pipeline, out["addressPipeline"].get<uint64_t>());
+    EXPECT_TRUE(dispatches[1].ray_query);
+    EXPECT_TRUE(dispatches[1].structures.empty());
 }
 
 }  // namespace

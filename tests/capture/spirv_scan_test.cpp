@@ -125,6 +125,68 @@ TEST(SpirvScan, RayQueryCapabilityOrTypeMarksARayQueryUser) {
     EXPECT_FALSE(scan_spirv(module({kCapabilityShader}, {})).uses_ray_queries);
 }
 
+// %ptr = OpTypePointer <class> %ulong; %var = OpVariable %ptr <class>; %chain = OpAccessChain
+// %ptr %var %zero; %value = OpLoad %ulong %chain; then `convert` turns `%value` (or its bitcast)
+// into an acceleration structure with OpConvertUToAccelerationStructureKHR.
+std::vector<uint32_t> load_and_convert(uint32_t storage_class, bool through_bitcast) {
+    constexpr uint32_t kUlong = 2, kPtr = 3, kVar = 4, kChain = 5, kValue = 6, kCast = 7, kZero = 8,
+                       kStructureType = 9, kStructure = 10;
+    std::vector<uint32_t> words = {op(4, 21), kUlong,        64,
+                                   0,  // OpTypeInt 64 0
+                                   op(4, 32), kPtr,          storage_class,
+                                   kUlong,    op(4, 59),     kPtr,
+                                   kVar,      storage_class, op(5, 65),
+                                   kPtr,      kChain,        kVar,
+                                   kZero,     op(4, 61),     kUlong,
+                                   kValue,    kChain};
+    uint32_t converted = kValue;
+    if (through_bitcast) {
+        words.insert(words.end(), {op(4, 124), kUlong, kCast, kValue});
+        converted = kCast;
+    }
+    words.insert(words.end(), {op(4, kSpirvOpConvertUToAccelerationStructureKHR), kStructureType,
+                               kStructure, converted});
+    return words;
+}
+
+// A 64-bit value loaded from a storage or uniform buffer and converted to an acceleration
+// structure marks the module (the capture then reads its bound buffers); one loaded from push
+// constants marks it as a push-constant converter only (those are followed already); a module
+// that converts nothing is marked as neither.
+TEST(SpirvScan, ConvertingALoadedValueToAStructureIsToldApartFromPushConstants) {
+    constexpr uint32_t kStorageClassUniform = 2, kStorageClassPushConstant = 9;
+    for (uint32_t storage_class : {kStorageClassStorageBuffer, kStorageClassUniform}) {
+        for (bool bitcast : {false, true}) {
+            SCOPED_TRACE(storage_class * 10 + bitcast);
+            const SpirvScan scan = scan_spirv(
+                module({kSpirvCapabilityRayQueryKHR}, load_and_convert(storage_class, bitcast)));
+            ASSERT_TRUE(scan.valid) << scan.error;
+            EXPECT_TRUE(scan.converts_addresses_from_memory);
+            EXPECT_FALSE(scan.converts_push_constant_addresses);
+        }
+    }
+    const SpirvScan pushed = scan_spirv(
+        module({kSpirvCapabilityRayQueryKHR}, load_and_convert(kStorageClassPushConstant, true)));
+    ASSERT_TRUE(pushed.valid) << pushed.error;
+    EXPECT_FALSE(pushed.converts_addresses_from_memory);
+    EXPECT_TRUE(pushed.converts_push_constant_addresses);
+
+    const SpirvScan plain = scan_spirv(
+        module({kSpirvCapabilityRayQueryKHR}, pointer_and_store(kStorageClassStorageBuffer)));
+    EXPECT_FALSE(plain.converts_addresses_from_memory);
+    EXPECT_FALSE(plain.converts_push_constant_addresses);
+}
+
+// A converted value of an origin the scan does not follow (here an id it never saw defined,
+// as a function parameter or a phi would be) may come from memory: marked, never missed.
+TEST(SpirvScan, ConvertedValueOfUnknownOriginCountsAsFromMemory) {
+    const SpirvScan scan =
+        scan_spirv(module({kSpirvCapabilityRayQueryKHR},
+                          {op(4, kSpirvOpConvertUToAccelerationStructureKHR), 9, 10, 77}));
+    ASSERT_TRUE(scan.valid) << scan.error;
+    EXPECT_TRUE(scan.converts_addresses_from_memory);
+}
+
 // What a fuzzer would try, deterministically: every truncation and many random corruptions of a
 // marked module scan without reading outside the span (ASan/UBSan builds check that).
 TEST(SpirvScan, TruncatedAndCorruptedModulesStayInBounds) {

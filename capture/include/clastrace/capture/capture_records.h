@@ -246,6 +246,9 @@ struct ReachableAccelerationStructure {
         kPushDescriptor = 1,
         kDescriptorBuffer = 2,  // a vkGetDescriptorEXT answer read from a descriptor buffer
         kPushConstants = 3,     // an 8-byte push-constant value equal to a known address
+        // An 8-byte value equal to a known address in a storage buffer bound to a consumer whose
+        // shader converts values from memory into structures (consumer_buffer_addresses.cpp).
+        kMemory = 4,
     };
     uint32_t set = 0, binding = 0, array_element = 0;
     Source source = Source::kDescriptorSet;
