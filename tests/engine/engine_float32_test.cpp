@@ -11,6 +11,8 @@
 #include <cfloat>
 #include <cmath>
 #include <random>
+#include <utility>
+#include <vector>
 
 namespace clastrace::engine {
 namespace {
@@ -113,6 +115,74 @@ TEST(Float32Traversal, TinyTriangleFarAway) {
     // Off the axis the shear mixes 4e4 into x and y: the float answer is noise, still a hit.
     const Ray slanted{{2.5e-4f - 4e3f, 2.5e-4f, -4e4f}, 0.0f, {0.1f, 0.0f, 1.0f}, 1e5f};
     EXPECT_TRUE(trace_any(clas, slanted, 0, kF64));
+}
+
+// The float determinant of the watertight test as a float32 pipeline computes it (the
+// dimension permutation, the shear and the edge functions in float, tests/engine's own copy
+// of the arithmetic): its sign is the facing such a pipeline reports.
+float float_determinant(const Ray& r, const float* p0, const float* p1, const float* p2) {
+    int kz = 0;
+    if (std::fabs(r.direction[1]) > std::fabs(r.direction[kz])) kz = 1;
+    if (std::fabs(r.direction[2]) > std::fabs(r.direction[kz])) kz = 2;
+    int kx = (kz + 1) % 3, ky = (kx + 1) % 3;
+    if (r.direction[kz] < 0.0f) std::swap(kx, ky);
+    const float sx = r.direction[kx] / r.direction[kz], sy = r.direction[ky] / r.direction[kz];
+    const float* p[3] = {p0, p1, p2};
+    float x[3], y[3];
+    for (int i = 0; i < 3; ++i) {
+        const float a[3] = {p[i][0] - r.origin[0], p[i][1] - r.origin[1], p[i][2] - r.origin[2]};
+        x[i] = a[kx] - sx * a[kz];
+        y[i] = a[ky] - sy * a[kz];
+    }
+    const float u = x[2] * y[1] - y[2] * x[1], v = x[0] * y[2] - y[0] * x[2],
+                w = x[1] * y[0] - y[1] * x[0];
+    return u + v + w;
+}
+
+// Nearly edge-on slivers 1e3 away: the ray lies almost in the triangle's plane, the float
+// determinant's rounding decides the facing. float32 reports that facing (the driver's),
+// double the exact winding; some slivers must tell the two apart, or nothing was tested.
+TEST(Float32Traversal, NearlyEdgeOnFacingFollowsTheFloatDeterminant) {
+    std::mt19937 rng(31);
+    std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+    int float_hits = 0, flipped = 0;
+    for (int i = 0; i < 4000; ++i) {
+        const float c[3] = {700.0f + 300.0f * u(rng), 700.0f + 300.0f * u(rng), 700.0f * u(rng)};
+        const Ray r{{3.1f * u(rng), 2.7f * u(rng), 1.3f * u(rng)}, 0.0f, {0, 0, 0}, 1e5f};
+        double d[3], len = 0;
+        for (int k = 0; k < 3; ++k) {
+            d[k] = double(c[k]) - r.origin[k];
+            len += d[k] * d[k];
+        }
+        Ray ray = r;
+        for (int k = 0; k < 3; ++k) ray.direction[k] = float(d[k] / std::sqrt(len));
+        // e1, e2: unit vectors across the ray; the sliver spans e1 and the ray, tilted by
+        // `tilt` along e2 (1e-6 to 1e-3 of its size), so seen along the ray it is that thin.
+        const double n0[3] = {-d[1], d[0], 0.0};
+        const double l0 = std::sqrt(n0[0] * n0[0] + n0[1] * n0[1]);
+        const double e1[3] = {n0[0] / l0, n0[1] / l0, 0.0};
+        const double dn[3] = {d[0] / std::sqrt(len), d[1] / std::sqrt(len), d[2] / std::sqrt(len)};
+        const double e2[3] = {dn[1] * e1[2] - dn[2] * e1[1], dn[2] * e1[0] - dn[0] * e1[2],
+                              dn[0] * e1[1] - dn[1] * e1[0]};
+        const double tilt = std::pow(10.0, -6.0 + 3.0 * (0.5 + 0.5 * u(rng)));
+        const double side = u(rng) < 0 ? -1.0 : 1.0;
+        std::vector<float> pos(9);
+        const double k0[3] = {1.0, -1.0, 0.0}, kd[3] = {-1.0, -1.0, 1.0}, kt[3] = {-0.5, -0.5, 1.0};
+        for (int v = 0; v < 3; ++v)
+            for (int k = 0; k < 3; ++k)
+                pos[3 * v + k] =
+                    float(c[k] + e1[k] * k0[v] + dn[k] * kd[v] + side * e2[k] * tilt * kt[v]);
+        const auto clas = build(pos, {0, 1, 2});
+        const Hit f = trace_closest(clas, ray, 0, kF32), x = trace_closest(clas, ray, 0, kF64);
+        if (!f.hit) continue;
+        const float det = float_determinant(ray, &pos[0], &pos[3], &pos[6]);
+        if (det == 0.0f) continue;  // the double fallback decides those
+        ++float_hits;
+        EXPECT_EQ(f.front_face, det > 0.0f) << i << " det " << det;
+        if (x.hit && x.front_face != f.front_face) ++flipped;
+    }
+    EXPECT_GT(float_hits, 1000);
+    EXPECT_GT(flipped, 0);
 }
 
 TEST(Float32Traversal, NanAndDegenerateTrianglesNeverHit) {

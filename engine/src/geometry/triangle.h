@@ -9,7 +9,8 @@
 //   coordinates beyond float's products (~1e19, ~1e-19) are not lost.
 // Edge functions equal to zero count as inside; a triangle whose edge functions are all
 // zero (seen edge-on, degenerate) or not finite is missed. Hits lie in the closed interval
-// [tmin, tmax]. Facing comes from the triangle's own edges in both modes (front_facing).
+// [tmin, tmax]. Facing: kDouble from the triangle's own edges (front_facing), kFloat32 from the
+// sign of the float determinant (float_det_front), as hardware decides it.
 #pragma once
 
 #include "geometry/ray.h"
@@ -42,6 +43,13 @@ inline bool front_facing(const double d[3], const float* p0, const float* p1, co
                          e1[0] * e2[1] - e1[1] * e2[0]};
     return d[0] * n[0] + d[1] * n[1] + d[2] * n[2] < 0.0;
 }
+
+// Facing in TraversalMode::kFloat32, as a float32 pipeline decides it: from the sign of the
+// float determinant (the sum of the sheared edge functions), not from the exact winding. The
+// determinant is -dot(d, cross(p1 - p0, p2 - p0)) / |d[kz]| (the permutation is cyclic and
+// swaps x, y when d[kz] < 0), so front (dot < 0) is det > 0. For a nearly edge-on triangle
+// its rounding can give the other facing than front_facing; the driver reports that one.
+inline bool float_det_front(float det) { return det > 0.0f; }
 
 // The error bound of a float evaluation's barycentrics. Shearing rounds each sheared
 // coordinate by about 3u of the largest unsheared one (`unsheared`: |vertex - origin|, 4e4 for
@@ -103,8 +111,13 @@ inline bool intersect_triangle_float32(const PreparedRay& r, const float* p0, co
     // products below float's range, coordinates under ~1e-19) or past FLT_MAX (beyond ~1e19):
     // the double test answers instead of leaking a shared edge or losing the triangle.
     if (u == 0.0f || v == 0.0f || w == 0.0f || !std::isfinite(u) || !std::isfinite(v) ||
-        !std::isfinite(w))
-        return intersect_triangle_double(r, p0, p1, p2, tmax, hit);
+        !std::isfinite(w)) {
+        if (!intersect_triangle_double(r, p0, p1, p2, tmax, hit)) return false;
+        // Facing still from the float determinant where float has one (float_det_front).
+        const float det = u + v + w;
+        if (det != 0.0f && std::isfinite(det)) hit->front = float_det_front(det);
+        return true;
+    }
     if ((u < 0.0f || v < 0.0f || w < 0.0f) && (u > 0.0f || v > 0.0f || w > 0.0f)) return false;
     const float det = u + v + w;
     if (det == 0.0f || !std::isfinite(det)) return false;
@@ -121,7 +134,7 @@ inline bool intersect_triangle_float32(const PreparedRay& r, const float* p0, co
                                             std::max({std::fabs(ax), std::fabs(ay), std::fabs(bx),
                                                       std::fabs(by), std::fabs(cx), std::fabs(cy)}),
                                             det);
-    hit->front = front_facing(r.d, p0, p1, p2);
+    hit->front = float_det_front(det);
     return true;
 }
 
