@@ -9,6 +9,7 @@
 #include "clastrace/capture/served_build.h"
 
 #include <algorithm>
+#include <atomic>
 
 namespace clastrace::capture {
 
@@ -84,8 +85,11 @@ void build_traceable_blases(DeviceState& state, uint64_t pause_id,
         for (const TraceableBlasGeometry& blas : batch.blases)
             state.nv_scene.observe_cluster_blas(blas.address, blas.clusters, blas.geometry_indices);
     }
+    // Info, once per process: the engine's bytes are still right and the trace still exact; only
+    // the driver's own rays miss these BLASes (capture/README.md "Traceable cluster BLASes").
+    static std::atomic<bool> said{false};
     if (batch.skipped)
-        log_message(LogLevel::kError,
+        log_message(said.exchange(true) ? LogLevel::kDebug : LogLevel::kInfo,
                     "served build (pause %llu): %u BLASes not traceable by the driver: %s",
                     (unsigned long long)pause_id, batch.skipped, batch.why.c_str());
 }
