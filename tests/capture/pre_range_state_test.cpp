@@ -189,7 +189,7 @@ TEST_F(PreRangeState, FrameRangeReplaysStructuresBuiltBeforeIt) {
 
     // The same image as the full capture's replay gives.
     const fs::path full = capture_as("full.clt", "");
-    EXPECT_EQ(read_start(full).label, "");
+    EXPECT_FALSE(read_start(full).pre_range);
     const EngineImage whole = replay_image(full);
     EXPECT_EQ(whole.dispatches, size_t(kFrames));
     EXPECT_EQ(whole.pixels, engine.pixels);
