@@ -57,33 +57,26 @@ struct TraceSummary {
     uint64_t first_frame = 0, last_frame = 0;
     uint64_t unassigned_submissions = 0;  // QueueSubmits since the last present
     std::map<uint64_t, uint64_t> submissions_by_frame;
-    // The layer's pre-range label: the trace starts with a frame range's state from before it; its prelude
-    // submission belongs to no frame.
+    // The layer's PreRangeState record: the trace starts with a frame range's state from before
+    // it; its prelude submission belongs to no frame.
     bool pre_range = false;
-    bool prelude_pending = false;
-    uint64_t pre_range_first_frame = 0, pre_range_bytes = 0;
-    uint32_t pre_range_structures = 0, pre_range_commands = 0;
+    uint64_t pre_range_first_frame = 0, pre_range_bytes = 0, prelude_submission = 0;
+    uint32_t pre_range_structures = 0, pre_range_commands = 0, pre_range_cluster_commands = 0;
 };
 
 const char* severity_name(uint8_t severity) {
     return severity == 0 ? "info" : severity == 1 ? "warning" : "error";
 }
 
-// The layer's queue label before a frame range's prelude (capture/README.md, "Frame ranges").
-bool read_pre_range_label(const fbs::DebugLabel& label, TraceSummary& s) {
-    if (!label.text()) return false;
-    unsigned long long structures = 0, commands = 0, bytes = 0, frame = 0;
-    if (std::sscanf(label.text()->c_str(),
-                    "clastrace pre-range state: %llu structures, %llu commands, %llu input bytes, "
-                    "before frame %llu",
-                    &structures, &commands, &bytes, &frame) != 4)
-        return false;
+// The layer's record before a frame range's prelude (capture/README.md, "Frame ranges").
+void read_pre_range_state(const fbs::PreRangeState& state, TraceSummary& s) {
     s.pre_range = true;
-    s.pre_range_structures = uint32_t(structures);
-    s.pre_range_commands = uint32_t(commands);
-    s.pre_range_bytes = bytes;
-    s.pre_range_first_frame = frame;
-    return true;
+    s.pre_range_structures = state.structures();
+    s.pre_range_commands = state.commands();
+    s.pre_range_cluster_commands = state.cluster_commands();
+    s.pre_range_bytes = state.input_bytes();
+    s.pre_range_first_frame = state.before_frame();
+    s.prelude_submission = state.prelude_submission();
 }
 
 TraceSummary summarize(TraceReader& reader) {
@@ -106,12 +99,12 @@ TraceSummary summarize(TraceReader& reader) {
                                       f->primary_command_buffer(), f->execute_command_index()});
             continue;
         }
-        if (const auto* label = view.record->body_as_DebugLabel();
-            label && label->command_buffer() == 0 && read_pre_range_label(*label, s)) {
-            s.prelude_pending = true;
+        if (const auto* state = view.record->body_as_PreRangeState()) {
+            read_pre_range_state(*state, s);
             continue;
         }
-        if (view.kind == fbs::RecordBody::QueueSubmit && std::exchange(s.prelude_pending, false))
+        if (const auto* submit = view.record->body_as_QueueSubmit();
+            submit && s.pre_range && submit->submission_index() == s.prelude_submission)
             continue;
         if (view.kind == fbs::RecordBody::QueueSubmit) ++s.unassigned_submissions;
         if (view.kind == fbs::RecordBody::AcquireNextImage) ++s.acquires;
@@ -257,6 +250,8 @@ nlohmann::json frames_json(const TraceSummary& s) {
         frames["pre_range_state"] = {{"before_frame", s.pre_range_first_frame},
                                      {"structures", s.pre_range_structures},
                                      {"commands", s.pre_range_commands},
+                                     {"cluster_commands", s.pre_range_cluster_commands},
+                                     {"prelude_submission", s.prelude_submission},
                                      {"bytes", s.pre_range_bytes}};
     return frames;
 }
@@ -385,10 +380,10 @@ void print_text(const std::string& path, const TraceReader& reader, const TraceS
     if (s.pre_range)
         fmt::print(
             "{:<12}the trace starts with the state from before the range: {} acceleration "
-            "structures rebuilt by {} "
-            "commands ({} input bytes) from before frame {}, one prelude submission\n",
-            "pre-range", s.pre_range_structures, s.pre_range_commands, s.pre_range_bytes,
-            s.pre_range_first_frame);
+            "structures rebuilt by {} commands ({} cluster builds; {} input bytes) from "
+            "before frame {}, prelude submission {}\n",
+            "pre-range", s.pre_range_structures, s.pre_range_commands, s.pre_range_cluster_commands,
+            s.pre_range_bytes, s.pre_range_first_frame, s.prelude_submission);
     // Acquires (format 1.2): the presentation engine's signals replay takes for the frames' waits.
     if (s.acquires)
         fmt::print("{}{:<12}{} image acquires\n", s.frame_ends() ? "" : "\n",

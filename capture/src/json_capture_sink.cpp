@@ -526,6 +526,15 @@ public:
                                 {"tagName", b.tag_name},
                                 {"tagSize", b.tag.size()}});
     }
+    void pre_range_state_written(const PreRangeStateRecord& m) override {
+        add("preRangeStates", {{"queue", m.queue},
+                               {"beforeFrame", m.first_frame},
+                               {"preludeSubmission", m.prelude_submission},
+                               {"structures", m.structures},
+                               {"commands", m.commands},
+                               {"clusterCommands", m.cluster_commands},
+                               {"inputBytes", m.bytes}});
+    }
     void image_acquired(const AcquireRecord& a) override {
         add("acquires", {{"swapchain", a.swapchain},
                          {"timeout", a.timeout},

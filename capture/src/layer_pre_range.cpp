@@ -29,6 +29,7 @@ struct KeptCommand {
     RecordedCommand command;
     std::set<uint64_t> produced;  // structures this command built or copied into
     std::set<uint64_t> current;   // those of them still holding what it made
+    std::set<uint64_t> memories;  // the memory its KHR structures' buffers were bound to
     std::optional<ClusterBuildCapture> capture;
 };
 
@@ -161,6 +162,14 @@ void wait_for_captures(PreRangeStore& s, std::unique_lock<std::mutex>& lock) {
                 "arrive within 10 s; they are written without their input bytes");
 }
 
+// The memory a KHR structure lives in (through its buffer); 0 when the layer does not know it.
+uint64_t memory_of_structure(const DeviceState& d, uint64_t structure) {
+    const KhrStructureStorage storage = khr_structure_storage(d, structure);
+    if (!storage.buffer) return 0;
+    const std::optional<TrackedBuffer> buffer = d.memory_map.buffer(storage.buffer);
+    return buffer ? buffer->memory : 0;
+}
+
 }  // namespace
 
 bool before_frame_range(const DeviceState& d, uint64_t index) {
@@ -186,6 +195,8 @@ void note_pre_range_submission(DeviceState& d, uint64_t index,
         for (uint64_t structure : k.produced) supersede(s, structure);
         k.sequence = s.next_sequence++;
         k.current = k.produced;
+        for (uint64_t structure : k.produced)
+            if (uint64_t memory = memory_of_structure(d, structure)) k.memories.insert(memory);
         s.kept[{index, pause->pause_id, pause->occurrence}] = std::move(k);
     }
 }
@@ -206,6 +217,16 @@ void forget_pre_range_structure(DeviceState& d, uint64_t acceleration_structure)
     PreRangeStore& s = store_of(d);
     std::lock_guard lock(s.mutex);
     if (!s.written) supersede(s, acceleration_structure);
+}
+
+void forget_pre_range_memory(DeviceState& d, uint64_t memory) {
+    PreRangeStore& s = store_of(d);
+    std::lock_guard lock(s.mutex);
+    if (s.written) return;
+    std::set<uint64_t> gone;
+    for (const auto& [key, k] : s.kept)
+        if (k.memories.count(memory)) gone.insert(k.current.begin(), k.current.end());
+    for (uint64_t structure : gone) supersede(s, structure);
 }
 
 bool pre_range_prelude_due(DeviceState& d) {
@@ -229,6 +250,7 @@ void write_pre_range_prelude(DeviceState& d, const SubmissionRecord& captured, u
     PreRangeStateRecord marker;
     marker.queue = captured.queue;
     marker.first_frame = layer_config().frame_range.first;
+    marker.prelude_submission = index;
     marker.structures = uint32_t(structures.size());
     marker.commands = uint32_t(s.kept.size());
     marker.bytes = kept_bytes(s);

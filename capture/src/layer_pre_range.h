@@ -42,6 +42,10 @@ bool take_pre_range_capture(DeviceState& device, ClusterBuildCapture& capture);
 // The structure was destroyed: its kept build is no longer needed.
 void forget_pre_range_structure(DeviceState& device, uint64_t acceleration_structure);
 
+// Memory `memory` was freed: the structures kept in it (KHR ones, through their buffers) no
+// longer hold anything, so their kept builds go.
+void forget_pre_range_memory(DeviceState& device, uint64_t memory);
+
 // The first captured submission is being planned: true when a prelude is due (state was kept),
 // which then takes the submission index before the captured one's.
 bool pre_range_prelude_due(DeviceState& device);

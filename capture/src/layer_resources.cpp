@@ -3,6 +3,7 @@
 // worker reads through. Host-visible memory is mapped once, whole, by the layer, so the worker
 // can read it at any pause; the application's own map calls are answered from that mapping.
 #include "layer_state.h"
+#include "layer_pre_range.h"
 
 #include <cstring>
 #include <map>
@@ -54,6 +55,7 @@ VKAPI_ATTR void VKAPI_CALL FreeMemory(VkDevice device, VkDeviceMemory memory,
                                       const VkAllocationCallbacks* p_allocator) {
     DeviceState& d = device_of(device);
     if (memory) {
+        forget_pre_range_memory(d, handle_id(memory));
         d.memory_map.remove_memory(handle_id(memory));
         if (d.sink) d.sink->memory_freed(handle_id(memory));
     }

@@ -34,6 +34,7 @@
 #include <deque>
 #include <map>
 #include <mutex>
+#include <optional>
 #include <pthread.h>
 #include <sched.h>
 #include <sys/resource.h>
@@ -182,6 +183,8 @@ public:
         Pending& p = pending_[s.index];
         p.submission = s;
         p.submitted = true;
+        if (pre_range_ && pre_range_->prelude_submission == s.index)
+            p.pre_range = std::exchange(pre_range_, std::nullopt);
         for (const auto& batch : s.batches)
             for (uint64_t cb : batch.command_buffers) {
                 auto it = recorded_.find(cb);
@@ -293,14 +296,11 @@ public:
         r.tag = b.tag;
         append(record_of(std::move(r)));
     }
-    // Before the prelude's submission (layer_pre_range.cpp), which has no submission ahead of
-    // it: a queue label (format 1.0's DebugLabel, no command buffer) whose text says what follows.
+    // Announced before the prelude's submission (layer_pre_range.cpp); written just ahead of its
+    // QueueSubmit, whose trace index it then names.
     void pre_range_state_written(const PreRangeStateRecord& m) override {
-        fbs::DebugLabelT r;
-        r.queue = m.queue;
-        r.op = 2;  // insert
-        r.text = pre_range_label_text(m);
-        append(record_of(std::move(r)));
+        StateLock lock(*this);
+        pre_range_ = m;
     }
     // Ordered like presents: the submission that waits on the semaphore comes after it.
     void image_acquired(const AcquireRecord& a) override {
@@ -492,6 +492,7 @@ private:
             builds;                       // by (pauseId, occurrence)
         std::vector<fbs::RecordT> after;  // the application's calls made after this submission
         std::vector<RayCheckRecord> ray_checks;
+        std::optional<PreRangeStateRecord> pre_range;  // the prelude's (layer_pre_range.cpp)
     };
     static constexpr uint64_t kMaxPendingBytes = 256ull << 20;
     static constexpr int kBackgroundNice = 10;  // the sink's and the compressor's threads
@@ -780,6 +781,9 @@ private:
             w.submission = writer_->next_submission_index();
             write_record(record_of(std::move(w)));
         }
+        if (p.pre_range)
+            write_record(
+                record_of(pre_range_state_of(*p.pre_range, writer_->next_submission_index())));
         fbs::QueueSubmitT submit = queue_submit_of(p.submission, writer_->next_submission_index());
         trace_submission_[p.submission.index] = submit.submission_index;
         const uint64_t submission = submit.submission_index;
@@ -951,6 +955,7 @@ private:
     std::unordered_map<uint64_t, bool> addressed_;
     std::unordered_map<uint64_t, std::shared_ptr<RecordedCommandBuffer>> recorded_;
     std::map<uint64_t, Pending> pending_;                // by submission index
+    std::optional<PreRangeStateRecord> pre_range_;       // until its prelude is submitted
     std::map<uint64_t, PendingObject> pending_objects_;  // by acceleration structure
     std::map<uint64_t, uint64_t>
         trace_submission_;  // layer submission index -> trace's (writeMutex_)

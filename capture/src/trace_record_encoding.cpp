@@ -436,6 +436,18 @@ fbs::QueueSubmitT queue_submit_of(const SubmissionRecord& s, uint64_t submission
     return submit;
 }
 
+fbs::PreRangeStateT pre_range_state_of(const PreRangeStateRecord& m, uint64_t prelude_submission) {
+    fbs::PreRangeStateT r;
+    r.queue = m.queue;
+    r.before_frame = m.first_frame;
+    r.prelude_submission = prelude_submission;
+    r.structures = m.structures;
+    r.commands = m.commands;
+    r.input_bytes = m.bytes;
+    r.cluster_commands = m.cluster_commands;
+    return r;
+}
+
 fbs::RayQueryCheckT ray_query_check_of(const RayCheckRecord& c, uint64_t after_submission) {
     fbs::RayQueryCheckT r;
     r.acceleration_structure = c.acceleration_structure;

@@ -49,6 +49,9 @@ fbs::GetAccelerationStructureBuildSizesKHRT khr_build_sizes_of(const KhrBuildSiz
 // The QueueSubmit of a submission, numbered `submissionIndex` in the trace.
 fbs::QueueSubmitT queue_submit_of(const SubmissionRecord& s, uint64_t submission_index);
 
+// A frame range's pre-range state; `prelude_submission`: its prelude's number in the trace.
+fbs::PreRangeStateT pre_range_state_of(const PreRangeStateRecord& m, uint64_t prelude_submission);
+
 // `afterSubmission`: the trace's number of the submission the rays saw (~0: unknown).
 fbs::RayQueryCheckT ray_query_check_of(const RayCheckRecord& c, uint64_t after_submission);
 

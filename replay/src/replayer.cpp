@@ -82,8 +82,8 @@ void Replay::execute_command(const fbs::Record& record, const CommandRef& ref, u
         const fbs::CmdDispatch& d = *record.body_as_CmdDispatch();
         dispatch(d, ref, where);
         if (d.ray_query())
-            consumer_reads(ref, d.acceleration_structures(),
-                           VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT);
+            consumer_reads(ref, d.acceleration_structures(), VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                           where);
         break;
     }
     case fbs::RecordBody::CmdDraw: {
@@ -91,7 +91,7 @@ void Replay::execute_command(const fbs::Record& record, const CommandRef& ref, u
         // A draw naming neither stage mask is a format 1.3 record: a draw that uses addresses.
         if (d.address_stages() || !d.ray_query_stages())
             record_address_writes(ref, d.address_stages());
-        consumer_reads(ref, d.acceleration_structures(), d.ray_query_stages());
+        consumer_reads(ref, d.acceleration_structures(), d.ray_query_stages(), where);
         break;
     }
     case fbs::RecordBody::CmdTraceRays:
@@ -102,7 +102,7 @@ void Replay::execute_command(const fbs::Record& record, const CommandRef& ref, u
         break;
     case fbs::RecordBody::CmdBuildAccelerationStructureNV:
         build_nv(*record.body_as_CmdBuildAccelerationStructureNV(), ref, where);
-        note_top_level_build(*record.body_as_CmdBuildAccelerationStructureNV());
+        note_top_level_build(*record.body_as_CmdBuildAccelerationStructureNV(), where);
         break;
     case fbs::RecordBody::CmdCopyMemoryToAccelerationStructure:
         copy_to_object(*record.body_as_CmdCopyMemoryToAccelerationStructure(), ref, where);
@@ -114,7 +114,7 @@ void Replay::execute_command(const fbs::Record& record, const CommandRef& ref, u
     }
     // After the build ran (when replay runs it): what its top levels' instances name.
     if (record.body_type() == fbs::RecordBody::CmdBuildAccelerationStructuresKHR)
-        note_khr_top_level_builds(*record.body_as_CmdBuildAccelerationStructuresKHR());
+        note_khr_top_level_builds(*record.body_as_CmdBuildAccelerationStructuresKHR(), where);
 }
 
 // Executes (or skips) one command and, with an observer, hands it the command, then the
@@ -133,6 +133,7 @@ void Replay::replay_command(const fbs::Record& record, const CommandRef& ref, ui
         observed_engine_ns_ = &engine_ns;
     }
     const auto started = std::chrono::steady_clock::now();
+    note_structure_writes(record);
     if (selected) {
         execute_command(record, ref, sequence);
     } else {

@@ -158,13 +158,25 @@ private:
     void on_consumer_bookkeeping(fbs::RecordBody kind, const fbs::Record& r);
     void trace_rays(const fbs::CmdTraceRays& rays, const CommandRef& ref,
                     const ReplayLocation& where);
-    void consumer_reads(const CommandRef& ref, const ConsumerBindings* bindings, StageMask stages);
-    void note_top_level_build(const fbs::CmdBuildAccelerationStructureNV& build);
-    void note_khr_top_level_builds(const fbs::CmdBuildAccelerationStructuresKHR& build);
+    void consumer_reads(const CommandRef& ref, const ConsumerBindings* bindings, StageMask stages,
+                        const ReplayLocation& where);
+    void note_top_level_build(const fbs::CmdBuildAccelerationStructureNV& build,
+                              const ReplayLocation& where);
+    void note_khr_top_level_builds(const fbs::CmdBuildAccelerationStructuresKHR& build,
+                                   const ReplayLocation& where);
     std::vector<uint64_t> khr_instance_references(const fbs::GeometryInstancesKHR& instances,
                                                   const fbs::BuildRangeInfoKHR& range) const;
     void check_consumers_done(const AddressRange& range, const char* call, const char* rule,
                               const std::string& what);
+    // Structures read before any command built them (sync_unbuilt_structures.cpp).
+    void note_structure_writes(const fbs::Record& record);
+    std::string unbuilt_cause() const;
+    std::string command_text(const ReplayLocation& where) const;
+    void check_structure_built(const ReachedStructure& s, const std::string& reader,
+                               const ReplayLocation& where);
+    void check_consumer_structures_built(const ConsumerBindings* bindings,
+                                         const ReplayLocation& where);
+    void check_instances_built(uint64_t top, const ReplayLocation& where);
     std::optional<AddressRange> structure_range(uint64_t handle) const;
     std::optional<ClusterBottomLevel> cluster_bottom_level(uint64_t address) const;
 
@@ -256,6 +268,13 @@ private:
                                         }};
     std::unordered_map<uint64_t, uint8_t> structure_api_;  // handle -> 0 NV, 1 KHR
     FrameBoundaries frames_;
+    // The trace's PreRangeState record, when it has one (format 1.5).
+    struct PreRangeInfo {
+        uint64_t before_frame = 0;
+        uint64_t prelude_submission = 0;
+    };
+    std::optional<PreRangeInfo> pre_range_;
+    std::unordered_set<uint64_t> unbuilt_told_;  // structures check_structure_built reported
 };
 
 }  // namespace clastrace::replay::detail

@@ -197,6 +197,9 @@ bool Replay::on_presentation_record(fbs::RecordBody kind, const fbs::Record& r) 
     // VkFrameBoundaryEXT marks (format 1.4): frame numbers for headless programs; nothing to
     // replay (the consumer sync model reads the frame from them).
     case fbs::RecordBody::FrameBoundary: break;
+    // A frame range's pre-range state (format 1.5): the prelude that follows replays like any
+    // submission; the consumer model keeps it out of every frame.
+    case fbs::RecordBody::PreRangeState: break;
     default: return false;
     }
     return true;

@@ -32,6 +32,7 @@ void StructureReachability::on_created(uint64_t handle, uint64_t reference) {
 
 void StructureReachability::on_destroyed(uint64_t handle) {
     instances_.erase(handle);
+    written_.erase(handle);
     auto it = reference_of_.find(handle);
     if (it == reference_of_.end()) return;
     if (auto by = by_reference_.find(it->second); by != by_reference_.end() && by->second == handle)
@@ -90,7 +91,7 @@ void StructureReachability::add_object(uint64_t handle, const std::string& path,
     const std::string here = path + (path.empty() ? "" : ": ") + (top ? "top level " : "") +
                              (top || path.empty() ? "" : "bottom level ") + hex(handle);
     if (std::optional<AddressRange> range = object_range_(handle); range && !range->empty())
-        out->push_back({handle, *range, here});
+        out->push_back({handle, *range, here, written(handle)});
     if (!top) return;
     const std::vector<uint64_t>& references = instances->second;
     for (size_t i = 0; i < references.size(); ++i)
@@ -107,12 +108,13 @@ void StructureReachability::add_clusters(const ClusterBottomLevel& blas, uint64_
     };
     const std::string here =
         path + (path.empty() ? "" : ": ") + "cluster bottom level " + hex(address);
-    if (!seen(blas.range)) out->push_back({0, blas.range, here});
+    if (!seen(blas.range)) out->push_back({0, blas.range, here, true});
     for (const ClusterBottomLevel::Cluster& c : blas.clusters)
         if (!seen(c.range))
             out->push_back({0, c.range,
                             here + " > cluster " + std::to_string(c.reference_index) + ": CLAS " +
-                                hex(c.range.begin)});
+                                hex(c.range.begin),
+                            true});
 }
 
 }  // namespace clastrace::replay::detail

@@ -15,6 +15,7 @@
 #include <span>
 #include <string>
 #include <unordered_map>
+#include <unordered_set>
 #include <vector>
 
 namespace clastrace::replay::detail {
@@ -46,6 +47,9 @@ struct ReachedStructure {
     // How the consumer reaches it, e.g. "top level 0xa5003 > instance 2: bottom level
     // 0xa5001" or "... > instance 0: cluster bottom level 0x20000 > cluster 5: CLAS 0x20400".
     std::string path;
+    // False for a created structure that no command of the trace has built, copied or
+    // deserialized into since its creation (on_written): nothing a consumer could read.
+    bool written = true;
 };
 
 class StructureReachability {
@@ -61,6 +65,9 @@ public:
     // (the NV handle, or the KHR device address; 0 when the trace holds none).
     void on_created(uint64_t handle, uint64_t reference);
     void on_destroyed(uint64_t handle);
+    // A command of the trace (replayed or not) built, copied or deserialized into `handle`.
+    void on_written(uint64_t handle) { written_.insert(handle); }
+    bool written(uint64_t handle) const { return written_.count(handle) != 0; }
     // A top-level build of `handle` whose instances held `references`, in instance order.
     void on_top_level_built(uint64_t handle, std::vector<uint64_t> references);
 
@@ -86,6 +93,7 @@ private:
     std::unordered_map<uint64_t, uint64_t> by_reference_;            // reference -> handle
     std::unordered_map<uint64_t, uint64_t> reference_of_;            // handle -> reference
     std::unordered_map<uint64_t, std::vector<uint64_t>> instances_;  // top level -> references
+    std::unordered_set<uint64_t> written_;                           // see on_written
 };
 
 }  // namespace clastrace::replay::detail

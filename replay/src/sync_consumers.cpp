@@ -136,6 +136,13 @@ void Replay::on_consumer_bookkeeping(fbs::RecordBody kind, const fbs::Record& r)
     case fbs::RecordBody::QueuePresent:
         frames_.on_boundary(r.body_as_QueuePresent()->frame(), next_submission_);
         break;
+    case fbs::RecordBody::PreRangeState: {
+        // A frame range's prelude (format 1.5): its submission belongs to no frame.
+        const auto* state = r.body_as_PreRangeState();
+        pre_range_ = PreRangeInfo{state->before_frame(), state->prelude_submission()};
+        frames_.on_pre_range(uint32_t(state->prelude_submission()));
+        break;
+    }
     case fbs::RecordBody::FrameBoundary: {
         // A headless program's frame-end mark (VK_FRAME_BOUNDARY_FRAME_END_BIT_EXT), written after
         // the QueueSubmit that carried it: it ends its frame as a present does.
@@ -180,8 +187,10 @@ void Replay::check_consumers_done(const AddressRange& range, const char* call, c
 // Every structure each binding reaches is read with ACCELERATION_STRUCTURE_READ in each of
 // `stages` (one access per stage: a barrier must cover each stage that reads).
 void Replay::consumer_reads(const CommandRef& ref, const ConsumerBindings* bindings,
-                            StageMask stages) {
-    if (!options_.check_hazards || !options_.check_consumers || !bindings) return;
+                            StageMask stages, const ReplayLocation& where) {
+    if (!options_.check_consumers || !bindings) return;
+    check_consumer_structures_built(bindings, where);
+    if (!options_.check_hazards) return;
     for (size_t i = 0; i < bindings->size(); ++i) {
         const fbs::AccelerationStructureBinding* b =
             bindings->Get(static_cast<flatbuffers::uoffset_t>(i));
@@ -217,12 +226,13 @@ void Replay::trace_rays(const fbs::CmdTraceRays& rays, const CommandRef& ref,
                      VK_ACCESS_2_SHADER_BINDING_TABLE_READ_BIT_KHR, false,
                      std::string("shader binding table (") + kSbtNames[i] + ")");
         }
-    consumer_reads(ref, rays.acceleration_structures(), stage);
+    consumer_reads(ref, rays.acceleration_structures(), stage, where);
 }
 
 // After vkCmdBuildAccelerationStructureNV: a top level's references are those its instance
 // buffer held when it was built.
-void Replay::note_top_level_build(const fbs::CmdBuildAccelerationStructureNV& build) {
+void Replay::note_top_level_build(const fbs::CmdBuildAccelerationStructureNV& build,
+                                  const ReplayLocation& where) {
     const fbs::AccelerationStructureInfoNV* info = build.info();
     if (!info || info->type() != VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV) return;
     std::vector<uint8_t> bytes;
@@ -231,6 +241,7 @@ void Replay::note_top_level_build(const fbs::CmdBuildAccelerationStructureNV& bu
     if (!range || !memory_.read(range->begin, range->end - range->begin, &bytes)) bytes.clear();
     reachability_.on_top_level_built(build.dst(),
                                      packed_instance_references(bytes, info->instance_count()));
+    check_instances_built(build.dst(), where);
 }
 
 // The references of a KHR top level's instances as the build reads them: packed instances at
@@ -261,7 +272,8 @@ std::vector<uint64_t> Replay::khr_instance_references(const fbs::GeometryInstanc
 // After vkCmdBuildAccelerationStructuresKHR (or its indirect form): each top-level info's
 // references, read from the instances in replay memory. The build (KhrReplay::build) laid the
 // command's input snapshots in already: laying them in again would count them twice.
-void Replay::note_khr_top_level_builds(const fbs::CmdBuildAccelerationStructuresKHR& build) {
+void Replay::note_khr_top_level_builds(const fbs::CmdBuildAccelerationStructuresKHR& build,
+                                       const ReplayLocation& where) {
     if (!build.infos()) return;
     for (const fbs::AccelerationStructureBuildInfoKHR* info : *build.infos()) {
         if (info->type() != VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_KHR || !info->geometries() ||
@@ -273,6 +285,7 @@ void Replay::note_khr_top_level_builds(const fbs::CmdBuildAccelerationStructures
         reachability_.on_top_level_built(info->dst(),
                                          khr_instance_references(*geometry->instances(),
                                                                  *info->ranges()->Get(0)));
+        check_instances_built(info->dst(), where);
     }
 }
 

@@ -26,11 +26,15 @@ class FrameBoundaries {
 public:
     // Frame `frame` ended after `submissions_before` submissions (the next submission_index).
     void on_boundary(uint64_t frame, uint32_t submissions_before);
-    // The frame submission `submission` belongs to; nullopt in a trace without boundaries.
+    // Submission `submission` is a frame range's pre-range prelude (PreRangeState, format 1.5).
+    void on_pre_range(uint32_t submission) { prelude_ = submission; }
+    // The frame submission `submission` belongs to; nullopt in a trace without boundaries and
+    // for the pre-range prelude.
     std::optional<uint64_t> frame_of(uint32_t submission) const;
 
 private:
     std::vector<std::pair<uint32_t, uint64_t>> ends_;  // (submissions before it, frame), in order
+    std::optional<uint32_t> prelude_;
 };
 
 // Gives each side of each hazard its frame, and a hazard between a consumer and a build or copy

@@ -16,7 +16,7 @@ void FrameBoundaries::on_boundary(uint64_t frame, uint32_t submissions_before) {
 }
 
 std::optional<uint64_t> FrameBoundaries::frame_of(uint32_t submission) const {
-    if (ends_.empty()) return std::nullopt;
+    if (ends_.empty() || prelude_ == submission) return std::nullopt;
     // The first boundary after the submission ends its frame; past the last one, the next frame.
     auto it = std::upper_bound(ends_.begin(), ends_.end(), submission,
                                [](uint32_t s, const auto& end) { return s < end.first; });

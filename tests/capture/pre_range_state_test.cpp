@@ -17,6 +17,7 @@
 
 #include <filesystem>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace {
@@ -82,11 +83,13 @@ EngineImage replay_image(const fs::path& trace) {
     return engine;
 }
 
-// What the start of a trace says: the layer's pre-range label, and the submissions.
+// What the start of a trace says: the layer's PreRangeState record, and the submissions.
 struct TraceStart {
-    std::string label;  // the pre-range label's text, empty without
+    bool pre_range = false;
+    clastrace::fbs::PreRangeStateT state;
     size_t submissions = 0;
-    size_t submissions_before_label = 0;
+    size_t submissions_before_state = 0;
+    uint64_t next_submission_index = 0;  // of the QueueSubmit right after the record
     size_t khr_builds = 0;
 };
 
@@ -97,11 +100,16 @@ TraceStart read_start(const fs::path& trace) {
     EXPECT_TRUE(reader) << error.message;
     if (!reader) return t;
     clastrace::traces::RecordView view;
+    bool after_state = false;
     while (reader->next(&view)) {
-        if (const auto* l = view.record->body_as_DebugLabel(); l && l->text() && t.label.empty()) {
-            t.label = l->text()->str();
-            t.submissions_before_label = t.submissions;
+        if (const auto* p = view.record->body_as_PreRangeState(); p && !t.pre_range) {
+            t.pre_range = after_state = true;
+            p->UnPackTo(&t.state);
+            t.submissions_before_state = t.submissions;
         }
+        if (const auto* q = view.record->body_as_QueueSubmit();
+            q && std::exchange(after_state, false))
+            t.next_submission_index = q->submission_index();
         t.submissions += view.kind == clastrace::fbs::RecordBody::QueueSubmit;
         t.khr_builds += view.kind == clastrace::fbs::RecordBody::CmdBuildAccelerationStructuresKHR;
     }
@@ -135,10 +143,15 @@ TEST_F(PreRangeState, FrameRangeReplaysStructuresBuiltBeforeIt) {
     const TraceStart start = read_start(range);
     // Both ring slots' BLAS pairs (one build command each) and TLASes: 6 structures, 4 commands;
     // the prelude is the first submission, then the two captured frames.
-    EXPECT_EQ(start.label.rfind("clastrace pre-range state: 6 structures, 4 commands, ", 0), 0u)
-        << start.label;
-    EXPECT_NE(start.label.find("before frame 2"), std::string::npos) << start.label;
-    EXPECT_EQ(start.submissions_before_label, 0u);
+    ASSERT_TRUE(start.pre_range);
+    EXPECT_EQ(start.state.structures, 6u);
+    EXPECT_EQ(start.state.commands, 4u);
+    EXPECT_EQ(start.state.cluster_commands, 0u);
+    EXPECT_EQ(start.state.before_frame, 2u);
+    EXPECT_GT(start.state.input_bytes, 0u);
+    EXPECT_EQ(start.submissions_before_state, 0u);
+    EXPECT_EQ(start.state.prelude_submission, 0u);
+    EXPECT_EQ(start.next_submission_index, start.state.prelude_submission);
     EXPECT_EQ(start.submissions, 3u);
     EXPECT_EQ(start.khr_builds, 4u);
 
@@ -176,7 +189,7 @@ TEST_F(PreRangeState, FrameRangeReplaysStructuresBuiltBeforeIt) {
 
     // The same image as the full capture's replay gives.
     const fs::path full = capture_as("full.clt", "");
-    EXPECT_EQ(read_start(full).label, "");
+    EXPECT_FALSE(read_start(full).pre_range);
     const EngineImage whole = replay_image(full);
     EXPECT_EQ(whole.dispatches, size_t(kFrames));
     EXPECT_EQ(whole.pixels, engine.pixels);
@@ -190,6 +203,7 @@ TEST_F(PreRangeState, FrameRangeReplaysStructuresBuiltBeforeIt) {
     EXPECT_EQ(pre.value("structures", 0), 6) << summary["frames"];
     EXPECT_EQ(pre.value("commands", 0), 4);
     EXPECT_EQ(pre.value("before_frame", 0), 2);
+    EXPECT_EQ(pre.value("prelude_submission", 99), 0);
     EXPECT_GT(pre.value("bytes", 0), 0);
     EXPECT_EQ(summary["frames"]["with_submissions"],
               json::parse(R"([{"frame":2,"submissions":1},{"frame":3,"submissions":1}])"));

@@ -219,6 +219,16 @@ void ConsumerTrace::wait(uint64_t fence) { writer_.wait_fence(fence); }
 
 void ConsumerTrace::present(uint64_t frame) { writer_.append(tb::queue_present(kQueue, frame)); }
 
+void ConsumerTrace::pre_range_state(uint64_t before_frame, uint64_t prelude_submission) {
+    fbs::PreRangeStateT r;
+    r.queue = kQueue;
+    r.before_frame = before_frame;
+    r.prelude_submission = prelude_submission;
+    r.structures = 2;
+    r.commands = 2;
+    writer_.append(r);
+}
+
 void ConsumerTrace::destroy(const Object& o) {
     fbs::AccelerationStructureDestroyT d;
     d.acceleration_structure = o.handle;

@@ -50,6 +50,9 @@ public:
     void submit(uint64_t fence);
     void wait(uint64_t fence);
     void present(uint64_t frame);
+    // The PreRangeState record a frame range starts with (format 1.5): the next submission is
+    // its prelude (`prelude_submission`, its QueueSubmit.submission_index).
+    void pre_range_state(uint64_t before_frame, uint64_t prelude_submission);
     void destroy(const Object& o);
     void finish();
 

@@ -610,6 +610,17 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
         out.push_back(record(r));
     }
     {
+        fbs::PreRangeStateT r;  // format 1.5
+        r.queue = 0x9e;
+        r.before_frame = 2;
+        r.prelude_submission = 0;
+        r.structures = 6;
+        r.commands = 4;
+        r.input_bytes = 0x1c4a0;
+        r.cluster_commands = 1;
+        out.push_back(record(r));
+    }
+    {
         fbs::CmdExecuteCommandsT r;
         r.command_buffer = 0xcb;
         r.secondaries = {0x5c1, 0x5c2, 0x5c1};

@@ -614,22 +614,19 @@ struct FrameBoundaryRecord {
 };
 
 // The start of a frame range that carries the state replay needs from before it
-// (layer_pre_range.cpp): `structures` acceleration structures rebuilt by `commands` commands of
-// the prelude submission that follows on `queue`, from `bytes` input bytes read before frame
-// `first_frame`. Written as a queue DebugLabel whose text is pre_range_label_text.
+// (layer_pre_range.cpp): `structures` acceleration structures rebuilt by `commands` commands
+// (`cluster_commands` of them cluster builds) of the prelude submission `prelude_submission`
+// (SubmissionRecord::index) that follows on `queue`, from `bytes` input bytes read before frame
+// `first_frame`. Written as a PreRangeState record (docs/trace-format.md) just before the
+// prelude's QueueSubmit.
 struct PreRangeStateRecord {
     uint64_t queue = 0;
     uint64_t first_frame = 0;
+    uint64_t prelude_submission = 0;
     uint32_t structures = 0;
     uint32_t commands = 0;
+    uint32_t cluster_commands = 0;
     uint64_t bytes = 0;
 };
-// "clastrace pre-range state: S structures, C commands, B input bytes, before frame F"
-// (`clastrace info` reads it back; docs/trace-format.md).
-inline std::string pre_range_label_text(const PreRangeStateRecord& m) {
-    return "clastrace pre-range state: " + std::to_string(m.structures) + " structures, " +
-           std::to_string(m.commands) + " commands, " + std::to_string(m.bytes) +
-           " input bytes, before frame " + std::to_string(m.first_frame);
-}
 
 }  // namespace clastrace::capture
