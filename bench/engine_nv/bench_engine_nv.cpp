@@ -6,6 +6,7 @@
 // times are best of 5, engine and Embree interleaved; the rays are one pass of 200k.
 #include "nv_scene.h"
 
+#include <clastrace/engine/nv_format.h>
 #include <clastrace/testsupport/rays.h>
 
 #include <tbb/global_control.h>
@@ -49,7 +50,7 @@ double embree_build(RTCDevice device, const ts::TriangleMesh& m, RTCBuildQuality
 
 // One engine build mode on `mesh`: its best build time and its closest-hit pass.
 struct EngineRun {
-    double build_s = 1e30, rays_s = 0;
+    double build_s = 1e30, rays_s = 0, sah = 0;
     uint64_t bytes = 0;
     size_t hits = 0;
 };
@@ -83,6 +84,25 @@ struct EngineMode {
                                     0, 0xFF)
                             .hit;
         run.rays_s = since(t0);
+        run.sah = sah_cost(cmd.dst);
+    }
+    // The tree's SAH cost relative to its root: per node its box's half area over the root's,
+    // times 1 (inner) or its item count (leaf), summed: lower traces faster.
+    double sah_cost(const eng::NvObjectBinding& dst) const {
+        const auto bytes = world->memory.read_bytes(dst.address, dst.size, {"bench", -1});
+        const auto view = eng::open_nv_object(bytes, nullptr);
+        if (!view || view->header.node_count == 0) return 0;
+        auto area = [&](uint32_t i) {
+            const eng::NvNode n = view->node(i);
+            const double dx = double(n.bounds_max[0]) - n.bounds_min[0],
+                         dy = double(n.bounds_max[1]) - n.bounds_min[1],
+                         dz = double(n.bounds_max[2]) - n.bounds_min[2];
+            return dx * dy + dy * dz + dz * dx;
+        };
+        double cost = 0;
+        for (uint32_t i = 0; i < view->header.node_count; ++i)
+            cost += area(i) * std::max(1u, view->node(i).count);
+        return cost / area(0);
     }
 };
 
@@ -136,12 +156,12 @@ void row(const char* name, ts::TriangleMesh mesh) {
     const double n = double(rays.size()) / 1e6;
     std::printf(
         "%-14s %7zu %6.1f | %7.2f %7.2f %7.2f %6.2fx | %7.2f %7.2f %7.2f %6.2fx | %7.2f %7.2f "
-        "%7.2f | %zu/%zu/%zu\n",
+        "%7.2f | %6.2f %6.2f | %zu/%zu/%zu\n",
         name, mesh.triangles.size(), double(sah_run.bytes) / mesh.triangles.size(),
         mtris / sah_run.build_s, mtris / medium, n / sah_run.rays_s, sah_run.build_s / medium,
         mtris / morton_run.build_s, mtris / low, n / morton_run.rays_s, morton_run.build_s / low,
-        n / embree_rays, sah_run.rays_s / embree_rays, morton_run.rays_s / embree_rays,
-        sah_run.hits, morton_run.hits, hits_embree);
+        n / embree_rays, sah_run.rays_s / embree_rays, morton_run.rays_s / embree_rays, sah_run.sah,
+        morton_run.sah, sah_run.hits, morton_run.hits, hits_embree);
 }
 
 }  // namespace
@@ -154,13 +174,16 @@ int main() {
         "rays\n"
         "SAH: default flags, next to Embree MEDIUM (binned SAH); Morton: PREFER_FAST_BUILD, next "
         "to Embree LOW\n"
-        "(its fastest build). x columns: engine time / Embree time (below 1: engine faster).\n");
-    std::printf("%-14s %7s %6s | %7s %7s %7s %7s | %7s %7s %7s %7s | %7s %7s %7s | %s\n", "mesh",
-                "tris", "B/tri", "SAH", "emb MED", "SAH", "SAH/MED", "Morton", "emb LOW", "Morton",
-                "Mor/LOW", "emb", "SAH/emb", "Mor/emb", "hits SAH/Morton/Embree");
-    std::printf("%-14s %7s %6s | %7s %7s %7s %7s | %7s %7s %7s %7s | %7s %7s %7s |\n", "", "", "",
-                "Mtris/s", "Mtris/s", "Mray/s", "build", "Mtris/s", "Mtris/s", "Mray/s", "build",
-                "Mray/s", "rays", "rays");
+        "(its fastest build). x columns: engine time / Embree time (below 1: engine faster).\n"
+        "cost: the tree's SAH cost relative to its root box (node area x items or 1; lower traces "
+        "faster).\n");
+    std::printf("%-14s %7s %6s | %7s %7s %7s %7s | %7s %7s %7s %7s | %7s %7s %7s | %6s %6s | %s\n",
+                "mesh", "tris", "B/tri", "SAH", "emb MED", "SAH", "SAH/MED", "Morton", "emb LOW",
+                "Morton", "Mor/LOW", "emb", "SAH/emb", "Mor/emb", "SAH", "Morton",
+                "hits SAH/Morton/Embree");
+    std::printf("%-14s %7s %6s | %7s %7s %7s %7s | %7s %7s %7s %7s | %7s %7s %7s | %6s %6s |\n", "",
+                "", "", "Mtris/s", "Mtris/s", "Mray/s", "build", "Mtris/s", "Mtris/s", "Mray/s",
+                "build", "Mray/s", "rays", "rays", "cost", "cost");
     row("icosphere-6", ts::make_icosphere(6, 1.0f));
     row("terrain-300", ts::make_terrain(300, 300, 1));
     row("soup-200k", ts::make_random_soup(200000, 5, 1.0f, 0.05f));
