@@ -212,7 +212,9 @@ TEST(ReplayConsumers, AddressesFoundInPushConstantsAndBuffersNameWhereTheyWere) 
         ConsumerTrace t(path);
         ConsumerTrace::Object blas = t.bottom_level(), tlas = t.top_level(1);
         t.build_bottom(blas);
-        t.barrier(kBuildStages, kStructureWrite, kBuildStages, kStructureRead);
+        // The bottom level is made visible to the dispatches, the top level is not.
+        t.barrier(kBuildStages, kStructureWrite,
+                  kBuildStages | VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, kStructureRead);
         t.build_top(tlas, {blas});
         const uint64_t address = tlas.driver_handle;
         t.ray_query_dispatch({fbs::AccelerationStructureBinding(0, 0, 8, 3, 0, address)});
