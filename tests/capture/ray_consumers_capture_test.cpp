@@ -10,8 +10,8 @@
 // source. In "sources" mode the app binds and pushes with VK_KHR_maintenance6 and rewrites an
 // UPDATE_AFTER_BIND set between recording and submission; in "descriptor-buffer" mode the TLAS
 // descriptor lives in a descriptor buffer; in "address-in-buffer" mode the shader reads the TLAS
-// address from a storage buffer. Label rt-driver: skipped where
-// lavapipe 25 is not unpacked.
+// address from a storage buffer (and, in one dispatch, from a dynamic uniform buffer). Label
+// rt-driver: skipped where lavapipe 25 is not unpacked.
 #include "layer_launch_test.h"
 
 #include <clastrace/testsupport/test_driver.h>
