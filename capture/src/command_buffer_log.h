@@ -142,6 +142,10 @@ void record_pause_before_command(DeviceState& d, VkCommandBuffer cb, CommandBuff
 // layer_commands.cpp).
 std::vector<BoundStorageBuffer> bound_storage_buffers(DeviceState& d,
                                                       const CommandBufferLog::BoundSets& sets);
+// The storage- and uniform-buffer descriptors of the bound `sets` (dynamic offsets applied):
+// where a consumer's shader may load a structure address from (consumer_buffer_addresses.cpp).
+std::vector<BoundStorageBuffer> bound_address_buffers(DeviceState& d,
+                                                      const CommandBufferLog::BoundSets& sets);
 
 // What a consumer at `bind_point` can reach: the acceleration-structure descriptors of the
 // bound sets, the pushed ones, and push-constant values equal to a known address

@@ -3,9 +3,9 @@
 // consumer's structures). A shader that turns a 64-bit value from memory into a structure
 // (OpConvertUToAccelerationStructureKHR; spirv_scan.h) can reach any structure whose address
 // those buffers hold. For such a consumer the layer reads, at recording and again at submission,
-// the storage buffers of its bound and pushed descriptor sets through its own mapping, and counts
-// every 8-byte value equal to the address of a live structure of the device: a value that merely
-// equals an address counts too ("possible" reach), as for push constants.
+// the storage and uniform buffers of its bound and pushed descriptor sets through its own
+// mapping, and counts every 8-byte value equal to the address of a live structure of the device:
+// a value that merely equals an address counts too ("possible" reach), as for push constants.
 #include "command_buffer_log.h"
 #include "layer_state.h"
 
@@ -85,7 +85,7 @@ void add_addresses_in(DeviceState& d, const BoundStorageBuffer& b,
 void add_buffer_structure_addresses(DeviceState& d, const ConsumerBindings& bindings,
                                     std::vector<ReachableAccelerationStructure>& out) {
     if (!bindings.search_bound_buffers) return;
-    for (const BoundStorageBuffer& b : bound_storage_buffers(d, bindings.sets))
+    for (const BoundStorageBuffer& b : bound_address_buffers(d, bindings.sets))
         add_addresses_in(d, b, out);
     for (const auto& [key, b] : bindings.pushed_buffers) add_addresses_in(d, b, out);
 }

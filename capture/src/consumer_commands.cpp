@@ -45,9 +45,11 @@ std::vector<std::pair<uint64_t, bool>> written_structures(const VkWriteDescripto
     return out;
 }
 
-// A push descriptor cannot be dynamic: plain storage buffers only.
-bool is_storage_buffer_write(const VkWriteDescriptorSet& write) {
-    return write.descriptorType == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER && write.pBufferInfo;
+// A push descriptor cannot be dynamic: plain storage and uniform buffers only.
+bool is_buffer_write(const VkWriteDescriptorSet& write) {
+    return (write.descriptorType == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER ||
+            write.descriptorType == VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER) &&
+           write.pBufferInfo;
 }
 
 bool writes_acceleration_structures(const VkWriteDescriptorSet& write) {
@@ -393,7 +395,7 @@ void track_pushed_descriptor_write(DeviceState& d, VkCommandBuffer cb,
         pushed.erase({set, write.dstBinding, write.dstArrayElement + i});
         buffers.erase({set, write.dstBinding, write.dstArrayElement + i});
     }
-    if (is_storage_buffer_write(write)) {
+    if (is_buffer_write(write)) {
         for (uint32_t i = 0; i < write.descriptorCount; ++i) {
             BoundStorageBuffer b;
             b.set = set;

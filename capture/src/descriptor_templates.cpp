@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 // Descriptor update templates: the layer keeps each template's entries, and turns an update
 // (vkUpdateDescriptorSetWithTemplate, vkCmdPushDescriptorSetWithTemplateKHR) back into the
-// VkWriteDescriptorSet each entry stands for, so that storage buffers and acceleration
+// VkWriteDescriptorSet each entry stands for, so that storage and uniform buffers and acceleration
 // structures written this way are followed by the one descriptor-tracking path
 // (track_descriptor_write, track_pushed_descriptor_write). Inline uniform blocks and image
 // entries only clear what the layer knew of their elements.
@@ -49,6 +49,8 @@ void entry_write(const VkDescriptorUpdateTemplateEntry& entry, VkDescriptorSet s
     switch (entry.descriptorType) {
     case VK_DESCRIPTOR_TYPE_STORAGE_BUFFER:
     case VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC:
+    case VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER:
+    case VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER_DYNAMIC:
         out.buffers = read_entry<VkDescriptorBufferInfo>(entry, data);
         out.write.pBufferInfo = out.buffers.data();
         break;

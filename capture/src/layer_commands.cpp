@@ -340,17 +340,40 @@ std::shared_ptr<CommandBufferLog> command_buffer_log_of(DeviceState& d, VkComman
     return log_of(d, cb);
 }
 
+namespace {
+
+bool is_buffer_descriptor(VkDescriptorType type) {
+    return type == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER ||
+           type == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC ||
+           type == VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER ||
+           type == VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER_DYNAMIC;
+}
+
+bool is_dynamic_buffer(VkDescriptorType type) {
+    return type == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC ||
+           type == VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER_DYNAMIC;
+}
+
+bool is_uniform_buffer(VkDescriptorType type) {
+    return type == VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER ||
+           type == VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER_DYNAMIC;
+}
+
+}  // namespace
+
+// Storage and uniform buffers are both kept: dispatches and rays record the storage ones
+// (bound_storage_buffers), consumers that load structure addresses search both
+// (bound_address_buffers).
 void track_descriptor_write(DeviceState& d, const VkWriteDescriptorSet& write) {
     std::lock_guard lock(d.descriptors_mutex);
-    const bool storage = write.descriptorType == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER ||
-                         write.descriptorType == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC;
+    const bool buffer = is_buffer_descriptor(write.descriptorType);
     auto& set = d.descriptors[write.dstSet];
     if (track_acceleration_structure_write(d, write, set)) return;
     // Consecutive descriptors continue at element + i of the same binding (overflow into the
     // next binding is not followed).
     for (uint32_t i = 0; i < write.descriptorCount; ++i) {
         const std::pair<uint32_t, uint32_t> key{write.dstBinding, write.dstArrayElement + i};
-        if (!storage || !write.pBufferInfo) {
+        if (!buffer || !write.pBufferInfo) {
             set.erase(key);
             continue;
         }
@@ -427,9 +450,8 @@ VKAPI_ATTR void VKAPI_CALL CmdBindDescriptorSets(VkCommandBuffer cb, VkPipelineB
     CommandBufferLog::BoundSets* bound_sets = log->sets_at(bind_point);
     if (!bound_sets) return;
     log->forget_pushed_sets(bind_point_index(bind_point), first_set, set_count);
-    // Dynamic offsets are consumed set by set, in binding order, by every dynamic descriptor;
-    // the layer knows only the storage ones, so with dynamic uniform buffers in the same set
-    // the split is approximate (see README).
+    // Dynamic offsets are consumed set by set, in binding order, by every dynamic descriptor
+    // (storage and uniform buffers, both tracked).
     uint32_t next_offset = 0;
     std::lock_guard lock(d.descriptors_mutex);
     for (uint32_t s = 0; s < set_count; ++s) {
@@ -438,8 +460,7 @@ VKAPI_ATTR void VKAPI_CALL CmdBindDescriptorSets(VkCommandBuffer cb, VkPipelineB
         if (known != d.descriptors.end())
             for (const auto& [key, descriptor] : known->second) {
                 const auto* b = std::get_if<BoundStorageBuffer>(&descriptor);
-                if (b && b->type == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC &&
-                    next_offset < dynamic_offset_count)
+                if (b && is_dynamic_buffer(b->type) && next_offset < dynamic_offset_count)
                     offsets.push_back(dynamic_offsets[next_offset++]);
             }
         (*bound_sets)[first_set + s] = {sets[s], offsets};
@@ -448,8 +469,12 @@ VKAPI_ATTR void VKAPI_CALL CmdBindDescriptorSets(VkCommandBuffer cb, VkPipelineB
 
 }  // namespace
 
-std::vector<BoundStorageBuffer> bound_storage_buffers(DeviceState& d,
-                                                      const CommandBufferLog::BoundSets& sets) {
+namespace {
+
+// The buffer descriptors of the bound `sets`, uniform ones only `with_uniform`.
+std::vector<BoundStorageBuffer> bound_buffers(DeviceState& d,
+                                              const CommandBufferLog::BoundSets& sets,
+                                              bool with_uniform) {
     std::vector<BoundStorageBuffer> out;
     std::lock_guard lock(d.descriptors_mutex);
     for (const auto& [setIndex, bound] : sets) {
@@ -461,15 +486,28 @@ std::vector<BoundStorageBuffer> bound_storage_buffers(DeviceState& d,
             if (!storage) continue;
             BoundStorageBuffer b = *storage;
             b.set = setIndex;
-            if (b.type == VK_DESCRIPTOR_TYPE_STORAGE_BUFFER_DYNAMIC &&
-                dynamic < bound.second.size())
+            // Every dynamic descriptor takes its offset, whether it is returned or not.
+            if (is_dynamic_buffer(b.type) && dynamic < bound.second.size())
                 b.offset += bound.second[dynamic++];
+            if (is_uniform_buffer(b.type) && !with_uniform) continue;
             if (auto buffer = d.memory_map.buffer(b.buffer); buffer && buffer->address)
                 b.address = buffer->address + b.offset;
             out.push_back(b);
         }
     }
     return out;
+}
+
+}  // namespace
+
+std::vector<BoundStorageBuffer> bound_storage_buffers(DeviceState& d,
+                                                      const CommandBufferLog::BoundSets& sets) {
+    return bound_buffers(d, sets, false);
+}
+
+std::vector<BoundStorageBuffer> bound_address_buffers(DeviceState& d,
+                                                      const CommandBufferLog::BoundSets& sets) {
+    return bound_buffers(d, sets, true);
 }
 
 namespace {

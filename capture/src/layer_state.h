@@ -202,8 +202,9 @@ uint64_t handle_id(Handle handle) {
 
 #define CLASTRACE_DECLARE_PFN(name) PFN_vk##name name = nullptr;
 
-// A descriptor the layer follows: a storage buffer (dispatches' storage_buffers) or an
-// acceleration structure (what a consumer can reach).
+// A descriptor the layer follows: a storage or uniform buffer (dispatches' storage_buffers hold
+// the storage ones; consumers search both for structure addresses) or an acceleration structure
+// (what a consumer can reach).
 using TrackedDescriptor = std::variant<BoundStorageBuffer, ReachableAccelerationStructure>;
 using DescriptorsOfSet = std::map<std::pair<uint32_t, uint32_t>, TrackedDescriptor>;
 
@@ -266,8 +267,9 @@ struct DeviceState {
     std::unordered_map<VkCommandBuffer, std::shared_ptr<CommandBufferLog>> command_buffers;
     std::unordered_map<VkCommandPool, std::vector<VkCommandBuffer>> pool_command_buffers;
     std::unordered_set<VkCommandBuffer> secondary_command_buffers;
-    // Storage-buffer and acceleration-structure descriptors written with vkUpdateDescriptorSets
-    // (and templates), copied with its copies: set -> (binding, element) -> descriptor.
+    // Storage-buffer, uniform-buffer and acceleration-structure descriptors written with
+    // vkUpdateDescriptorSets (and templates), copied with its copies:
+    // set -> (binding, element) -> descriptor.
     std::mutex descriptors_mutex;
     std::unordered_map<VkDescriptorSet, DescriptorsOfSet> descriptors;
     // Descriptor update templates' entries, turned back into writes at each update

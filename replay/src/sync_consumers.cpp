@@ -51,14 +51,22 @@ constexpr uint64_t kTraceRaysIndirectBytes = 12;    // VkTraceRaysIndirectComman
 constexpr uint64_t kTraceRaysIndirect2Bytes = 104;  // VkTraceRaysIndirectCommand2KHR
 constexpr const char* kSbtNames[] = {"raygen", "miss", "hit", "callable"};
 
+// Where the consumer found the structure. Sources 3 and 4 keep the value's byte offset in
+// array_element (docs/trace-format.md): in the push constants, or from the offset of the buffer
+// descriptor bound at set and binding.
 std::string binding_name(const fbs::AccelerationStructureBinding& b, size_t index) {
-    static const char* const kSources[] = {"descriptor set", "push descriptor", "descriptor buffer",
-                                           "push constants", "memory"};
-    const std::string where = b.source() < 3 ? "set " + std::to_string(b.set()) + ", binding " +
-                                                   std::to_string(b.binding()) + "[" +
-                                                   std::to_string(b.array_element()) + "]"
-                              : b.source() < 5 ? std::string("address in ") + kSources[b.source()]
-                                               : std::string("unknown source");
+    const std::string set_binding =
+        "set " + std::to_string(b.set()) + ", binding " + std::to_string(b.binding());
+    const std::string byte = "address at byte " + std::to_string(b.array_element());
+    std::string where;
+    switch (b.source()) {
+    case 0:
+    case 1:
+    case 2: where = set_binding + "[" + std::to_string(b.array_element()) + "]"; break;
+    case 3: where = byte + " of the push constants"; break;
+    case 4: where = byte + " of the buffer at " + set_binding; break;
+    default: where = "unknown source"; break;
+    }
     return std::string(kConsumerField) + std::to_string(index) + "] (" + where + ")";
 }
 

@@ -71,13 +71,15 @@ void ClusterTestDevice::createDevice(bool timelineSemaphores, uint32_t queues,
         if (presentTo)
             CHECK(vkGetPhysicalDeviceSurfaceSupportKHR(physicalDevice, queueFamily, presentTo,
                                                        &presents));
-        const VkQueueFlags needed =
-            VK_QUEUE_COMPUTE_BIT | (sparseBinding ? VK_QUEUE_SPARSE_BINDING_BIT : 0);
+        const VkQueueFlags needed = VK_QUEUE_COMPUTE_BIT |
+                                    (sparseBinding ? VK_QUEUE_SPARSE_BINDING_BIT : 0) |
+                                    (graphics ? VK_QUEUE_GRAPHICS_BIT : 0);
         if (presents && (families[queueFamily].queueFlags & needed) == needed) break;
     }
     if (queueFamily == familyCount)
         fail(presentTo       ? "no queue family both computes and presents to the window"
              : sparseBinding ? "no queue family both computes and binds sparse memory"
+             : graphics      ? "no queue family both computes and draws"
                              : "no compute queue");
     if (queues < 1 || queues > 2 || families[queueFamily].queueCount < queues)
         fail("not enough queues in the compute family");
@@ -100,6 +102,10 @@ void ClusterTestDevice::createDevice(bool timelineSemaphores, uint32_t queues,
                            : (clusters ? static_cast<void*>(&cluster) : nullptr);
     v12.bufferDeviceAddress = VK_TRUE;
     v12.timelineSemaphore = timelineSemaphores ? VK_TRUE : VK_FALSE;
+    VkPhysicalDeviceVulkan13Features v13{};
+    v13.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_3_FEATURES;
+    v13.pNext = &v12;
+    v13.dynamicRendering = VK_TRUE;
     std::vector<const char*> extensions;
     if (clusters) extensions.push_back(VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME);
     if (presentTo) extensions.push_back(VK_KHR_SWAPCHAIN_EXTENSION_NAME);
@@ -110,8 +116,9 @@ void ClusterTestDevice::createDevice(bool timelineSemaphores, uint32_t queues,
     }
     VkPhysicalDeviceFeatures core{};
     core.sparseBinding = sparseBinding ? VK_TRUE : VK_FALSE;
+    core.vertexPipelineStoresAndAtomics = graphics ? VK_TRUE : VK_FALSE;
     VkDeviceCreateInfo info{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO,
-                            &v12,
+                            graphics ? static_cast<void*>(&v13) : static_cast<void*>(&v12),
                             0,
                             1,
                             &queueInfo,

@@ -51,6 +51,9 @@ struct ClusterTestDevice {
     bool rayQuery = true;
     // Set to false before createDevice for a program that runs without the layer's extension.
     bool clusters = true;
+    // Set before createDevice: a queue family that also draws, with dynamicRendering and
+    // vertexPipelineStoresAndAtomics (a draw program's vertex shaders write through addresses).
+    bool graphics = false;
 
     // applicationName nullptr: the program's own name. `extensions`: instance extensions a
     // program needs beyond ours (a window surface's). engineName nullptr: none.

@@ -16,7 +16,8 @@
 // With "address-in-buffer": ray-query dispatches whose shader reads the TLAS address from a
 // storage buffer (accelerationStructureEXT(uint64_t)): one through a bound set, one through pushed
 // descriptors whose buffer gets the address only after recording, and one whose buffer holds a
-// value that is no structure's address (that shader does not trace).
+// value that is no structure's address (that shader does not trace), and one reading it from a
+// uniform buffer bound with a dynamic offset.
 // Usage: ray_consumers_app OUT.json [sources|descriptor-buffer|address-in-buffer]. OUT.json
 // names the handles and addresses the capture must report. Exit 0 and "ok" when every result is right; 2 otherwise.
 #include <clastrace/vk_maintenance6_abi.h>
@@ -30,13 +31,14 @@
 #include <vector>
 
 // The shaders' SPIR-V as uint32_t arrays, compiled at build time (tests/apps/CMakeLists.txt).
-#include "address_in_buffer_comp.h"  // kAddressInBufferComp
-#include "plain_comp.h"              // kPlainComp
-#include "ray_query_comp.h"          // kRayQueryComp
-#include "ray_query_vert.h"          // kRayQueryVert
-#include "rays_rchit.h"              // kRaysRchit
-#include "rays_rgen.h"               // kRaysRgen
-#include "rays_rmiss.h"              // kRaysRmiss
+#include "address_in_buffer_comp.h"   // kAddressInBufferComp
+#include "address_in_uniform_comp.h"  // kAddressInUniformComp
+#include "plain_comp.h"               // kPlainComp
+#include "ray_query_comp.h"           // kRayQueryComp
+#include "ray_query_vert.h"           // kRayQueryVert
+#include "rays_rchit.h"               // kRaysRchit
+#include "rays_rgen.h"                // kRaysRgen
+#include "rays_rmiss.h"               // kRaysRmiss
 
 namespace {
 
@@ -939,7 +941,15 @@ struct AddressSets {
     VkPipelineLayout layout = VK_NULL_HANDLE, push_layout = VK_NULL_HANDLE;
     VkPipeline pipeline = VK_NULL_HANDLE, pushed_pipeline = VK_NULL_HANDLE;
     VkDescriptorSet bound = VK_NULL_HANDLE, not_an_address = VK_NULL_HANDLE;
+    // address_in_uniform.comp: binding 0 a dynamic uniform buffer.
+    VkPipelineLayout uniform_layout = VK_NULL_HANDLE;
+    VkPipeline uniform_pipeline = VK_NULL_HANDLE;
+    VkDescriptorSet uniform = VK_NULL_HANDLE;
 };
+
+// The dynamic offset of the uniform buffer's SceneAddress: 256 satisfies every device's
+// minUniformBufferOffsetAlignment, and bytes 0..255 hold no address.
+constexpr VkDeviceSize kUniformDynamicOffset = 256;
 
 void write_address_set(const Device& d, VkDescriptorSet set, VkBuffer scene, VkBuffer results) {
     VkDescriptorBufferInfo infos[2] = {{scene, 0, VK_WHOLE_SIZE}, {results, 0, VK_WHOLE_SIZE}};
@@ -950,6 +960,51 @@ void write_address_set(const Device& d, VkDescriptorSet set, VkBuffer scene, VkB
         writes[i].dstBinding = i;
         writes[i].descriptorCount = 1;
         writes[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+        writes[i].pBufferInfo = &infos[i];
+    }
+    vkUpdateDescriptorSets(d.device, 2, writes, 0, nullptr);
+}
+
+// The uniform-buffer set of `a`: binding 0 `uniform` (dynamic, one SceneAddress wide), binding
+// 1 the results.
+void add_uniform_address_set(const Device& d, VkBuffer uniform, VkBuffer results, AddressSets& a) {
+    VkDescriptorSetLayoutBinding bindings[2] = {{0, VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER_DYNAMIC, 1,
+                                                 VK_SHADER_STAGE_COMPUTE_BIT, nullptr},
+                                                {1, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1,
+                                                 VK_SHADER_STAGE_COMPUTE_BIT, nullptr}};
+    VkDescriptorSetLayoutCreateInfo info{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
+    info.bindingCount = 2;
+    info.pBindings = bindings;
+    VkDescriptorSetLayout set_layout;
+    CHECK(vkCreateDescriptorSetLayout(d.device, &info, nullptr, &set_layout));
+    VkPipelineLayoutCreateInfo layout{VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO};
+    layout.setLayoutCount = 1;
+    layout.pSetLayouts = &set_layout;
+    CHECK(vkCreatePipelineLayout(d.device, &layout, nullptr, &a.uniform_layout));
+    a.uniform_pipeline =
+        compute_pipeline(d, a.uniform_layout, kAddressInUniformComp, sizeof kAddressInUniformComp);
+    VkDescriptorPoolSize sizes[2] = {{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER_DYNAMIC, 1},
+                                     {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1}};
+    VkDescriptorPoolCreateInfo pool_info{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
+    pool_info.maxSets = 1;
+    pool_info.poolSizeCount = 2;
+    pool_info.pPoolSizes = sizes;
+    VkDescriptorPool pool;
+    CHECK(vkCreateDescriptorPool(d.device, &pool_info, nullptr, &pool));
+    VkDescriptorSetAllocateInfo allocate{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_ALLOCATE_INFO};
+    allocate.descriptorPool = pool;
+    allocate.descriptorSetCount = 1;
+    allocate.pSetLayouts = &set_layout;
+    CHECK(vkAllocateDescriptorSets(d.device, &allocate, &a.uniform));
+    VkDescriptorBufferInfo infos[2] = {{uniform, 0, sizeof(SceneAddress)},
+                                       {results, 0, VK_WHOLE_SIZE}};
+    VkWriteDescriptorSet writes[2] = {{VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET},
+                                      {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET}};
+    for (uint32_t i = 0; i < 2; ++i) {
+        writes[i].dstSet = a.uniform;
+        writes[i].dstBinding = i;
+        writes[i].descriptorCount = 1;
+        writes[i].descriptorType = bindings[i].descriptorType;
         writes[i].pBufferInfo = &infos[i];
     }
     vkUpdateDescriptorSets(d.device, 2, writes, 0, nullptr);
@@ -1002,12 +1057,16 @@ AddressSets address_sets(const Device& d, VkBuffer bound, VkBuffer not_an_addres
 
 // Dispatch 1: the bound set's buffer holds the TLAS address. Dispatch 2: a buffer whose bytes
 // are no structure's address (not traced). Dispatch 3: pushed descriptors; their buffer gets
-// the address between recording and submission. Results 1, 3, 1 in slots 0, 1, 2.
+// the address between recording and submission. Dispatch 4: a dynamic uniform buffer, the
+// address at the dynamic offset. Results 1, 3, 1, 1 in slots 0, 1, 2, 3.
 bool run_address_in_buffer(const Device& d, VkCommandPool pool, const AddressSets& a,
                            const Buffer& bound, const Buffer& not_an_address, const Buffer& late,
-                           const Buffer& results, VkDeviceAddress top) {
-    const SceneAddress in_bound{top, 1, 0}, no_address{top + 8, 0, 1}, not_yet{0, 1, 2};
+                           const Buffer& uniform, const Buffer& results, VkDeviceAddress top) {
+    const SceneAddress in_bound{top, 1, 0}, no_address{top + 8, 0, 1}, not_yet{0, 1, 2},
+        in_uniform{top, 1, 3};
     std::memcpy(bound.mapped, &in_bound, sizeof in_bound);
+    std::memcpy(static_cast<uint8_t*>(uniform.mapped) + kUniformDynamicOffset, &in_uniform,
+                sizeof in_uniform);
     std::memcpy(not_an_address.mapped, &no_address, sizeof no_address);
     std::memcpy(late.mapped, &not_yet, sizeof not_yet);
     VkCommandBuffer cb = begin(d, pool);
@@ -1031,12 +1090,17 @@ bool run_address_in_buffer(const Device& d, VkCommandPool pool, const AddressSet
     }
     d.fn.push_descriptor_set(cb, VK_PIPELINE_BIND_POINT_COMPUTE, a.push_layout, 0, 2, writes);
     vkCmdDispatch(cb, 1, 1, 1);
+    vkCmdBindPipeline(cb, VK_PIPELINE_BIND_POINT_COMPUTE, a.uniform_pipeline);
+    const uint32_t dynamic_offset = uint32_t(kUniformDynamicOffset);
+    vkCmdBindDescriptorSets(cb, VK_PIPELINE_BIND_POINT_COMPUTE, a.uniform_layout, 0, 1, &a.uniform,
+                            1, &dynamic_offset);
+    vkCmdDispatch(cb, 1, 1, 1);
     CHECK(vkEndCommandBuffer(cb));
     const SceneAddress now{top, 1, 2};
     std::memcpy(late.mapped, &now, sizeof now);
     submit_and_wait(d, cb);
     const auto* values = static_cast<const uint32_t*>(results.mapped);
-    return values[0] == 1 && values[1] == 3 && values[2] == 1;
+    return values[0] == 1 && values[1] == 3 && values[2] == 1 && values[3] == 1;
 }
 
 // The address-in-buffer mode: OUT.json names the TLAS, the two pipelines and the buffers.
@@ -1055,17 +1119,21 @@ int address_in_buffer_main(const char* out_path) {
     const Buffer not_an_address =
         create_buffer(d, sizeof(SceneAddress), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT);
     const Buffer late = create_buffer(d, sizeof(SceneAddress), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT);
-    const AddressSets a = address_sets(d, bound.buffer, not_an_address.buffer, results.buffer);
-    const bool right =
-        run_address_in_buffer(d, pool, a, bound, not_an_address, late, results, scene.top.address);
+    const Buffer uniform = create_buffer(d, kUniformDynamicOffset + sizeof(SceneAddress),
+                                         VK_BUFFER_USAGE_UNIFORM_BUFFER_BIT);
+    AddressSets a = address_sets(d, bound.buffer, not_an_address.buffer, results.buffer);
+    add_uniform_address_set(d, uniform.buffer, results.buffer, a);
+    const bool right = run_address_in_buffer(d, pool, a, bound, not_an_address, late, uniform,
+                                             results, scene.top.address);
     FILE* out = std::fopen(out_path, "w");
     if (!out) fail("cannot write OUT.json");
     std::fprintf(out,
                  "{\"topLevel\": %llu, \"topLevelAddress\": %llu, \"addressPipeline\": %llu, "
-                 "\"pushedAddressPipeline\": %llu}\n",
+                 "\"pushedAddressPipeline\": %llu, \"uniformAddressPipeline\": %llu}\n",
                  (unsigned long long)(uint64_t)scene.top.handle,
                  (unsigned long long)scene.top.address, (unsigned long long)(uint64_t)a.pipeline,
-                 (unsigned long long)(uint64_t)a.pushed_pipeline);
+                 (unsigned long long)(uint64_t)a.pushed_pipeline,
+                 (unsigned long long)(uint64_t)a.uniform_pipeline);
     std::fclose(out);
     vkDeviceWaitIdle(d.device);
     if (!right) fail("the shaders' results are wrong");

@@ -10,8 +10,8 @@
 // source. In "sources" mode the app binds and pushes with VK_KHR_maintenance6 and rewrites an
 // UPDATE_AFTER_BIND set between recording and submission; in "descriptor-buffer" mode the TLAS
 // descriptor lives in a descriptor buffer; in "address-in-buffer" mode the shader reads the TLAS
-// address from a storage buffer. Label rt-driver: skipped where
-// lavapipe 25 is not unpacked.
+// address from a storage buffer (and, in one dispatch, from a dynamic uniform buffer). Label
+// rt-driver: skipped where lavapipe 25 is not unpacked.
 #include "layer_launch_test.h"
 
 #include <clastrace/testsupport/test_driver.h>
@@ -47,6 +47,7 @@ struct Dispatch {
     uint64_t pipeline = 0;
     bool ray_query = false;
     std::vector<Binding> structures;
+    size_t storage_buffers = 0;
 };
 
 struct Draw {
@@ -107,8 +108,9 @@ protected:
         while (reader->next(&view)) {
             if (view.kind == clastrace::fbs::RecordBody::CmdDispatch) {
                 const auto* c = view.record->body_as_CmdDispatch();
-                dispatches.push_back(
-                    {c->pipeline(), c->ray_query(), bindings_of(c->acceleration_structures())});
+                dispatches.push_back({c->pipeline(), c->ray_query(),
+                                      bindings_of(c->acceleration_structures()),
+                                      c->storage_buffers() ? c->storage_buffers()->size() : 0});
             } else if (view.kind == clastrace::fbs::RecordBody::CmdDraw) {
                 const auto* c = view.record->body_as_CmdDraw();
                 draws.push_back({c->entry_point() ? c->entry_point()->str() : "", c->pipeline(),
@@ -267,15 +269,18 @@ TEST_F(RayConsumersCapture, DescriptorBufferReachesTheTopLevelItsDescriptorNames
 // A shader that turns a uint64_t from a storage buffer into the TLAS: the capture finds the
 // TLAS address in the bound buffer (source 4, set 0, binding 0, byte offset 0 in
 // array_element), also in a pushed buffer that got the address only after recording (read
-// again at submission); a buffer whose bytes equal no structure's address gives no entry.
+// again at submission), also in a uniform buffer bound with a dynamic offset (the offset of
+// 256 applied: the address is at byte 0 of the bound range); a buffer whose bytes equal no
+// structure's address gives no entry.
 TEST_F(RayConsumersCapture, AddressStoredInABoundBufferReachesTheTopLevel) {
     capture("address-in-buffer");
-    ASSERT_EQ(dispatches.size(), 3u);
+    ASSERT_EQ(dispatches.size(), 4u);
     const uint64_t top = out["topLevel"], address = out["topLevelAddress"];
-    for (size_t i : {0u, 2u}) {
+    const char* const pipelines[] = {"addressPipeline", "addressPipeline", "pushedAddressPipeline",
+                                     "uniformAddressPipeline"};
+    for (size_t i : {0u, 2u, 3u}) {
         SCOPED_TRACE(i);
-        EXPECT_EQ(dispatches[i].pipeline,
-                  out[i == 0 ? "addressPipeline" : "pushedAddressPipeline"].get<uint64_t>());
+        EXPECT_EQ(dispatches[i].pipeline, out[pipelines[i]].get<uint64_t>());
         EXPECT_TRUE(dispatches[i].ray_query);
         ASSERT_EQ(dispatches[i].structures.size(), 1u);
         const Binding& found = dispatches[i].structures[0];
@@ -286,6 +291,8 @@ TEST_F(RayConsumersCapture, AddressStoredInABoundBufferReachesTheTopLevel) {
         EXPECT_EQ(found.acceleration_structure, top);
         EXPECT_EQ(found.address, address);
     }
+    // The uniform buffer is searched, not recorded among the dispatch's storage buffers.
+    EXPECT_EQ(dispatches[3].storage_buffers, 1u);
     EXPECT_EQ(dispatches[1].pipeline, out["addressPipeline"].get<uint64_t>());
     EXPECT_TRUE(dispatches[1].ray_query);
     EXPECT_TRUE(dispatches[1].structures.empty());

@@ -205,6 +205,10 @@ void ConsumerTrace::ray_query_dispatch(const Object& tlas) {
     writer_.append(tb::ray_query_dispatch(open(), {tb::structure_binding(0, tlas.driver_handle)}));
 }
 
+void ConsumerTrace::ray_query_dispatch(std::vector<fbs::AccelerationStructureBinding> structures) {
+    writer_.append(tb::ray_query_dispatch(open(), std::move(structures)));
+}
+
 void ConsumerTrace::ray_query_draw(const Object& tlas, uint64_t stages) {
     writer_.append(tb::ray_query_draw(open(), stages, {tb::structure_binding(tlas.handle)}));
 }

@@ -45,6 +45,8 @@ public:
     void trace_rays(const Object& tlas);
     void trace_rays_at(uint64_t address);  // bound by device address only
     void ray_query_dispatch(const Object& tlas);
+    // A ray-query dispatch reaching `structures` as given (any source).
+    void ray_query_dispatch(std::vector<fbs::AccelerationStructureBinding> structures);
     void ray_query_draw(const Object& tlas, uint64_t stages);
     // Ends the open command buffer and submits it with `fence` (no wait).
     void submit(uint64_t fence);

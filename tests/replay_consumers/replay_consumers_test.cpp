@@ -202,6 +202,40 @@ TEST(ReplayConsumers, RayQueryDispatchesAndDrawsReadAtTheirShaderStages) {
     EXPECT_TRUE(rays_after_build("draw_ok.clt", true, 2).hazards.empty());
 }
 
+// A dispatch that found the top level's address in its push constants (source 3) and in a
+// buffer it binds (source 4), read before the build's barrier: each read-after-write names
+// where the address was, the byte offset kept in array_element and, for the buffer, its set and
+// binding.
+TEST(ReplayConsumers, AddressesFoundInPushConstantsAndBuffersNameWhereTheyWere) {
+    const std::string path = temp_path("found_addresses.clt");
+    {
+        ConsumerTrace t(path);
+        ConsumerTrace::Object blas = t.bottom_level(), tlas = t.top_level(1);
+        t.build_bottom(blas);
+        // The bottom level is made visible to the dispatches, the top level is not.
+        t.barrier(kBuildStages, kStructureWrite,
+                  kBuildStages | VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, kStructureRead);
+        t.build_top(tlas, {blas});
+        const uint64_t address = tlas.driver_handle;
+        t.ray_query_dispatch({fbs::AccelerationStructureBinding(0, 0, 8, 3, 0, address)});
+        t.ray_query_dispatch({fbs::AccelerationStructureBinding(1, 2, 24, 4, 0, address)});
+        t.submit(kSetupFence);
+        t.wait(kSetupFence);
+        t.finish();
+    }
+    const ReplayReport r = test::replay_file(path);
+    test::discard_trace(path);
+    const auto raw = of_class(r, HazardClass::kReadAfterWrite);
+    ASSERT_EQ(raw.size(), 2u) << all_hazards(r);
+    EXPECT_NE(raw[0].later.field.find("(address at byte 8 of the push constants)"),
+              std::string::npos)
+        << raw[0].later.field;
+    EXPECT_NE(raw[1].later.field.find("(address at byte 24 of the buffer at set 1, binding 2)"),
+              std::string::npos)
+        << raw[1].later.field;
+    EXPECT_NE(raw[1].format().find("set 1, binding 2"), std::string::npos) << raw[1].format();
+}
+
 // The bottom level rebuilt in the rays' own command buffer with no barrier: the rays bind only
 // the top level, yet the rebuild overwrites what they read.
 TEST(ReplayConsumers, BottomLevelRebuiltAfterRaysInOneCommandBufferNeedsABarrier) {

@@ -230,7 +230,8 @@ struct UpdateBufferCommand {
     std::vector<uint8_t> data;
 };
 
-// One storage-buffer descriptor visible to a dispatch (dynamic offsets applied).
+// One storage-buffer descriptor visible to a dispatch (dynamic offsets applied). The layer keeps
+// uniform buffers in it too (`type`), searched for consumers' structure addresses only.
 struct BoundStorageBuffer {
     uint32_t set = 0, binding = 0, array_element = 0;
     VkDescriptorType type = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
@@ -246,8 +247,9 @@ struct ReachableAccelerationStructure {
         kPushDescriptor = 1,
         kDescriptorBuffer = 2,  // a vkGetDescriptorEXT answer read from a descriptor buffer
         kPushConstants = 3,     // an 8-byte push-constant value equal to a known address
-        // An 8-byte value equal to a known address in a storage buffer bound to a consumer whose
-        // shader converts values from memory into structures (consumer_buffer_addresses.cpp).
+        // An 8-byte value equal to a known address in a storage or uniform buffer bound to a
+        // consumer whose shader converts values from memory into structures
+        // (consumer_buffer_addresses.cpp).
         kMemory = 4,
     };
     uint32_t set = 0, binding = 0, array_element = 0;
