@@ -394,9 +394,25 @@ bool sinkFailed = false;
 
 DeviceState::~DeviceState() = default;
 
-uint64_t next_submission_index() {
-    static std::atomic<uint64_t> counter{0};
-    return counter++;
+namespace {
+std::atomic<uint64_t> submissionCounter{0};
+std::mutex preludeIndicesMutex;
+std::vector<uint64_t> preludeIndices;  // ascending: the layer's own prelude submissions
+}  // namespace
+
+uint64_t next_submission_index() { return submissionCounter++; }
+
+uint64_t index_after_prelude(uint64_t prelude_index) {
+    std::lock_guard lock(preludeIndicesMutex);
+    preludeIndices.push_back(prelude_index);
+    return submissionCounter++;
+}
+
+uint64_t application_submission(uint64_t index) {
+    std::lock_guard lock(preludeIndicesMutex);
+    uint64_t before = 0;
+    for (uint64_t p : preludeIndices) before += p < index;
+    return index - before;
 }
 
 InstanceState* find_instance(DispatchKey key) {

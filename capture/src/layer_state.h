@@ -322,6 +322,11 @@ struct DeviceState {
 // Submissions are counted per process, so indices from several devices never collide in
 // the one trace (CLASTRACE_SUBMIT_RANGE counts the same way).
 uint64_t next_submission_index();
+// The layer's index for a submission whose index a pre-range prelude took (layer_pre_range.h).
+uint64_t index_after_prelude(uint64_t prelude_index);
+// The application's own count of a layer index (what CLASTRACE_SUBMIT_RANGE and
+// FrameBoundary.submission count): the layer's preludes are not the application's submissions.
+uint64_t application_submission(uint64_t index);
 
 // Frames (CLASTRACE_FRAME_RANGE; layer_frame_boundary.cpp): the frame a submission made now
 // belongs to: vkQueuePresentKHR calls so far in this process, or frame-end VkFrameBoundaryEXT

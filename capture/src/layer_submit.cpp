@@ -102,7 +102,7 @@ std::unique_lock<std::mutex> admit_shared_pauses(DeviceState& d, VkQueue queue,
         "after %lld ms; its executions share the layer's pause events, so the captures of this "
         "submission may "
         "be wrong",
-        (unsigned long long)plan.record.index, (long long)patience.count());
+        (unsigned long long)application_submission(plan.record.index), (long long)patience.count());
     for (uint64_t cb : command_buffers)
         plan.record.notes.push_back(
             {cb, "CLASTRACE-capture-concurrent-execution",
@@ -126,12 +126,13 @@ SubmissionPlan plan_for(DeviceState& d, VkQueue queue, VkFence fence, bool synch
     }
     plan.record.fence = handle_id(fence);
     plan.record.synchronization2 = synchronization2;
-    plan.capture = d.sink && layer_config().submit_range.contains(plan.record.index) &&
+    const uint64_t counted = application_submission(plan.record.index);
+    plan.capture = d.sink && layer_config().submit_range.contains(counted) &&
                    layer_config().frame_range.contains(current_frame());
-    plan.before_range = !plan.capture && before_frame_range(d, plan.record.index);
+    plan.before_range = !plan.capture && before_frame_range(d, counted);
     if (plan.capture && pre_range_prelude_due(d)) {  // the prelude goes first
         plan.prelude_index = plan.record.index;
-        plan.record.index = next_submission_index();
+        plan.record.index = index_after_prelude(plan.prelude_index);
     }
     return plan;
 }
@@ -262,7 +263,8 @@ VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit(VkQueue queue, uint32_t submit_count,
     expect_timestamps(d, queue, plan);
     if (plan.prelude_index) write_pre_range_prelude(d, plan.record, plan.prelude_index);
     if (plan.capture) d.sink->queue_submitted(plan.record);
-    boundaries.record(d, queue, FrameBoundaryCarrier::kSubmit, plan.record.index);
+    boundaries.record(d, queue, FrameBoundaryCarrier::kSubmit,
+                      application_submission(plan.record.index));
     check_rays(d, queue, plan);
     return result;
 }
@@ -305,7 +307,8 @@ VkResult queue_submit2(VkQueue queue, uint32_t submit_count, const VkSubmitInfo2
     expect_timestamps(d, queue, plan);
     if (plan.prelude_index) write_pre_range_prelude(d, plan.record, plan.prelude_index);
     if (plan.capture) d.sink->queue_submitted(plan.record);
-    boundaries.record(d, queue, FrameBoundaryCarrier::kSubmit2, plan.record.index);
+    boundaries.record(d, queue, FrameBoundaryCarrier::kSubmit2,
+                      application_submission(plan.record.index));
     check_rays(d, queue, plan);
     return result;
 }

@@ -135,17 +135,18 @@ TEST_F(RtFrameLoop, LayerRecordsOneFrameBoundaryPerFrame) {
     EXPECT_EQ(report.value("trace_damage", nlohmann::json::array()).size(), 0u) << replay.out;
 }
 
-// --frames counts the marks where nothing presents: frames 2-3 are the 3rd and 4th submissions
-// (the only QueueSubmits of the trace), and every mark is still recorded.
+// --frames counts the marks where nothing presents: frames 2-3 are the 3rd and 4th submissions,
+// captured behind the pre-range prelude (the structures frames 0-1 built; capture/README.md
+// "Frame ranges"), and every mark is still recorded.
 TEST_F(RtFrameLoop, FrameRangeCountsFrameBoundaries) {
     ProcessResult r = capture("--frames 2-3", "--single-buffered-pool");
     ASSERT_EQ(r.exitCode, 0) << r.out << r.err;
     const TracedFrames t = read_trace();
-    ASSERT_EQ(t.submissions.size(), 2u);
+    ASSERT_EQ(t.submissions.size(), 3u);  // the prelude, then frames 2 and 3
     ASSERT_EQ(t.boundaries.size(), kFrames);
     // `submission` counts every submission of the process; the trace's QueueSubmits only the
     // captured ones, each right before its frame's mark.
-    const size_t expected_after[kFrames] = {0, 0, 1, 2, 2};
+    const size_t expected_after[kFrames] = {0, 0, 2, 3, 3};
     for (uint32_t f = 0; f < kFrames; ++f) {
         EXPECT_EQ(t.boundaries[f].submission, f) << f;
         EXPECT_EQ(t.boundaries[f].after_submissions, expected_after[f]) << f;
