@@ -219,9 +219,9 @@ TEST_F(PreRangeState, FrameRangeReplaysStructuresBuiltBeforeIt) {
 class PreRangeClusterState : public PreRangeState {
 protected:
     ProcessResult capture_served(const std::string& options, const fs::path& trace) {
-        return run("env" + driver_->environment_words() + " CLASTRACE_LOG=info " +
-                       std::string(CLASTRACE_CLI) + " capture -o " + quote(trace.string()) +
-                       " --layer-path " + CLASTRACE_LAYER_MANIFEST_DIR + " " + options + " -- " +
+        return run("env" + driver_->environment_words() + " " + std::string(CLASTRACE_CLI) +
+                       " capture --log info -o " + quote(trace.string()) + " --layer-path " +
+                       CLASTRACE_LAYER_MANIFEST_DIR + " " + options + " -- " +
                        CLASTRACE_CAPTURE_APP + " serve-frames " +
                        quote((dir / "serve-frames.json").string()),
                    {}, false);
@@ -254,8 +254,17 @@ TEST_F(PreRangeClusterState, FrameRangeReplaysClustersBuiltBeforeIt) {
     EXPECT_EQ(exit_code, 0) << report.dump(1);
     EXPECT_EQ(report.value("findings", json::array()).size(), 0u) << report.dump(1);
     EXPECT_EQ(report.value("trace_damage", json::array()).size(), 0u) << report.dump(1);
+    EXPECT_TRUE(report.value("clean", false)) << report.dump(1);
+    EXPECT_TRUE(report.value("outputs_verified", false)) << report.dump(1);
+    EXPECT_GT(report["counts"].value("outputs_compared", 0), 0) << report.dump(1);
     EXPECT_EQ(report["counts"].value("cluster_commands", 0), 2) << report.dump(1);
-    EXPECT_EQ(report["counts"].value("outputs_compared", 0), 2) << report.dump(1);
+    const json sizes = report.value("sizes", json::array());
+    ASSERT_EQ(sizes.size(), 2u) << report.dump(1);
+    for (const json& command : sizes) {  // the clusters, then the bottom level over them
+        EXPECT_EQ(command.value("ops_compared", 0), command.value("ops", -1)) << command.dump(1);
+        EXPECT_EQ(command.value("captured_bytes", 0), command.value("engine_bytes", -1));
+    }
+    EXPECT_EQ(sizes[0]["where"].value("command_buffer_handle", ""), "0xc1a57ace00000001");
 }
 
 }  // namespace
