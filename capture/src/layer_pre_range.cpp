@@ -5,6 +5,7 @@
 // structures): a command is dropped once every structure it produced was rebuilt or destroyed.
 #include "layer_pre_range.h"
 
+#include "layer_pre_range_clusters.h"
 #include "layer_state.h"
 
 #include <algorithm>
@@ -39,7 +40,8 @@ struct PreRangeStore {
     std::mutex mutex;
     std::condition_variable arrived;
     std::map<CaptureKey, KeptCommand> kept;
-    std::set<uint64_t> submissions;  // before the range, their captures still to come
+    PreRangeClusterCommands clusters;  // run first in the prelude: a top level may name them
+    std::set<uint64_t> submissions;    // before the range, their captures still to come
     uint64_t next_sequence = 0;
     bool written = false;
 };
@@ -153,7 +155,8 @@ std::vector<KeptCommand*> prelude_order(PreRangeStore& s) {
 // before the captured one, so the queue reaches their pauses unless it waits on the host.
 void wait_for_captures(PreRangeStore& s, std::unique_lock<std::mutex>& lock) {
     const auto all_arrived = [&] {
-        return std::all_of(s.kept.begin(), s.kept.end(),
+        return s.clusters.all_arrived() &&
+               std::all_of(s.kept.begin(), s.kept.end(),
                            [](const auto& entry) { return entry.second.capture.has_value(); });
     };
     if (s.arrived.wait_for(lock, std::chrono::seconds(10), all_arrived)) return;
@@ -170,6 +173,28 @@ uint64_t memory_of_structure(const DeviceState& d, uint64_t structure) {
     return buffer ? buffer->memory : 0;
 }
 
+// What the prelude holds, said at info level and in its PreRangeState record.
+PreRangeStateRecord marker_of(const PreRangeStore& s, const SubmissionRecord& captured,
+                              uint64_t index) {
+    std::set<uint64_t> structures;
+    for (const auto& [key, k] : s.kept) structures.insert(k.current.begin(), k.current.end());
+    PreRangeStateRecord marker;
+    marker.queue = captured.queue;
+    marker.first_frame = layer_config().frame_range.first;
+    marker.prelude_submission = index;
+    marker.cluster_commands = uint32_t(s.clusters.size());
+    marker.structures = uint32_t(structures.size()) + s.clusters.live_objects();
+    marker.commands = uint32_t(s.kept.size()) + marker.cluster_commands;
+    marker.bytes = kept_bytes(s) + s.clusters.bytes(false);
+    log_message(LogLevel::kInfo,
+                "pre-range state: %u structures from %u commands (%u cluster commands) before "
+                "frame %llu, %llu input bytes kept (and %llu bytes of cluster outputs)",
+                marker.structures, marker.commands, marker.cluster_commands,
+                (unsigned long long)marker.first_frame, (unsigned long long)marker.bytes,
+                (unsigned long long)s.clusters.bytes(true));
+    return marker;
+}
+
 }  // namespace
 
 bool before_frame_range(const DeviceState& d, uint64_t index) {
@@ -179,6 +204,7 @@ bool before_frame_range(const DeviceState& d, uint64_t index) {
 }
 
 bool produces_pre_range_state(const PausePoint& pause) {
+    if (pause.parameters) return writes_cluster_objects(*pause.parameters);
     KeptCommand unused;
     return describe(pause, unused);
 }
@@ -190,6 +216,13 @@ void note_pre_range_submission(DeviceState& d, uint64_t index,
     if (s.written) return;
     s.submissions.insert(index);
     for (const PausePoint* pause : pauses) {
+        if (pause->parameters) {  // a cluster command, both of whose pauses are read
+            if (pause->phase == PausePhase::kBeforeCommand)
+                s.clusters.note({index, pause->pause_id, pause->occurrence},
+                                ClusterBuildCommand{*pause->parameters, pause->pause_id,
+                                                    d.serving});
+            continue;
+        }
         KeptCommand k;
         if (!describe(*pause, k)) continue;
         for (uint64_t structure : k.produced) supersede(s, structure);
@@ -203,8 +236,19 @@ void note_pre_range_submission(DeviceState& d, uint64_t index,
 
 bool take_pre_range_capture(DeviceState& d, ClusterBuildCapture& capture) {
     PreRangeStore& s = store_of(d);
-    std::lock_guard lock(s.mutex);
+    std::unique_lock lock(s.mutex);
     if (!s.submissions.count(capture.submission_index)) return false;
+    const CaptureKey key{capture.submission_index, capture.pause_id, capture.occurrence};
+    if (s.clusters.expects(key)) {
+        // Completing a served capture walks its outputs: not under the lock the queue's
+        // submissions take.
+        lock.unlock();
+        prepare_kept_cluster_capture(capture);
+        lock.lock();
+        if (!s.written) s.clusters.arrived(key, std::move(capture));
+        s.arrived.notify_all();
+        return true;
+    }
     auto it = s.kept.find({capture.submission_index, capture.pause_id, capture.occurrence});
     if (it != s.kept.end() && !s.written) {
         it->second.capture = std::move(capture);
@@ -232,7 +276,7 @@ void forget_pre_range_memory(DeviceState& d, uint64_t memory) {
 bool pre_range_prelude_due(DeviceState& d) {
     PreRangeStore& s = store_of(d);
     std::lock_guard lock(s.mutex);
-    if (s.written || s.kept.empty()) {
+    if (s.written || (s.kept.empty() && s.clusters.size() == 0)) {
         s.written = true;  // the range started: nothing more is kept
         return false;
     }
@@ -245,40 +289,32 @@ void write_pre_range_prelude(DeviceState& d, const SubmissionRecord& captured, u
     if (s.written) return;
     wait_for_captures(s, lock);
     s.written = true;
-    std::set<uint64_t> structures;
-    for (const auto& [key, k] : s.kept) structures.insert(k.current.begin(), k.current.end());
-    PreRangeStateRecord marker;
-    marker.queue = captured.queue;
-    marker.first_frame = layer_config().frame_range.first;
-    marker.prelude_submission = index;
-    marker.structures = uint32_t(structures.size());
-    marker.commands = uint32_t(s.kept.size());
-    marker.bytes = kept_bytes(s);
-    log_message(LogLevel::kInfo,
-                "pre-range state: %u structures from %u commands before frame %llu, %llu input "
-                "bytes kept",
-                marker.structures, marker.commands, (unsigned long long)marker.first_frame,
-                (unsigned long long)marker.bytes);
-    d.sink->pre_range_state_written(marker);
+    d.sink->pre_range_state_written(marker_of(s, captured, index));
 
     RecordedCommandBuffer cb;
     cb.command_buffer = kPreRangeCommandBuffer;
     cb.usage = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
     std::vector<ClusterBuildCapture> captures;
-    for (KeptCommand* k : prelude_order(s)) {
+    // Each command after a full barrier, with a fresh pause id: unique within the prelude. None
+    // for a command whose capture did not come, so the sink does not wait for it.
+    const auto next_pause_id = [&](std::optional<ClusterBuildCapture>& capture) -> uint64_t {
         if (!cb.commands.empty()) cb.commands.push_back(full_barrier());
-        // A fresh pause id: unique within the prelude. None for a command whose capture did
-        // not come, so the sink does not wait for it.
-        const uint64_t pause_id = k->capture ? ++d.pause_counter : 0;
-        pause_id_in(k->command) = pause_id;
+        if (!capture) return 0;
+        capture->pause_id = ++d.pause_counter;
+        capture->occurrence = 0;
+        capture->submission_index = index;
+        capture->command_buffer = kPreRangeCommandBuffer;
+        captures.push_back(std::move(*capture));
+        return captures.back().pause_id;
+    };
+    // Cluster objects first: a KHR top level may name a cluster BLAS.
+    for (PreRangeClusterCommands::Taken& t : s.clusters.take()) {
+        t.command.pause_id = next_pause_id(t.capture);
+        cb.commands.push_back(std::move(t.command));
+    }
+    for (KeptCommand* k : prelude_order(s)) {
+        pause_id_in(k->command) = next_pause_id(k->capture);
         cb.commands.push_back(std::move(k->command));
-        if (!k->capture) continue;
-        ClusterBuildCapture c = std::move(*k->capture);
-        c.pause_id = pause_id;
-        c.occurrence = 0;
-        c.submission_index = index;
-        c.command_buffer = kPreRangeCommandBuffer;
-        captures.push_back(std::move(c));
     }
     s.kept.clear();
     lock.unlock();

@@ -18,10 +18,15 @@
 //                          addresses the first build wrote, in one command buffer; OUT.json
 //                          holds every buffer's address and what the builds wrote. Exit 3
 //                          when the device does not offer the extension.
+//   serve-frames OUT.json  the same scene over three frames marked with VkFrameBoundaryEXT (no
+//                          presents): the clusters built in frame 0, built again over the same
+//                          memory in frame 1, the bottom level over them in frame 2; OUT.json
+//                          holds the bottom level's bytes and its address. Exit 3 as `serve`.
 #include "cluster_test_device.h"
 #include "served_scene.h"
 
 #include <clastrace/vk_cluster_abi.h>
+#include <clastrace/vk_frame_boundary_abi.h>
 
 #include <nlohmann/json.hpp>
 
@@ -583,6 +588,62 @@ int pauseCost(int builds) {
     return 0;
 }
 
+// served_scene.h's buffers, filled, and its two commands, on a device with the extension.
+struct ServedSceneSetUp {
+    Buffer vertices, indices, infos, counts, dstAddresses, dstSizes, implicitData, scratch,
+        blasInfos, blasDstAddresses, blasDstSizes, blasImplicit, blasScratch;
+    VkAccelerationStructureBuildSizesInfoKHR clusterSizes{}, blasSizes{};
+    served_scene::Commands commands;  // (points into itself: filled in place)
+};
+
+void setUpServedScene(Context& c, ServedSceneSetUp& s) {
+    served_scene::Commands sizing;
+    served_scene::makeCommands({}, sizing);
+    VkAccelerationStructureBuildSizesInfoKHR& clusterSizes = s.clusterSizes;
+    clusterSizes = {VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr, 0, 0,
+                    0};
+    VkAccelerationStructureBuildSizesInfoKHR& blasSizes = s.blasSizes;
+    blasSizes = {VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr, 0, 0, 0};
+    c.getBuildSizes(c.device, &sizing.clusters.input, &clusterSizes);
+    c.getBuildSizes(c.device, &sizing.blas.input, &blasSizes);
+    if (!clusterSizes.accelerationStructureSize || !blasSizes.accelerationStructureSize)
+        fail("build sizes of 0");
+
+    const VkBufferUsageFlags input =
+        VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
+    const VkBufferUsageFlags storage = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
+    served_scene::Inputs probe = served_scene::makeInputs({});
+    s.vertices = c.makeBuffer(probe.vertices.size() * 4, input, 0xEE);
+    s.indices = c.makeBuffer(probe.indices.size() * 4, input, 0xEE);
+    s.infos = c.makeBuffer(served_scene::kInfoStride * served_scene::kMaxClusters, input, 0xEE);
+    s.counts = c.makeBuffer(8, input, 0xEE);
+    s.dstAddresses = c.makeBuffer(8 * served_scene::kMaxClusters, storage | input, 0xEE);
+    s.dstSizes = c.makeBuffer(4 * served_scene::kMaxClusters, storage, 0xEE);
+    s.implicitData = c.makeBuffer(clusterSizes.accelerationStructureSize, storage, 0xEE);
+    s.scratch = c.makeBuffer(clusterSizes.buildScratchSize, 0, 0xEE);
+    s.blasInfos = c.makeBuffer(sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV),
+                               input, 0xEE);
+    s.blasDstAddresses = c.makeBuffer(8, storage, 0xEE);
+    s.blasDstSizes = c.makeBuffer(4, storage, 0xEE);
+    s.blasImplicit = c.makeBuffer(blasSizes.accelerationStructureSize, storage, 0xEE);
+    s.blasScratch = c.makeBuffer(blasSizes.buildScratchSize, 0, 0xEE);
+
+    served_scene::Addresses a{s.vertices.address,     s.indices.address,
+                              s.infos.address,        s.counts.address,
+                              s.dstAddresses.address, s.dstSizes.address,
+                              s.implicitData.address, s.scratch.address,
+                              s.blasInfos.address,    s.blasDstAddresses.address,
+                              s.blasDstSizes.address, s.blasImplicit.address,
+                              s.blasScratch.address};
+    served_scene::Inputs in = served_scene::makeInputs(a);
+    std::memcpy(s.vertices.mapped, in.vertices.data(), in.vertices.size() * 4);
+    std::memcpy(s.indices.mapped, in.indices.data(), in.indices.size() * 4);
+    std::memcpy(s.infos.mapped, in.infos.data(), in.infos.size() * served_scene::kInfoStride);
+    std::memcpy(s.counts.mapped, in.counts, sizeof in.counts);
+    std::memcpy(s.blasInfos.mapped, &in.blasInfo, sizeof in.blasInfo);
+    served_scene::makeCommands(a, s.commands);
+}
+
 int serve(const char* outPath) {
     Context c;
     c.createInstance();
@@ -595,52 +656,17 @@ int serve(const char* outPath) {
     p.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_PROPERTIES_NV;
     VkPhysicalDeviceProperties2 properties2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2, &p, {}};
     vkGetPhysicalDeviceProperties2(c.physicalDevice, &properties2);
-
-    served_scene::Commands sizing;
-    served_scene::makeCommands({}, sizing);
-    VkAccelerationStructureBuildSizesInfoKHR clusterSizes{
-        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr, 0, 0, 0};
-    VkAccelerationStructureBuildSizesInfoKHR blasSizes{
-        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr, 0, 0, 0};
-    c.getBuildSizes(c.device, &sizing.clusters.input, &clusterSizes);
-    c.getBuildSizes(c.device, &sizing.blas.input, &blasSizes);
-    if (!clusterSizes.accelerationStructureSize || !blasSizes.accelerationStructureSize)
-        fail("build sizes of 0");
-
-    const VkBufferUsageFlags input =
-        VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
-    const VkBufferUsageFlags storage = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
-    served_scene::Inputs probe = served_scene::makeInputs({});
-    Buffer vertices = c.makeBuffer(probe.vertices.size() * 4, input, 0xEE);
-    Buffer indices = c.makeBuffer(probe.indices.size() * 4, input, 0xEE);
-    Buffer infos =
-        c.makeBuffer(served_scene::kInfoStride * served_scene::kMaxClusters, input, 0xEE);
-    Buffer counts = c.makeBuffer(8, input, 0xEE);
-    Buffer dstAddresses = c.makeBuffer(8 * served_scene::kMaxClusters, storage | input, 0xEE);
-    Buffer dstSizes = c.makeBuffer(4 * served_scene::kMaxClusters, storage, 0xEE);
-    Buffer implicitData = c.makeBuffer(clusterSizes.accelerationStructureSize, storage, 0xEE);
-    Buffer scratch = c.makeBuffer(clusterSizes.buildScratchSize, 0, 0xEE);
-    Buffer blasInfos =
-        c.makeBuffer(sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV), input,
-                     0xEE);
-    Buffer blasDstAddresses = c.makeBuffer(8, storage, 0xEE);
-    Buffer blasDstSizes = c.makeBuffer(4, storage, 0xEE);
-    Buffer blasImplicit = c.makeBuffer(blasSizes.accelerationStructureSize, storage, 0xEE);
-    Buffer blasScratch = c.makeBuffer(blasSizes.buildScratchSize, 0, 0xEE);
-
-    served_scene::Addresses a{vertices.address,         indices.address,      infos.address,
-                              counts.address,           dstAddresses.address, dstSizes.address,
-                              implicitData.address,     scratch.address,      blasInfos.address,
-                              blasDstAddresses.address, blasDstSizes.address, blasImplicit.address,
-                              blasScratch.address};
-    served_scene::Inputs in = served_scene::makeInputs(a);
-    std::memcpy(vertices.mapped, in.vertices.data(), in.vertices.size() * 4);
-    std::memcpy(indices.mapped, in.indices.data(), in.indices.size() * 4);
-    std::memcpy(infos.mapped, in.infos.data(), in.infos.size() * served_scene::kInfoStride);
-    std::memcpy(counts.mapped, in.counts, sizeof in.counts);
-    std::memcpy(blasInfos.mapped, &in.blasInfo, sizeof in.blasInfo);
-    served_scene::Commands commands;
-    served_scene::makeCommands(a, commands);
+    ServedSceneSetUp scene;
+    setUpServedScene(c, scene);
+    const served_scene::Commands& commands = scene.commands;
+    const VkAccelerationStructureBuildSizesInfoKHR &clusterSizes = scene.clusterSizes,
+                                                   &blasSizes = scene.blasSizes;
+    const Buffer &vertices = scene.vertices, &indices = scene.indices, &infos = scene.infos,
+                 &counts = scene.counts, &dstAddresses = scene.dstAddresses,
+                 &dstSizes = scene.dstSizes, &implicitData = scene.implicitData,
+                 &scratch = scene.scratch, &blasInfos = scene.blasInfos,
+                 &blasDstAddresses = scene.blasDstAddresses, &blasDstSizes = scene.blasDstSizes,
+                 &blasImplicit = scene.blasImplicit, &blasScratch = scene.blasScratch;
 
     VkCommandBuffer cb = c.beginCommands();
     c.cmdBuildClusters(cb, &commands.clusters);
@@ -692,11 +718,68 @@ int serve(const char* outPath) {
     return 0;
 }
 
+// Submits `cb` as the last submission of frame `frame` (a VK_EXT_frame_boundary frame-end mark)
+// and waits for it.
+void submitFrame(Context& c, VkCommandBuffer cb, uint64_t frame) {
+    CHECK(vkEndCommandBuffer(cb));
+    VkFrameBoundaryEXT boundary{};
+    boundary.sType = VK_STRUCTURE_TYPE_FRAME_BOUNDARY_EXT;
+    boundary.flags = VK_FRAME_BOUNDARY_FRAME_END_BIT_EXT;
+    boundary.frameID = frame;
+    VkSubmitInfo submit{};
+    submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
+    submit.pNext = &boundary;
+    submit.commandBufferCount = 1;
+    submit.pCommandBuffers = &cb;
+    CHECK(vkQueueSubmit(c.queue, 1, &submit, VK_NULL_HANDLE));
+    CHECK(vkQueueWaitIdle(c.queue));
+}
+
+void buildToHostBarrier(VkCommandBuffer cb) {
+    VkMemoryBarrier toHost{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr,
+                           VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR, VK_ACCESS_HOST_READ_BIT};
+    vkCmdPipelineBarrier(cb, VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                         VK_PIPELINE_STAGE_HOST_BIT, 0, 1, &toHost, 0, nullptr, 0, nullptr);
+}
+
+// A frame range starting at frame 2 finds its bottom level's clusters built before it
+// (capture/README.md, "Frame ranges"): frame 1's build is the one that still holds them.
+int serveFrames(const char* outPath) {
+    Context c;
+    c.createInstance();
+    if (!c.hasClusterExtension()) {
+        std::printf("VK_NV_cluster_acceleration_structure is not supported\n");
+        return 3;
+    }
+    c.createDevice();
+    ServedSceneSetUp scene;
+    setUpServedScene(c, scene);
+    for (uint64_t frame : {0, 1}) {
+        VkCommandBuffer cb = c.beginCommands();
+        c.cmdBuildClusters(cb, &scene.commands.clusters);
+        buildToHostBarrier(cb);
+        submitFrame(c, cb, frame);
+    }
+    VkCommandBuffer cb = c.beginCommands();
+    c.cmdBuildClusters(cb, &scene.commands.blas);
+    buildToHostBarrier(cb);
+    submitFrame(c, cb, 2);
+    nlohmann::json out;
+    out["blasImplicit"] = {{"address", scene.blasImplicit.address},
+                           {"bytes", hex(scene.blasImplicit.mapped, scene.blasImplicit.size)}};
+    uint64_t blas = 0;
+    std::memcpy(&blas, scene.blasDstAddresses.mapped, 8);
+    out["blasAddress"] = blas;
+    std::ofstream(outPath) << out.dump(1);
+    return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
     if (argc == 3 && std::strcmp(argv[1], "limits") == 0) return limits(argv[2]);
     if (argc == 3 && std::strcmp(argv[1], "serve") == 0) return serve(argv[2]);
+    if (argc == 3 && std::strcmp(argv[1], "serve-frames") == 0) return serveFrames(argv[2]);
     if (argc == 3 && std::strcmp(argv[1], "exactness") == 0) return exactness(argv[2]);
     if (argc == 3 && std::strcmp(argv[1], "dispatch") == 0) return dispatch(argv[2]);
     if (argc == 3 && std::strcmp(argv[1], "resubmit") == 0)

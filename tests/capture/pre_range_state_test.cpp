@@ -3,7 +3,9 @@
 // examples/rt_frame_loop --build-frames 2 builds its BLASes and TLASes in frames 0 and 1 only;
 // frames 2 and 3 trace them. `clastrace capture --frames 2-3` must carry those structures' last
 // builds as the prelude: the replay is clean, the ray queries reach both BLASes through the
-// replayed top level, and the engine traces the driver's image from them.
+// replayed top level, and the engine traces the driver's image from them. Served cluster
+// builds before the range: tests/apps/cluster_capture_app serve-frames builds its clusters in
+// frames 0 and 1 and the bottom level over them in frame 2.
 #include "frame_scene.h"
 #include "rt_frame_loop_launch.h"
 
@@ -91,6 +93,7 @@ struct TraceStart {
     size_t submissions_before_state = 0;
     uint64_t next_submission_index = 0;  // of the QueueSubmit right after the record
     size_t khr_builds = 0;
+    size_t cluster_builds = 0;
 };
 
 TraceStart read_start(const fs::path& trace) {
@@ -112,6 +115,8 @@ TraceStart read_start(const fs::path& trace) {
             t.next_submission_index = q->submission_index();
         t.submissions += view.kind == clastrace::fbs::RecordBody::QueueSubmit;
         t.khr_builds += view.kind == clastrace::fbs::RecordBody::CmdBuildAccelerationStructuresKHR;
+        t.cluster_builds +=
+            view.kind == clastrace::fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect;
     }
     return t;
 }
@@ -207,6 +212,59 @@ TEST_F(PreRangeState, FrameRangeReplaysStructuresBuiltBeforeIt) {
     EXPECT_GT(pre.value("bytes", 0), 0);
     EXPECT_EQ(summary["frames"]["with_submissions"],
               json::parse(R"([{"frame":2,"submissions":1},{"frame":3,"submissions":1}])"));
+}
+
+// The served scene of cluster_capture_app serve-frames under `clastrace capture` (lavapipe 25
+// serves the extension through the layer).
+class PreRangeClusterState : public PreRangeState {
+protected:
+    ProcessResult capture_served(const std::string& options, const fs::path& trace) {
+        return run("env" + driver_->environment_words() + " " + std::string(CLASTRACE_CLI) +
+                       " capture --log info -o " + quote(trace.string()) + " --layer-path " +
+                       CLASTRACE_LAYER_MANIFEST_DIR + " " + options + " -- " +
+                       CLASTRACE_CAPTURE_APP + " serve-frames " +
+                       quote((dir / "serve-frames.json").string()),
+                   {}, false);
+    }
+};
+
+TEST_F(PreRangeClusterState, FrameRangeReplaysClustersBuiltBeforeIt) {
+    const fs::path range = dir / "clusters.clt";
+    const ProcessResult r = capture_served("--frames 2-", range);
+    ASSERT_EQ(r.exitCode, 0) << r.out << r.err;
+    // Frame 1 built the clusters again over frame 0's: only its build is kept, for 3 objects.
+    EXPECT_NE(r.err.find("pre-range state: 3 structures from 1 commands (1 cluster commands) "
+                         "before frame 2"),
+              std::string::npos)
+        << r.err;
+    const TraceStart start = read_start(range);
+    ASSERT_TRUE(start.pre_range);
+    EXPECT_EQ(start.state.cluster_commands, 1u);
+    EXPECT_EQ(start.state.commands, 1u);
+    EXPECT_EQ(start.state.structures, 3u);
+    EXPECT_EQ(start.state.before_frame, 2u);
+    EXPECT_GT(start.state.input_bytes, 0u);
+    EXPECT_EQ(start.submissions, 2u);     // the prelude, frame 2
+    EXPECT_EQ(start.cluster_builds, 2u);  // the clusters in the prelude, frame 2's bottom level
+
+    // The bottom level replays over the prelude's clusters: clean, and both commands' outputs
+    // are the engine's again.
+    int exit_code = -1;
+    const json report = replay_json(range, &exit_code);
+    EXPECT_EQ(exit_code, 0) << report.dump(1);
+    EXPECT_EQ(report.value("findings", json::array()).size(), 0u) << report.dump(1);
+    EXPECT_EQ(report.value("trace_damage", json::array()).size(), 0u) << report.dump(1);
+    EXPECT_TRUE(report.value("clean", false)) << report.dump(1);
+    EXPECT_TRUE(report.value("outputs_verified", false)) << report.dump(1);
+    EXPECT_GT(report["counts"].value("outputs_compared", 0), 0) << report.dump(1);
+    EXPECT_EQ(report["counts"].value("cluster_commands", 0), 2) << report.dump(1);
+    const json sizes = report.value("sizes", json::array());
+    ASSERT_EQ(sizes.size(), 2u) << report.dump(1);
+    for (const json& command : sizes) {  // the clusters, then the bottom level over them
+        EXPECT_EQ(command.value("ops_compared", 0), command.value("ops", -1)) << command.dump(1);
+        EXPECT_EQ(command.value("captured_bytes", 0), command.value("engine_bytes", -1));
+    }
+    EXPECT_EQ(sizes[0]["where"].value("command_buffer_handle", ""), "0xc1a57ace00000001");
 }
 
 }  // namespace
