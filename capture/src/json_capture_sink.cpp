@@ -417,6 +417,9 @@ public:
         json issues = json::array();
         for (const auto& i : c.issues)
             issues.push_back({{"address", i.address}, {"size", i.size}, {"rule", i.rule}});
+        json driver_bvh = json::array();
+        for (const auto& d : c.driver_bvh)
+            driver_bvh.push_back({{"address", d.address}, {"size", d.size}});
         json findings = json::array();
         for (const auto& f : c.engine_findings)
             findings.push_back({{"rule", f.rule},
@@ -434,6 +437,7 @@ public:
                               {"issues", issues},
                               {"executedByEngine", c.executed_by_engine},
                               {"engineFindings", findings},
+                              {"driverBvh", driver_bvh},
                               {"pauseMilliseconds", c.pause_milliseconds}});
     }
     void acceleration_structure_created(const AccelerationStructureRecord& a) override {

@@ -490,7 +490,8 @@ void cover_traceable_blas(DeviceState& state,
 void build_traceable_blases(DeviceState& state, uint64_t pause_id,
                             const VkClusterAccelerationStructureCommandsInfoNV& command,
                             const engine::MemoryImage& image, const ServedMemory& memory,
-                            uint32_t op_count);
+                            uint32_t op_count,
+                            std::vector<ClusterBuildCapture::DriverBvh>* driver_bvh);
 VkPhysicalDeviceClusterAccelerationStructurePropertiesNV cluster_properties_for(
     InstanceState& instance, VkPhysicalDevice physical_device, bool serving);
 

@@ -573,16 +573,14 @@ std::vector<ServedBuffer> PauseWorker::prepare_served_buffers() {
 
 std::shared_ptr<const engine::MemoryImage> PauseWorker::execute_served(
     const PausePoint& pause, ServedMemory& memory, ClusterBuildCapture* record) {
-    ServedExecution served =
-        execute_served_build(pause.parameters->resolved(), memory, directory_,
-                             served_engine_properties(), record ? &record->inputs : nullptr,
-                             record ? std::optional<uint32_t>(record->executed_count)
-                                    : std::nullopt,
-                             [&](const engine::MemoryImage& image, uint32_t ops) {
-                                 build_traceable_blases(device_, pause.pause_id,
-                                                        pause.parameters->resolved(), image, memory,
-                                                        ops);
-                             });
+    ServedExecution served = execute_served_build(
+        pause.parameters->resolved(), memory, directory_, served_engine_properties(),
+        record ? &record->inputs : nullptr,
+        record ? std::optional<uint32_t>(record->executed_count) : std::nullopt,
+        [&](const engine::MemoryImage& image, uint32_t ops) {
+            build_traceable_blases(device_, pause.pause_id, pause.parameters->resolved(), image,
+                                   memory, ops, record ? &record->driver_bvh : nullptr);
+        });
     if (!served.ran) {
         log_message(LogLevel::kError, "served build (pause %llu) could not run in the engine: %s",
                     (unsigned long long)pause.pause_id, served.error.c_str());

@@ -879,6 +879,8 @@ private:
         if (auto* r = record.body.AsCmdBuildClusterAccelerationStructureIndirect()) {
             snapshots(captured.inputs, r->inputs);
             snapshots(captured.outputs, r->outputs);
+            for (const ClusterBuildCapture::DriverBvh& d : captured.driver_bvh)
+                r->driver_bvh.emplace_back(d.address, d.size);
         } else if (auto* r = record.body.AsCmdBuildAccelerationStructureNV()) {
             snapshots(captured.inputs, r->inputs);
         } else if (auto* r = record.body.AsCmdCopyMemoryToAccelerationStructure()) {

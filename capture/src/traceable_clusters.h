@@ -39,6 +39,9 @@ struct TraceableBlasGeometry {
     std::vector<std::vector<float>> clusters;
     // Per cluster, each triangle's geometry index (0xFFFFFFFF: inactive), for the ray check.
     std::vector<std::vector<uint32_t>> geometry_indices;
+    // Set by TraceableDriver::build: the bytes of the driver's BVH from `address` (its
+    // accelerationStructureSize), which the trace marks as the driver's.
+    uint64_t driver_size = 0;
 };
 
 // The BLAS ops of a command the engine just ran, read from its image: the destination of each
@@ -84,9 +87,10 @@ public:
     // (the worst case a served size answer must cover); 0 when the driver does not answer.
     uint64_t blas_size(uint32_t clusters, uint32_t triangles_per_cluster);
 
-    // Builds every BLAS of `batch` at its host bytes, one submission, and waits. False (and
-    // `why`) when any step fails; BLASes built before the failure stay.
-    bool build(const TraceableBatch& batch, std::string& why);
+    // Builds every BLAS of `batch` at its host bytes, one submission, and waits, setting each
+    // one's driver_size. False (and `why`) when any step fails; BLASes built before the failure
+    // stay.
+    bool build(TraceableBatch& batch, std::string& why);
     // The mode's one line for the log.
     static constexpr const char* kModeMessage =
         "served cluster BLASes are traceable: the driver's BLAS is built at each destination";

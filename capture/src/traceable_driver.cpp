@@ -367,7 +367,7 @@ DriverBlas describe_blas(const TraceableBlasGeometry& blas, VkDeviceAddress vert
 
 }  // namespace
 
-bool TraceableDriver::build(const TraceableBatch& batch, std::string& why) {
+bool TraceableDriver::build(TraceableBatch& batch, std::string& why) {
     if (batch.blases.empty()) return true;
     uint64_t vertex_bytes = 0;
     for (const TraceableBlasGeometry& blas : batch.blases)
@@ -383,7 +383,7 @@ bool TraceableDriver::build(const TraceableBatch& batch, std::string& why) {
                        nullptr, vertices, why);
     uint64_t scratch_bytes = 0, vertex_offset = 0;
     for (size_t i = 0; ok && i < batch.blases.size(); ++i) {
-        const TraceableBlasGeometry& blas = batch.blases[i];
+        TraceableBlasGeometry& blas = batch.blases[i];
         const VkDeviceAddress first = vertices.address + vertex_offset;
         for (const std::vector<float>& cluster : blas.clusters) {
             std::memcpy(static_cast<uint8_t*>(vertices.mapped) + vertex_offset, cluster.data(),
@@ -401,6 +401,7 @@ bool TraceableDriver::build(const TraceableBatch& batch, std::string& why) {
             ok = false;
             break;
         }
+        blas.driver_size = d.sizes.accelerationStructureSize;
         const uint64_t host = reinterpret_cast<uint64_t>(blas.host);
         const uint64_t base = host / import_alignment_ * import_alignment_;
         const uint64_t end = align_up(host + d.sizes.accelerationStructureSize, import_alignment_);

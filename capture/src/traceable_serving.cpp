@@ -65,9 +65,10 @@ void cover_traceable_blas(DeviceState& state,
 void build_traceable_blases(DeviceState& state, uint64_t pause_id,
                             const VkClusterAccelerationStructureCommandsInfoNV& command,
                             const engine::MemoryImage& image, const ServedMemory& memory,
-                            uint32_t op_count) {
+                            uint32_t op_count,
+                            std::vector<ClusterBuildCapture::DriverBvh>* driver_bvh) {
     if (!state.traceable) return;
-    const TraceableBatch batch =
+    TraceableBatch batch =
         traceable_batch(command, image, op_count, [&](uint64_t address, uint64_t& room) {
             const ServedBuffer* b = memory.buffer_holding(address, 1);
             if (!b) return (uint8_t*)nullptr;
@@ -82,8 +83,11 @@ void build_traceable_blases(DeviceState& state, uint64_t pause_id,
         log_message(LogLevel::kDebug, "served build (pause %llu): %zu driver BLASes built",
                     (unsigned long long)pause_id, batch.blases.size());
         // The ray check traces top levels over them (their instances name these addresses).
-        for (const TraceableBlasGeometry& blas : batch.blases)
+        for (const TraceableBlasGeometry& blas : batch.blases) {
             state.nv_scene.observe_cluster_blas(blas.address, blas.clusters, blas.geometry_indices);
+            // The record marks these bytes as the driver's (replay keeps the engine's there).
+            if (driver_bvh) driver_bvh->push_back({blas.address, blas.driver_size});
+        }
     }
     // Info, once per process: the engine's bytes are still right and the trace still exact; only
     // the driver's own rays miss these BLASes (capture/README.md "Traceable cluster BLASes").

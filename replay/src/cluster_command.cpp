@@ -354,6 +354,18 @@ private:
     }
 };
 
+// A served traceable cluster BLAS: the capture's memory there holds the driver's BVH from now
+// on, so snapshots taken later of it must not replace the engine's object (ReplayMemory).
+void mark_driver_bvh(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
+                     ClusterCommandContext& c) {
+    if (!build.driver_bvh()) return;
+    for (const fbs::DeviceAddressRange* r : *build.driver_bvh()) {
+        if (r->size() == 0 || r->address() + r->size() < r->address()) continue;
+        c.memory.mark_driver_bvh({r->address(), r->address() + r->size()});
+        ++c.report.counts.driver_bvh_ranges;
+    }
+}
+
 }  // namespace
 
 void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
@@ -423,6 +435,7 @@ void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect
         c.sync.record_accesses(c.ref, sized.accesses);
     }
     verify(build, info, record, sizes, c);
+    mark_driver_bvh(build, c);
     if (c.executed) *c.executed = std::move(record);
 }
 

@@ -252,19 +252,48 @@ bool ReplayMemory::read(uint64_t address, uint64_t size, std::vector<uint8_t>* o
     }
 }
 
-void ReplayMemory::unmark(AddressRange range) {
-    auto it = engine_objects_.upper_bound(range.begin);
-    if (it != engine_objects_.begin()) --it;
-    while (it != engine_objects_.end() && it->first < range.end) {
+// Removes [range) from a set of disjoint ranges, cutting the ones it overlaps.
+static void cut(std::map<uint64_t, uint64_t>& ranges, AddressRange range) {
+    auto it = ranges.upper_bound(range.begin);
+    if (it != ranges.begin()) --it;
+    while (it != ranges.end() && it->first < range.end) {
         uint64_t b = it->first, e = it->second;
         if (e <= range.begin) {
             ++it;
             continue;
         }
-        it = engine_objects_.erase(it);
-        if (b < range.begin) engine_objects_.emplace(b, range.begin);
-        if (e > range.end) it = engine_objects_.emplace(range.end, e).first;
+        it = ranges.erase(it);
+        if (b < range.begin) ranges.emplace(b, range.begin);
+        if (e > range.end) it = ranges.emplace(range.end, e).first;
     }
+}
+
+void ReplayMemory::unmark(AddressRange range) {
+    cut(engine_objects_, range);
+    cut(driver_bvh_, range);
+}
+
+void ReplayMemory::mark_driver_bvh(AddressRange range) {
+    if (range.empty()) return;
+    cut(driver_bvh_, range);
+    driver_bvh_.emplace(range.begin, range.end);
+}
+
+ReplayMemory::KeptDriverBvh ReplayMemory::keep_driver_bvh(uint64_t address,
+                                                          std::span<uint8_t> bytes) const {
+    KeptDriverBvh kept;
+    const uint64_t end = address + bytes.size();
+    auto it = driver_bvh_.upper_bound(address);
+    if (it != driver_bvh_.begin()) --it;
+    std::vector<uint8_t> current;
+    for (; it != driver_bvh_.end() && it->first < end; ++it) {
+        const uint64_t b = std::max(it->first, address), e = std::min(it->second, end);
+        if (b >= e || !read(b, e - b, &current)) continue;
+        std::memcpy(bytes.data() + (b - address), current.data(), e - b);
+        kept.ranges.push_back({it->first, it->second});
+        kept.bytes += e - b;
+    }
+    return kept;
 }
 
 void ReplayMemory::mark_engine_object(AddressRange range) {

@@ -83,6 +83,18 @@ public:
     bool write(uint64_t address, std::span<const uint8_t> bytes);
     bool read(uint64_t address, uint64_t size, std::vector<uint8_t>* out) const;
     void mark_engine_object(AddressRange range);
+    // A served traceable cluster BLAS (CmdBuildClusterAccelerationStructureIndirect.driver_bvh):
+    // the capture's memory there holds the driver's BVH, replay's holds the engine's object.
+    // Plain writes (write(), fill(), a destroyed buffer) end the mark.
+    void mark_driver_bvh(AddressRange range);
+    // Puts the image's bytes into `bytes` (captured at `address`) wherever a driver BVH is
+    // marked, so laying them in keeps the engine's bytes. The marked ranges met (whole) and the
+    // bytes kept.
+    struct KeptDriverBvh {
+        std::vector<AddressRange> ranges;
+        uint64_t bytes = 0;
+    };
+    KeptDriverBvh keep_driver_bvh(uint64_t address, std::span<uint8_t> bytes) const;
     // The first byte of [begin, end) that a bound buffer holds but no bound buffer created
     // with a bit of `usage` (or with unknown usage, 0) holds; nullopt when there is none.
     // Aliased buffers count each on their own (VUIDs 12305/12307 take any buffer over a byte).
@@ -147,6 +159,7 @@ private:
     uint64_t next_private_ = kPrivateBase;
     uint64_t aliased_buffers_ = 0;
     std::map<uint64_t, uint64_t> engine_objects_;  // begin -> end, disjoint
+    std::map<uint64_t, uint64_t> driver_bvh_;      // begin -> end, disjoint
     uint64_t budget_;
     uint64_t peak_ = 0;
     std::vector<std::pair<uint64_t, uint64_t>> over_budget_;

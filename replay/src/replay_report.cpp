@@ -231,6 +231,13 @@ std::string format_text(const ReplayReport& r) {
                   ", semaphore waits with no signal in the trace %" PRIu64 "\n",
                   n.presents, n.acquires, n.unsatisfied_semaphore_waits);
     s += line;
+    if (n.driver_bvh_ranges) {
+        std::snprintf(line, sizeof line,
+                      "  driver BVHs (traceable cluster BLASes) %" PRIu64
+                      ", their bytes in later snapshots kept as the engine's %" PRIu64 "\n",
+                      n.driver_bvh_ranges, n.driver_bvh_bytes_kept);
+        s += line;
+    }
     s += "  not replayed yet: " + std::to_string(r.not_replayed.size()) + " command(s)" +
          (r.hazards_checked ? "" : "; hazards not checked (--no-hazards)") +
          (r.verified ? "" : "; outputs not verified (--no-verify)") + "\n";
@@ -349,6 +356,8 @@ nlohmann::json to_json(const ReplayReport& r) {
           {"snapshots_applied", n.snapshots_applied},
           {"snapshot_bytes", n.snapshot_bytes},
           {"snapshots_outside_memory", n.snapshots_outside_memory},
+          {"driver_bvh_ranges", n.driver_bvh_ranges},
+          {"driver_bvh_bytes_kept", n.driver_bvh_bytes_kept},
           {"outputs_compared", n.outputs_compared},
           {"output_bytes_compared", n.output_bytes_compared},
           {"addresses_translated", n.addresses_translated},

@@ -55,7 +55,10 @@ void Replay::lay_in_snapshots(const traces::SnapshotVector* snapshots,
         std::optional<uint64_t> address =
             memory_.snapshot_address(s->buffer(), s->offset(), s->address());
         const uint64_t refused = memory_.writes_over_budget();
-        if (!address || !contents(s->hash(), &bytes) || !memory_.lay_in(*address, bytes)) {
+        const bool held = address && contents(s->hash(), &bytes);
+        if (held)
+            report_.counts.driver_bvh_bytes_kept += memory_.keep_driver_bvh(*address, bytes).bytes;
+        if (!held || !memory_.lay_in(*address, bytes)) {
             ++report_.counts.snapshots_outside_memory;
             if (memory_.writes_over_budget() != refused)
                 continue;  // named once, by the budget finding
@@ -88,6 +91,10 @@ void Replay::host_observation(const fbs::MemoryObservation& observation) {
             ++report_.counts.snapshots_outside_memory;
             continue;
         }
+        // The capture saw the driver's BVH of a traceable cluster BLAS change: not the host's
+        // write, and replay keeps the engine's object there.
+        const ReplayMemory::KeptDriverBvh kept = memory_.keep_driver_bvh(*address, bytes);
+        report_.counts.driver_bvh_bytes_kept += kept.bytes;
         // A capture may observe mapped memory the host did not touch: only bytes that
         // changed count as a host write (unchanged ones would be false WAR/WAW hazards).
         AddressRange written{*address, *address + bytes.size()};
@@ -101,6 +108,7 @@ void Replay::host_observation(const fbs::MemoryObservation& observation) {
             ++report_.counts.snapshots_outside_memory;
             continue;
         }
+        for (const AddressRange& range : kept.ranges) memory_.mark_driver_bvh(range);
         ++report_.counts.snapshots_applied;
         report_.counts.snapshot_bytes += bytes.size();
         if (options_.check_hazards && !written.empty()) {

@@ -112,6 +112,8 @@ TEST_F(TraceableClusterBlas, ServedBlasReplaysCleanAndItsRaysAgree) {
     EXPECT_TRUE(report["outputs_verified"].get<bool>());
     EXPECT_TRUE(report["findings"].empty()) << report["findings"].dump(1);
     EXPECT_EQ(replayed.exitCode, 0) << replayed.out;
+    // The build's record marks the driver's BVH at the one BLAS (driver_bvh).
+    EXPECT_EQ(report["counts"]["driver_bvh_ranges"].get<uint64_t>(), 1u) << report["counts"];
     size_t checked = 0;
     for (const json& check : report["ray_checks"]) {
         SCOPED_TRACE(check.dump());
@@ -131,6 +133,11 @@ TEST_F(TraceableClusterBlas, WithTheModeOffTheDriverFindsNothing) {
     const std::vector<DriverHit> hits = parseHits(r.out);
     ASSERT_EQ(hits.size(), kClusters * kRaysPerCluster + 1) << r.out;
     for (const DriverHit& h : hits) EXPECT_EQ(h.hit, 0u);
+    // Nothing of the driver's in the trace: no driver_bvh.
+    const ProcessResult replayed = run(std::string(CLASTRACE_CAPTURE_LAUNCHER) + " replay --json " +
+                                           quote((dir / "off.clt").string()),
+                                       {}, false);
+    EXPECT_EQ(json::parse(replayed.out)["counts"]["driver_bvh_ranges"].get<uint64_t>(), 0u);
 }
 
 }  // namespace

@@ -136,7 +136,7 @@ uint32_t ClusterCommand::emit(TraceScript& t) {
     std::vector<InputSnapshot> all = inputs;
     if (!infos.empty()) all.push_back({infos_address, infos});
     const uint32_t index = t.next_command();
-    t.cluster(info, all);
+    t.cluster(info, all, driver_bvh);
     return index;
 }
 

@@ -74,6 +74,8 @@ struct ClusterCommand {
     // Where srcInfosArray's bytes go and what they are (laid in as an input snapshot).
     uint64_t infos_address = kInfos;
     std::vector<uint8_t> infos;
+    std::vector<fbs::DeviceAddressRange>
+        driver_bvh;  // CmdBuildClusterAccelerationStructureIndirect.driver_bvh
     // Writes the command; returns its index within the command buffer.
     uint32_t emit(TraceScript& t);
 };

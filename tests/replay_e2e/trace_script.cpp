@@ -169,10 +169,12 @@ void TraceScript::ensure_begun() {
 }
 
 void TraceScript::cluster(const VkClusterAccelerationStructureCommandsInfoNV& info,
-                          const std::vector<InputSnapshot>& inputs) {
+                          const std::vector<InputSnapshot>& inputs,
+                          const std::vector<fbs::DeviceAddressRange>& driver_bvh) {
     ensure_begun();
     fbs::CmdBuildClusterAccelerationStructureIndirectT b = tb::cluster_build(command_buffer_, info);
     b.inputs = snapshots_of(writer_, inputs);
+    b.driver_bvh = driver_bvh;
     writer_.append(std::move(b));
 }
 

@@ -69,8 +69,10 @@ public:
     void host_write(uint64_t address, const std::vector<uint8_t>& bytes);
 
     // --- commands of the current command buffer ---------------------------------------
+    // `driver_bvh`: ranges the capture marked as a traceable cluster BLAS's driver BVH.
     void cluster(const VkClusterAccelerationStructureCommandsInfoNV& info,
-                 const std::vector<InputSnapshot>& inputs);
+                 const std::vector<InputSnapshot>& inputs,
+                 const std::vector<fbs::DeviceAddressRange>& driver_bvh = {});
     void copy(uint64_t src_buffer, uint64_t src_offset, uint64_t dst_buffer, uint64_t dst_offset,
               uint64_t size, const std::vector<InputSnapshot>& inputs = {});
     void fill(uint64_t dst_buffer, uint64_t offset, uint64_t size, uint32_t data);

@@ -425,6 +425,7 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
         r.unrecorded_next_stypes = {7};
         r.inputs = {snap(0xe000, a), snap(0xf000, b)};
         r.outputs = {snap(0xc000, b)};
+        r.driver_bvh = {fbs::DeviceAddressRange(0xc100, 0x2a00)};  // a traceable BLAS's BVH
         out.push_back(record(std::move(r)));
     }
     {

@@ -590,6 +590,14 @@ struct ClusterBuildCapture {
     uint64_t held_bytes = 0;
     // vkCmdBuildAccelerationStructuresIndirectKHR: each info's ranges as read at execution.
     std::vector<std::vector<VkAccelerationStructureBuildRangeInfoKHR>> khr_indirect_ranges;
+    // Served traceable cluster BLASes: where the driver's BVH was written (address, size), so
+    // replay tells it from the engine's bytes (CmdBuildClusterAccelerationStructureIndirect
+    // .driver_bvh).
+    struct DriverBvh {
+        uint64_t address = 0;
+        uint64_t size = 0;
+    };
+    std::vector<DriverBvh> driver_bvh;
 };
 
 // VkFrameBoundaryEXT (VK_EXT_frame_boundary) chained to a submission or a present: a headless

@@ -147,7 +147,11 @@ struct ReplayCounts {
     uint64_t snapshots_applied = 0;  // captured memory snapshots laid into the image
     uint64_t snapshot_bytes = 0;
     uint64_t snapshots_outside_memory = 0;  // snapshots no bound buffer holds (skipped)
-    uint64_t outputs_compared = 0;          // captured output snapshots compared byte for byte
+    // Served traceable cluster BLASes: driver BVH ranges the trace marked, and the bytes of later
+    // snapshots over them that replay did not lay in (the engine's object stays).
+    uint64_t driver_bvh_ranges = 0;
+    uint64_t driver_bvh_bytes_kept = 0;
+    uint64_t outputs_compared = 0;  // captured output snapshots compared byte for byte
     uint64_t output_bytes_compared = 0;
     uint64_t addresses_translated = 0;  // object addresses rewritten captured -> rebuilt
     uint64_t skipped_commands = 0;      // commands outside --ops/--submit
