@@ -232,6 +232,19 @@ VKAPI_ATTR VkResult VKAPI_CALL GetQueryPoolResults(VkDevice device, VkQueryPool 
     return result;
 }
 
+// A destroyed pool's handle may come back for the next pool (lavapipe reuses them at once): a
+// timestamp pool must not inherit the property-query mark.
+VKAPI_ATTR void VKAPI_CALL DestroyQueryPool(VkDevice device, VkQueryPool pool,
+                                            const VkAllocationCallbacks* p_allocator) {
+    DeviceState& d = *find_device(dispatch_key(device));
+    {
+        KhrDirectory& dir = directory();
+        std::lock_guard lock(dir.mutex);
+        dir.property_pools.erase({&d, handle_id(pool)});
+    }
+    d.next.DestroyQueryPool(device, pool, p_allocator);
+}
+
 VKAPI_ATTR void VKAPI_CALL GetAccelerationStructureBuildSizesKHR(
     VkDevice device, VkAccelerationStructureBuildTypeKHR build_type,
     const VkAccelerationStructureBuildGeometryInfoKHR* p_build_info,
@@ -294,6 +307,7 @@ PFN_vkVoidFunction khr_acceleration_structure_hook(const char* name) {
         HOOK(CmdWriteAccelerationStructuresPropertiesKHR),
         HOOK(CmdWriteAccelerationStructuresPropertiesNV),
         HOOK(GetQueryPoolResults),
+        HOOK(DestroyQueryPool),
         HOOK(GetAccelerationStructureBuildSizesKHR),
     };
 #undef HOOK

@@ -125,6 +125,12 @@ LayerConfig parse_layer_config(const std::function<const char*(const char*)>& ge
         else
             reject("CLASTRACE_SHARED_WAIT_MS", *v, "milliseconds from 0 to 3600000");
     }
+    if (auto v = value("CLASTRACE_PRE_RANGE_STATE")) {
+        if (auto on = parse_switch(*v))
+            config.pre_range_state = *on;
+        else
+            reject("CLASTRACE_PRE_RANGE_STATE", *v, "0 or 1");
+    }
     if (auto v = value("CLASTRACE_FORCE_STAGING")) {
         if (auto on = parse_switch(*v))
             config.force_staging = *on;

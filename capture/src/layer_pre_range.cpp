@@ -199,7 +199,7 @@ PreRangeStateRecord marker_of(const PreRangeStore& s, const SubmissionRecord& ca
 
 bool before_frame_range(const DeviceState& d, uint64_t index) {
     const LayerConfig& config = layer_config();
-    return d.capturing_now() && config.frame_range.first > 0 &&
+    return config.pre_range_state && d.capturing_now() && config.frame_range.first > 0 &&
            current_frame() < config.frame_range.first && config.submit_range.contains(index);
 }
 

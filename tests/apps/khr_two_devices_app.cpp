@@ -62,7 +62,7 @@ VkQueryPool read_timestamp(ClusterTestDevice& d) {
 const float kTriangle[3][3] = {{-1, -1, 2}, {1, -1, 2}, {0, 1, 2}};
 
 // The BLAS built and its compacted size read back; its handles in `out`.
-void build_and_query(ClusterTestDevice& d, json& out) {
+void build_and_query(ClusterTestDevice& d, json& out, bool destroy_property_pool) {
     auto create = load<PFN_vkCreateAccelerationStructureKHR>(d, "vkCreateAccelerationStructureKHR");
     auto sizes_of = load<PFN_vkGetAccelerationStructureBuildSizesKHR>(
         d, "vkGetAccelerationStructureBuildSizesKHR");
@@ -136,6 +136,13 @@ void build_and_query(ClusterTestDevice& d, json& out) {
     out["address"] = address;
     out["propertyPool"] = id(compacted);
     out["storage"] = id(storage.buffer);
+    if (!destroy_property_pool) return;
+    // The property pool goes, and a timestamp pool is made and read after it: where the driver
+    // hands the handle back, the layer must not take that read for a property read.
+    vkDestroyQueryPool(d.device, compacted, nullptr);
+    const VkQueryPool later = read_timestamp(d);
+    out["laterTimestampPool"] = id(later);
+    out["handleReused"] = id(later) == id(compacted);
 }
 
 }  // namespace
@@ -156,7 +163,7 @@ int main(int argc, char** argv) {
         json out;
         out["device"] = id(d.device);
         if (round == 1) out["timestampPool"] = id(read_timestamp(d));
-        build_and_query(d, out);
+        build_and_query(d, out, round == 1);
         rounds.push_back(out);
         d.destroy();  // the BLAS and the query pools are left to the device's end
     }

@@ -208,9 +208,11 @@ protected:
     }
 
     // Runs `command` on the Xvfb display with the test driver, the layer and `env` over a clean
-    // CLASTRACE_* environment.
+    // CLASTRACE_* environment. These tests check which frames a range selects, so the state from
+    // before the range is off (CLASTRACE_PRE_RANGE_STATE=0); pre_range_state_test.cpp covers it.
     ProcessResult run(const std::string& command, std::map<std::string, std::string> env) {
         env["DISPLAY"] = xvfb.display();
+        env.emplace("CLASTRACE_PRE_RANGE_STATE", "0");
         return LayerLaunchTest::run(command, std::move(env));
     }
     ProcessResult runApp(uint32_t frames, std::map<std::string, std::string> env,

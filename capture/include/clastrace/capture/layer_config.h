@@ -47,6 +47,9 @@ struct LayerConfig {
         1000;  // CLASTRACE_FLUSH_MS: a killed process loses at most this much (0: never)
     bool force_staging =
         false;  // CLASTRACE_FORCE_STAGING: treat all memory as not host visible (tests)
+    // CLASTRACE_PRE_RANGE_STATE: a frame range starting after frame 0 carries the structures
+    // built before it (layer_pre_range.h); 0 captures the range alone.
+    bool pre_range_state = true;
     // CLASTRACE_DEVICE_ADDRESS_WRITES: `cheap` marks dispatches and draws whose pipeline's SPIR-V
     // may write through buffer device addresses (replay: possible hazards); `off` does not.
     bool mark_device_address_writers = true;
