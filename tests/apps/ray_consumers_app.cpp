@@ -23,6 +23,7 @@
 #include <clastrace/vk_maintenance6_abi.h>
 #include <vulkan/vulkan.h>
 
+#include <cstdarg>
 #include <cstddef>
 #include <cstdint>
 #include <cstdio>
@@ -782,12 +783,34 @@ bool run_sources(const Device& d, VkCommandPool pool, const Scene& scene, const 
 }
 
 // The sources mode: OUT.json names the TLAS, the other TLAS and the two pipelines.
+VkCommandPool command_pool(const Device& d) {
+    VkCommandPoolCreateInfo info{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO};
+    info.queueFamilyIndex = d.family;
+    VkCommandPool pool;
+    CHECK(vkCreateCommandPool(d.device, &info, nullptr, &pool));
+    return pool;
+}
+
+// The end of a mode: its OUT.json (one printf line), the device idle, and the exit the test
+// reads: "ok" when the shaders' results are right.
+[[gnu::format(printf, 4, 5)]] int finish_mode(const Device& d, const char* out_path, bool right,
+                                              const char* format, ...) {
+    FILE* out = std::fopen(out_path, "w");
+    if (!out) fail("cannot write OUT.json");
+    va_list args;
+    va_start(args, format);
+    std::vfprintf(out, format, args);
+    va_end(args);
+    std::fclose(out);
+    vkDeviceWaitIdle(d.device);
+    if (!right) fail("the shaders' results are wrong");
+    std::printf("ok\n");
+    return 0;
+}
+
 int sources_main(const char* out_path) {
     Device d = create_device();
-    VkCommandPoolCreateInfo pool_info{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO};
-    pool_info.queueFamilyIndex = d.family;
-    VkCommandPool pool;
-    CHECK(vkCreateCommandPool(d.device, &pool_info, nullptr, &pool));
+    const VkCommandPool pool = command_pool(d);
     VkCommandBuffer build_cb = begin(d, pool);
     const Scene scene = build_scene(d, build_cb);
     // A second top level over the same instance: what the late set names when it is bound.
@@ -809,22 +832,16 @@ int sources_main(const char* out_path) {
     p.pushed_ray_query = compute_pipeline(d, p.push_layout, kRayQueryComp, sizeof kRayQueryComp);
     const LateSet late = late_set(d);
     const bool right = run_sources(d, pool, scene, results, p, late, other.handle);
-    FILE* out = std::fopen(out_path, "w");
-    if (!out) fail("cannot write OUT.json");
-    std::fprintf(out,
-                 "{\"topLevel\": %llu, \"topLevelAddress\": %llu, \"otherTopLevel\": %llu, "
-                 "\"rayQueryPipeline\": %llu, \"updateAfterBindPipeline\": %llu, "
-                 "\"pushedRayQueryPipeline\": %llu}\n",
-                 (unsigned long long)(uint64_t)scene.top.handle,
-                 (unsigned long long)scene.top.address, (unsigned long long)(uint64_t)other.handle,
-                 (unsigned long long)(uint64_t)p.ray_query,
-                 (unsigned long long)(uint64_t)late.pipeline,
-                 (unsigned long long)(uint64_t)p.pushed_ray_query);
-    std::fclose(out);
-    vkDeviceWaitIdle(d.device);
-    if (!right) fail("the shaders' results are wrong");
-    std::printf("ok\n");
-    return 0;
+    return finish_mode(d, out_path, right,
+                       "{\"topLevel\": %llu, \"topLevelAddress\": %llu, \"otherTopLevel\": %llu, "
+                       "\"rayQueryPipeline\": %llu, \"updateAfterBindPipeline\": %llu, "
+                       "\"pushedRayQueryPipeline\": %llu}\n",
+                       (unsigned long long)(uint64_t)scene.top.handle,
+                       (unsigned long long)scene.top.address,
+                       (unsigned long long)(uint64_t)other.handle,
+                       (unsigned long long)(uint64_t)p.ray_query,
+                       (unsigned long long)(uint64_t)late.pipeline,
+                       (unsigned long long)(uint64_t)p.pushed_ray_query);
 }
 
 // ---- "descriptor-buffer" mode: the TLAS descriptor in a descriptor buffer -----------------------
@@ -902,10 +919,7 @@ bool run_descriptor_buffer(const Device& d, VkCommandPool pool, const BufferSet&
 // The descriptor-buffer mode: OUT.json names the TLAS and the pipeline.
 int descriptor_buffer_main(const char* out_path) {
     Device d = create_device(true);
-    VkCommandPoolCreateInfo pool_info{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO};
-    pool_info.queueFamilyIndex = d.family;
-    VkCommandPool pool;
-    CHECK(vkCreateCommandPool(d.device, &pool_info, nullptr, &pool));
+    const VkCommandPool pool = command_pool(d);
     VkCommandBuffer build_cb = begin(d, pool);
     const Scene scene = build_scene(d, build_cb);
     CHECK(vkEndCommandBuffer(build_cb));
@@ -913,18 +927,12 @@ int descriptor_buffer_main(const char* out_path) {
     Buffer results = create_buffer(d, 32 * sizeof(uint32_t), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT);
     const BufferSet b = buffer_set(d, scene.top, results);
     const bool right = run_descriptor_buffer(d, pool, b, results);
-    FILE* out = std::fopen(out_path, "w");
-    if (!out) fail("cannot write OUT.json");
-    std::fprintf(out,
-                 "{\"topLevel\": %llu, \"topLevelAddress\": %llu, \"descriptorBufferPipeline\": "
-                 "%llu}\n",
-                 (unsigned long long)(uint64_t)scene.top.handle,
-                 (unsigned long long)scene.top.address, (unsigned long long)(uint64_t)b.pipeline);
-    std::fclose(out);
-    vkDeviceWaitIdle(d.device);
-    if (!right) fail("the shaders' results are wrong");
-    std::printf("ok\n");
-    return 0;
+    return finish_mode(
+        d, out_path, right,
+        "{\"topLevel\": %llu, \"topLevelAddress\": %llu, \"descriptorBufferPipeline\": "
+        "%llu}\n",
+        (unsigned long long)(uint64_t)scene.top.handle, (unsigned long long)scene.top.address,
+        (unsigned long long)(uint64_t)b.pipeline);
 }
 
 // ---- "address-in-buffer" mode: the TLAS address read from a storage buffer ----------------------
@@ -1106,10 +1114,7 @@ bool run_address_in_buffer(const Device& d, VkCommandPool pool, const AddressSet
 // The address-in-buffer mode: OUT.json names the TLAS, the two pipelines and the buffers.
 int address_in_buffer_main(const char* out_path) {
     Device d = create_device();
-    VkCommandPoolCreateInfo pool_info{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO};
-    pool_info.queueFamilyIndex = d.family;
-    VkCommandPool pool;
-    CHECK(vkCreateCommandPool(d.device, &pool_info, nullptr, &pool));
+    const VkCommandPool pool = command_pool(d);
     VkCommandBuffer build_cb = begin(d, pool);
     const Scene scene = build_scene(d, build_cb);
     CHECK(vkEndCommandBuffer(build_cb));
@@ -1125,20 +1130,14 @@ int address_in_buffer_main(const char* out_path) {
     add_uniform_address_set(d, uniform.buffer, results.buffer, a);
     const bool right = run_address_in_buffer(d, pool, a, bound, not_an_address, late, uniform,
                                              results, scene.top.address);
-    FILE* out = std::fopen(out_path, "w");
-    if (!out) fail("cannot write OUT.json");
-    std::fprintf(out,
-                 "{\"topLevel\": %llu, \"topLevelAddress\": %llu, \"addressPipeline\": %llu, "
-                 "\"pushedAddressPipeline\": %llu, \"uniformAddressPipeline\": %llu}\n",
-                 (unsigned long long)(uint64_t)scene.top.handle,
-                 (unsigned long long)scene.top.address, (unsigned long long)(uint64_t)a.pipeline,
-                 (unsigned long long)(uint64_t)a.pushed_pipeline,
-                 (unsigned long long)(uint64_t)a.uniform_pipeline);
-    std::fclose(out);
-    vkDeviceWaitIdle(d.device);
-    if (!right) fail("the shaders' results are wrong");
-    std::printf("ok\n");
-    return 0;
+    return finish_mode(d, out_path, right,
+                       "{\"topLevel\": %llu, \"topLevelAddress\": %llu, \"addressPipeline\": %llu, "
+                       "\"pushedAddressPipeline\": %llu, \"uniformAddressPipeline\": %llu}\n",
+                       (unsigned long long)(uint64_t)scene.top.handle,
+                       (unsigned long long)scene.top.address,
+                       (unsigned long long)(uint64_t)a.pipeline,
+                       (unsigned long long)(uint64_t)a.pushed_pipeline,
+                       (unsigned long long)(uint64_t)a.uniform_pipeline);
 }
 
 }  // namespace
@@ -1156,10 +1155,7 @@ int main(int argc, char** argv) {
         return 2;
     }
     Device d = create_device();
-    VkCommandPoolCreateInfo pool_info{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO};
-    pool_info.queueFamilyIndex = d.family;
-    VkCommandPool pool;
-    CHECK(vkCreateCommandPool(d.device, &pool_info, nullptr, &pool));
+    const VkCommandPool pool = command_pool(d);
 
     VkCommandBuffer build_cb = begin(d, pool);
     const Scene scene = build_scene(d, build_cb);
