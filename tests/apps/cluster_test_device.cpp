@@ -189,6 +189,22 @@ VkCommandBuffer ClusterTestDevice::beginCommands() {
     return cb;
 }
 
+VkQueryPool ClusterTestDevice::makeQueryPool(VkQueryType type) {
+    VkQueryPoolCreateInfo info{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
+    info.queryType = type;
+    info.queryCount = 1;
+    VkQueryPool pool;
+    CHECK(vkCreateQueryPool(device, &info, nullptr, &pool));
+    return pool;
+}
+
+uint64_t ClusterTestDevice::queryResult(VkQueryPool pool) {
+    uint64_t value = 0;
+    CHECK(vkGetQueryPoolResults(device, pool, 0, 1, sizeof value, &value, sizeof value,
+                                VK_QUERY_RESULT_64_BIT | VK_QUERY_RESULT_WAIT_BIT));
+    return value;
+}
+
 void ClusterTestDevice::submitAndWait(VkCommandBuffer cb) {
     CHECK(vkEndCommandBuffer(cb));
     VkFenceCreateInfo fenceInfo{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO, nullptr, 0};

@@ -71,6 +71,9 @@ struct ClusterTestDevice {
     // A one-time-submit primary command buffer, begun.
     VkCommandBuffer beginCommands();
     void submitAndWait(VkCommandBuffer cb);
+    // A pool of one query of `type`, and its 64-bit result once available.
+    VkQueryPool makeQueryPool(VkQueryType type);
+    uint64_t queryResult(VkQueryPool pool);
     // Waits for the device, then destroys the buffers made, the pool, the device and the instance.
     void destroy();
 };

@@ -119,22 +119,6 @@ VkAccelerationStructureBuildSizesInfoKHR sizes_of(
     return sizes;
 }
 
-VkQueryPool query_pool(const Device& d, VkQueryType type) {
-    VkQueryPoolCreateInfo info{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
-    info.queryType = type;
-    info.queryCount = 1;
-    VkQueryPool pool;
-    CHECK(vkCreateQueryPool(d.device, &info, nullptr, &pool));
-    return pool;
-}
-
-uint64_t query_result(const Device& d, VkQueryPool pool) {
-    uint64_t value = 0;
-    CHECK(vkGetQueryPoolResults(d.device, pool, 0, 1, sizeof value, &value, sizeof value,
-                                VK_QUERY_RESULT_64_BIT | VK_QUERY_RESULT_WAIT_BIT));
-    return value;
-}
-
 uint64_t id(const void* handle) { return uint64_t(reinterpret_cast<uintptr_t>(handle)); }
 
 }  // namespace
@@ -234,9 +218,10 @@ int main(int argc, char** argv) {
     const VkAccelerationStructureBuildRangeInfoKHR tlas_range{2, 0, 0, 0};
     const VkAccelerationStructureBuildRangeInfoKHR* tlas_ranges[1] = {&tlas_range};
 
-    VkQueryPool compacted = query_pool(d, VK_QUERY_TYPE_ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR);
+    VkQueryPool compacted =
+        d.makeQueryPool(VK_QUERY_TYPE_ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR);
     VkQueryPool serialized =
-        query_pool(d, VK_QUERY_TYPE_ACCELERATION_STRUCTURE_SERIALIZATION_SIZE_KHR);
+        d.makeQueryPool(VK_QUERY_TYPE_ACCELERATION_STRUCTURE_SERIALIZATION_SIZE_KHR);
 
     VkCommandBuffer first = d.beginCommands();
     const VkBufferCopy upload{0, 0, kInputBytes};
@@ -254,8 +239,8 @@ int main(int argc, char** argv) {
                            VK_QUERY_TYPE_ACCELERATION_STRUCTURE_SERIALIZATION_SIZE_KHR, serialized,
                            0);
     d.submitAndWait(first);
-    const uint64_t compacted_size = query_result(d, compacted);
-    const uint64_t serialized_size = query_result(d, serialized);
+    const uint64_t compacted_size = d.queryResult(compacted);
+    const uint64_t serialized_size = d.queryResult(serialized);
 
     // Compaction, serialization, and an update of the triangle BLAS from moved vertices.
     Structure compact = create_structure(d, storage, used, compacted_size,

@@ -31,30 +31,14 @@ Function load(const ClusterTestDevice& d, const char* name) {
     return f;
 }
 
-VkQueryPool query_pool(const ClusterTestDevice& d, VkQueryType type) {
-    VkQueryPoolCreateInfo info{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
-    info.queryType = type;
-    info.queryCount = 1;
-    VkQueryPool pool;
-    CHECK(vkCreateQueryPool(d.device, &info, nullptr, &pool));
-    return pool;
-}
-
-uint64_t query_result(const ClusterTestDevice& d, VkQueryPool pool) {
-    uint64_t value = 0;
-    CHECK(vkGetQueryPoolResults(d.device, pool, 0, 1, sizeof value, &value, sizeof value,
-                                VK_QUERY_RESULT_64_BIT | VK_QUERY_RESULT_WAIT_BIT));
-    return value;
-}
-
 // A timestamp written and read back: a query pool that holds no structure property.
 VkQueryPool read_timestamp(ClusterTestDevice& d) {
-    VkQueryPool pool = query_pool(d, VK_QUERY_TYPE_TIMESTAMP);
+    VkQueryPool pool = d.makeQueryPool(VK_QUERY_TYPE_TIMESTAMP);
     VkCommandBuffer cb = d.beginCommands();
     vkCmdResetQueryPool(cb, pool, 0, 1);
     vkCmdWriteTimestamp(cb, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, pool, 0);
     d.submitAndWait(cb);
-    query_result(d, pool);
+    d.queryResult(pool);
     return pool;
 }
 
@@ -118,7 +102,8 @@ void build_and_query(ClusterTestDevice& d, json& out, bool destroy_property_pool
     const VkAccelerationStructureBuildRangeInfoKHR range{1, 0, 0, 0};
     const VkAccelerationStructureBuildRangeInfoKHR* ranges = &range;
 
-    VkQueryPool compacted = query_pool(d, VK_QUERY_TYPE_ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR);
+    VkQueryPool compacted =
+        d.makeQueryPool(VK_QUERY_TYPE_ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR);
     VkCommandBuffer cb = d.beginCommands();
     build(cb, 1, &info, &ranges);
     VkMemoryBarrier built{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr,
@@ -131,7 +116,7 @@ void build_and_query(ClusterTestDevice& d, json& out, bool destroy_property_pool
     write_properties(cb, 1, &blas, VK_QUERY_TYPE_ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR,
                      compacted, 0);
     d.submitAndWait(cb);
-    out["compactedSize"] = query_result(d, compacted);
+    out["compactedSize"] = d.queryResult(compacted);
     out["blas"] = id(blas);
     out["address"] = address;
     out["propertyPool"] = id(compacted);
