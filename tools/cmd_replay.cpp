@@ -36,6 +36,7 @@ struct ReplayArgs {
     bool no_verify = false;
     bool progress = false;
     std::size_t max_findings = 1000;
+    uint32_t threads = 0;   // 0: the machine's cores
     std::string traversal;  // "", "float32" or "double" (CLI11 checks the value)
     traces::TraceReaderOptions reader{.verify_content_keys = true};
 };
@@ -93,6 +94,7 @@ int run_replay(const ReplayArgs& args) {
     options.verify_outputs = !args.no_verify;
     options.submission = args.submit;
     options.max_findings = args.max_findings;
+    options.threads = args.threads;
     if (args.traversal == "double")
         options.ray_check_traversal = replay::RayCheckTraversal::kDouble;
     if (args.traversal == "float32")
@@ -177,7 +179,18 @@ Command register_replay(CLI::App& app) {
                     "arithmetic of the engine's traversal for the trace's ray checks: float32 "
                     "(the default: as the drivers that answered them trace) or double")
         ->check(CLI::IsMember({"float32", "double"}));
+    sub->add_option("--threads", args->threads,
+                    "threads the replay may use, 1 to 1024 (default: the machine's cores); the "
+                    "report is the same for every count; 1 runs everything on one thread, 2 and "
+                    "more run the independent ops of a command in parallel")
+        ->check(whole_number_from(1, 1024, "a thread count"));
     add_max_raw_option(sub, &args->reader);
+    sub->footer(
+        "Environment: CLASTRACE_ENGINE_SIMD=sse traces with the engine's 4-wide SSE path where the "
+        "CPU has AVX2 (the reference path; same hits); CLASTRACE_REPLAY_SYNC_THREAD=1 checks "
+        "hazards on a thread of their own and CLASTRACE_REPLAY_RUN_AHEAD=1 runs cluster builds "
+        "ahead of their turn, with 2 threads or more (both off by default: slower on the "
+        "measured machine, docs/replay.md \"Threads\").");
     return Command{sub, [args] { return run_replay(*args); }};
 }
 

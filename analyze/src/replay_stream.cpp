@@ -106,8 +106,8 @@ void ReplayStreamFeeder::on_record(const traces::RecordView& view) {
     State& s = *state_;
     ++s.stats.records;
     const fbs::Record& r = *view.record;
-    if (const auto* c = r.body_as_MemoryContents()) {
-        s.contents_bytes += c->bytes() ? c->bytes()->size() : 0;
+    if (const auto c = traces::contents_record(r)) {  // whole or delta (format 1.7)
+        s.contents_bytes += c->size();
         return;
     }
     traces::SnapshotLists lists = traces::record_snapshots(r);

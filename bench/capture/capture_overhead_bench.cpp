@@ -14,14 +14,16 @@
 //   6. where capture's time went (the layer's CLASTRACE_STATS report of the last run of the
 //      serving-only and capture modes).
 //
-//   7. the host-write watch on against off (CLASTRACE_HOST_WRITES=0).
+//   7. the host-write watch on against off (CLASTRACE_HOST_WRITES=0),
+//   8. delta contents on against off (CLASTRACE_DELTA_CONTENTS=0): trace bytes against plain
+//      zstd, and each mode's time against serving only.
 //
-//   capture_overhead_bench [frames=60] [clusters=256] [repetitions=5] [host-writes]
-//   (host-writes: run and print only table 7)
+//   capture_overhead_bench [frames=60] [clusters=256] [repetitions=5] [host-writes|deltas]
+//   (host-writes: run and print only table 7; deltas: only table 8)
 #include <clastrace/testsupport/test_driver.h>
 #include <clastrace/traces/records.h>
+#include <clastrace/traces/referenced_zstd.h>
 #include <clastrace/traces/trace_reader.h>
-#include <zstd.h>
 
 #include <algorithm>
 #include <cstdio>
@@ -146,11 +148,12 @@ std::pair<double, double> bootstrapRatioInterval(const std::vector<double>& peer
 
 struct TraceBytes {
     uint64_t fileBytes = 0, referenced = 0, stored = 0, snapshots = 0, zstdOfReferenced = 0,
-             chunks = 0;
+             chunks = 0, deltas = 0;
 };
 
-// Reads every snapshot's bytes back in trace order and compresses their concatenation with
-// plain zstd at the trace's level: what a capture without deduplication would have cost.
+// Counts what the trace stores, and compresses every snapshot's bytes, in trace order, with plain
+// zstd at the trace's level (traces::referenced_zstd): what a capture without deduplication
+// would have cost.
 TraceBytes measureTrace(const fs::path& path, int zstdLevel) {
     TraceBytes t;
     t.fileBytes = fs::file_size(path);
@@ -160,41 +163,61 @@ TraceBytes measureTrace(const fs::path& path, int zstdLevel) {
         std::fprintf(stderr, "capture_overhead_bench: %s\n", error.message.c_str());
         std::exit(1);
     }
-    std::vector<uint64_t> hashes;
     clastrace::traces::RecordView view;
-    while (reader->next(&view)) {
-        if (const auto* c = view.record->body_as_MemoryContents()) {
-            t.stored += c->bytes() ? c->bytes()->size() : 0;
-            continue;
+    while (reader->next(&view))
+        if (const auto c = clastrace::traces::contents_record(*view.record)) {
+            t.stored += c->size();
+            if (c->delta) ++t.deltas;
         }
-        auto lists = clastrace::traces::record_snapshots(*view.record);
-        for (const auto* list : {lists.inputs, lists.outputs})
-            if (list)
-                for (const auto* s : *list) {
-                    ++t.snapshots;
-                    t.referenced += s->size();
-                    hashes.push_back(s->hash());
-                }
-    }
     t.chunks = reader->stats().chunks_read;
-    ZSTD_CCtx* cctx = ZSTD_createCCtx();
-    ZSTD_CCtx_setParameter(cctx, ZSTD_c_compressionLevel, zstdLevel);
-    std::vector<uint8_t> bytes, compressed(ZSTD_CStreamOutSize());
-    for (size_t i = 0; i <= hashes.size(); ++i) {
-        const bool last = i == hashes.size();
-        bytes.clear();
-        if (!last && reader->read_contents(hashes[i], &bytes)) continue;
-        ZSTD_inBuffer in{bytes.data(), bytes.size(), 0};
-        for (;;) {
-            ZSTD_outBuffer out{compressed.data(), compressed.size(), 0};
-            const size_t left =
-                ZSTD_compressStream2(cctx, &out, &in, last ? ZSTD_e_end : ZSTD_e_continue);
-            t.zstdOfReferenced += out.pos;
-            if (last ? left == 0 : in.pos == in.size) break;
-        }
+    clastrace::traces::ReferencedZstd peer;
+    if ((error = clastrace::traces::referenced_zstd(path.string(), zstdLevel, {}, &peer))) {
+        std::fprintf(stderr, "capture_overhead_bench: %s\n", error.message.c_str());
+        std::exit(1);
     }
-    ZSTD_freeCCtx(cctx);
+    t.snapshots = peer.snapshots;
+    t.referenced = peer.referenced_bytes;
+    t.zstdOfReferenced = peer.zstd_bytes;
     return t;
+}
+
+// One setting the bench runs the app under, and what its runs gave.
+struct Mode {
+    const char* name;
+    std::map<std::string, std::string> env;
+    std::vector<double> loops, cpu;
+    Run last;
+    TraceBytes bytes;
+};
+
+// Table 8: delta contents on (the default) against off, each trace against plain zstd of the
+// bytes its snapshots reference, and each mode's frame loop against serving only.
+void printDeltaTable(const Mode& serving, const Mode& deltas, const Mode& whole, int repetitions) {
+    std::printf(
+        "\n| delta contents                   | .clt bytes | vs plain zstd | deltas | wall ms "
+        "(median) | ratio  | median pairwise | CPU ms (median) | ratio  |\n");
+    std::printf(
+        "|----------------------------------|-----------:|--------------:|-------:|--------------"
+        ":|-------:|----------------:|----------------:|-------:|\n");
+    for (const Mode* m : {&deltas, &whole}) {
+        std::vector<double> pairs;
+        for (int r = 0; r < repetitions; ++r) pairs.push_back(m->loops[r] / serving.loops[r]);
+        const TraceBytes& b = m->bytes;
+        std::printf(
+            "| %-32s | %10llu | %12.3fx | %6llu | %13.1f | %5.3fx | %14.3fx | %15.1f | "
+            "%5.3fx |\n",
+            m == &deltas ? "on (default)" : "off (CLASTRACE_DELTA_CONTENTS=0)",
+            (unsigned long long)b.fileBytes,
+            b.zstdOfReferenced ? double(b.fileBytes) / double(b.zstdOfReferenced) : 0.0,
+            (unsigned long long)b.deltas, median(m->loops),
+            median(m->loops) / median(serving.loops), median(pairs), median(m->cpu),
+            median(m->cpu) / median(serving.cpu));
+    }
+    std::printf(
+        "(plain zstd -3 over the referenced bytes: %llu; serving only: median wall %.1f ms, "
+        "CPU %.1f ms)\n",
+        (unsigned long long)deltas.bytes.zstdOfReferenced, median(serving.loops),
+        median(serving.cpu));
 }
 
 // The host-write watch (capture/README.md, "Host writes"): capture with it on against capture
@@ -243,13 +266,6 @@ int main(int argc, char** argv) {
     const std::string args =
         "frames " + std::to_string(frames) + " --clusters " + std::to_string(clusters);
 
-    struct Mode {
-        const char* name;
-        std::map<std::string, std::string> env;
-        std::vector<double> loops, cpu;
-        Run last;
-        TraceBytes bytes;
-    };
     constexpr size_t kHostWritesOff = 10;  // index of the watch-off mode below
     auto traceOf = [&](const char* name) { return (dir / (std::string(name) + ".clt")).string(); };
     std::vector<Mode> modes = {
@@ -309,11 +325,21 @@ int main(int argc, char** argv) {
          {},
          {},
          {}},
+        {"capture + serving, CLASTRACE_DELTA_CONTENTS=0",
+         {{"CLASTRACE_OUTPUT", traceOf("nodeltas")}, {"CLASTRACE_DELTA_CONTENTS", "0"}},
+         {},
+         {},
+         {},
+         {}},
     };
+    constexpr size_t kDeltasOff = 11;
     // `host-writes` as the 4th argument: only the host-write watch's table (watch on against
     // off, with serving only as the floor), for its cost without the other knobs' runs.
     const bool host_writes_only = argc > 4 && std::string(argv[4]) == "host-writes";
     if (host_writes_only) modes = {modes[0], modes[1], modes[kHostWritesOff]};
+    // `deltas`: only delta contents on against off (table 8).
+    const bool deltas_only = argc > 4 && std::string(argv[4]) == "deltas";
+    if (deltas_only) modes = {modes[0], modes[1], modes[kDeltasOff]};
     // Interleaved, so drift of a shared machine spreads over every mode alike.
     for (int r = 0; r < repetitions; ++r)
         for (Mode& m : modes) {
@@ -329,6 +355,11 @@ int main(int argc, char** argv) {
     }
     for (Mode& m : modes)
         if (m.env.count("CLASTRACE_OUTPUT")) m.bytes = measureTrace(m.env["CLASTRACE_OUTPUT"], 3);
+    if (deltas_only) {
+        printDeltaTable(modes[0], modes[1], modes[2], repetitions);
+        fs::remove_all(dir);
+        return 0;
+    }
     const TraceBytes& bytes = modes[1].bytes;
 
     std::printf(
@@ -386,7 +417,12 @@ int main(int argc, char** argv) {
                 (unsigned long long)bytes.snapshots, (unsigned long long)bytes.referenced, 1.0);
     row("after dedup (distinct contents)", bytes.stored);
     row("plain zstd -3 over the referenced bytes (peer)", bytes.zstdOfReferenced);
-    row(".clt file (dedup + zstd -3, whole trace)", bytes.fileBytes);
+    row(".clt file (dedup + deltas + zstd -3)", bytes.fileBytes);
+    std::printf(
+        "\n.clt file = %.2fx plain zstd -3 of the referenced bytes (goal <= 1.0x); %llu of "
+        "the stored contents are deltas\n",
+        bytes.zstdOfReferenced ? double(bytes.fileBytes) / double(bytes.zstdOfReferenced) : 0.0,
+        (unsigned long long)bytes.deltas);
     std::printf(
         "\n| mode                                  | pauses | median ms/pause | p90 ms/pause |\n");
     std::printf(
@@ -464,6 +500,7 @@ int main(int argc, char** argv) {
     // phase over the whole process, the vkDestroyDevice flush included (after the frame loop).
     printHostWriteTable(modes[1].loops, modes[1].cpu, modes[kHostWritesOff].loops,
                         modes[kHostWritesOff].cpu, modes[1].last.stats, frames, clusters);
+    printDeltaTable(modes[0], modes[1], modes[kDeltasOff], repetitions);
     for (size_t i : {0, 1}) {
         std::printf("\nwhere the time went, %s (last run, CLASTRACE_STATS=1):\n\n", modes[i].name);
         for (const std::string& line : modes[i].last.stats) std::printf("    %s\n", line.c_str());

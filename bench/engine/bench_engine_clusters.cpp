@@ -1,12 +1,24 @@
 // SPDX-License-Identifier: Apache-2.0
 // bench_engine_clusters: per scene, the positionTruncateBitCount trade (bytes per triangle
-// against position error and hit-t deviation) and the engine's cluster build throughput on
-// 1 and 2 threads beside Embree 3's RTC_BUILD_QUALITY_LOW build of the same triangles.
+// against position error and hit-t deviation) and the engine's cluster build throughput at
+// every thread count of a sweep (1, 2, 4, ... and the machine's count) beside Embree 3's
+// RTC_BUILD_QUALITY_LOW build of the same triangles at the same count, with each builder's
+// scaling efficiency, and the engine's scaling losses by cause (the phases table: when the
+// last thread started, how evenly the chunks were shared, CPU per cluster against the
+// 1-thread run, and the input and object bytes moved per second); the header says whether
+// cpu0 shares its core with an SMT sibling.
 //
-// usage: bench_engine_clusters [--quick] [--throughput-only] [--engine-only] [--repeat N]
-//   --quick: ~100k-triangle scenes instead of ~10^6 (a smoke run).
+// usage: bench_engine_clusters [--quick] [--tris N] [--max-threads N] [--mesh PATH]
+//                              [--throughput-only] [--engine-only] [--repeat N] [--scene TEXT]
+//   --tris N: about N triangles per scene (default 10^6); --quick: 10^5 (a smoke run).
+//   --max-threads N: the sweep's last count (default: the machine's hardware threads).
+//   --mesh PATH: the WusonOBJ model to tile (default: Debian's assimp-testmodels copy).
 //   --throughput-only: skip the truncation tables.
-//   --engine-only: only the engine's 1-thread build, repeated (a clean profile under perf).
+//   --engine-only: only the engine's 1-thread build, repeated, no tracing (a clean profile
+//     under perf).
+//   --scene TEXT: only the scenes whose label contains TEXT ("WusonOBJ", "icosphere", "soup"),
+//     e.g. to count one mesh's instructions per cluster under callgrind.
+#include "clastrace/engine/blas.h"
 #include "clastrace/engine/cluster_build.h"
 #include "clastrace/engine/cluster_format.h"
 #include "clastrace/testsupport/cluster_scene.h"
@@ -20,7 +32,10 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
+#include <optional>
 #include <string>
+#include <thread>
 #include <time.h>
 
 namespace ts = clastrace::testsupport;
@@ -81,6 +96,22 @@ ts::TriangleMesh tiled(const ts::TriangleMesh& m, int n) {
     return out;
 }
 
+// Where one parallel engine build's wall time went: each thread's busy time (inside the loop
+// body, its chunks of clusters) and how long after the run began it took its first chunk. With
+// `threads` threads, wall >= latest start + busy of that thread; busy summed over threads
+// against the 1-thread run's busy says whether a cluster costs more CPU on a full machine
+// (shared caches, memory bandwidth, clock), busy max against the mean whether the chunks were
+// shared unevenly.
+struct PhaseStats {
+    double busy_sum = 0, busy_max = 0, latest_start = 0;
+    int threads_used = 0;
+};
+
+// One thread's share of a run.
+struct ThreadPhase {
+    double busy = 0, first_start = -1;
+};
+
 // Engine build of every cluster on `threads` threads (TBB arena). run() times one build of all
 // clusters; the first run warms the per-thread builders and the output buffers.
 struct EngineBuild {
@@ -88,30 +119,50 @@ struct EngineBuild {
     tbb::task_arena arena;
     tbb::enumerable_thread_specific<eng::ClusterBuilder> builders;
     tbb::enumerable_thread_specific<std::vector<eng::Finding>> findings;
+    tbb::enumerable_thread_specific<ThreadPhase> phases;
     std::vector<std::vector<std::byte>>& objects;
+    PhaseStats last;  // of the latest run
     EngineBuild(const ts::ClusterSceneInputs& inputs, int threads,
                 std::vector<std::vector<std::byte>>& out)
         : in(inputs), arena(threads), objects(out) {
         objects.resize(in.infos.size());
         run();
     }
+    void build_chunk(const tbb::blocked_range<size_t>& r) {
+        auto& b = builders.local();
+        auto& f = findings.local();
+        for (size_t i = r.begin(); i != r.end(); ++i) {
+            f.clear();
+            if (!b.build_triangle_cluster(in.memory, in.infos[i], in.input, int64_t(i), objects[i],
+                                          f))
+                std::fprintf(stderr, "cluster %zu failed to build\n", i);
+        }
+    }
     Timing run() {
+        for (ThreadPhase& p : phases) p = ThreadPhase{};
         const Stopwatch sw;
         arena.execute([&] {
             tbb::parallel_for(tbb::blocked_range<size_t>(0, in.infos.size(), 32),
                               [&](const tbb::blocked_range<size_t>& r) {
-                                  auto& b = builders.local();
-                                  auto& f = findings.local();
-                                  for (size_t i = r.begin(); i != r.end(); ++i) {
-                                      f.clear();
-                                      if (!b.build_triangle_cluster(in.memory, in.infos[i],
-                                                                    in.input, int64_t(i),
-                                                                    objects[i], f))
-                                          std::fprintf(stderr, "cluster %zu failed to build\n", i);
-                                  }
+                                  const auto c0 = Clock::now();
+                                  ThreadPhase& p = phases.local();
+                                  if (p.first_start < 0)
+                                      p.first_start =
+                                          std::chrono::duration<double>(c0 - sw.wall0).count();
+                                  build_chunk(r);
+                                  p.busy += seconds_since(c0);
                               });
         });
-        return sw.elapsed();
+        const Timing t = sw.elapsed();
+        last = PhaseStats{};
+        for (const ThreadPhase& p : phases) {
+            if (p.first_start < 0) continue;
+            ++last.threads_used;
+            last.busy_sum += p.busy;
+            last.busy_max = std::max(last.busy_max, p.busy);
+            last.latest_start = std::max(last.latest_start, p.first_start);
+        }
+        return t;
     }
 };
 
@@ -312,6 +363,65 @@ bool sah_estimate(const std::vector<std::byte>& object, double& box_tests, doubl
     return true;
 }
 
+// The engine alone: a cluster BLAS over the scene's CLASes (its binned SAH build), traced
+// closest hit through trace_bottom_level_bytes in both traversal modes (1 thread, best of the
+// repeats): the BLAS walk and the CLAS walk, no Embree.
+void cluster_blas_trace_line(const Scene& sc, const std::vector<std::vector<std::byte>>& objects,
+                             const std::vector<ts::TestRay>& test_rays) {
+    std::vector<eng::ClusterBox> boxes;
+    for (size_t c = 0; c < objects.size(); ++c) {
+        const eng::HeaderCheck hc = eng::read_object_header(objects[c]);
+        if (!hc.header || hc.header->node_count == 0) continue;
+        eng::ClusterBox box{};
+        std::memcpy(box.bounds_min, hc.header->bounds_min, 12);
+        std::memcpy(box.bounds_max, hc.header->bounds_max, 12);
+        box.clas_address = c;
+        box.reference_index = uint32_t(c);
+        box.cluster_id = hc.header->cluster_id;
+        boxes.push_back(box);
+    }
+    const std::vector<std::byte> blas = eng::build_bottom_level(boxes, uint32_t(objects.size()));
+    if (blas.empty()) return;
+    const auto clas_at = [&](uint64_t address) -> std::span<const std::byte> {
+        return objects[size_t(address)];
+    };
+    std::vector<eng::Ray> rays;
+    for (const auto& t : test_rays)
+        rays.push_back(eng::Ray{{t.origin[0], t.origin[1], t.origin[2]},
+                                t.tmin,
+                                {t.direction[0], t.direction[1], t.direction[2]},
+                                t.tmax});
+    std::vector<std::optional<eng::ClasView>> views;
+    for (const auto& o : objects) views.push_back(eng::open_clas(o));
+    const auto view_at = [&](uint64_t address) -> const eng::ClasView* {
+        return views[size_t(address)] ? &*views[size_t(address)] : nullptr;
+    };
+    // Checked per visit (the bytes form) and opened once (the views form).
+    for (const bool opened : {false, true}) {
+        for (const eng::TraversalMode mode :
+             {eng::TraversalMode::kDouble, eng::TraversalMode::kFloat32}) {
+            double best = 1e30;
+            size_t hits = 0;
+            for (int rep = 0; rep < g_repeat; ++rep) {
+                const Stopwatch sw;
+                size_t h = 0;
+                for (const auto& r : rays)
+                    h += (opened ? eng::trace_bottom_level_views(blas, view_at, r, 0, false, mode)
+                                 : eng::trace_bottom_level_bytes(blas, clas_at, r, 0, false, mode))
+                             .hit.hit;
+                best = std::min(best, sw.elapsed().cpu);
+                hits = h;
+            }
+            std::printf(
+                "cluster BLAS trace, %s, %s, %s: %.3f Mrays/s cpu (%zu rays, %zu hits, "
+                "1 thread, engine only)\n",
+                sc.label.c_str(), eng::traversal_mode_name(mode),
+                opened ? "CLASes opened once" : "CLAS checked per visit",
+                double(rays.size()) / 1e6 / best, rays.size(), hits);
+        }
+    }
+}
+
 // BVH quality of the engine's objects: the SAH estimate averaged over clusters, and the
 // closest-hit trace rate of the whole scene (Embree's BVH over the cluster boxes, the engine
 // inside each cluster; 1 thread, best of the repeats).
@@ -356,90 +466,246 @@ void quality_line(const Scene& sc, const std::vector<std::vector<std::byte>>& ob
         "(mean over %zu clusters); trace %.3f Mrays/s cpu (%zu rays, %zu hits, 1 thread)\n",
         sc.label.c_str(), box / double(counted), tri / double(counted), counted,
         double(rays.size()) / 1e6 / best, rays.size(), hits);
+    cluster_blas_trace_line(sc, objects, rays);
 }
 
-void throughput_table(const Scene& sc) {
+// The thread counts of the sweep: 1, 2, 4, ... below `max_threads`, then `max_threads` itself.
+std::vector<int> thread_sweep(int max_threads) {
+    std::vector<int> counts;
+    for (int t = 1; t < max_threads; t *= 2) counts.push_back(t);
+    counts.push_back(max_threads);
+    return counts;
+}
+
+// One thread count's best times: the engine, Embree LOW on one scene, and (1 thread only)
+// Embree LOW per cluster.
+struct SweepTimes {
+    int threads;
+    Timing engine, whole, per_cluster;
+    PhaseStats engine_phases;  // of the engine's best wall
+};
+
+// The other builder's TBB workers spin for a while after its run, and process CPU time would
+// count them against the next timed run: let them fall asleep first.
+void settle() { std::this_thread::sleep_for(std::chrono::milliseconds(30)); }
+
+SweepTimes time_thread_count(const Scene& sc, const ts::ClusterSceneInputs& in,
+                             const std::vector<ts::Float3>& padded, const ClusterArrays& arrays,
+                             int threads, std::vector<std::vector<std::byte>>& objects) {
+    EngineBuild engine(in, threads, objects);
+    // Embree's thread count is its TBB scheduler's, set once per process by the first device's
+    // "threads=" (later devices' are ignored): so no device sets it, and Embree commits inside
+    // an arena of `threads`, as the engine builds.
+    RTCDevice device = ts::make_embree_device("");
+    tbb::task_arena embree_arena(threads);
+    const auto embree_run = [&](auto&& build) {
+        settle();
+        Timing t;
+        embree_arena.execute([&] { t = build(); });
+        return t;
+    };
+    embree_run([&] { return embree_scene_seconds(sc.mesh, padded, device); });  // warm up
+    SweepTimes t{threads, {}, {}, {}, {}};
+    for (int rep = 0; rep < g_repeat; ++rep) {
+        settle();
+        const Timing e = engine.run();
+        if (e.wall < t.engine.wall) t.engine_phases = engine.last;
+        t.engine.keep_best(e);
+        t.whole.keep_best(
+            embree_run([&] { return embree_scene_seconds(sc.mesh, padded, device); }));
+        if (threads == 1)
+            t.per_cluster.keep_best(
+                embree_run([&] { return embree_per_cluster_seconds(arrays, device); }));
+    }
+    rtcReleaseDevice(device);
+    return t;
+}
+
+// Bytes one engine build moves through memory: every cluster's input (its info struct, the
+// vertex and index bytes it names) and its object. With the wall time, the memory traffic a
+// thread count asks of the machine (a lower bound: writes also read their lines first).
+struct BuildTraffic {
+    double input_bytes = 0, output_bytes = 0;
+};
+BuildTraffic build_traffic(const ts::ClusterSceneInputs& in,
+                           const std::vector<std::vector<std::byte>>& objects) {
+    BuildTraffic t;
+    for (const auto& info : in.infos) {
+        const uint32_t istep = info.indexBufferStride ? info.indexBufferStride : info.indexType;
+        const uint32_t vstep = info.vertexBufferStride ? info.vertexBufferStride : 12;
+        t.input_bytes += double(sizeof info) + double(info.vertexCount) * vstep +
+                         3.0 * info.triangleCount * istep;
+    }
+    for (const auto& o : objects) t.output_bytes += double(o.size());
+    return t;
+}
+
+// The engine's scaling losses by cause, per thread count (its best-wall run): threads that
+// took chunks; the latest first chunk (waking the workers); busy per thread, mean and max
+// (uneven chunks); wall time outside the busiest thread's chunks; "cost/cluster", all
+// threads' busy time over the 1-thread run's (above 1: every cluster costs more CPU when all
+// cores build, e.g. memory bandwidth, clock or two threads sharing a core); and the memory
+// traffic of inputs and objects per second of wall time.
+void phase_table(const std::vector<SweepTimes>& sweep, const BuildTraffic& traffic,
+                 size_t clusters) {
+    std::printf(
+        "engine phases (best wall per count; ms): used = threads that took chunks, start = "
+        "latest first chunk,\n  busy = time in the chunks per thread (mean, max), outside = wall - "
+        "busy max (scheduling, preemption,\n  the join), cost/cluster = busy of all threads / "
+        "1-thread busy, GB/s = input and object bytes\n  (%.0f + %.0f B per cluster) / wall\n",
+        traffic.input_bytes / double(clusters), traffic.output_bytes / double(clusters));
+    std::printf("%8s %6s %9s %8s %10s %9s %8s %13s %7s\n", "threads", "used", "wall", "start",
+                "busy mean", "busy max", "outside", "cost/cluster", "GB/s");
+    const double one_busy = sweep.empty() ? 0 : sweep.front().engine_phases.busy_sum;
+    for (const SweepTimes& t : sweep) {
+        const PhaseStats& p = t.engine_phases;
+        std::printf("%8d %6d %9.3f %8.3f %10.3f %9.3f %8.3f %12.2fx %7.2f\n", t.threads,
+                    p.threads_used, t.engine.wall * 1e3, p.latest_start * 1e3,
+                    p.threads_used ? p.busy_sum / p.threads_used * 1e3 : 0.0, p.busy_max * 1e3,
+                    (t.engine.wall - p.busy_max) * 1e3, one_busy > 0 ? p.busy_sum / one_busy : 0.0,
+                    (traffic.input_bytes + traffic.output_bytes) / t.engine.wall / 1e9);
+    }
+}
+
+// Engine and Embree LOW at every thread count of the sweep. Scaling efficiency = (1-thread
+// wall / N-thread wall) / N, each builder against its own 1-thread run; on CPU time rows it
+// is not shown (CPU time counts every thread's work, so it is flat under perfect scaling).
+void throughput_table(const Scene& sc, int max_threads) {
     const ts::ClusterSceneInputs in = ts::write_cluster_inputs(sc.mesh, sc.clusters, {1, 0, 0, 0});
     const double mtris = double(sc.mesh.triangles.size()) / 1e6;
     std::printf(
-        "build throughput, %s (Mtris/s, best of %d runs interleaved engine/Embree so both see the "
-        "same load;\n"
-        "  Embree RTC_BUILD_QUALITY_LOW on the same untruncated triangles: one scene of one "
-        "geometry, and one\n"
-        "  scene per cluster built one after another; ratio = engine / Embree; clock wall = "
-        "elapsed time,\n"
-        "  cpu = process CPU time, the load-independent measure of work on a shared machine)\n",
-        sc.label.c_str(), g_repeat);
-    std::printf("%8s %6s %10s %16s %8s %20s %8s\n", "threads", "clock", "engine", "embree 1 scene",
-                "ratio", "embree per-cluster", "ratio");
+        "\nbuild throughput, %s, %zu triangles, %zu clusters (Mtris/s, best of %d runs "
+        "interleaved engine/Embree\n"
+        "  so both see the same load; Embree RTC_BUILD_QUALITY_LOW on the same untruncated "
+        "triangles: one scene of\n"
+        "  one geometry, and (1 thread) one scene per cluster built one after another; ratio = "
+        "engine / Embree at\n"
+        "  the same thread count; eff = scaling efficiency (speedup over its own 1-thread wall "
+        "/ threads);\n"
+        "  clock wall = elapsed time, cpu = process CPU time, the load-independent measure of "
+        "work on a shared machine)\n",
+        sc.label.c_str(), sc.mesh.triangles.size(), sc.clusters.size(), g_repeat);
+    std::printf("%8s %6s %10s %10s %8s %7s %7s %20s %8s\n", "threads", "clock", "engine",
+                "embree LOW", "ratio", "eng eff", "emb eff", "embree per-cluster", "ratio");
     std::vector<ts::Float3> padded = sc.mesh.positions;
     padded.push_back({0, 0, 0});
     const ClusterArrays arrays = cluster_arrays(sc);
-    for (int threads : {1, 2}) {
-        std::vector<std::vector<std::byte>> objects;
-        EngineBuild engine(in, threads, objects);
-        RTCDevice device = ts::make_embree_device("threads=" + std::to_string(threads));
-        embree_scene_seconds(sc.mesh, padded, device);  // warm Embree's thread pool and allocator
-        Timing e, whole, per;
-        for (int rep = 0; rep < g_repeat; ++rep) {
-            e.keep_best(engine.run());
-            whole.keep_best(embree_scene_seconds(sc.mesh, padded, device));
-            if (threads == 1) per.keep_best(embree_per_cluster_seconds(arrays, device));
-        }
-        rtcReleaseDevice(device);
-        auto row = [&](const char* clock, double te, double tw, double tp) {
-            if (threads == 1)
-                std::printf("%8d %6s %10.2f %16.2f %7.2fx %20.2f %7.2fx\n", threads, clock,
-                            mtris / te, mtris / tw, tw / te, mtris / tp, tp / te);
-            else
-                std::printf("%8d %6s %10.2f %16.2f %7.2fx %20s %8s\n", threads, clock, mtris / te,
-                            mtris / tw, tw / te, "-", "-");
-        };
-        row("wall", e.wall, whole.wall, per.wall);
-        row("cpu", e.cpu, whole.cpu, per.cpu);
-        if (threads == 2) quality_line(sc, objects);
+    std::vector<std::vector<std::byte>> objects;
+    SweepTimes one{};
+    std::vector<SweepTimes> sweep;
+    for (int threads : thread_sweep(max_threads)) {
+        const SweepTimes t = time_thread_count(sc, in, padded, arrays, threads, objects);
+        sweep.push_back(t);
+        if (threads == 1) one = t;
+        const Timing& e = t.engine;
+        const Timing& w = t.whole;
+        std::printf("%8d %6s %10.2f %10.2f %7.2fx %7.2f %7.2f", threads, "wall", mtris / e.wall,
+                    mtris / w.wall, w.wall / e.wall, one.engine.wall / e.wall / threads,
+                    one.whole.wall / w.wall / threads);
+        if (threads == 1)
+            std::printf(" %20.2f %7.2fx\n", mtris / t.per_cluster.wall,
+                        t.per_cluster.wall / e.wall);
+        else
+            std::printf(" %20s %8s\n", "-", "-");
+        std::printf("%8d %6s %10.2f %10.2f %7.2fx %7s %7s", threads, "cpu", mtris / e.cpu,
+                    mtris / w.cpu, w.cpu / e.cpu, "-", "-");
+        if (threads == 1)
+            std::printf(" %20.2f %7.2fx\n", mtris / t.per_cluster.cpu, t.per_cluster.cpu / e.cpu);
+        else
+            std::printf(" %20s %8s\n", "-", "-");
     }
+    phase_table(sweep, build_traffic(in, objects), sc.clusters.size());
+    quality_line(sc, objects);
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-    bool quick = false, throughput_only = false, engine_only = false;
-    for (int i = 1; i < argc; ++i) {
-        const std::string a = argv[i];
-        if (a == "--quick")
-            quick = true;
-        else if (a == "--throughput-only")
-            throughput_only = true;
-        else if (a == "--engine-only")
-            engine_only = true;
-        else if (a == "--repeat" && i + 1 < argc)
-            g_repeat = std::max(1, std::atoi(argv[++i]));
-        else {
-            std::fprintf(stderr,
-                         "usage: %s [--quick] [--throughput-only] [--engine-only] [--repeat N]\n",
-                         argv[0]);
-            return 2;
-        }
-    }
+// The bench's meshes at about `tris` triangles each: the WusonOBJ model tiled (when `wuson`
+// loads), the icosphere, and a random soup; only those whose label contains `only`.
+std::vector<Scene> make_scenes(size_t tris, const std::filesystem::path& wuson,
+                               const std::string& only) {
     std::vector<Scene> scenes;
-    const int tiles = quick ? 5 : 16;
-    const auto wuson_path = ts::assimp_models_dir() / "OBJ/WusonOBJ.obj";
     try {
-        scenes.push_back({"WusonOBJ tiled", tiled(ts::load_obj(wuson_path), tiles), {}});
+        const ts::TriangleMesh model = ts::load_obj(wuson);
+        const int tiles =
+            std::max(1, int(std::lround(std::sqrt(double(tris) / double(model.triangles.size())))));
+        scenes.push_back({"WusonOBJ tiled", tiled(model, tiles), {}});
     } catch (const ts::MeshLoadError& e) {
-        std::fprintf(stderr, "no real mesh (%s); using an icosphere\n", e.what());
-        scenes.push_back({"icosphere", ts::make_icosphere(quick ? 5 : 8, 10.0f), {}});
+        std::fprintf(stderr, "no WusonOBJ (%s): the icosphere is the only real mesh\n", e.what());
     }
-    scenes.push_back(
-        {"random soup", ts::make_random_soup(quick ? 100000 : 1000000, 1, 100.0f, 2.0f), {}});
+    // 20 * 4^s triangles: the subdivision nearest to `tris` on a log scale.
+    const int subdivisions =
+        std::clamp(int(std::lround(std::log(double(tris) / 20.0) / std::log(4.0))), 1, 10);
+    scenes.push_back({"icosphere", ts::make_icosphere(subdivisions, 10.0f), {}});
+    scenes.push_back({"random soup", ts::make_random_soup(tris, 1, 100.0f, 2.0f), {}});
+    std::erase_if(scenes, [&](const Scene& s) { return s.label.find(only) == std::string::npos; });
     for (Scene& s : scenes) {
         const auto t0 = Clock::now();
         s.clusters = ts::build_clusters(s.mesh, 64, 124);
         std::fprintf(stderr, "%s: clustered in %.2f s\n", s.label.c_str(), seconds_since(t0));
     }
-    std::printf("bench_engine_clusters: TBB, Embree %s, %u hardware threads\n", RTC_VERSION_STRING,
-                std::max(1u, unsigned(tbb::info::default_concurrency())));
+    return scenes;
+}
+
+// How many hardware threads share cpu0's core (Linux sysfs): with two, the top of the thread
+// sweep puts two builds on each core and the scaling efficiency there measures the core's
+// sharing, not the builder.
+std::string core_sharing() {
+    std::FILE* f = std::fopen("/sys/devices/system/cpu/cpu0/topology/thread_siblings_list", "r");
+    if (!f) return "threads per core unknown";
+    char line[128] = {};
+    const bool read = std::fgets(line, sizeof line, f) != nullptr;
+    std::fclose(f);
+    if (!read) return "threads per core unknown";
+    // "0", "0,8" or "0-1": a comma or a range means a sibling.
+    std::string list(line);
+    while (!list.empty() && (list.back() == '\n' || list.back() == ' ')) list.pop_back();
+    const bool shared = list.find_first_of(",-") != std::string::npos;
+    return std::string(shared ? "cores shared by SMT siblings" : "one thread per core") +
+           " (cpu0 siblings: " + list + ")";
+}
+
+void usage(const char* argv0) {
+    std::fprintf(stderr,
+                 "usage: %s [--quick] [--tris N] [--max-threads N] [--mesh PATH] "
+                 "[--throughput-only] [--engine-only] [--repeat N] [--scene TEXT]\n",
+                 argv0);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    bool throughput_only = false, engine_only = false;
+    size_t tris = 1000000;
+    int max_threads = std::max(1, int(tbb::info::default_concurrency()));
+    std::filesystem::path wuson = ts::assimp_models_dir() / "OBJ/WusonOBJ.obj";
+    std::string only_scene;
+    for (int i = 1; i < argc; ++i) {
+        const std::string a = argv[i];
+        const bool has_value = i + 1 < argc;
+        if (a == "--quick")
+            tris = 100000;
+        else if (a == "--tris" && has_value)
+            tris = std::max<size_t>(1000, std::strtoull(argv[++i], nullptr, 10));
+        else if (a == "--max-threads" && has_value)
+            max_threads = std::max(1, std::atoi(argv[++i]));
+        else if (a == "--mesh" && has_value)
+            wuson = argv[++i];
+        else if (a == "--throughput-only")
+            throughput_only = true;
+        else if (a == "--engine-only")
+            engine_only = true;
+        else if (a == "--repeat" && has_value)
+            g_repeat = std::max(1, std::atoi(argv[++i]));
+        else if (a == "--scene" && has_value)
+            only_scene = argv[++i];
+        else {
+            usage(argv[0]);
+            return 2;
+        }
+    }
+    const std::vector<Scene> scenes = make_scenes(tris, wuson, only_scene);
+    std::printf("bench_engine_clusters: TBB, Embree %s, %u hardware threads, %s\n",
+                RTC_VERSION_STRING, std::max(1u, unsigned(tbb::info::default_concurrency())),
+                core_sharing().c_str());
     std::printf(
         "columns: B/tri = CLAS object bytes / triangles; max|dx| = largest stored-minus-input "
         "coordinate;\n"
@@ -472,17 +738,16 @@ int main(int argc, char** argv) {
                 "(%.2f Mtris/s)\n",
                 s.label.c_str(), g_repeat, best.wall * 1e3, mtris / best.wall, best.cpu * 1e3,
                 mtris / best.cpu);
-            quality_line(s, objects);
         }
         return 0;
     }
     for (const Scene& s : scenes) {
         const ts::Bounds b = ts::bounds_of(s.mesh);
         std::vector<ts::TestRay> rays = ts::camera_rays(b, 256, 256, 3);
-        const auto rnd = ts::random_rays(b, quick ? 1 << 15 : 1 << 17, 4);
+        const auto rnd = ts::random_rays(b, tris < 500000 ? 1 << 15 : 1 << 17, 4);
         rays.insert(rays.end(), rnd.begin(), rnd.end());
         if (!throughput_only) truncation_table(s, rays);
-        throughput_table(s);
+        throughput_table(s, max_threads);
     }
     return 0;
 }

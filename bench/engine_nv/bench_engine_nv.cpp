@@ -4,7 +4,12 @@
 // builder of the same kind: the default SAH tree against RTC_BUILD_QUALITY_MEDIUM (binned
 // SAH), the PREFER_FAST_BUILD Morton tree against RTC_BUILD_QUALITY_LOW (its fastest). Build
 // times are best of 5, engine and Embree interleaved; the rays are one pass of 200k.
+// A second table times closest-hit traversal alone (the SAH tree against Embree MEDIUM), best
+// of 3 passes, wall and thread CPU time; `--quick` prints only that table, 20k rays, 1 pass;
+// `--traversal RAYS PASSES` only that table at the size given; `--build-only` only the build
+// columns (no rays: a quick build comparison).
 #include "nv_scene.h"
+#include "nv_wide_tree.h"
 
 #include <clastrace/engine/nv_format.h>
 #include <clastrace/testsupport/rays.h>
@@ -14,6 +19,9 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <ctime>
 
 using namespace clastrace;
 using namespace clastrace::nvtest;
@@ -23,6 +31,12 @@ namespace {
 
 double since(Clock::time_point t0) {
     return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+double thread_cpu_s() {
+    timespec ts{};
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
 }
 
 double embree_build(RTCDevice device, const ts::TriangleMesh& m, RTCBuildQuality quality,
@@ -106,7 +120,8 @@ struct EngineMode {
     }
 };
 
-void row(const char* name, ts::TriangleMesh mesh) {
+// One mesh's build table row; `with_rays` false (--build-only) leaves the ray columns out.
+void row(const char* name, ts::TriangleMesh mesh, bool with_rays) {
     // Embree's shared vertex buffers are read 16 bytes at a time: keep one spare vertex of capacity.
     mesh.positions.reserve(mesh.positions.size() + 2);
     NvWorld w;
@@ -122,6 +137,14 @@ void row(const char* name, ts::TriangleMesh mesh) {
         medium = std::min(medium, embree_build(device, mesh, RTC_BUILD_QUALITY_MEDIUM, nullptr));
     }
     const double mtris = mesh.triangles.size() / 1e6;
+    if (!with_rays) {
+        rtcReleaseDevice(device);
+        std::printf("%-14s %7zu %6.1f | %7.2f %7.2f %7s %6.2fx | %7.2f %7.2f %7s %6.2fx\n", name,
+                    mesh.triangles.size(), double(sah_run.bytes) / mesh.triangles.size(),
+                    mtris / sah_run.build_s, mtris / medium, "-", sah_run.build_s / medium,
+                    mtris / morton_run.build_s, mtris / low, "-", morton_run.build_s / low);
+        return;
+    }
     // Rays: closest hit through both engine objects and through Embree's MEDIUM scene.
     RTCScene scene = nullptr;
     embree_build(device, mesh, RTC_BUILD_QUALITY_MEDIUM, &scene);
@@ -164,11 +187,127 @@ void row(const char* name, ts::TriangleMesh mesh) {
         morton_run.sah, sah_run.hits, morton_run.hits, hits_embree);
 }
 
+// Wall and CPU seconds of the best of `passes` runs of `trace` (the best wall's CPU).
+template <class Trace>
+std::pair<double, double> best_of(int passes, Trace&& trace) {
+    double wall = 1e30, cpu = 1e30;
+    for (int p = 0; p < passes; ++p) {
+        const auto t0 = Clock::now();
+        const double c0 = thread_cpu_s();
+        trace();
+        const double w = since(t0), c = thread_cpu_s() - c0;
+        if (w < wall) {
+            wall = w;
+            cpu = c;
+        }
+    }
+    return {wall, cpu};
+}
+
+// Closest-hit traversal alone: the engine's SAH tree (NvScene, its traversal layout built at
+// open) and Embree's MEDIUM scene on the same rays, one thread.
+void traversal_row(const char* name, ts::TriangleMesh mesh, size_t ray_count, int passes) {
+    mesh.positions.reserve(mesh.positions.size() + 2);  // Embree reads 16 bytes per vertex
+    NvWorld w;
+    EngineMode sah(w, mesh, 0);
+    EngineRun run;
+    sah.build(run);
+    auto nv = eng::NvScene::open_bottom(w.memory, sah.cmd.dst.address, nullptr);
+    RTCDevice device = rtcNewDevice("threads=1");
+    RTCScene scene = nullptr;
+    embree_build(device, mesh, RTC_BUILD_QUALITY_MEDIUM, &scene);
+    const auto rays = ts::random_rays(ts::bounds_of(mesh), ray_count, 3);
+    size_t engine_hits = 0, embree_hits = 0;
+    const auto engine = best_of(passes, [&] {
+        engine_hits = 0;
+        for (const auto& t : rays)
+            engine_hits += nv->closest(eng::Ray{{t.origin[0], t.origin[1], t.origin[2]},
+                                                0,
+                                                {t.direction[0], t.direction[1], t.direction[2]},
+                                                t.tmax},
+                                       0, 0xFF)
+                               .hit;
+    });
+    RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    const auto embree = best_of(passes, [&] {
+        embree_hits = 0;
+        for (const auto& t : rays) {
+            RTCRayHit rh{};
+            rh.ray = RTCRay{t.origin[0],
+                            t.origin[1],
+                            t.origin[2],
+                            0,
+                            t.direction[0],
+                            t.direction[1],
+                            t.direction[2],
+                            0,
+                            t.tmax,
+                            ~0u,
+                            0,
+                            0};
+            rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+            rtcIntersect1(scene, &ctx, &rh);
+            embree_hits += rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+        }
+    });
+    rtcReleaseScene(scene);
+    rtcReleaseDevice(device);
+    const double n = double(rays.size()) / 1e6;
+    uint64_t wide_nodes = 0;
+    const double layout_bytes = double(nv->traversal_bytes(&wide_nodes));
+    std::printf("%-14s %7zu %6.1f %6.2f | %7.2f %7.2f | %7.2f %7.2f | %6.2fx %6.2fx | %zu/%zu\n",
+                name, rays.size(), layout_bytes / mesh.triangles.size(),
+                double(wide_nodes) / mesh.triangles.size(), n / engine.first, n / engine.second,
+                n / embree.first, n / embree.second, embree.first / engine.first,
+                embree.second / engine.second, engine_hits, embree_hits);
+}
+
+void traversal_table(size_t ray_count, int passes) {
+    std::printf(
+        "\nClosest-hit traversal, 1 thread, %zu random rays, best of %d: engine (SAH tree, "
+        "double mode) next to Embree MEDIUM.\nx columns: engine Mrays/s / Embree Mrays/s "
+        "(1.00x: Embree's speed; the goal is >= 0.7x). B/tri kept: what the opened scene keeps "
+        "to trace\n(records, stored nodes, wide nodes, leaf triangle groups); nodes/tri: wide "
+        "nodes per triangle. SIMD path: %s\n(CLASTRACE_ENGINE_SIMD=sse forces the SSE 4-wide "
+        "one).\n",
+        ray_count, passes,
+        eng::detail::active_simd_path() == eng::detail::SimdPath::kAvx2 ? "AVX2, 8-wide nodes"
+                                                                        : "SSE, 4-wide nodes");
+    std::printf("%-14s %7s %6s %6s | %7s %7s | %7s %7s | %7s %7s | %s\n", "mesh", "rays", "B/tri",
+                "nodes", "engine", "engine", "Embree", "Embree", "ratio", "ratio",
+                "hits engine/Embree");
+    std::printf("%-14s %7s %6s %6s | %7s %7s | %7s %7s | %7s %7s |\n", "", "", "kept", "/tri",
+                "wall", "CPU", "wall", "CPU", "wall", "CPU");
+    traversal_row("icosphere-6", ts::make_icosphere(6, 1.0f), ray_count, passes);
+    traversal_row("terrain-300", ts::make_terrain(300, 300, 1), ray_count, passes);
+    traversal_row("soup-200k", ts::make_random_soup(200000, 5, 1.0f, 0.05f), ray_count, passes);
+    traversal_row("torus-400x200", ts::make_torus(400, 200, 1.0f, 0.3f), ray_count, passes);
+}
+
 }  // namespace
 
-int main() {
+int main(int argc, char** argv) {
     // The engine's builders use TBB for large ranges: hold them to one thread like Embree.
     tbb::global_control one_thread(tbb::global_control::max_allowed_parallelism, 1);
+    if (argc > 1 && std::strcmp(argv[1], "--quick") == 0) {
+        traversal_table(20000, 1);
+        return 0;
+    }
+    // The traversal table alone at a chosen size (profiling, interleaved before/after runs).
+    if (argc == 4 && std::strcmp(argv[1], "--traversal") == 0) {
+        const long rays = std::atol(argv[2]), passes = std::atol(argv[3]);
+        if (rays > 0 && passes > 0) {
+            traversal_table(size_t(rays), int(passes));
+            return 0;
+        }
+    }
+    const bool build_only = argc > 1 && std::strcmp(argv[1], "--build-only") == 0;
+    if (argc > 2 || (argc > 1 && !build_only)) {
+        std::fprintf(stderr, "usage: %s [--quick | --traversal RAYS PASSES | --build-only]\n",
+                     argv[0]);
+        return 2;
+    }
     std::printf(
         "NV bottom-level build and closest-hit rays, 1 thread, best of 5 (build) / 200k random "
         "rays\n"
@@ -184,9 +323,10 @@ int main() {
     std::printf("%-14s %7s %6s | %7s %7s %7s %7s | %7s %7s %7s %7s | %7s %7s %7s | %6s %6s |\n", "",
                 "", "", "Mtris/s", "Mtris/s", "Mray/s", "build", "Mtris/s", "Mtris/s", "Mray/s",
                 "build", "Mray/s", "rays", "rays", "cost", "cost");
-    row("icosphere-6", ts::make_icosphere(6, 1.0f));
-    row("terrain-300", ts::make_terrain(300, 300, 1));
-    row("soup-200k", ts::make_random_soup(200000, 5, 1.0f, 0.05f));
-    row("torus-400x200", ts::make_torus(400, 200, 1.0f, 0.3f));
+    row("icosphere-6", ts::make_icosphere(6, 1.0f), !build_only);
+    row("terrain-300", ts::make_terrain(300, 300, 1), !build_only);
+    row("soup-200k", ts::make_random_soup(200000, 5, 1.0f, 0.05f), !build_only);
+    row("torus-400x200", ts::make_torus(400, 200, 1.0f, 0.3f), !build_only);
+    if (!build_only) traversal_table(200000, 3);
     return 0;
 }

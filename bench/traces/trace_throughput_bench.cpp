@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: Apache-2.0
-// trace_throughput_bench [MB] [DIR]: trace write and read throughput next to plain zstd
+// trace_throughput_bench [MB] [DIR] [whole] [reads=N]: trace write and read throughput next to plain zstd
 // at the same level on the same bytes. Goal: both ratios >= 0.8.
 //
 // The bytes are what a cluster capture stores: vertex positions (float3 grids with
@@ -9,6 +9,7 @@
 // "Raw MB" is the bytes stored once; zstd compresses exactly those, in chunks of the
 // trace's chunk size, single-threaded. The trace is written to DIR (default /dev/shm)
 // so the disk does not dominate.
+#include <clastrace/traces/records.h>
 #include <clastrace/traces/trace_reader.h>
 #include <clastrace/traces/trace_writer.h>
 #include <clastrace/vk_cluster_abi.h>
@@ -107,19 +108,53 @@ Frame make_frame(int frame, int clusters, std::mt19937& rng) {
 struct Result {
     double raw_mb, trace_ratio, zstd_ratio;
     Elapsed write, zstd_c, read, read_keys, zstd_d;  // read: default options
+    uint64_t deltas = 0, deltas_decoded_ahead = 0;   // of the read with default options
+    uint64_t chunk_buffer_bytes = 0;                 // the reader's, at the end of that read
 };
 
-Result run(const std::vector<Frame>& frames, const std::vector<int>& repeat_of, int level,
-           uint32_t chunk, const std::string& path) {
-    Result r{};
-    // Trace write: every frame's snapshots go through add_contents and one build record.
+// One read of the whole trace at `path`, every record handed out and every content touched;
+// exits when it does not give back `raw` stored bytes without damage.
+Elapsed read_trace(const std::string& path, bool verify_keys, uint64_t raw, TraceReadStats* stats,
+                   uint64_t* sink) {
+    const Stamp t0 = Clock::now();
+    TraceError e;
+    TraceReaderOptions ropts;
+    ropts.verify_content_keys = verify_keys;
+    auto reader = TraceReader::open(path, &e, ropts);
+    if (!reader) {
+        std::fprintf(stderr, "%s\n", e.message.c_str());
+        std::exit(2);
+    }
+    RecordView v;
+    uint64_t read_bytes = 0;
+    while (reader->next(&v)) {
+        if (const std::optional<traces::ContentsRecord> c = traces::contents_record(*v.record)) {
+            read_bytes += c->size();
+            *sink += c->bytes->Get(c->size() / 2);
+        }
+    }
+    const Elapsed took = seconds_since(t0);
+    *stats = reader->stats();
+    if (reader->damage_count() != 0 || read_bytes != raw) {
+        std::fprintf(stderr, "read back %llu of %llu bytes, %llu damage\n",
+                     (unsigned long long)read_bytes, (unsigned long long)raw,
+                     (unsigned long long)reader->damage_count());
+        std::exit(1);
+    }
+    return took;
+}
+
+// Writes the frames as a trace at `path`: every frame's snapshots go through add_contents and one
+// build record. Exits on an error.
+TraceWriterStats write_trace(const std::vector<Frame>& frames, const std::vector<int>& repeat_of,
+                             int level, uint32_t chunk, const std::string& path, bool deltas) {
     TraceError e;
     TraceWriterOptions options;
     options.zstd_level = level;
     options.chunk_raw_bytes = chunk;
     options.sync_on_finish = false;
+    options.delta_contents = deltas;
     fbs::TraceHeaderT header;
-    auto t0 = Clock::now();
     auto w = TraceWriter::create(path, header, options, &e);
     if (!w) {
         std::fprintf(stderr, "%s\n", e.message.c_str());
@@ -140,12 +175,19 @@ Result run(const std::vector<Frame>& frames, const std::vector<int>& repeat_of, 
         if (e) break;
     }
     if (!e) e = w->finish();
-    r.write = seconds_since(t0);
     if (e) {
         std::fprintf(stderr, "%s\n", e.message.c_str());
         std::exit(2);
     }
-    TraceWriterStats st = w->stats();
+    return w->stats();
+}
+
+Result run(const std::vector<Frame>& frames, const std::vector<int>& repeat_of, int level,
+           uint32_t chunk, const std::string& path, bool deltas) {
+    Result r{};
+    auto t0 = Clock::now();
+    const TraceWriterStats st = write_trace(frames, repeat_of, level, chunk, path, deltas);
+    r.write = seconds_since(t0);
     uint64_t raw = st.contents_bytes_stored;
     r.raw_mb = raw / 1e6;
     r.trace_ratio = static_cast<double>(raw) / static_cast<double>(st.compressed_bytes);
@@ -189,28 +231,12 @@ Result run(const std::vector<Frame>& frames, const std::vector<int>& repeat_of, 
 
     // Trace read: every record verified; content keys trusted (default) or recomputed.
     for (bool verify : {false, true}) {
-        t0 = Clock::now();
-        TraceReaderOptions ropts;
-        ropts.verify_content_keys = verify;
-        auto reader = TraceReader::open(path, &e, ropts);
-        if (!reader) {
-            std::fprintf(stderr, "%s\n", e.message.c_str());
-            std::exit(2);
-        }
-        RecordView v;
-        uint64_t read_bytes = 0;
-        while (reader->next(&v)) {
-            if (const auto* c = v.record->body_as_MemoryContents()) {
-                read_bytes += c->bytes()->size();
-                sink += c->bytes()->Get(c->bytes()->size() / 2);
-            }
-        }
-        (verify ? r.read_keys : r.read) = seconds_since(t0);
-        if (reader->damage_count() != 0 || read_bytes != raw) {
-            std::fprintf(stderr, "read back %llu of %llu bytes, %llu damage\n",
-                         (unsigned long long)read_bytes, (unsigned long long)raw,
-                         (unsigned long long)reader->damage_count());
-            std::exit(1);
+        TraceReadStats rs;
+        (verify ? r.read_keys : r.read) = read_trace(path, verify, raw, &rs, &sink);
+        if (!verify) {
+            r.deltas = st.contents_delta_stored;
+            r.deltas_decoded_ahead = rs.deltas_decoded_ahead;
+            r.chunk_buffer_bytes = rs.chunk_buffer_bytes;
         }
     }
     if (sink == 42) std::printf(" ");
@@ -218,11 +244,41 @@ Result run(const std::vector<Frame>& frames, const std::vector<int>& repeat_of, 
     return r;
 }
 
+// "reads=N": the trace written once at level 3, then read N times with the default options and
+// nothing else timed, for profilers (callgrind, perf) to see the reader alone.
+void profile_reads(const std::vector<Frame>& frames, const std::vector<int>& repeat_of,
+                   const std::string& path, bool deltas, int reads) {
+    const TraceWriterStats st = write_trace(frames, repeat_of, 3, 4u << 20, path, deltas);
+    const uint64_t raw = st.contents_bytes_stored;
+    uint64_t sink = 0;
+    for (int i = 0; i < reads; ++i) {
+        TraceReadStats rs;
+        const Elapsed took = read_trace(path, false, raw, &rs, &sink);
+        std::printf(
+            "read %d: %.1f MB in %.3f s wall, %.3f s cpu (%.1f MB/s wall); deltas decoded "
+            "ahead %llu of %llu; fresh buffers for real bytes %.1f MB\n",
+            i, raw / 1e6, took.wall, took.cpu, raw / 1e6 / took.wall,
+            (unsigned long long)rs.deltas_decoded_ahead,
+            (unsigned long long)st.contents_delta_stored, rs.real_bytes_allocated / 1e6);
+    }
+    if (sink == 42) std::printf(" ");
+    ::unlink(path.c_str());
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
     double target_mb = argc > 1 ? std::atof(argv[1]) : 256;
     std::string dir = argc > 2 ? argv[2] : "/dev/shm";
+    // "whole": every content stored whole (the format before delta contents), for comparison.
+    // "reads=N": see profile_reads.
+    bool deltas = true;
+    int reads = 0;
+    for (int i = 3; i < argc; ++i) {
+        const std::string arg = argv[i];
+        if (arg == "whole") deltas = false;
+        if (arg.rfind("reads=", 0) == 0) reads = std::atoi(arg.c_str() + 6);
+    }
     const int clusters = 4096;  // ~4.4 MB of inputs per frame
     std::mt19937 rng(1);
     std::vector<Frame> frames;
@@ -240,17 +296,21 @@ int main(int argc, char** argv) {
         stored += frames.back().vertices.size() + frames.back().indices.size() +
                   frames.back().infos.size();
     }
+    if (reads > 0) {
+        profile_reads(frames, repeat_of, dir + "/clastrace-bench.clt", deltas, reads);
+        return 0;
+    }
     std::printf(
         "trace throughput vs plain zstd (same level, same stored bytes, %u-byte chunks; %zu "
-        "frames, every 4th repeated)\n",
-        4u << 20, frames.size());
+        "frames, every 4th repeated; contents %s)\n",
+        4u << 20, frames.size(), deltas ? "as deltas where they can" : "whole");
     std::printf(
         "MB/s of stored bytes; 'wall' = elapsed time, 'cpu' = process CPU time of all threads\n");
     std::printf("%-5s %7s | %-27s | %-27s | %-27s | %-27s | %6s %6s\n", "level", "raw MB",
                 "trace write MB/s wall (cpu)", "zstd compress MB/s wall(cpu)",
                 "trace read MB/s wall (cpu)", "zstd decomp MB/s wall (cpu)", "trace", "zstd");
     for (int level : {1, 3, 9}) {
-        Result r = run(frames, repeat_of, level, 4u << 20, dir + "/clastrace-bench.clt");
+        Result r = run(frames, repeat_of, level, 4u << 20, dir + "/clastrace-bench.clt", deltas);
         auto mbs = [&](double s) { return r.raw_mb / s; };
         std::printf(
             "%-5d %7.1f | %7.1f (%7.1f)           | %7.1f (%7.1f)           | %7.1f (%7.1f)        "
@@ -264,6 +324,11 @@ int main(int argc, char** argv) {
             r.zstd_c.wall / r.write.wall, r.zstd_c.cpu / r.write.cpu, r.zstd_d.wall / r.read.wall,
             r.zstd_d.cpu / r.read.cpu, mbs(r.read_keys.wall), r.zstd_d.wall / r.read_keys.wall,
             r.zstd_d.cpu / r.read_keys.cpu);
+        std::printf(
+            "      deltas %llu, decoded on the read-ahead task %llu; reader's chunk buffers "
+            "%.1f MB at the end\n",
+            (unsigned long long)r.deltas, (unsigned long long)r.deltas_decoded_ahead,
+            r.chunk_buffer_bytes / 1e6);
     }
     return 0;
 }

@@ -29,6 +29,7 @@ const char* const kPhaseNames[] = {
     "periodic flush",
     "vkDestroyDevice flush",
     "host-write watch",
+    "    driver BLAS builds (traceable)",
 };
 static_assert(sizeof kPhaseNames / sizeof kPhaseNames[0] == size_t(CostPhase::kCount));
 

@@ -244,6 +244,21 @@ std::vector<ResolvedRange> DeviceMemoryMap::host_addressed_buffers() const {
     return out;
 }
 
+std::vector<std::pair<VkDeviceAddress, VkDeviceAddress>> DeviceMemoryMap::address_ranges_in(
+    uint64_t memory) const {
+    std::lock_guard lock(mutex_);
+    std::vector<std::pair<VkDeviceAddress, VkDeviceAddress>> out;
+    for (const auto& [address, handle] : buffers_by_address_) {
+        const TrackedBuffer& b = buffers_.at(handle);
+        if (b.memory == memory) out.emplace_back(address, address + b.size);
+        auto pages = sparse_pages_.find(handle);
+        if (pages == sparse_pages_.end()) continue;
+        for (const auto& [first, page] : pages->second)
+            if (page.memory == memory) out.emplace_back(address + first, address + page.end);
+    }
+    return out;
+}
+
 void DeviceMemoryMap::append_host_mapped_sparse_runs(const TrackedBuffer& b,
                                                      std::vector<ResolvedRange>& out) const {
     auto pages = sparse_pages_.find(b.handle);

@@ -438,6 +438,7 @@ public:
                               {"executedByEngine", c.executed_by_engine},
                               {"engineFindings", findings},
                               {"driverBvh", driver_bvh},
+                              {"implicitObjectRoom", c.implicit_object_room},
                               {"pauseMilliseconds", c.pause_milliseconds}});
     }
     void acceleration_structure_created(const AccelerationStructureRecord& a) override {

@@ -29,17 +29,6 @@ KhrDirectory& directory() {
 
 DeviceState& device_of(VkCommandBuffer cb) { return *find_device(dispatch_key(cb)); }
 
-bool is_property_query(VkQueryType type) {
-    switch (type) {
-    case VK_QUERY_TYPE_ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR:
-    case VK_QUERY_TYPE_ACCELERATION_STRUCTURE_SERIALIZATION_SIZE_KHR:
-    case VK_QUERY_TYPE_ACCELERATION_STRUCTURE_SERIALIZATION_BOTTOM_LEVEL_POINTERS_KHR:
-    case VK_QUERY_TYPE_ACCELERATION_STRUCTURE_SIZE_KHR:
-    case VK_QUERY_TYPE_ACCELERATION_STRUCTURE_COMPACTED_SIZE_NV: return true;
-    default: return false;
-    }
-}
-
 // A pause id when capturing now (the command's and its pause's), else 0.
 uint64_t next_pause_id(DeviceState& d) { return d.capturing_now() ? ++d.pause_counter : 0; }
 

@@ -61,6 +61,10 @@ VKAPI_ATTR VkResult VKAPI_CALL BindAccelerationStructureMemoryNV(
     VkDevice device, uint32_t count, const VkBindAccelerationStructureMemoryInfoNV* infos) {
     DeviceState& d = device_of(device);
     VkResult result = d.next.BindAccelerationStructureMemoryNV(device, count, infos);
+    if (result == VK_SUCCESS)
+        for (uint32_t i = 0; i < count; ++i)
+            note_pre_range_nv_memory(d, handle_id(infos[i].accelerationStructure),
+                                     handle_id(infos[i].memory));
     if (result == VK_SUCCESS && d.sink)
         for (uint32_t i = 0; i < count; ++i)
             d.sink->acceleration_structure_bound({handle_id(infos[i].accelerationStructure),

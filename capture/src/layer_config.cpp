@@ -173,6 +173,12 @@ LayerConfig parse_layer_config(const std::function<const char*(const char*)>& ge
         else
             reject("CLASTRACE_HOST_WRITES", *v, "0 or 1");
     }
+    if (auto v = value("CLASTRACE_DELTA_CONTENTS")) {
+        if (auto on = parse_switch(*v))
+            config.delta_contents = *on;
+        else
+            reject("CLASTRACE_DELTA_CONTENTS", *v, "0 or 1");
+    }
     return config;
 }
 

@@ -392,7 +392,10 @@ bool sinkFailed = false;
 
 }  // namespace
 
-DeviceState::~DeviceState() = default;
+// At exit without vkDestroyDevice the registry's destructor gets here first: the worker must
+// stop before the members it reads (command buffers, descriptors, device B) go, in reverse
+// declaration order, ahead of it.
+DeviceState::~DeviceState() { pauses.reset(); }
 
 namespace {
 std::atomic<uint64_t> submissionCounter{0};

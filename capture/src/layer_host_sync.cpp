@@ -2,6 +2,7 @@
 // Host calls that synchronize with the device (fence, event, semaphore and idle waits and
 // signals): forwarded, then recorded with their result, so replay knows which submissions had
 // completed when the host next touched memory.
+#include "layer_pre_range.h"
 #include "layer_state.h"
 
 #include <algorithm>
@@ -60,10 +61,14 @@ void look_for_host_writes(DeviceState& d,
     if (d.capturing_now() && layer_config().host_writes) d.host_writes.waited(d, orders);
 }
 
-bool signals_reached(const HostWriteWatch::Submission& s, uint64_t semaphore, uint64_t value) {
-    return std::any_of(s.signals.begin(), s.signals.end(), [&](const SemaphoreUse& signal) {
-        return signal.semaphore == semaphore && signal.value <= value;
-    });
+// Whether a host wait for `info`'s values (all of them) has seen one of `signals` happen.
+bool signals_reached(const std::vector<SemaphoreUse>& signals, const VkSemaphoreWaitInfo& info) {
+    for (uint32_t i = 0; i < info.semaphoreCount; ++i)
+        for (const SemaphoreUse& signal : signals)
+            if (signal.semaphore == handle_id(info.pSemaphores[i]) &&
+                signal.value <= info.pValues[i])
+                return true;
+    return false;
 }
 
 VKAPI_ATTR VkResult VKAPI_CALL SetEvent(VkDevice device, VkEvent event) {
@@ -91,6 +96,10 @@ VKAPI_ATTR VkResult VKAPI_CALL WaitForFences(VkDevice device, uint32_t count, co
     VkResult result = d.next.WaitForFences(device, count, fences, wait_all, timeout);
     if (result == VK_SUCCESS && (wait_all || count == 1)) {
         fences_completed(d, count, fences);
+        note_pre_range_wait(d, [&](const PreRangeSubmission& s) {
+            return s.fence && std::any_of(fences, fences + count,
+                                          [&](VkFence f) { return handle_id(f) == s.fence; });
+        });
         look_for_host_writes(d, [&](const HostWriteWatch::Submission& s) {
             return s.fence && std::any_of(fences, fences + count,
                                           [&](VkFence f) { return handle_id(f) == s.fence; });
@@ -110,6 +119,9 @@ VKAPI_ATTR VkResult VKAPI_CALL GetFenceStatus(VkDevice device, VkFence fence) {
     VkResult result = d.next.GetFenceStatus(device, fence);
     if (result == VK_SUCCESS) {
         fences_completed(d, 1, &fence);
+        note_pre_range_wait(d, [&](const PreRangeSubmission& s) {
+            return s.fence && s.fence == handle_id(fence);
+        });
         look_for_host_writes(d, [&](const HostWriteWatch::Submission& s) {
             return s.fence && s.fence == handle_id(fence);
         });
@@ -121,6 +133,10 @@ VKAPI_ATTR VkResult VKAPI_CALL GetFenceStatus(VkDevice device, VkFence fence) {
 VKAPI_ATTR VkResult VKAPI_CALL QueueWaitIdle(VkQueue queue) {
     DeviceState& d = *find_device(dispatch_key(queue));
     VkResult result = d.next.QueueWaitIdle(queue);
+    if (result == VK_SUCCESS)
+        note_pre_range_wait(d, [&](const PreRangeSubmission& s) {
+            return s.queue == handle_id(queue);
+        });
     if (result == VK_SUCCESS)
         read_completed_timestamps(d, [queue](const DeviceState::PendingTimestampRead& r) {
             return r.queue == queue;
@@ -135,6 +151,8 @@ VKAPI_ATTR VkResult VKAPI_CALL QueueWaitIdle(VkQueue queue) {
 VKAPI_ATTR VkResult VKAPI_CALL DeviceWaitIdle(VkDevice device) {
     DeviceState& d = device_of(device);
     VkResult result = d.next.DeviceWaitIdle(device);
+    if (result == VK_SUCCESS)
+        note_pre_range_wait(d, [](const PreRangeSubmission&) { return true; });
     if (result == VK_SUCCESS)
         read_completed_timestamps(d, [](const DeviceState::PendingTimestampRead&) { return true; });
     if (result == VK_SUCCESS)
@@ -163,13 +181,14 @@ VkResult wait_semaphores(VkDevice device, const VkSemaphoreWaitInfo* info, uint6
     DeviceState& d = device_of(device);
     VkResult result = next(device, info, timeout);
     const bool all = !(info->flags & VK_SEMAPHORE_WAIT_ANY_BIT) || info->semaphoreCount == 1;
-    if (result == VK_SUCCESS && all && info->pValues)
-        look_for_host_writes(d, [&](const HostWriteWatch::Submission& s) {
-            for (uint32_t i = 0; i < info->semaphoreCount; ++i)
-                if (signals_reached(s, handle_id(info->pSemaphores[i]), info->pValues[i]))
-                    return true;
-            return false;
+    if (result == VK_SUCCESS && all && info->pValues) {
+        note_pre_range_wait(d, [&](const PreRangeSubmission& s) {
+            return signals_reached(s.last_signals, *info);
         });
+        look_for_host_writes(d, [&](const HostWriteWatch::Submission& s) {
+            return signals_reached(s.signals, *info);
+        });
+    }
     std::vector<uint64_t> values;
     for (uint32_t i = 0; i < info->semaphoreCount && info->pValues; ++i)
         values.push_back(info->pValues[i]);

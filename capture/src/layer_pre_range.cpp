@@ -11,6 +11,7 @@
 #include <algorithm>
 #include <chrono>
 #include <condition_variable>
+#include <functional>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -38,12 +39,20 @@ using CaptureKey = std::tuple<uint64_t, uint64_t, uint32_t>;  // submission, pau
 
 struct PreRangeStore {
     std::mutex mutex;
-    std::condition_variable arrived;
     std::map<CaptureKey, KeptCommand> kept;
     PreRangeClusterCommands clusters;  // run first in the prelude: a top level may name them
     std::set<uint64_t> submissions;    // before the range, their captures still to come
+    // Before the range: submission -> how its completion shows; `waited` those the application
+    // saw complete (their captures come from the layer's own threads: the prelude waits for them).
+    std::map<uint64_t, PreRangeSubmission> submitted_on;
+    std::set<uint64_t> waited;
+    std::condition_variable capture_arrived;
     uint64_t next_sequence = 0;
     bool written = false;
+    // Prelude commands whose captures had not come when it was written: their key before the
+    // range -> the prelude submission and pause id the sink waits for.
+    std::map<CaptureKey, std::pair<uint64_t, uint64_t>> forwarded;
+    std::map<uint64_t, uint64_t> nv_memory;  // NV structure -> the memory bound to it
 };
 
 std::mutex storesMutex;
@@ -151,22 +160,10 @@ std::vector<KeptCommand*> prelude_order(PreRangeStore& s) {
     return order;
 }
 
-// Waits (bounded) for the captures of the submissions before the range: they were submitted
-// before the captured one, so the queue reaches their pauses unless it waits on the host.
-void wait_for_captures(PreRangeStore& s, std::unique_lock<std::mutex>& lock) {
-    const auto all_arrived = [&] {
-        return s.clusters.all_arrived() &&
-               std::all_of(s.kept.begin(), s.kept.end(),
-                           [](const auto& entry) { return entry.second.capture.has_value(); });
-    };
-    if (s.arrived.wait_for(lock, std::chrono::seconds(10), all_arrived)) return;
-    log_message(LogLevel::kError,
-                "pre-range state: the captures of some builds before the frame range did not "
-                "arrive within 10 s; they are written without their input bytes");
-}
-
-// The memory a KHR structure lives in (through its buffer); 0 when the layer does not know it.
-uint64_t memory_of_structure(const DeviceState& d, uint64_t structure) {
+// The memory a structure lives in (a KHR one through its buffer); 0 when the layer does not
+// know it.
+uint64_t memory_of_structure(const DeviceState& d, const PreRangeStore& s, uint64_t structure) {
+    if (auto nv = s.nv_memory.find(structure); nv != s.nv_memory.end()) return nv->second;
     const KhrStructureStorage storage = khr_structure_storage(d, structure);
     if (!storage.buffer) return 0;
     const std::optional<TrackedBuffer> buffer = d.memory_map.buffer(storage.buffer);
@@ -186,12 +183,15 @@ PreRangeStateRecord marker_of(const PreRangeStore& s, const SubmissionRecord& ca
     marker.structures = uint32_t(structures.size()) + s.clusters.live_objects();
     marker.commands = uint32_t(s.kept.size()) + marker.cluster_commands;
     marker.bytes = kept_bytes(s) + s.clusters.bytes(false);
+    size_t to_come = s.clusters.size() - s.clusters.arrived_count();
+    for (const auto& [key, k] : s.kept) to_come += !k.capture;
     log_message(LogLevel::kInfo,
                 "pre-range state: %u structures from %u commands (%u cluster commands) before "
-                "frame %llu, %llu input bytes kept (and %llu bytes of cluster outputs)",
+                "frame %llu, %llu input bytes kept (and %llu bytes of cluster outputs); %zu "
+                "captures still to come, which the trace waits for",
                 marker.structures, marker.commands, marker.cluster_commands,
                 (unsigned long long)marker.first_frame, (unsigned long long)marker.bytes,
-                (unsigned long long)s.clusters.bytes(true));
+                (unsigned long long)s.clusters.bytes(true), to_come);
     return marker;
 }
 
@@ -209,12 +209,17 @@ bool produces_pre_range_state(const PausePoint& pause) {
     return describe(pause, unused);
 }
 
-void note_pre_range_submission(DeviceState& d, uint64_t index,
+void note_pre_range_submission(DeviceState& d, const SubmissionRecord& submission,
                                const std::vector<const PausePoint*>& pauses) {
+    const uint64_t index = submission.index;
     PreRangeStore& s = store_of(d);
     std::lock_guard lock(s.mutex);
     if (s.written) return;
     s.submissions.insert(index);
+    PreRangeSubmission& on = s.submitted_on[index];
+    on.queue = submission.queue;
+    on.fence = submission.fence;
+    if (!submission.batches.empty()) on.last_signals = submission.batches.back().signals;
     for (const PausePoint* pause : pauses) {
         if (pause->parameters) {  // a cluster command, both of whose pauses are read
             if (pause->phase == PausePhase::kBeforeCommand)
@@ -229,15 +234,36 @@ void note_pre_range_submission(DeviceState& d, uint64_t index,
         k.sequence = s.next_sequence++;
         k.current = k.produced;
         for (uint64_t structure : k.produced)
-            if (uint64_t memory = memory_of_structure(d, structure)) k.memories.insert(memory);
+            if (uint64_t memory = memory_of_structure(d, s, structure)) k.memories.insert(memory);
         s.kept[{index, pause->pause_id, pause->occurrence}] = std::move(k);
     }
+}
+
+// A capture that came after the prelude was written: it goes to the sink under the prelude's
+// submission and pause id, and the sink holds the prelude (and all after it) until it has it.
+// False when the prelude no longer wants it (superseded before the prelude was written).
+bool forward_late_capture(DeviceState& d, PreRangeStore& s, std::unique_lock<std::mutex>& lock,
+                          ClusterBuildCapture& capture) {
+    auto it = s.forwarded.find({capture.submission_index, capture.pause_id, capture.occurrence});
+    if (it == s.forwarded.end()) return false;
+    capture.submission_index = it->second.first;
+    capture.pause_id = it->second.second;
+    capture.occurrence = 0;
+    capture.command_buffer = kPreRangeCommandBuffer;
+    s.forwarded.erase(it);
+    lock.unlock();
+    d.sink->cluster_build_captured(std::move(capture));
+    return true;
 }
 
 bool take_pre_range_capture(DeviceState& d, ClusterBuildCapture& capture) {
     PreRangeStore& s = store_of(d);
     std::unique_lock lock(s.mutex);
     if (!s.submissions.count(capture.submission_index)) return false;
+    if (s.written) {
+        forward_late_capture(d, s, lock, capture);
+        return true;
+    }
     const CaptureKey key{capture.submission_index, capture.pause_id, capture.occurrence};
     if (s.clusters.expects(key)) {
         // Completing a served capture walks its outputs: not under the lock the queue's
@@ -245,22 +271,40 @@ bool take_pre_range_capture(DeviceState& d, ClusterBuildCapture& capture) {
         lock.unlock();
         prepare_kept_cluster_capture(capture);
         lock.lock();
-        if (!s.written) s.clusters.arrived(key, std::move(capture));
-        s.arrived.notify_all();
+        if (s.written)  // the prelude was written meanwhile, without it
+            forward_late_capture(d, s, lock, capture);
+        else
+            s.clusters.arrived(key, std::move(capture));
+        s.capture_arrived.notify_all();
         return true;
     }
-    auto it = s.kept.find({capture.submission_index, capture.pause_id, capture.occurrence});
-    if (it != s.kept.end() && !s.written) {
-        it->second.capture = std::move(capture);
-        s.arrived.notify_all();
-    }
+    if (auto it = s.kept.find(key); it != s.kept.end()) it->second.capture = std::move(capture);
+    s.capture_arrived.notify_all();
     return true;
+}
+
+void note_pre_range_wait(DeviceState& d,
+                         const std::function<bool(const PreRangeSubmission&)>& completes) {
+    if (!layer_config().pre_range_state || layer_config().frame_range.first == 0) return;
+    PreRangeStore& s = store_of(d);
+    std::lock_guard lock(s.mutex);
+    if (s.written) return;
+    // A fence's signal also orders every earlier submission on its queue: newest first.
+    std::set<uint64_t> queues_done;
+    for (auto it = s.submitted_on.rbegin(); it != s.submitted_on.rend(); ++it) {
+        if (queues_done.count(it->second.queue) || completes(it->second)) {
+            s.waited.insert(it->first);
+            queues_done.insert(it->second.queue);
+        }
+    }
 }
 
 void forget_pre_range_structure(DeviceState& d, uint64_t acceleration_structure) {
     PreRangeStore& s = store_of(d);
     std::lock_guard lock(s.mutex);
-    if (!s.written) supersede(s, acceleration_structure);
+    if (s.written) return;
+    supersede(s, acceleration_structure);
+    s.nv_memory.erase(acceleration_structure);
 }
 
 void forget_pre_range_memory(DeviceState& d, uint64_t memory) {
@@ -271,6 +315,18 @@ void forget_pre_range_memory(DeviceState& d, uint64_t memory) {
     for (const auto& [key, k] : s.kept)
         if (k.memories.count(memory)) gone.insert(k.current.begin(), k.current.end());
     for (uint64_t structure : gone) supersede(s, structure);
+    for (auto it = s.nv_memory.begin(); it != s.nv_memory.end();)
+        it = it->second == memory ? s.nv_memory.erase(it) : std::next(it);
+    for (const auto& [begin, end] : d.memory_map.address_ranges_in(memory))
+        s.clusters.freed(begin, end);
+}
+
+void note_pre_range_nv_memory(DeviceState& d, uint64_t structure, uint64_t memory) {
+    const LayerConfig& config = layer_config();
+    if (!config.pre_range_state || config.frame_range.first == 0 || !d.capturing_now()) return;
+    PreRangeStore& s = store_of(d);
+    std::lock_guard lock(s.mutex);
+    if (!s.written) s.nv_memory[structure] = memory;
 }
 
 bool pre_range_prelude_due(DeviceState& d) {
@@ -278,46 +334,77 @@ bool pre_range_prelude_due(DeviceState& d) {
     std::lock_guard lock(s.mutex);
     if (s.written || (s.kept.empty() && s.clusters.size() == 0)) {
         s.written = true;  // the range started: nothing more is kept
+        s.nv_memory.clear();
         return false;
     }
     return true;
 }
 
+// Whether a capture of a submission the application saw complete has not come yet.
+bool waited_capture_to_come(const PreRangeStore& s) {
+    for (const CaptureKey& key : s.clusters.still_to_come())
+        if (s.waited.count(std::get<0>(key))) return true;
+    for (const auto& [key, k] : s.kept)
+        if (!k.capture && s.waited.count(std::get<0>(key))) return true;
+    return false;
+}
+
+// The prelude does not wait for the captures of work still running: the application's queue may
+// reach their pauses only after this vkQueueSubmit returns (a presenting application's next
+// acquire), so they are forwarded to the sink as they come (forward_late_capture), and the sink
+// holds the prelude and everything after it until then. Captures of submissions the application
+// already waited for come from the layer's own threads alone: for those it waits, a bounded
+// time, so which older commands the prelude keeps does not depend on thread scheduling.
 void write_pre_range_prelude(DeviceState& d, const SubmissionRecord& captured, uint64_t index) {
     PreRangeStore& s = store_of(d);
     std::unique_lock lock(s.mutex);
     if (s.written) return;
-    wait_for_captures(s, lock);
+    constexpr auto kPatience = std::chrono::seconds(10);
+    if (!s.capture_arrived.wait_for(lock, kPatience, [&] { return !waited_capture_to_come(s); }))
+        log_message(LogLevel::kInfo,
+                    "pre-range state: captures of submissions the application waited for did "
+                    "not come within %lld s; the prelude keeps the older commands they may "
+                    "overwrite",
+                    (long long)kPatience.count());
+    if (s.written) return;
     s.written = true;
+    s.nv_memory.clear();
     d.sink->pre_range_state_written(marker_of(s, captured, index));
 
     RecordedCommandBuffer cb;
     cb.command_buffer = kPreRangeCommandBuffer;
     cb.usage = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
     std::vector<ClusterBuildCapture> captures;
-    // Each command after a full barrier, with a fresh pause id: unique within the prelude. None
-    // for a command whose capture did not come, so the sink does not wait for it.
-    const auto next_pause_id = [&](std::optional<ClusterBuildCapture>& capture) -> uint64_t {
+    // Each command after a full barrier, with a fresh pause id: unique within the prelude.
+    const auto next_pause_id = [&](const CaptureKey& key,
+                                   std::optional<ClusterBuildCapture>& capture) -> uint64_t {
         if (!cb.commands.empty()) cb.commands.push_back(full_barrier());
-        if (!capture) return 0;
-        capture->pause_id = ++d.pause_counter;
+        const uint64_t pause_id = ++d.pause_counter;
+        if (!capture) {
+            s.forwarded[key] = {index, pause_id};
+            return pause_id;
+        }
+        capture->pause_id = pause_id;
         capture->occurrence = 0;
         capture->submission_index = index;
         capture->command_buffer = kPreRangeCommandBuffer;
         captures.push_back(std::move(*capture));
-        return captures.back().pause_id;
+        return pause_id;
     };
     // Cluster objects first: a KHR top level may name a cluster BLAS.
     for (PreRangeClusterCommands::Taken& t : s.clusters.take()) {
-        t.command.pause_id = next_pause_id(t.capture);
+        t.command.pause_id = next_pause_id(t.key, t.capture);
         cb.commands.push_back(std::move(t.command));
     }
+    std::map<const KeptCommand*, CaptureKey> key_of;
+    for (auto& [key, k] : s.kept) key_of[&k] = key;
     for (KeptCommand* k : prelude_order(s)) {
-        pause_id_in(k->command) = next_pause_id(k->capture);
+        pause_id_in(k->command) = next_pause_id(key_of[k], k->capture);
         cb.commands.push_back(std::move(k->command));
     }
     s.kept.clear();
-    lock.unlock();
+    // The sink learns the prelude's command buffer and submission before any late capture
+    // arrives for it: the lock is held until then.
     d.sink->command_buffer_recorded(cb);
     for (ClusterBuildCapture& c : captures) d.sink->cluster_build_captured(std::move(c));
     SubmissionRecord prelude;
@@ -328,6 +415,7 @@ void write_pre_range_prelude(DeviceState& d, const SubmissionRecord& captured, u
     prelude.synchronization2 = true;
     prelude.batches.push_back({{}, {kPreRangeCommandBuffer}, {}});
     d.sink->queue_submitted(prelude);
+    lock.unlock();
     HostSyncRecord idle;
     idle.kind = HostSyncRecord::Kind::kDeviceWaitIdle;
     d.sink->host_synchronized(idle);

@@ -12,6 +12,7 @@
 #include <vulkan/vulkan_core.h>
 
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 namespace clastrace::capture {
@@ -32,8 +33,20 @@ bool produces_pre_range_state(const PausePoint& pause);
 
 // Submission `index` (before the range) ran `pauses` of its command buffers, in execution
 // order: each produced structure's older kept command is superseded.
-void note_pre_range_submission(DeviceState& device, uint64_t index,
+void note_pre_range_submission(DeviceState& device, const SubmissionRecord& submission,
                                const std::vector<const PausePoint*>& pauses);
+
+// What tells when the application saw a submission before the range complete.
+struct PreRangeSubmission {
+    uint64_t queue = 0, fence = 0;
+    std::vector<SemaphoreUse> last_signals;  // its last batch's (signalled after all of it ran)
+};
+
+// The application saw submissions complete (a fence, semaphore, queue or device wait returned):
+// those before the range that `completes` accepts, and every earlier one on their queues. The
+// prelude waits for their captures (write_pre_range_prelude).
+void note_pre_range_wait(DeviceState& device,
+                         const std::function<bool(const PreRangeSubmission&)>& completes);
 
 // The pause worker's finished record: true when it belongs to a submission before the range
 // (kept, or dropped when superseded meanwhile), so the caller hands it to no sink.
@@ -42,9 +55,14 @@ bool take_pre_range_capture(DeviceState& device, ClusterBuildCapture& capture);
 // The structure was destroyed: its kept build is no longer needed.
 void forget_pre_range_structure(DeviceState& device, uint64_t acceleration_structure);
 
-// Memory `memory` was freed: the structures kept in it (KHR ones, through their buffers) no
-// longer hold anything, so their kept builds go.
+// Memory `memory` was freed: the structures kept in it (KHR ones through their buffers, NV ones
+// bound to it, cluster objects at the addresses of buffers bound to it) no longer hold anything,
+// so their kept builds go.
 void forget_pre_range_memory(DeviceState& device, uint64_t memory);
+
+// An NV structure was bound to `memory` (vkBindAccelerationStructureMemoryNV).
+void note_pre_range_nv_memory(DeviceState& device, uint64_t acceleration_structure,
+                              uint64_t memory);
 
 // The first captured submission is being planned: true when a prelude is due (state was kept),
 // which then takes the submission index before the captured one's.

@@ -51,6 +51,7 @@ bool writes_cluster_objects(const ClusterCommandParameters& parameters) {
 void PreRangeClusterCommands::note(const Key& key, ClusterBuildCommand command) {
     const uint64_t sequence = next_sequence_++;
     sequence_of_[key] = sequence;
+    kept_[sequence].key = key;
     kept_[sequence].command = std::move(command);
 }
 
@@ -66,6 +67,7 @@ void PreRangeClusterCommands::arrived(const Key& key, ClusterBuildCapture captur
         if (r.role == MemoryRole::kDstObject && !r.bytes.empty())
             k.objects.push_back({r.address, r.address + r.bytes.size(), 0});
     k.capture = std::move(capture);
+    for (const Freed& f : freed_) end_freed(k, sequence, f);
     // Captures may come out of execution order (several queues): compare both ways.
     for (auto& [other_sequence, other] : kept_) {
         if (other_sequence < sequence) overwrite(other, k, sequence);
@@ -80,6 +82,21 @@ void PreRangeClusterCommands::overwrite(Kept& older, const Kept& newer, uint64_t
             if (n.begin < o.end && o.begin < n.end &&
                 (o.overwritten_by == 0 || newer_sequence < o.overwritten_by))
                 o.overwritten_by = newer_sequence;
+}
+
+void PreRangeClusterCommands::freed(uint64_t begin, uint64_t end) {
+    const Freed f{begin, end, next_sequence_++};  // a sequence of its own: after what ran so far
+    freed_.push_back(f);
+    for (auto& [sequence, k] : kept_) end_freed(k, sequence, f);
+    drop_overwritten();
+}
+
+void PreRangeClusterCommands::end_freed(Kept& k, uint64_t sequence, const Freed& f) {
+    if (f.sequence < sequence) return;  // the command wrote into memory allocated afterwards
+    for (Object& o : k.objects)
+        if (f.begin < o.end && o.begin < f.end &&
+            (o.overwritten_by == 0 || f.sequence < o.overwritten_by))
+            o.overwritten_by = f.sequence;
 }
 
 // Newest first, so a reader that goes no longer holds back what it read.
@@ -105,9 +122,17 @@ void PreRangeClusterCommands::drop_overwritten() {
     }
 }
 
-bool PreRangeClusterCommands::all_arrived() const {
-    return std::all_of(kept_.begin(), kept_.end(),
-                       [](const auto& entry) { return entry.second.capture.has_value(); });
+size_t PreRangeClusterCommands::arrived_count() const {
+    return size_t(std::count_if(kept_.begin(), kept_.end(), [](const auto& entry) {
+        return entry.second.capture.has_value();
+    }));
+}
+
+std::vector<PreRangeClusterCommands::Key> PreRangeClusterCommands::still_to_come() const {
+    std::vector<Key> keys;
+    for (const auto& [sequence, k] : kept_)
+        if (!k.capture) keys.push_back(k.key);
+    return keys;
 }
 
 uint32_t PreRangeClusterCommands::live_objects() const {
@@ -130,9 +155,11 @@ uint64_t PreRangeClusterCommands::bytes(bool outputs) const {
 
 std::vector<PreRangeClusterCommands::Taken> PreRangeClusterCommands::take() {
     std::vector<Taken> taken;
-    for (auto& [sequence, k] : kept_) taken.push_back({std::move(k.command), std::move(k.capture)});
+    for (auto& [sequence, k] : kept_)
+        taken.push_back({k.key, std::move(k.command), std::move(k.capture)});
     kept_.clear();
     sequence_of_.clear();
+    freed_.clear();
     return taken;
 }
 

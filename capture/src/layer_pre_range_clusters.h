@@ -39,12 +39,17 @@ public:
     // The capture of a noted command came (prepared): its objects are known, and commands whose
     // objects all were overwritten meanwhile go.
     void arrived(const Key& key, ClusterBuildCapture capture);
-    bool all_arrived() const;
+    // The memory under [begin, end) was freed now: objects there end, as if overwritten by a
+    // command that reads none (also those of captures that come later).
+    void freed(uint64_t begin, uint64_t end);
+    size_t arrived_count() const;            // noted commands whose capture came
+    std::vector<Key> still_to_come() const;  // noted commands whose capture has not come
     size_t size() const { return kept_.size(); }
     uint32_t live_objects() const;  // objects no later command overwrote (or unknown: counted 1)
     uint64_t bytes(bool outputs) const;  // bytes their captures hold: outputs, or inputs
 
     struct Taken {
+        Key key;
         ClusterBuildCommand command;
         std::optional<ClusterBuildCapture> capture;
     };
@@ -56,15 +61,21 @@ private:
         uint64_t overwritten_by = 0;  // the sequence of the first later command writing over it
     };
     struct Kept {
+        Key key;
         ClusterBuildCommand command;
         std::optional<ClusterBuildCapture> capture;
         std::vector<Object> objects;  // empty until the capture came (or when it names none)
     };
+    struct Freed {
+        uint64_t begin = 0, end = 0, sequence = 0;
+    };
     void overwrite(Kept& older, const Kept& newer, uint64_t newer_sequence);
+    void end_freed(Kept& k, uint64_t sequence, const Freed& f);
     void drop_overwritten();
 
     std::map<uint64_t, Kept> kept_;  // by execution sequence
     std::map<Key, uint64_t> sequence_of_;
+    std::vector<Freed> freed_;  // in order, for captures still to come
     uint64_t next_sequence_ = 1;
 };
 

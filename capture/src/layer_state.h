@@ -29,7 +29,8 @@
 
 namespace clastrace::engine {
 class MemoryImage;
-}
+struct OpResult;
+}  // namespace clastrace::engine
 
 namespace clastrace::capture {
 
@@ -487,10 +488,19 @@ void set_up_traceable_clusters(DeviceState& state);
 void cover_traceable_blas(DeviceState& state,
                           const VkClusterAccelerationStructureInputInfoNV& input,
                           VkAccelerationStructureBuildSizesInfoKHR& sizes);
+// The room each implicit destination object of `command` takes so that the driver's BLAS fits
+// at its address (engine::ExecuteOptions::implicit_object_room): a build's worst case, or a
+// move's largest moved driver BVH (read through `memory`). 0 where the mode is off or `command`
+// writes no cluster BLASes to implicit destinations.
+uint64_t traceable_implicit_room(DeviceState& state,
+                                 const VkClusterAccelerationStructureCommandsInfoNV& command,
+                                 const ServedMemory& memory);
+// Reads of the application's memory through `memory` see the engine's bytes of traceable BLASes.
+void overlay_traceable_bytes(DeviceState& state, ServedMemory& memory);
 void build_traceable_blases(DeviceState& state, uint64_t pause_id,
                             const VkClusterAccelerationStructureCommandsInfoNV& command,
                             const engine::MemoryImage& image, const ServedMemory& memory,
-                            uint32_t op_count,
+                            const std::vector<engine::OpResult>& ops,
                             std::vector<ClusterBuildCapture::DriverBvh>* driver_bvh);
 VkPhysicalDeviceClusterAccelerationStructurePropertiesNV cluster_properties_for(
     InstanceState& instance, VkPhysicalDevice physical_device, bool serving);

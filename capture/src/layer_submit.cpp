@@ -55,22 +55,28 @@ void announce(DeviceState& d, VkQueue queue, SubmissionPlan& plan) {
     // A simultaneous-use command buffer listed twice runs its pauses twice: number them so each
     // execution is captured on its own.
     std::map<std::pair<uint64_t, PausePhase>, uint32_t> executions;
-    std::vector<const PausePoint*> pre_range;
-    for (PendingPauses& p : plan.pauses) {
+    for (PendingPauses& p : plan.pauses)
         for (PausePoint& pause : p.pauses)
             pause.occurrence = executions[{pause.pause_id, pause.phase}]++;
-        if (!plan.before_range) {
+    if (!plan.before_range) {
+        for (PendingPauses& p : plan.pauses)
             d.pauses->expect(queue, plan.record.index, plan.capture, p.command_buffer, p.pauses);
-            continue;
-        }
-        // Before the range only the structure builds and copies are read (layer_pre_range.h).
-        for (const PausePoint& pause : p.pauses) {
-            const bool read = produces_pre_range_state(pause);
-            if (read) pre_range.push_back(&pause);
-            d.pauses->expect(queue, plan.record.index, read, p.command_buffer, {pause});
-        }
+        return;
     }
-    if (plan.before_range) note_pre_range_submission(d, plan.record.index, pre_range);
+    // Before the range only the structure builds and copies are read (layer_pre_range.h). The
+    // pre-range store learns them before the worker may take their captures.
+    std::vector<const PausePoint*> pre_range;
+    std::vector<bool> read;
+    for (const PendingPauses& p : plan.pauses)
+        for (const PausePoint& pause : p.pauses) {
+            read.push_back(produces_pre_range_state(pause));
+            if (read.back()) pre_range.push_back(&pause);
+        }
+    note_pre_range_submission(d, plan.record, pre_range);
+    size_t next = 0;
+    for (PendingPauses& p : plan.pauses)
+        for (const PausePoint& pause : p.pauses)
+            d.pauses->expect(queue, plan.record.index, read[next++], p.command_buffer, {pause});
 }
 
 // Executions of one command buffer on two queues would share its pause events (pause_worker.h,
@@ -214,6 +220,34 @@ private:
     std::deque<ChainUnlink> hidden_;
 };
 
+// The driver's `submit` of a planned submission, between the layer's work before it (host
+// writes, shared pauses, frame boundaries hidden from a driver that lacks them) and after it
+// (the worker told, the prelude, the record, frame boundaries, ray checks).
+template <typename Info, typename DriverSubmit>
+VkResult submit_planned(DeviceState& d, VkQueue queue, SubmissionPlan& plan, const Info* p_submits,
+                        uint32_t submit_count, FrameBoundaryCarrier carrier,
+                        DriverSubmit&& submit) {
+    if (plan.capture) refresh_consumer_structures(d, plan.record);
+    watch_host_writes(d, plan);
+    auto admitted = admit_shared_pauses(d, queue, plan);
+    SubmittedFrameBoundaries boundaries(d, p_submits, submit_count);
+    VkResult result = submit();
+    boundaries.restore();
+    if (result != VK_SUCCESS) {
+        d.host_writes.submit_failed(plan.record.index);
+        return result;
+    }
+    announce(d, queue, plan);
+    if (admitted.owns_lock())
+        admitted.unlock();  // the worker tracks this submission's shared pauses now
+    expect_timestamps(d, queue, plan);
+    if (plan.prelude_index) write_pre_range_prelude(d, plan.record, plan.prelude_index);
+    if (plan.capture) d.sink->queue_submitted(plan.record);
+    boundaries.record(d, queue, carrier, application_submission(plan.record.index));
+    check_rays(d, queue, plan);
+    return result;
+}
+
 VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit(VkQueue queue, uint32_t submit_count,
                                            const VkSubmitInfo* p_submits, VkFence fence) {
     DeviceState& d = *find_device(dispatch_key(queue));
@@ -247,26 +281,10 @@ VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit(VkQueue queue, uint32_t submit_count,
         }
         plan.record.batches.push_back(std::move(batch));
     }
-    if (plan.capture) refresh_consumer_structures(d, plan.record);
-    watch_host_writes(d, plan);
-    auto admitted = admit_shared_pauses(d, queue, plan);
-    SubmittedFrameBoundaries boundaries(d, p_submits, submit_count);
-    VkResult result = d.next.QueueSubmit(queue, submit_count, p_submits, fence);
-    boundaries.restore();
-    if (result != VK_SUCCESS) {
-        d.host_writes.submit_failed(plan.record.index);
-        return result;
-    }
-    announce(d, queue, plan);
-    if (admitted.owns_lock())
-        admitted.unlock();  // the worker tracks this submission's shared pauses now
-    expect_timestamps(d, queue, plan);
-    if (plan.prelude_index) write_pre_range_prelude(d, plan.record, plan.prelude_index);
-    if (plan.capture) d.sink->queue_submitted(plan.record);
-    boundaries.record(d, queue, FrameBoundaryCarrier::kSubmit,
-                      application_submission(plan.record.index));
-    check_rays(d, queue, plan);
-    return result;
+    return submit_planned(d, queue, plan, p_submits, submit_count, FrameBoundaryCarrier::kSubmit,
+                          [&] {
+                              return d.next.QueueSubmit(queue, submit_count, p_submits, fence);
+                          });
 }
 
 VkResult queue_submit2(VkQueue queue, uint32_t submit_count, const VkSubmitInfo2* p_submits,
@@ -291,26 +309,8 @@ VkResult queue_submit2(VkQueue queue, uint32_t submit_count, const VkSubmitInfo2
         }
         plan.record.batches.push_back(std::move(batch));
     }
-    if (plan.capture) refresh_consumer_structures(d, plan.record);
-    watch_host_writes(d, plan);
-    auto admitted = admit_shared_pauses(d, queue, plan);
-    SubmittedFrameBoundaries boundaries(d, p_submits, submit_count);
-    VkResult result = next(queue, submit_count, p_submits, fence);
-    boundaries.restore();
-    if (result != VK_SUCCESS) {
-        d.host_writes.submit_failed(plan.record.index);
-        return result;
-    }
-    announce(d, queue, plan);
-    if (admitted.owns_lock())
-        admitted.unlock();  // the worker tracks this submission's shared pauses now
-    expect_timestamps(d, queue, plan);
-    if (plan.prelude_index) write_pre_range_prelude(d, plan.record, plan.prelude_index);
-    if (plan.capture) d.sink->queue_submitted(plan.record);
-    boundaries.record(d, queue, FrameBoundaryCarrier::kSubmit2,
-                      application_submission(plan.record.index));
-    check_rays(d, queue, plan);
-    return result;
+    return submit_planned(d, queue, plan, p_submits, submit_count, FrameBoundaryCarrier::kSubmit2,
+                          [&] { return next(queue, submit_count, p_submits, fence); });
 }
 
 VKAPI_ATTR VkResult VKAPI_CALL QueueSubmit2(VkQueue queue, uint32_t count,

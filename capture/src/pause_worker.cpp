@@ -230,8 +230,10 @@ bool PauseWorker::handle(Expected& expected) {
     // walk reads through the same copy, so each byte crosses from (often uncached) memory once,
     // and its ranges are views into that copy rather than copies of their own.
     std::unique_ptr<ServedMemory> served;
-    if (device_.serving && pause.phase == PausePhase::kBeforeCommand && pause.parameters)
+    if (device_.serving && pause.phase == PausePhase::kBeforeCommand && pause.parameters) {
         served = std::make_unique<ServedMemory>(prepare_served_buffers(), region_pool_);
+        overlay_traceable_bytes(device_, *served);
+    }
     DeviceMemoryReader reader = [this, &served](VkDeviceAddress a, uint64_t s, CapturedBytes* o,
                                                 std::string& w) {
         if (served && served->view(a, s, o))
@@ -573,14 +575,18 @@ std::vector<ServedBuffer> PauseWorker::prepare_served_buffers() {
 
 std::shared_ptr<const engine::MemoryImage> PauseWorker::execute_served(
     const PausePoint& pause, ServedMemory& memory, ClusterBuildCapture* record) {
+    // Traceable BLASes at implicit destinations: each object gets room for the driver's BVH.
+    const uint64_t room = traceable_implicit_room(device_, pause.parameters->resolved(), memory);
+    if (record) record->implicit_object_room = room;
     ServedExecution served = execute_served_build(
         pause.parameters->resolved(), memory, directory_, served_engine_properties(),
         record ? &record->inputs : nullptr,
         record ? std::optional<uint32_t>(record->executed_count) : std::nullopt,
-        [&](const engine::MemoryImage& image, uint32_t ops) {
+        [&](const engine::MemoryImage& image, const engine::ExecutionRecord& run) {
             build_traceable_blases(device_, pause.pause_id, pause.parameters->resolved(), image,
-                                   memory, ops, record ? &record->driver_bvh : nullptr);
-        });
+                                   memory, run.ops, record ? &record->driver_bvh : nullptr);
+        },
+        room);
     if (!served.ran) {
         log_message(LogLevel::kError, "served build (pause %llu) could not run in the engine: %s",
                     (unsigned long long)pause.pause_id, served.error.c_str());

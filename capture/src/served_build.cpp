@@ -157,9 +157,8 @@ void ServedMemory::copy(size_t group) {
         image_->add_region(g.base, g.end - g.base, g.usage, "buffer " + hex(g.buffers[0]->buffer),
                            pool_ ? pool_->take(g.end - g.base) : engine::RegionBytes());
     for (const ServedBuffer* b : g.buffers) {
-        copy_from_host(*b, 0, b->size,
-                       reinterpret_cast<uint8_t*>(
-                           region.bytes.write_at(b->address - g.base, b->size)));
+        copy_in(*b, 0, b->size,
+                reinterpret_cast<uint8_t*>(region.bytes.write_at(b->address - g.base, b->size)));
         bytes_copied_ += b->size;
     }
     copied_[group] = true;
@@ -221,8 +220,14 @@ void ServedMemory::keep_inputs_as_read(std::vector<CapturedRange>& inputs,
         const ServedBuffer* b = buffer_holding(r.address, r.bytes.size());
         if (!b) continue;  // (a view is only made inside one buffer)
         const size_t size = r.bytes.size();
-        copy_from_host(*b, r.address - b->address, size, r.bytes.fill(size));
+        copy_in(*b, r.address - b->address, size, r.bytes.fill(size));
     }
+}
+
+void ServedMemory::copy_in(const ServedBuffer& b, uint64_t offset, uint64_t size,
+                           uint8_t* to) const {
+    copy_from_host(b, offset, size, to);
+    if (overlay_) overlay_(b.address + offset, to, size);
 }
 
 ServedMemory::~ServedMemory() =
@@ -266,7 +271,8 @@ ServedExecution execute_served_build(const VkClusterAccelerationStructureCommand
                                      const engine::EngineProperties& properties,
                                      std::vector<CapturedRange>* input_walk,
                                      std::optional<uint32_t> output_entries,
-                                     const AfterServedWriteBack& after_write_back) {
+                                     const AfterServedWriteBack& after_write_back,
+                                     uint64_t implicit_object_room) {
     ServedExecution result;
     const std::vector<ServedMemory::Group>& groups = memory.groups();
 
@@ -324,6 +330,7 @@ ServedExecution execute_served_build(const VkClusterAccelerationStructureCommand
 
     engine::ExecuteOptions options;
     options.properties = properties;
+    options.implicit_object_room = implicit_object_room;
     engine::ObjectDirectory attempt;
     try {
         for (bool last = false;;) {
@@ -386,7 +393,7 @@ ServedExecution execute_served_build(const VkClusterAccelerationStructureCommand
             }
         }
     }
-    if (after_write_back) after_write_back(image, result.record.op_count);
+    if (after_write_back) after_write_back(image, result.record);
     result.image = memory.share(output_entries ? &keep : nullptr);
     return result;
 }

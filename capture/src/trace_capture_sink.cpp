@@ -14,6 +14,7 @@
 #include "clastrace/capture/background_cpus.h"
 
 #include "clastrace/capture/capture_cost.h"
+#include "clastrace/capture/layer_config.h"
 #include "trace_record_encoding.h"
 
 #include <clastrace/traces/cluster_conversions.h>
@@ -97,6 +98,7 @@ public:
         options.compressor_nice = kBackgroundNice;
         options.compressor_idle_class = true;
         options.compressor_cpus = placement_.cpus;
+        options.delta_contents = layer_config().delta_contents;
         TraceError error;
         writer_ =
             TraceWriter::create_on(std::exchange(output_fd_, -1), path_, header, options, &error);
@@ -761,6 +763,11 @@ private:
     void write_submission(Pending& p) {
         CostScope cost(CostPhase::kEmit, true);
         for (auto& [key, build] : p.builds) complete_build(build);
+        if (p.pre_range) {  // captures may have come after the prelude was announced
+            p.pre_range->bytes = 0;
+            for (const auto& [key, build] : p.builds)
+                for (const CapturedRange& r : build.inputs) p.pre_range->bytes += r.bytes.size();
+        }
         SubmissionEmit e{p, {}, {}, {}, {}};
         for (const auto& cb : p.command_buffers) {
             // A secondary's block goes before its primary's, once per execution, so every recording
@@ -881,6 +888,7 @@ private:
             snapshots(captured.outputs, r->outputs);
             for (const ClusterBuildCapture::DriverBvh& d : captured.driver_bvh)
                 r->driver_bvh.emplace_back(d.address, d.size);
+            r->implicit_object_room = captured.implicit_object_room;
         } else if (auto* r = record.body.AsCmdBuildAccelerationStructureNV()) {
             snapshots(captured.inputs, r->inputs);
         } else if (auto* r = record.body.AsCmdCopyMemoryToAccelerationStructure()) {

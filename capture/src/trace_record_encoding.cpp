@@ -360,7 +360,8 @@ fbs::RecordT host_sync_record_of(const HostSyncRecord& h) {
 std::unique_ptr<fbs::AccelerationStructureInfoNVT> nv_info_of(
     uint32_t type, uint32_t flags, uint32_t instances,
     const std::vector<VkGeometryNV>& geometries) {
-    VkAccelerationStructureInfoNV info{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_INFO_NV};
+    VkAccelerationStructureInfoNV info{};
+    info.sType = VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_INFO_NV;
     info.type = VkAccelerationStructureTypeNV(type);
     info.flags = flags;
     info.instanceCount = instances;

@@ -12,12 +12,15 @@
 // replay checks them byte for byte as before. See capture/README.md "Traceable cluster BLASes".
 #pragma once
 
+#include <clastrace/engine/execution_record.h>
 #include <clastrace/engine/memory_image.h>
 #include <clastrace/vk_cluster_abi.h>
 #include <vulkan/vulkan.h>
 
 #include <cstdint>
+#include <map>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -44,10 +47,13 @@ struct TraceableBlasGeometry {
     uint64_t driver_size = 0;
 };
 
-// The BLAS ops of a command the engine just ran, read from its image: the destination of each
-// and its clusters' triangles decoded from the engine's CLAS bytes. Ops of another type, with
-// implicit destinations, or whose destination `host_of(address, room)` cannot place, are left out; `skipped`
-// counts them with a reason in `why`.
+// The BLAS ops of a command the engine just ran, read from its image: the destination of each op
+// as the engine's run resolved it (`ops`: ExecutionRecord::ops, so indirected address arrays and
+// implicit destinations without a dstAddressesArray are known too) and its clusters' triangles
+// decoded from the engine's CLAS bytes. Ops of another type, that failed, or whose destination
+// `host_of(address, room)` cannot place, are left out; `skipped` counts the last kind with a
+// reason in `why`. Implicit destinations have room for the driver's BLAS because the engine
+// packed them with traceable_implicit_room (layer_state.h).
 struct TraceableBatch {
     std::vector<TraceableBlasGeometry> blases;
     uint32_t skipped = 0;
@@ -55,11 +61,40 @@ struct TraceableBatch {
 };
 template <class HostOf>
 TraceableBatch traceable_batch(const VkClusterAccelerationStructureCommandsInfoNV& command,
-                               const engine::MemoryImage& image, uint32_t op_count,
-                               const HostOf& host_of);
+                               const engine::MemoryImage& image,
+                               const std::vector<engine::OpResult>& ops, const HostOf& host_of);
 // The non-template part: one op's geometry from the BLAS the engine wrote at `address`.
 bool decode_cluster_blas(const engine::MemoryImage& image, uint64_t address,
                          TraceableBlasGeometry& out, std::string& why);
+
+// The engine's bytes of each traceable BLAS, kept by address in layer memory (traceable_keep.cpp).
+// The application's memory at a traceable BLAS holds the driver's BVH; a later served command
+// that reads those bytes (a rebuild into the same room, a move) must see the engine's object
+// there, as replay does. Each entry covers the driver's BVH range and keeps both versions: where
+// the application's bytes are still the driver's, reads get the engine's. Thread-safe.
+class TraceableEngineBytes {
+public:
+    struct Entry {
+        std::vector<uint8_t> engine, driver;       // [address, address + driver.size())
+        std::vector<std::vector<float>> clusters;  // as TraceableBlasGeometry, for a move
+        std::vector<std::vector<uint32_t>> geometry_indices;
+    };
+    // After the driver built (or moved) a BLAS at `address`; ends every entry it overlaps.
+    void keep(uint64_t address, Entry entry);
+    // `bytes` were copied from the application's memory at [address, address + size): every
+    // kept range in it whose bytes are still the driver's gets the engine's; an entry the
+    // application overwrote is dropped.
+    void overlay(uint64_t address, uint8_t* bytes, uint64_t size);
+    // A copy of the entry at exactly `address`; false when none.
+    bool find(uint64_t address, Entry& out) const;
+    // The size of the driver's BVH kept at exactly `address`; 0 when none.
+    uint64_t driver_size(uint64_t address) const;
+    uint64_t kept_bytes() const;
+
+private:
+    mutable std::mutex mutex_;
+    std::map<uint64_t, Entry> entries_;  // by address, disjoint
+};
 
 // A buffer of device B and its memory (allocated, or imported from host memory).
 struct TraceableBuffer {
@@ -94,6 +129,11 @@ public:
     // The mode's one line for the log.
     static constexpr const char* kModeMessage =
         "served cluster BLASes are traceable: the driver's BLAS is built at each destination";
+    // The engine's bytes of the BLASes built (or moved) so far. Shared apart from the driver:
+    // reads through served memory may outlive the device (a capture written at exit), and
+    // must not keep device B (and the driver library) alive until then.
+    TraceableEngineBytes& engine_bytes() { return *engine_bytes_; }
+    std::shared_ptr<TraceableEngineBytes> shared_engine_bytes() const { return engine_bytes_; }
 
 private:
     struct Functions;
@@ -114,40 +154,29 @@ private:
     VkCommandPool pool_ = VK_NULL_HANDLE;
     VkPhysicalDeviceMemoryProperties memory_{};
     uint64_t import_alignment_ = 4096;
+    std::shared_ptr<TraceableEngineBytes> engine_bytes_ = std::make_shared<TraceableEngineBytes>();
 };
 
 template <class HostOf>
 TraceableBatch traceable_batch(const VkClusterAccelerationStructureCommandsInfoNV& command,
-                               const engine::MemoryImage& image, uint32_t op_count,
-                               const HostOf& host_of) {
+                               const engine::MemoryImage& image,
+                               const std::vector<engine::OpResult>& ops, const HostOf& host_of) {
     TraceableBatch batch;
     if (command.input.opType !=
         VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV)
         return batch;
-    if (command.input.opMode !=
-            VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV ||
-        command.addressResolutionFlags != 0) {
-        batch.skipped = op_count;
-        batch.why = "only explicit destinations without indirected addresses are traceable yet";
-        return batch;
-    }
-    for (uint32_t i = 0; i < op_count; ++i) {
+    for (const engine::OpResult& op : ops) {
+        if (!op.executed || op.dst_address == 0 ||
+            op.dst_type != VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_CLUSTERS_BOTTOM_LEVEL_NV)
+            continue;  // compute-sizes mode, or a failed op: nothing built
         TraceableBlasGeometry blas;
+        blas.address = op.dst_address;
         std::string why;
-        try {
-            const engine::FieldRef where{"dstAddressesArray", int64_t(i)};
-            blas.address =
-                image.read<uint64_t>(engine::MemoryImage::strided_address(command.dstAddressesArray,
-                                                                          i, 8, where),
-                                     where);
-        } catch (const engine::MemoryFault& fault) {
-            why = fault.message;
-        }
-        if (why.empty() && blas.address != 0 && !(blas.host = host_of(blas.address, blas.room)))
+        if (!(blas.host = host_of(blas.address, blas.room)))
             why = "its destination is in no host-addressed buffer";
-        if (why.empty() && blas.address != 0 && decode_cluster_blas(image, blas.address, blas, why))
+        if (why.empty() && decode_cluster_blas(image, blas.address, blas, why))
             batch.blases.push_back(std::move(blas));
-        else if (blas.address != 0 || !why.empty()) {
+        else {
             ++batch.skipped;
             batch.why = why;
         }

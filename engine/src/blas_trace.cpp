@@ -1,8 +1,9 @@
 // SPDX-License-Identifier: Apache-2.0
 // BLAS -> CLAS traversal: the engine's conservative slab test (geometry/slab.h) per BVH
 // node, then the CLAS traversal (traversal.h) per referenced cluster. Children are visited nearest
-// first; a later hit replaces the best only when strictly closer, so ties resolve by node
-// order.
+// first; a hit replaces the best when closer, or as close through a lower reference index, so
+// ties do not depend on the visiting order (trace_bottom_level_bytes_exhaustive is the
+// reference).
 #include "clastrace/engine/blas.h"
 
 #include "geometry/slab.h"
@@ -18,6 +19,39 @@ namespace {
 
 bool hit_box(const geometry::PreparedRay& r, const BottomLevelNode& n, double tmax, double& entry) {
     return geometry::slab_test<true>(r, n.bounds_min, n.bounds_max, tmax, &entry);
+}
+
+// The distance boxes are culled at once a hit at `tmax` is held: a cluster entered exactly there
+// (the hit on its box's face) may round its entry just past it and still hold the tie with the
+// lower reference index. 2^-20 is far above the slab test's rounding.
+double cull_distance(double tmax) { return tmax + std::fabs(tmax) * 0x1p-20; }
+
+// Whether `h` through reference `ref` replaces `best`: closer, or as close through a lower
+// reference index.
+bool replaces(const BottomLevelHit& best, const Hit& h, const ClusterReference& ref) {
+    if (!h.hit) return false;
+    if (!best.hit.hit || h.t < best.hit.t) return true;
+    return h.t == best.hit.t && ref.reference_index < best.reference_index;
+}
+
+// The ray a CLAS is traced with once a hit at `best` is held: up to the float after it, so
+// that a hit whose float t ties the best is still found whatever its double t (the tie rule
+// above then decides).
+Ray clipped_ray(const Ray& ray, const BottomLevelHit& best) {
+    Ray r = ray;
+    if (best.hit.hit) r.tmax = std::min(ray.tmax, std::nextafter(best.hit.t, INFINITY));
+    return r;
+}
+
+// A CLAS as clas_at gives it: bytes checked on each trace, or a view checked once.
+bool absent(std::span<const std::byte> clas) { return clas.empty(); }
+bool absent(const ClasView* clas) { return clas == nullptr; }
+Hit trace_clas(std::span<const std::byte> clas, const Ray& ray, uint32_t flags,
+               TraversalMode mode) {
+    return trace_closest(clas, ray, flags, mode);
+}
+Hit trace_clas(const ClasView* clas, const Ray& ray, uint32_t flags, TraversalMode mode) {
+    return trace_closest(*clas, ray, flags, mode);
 }
 
 // Walks a checked BLAS (`blas` holds the whole object): `clas_at(reference)` gives the bytes
@@ -38,30 +72,56 @@ void walk_bytes(std::span<const std::byte> blas, const Ray& ray, TraversalMode m
     const double direction[3] = {ray.direction[0], ray.direction[1], ray.direction[2]};
     const geometry::PreparedRay rb =
         geometry::prepare_ray(origin, direction, ray.tmin, ray.tmax, mode);
-    std::vector<uint32_t> stack{0};
-    double tmax = ray.tmax;
-    while (!stack.empty()) {
-        uint32_t i = stack.back();
-        stack.pop_back();
-        BottomLevelNode n = node_at(i);
+    // Each entry carries the distance at which the ray enters its box, tested when its parent
+    // was: popping it only compares that with the best hit since (the same verdict as testing
+    // the box again with the lowered tmax, at no second slab test). A fixed stack covers the
+    // trees the builder makes; deeper (checked, hostile) ones spill into the vector.
+    struct Entry {
+        uint32_t node;
         double entry;
-        if (!hit_box(rb, n, tmax, entry)) continue;
+    };
+    Entry stack[128];
+    std::vector<Entry> overflow;
+    int sp = 0;
+    auto push = [&](uint32_t node, double entry) {
+        if (sp < 128)
+            stack[sp++] = Entry{node, entry};
+        else
+            overflow.push_back(Entry{node, entry});
+    };
+    double tmax = ray.tmax;
+    bool have_hit = false;
+    {
+        double entry;
+        if (hit_box(rb, node_at(0), tmax, entry)) push(0, entry);
+    }
+    while (sp > 0 || !overflow.empty()) {
+        Entry e;
+        if (!overflow.empty()) {
+            e = overflow.back();
+            overflow.pop_back();
+        } else {
+            e = stack[--sp];
+        }
+        const double cull = have_hit ? cull_distance(tmax) : tmax;
+        if (e.entry > cull) continue;
+        const BottomLevelNode n = node_at(e.node);
         if (n.count == 0) {
             BottomLevelNode l = node_at(n.first), r = node_at(n.first + 1);
             double el = 0, er = 0;
-            bool hl = hit_box(rb, l, tmax, el), hr = hit_box(rb, r, tmax, er);
+            bool hl = hit_box(rb, l, cull, el), hr = hit_box(rb, r, cull, er);
             if (hl && hr) {
                 if (el <= er) {
-                    stack.push_back(n.first + 1);
-                    stack.push_back(n.first);
+                    push(n.first + 1, er);
+                    push(n.first, el);
                 } else {
-                    stack.push_back(n.first);
-                    stack.push_back(n.first + 1);
+                    push(n.first, el);
+                    push(n.first + 1, er);
                 }
             } else if (hl) {
-                stack.push_back(n.first);
+                push(n.first, el);
             } else if (hr) {
-                stack.push_back(n.first + 1);
+                push(n.first + 1, er);
             }
             continue;
         }
@@ -70,9 +130,11 @@ void walk_bytes(std::span<const std::byte> blas, const Ray& ray, TraversalMode m
             std::memcpy(&ref,
                         blas.data() + h.references_offset + uint64_t(n.first + k) * sizeof ref,
                         sizeof ref);
-            std::span<const std::byte> clas = clas_at(ref);
-            if (clas.empty()) continue;
+            const auto clas = clas_at(ref);
+            if (absent(clas)) continue;
+            const double before = tmax;
             if (!visit(clas, ref, tmax)) return;
+            have_hit |= tmax != before;
         }
     }
 }
@@ -116,11 +178,10 @@ struct ClosestVisitor {
     bool first;
     TraversalMode mode;
     BottomLevelHit& best;
-    bool operator()(std::span<const std::byte> clas, const ClusterReference& ref, double& tmax) {
-        Ray r = ray;
-        r.tmax = float(tmax);
-        Hit h = trace_closest(clas, r, ray_flags, mode);
-        if (h.hit && (!best.hit.hit || h.t < best.hit.t)) {
+    template <class Clas>
+    bool operator()(Clas clas, const ClusterReference& ref, double& tmax) {
+        const Hit h = trace_clas(clas, clipped_ray(ray, best), ray_flags, mode);
+        if (replaces(best, h, ref)) {
             best.hit = h;
             best.reference_index = ref.reference_index;
             best.clas_address = ref.clas_address;
@@ -151,6 +212,39 @@ BottomLevelHit trace_bottom_level_bytes(
     walk_bytes(
         blas, ray, mode, [&](const ClusterReference& ref) { return clas_at(ref.clas_address); },
         ClosestVisitor{ray, ray_flags, first_hit, mode, best});
+    return best;
+}
+
+BottomLevelHit trace_bottom_level_views(
+    std::span<const std::byte> blas,
+    const std::function<const ClasView*(uint64_t clas_address)>& clas_at, const Ray& ray,
+    uint32_t ray_flags, bool first_hit, TraversalMode mode) {
+    BottomLevelHit best;
+    walk_bytes(
+        blas, ray, mode, [&](const ClusterReference& ref) { return clas_at(ref.clas_address); },
+        ClosestVisitor{ray, ray_flags, first_hit, mode, best});
+    return best;
+}
+
+BottomLevelHit trace_bottom_level_bytes_exhaustive(
+    std::span<const std::byte> blas,
+    const std::function<std::span<const std::byte>(uint64_t clas_address)>& clas_at, const Ray& ray,
+    uint32_t ray_flags, TraversalMode mode) {
+    BottomLevelHit best;
+    BottomLevelHeader h;
+    std::memcpy(&h, blas.data(), sizeof h);
+    for (uint32_t k = 0; k < h.reference_count; ++k) {
+        ClusterReference ref;
+        std::memcpy(&ref, blas.data() + h.references_offset + uint64_t(k) * sizeof ref, sizeof ref);
+        const std::span<const std::byte> bytes = clas_at(ref.clas_address);
+        const auto clas = bytes.empty() ? std::nullopt : open_clas(bytes);
+        if (!clas) continue;
+        const Hit hit = trace_closest_exhaustive(*clas, ray, ray_flags, mode);
+        if (!replaces(best, hit, ref)) continue;
+        best.hit = hit;
+        best.reference_index = ref.reference_index;
+        best.clas_address = ref.clas_address;
+    }
     return best;
 }
 

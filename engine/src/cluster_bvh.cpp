@@ -9,7 +9,9 @@
 // the other two are partitioned stably in one pass each. A node's centroid extent is then
 // its first and last triangle in each order, the median is a position, and the boxes are
 // gathered bottom-up once (each node from its children), so no level rereads its triangles
-// to select, and none compares floats in a data-dependent branch.
+// to select, and none compares floats in a data-dependent branch. The per-element loops carry
+// `#pragma GCC unroll 4`: GCC at -O2 unrolls none of them, and their bodies are a few
+// instructions beside the loop's own compare and branch.
 #include "cluster_internal.h"
 #include "simd4.h"
 
@@ -24,8 +26,9 @@ constexpr uint32_t kKeyBits = 10;  // per axis; two radix passes of kDigitBits
 constexpr uint32_t kDigitBits = kKeyBits / 2;
 constexpr uint32_t kDigits = 1u << kDigitBits;
 
-struct Task {
-    uint16_t node, begin, end;
+// Eight bytes (one load and one store per push and pop, not a 4 + 2 byte pair).
+struct alignas(8) Task {
+    uint16_t node, begin, end, unused;
 };
 
 // Sorts 0..n-1 by key[k] for each axis k into order[k] (stable: equal keys stay in
@@ -59,15 +62,24 @@ void radix_sort3(const uint16_t (*key)[kMaxTriangles], uint32_t n, uint16_t (*hi
     }
 #endif
     // The three axes go through each pass together: three independent chains of counter
-    // updates for the out-of-order core to overlap.
+    // updates for the out-of-order core to overlap. Written out per axis: GCC at -O2 keeps a
+    // loop over k and recomputes every address from k (about twice the instructions).
     uint8_t tmp[3][kMaxTriangles];
-    for (uint32_t i = 0; i < n; ++i)
-        for (int k = 0; k < 3; ++k) tmp[k][hist[2 * k][key[k][i] & (kDigits - 1)]++] = uint8_t(i);
-    for (uint32_t j = 0; j < n; ++j)
-        for (int k = 0; k < 3; ++k) {
-            const uint32_t i = tmp[k][j];
-            order[k][hist[2 * k + 1][key[k][i] >> kDigitBits]++] = uint8_t(i);
-        }
+    uint16_t *const lo0 = hist[0], *const lo1 = hist[2], *const lo2 = hist[4];
+#pragma GCC unroll 4
+    for (size_t i = 0; i < n; ++i) {
+        tmp[0][lo0[key[0][i] & (kDigits - 1)]++] = uint8_t(i);
+        tmp[1][lo1[key[1][i] & (kDigits - 1)]++] = uint8_t(i);
+        tmp[2][lo2[key[2][i] & (kDigits - 1)]++] = uint8_t(i);
+    }
+    uint16_t *const hi0 = hist[1], *const hi1 = hist[3], *const hi2 = hist[5];
+#pragma GCC unroll 4
+    for (size_t j = 0; j < n; ++j) {
+        const size_t i0 = tmp[0][j], i1 = tmp[1][j], i2 = tmp[2][j];
+        order[0][hi0[key[0][i0] >> kDigitBits]++] = uint8_t(i0);
+        order[1][hi1[key[1][i1] >> kDigitBits]++] = uint8_t(i1);
+        order[2][hi2[key[2][i2] >> kDigitBits]++] = uint8_t(i2);
+    }
 }
 
 // Triangle centroids (half-sums: no overflow near FLT_MAX; -inf..+inf gives NaN, taken as
@@ -100,6 +112,7 @@ void fit_node_boxes(BvhScratch& s, const uint8_t* leaf_order) {
             const uint8_t* tris = leaf_order + node.first;
             lo = load4(s.tri_min[tris[0]]);
             hi = load4(s.tri_max[tris[0]]);
+#pragma GCC unroll 3
             for (uint32_t j = 1; j < node.count; ++j) {
                 lo = min4(lo, load4(s.tri_min[tris[j]]));
                 hi = max4(hi, load4(s.tri_max[tris[j]]));
@@ -140,11 +153,16 @@ void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
             // max4(x, zero) turns NaN into 0.
             store_int4(q,
                        to_int(min4(max4((load4(centroid[i]) * half - base) * scale, zero), top)));
-            for (int k = 0; k < 3; ++k) {
-                key[k][i] = uint16_t(q[k]);
-                ++hist[2 * k][q[k] & (kDigits - 1)];
-                ++hist[2 * k + 1][q[k] >> kDigitBits];
-            }
+            // Per axis written out, as in radix_sort3.
+            key[0][i] = uint16_t(q[0]);
+            key[1][i] = uint16_t(q[1]);
+            key[2][i] = uint16_t(q[2]);
+            ++hist[0][q[0] & (kDigits - 1)];
+            ++hist[2][q[1] & (kDigits - 1)];
+            ++hist[4][q[2] & (kDigits - 1)];
+            ++hist[1][q[0] >> kDigitBits];
+            ++hist[3][q[1] >> kDigitBits];
+            ++hist[5][q[2] >> kDigitBits];
         }
     }
     uint8_t order[3][kMaxTriangles];
@@ -157,7 +175,7 @@ void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
     Task stack[kMaxNodes];
     int sp = 0;
     s.node_count = 1;
-    stack[sp++] = {0, 0, uint16_t(n)};
+    stack[sp++] = {0, 0, uint16_t(n), 0};
     while (sp > 0) {
         const Task task = stack[--sp];
         BvhScratch::Node& node = s.nodes[task.node];
@@ -186,25 +204,42 @@ void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
             // Both children are leaves: they need no sorted orders, only their triangles.
             std::memcpy(leaf_order + b, order[axis] + b, count);
         } else {
-            for (uint32_t j = b; j < m; ++j) side[order[axis][j]] = 0;
-            for (uint32_t j = m; j < e; ++j) side[order[axis][j]] = 1;
+            // Every triangle of a left child (odd node numbers) still has side 0 from its
+            // parent's split, and of a right child (even, not the root) side 1: nodes in
+            // between belong to the left sibling's subtree and set only their own triangles'.
+            // So only the side that changes is written.
+            const bool left_child = task.node % 2 == 1, right_child = !left_child && task.node;
+            if (!left_child) {
+#pragma GCC unroll 4
+                for (size_t j = b; j < m; ++j) side[order[axis][j]] = 0;
+            }
+            if (!right_child) {
+#pragma GCC unroll 4
+                for (size_t j = m; j < e; ++j) side[order[axis][j]] = 1;
+            }
             // The other two orders, partitioned stably in one loop (two independent chains).
+            // No branch and no select: every element is stored twice, at the next left slot
+            // (in place: j - r <= j, already read) and at the next right slot of a buffer; the
+            // store on the wrong side is overwritten by the next element of that side, or
+            // lands past the side's end (the left one is covered by the copy of the rights).
             uint8_t* const o1 = order[axis == 0 ? 1 : 0] + b;
             uint8_t* const o2 = order[axis == 2 ? 1 : 2] + b;
-            uint8_t t1[kMaxTriangles], t2[kMaxTriangles];
-            uint32_t l1 = 0, r1 = left_count, l2 = 0, r2 = left_count;
-            for (uint32_t j = 0; j < count; ++j) {
-                const uint8_t i1 = o1[j], i2 = o2[j];
-                const uint32_t s1 = side[i1], s2 = side[i2];
-                t1[s1 ? r1 : l1] = i1;
-                t2[s2 ? r2 : l2] = i2;
-                l1 += s1 ^ 1u;
+            uint8_t right1[kMaxTriangles + 1], right2[kMaxTriangles + 1];
+            // Pointer-sized counters: no zero extension before each address.
+            size_t r1 = 0, r2 = 0;
+#pragma GCC unroll 4
+            for (size_t j = 0; j < count; ++j) {
+                const size_t i1 = o1[j], i2 = o2[j];
+                const size_t s1 = side[i1], s2 = side[i2];
+                o1[j - r1] = uint8_t(i1);
+                right1[r1] = uint8_t(i1);
+                o2[j - r2] = uint8_t(i2);
+                right2[r2] = uint8_t(i2);
                 r1 += s1;
-                l2 += s2 ^ 1u;
                 r2 += s2;
             }
-            std::memcpy(o1, t1, count);
-            std::memcpy(o2, t2, count);
+            std::memcpy(o1 + left_count, right1, count - left_count);
+            std::memcpy(o2 + left_count, right2, count - left_count);
             // A child that is a leaf already (an odd count) takes its triangles from any order.
             if (left_count <= kMaxLeafSize)
                 std::memcpy(leaf_order + b, order[axis] + b, left_count);
@@ -215,12 +250,13 @@ void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
         s.node_count += 2;
         node.first = left;
         node.count = 0;
-        stack[sp++] = {uint16_t(left + 1), uint16_t(m), uint16_t(e)};
-        stack[sp++] = {left, uint16_t(b), uint16_t(m)};
+        stack[sp++] = {uint16_t(left + 1), uint16_t(m), uint16_t(e), 0};
+        stack[sp++] = {left, uint16_t(b), uint16_t(m), 0};
     }
 
     fit_node_boxes(s, leaf_order);
-    for (uint32_t j = 0; j < n; ++j) s.perm[j] = active_list[leaf_order[j]];
+#pragma GCC unroll 4
+    for (size_t j = 0; j < n; ++j) s.perm[j] = active_list[leaf_order[j]];
 }
 
 }  // namespace clastrace::engine::detail

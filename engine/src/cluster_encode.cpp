@@ -4,12 +4,21 @@
 #include "simd4.h"
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cmath>
+#include <cstddef>
 
 namespace clastrace::engine::detail {
 
 namespace {
+
+// 0, 1, ..., 255: the triangle order that needs no order section.
+constexpr std::array<uint8_t, kMaxTriangles> kIdentityOrder = [] {
+    std::array<uint8_t, kMaxTriangles> a{};
+    for (uint32_t i = 0; i < kMaxTriangles; ++i) a[i] = uint8_t(i);
+    return a;
+}();
 
 bool finite3(const float v[3]) {
     return std::isfinite(v[0]) && std::isfinite(v[1]) && std::isfinite(v[2]);
@@ -115,17 +124,16 @@ void write_nodes(const QuantFrame& f, bool unbounded, const BvhScratch& s, uint3
             if (!_mm_movemask_epi8(up)) break;
             qhi = _mm_sub_epi32(qhi, up);
         }
-        alignas(16) int32_t ql[4], qh[4];
-        _mm_store_si128(reinterpret_cast<__m128i*>(ql), qlo);
-        _mm_store_si128(reinterpret_cast<__m128i*>(qh), qhi);
-        BvhNode node{};
-        for (int a = 0; a < 3; ++a) {
-            node.qmin[a] = uint8_t(ql[a]);
-            node.qmax[a] = uint8_t(qh[a]);
-        }
-        node.link =
+        // The six quantized bounds (0..255) narrowed to bytes in SSE: qmin then qmax, each in
+        // the low three bytes of a 32-bit half; the link in the top two bytes.
+        const __m128i q16 = _mm_packs_epi32(qlo, qhi);
+        const uint64_t q8 = uint64_t(_mm_cvtsi128_si64(_mm_packus_epi16(q16, q16)));
+        const uint64_t link =
             sn.count ? uint16_t(kLeafBit | ((sn.count - 1u) << 8) | sn.first) : uint16_t(sn.first);
-        std::memcpy(dst + 8 * i, &node, 8);
+        const uint64_t node = (q8 & 0xFFFFFFu) | ((q8 >> 32) & 0xFFFFFFu) << 24 | link << 48;
+        static_assert(sizeof(BvhNode) == 8 && offsetof(BvhNode, qmax) == 3 &&
+                      offsetof(BvhNode, link) == 6);
+        std::memcpy(dst + 8 * i, &node, 8);  // little endian, as the format is
     }
 #else
     float inv_step[3];
@@ -224,6 +232,45 @@ void write_triangle_sections(const EncodeInput& in, const ObjectHeader& h, const
     }
 }
 
+// One pass over the triangles (inactive ones skipped when kSkipInactive) gathers each active
+// triangle's box into s.tri_min/tri_max (what the BVH build starts from), its index into
+// `active`, and the bounds over them (the bounds over the vertices active triangles use, left
+// as given when none is active). A triangle with a NaN coordinate is not active. Returns the
+// active count.
+template <bool kSkipInactive>
+uint32_t gather_active_boxes(const EncodeInput& in, BvhScratch& s, uint8_t* active, bool& any_nan,
+                             float bmin[3], float bmax[3]) {
+    uint32_t n_active = 0;
+    Float4 lo_all = splat(INFINITY), hi_all = splat(-INFINITY);
+    for (uint32_t t = 0; t < in.triangle_count; ++t) {
+        if (kSkipInactive && in.inactive[t]) continue;
+        const uint32_t* tri = in.indices + 3 * t;
+        const Float4 a = load3(in.positions + 3 * tri[0]);
+        const Float4 b = load3(in.positions + 3 * tri[1]);
+        const Float4 c = load3(in.positions + 3 * tri[2]);
+        // The sum is NaN when a coordinate is (and when infinities cancel): one test for the
+        // common case, the exact one only then.
+        if (nan_lanes(a + b + c) && (nan_lanes(a) | nan_lanes(b) | nan_lanes(c))) {
+            any_nan = true;
+            continue;
+        }
+        const Float4 lo = min4(a, min4(b, c)), hi = max4(a, max4(b, c));
+        store4(s.tri_min[n_active], lo);
+        store4(s.tri_max[n_active], hi);
+        lo_all = min4(lo_all, lo);
+        hi_all = max4(hi_all, hi);
+        active[n_active++] = uint8_t(t);
+    }
+    if (n_active > 0) {
+        alignas(16) float lo4[4], hi4[4];
+        store4(lo4, lo_all);
+        store4(hi4, hi_all);
+        std::memcpy(bmin, lo4, 3 * sizeof(float));
+        std::memcpy(bmax, hi4, 3 * sizeof(float));
+    }
+    return n_active;
+}
+
 }  // namespace
 
 uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::byte>& out) {
@@ -242,39 +289,16 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
     const uint32_t n_triangles = in.triangle_count;
     const bool is_clas = in.type == ObjectType::kTriangleCluster;
 
-    // Active triangles: indices in range and no NaN coordinate (after truncation). One pass
-    // gathers each active triangle's box (what the BVH build starts from) and the object
-    // bounds over them, which are the bounds over the vertices active triangles use.
+    // Active triangles: indices in range and no NaN coordinate (after truncation).
     uint8_t active[kMaxTriangles];
-    uint32_t n_active = 0;
     bool any_nan = false;
     float bmin[3] = {0.0f, 0.0f, 0.0f}, bmax[3] = {0.0f, 0.0f, 0.0f};
+    uint32_t n_active = 0;
     if (in.positions) {
-        Float4 lo_all = splat(INFINITY), hi_all = splat(-INFINITY);
-        for (uint32_t t = 0; t < n_triangles; ++t) {
-            if (in.inactive && in.inactive[t]) continue;
-            const uint32_t* tri = in.indices + 3 * t;
-            const Float4 a = load3(in.positions + 3 * tri[0]);
-            const Float4 b = load3(in.positions + 3 * tri[1]);
-            const Float4 c = load3(in.positions + 3 * tri[2]);
-            if (nan_lanes(a) | nan_lanes(b) | nan_lanes(c)) {
-                any_nan = true;
-                continue;
-            }
-            const Float4 lo = min4(a, min4(b, c)), hi = max4(a, max4(b, c));
-            store4(s.tri_min[n_active], lo);
-            store4(s.tri_max[n_active], hi);
-            lo_all = min4(lo_all, lo);
-            hi_all = max4(hi_all, hi);
-            active[n_active++] = uint8_t(t);
-        }
-        if (n_active > 0) {
-            alignas(16) float lo4[4], hi4[4];
-            store4(lo4, lo_all);
-            store4(hi4, hi_all);
-            std::memcpy(bmin, lo4, sizeof bmin);
-            std::memcpy(bmax, hi4, sizeof bmax);
-        }
+        const bool any_inactive =
+            in.inactive && std::memchr(in.inactive, 1, n_triangles) != nullptr;
+        n_active = any_inactive ? gather_active_boxes<true>(in, s, active, any_nan, bmin, bmax)
+                                : gather_active_boxes<false>(in, s, active, any_nan, bmin, bmax);
     }
     std::memcpy(h.bounds_min, bmin, sizeof bmin);
     std::memcpy(h.bounds_max, bmax, sizeof bmax);
@@ -283,6 +307,7 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
     // the application's order for a template.
     uint8_t order[kMaxTriangles];
     uint32_t n_nodes = 0;
+    bool identity = true;
     if (is_clas && n_active > 0) {
         build_bvh(active, n_active, s);
         n_nodes = s.node_count;
@@ -294,11 +319,10 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
             for (uint32_t t = 0; t < n_triangles; ++t)
                 if (!is_active[t]) order[k++] = uint8_t(t);
         }
+        identity = std::memcmp(order, kIdentityOrder.data(), n_triangles) == 0;
     } else {
-        for (uint32_t t = 0; t < n_triangles; ++t) order[t] = uint8_t(t);
+        std::memcpy(order, kIdentityOrder.data(), n_triangles);
     }
-    bool identity = true;
-    for (uint32_t t = 0; t < n_triangles; ++t) identity &= order[t] == t;
 
     bool varying = false;
     uint32_t max_geometry_index = in.base_geometry_index_and_flags & 0xFFFFFFu;

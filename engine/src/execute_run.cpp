@@ -24,6 +24,11 @@ VkClusterAccelerationStructureTypeNV result_type(const OpOutput& out) {
                                                                                              : 2);
 }
 
+// The bytes an implicit destination's object of `size` bytes takes (ExecuteOptions).
+uint64_t implicit_room(const CommandState& s, uint64_t size) {
+    return std::max(size, s.options.implicit_object_room);
+}
+
 // Where op i's object goes: the next aligned offset of the implicit data, or
 // dstAddressesArray[i]. 0: nowhere (failed op, compute-sizes, or a wrapped address, whose
 // write then faults).
@@ -32,7 +37,7 @@ uint64_t place_object(CommandState& s, OpOutput& out, uint32_t i, uint64_t size)
     if (s.implicit) {
         uint64_t offset = align_up_sat(s.cursor, s.align);
         uint64_t dst = s.cmd.implicit_data + offset;
-        s.cursor = sat_add(offset, size);
+        s.cursor = sat_add(offset, implicit_room(s, size));
         return dst < s.cmd.implicit_data ? 0 : dst;
     }
     if (!s.explicit_mode) return 0;
@@ -48,12 +53,16 @@ uint64_t place_object(CommandState& s, OpOutput& out, uint32_t i, uint64_t size)
 
 void write_object(CommandState& s, OpOutput& out, uint32_t i, uint64_t dst, OpResult& result,
                   BuiltObjects& built) {
-    const uint64_t size = out.bytes.size();
+    // An implicit object given more room than its bytes (ExecuteOptions::implicit_object_room)
+    // zero-fills the rest: the command then defines every byte of the room, so a capture's
+    // output snapshot of it replays without the memory's older contents.
+    const uint64_t size = s.implicit ? implicit_room(s, out.bytes.size()) : out.bytes.size();
     std::string where = s.implicit ? "dstImplicitData[op " + std::to_string(i) + "]"
                                    : "*dstAddressesArray[" + std::to_string(i) + "]";
     try {
         auto span = s.memory.write_bytes(dst, size, {where.c_str(), i});
-        std::copy(out.bytes.begin(), out.bytes.end(), span.begin());
+        std::fill(std::copy(out.bytes.begin(), out.bytes.end(), span.begin()), span.end(),
+                  std::byte{0});
         out.rec.access(dst, size, kAccessObjectWrite, true, where);
         result.dst_address = dst;
         s.written.push_back({dst, dst + size, i});
@@ -78,8 +87,9 @@ void write_result_arrays(CommandState& s, OpOutput& out, uint32_t i, uint64_t si
         if ((s.implicit || s.sizes_only) && cmd.dst_sizes.deviceAddress != 0) {
             std::string f = "dstSizesArray[" + std::to_string(i) + "]";
             uint64_t a = MemoryImage::strided_address(cmd.dst_sizes, i, 4, {f.c_str(), i});
+            const uint64_t taken = s.implicit ? implicit_room(s, size) : size;
             uint32_t written_size =
-                result.executed || (s.sizes_only && out.ok) ? uint32_t(size) : 0;
+                result.executed || (s.sizes_only && out.ok) ? uint32_t(taken) : 0;
             s.memory.write<uint32_t>(a, written_size, {f.c_str(), i});
             out.rec.access(a, 4, kAccessObjectWrite, true, f);
         }

@@ -379,6 +379,7 @@ std::span<std::byte> MemoryImage::write_bytes(uint64_t address, uint64_t size, F
     uint64_t added = 0;
     std::byte* bytes = r->bytes.write_at(offset, size, &added);
     written_ += added;
+    if (write_log_) write_log_->emplace_back(address, size);
     return {bytes, static_cast<size_t>(size)};
 }
 

@@ -9,6 +9,9 @@
 #include "clastrace/engine/vertex_format.h"
 #include "nv_internal.h"
 
+#include <emmintrin.h>
+
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <unordered_map>
@@ -193,6 +196,30 @@ bool check_triangles(Context& c, const NvTriangles& t, const std::string& at) {
     return usable;
 }
 
+// Triangle i of float3 vertices with no transform, the common case, without a branch per
+// coordinate: true when its indices are below vertexCount and no coordinate is NaN (p.v
+// filled); false leaves it to the full reading (index type NONE has isize 0).
+bool fast_triangle(const NvTriangles& t, uint32_t i, uint32_t isize,
+                   std::span<const std::byte> vertices, std::span<const std::byte> indices,
+                   NvPrimitiveRecord& p) {
+    uint32_t index[3] = {3 * i, 3 * i + 1, 3 * i + 2};
+    if (isize == 2) {
+        uint16_t narrow[3];
+        std::memcpy(narrow, indices.data() + 6 * uint64_t(i), 6);
+        for (int k = 0; k < 3; ++k) index[k] = narrow[k];
+    } else if (isize == 4) {
+        std::memcpy(index, indices.data() + 12 * uint64_t(i), 12);
+    }
+    if ((index[0] >= t.vertex_count) | (index[1] >= t.vertex_count) | (index[2] >= t.vertex_count))
+        return false;
+    for (int k = 0; k < 3; ++k)
+        std::memcpy(p.v + 3 * k, vertices.data() + uint64_t(index[k]) * t.vertex_stride, 12);
+    const __m128 a = _mm_loadu_ps(p.v), b = _mm_loadu_ps(p.v + 4), c = _mm_load_ss(p.v + 8);
+    const __m128 nan =
+        _mm_or_ps(_mm_cmpunord_ps(a, a), _mm_or_ps(_mm_cmpunord_ps(b, b), _mm_cmpunord_ps(c, c)));
+    return _mm_movemask_ps(nan) == 0;
+}
+
 // Geometry g's triangles, indexed, decoded and transformed; unreadable ones stay inactive.
 void gather_triangles(Context& c, const NvTriangles& t, uint32_t g, const std::string& at,
                       BottomInput& in, NvGeometryRecord& rec) {
@@ -231,14 +258,11 @@ void gather_triangles(Context& c, const NvTriangles& t, uint32_t g, const std::s
             read_span(c, t.transform_address, 1, 48, 48, at + ".geometry.triangles.transformData");
         std::memcpy(m, bytes.data(), 48);
     }
-    in.primitives.reserve(in.primitives.size() + count);
-    in.active.reserve(in.active.size() + count);
     const bool float3 =
         t.vertex_format == VK_FORMAT_R32G32B32_SFLOAT;  // the common format: a plain copy
-    for (uint32_t i = 0; i < count; ++i) {
-        NvPrimitiveRecord p{};
-        p.geometry_index = g;
-        p.primitive_index = i;
+    // Triangle i as the spec reads it, with a finding for each rule it breaks; false for an
+    // inactive triangle.
+    auto read_triangle = [&](uint32_t i, NvPrimitiveRecord& p) {
         bool active = true;
         for (int k = 0; k < 3; ++k) {
             uint32_t index = 3 * i + k;
@@ -257,8 +281,7 @@ void gather_triangles(Context& c, const NvTriangles& t, uint32_t g, const std::s
                               std::to_string(index) + " is not below " + c.dialect.vertex_count +
                               " " + std::to_string(t.vertex_count) +
                               " (the engine treats the triangle as inactive)");
-                active = false;
-                break;
+                return false;
             }
             const std::byte* vertex = vertices.data() + uint64_t(index) * t.vertex_stride;
             if (float3)
@@ -266,39 +289,49 @@ void gather_triangles(Context& c, const NvTriangles& t, uint32_t g, const std::s
             else
                 c.dialect.decode_vertex(t.vertex_format, vertex, p.v + 3 * k);
         }
-        if (active) {
-            if (std::isnan(p.v[0]) || std::isnan(p.v[3]) || std::isnan(p.v[6])) {
-                active = false;  // the spec's inactive triangle
-            } else {
-                for (int k : {1, 2, 4, 5, 7, 8})
-                    if (std::isnan(p.v[k])) {
-                        c.finding(c.dialect.nan_component,
-                                  at + " triangle " + std::to_string(i) +
-                                      ": NaN in a Y or Z coordinate with X "
-                                      "not NaN (undefined behaviour; the "
-                                      "engine treats it as inactive)");
-                        active = false;
-                        break;
-                    }
+        if (std::isnan(p.v[0]) || std::isnan(p.v[3]) || std::isnan(p.v[6]))
+            return false;  // the spec's inactive triangle
+        for (int k : {1, 2, 4, 5, 7, 8})
+            if (std::isnan(p.v[k])) {
+                c.finding(c.dialect.nan_component, at + " triangle " + std::to_string(i) +
+                                                       ": NaN in a Y or Z coordinate with X "
+                                                       "not NaN (undefined behaviour; the "
+                                                       "engine treats it as inactive)");
+                return false;
             }
+        if (t.transform_address == 0) return active;
+        for (int k = 0; k < 3; ++k) {
+            const float x = p.v[3 * k], y = p.v[3 * k + 1], z = p.v[3 * k + 2];
+            for (int r = 0; r < 3; ++r)
+                p.v[3 * k + r] = m[4 * r] * x + m[4 * r + 1] * y + m[4 * r + 2] * z + m[4 * r + 3];
         }
-        if (active && t.transform_address != 0) {
-            for (int k = 0; k < 3; ++k) {
-                const float x = p.v[3 * k], y = p.v[3 * k + 1], z = p.v[3 * k + 2];
-                for (int r = 0; r < 3; ++r)
-                    p.v[3 * k + r] =
-                        m[4 * r] * x + m[4 * r + 1] * y + m[4 * r + 2] * z + m[4 * r + 3];
+        for (int k = 0; k < 9; ++k)
+            if (std::isnan(p.v[k])) {
+                c.finding(c.dialect.nan_component, at + " triangle " + std::to_string(i) +
+                                                       ": the transform gives a NaN coordinate "
+                                                       "(the engine treats it as inactive)");
+                return false;
             }
-            for (int k = 0; k < 9 && active; ++k)
-                if (std::isnan(p.v[k])) {
-                    c.finding(c.dialect.nan_component, at + " triangle " + std::to_string(i) +
-                                                           ": the transform gives a NaN coordinate "
-                                                           "(the engine treats it as inactive)");
-                    active = false;
-                }
+        return active;
+    };
+    const size_t base = in.primitives.size();
+    in.primitives.resize(base + count);
+    in.active.resize(base + count);
+    NvPrimitiveRecord* out = in.primitives.data() + base;
+    uint8_t* out_active = in.active.data() + base;
+    // The common case first: float3 vertices, no transform, indices in range and no NaN. Any
+    // other triangle is read again by read_triangle, which reports what it breaks.
+    const bool plain = float3 && t.transform_address == 0;
+    for (uint32_t i = 0; i < count; ++i) {
+        NvPrimitiveRecord& p = out[i];
+        p.geometry_index = g;
+        p.primitive_index = i;
+        bool active = plain && fast_triangle(t, i, isize, vertices, indices, p);
+        if (!active) {
+            std::fill(std::begin(p.v), std::end(p.v), 0.0f);  // as a fresh record
+            active = read_triangle(i, p);
         }
-        in.primitives.push_back(p);
-        in.active.push_back(active);
+        out_active[i] = active;
         rec.active_primitives += active;
     }
 }

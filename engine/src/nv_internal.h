@@ -25,7 +25,17 @@ struct Tree {
 // kSah: binned SAH (the default). kMorton: linear BVH over sorted Morton codes, several
 // times faster to build and slower to trace (VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV).
 enum class TreeQuality { kSah, kMorton };
-Tree build_tree(std::span<const Box> boxes, TreeQuality quality = TreeQuality::kSah);
+// What an SAH tree is for, which sets how it ends its branches and chooses its splits.
+// kBottom: every range of up to kNvMaxLeafSize items is a leaf (the traversal tests a leaf's
+// items four at once and merges any stored subtree of up to four contiguous records into one
+// leaf, so splitting such a range buys nothing), and every larger range is binned, Embree's
+// way. kTop: the SAH weighs a leaf against its best split at one item per intersection, and
+// ranges of up to 16 items take the exact sweep (top levels are small, and their leaves become
+// chains of single instances, each costing a bottom-level walk). Morton trees always end at
+// kNvMaxLeafSize items.
+enum class TreeLevel { kBottom, kTop };
+Tree build_tree(std::span<const Box> boxes, TreeQuality quality = TreeQuality::kSah,
+                TreeLevel level = TreeLevel::kBottom);
 
 // Recomputes every node box from its items (leaf) or children, bottom-up. `item_box(i)`
 // is the box of record i (the leaf ranges index records directly).

@@ -6,6 +6,8 @@
 #include "clastrace/common/hex.h"
 #include "clastrace/engine/blas.h"
 
+#include "nv_wide_tree.h"
+
 #include "geometry/float32.h"
 #include "geometry/slab.h"
 #include "geometry/triangle.h"
@@ -26,12 +28,18 @@ struct Blas {
     NvObjectView view;
     std::vector<NvPrimitiveRecord> primitives;
     std::vector<NvNode> nodes;
+    detail::WideTree wide;  // `nodes` in the traversal's layout
+    // Triangles: the wide leaves' records in groups of four (`wide` indexes these).
+    std::vector<geometry::Triangle4> groups;
     std::vector<uint32_t> geometry_flags;
     bool aabbs = false;
     // A cluster BLAS (blas.h): `bytes` is that object, `clas` the CLAS its references name
     // (address -> bytes; a reference whose address holds no CLAS is absent and never hit).
     bool clusters = false;
     std::unordered_map<uint64_t, std::vector<std::byte>> clas;
+    // Each of them opened once (the map's nodes and the vectors' bytes stay where they are
+    // when the Blas moves).
+    std::unordered_map<uint64_t, ClasView> clas_views;
 };
 
 struct Instance {
@@ -103,8 +111,12 @@ std::optional<Blas> load_cluster_blas(const MemoryImage& memory, uint64_t addres
         ObjectLookup clas =
             bytes_only.lookup(memory, ref.clas_address, ObjectType::kTriangleCluster, false, where);
         if (clas.found() && open_clas(clas.bytes)) {
-            b.clas.emplace(ref.clas_address,
-                           std::vector<std::byte>(clas.bytes.begin(), clas.bytes.end()));
+            const auto& kept =
+                b.clas
+                    .emplace(ref.clas_address,
+                             std::vector<std::byte>(clas.bytes.begin(), clas.bytes.end()))
+                    .first->second;
+            b.clas_views.emplace(ref.clas_address, *open_clas(kept));
         } else if (findings) {
             findings->push_back(Finding{kRuleStaleClusterReference,
                                         "cluster BLAS " + hex(address) + ", cluster reference " +
@@ -143,6 +155,8 @@ std::optional<Blas> load_blas(const MemoryImage& memory, uint64_t address,
         for (uint32_t i = 0; i < h->primitive_count; ++i) b.primitives[i] = view->primitive(i);
         b.nodes.resize(h->node_count);
         for (uint32_t i = 0; i < h->node_count; ++i) b.nodes[i] = view->node(i);
+        b.wide = detail::make_wide_tree(b.nodes);
+        if (!b.aabbs) b.groups = detail::group_leaf_triangles(&b.wide, b.primitives);
         b.geometry_flags.resize(h->geometry_count);
         for (uint32_t g = 0; g < h->geometry_count; ++g)
             b.geometry_flags[g] = view->geometry(g).geometry_flags;
@@ -157,9 +171,13 @@ std::optional<Blas> load_blas(const MemoryImage& memory, uint64_t address,
 
 struct NvScene::Data {
     std::vector<NvNode> nodes;  // top-level tree; empty for a single-BLAS scene
+    detail::WideTree wide;      // `nodes` in the traversal's layout
     std::vector<Instance> instances;
     std::unordered_map<uint64_t, std::unique_ptr<Blas>> blas;
     uint32_t reached = 0;
+    // open_bottom's scene: one identity instance under a root of infinite bounds, which every
+    // finite ray enters, so those skip the top level's walk.
+    bool single_bottom = false;
 };
 
 std::optional<NvScene> NvScene::open(const MemoryImage& memory, uint64_t address,
@@ -186,6 +204,7 @@ std::optional<NvScene> NvScene::open(const MemoryImage& memory, uint64_t address
     auto data = std::make_shared<Data>();
     data->nodes.resize(view->header.node_count);
     for (uint32_t i = 0; i < view->header.node_count; ++i) data->nodes[i] = view->node(i);
+    data->wide = detail::make_wide_tree(data->nodes);
     data->instances.resize(view->header.primitive_count);
     for (uint32_t i = 0; i < view->header.primitive_count; ++i) {
         const NvInstanceRecord r = view->instance(i);
@@ -238,12 +257,28 @@ std::optional<NvScene> NvScene::open_bottom(const MemoryImage& memory, uint64_t 
     root.first = 0;
     root.count = 1;
     data->nodes.push_back(root);
+    data->wide = detail::make_wide_tree(data->nodes);
     data->reached = 1;
+    data->single_bottom = true;
     return NvScene(std::move(data));
 }
 
 uint32_t NvScene::instance_count() const { return uint32_t(data_->instances.size()); }
 uint32_t NvScene::instances_reached() const { return data_->reached; }
+
+uint64_t NvScene::traversal_bytes(uint64_t* wide_nodes) const {
+    uint64_t bytes = data_->nodes.size() * sizeof(NvNode) + data_->wide.bytes();
+    uint64_t wide = data_->wide.node_count();
+    for (const auto& [address, b] : data_->blas) {
+        if (!b || b->clusters) continue;
+        bytes += b->primitives.size() * sizeof(NvPrimitiveRecord) +
+                 b->nodes.size() * sizeof(NvNode) + b->wide.bytes() +
+                 b->groups.size() * sizeof(geometry::Triangle4);
+        wide += b->wide.node_count();
+    }
+    if (wide_nodes) *wide_nodes = wide;
+    return bytes;
+}
 
 namespace {
 
@@ -252,9 +287,13 @@ namespace {
 // closest-hit queries skip subtrees behind the best hit so far (`leaf` lowers *tmax). A fixed
 // stack covers every tree the builder makes; deeper (hostile but checked) trees spill into the
 // vector. `leaf` returns true to stop (first-hit queries).
+// Boxes are culled against the best t widened by 2^-20 of itself: a box entered at that same
+// t (the best hit lies on a vertex or edge on its face) rounds its entry either way, and its
+// tied hit must still be seen for ties to resolve by key (replaces), not by visiting order.
 template <class Leaf>
 void walk_tree(const std::vector<NvNode>& nodes, const geometry::PreparedRay& rd, double* tmax,
                Leaf&& leaf) {
+    auto reach = [tmax] { return *tmax + std::fabs(*tmax) * 0x1p-20; };
     struct Entry {
         uint32_t node;
         double t;
@@ -269,7 +308,7 @@ void walk_tree(const std::vector<NvNode>& nodes, const geometry::PreparedRay& rd
             overflow.push_back(Entry{node, t});
     };
     {
-        const double t0 = box_entry(rd, nodes[0].bounds_min, nodes[0].bounds_max, *tmax);
+        const double t0 = box_entry(rd, nodes[0].bounds_min, nodes[0].bounds_max, reach());
         if (!std::isnan(t0)) push(0, t0);
     }
     while (sp > 0 || !overflow.empty()) {
@@ -280,13 +319,13 @@ void walk_tree(const std::vector<NvNode>& nodes, const geometry::PreparedRay& rd
         } else {
             e = stack[--sp];
         }
-        if (e.t > *tmax) continue;
+        if (e.t > reach()) continue;
         const uint32_t ni = e.node;
         const NvNode& n = nodes[ni];
         if (n.count == 0) {
             const NvNode &l = nodes[ni + 1], &r = nodes[n.first];
-            const double tl = box_entry(rd, l.bounds_min, l.bounds_max, *tmax);
-            const double tr = box_entry(rd, r.bounds_min, r.bounds_max, *tmax);
+            const double tl = box_entry(rd, l.bounds_min, l.bounds_max, reach());
+            const double tr = box_entry(rd, r.bounds_min, r.bounds_max, reach());
             const bool hl = !std::isnan(tl), hr = !std::isnan(tr);
             if (hl && hr) {
                 if (tl <= tr) {
@@ -307,14 +346,50 @@ void walk_tree(const std::vector<NvNode>& nodes, const geometry::PreparedRay& rd
     }
 }
 
+// Visits the leaves through the 4-wide layout (`wide_leaf(first, count)`: `first` indexes
+// `wide_items`, the records or, for a tree with leaf_groups, their groups of four; `count` is
+// the records), or through the stored binary tree (`leaf(first, count)`, records, as
+// walk_tree's) for the rays the SIMD box test cannot bound or whose origin is too far for
+// float distances to tell the leaves apart (nv_wide_tree.h). Both keep every box the ray
+// meets; only the order of the leaves differs. A leaf's items are fetched ahead.
+template <class WideItem, class Leaf, class WideLeaf>
+void walk_leaves(const std::vector<NvNode>& nodes, const detail::WideTree& wide,
+                 const std::vector<WideItem>& wide_items, const geometry::PreparedRay& rd,
+                 double* tmax, Leaf&& leaf, WideLeaf&& wide_leaf) {
+    const detail::WideRay wr = detail::make_wide_ray(rd);
+    // A float32 ray's box test is as wide as the scalar float32 one (make_wide_ray): from far
+    // away the 4-wide walk is still the faster of the two.
+    if (wr.usable && (rd.mode == TraversalMode::kFloat32 || detail::resolves_leaves(wide, rd.o))) {
+        detail::walk_wide(wide, wr, tmax, wide_leaf, [&](uint32_t first, uint32_t count) {
+            const uint32_t items = wide.leaf_groups ? (count + 3) / 4 : count;
+            const char* from = reinterpret_cast<const char*>(wide_items.data() + first);
+            const char* to = reinterpret_cast<const char*>(wide_items.data() + first + items);
+            for (const char* line = from; line < to; line += 64) __builtin_prefetch(line);
+        });
+        return;
+    }
+    walk_tree(nodes, rd, tmax, [&](const NvNode& n) { return leaf(n.first, n.count); });
+}
+
+// Whether a hit at `t` replaces the closest so far (at *tmax): nearer, or as near and with a
+// lower (instance, geometry, primitive) key, so that ties do not depend on the visiting order.
+bool replaces(const NvHit& best, double t, double tmax, uint32_t instance, uint32_t geometry,
+              uint32_t primitive) {
+    if (!best.hit || t < tmax) return true;
+    if (!(t == tmax)) return false;
+    if (instance != best.instance_index) return instance < best.instance_index;
+    if (geometry != best.geometry_index) return geometry < best.geometry_index;
+    return primitive < best.primitive_index;
+}
+
 // The float32 error bound of NvHit::t_error: 8 ulps of the largest magnitude that enters
 // the driver's arithmetic (object-space primitive coordinates and origin, and the terms of
 // the world-to-object transform), over the largest direction component, plus 8 ulps of t.
 double float_t_error(const Instance& inst, const double wo[3], const double o[3], const double d[3],
-                     const NvPrimitiveRecord& p, bool aabb, double t) {
+                     const float* v, bool aabb, double t) {
     double scale = 0.0;
     for (int a = 0; a < 3; ++a) scale = std::max(scale, std::fabs(o[a]));
-    for (int i = 0; i < (aabb ? 6 : 9); ++i) scale = std::max(scale, std::fabs(double(p.v[i])));
+    for (int i = 0; i < (aabb ? 6 : 9); ++i) scale = std::max(scale, std::fabs(double(v[i])));
     for (int r = 0; r < 3; ++r) {
         const double* m = inst.inverse + 4 * r;
         scale = std::max(scale, std::fabs(m[0] * wo[0]) + std::fabs(m[1] * wo[1]) +
@@ -390,14 +465,19 @@ bool trace_cluster_instance(const Instance& inst, uint32_t index, const double o
                          float(tmin),
                          {float(d[0]), float(d[1]), float(d[2])},
                          float(*tmax)};
-    auto clas_at = [&b](uint64_t address) -> std::span<const std::byte> {
-        auto it = b.clas.find(address);
-        return it == b.clas.end() ? std::span<const std::byte>{} : it->second;
+    auto clas_at = [&b](uint64_t address) -> const ClasView* {
+        auto it = b.clas_views.find(address);
+        return it == b.clas_views.end() ? nullptr : &it->second;
     };
     const BottomLevelHit h =
-        trace_bottom_level_bytes(b.bytes, clas_at, object_ray, cluster_ray_flags(flags, inst.flags),
+        trace_bottom_level_views(b.bytes, clas_at, object_ray, cluster_ray_flags(flags, inst.flags),
                                  first_hit, mode);
-    if (!h.hit.hit || !(double(h.hit.t) < *tmax) || double(h.hit.t) < tmin) return false;
+    if (!h.hit.hit || double(h.hit.t) < tmin) return false;
+    // Strictly before *tmax, or a tie with a previous instance's hit that the key settles.
+    if (!(double(h.hit.t) < *tmax) &&
+        !(best && best->hit &&
+          replaces(*best, h.hit.t, *tmax, index, h.hit.geometry_index, h.hit.triangle_index)))
+        return false;
     const bool flip = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_FRONT_COUNTERCLOCKWISE_BIT_NV;
     if (best) {
         best->hit = true;
@@ -423,7 +503,8 @@ bool trace_cluster_instance(const Instance& inst, uint32_t index, const double o
 // One instance's BLAS: updates `best` (closest) or returns true at the first accepted
 // hit (any / terminate-on-first-hit).
 bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32_t flags,
-                    bool first_hit, double tmin, double* tmax, NvHit* best, TraversalMode mode) {
+                    bool first_hit, double tmin, double* tmax, NvHit* best, TraversalMode mode,
+                    bool exhaustive) {
     const Blas& b = *inst.blas;
     if (b.nodes.empty() && !b.clusters) return false;
     const double wo[3] = {ray.origin[0], ray.origin[1], ray.origin[2]};
@@ -435,80 +516,127 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
     const bool cull_disable = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_CULL_DISABLE_BIT_NV;
     const bool flip = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_FRONT_COUNTERCLOCKWISE_BIT_NV;
     bool found = false;
-    walk_tree(b.nodes, rd, tmax, [&](const NvNode& n) {
-        for (uint32_t k = n.first; k < n.first + n.count; ++k) {
+    // One primitive (its coordinates `v`: a triangle's three vertices or a box's min and max)
+    // through the exact tests and the flag rules; true: stop (first hit taken).
+    auto test_primitive = [&](const float* v, uint32_t geometry_index, uint32_t primitive_index) {
+        // Opacity: geometry flag < instance force flags < ray flags.
+        bool opaque = b.geometry_flags[geometry_index] & VK_GEOMETRY_OPAQUE_BIT_NV;
+        if (inst.flags & VK_GEOMETRY_INSTANCE_FORCE_OPAQUE_BIT_NV) opaque = true;
+        if (inst.flags & VK_GEOMETRY_INSTANCE_FORCE_NO_OPAQUE_BIT_NV) opaque = false;
+        if (flags & kRayFlagOpaque) opaque = true;
+        if (flags & kRayFlagNoOpaque) opaque = false;
+        if ((flags & kRayFlagCullOpaque) && opaque) return false;
+        if ((flags & kRayFlagCullNoOpaque) && !opaque) return false;
+        geometry::TriangleHit cand;
+        uint32_t kind = 0;
+        if (b.aabbs) {
+            const double t = aabb_primitive_entry(rd, v, v + 3, *tmax);
+            if (std::isnan(t)) return false;
+            cand = geometry::TriangleHit{t, 0.0, 0.0, 0.0, true};
+        } else {
+            if (!geometry::intersect_triangle(rd, v, v + 3, v + 6, *tmax, &cand)) return false;
+            const bool front = cand.front != flip;
+            if (!cull_disable) {
+                if ((flags & kRayFlagCullBackFacingTriangles) && !front) return false;
+                if ((flags & kRayFlagCullFrontFacingTriangles) && front) return false;
+            }
+            kind = front ? kHitKindFrontFacing : kHitKindBackFacing;
+        }
+        if (best && !replaces(*best, cand.t, *tmax, index, geometry_index, primitive_index))
+            return false;
+        found = true;
+        if (best) {
+            best->hit = true;
+            best->t = float(cand.t);
+            best->instance_index = index;
+            best->instance_custom_index = inst.custom_index;
+            best->sbt_offset = inst.sbt_offset;
+            best->geometry_index = geometry_index;
+            best->primitive_index = primitive_index;
+            best->u = float(cand.u);
+            best->v = float(cand.v);
+            best->uv_error = float(cand.uv_error);
+            best->hit_kind = kind;
+            best->opaque = opaque;
+            best->t_error = float(float_t_error(inst, wo, o, d, v, b.aabbs, cand.t));
+        }
+        *tmax = cand.t;
+        return first_hit;
+    };
+    auto records = [&](uint32_t first, uint32_t count) {
+        for (uint32_t k = first; k < first + count; ++k) {
             const NvPrimitiveRecord& p = b.primitives[k];
-            // Opacity: geometry flag < instance force flags < ray flags.
-            bool opaque = b.geometry_flags[p.geometry_index] & VK_GEOMETRY_OPAQUE_BIT_NV;
-            if (inst.flags & VK_GEOMETRY_INSTANCE_FORCE_OPAQUE_BIT_NV) opaque = true;
-            if (inst.flags & VK_GEOMETRY_INSTANCE_FORCE_NO_OPAQUE_BIT_NV) opaque = false;
-            if (flags & kRayFlagOpaque) opaque = true;
-            if (flags & kRayFlagNoOpaque) opaque = false;
-            if ((flags & kRayFlagCullOpaque) && opaque) continue;
-            if ((flags & kRayFlagCullNoOpaque) && !opaque) continue;
-            geometry::TriangleHit cand;
-            uint32_t kind = 0;
-            if (b.aabbs) {
-                const double t = aabb_primitive_entry(rd, p.v, p.v + 3, *tmax);
-                if (std::isnan(t)) continue;
-                cand = geometry::TriangleHit{t, 0.0, 0.0, 0.0, true};
-            } else {
-                if (!geometry::intersect_triangle(rd, p.v, p.v + 3, p.v + 6, *tmax, &cand))
-                    continue;
-                const bool front = cand.front != flip;
-                if (!cull_disable) {
-                    if ((flags & kRayFlagCullBackFacingTriangles) && !front) continue;
-                    if ((flags & kRayFlagCullFrontFacingTriangles) && front) continue;
-                }
-                kind = front ? kHitKindFrontFacing : kHitKindBackFacing;
+            if (test_primitive(p.v, p.geometry_index, p.primitive_index)) return true;
+        }
+        return false;
+    };
+    if (exhaustive) {
+        records(0, uint32_t(b.primitives.size()));
+        return found;
+    }
+    if (!b.wide.leaf_groups) {
+        walk_leaves(b.nodes, b.wide, b.primitives, rd, tmax, records, records);
+        return found;
+    }
+    // Triangles: each group's sure misses dropped four at a time, the rest in record order.
+    const geometry::Triangle4Ray r4 = geometry::make_triangle4_ray(rd);
+    const detail::LeafFilter filter = detail::leaf_filter(b.wide);
+    walk_leaves(b.nodes, b.wide, b.groups, rd, tmax, records, [&](uint32_t first, uint32_t count) {
+        for (uint32_t g = 0; g < (count + 3) / 4; ++g) {
+            const geometry::Triangle4& group = b.groups[first + g];
+            // At or above *tmax; *tmax only falls within the group, which keeps this safe.
+            float tmax_up = float(*tmax);
+            if (double(tmax_up) < *tmax) tmax_up = std::nextafter(tmax_up, HUGE_VALF);
+            for (unsigned lanes = filter(r4, group, geometry::group_lanes(g, count), tmax_up);
+                 lanes; lanes &= lanes - 1) {
+                const int k = __builtin_ctz(lanes);
+                // open_nv_object keeps leaves inside the records; a lane without one is skipped.
+                if (group.geometry[k] == geometry::kNoTriangle) continue;
+                float v[9];
+                geometry::lane_vertices(group, k, v);
+                if (test_primitive(v, group.geometry[k], group.primitive[k])) return true;
             }
-            if (best && best->hit && !(cand.t < double(*tmax)))
-                continue;  // equal t: the first found stays
-            found = true;
-            if (best) {
-                best->hit = true;
-                best->t = float(cand.t);
-                best->instance_index = index;
-                best->instance_custom_index = inst.custom_index;
-                best->sbt_offset = inst.sbt_offset;
-                best->geometry_index = p.geometry_index;
-                best->primitive_index = p.primitive_index;
-                best->u = float(cand.u);
-                best->v = float(cand.v);
-                best->uv_error = float(cand.uv_error);
-                best->hit_kind = kind;
-                best->opaque = opaque;
-                best->t_error = float(float_t_error(inst, wo, o, d, p, b.aabbs, cand.t));
-            }
-            *tmax = cand.t;
-            if (first_hit) return true;
         }
         return false;
     });
     return found;
 }
 
+// Whether every origin and direction component is finite: such a ray enters a box of infinite
+// bounds on every axis (a single-BLAS scene's root) whatever its interval.
+bool finite_ray(const Ray& ray) {
+    for (int a = 0; a < 3; ++a)
+        if (!std::isfinite(ray.origin[a]) || !std::isfinite(ray.direction[a])) return false;
+    return true;
+}
+
 bool trace_scene(const NvScene::Data& s, const Ray& ray, uint32_t flags, uint32_t cull_mask,
-                 bool first_hit, NvHit* best, TraversalMode mode) {
+                 bool first_hit, NvHit* best, TraversalMode mode, bool exhaustive = false) {
     if (s.nodes.empty() || std::isnan(ray.tmin) || std::isnan(ray.tmax) || !(ray.tmin <= ray.tmax))
         return false;
-    const double o[3] = {ray.origin[0], ray.origin[1], ray.origin[2]};
-    const double d[3] = {ray.direction[0], ray.direction[1], ray.direction[2]};
-    const geometry::PreparedRay rd = geometry::prepare_ray(o, d, ray.tmin, ray.tmax, mode);
     const double tmin = ray.tmin;
     double tmax = ray.tmax;
     bool found = false;
-    walk_tree(s.nodes, rd, &tmax, [&](const NvNode& n) {
-        for (uint32_t k = n.first; k < n.first + n.count; ++k) {
+    auto instances = [&](uint32_t first, uint32_t count) {
+        for (uint32_t k = first; k < first + count; ++k) {
             const Instance& inst = s.instances[k];
             if (!inst.blas || !(inst.mask & cull_mask & 0xFFu)) continue;
-            if (trace_instance(inst, k, ray, flags, first_hit, tmin, &tmax, best, mode)) {
+            if (trace_instance(inst, k, ray, flags, first_hit, tmin, &tmax, best, mode,
+                               exhaustive)) {
                 found = true;
                 if (first_hit) return true;
             }
         }
         return false;
-    });
+    };
+    if (exhaustive || (s.single_bottom && finite_ray(ray))) {
+        instances(0, uint32_t(s.instances.size()));
+        return found;
+    }
+    const double o[3] = {ray.origin[0], ray.origin[1], ray.origin[2]};
+    const double d[3] = {ray.direction[0], ray.direction[1], ray.direction[2]};
+    const geometry::PreparedRay rd = geometry::prepare_ray(o, d, ray.tmin, ray.tmax, mode);
+    walk_leaves(s.nodes, s.wide, s.instances, rd, &tmax, instances, instances);
     return found;
 }
 
@@ -519,6 +647,14 @@ NvHit NvScene::closest(const Ray& ray, uint32_t ray_flags, uint32_t cull_mask,
     NvHit hit;
     trace_scene(*data_, ray, ray_flags, cull_mask, (ray_flags & kRayFlagTerminateOnFirstHit) != 0,
                 &hit, mode);
+    return hit;
+}
+
+NvHit NvScene::closest_exhaustive(const Ray& ray, uint32_t ray_flags, uint32_t cull_mask,
+                                  TraversalMode mode) const {
+    NvHit hit;
+    trace_scene(*data_, ray, ray_flags, cull_mask, (ray_flags & kRayFlagTerminateOnFirstHit) != 0,
+                &hit, mode, true);
     return hit;
 }
 

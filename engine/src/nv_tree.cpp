@@ -3,10 +3,12 @@
 // geometry/binned_sah.h, chooses the splits): each box is copied once into a 32-byte
 // BoxRef (box + item id), every node bins its range in one pass (32 bins x 3 axes, SSE),
 // and the chosen split partitions the BoxRefs in place while gathering both children's
-// box and centroid bounds, so no pass recomputes them; ranges of up to 16 items take the
-// exact sweep over their centroid order instead of bins. Object-median fallback when the
-// centroids coincide or past depth 64. Split costs are
-// evaluated in double so huge boxes (coordinates near FLT_MAX) still compare; infinite
+// box and centroid bounds, so no pass recomputes them. Bottom levels end every range of up
+// to four items as a leaf and bin every larger one (Embree's way); top levels let the SAH
+// weigh small leaves and take the exact sweep over centroid order for ranges of up to 16
+// items (TreeLevel). Object-median fallback when the centroids coincide or past depth 64.
+// Split costs are evaluated in float for bottom-level ranges whose bounds lie within 2^40,
+// in double elsewhere, so huge boxes (coordinates near FLT_MAX) still compare; infinite
 // areas never win a split. The core's top-down builder lays the nodes out in preorder;
 // large ranges build their two halves as TBB tasks into their own node arrays, spliced in
 // depth-first order: the tree depends only on the boxes, never on the thread count.
@@ -20,7 +22,10 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <array>
+#include <atomic>
 #include <cmath>
+#include <cstddef>
 #include <cstring>
 #include <limits>
 
@@ -31,12 +36,13 @@ namespace {
 // alike.
 constexpr geometry::SahParams kSah{32, 1.0, 1.0, kNvMaxLeafSize};
 constexpr int kBins = kSah.max_bins;
-// Ranges of up to this many items take the exact sweep instead of bins.
+// Top levels: ranges of up to this many items take the exact sweep instead of bins.
 constexpr uint32_t kSweepItems = 16;
 // Below this many items a subtree is built on the calling thread.
 constexpr uint32_t kParallelItems = 16384;
 
-// One item: lane 3 of lo holds the item id, lane 3 of hi is unused (never read as a float).
+// One item: lane 3 of lo holds the item id, lane 3 of hi the item's bins on the last binning
+// (find_split), read by the partition that follows (a normal float: see BinSet::add).
 struct alignas(16) BoxRef {
     float lo[3];
     uint32_t id;
@@ -90,6 +96,15 @@ double sweep_area(const Bounds4& b) {
     const double dx = _mm_cvtsd_f64(d01), dy = _mm_cvtsd_f64(_mm_unpackhi_pd(d01, d01)),
                  dz = _mm_cvtsd_f64(d23);
     return dx * dy + dy * dz + dz * dx;
+}
+
+// sweep_area in float SSE for ranges whose box is tame (SahSplitter::cheapest): about half the
+// work of the double version per cut.
+float sweep_area_float(const Bounds4& b) {
+    const __m128 d = _mm_sub_ps(b.hi, b.lo);
+    const __m128 p = _mm_mul_ps(d, _mm_shuffle_ps(d, d, _MM_SHUFFLE(3, 0, 2, 1)));  // xy yz zx
+    return _mm_cvtss_f32(_mm_add_ss(_mm_add_ss(p, _mm_shuffle_ps(p, p, _MM_SHUFFLE(1, 1, 1, 1))),
+                                    _mm_movehl_ps(p, p)));
 }
 
 // Halves first: lo + hi would overflow to inf for coordinates near FLT_MAX.
@@ -159,59 +174,163 @@ struct NvNodeEmitter {
     bool is_inner(const Node& n) const { return n.count == 0; }
 };
 
+// The items of a range of up to kSweepItems, loaded once: boxes (lo's id lane zeroed) and
+// centroid keys per axis (NaN as -inf, so it sorts first; lanes past the items +inf).
+struct SmallItems {
+    __m128 lo[kSweepItems], hi[kSweepItems];
+    alignas(16) float key[3][kSweepItems];
+
+    void load(const BoxRef* items, uint32_t n) {
+        const __m128 inf = _mm_set1_ps(std::numeric_limits<float>::infinity()),
+                     minus_inf = _mm_set1_ps(-std::numeric_limits<float>::infinity());
+        for (int a = 0; a < 3; ++a)
+            for (uint32_t b = 0; b < kSweepItems / 4; ++b) _mm_store_ps(key[a] + 4 * b, inf);
+        alignas(16) float c[4];
+        for (uint32_t k = 0; k < n; ++k) {
+            lo[k] = load_lo(items[k]);
+            hi[k] = _mm_load_ps(items[k].hi);
+            const __m128 ck = centroid(lo[k], hi[k]), nan = _mm_cmpunord_ps(ck, ck);
+            _mm_store_ps(c, _mm_or_ps(_mm_andnot_ps(nan, ck), _mm_and_ps(nan, minus_inf)));
+            key[0][k] = c[0];
+            key[1][k] = c[1];
+            key[2][k] = c[2];
+        }
+    }
+
+    // order[rank] = item, rank = how many items sort before it (a smaller key, or an equal key
+    // at a lower position): the stable order, with no branches. Ranks are counted for four
+    // items at once: an item j before their block sorts before each of them with a key <=
+    // theirs, one after it with a key <, and one inside it by its position in the block.
+    void order_by_centroid(uint32_t n, int axis, uint8_t* order) const {
+        const float* const k = key[axis];
+        const uint32_t padded = 4 * ((n + 3) / 4);  // padding items rank last, by position
+        // Lanes above lane m: there an equal key of lane m counts as before.
+        const __m128 above[4] = {_mm_castsi128_ps(_mm_setr_epi32(0, -1, -1, -1)),
+                                 _mm_castsi128_ps(_mm_setr_epi32(0, 0, -1, -1)),
+                                 _mm_castsi128_ps(_mm_setr_epi32(0, 0, 0, -1)), _mm_setzero_ps()};
+        for (uint32_t b = 0; b < padded; b += 4) {
+            const __m128 ki = _mm_load_ps(k + b);
+            __m128i rank = _mm_setzero_si128();
+            for (uint32_t j = 0; j < b; ++j)
+                rank = _mm_sub_epi32(rank, _mm_castps_si128(_mm_cmple_ps(_mm_set1_ps(k[j]), ki)));
+            for (uint32_t j = b + 4; j < padded; ++j)
+                rank = _mm_sub_epi32(rank, _mm_castps_si128(_mm_cmplt_ps(_mm_set1_ps(k[j]), ki)));
+            for (uint32_t m = 0; m < 4; ++m) {
+                const __m128 km = _mm_set1_ps(k[b + m]);
+                const __m128 before = _mm_or_ps(_mm_and_ps(above[m], _mm_cmple_ps(km, ki)),
+                                                _mm_andnot_ps(above[m], _mm_cmplt_ps(km, ki)));
+                rank = _mm_sub_epi32(rank, _mm_castps_si128(before));
+            }
+            alignas(16) int32_t r[4];
+            _mm_store_si128(reinterpret_cast<__m128i*>(r), rank);
+            for (uint32_t l = 0; l < 4; ++l) order[r[l]] = uint8_t(b + l);
+        }
+    }
+
+    // The range of the items order[from..to) as they now lie at begin + from.., with bounds.
+    Range bounds_of(const uint8_t* order, uint32_t from, uint32_t to, uint32_t begin) const {
+        Range r{begin + from, begin + to, Bounds4::empty(), Bounds4::empty()};
+        for (uint32_t k = from; k < to; ++k) {
+            const __m128 l = lo[order[k]], h = hi[order[k]], c = centroid(l, h);
+            r.box.grow(l, h);
+            r.centroids.grow(c, c);
+        }
+        return r;
+    }
+};
+
+// A BoxRef pad holding bins: 1.0f's bits, the bins in the mantissa.
+constexpr uint32_t kPadBinsBase = 0x3f800000u;
+static_assert(kBins <= 32, "a bin takes 5 bits of the pad");
+
+// The bins of one range: per axis each bin's box and item count.
+struct BinSet {
+    Bounds4 box[3][kBins];
+    uint32_t count[3][kBins];
+
+    void clear(int bins) {
+        for (int a = 0; a < 3; ++a)
+            for (int k = 0; k < bins; ++k) {
+                box[a][k] = Bounds4::empty();
+                count[a][k] = 0;
+            }
+    }
+    // Adds the item to its bin on each axis and keeps the three bins in its pad (5 bits each
+    // at bits 0, 8 and 16, under 1.0f's exponent: lane 3 of `hi` stays a normal float, never
+    // a denormal, whose multiplies in centroid() would take the slow path).
+    void add(BoxRef& ref, const BinMap& map) {
+        const __m128 lo = load_lo(ref), hi = _mm_load_ps(ref.hi);
+        const __m128i k = map.bins(centroid(lo, hi));
+        const int k0 = _mm_cvtsi128_si32(k), k1 = _mm_cvtsi128_si32(_mm_shuffle_epi32(k, 1)),
+                  k2 = _mm_cvtsi128_si32(_mm_shuffle_epi32(k, 2));
+        ref.pad = kPadBinsBase | uint32_t(k0) | uint32_t(k1) << 8 | uint32_t(k2) << 16;
+        box[0][k0].grow(lo, hi);
+        box[1][k1].grow(lo, hi);
+        box[2][k2].grow(lo, hi);
+        ++count[0][k0];
+        ++count[1][k1];
+        ++count[2][k2];
+    }
+};
+
 // Chooses the SAH splits over the shared BoxRef array (leaf `first` indexes it).
 struct SahSplitter {
     BoxRef* refs;
+    TreeLevel level;
 
-    Split find_split(const Range& r, const BinMap& map) const {
-        const int bins = map.bins_used;
-        Bounds4 bin_box[3][kBins];
-        uint32_t bin_count[3][kBins];
-        for (int a = 0; a < 3; ++a)
-            for (int k = 0; k < bins; ++k) {
-                bin_box[a][k] = Bounds4::empty();
-                bin_count[a][k] = 0;
-            }
-        for (uint32_t i = r.begin; i < r.end; ++i) {
-            const __m128 lo = load_lo(refs[i]), hi = _mm_load_ps(refs[i].hi);
-            alignas(16) int32_t k[4];
-            _mm_store_si128(reinterpret_cast<__m128i*>(k), map.bins(centroid(lo, hi)));
-            for (int a = 0; a < 3; ++a) {
-                bin_box[a][k[a]].grow(lo, hi);
-                ++bin_count[a][k[a]];
-            }
+    // The SAH core's cheapest split. Bottom levels evaluate the costs in float where every
+    // bound of the range's box is within 2^40 (half areas under 2^84: times any item count far
+    // below FLT_MAX, so only rounding in near ties differs from double), in about half the
+    // work; huge or infinite boxes, and top levels, in double.
+    template <int MaxBins, class BoxAt, class CountAt>
+    Split cheapest(const Range& r, int bins, const bool usable[3], BoxAt box_at,
+                   CountAt count_at) const {
+        const __m128 abs_mask = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff)),
+                     limit = _mm_set1_ps(0x1p40f);
+        const __m128 tame = _mm_and_ps(_mm_cmple_ps(_mm_and_ps(r.box.lo, abs_mask), limit),
+                                       _mm_cmple_ps(_mm_and_ps(r.box.hi, abs_mask), limit));
+        if (level == TreeLevel::kBottom && (_mm_movemask_ps(tame) & 7) == 7) {
+            const geometry::SahSplit<float> s =
+                geometry::cheapest_split<float, MaxBins>(bins, usable, box_at, count_at,
+                                                         Bounds4::empty(), sweep_area_float);
+            return Split{s.axis, s.bin, double(s.cost)};
         }
-        return geometry::cheapest_split<double, kBins>(
-            bins, map.usable, [&](int a, int k) -> const Bounds4& { return bin_box[a][k]; },
-            [&](int a, int k) { return bin_count[a][k]; }, Bounds4::empty(), sweep_area);
+        return geometry::cheapest_split<double, MaxBins>(bins, usable, box_at, count_at,
+                                                         Bounds4::empty(), sweep_area);
     }
 
-    // Hoare partition of [begin, end) by the split (left: bin <= split.bin), gathering both
-    // sides' bounds on the way.
-    void partition(const Range& r, const BinMap& map, const Split& s, Range* left,
-                   Range* right) const {
+    // Bins the range's items: per axis each bin's box and count. Each item's three bins are
+    // kept in its `pad` for the partition that follows.
+    Split find_split(const Range& r, const BinMap& map) const {
+        const int bins = map.bins_used;
+        BinSet b;
+        b.clear(bins);
+        for (uint32_t i = r.begin; i < r.end; ++i) b.add(refs[i], map);
+        return cheapest<kBins>(
+            r, bins, map.usable, [&](int a, int k) -> const Bounds4& { return b.box[a][k]; },
+            [&](int a, int k) { return b.count[a][k]; });
+    }
+
+    // Hoare partition of [begin, end) by the split (left: bin <= split.bin, read from the
+    // bins find_split kept in `pad`), gathering both sides' bounds on the way.
+    void partition(const Range& r, const Split& s, Range* left, Range* right) const {
         Bounds4 lb = Bounds4::empty(), lc = Bounds4::empty(), rb = Bounds4::empty(),
                 rc = Bounds4::empty();
-        auto is_left = [&](const BoxRef& ref, __m128 c) {
-            alignas(16) int32_t k[4];
-            _mm_store_si128(reinterpret_cast<__m128i*>(k), map.bins(c));
-            (void)ref;
-            return k[s.axis] <= s.bin;
-        };
+        const int shift = 8 * s.axis;
+        const uint32_t split_bin = uint32_t(s.bin);
+        auto is_left = [&](const BoxRef& ref) { return ((ref.pad >> shift) & 31u) <= split_bin; };
         uint32_t i = r.begin, j = r.end;
         while (true) {
-            while (i < j) {
+            while (i < j && is_left(refs[i])) {
                 const __m128 lo = load_lo(refs[i]), hi = _mm_load_ps(refs[i].hi),
                              c = centroid(lo, hi);
-                if (!is_left(refs[i], c)) break;
                 lb.grow(lo, hi);
                 lc.grow(c, c);
                 ++i;
             }
-            while (i < j) {
+            while (i < j && !is_left(refs[j - 1])) {
                 const __m128 lo = load_lo(refs[j - 1]), hi = _mm_load_ps(refs[j - 1].hi),
                              c = centroid(lo, hi);
-                if (is_left(refs[j - 1], c)) break;
                 rb.grow(lo, hi);
                 rc.grow(c, c);
                 --j;
@@ -254,23 +373,26 @@ struct SahSplitter {
     // first, ties in range order), every cut between two neighbours evaluated by the SAH core
     // as a sweep over one-item bins. Cheaper than 16-32 bins for these few items (no bins to
     // clear, n - 1 cuts to sweep instead of 15-31) and never worse: binning only merges cuts.
+    // The items are loaded once; the orders come from ranks, not from a sort.
     bool split_sorted(const Range& r, int depth, Range* left, Range* right) const {
         const uint32_t n = r.count();
         BoxRef* items = refs + r.begin;
+        SmallItems small;
+        small.load(items, n);
         bool usable[3];
         uint8_t order[3][kSweepItems];
         for (int a = 0; a < 3; ++a) {
             const double extent = double(lane(r.centroids.hi, a)) - lane(r.centroids.lo, a);
             usable[a] = extent > 0.0;  // false for coincident (or all-NaN) centroids
-            if (usable[a]) sort_by_centroid(items, n, a, order[a]);
+            if (usable[a]) small.order_by_centroid(n, a, order[a]);
         }
-        const Split best = geometry::cheapest_split<double, kSweepItems>(
-            int(n), usable,
+        const Split best = cheapest<kSweepItems>(
+            r, int(n), usable,
             [&](int a, int k) {
-                const BoxRef& b = items[order[a][k]];
-                return Bounds4{load_lo(b), _mm_load_ps(b.hi)};
+                const int i = order[a][k];
+                return Bounds4{small.lo[i], small.hi[i]};
             },
-            [](int, int) { return 1u; }, Bounds4::empty(), sweep_area);
+            [](int, int) { return 1u; });
         if (leaf_cheaper(r, best)) return false;
         if (best.axis < 0 || depth >= 64) {
             split_middle(r, left, right);
@@ -279,40 +401,65 @@ struct SahSplitter {
         BoxRef sorted[kSweepItems];
         for (uint32_t k = 0; k < n; ++k) sorted[k] = items[order[best.axis][k]];
         std::copy(sorted, sorted + n, items);
-        const uint32_t cut = r.begin + uint32_t(best.bin) + 1;
-        *left = bounds_of(r.begin, cut);
-        *right = bounds_of(cut, r.end);
+        const uint32_t cut = uint32_t(best.bin) + 1;
+        *left = small.bounds_of(order[best.axis], 0, cut, r.begin);
+        *right = small.bounds_of(order[best.axis], cut, n, r.begin);
         return true;
     }
 
-    // Insertion sort of item positions by centroid on `axis` (stable; NaN sorts first).
-    static void sort_by_centroid(const BoxRef* items, uint32_t n, int axis, uint8_t* order) {
-        float key[kSweepItems];
-        for (uint32_t k = 0; k < n; ++k) {
-            const float c = 0.5f * items[k].lo[axis] + 0.5f * items[k].hi[axis];
-            key[k] = c == c ? c : -std::numeric_limits<float>::infinity();
+    // split_sorted for two items (half of all its calls), with the same verdict and order:
+    // the one cut costs the same on every axis (the sum of the two areas), so the first usable
+    // axis takes it, and the items go in that axis's centroid order (NaN first, ties kept).
+    bool split_pair(const Range& r, int depth, Range* left, Range* right) const {
+        BoxRef* items = refs + r.begin;
+        int axis = -1;
+        for (int a = 0; a < 3 && axis < 0; ++a)
+            if (double(lane(r.centroids.hi, a)) - lane(r.centroids.lo, a) > 0.0) axis = a;
+        if (axis < 0) return false;  // coincident centroids: a leaf of two
+        const Bounds4 b0{load_lo(items[0]), _mm_load_ps(items[0].hi)},
+            b1{load_lo(items[1]), _mm_load_ps(items[1].hi)};
+        if (leaf_cheaper(r, Split{axis, 0, sweep_area(b0) + sweep_area(b1)})) return false;
+        if (depth < 64) {
+            auto key = [&](const Bounds4& b) {
+                const float c = lane(centroid(b.lo, b.hi), axis);
+                return c == c ? c : -std::numeric_limits<float>::infinity();
+            };
+            if (key(b1) < key(b0)) std::swap(items[0], items[1]);
         }
-        for (uint32_t k = 0; k < n; ++k) {
-            uint32_t j = k;
-            for (; j > 0 && key[order[j - 1]] > key[k]; --j) order[j] = order[j - 1];
-            order[j] = uint8_t(k);
-        }
+        *left = bounds_of(r.begin, r.begin + 1);
+        *right = bounds_of(r.begin + 1, r.end);
+        return true;
     }
 
     // False for a leaf; otherwise the two children's ranges, the items reordered in place.
     bool split(const Range& r, int depth, Range* left, Range* right) const {
         const uint32_t count = r.count();
         if (count <= 1) return false;
+        if (level == TreeLevel::kBottom) {
+            // Embree's bins all the way down (4 + n/20, at least 4): on the bench meshes as
+            // good a tree as the exact sweep of up to 16 items gave (SAH cost within 0.1%
+            // but on the soup, +0.3%), for less work.
+            if (count <= kSah.max_leaf_size) return false;
+            return split_binned(r, depth, 4, left, right);
+        }
+        if (count == 2) return split_pair(r, depth, left, right);
         if (count <= kSweepItems) return split_sorted(r, depth, left, right);
-        // Embree's bin count: clearing and sweeping 32 bins costs more than binning the items
-        // of a range of a few hundred; the SAH cost of the trees rose by at most 0.6%.
-        const BinMap map(r.centroids, int(std::clamp<uint32_t>(4 + count / 20, 8, kBins)));
+        return split_binned(r, depth, 8, left, right);
+    }
+
+    // Bins the range (Embree's bin count 4 + n/20 between min_bins and 32: clearing and
+    // sweeping 32 bins costs more than binning the items of a range of a few hundred) and
+    // partitions it at the cheapest split, unless a leaf is cheaper.
+    bool split_binned(const Range& r, int depth, uint32_t min_bins, Range* left,
+                      Range* right) const {
+        const uint32_t count = r.count();
+        const BinMap map(r.centroids, int(std::clamp<uint32_t>(4 + count / 20, min_bins, kBins)));
         const Split best = find_split(r, map);
         if (leaf_cheaper(r, best)) return false;
         // Deep chains (e.g. exponentially spaced boxes) fall back to median splits so the
         // recursion stays shallow (depth <= 64 + log2 n).
         if (best.axis >= 0 && depth < 64)
-            partition(r, map, best, left, right);
+            partition(r, best, left, right);
         else
             split_middle(r, left, right);  // centroids coincide: any split is as good
         if (left->count() == 0 || right->count() == 0) split_middle(r, left, right);
@@ -321,7 +468,7 @@ struct SahSplitter {
 };
 
 // Spreads the low 10 bits of x to every third bit.
-uint32_t spread_bits(uint32_t x) {
+constexpr uint32_t spread_bits(uint32_t x) {
     x &= 0x3ff;
     x = (x | (x << 16)) & 0x030000ff;
     x = (x | (x << 8)) & 0x0300f00f;
@@ -330,12 +477,19 @@ uint32_t spread_bits(uint32_t x) {
     return x;
 }
 
+// spread_bits of every 10-bit value: a Morton code takes three loads from this 4 KiB table
+// instead of 24 shifts and masks (the codes are the same).
+constexpr std::array<uint32_t, 1024> kSpreadBits = [] {
+    std::array<uint32_t, 1024> t{};
+    for (uint32_t x = 0; x < 1024; ++x) t[x] = spread_bits(x);
+    return t;
+}();
+
 // Linear BVH over Morton codes (Lauterbach et al. 2009): the items sorted by the 30-bit
 // code of their centroid, every node split where its range's highest differing code bit
 // flips. One sort and one pass per level, no cost evaluation: the fast-build mode.
 struct MortonBuilder {
-    const Box* boxes;
-    const uint32_t* items;  // sorted by code
+    const BoxRef* boxes;    // in code order
     const uint32_t* codes;  // sorted
     uint32_t parallel_items;
 
@@ -346,11 +500,8 @@ struct MortonBuilder {
         const uint32_t count = end - begin;
         if (count <= kNvMaxLeafSize) {
             Bounds4 b = Bounds4::empty();
-            for (uint32_t i = begin; i < end; ++i) {
-                const Box& box = boxes[items[i]];
-                b.grow(_mm_setr_ps(box.lo[0], box.lo[1], box.lo[2], 0.0f),
-                       _mm_setr_ps(box.hi[0], box.hi[1], box.hi[2], 0.0f));
-            }
+            for (uint32_t i = begin; i < end; ++i)
+                b.grow(load_lo(boxes[i]), _mm_load_ps(boxes[i].hi));
             NvNodeEmitter::set_bounds(out[node], b);
             out[node].first = begin;
             out[node].count = count;
@@ -386,14 +537,16 @@ struct MortonBuilder {
     }
 };
 
-// Stable LSD radix sort of (code, item) pairs by code, 3 passes of 10 bits: equal codes
-// keep item order, so the result depends only on the boxes.
-void sort_by_code(std::vector<uint32_t>& codes, std::vector<uint32_t>& items) {
-    const size_t n = codes.size();
-    std::vector<uint32_t> codes2(n), items2(n);
+// Stable LSD radix sort of (code << 32 | item) keys by code, 3 passes of 10 bits: equal
+// codes keep item order, so the result depends only on the boxes. One 8-byte key per item
+// keeps the scatter to one store stream per bucket; `spare` is working space (swapped with
+// `keys` on the way).
+void sort_by_code(std::vector<uint64_t>& keys, std::vector<uint64_t>& spare) {
+    const size_t n = keys.size();
+    spare.resize(n);
     std::vector<uint32_t> histograms(3 * 1024, 0);  // all three digits counted in one pass
     for (size_t i = 0; i < n; ++i)
-        for (int d = 0; d < 3; ++d) ++histograms[1024 * d + ((codes[i] >> (10 * d)) & 1023)];
+        for (int d = 0; d < 3; ++d) ++histograms[1024 * d + ((keys[i] >> (32 + 10 * d)) & 1023)];
     for (int d = 0; d < 3; ++d) {
         uint32_t* start = histograms.data() + 1024 * d;
         uint32_t sum = 0;
@@ -402,22 +555,71 @@ void sort_by_code(std::vector<uint32_t>& codes, std::vector<uint32_t>& items) {
             start[k] = sum;
             sum += c;
         }
-        for (size_t i = 0; i < n; ++i) {
-            const uint32_t at = start[(codes[i] >> (10 * d)) & 1023]++;
-            codes2[at] = codes[i];
-            items2[at] = items[i];
-        }
-        codes.swap(codes2);
-        items.swap(items2);
+        for (size_t i = 0; i < n; ++i) spare[start[(keys[i] >> (32 + 10 * d)) & 1023]++] = keys[i];
+        keys.swap(spare);
     }
+}
+
+// A build's working arrays (not its output), kept per thread between builds: fresh pages
+// cost a fault and a clear each, which was about half of a Morton build's time on 10^5
+// triangles. A build takes them and gives them back, so a build nested on the same thread
+// (a task stolen while waiting) finds none and allocates its own. What all threads keep is
+// capped (kAllKeptBytes): a 16-thread replay once held up to 1 GiB of them between builds.
+struct BuildScratch {
+    std::vector<BoxRef> refs;
+    std::vector<uint64_t> keys, spare;
+    std::vector<uint32_t> codes;
+    static constexpr size_t kKeptBytes = size_t(64) << 20;      // ~1.2M items; one thread
+    static constexpr size_t kAllKeptBytes = size_t(128) << 20;  // every thread together
+
+    size_t bytes() const {
+        return refs.capacity() * sizeof(BoxRef) +
+               (keys.capacity() + spare.capacity()) * sizeof(uint64_t) +
+               codes.capacity() * sizeof(uint32_t);
+    }
+};
+
+std::atomic<size_t> g_all_kept_bytes{0};
+
+// The thread's kept arrays; their bytes count in g_all_kept_bytes until taken or the thread ends.
+struct KeptScratch {
+    BuildScratch scratch;
+    ~KeptScratch() { g_all_kept_bytes -= scratch.bytes(); }
+};
+thread_local KeptScratch t_kept;
+
+BuildScratch take_scratch() {
+    g_all_kept_bytes -= t_kept.scratch.bytes();
+    return std::move(t_kept.scratch);
+}
+void keep_scratch(BuildScratch&& s) {
+    const size_t bytes = s.bytes();
+    if (bytes > BuildScratch::kKeptBytes) return;
+    if (g_all_kept_bytes.fetch_add(bytes) + bytes > BuildScratch::kAllKeptBytes) {
+        g_all_kept_bytes -= bytes;
+        return;
+    }
+    g_all_kept_bytes -= t_kept.scratch.bytes();  // (empty unless a nested build kept some)
+    t_kept.scratch = std::move(s);
 }
 
 }  // namespace
 
 Box triangle_box(const float v[9]) {
-    Box b = Box::empty();
-    for (int k = 0; k < 3; ++k) b.grow_point(v + 3 * k);
-    return b;
+    // Box::grow_point's rule in SSE: minps(p, lo) is p < lo ? p : lo, std::min(lo, p), so a
+    // NaN coordinate is ignored the same way. v[9] is never read: the last vertex comes from
+    // v[5..8], shifted down.
+    const __m128 p0 = _mm_loadu_ps(v), p1 = _mm_loadu_ps(v + 3),
+                 p2 = _mm_shuffle_ps(_mm_loadu_ps(v + 5), _mm_loadu_ps(v + 5),
+                                     _MM_SHUFFLE(3, 3, 2, 1));
+    const __m128 inf = _mm_set1_ps(std::numeric_limits<float>::infinity());
+    const __m128 lo = _mm_min_ps(p2, _mm_min_ps(p1, _mm_min_ps(p0, inf)));
+    const __m128 hi = _mm_max_ps(
+        p2, _mm_max_ps(p1, _mm_max_ps(p0, _mm_set1_ps(-std::numeric_limits<float>::infinity()))));
+    alignas(16) float l[4], h[4];
+    _mm_store_ps(l, lo);
+    _mm_store_ps(h, hi);
+    return Box{{l[0], l[1], l[2]}, {h[0], h[1], h[2]}};
 }
 
 Box transform_box(const Box& local, const float m[12]) {
@@ -442,7 +644,7 @@ Box transform_box(const Box& local, const float m[12]) {
     return out;
 }
 
-Tree build_tree(std::span<const Box> boxes, TreeQuality quality) {
+Tree build_tree(std::span<const Box> boxes, TreeQuality quality, TreeLevel level) {
     Tree t;
     if (boxes.empty()) return t;
     // One thread: no tasks and no splicing (the same bytes either way).
@@ -452,12 +654,19 @@ Tree build_tree(std::span<const Box> boxes, TreeQuality quality) {
                                                 tbb::global_control::max_allowed_parallelism));
     const uint32_t parallel_items = threads > 1 ? kParallelItems : ~0u;
     const uint32_t n = uint32_t(boxes.size());
+    // A box's six floats in two unaligned loads inside its 24 bytes (lo0-2 hi0; lo2 hi0-2),
+    // the fourth lanes zeroed.
+    static_assert(sizeof(Box) == 24 && offsetof(Box, hi) == 12);
     auto load = [&](uint32_t i, __m128* lo, __m128* hi) {
-        *lo = _mm_setr_ps(boxes[i].lo[0], boxes[i].lo[1], boxes[i].lo[2], 0.0f);
-        *hi = _mm_setr_ps(boxes[i].hi[0], boxes[i].hi[1], boxes[i].hi[2], 0.0f);
+        const __m128 xyz = _mm_castsi128_ps(_mm_set_epi32(0, -1, -1, -1));
+        const __m128 tail = _mm_loadu_ps(boxes[i].lo + 2);
+        *lo = _mm_and_ps(_mm_loadu_ps(boxes[i].lo), xyz);
+        *hi = _mm_and_ps(_mm_shuffle_ps(tail, tail, _MM_SHUFFLE(3, 3, 2, 1)), xyz);
     };
     if (quality == TreeQuality::kSah) {
-        std::vector<BoxRef> refs(n);
+        BuildScratch scratch = take_scratch();
+        std::vector<BoxRef>& refs = scratch.refs;
+        refs.resize(n);
         for (uint32_t i = 0; i < n; ++i) {
             BoxRef& r = refs[i];
             std::memcpy(r.lo, boxes[i].lo, 12);
@@ -465,16 +674,17 @@ Tree build_tree(std::span<const Box> boxes, TreeQuality quality) {
             r.id = i;
             r.pad = 0;
         }
-        const SahSplitter splitter{refs.data()};
+        const SahSplitter splitter{refs.data(), level};
         t.nodes.reserve(2 * size_t(n));
         geometry::TopDownBuilder<geometry::NodeLayout::kPreorder, Range, SahSplitter,
                                  NvNodeEmitter>(splitter, NvNodeEmitter{}, parallel_items)
             .append(t.nodes, splitter.bounds_of(0, n), 0);
         t.order.resize(n);
         for (uint32_t i = 0; i < n; ++i) t.order[i] = refs[i].id;
+        keep_scratch(std::move(scratch));
         return t;
     }
-    // Morton: no box copies; the codes and the sorted item order are all it keeps.
+    // Morton: the codes, the sorted item order and the boxes in that order.
     Bounds4 centroids = Bounds4::empty();
     for (uint32_t i = 0; i < n; ++i) {
         __m128 lo, hi;
@@ -484,20 +694,40 @@ Tree build_tree(std::span<const Box> boxes, TreeQuality quality) {
     }
     // 10 bits per axis over the centroid bounds (NaN and unusable axes quantize to 0).
     const BinMap map(centroids, 1024);
-    std::vector<uint32_t> codes(n), items(n);
+    BuildScratch scratch = take_scratch();
+    std::vector<uint64_t>& keys = scratch.keys;
+    keys.resize(n);
     for (uint32_t i = 0; i < n; ++i) {
         __m128 lo, hi;
         load(i, &lo, &hi);
         alignas(16) int32_t q[4];
         _mm_store_si128(reinterpret_cast<__m128i*>(q), map.bins(centroid(lo, hi)));
-        codes[i] = spread_bits(uint32_t(q[0])) | spread_bits(uint32_t(q[1])) << 1 |
-                   spread_bits(uint32_t(q[2])) << 2;
-        items[i] = i;
+        const uint32_t code = kSpreadBits[uint32_t(q[0])] | kSpreadBits[uint32_t(q[1])] << 1 |
+                              kSpreadBits[uint32_t(q[2])] << 2;
+        keys[i] = uint64_t(code) << 32 | i;
     }
     t.nodes.reserve(size_t(n));  // leaves of up to 4 and Morton's uneven splits: about n nodes
-    sort_by_code(codes, items);
-    MortonBuilder{boxes.data(), items.data(), codes.data(), parallel_items}.build(t.nodes, 0, n);
+    sort_by_code(keys, scratch.spare);
+    // The item order, the codes, and the boxes in that order, gathered once with the next
+    // ones fetched ahead: the build then reads them in sequence.
+    std::vector<uint32_t> items(n);
+    std::vector<uint32_t>& codes = scratch.codes;
+    codes.resize(n);
+    for (uint32_t i = 0; i < n; ++i) {
+        items[i] = uint32_t(keys[i]);
+        codes[i] = uint32_t(keys[i] >> 32);
+    }
+    std::vector<BoxRef>& sorted = scratch.refs;
+    sorted.resize(n);
+    constexpr uint32_t kAhead = 16;
+    for (uint32_t i = 0; i < n; ++i) {
+        if (i + kAhead < n) __builtin_prefetch(&boxes[items[i + kAhead]]);
+        const Box& b = boxes[items[i]];
+        sorted[i] = BoxRef{{b.lo[0], b.lo[1], b.lo[2]}, items[i], {b.hi[0], b.hi[1], b.hi[2]}, 0};
+    }
+    MortonBuilder{sorted.data(), codes.data(), parallel_items}.build(t.nodes, 0, n);
     t.order = std::move(items);
+    keep_scratch(std::move(scratch));
     return t;
 }
 

@@ -1,5 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
-// Four float lanes for the cluster build's box arithmetic: SSE2 where the target has it,
+// Four float lanes for the cluster build's box arithmetic and the NV traversal's 4-wide box
+// test and its quantized boxes (nv_wide_tree.h): SSE2 where the target has it,
 // plain C++ with the same lane semantics elsewhere (min/max return the second operand when
 // the comparison is false, as minps/maxps do), so both give the same bytes.
 #pragma once
@@ -39,10 +40,22 @@ inline Float4 operator*(Float4 a, Float4 b) { return {_mm_mul_ps(a.v, b.v)}; }
 inline Float4 operator/(Float4 a, Float4 b) { return {_mm_div_ps(a.v, b.v)}; }
 // Lane mask (bit k = lane k) of the lanes holding NaN.
 inline unsigned nan_lanes(Float4 a) { return unsigned(_mm_movemask_ps(_mm_cmpunord_ps(a.v, a.v))); }
+// Lane mask of the lanes where a <= b (false where either is NaN).
+inline unsigned le_lanes(Float4 a, Float4 b) {
+    return unsigned(_mm_movemask_ps(_mm_cmple_ps(a.v, b.v)));
+}
 // Truncation toward zero of lanes already inside [0, 2^31).
 inline Int4 to_int(Float4 a) { return {_mm_cvttps_epi32(a.v)}; }
 inline Float4 to_float(Int4 a) { return {_mm_cvtepi32_ps(a.v)}; }
 inline void store_int4(int32_t* p, Int4 a) { _mm_storeu_si128(reinterpret_cast<__m128i*>(p), a.v); }
+// Four bytes p[0..3], zero-extended, as float lanes (exact).
+inline Float4 bytes_to_float4(const uint8_t* p) {
+    int32_t bits;
+    std::memcpy(&bits, p, 4);
+    const __m128i zero = _mm_setzero_si128();
+    const __m128i words = _mm_unpacklo_epi8(_mm_cvtsi32_si128(bits), zero);
+    return {_mm_cvtepi32_ps(_mm_unpacklo_epi16(words, zero))};
+}
 
 #else
 
@@ -73,6 +86,11 @@ inline unsigned nan_lanes(Float4 a) {
     for (int k = 0; k < 4; ++k) m |= unsigned(a.v[k] != a.v[k]) << k;
     return m;
 }
+inline unsigned le_lanes(Float4 a, Float4 b) {
+    unsigned m = 0;
+    for (int k = 0; k < 4; ++k) m |= unsigned(a.v[k] <= b.v[k]) << k;
+    return m;
+}
 inline Int4 to_int(Float4 a) {
     return {{int32_t(a.v[0]), int32_t(a.v[1]), int32_t(a.v[2]), int32_t(a.v[3])}};
 }
@@ -80,6 +98,9 @@ inline Float4 to_float(Int4 a) {
     return {{float(a.v[0]), float(a.v[1]), float(a.v[2]), float(a.v[3])}};
 }
 inline void store_int4(int32_t* p, Int4 a) { std::memcpy(p, a.v, 16); }
+inline Float4 bytes_to_float4(const uint8_t* p) {
+    return {{float(p[0]), float(p[1]), float(p[2]), float(p[3])}};
+}
 
 #endif
 

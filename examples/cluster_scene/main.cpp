@@ -102,11 +102,16 @@ int main(int argc, char** argv) {
         "run it under the "
         "capture layer: clastrace capture -o scene.clt -- cluster_scene"};
     std::string meshPath = kDefaultMesh;
-    uint32_t maxClusters = 0, clusterVertices = 64, clusterTriangles = 124, threads = 1;
+    uint32_t maxClusters = 0, clusterVertices = 64, clusterTriangles = 124, threads = 1, tile = 1;
     std::vector<std::string> skip;
     bool listBarriers = false, json = false, computeInfos = false, computeElsewhere = false;
     app.add_option("mesh", meshPath, "OBJ file to cluster")->capture_default_str();
     app.add_option("--max-clusters", maxClusters, "build only the first N clusters (0: all)")
+        ->capture_default_str();
+    app.add_option("--tile", tile,
+                   "the mesh this many times side by side (1 to 64): a large scene from a small "
+                   "file")
+        ->check(CLI::Range(1u, 64u))
         ->capture_default_str();
     app.add_option("--cluster-vertices", clusterVertices, "vertices per cluster, at most")
         ->check(CLI::Range(3u, 255u))
@@ -132,7 +137,12 @@ int main(int argc, char** argv) {
         ->check(CLI::Range(1u, 2u))
         ->capture_default_str();
     app.add_flag("--json", json, "print one JSON object with everything the builds wrote");
-    CLI11_PARSE(app, argc, argv);
+    try {
+        app.parse(argc, argv);
+    } catch (const CLI::ParseError& e) {
+        const int code = app.exit(e);  // prints the help or the error
+        return code == 0 ? 0 : 1;      // a usage error (README: exit codes)
+    }
 
     if (listBarriers) {
         for (const BarrierInfo& b : barrierCatalogue(computeInfos))
@@ -153,6 +163,7 @@ int main(int argc, char** argv) {
             std::fprintf(stderr, "cluster_scene: %s\n", error.c_str());
             return kExitFailure;
         }
+        tileMesh(mesh, tile);
         const ClusteredMesh clusters =
             clusterMesh(mesh, clusterVertices, clusterTriangles, maxClusters);
         VulkanContext context;

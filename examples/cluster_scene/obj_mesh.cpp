@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "obj_mesh.h"
 
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstdlib>
@@ -77,6 +78,26 @@ bool loadObj(const std::string& path, TriangleMesh& mesh, std::string& error) {
         return false;
     }
     return true;
+}
+
+void tileMesh(TriangleMesh& mesh, uint32_t copies) {
+    if (copies <= 1 || mesh.positions.empty()) return;
+    float low = mesh.positions[0], high = mesh.positions[0];
+    for (size_t i = 0; i < mesh.positions.size(); i += 3)
+        low = std::min(low, mesh.positions[i]), high = std::max(high, mesh.positions[i]);
+    const float step = (high - low) * 1.1f + 1e-3f;  // a flat mesh still gets apart
+    const size_t vertices = mesh.vertexCount(), indices = mesh.indices.size();
+    mesh.positions.reserve(mesh.positions.size() * copies);
+    mesh.indices.reserve(indices * copies);
+    for (uint32_t c = 1; c < copies; ++c) {
+        for (size_t v = 0; v < vertices; ++v) {
+            mesh.positions.push_back(mesh.positions[3 * v] + step * float(c));
+            mesh.positions.push_back(mesh.positions[3 * v + 1]);
+            mesh.positions.push_back(mesh.positions[3 * v + 2]);
+        }
+        for (size_t i = 0; i < indices; ++i)
+            mesh.indices.push_back(mesh.indices[i] + uint32_t(vertices * c));
+    }
 }
 
 }  // namespace cluster_scene

@@ -22,4 +22,8 @@ struct TriangleMesh {
 // and a file without a single triangle.
 bool loadObj(const std::string& path, TriangleMesh& mesh, std::string& error);
 
+// The mesh `copies` times side by side along x (each copy one mesh width and a tenth further):
+// a large scene from a small file, for the trace-size and build benches.
+void tileMesh(TriangleMesh& mesh, uint32_t copies);
+
 }  // namespace cluster_scene

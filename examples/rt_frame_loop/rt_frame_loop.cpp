@@ -8,11 +8,14 @@
 #include "trace_pixels_spirv.h"
 
 #include <CLI/CLI.hpp>
+#include <clastrace/vk_cluster_abi.h>
 #include <clastrace/vk_frame_boundary_abi.h>
 #include <vulkan/vulkan.h>
 
 #include <algorithm>
 #include <array>
+#include <chrono>
+#include <cstddef>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -48,6 +51,9 @@ struct Functions {
     PFN_vkDestroyAccelerationStructureKHR destroy_as;
     PFN_vkCmdBuildAccelerationStructuresKHR cmd_build;
     PFN_vkGetAccelerationStructureDeviceAddressKHR as_address;
+    // --cluster-blas: VK_NV_cluster_acceleration_structure (served by the clastrace layer).
+    PFN_vkGetClusterAccelerationStructureBuildSizesNV cluster_sizes;
+    PFN_vkCmdBuildClusterAccelerationStructureIndirectNV cmd_build_clusters;
 };
 
 struct Context {
@@ -59,6 +65,9 @@ struct Context {
     VkPhysicalDeviceMemoryProperties memory{};
     VkDeviceSize scratch_alignment = kAlignment;
     bool frame_boundary = false;
+    bool clusters = false;                        // --cluster-blas
+    bool implicit_blas = false;                   // --implicit: cluster BLASes packed by the build
+    VkDeviceSize cluster_alignment = kAlignment;  // CLAS and cluster BLAS destinations
     Functions fn{};
 };
 
@@ -68,7 +77,9 @@ bool has_extension(const std::vector<VkExtensionProperties>& all, const char* na
     });
 }
 
-// Exit 3 when no device has what the loop needs (run it on lavapipe 25 or a GPU with ray queries).
+// Exit 3 when no device has what the loop needs (run it on lavapipe 25 or a GPU with ray queries;
+// with --cluster-blas also VK_NV_cluster_acceleration_structure, which the clastrace capture layer
+// serves where the driver lacks it).
 void create_context(Context& c) {
     VkApplicationInfo app{VK_STRUCTURE_TYPE_APPLICATION_INFO};
     app.pApplicationName = "rt_frame_loop";
@@ -87,7 +98,9 @@ void create_context(Context& c) {
         std::vector<VkExtensionProperties> list(n);
         vkEnumerateDeviceExtensionProperties(pd, nullptr, &n, list.data());
         if (has_extension(list, VK_KHR_ACCELERATION_STRUCTURE_EXTENSION_NAME) &&
-            has_extension(list, VK_KHR_RAY_QUERY_EXTENSION_NAME)) {
+            has_extension(list, VK_KHR_RAY_QUERY_EXTENSION_NAME) &&
+            (!c.clusters ||
+             has_extension(list, VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME))) {
             c.physical = pd;
             extensions = list;
             break;
@@ -96,18 +109,28 @@ void create_context(Context& c) {
     if (!c.physical) {
         std::fprintf(stderr,
                      "rt_frame_loop: no device with VK_KHR_acceleration_structure and "
-                     "VK_KHR_ray_query\n");
+                     "VK_KHR_ray_query%s\n",
+                     c.clusters ? " and VK_NV_cluster_acceleration_structure (--cluster-blas: "
+                                  "run it under `clastrace capture`, whose layer serves the "
+                                  "extension)"
+                                : "");
         std::exit(3);
     }
     vkGetPhysicalDeviceMemoryProperties(c.physical, &c.memory);
+    VkPhysicalDeviceClusterAccelerationStructurePropertiesNV cluster_properties{
+        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_PROPERTIES_NV};
     VkPhysicalDeviceAccelerationStructurePropertiesKHR as_properties{
-        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_ACCELERATION_STRUCTURE_PROPERTIES_KHR};
+        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_ACCELERATION_STRUCTURE_PROPERTIES_KHR,
+        c.clusters ? &cluster_properties : nullptr};
     VkPhysicalDeviceProperties2 properties{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2,
                                            &as_properties};
     vkGetPhysicalDeviceProperties2(c.physical, &properties);
-    c.scratch_alignment =
-        std::max<VkDeviceSize>(kAlignment,
-                               as_properties.minAccelerationStructureScratchOffsetAlignment);
+    c.scratch_alignment = std::max<VkDeviceSize>(
+        {kAlignment, as_properties.minAccelerationStructureScratchOffsetAlignment,
+         cluster_properties.clusterScratchByteAlignment});
+    c.cluster_alignment =
+        std::max<VkDeviceSize>({kAlignment, cluster_properties.clusterByteAlignment,
+                                cluster_properties.clusterBottomLevelByteAlignment});
     uint32_t family_count = 0;
     vkGetPhysicalDeviceQueueFamilyProperties(c.physical, &family_count, nullptr);
     std::vector<VkQueueFamilyProperties> families(family_count);
@@ -120,11 +143,18 @@ void create_context(Context& c) {
                                         VK_KHR_DEFERRED_HOST_OPERATIONS_EXTENSION_NAME,
                                         VK_KHR_RAY_QUERY_EXTENSION_NAME};
     if (c.frame_boundary) enabled.push_back(VK_EXT_FRAME_BOUNDARY_EXTENSION_NAME);
+    if (c.clusters) enabled.push_back(VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME);
+    VkPhysicalDeviceClusterAccelerationStructureFeaturesNV cluster_features{
+        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_FEATURES_NV, nullptr,
+        VK_TRUE};
     VkPhysicalDeviceFrameBoundaryFeaturesEXT boundary{
-        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FRAME_BOUNDARY_FEATURES_EXT, nullptr, VK_TRUE};
+        VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FRAME_BOUNDARY_FEATURES_EXT,
+        c.clusters ? &cluster_features : nullptr, VK_TRUE};
     VkPhysicalDeviceRayQueryFeaturesKHR ray_query{
         VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_RAY_QUERY_FEATURES_KHR,
-        c.frame_boundary ? &boundary : nullptr, VK_TRUE};
+        c.frame_boundary ? static_cast<void*>(&boundary)
+                         : (c.clusters ? static_cast<void*>(&cluster_features) : nullptr),
+        VK_TRUE};
     VkPhysicalDeviceAccelerationStructureFeaturesKHR as_features{
         VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_ACCELERATION_STRUCTURE_FEATURES_KHR, &ray_query};
     as_features.accelerationStructure = VK_TRUE;
@@ -149,7 +179,11 @@ void create_context(Context& c) {
     LOAD(destroy_as, vkDestroyAccelerationStructureKHR);
     LOAD(cmd_build, vkCmdBuildAccelerationStructuresKHR);
     LOAD(as_address, vkGetAccelerationStructureDeviceAddressKHR);
+    LOAD(cluster_sizes, vkGetClusterAccelerationStructureBuildSizesNV);
+    LOAD(cmd_build_clusters, vkCmdBuildClusterAccelerationStructureIndirectNV);
 #undef LOAD
+    if (c.clusters && (!c.fn.cluster_sizes || !c.fn.cmd_build_clusters))
+        fail("vkGetDeviceProcAddr of the cluster entry points", VK_ERROR_EXTENSION_NOT_PRESENT);
 }
 
 Buffer create_buffer(const Context& c, VkDeviceSize size, VkBufferUsageFlags usage, bool host) {
@@ -247,14 +281,75 @@ VkAccelerationStructureKHR create_structure(const Context& c, const Buffer& stor
     return as;
 }
 
+// --cluster-blas: each mesh is one cluster (its triangles, indices 0..5 into the mesh's vertices).
+// One BUILD_TRIANGLE_CLUSTER command builds both meshes' CLASes (implicit destinations, in the ring
+// slot), then one BUILD_CLUSTERS_BOTTOM_LEVEL command a cluster BLAS per mesh over its one CLAS at
+// explicit destinations in the pool slot (--implicit: at implicit destinations, the pool slot
+// being the build's dstImplicitData). opInput points into the struct: keep it where filled.
+struct ClusterCommands {
+    VkClusterAccelerationStructureTriangleClusterInputNV triangles{};
+    VkClusterAccelerationStructureClustersBottomLevelInputNV bottom_level{};
+    VkClusterAccelerationStructureCommandsInfoNV clas{}, blas{};
+};
+
+void fill_cluster_inputs(uint32_t vertices_per_mesh, bool implicit_blas, ClusterCommands& k) {
+    k.triangles.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
+    k.triangles.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+    k.triangles.maxClusterUniqueGeometryCount = 1;  // geometry index 0 everywhere
+    k.triangles.maxClusterTriangleCount = vertices_per_mesh / 3;
+    k.triangles.maxClusterVertexCount = vertices_per_mesh;
+    k.triangles.maxTotalTriangleCount = kMeshCount * vertices_per_mesh / 3;
+    k.triangles.maxTotalVertexCount = kMeshCount * vertices_per_mesh;
+    k.clas.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+    k.clas.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+    k.clas.input.maxAccelerationStructureCount = kMeshCount;
+    k.clas.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
+    k.clas.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+    k.clas.input.opInput.pTriangleClusters = &k.triangles;
+    k.bottom_level.sType =
+        VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
+    k.bottom_level.maxTotalClusterCount = kMeshCount;
+    k.bottom_level.maxClusterCountPerAccelerationStructure = 1;
+    k.blas.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
+    k.blas.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
+    k.blas.input.maxAccelerationStructureCount = kMeshCount;
+    k.blas.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
+    k.blas.input.opMode = implicit_blas
+                              ? VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV
+                              : VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
+    k.blas.input.opInput.pClustersBottomLevel = &k.bottom_level;
+}
+
+VkAccelerationStructureBuildSizesInfoKHR cluster_sizes_of(
+    const Context& c, const VkClusterAccelerationStructureInputInfoNV& input) {
+    VkAccelerationStructureBuildSizesInfoKHR sizes{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR};
+    c.fn.cluster_sizes(c.device, &input, &sizes);
+    return sizes;
+}
+
+// --cluster-blas: what the host writes for the two cluster commands, one buffer per ring slot.
+constexpr uint32_t kClusterIndices = 6;  // a mesh's triangle list: 2 triangles
+struct ClusterInputs {
+    std::array<VkClusterAccelerationStructureBuildTriangleClusterInfoNV, kMeshCount> clusters;
+    uint32_t counts[2];  // srcInfosCount of the CLAS build, then of the BLAS build
+    std::array<VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV, kMeshCount> blases;
+    // The frame's pool slot; --implicit: where the build put each BLAS (it writes them).
+    std::array<VkDeviceAddress, kMeshCount> blas_destinations;
+    std::array<uint32_t, kMeshCount> blas_sizes;  // --implicit: written by the build too
+    std::array<uint32_t, kClusterIndices> indices;
+};
+
 // Where every object of a frame lives: byte offsets and sizes fixed at start-up.
 struct Layout {
     uint32_t vertices_per_mesh = 0;
-    VkDeviceSize vertex_bytes = 0;                // all meshes, mesh m at m * per-mesh bytes
-    VkDeviceSize blas_size = 0, blas_stride = 0;  // in a pool slot's storage buffer
+    VkDeviceSize vertex_bytes = 0;  // all meshes, mesh m at m * per-mesh bytes
+    // In a pool slot's storage buffer; --implicit: blas_size is the whole dstImplicitData region.
+    VkDeviceSize blas_size = 0, blas_stride = 0;
     VkDeviceSize tlas_size = 0;
     VkDeviceSize scratch_stride = 0;  // one scratch region per BLAS, then the TLAS's
     VkDeviceSize pixel_bytes = 0;
+    VkDeviceSize clas_bytes = 0;  // --cluster-blas: the CLAS build's implicit destination
 };
 
 Layout plan_layout(const Context& c, uint32_t width, uint32_t height) {
@@ -273,6 +368,21 @@ Layout plan_layout(const Context& c, uint32_t width, uint32_t height) {
     l.scratch_stride =
         align_up(std::max(blas.buildScratchSize, tlas.buildScratchSize), c.scratch_alignment);
     l.pixel_bytes = VkDeviceSize(width) * height * sizeof(uint32_t);
+    if (c.clusters) {
+        if (l.vertices_per_mesh != kClusterIndices)
+            fail("planning one cluster per mesh", VK_ERROR_UNKNOWN);
+        ClusterCommands k;
+        fill_cluster_inputs(l.vertices_per_mesh, c.implicit_blas, k);
+        const auto clas = cluster_sizes_of(c, k.clas.input);
+        const auto cluster_blas = cluster_sizes_of(c, k.blas.input);
+        l.clas_bytes = clas.accelerationStructureSize;
+        // Each explicit destination's room; --implicit: the region that holds all of them.
+        l.blas_size = cluster_blas.accelerationStructureSize;
+        l.blas_stride = align_up(l.blas_size, c.cluster_alignment);
+        l.scratch_stride = align_up(std::max({clas.buildScratchSize, cluster_blas.buildScratchSize,
+                                              tlas.buildScratchSize}),
+                                    c.scratch_alignment);
+    }
     return l;
 }
 
@@ -286,13 +396,27 @@ struct PoolSlot {
 // One frame in flight: everything but the BLASes, reused once its fence says the frame is done.
 struct RingSlot {
     Buffer staging, vertices, instances, scratch, tlas_storage, pixels;
+    Buffer cluster_inputs, clas, clas_outputs;  // --cluster-blas only
     VkAccelerationStructureKHR tlas = VK_NULL_HANDLE;
     VkCommandBuffer cb = VK_NULL_HANDLE;
     VkFence fence = VK_NULL_HANDLE;
     VkDescriptorSet set = VK_NULL_HANDLE;
 };
 
+// --cluster-blas: the slot's cluster BLASes are explicit destinations in its storage buffer
+// (--implicit: the buffer is the build's dstImplicitData, and the addresses are the build's).
+PoolSlot create_cluster_pool_slot(const Context& c, const Layout& l) {
+    PoolSlot p;
+    const VkDeviceSize bytes = c.implicit_blas ? l.blas_size : l.blas_stride * kMeshCount;
+    p.storage = create_buffer(c, bytes + c.cluster_alignment,
+                              VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR, false);
+    for (uint32_t m = 0; m < kMeshCount && !c.implicit_blas; ++m)
+        p.address[m] = align_up(p.storage.address, c.cluster_alignment) + m * l.blas_stride;
+    return p;
+}
+
 PoolSlot create_pool_slot(const Context& c, const Layout& l) {
+    if (c.clusters) return create_cluster_pool_slot(c, l);
     PoolSlot p;
     p.storage = create_buffer(c, l.blas_stride * kMeshCount,
                               VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR, false);
@@ -306,6 +430,41 @@ PoolSlot create_pool_slot(const Context& c, const Layout& l) {
     return p;
 }
 
+// --cluster-blas: the ring slot's CLAS storage, the addresses and sizes the CLAS build writes,
+// and the host's inputs of both cluster commands; all but the frame's BLAS destinations fixed here.
+void create_cluster_buffers(const Context& c, const Layout& l, RingSlot& r) {
+    const VkBufferUsageFlags storage = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
+    const VkBufferUsageFlags build_input =
+        VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
+    r.clas = create_buffer(c, l.clas_bytes + c.cluster_alignment, storage, false);
+    r.clas_outputs = create_buffer(c, kMeshCount * (8 + 4), storage | build_input, false);
+    // Storage too: the BLAS build's dstAddressesArray is in it (VUID ...-12307); --implicit: the
+    // frame copies the addresses the build wrote there into its instances.
+    r.cluster_inputs = create_buffer(c, sizeof(ClusterInputs),
+                                     storage | build_input |
+                                         (c.implicit_blas ? VK_BUFFER_USAGE_TRANSFER_SRC_BIT : 0),
+                                     true);
+    ClusterInputs in{};
+    const VkDeviceAddress inputs = r.cluster_inputs.address;
+    for (uint32_t m = 0; m < kMeshCount; ++m) {
+        auto& cluster = in.clusters[m];
+        cluster.clusterID = m;
+        cluster.triangleCount = l.vertices_per_mesh / 3;
+        cluster.vertexCount = l.vertices_per_mesh;
+        cluster.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
+        cluster.baseGeometryIndexAndGeometryFlags.geometryFlags =
+            VK_CLUSTER_ACCELERATION_STRUCTURE_GEOMETRY_OPAQUE_BIT_NV;
+        cluster.indexBuffer = inputs + offsetof(ClusterInputs, indices);
+        cluster.vertexBuffer = r.vertices.address + m * l.vertices_per_mesh * sizeof(Vec3);
+        // Mesh m's BLAS references the one CLAS address the CLAS build writes for cluster m.
+        in.blases[m] = {1, 8, r.clas_outputs.address + 8 * m};
+        in.blas_sizes[m] = uint32_t(l.blas_size);
+    }
+    in.counts[0] = in.counts[1] = kMeshCount;
+    for (uint32_t i = 0; i < kClusterIndices; ++i) in.indices[i] = i;
+    std::memcpy(r.cluster_inputs.mapped, &in, sizeof in);
+}
+
 RingSlot create_ring_slot(const Context& c, const Layout& l, VkCommandPool pool,
                           VkDescriptorPool descriptors, VkDescriptorSetLayout set_layout) {
     RingSlot r;
@@ -314,8 +473,9 @@ RingSlot create_ring_slot(const Context& c, const Layout& l, VkCommandPool pool,
     r.staging = create_buffer(c, l.vertex_bytes, VK_BUFFER_USAGE_TRANSFER_SRC_BIT, true);
     r.vertices =
         create_buffer(c, l.vertex_bytes, VK_BUFFER_USAGE_TRANSFER_DST_BIT | build_input, false);
-    r.instances = create_buffer(c, kMeshCount * sizeof(VkAccelerationStructureInstanceKHR),
-                                build_input, true);
+    r.instances =
+        create_buffer(c, kMeshCount * sizeof(VkAccelerationStructureInstanceKHR),
+                      build_input | (c.implicit_blas ? VK_BUFFER_USAGE_TRANSFER_DST_BIT : 0), true);
     r.scratch = create_buffer(c, l.scratch_stride * (kMeshCount + 1) + c.scratch_alignment,
                               VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, false);
     r.tlas_storage = create_buffer(c, l.tlas_size,
@@ -323,6 +483,7 @@ RingSlot create_ring_slot(const Context& c, const Layout& l, VkCommandPool pool,
     r.pixels = create_buffer(c, l.pixel_bytes, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, true);
     r.tlas = create_structure(c, r.tlas_storage, 0, l.tlas_size,
                               VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_KHR);
+    if (c.clusters) create_cluster_buffers(c, l, r);
     VkCommandBufferAllocateInfo cai{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr, pool,
                                     VK_COMMAND_BUFFER_LEVEL_PRIMARY, 1};
     CHECK(vkAllocateCommandBuffers(c.device, &cai, &r.cb));
@@ -402,6 +563,8 @@ struct Options {
     uint32_t frames = 8, width = 96, height = 64;
     uint32_t build_frames = UINT32_MAX;  // frames from this one on trace what earlier ones built
     bool single_buffered_pool = false, skip_vertex_barrier = false;
+    bool cluster_blas = false;   // BLASes as cluster BLASes (VK_NV_cluster_acceleration_structure)
+    bool implicit_blas = false;  // --implicit: those at implicit destinations
     std::string image;
 };
 
@@ -428,6 +591,78 @@ void record_trace_only(const Pipeline& pipe, const Options& o, RingSlot& r) {
     CHECK(vkEndCommandBuffer(r.cb));
 }
 
+// One vkCmdBuildAccelerationStructuresKHR: a BLAS per mesh into the pool slot.
+void record_khr_blas_builds(const Context& c, const Layout& l, const RingSlot& r, const PoolSlot& p,
+                            VkDeviceAddress scratch) {
+    std::array<VkAccelerationStructureGeometryKHR, kMeshCount> geometry;
+    std::array<VkAccelerationStructureBuildGeometryInfoKHR, kMeshCount> infos;
+    std::array<VkAccelerationStructureBuildRangeInfoKHR, kMeshCount> ranges;
+    std::array<const VkAccelerationStructureBuildRangeInfoKHR*, kMeshCount> range_pointers;
+    for (uint32_t m = 0; m < kMeshCount; ++m) {
+        geometry[m] = triangle_geometry(r.vertices.address + m * l.vertices_per_mesh * sizeof(Vec3),
+                                        l.vertices_per_mesh);
+        infos[m] = build_info(VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR, &geometry[m]);
+        infos[m].dstAccelerationStructure = p.blas[m];
+        infos[m].scratchData.deviceAddress = scratch + m * l.scratch_stride;
+        ranges[m] = {l.vertices_per_mesh / 3, 0, 0, 0};
+        range_pointers[m] = &ranges[m];
+    }
+    c.fn.cmd_build(r.cb, kMeshCount, infos.data(), range_pointers.data());
+}
+
+// --implicit: the instances take the addresses the cluster BLAS build wrote to its
+// dstAddressesArray, copied on the GPU between that build and the TLAS build (as an application
+// whose BLAS addresses are known only to the GPU does).
+void record_implicit_references(const RingSlot& r) {
+    memory_barrier(r.cb, VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                   VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR, VK_PIPELINE_STAGE_TRANSFER_BIT,
+                   VK_ACCESS_TRANSFER_READ_BIT);
+    std::array<VkBufferCopy, kMeshCount> copies;
+    for (uint32_t m = 0; m < kMeshCount; ++m)
+        copies[m] = {offsetof(ClusterInputs, blas_destinations) + m * sizeof(VkDeviceAddress),
+                     m * sizeof(VkAccelerationStructureInstanceKHR) +
+                         offsetof(VkAccelerationStructureInstanceKHR,
+                                  accelerationStructureReference),
+                     sizeof(VkDeviceAddress)};
+    vkCmdCopyBuffer(r.cb, r.cluster_inputs.buffer, r.instances.buffer, kMeshCount, copies.data());
+    memory_barrier(r.cb, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
+                   VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                   VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_KHR);
+}
+
+// --cluster-blas: the CLASes of both meshes (ring slot), a barrier, then one cluster BLAS per mesh
+// at the pool slot's addresses (ClusterCommands), or --implicit packed into the pool slot.
+void record_cluster_blas_builds(const Context& c, const Layout& l, const RingSlot& r,
+                                const PoolSlot& p, VkDeviceAddress scratch) {
+    constexpr VkDeviceSize kInfo = sizeof(VkClusterAccelerationStructureBuildTriangleClusterInfoNV);
+    constexpr VkDeviceSize kBlasInfo =
+        sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV);
+    ClusterCommands k;
+    fill_cluster_inputs(l.vertices_per_mesh, c.implicit_blas, k);
+    const VkDeviceAddress in = r.cluster_inputs.address, out = r.clas_outputs.address;
+    k.clas.dstImplicitData = align_up(r.clas.address, c.cluster_alignment);
+    k.clas.scratchData = scratch;
+    k.clas.dstAddressesArray = {out, 8, 8 * kMeshCount};
+    k.clas.dstSizesArray = {out + 8 * kMeshCount, 4, 4 * kMeshCount};
+    k.clas.srcInfosArray = {in + offsetof(ClusterInputs, clusters), kInfo, kInfo * kMeshCount};
+    k.clas.srcInfosCount = in + offsetof(ClusterInputs, counts);
+    c.fn.cmd_build_clusters(r.cb, &k.clas);
+    // The BLAS build reads the CLASes and the CLAS addresses the first build wrote.
+    memory_barrier(r.cb, VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                   VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
+                   VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                   VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_KHR | VK_ACCESS_SHADER_READ_BIT);
+    k.blas.scratchData = scratch + l.scratch_stride;
+    k.blas.dstAddressesArray = {in + offsetof(ClusterInputs, blas_destinations), 8, 8 * kMeshCount};
+    k.blas.dstSizesArray = {in + offsetof(ClusterInputs, blas_sizes), 4, 4 * kMeshCount};
+    k.blas.srcInfosArray = {in + offsetof(ClusterInputs, blases), kBlasInfo,
+                            kBlasInfo * kMeshCount};
+    k.blas.srcInfosCount = in + offsetof(ClusterInputs, counts) + sizeof(uint32_t);
+    if (c.implicit_blas) k.blas.dstImplicitData = align_up(p.storage.address, c.cluster_alignment);
+    c.fn.cmd_build_clusters(r.cb, &k.blas);
+    if (c.implicit_blas) record_implicit_references(r);
+}
+
 // The frame's host work (vertices, instances) and its one command buffer.
 void record_frame(const Context& c, const Layout& l, const Pipeline& pipe, const Options& o,
                   uint64_t frame, RingSlot& r, const PoolSlot& p) {
@@ -442,6 +677,11 @@ void record_frame(const Context& c, const Layout& l, const Pipeline& pipe, const
         instance.mask = 0xff;
         instance.accelerationStructureReference = p.address[m];
         std::memcpy((char*)r.instances.mapped + m * sizeof(instance), &instance, sizeof(instance));
+        if (c.clusters && !c.implicit_blas)  // the BLAS build's explicit destinations: the pool
+            std::memcpy((char*)r.cluster_inputs.mapped +
+                            offsetof(ClusterInputs, blas_destinations) +
+                            m * sizeof(VkDeviceAddress),
+                        &p.address[m], sizeof(VkDeviceAddress));
     }
     VkCommandBuffer cb = r.cb;
     CHECK(vkResetCommandBuffer(cb, 0));
@@ -455,20 +695,10 @@ void record_frame(const Context& c, const Layout& l, const Pipeline& pipe, const
                        VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
                        VK_ACCESS_SHADER_READ_BIT);
     const VkDeviceAddress scratch = align_up(r.scratch.address, c.scratch_alignment);
-    std::array<VkAccelerationStructureGeometryKHR, kMeshCount> geometry;
-    std::array<VkAccelerationStructureBuildGeometryInfoKHR, kMeshCount> infos;
-    std::array<VkAccelerationStructureBuildRangeInfoKHR, kMeshCount> ranges;
-    std::array<const VkAccelerationStructureBuildRangeInfoKHR*, kMeshCount> range_pointers;
-    for (uint32_t m = 0; m < kMeshCount; ++m) {
-        geometry[m] = triangle_geometry(r.vertices.address + m * l.vertices_per_mesh * sizeof(Vec3),
-                                        l.vertices_per_mesh);
-        infos[m] = build_info(VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR, &geometry[m]);
-        infos[m].dstAccelerationStructure = p.blas[m];
-        infos[m].scratchData.deviceAddress = scratch + m * l.scratch_stride;
-        ranges[m] = {l.vertices_per_mesh / 3, 0, 0, 0};
-        range_pointers[m] = &ranges[m];
-    }
-    c.fn.cmd_build(cb, kMeshCount, infos.data(), range_pointers.data());
+    if (c.clusters)
+        record_cluster_blas_builds(c, l, r, p, scratch);
+    else
+        record_khr_blas_builds(c, l, r, p, scratch);
     memory_barrier(cb, VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
                    VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
                    VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
@@ -503,6 +733,8 @@ void submit_frame(const Context& c, uint64_t frame, RingSlot& r) {
 
 int run(const Options& o) {
     Context c;
+    c.clusters = o.cluster_blas;
+    c.implicit_blas = o.implicit_blas;
     create_context(c);
     const Layout l = plan_layout(c, o.width, o.height);
     const Pipeline pipe = create_pipeline(c);
@@ -524,6 +756,7 @@ int run(const Options& o) {
     for (RingSlot& r : ring)
         r = create_ring_slot(c, l, command_pool, descriptor_pool, pipe.set_layout);
 
+    const auto loop_start = std::chrono::steady_clock::now();
     for (uint64_t frame = 0; frame < o.frames; ++frame) {
         RingSlot& r = ring[frame % kRingSlots];
         // The ring slot's fence: frame - kRingSlots is done with this slot. With a single pool
@@ -536,12 +769,16 @@ int run(const Options& o) {
         submit_frame(c, frame, r);
     }
     CHECK(vkDeviceWaitIdle(c.device));
+    const std::chrono::duration<double, std::milli> loop =
+        std::chrono::steady_clock::now() - loop_start;
     const RingSlot& last = ring[(o.frames - 1) % kRingSlots];
     std::vector<uint32_t> pixels(size_t(o.width) * o.height);
     std::memcpy(pixels.data(), last.pixels.mapped, l.pixel_bytes);
-    std::printf("frames %u pool_slots %zu frame_boundary %s checksum %016llx\n", o.frames,
-                pool.size(), c.frame_boundary ? "on" : "off",
-                (unsigned long long)image_checksum(pixels));
+    std::printf("frames %u pool_slots %zu blas %s frame_boundary %s checksum %016llx\n", o.frames,
+                pool.size(),
+                c.implicit_blas ? "cluster-implicit" : (c.clusters ? "cluster" : "khr"),
+                c.frame_boundary ? "on" : "off", (unsigned long long)image_checksum(pixels));
+    std::printf("loop_ms=%.3f\n", loop.count());  // the frames, recorded to done (benches)
     int status = 0;
     std::string error;
     if (!o.image.empty() && !write_ppm(o.image, pixels, o.width, o.height, error)) {
@@ -550,13 +787,14 @@ int run(const Options& o) {
     }
     for (RingSlot& r : ring) {
         c.fn.destroy_as(c.device, r.tlas, nullptr);
-        for (Buffer* b :
-             {&r.staging, &r.vertices, &r.instances, &r.scratch, &r.tlas_storage, &r.pixels})
+        for (Buffer* b : {&r.staging, &r.vertices, &r.instances, &r.scratch, &r.tlas_storage,
+                          &r.pixels, &r.cluster_inputs, &r.clas, &r.clas_outputs})
             destroy_buffer(c, *b);
         vkDestroyFence(c.device, r.fence, nullptr);
     }
     for (PoolSlot& p : pool) {
-        for (VkAccelerationStructureKHR as : p.blas) c.fn.destroy_as(c.device, as, nullptr);
+        for (VkAccelerationStructureKHR as : p.blas)  // none with --cluster-blas
+            if (as) c.fn.destroy_as(c.device, as, nullptr);
         destroy_buffer(c, p.storage);
     }
     vkDestroyDescriptorPool(c.device, descriptor_pool, nullptr);
@@ -586,6 +824,16 @@ int main(int argc, char** argv) {
     app.add_flag("--single-buffered-pool", o.single_buffered_pool,
                  "one BLAS pool slot, rebuilt each frame without waiting for the previous frame's "
                  "rays (the dxvk-remix bug)");
+    app.add_flag("--cluster-blas", o.cluster_blas,
+                 "build each mesh's BLAS as a cluster BLAS (VK_NV_cluster_acceleration_structure: "
+                 "a CLAS per mesh, then cluster BLASes at explicit destinations in the pool); "
+                 "needs the extension, which the clastrace capture layer serves (and, on lavapipe "
+                 "25, makes traceable): run it under `clastrace capture`");
+    app.add_flag("--implicit", o.implicit_blas,
+                 "with --cluster-blas: the cluster BLASes at implicit destinations (the pool slot "
+                 "is the build's dstImplicitData; a GPU copy puts the addresses the build wrote "
+                 "into the TLAS's instances)")
+        ->needs("--cluster-blas");
     app.add_flag("--skip-vertex-barrier", o.skip_vertex_barrier,
                  "no barrier between the vertex copy and the BLAS builds "
                  "(Vulkan-ValidationLayers #7372)");

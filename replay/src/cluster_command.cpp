@@ -219,20 +219,24 @@ void verify(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
         if (check && sizes_written && direct_sizes && info.dstSizesArray.deviceAddress != 0) {
             const uint64_t stride = info.dstSizesArray.stride ? info.dstSizesArray.stride : 4;
             uint32_t captured_size = 0;
+            // An implicit object given room (implicit_object_room) reports the room it took.
+            const uint64_t engine_size = implicit && op.executed
+                                             ? std::max(op.dst_size, build.implicit_object_room())
+                                             : op.dst_size;
             if (captured.value(info.dstSizesArray.deviceAddress + i * stride, &captured_size)) {
                 ++sizes.ops_compared;
                 if (sizes.first_ops.size() < SizeComparison::kOpsListed)
                     sizes.first_ops.push_back(
-                        {static_cast<uint32_t>(i), captured_size, op.dst_size});
+                        {static_cast<uint32_t>(i), captured_size, engine_size});
                 sizes.captured_bytes += captured_size;
-                sizes.engine_bytes += op.dst_size;
-                if (captured_size == op.dst_size) {
+                sizes.engine_bytes += engine_size;
+                if (captured_size == engine_size) {
                     ++sizes.sizes_equal;
                 } else if (c.engine_trace) {
                     c.add_finding({"CLASTRACE-replay-output-differs",
                                    "dstSizesArray[" + std::to_string(i) + "]: captured " +
                                        std::to_string(captured_size) + " bytes, engine " +
-                                       std::to_string(op.dst_size),
+                                       std::to_string(engine_size),
                                    FindingSource::kVerify, c.where, op_index,
                                    info.dstSizesArray.deviceAddress + i * stride});
                 }
@@ -383,18 +387,23 @@ void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect
     options.max_findings_per_rule = c.options.max_findings_per_rule;
     options.queried_max_count = queried_max_count;
     options.answered_sizes = sizes.answered();
+    options.implicit_object_room = build.implicit_object_room();  // traceable BLASes' packing
     options.first_without_usage = [&c](uint64_t begin, uint64_t end, VkBufferUsageFlags usage) {
         return c.memory.first_without_usage(begin, end, usage);
     };
     engine::ExecutionRecord record;
     const auto started = std::chrono::steady_clock::now();
     try {
-        record = engine::execute(info, c.memory.image(), options);
-        if (c.engine_ns)
-            *c.engine_ns =
-                static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
-                                          std::chrono::steady_clock::now() - started)
-                                          .count());
+        const bool ran_ahead = c.ahead && c.ahead->commit(c.memory, c.directory, queried_max_count,
+                                                          sizes, &record, c.engine_ns);
+        if (!ran_ahead) {
+            record = engine::execute(info, c.memory.image(), options);
+            if (c.engine_ns)
+                *c.engine_ns =
+                    static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                              std::chrono::steady_clock::now() - started)
+                                              .count());
+        }
     } catch (const std::exception& e) {
         c.add_finding({"CLASTRACE-replay-engine-failed",
                        std::string("the engine stopped: ") + e.what(), FindingSource::kReplay,
@@ -433,6 +442,16 @@ void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect
                                         sizes);
         c.report.counts.accesses += sized.accesses.size();
         c.sync.record_accesses(c.ref, sized.accesses);
+        if (explicit_mode)  // rays through these BLASes read what the build may have written
+            for (const Access& a : sized.accesses)
+                if (a.is_write && a.field.starts_with("*dstAddressesArray["))
+                    c.memory.mark_cluster_blas_span(a.range);
+        if (implicit && build.implicit_object_room() != 0)  // the room each object took
+            for (const Access& a : sized.accesses)
+                if (a.is_write && a.field.starts_with("dstImplicitData["))
+                    c.memory.mark_cluster_blas_span(
+                        {a.range.begin,
+                         engine::sat_add(a.range.begin, build.implicit_object_room())});
     }
     verify(build, info, record, sizes, c);
     mark_driver_bvh(build, c);

@@ -5,7 +5,9 @@
 #pragma once
 
 #include "cluster_size_queries.h"
+#include "cluster_speculation.h"
 #include "replay_memory.h"
+#include "sync_model_feed.h"
 
 #include <clastrace/common/hex.h>
 
@@ -14,7 +16,6 @@
 #include <clastrace/engine/properties.h>
 #include <clastrace/replay/replay_report.h>
 #include <clastrace/replay/replayer.h>
-#include <clastrace/replay/sync_model.h>
 #include <clastrace/traces/trace_generated.h>
 
 #include <functional>
@@ -43,7 +44,7 @@ struct ClusterCommandContext {
     const engine::EngineProperties& properties;
     const ReplayOptions& options;
     ReplayReport& report;
-    SyncModel& sync;
+    SyncModelFeed& sync;
     const CommandRef& ref;
     const ReplayLocation& where;
     bool engine_trace;
@@ -52,6 +53,8 @@ struct ClusterCommandContext {
     // For a ReplayObserver: the engine's record and its time are moved here when non-null.
     engine::ExecutionRecord* executed = nullptr;
     uint64_t* engine_ns = nullptr;
+    // The command's run ahead of its turn (cluster_speculation.h), taken when it stands.
+    ClusterRunAhead* ahead = nullptr;
 };
 
 // queried_max_count: the largest count queried for the command's op type and mode (10445);

@@ -200,7 +200,12 @@ void KhrReplay::build(const fbs::CmdBuildAccelerationStructuresKHR& b, const Com
     const auto started = std::chrono::steady_clock::now();
     engine::ExecutionRecord record = engine::execute_khr_build(cmd, c.memory.image(), options);
     const uint64_t engine_ns = elapsed_ns(started);
-    for (engine::MemoryAccess& a : record.accesses)
+    for (engine::MemoryAccess& a : record.accesses) {
+        // A top level's read of a cluster bottom level an instance names spans the room its
+        // build was modelled to write (the driver's BVH may fill it), as the rays' reads do.
+        if (!a.is_write && a.field.ends_with(".accelerationStructureReference"))
+            if (std::optional<AddressRange> span = c.memory.cluster_blas_span(a.begin))
+                a.end = std::max(a.end, span->end);
         if (a.field.ends_with(".scratchData") && a.begin != 0) {
             const bool by_answer = a.op_index >= 0 && size_t(a.op_index) < cmd.infos.size() &&
                                    cmd.infos[size_t(a.op_index)].scratch_claim != ~0ull;
@@ -212,6 +217,7 @@ void KhrReplay::build(const fbs::CmdBuildAccelerationStructuresKHR& b, const Com
                 a.end = a.begin +
                         std::min(a.end - a.begin, cmd.infos[size_t(a.op_index)].scratch_claim);
         }
+    }
     k_.nv.engine_findings(record, where);
     k_.nv.feed(ref, record, where);
     for (size_t i = 0; i < cmd.infos.size() && i < record.ops.size(); ++i)

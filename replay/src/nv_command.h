@@ -12,11 +12,11 @@
 #pragma once
 
 #include "replay_memory.h"
+#include "sync_model_feed.h"
 
 #include <clastrace/engine/nv_build.h>
 #include <clastrace/replay/replay_report.h>
 #include <clastrace/replay/replayer.h>
-#include <clastrace/replay/sync_model.h>
 #include <clastrace/traces/records.h>
 #include <clastrace/traces/trace_generated.h>
 
@@ -32,7 +32,7 @@ using SnapshotVector = traces::SnapshotVector;
 struct NvReplayContext {
     ReplayMemory& memory;
     ReplayReport& report;
-    SyncModel& sync;
+    SyncModelFeed& sync;
     const ReplayOptions& options;
     std::function<void(ReplayFinding)> add_finding;
     std::function<void(const SnapshotVector*, const ReplayLocation&)> lay_in_snapshots;

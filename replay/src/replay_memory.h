@@ -95,6 +95,11 @@ public:
         uint64_t bytes = 0;
     };
     KeptDriverBvh keep_driver_bvh(uint64_t address, std::span<uint8_t> bytes) const;
+    // An explicit-destination cluster BLAS: the bytes its build may have written (its
+    // dstSizesArray room), which a driver's rays through it may read. Plain writes end the mark.
+    void mark_cluster_blas_span(AddressRange range);
+    // The marked span that starts at `address`, if any.
+    std::optional<AddressRange> cluster_blas_span(uint64_t address) const;
     // The first byte of [begin, end) that a bound buffer holds but no bound buffer created
     // with a bit of `usage` (or with unknown usage, 0) holds; nullopt when there is none.
     // Aliased buffers count each on their own (VUIDs 12305/12307 take any buffer over a byte).
@@ -158,8 +163,9 @@ private:
     std::map<uint64_t, SparsePage> sparse_pages_;  // begin address -> bound part, disjoint
     uint64_t next_private_ = kPrivateBase;
     uint64_t aliased_buffers_ = 0;
-    std::map<uint64_t, uint64_t> engine_objects_;  // begin -> end, disjoint
-    std::map<uint64_t, uint64_t> driver_bvh_;      // begin -> end, disjoint
+    std::map<uint64_t, uint64_t> engine_objects_;      // begin -> end, disjoint
+    std::map<uint64_t, uint64_t> driver_bvh_;          // begin -> end, disjoint
+    std::map<uint64_t, uint64_t> cluster_blas_spans_;  // begin -> end, disjoint
     uint64_t budget_;
     uint64_t peak_ = 0;
     std::vector<std::pair<uint64_t, uint64_t>> over_budget_;

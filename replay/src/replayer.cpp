@@ -7,6 +7,15 @@
 
 #include "replayer_internal.h"
 
+#include <tbb/global_control.h>
+#include <tbb/info.h>
+#include <tbb/task_arena.h>
+
+#include <cstdlib>
+#include <deque>
+#include <memory>
+#include <string_view>
+
 #include <chrono>
 
 namespace clastrace::replay {
@@ -21,10 +30,10 @@ Replay::Replay(TraceReader& reader, const std::string& name, const ReplayOptions
     : reader_(reader),
       options_(options),
       memory_(options.memory_budget_bytes),
-      sync_(SyncOptions{options.max_findings}) {
+      sync_model_(SyncOptions{options.max_findings}) {
     report_.trace = name;
-    sync_.set_address_resolver(&memory_, [this](const CommandRef& ref, const Access& access,
-                                                AddressRange unbound) {
+    sync_model_.set_address_resolver(&memory_, [this](const CommandRef& ref, const Access& access,
+                                                      AddressRange unbound) {
         unbound_access(ref, access, unbound);
     });
     report_.hazards_checked = options.check_hazards;
@@ -122,8 +131,9 @@ void Replay::execute_command(const fbs::Record& record, const CommandRef& ref, u
 void Replay::replay_command(const fbs::Record& record, const CommandRef& ref, uint64_t sequence,
                             bool selected) {
     ReplayObserver* observer = options_.observer;
+    // Only an observer reads the model per command: that read drains the model's queue.
     const size_t findings = report_.findings.size(),
-                 hazards = options_.check_hazards ? sync_.hazards().size() : 0;
+                 hazards = observer && options_.check_hazards ? sync_.hazards().size() : 0;
     const uint64_t engine_runs = report_.counts.cluster_commands;
     engine::ExecutionRecord execution;
     uint64_t engine_ns = 0;
@@ -179,20 +189,98 @@ void Replay::add_finding(ReplayFinding finding) {
     report_.findings.push_back(std::move(finding));
 }
 
+void Replay::replay_record(const traces::RecordView& view, ReplayProgress& progress) {
+    ++report_.counts.records;
+    if (options_.observer) options_.observer->on_record(view);
+    on_record(view);
+    ++stream_index_;
+    if (options_.progress && (report_.counts.records & 63) == 0) {
+        progress.bytes_read = view.chunk_offset;
+        progress.file_size = reader_.stats().file_size;
+        progress.records = report_.counts.records;
+        progress.commands = report_.counts.commands;
+        options_.progress(progress);
+    }
+}
+
+// Records are read into a queue of their own copies (at most kRecordsAhead records and
+// kBytesAhead bytes, and no further while the window of runs is full); each cluster build read
+// starts ahead, and the front record is replayed as always.
+void Replay::replay_records_ahead(ReplayProgress& progress) {
+    constexpr size_t kRecordsAhead = 4096;
+    constexpr uint64_t kBytesAhead = 16ull << 20;
+    struct Ahead {
+        std::vector<uint8_t> bytes;
+        traces::RecordView view;  // its pointers into `bytes` (a moved vector keeps its buffer)
+    };
+    std::deque<Ahead> ahead;
+    uint64_t ahead_bytes = 0, read = stream_index_;
+    bool more = true;
+    for (;;) {
+        while (more && (ahead.empty() || (ahead.size() < kRecordsAhead &&
+                                          ahead_bytes < kBytesAhead && !ahead_runs_->full()))) {
+            traces::RecordView view;
+            if (!reader_.next(&view)) {
+                more = false;
+                break;
+            }
+            Ahead& a = ahead.emplace_back();
+            a.bytes.assign(view.bytes, view.bytes + view.size);
+            a.view = view;
+            a.view.bytes = a.bytes.data();
+            a.view.record = flatbuffers::GetRoot<fbs::Record>(a.bytes.data());
+            ahead_bytes += a.bytes.size();
+            start_ahead(a.view, read++);
+        }
+        if (ahead.empty()) return;
+        const Ahead front = std::move(ahead.front());
+        ahead.pop_front();
+        ahead_bytes -= front.bytes.size();
+        replay_record(front.view, progress);
+    }
+}
+
+void Replay::start_ahead(const traces::RecordView& view, uint64_t stream_index) {
+    if (const std::optional<traces::ContentsRecord> c = traces::contents_record(*view.record)) {
+        if (c->data()) recent_contents_.keep(c->hash, c->data(), c->size());
+        return;
+    }
+    start_cluster_run(view, stream_index);
+}
+
+// Read ahead, a build may name buffers whose records are not replayed yet: then it starts when
+// its own record is (record_command), which is still before its submission.
+void Replay::start_cluster_run(const traces::RecordView& view, uint64_t stream_index) {
+    if (view.kind != fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect ||
+        ahead_runs_->full() || ahead_runs_->holds(stream_index))
+        return;
+    const AheadInputs in{memory_, recent_contents_, cluster_queries_, properties_,
+                         options_.max_findings_per_rule};
+    if (auto run = ClusterRunAhead::start({view.bytes, view.bytes + view.size}, stream_index, in)) {
+        ++ahead_runs_->counts.started;
+        ahead_runs_->add(std::move(run));
+    }
+}
+
 ReplayReport Replay::run() {
     traces::RecordView view;
     ReplayProgress progress;
-    while (reader_.next(&view)) {
-        ++report_.counts.records;
-        if (options_.observer) options_.observer->on_record(view);
-        on_record(view);
-        if (options_.progress && (report_.counts.records & 63) == 0) {
-            progress.bytes_read = view.chunk_offset;
-            progress.file_size = reader_.stats().file_size;
-            progress.records = report_.counts.records;
-            progress.commands = report_.counts.commands;
-            options_.progress(progress);
-        }
+    // On more than one thread, the sync model beside the replay and cluster builds run ahead
+    // when asked (ReplayOptions, or =1 in the environment; docs/replay.md "Threads").
+    const auto asked = [](bool option, const char* variable) {
+        const char* value = std::getenv(variable);
+        return option || (value && std::string_view(value) == "1");
+    };
+    if (options_.check_hazards && replay_threads(options_) > 1 &&
+        asked(options_.sync_model_thread, "CLASTRACE_REPLAY_SYNC_THREAD"))
+        sync_.start_thread();
+    if (replay_threads(options_) > 1 && asked(options_.run_ahead, "CLASTRACE_REPLAY_RUN_AHEAD")) {
+        ahead_runs_.emplace(std::min<size_t>(4 * size_t(replay_threads(options_)), 64));
+        replay_records_ahead(progress);
+        if (options_.run_ahead_counts) *options_.run_ahead_counts = ahead_runs_->counts;
+        ahead_runs_.reset();
+    } else {
+        while (reader_.next(&view)) replay_record(view, progress);
     }
     for (const traces::TraceError& e : reader_.damage()) report_.trace_damage.push_back(e.message);
     for (const auto& [buffer, size] : memory_.over_budget())
@@ -218,15 +306,32 @@ ReplayReport Replay::run() {
         report_.hazards_over_cap = sync_.stats().hazards_over_cap;
         report_.counts.unsatisfied_semaphore_waits = sync_.stats().unsatisfied_waits;
     }
+    sync_.stop_thread();
     return std::move(report_);
 }
 
 }  // namespace detail
 
+uint32_t replay_threads(const ReplayOptions& options) {
+    if (options.threads != 0) return options.threads;
+    return static_cast<uint32_t>(std::max(1, tbb::info::default_concurrency()));
+}
+
+// The engine's parallel loops run in the arena of the thread that calls them, so one arena of
+// the chosen size bounds every parallel part of the replay; its one reserved slot is the
+// calling thread, so an arena of 1 has no workers at all. TBB's process-wide worker limit
+// starts at the machine's count: a larger request raises it for the replay's duration.
 ReplayReport replay_trace(traces::TraceReader& reader, const std::string& trace_name,
                           const ReplayOptions& options) {
     detail::Replay replay(reader, trace_name, options);
-    return replay.run();
+    const uint32_t threads = replay_threads(options);
+    std::unique_ptr<tbb::global_control> more_workers;
+    if (threads > static_cast<uint32_t>(tbb::info::default_concurrency()))
+        more_workers =
+            std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
+                                                  threads);
+    tbb::task_arena arena(static_cast<int>(threads));
+    return arena.execute([&replay] { return replay.run(); });
 }
 
 }  // namespace clastrace::replay

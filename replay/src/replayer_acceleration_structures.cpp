@@ -68,7 +68,11 @@ void Replay::build_clusters(const fbs::CmdBuildClusterAccelerationStructureIndir
                                   },
                                   observed_execution_,
                                   observed_engine_ns_};
+    std::unique_ptr<ClusterRunAhead> ahead;
+    if (ahead_runs_ && command_bytes_) ahead = ahead_runs_->take(*command_bytes_);
+    context.ahead = ahead.get();
     run_cluster_command(build, queried, cluster_queries_, context);
+    if (ahead) ++(ahead->stood() ? ahead_runs_->counts.stood : ahead_runs_->counts.run_again);
 }
 void Replay::build_nv(const fbs::CmdBuildAccelerationStructureNV& b, const CommandRef& ref,
                       const ReplayLocation& where) {

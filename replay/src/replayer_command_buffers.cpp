@@ -185,6 +185,7 @@ void Replay::record_command(const traces::RecordView& view) {
         recorded.target().emplace_back(view.bytes, view.bytes + view.size);
         recorded.bytes += view.size;
         recorded_bytes_ += view.size;
+        if (ahead_runs_) start_cluster_run(view, stream_index_);  // if not started read ahead
     }
 }
 
@@ -250,7 +251,9 @@ void Replay::run_command_buffer(uint64_t handle, uint32_t submission, uint32_t c
             ref.secondary_handle = handle;
             ref.secondary_command = command;
         }
+        command_bytes_ = &bytes;  // build_clusters finds the command's run ahead by its bytes
         replay_command(*record, ref, sequence, selected(sequence, submission));
+        command_bytes_ = nullptr;
         // The secondaries' commands get their own sequence numbers and are selected (--ops) one
         // by one, whether or not the execute command itself is.
         if (record->body_type() == fbs::RecordBody::CmdExecuteCommands) {

@@ -14,6 +14,7 @@
 #include "replay_memory.h"
 #include "structure_reachability.h"
 #include "sync_consumers.h"
+#include "sync_model_feed.h"
 
 #include <clastrace/engine/execution_record.h>
 #include <clastrace/engine/object_directory.h>
@@ -82,6 +83,13 @@ private:
     };
 
     void on_record(const traces::RecordView& view);
+    // One record of the stream: the observer, the handlers, progress.
+    void replay_record(const traces::RecordView& view, ReplayProgress& progress);
+    // With 2 or more threads: reads records ahead of the one being replayed and starts their
+    // cluster builds early (cluster_speculation.h, docs/replay.md "Threads").
+    void replay_records_ahead(ReplayProgress& progress);
+    void start_ahead(const traces::RecordView& view, uint64_t stream_index);
+    void start_cluster_run(const traces::RecordView& view, uint64_t stream_index);
     // The families of records on_record dispatches to; each returns whether it took the record.
     bool on_memory_record(fbs::RecordBody kind, const fbs::Record& r);
     bool on_acceleration_structure_record(fbs::RecordBody kind, const fbs::Record& r);
@@ -223,7 +231,10 @@ private:
     engine::EngineProperties properties_ = engine::EngineProperties::nvidia_default();
     engine::ObjectDirectory directory_;
     ReplayMemory memory_;
-    SyncModel sync_;
+    SyncModel sync_model_;
+    // Every call into the model goes through here: inline on one thread, else queued for the
+    // model's own thread (sync_model_feed.h).
+    SyncModelFeed sync_{sync_model_};
     detail::AddressTranslation translation_;
     std::unordered_map<uint64_t, Recorded> recorded_;
     // Pool membership, as far as the trace tells it: resets that name both a command buffer
@@ -260,6 +271,14 @@ private:
                               observed_nv_ = true;
                           }}};
     bool observed_nv_ = false;  // the command in replay_command was an NV build or deserialization
+    // Cluster builds started ahead of their turn (2 or more threads), the contents records read
+    // lately that their snapshots come from, the bytes of the command being replayed (to find
+    // its run), and the stream index of the record being replayed.
+    static constexpr uint64_t kRecentContentsBytes = 32ull << 20;
+    std::optional<RunAheadWindow> ahead_runs_;
+    RecentContents recent_contents_{kRecentContentsBytes};
+    const std::vector<uint8_t>* command_bytes_ = nullptr;
+    uint64_t stream_index_ = 0;
     detail::KhrReplay khr_{{nv_, translation_}};  // KHR commands, on nv_'s objects (khr_command.h)
     // What consumers of acceleration structures reach, and the frames their hazards name.
     StructureReachability reachability_{[this](uint64_t handle) { return structure_range(handle); },

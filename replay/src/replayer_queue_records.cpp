@@ -114,6 +114,8 @@ void Replay::on_submit(const fbs::QueueSubmit& submit) {
     exact_address_writes_.erase(exact_address_writes_.begin(),
                                 exact_address_writes_.lower_bound({submission + 1, 0, 0}));
     limit_recorded();
+    // Runs ahead of commands recorded before this submission and not in it: not kept.
+    if (ahead_runs_) ahead_runs_->drop_before(stream_index_);
     if (options_.observer) options_.observer->on_submission_end(submission);
 }
 

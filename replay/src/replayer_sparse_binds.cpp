@@ -96,6 +96,9 @@ bool Replay::on_sparse_record(const traces::RecordView& view) {
     if (view.kind != fbs::RecordBody::QueueBindSparse) return false;
     const fbs::QueueBindSparse& bind = *view.record->body_as_QueueBindSparse();
     if (bind.result() != VK_SUCCESS || !bind.batches()) return true;  // nothing reached the queue
+    // The model resolves addresses through the sparse binds (ReplayMemory::resolve) and reports
+    // unbound parts as findings: from the first bind on it runs inline, in step with both.
+    if (options_.check_hazards) sync_.stop_thread();
     const std::string place = record_place(view);
     const QueueId queue = queue_id(bind.queue());
     const size_t batch_count = bind.batches()->size();

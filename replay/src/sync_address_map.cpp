@@ -76,12 +76,14 @@ void SyncModel::State::check_and_update(Segment& seg, uint64_t seg_begin, uint64
         seg.reads.clear();
         return;
     }
-    for (std::optional<Record>* w : {&seg.write, &seg.possible_write}) {
-        if (*w && (*w)->tag != b.tag) {
-            if (auto fix = unordered(**w, later, true, seg_begin, seg_end))
-                note(found, HazardClass::kReadAfterWrite, **w, b, *fix, seg_begin, seg_end);
+    auto check_write = [&](auto& w) {  // the certain or the possible write
+        if (w && w->tag != b.tag) {
+            if (auto fix = unordered(*w, later, true, seg_begin, seg_end))
+                note(found, HazardClass::kReadAfterWrite, *w, b, *fix, seg_begin, seg_end);
         }
-    }
+    };
+    check_write(seg.write);
+    check_write(seg.possible_write);
     // A host read is over when the call returns: it orders itself before all later work
     // and must not stand between the write and later writes.
     if (b.queue == kHostSlot) return;

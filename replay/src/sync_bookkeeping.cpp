@@ -77,6 +77,7 @@ uint32_t SyncModel::State::intern(std::string_view field) {
     field_shapes.emplace_back();
     const std::size_t offset = field_arena.size();
     field_arena.append(field);
+    field_texts.push_back({offset, field.size()});
     if (2 * field_names.size() > field_table.size()) {
         std::vector<FieldSlot> old(2 * field_table.size());
         old.swap(field_table);

@@ -89,6 +89,9 @@ std::optional<ClusterBottomLevel> Replay::cluster_bottom_level(uint64_t address)
             return std::nullopt;
         ClusterBottomLevel blas;
         blas.range = {address, address + header.object_size};
+        // Explicit destinations: the driver's object may fill the room its build wrote.
+        if (std::optional<AddressRange> span = memory_.cluster_blas_span(address))
+            blas.range.end = std::max(blas.range.end, span->end);
         for (uint32_t i = 0; i < header.reference_count; ++i) {
             const auto reference = image.read<engine::ClusterReference>(
                 address + header.references_offset + uint64_t(i) * sizeof(engine::ClusterReference),

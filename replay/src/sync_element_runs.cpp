@@ -4,6 +4,7 @@
 #include "sync_model_internal.h"
 
 #include <algorithm>
+#include <cstring>
 
 namespace clastrace::replay {
 
@@ -49,15 +50,43 @@ void SyncModel::State::pin_overlapping(std::span<const Access> accesses) {
     }
 }
 
+// Commands of one kind list their accesses alike ("srcInfosArray[7]", then its
+// ".indexBuffer", then its ".vertexBuffer", ...), so the field that followed a field last time
+// is a good guess for the next access: a text equal to the guess is its id without a hash or a
+// probe of the table, which were most of the cost of batching a command's accesses. Guessing
+// by what came before, not by position, survives commands whose ops name more or fewer fields.
+void SyncModel::State::intern_fields(std::span<const Access> accesses) {
+    const std::size_t n = accesses.size();
+    auto& field_of = batch.field_of;
+    auto& next = batch.next_field;
+    field_of.resize(n);
+    uint32_t* follows = &batch.first_field;  // where the guess for access i is kept
+    for (std::size_t i = 0; i < n; ++i) {
+        const std::string_view text = accesses[i].field;
+        const uint32_t guess = *follows;
+        uint32_t id;
+        if (guess != UINT32_MAX && field_texts[guess].length == text.size() &&
+            (text.empty() || std::memcmp(field_arena.data() + field_texts[guess].offset,
+                                         text.data(), text.size()) == 0)) {
+            id = guess;
+        } else {
+            id = intern(text);
+            *follows = id;
+        }
+        field_of[i] = id;
+        if (next.size() <= id) next.resize(field_names.size(), UINT32_MAX);
+        follows = &next[id];
+    }
+}
+
 // Element runs of the non-pinned accesses (batch.runs, run_of, members), each growing while
 // the next element continues it; batch.field_of holds each access's interned field.
 void SyncModel::State::form_element_runs(std::span<const Access> accesses) {
     const std::size_t n = accesses.size();
     const auto& pinned = batch.pinned;
     // Each access's field, interned once for the run forming below and its record.
-    auto& field_of = batch.field_of;
-    field_of.resize(n);
-    for (uint32_t i = 0; i < n; ++i) field_of[i] = intern(accesses[i].field);
+    intern_fields(accesses);
+    const auto& field_of = batch.field_of;
 
     // Element runs, each growing while the next element continues it.
     auto& runs = batch.runs;

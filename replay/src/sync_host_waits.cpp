@@ -41,19 +41,21 @@ void SyncModel::State::retire() {
         std::erase_if(seg.reads, [&](const Record& r) {
             return r.queue == kHostSlot || r.tag < queues[r.queue].complete;
         });
-        for (std::optional<Record>* slot : {&seg.write, &seg.possible_write}) {
-            if (!*slot) continue;
-            Record& w = **slot;
+        auto retire_write = [&](auto& slot) {  // the certain or the possible write
+            if (!slot) return;
+            Record& w = *slot;
             if (w.queue == kHostSlot) {
-                slot->reset();
+                slot.reset();
             } else if (!w.completed && w.tag < queues[w.queue].complete) {
                 catch_up(w, seg_begin, seg_end);
                 if (w.sync.visible.covers(VK_PIPELINE_STAGE_2_HOST_BIT, VK_ACCESS_2_HOST_READ_BIT))
-                    slot->reset();
+                    slot.reset();
                 else
                     w.completed = true;
             }
-        }
+        };
+        retire_write(seg.write);
+        retire_write(seg.possible_write);
         return seg.empty();
     });
     trim_logs();

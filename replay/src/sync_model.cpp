@@ -74,9 +74,18 @@ void SyncModel::record_accesses(const CommandRef& command, std::span<const Acces
     const std::size_t n = accesses.size();
     // Element runs need each access at its own addresses: one that resolves elsewhere (sparse
     // memory) takes the one-by-one path, which reports the same hazards.
-    const bool resolving = std::any_of(accesses.begin(), accesses.end(), [&](const Access& a) {
-        return s.resolves_elsewhere(a.range);
-    });
+    // One question for the command's hull first: memory that is its own address over the hull
+    // is so over every part of it (most traces have no sparse memory at all).
+    AddressRange hull{UINT64_MAX, 0};
+    for (const Access& a : accesses) {
+        if (a.range.empty()) continue;
+        hull.begin = std::min(hull.begin, a.range.begin);
+        hull.end = std::max(hull.end, a.range.end);
+    }
+    const bool resolving = s.resolves_elsewhere(hull) &&
+                           std::any_of(accesses.begin(), accesses.end(), [&](const Access& a) {
+                               return s.resolves_elsewhere(a.range);
+                           });
     if (n < 2 || resolving) {
         for (const Access& a : accesses) record_access(command, a);
         return;
@@ -305,10 +314,13 @@ void SyncModel::memory_freed(AddressRange range) {
             std::erase_if(seg.reads, [&](const Record& r) {
                 return r.queue == kHostSlot || r.tag < s.queues[r.queue].complete;
             });
-            for (std::optional<Record>* w : {&seg.write, &seg.possible_write})
-                if (*w && ((*w)->queue == kHostSlot || (*w)->completed ||
-                           (*w)->tag < s.queues[(*w)->queue].complete))
-                    w->reset();
+            auto drop_completed = [&](auto& w) {  // the certain or the possible write
+                if (w &&
+                    (w->queue == kHostSlot || w->completed || w->tag < s.queues[w->queue].complete))
+                    w.reset();
+            };
+            drop_completed(seg.write);
+            drop_completed(seg.possible_write);
             return seg.empty();
         },
         range.begin, range.end);
@@ -358,8 +370,9 @@ const SyncStats& SyncModel::stats() const { return state_->stats; }
 
 std::size_t SyncModel::memory_bytes() const {
     const State& s = *state_;
-    std::size_t bytes = s.segments.memory_bytes(
-        [](const Segment& seg) { return seg.reads.capacity() * sizeof(Record); });
+    std::size_t bytes = s.segments.memory_bytes([](const Segment& seg) {
+        return seg.reads.capacity() * sizeof(Record) + (seg.possible_write ? sizeof(Record) : 0);
+    });
     for (const Queue& q : s.queues) {
         bytes += q.log.capacity() * sizeof(LogEntry) + q.pool.capacity() * sizeof(LoggedBarrier);
         for (const Import& im : q.imports)

@@ -45,6 +45,11 @@ struct SyncModel::State {
     uint64_t set_serial = 0;
 
     std::vector<std::string> field_names;  // interned: id -> text ("" is id 0)
+    struct FieldText {
+        std::size_t offset = 0;  // into field_arena
+        std::size_t length = 0;
+    };
+    std::vector<FieldText> field_texts;  // id -> its text in field_arena
     // Each interned name split once around its first index ("srcInfosArray[" 12
     // "].vertexBuffer", both parts interned too), so record_accesses forms its element runs
     // by comparing ids instead of parsing and comparing every access's text.
@@ -70,8 +75,14 @@ struct SyncModel::State {
         std::vector<uint32_t> members;
         std::vector<Run> runs;
         std::vector<uint32_t> field_of;
+        // intern_fields' guesses: the field that followed each field in the last command
+        // that had it (by id; UINT32_MAX: none yet), and the field a command began with.
+        std::vector<uint32_t> next_field;
+        uint32_t first_field = UINT32_MAX;
         Record record;
     } batch;
+    // batch.field_of: each access's interned field.
+    void intern_fields(std::span<const Access> accesses);
     // record_accesses' batching (sync_element_runs.cpp).
     void pin_overlapping(std::span<const Access> accesses);
     void form_element_runs(std::span<const Access> accesses);

@@ -6,6 +6,7 @@
 #include <array>
 #include <cstdint>
 #include <map>
+#include <memory>
 #include <optional>
 #include <vector>
 
@@ -149,6 +150,38 @@ struct Record {
 
 constexpr uint16_t kHostSlot = 0xFFFF;
 
+// std::optional<Record>'s interface for a record kept on the heap: one pointer while empty.
+// For Segment::possible_write, empty in all but cheap-mode dispatch traces, which held an
+// empty Record's 232 bytes in every segment (half of a segment's size).
+class HeapRecord {
+public:
+    HeapRecord() = default;
+    HeapRecord(const HeapRecord& o) : record_(o ? std::make_unique<Record>(*o) : nullptr) {}
+    HeapRecord(HeapRecord&&) = default;
+    HeapRecord& operator=(HeapRecord&&) = default;
+    HeapRecord& operator=(const HeapRecord& o) {
+        if (o)
+            *this = *o;
+        else
+            reset();
+        return *this;
+    }
+    HeapRecord& operator=(const Record& r) {
+        if (record_)
+            *record_ = r;
+        else
+            record_ = std::make_unique<Record>(r);
+        return *this;
+    }
+    explicit operator bool() const { return record_ != nullptr; }
+    Record& operator*() const { return *record_; }
+    Record* operator->() const { return record_.get(); }
+    void reset() { record_.reset(); }
+
+private:
+    std::unique_ptr<Record> record_;
+};
+
 // What the model knows about one address segment (its bounds live in the SegmentStore).
 struct Segment {
     std::optional<Record> write;
@@ -156,7 +189,7 @@ struct Segment {
     // Cheap mode's possible write of all device-address memory (a dispatch or draw whose shaders
     // may write through addresses), held beside the certain write so it never hides one from
     // later reads; only later reads are checked against it (docs/replay.md, "Possible hazards").
-    std::optional<Record> possible_write;
+    HeapRecord possible_write;
     bool empty() const { return !write && !possible_write && reads.empty(); }
     void clear() {
         write.reset();

@@ -22,6 +22,9 @@
 //                          presents): the clusters built in frame 0, built again over the same
 //                          memory in frame 1, the bottom level over them in frame 2; OUT.json
 //                          holds the bottom level's bytes and its address. Exit 3 as `serve`.
+//   serve-frames-gated OUT.json  the same, but frame 1's build waits for a timeline value the
+//                          host signals only after submitting frame 2 (its capture comes after
+//                          frame 2's vkQueueSubmit returned)
 #include "cluster_test_device.h"
 #include "served_scene.h"
 
@@ -720,19 +723,28 @@ int serve(const char* outPath) {
 
 // Submits `cb` as the last submission of frame `frame` (a VK_EXT_frame_boundary frame-end mark)
 // and waits for it.
-void submitFrame(Context& c, VkCommandBuffer cb, uint64_t frame) {
+// Submits one frame's commands, ending the frame; with a `gate`, the submission first waits for
+// the gate's value 1, and the host does not wait for it.
+void submitFrame(Context& c, VkCommandBuffer cb, uint64_t frame, VkSemaphore gate = nullptr) {
     CHECK(vkEndCommandBuffer(cb));
     VkFrameBoundaryEXT boundary{};
     boundary.sType = VK_STRUCTURE_TYPE_FRAME_BOUNDARY_EXT;
     boundary.flags = VK_FRAME_BOUNDARY_FRAME_END_BIT_EXT;
     boundary.frameID = frame;
+    const uint64_t open = 1;
+    VkTimelineSemaphoreSubmitInfo values{
+        VK_STRUCTURE_TYPE_TIMELINE_SEMAPHORE_SUBMIT_INFO, &boundary, 1, &open, 0, nullptr};
+    const VkPipelineStageFlags stage = VK_PIPELINE_STAGE_ALL_COMMANDS_BIT;
     VkSubmitInfo submit{};
     submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
-    submit.pNext = &boundary;
+    submit.pNext = gate ? static_cast<const void*>(&values) : &boundary;
+    submit.waitSemaphoreCount = gate ? 1 : 0;
+    submit.pWaitSemaphores = &gate;
+    submit.pWaitDstStageMask = &stage;
     submit.commandBufferCount = 1;
     submit.pCommandBuffers = &cb;
     CHECK(vkQueueSubmit(c.queue, 1, &submit, VK_NULL_HANDLE));
-    CHECK(vkQueueWaitIdle(c.queue));
+    if (!gate) CHECK(vkQueueWaitIdle(c.queue));
 }
 
 void buildToHostBarrier(VkCommandBuffer cb) {
@@ -744,7 +756,7 @@ void buildToHostBarrier(VkCommandBuffer cb) {
 
 // A frame range starting at frame 2 finds its bottom level's clusters built before it
 // (capture/README.md, "Frame ranges"): frame 1's build is the one that still holds them.
-int serveFrames(const char* outPath) {
+int serveFrames(const char* outPath, bool gated) {
     Context c;
     c.createInstance();
     if (!c.hasClusterExtension()) {
@@ -754,16 +766,27 @@ int serveFrames(const char* outPath) {
     c.createDevice();
     ServedSceneSetUp scene;
     setUpServedScene(c, scene);
+    VkSemaphoreTypeCreateInfo type{VK_STRUCTURE_TYPE_SEMAPHORE_TYPE_CREATE_INFO, nullptr,
+                                   VK_SEMAPHORE_TYPE_TIMELINE, 0};
+    VkSemaphoreCreateInfo semaphoreInfo{VK_STRUCTURE_TYPE_SEMAPHORE_CREATE_INFO, &type, 0};
+    VkSemaphore gate = VK_NULL_HANDLE;
+    if (gated) CHECK(vkCreateSemaphore(c.device, &semaphoreInfo, nullptr, &gate));
     for (uint64_t frame : {0, 1}) {
         VkCommandBuffer cb = c.beginCommands();
         c.cmdBuildClusters(cb, &scene.commands.clusters);
         buildToHostBarrier(cb);
-        submitFrame(c, cb, frame);
+        submitFrame(c, cb, frame, frame == 1 ? gate : VK_NULL_HANDLE);
     }
     VkCommandBuffer cb = c.beginCommands();
     c.cmdBuildClusters(cb, &scene.commands.blas);
     buildToHostBarrier(cb);
-    submitFrame(c, cb, 2);
+    submitFrame(c, cb, 2, gate);  // (queue order: after frame 1's, which waits on the gate)
+    if (gated) {
+        VkSemaphoreSignalInfo signal{VK_STRUCTURE_TYPE_SEMAPHORE_SIGNAL_INFO, nullptr, gate, 1};
+        CHECK(vkSignalSemaphore(c.device, &signal));
+        CHECK(vkQueueWaitIdle(c.queue));
+        vkDestroySemaphore(c.device, gate, nullptr);
+    }
     nlohmann::json out;
     out["blasImplicit"] = {{"address", scene.blasImplicit.address},
                            {"bytes", hex(scene.blasImplicit.mapped, scene.blasImplicit.size)}};
@@ -779,7 +802,9 @@ int serveFrames(const char* outPath) {
 int main(int argc, char** argv) {
     if (argc == 3 && std::strcmp(argv[1], "limits") == 0) return limits(argv[2]);
     if (argc == 3 && std::strcmp(argv[1], "serve") == 0) return serve(argv[2]);
-    if (argc == 3 && std::strcmp(argv[1], "serve-frames") == 0) return serveFrames(argv[2]);
+    if (argc == 3 && std::strcmp(argv[1], "serve-frames") == 0) return serveFrames(argv[2], false);
+    if (argc == 3 && std::strcmp(argv[1], "serve-frames-gated") == 0)
+        return serveFrames(argv[2], true);
     if (argc == 3 && std::strcmp(argv[1], "exactness") == 0) return exactness(argv[2]);
     if (argc == 3 && std::strcmp(argv[1], "dispatch") == 0) return dispatch(argv[2]);
     if (argc == 3 && std::strcmp(argv[1], "resubmit") == 0)

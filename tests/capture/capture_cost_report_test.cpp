@@ -92,9 +92,9 @@ TEST_F(CaptureCostReport, CountsAgreeWithTheTraceWritten) {
     while (reader->next(&view)) {
         ++records;
         if (view.kind == RecordBody::QueueSubmit) ++submissions;
-        if (const auto* c = view.record->body_as_MemoryContents()) {
+        if (const auto c = clastrace::traces::contents_record(*view.record)) {
             ++contents;
-            contentBytes += c->bytes() ? c->bytes()->size() : 0;
+            contentBytes += c->size();
         }
         auto lists = clastrace::traces::record_snapshots(*view.record);
         for (const auto* list : {lists.inputs, lists.outputs})

@@ -162,3 +162,16 @@ TEST_F(MapWithSparseBuffer, ServedBuffersAreTheBoundRunsOfASparseBuffer) {
     EXPECT_EQ(runs[1].buffer.size, 512u);
     EXPECT_EQ(runs[1].host, hostMemory.data() + 2048 + 512);
 }
+
+// What freeing a memory takes away (pre-range state drops the cluster objects there): the
+// addresses of each buffer bound to it, and of each sparse page bound to it, nothing else.
+TEST_F(MapWithSparseBuffer, AddressRangesInAMemoryAreItsBuffersAndSparsePages) {
+    using Ranges = std::vector<std::pair<VkDeviceAddress, VkDeviceAddress>>;
+    EXPECT_EQ(map.address_ranges_in(0x10), (Ranges{{0x100000, 0x100400}}));
+    map.add_memory({0x11, 4096, 1, 0, nullptr});
+    map.bind_sparse(0x30, 0, 1024, 0x11, 0);
+    map.bind_sparse(0x30, 1024, 1024, 0x10, 2048);
+    EXPECT_EQ(map.address_ranges_in(0x10), (Ranges{{0x100000, 0x100400}, {0x200400, 0x200800}}));
+    EXPECT_EQ(map.address_ranges_in(0x11), (Ranges{{0x200000, 0x200400}}));
+    EXPECT_TRUE(map.address_ranges_in(0x12).empty());
+}

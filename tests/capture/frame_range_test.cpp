@@ -209,7 +209,7 @@ protected:
 
     // Runs `command` on the Xvfb display with the test driver, the layer and `env` over a clean
     // CLASTRACE_* environment. These tests check which frames a range selects, so the state from
-    // before the range is off (CLASTRACE_PRE_RANGE_STATE=0); pre_range_state_test.cpp covers it.
+    // before the range is off (CLASTRACE_PRE_RANGE_STATE=0) unless a test turns it on.
     ProcessResult run(const std::string& command, std::map<std::string, std::string> env) {
         env["DISPLAY"] = xvfb.display();
         env.emplace("CLASTRACE_PRE_RANGE_STATE", "0");
@@ -270,6 +270,36 @@ TEST_F(FrameRange, CapturesExactlyTheBuildsOfTheSelectedFrames) {
     EXPECT_NE(text.out.find("6 presents, ending frames 0-5; submissions in frames: 2 (1) 3 (1)"),
               std::string::npos)
         << text.out;
+}
+
+// With the state from before the range on (the default), the range's first submission is
+// preceded by the prelude: frame 1's build, whose cluster and bottom level frame 2 may use, is
+// kept and written ahead of it. The application waited for frame 1's fence, so the layer waits
+// for that capture (it once stalled here for 10 s and wrote the prelude without its input bytes:
+// the pause worker had taken the capture before the submission was noted as pre-range, so it
+// never reached the prelude).
+TEST_F(FrameRange, ThePreludeCarriesTheStateFromBeforeTheRange) {
+    ProcessResult r =
+        runApp(6, {{"CLASTRACE_FRAME_RANGE", "2-3"}, {"CLASTRACE_PRE_RANGE_STATE", "1"}});
+    ASSERT_EQ(r.exitCode, 0) << r.err;
+    EXPECT_EQ(r.err, "");  // no stall, no missing capture
+    FrameTrace t = readFrameTrace(dir / "frames.clt");
+    EXPECT_TRUE(t.problems.empty()) << t.problems.front();
+    EXPECT_EQ(t.presentFrames, kSixFrames);
+    // The prelude holds the last build of frame 1 (the kept cluster and bottom level): the
+    // application waited for frame 1's fence, so the layer waits for its capture.
+    EXPECT_EQ(t.triangleBuildFrames, (std::multiset<uint32_t>{1, 2, 3}));
+    EXPECT_EQ(t.bottomLevelBuilds, 3u);
+    EXPECT_EQ(t.order,
+              (std::vector<std::string>{"P0", "P1", "S", "S", "P2", "S", "P3", "P4", "P5"}));
+    ProcessResult replay = run(cli("replay " + quote((dir / "frames.clt").string())), {});
+    EXPECT_EQ(replay.exitCode, 0) << replay.out << replay.err;
+    EXPECT_NE(replay.out.find("result: clean"), std::string::npos) << replay.out;
+    ProcessResult info = run(cli("info --json " + quote((dir / "frames.clt").string())), {});
+    ASSERT_EQ(info.exitCode, 0) << info.err;
+    const nlohmann::json state = nlohmann::json::parse(info.out)["frames"]["pre_range_state"];
+    EXPECT_EQ(state.value("before_frame", 0), 2) << state;
+    EXPECT_GT(state.value("bytes", 0), 0) << state;
 }
 
 TEST_F(FrameRange, WithoutARangeEveryFrameIsCaptured) {
@@ -436,6 +466,25 @@ TEST_F(FrameRange, AcquiresAreRecordedInTheSelectedFramesOnly) {
     nlohmann::json report = nlohmann::json::parse(replay.out);
     EXPECT_EQ(report["counts"]["unsatisfied_semaphore_waits"], 0);
     EXPECT_EQ(report["counts"]["acquires"], 1);
+    EXPECT_TRUE(report["findings"].empty()) << report["findings"];
+}
+
+// The same with the state from before the range: frame 1's kept build goes into a prelude
+// submission ahead of frame 2's, after frame 2's acquire (the application acquired before it
+// submitted). The range's first submission waits on that acquire's semaphore.
+TEST_F(FrameRange, AcquiresAndThePreludeOfASingleFrameRange) {
+    ProcessResult r =
+        runApp(4, {{"CLASTRACE_FRAME_RANGE", "2"}, {"CLASTRACE_PRE_RANGE_STATE", "1"}});
+    ASSERT_EQ(r.exitCode, 0) << r.err;
+    EXPECT_EQ(r.err, "");
+    FrameTrace t = readFrameTrace(dir / "frames.clt");
+    EXPECT_EQ(t.orderWithAcquires,
+              (std::vector<std::string>{"P0", "P1", "A", "S", "S", "P2", "P3"}));
+    EXPECT_EQ(t.triangleBuildFrames, (std::multiset<uint32_t>{1, 2}));
+    ProcessResult replay = run(cli("replay --json " + quote((dir / "frames.clt").string())), {});
+    EXPECT_EQ(replay.exitCode, 0) << replay.out << replay.err;
+    nlohmann::json report = nlohmann::json::parse(replay.out);
+    EXPECT_EQ(report["counts"]["unsatisfied_semaphore_waits"], 0);
     EXPECT_TRUE(report["findings"].empty()) << report["findings"];
 }
 

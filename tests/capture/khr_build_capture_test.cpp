@@ -9,6 +9,7 @@
 
 #include <clastrace/testsupport/test_driver.h>
 #include <clastrace/traces/trace_reader.h>
+#include <clastrace/testsupport/trace_records.h>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 #include <vulkan/vulkan_core.h>
@@ -64,34 +65,27 @@ std::vector<uint8_t> bytesAt(const std::vector<Snapshot>& snapshots, uint64_t ad
     return {};
 }
 
-class KhrBuildCapture : public LayerLaunchTest {
+class KhrBuildCapture : public RayTracingLaunchTest {
 protected:
-    KhrBuildCapture() : LayerLaunchTest("clastrace_khr_capture") {}
+    KhrBuildCapture() : RayTracingLaunchTest("clastrace_khr_capture") {}
 
     void SetUp() override {
-        LayerLaunchTest::SetUp();
+        RayTracingLaunchTest::SetUp();
         if (IsSkipped()) return;
-        driver = clastrace::testsupport::ray_tracing_driver();
-        if (!driver) GTEST_SKIP() << clastrace::testsupport::kNoRayTracingDriver;
         trace = dir / "khr.clt";
-        ProcessResult r =
-            run("env" + driver->environment_words() + " " + CLASTRACE_CAPTURE_LAUNCHER +
-                    " capture -o " + quote(trace.string()) + " --layer-path " +
-                    CLASTRACE_LAYER_MANIFEST_DIR + " -- " + CLASTRACE_KHR_APP + " " +
-                    quote((dir / "out.json").string()),
-                {}, false);
+        ProcessResult r = captureOnDriver(trace, std::string(CLASTRACE_KHR_APP) + " " +
+                                                     quote((dir / "out.json").string()));
         ASSERT_EQ(r.exitCode, 0) << r.out << r.err;
         out = json::parse(readText(dir / "out.json"));
         read();
     }
 
     std::vector<Snapshot> snapshots(clastrace::traces::TraceReader& reader,
-                                    const flatbuffers::Vector<const fbs::MemorySnapshot*>* list) {
+                                    const std::vector<fbs::MemorySnapshot>& list) {
         std::vector<Snapshot> result;
-        if (!list) return result;
-        for (const fbs::MemorySnapshot* s : *list) {
-            Snapshot snapshot{s->buffer(), s->offset(), s->address(), {}};
-            EXPECT_FALSE(reader.read_contents(s->hash(), &snapshot.bytes));
+        for (const fbs::MemorySnapshot& s : list) {
+            Snapshot snapshot{s.buffer(), s.offset(), s.address(), {}};
+            EXPECT_FALSE(reader.read_contents(s.hash(), &snapshot.bytes));
             result.push_back(std::move(snapshot));
         }
         return result;
@@ -102,43 +96,18 @@ protected:
         auto reader = clastrace::traces::TraceReader::open(trace.string(), &error);
         ASSERT_TRUE(reader) << error.message;
         clastrace::traces::RecordView view;
+        using clastrace::testsupport::unpack_record;
         while (reader->next(&view)) {
-            const fbs::Record& r = *view.record;
-            switch (view.kind) {
-            case fbs::RecordBody::CmdBuildAccelerationStructuresKHR: {
-                const auto* b = r.body_as_CmdBuildAccelerationStructuresKHR();
-                captured.builds.emplace_back();
-                b->UnPackTo(&captured.builds.back());
-                captured.build_inputs.push_back(snapshots(*reader, b->inputs()));
-                break;
-            }
-            case fbs::RecordBody::CmdCopyAccelerationStructure: {
-                const auto* c = r.body_as_CmdCopyAccelerationStructure();
-                captured.copies.emplace_back();
-                c->UnPackTo(&captured.copies.back());
-                captured.copy_inputs.push_back(snapshots(*reader, c->inputs()));
-                break;
-            }
-            case fbs::RecordBody::CmdCopyAccelerationStructureToMemory:
-                captured.to_memory.emplace_back();
-                r.body_as_CmdCopyAccelerationStructureToMemory()->UnPackTo(
-                    &captured.to_memory.back());
-                break;
-            case fbs::RecordBody::CmdWriteAccelerationStructuresProperties:
-                captured.properties.emplace_back();
-                r.body_as_CmdWriteAccelerationStructuresProperties()->UnPackTo(
-                    &captured.properties.back());
-                break;
-            case fbs::RecordBody::QueryPoolResults:
-                captured.results.emplace_back();
-                r.body_as_QueryPoolResults()->UnPackTo(&captured.results.back());
-                break;
-            case fbs::RecordBody::GetAccelerationStructureBuildSizesKHR:
-                captured.sizes.emplace_back();
-                r.body_as_GetAccelerationStructureBuildSizesKHR()->UnPackTo(&captured.sizes.back());
-                break;
-            default: break;
-            }
+            if (const auto* b =
+                    unpack_record<fbs::CmdBuildAccelerationStructuresKHR>(view, captured.builds))
+                captured.build_inputs.push_back(snapshots(*reader, b->inputs));
+            if (const auto* c =
+                    unpack_record<fbs::CmdCopyAccelerationStructure>(view, captured.copies))
+                captured.copy_inputs.push_back(snapshots(*reader, c->inputs));
+            unpack_record<fbs::CmdCopyAccelerationStructureToMemory>(view, captured.to_memory);
+            unpack_record<fbs::CmdWriteAccelerationStructuresProperties>(view, captured.properties);
+            unpack_record<fbs::QueryPoolResults>(view, captured.results);
+            unpack_record<fbs::GetAccelerationStructureBuildSizesKHR>(view, captured.sizes);
         }
     }
 
@@ -158,7 +127,6 @@ protected:
         return nullptr;
     }
 
-    std::optional<clastrace::testsupport::TestDriver> driver;
     fs::path trace;
     json out;
     CapturedTrace captured;

@@ -9,6 +9,7 @@
 #include "layer_launch_test.h"
 
 #include <clastrace/testsupport/test_driver.h>
+#include <clastrace/traces/records.h>
 #include <clastrace/traces/trace_reader.h>
 #include <clastrace/traces/trace_writer.h>
 #include <gtest/gtest.h>
@@ -44,9 +45,9 @@ void copyTrace(const fs::path& from, const fs::path& to,
     ASSERT_TRUE(writer) << error.message;
     traces::RecordView view;
     while (reader->next(&view)) {
-        if (const auto* c = view.record->body_as_MemoryContents()) {
+        if (const auto c = traces::contents_record(*view.record)) {  // deltas come decoded
             uint64_t hash = 0;
-            ASSERT_FALSE(writer->add_contents(c->bytes()->data(), c->bytes()->size(), &hash));
+            ASSERT_FALSE(writer->add_contents(c->data(), c->size(), &hash));
         } else if (view.kind == fbs::RecordBody::RayQueryCheck) {
             fbs::RecordT record;
             view.record->UnPackTo(&record);
@@ -59,21 +60,18 @@ void copyTrace(const fs::path& from, const fs::path& to,
     ASSERT_FALSE(writer->finish());
 }
 
-class KhrRayCheck : public LayerLaunchTest {
+class KhrRayCheck : public RayTracingLaunchTest {
 protected:
-    KhrRayCheck() : LayerLaunchTest("clastrace_khr_ray_check") {}
+    KhrRayCheck() : RayTracingLaunchTest("clastrace_khr_ray_check") {}
 
     void SetUp() override {
-        LayerLaunchTest::SetUp();
+        RayTracingLaunchTest::SetUp();
         if (IsSkipped()) return;
-        driver = clastrace::testsupport::ray_tracing_driver();
-        if (!driver) GTEST_SKIP() << clastrace::testsupport::kNoRayTracingDriver;
         trace = dir / "khr.clt";
-        captured = run("env" + driver->environment_words() + " " + CLASTRACE_CAPTURE_LAUNCHER +
-                           " capture --ray-check " + std::to_string(kRays) + " --log info -o " +
-                           quote(trace.string()) + " --layer-path " + CLASTRACE_LAYER_MANIFEST_DIR +
-                           " -- " + CLASTRACE_KHR_APP + " " + quote((dir / "out.json").string()),
-                       {}, false);
+        captured = captureOnDriver(trace,
+                                   std::string(CLASTRACE_KHR_APP) + " " +
+                                       quote((dir / "out.json").string()),
+                                   "--ray-check " + std::to_string(kRays) + " --log info");
         ASSERT_EQ(captured.exitCode, 0) << captured.out << captured.err;
     }
 
@@ -97,7 +95,6 @@ protected:
         return found;
     }
 
-    std::optional<clastrace::testsupport::TestDriver> driver;
     fs::path trace;
     ProcessResult captured;
 };

@@ -10,6 +10,7 @@
 
 #include <clastrace/testsupport/test_driver.h>
 #include <clastrace/traces/trace_reader.h>
+#include <clastrace/testsupport/trace_records.h>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
@@ -33,22 +34,16 @@ struct CapturedTrace {
     std::vector<fbs::QueryPoolResultsT> results;
 };
 
-class KhrTwoDevices : public LayerLaunchTest {
+class KhrTwoDevices : public RayTracingLaunchTest {
 protected:
-    KhrTwoDevices() : LayerLaunchTest("clastrace_khr_two_devices") {}
+    KhrTwoDevices() : RayTracingLaunchTest("clastrace_khr_two_devices") {}
 
     void SetUp() override {
-        LayerLaunchTest::SetUp();
+        RayTracingLaunchTest::SetUp();
         if (IsSkipped()) return;
-        driver = clastrace::testsupport::ray_tracing_driver();
-        if (!driver) GTEST_SKIP() << clastrace::testsupport::kNoRayTracingDriver;
         trace = dir / "two_devices.clt";
-        ProcessResult r =
-            run("env" + driver->environment_words() + " " + CLASTRACE_CAPTURE_LAUNCHER +
-                    " capture -o " + quote(trace.string()) + " --layer-path " +
-                    CLASTRACE_LAYER_MANIFEST_DIR + " -- " + CLASTRACE_TWO_DEVICES_APP + " " +
-                    quote((dir / "out.json").string()),
-                {}, false);
+        ProcessResult r = captureOnDriver(trace, std::string(CLASTRACE_TWO_DEVICES_APP) + " " +
+                                                     quote((dir / "out.json").string()));
         ASSERT_EQ(r.exitCode, 0) << r.out << r.err;
         rounds = json::parse(readText(dir / "out.json"))["rounds"];
         read();
@@ -59,33 +54,16 @@ protected:
         auto reader = clastrace::traces::TraceReader::open(trace.string(), &error);
         ASSERT_TRUE(reader) << error.message;
         clastrace::traces::RecordView view;
+        using clastrace::testsupport::unpack_record;
         while (reader->next(&view)) {
-            const fbs::Record& r = *view.record;
-            switch (view.kind) {
-            case fbs::RecordBody::AccelerationStructureCreate:
-                captured.creates.emplace_back();
-                r.body_as_AccelerationStructureCreate()->UnPackTo(&captured.creates.back());
-                break;
-            case fbs::RecordBody::CmdBuildAccelerationStructuresKHR:
-                captured.builds.emplace_back();
-                r.body_as_CmdBuildAccelerationStructuresKHR()->UnPackTo(&captured.builds.back());
-                break;
-            case fbs::RecordBody::CmdWriteAccelerationStructuresProperties:
-                captured.properties.emplace_back();
-                r.body_as_CmdWriteAccelerationStructuresProperties()->UnPackTo(
-                    &captured.properties.back());
-                break;
-            case fbs::RecordBody::QueryPoolResults:
-                captured.results.emplace_back();
-                r.body_as_QueryPoolResults()->UnPackTo(&captured.results.back());
-                break;
-            default: break;
-            }
+            unpack_record<fbs::AccelerationStructureCreate>(view, captured.creates);
+            unpack_record<fbs::CmdBuildAccelerationStructuresKHR>(view, captured.builds);
+            unpack_record<fbs::CmdWriteAccelerationStructuresProperties>(view, captured.properties);
+            unpack_record<fbs::QueryPoolResults>(view, captured.results);
         }
         EXPECT_TRUE(reader->damage().empty()) << reader->damage().front().message;
     }
 
-    std::optional<clastrace::testsupport::TestDriver> driver;
     fs::path trace;
     json rounds;
     CapturedTrace captured;

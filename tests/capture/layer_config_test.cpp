@@ -3,6 +3,7 @@
 
 #include <gtest/gtest.h>
 
+#include <string>
 #include <thread>
 
 #include <mutex>
@@ -83,14 +84,29 @@ TEST(LayerConfig, ZstdFastLevelsAreNegative) {
     }
 }
 
+namespace {
+
+// A switch on by default: "0" turns it off, "1" on; another value keeps the default and is
+// named in one error.
+void expect_on_by_default(const char* variable, bool LayerConfig::*setting, const char* bad) {
+    EXPECT_TRUE(parse({}).*setting);
+    EXPECT_FALSE(parse({{variable, "0"}}).*setting);
+    EXPECT_TRUE(parse({{variable, "1"}}).*setting);
+    LayerConfig config = parse({{variable, bad}});
+    EXPECT_TRUE(config.*setting);
+    ASSERT_EQ(config.errors.size(), 1u);
+    EXPECT_NE(config.errors[0].find(std::string(variable) + "='" + bad + "'"), std::string::npos)
+        << config.errors[0];
+}
+
+}  // namespace
+
 TEST(LayerConfig, TimestampsOnByDefaultAndSwitchedByZeroOrOne) {
-    EXPECT_TRUE(parse({}).timestamps);
-    EXPECT_FALSE(parse({{"CLASTRACE_TIMESTAMPS", "0"}}).timestamps);
-    EXPECT_TRUE(parse({{"CLASTRACE_TIMESTAMPS", "1"}}).timestamps);
-    LayerConfig bad = parse({{"CLASTRACE_TIMESTAMPS", "sometimes"}});
-    EXPECT_TRUE(bad.timestamps);  // the default is kept
-    ASSERT_EQ(bad.errors.size(), 1u);
-    EXPECT_NE(bad.errors[0].find("CLASTRACE_TIMESTAMPS='sometimes'"), std::string::npos);
+    expect_on_by_default("CLASTRACE_TIMESTAMPS", &LayerConfig::timestamps, "sometimes");
+}
+
+TEST(LayerConfig, DeltaContentsOnByDefaultAndSwitchedByZeroOrOne) {
+    expect_on_by_default("CLASTRACE_DELTA_CONTENTS", &LayerConfig::delta_contents, "xor");
 }
 
 TEST(LayerConfig, DeviceAddressWritesCheapByDefaultOffCheapOrExact) {

@@ -7,6 +7,7 @@
 // builds before the range: tests/apps/cluster_capture_app serve-frames builds its clusters in
 // frames 0 and 1 and the bottom level over them in frame 2.
 #include "frame_scene.h"
+#include "rt_frame_engine_image.h"
 #include "rt_frame_loop_launch.h"
 
 #include <clastrace/engine/nv_trace.h>
@@ -31,59 +32,6 @@ using nlohmann::json;
 
 constexpr uint32_t kFrames = 4, kWidth = 64, kHeight = 48;
 const std::string kArgs = "--build-frames 2";
-
-// Traces each ray-query dispatch's camera rays through the engine's replayed top level (set 0,
-// binding 0), as shaders/trace_pixels.comp shades them; keeps the last image.
-class EngineImage : public clastrace::replay::ReplayObserver {
-public:
-    void on_command(const clastrace::replay::ReplayedCommand& c) override {
-        const auto* dispatch = c.record->body_as_CmdDispatch();
-        if (!dispatch || !dispatch->ray_query() || !dispatch->acceleration_structures()) return;
-        ++dispatches;
-        uint64_t top_level = 0;
-        for (const auto* b : *dispatch->acceleration_structures())
-            if (b->set() == 0 && b->binding() == 0 && b->source() == 0)
-                top_level = c.engine_structure_address(b->acceleration_structure());
-        std::string error;
-        std::vector<clastrace::engine::Finding> findings;
-        auto scene = clastrace::engine::NvScene::open(*c.memory, top_level, &findings, &error);
-        if (!scene) {
-            errors.push_back(error.empty() ? "no top level" : error);
-            return;
-        }
-        instances_reached = scene->instances_reached();
-        pixels.assign(size_t(kWidth) * kHeight, 0);
-        for (uint32_t y = 0; y < kHeight; ++y)
-            for (uint32_t x = 0; x < kWidth; ++x) {
-                rt_frame_loop::Vec3 o, d;
-                rt_frame_loop::pixel_ray(x, y, kWidth, kHeight, o, d);
-                const clastrace::engine::Ray ray{{o.x, o.y, o.z}, 0.0f, {d.x, d.y, d.z}, 100.0f};
-                const clastrace::engine::NvHit hit =
-                    scene->closest(ray, clastrace::engine::kRayFlagOpaque, 0xff);
-                pixels[size_t(y) * kWidth + x] =
-                    hit.hit
-                        ? rt_frame_loop::hit_colour(hit.instance_custom_index, hit.primitive_index)
-                        : rt_frame_loop::kBackground;
-            }
-    }
-
-    size_t dispatches = 0;
-    uint32_t instances_reached = 0;
-    std::vector<std::string> errors;
-    std::vector<uint32_t> pixels;
-};
-
-EngineImage replay_image(const fs::path& trace) {
-    EngineImage engine;
-    clastrace::traces::TraceError error;
-    auto reader = clastrace::traces::TraceReader::open(trace.string(), &error);
-    EXPECT_TRUE(reader) << error.message;
-    if (!reader) return engine;
-    clastrace::replay::ReplayOptions options;
-    options.observer = &engine;
-    clastrace::replay::replay_trace(*reader, trace.filename().string(), options);
-    return engine;
-}
 
 // What the start of a trace says: the layer's PreRangeState record, and the submissions.
 struct TraceStart {
@@ -170,7 +118,7 @@ TEST_F(PreRangeState, FrameRangeReplaysStructuresBuiltBeforeIt) {
     }
 
     // The engine's image of frame 3 from the replayed structures is the driver's.
-    const EngineImage engine = replay_image(range);
+    const auto engine = rt_frame_loop::replay_engine_image(range, kWidth, kHeight);
     EXPECT_EQ(engine.dispatches, 2u);
     ASSERT_TRUE(engine.errors.empty()) << engine.errors.front();
     EXPECT_EQ(engine.instances_reached, rt_frame_loop::kMeshCount);
@@ -195,7 +143,7 @@ TEST_F(PreRangeState, FrameRangeReplaysStructuresBuiltBeforeIt) {
     // The same image as the full capture's replay gives.
     const fs::path full = capture_as("full.clt", "");
     EXPECT_FALSE(read_start(full).pre_range);
-    const EngineImage whole = replay_image(full);
+    const auto whole = rt_frame_loop::replay_engine_image(full, kWidth, kHeight);
     EXPECT_EQ(whole.dispatches, size_t(kFrames));
     EXPECT_EQ(whole.pixels, engine.pixels);
 
@@ -218,13 +166,12 @@ TEST_F(PreRangeState, FrameRangeReplaysStructuresBuiltBeforeIt) {
 // serves the extension through the layer).
 class PreRangeClusterState : public PreRangeState {
 protected:
-    ProcessResult capture_served(const std::string& options, const fs::path& trace) {
-        return run("env" + driver_->environment_words() + " " + std::string(CLASTRACE_CLI) +
-                       " capture --log info -o " + quote(trace.string()) + " --layer-path " +
-                       CLASTRACE_LAYER_MANIFEST_DIR + " " + options + " -- " +
-                       CLASTRACE_CAPTURE_APP + " serve-frames " +
-                       quote((dir / "serve-frames.json").string()),
-                   {}, false);
+    ProcessResult capture_served(const std::string& options, const fs::path& trace,
+                                 const std::string& mode = "serve-frames") {
+        return captureOnDriver(trace,
+                               std::string(CLASTRACE_CAPTURE_APP) + " " + mode + " " +
+                                   quote((dir / "serve-frames.json").string()),
+                               "--log info " + options);
     }
 };
 
@@ -265,6 +212,33 @@ TEST_F(PreRangeClusterState, FrameRangeReplaysClustersBuiltBeforeIt) {
         EXPECT_EQ(command.value("captured_bytes", 0), command.value("engine_bytes", -1));
     }
     EXPECT_EQ(sizes[0]["where"].value("command_buffer_handle", ""), "0xc1a57ace00000001");
+}
+
+// Frame 1's build waits on a timeline value the application signals only after frame 2's
+// vkQueueSubmit returned: the capture the prelude needs comes after the range has started. The
+// layer must not wait for it inside that submission (it once blocked there for 10 s and wrote
+// the prelude without its input bytes); the trace holds the prelude until the capture comes.
+TEST_F(PreRangeClusterState, APreludeWhoseCaptureComesAfterTheRangeStarted) {
+    const fs::path range = dir / "gated.clt";
+    const ProcessResult r = capture_served("--frames 2-", range, "serve-frames-gated");
+    ASSERT_EQ(r.exitCode, 0) << r.out << r.err;
+    EXPECT_EQ(r.err.find("did not arrive"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("1 captures still to come, which the trace waits for"), std::string::npos)
+        << r.err;
+    const TraceStart start = read_start(range);
+    ASSERT_TRUE(start.pre_range);
+    // Frame 0's build stays too: which objects frame 1's overwrote is known only from its
+    // capture, which had not come when the prelude was written. Replaying both is still right.
+    EXPECT_EQ(start.state.cluster_commands, 2u);
+    EXPECT_GT(start.state.input_bytes, 0u);
+    EXPECT_EQ(start.cluster_builds, 3u);  // the prelude's two, frame 2's bottom level
+    int exit_code = -1;
+    const json report = replay_json(range, &exit_code);
+    EXPECT_EQ(exit_code, 0) << report.dump(1);
+    EXPECT_TRUE(report.value("clean", false)) << report.dump(1);
+    EXPECT_TRUE(report.value("outputs_verified", false)) << report.dump(1);
+    for (const json& command : report.value("sizes", json::array()))
+        EXPECT_EQ(command.value("ops_compared", 0), command.value("ops", -1)) << command.dump(1);
 }
 
 }  // namespace

@@ -32,26 +32,20 @@ struct RecordedBind {
     size_t wait_semaphores = 0, signal_semaphores = 0;
 };
 
-class SparseBindCapture : public LayerLaunchTest {
+class SparseBindCapture : public RayTracingLaunchTest {
 protected:
-    SparseBindCapture() : LayerLaunchTest("clastrace_sparse_e2e") {}
+    SparseBindCapture() : RayTracingLaunchTest("clastrace_sparse_e2e") {}
 
     void SetUp() override {
-        LayerLaunchTest::SetUp();
+        RayTracingLaunchTest::SetUp();
         if (IsSkipped()) return;
-        driver = clastrace::testsupport::ray_tracing_driver();
-        if (!driver) GTEST_SKIP() << clastrace::testsupport::kNoRayTracingDriver;
         trace = dir / "sparse.clt";
     }
 
     // The app in `mode` under `clastrace capture` on lavapipe 25; its OUT.json is `out`.
     ProcessResult capture(const std::string& mode) {
-        ProcessResult r =
-            run("env" + driver->environment_words() + " " + CLASTRACE_CAPTURE_LAUNCHER +
-                    " capture -o " + quote(trace.string()) + " --layer-path " +
-                    CLASTRACE_LAYER_MANIFEST_DIR + " -- " + CLASTRACE_SPARSE_APP + " " + mode +
-                    " " + quote((dir / "out.json").string()),
-                {}, false);
+        ProcessResult r = captureOnDriver(trace, std::string(CLASTRACE_SPARSE_APP) + " " + mode +
+                                                     " " + quote((dir / "out.json").string()));
         if (r.exitCode == 0) out = json::parse(readText(dir / "out.json"));
         return r;
     }
@@ -100,7 +94,6 @@ protected:
         EXPECT_EQ(binds[0].signal_semaphores, signals);
     }
 
-    std::optional<clastrace::testsupport::TestDriver> driver;
     fs::path trace;
     json out;
     int replayExitCode = -1;

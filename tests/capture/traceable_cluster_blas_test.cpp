@@ -62,22 +62,40 @@ protected:
     }
 
     // The app captured with the mode `mode` (CLASTRACE_TRACEABLE_CLUSTERS) into `trace`.
-    ProcessResult capture(const std::string& mode, const fs::path& trace) {
+    ProcessResult capture(const std::string& mode, const fs::path& trace,
+                          const std::string& app_args = "") {
         return run("env CLASTRACE_TRACEABLE_CLUSTERS=" + mode + driver->environment_words() + " " +
                        CLASTRACE_CAPTURE_LAUNCHER + " capture --ray-check " +
                        std::to_string(kCheckRays) + " --log info -o " + quote(trace.string()) +
                        " --layer-path " + CLASTRACE_LAYER_MANIFEST_DIR + " -- " +
-                       CLASTRACE_TRACEABLE_APP,
+                       CLASTRACE_TRACEABLE_APP + " " + app_args,
                    {}, false);
+    }
+
+    // `trace` replays with its outputs compared byte for byte, no finding, `driver_bvh_ranges`
+    // driver BVHs marked, and its one ray check (the app's top level) agreeing with the driver.
+    void expect_exact_replay(const fs::path& trace, uint64_t driver_bvh_ranges) {
+        const ProcessResult replayed =
+            run(std::string(CLASTRACE_CAPTURE_LAUNCHER) + " replay --json " + quote(trace.string()),
+                {}, false);
+        const json report = json::parse(replayed.out);
+        EXPECT_EQ(replayed.exitCode, 0) << replayed.out;
+        EXPECT_TRUE(report["outputs_verified"].get<bool>());
+        EXPECT_TRUE(report["findings"].empty()) << report["findings"].dump(1);
+        EXPECT_EQ(report["counts"]["driver_bvh_ranges"].get<uint64_t>(), driver_bvh_ranges)
+            << report["counts"];
+        ASSERT_EQ(report["ray_checks"].size(), 1u) << report["ray_checks"].dump(1);
+        const json& check = report["ray_checks"][0];
+        EXPECT_TRUE(check["checked"].get<bool>()) << check;
+        EXPECT_EQ(check["disagree"].get<uint64_t>(), 0u) << check;
+        EXPECT_GE(check["agree_hit"].get<uint64_t>(), 100u) << check;
     }
 
     std::optional<clastrace::testsupport::TestDriver> driver;
 };
 
-TEST_F(TraceableClusterBlas, DriverRaysHitTheServedClusters) {
-    const ProcessResult r = capture("auto", dir / "on.clt");
-    ASSERT_EQ(r.exitCode, 0) << r.out << r.err;
-    EXPECT_NE(r.err.find("traceable cluster BLASes: on"), std::string::npos) << r.err;
+// The driver's hits of traceable_cluster_app's rays: each cluster at the height it lies at.
+void expect_hits_on_the_clusters(const ProcessResult& r) {
     const std::vector<DriverHit> hits = parseHits(r.out);
     ASSERT_EQ(hits.size(), kClusters * kRaysPerCluster + 1) << r.out;
     for (uint32_t c = 0; c < kClusters; ++c)
@@ -93,6 +111,102 @@ TEST_F(TraceableClusterBlas, DriverRaysHitTheServedClusters) {
         }
     EXPECT_EQ(hits.back().hit, 0u);  // between the clusters
 }
+
+TEST_F(TraceableClusterBlas, DriverRaysHitTheServedClusters) {
+    const ProcessResult r = capture("auto", dir / "on.clt");
+    ASSERT_EQ(r.exitCode, 0) << r.out << r.err;
+    EXPECT_NE(r.err.find("traceable cluster BLASes: on"), std::string::npos) << r.err;
+    expect_hits_on_the_clusters(r);
+}
+
+// A served MOVE_OBJECTS of the traceable BLAS to an explicit destination moves the driver's BVH
+// too (its old home is filled with 0xFF after the move): the driver's rays through a top level
+// naming the new address hit as before, and the trace replays exactly, the move's destination
+// marked as the driver's as well.
+TEST_F(TraceableClusterBlas, MovedBlasIsHitAtItsNewAddressAndReplaysExactly) {
+    const fs::path trace = dir / "moved.clt";
+    const ProcessResult r = capture("auto", trace, "move");
+    ASSERT_EQ(r.exitCode, 0) << r.out << r.err;
+    EXPECT_NE(r.out.find("moved to "), std::string::npos) << r.out;
+    expect_hits_on_the_clusters(r);
+    expect_exact_replay(trace, 2);
+}
+
+// The same move to an implicit destination, under the default mode: the engine gives the moved
+// object the room of the driver's BVH it moves (recorded as implicit_object_room), the BVH is
+// copied to the address the engine wrote to dstAddressesArray, and the trace replays exactly.
+TEST_F(TraceableClusterBlas, BlasMovedToAnImplicitDestinationIsHitThereAndReplaysExactly) {
+    const fs::path trace = dir / "moved_implicit.clt";
+    const ProcessResult r = capture("auto", trace, "move-implicit");
+    ASSERT_EQ(r.exitCode, 0) << r.out << r.err;
+    EXPECT_NE(r.out.find("moved to "), std::string::npos) << r.out;
+    expect_hits_on_the_clusters(r);
+    expect_exact_replay(trace, 2);
+}
+
+// The move with every address indirected (srcInfosArray, srcInfosCount, dstAddressesArray,
+// dstSizesArray, scratchData read through cells): the layer takes the destination from the
+// engine's run and the source through the cells, so the driver's BVH moves as before.
+TEST_F(TraceableClusterBlas, MoveWithIndirectedAddressesMovesTheDriversBvh) {
+    const fs::path trace = dir / "moved_indirect.clt";
+    const ProcessResult r = capture("auto", trace, "move-indirect");
+    ASSERT_EQ(r.exitCode, 0) << r.out << r.err;
+    EXPECT_NE(r.out.find("moved to "), std::string::npos) << r.out;
+    EXPECT_EQ(r.err.find("not moved"), std::string::npos) << r.err;
+    expect_hits_on_the_clusters(r);
+    expect_exact_replay(trace, 2);
+}
+
+// The app's two implicit BLAS addresses ("implicit blas at"), after checking that they lie a
+// driver-sized room apart (the explicit answer: the driver's worst case) in a region (the served
+// implicit-mode answer for two) that holds both rooms, and that no BLAS was left untraceable.
+std::vector<unsigned long long> expect_implicit_rooms(const ProcessResult& r) {
+    EXPECT_EQ(r.err.find("not traceable"), std::string::npos) << r.err;
+    std::vector<unsigned long long> at;
+    unsigned long long region = 0, explicit_size = 0;
+    std::istringstream lines(r.out);
+    for (std::string line; std::getline(lines, line);) {
+        unsigned long long v = 0;
+        if (std::sscanf(line.c_str(), "implicit blas at %llu", &v) == 1) at.push_back(v);
+        std::sscanf(line.c_str(), "implicit region %llu", &region);
+        std::sscanf(line.c_str(), "blas size %llu", &explicit_size);
+    }
+    EXPECT_EQ(at.size(), 2u) << r.out;
+    if (at.size() != 2) return at;
+    EXPECT_EQ(at[1] - at[0], explicit_size) << r.out;
+    EXPECT_GE(region, 2 * explicit_size) << r.out;
+    return at;
+}
+
+// Two traceable BLASes of one command at implicit destinations, under the default mode: the
+// served implicit-mode size answer and the engine's packing give each object room for the
+// driver's worst-case BLAS, so the second's driver BVH does not overrun the first, which the
+// driver's rays hit (through the top level naming it). The trace records the room
+// (implicit_object_room), so replay packs the objects the same way and the outputs
+// (dstAddressesArray, dstSizesArray, the objects) compare byte for byte; both BLASes' driver BVHs
+// are marked, and the ray check agrees. The same holds with every address indirected (the
+// driver's BLASes go where the engine's run put the objects, not where the command's fields
+// point) and without a dstAddressesArray (the layer knows each destination from the engine's run).
+class ImplicitTraceableBlas : public TraceableClusterBlas,
+                              public ::testing::WithParamInterface<const char*> {};
+
+TEST_P(ImplicitTraceableBlas, GetsRoomForTheDriversBlasIsHitAndReplaysExactly) {
+    const fs::path trace = dir / (std::string(GetParam()) + ".clt");
+    const ProcessResult r = capture("auto", trace, GetParam());
+    ASSERT_EQ(r.exitCode, 0) << r.out << r.err;
+    expect_implicit_rooms(r);
+    expect_hits_on_the_clusters(r);
+    expect_exact_replay(trace, 2);
+}
+
+INSTANTIATE_TEST_SUITE_P(Modes, ImplicitTraceableBlas,
+                         ::testing::Values("implicit", "implicit-indirect", "implicit-unaddressed"),
+                         [](const auto& info) {
+                             std::string name = info.param;
+                             for (char& c : name)
+                                 if (c == '-') c = '_';
+                             return name;
+                         });
 
 // The served BLAS's bytes in the trace are the engine's (the driver's BVH lives only in the
 // application's memory): replay rebuilds them and finds nothing at all, neither inside the

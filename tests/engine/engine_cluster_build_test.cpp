@@ -322,6 +322,36 @@ TEST(ClusterBuildRules, IndexOutOfRangeMakesTheTriangleInactiveNotACrash) {
     EXPECT_EQ(trace_closest(o.bytes, r2, 0).triangle_index, 2u);
 }
 
+// Packed 8-bit indices are widened 16 at a time, the last few one by one: an out-of-range
+// index at any position, in a block or in the tail, gives the same object and finding as the
+// same index read as 32 bits.
+TEST(ClusterBuildRules, PackedByteIndexOutOfRangeAtAnyPosition) {
+    const test::Mesh m = test::grid(5);  // 36 vertices, 150 indices: 9 blocks of 16 and 6 more
+    const uint32_t n_vertices = uint32_t(m.positions.size() / 3);
+    Arena arena;
+    for (size_t p = 0; p < m.indices.size(); ++p) {
+        SCOPED_TRACE("out-of-range index at " + std::to_string(p));
+        test::Mesh bad = m;
+        bad.indices[p] = p % 2 ? 255u : n_vertices;
+        const BuildInfo wide = test::cluster_info(arena, bad);
+        const auto expected = build_triangle_cluster(arena.memory, wide, test::default_input(),
+                                                     EngineProperties{}, 0);
+        BuildInfo packed = wide;
+        packed.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_8BIT_NV;
+        packed.indexBufferStride = 0;
+        packed.indexBuffer =
+            arena.put_vec(std::vector<uint8_t>(bad.indices.begin(), bad.indices.end()), 1);
+        const auto o = build_triangle_cluster(arena.memory, packed, test::default_input(),
+                                              EngineProperties{}, 0);
+        ASSERT_TRUE(o.ok);
+        ASSERT_TRUE(has_rule(o.findings, kRuleIndexOutOfRange));
+        EXPECT_NE(o.findings[0].message.find("first at index " + std::to_string(p) + " "),
+                  std::string::npos)
+            << o.findings[0].message;
+        EXPECT_EQ(o.bytes, expected.bytes);
+    }
+}
+
 TEST(ClusterBuildRules, CountsBeyondTheFormatFailCleanly) {
     Arena arena;
     const test::Mesh m = test::grid(4);

@@ -129,6 +129,53 @@ TEST(ClusterBlas, SameBytesOnOneAndTwoThreads) {
     EXPECT_EQ(r1.implicit_bytes_used, r2.implicit_bytes_used);
 }
 
+// ExecuteOptions::implicit_object_room (traceable cluster BLASes): each implicit object takes
+// the room, so the next one starts a room later, dstSizesArray says the room, and each object's
+// own bytes are the ones packed without it.
+TEST(ClusterBlas, ImplicitObjectRoomSpacesTheObjectsApart) {
+    Rig rig(16);
+    ClusteredMesh m = icosphere_meshlets(3);
+    auto clas = build_clas(rig, m);
+    const std::vector<uint64_t> half(clas.begin(), clas.begin() + clas.size() / 2);
+    std::vector<VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV> infos;
+    const std::vector<uint64_t>* sets[] = {&clas, &half, &clas};
+    for (const std::vector<uint64_t>* set : sets)
+        infos.push_back(rig.get<VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV>(
+            upload_blas_info(rig, *set)));
+    const uint64_t src = rig.put_vec(rig.inputs, infos, 16);
+    auto run = [&](uint64_t room, std::vector<uint64_t>& at, std::vector<uint32_t>& sizes) {
+        CommandSetup s;
+        setup_command(s, rig,
+                      VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV,
+                      VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV, 3, src);
+        ExecuteOptions options;
+        options.implicit_object_room = room;
+        const ExecutionRecord r = execute(s.cmd, rig.memory, options);
+        EXPECT_TRUE(r.findings.empty()) << describe(r.findings);
+        claim_implicit(rig, r);
+        at = dst_addresses(rig, s.cmd, 3);
+        for (uint32_t i = 0; i < 3; ++i)
+            sizes.push_back(rig.get<uint32_t>(s.cmd.dstSizesArray.deviceAddress + 4ull * i));
+        return r.implicit_bytes_used;
+    };
+    std::vector<uint64_t> packed, roomy;
+    std::vector<uint32_t> packed_sizes, roomy_sizes;
+    run(0, packed, packed_sizes);
+    constexpr uint64_t kRoom = 64 << 10;  // more than any of the three objects
+    for (uint32_t size : packed_sizes) ASSERT_LT(size, kRoom);
+    EXPECT_EQ(run(kRoom, roomy, roomy_sizes), 3 * kRoom);  // the last object takes its room too
+    EXPECT_EQ(roomy[1], roomy[0] + kRoom);
+    EXPECT_EQ(roomy[2], roomy[0] + 2 * kRoom);
+    EXPECT_EQ(roomy_sizes, (std::vector<uint32_t>(3, uint32_t(kRoom))));
+    for (uint32_t i = 0; i < 3; ++i) {
+        // The same object, but for the addresses of the clusters it names (the same CLAS).
+        SCOPED_TRACE("op " + std::to_string(i));
+        EXPECT_TRUE(rig.bytes(packed[i], packed_sizes[i]) == rig.bytes(roomy[i], packed_sizes[i]));
+    }
+    // Without a room the objects are packed by their own sizes, as before.
+    EXPECT_EQ(packed[1], packed[0] + (packed_sizes[0] + 255) / 256 * 256);
+}
+
 TEST(ClusterBlas, LargeBuildIsParallelAndStillDeterministic) {
     // 60000 boxes: the top of the tree builds its halves on different threads.
     std::mt19937 rng(9);

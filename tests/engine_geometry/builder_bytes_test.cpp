@@ -5,6 +5,8 @@
 #include "nv_scene.h"
 
 #include <clastrace/engine/blas.h>
+#include <clastrace/engine/cluster_build.h>
+#include <clastrace/testsupport/clusters.h>
 
 #include <gtest/gtest.h>
 
@@ -17,6 +19,8 @@
 
 namespace clastrace::engine {
 namespace {
+
+namespace ts = clastrace::testsupport;
 
 uint64_t fnv1a(const std::byte* p, size_t n, uint64_t h = 0xcbf29ce484222325ull) {
     for (size_t i = 0; i < n; ++i) h = (h ^ uint64_t(p[i])) * 0x100000001b3ull;
@@ -97,8 +101,9 @@ TEST(BuilderBytes, ClusterBottomLevelIsUnchanged) {
 // The NV bottom level over AABBs (the boxes as given) and a top level with one instance per
 // box, for both build qualities: the binned SAH tree and the fast-build Morton tree. The SAH
 // hashes were retaken for issue 22's faster SAH builder (exact sweep under 17 items, Embree's
-// bin counts above): replay compares cluster outputs byte for byte, never NV or KHR objects,
-// so only these pins moved; the Morton ones did not.
+// bin counts above), and again when SAH bottom levels stopped splitting ranges that fit one
+// leaf and took bins and float costs all the way down (the top levels did not move): replay compares cluster outputs byte for byte, never NV
+// or KHR objects, so only these pins moved; the Morton ones did not.
 TEST(BuilderBytes, NvObjectsAreUnchanged) {
     std::vector<uint64_t> hashes;
     for (VkBuildAccelerationStructureFlagsNV flags :
@@ -131,12 +136,130 @@ TEST(BuilderBytes, NvObjectsAreUnchanged) {
     }
     // Per box set: SAH bottom level, SAH top level; then the same with PREFER_FAST_BUILD.
     const std::vector<uint64_t> expected = {
-        0x8f3fb294ce9889cdull, 0xc11f296328bdc6b5ull, 0xb23e97b582d50fecull, 0x7a31fdc4180526f7ull,
-        0x2f5ddda22d915e1full, 0x0869f6a6a888734cull, 0xb5f3d47942bc4194ull, 0x2366bd1808147471ull,
-        0x914c7c9d89982593ull, 0x30787de7fa2ff6f3ull, 0x5a0a40cacb1f5fc1ull, 0x8cd531307dc60bf8ull,
+        0x82c025878887613full, 0xc11f296328bdc6b5ull, 0x760006f8453e6ed4ull, 0x7a31fdc4180526f7ull,
+        0xa9a06375fb2f9d1cull, 0x0869f6a6a888734cull, 0xb5f3d47942bc4194ull, 0x2366bd1808147471ull,
+        0x9c90dadeff6b53b4ull, 0x30787de7fa2ff6f3ull, 0xb3a52330e64078f7ull, 0x8cd531307dc60bf8ull,
         0x2be801b37ea3a4ceull, 0x66db919b141c0cadull, 0xe93bf70a3e797064ull, 0x1ab892b26f52541full,
         0x971fd42a7cc1ca78ull, 0xeed00887dcbe5984ull, 0x3a50a889b61a817cull, 0x2390390b6db21099ull,
         0x87e04cc022020571ull, 0xe09ad3ba4eb314cbull, 0x1c9d12ac16c23d4full, 0x1e3078beb39228c0ull};
+    EXPECT_EQ(hashes, expected);
+}
+
+// Triangle bottom levels through the whole NV build (gather, boxes, tree, record write), both
+// builders, on the bench's meshes and on triangles the gather treats apart (NaN vertices,
+// 16-bit indices, a transform). Taken before issue 22's build-speed work, which must not move
+// a byte; the SAH ones retaken when bottom levels stopped splitting ranges that fit one leaf
+// and took bins and float costs all the way down (issue 22 round 4).
+TEST(BuilderBytes, NvTriangleObjectsAreUnchanged) {
+    const float nan = std::numeric_limits<float>::quiet_NaN();
+    ts::TriangleMesh holes = ts::make_icosphere(3, 2.0f);
+    for (size_t i = 0; i < holes.positions.size(); i += 7) holes.positions[i][i % 3] = nan;
+    std::vector<nvtest::BlasSpec> blases;
+    for (const ts::TriangleMesh& m :
+         {ts::make_icosphere(4, 1.0f), ts::make_terrain(60, 60, 1),
+          ts::make_random_soup(5000, 5, 1.0f, 0.05f), ts::make_torus(60, 30, 1.0f, 0.3f), holes}) {
+        nvtest::BlasSpec spec;
+        spec.geometries.push_back({m, {}, VK_GEOMETRY_OPAQUE_BIT_NV});
+        blases.push_back(spec);
+    }
+    std::vector<uint64_t> hashes;
+    for (VkBuildAccelerationStructureFlagsNV flags :
+         {VkBuildAccelerationStructureFlagsNV(0),
+          VkBuildAccelerationStructureFlagsNV(
+              VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV)}) {
+        for (size_t k = 0; k <= blases.size(); ++k) {
+            nvtest::NvWorld w;
+            // The last case: the NaN mesh again, through 16-bit indices and a transform.
+            const bool narrow = k == blases.size();
+            NvObjectInfo info = w.blas_info(blases[narrow ? k - 1 : k], flags);
+            if (narrow) {
+                std::vector<uint16_t> indices;
+                for (const auto& t : holes.triangles)
+                    for (uint32_t v : t) indices.push_back(uint16_t(v));
+                const float transform[12] = {0, 2, 0, 1, -1, 0, 0, 2, 0, 0, 0.5f, 3};
+                NvTriangles& t = info.geometries[0].triangles;
+                t.index_address = w.put(indices.data(), indices.size() * 2, "indices16");
+                t.index_type = VK_INDEX_TYPE_UINT16;
+                t.transform_address = w.put(transform, sizeof transform, "transform");
+            }
+            NvObjectBinding dst = w.make_object(info, "blas");
+            const ExecutionRecord r = w.build(info, dst);
+            ASSERT_TRUE(r.ops[0].executed);
+            auto bytes = w.memory.read_bytes(dst.address, dst.size, {"test", -1});
+            hashes.push_back(fnv1a(bytes.data(), bytes.size()));
+        }
+    }
+    // Per mesh (icosphere, terrain, soup, torus, NaN holes, NaN holes narrow): SAH, then the
+    // same with PREFER_FAST_BUILD (Morton).
+    const std::vector<uint64_t> expected = {0xaa3d44af0513dafdull, 0x04262d072675e76full,
+                                            0xfc12e204b1dbd511ull, 0xf39617396253bd2aull,
+                                            0xebfcaba37773cd41ull, 0x40cc3435e7145cc2ull,
+                                            0x76e0042ecabae0ceull, 0x4d84bfc8ed62bcbaull,
+                                            0xaf9c3cef6f56be9eull, 0x24a31880513378dfull,
+                                            0x5446bc66cb60efb9ull, 0x9c876e9c8a469486ull};
+    EXPECT_EQ(hashes, expected);
+}
+
+
+// CLAS objects (the per-cluster BVH and encoding) over meshoptimizer clusters of the bench's
+// meshes and over clusters the build treats apart: 256 triangles, odd counts, NaN vertices,
+// coincident and flat triangles, truncated positions. Replay compares cluster outputs byte for
+// byte, so issue 22's cluster build-speed work must not move a byte: taken before it.
+TEST(BuilderBytes, ClusterObjectsAreUnchanged) {
+    const float nan = std::numeric_limits<float>::quiet_NaN();
+    ClusterBuilder builder(EngineProperties::nvidia_default());
+    std::vector<std::byte> object;
+    std::vector<Finding> findings;
+    auto add = [&](uint64_t& h, std::span<const float> positions, std::span<const uint32_t> indices,
+                   uint32_t truncate_bits) {
+        ASSERT_TRUE(builder.build_from_arrays(7, positions, indices, truncate_bits, 0, {}, object,
+                                              findings));
+        h = fnv1a(object.data(), object.size(), h);
+    };
+    std::vector<uint64_t> hashes;
+    for (const ts::TriangleMesh& m :
+         {ts::make_icosphere(4, 10.0f), ts::make_terrain(40, 40, 2),
+          ts::make_random_soup(3000, 3, 100.0f, 2.0f), ts::make_torus(50, 20, 1.0f, 0.3f)}) {
+        uint64_t h = 0xcbf29ce484222325ull;
+        for (const ts::MeshCluster& c : ts::build_clusters(m, 64, 124)) {
+            std::vector<float> positions;
+            for (uint32_t v : c.vertices)
+                positions.insert(positions.end(), m.positions[v].begin(), m.positions[v].end());
+            std::vector<uint32_t> indices;
+            for (const auto& t : c.triangles) indices.insert(indices.end(), t.begin(), t.end());
+            for (uint32_t bits : {0u, 12u}) add(h, positions, indices, bits);
+        }
+        hashes.push_back(h);
+    }
+    // Hand-made clusters: every triangle count 1..256 over a 16 x 16 grid of vertices (odd
+    // counts, the largest cluster), then NaN vertices, coincident and flat triangles.
+    SplitMix rng{22};
+    std::vector<float> grid;
+    for (int y = 0; y < 16; ++y)
+        for (int x = 0; x < 16; ++x) grid.insert(grid.end(), {float(x), rng.unit(), float(y)});
+    std::vector<uint32_t> grid_indices;
+    for (uint32_t t = 0; t < 256; ++t) {
+        const uint32_t v = (t * 37) % 240;
+        grid_indices.insert(grid_indices.end(), {v, v + 1, v + 16});
+    }
+    uint64_t h = 0xcbf29ce484222325ull;
+    for (uint32_t n = 1; n <= 256; ++n) add(h, grid, std::span(grid_indices).first(3 * n), 0);
+    hashes.push_back(h);
+    std::vector<float> odd = grid;
+    for (size_t i = 0; i < odd.size(); i += 29) odd[i] = nan;
+    for (size_t i = 5; i < 60; i += 3) odd[i] = odd[2];  // coincident coordinates
+    std::vector<uint32_t> flat = grid_indices;
+    for (size_t t = 0; t < flat.size() / 3; t += 5) flat[3 * t + 2] = flat[3 * t];
+    h = 0xcbf29ce484222325ull;
+    for (uint32_t n : {3u, 17u, 100u, 255u, 256u}) {
+        add(h, odd, std::span(grid_indices).first(3 * n), 0);
+        add(h, grid, std::span(flat).first(3 * n), 20);
+    }
+    hashes.push_back(h);
+    // Per mesh (icosphere, terrain, soup, torus), then the grid clusters, then the odd ones.
+    const std::vector<uint64_t> expected = {0x1a44b4c6ed607a60ull, 0x1223e3d4e803e94dull,
+                                            0x33c5d2c461cc48c1ull, 0x942f210a74a31ef0ull,
+                                            0xe18cdcb00904623cull, 0xbcf3e08d64f87513ull};
     EXPECT_EQ(hashes, expected);
 }
 

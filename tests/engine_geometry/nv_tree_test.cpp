@@ -12,8 +12,12 @@
 #include <clastrace/testsupport/rays.h>
 
 #include <gtest/gtest.h>
+#include <tbb/global_control.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <string>
 #include <vector>
@@ -79,6 +83,26 @@ std::vector<Box> triangle_boxes(const ts::TriangleMesh& m) {
     return boxes;
 }
 
+// triangle_box (SSE) keeps Box::grow_point's rule: a NaN coordinate is ignored, infinities
+// count, and nothing past the 9 floats is read.
+TEST(NvTriangleBox, EqualsGrowingByEachVertex) {
+    const float nan = std::numeric_limits<float>::quiet_NaN(),
+                inf = std::numeric_limits<float>::infinity();
+    const float values[] = {0.0f, -1.5f, 2.0f, nan, inf, -inf, 1e30f, -3e-30f};
+    for (int c = 0; c < 4096; ++c) {
+        float v[10];
+        for (int k = 0; k < 9; ++k) v[k] = values[(c * 7 + k * k * 3 + k * c / 5) % 8];
+        v[9] = -123.0f;  // must not reach the box
+        Box want = Box::empty();
+        for (int k = 0; k < 3; ++k) want.grow_point(v + 3 * k);
+        const Box got = nv::triangle_box(v);
+        for (int a = 0; a < 3; ++a) {
+            EXPECT_EQ(std::memcmp(&got.lo[a], &want.lo[a], 4), 0) << "case " << c << " axis " << a;
+            EXPECT_EQ(std::memcmp(&got.hi[a], &want.hi[a], 4), 0) << "case " << c << " axis " << a;
+        }
+    }
+}
+
 TEST(NvSahTree, ValidOnTheBenchMeshes) {
     for (const ts::TriangleMesh& m :
          {ts::make_icosphere(5, 1.0f), ts::make_terrain(120, 120, 1),
@@ -118,6 +142,69 @@ TEST(NvSahTree, ValidWhereTheBinsCollapse) {
     }
     for (const auto& [name, boxes] : cases)
         EXPECT_EQ(tree_fault(nv::build_tree(boxes), boxes), "") << name;
+}
+
+// Items under each node (children come after their parent: one pass from the back).
+std::vector<uint32_t> subtree_items(const nv::Tree& t) {
+    std::vector<uint32_t> items(t.nodes.size(), 0);
+    for (size_t k = t.nodes.size(); k-- > 0;) {
+        const NvNode& n = t.nodes[k];
+        items[k] = n.count != 0 ? n.count : items[k + 1] + items[n.first];
+    }
+    return items;
+}
+
+// Bottom levels (TreeLevel::kBottom, the default) never split a range that fits a leaf: the
+// traversal merges such subtrees into one leaf anyway. Top levels (kTop) still let the SAH
+// split them, which on these meshes it does.
+TEST(NvSahTree, BottomLevelsEndAtFullLeaves) {
+    for (const ts::TriangleMesh& m :
+         {ts::make_icosphere(4, 1.0f), ts::make_random_soup(20000, 7, 1.0f, 0.05f)}) {
+        const std::vector<Box> boxes = triangle_boxes(m);
+        const nv::Tree full = nv::build_tree(boxes);
+        ASSERT_EQ(tree_fault(full, boxes), "") << m.name;
+        const std::vector<uint32_t> full_items = subtree_items(full);
+        size_t small_inner = 0;
+        for (size_t k = 0; k < full.nodes.size(); ++k)
+            small_inner += full.nodes[k].count == 0 && full_items[k] <= kNvMaxLeafSize;
+        EXPECT_EQ(small_inner, 0u) << m.name;
+        const nv::Tree sah = nv::build_tree(boxes, nv::TreeQuality::kSah, nv::TreeLevel::kTop);
+        ASSERT_EQ(tree_fault(sah, boxes), "") << m.name;
+        const std::vector<uint32_t> sah_items = subtree_items(sah);
+        small_inner = 0;
+        for (size_t k = 0; k < sah.nodes.size(); ++k)
+            small_inner += sah.nodes[k].count == 0 && sah_items[k] <= kNvMaxLeafSize;
+        EXPECT_GT(small_inner, 0u) << m.name;
+    }
+}
+
+// Builds running at once on several threads (each thread keeps its working arrays between
+// builds; a thread waiting inside one build may run another's task) give the trees a lone
+// build gives.
+TEST(NvSahTree, ConcurrentBuildsEqualLoneBuilds) {
+    std::vector<std::vector<Box>> sets;
+    for (int k = 0; k < 12; ++k)
+        sets.push_back(triangle_boxes(ts::make_random_soup(18000 + 1500 * k, 40 + k, 1.0f, 0.05f)));
+    for (nv::TreeQuality quality : {nv::TreeQuality::kSah, nv::TreeQuality::kMorton}) {
+        std::vector<nv::Tree> alone;
+        {
+            tbb::global_control one(tbb::global_control::max_allowed_parallelism, 1);
+            for (const auto& boxes : sets) alone.push_back(nv::build_tree(boxes, quality));
+        }
+        std::vector<nv::Tree> together(sets.size());
+        tbb::task_arena(4).execute([&] {
+            tbb::parallel_for(size_t(0), sets.size(),
+                              [&](size_t k) { together[k] = nv::build_tree(sets[k], quality); });
+        });
+        for (size_t k = 0; k < sets.size(); ++k) {
+            EXPECT_EQ(together[k].order, alone[k].order) << "set " << k;
+            ASSERT_EQ(together[k].nodes.size(), alone[k].nodes.size()) << "set " << k;
+            EXPECT_EQ(std::memcmp(together[k].nodes.data(), alone[k].nodes.data(),
+                                  alone[k].nodes.size() * sizeof(NvNode)),
+                      0)
+                << "set " << k;
+        }
+    }
 }
 
 // Closest t through the SAH object and the Morton object of the same mesh, on random rays:

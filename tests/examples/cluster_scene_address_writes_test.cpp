@@ -76,7 +76,9 @@ public:
                                   " --compute-infos --max-clusters 6 --json " + extra,
                               env);
         EXPECT_EQ(r.exitCode, 0) << r.err;
-        if (!staged) EXPECT_EQ(r.err, "");
+        if (!staged) {
+            EXPECT_EQ(r.err, "");
+        }
         *traced = read_dispatches(trace);
         clastrace::traces::TraceError error;
         auto reader = clastrace::traces::TraceReader::open(trace.string(), &error);

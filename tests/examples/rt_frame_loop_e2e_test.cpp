@@ -5,6 +5,7 @@
 // replay is clean (exit 0) and the image the engine traces through the replayed top level of the
 // last frame equals the pixels the driver traced.
 #include "frame_scene.h"
+#include "rt_frame_engine_image.h"
 #include "rt_frame_loop_launch.h"
 
 #include <clastrace/engine/nv_trace.h>
@@ -63,6 +64,9 @@ protected:
         EXPECT_EQ(report.value("findings", json::array()).size(), 0u) << replay.out;
         return report;
     }
+    void expect_engine_traces_the_drivers_image(const std::string& args);
+    // Captures the program with `args` and replays it: exit 0, clean, no hazard.
+    void expect_clean_replay(const std::string& args);
 };
 
 json hazards_of(const json& report) {
@@ -70,9 +74,21 @@ json hazards_of(const json& report) {
     return report["hazards"].value("hazards", json::array());
 }
 
-// --skip-vertex-barrier's hazard (README table): the frame's BLAS build reads the vertex buffer
-// its copy wrote, with no barrier between them. Returns the frame.
-uint64_t expect_vertex_hazard(const json& h) {
+void RtFrameLoopE2e::expect_clean_replay(const std::string& args) {
+    int exit_code = -1;
+    const json report = capture_and_replay(args, &exit_code);
+    EXPECT_EQ(exit_code, 0) << report.dump(1);
+    EXPECT_TRUE(report.value("clean", false));
+    EXPECT_EQ(hazards_of(report).size(), 0u) << report.dump(1);
+}
+
+constexpr const char* kKhrBuild = "vkCmdBuildAccelerationStructuresKHR";
+constexpr const char* kClusterBuild = "vkCmdBuildClusterAccelerationStructureIndirectNV";
+
+// --skip-vertex-barrier's hazard (README table): the frame's BLAS build (`reader`: with
+// --cluster-blas the CLAS build) reads the vertex buffer its copy wrote, with no barrier between
+// them. Returns the frame.
+uint64_t expect_vertex_hazard(const json& h, const std::string& reader = kKhrBuild) {
     EXPECT_EQ(h["class"].get<std::string>(), "READ-AFTER-WRITE");
     EXPECT_EQ(h["message"].get<std::string>().rfind("SYNC-HAZARD-READ-AFTER-WRITE: ", 0), 0u);
     EXPECT_FALSE(h["possible"].get<bool>());
@@ -80,7 +96,7 @@ uint64_t expect_vertex_hazard(const json& h) {
     EXPECT_EQ(prior["command"].get<std::string>(), "vkCmdCopyBuffer");
     EXPECT_TRUE(prior["write"].get<bool>());
     EXPECT_TRUE(has(prior["access"], "TRANSFER_WRITE")) << prior["access"];
-    EXPECT_EQ(later["command"].get<std::string>(), "vkCmdBuildAccelerationStructuresKHR");
+    EXPECT_EQ(later["command"].get<std::string>(), reader);
     EXPECT_TRUE(has(later["stage"], "ACCELERATION_STRUCTURE_BUILD")) << later["stage"];
     EXPECT_TRUE(has(later["access"], "SHADER_READ")) << later["access"];
     // One command buffer, one frame.
@@ -99,8 +115,10 @@ uint64_t expect_vertex_hazard(const json& h) {
 }
 
 // --single-buffered-pool's hazard: frame N's rays (or its TLAS build) read the pool's BLASes that
-// frame N+1's BLAS build overwrites, nothing ordering the read first. Returns frame N+1.
-uint64_t expect_pool_hazard(const json& h, std::set<std::string>& readers) {
+// frame N+1's BLAS build (`builder`: KHR, or the cluster BLAS build with --cluster-blas)
+// overwrites, nothing ordering the read first. Returns frame N+1.
+uint64_t expect_pool_hazard(const json& h, std::set<std::string>& readers,
+                            const std::string& builder = kKhrBuild) {
     EXPECT_EQ(h["class"].get<std::string>(), "WRITE-AFTER-READ");
     EXPECT_EQ(h["message"].get<std::string>().rfind("SYNC-HAZARD-WRITE-AFTER-READ: ", 0), 0u);
     EXPECT_FALSE(h["possible"].get<bool>());
@@ -110,7 +128,7 @@ uint64_t expect_pool_hazard(const json& h, std::set<std::string>& readers) {
     EXPECT_TRUE(reader == "vkCmdDispatch" || reader == "vkCmdBuildAccelerationStructuresKHR")
         << reader;
     EXPECT_TRUE(has(prior["access"], "ACCELERATION_STRUCTURE_READ")) << prior["access"];
-    EXPECT_EQ(later["command"].get<std::string>(), "vkCmdBuildAccelerationStructuresKHR");
+    EXPECT_EQ(later["command"].get<std::string>(), builder);
     EXPECT_TRUE(has(later["stage"], "ACCELERATION_STRUCTURE_BUILD")) << later["stage"];
     EXPECT_TRUE(has(later["access"], "ACCELERATION_STRUCTURE_WRITE")) << later["access"];
     EXPECT_NE(prior["submission"], later["submission"]);
@@ -132,13 +150,7 @@ uint64_t expect_pool_hazard(const json& h, std::set<std::string>& readers) {
     return later.value("frame", uint64_t(~0ull));
 }
 
-TEST_F(RtFrameLoopE2e, WithoutFlagsTheReplayIsClean) {
-    int exit_code = -1;
-    const json report = capture_and_replay("", &exit_code);
-    EXPECT_EQ(exit_code, 0) << report.dump(1);
-    EXPECT_TRUE(report.value("clean", false));
-    EXPECT_EQ(hazards_of(report).size(), 0u) << report.dump(1);
-}
+TEST_F(RtFrameLoopE2e, WithoutFlagsTheReplayIsClean) { expect_clean_replay(""); }
 
 TEST_F(RtFrameLoopE2e, SkipVertexBarrierIsOneReadAfterWritePerFrame) {
     int exit_code = -1;
@@ -184,51 +196,11 @@ TEST_F(RtFrameLoopE2e, BothFlagsAreTheUnionOfTheRows) {
     EXPECT_EQ(pool_frames, (std::multiset<uint64_t>{1, 1, 2, 2, 3, 3}));
 }
 
-// Traces every ray-query dispatch's camera rays through the engine's replayed top level (the
-// structure bound at set 0, binding 0), as shaders/trace_pixels.comp shades them; keeps the last.
-class EngineImage : public clastrace::replay::ReplayObserver {
-public:
-    void on_command(const clastrace::replay::ReplayedCommand& c) override {
-        const auto* dispatch = c.record->body_as_CmdDispatch();
-        if (!dispatch || !dispatch->ray_query() || !dispatch->acceleration_structures()) return;
-        ++dispatches;
-        uint64_t top_level = 0;
-        for (const auto* b : *dispatch->acceleration_structures())
-            if (b->set() == 0 && b->binding() == 0 && b->source() == 0)
-                top_level = c.engine_structure_address(b->acceleration_structure());
-        std::string error;
-        std::vector<clastrace::engine::Finding> findings;
-        auto scene = clastrace::engine::NvScene::open(*c.memory, top_level, &findings, &error);
-        if (!scene) {
-            errors.push_back(error);
-            return;
-        }
-        instances_reached = scene->instances_reached();
-        pixels.assign(size_t(kWidth) * kHeight, 0);
-        for (uint32_t y = 0; y < kHeight; ++y)
-            for (uint32_t x = 0; x < kWidth; ++x)
-                pixels[size_t(y) * kWidth + x] = shade(*scene, x, y);
-    }
-
-    static uint32_t shade(const clastrace::engine::NvScene& scene, uint32_t x, uint32_t y) {
-        rt_frame_loop::Vec3 o, d;
-        rt_frame_loop::pixel_ray(x, y, kWidth, kHeight, o, d);
-        const clastrace::engine::Ray ray{{o.x, o.y, o.z}, 0.0f, {d.x, d.y, d.z}, 100.0f};
-        const clastrace::engine::NvHit hit =
-            scene.closest(ray, clastrace::engine::kRayFlagOpaque, 0xff);
-        return hit.hit ? rt_frame_loop::hit_colour(hit.instance_custom_index, hit.primitive_index)
-                       : rt_frame_loop::kBackground;
-    }
-
-    size_t dispatches = 0;
-    uint32_t instances_reached = 0;
-    std::vector<std::string> errors;
-    std::vector<uint32_t> pixels;
-};
-
-TEST_F(RtFrameLoopE2e, EngineTracesTheDriversImageFromTheReplayedStructures) {
+// Captures the program with `args` and its last image, and traces that frame on the engine from
+// the replayed trace: the same pixels as the driver's, but for rounding at triangle edges.
+void RtFrameLoopE2e::expect_engine_traces_the_drivers_image(const std::string& args) {
     const fs::path image = dir / "last.ppm";
-    ProcessResult r = capture("", "--image " + quote(image.string()));
+    ProcessResult r = capture("", args + " --image " + quote(image.string()));
     ASSERT_EQ(r.exitCode, 0) << r.out << r.err;
     std::vector<uint32_t> driver;
     uint32_t width = 0, height = 0;
@@ -236,13 +208,7 @@ TEST_F(RtFrameLoopE2e, EngineTracesTheDriversImageFromTheReplayedStructures) {
     ASSERT_TRUE(rt_frame_loop::read_ppm(image.string(), driver, width, height, error)) << error;
     ASSERT_EQ(width * height, kWidth * kHeight);
 
-    clastrace::traces::TraceError open_error;
-    auto reader = clastrace::traces::TraceReader::open((dir / "frames.clt").string(), &open_error);
-    ASSERT_TRUE(reader) << open_error.message;
-    EngineImage engine;
-    clastrace::replay::ReplayOptions options;
-    options.observer = &engine;
-    clastrace::replay::replay_trace(*reader, "frames.clt", options);
+    const auto engine = rt_frame_loop::replay_engine_image(dir / "frames.clt", kWidth, kHeight);
     EXPECT_EQ(engine.dispatches, kFrames);
     EXPECT_TRUE(engine.errors.empty()) << engine.errors.front();
     EXPECT_EQ(engine.instances_reached, rt_frame_loop::kMeshCount);
@@ -267,6 +233,68 @@ TEST_F(RtFrameLoopE2e, EngineTracesTheDriversImageFromTheReplayedStructures) {
     EXPECT_GT(hits, 100u);       // the scene is in the picture
     EXPECT_GT(not_before, 50u);  // the last frame's structures, not the frame before's
     RecordProperty("edge_pixels_different", std::to_string(edges));
+}
+
+TEST_F(RtFrameLoopE2e, EngineTracesTheDriversImageFromTheReplayedStructures) {
+    expect_engine_traces_the_drivers_image("");
+}
+
+// --cluster-blas (README "Cluster BLASes"): the layer serves the extension and, on lavapipe 25,
+// builds the driver's BLAS at each cluster BLAS's address, so the program's own TLAS and rays
+// traverse them.
+TEST_F(RtFrameLoopE2e, ClusterBlasWithoutFlagsTheReplayIsClean) {
+    expect_clean_replay("--cluster-blas");
+}
+
+TEST_F(RtFrameLoopE2e, ClusterBlasSkipVertexBarrierIsOneReadAfterWritePerFrame) {
+    int exit_code = -1;
+    const json report = capture_and_replay("--cluster-blas --skip-vertex-barrier", &exit_code);
+    EXPECT_EQ(exit_code, 1);
+    const json hazards = hazards_of(report);
+    ASSERT_EQ(hazards.size(), kFrames) << report.dump(1);
+    std::multiset<uint64_t> frames;
+    for (const json& h : hazards) frames.insert(expect_vertex_hazard(h, kClusterBuild));
+    EXPECT_EQ(frames, (std::multiset<uint64_t>{0, 1, 2, 3}));
+}
+
+TEST_F(RtFrameLoopE2e, ClusterBlasEngineTracesTheDriversImage) {
+    expect_engine_traces_the_drivers_image("--cluster-blas");
+}
+
+// --cluster-blas --implicit: the cluster BLASes at implicit destinations (the common path of the
+// extension), their addresses copied into the instances on the GPU. Under the layer's default
+// mode each object gets room for the driver's BLAS (implicit_object_room, recorded), so the
+// driver's rays traverse them and replay still compares the outputs byte for byte.
+TEST_F(RtFrameLoopE2e, ClusterBlasImplicitReplayIsClean) {
+    expect_clean_replay("--cluster-blas --implicit");
+}
+
+TEST_F(RtFrameLoopE2e, ClusterBlasImplicitEngineTracesTheDriversImage) {
+    expect_engine_traces_the_drivers_image("--cluster-blas --implicit");
+}
+
+// The cluster BLAS pool with one slot: per frame pair one report, frame N's rays against frame
+// N+1's cluster BLAS build over both explicit destinations' rooms. Frame N's TLAS build reads
+// the BLASes too, but frame N+1's CLAS build -> BLAS build barrier (build stage to build stage)
+// orders it before the rebuild (README; tests/replay_consumers/cluster_reach_test.cpp has the
+// unordered case).
+TEST_F(RtFrameLoopE2e, ClusterBlasSingleBufferedPoolIsWriteAfterReadFromFrameOne) {
+    int exit_code = -1;
+    const json report = capture_and_replay("--cluster-blas --single-buffered-pool", &exit_code);
+    EXPECT_EQ(exit_code, 1);
+    const json hazards = hazards_of(report);
+    ASSERT_EQ(hazards.size(), kFrames - 1) << report.dump(1);
+    std::multiset<uint64_t> frames;
+    std::set<std::string> readers;
+    for (const json& h : hazards) {
+        frames.insert(expect_pool_hazard(h, readers, kClusterBuild));
+        EXPECT_NE(h["prior"]["field"].get<std::string>().find("cluster bottom level"),
+                  std::string::npos)
+            << h["prior"]["field"];
+        EXPECT_EQ(h["later"]["field"].get<std::string>(), "*dstAddressesArray[*]");
+    }
+    EXPECT_EQ(frames, (std::multiset<uint64_t>{1, 2, 3}));
+    EXPECT_EQ(readers, (std::set<std::string>{"vkCmdDispatch"}));
 }
 
 }  // namespace

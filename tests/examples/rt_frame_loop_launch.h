@@ -14,21 +14,14 @@
 
 namespace rt_frame_loop_test {
 
-class RtFrameLoopLaunch : public clastrace::layer_launch::LayerLaunchTest {
+class RtFrameLoopLaunch : public clastrace::layer_launch::RayTracingLaunchTest {
 protected:
     RtFrameLoopLaunch(std::string directory_prefix, uint32_t frames, uint32_t width,
                       uint32_t height)
-        : LayerLaunchTest(std::move(directory_prefix)),
+        : RayTracingLaunchTest(std::move(directory_prefix)),
           frames_(frames),
           width_(width),
           height_(height) {}
-
-    void SetUp() override {
-        LayerLaunchTest::SetUp();
-        if (IsSkipped()) return;
-        driver_ = clastrace::testsupport::ray_tracing_driver();
-        if (!driver_) GTEST_SKIP() << clastrace::testsupport::kNoRayTracingDriver;
-    }
 
     std::string app(const std::string& args) const {
         return std::string(RT_FRAME_LOOP_APP) + " --frames " + std::to_string(frames_) +
@@ -37,20 +30,15 @@ protected:
     }
     // The program on lavapipe 25 without the layer.
     clastrace::layer_launch::ProcessResult run_alone(const std::string& args) {
-        return run("env" + driver_->environment_words() + " " + app(args), {}, false);
+        return runOnDriver(app(args));
     }
     // The program under `clastrace capture` writing dir/frames.clt.
     clastrace::layer_launch::ProcessResult capture(const std::string& options,
                                                    const std::string& args) {
-        return run("env" + driver_->environment_words() + " " + CLASTRACE_CLI + " capture -o " +
-                       clastrace::layer_launch::quote((dir / "frames.clt").string()) +
-                       " --layer-path " + CLASTRACE_LAYER_MANIFEST_DIR + " " + options + " -- " +
-                       app(args),
-                   {}, false);
+        return captureOnDriver(dir / "frames.clt", app(args), options);
     }
 
     uint32_t frames_, width_, height_;
-    std::optional<clastrace::testsupport::TestDriver> driver_;
 };
 
 }  // namespace rt_frame_loop_test

@@ -8,6 +8,7 @@
 // Made in code, not checked in, so they follow the format as it changes.
 //   fuzz_seed_classes OUT_DIR [SAMPLE.clt...]
 #include "../traces/trace_test_support.h"
+#include "chunk_streams.h"
 #include "file_format.h"
 
 #include <clastrace/traces/records.h>
@@ -73,6 +74,14 @@ Bytes compress(const Bytes& raw) {
 
 Bytes decompress(const uint8_t* data, size_t size, size_t raw_size) {
     Bytes out(raw_size);
+    if (f::is_streams_payload(data, size)) {  // records and contents apart (chunk_streams.h)
+        ZSTD_DCtx* dctx = ZSTD_createDCtx();
+        const f::StreamsProblem p =
+            f::decode_streams_payload(dctx, data, size, out.data(), raw_size);
+        ZSTD_freeDCtx(dctx);
+        if (p) fail("a chunk of the written trace does not decode: " + p.what);
+        return out;
+    }
     size_t n = ZSTD_decompress(out.data(), out.size(), data, size);
     if (ZSTD_isError(n) || n != raw_size) fail("a chunk of the written trace does not decompress");
     return out;

@@ -101,4 +101,23 @@ ProcessResult LayerLaunchTest::run(const std::string& command,
     return r;
 }
 
+void RayTracingLaunchTest::SetUp() {
+    LayerLaunchTest::SetUp();
+    if (IsSkipped()) return;
+    driver = testsupport::ray_tracing_driver();
+    if (!driver) GTEST_SKIP() << testsupport::kNoRayTracingDriver;
+}
+
+ProcessResult RayTracingLaunchTest::runOnDriver(const std::string& command) {
+    return run("env" + driver->environment_words() + " " + command, {}, false);
+}
+
+ProcessResult RayTracingLaunchTest::captureOnDriver(const fs::path& trace,
+                                                    const std::string& command,
+                                                    const std::string& options) {
+    return runOnDriver(std::string(CLASTRACE_CLI_PATH) + " capture " + options + " -o " +
+                       quote(trace.string()) + " --layer-path " + CLASTRACE_LAYER_MANIFEST_DIR +
+                       " -- " + command);
+}
+
 }  // namespace clastrace::layer_launch

@@ -6,12 +6,14 @@
 // its own that is kept when the test fails.
 #pragma once
 
+#include <clastrace/testsupport/test_driver.h>
 #include <gtest/gtest.h>
 
 #include <cstddef>
 #include <cstdint>
 #include <filesystem>
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -61,6 +63,23 @@ protected:
 
 private:
     std::string directoryPrefix_;
+};
+
+// A LayerLaunchTest on the ray-tracing driver (lavapipe 25: clastrace/testsupport/test_driver.h);
+// skips when it is not unpacked.
+class RayTracingLaunchTest : public LayerLaunchTest {
+protected:
+    using LayerLaunchTest::LayerLaunchTest;
+    void SetUp() override;
+
+    // `command` (a program and its arguments, as shell words) on the driver, without the layer.
+    ProcessResult runOnDriver(const std::string& command);
+    // `clastrace capture OPTIONS -o TRACE --layer-path <the build tree's manifest> -- COMMAND` on
+    // the driver.
+    ProcessResult captureOnDriver(const std::filesystem::path& trace, const std::string& command,
+                                  const std::string& options = "");
+
+    std::optional<testsupport::TestDriver> driver;
 };
 
 }  // namespace clastrace::layer_launch

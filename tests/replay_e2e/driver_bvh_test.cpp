@@ -16,7 +16,9 @@ namespace {
 constexpr uint64_t kBvhSize = 0x800;  // the driver's BVH, larger than the engine's object here
 
 replay::ReplayReport replay_blas_then_driver_bytes(bool marked) {
-    return replay_catalogue_scene("driver_bvh.clt", [&](TraceScript& t) {
+    // Each test writes its own file: ctest runs the two at once.
+    const std::string path = temp_trace_path("driver_bvh", marked ? "marked.clt" : "unmarked.clt");
+    return replay_catalogue_scene(path, [&](TraceScript& t) {
         triangle_clusters(Destinations::kExplicit).emit(t);
         t.full_barrier();
         ClusterCommand blas = bottom_level();  // the BLAS lands at kDst2

@@ -80,11 +80,11 @@ void TraceScript::query_build_sizes(const VkClusterAccelerationStructureInputInf
 }
 
 void TraceScript::acceleration_structure(uint64_t handle, uint64_t buffer, uint64_t offset,
-                                         uint64_t size) {
+                                         uint64_t size, VkAccelerationStructureTypeKHR type) {
     fbs::AccelerationStructureCreateT c;
     c.acceleration_structure = handle;
     c.api = 1;
-    c.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR;
+    c.type = type;
     c.buffer = buffer;
     c.offset = offset;
     c.size = size;

@@ -64,7 +64,9 @@ public:
     void query_build_sizes(const VkClusterAccelerationStructureInputInfoNV& input,
                            uint64_t acceleration_structure_size, uint64_t build_scratch_size);
     // vkCreateAccelerationStructureKHR over [offset, offset + size) of `buffer`.
-    void acceleration_structure(uint64_t handle, uint64_t buffer, uint64_t offset, uint64_t size);
+    void acceleration_structure(
+        uint64_t handle, uint64_t buffer, uint64_t offset, uint64_t size,
+        VkAccelerationStructureTypeKHR type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR);
     // Host write to mapped memory observed between submissions.
     void host_write(uint64_t address, const std::vector<uint8_t>& bytes);
 

@@ -90,6 +90,32 @@ TEST(ClastraceCli, InfoJsonHasTheDocumentedFields) {
     EXPECT_TRUE(j["damage"]["items"].empty());
 }
 
+// --vs-zstd (issue 23): the file against plain zstd of its referenced bytes, in text and JSON;
+// a trace written with deltas counts them. Without the option the comparison is null.
+TEST(ClastraceCli, InfoComparesTheFileWithPlainZstdOnRequest) {
+    const std::string path = temp_path("cli_vs_zstd.clt");
+    write_frames_trace(path, 12, 8192);
+    ProgramRun text = run("info --vs-zstd " + path);
+    EXPECT_EQ(text.exit_code, 0) << text.output;
+    EXPECT_NE(text.output.find("x plain zstd -3 of the referenced bytes ("), std::string::npos)
+        << text.output;
+    EXPECT_NE(text.output.find("stored XOR an earlier content of their range"), std::string::npos)
+        << text.output;
+    ProgramRun json = run("info --json --vs-zstd " + path, false);
+    ASSERT_EQ(json.exit_code, 0) << json.output;
+    nlohmann::json j = nlohmann::json::parse(json.stdout_only);
+    const uint64_t zstd_bytes = j["size_vs_zstd"]["zstd_bytes"].get<uint64_t>();
+    EXPECT_GT(zstd_bytes, 0u);
+    EXPECT_EQ(j["size_vs_zstd"]["file_bytes"], j["file_size"]);
+    EXPECT_EQ(j["size_vs_zstd"]["zstd_level"], 3);
+    EXPECT_DOUBLE_EQ(j["size_vs_zstd"]["ratio"].get<double>(),
+                     double(j["file_size"].get<uint64_t>()) / double(zstd_bytes));
+    EXPECT_GT(j["memory"]["contents_delta"].get<uint64_t>(), 0u);
+    ProgramRun plain = run("info --json " + path, false);
+    ASSERT_EQ(plain.exit_code, 0) << plain.output;
+    EXPECT_TRUE(nlohmann::json::parse(plain.stdout_only)["size_vs_zstd"].is_null());
+}
+
 TEST(ClastraceCli, DamagedTraceExitsWithOneAndNamesTheOffset) {
     std::vector<uint8_t> file = read_file(kSample);
     ASSERT_GT(file.size(), 1000u);

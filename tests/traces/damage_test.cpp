@@ -3,6 +3,10 @@
 // everything intact around the damage still reads.
 #include "trace_test_support.h"
 
+#include <clastrace/common/hex.h>
+#include <clastrace/traces/records.h>
+
+#include "byte_planes.h"
 #include "file_format.h"
 
 #include <gtest/gtest.h>
@@ -10,6 +14,8 @@
 #include <zstd.h>
 
 #include <algorithm>
+#include <cmath>
+#include <random>
 
 namespace clastrace::traces::testing {
 namespace {
@@ -114,7 +120,11 @@ protected:
     explicit DamagedTrace(int frames = 30) : frames_(frames) {}
     void SetUp() override {
         path_ = temp_path("good.clt");
-        written_ = write_frames_trace(path_, frames_, 6000);
+        // Whole contents: each chunk's damage stays in it. (Deltas carry a damaged chunk's
+        // loss on to the deltas built on it: DeltasWhoseBaseWasInADamagedChunk... below.)
+        TraceWriterOptions whole;
+        whole.delta_contents = false;
+        written_ = write_frames_trace(path_, frames_, 6000, whole);
         file_ = read_file(path_);
         chunks_ = chunks_of(file_);
         ASSERT_GE(chunks_.size(), 6u);  // several record chunks + the index chunk
@@ -497,6 +507,333 @@ TEST_F(DamagedTrace, ReorderedChunksAreReported) {
     ReadResult r = read_all_memory(file);
     ASSERT_TRUE(r.opened);
     EXPECT_TRUE(has_damage(r, TraceErrorCode::kBadChunk)) << describe(r.damage);
+}
+
+// ---------------------------------------------------------------------------
+// Delta contents (MemoryContentsDelta, format 1.7) whose base cannot serve: each is reported with its
+// chunk's offset and the base it names, never handed out, and never crashes the reader.
+
+// Whole contents of `bytes`, keyed as the writer keys them.
+fbs::RecordT whole_contents(const std::vector<uint8_t>& bytes) {
+    fbs::MemoryContentsT c;
+    c.bytes = bytes;
+    c.hash = f::content_key(bytes.data(), bytes.size(), 0, 64);
+    fbs::RecordT r;
+    r.body.Set(std::move(c));
+    return r;
+}
+
+// `real` stored XOR `base` (naming base_hash), keyed by the real bytes; with byte_planes 4 the
+// XOR is laid out in planes as the writer lays it (any other value is stored as given).
+fbs::RecordT delta_contents(const std::vector<uint8_t>& real, const std::vector<uint8_t>& base,
+                            uint64_t base_hash, uint8_t byte_planes = 0) {
+    fbs::MemoryContentsDeltaT c;
+    c.hash = f::content_key(real.data(), real.size(), 0, 64);
+    c.byte_planes = byte_planes;
+    c.base_hash = base_hash;
+    std::vector<uint8_t> x = real;
+    for (size_t i = 0; i < x.size() && i < base.size(); ++i) x[i] ^= base[i];
+    c.bytes = x;
+    if (byte_planes == 4) f::xor_to_byte_planes(real.data(), base.data(), x.size(), c.bytes.data());
+    fbs::RecordT r;
+    r.body.Set(std::move(c));
+    return r;
+}
+
+uint64_t key_of(const std::vector<uint8_t>& bytes) {
+    return f::content_key(bytes.data(), bytes.size(), 0, 64);
+}
+
+// One chunk of `records` after a valid header; returns the file and the chunk's offset.
+std::vector<uint8_t> file_of(const std::vector<fbs::RecordT>& records, uint64_t* chunk_at) {
+    std::vector<uint8_t> raw;
+    for (const fbs::RecordT& r : records) frame(raw, r);
+    std::vector<uint8_t> file = header_only_prefix();
+    *chunk_at = file.size();
+    std::vector<uint8_t> chunk = make_chunk(raw, 0, static_cast<uint32_t>(records.size()));
+    file.insert(file.end(), chunk.begin(), chunk.end());
+    return file;
+}
+
+fbs::RecordT command_buffer_end() {
+    fbs::RecordT r;
+    r.body.Set(fbs::CommandBufferEndT{});
+    return r;
+}
+
+// Laid out as is and in byte planes (67 bytes: a tail of 3 outside the planes), a chain of two.
+TEST(TraceDamage, DeltaWithItsBaseDecodesToTheRealBytes) {
+    for (uint8_t planes : {0, 4}) {
+        SCOPED_TRACE(int(planes));
+        std::vector<uint8_t> base(67), real(67), next(67);
+        for (size_t i = 0; i < base.size(); ++i) {
+            base[i] = uint8_t(i * 7);
+            real[i] = uint8_t(i * 7 + (i % 5 == 0));
+            next[i] = uint8_t(real[i] ^ (i > 60 ? 0x80 : 0));
+        }
+        uint64_t chunk_at = 0;
+        ReadResult read = read_all_memory(
+            file_of({whole_contents(base), delta_contents(real, base, key_of(base), planes),
+                     delta_contents(next, real, key_of(real), planes)},
+                    &chunk_at));
+        // (the crafted file has no trailer: that is its only damage)
+        ASSERT_EQ(read.damage_count, 1u) << describe(read.damage);
+        ASSERT_TRUE(has_damage(read, TraceErrorCode::kTruncated));
+        ASSERT_EQ(read.records.size(), 3u);
+        const auto* decoded = read.records[1].body.AsMemoryContentsDelta();
+        ASSERT_TRUE(decoded);
+        EXPECT_EQ(decoded->bytes, real);  // handed out decoded: consumers see the real bytes
+        EXPECT_EQ(decoded->base_hash, key_of(base));
+        ASSERT_TRUE(read.records[2].body.AsMemoryContentsDelta());
+        EXPECT_EQ(read.records[2].body.AsMemoryContentsDelta()->bytes, next);
+    }
+}
+
+TEST(TraceDamage, DeltaNamingAnUndefinedBaseIsMissingContents) {
+    const std::vector<uint8_t> real(32, 3), base(32, 1);
+    fbs::CmdCopyBufferT copy;
+    copy.inputs.emplace_back(1, 0, 0x1000, 32, key_of(real));
+    fbs::RecordT uses;
+    uses.body.Set(std::move(copy));
+    uint64_t chunk_at = 0;
+    ReadResult read = read_all_memory(
+        file_of({delta_contents(real, base, 0xdeadbeef00000001ull), uses, command_buffer_end()},
+                &chunk_at));
+    ASSERT_TRUE(read.opened);
+    EXPECT_TRUE(has_damage(read, TraceErrorCode::kMissingContents, chunk_at))
+        << describe(read.damage);
+    EXPECT_NE(describe(read.damage)
+                  .find("chunk 0 record 1 (raw offset 0): delta contents " +
+                        common::hex(key_of(real), 16) +
+                        " name the base 0xdeadbeef00000001, which no earlier record defines"),
+              std::string::npos)
+        << describe(read.damage);
+    // Neither the delta nor the copy reading it is handed out; the record after them is.
+    ASSERT_EQ(read.records.size(), 1u) << describe(read.damage);
+    EXPECT_EQ(read.records[0].body.type, fbs::RecordBody::CommandBufferEnd);
+}
+
+// A cycle (each delta the other's base) and a delta that is its own base: no base precedes its
+// delta, so neither decodes, and the walk through bases ends.
+TEST(TraceDamage, DeltasInACycleOrTheirOwnBaseAreMissingContents) {
+    const std::vector<uint8_t> a(40, 0x11), b(40, 0x22);
+    uint64_t chunk_at = 0;
+    ReadResult read =
+        read_all_memory(file_of({delta_contents(a, b, key_of(b)), delta_contents(b, a, key_of(a)),
+                                 delta_contents(a, a, key_of(a)), command_buffer_end()},
+                                &chunk_at));
+    ASSERT_TRUE(read.opened);
+    EXPECT_EQ(std::count_if(read.damage.begin(), read.damage.end(),
+                            [&](const TraceError& e) {
+                                return e.code == TraceErrorCode::kMissingContents &&
+                                       e.file_offset == chunk_at;
+                            }),
+              3)
+        << describe(read.damage);
+    ASSERT_EQ(read.records.size(), 1u);
+    EXPECT_EQ(read.records[0].body.type, fbs::RecordBody::CommandBufferEnd);
+}
+
+TEST(TraceDamage, DeltaOfAnotherSizeOrAnUnknownLayoutIsAContentMismatch) {
+    const std::vector<uint8_t> base(16, 5), real(24, 6), same_size(16, 8);
+    uint64_t chunk_at = 0;
+    ReadResult read =
+        read_all_memory(file_of({whole_contents(base), delta_contents(real, base, key_of(base)),
+                                 delta_contents(same_size, base, key_of(base), 7)},
+                                &chunk_at));
+    ASSERT_TRUE(read.opened);
+    EXPECT_TRUE(has_damage(read, TraceErrorCode::kContentMismatch, chunk_at));
+    EXPECT_NE(describe(read.damage).find("hold 24 bytes but their base"), std::string::npos)
+        << describe(read.damage);
+    EXPECT_NE(describe(read.damage)
+                  .find("lay their XOR out in 7 byte planes, which this reader does not know"),
+              std::string::npos)
+        << describe(read.damage);
+    EXPECT_EQ(read.records.size(), 1u);  // the base alone
+}
+
+// A delta XORed against the wrong base of the right size decodes to bytes that do not hash to
+// its key: the key check (on in read_all) catches it.
+TEST(TraceDamage, DeltaAgainstTheWrongBaseFailsItsKey) {
+    const std::vector<uint8_t> base(16, 5), other(16, 4), real(16, 6);
+    uint64_t chunk_at = 0;
+    ReadResult read = read_all_memory(file_of({whole_contents(base), whole_contents(other),
+                                               delta_contents(real, other, key_of(base))},
+                                              &chunk_at));
+    EXPECT_TRUE(has_damage(read, TraceErrorCode::kContentMismatch, chunk_at))
+        << describe(read.damage);
+    EXPECT_EQ(read.records.size(), 2u);
+}
+
+// A damaged chunk takes its contents with it, and so the deltas built on them in later chunks:
+// those are missing_contents naming their own chunk, while the rest of the file still reads.
+TEST(TraceDamage, DeltasWhoseBaseWasInADamagedChunkAreMissingContents) {
+    const std::string path = temp_path("delta_damaged_base.clt");
+    write_frames_trace(path, 30, 6000);
+    std::vector<uint8_t> file = read_file(path);
+    std::vector<ChunkSpan> chunks = chunks_of(file);
+    ASSERT_GE(chunks.size(), 4u);
+    file[chunks[0].offset + f::kChunkHeaderSize + 3] ^= 0x40;  // chunk 0's payload
+    ReadResult read = read_all_memory(file);
+    ASSERT_TRUE(read.opened);
+    EXPECT_TRUE(has_damage(read, TraceErrorCode::kChecksumMismatch)) << describe(read.damage);
+    bool later_delta_lost = false;
+    for (const TraceError& e : read.damage)
+        later_delta_lost |= e.code == TraceErrorCode::kMissingContents &&
+                            e.file_offset > chunks[0].offset &&
+                            e.message.find("delta contents") != std::string::npos;
+    EXPECT_TRUE(later_delta_lost) << describe(read.damage);
+    EXPECT_GT(read.records.size(), 0u);
+}
+
+// Records framed into one records chunk each (numbered in order), after a valid header.
+std::vector<uint8_t> file_of_chunks(const std::vector<std::vector<fbs::RecordT>>& chunks) {
+    std::vector<uint8_t> file = header_only_prefix();
+    uint32_t number = 0;
+    for (const std::vector<fbs::RecordT>& records : chunks) {
+        std::vector<uint8_t> raw;
+        for (const fbs::RecordT& r : records) frame(raw, r);
+        const std::vector<uint8_t> chunk =
+            make_chunk(raw, number++, static_cast<uint32_t>(records.size()));
+        file.insert(file.end(), chunk.begin(), chunk.end());
+    }
+    return file;
+}
+
+// A frame loop of three 96 KiB ranges whose floats move a little every frame, two frames per
+// chunk (576 KiB: chunks that big are read ahead), the first frame whole, the rest deltas (in
+// byte planes and not, alternately), with one rule broken somewhere, as `seed` picks: a wrong
+// base, key, layout or size, a lost record, or a second record of a key with other bytes.
+std::vector<std::vector<fbs::RecordT>> delta_frames_broken(uint32_t seed) {
+    std::mt19937 rng(seed);
+    constexpr int kFrames = 8;
+    std::vector<std::vector<uint8_t>> last(3);
+    std::vector<std::vector<fbs::RecordT>> chunks(kFrames / 2);
+    std::vector<std::vector<uint8_t>> all;  // every content, in order
+    for (int frame = 0; frame < kFrames; ++frame) {
+        for (size_t range = 0; range < last.size(); ++range) {
+            std::vector<float> floats(24 * 1024);
+            for (size_t i = 0; i < floats.size(); ++i)
+                floats[i] = std::sin(0.001f * float(i + 7000 * range)) +
+                            (i % 97 == size_t(frame) ? 0.25f * float(frame) : 0.0f);
+            std::vector<uint8_t> bytes(floats.size() * 4);
+            std::memcpy(bytes.data(), floats.data(), bytes.size());
+            chunks[frame / 2].push_back(frame == 0 ? whole_contents(bytes)
+                                                   : delta_contents(bytes, last[range],
+                                                                    key_of(last[range]),
+                                                                    uint8_t(frame % 2 ? 4 : 0)));
+            all.push_back(bytes);
+            last[range] = std::move(bytes);
+        }
+    }
+    if (seed == 0) return chunks;  // unbroken
+    std::vector<fbs::RecordT>& in = chunks[1 + rng() % (chunks.size() - 1)];
+    const size_t at = rng() % in.size();
+    fbs::MemoryContentsDeltaT* delta = in[at].body.AsMemoryContentsDelta();
+    switch (rng() % 6) {
+    case 0: delta->base_hash = key_of(all[rng() % all.size()]); break;
+    case 1: delta->hash ^= 1; break;
+    case 2: delta->byte_planes = delta->byte_planes == 4 ? 0 : (rng() % 2 ? 4 : 7); break;
+    case 3: delta->bytes.resize(delta->bytes.size() - 4); break;
+    case 4: in.erase(in.begin() + long(at)); break;
+    case 5: {  // a whole record of an earlier key holding other bytes
+        std::vector<uint8_t> other = all[rng() % all.size()];
+        fbs::RecordT dup = whole_contents(other);
+        dup.body.AsMemoryContents()->hash = key_of(all[rng() % all.size()]);
+        in.insert(in.begin() + long(at), std::move(dup));
+        break;
+    }
+    }
+    return chunks;
+}
+
+// The contents records' keys and bytes, and the damage, of reading `file` with `options`.
+std::string delta_read_summary(const std::vector<uint8_t>& file, TraceReaderOptions options,
+                               uint64_t* decoded_ahead) {
+    const ReadResult read = read_all_memory(file, options);
+    *decoded_ahead += read.stats.deltas_decoded_ahead;
+    std::string out = describe(read.damage);
+    for (const fbs::RecordT& r : read.records) {
+        const auto* whole = r.body.AsMemoryContents();
+        const auto* delta = r.body.AsMemoryContentsDelta();
+        if (!whole && !delta) continue;
+        const std::vector<uint8_t>& bytes = whole ? whole->bytes : delta->bytes;
+        out += "\n" + common::hex(whole ? whole->hash : delta->hash, 16) + " " +
+               common::hex(key_of(bytes), 16) + " " + std::to_string(bytes.size());
+    }
+    return out;
+}
+
+// Deltas decoded on the read-ahead task are taken only when the caller's thread would decode
+// them against the same base: over files that break the delta rules in many ways, with content
+// keys checked and not, the records, their bytes and the damage are those of decoding every
+// delta on the caller's thread, and both ways were taken.
+TEST(TraceDamage, DeltasDecodedAheadReadAsDecodingThemOnTheCallersThread) {
+    uint64_t decoded_ahead = 0;
+    for (uint32_t seed = 0; seed < 40; ++seed) {
+        SCOPED_TRACE(seed);
+        const std::vector<uint8_t> file = file_of_chunks(delta_frames_broken(seed));
+        for (bool verify : {true, false}) {
+            TraceReaderOptions ahead{.verify_content_keys = verify};
+            TraceReaderOptions here = ahead;
+            here.decode_deltas_ahead = false;
+            uint64_t none = 0;
+            EXPECT_EQ(delta_read_summary(file, ahead, &decoded_ahead),
+                      delta_read_summary(file, here, &none));
+            EXPECT_EQ(none, 0u);
+        }
+        if (seed == 0) {
+            EXPECT_EQ(decoded_ahead, 2u * 21u);  // every delta, both times
+        }
+    }
+    // The broken files left some deltas to the caller's thread, and most still decoded ahead.
+    EXPECT_LT(decoded_ahead, 40u * 2u * 21u);
+    EXPECT_GT(decoded_ahead, 40u * 21u);
+}
+
+// What a reader older than 1.7 does with a delta: to it MemoryContentsDelta is a kind it does not
+// know (here one past every kind this build knows, crafted the same way). It hands the record
+// out as that unknown kind, defines no contents with it, and reports the snapshot naming the
+// delta's key as missing contents at that record: never XORed bytes taken for real ones.
+TEST(TraceDamage, AReaderThatDoesNotKnowTheKindReportsItsContentsMissing) {
+    const std::vector<uint8_t> real(48, 0x21);
+    const uint64_t key = f::content_key(real.data(), real.size(), 0, 64);
+    const auto unknown = static_cast<fbs::RecordBody>(kRecordKindCount);
+    flatbuffers::FlatBufferBuilder b;
+    const auto body =
+        fbs::CreateMemoryContentsDelta(b, key, 0, 0x1234, b.CreateVector(real), 0).Union();
+    fbs::RecordBuilder rb(b);
+    rb.add_body_type(unknown);
+    rb.add_body(body);
+    b.Finish(rb.Finish());
+    std::vector<uint8_t> raw;
+    frame(raw, b.GetBufferPointer(), b.GetSize(), static_cast<uint32_t>(unknown));
+    fbs::CmdCopyBufferT copy;
+    copy.inputs.emplace_back(1, 0, 0x1000, real.size(), key);
+    fbs::RecordT uses;
+    uses.body.Set(std::move(copy));
+    frame(raw, uses);
+    std::vector<uint8_t> file = header_only_prefix();
+    const uint64_t chunk_at = file.size();
+    std::vector<uint8_t> chunk = make_chunk(raw, 0, 2);
+    file.insert(file.end(), chunk.begin(), chunk.end());
+
+    TraceError e;
+    auto reader = TraceReader::open_memory(file.data(), file.size(), "old_reader.clt", &e);
+    ASSERT_TRUE(reader) << e.message;
+    RecordView v;
+    ASSERT_TRUE(reader->next(&v));
+    EXPECT_EQ(v.kind, unknown);
+    EXPECT_FALSE(contents_record(*v.record));  // no contents a consumer could take
+    EXPECT_FALSE(reader->next(&v));            // the copy naming the key is not handed out
+    bool missing = false;
+    for (const TraceError& d : reader->damage())
+        missing |=
+            d.code == TraceErrorCode::kMissingContents && d.file_offset == chunk_at &&
+            d.message.find("refers to contents " + common::hex(key, 16)) != std::string::npos;
+    EXPECT_TRUE(missing) << describe(reader->damage());
+    std::vector<uint8_t> got;
+    EXPECT_TRUE(reader->read_contents(key, &got));
 }
 
 TEST(TraceDamage, UnreadableFileIsAnError) {

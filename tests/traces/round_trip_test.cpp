@@ -15,10 +15,14 @@
 namespace clastrace::traces::testing {
 namespace {
 
+bool contents_record_kind(fbs::RecordBody kind) {
+    return kind == fbs::RecordBody::MemoryContents || kind == fbs::RecordBody::MemoryContentsDelta;
+}
+
 std::vector<fbs::RecordT> without_contents(const std::vector<fbs::RecordT>& records) {
     std::vector<fbs::RecordT> out;
     for (const fbs::RecordT& r : records)
-        if (r.body.type != fbs::RecordBody::MemoryContents) out.push_back(r);
+        if (!contents_record_kind(r.body.type)) out.push_back(r);
     return out;
 }
 
@@ -34,10 +38,12 @@ TEST(TraceRoundTrip, EveryRecordKindComesBackEqual) {
         ASSERT_FALSE(w->append(r)) << record_kind_name(r.body.type);
     ASSERT_FALSE(w->finish());
 
-    // The list covers every kind the schema has (MemoryContents comes from add_contents).
+    // The list covers every kind the schema has (MemoryContents comes from add_contents,
+    // MemoryContentsDelta from snapshot(): DeltaContents.* covers it).
     std::set<fbs::RecordBody> kinds;
     for (const fbs::RecordT& r : written) kinds.insert(r.body.type);
     kinds.insert(fbs::RecordBody::MemoryContents);
+    kinds.insert(fbs::RecordBody::MemoryContentsDelta);
     EXPECT_EQ(kinds.size(), kRecordKindCount - 1)
         << "a record kind was added without a round-trip case";
 
@@ -110,8 +116,7 @@ TEST(TraceRoundTrip, IdenticalSnapshotsAreStoredOnce) {
     ASSERT_TRUE(read.opened);
     EXPECT_EQ(read.damage_count, 0u) << describe(read.damage);
     int contents = 0;
-    for (const fbs::RecordT& rec : read.records)
-        contents += rec.body.type == fbs::RecordBody::MemoryContents;
+    for (const fbs::RecordT& rec : read.records) contents += contents_record_kind(rec.body.type);
     EXPECT_EQ(contents, 2);
 
     auto reader = TraceReader::open(path, &e);
@@ -193,7 +198,7 @@ TEST(TraceRoundTrip, ManyChunksAndSeekToEverySubmission) {
             EXPECT_EQ(v.kind, fbs::RecordBody::CommandBufferBegin);
             do {
                 ASSERT_TRUE(reader->next(&v));
-            } while (v.kind == fbs::RecordBody::MemoryContents);
+            } while (contents_record_kind(v.kind));
             ASSERT_EQ(v.kind, fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect);
             std::vector<uint8_t> bytes;
             const auto* in =
@@ -219,6 +224,38 @@ TEST(TraceRoundTrip, SeekWorksWithoutIndexByScanning) {
     RecordView v;
     ASSERT_TRUE(reader->next(&v));
     EXPECT_EQ(v.record->body_as_QueueSubmit()->submission_index(), 7u);
+}
+
+// The reader's chunk buffers grow to the largest chunk, not to twice the one before it:
+// vector::resize doubles, and four such buffers were replay's peak memory. Chunks of one
+// incompressible content each, every one 10 kB larger than the last, all read ahead.
+TEST(TraceReaderMemory, ChunkBuffersGrowToTheLargestChunkNotTwiceIt) {
+    const std::string path = temp_path("growing_chunks.clt");
+    TraceWriterOptions options;
+    options.chunk_raw_bytes = 64u << 10;  // each content seals a chunk of its own
+    TraceError e;
+    auto w = TraceWriter::create(path, test_header(), options, &e);
+    ASSERT_TRUE(w) << e.message;
+    std::mt19937 rng(3);
+    constexpr size_t kLargest = 300'000 + 10'000 * 7;
+    for (size_t size = 300'000; size <= kLargest; size += 10'000) {
+        std::vector<uint8_t> bytes(size);
+        for (uint8_t& b : bytes) b = static_cast<uint8_t>(rng());
+        uint64_t key = 0;
+        ASSERT_FALSE(w->add_contents(bytes.data(), bytes.size(), &key));
+    }
+    ASSERT_FALSE(w->finish());
+    auto reader = TraceReader::open(path, &e);
+    ASSERT_TRUE(reader) << e.message;
+    RecordView v;
+    while (reader->next(&v)) {}
+    ASSERT_EQ(reader->damage_count(), 0u);
+    EXPECT_EQ(reader->stats().chunks_read, 8u);
+    // Decompressed and compressed bytes of the chunk read and of the one read ahead: each at
+    // most the largest chunk (its frame and zstd's block headers add a few hundred bytes).
+    const uint64_t largest_chunk = kLargest + 1024;
+    EXPECT_LE(reader->stats().chunk_buffer_bytes, 4 * largest_chunk);
+    EXPECT_GE(reader->stats().chunk_buffer_bytes, 2 * kLargest);
 }
 
 TEST(TraceWriterRules, RejectsMisuse) {

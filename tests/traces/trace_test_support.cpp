@@ -691,6 +691,26 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
     return out;
 }
 
+std::vector<uint64_t> append_build_snapshotting(
+    TraceWriter& writer, const std::vector<SnapshotPiece>& pieces,
+    std::map<uint64_t, std::vector<uint8_t>>& bytes_by_key) {
+    std::vector<uint64_t> keys;
+    fbs::CmdBuildClusterAccelerationStructureIndirectT build;
+    build.command_buffer = 0xcb;
+    for (const SnapshotPiece& p : pieces) {
+        fbs::MemorySnapshot s;
+        EXPECT_FALSE(writer.snapshot(p.buffer, 0, 0x1000 * p.buffer, p.bytes, p.size, &s));
+        const auto* b = static_cast<const uint8_t*>(p.bytes);
+        bytes_by_key[s.hash()].assign(b, b + p.size);
+        keys.push_back(s.hash());
+        build.inputs.push_back(s);
+    }
+    fbs::RecordT r;
+    r.body.Set(std::move(build));
+    EXPECT_FALSE(writer.append(r));
+    return keys;
+}
+
 std::string temp_path(const std::string& name) {
     auto dir = std::filesystem::temp_directory_path() / "clastrace-trace-tests";
     std::filesystem::create_directories(dir);
@@ -728,19 +748,25 @@ static ReadResult drain(std::unique_ptr<TraceReader> reader, TraceError error) {
     }
     r.damage = reader->damage();
     r.damage_count = reader->damage_count();
+    r.stats = reader->stats();
     return r;
 }
 
-ReadResult read_all(const std::string& path) {
+ReadResult read_all(const std::string& path) { return read_all(path, kVerifyEverything); }
+
+ReadResult read_all(const std::string& path, const TraceReaderOptions& options) {
     TraceError e;
-    auto reader = TraceReader::open(path, &e, kVerifyEverything);
+    auto reader = TraceReader::open(path, &e, options);
     return drain(std::move(reader), e);
 }
 
 ReadResult read_all_memory(const std::vector<uint8_t>& bytes) {
+    return read_all_memory(bytes, kVerifyEverything);
+}
+
+ReadResult read_all_memory(const std::vector<uint8_t>& bytes, const TraceReaderOptions& options) {
     TraceError e;
-    auto reader =
-        TraceReader::open_memory(bytes.data(), bytes.size(), "memory.clt", &e, kVerifyEverything);
+    auto reader = TraceReader::open_memory(bytes.data(), bytes.size(), "memory.clt", &e, options);
     return drain(std::move(reader), e);
 }
 

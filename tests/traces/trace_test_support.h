@@ -7,6 +7,7 @@
 #include <clastrace/traces/trace_writer.h>
 
 #include <cstdint>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -17,6 +18,19 @@ fbs::TraceHeaderT test_header();
 // One record of every kind except MemoryContents (which the writer makes), with
 // non-default values in their fields. Snapshots refer to contents added to `writer`.
 std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& writer);
+
+// One range a frame snapshots: `size` bytes at `bytes`, of buffer `buffer` at address
+// 0x1000 * buffer.
+struct SnapshotPiece {
+    uint64_t buffer;
+    const void* bytes;
+    size_t size;
+};
+// Appends a cluster build whose inputs snapshot `pieces`, in order, and records each snapshot's
+// bytes by its key in `bytes_by_key`; returns the keys in order.
+std::vector<uint64_t> append_build_snapshotting(
+    TraceWriter& writer, const std::vector<SnapshotPiece>& pieces,
+    std::map<uint64_t, std::vector<uint8_t>>& bytes_by_key);
 
 // A fresh path under the test temp dir (removed by the caller or left for inspection).
 std::string temp_path(const std::string& name);
@@ -32,9 +46,13 @@ struct ReadResult {
     std::vector<TraceError> damage;
     uint64_t damage_count = 0;
     bool has_index = false;
+    TraceReadStats stats;  // at the end
 };
+// With content keys verified, unless `options` say otherwise.
 ReadResult read_all(const std::string& path);
+ReadResult read_all(const std::string& path, const TraceReaderOptions& options);
 ReadResult read_all_memory(const std::vector<uint8_t>& bytes);
+ReadResult read_all_memory(const std::vector<uint8_t>& bytes, const TraceReaderOptions& options);
 
 // Writes a trace of `submissions` frames with realistic contents (some repeated) and
 // chunks of `chunk_bytes`. Returns the records appended (MemoryContents excluded).

@@ -44,6 +44,15 @@ SnapshotLists record_snapshots(const fbs::Record& record) {
     }
 }
 
+std::optional<ContentsRecord> contents_record(const fbs::Record& record) {
+    if (const auto* c = record.body_as_MemoryContents())
+        return ContentsRecord{c->hash(), c->seed(), c->bytes()};
+    if (const auto* d = record.body_as_MemoryContentsDelta())
+        return ContentsRecord{d->hash(), d->seed(),      d->bytes(),
+                              true,      d->base_hash(), d->byte_planes()};
+    return std::nullopt;
+}
+
 const char* record_kind_name(fbs::RecordBody kind) {
     if (static_cast<unsigned>(kind) >= kRecordKindCount) return "unknown";
     return fbs::EnumNameRecordBody(kind);

@@ -6,6 +6,8 @@
 
 #include <clastrace/traces/records.h>
 
+#include "byte_planes.h"
+#include "chunk_streams.h"
 #include "byte_source.h"
 #include "file_format.h"
 
@@ -13,8 +15,18 @@
 #include <atomic>
 #include <cinttypes>
 #include <cstdio>
-#include <future>
+#include <cstring>
+#include <deque>
+#include <condition_variable>
+#include <exception>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <thread>
+#include <type_traits>
 #include <unordered_map>
+#include <utility>
 
 #include <zstd.h>
 
@@ -63,21 +75,255 @@ enum class RecordStatus {
     kStopChunk,
 };
 
+// Bytes that are written before they are read (decompressed chunks, compressed payloads):
+// growing them leaves the new bytes undefined instead of zeroing them, a pass over every
+// chunk's bytes that decompression then overwrites.
+template <class T>
+struct UninitializedAllocator : std::allocator<T> {
+    template <class U>
+    struct rebind {
+        using other = UninitializedAllocator<U>;
+    };
+    UninitializedAllocator() = default;
+    template <class U>
+    UninitializedAllocator(const UninitializedAllocator<U>&) noexcept {}
+    template <class U>
+    void construct(U* p) noexcept(std::is_nothrow_default_constructible_v<U>) {
+        ::new (static_cast<void*>(p)) U;
+    }
+    template <class U, class... Args>
+    void construct(U* p, Args&&... args) {
+        ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+    }
+};
+using ChunkBytes = std::vector<uint8_t, UninitializedAllocator<uint8_t>>;
+
 // Frees a buffer whose capacity a big chunk left behind, so it does not linger.
-void release_if_big(std::vector<uint8_t>& buffer, size_t needed = 0) {
+void release_if_big(ChunkBytes& buffer, size_t needed = 0) {
     if (buffer.capacity() > kBigBufferBytes && buffer.capacity() > 2 * needed)
-        std::vector<uint8_t>().swap(buffer);
+        ChunkBytes().swap(buffer);
+}
+
+// Sizes a buffer to n bytes, grown to exactly n: vector::resize grows to twice the old size, so
+// a chunk of 3.1 MB after one of 3 MB held 6 MB (replay's peak memory was four such buffers).
+void resize_exact(ChunkBytes& buffer, size_t n) {
+    if (n > buffer.capacity()) {
+        buffer.clear();  // nothing to move to the new buffer
+        buffer.reserve(n);
+    }
+    buffer.resize(n);
+}
+
+// The contents record in the frame at raw offset `at` of `raw`, verified; nullopt when the frame
+// overruns the bytes or holds anything else.
+std::optional<ContentsRecord> contents_in_frame(const ChunkBytes& raw, uint32_t at) {
+    if (at > raw.size() || raw.size() - at < format::kRecordFrameSize) return std::nullopt;
+    const uint32_t rsize = format::load<uint32_t>(raw.data() + at);
+    if (rsize > raw.size() - at - format::kRecordFrameSize) return std::nullopt;
+    const uint8_t* bytes = raw.data() + at + format::kRecordFrameSize;
+    flatbuffers::Verifier verifier(bytes, rsize, 64, 10'000'000);
+    if (!fbs::VerifyRecordBuffer(verifier)) return std::nullopt;
+    return contents_record(*fbs::GetRecord(bytes));
 }
 
 // What one thread needs to read a chunk: the reader uses one set on its own thread
 // and one on the read-ahead task, so decompressing chunk n+1 overlaps the checks of chunk n.
 struct ChunkDecoder {
-    std::vector<uint8_t> compressed;
+    ChunkBytes compressed;
     ZSTD_DCtx* dctx = ZSTD_createDCtx();
     ChunkDecoder() = default;
     ChunkDecoder(const ChunkDecoder&) = delete;
     ChunkDecoder& operator=(const ChunkDecoder&) = delete;
     ~ChunkDecoder() { ZSTD_freeDCtx(dctx); }
+};
+
+
+// The real bytes of one content. Filled once, then only read: the reader's base cache, the
+// read-ahead task's and the chunk the task decoded share them across the two threads.
+struct RealBytes {
+    std::unique_ptr<uint8_t[]> data;
+    size_t size = 0;
+    size_t capacity = 0;
+};
+using SharedBytes = std::shared_ptr<const RealBytes>;
+
+// Buffers of RealBytes that no cache holds any more, handed out again: a content of a frame
+// loop costs no fresh pages (first touches of new pages cost about as much as a copy).
+class BytesPool : public std::enable_shared_from_this<BytesPool> {
+public:
+    // A buffer of n bytes whose contents are undefined; it comes back here once dropped.
+    std::shared_ptr<RealBytes> take(size_t n) {
+        std::unique_ptr<RealBytes> b;
+        {
+            std::lock_guard lock(mutex_);
+            auto best = free_.end();  // the smallest that fits
+            for (auto it = free_.begin(); it != free_.end(); ++it)
+                if ((*it)->capacity >= n &&
+                    (best == free_.end() || (*it)->capacity < (*best)->capacity))
+                    best = it;
+            if (best != free_.end()) {
+                b = std::move(*best);
+                free_.erase(best);
+                free_bytes_ -= b->capacity;
+            }
+        }
+        if (!b) {
+            b = std::make_unique<RealBytes>();
+            b->data.reset(new uint8_t[std::max<size_t>(n, 1)]);
+            b->capacity = n;
+            allocated_bytes_ += n;
+        }
+        b->size = n;
+        return std::shared_ptr<RealBytes>(b.release(), [pool = shared_from_this()](RealBytes* r) {
+            pool->give(r);
+        });
+    }
+
+    // TraceReadStats::real_bytes_allocated.
+    uint64_t allocated_bytes() const { return allocated_bytes_.load(); }
+
+private:
+    static constexpr size_t kMaxFree = 8;
+    static constexpr size_t kMaxFreeBytes = size_t{32} << 20;
+    void give(RealBytes* r) {
+        std::unique_ptr<RealBytes> b(r);
+        std::lock_guard lock(mutex_);
+        if (free_.size() < kMaxFree && free_bytes_ + b->capacity <= kMaxFreeBytes) {
+            free_bytes_ += b->capacity;
+            free_.push_back(std::move(b));
+        }
+    }
+    std::mutex mutex_;
+    std::vector<std::unique_ptr<RealBytes>> free_;
+    size_t free_bytes_ = 0;
+    std::atomic<uint64_t> allocated_bytes_{0};
+};
+
+// The real bytes of the contents a scan passed last, up to a byte budget (the oldest go
+// first), so that a delta's base costs a lookup rather than a walk back through its chain.
+// A hash keeps the bytes it was first given: the reader compares them by identity with those
+// the read-ahead task decoded against.
+//
+// A base that a delta has used is usually done with: the writer's next delta of that range
+// names the new contents. Such bases move to a small second budget and go first, so that their
+// buffers come back to the pool within a few frames instead of after 64 MiB of fresh pages
+// (a page's first touch costs about what a copy of it does). A base used twice (two ranges
+// that held the same bytes) is still found while it is among the used ones kept, and else
+// read again through its chain.
+struct RealBytesCache {
+    static constexpr uint64_t kBudgetBytes = uint64_t{64} << 20;
+    static constexpr uint64_t kUsedBudgetBytes = uint64_t{16} << 20;
+    struct Entry {
+        SharedBytes bytes;
+        uint64_t sequence;  // when it was kept or last moved, to tell stale queue places
+        bool used;
+    };
+    struct Place {
+        uint64_t hash, sequence;
+    };
+    std::unordered_map<uint64_t, Entry> by_hash;
+    std::deque<Place> oldest_first, oldest_used_first;  // places of entries gone are skipped
+    uint64_t bytes_held = 0, used_bytes_held = 0;
+    uint64_t next_sequence = 0;
+
+    SharedBytes find(uint64_t hash) const {
+        auto it = by_hash.find(hash);
+        return it == by_hash.end() ? nullptr : it->second.bytes;
+    }
+    void keep(uint64_t hash, SharedBytes bytes) {
+        const size_t n = bytes->size;
+        if (n > kBudgetBytes / 4 || by_hash.count(hash)) return;
+        while (bytes_held + n > kBudgetBytes && evict_oldest()) {}
+        by_hash.emplace(hash, Entry{std::move(bytes), next_sequence, false});
+        oldest_first.push_back({hash, next_sequence++});
+        bytes_held += n;
+    }
+    // A delta was decoded against `hash`: it goes among the used bases.
+    void note_used(uint64_t hash) {
+        auto it = by_hash.find(hash);
+        if (it == by_hash.end() || it->second.used) return;
+        it->second.used = true;
+        it->second.sequence = next_sequence;
+        oldest_used_first.push_back({hash, next_sequence++});
+        used_bytes_held += it->second.bytes->size;
+        while (used_bytes_held > kUsedBudgetBytes && evict_from(oldest_used_first, true)) {}
+        if (oldest_first.size() > 2 * by_hash.size() + 64) drop_stale(oldest_first, false);
+    }
+
+private:
+    bool live(const Place& p, bool used) const {
+        auto it = by_hash.find(p.hash);
+        return it != by_hash.end() && it->second.sequence == p.sequence && it->second.used == used;
+    }
+    // Places of entries that moved or went, dropped at once so the queue stays near the map's size.
+    void drop_stale(std::deque<Place>& queue, bool used) {
+        std::erase_if(queue, [&](const Place& p) { return !live(p, used); });
+    }
+    bool evict_oldest() {
+        return evict_from(oldest_used_first, true) || evict_from(oldest_first, false);
+    }
+    // Drops the oldest live entry of `queue` (true), or finds none (false).
+    bool evict_from(std::deque<Place>& queue, bool used) {
+        while (!queue.empty()) {
+            const Place p = queue.front();
+            queue.pop_front();
+            if (!live(p, used)) continue;
+            auto it = by_hash.find(p.hash);
+            const size_t n = it->second.bytes->size;
+            bytes_held -= n;
+            if (used) used_bytes_held -= n;
+            by_hash.erase(it);
+            return true;
+        }
+        return false;
+    }
+};
+
+// A content of the chunk read ahead that the task turned into its real bytes: a delta XORed
+// with its base, or (once the trace has shown deltas) contents stored whole, copied.
+struct AheadContents {
+    uint32_t raw_offset = 0;
+    uint64_t hash = 0;
+    SharedBytes bytes;
+    SharedBytes base;  // the bytes a delta was XORed with; null for contents stored whole
+    // A base the task read whole from its own record (its key checked), at this place.
+    bool base_read_whole = false;
+    uint64_t base_chunk_offset = 0;
+    uint32_t base_raw_offset = 0;
+};
+
+// Where the task saw contents stored whole before the trace's first delta (it keeps no bytes
+// until then): the base of a range's first delta is read from there.
+struct WholePlace {
+    uint64_t chunk_offset;
+    uint32_t raw_offset;
+};
+
+// The read-ahead task's own state, touched by one task at a time, and by the reader's thread
+// only while no task runs.
+struct AheadDecoding {
+    // Places of whole contents seen before the first delta, the newest 4096 to 8192 (two
+    // generations): a trace without deltas costs at most this much. A range whose first base is
+    // older has its chain decoded on the reader's thread.
+    static constexpr size_t kWholePlacesPerGeneration = 4096;
+    RealBytesCache known;  // the real bytes of the contents the task passed last
+    std::unordered_map<uint64_t, WholePlace> whole_places, older_whole_places;
+    bool seen_delta = false;
+
+    void note_whole(uint64_t hash, WholePlace place) {
+        if (whole_places.size() >= kWholePlacesPerGeneration) {
+            older_whole_places = std::move(whole_places);
+            whole_places.clear();
+        }
+        whole_places.insert_or_assign(hash, place);
+    }
+    const WholePlace* whole_place(uint64_t hash) const {
+        if (auto it = whole_places.find(hash); it != whole_places.end()) return &it->second;
+        auto it = older_whole_places.find(hash);
+        return it == older_whole_places.end() ? nullptr : &it->second;
+    }
+    ChunkBytes side_raw;  // the chunk a first delta's base was read from
+    uint64_t side_offset = UINT64_MAX;
 };
 
 // A chunk read ahead of need, at the offset the reader will ask for next.
@@ -87,7 +333,115 @@ struct ReadAhead {
     ChunkStatus status = ChunkStatus::kOk;
     TraceError error;
     bool decompressed = false;  // false for chunks left to the reader's thread (big or not records)
+    std::vector<AheadContents> contents;  // by raw offset: what the task decoded of the chunk
 };
+
+// One job at a time on a thread kept for the reader's life. A thread per chunk read ahead
+// (std::async) paid its start, its end and the release of its stack's pages every 4 MiB.
+template <class Result>
+class ReadAheadThread {
+public:
+    ReadAheadThread() = default;
+    ReadAheadThread(const ReadAheadThread&) = delete;
+    ReadAheadThread& operator=(const ReadAheadThread&) = delete;
+    ~ReadAheadThread() {
+        {
+            std::lock_guard lock(mutex_);
+            stop_ = true;
+        }
+        changed_.notify_all();
+        if (thread_.joinable()) thread_.join();
+    }
+
+    // Runs `job` on the thread; the job given before must have been taken or dropped.
+    void run(std::function<Result()> job) {
+        CLASTRACE_DEBUG_ASSERT(!given_);
+        if (!thread_.joinable()) thread_ = std::thread([this] { serve(); });
+        {
+            std::lock_guard lock(mutex_);
+            job_ = std::move(job);
+        }
+        given_ = true;
+        changed_.notify_all();
+    }
+    // True from run() until get() or drop() (only the reader's thread calls these).
+    bool valid() const { return given_; }
+    void wait() {
+        std::unique_lock lock(mutex_);
+        changed_.wait(lock, [&] { return done_; });
+    }
+    Result get() {
+        wait();
+        given_ = false;
+        std::lock_guard lock(mutex_);
+        done_ = false;
+        if (failure_) std::rethrow_exception(std::exchange(failure_, nullptr));
+        Result r = std::move(*result_);
+        result_.reset();
+        return r;
+    }
+    void drop() {
+        if (!given_) return;
+        wait();
+        given_ = false;
+        std::lock_guard lock(mutex_);
+        done_ = false;
+        result_.reset();
+        failure_ = nullptr;
+    }
+
+private:
+    void serve() {
+        std::unique_lock lock(mutex_);
+        for (;;) {
+            changed_.wait(lock, [&] { return stop_ || job_ != nullptr; });
+            if (stop_) return;
+            std::function<Result()> job = std::exchange(job_, nullptr);
+            lock.unlock();
+            std::optional<Result> r;
+            std::exception_ptr failure;
+            try {
+                r.emplace(job());
+            } catch (...) {
+                failure = std::current_exception();
+            }
+            lock.lock();
+            result_ = std::move(r);
+            failure_ = failure;
+            done_ = true;
+            changed_.notify_all();
+        }
+    }
+    std::mutex mutex_;
+    std::condition_variable changed_;
+    std::function<Result()> job_;  // under mutex_, like the four below
+    std::optional<Result> result_;
+    std::exception_ptr failure_;
+    bool done_ = false;
+    bool stop_ = false;
+    bool given_ = false;  // the reader's thread's own
+    std::thread thread_;
+};
+
+bool known_byte_planes(uint8_t planes) { return planes <= 1 || planes == 4; }
+
+std::string unknown_planes(uint8_t planes) {
+    return "lay their XOR out in " + std::to_string(planes) +
+           " byte planes, which this reader does not know (0, 1 or 4)";
+}
+
+// out = `base` (the base's real bytes) XOR the delta `delta` laid out as `byte_planes` says.
+// `out` may be `base`; it is `delta` only without planes.
+void apply_delta(const uint8_t* delta, uint8_t byte_planes, const uint8_t* base, size_t n,
+                 uint8_t* out) {
+    if (byte_planes == 4) return format::xor_from_byte_planes(delta, base, n, out);
+    for (size_t i = 0; i < n; ++i) out[i] = base[i] ^ delta[i];
+}
+
+// Where a record lies in file order: a delta's base must lie before it.
+bool precedes(uint64_t chunk_a, uint32_t raw_a, uint64_t chunk_b, uint32_t raw_b) {
+    return chunk_a < chunk_b || (chunk_a == chunk_b && raw_a < raw_b);
+}
 
 }  // namespace
 
@@ -104,7 +458,7 @@ struct TraceReader::Impl {
     uint64_t data_start = format::kFileHeaderSize;
 
     // Index (when the file was finished).
-    std::vector<uint8_t> index_raw;
+    ChunkBytes index_raw;
     const fbs::TraceIndex* index = nullptr;
     uint64_t index_offset = 0;
     std::unordered_map<uint64_t, uint32_t>
@@ -123,11 +477,11 @@ struct TraceReader::Impl {
     bool skipped_since_chunk = true;  // damage/seek since the last chunk: numbering may jump
     uint32_t expected_chunk_number = 0;
     ChunkDecoder decoder;
-    std::vector<uint8_t> raw;
+    ChunkBytes raw;
     // Read-ahead: a task decompressing the next chunk into ahead_raw with its own decoder.
     ChunkDecoder ahead_decoder;
-    std::vector<uint8_t> ahead_raw;
-    std::future<ReadAhead> ahead;
+    ChunkBytes ahead_raw;
+    ReadAheadThread<ReadAhead> ahead;
     bool chunk_loaded = false;
     format::ChunkHeader chunk{};
     uint64_t chunk_offset = 0;
@@ -151,14 +505,34 @@ struct TraceReader::Impl {
     RecordView pending;
 
     std::unordered_map<uint64_t, ContentPlace> contents;
-    std::vector<uint8_t> side_raw;
+    ChunkBytes side_raw;
     uint64_t side_offset = UINT64_MAX;
+    // Delta contents (MemoryContentsDelta, format 1.7): the raw offsets of the loaded chunk's
+    // records decoded in place (rising: the scan decodes in order), and the real bytes of recent
+    // contents, the bases of deltas to come, kept once the trace has shown one delta.
+    std::vector<uint32_t> decoded_in_raw;
+    std::shared_ptr<BytesPool> pool = std::make_shared<BytesPool>();
+    RealBytesCache resolved;
+    ChunkBytes delta_copy;  // a delta's planes while it is decoded in place
+    bool trace_has_deltas = false;
+    // The read-ahead task decodes the deltas of the chunk it reads; the loaded chunk's results,
+    // by raw offset, wait here for the checks of their records (decode_delta).
+    AheadDecoding ahead_decoding;
+    std::vector<AheadContents> chunk_ahead;
 
     std::vector<TraceError> damage;
     uint64_t damage_total = 0;
     TraceReadStats stats;
 
     ~Impl() { drop_read_ahead(); }
+
+    // TraceReadStats::chunk_buffer_bytes; waits for the read-ahead task, whose buffers it counts.
+    uint64_t chunk_buffer_bytes() {
+        if (ahead.valid()) ahead.wait();
+        return raw.capacity() + ahead_raw.capacity() + side_raw.capacity() +
+               ahead_decoding.side_raw.capacity() + decoder.compressed.capacity() +
+               ahead_decoder.compressed.capacity();
+    }
 
     TraceError error(TraceErrorCode code, uint64_t offset, const std::string& problem) const {
         return make_trace_error(code, name, offset, problem);
@@ -188,14 +562,14 @@ struct TraceReader::Impl {
     }
 
     // Reads, checks and decompresses the chunk whose header is at `offset`.
-    ChunkStatus read_chunk(uint64_t offset, format::ChunkHeader* h, std::vector<uint8_t>* out,
+    ChunkStatus read_chunk(uint64_t offset, format::ChunkHeader* h, ChunkBytes* out,
                            TraceError* err) {
         ChunkStatus status = read_checked_payload(decoder, offset, h, err);
         return status == ChunkStatus::kOk ? decompress(offset, *h, out, err) : status;
     }
 
     // decompress_payload on the reader's own thread and decoder, noting a spent budget.
-    ChunkStatus decompress(uint64_t offset, const format::ChunkHeader& h, std::vector<uint8_t>* out,
+    ChunkStatus decompress(uint64_t offset, const format::ChunkHeader& h, ChunkBytes* out,
                            TraceError* err) {
         ChunkStatus status = decompress_payload(decoder, offset, h, out, err);
         if (status == ChunkStatus::kOverBudget) budget_exhausted = true;
@@ -214,7 +588,7 @@ struct TraceReader::Impl {
     // task: they touch only `d`, their outputs, the budget and the (thread-safe) source.
     ChunkStatus read_checked_payload(ChunkDecoder& d, uint64_t offset, format::ChunkHeader* h,
                                      TraceError* err) const {
-        std::vector<uint8_t>& compressed = d.compressed;
+        ChunkBytes& compressed = d.compressed;
         if (offset > size || size - offset < format::kChunkHeaderSize) {
             *err = error(TraceErrorCode::kTruncated, offset,
                          "file ends inside a chunk header (" +
@@ -272,7 +646,7 @@ struct TraceReader::Impl {
             return ChunkStatus::kTruncated;
         }
         release_if_big(compressed, h->compressed_size);
-        compressed.resize(h->compressed_size);
+        resize_exact(compressed, h->compressed_size);
         if (!src->read_at(payload, compressed.size(), compressed.data())) {
             *err = error(TraceErrorCode::kIoError, payload, "read failed: " + src->last_error());
             return ChunkStatus::kTruncated;
@@ -289,11 +663,20 @@ struct TraceReader::Impl {
 
     // Decompresses d.compressed (read by read_checked_payload for header h) into `out`.
     ChunkStatus decompress_payload(ChunkDecoder& d, uint64_t offset, const format::ChunkHeader& h,
-                                   std::vector<uint8_t>* out, TraceError* err) const {
-        const std::vector<uint8_t>& compressed = d.compressed;
+                                   ChunkBytes* out, TraceError* err) const {
+        const ChunkBytes& compressed = d.compressed;
         const uint64_t payload = offset + format::kChunkHeaderSize;
         const std::string what = "chunk " + std::to_string(h.chunk_number);
-        unsigned long long content = ZSTD_getFrameContentSize(compressed.data(), compressed.size());
+        const bool streams = format::is_streams_payload(compressed.data(), compressed.size());
+        if (streams && version_minor < format::kFirstStreamsMinor) {
+            *err = error(TraceErrorCode::kDecompressFailed, payload,
+                         what + " is a streams payload, which format 1." +
+                             std::to_string(version_minor) + " (this file's) does not have: 1." +
+                             std::to_string(format::kFirstStreamsMinor) + " brought them");
+            return ChunkStatus::kBadPayload;
+        }
+        unsigned long long content =
+            streams ? h.raw_size : ZSTD_getFrameContentSize(compressed.data(), compressed.size());
         if (content != h.raw_size) {
             *err = error(TraceErrorCode::kDecompressFailed, payload,
                          what + " zstd frame does not declare the chunk's " +
@@ -313,7 +696,16 @@ struct TraceReader::Impl {
             return ChunkStatus::kOverBudget;
         }
         release_if_big(*out, h.raw_size);
-        out->resize(h.raw_size);
+        resize_exact(*out, h.raw_size);
+        if (streams) {  // records and contents in two frames (chunk_streams.h)
+            const format::StreamsProblem p =
+                format::decode_streams_payload(d.dctx, compressed.data(), compressed.size(),
+                                               out->data(), out->size());
+            if (!p) return ChunkStatus::kOk;
+            *err = error(TraceErrorCode::kDecompressFailed, payload + p.at,
+                         what + " streams payload: " + p.what);
+            return ChunkStatus::kBadPayload;
+        }
         size_t got = ZSTD_decompressDCtx(d.dctx, out->data(), out->size(), compressed.data(),
                                          compressed.size());
         if (ZSTD_isError(got) || got != h.raw_size) {
@@ -442,20 +834,24 @@ struct TraceReader::Impl {
 
     // Rules beyond the verifier: content keys, snapshot references, submission order.
     bool check_record(const fbs::Record& record, uint32_t at) {
-        if (const auto* c = record.body_as_MemoryContents()) {
-            const uint8_t* data = c->bytes() ? c->bytes()->data() : nullptr;
-            size_t n = c->bytes() ? c->bytes()->size() : 0;
+        if (const std::optional<ContentsRecord> c = contents_record(record)) {
+            SharedBytes ahead_bytes;  // the task's copy of the real bytes, when it made them
+            if (c->delta && !decode_delta(*c, at, &ahead_bytes)) return false;
+            if (!c->delta) ahead_bytes = ahead_whole_copy(*c, at);
+            const uint8_t* data = c->data();
+            size_t n = c->size();
             uint64_t key = options.verify_content_keys
-                               ? format::content_key(data, n, c->seed(), hash_bits)
-                               : c->hash();
-            if (key != c->hash()) {
+                               ? format::content_key(data, n, c->seed, hash_bits)
+                               : c->hash;
+            if (key != c->hash) {
                 report_with(TraceErrorCode::kContentMismatch, chunk_offset, [&] {
-                    return record_place(at) + ": contents " + hex(c->hash()) +
+                    return record_place(at) + ": contents " + hex(c->hash) +
                            " hold bytes hashing to " + hex(key);
                 });
                 return false;
             }
-            contents[c->hash()] = ContentPlace{n, chunk_offset, at, true};
+            contents[c->hash] = ContentPlace{n, chunk_offset, at, true};
+            if (trace_has_deltas) keep_real_bytes(c->hash, data, n, std::move(ahead_bytes));
             return true;
         }
         SnapshotLists lists = record_snapshots(record);
@@ -498,7 +894,113 @@ struct TraceReader::Impl {
         return true;
     }
 
+    // Turns the delta `c` (in the loaded chunk at raw offset `at`) into its real bytes, in
+    // place, so that every consumer of the record sees them. False (reported) when its base is
+    // unknown, later in the file, of another size or unreadable, or its layout is unknown.
+    // When the read-ahead task decoded it against the same base bytes, its result is copied in
+    // (*ahead_bytes: those bytes, to keep as a base).
+    bool decode_delta(const ContentsRecord& c, uint32_t at, SharedBytes* ahead_bytes) {
+        auto problem = [&](TraceErrorCode code, const std::string& why) {
+            report_with(code, chunk_offset, [&] {
+                return record_place(at) + ": delta contents " + hex(c.hash) + " " + why;
+            });
+            return false;
+        };
+        if (!known_byte_planes(c.byte_planes))
+            return problem(TraceErrorCode::kContentMismatch, unknown_planes(c.byte_planes));
+        auto base = contents.find(c.base_hash);
+        if (base == contents.end() || (!base->second.seen_in_scan && !seeked) ||
+            !precedes(base->second.chunk_offset, base->second.raw_offset, chunk_offset, at))
+            return problem(TraceErrorCode::kMissingContents,
+                           "name the base " + hex(c.base_hash) +
+                               ", which no earlier record defines");
+        const size_t n = c.size();
+        if (base->second.size != n)
+            return problem(TraceErrorCode::kContentMismatch,
+                           "hold " + std::to_string(n) + " bytes but their base " +
+                               hex(c.base_hash) + " holds " + std::to_string(base->second.size));
+        // Decoded into the reader's own chunk bytes, so the record is handed out decoded.
+        auto* data = const_cast<uint8_t*>(c.data());
+        const AheadContents* ahead = ahead_contents_at(at);
+        if (ahead && ahead_used_my_base(*ahead, c, base->second)) {
+            if (n) std::memcpy(data, ahead->bytes->data.get(), n);
+            *ahead_bytes = ahead->bytes;
+            ++stats.deltas_decoded_ahead;
+        } else if (TraceError e = decode_delta_here(c, data)) {
+            return problem(e.code, "cannot be decoded: " + e.message);
+        }
+        decoded_in_raw.push_back(at);
+        trace_has_deltas = true;
+        resolved.note_used(c.base_hash);
+        return true;
+    }
+
+    // decode_delta on this thread: the base's real bytes are those the scan kept (usually), else
+    // resolved through its chain; the planes are read from a copy, as each output byte gathers
+    // from all four of them.
+    TraceError decode_delta_here(const ContentsRecord& c, uint8_t* data) {
+        const size_t n = c.size();
+        SharedBytes kept = resolved.find(c.base_hash);
+        std::vector<uint8_t> resolved_base;
+        if (!kept) {
+            if (TraceError e = resolve_contents(c.base_hash, &resolved_base, false)) return e;
+        }
+        const uint8_t* base_bytes = kept ? kept->data.get() : resolved_base.data();
+        const uint8_t* delta = data;
+        if (c.byte_planes == 4) {
+            delta_copy.assign(data, data + n);
+            delta = delta_copy.data();
+        }
+        if (n) apply_delta(delta, c.byte_planes, base_bytes, n, data);
+        return {};
+    }
+
+    // What the read-ahead task made of the record at raw offset `at` of the loaded chunk.
+    const AheadContents* ahead_contents_at(uint32_t at) const {
+        auto it = std::lower_bound(chunk_ahead.begin(), chunk_ahead.end(), at,
+                                   [](const AheadContents& a, uint32_t offset) {
+                                       return a.raw_offset < offset;
+                                   });
+        return it != chunk_ahead.end() && it->raw_offset == at ? &*it : nullptr;
+    }
+
+    // True when the task decoded delta `c` against the very bytes this thread would use: the
+    // base bytes it keeps (the same buffer, not merely equal bytes), or, keeping none, those of
+    // the whole record at the base's place (which resolve_contents would read and key-check).
+    bool ahead_used_my_base(const AheadContents& a, const ContentsRecord& c,
+                            const ContentPlace& base) const {
+        if (!a.base || a.hash != c.hash || a.bytes->size != c.size()) return false;
+        if (SharedBytes mine = resolved.find(c.base_hash)) return mine == a.base;
+        return a.base_read_whole && a.base_chunk_offset == base.chunk_offset &&
+               a.base_raw_offset == base.raw_offset;
+    }
+
+    // The task's copy of whole contents `c` (at raw offset `at` of the loaded chunk): the
+    // same bytes, copied on the task.
+    SharedBytes ahead_whole_copy(const ContentsRecord& c, uint32_t at) const {
+        const AheadContents* a = ahead_contents_at(at);
+        return a && !a->base && a->hash == c.hash && a->bytes->size == c.size() ? a->bytes
+                                                                                : nullptr;
+    }
+
+    SharedBytes copy_of(const uint8_t* data, size_t n) {
+        std::shared_ptr<RealBytes> b = pool->take(n);
+        if (n) std::memcpy(b->data.get(), data, n);
+        return b;
+    }
+
+    // Keeps real bytes as a base for deltas to come: the task's copy when there is one.
+    void keep_real_bytes(uint64_t hash, const uint8_t* data, size_t n, SharedBytes ahead) {
+        if (n > RealBytesCache::kBudgetBytes / 4 || resolved.by_hash.count(hash)) return;
+        resolved.keep(hash, ahead ? std::move(ahead) : copy_of(data, n));
+    }
+
+    bool decoded_in_place(uint32_t raw_offset) const {
+        return std::binary_search(decoded_in_raw.begin(), decoded_in_raw.end(), raw_offset);
+    }
+
     void close_chunk() {
+        decoded_in_raw.clear();
         if (chunk_loaded && !chunk_cut_short && chunk_records_seen != chunk.record_count) {
             report(TraceErrorCode::kInvalidRecord, chunk_offset,
                    "chunk " + std::to_string(chunk.chunk_number) + " header says " +
@@ -536,6 +1038,7 @@ struct TraceReader::Impl {
             return false;
         }
         raw_evicted = false;
+        decoded_in_raw.clear();  // fresh bytes: the deltas in them are encoded again
         return true;
     }
 
@@ -555,7 +1058,7 @@ struct TraceReader::Impl {
         drop_read_ahead();
         if (offset >= size || size - offset < format::kChunkHeaderSize) return;
         ahead_started_at = offset;
-        ahead = std::async(std::launch::async, [this, offset] {
+        ahead.run([this, offset] {
             ReadAhead r;
             r.offset = offset;
             r.status = read_checked_payload(ahead_decoder, offset, &r.header, &r.error);
@@ -565,14 +1068,118 @@ struct TraceReader::Impl {
                 r.status =
                     decompress_payload(ahead_decoder, offset, r.header, &ahead_raw, &r.error);
                 r.decompressed = r.status == ChunkStatus::kOk;
+                if (r.decompressed && options.decode_deltas_ahead)
+                    r.contents = decode_ahead(offset, ahead_raw);
             }
             return r;
         });
     }
 
+    // On the read-ahead task: the real bytes of the contents of chunk `r` (at `offset`) that it
+    // can make (deltas whose base it holds, and once the trace has shown deltas, contents stored
+    // whole), for the reader's thread to check and take. The records are checked again there,
+    // with their damage reported; here a frame that breaks a rule is passed over. Touches only
+    // ahead_decoding, ahead_decoder, the pool, the budget and the (thread-safe) source.
+    std::vector<AheadContents> decode_ahead(uint64_t offset, const ChunkBytes& r) {
+        std::vector<AheadContents> out;
+        AheadDecoding& a = ahead_decoding;
+        bool read_a_base = false;
+        size_t next_frame = 0;
+        while (r.size() - next_frame >= format::kRecordFrameSize) {
+            const auto at = static_cast<uint32_t>(next_frame);
+            const uint32_t rsize = format::load<uint32_t>(r.data() + at);
+            const uint32_t rkind = format::load<uint32_t>(r.data() + at + 4);
+            if (rsize > r.size() - at - format::kRecordFrameSize) break;
+            next_frame = std::min<size_t>(r.size(), next_frame + format::kRecordFrameSize +
+                                                        format::align8(rsize));
+            if (rkind != static_cast<uint32_t>(fbs::RecordBody::MemoryContents) &&
+                rkind != static_cast<uint32_t>(fbs::RecordBody::MemoryContentsDelta))
+                continue;
+            const std::optional<ContentsRecord> c = contents_in_frame(r, at);
+            if (!c) continue;
+            if (!c->delta && !a.seen_delta) {
+                a.note_whole(c->hash, WholePlace{offset, at});
+                continue;
+            }
+            AheadContents made;
+            made.raw_offset = at;
+            made.hash = c->hash;
+            if (c->delta) {
+                a.seen_delta = true;
+                if (!decode_delta_ahead(offset, r, *c, &made, &read_a_base)) continue;
+            } else {
+                std::shared_ptr<RealBytes> b = pool->take(c->size());
+                if (c->size()) std::memcpy(b->data.get(), c->data(), c->size());
+                made.bytes = std::move(b);
+            }
+            a.known.keep(made.hash, made.bytes);
+            out.push_back(std::move(made));
+        }
+        // The chunk a first delta's base came from is worth keeping only while they come.
+        if (!read_a_base) {
+            ChunkBytes().swap(a.side_raw);
+            a.side_offset = UINT64_MAX;
+        }
+        return out;
+    }
+
+    // On the task: delta `c` (at made->raw_offset of chunk `r`) XORed with the base the task
+    // holds, or with the base's whole record read from where the task saw it.
+    bool decode_delta_ahead(uint64_t offset, const ChunkBytes& r, const ContentsRecord& c,
+                            AheadContents* made, bool* read_a_base) {
+        if (!known_byte_planes(c.byte_planes)) return false;
+        made->base = ahead_decoding.known.find(c.base_hash);
+        if (!made->base) {
+            const WholePlace* place = ahead_decoding.whole_place(c.base_hash);
+            if (!place) return false;
+            *read_a_base = true;
+            made->base = read_whole_ahead(offset, r, c.base_hash, *place);
+            if (!made->base) return false;
+            made->base_read_whole = true;
+            made->base_chunk_offset = place->chunk_offset;
+            made->base_raw_offset = place->raw_offset;
+        }
+        const size_t n = c.size();
+        if (made->base->size != n) return false;
+        std::shared_ptr<RealBytes> bytes = pool->take(n);
+        if (n) apply_delta(c.data(), c.byte_planes, made->base->data.get(), n, bytes->data.get());
+        made->bytes = std::move(bytes);
+        ahead_decoding.known.note_used(c.base_hash);
+        return true;
+    }
+
+    // On the task: whole contents `hash` at `place`, from chunk `r` (at `offset`) or decompressed
+    // with the task's decoder, its key checked (as resolve_contents checks it); null when
+    // anything is off, which leaves the delta to the reader's thread.
+    SharedBytes read_whole_ahead(uint64_t offset, const ChunkBytes& r, uint64_t hash,
+                                 WholePlace place) {
+        AheadDecoding& a = ahead_decoding;
+        const ChunkBytes* source = &r;
+        if (place.chunk_offset != offset) {
+            if (a.side_offset != place.chunk_offset) {
+                a.side_offset = UINT64_MAX;
+                format::ChunkHeader h{};
+                TraceError err;
+                if (read_checked_payload(ahead_decoder, place.chunk_offset, &h, &err) !=
+                        ChunkStatus::kOk ||
+                    decompress_payload(ahead_decoder, place.chunk_offset, h, &a.side_raw, &err) !=
+                        ChunkStatus::kOk)
+                    return nullptr;
+                a.side_offset = place.chunk_offset;
+            }
+            source = &a.side_raw;
+        }
+        const std::optional<ContentsRecord> c = contents_in_frame(*source, place.raw_offset);
+        if (!c || c->delta || c->hash != hash ||
+            format::content_key(c->data(), c->size(), c->seed, hash_bits) != hash)
+            return nullptr;
+        std::shared_ptr<RealBytes> b = pool->take(c->size());
+        if (c->size()) std::memcpy(b->data.get(), c->data(), c->size());
+        return b;
+    }
+
     void drop_read_ahead() {
-        if (ahead.valid()) ahead.wait();
-        ahead = {};
+        ahead.drop();
         ahead_started_at = UINT64_MAX;
     }
 
@@ -586,6 +1193,7 @@ struct TraceReader::Impl {
             *h = r.header;
             *err = std::move(r.error);
             if (r.status == ChunkStatus::kOverBudget) budget_exhausted = true;
+            chunk_ahead = std::move(r.contents);
             if (r.decompressed) {
                 std::swap(raw, ahead_raw);
                 release_if_big(ahead_raw);
@@ -596,6 +1204,7 @@ struct TraceReader::Impl {
             return r.status;
         }
         drop_read_ahead();
+        chunk_ahead.clear();
         return read_checked_payload(decoder, pos, h, err);
     }
 
@@ -623,6 +1232,10 @@ struct TraceReader::Impl {
                 if (!have_raw) {
                     if (h.raw_size > kBigBufferBytes) release_side_chunk_if_big();
                     status = decompress(here, h, &raw, &err);
+                    // What the task does for the chunks it reads, here (no task runs now): its
+                    // bases then follow every chunk of the scan.
+                    if (status == ChunkStatus::kOk && options.decode_deltas_ahead)
+                        chunk_ahead = decode_ahead(here, raw);
                 }
             }
             // Reading ahead pays for big chunks; for small ones a task costs more than it hides.
@@ -863,6 +1476,8 @@ struct TraceReader::Impl {
 
     void restart_at(uint64_t offset) {
         drop_read_ahead();
+        decoded_in_raw.clear();
+        chunk_ahead.clear();
         chunk_loaded = false;
         raw_evicted = false;
         has_pending = false;
@@ -915,14 +1530,21 @@ struct TraceReader::Impl {
                          (index ? "" : " (trace has no index)"));
     }
 
-    TraceError read_contents(uint64_t hash, std::vector<uint8_t>* out) {
+    // The record of contents `hash`, from the loaded chunk or the one read_contents keeps
+    // (decompressed when needed), and whether it holds the real bytes (stored whole, or a delta
+    // the scan decoded); valid until the next locate or chunk change. The chunk being
+    // read gives a big buffer up for it only when `may_evict_raw` (not while a record of it is
+    // being decoded).
+    TraceError locate(uint64_t hash, bool may_evict_raw, ContentsRecord* found, ContentPlace* where,
+                      bool* real) {
         auto it = contents.find(hash);
         if (it == contents.end()) {
             return error(TraceErrorCode::kMissingContents, 0,
                          "no contents with hash " + hex(hash) + " in the trace");
         }
         const ContentPlace place = it->second;
-        const std::vector<uint8_t>* source = nullptr;
+        *where = place;
+        const ChunkBytes* source = nullptr;
         if (chunk_loaded && !raw_evicted && place.chunk_offset == chunk_offset) {
             source = &raw;
         } else {
@@ -934,10 +1556,11 @@ struct TraceReader::Impl {
                 if (status == ChunkStatus::kOk) {
                     // Two big buffers at once would double the reader's memory: the chunk
                     // being read gives its bytes up and is decompressed again by next().
-                    if (h.raw_size > kBigBufferBytes && raw.capacity() > kBigBufferBytes &&
-                        chunk_loaded) {
-                        std::vector<uint8_t>().swap(raw);
+                    if (may_evict_raw && h.raw_size > kBigBufferBytes &&
+                        raw.capacity() > kBigBufferBytes && chunk_loaded) {
+                        ChunkBytes().swap(raw);
                         raw_evicted = true;
+                        decoded_in_raw.clear();
                     }
                     status = decompress(place.chunk_offset, h, &side_raw, &err);
                 }
@@ -947,7 +1570,7 @@ struct TraceReader::Impl {
             }
             source = &side_raw;
         }
-        const std::vector<uint8_t>& r = *source;
+        const ChunkBytes& r = *source;
         auto bad = [&](const std::string& why) {
             return error(TraceErrorCode::kBadIndex, place.chunk_offset,
                          "contents " + hex(hash) + " not found at raw offset " +
@@ -961,16 +1584,91 @@ struct TraceReader::Impl {
         const uint8_t* bytes = r.data() + place.raw_offset + format::kRecordFrameSize;
         flatbuffers::Verifier verifier(bytes, rsize, 64, 10'000'000);
         if (!fbs::VerifyRecordBuffer(verifier)) return bad("record fails the verifier");
-        const auto* c = fbs::GetRecord(bytes)->body_as_MemoryContents();
-        if (!c || c->hash() != hash) return bad("another record is there");
-        const uint8_t* data = c->bytes() ? c->bytes()->data() : nullptr;
-        size_t n = c->bytes() ? c->bytes()->size() : 0;
-        if (format::content_key(data, n, c->seed(), hash_bits) != hash) {
+        const std::optional<ContentsRecord> c = contents_record(*fbs::GetRecord(bytes));
+        if (!c || c->hash != hash) return bad("another record is there");
+        if (c->delta && !known_byte_planes(c->byte_planes)) {
             return error(TraceErrorCode::kContentMismatch, place.chunk_offset,
-                         "contents " + hex(hash) + " hold bytes that hash differently");
+                         "delta contents " + hex(hash) + " " + unknown_planes(c->byte_planes));
         }
-        out->assign(data, data + n);
+        // The loaded chunk's deltas the scan passed hold their real bytes already.
+        *real = !c->delta || (source == &raw && decoded_in_place(place.raw_offset));
+        *found = *c;
         return {};
+    }
+
+    // The real bytes of contents `hash`: a delta's chain of bases is walked back to contents
+    // held whole (stored whole, decoded by the scan, or kept in `resolved`), then XORed forward.
+    // Each base must lie before its delta, so the walk ends, however the file was crafted.
+    TraceError resolve_contents(uint64_t hash, std::vector<uint8_t>* out, bool may_evict_raw) {
+        if (SharedBytes known = resolved.find(hash)) {
+            out->assign(known->data.get(), known->data.get() + known->size);
+            return {};
+        }
+        std::vector<uint64_t> chain;  // deltas from `hash` back, the last one's base held whole
+        uint64_t at = hash;
+        for (;;) {
+            if (SharedBytes known = resolved.find(at)) {
+                out->assign(known->data.get(), known->data.get() + known->size);
+                break;
+            }
+            ContentsRecord c;
+            ContentPlace place{};
+            bool real = false;
+            if (TraceError e = locate(at, may_evict_raw, &c, &place, &real)) return e;
+            const size_t n = c.size();
+            if (real) {
+                out->assign(c.data(), c.data() + n);
+                if (format::content_key(out->data(), n, c.seed, hash_bits) != at) {
+                    return error(TraceErrorCode::kContentMismatch, place.chunk_offset,
+                                 "contents " + hex(at) + " hold bytes that hash differently");
+                }
+                break;
+            }
+            auto base = contents.find(c.base_hash);
+            if (base == contents.end() ||
+                !precedes(base->second.chunk_offset, base->second.raw_offset, place.chunk_offset,
+                          place.raw_offset)) {
+                return error(TraceErrorCode::kMissingContents, place.chunk_offset,
+                             "delta contents " + hex(at) + " (raw offset " +
+                                 std::to_string(place.raw_offset) + ") name the base " +
+                                 hex(c.base_hash) + ", which no earlier record defines");
+            }
+            if (base->second.size != n) {
+                return error(TraceErrorCode::kContentMismatch, place.chunk_offset,
+                             "delta contents " + hex(at) + " hold " + std::to_string(n) +
+                                 " bytes but their base " + hex(c.base_hash) + " holds " +
+                                 std::to_string(base->second.size));
+            }
+            chain.push_back(at);
+            at = c.base_hash;
+        }
+        for (size_t k = chain.size(); k-- > 0;) {
+            ContentsRecord c;
+            ContentPlace place{};
+            bool real = false;
+            if (TraceError e = locate(chain[k], may_evict_raw, &c, &place, &real)) return e;
+            if (real) {  // decoded meanwhile (cannot happen today): its bytes are the answer
+                out->assign(c.data(), c.data() + c.size());
+                continue;
+            }
+            const size_t n = c.size();
+            if (n != out->size()) {
+                return error(TraceErrorCode::kContentMismatch, place.chunk_offset,
+                             "delta contents " + hex(chain[k]) + " changed size while read");
+            }
+            apply_delta(c.data(), c.byte_planes, out->data(), n, out->data());
+            if (format::content_key(out->data(), n, c.seed, hash_bits) != chain[k]) {
+                return error(TraceErrorCode::kContentMismatch, place.chunk_offset,
+                             "delta contents " + hex(chain[k]) +
+                                 " decode to bytes that hash differently (a damaged base?)");
+            }
+            keep_real_bytes(chain[k], out->data(), n, nullptr);
+        }
+        return {};
+    }
+
+    TraceError read_contents(uint64_t hash, std::vector<uint8_t>* out) {
+        return resolve_contents(hash, out, true);
     }
 
     // File header, trace header and (if intact) trailer + index. Fatal problems only
@@ -1275,6 +1973,8 @@ const std::vector<TraceError>& TraceReader::damage() const { return impl_->damag
 uint64_t TraceReader::damage_count() const { return impl_->damage_total; }
 const TraceReadStats& TraceReader::stats() const {
     impl_->stats.raw_bytes_decompressed = impl_->raw_spent.load();
+    impl_->stats.chunk_buffer_bytes = impl_->chunk_buffer_bytes();
+    impl_->stats.real_bytes_allocated = impl_->pool->allocated_bytes();
     return impl_->stats;
 }
 

@@ -1,6 +1,10 @@
 // SPDX-License-Identifier: Apache-2.0
 #include <clastrace/traces/trace_writer.h>
 
+#include <clastrace/traces/records.h>
+
+#include "byte_planes.h"
+#include "chunk_streams.h"
 #include "file_format.h"
 
 #include <cerrno>
@@ -10,7 +14,9 @@
 #include <cstring>
 #include <deque>
 #include <fcntl.h>
+#include <list>
 #include <mutex>
+#include <span>
 #include <pthread.h>
 #include <sched.h>
 #include <sys/resource.h>
@@ -55,6 +61,7 @@ using ChunkBytes = std::vector<uint8_t, UninitializedAllocator<uint8_t>>;
 // A sealed chunk on its way to the compression thread.
 struct PendingChunk {
     ChunkBytes raw;
+    std::vector<format::ContentCut> cuts;  // the contents' bytes in `raw`, for a streams payload
     uint32_t chunk_number = 0;
     uint32_t record_count = 0;
     uint32_t submission_count = 0;
@@ -68,7 +75,81 @@ struct PendingChunk {
 struct StoredContents {
     uint64_t size;
     XXH128_hash_t fingerprint;
+    uint32_t chain_depth;  // deltas between these contents and contents stored whole
 };
+
+// The place a snapshot was taken: its contents there are the base of the next contents there.
+struct SnapshotRange {
+    uint64_t buffer, offset, address, size;
+    bool operator==(const SnapshotRange&) const = default;
+};
+struct SnapshotRangeHash {
+    size_t operator()(const SnapshotRange& r) const {
+        return static_cast<size_t>((r.buffer * 0x9E3779B97F4A7C15ull) ^ r.offset ^
+                                   (r.address * 0xC2B2AE3D27D4EB4Full) ^ (r.size << 17));
+    }
+};
+
+// The last contents of one range, whole, for the delta of its next contents.
+struct RangeBase {
+    uint64_t hash = 0;
+    uint32_t chain_depth = 0;
+    std::vector<uint8_t> bytes;
+    std::list<SnapshotRange>::iterator recency;  // its place in DeltaBases::by_recency
+};
+
+// Ranges' last contents, the least recently used forgotten first past the byte budget.
+struct DeltaBases {
+    std::unordered_map<SnapshotRange, RangeBase, SnapshotRangeHash> by_range;
+    std::list<SnapshotRange> by_recency;  // front: least recently used
+    uint64_t bytes_held = 0;
+
+    RangeBase* find(const SnapshotRange& range) {
+        auto it = by_range.find(range);
+        if (it == by_range.end()) return nullptr;
+        by_recency.splice(by_recency.end(), by_recency, it->second.recency);
+        return &it->second;
+    }
+
+    // Keeps `pieces` as the range's last contents `hash`, within `budget` bytes in all.
+    void remember(const SnapshotRange& range, uint64_t hash, uint32_t chain_depth,
+                  std::span<const ContentPiece> pieces, uint64_t budget) {
+        RangeBase* base = find(range);
+        if (base && base->hash == hash) return;
+        if (!base) {
+            if (range.size > budget / 4) return;  // one range may not crowd out the others
+            while (bytes_held + range.size > budget && !by_recency.empty()) forget_oldest();
+            base = &by_range[range];
+            base->recency = by_recency.insert(by_recency.end(), range);
+            base->bytes.resize(range.size);
+            bytes_held += range.size;
+        }
+        base->hash = hash;
+        base->chain_depth = chain_depth;
+        uint8_t* to = base->bytes.data();
+        for (const ContentPiece& p : pieces) {
+            if (p.size) std::memcpy(to, p.bytes, p.size);
+            to += p.size;
+        }
+    }
+
+    void forget_oldest() {
+        auto it = by_range.find(by_recency.front());
+        bytes_held -= it->second.bytes.size();
+        by_range.erase(it);
+        by_recency.pop_front();
+    }
+};
+
+// Writes `pieces` XOR `base` (of the same total size) to `to`.
+void xor_pieces(std::span<const ContentPiece> pieces, const uint8_t* base, uint8_t* to) {
+    for (const ContentPiece& p : pieces) {
+        const auto* from = static_cast<const uint8_t*>(p.bytes);
+        for (size_t i = 0; i < p.size; ++i) to[i] = from[i] ^ base[i];
+        to += p.size;
+        base += p.size;
+    }
+}
 
 uint64_t now_ns() {
     return uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(
@@ -111,6 +192,7 @@ struct TraceWriter::Impl {
 
     // Main-thread state: the chunk being filled.
     ChunkBytes raw;
+    std::vector<format::ContentCut> raw_cuts;  // the contents' bytes in `raw`
     uint32_t raw_records = 0;
     uint32_t raw_submissions = 0;
     uint64_t chunk_first_submission = 0;
@@ -121,7 +203,9 @@ struct TraceWriter::Impl {
     std::unordered_map<uint64_t, StoredContents> contents;
     std::unordered_map<Fingerprint, uint64_t, FingerprintHash> keys_by_fingerprint;
     std::vector<ContentPlace> content_places;
-    TraceWriterStats counters;  // main-thread counters (chunk/bytes come from the worker)
+    DeltaBases delta_bases;
+    std::vector<uint8_t> delta_scratch;  // a delta's pieces gathered before the byte planes
+    TraceWriterStats counters;           // main-thread counters (chunk/bytes come from the worker)
 
     // Shared with the compression thread, under `mutex`.
     std::mutex mutex;
@@ -174,17 +258,26 @@ struct TraceWriter::Impl {
     TraceError write_chunk(ZSTD_CCtx* cctx, std::vector<uint8_t>& compressed, const uint8_t* data,
                            size_t size, format::ChunkKind kind, uint32_t chunk_number,
                            uint32_t record_count, uint64_t first_submission, uint64_t offset,
-                           uint32_t* compressed_size) {
-        compressed.resize(ZSTD_compressBound(size));
+                           uint32_t* compressed_size,
+                           std::span<const format::ContentCut> cuts = {}) {
         const uint64_t started = now_ns();
-        size_t csize = ZSTD_compressCCtx(cctx, compressed.data(), compressed.size(), data, size,
-                                         options.zstd_level);
-        const uint64_t compressed_at = now_ns();
-        if (ZSTD_isError(csize)) {
-            return make_trace_error(TraceErrorCode::kIoError, path, offset,
-                                    std::string("zstd compression failed: ") +
-                                        ZSTD_getErrorName(csize));
+        std::string problem;
+        compressed.clear();
+        if (!cuts.empty() && options.content_streams)
+            problem = format::encode_streams_payload(cctx, data, size, cuts, options.zstd_level,
+                                                     options.zstd_window_log, &compressed);
+        // Readers bound a payload by what one frame can take: past it (bytes that do not
+        // compress, many small contents), the chunk is one frame after all.
+        if (problem.empty() &&
+            (compressed.empty() || compressed.size() > ZSTD_compressBound(size))) {
+            compressed.clear();
+            problem = format::compress_frame(cctx, data, size, options.zstd_level,
+                                             options.zstd_window_log, &compressed);
         }
+        const uint64_t compressed_at = now_ns();
+        if (!problem.empty())
+            return make_trace_error(TraceErrorCode::kIoError, path, offset, problem);
+        const size_t csize = compressed.size();
         format::ChunkHeader h =
             format::sealed_chunk_header(kind, chunk_number, record_count, first_submission,
                                         static_cast<uint32_t>(size), compressed.data(),
@@ -236,7 +329,7 @@ struct TraceWriter::Impl {
             if (!failed) {
                 e = write_chunk(cctx, compressed, chunk.raw.data(), chunk.raw.size(),
                                 format::ChunkKind::kRecords, chunk.chunk_number, chunk.record_count,
-                                chunk.first_submission, offset, &csize);
+                                chunk.first_submission, offset, &csize, chunk.cuts);
             }
 
             lock.lock();
@@ -253,6 +346,7 @@ struct TraceWriter::Impl {
             }
             chunk.raw.clear();
             spare_buffers.push_back(std::move(chunk.raw));
+            chunk.cuts.clear();
             worker_busy = false;
             queue_changed.notify_all();
         }
@@ -270,6 +364,8 @@ struct TraceWriter::Impl {
         if (raw.empty()) return sticky_error();
         PendingChunk chunk;
         chunk.raw = std::move(raw);
+        chunk.cuts = std::move(raw_cuts);
+        raw_cuts.clear();
         chunk.chunk_number = next_chunk_number++;
         chunk.record_count = raw_records;
         chunk.submission_count = raw_submissions;
@@ -346,10 +442,13 @@ struct TraceWriter::Impl {
             return make_trace_error(TraceErrorCode::kInvalidArgument, path, 0,
                                     "record has no body");
         }
-        if (kind == fbs::RecordBody::MemoryContents && !allow_contents) {
-            return make_trace_error(
-                TraceErrorCode::kInvalidArgument, path, 0,
-                "MemoryContents records are written by add_contents, which deduplicates them");
+        if ((kind == fbs::RecordBody::MemoryContents ||
+             kind == fbs::RecordBody::MemoryContentsDelta) &&
+            !allow_contents) {
+            return make_trace_error(TraceErrorCode::kInvalidArgument, path, 0,
+                                    std::string(record_kind_name(kind)) +
+                                        " records are written by add_contents, which "
+                                        "deduplicates them");
         }
         if (kind == fbs::RecordBody::QueueSubmit &&
             record->body_as_QueueSubmit()->submission_index() != submissions) {
@@ -428,6 +527,31 @@ struct TraceWriter::Impl {
         return e;
     }
 
+    TraceError add_contents(std::span<const ContentPiece> pieces, uint64_t* hash,
+                            const SnapshotRange* range);
+    TraceError frame_contents(std::span<const ContentPiece> pieces, size_t size, uint64_t key,
+                              uint64_t seed, const RangeBase* base);
+
+    // Notes where the bytes of the contents record just framed (last in the chunk, built in
+    // fbb) lie, for the streams payload; whole contents that look like 32-bit integers go in
+    // byte planes if the options say.
+    void note_cut(size_t size, bool whole) {
+        if (!options.content_streams || size == 0) return;
+        const fbs::Record* record = fbs::GetRecord(fbb.GetBufferPointer());
+        const flatbuffers::Vector<uint8_t>* bytes =
+            whole ? record->body_as_MemoryContents()->bytes()
+                  : record->body_as_MemoryContentsDelta()->bytes();
+        const size_t in_record = bytes->data() - fbb.GetBufferPointer();
+        const size_t frame_at =
+            raw.size() - format::kRecordFrameSize - format::align8(fbb.GetSize());
+        const format::CutLayout layout =
+            whole && options.whole_content_planes && format::planes_pay(bytes->data(), size)
+                ? format::CutLayout::kBytePlanes
+                : format::CutLayout::kAsIs;
+        raw_cuts.push_back({static_cast<uint32_t>(frame_at + format::kRecordFrameSize + in_record),
+                            static_cast<uint32_t>(size), layout});
+    }
+
     void abandon() {
         if (worker.joinable()) {
             {
@@ -454,6 +578,9 @@ const char* options_problem(const TraceWriterOptions& options) {
     if (options.zstd_level < ZSTD_minCLevel() || options.zstd_level > ZSTD_maxCLevel()) {
         return "zstd_level out of zstd's range";
     }
+    if (options.zstd_window_log != 0 &&
+        (options.zstd_window_log < 10 || options.zstd_window_log > 27))
+        return "zstd_window_log must be 0 or in [10, 27]";
     return nullptr;
 }
 
@@ -555,7 +682,14 @@ TraceError TraceWriter::add_contents(const void* bytes, size_t size, uint64_t* h
 }
 
 TraceError TraceWriter::add_contents(std::span<const ContentPiece> pieces, uint64_t* hash) {
-    Impl& w = *impl_;
+    return impl_->add_contents(pieces, hash, nullptr);
+}
+
+// Keys `pieces` (a repeat returns the key it has) and, for new bytes, frames their record:
+// whole, or XOR the last contents of `range` when the writer still holds them.
+TraceError TraceWriter::Impl::add_contents(std::span<const ContentPiece> pieces, uint64_t* hash,
+                                           const SnapshotRange* range) {
+    Impl& w = *this;
     if (TraceError e = w.check_usable()) return e;
     size_t size = 0;
     for (const ContentPiece& p : pieces) size += p.size;
@@ -576,12 +710,17 @@ TraceError TraceWriter::add_contents(std::span<const ContentPiece> pieces, uint6
     const ContentHashes hashes = hash_content(pieces.data(), pieces.size());
     const XXH128_hash_t fingerprint{hashes.fingerprint_low, hashes.fingerprint_high};
     const Fingerprint known{fingerprint.low64, fingerprint.high64, size};
-    if (auto repeat = w.keys_by_fingerprint.find(known); repeat != w.keys_by_fingerprint.end()) {
+    const bool deltas = range && options.delta_contents;
+    auto repeat_of = [&](uint64_t key, const StoredContents& stored) -> TraceError {
         ++w.counters.contents_deduplicated;
         w.counters.contents_bytes_deduplicated += size;
-        *hash = repeat->second;
+        if (deltas)
+            delta_bases.remember(*range, key, stored.chain_depth, pieces, options.delta_base_bytes);
+        *hash = key;
         return {};
-    }
+    };
+    if (auto repeat = w.keys_by_fingerprint.find(known); repeat != w.keys_by_fingerprint.end())
+        return repeat_of(repeat->second, w.contents.at(repeat->second));
     // New contents are keyed and framed straight from their pieces: no gathered copy.
     auto key_of = [&](uint64_t seed) {
         const unsigned bits = w.options.content_hash_bits;
@@ -595,14 +734,10 @@ TraceError TraceWriter::add_contents(std::span<const ContentPiece> pieces, uint6
     // collision) moves these bytes to the next seed until a free or matching key is found.
     for (uint64_t seed = 0;; ++seed) {
         uint64_t key = key_of(seed);
-        auto [it, inserted] = w.contents.try_emplace(key, StoredContents{size, fingerprint});
+        auto [it, inserted] = w.contents.try_emplace(key, StoredContents{size, fingerprint, 0});
         if (!inserted) {
-            if (it->second.size == size && XXH128_isEqual(it->second.fingerprint, fingerprint)) {
-                ++w.counters.contents_deduplicated;
-                w.counters.contents_bytes_deduplicated += size;
-                *hash = key;
-                return {};
-            }
+            if (it->second.size == size && XXH128_isEqual(it->second.fingerprint, fingerprint))
+                return repeat_of(key, it->second);
             if (seed == 0) ++w.counters.hash_collisions;
             if (seed > 1'000'000) {
                 return make_trace_error(TraceErrorCode::kInvalidArgument, w.path, 0,
@@ -610,48 +745,88 @@ TraceError TraceWriter::add_contents(std::span<const ContentPiece> pieces, uint6
             }
             continue;
         }
-        w.fbb.Clear();
-        uint8_t* vec_bytes = nullptr;
-        auto vec = w.fbb.CreateUninitializedVector(size, &vec_bytes);
-        for (const ContentPiece& p : pieces) {
-            if (p.size) std::memcpy(vec_bytes, p.bytes, p.size);
-            vec_bytes += p.size;
-        }
-        auto body = fbs::CreateMemoryContents(w.fbb, key, seed, vec);
-        w.fbb.Finish(fbs::CreateRecord(w.fbb, fbs::RecordBody::MemoryContents, body.Union()));
-        // The frame lands at the end of the current chunk, unless add_frame seals it first.
-        size_t framed = format::kRecordFrameSize + format::align8(w.fbb.GetSize());
-        bool seals = !w.raw.empty() && w.raw.size() + framed > w.options.chunk_raw_bytes;
-        uint32_t chunk = w.next_chunk_number + (seals ? 1 : 0);
-        uint32_t raw_offset = seals ? 0 : static_cast<uint32_t>(w.raw.size());
-        if (TraceError e = w.add_frame(w.fbb.GetBufferPointer(), w.fbb.GetSize(),
-                                       fbs::RecordBody::MemoryContents)) {
+        const RangeBase* base = deltas ? delta_bases.find(*range) : nullptr;
+        if (base && options.delta_chain_limit && base->chain_depth >= options.delta_chain_limit)
+            base = nullptr;
+        if (TraceError e = frame_contents(pieces, size, key, seed, base)) {
             w.contents.erase(it);
             return e;
         }
+        it->second.chain_depth = base ? base->chain_depth + 1 : 0;
+        if (deltas)
+            delta_bases.remember(*range, key, it->second.chain_depth, pieces,
+                                 options.delta_base_bytes);
         w.keys_by_fingerprint.emplace(known, key);
-        w.content_places.push_back({key, size, chunk, raw_offset});
-        ++w.counters.contents_stored;
-        w.counters.contents_bytes_stored += size;
         *hash = key;
         return {};
     }
 }
 
-TraceError TraceWriter::snapshot(uint64_t buffer, uint64_t offset, uint64_t address,
-                                 const void* bytes, size_t size, fbs::MemorySnapshot* out) {
-    uint64_t hash = 0;
-    if (TraceError e = add_contents(bytes, size, &hash)) return e;
-    *out = fbs::MemorySnapshot(buffer, offset, address, size, hash);
+// Frames the record of new bytes `key`: MemoryContents (whole), or MemoryContentsDelta (XOR
+// `base`'s bytes, in byte planes when the options say so).
+TraceError TraceWriter::Impl::frame_contents(std::span<const ContentPiece> pieces, size_t size,
+                                             uint64_t key, uint64_t seed, const RangeBase* base) {
+    fbb.Clear();
+    uint8_t* vec_bytes = nullptr;
+    auto vec = fbb.CreateUninitializedVector(size, &vec_bytes);
+    const uint8_t planes = base && options.delta_byte_planes ? 4 : 0;
+    if (base && planes) {
+        const uint8_t* bytes =
+            static_cast<const uint8_t*>(pieces.empty() ? nullptr : pieces[0].bytes);
+        if (pieces.size() != 1) {  // gathered first: the planes interleave every piece's bytes
+            delta_scratch.resize(size);
+            uint8_t* to = delta_scratch.data();
+            for (const ContentPiece& p : pieces) {
+                if (p.size) std::memcpy(to, p.bytes, p.size);
+                to += p.size;
+            }
+            bytes = delta_scratch.data();
+        }
+        format::xor_to_byte_planes(bytes, base->bytes.data(), size, vec_bytes);
+    } else if (base) {
+        xor_pieces(pieces, base->bytes.data(), vec_bytes);
+    } else {
+        for (const ContentPiece& p : pieces) {
+            if (p.size) std::memcpy(vec_bytes, p.bytes, p.size);
+            vec_bytes += p.size;
+        }
+    }
+    const fbs::RecordBody kind =
+        base ? fbs::RecordBody::MemoryContentsDelta : fbs::RecordBody::MemoryContents;
+    const flatbuffers::Offset<void> body =
+        base ? fbs::CreateMemoryContentsDelta(fbb, key, seed, base->hash, vec, planes).Union()
+             : fbs::CreateMemoryContents(fbb, key, seed, vec).Union();
+    fbb.Finish(fbs::CreateRecord(fbb, kind, body));
+    // The frame lands at the end of the current chunk, unless add_frame seals it first.
+    size_t framed = format::kRecordFrameSize + format::align8(fbb.GetSize());
+    bool seals = !raw.empty() && raw.size() + framed > options.chunk_raw_bytes;
+    uint32_t chunk = next_chunk_number + (seals ? 1 : 0);
+    uint32_t raw_offset = seals ? 0 : static_cast<uint32_t>(raw.size());
+    if (TraceError e = add_frame(fbb.GetBufferPointer(), fbb.GetSize(), kind)) return e;
+    note_cut(size, base == nullptr);
+    content_places.push_back({key, size, chunk, raw_offset});
+    ++counters.contents_stored;
+    counters.contents_bytes_stored += size;
+    if (base) {
+        ++counters.contents_delta_stored;
+        counters.contents_delta_bytes += size;
+    }
     return {};
 }
 
 TraceError TraceWriter::snapshot(uint64_t buffer, uint64_t offset, uint64_t address,
+                                 const void* bytes, size_t size, fbs::MemorySnapshot* out) {
+    const ContentPiece one{bytes, size};
+    return snapshot(buffer, offset, address, std::span<const ContentPiece>(&one, 1), out);
+}
+
+TraceError TraceWriter::snapshot(uint64_t buffer, uint64_t offset, uint64_t address,
                                  std::span<const ContentPiece> pieces, fbs::MemorySnapshot* out) {
-    uint64_t hash = 0;
-    if (TraceError e = add_contents(pieces, &hash)) return e;
     uint64_t size = 0;
     for (const ContentPiece& p : pieces) size += p.size;
+    const SnapshotRange range{buffer, offset, address, size};
+    uint64_t hash = 0;
+    if (TraceError e = impl_->add_contents(pieces, &hash, &range)) return e;
     *out = fbs::MemorySnapshot(buffer, offset, address, size, hash);
     return {};
 }

@@ -27,6 +27,7 @@ enum class CostPhase : uint8_t {
     kPeriodicFlush,  // sink thread: CLASTRACE_FLUSH_MS chunk ends (waits for the compressor)
     kDeviceFlush,    // vkDestroyDevice: writing out everything captured (the application waits)
     kHostWrites,     // host-write watch: hashing mapped inputs at submit, pauses and waits
+    kDriverBlas,     // inside kPauseEngine: device B building a command's traceable BLASes
     kCount
 };
 

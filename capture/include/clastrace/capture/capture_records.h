@@ -598,6 +598,9 @@ struct ClusterBuildCapture {
         uint64_t size = 0;
     };
     std::vector<DriverBvh> driver_bvh;
+    // Served traceable cluster BLASes at implicit destinations: the room each object took
+    // (engine::ExecuteOptions::implicit_object_room; ...Indirect.implicit_object_room). 0: none.
+    uint64_t implicit_object_room = 0;
 };
 
 // VkFrameBoundaryEXT (VK_EXT_frame_boundary) chained to a submission or a present: a headless

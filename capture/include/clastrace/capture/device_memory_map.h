@@ -86,6 +86,11 @@ public:
     // into host-visible staging to read it.
     std::vector<TrackedBuffer> unmapped_addressed_buffers(VkBufferUsageFlags usage_mask) const;
 
+    // The device-address ranges [begin, end) of the addressed buffers bound to `memory` (a
+    // sparse buffer: its pages bound there): what goes when the memory is freed.
+    std::vector<std::pair<VkDeviceAddress, VkDeviceAddress>> address_ranges_in(
+        uint64_t memory) const;
+
 private:
     // [offset, offset + size) of `b` in its memory (mutex_ held): a plain buffer's bound
     // memory, or for a sparse buffer the one memory its binds put the whole range in,

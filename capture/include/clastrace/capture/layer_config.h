@@ -61,6 +61,9 @@ struct LayerConfig {
     // CLASTRACE_HOST_WRITES: watch the mapped inputs of captured commands for host writes
     // between vkQueueSubmit and the wait that orders them (host_write_watch.h).
     bool host_writes = true;
+    // CLASTRACE_DELTA_CONTENTS: store a range's new contents XOR its previous contents
+    // (TraceWriterOptions::delta_contents); 0 stores every content whole (format 1.6 readers).
+    bool delta_contents = true;
     // CLASTRACE_SHARED_WAIT_MS: how long a submission waits for another queue to finish with the
     // pause events of a simultaneous-use command buffer (layer_submit.cpp) before it goes ahead.
     uint32_t shared_wait_milliseconds = 10000;

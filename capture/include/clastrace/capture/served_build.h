@@ -111,9 +111,18 @@ public:
     // The regions of groups not in `keep` (when given: one flag per group) and not viewed go back
     // at once. The image here is empty afterwards (as after reset()).
     std::shared_ptr<const engine::MemoryImage> share(const std::vector<bool>* keep = nullptr);
+    // Runs on every copy of the application's bytes into the image (or into a captured input)
+    // before anything reads them: the traceable mode lays the engine's bytes over the driver's
+    // BVHs there (TraceableEngineBytes).
+    using HostOverlay = std::function<void(uint64_t address, uint8_t* bytes, uint64_t size)>;
+    void set_host_overlay(HostOverlay overlay) { overlay_ = std::move(overlay); }
 
 private:
+    // `b`'s bytes [offset, offset + size) into `to`, overlaid.
+    void copy_in(const ServedBuffer& b, uint64_t offset, uint64_t size, uint8_t* to) const;
+
     std::shared_ptr<ServedRegionPool> pool_;
+    HostOverlay overlay_;
     std::vector<ServedBuffer> buffers_;  // the groups point into it
     std::vector<Group> groups_;
     std::vector<bool> copied_;
@@ -149,14 +158,18 @@ struct ServedExecution {
 // completeServedRecord walks (the record's executedCount), to keep only what it reads; none
 // when nothing reads the image afterwards (serving only: the image is kept whole).
 // `after_write_back`, when given, runs once the engine's writes are in the host bytes, with the
-// whole image of the run and its op count (the traceable mode builds the driver's BLASes there).
-using AfterServedWriteBack = std::function<void(const engine::MemoryImage& image, uint32_t ops)>;
+// whole image of the run and the run's record (the traceable mode builds the driver's BLASes at
+// the destinations its ops name).
+// `implicit_object_room`: engine::ExecuteOptions::implicit_object_room (traceable BLASes).
+using AfterServedWriteBack =
+    std::function<void(const engine::MemoryImage& image, const engine::ExecutionRecord& record)>;
 ServedExecution execute_served_build(const VkClusterAccelerationStructureCommandsInfoNV& command,
                                      ServedMemory& memory, engine::ObjectDirectory& directory,
                                      const engine::EngineProperties& properties,
                                      std::vector<CapturedRange>* input_walk = nullptr,
                                      std::optional<uint32_t> output_entries = std::nullopt,
-                                     const AfterServedWriteBack& after_write_back = {});
+                                     const AfterServedWriteBack& after_write_back = {},
+                                     uint64_t implicit_object_room = 0);
 // The same over a fresh ServedMemory of `buffers`.
 ServedExecution execute_served_build(const VkClusterAccelerationStructureCommandsInfoNV& command,
                                      std::span<const ServedBuffer> buffers,

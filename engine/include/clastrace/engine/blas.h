@@ -119,6 +119,23 @@ BottomLevelHit trace_bottom_level_bytes(
     const std::function<std::span<const std::byte>(uint64_t clas_address)>& clas_at, const Ray& ray,
     uint32_t ray_flags, bool first_hit, TraversalMode mode = TraversalMode::kDouble);
 
+// The same over CLASes the caller opened once (open_clas): `clas_at` gives the view a
+// reference names, or nullptr (skipped). The bytes form above checks each CLAS on every visit
+// (read_object_header: every local index and node link), which is most of a ray's time when
+// the caller has checked them already.
+BottomLevelHit trace_bottom_level_views(
+    std::span<const std::byte> blas,
+    const std::function<const ClasView*(uint64_t clas_address)>& clas_at, const Ray& ray,
+    uint32_t ray_flags, bool first_hit, TraversalMode mode = TraversalMode::kDouble);
+
+// The reference for the walk above: every referenced CLAS traced with
+// trace_closest_exhaustive (every triangle, no box), no BLAS box either. The closest hit by its
+// float t, ties to the lowest reference index; the walk gives the same hit.
+BottomLevelHit trace_bottom_level_bytes_exhaustive(
+    std::span<const std::byte> blas,
+    const std::function<std::span<const std::byte>(uint64_t clas_address)>& clas_at, const Ray& ray,
+    uint32_t ray_flags, TraversalMode mode = TraversalMode::kDouble);
+
 inline constexpr const char* kRuleStaleClusterReference =
     "CLASTRACE-cluster-reference-holds-no-clas";
 inline constexpr const char* kRuleNotABottomLevel = "CLASTRACE-not-a-clusters-bottom-level";

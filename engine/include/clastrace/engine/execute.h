@@ -9,7 +9,9 @@
 //   the thread count (overlapping destinations: the higher op index wins, and a finding
 //   says so).
 // - Implicit destinations are packed from dstImplicitData in op index order, each object
-//   at the next multiple of its type's alignment (properties).
+//   at the next multiple of its type's alignment (properties) after the room the one before
+//   takes: its own size, or ExecuteOptions::implicit_object_room where that is more (the
+//   room past the object is written with zeros).
 // - An indirected field (addressResolutionFlags) holds the address of a VkDeviceAddress
 //   (srcInfosCount: of the uint32 count); a strided region keeps its stride and size.
 // - Scratch holds a 16-byte (offset, size) entry per op: the implicit layout.
@@ -62,6 +64,12 @@ struct ExecuteOptions {
     // the engine asks the image's regions (one usage per region).
     std::function<std::optional<uint64_t>(uint64_t begin, uint64_t end, VkBufferUsageFlags usage)>
         first_without_usage;
+    // Implicit destinations: the bytes each object takes at least (the next object starts at
+    // the next aligned offset after them), and what dstSizesArray says it takes. The layer's
+    // traceable cluster BLASes write the driver's BVH at each object's address, which may be
+    // larger than the engine's object (capture/README.md "Traceable cluster BLASes"); replay
+    // passes the value the trace recorded. 0: each object takes its own size.
+    uint64_t implicit_object_room = 0;
 };
 
 ExecutionRecord execute(const VkClusterAccelerationStructureCommandsInfoNV& command,

@@ -22,6 +22,7 @@
 #include <span>
 #include <string>
 #include <type_traits>
+#include <utility>
 #include <vector>
 
 namespace clastrace::engine {
@@ -195,6 +196,14 @@ public:
     // all; the limit counts pages first written through write_bytes.
     void set_resident_limit(uint64_t bytes) { resident_limit_ = bytes; }
     uint64_t resident_limit_faults() const { return resident_limit_faults_; }
+    // Whether write_bytes may count `bytes` more bytes without passing the limit.
+    bool within_resident_limit(uint64_t bytes) const {
+        return resident_limit_ == ~0ull ||
+               (bytes <= resident_limit_ && written_ <= resident_limit_ - bytes);
+    }
+    // From now on write_bytes appends each (address, size) it hands out to *log (nullptr:
+    // none): replay runs a command on an image of its own and copies exactly these bytes over.
+    void log_writes(std::vector<std::pair<uint64_t, uint64_t>>* log) { write_log_ = log; }
 
     [[noreturn]] static void fault(uint64_t address, uint64_t size, FieldRef where,
                                    const std::string& what);
@@ -217,6 +226,7 @@ private:
     uint64_t written_ = 0;  // pages counted through write_bytes, for the limit
     uint64_t resident_limit_ = ~0ull;
     uint64_t resident_limit_faults_ = 0;
+    std::vector<std::pair<uint64_t, uint64_t>>* write_log_ = nullptr;
 };
 
 }  // namespace clastrace::engine

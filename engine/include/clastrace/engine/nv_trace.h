@@ -22,8 +22,8 @@
 // - AABBs: the engine stands in for the intersection shader: it reports the box entry
 //   (max(t_entry, tmin); tmin when the origin is inside), hit kind 0, u = v = 0;
 //   kFloat32 evaluates it as the ray check's shader does, in float without widening.
-// - Closest hit: the smallest t; on equal t the first found (deterministic for an object's
-//   bytes). TerminateOnFirstHit: the first accepted hit.
+// - Closest hit: the smallest t; on equal t the lowest (instance, geometry, primitive) index,
+//   whatever order the traversal visits them in. TerminateOnFirstHit: the first accepted hit.
 #pragma once
 
 #include "clastrace/engine/finding.h"
@@ -65,7 +65,8 @@ struct NvHit {
 };
 
 // A top-level object opened once for many rays: its bytes and every BLAS it reaches are
-// copied and checked (open_nv_object), so tracing never touches memory again.
+// copied and checked (open_nv_object), so tracing never touches memory again, and their trees
+// laid out for traversal (4-wide nodes; docs/engine-nv-formats.md, "The traversal's layout").
 class NvScene {
 public:
     // The scene of the top-level object at `address`; nullopt with `error` when the bytes
@@ -82,9 +83,17 @@ public:
                   TraversalMode mode = TraversalMode::kDouble) const;
     bool any(const Ray& ray, uint32_t ray_flags, uint32_t cull_mask,
              TraversalMode mode = TraversalMode::kDouble) const;
+    // closest() without any box: every primitive of every reached instance is tested. The
+    // plain answer the trees' traversal must equal exactly (tests; far slower).
+    NvHit closest_exhaustive(const Ray& ray, uint32_t ray_flags, uint32_t cull_mask,
+                             TraversalMode mode = TraversalMode::kDouble) const;
 
     uint32_t instance_count() const;
     uint32_t instances_reached() const;  // instances with a usable BLAS
+    // Bytes the scene keeps for tracing NV bottom levels and its top level: the copied
+    // primitive records and nodes, and the traversal's 4-wide nodes
+    // (docs/engine-nv-formats.md, "The traversal's layout"); `wide_nodes` their count.
+    uint64_t traversal_bytes(uint64_t* wide_nodes = nullptr) const;
 
     struct Data;
     NvScene(std::shared_ptr<const Data> data) : data_(std::move(data)) {}

@@ -92,6 +92,11 @@ std::optional<ClasView> open_clas(std::span<const std::byte> bytes, std::string*
 // Closest hit in [tmin, tmax]; with kRayFlagTerminateOnFirstHit the first accepted hit.
 Hit trace_closest(const ClasView& clas, const Ray& ray, uint32_t ray_flags,
                   TraversalMode mode = TraversalMode::kDouble);
+// The reference for trace_closest: every stored triangle tested with the same triangle test
+// and rules, no box. Ties (the same t) go to the triangle stored first; the BVH walk breaks
+// them the same way, so both give the same hit.
+Hit trace_closest_exhaustive(const ClasView& clas, const Ray& ray, uint32_t ray_flags,
+                             TraversalMode mode = TraversalMode::kDouble);
 // Whether any accepted hit exists in [tmin, tmax].
 bool trace_any(const ClasView& clas, const Ray& ray, uint32_t ray_flags,
                TraversalMode mode = TraversalMode::kDouble);

@@ -77,7 +77,30 @@ struct ReplayOptions {
     // How ray checks (RayQueryCheck records) trace the rebuilt structures;
     // `clastrace replay --traversal float32|double` sets it.
     RayCheckTraversal ray_check_traversal = RayCheckTraversal::kCapturingDevice;
+    // Threads the replay may use (`clastrace replay --threads N`); 0: the machine's cores as
+    // TBB counts them (affinity mask and cgroup quota included). The replay runs in a TBB arena
+    // of this size: the ops of a cluster build and the halves of an NV/KHR tree build run in
+    // parallel there, and 1 runs everything on the calling thread. The report (results,
+    // findings, hazards and their order) is the same for every count (docs/replay.md).
+    uint32_t threads = 0;
+    // With 2 or more threads: the sync model on a thread of its own, and cluster builds run
+    // ahead of their turn on images of their own (docs/replay.md "Threads"). Both off by
+    // default: on the device's 16 cores neither made a 10^6-op replay faster
+    // (docs/benchmarks.md). CLASTRACE_REPLAY_SYNC_THREAD=1 / CLASTRACE_REPLAY_RUN_AHEAD=1 in the
+    // environment turn them on too. The report is the same either way.
+    bool sync_model_thread = false;
+    bool run_ahead = false;
+    // Runs ahead, counted here when not null. Not owned.
+    struct RunAheadCounts {
+        uint64_t started = 0;    // runs started ahead
+        uint64_t stood = 0;      // taken at the command's turn
+        uint64_t run_again = 0;  // checked at the command's turn and run again in place
+    };
+    RunAheadCounts* run_ahead_counts = nullptr;
 };
+
+// The threads replay_trace uses for `options` (options.threads, or the machine's count for 0).
+uint32_t replay_threads(const ReplayOptions& options);
 
 // A trace "was made by clastrace's own engine" when its device's driver_name starts with
 // "clastrace" (docs/replay.md): its captured outputs must then equal the engine's bytes.

@@ -2,10 +2,13 @@
 // Reads a .clt trace chunk by chunk with bounded work and memory: one decompressed chunk,
 // one more of at most 16 MiB read ahead (on a task, so decompression overlaps the caller),
 // one for read_contents (at most one of the two above 32 MiB at a time), the index (bounded
-// by what the file's size makes plausible) and about 64 bytes per distinct content; all
-// the bytes it decompresses are bounded by a budget relative to the file's size. Every
-// record is checked by the FlatBuffers verifier before it is handed out. Damage does not
-// stop reading: it is listed in damage() and the reader continues with the next intact chunk.
+// by what the file's size makes plausible), about 64 bytes per distinct content, and the
+// real bytes of recent contents kept as bases of delta contents (64 MiB at most for the
+// caller's thread and 64 MiB for the read-ahead task, which decodes the deltas of the chunk it
+// reads ahead; the two share the bytes they both keep); all the bytes it decompresses are
+// bounded by a budget relative to the file's size. Every record is checked by the FlatBuffers
+// verifier before it is handed out. Damage does not stop reading: it is listed in damage() and
+// the reader continues with the next intact chunk.
 #pragma once
 
 #include <clastrace/traces/trace_error.h>
@@ -43,6 +46,17 @@ struct TraceReadStats {
         0;  // every byte decompressed (read-ahead, read_contents, index included)
     uint64_t raw_budget =
         0;  // the limit on raw_bytes_decompressed (TraceReaderOptions::max_raw_bytes)
+    // Delta contents XORed ahead of their records' checks (TraceReaderOptions::
+    // decode_deltas_ahead: on the read-ahead task for the chunks it reads), whose real bytes the
+    // caller's thread only copied in.
+    uint64_t deltas_decoded_ahead = 0;
+    // What the chunk buffers hold now (their capacity): decompressed and compressed bytes of
+    // the chunk being read, of the one read ahead and of read_contents' chunk. The index and
+    // the real bytes kept as delta bases are not counted.
+    uint64_t chunk_buffer_bytes = 0;
+    // Bytes of fresh buffers taken for contents' real bytes (delta bases, on both threads); a
+    // buffer no cache holds any more is filled again instead, so a frame loop's stop growing.
+    uint64_t real_bytes_allocated = 0;
 };
 
 // Speed/accuracy knob (bench/traces measures it). The chunk checksums always prove the
@@ -59,6 +73,11 @@ struct TraceReaderOptions {
     // about 4x, the capture bench's frames of barely changing vertices 45x; replay's
     // read_contents decompresses some chunks more than once).
     uint64_t max_raw_bytes = 0;
+    // Delta contents of a chunk read ahead are XORed on the read-ahead task, and the caller's
+    // thread takes the result once the record passed its checks and the task's base is the
+    // one it would use. False: every delta is decoded on the caller's thread (the tests compare
+    // the two; records, bytes and damage are the same).
+    bool decode_deltas_ahead = true;
 };
 
 inline constexpr uint64_t kRawBudgetFloorBytes = uint64_t{1} << 30;
@@ -100,7 +119,9 @@ public:
     TraceError seek_to_submission(uint64_t submission_index);
 
     // Copies the bytes of the contents with this hash (defined anywhere in the file the
-    // reader has seen or the index lists).
+    // reader has seen or the index lists). Delta contents (MemoryContentsDelta, format 1.7)
+    // come back as their real bytes: the chain of bases is resolved (a base must precede its
+    // delta), and each result is checked against its key. next() hands deltas out decoded.
     TraceError read_contents(uint64_t hash, std::vector<uint8_t>* out);
 
     // Every problem found so far, in the order found (at most 1000 kept; see damage_count()).

@@ -2,7 +2,8 @@
 // Writes a .clt trace: records go into chunks that a background thread compresses and
 // appends, so the caller only pays for building records. Memory is bounded by
 // (max_chunks_in_flight + 1) chunks plus about 150 bytes per distinct content (its key,
-// size, 128-bit fingerprint, the fingerprint's way back to the key, and place for the index).
+// size, 128-bit fingerprint, the fingerprint's way back to the key, and place for the index),
+// plus the snapshot ranges' last bytes kept as delta bases (delta_base_bytes).
 //
 // Errors are sticky: once a write fails (disk full, I/O error) every later call and
 // finish() return that error; nothing is lost silently.
@@ -27,6 +28,9 @@ namespace clastrace::traces {
 struct TraceWriterOptions {
     uint32_t chunk_raw_bytes = 4u << 20;  // a chunk is sealed once its records reach this size
     int zstd_level = 3;
+    // zstd's window (log2 bytes) for records chunks; 0: what the level picks (2 MiB at level 3,
+    // half a 4 MiB chunk). Readers need no setting up to 2^27 (zstd's default decoder limit).
+    int zstd_window_log = 0;
     uint32_t max_chunks_in_flight = 2;  // sealed chunks waiting for the compression thread
     bool sync_on_finish = true;         // fsync before finish() reports success
     // Bits of the content hash kept. 64 for real traces; tests lower it to force collisions.
@@ -42,6 +46,28 @@ struct TraceWriterOptions {
     // The CPUs the compression thread may run on (Linux, 0-based); empty: those of the thread
     // creating the writer. Best effort: a set the kernel refuses leaves it where it was created.
     std::vector<unsigned> compressor_cpus;
+    // Delta storage: new contents of a snapshot range (snapshot()'s buffer, offset, address and
+    // size) are stored XOR the previous contents of that range, so the bytes a frame did not
+    // change are zeros (a MemoryContentsDelta record, format 1.6). The writer keeps each range's
+    // last bytes, at most delta_base_bytes in all (least recently used ranges are forgotten
+    // first; their next contents are stored whole), so its memory stays bounded.
+    // delta_contents = false writes what readers older than 1.6 read whole.
+    bool delta_contents = true;
+    uint64_t delta_base_bytes = uint64_t{64} << 20;
+    // Deltas laid out in 4 byte planes (MemoryContentsDelta.byte_planes 4), which groups the
+    // unchanged high bytes of 32-bit values that changed a little.
+    bool delta_byte_planes = true;
+    // Longest chain of deltas before contents are stored whole again: read_contents of one
+    // content far from the scan resolves at most this many bases. 0: no limit.
+    uint32_t delta_chain_limit = 256;
+    // Records chunks as a streams payload (docs/trace-format.md): the records and the contents'
+    // bytes in two zstd frames, which compress better apart. Off: one frame, which readers
+    // older than this option read.
+    bool content_streams = true;
+    // In a streams payload, contents stored whole that look like 32-bit integers (indices,
+    // counts; format::planes_pay) go in 4 byte planes, as deltas do, which groups their
+    // high bytes. Off: every content as it is.
+    bool whole_content_planes = true;
 };
 
 struct TraceWriterStats {
@@ -54,7 +80,9 @@ struct TraceWriterStats {
     uint64_t contents_bytes_stored = 0;
     uint64_t contents_deduplicated = 0;  // add_contents calls answered by an existing record
     uint64_t contents_bytes_deduplicated = 0;
-    uint64_t hash_collisions = 0;  // distinct bytes whose first-choice key was taken
+    uint64_t hash_collisions = 0;        // distinct bytes whose first-choice key was taken
+    uint64_t contents_delta_stored = 0;  // of contents_stored: stored XOR an earlier content
+    uint64_t contents_delta_bytes = 0;
     // Where the writer's time goes (nanoseconds; wall clock unless named CPU).
     uint64_t contents_ns = 0;        // add_contents: hashing, dedup lookup, framing new contents
     uint64_t compress_ns = 0;        // zstd on the compression thread(s)
@@ -95,7 +123,8 @@ public:
     // get the same key however they were cut, and a repeat is hashed where it lies, uncopied.
     TraceError add_contents(std::span<const ContentPiece> pieces, uint64_t* hash);
 
-    // add_contents, then describes the snapshot for a command's inputs/outputs.
+    // add_contents, then describes the snapshot for a command's inputs/outputs. New contents
+    // may be stored as a delta against the range's previous contents (delta_contents).
     TraceError snapshot(uint64_t buffer, uint64_t offset, uint64_t address, const void* bytes,
                         size_t size, fbs::MemorySnapshot* out);
     TraceError snapshot(uint64_t buffer, uint64_t offset, uint64_t address,

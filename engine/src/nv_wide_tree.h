@@ -1,0 +1,571 @@
+// SPDX-License-Identifier: Apache-2.0
+// The NV traversal's own layout of a tree (issue 22): the stored binary tree (NvNode, which
+// replay compares byte for byte and therefore stays as it is) collapsed into 8-wide nodes
+// tested with AVX2 where the CPU has it, 4-wide nodes tested with SSE elsewhere (SimdPath),
+// child boxes in SoA lanes, built when a scene is opened (nv_trace.cpp keeps it beside the
+// copied records) and traversed near child first with one SIMD slab test per node.
+//
+// The SIMD box test is conservative for every ray it accepts (WideRay::usable): for a
+// kDouble ray it never culls a box that the exact ray (double origin and direction) meets
+// within [tmin, tmax], so it keeps every box the scalar double slab test (geometry/slab.h)
+// keeps; for a kFloat32 ray it keeps every box the scalar float32 test (float32.h) keeps. The
+// triangle test alone decides the hits. Rays it cannot bound that way
+// (non-finite or huge origins, direction components whose inverse leaves 2^±100) take the
+// scalar walk over the binary tree.
+#pragma once
+
+#include "clastrace/engine/nv_format.h"
+#include "geometry/ray.h"
+#include "geometry/triangle4.h"
+#include "simd4.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstddef>
+#include <cstring>
+#include <optional>
+#include <vector>
+
+#if defined(__x86_64__) && defined(__SSE2__) && defined(__GNUC__)
+// The 8-wide box test and walk, compiled for AVX2 in functions of their own (target
+// attribute) and chosen at run time (active_simd_path); the rest of the engine stays SSE2.
+#define CLASTRACE_AVX2_PATH 1
+#define CLASTRACE_TARGET_AVX2 __attribute__((target("avx2")))
+#include <immintrin.h>
+#endif
+
+namespace clastrace::engine::detail {
+
+// Children of a collapsed tree, W of them (4 for the SSE path, 8 for the AVX2 path): their
+// boxes by axis and lane, each child an inner wide node (count 0: `child` indexes the tree's
+// nodes) or a leaf: `count` records from `child` on, those of a stored leaf or of a stored
+// subtree of at most four contiguous records. Unused lanes have count kWideEmptyLane. Aligned
+// to cache lines. Trees that cannot be quantized (below) keep the 4-wide form of this.
+inline constexpr uint32_t kWideEmptyLane = 0xFFFFFFFFu;
+template <int W>
+struct alignas(64) FloatWideNode {
+    float lo[3][W];
+    float hi[3][W];
+    uint32_t child[W];
+    uint32_t count[W];
+};
+using WideNode = FloatWideNode<4>;
+static_assert(sizeof(WideNode) == 128);
+
+// The same node with each child's box as bytes in the frame of the union of the W (per axis,
+// `origin` and a power-of-two step 2^exponent, so q * step is exact and origin + q * step
+// rounds once). The bytes are rounded outward at build time, checked on the very arithmetic
+// the traversal runs (dequantized): every dequantized box contains the stored box it stands
+// for, so the slab test on it culls nothing the stored one keeps.
+// count: 0 inner, 1-254 a leaf's records, kQuantizedEmptyLane unused.
+// The box test reads only the fields before `child`: for W = 8 they fill the first of the
+// node's two cache lines exactly, and the second is read only for the children hit.
+inline constexpr uint8_t kQuantizedEmptyLane = 0xFF;
+inline constexpr uint32_t kQuantizedMaxLeaf = 254;
+template <int W>
+struct alignas(64) QuantizedNode {
+    float origin[3];
+    int8_t exponent[3];  // in [-126, 127]: the step is a normal float
+    uint8_t used;        // bit k: lane k holds a child (count[k] != kQuantizedEmptyLane)
+    uint8_t qlo[3][W];
+    uint8_t qhi[3][W];
+    uint32_t child[W];
+    uint8_t count[W];
+};
+using QuantizedWideNode = QuantizedNode<4>;
+using QuantizedWideNode8 = QuantizedNode<8>;
+static_assert(sizeof(QuantizedWideNode) == 64);
+static_assert(sizeof(QuantizedWideNode8) == 128);
+static_assert(offsetof(QuantizedWideNode8, child) == 64);
+static_assert(offsetof(QuantizedWideNode8, used) == offsetof(QuantizedWideNode8, exponent) + 3);
+
+// The step 2^e as a float (e in [-126, 127]).
+inline float quantization_step(int8_t e) {
+    const uint32_t bits = uint32_t(int32_t(e) + 127) << 23;
+    float f;
+    std::memcpy(&f, &bits, 4);
+    return f;
+}
+
+// One dequantized bound: origin + q * step, each operation rounded once to float. The builder
+// checks its rounding through this; the SIMD lanes (quantized_lanes, and the AVX2 box test)
+// run the same two float operations (no contraction: the engine builds with -ffp-contract=off),
+// lane by lane, and so give the same floats.
+inline float dequantized(float origin, uint8_t q, int8_t exponent) {
+    return origin + float(q) * quantization_step(exponent);
+}
+
+// The dequantized boxes of one axis's four lanes, in float lanes.
+inline void quantized_lanes(const QuantizedWideNode& n, int axis, Float4* lo, Float4* hi) {
+    const Float4 origin = splat(n.origin[axis]);
+    const Float4 step = splat(quantization_step(n.exponent[axis]));
+    *lo = origin + bytes_to_float4(n.qlo[axis]) * step;
+    *hi = origin + bytes_to_float4(n.qhi[axis]) * step;
+}
+
+// Which box test and node width the traversal uses. kAvx2: 8-wide quantized nodes tested eight
+// at a time; kSse: 4-wide nodes, the reference and the path of CPUs without AVX2. Both keep
+// every box the ray meets and test the same triangles exactly, so hits, t, barycentrics,
+// facing and ties are the same; only the order of the leaves differs (which a
+// terminate-on-first-hit ray may see as a different first hit).
+enum class SimdPath { kSse, kAvx2 };
+// kAvx2 where the CPU has AVX2, unless CLASTRACE_ENGINE_SIMD=sse (read once) or the test hook
+// below says otherwise.
+SimdPath active_simd_path();
+// Test hook: the path of the trees made from now on (std::nullopt: back to the above). kAvx2
+// on a CPU without AVX2 still gives kSse.
+void force_simd_path(std::optional<SimdPath> path);
+// Whether this CPU runs the AVX2 path.
+bool cpu_has_avx2();
+
+// A tree in the traversal's layout: `quantized8` on the AVX2 path when every node could be
+// quantized, else `quantized` under the same condition (finite frames, leaves of at most
+// kQuantizedMaxLeaf records), `nodes` otherwise. Element 0 of the one used is the root; all
+// empty: nothing is ever hit.
+struct WideTree {
+    std::vector<WideNode> nodes;
+    std::vector<QuantizedWideNode> quantized;
+    std::vector<QuantizedWideNode8> quantized8;
+    // Whether the leaves index groups of four triangles (group_leaf_triangles: `child` the first
+    // group, `count` still the records) rather than records.
+    bool leaf_groups = false;
+    // The root box's center and the mean largest extent of the leaves' boxes, for
+    // resolves_leaves.
+    double center[3] = {0.0, 0.0, 0.0};
+    double leaf_extent = 0.0;
+    size_t node_count() const { return nodes.size() + quantized.size() + quantized8.size(); }
+    size_t bytes() const {
+        return nodes.size() * sizeof(WideNode) + quantized.size() * sizeof(QuantizedWideNode) +
+               quantized8.size() * sizeof(QuantizedWideNode8);
+    }
+};
+
+// The wide tree of a checked binary tree (open_nv_object's rules: children after their
+// parent) for `path`: 8-wide quantized on kAvx2 where every node can be quantized, else 4-wide,
+// quantized where every node can be. A box with a NaN bound is left out with its subtree: no
+// slab test ever accepts it.
+WideTree make_wide_tree(const std::vector<NvNode>& nodes, SimdPath path = active_simd_path());
+// The 4-wide tree with float boxes only (`nodes`).
+WideTree make_float_wide_tree(const std::vector<NvNode>& nodes);
+// The 8-wide float nodes the kAvx2 tree is quantized from (tests compare the two).
+std::vector<FloatWideNode<8>> make_float_wide_nodes8(const std::vector<NvNode>& nodes);
+#if defined(CLASTRACE_AVX2_PATH)
+// The dequantized boxes of one axis's eight lanes as the AVX2 box test computes them (tests;
+// AVX2 CPUs only).
+void quantized_lanes8(const QuantizedWideNode8& n, int axis, float lo[8], float hi[8]);
+#endif
+
+// The leaves' four-triangle filter (geometry::triangle4_candidates) as the traversal calls it,
+// once per group. The AVX2 path's copy is compiled for AVX2: the same SSE operations in their
+// three-operand form (no register copies), with the same results bit for bit (the target does
+// not enable fused multiply-adds).
+using LeafFilter = unsigned (*)(const geometry::Triangle4Ray& r, const geometry::Triangle4& t,
+                                unsigned used, float tmax);
+// The filter of `tree`'s path, chosen once per walk: the AVX2 copy for 8-wide nodes.
+LeafFilter leaf_filter(const WideTree& tree);
+
+// The triangles of `tree`'s leaves in groups of four (geometry/triangle4.h), a leaf's groups
+// side by side in the order the leaves are laid out; each leaf's `child` becomes the index of
+// its first group (tree->leaf_groups). `records` are the triangles the tree was built over;
+// a leaf reaching past them keeps only the records that exist.
+std::vector<geometry::Triangle4> group_leaf_triangles(
+    WideTree* tree, const std::vector<NvPrimitiveRecord>& records);
+
+// A prepared ray in the SIMD box test's terms; usable false: use the scalar walk.
+struct WideRay {
+    bool usable = false;
+    bool zero[3];           // direction component exactly 0: the origin is tested against the slab
+    Float4 origin[3];       // the origin rounded to float, in every lane
+    Float4 inverse[3];      // 1 / direction rounded to float
+    float origin_below[3];  // the float at or below / above the exact origin (zero axes only)
+    float origin_above[3];
+    Float4 widen_down, widen_up;  // 1 -/+ the relative widening
+    Float4 widen_abs;             // the absolute widening (the origin's rounding, underflow)
+    Float4 tmin;                  // r.tmin rounded down
+};
+
+WideRay make_wide_ray(const geometry::PreparedRay& r);
+
+// Whether the SIMD box test still tells the tree's leaf boxes apart for a ray from `o`: its
+// relative widening (2^-20 of each distance, make_wide_ray) at the ray's distance from the
+// root's center is at most a quarter of a typical leaf. From farther away (1e-3 triangles seen
+// from 4e4: the widening is 40 times a triangle) it accepts every leaf near the ray, and the
+// double scalar walk, which culls them, is several times faster.
+inline bool resolves_leaves(const WideTree& tree, const double o[3]) {
+    double far = 0.0;
+    for (int a = 0; a < 3; ++a) far = std::max(far, std::fabs(o[a] - tree.center[a]));
+    return !(far * 0x1p-20 > tree.leaf_extent * 0.25);
+}
+
+// The float at or above `t` (`t` itself when it is a float); +inf past FLT_MAX.
+float float_at_or_above(double t);
+
+inline void lane_boxes(const WideNode& n, int axis, Float4* lo, Float4* hi) {
+    *lo = load4(n.lo[axis]);
+    *hi = load4(n.hi[axis]);
+}
+inline void lane_boxes(const QuantizedWideNode& n, int axis, Float4* lo, Float4* hi) {
+    quantized_lanes(n, axis, lo, hi);
+}
+inline uint32_t lane_count(const WideNode& n, int k) { return n.count[k]; }
+template <int W>
+inline uint32_t lane_count(const QuantizedNode<W>& n, int k) {
+    return n.count[k] == kQuantizedEmptyLane ? kWideEmptyLane : n.count[k];
+}
+// Bit k: lane k holds a child.
+inline unsigned used_lanes(const WideNode& n) {
+    unsigned used = 0;
+    for (int k = 0; k < 4; ++k) used |= unsigned(n.count[k] != kWideEmptyLane) << k;
+    return used;
+}
+template <int W>
+inline unsigned used_lanes(const QuantizedNode<W>& n) {
+    return n.used;
+}
+
+// The children of `node` the ray meets within [tmin, tmax] (bit k = lane k) and their entry
+// distances, each at or below the exact one. kZeroAxes: the ray may have a direction component
+// exactly 0 (false: it has none, and the per-axis check drops out of the loop).
+template <bool kZeroAxes, class Node>
+inline unsigned wide_hits(const WideRay& r, const Node& node, float tmax, float entry[4]) {
+    Float4 near_t = splat(-__builtin_inff()), far_t = splat(__builtin_inff());
+    unsigned inside = 0xF;
+#pragma GCC unroll 3
+    for (int a = 0; a < 3; ++a) {
+        Float4 lo, hi;
+        lane_boxes(node, a, &lo, &hi);
+        if (kZeroAxes && r.zero[a]) {
+            inside &=
+                le_lanes(lo, splat(r.origin_above[a])) & le_lanes(splat(r.origin_below[a]), hi);
+            continue;
+        }
+        const Float4 t0 = (lo - r.origin[a]) * r.inverse[a];
+        const Float4 t1 = (hi - r.origin[a]) * r.inverse[a];
+        near_t = max4(near_t, min4(t0, t1));
+        far_t = min4(far_t, max4(t0, t1));
+    }
+    // Widening after the per-axis max/min is the same as widening each axis (it is monotone),
+    // with the largest axis's absolute term.
+    near_t = min4(near_t * r.widen_down, near_t * r.widen_up) - r.widen_abs;
+    far_t = max4(far_t * r.widen_down, far_t * r.widen_up) + r.widen_abs;
+    near_t = max4(near_t, r.tmin);
+    far_t = min4(far_t, splat(tmax));
+    store4(entry, near_t);
+    return le_lanes(near_t, far_t) & inside & used_lanes(node);
+}
+
+// An entry of a wide walk's stack: a child (count 0: an inner node, else a leaf's records) and
+// the distance at which the ray enters its box.
+struct WalkEntry {
+    uint32_t child, count;
+    float t;
+};
+
+// The entries a wide walk has yet to visit. Each visit pops one entry and pushes at most W - 1:
+// depth x (W - 1) + 1 entries; the stored tree's depth is bounded by its node count, so deep
+// (hostile) trees spill to the vector: entries from kSize on live there.
+class WalkStack {
+public:
+    // Inlined into the walks (an out-of-line push cost 4% of a ray's instructions); the spill
+    // to the vector stays out of line.
+    [[gnu::always_inline]] void push(const WalkEntry& e) {
+        if (__builtin_expect(size_ < kSize, 1))
+            stack_[size_] = e;
+        else
+            spill(e);
+        ++size_;
+    }
+    // The entry pushed last; false when none is left. One test of the size on the common path
+    // (the overflow vector is looked at only past kSize).
+    [[gnu::always_inline]] bool pop(WalkEntry* e) {
+        if (size_ == 0) return false;
+        --size_;
+        if (__builtin_expect(size_ < kSize, 1))
+            *e = stack_[size_];
+        else
+            *e = unspill();
+        return true;
+    }
+
+private:
+    [[gnu::noinline]] void spill(const WalkEntry& e) { overflow_.push_back(e); }
+    [[gnu::noinline]] WalkEntry unspill() {
+        const WalkEntry e = overflow_.back();
+        overflow_.pop_back();
+        return e;
+    }
+    static constexpr uint32_t kSize = 256;
+    WalkEntry stack_[kSize];
+    uint32_t size_ = 0;
+    std::vector<WalkEntry> overflow_;
+};
+
+// The box test's tmax: *tmax rounded up to float, again only when *tmax has changed.
+class RoundedTmax {
+public:
+    explicit RoundedTmax(double tmax) : from_(tmax), up_(float_at_or_above(tmax)) {}
+    float of(double tmax) {
+        if (tmax != from_) {
+            from_ = tmax;
+            up_ = float_at_or_above(tmax);
+        }
+        return up_;
+    }
+
+private:
+    double from_;
+    float up_;
+};
+
+// Lane k of `n`, which the box test hit (so it holds a child), as a stack entry; its bytes are
+// fetched at once, since rays are incoherent (`prefetch(first, count)` for a leaf).
+template <class Node, class Prefetch>
+[[gnu::always_inline]] inline WalkEntry hit_child(const Node* nodes, const Node& n, int k,
+                                                  const float* entry, Prefetch& prefetch) {
+    const WalkEntry c{n.child[k], uint32_t(n.count[k]), entry[k]};
+    if (c.count == 0) {
+        const char* line = reinterpret_cast<const char*>(nodes + c.child);
+        for (size_t at = 0; at < sizeof(Node); at += 64) __builtin_prefetch(line + at);
+    } else {
+        prefetch(c.child, c.count);
+    }
+    return c;
+}
+
+// After a node whose box test hit `first` and the lanes in `more` (at least one): the nearest
+// child into *next (visited next, without a push and a pop), the others onto the stack farthest
+// first. Two children, the common case, take one comparison; more are sorted by insertion.
+// Equal distances keep the lane order of the insertion sort the walks had before (the higher
+// lane is visited first), so first-hit rays see the same leaves in the same order.
+template <int W, class Node, class Prefetch>
+[[gnu::always_inline]] inline void order_children(const Node* nodes, const Node& n, WalkEntry first,
+                                                  unsigned more, const float* entry,
+                                                  Prefetch& prefetch, WalkStack* stack,
+                                                  WalkEntry* next) {
+    WalkEntry second = hit_child(nodes, n, __builtin_ctz(more), entry, prefetch);
+    more &= more - 1;
+    if (more == 0) {
+        if (first.t < second.t) std::swap(first, second);
+        stack->push(first);
+        *next = second;
+        return;
+    }
+    WalkEntry order[W];
+    order[0] = first;
+    int count = 1;
+    for (WalkEntry c = second;;
+         c = hit_child(nodes, n, __builtin_ctz(more), entry, prefetch), more &= more - 1) {
+        int at = count++;
+        while (at > 0 && order[at - 1].t < c.t) {
+            order[at] = order[at - 1];
+            --at;
+        }
+        order[at] = c;
+        if (more == 0) break;
+    }
+    for (int k = 0; k + 1 < count; ++k) stack->push(order[k]);
+    *next = order[count - 1];
+}
+
+// Visits the leaves of a wide tree (`nodes`, W lanes a node) that the ray's [tmin, *tmax]
+// reaches, nearest box first, skipping entries behind *tmax (`leaf(first, count)` lowers it;
+// returns true to stop). `box_test(node, tmax, entry)` gives the lanes the ray meets (bit k =
+// lane k) and their entry distances (wide_hits, wide8_hits). `prefetch(first, count)` is told
+// of a leaf as soon as its box is hit. Always inlined into the one function of each path, so
+// that the AVX2 box test inlines into the AVX2 walk (target attribute) and the SSE one into
+// the SSE walk.
+template <int W, class Node, class BoxTest, class Leaf, class Prefetch>
+[[gnu::always_inline]] inline void walk_nodes(const std::vector<Node>& tree,
+                                              const BoxTest& box_test, double* tmax, Leaf& leaf,
+                                              Prefetch& prefetch) {
+    if (tree.empty()) return;
+    const Node* nodes = tree.data();
+    WalkStack stack;
+    RoundedTmax tmax_up(*tmax);
+    // The entry visited next: the nearest child the node just visited hit, else the top of
+    // the stack.
+    WalkEntry e{0, 0, -__builtin_inff()};
+    for (;;) {
+        if (!(double(e.t) > *tmax)) {
+            if (e.count != 0) {
+                if (leaf(e.child, e.count)) return;
+            } else {
+                const Node& n = nodes[e.child];
+                alignas(32) float entry[W];
+                const unsigned hits = box_test(n, tmax_up.of(*tmax), entry);
+                if (hits != 0) {
+                    const WalkEntry first =
+                        hit_child(nodes, n, __builtin_ctz(hits), entry, prefetch);
+                    const unsigned more = hits & (hits - 1);
+                    if (more == 0)
+                        e = first;
+                    else
+                        order_children<W>(nodes, n, first, more, entry, prefetch, &stack, &e);
+                    continue;
+                }
+            }
+        }
+        if (!stack.pop(&e)) return;
+    }
+}
+
+// walk_nodes over 4-wide nodes (float or quantized) with the SSE box test.
+template <bool kZeroAxes, class Node, class Leaf, class Prefetch>
+void walk_wide_nodes(const std::vector<Node>& nodes, const WideRay& r, double* tmax, Leaf& leaf,
+                     Prefetch& prefetch) {
+    const auto box_test = [&r](const Node& n, float tmax_up, float* entry) {
+        return wide_hits<kZeroAxes>(r, n, tmax_up, entry);
+    };
+    walk_nodes<4>(nodes, box_test, tmax, leaf, prefetch);
+}
+
+#if defined(CLASTRACE_AVX2_PATH)
+
+// WideRay in eight lanes for the 8-wide box test, and per axis the offsets (from a node's qlo)
+// of the bytes of the planes the ray enters and leaves a box by: with the signs of the
+// direction known, the near plane is lo where it is positive and hi where it is negative,
+// which gives the same distances as the min and max of the two (lo <= hi, 1 / d finite and
+// not 0) without computing both.
+struct WideRay8 {
+    bool zero[3];
+    int near_plane[3], far_plane[3];
+    __m256 origin[3], inverse[3];
+    __m256 origin_below[3], origin_above[3];
+    __m256 widen_down, widen_up, widen_abs, tmin;
+};
+
+CLASTRACE_TARGET_AVX2 inline __m256 lane_of(Float4 a) { return _mm256_set1_ps(_mm_cvtss_f32(a.v)); }
+
+CLASTRACE_TARGET_AVX2 inline WideRay8 make_wide_ray8(const WideRay& r) {
+    WideRay8 w;
+    constexpr int kHi = int(offsetof(QuantizedWideNode8, qhi) - offsetof(QuantizedWideNode8, qlo));
+    for (int a = 0; a < 3; ++a) {
+        w.zero[a] = r.zero[a];
+        w.origin[a] = lane_of(r.origin[a]);
+        w.inverse[a] = lane_of(r.inverse[a]);
+        w.origin_below[a] = _mm256_set1_ps(r.origin_below[a]);
+        w.origin_above[a] = _mm256_set1_ps(r.origin_above[a]);
+        const bool negative = _mm_cvtss_f32(r.inverse[a].v) < 0.0f;
+        w.near_plane[a] = 8 * a + (negative ? kHi : 0);
+        w.far_plane[a] = 8 * a + (negative ? 0 : kHi);
+    }
+    w.widen_down = lane_of(r.widen_down);
+    w.widen_up = lane_of(r.widen_up);
+    w.widen_abs = lane_of(r.widen_abs);
+    w.tmin = lane_of(r.tmin);
+    return w;
+}
+
+// Eight bytes as float lanes, dequantized: origin + q * step (dequantized's two roundings).
+CLASTRACE_TARGET_AVX2 inline __m256 dequantized8(const uint8_t* q, __m256 origin, __m256 step) {
+    const __m128i bytes = _mm_loadl_epi64(reinterpret_cast<const __m128i*>(q));
+    const __m256 f = _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(bytes));
+    return _mm256_add_ps(origin, _mm256_mul_ps(f, step));
+}
+
+CLASTRACE_TARGET_AVX2 inline unsigned le_lanes8(__m256 a, __m256 b) {
+    return unsigned(_mm256_movemask_ps(_mm256_cmp_ps(a, b, _CMP_LE_OQ)));
+}
+
+// wide_hits for eight children at once: the same bounds, the same widening, so the same
+// conservative answer for every box.
+template <bool kZeroAxes>
+CLASTRACE_TARGET_AVX2 inline unsigned wide8_hits(const WideRay8& r, const QuantizedWideNode8& n,
+                                                 float tmax, float entry[8]) {
+    __m256 near_t = _mm256_set1_ps(-__builtin_inff()), far_t = _mm256_set1_ps(__builtin_inff());
+    unsigned inside = 0xFF;
+    const uint8_t* q = &n.qlo[0][0];
+    constexpr int kHi = int(offsetof(QuantizedWideNode8, qhi) - offsetof(QuantizedWideNode8, qlo));
+    // The three steps at once (quantization_step's bits: (e + 127) << 23), from the four
+    // bytes at `exponent` (the used-lane byte comes along and is not read).
+    int32_t exponent_bytes;
+    std::memcpy(&exponent_bytes, n.exponent, 4);
+    const __m128 steps = _mm_castsi128_ps(
+        _mm_slli_epi32(_mm_add_epi32(_mm_cvtepi8_epi32(_mm_cvtsi32_si128(exponent_bytes)),
+                                     _mm_set1_epi32(127)),
+                       23));
+    // Each in all eight lanes: a broadcast of lane 0 of `steps`, of its lane 1 moved down, of
+    // its lane 2 moved down (a permute by lane index cost twice the instructions: its index
+    // vectors are built too).
+    const __m256 axis_steps[3] = {_mm256_broadcastss_ps(steps),
+                                  _mm256_broadcastss_ps(_mm_movehdup_ps(steps)),
+                                  _mm256_broadcastss_ps(_mm_movehl_ps(steps, steps))};
+    // Unrolled: the loop's own counting was 15 instructions a node (callgrind).
+#pragma GCC unroll 3
+    for (int a = 0; a < 3; ++a) {
+        const __m256 origin = _mm256_broadcast_ss(&n.origin[a]);
+        const __m256 step = axis_steps[a];
+        if (kZeroAxes && r.zero[a]) {
+            const __m256 lo = dequantized8(q + 8 * a, origin, step);
+            const __m256 hi = dequantized8(q + kHi + 8 * a, origin, step);
+            inside &= le_lanes8(lo, r.origin_above[a]) & le_lanes8(r.origin_below[a], hi);
+            continue;
+        }
+        const __m256 near_plane = dequantized8(q + r.near_plane[a], origin, step);
+        const __m256 far_plane = dequantized8(q + r.far_plane[a], origin, step);
+        near_t = _mm256_max_ps(near_t,
+                               _mm256_mul_ps(_mm256_sub_ps(near_plane, r.origin[a]), r.inverse[a]));
+        far_t = _mm256_min_ps(far_t,
+                              _mm256_mul_ps(_mm256_sub_ps(far_plane, r.origin[a]), r.inverse[a]));
+    }
+    near_t = _mm256_sub_ps(_mm256_min_ps(_mm256_mul_ps(near_t, r.widen_down),
+                                         _mm256_mul_ps(near_t, r.widen_up)),
+                           r.widen_abs);
+    far_t = _mm256_add_ps(_mm256_max_ps(_mm256_mul_ps(far_t, r.widen_down),
+                                        _mm256_mul_ps(far_t, r.widen_up)),
+                          r.widen_abs);
+    near_t = _mm256_max_ps(near_t, r.tmin);
+    far_t = _mm256_min_ps(far_t, _mm256_set1_ps(tmax));
+    _mm256_storeu_ps(entry, near_t);
+    return le_lanes8(near_t, far_t) & inside & n.used;
+}
+
+// wide8_hits as walk_nodes' box test: a class rather than a lambda, so that its call operator
+// carries the AVX2 target attribute too.
+template <bool kZeroAxes>
+struct Wide8BoxTest {
+    const WideRay8& ray;
+    CLASTRACE_TARGET_AVX2 unsigned operator()(const QuantizedWideNode8& n, float tmax,
+                                              float* entry) const {
+        return wide8_hits<kZeroAxes>(ray, n, tmax, entry);
+    }
+};
+
+// walk_nodes over 8-wide quantized nodes with the AVX2 box test.
+template <bool kZeroAxes, class Leaf, class Prefetch>
+CLASTRACE_TARGET_AVX2 void walk_wide8_nodes(const std::vector<QuantizedWideNode8>& nodes,
+                                            const WideRay& wide_ray, double* tmax, Leaf& leaf,
+                                            Prefetch& prefetch) {
+    const WideRay8 r = make_wide_ray8(wide_ray);
+    walk_nodes<8>(nodes, Wide8BoxTest<kZeroAxes>{r}, tmax, leaf, prefetch);
+}
+#endif
+
+template <class Leaf, class Prefetch>
+void walk_wide(const WideTree& tree, const WideRay& r, double* tmax, Leaf&& leaf,
+               Prefetch&& prefetch) {
+    const bool zero_axes = r.zero[0] || r.zero[1] || r.zero[2];
+#if defined(CLASTRACE_AVX2_PATH)
+    if (!tree.quantized8.empty()) {
+        if (zero_axes)
+            walk_wide8_nodes<true>(tree.quantized8, r, tmax, leaf, prefetch);
+        else
+            walk_wide8_nodes<false>(tree.quantized8, r, tmax, leaf, prefetch);
+        return;
+    }
+#endif
+    if (!tree.quantized.empty()) {
+        if (zero_axes)
+            walk_wide_nodes<true>(tree.quantized, r, tmax, leaf, prefetch);
+        else
+            walk_wide_nodes<false>(tree.quantized, r, tmax, leaf, prefetch);
+    } else {
+        if (zero_axes)
+            walk_wide_nodes<true>(tree.nodes, r, tmax, leaf, prefetch);
+        else
+            walk_wide_nodes<false>(tree.nodes, r, tmax, leaf, prefetch);
+    }
+}
+
+}  // namespace clastrace::engine::detail

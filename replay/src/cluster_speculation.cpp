@@ -1,0 +1,267 @@
+// SPDX-License-Identifier: Apache-2.0
+#include "cluster_speculation.h"
+
+#include <clastrace/engine/build_sizes.h>
+#include <clastrace/engine/execute.h>
+#include <clastrace/traces/trace_generated.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstring>
+
+namespace clastrace::replay::detail {
+
+bool ClusterRunAhead::skip_checks_for_tests = false;
+
+void RecentContents::keep(uint64_t hash, const uint8_t* data, size_t size) {
+    if (size > max_bytes_ / 4) return;  // one big content would push out everything else
+    if (auto it = by_hash_.find(hash); it != by_hash_.end()) {
+        order_.splice(order_.begin(), order_, it->second);
+        return;
+    }
+    order_.emplace_front(hash, std::vector<uint8_t>(data, data + size));
+    by_hash_[hash] = order_.begin();
+    bytes_ += size;
+    while (bytes_ > max_bytes_ && !order_.empty()) {
+        bytes_ -= order_.back().second.size();
+        by_hash_.erase(order_.back().first);
+        order_.pop_back();
+    }
+}
+
+const std::vector<uint8_t>* RecentContents::find(uint64_t hash) {
+    auto it = by_hash_.find(hash);
+    if (it == by_hash_.end()) return nullptr;
+    order_.splice(order_.begin(), order_, it->second);
+    return &it->second->second;
+}
+
+namespace {
+
+// Op types whose ops read no object through the directory: their results depend on memory
+// bytes alone, which commit checks.
+bool reads_no_objects(VkClusterAccelerationStructureOpTypeNV type) {
+    return type == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV ||
+           type == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV;
+}
+
+// Adds the replay's region holding `address` to `image` (bounds and usage; no bytes).
+void add_region_of(const engine::MemoryImage& real, uint64_t address, engine::MemoryImage& image) {
+    if (address == 0 || image.find_region(address)) return;
+    const engine::MemoryRegion* r = real.find_region(address);
+    if (!r) return;
+    image.add_region(r->base, r->size, r->usage, r->label);
+}
+
+bool same_sizes(const ClusterDriverSizes& a, const ClusterDriverSizes& b) {
+    return a.build_scratch_size == b.build_scratch_size &&
+           a.acceleration_structure_size == b.acceleration_structure_size && a.queried == b.queried;
+}
+
+}  // namespace
+
+std::unique_ptr<ClusterRunAhead> ClusterRunAhead::start(std::vector<uint8_t> record,
+                                                        uint64_t stream_index,
+                                                        const AheadInputs& in) {
+    const fbs::Record* r = flatbuffers::GetRoot<fbs::Record>(record.data());
+    const auto* build = r->body_as_CmdBuildClusterAccelerationStructureIndirect();
+    if (!build || !build->input() ||
+        !reads_no_objects(
+            static_cast<VkClusterAccelerationStructureOpTypeNV>(build->input()->op_type())))
+        return nullptr;
+    std::unique_ptr<ClusterRunAhead> run(new ClusterRunAhead);
+    run->stream_index_ = stream_index;
+    run->queried_max_count_ =
+        in.queries.largest_count(build->input()->op_type(), build->input()->op_mode());
+    try {
+        run->info_ = traces::cluster_commands_from_record(*build, run->op_inputs_);
+        run->sizes_ = in.queries.sizes_for(run->info_.input, in.properties);
+        if (!run->prepare_image(*build, in)) return nullptr;
+    } catch (const std::exception&) {
+        return nullptr;  // a record or region the replay's own run will report on
+    }
+    run->record_ = std::move(record);
+    const uint64_t room = build->implicit_object_room();
+    run->group_.run([raw = run.get(), &properties = in.properties,
+                     findings = in.max_findings_per_rule,
+                     room] { raw->run(properties, findings, room); });
+    return run;
+}
+
+// The regions the command names directly or through its snapshots, with the snapshots laid in.
+bool ClusterRunAhead::prepare_image(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
+                                    const AheadInputs& in) {
+    const engine::MemoryImage& real = in.memory.image();
+    for (uint64_t address :
+         {info_.srcInfosArray.deviceAddress, info_.srcInfosCount, info_.scratchData,
+          info_.dstImplicitData, info_.dstAddressesArray.deviceAddress,
+          info_.dstSizesArray.deviceAddress})
+        add_region_of(real, address, image_);
+    if (build.inputs()) {
+        for (const fbs::MemorySnapshot* s : *build.inputs()) {
+            const std::optional<uint64_t> address =
+                in.memory.snapshot_address(s->buffer(), s->offset(), s->address());
+            const std::vector<uint8_t>* bytes = in.contents.find(s->hash());
+            if (!address || !bytes) return false;
+            add_region_of(real, *address, image_);
+            auto span = image_.write_bytes(*address, bytes->size(), {"snapshot", -1});
+            std::copy(bytes->begin(), bytes->end(), reinterpret_cast<uint8_t*>(span.data()));
+        }
+    }
+    // Explicit destinations: the regions the (laid-in) dstAddressesArray names.
+    if (info_.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV &&
+        info_.dstAddressesArray.deviceAddress != 0) {
+        const uint64_t stride = info_.dstAddressesArray.stride ? info_.dstAddressesArray.stride : 8;
+        const uint64_t count = std::min<uint64_t>(info_.input.maxAccelerationStructureCount, 4096);
+        for (uint64_t i = 0; i < count; ++i) {
+            try {
+                add_region_of(real,
+                              image_.read<uint64_t>(info_.dstAddressesArray.deviceAddress +
+                                                        i * stride,
+                                                    {"dstAddressesArray", -1}),
+                              image_);
+            } catch (const engine::MemoryFault&) {
+                break;
+            }
+        }
+    }
+    return true;
+}
+
+void ClusterRunAhead::run(const engine::EngineProperties& properties,
+                          uint32_t max_findings_per_rule, uint64_t implicit_object_room) {
+    engine::ExecuteOptions options;
+    options.properties = properties;
+    options.directory = &directory_;
+    options.max_findings_per_rule = max_findings_per_rule;
+    options.queried_max_count = queried_max_count_;
+    options.answered_sizes = sizes_.answered();
+    options.implicit_object_room = implicit_object_room;
+    // Answered "yes" here and asked again of the replay's buffers at the command's turn.
+    options.first_without_usage = [this](uint64_t begin, uint64_t end, VkBufferUsageFlags usage) {
+        std::lock_guard<std::mutex> lock(usage_mutex_);
+        usage_queries_.push_back({begin, end, usage});
+        return std::optional<uint64_t>();
+    };
+    image_.log_writes(&writes_);
+    const auto started = std::chrono::steady_clock::now();
+    try {
+        result_ = engine::execute(info_, image_, options);
+    } catch (const std::exception&) {
+        failed_ = true;  // the command's turn runs it again and reports the failure
+    }
+    image_.log_writes(nullptr);
+    engine_ns_ = static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                           std::chrono::steady_clock::now() - started)
+                                           .count());
+}
+
+bool ClusterRunAhead::reads_unchanged(const engine::MemoryImage& real) const {
+    // The bytes it wrote, merged: a read of them would compare its own output, not its input.
+    std::vector<std::pair<uint64_t, uint64_t>> written;  // [begin, end), sorted, disjoint
+    for (const auto& [address, size] : writes_) written.emplace_back(address, address + size);
+    std::sort(written.begin(), written.end());
+    size_t kept = 0;
+    for (const auto& w : written) {
+        if (kept > 0 && w.first <= written[kept - 1].second)
+            written[kept - 1].second = std::max(written[kept - 1].second, w.second);
+        else
+            written[kept++] = w;
+    }
+    written.resize(kept);
+    for (const engine::MemoryAccess& a : result_.accesses) {
+        if (a.is_write || a.end <= a.begin) continue;
+        auto after = std::upper_bound(written.begin(), written.end(),
+                                      std::pair<uint64_t, uint64_t>{a.begin, UINT64_MAX});
+        if (after != written.end() && after->first < a.end) return false;
+        if (after != written.begin() && std::prev(after)->second > a.begin) return false;
+        try {
+            auto now = real.read_bytes(a.begin, a.end - a.begin, {"run ahead", -1});
+            auto then = image_.read_bytes(a.begin, a.end - a.begin, {"run ahead", -1});
+            if (std::memcmp(now.data(), then.data(), now.size()) != 0) return false;
+        } catch (const engine::MemoryFault&) {
+            return false;
+        }
+    }
+    return true;
+}
+
+// Every write lands in one region of the replay's memory, within its resident limit.
+bool ClusterRunAhead::writes_fit(const engine::MemoryImage& real) const {
+    uint64_t added = 0;
+    for (const auto& [address, size] : writes_) {
+        const engine::MemoryRegion* r = real.find_region(address);
+        if (!r || address - r->base > r->size || r->size - (address - r->base) < size) return false;
+        added += r->bytes.untouched_bytes(address - r->base, size);
+    }
+    return real.within_resident_limit(added);
+}
+
+bool ClusterRunAhead::built_objects(std::vector<Built>* objects) const {
+    for (const engine::OpResult& op : result_.ops) {
+        if (!op.executed || op.dst_address == 0) continue;
+        const engine::ObjectType type = op.dst_type == 2
+                                            ? engine::ObjectType::kTriangleClusterTemplate
+                                            : engine::ObjectType::kTriangleCluster;
+        if (!directory_.lookup(image_, op.dst_address, type, false, {"run ahead", -1}).found())
+            return false;  // a later op of the command wrote over it
+        objects->push_back({op.dst_address, op.dst_size, type});
+    }
+    return true;
+}
+
+bool ClusterRunAhead::stands(const ReplayMemory& memory, uint32_t queried_max_count,
+                             const ClusterDriverSizes& sizes) const {
+    if (skip_checks_for_tests) return !failed_;
+    if (failed_ || !result_.findings.empty() || queried_max_count != queried_max_count_ ||
+        !same_sizes(sizes, sizes_))
+        return false;
+    for (const UsageQuery& q : usage_queries_)
+        if (memory.first_without_usage(q.begin, q.end, q.usage)) return false;
+    return reads_unchanged(memory.image()) && writes_fit(memory.image());
+}
+
+bool ClusterRunAhead::commit(ReplayMemory& memory, engine::ObjectDirectory& directory,
+                             uint32_t queried_max_count, const ClusterDriverSizes& sizes,
+                             engine::ExecutionRecord* record, uint64_t* engine_ns) {
+    group_.wait();
+    std::vector<Built> objects;
+    if (!stands(memory, queried_max_count, sizes) || !built_objects(&objects)) return false;
+    engine::MemoryImage& real = memory.image();
+    for (const auto& [address, size] : writes_) {
+        auto from = image_.read_bytes(address, size, {"run ahead", -1});
+        auto to = real.write_bytes(address, size, {"run ahead", -1});
+        std::memcpy(to.data(), from.data(), size);
+    }
+    for (const Built& b : objects)  // in op order, as the engine's own run records them
+        directory.record_built(b.address, b.type,
+                               real.read_bytes(b.address, b.size, {"run ahead", -1}));
+    stood_ = true;
+    *record = std::move(result_);
+    if (engine_ns) *engine_ns = engine_ns_;
+    return true;
+}
+
+std::unique_ptr<ClusterRunAhead> RunAheadWindow::take(std::span<const uint8_t> record) {
+    for (auto it = runs_.begin(); it != runs_.end(); ++it) {
+        const std::vector<uint8_t>& bytes = (*it)->record();
+        if (bytes.size() == record.size() &&
+            std::memcmp(bytes.data(), record.data(), bytes.size()) == 0) {
+            std::unique_ptr<ClusterRunAhead> run = std::move(*it);
+            runs_.erase(it);
+            return run;
+        }
+    }
+    return nullptr;
+}
+
+bool RunAheadWindow::holds(uint64_t stream_index) const {
+    return std::any_of(runs_.begin(), runs_.end(),
+                       [&](const auto& run) { return run->stream_index() == stream_index; });
+}
+
+void RunAheadWindow::drop_before(uint64_t index) {
+    std::erase_if(runs_, [&](const auto& run) { return run->stream_index() < index; });
+}
+
+}  // namespace clastrace::replay::detail

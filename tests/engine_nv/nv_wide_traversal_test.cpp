@@ -1,0 +1,466 @@
+// SPDX-License-Identifier: Apache-2.0
+// The NV traversal's 4-wide layout and SIMD box test (engine/src/nv_wide_tree.h) against the
+// plain answer (NvScene::closest_exhaustive: every primitive tested, no box): the same hit,
+// t, instance, geometry, primitive, u, v and facing for every ray, in both traversal modes,
+// over plain meshes, rays that graze the boxes (aimed at vertices and edges, the points that
+// lie on leaf boxes' faces), axis-parallel rays, and the extremes (huge and tiny coordinates,
+// small triangles far away, NaN and degenerate triangles, scaled, mirrored and rotated
+// instances). A box test that rounds a bound inward culls the grazing rays' hits. The
+// quantized nodes (one cache line each) are also checked box by box: every dequantized box
+// contains the float box it stands for.
+// The traversal tests run on both paths (nv_wide_tree.h, SimdPath): 8-wide nodes with the AVX2
+// box test and 4-wide nodes with the SSE one, forced through the test hook; on a CPU without
+// AVX2 both runs take the SSE path.
+#include "nv_scene.h"
+#include "nv_wide_tree.h"
+
+#include <clastrace/testsupport/rays.h>
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+#include <sstream>
+
+namespace clastrace::nvtest {
+namespace {
+
+constexpr eng::TraversalMode kModes[] = {eng::TraversalMode::kDouble, eng::TraversalMode::kFloat32};
+
+BlasSpec one_mesh(ts::TriangleMesh m) {
+    BlasSpec s;
+    s.geometries.push_back({std::move(m), {}, VK_GEOMETRY_OPAQUE_BIT_NV});
+    return s;
+}
+
+ts::TriangleMesh scaled(ts::TriangleMesh m, float scale, float offset) {
+    for (auto& p : m.positions)
+        for (float& c : p) c = c * scale + offset;
+    return m;
+}
+
+std::string describe(const eng::NvHit& h) {
+    std::ostringstream s;
+    s.precision(9);
+    if (!h.hit) return "miss";
+    s << "t=" << h.t << " instance=" << h.instance_index << " geometry=" << h.geometry_index
+      << " primitive=" << h.primitive_index << " u=" << h.u << " v=" << h.v
+      << " kind=" << h.hit_kind;
+    return s.str();
+}
+
+bool same(const eng::NvHit& a, const eng::NvHit& b) {
+    if (a.hit != b.hit) return false;
+    if (!a.hit) return true;
+    return a.t == b.t && a.instance_index == b.instance_index &&
+           a.geometry_index == b.geometry_index && a.primitive_index == b.primitive_index &&
+           a.u == b.u && a.v == b.v && a.hit_kind == b.hit_kind;
+}
+
+// Random rays through the mesh's box, rays from random origins aimed at every `stride`-th
+// vertex and edge midpoint (grazing the leaf boxes those points bound), and axis-parallel
+// rays aimed at vertices (zero direction components). `back` > 0: every origin moved that far
+// back along its ray (the interval with it), to see small triangles from far away.
+std::vector<eng::Ray> rays_for(const ts::TriangleMesh& m, size_t random_count, uint64_t seed,
+                               float back = 0.0f) {
+    std::vector<eng::Ray> rays;
+    const ts::Bounds b = ts::bounds_of(m);
+    for (const auto& t : ts::random_rays(b, random_count, seed))
+        rays.push_back(eng::Ray{{t.origin[0], t.origin[1], t.origin[2]},
+                                t.tmin,
+                                {t.direction[0], t.direction[1], t.direction[2]},
+                                t.tmax});
+    std::mt19937_64 rng(seed);
+    std::uniform_real_distribution<double> unit(-1.0, 1.0);
+    float extent = 0.0f;
+    for (int a = 0; a < 3; ++a) extent = std::max(extent, b.hi[a] - b.lo[a]);
+    const size_t stride = std::max<size_t>(1, m.triangles.size() / 400);
+    for (size_t i = 0; i < m.triangles.size(); i += stride) {
+        const auto& tri = m.triangles[i];
+        const auto& p0 = m.positions[tri[0]];
+        const auto& p1 = m.positions[tri[1]];
+        float targets[2][3];
+        for (int a = 0; a < 3; ++a) {
+            targets[0][a] = p0[a];
+            targets[1][a] = float((double(p0[a]) + p1[a]) * 0.5);
+        }
+        for (const auto& target : targets) {
+            eng::Ray r;
+            for (int a = 0; a < 3; ++a) {
+                r.origin[a] = float(target[a] + 2.0 * extent * unit(rng));
+                r.direction[a] = target[a] - r.origin[a];
+            }
+            r.tmin = 0.0f;
+            r.tmax = 3.0f;
+            if (std::isfinite(r.direction[0]) && std::isfinite(r.direction[1]) &&
+                std::isfinite(r.direction[2]))
+                rays.push_back(r);
+            // Along one axis onto the vertex: two direction components exactly 0.
+            const int axis = int(i % 3);
+            eng::Ray axial;
+            for (int a = 0; a < 3; ++a) {
+                axial.origin[a] = target[a];
+                axial.direction[a] = 0.0f;
+            }
+            axial.origin[axis] = target[axis] - 2.0f * extent;
+            axial.direction[axis] = 1.0f;
+            axial.tmin = 0.0f;
+            axial.tmax = 4.0f * extent;
+            if (std::isfinite(axial.origin[axis])) rays.push_back(axial);
+        }
+    }
+    if (back > 0.0f) {
+        for (eng::Ray& r : rays) {
+            const double len = std::sqrt(double(r.direction[0]) * r.direction[0] +
+                                         double(r.direction[1]) * r.direction[1] +
+                                         double(r.direction[2]) * r.direction[2]);
+            const double steps = back / len;
+            for (int a = 0; a < 3; ++a) r.origin[a] = float(r.origin[a] - r.direction[a] * steps);
+            r.tmax = float(r.tmax + steps);
+        }
+    }
+    return rays;
+}
+
+// Every ray through `scene` both ways, in both modes: the count of hits (to show the rays
+// reach the geometry) and the first differences.
+size_t expect_same_as_exhaustive(const eng::NvScene& scene, const std::vector<eng::Ray>& rays,
+                                 const std::string& what) {
+    size_t hits = 0, differ = 0;
+    for (const eng::TraversalMode mode : kModes) {
+        for (size_t i = 0; i < rays.size(); ++i) {
+            const eng::NvHit tree = scene.closest(rays[i], 0, 0xFF, mode);
+            const eng::NvHit plain = scene.closest_exhaustive(rays[i], 0, 0xFF, mode);
+            hits += plain.hit;
+            // Every triangle is opaque: a first-hit query hits exactly when there is a hit.
+            if (scene.any(rays[i], 0, 0xFF, mode) != plain.hit && ++differ <= 5)
+                ADD_FAILURE() << what << ", " << eng::traversal_mode_name(mode) << ", ray " << i
+                              << ": any() differs from " << describe(plain);
+            if (same(tree, plain)) continue;
+            if (++differ <= 5)
+                ADD_FAILURE() << what << ", " << eng::traversal_mode_name(mode) << ", ray " << i
+                              << ": traversal " << describe(tree) << ", plain " << describe(plain);
+        }
+    }
+    EXPECT_EQ(differ, 0u) << what << ": of " << 2 * rays.size() << " rays";
+    return hits;
+}
+
+size_t check_bottom(const ts::TriangleMesh& mesh, uint32_t build_flags, const std::string& what,
+                    float back = 0.0f) {
+    NvWorld w;
+    const auto info = w.blas_info(one_mesh(mesh), build_flags);
+    auto obj = w.make_object(info, "blas");
+    const auto r = w.build(info, obj);
+    EXPECT_TRUE(r.ops[0].executed) << what;
+    std::string error;
+    auto scene = eng::NvScene::open_bottom(w.memory, obj.address, &error);
+    EXPECT_TRUE(scene) << what << ": " << error;
+    if (!scene) return 0;
+    return expect_same_as_exhaustive(*scene, rays_for(mesh, 3000, 7, back), what);
+}
+
+// The tests of this fixture open their scenes under the path it names.
+class NvWideTraversalPath : public ::testing::TestWithParam<eng::detail::SimdPath> {
+protected:
+    void SetUp() override { eng::detail::force_simd_path(GetParam()); }
+    void TearDown() override { eng::detail::force_simd_path(std::nullopt); }
+};
+
+INSTANTIATE_TEST_SUITE_P(Simd, NvWideTraversalPath,
+                         ::testing::Values(eng::detail::SimdPath::kSse,
+                                           eng::detail::SimdPath::kAvx2),
+                         [](const ::testing::TestParamInfo<eng::detail::SimdPath>& info) {
+                             return std::string(info.param == eng::detail::SimdPath::kSse
+                                                    ? "Sse4Wide"
+                                                    : "Avx2EightWide");
+                         });
+
+TEST_P(NvWideTraversalPath, SameHitsAsEveryPrimitiveTestedOnTheBenchMeshes) {
+    for (const uint32_t flags :
+         {0u, uint32_t(VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV)}) {
+        const std::string tree = flags ? "Morton" : "SAH";
+        EXPECT_GT(check_bottom(ts::make_icosphere(4, 1.0f), flags, "icosphere " + tree), 1000u);
+        EXPECT_GT(check_bottom(ts::make_terrain(40, 40, 1), flags, "terrain " + tree), 1000u);
+        EXPECT_GT(check_bottom(ts::make_random_soup(4000, 5, 1.0f, 0.05f), flags, "soup " + tree),
+                  1000u);
+        EXPECT_GT(check_bottom(ts::make_torus(60, 30, 1.0f, 0.3f), flags, "torus " + tree), 1000u);
+    }
+}
+
+TEST_P(NvWideTraversalPath, SameHitsAtHugeAndTinyCoordinates) {
+    const ts::TriangleMesh sphere = ts::make_icosphere(3, 1.0f);
+    EXPECT_GT(check_bottom(scaled(sphere, 1e30f, 0.0f), 0, "sphere at 1e30"), 500u);
+    EXPECT_GT(check_bottom(scaled(sphere, 1e-30f, 0.0f), 0, "sphere at 1e-30"), 500u);
+    // Triangles of about 1e-3 seen from 4e4 away.
+    EXPECT_GT(check_bottom(scaled(sphere, 1e-2f, 0.0f), 0, "1e-2 sphere from 4e4", 4e4f), 500u);
+    EXPECT_GT(check_bottom(scaled(sphere, 3e37f, 2e38f), 0, "sphere near FLT_MAX"), 100u);
+}
+
+TEST_P(NvWideTraversalPath, SameHitsWithNanAndDegenerateTriangles) {
+    ts::TriangleMesh m = ts::make_random_soup(3000, 11, 1.0f, 0.1f);
+    const float nan = std::nanf("");
+    for (size_t i = 0; i < m.triangles.size(); i += 7) {
+        auto& t = m.triangles[i];
+        if (i % 3 == 0) m.positions[t[1]] = m.positions[t[0]];  // a point
+        if (i % 3 == 1) m.positions[t[2]][1] = nan;             // NaN y: undefined
+        if (i % 3 == 2) t[2] = t[1];                            // a segment
+    }
+    EXPECT_GT(check_bottom(m, 0, "soup with NaN and degenerate triangles"), 1000u);
+}
+
+TEST_P(NvWideTraversalPath, SameHitsThroughScaledMirroredAndRotatedInstances) {
+    const ts::TriangleMesh sphere = ts::make_icosphere(3, 1.0f);
+    const ts::TriangleMesh slab = ts::make_terrain(20, 20, 3);
+    std::vector<InstanceSpec> instances;
+    auto add = [&](int blas, std::initializer_list<float> m) {
+        InstanceSpec s;
+        std::copy(m.begin(), m.end(), s.transform);
+        s.blas = blas;
+        instances.push_back(s);
+    };
+    add(0, {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0});
+    add(0, {1e-2f, 0, 0, 0.5f, 0, 1e-2f, 0, 0.2f, 0, 0, 1e-2f, 0});    // scaled down
+    add(0, {-1, 0, 0, 0.3f, 0, 1, 0, 0, 0, 0, 1, 0.1f});               // mirrored
+    add(1, {0.6f, -0.8f, 0, 0, 0.8f, 0.6f, 0, 0, 0, 0, 2e3f, -0.5f});  // rotated, stretched
+    add(1, {0.6f, -0.8f, 0, 0, 0.8f, 0.6f, 0, 0, 0, 0, 2e3f, -0.5f});  // the same twice: ties
+    add(0, {1e4f, 0, 0, 0, 0, -1e4f, 0, 0, 0, 0, 1e4f, 0});            // huge, mirrored
+    auto built = build_scene({one_mesh(sphere), one_mesh(slab)}, instances);
+    ASSERT_TRUE(built);
+    std::string error;
+    auto scene = eng::NvScene::open(built->world.memory, built->tlas.address, nullptr, &error);
+    ASSERT_TRUE(scene) << error;
+    ts::TriangleMesh probe = sphere;  // rays aimed at the first instance's vertices
+    for (const auto& p : slab.positions) probe.positions.push_back(p);
+    EXPECT_GT(expect_same_as_exhaustive(*scene, rays_for(probe, 4000, 9), "instances"), 1000u);
+}
+
+// Object-space origins that are not floats: a mesh around 3000 through an instance scaling it
+// by 3, rays starting within a few units of it. The SIMD test rounds the origin to float
+// (half an ulp of 3000, 1.2e-4, against distances of about 1): a box test that left that
+// rounding out of its widening (the relative part alone) culls grazing hits.
+TEST_P(NvWideTraversalPath, SameHitsFromNearbyOriginsThatAreNotFloats) {
+    const ts::TriangleMesh sphere = scaled(ts::make_icosphere(3, 1.0f), 1.0f, 3000.0f);
+    InstanceSpec in;
+    const float transform[12] = {3, 0, 0, 0, 0, 3, 0, 0, 0, 0, 3, 0};
+    std::copy(transform, transform + 12, in.transform);
+    in.blas = 0;
+    auto built = build_scene({one_mesh(sphere)}, {in});
+    ASSERT_TRUE(built);
+    std::string error;
+    auto scene = eng::NvScene::open(built->world.memory, built->tlas.address, nullptr, &error);
+    ASSERT_TRUE(scene) << error;
+    const ts::TriangleMesh world = scaled(sphere, 3.0f, 0.0f);
+    EXPECT_GT(expect_same_as_exhaustive(*scene, rays_for(world, 3000, 13), "origins near 9000"),
+              1000u);
+}
+
+// The stored tree of a BLAS built from `mesh`, its nodes as the traversal copies them.
+std::vector<eng::NvNode> stored_nodes(const ts::TriangleMesh& mesh, uint32_t build_flags) {
+    NvWorld w;
+    const auto info = w.blas_info(one_mesh(mesh), build_flags);
+    auto obj = w.make_object(info, "blas");
+    w.build(info, obj);
+    const eng::FieldRef where{"blas", -1};
+    std::string error;
+    const auto header =
+        eng::read_nv_header(w.memory.read_bytes(obj.address, sizeof(eng::NvObjectHeader), where),
+                            &error);
+    EXPECT_TRUE(header) << error;
+    if (!header) return {};
+    const auto bytes = w.memory.read_bytes(obj.address, header->object_size, where);
+    const auto view = eng::open_nv_object(bytes, &error);
+    EXPECT_TRUE(view) << error;
+    std::vector<eng::NvNode> nodes;
+    for (uint32_t i = 0; view && i < view->header.node_count; ++i) nodes.push_back(view->node(i));
+    return nodes;
+}
+
+// Lanes of `q` whose dequantized box (the traversal's arithmetic) does not contain `f`'s box,
+// or whose child or count differs.
+int lanes_not_containing(const eng::detail::QuantizedWideNode& q, const eng::detail::WideNode& f) {
+    int bad = 0;
+    for (int k = 0; k < 4; ++k) {
+        if (f.count[k] == eng::detail::kWideEmptyLane) {
+            bad += q.count[k] != eng::detail::kQuantizedEmptyLane;
+            continue;
+        }
+        bad += q.count[k] != f.count[k] || q.child[k] != f.child[k];
+    }
+    for (int a = 0; a < 3; ++a) {
+        eng::detail::Float4 lo4, hi4;
+        eng::detail::quantized_lanes(q, a, &lo4, &hi4);
+        float lo[4], hi[4];
+        eng::detail::store4(lo, lo4);
+        eng::detail::store4(hi, hi4);
+        for (int k = 0; k < 4; ++k)
+            if (f.count[k] != eng::detail::kWideEmptyLane)
+                bad += !(lo[k] <= f.lo[a][k]) || !(hi[k] >= f.hi[a][k]);
+    }
+    return bad;
+}
+
+TEST(NvWideTraversal, QuantizedBoxesContainTheirFloatBoxes) {
+    const ts::TriangleMesh sphere = ts::make_icosphere(3, 1.0f);
+    const std::pair<std::string, ts::TriangleMesh> meshes[] = {
+        {"icosphere", ts::make_icosphere(4, 1.0f)},
+        {"terrain", ts::make_terrain(40, 40, 1)},
+        {"soup", ts::make_random_soup(4000, 5, 1.0f, 0.05f)},
+        {"sphere at 1e30", scaled(sphere, 1e30f, 0.0f)},
+        {"sphere at 1e-30", scaled(sphere, 1e-30f, 0.0f)},
+        {"sphere near FLT_MAX", scaled(sphere, 3e37f, 2e38f)},
+        {"sphere across the float range", scaled(sphere, 3e38f, 0.0f)},
+        {"1e-3 triangles at 4e4", scaled(ts::make_random_soup(2000, 7, 0.25f, 1e-3f), 1.0f, 4e4f)}};
+    for (const auto& [what, mesh] : meshes) {
+        const std::vector<eng::NvNode> nodes = stored_nodes(mesh, 0);
+        const eng::detail::WideTree plain = eng::detail::make_float_wide_tree(nodes);
+        const eng::detail::WideTree tree =
+            eng::detail::make_wide_tree(nodes, eng::detail::SimdPath::kSse);
+        ASSERT_EQ(tree.quantized.size(), plain.nodes.size()) << what << ": not quantized";
+        EXPECT_TRUE(tree.nodes.empty()) << what;
+        int bad = 0;
+        for (size_t i = 0; i < plain.nodes.size(); ++i)
+            bad += lanes_not_containing(tree.quantized[i], plain.nodes[i]);
+        EXPECT_EQ(bad, 0) << what << ": lanes of " << plain.nodes.size() << " nodes";
+    }
+}
+
+// The 8-wide nodes, lane by lane through the AVX2 test's own dequantization: every box
+// contains the float box it stands for, and children and counts are kept.
+TEST(NvWideTraversal, EightWideQuantizedBoxesContainTheirFloatBoxes) {
+    if (!eng::detail::cpu_has_avx2()) GTEST_SKIP() << "no AVX2 on this CPU";
+#if defined(CLASTRACE_AVX2_PATH)
+    const ts::TriangleMesh sphere = ts::make_icosphere(3, 1.0f);
+    const std::pair<std::string, ts::TriangleMesh> meshes[] = {
+        {"icosphere", ts::make_icosphere(4, 1.0f)},
+        {"soup", ts::make_random_soup(4000, 5, 1.0f, 0.05f)},
+        {"sphere at 1e30", scaled(sphere, 1e30f, 0.0f)},
+        {"sphere at 1e-30", scaled(sphere, 1e-30f, 0.0f)},
+        {"sphere across the float range", scaled(sphere, 3e38f, 0.0f)}};
+    for (const auto& [what, mesh] : meshes) {
+        const std::vector<eng::NvNode> nodes = stored_nodes(mesh, 0);
+        const auto plain = eng::detail::make_float_wide_nodes8(nodes);
+        const auto tree = eng::detail::make_wide_tree(nodes, eng::detail::SimdPath::kAvx2);
+        ASSERT_EQ(tree.quantized8.size(), plain.size()) << what << ": not quantized";
+        EXPECT_TRUE(tree.quantized.empty() && tree.nodes.empty()) << what;
+        int bad = 0;
+        for (size_t i = 0; i < plain.size(); ++i) {
+            const auto& q = tree.quantized8[i];
+            const auto& f = plain[i];
+            for (int k = 0; k < 8; ++k) {
+                const bool empty = f.count[k] == eng::detail::kWideEmptyLane;
+                bad += empty ? q.count[k] != eng::detail::kQuantizedEmptyLane
+                             : q.count[k] != f.count[k] || q.child[k] != f.child[k];
+                bad += ((q.used >> k) & 1) == empty;
+            }
+            for (int a = 0; a < 3; ++a) {
+                float lo[8], hi[8];
+                eng::detail::quantized_lanes8(q, a, lo, hi);
+                for (int k = 0; k < 8; ++k)
+                    if (f.count[k] != eng::detail::kWideEmptyLane)
+                        bad += !(lo[k] <= f.lo[a][k]) || !(hi[k] >= f.hi[a][k]);
+            }
+        }
+        EXPECT_EQ(bad, 0) << what << ": lanes of " << plain.size() << " nodes";
+    }
+#endif
+}
+
+// The path decides the layout: 8-wide nodes on kAvx2 (where the CPU has it), 4-wide on kSse,
+// and the test hook moves the default.
+TEST(NvWideTraversal, ThePathPicksTheNodeWidth) {
+    const std::vector<eng::NvNode> nodes = stored_nodes(ts::make_icosphere(4, 1.0f), 0);
+    const auto sse = eng::detail::make_wide_tree(nodes, eng::detail::SimdPath::kSse);
+    EXPECT_FALSE(sse.quantized.empty());
+    EXPECT_TRUE(sse.quantized8.empty());
+    eng::detail::force_simd_path(eng::detail::SimdPath::kSse);
+    EXPECT_EQ(eng::detail::active_simd_path(), eng::detail::SimdPath::kSse);
+    EXPECT_TRUE(eng::detail::make_wide_tree(nodes).quantized8.empty());
+    eng::detail::force_simd_path(eng::detail::SimdPath::kAvx2);
+    const bool avx2 = eng::detail::cpu_has_avx2();
+    EXPECT_EQ(eng::detail::active_simd_path(),
+              avx2 ? eng::detail::SimdPath::kAvx2 : eng::detail::SimdPath::kSse);
+    const auto wide = eng::detail::make_wide_tree(nodes);
+    EXPECT_EQ(wide.quantized8.empty(), !avx2);
+    // Fewer, wider nodes.
+    if (avx2) {
+        EXPECT_LT(wide.quantized8.size(), sse.quantized.size());
+    }
+    eng::detail::force_simd_path(std::nullopt);
+}
+
+TEST(NvWideTraversal, TreesWithInfiniteBoxesKeepFloatNodes) {
+    eng::NvNode root{};
+    for (int a = 0; a < 3; ++a) {
+        root.bounds_min[a] = -INFINITY;
+        root.bounds_max[a] = INFINITY;
+    }
+    root.count = 1;
+    const eng::detail::WideTree tree =
+        eng::detail::make_wide_tree({root}, eng::detail::SimdPath::kAvx2);
+    EXPECT_TRUE(tree.quantized.empty());
+    EXPECT_TRUE(tree.quantized8.empty());
+    ASSERT_EQ(tree.nodes.size(), 1u);
+    EXPECT_EQ(tree.nodes[0].count[0], 1u);
+}
+
+// A caterpillar of `levels` inner nodes: inner node L (index 2L) has leaf L (index 2L + 1, record
+// L) on the left and inner node L + 1 on the right; the last one has leaf `levels` on its right.
+// Along +x from x = -5000 the ray enters each inner box (x from -(2000 - L)) before every leaf
+// box (x from 3000 + L): every wide node's inner child is visited first and its leaves wait on
+// the stack, which grows by W - 1 entries a level.
+std::vector<eng::NvNode> caterpillar(uint32_t levels) {
+    std::vector<eng::NvNode> nodes(2 * size_t(levels) + 1);
+    auto box = [](eng::NvNode* n, float x0, float x1) {
+        n->bounds_min[0] = x0;
+        n->bounds_max[0] = x1;
+        for (int a = 1; a < 3; ++a) {
+            n->bounds_min[a] = -1.0f;
+            n->bounds_max[a] = 1.0f;
+        }
+    };
+    for (uint32_t l = 0; l < levels; ++l) {
+        eng::NvNode& inner = nodes[2 * l];
+        box(&inner, -(2000.0f - float(l)), 4000.0f);
+        inner.first = 2 * l + 2;
+        inner.count = 0;
+        eng::NvNode& leaf = nodes[2 * l + 1];
+        box(&leaf, 3000.0f + float(l), 3000.5f + float(l));
+        leaf.first = l;
+        leaf.count = 1;
+    }
+    eng::NvNode& last = nodes.back();
+    box(&last, 3000.0f + float(levels), 3000.5f + float(levels));
+    last.first = levels;
+    last.count = 1;
+    return nodes;
+}
+
+// A tree deep enough that the walk's stack spills past its fixed part (WalkStack) still gives
+// every leaf the ray meets, each once, on both paths.
+TEST(NvWideTraversal, ADeepTreeSpillsTheStackAndLosesNoLeaf) {
+    constexpr uint32_t kLevels = 1200;  // 8-wide: 7 leaves pushed a level, 4-wide: 3
+    const std::vector<eng::NvNode> nodes = caterpillar(kLevels);
+    const double o[3] = {-5000.0, 0.0, 0.0}, d[3] = {1.0, 0.0, 0.0};
+    const eng::geometry::PreparedRay rd = eng::geometry::prepare_ray(o, d, 0.0, INFINITY);
+    const eng::detail::WideRay wr = eng::detail::make_wide_ray(rd);
+    ASSERT_TRUE(wr.usable);
+    for (const auto path : {eng::detail::SimdPath::kSse, eng::detail::SimdPath::kAvx2}) {
+        const eng::detail::WideTree tree = eng::detail::make_wide_tree(nodes, path);
+        ASSERT_GT(tree.node_count(), 0u);
+        std::vector<int> seen(kLevels + 1, 0);
+        double tmax = INFINITY;
+        eng::detail::walk_wide(
+            tree, wr, &tmax,
+            [&](uint32_t first, uint32_t count) {
+                for (uint32_t k = first; k < first + count && k < seen.size(); ++k) ++seen[k];
+                return false;
+            },
+            [](uint32_t, uint32_t) {});
+        for (uint32_t k = 0; k <= kLevels; ++k)
+            ASSERT_EQ(seen[k], 1) << "record " << k << ", path " << int(path);
+    }
+}
+
+}  // namespace
+}  // namespace clastrace::nvtest

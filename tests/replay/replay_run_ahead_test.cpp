@@ -1,0 +1,287 @@
+// SPDX-License-Identifier: Apache-2.0
+// Cluster builds run ahead of their turn (replay/src/cluster_speculation.h, docs/replay.md
+// "Threads"): a run stands only when every byte it read is unchanged at its turn, so a build that
+// reads an earlier command's output outside its snapshots runs again in place; builds writing
+// the same bytes land in queue order. Each case compares the replay memory after every command
+// and the JSON report of 1 and 4 threads, and counts which runs stood.
+#include "cluster_speculation.h"
+#include "replay_bench_trace.h"
+
+#include <clastrace/engine/build_sizes.h>
+#include <clastrace/engine/properties.h>
+#include <clastrace/replay/replay_observer.h>
+#include <clastrace/replay/replayer.h>
+#include <clastrace/trace_building/cluster_records.h>
+#include <clastrace/trace_building/cluster_structs.h>
+#include <clastrace/trace_building/command_records.h>
+#include <clastrace/trace_building/record_writer.h>
+#include <clastrace/trace_building/trace_header.h>
+#include <clastrace/traces/trace_reader.h>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <cstdio>
+#include <filesystem>
+#include <functional>
+#include <string>
+#include <string_view>
+#include <vector>
+#include <unistd.h>
+
+using namespace clastrace;
+namespace tb = clastrace::trace_building;
+
+namespace {
+
+using Info = VkClusterAccelerationStructureBuildTriangleClusterInfoNV;
+
+constexpr uint64_t kQueue = 0x9001, kMemory = 0x1001, kCommandBuffer = 0xc001, kFence = 0xfe01;
+constexpr uint64_t kVertices = 0x100000000ull, kIndices = 0x100010000ull, kInfos = 0x100020000ull,
+                   kScratch = 0x100030000ull, kObjects = 0x100100000ull,
+                   kAddresses = 0x100200000ull, kSizes = 0x100210000ull;
+constexpr uint64_t kSda = VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT;
+constexpr uint64_t kInput = kSda |
+                            VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR |
+                            VK_BUFFER_USAGE_TRANSFER_DST_BIT;
+constexpr uint64_t kStorage = kSda | VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR |
+                              VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
+constexpr uint64_t kBuild = VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR;
+constexpr uint64_t kAsWrite = VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR;
+constexpr uint64_t kAsRead =
+    VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR | VK_ACCESS_2_SHADER_READ_BIT;
+constexpr uint32_t kGridVertices = 9, kGridTriangles = 8;  // a 2 x 2 quad grid
+
+std::string temp_path(const std::string& name) {
+    return (std::filesystem::temp_directory_path() /
+            ("replay_run_ahead_" + std::to_string(::getpid()) + "_" + name))
+        .string();
+}
+
+std::vector<float> grid(float x, float z) {
+    std::vector<float> v;
+    for (int row = 0; row < 3; ++row)
+        for (int col = 0; col < 3; ++col) {
+            v.push_back(x + float(col));
+            v.push_back(float(row));
+            v.push_back(z + 0.25f * float(row * col));
+        }
+    return v;
+}
+
+std::vector<uint8_t> grid_indices() {
+    std::vector<uint8_t> i;
+    for (uint8_t row = 0; row < 2; ++row)
+        for (uint8_t col = 0; col < 2; ++col) {
+            const uint8_t a = uint8_t(row * 3 + col), b = uint8_t(a + 1), c = uint8_t(a + 3),
+                          d = uint8_t(c + 1);
+            for (uint8_t k : {a, b, c, b, d, c}) i.push_back(k);
+        }
+    return i;
+}
+
+// One command buffer of one-cluster CLAS builds over a 2 x 2 grid, written with the trace
+// builder as a capture on the engine would write it.
+class BuildsTrace {
+public:
+    explicit BuildsTrace(const std::string& path) : w_(path, header()) {
+        limits_ = tb::triangle_cluster_limits(kGridTriangles, kGridVertices, kGridTriangles,
+                                              kGridVertices);
+        sizes_ = engine::cluster_build_sizes(input(), engine::EngineProperties::nvidia_default());
+        uint64_t handle = 0xb001;
+        for (auto [address, size, usage] : {std::tuple{kVertices, 4096ull, kInput},
+                                            {kIndices, 4096ull, kInput},
+                                            {kInfos, 4096ull, kInput},
+                                            {kScratch, 1ull << 16, kStorage},
+                                            {kObjects, 1ull << 20, kStorage},
+                                            {kAddresses, 4096ull, kStorage},
+                                            {kSizes, 4096ull, kStorage}})
+            w_.buffer(handle++, address, size, usage, kMemory, address - kVertices);
+        w_.append(tb::command_buffer_begin(kCommandBuffer));
+    }
+
+    // A build of the cluster whose vertices are at kVertices + vertex_offset, its info at
+    // info_slot, its object at kObjects + object_offset. `snapshots` lists the (address, bytes)
+    // its capture saw; empty: its info, its indices and all its vertices.
+    void build(uint64_t vertex_offset, const std::vector<float>& vertices, uint32_t info_slot,
+               uint64_t object_offset,
+               std::vector<std::pair<uint64_t, std::vector<uint8_t>>> seen = {}) {
+        const Info info = tb::triangle_cluster_info(info_slot, kGridTriangles, kGridVertices,
+                                                    kIndices, 1, kVertices + vertex_offset);
+        const uint64_t info_at = kInfos + info_slot * sizeof(Info);
+        seen.insert(seen.begin(), {info_at, tb::bytes_of(&info, 1)});
+        if (seen.size() == 1) {
+            seen.push_back({kIndices, grid_indices()});
+            seen.push_back({kVertices + vertex_offset, tb::bytes_of(vertices)});
+        }
+        auto commands = tb::cluster_commands(input());
+        commands.dstImplicitData = kObjects + object_offset;
+        commands.scratchData = kScratch;
+        commands.dstAddressesArray = {kAddresses + info_slot * 8, 8, 8};
+        commands.dstSizesArray = {kSizes + info_slot * 4, 4, 4};
+        commands.srcInfosArray = {info_at, sizeof(Info), sizeof(Info)};
+        fbs::CmdBuildClusterAccelerationStructureIndirectT b =
+            tb::cluster_build(kCommandBuffer, commands);
+        for (const auto& [address, bytes] : seen) b.inputs.push_back(w_.snapshot(address, bytes));
+        w_.append(b);
+    }
+
+    void barrier(uint64_t src_stage, uint64_t src_access, uint64_t dst_stage, uint64_t dst_access) {
+        w_.append(tb::memory_barrier(kCommandBuffer, src_stage, src_access, dst_stage, dst_access));
+    }
+
+    void update_vertices(const std::vector<float>& vertices) {
+        fbs::CmdUpdateBufferT update;
+        update.command_buffer = kCommandBuffer;
+        update.dst_buffer = 0xb001;  // the vertex buffer
+        update.data = tb::bytes_of(vertices);
+        w_.append(update);
+    }
+
+    void finish() {
+        w_.end_and_submit(kQueue, kCommandBuffer, kFence);
+        w_.wait_fence(kFence);
+        w_.finish();
+    }
+
+    uint64_t scratch_size() const { return sizes_.build_scratch_size; }
+
+private:
+    static fbs::TraceHeaderT header() {
+        fbs::TraceHeaderT h = tb::trace_header(tb::kEngineDriver, tb::kEngineDriver, "run ahead");
+        h.device->cluster_properties =
+            tb::cluster_properties(engine::EngineProperties::nvidia_default());
+        return h;
+    }
+    VkClusterAccelerationStructureInputInfoNV input() const {
+        return tb::cluster_op_input(1, &limits_);
+    }
+
+    tb::RecordWriter w_;
+    VkClusterAccelerationStructureTriangleClusterInputNV limits_{};
+    engine::BuildSizes sizes_;
+};
+
+// A digest of every region of replay memory after each cluster build.
+class MemoryDigests : public replay::ReplayObserver {
+public:
+    void on_command(const replay::ReplayedCommand& c) override {
+        if (!c.execution || !c.memory) return;
+        size_t digest = 0;
+        for (const auto& [base, region] : c.memory->regions()) {
+            const std::string_view bytes(reinterpret_cast<const char*>(region.bytes.begin()),
+                                         region.bytes.size());
+            digest = digest * 31 + std::hash<std::string_view>{}(bytes) + base;
+        }
+        digests.push_back(digest);
+    }
+    std::vector<size_t> digests;
+};
+
+struct Replayed {
+    std::string json;
+    std::vector<size_t> digests;
+    replay::ReplayOptions::RunAheadCounts counts;
+};
+
+Replayed replay_with(const std::string& path, uint32_t threads) {
+    traces::TraceError error;
+    auto reader = traces::TraceReader::open(path, &error);
+    EXPECT_TRUE(reader) << error.message;
+    if (!reader) return {};
+    MemoryDigests observer;
+    Replayed r;
+    replay::ReplayOptions options;
+    options.threads = threads;
+    options.observer = &observer;
+    options.run_ahead_counts = &r.counts;
+    options.run_ahead = true;
+    options.sync_model_thread = true;
+    r.json = replay::to_json(replay::replay_trace(*reader, path, options)).dump(1);
+    r.digests = observer.digests;
+    return r;
+}
+
+// Build A; the transfer writes new vertices; build B reads them with only its first vertex in
+// its snapshots (the rest it reads from the transfer's output).
+void write_read_after_transfer(const std::string& path) {
+    BuildsTrace t(path);
+    t.build(0, grid(0, 0), 0, 0);
+    t.barrier(kBuild, kAsWrite, VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT,
+              VK_ACCESS_2_TRANSFER_WRITE_BIT);
+    const std::vector<float> moved = grid(5, 1);
+    t.update_vertices(moved);
+    t.barrier(VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, kBuild,
+              kAsRead | kAsWrite);
+    t.build(0, moved, 1, 0x1000, {{kVertices, tb::bytes_of(moved.data(), 3)}});
+    t.finish();
+}
+
+TEST(ReplayRunAhead, BuildReadingAnEarlierCommandsOutputOutsideItsSnapshotsRunsAgain) {
+    const std::string path = temp_path("read_after_transfer.clt");
+    write_read_after_transfer(path);
+    const Replayed one = replay_with(path, 1), many = replay_with(path, 4);
+    EXPECT_EQ(one.counts.started, 0u);  // one thread: every build in its turn
+    EXPECT_EQ(many.counts.started, 2u);
+    EXPECT_EQ(many.counts.stood, 1u);      // A read only its snapshots
+    EXPECT_EQ(many.counts.run_again, 1u);  // B read the update's vertices
+    ASSERT_EQ(one.digests.size(), 2u);
+    EXPECT_EQ(one.digests, many.digests);
+    EXPECT_EQ(one.json, many.json);
+    std::remove(path.c_str());
+}
+
+// The test above has teeth: with commit's checks skipped, B's early run (on zero vertices where
+// the update wrote) is taken and memory after it differs.
+TEST(ReplayRunAhead, SkippingTheChecksTakesAStaleRun) {
+    const std::string path = temp_path("stale_run.clt");
+    write_read_after_transfer(path);
+    const Replayed one = replay_with(path, 1);
+    replay::detail::ClusterRunAhead::skip_checks_for_tests = true;
+    const Replayed broken = replay_with(path, 4);
+    replay::detail::ClusterRunAhead::skip_checks_for_tests = false;
+    EXPECT_EQ(broken.counts.stood, 2u);
+    ASSERT_EQ(broken.digests.size(), 2u);
+    EXPECT_EQ(one.digests[0], broken.digests[0]);
+    EXPECT_NE(one.digests[1], broken.digests[1]);
+    std::remove(path.c_str());
+}
+
+// A and B write the same object bytes, dstAddressesArray/dstSizesArray elements and scratch:
+// both stand (neither reads the other's output) and B's bytes are the ones left.
+TEST(ReplayRunAhead, OverlappingWritesLandInQueueOrder) {
+    const std::string path = temp_path("overlapping_writes.clt");
+    {
+        BuildsTrace t(path);
+        t.build(0, grid(0, 0), 0, 0);
+        t.barrier(kBuild, kAsWrite, kBuild, kAsRead | kAsWrite);
+        t.build(512, grid(3, 2), 0, 0);  // same info slot, same destination
+        t.finish();
+    }
+    const Replayed one = replay_with(path, 1), many = replay_with(path, 4);
+    EXPECT_EQ(many.counts.started, 2u);
+    EXPECT_EQ(many.counts.stood, 2u);
+    ASSERT_EQ(one.digests.size(), 2u);
+    EXPECT_NE(one.digests[0], one.digests[1]);
+    EXPECT_EQ(one.digests, many.digests);
+    EXPECT_EQ(one.json, many.json);
+    std::remove(path.c_str());
+}
+
+// The replay bench's frames: CLAS builds (their reads all in their snapshots) run ahead across
+// submissions and stand; BLAS builds and moves read objects and run in their turn.
+TEST(ReplayRunAhead, ClusterFramesOfTheReplayBenchRunAheadAndStand) {
+    const std::string path = temp_path("bench_frames.clt");
+    bench::BenchTraceShape shape;
+    shape.target_ops = 5000;
+    bench::write_bench_trace(path, shape);
+    const Replayed one = replay_with(path, 1), many = replay_with(path, 4);
+    EXPECT_GT(many.counts.started, 40u);
+    EXPECT_EQ(many.counts.run_again, 0u);
+    EXPECT_GE(many.counts.stood, many.counts.started - 2);  // the last frames may be left
+    EXPECT_EQ(one.digests, many.digests);
+    EXPECT_EQ(one.json, many.json);
+    std::remove(path.c_str());
+}
+
+}  // namespace
