@@ -12,6 +12,7 @@
 #include "file_format.h"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cinttypes>
 #include <cstdio>
@@ -23,6 +24,7 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <system_error>
 #include <thread>
 #include <type_traits>
 #include <unordered_map>
@@ -212,7 +214,7 @@ private:
 // read again through its chain.
 struct RealBytesCache {
     static constexpr uint64_t kBudgetBytes = uint64_t{64} << 20;
-    static constexpr uint64_t kUsedBudgetBytes = uint64_t{16} << 20;
+    static constexpr uint64_t kUsedBudgetBytes = uint64_t{4} << 20;
     struct Entry {
         SharedBytes bytes;
         uint64_t sequence;  // when it was kept or last moved, to tell stale queue places
@@ -299,6 +301,29 @@ struct WholePlace {
     uint32_t raw_offset;
 };
 
+// A decompressed chunk the task may read besides its own, where a range's first base usually
+// lies: the chunk the reader's thread holds while the task reads the next one, or one of the two
+// loaded before it. Read-only on the task; the reader's thread changes only the delta records of
+// the first (other frames than the whole contents the task reads) until it has waited for the
+// task.
+struct HeldChunk {
+    uint64_t offset = UINT64_MAX;
+    const ChunkBytes* bytes = nullptr;
+};
+constexpr size_t kOlderChunks = 2;
+struct HeldChunks {
+    HeldChunk loaded;
+    std::array<HeldChunk, kOlderChunks> older;
+};
+// Delta contents came with format 1.7: before it no chunk is kept for their first bases.
+constexpr uint16_t kFirstDeltaMinor = 7;
+// Loads after the last chunk holding whole places that it is kept for: a range's first delta
+// comes a frame after its base, which frames bigger than a chunk put two chunks later.
+constexpr uint32_t kLoadsOlderKept = 2;
+// A trace whose first chunks show no delta likely has none (its writer stored every content
+// whole): from then on no chunk is kept for first bases until the task sees a delta.
+constexpr uint32_t kLoadsBeforeFirstDelta = 4;
+
 // The read-ahead task's own state, touched by one task at a time, and by the reader's thread
 // only while no task runs.
 struct AheadDecoding {
@@ -309,8 +334,10 @@ struct AheadDecoding {
     RealBytesCache known;  // the real bytes of the contents the task passed last
     std::unordered_map<uint64_t, WholePlace> whole_places, older_whole_places;
     bool seen_delta = false;
+    uint64_t last_place_chunk = UINT64_MAX;  // the chunk of the newest place noted
 
     void note_whole(uint64_t hash, WholePlace place) {
+        last_place_chunk = place.chunk_offset;
         if (whole_places.size() >= kWholePlacesPerGeneration) {
             older_whole_places = std::move(whole_places);
             whole_places.clear();
@@ -353,16 +380,25 @@ public:
         if (thread_.joinable()) thread_.join();
     }
 
-    // Runs `job` on the thread; the job given before must have been taken or dropped.
-    void run(std::function<Result()> job) {
+    // Runs `job` on the thread; false when no thread can be started (a process at its thread
+    // limit), and the reader's thread then does the work itself. The job given before must have
+    // been taken or dropped.
+    bool run(std::function<Result()> job) {
         CLASTRACE_DEBUG_ASSERT(!given_);
-        if (!thread_.joinable()) thread_ = std::thread([this] { serve(); });
+        if (!thread_.joinable()) {
+            try {
+                thread_ = std::thread([this] { serve(); });
+            } catch (const std::system_error&) {
+                return false;
+            }
+        }
         {
             std::lock_guard lock(mutex_);
             job_ = std::move(job);
         }
         given_ = true;
         changed_.notify_all();
+        return true;
     }
     // True from run() until get() or drop() (only the reader's thread calls these).
     bool valid() const { return given_; }
@@ -481,6 +517,12 @@ struct TraceReader::Impl {
     // Read-ahead: a task decompressing the next chunk into ahead_raw with its own decoder.
     ChunkDecoder ahead_decoder;
     ChunkBytes ahead_raw;
+    // The last two chunks loaded before `raw` where the task noted whole places (at
+    // older_offset), kept for the task for kLoadsOlderKept loads after them (keep_loaded_as_older).
+    std::array<ChunkBytes, kOlderChunks> older_raw;
+    std::array<uint64_t, kOlderChunks> older_offset{UINT64_MAX, UINT64_MAX};
+    uint32_t loads_past_older = 0;
+    uint32_t loads_without_delta = 0;  // chunks loaded before the task saw a delta
     ReadAheadThread<ReadAhead> ahead;
     bool chunk_loaded = false;
     format::ChunkHeader chunk{};
@@ -529,9 +571,9 @@ struct TraceReader::Impl {
     // TraceReadStats::chunk_buffer_bytes; waits for the read-ahead task, whose buffers it counts.
     uint64_t chunk_buffer_bytes() {
         if (ahead.valid()) ahead.wait();
-        return raw.capacity() + ahead_raw.capacity() + side_raw.capacity() +
-               ahead_decoding.side_raw.capacity() + decoder.compressed.capacity() +
-               ahead_decoder.compressed.capacity();
+        return raw.capacity() + ahead_raw.capacity() + older_raw[0].capacity() +
+               older_raw[1].capacity() + side_raw.capacity() + ahead_decoding.side_raw.capacity() +
+               decoder.compressed.capacity() + ahead_decoder.compressed.capacity();
     }
 
     TraceError error(TraceErrorCode code, uint64_t offset, const std::string& problem) const {
@@ -1054,11 +1096,11 @@ struct TraceReader::Impl {
     uint64_t ahead_started_at = UINT64_MAX;
     uint64_t ahead_offset() const { return ahead_started_at; }
 
-    void start_read_ahead(uint64_t offset) {
+    // Reads the chunk at `offset` on the task while the reader's thread reads `held.loaded`.
+    void start_read_ahead(uint64_t offset, HeldChunks held) {
         drop_read_ahead();
         if (offset >= size || size - offset < format::kChunkHeaderSize) return;
-        ahead_started_at = offset;
-        ahead.run([this, offset] {
+        const bool started = ahead.run([this, offset, held] {
             ReadAhead r;
             r.offset = offset;
             r.status = read_checked_payload(ahead_decoder, offset, &r.header, &r.error);
@@ -1069,10 +1111,52 @@ struct TraceReader::Impl {
                     decompress_payload(ahead_decoder, offset, r.header, &ahead_raw, &r.error);
                 r.decompressed = r.status == ChunkStatus::kOk;
                 if (r.decompressed && options.decode_deltas_ahead)
-                    r.contents = decode_ahead(offset, ahead_raw);
+                    r.contents = decode_ahead(offset, ahead_raw, held);
             }
             return r;
         });
+        if (started) ahead_started_at = offset;
+    }
+
+    // Before the loaded chunk's buffer takes another chunk (no task runs): while the trace has
+    // shown no delta, its bytes stay as the older chunk the task may read a range's first base
+    // from (frames bigger than a chunk put it two chunks back), instead of decompressing it again.
+    void keep_loaded_as_older() {
+        const uint64_t last = ahead_decoding.last_place_chunk;
+        const bool deltas_likely =
+            ahead_decoding.seen_delta || ++loads_without_delta <= kLoadsBeforeFirstDelta;
+        if (deltas_likely && version_minor >= kFirstDeltaMinor && !raw.empty() &&
+            last != UINT64_MAX && chunk_offset <= last && raw.size() <= kReadAheadMaxRawBytes) {
+            // The oldest buffer goes to `raw`, to be filled with the next chunk.
+            std::swap(older_raw[1], older_raw[0]);
+            std::swap(older_raw[0], raw);
+            older_offset[1] = older_offset[0];
+            older_offset[0] = chunk_offset;
+            loads_past_older = 0;
+        } else if (++loads_past_older > kLoadsOlderKept) {
+            for (size_t i = 0; i < kOlderChunks; ++i) {
+                ChunkBytes().swap(older_raw[i]);
+                older_offset[i] = UINT64_MAX;
+            }
+        }
+    }
+
+    // The chunks the task may read besides its own (HeldChunk): `loaded` and the older ones.
+    HeldChunks held_chunks(HeldChunk loaded) const {
+        return {loaded,
+                {HeldChunk{older_offset[0], &older_raw[0]},
+                 HeldChunk{older_offset[1], &older_raw[1]}}};
+    }
+
+    // The read-ahead task's result; nullopt when the task failed (it threw: out of memory), and
+    // the chunk is then read on this thread, whose errors carry the file and the offset.
+    std::optional<ReadAhead> take_read_ahead() {
+        ahead_started_at = UINT64_MAX;
+        try {
+            return ahead.get();
+        } catch (const std::exception&) {
+            return std::nullopt;
+        }
     }
 
     // On the read-ahead task: the real bytes of the contents of chunk `r` (at `offset`) that it
@@ -1080,7 +1164,8 @@ struct TraceReader::Impl {
     // whole), for the reader's thread to check and take. The records are checked again there,
     // with their damage reported; here a frame that breaks a rule is passed over. Touches only
     // ahead_decoding, ahead_decoder, the pool, the budget and the (thread-safe) source.
-    std::vector<AheadContents> decode_ahead(uint64_t offset, const ChunkBytes& r) {
+    std::vector<AheadContents> decode_ahead(uint64_t offset, const ChunkBytes& r,
+                                            HeldChunks held = {}) {
         std::vector<AheadContents> out;
         AheadDecoding& a = ahead_decoding;
         bool read_a_base = false;
@@ -1106,7 +1191,7 @@ struct TraceReader::Impl {
             made.hash = c->hash;
             if (c->delta) {
                 a.seen_delta = true;
-                if (!decode_delta_ahead(offset, r, *c, &made, &read_a_base)) continue;
+                if (!decode_delta_ahead(offset, r, held, *c, &made, &read_a_base)) continue;
             } else {
                 std::shared_ptr<RealBytes> b = pool->take(c->size());
                 if (c->size()) std::memcpy(b->data.get(), c->data(), c->size());
@@ -1125,15 +1210,14 @@ struct TraceReader::Impl {
 
     // On the task: delta `c` (at made->raw_offset of chunk `r`) XORed with the base the task
     // holds, or with the base's whole record read from where the task saw it.
-    bool decode_delta_ahead(uint64_t offset, const ChunkBytes& r, const ContentsRecord& c,
-                            AheadContents* made, bool* read_a_base) {
+    bool decode_delta_ahead(uint64_t offset, const ChunkBytes& r, HeldChunks held,
+                            const ContentsRecord& c, AheadContents* made, bool* read_a_base) {
         if (!known_byte_planes(c.byte_planes)) return false;
         made->base = ahead_decoding.known.find(c.base_hash);
         if (!made->base) {
             const WholePlace* place = ahead_decoding.whole_place(c.base_hash);
             if (!place) return false;
-            *read_a_base = true;
-            made->base = read_whole_ahead(offset, r, c.base_hash, *place);
+            made->base = read_whole_ahead(offset, r, held, c.base_hash, *place, read_a_base);
             if (!made->base) return false;
             made->base_read_whole = true;
             made->base_chunk_offset = place->chunk_offset;
@@ -1148,14 +1232,18 @@ struct TraceReader::Impl {
         return true;
     }
 
-    // On the task: whole contents `hash` at `place`, from chunk `r` (at `offset`) or decompressed
-    // with the task's decoder, its key checked (as resolve_contents checks it); null when
-    // anything is off, which leaves the delta to the reader's thread.
-    SharedBytes read_whole_ahead(uint64_t offset, const ChunkBytes& r, uint64_t hash,
-                                 WholePlace place) {
+    // On the task: whole contents `hash` at `place`, from chunk `r` (at `offset`), a chunk the
+    // reader's thread holds, or else decompressed with the task's decoder (*decompressed set), its
+    // key checked (as resolve_contents checks it); null when anything is off, which leaves the
+    // delta to the reader's thread.
+    SharedBytes read_whole_ahead(uint64_t offset, const ChunkBytes& r, HeldChunks held,
+                                 uint64_t hash, WholePlace place, bool* decompressed) {
         AheadDecoding& a = ahead_decoding;
-        const ChunkBytes* source = &r;
-        if (place.chunk_offset != offset) {
+        const ChunkBytes* source = place.chunk_offset == offset ? &r : nullptr;
+        for (const HeldChunk& c : {held.loaded, held.older[0], held.older[1]})
+            if (!source && c.bytes && c.offset == place.chunk_offset) source = c.bytes;
+        if (!source) {
+            *decompressed = true;
             if (a.side_offset != place.chunk_offset) {
                 a.side_offset = UINT64_MAX;
                 format::ChunkHeader h{};
@@ -1187,14 +1275,16 @@ struct TraceReader::Impl {
     // With *have_raw false and status ok only the checked compressed payload is in `decoder`.
     ChunkStatus take_chunk(format::ChunkHeader* h, TraceError* err, bool* have_raw) {
         *have_raw = false;
-        if (ahead.valid() && ahead_offset() == pos) {
-            ReadAhead r = ahead.get();
-            ahead_started_at = UINT64_MAX;
+        std::optional<ReadAhead> taken;
+        if (ahead.valid() && ahead_offset() == pos) taken = take_read_ahead();
+        if (taken) {
+            ReadAhead& r = *taken;
             *h = r.header;
             *err = std::move(r.error);
             if (r.status == ChunkStatus::kOverBudget) budget_exhausted = true;
             chunk_ahead = std::move(r.contents);
             if (r.decompressed) {
+                keep_loaded_as_older();
                 std::swap(raw, ahead_raw);
                 release_if_big(ahead_raw);
                 *have_raw = true;
@@ -1231,16 +1321,18 @@ struct TraceReader::Impl {
                 }
                 if (!have_raw) {
                     if (h.raw_size > kBigBufferBytes) release_side_chunk_if_big();
+                    keep_loaded_as_older();
                     status = decompress(here, h, &raw, &err);
                     // What the task does for the chunks it reads, here (no task runs now): its
                     // bases then follow every chunk of the scan.
                     if (status == ChunkStatus::kOk && options.decode_deltas_ahead)
-                        chunk_ahead = decode_ahead(here, raw);
+                        chunk_ahead = decode_ahead(here, raw, held_chunks({}));
                 }
             }
             // Reading ahead pays for big chunks; for small ones a task costs more than it hides.
             if (status == ChunkStatus::kOk && is_records && h.raw_size >= kReadAheadMinRawBytes) {
-                start_read_ahead(pos + format::kChunkHeaderSize + h.compressed_size);
+                start_read_ahead(pos + format::kChunkHeaderSize + h.compressed_size,
+                                 held_chunks({here, &raw}));
             }
             switch (status) {
             case ChunkStatus::kOverBudget:
@@ -1558,6 +1650,7 @@ struct TraceReader::Impl {
                     // being read gives its bytes up and is decompressed again by next().
                     if (may_evict_raw && h.raw_size > kBigBufferBytes &&
                         raw.capacity() > kBigBufferBytes && chunk_loaded) {
+                        if (ahead.valid()) ahead.wait();  // it may be reading `raw` (HeldChunk)
                         ChunkBytes().swap(raw);
                         raw_evicted = true;
                         decoded_in_raw.clear();
