@@ -1,6 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
-// trace_throughput_bench [MB] [DIR] [whole] [reads=N]: trace write and read throughput next to plain zstd
-// at the same level on the same bytes. Goal: both ratios >= 0.8.
+// trace_throughput_bench [MB] [DIR] [whole] [reads=N] [repeat=N]: trace write and read throughput
+// next to plain zstd at the same level on the same bytes. Goal: both ratios >= 0.8.
+// repeat=N: zstd's decompression and the two reads run N times, interleaved, and the read
+// columns are medians (the ratios: medians of each run's ratio against its own zstd run).
 //
 // The bytes are what a cluster capture stores: vertex positions (float3 grids with
 // smooth noise), 8-bit cluster-local indices, VkClusterAccelerationStructureBuild-
@@ -16,6 +18,7 @@
 
 #include <zstd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -23,6 +26,7 @@
 #include <ctime>
 #include <random>
 #include <string>
+#include <sys/resource.h>
 #include <unistd.h>
 #include <vector>
 
@@ -32,25 +36,34 @@ using namespace clastrace::traces;
 namespace {
 
 // Wall time and process CPU time (all threads) together: on a shared, oversubscribed
-// machine wall time mostly measures the neighbours, CPU time measures our work.
+// machine wall time mostly measures the neighbours, CPU time measures our work. Page faults
+// too: a fresh page's first touch costs about what a copy of it does, and instruction counts
+// do not show it.
 struct Stamp {
     std::chrono::steady_clock::time_point wall;
     double cpu;
+    long faults;
 };
 double cpu_now() {
     timespec ts;
     clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
     return static_cast<double>(ts.tv_sec) + static_cast<double>(ts.tv_nsec) * 1e-9;
 }
+long faults_now() {
+    rusage u{};
+    getrusage(RUSAGE_SELF, &u);
+    return u.ru_minflt + u.ru_majflt;
+}
 struct Clock {
-    static Stamp now() { return {std::chrono::steady_clock::now(), cpu_now()}; }
+    static Stamp now() { return {std::chrono::steady_clock::now(), cpu_now(), faults_now()}; }
 };
 struct Elapsed {
     double wall, cpu;
+    long faults;
 };
 Elapsed seconds_since(Stamp t) {
     return {std::chrono::duration<double>(std::chrono::steady_clock::now() - t.wall).count(),
-            cpu_now() - t.cpu};
+            cpu_now() - t.cpu, faults_now() - t.faults};
 }
 
 struct Frame {
@@ -105,9 +118,40 @@ Frame make_frame(int frame, int clusters, std::mt19937& rng) {
     return f;
 }
 
+double median(std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    const size_t n = v.size();
+    return n % 2 ? v[n / 2] : (v[n / 2 - 1] + v[n / 2]) / 2;
+}
+
+// Each field's median over the runs (a column of the table, not one run).
+Elapsed median(const std::vector<Elapsed>& runs) {
+    std::vector<double> wall, cpu, faults;
+    for (const Elapsed& e : runs) {
+        wall.push_back(e.wall);
+        cpu.push_back(e.cpu);
+        faults.push_back(static_cast<double>(e.faults));
+    }
+    return {median(wall), median(cpu), static_cast<long>(median(faults))};
+}
+
+// Median over runs of zstd's time / the reader's, each run against the zstd run before it.
+struct Ratios {
+    double wall, cpu;
+};
+Ratios median_ratio(const std::vector<Elapsed>& zstd, const std::vector<Elapsed>& reader) {
+    std::vector<double> wall, cpu;
+    for (size_t i = 0; i < zstd.size(); ++i) {
+        wall.push_back(zstd[i].wall / reader[i].wall);
+        cpu.push_back(zstd[i].cpu / reader[i].cpu);
+    }
+    return {median(wall), median(cpu)};
+}
+
 struct Result {
     double raw_mb, trace_ratio, zstd_ratio;
-    Elapsed write, zstd_c, read, read_keys, zstd_d;  // read: default options
+    Elapsed write, zstd_c, read, read_keys, zstd_d;  // read: default options; medians
+    Ratios read_vs_zstd, read_keys_vs_zstd;          // medians of the runs' ratios
     uint64_t deltas = 0, deltas_decoded_ahead = 0;   // of the read with default options
     uint64_t chunk_buffer_bytes = 0;                 // the reader's, at the end of that read
 };
@@ -183,7 +227,7 @@ TraceWriterStats write_trace(const std::vector<Frame>& frames, const std::vector
 }
 
 Result run(const std::vector<Frame>& frames, const std::vector<int>& repeat_of, int level,
-           uint32_t chunk, const std::string& path, bool deltas) {
+           uint32_t chunk, const std::string& path, bool deltas, int repeat) {
     Result r{};
     auto t0 = Clock::now();
     const TraceWriterStats st = write_trace(frames, repeat_of, level, chunk, path, deltas);
@@ -221,24 +265,31 @@ Result run(const std::vector<Frame>& frames, const std::vector<int>& repeat_of, 
     ZSTD_DCtx* dctx = ZSTD_createDCtx();
     std::vector<uint8_t> out(chunk);
     uint64_t sink = 0;
-    t0 = Clock::now();
-    for (const auto& b : blocks) {
-        size_t n = ZSTD_decompressDCtx(dctx, out.data(), out.size(), b.data(), b.size());
-        sink += out[n / 2];
-    }
-    r.zstd_d = seconds_since(t0);
-    ZSTD_freeDCtx(dctx);
-
-    // Trace read: every record verified; content keys trusted (default) or recomputed.
-    for (bool verify : {false, true}) {
-        TraceReadStats rs;
-        (verify ? r.read_keys : r.read) = read_trace(path, verify, raw, &rs, &sink);
-        if (!verify) {
-            r.deltas = st.contents_delta_stored;
-            r.deltas_decoded_ahead = rs.deltas_decoded_ahead;
-            r.chunk_buffer_bytes = rs.chunk_buffer_bytes;
+    std::vector<Elapsed> zstd_d, read, read_keys;
+    for (int run = 0; run < repeat; ++run) {
+        t0 = Clock::now();
+        for (const auto& b : blocks) {
+            size_t n = ZSTD_decompressDCtx(dctx, out.data(), out.size(), b.data(), b.size());
+            sink += out[n / 2];
+        }
+        zstd_d.push_back(seconds_since(t0));
+        // Trace read: every record verified; content keys trusted (default) or recomputed.
+        for (bool verify : {false, true}) {
+            TraceReadStats rs;
+            (verify ? read_keys : read).push_back(read_trace(path, verify, raw, &rs, &sink));
+            if (!verify) {
+                r.deltas = st.contents_delta_stored;
+                r.deltas_decoded_ahead = rs.deltas_decoded_ahead;
+                r.chunk_buffer_bytes = rs.chunk_buffer_bytes;
+            }
         }
     }
+    ZSTD_freeDCtx(dctx);
+    r.zstd_d = median(zstd_d);
+    r.read = median(read);
+    r.read_keys = median(read_keys);
+    r.read_vs_zstd = median_ratio(zstd_d, read);
+    r.read_keys_vs_zstd = median_ratio(zstd_d, read_keys);
     if (sink == 42) std::printf(" ");
     ::unlink(path.c_str());
     return r;
@@ -255,11 +306,13 @@ void profile_reads(const std::vector<Frame>& frames, const std::vector<int>& rep
         TraceReadStats rs;
         const Elapsed took = read_trace(path, false, raw, &rs, &sink);
         std::printf(
-            "read %d: %.1f MB in %.3f s wall, %.3f s cpu (%.1f MB/s wall); deltas decoded "
-            "ahead %llu of %llu; fresh buffers for real bytes %.1f MB\n",
-            i, raw / 1e6, took.wall, took.cpu, raw / 1e6 / took.wall,
+            "read %d: %.1f MB in %.3f s wall, %.3f s cpu (%.1f MB/s wall), %ld page faults; "
+            "deltas decoded ahead %llu of %llu; fresh buffers for real bytes %.1f MB; "
+            "chunks' raw bytes %.1f MB, decompressed %.1f MB\n",
+            i, raw / 1e6, took.wall, took.cpu, raw / 1e6 / took.wall, took.faults,
             (unsigned long long)rs.deltas_decoded_ahead,
-            (unsigned long long)st.contents_delta_stored, rs.real_bytes_allocated / 1e6);
+            (unsigned long long)st.contents_delta_stored, rs.real_bytes_allocated / 1e6,
+            rs.raw_bytes / 1e6, rs.raw_bytes_decompressed / 1e6);
     }
     if (sink == 42) std::printf(" ");
     ::unlink(path.c_str());
@@ -273,11 +326,12 @@ int main(int argc, char** argv) {
     // "whole": every content stored whole (the format before delta contents), for comparison.
     // "reads=N": see profile_reads.
     bool deltas = true;
-    int reads = 0;
+    int reads = 0, repeat = 1;
     for (int i = 3; i < argc; ++i) {
         const std::string arg = argv[i];
         if (arg == "whole") deltas = false;
         if (arg.rfind("reads=", 0) == 0) reads = std::atoi(arg.c_str() + 6);
+        if (arg.rfind("repeat=", 0) == 0) repeat = std::max(1, std::atoi(arg.c_str() + 7));
     }
     const int clusters = 4096;  // ~4.4 MB of inputs per frame
     std::mt19937 rng(1);
@@ -302,15 +356,16 @@ int main(int argc, char** argv) {
     }
     std::printf(
         "trace throughput vs plain zstd (same level, same stored bytes, %u-byte chunks; %zu "
-        "frames, every 4th repeated; contents %s)\n",
-        4u << 20, frames.size(), deltas ? "as deltas where they can" : "whole");
+        "frames, every 4th repeated; contents %s; reads: median of %d interleaved runs)\n",
+        4u << 20, frames.size(), deltas ? "as deltas where they can" : "whole", repeat);
     std::printf(
         "MB/s of stored bytes; 'wall' = elapsed time, 'cpu' = process CPU time of all threads\n");
     std::printf("%-5s %7s | %-27s | %-27s | %-27s | %-27s | %6s %6s\n", "level", "raw MB",
                 "trace write MB/s wall (cpu)", "zstd compress MB/s wall(cpu)",
                 "trace read MB/s wall (cpu)", "zstd decomp MB/s wall (cpu)", "trace", "zstd");
     for (int level : {1, 3, 9}) {
-        Result r = run(frames, repeat_of, level, 4u << 20, dir + "/clastrace-bench.clt", deltas);
+        Result r =
+            run(frames, repeat_of, level, 4u << 20, dir + "/clastrace-bench.clt", deltas, repeat);
         auto mbs = [&](double s) { return r.raw_mb / s; };
         std::printf(
             "%-5d %7.1f | %7.1f (%7.1f)           | %7.1f (%7.1f)           | %7.1f (%7.1f)        "
@@ -321,14 +376,14 @@ int main(int argc, char** argv) {
         std::printf(
             "      ratio vs zstd: write %.2fx wall, %.2fx cpu;  read %.2fx wall, %.2fx cpu"
             "  (with content-key check: %.1f MB/s wall, %.2fx wall, %.2fx cpu)\n",
-            r.zstd_c.wall / r.write.wall, r.zstd_c.cpu / r.write.cpu, r.zstd_d.wall / r.read.wall,
-            r.zstd_d.cpu / r.read.cpu, mbs(r.read_keys.wall), r.zstd_d.wall / r.read_keys.wall,
-            r.zstd_d.cpu / r.read_keys.cpu);
+            r.zstd_c.wall / r.write.wall, r.zstd_c.cpu / r.write.cpu, r.read_vs_zstd.wall,
+            r.read_vs_zstd.cpu, mbs(r.read_keys.wall), r.read_keys_vs_zstd.wall,
+            r.read_keys_vs_zstd.cpu);
         std::printf(
             "      deltas %llu, decoded on the read-ahead task %llu; reader's chunk buffers "
-            "%.1f MB at the end\n",
+            "%.1f MB at the end; page faults: read %ld, zstd decompression %ld\n",
             (unsigned long long)r.deltas, (unsigned long long)r.deltas_decoded_ahead,
-            r.chunk_buffer_bytes / 1e6);
+            r.chunk_buffer_bytes / 1e6, r.read.faults, r.zstd_d.faults);
     }
     return 0;
 }

@@ -141,6 +141,25 @@ TEST(DeltaContents, DeltasOfChunksReadAheadAreDecodedOnTheReadAheadTask) {
     EXPECT_EQ(deltas, 78u);
 }
 
+// A range's first delta finds its base (stored whole, before the trace showed any delta) in a
+// chunk the reader still holds, the one being read or the one before it, instead of
+// decompressing that chunk again: every records chunk is decompressed once, whether frames fit
+// in a chunk or each vertex content fills one of its own (its base then two chunks back).
+TEST(DeltaContents, FirstDeltasDoNotDecompressTheirBasesChunkAgain) {
+    for (size_t vertex_count : {size_t{100'000}, size_t{300'000}}) {
+        SCOPED_TRACE(vertex_count);
+        const std::string path = temp_path("delta_first_bases.clt");
+        const DeltaTrace written = write_delta_trace(path, {}, 12, 1u << 20, vertex_count);
+        ASSERT_EQ(written.stats.contents_delta_stored, 22u);
+        const ReadResult read = read_all(path);
+        ASSERT_EQ(read.damage_count, 0u) << describe(read.damage);
+        EXPECT_EQ(read.stats.deltas_decoded_ahead, 22u);
+        // Besides the records chunks, only the index (a few kB) is decompressed.
+        EXPECT_GE(read.stats.raw_bytes_decompressed, read.stats.raw_bytes);
+        EXPECT_LT(read.stats.raw_bytes_decompressed, read.stats.raw_bytes + (64u << 10));
+    }
+}
+
 // A base a delta used goes to a small budget of its own, so the buffers of a frame loop's
 // contents are filled again within a few frames: 40 frames of a 1 MB range take far fewer than
 // 40 MB of fresh buffers (all 40 while the reader kept every base until 64 MiB).
