@@ -14,7 +14,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
-#include <type_traits>
 #include <unordered_map>
 
 namespace clastrace::engine::nv {
@@ -252,6 +251,52 @@ bool fast_triangle(const NvTriangles& t, uint32_t i, const std::byte* vertices,
     return true;
 }
 
+// One triangle geometry's readable inputs, for append_triangles.
+struct TriangleSource {
+    const NvTriangles& t;
+    uint32_t geometry;
+    bool plain;  // float3 vertices and no transform: fast_triangle may read them
+    const std::byte* vertices;
+    const std::byte* indices;
+};
+
+// Appends the geometry's `count` triangles to `in` (records, flags, and the boxes and record
+// indices of the active ones): the common case by fast_triangle, any other by
+// read_triangle(i, record), false for an inactive one. Returns how many are active.
+template <uint32_t IndexSize, class ReadTriangle>
+uint32_t append_triangles(const TriangleSource& s, uint32_t count, BottomInput& in,
+                          ReadTriangle& read_triangle) {
+    const size_t base = in.primitives.size(), boxes_base = in.boxes.size();
+    in.primitives.resize(base + count);
+    in.active.resize(base + count);
+    in.boxes.resize(boxes_base + count);
+    in.source.resize(boxes_base + count);
+    NvPrimitiveRecord* out = in.primitives.data() + base;
+    uint8_t* out_active = in.active.data() + base;
+    Box* out_box = in.boxes.data() + boxes_base;
+    uint32_t* out_source = in.source.data() + boxes_base;
+    uint32_t active_count = 0;
+    for (uint32_t i = 0; i < count; ++i) {
+        NvPrimitiveRecord& p = out[i];
+        Box& box = out_box[active_count];
+        bool active = s.plain && fast_triangle<IndexSize>(s.t, i, s.vertices, s.indices, p, &box);
+        if (!active) {
+            std::fill(std::begin(p.v), std::end(p.v), 0.0f);  // as a fresh record
+            active = read_triangle(i, p);
+            if (active) box = triangle_box(p.v);
+        }
+        p.geometry_index = s.geometry;
+        p.primitive_index = i;
+        p.reserved = 0;
+        out_active[i] = active;
+        out_source[active_count] = uint32_t(base + i);
+        active_count += active;
+    }
+    in.boxes.resize(boxes_base + active_count);
+    in.source.resize(boxes_base + active_count);
+    return active_count;
+}
+
 // Geometry g's triangles, indexed, decoded and transformed; unreadable ones stay inactive.
 void gather_triangles(Context& c, const NvTriangles& t, uint32_t g, const std::string& at,
                       BottomInput& in, NvGeometryRecord& rec) {
@@ -346,48 +391,16 @@ void gather_triangles(Context& c, const NvTriangles& t, uint32_t g, const std::s
             }
         return active;
     };
-    const size_t base = in.primitives.size(), boxes_base = in.boxes.size();
-    in.primitives.resize(base + count);
-    in.active.resize(base + count);
-    in.boxes.resize(boxes_base + count);
-    in.source.resize(boxes_base + count);
-    NvPrimitiveRecord* out = in.primitives.data() + base;
-    uint8_t* out_active = in.active.data() + base;
-    Box* out_box = in.boxes.data() + boxes_base;
-    uint32_t* out_source = in.source.data() + boxes_base;
     // The common case first: float3 vertices, no transform, indices in range and no NaN. Any
     // other triangle is read again by read_triangle, which reports what it breaks.
     const bool plain = float3 && t.transform_address == 0;
-    uint32_t active_count = 0;
-    auto gather = [&](auto index_size) {
-        constexpr uint32_t kIndexSize = decltype(index_size)::value;
-        for (uint32_t i = 0; i < count; ++i) {
-            NvPrimitiveRecord& p = out[i];
-            Box& box = out_box[active_count];
-            bool active =
-                plain && fast_triangle<kIndexSize>(t, i, vertices.data(), indices.data(), p, &box);
-            if (!active) {
-                std::fill(std::begin(p.v), std::end(p.v), 0.0f);  // as a fresh record
-                active = read_triangle(i, p);
-                if (active) box = triangle_box(p.v);
-            }
-            p.geometry_index = g;
-            p.primitive_index = i;
-            p.reserved = 0;
-            out_active[i] = active;
-            out_source[active_count] = uint32_t(base + i);
-            active_count += active;
-        }
-    };
+    const TriangleSource source{t, g, plain, vertices.data(), indices.data()};
     if (isize == 2)
-        gather(std::integral_constant<uint32_t, 2>{});
+        rec.active_primitives += append_triangles<2>(source, count, in, read_triangle);
     else if (isize == 4)
-        gather(std::integral_constant<uint32_t, 4>{});
+        rec.active_primitives += append_triangles<4>(source, count, in, read_triangle);
     else
-        gather(std::integral_constant<uint32_t, 0>{});
-    rec.active_primitives += active_count;
-    in.boxes.resize(boxes_base + active_count);
-    in.source.resize(boxes_base + active_count);
+        rec.active_primitives += append_triangles<0>(source, count, in, read_triangle);
 }
 
 }  // namespace
