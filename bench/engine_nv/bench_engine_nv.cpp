@@ -6,8 +6,9 @@
 // times are best of 5, engine and Embree interleaved; the rays are one pass of 200k.
 // A second table times closest-hit traversal alone (the SAH tree against Embree MEDIUM), best
 // of 3 passes, wall and thread CPU time; `--quick` prints only that table, 20k rays, 1 pass;
-// `--traversal RAYS PASSES` only that table at the size given; `--build-only` only the build
-// columns (no rays: a quick build comparison).
+// `--traversal RAYS PASSES` only that table at the size given; `--build-only [RUNS]` only the
+// build columns (no rays: a quick build comparison), best of RUNS builds (default 5; 1 for a
+// profile under callgrind, where every build counts).
 #include "nv_scene.h"
 #include "nv_wide_tree.h"
 
@@ -121,7 +122,7 @@ struct EngineMode {
 };
 
 // One mesh's build table row; `with_rays` false (--build-only) leaves the ray columns out.
-void row(const char* name, ts::TriangleMesh mesh, bool with_rays) {
+void row(const char* name, ts::TriangleMesh mesh, bool with_rays, int runs) {
     // Embree's shared vertex buffers are read 16 bytes at a time: keep one spare vertex of capacity.
     mesh.positions.reserve(mesh.positions.size() + 2);
     NvWorld w;
@@ -130,7 +131,7 @@ void row(const char* name, ts::TriangleMesh mesh, bool with_rays) {
     RTCDevice device = rtcNewDevice("threads=1");
     EngineRun sah_run, morton_run;
     double low = 1e30, medium = 1e30;
-    for (int run = 0; run < 5; ++run) {
+    for (int run = 0; run < runs; ++run) {
         sah.build(sah_run);
         morton.build(morton_run);
         low = std::min(low, embree_build(device, mesh, RTC_BUILD_QUALITY_LOW, nullptr));
@@ -303,19 +304,22 @@ int main(int argc, char** argv) {
         }
     }
     const bool build_only = argc > 1 && std::strcmp(argv[1], "--build-only") == 0;
-    if (argc > 2 || (argc > 1 && !build_only)) {
-        std::fprintf(stderr, "usage: %s [--quick | --traversal RAYS PASSES | --build-only]\n",
+    const int runs = build_only && argc == 3 ? std::atoi(argv[2]) : 5;
+    if (argc > 3 || (argc > 1 && !build_only) || (!build_only && argc > 2) || runs < 1) {
+        std::fprintf(stderr,
+                     "usage: %s [--quick | --traversal RAYS PASSES | --build-only [RUNS]]\n",
                      argv[0]);
         return 2;
     }
     std::printf(
-        "NV bottom-level build and closest-hit rays, 1 thread, best of 5 (build) / 200k random "
+        "NV bottom-level build and closest-hit rays, 1 thread, best of %d (build) / 200k random "
         "rays\n"
         "SAH: default flags, next to Embree MEDIUM (binned SAH); Morton: PREFER_FAST_BUILD, next "
         "to Embree LOW\n"
         "(its fastest build). x columns: engine time / Embree time (below 1: engine faster).\n"
         "cost: the tree's SAH cost relative to its root box (node area x items or 1; lower traces "
-        "faster).\n");
+        "faster).\n",
+        runs);
     std::printf("%-14s %7s %6s | %7s %7s %7s %7s | %7s %7s %7s %7s | %7s %7s %7s | %6s %6s | %s\n",
                 "mesh", "tris", "B/tri", "SAH", "emb MED", "SAH", "SAH/MED", "Morton", "emb LOW",
                 "Morton", "Mor/LOW", "emb", "SAH/emb", "Mor/emb", "SAH", "Morton",
@@ -323,10 +327,10 @@ int main(int argc, char** argv) {
     std::printf("%-14s %7s %6s | %7s %7s %7s %7s | %7s %7s %7s %7s | %7s %7s %7s | %6s %6s |\n", "",
                 "", "", "Mtris/s", "Mtris/s", "Mray/s", "build", "Mtris/s", "Mtris/s", "Mray/s",
                 "build", "Mray/s", "rays", "rays", "cost", "cost");
-    row("icosphere-6", ts::make_icosphere(6, 1.0f), !build_only);
-    row("terrain-300", ts::make_terrain(300, 300, 1), !build_only);
-    row("soup-200k", ts::make_random_soup(200000, 5, 1.0f, 0.05f), !build_only);
-    row("torus-400x200", ts::make_torus(400, 200, 1.0f, 0.3f), !build_only);
+    row("icosphere-6", ts::make_icosphere(6, 1.0f), !build_only, runs);
+    row("terrain-300", ts::make_terrain(300, 300, 1), !build_only, runs);
+    row("soup-200k", ts::make_random_soup(200000, 5, 1.0f, 0.05f), !build_only, runs);
+    row("torus-400x200", ts::make_torus(400, 200, 1.0f, 0.3f), !build_only, runs);
     if (!build_only) traversal_table(200000, 3);
     return 0;
 }

@@ -296,23 +296,12 @@ void write_object(std::byte* out, const NvObjectHeader& h,
 
 // `in` must outlive the returned writer.
 ObjectBytes build_bottom(const nv::BottomInput& in, uint32_t flags) {
-    std::vector<Box> boxes(in.primitives.size());
-    std::vector<uint32_t> source(in.primitives.size());  // input primitive record of each box
-    size_t active = 0;
-    for (uint32_t i = 0; i < in.primitives.size(); ++i) {
-        if (!in.active[i]) continue;
-        const NvPrimitiveRecord& p = in.primitives[i];
-        boxes[active] = in.aabbs ? Box{{p.v[0], p.v[1], p.v[2]}, {p.v[3], p.v[4], p.v[5]}}
-                                 : nv::triangle_box(p.v);
-        source[active++] = i;
-    }
-    boxes.resize(active);
     // PREFER_FAST_BUILD alone picks the Morton builder; with PREFER_FAST_TRACE (an invalid
     // pair, reported) or neither, the SAH builder.
     const bool fast_build = (flags & VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV) &&
                             !(flags & VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_NV);
     nv::Tree tree =
-        nv::build_tree(boxes, fast_build ? nv::TreeQuality::kMorton : nv::TreeQuality::kSah);
+        nv::build_tree(in.boxes, fast_build ? nv::TreeQuality::kMorton : nv::TreeQuality::kSah);
     NvObjectHeader h{};
     h.kind = uint8_t(NvObjectKind::kBottomLevel);
     h.build_flags = flags;
@@ -320,10 +309,10 @@ ObjectBytes build_bottom(const nv::BottomInput& in, uint32_t flags) {
     h.primitive_count = uint32_t(tree.order.size());
     h.input_count = uint32_t(in.primitives.size());
     h = lay_out(h, in.geometries.size(), tree.order.size() * sizeof(NvPrimitiveRecord), tree.nodes);
-    auto held = std::make_shared<std::pair<nv::Tree, std::vector<uint32_t>>>(std::move(tree),
-                                                                             std::move(source));
+    auto held = std::make_shared<nv::Tree>(std::move(tree));
     return ObjectBytes{h.object_size, [h, held, &in](std::byte* out) {
-                           const auto& [t, src] = *held;
+                           const nv::Tree& t = *held;
+                           const uint32_t* src = in.source.data();
                            // A gather in tree order: the records are fetched ahead,
                            // since consecutive leaves' records lie far apart in input order.
                            auto write_records = [&](std::byte* dst) {

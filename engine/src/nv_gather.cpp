@@ -132,6 +132,9 @@ void gather_aabbs(Context& c, const NvAabbs& a, uint32_t g, const std::string& a
         in.primitives.push_back(p);
         in.active.push_back(active);
         rec.active_primitives += active;
+        if (!active) continue;
+        in.boxes.push_back(Box{{p.v[0], p.v[1], p.v[2]}, {p.v[3], p.v[4], p.v[5]}});
+        in.source.push_back(uint32_t(in.primitives.size() - 1));
     }
 }
 
@@ -196,28 +199,102 @@ bool check_triangles(Context& c, const NvTriangles& t, const std::string& at) {
     return usable;
 }
 
-// Triangle i of float3 vertices with no transform, the common case, without a branch per
-// coordinate: true when its indices are below vertexCount and no coordinate is NaN (p.v
-// filled); false leaves it to the full reading (index type NONE has isize 0).
-bool fast_triangle(const NvTriangles& t, uint32_t i, uint32_t isize,
-                   std::span<const std::byte> vertices, std::span<const std::byte> indices,
-                   NvPrimitiveRecord& p) {
-    uint32_t index[3] = {3 * i, 3 * i + 1, 3 * i + 2};
-    if (isize == 2) {
+// x, y, z of the float3 vertex at p, lane 3 zero (no byte past the vertex is read).
+__m128 load_float3(const std::byte* p) {
+    const __m128 xy = _mm_castpd_ps(_mm_load_sd(reinterpret_cast<const double*>(p)));
+    return _mm_movelh_ps(xy, _mm_load_ss(reinterpret_cast<const float*>(p + 8)));
+}
+
+// Triangle i's three vertex indices; IndexSize 0 is VK_INDEX_TYPE_NONE_NV.
+template <uint32_t IndexSize>
+void triangle_indices(const std::byte* indices, uint32_t i, uint32_t index[3]) {
+    if constexpr (IndexSize == 0) {
+        index[0] = 3 * i;
+        index[1] = 3 * i + 1;
+        index[2] = 3 * i + 2;
+    } else if constexpr (IndexSize == 2) {
         uint16_t narrow[3];
-        std::memcpy(narrow, indices.data() + 6 * uint64_t(i), 6);
+        std::memcpy(narrow, indices + 6 * uint64_t(i), 6);
         for (int k = 0; k < 3; ++k) index[k] = narrow[k];
-    } else if (isize == 4) {
-        std::memcpy(index, indices.data() + 12 * uint64_t(i), 12);
+    } else {
+        std::memcpy(index, indices + 12 * uint64_t(i), 12);
     }
+}
+
+// Triangle i of float3 vertices with no transform, the common case, without a branch per
+// coordinate: true when its indices are below vertexCount and no coordinate is NaN (p.v and
+// *box filled, the box as triangle_box gives it); false leaves it to the full reading.
+template <uint32_t IndexSize>
+bool fast_triangle(const NvTriangles& t, uint32_t i, const std::byte* vertices,
+                   const std::byte* indices, NvPrimitiveRecord& p, Box* box) {
+    uint32_t index[3];
+    triangle_indices<IndexSize>(indices, i, index);
     if ((index[0] >= t.vertex_count) | (index[1] >= t.vertex_count) | (index[2] >= t.vertex_count))
         return false;
-    for (int k = 0; k < 3; ++k)
-        std::memcpy(p.v + 3 * k, vertices.data() + uint64_t(index[k]) * t.vertex_stride, 12);
-    const __m128 a = _mm_loadu_ps(p.v), b = _mm_loadu_ps(p.v + 4), c = _mm_load_ss(p.v + 8);
-    const __m128 nan =
-        _mm_or_ps(_mm_cmpunord_ps(a, a), _mm_or_ps(_mm_cmpunord_ps(b, b), _mm_cmpunord_ps(c, c)));
-    return _mm_movemask_ps(nan) == 0;
+    const uint64_t stride = t.vertex_stride;
+    const __m128 v0 = load_float3(vertices + index[0] * stride),
+                 v1 = load_float3(vertices + index[1] * stride),
+                 v2 = load_float3(vertices + index[2] * stride);
+    const __m128 nan = _mm_or_ps(_mm_cmpunord_ps(v0, v0),
+                                 _mm_or_ps(_mm_cmpunord_ps(v1, v1), _mm_cmpunord_ps(v2, v2)));
+    if (_mm_movemask_ps(nan) != 0) return false;
+    // Overlapping stores, each vertex's zero lane overwritten by the next (the last one's by
+    // the geometry index, written after).
+    _mm_storeu_ps(p.v, v0);
+    _mm_storeu_ps(p.v + 3, v1);
+    _mm_storeu_ps(p.v + 6, v2);
+    // triangle_box's operand order, which decides between -0 and +0.
+    const __m128 lo = _mm_min_ps(v2, _mm_min_ps(v1, v0)), hi = _mm_max_ps(v2, _mm_max_ps(v1, v0));
+    _mm_storeu_ps(box->lo, lo);  // (hi[0] written next)
+    _mm_storel_pi(reinterpret_cast<__m64*>(box->hi), hi);
+    _mm_store_ss(box->hi + 2, _mm_movehl_ps(hi, hi));
+    return true;
+}
+
+// One triangle geometry's readable inputs, for append_triangles.
+struct TriangleSource {
+    const NvTriangles& t;
+    uint32_t geometry;
+    bool plain;  // float3 vertices and no transform: fast_triangle may read them
+    const std::byte* vertices;
+    const std::byte* indices;
+};
+
+// Appends the geometry's `count` triangles to `in` (records, flags, and the boxes and record
+// indices of the active ones): the common case by fast_triangle, any other by
+// read_triangle(i, record), false for an inactive one. Returns how many are active.
+template <uint32_t IndexSize, class ReadTriangle>
+uint32_t append_triangles(const TriangleSource& s, uint32_t count, BottomInput& in,
+                          ReadTriangle& read_triangle) {
+    const size_t base = in.primitives.size(), boxes_base = in.boxes.size();
+    in.primitives.resize(base + count);
+    in.active.resize(base + count);
+    in.boxes.resize(boxes_base + count);
+    in.source.resize(boxes_base + count);
+    NvPrimitiveRecord* out = in.primitives.data() + base;
+    uint8_t* out_active = in.active.data() + base;
+    Box* out_box = in.boxes.data() + boxes_base;
+    uint32_t* out_source = in.source.data() + boxes_base;
+    uint32_t active_count = 0;
+    for (uint32_t i = 0; i < count; ++i) {
+        NvPrimitiveRecord& p = out[i];
+        Box& box = out_box[active_count];
+        bool active = s.plain && fast_triangle<IndexSize>(s.t, i, s.vertices, s.indices, p, &box);
+        if (!active) {
+            std::fill(std::begin(p.v), std::end(p.v), 0.0f);  // as a fresh record
+            active = read_triangle(i, p);
+            if (active) box = triangle_box(p.v);
+        }
+        p.geometry_index = s.geometry;
+        p.primitive_index = i;
+        p.reserved = 0;
+        out_active[i] = active;
+        out_source[active_count] = uint32_t(base + i);
+        active_count += active;
+    }
+    in.boxes.resize(boxes_base + active_count);
+    in.source.resize(boxes_base + active_count);
+    return active_count;
 }
 
 // Geometry g's triangles, indexed, decoded and transformed; unreadable ones stay inactive.
@@ -314,26 +391,16 @@ void gather_triangles(Context& c, const NvTriangles& t, uint32_t g, const std::s
             }
         return active;
     };
-    const size_t base = in.primitives.size();
-    in.primitives.resize(base + count);
-    in.active.resize(base + count);
-    NvPrimitiveRecord* out = in.primitives.data() + base;
-    uint8_t* out_active = in.active.data() + base;
     // The common case first: float3 vertices, no transform, indices in range and no NaN. Any
     // other triangle is read again by read_triangle, which reports what it breaks.
     const bool plain = float3 && t.transform_address == 0;
-    for (uint32_t i = 0; i < count; ++i) {
-        NvPrimitiveRecord& p = out[i];
-        p.geometry_index = g;
-        p.primitive_index = i;
-        bool active = plain && fast_triangle(t, i, isize, vertices, indices, p);
-        if (!active) {
-            std::fill(std::begin(p.v), std::end(p.v), 0.0f);  // as a fresh record
-            active = read_triangle(i, p);
-        }
-        out_active[i] = active;
-        rec.active_primitives += active;
-    }
+    const TriangleSource source{t, g, plain, vertices.data(), indices.data()};
+    if (isize == 2)
+        rec.active_primitives += append_triangles<2>(source, count, in, read_triangle);
+    else if (isize == 4)
+        rec.active_primitives += append_triangles<4>(source, count, in, read_triangle);
+    else
+        rec.active_primitives += append_triangles<0>(source, count, in, read_triangle);
 }
 
 }  // namespace

@@ -5,12 +5,17 @@
 #pragma once
 
 #include "clastrace/engine/nv_build.h"
+#include "geometry/box.h"
 
 #include <map>
+#include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace clastrace::engine::nv {
+
+using geometry::Box;
 
 uint32_t nv_vertex_size(VkFormat format);
 uint32_t nv_component_size(VkFormat format);
@@ -66,11 +71,36 @@ struct Context {
     void close();
 };
 
+// std::allocator whose value-less construct leaves a trivial element uninitialized, so that
+// resize() of an array the gather overwrites whole does not clear it first (a second pass of
+// stores over megabytes).
+template <class T>
+struct UninitializedAllocator : std::allocator<T> {
+    template <class U>
+    struct rebind {
+        using other = UninitializedAllocator<U>;
+    };
+    using std::allocator<T>::allocator;
+    template <class U>
+    void construct(U* p) noexcept {
+        ::new (static_cast<void*>(p)) U;
+    }
+    template <class U, class... Args>
+    void construct(U* p, Args&&... args) {
+        ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+    }
+};
+
 struct BottomInput {
     bool aabbs = false;
     std::vector<NvGeometryRecord> geometries;
-    std::vector<NvPrimitiveRecord> primitives;  // every input primitive, geometry then index order
-    std::vector<uint8_t> active;
+    // Every input primitive, geometry then index order.
+    std::vector<NvPrimitiveRecord, UninitializedAllocator<NvPrimitiveRecord>> primitives;
+    std::vector<uint8_t, UninitializedAllocator<uint8_t>> active;
+    // The tree's input, taken while the primitives are read: each active primitive's box, in
+    // primitive order, and the index of its record in `primitives`.
+    std::vector<Box, UninitializedAllocator<Box>> boxes;
+    std::vector<uint32_t, UninitializedAllocator<uint32_t>> source;
 };
 struct TopInput {
     std::vector<NvInstanceRecord> instances;  // input order

@@ -243,16 +243,21 @@ struct SmallItems {
 constexpr uint32_t kPadBinsBase = 0x3f800000u;
 static_assert(kBins <= 32, "a bin takes 5 bits of the pad");
 
-// The bins of one range: per axis each bin's box and item count.
+// The bins of one range: per axis each bin's box and item count. A bin's count lies at the
+// same byte offset in `count` as its box in `box`, so one offset per axis, computed in SIMD
+// for all three, addresses both.
 struct BinSet {
     Bounds4 box[3][kBins];
-    uint32_t count[3][kBins];
+    struct alignas(32) Count {
+        uint32_t n;
+    } count[3][kBins];
+    static_assert(sizeof(Count) == sizeof(Bounds4));
 
     void clear(int bins) {
         for (int a = 0; a < 3; ++a)
             for (int k = 0; k < bins; ++k) {
                 box[a][k] = Bounds4::empty();
-                count[a][k] = 0;
+                count[a][k].n = 0;
             }
     }
     // Adds the item to its bin on each axis and keeps the three bins in its pad (5 bits each
@@ -260,16 +265,26 @@ struct BinSet {
     // a denormal, whose multiplies in centroid() would take the slow path).
     void add(BoxRef& ref, const BinMap& map) {
         const __m128 lo = load_lo(ref), hi = _mm_load_ps(ref.hi);
+        // Lane 3 of the bins is 0 (BinMap's scale and offset are 0 there), so that lane
+        // carries the pad's top byte and lane 2 its exponent bit through the byte packing.
         const __m128i k = map.bins(centroid(lo, hi));
-        const int k0 = _mm_cvtsi128_si32(k), k1 = _mm_cvtsi128_si32(_mm_shuffle_epi32(k, 1)),
-                  k2 = _mm_cvtsi128_si32(_mm_shuffle_epi32(k, 2));
-        ref.pad = kPadBinsBase | uint32_t(k0) | uint32_t(k1) << 8 | uint32_t(k2) << 16;
-        box[0][k0].grow(lo, hi);
-        box[1][k1].grow(lo, hi);
-        box[2][k2].grow(lo, hi);
-        ++count[0][k0];
-        ++count[1][k1];
-        ++count[2][k2];
+        static_assert(kPadBinsBase == (0x3fu << 24 | 0x80u << 16));
+        __m128i pad = _mm_add_epi32(k, _mm_setr_epi32(0, 0, 0x80, 0x3f));
+        pad = _mm_packus_epi16(_mm_packs_epi32(pad, pad), pad);
+        ref.pad = uint32_t(_mm_cvtsi128_si32(pad));
+        // Byte offsets of the three bins (under 2^16: one word each).
+        const __m128i at =
+            _mm_add_epi32(_mm_slli_epi32(k, 5),
+                          _mm_setr_epi32(0, int(sizeof box[0]), int(2 * sizeof box[0]), 0));
+        grow_bin(_mm_extract_epi16(at, 0), lo, hi);
+        grow_bin(_mm_extract_epi16(at, 2), lo, hi);
+        grow_bin(_mm_extract_epi16(at, 4), lo, hi);
+    }
+
+private:
+    void grow_bin(int offset, __m128 lo, __m128 hi) {
+        reinterpret_cast<Bounds4*>(reinterpret_cast<char*>(box) + offset)->grow(lo, hi);
+        ++reinterpret_cast<Count*>(reinterpret_cast<char*>(count) + offset)->n;
     }
 };
 
@@ -308,7 +323,7 @@ struct SahSplitter {
         for (uint32_t i = r.begin; i < r.end; ++i) b.add(refs[i], map);
         return cheapest<kBins>(
             r, bins, map.usable, [&](int a, int k) -> const Bounds4& { return b.box[a][k]; },
-            [&](int a, int k) { return b.count[a][k]; });
+            [&](int a, int k) { return b.count[a][k].n; });
     }
 
     // Hoare partition of [begin, end) by the split (left: bin <= split.bin, read from the
@@ -494,68 +509,125 @@ struct MortonBuilder {
     uint32_t parallel_items;
 
     // Appends the subtree of [begin, end) to `out` (root at out.size()); returns its bounds.
+    // Ranges of parallel_items and more build their halves as TBB tasks.
     Bounds4 build(std::vector<NvNode>& out, uint32_t begin, uint32_t end) const {
+        if (end - begin < parallel_items) return build_sequential(out, begin, end);
         const uint32_t node = uint32_t(out.size());
         out.emplace_back();
-        const uint32_t count = end - begin;
-        if (count <= kNvMaxLeafSize) {
-            Bounds4 b = Bounds4::empty();
-            for (uint32_t i = begin; i < end; ++i)
-                b.grow(load_lo(boxes[i]), _mm_load_ps(boxes[i].hi));
-            NvNodeEmitter::set_bounds(out[node], b);
-            out[node].first = begin;
-            out[node].count = count;
-            return b;
-        }
-        const uint32_t diff = codes[begin] ^ codes[end - 1];
-        uint32_t mid = begin + count / 2;  // equal codes: any split is as good
-        if (diff != 0) {
-            const uint32_t bit = 1u << (31 - __builtin_clz(diff));
-            mid = uint32_t(std::partition_point(codes + begin, codes + end,
-                                                [&](uint32_t c) { return !(c & bit); }) -
-                           codes);
-        }
-        Bounds4 b;
+        const uint32_t mid = split(begin, end);
+        std::vector<NvNode> left_nodes, right_nodes;
+        Bounds4 lb, rb;
+        tbb::parallel_invoke([&] { lb = build(left_nodes, begin, mid); },
+                             [&] { rb = build(right_nodes, mid, end); });
+        geometry::splice_preorder(NvNodeEmitter{}, out, left_nodes);
+        out[node].first = uint32_t(out.size());
         out[node].count = 0;
-        if (count < parallel_items) {
-            b = build(out, begin, mid);
-            out[node].first = uint32_t(out.size());
-            b.grow(build(out, mid, end));
-        } else {
-            std::vector<NvNode> left_nodes, right_nodes;
-            Bounds4 lb, rb;
-            tbb::parallel_invoke([&] { lb = build(left_nodes, begin, mid); },
-                                 [&] { rb = build(right_nodes, mid, end); });
-            geometry::splice_preorder(NvNodeEmitter{}, out, left_nodes);
-            out[node].first = uint32_t(out.size());
-            geometry::splice_preorder(NvNodeEmitter{}, out, right_nodes);
-            b = lb;
-            b.grow(rb);
-        }
+        geometry::splice_preorder(NvNodeEmitter{}, out, right_nodes);
+        Bounds4 b = lb;
+        b.grow(rb);
         NvNodeEmitter::set_bounds(out[node], b);
         return b;
     }
+
+private:
+    // Where [begin, end) (more than one leaf's items) splits: the first item whose code has
+    // the range's highest differing bit set, or the middle when all codes are equal. The
+    // codes of the range share every bit above that one, so those without it come first; a
+    // binary search without branches on the data finds the first with it.
+    uint32_t split(uint32_t begin, uint32_t end) const {
+        const uint32_t diff = codes[begin] ^ codes[end - 1];
+        if (diff == 0) return begin + (end - begin) / 2;  // equal codes: any split is as good
+        const uint32_t bit = 1u << (31 - __builtin_clz(diff));
+        const uint32_t* base = codes + begin;
+        for (uint32_t n = end - begin; n > 1;) {
+            const uint32_t half = n / 2;
+            base = (base[half] & bit) ? base : base + half;
+            n -= half;
+        }
+        return uint32_t(base - codes) + ((*base & bit) ? 0 : 1);
+    }
+
+    // build() on one thread, without recursion: the nodes in preorder with each leaf's
+    // bounds, then every inner node's bounds from its children's, last node first (children
+    // lie after their parent). The bounds are grown in the order the recursive build grew
+    // them (a leaf's items in order, then left and right child), which decides between -0
+    // and +0.
+    Bounds4 build_sequential(std::vector<NvNode>& out, uint32_t begin, uint32_t end) const {
+        const uint32_t root = uint32_t(out.size());
+        constexpr uint32_t kLeftChild = ~0u;  // a pending range whose parent needs no link
+        struct Pending {
+            uint32_t begin, end, parent;
+        };
+        std::vector<Pending> stack{{begin, end, kLeftChild}};
+        while (!stack.empty()) {
+            const Pending p = stack.back();
+            stack.pop_back();
+            const uint32_t node = uint32_t(out.size());
+            if (p.parent != kLeftChild) out[p.parent].first = node;
+            NvNode& n = out.emplace_back();
+            const uint32_t count = p.end - p.begin;
+            if (count <= kNvMaxLeafSize) {
+                Bounds4 b = Bounds4::empty();
+                for (uint32_t i = p.begin; i < p.end; ++i)
+                    b.grow(load_lo(boxes[i]), _mm_load_ps(boxes[i].hi));
+                NvNodeEmitter::set_bounds(n, b);
+                n.first = p.begin;
+                n.count = count;
+                continue;
+            }
+            n.count = 0;
+            const uint32_t mid = split(p.begin, p.end);
+            stack.push_back({mid, p.end, node});
+            stack.push_back({p.begin, mid, kLeftChild});
+        }
+        const __m128 xyz = _mm_castsi128_ps(_mm_set_epi32(0, -1, -1, -1));
+        auto bounds = [&](const NvNode& n) {
+            return Bounds4{_mm_and_ps(_mm_loadu_ps(n.bounds_min), xyz),
+                           _mm_and_ps(_mm_loadu_ps(n.bounds_max), xyz)};
+        };
+        for (size_t k = out.size(); k-- > root;) {
+            NvNode& n = out[k];
+            if (n.count != 0) continue;
+            Bounds4 b = bounds(out[k + 1]);
+            b.grow(bounds(out[n.first]));
+            NvNodeEmitter::set_bounds(n, b);
+        }
+        return bounds(out[root]);
+    }
 };
 
-// Stable LSD radix sort of (code << 32 | item) keys by code, 3 passes of 10 bits: equal
-// codes keep item order, so the result depends only on the boxes. One 8-byte key per item
-// keeps the scatter to one store stream per bucket; `spare` is working space (swapped with
+// The radix sort's digits: 8 bits each, so that a pass scatters into 256 store streams, which
+// L1 holds (1024 streams, 3 passes of 10 bits, missed it on about every store).
+constexpr int kDigitBits = 8, kDigits = 4, kDigitValues = 1 << kDigitBits;
+static_assert(kDigits * kDigitBits >= 30, "the digits cover a 30-bit Morton code");
+
+// How many codes have each value of each digit: digit d's counts at kDigitValues * d.
+using DigitCounts = std::array<uint32_t, kDigits * kDigitValues>;
+
+void count_digits(uint32_t code, DigitCounts& counts) {
+    for (int d = 0; d < kDigits; ++d)
+        ++counts[kDigitValues * d + ((code >> (kDigitBits * d)) & (kDigitValues - 1))];
+}
+
+// Stable LSD radix sort of (code << 32 | item) keys by code, one pass per digit: equal codes
+// keep item order, so the result depends only on the boxes. One 8-byte key per item keeps
+// the scatter to one store stream per bucket; `counts` are the keys' digit counts
+// (count_digits, taken while the codes were made), `spare` is working space (swapped with
 // `keys` on the way).
-void sort_by_code(std::vector<uint64_t>& keys, std::vector<uint64_t>& spare) {
+void sort_by_code(std::vector<uint64_t>& keys, std::vector<uint64_t>& spare, DigitCounts& counts) {
     const size_t n = keys.size();
     spare.resize(n);
-    std::vector<uint32_t> histograms(3 * 1024, 0);  // all three digits counted in one pass
-    for (size_t i = 0; i < n; ++i)
-        for (int d = 0; d < 3; ++d) ++histograms[1024 * d + ((keys[i] >> (32 + 10 * d)) & 1023)];
-    for (int d = 0; d < 3; ++d) {
-        uint32_t* start = histograms.data() + 1024 * d;
+    for (int d = 0; d < kDigits; ++d) {
+        uint32_t* start = counts.data() + kDigitValues * d;
         uint32_t sum = 0;
-        for (int k = 0; k < 1024; ++k) {
+        for (int k = 0; k < kDigitValues; ++k) {
             const uint32_t c = start[k];
             start[k] = sum;
             sum += c;
         }
-        for (size_t i = 0; i < n; ++i) spare[start[(keys[i] >> (32 + 10 * d)) & 1023]++] = keys[i];
+        const int shift = 32 + kDigitBits * d;
+        for (size_t i = 0; i < n; ++i)
+            spare[start[(keys[i] >> shift) & (kDigitValues - 1)]++] = keys[i];
         keys.swap(spare);
     }
 }
@@ -697,6 +769,7 @@ Tree build_tree(std::span<const Box> boxes, TreeQuality quality, TreeLevel level
     BuildScratch scratch = take_scratch();
     std::vector<uint64_t>& keys = scratch.keys;
     keys.resize(n);
+    DigitCounts counts{};
     for (uint32_t i = 0; i < n; ++i) {
         __m128 lo, hi;
         load(i, &lo, &hi);
@@ -705,25 +778,25 @@ Tree build_tree(std::span<const Box> boxes, TreeQuality quality, TreeLevel level
         const uint32_t code = kSpreadBits[uint32_t(q[0])] | kSpreadBits[uint32_t(q[1])] << 1 |
                               kSpreadBits[uint32_t(q[2])] << 2;
         keys[i] = uint64_t(code) << 32 | i;
+        count_digits(code, counts);
     }
     t.nodes.reserve(size_t(n));  // leaves of up to 4 and Morton's uneven splits: about n nodes
-    sort_by_code(keys, scratch.spare);
-    // The item order, the codes, and the boxes in that order, gathered once with the next
-    // ones fetched ahead: the build then reads them in sequence.
+    sort_by_code(keys, scratch.spare, counts);
+    // The item order, the codes, and the boxes in that order, in one pass with the next boxes
+    // fetched ahead: the build then reads them in sequence.
     std::vector<uint32_t> items(n);
     std::vector<uint32_t>& codes = scratch.codes;
     codes.resize(n);
-    for (uint32_t i = 0; i < n; ++i) {
-        items[i] = uint32_t(keys[i]);
-        codes[i] = uint32_t(keys[i] >> 32);
-    }
     std::vector<BoxRef>& sorted = scratch.refs;
     sorted.resize(n);
     constexpr uint32_t kAhead = 16;
     for (uint32_t i = 0; i < n; ++i) {
-        if (i + kAhead < n) __builtin_prefetch(&boxes[items[i + kAhead]]);
-        const Box& b = boxes[items[i]];
-        sorted[i] = BoxRef{{b.lo[0], b.lo[1], b.lo[2]}, items[i], {b.hi[0], b.hi[1], b.hi[2]}, 0};
+        if (i + kAhead < n) __builtin_prefetch(&boxes[uint32_t(keys[i + kAhead])]);
+        const uint32_t item = uint32_t(keys[i]);
+        items[i] = item;
+        codes[i] = uint32_t(keys[i] >> 32);
+        const Box& b = boxes[item];
+        sorted[i] = BoxRef{{b.lo[0], b.lo[1], b.lo[2]}, item, {b.hi[0], b.hi[1], b.hi[2]}, 0};
     }
     MortonBuilder{sorted.data(), codes.data(), parallel_items}.build(t.nodes, 0, n);
     t.order = std::move(items);
