@@ -293,28 +293,7 @@ CLASTRACE_TARGET_AVX2 void quantized_lanes8(const QuantizedWideNode8& n, int axi
     _mm256_storeu_ps(hi, dequantized8(n.qhi[axis], origin, step));
 }
 
-namespace {
-CLASTRACE_TARGET_AVX2 unsigned triangle4_candidates_avx2(const geometry::Triangle4Ray& r,
-                                                         const geometry::Triangle4& t,
-                                                         unsigned used, float tmax) {
-    return geometry::triangle4_candidates(r, t, used, tmax);
-}
-}  // namespace
 #endif
-
-namespace {
-unsigned triangle4_candidates_sse(const geometry::Triangle4Ray& r, const geometry::Triangle4& t,
-                                  unsigned used, float tmax) {
-    return geometry::triangle4_candidates(r, t, used, tmax);
-}
-}  // namespace
-
-LeafFilter leaf_filter(const WideTree& tree) {
-#if defined(CLASTRACE_AVX2_PATH)
-    if (!tree.quantized8.empty()) return triangle4_candidates_avx2;
-#endif
-    return triangle4_candidates_sse;
-}
 
 namespace {
 
@@ -360,12 +339,6 @@ std::vector<geometry::Triangle4> group_leaf_triangles(
     group_leaves(&tree->quantized8, records, &groups);
     tree->leaf_groups = true;
     return groups;
-}
-
-float float_at_or_above(double t) {
-    float f = float(t);
-    if (double(f) < t) f = std::nextafter(f, std::numeric_limits<float>::infinity());
-    return f;
 }
 
 namespace {

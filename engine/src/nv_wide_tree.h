@@ -156,15 +156,6 @@ std::vector<FloatWideNode<8>> make_float_wide_nodes8(const std::vector<NvNode>& 
 void quantized_lanes8(const QuantizedWideNode8& n, int axis, float lo[8], float hi[8]);
 #endif
 
-// The leaves' four-triangle filter (geometry::triangle4_candidates) as the traversal calls it,
-// once per group. The AVX2 path's copy is compiled for AVX2: the same SSE operations in their
-// three-operand form (no register copies), with the same results bit for bit (the target does
-// not enable fused multiply-adds).
-using LeafFilter = unsigned (*)(const geometry::Triangle4Ray& r, const geometry::Triangle4& t,
-                                unsigned used, float tmax);
-// The filter of `tree`'s path, chosen once per walk: the AVX2 copy for 8-wide nodes.
-LeafFilter leaf_filter(const WideTree& tree);
-
 // The triangles of `tree`'s leaves in groups of four (geometry/triangle4.h), a leaf's groups
 // side by side in the order the leaves are laid out; each leaf's `child` becomes the index of
 // its first group (tree->leaf_groups). `records` are the triangles the tree was built over;
@@ -198,8 +189,13 @@ inline bool resolves_leaves(const WideTree& tree, const double o[3]) {
     return !(far * 0x1p-20 > tree.leaf_extent * 0.25);
 }
 
-// The float at or above `t` (`t` itself when it is a float); +inf past FLT_MAX.
-float float_at_or_above(double t);
+// The float at or above `t` (`t` itself when it is a float); +inf past FLT_MAX. Inline: the
+// walks call it after every leaf.
+inline float float_at_or_above(double t) {
+    float f = float(t);
+    if (__builtin_expect(double(f) < t, 0)) f = std::nextafter(f, __builtin_inff());
+    return f;
+}
 
 inline void lane_boxes(const WideNode& n, int axis, Float4* lo, Float4* hi) {
     *lo = load4(n.lo[axis]);
@@ -269,27 +265,25 @@ class WalkStack {
 public:
     // Inlined into the walks (an out-of-line push cost 4% of a ray's instructions); the spill
     // to the vector stays out of line.
-    [[gnu::always_inline]] void push(const WalkEntry& e) {
+    [[gnu::always_inline]] void push(WalkEntry e) {
         if (__builtin_expect(size_ < kSize, 1))
             stack_[size_] = e;
         else
             spill(e);
         ++size_;
     }
-    // The entry pushed last; false when none is left. One test of the size on the common path
-    // (the overflow vector is looked at only past kSize).
-    [[gnu::always_inline]] bool pop(WalkEntry* e) {
-        if (size_ == 0) return false;
+    [[gnu::always_inline]] bool empty() const { return size_ == 0; }
+    // The entry pushed last (the stack is not empty). One test of the size on the common path
+    // (the overflow vector is looked at only past kSize). Entries go in and out by value, so
+    // that the walk keeps the one it visits in registers.
+    [[gnu::always_inline]] WalkEntry pop() {
         --size_;
-        if (__builtin_expect(size_ < kSize, 1))
-            *e = stack_[size_];
-        else
-            *e = unspill();
-        return true;
+        if (__builtin_expect(size_ < kSize, 1)) return stack_[size_];
+        return unspill();
     }
 
 private:
-    [[gnu::noinline]] void spill(const WalkEntry& e) { overflow_.push_back(e); }
+    [[gnu::noinline]] void spill(WalkEntry e) { overflow_.push_back(e); }
     [[gnu::noinline]] WalkEntry unspill() {
         const WalkEntry e = overflow_.back();
         overflow_.pop_back();
@@ -299,23 +293,6 @@ private:
     WalkEntry stack_[kSize];
     uint32_t size_ = 0;
     std::vector<WalkEntry> overflow_;
-};
-
-// The box test's tmax: *tmax rounded up to float, again only when *tmax has changed.
-class RoundedTmax {
-public:
-    explicit RoundedTmax(double tmax) : from_(tmax), up_(float_at_or_above(tmax)) {}
-    float of(double tmax) {
-        if (tmax != from_) {
-            from_ = tmax;
-            up_ = float_at_or_above(tmax);
-        }
-        return up_;
-    }
-
-private:
-    double from_;
-    float up_;
 };
 
 // Lane k of `n`, which the box test hit (so it holds a child), as a stack entry; its bytes are
@@ -333,23 +310,25 @@ template <class Node, class Prefetch>
     return c;
 }
 
-// After a node whose box test hit `first` and the lanes in `more` (at least one): the nearest
-// child into *next (visited next, without a push and a pop), the others onto the stack farthest
-// first. Two children, the common case, take one comparison; more are sorted by insertion.
-// Equal distances keep the lane order of the insertion sort the walks had before (the higher
-// lane is visited first), so first-hit rays see the same leaves in the same order.
+// After a node whose box test hit `first` and the lanes in `more` (at least one): the others
+// onto the stack farthest first, and the nearest returned, to be visited next without a push
+// and a pop. Two children, the common case, take one comparison; more are sorted by
+// insertion. Equal distances keep the lane order of the insertion sort the walks had before
+// (the higher lane is visited first), so first-hit rays see the same leaves in the same order.
 template <int W, class Node, class Prefetch>
-[[gnu::always_inline]] inline void order_children(const Node* nodes, const Node& n, WalkEntry first,
-                                                  unsigned more, const float* entry,
-                                                  Prefetch& prefetch, WalkStack* stack,
-                                                  WalkEntry* next) {
-    WalkEntry second = hit_child(nodes, n, __builtin_ctz(more), entry, prefetch);
+[[gnu::always_inline]] inline WalkEntry order_children(const Node* nodes, const Node& n,
+                                                       WalkEntry first, unsigned more,
+                                                       const float* entry, Prefetch& prefetch,
+                                                       WalkStack* stack) {
+    const WalkEntry second = hit_child(nodes, n, __builtin_ctz(more), entry, prefetch);
     more &= more - 1;
     if (more == 0) {
-        if (first.t < second.t) std::swap(first, second);
+        if (first.t < second.t) {
+            stack->push(second);
+            return first;
+        }
         stack->push(first);
-        *next = second;
-        return;
+        return second;
     }
     WalkEntry order[W];
     order[0] = first;
@@ -365,7 +344,7 @@ template <int W, class Node, class Prefetch>
         if (more == 0) break;
     }
     for (int k = 0; k + 1 < count; ++k) stack->push(order[k]);
-    *next = order[count - 1];
+    return order[count - 1];
 }
 
 // Visits the leaves of a wide tree (`nodes`, W lanes a node) that the ray's [tmin, *tmax]
@@ -382,31 +361,36 @@ template <int W, class Node, class BoxTest, class Leaf, class Prefetch>
     if (tree.empty()) return;
     const Node* nodes = tree.data();
     WalkStack stack;
-    RoundedTmax tmax_up(*tmax);
+    // *tmax rounded up to float, again after each leaf (only leaves lower *tmax). An entry
+    // above it is above *tmax: its box holds no point of the ray within [tmin, *tmax]
+    // (entries are at or below the exact ones). One between *tmax and the float above it is
+    // still visited, which only costs a box test.
+    float tmax_up = float_at_or_above(*tmax);
     // The entry visited next: the nearest child the node just visited hit, else the top of
     // the stack.
     WalkEntry e{0, 0, -__builtin_inff()};
     for (;;) {
-        if (!(double(e.t) > *tmax)) {
+        if (!(e.t > tmax_up)) {
             if (e.count != 0) {
                 if (leaf(e.child, e.count)) return;
+                tmax_up = float_at_or_above(*tmax);
             } else {
                 const Node& n = nodes[e.child];
                 alignas(32) float entry[W];
-                const unsigned hits = box_test(n, tmax_up.of(*tmax), entry);
+                const unsigned hits = box_test(n, tmax_up, entry);
                 if (hits != 0) {
                     const WalkEntry first =
                         hit_child(nodes, n, __builtin_ctz(hits), entry, prefetch);
                     const unsigned more = hits & (hits - 1);
-                    if (more == 0)
-                        e = first;
-                    else
-                        order_children<W>(nodes, n, first, more, entry, prefetch, &stack, &e);
+                    e = more == 0
+                            ? first
+                            : order_children<W>(nodes, n, first, more, entry, prefetch, &stack);
                     continue;
                 }
             }
         }
-        if (!stack.pop(&e)) return;
+        if (stack.empty()) return;
+        e = stack.pop();
     }
 }
 

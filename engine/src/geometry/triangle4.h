@@ -153,7 +153,7 @@ inline unsigned group_lanes(uint32_t g, uint32_t count) {
 
 // Lane mask (bit k = lane k) of the triangles among `used` (group_lanes) the exact test may hit
 // within [tmin, tmax] (`tmax` a float at or above the exact test's). Always inlined, so that
-// the AVX2 path's copy (triangle4_candidates_avx2, nv_wide_tree.h) compiles it for AVX2.
+// inside the AVX2 walk (nv_trace.cpp's leaf, inlined there) it compiles for AVX2.
 [[gnu::always_inline]] inline unsigned triangle4_candidates(const Triangle4Ray& r,
                                                             const Triangle4& t, unsigned used,
                                                             float tmax) {
