@@ -235,6 +235,11 @@ void ClusterRunAhead::run() {
     engine_ns_ = static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
                                            std::chrono::steady_clock::now() - started)
                                            .count());
+    try {
+        built_intact_ = !failed_ && built_objects(&built_);
+    } catch (const std::exception&) {
+        built_intact_ = false;  // its turn runs the command in place
+    }
 }
 
 bool ClusterRunAhead::reads_unchanged(const engine::MemoryImage& real) const {
@@ -306,15 +311,14 @@ bool ClusterRunAhead::commit(ReplayMemory& memory, engine::ObjectDirectory& dire
                              uint32_t queried_max_count, const ClusterDriverSizes& sizes,
                              engine::ExecutionRecord* record, uint64_t* engine_ns) {
     finish();
-    std::vector<Built> objects;
-    if (!stands(memory, queried_max_count, sizes) || !built_objects(&objects)) return false;
+    if (!stands(memory, queried_max_count, sizes) || !built_intact_) return false;
     engine::MemoryImage& real = memory.image();
     for (const auto& [address, size] : writes_) {
         auto from = image_.read_bytes(address, size, {"run ahead", -1});
         auto to = real.write_bytes(address, size, {"run ahead", -1});
         std::memcpy(to.data(), from.data(), size);
     }
-    for (const Built& b : objects)  // in op order, as the engine's own run records them
+    for (const Built& b : built_)  // in op order, as the engine's own run records them
         directory.record_built(b.address, b.type,
                                real.read_bytes(b.address, b.size, {"run ahead", -1}));
     stood_ = true;

@@ -139,7 +139,7 @@ private:
                 const ClusterDriverSizes& sizes) const;
     bool reads_unchanged(const engine::MemoryImage& real) const;
     bool writes_fit(const engine::MemoryImage& real) const;
-    // The objects it built, when each is intact in its own image.
+    // The objects it built, when each is intact in its own image (the task asks, at its end).
     struct Built {
         uint64_t address = 0, size = 0;
         engine::ObjectType type{};
@@ -174,6 +174,9 @@ private:
     uint64_t engine_ns_ = 0;
     bool failed_ = false;
     bool stood_ = false;
+    // What built_objects found, on the task: the replay thread only records them.
+    std::vector<Built> built_;
+    bool built_intact_ = false;
 };
 
 // The commands started ahead and not yet taken, at most `capacity`.
