@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
 // replay_throughput_bench [--ops N] [--max-ops M] [--dir D] [--threads T] [--repeat R] | --write-trace PATH OPS
-// | --child-replay PATH THREADS | --replay-once PATH hazards|no-hazards: replay throughput on one and on T threads, next to the engine
+// | --child-replay PATH THREADS | --replay-once PATH hazards|no-hazards [THREADS]: replay throughput on one and on T threads, next to the engine
 // alone and plain zstd decompression of the same trace, then how replay time and peak memory
 // grow with trace length.
 //
@@ -8,7 +8,7 @@
 // checking and without (--no-hazards), on T threads (default: the machine's cores) with
 // hazard checking (the defaults: the sync model inline, each command in its turn), with the
 // sync model on its own thread (CLASTRACE_REPLAY_SYNC_THREAD=1), and with cluster builds run
-// ahead of their turn (CLASTRACE_REPLAY_RUN_AHEAD=1, docs/replay.md "Threads"); then the engine alone: the wall
+// ahead of their turn (CLASTRACE_REPLAY_RUN_AHEAD=1, docs/replay.md "Threads"), and with both; then the engine alone: the wall
 // time of every engine::execute call of a one-thread replay of the same trace in the same process (ReplayedCommand::engine_ns, summed
 // by an observer), i.e. exactly the ops the replay ran; and the peer: read the file and
 // ZSTD_decompress each chunk, nothing else. Goals (issue 23): replay (one thread) <= 1.1x the
@@ -238,13 +238,21 @@ int child_replay(const std::string& path, uint32_t threads) {
 // the engine's share of it: the run to put under callgrind or perf, where the difference of two
 // runs' instruction counts is the hazard model's cost and the rest beyond engine::execute the
 // replay's own.
-int replay_once_for_profiler(const std::string& path, bool hazards) {
+// With THREADS > 1 (and CLASTRACE_REPLAY_RUN_AHEAD / CLASTRACE_REPLAY_SYNC_THREAD as wanted),
+// `valgrind --tool=callgrind --separate-threads=yes` then counts the instructions the replay
+// thread runs apart from the others': its serial share (docs/benchmarks.md, issue 23).
+int replay_once_for_profiler(const std::string& path, bool hazards, uint32_t threads) {
     EngineTime engine;
-    ReplayRun run = replay_once(path, hazards, 1, &engine);
+    replay::ReplayOptions::RunAheadCounts run_ahead;
+    ReplayRun run =
+        replay_once(path, hazards, threads, threads == 1 ? &engine : nullptr, &run_ahead);
     require_clean(run.report, "profiled");
-    std::printf("%s: %llu ops, hazards %s, %.3f s, engine %.3f s, %zu hazards\n", path.c_str(),
-                (unsigned long long)run.report.counts.cluster_ops, hazards ? "on" : "off",
-                run.seconds, 1e-9 * double(engine.ns), run.report.hazards.size());
+    std::printf(
+        "%s: %llu ops, hazards %s, %u thread(s), %.3f s, engine %.3f s (1 thread only), %zu "
+        "hazards; runs ahead started %llu, stood %llu\n",
+        path.c_str(), (unsigned long long)run.report.counts.cluster_ops, hazards ? "on" : "off",
+        threads, run.seconds, 1e-9 * double(engine.ns), run.report.hazards.size(),
+        (unsigned long long)run_ahead.started, (unsigned long long)run_ahead.stood);
     return 0;
 }
 
@@ -303,7 +311,7 @@ void throughput_table(const std::string& dir, uint64_t ops, uint32_t threads, in
             wall = std::min(wall, w);
             cpu = std::min(cpu, c);
         }
-    } on, off, many, many_sync_thread, many_run_ahead, engine, z;
+    } on, off, many, many_sync_thread, many_run_ahead, many_both, engine, z;
     replay::ReplayOptions::RunAheadCounts run_ahead;
     ReplayRun last_on, last_many;
     ZstdRun zr;
@@ -325,6 +333,12 @@ void throughput_table(const std::string& dir, uint64_t ops, uint32_t threads, in
         ReplayRun mi = replay_once(path, true, threads);
         unsetenv("CLASTRACE_REPLAY_SYNC_THREAD");
         many_sync_thread.take(mi.seconds, mi.cpu);
+        setenv("CLASTRACE_REPLAY_RUN_AHEAD", "1", 1);  // both
+        setenv("CLASTRACE_REPLAY_SYNC_THREAD", "1", 1);
+        ReplayRun both = replay_once(path, true, threads);
+        unsetenv("CLASTRACE_REPLAY_RUN_AHEAD");
+        unsetenv("CLASTRACE_REPLAY_SYNC_THREAD");
+        many_both.take(both.seconds, both.cpu);
         EngineTime timed;
         replay_once(path, true, 1, &timed);
         engine.take(double(timed.ns) * 1e-9, double(timed.ns) * 1e-9);  // one thread: CPU = wall
@@ -364,17 +378,21 @@ void throughput_table(const std::string& dir, uint64_t ops, uint32_t threads, in
     row("replay, " + std::to_string(threads) +
             " threads, hazards on, cluster builds run ahead (CLASTRACE_REPLAY_RUN_AHEAD=1)",
         many_run_ahead);
+    row("replay, " + std::to_string(threads) +
+            " threads, hazards on, the model's thread and runs ahead (both =1)",
+        many_both);
     row("engine alone: engine::execute of the same ops (1 thread, summed)", engine);
     row("zstd: read + ZSTD_decompress each chunk (" + std::to_string(zr.chunks) + " chunks)", z);
     std::printf(
         "replay (1 thread, hazards off) / engine alone: %.2fx (goal <= 1.1x); hazards on / off: "
         "%.2fx wall, %.2fx CPU (goal <= 1.2x); %u threads vs 1: %.2fx (goal >= 8x on 16 cores at "
-        "10^6 ops), %.2fx with the sync model on its own thread, %.2fx with runs ahead; cluster "
+        "10^6 ops), %.2fx with the sync model on its own thread, %.2fx with runs ahead, %.2fx "
+        "with both; cluster "
         "builds "
         "run ahead %llu, stood %llu, run again %llu (last run); accesses checked: %llu; peak RSS "
         "of this process %.1f MB\n\n",
         off.wall / engine.wall, on.wall / off.wall, on.cpu / off.cpu, threads, on.wall / many.wall,
-        on.wall / many_sync_thread.wall, on.wall / many_run_ahead.wall,
+        on.wall / many_sync_thread.wall, on.wall / many_run_ahead.wall, on.wall / many_both.wall,
         (unsigned long long)run_ahead.started, (unsigned long long)run_ahead.stood,
         (unsigned long long)run_ahead.run_again, (unsigned long long)last_on.report.counts.accesses,
         double(peak_rss_kb()) / 1024.0);
@@ -428,7 +446,11 @@ int main(int argc, char** argv) {
         if (a == "--child-replay" && i + 2 < argc)
             return child_replay(argv[i + 1], uint32_t(std::strtoul(argv[i + 2], nullptr, 10)));
         if (a == "--replay-once" && i + 2 < argc)
-            return replay_once_for_profiler(argv[i + 1], std::string(argv[i + 2]) == "hazards");
+            return replay_once_for_profiler(
+                argv[i + 1], std::string(argv[i + 2]) == "hazards",
+                i + 3 < argc
+                    ? std::max<uint32_t>(1, uint32_t(std::strtoul(argv[i + 3], nullptr, 10)))
+                    : 1);
         if (a == "--write-trace" &&
             i + 2 < argc) {  // keep one generated trace, e.g. for a profiler
             bench::BenchTraceShape shape;
@@ -449,11 +471,11 @@ int main(int argc, char** argv) {
         else if (a == "--repeat" && i + 1 < argc)
             repeats = std::max(1, std::atoi(argv[++i]));
         else {
-            std::fprintf(
-                stderr,
-                "usage: %s [--ops N] [--max-ops M] [--dir D] [--threads T] [--repeat R]\n"
-                "       %s --write-trace PATH OPS | --replay-once PATH hazards|no-hazards\n",
-                argv[0], argv[0]);
+            std::fprintf(stderr,
+                         "usage: %s [--ops N] [--max-ops M] [--dir D] [--threads T] [--repeat R]\n"
+                         "       %s --write-trace PATH OPS | --replay-once PATH hazards|no-hazards "
+                         "[THREADS]\n",
+                         argv[0], argv[0]);
             return 2;
         }
     }

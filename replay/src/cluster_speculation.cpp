@@ -5,6 +5,8 @@
 #include <clastrace/engine/execute.h>
 #include <clastrace/traces/trace_generated.h>
 
+#include <tbb/task_arena.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cstring>
@@ -19,21 +21,45 @@ void RecentContents::keep(uint64_t hash, const uint8_t* data, size_t size) {
         order_.splice(order_.begin(), order_, it->second);
         return;
     }
-    order_.emplace_front(hash, std::vector<uint8_t>(data, data + size));
+    order_.emplace_front(hash, std::make_shared<const std::vector<uint8_t>>(data, data + size));
     by_hash_[hash] = order_.begin();
     bytes_ += size;
     while (bytes_ > max_bytes_ && !order_.empty()) {
-        bytes_ -= order_.back().second.size();
+        bytes_ -= order_.back().second->size();
         by_hash_.erase(order_.back().first);
         order_.pop_back();
     }
 }
 
-const std::vector<uint8_t>* RecentContents::find(uint64_t hash) {
+RecentContents::Bytes RecentContents::find(uint64_t hash) {
     auto it = by_hash_.find(hash);
     if (it == by_hash_.end()) return nullptr;
     order_.splice(order_.begin(), order_, it->second);
-    return &it->second->second;
+    return it->second->second;
+}
+
+engine::RegionBytes ImageStoragePool::take(uint64_t size) {
+    {
+        std::lock_guard lock(mutex_);
+        auto it = by_size_.find(size);
+        if (it != by_size_.end() && !it->second.empty()) {
+            engine::RegionBytes bytes = std::move(it->second.back());
+            it->second.pop_back();
+            kept_ -= bytes.resident_bytes();
+            return bytes;
+        }
+    }
+    return engine::RegionBytes(size);
+}
+
+void ImageStoragePool::give(std::vector<engine::RegionBytes> storage) {
+    std::lock_guard lock(mutex_);
+    for (engine::RegionBytes& bytes : storage) {
+        if (bytes.empty() || bytes.dense() || kept_ + bytes.resident_bytes() > kKeptBytes)
+            continue;  // goes with `storage`, after the lock is released
+        kept_ += bytes.resident_bytes();
+        by_size_[bytes.size()].push_back(std::move(bytes));
+    }
 }
 
 namespace {
@@ -43,14 +69,6 @@ namespace {
 bool reads_no_objects(VkClusterAccelerationStructureOpTypeNV type) {
     return type == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV ||
            type == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV;
-}
-
-// Adds the replay's region holding `address` to `image` (bounds and usage; no bytes).
-void add_region_of(const engine::MemoryImage& real, uint64_t address, engine::MemoryImage& image) {
-    if (address == 0 || image.find_region(address)) return;
-    const engine::MemoryRegion* r = real.find_region(address);
-    if (!r) return;
-    image.add_region(r->base, r->size, r->usage, r->label);
 }
 
 bool same_sizes(const ClusterDriverSizes& a, const ClusterDriverSizes& b) {
@@ -69,84 +87,147 @@ std::unique_ptr<ClusterRunAhead> ClusterRunAhead::start(std::vector<uint8_t> rec
         !reads_no_objects(
             static_cast<VkClusterAccelerationStructureOpTypeNV>(build->input()->op_type())))
         return nullptr;
-    std::unique_ptr<ClusterRunAhead> run(new ClusterRunAhead);
+    std::unique_ptr<ClusterRunAhead> run(new ClusterRunAhead(in.storage));
     run->stream_index_ = stream_index;
     run->queried_max_count_ =
         in.queries.largest_count(build->input()->op_type(), build->input()->op_mode());
+    run->properties_ = &in.properties;
+    run->max_findings_per_rule_ = in.max_findings_per_rule;
+    run->implicit_object_room_ = build->implicit_object_room();
     try {
         run->info_ = traces::cluster_commands_from_record(*build, run->op_inputs_);
         run->sizes_ = in.queries.sizes_for(run->info_.input, in.properties);
-        if (!run->prepare_image(*build, in)) return nullptr;
+        if (!run->plan(*build, in)) return nullptr;
     } catch (const std::exception&) {
         return nullptr;  // a record or region the replay's own run will report on
     }
     run->record_ = std::move(record);
-    const uint64_t room = build->implicit_object_room();
-    run->group_.run([raw = run.get(), &properties = in.properties,
-                     findings = in.max_findings_per_rule,
-                     room] { raw->run(properties, findings, room); });
+    // Enqueued, not spawned: a spawned task goes to the replay thread's own deque, where any
+    // wait of that thread (a parallel loop of a command in its turn) would pick it up first.
+    tbb::this_task_arena::enqueue([stage = run->stage_, raw = run.get()] {
+        int queued = kQueued;
+        if (!stage->compare_exchange_strong(queued, kRunning)) return;  // cancelled
+        raw->run();
+        stage->store(kDone);
+        stage->notify_all();
+    });
     return run;
 }
 
-// The regions the command names directly or through its snapshots, with the snapshots laid in.
-bool ClusterRunAhead::prepare_image(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
-                                    const AheadInputs& in) {
+ClusterRunAhead::~ClusterRunAhead() {
+    int queued = kQueued;
+    if (!stage_->compare_exchange_strong(queued, kCancelled))
+        for (int now = stage_->load(); now == kRunning; now = stage_->load()) stage_->wait(now);
+    storage_.give(image_.release_storage());
+}
+
+void ClusterRunAhead::finish() {
+    int queued = kQueued;
+    if (stage_->compare_exchange_strong(queued, kRunning)) {
+        run();
+        stage_->store(kDone);
+        return;
+    }
+    for (int now = stage_->load(); now == kRunning; now = stage_->load()) stage_->wait(now);
+}
+
+bool ClusterRunAhead::plan_region(const engine::MemoryImage& real, uint64_t address,
+                                  uint64_t size) {
+    if (address == 0) return false;
+    const PlannedRegion* holder = nullptr;
+    for (const PlannedRegion& r : regions_)
+        if (address - r.base < r.size) holder = &r;
+    if (!holder) {
+        const engine::MemoryRegion* r = real.find_region(address);
+        if (!r) return false;
+        holder = &regions_.emplace_back(PlannedRegion{r->base, r->size, r->usage, r->label});
+    }
+    return holder->size - (address - holder->base) >= size;
+}
+
+// The regions the command names directly or through its snapshots, and the snapshots' bytes.
+bool ClusterRunAhead::plan(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
+                           const AheadInputs& in) {
     const engine::MemoryImage& real = in.memory.image();
     for (uint64_t address :
          {info_.srcInfosArray.deviceAddress, info_.srcInfosCount, info_.scratchData,
           info_.dstImplicitData, info_.dstAddressesArray.deviceAddress,
           info_.dstSizesArray.deviceAddress})
-        add_region_of(real, address, image_);
+        plan_region(real, address, 0);
     if (build.inputs()) {
+        snapshots_.reserve(build.inputs()->size());
         for (const fbs::MemorySnapshot* s : *build.inputs()) {
             const std::optional<uint64_t> address =
                 in.memory.snapshot_address(s->buffer(), s->offset(), s->address());
-            const std::vector<uint8_t>* bytes = in.contents.find(s->hash());
-            if (!address || !bytes) return false;
-            add_region_of(real, *address, image_);
-            auto span = image_.write_bytes(*address, bytes->size(), {"snapshot", -1});
-            std::copy(bytes->begin(), bytes->end(), reinterpret_cast<uint8_t*>(span.data()));
+            RecentContents::Bytes bytes = in.contents.find(s->hash());
+            // Its buffer not replayed yet: it starts when its own record is (or in its turn).
+            if (!address || !bytes || !plan_region(real, *address, bytes->size())) return false;
+            snapshots_.push_back({*address, std::move(bytes)});
         }
     }
-    // Explicit destinations: the regions the (laid-in) dstAddressesArray names.
-    if (info_.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV &&
-        info_.dstAddressesArray.deviceAddress != 0) {
-        const uint64_t stride = info_.dstAddressesArray.stride ? info_.dstAddressesArray.stride : 8;
-        const uint64_t count = std::min<uint64_t>(info_.input.maxAccelerationStructureCount, 4096);
-        for (uint64_t i = 0; i < count; ++i) {
-            try {
-                add_region_of(real,
-                              image_.read<uint64_t>(info_.dstAddressesArray.deviceAddress +
-                                                        i * stride,
-                                                    {"dstAddressesArray", -1}),
-                              image_);
-            } catch (const engine::MemoryFault&) {
-                break;
-            }
-        }
-    }
+    if (info_.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV)
+        plan_explicit_destinations(real);
     return true;
 }
 
-void ClusterRunAhead::run(const engine::EngineProperties& properties,
-                          uint32_t max_findings_per_rule, uint64_t implicit_object_room) {
+// Reads each entry from the last snapshot holding it, as laying the snapshots in order leaves it.
+void ClusterRunAhead::plan_explicit_destinations(const engine::MemoryImage& real) {
+    const VkStridedDeviceAddressRegionKHR& array = info_.dstAddressesArray;
+    if (array.deviceAddress == 0) return;
+    const uint64_t stride = array.stride ? array.stride : 8;
+    const uint64_t count = std::min<uint64_t>(info_.input.maxAccelerationStructureCount, 4096);
+    for (uint64_t i = 0; i < count; ++i) {
+        const uint64_t at = array.deviceAddress + i * stride;
+        if (at < array.deviceAddress) break;
+        const PlannedSnapshot* holder = nullptr;
+        for (const PlannedSnapshot& s : snapshots_)
+            if (at >= s.address && at - s.address <= s.bytes->size() &&
+                s.bytes->size() - (at - s.address) >= 8)
+                holder = &s;
+        if (!holder) continue;  // zeros in the run's image: no destination
+        uint64_t destination = 0;
+        std::memcpy(&destination, holder->bytes->data() + (at - holder->address), 8);
+        plan_region(real, destination, 0);
+    }
+}
+
+void ClusterRunAhead::make_image() {
+    for (PlannedRegion& r : regions_)
+        image_.add_region(r.base, r.size, r.usage, std::move(r.label), storage_.take(r.size));
+    for (const PlannedSnapshot& s : snapshots_) {
+        auto span = image_.write_bytes(s.address, s.bytes->size(), {"snapshot", -1});
+        std::memcpy(span.data(), s.bytes->data(), s.bytes->size());
+    }
+    snapshots_.clear();  // the contents go back to the replay's keeping
+}
+
+void ClusterRunAhead::run() {
     engine::ExecuteOptions options;
-    options.properties = properties;
+    options.properties = *properties_;
     options.directory = &directory_;
-    options.max_findings_per_rule = max_findings_per_rule;
+    options.max_findings_per_rule = max_findings_per_rule_;
     options.queried_max_count = queried_max_count_;
     options.answered_sizes = sizes_.answered();
-    options.implicit_object_room = implicit_object_room;
+    options.implicit_object_room = implicit_object_room_;
     // Answered "yes" here and asked again of the replay's buffers at the command's turn.
     options.first_without_usage = [this](uint64_t begin, uint64_t end, VkBufferUsageFlags usage) {
         std::lock_guard<std::mutex> lock(usage_mutex_);
         usage_queries_.push_back({begin, end, usage});
         return std::optional<uint64_t>();
     };
+    try {
+        make_image();
+    } catch (const std::exception&) {
+        failed_ = true;  // a snapshot no region holds whole: the command runs in its turn
+        return;
+    }
     image_.log_writes(&writes_);
     const auto started = std::chrono::steady_clock::now();
     try {
-        result_ = engine::execute(info_, image_, options);
+        // Isolated: waiting in its parallel loop, this run must not take up another one, which
+        // would hold it up while the replay thread may be waiting for it.
+        result_ =
+            tbb::this_task_arena::isolate([&] { return engine::execute(info_, image_, options); });
     } catch (const std::exception&) {
         failed_ = true;  // the command's turn runs it again and reports the failure
     }
@@ -154,6 +235,11 @@ void ClusterRunAhead::run(const engine::EngineProperties& properties,
     engine_ns_ = static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
                                            std::chrono::steady_clock::now() - started)
                                            .count());
+    try {
+        built_intact_ = !failed_ && built_objects(&built_);
+    } catch (const std::exception&) {
+        built_intact_ = false;  // its turn runs the command in place
+    }
 }
 
 bool ClusterRunAhead::reads_unchanged(const engine::MemoryImage& real) const {
@@ -224,16 +310,15 @@ bool ClusterRunAhead::stands(const ReplayMemory& memory, uint32_t queried_max_co
 bool ClusterRunAhead::commit(ReplayMemory& memory, engine::ObjectDirectory& directory,
                              uint32_t queried_max_count, const ClusterDriverSizes& sizes,
                              engine::ExecutionRecord* record, uint64_t* engine_ns) {
-    group_.wait();
-    std::vector<Built> objects;
-    if (!stands(memory, queried_max_count, sizes) || !built_objects(&objects)) return false;
+    finish();
+    if (!stands(memory, queried_max_count, sizes) || !built_intact_) return false;
     engine::MemoryImage& real = memory.image();
     for (const auto& [address, size] : writes_) {
         auto from = image_.read_bytes(address, size, {"run ahead", -1});
         auto to = real.write_bytes(address, size, {"run ahead", -1});
         std::memcpy(to.data(), from.data(), size);
     }
-    for (const Built& b : objects)  // in op order, as the engine's own run records them
+    for (const Built& b : built_)  // in op order, as the engine's own run records them
         directory.record_built(b.address, b.type,
                                real.read_bytes(b.address, b.size, {"run ahead", -1}));
     stood_ = true;

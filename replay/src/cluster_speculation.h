@@ -19,8 +19,7 @@
 #include <clastrace/replay/replayer.h>
 #include <clastrace/traces/cluster_conversions.h>
 
-#include <tbb/task_group.h>
-
+#include <atomic>
 #include <cstdint>
 #include <deque>
 #include <list>
@@ -28,6 +27,7 @@
 #include <mutex>
 #include <optional>
 #include <span>
+#include <string>
 #include <unordered_map>
 #include <utility>
 #include <vector>
@@ -36,18 +36,39 @@ namespace clastrace::replay::detail {
 
 // The bytes of contents records the replay read recently, least recently used dropped first,
 // so a command running ahead gets its snapshots without asking the reader (whose budget and
-// damage list must see the calls of a one-thread replay, no more).
+// damage list must see the calls of a one-thread replay, no more). Shared: a run's task keeps
+// the bytes it lays in after the replay thread dropped them here.
 class RecentContents {
 public:
+    using Bytes = std::shared_ptr<const std::vector<uint8_t>>;
     explicit RecentContents(uint64_t max_bytes) : max_bytes_(max_bytes) {}
     void keep(uint64_t hash, const uint8_t* data, size_t size);
-    const std::vector<uint8_t>* find(uint64_t hash);  // nullptr when not kept
+    Bytes find(uint64_t hash);  // null when not kept
 
 private:
-    using Entry = std::pair<uint64_t, std::vector<uint8_t>>;
+    using Entry = std::pair<uint64_t, Bytes>;
     std::list<Entry> order_;  // most recently used first
     std::unordered_map<uint64_t, std::list<Entry>::iterator> by_hash_;
     uint64_t bytes_ = 0, max_bytes_;
+};
+
+// Region bytes that runs' images take over from earlier runs: mapping a region per run and
+// unmapping it afterwards costs two system calls, a page fault per page written and, at the
+// unmap, a TLB shootdown on every core the replay's threads run on. Reused bytes hold an earlier
+// run's contents; a run reads only what it laid in or fails its checks (commit compares every
+// byte it read), so stale bytes never reach the replay. Safe from any thread.
+class ImageStoragePool {
+public:
+    // Bytes of exactly `size`, reused when one is kept; new (zeros) otherwise.
+    engine::RegionBytes take(uint64_t size);
+    // Keeps them while the pool's resident bytes stay under kKeptBytes; unmaps the rest.
+    void give(std::vector<engine::RegionBytes> storage);
+
+private:
+    static constexpr uint64_t kKeptBytes = 256ull << 20;
+    std::mutex mutex_;
+    std::unordered_map<uint64_t, std::vector<engine::RegionBytes>> by_size_;
+    uint64_t kept_ = 0;  // resident bytes of what by_size_ holds
 };
 
 // What the replay knows when it starts a command ahead: its memory as of now (for the regions'
@@ -57,18 +78,22 @@ struct AheadInputs {
     RecentContents& contents;
     const ClusterSizeQueries& queries;
     const engine::EngineProperties& properties;  // outlives the run
+    ImageStoragePool& storage;                   // outlives the run
     uint32_t max_findings_per_rule = 64;
 };
 
 class ClusterRunAhead {
 public:
-    // Starts the command of `record` (a CmdBuildClusterAccelerationStructureIndirect's Record
-    // bytes) on a task of the calling thread's arena, or nullptr when it cannot run ahead: an
-    // op type that reads objects through the directory (cluster BLASes, moves, instantiations,
-    // template indices), a snapshot whose contents are not at hand or that no region holds.
+    // Plans the command of `record` (a CmdBuildClusterAccelerationStructureIndirect's Record
+    // bytes) and queues it on the calling thread's arena, or nullptr when it cannot run ahead:
+    // an op type that reads objects through the directory (cluster BLASes, moves,
+    // instantiations, template indices), a snapshot whose contents are not at hand or that no
+    // region holds. Planning (which regions, which snapshot bytes where) is the replay thread's;
+    // making the image and running the engine are the task's.
     static std::unique_ptr<ClusterRunAhead> start(std::vector<uint8_t> record,
                                                   uint64_t stream_index, const AheadInputs& in);
-    ~ClusterRunAhead() { group_.wait(); }
+    // Waits for a run in progress, or cancels one not started; its bytes go back to the pool.
+    ~ClusterRunAhead();
 
     const std::vector<uint8_t>& record() const { return record_; }
     bool stood() const { return stood_; }  // commit took it
@@ -77,6 +102,8 @@ public:
     // At the command's turn, with its snapshots laid in and addresses translated: true when the
     // early run stands (the checks in the file comment); its bytes and objects then land in
     // `memory` and `directory`, and its record and engine time go to *record and *engine_ns.
+    // A run no worker has started yet runs here first, so whether it stands does not depend on
+    // the schedule.
     bool commit(ReplayMemory& memory, engine::ObjectDirectory& directory,
                 uint32_t queried_max_count, const ClusterDriverSizes& sizes,
                 engine::ExecutionRecord* record, uint64_t* engine_ns);
@@ -85,16 +112,34 @@ public:
     static bool skip_checks_for_tests;
 
 private:
-    ClusterRunAhead() = default;
-    bool prepare_image(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
-                       const AheadInputs& in);
-    void run(const engine::EngineProperties& properties, uint32_t max_findings_per_rule,
-             uint64_t implicit_object_room);
+    ClusterRunAhead(ImageStoragePool& storage) : storage_(storage) {}
+    // What the task needs to make its image: the replay's regions the command names (bounds,
+    // usage, label) and its snapshots' bytes and addresses.
+    struct PlannedRegion {
+        uint64_t base = 0, size = 0;
+        VkBufferUsageFlags usage = 0;
+        std::string label;
+    };
+    struct PlannedSnapshot {
+        uint64_t address = 0;
+        RecentContents::Bytes bytes;
+    };
+    bool plan(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
+              const AheadInputs& in);
+    // Plans the replay's region holding `address`, if any; true when it holds `size` bytes there.
+    bool plan_region(const engine::MemoryImage& real, uint64_t address, uint64_t size);
+    // Explicit destinations: the regions the snapshots' dstAddressesArray entries name.
+    void plan_explicit_destinations(const engine::MemoryImage& real);
+    void make_image();
+    // The task: the image, then the engine; once, on a worker or (not started by its turn) on
+    // the replay thread.
+    void run();
+    void finish();  // on the replay thread: the run is done when this returns
     bool stands(const ReplayMemory& memory, uint32_t queried_max_count,
                 const ClusterDriverSizes& sizes) const;
     bool reads_unchanged(const engine::MemoryImage& real) const;
     bool writes_fit(const engine::MemoryImage& real) const;
-    // The objects it built, when each is intact in its own image.
+    // The objects it built, when each is intact in its own image (the task asks, at its end).
     struct Built {
         uint64_t address = 0, size = 0;
         engine::ObjectType type{};
@@ -105,12 +150,21 @@ private:
         uint64_t begin = 0, end = 0;
         uint32_t usage = 0;
     };
+    // Where the run is; shared with the queued task, which may outlive a cancelled run.
+    enum Stage : int { kQueued, kRunning, kDone, kCancelled };
+    std::shared_ptr<std::atomic<int>> stage_ = std::make_shared<std::atomic<int>>(kQueued);
+    ImageStoragePool& storage_;
     std::vector<uint8_t> record_;
     uint64_t stream_index_ = 0;
     traces::ClusterOpInputStorage op_inputs_;
     VkClusterAccelerationStructureCommandsInfoNV info_{};
     uint32_t queried_max_count_ = 0;
     ClusterDriverSizes sizes_;
+    const engine::EngineProperties* properties_ = nullptr;
+    uint32_t max_findings_per_rule_ = 64;
+    uint64_t implicit_object_room_ = 0;
+    std::vector<PlannedRegion> regions_;
+    std::vector<PlannedSnapshot> snapshots_;
     engine::MemoryImage image_;
     engine::ObjectDirectory directory_;
     std::vector<std::pair<uint64_t, uint64_t>> writes_;  // (address, size), as written
@@ -120,7 +174,9 @@ private:
     uint64_t engine_ns_ = 0;
     bool failed_ = false;
     bool stood_ = false;
-    tbb::task_group group_;  // its own, so that its turn waits for it alone
+    // What built_objects found, on the task: the replay thread only records them.
+    std::vector<Built> built_;
+    bool built_intact_ = false;
 };
 
 // The commands started ahead and not yet taken, at most `capacity`.
@@ -137,10 +193,13 @@ public:
     // not in the submission just replayed).
     void drop_before(uint64_t index);
 
+    ImageStoragePool& storage() { return storage_; }
+
     ReplayOptions::RunAheadCounts counts;
 
 private:
     size_t capacity_;
+    ImageStoragePool storage_;  // before runs_: the runs give their bytes back as they go
     std::deque<std::unique_ptr<ClusterRunAhead>> runs_;
 };
 

@@ -254,8 +254,8 @@ void Replay::start_cluster_run(const traces::RecordView& view, uint64_t stream_i
     if (view.kind != fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect ||
         ahead_runs_->full() || ahead_runs_->holds(stream_index))
         return;
-    const AheadInputs in{memory_, recent_contents_, cluster_queries_, properties_,
-                         options_.max_findings_per_rule};
+    const AheadInputs in{memory_,     recent_contents_,       cluster_queries_,
+                         properties_, ahead_runs_->storage(), options_.max_findings_per_rule};
     if (auto run = ClusterRunAhead::start({view.bytes, view.bytes + view.size}, stream_index, in)) {
         ++ahead_runs_->counts.started;
         ahead_runs_->add(std::move(run));

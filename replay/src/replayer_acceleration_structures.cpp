@@ -3,6 +3,8 @@
 // that write them (cluster_command.cpp, nv_command.cpp do the work), and the captured ray checks.
 #include "replayer_internal.h"
 
+#include <tbb/task_arena.h>
+
 namespace clastrace::replay::detail {
 
 // Acceleration-structure objects (create, bind, destroy) and the size queries a build
@@ -71,7 +73,11 @@ void Replay::build_clusters(const fbs::CmdBuildClusterAccelerationStructureIndir
     std::unique_ptr<ClusterRunAhead> ahead;
     if (ahead_runs_ && command_bytes_) ahead = ahead_runs_->take(*command_bytes_);
     context.ahead = ahead.get();
-    run_cluster_command(build, queried, cluster_queries_, context);
+    if (!ahead_runs_) return run_cluster_command(build, queried, cluster_queries_, context);
+    // Isolated: waiting in the engine's parallel loop, this thread must not take up a run of a
+    // later command (queued on the arena), which would hold up every command after this one.
+    tbb::this_task_arena::isolate(
+        [&] { run_cluster_command(build, queried, cluster_queries_, context); });
     if (ahead) ++(ahead->stood() ? ahead_runs_->counts.stood : ahead_runs_->counts.run_again);
 }
 void Replay::build_nv(const fbs::CmdBuildAccelerationStructureNV& b, const CommandRef& ref,

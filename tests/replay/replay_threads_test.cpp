@@ -4,8 +4,11 @@
 // bench's ray-traced frames, valid and damaged random streams) replayed with 1 and 4 threads,
 // their JSON reports compared as text. With 2 and more threads the sync model runs on a thread of
 // its own (sync_model_feed.h): the feed alone against the model called inline, an observer's
-// per-command log, and a sparse trace (the model inline from its first bind) are checked too.
+// per-command log, and a sparse trace (the model inline from its first bind) are checked too; so
+// are runs ahead on a single worker (the replay thread runs those not started by their turn)
+// and the pool their images' bytes come from.
 #include "catalogue_replay.h"
+#include "cluster_speculation.h"
 #include "random_stream.h"
 #include "replay_bench_trace.h"
 #include "rt_frame_bench_trace.h"
@@ -18,6 +21,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include <cstddef>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -43,7 +47,8 @@ std::string temp_path(const std::string& name) {
 
 // The replay's JSON report with `threads` threads (what `clastrace replay --json` prints).
 std::string replay_json(const std::string& path, uint32_t threads, bool hazards = true,
-                        replay::ReplayObserver* observer = nullptr) {
+                        replay::ReplayObserver* observer = nullptr,
+                        replay::ReplayOptions::RunAheadCounts* run_ahead = nullptr) {
     traces::TraceError error;
     auto reader = traces::TraceReader::open(path, &error);
     EXPECT_TRUE(reader) << path << ": " << error.message;
@@ -52,6 +57,7 @@ std::string replay_json(const std::string& path, uint32_t threads, bool hazards 
     options.threads = threads;
     options.check_hazards = hazards;
     options.observer = observer;
+    options.run_ahead_counts = run_ahead;
     options.sync_model_thread = options.run_ahead = true;  // (what more threads may change)
     EXPECT_EQ(replay::replay_threads(options), threads);
     return replay::to_json(replay::replay_trace(*reader, path, options)).dump(1);
@@ -93,6 +99,23 @@ TEST(ReplayThreads, ClusterFramesOfTheReplayBenchReportTheSame) {
     bench::write_bench_trace(path, shape);
     expect_same_report(path, true);
     expect_same_report(path, false);
+    std::remove(path.c_str());
+}
+
+// Two threads: one worker, which the replay thread often overtakes; a run no worker has started
+// by its command's turn runs on the replay thread, and stands or not as on a worker.
+TEST(ReplayThreads, ClusterFramesOnOneWorkerReportTheSameAndTheirRunsStand) {
+    const std::string path = temp_path("bench_frames_one_worker.clt");
+    bench::BenchTraceShape shape;
+    shape.target_ops = 10000;
+    bench::write_bench_trace(path, shape);
+    replay::ReplayOptions::RunAheadCounts counts;
+    const std::string one = replay_json(path, 1);
+    const std::string two = replay_json(path, 2, true, nullptr, &counts);
+    EXPECT_TRUE(one == two) << first_difference(one, two);
+    EXPECT_GT(counts.started, 200u);
+    EXPECT_EQ(counts.run_again, 0u);
+    EXPECT_GE(counts.stood, counts.started - 2);  // the last frames may be left
     std::remove(path.c_str());
 }
 
@@ -160,6 +183,29 @@ TEST(ReplayThreads, CommandLineThreadsPrintTheSameJson) {
     EXPECT_EQ(one.second, many.second);
     const auto refused = run("0");
     EXPECT_EQ(WEXITSTATUS(refused.first), 2);  // a usage error
+}
+
+// --- runs ahead: their images' bytes (cluster_speculation.h) ------------------------------
+
+TEST(ImageStoragePool, HandsBackTheBytesItWasGivenForTheSameSizeOnly) {
+    replay::detail::ImageStoragePool pool;
+    constexpr uint64_t kSize = 3 * engine::RegionBytes::kPageBytes + 5;
+    engine::RegionBytes first = pool.take(kSize);
+    ASSERT_EQ(first.size(), kSize);
+    first.write_at(engine::RegionBytes::kPageBytes, 1)[0] = std::byte{0x5a};
+    const std::byte* mapped = std::as_const(first).data();
+    std::vector<engine::RegionBytes> given;
+    given.push_back(std::move(first));
+    pool.give(std::move(given));
+    const engine::RegionBytes other = pool.take(kSize + 1);  // another size: new zeros
+    EXPECT_NE(std::as_const(other).data(), mapped);
+    EXPECT_EQ(other[engine::RegionBytes::kPageBytes], std::byte{0});
+    const engine::RegionBytes again = pool.take(kSize);
+    EXPECT_EQ(std::as_const(again).data(), mapped);  // no new mapping
+    EXPECT_EQ(again[engine::RegionBytes::kPageBytes], std::byte{0x5a});
+    EXPECT_EQ(again.resident_bytes(), engine::RegionBytes::kPageBytes);
+    const engine::RegionBytes fresh = pool.take(kSize);  // the one kept is taken
+    EXPECT_NE(std::as_const(fresh).data(), mapped);
 }
 
 // --- the sync model on its own thread (sync_model_feed.h) ----------------------------------
