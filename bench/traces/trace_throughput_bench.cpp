@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
-// trace_throughput_bench [MB] [DIR] [whole] [reads=N]: trace write and read throughput next to plain zstd
-// at the same level on the same bytes. Goal: both ratios >= 0.8.
+// trace_throughput_bench [MB] [DIR] [whole] [reads=N | writes=N [keep]] [level=L]: trace write and
+// read throughput next to plain zstd at the same level on the same bytes. Goals (issue 23):
+// write >= 1.0x, read >= 0.8x.
 //
 // The bytes are what a cluster capture stores: vertex positions (float3 grids with
 // smooth noise), 8-bit cluster-local indices, VkClusterAccelerationStructureBuild-
@@ -182,6 +183,39 @@ TraceWriterStats write_trace(const std::vector<Frame>& frames, const std::vector
     return w->stats();
 }
 
+// The bytes the trace stores once (every distinct frame's snapshots, in order): what plain zstd
+// compresses.
+std::vector<uint8_t> stored_bytes(const std::vector<Frame>& frames,
+                                  const std::vector<int>& repeat_of) {
+    std::vector<uint8_t> plain;
+    std::vector<bool> seen(frames.size());
+    for (size_t i = 0; i < frames.size(); ++i) {
+        if (seen[repeat_of[i]]) continue;
+        seen[repeat_of[i]] = true;
+        const Frame& f = frames[repeat_of[i]];
+        for (const std::vector<uint8_t>* bytes : {&f.infos, &f.indices, &f.vertices})
+            plain.insert(plain.end(), bytes->begin(), bytes->end());
+    }
+    return plain;
+}
+
+// Plain zstd of `plain` in chunks of `chunk` bytes, one thread; the frames go to `blocks` when
+// given. Returns the compressed bytes.
+uint64_t zstd_chunks(const std::vector<uint8_t>& plain, int level, uint32_t chunk,
+                     std::vector<std::vector<uint8_t>>* blocks) {
+    ZSTD_CCtx* cctx = ZSTD_createCCtx();
+    uint64_t compressed = 0;
+    for (size_t at = 0; at < plain.size(); at += chunk) {
+        size_t n = std::min<size_t>(chunk, plain.size() - at);
+        std::vector<uint8_t> out(ZSTD_compressBound(n));
+        out.resize(ZSTD_compressCCtx(cctx, out.data(), out.size(), plain.data() + at, n, level));
+        compressed += out.size();
+        if (blocks) blocks->push_back(std::move(out));
+    }
+    ZSTD_freeCCtx(cctx);
+    return compressed;
+}
+
 Result run(const std::vector<Frame>& frames, const std::vector<int>& repeat_of, int level,
            uint32_t chunk, const std::string& path, bool deltas) {
     Result r{};
@@ -193,30 +227,12 @@ Result run(const std::vector<Frame>& frames, const std::vector<int>& repeat_of, 
     r.trace_ratio = static_cast<double>(raw) / static_cast<double>(st.compressed_bytes);
 
     // Plain zstd on the same stored bytes, chunked the same way.
-    std::vector<uint8_t> plain;
-    plain.reserve(raw);
-    std::vector<bool> seen(frames.size());
-    for (size_t i = 0; i < frames.size(); ++i) {
-        if (seen[repeat_of[i]]) continue;
-        seen[repeat_of[i]] = true;
-        const Frame& f = frames[repeat_of[i]];
-        for (const std::vector<uint8_t>* bytes : {&f.infos, &f.indices, &f.vertices})
-            plain.insert(plain.end(), bytes->begin(), bytes->end());
-    }
-    ZSTD_CCtx* cctx = ZSTD_createCCtx();
+    const std::vector<uint8_t> plain = stored_bytes(frames, repeat_of);
     std::vector<std::vector<uint8_t>> blocks;
-    uint64_t compressed = 0;
     t0 = Clock::now();
-    for (size_t at = 0; at < plain.size(); at += chunk) {
-        size_t n = std::min<size_t>(chunk, plain.size() - at);
-        std::vector<uint8_t> out(ZSTD_compressBound(n));
-        out.resize(ZSTD_compressCCtx(cctx, out.data(), out.size(), plain.data() + at, n, level));
-        compressed += out.size();
-        blocks.push_back(std::move(out));
-    }
+    const uint64_t compressed = zstd_chunks(plain, level, chunk, &blocks);
     r.zstd_c = seconds_since(t0);
     r.zstd_ratio = static_cast<double>(plain.size()) / static_cast<double>(compressed);
-    ZSTD_freeCCtx(cctx);
 
     ZSTD_DCtx* dctx = ZSTD_createDCtx();
     std::vector<uint8_t> out(chunk);
@@ -265,6 +281,30 @@ void profile_reads(const std::vector<Frame>& frames, const std::vector<int>& rep
     ::unlink(path.c_str());
 }
 
+// "writes=N": the trace written N times at `level` and nothing else timed, then plain zstd on
+// the same stored bytes N times, for profilers (callgrind, perf) to compare the writer with zstd.
+void profile_writes(const std::vector<Frame>& frames, const std::vector<int>& repeat_of,
+                    const std::string& path, bool deltas, int writes, int level, bool keep) {
+    const std::vector<uint8_t> plain = stored_bytes(frames, repeat_of);
+    for (int i = 0; i < writes; ++i) {
+        const Stamp t0 = Clock::now();
+        const TraceWriterStats st = write_trace(frames, repeat_of, level, 4u << 20, path, deltas);
+        const Elapsed took = seconds_since(t0);
+        const Stamp t1 = Clock::now();
+        const uint64_t compressed = zstd_chunks(plain, level, 4u << 20, nullptr);
+        const Elapsed zstd = seconds_since(t1);
+        std::printf(
+            "write %d at level %d: %.1f MB in %.3f s wall, %.3f s cpu (compression thread %.3f s "
+            "cpu, zstd and streams %.3f s wall; %llu bytes); plain zstd %.3f s wall, %.3f s cpu "
+            "(%llu bytes)\n",
+            i, level, st.contents_bytes_stored / 1e6, took.wall, took.cpu,
+            st.compressor_cpu_ns * 1e-9, st.compress_ns * 1e-9,
+            (unsigned long long)st.compressed_bytes, zstd.wall, zstd.cpu,
+            (unsigned long long)compressed);
+    }
+    if (!keep) ::unlink(path.c_str());
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -272,12 +312,17 @@ int main(int argc, char** argv) {
     std::string dir = argc > 2 ? argv[2] : "/dev/shm";
     // "whole": every content stored whole (the format before delta contents), for comparison.
     // "reads=N": see profile_reads.
-    bool deltas = true;
-    int reads = 0;
+    // "writes=N": see profile_writes ("keep": leave its trace in DIR). "level=L": that level
+    // alone (default 1, 3 and 9).
+    bool deltas = true, keep = false;
+    int reads = 0, writes = 0, only_level = 0;
     for (int i = 3; i < argc; ++i) {
         const std::string arg = argv[i];
         if (arg == "whole") deltas = false;
+        if (arg == "keep") keep = true;
         if (arg.rfind("reads=", 0) == 0) reads = std::atoi(arg.c_str() + 6);
+        if (arg.rfind("writes=", 0) == 0) writes = std::atoi(arg.c_str() + 7);
+        if (arg.rfind("level=", 0) == 0) only_level = std::atoi(arg.c_str() + 6);
     }
     const int clusters = 4096;  // ~4.4 MB of inputs per frame
     std::mt19937 rng(1);
@@ -300,6 +345,11 @@ int main(int argc, char** argv) {
         profile_reads(frames, repeat_of, dir + "/clastrace-bench.clt", deltas, reads);
         return 0;
     }
+    if (writes > 0) {
+        profile_writes(frames, repeat_of, dir + "/clastrace-bench.clt", deltas, writes,
+                       only_level ? only_level : 3, keep);
+        return 0;
+    }
     std::printf(
         "trace throughput vs plain zstd (same level, same stored bytes, %u-byte chunks; %zu "
         "frames, every 4th repeated; contents %s)\n",
@@ -310,6 +360,7 @@ int main(int argc, char** argv) {
                 "trace write MB/s wall (cpu)", "zstd compress MB/s wall(cpu)",
                 "trace read MB/s wall (cpu)", "zstd decomp MB/s wall (cpu)", "trace", "zstd");
     for (int level : {1, 3, 9}) {
+        if (only_level && level != only_level) continue;
         Result r = run(frames, repeat_of, level, 4u << 20, dir + "/clastrace-bench.clt", deltas);
         auto mbs = [&](double s) { return r.raw_mb / s; };
         std::printf(
