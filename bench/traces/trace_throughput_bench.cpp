@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
-// trace_throughput_bench [MB] [DIR] [whole] [reads=N | writes=N [keep]] [level=L]: trace write and
-// read throughput next to plain zstd at the same level on the same bytes. Goals (issue 23):
-// write >= 1.0x, read >= 0.8x.
+// trace_throughput_bench [MB] [DIR] [whole] [reads=N | writes=N [keep]] [level=L] [threads=N]:
+// trace write and read throughput next to plain zstd at the same level on the same bytes.
+// Goals (issue 23): write >= 1.0x, read >= 0.8x.
 //
 // The bytes are what a cluster capture stores: vertex positions (float3 grids with
 // smooth noise), 8-bit cluster-local indices, VkClusterAccelerationStructureBuild-
@@ -145,6 +145,9 @@ Elapsed read_trace(const std::string& path, bool verify_keys, uint64_t raw, Trac
     return took;
 }
 
+// The writer's compression threads ("threads=N"; default the writer's default, 1).
+uint32_t compression_threads = TraceWriterOptions{}.compressor_threads;
+
 // Writes the frames as a trace at `path`: every frame's snapshots go through add_contents and one
 // build record. Exits on an error.
 TraceWriterStats write_trace(const std::vector<Frame>& frames, const std::vector<int>& repeat_of,
@@ -155,6 +158,7 @@ TraceWriterStats write_trace(const std::vector<Frame>& frames, const std::vector
     options.chunk_raw_bytes = chunk;
     options.sync_on_finish = false;
     options.delta_contents = deltas;
+    options.compressor_threads = compression_threads;
     fbs::TraceHeaderT header;
     auto w = TraceWriter::create(path, header, options, &e);
     if (!w) {
@@ -313,7 +317,7 @@ int main(int argc, char** argv) {
     // "whole": every content stored whole (the format before delta contents), for comparison.
     // "reads=N": see profile_reads.
     // "writes=N": see profile_writes ("keep": leave its trace in DIR). "level=L": that level
-    // alone (default 1, 3 and 9).
+    // alone (default 1, 3 and 9). "threads=N": the writer's compression threads.
     bool deltas = true, keep = false;
     int reads = 0, writes = 0, only_level = 0;
     for (int i = 3; i < argc; ++i) {
@@ -323,6 +327,8 @@ int main(int argc, char** argv) {
         if (arg.rfind("reads=", 0) == 0) reads = std::atoi(arg.c_str() + 6);
         if (arg.rfind("writes=", 0) == 0) writes = std::atoi(arg.c_str() + 7);
         if (arg.rfind("level=", 0) == 0) only_level = std::atoi(arg.c_str() + 6);
+        if (arg.rfind("threads=", 0) == 0)
+            compression_threads = static_cast<uint32_t>(std::atoi(arg.c_str() + 8));
     }
     const int clusters = 4096;  // ~4.4 MB of inputs per frame
     std::mt19937 rng(1);
@@ -352,8 +358,9 @@ int main(int argc, char** argv) {
     }
     std::printf(
         "trace throughput vs plain zstd (same level, same stored bytes, %u-byte chunks; %zu "
-        "frames, every 4th repeated; contents %s)\n",
-        4u << 20, frames.size(), deltas ? "as deltas where they can" : "whole");
+        "frames, every 4th repeated; contents %s; %u compression thread(s))\n",
+        4u << 20, frames.size(), deltas ? "as deltas where they can" : "whole",
+        compression_threads);
     std::printf(
         "MB/s of stored bytes; 'wall' = elapsed time, 'cpu' = process CPU time of all threads\n");
     std::printf("%-5s %7s | %-27s | %-27s | %-27s | %-27s | %6s %6s\n", "level", "raw MB",

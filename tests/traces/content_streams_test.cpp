@@ -271,48 +271,6 @@ TEST(ContentStreams, ChunksDecodeToTheBytesOfOneFrameAndEveryContentReadsBack) {
     }
 }
 
-// A chunk whose streams payload would pass one frame's bound (a small chunk of bytes that do not
-// compress: the two frames and the cut table cost more than zstd's margin) is written as one
-// frame of its raw bytes, which the writer joins from its streams, and reads back.
-TEST(ContentStreams, AChunkWhoseStreamsWouldPassTheBoundIsOneFrame) {
-    const std::string path = temp_path("streams_fallback.clt");
-    std::map<uint64_t, std::vector<uint8_t>> written;
-    {
-        TraceError e;
-        auto w = TraceWriter::create(path, test_header(), {}, &e);
-        ASSERT_TRUE(w) << e.message;
-        std::mt19937 rng(5);
-        for (size_t size = 1; size <= 96; ++size) {
-            std::vector<uint8_t> bytes(size);
-            for (uint8_t& b : bytes) b = uint8_t(rng());
-            uint64_t key = 0;
-            ASSERT_FALSE(w->add_contents(bytes.data(), bytes.size(), &key));
-            written[key] = bytes;
-            ASSERT_FALSE(w->flush());  // one content per chunk
-        }
-        ASSERT_FALSE(w->finish());
-    }
-    const std::vector<uint8_t> file = read_file(path);
-    size_t one_frame = 0, streams = 0;
-    for (const ChunkAt& c : records_chunks(file))
-        ++(f::is_streams_payload(file.data() + c.offset + f::kChunkHeaderSize,
-                                 c.header.compressed_size)
-               ? streams
-               : one_frame);
-    EXPECT_GT(one_frame, 0u);
-    EXPECT_GT(streams, 0u);
-    ReadResult read = read_all(path);
-    ASSERT_EQ(read.damage_count, 0u) << describe(read.damage);
-    size_t contents = 0;
-    for (const fbs::RecordT& r : read.records) {
-        if (const auto* whole = r.body.AsMemoryContents()) {
-            EXPECT_EQ(whole->bytes, written.at(whole->hash));
-            ++contents;
-        }
-    }
-    EXPECT_EQ(contents, written.size());
-}
-
 // A file that says it is format 1.7 cannot hold streams payloads: such a chunk is damage (a
 // crafted or mislabelled file), named with the version, not decoded.
 TEST(ContentStreams, AStreamsPayloadInAnOlderMinorIsDamage) {

@@ -213,20 +213,21 @@ struct TraceWriter::Impl {
     std::vector<uint8_t> gathered;  // contents in pieces gathered before byte planes
     TraceWriterStats counters;      // main-thread counters (chunk/bytes come from the worker)
 
-    // Shared with the compression thread, under `mutex`.
+    // Shared with the compression threads, under `mutex`.
     std::mutex mutex;
-    std::condition_variable queue_changed;
+    std::condition_variable queue_changed;  // also: a chunk was written, a worker is idle
     std::deque<PendingChunk> queue;
     std::vector<ChunkBuffers> spare_buffers;  // recycled chunk buffers
-    bool worker_busy = false;
+    uint32_t busy_workers = 0;                // workers holding a chunk taken from the queue
+    uint32_t next_to_write = 0;               // chunks are written in their order: this one's turn
     bool stop = false;
     TraceError error;          // first error; sticky
-    uint64_t file_offset = 0;  // next byte the worker writes
+    uint64_t file_offset = 0;  // next byte a worker writes
     std::vector<fbs::ChunkLocation> chunk_locations;
     uint64_t compressed_bytes = 0;
     uint64_t raw_bytes = 0;
-    uint64_t compress_ns = 0, file_write_ns = 0, compressor_cpu_ns = 0, flush_wait_ns = 0;
-    std::thread worker;
+    uint64_t compressor_cpu_ns = 0, flush_wait_ns = 0;
+    std::vector<std::thread> workers;
 
     TraceError fail_io(const char* what, int err, uint64_t offset) {
         return make_trace_error(TraceErrorCode::kIoError, path, offset,
@@ -260,10 +261,10 @@ struct TraceWriter::Impl {
         return {};
     }
 
-    // Compresses and writes one chunk at file_offset; used by the worker and for the index.
-    TraceError write_chunk(Compressor& compressor, const format::SplitChunk& chunk,
-                           format::ChunkKind kind, uint32_t chunk_number, uint32_t record_count,
-                           uint64_t first_submission, uint64_t offset, uint32_t* compressed_size) {
+    // Compresses one chunk into compressor.payload: a streams payload when it has contents (one
+    // frame after all when that would pass one frame's bound), else one frame. Returns an empty
+    // string or zstd's complaint.
+    std::string compress_chunk(Compressor& compressor, const format::SplitChunk& chunk) {
         const uint64_t started = now_ns();
         format::UninitializedBytes& compressed = compressor.payload;
         const size_t size = chunk.raw_size();
@@ -285,27 +286,35 @@ struct TraceWriter::Impl {
             problem = format::compress_frame(compressor.cctx, chunk.records.data(), size, level,
                                              window_log, &compressed);
         }
-        const uint64_t compressed_at = now_ns();
-        if (!problem.empty())
-            return make_trace_error(TraceErrorCode::kIoError, path, offset, problem);
-        const size_t csize = compressed.size();
+        std::lock_guard lock(timing_mutex);
+        compress_ns += now_ns() - started;
+        return problem;
+    }
+
+    // Writes the chunk header and compressor.payload (compress_chunk's) at `offset`.
+    TraceError write_payload(const Compressor& compressor, format::ChunkKind kind,
+                             uint32_t chunk_number, uint32_t record_count,
+                             uint64_t first_submission, size_t raw_size, uint64_t offset) {
+        const uint64_t started = now_ns();
+        const format::UninitializedBytes& compressed = compressor.payload;
         format::ChunkHeader h =
             format::sealed_chunk_header(kind, chunk_number, record_count, first_submission,
-                                        static_cast<uint32_t>(size), compressed.data(),
-                                        static_cast<uint32_t>(csize));
-        iovec parts[2] = {{&h, sizeof h}, {compressed.data(), csize}};
-        *compressed_size = static_cast<uint32_t>(csize);
+                                        static_cast<uint32_t>(raw_size), compressed.data(),
+                                        static_cast<uint32_t>(compressed.size()));
+        iovec parts[2] = {{&h, sizeof h},
+                          {const_cast<uint8_t*>(compressed.data()), compressed.size()}};
         TraceError e = write_all(parts, 2, offset);
         std::lock_guard lock(timing_mutex);
-        compress_ns += compressed_at - started;
-        file_write_ns += now_ns() - compressed_at;
+        file_write_ns += now_ns() - started;
         return e;
     }
-    bool compressor_placed = false;
-    std::mutex timing_mutex;  // the timing totals above and compressor_placed
+    uint64_t compress_ns = 0, file_write_ns = 0;
+    uint32_t compressors_placed = 0;
+    std::mutex timing_mutex;  // the timing totals and placements above
 
-    void worker_main() {
-        // Best effort: without the right to either the thread keeps the caller's priority.
+    // Runs one compression thread with the options' priority and CPUs (best effort: without the
+    // right to either the thread keeps the caller's).
+    void place_worker() {
         sched_param idle{};
         const bool idled = options.compressor_idle_class &&
                            ::pthread_setschedparam(::pthread_self(), SCHED_IDLE, &idle) == 0;
@@ -320,32 +329,47 @@ struct TraceWriter::Impl {
                 if (c < CPU_SETSIZE) CPU_SET(c, &cpus);
             const bool placed = ::sched_setaffinity(0, sizeof cpus, &cpus) == 0;  // 0: this thread
             std::lock_guard placement(timing_mutex);
-            compressor_placed = placed;
+            compressors_placed += placed ? 1 : 0;
         }
+    }
+
+    // One compression thread: takes the next sealed chunk, compresses it while the other
+    // threads compress the chunks after it, then waits for its turn to write, so chunks land in
+    // the file in their order whatever thread finishes first.
+    void worker_main() {
+        place_worker();
         Compressor compressor;
+        uint64_t cpu_counted = 0;
         std::unique_lock lock(mutex);
         for (;;) {
             queue_changed.wait(lock, [&] { return stop || !queue.empty(); });
             if (queue.empty()) break;  // stop requested and nothing left
             PendingChunk chunk = std::move(queue.front());
             queue.pop_front();
-            worker_busy = true;
-            bool failed = static_cast<bool>(error);
-            uint64_t offset = file_offset;
+            ++busy_workers;
+            const bool failed = static_cast<bool>(error);
             lock.unlock();
+            queue_changed.notify_all();  // room in the queue for the caller's next chunk
 
-            TraceError e;
-            uint32_t csize = 0;
-            if (!failed) {
-                e = write_chunk(compressor, chunk.bytes.split(), format::ChunkKind::kRecords,
-                                chunk.chunk_number, chunk.record_count, chunk.first_submission,
-                                offset, &csize);
-            }
+            std::string problem;
+            if (!failed) problem = compress_chunk(compressor, chunk.bytes.split());
 
             lock.lock();
-            compressor_cpu_ns = thread_cpu_ns();
-            if (!failed && e) error = std::move(e);
-            if (!failed && !error) {
+            queue_changed.wait(lock, [&] { return next_to_write == chunk.chunk_number; });
+            const uint64_t offset = file_offset;
+            if (!error && !failed) {
+                lock.unlock();
+                TraceError e =
+                    !problem.empty()
+                        ? make_trace_error(TraceErrorCode::kIoError, path, offset, problem)
+                        : write_payload(compressor, format::ChunkKind::kRecords, chunk.chunk_number,
+                                        chunk.record_count, chunk.first_submission,
+                                        chunk.bytes.raw_size(), offset);
+                lock.lock();
+                if (e && !error) error = std::move(e);
+            }
+            if (!error && !failed) {
+                const uint32_t csize = static_cast<uint32_t>(compressor.payload.size());
                 chunk_locations.push_back(
                     fbs::ChunkLocation(offset, chunk.first_submission, chunk.submission_count,
                                        chunk.record_count,
@@ -354,9 +378,13 @@ struct TraceWriter::Impl {
                 compressed_bytes += csize;
                 raw_bytes += chunk.bytes.raw_size();
             }
+            ++next_to_write;
+            const uint64_t cpu = thread_cpu_ns();
+            compressor_cpu_ns += cpu - cpu_counted;
+            cpu_counted = cpu;
             chunk.bytes.clear();
             spare_buffers.push_back(std::move(chunk.bytes));
-            worker_busy = false;
+            --busy_workers;
             queue_changed.notify_all();
         }
         lock.unlock();
@@ -504,12 +532,13 @@ struct TraceWriter::Impl {
         {
             std::unique_lock lock(mutex);
             const uint64_t started = now_ns();
-            queue_changed.wait(lock, [&] { return (queue.empty() && !worker_busy); });
+            queue_changed.wait(lock, [&] { return queue.empty() && busy_workers == 0; });
             flush_wait_ns += now_ns() - started;
             stop = true;
             queue_changed.notify_all();
         }
-        worker.join();
+        for (std::thread& worker : workers) worker.join();
+        workers.clear();
         finished = true;
         if (!e) e = sticky_error();
         if (!e) e = write_index();
@@ -536,12 +565,14 @@ struct TraceWriter::Impl {
                                            b.CreateVectorOfStructs(places), records, submissions);
         b.Finish(index);
         Compressor compressor;
-        uint32_t csize = 0;
-        uint64_t index_offset = file_offset;
+        const uint64_t index_offset = file_offset;
         const format::SplitChunk index_bytes{{b.GetBufferPointer(), b.GetSize()}, {}, {}};
-        TraceError e = write_chunk(compressor, index_bytes, format::ChunkKind::kIndex,
-                                   next_chunk_number, 0, submissions, index_offset, &csize);
+        if (std::string problem = compress_chunk(compressor, index_bytes); !problem.empty())
+            return make_trace_error(TraceErrorCode::kIoError, path, index_offset, problem);
+        TraceError e = write_payload(compressor, format::ChunkKind::kIndex, next_chunk_number, 0,
+                                     submissions, b.GetSize(), index_offset);
         if (e) return e;
+        const uint32_t csize = static_cast<uint32_t>(compressor.payload.size());
         format::Trailer t =
             format::sealed_trailer(index_offset, index_offset + format::kChunkHeaderSize + csize);
         iovec part{&t, sizeof t};
@@ -559,13 +590,14 @@ struct TraceWriter::Impl {
     const uint8_t* contiguous(std::span<const ContentPiece> pieces, size_t size);
 
     void abandon() {
-        if (worker.joinable()) {
+        if (!workers.empty()) {
             {
                 std::lock_guard lock(mutex);
                 stop = true;
                 queue_changed.notify_all();
             }
-            worker.join();
+            for (std::thread& worker : workers) worker.join();
+            workers.clear();
         }
         if (fd >= 0) ::close(fd);
         fd = -1;
@@ -579,6 +611,8 @@ const char* options_problem(const TraceWriterOptions& options) {
         return "chunk_raw_bytes must be in [4096, 256 MiB]";
     }
     if (options.max_chunks_in_flight == 0) return "max_chunks_in_flight must be >= 1";
+    if (options.compressor_threads == 0 || options.compressor_threads > 64)
+        return "compressor_threads must be in [1, 64]";
     if (options.content_hash_bits < 8 || options.content_hash_bits > 64)
         return "content_hash_bits must be in [8, 64]";
     if (options.zstd_level < ZSTD_minCLevel() || options.zstd_level > ZSTD_maxCLevel()) {
@@ -678,7 +712,8 @@ std::unique_ptr<TraceWriter> TraceWriter::create_on(int fd, const std::string& p
         return nullptr;
     }
     impl->file_offset = sizeof fh + format::align8(b.GetSize());
-    impl->worker = std::thread([p = impl.get()] { p->worker_main(); });
+    for (uint32_t i = 0; i < options.compressor_threads; ++i)
+        impl->workers.emplace_back([p = impl.get()] { p->worker_main(); });
     return std::unique_ptr<TraceWriter>(new TraceWriter(std::move(impl)));
 }
 
@@ -920,7 +955,7 @@ TraceError TraceWriter::flush() {
     if (TraceError e = w.seal_chunk()) return e;
     std::unique_lock lock(w.mutex);
     const uint64_t started = now_ns();
-    w.queue_changed.wait(lock, [&] { return (w.queue.empty() && !w.worker_busy) || w.error; });
+    w.queue_changed.wait(lock, [&] { return (w.queue.empty() && w.busy_workers == 0) || w.error; });
     w.flush_wait_ns += now_ns() - started;
     return w.error;
 }
@@ -940,7 +975,7 @@ TraceWriterStats TraceWriter::stats() const {
     std::lock_guard timing(w.timing_mutex);
     s.compress_ns = w.compress_ns;
     s.file_write_ns = w.file_write_ns;
-    s.compressor_placed = w.compressor_placed;
+    s.compressor_placed = w.compressors_placed == w.options.compressor_threads;
     return s;
 }
 
