@@ -1,6 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
-// trace_throughput_bench [MB] [DIR] [whole] [reads=N] [repeat=N]: trace write and read throughput
-// next to plain zstd at the same level on the same bytes. Goal: both ratios >= 0.8.
+// trace_throughput_bench [MB] [DIR] [whole] [reads=N | writes=N [keep]] [level=L] [threads=N]
+//                        [repeat=N]:
+// trace write and read throughput next to plain zstd at the same level on the same bytes.
+// Goals (issue 23): write >= 1.0x, read >= 0.8x.
 // repeat=N: zstd's decompression and the two reads run N times, interleaved, and the read
 // columns are medians (the ratios: medians of each run's ratio against its own zstd run).
 //
@@ -188,6 +190,9 @@ Elapsed read_trace(const std::string& path, bool verify_keys, uint64_t raw, Trac
     return took;
 }
 
+// The writer's compression threads ("threads=N"; default the writer's default, 1).
+uint32_t compression_threads = TraceWriterOptions{}.compressor_threads;
+
 // Writes the frames as a trace at `path`: every frame's snapshots go through add_contents and one
 // build record. Exits on an error.
 TraceWriterStats write_trace(const std::vector<Frame>& frames, const std::vector<int>& repeat_of,
@@ -198,6 +203,7 @@ TraceWriterStats write_trace(const std::vector<Frame>& frames, const std::vector
     options.chunk_raw_bytes = chunk;
     options.sync_on_finish = false;
     options.delta_contents = deltas;
+    options.compressor_threads = compression_threads;
     fbs::TraceHeaderT header;
     auto w = TraceWriter::create(path, header, options, &e);
     if (!w) {
@@ -226,6 +232,39 @@ TraceWriterStats write_trace(const std::vector<Frame>& frames, const std::vector
     return w->stats();
 }
 
+// The bytes the trace stores once (every distinct frame's snapshots, in order): what plain zstd
+// compresses.
+std::vector<uint8_t> stored_bytes(const std::vector<Frame>& frames,
+                                  const std::vector<int>& repeat_of) {
+    std::vector<uint8_t> plain;
+    std::vector<bool> seen(frames.size());
+    for (size_t i = 0; i < frames.size(); ++i) {
+        if (seen[repeat_of[i]]) continue;
+        seen[repeat_of[i]] = true;
+        const Frame& f = frames[repeat_of[i]];
+        for (const std::vector<uint8_t>* bytes : {&f.infos, &f.indices, &f.vertices})
+            plain.insert(plain.end(), bytes->begin(), bytes->end());
+    }
+    return plain;
+}
+
+// Plain zstd of `plain` in chunks of `chunk` bytes, one thread; the frames go to `blocks` when
+// given. Returns the compressed bytes.
+uint64_t zstd_chunks(const std::vector<uint8_t>& plain, int level, uint32_t chunk,
+                     std::vector<std::vector<uint8_t>>* blocks) {
+    ZSTD_CCtx* cctx = ZSTD_createCCtx();
+    uint64_t compressed = 0;
+    for (size_t at = 0; at < plain.size(); at += chunk) {
+        size_t n = std::min<size_t>(chunk, plain.size() - at);
+        std::vector<uint8_t> out(ZSTD_compressBound(n));
+        out.resize(ZSTD_compressCCtx(cctx, out.data(), out.size(), plain.data() + at, n, level));
+        compressed += out.size();
+        if (blocks) blocks->push_back(std::move(out));
+    }
+    ZSTD_freeCCtx(cctx);
+    return compressed;
+}
+
 Result run(const std::vector<Frame>& frames, const std::vector<int>& repeat_of, int level,
            uint32_t chunk, const std::string& path, bool deltas, int repeat) {
     Result r{};
@@ -237,30 +276,12 @@ Result run(const std::vector<Frame>& frames, const std::vector<int>& repeat_of, 
     r.trace_ratio = static_cast<double>(raw) / static_cast<double>(st.compressed_bytes);
 
     // Plain zstd on the same stored bytes, chunked the same way.
-    std::vector<uint8_t> plain;
-    plain.reserve(raw);
-    std::vector<bool> seen(frames.size());
-    for (size_t i = 0; i < frames.size(); ++i) {
-        if (seen[repeat_of[i]]) continue;
-        seen[repeat_of[i]] = true;
-        const Frame& f = frames[repeat_of[i]];
-        for (const std::vector<uint8_t>* bytes : {&f.infos, &f.indices, &f.vertices})
-            plain.insert(plain.end(), bytes->begin(), bytes->end());
-    }
-    ZSTD_CCtx* cctx = ZSTD_createCCtx();
+    const std::vector<uint8_t> plain = stored_bytes(frames, repeat_of);
     std::vector<std::vector<uint8_t>> blocks;
-    uint64_t compressed = 0;
     t0 = Clock::now();
-    for (size_t at = 0; at < plain.size(); at += chunk) {
-        size_t n = std::min<size_t>(chunk, plain.size() - at);
-        std::vector<uint8_t> out(ZSTD_compressBound(n));
-        out.resize(ZSTD_compressCCtx(cctx, out.data(), out.size(), plain.data() + at, n, level));
-        compressed += out.size();
-        blocks.push_back(std::move(out));
-    }
+    const uint64_t compressed = zstd_chunks(plain, level, chunk, &blocks);
     r.zstd_c = seconds_since(t0);
     r.zstd_ratio = static_cast<double>(plain.size()) / static_cast<double>(compressed);
-    ZSTD_freeCCtx(cctx);
 
     ZSTD_DCtx* dctx = ZSTD_createDCtx();
     std::vector<uint8_t> out(chunk);
@@ -318,6 +339,30 @@ void profile_reads(const std::vector<Frame>& frames, const std::vector<int>& rep
     ::unlink(path.c_str());
 }
 
+// "writes=N": the trace written N times at `level` and nothing else timed, then plain zstd on
+// the same stored bytes N times, for profilers (callgrind, perf) to compare the writer with zstd.
+void profile_writes(const std::vector<Frame>& frames, const std::vector<int>& repeat_of,
+                    const std::string& path, bool deltas, int writes, int level, bool keep) {
+    const std::vector<uint8_t> plain = stored_bytes(frames, repeat_of);
+    for (int i = 0; i < writes; ++i) {
+        const Stamp t0 = Clock::now();
+        const TraceWriterStats st = write_trace(frames, repeat_of, level, 4u << 20, path, deltas);
+        const Elapsed took = seconds_since(t0);
+        const Stamp t1 = Clock::now();
+        const uint64_t compressed = zstd_chunks(plain, level, 4u << 20, nullptr);
+        const Elapsed zstd = seconds_since(t1);
+        std::printf(
+            "write %d at level %d: %.1f MB in %.3f s wall, %.3f s cpu (compression thread %.3f s "
+            "cpu, zstd and streams %.3f s wall; %llu bytes); plain zstd %.3f s wall, %.3f s cpu "
+            "(%llu bytes)\n",
+            i, level, st.contents_bytes_stored / 1e6, took.wall, took.cpu,
+            st.compressor_cpu_ns * 1e-9, st.compress_ns * 1e-9,
+            (unsigned long long)st.compressed_bytes, zstd.wall, zstd.cpu,
+            (unsigned long long)compressed);
+    }
+    if (!keep) ::unlink(path.c_str());
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -325,12 +370,19 @@ int main(int argc, char** argv) {
     std::string dir = argc > 2 ? argv[2] : "/dev/shm";
     // "whole": every content stored whole (the format before delta contents), for comparison.
     // "reads=N": see profile_reads.
-    bool deltas = true;
-    int reads = 0, repeat = 1;
+    // "writes=N": see profile_writes ("keep": leave its trace in DIR). "level=L": that level
+    // alone (default 1, 3 and 9). "threads=N": the writer's compression threads.
+    bool deltas = true, keep = false;
+    int reads = 0, writes = 0, only_level = 0, repeat = 1;
     for (int i = 3; i < argc; ++i) {
         const std::string arg = argv[i];
         if (arg == "whole") deltas = false;
+        if (arg == "keep") keep = true;
         if (arg.rfind("reads=", 0) == 0) reads = std::atoi(arg.c_str() + 6);
+        if (arg.rfind("writes=", 0) == 0) writes = std::atoi(arg.c_str() + 7);
+        if (arg.rfind("level=", 0) == 0) only_level = std::atoi(arg.c_str() + 6);
+        if (arg.rfind("threads=", 0) == 0)
+            compression_threads = static_cast<uint32_t>(std::atoi(arg.c_str() + 8));
         if (arg.rfind("repeat=", 0) == 0) repeat = std::max(1, std::atoi(arg.c_str() + 7));
     }
     const int clusters = 4096;  // ~4.4 MB of inputs per frame
@@ -354,16 +406,24 @@ int main(int argc, char** argv) {
         profile_reads(frames, repeat_of, dir + "/clastrace-bench.clt", deltas, reads);
         return 0;
     }
+    if (writes > 0) {
+        profile_writes(frames, repeat_of, dir + "/clastrace-bench.clt", deltas, writes,
+                       only_level ? only_level : 3, keep);
+        return 0;
+    }
     std::printf(
         "trace throughput vs plain zstd (same level, same stored bytes, %u-byte chunks; %zu "
-        "frames, every 4th repeated; contents %s; reads: median of %d interleaved runs)\n",
-        4u << 20, frames.size(), deltas ? "as deltas where they can" : "whole", repeat);
+        "frames, every 4th repeated; contents %s; %u compression thread(s); reads: median of %d "
+        "interleaved runs)\n",
+        4u << 20, frames.size(), deltas ? "as deltas where they can" : "whole", compression_threads,
+        repeat);
     std::printf(
         "MB/s of stored bytes; 'wall' = elapsed time, 'cpu' = process CPU time of all threads\n");
     std::printf("%-5s %7s | %-27s | %-27s | %-27s | %-27s | %6s %6s\n", "level", "raw MB",
                 "trace write MB/s wall (cpu)", "zstd compress MB/s wall(cpu)",
                 "trace read MB/s wall (cpu)", "zstd decomp MB/s wall (cpu)", "trace", "zstd");
     for (int level : {1, 3, 9}) {
+        if (only_level && level != only_level) continue;
         Result r =
             run(frames, repeat_of, level, 4u << 20, dir + "/clastrace-bench.clt", deltas, repeat);
         auto mbs = [&](double s) { return r.raw_mb / s; };

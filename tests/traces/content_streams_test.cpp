@@ -4,6 +4,7 @@
 // decodes to the very raw bytes one frame holds; damage is reported with the file and offset.
 #include "trace_test_support.h"
 
+#include "byte_planes.h"
 #include "chunk_streams.h"
 #include "file_format.h"
 
@@ -11,6 +12,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <map>
@@ -79,6 +81,49 @@ TEST(ContentStreams, EncodeThenDecodeGivesTheRawBytesBack) {
 }
 
 // Whole float contents in planes: the contents stream holds byte 0 of every word first.
+// The writer builds a chunk already split (records with the cuts left out, the cuts' bytes in
+// their layout): joining it gives the raw bytes back, and its payload is the one the raw bytes
+// encode to.
+TEST(ContentStreams, ASplitChunkJoinsToItsRawBytesAndEncodesAsThem) {
+    std::mt19937 rng(11);
+    std::vector<uint8_t> raw(5003);
+    for (uint8_t& b : raw) b = uint8_t(rng() % 7);
+    const std::vector<f::ContentCut> cuts = {{16, 37, f::CutLayout::kBytePlanes},
+                                             {53, 0, f::CutLayout::kAsIs},
+                                             {80, 1000, f::CutLayout::kAsIs},
+                                             {1100, 3001, f::CutLayout::kBytePlanes},
+                                             {4990, 13, f::CutLayout::kBytePlanes}};
+    f::UninitializedBytes records, contents;
+    size_t from = 0;
+    for (const f::ContentCut& c : cuts) {
+        records.insert(records.end(), raw.begin() + long(from), raw.begin() + long(c.offset));
+        const size_t at = contents.size();
+        contents.resize(at + c.size);
+        if (c.layout == f::CutLayout::kBytePlanes)
+            f::to_byte_planes(raw.data() + c.offset, c.size, contents.data() + at);
+        else
+            std::memcpy(contents.data() + at, raw.data() + c.offset, c.size);
+        from = c.offset + c.size;
+    }
+    records.insert(records.end(), raw.begin() + long(from), raw.end());
+    const f::SplitChunk split{records, contents, cuts};
+    ASSERT_EQ(split.raw_size(), raw.size());
+
+    f::UninitializedBytes joined;
+    f::join_split_chunk(split, &joined);
+    EXPECT_TRUE(std::equal(joined.begin(), joined.end(), raw.begin(), raw.end()));
+
+    ZSTD_CCtx* cctx = ZSTD_createCCtx();
+    f::UninitializedBytes payload;
+    EXPECT_EQ(f::encode_split_chunk(cctx, split, 3, 0, &payload), "");
+    ZSTD_freeCCtx(cctx);
+    const std::vector<uint8_t> from_raw = encode(raw, cuts);
+    EXPECT_TRUE(std::equal(payload.begin(), payload.end(), from_raw.begin(), from_raw.end()));
+    std::vector<uint8_t> back(raw.size());
+    EXPECT_FALSE(decode({payload.begin(), payload.end()}, &back));
+    EXPECT_EQ(back, raw);
+}
+
 TEST(ContentStreams, WholeContentsGoInBytePlanes) {
     std::vector<uint8_t> raw(64);
     for (size_t i = 0; i < raw.size(); ++i) raw[i] = uint8_t(i);

@@ -211,6 +211,24 @@ TEST(TraceRoundTrip, ManyChunksAndSeekToEverySubmission) {
     EXPECT_EQ(reader->damage_count(), 0u) << describe(reader->damage());
 }
 
+// Several compression threads compress chunks side by side and write them in their order: the
+// file is the one a single thread writes, byte for byte.
+TEST(TraceRoundTrip, CompressionThreadsWriteTheFileOneThreadWrites) {
+    const std::string one_path = temp_path("one_compressor.clt");
+    const std::string three_path = temp_path("three_compressors.clt");
+    write_frames_trace(one_path, 60, 4096);
+    TraceWriterOptions three;
+    three.compressor_threads = 3;
+    three.max_chunks_in_flight = 1;
+    const std::vector<fbs::RecordT> written = write_frames_trace(three_path, 60, 4096, three);
+    const std::vector<uint8_t> one = read_file(one_path);
+    EXPECT_GT(one.size(), 20u * 1024u);  // many chunks
+    EXPECT_TRUE(read_file(three_path) == one);
+    ReadResult read = read_all(three_path);
+    EXPECT_EQ(read.damage_count, 0u) << describe(read.damage);
+    EXPECT_EQ(without_contents(read.records).size(), written.size());
+}
+
 TEST(TraceRoundTrip, SeekWorksWithoutIndexByScanning) {
     const std::string path = temp_path("noindex.clt");
     write_frames_trace(path, 10, 8192);
@@ -265,6 +283,11 @@ TEST(TraceWriterRules, RejectsMisuse) {
     bad.chunk_raw_bytes = 10;
     EXPECT_FALSE(TraceWriter::create(path, test_header(), bad, &e));
     EXPECT_EQ(e.code, TraceErrorCode::kInvalidArgument);
+    TraceWriterOptions no_compressor;
+    no_compressor.compressor_threads = 0;
+    EXPECT_FALSE(TraceWriter::create(path, test_header(), no_compressor, &e));
+    EXPECT_EQ(e.code, TraceErrorCode::kInvalidArgument);
+    EXPECT_NE(e.message.find("compressor_threads"), std::string::npos) << e.message;
 
     auto w = TraceWriter::create(path, test_header(), {}, &e);
     ASSERT_TRUE(w);
@@ -313,36 +336,47 @@ TEST(TraceWriterRules, WriteFailureInTheBackgroundIsReportedByAppendOrFinish) {
     small.rlim_cur = 64 << 10;
     ASSERT_EQ(setrlimit(RLIMIT_FSIZE, &small), 0);
 
-    const std::string path = temp_path("efbig.clt");
-    TraceError e;
-    TraceWriterOptions options;
-    options.chunk_raw_bytes = 16 << 10;
-    options.zstd_level = 1;
-    auto w = TraceWriter::create(path, test_header(), options, &e);
-    TraceError first;
-    if (w) {
-        std::mt19937_64 rng(1);
-        std::vector<uint64_t> noise(1024);  // incompressible: the file grows as fast as the data
-        for (int i = 0; i < 64 && !first; ++i) {
-            for (auto& x : noise) x = rng();
-            uint64_t key;
-            first = w->add_contents(noise.data(), noise.size() * 8, &key);
+    // One compression thread, and three that compress side by side (the first failed write
+    // must stop the others' chunks too).
+    std::vector<std::pair<std::string, TraceError>> firsts;  // path, first error
+    for (uint32_t threads : {1u, 3u}) {
+        const std::string path = temp_path("efbig" + std::to_string(threads) + ".clt");
+        TraceError e;
+        TraceWriterOptions options;
+        options.chunk_raw_bytes = 16 << 10;
+        options.zstd_level = 1;
+        options.compressor_threads = threads;
+        auto w = TraceWriter::create(path, test_header(), options, &e);
+        TraceError first;
+        if (w) {
+            std::mt19937_64 rng(1);
+            std::vector<uint64_t> noise(
+                1024);  // incompressible: the file grows as fast as the data
+            for (int i = 0; i < 64 && !first; ++i) {
+                for (auto& x : noise) x = rng();
+                uint64_t key;
+                first = w->add_contents(noise.data(), noise.size() * 8, &key);
+            }
+            TraceError at_finish = w->finish();
+            if (!first) first = at_finish;
+            EXPECT_EQ(at_finish.code, TraceErrorCode::kIoError) << at_finish.message;
+        } else {
+            first = e;
         }
-        TraceError at_finish = w->finish();
-        if (!first) first = at_finish;
-        EXPECT_EQ(at_finish.code, TraceErrorCode::kIoError) << at_finish.message;
-    } else {
-        first = e;
+        firsts.emplace_back(path, first);
     }
     setrlimit(RLIMIT_FSIZE, &old);
     std::signal(SIGXFSZ, old_handler);
-    EXPECT_EQ(first.code, TraceErrorCode::kIoError);
-    EXPECT_NE(first.message.find("File too large"), std::string::npos) << first.message;
-    EXPECT_NE(first.message.find("efbig.clt: offset "), std::string::npos) << first.message;
-    // What did reach the disk still reads back up to the damage.
-    ReadResult read = read_all(path);
-    ASSERT_TRUE(read.opened) << read.open_error.message;
-    EXPECT_GT(read.damage_count, 0u);
+    for (const auto& [path, first] : firsts) {
+        EXPECT_EQ(first.code, TraceErrorCode::kIoError);
+        EXPECT_NE(first.message.find("File too large"), std::string::npos) << first.message;
+        const std::string name = path.substr(path.rfind('/') + 1);
+        EXPECT_NE(first.message.find(name + ": offset "), std::string::npos) << first.message;
+        // What did reach the disk still reads back up to the damage.
+        ReadResult read = read_all(path);
+        ASSERT_TRUE(read.opened) << read.open_error.message;
+        EXPECT_GT(read.damage_count, 0u);
+    }
 }
 
 }  // namespace

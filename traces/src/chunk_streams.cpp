@@ -17,10 +17,9 @@ struct Cut {
     CutLayout layout = CutLayout::kAsIs;
 };
 
-// Working buffers of one thread (the writer's compression thread, the reader's thread and its
-// read-ahead task); big ones are given back after use so an odd huge chunk is not kept.
+// Working buffers of one reading thread (the reader's thread and its read-ahead task); big ones are given back after use so an odd huge chunk is not kept.
 struct StreamsScratch {
-    std::vector<uint8_t> records, contents;  // contents: the writer's stream, the reader's planes
+    std::vector<uint8_t> records, contents;  // contents: the planes of a cut
     std::vector<Cut> cuts;
     void release_if_big() {
         constexpr size_t kKeep = 16u << 20;
@@ -29,6 +28,15 @@ struct StreamsScratch {
     }
 };
 thread_local StreamsScratch scratch;
+
+// The encoder's records stream (cut table and records), on the writer's compression thread.
+struct EncodeScratch {
+    UninitializedBytes records;
+    void release_if_big() {
+        if (records.capacity() > (16u << 20)) UninitializedBytes().swap(records);
+    }
+};
+thread_local EncodeScratch encode_scratch;
 
 void put_u32(uint8_t* to, uint32_t v) { std::memcpy(to, &v, 4); }
 uint32_t get_u32(const uint8_t* from) {
@@ -41,7 +49,7 @@ uint32_t get_u32(const uint8_t* from) {
 }  // namespace
 
 std::string compress_frame(ZSTD_CCtx* cctx, const uint8_t* bytes, size_t size, int level,
-                           int window_log, std::vector<uint8_t>* out) {
+                           int window_log, UninitializedBytes* out) {
     const size_t at = out->size();
     out->resize(at + ZSTD_compressBound(size));
     ZSTD_CCtx_reset(cctx, ZSTD_reset_session_and_parameters);
@@ -191,45 +199,33 @@ bool is_streams_payload(const uint8_t* payload, size_t size) {
     return size >= 4 && get_u32(payload) == kStreamsMagic;
 }
 
-std::string encode_streams_payload(ZSTD_CCtx* cctx, const uint8_t* raw, size_t raw_size,
-                                   std::span<const ContentCut> cuts, int zstd_level,
-                                   int zstd_window_log, std::vector<uint8_t>* out) {
-    std::vector<uint8_t>& records = scratch.records;
-    std::vector<uint8_t>& contents = scratch.contents;
-    size_t cut_bytes = 0;
-    for (const ContentCut& c : cuts) cut_bytes += c.size;
-    records.resize(4 + cuts.size() * kStreamsCutBytes + raw_size - cut_bytes);
-    contents.resize(cut_bytes);
-    put_u32(records.data(), static_cast<uint32_t>(cuts.size()));
+std::string encode_split_chunk(ZSTD_CCtx* cctx, const SplitChunk& chunk, int zstd_level,
+                               int zstd_window_log, UninitializedBytes* out) {
+    // The records stream: the cut table, then the records' bytes.
+    UninitializedBytes& records = encode_scratch.records;
+    const size_t table = 4 + chunk.cuts.size() * kStreamsCutBytes;
+    records.resize(table + chunk.records.size());
+    put_u32(records.data(), static_cast<uint32_t>(chunk.cuts.size()));
     uint8_t* entry = records.data() + 4;
-    uint8_t* to_records = records.data() + 4 + cuts.size() * kStreamsCutBytes;
-    uint8_t* to_contents = contents.data();
     size_t from = 0;
-    for (const ContentCut& c : cuts) {
-        const size_t gap = c.offset - from;
-        put_u32(entry, static_cast<uint32_t>(gap));
+    for (const ContentCut& c : chunk.cuts) {
+        put_u32(entry, c.offset - static_cast<uint32_t>(from));
         put_u32(entry + 4, c.size);
         put_u32(entry + 8, static_cast<uint32_t>(c.layout));
         entry += kStreamsCutBytes;
-        std::memcpy(to_records, raw + from, gap);
-        to_records += gap;
-        if (c.layout == CutLayout::kBytePlanes)
-            to_byte_planes(raw + c.offset, c.size, to_contents);
-        else
-            std::memcpy(to_contents, raw + c.offset, c.size);
-        to_contents += c.size;
         from = c.offset + c.size;
     }
-    std::memcpy(to_records, raw + from, raw_size - from);
+    if (!chunk.records.empty())
+        std::memcpy(records.data() + table, chunk.records.data(), chunk.records.size());
 
     out->resize(kStreamsHeaderSize);
     std::string problem =
         compress_frame(cctx, records.data(), records.size(), zstd_level, zstd_window_log, out);
     const size_t records_frame = out->size() - kStreamsHeaderSize;
     if (problem.empty())
-        problem = compress_frame(cctx, contents.data(), contents.size(), zstd_level,
+        problem = compress_frame(cctx, chunk.contents.data(), chunk.contents.size(), zstd_level,
                                  zstd_window_log, out);
-    scratch.release_if_big();
+    encode_scratch.release_if_big();
     if (!problem.empty()) return problem;
     put_u32(out->data(), kStreamsMagic);
     put_u32(out->data() + 4, static_cast<uint32_t>(records_frame));
@@ -237,6 +233,54 @@ std::string encode_streams_payload(ZSTD_CCtx* cctx, const uint8_t* raw, size_t r
             static_cast<uint32_t>(out->size() - kStreamsHeaderSize - records_frame));
     put_u32(out->data() + 12, 0);
     return {};
+}
+
+void join_split_chunk(const SplitChunk& chunk, UninitializedBytes* raw) {
+    raw->resize(chunk.raw_size());
+    const uint8_t* records = chunk.records.data();
+    const uint8_t* contents = chunk.contents.data();
+    size_t to = 0;
+    for (const ContentCut& c : chunk.cuts) {
+        const size_t gap = c.offset - to;
+        if (gap) std::memcpy(raw->data() + to, records, gap);
+        records += gap;
+        if (c.layout == CutLayout::kBytePlanes)
+            from_byte_planes(contents, c.size, raw->data() + c.offset);
+        else if (c.size)
+            std::memcpy(raw->data() + c.offset, contents, c.size);
+        contents += c.size;
+        to = c.offset + c.size;
+    }
+    const size_t rest = raw->size() - to;
+    if (rest) std::memcpy(raw->data() + to, records, rest);
+}
+
+std::string encode_streams_payload(ZSTD_CCtx* cctx, const uint8_t* raw, size_t raw_size,
+                                   std::span<const ContentCut> cuts, int zstd_level,
+                                   int zstd_window_log, std::vector<uint8_t>* out) {
+    size_t cut_bytes = 0;
+    for (const ContentCut& c : cuts) cut_bytes += c.size;
+    UninitializedBytes records(raw_size - cut_bytes), contents(cut_bytes);
+    uint8_t* to_records = records.data();
+    uint8_t* to_contents = contents.data();
+    size_t from = 0;
+    for (const ContentCut& c : cuts) {
+        const size_t gap = c.offset - from;
+        if (gap) std::memcpy(to_records, raw + from, gap);
+        to_records += gap;
+        if (c.layout == CutLayout::kBytePlanes)
+            to_byte_planes(raw + c.offset, c.size, to_contents);
+        else if (c.size)
+            std::memcpy(to_contents, raw + c.offset, c.size);
+        to_contents += c.size;
+        from = c.offset + c.size;
+    }
+    if (raw_size > from) std::memcpy(to_records, raw + from, raw_size - from);
+    UninitializedBytes payload;
+    std::string problem = encode_split_chunk(cctx, SplitChunk{records, contents, cuts}, zstd_level,
+                                             zstd_window_log, &payload);
+    out->assign(payload.begin(), payload.end());
+    return problem;
 }
 
 StreamsProblem decode_streams_payload(ZSTD_DCtx* dctx, const uint8_t* payload, size_t size,

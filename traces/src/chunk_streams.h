@@ -14,6 +14,8 @@
 
 #include <zstd.h>
 
+#include "uninitialized_bytes.h"
+
 namespace clastrace::traces::format {
 
 // "CLTS": neither zstd's frame magic nor a skippable frame's, so a reader that knows only
@@ -45,14 +47,35 @@ bool planes_pay(const uint8_t* bytes, size_t size);
 // level picks), to `out`. Returns an empty string or zstd's complaint. Every payload frame the
 // writer makes goes through here.
 std::string compress_frame(ZSTD_CCtx* cctx, const uint8_t* bytes, size_t size, int level,
-                           int window_log, std::vector<uint8_t>* out);
+                           int window_log, UninitializedBytes* out);
 
 // Whether a chunk's payload is a streams payload (else one zstd frame).
 bool is_streams_payload(const uint8_t* payload, size_t size);
 
-// Compresses `raw` as a streams payload into `out`. `cuts` are in raw order, inside `raw`, and
-// each starts at least kMinContentsFrameBytes after the end of the one before (one cut per
-// contents record, as readers expect). Returns an empty string or zstd's complaint.
+// A records chunk as the writer builds it: already in its two streams, so that no pass over
+// the chunk has to split its raw bytes (and no raw bytes are made unless the payload must be
+// one frame after all).
+struct SplitChunk {
+    std::span<const uint8_t> records;   // the raw bytes with every cut left out
+    std::span<const uint8_t> contents;  // the cuts' bytes in cut order, each in its layout
+    // In raw order, offsets in the raw bytes; each starts at least kMinContentsFrameBytes after
+    // the end of the one before (one cut per contents record, as readers expect).
+    std::span<const ContentCut> cuts;
+    size_t raw_size() const { return records.size() + contents.size(); }
+};
+
+// Compresses `chunk` as a streams payload into `out` (what it held is replaced). Returns an
+// empty string or zstd's complaint.
+std::string encode_split_chunk(ZSTD_CCtx* cctx, const SplitChunk& chunk, int zstd_level,
+                               int zstd_window_log, UninitializedBytes* out);
+
+// The raw bytes `chunk` stands for (cuts in byte planes laid back), into `raw`: for a chunk
+// whose streams payload would exceed one frame's bound and is written as one frame.
+void join_split_chunk(const SplitChunk& chunk, UninitializedBytes* raw);
+
+// Compresses `raw` as a streams payload into `out`: `raw` split at `cuts`, then
+// encode_split_chunk. (The writer splits as it frames records; tests and the fuzz target
+// start from raw bytes.)
 std::string encode_streams_payload(ZSTD_CCtx* cctx, const uint8_t* raw, size_t raw_size,
                                    std::span<const ContentCut> cuts, int zstd_level,
                                    int zstd_window_log, std::vector<uint8_t>* out);

@@ -38,30 +38,37 @@ namespace clastrace::traces {
 
 namespace {
 
-// Bytes whose growth leaves new elements uninitialized: every framed record is written over
-// whole (frame, body, padding), so value-initializing them first would be one more pass over
-// each chunk.
-template <class T>
-struct UninitializedAllocator : std::allocator<T> {
-    template <class U>
-    struct rebind {
-        using Other = UninitializedAllocator<U>;
-    };
-    template <class U>
-    void construct(U* p) noexcept {
-        ::new (static_cast<void*>(p)) U;
-    }
-    template <class U, class... Args>
-    void construct(U* p, Args&&... args) {
-        ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+// The chunk being filled, already split in the two streams of a streams payload
+// (chunk_streams.h), so the compression thread compresses them as they are. With
+// content_streams off every byte is in `records` and there are no cuts.
+struct ChunkBuffers {
+    format::UninitializedBytes records;   // the raw bytes with the contents' bytes cut out
+    format::UninitializedBytes contents;  // those bytes, in cut order, each in its layout
+    std::vector<format::ContentCut> cuts;
+    size_t raw_size() const { return records.size() + contents.size(); }
+    format::SplitChunk split() const { return {records, contents, cuts}; }
+    void clear() {
+        records.clear();
+        contents.clear();
+        cuts.clear();
     }
 };
-using ChunkBytes = std::vector<uint8_t, UninitializedAllocator<uint8_t>>;
+
+// One compressing thread's zstd context and buffers (the writer's worker; finish() for the
+// index).
+struct Compressor {
+    ZSTD_CCtx* cctx = ZSTD_createCCtx();
+    format::UninitializedBytes payload;  // the chunk's compressed payload
+    format::UninitializedBytes joined;   // the raw bytes of a chunk written as one frame after all
+    Compressor() = default;
+    Compressor(const Compressor&) = delete;
+    Compressor& operator=(const Compressor&) = delete;
+    ~Compressor() { ZSTD_freeCCtx(cctx); }
+};
 
 // A sealed chunk on its way to the compression thread.
 struct PendingChunk {
-    ChunkBytes raw;
-    std::vector<format::ContentCut> cuts;  // the contents' bytes in `raw`, for a streams payload
+    ChunkBuffers bytes;
     uint32_t chunk_number = 0;
     uint32_t record_count = 0;
     uint32_t submission_count = 0;
@@ -191,8 +198,7 @@ struct TraceWriter::Impl {
     bool finished = false;
 
     // Main-thread state: the chunk being filled.
-    ChunkBytes raw;
-    std::vector<format::ContentCut> raw_cuts;  // the contents' bytes in `raw`
+    ChunkBuffers filling;
     uint32_t raw_records = 0;
     uint32_t raw_submissions = 0;
     uint64_t chunk_first_submission = 0;
@@ -204,23 +210,24 @@ struct TraceWriter::Impl {
     std::unordered_map<Fingerprint, uint64_t, FingerprintHash> keys_by_fingerprint;
     std::vector<ContentPlace> content_places;
     DeltaBases delta_bases;
-    std::vector<uint8_t> delta_scratch;  // a delta's pieces gathered before the byte planes
-    TraceWriterStats counters;           // main-thread counters (chunk/bytes come from the worker)
+    std::vector<uint8_t> gathered;  // contents in pieces gathered before byte planes
+    TraceWriterStats counters;      // main-thread counters (chunk/bytes come from the worker)
 
-    // Shared with the compression thread, under `mutex`.
+    // Shared with the compression threads, under `mutex`.
     std::mutex mutex;
-    std::condition_variable queue_changed;
+    std::condition_variable queue_changed;  // also: a chunk was written, a worker is idle
     std::deque<PendingChunk> queue;
-    std::vector<ChunkBytes> spare_buffers;  // recycled raw buffers
-    bool worker_busy = false;
+    std::vector<ChunkBuffers> spare_buffers;  // recycled chunk buffers
+    uint32_t busy_workers = 0;                // workers holding a chunk taken from the queue
+    uint32_t next_to_write = 0;               // chunks are written in their order: this one's turn
     bool stop = false;
     TraceError error;          // first error; sticky
-    uint64_t file_offset = 0;  // next byte the worker writes
+    uint64_t file_offset = 0;  // next byte a worker writes
     std::vector<fbs::ChunkLocation> chunk_locations;
     uint64_t compressed_bytes = 0;
     uint64_t raw_bytes = 0;
-    uint64_t compress_ns = 0, file_write_ns = 0, compressor_cpu_ns = 0, flush_wait_ns = 0;
-    std::thread worker;
+    uint64_t compressor_cpu_ns = 0, flush_wait_ns = 0;
+    std::vector<std::thread> workers;
 
     TraceError fail_io(const char* what, int err, uint64_t offset) {
         return make_trace_error(TraceErrorCode::kIoError, path, offset,
@@ -254,47 +261,60 @@ struct TraceWriter::Impl {
         return {};
     }
 
-    // Compresses and writes one chunk at file_offset; used by the worker and for the index.
-    TraceError write_chunk(ZSTD_CCtx* cctx, std::vector<uint8_t>& compressed, const uint8_t* data,
-                           size_t size, format::ChunkKind kind, uint32_t chunk_number,
-                           uint32_t record_count, uint64_t first_submission, uint64_t offset,
-                           uint32_t* compressed_size,
-                           std::span<const format::ContentCut> cuts = {}) {
+    // Compresses one chunk into compressor.payload: a streams payload when it has contents (one
+    // frame after all when that would pass one frame's bound), else one frame. Returns an empty
+    // string or zstd's complaint.
+    std::string compress_chunk(Compressor& compressor, const format::SplitChunk& chunk) {
         const uint64_t started = now_ns();
+        format::UninitializedBytes& compressed = compressor.payload;
+        const size_t size = chunk.raw_size();
+        const int level = options.zstd_level, window_log = options.zstd_window_log;
         std::string problem;
         compressed.clear();
-        if (!cuts.empty() && options.content_streams)
-            problem = format::encode_streams_payload(cctx, data, size, cuts, options.zstd_level,
-                                                     options.zstd_window_log, &compressed);
+        if (!chunk.cuts.empty())
+            problem =
+                format::encode_split_chunk(compressor.cctx, chunk, level, window_log, &compressed);
         // Readers bound a payload by what one frame can take: past it (bytes that do not
         // compress, many small contents), the chunk is one frame after all.
-        if (problem.empty() &&
-            (compressed.empty() || compressed.size() > ZSTD_compressBound(size))) {
+        if (problem.empty() && !chunk.cuts.empty() &&
+            compressed.size() > ZSTD_compressBound(size)) {
+            format::join_split_chunk(chunk, &compressor.joined);
             compressed.clear();
-            problem = format::compress_frame(cctx, data, size, options.zstd_level,
-                                             options.zstd_window_log, &compressed);
+            problem = format::compress_frame(compressor.cctx, compressor.joined.data(), size, level,
+                                             window_log, &compressed);
+        } else if (chunk.cuts.empty()) {
+            problem = format::compress_frame(compressor.cctx, chunk.records.data(), size, level,
+                                             window_log, &compressed);
         }
-        const uint64_t compressed_at = now_ns();
-        if (!problem.empty())
-            return make_trace_error(TraceErrorCode::kIoError, path, offset, problem);
-        const size_t csize = compressed.size();
+        std::lock_guard lock(timing_mutex);
+        compress_ns += now_ns() - started;
+        return problem;
+    }
+
+    // Writes the chunk header and compressor.payload (compress_chunk's) at `offset`.
+    TraceError write_payload(const Compressor& compressor, format::ChunkKind kind,
+                             uint32_t chunk_number, uint32_t record_count,
+                             uint64_t first_submission, size_t raw_size, uint64_t offset) {
+        const uint64_t started = now_ns();
+        const format::UninitializedBytes& compressed = compressor.payload;
         format::ChunkHeader h =
             format::sealed_chunk_header(kind, chunk_number, record_count, first_submission,
-                                        static_cast<uint32_t>(size), compressed.data(),
-                                        static_cast<uint32_t>(csize));
-        iovec parts[2] = {{&h, sizeof h}, {compressed.data(), csize}};
-        *compressed_size = static_cast<uint32_t>(csize);
+                                        static_cast<uint32_t>(raw_size), compressed.data(),
+                                        static_cast<uint32_t>(compressed.size()));
+        iovec parts[2] = {{&h, sizeof h},
+                          {const_cast<uint8_t*>(compressed.data()), compressed.size()}};
         TraceError e = write_all(parts, 2, offset);
         std::lock_guard lock(timing_mutex);
-        compress_ns += compressed_at - started;
-        file_write_ns += now_ns() - compressed_at;
+        file_write_ns += now_ns() - started;
         return e;
     }
-    bool compressor_placed = false;
-    std::mutex timing_mutex;  // the timing totals above and compressor_placed
+    uint64_t compress_ns = 0, file_write_ns = 0;
+    uint32_t compressors_placed = 0;
+    std::mutex timing_mutex;  // the timing totals and placements above
 
-    void worker_main() {
-        // Best effort: without the right to either the thread keeps the caller's priority.
+    // Runs one compression thread with the options' priority and CPUs (best effort: without the
+    // right to either the thread keeps the caller's).
+    void place_worker() {
         sched_param idle{};
         const bool idled = options.compressor_idle_class &&
                            ::pthread_setschedparam(::pthread_self(), SCHED_IDLE, &idle) == 0;
@@ -309,49 +329,65 @@ struct TraceWriter::Impl {
                 if (c < CPU_SETSIZE) CPU_SET(c, &cpus);
             const bool placed = ::sched_setaffinity(0, sizeof cpus, &cpus) == 0;  // 0: this thread
             std::lock_guard placement(timing_mutex);
-            compressor_placed = placed;
+            compressors_placed += placed ? 1 : 0;
         }
-        ZSTD_CCtx* cctx = ZSTD_createCCtx();
-        std::vector<uint8_t> compressed;
+    }
+
+    // One compression thread: takes the next sealed chunk, compresses it while the other
+    // threads compress the chunks after it, then waits for its turn to write, so chunks land in
+    // the file in their order whatever thread finishes first.
+    void worker_main() {
+        place_worker();
+        Compressor compressor;
+        uint64_t cpu_counted = 0;
         std::unique_lock lock(mutex);
         for (;;) {
             queue_changed.wait(lock, [&] { return stop || !queue.empty(); });
             if (queue.empty()) break;  // stop requested and nothing left
             PendingChunk chunk = std::move(queue.front());
             queue.pop_front();
-            worker_busy = true;
-            bool failed = static_cast<bool>(error);
-            uint64_t offset = file_offset;
+            ++busy_workers;
+            const bool failed = static_cast<bool>(error);
             lock.unlock();
+            queue_changed.notify_all();  // room in the queue for the caller's next chunk
 
-            TraceError e;
-            uint32_t csize = 0;
-            if (!failed) {
-                e = write_chunk(cctx, compressed, chunk.raw.data(), chunk.raw.size(),
-                                format::ChunkKind::kRecords, chunk.chunk_number, chunk.record_count,
-                                chunk.first_submission, offset, &csize, chunk.cuts);
-            }
+            std::string problem;
+            if (!failed) problem = compress_chunk(compressor, chunk.bytes.split());
 
             lock.lock();
-            compressor_cpu_ns = thread_cpu_ns();
-            if (!failed && e) error = std::move(e);
-            if (!failed && !error) {
+            queue_changed.wait(lock, [&] { return next_to_write == chunk.chunk_number; });
+            const uint64_t offset = file_offset;
+            if (!error && !failed) {
+                lock.unlock();
+                TraceError e =
+                    !problem.empty()
+                        ? make_trace_error(TraceErrorCode::kIoError, path, offset, problem)
+                        : write_payload(compressor, format::ChunkKind::kRecords, chunk.chunk_number,
+                                        chunk.record_count, chunk.first_submission,
+                                        chunk.bytes.raw_size(), offset);
+                lock.lock();
+                if (e && !error) error = std::move(e);
+            }
+            if (!error && !failed) {
+                const uint32_t csize = static_cast<uint32_t>(compressor.payload.size());
                 chunk_locations.push_back(
                     fbs::ChunkLocation(offset, chunk.first_submission, chunk.submission_count,
-                                       chunk.record_count, static_cast<uint32_t>(chunk.raw.size()),
-                                       csize));
+                                       chunk.record_count,
+                                       static_cast<uint32_t>(chunk.bytes.raw_size()), csize));
                 file_offset = offset + format::kChunkHeaderSize + csize;
                 compressed_bytes += csize;
-                raw_bytes += chunk.raw.size();
+                raw_bytes += chunk.bytes.raw_size();
             }
-            chunk.raw.clear();
-            spare_buffers.push_back(std::move(chunk.raw));
-            chunk.cuts.clear();
-            worker_busy = false;
+            ++next_to_write;
+            const uint64_t cpu = thread_cpu_ns();
+            compressor_cpu_ns += cpu - cpu_counted;
+            cpu_counted = cpu;
+            chunk.bytes.clear();
+            spare_buffers.push_back(std::move(chunk.bytes));
+            --busy_workers;
             queue_changed.notify_all();
         }
         lock.unlock();
-        ZSTD_freeCCtx(cctx);
     }
 
     TraceError sticky_error() {
@@ -361,11 +397,10 @@ struct TraceWriter::Impl {
 
     // Hands the chunk being filled to the worker; blocks while too many are in flight.
     TraceError seal_chunk() {
-        if (raw.empty()) return sticky_error();
+        if (filling.raw_size() == 0) return sticky_error();
         PendingChunk chunk;
-        chunk.raw = std::move(raw);
-        chunk.cuts = std::move(raw_cuts);
-        raw_cuts.clear();
+        chunk.bytes = std::move(filling);
+        filling.clear();
         chunk.chunk_number = next_chunk_number++;
         chunk.record_count = raw_records;
         chunk.submission_count = raw_submissions;
@@ -385,39 +420,57 @@ struct TraceWriter::Impl {
         if (error) return error;
         queue.push_back(std::move(chunk));
         if (!spare_buffers.empty()) {
-            raw = std::move(spare_buffers.back());
+            filling = std::move(spare_buffers.back());
             spare_buffers.pop_back();
         }
         queue_changed.notify_all();
         return {};
     }
 
-    // Frames one verified Record FlatBuffer into the current chunk.
-    TraceError add_frame(const uint8_t* data, size_t size, fbs::RecordBody kind) {
-        if (size > format::kMaxRecordBytes) {
+    // Seals the chunk being filled when a record framed in `framed` bytes would take it past
+    // chunk_raw_bytes (a record bigger than that gets a chunk of its own).
+    TraceError make_room(size_t record_size) {
+        if (record_size > format::kMaxRecordBytes) {
             return make_trace_error(TraceErrorCode::kInvalidArgument, path, 0,
-                                    "record of " + std::to_string(size) + " bytes exceeds the " +
+                                    "record of " + std::to_string(record_size) +
+                                        " bytes exceeds the " +
                                         std::to_string(format::kMaxRecordBytes) +
                                         "-byte record limit");
         }
-        size_t framed = format::kRecordFrameSize + format::align8(size);
-        if (!raw.empty() && raw.size() + framed > options.chunk_raw_bytes) {
-            if (TraceError e = seal_chunk()) return e;
-        }
-        if (raw.capacity() < options.chunk_raw_bytes) raw.reserve(options.chunk_raw_bytes);
-        size_t at = raw.size();
-        raw.resize(at + framed);
-        uint32_t frame[2] = {static_cast<uint32_t>(size), static_cast<uint32_t>(kind)};
-        std::memcpy(raw.data() + at, frame, sizeof frame);
-        std::memcpy(raw.data() + at + format::kRecordFrameSize, data, size);
-        std::memset(raw.data() + at + format::kRecordFrameSize + size, 0,
-                    framed - format::kRecordFrameSize - size);
+        const size_t framed = format::kRecordFrameSize + format::align8(record_size);
+        const size_t raw_size = filling.raw_size();
+        if (raw_size != 0 && raw_size + framed > options.chunk_raw_bytes) return seal_chunk();
+        return {};
+    }
+
+    // Room for `size` more bytes at the end of `to` (a recycled buffer keeps its capacity).
+    static uint8_t* grow(format::UninitializedBytes& to, size_t size) {
+        const size_t at = to.size();
+        to.resize(at + size);
+        return to.data() + at;
+    }
+
+    // Counts the record just framed.
+    void count_record(fbs::RecordBody kind) {
         ++raw_records;
         ++records;
         if (kind == fbs::RecordBody::QueueSubmit) {
             ++raw_submissions;
             ++submissions;
         }
+    }
+
+    // Frames one verified Record FlatBuffer into the current chunk.
+    TraceError add_frame(const uint8_t* data, size_t size, fbs::RecordBody kind) {
+        if (TraceError e = make_room(size)) return e;
+        const uint32_t frame[2] = {static_cast<uint32_t>(size), static_cast<uint32_t>(kind)};
+        const size_t framed = format::kRecordFrameSize + format::align8(size);
+        uint8_t* to = grow(filling.records, framed);
+        std::memcpy(to, frame, sizeof frame);
+        std::memcpy(to + format::kRecordFrameSize, data, size);
+        std::memset(to + format::kRecordFrameSize + size, 0,
+                    framed - format::kRecordFrameSize - size);
+        count_record(kind);
         return {};
     }
 
@@ -479,12 +532,13 @@ struct TraceWriter::Impl {
         {
             std::unique_lock lock(mutex);
             const uint64_t started = now_ns();
-            queue_changed.wait(lock, [&] { return (queue.empty() && !worker_busy); });
+            queue_changed.wait(lock, [&] { return queue.empty() && busy_workers == 0; });
             flush_wait_ns += now_ns() - started;
             stop = true;
             queue_changed.notify_all();
         }
-        worker.join();
+        for (std::thread& worker : workers) worker.join();
+        workers.clear();
         finished = true;
         if (!e) e = sticky_error();
         if (!e) e = write_index();
@@ -510,15 +564,15 @@ struct TraceWriter::Impl {
         auto index = fbs::CreateTraceIndex(b, b.CreateVectorOfStructs(chunk_locations),
                                            b.CreateVectorOfStructs(places), records, submissions);
         b.Finish(index);
-        ZSTD_CCtx* cctx = ZSTD_createCCtx();
-        std::vector<uint8_t> compressed;
-        uint32_t csize = 0;
-        uint64_t index_offset = file_offset;
-        TraceError e = write_chunk(cctx, compressed, b.GetBufferPointer(), b.GetSize(),
-                                   format::ChunkKind::kIndex, next_chunk_number, 0, submissions,
-                                   index_offset, &csize);
-        ZSTD_freeCCtx(cctx);
+        Compressor compressor;
+        const uint64_t index_offset = file_offset;
+        const format::SplitChunk index_bytes{{b.GetBufferPointer(), b.GetSize()}, {}, {}};
+        if (std::string problem = compress_chunk(compressor, index_bytes); !problem.empty())
+            return make_trace_error(TraceErrorCode::kIoError, path, index_offset, problem);
+        TraceError e = write_payload(compressor, format::ChunkKind::kIndex, next_chunk_number, 0,
+                                     submissions, b.GetSize(), index_offset);
         if (e) return e;
+        const uint32_t csize = static_cast<uint32_t>(compressor.payload.size());
         format::Trailer t =
             format::sealed_trailer(index_offset, index_offset + format::kChunkHeaderSize + csize);
         iovec part{&t, sizeof t};
@@ -531,35 +585,19 @@ struct TraceWriter::Impl {
                             const SnapshotRange* range);
     TraceError frame_contents(std::span<const ContentPiece> pieces, size_t size, uint64_t key,
                               uint64_t seed, const RangeBase* base);
-
-    // Notes where the bytes of the contents record just framed (last in the chunk, built in
-    // fbb) lie, for the streams payload; whole contents that look like 32-bit integers go in
-    // byte planes if the options say.
-    void note_cut(size_t size, bool whole) {
-        if (!options.content_streams || size == 0) return;
-        const fbs::Record* record = fbs::GetRecord(fbb.GetBufferPointer());
-        const flatbuffers::Vector<uint8_t>* bytes =
-            whole ? record->body_as_MemoryContents()->bytes()
-                  : record->body_as_MemoryContentsDelta()->bytes();
-        const size_t in_record = bytes->data() - fbb.GetBufferPointer();
-        const size_t frame_at =
-            raw.size() - format::kRecordFrameSize - format::align8(fbb.GetSize());
-        const format::CutLayout layout =
-            whole && options.whole_content_planes && format::planes_pay(bytes->data(), size)
-                ? format::CutLayout::kBytePlanes
-                : format::CutLayout::kAsIs;
-        raw_cuts.push_back({static_cast<uint32_t>(frame_at + format::kRecordFrameSize + in_record),
-                            static_cast<uint32_t>(size), layout});
-    }
+    void frame_cut_contents(std::span<const ContentPiece> pieces, size_t size, fbs::RecordBody kind,
+                            const RangeBase* base, bool planes);
+    const uint8_t* contiguous(std::span<const ContentPiece> pieces, size_t size);
 
     void abandon() {
-        if (worker.joinable()) {
+        if (!workers.empty()) {
             {
                 std::lock_guard lock(mutex);
                 stop = true;
                 queue_changed.notify_all();
             }
-            worker.join();
+            for (std::thread& worker : workers) worker.join();
+            workers.clear();
         }
         if (fd >= 0) ::close(fd);
         fd = -1;
@@ -573,6 +611,8 @@ const char* options_problem(const TraceWriterOptions& options) {
         return "chunk_raw_bytes must be in [4096, 256 MiB]";
     }
     if (options.max_chunks_in_flight == 0) return "max_chunks_in_flight must be >= 1";
+    if (options.compressor_threads == 0 || options.compressor_threads > 64)
+        return "compressor_threads must be in [1, 64]";
     if (options.content_hash_bits < 8 || options.content_hash_bits > 64)
         return "content_hash_bits must be in [8, 64]";
     if (options.zstd_level < ZSTD_minCLevel() || options.zstd_level > ZSTD_maxCLevel()) {
@@ -672,7 +712,8 @@ std::unique_ptr<TraceWriter> TraceWriter::create_on(int fd, const std::string& p
         return nullptr;
     }
     impl->file_offset = sizeof fh + format::align8(b.GetSize());
-    impl->worker = std::thread([p = impl.get()] { p->worker_main(); });
+    for (uint32_t i = 0; i < options.compressor_threads; ++i)
+        impl->workers.emplace_back([p = impl.get()] { p->worker_main(); });
     return std::unique_ptr<TraceWriter>(new TraceWriter(std::move(impl)));
 }
 
@@ -762,49 +803,66 @@ TraceError TraceWriter::Impl::add_contents(std::span<const ContentPiece> pieces,
     }
 }
 
+// The bytes of `pieces` in one place: the only piece, or the pieces gathered into `gathered`.
+const uint8_t* TraceWriter::Impl::contiguous(std::span<const ContentPiece> pieces, size_t size) {
+    if (pieces.size() == 1) return static_cast<const uint8_t*>(pieces[0].bytes);
+    gathered.resize(size);
+    uint8_t* to = gathered.data();
+    for (const ContentPiece& p : pieces) {
+        if (p.size) std::memcpy(to, p.bytes, p.size);
+        to += p.size;
+    }
+    return gathered.data();
+}
+
+namespace {
+
+// Writes the `size` bytes a contents record of `pieces` holds to `to`: the bytes (no base), or
+// XOR `base`'s, in byte planes when `planes` (from `gathered`, the pieces in one place).
+void write_contents_bytes(std::span<const ContentPiece> pieces, const uint8_t* gathered,
+                          size_t size, const RangeBase* base, bool planes, uint8_t* to) {
+    if (base && planes) {
+        format::xor_to_byte_planes(gathered, base->bytes.data(), size, to);
+    } else if (base) {
+        xor_pieces(pieces, base->bytes.data(), to);
+    } else {
+        for (const ContentPiece& p : pieces) {
+            if (p.size) std::memcpy(to, p.bytes, p.size);
+            to += p.size;
+        }
+    }
+}
+
+}  // namespace
+
 // Frames the record of new bytes `key`: MemoryContents (whole), or MemoryContentsDelta (XOR
-// `base`'s bytes, in byte planes when the options say so).
+// `base`'s bytes, in byte planes when the options say so). With content_streams the record
+// goes to the records stream without its bytes, which go straight to the contents stream.
 TraceError TraceWriter::Impl::frame_contents(std::span<const ContentPiece> pieces, size_t size,
                                              uint64_t key, uint64_t seed, const RangeBase* base) {
+    const bool cut = options.content_streams && size > 0;
+    const bool planes = base && options.delta_byte_planes;
     fbb.Clear();
     uint8_t* vec_bytes = nullptr;
     auto vec = fbb.CreateUninitializedVector(size, &vec_bytes);
-    const uint8_t planes = base && options.delta_byte_planes ? 4 : 0;
-    if (base && planes) {
-        const uint8_t* bytes =
-            static_cast<const uint8_t*>(pieces.empty() ? nullptr : pieces[0].bytes);
-        if (pieces.size() != 1) {  // gathered first: the planes interleave every piece's bytes
-            delta_scratch.resize(size);
-            uint8_t* to = delta_scratch.data();
-            for (const ContentPiece& p : pieces) {
-                if (p.size) std::memcpy(to, p.bytes, p.size);
-                to += p.size;
-            }
-            bytes = delta_scratch.data();
-        }
-        format::xor_to_byte_planes(bytes, base->bytes.data(), size, vec_bytes);
-    } else if (base) {
-        xor_pieces(pieces, base->bytes.data(), vec_bytes);
-    } else {
-        for (const ContentPiece& p : pieces) {
-            if (p.size) std::memcpy(vec_bytes, p.bytes, p.size);
-            vec_bytes += p.size;
-        }
-    }
+    if (!cut)  // (written before the tables: building them may move the buffer)
+        write_contents_bytes(pieces, planes ? contiguous(pieces, size) : nullptr, size, base,
+                             planes, vec_bytes);
     const fbs::RecordBody kind =
         base ? fbs::RecordBody::MemoryContentsDelta : fbs::RecordBody::MemoryContents;
     const flatbuffers::Offset<void> body =
-        base ? fbs::CreateMemoryContentsDelta(fbb, key, seed, base->hash, vec, planes).Union()
+        base ? fbs::CreateMemoryContentsDelta(fbb, key, seed, base->hash, vec, planes ? 4 : 0)
+                   .Union()
              : fbs::CreateMemoryContents(fbb, key, seed, vec).Union();
     fbb.Finish(fbs::CreateRecord(fbb, kind, body));
-    // The frame lands at the end of the current chunk, unless add_frame seals it first.
-    size_t framed = format::kRecordFrameSize + format::align8(fbb.GetSize());
-    bool seals = !raw.empty() && raw.size() + framed > options.chunk_raw_bytes;
-    uint32_t chunk = next_chunk_number + (seals ? 1 : 0);
-    uint32_t raw_offset = seals ? 0 : static_cast<uint32_t>(raw.size());
-    if (TraceError e = add_frame(fbb.GetBufferPointer(), fbb.GetSize(), kind)) return e;
-    note_cut(size, base == nullptr);
-    content_places.push_back({key, size, chunk, raw_offset});
+    if (TraceError e = make_room(fbb.GetSize())) return e;
+    content_places.push_back(
+        {key, size, next_chunk_number, static_cast<uint32_t>(filling.raw_size())});
+    if (cut) {
+        frame_cut_contents(pieces, size, kind, base, planes);
+    } else if (TraceError e = add_frame(fbb.GetBufferPointer(), fbb.GetSize(), kind)) {
+        return e;
+    }
     ++counters.contents_stored;
     counters.contents_bytes_stored += size;
     if (base) {
@@ -812,6 +870,47 @@ TraceError TraceWriter::Impl::frame_contents(std::span<const ContentPiece> piece
         counters.contents_delta_bytes += size;
     }
     return {};
+}
+
+// Frames the contents record built in fbb (its bytes not written) as a cut: the frame and the
+// record around the bytes to the records stream, the bytes to the contents stream, whole
+// contents that look like 32-bit integers in byte planes if the options say.
+void TraceWriter::Impl::frame_cut_contents(std::span<const ContentPiece> pieces, size_t size,
+                                           fbs::RecordBody kind, const RangeBase* base,
+                                           bool planes) {
+    const uint8_t* record = fbb.GetBufferPointer();
+    const size_t record_size = fbb.GetSize();
+    const fbs::Record* r = fbs::GetRecord(record);
+    const size_t in_record =
+        (base ? r->body_as_MemoryContentsDelta()->bytes() : r->body_as_MemoryContents()->bytes())
+            ->data() -
+        record;
+    const size_t after = record_size - in_record - size;
+    const size_t framed = format::kRecordFrameSize + format::align8(record_size);
+    const uint32_t frame[2] = {static_cast<uint32_t>(record_size), static_cast<uint32_t>(kind)};
+    const size_t frame_at = filling.raw_size();
+    uint8_t* to = grow(filling.records, framed - size);
+    std::memcpy(to, frame, sizeof frame);
+    std::memcpy(to + format::kRecordFrameSize, record, in_record);
+    to += format::kRecordFrameSize + in_record;
+    std::memcpy(to, record + in_record + size, after);
+    std::memset(to + after, 0, framed - format::kRecordFrameSize - record_size);
+
+    format::CutLayout layout = format::CutLayout::kAsIs;
+    const uint8_t* whole = nullptr;
+    if (!base && options.whole_content_planes) {
+        whole = contiguous(pieces, size);
+        if (format::planes_pay(whole, size)) layout = format::CutLayout::kBytePlanes;
+    }
+    uint8_t* bytes = grow(filling.contents, size);
+    if (layout == format::CutLayout::kBytePlanes)
+        format::to_byte_planes(whole, size, bytes);
+    else
+        write_contents_bytes(pieces, planes ? contiguous(pieces, size) : nullptr, size, base,
+                             planes, bytes);
+    filling.cuts.push_back({static_cast<uint32_t>(frame_at + format::kRecordFrameSize + in_record),
+                            static_cast<uint32_t>(size), layout});
+    count_record(kind);
 }
 
 TraceError TraceWriter::snapshot(uint64_t buffer, uint64_t offset, uint64_t address,
@@ -856,7 +955,7 @@ TraceError TraceWriter::flush() {
     if (TraceError e = w.seal_chunk()) return e;
     std::unique_lock lock(w.mutex);
     const uint64_t started = now_ns();
-    w.queue_changed.wait(lock, [&] { return (w.queue.empty() && !w.worker_busy) || w.error; });
+    w.queue_changed.wait(lock, [&] { return (w.queue.empty() && w.busy_workers == 0) || w.error; });
     w.flush_wait_ns += now_ns() - started;
     return w.error;
 }
@@ -876,7 +975,7 @@ TraceWriterStats TraceWriter::stats() const {
     std::lock_guard timing(w.timing_mutex);
     s.compress_ns = w.compress_ns;
     s.file_write_ns = w.file_write_ns;
-    s.compressor_placed = w.compressor_placed;
+    s.compressor_placed = w.compressors_placed == w.options.compressor_threads;
     return s;
 }
 

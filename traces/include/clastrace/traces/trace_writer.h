@@ -1,9 +1,11 @@
 // SPDX-License-Identifier: Apache-2.0
-// Writes a .clt trace: records go into chunks that a background thread compresses and
-// appends, so the caller only pays for building records. Memory is bounded by
-// (max_chunks_in_flight + 1) chunks plus about 150 bytes per distinct content (its key,
-// size, 128-bit fingerprint, the fingerprint's way back to the key, and place for the index),
-// plus the snapshot ranges' last bytes kept as delta bases (delta_base_bytes).
+// Writes a .clt trace: records go into chunks that background threads compress and append in
+// order, so the caller only pays for building records. Memory is bounded by
+// (max_chunks_in_flight + compressor_threads + 1) chunks, each in two recycled buffers (records,
+// contents) that keep what they grew to, so up to twice chunk_raw_bytes a chunk; plus about
+// 150 bytes per distinct content (its key, size, 128-bit fingerprint, the fingerprint's way
+// back to the key, and place for the index), plus the snapshot ranges' last bytes kept as delta
+// bases (delta_base_bytes).
 //
 // Errors are sticky: once a write fails (disk full, I/O error) every later call and
 // finish() return that error; nothing is lost silently.
@@ -31,8 +33,12 @@ struct TraceWriterOptions {
     // zstd's window (log2 bytes) for records chunks; 0: what the level picks (2 MiB at level 3,
     // half a 4 MiB chunk). Readers need no setting up to 2^27 (zstd's default decoder limit).
     int zstd_window_log = 0;
-    uint32_t max_chunks_in_flight = 2;  // sealed chunks waiting for the compression thread
-    bool sync_on_finish = true;         // fsync before finish() reports success
+    uint32_t max_chunks_in_flight = 2;  // sealed chunks waiting for a compression thread
+    // Threads compressing sealed chunks, each its own chunk (zstd at one level is one core's
+    // work per chunk: more threads write faster where cores are free, the file is the same).
+    // Each holds one chunk besides those in flight.
+    uint32_t compressor_threads = 1;
+    bool sync_on_finish = true;  // fsync before finish() reports success
     // Bits of the content hash kept. 64 for real traces; tests lower it to force collisions.
     unsigned content_hash_bits = 64;
     // Nice value of the compression thread (Linux: per thread; 0 leaves it as created). A
