@@ -108,7 +108,7 @@ void SyncModel::State::record_resolved(const Record& b, const Access& access, bo
     const std::vector<ResolvedRange> parts = resolved;
     for (const ResolvedRange& part : parts) {
         if (!part.bound) {
-            if (on_unbound) on_unbound(b.command, access, part.range);
+            if (on_unbound) on_unbound(commands[b.command], access, part.range);
             continue;
         }
         Record piece = b;
@@ -138,20 +138,18 @@ DependencyInfo SyncModel::State::resolve_barriers(const DependencyInfo& dependen
     return out;
 }
 
-Record SyncModel::State::make_record(const CommandRef& command, const Access& a, uint16_t queue,
-                                     uint64_t t) {
+Record SyncModel::State::make_record(const Access& a, uint16_t queue, uint64_t t) {
     Record r;
-    fill_record(r, command, a, queue, t);
+    fill_record(r, a, queue, t);
     return r;
 }
 
-void SyncModel::State::fill_record(Record& r, const CommandRef& command, const Access& a,
-                                   uint16_t queue, uint64_t t) {
-    fill_record(r, command, a, queue, t, intern(a.field));
+void SyncModel::State::fill_record(Record& r, const Access& a, uint16_t queue, uint64_t t) {
+    fill_record(r, a, queue, t, intern(a.field));
 }
 
-void SyncModel::State::fill_record(Record& r, const CommandRef& command, const Access& a,
-                                   uint16_t queue, uint64_t t, uint32_t field) {
+void SyncModel::State::fill_record(Record& r, const Access& a, uint16_t queue, uint64_t t,
+                                   uint32_t field) {
     r.element_bytes = 0;
     r.first_element = 0;
     r.field_suffix = 0;
@@ -161,7 +159,7 @@ void SyncModel::State::fill_record(Record& r, const CommandRef& command, const A
     r.sync.visible.clear();
     r.sync.signals.clear();
     r.tag = t;
-    r.command = command;
+    r.command = current_command;
     r.range = a.range;
     r.stage = atomic_stages(a.stage) & ~kEventStageBits;
     r.access = a.access;
@@ -171,6 +169,28 @@ void SyncModel::State::fill_record(Record& r, const CommandRef& command, const A
     r.field = field;
     r.queue = queue;
     r.log_pos = queue == kHostSlot ? 0 : queues[queue].log_end();
+}
+
+void SyncModel::State::collect_commands() {
+    kept_commands.clear();
+    moved_to.assign(commands.size(), UINT32_MAX);
+    auto keep = [&](uint32_t& command) {
+        uint32_t& to = moved_to[command];
+        if (to == UINT32_MAX) {
+            to = uint32_t(kept_commands.size());
+            kept_commands.push_back(commands[command]);
+        }
+        command = to;
+    };
+    keep(current_command);  // its next access may still come
+    segments.for_each([&](Segment& seg, uint64_t, uint64_t) {
+        if (seg.write) keep(seg.write->command);
+        if (seg.possible_write) keep(seg.possible_write->command);
+        for (Record& r : seg.reads) keep(r.command);
+    });
+    commands.swap(kept_commands);
+    collect_at =
+        commands.size() + std::max({kCollectFloor, commands.size(), std::size_t(segments.size())});
 }
 
 }  // namespace clastrace::replay

@@ -187,7 +187,7 @@ std::optional<ChainState> SyncModel::State::foreign_view(const Record& r, const 
 
 bool SyncModel::State::in_signal(const Import& im, const Record& r, uint64_t seg_begin,
                                  uint64_t seg_end, bool* available) {
-    const std::vector<SignalMembership>* list =
+    const RareList<SignalMembership>* list =
         &r.sync.signals;  // r's own queue signaled: caught up past it
     std::optional<ChainState> view;
     if (im.signal_queue != r.queue) {

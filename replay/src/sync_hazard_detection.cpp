@@ -123,7 +123,7 @@ void SyncModel::State::note(std::vector<Finding>& found, HazardClass hazard, con
 
 HazardAccess SyncModel::State::describe(const Record& r) const {
     HazardAccess a;
-    a.command = r.command;
+    a.command = commands[r.command];
     a.queue = r.queue == kHostSlot ? kHostQueue : queues[r.queue].id;
     a.stage = r.stage;
     a.access = r.access;

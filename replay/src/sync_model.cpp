@@ -65,8 +65,9 @@ void SyncModel::begin_submission(QueueId queue, uint32_t, std::span<const Semaph
 
 void SyncModel::record_access(const CommandRef& command, const Access& access) {
     State& s = *state_;
+    s.maybe_collect_commands();
     const uint64_t t = s.command_tag(command, s.current_queue);
-    s.record_resolved(s.make_record(command, access, s.current_queue, t), access, false);
+    s.record_resolved(s.make_record(access, s.current_queue, t), access, false);
 }
 
 void SyncModel::record_accesses(const CommandRef& command, std::span<const Access> accesses) {
@@ -90,6 +91,7 @@ void SyncModel::record_accesses(const CommandRef& command, std::span<const Acces
         for (const Access& a : accesses) record_access(command, a);
         return;
     }
+    s.maybe_collect_commands();
     const uint64_t t = s.command_tag(command, s.current_queue);
 
     s.pin_overlapping(accesses);
@@ -111,13 +113,13 @@ void SyncModel::record_accesses(const CommandRef& command, std::span<const Acces
         if (run) {
             Access a = accesses[i];
             a.range = run->range;
-            s.fill_record(rec, command, a, s.current_queue, t, run->prefix);
+            s.fill_record(rec, a, s.current_queue, t, run->prefix);
             rec.element_bytes = uint32_t(run->bytes);
             rec.first_element = uint32_t(run->first);
             rec.field_suffix = run->suffix;
             s.stats.accesses += run->count - 1;  // counted per access, as record_access would
         } else {
-            s.fill_record(rec, command, accesses[i], s.current_queue, t, field_of[i]);
+            s.fill_record(rec, accesses[i], s.current_queue, t, field_of[i]);
         }
         each.clear();
         s.record(rec, false, &each);
@@ -144,9 +146,10 @@ void SyncModel::record_accesses(const CommandRef& command, std::span<const Acces
 void SyncModel::record_copy(const CommandRef& command, const Access& source,
                             const Access& destination) {
     State& s = *state_;
+    s.maybe_collect_commands();
     const uint64_t t = s.command_tag(command, s.current_queue);
-    Record src = s.make_record(command, source, s.current_queue, t);
-    Record dst = s.make_record(command, destination, s.current_queue, t);
+    Record src = s.make_record(source, s.current_queue, t);
+    Record dst = s.make_record(destination, s.current_queue, t);
     if (source.range.overlaps(destination.range)) {
         State::Finding f;
         f.key = {t, t, src.field, dst.field, HazardClass::kMoveOverlap};
@@ -163,9 +166,10 @@ void SyncModel::record_copy(const CommandRef& command, const Access& source,
 void SyncModel::record_deserialize(const CommandRef& command, const Access& source,
                                    const Access& destination) {
     State& s = *state_;
+    s.maybe_collect_commands();
     const uint64_t t = s.command_tag(command, s.current_queue);
-    s.record_resolved(s.make_record(command, source, s.current_queue, t), source, false);
-    s.record_resolved(s.make_record(command, destination, s.current_queue, t), destination, true);
+    s.record_resolved(s.make_record(source, s.current_queue, t), source, false);
+    s.record_resolved(s.make_record(destination, s.current_queue, t), destination, true);
 }
 
 void SyncModel::pipeline_barrier(const CommandRef&, const DependencyInfo& dependency) {
@@ -277,8 +281,9 @@ void SyncModel::host_access(const CommandRef& command, const Access& access) {
     Access a = access;
     a.stage = VK_PIPELINE_STAGE_2_HOST_BIT;
     a.access = a.is_write ? VK_ACCESS_2_HOST_WRITE_BIT : VK_ACCESS_2_HOST_READ_BIT;
+    s.maybe_collect_commands();
     const uint64_t t = s.command_tag(command, kHostSlot);
-    s.record_resolved(s.make_record(command, a, kHostSlot, t), a, false);
+    s.record_resolved(s.make_record(a, kHostSlot, t), a, false);
 }
 
 void SyncModel::wait_for_fence(uint64_t fence) {
@@ -373,6 +378,8 @@ std::size_t SyncModel::memory_bytes() const {
     std::size_t bytes = s.segments.memory_bytes([](const Segment& seg) {
         return seg.reads.capacity() * sizeof(Record) + (seg.possible_write ? sizeof(Record) : 0);
     });
+    bytes += (s.commands.capacity() + s.kept_commands.capacity()) * sizeof(CommandRef) +
+             s.moved_to.capacity() * sizeof(uint32_t);
     for (const Queue& q : s.queues) {
         bytes += q.log.capacity() * sizeof(LogEntry) + q.pool.capacity() * sizeof(LoggedBarrier);
         for (const Import& im : q.imports)

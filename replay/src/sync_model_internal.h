@@ -35,6 +35,10 @@ struct SyncModel::State {
     std::unordered_set<HazardKey, HazardKeyHash> seen;
 
     SegmentStore<Segment> segments;
+    // The commands of the accesses recorded, named by index from each Record (Record::command);
+    // collect_commands drops those no segment names any more.
+    std::vector<CommandRef> commands;
+    uint32_t current_command = 0;  // the index of the command command_tag last saw
     std::vector<Queue> queues;
     std::unordered_map<uint64_t, SemaphoreState> semaphores;
     std::unordered_map<uint64_t, Clock> fences;
@@ -122,8 +126,13 @@ struct SyncModel::State {
     void place_field(FieldSlot slot);
 
     // Accesses of one command share a tag; a command is known by its reference and queue.
+    // A new command's reference goes to `commands` (current_command).
     uint64_t command_tag(const CommandRef& command, uint16_t queue) {
-        if (!(last_was_access && command == last_command && queue == last_queue)) ++tag;
+        if (!(last_was_access && command == last_command && queue == last_queue)) {
+            ++tag;
+            current_command = uint32_t(commands.size());
+            commands.push_back(command);
+        }
         last_command = command;
         last_queue = queue;
         last_was_access = true;
@@ -236,12 +245,25 @@ struct SyncModel::State {
     DependencyInfo resolve_barriers(const DependencyInfo& dependency,
                                     std::vector<BufferBarrier>& storage);
 
-    Record make_record(const CommandRef& command, const Access& a, uint16_t queue, uint64_t t);
+    // A record of `a` by the command command_tag last saw (tag t).
+    Record make_record(const Access& a, uint16_t queue, uint64_t t);
     // make_record into an existing record (record_accesses reuses one, sparing its vectors).
-    void fill_record(Record& r, const CommandRef& command, const Access& a, uint16_t queue,
-                     uint64_t t);
-    void fill_record(Record& r, const CommandRef& command, const Access& a, uint16_t queue,
-                     uint64_t t, uint32_t field);
+    void fill_record(Record& r, const Access& a, uint16_t queue, uint64_t t);
+    void fill_record(Record& r, const Access& a, uint16_t queue, uint64_t t, uint32_t field);
+
+    // Commands are appended per command and dropped here once no segment names them (every
+    // Record's index moves to the kept list). Only between calls that record accesses, when
+    // nothing else holds an index but current_command, and only once as many commands were
+    // appended as a pass over the segments costs, so the pass stays a constant share of the
+    // recording and the list within twice what segments name plus that.
+    static constexpr std::size_t kCollectFloor = 64;
+    std::size_t collect_at = kCollectFloor;
+    std::vector<CommandRef> kept_commands;  // collect_commands' working lists
+    std::vector<uint32_t> moved_to;
+    void maybe_collect_commands() {
+        if (commands.size() >= collect_at) collect_commands();
+    }
+    void collect_commands();
 
     // ------------------------------------------------------------------ barriers (sync_barriers.cpp)
     uint32_t pool_barriers(Queue& q, const DependencyInfo& dep);

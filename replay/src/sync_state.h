@@ -28,6 +28,43 @@ inline StageMask destination_scope_of(StageMask m) {
     return destination_scope(m) & ~kEventStageBits;
 }
 
+// A list that is empty in nearly every record (a write visible to more than two scopes, a
+// record a narrow semaphore signal took in): one pointer until its first element, so the
+// records holding it stay small and copying an empty one is a null test.
+template <class T>
+class RareList {
+public:
+    RareList() = default;
+    RareList(const RareList& o) { *this = o; }
+    RareList(RareList&&) = default;
+    RareList& operator=(RareList&&) = default;
+    RareList& operator=(const RareList& o) {
+        if (o.empty())
+            clear();
+        else if (items_)
+            *items_ = *o.items_;
+        else
+            items_ = std::make_unique<std::vector<T>>(*o.items_);
+        return *this;
+    }
+    bool empty() const { return !items_ || items_->empty(); }
+    std::size_t size() const { return items_ ? items_->size() : 0; }
+    T& operator[](std::size_t i) { return (*items_)[i]; }
+    const T& operator[](std::size_t i) const { return (*items_)[i]; }
+    const T* begin() const { return items_ ? items_->data() : nullptr; }
+    const T* end() const { return items_ ? items_->data() + items_->size() : nullptr; }
+    void push_back(const T& t) {
+        if (!items_) items_ = std::make_unique<std::vector<T>>();
+        items_->push_back(t);
+    }
+    void clear() {
+        if (items_) items_->clear();
+    }
+
+private:
+    std::unique_ptr<std::vector<T>> items_;
+};
+
 // The (stage, access) pairs a write was made visible to, as a union of rectangles
 // (destination stages x destination accesses of the barriers that made it visible). Almost
 // always one or two; more spill to the heap rather than merge, which would hide hazards.
@@ -38,20 +75,8 @@ struct Visibility {
     };
     std::array<Rect, 2> inline_rects{};
     uint8_t inline_count = 0;
-    std::vector<Rect> more;
+    RareList<Rect> more;
 
-    Visibility() = default;
-    Visibility(const Visibility&) = default;
-    Visibility(Visibility&&) = default;
-    Visibility& operator=(Visibility&&) = default;
-    // Records are copied into every segment they cover; `more` is almost always empty on
-    // both sides, and then the vector's out-of-line assignment is not worth a call.
-    Visibility& operator=(const Visibility& o) {
-        inline_rects = o.inline_rects;
-        inline_count = o.inline_count;
-        if (!more.empty() || !o.more.empty()) more = o.more;
-        return *this;
-    }
     void clear() {
         inline_count = 0;
         more.clear();
@@ -111,28 +136,18 @@ struct ChainState {
     StageMask avail = 0;  // same, for chains that began with an availability operation (writes)
     Visibility visible;   // (stage, access) pairs the write is visible to
     // Narrow signals whose first scope took the access in (see kSignal log entries).
-    std::vector<SignalMembership> signals;
-
-    ChainState() = default;
-    ChainState(const ChainState&) = default;
-    ChainState(ChainState&&) = default;
-    ChainState& operator=(ChainState&&) = default;
-    ChainState& operator=(const ChainState& o) {  // as Visibility: skip the empty vector's call
-        chain = o.chain;
-        avail = o.avail;
-        visible = o.visible;
-        if (!signals.empty() || !o.signals.empty()) signals = o.signals;
-        return *this;
-    }
+    RareList<SignalMembership> signals;
 };
 
 struct Record {
-    uint64_t tag = 0;  // unique per command; execution order on its queue
-    CommandRef command;
+    uint64_t tag = 0;       // unique per command; execution order on its queue
     AddressRange range;     // the whole access, for reports
     StageMask stage = 0;    // one atomic stage
     AccessMask access = 0;  // as given, for reports
     AccessMask atoms = 0;   // atomic accesses, for checks
+    // Index into SyncModel::State::commands: the command's CommandRef is kept once there, not
+    // in every segment the access covers (reports alone read it).
+    uint32_t command = 0;
     uint32_t field = 0;  // an element run: the field's text before the index, e.g. "srcInfosArray["
     // An element run (SyncModel::record_accesses): element k is the byte range
     // [range.begin + k * element_bytes, +element_bytes), named field + (first_element + k) +
@@ -151,8 +166,8 @@ struct Record {
 constexpr uint16_t kHostSlot = 0xFFFF;
 
 // std::optional<Record>'s interface for a record kept on the heap: one pointer while empty.
-// For Segment::possible_write, empty in all but cheap-mode dispatch traces, which held an
-// empty Record's 232 bytes in every segment (half of a segment's size).
+// For Segment::possible_write, empty in all but cheap-mode dispatch traces, where an empty
+// Record's bytes would sit in every segment.
 class HeapRecord {
 public:
     HeapRecord() = default;
