@@ -132,7 +132,9 @@ DeserializeSetup setup() {
     DeserializeSetup x;
     x.s = build_scene(two_blas(), random_instances(4, 2, 3.0f, 2));
     x.blob = eng::serialize_nv_object(x.s->world.memory, x.s->tlas.address, nullptr);
-    x.src = x.s->world.put(x.blob.data(), x.blob.size() + 512, "blob");
+    std::vector<std::byte> room = x.blob;  // the blob and 512 bytes of room after it
+    room.resize(x.blob.size() + 512);
+    x.src = x.s->world.put(room.data(), room.size(), "blob");
     x.cmd.src_address = x.src;
     x.cmd.dst = x.s->world.make_object(*x.s->tlas.created, "dst");
     return x;
@@ -156,7 +158,8 @@ TEST(NvSerialize, EveryDeserializeRule) {
     }
     {
         DeserializeSetup x = setup();
-        const uint64_t off = x.s->world.put(x.blob.data(), x.blob.size() + 8, "unaligned") + 8;
+        const std::vector<std::byte> room(x.blob.size() + 8);
+        const uint64_t off = x.s->world.put(room.data(), room.size(), "unaligned") + 8;
         std::memcpy(x.s->world.memory.write_bytes(off, x.blob.size(), {}).data(), x.blob.data(),
                     x.blob.size());
         x.cmd.src_address = off;

@@ -282,11 +282,12 @@ TEST(ReplayNv, AnotherDriversBlobIsOpaqueButItsHeaderIsChecked) {
     {
         NvTraceBuilder t(path, false);
         Written w = write_scene(t, 4, 2);
-        std::vector<uint8_t> blob(56 + 4 * 8 + 512, 0x5A);
+        // The blob and 64 bytes after it in one buffer (the snapshot reads them all).
+        std::vector<uint8_t> blob(56 + 4 * 8 + 512 + 64, 0x5A);
         eng::SerializedHeader h{};
         std::memset(h.driver_uuid, 0x10, 16);
         std::memset(h.compatibility_uuid, 0xDE, 16);
-        h.serialized_size = blob.size();
+        h.serialized_size = blob.size() - 64;
         h.deserialized_size = 512;
         h.handle_count = 4;
         std::memcpy(blob.data(), &h, sizeof h);
@@ -294,7 +295,7 @@ TEST(ReplayNv, AnotherDriversBlobIsOpaqueButItsHeaderIsChecked) {
             const uint64_t handle = i == 3 ? 0xBADull : w.blas_objects[size_t(i % 3)].driver_handle;
             std::memcpy(blob.data() + 56 + 8 * i, &handle, 8);
         }
-        const uint64_t src = t.buffer(blob.data(), blob.size() + 64);
+        const uint64_t src = t.buffer(blob.data(), blob.size());
         auto copy = t.create(NvTraceBuilder::tlas_info(4),
                              400);  // the driver said 400 bytes: too small for 512
         t.deserialize(src, copy);
