@@ -99,6 +99,13 @@ void fit_leaf(BvhScratch& s, const uint8_t* tris, size_t count, BvhScratch::Node
     store4(node.hi, hi);
 }
 
+// The leaf of `count` triangles at leaf_order[first..]: its box and link.
+void make_leaf(BvhScratch& s, const uint8_t* leaf_order, uint32_t first, uint32_t count,
+               BvhScratch::Node& node) {
+    fit_leaf(s, leaf_order + first, count, node);
+    node.link = uint16_t(kLeafBit | ((count - 1u) << 8) | first);
+}
+
 // Interior boxes bottom-up, `interior` in the order the nodes were split: a node's children
 // were split after it, so the reverse order meets every child first.
 void fit_interior_boxes(BvhScratch& s, const uint16_t* interior, size_t count) {
@@ -159,17 +166,18 @@ void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
     size_t n_interior = 0;
     int sp = 0;
     s.node_count = 1;
-    stack[sp++] = {0, 0, uint16_t(n), 0};
+    if (n <= kMaxLeafSize) {  // a root leaf: its triangles along x
+        std::memcpy(leaf_order, order[0], n);
+        make_leaf(s, leaf_order, 0, n, s.nodes[0]);
+    } else {
+        stack[sp++] = {0, 0, uint16_t(n), 0};
+    }
+    // Only nodes that split are tasks: their parent makes a leaf where it splits (a leaf test
+    // at each task mispredicted about every third node).
     while (sp > 0) {
         const Task task = stack[--sp];
         BvhScratch::Node& node = s.nodes[task.node];
         const uint32_t b = task.begin, e = task.end, count = e - b;
-        if (count <= kMaxLeafSize) {
-            if (task.node == 0) std::memcpy(leaf_order, order[0], count);  // a root leaf
-            fit_leaf(s, leaf_order + b, count, node);
-            node.link = uint16_t(kLeafBit | ((count - 1u) << 8) | b);
-            continue;
-        }
         int axis = 0;
         float best = centroid[order[0][e - 1]][0] - centroid[order[0][b]][0];
         for (int k = 1; k < 3; ++k) {
@@ -184,60 +192,64 @@ void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
         const uint32_t leaves = (count + kMaxLeafSize - 1) / kMaxLeafSize;
         const uint32_t left_count = kMaxLeafSize * ((leaves + 1) / 2);
         const uint32_t m = b + left_count;
-        if (count <= 2 * kMaxLeafSize) {
-            // Both children are leaves: they need no sorted orders, only their triangles.
-            std::memcpy(leaf_order + b, order[axis] + b, count);
-        } else {
-            // Every triangle of a left child (odd node numbers) still has side 0 from its
-            // parent's split, and of a right child (even, not the root) side 1: nodes in
-            // between belong to the left sibling's subtree and set only their own triangles'.
-            // So only the side that changes is written.
-            const bool left_child = task.node % 2 == 1, right_child = !left_child && task.node;
-            if (!left_child) {
-#pragma GCC unroll 4
-                for (size_t j = b; j < m; ++j) side[order[axis][j]] = 0;
-            }
-            if (!right_child) {
-#pragma GCC unroll 4
-                for (size_t j = m; j < e; ++j) side[order[axis][j]] = 1;
-            }
-            // The other two orders, partitioned stably in one loop (two independent chains).
-            // No branch and no select: every element is stored twice, at the next left slot
-            // (in place: j - r <= j, already read) and at the next right slot of a buffer; the
-            // store on the wrong side is overwritten by the next element of that side, or
-            // lands past the side's end (the left one is covered by the copy of the rights).
-            // The other two axes from a table: a select on `axis` compiles to a branch that
-            // mispredicts (the axis follows the data).
-            static constexpr uint8_t kOtherAxes[3][2] = {{1, 2}, {0, 2}, {0, 1}};
-            uint8_t* const o1 = order[kOtherAxes[axis][0]] + b;
-            uint8_t* const o2 = order[kOtherAxes[axis][1]] + b;
-            uint8_t right1[kMaxTriangles + 1], right2[kMaxTriangles + 1];
-            // Pointer-sized counters: no zero extension before each address.
-            size_t r1 = 0, r2 = 0;
-#pragma GCC unroll 4
-            for (size_t j = 0; j < count; ++j) {
-                const size_t i1 = o1[j], i2 = o2[j];
-                const size_t s1 = side[i1], s2 = side[i2];
-                o1[j - r1] = uint8_t(i1);
-                right1[r1] = uint8_t(i1);
-                o2[j - r2] = uint8_t(i2);
-                right2[r2] = uint8_t(i2);
-                r1 += s1;
-                r2 += s2;
-            }
-            std::memcpy(o1 + left_count, right1, count - left_count);
-            std::memcpy(o2 + left_count, right2, count - left_count);
-            // A child that is a leaf already (an odd count) takes its triangles from any order.
-            if (left_count <= kMaxLeafSize)
-                std::memcpy(leaf_order + b, order[axis] + b, left_count);
-            if (count - left_count <= kMaxLeafSize)
-                std::memcpy(leaf_order + m, order[axis] + m, count - left_count);
-        }
         const uint16_t left = uint16_t(s.node_count);
         s.node_count += 2;
         node.link = left;
         interior[n_interior++] = uint16_t(task.node);
-        stack[sp++] = {uint16_t(left + 1), uint16_t(m), uint16_t(e), 0};
+        if (count <= 2 * kMaxLeafSize) {
+            // Both children are leaves: they need no sorted orders, only their triangles.
+            std::memcpy(leaf_order + b, order[axis] + b, count);
+            make_leaf(s, leaf_order, b, left_count, s.nodes[left]);
+            make_leaf(s, leaf_order, m, count - left_count, s.nodes[left + 1]);
+            continue;
+        }
+        // Every triangle of a left child (odd node numbers) still has side 0 from its parent's
+        // split, and of a right child (even, not the root) side 1: nodes in between belong to
+        // the left sibling's subtree and set only their own triangles'. So only the side that
+        // changes is written.
+        const bool left_child = task.node % 2 == 1, right_child = !left_child && task.node;
+        if (!left_child) {
+#pragma GCC unroll 4
+            for (size_t j = b; j < m; ++j) side[order[axis][j]] = 0;
+        }
+        if (!right_child) {
+#pragma GCC unroll 4
+            for (size_t j = m; j < e; ++j) side[order[axis][j]] = 1;
+        }
+        // The other two axes from a table: a select on `axis` compiles to a branch that
+        // mispredicts (the axis follows the data).
+        static constexpr uint8_t kOtherAxes[3][2] = {{1, 2}, {0, 2}, {0, 1}};
+        uint8_t* const o1 = order[kOtherAxes[axis][0]] + b;
+        uint8_t* const o2 = order[kOtherAxes[axis][1]] + b;
+        // Their orders, partitioned stably in one loop (two independent chains). No branch
+        // and no select: every element is stored twice, at the next left slot (in place:
+        // j - r <= j, already read) and at the next right slot of a buffer; the store on the
+        // wrong side is overwritten by the next element of that side, or lands past the side's
+        // end (the left one is covered by the copy of the rights).
+        uint8_t right1[kMaxTriangles + 1], right2[kMaxTriangles + 1];
+        // Pointer-sized counters: no zero extension before each address.
+        size_t r1 = 0, r2 = 0;
+#pragma GCC unroll 4
+        for (size_t j = 0; j < count; ++j) {
+            const size_t i1 = o1[j], i2 = o2[j];
+            const size_t s1 = side[i1], s2 = side[i2];
+            o1[j - r1] = uint8_t(i1);
+            right1[r1] = uint8_t(i1);
+            o2[j - r2] = uint8_t(i2);
+            right2[r2] = uint8_t(i2);
+            r1 += s1;
+            r2 += s2;
+        }
+        std::memcpy(o1 + left_count, right1, count - left_count);
+        std::memcpy(o2 + left_count, right2, count - left_count);
+        // More than 8 triangles leave at least 8 on the left (a node), and on the right 1-4
+        // (a leaf, its triangles from any order) or more (a node).
+        if (count - left_count <= kMaxLeafSize) {
+            std::memcpy(leaf_order + m, order[axis] + m, count - left_count);
+            make_leaf(s, leaf_order, m, count - left_count, s.nodes[left + 1]);
+        } else {
+            stack[sp++] = {uint16_t(left + 1), uint16_t(m), uint16_t(e), 0};
+        }
         stack[sp++] = {left, uint16_t(b), uint16_t(m), 0};
     }
 
