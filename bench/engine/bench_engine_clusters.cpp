@@ -9,11 +9,14 @@
 // cpu0 shares its core with an SMT sibling.
 //
 // usage: bench_engine_clusters [--quick] [--tris N] [--max-threads N] [--mesh PATH]
-//                              [--throughput-only] [--engine-only] [--repeat N] [--scene TEXT]
+//                              [--throughput-only] [--builds-only] [--engine-only] [--repeat N]
+//                              [--scene TEXT]
 //   --tris N: about N triangles per scene (default 10^6); --quick: 10^5 (a smoke run).
 //   --max-threads N: the sweep's last count (default: the machine's hardware threads).
 //   --mesh PATH: the WusonOBJ model to tile (default: Debian's assimp-testmodels copy).
 //   --throughput-only: skip the truncation tables.
+//   --builds-only: --throughput-only without the BVH quality and trace lines after each table
+//     (both builders' instructions under callgrind in minutes, not hours).
 //   --engine-only: only the engine's 1-thread build, repeated, no tracing (a clean profile
 //     under perf).
 //   --scene TEXT: only the scenes whose label contains TEXT ("WusonOBJ", "icosphere", "soup"),
@@ -570,7 +573,7 @@ void phase_table(const std::vector<SweepTimes>& sweep, const BuildTraffic& traff
 // Engine and Embree LOW at every thread count of the sweep. Scaling efficiency = (1-thread
 // wall / N-thread wall) / N, each builder against its own 1-thread run; on CPU time rows it
 // is not shown (CPU time counts every thread's work, so it is flat under perfect scaling).
-void throughput_table(const Scene& sc, int max_threads) {
+void throughput_table(const Scene& sc, int max_threads, bool with_quality) {
     const ts::ClusterSceneInputs in = ts::write_cluster_inputs(sc.mesh, sc.clusters, {1, 0, 0, 0});
     const double mtris = double(sc.mesh.triangles.size()) / 1e6;
     std::printf(
@@ -615,7 +618,7 @@ void throughput_table(const Scene& sc, int max_threads) {
             std::printf(" %20s %8s\n", "-", "-");
     }
     phase_table(sweep, build_traffic(in, objects), sc.clusters.size());
-    quality_line(sc, objects);
+    if (with_quality) quality_line(sc, objects);
 }
 
 // The bench's meshes at about `tris` triangles each: the WusonOBJ model tiled (when `wuson`
@@ -664,16 +667,17 @@ std::string core_sharing() {
 }
 
 void usage(const char* argv0) {
-    std::fprintf(stderr,
-                 "usage: %s [--quick] [--tris N] [--max-threads N] [--mesh PATH] "
-                 "[--throughput-only] [--engine-only] [--repeat N] [--scene TEXT]\n",
-                 argv0);
+    std::fprintf(
+        stderr,
+        "usage: %s [--quick] [--tris N] [--max-threads N] [--mesh PATH] "
+        "[--throughput-only] [--builds-only] [--engine-only] [--repeat N] [--scene TEXT]\n",
+        argv0);
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
-    bool throughput_only = false, engine_only = false;
+    bool throughput_only = false, engine_only = false, with_quality = true;
     size_t tris = 1000000;
     int max_threads = std::max(1, int(tbb::info::default_concurrency()));
     std::filesystem::path wuson = ts::assimp_models_dir() / "OBJ/WusonOBJ.obj";
@@ -691,6 +695,8 @@ int main(int argc, char** argv) {
             wuson = argv[++i];
         else if (a == "--throughput-only")
             throughput_only = true;
+        else if (a == "--builds-only")
+            throughput_only = true, with_quality = false;
         else if (a == "--engine-only")
             engine_only = true;
         else if (a == "--repeat" && has_value)
@@ -747,7 +753,7 @@ int main(int argc, char** argv) {
         const auto rnd = ts::random_rays(b, tris < 500000 ? 1 << 15 : 1 << 17, 4);
         rays.insert(rays.end(), rnd.begin(), rnd.end());
         if (!throughput_only) truncation_table(s, rays);
-        throughput_table(s, max_threads);
+        throughput_table(s, max_threads, with_quality);
     }
     return 0;
 }

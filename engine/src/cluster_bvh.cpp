@@ -7,15 +7,16 @@
 // inside the cluster's centroid bounds, a two-pass 5-bit radix sort, ties in triangle
 // order), and every split keeps the three orders: the split axis's order is already split,
 // the other two are partitioned stably in one pass each. A node's centroid extent is then
-// its first and last triangle in each order, the median is a position, and the boxes are
-// gathered bottom-up once (each node from its children), so no level rereads its triangles
-// to select, and none compares floats in a data-dependent branch. The per-element loops carry
+// its first and last triangle in each order, the median is a position, a leaf's box is taken
+// when it is made and the interior boxes bottom-up once (each node from its children), so no
+// level rereads its triangles to select, and none compares floats in a data-dependent branch;
+// leaves and interior nodes are boxed apart, with no branch on the node's kind (one that
+// mispredicted about every third node). The per-element loops carry
 // `#pragma GCC unroll 4`: GCC at -O2 unrolls none of them, and their bodies are a few
 // instructions beside the loop's own compare and branch.
 #include "cluster_internal.h"
 #include "simd4.h"
 
-#include <cmath>
 #include <cstring>
 
 namespace clastrace::engine::detail {
@@ -82,49 +83,38 @@ void radix_sort3(const uint16_t (*key)[kMaxTriangles], uint32_t n, uint16_t (*hi
     }
 }
 
-// Triangle centroids (half-sums: no overflow near FLT_MAX; -inf..+inf gives NaN, taken as
-// 0) and their bounds.
-void compute_centroids(const BvhScratch& s, uint32_t n, float (*centroid)[4], Float4& clo,
-                       Float4& chi) {
-    const Float4 half = splat(0.5f);
-    clo = splat(INFINITY);
-    chi = splat(-INFINITY);
-    for (uint32_t i = 0; i < n; ++i) {
-        Float4 c = load4(s.tri_min[i]) * half + load4(s.tri_max[i]) * half;
-        if (nan_lanes(c)) {
-            store4(centroid[i], c);
-            for (int k = 0; k < 4; ++k)
-                if (centroid[i][k] != centroid[i][k]) centroid[i][k] = 0.0f;
-            c = load4(centroid[i]);
-        }
-        store4(centroid[i], c);
-        clo = min4(clo, c);
-        chi = max4(chi, c);
-    }
+// A leaf's box over its 1..4 triangles: four loads, the last triangle repeated (min and max
+// fold it to the same box, ties included), so no branch on the count.
+void fit_leaf(BvhScratch& s, const uint8_t* tris, size_t count, BvhScratch::Node& node) {
+    const size_t last = count - 1;
+    const size_t t1 = tris[last < 1 ? last : 1], t2 = tris[last < 2 ? last : 2], t3 = tris[last];
+    Float4 lo = load4(s.tri_min[tris[0]]), hi = load4(s.tri_max[tris[0]]);
+    lo = min4(lo, load4(s.tri_min[t1]));
+    hi = max4(hi, load4(s.tri_max[t1]));
+    lo = min4(lo, load4(s.tri_min[t2]));
+    hi = max4(hi, load4(s.tri_max[t2]));
+    lo = min4(lo, load4(s.tri_min[t3]));
+    hi = max4(hi, load4(s.tri_max[t3]));
+    store4(node.lo, lo);
+    store4(node.hi, hi);
 }
 
-// Node boxes bottom-up: children always follow their parent.
-void fit_node_boxes(BvhScratch& s, const uint8_t* leaf_order) {
-    for (uint32_t ni = s.node_count; ni-- > 0;) {
-        BvhScratch::Node& node = s.nodes[ni];
-        Float4 lo, hi;
-        if (node.count) {
-            const uint8_t* tris = leaf_order + node.first;
-            lo = load4(s.tri_min[tris[0]]);
-            hi = load4(s.tri_max[tris[0]]);
-#pragma GCC unroll 3
-            for (uint32_t j = 1; j < node.count; ++j) {
-                lo = min4(lo, load4(s.tri_min[tris[j]]));
-                hi = max4(hi, load4(s.tri_max[tris[j]]));
-            }
-        } else {
-            const BvhScratch::Node& l = s.nodes[node.first];
-            const BvhScratch::Node& r = s.nodes[node.first + 1];
-            lo = min4(load4(l.lo), load4(r.lo));
-            hi = max4(load4(l.hi), load4(r.hi));
-        }
-        store4(node.lo, lo);
-        store4(node.hi, hi);
+// The leaf of `count` triangles at leaf_order[first..]: its box and link.
+void make_leaf(BvhScratch& s, const uint8_t* leaf_order, uint32_t first, uint32_t count,
+               BvhScratch::Node& node) {
+    fit_leaf(s, leaf_order + first, count, node);
+    node.link = uint16_t(kLeafBit | ((count - 1u) << 8) | first);
+}
+
+// Interior boxes bottom-up, `interior` in the order the nodes were split: a node's children
+// were split after it, so the reverse order meets every child first.
+void fit_interior_boxes(BvhScratch& s, const uint16_t* interior, size_t count) {
+    for (size_t k = count; k-- > 0;) {
+        BvhScratch::Node& node = s.nodes[interior[k]];
+        const BvhScratch::Node& l = s.nodes[node.link];
+        const BvhScratch::Node& r = s.nodes[node.link + 1];
+        store4(node.lo, min4(load4(l.lo), load4(r.lo)));
+        store4(node.hi, max4(load4(l.hi), load4(r.hi)));
     }
 }
 
@@ -134,9 +124,8 @@ void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
     s.node_count = 0;
     if (n == 0) return;
 
-    alignas(16) float centroid[kMaxTriangles][4];
-    Float4 clo, chi;
-    compute_centroids(s, n, centroid, clo, chi);
+    const float(*const centroid)[4] = s.centroid;
+    const Float4 clo = load4(s.centroid_min), chi = load4(s.centroid_max);
     const Float4 half = splat(0.5f);
 
     // 10-bit keys per axis, monotone in the centroid (so sorting them sorts the centroids up
@@ -173,19 +162,22 @@ void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
     uint8_t side[kMaxTriangles];
     uint8_t leaf_order[kMaxTriangles];  // each leaf's triangles at its range
     Task stack[kMaxNodes];
+    uint16_t interior[kMaxNodes];  // in the order they were split
+    size_t n_interior = 0;
     int sp = 0;
     s.node_count = 1;
-    stack[sp++] = {0, 0, uint16_t(n), 0};
+    if (n <= kMaxLeafSize) {  // a root leaf: its triangles along x
+        std::memcpy(leaf_order, order[0], n);
+        make_leaf(s, leaf_order, 0, n, s.nodes[0]);
+    } else {
+        stack[sp++] = {0, 0, uint16_t(n), 0};
+    }
+    // Only nodes that split are tasks: their parent makes a leaf where it splits (a leaf test
+    // at each task mispredicted about every third node).
     while (sp > 0) {
         const Task task = stack[--sp];
         BvhScratch::Node& node = s.nodes[task.node];
         const uint32_t b = task.begin, e = task.end, count = e - b;
-        if (count <= kMaxLeafSize) {
-            if (task.node == 0) std::memcpy(leaf_order, order[0], count);  // a root leaf
-            node.first = uint16_t(b);
-            node.count = uint16_t(count);
-            continue;
-        }
         int axis = 0;
         float best = centroid[order[0][e - 1]][0] - centroid[order[0][b]][0];
         for (int k = 1; k < 3; ++k) {
@@ -200,61 +192,68 @@ void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
         const uint32_t leaves = (count + kMaxLeafSize - 1) / kMaxLeafSize;
         const uint32_t left_count = kMaxLeafSize * ((leaves + 1) / 2);
         const uint32_t m = b + left_count;
+        const uint16_t left = uint16_t(s.node_count);
+        s.node_count += 2;
+        node.link = left;
+        interior[n_interior++] = uint16_t(task.node);
         if (count <= 2 * kMaxLeafSize) {
             // Both children are leaves: they need no sorted orders, only their triangles.
             std::memcpy(leaf_order + b, order[axis] + b, count);
-        } else {
-            // Every triangle of a left child (odd node numbers) still has side 0 from its
-            // parent's split, and of a right child (even, not the root) side 1: nodes in
-            // between belong to the left sibling's subtree and set only their own triangles'.
-            // So only the side that changes is written.
-            const bool left_child = task.node % 2 == 1, right_child = !left_child && task.node;
-            if (!left_child) {
-#pragma GCC unroll 4
-                for (size_t j = b; j < m; ++j) side[order[axis][j]] = 0;
-            }
-            if (!right_child) {
-#pragma GCC unroll 4
-                for (size_t j = m; j < e; ++j) side[order[axis][j]] = 1;
-            }
-            // The other two orders, partitioned stably in one loop (two independent chains).
-            // No branch and no select: every element is stored twice, at the next left slot
-            // (in place: j - r <= j, already read) and at the next right slot of a buffer; the
-            // store on the wrong side is overwritten by the next element of that side, or
-            // lands past the side's end (the left one is covered by the copy of the rights).
-            uint8_t* const o1 = order[axis == 0 ? 1 : 0] + b;
-            uint8_t* const o2 = order[axis == 2 ? 1 : 2] + b;
-            uint8_t right1[kMaxTriangles + 1], right2[kMaxTriangles + 1];
-            // Pointer-sized counters: no zero extension before each address.
-            size_t r1 = 0, r2 = 0;
-#pragma GCC unroll 4
-            for (size_t j = 0; j < count; ++j) {
-                const size_t i1 = o1[j], i2 = o2[j];
-                const size_t s1 = side[i1], s2 = side[i2];
-                o1[j - r1] = uint8_t(i1);
-                right1[r1] = uint8_t(i1);
-                o2[j - r2] = uint8_t(i2);
-                right2[r2] = uint8_t(i2);
-                r1 += s1;
-                r2 += s2;
-            }
-            std::memcpy(o1 + left_count, right1, count - left_count);
-            std::memcpy(o2 + left_count, right2, count - left_count);
-            // A child that is a leaf already (an odd count) takes its triangles from any order.
-            if (left_count <= kMaxLeafSize)
-                std::memcpy(leaf_order + b, order[axis] + b, left_count);
-            if (count - left_count <= kMaxLeafSize)
-                std::memcpy(leaf_order + m, order[axis] + m, count - left_count);
+            make_leaf(s, leaf_order, b, left_count, s.nodes[left]);
+            make_leaf(s, leaf_order, m, count - left_count, s.nodes[left + 1]);
+            continue;
         }
-        const uint16_t left = uint16_t(s.node_count);
-        s.node_count += 2;
-        node.first = left;
-        node.count = 0;
-        stack[sp++] = {uint16_t(left + 1), uint16_t(m), uint16_t(e), 0};
+        // Every triangle of a left child (odd node numbers) still has side 0 from its parent's
+        // split, and of a right child (even, not the root) side 1: nodes in between belong to
+        // the left sibling's subtree and set only their own triangles'. So only the side that
+        // changes is written.
+        const bool left_child = task.node % 2 == 1, right_child = !left_child && task.node;
+        if (!left_child) {
+#pragma GCC unroll 4
+            for (size_t j = b; j < m; ++j) side[order[axis][j]] = 0;
+        }
+        if (!right_child) {
+#pragma GCC unroll 4
+            for (size_t j = m; j < e; ++j) side[order[axis][j]] = 1;
+        }
+        // The other two axes from a table: a select on `axis` compiles to a branch that
+        // mispredicts (the axis follows the data).
+        static constexpr uint8_t kOtherAxes[3][2] = {{1, 2}, {0, 2}, {0, 1}};
+        uint8_t* const o1 = order[kOtherAxes[axis][0]] + b;
+        uint8_t* const o2 = order[kOtherAxes[axis][1]] + b;
+        // Their orders, partitioned stably in one loop (two independent chains). No branch
+        // and no select: every element is stored twice, at the next left slot (in place:
+        // j - r <= j, already read) and at the next right slot of a buffer; the store on the
+        // wrong side is overwritten by the next element of that side, or lands past the side's
+        // end (the left one is covered by the copy of the rights).
+        uint8_t right1[kMaxTriangles + 1], right2[kMaxTriangles + 1];
+        // Pointer-sized counters: no zero extension before each address.
+        size_t r1 = 0, r2 = 0;
+#pragma GCC unroll 4
+        for (size_t j = 0; j < count; ++j) {
+            const size_t i1 = o1[j], i2 = o2[j];
+            const size_t s1 = side[i1], s2 = side[i2];
+            o1[j - r1] = uint8_t(i1);
+            right1[r1] = uint8_t(i1);
+            o2[j - r2] = uint8_t(i2);
+            right2[r2] = uint8_t(i2);
+            r1 += s1;
+            r2 += s2;
+        }
+        std::memcpy(o1 + left_count, right1, count - left_count);
+        std::memcpy(o2 + left_count, right2, count - left_count);
+        // More than 8 triangles leave at least 8 on the left (a node), and on the right 1-4
+        // (a leaf, its triangles from any order) or more (a node).
+        if (count - left_count <= kMaxLeafSize) {
+            std::memcpy(leaf_order + m, order[axis] + m, count - left_count);
+            make_leaf(s, leaf_order, m, count - left_count, s.nodes[left + 1]);
+        } else {
+            stack[sp++] = {uint16_t(left + 1), uint16_t(m), uint16_t(e), 0};
+        }
         stack[sp++] = {left, uint16_t(b), uint16_t(m), 0};
     }
 
-    fit_node_boxes(s, leaf_order);
+    fit_interior_boxes(s, interior, n_interior);
 #pragma GCC unroll 4
     for (size_t j = 0; j < n; ++j) s.perm[j] = active_list[leaf_order[j]];
 }

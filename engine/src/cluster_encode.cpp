@@ -88,8 +88,7 @@ void write_nodes(const QuantFrame& f, bool unbounded, const BvhScratch& s, uint3
                 node.qmin[a] = 0;
                 node.qmax[a] = 255;
             }
-            node.link = sn.count ? uint16_t(kLeafBit | ((sn.count - 1u) << 8) | sn.first)
-                                 : uint16_t(sn.first);
+            node.link = sn.link;
             std::memcpy(dst + 8 * i, &node, 8);
         }
         return;
@@ -128,8 +127,7 @@ void write_nodes(const QuantFrame& f, bool unbounded, const BvhScratch& s, uint3
         // the low three bytes of a 32-bit half; the link in the top two bytes.
         const __m128i q16 = _mm_packs_epi32(qlo, qhi);
         const uint64_t q8 = uint64_t(_mm_cvtsi128_si64(_mm_packus_epi16(q16, q16)));
-        const uint64_t link =
-            sn.count ? uint16_t(kLeafBit | ((sn.count - 1u) << 8) | sn.first) : uint16_t(sn.first);
+        const uint64_t link = sn.link;
         const uint64_t node = (q8 & 0xFFFFFFu) | ((q8 >> 32) & 0xFFFFFFu) << 24 | link << 48;
         static_assert(sizeof(BvhNode) == 8 && offsetof(BvhNode, qmax) == 3 &&
                       offsetof(BvhNode, link) == 6);
@@ -145,8 +143,7 @@ void write_nodes(const QuantFrame& f, bool unbounded, const BvhScratch& s, uint3
             node.qmin[a] = quantize_lo(f, inv_step, a, sn.lo[a]);
             node.qmax[a] = quantize_hi(f, inv_step, a, sn.hi[a]);
         }
-        node.link =
-            sn.count ? uint16_t(kLeafBit | ((sn.count - 1u) << 8) | sn.first) : uint16_t(sn.first);
+        node.link = sn.link;
         std::memcpy(dst + 8 * i, &node, 8);
     }
 #endif
@@ -232,16 +229,27 @@ void write_triangle_sections(const EncodeInput& in, const ObjectHeader& h, const
     }
 }
 
+// A centroid with NaN lanes (infinities that cancel) with those lanes 0.
+Float4 nan_lanes_to_zero(Float4 c) {
+    alignas(16) float lanes[4];
+    store4(lanes, c);
+    for (float& x : lanes)
+        if (x != x) x = 0.0f;
+    return load4(lanes);
+}
+
 // One pass over the triangles (inactive ones skipped when kSkipInactive) gathers each active
-// triangle's box into s.tri_min/tri_max (what the BVH build starts from), its index into
-// `active`, and the bounds over them (the bounds over the vertices active triangles use, left
-// as given when none is active). A triangle with a NaN coordinate is not active. Returns the
-// active count.
+// triangle's box and centroid into the BVH scratch (what its build starts from), with the
+// centroids' bounds, its index into `active`, and the bounds over them (the bounds over the
+// vertices active triangles use, left as given when none is active). A triangle with a NaN
+// coordinate is not active. Returns the active count.
 template <bool kSkipInactive>
 uint32_t gather_active_boxes(const EncodeInput& in, BvhScratch& s, uint8_t* active, bool& any_nan,
                              float bmin[3], float bmax[3]) {
     uint32_t n_active = 0;
     Float4 lo_all = splat(INFINITY), hi_all = splat(-INFINITY);
+    Float4 centroid_lo = lo_all, centroid_hi = hi_all;
+    const Float4 half = splat(0.5f);
     for (uint32_t t = 0; t < in.triangle_count; ++t) {
         if (kSkipInactive && in.inactive[t]) continue;
         const uint32_t* tri = in.indices + 3 * t;
@@ -259,8 +267,15 @@ uint32_t gather_active_boxes(const EncodeInput& in, BvhScratch& s, uint8_t* acti
         store4(s.tri_max[n_active], hi);
         lo_all = min4(lo_all, lo);
         hi_all = max4(hi_all, hi);
+        Float4 centroid = lo * half + hi * half;
+        if (nan_lanes(centroid)) centroid = nan_lanes_to_zero(centroid);
+        store4(s.centroid[n_active], centroid);
+        centroid_lo = min4(centroid_lo, centroid);
+        centroid_hi = max4(centroid_hi, centroid);
         active[n_active++] = uint8_t(t);
     }
+    store4(s.centroid_min, centroid_lo);
+    store4(s.centroid_max, centroid_hi);
     if (n_active > 0) {
         alignas(16) float lo4[4], hi4[4];
         store4(lo4, lo_all);

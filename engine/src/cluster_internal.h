@@ -40,23 +40,27 @@ struct EncodeInput {
 
 // Scratch for the BVH build, sized once for the largest cluster.
 struct BvhScratch {
-    // Boxes of the active triangles by their position in the active list (the caller fills
-    // them): xyz + padding, 16-byte aligned for 4-wide min/max.
+    // Boxes and centroids of the active triangles by their position in the active list (the
+    // caller fills them, and the centroids' bounds): xyz + padding, 16-byte aligned for 4-wide
+    // min/max. A centroid is the half-sum of its box's corners (no overflow near FLT_MAX), a
+    // NaN lane (infinities that cancel) taken as 0.
     alignas(16) float tri_min[kMaxTriangles][4];
     alignas(16) float tri_max[kMaxTriangles][4];
+    alignas(16) float centroid[kMaxTriangles][4];
+    alignas(16) float centroid_min[4];
+    alignas(16) float centroid_max[4];
     uint8_t perm[kMaxTriangles];
     struct Node {
         alignas(16) float lo[4];
         alignas(16) float hi[4];  // lane 3 unused
-        uint16_t first,
-            count;  // leaf: first triangle in perm order, count >= 1; interior: count 0, first = left child
+        uint16_t link;  // the stored BvhNode::link: a leaf's triangles or an interior's left child
     } nodes[kMaxNodes];
     uint32_t node_count = 0;
 };
 
 // Builds a BVH over the n active triangles (their indices in `active_list`, increasing;
-// their boxes in scratch.tri_min/tri_max[0..n)); fills scratch.perm[0..n) with the BVH
-// order (triangle indices) and scratch.nodes.
+// their boxes, centroids and centroid bounds in the scratch); fills scratch.perm[0..n) with
+// the BVH order (triangle indices) and scratch.nodes.
 void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s);
 
 // Encodes the object into `out` (assigned, zero padded). Returns its size.
