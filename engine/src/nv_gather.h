@@ -4,6 +4,7 @@
 // instance records, with their checks and access ranges.
 #pragma once
 
+#include "clastrace/common/uninitialized_allocator.h"
 #include "clastrace/engine/nv_build.h"
 #include "geometry/box.h"
 
@@ -71,25 +72,7 @@ struct Context {
     void close();
 };
 
-// std::allocator whose value-less construct leaves a trivial element uninitialized, so that
-// resize() of an array the gather overwrites whole does not clear it first (a second pass of
-// stores over megabytes).
-template <class T>
-struct UninitializedAllocator : std::allocator<T> {
-    template <class U>
-    struct rebind {
-        using other = UninitializedAllocator<U>;
-    };
-    using std::allocator<T>::allocator;
-    template <class U>
-    void construct(U* p) noexcept {
-        ::new (static_cast<void*>(p)) U;
-    }
-    template <class U, class... Args>
-    void construct(U* p, Args&&... args) {
-        ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
-    }
-};
+using common::UninitializedAllocator;  // the gather overwrites its arrays whole
 
 struct BottomInput {
     bool aabbs = false;

@@ -13,34 +13,16 @@
 
 #include <zstd.h>
 
+#include "clastrace/common/uninitialized_allocator.h"
+
 namespace clastrace::traces::reader {
 
 // The reader holds at most one buffer above this (the chunk being read or the one
 // read_contents needs), so its memory stays near one chunk of kMaxChunkRawBytes.
 constexpr uint32_t kBigBufferBytes = 32u << 20;
 
-// Bytes that are written before they are read (decompressed chunks, compressed payloads):
-// growing them leaves the new bytes undefined instead of zeroing them, a pass over every
-// chunk's bytes that decompression then overwrites.
-template <class T>
-struct UninitializedAllocator : std::allocator<T> {
-    template <class U>
-    struct rebind {
-        using other = UninitializedAllocator<U>;
-    };
-    UninitializedAllocator() = default;
-    template <class U>
-    UninitializedAllocator(const UninitializedAllocator<U>&) noexcept {}
-    template <class U>
-    void construct(U* p) noexcept(std::is_nothrow_default_constructible_v<U>) {
-        ::new (static_cast<void*>(p)) U;
-    }
-    template <class U, class... Args>
-    void construct(U* p, Args&&... args) {
-        ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
-    }
-};
-using ChunkBytes = std::vector<uint8_t, UninitializedAllocator<uint8_t>>;
+// Decompressed chunks and compressed payloads: written before they are read, never zeroed.
+using ChunkBytes = common::UninitializedBytes;
 
 // Frees a buffer whose capacity a big chunk left behind, so it does not linger.
 inline void release_if_big(ChunkBytes& buffer, size_t needed = 0) {
