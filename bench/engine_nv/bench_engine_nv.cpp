@@ -122,6 +122,17 @@ struct EngineMode {
 };
 
 // One mesh's build table row; `with_rays` false (--build-only) leaves the ray columns out.
+// Embree's closest hit for the engine's ray: whether it hit anything.
+bool embree_hits_ray(RTCScene scene, RTCIntersectContext& ctx, const ts::TestRay& t) {
+    RTCRayHit rh{};
+    rh.ray = RTCRay{
+        t.origin[0], t.origin[1], t.origin[2], 0, t.direction[0], t.direction[1], t.direction[2], 0,
+        t.tmax,      ~0u,         0,           0};
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(scene, &ctx, &rh);
+    return rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+}
+
 void row(const char* name, ts::TriangleMesh mesh, bool with_rays, int runs) {
     // Embree's shared vertex buffers are read 16 bytes at a time: keep one spare vertex of capacity.
     mesh.positions.reserve(mesh.positions.size() + 2);
@@ -157,22 +168,7 @@ void row(const char* name, ts::TriangleMesh mesh, bool with_rays, int runs) {
     rtcInitIntersectContext(&ctx);
     const auto t0 = Clock::now();
     for (const auto& t : rays) {
-        RTCRayHit rh{};
-        rh.ray = RTCRay{t.origin[0],
-                        t.origin[1],
-                        t.origin[2],
-                        0,
-                        t.direction[0],
-                        t.direction[1],
-                        t.direction[2],
-                        0,
-                        t.tmax,
-                        ~0u,
-                        0,
-                        0};
-        rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-        rtcIntersect1(scene, &ctx, &rh);
-        hits_embree += rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+        hits_embree += embree_hits_ray(scene, ctx, t);
     }
     const double embree_rays = since(t0);
     rtcReleaseScene(scene);
@@ -234,22 +230,7 @@ void traversal_row(const char* name, ts::TriangleMesh mesh, size_t ray_count, in
     const auto embree = best_of(passes, [&] {
         embree_hits = 0;
         for (const auto& t : rays) {
-            RTCRayHit rh{};
-            rh.ray = RTCRay{t.origin[0],
-                            t.origin[1],
-                            t.origin[2],
-                            0,
-                            t.direction[0],
-                            t.direction[1],
-                            t.direction[2],
-                            0,
-                            t.tmax,
-                            ~0u,
-                            0,
-                            0};
-            rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-            rtcIntersect1(scene, &ctx, &rh);
-            embree_hits += rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+            embree_hits += embree_hits_ray(scene, ctx, t);
         }
     });
     rtcReleaseScene(scene);
