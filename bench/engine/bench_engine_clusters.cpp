@@ -25,6 +25,7 @@
 #include "clastrace/engine/cluster_build.h"
 #include "clastrace/engine/cluster_format.h"
 #include "clastrace/testsupport/cluster_scene.h"
+#include "scaling_probes.h"
 
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
@@ -35,7 +36,9 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <cstdlib>
 #include <filesystem>
+#include <new>
 #include <optional>
 #include <string>
 #include <thread>
@@ -43,6 +46,27 @@
 
 namespace ts = clastrace::testsupport;
 namespace eng = clastrace::engine;
+namespace cb = clastrace::bench;
+
+// Heap allocations made by this thread (operator new, replaced below): the phases table counts
+// those inside the engine's timed chunks. A per-thread count, so counting shares no line.
+thread_local uint64_t t_allocations = 0;
+
+void* operator new(std::size_t size) {
+    ++t_allocations;
+    if (void* p = std::malloc(size ? size : 1)) return p;
+    throw std::bad_alloc();
+}
+void* operator new(std::size_t size, std::align_val_t align) {
+    ++t_allocations;
+    const std::size_t a = std::max(std::size_t(align), sizeof(void*));
+    if (void* p = std::aligned_alloc(a, (std::max<std::size_t>(size, 1) + a - 1) / a * a)) return p;
+    throw std::bad_alloc();
+}
+void operator delete(void* p) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+void operator delete(void* p, std::align_val_t) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t, std::align_val_t) noexcept { std::free(p); }
 
 namespace {
 
@@ -54,9 +78,9 @@ double seconds_since(Clock::time_point t0) {
 // Process CPU seconds: on a shared, loaded machine wall time measures the neighbours too;
 // CPU time measures the work (it also counts worker threads spinning, so it is pessimistic
 // for multi-threaded runs).
-double cpu_seconds() {
+double cpu_seconds(clockid_t clock = CLOCK_PROCESS_CPUTIME_ID) {
     timespec ts{};
-    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+    clock_gettime(clock, &ts);
     return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
 }
 
@@ -107,12 +131,16 @@ ts::TriangleMesh tiled(const ts::TriangleMesh& m, int n) {
 // shared unevenly.
 struct PhaseStats {
     double busy_sum = 0, busy_max = 0, latest_start = 0;
+    double busy_cpu_sum = 0;  // the threads' own CPU time in the chunks: busy less preemption
     int threads_used = 0;
+    uint64_t allocations = 0;   // inside the chunks, all threads
+    uint64_t minor_faults = 0;  // the whole process during the run
 };
 
 // One thread's share of a run.
 struct ThreadPhase {
-    double busy = 0, first_start = -1;
+    double busy = 0, first_start = -1, busy_cpu = 0;
+    uint64_t allocations = 0;
 };
 
 // Engine build of every cluster on `threads` threads (TBB arena). run() times one build of all
@@ -143,6 +171,7 @@ struct EngineBuild {
     }
     Timing run() {
         for (ThreadPhase& p : phases) p = ThreadPhase{};
+        const uint64_t faults0 = cb::minor_faults();
         const Stopwatch sw;
         arena.execute([&] {
             tbb::parallel_for(tbb::blocked_range<size_t>(0, in.infos.size(), 32),
@@ -152,16 +181,23 @@ struct EngineBuild {
                                   if (p.first_start < 0)
                                       p.first_start =
                                           std::chrono::duration<double>(c0 - sw.wall0).count();
+                                  const uint64_t a0 = t_allocations;
+                                  const double cpu0 = cpu_seconds(CLOCK_THREAD_CPUTIME_ID);
                                   build_chunk(r);
+                                  p.busy_cpu += cpu_seconds(CLOCK_THREAD_CPUTIME_ID) - cpu0;
+                                  p.allocations += t_allocations - a0;
                                   p.busy += seconds_since(c0);
                               });
         });
         const Timing t = sw.elapsed();
         last = PhaseStats{};
+        last.minor_faults = cb::minor_faults() - faults0;
         for (const ThreadPhase& p : phases) {
             if (p.first_start < 0) continue;
             ++last.threads_used;
+            last.allocations += p.allocations;
             last.busy_sum += p.busy;
+            last.busy_cpu_sum += p.busy_cpu;
             last.busy_max = std::max(last.busy_max, p.busy);
             last.latest_start = std::max(last.latest_start, p.first_start);
         }
@@ -486,6 +522,7 @@ struct SweepTimes {
     int threads;
     Timing engine, whole, per_cluster;
     PhaseStats engine_phases;  // of the engine's best wall
+    cb::CoreRates rates;       // the ALU loops at this count, best of the repeats
 };
 
 // The other builder's TBB workers spin for a while after its run, and process CPU time would
@@ -494,7 +531,8 @@ void settle() { std::this_thread::sleep_for(std::chrono::milliseconds(30)); }
 
 SweepTimes time_thread_count(const Scene& sc, const ts::ClusterSceneInputs& in,
                              const std::vector<ts::Float3>& padded, const ClusterArrays& arrays,
-                             int threads, std::vector<std::vector<std::byte>>& objects) {
+                             int threads, std::vector<std::vector<std::byte>>& objects,
+                             cb::TrafficProbe& probe) {
     EngineBuild engine(in, threads, objects);
     // Embree's thread count is its TBB scheduler's, set once per process by the first device's
     // "threads=" (later devices' are ignored): so no device sets it, and Embree commits inside
@@ -508,7 +546,7 @@ SweepTimes time_thread_count(const Scene& sc, const ts::ClusterSceneInputs& in,
         return t;
     };
     embree_run([&] { return embree_scene_seconds(sc.mesh, padded, device); });  // warm up
-    SweepTimes t{threads, {}, {}, {}, {}};
+    SweepTimes t{threads, {}, {}, {}, {}, {}};
     for (int rep = 0; rep < g_repeat; ++rep) {
         settle();
         const Timing e = engine.run();
@@ -519,6 +557,8 @@ SweepTimes time_thread_count(const Scene& sc, const ts::ClusterSceneInputs& in,
         if (threads == 1)
             t.per_cluster.keep_best(
                 embree_run([&] { return embree_per_cluster_seconds(arrays, device); }));
+        settle();
+        t.rates.keep_best(cb::core_rates(threads, probe));
     }
     rtcReleaseDevice(device);
     return t;
@@ -547,7 +587,8 @@ BuildTraffic build_traffic(const ts::ClusterSceneInputs& in,
 // took chunks; the latest first chunk (waking the workers); busy per thread, mean and max
 // (uneven chunks); wall time outside the busiest thread's chunks; "cost/cluster", all
 // threads' busy time over the 1-thread run's (above 1: every cluster costs more CPU when all
-// cores build, e.g. memory bandwidth, clock or two threads sharing a core); and the memory
+// cores build, e.g. memory bandwidth, clock or two threads sharing a core), and the same of the
+// threads' own CPU time (what is left when other processes preempt the threads); and the memory
 // traffic of inputs and objects per second of wall time.
 void phase_table(const std::vector<SweepTimes>& sweep, const BuildTraffic& traffic,
                  size_t clusters) {
@@ -555,18 +596,50 @@ void phase_table(const std::vector<SweepTimes>& sweep, const BuildTraffic& traff
         "engine phases (best wall per count; ms): used = threads that took chunks, start = "
         "latest first chunk,\n  busy = time in the chunks per thread (mean, max), outside = wall - "
         "busy max (scheduling, preemption,\n  the join), cost/cluster = busy of all threads / "
-        "1-thread busy, GB/s = input and object bytes\n  (%.0f + %.0f B per cluster) / wall\n",
+        "1-thread busy (wall; cpu: the threads' CPU time),\n  GB/s = input and object bytes "
+        "(%.0f + %.0f B per cluster) / wall\n",
         traffic.input_bytes / double(clusters), traffic.output_bytes / double(clusters));
-    std::printf("%8s %6s %9s %8s %10s %9s %8s %13s %7s\n", "threads", "used", "wall", "start",
-                "busy mean", "busy max", "outside", "cost/cluster", "GB/s");
-    const double one_busy = sweep.empty() ? 0 : sweep.front().engine_phases.busy_sum;
+    std::printf("%8s %6s %9s %8s %10s %9s %8s %13s %7s %7s\n", "threads", "used", "wall", "start",
+                "busy mean", "busy max", "outside", "cost/cluster", "cpu", "GB/s");
+    if (sweep.empty()) return;
+    const PhaseStats& one = sweep.front().engine_phases;
     for (const SweepTimes& t : sweep) {
         const PhaseStats& p = t.engine_phases;
-        std::printf("%8d %6d %9.3f %8.3f %10.3f %9.3f %8.3f %12.2fx %7.2f\n", t.threads,
+        std::printf("%8d %6d %9.3f %8.3f %10.3f %9.3f %8.3f %12.2fx %6.2fx %7.2f\n", t.threads,
                     p.threads_used, t.engine.wall * 1e3, p.latest_start * 1e3,
                     p.threads_used ? p.busy_sum / p.threads_used * 1e3 : 0.0, p.busy_max * 1e3,
-                    (t.engine.wall - p.busy_max) * 1e3, one_busy > 0 ? p.busy_sum / one_busy : 0.0,
+                    (t.engine.wall - p.busy_max) * 1e3, p.busy_sum / one.busy_sum,
+                    p.busy_cpu_sum / one.busy_cpu_sum,
                     (traffic.input_bytes + traffic.output_bytes) / t.engine.wall / 1e9);
+    }
+}
+
+// What the machine takes from every thread when all build, measured beside the build with no
+// build work: the clock (the dependent ALU chain's per-thread rate against one thread's), core
+// sharing (the eight chains'), the memory system (the traffic probe's); the engine's cost per
+// cluster in clock cycles (cost/cluster x clock: above 1, a cluster itself costs more cycles,
+// e.g. shared caches or memory); and the run's minor page faults and heap allocations.
+void machine_table(const std::vector<SweepTimes>& sweep, size_t clusters) {
+    std::printf(
+        "machine (per-thread rate on all threads at once vs 1 thread, best of the repeats): clock "
+        "= a dependent\n  multiply chain, ports = 8 independent chains, memory = the traffic probe "
+        "(each cluster's input bytes\n  read and object bytes written, no work); cost@clock = "
+        "cost/cluster x clock (cycles per cluster vs\n  1 thread); faults, allocs = minor page "
+        "faults (process) and heap allocations (in the chunks) per\n  1000 clusters of the "
+        "best-wall run\n");
+    std::printf("%8s %6s %6s %6s %10s %7s %7s\n", "threads", "clock", "ports", "memory",
+                "cost@clock", "faults", "allocs");
+    if (sweep.empty()) return;
+    const double one_busy = sweep.front().engine_phases.busy_sum;
+    const cb::CoreRates& one = sweep.front().rates;
+    const double per_k = 1000.0 / double(clusters);
+    for (const SweepTimes& t : sweep) {
+        const PhaseStats& p = t.engine_phases;
+        const double clock = one.chain / t.rates.chain;
+        std::printf("%8d %6.2f %6.2f %6.2f %9.2fx %7.2f %7.2f\n", t.threads, clock,
+                    one.ports / t.rates.ports, one.memory / t.rates.memory,
+                    p.busy_sum / one_busy * clock, double(p.minor_faults) * per_k,
+                    double(p.allocations) * per_k);
     }
 }
 
@@ -586,7 +659,14 @@ void throughput_table(const Scene& sc, int max_threads, bool with_quality) {
         "  the same thread count; eff = scaling efficiency (speedup over its own 1-thread wall "
         "/ threads);\n"
         "  clock wall = elapsed time, cpu = process CPU time, the load-independent measure of "
-        "work on a shared machine)\n",
+        "work on a shared machine;\n"
+        "  calib = per-thread rate of fixed loops on all threads at once vs 1 thread: under eng "
+        "eff a dependent\n"
+        "  multiply chain (the clock; at 1 thread the clock it implies at 4 cycles per step), "
+        "under emb eff 8\n"
+        "  independent chains (the clock and core sharing), then the traffic probe (memory); "
+        "eng eff / clock =\n"
+        "  the engine's efficiency with the clock's share taken out)\n",
         sc.label.c_str(), sc.mesh.triangles.size(), sc.clusters.size(), g_repeat);
     std::printf("%8s %6s %10s %10s %8s %7s %7s %20s %8s\n", "threads", "clock", "engine",
                 "embree LOW", "ratio", "eng eff", "emb eff", "embree per-cluster", "ratio");
@@ -594,10 +674,15 @@ void throughput_table(const Scene& sc, int max_threads, bool with_quality) {
     padded.push_back({0, 0, 0});
     const ClusterArrays arrays = cluster_arrays(sc);
     std::vector<std::vector<std::byte>> objects;
+    EngineBuild(in, 1, objects);  // the objects' sizes, for the traffic probe
+    const BuildTraffic traffic = build_traffic(in, objects);
+    const size_t clusters = sc.clusters.size();
+    cb::TrafficProbe probe(clusters, size_t(traffic.input_bytes / double(clusters)),
+                           size_t(traffic.output_bytes / double(clusters)));
     SweepTimes one{};
     std::vector<SweepTimes> sweep;
     for (int threads : thread_sweep(max_threads)) {
-        const SweepTimes t = time_thread_count(sc, in, padded, arrays, threads, objects);
+        const SweepTimes t = time_thread_count(sc, in, padded, arrays, threads, objects, probe);
         sweep.push_back(t);
         if (threads == 1) one = t;
         const Timing& e = t.engine;
@@ -616,8 +701,17 @@ void throughput_table(const Scene& sc, int max_threads, bool with_quality) {
             std::printf(" %20.2f %7.2fx\n", mtris / t.per_cluster.cpu, t.per_cluster.cpu / e.cpu);
         else
             std::printf(" %20s %8s\n", "-", "-");
+        const double clock = one.rates.chain / t.rates.chain;
+        std::printf("%8d %6s %10s %10s %8s %7.2f %7.2f  memory %.2f; ", threads, "calib", "-", "-",
+                    "-", clock, one.rates.ports / t.rates.ports, one.rates.memory / t.rates.memory);
+        if (threads == 1)
+            std::printf("clock %.2f GHz\n", double(cb::kChainIterations) *
+                                                cb::kChainCyclesPerIteration / t.rates.chain / 1e9);
+        else
+            std::printf("eng eff / clock %.2f\n", one.engine.wall / e.wall / threads / clock);
     }
-    phase_table(sweep, build_traffic(in, objects), sc.clusters.size());
+    phase_table(sweep, traffic, clusters);
+    machine_table(sweep, clusters);
     if (with_quality) quality_line(sc, objects);
 }
 
