@@ -10,7 +10,7 @@
 //
 // usage: bench_engine_clusters [--quick] [--tris N] [--max-threads N] [--mesh PATH]
 //                              [--throughput-only] [--builds-only] [--engine-only] [--repeat N]
-//                              [--scene TEXT]
+//                              [--scene TEXT] [--thread-cpu] [--cold]
 //   --tris N: about N triangles per scene (default 10^6); --quick: 10^5 (a smoke run).
 //   --max-threads N: the sweep's last count (default: the machine's hardware threads).
 //   --mesh PATH: the WusonOBJ model to tile (default: Debian's assimp-testmodels copy).
@@ -21,6 +21,10 @@
 //     under perf).
 //   --scene TEXT: only the scenes whose label contains TEXT ("WusonOBJ", "icosphere", "soup"),
 //     e.g. to count one mesh's instructions per cluster under callgrind.
+//   --thread-cpu: also time each chunk's thread CPU (the phases table's cpu column: cost per
+//     cluster without preemption by other processes; a system call per chunk end).
+//   --cold: before every timed build, evict its inputs and outputs from all caches (x86
+//     CLFLUSH): both builders then read and write a scene in memory at every thread count.
 #include "clastrace/engine/blas.h"
 #include "clastrace/engine/cluster_build.h"
 #include "clastrace/engine/cluster_format.h"
@@ -43,6 +47,7 @@
 #include <string>
 #include <thread>
 #include <time.h>
+#include <utility>
 
 namespace ts = clastrace::testsupport;
 namespace eng = clastrace::engine;
@@ -99,6 +104,13 @@ struct Stopwatch {
 };
 
 int g_repeat = 3;
+// Time each chunk's thread CPU too: a system call per read (0.2 us on a quiet host, 8 us on a
+// loaded container), so off unless asked for (--thread-cpu).
+bool g_thread_cpu = false;
+// Evict each builder's inputs and outputs from the caches before its timed runs (--cold): the
+// 1-thread run then no longer finds a whole scene left in the last-level cache by its previous
+// run, where N threads find each cluster's lines in another core's cache.
+bool g_cold = false;
 
 struct Scene {
     std::string label;
@@ -169,8 +181,15 @@ struct EngineBuild {
                 std::fprintf(stderr, "cluster %zu failed to build\n", i);
         }
     }
+    void evict() const {
+        for (const auto& [base, region] : in.memory.regions())
+            cb::evict_lines(std::as_const(region.bytes).data(), region.bytes.size());
+        cb::evict_lines(in.infos.data(), in.infos.size() * sizeof in.infos[0]);
+        for (const auto& o : objects) cb::evict_lines(o.data(), o.capacity());
+    }
     Timing run() {
         for (ThreadPhase& p : phases) p = ThreadPhase{};
+        if (g_cold) evict();
         const uint64_t faults0 = cb::minor_faults();
         const Stopwatch sw;
         arena.execute([&] {
@@ -182,9 +201,11 @@ struct EngineBuild {
                                       p.first_start =
                                           std::chrono::duration<double>(c0 - sw.wall0).count();
                                   const uint64_t a0 = t_allocations;
-                                  const double cpu0 = cpu_seconds(CLOCK_THREAD_CPUTIME_ID);
+                                  const double cpu0 =
+                                      g_thread_cpu ? cpu_seconds(CLOCK_THREAD_CPUTIME_ID) : 0;
                                   build_chunk(r);
-                                  p.busy_cpu += cpu_seconds(CLOCK_THREAD_CPUTIME_ID) - cpu0;
+                                  if (g_thread_cpu)
+                                      p.busy_cpu += cpu_seconds(CLOCK_THREAD_CPUTIME_ID) - cpu0;
                                   p.allocations += t_allocations - a0;
                                   p.busy += seconds_since(c0);
                               });
@@ -217,6 +238,10 @@ double engine_build_seconds(const ts::ClusterSceneInputs& in, int threads,
 // `padded` = the mesh positions plus one (Embree reads 16 bytes at the last vertex).
 Timing embree_scene_seconds(const ts::TriangleMesh& mesh, const std::vector<ts::Float3>& padded,
                             RTCDevice device) {
+    if (g_cold) {
+        cb::evict_lines(padded.data(), padded.size() * sizeof padded[0]);
+        cb::evict_lines(mesh.triangles.data(), mesh.triangles.size() * sizeof mesh.triangles[0]);
+    }
     {
         const Stopwatch sw;
         RTCScene scene = rtcNewScene(device);
@@ -258,6 +283,11 @@ Timing embree_per_cluster_seconds(const ClusterArrays& arrays, RTCDevice device)
     const auto& pos = arrays.pos;
     const auto& tri = arrays.tri;
     std::vector<RTCScene> scenes(pos.size());
+    if (g_cold)
+        for (size_t c = 0; c < pos.size(); ++c) {
+            cb::evict_lines(pos[c].data(), pos[c].size() * sizeof pos[c][0]);
+            cb::evict_lines(tri[c].data(), tri[c].size() * sizeof tri[c][0]);
+        }
     {
         const Stopwatch sw;
         for (size_t c = 0; c < scenes.size(); ++c) {
@@ -596,7 +626,8 @@ void phase_table(const std::vector<SweepTimes>& sweep, const BuildTraffic& traff
         "engine phases (best wall per count; ms): used = threads that took chunks, start = "
         "latest first chunk,\n  busy = time in the chunks per thread (mean, max), outside = wall - "
         "busy max (scheduling, preemption,\n  the join), cost/cluster = busy of all threads / "
-        "1-thread busy (wall; cpu: the threads' CPU time),\n  GB/s = input and object bytes "
+        "1-thread busy (wall; cpu: the threads' CPU time, with\n  --thread-cpu), GB/s = input and "
+        "object bytes "
         "(%.0f + %.0f B per cluster) / wall\n",
         traffic.input_bytes / double(clusters), traffic.output_bytes / double(clusters));
     std::printf("%8s %6s %9s %8s %10s %9s %8s %13s %7s %7s\n", "threads", "used", "wall", "start",
@@ -605,11 +636,13 @@ void phase_table(const std::vector<SweepTimes>& sweep, const BuildTraffic& traff
     const PhaseStats& one = sweep.front().engine_phases;
     for (const SweepTimes& t : sweep) {
         const PhaseStats& p = t.engine_phases;
-        std::printf("%8d %6d %9.3f %8.3f %10.3f %9.3f %8.3f %12.2fx %6.2fx %7.2f\n", t.threads,
+        char cpu[16] = "-";
+        if (g_thread_cpu)
+            std::snprintf(cpu, sizeof cpu, "%.2fx", p.busy_cpu_sum / one.busy_cpu_sum);
+        std::printf("%8d %6d %9.3f %8.3f %10.3f %9.3f %8.3f %12.2fx %7s %7.2f\n", t.threads,
                     p.threads_used, t.engine.wall * 1e3, p.latest_start * 1e3,
                     p.threads_used ? p.busy_sum / p.threads_used * 1e3 : 0.0, p.busy_max * 1e3,
-                    (t.engine.wall - p.busy_max) * 1e3, p.busy_sum / one.busy_sum,
-                    p.busy_cpu_sum / one.busy_cpu_sum,
+                    (t.engine.wall - p.busy_max) * 1e3, p.busy_sum / one.busy_sum, cpu,
                     (traffic.input_bytes + traffic.output_bytes) / t.engine.wall / 1e9);
     }
 }
@@ -742,30 +775,58 @@ std::vector<Scene> make_scenes(size_t tris, const std::filesystem::path& wuson,
     return scenes;
 }
 
+// The first line of a text file, without its newline; empty when it cannot be read.
+std::string first_line(const char* path) {
+    std::FILE* f = std::fopen(path, "r");
+    if (!f) return {};
+    char line[256] = {};
+    const bool read = std::fgets(line, sizeof line, f) != nullptr;
+    std::fclose(f);
+    std::string s = read ? line : "";
+    while (!s.empty() && (s.back() == '\n' || s.back() == ' ')) s.pop_back();
+    return s;
+}
+
 // How many hardware threads share cpu0's core (Linux sysfs): with two, the top of the thread
 // sweep puts two builds on each core and the scaling efficiency there measures the core's
 // sharing, not the builder.
 std::string core_sharing() {
-    std::FILE* f = std::fopen("/sys/devices/system/cpu/cpu0/topology/thread_siblings_list", "r");
-    if (!f) return "threads per core unknown";
-    char line[128] = {};
-    const bool read = std::fgets(line, sizeof line, f) != nullptr;
-    std::fclose(f);
-    if (!read) return "threads per core unknown";
+    const std::string list =
+        first_line("/sys/devices/system/cpu/cpu0/topology/thread_siblings_list");
+    if (list.empty()) return "threads per core unknown";
     // "0", "0,8" or "0-1": a comma or a range means a sibling.
-    std::string list(line);
-    while (!list.empty() && (list.back() == '\n' || list.back() == ' ')) list.pop_back();
     const bool shared = list.find_first_of(",-") != std::string::npos;
     return std::string(shared ? "cores shared by SMT siblings" : "one thread per core") +
            " (cpu0 siblings: " + list + ")";
 }
 
+// The CPU's model and cpu0's last-level cache with the CPUs that share it: a scene that fits
+// one thread's last-level cache but moves between several caches at N threads scales worse.
+std::string cpu_description() {
+    std::string model = "model unknown";
+    if (std::FILE* f = std::fopen("/proc/cpuinfo", "r")) {
+        char line[256];
+        while (std::fgets(line, sizeof line, f))
+            if (std::strncmp(line, "model name", 10) == 0) {
+                const char* colon = std::strchr(line, ':');
+                model = colon ? colon + 2 : line;
+                while (!model.empty() && model.back() == '\n') model.pop_back();
+                break;
+            }
+        std::fclose(f);
+    }
+    const std::string dir = "/sys/devices/system/cpu/cpu0/cache/index3/";
+    const std::string size = first_line((dir + "size").c_str());
+    const std::string cpus = first_line((dir + "shared_cpu_list").c_str());
+    return model + ", L3 " + (size.empty() ? "unknown" : size + " shared by cpus " + cpus);
+}
+
 void usage(const char* argv0) {
-    std::fprintf(
-        stderr,
-        "usage: %s [--quick] [--tris N] [--max-threads N] [--mesh PATH] "
-        "[--throughput-only] [--builds-only] [--engine-only] [--repeat N] [--scene TEXT]\n",
-        argv0);
+    std::fprintf(stderr,
+                 "usage: %s [--quick] [--tris N] [--max-threads N] [--mesh PATH] "
+                 "[--throughput-only] [--builds-only] [--engine-only] [--repeat N] [--scene TEXT] "
+                 "[--thread-cpu] [--cold]\n",
+                 argv0);
 }
 
 }  // namespace
@@ -795,6 +856,10 @@ int main(int argc, char** argv) {
             engine_only = true;
         else if (a == "--repeat" && has_value)
             g_repeat = std::max(1, std::atoi(argv[++i]));
+        else if (a == "--thread-cpu")
+            g_thread_cpu = true;
+        else if (a == "--cold")
+            g_cold = true;
         else if (a == "--scene" && has_value)
             only_scene = argv[++i];
         else {
@@ -803,9 +868,10 @@ int main(int argc, char** argv) {
         }
     }
     const std::vector<Scene> scenes = make_scenes(tris, wuson, only_scene);
-    std::printf("bench_engine_clusters: TBB, Embree %s, %u hardware threads, %s\n",
+    std::printf("bench_engine_clusters: TBB, Embree %s, %u hardware threads, %s\n  CPU: %s%s\n",
                 RTC_VERSION_STRING, std::max(1u, unsigned(tbb::info::default_concurrency())),
-                core_sharing().c_str());
+                core_sharing().c_str(), cpu_description().c_str(),
+                g_cold ? "; --cold: inputs and outputs evicted before every timed build" : "");
     std::printf(
         "columns: B/tri = CLAS object bytes / triangles; max|dx| = largest stored-minus-input "
         "coordinate;\n"

@@ -16,6 +16,10 @@
 
 #include <sys/resource.h>
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 namespace clastrace::bench {
 
 // Minor page faults of the whole process so far.
@@ -23,6 +27,21 @@ inline uint64_t minor_faults() {
     rusage u{};
     getrusage(RUSAGE_SELF, &u);
     return uint64_t(u.ru_minflt);
+}
+
+// Evicts [p, p + n) from every cache of the machine (x86 CLFLUSH; elsewhere nothing): a build
+// that runs next reads and writes those bytes in memory, as a build of data not touched since
+// the last frame would, instead of in the caches its previous run left them in.
+inline void evict_lines(const void* p, size_t n) {
+#if defined(__SSE2__)
+    const auto* b = static_cast<const char*>(p);
+    for (size_t i = 0; i < n; i += 64) _mm_clflush(b + i);
+    if (n) _mm_clflush(b + n - 1);
+    _mm_mfence();
+#else
+    (void)p;
+    (void)n;
+#endif
 }
 
 // One dependent chain of multiply-adds: its rate follows the core's clock and nothing else
@@ -77,7 +96,9 @@ double mean_thread_seconds(int threads, Kernel kernel) {
 
 // The build's memory traffic without its work: `pieces` pieces (clusters), each reading
 // `in_bytes` from one buffer and writing `out_bytes` to another, both buffers as large as the
-// build's inputs and objects and touched beforehand; N threads take 1/N of the pieces each.
+// build's inputs and objects and touched beforehand; N threads take 1/N of the pieces each,
+// each call another thread's share of the last call (as the build's dynamic scheduling moves a
+// cluster from thread to thread between runs, so that its lines come from another core's cache).
 class TrafficProbe {
 public:
     TrafficProbe(size_t pieces, size_t in_bytes, size_t out_bytes)
@@ -89,8 +110,10 @@ public:
     // Mean seconds of a thread's share, times `threads`: equal at every count when the memory
     // system gives each thread what one thread gets alone.
     double seconds(int threads) {
+        const uint64_t shift = calls_++;
         return threads * mean_thread_seconds(threads, [&](uint64_t t) {
-                   return stream(pieces_ * t / threads, pieces_ * (t + 1) / threads);
+                   const uint64_t share = (t + shift) % uint64_t(threads);
+                   return stream(pieces_ * share / threads, pieces_ * (share + 1) / threads);
                });
     }
 
@@ -109,6 +132,7 @@ private:
         return sum;
     }
     size_t pieces_, in_bytes_, out_bytes_;
+    uint64_t calls_ = 0;
     std::vector<unsigned char> src_, dst_;
 };
 
