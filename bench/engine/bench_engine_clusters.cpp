@@ -104,8 +104,8 @@ struct Stopwatch {
 };
 
 int g_repeat = 3;
-// Time each chunk's thread CPU too: a system call per read (0.2 us on a quiet host, 8 us on a
-// loaded container), so off unless asked for (--thread-cpu).
+// Time each chunk's thread CPU too: a system call per read (7.8 us on the loaded 2-core
+// development container, against chunks of 0.1-0.2 ms), so off unless asked for (--thread-cpu).
 bool g_thread_cpu = false;
 // Evict each builder's inputs and outputs from the caches before its timed runs (--cold): the
 // 1-thread run then no longer finds a whole scene left in the last-level cache by its previous
