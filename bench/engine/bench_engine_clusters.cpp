@@ -10,7 +10,7 @@
 //
 // usage: bench_engine_clusters [--quick] [--tris N] [--max-threads N] [--mesh PATH]
 //                              [--throughput-only] [--builds-only] [--engine-only] [--repeat N]
-//                              [--scene TEXT]
+//                              [--scene TEXT] [--thread-cpu] [--cold]
 //   --tris N: about N triangles per scene (default 10^6); --quick: 10^5 (a smoke run).
 //   --max-threads N: the sweep's last count (default: the machine's hardware threads).
 //   --mesh PATH: the WusonOBJ model to tile (default: Debian's assimp-testmodels copy).
@@ -21,10 +21,15 @@
 //     under perf).
 //   --scene TEXT: only the scenes whose label contains TEXT ("WusonOBJ", "icosphere", "soup"),
 //     e.g. to count one mesh's instructions per cluster under callgrind.
+//   --thread-cpu: also time each chunk's thread CPU (the phases table's cpu column: cost per
+//     cluster without preemption by other processes; a system call per chunk end).
+//   --cold: before every timed build, evict its inputs and outputs from all caches (x86
+//     CLFLUSH): both builders then read and write a scene in memory at every thread count.
 #include "clastrace/engine/blas.h"
 #include "clastrace/engine/cluster_build.h"
 #include "clastrace/engine/cluster_format.h"
 #include "clastrace/testsupport/cluster_scene.h"
+#include "scaling_probes.h"
 
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
@@ -35,14 +40,38 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <cstdlib>
 #include <filesystem>
+#include <new>
 #include <optional>
 #include <string>
 #include <thread>
 #include <time.h>
+#include <utility>
 
 namespace ts = clastrace::testsupport;
 namespace eng = clastrace::engine;
+namespace cb = clastrace::bench;
+
+// Heap allocations made by this thread (operator new, replaced below): the phases table counts
+// those inside the engine's timed chunks. A per-thread count, so counting shares no line.
+thread_local uint64_t t_allocations = 0;
+
+void* operator new(std::size_t size) {
+    ++t_allocations;
+    if (void* p = std::malloc(size ? size : 1)) return p;
+    throw std::bad_alloc();
+}
+void* operator new(std::size_t size, std::align_val_t align) {
+    ++t_allocations;
+    const std::size_t a = std::max(std::size_t(align), sizeof(void*));
+    if (void* p = std::aligned_alloc(a, (std::max<std::size_t>(size, 1) + a - 1) / a * a)) return p;
+    throw std::bad_alloc();
+}
+void operator delete(void* p) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+void operator delete(void* p, std::align_val_t) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t, std::align_val_t) noexcept { std::free(p); }
 
 namespace {
 
@@ -54,9 +83,9 @@ double seconds_since(Clock::time_point t0) {
 // Process CPU seconds: on a shared, loaded machine wall time measures the neighbours too;
 // CPU time measures the work (it also counts worker threads spinning, so it is pessimistic
 // for multi-threaded runs).
-double cpu_seconds() {
+double cpu_seconds(clockid_t clock = CLOCK_PROCESS_CPUTIME_ID) {
     timespec ts{};
-    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+    clock_gettime(clock, &ts);
     return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
 }
 
@@ -75,6 +104,13 @@ struct Stopwatch {
 };
 
 int g_repeat = 3;
+// Time each chunk's thread CPU too: a system call per read (7.8 us on the loaded 2-core
+// development container, against chunks of 0.1-0.2 ms), so off unless asked for (--thread-cpu).
+bool g_thread_cpu = false;
+// Evict each builder's inputs and outputs from the caches before its timed runs (--cold): the
+// 1-thread run then no longer finds a whole scene left in the last-level cache by its previous
+// run, where N threads find each cluster's lines in another core's cache.
+bool g_cold = false;
 
 struct Scene {
     std::string label;
@@ -107,12 +143,16 @@ ts::TriangleMesh tiled(const ts::TriangleMesh& m, int n) {
 // shared unevenly.
 struct PhaseStats {
     double busy_sum = 0, busy_max = 0, latest_start = 0;
+    double busy_cpu_sum = 0;  // the threads' own CPU time in the chunks: busy less preemption
     int threads_used = 0;
+    uint64_t allocations = 0;   // inside the chunks, all threads
+    uint64_t minor_faults = 0;  // the whole process during the run
 };
 
 // One thread's share of a run.
 struct ThreadPhase {
-    double busy = 0, first_start = -1;
+    double busy = 0, first_start = -1, busy_cpu = 0;
+    uint64_t allocations = 0;
 };
 
 // Engine build of every cluster on `threads` threads (TBB arena). run() times one build of all
@@ -141,8 +181,16 @@ struct EngineBuild {
                 std::fprintf(stderr, "cluster %zu failed to build\n", i);
         }
     }
+    void evict() const {
+        for (const auto& [base, region] : in.memory.regions())
+            cb::evict_lines(std::as_const(region.bytes).data(), region.bytes.size());
+        cb::evict_lines(in.infos.data(), in.infos.size() * sizeof in.infos[0]);
+        for (const auto& o : objects) cb::evict_lines(o.data(), o.capacity());
+    }
     Timing run() {
         for (ThreadPhase& p : phases) p = ThreadPhase{};
+        if (g_cold) evict();
+        const uint64_t faults0 = cb::minor_faults();
         const Stopwatch sw;
         arena.execute([&] {
             tbb::parallel_for(tbb::blocked_range<size_t>(0, in.infos.size(), 32),
@@ -152,16 +200,25 @@ struct EngineBuild {
                                   if (p.first_start < 0)
                                       p.first_start =
                                           std::chrono::duration<double>(c0 - sw.wall0).count();
+                                  const uint64_t a0 = t_allocations;
+                                  const double cpu0 =
+                                      g_thread_cpu ? cpu_seconds(CLOCK_THREAD_CPUTIME_ID) : 0;
                                   build_chunk(r);
+                                  if (g_thread_cpu)
+                                      p.busy_cpu += cpu_seconds(CLOCK_THREAD_CPUTIME_ID) - cpu0;
+                                  p.allocations += t_allocations - a0;
                                   p.busy += seconds_since(c0);
                               });
         });
         const Timing t = sw.elapsed();
         last = PhaseStats{};
+        last.minor_faults = cb::minor_faults() - faults0;
         for (const ThreadPhase& p : phases) {
             if (p.first_start < 0) continue;
             ++last.threads_used;
+            last.allocations += p.allocations;
             last.busy_sum += p.busy;
+            last.busy_cpu_sum += p.busy_cpu;
             last.busy_max = std::max(last.busy_max, p.busy);
             last.latest_start = std::max(last.latest_start, p.first_start);
         }
@@ -181,6 +238,10 @@ double engine_build_seconds(const ts::ClusterSceneInputs& in, int threads,
 // `padded` = the mesh positions plus one (Embree reads 16 bytes at the last vertex).
 Timing embree_scene_seconds(const ts::TriangleMesh& mesh, const std::vector<ts::Float3>& padded,
                             RTCDevice device) {
+    if (g_cold) {
+        cb::evict_lines(padded.data(), padded.size() * sizeof padded[0]);
+        cb::evict_lines(mesh.triangles.data(), mesh.triangles.size() * sizeof mesh.triangles[0]);
+    }
     {
         const Stopwatch sw;
         RTCScene scene = rtcNewScene(device);
@@ -222,6 +283,11 @@ Timing embree_per_cluster_seconds(const ClusterArrays& arrays, RTCDevice device)
     const auto& pos = arrays.pos;
     const auto& tri = arrays.tri;
     std::vector<RTCScene> scenes(pos.size());
+    if (g_cold)
+        for (size_t c = 0; c < pos.size(); ++c) {
+            cb::evict_lines(pos[c].data(), pos[c].size() * sizeof pos[c][0]);
+            cb::evict_lines(tri[c].data(), tri[c].size() * sizeof tri[c][0]);
+        }
     {
         const Stopwatch sw;
         for (size_t c = 0; c < scenes.size(); ++c) {
@@ -486,6 +552,7 @@ struct SweepTimes {
     int threads;
     Timing engine, whole, per_cluster;
     PhaseStats engine_phases;  // of the engine's best wall
+    cb::CoreRates rates;       // the ALU loops at this count, best of the repeats
 };
 
 // The other builder's TBB workers spin for a while after its run, and process CPU time would
@@ -494,7 +561,8 @@ void settle() { std::this_thread::sleep_for(std::chrono::milliseconds(30)); }
 
 SweepTimes time_thread_count(const Scene& sc, const ts::ClusterSceneInputs& in,
                              const std::vector<ts::Float3>& padded, const ClusterArrays& arrays,
-                             int threads, std::vector<std::vector<std::byte>>& objects) {
+                             int threads, std::vector<std::vector<std::byte>>& objects,
+                             cb::TrafficProbe& probe) {
     EngineBuild engine(in, threads, objects);
     // Embree's thread count is its TBB scheduler's, set once per process by the first device's
     // "threads=" (later devices' are ignored): so no device sets it, and Embree commits inside
@@ -508,7 +576,7 @@ SweepTimes time_thread_count(const Scene& sc, const ts::ClusterSceneInputs& in,
         return t;
     };
     embree_run([&] { return embree_scene_seconds(sc.mesh, padded, device); });  // warm up
-    SweepTimes t{threads, {}, {}, {}, {}};
+    SweepTimes t{threads, {}, {}, {}, {}, {}};
     for (int rep = 0; rep < g_repeat; ++rep) {
         settle();
         const Timing e = engine.run();
@@ -519,6 +587,8 @@ SweepTimes time_thread_count(const Scene& sc, const ts::ClusterSceneInputs& in,
         if (threads == 1)
             t.per_cluster.keep_best(
                 embree_run([&] { return embree_per_cluster_seconds(arrays, device); }));
+        settle();
+        t.rates.keep_best(cb::core_rates(threads, probe));
     }
     rtcReleaseDevice(device);
     return t;
@@ -547,7 +617,8 @@ BuildTraffic build_traffic(const ts::ClusterSceneInputs& in,
 // took chunks; the latest first chunk (waking the workers); busy per thread, mean and max
 // (uneven chunks); wall time outside the busiest thread's chunks; "cost/cluster", all
 // threads' busy time over the 1-thread run's (above 1: every cluster costs more CPU when all
-// cores build, e.g. memory bandwidth, clock or two threads sharing a core); and the memory
+// cores build, e.g. memory bandwidth, clock or two threads sharing a core), and the same of the
+// threads' own CPU time (what is left when other processes preempt the threads); and the memory
 // traffic of inputs and objects per second of wall time.
 void phase_table(const std::vector<SweepTimes>& sweep, const BuildTraffic& traffic,
                  size_t clusters) {
@@ -555,18 +626,53 @@ void phase_table(const std::vector<SweepTimes>& sweep, const BuildTraffic& traff
         "engine phases (best wall per count; ms): used = threads that took chunks, start = "
         "latest first chunk,\n  busy = time in the chunks per thread (mean, max), outside = wall - "
         "busy max (scheduling, preemption,\n  the join), cost/cluster = busy of all threads / "
-        "1-thread busy, GB/s = input and object bytes\n  (%.0f + %.0f B per cluster) / wall\n",
+        "1-thread busy (wall; cpu: the threads' CPU time, with\n  --thread-cpu), GB/s = input and "
+        "object bytes "
+        "(%.0f + %.0f B per cluster) / wall\n",
         traffic.input_bytes / double(clusters), traffic.output_bytes / double(clusters));
-    std::printf("%8s %6s %9s %8s %10s %9s %8s %13s %7s\n", "threads", "used", "wall", "start",
-                "busy mean", "busy max", "outside", "cost/cluster", "GB/s");
-    const double one_busy = sweep.empty() ? 0 : sweep.front().engine_phases.busy_sum;
+    std::printf("%8s %6s %9s %8s %10s %9s %8s %13s %7s %7s\n", "threads", "used", "wall", "start",
+                "busy mean", "busy max", "outside", "cost/cluster", "cpu", "GB/s");
+    if (sweep.empty()) return;
+    const PhaseStats& one = sweep.front().engine_phases;
     for (const SweepTimes& t : sweep) {
         const PhaseStats& p = t.engine_phases;
-        std::printf("%8d %6d %9.3f %8.3f %10.3f %9.3f %8.3f %12.2fx %7.2f\n", t.threads,
+        char cpu[16] = "-";
+        if (g_thread_cpu)
+            std::snprintf(cpu, sizeof cpu, "%.2fx", p.busy_cpu_sum / one.busy_cpu_sum);
+        std::printf("%8d %6d %9.3f %8.3f %10.3f %9.3f %8.3f %12.2fx %7s %7.2f\n", t.threads,
                     p.threads_used, t.engine.wall * 1e3, p.latest_start * 1e3,
                     p.threads_used ? p.busy_sum / p.threads_used * 1e3 : 0.0, p.busy_max * 1e3,
-                    (t.engine.wall - p.busy_max) * 1e3, one_busy > 0 ? p.busy_sum / one_busy : 0.0,
+                    (t.engine.wall - p.busy_max) * 1e3, p.busy_sum / one.busy_sum, cpu,
                     (traffic.input_bytes + traffic.output_bytes) / t.engine.wall / 1e9);
+    }
+}
+
+// What the machine takes from every thread when all build, measured beside the build with no
+// build work: the clock (the dependent ALU chain's per-thread rate against one thread's), core
+// sharing (the eight chains'), the memory system (the traffic probe's); the engine's cost per
+// cluster in clock cycles (cost/cluster x clock: above 1, a cluster itself costs more cycles,
+// e.g. shared caches or memory); and the run's minor page faults and heap allocations.
+void machine_table(const std::vector<SweepTimes>& sweep, size_t clusters) {
+    std::printf(
+        "machine (per-thread rate on all threads at once vs 1 thread, best of the repeats): clock "
+        "= a dependent\n  multiply chain, ports = 8 independent chains, memory = the traffic probe "
+        "(each cluster's input bytes\n  read and object bytes written, no work); cost@clock = "
+        "cost/cluster x clock (cycles per cluster vs\n  1 thread); faults, allocs = minor page "
+        "faults (process) and heap allocations (in the chunks) per\n  1000 clusters of the "
+        "best-wall run\n");
+    std::printf("%8s %6s %6s %6s %10s %7s %7s\n", "threads", "clock", "ports", "memory",
+                "cost@clock", "faults", "allocs");
+    if (sweep.empty()) return;
+    const double one_busy = sweep.front().engine_phases.busy_sum;
+    const cb::CoreRates& one = sweep.front().rates;
+    const double per_k = 1000.0 / double(clusters);
+    for (const SweepTimes& t : sweep) {
+        const PhaseStats& p = t.engine_phases;
+        const double clock = one.chain / t.rates.chain;
+        std::printf("%8d %6.2f %6.2f %6.2f %9.2fx %7.2f %7.2f\n", t.threads, clock,
+                    one.ports / t.rates.ports, one.memory / t.rates.memory,
+                    p.busy_sum / one_busy * clock, double(p.minor_faults) * per_k,
+                    double(p.allocations) * per_k);
     }
 }
 
@@ -586,7 +692,14 @@ void throughput_table(const Scene& sc, int max_threads, bool with_quality) {
         "  the same thread count; eff = scaling efficiency (speedup over its own 1-thread wall "
         "/ threads);\n"
         "  clock wall = elapsed time, cpu = process CPU time, the load-independent measure of "
-        "work on a shared machine)\n",
+        "work on a shared machine;\n"
+        "  calib = per-thread rate of fixed loops on all threads at once vs 1 thread: under eng "
+        "eff a dependent\n"
+        "  multiply chain (the clock; at 1 thread the clock it implies at 4 cycles per step), "
+        "under emb eff 8\n"
+        "  independent chains (the clock and core sharing), then the traffic probe (memory); "
+        "eng eff / clock =\n"
+        "  the engine's efficiency with the clock's share taken out)\n",
         sc.label.c_str(), sc.mesh.triangles.size(), sc.clusters.size(), g_repeat);
     std::printf("%8s %6s %10s %10s %8s %7s %7s %20s %8s\n", "threads", "clock", "engine",
                 "embree LOW", "ratio", "eng eff", "emb eff", "embree per-cluster", "ratio");
@@ -594,10 +707,15 @@ void throughput_table(const Scene& sc, int max_threads, bool with_quality) {
     padded.push_back({0, 0, 0});
     const ClusterArrays arrays = cluster_arrays(sc);
     std::vector<std::vector<std::byte>> objects;
+    EngineBuild(in, 1, objects);  // the objects' sizes, for the traffic probe
+    const BuildTraffic traffic = build_traffic(in, objects);
+    const size_t clusters = sc.clusters.size();
+    cb::TrafficProbe probe(clusters, size_t(traffic.input_bytes / double(clusters)),
+                           size_t(traffic.output_bytes / double(clusters)));
     SweepTimes one{};
     std::vector<SweepTimes> sweep;
     for (int threads : thread_sweep(max_threads)) {
-        const SweepTimes t = time_thread_count(sc, in, padded, arrays, threads, objects);
+        const SweepTimes t = time_thread_count(sc, in, padded, arrays, threads, objects, probe);
         sweep.push_back(t);
         if (threads == 1) one = t;
         const Timing& e = t.engine;
@@ -616,8 +734,17 @@ void throughput_table(const Scene& sc, int max_threads, bool with_quality) {
             std::printf(" %20.2f %7.2fx\n", mtris / t.per_cluster.cpu, t.per_cluster.cpu / e.cpu);
         else
             std::printf(" %20s %8s\n", "-", "-");
+        const double clock = one.rates.chain / t.rates.chain;
+        std::printf("%8d %6s %10s %10s %8s %7.2f %7.2f  memory %.2f; ", threads, "calib", "-", "-",
+                    "-", clock, one.rates.ports / t.rates.ports, one.rates.memory / t.rates.memory);
+        if (threads == 1)
+            std::printf("clock %.2f GHz\n", double(cb::kChainIterations) *
+                                                cb::kChainCyclesPerIteration / t.rates.chain / 1e9);
+        else
+            std::printf("eng eff / clock %.2f\n", one.engine.wall / e.wall / threads / clock);
     }
-    phase_table(sweep, build_traffic(in, objects), sc.clusters.size());
+    phase_table(sweep, traffic, clusters);
+    machine_table(sweep, clusters);
     if (with_quality) quality_line(sc, objects);
 }
 
@@ -648,30 +775,58 @@ std::vector<Scene> make_scenes(size_t tris, const std::filesystem::path& wuson,
     return scenes;
 }
 
+// The first line of a text file, without its newline; empty when it cannot be read.
+std::string first_line(const char* path) {
+    std::FILE* f = std::fopen(path, "r");
+    if (!f) return {};
+    char line[256] = {};
+    const bool read = std::fgets(line, sizeof line, f) != nullptr;
+    std::fclose(f);
+    std::string s = read ? line : "";
+    while (!s.empty() && (s.back() == '\n' || s.back() == ' ')) s.pop_back();
+    return s;
+}
+
 // How many hardware threads share cpu0's core (Linux sysfs): with two, the top of the thread
 // sweep puts two builds on each core and the scaling efficiency there measures the core's
 // sharing, not the builder.
 std::string core_sharing() {
-    std::FILE* f = std::fopen("/sys/devices/system/cpu/cpu0/topology/thread_siblings_list", "r");
-    if (!f) return "threads per core unknown";
-    char line[128] = {};
-    const bool read = std::fgets(line, sizeof line, f) != nullptr;
-    std::fclose(f);
-    if (!read) return "threads per core unknown";
+    const std::string list =
+        first_line("/sys/devices/system/cpu/cpu0/topology/thread_siblings_list");
+    if (list.empty()) return "threads per core unknown";
     // "0", "0,8" or "0-1": a comma or a range means a sibling.
-    std::string list(line);
-    while (!list.empty() && (list.back() == '\n' || list.back() == ' ')) list.pop_back();
     const bool shared = list.find_first_of(",-") != std::string::npos;
     return std::string(shared ? "cores shared by SMT siblings" : "one thread per core") +
            " (cpu0 siblings: " + list + ")";
 }
 
+// The CPU's model and cpu0's last-level cache with the CPUs that share it: a scene that fits
+// one thread's last-level cache but moves between several caches at N threads scales worse.
+std::string cpu_description() {
+    std::string model = "model unknown";
+    if (std::FILE* f = std::fopen("/proc/cpuinfo", "r")) {
+        char line[256];
+        while (std::fgets(line, sizeof line, f))
+            if (std::strncmp(line, "model name", 10) == 0) {
+                const char* colon = std::strchr(line, ':');
+                model = colon ? colon + 2 : line;
+                while (!model.empty() && model.back() == '\n') model.pop_back();
+                break;
+            }
+        std::fclose(f);
+    }
+    const std::string dir = "/sys/devices/system/cpu/cpu0/cache/index3/";
+    const std::string size = first_line((dir + "size").c_str());
+    const std::string cpus = first_line((dir + "shared_cpu_list").c_str());
+    return model + ", L3 " + (size.empty() ? "unknown" : size + " shared by cpus " + cpus);
+}
+
 void usage(const char* argv0) {
-    std::fprintf(
-        stderr,
-        "usage: %s [--quick] [--tris N] [--max-threads N] [--mesh PATH] "
-        "[--throughput-only] [--builds-only] [--engine-only] [--repeat N] [--scene TEXT]\n",
-        argv0);
+    std::fprintf(stderr,
+                 "usage: %s [--quick] [--tris N] [--max-threads N] [--mesh PATH] "
+                 "[--throughput-only] [--builds-only] [--engine-only] [--repeat N] [--scene TEXT] "
+                 "[--thread-cpu] [--cold]\n",
+                 argv0);
 }
 
 }  // namespace
@@ -701,6 +856,10 @@ int main(int argc, char** argv) {
             engine_only = true;
         else if (a == "--repeat" && has_value)
             g_repeat = std::max(1, std::atoi(argv[++i]));
+        else if (a == "--thread-cpu")
+            g_thread_cpu = true;
+        else if (a == "--cold")
+            g_cold = true;
         else if (a == "--scene" && has_value)
             only_scene = argv[++i];
         else {
@@ -709,9 +868,10 @@ int main(int argc, char** argv) {
         }
     }
     const std::vector<Scene> scenes = make_scenes(tris, wuson, only_scene);
-    std::printf("bench_engine_clusters: TBB, Embree %s, %u hardware threads, %s\n",
+    std::printf("bench_engine_clusters: TBB, Embree %s, %u hardware threads, %s\n  CPU: %s%s\n",
                 RTC_VERSION_STRING, std::max(1u, unsigned(tbb::info::default_concurrency())),
-                core_sharing().c_str());
+                core_sharing().c_str(), cpu_description().c_str(),
+                g_cold ? "; --cold: inputs and outputs evicted before every timed build" : "");
     std::printf(
         "columns: B/tri = CLAS object bytes / triangles; max|dx| = largest stored-minus-input "
         "coordinate;\n"
