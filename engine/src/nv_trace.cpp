@@ -361,10 +361,23 @@ void walk_leaves(const std::vector<NvNode>& nodes, const detail::WideTree& wide,
     // away the 4-wide walk is still the faster of the two.
     if (wr.usable && (rd.mode == TraversalMode::kFloat32 || detail::resolves_leaves(wide, rd.o))) {
         detail::walk_wide(wide, wr, tmax, wide_leaf, [&](uint32_t first, uint32_t count) {
-            const uint32_t items = wide.leaf_groups ? (count + 3) / 4 : count;
-            const char* from = reinterpret_cast<const char*>(wide_items.data() + first);
-            const char* to = reinterpret_cast<const char*>(wide_items.data() + first + items);
-            for (const char* line = from; line < to; line += 64) __builtin_prefetch(line);
+            // Items of whole cache lines (groups of four triangles) line by line, unrolled:
+            // a leaf is mostly one group.
+            constexpr size_t kLines = sizeof(WideItem) % 64 == 0 ? sizeof(WideItem) / 64 : 0;
+            if constexpr (kLines != 0) {
+                const uint32_t items = wide.leaf_groups ? (count + 3) / 4 : count;
+                for (const WideItem* item = wide_items.data() + first;
+                     item != wide_items.data() + first + items; ++item) {
+                    const char* line = reinterpret_cast<const char*>(item);
+#pragma GCC unroll 4
+                    for (size_t k = 0; k < kLines; ++k) __builtin_prefetch(line + 64 * k);
+                }
+            } else {
+                const uint32_t items = wide.leaf_groups ? (count + 3) / 4 : count;
+                const char* from = reinterpret_cast<const char*>(wide_items.data() + first);
+                const char* to = reinterpret_cast<const char*>(wide_items.data() + first + items);
+                for (const char* line = from; line < to; line += 64) __builtin_prefetch(line);
+            }
         });
         return;
     }
@@ -385,11 +398,19 @@ bool replaces(const NvHit& best, double t, double tmax, uint32_t instance, uint3
 // The float32 error bound of NvHit::t_error: 8 ulps of the largest magnitude that enters
 // the driver's arithmetic (object-space primitive coordinates and origin, and the terms of
 // the world-to-object transform), over the largest direction component, plus 8 ulps of t.
-double float_t_error(const Instance& inst, const double wo[3], const double o[3], const double d[3],
+// (Loops unrolled: a closest hit computes this once or more per ray.)
+double float_t_error(const Instance& inst, const float wo[3], const double o[3], const double d[3],
                      const float* v, bool aabb, double t) {
     double scale = 0.0;
+#pragma GCC unroll 3
     for (int a = 0; a < 3; ++a) scale = std::max(scale, std::fabs(o[a]));
-    for (int i = 0; i < (aabb ? 6 : 9); ++i) scale = std::max(scale, std::fabs(double(v[i])));
+    // A box's six bounds, a triangle's nine coordinates.
+    float largest = 0.0f;
+#pragma GCC unroll 6
+    for (int i = 0; i < 6; ++i) largest = std::max(largest, std::fabs(v[i]));
+    if (!aabb) largest = std::max({largest, std::fabs(v[6]), std::fabs(v[7]), std::fabs(v[8])});
+    scale = std::max(scale, double(largest));
+#pragma GCC unroll 3
     for (int r = 0; r < 3; ++r) {
         const double* m = inst.inverse + 4 * r;
         scale = std::max(scale, std::fabs(m[0] * wo[0]) + std::fabs(m[1] * wo[1]) +
@@ -507,7 +528,6 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
                     bool exhaustive) {
     const Blas& b = *inst.blas;
     if (b.nodes.empty() && !b.clusters) return false;
-    const double wo[3] = {ray.origin[0], ray.origin[1], ray.origin[2]};
     double o[3], d[3];
     to_object_space(inst, ray, mode, o, d);
     if (b.clusters)
@@ -558,7 +578,7 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
             best->uv_error = float(cand.uv_error);
             best->hit_kind = kind;
             best->opaque = opaque;
-            best->t_error = float(float_t_error(inst, wo, o, d, v, b.aabbs, cand.t));
+            best->t_error = float(float_t_error(inst, ray.origin, o, d, v, b.aabbs, cand.t));
         }
         *tmax = cand.t;
         return first_hit;

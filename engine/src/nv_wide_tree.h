@@ -303,6 +303,8 @@ template <class Node, class Prefetch>
     const WalkEntry c{n.child[k], uint32_t(n.count[k]), entry[k]};
     if (c.count == 0) {
         const char* line = reinterpret_cast<const char*>(nodes + c.child);
+        // Unrolled: the loop cost 4 instructions a line.
+#pragma GCC unroll 4
         for (size_t at = 0; at < sizeof(Node); at += 64) __builtin_prefetch(line + at);
     } else {
         prefetch(c.child, c.count);
