@@ -4,6 +4,9 @@
 #include <algorithm>
 #include <cstring>
 
+#define XXH_INLINE_ALL
+#include <xxhash.h>
+
 #if defined(__x86_64__) || defined(__i386__)
 #include <immintrin.h>
 #define CLASTRACE_STREAM_LOADS 1
@@ -55,6 +58,26 @@ void copy_from_uncached(uint8_t* destination, const uint8_t* source, size_t size
     if (size >= 256 && have_stream_loads()) return stream_copy(destination, source, size);
 #endif
     if (size) std::memcpy(destination, source, size);
+}
+
+uint64_t hash_host_memory(const uint8_t* source, size_t size, bool cached) {
+    if (cached) return XXH3_64bits(source, size);
+    // Small enough for the stack and for L1, large enough that the streaming copy runs whole lines.
+    constexpr size_t kStep = 8192;
+    alignas(64) uint8_t buffer[kStep];
+    if (size <= kStep) {
+        copy_from_uncached(buffer, source, size);
+        return XXH3_64bits(buffer, size);
+    }
+    XXH3_state_t state;
+    XXH3_INITSTATE(&state);
+    XXH3_64bits_reset(&state);
+    for (size_t at = 0; at < size; at += kStep) {
+        const size_t step = std::min(kStep, size - at);
+        copy_from_uncached(buffer, source + at, step);
+        XXH3_64bits_update(&state, buffer, step);
+    }
+    return XXH3_64bits_digest(&state);
 }
 
 }  // namespace clastrace::capture
