@@ -252,8 +252,9 @@ void HostWriteWatch::look(DeviceState& d, Submission& s, HostWriteSeen seen) {
     std::vector<TrackedMemory> memories;  // the allocations looked up so far
     for (Range& r : s.ranges) {
         // The common case, nothing written: the range is hashed where the layer maps it.
-        auto memory = std::find_if(memories.begin(), memories.end(),
-                                   [&](const TrackedMemory& m) { return m.handle == r.span.memory; });
+        auto memory = std::find_if(memories.begin(), memories.end(), [&](const TrackedMemory& m) {
+            return m.handle == r.span.memory;
+        });
         if (memory == memories.end()) {
             auto found = d.memory_map.memory(r.span.memory);
             if (!found) continue;  // freed

@@ -73,7 +73,7 @@ private:
     // Stops watching the submissions `gone` picks; the others keep what those may have written.
     void forget(const std::function<bool(const Submission&)>& gone);
     std::mutex mutex_;
-    std::deque<Submission> watched_;  // oldest first
+    std::deque<Submission> watched_;            // oldest first
     std::unique_ptr<SubmitWalkReader> reader_;  // the submissions' walks, one at a time (mutex_)
 };
 

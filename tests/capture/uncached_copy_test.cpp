@@ -41,7 +41,8 @@ TEST(UncachedCopy, HashOfHostMemoryEqualsTheHashOfACopy) {
         for (size_t size : {0, 1, 240, 8191, 8192, 8193, 2 * 8192, 3 * 8192 + 7}) {
             const uint64_t want = XXH3_64bits(source.data() + offset, size);
             for (bool cached : {true, false})
-                EXPECT_EQ(clastrace::capture::hash_host_memory(source.data() + offset, size, cached),
+                EXPECT_EQ(clastrace::capture::hash_host_memory(source.data() + offset, size,
+                                                               cached),
                           want)
                     << "size " << size << " offset " << offset << " cached " << cached;
         }
