@@ -11,9 +11,6 @@
 #include <map>
 #include <optional>
 
-#define XXH_INLINE_ALL
-#include <xxhash.h>
-
 namespace clastrace::capture {
 namespace {
 
@@ -40,7 +37,9 @@ bool read_host_view(DeviceState& d, VkDeviceAddress address, uint64_t size, Capt
     return true;
 }
 
-uint64_t hash_of(const CapturedBytes& bytes) { return XXH3_64bits(bytes.data(), bytes.size()); }
+uint64_t hash_of(const CapturedBytes& bytes) {
+    return hash_host_memory(bytes.data(), bytes.size(), true);
+}
 
 bool host_cached(const TrackedMemory& memory) {
     return memory.property_flags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT;

@@ -1,11 +1,11 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "clastrace/capture/uncached_copy.h"
 
+#include "host_memory_hash.h"
+
 #include <algorithm>
 #include <cstring>
 
-#define XXH_INLINE_ALL
-#include <xxhash.h>
 
 #if defined(__x86_64__) || defined(__i386__)
 #include <immintrin.h>
@@ -60,24 +60,17 @@ void copy_from_uncached(uint8_t* destination, const uint8_t* source, size_t size
     if (size) std::memcpy(destination, source, size);
 }
 
+#ifdef CLASTRACE_HASH_AVX2
+uint64_t hash_host_memory_avx2(const uint8_t* source, size_t size, bool cached);
+#endif
+
 uint64_t hash_host_memory(const uint8_t* source, size_t size, bool cached) {
-    if (cached) return XXH3_64bits(source, size);
-    // Small enough for the stack and for L1, large enough that the streaming copy runs whole lines.
-    constexpr size_t kStep = 8192;
-    alignas(64) uint8_t buffer[kStep];
-    if (size <= kStep) {
-        copy_from_uncached(buffer, source, size);
-        return XXH3_64bits(buffer, size);
-    }
-    XXH3_state_t state;
-    XXH3_INITSTATE(&state);
-    XXH3_64bits_reset(&state);
-    for (size_t at = 0; at < size; at += kStep) {
-        const size_t step = std::min(kStep, size - at);
-        copy_from_uncached(buffer, source + at, step);
-        XXH3_64bits_update(&state, buffer, step);
-    }
-    return XXH3_64bits_digest(&state);
+#ifdef CLASTRACE_HASH_AVX2
+    // Inputs up to 240 bytes take XXH3's scalar paths: the same code either way.
+    static const bool kHaveAvx2 = __builtin_cpu_supports("avx2");
+    if (size > 240 && kHaveAvx2) return hash_host_memory_avx2(source, size, cached);
+#endif
+    return hash_host_memory_here(source, size, cached);
 }
 
 }  // namespace clastrace::capture
