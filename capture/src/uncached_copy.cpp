@@ -6,7 +6,6 @@
 #include <algorithm>
 #include <cstring>
 
-
 #if defined(__x86_64__) || defined(__i386__)
 #include <immintrin.h>
 #define CLASTRACE_STREAM_LOADS 1
