@@ -300,8 +300,9 @@ ObjectBytes build_bottom(const nv::BottomInput& in, uint32_t flags) {
     // pair, reported) or neither, the SAH builder.
     const bool fast_build = (flags & VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV) &&
                             !(flags & VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_NV);
-    nv::Tree tree =
-        nv::build_tree(in.boxes, fast_build ? nv::TreeQuality::kMorton : nv::TreeQuality::kSah);
+    nv::Tree tree = fast_build ? nv::build_tree(in.boxes, nv::TreeQuality::kMorton,
+                                                nv::TreeLevel::kBottom, &in.centroids)
+                               : nv::build_tree(in.boxes, nv::TreeQuality::kSah);
     NvObjectHeader h{};
     h.kind = uint8_t(NvObjectKind::kBottomLevel);
     h.build_flags = flags;

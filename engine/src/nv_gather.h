@@ -84,6 +84,8 @@ struct BottomInput {
     // primitive order, and the index of its record in `primitives`.
     std::vector<Box, UninitializedAllocator<Box>> boxes;
     std::vector<uint32_t, UninitializedAllocator<uint32_t>> source;
+    // The bounds of those boxes' centroids (the Morton codes' range), taken with them.
+    Box centroids = Box::empty();
 };
 struct TopInput {
     std::vector<NvInstanceRecord> instances;  // input order

@@ -34,8 +34,11 @@ enum class TreeQuality { kSah, kMorton };
 // chains of single instances, each costing a bottom-level walk). Morton trees always end at
 // kNvMaxLeafSize items.
 enum class TreeLevel { kBottom, kTop };
+// `centroids`, where the caller took them while it had the boxes at hand, are the bounds of
+// the boxes' centroids (lo and hi halved, then added); the Morton build reads them instead of
+// taking a pass over the boxes for them.
 Tree build_tree(std::span<const Box> boxes, TreeQuality quality = TreeQuality::kSah,
-                TreeLevel level = TreeLevel::kBottom);
+                TreeLevel level = TreeLevel::kBottom, const Box* centroids = nullptr);
 
 // Recomputes every node box from its items (leaf) or children, bottom-up. `item_box(i)`
 // is the box of record i (the leaf ranges index records directly).
