@@ -294,6 +294,30 @@ void write_object(std::byte* out, const NvObjectHeader& h,
     if (!nodes.empty()) std::memcpy(out + h.nodes_offset, nodes.data(), nodes.size_bytes());
 }
 
+// The active primitives' records in tree order (`order` indexes the active ones): a gather,
+// the records fetched ahead since consecutive leaves' records lie far apart in input order.
+// Where every primitive is active the active index is the record index, with no lookup.
+template <bool AllActive>
+void gather_records(const nv::BottomInput& in, std::span<const uint32_t> order, std::byte* dst) {
+    const NvPrimitiveRecord* records = in.primitives.data();
+    const uint32_t* source = in.source.data();
+    auto record = [&](size_t k) { return records + (AllActive ? order[k] : source[order[k]]); };
+    constexpr size_t kAhead = 16;
+    const size_t n = order.size();
+    for (size_t k = 0; k < n; ++k) {
+        if (k + kAhead < n) __builtin_prefetch(record(k + kAhead));
+        std::memcpy(dst + k * sizeof(NvPrimitiveRecord), record(k), sizeof(NvPrimitiveRecord));
+    }
+}
+
+void write_tree_records(const nv::BottomInput& in, std::span<const uint32_t> order,
+                        std::byte* dst) {
+    if (in.source.size() == in.primitives.size())
+        gather_records<true>(in, order, dst);
+    else
+        gather_records<false>(in, order, dst);
+}
+
 // `in` must outlive the returned writer.
 ObjectBytes build_bottom(const nv::BottomInput& in, uint32_t flags) {
     // PREFER_FAST_BUILD alone picks the Morton builder; with PREFER_FAST_TRACE (an invalid
@@ -313,19 +337,8 @@ ObjectBytes build_bottom(const nv::BottomInput& in, uint32_t flags) {
     auto held = std::make_shared<nv::Tree>(std::move(tree));
     return ObjectBytes{h.object_size, [h, held, &in](std::byte* out) {
                            const nv::Tree& t = *held;
-                           const uint32_t* src = in.source.data();
-                           // A gather in tree order: the records are fetched ahead,
-                           // since consecutive leaves' records lie far apart in input order.
                            auto write_records = [&](std::byte* dst) {
-                               const size_t n = t.order.size();
-                               constexpr size_t kAhead = 16;
-                               for (size_t k = 0; k < n; ++k) {
-                                   if (k + kAhead < n)
-                                       __builtin_prefetch(&in.primitives[src[t.order[k + kAhead]]]);
-                                   std::memcpy(dst + k * sizeof(NvPrimitiveRecord),
-                                               &in.primitives[src[t.order[k]]],
-                                               sizeof(NvPrimitiveRecord));
-                               }
+                               write_tree_records(in, t.order, dst);
                            };
                            write_object(out, h, in.geometries, write_records, t.nodes);
                        }};

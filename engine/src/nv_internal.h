@@ -2,6 +2,7 @@
 // Pieces the NV build, update and serialization share.
 #pragma once
 
+#include "clastrace/common/uninitialized_allocator.h"
 #include "clastrace/engine/nv_format.h"
 #include "geometry/box.h"
 
@@ -20,7 +21,8 @@ using geometry::Box;
 // the item order leaves refer to. Deterministic: same boxes, same tree.
 struct Tree {
     std::vector<NvNode> nodes;
-    std::vector<uint32_t> order;
+    // Written whole by the builders: no first pass of zeros.
+    std::vector<uint32_t, common::UninitializedAllocator<uint32_t>> order;
 };
 // kSah: binned SAH (the default). kMorton: linear BVH over sorted Morton codes, several
 // times faster to build and slower to trace (VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV).
