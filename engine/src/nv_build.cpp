@@ -341,6 +341,7 @@ ObjectBytes build_bottom(const nv::BottomInput& in, uint32_t flags) {
                                write_tree_records(in, t.order, dst);
                            };
                            write_object(out, h, in.geometries, write_records, t.nodes);
+                           nv::recycle_tree(std::move(*held));
                        }};
 }
 
@@ -620,6 +621,11 @@ void run_build(Context& c) {
     std::optional<ObjectBytes> object;
     nv::TopInput top_in;
     nv::BottomInput bottom_in;  // read by object->write
+    // Its arrays go back to the thread's kept ones however the build ends.
+    struct Recycle {
+        nv::BottomInput& in;
+        ~Recycle() { nv::recycle_bottom_input(std::move(in)); }
+    } recycle{bottom_in};
     try {
         std::optional<std::vector<std::byte>> src;
         if (c.command.update) src = read_src(c);

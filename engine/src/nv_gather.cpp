@@ -448,8 +448,52 @@ void gather_triangles(Context& c, const NvTriangles& t, uint32_t g, const std::s
 
 }  // namespace
 
-BottomInput gather_bottom(Context& c) {
+namespace {
+
+size_t capacity_bytes(const BottomInput& in) {
+    return in.geometries.capacity() * sizeof(NvGeometryRecord) +
+           in.primitives.capacity() * sizeof(NvPrimitiveRecord) + in.active.capacity() +
+           in.boxes.capacity() * sizeof(Box) + in.source.capacity() * sizeof(uint32_t);
+}
+
+// The thread's kept input arrays; their bytes count as kept until taken or the thread ends.
+struct KeptInput {
     BottomInput in;
+    size_t bytes = 0;
+    ~KeptInput() { release_kept_bytes(bytes); }
+};
+thread_local KeptInput t_kept_input;
+
+// An empty input on the thread's kept arrays (none kept: fresh ones).
+BottomInput take_bottom_input() {
+    release_kept_bytes(t_kept_input.bytes);
+    t_kept_input.bytes = 0;
+    BottomInput in;
+    in.geometries = std::move(t_kept_input.in.geometries);
+    in.primitives = std::move(t_kept_input.in.primitives);
+    in.active = std::move(t_kept_input.in.active);
+    in.boxes = std::move(t_kept_input.in.boxes);
+    in.source = std::move(t_kept_input.in.source);
+    in.geometries.clear();
+    in.primitives.clear();
+    in.active.clear();
+    in.boxes.clear();
+    in.source.clear();
+    return in;
+}
+
+}  // namespace
+
+void recycle_bottom_input(BottomInput&& in) {
+    const size_t bytes = capacity_bytes(in);
+    if (bytes <= capacity_bytes(t_kept_input.in) || !claim_kept_bytes(bytes)) return;
+    release_kept_bytes(t_kept_input.bytes);
+    t_kept_input.in = std::move(in);
+    t_kept_input.bytes = bytes;
+}
+
+BottomInput gather_bottom(Context& c) {
+    BottomInput in = take_bottom_input();
     const auto& geometries = c.command.info.geometries;
     in.aabbs = !geometries.empty() && geometries[0].type == VK_GEOMETRY_TYPE_AABBS_NV;
     for (uint32_t g = 0; g < geometries.size(); ++g) {

@@ -7,6 +7,7 @@
 #include "geometry/box.h"
 
 #include <algorithm>
+#include <cstddef>
 #include <cstdint>
 #include <limits>
 #include <span>
@@ -41,6 +42,20 @@ enum class TreeLevel { kBottom, kTop };
 // taking a pass over the boxes for them.
 Tree build_tree(std::span<const Box> boxes, TreeQuality quality = TreeQuality::kSah,
                 TreeLevel level = TreeLevel::kBottom, const Box* centroids = nullptr);
+
+// Gives a tree's arrays back once its object is written: the thread's next build_tree grows
+// its tree in them, on pages already faulted in.
+void recycle_tree(Tree&& tree);
+
+// Working arrays the builds keep per thread between builds (build_tree's, the gather's): a
+// fresh page costs a fault and a clear, and a large fresh array faults in every page each
+// build. What one thread keeps of one kind, and what all threads keep together, is capped: a
+// 16-thread replay once held up to 1 GiB of them between builds.
+constexpr size_t kKeptBytesPerThread = size_t(64) << 20;  // ~1.2M Morton items
+constexpr size_t kAllKeptBytes = size_t(128) << 20;       // every thread, every kind
+// Counts `bytes` as kept; false (nothing counted) when that would pass a cap: drop them.
+bool claim_kept_bytes(size_t bytes);
+void release_kept_bytes(size_t bytes);
 
 // Recomputes every node box from its items (leaf) or children, bottom-up. `item_box(i)`
 // is the box of record i (the leaf ranges index records directly).

@@ -663,20 +663,21 @@ void sort_by_code(std::vector<uint64_t>& keys, std::vector<uint64_t>& spare, Dig
     }
 }
 
-// A build's working arrays (not its output), kept per thread between builds: fresh pages
-// cost a fault and a clear each, which was about half of a Morton build's time on 10^5
-// triangles. A build takes them and gives them back, so a build nested on the same thread
-// (a task stolen while waiting) finds none and allocates its own. What all threads keep is
-// capped (kAllKeptBytes): a 16-thread replay once held up to 1 GiB of them between builds.
+// A build's working arrays, and the arrays of the last tree given back (recycle_tree), kept
+// per thread between builds: fresh pages cost a fault and a clear each, which was about half
+// of a Morton build's time on 10^5 triangles. A build takes them and gives them back, so a
+// build nested on the same thread (a task stolen while waiting) finds none and allocates its
+// own.
 struct BuildScratch {
     std::vector<BoxRef> refs;
     std::vector<uint64_t> keys, spare;
-    static constexpr size_t kKeptBytes = size_t(64) << 20;      // ~1.2M items; one thread
-    static constexpr size_t kAllKeptBytes = size_t(128) << 20;  // every thread together
+    std::vector<NvNode> nodes;
+    decltype(Tree::order) order;
 
     size_t bytes() const {
         return refs.capacity() * sizeof(BoxRef) +
-               (keys.capacity() + spare.capacity()) * sizeof(uint64_t);
+               (keys.capacity() + spare.capacity()) * sizeof(uint64_t) +
+               nodes.capacity() * sizeof(NvNode) + order.capacity() * sizeof(uint32_t);
     }
 };
 
@@ -695,16 +696,30 @@ BuildScratch take_scratch() {
 }
 void keep_scratch(BuildScratch&& s) {
     const size_t bytes = s.bytes();
-    if (bytes > BuildScratch::kKeptBytes) return;
-    if (g_all_kept_bytes.fetch_add(bytes) + bytes > BuildScratch::kAllKeptBytes) {
-        g_all_kept_bytes -= bytes;
-        return;
-    }
+    if (!claim_kept_bytes(bytes)) return;
     g_all_kept_bytes -= t_kept.scratch.bytes();  // (empty unless a nested build kept some)
     t_kept.scratch = std::move(s);
 }
 
 }  // namespace
+
+bool claim_kept_bytes(size_t bytes) {
+    if (bytes > kKeptBytesPerThread) return false;
+    if (g_all_kept_bytes.fetch_add(bytes) + bytes > kAllKeptBytes) {
+        g_all_kept_bytes -= bytes;
+        return false;
+    }
+    return true;
+}
+
+void release_kept_bytes(size_t bytes) { g_all_kept_bytes -= bytes; }
+
+void recycle_tree(Tree&& tree) {
+    BuildScratch s = take_scratch();
+    if (tree.nodes.capacity() > s.nodes.capacity()) s.nodes = std::move(tree.nodes);
+    if (tree.order.capacity() > s.order.capacity()) s.order = std::move(tree.order);
+    keep_scratch(std::move(s));
+}
 
 Box triangle_box(const float v[9]) {
     // Box::grow_point's rule in SSE: minps(p, lo) is p < lo ? p : lo, std::min(lo, p), so a
@@ -765,8 +780,11 @@ Tree build_tree(std::span<const Box> boxes, TreeQuality quality, TreeLevel level
         *lo = _mm_and_ps(_mm_loadu_ps(boxes[i].lo), xyz);
         *hi = _mm_and_ps(_mm_shuffle_ps(tail, tail, _MM_SHUFFLE(3, 3, 2, 1)), xyz);
     };
+    BuildScratch scratch = take_scratch();
+    t.nodes = std::move(scratch.nodes);
+    t.nodes.clear();
+    t.order = std::move(scratch.order);
     if (quality == TreeQuality::kSah) {
-        BuildScratch scratch = take_scratch();
         std::vector<BoxRef>& refs = scratch.refs;
         refs.resize(n);
         for (uint32_t i = 0; i < n; ++i) {
@@ -801,7 +819,6 @@ Tree build_tree(std::span<const Box> boxes, TreeQuality quality, TreeLevel level
     }
     // 10 bits per axis over the centroid bounds (NaN and unusable axes quantize to 0).
     const BinMap map(centroid_bounds, 1024);
-    BuildScratch scratch = take_scratch();
     std::vector<uint64_t>& keys = scratch.keys;
     keys.resize(n);
     DigitCounts counts{};
