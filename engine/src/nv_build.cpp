@@ -397,6 +397,7 @@ std::vector<std::byte> build_top(const nv::TopInput& in, uint32_t flags) {
         return at;
     };
     if (!tree.nodes.empty()) copy(0);
+    nv::recycle_tree(std::move(tree));  // its arrays serve the thread's next bottom level
     nv::refit_tree(std::span(nodes), [&](uint32_t i) {
         const NvInstanceRecord& r = in.instances[i];
         return Box{{r.world_min[0], r.world_min[1], r.world_min[2]},
