@@ -8,7 +8,9 @@
 // of 3 passes, wall and thread CPU time; `--quick` prints only that table, 20k rays, 1 pass;
 // `--traversal RAYS PASSES` only that table at the size given; `--build-only [RUNS]` only the
 // build columns (no rays: a quick build comparison), best of RUNS builds (default 5; 1 for a
-// profile under callgrind, where every build counts).
+// profile under callgrind, where every build counts), with the same ratios in process CPU
+// time at the end of each row (SAH/MED, Morton/LOW: steadier than wall on a loaded machine)
+// and the page faults of the last SAH and Morton build (0 in steady state).
 #include "nv_scene.h"
 #include "nv_wide_tree.h"
 
@@ -23,6 +25,8 @@
 #include <cstdlib>
 #include <cstring>
 #include <ctime>
+
+#include <sys/resource.h>
 
 using namespace clastrace;
 using namespace clastrace::nvtest;
@@ -40,8 +44,23 @@ double thread_cpu_s() {
     return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
 }
 
+// Page faults the process took so far (minor and major).
+long page_faults() {
+    rusage ru{};
+    getrusage(RUSAGE_SELF, &ru);
+    return ru.ru_minflt + ru.ru_majflt;
+}
+
+// CPU seconds of every thread of the process: on a loaded machine steadier than wall time.
+double process_cpu_s() {
+    timespec ts{};
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+    return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
+}
+
+// Wall seconds of the commit; `cpu_s`, where given, the best of it and the commit's CPU seconds.
 double embree_build(RTCDevice device, const ts::TriangleMesh& m, RTCBuildQuality quality,
-                    RTCScene* keep) {
+                    RTCScene* keep, double* cpu_s = nullptr) {
     RTCScene scene = rtcNewScene(device);
     rtcSetSceneBuildQuality(scene, quality);
     RTCGeometry g = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
@@ -54,8 +73,10 @@ double embree_build(RTCDevice device, const ts::TriangleMesh& m, RTCBuildQuality
     rtcAttachGeometry(scene, g);
     rtcReleaseGeometry(g);
     const auto t0 = Clock::now();
+    const double c0 = process_cpu_s();
     rtcCommitScene(scene);
     const double s = since(t0);
+    if (cpu_s) *cpu_s = std::min(*cpu_s, process_cpu_s() - c0);
     if (keep)
         *keep = scene;
     else
@@ -65,7 +86,8 @@ double embree_build(RTCDevice device, const ts::TriangleMesh& m, RTCBuildQuality
 
 // One engine build mode on `mesh`: its best build time and its closest-hit pass.
 struct EngineRun {
-    double build_s = 1e30, rays_s = 0, sah = 0;
+    double build_s = 1e30, build_cpu_s = 1e30, rays_s = 0, sah = 0;
+    long faults = 0;  // page faults of the last build (steady state: fresh pages fault)
     uint64_t bytes = 0;
     size_t hits = 0;
 };
@@ -84,8 +106,12 @@ struct EngineMode {
     }
     void build(EngineRun& run) {
         const auto t0 = Clock::now();
+        const double c0 = process_cpu_s();
+        const long f0 = page_faults();
         const eng::ExecutionRecord r = eng::execute_nv_build(cmd, world->memory);
+        run.faults = page_faults() - f0;
         run.build_s = std::min(run.build_s, since(t0));
+        run.build_cpu_s = std::min(run.build_cpu_s, process_cpu_s() - c0);
         run.bytes = r.ops[0].dst_size;
     }
     void trace(EngineRun& run, const std::vector<ts::TestRay>& rays) {
@@ -141,20 +167,25 @@ void row(const char* name, ts::TriangleMesh mesh, bool with_rays, int runs) {
         morton(w, mesh, VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV);
     RTCDevice device = rtcNewDevice("threads=1");
     EngineRun sah_run, morton_run;
-    double low = 1e30, medium = 1e30;
+    double low = 1e30, medium = 1e30, low_cpu = 1e30, medium_cpu = 1e30;
     for (int run = 0; run < runs; ++run) {
         sah.build(sah_run);
         morton.build(morton_run);
-        low = std::min(low, embree_build(device, mesh, RTC_BUILD_QUALITY_LOW, nullptr));
-        medium = std::min(medium, embree_build(device, mesh, RTC_BUILD_QUALITY_MEDIUM, nullptr));
+        low = std::min(low, embree_build(device, mesh, RTC_BUILD_QUALITY_LOW, nullptr, &low_cpu));
+        medium = std::min(medium, embree_build(device, mesh, RTC_BUILD_QUALITY_MEDIUM, nullptr,
+                                               &medium_cpu));
     }
     const double mtris = mesh.triangles.size() / 1e6;
     if (!with_rays) {
         rtcReleaseDevice(device);
-        std::printf("%-14s %7zu %6.1f | %7.2f %7.2f %7s %6.2fx | %7.2f %7.2f %7s %6.2fx\n", name,
-                    mesh.triangles.size(), double(sah_run.bytes) / mesh.triangles.size(),
-                    mtris / sah_run.build_s, mtris / medium, "-", sah_run.build_s / medium,
-                    mtris / morton_run.build_s, mtris / low, "-", morton_run.build_s / low);
+        std::printf(
+            "%-14s %7zu %6.1f | %7.2f %7.2f %7s %6.2fx | %7.2f %7.2f %7s %6.2fx | CPU %5.2fx "
+            "%5.2fx | faults %ld %ld\n",
+            name, mesh.triangles.size(), double(sah_run.bytes) / mesh.triangles.size(),
+            mtris / sah_run.build_s, mtris / medium, "-", sah_run.build_s / medium,
+            mtris / morton_run.build_s, mtris / low, "-", morton_run.build_s / low,
+            sah_run.build_cpu_s / medium_cpu, morton_run.build_cpu_s / low_cpu, sah_run.faults,
+            morton_run.faults);
         return;
     }
     // Rays: closest hit through both engine objects and through Embree's MEDIUM scene.

@@ -294,14 +294,39 @@ void write_object(std::byte* out, const NvObjectHeader& h,
     if (!nodes.empty()) std::memcpy(out + h.nodes_offset, nodes.data(), nodes.size_bytes());
 }
 
+// The active primitives' records in tree order (`order` indexes the active ones): a gather,
+// the records fetched ahead since consecutive leaves' records lie far apart in input order.
+// Where every primitive is active the active index is the record index, with no lookup.
+template <bool AllActive>
+void gather_records(const nv::BottomInput& in, std::span<const uint32_t> order, std::byte* dst) {
+    const NvPrimitiveRecord* records = in.primitives.data();
+    const uint32_t* source = in.source.data();
+    auto record = [&](size_t k) { return records + (AllActive ? order[k] : source[order[k]]); };
+    constexpr size_t kAhead = 16;
+    const size_t n = order.size();
+    for (size_t k = 0; k < n; ++k) {
+        if (k + kAhead < n) __builtin_prefetch(record(k + kAhead));
+        std::memcpy(dst + k * sizeof(NvPrimitiveRecord), record(k), sizeof(NvPrimitiveRecord));
+    }
+}
+
+void write_tree_records(const nv::BottomInput& in, std::span<const uint32_t> order,
+                        std::byte* dst) {
+    if (in.source.size() == in.primitives.size())
+        gather_records<true>(in, order, dst);
+    else
+        gather_records<false>(in, order, dst);
+}
+
 // `in` must outlive the returned writer.
 ObjectBytes build_bottom(const nv::BottomInput& in, uint32_t flags) {
     // PREFER_FAST_BUILD alone picks the Morton builder; with PREFER_FAST_TRACE (an invalid
     // pair, reported) or neither, the SAH builder.
     const bool fast_build = (flags & VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV) &&
                             !(flags & VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_NV);
-    nv::Tree tree =
-        nv::build_tree(in.boxes, fast_build ? nv::TreeQuality::kMorton : nv::TreeQuality::kSah);
+    nv::Tree tree = fast_build ? nv::build_tree(in.boxes, nv::TreeQuality::kMorton,
+                                                nv::TreeLevel::kBottom, &in.centroids)
+                               : nv::build_tree(in.boxes, nv::TreeQuality::kSah);
     NvObjectHeader h{};
     h.kind = uint8_t(NvObjectKind::kBottomLevel);
     h.build_flags = flags;
@@ -312,21 +337,11 @@ ObjectBytes build_bottom(const nv::BottomInput& in, uint32_t flags) {
     auto held = std::make_shared<nv::Tree>(std::move(tree));
     return ObjectBytes{h.object_size, [h, held, &in](std::byte* out) {
                            const nv::Tree& t = *held;
-                           const uint32_t* src = in.source.data();
-                           // A gather in tree order: the records are fetched ahead,
-                           // since consecutive leaves' records lie far apart in input order.
                            auto write_records = [&](std::byte* dst) {
-                               const size_t n = t.order.size();
-                               constexpr size_t kAhead = 16;
-                               for (size_t k = 0; k < n; ++k) {
-                                   if (k + kAhead < n)
-                                       __builtin_prefetch(&in.primitives[src[t.order[k + kAhead]]]);
-                                   std::memcpy(dst + k * sizeof(NvPrimitiveRecord),
-                                               &in.primitives[src[t.order[k]]],
-                                               sizeof(NvPrimitiveRecord));
-                               }
+                               write_tree_records(in, t.order, dst);
                            };
                            write_object(out, h, in.geometries, write_records, t.nodes);
+                           nv::recycle_tree(std::move(*held));
                        }};
 }
 
@@ -382,6 +397,7 @@ std::vector<std::byte> build_top(const nv::TopInput& in, uint32_t flags) {
         return at;
     };
     if (!tree.nodes.empty()) copy(0);
+    nv::recycle_tree(std::move(tree));  // its arrays serve the thread's next bottom level
     nv::refit_tree(std::span(nodes), [&](uint32_t i) {
         const NvInstanceRecord& r = in.instances[i];
         return Box{{r.world_min[0], r.world_min[1], r.world_min[2]},
@@ -606,6 +622,11 @@ void run_build(Context& c) {
     std::optional<ObjectBytes> object;
     nv::TopInput top_in;
     nv::BottomInput bottom_in;  // read by object->write
+    // Its arrays go back to the thread's kept ones however the build ends.
+    struct Recycle {
+        nv::BottomInput& in;
+        ~Recycle() { nv::recycle_bottom_input(std::move(in)); }
+    } recycle{bottom_in};
     try {
         std::optional<std::vector<std::byte>> src;
         if (c.command.update) src = read_src(c);

@@ -14,6 +14,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <unordered_map>
 
 namespace clastrace::engine::nv {
@@ -83,6 +84,39 @@ uint32_t nv_index_size(VkIndexType type) {
     return type == VK_INDEX_TYPE_UINT16 ? 2 : type == VK_INDEX_TYPE_UINT32 ? 4 : 0;
 }
 
+// The box's lanes 0-2 (lane 3 zero).
+void load_box(const Box& b, __m128* lo, __m128* hi) {
+    *lo = _mm_setr_ps(b.lo[0], b.lo[1], b.lo[2], 0.0f);
+    *hi = _mm_setr_ps(b.hi[0], b.hi[1], b.hi[2], 0.0f);
+}
+
+void store_box(__m128 lo, __m128 hi, Box* box) {
+    _mm_storeu_ps(box->lo, lo);  // (hi[0] written next)
+    _mm_storel_pi(reinterpret_cast<__m64*>(box->hi), hi);
+    _mm_store_ss(box->hi + 2, _mm_movehl_ps(hi, hi));
+}
+
+// The bounds of the boxes' centroids (BottomInput::centroids), kept in registers while the
+// boxes are read. The centroid is nv_tree.cpp's: the halves added, so that coordinates near
+// FLT_MAX do not overflow; minps/maxps keep the bounds when a centroid is NaN.
+struct CentroidBounds {
+    __m128 lo = _mm_set1_ps(std::numeric_limits<float>::infinity());
+    __m128 hi = _mm_set1_ps(-std::numeric_limits<float>::infinity());
+
+    void grow(__m128 box_lo, __m128 box_hi) {
+        const __m128 half = _mm_set1_ps(0.5f);
+        const __m128 c = _mm_add_ps(_mm_mul_ps(box_lo, half), _mm_mul_ps(box_hi, half));
+        lo = _mm_min_ps(c, lo);
+        hi = _mm_max_ps(c, hi);
+    }
+    // Into `bounds`, grown by what it held.
+    void merge_into(Box& bounds) const {
+        __m128 old_lo, old_hi;
+        load_box(bounds, &old_lo, &old_hi);
+        store_box(_mm_min_ps(lo, old_lo), _mm_max_ps(hi, old_hi), &bounds);
+    }
+};
+
 // Geometry g's boxes; NaN or inverted boxes stay inactive.
 void gather_aabbs(Context& c, const NvAabbs& a, uint32_t g, const std::string& at, BottomInput& in,
                   NvGeometryRecord& rec) {
@@ -134,6 +168,10 @@ void gather_aabbs(Context& c, const NvAabbs& a, uint32_t g, const std::string& a
         rec.active_primitives += active;
         if (!active) continue;
         in.boxes.push_back(Box{{p.v[0], p.v[1], p.v[2]}, {p.v[3], p.v[4], p.v[5]}});
+        CentroidBounds centroid;
+        centroid.grow(_mm_setr_ps(p.v[0], p.v[1], p.v[2], 0.0f),
+                      _mm_setr_ps(p.v[3], p.v[4], p.v[5], 0.0f));
+        centroid.merge_into(in.centroids);
         in.source.push_back(uint32_t(in.primitives.size() - 1));
     }
 }
@@ -226,7 +264,7 @@ void triangle_indices(const std::byte* indices, uint32_t i, uint32_t index[3]) {
 // *box filled, the box as triangle_box gives it); false leaves it to the full reading.
 template <uint32_t IndexSize>
 bool fast_triangle(const NvTriangles& t, uint32_t i, const std::byte* vertices,
-                   const std::byte* indices, NvPrimitiveRecord& p, Box* box) {
+                   const std::byte* indices, NvPrimitiveRecord& p, __m128* lo, __m128* hi) {
     uint32_t index[3];
     triangle_indices<IndexSize>(indices, i, index);
     if ((index[0] >= t.vertex_count) | (index[1] >= t.vertex_count) | (index[2] >= t.vertex_count))
@@ -244,10 +282,8 @@ bool fast_triangle(const NvTriangles& t, uint32_t i, const std::byte* vertices,
     _mm_storeu_ps(p.v + 3, v1);
     _mm_storeu_ps(p.v + 6, v2);
     // triangle_box's operand order, which decides between -0 and +0.
-    const __m128 lo = _mm_min_ps(v2, _mm_min_ps(v1, v0)), hi = _mm_max_ps(v2, _mm_max_ps(v1, v0));
-    _mm_storeu_ps(box->lo, lo);  // (hi[0] written next)
-    _mm_storel_pi(reinterpret_cast<__m64*>(box->hi), hi);
-    _mm_store_ss(box->hi + 2, _mm_movehl_ps(hi, hi));
+    *lo = _mm_min_ps(v2, _mm_min_ps(v1, v0));
+    *hi = _mm_max_ps(v2, _mm_max_ps(v1, v0));
     return true;
 }
 
@@ -276,22 +312,29 @@ uint32_t append_triangles(const TriangleSource& s, uint32_t count, BottomInput& 
     Box* out_box = in.boxes.data() + boxes_base;
     uint32_t* out_source = in.source.data() + boxes_base;
     uint32_t active_count = 0;
+    CentroidBounds centroids;
     for (uint32_t i = 0; i < count; ++i) {
         NvPrimitiveRecord& p = out[i];
-        Box& box = out_box[active_count];
-        bool active = s.plain && fast_triangle<IndexSize>(s.t, i, s.vertices, s.indices, p, &box);
+        __m128 lo, hi;
+        bool active =
+            s.plain && fast_triangle<IndexSize>(s.t, i, s.vertices, s.indices, p, &lo, &hi);
         if (!active) {
             std::fill(std::begin(p.v), std::end(p.v), 0.0f);  // as a fresh record
             active = read_triangle(i, p);
-            if (active) box = triangle_box(p.v);
+            if (active) load_box(triangle_box(p.v), &lo, &hi);
         }
         p.geometry_index = s.geometry;
         p.primitive_index = i;
         p.reserved = 0;
         out_active[i] = active;
+        if (active) {
+            store_box(lo, hi, out_box + active_count);
+            centroids.grow(lo, hi);
+        }
         out_source[active_count] = uint32_t(base + i);
         active_count += active;
     }
+    centroids.merge_into(in.centroids);
     in.boxes.resize(boxes_base + active_count);
     in.source.resize(boxes_base + active_count);
     return active_count;
@@ -405,8 +448,52 @@ void gather_triangles(Context& c, const NvTriangles& t, uint32_t g, const std::s
 
 }  // namespace
 
-BottomInput gather_bottom(Context& c) {
+namespace {
+
+size_t capacity_bytes(const BottomInput& in) {
+    return in.geometries.capacity() * sizeof(NvGeometryRecord) +
+           in.primitives.capacity() * sizeof(NvPrimitiveRecord) + in.active.capacity() +
+           in.boxes.capacity() * sizeof(Box) + in.source.capacity() * sizeof(uint32_t);
+}
+
+// The thread's kept input arrays; their bytes count as kept until taken or the thread ends.
+struct KeptInput {
     BottomInput in;
+    size_t bytes = 0;
+    ~KeptInput() { release_kept_bytes(bytes); }
+};
+thread_local KeptInput t_kept_input;
+
+// An empty input on the thread's kept arrays (none kept: fresh ones).
+BottomInput take_bottom_input() {
+    release_kept_bytes(t_kept_input.bytes);
+    t_kept_input.bytes = 0;
+    BottomInput in;
+    in.geometries = std::move(t_kept_input.in.geometries);
+    in.primitives = std::move(t_kept_input.in.primitives);
+    in.active = std::move(t_kept_input.in.active);
+    in.boxes = std::move(t_kept_input.in.boxes);
+    in.source = std::move(t_kept_input.in.source);
+    in.geometries.clear();
+    in.primitives.clear();
+    in.active.clear();
+    in.boxes.clear();
+    in.source.clear();
+    return in;
+}
+
+}  // namespace
+
+void recycle_bottom_input(BottomInput&& in) {
+    const size_t bytes = capacity_bytes(in);
+    if (bytes <= capacity_bytes(t_kept_input.in) || !claim_kept_bytes(bytes)) return;
+    release_kept_bytes(t_kept_input.bytes);
+    t_kept_input.in = std::move(in);
+    t_kept_input.bytes = bytes;
+}
+
+BottomInput gather_bottom(Context& c) {
+    BottomInput in = take_bottom_input();
     const auto& geometries = c.command.info.geometries;
     in.aabbs = !geometries.empty() && geometries[0].type == VK_GEOMETRY_TYPE_AABBS_NV;
     for (uint32_t g = 0; g < geometries.size(); ++g) {

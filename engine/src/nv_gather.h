@@ -84,13 +84,18 @@ struct BottomInput {
     // primitive order, and the index of its record in `primitives`.
     std::vector<Box, UninitializedAllocator<Box>> boxes;
     std::vector<uint32_t, UninitializedAllocator<uint32_t>> source;
+    // The bounds of those boxes' centroids (the Morton codes' range), taken with them.
+    Box centroids = Box::empty();
 };
 struct TopInput {
     std::vector<NvInstanceRecord> instances;  // input order
 };
 
-// Throws MemoryFault when an input lies outside memory (the caller reports it).
+// Throws MemoryFault when an input lies outside memory (the caller reports it). The arrays
+// are the thread's last recycled ones where it kept some.
 BottomInput gather_bottom(Context& c);
+// Keeps the input's arrays for the thread's next gather_bottom (pages already faulted in).
+void recycle_bottom_input(BottomInput&& in);
 TopInput gather_top(Context& c);
 
 // After the command's checks passed: reads src (update), gathers the inputs, builds or

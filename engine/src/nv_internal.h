@@ -2,10 +2,12 @@
 // Pieces the NV build, update and serialization share.
 #pragma once
 
+#include "clastrace/common/uninitialized_allocator.h"
 #include "clastrace/engine/nv_format.h"
 #include "geometry/box.h"
 
 #include <algorithm>
+#include <cstddef>
 #include <cstdint>
 #include <limits>
 #include <span>
@@ -20,7 +22,8 @@ using geometry::Box;
 // the item order leaves refer to. Deterministic: same boxes, same tree.
 struct Tree {
     std::vector<NvNode> nodes;
-    std::vector<uint32_t> order;
+    // Written whole by the builders: no first pass of zeros.
+    std::vector<uint32_t, common::UninitializedAllocator<uint32_t>> order;
 };
 // kSah: binned SAH (the default). kMorton: linear BVH over sorted Morton codes, several
 // times faster to build and slower to trace (VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV).
@@ -34,8 +37,25 @@ enum class TreeQuality { kSah, kMorton };
 // chains of single instances, each costing a bottom-level walk). Morton trees always end at
 // kNvMaxLeafSize items.
 enum class TreeLevel { kBottom, kTop };
+// `centroids`, where the caller took them while it had the boxes at hand, are the bounds of
+// the boxes' centroids (lo and hi halved, then added); the Morton build reads them instead of
+// taking a pass over the boxes for them.
 Tree build_tree(std::span<const Box> boxes, TreeQuality quality = TreeQuality::kSah,
-                TreeLevel level = TreeLevel::kBottom);
+                TreeLevel level = TreeLevel::kBottom, const Box* centroids = nullptr);
+
+// Gives a tree's arrays back once its object is written: the thread's next build_tree grows
+// its tree in them, on pages already faulted in.
+void recycle_tree(Tree&& tree);
+
+// Working arrays the builds keep per thread between builds (build_tree's, the gather's): a
+// fresh page costs a fault and a clear, and a large fresh array faults in every page each
+// build. What one thread keeps of one kind, and what all threads keep together, is capped: a
+// 16-thread replay once held up to 1 GiB of them between builds.
+constexpr size_t kKeptBytesPerThread = size_t(64) << 20;  // ~1.2M Morton items
+constexpr size_t kAllKeptBytes = size_t(128) << 20;       // every thread, every kind
+// Counts `bytes` as kept; false (nothing counted) when that would pass a cap: drop them.
+bool claim_kept_bytes(size_t bytes);
+void release_kept_bytes(size_t bytes);
 
 // Recomputes every node box from its items (leaf) or children, bottom-up. `item_box(i)`
 // is the box of record i (the leaf ranges index records directly).

@@ -502,10 +502,14 @@ constexpr std::array<uint32_t, 1024> kSpreadBits = [] {
 
 // Linear BVH over Morton codes (Lauterbach et al. 2009): the items sorted by the 30-bit
 // code of their centroid, every node split where its range's highest differing code bit
-// flips. One sort and one pass per level, no cost evaluation: the fast-build mode.
+// flips. One sort and one pass per level, no cost evaluation: the fast-build mode. The tree
+// reads the sorted keys themselves (no unpacked copies of the codes or of the boxes in code
+// order: those were 40 bytes written and read again per item) and fetches each leaf's boxes
+// from input order, ahead of the leaves that need them.
 struct MortonBuilder {
-    const BoxRef* boxes;    // in code order
-    const uint32_t* codes;  // sorted
+    const uint64_t* keys;  // sorted, code << 32 | item
+    const Box* boxes;      // input order
+    uint32_t* order;       // out: the item at each position of the code order
     uint32_t parallel_items;
 
     // Appends the subtree of [begin, end) to `out` (root at out.size()); returns its bounds.
@@ -535,30 +539,57 @@ private:
     // codes of the range share every bit above that one, so those without it come first; a
     // binary search without branches on the data finds the first with it.
     uint32_t split(uint32_t begin, uint32_t end) const {
-        const uint32_t diff = codes[begin] ^ codes[end - 1];
+        const uint64_t diff = (keys[begin] ^ keys[end - 1]) >> 32;
         if (diff == 0) return begin + (end - begin) / 2;  // equal codes: any split is as good
-        const uint32_t bit = 1u << (31 - __builtin_clz(diff));
-        const uint32_t* base = codes + begin;
+        const uint64_t bit = uint64_t(1) << (63 - __builtin_clzll(diff) + 32);
+        const uint64_t* base = keys + begin;
         for (uint32_t n = end - begin; n > 1;) {
             const uint32_t half = n / 2;
             base = (base[half] & bit) ? base : base + half;
             n -= half;
         }
-        return uint32_t(base - codes) + ((*base & bit) ? 0 : 1);
+        return uint32_t(base - keys) + ((*base & bit) ? 0 : 1);
     }
 
-    // build() on one thread, without recursion: the nodes in preorder with each leaf's
-    // bounds, then every inner node's bounds from its children's, last node first (children
-    // lie after their parent). The bounds are grown in the order the recursive build grew
+    // The leaf of [begin, end): its items' positions in `order` and their bounds, grown in
+    // item order (which decides between -0 and +0). The boxes of the leaves kAhead positions
+    // on are fetched meanwhile: leaves come in code order, their boxes from anywhere.
+    Bounds4 leaf(uint32_t begin, uint32_t end, uint32_t size) const {
+        constexpr uint32_t kAhead = 16;
+        for (uint32_t i = begin + kAhead; i < end + kAhead && i < size; ++i)
+            __builtin_prefetch(&boxes[uint32_t(keys[i])]);
+        const __m128 xyz = _mm_castsi128_ps(_mm_set_epi32(0, -1, -1, -1));
+        Bounds4 b = Bounds4::empty();
+        for (uint32_t i = begin; i < end; ++i) {
+            const uint32_t item = uint32_t(keys[i]);
+            order[i] = item;
+            // The box's six floats in two unaligned loads inside its 24 bytes.
+            const __m128 tail = _mm_loadu_ps(boxes[item].lo + 2);
+            b.grow(_mm_and_ps(_mm_loadu_ps(boxes[item].lo), xyz),
+                   _mm_and_ps(_mm_shuffle_ps(tail, tail, _MM_SHUFFLE(3, 3, 2, 1)), xyz));
+        }
+        return b;
+    }
+
+    // build() on one thread, without recursion: the nodes in preorder, each inner node's
+    // bounds written when its second child completes (most subtrees are small, so the node
+    // is still in cache then). The bounds are grown in the order the recursive build grew
     // them (a leaf's items in order, then left and right child), which decides between -0
     // and +0.
     Bounds4 build_sequential(std::vector<NvNode>& out, uint32_t begin, uint32_t end) const {
-        const uint32_t root = uint32_t(out.size());
         constexpr uint32_t kLeftChild = ~0u;  // a pending range whose parent needs no link
         struct Pending {
             uint32_t begin, end, parent;
         };
+        // An inner node whose bounds wait for its children: its left child's once that is done.
+        struct Open {
+            uint32_t node;
+            bool left_done;
+            Bounds4 bounds;
+        };
         std::vector<Pending> stack{{begin, end, kLeftChild}};
+        std::vector<Open> open;
+        Bounds4 done = Bounds4::empty();
         while (!stack.empty()) {
             const Pending p = stack.back();
             stack.pop_back();
@@ -566,33 +597,33 @@ private:
             if (p.parent != kLeftChild) out[p.parent].first = node;
             NvNode& n = out.emplace_back();
             const uint32_t count = p.end - p.begin;
-            if (count <= kNvMaxLeafSize) {
-                Bounds4 b = Bounds4::empty();
-                for (uint32_t i = p.begin; i < p.end; ++i)
-                    b.grow(load_lo(boxes[i]), _mm_load_ps(boxes[i].hi));
-                NvNodeEmitter::set_bounds(n, b);
-                n.first = p.begin;
-                n.count = count;
+            if (count > kNvMaxLeafSize) {
+                n.count = 0;
+                open.push_back({node, false, Bounds4::empty()});
+                const uint32_t mid = split(p.begin, p.end);
+                stack.push_back({mid, p.end, node});
+                stack.push_back({p.begin, mid, kLeftChild});
                 continue;
             }
-            n.count = 0;
-            const uint32_t mid = split(p.begin, p.end);
-            stack.push_back({mid, p.end, node});
-            stack.push_back({p.begin, mid, kLeftChild});
+            done = leaf(p.begin, p.end, end);
+            NvNodeEmitter::set_bounds(n, done);
+            n.first = p.begin;
+            n.count = count;
+            // The subtree just done completes every open node whose right child it ends.
+            while (!open.empty()) {
+                Open& o = open.back();
+                if (!o.left_done) {
+                    o.left_done = true;
+                    o.bounds = done;
+                    break;
+                }
+                o.bounds.grow(done);
+                done = o.bounds;
+                NvNodeEmitter::set_bounds(out[o.node], done);
+                open.pop_back();
+            }
         }
-        const __m128 xyz = _mm_castsi128_ps(_mm_set_epi32(0, -1, -1, -1));
-        auto bounds = [&](const NvNode& n) {
-            return Bounds4{_mm_and_ps(_mm_loadu_ps(n.bounds_min), xyz),
-                           _mm_and_ps(_mm_loadu_ps(n.bounds_max), xyz)};
-        };
-        for (size_t k = out.size(); k-- > root;) {
-            NvNode& n = out[k];
-            if (n.count != 0) continue;
-            Bounds4 b = bounds(out[k + 1]);
-            b.grow(bounds(out[n.first]));
-            NvNodeEmitter::set_bounds(n, b);
-        }
-        return bounds(out[root]);
+        return done;
     }
 };
 
@@ -632,22 +663,21 @@ void sort_by_code(std::vector<uint64_t>& keys, std::vector<uint64_t>& spare, Dig
     }
 }
 
-// A build's working arrays (not its output), kept per thread between builds: fresh pages
-// cost a fault and a clear each, which was about half of a Morton build's time on 10^5
-// triangles. A build takes them and gives them back, so a build nested on the same thread
-// (a task stolen while waiting) finds none and allocates its own. What all threads keep is
-// capped (kAllKeptBytes): a 16-thread replay once held up to 1 GiB of them between builds.
+// A build's working arrays, and the arrays of the last tree given back (recycle_tree), kept
+// per thread between builds: fresh pages cost a fault and a clear each, which was about half
+// of a Morton build's time on 10^5 triangles. A build takes them and gives them back, so a
+// build nested on the same thread (a task stolen while waiting) finds none and allocates its
+// own.
 struct BuildScratch {
     std::vector<BoxRef> refs;
     std::vector<uint64_t> keys, spare;
-    std::vector<uint32_t> codes;
-    static constexpr size_t kKeptBytes = size_t(64) << 20;      // ~1.2M items; one thread
-    static constexpr size_t kAllKeptBytes = size_t(128) << 20;  // every thread together
+    std::vector<NvNode> nodes;
+    decltype(Tree::order) order;
 
     size_t bytes() const {
         return refs.capacity() * sizeof(BoxRef) +
                (keys.capacity() + spare.capacity()) * sizeof(uint64_t) +
-               codes.capacity() * sizeof(uint32_t);
+               nodes.capacity() * sizeof(NvNode) + order.capacity() * sizeof(uint32_t);
     }
 };
 
@@ -666,16 +696,30 @@ BuildScratch take_scratch() {
 }
 void keep_scratch(BuildScratch&& s) {
     const size_t bytes = s.bytes();
-    if (bytes > BuildScratch::kKeptBytes) return;
-    if (g_all_kept_bytes.fetch_add(bytes) + bytes > BuildScratch::kAllKeptBytes) {
-        g_all_kept_bytes -= bytes;
-        return;
-    }
+    if (!claim_kept_bytes(bytes)) return;
     g_all_kept_bytes -= t_kept.scratch.bytes();  // (empty unless a nested build kept some)
     t_kept.scratch = std::move(s);
 }
 
 }  // namespace
+
+bool claim_kept_bytes(size_t bytes) {
+    if (bytes > kKeptBytesPerThread) return false;
+    if (g_all_kept_bytes.fetch_add(bytes) + bytes > kAllKeptBytes) {
+        g_all_kept_bytes -= bytes;
+        return false;
+    }
+    return true;
+}
+
+void release_kept_bytes(size_t bytes) { g_all_kept_bytes -= bytes; }
+
+void recycle_tree(Tree&& tree) {
+    BuildScratch s = take_scratch();
+    if (tree.nodes.capacity() > s.nodes.capacity()) s.nodes = std::move(tree.nodes);
+    if (tree.order.capacity() > s.order.capacity()) s.order = std::move(tree.order);
+    keep_scratch(std::move(s));
+}
 
 Box triangle_box(const float v[9]) {
     // Box::grow_point's rule in SSE: minps(p, lo) is p < lo ? p : lo, std::min(lo, p), so a
@@ -716,7 +760,8 @@ Box transform_box(const Box& local, const float m[12]) {
     return out;
 }
 
-Tree build_tree(std::span<const Box> boxes, TreeQuality quality, TreeLevel level) {
+Tree build_tree(std::span<const Box> boxes, TreeQuality quality, TreeLevel level,
+                const Box* centroids) {
     Tree t;
     if (boxes.empty()) return t;
     // One thread: no tasks and no splicing (the same bytes either way).
@@ -735,8 +780,11 @@ Tree build_tree(std::span<const Box> boxes, TreeQuality quality, TreeLevel level
         *lo = _mm_and_ps(_mm_loadu_ps(boxes[i].lo), xyz);
         *hi = _mm_and_ps(_mm_shuffle_ps(tail, tail, _MM_SHUFFLE(3, 3, 2, 1)), xyz);
     };
+    BuildScratch scratch = take_scratch();
+    t.nodes = std::move(scratch.nodes);
+    t.nodes.clear();
+    t.order = std::move(scratch.order);
     if (quality == TreeQuality::kSah) {
-        BuildScratch scratch = take_scratch();
         std::vector<BoxRef>& refs = scratch.refs;
         refs.resize(n);
         for (uint32_t i = 0; i < n; ++i) {
@@ -756,17 +804,21 @@ Tree build_tree(std::span<const Box> boxes, TreeQuality quality, TreeLevel level
         keep_scratch(std::move(scratch));
         return t;
     }
-    // Morton: the codes, the sorted item order and the boxes in that order.
-    Bounds4 centroids = Bounds4::empty();
-    for (uint32_t i = 0; i < n; ++i) {
-        __m128 lo, hi;
-        load(i, &lo, &hi);
-        const __m128 c = centroid(lo, hi);
-        centroids.grow(c, c);
+    // Morton: the codes, sorted with their items, then the tree over the sorted keys.
+    Bounds4 centroid_bounds = Bounds4::empty();
+    if (centroids) {
+        centroid_bounds.lo = _mm_setr_ps(centroids->lo[0], centroids->lo[1], centroids->lo[2], 0);
+        centroid_bounds.hi = _mm_setr_ps(centroids->hi[0], centroids->hi[1], centroids->hi[2], 0);
+    } else {
+        for (uint32_t i = 0; i < n; ++i) {
+            __m128 lo, hi;
+            load(i, &lo, &hi);
+            const __m128 c = centroid(lo, hi);
+            centroid_bounds.grow(c, c);
+        }
     }
     // 10 bits per axis over the centroid bounds (NaN and unusable axes quantize to 0).
-    const BinMap map(centroids, 1024);
-    BuildScratch scratch = take_scratch();
+    const BinMap map(centroid_bounds, 1024);
     std::vector<uint64_t>& keys = scratch.keys;
     keys.resize(n);
     DigitCounts counts{};
@@ -782,24 +834,8 @@ Tree build_tree(std::span<const Box> boxes, TreeQuality quality, TreeLevel level
     }
     t.nodes.reserve(size_t(n));  // leaves of up to 4 and Morton's uneven splits: about n nodes
     sort_by_code(keys, scratch.spare, counts);
-    // The item order, the codes, and the boxes in that order, in one pass with the next boxes
-    // fetched ahead: the build then reads them in sequence.
-    std::vector<uint32_t> items(n);
-    std::vector<uint32_t>& codes = scratch.codes;
-    codes.resize(n);
-    std::vector<BoxRef>& sorted = scratch.refs;
-    sorted.resize(n);
-    constexpr uint32_t kAhead = 16;
-    for (uint32_t i = 0; i < n; ++i) {
-        if (i + kAhead < n) __builtin_prefetch(&boxes[uint32_t(keys[i + kAhead])]);
-        const uint32_t item = uint32_t(keys[i]);
-        items[i] = item;
-        codes[i] = uint32_t(keys[i] >> 32);
-        const Box& b = boxes[item];
-        sorted[i] = BoxRef{{b.lo[0], b.lo[1], b.lo[2]}, item, {b.hi[0], b.hi[1], b.hi[2]}, 0};
-    }
-    MortonBuilder{sorted.data(), codes.data(), parallel_items}.build(t.nodes, 0, n);
-    t.order = std::move(items);
+    t.order.resize(n);
+    MortonBuilder{keys.data(), boxes.data(), t.order.data(), parallel_items}.build(t.nodes, 0, n);
     keep_scratch(std::move(scratch));
     return t;
 }

@@ -89,6 +89,42 @@ TEST(NvBuild, BytesDoNotDependOnThreadCountForEitherBuilder) {
     EXPECT_FALSE(same_tree);
 }
 
+// A thread keeps the gather's and the tree's arrays between builds (nv_internal.h): what a
+// build leaves in them must not reach the next one. A mesh built again after a larger one
+// with inactive triangles (NaN holes: the record lookup through the active ones) and after a
+// smaller one gives the same bytes as its first build, with either builder.
+TEST(NvBuild, KeptArraysCarryNothingBetweenBuilds) {
+    tbb::global_control one(tbb::global_control::max_allowed_parallelism, 1);
+    ts::TriangleMesh holes = ts::make_terrain(220, 220, 4);
+    for (size_t i = 0; i < holes.positions.size(); i += 5) holes.positions[i][0] = NAN;
+    auto bytes_of = [](const ts::TriangleMesh& mesh, VkBuildAccelerationStructureFlagsNV flags) {
+        NvWorld w;
+        BlasSpec spec;
+        spec.geometries.push_back({mesh, {}, VK_GEOMETRY_OPAQUE_BIT_NV});
+        const auto info = w.blas_info(spec, flags);
+        auto obj = w.make_object(info, "blas");
+        const auto r = w.build(info, obj);
+        EXPECT_TRUE(r.ops[0].executed) << rules(r);
+        const auto span = w.memory.read_bytes(obj.address, r.ops[0].dst_size, {});
+        return std::vector<std::byte>(span.begin(), span.end());
+    };
+    const ts::TriangleMesh mesh = ts::make_torus(120, 60, 1.0f, 0.3f),
+                           small = ts::make_icosphere(2, 1.0f);
+    for (VkBuildAccelerationStructureFlagsNV flags :
+         {VkBuildAccelerationStructureFlagsNV(0),
+          VkBuildAccelerationStructureFlagsNV(
+              VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV)}) {
+        const auto first = bytes_of(mesh, flags);
+        const auto with_holes = bytes_of(holes, flags);
+        EXPECT_LT(eng::open_nv_object(with_holes, nullptr)->header.primitive_count,
+                  holes.triangles.size());
+        EXPECT_EQ(bytes_of(mesh, flags), first) << "after the larger mesh, flags " << flags;
+        (void)bytes_of(small, flags);
+        EXPECT_EQ(bytes_of(mesh, flags), first) << "after the smaller mesh, flags " << flags;
+        EXPECT_EQ(bytes_of(holes, flags), with_holes) << "flags " << flags;
+    }
+}
+
 // The same surface in every encoding NV allows must give bit-identical answers to the
 // decoded float positions in R32G32B32 / UINT32 / packed form.
 uint16_t to_half(float f) {  // exact for the values used (multiples of 1/64 in [-1, 1])

@@ -1,5 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
-// An allocator whose value-less construct leaves a trivial element uninitialized. Arrays that are
+// An allocator whose value-less construct leaves an element of an implicit-lifetime type
+// (trivially copyable and destructible: its storage already holds one) uninitialized, default
+// member initializers included. Arrays that are
 // written over whole before anything reads them (decompressed chunks, the writer's streams, the
 // NV build's gathered records) grow with resize() without a first pass of zeros over every byte,
 // and on fresh pages without a fault for each.
@@ -25,7 +27,8 @@ struct UninitializedAllocator : std::allocator<T> {
     UninitializedAllocator(const UninitializedAllocator<U>&) noexcept {}
     template <class U>
     void construct(U* p) noexcept(std::is_nothrow_default_constructible_v<U>) {
-        ::new (static_cast<void*>(p)) U;
+        if constexpr (!std::is_trivially_copyable_v<U> || !std::is_trivially_destructible_v<U>)
+            ::new (static_cast<void*>(p)) U;
     }
     template <class U, class... Args>
     void construct(U* p, Args&&... args) {
