@@ -7,7 +7,9 @@
 //
 // The search for an address runs over a separate array of the segments' ends (8 bytes a
 // segment), branch-free: a command's accesses jump between its arrays, so neither a cached
-// "last segment" nor the search's branches predict well.
+// "last segment" nor the search's branches predict well. A command's disjoint accesses sorted by
+// address go through in one walk (begin_sorted): each search starts where the last range ended,
+// and the entries are rewritten by one splice for them all.
 //
 // Body needs a default constructor, copy assignment and clear(). Internal to replay; a
 // template only so that tests can check it against a per-byte reference with a plain body.
@@ -35,7 +37,10 @@ public:
         uint32_t body;
     };
 
-    std::size_t size() const { return entries_.size(); }
+    std::size_t size() const {
+        if (batch_from_ == kNoBatch) return entries_.size();
+        return batch_from_ + out_.size() + (have_pending_ ? 1 : 0) + (entries_.size() - next_);
+    }
 
     // Visits [begin, end) in address order: segments straddling either end are split first
     // (one piece keeps the body, the other gets a copy of it), gaps become new
@@ -44,66 +49,29 @@ public:
     // keeping the first one's body (the caller made them all equal).
     template <class Fresh, class Touch>
     void update(uint64_t begin, uint64_t end, bool merge, Fresh&& fresh, Touch&& touch) {
-        if (end <= begin) return;
-        const std::size_t first = first_ending_after(begin);
-        std::size_t next = first;  // entries[next..] are not yet consumed
-        pieces_.clear();
-        uint64_t cursor = begin;
-        bool have_carry = false;  // a copy split off the straddling entry, not yet in pieces_
-        Entry carry{};
-        if (next < entries_.size() && entries_[next].begin < begin) {
-            const Entry e = entries_[next++];
-            pieces_.push_back({e.begin, begin, e.body});
-            carry = {begin, e.end, copy_of(e.body)};
-            have_carry = true;
-        }
-        std::size_t inside_from = pieces_.size();
-        while (cursor < end) {
-            const bool have = have_carry || next < entries_.size();
-            const Entry seg_peek =
-                have_carry ? carry : (next < entries_.size() ? entries_[next] : Entry{});
-            if (!have || seg_peek.begin > cursor) {
-                const uint64_t gap_end = have ? std::min(end, seg_peek.begin) : end;
-                const uint32_t b = allocate();
-                fresh(bodies_[b], cursor, gap_end);
-                pieces_.push_back({cursor, gap_end, b});
-                cursor = gap_end;
-                continue;
-            }
-            Entry seg = seg_peek;
-            if (have_carry)
-                have_carry = false;
-            else
-                ++next;
-            bool has_tail = false;
-            Entry tail{};
-            if (seg.end > end) {
-                tail = {end, seg.end, copy_of(seg.body)};
-                seg.end = end;
-                has_tail = true;
-            }
-            touch(bodies_[seg.body], seg.begin, seg.end);
-            pieces_.push_back(seg);
-            cursor = seg.end;
-            if (has_tail) pieces_.push_back(tail);
-        }
-        if (merge) {
-            // Pieces inside [begin, end): from inside_from up to a tail (which begins at end).
-            std::size_t inside_to = pieces_.size();
-            if (inside_to > inside_from && pieces_[inside_to - 1].begin >= end) --inside_to;
-            if (inside_to - inside_from > 1) {
-                for (std::size_t k = inside_from + 1; k < inside_to; ++k) release(pieces_[k].body);
-                pieces_[inside_from].end = end;
-                pieces_.erase(pieces_.begin() + std::ptrdiff_t(inside_from + 1),
-                              pieces_.begin() + std::ptrdiff_t(inside_to));
-            }
-        }
-        splice(first, next, pieces_);
-        CLASTRACE_DEBUG_ASSERT(entries_hold(first, first + pieces_.size()));
+        update_in_batch(begin, end, merge, fresh, touch);
+        if (!batching_) finish_batch();
+    }
+
+    // Between begin_sorted() and end_sorted(), update() takes ranges in ascending order, each
+    // beginning at or after the end of the one before (a command's disjoint accesses sorted by
+    // address): the store is then walked once, forward from the first range, and rewritten
+    // with one splice at end_sorted(), instead of a search and a splice per range. Nothing but
+    // update() and size() may be called in between.
+    void begin_sorted() {
+        CLASTRACE_DEBUG_ASSERT(!batching_);
+        batching_ = true;
+        last_end_ = 0;
+    }
+    void end_sorted() {
+        CLASTRACE_DEBUG_ASSERT(batching_);
+        batching_ = false;
+        finish_batch();
     }
 
     // Makes `at` a segment boundary if a segment straddles it.
     void split_at(uint64_t at) {
+        CLASTRACE_DEBUG_ASSERT(batch_from_ == kNoBatch);
         const std::size_t i = first_ending_after(at);
         if (i >= entries_.size() || entries_[i].begin >= at) return;
         const Entry e = entries_[i];
@@ -131,6 +99,7 @@ public:
     // also edit the body of those it keeps), in one pass.
     template <class Drop>
     void erase_if(Drop&& drop, uint64_t lo = 0, uint64_t hi = UINT64_MAX) {
+        CLASTRACE_DEBUG_ASSERT(batch_from_ == kNoBatch);
         std::size_t out = first_ending_after(lo), in = out;
         for (; in < entries_.size() && entries_[in].begin < hi; ++in) {
             const Entry e = entries_[in];
@@ -153,10 +122,10 @@ public:
     // holds on the heap.
     template <class HeapBytes>
     std::size_t memory_bytes(HeapBytes&& body_heap_bytes) const {
-        std::size_t bytes =
-            entries_.capacity() * sizeof(Entry) + ends_.capacity() * sizeof(uint64_t) +
-            bodies_.capacity() * sizeof(Body) + free_.capacity() * sizeof(uint32_t) +
-            pieces_.capacity() * sizeof(Entry);
+        std::size_t bytes = entries_.capacity() * sizeof(Entry) +
+                            ends_.capacity() * sizeof(uint64_t) +
+                            bodies_.capacity() * sizeof(Body) +
+                            free_.capacity() * sizeof(uint32_t) + out_.capacity() * sizeof(Entry);
         for (const Body& b : bodies_) bytes += body_heap_bytes(b);
         return bytes;
     }
@@ -195,16 +164,108 @@ private:
         return true;
     }
 
-    // Index of the first entry whose end lies past `at` (the one holding `at`, or the next).
-    std::size_t first_ending_after(uint64_t at) const {
+    // update()'s walk. The entries it has passed, rewritten, are in out_ (they replace
+    // entries_[batch_from_, next_)); the input still to come is pending_ (a tail split off the
+    // last segment touched, when there is one) and then entries_[next_..].
+    template <class Fresh, class Touch>
+    void update_in_batch(uint64_t begin, uint64_t end, bool merge, Fresh& fresh, Touch& touch) {
+        if (end <= begin) return;
+        CLASTRACE_DEBUG_ASSERT(!batching_ || begin >= last_end_);
+        last_end_ = end;
+        if (batch_from_ != kNoBatch) {  // what lies before `begin` passes unchanged
+            if (have_pending_ && pending_.end <= begin) {
+                out_.push_back(pending_);
+                have_pending_ = false;
+            }
+            if (!have_pending_) {
+                const std::size_t first = first_ending_after(begin, next_);
+                if (first - next_ > kCopiedAcross) {
+                    // Far from the last range: a splice here moves less than copying the
+                    // entries between, twice.
+                    const std::size_t resume = batch_from_ + out_.size();
+                    finish_batch();
+                    batch_from_ = next_ = first_ending_after(begin, resume);
+                    out_.clear();
+                } else {
+                    out_.insert(out_.end(), entries_.begin() + std::ptrdiff_t(next_),
+                                entries_.begin() + std::ptrdiff_t(first));
+                    next_ = first;
+                }
+            }
+        } else {
+            batch_from_ = next_ = first_ending_after(begin, 0);
+            out_.clear();
+        }
+        auto have_input = [&] { return have_pending_ || next_ < entries_.size(); };
+        auto peek = [&] { return have_pending_ ? pending_ : entries_[next_]; };
+        auto consume = [&] {
+            if (have_pending_)
+                have_pending_ = false;
+            else
+                ++next_;
+        };
+        if (have_input() && peek().begin < begin) {  // straddles `begin`
+            const Entry e = peek();
+            consume();
+            out_.push_back({e.begin, begin, e.body});
+            pending_ = {begin, e.end, copy_of(e.body)};
+            have_pending_ = true;
+        }
+        const std::size_t inside_from = out_.size();
+        uint64_t cursor = begin;
+        while (cursor < end) {
+            if (!have_input() || peek().begin > cursor) {
+                const uint64_t gap_end = have_input() ? std::min(end, peek().begin) : end;
+                const uint32_t b = allocate();
+                fresh(bodies_[b], cursor, gap_end);
+                out_.push_back({cursor, gap_end, b});
+                cursor = gap_end;
+                continue;
+            }
+            Entry seg = peek();
+            consume();
+            if (seg.end > end) {  // straddles `end`: the tail is input for the next range
+                pending_ = {end, seg.end, copy_of(seg.body)};
+                have_pending_ = true;
+                seg.end = end;
+            }
+            touch(bodies_[seg.body], seg.begin, seg.end);
+            out_.push_back(seg);
+            cursor = seg.end;
+        }
+        if (merge && out_.size() - inside_from > 1) {
+            for (std::size_t k = inside_from + 1; k < out_.size(); ++k) release(out_[k].body);
+            out_[inside_from].end = end;
+            out_.resize(inside_from + 1);
+        }
+    }
+
+    // The rewritten entries replace those the walk passed.
+    void finish_batch() {
+        if (batch_from_ == kNoBatch) return;
+        if (have_pending_) {
+            out_.push_back(pending_);
+            have_pending_ = false;
+        }
+        const std::size_t from = batch_from_;
+        splice(from, next_, out_);
+        batch_from_ = kNoBatch;
+        CLASTRACE_DEBUG_ASSERT(entries_hold(from, from + out_.size()));
+    }
+
+    // Index of the first entry from `from` on whose end lies past `at` (the one holding `at`,
+    // or the next).
+    std::size_t first_ending_after(uint64_t at, std::size_t from = 0) const {
         // Entries are disjoint and sorted, so their ends are sorted too.
         const std::size_t n = ends_.size();
-        if (n == 0) return 0;
-        const uint64_t* base = ends_.data();
-        std::size_t len = n;
+        if (from >= n) return n;
+        if (ends_[from] > at) return from;  // a sorted walk's next range is often right there
+        const uint64_t* base = ends_.data() + from;
+        std::size_t len = n - from;
         while (len > 1) {
             const std::size_t half = len / 2;
-            base = base[half - 1] <= at ? base + half : base;
+            base +=
+                half * std::size_t(base[half - 1] <= at);  // arithmetic: GCC made the ?: a branch
             len -= half;
         }
         return std::size_t(base - ends_.data()) + (*base <= at ? 1 : 0);
@@ -249,7 +310,15 @@ private:
     std::vector<uint64_t> ends_;  // entries_[i].end, for the search
     std::vector<Body> bodies_;
     std::vector<uint32_t> free_;  // released bodies, cleared
-    std::vector<Entry> pieces_;   // update's working list
+    // update()'s walk (update_in_batch): see there.
+    static constexpr std::size_t kNoBatch = SIZE_MAX;
+    static constexpr std::size_t kCopiedAcross = 16;  // untouched entries a walk copies, at most
+    std::vector<Entry> out_;
+    std::size_t batch_from_ = kNoBatch, next_ = 0;
+    Entry pending_{};
+    bool have_pending_ = false;
+    bool batching_ = false;  // between begin_sorted() and end_sorted()
+    uint64_t last_end_ = 0;  // the last range's end (ranges in a batch must not go back)
 };
 
 }  // namespace clastrace::replay::detail

@@ -101,14 +101,15 @@ void SyncModel::record_accesses(const CommandRef& command, std::span<const Acces
     auto& members = s.batch.members;
     auto& field_of = s.batch.field_of;
 
-    // Record in the command's order (a run at its first element); report in that order too.
+    // Findings are reported in the command's order (a run's at its elements' places), whatever
+    // order the records go in.
     std::vector<State::Finding> found, each;
     std::vector<Record> laters;
-    for (uint32_t i = 0; i < n; ++i) {
+    auto record_one = [&](uint32_t i) {
         const int32_t ri = run_of[i];
         const State::Run* run =
             ri >= 0 && runs[std::size_t(ri)].count > 1 ? &runs[std::size_t(ri)] : nullptr;
-        if (run && run->head != i) continue;
+        if (run && run->head != i) return;  // recorded with its run's first element
         Record& rec = s.batch.record;
         if (run) {
             Access a = accesses[i];
@@ -123,7 +124,7 @@ void SyncModel::record_accesses(const CommandRef& command, std::span<const Acces
         }
         each.clear();
         s.record(rec, false, &each);
-        if (each.empty()) continue;
+        if (each.empty()) return;
         for (State::Finding& f : each) {
             f.order = i;
             if (f.later_element)
@@ -135,6 +136,22 @@ void SyncModel::record_accesses(const CommandRef& command, std::span<const Acces
         laters.push_back(rec);
         found.insert(found.end(), std::make_move_iterator(each.begin()),
                      std::make_move_iterator(each.end()));
+    };
+    // Accesses overlapping another go in the command's order, which decides what they leave
+    // behind. The others meet no other access of the command, so their order changes nothing
+    // but the walk: in address order (pin_overlapping sorted them) they take one pass over the
+    // segments.
+    const auto& pinned = s.batch.pinned;
+    for (uint32_t i = 0; i < n; ++i)
+        if (pinned[i] || accesses[i].range.empty()) record_one(i);
+    {
+        struct SortedWalk {  // ended however record_one leaves
+            SegmentStore<Segment>& store;
+            explicit SortedWalk(SegmentStore<Segment>& s) : store(s) { store.begin_sorted(); }
+            ~SortedWalk() { store.end_sorted(); }
+        } walk(s.segments);
+        for (const auto& [begin, i] : s.batch.by_begin)
+            if (!pinned[i]) record_one(i);
     }
     std::stable_sort(found.begin(), found.end(),
                      [](const State::Finding& a, const State::Finding& b) {

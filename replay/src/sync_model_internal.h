@@ -72,8 +72,7 @@ struct SyncModel::State {
         uint32_t head = 0, last = 0, count = 1, members_at = 0;
     };
     struct BatchScratch {
-        std::vector<std::pair<uint64_t, uint32_t>> by_begin;
-        std::vector<uint64_t> packed;
+        std::vector<std::pair<uint64_t, uint32_t>> by_begin, sort_scratch;
         std::vector<uint8_t> pinned;
         std::vector<int32_t> run_of, next_member;
         std::vector<uint32_t> members;

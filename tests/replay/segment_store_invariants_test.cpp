@@ -90,5 +90,32 @@ TEST(SegmentStoreInvariantsDeathTest, UpdateOverAnEmptySegmentAborts) {
     EXPECT_DEATH(add(store, 8, 40, 4, false), "invariant broken: entries_hold");
 }
 
+TEST(SegmentStoreInvariants, HoldOverRandomSortedWalks) {
+    std::mt19937_64 random(23);
+    Store store;
+    for (int walk = 0; walk < 1000; ++walk) {
+        store.begin_sorted();
+        uint64_t at = random() % 64;
+        const int ranges = 1 + int(random() % 12);
+        for (int range = 0; range < ranges && at < 1024; ++range) {
+            const uint64_t end = at + 1 + random() % (random() % 4 ? 8 : 96);
+            add(store, at, end, walk, random() % 3 == 0);
+            at = end + (random() % 2 ? 0 : random() % 40);
+        }
+        store.end_sorted();
+        ASSERT_TRUE(store.invariants_hold()) << "after walk " << walk;
+        if (random() % 3 == 0)
+            store.erase_if([&](Ids& b, uint64_t, uint64_t) { return b.ids.size() % 4 == 0; });
+    }
+    EXPECT_GT(store.size(), 10u);
+}
+
+TEST(SegmentStoreInvariantsDeathTest, SortedWalkGoingBackAborts) {
+    Store store;
+    store.begin_sorted();
+    add(store, 16, 32, 1, false);
+    EXPECT_DEATH(add(store, 8, 12, 2, false), "segment_store\\.h:[0-9]+: invariant broken");
+}
+
 }  // namespace
 }  // namespace clastrace::replay::detail

@@ -204,6 +204,66 @@ TEST(SegmentStore, MatchesOnLongStreamsOverWideSpace) {
     for (uint32_t seed = 1000; seed < 1006; ++seed) run_stream(seed, 4096, 2000, 25);
 }
 
+// A sorted walk (begin_sorted ... end_sorted, as record_accesses feeds a command's disjoint
+// accesses) leaves the store and visits exactly what the same updates one by one do, and
+// size() counts the segments in the middle of the walk too.
+TEST(SegmentStore, SortedWalkMatchesUpdatesOneByOne) {
+    for (uint32_t seed = 1; seed <= 400; ++seed) {
+        std::mt19937 rng(seed);
+        const uint64_t space = 64 + seed % 200;
+        SegmentStore<Ids> walked, single;
+        int op = 0;
+        for (int command = 0; command < 40; ++command) {
+            // Ascending disjoint ranges, some touching, some with gaps, short and long.
+            std::vector<std::tuple<uint64_t, uint64_t, bool>> ranges;
+            uint64_t at = rng() % 8;
+            while (at < space && ranges.size() < 12) {
+                const uint64_t end =
+                    std::min<uint64_t>(space, at + 1 + rng() % (rng() % 3 ? 6 : 40));
+                ranges.emplace_back(at, end, rng() % 3 == 0);
+                at = end + (rng() % 3 ? 0 : rng() % 12);
+            }
+            SCOPED_TRACE("seed " + std::to_string(seed) + " command " + std::to_string(command));
+            std::vector<Visit> seen_walked, seen_single;
+            std::vector<std::size_t> sizes_walked, sizes_single;
+            walked.begin_sorted();
+            for (const auto& [b, e, merge] : ranges) {
+                ++op;
+                for (auto* side : {&walked, &single}) {
+                    std::vector<Visit>* seen = side == &walked ? &seen_walked : &seen_single;
+                    const int id = op;
+                    const bool m = merge;
+                    side->update(
+                        b, e, m,
+                        [id, seen](Ids& body, uint64_t s, uint64_t x) {
+                            body.ids = {id};
+                            seen->emplace_back(s, x, true, body.ids);
+                        },
+                        [id, m, seen](Ids& body, uint64_t s, uint64_t x) {
+                            if (m)
+                                body.ids = {id};
+                            else
+                                body.ids.push_back(id);
+                            seen->emplace_back(s, x, false, body.ids);
+                        });
+                    (side == &walked ? sizes_walked : sizes_single).push_back(side->size());
+                }
+            }
+            walked.end_sorted();
+            ASSERT_EQ(seen_walked, seen_single) << "visits differ";
+            ASSERT_EQ(sizes_walked, sizes_single) << "sizes during the walk differ";
+            ASSERT_EQ(list_of(walked), list_of(single)) << "segment lists differ";
+            ASSERT_TRUE(walked.invariants_hold());
+            // Now and then something other than a walk between two walks.
+            if (rng() % 4 == 0) {
+                const uint64_t x = rng() % space;
+                walked.split_at(x);
+                single.split_at(x);
+            }
+        }
+    }
+}
+
 TEST(SegmentStore, ForEachRangeVisitsExactlyTheSegmentsMeetingIt) {
     SegmentStore<Ids> store;
     auto none = [](Ids&, uint64_t, uint64_t) {};
