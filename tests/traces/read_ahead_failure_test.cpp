@@ -13,7 +13,9 @@
 #include <gtest/gtest.h>
 
 #include <cstring>
+#include <map>
 #include <optional>
+#include <random>
 #include <unistd.h>
 
 namespace clastrace::traces::testing {
@@ -199,6 +201,53 @@ TEST_F(ReadAheadFailure, APayloadThatDoesNotDecompressIsReportedAsOnTheCallersTh
     EXPECT_EQ(err.message.rfind(damaged + ": offset ", 0), 0u) << err.message;
     EXPECT_NE(err.message.find("chunk 2 streams payload"), std::string::npos) << err.message;
     EXPECT_GT(got.records.size(), records_before(chunks, 3) - c.header.record_count);
+}
+
+// Range 1 stored whole in chunk 0, then 500 other ranges' first contents (whole, 3 KB each), then
+// range 1 again, a little changed: a delta whose base lies in chunk 0, which neither thread
+// holds by then, so the read-ahead thread reads that chunk again itself.
+void write_far_base_trace(const std::string& path) {
+    TraceWriterOptions options;
+    options.chunk_raw_bytes = 300u << 10;
+    TraceError e;
+    auto w = TraceWriter::create(path, test_header(), options, &e);
+    ASSERT_TRUE(w) << e.message;
+    std::map<uint64_t, std::vector<uint8_t>> bytes_by_key;
+    std::vector<uint8_t> first(3000), other(3000);
+    for (size_t i = 0; i < first.size(); ++i) first[i] = uint8_t(i * 7);
+    append_build_snapshotting(*w, {{1, first.data(), first.size()}}, bytes_by_key);
+    std::mt19937 rng(3);
+    for (uint64_t range = 2; range < 502; ++range) {
+        for (uint8_t& b : other) b = uint8_t(rng());
+        append_build_snapshotting(*w, {{range, other.data(), other.size()}}, bytes_by_key);
+    }
+    first[10] ^= 1;
+    append_build_snapshotting(*w, {{1, first.data(), first.size()}}, bytes_by_key);
+    ASSERT_FALSE(w->finish());
+    ASSERT_EQ(w->stats().contents_delta_stored, 1u);
+}
+
+// The thread's read of that base failing leaves the delta to the caller's thread, which reads
+// the base itself: nothing lost, nothing reported.
+TEST(ReadAheadFailures, ABaseTheThreadCannotReadIsReadOnTheCallersThread) {
+    const std::string path = temp_path("far_base.clt");
+    write_far_base_trace(path);
+    const std::vector<uint8_t> file = read_file(path);
+    const std::vector<ChunkAt> chunks = records_chunks(file);
+    ASSERT_GE(chunks.size(), 5u);
+    const ReadResult clean = read_all(path);
+    ASSERT_EQ(clean.damage_count, 0u) << describe(clean.damage);
+    EXPECT_EQ(clean.stats.deltas_decoded_ahead, 1u);
+
+    auto on_thread = std::make_shared<ReadFailure>();
+    on_thread->from = chunks[0].offset;
+    on_thread->to = chunks[1].offset;
+    TraceError e;
+    const ReadResult got = drain(open_failing(file, "failing.clt", on_thread, &e), e);
+    EXPECT_EQ(on_thread->failed.load(), 1u);
+    EXPECT_EQ(got.damage_count, 0u) << describe(got.damage);
+    expect_same_read(got, clean);
+    EXPECT_EQ(got.stats.deltas_decoded_ahead, 0u);
 }
 
 // The thread is joined with the reader, whether its last job succeeded, threw or was never
