@@ -119,43 +119,41 @@ TEST_F(TraceableClusterBlas, DriverRaysHitTheServedClusters) {
     expect_hits_on_the_clusters(r);
 }
 
-// A served MOVE_OBJECTS of the traceable BLAS to an explicit destination moves the driver's BVH
-// too (its old home is filled with 0xFF after the move): the driver's rays through a top level
-// naming the new address hit as before, and the trace replays exactly, the move's destination
-// marked as the driver's as well.
-TEST_F(TraceableClusterBlas, MovedBlasIsHitAtItsNewAddressAndReplaysExactly) {
-    const fs::path trace = dir / "moved.clt";
-    const ProcessResult r = capture("auto", trace, "move");
-    ASSERT_EQ(r.exitCode, 0) << r.out << r.err;
-    EXPECT_NE(r.out.find("moved to "), std::string::npos) << r.out;
-    expect_hits_on_the_clusters(r);
-    expect_exact_replay(trace, 2);
+// A test parameter (the app's argument) as a test name: '-' is not allowed there.
+std::string app_argument_name(const ::testing::TestParamInfo<const char*>& info) {
+    std::string name = info.param;
+    for (char& c : name)
+        if (c == '-') c = '_';
+    return name;
 }
 
-// The same move to an implicit destination, under the default mode: the engine gives the moved
-// object the room of the driver's BVH it moves (recorded as implicit_object_room), the BVH is
-// copied to the address the engine wrote to dstAddressesArray, and the trace replays exactly.
-TEST_F(TraceableClusterBlas, BlasMovedToAnImplicitDestinationIsHitThereAndReplaysExactly) {
-    const fs::path trace = dir / "moved_implicit.clt";
-    const ProcessResult r = capture("auto", trace, "move-implicit");
-    ASSERT_EQ(r.exitCode, 0) << r.out << r.err;
-    EXPECT_NE(r.out.find("moved to "), std::string::npos) << r.out;
-    expect_hits_on_the_clusters(r);
-    expect_exact_replay(trace, 2);
-}
+// A served MOVE_OBJECTS of the traceable BLAS moves the driver's BVH too (its old home is filled
+// with 0xFF after the move): the driver's rays through a top level naming the new address hit as
+// before, and the trace replays exactly, the move's destination marked as the driver's as well.
+// The app's moves:
+// - `move`: to an explicit destination;
+// - `move-implicit`: to an implicit destination, under the default mode: the engine gives the
+//   moved object the room of the driver's BVH it moves (recorded as implicit_object_room), and
+//   the BVH is copied to the address the engine wrote to dstAddressesArray;
+// - `move-indirect`: with every address indirected (srcInfosArray, srcInfosCount,
+//   dstAddressesArray, dstSizesArray, scratchData read through cells): the layer takes the
+//   destination from the engine's run and the source through the cells.
+class MovedTraceableBlas : public TraceableClusterBlas,
+                           public ::testing::WithParamInterface<const char*> {};
 
-// The move with every address indirected (srcInfosArray, srcInfosCount, dstAddressesArray,
-// dstSizesArray, scratchData read through cells): the layer takes the destination from the
-// engine's run and the source through the cells, so the driver's BVH moves as before.
-TEST_F(TraceableClusterBlas, MoveWithIndirectedAddressesMovesTheDriversBvh) {
-    const fs::path trace = dir / "moved_indirect.clt";
-    const ProcessResult r = capture("auto", trace, "move-indirect");
+TEST_P(MovedTraceableBlas, IsHitAtItsNewAddressAndReplaysExactly) {
+    const fs::path trace = dir / (std::string(GetParam()) + ".clt");
+    const ProcessResult r = capture("auto", trace, GetParam());
     ASSERT_EQ(r.exitCode, 0) << r.out << r.err;
     EXPECT_NE(r.out.find("moved to "), std::string::npos) << r.out;
     EXPECT_EQ(r.err.find("not moved"), std::string::npos) << r.err;
     expect_hits_on_the_clusters(r);
     expect_exact_replay(trace, 2);
 }
+
+INSTANTIATE_TEST_SUITE_P(Moves, MovedTraceableBlas,
+                         ::testing::Values("move", "move-implicit", "move-indirect"),
+                         app_argument_name);
 
 // The app's two implicit BLAS addresses ("implicit blas at"), after checking that they lie a
 // driver-sized room apart (the explicit answer: the driver's worst case) in a region (the served
@@ -201,12 +199,7 @@ TEST_P(ImplicitTraceableBlas, GetsRoomForTheDriversBlasIsHitAndReplaysExactly) {
 
 INSTANTIATE_TEST_SUITE_P(Modes, ImplicitTraceableBlas,
                          ::testing::Values("implicit", "implicit-indirect", "implicit-unaddressed"),
-                         [](const auto& info) {
-                             std::string name = info.param;
-                             for (char& c : name)
-                                 if (c == '-') c = '_';
-                             return name;
-                         });
+                         app_argument_name);
 
 // The served BLAS's bytes in the trace are the engine's (the driver's BVH lives only in the
 // application's memory): replay rebuilds them and finds nothing at all, neither inside the

@@ -3,6 +3,7 @@
 //   utf8-*.clt  intact traces whose strings are not UTF-8 (Latin-1 device, application and
 //               engine names; ray-check, debug and timestamp labels; capture findings),
 //               and every given sample with its header strings made Latin-1;
+//   read-ahead-deltas.clt  delta contents in chunks big enough to be read ahead;
 //   bomb-*.clt  chunks whose small zstd payload decompresses to 256 MiB of zeros (or claims
 //               a size its frame exceeds), and index chunks of 1 GiB raw size.
 // Made in code, not checked in, so they follow the format as it changes.
@@ -19,6 +20,7 @@
 #include <cstring>
 #include <filesystem>
 #include <functional>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -244,6 +246,34 @@ Bytes written_with_placeholders(const std::filesystem::path& dir) {
     return file;
 }
 
+// Frames whose vertices change a little (delta contents) in records chunks above 256 KiB:
+// every chunk after the first is read ahead, its deltas XORed on the read-ahead thread from
+// bases it keeps or reads whole from the chunks it may read (the samples' chunks lead it to the
+// index chunk only). Zeros, mostly: a few KiB of file.
+Bytes read_ahead_deltas(const std::filesystem::path& dir) {
+    const std::string path = (dir / "read-ahead.clt.tmp").string();
+    traces::TraceWriterOptions options;
+    options.sync_on_finish = false;
+    options.chunk_raw_bytes = 400u << 10;  // 4 or 5 frames of 80 KB
+    traces::TraceError e;
+    auto writer = traces::TraceWriter::create(path, traces::testing::test_header(), options, &e);
+    if (!writer) fail(e.message);
+    std::vector<float> vertices(20000);
+    for (size_t i = 0; i < vertices.size(); ++i) vertices[i] = float(i % 97);
+    std::map<uint64_t, Bytes> bytes_by_key;
+    for (size_t frame = 0; frame < 24; ++frame) {
+        for (size_t k = 0; k < 6; ++k) vertices[(frame * 37 + k * 11) % vertices.size()] += 0.5f;
+        traces::testing::append_build_snapshotting(*writer,
+                                                   {{1, vertices.data(), vertices.size() * 4}},
+                                                   bytes_by_key);
+    }
+    if (traces::TraceError a = writer->finish()) fail(a.message);
+    writer.reset();
+    Bytes file = traces::testing::read_file(path);
+    std::filesystem::remove(path);
+    return file;
+}
+
 // The sample with every string of its header made ill-formed, same lengths.
 Bytes with_latin1_header(Bytes file) {
     const uint32_t size = f::load<uint32_t>(file.data() + 12);
@@ -286,6 +316,10 @@ int main(int argc, char** argv) {
         check_intact(sample, argv[i]);
         save_seed(dir, "utf8-" + std::filesystem::path(argv[i]).filename().string(), sample);
     }
+
+    const Bytes ahead = read_ahead_deltas(dir);
+    check_intact(ahead, "read-ahead-deltas.clt");
+    save_seed(dir, "read-ahead-deltas.clt", ahead);
 
     const Bytes zeros_256m = zeros_frame(uint64_t(f::kMaxChunkRawBytes));
     const Layout l = layout_of(base);

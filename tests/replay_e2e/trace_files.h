@@ -1,29 +1,22 @@
 // SPDX-License-Identifier: Apache-2.0
-// The trace files the replay tests write: one path per test process in TMPDIR, removed after
-// use unless asked to keep them, and replayed with a trace that does not open failing the test.
+// The trace files the replay tests write: one path per test process in TMPDIR
+// (temp_trace_path.h), removed after use unless asked to keep them, and replayed with a trace
+// that does not open failing the test.
 #pragma once
 
 #include <clastrace/replay/replayer.h>
+#include <clastrace/testsupport/temp_trace_path.h>
 #include <clastrace/traces/trace_reader.h>
 
 #include <gtest/gtest.h>
 
 #include <cstdio>
 #include <cstdlib>
-#include <filesystem>
 #include <random>
 #include <string>
 #include <vector>
-#include <unistd.h>
 
 namespace clastrace::test {
-
-// TMPDIR/<suite>_<pid>_<name>: ctest runs the cases of one binary in parallel processes.
-inline std::string temp_trace_path(const std::string& suite, const std::string& name) {
-    return (std::filesystem::temp_directory_path() /
-            (suite + "_" + std::to_string(::getpid()) + "_" + name))
-        .string();
-}
 
 // CLASTRACE_KEEP_TRACES=1 keeps the traces (e.g. to look at them with `clastrace replay`).
 inline void discard_trace(const std::string& path) {

@@ -271,6 +271,78 @@ TEST(ContentStreams, ChunksDecodeToTheBytesOfOneFrameAndEveryContentReadsBack) {
     }
 }
 
+// 40 frames of 64 tiny random contents (1 to 8 bytes) at zstd's fastest level (its literals
+// stored as they are), in chunks of 64 KiB.
+std::map<uint64_t, std::vector<uint8_t>> write_tiny_contents_trace(const std::string& path,
+                                                                   TraceWriterOptions options) {
+    std::map<uint64_t, std::vector<uint8_t>> bytes_by_key;
+    options.zstd_level = ZSTD_minCLevel();
+    options.chunk_raw_bytes = 64u << 10;
+    TraceError e;
+    auto w = TraceWriter::create(path, test_header(), options, &e);
+    EXPECT_TRUE(w) << e.message;
+    if (!w) return bytes_by_key;
+    std::mt19937 rng(5);
+    std::vector<std::vector<uint8_t>> bytes(64);
+    for (uint64_t frame = 0; frame < 40; ++frame) {
+        std::vector<SnapshotPiece> pieces;
+        for (size_t i = 0; i < bytes.size(); ++i) {
+            bytes[i].resize(1 + rng() % 8);
+            for (uint8_t& b : bytes[i]) b = uint8_t(rng());
+            pieces.push_back({frame * bytes.size() + i + 1, bytes[i].data(), bytes[i].size()});
+        }
+        append_build_snapshotting(*w, pieces, bytes_by_key);
+    }
+    EXPECT_FALSE(w->finish());
+    return bytes_by_key;
+}
+
+// Tiny contents whose bytes zstd leaves as they are: a streams payload would hold the raw bytes
+// and 12 bytes per cut, past ZSTD_compressBound of the raw size, the limit readers put on a
+// payload. The writer stores those chunks as one frame, whose raw bytes are those content_streams
+// off writes, and the trace reads back byte for byte, through the scan and through the index.
+TEST(ContentStreams, ChunksWhoseStreamsWouldPassTheBoundAreOneFrameAndReadBack) {
+    const std::string path = temp_path("past_the_bound.clt");
+    const std::string off_path = temp_path("past_the_bound_off.clt");
+    const auto written = write_tiny_contents_trace(path, {});
+    TraceWriterOptions off;
+    off.content_streams = false;
+    ASSERT_EQ(write_tiny_contents_trace(off_path, off), written);
+
+    const std::vector<uint8_t> file = read_file(path);
+    size_t one_frame = 0;
+    for (const ChunkAt& c : records_chunks(file)) {
+        EXPECT_LE(c.header.compressed_size, ZSTD_compressBound(c.header.raw_size));
+        one_frame += !f::is_streams_payload(file.data() + c.offset + f::kChunkHeaderSize,
+                                            c.header.compressed_size);
+    }
+    EXPECT_EQ(one_frame, records_chunks(file).size());  // every chunk holds contents
+    EXPECT_GE(one_frame, 3u);
+    EXPECT_TRUE(raw_chunks(file) == raw_chunks(read_file(off_path)));
+
+    const ReadResult read = read_all(path);  // content keys verified
+    ASSERT_EQ(read.damage_count, 0u) << describe(read.damage);
+    size_t contents = 0;
+    for (const fbs::RecordT& r : read.records) {
+        if (const auto* whole = r.body.AsMemoryContents()) {
+            EXPECT_EQ(whole->bytes, written.at(whole->hash));
+            ++contents;
+        } else if (const auto* delta = r.body.AsMemoryContentsDelta()) {
+            EXPECT_EQ(delta->bytes, written.at(delta->hash));
+            ++contents;
+        }
+    }
+    EXPECT_EQ(contents, written.size());
+    TraceError e;
+    auto reader = TraceReader::open(path, &e);
+    ASSERT_TRUE(reader) << e.message;
+    for (auto it = written.rbegin(); it != written.rend(); ++it) {
+        std::vector<uint8_t> got;
+        ASSERT_FALSE(reader->read_contents(it->first, &got));
+        EXPECT_EQ(got, it->second);
+    }
+}
+
 // A file that says it is format 1.7 cannot hold streams payloads: such a chunk is damage (a
 // crafted or mislabelled file), named with the version, not decoded.
 TEST(ContentStreams, AStreamsPayloadInAnOlderMinorIsDamage) {

@@ -732,7 +732,7 @@ void write_file(const std::string& path, const std::vector<uint8_t>& bytes) {
               static_cast<std::streamsize>(bytes.size()));
 }
 
-static ReadResult drain(std::unique_ptr<TraceReader> reader, TraceError error) {
+ReadResult drain(std::unique_ptr<TraceReader> reader, const TraceError& error) {
     ReadResult r;
     if (!reader) {
         r.open_error = error;

@@ -53,6 +53,8 @@ ReadResult read_all(const std::string& path);
 ReadResult read_all(const std::string& path, const TraceReaderOptions& options);
 ReadResult read_all_memory(const std::vector<uint8_t>& bytes);
 ReadResult read_all_memory(const std::vector<uint8_t>& bytes, const TraceReaderOptions& options);
+// Everything `reader` yields from where it stands; `error` is the open error when it is null.
+ReadResult drain(std::unique_ptr<TraceReader> reader, const TraceError& error);
 
 // Writes a trace of `submissions` frames with realistic contents (some repeated) and
 // chunks of `chunk_bytes`. Returns the records appended (MemoryContents excluded).

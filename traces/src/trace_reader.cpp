@@ -114,14 +114,18 @@ uint64_t default_raw_budget(uint64_t file_size) {
 TraceReader::TraceReader(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 TraceReader::~TraceReader() = default;
 
-static std::unique_ptr<TraceReader::Impl> make_impl(std::unique_ptr<ByteSource> src,
-                                                    const std::string& name,
-                                                    const TraceReaderOptions& options) {
-    auto impl = std::make_unique<TraceReader::Impl>();
+std::unique_ptr<TraceReader> TraceReader::open_source(std::unique_ptr<ByteSource> src,
+                                                      const std::string& name, TraceError* error,
+                                                      const TraceReaderOptions& options) {
+    auto impl = std::make_unique<Impl>();
     impl->options = options;
     impl->src = std::move(src);
     impl->name = name;
-    return impl;
+    if (TraceError e = impl->open()) {
+        *error = std::move(e);
+        return nullptr;
+    }
+    return std::unique_ptr<TraceReader>(new TraceReader(std::move(impl)));
 }
 
 std::unique_ptr<TraceReader> TraceReader::open(const std::string& path, TraceError* error,
@@ -132,23 +136,13 @@ std::unique_ptr<TraceReader> TraceReader::open(const std::string& path, TraceErr
         *error = make_trace_error(TraceErrorCode::kIoError, path, 0, "cannot open: " + why);
         return nullptr;
     }
-    auto impl = make_impl(std::move(src), path, options);
-    if (TraceError e = impl->open()) {
-        *error = std::move(e);
-        return nullptr;
-    }
-    return std::unique_ptr<TraceReader>(new TraceReader(std::move(impl)));
+    return open_source(std::move(src), path, error, options);
 }
 
 std::unique_ptr<TraceReader> TraceReader::open_memory(const uint8_t* data, size_t size,
                                                       const std::string& name, TraceError* error,
                                                       const TraceReaderOptions& options) {
-    auto impl = make_impl(memory_source(data, size), name, options);
-    if (TraceError e = impl->open()) {
-        *error = std::move(e);
-        return nullptr;
-    }
-    return std::unique_ptr<TraceReader>(new TraceReader(std::move(impl)));
+    return open_source(memory_source(data, size), name, error, options);
 }
 
 uint16_t TraceReader::version_major() const { return impl_->version_major; }

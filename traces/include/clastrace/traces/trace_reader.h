@@ -22,6 +22,8 @@
 
 namespace clastrace::traces {
 
+class ByteSource;  // traces/src/byte_source.h
+
 // One record, valid until the next call to next(), seek_to_submission() or read_contents().
 struct RecordView {
     const fbs::Record* record = nullptr;
@@ -93,6 +95,11 @@ public:
                                              const TraceReaderOptions& options = {});
     // Reads from memory that must outlive the reader; `name` is used in messages.
     static std::unique_ptr<TraceReader> open_memory(const uint8_t* data, size_t size,
+                                                    const std::string& name, TraceError* error,
+                                                    const TraceReaderOptions& options = {});
+    // Reads from `src` (traces/src/byte_source.h), which open() and open_memory() make; the
+    // tests give sources that fail on purpose, on the read-ahead thread or on the caller's.
+    static std::unique_ptr<TraceReader> open_source(std::unique_ptr<ByteSource> src,
                                                     const std::string& name, TraceError* error,
                                                     const TraceReaderOptions& options = {});
     ~TraceReader();
