@@ -256,7 +256,8 @@ void Replay::start_cluster_run(const traces::RecordView& view, uint64_t stream_i
         return;
     const AheadInputs in{memory_,     recent_contents_,       cluster_queries_,
                          properties_, ahead_runs_->storage(), options_.max_findings_per_rule};
-    if (auto run = ClusterRunAhead::start({view.bytes, view.bytes + view.size}, stream_index, in)) {
+    if (auto run = ClusterRunAhead::start({view.bytes, view.bytes + view.size}, stream_index, in,
+                                          ahead_runs_->builds_before(stream_index))) {
         ++ahead_runs_->counts.started;
         ahead_runs_->add(std::move(run));
     }
