@@ -263,6 +263,22 @@ void Replay::start_cluster_run(const traces::RecordView& view, uint64_t stream_i
     }
 }
 
+namespace {
+
+// ReplayOptions::run_ahead, or CLASTRACE_REPLAY_RUN_AHEAD=1, or 4 threads or more unless
+// CLASTRACE_REPLAY_RUN_AHEAD=0 (ReplayOptions says why).
+bool runs_ahead(const ReplayOptions& options) {
+    constexpr uint32_t kByDefaultFrom = 4;
+    const uint32_t threads = replay_threads(options);
+    if (threads < 2) return false;
+    const char* value = std::getenv("CLASTRACE_REPLAY_RUN_AHEAD");
+    const std::string_view asked = value ? value : "";
+    if (options.run_ahead || asked == "1") return true;
+    return asked != "0" && threads >= kByDefaultFrom;
+}
+
+}  // namespace
+
 ReplayReport Replay::run() {
     traces::RecordView view;
     ReplayProgress progress;
@@ -275,7 +291,7 @@ ReplayReport Replay::run() {
     if (options_.check_hazards && replay_threads(options_) > 1 &&
         asked(options_.sync_model_thread, "CLASTRACE_REPLAY_SYNC_THREAD"))
         sync_.start_thread();
-    if (replay_threads(options_) > 1 && asked(options_.run_ahead, "CLASTRACE_REPLAY_RUN_AHEAD")) {
+    if (runs_ahead(options_)) {
         ahead_runs_.emplace(std::min<size_t>(4 * size_t(replay_threads(options_)), 64));
         replay_records_ahead(progress);
         if (options_.run_ahead_counts) *options_.run_ahead_counts = ahead_runs_->counts;

@@ -24,6 +24,7 @@
 #include <nlohmann/json.hpp>
 
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <functional>
 #include <string>
@@ -392,6 +393,41 @@ TEST(ReplayRunAhead, ClusterFramesOfTheReplayBenchRunAheadAndStand) {
     EXPECT_GE(many.counts.stood, many.counts.started - 3);  // the last frames may be left
     EXPECT_EQ(one.digests, many.digests);
     EXPECT_EQ(one.json, many.json);
+    std::remove(path.c_str());
+}
+
+// Runs ahead are on by default from 4 threads (ReplayOptions::run_ahead), off below unless asked,
+// and CLASTRACE_REPLAY_RUN_AHEAD=0 turns them off.
+TEST(ReplayRunAhead, OnByDefaultFromFourThreadsAndOffWithTheVariableAtZero) {
+    const std::string path = temp_path("default_frames.clt");
+    bench::BenchTraceShape shape;
+    shape.target_ops = 1000;
+    bench::write_bench_trace(path, shape);
+    auto started = [&](uint32_t threads) {
+        traces::TraceError error;
+        auto reader = traces::TraceReader::open(path, &error);
+        EXPECT_TRUE(reader) << error.message;
+        if (!reader) return uint64_t(0);
+        replay::ReplayOptions::RunAheadCounts counts;
+        replay::ReplayOptions options;
+        options.threads = threads;
+        options.run_ahead_counts = &counts;
+        replay::replay_trace(*reader, path, options);
+        return counts.started;
+    };
+    const char* kept = std::getenv("CLASTRACE_REPLAY_RUN_AHEAD");
+    const std::string was = kept ? kept : "";
+    unsetenv("CLASTRACE_REPLAY_RUN_AHEAD");
+    EXPECT_GT(started(4), 0u);
+    EXPECT_EQ(started(2), 0u);
+    setenv("CLASTRACE_REPLAY_RUN_AHEAD", "0", 1);
+    EXPECT_EQ(started(4), 0u);
+    setenv("CLASTRACE_REPLAY_RUN_AHEAD", "1", 1);
+    EXPECT_GT(started(2), 0u);
+    if (kept)
+        setenv("CLASTRACE_REPLAY_RUN_AHEAD", was.c_str(), 1);
+    else
+        unsetenv("CLASTRACE_REPLAY_RUN_AHEAD");
     std::remove(path.c_str());
 }
 
