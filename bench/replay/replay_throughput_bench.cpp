@@ -249,10 +249,11 @@ int replay_once_for_profiler(const std::string& path, bool hazards, uint32_t thr
     require_clean(run.report, "profiled");
     std::printf(
         "%s: %llu ops, hazards %s, %u thread(s), %.3f s, engine %.3f s (1 thread only), %zu "
-        "hazards; runs ahead started %llu, stood %llu\n",
+        "hazards; runs ahead started %llu, stood %llu, run again %llu\n",
         path.c_str(), (unsigned long long)run.report.counts.cluster_ops, hazards ? "on" : "off",
         threads, run.seconds, 1e-9 * double(engine.ns), run.report.hazards.size(),
-        (unsigned long long)run_ahead.started, (unsigned long long)run_ahead.stood);
+        (unsigned long long)run_ahead.started, (unsigned long long)run_ahead.stood,
+        (unsigned long long)run_ahead.run_again);
     return 0;
 }
 

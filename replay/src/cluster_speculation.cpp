@@ -102,7 +102,10 @@ std::shared_ptr<ClusterRunAhead> ClusterRunAhead::start(
     std::shared_ptr<ClusterRunAhead> run(new ClusterRunAhead(in.storage));
     run->stream_index_ = stream_index;
     run->reads_objects_ = reads_clusters(type);
-    if (run->reads_objects_) run->earlier_ = std::move(earlier);
+    if (run->reads_objects_) {
+        for (const auto& e : earlier) run->earlier_turns_.push_back(e->turn_passed_);
+        run->earlier_ = std::move(earlier);
+    }
     run->queried_max_count_ =
         in.queries.largest_count(build->input()->op_type(), build->input()->op_mode());
     run->properties_ = &in.properties;
@@ -284,6 +287,11 @@ void ClusterRunAhead::run() {
     }
 }
 
+bool ClusterRunAhead::earlier_turns_passed() const {
+    return std::all_of(earlier_turns_.begin(), earlier_turns_.end(),
+                       [](const auto& passed) { return *passed; });
+}
+
 bool ClusterRunAhead::reads_unchanged(const engine::MemoryImage& real) const {
     // The bytes it wrote, merged: a read of them would compare its own output, not its input.
     std::vector<std::pair<uint64_t, uint64_t>> written;  // [begin, end), sorted, disjoint
@@ -375,20 +383,31 @@ bool ClusterRunAhead::commit(ReplayMemory& memory, engine::ObjectDirectory& dire
 }
 
 void RunAheadWindow::add(std::shared_ptr<ClusterRunAhead> run) {
-    if (run->reads_objects()) {
-        since_reader_.clear();
-    } else {
-        since_reader_.push_back(run);
-        if (since_reader_.size() > capacity_) since_reader_.pop_front();  // memory stays bounded
+    if (!run->reads_objects()) {
+        recent_builds_.push_back(run);
+        if (recent_builds_.size() > capacity_) {  // memory stays bounded
+            recent_builds_.pop_front();
+            bottom_levels_.erase(bottom_levels_.begin(),
+                                 bottom_levels_.lower_bound(
+                                     recent_builds_.front()->stream_index()));
+        }
     }
     runs_.push_back(std::move(run));
 }
 
+void RunAheadWindow::note_bottom_level(uint64_t stream_index) {
+    bottom_levels_.insert(stream_index);
+}
+
 std::vector<std::shared_ptr<ClusterRunAhead>> RunAheadWindow::builds_before(
     uint64_t stream_index) const {
+    auto previous = bottom_levels_.lower_bound(stream_index);
+    const uint64_t after = previous == bottom_levels_.begin() ? 0 : *std::prev(previous) + 1;
     std::vector<std::shared_ptr<ClusterRunAhead>> runs;
-    for (const auto& run : since_reader_)
-        if (run->stream_index() < stream_index) runs.push_back(run);
+    for (const auto& run : recent_builds_)
+        if (run->stream_index() >= after && run->stream_index() < stream_index) runs.push_back(run);
+    std::sort(runs.begin(), runs.end(),
+              [](const auto& a, const auto& b) { return a->stream_index() < b->stream_index(); });
     return runs;
 }
 
@@ -396,8 +415,10 @@ std::shared_ptr<ClusterRunAhead> RunAheadWindow::take(std::span<const uint8_t> r
     for (auto it = runs_.begin(); it != runs_.end(); ++it) {
         const std::vector<uint8_t>& bytes = (*it)->record();
         if (bytes.size() == record.size() &&
-            std::memcmp(bytes.data(), record.data(), bytes.size()) == 0) {
+            std::memcmp(bytes.data(), record.data(), bytes.size()) == 0 &&
+            (*it)->earlier_turns_passed()) {
             std::shared_ptr<ClusterRunAhead> run = std::move(*it);
+            run->mark_turn_passed();
             runs_.erase(it);
             return run;
         }

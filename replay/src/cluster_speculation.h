@@ -30,6 +30,7 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <set>
 #include <span>
 #include <string>
 #include <unordered_map>
@@ -106,6 +107,11 @@ public:
     bool stood() const { return stood_; }  // commit took it
     uint64_t stream_index() const { return stream_index_; }
     bool reads_objects() const { return reads_objects_; }  // a cluster BLAS build
+    // On the replay thread: whether the commands of the runs it starts on have had their turn.
+    // Until then it is the run of a later record with the same bytes (a BLAS over the same
+    // slot, next frame but one) and is not taken.
+    bool earlier_turns_passed() const;
+    void mark_turn_passed() { *turn_passed_ = true; }  // taken at its command's turn
 
     // At the command's turn, with its snapshots laid in and addresses translated: true when the
     // early run stands (the checks in the file comment); its bytes and objects then land in
@@ -179,6 +185,10 @@ private:
     std::vector<PlannedSnapshot> snapshots_;
     bool reads_objects_ = false;
     std::vector<std::shared_ptr<ClusterRunAhead>> earlier_;  // released once laid in
+    // Set when the run is taken at its command's turn; the later runs on it keep a copy.
+    // Both only on the replay thread.
+    std::shared_ptr<bool> turn_passed_ = std::make_shared<bool>(false);
+    std::vector<std::shared_ptr<const bool>> earlier_turns_;
     engine::MemoryImage image_;
     engine::ObjectDirectory directory_;
     engine::ObjectDirectory::LookupLog lookups_;
@@ -201,9 +211,13 @@ public:
     bool full() const { return runs_.size() >= capacity_; }
     void add(std::shared_ptr<ClusterRunAhead> run);
     bool holds(uint64_t stream_index) const;  // a run of the record at this index
-    // The runs a cluster BLAS read at `stream_index` starts on: the CLAS and template builds
-    // started since the last BLAS, read before it (a BLAS over the clusters built just before
-    // it, the usual order; a BLAS over older ones fails its checks and runs in its turn).
+    // A cluster BLAS build's record at `stream_index`, started or not (records are read in
+    // stream order; a build may start later, at its own record).
+    void note_bottom_level(uint64_t stream_index);
+    // The runs a cluster BLAS at `stream_index` starts on: the CLAS and template builds
+    // started from the records between the BLAS record before it and its own (a BLAS over the
+    // clusters built just before it, the usual order; a BLAS over older ones, or over a build
+    // that starts after it, fails its checks and runs in its turn).
     std::vector<std::shared_ptr<ClusterRunAhead>> builds_before(uint64_t stream_index) const;
     // A run of a record with these bytes (any: a run stands or not by the bytes it read);
     // nullptr when none.
@@ -220,8 +234,10 @@ private:
     size_t capacity_;
     ImageStoragePool storage_;  // before runs_: the runs give their bytes back as they go
     std::deque<std::shared_ptr<ClusterRunAhead>> runs_;
-    // CLAS and template runs since the last BLAS run, taken or not (at most capacity_).
-    std::deque<std::shared_ptr<ClusterRunAhead>> since_reader_;
+    // The latest CLAS and template runs, taken or not (at most capacity_), and the stream
+    // indices of the BLAS records read since the oldest of them.
+    std::deque<std::shared_ptr<ClusterRunAhead>> recent_builds_;
+    std::set<uint64_t> bottom_levels_;
 };
 
 }  // namespace clastrace::replay::detail

@@ -251,13 +251,21 @@ void Replay::start_ahead(const traces::RecordView& view, uint64_t stream_index) 
 // Read ahead, a build may name buffers whose records are not replayed yet: then it starts when
 // its own record is (record_command), which is still before its submission.
 void Replay::start_cluster_run(const traces::RecordView& view, uint64_t stream_index) {
-    if (view.kind != fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect ||
-        ahead_runs_->full() || ahead_runs_->holds(stream_index))
-        return;
+    const auto* build = view.record->body_as_CmdBuildClusterAccelerationStructureIndirect();
+    if (!build) return;
+    // Every BLAS record read bounds the CLAS runs the next BLAS starts on, started or not.
+    const bool bottom_level =
+        build->input() &&
+        build->input()->op_type() ==
+            VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
+    if (bottom_level) ahead_runs_->note_bottom_level(stream_index);
+    if (ahead_runs_->full() || ahead_runs_->holds(stream_index)) return;
     const AheadInputs in{memory_,     recent_contents_,       cluster_queries_,
                          properties_, ahead_runs_->storage(), options_.max_findings_per_rule};
     if (auto run = ClusterRunAhead::start({view.bytes, view.bytes + view.size}, stream_index, in,
-                                          ahead_runs_->builds_before(stream_index))) {
+                                          bottom_level
+                                              ? ahead_runs_->builds_before(stream_index)
+                                              : std::vector<std::shared_ptr<ClusterRunAhead>>{})) {
         ++ahead_runs_->counts.started;
         ahead_runs_->add(std::move(run));
     }
