@@ -6,7 +6,7 @@
 //
 // Table 1 replays one generated trace of N ops (default 10^5): on one thread with hazard
 // checking and without (--no-hazards), on T threads (default: the machine's cores) with
-// hazard checking (the defaults: the sync model inline, each command in its turn), with the
+// hazard checking (the sync model inline, each command in its turn: RUN_AHEAD=0), with the
 // sync model on its own thread (CLASTRACE_REPLAY_SYNC_THREAD=1), and with cluster builds run
 // ahead of their turn (CLASTRACE_REPLAY_RUN_AHEAD=1, docs/replay.md "Threads"), and with both; then the engine alone: the wall
 // time of every engine::execute call of a one-thread replay of the same trace in the same process (ReplayedCommand::engine_ns, summed
@@ -249,10 +249,11 @@ int replay_once_for_profiler(const std::string& path, bool hazards, uint32_t thr
     require_clean(run.report, "profiled");
     std::printf(
         "%s: %llu ops, hazards %s, %u thread(s), %.3f s, engine %.3f s (1 thread only), %zu "
-        "hazards; runs ahead started %llu, stood %llu\n",
+        "hazards; runs ahead started %llu, stood %llu, run again %llu\n",
         path.c_str(), (unsigned long long)run.report.counts.cluster_ops, hazards ? "on" : "off",
         threads, run.seconds, 1e-9 * double(engine.ns), run.report.hazards.size(),
-        (unsigned long long)run_ahead.started, (unsigned long long)run_ahead.stood);
+        (unsigned long long)run_ahead.started, (unsigned long long)run_ahead.stood,
+        (unsigned long long)run_ahead.run_again);
     return 0;
 }
 
@@ -323,14 +324,17 @@ void throughput_table(const std::string& dir, uint64_t ops, uint32_t threads, in
         on.take(a.seconds, a.cpu);
         ReplayRun b = replay_once(path, false, 1);
         off.take(b.seconds, b.cpu);
-        ReplayRun m = replay_once(path, true, threads);  // the defaults: model inline, in turn
+        setenv("CLASTRACE_REPLAY_RUN_AHEAD", "0", 1);  // model inline, every build in its turn
+        ReplayRun m = replay_once(path, true, threads);
         many.take(m.seconds, m.cpu);
         setenv("CLASTRACE_REPLAY_RUN_AHEAD", "1", 1);  // cluster builds run ahead on T threads
         ReplayRun t = replay_once(path, true, threads, nullptr, &run_ahead);
         unsetenv("CLASTRACE_REPLAY_RUN_AHEAD");
         many_run_ahead.take(t.seconds, t.cpu);
+        setenv("CLASTRACE_REPLAY_RUN_AHEAD", "0", 1);
         setenv("CLASTRACE_REPLAY_SYNC_THREAD", "1", 1);  // the model on a thread of its own
         ReplayRun mi = replay_once(path, true, threads);
+        unsetenv("CLASTRACE_REPLAY_RUN_AHEAD");
         unsetenv("CLASTRACE_REPLAY_SYNC_THREAD");
         many_sync_thread.take(mi.seconds, mi.cpu);
         setenv("CLASTRACE_REPLAY_RUN_AHEAD", "1", 1);  // both
@@ -371,9 +375,12 @@ void throughput_table(const std::string& dir, uint64_t ops, uint32_t threads, in
     };
     row("replay, 1 thread, hazards on", on);
     row("replay, 1 thread, hazards off (--no-hazards)", off);
-    row("replay, " + std::to_string(threads) + " threads, hazards on", many);
     row("replay, " + std::to_string(threads) +
-            " threads, hazards on, sync model on its own thread (CLASTRACE_REPLAY_SYNC_THREAD=1)",
+            " threads, hazards on, every build in its turn (CLASTRACE_REPLAY_RUN_AHEAD=0)",
+        many);
+    row("replay, " + std::to_string(threads) +
+            " threads, hazards on, sync model on its own thread (CLASTRACE_REPLAY_SYNC_THREAD=1, "
+            "RUN_AHEAD=0)",
         many_sync_thread);
     row("replay, " + std::to_string(threads) +
             " threads, hazards on, cluster builds run ahead (CLASTRACE_REPLAY_RUN_AHEAD=1)",

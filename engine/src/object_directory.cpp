@@ -33,6 +33,10 @@ const char* object_type_name(ObjectType type) {
 ObjectLookup ObjectDirectory::lookup(const MemoryImage& memory, uint64_t address,
                                      ObjectType expected, bool any_type, FieldRef where) const {
     ObjectLookup r;
+    if (lookup_log_) {
+        std::lock_guard lock(lookup_log_->mutex);
+        lookup_log_->addresses.push_back(address);
+    }
     const char* want = any_type ? "cluster acceleration structure" : object_type_name(expected);
     if (address == 0) {
         r.error = std::string("address is 0, not a ") + want;
@@ -110,6 +114,24 @@ void ObjectDirectory::record_built(uint64_t address, ObjectType type,
                                    std::span<const std::byte> bytes) {
     CLASTRACE_DEBUG_ASSERT(live_entry_holds(type, bytes.size()));
     live_[address] = Live{type, uint32_t(bytes.size()), object_hash(bytes)};
+    moved_to_.erase(address);
+}
+
+bool ObjectDirectory::same_entry(const ObjectDirectory& other, uint64_t address) const {
+    auto live = live_.find(address), other_live = other.live_.find(address);
+    if ((live == live_.end()) != (other_live == other.live_.end())) return false;
+    if (live != live_.end())
+        return live->second.type == other_live->second.type &&
+               live->second.size == other_live->second.size &&
+               live->second.hash == other_live->second.hash;
+    return moved_to_.contains(address) == other.moved_to_.contains(address);
+}
+
+void ObjectDirectory::copy_entry(const ObjectDirectory& other, uint64_t address) {
+    auto it = other.live_.find(address);
+    CLASTRACE_DEBUG_ASSERT(it != other.live_.end());
+    if (it == other.live_.end()) return;
+    live_[address] = it->second;
     moved_to_.erase(address);
 }
 

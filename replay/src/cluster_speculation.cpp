@@ -71,6 +71,18 @@ bool reads_no_objects(VkClusterAccelerationStructureOpTypeNV type) {
            type == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV;
 }
 
+// A cluster BLAS reads CLAS through the directory, which its run is given by the CLAS runs
+// before it and commit checks entry by entry.
+bool reads_clusters(VkClusterAccelerationStructureOpTypeNV type) {
+    return type == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
+}
+
+engine::ObjectType built_type(const engine::OpResult& op) {
+    return op.dst_type == 0   ? engine::ObjectType::kClustersBottomLevel
+           : op.dst_type == 2 ? engine::ObjectType::kTriangleClusterTemplate
+                              : engine::ObjectType::kTriangleCluster;
+}
+
 bool same_sizes(const ClusterDriverSizes& a, const ClusterDriverSizes& b) {
     return a.build_scratch_size == b.build_scratch_size &&
            a.acceleration_structure_size == b.acceleration_structure_size && a.queried == b.queried;
@@ -78,17 +90,22 @@ bool same_sizes(const ClusterDriverSizes& a, const ClusterDriverSizes& b) {
 
 }  // namespace
 
-std::unique_ptr<ClusterRunAhead> ClusterRunAhead::start(std::vector<uint8_t> record,
-                                                        uint64_t stream_index,
-                                                        const AheadInputs& in) {
+std::shared_ptr<ClusterRunAhead> ClusterRunAhead::start(
+    std::vector<uint8_t> record, uint64_t stream_index, const AheadInputs& in,
+    std::vector<std::shared_ptr<ClusterRunAhead>> earlier) {
     const fbs::Record* r = flatbuffers::GetRoot<fbs::Record>(record.data());
     const auto* build = r->body_as_CmdBuildClusterAccelerationStructureIndirect();
-    if (!build || !build->input() ||
-        !reads_no_objects(
-            static_cast<VkClusterAccelerationStructureOpTypeNV>(build->input()->op_type())))
-        return nullptr;
-    std::unique_ptr<ClusterRunAhead> run(new ClusterRunAhead(in.storage));
+    if (!build || !build->input()) return nullptr;
+    const auto type =
+        static_cast<VkClusterAccelerationStructureOpTypeNV>(build->input()->op_type());
+    if (!reads_no_objects(type) && !reads_clusters(type)) return nullptr;
+    std::shared_ptr<ClusterRunAhead> run(new ClusterRunAhead(in.storage));
     run->stream_index_ = stream_index;
+    run->reads_objects_ = reads_clusters(type);
+    if (run->reads_objects_) {
+        for (const auto& e : earlier) run->earlier_turns_.push_back(e->turn_passed_);
+        run->earlier_ = std::move(earlier);
+    }
     run->queried_max_count_ =
         in.queries.largest_count(build->input()->op_type(), build->input()->op_mode());
     run->properties_ = &in.properties;
@@ -126,6 +143,7 @@ void ClusterRunAhead::finish() {
     if (stage_->compare_exchange_strong(queued, kRunning)) {
         run();
         stage_->store(kDone);
+        stage_->notify_all();  // a later run's task may wait for this one
         return;
     }
     for (int now = stage_->load(); now == kRunning; now = stage_->load()) stage_->wait(now);
@@ -194,11 +212,36 @@ void ClusterRunAhead::plan_explicit_destinations(const engine::MemoryImage& real
 void ClusterRunAhead::make_image() {
     for (PlannedRegion& r : regions_)
         image_.add_region(r.base, r.size, r.usage, std::move(r.label), storage_.take(r.size));
+    lay_in_earlier_runs();
     for (const PlannedSnapshot& s : snapshots_) {
         auto span = image_.write_bytes(s.address, s.bytes->size(), {"snapshot", -1});
         std::memcpy(span.data(), s.bytes->data(), s.bytes->size());
     }
     snapshots_.clear();  // the contents go back to the replay's keeping
+}
+
+void ClusterRunAhead::lay_in_earlier_runs() {
+    for (const std::shared_ptr<ClusterRunAhead>& earlier : earlier_) {
+        earlier->finish();  // an earlier run: never waits for this one
+        if (earlier->failed_) continue;
+        const engine::MemoryImage& from = earlier->image_;
+        for (const auto& [address, size] : earlier->writes_) {
+            const engine::MemoryRegion* source = from.find_region(address);
+            if (!source) continue;
+            const engine::MemoryRegion* target = image_.find_region(address);
+            if (!target)
+                target = &image_.add_region(source->base, source->size, source->usage,
+                                            source->label, storage_.take(source->size));
+            if (target->base != source->base || target->size != source->size) continue;
+            auto bytes = from.read_bytes(address, size, {"run ahead", -1});
+            std::memcpy(image_.write_bytes(address, size, {"run ahead", -1}).data(), bytes.data(),
+                        size);
+        }
+        if (earlier->built_intact_)
+            for (const Built& b : earlier->built_)
+                directory_.copy_entry(earlier->directory_, b.address);
+    }
+    earlier_.clear();  // their images go back to the pool once no one else holds them
 }
 
 void ClusterRunAhead::run() {
@@ -222,6 +265,7 @@ void ClusterRunAhead::run() {
         return;
     }
     image_.log_writes(&writes_);
+    directory_.log_lookups(&lookups_);
     const auto started = std::chrono::steady_clock::now();
     try {
         // Isolated: waiting in its parallel loop, this run must not take up another one, which
@@ -232,6 +276,7 @@ void ClusterRunAhead::run() {
         failed_ = true;  // the command's turn runs it again and reports the failure
     }
     image_.log_writes(nullptr);
+    directory_.log_lookups(nullptr);
     engine_ns_ = static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
                                            std::chrono::steady_clock::now() - started)
                                            .count());
@@ -240,6 +285,11 @@ void ClusterRunAhead::run() {
     } catch (const std::exception&) {
         built_intact_ = false;  // its turn runs the command in place
     }
+}
+
+bool ClusterRunAhead::earlier_turns_passed() const {
+    return std::all_of(earlier_turns_.begin(), earlier_turns_.end(),
+                       [](const auto& passed) { return *passed; });
 }
 
 bool ClusterRunAhead::reads_unchanged(const engine::MemoryImage& real) const {
@@ -286,9 +336,7 @@ bool ClusterRunAhead::writes_fit(const engine::MemoryImage& real) const {
 bool ClusterRunAhead::built_objects(std::vector<Built>* objects) const {
     for (const engine::OpResult& op : result_.ops) {
         if (!op.executed || op.dst_address == 0) continue;
-        const engine::ObjectType type = op.dst_type == 2
-                                            ? engine::ObjectType::kTriangleClusterTemplate
-                                            : engine::ObjectType::kTriangleCluster;
+        const engine::ObjectType type = built_type(op);
         if (!directory_.lookup(image_, op.dst_address, type, false, {"run ahead", -1}).found())
             return false;  // a later op of the command wrote over it
         objects->push_back({op.dst_address, op.dst_size, type});
@@ -307,32 +355,70 @@ bool ClusterRunAhead::stands(const ReplayMemory& memory, uint32_t queried_max_co
     return reads_unchanged(memory.image()) && writes_fit(memory.image());
 }
 
+bool ClusterRunAhead::same_objects(const engine::ObjectDirectory& real) const {
+    return std::all_of(lookups_.addresses.begin(), lookups_.addresses.end(),
+                       [&](uint64_t address) { return real.same_entry(directory_, address); });
+}
+
 bool ClusterRunAhead::commit(ReplayMemory& memory, engine::ObjectDirectory& directory,
                              uint32_t queried_max_count, const ClusterDriverSizes& sizes,
                              engine::ExecutionRecord* record, uint64_t* engine_ns) {
     finish();
-    if (!stands(memory, queried_max_count, sizes) || !built_intact_) return false;
+    if (!stands(memory, queried_max_count, sizes) || !built_intact_ ||
+        (!skip_checks_for_tests && !same_objects(directory)))
+        return false;
     engine::MemoryImage& real = memory.image();
     for (const auto& [address, size] : writes_) {
         auto from = image_.read_bytes(address, size, {"run ahead", -1});
         auto to = real.write_bytes(address, size, {"run ahead", -1});
         std::memcpy(to.data(), from.data(), size);
     }
-    for (const Built& b : built_)  // in op order, as the engine's own run records them
-        directory.record_built(b.address, b.type,
-                               real.read_bytes(b.address, b.size, {"run ahead", -1}));
+    // In op order, as the engine's own run records them; the bytes just copied are the ones
+    // its own directory hashed.
+    for (const Built& b : built_) directory.copy_entry(directory_, b.address);
     stood_ = true;
     *record = std::move(result_);
     if (engine_ns) *engine_ns = engine_ns_;
     return true;
 }
 
-std::unique_ptr<ClusterRunAhead> RunAheadWindow::take(std::span<const uint8_t> record) {
+void RunAheadWindow::add(std::shared_ptr<ClusterRunAhead> run) {
+    if (!run->reads_objects()) {
+        recent_builds_.push_back(run);
+        if (recent_builds_.size() > capacity_) {  // memory stays bounded
+            recent_builds_.pop_front();
+            bottom_levels_.erase(bottom_levels_.begin(),
+                                 bottom_levels_.lower_bound(
+                                     recent_builds_.front()->stream_index()));
+        }
+    }
+    runs_.push_back(std::move(run));
+}
+
+void RunAheadWindow::note_bottom_level(uint64_t stream_index) {
+    bottom_levels_.insert(stream_index);
+}
+
+std::vector<std::shared_ptr<ClusterRunAhead>> RunAheadWindow::builds_before(
+    uint64_t stream_index) const {
+    auto previous = bottom_levels_.lower_bound(stream_index);
+    const uint64_t after = previous == bottom_levels_.begin() ? 0 : *std::prev(previous) + 1;
+    std::vector<std::shared_ptr<ClusterRunAhead>> runs;
+    for (const auto& run : recent_builds_)
+        if (run->stream_index() >= after && run->stream_index() < stream_index) runs.push_back(run);
+    std::sort(runs.begin(), runs.end(),
+              [](const auto& a, const auto& b) { return a->stream_index() < b->stream_index(); });
+    return runs;
+}
+
+std::shared_ptr<ClusterRunAhead> RunAheadWindow::take(std::span<const uint8_t> record) {
     for (auto it = runs_.begin(); it != runs_.end(); ++it) {
         const std::vector<uint8_t>& bytes = (*it)->record();
         if (bytes.size() == record.size() &&
-            std::memcmp(bytes.data(), record.data(), bytes.size()) == 0) {
-            std::unique_ptr<ClusterRunAhead> run = std::move(*it);
+            std::memcmp(bytes.data(), record.data(), bytes.size()) == 0 &&
+            (*it)->earlier_turns_passed()) {
+            std::shared_ptr<ClusterRunAhead> run = std::move(*it);
+            run->mark_turn_passed();
             runs_.erase(it);
             return run;
         }

@@ -2,11 +2,15 @@
 // Cluster builds run ahead of their turn (docs/replay.md "Threads"). A capture records the bytes
 // a cluster command reads as it saw them (its input snapshots), so the command can run early,
 // on another thread, on an image of its own: the regions it names, holding only its snapshots.
-// At its turn, after replay laid its snapshots in and translated its addresses as always, the
-// run is taken only when every byte it read is the same in the replay's memory now, it wrote
-// nothing it read, the buffers and size answers it was judged against are the same, and it
-// found nothing; then its written bytes and built objects are copied over in one go. Anything
-// else runs the command again, in place, as a one-thread replay does.
+// A cluster BLAS build also reads the CLAS it references through the object directory: its run
+// starts on an image that holds, besides its snapshots, what the CLAS runs started before it
+// wrote, and a directory of the objects they built. At its turn, after replay laid its
+// snapshots in and translated its addresses as always, the run is taken only when every byte it
+// read is the same in the replay's memory now, it wrote nothing it read, every object it looked
+// up has the same entry in the replay's directory, the buffers and size answers it was judged
+// against are the same, and it found nothing; then its written bytes and built objects are
+// copied over in one go. Anything else runs the command again, in place, as a one-thread replay
+// does.
 #pragma once
 
 #include "cluster_size_queries.h"
@@ -26,6 +30,7 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <set>
 #include <span>
 #include <string>
 #include <unordered_map>
@@ -86,18 +91,27 @@ class ClusterRunAhead {
 public:
     // Plans the command of `record` (a CmdBuildClusterAccelerationStructureIndirect's Record
     // bytes) and queues it on the calling thread's arena, or nullptr when it cannot run ahead:
-    // an op type that reads objects through the directory (cluster BLASes, moves,
-    // instantiations, template indices), a snapshot whose contents are not at hand or that no
-    // region holds. Planning (which regions, which snapshot bytes where) is the replay thread's;
-    // making the image and running the engine are the task's.
-    static std::unique_ptr<ClusterRunAhead> start(std::vector<uint8_t> record,
-                                                  uint64_t stream_index, const AheadInputs& in);
+    // moves, instantiations and template indices (their objects may come from commands in
+    // their turn), a snapshot whose contents are not at hand or that no region holds.
+    // A cluster BLAS reads the writes and objects of `earlier` (runs of CLAS and template
+    // builds read before it): its task waits for them, or runs those not started yet.
+    // Planning (which regions, which snapshot bytes where) is the replay thread's; making the
+    // image and running the engine are the task's.
+    static std::shared_ptr<ClusterRunAhead> start(
+        std::vector<uint8_t> record, uint64_t stream_index, const AheadInputs& in,
+        std::vector<std::shared_ptr<ClusterRunAhead>> earlier);
     // Waits for a run in progress, or cancels one not started; its bytes go back to the pool.
     ~ClusterRunAhead();
 
     const std::vector<uint8_t>& record() const { return record_; }
     bool stood() const { return stood_; }  // commit took it
     uint64_t stream_index() const { return stream_index_; }
+    bool reads_objects() const { return reads_objects_; }  // a cluster BLAS build
+    // On the replay thread: whether the commands of the runs it starts on have had their turn.
+    // Until then it is the run of a later record with the same bytes (a BLAS over the same
+    // slot, next frame but one) and is not taken.
+    bool earlier_turns_passed() const;
+    void mark_turn_passed() { *turn_passed_ = true; }  // taken at its command's turn
 
     // At the command's turn, with its snapshots laid in and addresses translated: true when the
     // early run stands (the checks in the file comment); its bytes and objects then land in
@@ -131,13 +145,17 @@ private:
     // Explicit destinations: the regions the snapshots' dstAddressesArray entries name.
     void plan_explicit_destinations(const engine::MemoryImage& real);
     void make_image();
+    // What the earlier runs wrote, laid in before its own snapshots (as their commands run
+    // before its own in queue order), and their objects in its directory.
+    void lay_in_earlier_runs();
     // The task: the image, then the engine; once, on a worker or (not started by its turn) on
-    // the replay thread.
+    // the replay thread or the task of a later run that reads it.
     void run();
-    void finish();  // on the replay thread: the run is done when this returns
+    void finish();  // the run is done when this returns
     bool stands(const ReplayMemory& memory, uint32_t queried_max_count,
                 const ClusterDriverSizes& sizes) const;
     bool reads_unchanged(const engine::MemoryImage& real) const;
+    bool same_objects(const engine::ObjectDirectory& real) const;
     bool writes_fit(const engine::MemoryImage& real) const;
     // The objects it built, when each is intact in its own image (the task asks, at its end).
     struct Built {
@@ -165,8 +183,15 @@ private:
     uint64_t implicit_object_room_ = 0;
     std::vector<PlannedRegion> regions_;
     std::vector<PlannedSnapshot> snapshots_;
+    bool reads_objects_ = false;
+    std::vector<std::shared_ptr<ClusterRunAhead>> earlier_;  // released once laid in
+    // Set when the run is taken at its command's turn; the later runs on it keep a copy.
+    // Both only on the replay thread.
+    std::shared_ptr<bool> turn_passed_ = std::make_shared<bool>(false);
+    std::vector<std::shared_ptr<const bool>> earlier_turns_;
     engine::MemoryImage image_;
     engine::ObjectDirectory directory_;
+    engine::ObjectDirectory::LookupLog lookups_;
     std::vector<std::pair<uint64_t, uint64_t>> writes_;  // (address, size), as written
     std::mutex usage_mutex_;
     std::vector<UsageQuery> usage_queries_;  // all answered "every byte has the usage"
@@ -184,11 +209,19 @@ class RunAheadWindow {
 public:
     explicit RunAheadWindow(size_t capacity) : capacity_(capacity) {}
     bool full() const { return runs_.size() >= capacity_; }
-    void add(std::unique_ptr<ClusterRunAhead> run) { runs_.push_back(std::move(run)); }
+    void add(std::shared_ptr<ClusterRunAhead> run);
     bool holds(uint64_t stream_index) const;  // a run of the record at this index
+    // A cluster BLAS build's record at `stream_index`, started or not (records are read in
+    // stream order; a build may start later, at its own record).
+    void note_bottom_level(uint64_t stream_index);
+    // The runs a cluster BLAS at `stream_index` starts on: the CLAS and template builds
+    // started from the records between the BLAS record before it and its own (a BLAS over the
+    // clusters built just before it, the usual order; a BLAS over older ones, or over a build
+    // that starts after it, fails its checks and runs in its turn).
+    std::vector<std::shared_ptr<ClusterRunAhead>> builds_before(uint64_t stream_index) const;
     // A run of a record with these bytes (any: a run stands or not by the bytes it read);
     // nullptr when none.
-    std::unique_ptr<ClusterRunAhead> take(std::span<const uint8_t> record);
+    std::shared_ptr<ClusterRunAhead> take(std::span<const uint8_t> record);
     // Drops the runs of records read before stream index `index` (their command buffers were
     // not in the submission just replayed).
     void drop_before(uint64_t index);
@@ -200,7 +233,11 @@ public:
 private:
     size_t capacity_;
     ImageStoragePool storage_;  // before runs_: the runs give their bytes back as they go
-    std::deque<std::unique_ptr<ClusterRunAhead>> runs_;
+    std::deque<std::shared_ptr<ClusterRunAhead>> runs_;
+    // The latest CLAS and template runs, taken or not (at most capacity_), and the stream
+    // indices of the BLAS records read since the oldest of them.
+    std::deque<std::shared_ptr<ClusterRunAhead>> recent_builds_;
+    std::set<uint64_t> bottom_levels_;
 };
 
 }  // namespace clastrace::replay::detail

@@ -251,16 +251,41 @@ void Replay::start_ahead(const traces::RecordView& view, uint64_t stream_index) 
 // Read ahead, a build may name buffers whose records are not replayed yet: then it starts when
 // its own record is (record_command), which is still before its submission.
 void Replay::start_cluster_run(const traces::RecordView& view, uint64_t stream_index) {
-    if (view.kind != fbs::RecordBody::CmdBuildClusterAccelerationStructureIndirect ||
-        ahead_runs_->full() || ahead_runs_->holds(stream_index))
-        return;
+    const auto* build = view.record->body_as_CmdBuildClusterAccelerationStructureIndirect();
+    if (!build) return;
+    // Every BLAS record read bounds the CLAS runs the next BLAS starts on, started or not.
+    const bool bottom_level =
+        build->input() &&
+        build->input()->op_type() ==
+            VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
+    if (bottom_level) ahead_runs_->note_bottom_level(stream_index);
+    if (ahead_runs_->full() || ahead_runs_->holds(stream_index)) return;
     const AheadInputs in{memory_,     recent_contents_,       cluster_queries_,
                          properties_, ahead_runs_->storage(), options_.max_findings_per_rule};
-    if (auto run = ClusterRunAhead::start({view.bytes, view.bytes + view.size}, stream_index, in)) {
+    if (auto run = ClusterRunAhead::start({view.bytes, view.bytes + view.size}, stream_index, in,
+                                          bottom_level
+                                              ? ahead_runs_->builds_before(stream_index)
+                                              : std::vector<std::shared_ptr<ClusterRunAhead>>{})) {
         ++ahead_runs_->counts.started;
         ahead_runs_->add(std::move(run));
     }
 }
+
+namespace {
+
+// ReplayOptions::run_ahead, or CLASTRACE_REPLAY_RUN_AHEAD=1, or 4 threads or more unless
+// CLASTRACE_REPLAY_RUN_AHEAD=0 (ReplayOptions says why).
+bool runs_ahead(const ReplayOptions& options) {
+    constexpr uint32_t kByDefaultFrom = 4;
+    const uint32_t threads = replay_threads(options);
+    if (threads < 2) return false;
+    const char* value = std::getenv("CLASTRACE_REPLAY_RUN_AHEAD");
+    const std::string_view asked = value ? value : "";
+    if (options.run_ahead || asked == "1") return true;
+    return asked != "0" && threads >= kByDefaultFrom;
+}
+
+}  // namespace
 
 ReplayReport Replay::run() {
     traces::RecordView view;
@@ -274,7 +299,7 @@ ReplayReport Replay::run() {
     if (options_.check_hazards && replay_threads(options_) > 1 &&
         asked(options_.sync_model_thread, "CLASTRACE_REPLAY_SYNC_THREAD"))
         sync_.start_thread();
-    if (replay_threads(options_) > 1 && asked(options_.run_ahead, "CLASTRACE_REPLAY_RUN_AHEAD")) {
+    if (runs_ahead(options_)) {
         ahead_runs_.emplace(std::min<size_t>(4 * size_t(replay_threads(options_)), 64));
         replay_records_ahead(progress);
         if (options_.run_ahead_counts) *options_.run_ahead_counts = ahead_runs_->counts;

@@ -70,7 +70,7 @@ void Replay::build_clusters(const fbs::CmdBuildClusterAccelerationStructureIndir
                                   },
                                   observed_execution_,
                                   observed_engine_ns_};
-    std::unique_ptr<ClusterRunAhead> ahead;
+    std::shared_ptr<ClusterRunAhead> ahead;
     if (ahead_runs_ && command_bytes_) ahead = ahead_runs_->take(*command_bytes_);
     context.ahead = ahead.get();
     if (!ahead_runs_) return run_cluster_command(build, queried, cluster_queries_, context);

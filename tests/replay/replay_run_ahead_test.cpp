@@ -2,8 +2,10 @@
 // Cluster builds run ahead of their turn (replay/src/cluster_speculation.h, docs/replay.md
 // "Threads"): a run stands only when every byte it read is unchanged at its turn, so a build that
 // reads an earlier command's output outside its snapshots runs again in place; builds writing
-// the same bytes land in queue order. Each case compares the replay memory after every command
-// and the JSON report of 1 and 4 threads, and counts which runs stood.
+// the same bytes land in queue order; a cluster BLAS runs on the CLAS runs before it and stands
+// only when the replay's directory holds the objects it found as its own did. Each case compares
+// the replay memory after every command and the JSON report of 1 and 4 threads, and counts which
+// runs stood.
 #include "cluster_speculation.h"
 #include "replay_bench_trace.h"
 
@@ -22,6 +24,7 @@
 #include <nlohmann/json.hpp>
 
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <functional>
 #include <string>
@@ -126,6 +129,32 @@ public:
         w_.append(b);
     }
 
+    // A cluster BLAS over the CLAS whose addresses the builds of info slots [first, first +
+    // count) wrote to dstAddressesArray; its own info at kInfos + 0x800 is its one snapshot.
+    void blas(uint32_t first, uint32_t count, uint64_t object_offset) {
+        VkClusterAccelerationStructureClustersBottomLevelInputNV in{};
+        in.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
+        in.maxTotalClusterCount = count;
+        in.maxClusterCountPerAccelerationStructure = count;
+        const VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV info{count, 8,
+                                                                                kAddresses +
+                                                                                    first * 8};
+        other_op(tb::cluster_op_input(1, &in), object_offset, kInfos + 0x800,
+                 tb::bytes_of(&info, 1));
+    }
+
+    // Moves the CLAS at kObjects + from_offset to kObjects + to_offset, overlap allowed (so
+    // the source is retired: no object is left there).
+    void move(uint64_t from_offset, uint64_t to_offset) {
+        VkClusterAccelerationStructureMoveObjectsInputNV in{};
+        in.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_MOVE_OBJECTS_INPUT_NV;
+        in.type = VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_TRIANGLE_CLUSTER_NV;
+        in.noMoveOverlap = VK_FALSE;
+        in.maxMovedBytes = sizes_.acceleration_structure_size;
+        const VkClusterAccelerationStructureMoveObjectsInfoNV info{kObjects + from_offset};
+        other_op(tb::cluster_op_input(1, &in), to_offset, kInfos + 0x900, tb::bytes_of(&info, 1));
+    }
+
     void barrier(uint64_t src_stage, uint64_t src_access, uint64_t dst_stage, uint64_t dst_access) {
         w_.append(tb::memory_barrier(kCommandBuffer, src_stage, src_access, dst_stage, dst_access));
     }
@@ -156,6 +185,21 @@ private:
     VkClusterAccelerationStructureInputInfoNV input() const {
         return tb::cluster_op_input(1, &limits_);
     }
+    // One op of `input`, its srcInfosArray entry at `info_at` (snapshot `info`), its object
+    // at kObjects + object_offset, its address and size past the CLAS builds' slots.
+    void other_op(const VkClusterAccelerationStructureInputInfoNV& input, uint64_t object_offset,
+                  uint64_t info_at, const std::vector<uint8_t>& info) {
+        auto commands = tb::cluster_commands(input);
+        commands.dstImplicitData = kObjects + object_offset;
+        commands.scratchData = kScratch;
+        commands.dstAddressesArray = {kAddresses + 0x800 + (info_at - kInfos) / 8, 8, 8};
+        commands.dstSizesArray = {kSizes + 0x800 + (info_at - kInfos) / 8, 4, 4};
+        commands.srcInfosArray = {info_at, info.size(), info.size()};
+        fbs::CmdBuildClusterAccelerationStructureIndirectT b =
+            tb::cluster_build(kCommandBuffer, commands);
+        b.inputs.push_back(w_.snapshot(info_at, info));
+        w_.append(b);
+    }
 
     tb::RecordWriter w_;
     VkClusterAccelerationStructureTriangleClusterInputNV limits_{};
@@ -176,6 +220,17 @@ public:
         digests.push_back(digest);
     }
     std::vector<size_t> digests;
+};
+
+// The first 64 bytes at kObjects after each cluster command.
+class ObjectBytes : public replay::ReplayObserver {
+public:
+    void on_command(const replay::ReplayedCommand& c) override {
+        if (!c.execution || !c.memory) return;
+        auto bytes = c.memory->read_bytes(kObjects, 64, {"test", -1});
+        after.emplace_back(reinterpret_cast<const char*>(bytes.data()), bytes.size());
+    }
+    std::vector<std::string> after;
 };
 
 struct Replayed {
@@ -268,19 +323,111 @@ TEST(ReplayRunAhead, OverlappingWritesLandInQueueOrder) {
     std::remove(path.c_str());
 }
 
+// Two CLAS builds and a BLAS over them (its cluster references are the addresses the CLAS
+// builds wrote, outside its snapshots): all three run ahead and stand, the BLAS on the CLAS
+// runs' bytes and objects.
+TEST(ReplayRunAhead, BottomLevelBuildRunsOnTheClusterRunsBeforeIt) {
+    const std::string path = temp_path("blas_over_runs.clt");
+    {
+        BuildsTrace t(path);
+        t.build(0, grid(0, 0), 0, 0);
+        t.build(512, grid(3, 2), 1, 0x1000);
+        t.barrier(kBuild, kAsWrite, kBuild, kAsRead | kAsWrite);
+        t.blas(0, 2, 0x10000);
+        t.finish();
+    }
+    const Replayed one = replay_with(path, 1), many = replay_with(path, 4);
+    EXPECT_EQ(many.counts.started, 3u);
+    EXPECT_EQ(many.counts.stood, 3u);
+    ASSERT_EQ(one.digests.size(), 3u);
+    EXPECT_EQ(one.digests, many.digests);
+    EXPECT_EQ(one.json, many.json);
+    EXPECT_EQ(one.json.find("CLASTRACE-"), std::string::npos) << one.json;  // no finding
+    std::remove(path.c_str());
+}
+
+// A move between the CLAS build and the BLAS retires the CLAS but leaves its bytes: the BLAS's
+// run, which found the CLAS alive in its own directory, fails the directory check (not the byte
+// comparison) and runs again, reporting the stale reference as one thread does.
+TEST(ReplayRunAhead, BottomLevelBuildOverAMovedClusterRunsAgain) {
+    const std::string path = temp_path("blas_after_move.clt");
+    {
+        BuildsTrace t(path);
+        t.build(0, grid(0, 0), 0, 0);
+        t.barrier(kBuild, kAsWrite, kBuild, kAsRead | kAsWrite);
+        t.move(0, 0x8000);
+        t.barrier(kBuild, kAsWrite, kBuild, kAsRead | kAsWrite);
+        t.blas(0, 1, 0x10000);
+        t.finish();
+    }
+    const Replayed one = replay_with(path, 1), many = replay_with(path, 4);
+    EXPECT_EQ(many.counts.started, 2u);  // the CLAS build and the BLAS; the move in its turn
+    EXPECT_EQ(many.counts.stood, 1u);
+    EXPECT_EQ(many.counts.run_again, 1u);
+    EXPECT_EQ(one.digests, many.digests);
+    EXPECT_EQ(one.json, many.json);
+    EXPECT_NE(one.json.find("moved away"), std::string::npos) << one.json;
+
+    traces::TraceError error;
+    auto reader = traces::TraceReader::open(path, &error);
+    ASSERT_TRUE(reader) << error.message;
+    ObjectBytes bytes;
+    replay::ReplayOptions options;
+    options.observer = &bytes;
+    replay::replay_trace(*reader, path, options);
+    ASSERT_EQ(bytes.after.size(), 3u);
+    EXPECT_EQ(bytes.after[0], bytes.after[1]);  // the move left the CLAS's bytes as they were
+    std::remove(path.c_str());
+}
+
 // The replay bench's frames: CLAS builds (their reads all in their snapshots) run ahead across
-// submissions and stand; BLAS builds and moves read objects and run in their turn.
+// submissions and stand, and so do the BLAS builds over them; moves run in their turn.
 TEST(ReplayRunAhead, ClusterFramesOfTheReplayBenchRunAheadAndStand) {
     const std::string path = temp_path("bench_frames.clt");
     bench::BenchTraceShape shape;
     shape.target_ops = 5000;
     bench::write_bench_trace(path, shape);
     const Replayed one = replay_with(path, 1), many = replay_with(path, 4);
-    EXPECT_GT(many.counts.started, 40u);
+    EXPECT_GT(many.counts.started, 60u);  // 2 CLAS builds and a BLAS per frame, 24 frames
     EXPECT_EQ(many.counts.run_again, 0u);
-    EXPECT_GE(many.counts.stood, many.counts.started - 2);  // the last frames may be left
+    EXPECT_GE(many.counts.stood, many.counts.started - 3);  // the last frames may be left
     EXPECT_EQ(one.digests, many.digests);
     EXPECT_EQ(one.json, many.json);
+    std::remove(path.c_str());
+}
+
+// Runs ahead are on by default from 4 threads (ReplayOptions::run_ahead), off below unless asked,
+// and CLASTRACE_REPLAY_RUN_AHEAD=0 turns them off.
+TEST(ReplayRunAhead, OnByDefaultFromFourThreadsAndOffWithTheVariableAtZero) {
+    const std::string path = temp_path("default_frames.clt");
+    bench::BenchTraceShape shape;
+    shape.target_ops = 1000;
+    bench::write_bench_trace(path, shape);
+    auto started = [&](uint32_t threads) {
+        traces::TraceError error;
+        auto reader = traces::TraceReader::open(path, &error);
+        EXPECT_TRUE(reader) << error.message;
+        if (!reader) return uint64_t(0);
+        replay::ReplayOptions::RunAheadCounts counts;
+        replay::ReplayOptions options;
+        options.threads = threads;
+        options.run_ahead_counts = &counts;
+        replay::replay_trace(*reader, path, options);
+        return counts.started;
+    };
+    const char* kept = std::getenv("CLASTRACE_REPLAY_RUN_AHEAD");
+    const std::string was = kept ? kept : "";
+    unsetenv("CLASTRACE_REPLAY_RUN_AHEAD");
+    EXPECT_GT(started(4), 0u);
+    EXPECT_EQ(started(2), 0u);
+    setenv("CLASTRACE_REPLAY_RUN_AHEAD", "0", 1);
+    EXPECT_EQ(started(4), 0u);
+    setenv("CLASTRACE_REPLAY_RUN_AHEAD", "1", 1);
+    EXPECT_GT(started(2), 0u);
+    if (kept)
+        setenv("CLASTRACE_REPLAY_RUN_AHEAD", was.c_str(), 1);
+    else
+        unsetenv("CLASTRACE_REPLAY_RUN_AHEAD");
     std::remove(path.c_str());
 }
 

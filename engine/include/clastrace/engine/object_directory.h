@@ -14,9 +14,11 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <mutex>
 #include <span>
 #include <string>
 #include <unordered_map>
+#include <vector>
 
 namespace clastrace::engine {
 
@@ -44,6 +46,21 @@ public:
 
     size_t live_count() const { return live_.size(); }
 
+    // For a build run on a directory of its own and checked against this one later (replay's
+    // runs ahead): every address lookup() is asked about while `log` is set goes into it, from
+    // any thread; nullptr stops.
+    struct LookupLog {
+        std::mutex mutex;
+        std::vector<uint64_t> addresses;
+    };
+    void log_lookups(LookupLog* log) { lookup_log_ = log; }
+    // True when lookup() judges `address` here as it does in `other` for the same bytes: both
+    // know nothing of it, or both hold the same live object, or both moved it away.
+    bool same_entry(const ObjectDirectory& other, uint64_t address) const;
+    // Records `other`'s live object at `address` here, as record_built would for the same
+    // bytes (which the caller has copied), without hashing them again.
+    void copy_entry(const ObjectDirectory& other, uint64_t address);
+
     // No address is both alive and moved away, and every live object has a known type and the
     // size it was built with. O(objects): for tests; the record_* calls check the entry they
     // change when debug checks are on (clastrace/common/debug_assert.h).
@@ -59,6 +76,7 @@ private:
     };
     std::unordered_map<uint64_t, Live> live_;
     std::unordered_map<uint64_t, uint64_t> moved_to_;  // retired source -> destination
+    LookupLog* lookup_log_ = nullptr;
 };
 
 uint64_t object_hash(std::span<const std::byte> bytes);

@@ -84,10 +84,12 @@ struct ReplayOptions {
     // findings, hazards and their order) is the same for every count (docs/replay.md).
     uint32_t threads = 0;
     // With 2 or more threads: the sync model on a thread of its own, and cluster builds run
-    // ahead of their turn on images of their own (docs/replay.md "Threads"). Both off by
-    // default: on the device's 16 cores neither made a 10^6-op replay faster
-    // (docs/benchmarks.md). CLASTRACE_REPLAY_SYNC_THREAD=1 / CLASTRACE_REPLAY_RUN_AHEAD=1 in the
-    // environment turn them on too. The report is the same either way.
+    // ahead of their turn on images of their own (docs/replay.md "Threads").
+    // CLASTRACE_REPLAY_SYNC_THREAD=1 / CLASTRACE_REPLAY_RUN_AHEAD=1 in the environment turn
+    // them on too. Runs ahead are on by default from 4 threads (they made the device's 16-core
+    // replay faster; on 2 cores their added work costs more than the worker gives:
+    // docs/benchmarks.md), and CLASTRACE_REPLAY_RUN_AHEAD=0 turns them off; the model's thread
+    // is off by default. The report is the same either way.
     bool sync_model_thread = false;
     bool run_ahead = false;
     // Runs ahead, counted here when not null. Not owned.
