@@ -13,6 +13,7 @@
 #include <clastrace/engine/properties.h>
 #include <clastrace/replay/replay_observer.h>
 #include <clastrace/replay/replayer.h>
+#include <clastrace/testsupport/temp_trace_path.h>
 #include <clastrace/trace_building/cluster_records.h>
 #include <clastrace/trace_building/cluster_structs.h>
 #include <clastrace/trace_building/command_records.h>
@@ -25,12 +26,10 @@
 
 #include <cstdio>
 #include <cstdlib>
-#include <filesystem>
 #include <functional>
 #include <string>
 #include <string_view>
 #include <vector>
-#include <unistd.h>
 
 using namespace clastrace;
 namespace tb = clastrace::trace_building;
@@ -56,9 +55,7 @@ constexpr uint64_t kAsRead =
 constexpr uint32_t kGridVertices = 9, kGridTriangles = 8;  // a 2 x 2 quad grid
 
 std::string temp_path(const std::string& name) {
-    return (std::filesystem::temp_directory_path() /
-            ("replay_run_ahead_" + std::to_string(::getpid()) + "_" + name))
-        .string();
+    return test::temp_trace_path("replay_run_ahead", name);
 }
 
 std::vector<float> grid(float x, float z) {
