@@ -14,7 +14,6 @@ struct AtomicTotal {
 std::array<AtomicTotal, size_t(CostPhase::kCount)> phases;
 std::array<std::atomic<uint64_t>, size_t(CostThread::kCount)> threads{};
 thread_local bool layerThread = false;
-std::atomic<uint64_t> pooledRegions{0}, freshRegions{0}, freshRegionBytes{0};
 
 const char* const kPhaseNames[] = {
     "pause held (queue stalled)",
@@ -68,15 +67,6 @@ const char* cost_phase_name(CostPhase phase) { return kPhaseNames[size_t(phase)]
 void add_thread_cpu(CostThread thread, uint64_t cpu) { threads[size_t(thread)].fetch_add(cpu); }
 uint64_t thread_cpu_total(CostThread thread) { return threads[size_t(thread)].load(); }
 
-void count_served_region(bool fresh, uint64_t bytes) {
-    if (!fresh) {
-        pooledRegions.fetch_add(1, std::memory_order_relaxed);
-        return;
-    }
-    freshRegions.fetch_add(1, std::memory_order_relaxed);
-    freshRegionBytes.fetch_add(bytes, std::memory_order_relaxed);
-}
-
 void mark_layer_thread() { layerThread = true; }
 bool on_layer_thread() { return layerThread; }
 
@@ -101,14 +91,6 @@ std::vector<std::string> cost_report(const std::vector<std::string>& extra) {
         if (!cpu) continue;
         std::snprintf(line, sizeof line, "stats: thread %s CPU ms: %.3f", kThreadNames[i],
                       double(cpu) / 1e6);
-        lines.push_back(line);
-    }
-    if (pooledRegions.load() + freshRegions.load()) {
-        std::snprintf(line, sizeof line,
-                      "stats: served regions: %llu from the pool, %llu fresh (%.3f MiB)",
-                      (unsigned long long)pooledRegions.load(),
-                      (unsigned long long)freshRegions.load(),
-                      double(freshRegionBytes.load()) / double(1 << 20));
         lines.push_back(line);
     }
     for (const std::string& e : extra) lines.push_back("stats: " + e);

@@ -18,19 +18,15 @@
 
 #include <deque>
 #include <functional>
-#include <memory>
 #include <mutex>
 #include <vector>
 
 namespace clastrace::capture {
 
 struct DeviceState;
-class SubmitWalkReader;
 
 class HostWriteWatch {
 public:
-    HostWriteWatch();
-    ~HostWriteWatch();
     struct Range {
         uint64_t pause_id = 0;
         VkDeviceAddress address = 0;
@@ -73,8 +69,7 @@ private:
     // Stops watching the submissions `gone` picks; the others keep what those may have written.
     void forget(const std::function<bool(const Submission&)>& gone);
     std::mutex mutex_;
-    std::deque<Submission> watched_;            // oldest first
-    std::unique_ptr<SubmitWalkReader> reader_;  // the submissions' walks, one at a time (mutex_)
+    std::deque<Submission> watched_;  // oldest first
 };
 
 }  // namespace clastrace::capture

@@ -2,7 +2,6 @@
 #include "clastrace/capture/served_build.h"
 #include "clastrace/common/hex.h"
 
-#include "clastrace/capture/capture_cost.h"
 #include "clastrace/capture/cluster_input_walker.h"
 #include "clastrace/capture/cluster_limits.h"
 #include "clastrace/capture/uncached_copy.h"
@@ -154,11 +153,9 @@ const ServedBuffer* ServedMemory::buffer_holding(VkDeviceAddress address, uint64
 void ServedMemory::copy(size_t group) {
     if (copied_[group]) return;
     const Group& g = groups_[group];
-    engine::RegionBytes lent = pool_ ? pool_->take(g.end - g.base) : engine::RegionBytes();
-    if (pool_) count_served_region(lent.empty(), g.end - g.base);
     engine::MemoryRegion& region =
         image_->add_region(g.base, g.end - g.base, g.usage, "buffer " + hex(g.buffers[0]->buffer),
-                           std::move(lent));
+                           pool_ ? pool_->take(g.end - g.base) : engine::RegionBytes());
     for (const ServedBuffer* b : g.buffers) {
         copy_in(*b, 0, b->size,
                 reinterpret_cast<uint8_t*>(region.bytes.write_at(b->address - g.base, b->size)));

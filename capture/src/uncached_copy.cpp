@@ -1,8 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "clastrace/capture/uncached_copy.h"
 
-#include "host_memory_hash.h"
-
 #include <algorithm>
 #include <cstring>
 
@@ -57,19 +55,6 @@ void copy_from_uncached(uint8_t* destination, const uint8_t* source, size_t size
     if (size >= 256 && have_stream_loads()) return stream_copy(destination, source, size);
 #endif
     if (size) std::memcpy(destination, source, size);
-}
-
-#ifdef CLASTRACE_HASH_AVX2
-uint64_t hash_host_memory_avx2(const uint8_t* source, size_t size, bool cached);
-#endif
-
-uint64_t hash_host_memory(const uint8_t* source, size_t size, bool cached) {
-#ifdef CLASTRACE_HASH_AVX2
-    // Inputs up to 240 bytes take XXH3's scalar paths: the same code either way.
-    static const bool kHaveAvx2 = __builtin_cpu_supports("avx2");
-    if (size > 240 && kHaveAvx2) return hash_host_memory_avx2(source, size, cached);
-#endif
-    return hash_host_memory_here(source, size, cached);
 }
 
 }  // namespace clastrace::capture

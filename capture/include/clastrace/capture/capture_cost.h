@@ -66,11 +66,6 @@ private:
     uint64_t wall_, cpu_start_;
 };
 
-// A region of a served build's memory image (served_build.h): bytes lent by the region pool, or
-// fresh ones, whose first touches page-fault (the pool runs dry while the sink still holds the
-// images that captured records view). Reported as one line.
-void count_served_region(bool fresh, uint64_t bytes);
-
 // Marks the calling thread as one of the layer's (sink waits are then counted as the worker's,
 // not the application's).
 void mark_layer_thread();

@@ -14,10 +14,4 @@ namespace clastrace::capture {
 
 void copy_from_uncached(uint8_t* destination, const uint8_t* source, size_t size);
 
-// XXH3-64 of `size` bytes of host-visible memory, equal to XXH3_64bits over a copy of them, but
-// with no copy of its own: cached memory is hashed in place, other memory a few KiB at a time
-// through a stack buffer filled by copy_from_uncached (the host-write watch hashes every mapped
-// input of a submission this way, on the application's thread).
-uint64_t hash_host_memory(const uint8_t* source, size_t size, bool cached);
-
 }  // namespace clastrace::capture
