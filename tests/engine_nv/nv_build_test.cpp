@@ -53,6 +53,20 @@ TEST(NvBuild, BottomLevelSizeWithinRequirementAndHeaderCounts) {
     EXPECT_FLOAT_EQ(view->header.bounds_max[0], 2.2f);
 }
 
+// The bytes of one mesh's bottom level built alone, with `flags`.
+std::vector<std::byte> built_bytes(const ts::TriangleMesh& mesh,
+                                   VkBuildAccelerationStructureFlagsNV flags) {
+    NvWorld w;
+    BlasSpec spec;
+    spec.geometries.push_back({mesh, {}, VK_GEOMETRY_OPAQUE_BIT_NV});
+    const auto info = w.blas_info(spec, flags);
+    auto obj = w.make_object(info, "blas");
+    const auto r = w.build(info, obj);
+    EXPECT_TRUE(r.ops[0].executed) << rules(r);
+    const auto span = w.memory.read_bytes(obj.address, r.ops[0].dst_size, {});
+    return std::vector<std::byte>(span.begin(), span.end());
+}
+
 // Both builders (SAH by default, Morton for PREFER_FAST_BUILD) write the same bytes at 1
 // and at 2 threads on a mesh large enough to build its top levels on TBB tasks, and build
 // different trees (the flag reaches the builder).
@@ -60,15 +74,7 @@ TEST(NvBuild, BytesDoNotDependOnThreadCountForEitherBuilder) {
     const ts::TriangleMesh mesh = ts::make_random_soup(40000, 17, 1.0f, 0.05f);
     auto bytes_at = [&](int threads, VkBuildAccelerationStructureFlagsNV flags) {
         tbb::global_control limit(tbb::global_control::max_allowed_parallelism, size_t(threads));
-        NvWorld w;
-        BlasSpec spec;
-        spec.geometries.push_back({mesh, {}, VK_GEOMETRY_OPAQUE_BIT_NV});
-        const auto info = w.blas_info(spec, flags);
-        auto obj = w.make_object(info, "blas");
-        const auto r = w.build(info, obj);
-        EXPECT_TRUE(r.ops[0].executed) << rules(r);
-        const auto span = w.memory.read_bytes(obj.address, r.ops[0].dst_size, {});
-        return std::vector<std::byte>(span.begin(), span.end());
+        return built_bytes(mesh, flags);
     };
     const auto fast = VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV;
     const auto sah1 = bytes_at(1, 0), sah2 = bytes_at(2, 0), morton1 = bytes_at(1, fast),
@@ -97,31 +103,20 @@ TEST(NvBuild, KeptArraysCarryNothingBetweenBuilds) {
     tbb::global_control one(tbb::global_control::max_allowed_parallelism, 1);
     ts::TriangleMesh holes = ts::make_terrain(220, 220, 4);
     for (size_t i = 0; i < holes.positions.size(); i += 5) holes.positions[i][0] = NAN;
-    auto bytes_of = [](const ts::TriangleMesh& mesh, VkBuildAccelerationStructureFlagsNV flags) {
-        NvWorld w;
-        BlasSpec spec;
-        spec.geometries.push_back({mesh, {}, VK_GEOMETRY_OPAQUE_BIT_NV});
-        const auto info = w.blas_info(spec, flags);
-        auto obj = w.make_object(info, "blas");
-        const auto r = w.build(info, obj);
-        EXPECT_TRUE(r.ops[0].executed) << rules(r);
-        const auto span = w.memory.read_bytes(obj.address, r.ops[0].dst_size, {});
-        return std::vector<std::byte>(span.begin(), span.end());
-    };
     const ts::TriangleMesh mesh = ts::make_torus(120, 60, 1.0f, 0.3f),
                            small = ts::make_icosphere(2, 1.0f);
     for (VkBuildAccelerationStructureFlagsNV flags :
          {VkBuildAccelerationStructureFlagsNV(0),
           VkBuildAccelerationStructureFlagsNV(
               VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_BUILD_BIT_NV)}) {
-        const auto first = bytes_of(mesh, flags);
-        const auto with_holes = bytes_of(holes, flags);
+        const auto first = built_bytes(mesh, flags);
+        const auto with_holes = built_bytes(holes, flags);
         EXPECT_LT(eng::open_nv_object(with_holes, nullptr)->header.primitive_count,
                   holes.triangles.size());
-        EXPECT_EQ(bytes_of(mesh, flags), first) << "after the larger mesh, flags " << flags;
-        (void)bytes_of(small, flags);
-        EXPECT_EQ(bytes_of(mesh, flags), first) << "after the smaller mesh, flags " << flags;
-        EXPECT_EQ(bytes_of(holes, flags), with_holes) << "flags " << flags;
+        EXPECT_EQ(built_bytes(mesh, flags), first) << "after the larger mesh, flags " << flags;
+        (void)built_bytes(small, flags);
+        EXPECT_EQ(built_bytes(mesh, flags), first) << "after the smaller mesh, flags " << flags;
+        EXPECT_EQ(built_bytes(holes, flags), with_holes) << "flags " << flags;
     }
 }
 
