@@ -273,16 +273,12 @@ void Replay::start_cluster_run(const traces::RecordView& view, uint64_t stream_i
 
 namespace {
 
-// ReplayOptions::run_ahead, or CLASTRACE_REPLAY_RUN_AHEAD=1, or 4 threads or more unless
-// CLASTRACE_REPLAY_RUN_AHEAD=0 (ReplayOptions says why).
+// ReplayOptions::run_ahead or CLASTRACE_REPLAY_RUN_AHEAD=1, on 2 threads or more; off by
+// default (ReplayOptions says why).
 bool runs_ahead(const ReplayOptions& options) {
-    constexpr uint32_t kByDefaultFrom = 4;
-    const uint32_t threads = replay_threads(options);
-    if (threads < 2) return false;
+    if (replay_threads(options) < 2) return false;
     const char* value = std::getenv("CLASTRACE_REPLAY_RUN_AHEAD");
-    const std::string_view asked = value ? value : "";
-    if (options.run_ahead || asked == "1") return true;
-    return asked != "0" && threads >= kByDefaultFrom;
+    return options.run_ahead || (value && std::string_view(value) == "1");
 }
 
 }  // namespace

@@ -393,9 +393,10 @@ TEST(ReplayRunAhead, ClusterFramesOfTheReplayBenchRunAheadAndStand) {
     std::remove(path.c_str());
 }
 
-// Runs ahead are on by default from 4 threads (ReplayOptions::run_ahead), off below unless asked,
-// and CLASTRACE_REPLAY_RUN_AHEAD=0 turns them off.
-TEST(ReplayRunAhead, OnByDefaultFromFourThreadsAndOffWithTheVariableAtZero) {
+// Runs ahead are off by default at any thread count (their memory grows with the trace's
+// length: ReplayOptions), on when asked (ReplayOptions::run_ahead or
+// CLASTRACE_REPLAY_RUN_AHEAD=1) from 2 threads, and never on one.
+TEST(ReplayRunAhead, OffByDefaultAndOnWhenAskedFromTwoThreads) {
     const std::string path = temp_path("default_frames.clt");
     bench::BenchTraceShape shape;
     shape.target_ops = 1000;
@@ -415,12 +416,11 @@ TEST(ReplayRunAhead, OnByDefaultFromFourThreadsAndOffWithTheVariableAtZero) {
     const char* kept = std::getenv("CLASTRACE_REPLAY_RUN_AHEAD");
     const std::string was = kept ? kept : "";
     unsetenv("CLASTRACE_REPLAY_RUN_AHEAD");
-    EXPECT_GT(started(4), 0u);
-    EXPECT_EQ(started(2), 0u);
-    setenv("CLASTRACE_REPLAY_RUN_AHEAD", "0", 1);
     EXPECT_EQ(started(4), 0u);
+    EXPECT_EQ(started(16), 0u);
     setenv("CLASTRACE_REPLAY_RUN_AHEAD", "1", 1);
     EXPECT_GT(started(2), 0u);
+    EXPECT_EQ(started(1), 0u);
     if (kept)
         setenv("CLASTRACE_REPLAY_RUN_AHEAD", was.c_str(), 1);
     else
