@@ -2,6 +2,7 @@
 // Streams payloads (chunk_streams.h, issue 23): a records chunk stored as the records with the
 // contents' bytes cut out and those bytes (whole contents in byte planes) in two zstd frames
 // decodes to the very raw bytes one frame holds; damage is reported with the file and offset.
+#include "records_chunks.h"
 #include "trace_test_support.h"
 
 #include "byte_planes.h"
@@ -186,23 +187,6 @@ std::map<uint64_t, std::vector<uint8_t>> write_contents_trace(const std::string&
     }
     EXPECT_FALSE(w->finish());
     return bytes_by_key;
-}
-
-struct ChunkAt {
-    uint64_t offset;
-    f::ChunkHeader header;
-};
-
-std::vector<ChunkAt> records_chunks(const std::vector<uint8_t>& file) {
-    std::vector<ChunkAt> chunks;
-    const auto fh = f::load<f::FileHeader>(file.data());
-    for (uint64_t at = f::kFileHeaderSize + f::align8(fh.trace_header_size);
-         at + f::kChunkHeaderSize <= file.size() - f::kTrailerSize;) {
-        const auto h = f::load<f::ChunkHeader>(file.data() + at);
-        if (h.kind == uint16_t(f::ChunkKind::kRecords)) chunks.push_back({at, h});
-        at += f::kChunkHeaderSize + h.compressed_size;
-    }
-    return chunks;
 }
 
 // The raw bytes of every records chunk, whatever its payload.

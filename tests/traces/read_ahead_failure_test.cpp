@@ -5,6 +5,7 @@
 // itself (same records, same damage, file and offset included); a thread that threw (out of
 // memory) has its chunk read again on the caller's thread; the thread is gone with the reader.
 #include "failing_source.h"
+#include "records_chunks.h"
 #include "trace_test_support.h"
 
 #include "chunk_streams.h"
@@ -25,24 +26,6 @@ namespace f = format;
 
 // Above what a chunk's records and payloads need on the thread, below its chunk buffers.
 constexpr size_t kChunkBufferBytes = 64u << 10;
-
-struct ChunkAt {
-    uint64_t offset;
-    f::ChunkHeader header;
-};
-
-std::vector<ChunkAt> records_chunks(const std::vector<uint8_t>& file) {
-    std::vector<ChunkAt> chunks;
-    const auto fh = f::load<f::FileHeader>(file.data());
-    for (uint64_t at = f::kFileHeaderSize + f::align8(fh.trace_header_size);
-         at + f::kChunkHeaderSize <= file.size();) {
-        const auto h = f::load<f::ChunkHeader>(file.data() + at);
-        if (h.kind == uint16_t(f::ChunkKind::kRecords)) chunks.push_back({at, h});
-        if (h.kind == uint16_t(f::ChunkKind::kIndex)) break;
-        at += f::kChunkHeaderSize + h.compressed_size;
-    }
-    return chunks;
-}
 
 // A frame loop in chunks of 300 KiB: every chunk but the first is read on the read-ahead thread.
 class ReadAheadFailure : public ::testing::Test {
