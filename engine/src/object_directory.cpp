@@ -124,7 +124,10 @@ bool ObjectDirectory::same_entry(const ObjectDirectory& other, uint64_t address)
         return live->second.type == other_live->second.type &&
                live->second.size == other_live->second.size &&
                live->second.hash == other_live->second.hash;
-    return moved_to_.contains(address) == other.moved_to_.contains(address);
+    // lookup() names where a moved object went: the destinations must agree too.
+    auto moved = moved_to_.find(address), other_moved = other.moved_to_.find(address);
+    if ((moved == moved_to_.end()) != (other_moved == other.moved_to_.end())) return false;
+    return moved == moved_to_.end() || moved->second == other_moved->second;
 }
 
 void ObjectDirectory::copy_entry(const ObjectDirectory& other, uint64_t address) {

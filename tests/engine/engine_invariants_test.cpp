@@ -85,6 +85,24 @@ TEST(ObjectDirectoryInvariants, HoldOverBuildsMovesAndForgets) {
     }
 }
 
+// Replay's runs ahead stand only where a run's directory answers lookup() as the replay's does;
+// lookup() names a moved object's destination, so two moves of one address to different places
+// are not the same entry.
+TEST(ObjectDirectorySameEntry, MovedAwayAgreesOnlyOnTheSameDestination) {
+    const std::vector<std::byte> bytes(64, std::byte{7});
+    ObjectDirectory a, b;
+    EXPECT_TRUE(a.same_entry(b, kBase));  // both know nothing of it
+    a.record_built(kBase, ObjectType::kTriangleCluster, bytes);
+    EXPECT_FALSE(a.same_entry(b, kBase));
+    b.copy_entry(a, kBase);
+    EXPECT_TRUE(a.same_entry(b, kBase));
+    a.record_moved_away(kBase, kBase + 256);
+    b.record_moved_away(kBase, kBase + 512);
+    EXPECT_FALSE(a.same_entry(b, kBase));
+    b.record_moved_away(kBase, kBase + 256);
+    EXPECT_TRUE(a.same_entry(b, kBase));
+}
+
 TEST(ObjectDirectoryInvariants, LiveAndMovedAwayAtOnceBreaksThem) {
     ObjectDirectory directory;
     const std::vector<std::byte> bytes(64, std::byte{7});

@@ -55,7 +55,7 @@ public:
     };
     void log_lookups(LookupLog* log) { lookup_log_ = log; }
     // True when lookup() judges `address` here as it does in `other` for the same bytes: both
-    // know nothing of it, or both hold the same live object, or both moved it away.
+    // know nothing of it, or both hold the same live object, or both moved it to the same place.
     bool same_entry(const ObjectDirectory& other, uint64_t address) const;
     // Records `other`'s live object at `address` here, as record_built would for the same
     // bytes (which the caller has copied), without hashing them again.
