@@ -378,26 +378,25 @@ WideRay make_wide_ray(const geometry::PreparedRay& r) {
     for (int a = 0; a < 3; ++a) {
         const double o = r.o[a], d = r.d[a];
         if (!(std::fabs(o) <= kRangeLimit)) return w;  // also NaN and inf
-        w.origin[a] = splat(float(o));
+        w.origin[a] = float(o);
         w.zero[a] = d == 0.0;
         if (w.zero[a]) {
             // Only zero axes read these (wide_hits).
             w.origin_below[a] = float_at_or_below(o);
             w.origin_above[a] = float_at_or_above(o);
-            w.inverse[a] = splat(0.0f);
+            w.inverse[a] = 0.0f;
             continue;
         }
         const double inv = float32 ? double(r.finv[a]) : r.inv[a];
         if (!(std::fabs(inv) <= kRangeLimit && std::fabs(inv) >= 1.0 / kRangeLimit)) return w;
-        w.inverse[a] = splat(float(inv));
+        w.inverse[a] = float(inv);
         abs_term = std::max(abs_term, std::fabs(o - double(float(o))) * std::fabs(inv));
     }
     const double widening = float32 ? kFloat32RelativeWidening : kRelativeWidening;
-    w.widen_down = splat(float(1.0 - widening));
-    w.widen_up = splat(float(1.0 + widening));
-    w.widen_abs =
-        splat(float_at_or_above(abs_term * (1.0 + kRelativeWidening) + kUnderflowWidening));
-    w.tmin = splat(float_at_or_below(r.tmin));
+    w.widen_down = float(1.0 - widening);
+    w.widen_up = float(1.0 + widening);
+    w.widen_abs = float_at_or_above(abs_term * (1.0 + kRelativeWidening) + kUnderflowWidening);
+    w.tmin = float_at_or_below(r.tmin);
     w.usable = true;
     return w;
 }

@@ -163,17 +163,18 @@ void quantized_lanes8(const QuantizedWideNode8& n, int axis, float lo[8], float 
 std::vector<geometry::Triangle4> group_leaf_triangles(
     WideTree* tree, const std::vector<NvPrimitiveRecord>& records);
 
-// A prepared ray in the SIMD box test's terms; usable false: use the scalar walk.
+// A prepared ray in the SIMD box test's terms, as scalars; each path puts it into its lanes
+// once per walk (WideRay4, WideRay8). usable false: use the scalar walk.
 struct WideRay {
     bool usable = false;
     bool zero[3];           // direction component exactly 0: the origin is tested against the slab
-    Float4 origin[3];       // the origin rounded to float, in every lane
-    Float4 inverse[3];      // 1 / direction rounded to float
+    float origin[3];        // the origin rounded to float
+    float inverse[3];       // 1 / direction rounded to float
     float origin_below[3];  // the float at or below / above the exact origin (zero axes only)
     float origin_above[3];
-    Float4 widen_down, widen_up;  // 1 -/+ the relative widening
-    Float4 widen_abs;             // the absolute widening (the origin's rounding, underflow)
-    Float4 tmin;                  // r.tmin rounded down
+    float widen_down, widen_up;  // 1 -/+ the relative widening
+    float widen_abs;             // the absolute widening (the origin's rounding, underflow)
+    float tmin;                  // r.tmin rounded down
 };
 
 WideRay make_wide_ray(const geometry::PreparedRay& r);
@@ -223,8 +224,32 @@ inline unsigned used_lanes(const QuantizedNode<W>& n) {
 // The children of `node` the ray meets within [tmin, tmax] (bit k = lane k) and their entry
 // distances, each at or below the exact one. kZeroAxes: the ray may have a direction component
 // exactly 0 (false: it has none, and the per-axis check drops out of the loop).
+// WideRay in four lanes for the 4-wide box test.
+struct WideRay4 {
+    bool zero[3];
+    Float4 origin[3], inverse[3];
+    float origin_below[3], origin_above[3];
+    Float4 widen_down, widen_up, widen_abs, tmin;
+};
+
+inline WideRay4 make_wide_ray4(const WideRay& r) {
+    WideRay4 w;
+    for (int a = 0; a < 3; ++a) {
+        w.zero[a] = r.zero[a];
+        w.origin[a] = splat(r.origin[a]);
+        w.inverse[a] = splat(r.inverse[a]);
+        w.origin_below[a] = r.origin_below[a];
+        w.origin_above[a] = r.origin_above[a];
+    }
+    w.widen_down = splat(r.widen_down);
+    w.widen_up = splat(r.widen_up);
+    w.widen_abs = splat(r.widen_abs);
+    w.tmin = splat(r.tmin);
+    return w;
+}
+
 template <bool kZeroAxes, class Node>
-inline unsigned wide_hits(const WideRay& r, const Node& node, float tmax, float entry[4]) {
+inline unsigned wide_hits(const WideRay4& r, const Node& node, float tmax, float entry[4]) {
     Float4 near_t = splat(-__builtin_inff()), far_t = splat(__builtin_inff());
     unsigned inside = 0xF;
 #pragma GCC unroll 3
@@ -398,8 +423,9 @@ template <int W, class Node, class BoxTest, class Leaf, class Prefetch>
 
 // walk_nodes over 4-wide nodes (float or quantized) with the SSE box test.
 template <bool kZeroAxes, class Node, class Leaf, class Prefetch>
-void walk_wide_nodes(const std::vector<Node>& nodes, const WideRay& r, double* tmax, Leaf& leaf,
-                     Prefetch& prefetch) {
+void walk_wide_nodes(const std::vector<Node>& nodes, const WideRay& wide_ray, double* tmax,
+                     Leaf& leaf, Prefetch& prefetch) {
+    const WideRay4 r = make_wide_ray4(wide_ray);
     const auto box_test = [&r](const Node& n, float tmax_up, float* entry) {
         return wide_hits<kZeroAxes>(r, n, tmax_up, entry);
     };
@@ -421,25 +447,23 @@ struct WideRay8 {
     __m256 widen_down, widen_up, widen_abs, tmin;
 };
 
-CLASTRACE_TARGET_AVX2 inline __m256 lane_of(Float4 a) { return _mm256_set1_ps(_mm_cvtss_f32(a.v)); }
-
 CLASTRACE_TARGET_AVX2 inline WideRay8 make_wide_ray8(const WideRay& r) {
     WideRay8 w;
     constexpr int kHi = int(offsetof(QuantizedWideNode8, qhi) - offsetof(QuantizedWideNode8, qlo));
     for (int a = 0; a < 3; ++a) {
         w.zero[a] = r.zero[a];
-        w.origin[a] = lane_of(r.origin[a]);
-        w.inverse[a] = lane_of(r.inverse[a]);
+        w.origin[a] = _mm256_set1_ps(r.origin[a]);
+        w.inverse[a] = _mm256_set1_ps(r.inverse[a]);
         w.origin_below[a] = _mm256_set1_ps(r.origin_below[a]);
         w.origin_above[a] = _mm256_set1_ps(r.origin_above[a]);
-        const bool negative = _mm_cvtss_f32(r.inverse[a].v) < 0.0f;
+        const bool negative = r.inverse[a] < 0.0f;
         w.near_plane[a] = 8 * a + (negative ? kHi : 0);
         w.far_plane[a] = 8 * a + (negative ? 0 : kHi);
     }
-    w.widen_down = lane_of(r.widen_down);
-    w.widen_up = lane_of(r.widen_up);
-    w.widen_abs = lane_of(r.widen_abs);
-    w.tmin = lane_of(r.tmin);
+    w.widen_down = _mm256_set1_ps(r.widen_down);
+    w.widen_up = _mm256_set1_ps(r.widen_up);
+    w.widen_abs = _mm256_set1_ps(r.widen_abs);
+    w.tmin = _mm256_set1_ps(r.tmin);
     return w;
 }
 
