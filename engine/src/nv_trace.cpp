@@ -48,6 +48,7 @@ struct Instance {
     // The world-to-object matrix a float32 pipeline holds: `inverse` rounded to float, i.e.
     // the driver inverts the 3x4 matrix exactly (or closely enough) and stores floats.
     float inverse_float[12];
+    bool identity = false;  // `inverse` is exactly the identity (to_object_space)
     uint32_t mask = 0;
     uint32_t custom_index = 0;
     uint32_t sbt_offset = 0;
@@ -61,6 +62,12 @@ double box_entry(const geometry::PreparedRay& r, const float lo[3], const float 
     return geometry::slab_test<true>(r, lo, hi, tmax, &entry)
                ? entry
                : std::numeric_limits<double>::quiet_NaN();
+}
+
+bool is_identity(const double m[12]) {
+    for (int k = 0; k < 12; ++k)
+        if (m[k] != (k % 5 == 0 ? 1.0 : 0.0)) return false;
+    return true;
 }
 
 bool invert(const float m[12], double out[12]) {
@@ -215,6 +222,7 @@ std::optional<NvScene> NvScene::open(const MemoryImage& memory, uint64_t address
         inst.flags = r.sbt_offset_and_flags >> 24;
         if (!r.active || r.blas_address == 0 || !invert(r.transform, inst.inverse)) continue;
         for (int k = 0; k < 12; ++k) inst.inverse_float[k] = float(inst.inverse[k]);
+        inst.identity = is_identity(inst.inverse);
         auto it = data->blas.find(r.blas_address);
         if (it == data->blas.end()) {
             std::string why;
@@ -244,6 +252,7 @@ std::optional<NvScene> NvScene::open_bottom(const MemoryImage& memory, uint64_t 
     const double identity[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
     std::memcpy(inst.inverse, identity, sizeof identity);
     for (int k = 0; k < 12; ++k) inst.inverse_float[k] = float(identity[k]);
+    inst.identity = true;
     inst.mask = 0xFF;
     auto& slot = data->blas[address];
     slot = std::make_unique<Blas>(std::move(*b));
@@ -426,6 +435,23 @@ double float_t_error(const Instance& inst, const float wo[3], const double o[3],
 // ((m0 x + m1 y) + m2 z) + m3 without fused multiply-adds (the results are floats).
 void to_object_space(const Instance& inst, const Ray& ray, TraversalMode mode, double o[3],
                      double d[3]) {
+    // Through an identity, a finite ray with no zero direction component comes out as itself
+    // in either mode: each row's products are exact and its sums add zeros to the one nonzero
+    // term (an origin component -0 becomes +0 through the row's final + 0). Zero and non-finite
+    // components (0 x inf is NaN; zeros' signs) take the rows below.
+    if (inst.identity) {
+        bool plain = true;
+        for (int a = 0; a < 3; ++a)
+            plain &= std::isfinite(ray.origin[a]) & std::isfinite(ray.direction[a]) &
+                     (ray.direction[a] != 0.0f);
+        if (plain) {
+            for (int a = 0; a < 3; ++a) {
+                o[a] = double(ray.origin[a]) + 0.0;
+                d[a] = ray.direction[a];
+            }
+            return;
+        }
+    }
     for (int r = 0; r < 3; ++r) {
         if (mode == TraversalMode::kFloat32) {
             const float* m = inst.inverse_float + 4 * r;

@@ -19,6 +19,8 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
+#include <limits>
 #include <random>
 #include <sstream>
 
@@ -434,6 +436,30 @@ std::vector<eng::NvNode> caterpillar(uint32_t levels) {
     last.first = levels;
     last.count = 1;
     return nodes;
+}
+
+// float_at_or_above steps by the float's bits: the same float as std::nextafter toward +inf
+// from the rounded one, through zeros, subnormals, the sign change and both ends of the range.
+TEST(NvWideTraversal, FloatAtOrAboveIsTheLeastFloatNotBelow) {
+    const double flt_max = std::numeric_limits<float>::max();
+    const double least = std::numeric_limits<float>::denorm_min();
+    std::vector<double> values = {0.0,   -0.0,         least / 2, -least / 2,    least * 1.5,
+                                  1.0,   1.0 + 1e-12,  -1.0 - 1e-12, -1.0 + 1e-12, flt_max,
+                                  flt_max * (1 + 1e-12), -flt_max * (1 + 1e-12), 1e300, -1e300,
+                                  INFINITY, -INFINITY};
+    uint64_t state = 12345;
+    for (int k = 0; k < 20000; ++k) {
+        state = state * 6364136223846793005ull + 1442695040888963407ull;
+        const double x = std::ldexp(double(state >> 11) / double(1ull << 53) - 0.5, int(state % 300) - 150);
+        values.push_back(x);
+    }
+    for (const double t : values) {
+        float want = float(t);
+        if (double(want) < t) want = std::nextafter(want, INFINITY);
+        const float got = eng::detail::float_at_or_above(t);
+        ASSERT_EQ(std::memcmp(&got, &want, 4), 0) << t;
+        ASSERT_GE(double(got), t) << t;
+    }
 }
 
 // A tree deep enough that the walk's stack spills past its fixed part (WalkStack) still gives
