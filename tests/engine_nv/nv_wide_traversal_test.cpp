@@ -443,14 +443,27 @@ std::vector<eng::NvNode> caterpillar(uint32_t levels) {
 TEST(NvWideTraversal, FloatAtOrAboveIsTheLeastFloatNotBelow) {
     const double flt_max = std::numeric_limits<float>::max();
     const double least = std::numeric_limits<float>::denorm_min();
-    std::vector<double> values = {0.0,   -0.0,         least / 2, -least / 2,    least * 1.5,
-                                  1.0,   1.0 + 1e-12,  -1.0 - 1e-12, -1.0 + 1e-12, flt_max,
-                                  flt_max * (1 + 1e-12), -flt_max * (1 + 1e-12), 1e300, -1e300,
-                                  INFINITY, -INFINITY};
+    std::vector<double> values = {0.0,
+                                  -0.0,
+                                  least / 2,
+                                  -least / 2,
+                                  least * 1.5,
+                                  1.0,
+                                  1.0 + 1e-12,
+                                  -1.0 - 1e-12,
+                                  -1.0 + 1e-12,
+                                  flt_max,
+                                  flt_max * (1 + 1e-12),
+                                  -flt_max * (1 + 1e-12),
+                                  1e300,
+                                  -1e300,
+                                  INFINITY,
+                                  -INFINITY};
     uint64_t state = 12345;
     for (int k = 0; k < 20000; ++k) {
         state = state * 6364136223846793005ull + 1442695040888963407ull;
-        const double x = std::ldexp(double(state >> 11) / double(1ull << 53) - 0.5, int(state % 300) - 150);
+        const double x =
+            std::ldexp(double(state >> 11) / double(1ull << 53) - 0.5, int(state % 300) - 150);
         values.push_back(x);
     }
     for (const double t : values) {
