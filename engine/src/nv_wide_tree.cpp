@@ -370,6 +370,22 @@ constexpr double kRangeLimit = 0x1p100;
 
 }  // namespace
 
+WideRay4 make_wide_ray4(const WideRay& r) {
+    WideRay4 w;
+    for (int a = 0; a < 3; ++a) {
+        w.zero[a] = r.zero[a];
+        w.origin[a] = splat(r.origin[a]);
+        w.inverse[a] = splat(r.inverse[a]);
+        w.origin_below[a] = r.origin_below[a];
+        w.origin_above[a] = r.origin_above[a];
+    }
+    w.widen_down = splat(r.widen_down);
+    w.widen_up = splat(r.widen_up);
+    w.widen_abs = splat(r.widen_abs);
+    w.tmin = splat(r.tmin);
+    return w;
+}
+
 WideRay make_wide_ray(const geometry::PreparedRay& r) {
     WideRay w;
     if (std::isnan(r.tmin)) return w;
