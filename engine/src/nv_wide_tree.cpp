@@ -417,4 +417,71 @@ WideRay make_wide_ray(const geometry::PreparedRay& r) {
     return w;
 }
 
+bool make_plain_object_rays(const float o[3], const float d[3], double tmin, double tmax,
+                            ObjectRays* out) {
+    if (std::isnan(tmin)) return false;
+    geometry::PreparedRay& r = out->exact;
+    WideRay& w = out->wide;
+    // Unrolled, the checks joined (one branch): the loop and its early returns cost a third.
+    bool plain = true;
+#pragma GCC unroll 3
+    for (int a = 0; a < 3; ++a) {
+        // Finite, nonzero and within the wide ray's range (NaN fails each test); d finite and
+        // nonzero makes 1 / d finite.
+        plain &= (std::fabs(o[a]) <= float(kRangeLimit)) &
+                 (std::fabs(d[a]) <= std::numeric_limits<float>::max()) & (d[a] != 0.0f);
+        r.o[a] = double(o[a]) + 0.0;  // -0 as +0, as an identity's rows give it
+        r.d[a] = d[a];
+        r.inv[a] = 1.0 / r.d[a];
+        plain &= (std::fabs(r.inv[a]) <= kRangeLimit) & (std::fabs(r.inv[a]) >= 1.0 / kRangeLimit);
+        r.fo[a] = float(r.o[a]);
+        w.zero[a] = false;
+        w.origin[a] = r.fo[a];
+        w.inverse[a] = float(r.inv[a]);
+    }
+    if (!plain) return false;
+    // prepare_ray's permutation and shear.
+    int kz = 0;
+    if (std::fabs(r.d[1]) > std::fabs(r.d[kz])) kz = 1;
+    if (std::fabs(r.d[2]) > std::fabs(r.d[kz])) kz = 2;
+    static constexpr int kNext[3] = {1, 2, 0};
+    int kx = kNext[kz], ky = kNext[kx];
+    if (r.d[kz] < 0.0) std::swap(kx, ky);
+    r.kx = kx;
+    r.ky = ky;
+    r.kz = kz;
+    r.sx = r.d[kx] / r.d[kz];
+    r.sy = r.d[ky] / r.d[kz];
+    r.sz = 1.0 / r.d[kz];
+    r.fsx = d[kx] / d[kz];
+    r.fsy = d[ky] / d[kz];
+    r.fsz = 1.0f / d[kz];
+    r.tmin = tmin;
+    r.tmax = tmax;
+    r.mode = TraversalMode::kDouble;
+    // make_triangle4_ray's limits (its origin's rounding is 0: the origin is a float).
+    const double dz = std::fabs(r.d[kz]);
+    if (!(dz >= 0x1p-100 && dz <= 0x1p100)) return false;
+    if (!(std::fabs(r.fsx) <= 1.0f + 0x1p-10f && std::fabs(r.fsy) <= 1.0f + 0x1p-10f)) return false;
+    geometry::Triangle4Ray& t = out->triangles;
+    for (int a = 0; a < 3; ++a) t.origin[a] = splat(r.fo[a]);
+    t.kx = kx;
+    t.ky = ky;
+    t.kz = kz;
+    t.sx = splat(r.fsx);
+    t.sy = splat(r.fsy);
+    t.sz = splat(r.fsz);
+    t.abs_sz = splat(float(std::fabs(double(r.fsz)) * (1.0 + 0x1p-20)));
+    t.delta2 = splat(0.0f);
+    t.delta4 = splat(0.0f);
+    t.usable = true;
+    // make_wide_ray's widening with no origin rounding: the underflow term alone.
+    w.widen_down = float(1.0 - kRelativeWidening);
+    w.widen_up = float(1.0 + kRelativeWidening);
+    w.widen_abs = float(kUnderflowWidening);
+    w.tmin = float_at_or_below(tmin);
+    w.usable = true;
+    return true;
+}
+
 }  // namespace clastrace::engine::detail

@@ -179,6 +179,24 @@ struct WideRay {
 
 WideRay make_wide_ray(const geometry::PreparedRay& r);
 
+// The three forms of a ray one traversal of a triangle tree tests with: the exact ray (the
+// scalar walk, the exact triangle test), the SIMD box test's and the four-triangle filter's.
+struct ObjectRays {
+    geometry::PreparedRay exact;
+    WideRay wide;
+    geometry::Triangle4Ray triangles;
+};
+
+// The ObjectRays of a kDouble ray whose origin and direction are floats, finite, with no zero
+// direction component (a bottom-level scene's rays, and those through an identity instance):
+// the fields the double mode reads, equal to what prepare_ray (of `o` + 0, `d`),
+// make_wide_ray and make_triangle4_ray give, without the checks and the terms these need only
+// for other rays (origins that are not floats, zero or non-finite components). False, and
+// `out` unusable, for a ray that is not such a ray or that either SIMD form would not take
+// (make_wide_ray's and make_triangle4_ray's range limits): those take the three functions.
+bool make_plain_object_rays(const float o[3], const float d[3], double tmin, double tmax,
+                            ObjectRays* out);
+
 // Whether the SIMD box test still tells the tree's leaf boxes apart for a ray from `o`: its
 // relative widening (2^-20 of each distance, make_wide_ray) at the ray's distance from the
 // root's center is at most a quarter of a typical leaf. From farther away (1e-3 triangles seen
