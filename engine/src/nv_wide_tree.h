@@ -299,16 +299,22 @@ struct WalkEntry {
 
 // The entries a wide walk has yet to visit. Each visit pops one entry and pushes at most W - 1:
 // depth x (W - 1) + 1 entries; the stored tree's depth is bounded by its node count, so deep
-// (hostile) trees spill to the vector: entries from kSize on live there.
+// (hostile) trees spill to a vector: entries from kSize on live there. The walk owns the
+// entries and the vector and this holds pointers to them, so that it is three scalars whose
+// address never leaves the walk and its size stays in a register (with the entries inside, the
+// size was stored and loaded at every push and pop).
 class WalkStack {
 public:
+    static constexpr uint32_t kSize = 256;
+    WalkStack(WalkEntry (&entries)[kSize], std::vector<WalkEntry>* overflow)
+        : stack_(entries), overflow_(overflow) {}
     // Inlined into the walks (an out-of-line push cost 4% of a ray's instructions); the spill
     // to the vector stays out of line.
     [[gnu::always_inline]] void push(WalkEntry e) {
         if (__builtin_expect(size_ < kSize, 1))
             stack_[size_] = e;
         else
-            spill(e);
+            spill(overflow_, e);
         ++size_;
     }
     [[gnu::always_inline]] bool empty() const { return size_ == 0; }
@@ -318,20 +324,27 @@ public:
     [[gnu::always_inline]] WalkEntry pop() {
         --size_;
         if (__builtin_expect(size_ < kSize, 1)) return stack_[size_];
-        return unspill();
+        return unspill(overflow_);
     }
+    // Room for `n` entries on top of the fixed part (nullptr where it has less): the caller
+    // writes them there in place and then pushes them with grow(n).
+    [[gnu::always_inline]] WalkEntry* room(uint32_t n) {
+        return __builtin_expect(size_ + n <= kSize, 1) ? stack_ + size_ : nullptr;
+    }
+    [[gnu::always_inline]] void grow(uint32_t n) { size_ += n; }
 
 private:
-    [[gnu::noinline]] void spill(WalkEntry e) { overflow_.push_back(e); }
-    [[gnu::noinline]] WalkEntry unspill() {
-        const WalkEntry e = overflow_.back();
-        overflow_.pop_back();
+    [[gnu::noinline]] static void spill(std::vector<WalkEntry>* overflow, WalkEntry e) {
+        overflow->push_back(e);
+    }
+    [[gnu::noinline]] static WalkEntry unspill(std::vector<WalkEntry>* overflow) {
+        const WalkEntry e = overflow->back();
+        overflow->pop_back();
         return e;
     }
-    static constexpr uint32_t kSize = 256;
-    WalkEntry stack_[kSize];
+    WalkEntry* stack_;
     uint32_t size_ = 0;
-    std::vector<WalkEntry> overflow_;
+    std::vector<WalkEntry>* overflow_;
 };
 
 // Lane k of `n`, which the box test hit (so it holds a child), as a stack entry; its bytes are
@@ -371,7 +384,11 @@ template <int W, class Node, class Prefetch>
         stack->push(first);
         return second;
     }
-    WalkEntry order[W];
+    // Sorted in place on top of the stack, the nearest last: all but it are then pushed as
+    // they lie (a copy of each from a local array cost about 12 instructions an entry).
+    WalkEntry local[W];
+    WalkEntry* room = stack->room(W);
+    WalkEntry* order = room ? room : local;
     order[0] = first;
     int count = 1;
     for (WalkEntry c = second;;
@@ -384,7 +401,11 @@ template <int W, class Node, class Prefetch>
         order[at] = c;
         if (more == 0) break;
     }
-    for (int k = 0; k + 1 < count; ++k) stack->push(order[k]);
+    if (room) {
+        stack->grow(uint32_t(count - 1));
+    } else {
+        for (int k = 0; k + 1 < count; ++k) stack->push(order[k]);
+    }
     return order[count - 1];
 }
 
@@ -401,7 +422,9 @@ template <int W, class Node, class BoxTest, class Leaf, class Prefetch>
                                               Prefetch& prefetch) {
     if (tree.empty()) return;
     const Node* nodes = tree.data();
-    WalkStack stack;
+    WalkEntry entries[WalkStack::kSize];
+    std::vector<WalkEntry> overflow;
+    WalkStack stack(entries, &overflow);
     // *tmax rounded up to float, again after each leaf (only leaves lower *tmax). An entry
     // above it is above *tmax: its box holds no point of the ray within [tmin, *tmax]
     // (entries are at or below the exact ones). One between *tmax and the float above it is
