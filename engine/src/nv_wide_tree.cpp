@@ -153,6 +153,7 @@ bool quantize_node(const FloatWideNode<W>& w, QuantizedNode<W>* q) {
         if (!std::isfinite(lo) || !std::isfinite(hi)) return false;
         q->origin[a] = lo;
         q->exponent[a] = step_exponent(double(hi) - double(lo));
+        if constexpr (W == 8) q->steps.step[a] = quantization_step(q->exponent[a]);
         const double step = std::ldexp(1.0, q->exponent[a]);
         for (int k = 0; k < W; ++k) {
             if (!(used >> k & 1)) continue;
@@ -288,7 +289,7 @@ std::vector<FloatWideNode<8>> make_float_wide_nodes8(const std::vector<NvNode>& 
 CLASTRACE_TARGET_AVX2 void quantized_lanes8(const QuantizedWideNode8& n, int axis, float lo[8],
                                             float hi[8]) {
     const __m256 origin = _mm256_set1_ps(n.origin[axis]);
-    const __m256 step = _mm256_set1_ps(quantization_step(n.exponent[axis]));
+    const __m256 step = _mm256_set1_ps(n.steps.step[axis]);
     _mm256_storeu_ps(lo, dequantized8(n.qlo[axis], origin, step));
     _mm256_storeu_ps(hi, dequantized8(n.qhi[axis], origin, step));
 }

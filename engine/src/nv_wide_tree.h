@@ -59,10 +59,20 @@ static_assert(sizeof(WideNode) == 128);
 // the traversal runs (dequantized): every dequantized box contains the stored box it stands
 // for, so the slab test on it culls nothing the stored one keeps.
 // count: 0 inner, 1-254 a leaf's records, kQuantizedEmptyLane unused.
-// The box test reads only the fields before `child`: for W = 8 they fill the first of the
-// node's two cache lines exactly, and the second is read only for the children hit.
+// The box test reads the fields before `child` (for W = 8 they fill the first of the node's
+// two cache lines exactly) and, for W = 8, the steps in the second line, which the walk
+// fetches with the first (hit_child) and reads anyway for the children hit.
 inline constexpr uint8_t kQuantizedEmptyLane = 0xFF;
 inline constexpr uint32_t kQuantizedMaxLeaf = 254;
+// The three steps quantization_step(exponent[a]) as floats, kept by 8-wide nodes only (their
+// second line has room; a 4-wide node has none): the 8-wide box test broadcasts them where it
+// rebuilt them from the exponents (9 instructions a node).
+template <int W>
+struct QuantizedSteps {};
+template <>
+struct QuantizedSteps<8> {
+    float step[3];
+};
 template <int W>
 struct alignas(64) QuantizedNode {
     float origin[3];
@@ -72,6 +82,7 @@ struct alignas(64) QuantizedNode {
     uint8_t qhi[3][W];
     uint32_t child[W];
     uint8_t count[W];
+    [[no_unique_address]] QuantizedSteps<W> steps;
 };
 using QuantizedWideNode = QuantizedNode<4>;
 using QuantizedWideNode8 = QuantizedNode<8>;
@@ -524,20 +535,9 @@ CLASTRACE_TARGET_AVX2 inline unsigned wide8_hits(const WideRay8& r, const Quanti
     unsigned inside = 0xFF;
     const uint8_t* q = &n.qlo[0][0];
     constexpr int kHi = int(offsetof(QuantizedWideNode8, qhi) - offsetof(QuantizedWideNode8, qlo));
-    // The three steps at once (quantization_step's bits: (e + 127) << 23), from the four
-    // bytes at `exponent` (the used-lane byte comes along and is not read).
-    int32_t exponent_bytes;
-    std::memcpy(&exponent_bytes, n.exponent, 4);
-    const __m128 steps = _mm_castsi128_ps(
-        _mm_slli_epi32(_mm_add_epi32(_mm_cvtepi8_epi32(_mm_cvtsi32_si128(exponent_bytes)),
-                                     _mm_set1_epi32(127)),
-                       23));
-    // Each in all eight lanes: a broadcast of lane 0 of `steps`, of its lane 1 moved down, of
-    // its lane 2 moved down (a permute by lane index cost twice the instructions: its index
-    // vectors are built too).
-    const __m256 axis_steps[3] = {_mm256_broadcastss_ps(steps),
-                                  _mm256_broadcastss_ps(_mm_movehdup_ps(steps)),
-                                  _mm256_broadcastss_ps(_mm_movehl_ps(steps, steps))};
+    const __m256 axis_steps[3] = {_mm256_broadcast_ss(&n.steps.step[0]),
+                                  _mm256_broadcast_ss(&n.steps.step[1]),
+                                  _mm256_broadcast_ss(&n.steps.step[2])};
     // Unrolled: the loop's own counting was 15 instructions a node (callgrind).
 #pragma GCC unroll 3
     for (int a = 0; a < 3; ++a) {

@@ -356,6 +356,9 @@ TEST(NvWideTraversal, EightWideQuantizedBoxesContainTheirFloatBoxes) {
                 bad += ((q.used >> k) & 1) == empty;
             }
             for (int a = 0; a < 3; ++a) {
+                // The kept step is the exponent's (the box test reads the step).
+                const float step = eng::detail::quantization_step(q.exponent[a]);
+                bad += std::memcmp(&q.steps.step[a], &step, sizeof step) != 0;
                 float lo[8], hi[8];
                 eng::detail::quantized_lanes8(q, a, lo, hi);
                 for (int k = 0; k < 8; ++k)
