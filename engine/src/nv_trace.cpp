@@ -48,6 +48,7 @@ struct Instance {
     // The world-to-object matrix a float32 pipeline holds: `inverse` rounded to float, i.e.
     // the driver inverts the 3x4 matrix exactly (or closely enough) and stores floats.
     float inverse_float[12];
+    bool identity = false;  // `inverse` is exactly the identity (to_object_space)
     uint32_t mask = 0;
     uint32_t custom_index = 0;
     uint32_t sbt_offset = 0;
@@ -61,6 +62,12 @@ double box_entry(const geometry::PreparedRay& r, const float lo[3], const float 
     return geometry::slab_test<true>(r, lo, hi, tmax, &entry)
                ? entry
                : std::numeric_limits<double>::quiet_NaN();
+}
+
+bool is_identity(const double m[12]) {
+    for (int k = 0; k < 12; ++k)
+        if (m[k] != (k % 5 == 0 ? 1.0 : 0.0)) return false;
+    return true;
 }
 
 bool invert(const float m[12], double out[12]) {
@@ -215,6 +222,7 @@ std::optional<NvScene> NvScene::open(const MemoryImage& memory, uint64_t address
         inst.flags = r.sbt_offset_and_flags >> 24;
         if (!r.active || r.blas_address == 0 || !invert(r.transform, inst.inverse)) continue;
         for (int k = 0; k < 12; ++k) inst.inverse_float[k] = float(inst.inverse[k]);
+        inst.identity = is_identity(inst.inverse);
         auto it = data->blas.find(r.blas_address);
         if (it == data->blas.end()) {
             std::string why;
@@ -244,6 +252,7 @@ std::optional<NvScene> NvScene::open_bottom(const MemoryImage& memory, uint64_t 
     const double identity[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
     std::memcpy(inst.inverse, identity, sizeof identity);
     for (int k = 0; k < 12; ++k) inst.inverse_float[k] = float(identity[k]);
+    inst.identity = true;
     inst.mask = 0xFF;
     auto& slot = data->blas[address];
     slot = std::make_unique<Blas>(std::move(*b));
@@ -351,12 +360,12 @@ void walk_tree(const std::vector<NvNode>& nodes, const geometry::PreparedRay& rd
 // the records), or through the stored binary tree (`leaf(first, count)`, records, as
 // walk_tree's) for the rays the SIMD box test cannot bound or whose origin is too far for
 // float distances to tell the leaves apart (nv_wide_tree.h). Both keep every box the ray
-// meets; only the order of the leaves differs. A leaf's items are fetched ahead.
+// meets; only the order of the leaves differs. A leaf's items are fetched ahead. `wr` is
+// make_wide_ray of `rd`.
 template <class WideItem, class Leaf, class WideLeaf>
 void walk_leaves(const std::vector<NvNode>& nodes, const detail::WideTree& wide,
                  const std::vector<WideItem>& wide_items, const geometry::PreparedRay& rd,
-                 double* tmax, Leaf&& leaf, WideLeaf&& wide_leaf) {
-    const detail::WideRay wr = detail::make_wide_ray(rd);
+                 const detail::WideRay& wr, double* tmax, Leaf&& leaf, WideLeaf&& wide_leaf) {
     // A float32 ray's box test is as wide as the scalar float32 one (make_wide_ray): from far
     // away the 4-wide walk is still the faster of the two.
     if (wr.usable && (rd.mode == TraversalMode::kFloat32 || detail::resolves_leaves(wide, rd.o))) {
@@ -426,6 +435,23 @@ double float_t_error(const Instance& inst, const float wo[3], const double o[3],
 // ((m0 x + m1 y) + m2 z) + m3 without fused multiply-adds (the results are floats).
 void to_object_space(const Instance& inst, const Ray& ray, TraversalMode mode, double o[3],
                      double d[3]) {
+    // Through an identity, a finite ray with no zero direction component comes out as itself
+    // in either mode: each row's products are exact and its sums add zeros to the one nonzero
+    // term (an origin component -0 becomes +0 through the row's final + 0). Zero and non-finite
+    // components (0 x inf is NaN; zeros' signs) take the rows below.
+    if (inst.identity) {
+        bool plain = true;
+        for (int a = 0; a < 3; ++a)
+            plain &= std::isfinite(ray.origin[a]) & std::isfinite(ray.direction[a]) &
+                     (ray.direction[a] != 0.0f);
+        if (plain) {
+            for (int a = 0; a < 3; ++a) {
+                o[a] = double(ray.origin[a]) + 0.0;
+                d[a] = ray.direction[a];
+            }
+            return;
+        }
+    }
     for (int r = 0; r < 3; ++r) {
         if (mode == TraversalMode::kFloat32) {
             const float* m = inst.inverse_float + 4 * r;
@@ -528,11 +554,21 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
                     bool exhaustive) {
     const Blas& b = *inst.blas;
     if (b.nodes.empty() && !b.clusters) return false;
-    double o[3], d[3];
-    to_object_space(inst, ray, mode, o, d);
-    if (b.clusters)
-        return trace_cluster_instance(inst, index, o, d, flags, first_hit, tmin, tmax, best, mode);
-    const geometry::PreparedRay rd = geometry::prepare_ray(o, d, tmin, *tmax, mode);
+    // The object-space ray's three forms: at once for a double-mode ray through an identity
+    // (every ray of a bottom-level scene), else by way of to_object_space.
+    detail::ObjectRays rays;
+    if (!(inst.identity && mode == TraversalMode::kDouble && !b.clusters &&
+          detail::make_plain_object_rays(ray.origin, ray.direction, tmin, *tmax, &rays))) {
+        double o[3], d[3];
+        to_object_space(inst, ray, mode, o, d);
+        if (b.clusters)
+            return trace_cluster_instance(inst, index, o, d, flags, first_hit, tmin, tmax, best,
+                                          mode);
+        rays.exact = geometry::prepare_ray(o, d, tmin, *tmax, mode);
+        rays.wide = detail::make_wide_ray(rays.exact);
+        if (b.wide.leaf_groups) rays.triangles = geometry::make_triangle4_ray(rays.exact);
+    }
+    const geometry::PreparedRay& rd = rays.exact;
     const bool cull_disable = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_CULL_DISABLE_BIT_NV;
     const bool flip = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_FRONT_COUNTERCLOCKWISE_BIT_NV;
     bool found = false;
@@ -578,7 +614,7 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
             best->uv_error = float(cand.uv_error);
             best->hit_kind = kind;
             best->opaque = opaque;
-            best->t_error = float(float_t_error(inst, ray.origin, o, d, v, b.aabbs, cand.t));
+            best->t_error = float(float_t_error(inst, ray.origin, rd.o, rd.d, v, b.aabbs, cand.t));
         }
         *tmax = cand.t;
         return first_hit;
@@ -595,14 +631,14 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
         return found;
     }
     if (!b.wide.leaf_groups) {
-        walk_leaves(b.nodes, b.wide, b.primitives, rd, tmax, records, records);
+        walk_leaves(b.nodes, b.wide, b.primitives, rd, rays.wide, tmax, records, records);
         return found;
     }
     // Triangles: each group's sure misses dropped four at a time, the rest in record order.
     // Always inlined into each wide walk, and the filter with it: in the AVX2 walk it compiles
     // to the VEX form of the same SSE operations (no fused multiply-adds: the same bits),
     // where a call through a pointer to a copy per path cost 2% more instructions.
-    const geometry::Triangle4Ray r4 = geometry::make_triangle4_ray(rd);
+    const geometry::Triangle4Ray& r4 = rays.triangles;
     auto groups = [&](uint32_t first, uint32_t count) __attribute__((always_inline)) {
         for (uint32_t g = 0; g < (count + 3) / 4; ++g) {
             const geometry::Triangle4& group = b.groups[first + g];
@@ -622,7 +658,7 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
         }
         return false;
     };
-    walk_leaves(b.nodes, b.wide, b.groups, rd, tmax, records, groups);
+    walk_leaves(b.nodes, b.wide, b.groups, rd, rays.wide, tmax, records, groups);
     return found;
 }
 
@@ -660,7 +696,8 @@ bool trace_scene(const NvScene::Data& s, const Ray& ray, uint32_t flags, uint32_
     const double o[3] = {ray.origin[0], ray.origin[1], ray.origin[2]};
     const double d[3] = {ray.direction[0], ray.direction[1], ray.direction[2]};
     const geometry::PreparedRay rd = geometry::prepare_ray(o, d, ray.tmin, ray.tmax, mode);
-    walk_leaves(s.nodes, s.wide, s.instances, rd, &tmax, instances, instances);
+    walk_leaves(s.nodes, s.wide, s.instances, rd, detail::make_wide_ray(rd), &tmax, instances,
+                instances);
     return found;
 }
 

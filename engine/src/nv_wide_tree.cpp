@@ -153,6 +153,7 @@ bool quantize_node(const FloatWideNode<W>& w, QuantizedNode<W>* q) {
         if (!std::isfinite(lo) || !std::isfinite(hi)) return false;
         q->origin[a] = lo;
         q->exponent[a] = step_exponent(double(hi) - double(lo));
+        if constexpr (W == 8) q->steps.step[a] = quantization_step(q->exponent[a]);
         const double step = std::ldexp(1.0, q->exponent[a]);
         for (int k = 0; k < W; ++k) {
             if (!(used >> k & 1)) continue;
@@ -288,7 +289,7 @@ std::vector<FloatWideNode<8>> make_float_wide_nodes8(const std::vector<NvNode>& 
 CLASTRACE_TARGET_AVX2 void quantized_lanes8(const QuantizedWideNode8& n, int axis, float lo[8],
                                             float hi[8]) {
     const __m256 origin = _mm256_set1_ps(n.origin[axis]);
-    const __m256 step = _mm256_set1_ps(quantization_step(n.exponent[axis]));
+    const __m256 step = _mm256_set1_ps(n.steps.step[axis]);
     _mm256_storeu_ps(lo, dequantized8(n.qlo[axis], origin, step));
     _mm256_storeu_ps(hi, dequantized8(n.qhi[axis], origin, step));
 }
@@ -370,6 +371,22 @@ constexpr double kRangeLimit = 0x1p100;
 
 }  // namespace
 
+WideRay4 make_wide_ray4(const WideRay& r) {
+    WideRay4 w;
+    for (int a = 0; a < 3; ++a) {
+        w.zero[a] = r.zero[a];
+        w.origin[a] = splat(r.origin[a]);
+        w.inverse[a] = splat(r.inverse[a]);
+        w.origin_below[a] = r.origin_below[a];
+        w.origin_above[a] = r.origin_above[a];
+    }
+    w.widen_down = splat(r.widen_down);
+    w.widen_up = splat(r.widen_up);
+    w.widen_abs = splat(r.widen_abs);
+    w.tmin = splat(r.tmin);
+    return w;
+}
+
 WideRay make_wide_ray(const geometry::PreparedRay& r) {
     WideRay w;
     if (std::isnan(r.tmin)) return w;
@@ -378,28 +395,94 @@ WideRay make_wide_ray(const geometry::PreparedRay& r) {
     for (int a = 0; a < 3; ++a) {
         const double o = r.o[a], d = r.d[a];
         if (!(std::fabs(o) <= kRangeLimit)) return w;  // also NaN and inf
-        w.origin[a] = splat(float(o));
+        w.origin[a] = float(o);
         w.zero[a] = d == 0.0;
         if (w.zero[a]) {
             // Only zero axes read these (wide_hits).
             w.origin_below[a] = float_at_or_below(o);
             w.origin_above[a] = float_at_or_above(o);
-            w.inverse[a] = splat(0.0f);
+            w.inverse[a] = 0.0f;
             continue;
         }
         const double inv = float32 ? double(r.finv[a]) : r.inv[a];
         if (!(std::fabs(inv) <= kRangeLimit && std::fabs(inv) >= 1.0 / kRangeLimit)) return w;
-        w.inverse[a] = splat(float(inv));
+        w.inverse[a] = float(inv);
         abs_term = std::max(abs_term, std::fabs(o - double(float(o))) * std::fabs(inv));
     }
     const double widening = float32 ? kFloat32RelativeWidening : kRelativeWidening;
-    w.widen_down = splat(float(1.0 - widening));
-    w.widen_up = splat(float(1.0 + widening));
-    w.widen_abs =
-        splat(float_at_or_above(abs_term * (1.0 + kRelativeWidening) + kUnderflowWidening));
-    w.tmin = splat(float_at_or_below(r.tmin));
+    w.widen_down = float(1.0 - widening);
+    w.widen_up = float(1.0 + widening);
+    w.widen_abs = float_at_or_above(abs_term * (1.0 + kRelativeWidening) + kUnderflowWidening);
+    w.tmin = float_at_or_below(r.tmin);
     w.usable = true;
     return w;
+}
+
+bool make_plain_object_rays(const float o[3], const float d[3], double tmin, double tmax,
+                            ObjectRays* out) {
+    if (std::isnan(tmin)) return false;
+    geometry::PreparedRay& r = out->exact;
+    WideRay& w = out->wide;
+    // Unrolled, the checks joined (one branch): the loop and its early returns cost a third.
+    bool plain = true;
+#pragma GCC unroll 3
+    for (int a = 0; a < 3; ++a) {
+        // Finite, nonzero and within the wide ray's range (NaN fails each test); d finite and
+        // nonzero makes 1 / d finite.
+        plain &= (std::fabs(o[a]) <= float(kRangeLimit)) &
+                 (std::fabs(d[a]) <= std::numeric_limits<float>::max()) & (d[a] != 0.0f);
+        r.o[a] = double(o[a]) + 0.0;  // -0 as +0, as an identity's rows give it
+        r.d[a] = d[a];
+        r.inv[a] = 1.0 / r.d[a];
+        plain &= (std::fabs(r.inv[a]) <= kRangeLimit) & (std::fabs(r.inv[a]) >= 1.0 / kRangeLimit);
+        r.fo[a] = float(r.o[a]);
+        w.zero[a] = false;
+        w.origin[a] = r.fo[a];
+        w.inverse[a] = float(r.inv[a]);
+    }
+    if (!plain) return false;
+    // prepare_ray's permutation and shear.
+    int kz = 0;
+    if (std::fabs(r.d[1]) > std::fabs(r.d[kz])) kz = 1;
+    if (std::fabs(r.d[2]) > std::fabs(r.d[kz])) kz = 2;
+    static constexpr int kNext[3] = {1, 2, 0};
+    int kx = kNext[kz], ky = kNext[kx];
+    if (r.d[kz] < 0.0) std::swap(kx, ky);
+    r.kx = kx;
+    r.ky = ky;
+    r.kz = kz;
+    r.sx = r.d[kx] / r.d[kz];
+    r.sy = r.d[ky] / r.d[kz];
+    r.sz = 1.0 / r.d[kz];
+    r.fsx = d[kx] / d[kz];
+    r.fsy = d[ky] / d[kz];
+    r.fsz = 1.0f / d[kz];
+    r.tmin = tmin;
+    r.tmax = tmax;
+    r.mode = TraversalMode::kDouble;
+    // make_triangle4_ray's limits (its origin's rounding is 0: the origin is a float).
+    const double dz = std::fabs(r.d[kz]);
+    if (!(dz >= 0x1p-100 && dz <= 0x1p100)) return false;
+    if (!(std::fabs(r.fsx) <= 1.0f + 0x1p-10f && std::fabs(r.fsy) <= 1.0f + 0x1p-10f)) return false;
+    geometry::Triangle4Ray& t = out->triangles;
+    for (int a = 0; a < 3; ++a) t.origin[a] = splat(r.fo[a]);
+    t.kx = kx;
+    t.ky = ky;
+    t.kz = kz;
+    t.sx = splat(r.fsx);
+    t.sy = splat(r.fsy);
+    t.sz = splat(r.fsz);
+    t.abs_sz = splat(float(std::fabs(double(r.fsz)) * (1.0 + 0x1p-20)));
+    t.delta2 = splat(0.0f);
+    t.delta4 = splat(0.0f);
+    t.usable = true;
+    // make_wide_ray's widening with no origin rounding: the underflow term alone.
+    w.widen_down = float(1.0 - kRelativeWidening);
+    w.widen_up = float(1.0 + kRelativeWidening);
+    w.widen_abs = float(kUnderflowWidening);
+    w.tmin = float_at_or_below(tmin);
+    w.usable = true;
+    return true;
 }
 
 }  // namespace clastrace::engine::detail

@@ -59,10 +59,20 @@ static_assert(sizeof(WideNode) == 128);
 // the traversal runs (dequantized): every dequantized box contains the stored box it stands
 // for, so the slab test on it culls nothing the stored one keeps.
 // count: 0 inner, 1-254 a leaf's records, kQuantizedEmptyLane unused.
-// The box test reads only the fields before `child`: for W = 8 they fill the first of the
-// node's two cache lines exactly, and the second is read only for the children hit.
+// The box test reads the fields before `child` (for W = 8 they fill the first of the node's
+// two cache lines exactly) and, for W = 8, the steps in the second line, which the walk
+// fetches with the first (hit_child) and reads anyway for the children hit.
 inline constexpr uint8_t kQuantizedEmptyLane = 0xFF;
 inline constexpr uint32_t kQuantizedMaxLeaf = 254;
+// The three steps quantization_step(exponent[a]) as floats, kept by 8-wide nodes only (their
+// second line has room; a 4-wide node has none): the 8-wide box test broadcasts them where it
+// rebuilt them from the exponents (9 instructions a node).
+template <int W>
+struct QuantizedSteps {};
+template <>
+struct QuantizedSteps<8> {
+    float step[3];
+};
 template <int W>
 struct alignas(64) QuantizedNode {
     float origin[3];
@@ -72,6 +82,7 @@ struct alignas(64) QuantizedNode {
     uint8_t qhi[3][W];
     uint32_t child[W];
     uint8_t count[W];
+    [[no_unique_address]] QuantizedSteps<W> steps;
 };
 using QuantizedWideNode = QuantizedNode<4>;
 using QuantizedWideNode8 = QuantizedNode<8>;
@@ -163,20 +174,39 @@ void quantized_lanes8(const QuantizedWideNode8& n, int axis, float lo[8], float 
 std::vector<geometry::Triangle4> group_leaf_triangles(
     WideTree* tree, const std::vector<NvPrimitiveRecord>& records);
 
-// A prepared ray in the SIMD box test's terms; usable false: use the scalar walk.
+// A prepared ray in the SIMD box test's terms, as scalars; each path puts it into its lanes
+// once per walk (WideRay4, WideRay8). usable false: use the scalar walk.
 struct WideRay {
     bool usable = false;
     bool zero[3];           // direction component exactly 0: the origin is tested against the slab
-    Float4 origin[3];       // the origin rounded to float, in every lane
-    Float4 inverse[3];      // 1 / direction rounded to float
+    float origin[3];        // the origin rounded to float
+    float inverse[3];       // 1 / direction rounded to float
     float origin_below[3];  // the float at or below / above the exact origin (zero axes only)
     float origin_above[3];
-    Float4 widen_down, widen_up;  // 1 -/+ the relative widening
-    Float4 widen_abs;             // the absolute widening (the origin's rounding, underflow)
-    Float4 tmin;                  // r.tmin rounded down
+    float widen_down, widen_up;  // 1 -/+ the relative widening
+    float widen_abs;             // the absolute widening (the origin's rounding, underflow)
+    float tmin;                  // r.tmin rounded down
 };
 
 WideRay make_wide_ray(const geometry::PreparedRay& r);
+
+// The three forms of a ray one traversal of a triangle tree tests with: the exact ray (the
+// scalar walk, the exact triangle test), the SIMD box test's and the four-triangle filter's.
+struct ObjectRays {
+    geometry::PreparedRay exact;
+    WideRay wide;
+    geometry::Triangle4Ray triangles;
+};
+
+// The ObjectRays of a kDouble ray whose origin and direction are floats, finite, with no zero
+// direction component (a bottom-level scene's rays, and those through an identity instance):
+// the fields the double mode reads, equal to what prepare_ray (of `o` + 0, `d`),
+// make_wide_ray and make_triangle4_ray give, without the checks and the terms these need only
+// for other rays (origins that are not floats, zero or non-finite components). False, and
+// `out` unusable, for a ray that is not such a ray or that either SIMD form would not take
+// (make_wide_ray's and make_triangle4_ray's range limits): those take the three functions.
+bool make_plain_object_rays(const float o[3], const float d[3], double tmin, double tmax,
+                            ObjectRays* out);
 
 // Whether the SIMD box test still tells the tree's leaf boxes apart for a ray from `o`: its
 // relative widening (2^-20 of each distance, make_wide_ray) at the ray's distance from the
@@ -193,7 +223,15 @@ inline bool resolves_leaves(const WideTree& tree, const double o[3]) {
 // walks call it after every leaf.
 inline float float_at_or_above(double t) {
     float f = float(t);
-    if (__builtin_expect(double(f) < t, 0)) f = std::nextafter(f, __builtin_inff());
+    if (__builtin_expect(double(f) < t, 0)) {
+        // The next float up, by its bits (std::nextafter was a call, 30 instructions a ray):
+        // f is below t, so neither NaN nor +inf; a zero steps to the least subnormal, a
+        // positive f (FLT_MAX: to +inf) one up, a negative one (-inf: to -FLT_MAX) one down.
+        uint32_t bits;
+        std::memcpy(&bits, &f, 4);
+        bits = f == 0.0f ? 1u : f > 0.0f ? bits + 1 : bits - 1;
+        std::memcpy(&f, &bits, 4);
+    }
     return f;
 }
 
@@ -223,8 +261,20 @@ inline unsigned used_lanes(const QuantizedNode<W>& n) {
 // The children of `node` the ray meets within [tmin, tmax] (bit k = lane k) and their entry
 // distances, each at or below the exact one. kZeroAxes: the ray may have a direction component
 // exactly 0 (false: it has none, and the per-axis check drops out of the loop).
+// WideRay in four lanes for the 4-wide box test.
+struct WideRay4 {
+    bool zero[3];
+    Float4 origin[3], inverse[3];
+    float origin_below[3], origin_above[3];
+    Float4 widen_down, widen_up, widen_abs, tmin;
+};
+
+// Out of line: inlined, GCC rebuilt the lanes from the scalars at every box test (a load and a
+// shuffle each, +2.8% instructions a ray on the SSE path) instead of reading them from memory.
+WideRay4 make_wide_ray4(const WideRay& r);
+
 template <bool kZeroAxes, class Node>
-inline unsigned wide_hits(const WideRay& r, const Node& node, float tmax, float entry[4]) {
+inline unsigned wide_hits(const WideRay4& r, const Node& node, float tmax, float entry[4]) {
     Float4 near_t = splat(-__builtin_inff()), far_t = splat(__builtin_inff());
     unsigned inside = 0xF;
 #pragma GCC unroll 3
@@ -260,16 +310,22 @@ struct WalkEntry {
 
 // The entries a wide walk has yet to visit. Each visit pops one entry and pushes at most W - 1:
 // depth x (W - 1) + 1 entries; the stored tree's depth is bounded by its node count, so deep
-// (hostile) trees spill to the vector: entries from kSize on live there.
+// (hostile) trees spill to a vector: entries from kSize on live there. The walk owns the
+// entries and the vector and this holds pointers to them, so that it is three scalars whose
+// address never leaves the walk and its size stays in a register (with the entries inside, the
+// size was stored and loaded at every push and pop).
 class WalkStack {
 public:
+    static constexpr uint32_t kSize = 256;
+    WalkStack(WalkEntry (&entries)[kSize], std::vector<WalkEntry>* overflow)
+        : stack_(entries), overflow_(overflow) {}
     // Inlined into the walks (an out-of-line push cost 4% of a ray's instructions); the spill
     // to the vector stays out of line.
     [[gnu::always_inline]] void push(WalkEntry e) {
         if (__builtin_expect(size_ < kSize, 1))
             stack_[size_] = e;
         else
-            spill(e);
+            spill(overflow_, e);
         ++size_;
     }
     [[gnu::always_inline]] bool empty() const { return size_ == 0; }
@@ -279,20 +335,27 @@ public:
     [[gnu::always_inline]] WalkEntry pop() {
         --size_;
         if (__builtin_expect(size_ < kSize, 1)) return stack_[size_];
-        return unspill();
+        return unspill(overflow_);
     }
+    // Room for `n` entries on top of the fixed part (nullptr where it has less): the caller
+    // writes them there in place and then pushes them with grow(n).
+    [[gnu::always_inline]] WalkEntry* room(uint32_t n) {
+        return __builtin_expect(size_ + n <= kSize, 1) ? stack_ + size_ : nullptr;
+    }
+    [[gnu::always_inline]] void grow(uint32_t n) { size_ += n; }
 
 private:
-    [[gnu::noinline]] void spill(WalkEntry e) { overflow_.push_back(e); }
-    [[gnu::noinline]] WalkEntry unspill() {
-        const WalkEntry e = overflow_.back();
-        overflow_.pop_back();
+    [[gnu::noinline]] static void spill(std::vector<WalkEntry>* overflow, WalkEntry e) {
+        overflow->push_back(e);
+    }
+    [[gnu::noinline]] static WalkEntry unspill(std::vector<WalkEntry>* overflow) {
+        const WalkEntry e = overflow->back();
+        overflow->pop_back();
         return e;
     }
-    static constexpr uint32_t kSize = 256;
-    WalkEntry stack_[kSize];
+    WalkEntry* stack_;
     uint32_t size_ = 0;
-    std::vector<WalkEntry> overflow_;
+    std::vector<WalkEntry>* overflow_;
 };
 
 // Lane k of `n`, which the box test hit (so it holds a child), as a stack entry; its bytes are
@@ -332,7 +395,11 @@ template <int W, class Node, class Prefetch>
         stack->push(first);
         return second;
     }
-    WalkEntry order[W];
+    // Sorted in place on top of the stack, the nearest last: all but it are then pushed as
+    // they lie (a copy of each from a local array cost about 12 instructions an entry).
+    WalkEntry local[W];
+    WalkEntry* room = stack->room(W);
+    WalkEntry* order = room ? room : local;
     order[0] = first;
     int count = 1;
     for (WalkEntry c = second;;
@@ -345,7 +412,11 @@ template <int W, class Node, class Prefetch>
         order[at] = c;
         if (more == 0) break;
     }
-    for (int k = 0; k + 1 < count; ++k) stack->push(order[k]);
+    if (room) {
+        stack->grow(uint32_t(count - 1));
+    } else {
+        for (int k = 0; k + 1 < count; ++k) stack->push(order[k]);
+    }
     return order[count - 1];
 }
 
@@ -362,7 +433,9 @@ template <int W, class Node, class BoxTest, class Leaf, class Prefetch>
                                               Prefetch& prefetch) {
     if (tree.empty()) return;
     const Node* nodes = tree.data();
-    WalkStack stack;
+    WalkEntry entries[WalkStack::kSize];
+    std::vector<WalkEntry> overflow;
+    WalkStack stack(entries, &overflow);
     // *tmax rounded up to float, again after each leaf (only leaves lower *tmax). An entry
     // above it is above *tmax: its box holds no point of the ray within [tmin, *tmax]
     // (entries are at or below the exact ones). One between *tmax and the float above it is
@@ -398,8 +471,9 @@ template <int W, class Node, class BoxTest, class Leaf, class Prefetch>
 
 // walk_nodes over 4-wide nodes (float or quantized) with the SSE box test.
 template <bool kZeroAxes, class Node, class Leaf, class Prefetch>
-void walk_wide_nodes(const std::vector<Node>& nodes, const WideRay& r, double* tmax, Leaf& leaf,
-                     Prefetch& prefetch) {
+void walk_wide_nodes(const std::vector<Node>& nodes, const WideRay& wide_ray, double* tmax,
+                     Leaf& leaf, Prefetch& prefetch) {
+    const WideRay4 r = make_wide_ray4(wide_ray);
     const auto box_test = [&r](const Node& n, float tmax_up, float* entry) {
         return wide_hits<kZeroAxes>(r, n, tmax_up, entry);
     };
@@ -421,25 +495,23 @@ struct WideRay8 {
     __m256 widen_down, widen_up, widen_abs, tmin;
 };
 
-CLASTRACE_TARGET_AVX2 inline __m256 lane_of(Float4 a) { return _mm256_set1_ps(_mm_cvtss_f32(a.v)); }
-
 CLASTRACE_TARGET_AVX2 inline WideRay8 make_wide_ray8(const WideRay& r) {
     WideRay8 w;
     constexpr int kHi = int(offsetof(QuantizedWideNode8, qhi) - offsetof(QuantizedWideNode8, qlo));
     for (int a = 0; a < 3; ++a) {
         w.zero[a] = r.zero[a];
-        w.origin[a] = lane_of(r.origin[a]);
-        w.inverse[a] = lane_of(r.inverse[a]);
+        w.origin[a] = _mm256_set1_ps(r.origin[a]);
+        w.inverse[a] = _mm256_set1_ps(r.inverse[a]);
         w.origin_below[a] = _mm256_set1_ps(r.origin_below[a]);
         w.origin_above[a] = _mm256_set1_ps(r.origin_above[a]);
-        const bool negative = _mm_cvtss_f32(r.inverse[a].v) < 0.0f;
+        const bool negative = r.inverse[a] < 0.0f;
         w.near_plane[a] = 8 * a + (negative ? kHi : 0);
         w.far_plane[a] = 8 * a + (negative ? 0 : kHi);
     }
-    w.widen_down = lane_of(r.widen_down);
-    w.widen_up = lane_of(r.widen_up);
-    w.widen_abs = lane_of(r.widen_abs);
-    w.tmin = lane_of(r.tmin);
+    w.widen_down = _mm256_set1_ps(r.widen_down);
+    w.widen_up = _mm256_set1_ps(r.widen_up);
+    w.widen_abs = _mm256_set1_ps(r.widen_abs);
+    w.tmin = _mm256_set1_ps(r.tmin);
     return w;
 }
 
@@ -463,20 +535,9 @@ CLASTRACE_TARGET_AVX2 inline unsigned wide8_hits(const WideRay8& r, const Quanti
     unsigned inside = 0xFF;
     const uint8_t* q = &n.qlo[0][0];
     constexpr int kHi = int(offsetof(QuantizedWideNode8, qhi) - offsetof(QuantizedWideNode8, qlo));
-    // The three steps at once (quantization_step's bits: (e + 127) << 23), from the four
-    // bytes at `exponent` (the used-lane byte comes along and is not read).
-    int32_t exponent_bytes;
-    std::memcpy(&exponent_bytes, n.exponent, 4);
-    const __m128 steps = _mm_castsi128_ps(
-        _mm_slli_epi32(_mm_add_epi32(_mm_cvtepi8_epi32(_mm_cvtsi32_si128(exponent_bytes)),
-                                     _mm_set1_epi32(127)),
-                       23));
-    // Each in all eight lanes: a broadcast of lane 0 of `steps`, of its lane 1 moved down, of
-    // its lane 2 moved down (a permute by lane index cost twice the instructions: its index
-    // vectors are built too).
-    const __m256 axis_steps[3] = {_mm256_broadcastss_ps(steps),
-                                  _mm256_broadcastss_ps(_mm_movehdup_ps(steps)),
-                                  _mm256_broadcastss_ps(_mm_movehl_ps(steps, steps))};
+    const __m256 axis_steps[3] = {_mm256_broadcast_ss(&n.steps.step[0]),
+                                  _mm256_broadcast_ss(&n.steps.step[1]),
+                                  _mm256_broadcast_ss(&n.steps.step[2])};
     // Unrolled: the loop's own counting was 15 instructions a node (callgrind).
 #pragma GCC unroll 3
     for (int a = 0; a < 3; ++a) {

@@ -19,6 +19,8 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
+#include <limits>
 #include <random>
 #include <sstream>
 
@@ -354,6 +356,9 @@ TEST(NvWideTraversal, EightWideQuantizedBoxesContainTheirFloatBoxes) {
                 bad += ((q.used >> k) & 1) == empty;
             }
             for (int a = 0; a < 3; ++a) {
+                // The kept step is the exponent's (the box test reads the step).
+                const float step = eng::detail::quantization_step(q.exponent[a]);
+                bad += std::memcmp(&q.steps.step[a], &step, sizeof step) != 0;
                 float lo[8], hi[8];
                 eng::detail::quantized_lanes8(q, a, lo, hi);
                 for (int k = 0; k < 8; ++k)
@@ -434,6 +439,125 @@ std::vector<eng::NvNode> caterpillar(uint32_t levels) {
     last.first = levels;
     last.count = 1;
     return nodes;
+}
+
+// float_at_or_above steps by the float's bits: the same float as std::nextafter toward +inf
+// from the rounded one, through zeros, subnormals, the sign change and both ends of the range.
+TEST(NvWideTraversal, FloatAtOrAboveIsTheLeastFloatNotBelow) {
+    const double flt_max = std::numeric_limits<float>::max();
+    const double least = std::numeric_limits<float>::denorm_min();
+    std::vector<double> values = {0.0,
+                                  -0.0,
+                                  least / 2,
+                                  -least / 2,
+                                  least * 1.5,
+                                  1.0,
+                                  1.0 + 1e-12,
+                                  -1.0 - 1e-12,
+                                  -1.0 + 1e-12,
+                                  flt_max,
+                                  flt_max * (1 + 1e-12),
+                                  -flt_max * (1 + 1e-12),
+                                  1e300,
+                                  -1e300,
+                                  INFINITY,
+                                  -INFINITY};
+    uint64_t state = 12345;
+    for (int k = 0; k < 20000; ++k) {
+        state = state * 6364136223846793005ull + 1442695040888963407ull;
+        const double x =
+            std::ldexp(double(state >> 11) / double(1ull << 53) - 0.5, int(state % 300) - 150);
+        values.push_back(x);
+    }
+    for (const double t : values) {
+        float want = float(t);
+        if (double(want) < t) want = std::nextafter(want, INFINITY);
+        const float got = eng::detail::float_at_or_above(t);
+        ASSERT_EQ(std::memcmp(&got, &want, 4), 0) << t;
+        ASSERT_GE(double(got), t) << t;
+    }
+}
+
+bool same_bits(double a, double b) { return std::memcmp(&a, &b, sizeof a) == 0; }
+bool same_bits(float a, float b) { return std::memcmp(&a, &b, sizeof a) == 0; }
+bool same_lanes(eng::detail::Float4 a, eng::detail::Float4 b) {
+    alignas(16) float x[4];
+    alignas(16) float y[4];
+    eng::detail::store4(x, a);
+    eng::detail::store4(y, b);
+    return std::memcmp(x, y, sizeof x) == 0;
+}
+
+// make_plain_object_rays gives the fields the double mode reads bit for bit as prepare_ray,
+// make_wide_ray and make_triangle4_ray give them, and takes exactly the rays it is meant for:
+// float rays, finite, no zero direction component, within both SIMD forms' limits.
+TEST(NvWideTraversal, PlainObjectRaysAreTheGeneralOnes) {
+    const float specials[] = {0.0f,  -0.0f,     1.0f,      -3.5f,    1e-30f, -1e-38f,  1e-45f,
+                              1e30f, -1e30f,    0x1p100f,  0x1p101f, 3e38f,  INFINITY, -INFINITY,
+                              NAN,   0x1p-100f, 0x1p-101f, 7e-20f,   2.5e19f};
+    uint64_t state = 0x9E3779B97F4A7C15ull;
+    auto next = [&state] {
+        state = state * 6364136223846793005ull + 1442695040888963407ull;
+        return state;
+    };
+    auto component = [&](bool special) {
+        const uint64_t r = next();
+        if (special) return specials[(r >> 33) % std::size(specials)];
+        return float(std::ldexp(double(r >> 11) / double(1ull << 53) - 0.5, int(r % 80) - 40));
+    };
+    int plain_count = 0;
+    for (int i = 0; i < 200000; ++i) {
+        float o[3], d[3];
+        for (int a = 0; a < 3; ++a) {
+            o[a] = component(next() % 8 == 0);
+            d[a] = component(next() % 8 == 0);
+        }
+        const double tmin = (i % 3 == 0) ? 0.0 : 1e-3;
+        const double tmax = (i % 5 == 0) ? INFINITY : 1e4;
+        eng::detail::ObjectRays plain;
+        const bool taken = eng::detail::make_plain_object_rays(o, d, tmin, tmax, &plain);
+        // The general way, from the object-space ray an identity instance gives.
+        const double od[3] = {double(o[0]) + 0.0, double(o[1]) + 0.0, double(o[2]) + 0.0};
+        const double dd[3] = {d[0], d[1], d[2]};
+        const eng::geometry::PreparedRay r = eng::geometry::prepare_ray(od, dd, tmin, tmax);
+        const eng::detail::WideRay w = eng::detail::make_wide_ray(r);
+        const eng::geometry::Triangle4Ray t = eng::geometry::make_triangle4_ray(r);
+        bool meant = w.usable && t.usable;
+        for (int a = 0; a < 3; ++a)
+            meant &= std::isfinite(o[a]) && std::isfinite(d[a]) && d[a] != 0;
+        ASSERT_EQ(taken, meant) << i;
+        if (!taken) continue;
+        ++plain_count;
+        const eng::geometry::PreparedRay& p = plain.exact;
+        for (int a = 0; a < 3; ++a) {
+            ASSERT_TRUE(same_bits(p.o[a], r.o[a]) && same_bits(p.d[a], r.d[a]) &&
+                        same_bits(p.inv[a], r.inv[a]) && same_bits(p.fo[a], r.fo[a]))
+                << i;
+            ASSERT_TRUE(same_bits(plain.wide.origin[a], w.origin[a]) &&
+                        same_bits(plain.wide.inverse[a], w.inverse[a]) &&
+                        plain.wide.zero[a] == w.zero[a])
+                << i;
+            ASSERT_TRUE(same_lanes(plain.triangles.origin[a], t.origin[a])) << i;
+        }
+        ASSERT_TRUE(p.kx == r.kx && p.ky == r.ky && p.kz == r.kz && p.mode == r.mode) << i;
+        ASSERT_TRUE(same_bits(p.sx, r.sx) && same_bits(p.sy, r.sy) && same_bits(p.sz, r.sz) &&
+                    same_bits(p.fsx, r.fsx) && same_bits(p.fsy, r.fsy) && same_bits(p.fsz, r.fsz) &&
+                    same_bits(p.tmin, r.tmin) && same_bits(p.tmax, r.tmax))
+            << i;
+        ASSERT_TRUE(plain.wide.usable && same_bits(plain.wide.widen_down, w.widen_down) &&
+                    same_bits(plain.wide.widen_up, w.widen_up) &&
+                    same_bits(plain.wide.widen_abs, w.widen_abs) &&
+                    same_bits(plain.wide.tmin, w.tmin))
+            << i;
+        const eng::geometry::Triangle4Ray& pt = plain.triangles;
+        ASSERT_TRUE(pt.usable && pt.kx == t.kx && pt.ky == t.ky && pt.kz == t.kz) << i;
+        ASSERT_TRUE(same_lanes(pt.sx, t.sx) && same_lanes(pt.sy, t.sy) && same_lanes(pt.sz, t.sz) &&
+                    same_lanes(pt.abs_sz, t.abs_sz) && same_lanes(pt.delta2, t.delta2) &&
+                    same_lanes(pt.delta4, t.delta4))
+            << i;
+    }
+    // Most rays are plain; the specials reach every refusal.
+    EXPECT_GT(plain_count, 50000);
 }
 
 // A tree deep enough that the walk's stack spills past its fixed part (WalkStack) still gives

@@ -19,10 +19,13 @@ struct PreparedRay {
     double sx, sy, sz;  // its shear
     double tmin, tmax;  // the query interval (closed, as Vulkan's)
     TraversalMode mode;
-    // kFloat32: the same ray rounded to float (o and d are then floats already), 1 / d and
-    // the shear in float, as a float32 pipeline holds them.
-    float fo[3], fd[3], finv[3];
+    // The origin and the shear rounded to float: the float32 tests' and the four-triangle
+    // filter's (triangle4.h, both modes).
+    float fo[3];
     float fsx, fsy, fsz;
+    // kFloat32 only (o and d are then floats already): d and 1 / d in float, as a float32
+    // pipeline holds them; the double mode reads neither, and leaves them 0.
+    float fd[3] = {}, finv[3] = {};
 };
 
 // `o` and `d` in double; for kFloat32 they must be float values (the float ray).
@@ -35,8 +38,12 @@ inline PreparedRay prepare_ray(const double o[3], const double d[3], double tmin
         r.d[a] = d[a];
         r.inv[a] = 1.0 / d[a];
         r.fo[a] = float(o[a]);
-        r.fd[a] = float(d[a]);
-        r.finv[a] = 1.0f / r.fd[a];
+    }
+    if (mode == TraversalMode::kFloat32) {
+        for (int a = 0; a < 3; ++a) {
+            r.fd[a] = float(d[a]);
+            r.finv[a] = 1.0f / r.fd[a];
+        }
     }
     int kz = 0;
     if (std::fabs(d[1]) > std::fabs(d[kz])) kz = 1;
@@ -50,9 +57,10 @@ inline PreparedRay prepare_ray(const double o[3], const double d[3], double tmin
     r.sx = d[kx] / d[kz];
     r.sy = d[ky] / d[kz];
     r.sz = 1.0 / d[kz];
-    r.fsx = r.fd[kx] / r.fd[kz];
-    r.fsy = r.fd[ky] / r.fd[kz];
-    r.fsz = 1.0f / r.fd[kz];
+    const float fdz = float(d[kz]);
+    r.fsx = float(d[kx]) / fdz;
+    r.fsy = float(d[ky]) / fdz;
+    r.fsz = 1.0f / fdz;
     r.tmin = tmin;
     r.tmax = tmax;
     return r;
