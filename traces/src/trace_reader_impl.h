@@ -308,8 +308,9 @@ struct TraceReader::Impl {
     // The chunks the task may read besides its own (HeldChunk): `loaded` and the older ones.
     HeldChunks held_chunks(HeldChunk loaded) const;
 
-    // The read-ahead task's result; nullopt when the task failed (it threw: out of memory), and
-    // the chunk is then read on this thread, whose errors carry the file and the offset.
+    // The read-ahead task's result; nullopt when the task failed (it threw: out of memory) or
+    // its read of the file did (a read error may be transient, unlike a verdict on bytes read),
+    // and the chunk is then read again on this thread, whose errors carry the file and offset.
     std::optional<ReadAhead> take_read_ahead();
 
     // On the read-ahead task: the real bytes of the contents of chunk `r` (at `offset`) that it

@@ -71,11 +71,15 @@ HeldChunks TraceReader::Impl::held_chunks(HeldChunk loaded) const {
 
 std::optional<ReadAhead> TraceReader::Impl::take_read_ahead() {
     ahead_started_at = UINT64_MAX;
+    std::optional<ReadAhead> r;
     try {
-        return ahead.get();
+        r = ahead.get();
     } catch (const std::exception&) {
         return std::nullopt;
     }
+    if (r->status != ChunkStatus::kOk && r->error.code == TraceErrorCode::kIoError)
+        return std::nullopt;
+    return r;
 }
 
 std::vector<AheadContents> TraceReader::Impl::decode_ahead(uint64_t offset, const ChunkBytes& r,
