@@ -427,7 +427,8 @@ struct DamageCase {
 const std::vector<uint64_t> kAllSix = {0, 1, 2, 3, 4, 5};
 
 // Chunk 1 claims a payload reaching one byte past the end of the file (its raw size raised so
-// zstd could make that much): the file is whole (its trailer says so), the header lies.
+// zstd could make that much): the file is whole (its trailer says so), the header lies, and
+// chunk 2 is still read (until session 11 reading stopped there, as at a cut).
 DamageCase chunk_one_byte_past_the_end() {
     std::vector<uint8_t> file = three_chunks().finish();
     const ChunkAt c = records_chunks(file)[1];
@@ -438,11 +439,11 @@ DamageCase chunk_one_byte_past_the_end() {
     });
     return {"past_the_end_by_one",
             std::move(file),
-            TraceErrorCode::kTruncated,
+            TraceErrorCode::kLengthOutOfRange,
             c.offset + offsetof(f::ChunkHeader, compressed_size),
             "chunk 1 claims " + std::to_string(remain + 1) + " compressed bytes but only " +
-                std::to_string(remain) + " remain in the file",
-            {0, 1}};
+                std::to_string(remain) + " remain in the file, which its trailer says is whole",
+            {0, 1, 4, 5}};
 }
 
 // The same without index and trailer: the last chunk of a file cut one byte short of it.
