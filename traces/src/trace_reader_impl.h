@@ -240,7 +240,14 @@ struct TraceReader::Impl {
 
     void resync(uint64_t from);
 
+    // "chunk N record K (raw offset R)": where a record's problems are, at the chunk's offset.
     std::string record_place(uint32_t raw_offset) const;
+    // A problem of the loaded chunk's record at raw offset `at`: record_place(at) followed by
+    // what `problem` says (": ..." or " (kind): ...").
+    template <class MakeProblem>
+    void report_record(TraceErrorCode code, uint32_t at, MakeProblem&& problem) {
+        report_with(code, chunk_offset, [&] { return record_place(at) + problem(); });
+    }
 
     // Decodes the record at `cursor` of the loaded chunk.
     RecordStatus parse_record(RecordView* out);
