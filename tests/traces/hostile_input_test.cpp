@@ -166,6 +166,16 @@ CraftedTrace three_chunks() {
     return t;
 }
 
+// The chunk header at `at` changed by `edit`, its checksum sealed again.
+void edit_chunk_header(std::vector<uint8_t>& file, uint64_t at,
+                       const std::function<void(f::ChunkHeader&)>& edit) {
+    f::ChunkHeader h;
+    std::memcpy(&h, file.data() + at, sizeof h);
+    edit(h);
+    h.header_checksum = f::chunk_header_checksum(h);
+    std::memcpy(file.data() + at, &h, sizeof h);
+}
+
 struct Read {
     uint64_t records = 0;
     uint64_t submissions = 0;
@@ -256,11 +266,9 @@ TEST(HostileTrace, IndexLargerThanTheFileCanNeedIsRefusedBeforeDecompressing) {
     CraftedTrace t = three_chunks();
     std::vector<uint8_t> file = t.file();
     const uint64_t index_at = file.size();
-    f::ChunkHeader h = CraftedTrace::append_chunk_to(file, std::vector<uint8_t>(64, 0),
-                                                     f::ChunkKind::kIndex, 0, 6, 3);
-    h.raw_size = 1u << 30;  // within the format's 1 GiB limit, far past what a small file indexes
-    h.header_checksum = f::chunk_header_checksum(h);
-    std::memcpy(file.data() + index_at, &h, sizeof h);
+    CraftedTrace::append_chunk_to(file, std::vector<uint8_t>(64, 0), f::ChunkKind::kIndex, 0, 6, 3);
+    // Within the format's 1 GiB limit, far past what a small file indexes.
+    edit_chunk_header(file, index_at, [](f::ChunkHeader& h) { h.raw_size = 1u << 30; });
     CraftedTrace::append_trailer(file, index_at);
     Read r = read(file);
     const TraceError* e =
@@ -276,17 +284,10 @@ TEST(HostileTrace, RecordsChunkRelabelledAsIndexIsDamageAndLaterChunksStillRead)
     std::vector<uint8_t> file = t.finish();
     // Relabel chunk 1 with a consistent header checksum: as an index chunk, then as a kind the
     // format lacks.
-    uint64_t at = f::kFileHeaderSize + f::align8(f::load<uint32_t>(file.data() + 12));
-    f::ChunkHeader h0;
-    std::memcpy(&h0, file.data() + at, sizeof h0);
-    at += f::kChunkHeaderSize + h0.compressed_size;
+    const uint64_t at = records_chunks(file)[1].offset;
     for (uint16_t kind : {uint16_t{2}, uint16_t{3}}) {
         std::vector<uint8_t> relabelled = file;
-        f::ChunkHeader h;
-        std::memcpy(&h, relabelled.data() + at, sizeof h);
-        h.kind = kind;
-        h.header_checksum = f::chunk_header_checksum(h);
-        std::memcpy(relabelled.data() + at, &h, sizeof h);
+        edit_chunk_header(relabelled, at, [&](f::ChunkHeader& h) { h.kind = kind; });
         Read r = read(relabelled);
         EXPECT_EQ(r.submission_indices, (std::vector<uint64_t>{0, 1, 4, 5})) << "kind " << kind;
         EXPECT_NE(find_damage(r, TraceErrorCode::kBadIndex, "that the scan did not read as one"),
@@ -364,13 +365,8 @@ TEST(HostileTrace, IndexDisagreeingWithTheChunksIsBadIndex) {
 TEST(HostileTrace, DuplicatedChunkIsSkippedSoNoSubmissionRepeats) {
     CraftedTrace t = three_chunks();
     std::vector<uint8_t> file = t.finish();
-    uint64_t first = f::kFileHeaderSize + f::align8(f::load<uint32_t>(file.data() + 12));
-    f::ChunkHeader h0;
-    std::memcpy(&h0, file.data() + first, sizeof h0);
-    const uint64_t second = first + f::kChunkHeaderSize + h0.compressed_size;
-    f::ChunkHeader h1;
-    std::memcpy(&h1, file.data() + second, sizeof h1);
-    const uint64_t third = second + f::kChunkHeaderSize + h1.compressed_size;
+    const std::vector<ChunkAt> chunks = records_chunks(file);
+    const uint64_t first = chunks[0].offset, second = chunks[1].offset, third = chunks[2].offset;
     // chunk 0, chunk 1, chunk 1 again, chunk 0 again, chunk 2 ...
     std::vector<uint8_t> dup(file.begin(), file.begin() + static_cast<long>(third));
     dup.insert(dup.end(), file.begin() + static_cast<long>(second),
@@ -403,16 +399,6 @@ TEST(HostileTrace, DamageBeyondTheKeptListIsCountedCheaply) {
 }
 
 // ---- Damage the other tests lack: each is named with the file and the offset. ----
-
-// The chunk header at `at` changed by `edit`, its checksum sealed again.
-void edit_chunk_header(std::vector<uint8_t>& file, uint64_t at,
-                       const std::function<void(f::ChunkHeader&)>& edit) {
-    f::ChunkHeader h;
-    std::memcpy(&h, file.data() + at, sizeof h);
-    edit(h);
-    h.header_checksum = f::chunk_header_checksum(h);
-    std::memcpy(file.data() + at, &h, sizeof h);
-}
 
 // A damaged trace and the one problem it must be reported with (among others it causes).
 struct DamageCase {
@@ -593,12 +579,7 @@ TEST(HostileTraceCli, IntactCraftedTraceIsClean) {
 
 TEST(HostileTraceCli, RelabelledChunkIsDamage) {
     std::vector<uint8_t> file = three_chunks().finish();
-    uint64_t at = f::kFileHeaderSize + f::align8(f::load<uint32_t>(file.data() + 12));
-    f::ChunkHeader h;
-    std::memcpy(&h, file.data() + at, sizeof h);
-    h.kind = 3;
-    h.header_checksum = f::chunk_header_checksum(h);
-    std::memcpy(file.data() + at, &h, sizeof h);
+    edit_chunk_header(file, records_chunks(file)[0].offset, [](f::ChunkHeader& h) { h.kind = 3; });
     expect_damage_verdict(file, "relabelled");
 }
 
@@ -617,10 +598,8 @@ TEST(HostileTraceCli, ContentsFailingTheirKeyAreDamage) {
 
 TEST(HostileTraceCli, DuplicatedChunkIsDamageNotUnreadable) {
     std::vector<uint8_t> file = three_chunks().finish();
-    uint64_t first = f::kFileHeaderSize + f::align8(f::load<uint32_t>(file.data() + 12));
-    f::ChunkHeader h0;
-    std::memcpy(&h0, file.data() + first, sizeof h0);
-    const uint64_t second = first + f::kChunkHeaderSize + h0.compressed_size;
+    const std::vector<ChunkAt> chunks = records_chunks(file);
+    const uint64_t first = chunks[0].offset, second = chunks[1].offset;
     std::vector<uint8_t> dup(file.begin(), file.begin() + static_cast<long>(second));
     dup.insert(dup.end(), file.begin() + static_cast<long>(first),
                file.begin() + static_cast<long>(second));
