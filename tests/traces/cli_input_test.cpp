@@ -3,39 +3,24 @@
 // trace does not hold, paths that are not regular files (FIFO, pipe, device, directory), and
 // traces that cannot be opened under --json. Each is exit 2 with one clear line, never a
 // hang, a silent empty run or a 309-digit bound.
+#include "shell_run.h"
 #include "trace_test_support.h"
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
-#include <array>
-#include <cstdio>
 #include <filesystem>
 #include <regex>
 #include <sys/stat.h>
-#include <sys/wait.h>
 
 namespace clastrace::traces::testing {
 namespace {
 
-struct ProgramRun {
-    int exit_code = -1;
-    std::string output;
-};
+using ProgramRun = ShellRun;
 
 // `timeout` turns a hang (the FIFO case before its fix) into exit 124 instead of a stuck test.
 ProgramRun run(const std::string& args, const std::string& stderr_to = "&1") {
-    ProgramRun r;
-    const std::string cmd =
-        "timeout 20 " + std::string(CLASTRACE_BIN) + " " + args + " 2>" + stderr_to;
-    FILE* p = popen(cmd.c_str(), "r");
-    if (!p) return r;
-    std::array<char, 4096> buf;
-    size_t n;
-    while ((n = fread(buf.data(), 1, buf.size(), p)) > 0) r.output.append(buf.data(), n);
-    const int status = pclose(p);
-    r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    return r;
+    return run_shell("timeout 20 " + std::string(CLASTRACE_BIN) + " " + args + " 2>" + stderr_to);
 }
 
 bool has(const ProgramRun& r, const std::string& text) {
@@ -124,15 +109,10 @@ TEST(ClastraceCliInput, FifoWithoutWriterIsRefusedAtOnce) {
 }
 
 TEST(ClastraceCliInput, PipeIsRefusedNotCalledEmpty) {
-    const std::string cmd =
-        "cat " + kSample + " | timeout 20 " + std::string(CLASTRACE_BIN) + " info /dev/stdin 2>&1";
-    FILE* p = popen(cmd.c_str(), "r");
-    ASSERT_TRUE(p);
-    std::string out;
-    std::array<char, 4096> buf;
-    for (size_t n; (n = fread(buf.data(), 1, buf.size(), p)) > 0;) out.append(buf.data(), n);
-    const int status = pclose(p);
-    EXPECT_EQ(WEXITSTATUS(status), 2) << out;
+    const ProgramRun r = run_shell("cat " + kSample + " | timeout 20 " +
+                                   std::string(CLASTRACE_BIN) + " info /dev/stdin 2>&1");
+    const std::string& out = r.output;
+    EXPECT_EQ(r.exit_code, 2) << out;
     EXPECT_NE(out.find("not a regular file (a FIFO or pipe)"), std::string::npos) << out;
     EXPECT_EQ(out.find("empty file"), std::string::npos) << out;
 }

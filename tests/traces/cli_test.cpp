@@ -1,37 +1,22 @@
 // SPDX-License-Identifier: Apache-2.0
 // Runs the built `clastrace` program on good, damaged and unreadable traces and checks
 // its exit codes (0 intact, 1 damage, 2 usage/unreadable) and what it prints.
+#include "shell_run.h"
 #include "trace_test_support.h"
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
-#include <array>
-#include <cstdio>
-#include <sys/wait.h>
 
 namespace clastrace::traces::testing {
 namespace {
 
-struct ProgramRun {
-    int exit_code = -1;
-    std::string output;  // stdout and stderr together
-    std::string stdout_only;
-};
+using ProgramRun = ShellRun;
 
+// Output: stdout and stderr together, or stdout alone (for JSON) without `merge_stderr`.
 ProgramRun run(const std::string& args, bool merge_stderr = true) {
-    ProgramRun r;
-    std::string cmd =
-        std::string(CLASTRACE_BIN) + " " + args + (merge_stderr ? " 2>&1" : " 2>/dev/null");
-    FILE* p = popen(cmd.c_str(), "r");
-    if (!p) return r;
-    std::array<char, 4096> buf;
-    size_t n;
-    while ((n = fread(buf.data(), 1, buf.size(), p)) > 0) r.output.append(buf.data(), n);
-    int status = pclose(p);
-    r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    r.stdout_only = r.output;
-    return r;
+    return run_shell(std::string(CLASTRACE_BIN) + " " + args +
+                     (merge_stderr ? " 2>&1" : " 2>/dev/null"));
 }
 
 const std::string kSample = CLASTRACE_SAMPLE;
@@ -68,7 +53,7 @@ TEST(ClastraceCli, InfoOnTheSampleIsCleanAndComplete) {
 TEST(ClastraceCli, InfoJsonHasTheDocumentedFields) {
     ProgramRun r = run("info --json " + kSample, false);
     ASSERT_EQ(r.exit_code, 0) << r.output;
-    nlohmann::json j = nlohmann::json::parse(r.stdout_only);
+    nlohmann::json j = nlohmann::json::parse(r.output);
     EXPECT_EQ(j["format_version"]["major"], 1);
     EXPECT_EQ(j["header"]["device"]["vendor_id"], 0x10de);
     EXPECT_EQ(j["header"]["device"]["cluster_properties"]["maxVerticesPerCluster"], 256);
@@ -103,7 +88,7 @@ TEST(ClastraceCli, InfoComparesTheFileWithPlainZstdOnRequest) {
         << text.output;
     ProgramRun json = run("info --json --vs-zstd " + path, false);
     ASSERT_EQ(json.exit_code, 0) << json.output;
-    nlohmann::json j = nlohmann::json::parse(json.stdout_only);
+    nlohmann::json j = nlohmann::json::parse(json.output);
     const uint64_t zstd_bytes = j["size_vs_zstd"]["zstd_bytes"].get<uint64_t>();
     EXPECT_GT(zstd_bytes, 0u);
     EXPECT_EQ(j["size_vs_zstd"]["file_bytes"], j["file_size"]);
@@ -113,7 +98,7 @@ TEST(ClastraceCli, InfoComparesTheFileWithPlainZstdOnRequest) {
     EXPECT_GT(j["memory"]["contents_delta"].get<uint64_t>(), 0u);
     ProgramRun plain = run("info --json " + path, false);
     ASSERT_EQ(plain.exit_code, 0) << plain.output;
-    EXPECT_TRUE(nlohmann::json::parse(plain.stdout_only)["size_vs_zstd"].is_null());
+    EXPECT_TRUE(nlohmann::json::parse(plain.output)["size_vs_zstd"].is_null());
 }
 
 TEST(ClastraceCli, DamagedTraceExitsWithOneAndNamesTheOffset) {
@@ -129,7 +114,7 @@ TEST(ClastraceCli, DamagedTraceExitsWithOneAndNamesTheOffset) {
 
     ProgramRun j = run("info --json " + path, false);
     EXPECT_EQ(j.exit_code, 1);
-    nlohmann::json doc = nlohmann::json::parse(j.stdout_only);
+    nlohmann::json doc = nlohmann::json::parse(j.output);
     ASSERT_GE(doc["damage"]["count"].get<int>(), 1);
     EXPECT_EQ(doc["damage"]["items"][0]["code"], "checksum_mismatch");
 

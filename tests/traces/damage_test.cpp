@@ -115,6 +115,30 @@ std::vector<uint8_t> header_only_prefix() {
     return file;
 }
 
+// One chunk of the framed `raw` claiming `records` records, after a valid header; returns the
+// file and the chunk's offset.
+std::vector<uint8_t> file_of_raw(const std::vector<uint8_t>& raw, uint32_t records,
+                                 uint64_t* chunk_at) {
+    std::vector<uint8_t> file = header_only_prefix();
+    *chunk_at = file.size();
+    std::vector<uint8_t> chunk = make_chunk(raw, 0, records);
+    file.insert(file.end(), chunk.begin(), chunk.end());
+    return file;
+}
+
+// One chunk of `records` after a valid header; returns the file and the chunk's offset.
+std::vector<uint8_t> file_of(const std::vector<fbs::RecordT>& records, uint64_t* chunk_at) {
+    std::vector<uint8_t> raw;
+    for (const fbs::RecordT& r : records) frame(raw, r);
+    return file_of_raw(raw, static_cast<uint32_t>(records.size()), chunk_at);
+}
+
+fbs::RecordT command_buffer_end() {
+    fbs::RecordT r;
+    r.body.Set(fbs::CommandBufferEndT{});
+    return r;
+}
+
 class DamagedTrace : public ::testing::Test {
 protected:
     explicit DamagedTrace(int frames = 30) : frames_(frames) {}
@@ -340,10 +364,8 @@ TEST(TraceDamage, RecordClaimingTwoGibibytesIsReported) {
     frame(raw, r);
     uint32_t huge = 0x80000000u;
     std::memcpy(raw.data() + second, &huge, 4);
-    std::vector<uint8_t> file = header_only_prefix();
-    uint64_t chunk_at = file.size();
-    std::vector<uint8_t> chunk = make_chunk(raw, 0, 2);
-    file.insert(file.end(), chunk.begin(), chunk.end());
+    uint64_t chunk_at = 0;
+    std::vector<uint8_t> file = file_of_raw(raw, 2, &chunk_at);
     ReadResult read = read_all_memory(file);
     ASSERT_TRUE(read.opened);
     EXPECT_EQ(read.records.size(), 1u);
@@ -365,14 +387,9 @@ TEST(TraceDamage, SnapshotOfMissingContentsIsReportedWithItsChunk) {
     fbs::RecordT r;
     r.body.Set(std::move(copy));
     frame(raw, r);
-    fbs::CommandBufferEndT end;
-    fbs::RecordT er;
-    er.body.Set(end);
-    frame(raw, er);
-    std::vector<uint8_t> file = header_only_prefix();
-    uint64_t chunk_at = file.size();
-    std::vector<uint8_t> chunk = make_chunk(raw, 0, 2);
-    file.insert(file.end(), chunk.begin(), chunk.end());
+    frame(raw, command_buffer_end());
+    uint64_t chunk_at = 0;
+    std::vector<uint8_t> file = file_of_raw(raw, 2, &chunk_at);
     ReadResult read = read_all_memory(file);
     ASSERT_TRUE(read.opened);
     ASSERT_TRUE(has_damage(read, TraceErrorCode::kMissingContents, chunk_at))
@@ -414,14 +431,9 @@ TEST(TraceDamage, BadSnapshotsOfRaysAndAddressWritesAreReportedWithTheirChunk) {
                 bad.body.Set(std::move(writes));
             }
             frame(raw, bad);
-            fbs::CommandBufferEndT end;
-            fbs::RecordT er;
-            er.body.Set(end);
-            frame(raw, er);
-            std::vector<uint8_t> file = header_only_prefix();
-            const uint64_t chunk_at = file.size();
-            std::vector<uint8_t> chunk = make_chunk(raw, 0, 3);
-            file.insert(file.end(), chunk.begin(), chunk.end());
+            frame(raw, command_buffer_end());
+            uint64_t chunk_at = 0;
+            std::vector<uint8_t> file = file_of_raw(raw, 3, &chunk_at);
             ReadResult read = read_all_memory(file);
             ASSERT_TRUE(read.opened);
             const TraceErrorCode code =
@@ -449,11 +461,11 @@ TEST(TraceDamage, ContentsThatDoNotHashToTheirKeyAreReported) {
     fbs::RecordT r;
     r.body.Set(std::move(c));
     frame(raw, r);
-    std::vector<uint8_t> file = header_only_prefix();
-    std::vector<uint8_t> chunk = make_chunk(raw, 0, 1);
-    file.insert(file.end(), chunk.begin(), chunk.end());
+    uint64_t chunk_at = 0;
+    const std::vector<uint8_t> file = file_of_raw(raw, 1, &chunk_at);
     ReadResult read = read_all_memory(file);
-    EXPECT_TRUE(has_damage(read, TraceErrorCode::kContentMismatch)) << describe(read.damage);
+    EXPECT_TRUE(has_damage(read, TraceErrorCode::kContentMismatch, chunk_at))
+        << describe(read.damage);
     EXPECT_TRUE(read.records.empty());
 
     // The faster setting trusts the writer's keys: the chunk checksum still holds, so
@@ -472,14 +484,9 @@ TEST(TraceDamage, RecordFailingTheVerifierIsSkippedAndTheNextOneRead) {
     std::vector<uint8_t> raw;
     std::vector<uint8_t> junk(24, 0xff);  // root offset points far outside
     frame(raw, junk.data(), junk.size(), 3);
-    fbs::CommandBufferEndT end;
-    fbs::RecordT er;
-    er.body.Set(end);
-    frame(raw, er);
-    std::vector<uint8_t> file = header_only_prefix();
-    uint64_t chunk_at = file.size();
-    std::vector<uint8_t> chunk = make_chunk(raw, 0, 2);
-    file.insert(file.end(), chunk.begin(), chunk.end());
+    frame(raw, command_buffer_end());
+    uint64_t chunk_at = 0;
+    std::vector<uint8_t> file = file_of_raw(raw, 2, &chunk_at);
     ReadResult read = read_all_memory(file);
     ASSERT_TRUE(has_damage(read, TraceErrorCode::kInvalidRecord, chunk_at))
         << describe(read.damage);
@@ -542,23 +549,6 @@ fbs::RecordT delta_contents(const std::vector<uint8_t>& real, const std::vector<
 
 uint64_t key_of(const std::vector<uint8_t>& bytes) {
     return f::content_key(bytes.data(), bytes.size(), 0, 64);
-}
-
-// One chunk of `records` after a valid header; returns the file and the chunk's offset.
-std::vector<uint8_t> file_of(const std::vector<fbs::RecordT>& records, uint64_t* chunk_at) {
-    std::vector<uint8_t> raw;
-    for (const fbs::RecordT& r : records) frame(raw, r);
-    std::vector<uint8_t> file = header_only_prefix();
-    *chunk_at = file.size();
-    std::vector<uint8_t> chunk = make_chunk(raw, 0, static_cast<uint32_t>(records.size()));
-    file.insert(file.end(), chunk.begin(), chunk.end());
-    return file;
-}
-
-fbs::RecordT command_buffer_end() {
-    fbs::RecordT r;
-    r.body.Set(fbs::CommandBufferEndT{});
-    return r;
 }
 
 // Laid out as is and in byte planes (67 bytes: a tail of 3 outside the planes), a chain of two.
@@ -813,10 +803,8 @@ TEST(TraceDamage, AReaderThatDoesNotKnowTheKindReportsItsContentsMissing) {
     fbs::RecordT uses;
     uses.body.Set(std::move(copy));
     frame(raw, uses);
-    std::vector<uint8_t> file = header_only_prefix();
-    const uint64_t chunk_at = file.size();
-    std::vector<uint8_t> chunk = make_chunk(raw, 0, 2);
-    file.insert(file.end(), chunk.begin(), chunk.end());
+    uint64_t chunk_at = 0;
+    std::vector<uint8_t> file = file_of_raw(raw, 2, &chunk_at);
 
     TraceError e;
     auto reader = TraceReader::open_memory(file.data(), file.size(), "old_reader.clt", &e);

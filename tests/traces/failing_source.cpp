@@ -10,6 +10,15 @@ namespace {
 
 thread_local std::string last_read_error;
 
+// False once `f` has failed as many reads as it may.
+bool count_failure(ReadFailure& f) {
+    uint32_t n = f.failed.load();
+    do {
+        if (n >= f.max_failures) return false;
+    } while (!f.failed.compare_exchange_weak(n, n + 1));
+    return true;
+}
+
 class FailingSource final : public ByteSource {
 public:
     FailingSource(const std::vector<uint8_t>& bytes, std::shared_ptr<ReadFailure> failure)
@@ -23,8 +32,8 @@ public:
         }
         const bool here =
             !failure_->read_ahead_thread_only || std::this_thread::get_id() != opener_;
-        if (here && offset < failure_->to && offset + n > failure_->from) {
-            ++failure_->failed;
+        if (here && offset < failure_->to && offset + n > failure_->from &&
+            count_failure(*failure_)) {
             last_read_error = kInjectedReadError;
             return false;
         }

@@ -18,12 +18,13 @@
 namespace clastrace::traces::testing {
 
 // Which reads fail: those that touch [from, to), on threads other than the one that opened the
-// reader (the read-ahead thread) or on every thread.
+// reader (the read-ahead thread) or on every thread, up to `max_failures` of them.
 struct ReadFailure {
     uint64_t from = 0;
     uint64_t to = UINT64_MAX;
     bool read_ahead_thread_only = true;
-    std::atomic<uint32_t> failed{0};  // reads failed so far
+    uint32_t max_failures = UINT32_MAX;  // 1: a transient error, the next read succeeds
+    std::atomic<uint32_t> failed{0};     // reads failed so far
 };
 
 // The message such a read leaves in ByteSource::last_error(), on the thread that read.

@@ -2,33 +2,22 @@
 // QueuePresent (format 1.2) without a GPU: `clastrace info` assigns each submission to the
 // frame of the next present (after the last, to the frame after it), and `clastrace replay`
 // accepts the record.
+#include "shell_run.h"
 #include "trace_test_support.h"
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
-#include <array>
 #include <cstdio>
-#include <sys/wait.h>
+
 
 namespace clastrace::traces::testing {
 namespace {
 
-struct ProgramRun {
-    int exit_code = -1;
-    std::string output;
-};
+using ProgramRun = ShellRun;
 
 ProgramRun run(const std::string& args) {
-    ProgramRun r;
-    FILE* p = popen((std::string(CLASTRACE_BIN) + " " + args + " 2>&1").c_str(), "r");
-    if (!p) return r;
-    std::array<char, 4096> buf;
-    size_t n;
-    while ((n = fread(buf.data(), 1, buf.size(), p)) > 0) r.output.append(buf.data(), n);
-    const int status = pclose(p);
-    r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    return r;
+    return run_shell(std::string(CLASTRACE_BIN) + " " + args + " 2>&1");
 }
 
 fbs::RecordT present(uint64_t frame) {

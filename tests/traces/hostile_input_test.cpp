@@ -2,6 +2,8 @@
 // Hostile traces: files crafted so that reading them would cost minutes of CPU or
 // gigabytes of memory, or would hide damage behind a consistent-looking index. Each
 // gets bounded work (asserted on counts, never on time) and one verdict: damage.
+#include "records_chunks.h"
+#include "shell_run.h"
 #include "trace_test_support.h"
 #include "unrepaired_trace.h"
 
@@ -12,9 +14,7 @@
 #include <zstd.h>
 
 #include <algorithm>
-#include <cstdlib>
 #include <functional>
-#include <sys/wait.h>
 
 namespace clastrace::traces::testing {
 namespace {
@@ -55,8 +55,17 @@ public:
 
     // A records chunk of any raw bytes (zeros, broken frames) claiming `records` records.
     uint64_t add_raw(const std::vector<uint8_t>& raw, uint32_t records, uint32_t submissions = 0) {
+        return add_payload(compress(raw), static_cast<uint32_t>(raw.size()), records, submissions);
+    }
+
+    // A records chunk whose payload is `payload` as it stands (no frame, a frame of nothing),
+    // claiming `raw_size` raw bytes and `records` records.
+    uint64_t add_payload(const std::vector<uint8_t>& payload, uint32_t raw_size, uint32_t records,
+                         uint32_t submissions = 0) {
         const uint64_t at = file_.size();
-        f::ChunkHeader h = append_chunk(raw, f::ChunkKind::kRecords, records, submissions_);
+        const f::ChunkHeader h =
+            append_payload_to(file_, payload, raw_size, f::ChunkKind::kRecords, records,
+                              submissions_, static_cast<uint32_t>(index_.chunks.size()));
         index_.chunks.emplace_back(at, submissions_, submissions, records, h.raw_size,
                                    h.compressed_size);
         index_.record_count += records;
@@ -90,21 +99,32 @@ public:
         std::memcpy(raw.data() + at + 8, data, size);
     }
 
+    static std::vector<uint8_t> compress(const std::vector<uint8_t>& raw) {
+        std::vector<uint8_t> compressed(ZSTD_compressBound(raw.size()));
+        size_t n = ZSTD_compress(compressed.data(), compressed.size(), raw.data(), raw.size(), 1);
+        compressed.resize(n);
+        return compressed;
+    }
+
     static f::ChunkHeader append_chunk_to(std::vector<uint8_t>& file,
                                           const std::vector<uint8_t>& raw, f::ChunkKind kind,
                                           uint32_t records, uint64_t first_submission,
                                           uint32_t number) {
-        std::vector<uint8_t> compressed(ZSTD_compressBound(raw.size()));
-        size_t n = ZSTD_compress(compressed.data(), compressed.size(), raw.data(), raw.size(), 1);
-        compressed.resize(n);
+        return append_payload_to(file, compress(raw), static_cast<uint32_t>(raw.size()), kind,
+                                 records, first_submission, number);
+    }
+
+    static f::ChunkHeader append_payload_to(std::vector<uint8_t>& file,
+                                            const std::vector<uint8_t>& payload, uint32_t raw_size,
+                                            f::ChunkKind kind, uint32_t records,
+                                            uint64_t first_submission, uint32_t number) {
         const f::ChunkHeader h =
-            f::sealed_chunk_header(kind, number, records, first_submission,
-                                   static_cast<uint32_t>(raw.size()), compressed.data(),
-                                   static_cast<uint32_t>(n));
+            f::sealed_chunk_header(kind, number, records, first_submission, raw_size,
+                                   payload.data(), static_cast<uint32_t>(payload.size()));
         const size_t at = file.size();
         file.resize(at + sizeof h);
         std::memcpy(file.data() + at, &h, sizeof h);
-        file.insert(file.end(), compressed.begin(), compressed.end());
+        file.insert(file.end(), payload.begin(), payload.end());
         return h;
     }
 
@@ -116,12 +136,6 @@ public:
     }
 
 private:
-    f::ChunkHeader append_chunk(const std::vector<uint8_t>& raw, f::ChunkKind kind,
-                                uint32_t records, uint64_t first_submission) {
-        return append_chunk_to(file_, raw, kind, records, first_submission,
-                               static_cast<uint32_t>(index_.chunks.size()));
-    }
-
     std::vector<uint8_t> file_;
     fbs::TraceIndexT index_;
     uint64_t submissions_ = 0;
@@ -150,6 +164,16 @@ CraftedTrace three_chunks() {
     CraftedTrace t;
     for (uint64_t s = 0; s < 6; s += 2) t.add_records({submit(s), submit(s + 1)});
     return t;
+}
+
+// The chunk header at `at` changed by `edit`, its checksum sealed again.
+void edit_chunk_header(std::vector<uint8_t>& file, uint64_t at,
+                       const std::function<void(f::ChunkHeader&)>& edit) {
+    f::ChunkHeader h;
+    std::memcpy(&h, file.data() + at, sizeof h);
+    edit(h);
+    h.header_checksum = f::chunk_header_checksum(h);
+    std::memcpy(file.data() + at, &h, sizeof h);
 }
 
 struct Read {
@@ -242,11 +266,9 @@ TEST(HostileTrace, IndexLargerThanTheFileCanNeedIsRefusedBeforeDecompressing) {
     CraftedTrace t = three_chunks();
     std::vector<uint8_t> file = t.file();
     const uint64_t index_at = file.size();
-    f::ChunkHeader h = CraftedTrace::append_chunk_to(file, std::vector<uint8_t>(64, 0),
-                                                     f::ChunkKind::kIndex, 0, 6, 3);
-    h.raw_size = 1u << 30;  // within the format's 1 GiB limit, far past what a small file indexes
-    h.header_checksum = f::chunk_header_checksum(h);
-    std::memcpy(file.data() + index_at, &h, sizeof h);
+    CraftedTrace::append_chunk_to(file, std::vector<uint8_t>(64, 0), f::ChunkKind::kIndex, 0, 6, 3);
+    // Within the format's 1 GiB limit, far past what a small file indexes.
+    edit_chunk_header(file, index_at, [](f::ChunkHeader& h) { h.raw_size = 1u << 30; });
     CraftedTrace::append_trailer(file, index_at);
     Read r = read(file);
     const TraceError* e =
@@ -262,17 +284,10 @@ TEST(HostileTrace, RecordsChunkRelabelledAsIndexIsDamageAndLaterChunksStillRead)
     std::vector<uint8_t> file = t.finish();
     // Relabel chunk 1 with a consistent header checksum: as an index chunk, then as a kind the
     // format lacks.
-    uint64_t at = f::kFileHeaderSize + f::align8(f::load<uint32_t>(file.data() + 12));
-    f::ChunkHeader h0;
-    std::memcpy(&h0, file.data() + at, sizeof h0);
-    at += f::kChunkHeaderSize + h0.compressed_size;
+    const uint64_t at = records_chunks(file)[1].offset;
     for (uint16_t kind : {uint16_t{2}, uint16_t{3}}) {
         std::vector<uint8_t> relabelled = file;
-        f::ChunkHeader h;
-        std::memcpy(&h, relabelled.data() + at, sizeof h);
-        h.kind = kind;
-        h.header_checksum = f::chunk_header_checksum(h);
-        std::memcpy(relabelled.data() + at, &h, sizeof h);
+        edit_chunk_header(relabelled, at, [&](f::ChunkHeader& h) { h.kind = kind; });
         Read r = read(relabelled);
         EXPECT_EQ(r.submission_indices, (std::vector<uint64_t>{0, 1, 4, 5})) << "kind " << kind;
         EXPECT_NE(find_damage(r, TraceErrorCode::kBadIndex, "that the scan did not read as one"),
@@ -350,13 +365,8 @@ TEST(HostileTrace, IndexDisagreeingWithTheChunksIsBadIndex) {
 TEST(HostileTrace, DuplicatedChunkIsSkippedSoNoSubmissionRepeats) {
     CraftedTrace t = three_chunks();
     std::vector<uint8_t> file = t.finish();
-    uint64_t first = f::kFileHeaderSize + f::align8(f::load<uint32_t>(file.data() + 12));
-    f::ChunkHeader h0;
-    std::memcpy(&h0, file.data() + first, sizeof h0);
-    const uint64_t second = first + f::kChunkHeaderSize + h0.compressed_size;
-    f::ChunkHeader h1;
-    std::memcpy(&h1, file.data() + second, sizeof h1);
-    const uint64_t third = second + f::kChunkHeaderSize + h1.compressed_size;
+    const std::vector<ChunkAt> chunks = records_chunks(file);
+    const uint64_t first = chunks[0].offset, second = chunks[1].offset, third = chunks[2].offset;
     // chunk 0, chunk 1, chunk 1 again, chunk 0 again, chunk 2 ...
     std::vector<uint8_t> dup(file.begin(), file.begin() + static_cast<long>(third));
     dup.insert(dup.end(), file.begin() + static_cast<long>(second),
@@ -388,13 +398,167 @@ TEST(HostileTrace, DamageBeyondTheKeptListIsCountedCheaply) {
     EXPECT_EQ(r.damage.size(), 1000u);
 }
 
+// ---- Damage the other tests lack: each is named with the file and the offset. ----
+
+// A damaged trace and the one problem it must be reported with (among others it causes).
+struct DamageCase {
+    std::string name;
+    std::vector<uint8_t> file;
+    TraceErrorCode code;
+    uint64_t offset;
+    std::string text;
+    std::vector<uint64_t> submissions;  // those still read
+};
+
+const std::vector<uint64_t> kAllSix = {0, 1, 2, 3, 4, 5};
+
+// Chunk 1 claims a payload reaching one byte past the end of the file (its raw size raised so
+// zstd could make that much): the file is whole (its trailer says so), the header lies, and
+// chunk 2 is still read (until session 11 reading stopped there, as at a cut).
+DamageCase chunk_one_byte_past_the_end() {
+    std::vector<uint8_t> file = three_chunks().finish();
+    const ChunkAt c = records_chunks(file)[1];
+    const uint64_t remain = file.size() - c.offset - f::kChunkHeaderSize;
+    edit_chunk_header(file, c.offset, [&](f::ChunkHeader& h) {
+        h.compressed_size = static_cast<uint32_t>(remain + 1);
+        h.raw_size = h.compressed_size;
+    });
+    return {"past_the_end_by_one",
+            std::move(file),
+            TraceErrorCode::kLengthOutOfRange,
+            c.offset + offsetof(f::ChunkHeader, compressed_size),
+            "chunk 1 claims " + std::to_string(remain + 1) + " compressed bytes but only " +
+                std::to_string(remain) + " remain in the file, which its trailer says is whole",
+            {0, 1, 4, 5}};
+}
+
+// The same without index and trailer: the last chunk of a file cut one byte short of it.
+DamageCase last_chunk_one_byte_short() {
+    const std::vector<uint8_t> whole = three_chunks().finish();
+    const ChunkAt c = records_chunks(whole)[2];
+    const uint64_t end = c.offset + f::kChunkHeaderSize + c.header.compressed_size;
+    std::vector<uint8_t> file(whole.begin(), whole.begin() + static_cast<long>(end - 1));
+    return {"last_chunk_one_byte_short",
+            std::move(file),
+            TraceErrorCode::kTruncated,
+            c.offset + offsetof(f::ChunkHeader, compressed_size),
+            "chunk 2 claims " + std::to_string(c.header.compressed_size) +
+                " compressed bytes but only " + std::to_string(c.header.compressed_size - 1) +
+                " remain in the file",
+            {0, 1, 2, 3}};
+}
+
+// Chunk 1's payload is empty (no zstd frame at all) under a header claiming 96 raw bytes.
+DamageCase empty_payload() {
+    CraftedTrace t;
+    t.add_records({submit(0), submit(1)});
+    const uint64_t at = t.add_payload({}, 96, 2, 2);
+    t.add_records({submit(4), submit(5)});
+    return {"empty_payload",
+            t.finish(),
+            TraceErrorCode::kDecompressFailed,
+            at + f::kChunkHeaderSize,
+            "chunk 1 zstd frame does not declare the chunk's 96 raw bytes",
+            {0, 1, 4, 5}};
+}
+
+// Chunk 1 is a zstd frame of nothing, under a header claiming 2 records.
+DamageCase empty_frame() {
+    CraftedTrace t;
+    t.add_records({submit(0), submit(1)});
+    const uint64_t at = t.add_payload(CraftedTrace::compress({}), 0, 2, 2);
+    t.add_records({submit(4), submit(5)});
+    return {"empty_frame",
+            t.finish(),
+            TraceErrorCode::kInvalidRecord,
+            at,
+            "chunk 1 header says 2 records, its payload holds 0",
+            {0, 1, 4, 5}};
+}
+
+// The index lists chunk 1 before chunk 0 (their offsets swapped): offsets that go back.
+DamageCase index_offsets_going_back() {
+    CraftedTrace t = three_chunks();
+    const uint64_t index_at = t.file().size();
+    std::vector<uint8_t> file = t.finish([](fbs::TraceIndexT& i) {
+        const uint64_t first = i.chunks[0].file_offset();
+        const uint64_t second = i.chunks[1].file_offset();
+        edit_location(i.chunks[0], [&](Location& l) { l.file_offset = second; });
+        edit_location(i.chunks[1], [&](Location& l) { l.file_offset = first; });
+    });
+    const uint64_t first = records_chunks(file)[0].offset;
+    return {"index_offsets_going_back",
+            std::move(file),
+            TraceErrorCode::kBadIndex,
+            index_at,
+            "index: entry 1 places a chunk at offset " + std::to_string(first) +
+                ", outside the records after offset",
+            kAllSix};
+}
+
+// The index (and its chunk's header, which must agree) lists a fourth chunk, where the index
+// itself lies.
+DamageCase index_listing_a_chunk_too_many() {
+    CraftedTrace t = three_chunks();
+    const uint64_t index_at = t.file().size();
+    std::vector<uint8_t> file = t.finish([&](fbs::TraceIndexT& i) {
+        i.chunks.emplace_back(index_at, 6, 2, 2, 64, 64);
+        i.submission_count += 2;
+        i.record_count += 2;
+    });
+    return {"index_listing_a_chunk_too_many",
+            std::move(file),
+            TraceErrorCode::kBadIndex,
+            index_at,
+            "index: entry 3 places a chunk at offset " + std::to_string(index_at),
+            kAllSix};
+}
+
+// The index chunk's header counts 4 chunks, its index lists 3: the index is not used.
+DamageCase index_header_claiming_a_chunk_too_many() {
+    CraftedTrace t = three_chunks();
+    const uint64_t index_at = t.file().size();
+    std::vector<uint8_t> file = t.finish();
+    edit_chunk_header(file, index_at, [](f::ChunkHeader& h) { h.chunk_number = 4; });
+    return {"index_header_claiming_a_chunk_too_many",
+            std::move(file),
+            TraceErrorCode::kBadIndex,
+            index_at,
+            "index chunk header disagrees with the index (record count 0, first submission 6, "
+            "chunk number 4)",
+            kAllSix};
+}
+
+std::vector<DamageCase> damage_cases() {
+    return {chunk_one_byte_past_the_end(),
+            last_chunk_one_byte_short(),
+            empty_payload(),
+            empty_frame(),
+            index_offsets_going_back(),
+            index_listing_a_chunk_too_many(),
+            index_header_claiming_a_chunk_too_many()};
+}
+
+TEST(HostileTrace, DamageTheSamplesLackIsReportedWithFileAndOffset) {
+    for (const DamageCase& c : damage_cases()) {
+        SCOPED_TRACE(c.name);
+        const Read r = read(c.file);
+        const TraceError* e = find_damage(r, c.code, c.text);
+        ASSERT_NE(e, nullptr) << describe(r.damage);
+        EXPECT_EQ(e->file_offset, c.offset) << e->message;
+        EXPECT_EQ(e->message.rfind("hostile.clt: offset " + std::to_string(c.offset) + ": ", 0), 0u)
+            << e->message;
+        EXPECT_EQ(r.submission_indices, c.submissions);
+    }
+}
+
 // ---- The CLI's verdict: exit 1 from info, replay and analyze. ----
 
-int exit_code(const std::string& args) {
-    const std::string cmd = std::string(CLASTRACE_BIN) + " " + args + " >/dev/null 2>&1";
-    int status = std::system(cmd.c_str());
-    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+ShellRun run_clastrace(const std::string& args) {
+    return run_shell(std::string(CLASTRACE_BIN) + " " + args + " 2>&1");
 }
+
+int exit_code(const std::string& args) { return run_clastrace(args).exit_code; }
 
 void expect_damage_verdict(const std::vector<uint8_t>& file, const std::string& name) {
     const std::string path = temp_path(name + ".clt");
@@ -415,12 +579,7 @@ TEST(HostileTraceCli, IntactCraftedTraceIsClean) {
 
 TEST(HostileTraceCli, RelabelledChunkIsDamage) {
     std::vector<uint8_t> file = three_chunks().finish();
-    uint64_t at = f::kFileHeaderSize + f::align8(f::load<uint32_t>(file.data() + 12));
-    f::ChunkHeader h;
-    std::memcpy(&h, file.data() + at, sizeof h);
-    h.kind = 3;
-    h.header_checksum = f::chunk_header_checksum(h);
-    std::memcpy(file.data() + at, &h, sizeof h);
+    edit_chunk_header(file, records_chunks(file)[0].offset, [](f::ChunkHeader& h) { h.kind = 3; });
     expect_damage_verdict(file, "relabelled");
 }
 
@@ -439,15 +598,31 @@ TEST(HostileTraceCli, ContentsFailingTheirKeyAreDamage) {
 
 TEST(HostileTraceCli, DuplicatedChunkIsDamageNotUnreadable) {
     std::vector<uint8_t> file = three_chunks().finish();
-    uint64_t first = f::kFileHeaderSize + f::align8(f::load<uint32_t>(file.data() + 12));
-    f::ChunkHeader h0;
-    std::memcpy(&h0, file.data() + first, sizeof h0);
-    const uint64_t second = first + f::kChunkHeaderSize + h0.compressed_size;
+    const std::vector<ChunkAt> chunks = records_chunks(file);
+    const uint64_t first = chunks[0].offset, second = chunks[1].offset;
     std::vector<uint8_t> dup(file.begin(), file.begin() + static_cast<long>(second));
     dup.insert(dup.end(), file.begin() + static_cast<long>(first),
                file.begin() + static_cast<long>(second));
     dup.insert(dup.end(), file.begin() + static_cast<long>(second), file.end());
     expect_damage_verdict(dup, "duplicated");
+}
+
+// `clastrace info` and `clastrace replay` exit 1 on each, and print the problem with the file
+// and the offset.
+TEST(HostileTraceCli, DamageTheSamplesLackIsNamedWithFileAndOffset) {
+    for (const DamageCase& c : damage_cases()) {
+        SCOPED_TRACE(c.name);
+        const std::string path = temp_path(c.name + ".clt");
+        write_file(path, c.file);
+        for (const char* command : {"info", "replay"}) {
+            const ShellRun r = run_clastrace(std::string(command) + " " + path);
+            EXPECT_EQ(r.exit_code, 1) << command << "\n" << r.output;
+            EXPECT_NE(r.output.find(path + ": offset " + std::to_string(c.offset) + ": " + c.text),
+                      std::string::npos)
+                << command << "\n"
+                << r.output;
+        }
+    }
 }
 
 // A captured trace rewritten in 4 KiB chunks, so that its two submissions and the commands

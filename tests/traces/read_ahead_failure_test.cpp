@@ -1,9 +1,10 @@
 // SPDX-License-Identifier: Apache-2.0
 // The read-ahead thread's failures (docs/trace-format.md, "Reading ahead"): a read error, a
 // chunk the file ends in, a payload that does not decompress and an allocation failure on the
-// thread. What the thread reports is what the caller's thread reports reading the same chunk
-// itself (same records, same damage, file and offset included); a thread that threw (out of
-// memory) has its chunk read again on the caller's thread; the thread is gone with the reader.
+// thread. A thread that threw (out of memory) or whose read failed has its chunk read again on
+// the caller's thread, so a transient read error is recovered; the thread's other verdicts are
+// what the caller's thread reports reading the same chunk itself (same records, same damage,
+// file and offset included); the thread is gone with the reader.
 #include "failing_source.h"
 #include "records_chunks.h"
 #include "trace_test_support.h"
@@ -90,24 +91,53 @@ TEST_F(ReadAheadFailure, AnAllocationFailureOnTheThreadHasItsChunkReadOnTheCalle
     EXPECT_EQ(fell_back.stats.chunks_read, clean.stats.chunks_read);
 }
 
-// Only the thread's read of chunk 2 fails: its error, made on the thread, names the file and the
-// offset and is the one the caller's thread gives when its own read fails there.
-TEST_F(ReadAheadFailure, AReadErrorOnTheThreadIsTheErrorOfReadingOnTheCallersThread) {
-    const ChunkAt& c = chunks[2];
-    auto on_thread = std::make_shared<ReadFailure>();
-    on_thread->from = c.offset;
-    on_thread->to = c.offset + f::kChunkHeaderSize + c.header.compressed_size;
+// A read of chunk 2 that fails as `failure` says (its range set here).
+ReadResult read_failing(const std::vector<uint8_t>& file, const ChunkAt& c,
+                        const std::shared_ptr<ReadFailure>& failure) {
+    failure->from = c.offset;
+    failure->to = c.offset + f::kChunkHeaderSize + c.header.compressed_size;
     TraceError e;
-    const ReadResult got = drain(open_failing(file, "failing.clt", on_thread, &e), e);
-    EXPECT_GE(on_thread->failed.load(), 1u);
+    return drain(open_failing(file, "failing.clt", failure, &e), e);
+}
 
+// Only the thread's read of chunk 2 fails: the caller's thread reads it again, and the read is
+// the clean one.
+TEST_F(ReadAheadFailure, AReadErrorOnTheThreadHasItsChunkReadAgainOnTheCallersThread) {
+    const ReadResult clean = read_all(path);
+    ASSERT_EQ(clean.damage_count, 0u) << describe(clean.damage);
+    auto on_thread = std::make_shared<ReadFailure>();
+    const ReadResult got = read_failing(file, chunks[2], on_thread);
+    EXPECT_GE(on_thread->failed.load(), 1u);
+    EXPECT_EQ(got.damage_count, 0u) << describe(got.damage);
+    expect_same_read(got, clean);
+    EXPECT_EQ(got.stats.chunks_read, clean.stats.chunks_read);
+}
+
+// The first read of chunk 2, whichever thread makes it (the read-ahead thread), fails once: a
+// transient error costs nothing.
+TEST_F(ReadAheadFailure, ATransientReadErrorIsRecoveredWithTheSameRecords) {
+    const ReadResult clean = read_all(path);
+    auto once = std::make_shared<ReadFailure>();
+    once->read_ahead_thread_only = false;
+    once->max_failures = 1;
+    const ReadResult got = read_failing(file, chunks[2], once);
+    EXPECT_EQ(once->failed.load(), 1u);
+    EXPECT_EQ(got.damage_count, 0u) << describe(got.damage);
+    expect_same_read(got, clean);
+}
+
+// Every read of chunk 2 fails: the error is the one the caller's thread gives reading it alone,
+// naming the file and the offset, and the read stops there.
+TEST_F(ReadAheadFailure, APersistentReadErrorIsTheErrorOfReadingOnTheCallersThread) {
+    const ChunkAt& c = chunks[2];
     auto everywhere = std::make_shared<ReadFailure>();
-    everywhere->from = on_thread->from;
-    everywhere->to = on_thread->to;
     everywhere->read_ahead_thread_only = false;
-    const ReadResult expected = read_on_callers_thread(
-        [&] { return drain(open_failing(file, "failing.clt", everywhere, &e), e); });
-    expect_same_read(got, expected);
+    const ReadResult got = read_failing(file, c, everywhere);
+    EXPECT_GE(everywhere->failed.load(), 2u);  // the thread's read, then the caller's
+
+    auto alone = std::make_shared<ReadFailure>();
+    alone->read_ahead_thread_only = false;
+    expect_same_read(got, read_on_callers_thread([&] { return read_failing(file, c, alone); }));
 
     ASSERT_EQ(got.damage.size(), 1u) << describe(got.damage);
     const TraceError& err = got.damage[0];
@@ -135,7 +165,8 @@ TEST_F(ReadAheadFailure, AChunkTheFileEndsInIsReportedAsOnTheCallersThread) {
 }
 
 // The file shrinks under the reader (cut inside chunk 3 once it is open): the thread's read
-// comes back short, and the error names the file, the offset and what the read met.
+// comes back short, so does the caller's read again, and the error names the file, the offset
+// and what the read met.
 TEST_F(ReadAheadFailure, AFileCutWhileReadIsReportedAsOnTheCallersThread) {
     const ChunkAt& c = chunks[3];
     const uint64_t cut_at = c.offset + f::kChunkHeaderSize + 100;

@@ -3,6 +3,7 @@
 // a trace from an older or foreign writer whose application, engine and device names and ray
 // check labels are Latin-1. Every JSON document and HTML page it prints or writes stays valid
 // UTF-8 (each bad byte read as U+FFFD), and the exit code is that of the same trace with good names.
+#include "shell_run.h"
 #include "trace_test_support.h"
 #include "unrepaired_trace.h"
 
@@ -11,10 +12,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
-#include <array>
-#include <cstdio>
 #include <filesystem>
-#include <sys/wait.h>
 
 namespace clastrace::traces::testing {
 namespace {
@@ -24,38 +22,26 @@ using nlohmann::json;
 
 const std::string R = "\xEF\xBF\xBD";  // U+FFFD
 
-struct ProgramRun {
-    int exit_code = -1;
-    std::string out;  // stdout only
-};
+using ProgramRun = ShellRun;  // output: stdout only
 
 // `path` as one shell word (single quotes; the bytes inside pass as they are).
 std::string word(const std::string& path) { return "'" + path + "'"; }
 
 ProgramRun run(const std::string& args) {
-    ProgramRun r;
-    const std::string command = std::string(CLASTRACE_BIN) + " " + args + " 2>/dev/null";
-    FILE* p = popen(command.c_str(), "r");
-    if (!p) return r;
-    std::array<char, 4096> buffer;
-    size_t n;
-    while ((n = fread(buffer.data(), 1, buffer.size(), p)) > 0) r.out.append(buffer.data(), n);
-    const int status = pclose(p);
-    r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;  // -1 too for an abort
-    return r;
+    return run_shell(std::string(CLASTRACE_BIN) + " " + args + " 2>/dev/null");
 }
 
 // Runs `command` on `trace` and parses its stdout, failing the test if it is not UTF-8 JSON.
 json run_json(const std::string& command, const std::string& trace, int* exit_code) {
     ProgramRun r = run(command + " " + word(trace));
     *exit_code = r.exit_code;
-    EXPECT_TRUE(is_valid_utf8(r.out)) << command << " printed bytes that are not UTF-8";
+    EXPECT_TRUE(is_valid_utf8(r.output)) << command << " printed bytes that are not UTF-8";
     try {
-        return json::parse(r.out);
+        return json::parse(r.output);
     } catch (const json::exception& e) {
         ADD_FAILURE() << command << " on " << trace << " (exit " << r.exit_code << "): " << e.what()
                       << "\n"
-                      << r.out;
+                      << r.output;
         return json();
     }
 }

@@ -91,12 +91,16 @@ ChunkStatus TraceReader::Impl::read_checked_payload(ChunkDecoder& d, uint64_t of
     }
     uint64_t payload = offset + format::kChunkHeaderSize;
     if (h->compressed_size > size - payload) {
-        *err = error(TraceErrorCode::kTruncated,
+        // An intact index and trailer say the file ends where it should: the header lies, and
+        // the chunks after it are still there to read.
+        const bool file_whole = index != nullptr;
+        *err = error(file_whole ? TraceErrorCode::kLengthOutOfRange : TraceErrorCode::kTruncated,
                      offset + offsetof(format::ChunkHeader, compressed_size),
                      what + " claims " + std::to_string(h->compressed_size) +
                          " compressed bytes but only " + std::to_string(size - payload) +
-                         " remain in the file");
-        return ChunkStatus::kTruncated;
+                         " remain in the file" +
+                         (file_whole ? ", which its trailer says is whole" : ""));
+        return file_whole ? ChunkStatus::kBadHeader : ChunkStatus::kTruncated;
     }
     release_if_big(compressed, h->compressed_size);
     resize_exact(compressed, h->compressed_size);

@@ -40,9 +40,7 @@ using namespace reader;
 bool TraceReader::Impl::decode_delta(const ContentsRecord& c, uint32_t at,
                                      SharedBytes* ahead_bytes) {
     auto problem = [&](TraceErrorCode code, const std::string& why) {
-        report_with(code, chunk_offset, [&] {
-            return record_place(at) + ": delta contents " + hex(c.hash) + " " + why;
-        });
+        report_record(code, at, [&] { return ": delta contents " + hex(c.hash) + " " + why; });
         return false;
     };
     if (!known_byte_planes(c.byte_planes))

@@ -240,7 +240,14 @@ struct TraceReader::Impl {
 
     void resync(uint64_t from);
 
+    // "chunk N record K (raw offset R)": where a record's problems are, at the chunk's offset.
     std::string record_place(uint32_t raw_offset) const;
+    // A problem of the loaded chunk's record at raw offset `at`: record_place(at) followed by
+    // what `problem` says (": ..." or " (kind): ...").
+    template <class MakeProblem>
+    void report_record(TraceErrorCode code, uint32_t at, MakeProblem&& problem) {
+        report_with(code, chunk_offset, [&] { return record_place(at) + problem(); });
+    }
 
     // Decodes the record at `cursor` of the loaded chunk.
     RecordStatus parse_record(RecordView* out);
@@ -308,8 +315,9 @@ struct TraceReader::Impl {
     // The chunks the task may read besides its own (HeldChunk): `loaded` and the older ones.
     HeldChunks held_chunks(HeldChunk loaded) const;
 
-    // The read-ahead task's result; nullopt when the task failed (it threw: out of memory), and
-    // the chunk is then read on this thread, whose errors carry the file and the offset.
+    // The read-ahead task's result; nullopt when the task failed (it threw: out of memory) or
+    // its read of the file did (a read error may be transient, unlike a verdict on bytes read),
+    // and the chunk is then read again on this thread, whose errors carry the file and offset.
     std::optional<ReadAhead> take_read_ahead();
 
     // On the read-ahead task: the real bytes of the contents of chunk `r` (at `offset`) that it

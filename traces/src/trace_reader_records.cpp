@@ -19,17 +19,18 @@ RecordStatus TraceReader::Impl::parse_record(RecordView* out) {
     const uint32_t at = static_cast<uint32_t>(cursor);
     const size_t remaining = raw.size() - cursor;
     if (remaining < format::kRecordFrameSize) {
-        report(TraceErrorCode::kInvalidRecord, chunk_offset,
-               record_place(at) + ": frame needs 8 bytes, " + std::to_string(remaining) +
-                   " remain");
+        report_record(TraceErrorCode::kInvalidRecord, at, [&] {
+            return ": frame needs 8 bytes, " + std::to_string(remaining) + " remain";
+        });
         return RecordStatus::kStopChunk;
     }
     uint32_t rsize = format::load<uint32_t>(raw.data() + cursor);
     uint32_t rkind = format::load<uint32_t>(raw.data() + cursor + 4);
     if (rsize > remaining - format::kRecordFrameSize) {
-        report(TraceErrorCode::kLengthOutOfRange, chunk_offset,
-               record_place(at) + ": claims " + std::to_string(rsize) + " bytes, only " +
-                   std::to_string(remaining - format::kRecordFrameSize) + " remain in the chunk");
+        report_record(TraceErrorCode::kLengthOutOfRange, at, [&] {
+            return ": claims " + std::to_string(rsize) + " bytes, only " +
+                   std::to_string(remaining - format::kRecordFrameSize) + " remain in the chunk";
+        });
         return RecordStatus::kStopChunk;
     }
     const uint8_t* bytes = raw.data() + cursor + format::kRecordFrameSize;
@@ -39,22 +40,21 @@ RecordStatus TraceReader::Impl::parse_record(RecordView* out) {
 
     flatbuffers::Verifier verifier(bytes, rsize, 64, 10'000'000);
     if (!fbs::VerifyRecordBuffer(verifier)) {
-        report_with(TraceErrorCode::kInvalidRecord, chunk_offset,
-                    [&] { return record_place(at) + ": fails the FlatBuffers verifier"; });
+        report_record(TraceErrorCode::kInvalidRecord, at,
+                      [] { return ": fails the FlatBuffers verifier"; });
         return RecordStatus::kBroken;
     }
     const fbs::Record* record = fbs::GetRecord(bytes);
     fbs::RecordBody kind = record->body_type();
     if (static_cast<uint32_t>(kind) != rkind) {
-        report_with(TraceErrorCode::kInvalidRecord, chunk_offset, [&] {
-            return record_place(at) + ": frame says kind " + std::to_string(rkind) +
-                   ", record holds " + std::to_string(static_cast<unsigned>(kind));
+        report_record(TraceErrorCode::kInvalidRecord, at, [&] {
+            return ": frame says kind " + std::to_string(rkind) + ", record holds " +
+                   std::to_string(static_cast<unsigned>(kind));
         });
         return RecordStatus::kBroken;
     }
     if (kind == fbs::RecordBody::NONE || record->body() == nullptr) {
-        report_with(TraceErrorCode::kInvalidRecord, chunk_offset,
-                    [&] { return record_place(at) + ": record has no body"; });
+        report_record(TraceErrorCode::kInvalidRecord, at, [] { return ": record has no body"; });
         return RecordStatus::kBroken;
     }
     if (!check_record(*record, at)) return RecordStatus::kSkip;
@@ -80,9 +80,8 @@ bool TraceReader::Impl::check_record(const fbs::Record& record, uint32_t at) {
                            ? format::content_key(data, n, c->seed, hash_bits)
                            : c->hash;
         if (key != c->hash) {
-            report_with(TraceErrorCode::kContentMismatch, chunk_offset, [&] {
-                return record_place(at) + ": contents " + hex(c->hash) + " hold bytes hashing to " +
-                       hex(key);
+            report_record(TraceErrorCode::kContentMismatch, at, [&] {
+                return ": contents " + hex(c->hash) + " hold bytes hashing to " + hex(key);
             });
             return false;
         }
@@ -97,15 +96,15 @@ bool TraceReader::Impl::check_record(const fbs::Record& record, uint32_t at) {
         for (const fbs::MemorySnapshot* s : *list) {
             auto it = contents.find(s->hash());
             if (it == contents.end() || (!it->second.seen_in_scan && !seeked)) {
-                report_with(TraceErrorCode::kMissingContents, chunk_offset, [&] {
-                    return record_place(at) + " (" + record_kind_name(record.body_type()) +
+                report_record(TraceErrorCode::kMissingContents, at, [&] {
+                    return std::string(" (") + record_kind_name(record.body_type()) +
                            "): snapshot of address " + hex(s->address()) + " refers to contents " +
                            hex(s->hash()) + " that no earlier record defines";
                 });
                 ok = false;
             } else if (it->second.size != s->size()) {
-                report_with(TraceErrorCode::kContentMismatch, chunk_offset, [&] {
-                    return record_place(at) + " (" + record_kind_name(record.body_type()) +
+                report_record(TraceErrorCode::kContentMismatch, at, [&] {
+                    return std::string(" (") + record_kind_name(record.body_type()) +
                            "): snapshot of address " + hex(s->address()) + " has size " +
                            std::to_string(s->size()) + " but contents " + hex(s->hash()) +
                            " hold " + std::to_string(it->second.size) + " bytes";
@@ -117,10 +116,9 @@ bool TraceReader::Impl::check_record(const fbs::Record& record, uint32_t at) {
     if (!ok) return false;
     if (const auto* q = record.body_as_QueueSubmit()) {
         if (q->submission_index() != next_submission) {
-            report_with(TraceErrorCode::kInvalidRecord, chunk_offset, [&] {
-                return record_place(at) + ": submission_index " +
-                       std::to_string(q->submission_index()) + ", expected " +
-                       std::to_string(next_submission);
+            report_record(TraceErrorCode::kInvalidRecord, at, [&] {
+                return ": submission_index " + std::to_string(q->submission_index()) +
+                       ", expected " + std::to_string(next_submission);
             });
         }
         next_submission = q->submission_index() + 1;
