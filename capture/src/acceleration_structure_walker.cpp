@@ -1,31 +1,11 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "clastrace/capture/acceleration_structure_walker.h"
+#include "clastrace/engine/vertex_format.h"
 
 #include <cstring>
 
 namespace clastrace::capture {
 namespace {
-
-uint32_t vertex_bytes(VkFormat format) {
-    switch (format) {
-    case VK_FORMAT_R32G32B32_SFLOAT: return 12;
-    case VK_FORMAT_R32G32_SFLOAT: return 8;
-    case VK_FORMAT_R16G16B16A16_SFLOAT:
-    case VK_FORMAT_R16G16B16A16_SNORM: return 8;
-    case VK_FORMAT_R16G16_SFLOAT:
-    case VK_FORMAT_R16G16_SNORM: return 4;
-    default: return 0;
-    }
-}
-
-uint32_t index_bytes(VkIndexType type) {
-    switch (type) {
-    case VK_INDEX_TYPE_UINT16: return 2;
-    case VK_INDEX_TYPE_UINT32: return 4;
-    case VK_INDEX_TYPE_UINT8_EXT: return 1;
-    default: return 0;  // VK_INDEX_TYPE_NONE_NV: no index buffer
-    }
-}
 
 struct BufferWalker {
     const BufferMemoryReader& read;
@@ -77,7 +57,7 @@ ClusterMemoryWalk walk_build_acceleration_structure_nv_inputs(
         const VkGeometryNV& geometry = c.geometries[g];
         if (geometry.geometryType == VK_GEOMETRY_TYPE_TRIANGLES_NV) {
             const VkGeometryTrianglesNV& t = geometry.geometry.triangles;
-            const uint32_t vb = vertex_bytes(t.vertexFormat);
+            const uint32_t vb = engine::vertex_format_bytes(t.vertexFormat);
             if (vb == 0)
                 out.issues.push_back({0, 0,
                                       "vertexFormat " + std::to_string(int(t.vertexFormat)) +
@@ -86,7 +66,7 @@ ClusterMemoryWalk walk_build_acceleration_structure_nv_inputs(
             else
                 walker.capture_strided(MemoryRole::kVertexBuffer, g, uint64_t(t.vertexData),
                                        t.vertexOffset, t.vertexCount, t.vertexStride, vb);
-            if (const uint32_t ib = index_bytes(t.indexType))
+            if (const uint32_t ib = engine::index_type_bytes(t.indexType))
                 walker.capture(MemoryRole::kIndexBuffer, g, uint64_t(t.indexData), t.indexOffset,
                                uint64_t(t.indexCount) * ib);
             walker.capture(MemoryRole::kTransformData, g, uint64_t(t.transformData),

@@ -1,5 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "clastrace/capture/cluster_input_walker.h"
+#include "clastrace/engine/vertex_format.h"
 
 #include <cstring>
 
@@ -136,7 +137,7 @@ void follow_triangle_cluster(Walker& walker, uint32_t entry, const uint8_t* byte
                                uint64_t(triangles) * 3, info.indexBufferStride, index_bytes);
 
     const uint32_t vertex_bytes =
-        cluster_vertex_format_bytes(p.triangle_cluster_input.vertexFormat);
+        engine::vertex_format_bytes(p.triangle_cluster_input.vertexFormat);
     if (info.vertexBuffer != 0) {
         if (vertex_bytes == 0)
             walker.issue(info.vertexBuffer, 0,
@@ -199,7 +200,7 @@ void follow_entry(Walker& walker, uint32_t entry, const uint8_t* bytes,
         std::memcpy(&info, bytes, sizeof info);
         if (info.vertexBuffer.startAddress == 0) break;
         const uint32_t vertex_bytes =
-            cluster_vertex_format_bytes(p.triangle_cluster_input.vertexFormat);
+            engine::vertex_format_bytes(p.triangle_cluster_input.vertexFormat);
         uint32_t vertices = 0;
         if (vertex_bytes == 0 || !template_vertex_count ||
             !template_vertex_count(info.clusterTemplateAddress, &vertices)) {
@@ -269,18 +270,6 @@ bool follow_indirect_cell(Walker& walker, VkDeviceAddress& address) {
 }
 
 }  // namespace
-
-uint32_t cluster_vertex_format_bytes(VkFormat format) {
-    switch (format) {
-    case VK_FORMAT_R32G32B32_SFLOAT: return 12;
-    case VK_FORMAT_R32G32B32A32_SFLOAT: return 16;
-    case VK_FORMAT_R16G16B16A16_SFLOAT: return 8;
-    case VK_FORMAT_R16G16B16_SFLOAT: return 6;
-    case VK_FORMAT_R16G16B16A16_SNORM: return 8;
-    case VK_FORMAT_R16G16_SFLOAT: return 4;
-    default: return 0;
-    }
-}
 
 ClusterMemoryWalk walk_cluster_inputs(const ClusterCommandParameters& p,
                                       const DeviceMemoryReader& read,

@@ -1,5 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "clastrace/capture/khr_input_walker.h"
+#include "clastrace/engine/vertex_format.h"
 
 #include <cstring>
 
@@ -27,27 +28,6 @@ bool khr_ranges_from_indirect_bytes(const uint8_t* bytes, uint64_t size, uint32_
 }
 
 namespace {
-
-uint32_t vertex_bytes(VkFormat format) {
-    switch (format) {
-    case VK_FORMAT_R32G32B32_SFLOAT: return 12;
-    case VK_FORMAT_R32G32_SFLOAT: return 8;
-    case VK_FORMAT_R16G16B16A16_SFLOAT:
-    case VK_FORMAT_R16G16B16A16_SNORM: return 8;
-    case VK_FORMAT_R16G16_SFLOAT:
-    case VK_FORMAT_R16G16_SNORM: return 4;
-    default: return 0;
-    }
-}
-
-uint32_t index_bytes(VkIndexType type) {
-    switch (type) {
-    case VK_INDEX_TYPE_UINT16: return 2;
-    case VK_INDEX_TYPE_UINT32: return 4;
-    case VK_INDEX_TYPE_UINT8_EXT: return 1;
-    default: return 0;  // VK_INDEX_TYPE_NONE_KHR: no index buffer
-    }
-}
 
 // Reads ranges by device address (and source structures by buffer), within the per-command limit.
 struct KhrWalker {
@@ -110,14 +90,14 @@ struct KhrWalker {
 void KhrWalker::triangles(uint32_t entry, const VkAccelerationStructureGeometryTrianglesDataKHR& t,
                           const VkAccelerationStructureBuildRangeInfoKHR& r) {
     if (r.primitiveCount == 0) return;
-    const uint64_t element = vertex_bytes(t.vertexFormat);
+    const uint64_t element = engine::vertex_format_bytes(t.vertexFormat);
     const uint64_t stride = t.vertexStride ? t.vertexStride : element;
     if (element == 0) {
         out.issues.push_back({t.vertexData.deviceAddress, 0,
                               "vertexFormat " + std::to_string(int(t.vertexFormat)) +
                                   " of geometry " + std::to_string(entry) +
                                   " has no known size; vertices not captured"});
-    } else if (const uint32_t ib = index_bytes(t.indexType)) {
+    } else if (const uint32_t ib = engine::index_type_bytes(t.indexType)) {
         capture(MemoryRole::kIndexBuffer, entry, t.indexData.deviceAddress + r.primitiveOffset,
                 uint64_t(r.primitiveCount) * 3 * ib);
         capture(MemoryRole::kVertexBuffer, entry,

@@ -28,6 +28,19 @@ VertexFormatInfo vertex_format_info(VkFormat format) {
     }
 }
 
+uint32_t vertex_format_bytes(VkFormat format) {
+    return format == VK_FORMAT_R16G16B16_SNORM ? 6 : vertex_format_info(format).size;
+}
+
+uint32_t index_type_bytes(VkIndexType type) {
+    switch (type) {
+    case VK_INDEX_TYPE_UINT16: return 2;
+    case VK_INDEX_TYPE_UINT32: return 4;
+    case VK_INDEX_TYPE_UINT8_EXT: return 1;
+    default: return 0;
+    }
+}
+
 namespace {
 
 float half_to_float(uint16_t h) {

@@ -131,3 +131,19 @@ TEST(AccelerationStructureWalker, CopyMemoryReadsTheSizeTheHeaderStates) {
     ASSERT_EQ(walk.ranges.size(), 1u);
     EXPECT_EQ(walk.ranges[0].bytes.size(), 2u * VK_UUID_SIZE + 8);  // the header alone
 }
+
+// VUID-VkGeometryTrianglesNV-vertexFormat-02430 allows the 16-bit three-component formats: their
+// vertices are captured by their 6 bytes, not reported as unknown.
+TEST_F(TwoBuffers, NVBuildCapturesSixByteVertexFormats) {
+    for (VkFormat format : {VK_FORMAT_R16G16B16_SFLOAT, VK_FORMAT_R16G16B16_SNORM}) {
+        BuildAccelerationStructureNVCommand c;
+        c.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV;
+        VkGeometryNV g = triangles(kGeometry);
+        g.geometry.triangles.vertexFormat = format;
+        c.geometries = {g};
+        ClusterMemoryWalk walk = walk_build_acceleration_structure_nv_inputs(c, reader());
+        ASSERT_TRUE(walk.issues.empty()) << walk.issues[0].rule;
+        ASSERT_EQ(walk.ranges[0].role, MemoryRole::kVertexBuffer);
+        EXPECT_EQ(walk.ranges[0].bytes.size(), 2u * 16 + 6) << "format " << format;
+    }
+}

@@ -174,3 +174,23 @@ TEST_F(KhrWalkerMemory, ArrayOfPointersCapturesThePointersAndEachInstance) {
         EXPECT_EQ(r->bytes.size(), kKhrInstanceBytes);
     }
 }
+
+// Optional vertex formats a driver may report the acceleration-structure vertex feature for are
+// captured by their size (here 8-byte R16G16B16A16_UNORM), as the engine decodes them.
+TEST_F(KhrWalkerMemory, OptionalVertexFormatsAreCapturedByTheirSize) {
+    const VkDeviceAddress vertices = kBase + 256, indices = kBase + 1024;
+    BuildAccelerationStructuresKHRCommand c;
+    KhrBuildInfo info;
+    info.info.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR;
+    info.geometries.push_back(indexed_triangles(vertices, indices));
+    info.geometries[0].geometry.triangles.vertexFormat = VK_FORMAT_R16G16B16A16_UNORM;
+    info.ranges = {VkAccelerationStructureBuildRangeInfoKHR{2, 0, 0, 0}};
+    c.infos.push_back(info);
+    std::vector<std::vector<VkAccelerationStructureBuildRangeInfoKHR>> read_ranges;
+    ClusterMemoryWalk walk =
+        walk_build_acceleration_structures_khr_inputs(c, reader(), no_buffers(), read_ranges);
+    EXPECT_TRUE(walk.issues.empty()) << walk.issues[0].rule;
+    const CapturedRange* vertex_range = find(walk, MemoryRole::kVertexBuffer, vertices);
+    ASSERT_NE(vertex_range, nullptr);
+    EXPECT_EQ(vertex_range->bytes.size(), 5u * 16 + 8);  // vertices 0..maxVertex (5)
+}

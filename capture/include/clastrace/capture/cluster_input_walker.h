@@ -31,9 +31,6 @@ struct ClusterMemoryWalk {
 using TemplateVertexCountLookup =
     std::function<bool(VkDeviceAddress template_address, uint32_t* vertex_count)>;
 
-// Bytes of one vertex of `format` as the extension accepts it; 0 for a format it does not.
-uint32_t cluster_vertex_format_bytes(VkFormat format);
-
 // What the command reads, to be called while the queue is stopped just before it.
 ClusterMemoryWalk walk_cluster_inputs(const ClusterCommandParameters& parameters,
                                       const DeviceMemoryReader& read,

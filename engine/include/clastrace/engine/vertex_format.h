@@ -28,6 +28,16 @@ struct VertexFormatInfo {
 
 VertexFormatInfo vertex_format_info(VkFormat format);
 
+// Bytes of one tightly packed vertex of `format` for any build that may name it: the formats
+// above and the NV-only R16G16B16_SNORM (VUID-VkGeometryTrianglesNV-vertexFormat-02430); 0 for
+// a format no build decodes. What capture saves a vertex by, whichever rule the build breaks.
+uint32_t vertex_format_bytes(VkFormat format);
+
+// Bytes of one index of `type`; 0 for VK_INDEX_TYPE_NONE_KHR (no index buffer) and types no
+// build names. UINT8 counts (1): no build allows it, but capture keeps its bytes for replay
+// to name the rule.
+uint32_t index_type_bytes(VkIndexType type);
+
 // Decodes one vertex at `src` (format size bytes, any alignment) into xyz.
 void decode_vertex(VkFormat format, const std::byte* src, float xyz[3]);
 
