@@ -7,6 +7,7 @@
 #include "clastrace/engine/blas.h"
 
 #include "geometry/slab.h"
+#include "spill_stack.h"
 
 #include <algorithm>
 #include <cmath>
@@ -80,29 +81,18 @@ void walk_bytes(std::span<const std::byte> blas, const Ray& ray, TraversalMode m
         uint32_t node;
         double entry;
     };
-    Entry stack[128];
+    Entry entries[128];
     std::vector<Entry> overflow;
-    int sp = 0;
-    auto push = [&](uint32_t node, double entry) {
-        if (sp < 128)
-            stack[sp++] = Entry{node, entry};
-        else
-            overflow.push_back(Entry{node, entry});
-    };
+    SpillStack<Entry, 128> stack(entries, &overflow);
+    auto push = [&](uint32_t node, double entry) { stack.push(Entry{node, entry}); };
     double tmax = ray.tmax;
     bool have_hit = false;
     {
         double entry;
         if (hit_box(rb, node_at(0), tmax, entry)) push(0, entry);
     }
-    while (sp > 0 || !overflow.empty()) {
-        Entry e;
-        if (!overflow.empty()) {
-            e = overflow.back();
-            overflow.pop_back();
-        } else {
-            e = stack[--sp];
-        }
+    while (!stack.empty()) {
+        const Entry e = stack.pop();
         const double cull = have_hit ? cull_distance(tmax) : tmax;
         if (e.entry > cull) continue;
         const BottomLevelNode n = node_at(e.node);

@@ -7,6 +7,7 @@
 #include "clastrace/engine/blas.h"
 
 #include "nv_wide_tree.h"
+#include "spill_stack.h"
 
 #include "geometry/float32.h"
 #include "geometry/slab.h"
@@ -307,27 +308,16 @@ void walk_tree(const std::vector<NvNode>& nodes, const geometry::PreparedRay& rd
         uint32_t node;
         double t;
     };
-    Entry stack[192];
+    Entry entries[192];
     std::vector<Entry> overflow;
-    int sp = 0;
-    auto push = [&](uint32_t node, double t) {
-        if (sp < 192)
-            stack[sp++] = Entry{node, t};
-        else
-            overflow.push_back(Entry{node, t});
-    };
+    SpillStack<Entry, 192> stack(entries, &overflow);
+    auto push = [&](uint32_t node, double t) { stack.push(Entry{node, t}); };
     {
         const double t0 = box_entry(rd, nodes[0].bounds_min, nodes[0].bounds_max, reach());
         if (!std::isnan(t0)) push(0, t0);
     }
-    while (sp > 0 || !overflow.empty()) {
-        Entry e;
-        if (!overflow.empty()) {
-            e = overflow.back();
-            overflow.pop_back();
-        } else {
-            e = stack[--sp];
-        }
+    while (!stack.empty()) {
+        const Entry e = stack.pop();
         if (e.t > reach()) continue;
         const uint32_t ni = e.node;
         const NvNode& n = nodes[ni];

@@ -18,6 +18,7 @@
 #include "geometry/ray.h"
 #include "geometry/triangle4.h"
 #include "simd4.h"
+#include "spill_stack.h"
 
 #include <algorithm>
 #include <cmath>
@@ -310,53 +311,8 @@ struct WalkEntry {
 
 // The entries a wide walk has yet to visit. Each visit pops one entry and pushes at most W - 1:
 // depth x (W - 1) + 1 entries; the stored tree's depth is bounded by its node count, so deep
-// (hostile) trees spill to a vector: entries from kSize on live there. The walk owns the
-// entries and the vector and this holds pointers to them, so that it is three scalars whose
-// address never leaves the walk and its size stays in a register (with the entries inside, the
-// size was stored and loaded at every push and pop).
-class WalkStack {
-public:
-    static constexpr uint32_t kSize = 256;
-    WalkStack(WalkEntry (&entries)[kSize], std::vector<WalkEntry>* overflow)
-        : stack_(entries), overflow_(overflow) {}
-    // Inlined into the walks (an out-of-line push cost 4% of a ray's instructions); the spill
-    // to the vector stays out of line.
-    [[gnu::always_inline]] void push(WalkEntry e) {
-        if (__builtin_expect(size_ < kSize, 1))
-            stack_[size_] = e;
-        else
-            spill(overflow_, e);
-        ++size_;
-    }
-    [[gnu::always_inline]] bool empty() const { return size_ == 0; }
-    // The entry pushed last (the stack is not empty). One test of the size on the common path
-    // (the overflow vector is looked at only past kSize). Entries go in and out by value, so
-    // that the walk keeps the one it visits in registers.
-    [[gnu::always_inline]] WalkEntry pop() {
-        --size_;
-        if (__builtin_expect(size_ < kSize, 1)) return stack_[size_];
-        return unspill(overflow_);
-    }
-    // Room for `n` entries on top of the fixed part (nullptr where it has less): the caller
-    // writes them there in place and then pushes them with grow(n).
-    [[gnu::always_inline]] WalkEntry* room(uint32_t n) {
-        return __builtin_expect(size_ + n <= kSize, 1) ? stack_ + size_ : nullptr;
-    }
-    [[gnu::always_inline]] void grow(uint32_t n) { size_ += n; }
-
-private:
-    [[gnu::noinline]] static void spill(std::vector<WalkEntry>* overflow, WalkEntry e) {
-        overflow->push_back(e);
-    }
-    [[gnu::noinline]] static WalkEntry unspill(std::vector<WalkEntry>* overflow) {
-        const WalkEntry e = overflow->back();
-        overflow->pop_back();
-        return e;
-    }
-    WalkEntry* stack_;
-    uint32_t size_ = 0;
-    std::vector<WalkEntry>* overflow_;
-};
+// (hostile) trees spill past 256.
+using WalkStack = SpillStack<WalkEntry, 256>;
 
 // Lane k of `n`, which the box test hit (so it holds a child), as a stack entry; its bytes are
 // fetched at once, since rays are incoherent (`prefetch(first, count)` for a leaf).
