@@ -11,26 +11,13 @@
 // when it is made and the interior boxes bottom-up once (each node from its children), so no
 // level rereads its triangles to select, and none compares floats in a data-dependent branch;
 // leaves and interior nodes are boxed apart, with no branch on the node's kind (one that
-// mispredicted about every third node). The two other orders' partition takes 16 triangles
-// at a time with SSSE3 where the CPU has it (a side bitmap looked up and the sides packed with
-// pshufb, nodes of up to 32 triangles in straight-line code), the portable loop elsewhere; both
-// give the same orders. The per-element loops carry
+// mispredicted about every third node). The per-element loops carry
 // `#pragma GCC unroll 4`: GCC at -O2 unrolls none of them, and their bodies are a few
 // instructions beside the loop's own compare and branch.
 #include "cluster_internal.h"
 #include "simd4.h"
 
-#include <atomic>
-#include <cstdlib>
 #include <cstring>
-
-#if defined(__x86_64__) && defined(__SSE2__) && defined(__GNUC__)
-// The partition of the two other orders in SSSE3 (pshufb), in functions of their own (target
-// attribute) chosen at run time; the rest of the build stays SSE2.
-#define CLASTRACE_SSSE3_PARTITION 1
-#define CLASTRACE_TARGET_SSSE3 __attribute__((target("ssse3")))
-#include <tmmintrin.h>
-#endif
 
 namespace clastrace::engine::detail {
 
@@ -48,7 +35,7 @@ struct alignas(8) Task {
 // Sorts 0..n-1 by key[k] for each axis k into order[k] (stable: equal keys stay in
 // increasing index order). hist[2k] / hist[2k+1] hold the counts of the low / high digits.
 void radix_sort3(const uint16_t (*key)[kMaxTriangles], uint32_t n, uint16_t (*hist)[kDigits],
-                 uint8_t (*order)[kMaxTriangles + 32]) {
+                 uint8_t (*order)[kMaxTriangles]) {
     // Exclusive prefix sums (counts <= 256 fit 16 bits).
 #if defined(__SSE2__)
     static_assert(kDigits % 8 == 0);
@@ -119,171 +106,6 @@ void make_leaf(BvhScratch& s, const uint8_t* leaf_order, uint32_t first, uint32_
     node.link = uint16_t(kLeafBit | ((count - 1u) << 8) | first);
 }
 
-// Stable partition of the triangle indices o1[0..count) and o2[0..count) (two orders of one
-// node): those with side 0 first (left_count of them), then those with side 1. No branch and
-// no select: every element is stored twice, at the next left slot (in place: j - r <= j,
-// already read) and at the next right slot of a buffer; the store on the wrong side is
-// overwritten by the next element of that side, or lands past the side's end (the left one is
-// covered by the copy of the rights). Two independent chains in one loop.
-void partition_pair(uint8_t* o1, uint8_t* o2, size_t count, size_t left_count,
-                    const uint8_t* side) {
-    uint8_t right1[kMaxTriangles + 1], right2[kMaxTriangles + 1];
-    // Pointer-sized counters: no zero extension before each address.
-    size_t r1 = 0, r2 = 0;
-#pragma GCC unroll 4
-    for (size_t j = 0; j < count; ++j) {
-        const size_t i1 = o1[j], i2 = o2[j];
-        const size_t s1 = side[i1], s2 = side[i2];
-        o1[j - r1] = uint8_t(i1);
-        right1[r1] = uint8_t(i1);
-        o2[j - r2] = uint8_t(i2);
-        right2[r2] = uint8_t(i2);
-        r1 += s1;
-        r2 += s2;
-    }
-    std::memcpy(o1 + left_count, right1, count - left_count);
-    std::memcpy(o2 + left_count, right2, count - left_count);
-}
-
-#if defined(CLASTRACE_SSSE3_PARTITION)
-
-// Row m: the positions of mask m's set bits, in increasing order (then zeros): the pshufb
-// control that packs those bytes of an 8-byte group to its front.
-struct CompactTable {
-    alignas(8) uint8_t shuffle[256][8];
-    uint8_t count[256];
-};
-constexpr CompactTable kCompact = [] {
-    CompactTable t{};
-    for (uint32_t m = 0; m < 256; ++m) {
-        uint8_t k = 0;
-        for (uint8_t bit = 0; bit < 8; ++bit)
-            if (m & (1u << bit)) t.shuffle[m][k++] = bit;
-        t.count[m] = k;
-    }
-    return t;
-}();
-
-// The bytes of `v` (8 in its low half) whose bit in `mask` is set, stored packed at dst + at
-// (8 bytes written: the caller's buffer has room); `at` advances by their count.
-CLASTRACE_TARGET_SSSE3 inline void pack8(__m128i v, uint32_t mask, uint8_t* dst, size_t& at) {
-    const __m128i control =
-        _mm_loadl_epi64(reinterpret_cast<const __m128i*>(kCompact.shuffle[mask]));
-    _mm_storel_epi64(reinterpret_cast<__m128i*>(dst + at), _mm_shuffle_epi8(v, control));
-    at += kCompact.count[mask];
-}
-
-// The side bits of triangles 0..127 (lo) and 128..255 (hi).
-struct SideMap {
-    __m128i lo, hi;
-};
-
-// Bits 0..remaining-1 of 16 (remaining may lie outside 0..16): the lanes of a block that
-// belong to the node.
-inline uint32_t lanes_below(ptrdiff_t remaining) {
-    const ptrdiff_t r = remaining < 0 ? 0 : (remaining > 16 ? 16 : remaining);
-    return 0xFFFFu >> (16 - r);
-}
-
-// One order's next 16 triangle indices (src[0..16), those of `in_node` lanes counted): each
-// index's side bit looked up in the map with pshufb, then the lefts packed at left + l and
-// the rights at right + r by table (kCompact), 8 at a time.
-CLASTRACE_TARGET_SSSE3 inline void partition_block(const uint8_t* src, uint32_t in_node,
-                                                   const SideMap& map, uint8_t* left, size_t& l,
-                                                   uint8_t* right, size_t& r) {
-    const __m128i v = _mm_loadu_si128(reinterpret_cast<const __m128i*>(src));
-    const __m128i byte_index = _mm_and_si128(_mm_srli_epi16(v, 3), _mm_set1_epi8(0x1F));
-    // pshufb gives 0 where the control byte has bit 7 set: byte index + 0x70 has it for the
-    // indices 16..31 (the high map's), byte index - 16 for 0..15 (the low map's).
-    const __m128i map_byte =
-        _mm_or_si128(_mm_shuffle_epi8(map.lo, _mm_add_epi8(byte_index, _mm_set1_epi8(0x70))),
-                     _mm_shuffle_epi8(map.hi, _mm_sub_epi8(byte_index, _mm_set1_epi8(16))));
-    const __m128i bit =
-        _mm_shuffle_epi8(_mm_setr_epi8(1, 2, 4, 8, 16, 32, 64, -128, 1, 2, 4, 8, 16, 32, 64, -128),
-                         _mm_and_si128(v, _mm_set1_epi8(7)));
-    const uint32_t right_mask =
-        uint32_t(_mm_movemask_epi8(_mm_cmpeq_epi8(_mm_and_si128(map_byte, bit), bit))) & in_node;
-    const uint32_t left_mask = ~right_mask & in_node;
-    const __m128i high = _mm_srli_si128(v, 8);
-    pack8(v, left_mask & 0xFF, left, l);
-    pack8(v, right_mask & 0xFF, right, r);
-    pack8(high, left_mask >> 8, left, l);
-    pack8(high, right_mask >> 8, right, r);
-}
-
-inline void copy16(uint8_t* dst, const uint8_t* src) {
-    _mm_storeu_si128(reinterpret_cast<__m128i*>(dst),
-                     _mm_loadu_si128(reinterpret_cast<const __m128i*>(src)));
-}
-inline void copy8(uint8_t* dst, const uint8_t* src) {
-    _mm_storel_epi64(reinterpret_cast<__m128i*>(dst),
-                     _mm_loadl_epi64(reinterpret_cast<const __m128i*>(src)));
-}
-
-// Buffers of one order's partition: the lefts, then (copied after them) the rights, with
-// slack for the 8- and 16-byte stores past their ends.
-struct PartitionBuffers {
-    alignas(16) uint8_t left[kMaxTriangles + 48];
-    alignas(16) uint8_t right[kMaxTriangles + 48];
-};
-
-// partition_pair with SSSE3, 16 indices of each order at a time (partition_block), the side
-// bytes of triangles 0..n-1 first made a 256-bit map (SSE2 movemask). Both orders go through
-// one loop, and nodes of up to 32 triangles (most of them) through straight-line code: two
-// blocks, the rights copied after the lefts in two 16-byte pieces, the result back in four
-// 8-byte pieces ending at or before `count` (count > 8), so no branch follows the count. The
-// same result as partition_pair. Reads up to 31 bytes past o[count) (the caller pads), writes
-// only o[0..count).
-CLASTRACE_TARGET_SSSE3 void partition_pair_ssse3(uint8_t* o1, uint8_t* o2, size_t count,
-                                                 size_t left_count, const uint8_t* side,
-                                                 uint32_t n) {
-    alignas(16) uint16_t bits[kMaxTriangles / 16] = {};
-    for (size_t q = 0; q < (n + 15) / 16; ++q)
-        bits[q] = uint16_t(_mm_movemask_epi8(
-            _mm_slli_epi16(_mm_loadu_si128(reinterpret_cast<const __m128i*>(side + 16 * q)), 7)));
-    const SideMap map{_mm_load_si128(reinterpret_cast<const __m128i*>(bits)),
-                      _mm_load_si128(reinterpret_cast<const __m128i*>(bits + 8))};
-    PartitionBuffers b1, b2;
-    size_t l1 = 0, r1 = 0, l2 = 0, r2 = 0;
-    const size_t rights = count - left_count;
-    if (count <= 32) {
-        const uint32_t first = lanes_below(ptrdiff_t(count));
-        const uint32_t second = lanes_below(ptrdiff_t(count) - 16);
-        partition_block(o1, first, map, b1.left, l1, b1.right, r1);
-        partition_block(o2, first, map, b2.left, l2, b2.right, r2);
-        partition_block(o1 + 16, second, map, b1.left, l1, b1.right, r1);
-        partition_block(o2 + 16, second, map, b2.left, l2, b2.right, r2);
-        for (PartitionBuffers* b : {&b1, &b2}) {
-            copy16(b->left + left_count, b->right);
-            copy16(b->left + left_count + 16, b->right + 16);
-        }
-        // Pieces at 0, 8, 16, 24, each moved back to end at `count` at the latest.
-        for (size_t k = 0; k < 32; k += 8) {
-            const size_t at = k + 8 <= count ? k : count - 8;
-            copy8(o1 + at, b1.left + at);
-            copy8(o2 + at, b2.left + at);
-        }
-        return;
-    }
-    for (size_t j = 0; j < count; j += 16) {
-        const uint32_t in_node = lanes_below(ptrdiff_t(count - j));
-        partition_block(o1 + j, in_node, map, b1.left, l1, b1.right, r1);
-        partition_block(o2 + j, in_node, map, b2.left, l2, b2.right, r2);
-    }
-    for (size_t k = 0; k < rights; k += 16) {
-        copy16(b1.left + left_count + k, b1.right + k);
-        copy16(b2.left + left_count + k, b2.right + k);
-    }
-    for (size_t k = 0; k + 16 <= count; k += 16) {
-        copy16(o1 + k, b1.left + k);
-        copy16(o2 + k, b2.left + k);
-    }
-    copy16(o1 + count - 16, b1.left + count - 16);
-    copy16(o2 + count - 16, b2.left + count - 16);
-}
-
-#endif
-
 // Interior boxes bottom-up, `interior` in the order the nodes were split: a node's children
 // were split after it, so the reverse order meets every child first.
 void fit_interior_boxes(BvhScratch& s, const uint16_t* interior, size_t count) {
@@ -296,38 +118,11 @@ void fit_interior_boxes(BvhScratch& s, const uint16_t* interior, size_t count) {
     }
 }
 
-// 0: the default, else 1 + the forced choice.
-std::atomic<int> forced_ssse3{0};
-
 }  // namespace
-
-bool bvh_uses_ssse3() {
-    const int forced = forced_ssse3.load(std::memory_order_relaxed);
-    if (forced != 0) return forced == 2;
-#if defined(CLASTRACE_SSSE3_PARTITION)
-    static const bool chosen = [] {
-        const char* env = std::getenv("CLASTRACE_ENGINE_SIMD");
-        return !(env && std::strcmp(env, "sse") == 0) && __builtin_cpu_supports("ssse3");
-    }();
-    return chosen;
-#else
-    return false;
-#endif
-}
-
-void force_bvh_ssse3(std::optional<bool> ssse3) {
-#if defined(CLASTRACE_SSSE3_PARTITION)
-    if (ssse3 == true && !__builtin_cpu_supports("ssse3")) ssse3 = false;
-#else
-    if (ssse3) ssse3 = false;
-#endif
-    forced_ssse3.store(ssse3 ? 1 + int(*ssse3) : 0, std::memory_order_relaxed);
-}
 
 void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
     s.node_count = 0;
     if (n == 0) return;
-    const bool ssse3 = bvh_uses_ssse3();
 
     const float(*const centroid)[4] = s.centroid;
     const Float4 clo = load4(s.centroid_min), chi = load4(s.centroid_max);
@@ -359,8 +154,7 @@ void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
             ++hist[5][q[2] >> kDigitBits];
         }
     }
-    // Each order padded: the SSSE3 partition reads up to 31 bytes past a node's end.
-    uint8_t order[3][kMaxTriangles + 32];
+    uint8_t order[3][kMaxTriangles];
     radix_sort3(key, n, hist, order);
 
     // Top-down: node numbering is depth first, left subtree first, the two children of a node
@@ -427,12 +221,27 @@ void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
         static constexpr uint8_t kOtherAxes[3][2] = {{1, 2}, {0, 2}, {0, 1}};
         uint8_t* const o1 = order[kOtherAxes[axis][0]] + b;
         uint8_t* const o2 = order[kOtherAxes[axis][1]] + b;
-#if defined(CLASTRACE_SSSE3_PARTITION)
-        if (ssse3)
-            partition_pair_ssse3(o1, o2, count, left_count, side, n);
-        else
-#endif
-            partition_pair(o1, o2, count, left_count, side);
+        // Their orders, partitioned stably in one loop (two independent chains). No branch
+        // and no select: every element is stored twice, at the next left slot (in place:
+        // j - r <= j, already read) and at the next right slot of a buffer; the store on the
+        // wrong side is overwritten by the next element of that side, or lands past the side's
+        // end (the left one is covered by the copy of the rights).
+        uint8_t right1[kMaxTriangles + 1], right2[kMaxTriangles + 1];
+        // Pointer-sized counters: no zero extension before each address.
+        size_t r1 = 0, r2 = 0;
+#pragma GCC unroll 4
+        for (size_t j = 0; j < count; ++j) {
+            const size_t i1 = o1[j], i2 = o2[j];
+            const size_t s1 = side[i1], s2 = side[i2];
+            o1[j - r1] = uint8_t(i1);
+            right1[r1] = uint8_t(i1);
+            o2[j - r2] = uint8_t(i2);
+            right2[r2] = uint8_t(i2);
+            r1 += s1;
+            r2 += s2;
+        }
+        std::memcpy(o1 + left_count, right1, count - left_count);
+        std::memcpy(o2 + left_count, right2, count - left_count);
         // More than 8 triangles leave at least 8 on the left (a node), and on the right 1-4
         // (a leaf, its triangles from any order) or more (a node).
         if (count - left_count <= kMaxLeafSize) {

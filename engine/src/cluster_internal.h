@@ -7,7 +7,6 @@
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
-#include <optional>
 #include <vector>
 
 namespace clastrace::engine::detail {
@@ -63,13 +62,6 @@ struct BvhScratch {
 // their boxes, centroids and centroid bounds in the scratch); fills scratch.perm[0..n) with
 // the BVH order (triangle indices) and scratch.nodes.
 void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s);
-
-// Whether build_bvh partitions its orders with SSSE3 (where the CPU has it, unless
-// CLASTRACE_ENGINE_SIMD=sse, read once) or with the portable loop: the same trees and bytes.
-bool bvh_uses_ssse3();
-// Test hook: the partition of the builds from now on (std::nullopt: back to the above); true on
-// a CPU without SSSE3 still gives the portable loop.
-void force_bvh_ssse3(std::optional<bool> ssse3);
 
 // Encodes the object into `out` (assigned, zero padded). Returns its size.
 uint32_t encode_object(const EncodeInput& in, BvhScratch& scratch, std::vector<std::byte>& out);
