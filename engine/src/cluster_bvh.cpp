@@ -83,6 +83,26 @@ void radix_sort3(const uint16_t (*key)[kMaxTriangles], uint32_t n, uint16_t (*hi
     }
 }
 
+// Exact copies of a few triangle indices without a branch on the count (a memcpy call of a
+// variable size mispredicts in its size classes): two 4-byte pieces that overlap, or four
+// byte copies with the last one repeated.
+void copy_5_to_8(uint8_t* dst, const uint8_t* src, size_t count) {
+    uint32_t head, tail;
+    std::memcpy(&head, src, 4);
+    std::memcpy(&tail, src + count - 4, 4);
+    std::memcpy(dst, &head, 4);
+    std::memcpy(dst + count - 4, &tail, 4);
+}
+void copy_1_to_4(uint8_t* dst, const uint8_t* src, size_t count) {
+    const size_t last = count - 1;
+    const size_t k1 = last < 1 ? last : 1, k2 = last < 2 ? last : 2;
+    const uint8_t a = src[0], b = src[k1], c = src[k2], d = src[last];
+    dst[0] = a;
+    dst[k1] = b;
+    dst[k2] = c;
+    dst[last] = d;
+}
+
 // A leaf's box over its 1..4 triangles: four loads, the last triangle repeated (min and max
 // fold it to the same box, ties included), so no branch on the count.
 void fit_leaf(BvhScratch& s, const uint8_t* tris, size_t count, BvhScratch::Node& node) {
@@ -198,7 +218,7 @@ void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
         interior[n_interior++] = uint16_t(task.node);
         if (count <= 2 * kMaxLeafSize) {
             // Both children are leaves: they need no sorted orders, only their triangles.
-            std::memcpy(leaf_order + b, order[axis] + b, count);
+            copy_5_to_8(leaf_order + b, order[axis] + b, count);
             make_leaf(s, leaf_order, b, left_count, s.nodes[left]);
             make_leaf(s, leaf_order, m, count - left_count, s.nodes[left + 1]);
             continue;
@@ -245,7 +265,7 @@ void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
         // More than 8 triangles leave at least 8 on the left (a node), and on the right 1-4
         // (a leaf, its triangles from any order) or more (a node).
         if (count - left_count <= kMaxLeafSize) {
-            std::memcpy(leaf_order + m, order[axis] + m, count - left_count);
+            copy_1_to_4(leaf_order + m, order[axis] + m, count - left_count);
             make_leaf(s, leaf_order, m, count - left_count, s.nodes[left + 1]);
         } else {
             stack[sp++] = {uint16_t(left + 1), uint16_t(m), uint16_t(e), 0};
