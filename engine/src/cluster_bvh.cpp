@@ -13,7 +13,10 @@
 // leaves and interior nodes are boxed apart, with no branch on the node's kind (one that
 // mispredicted about every third node). The per-element loops carry
 // `#pragma GCC unroll 4`: GCC at -O2 unrolls none of them, and their bodies are a few
-// instructions beside the loop's own compare and branch.
+// instructions beside the loop's own compare and branch. Orders written a byte at a time are
+// not read back at once in wider loads: a load that spans several stores still pending cannot
+// take their data and waits for them to reach the cache (a 16-wide SSSE3 partition that did
+// so at every stage was 8% slower than this scalar one, for fewer instructions).
 #include "cluster_internal.h"
 #include "simd4.h"
 
@@ -83,6 +86,20 @@ void radix_sort3(const uint16_t (*key)[kMaxTriangles], uint32_t n, uint16_t (*hi
     }
 }
 
+// An exact copy of count (1..N) triangle indices without a branch on the count (a memcpy call
+// of a variable size mispredicts in its size classes): N byte copies, the last index repeated.
+// Bytewise, not in wider pieces: the indices were just written a byte at a time, and a wider
+// load that spans several pending stores cannot be forwarded from them (it waits for them).
+template <size_t N>
+void copy_up_to(uint8_t* dst, const uint8_t* src, size_t count) {
+    const size_t last = count - 1;
+#pragma GCC unroll 8
+    for (size_t k = 0; k < N; ++k) {
+        const size_t at = k < last ? k : last;
+        dst[at] = src[at];
+    }
+}
+
 // A leaf's box over its 1..4 triangles: four loads, the last triangle repeated (min and max
 // fold it to the same box, ties included), so no branch on the count.
 void fit_leaf(BvhScratch& s, const uint8_t* tris, size_t count, BvhScratch::Node& node) {
@@ -120,9 +137,9 @@ void fit_interior_boxes(BvhScratch& s, const uint16_t* interior, size_t count) {
 
 }  // namespace
 
-void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
+bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* order_out) {
     s.node_count = 0;
-    if (n == 0) return;
+    if (n == 0) return true;
 
     const float(*const centroid)[4] = s.centroid;
     const Float4 clo = load4(s.centroid_min), chi = load4(s.centroid_max);
@@ -198,7 +215,7 @@ void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
         interior[n_interior++] = uint16_t(task.node);
         if (count <= 2 * kMaxLeafSize) {
             // Both children are leaves: they need no sorted orders, only their triangles.
-            std::memcpy(leaf_order + b, order[axis] + b, count);
+            copy_up_to<2 * kMaxLeafSize>(leaf_order + b, order[axis] + b, count);
             make_leaf(s, leaf_order, b, left_count, s.nodes[left]);
             make_leaf(s, leaf_order, m, count - left_count, s.nodes[left + 1]);
             continue;
@@ -245,7 +262,7 @@ void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
         // More than 8 triangles leave at least 8 on the left (a node), and on the right 1-4
         // (a leaf, its triangles from any order) or more (a node).
         if (count - left_count <= kMaxLeafSize) {
-            std::memcpy(leaf_order + m, order[axis] + m, count - left_count);
+            copy_up_to<kMaxLeafSize>(leaf_order + m, order[axis] + m, count - left_count);
             make_leaf(s, leaf_order, m, count - left_count, s.nodes[left + 1]);
         } else {
             stack[sp++] = {uint16_t(left + 1), uint16_t(m), uint16_t(e), 0};
@@ -254,8 +271,14 @@ void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s) {
     }
 
     fit_interior_boxes(s, interior, n_interior);
+    uint32_t moved = 0;
 #pragma GCC unroll 4
-    for (size_t j = 0; j < n; ++j) s.perm[j] = active_list[leaf_order[j]];
+    for (size_t j = 0; j < n; ++j) {
+        const uint8_t t = active_list[leaf_order[j]];
+        order_out[j] = t;
+        moved |= t ^ uint32_t(j);
+    }
+    return moved == 0;
 }
 
 }  // namespace clastrace::engine::detail

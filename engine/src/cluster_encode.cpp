@@ -195,18 +195,42 @@ uint32_t lay_out_object(ObjectHeader& h, const EncodeInput& in, uint32_t n_nodes
     return size;
 }
 
+// The low byte of each of `count` indices (an active triangle's indices are below its vertex
+// count, at most 256; an inactive one's bytes are zeroed after), 16 at a time in SSE2.
+void narrow_indices(const uint32_t* indices, uint32_t count, uint8_t* dst) {
+    uint32_t i = 0;
+#if defined(__SSE2__)
+    const __m128i low = _mm_set1_epi32(0xFF);
+    const auto load = [&](uint32_t k) {
+        return _mm_and_si128(_mm_loadu_si128(reinterpret_cast<const __m128i*>(indices + k)), low);
+    };
+    for (; i + 16 <= count; i += 16) {
+        const __m128i lo = _mm_packs_epi32(load(i), load(i + 4));
+        const __m128i hi = _mm_packs_epi32(load(i + 8), load(i + 12));
+        _mm_storeu_si128(reinterpret_cast<__m128i*>(dst + i), _mm_packus_epi16(lo, hi));
+    }
+#endif
+    for (; i < count; ++i) dst[i] = uint8_t(indices[i]);
+}
+
 // Per-triangle sections in stored order, one loop each (no per-triangle tests of which
-// sections exist).
+// sections exist). index8: every triangle's three local indices as bytes (narrow_indices) in
+// application order, with one byte of slack.
 void write_triangle_sections(const EncodeInput& in, const ObjectHeader& h, const uint8_t* order,
-                             bool identity, bool varying, std::byte* base) {
+                             const uint8_t* index8, bool identity, bool varying, std::byte* base) {
     const uint32_t n_triangles = in.triangle_count;
     std::byte* const index_bytes = base + h.indices_offset;
     const bool any_dead = in.inactive && std::memchr(in.inactive, 1, n_triangles) != nullptr;
-    for (uint32_t i = 0; i < n_triangles; ++i) {
-        const uint32_t* tri = in.indices + 3 * order[i];
-        index_bytes[3 * i + 0] = std::byte(uint8_t(tri[0]));
-        index_bytes[3 * i + 1] = std::byte(uint8_t(tri[1]));
-        index_bytes[3 * i + 2] = std::byte(uint8_t(tri[2]));
+    // Each triangle's three as one 4-byte load and store (the fourth byte is the next
+    // triangle's, overwritten by it), the last one's bytewise: nothing past the section moves.
+    for (uint32_t i = 0; i + 1 < n_triangles; ++i) {
+        uint32_t three;
+        std::memcpy(&three, index8 + 3 * size_t(order[i]), 4);
+        std::memcpy(index_bytes + 3 * size_t(i), &three, 4);
+    }
+    if (n_triangles > 0) {
+        const size_t last = n_triangles - 1, from = 3 * size_t(order[last]);
+        for (int v = 0; v < 3; ++v) index_bytes[3 * last + v] = std::byte(index8[from + v]);
     }
     if (any_dead)
         for (uint32_t i = 0; i < n_triangles; ++i)
@@ -303,6 +327,11 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
     h.vertex_format = in.vertex_format;
     const uint32_t n_triangles = in.triangle_count;
     const bool is_clas = in.type == ObjectType::kTriangleCluster;
+    // The index bytes, long before the index section is written: its 4-byte loads then find
+    // these 16-byte stores in the cache, not pending (a load across two pending stores waits).
+    alignas(16) uint8_t index8[3 * kMaxTriangles + 1];
+    narrow_indices(in.indices, 3 * n_triangles, index8);
+    index8[3 * n_triangles] = 0;  // the last triangle's fourth byte, read when it is not last
 
     // Active triangles: indices in range and no NaN coordinate (after truncation).
     uint8_t active[kMaxTriangles];
@@ -324,17 +353,20 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
     uint32_t n_nodes = 0;
     bool identity = true;
     if (is_clas && n_active > 0) {
-        build_bvh(active, n_active, s);
+        // Told by the BVH, not compared here: its order was just stored a byte at a time, and
+        // memcmp's wide loads would wait for those stores.
+        identity = build_bvh(active, n_active, s, order);
         n_nodes = s.node_count;
-        std::memcpy(order, s.perm, n_active);
         if (n_active < n_triangles) {
             bool is_active[kMaxTriangles] = {};
             for (uint32_t i = 0; i < n_active; ++i) is_active[active[i]] = true;
             uint32_t k = n_active;
             for (uint32_t t = 0; t < n_triangles; ++t)
-                if (!is_active[t]) order[k++] = uint8_t(t);
+                if (!is_active[t]) {
+                    identity &= t == k;
+                    order[k++] = uint8_t(t);
+                }
         }
-        identity = std::memcmp(order, kIdentityOrder.data(), n_triangles) == 0;
     } else {
         std::memcpy(order, kIdentityOrder.data(), n_triangles);
     }
@@ -368,7 +400,7 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
     if (in.positions)
         pack_positions(in.positions, 3 * in.vertex_count, h.position_bits, in.truncate_bits,
                        base + h.positions_offset);
-    write_triangle_sections(in, h, order, identity, varying, base);
+    write_triangle_sections(in, h, order, index8, identity, varying, base);
     if (in.has_bounds_limit) std::memcpy(base + h.bounds_limit_offset, in.bounds_limit, 24);
     return size;
 }

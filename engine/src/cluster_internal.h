@@ -49,7 +49,6 @@ struct BvhScratch {
     alignas(16) float centroid[kMaxTriangles][4];
     alignas(16) float centroid_min[4];
     alignas(16) float centroid_max[4];
-    uint8_t perm[kMaxTriangles];
     struct Node {
         alignas(16) float lo[4];
         alignas(16) float hi[4];  // lane 3 unused
@@ -59,9 +58,9 @@ struct BvhScratch {
 };
 
 // Builds a BVH over the n active triangles (their indices in `active_list`, increasing;
-// their boxes, centroids and centroid bounds in the scratch); fills scratch.perm[0..n) with
-// the BVH order (triangle indices) and scratch.nodes.
-void build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s);
+// their boxes, centroids and centroid bounds in the scratch); fills order[0..n) with the BVH
+// order (triangle indices) and scratch.nodes. Returns whether that order is 0, 1, ..., n - 1.
+bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* order);
 
 // Encodes the object into `out` (assigned, zero padded). Returns its size.
 uint32_t encode_object(const EncodeInput& in, BvhScratch& scratch, std::vector<std::byte>& out);

@@ -430,6 +430,38 @@ TEST(Extremes, OutOfRangeIndicesAreFindingsAndInactive) {
     EXPECT_TRUE(eng::has_rule(b.findings, eng::kRuleIndexOutOfRange)) << b.findings_text();
 }
 
+// Every stored triangle keeps its own three local indices, at every triangle count and index
+// size, whatever the BVH order; an inactive one (an index >= vertexCount) stores zeros.
+TEST(Extremes, StoredIndicesFollowTheirTrianglesAtEveryCount) {
+    std::vector<ts::Float3> pos;
+    for (int v = 0; v < 256; ++v) pos.push_back({float(v % 16), float((v * 7) % 5), float(v / 16)});
+    std::vector<std::array<uint32_t, 3>> all;
+    for (uint32_t t = 0; t < 256; ++t) {
+        const uint32_t v = (t * 37) % 239;
+        all.push_back({v, v + 1, v + 16});
+    }
+    for (uint32_t index_bytes : {1u, 4u})
+        for (uint32_t n = 1; n <= 256; n += (n < 40 ? 1 : 9)) {
+            std::vector<std::array<uint32_t, 3>> tris(all.begin(), all.begin() + n);
+            if (index_bytes == 4)
+                for (uint32_t t = 3; t < n; t += 11) tris[t][t % 3] = 256 + t;  // inactive
+            const Built b = build(pos, tris, 0, index_bytes);
+            ASSERT_TRUE(b.ok) << b.findings_text();
+            const eng::HeaderCheck hc = eng::read_object_header(b.bytes);
+            ASSERT_TRUE(hc.header) << hc.error;
+            ASSERT_EQ(hc.header->triangle_count, n);
+            for (uint32_t i = 0; i < n; ++i) {
+                const eng::DecodedTriangle d = eng::decode_triangle(b.bytes, *hc.header, i);
+                ASSERT_LT(d.original_index, n);
+                const auto& want = tris[d.original_index];
+                const bool inactive = want[0] > 255 || want[1] > 255 || want[2] > 255;
+                for (int k = 0; k < 3; ++k)
+                    EXPECT_EQ(d.local_indices[k], inactive ? 0u : want[k])
+                        << "count " << n << ", index bytes " << index_bytes << ", stored " << i;
+            }
+        }
+}
+
 TEST(Extremes, FullClusters256TrianglesAnd256Vertices) {
     // 256 vertices on a wavy 16x16 grid; 256 triangles that together use every vertex.
     std::vector<ts::Float3> pos;
