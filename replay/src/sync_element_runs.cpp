@@ -15,8 +15,8 @@ namespace {
 // Sorts by begin, stably (equal begins keep the command's order), a digit of the begins at a
 // time, over only the bits in which they differ: no comparisons, whose branches on addresses
 // in no order were most of the cost of sorting by std::sort. The digits split those bits evenly
-// (a command's begins differ in ~20 bits: three 7-bit digits, not four bytes), since for the
-// ~200 accesses of a command each digit's 2^bits buckets cost as much as its items do.
+// (a command's begins differ in ~20 bits: three 7-bit digits, not three or four bytes): for the
+// ~180 accesses of a command, clearing and summing 256 buckets a pass was a fifth of the sort.
 void sort_by_begin(std::vector<std::pair<uint64_t, uint32_t>>& items,
                    std::vector<std::pair<uint64_t, uint32_t>>& scratch) {
     const std::size_t n = items.size();
