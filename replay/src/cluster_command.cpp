@@ -311,7 +311,8 @@ struct DriverSizedAccesses {
         region_field = "dstImplicitData (the " + std::to_string(sizes.acceleration_structure_size) +
                        "-byte implicit region " + sizes.source() + ")";
         std::vector<AddressRange> packed;
-        accesses.reserve(record.accesses.size() + 1);
+        // The unpacked region comes in at most one piece more than the objects packed in it.
+        accesses.reserve(record.accesses.size() + (implicit ? record.ops.size() + 1 : 0));
         for (const engine::MemoryAccess& a : record.accesses) {
             if (a.end <= a.begin) continue;
             Access access{{a.begin, a.end}, a.stage, a.access, a.is_write, a.field};

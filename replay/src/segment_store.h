@@ -178,8 +178,12 @@ private:
                 have_pending_ = false;
             }
             if (!have_pending_) {
-                const std::size_t first = first_ending_after(begin, next_);
-                if (first - next_ > kCopiedAcross) {
+                // Near the last range (within kCopiedAcross entries), the search needs only
+                // that window; otherwise the store changes before the search that counts.
+                const std::size_t last = next_ + kCopiedAcross;
+                const bool far = last < ends_.size() && ends_[last] <= begin;
+                const std::size_t window = std::min(last + 1, ends_.size());
+                if (far) {
                     // Far from the last range: a splice here moves less than copying the
                     // entries between, twice.
                     const std::size_t resume = batch_from_ + out_.size();
@@ -187,6 +191,7 @@ private:
                     batch_from_ = next_ = first_ending_after(begin, resume);
                     out_.clear();
                 } else {
+                    const std::size_t first = first_ending_after(begin, next_, window);
                     out_.insert(out_.end(), entries_.begin() + std::ptrdiff_t(next_),
                                 entries_.begin() + std::ptrdiff_t(first));
                     next_ = first;
@@ -253,11 +258,12 @@ private:
         CLASTRACE_DEBUG_ASSERT(entries_hold(from, from + out_.size()));
     }
 
-    // Index of the first entry from `from` on whose end lies past `at` (the one holding `at`,
-    // or the next).
-    std::size_t first_ending_after(uint64_t at, std::size_t from = 0) const {
+    // Index of the first entry in [from, to) whose end lies past `at` (the one holding `at`,
+    // or the next); `to` (all entries by default) when there is none.
+    std::size_t first_ending_after(uint64_t at, std::size_t from = 0,
+                                   std::size_t to = SIZE_MAX) const {
         // Entries are disjoint and sorted, so their ends are sorted too.
-        const std::size_t n = ends_.size();
+        const std::size_t n = std::min(to, ends_.size());
         if (from >= n) return n;
         if (ends_[from] > at) return from;  // a sorted walk's next range is often right there
         const uint64_t* base = ends_.data() + from;

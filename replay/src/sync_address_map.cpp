@@ -161,9 +161,12 @@ void SyncModel::State::fill_record(Record& r, const Access& a, uint16_t queue, u
     r.tag = t;
     r.command = current_command;
     r.range = a.range;
-    r.stage = atomic_stages(a.stage) & ~kEventStageBits;
+    if (a.stage != last_masks.stage || a.access != last_masks.access)
+        last_masks = {a.stage, a.access, atomic_stages(a.stage) & ~kEventStageBits,
+                      atomic_accesses(a.access)};
+    r.stage = last_masks.stage_atoms;
     r.access = a.access;
-    r.atoms = atomic_accesses(a.access);
+    r.atoms = last_masks.access_atoms;
     r.is_write = a.is_write;
     r.possible = a.possible;
     r.field = field;

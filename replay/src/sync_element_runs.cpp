@@ -5,15 +5,18 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cstring>
 
 namespace clastrace::replay {
 
 namespace {
 
-// Sorts by begin, stably (equal begins keep the command's order), one byte of the begins at a
-// time, only the bytes in which they differ: no comparisons, whose branches on addresses in
-// no order were most of the cost of sorting by std::sort.
+// Sorts by begin, stably (equal begins keep the command's order), a digit of the begins at a
+// time, over only the bits in which they differ: no comparisons, whose branches on addresses
+// in no order were most of the cost of sorting by std::sort. The digits split those bits evenly
+// (a command's begins differ in ~20 bits: three 7-bit digits, not three or four bytes): for the
+// ~180 accesses of a command, clearing and summing 256 buckets a pass was a fifth of the sort.
 void sort_by_begin(std::vector<std::pair<uint64_t, uint32_t>>& items,
                    std::vector<std::pair<uint64_t, uint32_t>>& scratch) {
     const std::size_t n = items.size();
@@ -24,13 +27,20 @@ void sort_by_begin(std::vector<std::pair<uint64_t, uint32_t>>& items,
         every &= item.first;
     }
     const uint64_t differing = any ^ every;
+    if (differing == 0) return;
+    const int low = std::countr_zero(differing);
+    const int span = 64 - std::countl_zero(differing) - low;
+    constexpr int kMaxDigitBits = 8;
+    const int digits = (span + kMaxDigitBits - 1) / kMaxDigitBits;
+    const int digit_bits = (span + digits - 1) / digits;
+    const uint64_t mask = (uint64_t(1) << digit_bits) - 1;
     scratch.resize(n);
-    for (int shift = 0; shift < 64; shift += 8) {
-        if (((differing >> shift) & 0xFF) == 0) continue;
-        std::array<uint32_t, 257> at{};
-        for (const auto& item : items) ++at[((item.first >> shift) & 0xFF) + 1];
-        for (std::size_t d = 1; d < at.size(); ++d) at[d] += at[d - 1];
-        for (const auto& item : items) scratch[at[(item.first >> shift) & 0xFF]++] = item;
+    for (int shift = low; shift < low + span; shift += digit_bits) {
+        std::array<uint32_t, (1u << kMaxDigitBits) + 1> at;
+        std::fill_n(at.begin(), mask + 2, 0u);
+        for (const auto& item : items) ++at[((item.first >> shift) & mask) + 1];
+        for (std::size_t d = 1; d <= mask; ++d) at[d] += at[d - 1];
+        for (const auto& item : items) scratch[at[(item.first >> shift) & mask]++] = item;
         items.swap(scratch);
     }
 }
@@ -106,23 +116,33 @@ void SyncModel::State::form_element_runs(std::span<const Access> accesses) {
     auto& next_member = batch.next_member;
     run_of.assign(n, -1);
     next_member.assign(n, -1);
-    std::size_t open[8];  // runs still growing, one per field shape
+    // Runs still growing, at most one per kind of element (field shape, stage, access, write),
+    // each kind kept beside its slot so the search reads no run and no access.
+    struct OpenKind {
+        uint32_t prefix, suffix;
+        StageMask stage;
+        AccessMask access;
+        bool is_write;
+    };
+    std::size_t open[8];
+    OpenKind open_kind[8];
     std::size_t open_count = 0;
     for (uint32_t i = 0; i < n; ++i) {
         const Access& a = accesses[i];
         if (pinned[i] || a.range.empty()) continue;
-        const FieldShape shape = field_shapes[field_of[i]];
+        const FieldShape& shape = field_shapes[field_of[i]];
         if (!shape.indexed) continue;
         const uint32_t prefix = shape.prefix, suffix = shape.suffix;
         const uint64_t index = shape.index;
         const uint64_t bytes = a.range.end - a.range.begin;
         std::size_t* slot = nullptr;
         for (std::size_t k = 0; k < open_count; ++k) {
-            const Run& r = runs[open[k]];
-            const Access& h = accesses[r.head];
-            if (r.prefix == prefix && r.suffix == suffix && h.stage == a.stage &&
-                h.access == a.access && h.is_write == a.is_write)
+            const OpenKind& o = open_kind[k];
+            if (o.prefix == prefix && o.suffix == suffix && o.stage == a.stage &&
+                o.access == a.access && o.is_write == a.is_write) {
                 slot = &open[k];
+                break;
+            }
         }
         if (slot) {
             Run& r = runs[*slot];
@@ -139,10 +159,12 @@ void SyncModel::State::form_element_runs(std::span<const Access> accesses) {
         if (bytes > UINT32_MAX || index > UINT32_MAX) continue;
         runs.push_back({prefix, suffix, index, index + 1, bytes, a.range, i, i});
         run_of[i] = int32_t(runs.size() - 1);
-        if (slot)
+        if (slot) {
             *slot = runs.size() - 1;
-        else if (open_count < std::size(open))
+        } else if (open_count < std::size(open)) {
+            open_kind[open_count] = {prefix, suffix, a.stage, a.access, a.is_write};
             open[open_count++] = runs.size() - 1;
+        }
     }
     // Each run's members in one flat list: a finding on element k belongs to its k-th access.
     auto& members = batch.members;

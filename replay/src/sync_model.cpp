@@ -109,7 +109,7 @@ void SyncModel::record_accesses(const CommandRef& command, std::span<const Acces
         const int32_t ri = run_of[i];
         const State::Run* run =
             ri >= 0 && runs[std::size_t(ri)].count > 1 ? &runs[std::size_t(ri)] : nullptr;
-        if (run && run->head != i) return;  // recorded with its run's first element
+        CLASTRACE_DEBUG_ASSERT(!run || run->head == i);  // members go with their run's head
         Record& rec = s.batch.record;
         if (run) {
             Access a = accesses[i];
@@ -150,8 +150,12 @@ void SyncModel::record_accesses(const CommandRef& command, std::span<const Acces
             explicit SortedWalk(SegmentStore<Segment>& s) : store(s) { store.begin_sorted(); }
             ~SortedWalk() { store.end_sorted(); }
         } walk(s.segments);
-        for (const auto& [begin, i] : s.batch.by_begin)
-            if (!pinned[i]) record_one(i);
+        for (const auto& [begin, i] : s.batch.by_begin) {
+            if (pinned[i]) continue;
+            const int32_t ri = run_of[i];
+            if (ri >= 0 && runs[std::size_t(ri)].head != i) continue;  // goes with its run's head
+            record_one(i);
+        }
     }
     std::stable_sort(found.begin(), found.end(),
                      [](const State::Finding& a, const State::Finding& b) {

@@ -244,6 +244,14 @@ struct SyncModel::State {
     DependencyInfo resolve_barriers(const DependencyInfo& dependency,
                                     std::vector<BufferBarrier>& storage);
 
+    // fill_record's last masks and their atoms: a command's accesses mostly share their stage
+    // and access, so the expansion runs once per change, not per access.
+    struct AtomicMasks {
+        StageMask stage = 0;
+        AccessMask access = 0;
+        StageMask stage_atoms = 0;  // no stage and no access expand to nothing
+        AccessMask access_atoms = 0;
+    } last_masks;
     // A record of `a` by the command command_tag last saw (tag t).
     Record make_record(const Access& a, uint16_t queue, uint64_t t);
     // make_record into an existing record (record_accesses reuses one, sparing its vectors).
