@@ -5,6 +5,7 @@
 #include "clastrace/capture/cluster_input_walker.h"
 #include "clastrace/capture/uncached_copy.h"
 #include "layer_state.h"
+#include "page_guard.h"
 
 #include <algorithm>
 #include <cstring>
@@ -41,7 +42,93 @@ bool read_host_view(DeviceState& d, VkDeviceAddress address, uint64_t size, Capt
 
 uint64_t hash_of(const CapturedBytes& bytes) { return XXH3_64bits(bytes.data(), bytes.size()); }
 
+// The reader of a guarded submission's walk: it copies only what leads the walk to other ranges
+// (the count and the indirect cells, 8 bytes at most, and the src infos entries, with streaming
+// loads where uncached); the ranges the walk only lists become views it never reads. (With an
+// INDIRECTED src infos array the entries are views too, read by the walk's plain loads.)
+DeviceMemoryReader pointer_reader(DeviceState& d, const ClusterCommandParameters& p) {
+    const VkStridedDeviceAddressRegionKHR& src = p.info.srcInfosArray;
+    const uint64_t entry = cluster_src_info_size(p.info.input.opType);
+    const uint64_t stride = src.stride ? src.stride : entry;
+    const uint64_t most = p.info.input.maxAccelerationStructureCount;
+    const uint64_t span = src.size ? src.size : (most ? (most - 1) * stride + entry : 0);
+    const VkDeviceAddress begin = src.deviceAddress, end = begin + span;
+    return
+        [&d, begin, end](VkDeviceAddress a, uint64_t size, CapturedBytes* out, std::string& why) {
+            if (!out || size <= sizeof(VkDeviceAddress) || (a >= begin && a < end))
+                return read_host_view(d, a, size, out, why);
+            ResolvedRange where;
+            if (!read_host_view(d, a, size, nullptr, why, &where)) return false;
+            *out = CapturedBytes::borrow(where.host, size);
+            return true;
+        };
+}
+
+struct PageSpan {
+    uintptr_t first = 0;
+    size_t count = 0;
+};
+
+PageSpan pages_of(const uint8_t* host, uint64_t size, size_t page_size) {
+    const uintptr_t begin = reinterpret_cast<uintptr_t>(host) & ~uintptr_t(page_size - 1);
+    const uintptr_t last =
+        (reinterpret_cast<uintptr_t>(host) + size - 1) & ~uintptr_t(page_size - 1);
+    return {begin, (last - begin) / page_size + 1};
+}
+
+// Only pages wholly inside the allocation's mapping are protected: a page it shares with other
+// memory (lavapipe's small allocations lie in the C heap) would make writes there fault too, and a
+// system call writing there fail.
+bool inside_mapping(const ResolvedRange& where, const PageSpan& pages, size_t page_size) {
+    const auto base = reinterpret_cast<uintptr_t>(where.memory.host_base);
+    return pages.first >= base && pages.first + pages.count * page_size <= base + where.memory.size;
+}
+
+bool any_page_written(const PageGuard& guard, const HostWriteWatch::Range& r) {
+    const PageSpan pages = pages_of(r.host, r.size, guard.page_size());
+    for (size_t i = 0; i < pages.count; ++i)
+        if (guard.before_image(pages.first + i * guard.page_size())) return true;
+    return false;
+}
+
+// Whether `bytes` (the range now, or as its pause read it) differ from the range at its
+// submission. Pages not written since hold what they held then, so only the written ones are
+// compared, against their before-images.
+bool differs_from_submitted(const PageGuard& guard, const HostWriteWatch::Range& r,
+                            const uint8_t* bytes) {
+    const size_t page_size = guard.page_size();
+    const auto begin = reinterpret_cast<uintptr_t>(r.host), end = begin + r.size;
+    const PageSpan pages = pages_of(r.host, r.size, page_size);
+    for (size_t i = 0; i < pages.count; ++i) {
+        const uintptr_t page = pages.first + i * page_size;
+        const uint8_t* before = guard.before_image(page);
+        if (!before) continue;
+        const uintptr_t from = std::max(begin, page), to = std::min(end, page + page_size);
+        if (std::memcmp(before + (from - page), bytes + (from - begin), to - from) != 0)
+            return true;
+    }
+    return false;
+}
+
 }  // namespace
+
+bool HostWriteWatch::guard(Range& r, const ResolvedRange& where) {
+    PageGuard* guard = PageGuard::instance();
+    if (!guard || !layer_config().host_write_guard) return false;
+    const PageSpan pages = pages_of(r.host, r.size, guard->page_size());
+    const bool uncached = !(where.memory.property_flags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT);
+    r.guarded = inside_mapping(where, pages, guard->page_size()) &&
+                guard->watch(pages.first, pages.count, uncached);
+    return r.guarded;
+}
+
+void HostWriteWatch::unguard(Range& r) {
+    if (!r.guarded) return;
+    PageGuard* guard = PageGuard::instance();
+    const PageSpan pages = pages_of(r.host, r.size, guard->page_size());
+    guard->unwatch(pages.first, pages.count);
+    r.guarded = false;
+}
 
 void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
                                 const std::vector<const PausePoint*>& pauses,
@@ -57,18 +144,30 @@ void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
                                         std::string& why) {
         return read_host_view(d, a, size, out, why);
     };
+    const bool guarding = layer_config().host_write_guard && PageGuard::instance();
     for (const PausePoint* pause : pauses) {
         if (!pause->parameters || pause->phase != PausePhase::kBeforeCommand) continue;
-        ClusterMemoryWalk walk = walk_cluster_inputs(*pause->parameters, host_view);
+        ClusterMemoryWalk walk =
+            walk_cluster_inputs(*pause->parameters,
+                                guarding ? pointer_reader(d, *pause->parameters) : host_view);
         for (const CapturedRange& r : walk.ranges) {
             if (!r.address || !r.bytes.size()) continue;
             ResolvedRange where;
             std::string why;
             if (!read_host_view(d, r.address, r.bytes.size(), nullptr, why, &where)) continue;
             const VkDeviceSize at = where.buffer.memory_offset + where.offset_in_buffer;
-            fresh.ranges.push_back({pause->pause_id, r.address, r.bytes.size(),
-                                    MemorySpan{where.memory.handle, at, at + r.bytes.size()},
-                                    hash_of(r.bytes), 0, false});
+            Range range{pause->pause_id, r.address, r.bytes.size(),
+                        MemorySpan{where.memory.handle, at, at + r.bytes.size()}};
+            range.host = where.host;
+            if (guard(range, where)) {
+                ++guarded_ranges_;
+            } else {
+                ++hashed_ranges_;
+                CapturedBytes copy;  // a view would read uncached memory with plain loads
+                if (r.bytes.is_view()) read_host_view(d, r.address, r.bytes.size(), &copy, why);
+                range.hash = hash_of(r.bytes.is_view() ? copy : r.bytes);
+            }
+            fresh.ranges.push_back(std::move(range));
         }
     }
     // A submission that only writes is kept too: its writes may change another's inputs.
@@ -82,7 +181,34 @@ void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
 
 void HostWriteWatch::submit_failed(uint64_t index) {
     std::lock_guard lock(mutex_);
-    std::erase_if(watched_, [&](const Submission& s) { return s.index == index; });
+    forget([&](const Submission& s) { return s.index == index; });
+}
+
+void HostWriteWatch::memory_freed(uint64_t memory) {
+    std::lock_guard lock(mutex_);
+    for (Submission& s : watched_)
+        std::erase_if(s.ranges, [&](Range& r) {
+            if (r.span.memory != memory) return false;
+            unguard(r);
+            return true;
+        });
+}
+
+HostWriteWatch::~HostWriteWatch() {
+    for (Submission& s : watched_)
+        for (Range& r : s.ranges) unguard(r);
+}
+
+std::string HostWriteWatch::mode_line() {
+    std::lock_guard lock(mutex_);
+    if (!layer_config().host_write_guard) return "host-write watch: hash";
+    PageGuard* guard = PageGuard::instance();
+    if (!guard) return "host-write watch: hash (the page guard could not start)";
+    const PageGuard::Counts counts = guard->counts();
+    return "host-write watch: guard: " + std::to_string(guarded_ranges_) +
+           " ranges write-protected, " + std::to_string(hashed_ranges_) + " hashed (" +
+           std::to_string(counts.refused) + " refused by mprotect), " +
+           std::to_string(counts.faults) + " pages written while protected";
 }
 
 void HostWriteWatch::paused(uint64_t submission, uint64_t pause_id,
@@ -98,6 +224,13 @@ void HostWriteWatch::paused(uint64_t submission, uint64_t pause_id,
             });
             if (read == inputs.end()) continue;
             r.paused = true;
+            if (r.guarded) {
+                const PageGuard& guard = *PageGuard::instance();
+                r.read_changed = any_page_written(guard, r) &&
+                                 differs_from_submitted(guard, r, read->bytes.data());
+                if (r.read_changed) r.pause_hash = hash_of(read->bytes);
+                continue;
+            }
             r.pause_hash = hash_of(read->bytes);
             r.read_changed = r.pause_hash != r.hash;
         }
@@ -121,8 +254,11 @@ void HostWriteWatch::waited(DeviceState& d, const std::function<bool(const Submi
 
 void HostWriteWatch::forget(const std::function<bool(const Submission&)>& gone) {
     std::vector<MemorySpan> written;
-    for (const Submission& s : watched_)
-        if (gone(s)) written.insert(written.end(), s.device_writes.begin(), s.device_writes.end());
+    for (Submission& s : watched_) {
+        if (!gone(s)) continue;
+        written.insert(written.end(), s.device_writes.begin(), s.device_writes.end());
+        for (Range& r : s.ranges) unguard(r);
+    }
     std::erase_if(watched_, gone);
     // Those submissions ran while the remaining ones were pending: a remaining one's input may
     // have changed by their writes, which its own wait only sees later.
@@ -140,12 +276,22 @@ bool HostWriteWatch::device_may_have_written(const Submission& s, const MemorySp
 
 void HostWriteWatch::look(DeviceState& d, Submission& s, HostWriteSeen seen) {
     for (Range& r : s.ranges) {
+        // A guarded range none of whose pages was written holds what it held at the submission.
+        if (r.guarded && !any_page_written(*PageGuard::instance(), r)) continue;
         CapturedBytes now;
         ResolvedRange where;
         std::string why;
         if (!read_host_view(d, r.address, r.size, &now, why, &where)) continue;  // freed, unmapped
         const uint64_t hash = hash_of(now);
-        if (hash == r.hash && !r.read_changed) continue;
+        bool changed = hash != r.hash;
+        if (r.guarded) {  // hashed from now on: its before-images go with its pages' watchers
+            changed = differs_from_submitted(*PageGuard::instance(), r, now.data());
+            unguard(r);
+        }
+        if (!changed && !r.read_changed) {
+            r.hash = hash;
+            continue;
+        }
         if (device_may_have_written(s, r.span)) {
             // Bytes the device may have changed: not claimed as a host write (a limit, in
             // capture/README.md), and the new bytes are what a later look compares with.
