@@ -1,0 +1,123 @@
+// SPDX-License-Identifier: Apache-2.0
+// The page guard of the host-write watch (capture/src/page_guard.h) on anonymous memory: what a
+// write to a watched page leaves behind, from this thread and another, what watching refuses,
+// and that faults on pages it does not hold still reach the handler installed before or after it.
+#include "page_guard.h"
+
+#include <gtest/gtest.h>
+
+#include <csignal>
+#include <cstring>
+#include <thread>
+
+#include <sys/mman.h>
+
+namespace {
+
+using clastrace::capture::PageGuard;
+
+class PageGuardTest : public ::testing::Test {
+protected:
+    void SetUp() override {
+        guard = PageGuard::instance();
+        ASSERT_NE(guard, nullptr);
+        page = guard->page_size();
+        void* m =
+            mmap(nullptr, 4 * page, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+        ASSERT_NE(m, MAP_FAILED);
+        memory = static_cast<uint8_t*>(m);
+        std::memset(memory, 7, 4 * page);
+    }
+    void TearDown() override { munmap(memory, 4 * page); }
+    uintptr_t at(size_t i) const { return reinterpret_cast<uintptr_t>(memory + i * page); }
+
+    PageGuard* guard = nullptr;
+    size_t page = 0;
+    uint8_t* memory = nullptr;
+};
+
+TEST_F(PageGuardTest, AWriteLandsAndThePageKeepsItsBeforeImage) {
+    const uint64_t faults = guard->counts().faults;
+    ASSERT_TRUE(guard->watch(at(1), 2, false));
+    EXPECT_EQ(guard->before_image(at(1)), nullptr);
+    memory[page + 10] = 42;
+    EXPECT_EQ(memory[page + 10], 42);
+    const uint8_t* before = guard->before_image(at(1));
+    ASSERT_NE(before, nullptr);
+    EXPECT_EQ(before[10], 7);
+    EXPECT_EQ(guard->before_image(at(2)), nullptr);  // the other page was not written
+    EXPECT_EQ(guard->counts().faults, faults + 1);
+    memory[page + 11] = 43;  // writable now: no second fault
+    EXPECT_EQ(guard->counts().faults, faults + 1);
+    guard->unwatch(at(1), 2);
+    EXPECT_EQ(guard->before_image(at(1)), nullptr);
+    memory[2 * page] = 1;  // unwatched: writable, nothing kept
+    EXPECT_EQ(guard->before_image(at(2)), nullptr);
+    EXPECT_EQ(guard->counts().faults, faults + 1);
+}
+
+TEST_F(PageGuardTest, AnotherThreadsWriteIsSeenToo) {
+    ASSERT_TRUE(guard->watch(at(0), 1, true));
+    std::thread([&] { std::memset(memory + 100, 9, 50); }).join();
+    const uint8_t* before = guard->before_image(at(0));
+    ASSERT_NE(before, nullptr);
+    EXPECT_EQ(before[100], 7);
+    EXPECT_EQ(memory[100], 9);
+    guard->unwatch(at(0), 1);
+}
+
+TEST_F(PageGuardTest, AWrittenPageIsRefusedUntilItsWatchersAreGone) {
+    ASSERT_TRUE(guard->watch(at(3), 1, false));
+    ASSERT_TRUE(guard->watch(at(3), 1, false));  // a second watcher of the same page
+    memory[3 * page] = 1;
+    EXPECT_FALSE(guard->watch(at(3), 1, false));  // its reference is gone
+    guard->unwatch(at(3), 1);
+    EXPECT_NE(guard->before_image(at(3)), nullptr);  // still one watcher
+    guard->unwatch(at(3), 1);
+    EXPECT_TRUE(guard->watch(at(3), 1, false));  // protected afresh
+    EXPECT_EQ(guard->before_image(at(3)), nullptr);
+    guard->unwatch(at(3), 1);
+}
+
+TEST_F(PageGuardTest, MprotectRefusingIsReportedAndNothingStaysWatched) {
+    const uint64_t refused = guard->counts().refused;
+    munmap(memory + 2 * page, page);  // a hole: mprotect over it fails with ENOMEM
+    EXPECT_FALSE(guard->watch(at(1), 3, false));
+    EXPECT_EQ(guard->counts().refused, refused + 1);
+    memory[page] = 5;  // the page protected before the hole is writable again
+    EXPECT_EQ(guard->before_image(at(1)), nullptr);
+    mmap(memory + 2 * page, page, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS | MAP_FIXED,
+         -1, 0);
+}
+
+uint8_t* own_page = nullptr;
+int own_faults = 0;
+
+void own_handler(int, siginfo_t* info, void*) {
+    if (info->si_addr != own_page) std::abort();
+    mprotect(own_page, 4096, PROT_READ | PROT_WRITE);
+    ++own_faults;
+}
+
+// The application's handler, installed after the guard's, comes second again at the next watch,
+// and still gets the faults that are its own while pages are guarded.
+TEST_F(PageGuardTest, TheApplicationsHandlerStillGetsItsFaults) {
+    own_page =
+        static_cast<uint8_t*>(mmap(nullptr, page, PROT_NONE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0));
+    ASSERT_NE(own_page, MAP_FAILED);
+    struct sigaction mine {
+    }, before{};
+    mine.sa_sigaction = own_handler;
+    mine.sa_flags = SA_SIGINFO;
+    sigemptyset(&mine.sa_mask);
+    ASSERT_EQ(sigaction(SIGSEGV, &mine, &before), 0);
+    ASSERT_TRUE(guard->watch(at(0), 1, false));  // takes SIGSEGV first again
+    memory[0] = 3;                               // the guard's
+    own_page[0] = 1;                             // the application's
+    EXPECT_EQ(own_faults, 1);
+    EXPECT_NE(guard->before_image(at(0)), nullptr);
+    guard->unwatch(at(0), 1);
+    munmap(own_page, page);
+}
+
+}  // namespace
