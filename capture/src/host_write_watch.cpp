@@ -8,6 +8,7 @@
 #include "page_guard.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cstring>
 #include <map>
 
@@ -21,6 +22,10 @@ namespace {
 // oldest first, past this many: the watch stays bounded.
 constexpr size_t kMaxWatchedSubmissions = 64;
 
+// Bytes the watch copied out of mapped memory (for CLASTRACE_STATS): on a real GPU that memory is
+// uncached, and these reads are what the watch costs.
+std::atomic<uint64_t> mapped_bytes_read{0};
+
 // The host's view of mapped memory: what the host wrote is there, flushed or not.
 bool read_host_view(DeviceState& d, VkDeviceAddress address, uint64_t size, CapturedBytes* out,
                     std::string& why, ResolvedRange* where = nullptr) {
@@ -32,6 +37,7 @@ bool read_host_view(DeviceState& d, VkDeviceAddress address, uint64_t size, Capt
     }
     if (where) *where = *range;
     if (!out) return true;
+    mapped_bytes_read.fetch_add(size, std::memory_order_relaxed);
     uint8_t* to = out->fill(size);
     if (range->memory.property_flags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT)
         std::memcpy(to, range->host, size);
@@ -79,9 +85,13 @@ PageSpan pages_of(const uint8_t* host, uint64_t size, size_t page_size) {
 // Only pages wholly inside the allocation's mapping are protected: a page it shares with other
 // memory (lavapipe's small allocations lie in the C heap) would make writes there fault too, and a
 // system call writing there fail.
-bool inside_mapping(const ResolvedRange& where, const PageSpan& pages, size_t page_size) {
-    const auto base = reinterpret_cast<uintptr_t>(where.memory.host_base);
-    return pages.first >= base && pages.first + pages.count * page_size <= base + where.memory.size;
+bool inside_mapping(const TrackedMemory& memory, const PageSpan& pages, size_t page_size) {
+    const auto base = reinterpret_cast<uintptr_t>(memory.host_base);
+    return pages.first >= base && pages.first + pages.count * page_size <= base + memory.size;
+}
+
+void append_pages(std::vector<uintptr_t>& out, const PageSpan& pages, size_t page_size) {
+    for (size_t i = 0; i < pages.count; ++i) out.push_back(pages.first + i * page_size);
 }
 
 bool any_page_written(const PageGuard& guard, const HostWriteWatch::Range& r) {
@@ -112,22 +122,45 @@ bool differs_from_submitted(const PageGuard& guard, const HostWriteWatch::Range&
 
 }  // namespace
 
-bool HostWriteWatch::guard(Range& r, const ResolvedRange& where) {
-    PageGuard* guard = PageGuard::instance();
-    if (!guard || !layer_config().host_write_guard) return false;
-    const PageSpan pages = pages_of(r.host, r.size, guard->page_size());
-    const bool uncached = !(where.memory.property_flags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT);
-    r.guarded = inside_mapping(where, pages, guard->page_size()) &&
-                guard->watch(pages.first, pages.count, uncached);
-    return r.guarded;
+void HostWriteWatch::guard_or_hash(DeviceState& d, std::vector<Range*> ranges,
+                                   const TrackedMemory& memory) {
+    PageGuard* guard = layer_config().host_write_guard ? PageGuard::instance() : nullptr;
+    std::vector<uintptr_t> pages;
+    std::vector<Range*> guardable;
+    if (guard) {
+        std::erase_if(ranges, [&](Range* r) {
+            const PageSpan span = pages_of(r->host, r->size, guard->page_size());
+            if (!inside_mapping(memory, span, guard->page_size())) return false;
+            append_pages(pages, span, guard->page_size());
+            guardable.push_back(r);
+            return true;
+        });
+        const bool uncached = !(memory.property_flags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT);
+        if (!guardable.empty() && !guard->watch(std::move(pages), uncached))
+            ranges.insert(ranges.end(), guardable.begin(), guardable.end());
+        else
+            for (Range* r : guardable) r->guarded = true;
+        if (!guardable.empty() && guardable.front()->guarded) guarded_ranges_ += guardable.size();
+    }
+    for (Range* r : ranges) {
+        if (r->guarded) continue;
+        CapturedBytes now;
+        std::string why;
+        read_host_view(d, r->address, r->size, &now, why);
+        r->hash = hash_of(now);
+        ++hashed_ranges_;
+    }
 }
 
-void HostWriteWatch::unguard(Range& r) {
-    if (!r.guarded) return;
+void HostWriteWatch::unguard(const std::vector<Range*>& ranges) {
     PageGuard* guard = PageGuard::instance();
-    const PageSpan pages = pages_of(r.host, r.size, guard->page_size());
-    guard->unwatch(pages.first, pages.count);
-    r.guarded = false;
+    std::vector<uintptr_t> pages;
+    for (Range* r : ranges) {
+        if (!r->guarded) continue;
+        append_pages(pages, pages_of(r->host, r->size, guard->page_size()), guard->page_size());
+        r->guarded = false;
+    }
+    if (!pages.empty()) guard->unwatch(std::move(pages));
 }
 
 void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
@@ -145,6 +178,8 @@ void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
         return read_host_view(d, a, size, out, why);
     };
     const bool guarding = layer_config().host_write_guard && PageGuard::instance();
+    // Guarded submissions: the ranges of each allocation, guarded (or hashed) together below.
+    std::map<uint64_t, std::pair<TrackedMemory, std::vector<size_t>>> by_memory;
     for (const PausePoint* pause : pauses) {
         if (!pause->parameters || pause->phase != PausePhase::kBeforeCommand) continue;
         ClusterMemoryWalk walk =
@@ -159,16 +194,21 @@ void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
             Range range{pause->pause_id, r.address, r.bytes.size(),
                         MemorySpan{where.memory.handle, at, at + r.bytes.size()}};
             range.host = where.host;
-            if (guard(range, where)) {
-                ++guarded_ranges_;
+            if (guarding) {
+                auto& group = by_memory[where.memory.handle];
+                group.first = where.memory;
+                group.second.push_back(fresh.ranges.size());
             } else {
+                range.hash = hash_of(r.bytes);
                 ++hashed_ranges_;
-                CapturedBytes copy;  // a view would read uncached memory with plain loads
-                if (r.bytes.is_view()) read_host_view(d, r.address, r.bytes.size(), &copy, why);
-                range.hash = hash_of(r.bytes.is_view() ? copy : r.bytes);
             }
             fresh.ranges.push_back(std::move(range));
         }
+    }
+    for (auto& [memory, group] : by_memory) {
+        std::vector<Range*> ranges;
+        for (size_t i : group.second) ranges.push_back(&fresh.ranges[i]);
+        guard_or_hash(d, std::move(ranges), group.first);
     }
     // A submission that only writes is kept too: its writes may change another's inputs.
     if (fresh.ranges.empty() && fresh.device_writes.empty()) return;
@@ -186,29 +226,35 @@ void HostWriteWatch::submit_failed(uint64_t index) {
 
 void HostWriteWatch::memory_freed(uint64_t memory) {
     std::lock_guard lock(mutex_);
-    for (Submission& s : watched_)
-        std::erase_if(s.ranges, [&](Range& r) {
-            if (r.span.memory != memory) return false;
-            unguard(r);
-            return true;
-        });
+    for (Submission& s : watched_) {
+        std::vector<Range*> gone;
+        for (Range& r : s.ranges)
+            if (r.span.memory == memory) gone.push_back(&r);
+        unguard(gone);
+        std::erase_if(s.ranges, [&](const Range& r) { return r.span.memory == memory; });
+    }
 }
 
 HostWriteWatch::~HostWriteWatch() {
+    std::vector<Range*> all;
     for (Submission& s : watched_)
-        for (Range& r : s.ranges) unguard(r);
+        for (Range& r : s.ranges) all.push_back(&r);
+    unguard(all);
 }
 
 std::string HostWriteWatch::mode_line() {
     std::lock_guard lock(mutex_);
-    if (!layer_config().host_write_guard) return "host-write watch: hash";
+    const std::string read =
+        std::to_string(mapped_bytes_read.load(std::memory_order_relaxed)) + " bytes read";
+    if (!layer_config().host_write_guard) return "host-write watch: hash: " + read;
     PageGuard* guard = PageGuard::instance();
-    if (!guard) return "host-write watch: hash (the page guard could not start)";
+    if (!guard) return "host-write watch: hash (the page guard could not start): " + read;
     const PageGuard::Counts counts = guard->counts();
     return "host-write watch: guard: " + std::to_string(guarded_ranges_) +
            " ranges write-protected, " + std::to_string(hashed_ranges_) + " hashed (" +
            std::to_string(counts.refused) + " refused by mprotect), " +
-           std::to_string(counts.faults) + " pages written while protected";
+           std::to_string(counts.faults) + " pages written while protected, " + read +
+           " besides those pages";
 }
 
 void HostWriteWatch::paused(uint64_t submission, uint64_t pause_id,
@@ -254,11 +300,13 @@ void HostWriteWatch::waited(DeviceState& d, const std::function<bool(const Submi
 
 void HostWriteWatch::forget(const std::function<bool(const Submission&)>& gone) {
     std::vector<MemorySpan> written;
+    std::vector<Range*> unwatched;
     for (Submission& s : watched_) {
         if (!gone(s)) continue;
         written.insert(written.end(), s.device_writes.begin(), s.device_writes.end());
-        for (Range& r : s.ranges) unguard(r);
+        for (Range& r : s.ranges) unwatched.push_back(&r);
     }
+    unguard(unwatched);
     std::erase_if(watched_, gone);
     // Those submissions ran while the remaining ones were pending: a remaining one's input may
     // have changed by their writes, which its own wait only sees later.
@@ -286,7 +334,7 @@ void HostWriteWatch::look(DeviceState& d, Submission& s, HostWriteSeen seen) {
         bool changed = hash != r.hash;
         if (r.guarded) {  // hashed from now on: its before-images go with its pages' watchers
             changed = differs_from_submitted(*PageGuard::instance(), r, now.data());
-            unguard(r);
+            unguard({&r});
         }
         if (!changed && !r.read_changed) {
             r.hash = hash;

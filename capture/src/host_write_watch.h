@@ -84,9 +84,11 @@ private:
     bool device_may_have_written(const Submission& s, const MemorySpan& span) const;
     // Stops watching the submissions `gone` picks; the others keep what those may have written.
     void forget(const std::function<bool(const Submission&)>& gone);
-    // Write-protects the range's pages where the guard can hold them; false: hash it instead.
-    bool guard(Range& r, const ResolvedRange& where);
-    void unguard(Range& r);
+    // Write-protects the pages of `ranges` (of one allocation) where the guard can hold them,
+    // and hashes the others.
+    void guard_or_hash(DeviceState& d, std::vector<Range*> ranges, const TrackedMemory& memory);
+    // Stops guarding `ranges` (one unwatch for all of them).
+    void unguard(const std::vector<Range*>& ranges);
     std::mutex mutex_;
     std::deque<Submission> watched_;                   // oldest first
     uint64_t guarded_ranges_ = 0, hashed_ranges_ = 0;  // watched since the device was created

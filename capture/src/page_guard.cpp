@@ -155,19 +155,20 @@ bool PageGuard::protect_runs(const uintptr_t* pages, size_t count, int protectio
     return true;
 }
 
-bool PageGuard::watch(uintptr_t first, size_t count, bool uncached) {
+bool PageGuard::watch(std::vector<uintptr_t> pages, bool uncached) {
+    std::sort(pages.begin(), pages.end());
     std::lock_guard lock(mutex_);
     keep_handler_first();
     std::vector<uintptr_t> to_protect;
     std::vector<Entry*> entries;
-    for (size_t i = 0; i < count; ++i) {
-        const uintptr_t page = first + i * page_size_;
-        Entry* e = find_or_add(page);
+    for (size_t i = 0; i < pages.size(); ++i) {
+        if (i > 0 && pages[i] == pages[i - 1]) continue;
+        Entry* e = find_or_add(pages[i]);
         if (!e) return false;
         const uint32_t state = e->state.load(std::memory_order_acquire);
         if (state == kWritten || state == kCapturing) return false;
-        if (watchers_.count(page)) continue;  // protected already
-        to_protect.push_back(page);
+        if (watchers_.count(pages[i])) continue;  // protected already
+        to_protect.push_back(pages[i]);
         entries.push_back(e);
     }
     // Armed before the pages turn read-only: a write in between is one the page held already.
@@ -181,15 +182,15 @@ bool PageGuard::watch(uintptr_t first, size_t count, bool uncached) {
         refused_.fetch_add(1, std::memory_order_relaxed);
         return false;
     }
-    for (size_t i = 0; i < count; ++i) ++watchers_[first + i * page_size_];
+    for (uintptr_t page : pages) ++watchers_[page];
     return true;
 }
 
-void PageGuard::unwatch(uintptr_t first, size_t count) {
+void PageGuard::unwatch(std::vector<uintptr_t> pages) {
+    std::sort(pages.begin(), pages.end());
     std::lock_guard lock(mutex_);
     std::vector<uintptr_t> released;
-    for (size_t i = 0; i < count; ++i) {
-        const uintptr_t page = first + i * page_size_;
+    for (uintptr_t page : pages) {
         auto it = watchers_.find(page);
         if (it == watchers_.end() || --it->second > 0) continue;
         watchers_.erase(it);

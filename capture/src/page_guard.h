@@ -28,14 +28,15 @@ public:
 
     size_t page_size() const { return page_size_; }
 
-    // Adds a watcher to each of the `count` pages from `first` (page-aligned); pages that had
-    // none become read-only, their bytes now the reference. False, with nothing added, when a
-    // page was written since it was protected (its reference is gone until its watchers are),
-    // the table is full or mprotect refused. `uncached`: the memory is write-combined, so the
-    // handler copies the page with streaming loads.
-    bool watch(uintptr_t first, size_t count, bool uncached);
-    // Drops a watcher from each page; a page left without one is writable again.
-    void unwatch(uintptr_t first, size_t count);
+    // Adds a watcher to each page in `pages` (page-aligned, any order; a page listed twice gets
+    // two): pages that had none become read-only, their bytes now the reference. False, with
+    // nothing added, when a page was written since it was protected (its reference is gone until
+    // its watchers are), the table is full or mprotect refused. `uncached`: the memory is
+    // write-combined, so the handler copies the page with streaming loads. One call per
+    // allocation and submission: each run of consecutive pages costs one mprotect.
+    bool watch(std::vector<uintptr_t> pages, bool uncached);
+    // Drops a watcher from each page listed; a page left without one is writable again.
+    void unwatch(std::vector<uintptr_t> pages);
 
     // The page's bytes before its first write since it was protected; null while not written.
     const uint8_t* before_image(uintptr_t page) const;

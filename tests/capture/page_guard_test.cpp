@@ -9,6 +9,7 @@
 #include <csignal>
 #include <cstring>
 #include <thread>
+#include <vector>
 
 #include <sys/mman.h>
 
@@ -30,6 +31,12 @@ protected:
     }
     void TearDown() override { munmap(memory, 4 * page); }
     uintptr_t at(size_t i) const { return reinterpret_cast<uintptr_t>(memory + i * page); }
+    // Pages first .. first + count - 1, as the guard takes them.
+    std::vector<uintptr_t> pages(size_t first, size_t count = 1) const {
+        std::vector<uintptr_t> out;
+        for (size_t i = first; i < first + count; ++i) out.push_back(at(i));
+        return out;
+    }
 
     PageGuard* guard = nullptr;
     size_t page = 0;
@@ -38,7 +45,7 @@ protected:
 
 TEST_F(PageGuardTest, AWriteLandsAndThePageKeepsItsBeforeImage) {
     const uint64_t faults = guard->counts().faults;
-    ASSERT_TRUE(guard->watch(at(1), 2, false));
+    ASSERT_TRUE(guard->watch(pages(1, 2), false));
     EXPECT_EQ(guard->before_image(at(1)), nullptr);
     memory[page + 10] = 42;
     EXPECT_EQ(memory[page + 10], 42);
@@ -49,7 +56,7 @@ TEST_F(PageGuardTest, AWriteLandsAndThePageKeepsItsBeforeImage) {
     EXPECT_EQ(guard->counts().faults, faults + 1);
     memory[page + 11] = 43;  // writable now: no second fault
     EXPECT_EQ(guard->counts().faults, faults + 1);
-    guard->unwatch(at(1), 2);
+    guard->unwatch(pages(1, 2));
     EXPECT_EQ(guard->before_image(at(1)), nullptr);
     memory[2 * page] = 1;  // unwatched: writable, nothing kept
     EXPECT_EQ(guard->before_image(at(2)), nullptr);
@@ -57,32 +64,32 @@ TEST_F(PageGuardTest, AWriteLandsAndThePageKeepsItsBeforeImage) {
 }
 
 TEST_F(PageGuardTest, AnotherThreadsWriteIsSeenToo) {
-    ASSERT_TRUE(guard->watch(at(0), 1, true));
+    ASSERT_TRUE(guard->watch(pages(0, 1), true));
     std::thread([&] { std::memset(memory + 100, 9, 50); }).join();
     const uint8_t* before = guard->before_image(at(0));
     ASSERT_NE(before, nullptr);
     EXPECT_EQ(before[100], 7);
     EXPECT_EQ(memory[100], 9);
-    guard->unwatch(at(0), 1);
+    guard->unwatch(pages(0, 1));
 }
 
 TEST_F(PageGuardTest, AWrittenPageIsRefusedUntilItsWatchersAreGone) {
-    ASSERT_TRUE(guard->watch(at(3), 1, false));
-    ASSERT_TRUE(guard->watch(at(3), 1, false));  // a second watcher of the same page
+    ASSERT_TRUE(guard->watch(pages(3, 1), false));
+    ASSERT_TRUE(guard->watch(pages(3, 1), false));  // a second watcher of the same page
     memory[3 * page] = 1;
-    EXPECT_FALSE(guard->watch(at(3), 1, false));  // its reference is gone
-    guard->unwatch(at(3), 1);
+    EXPECT_FALSE(guard->watch(pages(3, 1), false));  // its reference is gone
+    guard->unwatch(pages(3, 1));
     EXPECT_NE(guard->before_image(at(3)), nullptr);  // still one watcher
-    guard->unwatch(at(3), 1);
-    EXPECT_TRUE(guard->watch(at(3), 1, false));  // protected afresh
+    guard->unwatch(pages(3, 1));
+    EXPECT_TRUE(guard->watch(pages(3, 1), false));  // protected afresh
     EXPECT_EQ(guard->before_image(at(3)), nullptr);
-    guard->unwatch(at(3), 1);
+    guard->unwatch(pages(3, 1));
 }
 
 TEST_F(PageGuardTest, MprotectRefusingIsReportedAndNothingStaysWatched) {
     const uint64_t refused = guard->counts().refused;
     munmap(memory + 2 * page, page);  // a hole: mprotect over it fails with ENOMEM
-    EXPECT_FALSE(guard->watch(at(1), 3, false));
+    EXPECT_FALSE(guard->watch(pages(1, 3), false));
     EXPECT_EQ(guard->counts().refused, refused + 1);
     memory[page] = 5;  // the page protected before the hole is writable again
     EXPECT_EQ(guard->before_image(at(1)), nullptr);
@@ -111,12 +118,12 @@ TEST_F(PageGuardTest, TheApplicationsHandlerStillGetsItsFaults) {
     mine.sa_flags = SA_SIGINFO;
     sigemptyset(&mine.sa_mask);
     ASSERT_EQ(sigaction(SIGSEGV, &mine, &before), 0);
-    ASSERT_TRUE(guard->watch(at(0), 1, false));  // takes SIGSEGV first again
-    memory[0] = 3;                               // the guard's
-    own_page[0] = 1;                             // the application's
+    ASSERT_TRUE(guard->watch(pages(0, 1), false));  // takes SIGSEGV first again
+    memory[0] = 3;                                  // the guard's
+    own_page[0] = 1;                                // the application's
     EXPECT_EQ(own_faults, 1);
     EXPECT_NE(guard->before_image(at(0)), nullptr);
-    guard->unwatch(at(0), 1);
+    guard->unwatch(pages(0, 1));
     munmap(own_page, page);
 }
 
