@@ -20,9 +20,9 @@
 namespace clastrace::capture {
 namespace {
 
-// Pages the guard can ever hold (512 MiB of 4 KiB pages), and as many before-image slots, mapped
-// without reserve: only the slots of pages written while protected take memory. Past half full
-// the table refuses new pages (short probes), and the watch hashes those ranges instead.
+// The table's entries, one before-image slot each, mapped without reserve: only the slots of
+// pages written while protected take memory. Past half full (64 Ki distinct pages, 256 MiB of
+// 4 KiB pages) the table refuses new pages (short probes), and the watch hashes those ranges.
 constexpr size_t kTableEntries = size_t(1) << 17;
 
 // A fault on a page the guard holds but does not protect is a write that raced with the page
