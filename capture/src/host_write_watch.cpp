@@ -136,7 +136,10 @@ void HostWriteWatch::guard_or_hash(DeviceState& d, std::vector<Range*> ranges,
             return true;
         });
         const bool uncached = !(memory.property_flags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT);
-        if (!guardable.empty() && !guard->watch(std::move(pages), uncached))
+        auto probed = guardable.empty() ? probed_.end() : probed_.find(memory.handle);
+        if (!guardable.empty() && probed == probed_.end())
+            probed = probed_.emplace(memory.handle, guard->probe(pages.front())).first;
+        if (!guardable.empty() && (!probed->second || !guard->watch(std::move(pages), uncached)))
             ranges.insert(ranges.end(), guardable.begin(), guardable.end());
         else
             for (Range* r : guardable) r->guarded = true;
@@ -226,6 +229,7 @@ void HostWriteWatch::submit_failed(uint64_t index) {
 
 void HostWriteWatch::memory_freed(uint64_t memory) {
     std::lock_guard lock(mutex_);
+    probed_.erase(memory);
     for (Submission& s : watched_) {
         std::vector<Range*> gone;
         for (Range& r : s.ranges)

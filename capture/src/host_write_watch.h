@@ -26,6 +26,7 @@
 #include <functional>
 #include <mutex>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 namespace clastrace::capture {
@@ -92,6 +93,7 @@ private:
     std::mutex mutex_;
     std::deque<Submission> watched_;                   // oldest first
     uint64_t guarded_ranges_ = 0, hashed_ranges_ = 0;  // watched since the device was created
+    std::unordered_map<uint64_t, bool> probed_;        // allocation -> its pages can be guarded
 };
 
 }  // namespace clastrace::capture

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include <sys/mman.h>
+#include <sys/syscall.h>
 #include <unistd.h>
 
 #if defined(__x86_64__) || defined(__i386__)
@@ -58,8 +59,9 @@ void pass_on(int signal, siginfo_t* info, void* context) {
 void on_fault(int signal, siginfo_t* info, void* context) {
     const int saved_errno = errno;
     PageGuard* guard = the_guard.load(std::memory_order_acquire);
-    const bool ours = guard && info && info->si_code == SEGV_ACCERR &&
-                      guard->take_fault(reinterpret_cast<uintptr_t>(info->si_addr));
+    const auto address = reinterpret_cast<uintptr_t>(info ? info->si_addr : nullptr);
+    const bool ours = guard && info && info->si_code == SEGV_ACCERR && guard->take_fault(address);
+    if (!ours && guard) guard->end_failed_probe(address);
     errno = saved_errno;
     if (!ours) pass_on(signal, info, context);
 }
@@ -211,6 +213,39 @@ void PageGuard::release(const std::vector<uintptr_t>& pages) {
     }
 }
 
+bool PageGuard::probe(uintptr_t page) {
+    std::lock_guard lock(mutex_);
+    keep_handler_first();
+    if (watchers_.count(page)) return true;  // guarded already
+    Entry* e = find_or_add(page);
+    if (!e || e->state.load() != kFree) return false;
+    e->uncached = true;
+    e->stray_faults.store(0);
+    e->state.store(kArmed, std::memory_order_release);
+    if (mprotect(reinterpret_cast<void*>(page), page_size_, PROT_READ) != 0) {
+        release({page});
+        refused_.fetch_add(1, std::memory_order_relaxed);
+        return false;
+    }
+    probing_thread_.store(syscall(SYS_gettid));
+    probing_page_.store(page);
+    volatile bool wrote = false;
+    if (sigsetjmp(probe_return_, 1) == 0) {
+        __atomic_fetch_add(reinterpret_cast<volatile uint8_t*>(page), 0, __ATOMIC_SEQ_CST);
+        wrote = true;
+    }
+    probing_page_.store(0);
+    release({page});
+    if (!wrote) refused_.fetch_add(1, std::memory_order_relaxed);
+    return wrote;
+}
+
+void PageGuard::end_failed_probe(uintptr_t address) {
+    const uintptr_t page = address & ~uintptr_t(page_size_ - 1);
+    if (page != 0 && page == probing_page_.load() && probing_thread_.load() == syscall(SYS_gettid))
+        siglongjmp(probe_return_, 1);
+}
+
 const uint8_t* PageGuard::before_image(uintptr_t page) const {
     const Entry* e = find(page);
     if (!e || e->state.load(std::memory_order_acquire) != kWritten) return nullptr;
@@ -230,8 +265,10 @@ bool PageGuard::take_fault(uintptr_t address) {
             cpu_relax();
             continue;
         }
-        if (state != kArmed)
+        if (state != kArmed) {
+            if (e->page.load() == probing_page_.load()) return false;  // end_failed_probe's
             return e->stray_faults.fetch_add(1, std::memory_order_relaxed) < kMaxStrayFaults;
+        }
         if (!e->state.compare_exchange_weak(state, kCapturing, std::memory_order_acq_rel)) continue;
         const auto* page = reinterpret_cast<const uint8_t*>(e->page.load());
         if (e->uncached)
@@ -243,7 +280,7 @@ bool PageGuard::take_fault(uintptr_t address) {
             return false;
         }
         e->state.store(kWritten, std::memory_order_release);
-        faults_.fetch_add(1, std::memory_order_relaxed);
+        if (e->page.load() != probing_page_.load()) faults_.fetch_add(1, std::memory_order_relaxed);
         return true;
     }
 }

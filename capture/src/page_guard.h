@@ -12,6 +12,7 @@
 #pragma once
 
 #include <atomic>
+#include <csetjmp>
 #include <cstddef>
 #include <cstdint>
 #include <mutex>
@@ -38,6 +39,13 @@ public:
     // Drops a watcher from each page listed; a page left without one is writable again.
     void unwatch(std::vector<uintptr_t> pages);
 
+    // Whether pages of this mapping can be guarded: protects `page`, writes it (an atomic add of
+    // 0, which keeps a concurrent write of the host's) and checks the write went through once the
+    // handler made the page writable again. A mapping whose write keeps faulting (a driver that
+    // does not let the page become writable) gives false, not a crashed process. Once per
+    // allocation, before its first watch.
+    bool probe(uintptr_t page);
+
     // The page's bytes before its first write since it was protected; null while not written.
     const uint8_t* before_image(uintptr_t page) const;
 
@@ -54,6 +62,9 @@ public:
     // The handler's part: true when the fault at `address` was the guard's and the faulting
     // write may be retried.
     bool take_fault(uintptr_t address);
+    // The handler's part: a fault the guard could not take was the probe's own write; it jumps
+    // back into probe() (and returns when the fault is someone else's).
+    void end_failed_probe(uintptr_t address);
 
 private:
     enum State : uint32_t { kFree, kArmed, kCapturing, kWritten };
@@ -76,6 +87,9 @@ private:
     Entry* const table_;
     uint8_t* const slots_;
     std::atomic<uint64_t> faults_{0}, refused_{0};
+    std::atomic<uintptr_t> probing_page_{0};  // probe(): the page, and the thread writing it
+    std::atomic<long> probing_thread_{0};
+    sigjmp_buf probe_return_;
     std::mutex mutex_;                                  // watch/unwatch; the handler takes none
     std::unordered_map<uintptr_t, uint32_t> watchers_;  // page -> watchers
     size_t used_ = 0;                                   // table entries taken

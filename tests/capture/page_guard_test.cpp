@@ -11,7 +11,9 @@
 #include <thread>
 #include <vector>
 
+#include <fcntl.h>
 #include <sys/mman.h>
+#include <unistd.h>
 
 namespace {
 
@@ -95,6 +97,38 @@ TEST_F(PageGuardTest, MprotectRefusingIsReportedAndNothingStaysWatched) {
     EXPECT_EQ(guard->before_image(at(1)), nullptr);
     mmap(memory + 2 * page, page, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS | MAP_FIXED,
          -1, 0);
+}
+
+TEST_F(PageGuardTest, AProbeWritesThroughAndLeavesThePageAsItWas) {
+    const PageGuard::Counts before = guard->counts();
+    EXPECT_TRUE(guard->probe(at(2)));
+    EXPECT_EQ(memory[2 * page], 7);  // an atomic add of 0
+    memory[2 * page] = 8;            // writable, unwatched
+    EXPECT_EQ(guard->before_image(at(2)), nullptr);
+    EXPECT_EQ(guard->counts().faults, before.faults);  // the probe's fault is not a host write
+    EXPECT_EQ(guard->counts().refused, before.refused);
+}
+
+// A shared mapping of a file opened read-only cannot be made writable: the probe's write faults,
+// the handler cannot let it through, and the probe says so instead of the process dying.
+TEST_F(PageGuardTest, AProbeOfAMappingThatStaysReadOnlyFails) {
+    char name[] = "/tmp/clastrace_page_guard_XXXXXX";
+    const int fd = mkstemp(name);
+    ASSERT_GE(fd, 0);
+    std::vector<uint8_t> bytes(page, 3);
+    ASSERT_EQ(write(fd, bytes.data(), page), ssize_t(page));
+    const int read_only = open(name, O_RDONLY);
+    unlink(name);
+    close(fd);
+    ASSERT_GE(read_only, 0);
+    void* m = mmap(nullptr, page, PROT_READ, MAP_SHARED, read_only, 0);
+    close(read_only);
+    ASSERT_NE(m, MAP_FAILED);
+    const uint64_t refused = guard->counts().refused;
+    EXPECT_FALSE(guard->probe(reinterpret_cast<uintptr_t>(m)));
+    EXPECT_EQ(guard->counts().refused, refused + 1);
+    EXPECT_EQ(static_cast<uint8_t*>(m)[0], 3);
+    munmap(m, page);
 }
 
 uint8_t* own_page = nullptr;
