@@ -82,9 +82,9 @@ PageSpan pages_of(const uint8_t* host, uint64_t size, size_t page_size) {
     return {begin, (last - begin) / page_size + 1};
 }
 
-// Only pages wholly inside the allocation's mapping are protected: a page it shares with other
-// memory (lavapipe's small allocations lie in the C heap) would make writes there fault too, and a
-// system call writing there fail.
+// Only pages wholly inside the allocation's bytes are protected: the rest of a page it only
+// partly covers may be other memory (a driver's suballocation, the C heap), whose writes would
+// fault too, and a system call writing there fail.
 bool inside_mapping(const TrackedMemory& memory, const PageSpan& pages, size_t page_size) {
     const auto base = reinterpret_cast<uintptr_t>(memory.host_base);
     return pages.first >= base && pages.first + pages.count * page_size <= base + memory.size;
@@ -127,7 +127,7 @@ void HostWriteWatch::guard_or_hash(DeviceState& d, std::vector<Range*> ranges,
     PageGuard* guard = layer_config().host_write_guard ? PageGuard::instance() : nullptr;
     std::vector<uintptr_t> pages;
     std::vector<Range*> guardable;
-    if (guard) {
+    if (guard)
         std::erase_if(ranges, [&](Range* r) {
             const PageSpan span = pages_of(r->host, r->size, guard->page_size());
             if (!inside_mapping(memory, span, guard->page_size())) return false;
@@ -135,24 +135,27 @@ void HostWriteWatch::guard_or_hash(DeviceState& d, std::vector<Range*> ranges,
             guardable.push_back(r);
             return true;
         });
-        const bool uncached = !(memory.property_flags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT);
-        auto probed = guardable.empty() ? probed_.end() : probed_.find(memory.handle);
-        if (!guardable.empty() && probed == probed_.end())
-            probed = probed_.emplace(memory.handle, guard->probe(pages.front())).first;
-        if (!guardable.empty() && (!probed->second || !guard->watch(std::move(pages), uncached)))
-            ranges.insert(ranges.end(), guardable.begin(), guardable.end());
-        else
-            for (Range* r : guardable) r->guarded = true;
-        if (!guardable.empty() && guardable.front()->guarded) guarded_ranges_ += guardable.size();
+    const bool uncached = !(memory.property_flags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT);
+    if (!guardable.empty() && probed(memory.handle, pages.front()) &&
+        guard->watch(std::move(pages), uncached)) {
+        for (Range* r : guardable) r->guarded = true;
+        guarded_ranges_ += guardable.size();
+    } else {
+        ranges.insert(ranges.end(), guardable.begin(), guardable.end());
     }
     for (Range* r : ranges) {
-        if (r->guarded) continue;
         CapturedBytes now;
         std::string why;
         read_host_view(d, r->address, r->size, &now, why);
         r->hash = hash_of(now);
         ++hashed_ranges_;
     }
+}
+
+bool HostWriteWatch::probed(uint64_t memory, uintptr_t page) {
+    auto it = probed_.find(memory);
+    if (it == probed_.end()) it = probed_.emplace(memory, PageGuard::instance()->probe(page)).first;
+    return it->second;
 }
 
 void HostWriteWatch::unguard(const std::vector<Range*>& ranges) {

@@ -88,6 +88,8 @@ private:
     // Write-protects the pages of `ranges` (of one allocation) where the guard can hold them,
     // and hashes the others.
     void guard_or_hash(DeviceState& d, std::vector<Range*> ranges, const TrackedMemory& memory);
+    // Whether the guard can hold the pages of `memory`: probed at `page` the first time.
+    bool probed(uint64_t memory, uintptr_t page);
     // Stops guarding `ranges` (one unwatch for all of them).
     void unguard(const std::vector<Range*>& ranges);
     std::mutex mutex_;
