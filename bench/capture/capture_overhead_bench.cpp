@@ -414,7 +414,7 @@ int main(int argc, char** argv) {
     std::printf("| %-37s | %14.1f | %5.3fx | %15s | %6s |\n", "capture + serving, median wall",
                 medianCapture, medianCapture / medianServe, "", "");
     for (const std::string& line : modes[1].last.stats)
-        if (line.rfind("host-write watch", 0) == 0)
+        if (line.rfind("host-write watch:", 0) == 0)
             std::printf("\ncapture + serving ran the %s\n", line.c_str());
     const auto [low, high] = bootstrapRatioInterval(modes[0].loops, modes[1].loops);
     std::printf(
