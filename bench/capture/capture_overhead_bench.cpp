@@ -14,7 +14,8 @@
 //   6. where capture's time went (the layer's CLASTRACE_STATS report of the last run of the
 //      serving-only and capture modes).
 //
-//   7. the host-write watch on against off (CLASTRACE_HOST_WRITES=0),
+//   7. the host-write watch: the default (the page guard where it works) against the hash
+//      watch (CLASTRACE_HOST_WRITES=hash) and none (=0), and which mode each run had,
 //   8. delta contents on against off (CLASTRACE_DELTA_CONTENTS=0): trace bytes against plain
 //      zstd, and each mode's time against serving only.
 //
@@ -100,7 +101,7 @@ Run runApp(const fs::path& dir, const std::string& args,
            const std::map<std::string, std::string>& env) {
     std::string line =
         "env -u CLASTRACE_OUTPUT -u CLASTRACE_CAPTURE -u CLASTRACE_DEBUG_JSON -u "
-        "CLASTRACE_BACKGROUND_CPUS "
+        "CLASTRACE_BACKGROUND_CPUS -u CLASTRACE_HOST_WRITES "
         "-u VK_ICD_FILENAMES";
     line += bench_driver().environment_words() + " VK_ADD_LAYER_PATH=" +
             setting("CLASTRACE_BENCH_LAYER_DIR", CLASTRACE_LAYER_MANIFEST_DIR) +
@@ -220,31 +221,37 @@ void printDeltaTable(const Mode& serving, const Mode& deltas, const Mode& whole,
         median(serving.cpu));
 }
 
-// The host-write watch (capture/README.md, "Host writes"): capture with it on against capture
-// with CLASTRACE_HOST_WRITES=0, medians of the interleaved runs, and the watch's own time from
-// the layer's stats (last run with the watch on).
-void printHostWriteTable(const std::vector<double>& on_wall, const std::vector<double>& on_cpu,
-                         const std::vector<double>& off_wall, const std::vector<double>& off_cpu,
-                         const std::vector<std::string>& on_stats, int frames, int clusters) {
-    std::vector<double> pair_wall, pair_cpu;
-    for (size_t r = 0; r < on_wall.size() && r < off_wall.size(); ++r) {
-        pair_wall.push_back(on_wall[r] / off_wall[r]);
-        pair_cpu.push_back(on_cpu[r] / off_cpu[r]);
-    }
+// The host-write watch (capture/README.md, "Host writes"): capture with the default watch (the
+// page guard where mprotect works), with the hash watch, and with none, medians of the
+// interleaved runs against serving only, and which mode each ran with (the layer's stats line).
+void printHostWriteTable(const Mode& serving, const Mode& guard, const Mode& hash, const Mode& off,
+                         int frames, int clusters) {
     std::printf(
         "\nhost-write watch, %d frames x %d clusters, %zu interleaved runs each:\n\n"
-        "| capture + serving          | wall ms (median) | CPU ms (median) |\n"
-        "|----------------------------|-----------------:|----------------:|\n"
-        "| watch on (default)         | %16.1f | %15.1f |\n"
-        "| watch off (HOST_WRITES=0)  | %16.1f | %15.1f |\n"
-        "| ratio on / off (medians)   | %15.3fx | %14.3fx |\n"
-        "| ratio on / off (pairwise)  | %15.3fx | %14.3fx |\n",
-        frames, clusters, on_wall.size(), median(on_wall), median(on_cpu), median(off_wall),
-        median(off_cpu), median(on_wall) / median(off_wall), median(on_cpu) / median(off_cpu),
-        median(pair_wall), median(pair_cpu));
-    for (const std::string& line : on_stats)
-        if (line.find("host-write watch") != std::string::npos)
-            std::printf("\n    %s\n", line.c_str());
+        "| capture + serving                | wall ms (median) | vs serving | vs off | pairwise "
+        "vs serving | CPU ms (median) | vs off |\n"
+        "|----------------------------------|-----------------:|-----------:|-------:|------------"
+        "--------:|----------------:|-------:|\n",
+        frames, clusters, guard.loops.size());
+    const char* const labels[] = {"watch default (guard)", "watch hash (HOST_WRITES=hash)",
+                                  "watch off (HOST_WRITES=0)"};
+    const Mode* const rows[] = {&guard, &hash, &off};
+    for (size_t i = 0; i < 3; ++i) {
+        const Mode& m = *rows[i];
+        std::vector<double> pairs;
+        for (size_t r = 0; r < m.loops.size() && r < serving.loops.size(); ++r)
+            pairs.push_back(m.loops[r] / serving.loops[r]);
+        std::printf("| %-32s | %16.1f | %9.3fx | %5.3fx | %18.3fx | %15.1f | %5.3fx |\n", labels[i],
+                    median(m.loops), median(m.loops) / median(serving.loops),
+                    median(m.loops) / median(off.loops), median(pairs), median(m.cpu),
+                    median(m.cpu) / median(off.cpu));
+    }
+    std::printf("(serving only: median wall %.1f ms, CPU %.1f ms)\n", median(serving.loops),
+                median(serving.cpu));
+    for (size_t i = 0; i < 3; ++i)
+        for (const std::string& line : rows[i]->last.stats)
+            if (line.find("host-write watch") != std::string::npos)
+                std::printf("    %-29s %s\n", labels[i], line.c_str());
 }
 
 }  // namespace
@@ -331,12 +338,20 @@ int main(int argc, char** argv) {
          {},
          {},
          {}},
+        {"capture + serving, CLASTRACE_HOST_WRITES=hash",
+         {{"CLASTRACE_OUTPUT", traceOf("hashwatch")}, {"CLASTRACE_HOST_WRITES", "hash"}},
+         {},
+         {},
+         {},
+         {}},
     };
     constexpr size_t kDeltasOff = 11;
-    // `host-writes` as the 4th argument: only the host-write watch's table (watch on against
-    // off, with serving only as the floor), for its cost without the other knobs' runs.
+    constexpr size_t kHostWritesHash = 12;
+    // `host-writes` as the 4th argument: only the host-write watch's table (guard, hash and off,
+    // with serving only as the floor), for its cost without the other knobs' runs.
     const bool host_writes_only = argc > 4 && std::string(argv[4]) == "host-writes";
-    if (host_writes_only) modes = {modes[0], modes[1], modes[kHostWritesOff]};
+    if (host_writes_only)
+        modes = {modes[0], modes[1], modes[kHostWritesHash], modes[kHostWritesOff]};
     // `deltas`: only delta contents on against off (table 8).
     const bool deltas_only = argc > 4 && std::string(argv[4]) == "deltas";
     if (deltas_only) modes = {modes[0], modes[1], modes[kDeltasOff]};
@@ -348,8 +363,7 @@ int main(int argc, char** argv) {
             m.cpu.push_back(m.last.loopCpuMs);
         }
     if (host_writes_only) {
-        printHostWriteTable(modes[1].loops, modes[1].cpu, modes[2].loops, modes[2].cpu,
-                            modes[1].last.stats, frames, clusters);
+        printHostWriteTable(modes[0], modes[1], modes[2], modes[3], frames, clusters);
         fs::remove_all(dir);
         return 0;
     }
@@ -399,6 +413,9 @@ int main(int argc, char** argv) {
         std::count_if(pairWall.begin(), pairWall.end(), [](double r) { return r <= 1.10; });
     std::printf("| %-37s | %14.1f | %5.3fx | %15s | %6s |\n", "capture + serving, median wall",
                 medianCapture, medianCapture / medianServe, "", "");
+    for (const std::string& line : modes[1].last.stats)
+        if (line.rfind("host-write watch:", 0) == 0)
+            std::printf("\ncapture + serving ran the %s\n", line.c_str());
     const auto [low, high] = bootstrapRatioInterval(modes[0].loops, modes[1].loops);
     std::printf(
         "\nserving only median wall %.1f ms; pairs with capture <= 1.10x: %lld of %d; median wall "
@@ -498,8 +515,8 @@ int main(int argc, char** argv) {
     std::printf("\n");
     // The layer's own account (CLASTRACE_STATS=1, capture/README.md): wall and CPU time per
     // phase over the whole process, the vkDestroyDevice flush included (after the frame loop).
-    printHostWriteTable(modes[1].loops, modes[1].cpu, modes[kHostWritesOff].loops,
-                        modes[kHostWritesOff].cpu, modes[1].last.stats, frames, clusters);
+    printHostWriteTable(modes[0], modes[1], modes[kHostWritesHash], modes[kHostWritesOff], frames,
+                        clusters);
     printDeltaTable(modes[0], modes[1], modes[kDeltasOff], repetitions);
     for (size_t i : {0, 1}) {
         std::printf("\nwhere the time went, %s (last run, CLASTRACE_STATS=1):\n\n", modes[i].name);

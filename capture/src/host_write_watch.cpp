@@ -5,8 +5,10 @@
 #include "clastrace/capture/cluster_input_walker.h"
 #include "clastrace/capture/uncached_copy.h"
 #include "layer_state.h"
+#include "page_guard.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cstring>
 #include <map>
 
@@ -20,6 +22,10 @@ namespace {
 // oldest first, past this many: the watch stays bounded.
 constexpr size_t kMaxWatchedSubmissions = 64;
 
+// Bytes the watch copied out of mapped memory (for CLASTRACE_STATS): on a real GPU that memory is
+// uncached, and these reads are what the watch costs.
+std::atomic<uint64_t> mapped_bytes_read{0};
+
 // The host's view of mapped memory: what the host wrote is there, flushed or not.
 bool read_host_view(DeviceState& d, VkDeviceAddress address, uint64_t size, CapturedBytes* out,
                     std::string& why, ResolvedRange* where = nullptr) {
@@ -31,6 +37,7 @@ bool read_host_view(DeviceState& d, VkDeviceAddress address, uint64_t size, Capt
     }
     if (where) *where = *range;
     if (!out) return true;
+    mapped_bytes_read.fetch_add(size, std::memory_order_relaxed);
     uint8_t* to = out->fill(size);
     if (range->memory.property_flags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT)
         std::memcpy(to, range->host, size);
@@ -41,7 +48,126 @@ bool read_host_view(DeviceState& d, VkDeviceAddress address, uint64_t size, Capt
 
 uint64_t hash_of(const CapturedBytes& bytes) { return XXH3_64bits(bytes.data(), bytes.size()); }
 
+// The reader of a guarded submission's walk: it copies only what leads the walk to other ranges
+// (the count and the indirect cells, 8 bytes at most, and the src infos entries, with streaming
+// loads where uncached); the ranges the walk only lists become views it never reads. (With an
+// INDIRECTED src infos array the entries are views too, read by the walk's plain loads.)
+DeviceMemoryReader pointer_reader(DeviceState& d, const ClusterCommandParameters& p) {
+    const VkStridedDeviceAddressRegionKHR& src = p.info.srcInfosArray;
+    const uint64_t entry = cluster_src_info_size(p.info.input.opType);
+    const uint64_t stride = src.stride ? src.stride : entry;
+    const uint64_t most = p.info.input.maxAccelerationStructureCount;
+    const uint64_t span = src.size ? src.size : (most ? (most - 1) * stride + entry : 0);
+    const VkDeviceAddress begin = src.deviceAddress, end = begin + span;
+    return
+        [&d, begin, end](VkDeviceAddress a, uint64_t size, CapturedBytes* out, std::string& why) {
+            if (!out || size <= sizeof(VkDeviceAddress) || (a >= begin && a < end))
+                return read_host_view(d, a, size, out, why);
+            ResolvedRange where;
+            if (!read_host_view(d, a, size, nullptr, why, &where)) return false;
+            *out = CapturedBytes::borrow(where.host, size);
+            return true;
+        };
+}
+
+struct PageSpan {
+    uintptr_t first = 0;
+    size_t count = 0;
+};
+
+PageSpan pages_of(const uint8_t* host, uint64_t size, size_t page_size) {
+    const uintptr_t begin = reinterpret_cast<uintptr_t>(host) & ~uintptr_t(page_size - 1);
+    const uintptr_t last =
+        (reinterpret_cast<uintptr_t>(host) + size - 1) & ~uintptr_t(page_size - 1);
+    return {begin, (last - begin) / page_size + 1};
+}
+
+// Only pages wholly inside the allocation's bytes are protected: the rest of a page it only
+// partly covers may be other memory (a driver's suballocation, the C heap), whose writes would
+// fault too, and a system call writing there fail.
+bool inside_mapping(const TrackedMemory& memory, const PageSpan& pages, size_t page_size) {
+    const auto base = reinterpret_cast<uintptr_t>(memory.host_base);
+    return pages.first >= base && pages.first + pages.count * page_size <= base + memory.size;
+}
+
+void append_pages(std::vector<uintptr_t>& out, const PageSpan& pages, size_t page_size) {
+    for (size_t i = 0; i < pages.count; ++i) out.push_back(pages.first + i * page_size);
+}
+
+bool any_page_written(const PageGuard& guard, const HostWriteWatch::Range& r) {
+    const PageSpan pages = pages_of(r.host, r.size, guard.page_size());
+    for (size_t i = 0; i < pages.count; ++i)
+        if (guard.before_image(pages.first + i * guard.page_size())) return true;
+    return false;
+}
+
+// Whether `bytes` (the range now, or as its pause read it) differ from the range at its
+// submission. Pages not written since hold what they held then, so only the written ones are
+// compared, against their before-images.
+bool differs_from_submitted(const PageGuard& guard, const HostWriteWatch::Range& r,
+                            const uint8_t* bytes) {
+    const size_t page_size = guard.page_size();
+    const auto begin = reinterpret_cast<uintptr_t>(r.host), end = begin + r.size;
+    const PageSpan pages = pages_of(r.host, r.size, page_size);
+    for (size_t i = 0; i < pages.count; ++i) {
+        const uintptr_t page = pages.first + i * page_size;
+        const uint8_t* before = guard.before_image(page);
+        if (!before) continue;
+        const uintptr_t from = std::max(begin, page), to = std::min(end, page + page_size);
+        if (std::memcmp(before + (from - page), bytes + (from - begin), to - from) != 0)
+            return true;
+    }
+    return false;
+}
+
 }  // namespace
+
+void HostWriteWatch::guard_or_hash(DeviceState& d, std::vector<Range*> ranges,
+                                   const TrackedMemory& memory) {
+    PageGuard* guard = layer_config().host_write_guard ? PageGuard::instance() : nullptr;
+    std::vector<uintptr_t> pages;
+    std::vector<Range*> guardable;
+    if (guard)
+        std::erase_if(ranges, [&](Range* r) {
+            const PageSpan span = pages_of(r->host, r->size, guard->page_size());
+            if (!inside_mapping(memory, span, guard->page_size())) return false;
+            append_pages(pages, span, guard->page_size());
+            guardable.push_back(r);
+            return true;
+        });
+    const bool uncached = !(memory.property_flags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT);
+    if (!guardable.empty() && probed(memory.handle, pages.front()) &&
+        guard->watch(std::move(pages), uncached)) {
+        for (Range* r : guardable) r->guarded = true;
+        guarded_ranges_ += guardable.size();
+    } else {
+        ranges.insert(ranges.end(), guardable.begin(), guardable.end());
+    }
+    for (Range* r : ranges) {
+        CapturedBytes now;
+        std::string why;
+        read_host_view(d, r->address, r->size, &now, why);
+        r->hash = hash_of(now);
+        ++hashed_ranges_;
+    }
+}
+
+bool HostWriteWatch::probed(uint64_t memory, uintptr_t page) {
+    auto it = probed_.find(memory);
+    if (it == probed_.end()) it = probed_.emplace(memory, PageGuard::instance()->probe(page)).first;
+    return it->second;
+}
+
+void HostWriteWatch::unguard(const std::vector<Range*>& ranges) {
+    PageGuard* guard = PageGuard::instance();
+    std::vector<uintptr_t> pages;
+    for (Range* r : ranges) {
+        if (!r->guarded) continue;
+        append_pages(pages, pages_of(r->host, r->size, guard->page_size()), guard->page_size());
+        r->guarded = false;
+    }
+    if (!pages.empty()) guard->unwatch(std::move(pages));
+}
 
 void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
                                 const std::vector<const PausePoint*>& pauses,
@@ -57,19 +183,38 @@ void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
                                         std::string& why) {
         return read_host_view(d, a, size, out, why);
     };
+    const bool guarding = layer_config().host_write_guard && PageGuard::instance();
+    // Guarded submissions: the ranges of each allocation, guarded (or hashed) together below.
+    std::map<uint64_t, std::pair<TrackedMemory, std::vector<size_t>>> by_memory;
     for (const PausePoint* pause : pauses) {
         if (!pause->parameters || pause->phase != PausePhase::kBeforeCommand) continue;
-        ClusterMemoryWalk walk = walk_cluster_inputs(*pause->parameters, host_view);
+        ClusterMemoryWalk walk =
+            walk_cluster_inputs(*pause->parameters,
+                                guarding ? pointer_reader(d, *pause->parameters) : host_view);
         for (const CapturedRange& r : walk.ranges) {
             if (!r.address || !r.bytes.size()) continue;
             ResolvedRange where;
             std::string why;
             if (!read_host_view(d, r.address, r.bytes.size(), nullptr, why, &where)) continue;
             const VkDeviceSize at = where.buffer.memory_offset + where.offset_in_buffer;
-            fresh.ranges.push_back({pause->pause_id, r.address, r.bytes.size(),
-                                    MemorySpan{where.memory.handle, at, at + r.bytes.size()},
-                                    hash_of(r.bytes), 0, false});
+            Range range{pause->pause_id, r.address, r.bytes.size(),
+                        MemorySpan{where.memory.handle, at, at + r.bytes.size()}};
+            range.host = where.host;
+            if (guarding) {
+                auto& group = by_memory[where.memory.handle];
+                group.first = where.memory;
+                group.second.push_back(fresh.ranges.size());
+            } else {
+                range.hash = hash_of(r.bytes);
+                ++hashed_ranges_;
+            }
+            fresh.ranges.push_back(std::move(range));
         }
+    }
+    for (auto& [memory, group] : by_memory) {
+        std::vector<Range*> ranges;
+        for (size_t i : group.second) ranges.push_back(&fresh.ranges[i]);
+        guard_or_hash(d, std::move(ranges), group.first);
     }
     // A submission that only writes is kept too: its writes may change another's inputs.
     if (fresh.ranges.empty() && fresh.device_writes.empty()) return;
@@ -82,7 +227,41 @@ void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
 
 void HostWriteWatch::submit_failed(uint64_t index) {
     std::lock_guard lock(mutex_);
-    std::erase_if(watched_, [&](const Submission& s) { return s.index == index; });
+    forget([&](const Submission& s) { return s.index == index; });
+}
+
+void HostWriteWatch::memory_freed(uint64_t memory) {
+    std::lock_guard lock(mutex_);
+    probed_.erase(memory);
+    for (Submission& s : watched_) {
+        std::vector<Range*> gone;
+        for (Range& r : s.ranges)
+            if (r.span.memory == memory) gone.push_back(&r);
+        unguard(gone);
+        std::erase_if(s.ranges, [&](const Range& r) { return r.span.memory == memory; });
+    }
+}
+
+HostWriteWatch::~HostWriteWatch() {
+    std::vector<Range*> all;
+    for (Submission& s : watched_)
+        for (Range& r : s.ranges) all.push_back(&r);
+    unguard(all);
+}
+
+std::string HostWriteWatch::mode_line() {
+    std::lock_guard lock(mutex_);
+    const std::string read =
+        std::to_string(mapped_bytes_read.load(std::memory_order_relaxed)) + " bytes read";
+    if (!layer_config().host_write_guard) return "host-write watch: hash: " + read;
+    PageGuard* guard = PageGuard::instance();
+    if (!guard) return "host-write watch: hash (the page guard could not start): " + read;
+    const PageGuard::Counts counts = guard->counts();
+    return "host-write watch: guard: " + std::to_string(guarded_ranges_) +
+           " ranges write-protected, " + std::to_string(hashed_ranges_) + " hashed (" +
+           std::to_string(counts.refused) + " refused by mprotect), " +
+           std::to_string(counts.faults) + " pages written while protected, " + read +
+           " besides those pages";
 }
 
 void HostWriteWatch::paused(uint64_t submission, uint64_t pause_id,
@@ -98,6 +277,13 @@ void HostWriteWatch::paused(uint64_t submission, uint64_t pause_id,
             });
             if (read == inputs.end()) continue;
             r.paused = true;
+            if (r.guarded) {
+                const PageGuard& guard = *PageGuard::instance();
+                r.read_changed = any_page_written(guard, r) &&
+                                 differs_from_submitted(guard, r, read->bytes.data());
+                if (r.read_changed) r.pause_hash = hash_of(read->bytes);
+                continue;
+            }
             r.pause_hash = hash_of(read->bytes);
             r.read_changed = r.pause_hash != r.hash;
         }
@@ -121,8 +307,13 @@ void HostWriteWatch::waited(DeviceState& d, const std::function<bool(const Submi
 
 void HostWriteWatch::forget(const std::function<bool(const Submission&)>& gone) {
     std::vector<MemorySpan> written;
-    for (const Submission& s : watched_)
-        if (gone(s)) written.insert(written.end(), s.device_writes.begin(), s.device_writes.end());
+    std::vector<Range*> unwatched;
+    for (Submission& s : watched_) {
+        if (!gone(s)) continue;
+        written.insert(written.end(), s.device_writes.begin(), s.device_writes.end());
+        for (Range& r : s.ranges) unwatched.push_back(&r);
+    }
+    unguard(unwatched);
     std::erase_if(watched_, gone);
     // Those submissions ran while the remaining ones were pending: a remaining one's input may
     // have changed by their writes, which its own wait only sees later.
@@ -140,12 +331,22 @@ bool HostWriteWatch::device_may_have_written(const Submission& s, const MemorySp
 
 void HostWriteWatch::look(DeviceState& d, Submission& s, HostWriteSeen seen) {
     for (Range& r : s.ranges) {
+        // A guarded range none of whose pages was written holds what it held at the submission.
+        if (r.guarded && !any_page_written(*PageGuard::instance(), r)) continue;
         CapturedBytes now;
         ResolvedRange where;
         std::string why;
         if (!read_host_view(d, r.address, r.size, &now, why, &where)) continue;  // freed, unmapped
         const uint64_t hash = hash_of(now);
-        if (hash == r.hash && !r.read_changed) continue;
+        bool changed = hash != r.hash;
+        if (r.guarded) {  // hashed from now on: its before-images go with its pages' watchers
+            changed = differs_from_submitted(*PageGuard::instance(), r, now.data());
+            unguard({&r});
+        }
+        if (!changed && !r.read_changed) {
+            r.hash = hash;
+            continue;
+        }
         if (device_may_have_written(s, r.span)) {
             // Bytes the device may have changed: not claimed as a host write (a limit, in
             // capture/README.md), and the new bytes are what a later look compares with.

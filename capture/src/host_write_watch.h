@@ -10,6 +10,12 @@
 // in flight may have written (the submission's own, or another submission pending meanwhile)
 // is not claimed as the host's: the layer cannot tell whose write it saw
 // (host_write_device_writes.h).
+//
+// Guard mode (CLASTRACE_HOST_WRITES=guard, the default): the submission's walk reads only what
+// leads it to the ranges, and each range's pages are write-protected instead of hashed
+// (page_guard.h). A look compares only ranges on pages written since, against the pages'
+// before-images; an unwritten range costs nothing. A range on a page the guard cannot hold
+// (mprotect refused, a page shared with memory outside the allocation) is hashed as above.
 #pragma once
 
 #include "clastrace/capture/capture_records.h"
@@ -19,6 +25,8 @@
 #include <deque>
 #include <functional>
 #include <mutex>
+#include <string>
+#include <unordered_map>
 #include <vector>
 
 namespace clastrace::capture {
@@ -31,11 +39,15 @@ public:
         uint64_t pause_id = 0;
         VkDeviceAddress address = 0;
         uint64_t size = 0;
-        MemorySpan span;            // where it lies in device memory
-        uint64_t hash = 0;          // at the submission, then at the last look
-        uint64_t pause_hash = 0;    // what the command read, once its pause came
-        bool read_changed = false;  // the command read bytes unlike those at the submission
-        bool paused = false;        // its pause came: the trace holds what the command read
+        MemorySpan span;                // where it lies in device memory
+        uint64_t hash = 0;              // at the submission, then at the last look
+        uint64_t pause_hash = 0;        // what the command read, once its pause came
+        bool read_changed = false;      // the command read bytes unlike those at the submission
+        bool paused = false;            // its pause came: the trace holds what the command read
+        const uint8_t* host = nullptr;  // where the layer's mapping holds it
+        // Its pages are write-protected (page_guard.h): `hash` is unset until a look finds one
+        // of them written, compares, and hashes the range from then on.
+        bool guarded = false;
     };
     struct Submission {
         uint64_t index = 0;
@@ -60,6 +72,11 @@ public:
     // A host wait succeeded: reports host writes to the submissions it orders, then stops
     // watching them. `orders` says which it completed directly; earlier ones on their queues too.
     void waited(DeviceState& d, const std::function<bool(const Submission&)>& orders);
+    // vkFreeMemory, before the driver's: the ranges in `memory` are no longer watched.
+    void memory_freed(uint64_t memory);
+    // What CLASTRACE_STATS says of the watch: its mode and what the guard did.
+    std::string mode_line();
+    ~HostWriteWatch();
 
 private:
     // Hashes each range again; a changed one goes to the sink as `seen`.
@@ -68,8 +85,17 @@ private:
     bool device_may_have_written(const Submission& s, const MemorySpan& span) const;
     // Stops watching the submissions `gone` picks; the others keep what those may have written.
     void forget(const std::function<bool(const Submission&)>& gone);
+    // Write-protects the pages of `ranges` (of one allocation) where the guard can hold them,
+    // and hashes the others.
+    void guard_or_hash(DeviceState& d, std::vector<Range*> ranges, const TrackedMemory& memory);
+    // Whether the guard can hold the pages of `memory`: probed at `page` the first time.
+    bool probed(uint64_t memory, uintptr_t page);
+    // Stops guarding `ranges` (one unwatch for all of them).
+    void unguard(const std::vector<Range*>& ranges);
     std::mutex mutex_;
-    std::deque<Submission> watched_;  // oldest first
+    std::deque<Submission> watched_;                   // oldest first
+    uint64_t guarded_ranges_ = 0, hashed_ranges_ = 0;  // watched since the device was created
+    std::unordered_map<uint64_t, bool> probed_;        // allocation -> its pages can be guarded
 };
 
 }  // namespace clastrace::capture

@@ -168,10 +168,14 @@ LayerConfig parse_layer_config(const std::function<const char*(const char*)>& ge
             reject("CLASTRACE_STATS", *v, "0 or 1");
     }
     if (auto v = value("CLASTRACE_HOST_WRITES")) {
-        if (auto on = parse_switch(*v))
+        if (*v == "hash" || *v == "guard") {
+            config.host_writes = true;
+            config.host_write_guard = *v == "guard";
+        } else if (auto on = parse_switch(*v)) {
             config.host_writes = *on;
-        else
-            reject("CLASTRACE_HOST_WRITES", *v, "0 or 1");
+        } else {
+            reject("CLASTRACE_HOST_WRITES", *v, "guard, hash, 1 (guard) or 0");
+        }
     }
     if (auto v = value("CLASTRACE_DELTA_CONTENTS")) {
         if (auto on = parse_switch(*v))

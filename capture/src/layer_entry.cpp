@@ -333,8 +333,11 @@ VKAPI_ATTR void VKAPI_CALL DestroyDevice(VkDevice device,
         state->sink->flush();
     }
     if (layer_config().stats) {  // after the flush, so the trace's numbers are final
-        for (const std::string& line :
-             cost_report(state->sink ? state->sink->cost_lines() : std::vector<std::string>{}))
+        std::vector<std::string> extra =
+            state->sink ? state->sink->cost_lines() : std::vector<std::string>{};
+        extra.push_back(layer_config().host_writes ? state->host_writes.mode_line()
+                                                   : "host-write watch: off");
+        for (const std::string& line : cost_report(extra))
             std::fprintf(stderr, "clastrace: %s\n", line.c_str());
     }
     for (auto& [commandBuffer, log] : state->command_buffers)

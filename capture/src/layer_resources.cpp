@@ -56,6 +56,7 @@ VKAPI_ATTR void VKAPI_CALL FreeMemory(VkDevice device, VkDeviceMemory memory,
     DeviceState& d = device_of(device);
     if (memory) {
         forget_pre_range_memory(d, handle_id(memory));
+        d.host_writes.memory_freed(handle_id(memory));  // unprotects its pages while mapped
         d.memory_map.remove_memory(handle_id(memory));
         if (d.sink) d.sink->memory_freed(handle_id(memory));
     }

@@ -14,6 +14,14 @@
 //                          ordered the build first), then submits once more and waits;
 //                          before-run: the build waits for a timeline value the host signals
 //                          after the rewrite and one more (empty) submission
+//   host-rewrite WHEN PLACE  the same with the infos 8 KiB into a 32 KiB buffer, on a page the
+//                          layer's page guard can protect (capture/README.md, "Host writes"):
+//                          PLACE = paged (the rewrite as above), neighbour (the host writes the
+//                          infos' page beside them instead), thread (another thread rewrites),
+//                          app-handler (the app takes SIGSEGV for a page of its own after the
+//                          first submission, and faults on it before the second's rewrite; exit
+//                          4 unless its handler saw that one fault), layer-writes (no rewrite; the
+//                          served build writes its implicit data on the infos' page)
 //   serve OUT.json         served_scene.h: triangle clusters, then a bottom level over the
 //                          addresses the first build wrote, in one command buffer; OUT.json
 //                          holds every buffer's address and what the builds wrote. Exit 3
@@ -37,9 +45,15 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <atomic>
+#include <csignal>
 #include <fstream>
+#include <map>
 #include <string>
+#include <thread>
 #include <vector>
+
+#include <sys/mman.h>
 
 namespace {
 
@@ -350,8 +364,31 @@ int resubmit(int times) {
 // rewrite: limits that hold the cluster, sizes from the driver's query, the usages the build
 // needs, destinations and scratch of their own.
 enum class Rewrite { kBeforeWait, kAfterWait, kBeforeRun };
+enum class Placement { kOwnMemory, kPaged, kNeighbour, kThread, kAppHandler, kLayerWrites };
 
-int hostRewrite(Rewrite when) {
+// The application's own guard page and its SIGSEGV handler (Placement::kAppHandler).
+uint8_t* appGuardPage = nullptr;
+std::atomic<int> appFaults{0};
+
+void appFaultHandler(int, siginfo_t* info, void*) {
+    auto* at = static_cast<uint8_t*>(info->si_addr);
+    if (at < appGuardPage || at >= appGuardPage + 4096) std::abort();
+    mprotect(appGuardPage, 4096, PROT_READ | PROT_WRITE);
+    ++appFaults;
+}
+
+void takeSigsegv() {
+    appGuardPage =
+        static_cast<uint8_t*>(mmap(nullptr, 4096, PROT_NONE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0));
+    if (appGuardPage == MAP_FAILED) fail("mmap");
+    struct sigaction action {};
+    action.sa_sigaction = appFaultHandler;
+    action.sa_flags = SA_SIGINFO;
+    sigemptyset(&action.sa_mask);
+    if (sigaction(SIGSEGV, &action, nullptr) != 0) fail("sigaction");
+}
+
+int hostRewrite(Rewrite when, Placement place = Placement::kOwnMemory) {
     Context c;
     c.createInstance();
     c.createDevice(/*timelineSemaphores=*/true);
@@ -381,8 +418,14 @@ int hostRewrite(Rewrite when) {
         VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
     const VkBufferUsageFlags storage = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
     Buffer counts = c.makeBuffer(4, input);
+    const bool paged = place != Placement::kOwnMemory;
+    const VkDeviceSize infosAt = paged ? 8192 : 0;  // an interior page of a 32 KiB buffer
     Buffer infos =
-        c.makeBuffer(sizeof(VkClusterAccelerationStructureBuildTriangleClusterInfoNV), input);
+        paged
+            ? c.makeBuffer(32768, input | storage)
+            : c.makeBuffer(sizeof(VkClusterAccelerationStructureBuildTriangleClusterInfoNV), input);
+    uint8_t* const infosHost = infos.mapped + infosAt;
+    const VkDeviceAddress infosAddress = infos.address + infosAt;
     Buffer vertices = c.makeBuffer(9 * sizeof(float), input);
     Buffer indices = c.makeBuffer(3 * sizeof(uint32_t), input);
     Buffer implicitData = c.makeBuffer(sizes.accelerationStructureSize, storage);
@@ -403,13 +446,14 @@ int hostRewrite(Rewrite when) {
     cluster.vertexBufferStride = 3 * sizeof(float);
     cluster.indexBuffer = indices.address;
     cluster.vertexBuffer = vertices.address;
-    std::memcpy(infos.mapped, &cluster, sizeof cluster);
-    build.dstImplicitData = implicitData.address;
+    std::memcpy(infosHost, &cluster, sizeof cluster);
+    build.dstImplicitData =
+        place == Placement::kLayerWrites ? infosAddress + 1024 : implicitData.address;
     build.scratchData = scratch.address;
     build.dstAddressesArray = {dstAddresses.address, sizeof(VkDeviceAddress),
                                sizeof(VkDeviceAddress)};
     build.dstSizesArray = {dstSizes.address, sizeof(uint32_t), sizeof(uint32_t)};
-    build.srcInfosArray = {infos.address, sizeof cluster, sizeof cluster};
+    build.srcInfosArray = {infosAddress, sizeof cluster, sizeof cluster};
     build.srcInfosCount = counts.address;
 
     VkCommandBufferAllocateInfo allocInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr,
@@ -430,7 +474,13 @@ int hostRewrite(Rewrite when) {
     submit.pCommandBuffers = &cb;
     auto rewrite = [&] {
         cluster.clusterID = 20;  // the next frame's infos, written over this frame's
-        std::memcpy(infos.mapped, &cluster, sizeof cluster);
+        if (place == Placement::kNeighbour) {
+            std::memset(infosHost + 2048, 0x5A, 64);  // the same page, bytes no command reads
+        } else if (place == Placement::kThread) {
+            std::thread([&] { std::memcpy(infosHost, &cluster, sizeof cluster); }).join();
+        } else if (place != Placement::kLayerWrites) {
+            std::memcpy(infosHost, &cluster, sizeof cluster);
+        }
     };
     const uint64_t kForever = 30ull * 1000 * 1000 * 1000;
     if (when == Rewrite::kBeforeRun) {
@@ -459,9 +509,21 @@ int hostRewrite(Rewrite when) {
         vkDestroyFence(c.device, fence, nullptr);
         return 0;
     }
+    if (place == Placement::kAppHandler) {  // its handler comes after the layer's
+        CHECK(vkQueueSubmit(c.queue, 1, &submit, fence));
+        CHECK(vkWaitForFences(c.device, 1, &fence, VK_TRUE, kForever));
+        CHECK(vkResetFences(c.device, 1, &fence));
+        takeSigsegv();
+    }
     CHECK(vkQueueSubmit(c.queue, 1, &submit, fence));
+    if (place == Placement::kAppHandler) appGuardPage[0] = 1;  // the app's own fault
     if (when == Rewrite::kBeforeWait) rewrite();
     CHECK(vkWaitForFences(c.device, 1, &fence, VK_TRUE, kForever));
+    if (place == Placement::kAppHandler && appFaults != 1) {
+        std::fprintf(stderr, "the application's SIGSEGV handler saw %d faults, not 1\n",
+                     appFaults.load());
+        return 4;
+    }
     if (when == Rewrite::kAfterWait) rewrite();
     CHECK(vkResetFences(c.device, 1, &fence));
     CHECK(vkQueueSubmit(c.queue, 1, &submit, fence));
@@ -809,10 +871,22 @@ int main(int argc, char** argv) {
     if (argc == 3 && std::strcmp(argv[1], "dispatch") == 0) return dispatch(argv[2]);
     if (argc == 3 && std::strcmp(argv[1], "resubmit") == 0)
         return resubmit(std::max(1, std::atoi(argv[2])));
-    if (argc == 3 && std::strcmp(argv[1], "host-rewrite") == 0) {
-        if (std::strcmp(argv[2], "before-wait") == 0) return hostRewrite(Rewrite::kBeforeWait);
-        if (std::strcmp(argv[2], "after-wait") == 0) return hostRewrite(Rewrite::kAfterWait);
-        if (std::strcmp(argv[2], "before-run") == 0) return hostRewrite(Rewrite::kBeforeRun);
+    if ((argc == 3 || argc == 4) && std::strcmp(argv[1], "host-rewrite") == 0) {
+        const std::map<std::string, Placement> places = {{"paged", Placement::kPaged},
+                                                         {"neighbour", Placement::kNeighbour},
+                                                         {"thread", Placement::kThread},
+                                                         {"app-handler", Placement::kAppHandler},
+                                                         {"layer-writes", Placement::kLayerWrites}};
+        Placement place = Placement::kOwnMemory;
+        if (argc == 4) {
+            auto it = places.find(argv[3]);
+            if (it == places.end()) fail("unknown placement");
+            place = it->second;
+        }
+        if (std::strcmp(argv[2], "before-wait") == 0)
+            return hostRewrite(Rewrite::kBeforeWait, place);
+        if (std::strcmp(argv[2], "after-wait") == 0) return hostRewrite(Rewrite::kAfterWait, place);
+        if (std::strcmp(argv[2], "before-run") == 0) return hostRewrite(Rewrite::kBeforeRun, place);
     }
     if (argc == 3 && std::strcmp(argv[1], "pause-cost") == 0)
         return pauseCost(std::max(1, std::atoi(argv[2])));

@@ -109,6 +109,23 @@ TEST(LayerConfig, DeltaContentsOnByDefaultAndSwitchedByZeroOrOne) {
     expect_on_by_default("CLASTRACE_DELTA_CONTENTS", &LayerConfig::delta_contents, "xor");
 }
 
+TEST(LayerConfig, HostWritesGuardByDefaultHashGuardOrOff) {
+    EXPECT_TRUE(parse({}).host_writes);
+    EXPECT_TRUE(parse({}).host_write_guard);
+    for (const char* on : {"guard", "1"}) {
+        const LayerConfig c = parse({{"CLASTRACE_HOST_WRITES", on}});
+        EXPECT_TRUE(c.host_writes && c.host_write_guard) << on;
+    }
+    const LayerConfig hash = parse({{"CLASTRACE_HOST_WRITES", "hash"}});
+    EXPECT_TRUE(hash.host_writes);
+    EXPECT_FALSE(hash.host_write_guard);
+    EXPECT_FALSE(parse({{"CLASTRACE_HOST_WRITES", "0"}}).host_writes);
+    const LayerConfig bad = parse({{"CLASTRACE_HOST_WRITES", "pages"}});
+    EXPECT_TRUE(bad.host_writes && bad.host_write_guard);
+    ASSERT_EQ(bad.errors.size(), 1u);
+    EXPECT_NE(bad.errors[0].find("CLASTRACE_HOST_WRITES"), std::string::npos);
+}
+
 TEST(LayerConfig, DeviceAddressWritesCheapByDefaultOffCheapOrExact) {
     EXPECT_TRUE(parse({}).mark_device_address_writers);
     EXPECT_FALSE(parse({}).exact_device_address_writes);

@@ -477,50 +477,8 @@ TEST_F(ExactnessRun, EachResubmissionIsCapturedWithItsOwnHostWrittenCount) {
     }
 }
 
-// The host rewrites the src infos of a submitted build before waiting on its fence: the capture
-// records the write (MemoryObservation) ahead of the wait, and replay reports one host-write
-// race; the same write after the wait is ordered, and the trace replays clean.
-TEST_F(ExactnessRun, HostRewriteBeforeTheFenceWaitIsOneHostWriteRace) {
-    for (const char* when : {"before-wait", "after-wait"}) {
-        const std::string trace = (dir / (std::string(when) + ".clt")).string();
-        ProcessResult r =
-            run(app(std::string("host-rewrite ") + when), {{"CLASTRACE_OUTPUT", trace}});
-        ASSERT_EQ(r.exitCode, 0) << r.err;
-        ProcessResult replayed =
-            run(std::string(CLASTRACE_CAPTURE_LAUNCHER) + " replay " + trace, {}, false);
-        size_t races = 0;
-        for (size_t at = replayed.out.find("HOST-WRITE race"); at != std::string::npos;
-             at = replayed.out.find("HOST-WRITE race", at + 1))
-            ++races;
-        // The app is a correct program apart from the rewrite: the race is the one finding.
-        if (std::string(when) == "before-wait") {
-            EXPECT_EQ(replayed.exitCode, 1) << replayed.out;
-            EXPECT_EQ(races, 1u) << replayed.out;
-            EXPECT_NE(replayed.out.find("double-buffer"), std::string::npos) << replayed.out;
-        } else {
-            EXPECT_EQ(replayed.exitCode, 0) << replayed.out;
-            EXPECT_EQ(races, 0u) << replayed.out;
-        }
-    }
-}
-
-// The host rewrites the infos while the build still waits for a semaphore, and submits again:
-// the layer sees the change at that submission, before the build's pause reads the new bytes.
-// The observation must count the whole range (reason 4): replay's image holds the new bytes by
-// then, so a diff against it would find no write and no race.
-TEST_F(ExactnessRun, HostRewriteBeforeTheBuildRunsIsOneHostWriteRace) {
-    const std::string trace = (dir / "before-run.clt").string();
-    ProcessResult r = run(app("host-rewrite before-run"), {{"CLASTRACE_OUTPUT", trace}});
-    ASSERT_EQ(r.exitCode, 0) << r.err;
-    ProcessResult replayed =
-        run(std::string(CLASTRACE_CAPTURE_LAUNCHER) + " replay " + trace, {}, false);
-    EXPECT_EQ(replayed.exitCode, 1) << replayed.out;
-    size_t races = 0;
-    for (size_t at = replayed.out.find("HOST-WRITE race"); at != std::string::npos;
-         at = replayed.out.find("HOST-WRITE race", at + 1))
-        ++races;
-    EXPECT_EQ(races, 1u) << replayed.out;
-}
+// The host rewriting the src infos of a submitted build: tests/capture/host_write_watch_test.cpp,
+// with the hash watch and the page guard.
 
 TEST_F(ExactnessRun, DispatchRecordsItsPipelineAndBoundStorageBuffers) {
     ProcessResult r = run(app("dispatch " + (dir / "expected.json").string()),

@@ -61,6 +61,10 @@ struct LayerConfig {
     // CLASTRACE_HOST_WRITES: watch the mapped inputs of captured commands for host writes
     // between vkQueueSubmit and the wait that orders them (host_write_watch.h).
     bool host_writes = true;
+    // `guard` (and `1`): the watch learns which watched pages the host wrote from write faults on
+    // pages it made read-only, falling back to hashing where mprotect refuses; `hash`: it hashes
+    // every watched range at the submission and again at the wait (page_guard.h).
+    bool host_write_guard = true;
     // CLASTRACE_DELTA_CONTENTS: store a range's new contents XOR its previous contents
     // (TraceWriterOptions::delta_contents); 0 stores every content whole (format 1.6 readers).
     bool delta_contents = true;

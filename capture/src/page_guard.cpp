@@ -1,0 +1,288 @@
+// SPDX-License-Identifier: Apache-2.0
+#include "page_guard.h"
+
+#include "clastrace/capture/uncached_copy.h"
+
+#include <algorithm>
+#include <cerrno>
+#include <csignal>
+#include <cstring>
+#include <new>
+#include <vector>
+
+#include <sys/mman.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
+#if defined(__x86_64__) || defined(__i386__)
+#include <immintrin.h>
+#endif
+
+namespace clastrace::capture {
+namespace {
+
+// The table's entries, one before-image slot each, mapped without reserve: only the slots of
+// pages written while protected take memory. Past half full (64 Ki distinct pages, 256 MiB of
+// 4 KiB pages) the table refuses new pages (short probes), and the watch hashes those ranges.
+constexpr size_t kTableEntries = size_t(1) << 17;
+
+// A fault on a page the guard holds but does not protect is a write that raced with the page
+// being made writable, and its retry goes through; one that keeps coming back this many times is
+// not the guard's (the application protected the page itself) and goes to the next handler.
+constexpr uint32_t kMaxStrayFaults = 1024;
+
+std::atomic<PageGuard*> the_guard{nullptr};
+struct sigaction previous_action {};  // the handler the guard passes other faults to
+
+void cpu_relax() {
+#if defined(__x86_64__) || defined(__i386__)
+    _mm_pause();
+#endif
+}
+
+void pass_on(int signal, siginfo_t* info, void* context) {
+    const struct sigaction& p = previous_action;
+    if (p.sa_flags & SA_SIGINFO) {
+        if (p.sa_sigaction) p.sa_sigaction(signal, info, context);
+        return;
+    }
+    if (p.sa_handler == SIG_DFL || p.sa_handler == SIG_IGN) {
+        // The faulting instruction runs again and gets the default action (a core dump).
+        struct sigaction fallback {};
+        fallback.sa_handler = SIG_DFL;
+        sigaction(signal, &fallback, nullptr);
+        return;
+    }
+    p.sa_handler(signal);
+}
+
+void on_fault(int signal, siginfo_t* info, void* context) {
+    const int saved_errno = errno;
+    PageGuard* guard = the_guard.load(std::memory_order_acquire);
+    const auto address = reinterpret_cast<uintptr_t>(info ? info->si_addr : nullptr);
+    const bool ours = guard && info && info->si_code == SEGV_ACCERR && guard->take_fault(address);
+    if (!ours && guard) guard->end_failed_probe(address);
+    errno = saved_errno;
+    if (!ours) pass_on(signal, info, context);
+}
+
+struct sigaction guard_action() {
+    struct sigaction action {};
+    action.sa_sigaction = on_fault;
+    action.sa_flags = SA_SIGINFO | SA_RESTART | SA_ONSTACK;
+    sigemptyset(&action.sa_mask);
+    return action;
+}
+
+size_t slot_index_hash(uintptr_t page, size_t page_size) {
+    return size_t(((page / page_size) * 0x9E3779B97F4A7C15ull) >> 47) & (kTableEntries - 1);
+}
+
+}  // namespace
+
+PageGuard::PageGuard(size_t page_size, Entry* table, uint8_t* slots)
+    : page_size_(page_size), table_(table), slots_(slots) {}
+
+PageGuard* PageGuard::instance() {
+    static PageGuard* const kGuard = []() -> PageGuard* {
+        const long page_size = sysconf(_SC_PAGESIZE);
+        if (page_size <= 0) return nullptr;
+        void* table = mmap(nullptr, kTableEntries * sizeof(Entry), PROT_READ | PROT_WRITE,
+                           MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+        if (table == MAP_FAILED) return nullptr;
+        void* slots = mmap(nullptr, kTableEntries * size_t(page_size), PROT_READ | PROT_WRITE,
+                           MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
+        if (slots == MAP_FAILED) {
+            munmap(table, kTableEntries * sizeof(Entry));
+            return nullptr;
+        }
+        auto* entries = static_cast<Entry*>(table);
+        for (size_t i = 0; i < kTableEntries; ++i) new (&entries[i]) Entry;
+        // The copy's one-time CPU check runs here, not first inside the handler.
+        uint8_t warm[256] = {};
+        copy_from_uncached(static_cast<uint8_t*>(slots), warm, sizeof warm);
+        auto* guard = new PageGuard(size_t(page_size), entries, static_cast<uint8_t*>(slots));
+        struct sigaction action = guard_action();
+        if (sigaction(SIGSEGV, &action, &previous_action) != 0) return nullptr;  // (kept mapped)
+        the_guard.store(guard, std::memory_order_release);
+        return guard;
+    }();
+    return kGuard;
+}
+
+void PageGuard::keep_handler_first() {
+    struct sigaction current {};
+    if (sigaction(SIGSEGV, nullptr, &current) != 0) return;
+    if ((current.sa_flags & SA_SIGINFO) && current.sa_sigaction == on_fault) return;
+    previous_action = current;
+    struct sigaction action = guard_action();
+    sigaction(SIGSEGV, &action, nullptr);
+}
+
+PageGuard::Entry* PageGuard::find(uintptr_t page) const {
+    for (size_t i = 0, at = slot_index_hash(page, page_size_); i < kTableEntries;
+         ++i, at = (at + 1) & (kTableEntries - 1)) {
+        const uintptr_t held = table_[at].page.load(std::memory_order_acquire);
+        if (held == page) return &table_[at];
+        if (held == 0) return nullptr;
+    }
+    return nullptr;
+}
+
+PageGuard::Entry* PageGuard::find_or_add(uintptr_t page) {
+    size_t at = slot_index_hash(page, page_size_);
+    for (size_t i = 0; i < kTableEntries; ++i, at = (at + 1) & (kTableEntries - 1)) {
+        const uintptr_t held = table_[at].page.load(std::memory_order_relaxed);
+        if (held == page) return &table_[at];
+        if (held == 0) break;
+    }
+    if (used_ >= kTableEntries / 2) return nullptr;
+    ++used_;
+    table_[at].page.store(page, std::memory_order_release);
+    return &table_[at];
+}
+
+uint8_t* PageGuard::slot_of(const Entry* e) const {
+    return slots_ + size_t(e - table_) * page_size_;
+}
+
+bool PageGuard::protect_runs(const uintptr_t* pages, size_t count, int protection) const {
+    for (size_t i = 0; i < count;) {
+        size_t run = 1;
+        while (i + run < count && pages[i + run] == pages[i] + run * page_size_) ++run;
+        if (mprotect(reinterpret_cast<void*>(pages[i]), run * page_size_, protection) != 0)
+            return false;
+        i += run;
+    }
+    return true;
+}
+
+bool PageGuard::watch(std::vector<uintptr_t> pages, bool uncached) {
+    std::sort(pages.begin(), pages.end());
+    std::lock_guard lock(mutex_);
+    keep_handler_first();
+    std::vector<uintptr_t> to_protect;
+    std::vector<Entry*> entries;
+    for (size_t i = 0; i < pages.size(); ++i) {
+        if (i > 0 && pages[i] == pages[i - 1]) continue;
+        Entry* e = find_or_add(pages[i]);
+        if (!e) return false;
+        const uint32_t state = e->state.load(std::memory_order_acquire);
+        if (state == kWritten || state == kCapturing) return false;
+        if (watchers_.count(pages[i])) continue;  // protected already
+        to_protect.push_back(pages[i]);
+        entries.push_back(e);
+    }
+    // Armed before the pages turn read-only: a write in between is one the page held already.
+    for (Entry* e : entries) {
+        e->uncached = uncached;
+        e->stray_faults.store(0, std::memory_order_relaxed);
+        e->state.store(kArmed, std::memory_order_release);
+    }
+    if (!protect_runs(to_protect.data(), to_protect.size(), PROT_READ)) {
+        release(to_protect);
+        refused_.fetch_add(1, std::memory_order_relaxed);
+        return false;
+    }
+    for (uintptr_t page : pages) ++watchers_[page];
+    return true;
+}
+
+void PageGuard::unwatch(std::vector<uintptr_t> pages) {
+    std::sort(pages.begin(), pages.end());
+    std::lock_guard lock(mutex_);
+    std::vector<uintptr_t> released;
+    for (uintptr_t page : pages) {
+        auto it = watchers_.find(page);
+        if (it == watchers_.end() || --it->second > 0) continue;
+        watchers_.erase(it);
+        released.push_back(page);
+    }
+    release(released);
+}
+
+void PageGuard::release(const std::vector<uintptr_t>& pages) {
+    // Writable first, then free: a fault taken meanwhile still finds the page armed and captures
+    // it (harmless), and one that finds it free retries a write that now goes through.
+    protect_runs(pages.data(), pages.size(), PROT_READ | PROT_WRITE);
+    for (uintptr_t page : pages) {
+        Entry* e = find(page);
+        if (!e) continue;
+        while (e->state.load(std::memory_order_acquire) == kCapturing) cpu_relax();
+        e->state.store(kFree, std::memory_order_release);
+    }
+}
+
+bool PageGuard::probe(uintptr_t page) {
+    std::lock_guard lock(mutex_);
+    keep_handler_first();
+    if (watchers_.count(page)) return true;  // guarded already
+    Entry* e = find_or_add(page);
+    if (!e || e->state.load() != kFree) return false;
+    e->uncached = true;
+    e->stray_faults.store(0);
+    e->state.store(kArmed, std::memory_order_release);
+    if (mprotect(reinterpret_cast<void*>(page), page_size_, PROT_READ) != 0) {
+        release({page});
+        refused_.fetch_add(1, std::memory_order_relaxed);
+        return false;
+    }
+    probing_thread_.store(syscall(SYS_gettid));
+    probing_page_.store(page);
+    volatile bool wrote = false;
+    if (sigsetjmp(probe_return_, 1) == 0) {
+        __atomic_fetch_add(reinterpret_cast<volatile uint8_t*>(page), 0, __ATOMIC_SEQ_CST);
+        wrote = true;
+    }
+    probing_page_.store(0);
+    release({page});
+    if (!wrote) refused_.fetch_add(1, std::memory_order_relaxed);
+    return wrote;
+}
+
+void PageGuard::end_failed_probe(uintptr_t address) {
+    const uintptr_t page = address & ~uintptr_t(page_size_ - 1);
+    if (page != 0 && page == probing_page_.load() && probing_thread_.load() == syscall(SYS_gettid))
+        siglongjmp(probe_return_, 1);
+}
+
+const uint8_t* PageGuard::before_image(uintptr_t page) const {
+    const Entry* e = find(page);
+    if (!e || e->state.load(std::memory_order_acquire) != kWritten) return nullptr;
+    return slot_of(e);
+}
+
+PageGuard::Counts PageGuard::counts() const {
+    return {faults_.load(std::memory_order_relaxed), refused_.load(std::memory_order_relaxed)};
+}
+
+bool PageGuard::take_fault(uintptr_t address) {
+    Entry* e = find(address & ~uintptr_t(page_size_ - 1));
+    if (!e) return false;
+    for (;;) {
+        uint32_t state = e->state.load(std::memory_order_acquire);
+        if (state == kCapturing) {  // another thread's write to the page: wait for its copy
+            cpu_relax();
+            continue;
+        }
+        if (state != kArmed) {
+            if (e->page.load() == probing_page_.load()) return false;  // end_failed_probe's
+            return e->stray_faults.fetch_add(1, std::memory_order_relaxed) < kMaxStrayFaults;
+        }
+        if (!e->state.compare_exchange_weak(state, kCapturing, std::memory_order_acq_rel)) continue;
+        const auto* page = reinterpret_cast<const uint8_t*>(e->page.load());
+        if (e->uncached)
+            copy_from_uncached(slot_of(e), page, page_size_);
+        else
+            std::memcpy(slot_of(e), page, page_size_);
+        if (mprotect(const_cast<uint8_t*>(page), page_size_, PROT_READ | PROT_WRITE) != 0) {
+            e->state.store(kArmed, std::memory_order_release);
+            return false;
+        }
+        e->state.store(kWritten, std::memory_order_release);
+        if (e->page.load() != probing_page_.load()) faults_.fetch_add(1, std::memory_order_relaxed);
+        return true;
+    }
+}
+
+}  // namespace clastrace::capture

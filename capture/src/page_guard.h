@@ -1,0 +1,98 @@
+// SPDX-License-Identifier: Apache-2.0
+// Write-protected pages of the layer's mappings, so the host-write watch (host_write_watch.h)
+// learns which pages the host wrote between a submission and its wait without reading mapped
+// memory, which is uncached (write-combined) on a real GPU. A watched page is made read-only; the
+// first write to it faults, and the process-wide SIGSEGV handler copies the page as it was (its
+// before-image), makes it writable again and returns, so the write proceeds. Faults on pages the
+// guard does not hold go to the handler installed before it (or the default action).
+//
+// The handler is async-signal-safe: it looks pages up in a fixed open-addressing table and copies
+// into fixed slots, both mapped once when the guard starts, and takes no lock. Entries are only
+// ever added (under the guard's mutex); a page keeps its entry after its watchers are gone.
+#pragma once
+
+#include <atomic>
+#include <csetjmp>
+#include <cstddef>
+#include <cstdint>
+#include <mutex>
+#include <unordered_map>
+#include <vector>
+
+namespace clastrace::capture {
+
+class PageGuard {
+public:
+    // The process's guard; installs the handler on first use. Null when the process cannot have
+    // one (the table or the slots could not be mapped, or sigaction failed).
+    static PageGuard* instance();
+
+    size_t page_size() const { return page_size_; }
+
+    // Adds a watcher to each page in `pages` (page-aligned, any order; a page listed twice gets
+    // two): pages that had none become read-only, their bytes now the reference. False, with
+    // nothing added, when a page was written since it was protected (its reference is gone until
+    // its watchers are), the table is full or mprotect refused. `uncached`: the memory is
+    // write-combined, so the handler copies the page with streaming loads. One call per
+    // allocation and submission: each run of consecutive pages costs one mprotect.
+    bool watch(std::vector<uintptr_t> pages, bool uncached);
+    // Drops a watcher from each page listed; a page left without one is writable again.
+    void unwatch(std::vector<uintptr_t> pages);
+
+    // Whether pages of this mapping can be guarded: protects `page`, writes it (an atomic add of
+    // 0, which keeps a concurrent write of the host's) and checks the write went through once the
+    // handler made the page writable again. A mapping whose write keeps faulting (a driver that
+    // does not let the page become writable) gives false, not a crashed process. Once per
+    // allocation, before its first watch.
+    bool probe(uintptr_t page);
+
+    // The page's bytes before its first write since it was protected; null while not written.
+    const uint8_t* before_image(uintptr_t page) const;
+
+    struct Counts {
+        uint64_t faults = 0;   // pages written while protected
+        uint64_t refused = 0;  // watch() calls mprotect refused
+    };
+    Counts counts() const;
+
+    // Reinstalls the handler when another one took SIGSEGV after it (the application's, say),
+    // keeping that one as the handler for faults not the guard's.
+    void keep_handler_first();
+
+    // The handler's part: true when the fault at `address` was the guard's and the faulting
+    // write may be retried.
+    bool take_fault(uintptr_t address);
+    // The handler's part: a fault the guard could not take was the probe's own write; it jumps
+    // back into probe() (and returns when the fault is someone else's).
+    void end_failed_probe(uintptr_t address);
+
+private:
+    enum State : uint32_t { kFree, kArmed, kCapturing, kWritten };
+    struct Entry {
+        std::atomic<uintptr_t> page{0};  // 0: empty
+        std::atomic<uint32_t> state{kFree};
+        std::atomic<uint32_t> stray_faults{0};
+        bool uncached = false;
+    };
+    PageGuard(size_t page_size, Entry* table, uint8_t* slots);
+    Entry* find(uintptr_t page) const;
+    Entry* find_or_add(uintptr_t page);
+    uint8_t* slot_of(const Entry* e) const;
+    // mprotect over the runs of consecutive pages in `pages` (sorted); false at the first refusal.
+    bool protect_runs(const uintptr_t* pages, size_t count, int protection) const;
+    // Makes `pages` (sorted) writable and unprotected (mutex_ held).
+    void release(const std::vector<uintptr_t>& pages);
+
+    const size_t page_size_;
+    Entry* const table_;
+    uint8_t* const slots_;
+    std::atomic<uint64_t> faults_{0}, refused_{0};
+    std::atomic<uintptr_t> probing_page_{0};  // probe(): the page, and the thread writing it
+    std::atomic<long> probing_thread_{0};
+    sigjmp_buf probe_return_;
+    std::mutex mutex_;                                  // watch/unwatch; the handler takes none
+    std::unordered_map<uintptr_t, uint32_t> watchers_;  // page -> watchers
+    size_t used_ = 0;                                   // table entries taken
+};
+
+}  // namespace clastrace::capture
