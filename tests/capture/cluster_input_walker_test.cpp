@@ -451,11 +451,14 @@ TEST(ClusterInputWalker, RandomEntriesNeverEscapeTheRegions) {
 // Every vertex format the engine decodes (VUID-...-vertexFormat-10439 allows any with the
 // acceleration-structure vertex feature) is captured by its own size, not only the float ones.
 TEST_F(TwoClusters, EveryDecodedVertexFormatIsCapturedByItsSize) {
-    const std::pair<VkFormat, uint64_t> formats[] = {
-        {VK_FORMAT_R32G32_SFLOAT, 8},     {VK_FORMAT_R16G16_SNORM, 4},
-        {VK_FORMAT_R16G16_UNORM, 4},      {VK_FORMAT_R16G16B16A16_UNORM, 8},
-        {VK_FORMAT_R8G8_SNORM, 2},        {VK_FORMAT_R8G8B8A8_UNORM, 4},
-        {VK_FORMAT_A2B10G10R10_UNORM_PACK32, 4}, {VK_FORMAT_R32G32B32A32_SFLOAT, 16}};
+    const std::pair<VkFormat, uint64_t> formats[] = {{VK_FORMAT_R32G32_SFLOAT, 8},
+                                                     {VK_FORMAT_R16G16_SNORM, 4},
+                                                     {VK_FORMAT_R16G16_UNORM, 4},
+                                                     {VK_FORMAT_R16G16B16A16_UNORM, 8},
+                                                     {VK_FORMAT_R8G8_SNORM, 2},
+                                                     {VK_FORMAT_R8G8B8A8_UNORM, 4},
+                                                     {VK_FORMAT_A2B10G10R10_UNORM_PACK32, 4},
+                                                     {VK_FORMAT_R32G32B32A32_SFLOAT, 16}};
     for (const auto& [format, size] : formats) {
         ClusterCommandParameters p = triangleBuild(3, 96, 3 * 96);
         p.triangle_cluster_input.vertexFormat = format;
