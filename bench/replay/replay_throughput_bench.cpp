@@ -408,10 +408,17 @@ void throughput_table(const std::string& dir, uint64_t ops, uint32_t threads, in
 
 // Table 2: growth with trace length, one child process per size.
 void growth_table(const std::string& dir, uint64_t max_ops, uint32_t threads) {
+    // Table 1 leaves CLASTRACE_REPLAY_RUN_AHEAD unset, so these rows run the library's default;
+    // the variable, when set, decides (replayer.cpp runs_ahead).
+    const char* asked = std::getenv("CLASTRACE_REPLAY_RUN_AHEAD");
     std::printf(
         "replay time and peak memory by trace length (hazards on, %u threads; each size in a "
-        "fresh process)\n",
-        threads);
+        "fresh process; cluster builds run ahead: %s)\n",
+        threads,
+        asked ? (std::string(asked) == "1"   ? "on (CLASTRACE_REPLAY_RUN_AHEAD=1)"
+                 : std::string(asked) == "0" ? "off (CLASTRACE_REPLAY_RUN_AHEAD=0)"
+                                             : "the library's default (variable not 0 or 1)")
+              : "the library's default (CLASTRACE_REPLAY_RUN_AHEAD unset)");
     std::printf(
         "| ops | submissions | buffers destroyed | trace MB | replay s | ops/s | peak RSS MB | "
         "RSS over start MB | image peak MB | largest submission MB | largest chunk MB (raw) | "

@@ -52,6 +52,10 @@ engine::RegionBytes ImageStoragePool::take(uint64_t size) {
     return engine::RegionBytes(size);
 }
 
+void ImageStoragePool::image_opened() { most_images_ = std::max(most_images_, ++images_); }
+
+void ImageStoragePool::image_given_back() { --images_; }
+
 void ImageStoragePool::give(std::vector<engine::RegionBytes> storage) {
     std::lock_guard lock(mutex_);
     for (engine::RegionBytes& bytes : storage) {
@@ -119,6 +123,8 @@ std::shared_ptr<ClusterRunAhead> ClusterRunAhead::start(
         return nullptr;  // a record or region the replay's own run will report on
     }
     run->record_ = std::move(record);
+    run->holds_image_ = true;
+    in.storage.image_opened();
     // Enqueued, not spawned: a spawned task goes to the replay thread's own deque, where any
     // wait of that thread (a parallel loop of a command in its turn) would pick it up first.
     tbb::this_task_arena::enqueue([stage = run->stage_, raw = run.get()] {
@@ -131,11 +137,20 @@ std::shared_ptr<ClusterRunAhead> ClusterRunAhead::start(
     return run;
 }
 
-ClusterRunAhead::~ClusterRunAhead() {
+ClusterRunAhead::~ClusterRunAhead() { release_image(); }
+
+void ClusterRunAhead::wait_or_cancel() {
     int queued = kQueued;
     if (!stage_->compare_exchange_strong(queued, kCancelled))
         for (int now = stage_->load(); now == kRunning; now = stage_->load()) stage_->wait(now);
+}
+
+void ClusterRunAhead::release_image() {
+    wait_or_cancel();
     storage_.give(image_.release_storage());
+    if (holds_image_) storage_.image_given_back();
+    holds_image_ = false;
+    result_ = engine::ExecutionRecord{};  // moved out when it stood; no one reads it after
 }
 
 void ClusterRunAhead::finish() {
@@ -224,18 +239,20 @@ void ClusterRunAhead::lay_in_earlier_runs() {
     for (const std::shared_ptr<ClusterRunAhead>& earlier : earlier_) {
         earlier->finish();  // an earlier run: never waits for this one
         if (earlier->failed_) continue;
-        const engine::MemoryImage& from = earlier->image_;
+        const Written& from = earlier->written_;
+        const uint8_t* bytes = from.bytes.data();
         for (const auto& [address, size] : earlier->writes_) {
-            const engine::MemoryRegion* source = from.find_region(address);
-            if (!source) continue;
+            const uint8_t* these = bytes;
+            bytes += size;
+            const auto holds = [&](const PlannedRegion& r) { return address - r.base < r.size; };
+            const auto source = std::find_if(from.regions.begin(), from.regions.end(), holds);
+            if (source == from.regions.end()) continue;
             const engine::MemoryRegion* target = image_.find_region(address);
             if (!target)
                 target = &image_.add_region(source->base, source->size, source->usage,
                                             source->label, storage_.take(source->size));
             if (target->base != source->base || target->size != source->size) continue;
-            auto bytes = from.read_bytes(address, size, {"run ahead", -1});
-            std::memcpy(image_.write_bytes(address, size, {"run ahead", -1}).data(), bytes.data(),
-                        size);
+            std::memcpy(image_.write_bytes(address, size, {"run ahead", -1}).data(), these, size);
         }
         if (earlier->built_intact_)
             for (const Built& b : earlier->built_)
@@ -284,6 +301,28 @@ void ClusterRunAhead::run() {
         built_intact_ = !failed_ && built_objects(&built_);
     } catch (const std::exception&) {
         built_intact_ = false;  // its turn runs the command in place
+    }
+    if (failed_) return;
+    try {
+        keep_written_bytes();
+    } catch (const std::exception&) {
+        failed_ = true;  // the same
+    }
+}
+
+void ClusterRunAhead::keep_written_bytes() {
+    uint64_t total = 0;
+    for (const auto& w : writes_) total += w.second;
+    written_.bytes.resize(total);
+    uint8_t* to = written_.bytes.data();
+    for (const auto& [address, size] : writes_) {
+        auto from = image_.read_bytes(address, size, {"run ahead", -1});
+        std::memcpy(to, from.data(), size);
+        to += size;
+        const engine::MemoryRegion* r = image_.find_region(address);
+        const bool known = std::any_of(written_.regions.begin(), written_.regions.end(),
+                                       [&](const PlannedRegion& k) { return k.base == r->base; });
+        if (!known) written_.regions.push_back({r->base, r->size, r->usage, r->label});
     }
 }
 
@@ -368,10 +407,11 @@ bool ClusterRunAhead::commit(ReplayMemory& memory, engine::ObjectDirectory& dire
         (!skip_checks_for_tests && !same_objects(directory)))
         return false;
     engine::MemoryImage& real = memory.image();
+    const uint8_t* from = written_.bytes.data();
     for (const auto& [address, size] : writes_) {
-        auto from = image_.read_bytes(address, size, {"run ahead", -1});
         auto to = real.write_bytes(address, size, {"run ahead", -1});
-        std::memcpy(to.data(), from.data(), size);
+        std::memcpy(to.data(), from, size);
+        from += size;
     }
     // In op order, as the engine's own run records them; the bytes just copied are the ones
     // its own directory hashed.
@@ -432,7 +472,11 @@ bool RunAheadWindow::holds(uint64_t stream_index) const {
 }
 
 void RunAheadWindow::drop_before(uint64_t index) {
-    std::erase_if(runs_, [&](const auto& run) { return run->stream_index() < index; });
+    std::erase_if(runs_, [&](const auto& run) {
+        if (run->stream_index() >= index) return false;
+        run->release_image();  // recent_builds_ may still hold it
+        return true;
+    });
 }
 
 }  // namespace clastrace::replay::detail

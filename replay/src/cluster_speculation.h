@@ -69,11 +69,22 @@ public:
     // Keeps them while the pool's resident bytes stay under kKeptBytes; unmaps the rest.
     void give(std::vector<engine::RegionBytes> storage);
 
+    // Runs started (whose task makes an image of its bytes) and not given back yet, and the most
+    // at once: what the window keeps alive (ReplayOptions::RunAheadCounts::most_images).
+    // Counted on the replay thread, so the count does not depend on the schedule.
+    void image_opened();
+    void image_given_back();
+    uint64_t most_images() const { return most_images_; }
+
+    // Enough for the regions of a window's worth of runs to come back without a new mapping;
+    // more only holds pages that an earlier run touched (peak memory, issue 23).
+    static constexpr uint64_t kKeptBytes = 16ull << 20;
+
 private:
-    static constexpr uint64_t kKeptBytes = 256ull << 20;
     std::mutex mutex_;
     std::unordered_map<uint64_t, std::vector<engine::RegionBytes>> by_size_;
     uint64_t kept_ = 0;  // resident bytes of what by_size_ holds
+    uint64_t images_ = 0, most_images_ = 0;
 };
 
 // What the replay knows when it starts a command ahead: its memory as of now (for the regions'
@@ -102,6 +113,9 @@ public:
         std::vector<std::shared_ptr<ClusterRunAhead>> earlier);
     // Waits for a run in progress, or cancels one not started; its bytes go back to the pool.
     ~ClusterRunAhead();
+    // The same, once its command's turn has passed or it was dropped: a later BLAS run lays in
+    // only the bytes it wrote, kept apart (written_), so its image need not live on.
+    void release_image();
 
     const std::vector<uint8_t>& record() const { return record_; }
     bool stood() const { return stood_; }  // commit took it
@@ -148,6 +162,10 @@ private:
     // What the earlier runs wrote, laid in before its own snapshots (as their commands run
     // before its own in queue order), and their objects in its directory.
     void lay_in_earlier_runs();
+    // Copies the bytes its image ended with at every range it wrote into written_.
+    void keep_written_bytes();
+    // Waits for a run in progress, or cancels one not started.
+    void wait_or_cancel();
     // The task: the image, then the engine; once, on a worker or (not started by its turn) on
     // the replay thread or the task of a later run that reads it.
     void run();
@@ -190,9 +208,16 @@ private:
     std::shared_ptr<bool> turn_passed_ = std::make_shared<bool>(false);
     std::vector<std::shared_ptr<const bool>> earlier_turns_;
     engine::MemoryImage image_;
+    bool holds_image_ = false;  // started and not given back (the pool counts it)
     engine::ObjectDirectory directory_;
     engine::ObjectDirectory::LookupLog lookups_;
     std::vector<std::pair<uint64_t, uint64_t>> writes_;  // (address, size), as written
+    // What a later BLAS run lays in, outliving the image: the bytes at each of writes_ as the
+    // image ended with them, one after the other, and the regions holding them.
+    struct Written {
+        std::vector<uint8_t> bytes;
+        std::vector<PlannedRegion> regions;
+    } written_;
     std::mutex usage_mutex_;
     std::vector<UsageQuery> usage_queries_;  // all answered "every byte has the usage"
     engine::ExecutionRecord result_;
@@ -235,7 +260,8 @@ private:
     ImageStoragePool storage_;  // before runs_: the runs give their bytes back as they go
     std::deque<std::shared_ptr<ClusterRunAhead>> runs_;
     // The latest CLAS and template runs, taken or not (at most capacity_), and the stream
-    // indices of the BLAS records read since the oldest of them.
+    // indices of the BLAS records read since the oldest of them. A taken or dropped run has
+    // given its image back: what it wrote is all that is kept.
     std::deque<std::shared_ptr<ClusterRunAhead>> recent_builds_;
     std::set<uint64_t> bottom_levels_;
 };

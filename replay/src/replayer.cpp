@@ -298,6 +298,7 @@ ReplayReport Replay::run() {
     if (runs_ahead(options_)) {
         ahead_runs_.emplace(std::min<size_t>(4 * size_t(replay_threads(options_)), 64));
         replay_records_ahead(progress);
+        ahead_runs_->counts.most_images = ahead_runs_->storage().most_images();
         if (options_.run_ahead_counts) *options_.run_ahead_counts = ahead_runs_->counts;
         ahead_runs_.reset();
     } else {

@@ -78,7 +78,9 @@ void Replay::build_clusters(const fbs::CmdBuildClusterAccelerationStructureIndir
     // later command (queued on the arena), which would hold up every command after this one.
     tbb::this_task_arena::isolate(
         [&] { run_cluster_command(build, queried, cluster_queries_, context); });
-    if (ahead) ++(ahead->stood() ? ahead_runs_->counts.stood : ahead_runs_->counts.run_again);
+    if (!ahead) return;
+    ++(ahead->stood() ? ahead_runs_->counts.stood : ahead_runs_->counts.run_again);
+    ahead->release_image();  // a later BLAS run may still lay in what it wrote, kept apart
 }
 void Replay::build_nv(const fbs::CmdBuildAccelerationStructureNV& b, const CommandRef& ref,
                       const ReplayLocation& where) {

@@ -273,8 +273,11 @@ private:
     bool observed_nv_ = false;  // the command in replay_command was an NV build or deserialization
     // Cluster builds started ahead of their turn (2 or more threads), the contents records read
     // lately that their snapshots come from, the bytes of the command being replayed (to find
-    // its run), and the stream index of the record being replayed.
-    static constexpr uint64_t kRecentContentsBytes = 32ull << 20;
+    // its run), and the stream index of the record being replayed. The contents a run needs
+    // come in the records just read or are used again often (least recently used go first):
+    // the replay bench's runs start as often with 2 MiB kept as with 32 MiB, which held pages
+    // of contents no run asked for again (peak memory, issue 23).
+    static constexpr uint64_t kRecentContentsBytes = 4ull << 20;
     std::optional<RunAheadWindow> ahead_runs_;
     RecentContents recent_contents_{kRecentContentsBytes};
     const std::vector<uint8_t>* command_bytes_ = nullptr;

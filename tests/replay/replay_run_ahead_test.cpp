@@ -393,6 +393,25 @@ TEST(ReplayRunAhead, ClusterFramesOfTheReplayBenchRunAheadAndStand) {
     std::remove(path.c_str());
 }
 
+// A run gives its image back at its command's turn (a later BLAS run lays in only the bytes it
+// wrote, kept apart), so however many frames the runs holding an image at once are at most the
+// window's (4 x 8 threads) and the one being taken, and the BLAS runs still stand. Counted on the
+// replay thread at each start and give-back, so the bound does not depend on the schedule.
+TEST(ReplayRunAhead, TakenRunsGiveTheirImagesBackWhateverTheTraceLength) {
+    const std::string path = temp_path("long_frames.clt");
+    bench::BenchTraceShape shape;
+    shape.target_ops = 8000;
+    bench::write_bench_trace(path, shape);
+    const Replayed one = replay_with(path, 1), many = replay_with(path, 8);
+    EXPECT_GE(many.counts.started, 300u);  // 100 frames, each a BLAS over two CLAS runs
+    EXPECT_GE(many.counts.stood, many.counts.started - 3);
+    EXPECT_GT(many.counts.most_images, 0u);
+    EXPECT_LE(many.counts.most_images, 4u * 8u + 1u) << many.counts.most_images;
+    EXPECT_EQ(one.digests, many.digests);
+    EXPECT_EQ(one.json, many.json);
+    std::remove(path.c_str());
+}
+
 // Runs ahead are off by default at any thread count (their memory grows with the trace's
 // length: ReplayOptions), on when asked (ReplayOptions::run_ahead or
 // CLASTRACE_REPLAY_RUN_AHEAD=1) from 2 threads, and never on one.

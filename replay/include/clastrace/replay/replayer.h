@@ -87,8 +87,8 @@ struct ReplayOptions {
     // ahead of their turn on images of their own (docs/replay.md "Threads").
     // CLASTRACE_REPLAY_SYNC_THREAD=1 / CLASTRACE_REPLAY_RUN_AHEAD=1 in the environment turn
     // them on too. Both are off by default: runs ahead make the device's 16-core replay faster
-    // (1.88x against 1.22x over one thread) but their images and caches raise peak memory with
-    // the trace's length (50 -> 131 MB at 10^6 ops, 170 MB at 10^7: docs/replay.md "Threads"),
+    // (1.88x against 1.22x over one thread) but peak memory still grows with the trace's length
+    // (50 -> 120 MB at 10^6 ops, 171 MB at 10^7 on 16 threads: docs/replay.md "Threads"),
     // and the model's thread is slower. The report is the same either way.
     bool sync_model_thread = false;
     bool run_ahead = false;
@@ -97,6 +97,10 @@ struct ReplayOptions {
         uint64_t started = 0;    // runs started ahead
         uint64_t stood = 0;      // taken at the command's turn
         uint64_t run_again = 0;  // checked at the command's turn and run again in place
+        // The most runs started and not yet given back at once (each makes an image of its
+        // own): the window's capacity (4 x threads, at most 64) and the one being taken. A run
+        // gives its image back at its command's turn; a later BLAS run keeps only what it wrote.
+        uint64_t most_images = 0;
     };
     RunAheadCounts* run_ahead_counts = nullptr;
 };
