@@ -1,5 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "clastrace/capture/nv_scene_model.h"
+#include "clastrace/engine/vertex_format.h"
 #include <clastrace/common/hex.h>
 
 #include <algorithm>
@@ -240,24 +241,23 @@ NvGeometryModel aabb_geometry(const CapturedRange* range, uint32_t count, uint64
 }
 
 // Grows `model` by up to `count` vertices of `range` through the geometry's transform (a
-// VkTransformMatrixKHR, row-major 3x4, when `transform_range` holds one). Formats other than
-// two or three 32-bit floats leave it unbounded: rays are not aimed at it.
+// VkTransformMatrixKHR, row-major 3x4, when `transform_range` holds one), decoded as the engine
+// decodes them. A format the engine's vertex decoder does not read (NV's R16G16B16_SNORM) leaves
+// it unbounded: rays are not aimed at it.
 void grow_by_vertices(NvGeometryModel& model, const CapturedRange* vertices, VkFormat format,
                       uint64_t stride, uint64_t count, const CapturedRange* transform_range) {
-    const int components = format == VK_FORMAT_R32G32B32_SFLOAT ? 3
-                           : format == VK_FORMAT_R32G32_SFLOAT  ? 2
-                                                                : 0;
-    if (!vertices || components == 0) return;
-    if (stride == 0) stride = uint64_t(components) * 4;
+    const engine::VertexFormatInfo info = engine::vertex_format_info(format);
+    if (!vertices || !info.supported) return;
+    if (stride == 0) stride = info.size;
     float transform[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
     if (transform_range && transform_range->bytes.size() >= 48)
         std::memcpy(transform, transform_range->bytes.data(), 48);
+    const auto* bytes = reinterpret_cast<const std::byte*>(vertices->bytes.data());
     for (uint64_t v = 0; v < count; ++v) {
         const size_t at = size_t(v * stride);
-        if (at + size_t(components) * 4 > vertices->bytes.size()) break;
-        float p[3] = {read_float(vertices->bytes, at), read_float(vertices->bytes, at + 4),
-                      components == 3 ? read_float(vertices->bytes, at + 8) : 0.0f};
-        float q[3];
+        if (at + info.size > vertices->bytes.size()) break;
+        float p[3], q[3];
+        engine::decode_vertex(format, bytes + at, p);
         transform_point(transform, p, q);
         grow(model, q);
     }
@@ -277,11 +277,8 @@ NvGeometryModel khr_geometry(const VkAccelerationStructureGeometryKHR& geometry,
     NvGeometryModel model;
     if (geometry.geometryType != VK_GEOMETRY_TYPE_TRIANGLES_KHR) return model;
     const auto& t = geometry.geometry.triangles;
-    // Formats the model does not read get 0 here; their geometry stays unbounded anyway.
-    const uint64_t element = t.vertexFormat == VK_FORMAT_R32G32B32_SFLOAT ? 12
-                             : t.vertexFormat == VK_FORMAT_R32G32_SFLOAT  ? 8
-                                                                          : 0;
-    const uint64_t stride = t.vertexStride ? t.vertexStride : element;
+    const uint64_t stride =
+        t.vertexStride ? t.vertexStride : engine::vertex_format_bytes(t.vertexFormat);
     const bool indexed = t.indexType != VK_INDEX_TYPE_NONE_KHR;
     const VkDeviceAddress first = t.vertexData.deviceAddress + (indexed ? 0 : r.primitiveOffset) +
                                   uint64_t(r.firstVertex) * stride;

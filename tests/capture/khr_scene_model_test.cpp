@@ -186,5 +186,27 @@ TEST_F(KhrSceneModelTest, TraceableClusterBlasIsKnownByItsAddress) {
     EXPECT_EQ(hits[3].geometry_index, 0u);
 }
 
+// Vertices in any format the engine decodes bound their geometry (here half floats with a
+// fourth component): rays are aimed at the triangle as at a 32-bit float one.
+TEST_F(KhrSceneModelTest, HalfFloatVerticesBoundTheirGeometry) {
+    model.set_handle(4, 0xB400);
+    VkAccelerationStructureGeometryKHR tri{};
+    tri.geometryType = VK_GEOMETRY_TYPE_TRIANGLES_KHR;
+    tri.geometry.triangles.vertexFormat = VK_FORMAT_R16G16B16A16_SFLOAT;
+    tri.geometry.triangles.vertexData.deviceAddress = kVertices;
+    tri.geometry.triangles.indexType = VK_INDEX_TYPE_NONE_KHR;
+    BuildAccelerationStructuresKHRCommand build;
+    build.infos = {info(VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR, 4, tri, {1, 0, 0, 0})};
+    // (0,5,0), (2,5,0), (0,5,2), w = 1: 0 = 0x0000, 1 = 0x3C00, 2 = 0x4000, 5 = 0x4500.
+    const std::vector<uint16_t> halves = {0, 0x4500, 0, 0x3C00, 0x4000, 0x4500,
+                                          0, 0x3C00, 0, 0x4500, 0x4000, 0x3C00};
+    model.observe_khr_build(build, {}, {range(MemoryRole::kVertexBuffer, 0, kVertices, halves)});
+    topLevel({instance(0, 10, 0xFF, 0xB400)});
+    ASSERT_TRUE(model.prepare(3, 64, scene, rays, handle, why)) << why;
+    const float lo[3] = {0, 5, 0}, hi[3] = {2, 5, 2};
+    ASSERT_EQ(rays.size(), 64u);
+    for (size_t i = 0; i < rays.size(); i += 2) EXPECT_TRUE(passes(rays[i], lo, hi)) << i;
+}
+
 }  // namespace
 }  // namespace clastrace::capture
