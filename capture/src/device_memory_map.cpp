@@ -42,6 +42,7 @@ std::optional<TrackedMemory> DeviceMemoryMap::memory(uint64_t handle) const {
 
 void DeviceMemoryMap::add_buffer(const TrackedBuffer& buffer) {
     std::lock_guard lock(mutex_);
+    forget_last_resolved();  // a handle added again may have another address
     buffers_[buffer.handle] = buffer;
 }
 
@@ -59,6 +60,7 @@ void DeviceMemoryMap::set_buffer_address(uint64_t buffer, VkDeviceAddress addres
     if (it == buffers_.end() || address == 0) return;
     if (it->second.address == address) return;
     if (it->second.address != 0) erase_address(buffers_by_address_, it->second.address, buffer);
+    forget_last_resolved();
     it->second.address = address;
     buffers_by_address_.emplace(address, buffer);
     if (it->second.size > largest_addressed_buffer_) largest_addressed_buffer_ = it->second.size;
@@ -69,6 +71,7 @@ void DeviceMemoryMap::remove_buffer(uint64_t handle) {
     auto it = buffers_.find(handle);
     if (it == buffers_.end()) return;
     if (it->second.address != 0) erase_address(buffers_by_address_, it->second.address, handle);
+    forget_last_resolved();
     buffers_.erase(it);
     sparse_pages_.erase(handle);
 }
@@ -87,6 +90,7 @@ std::optional<ResolvedRange> DeviceMemoryMap::resolve(VkDeviceAddress address, V
         why = "address range " + hex(address) + "+" + hex(size) + " wraps around the address space";
         return std::nullopt;
     }
+    if (auto r = resolve_in_last(address, size)) return r;
     // Candidates start at or below `address`; none that starts more than the largest buffer's size
     // below it can reach it, which bounds the walk.
     auto it = buffers_by_address_.upper_bound(address);
@@ -100,7 +104,10 @@ std::optional<ResolvedRange> DeviceMemoryMap::resolve(VkDeviceAddress address, V
         saw_containing_start = true;
         if (size > b.size - offset) continue;
         std::string sparse_why;
-        if (auto r = resolve_in(b, offset, size, sparse_why)) return r;
+        if (auto r = resolve_in(b, offset, size, sparse_why)) {
+            last_resolved_ = it;
+            return r;
+        }
         if (b.flags & VK_BUFFER_CREATE_SPARSE_BINDING_BIT) why = sparse_why;
     }
     if (!why.empty()) return std::nullopt;  // the sparse buffer holding it said why
@@ -110,6 +117,25 @@ std::optional<ResolvedRange> DeviceMemoryMap::resolve(VkDeviceAddress address, V
               : "device address " + hex(address) +
                     " is not inside any buffer whose address the application queried";
     return std::nullopt;
+}
+
+// The answer of resolve()'s walk when its first candidate is the last buffer resolved into (no
+// entry starts after it at or below `address`) and that plain buffer holds the range: the walk
+// would try it first and take it. Anything else goes the walk's way.
+std::optional<ResolvedRange> DeviceMemoryMap::resolve_in_last(VkDeviceAddress address,
+                                                              VkDeviceSize size) const {
+    const auto last = last_resolved_;
+    if (last == buffers_by_address_.cend() || last->first > address) return std::nullopt;
+    const auto next = std::next(last);
+    if (next != buffers_by_address_.cend() && next->first <= address) return std::nullopt;
+    const auto b = buffers_.find(last->second);
+    if (b == buffers_.end() || b->second.address != last->first ||
+        (b->second.flags & VK_BUFFER_CREATE_SPARSE_BINDING_BIT))
+        return std::nullopt;
+    const VkDeviceSize offset = address - last->first;
+    if (offset >= b->second.size || size > b->second.size - offset) return std::nullopt;
+    std::string unused;
+    return resolve_in(b->second, offset, size, unused);
 }
 
 std::optional<ResolvedRange> DeviceMemoryMap::resolve_buffer(uint64_t buffer, VkDeviceSize offset,

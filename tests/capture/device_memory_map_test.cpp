@@ -175,3 +175,32 @@ TEST_F(MapWithSparseBuffer, AddressRangesInAMemoryAreItsBuffersAndSparsePages) {
     EXPECT_EQ(map.address_ranges_in(0x11), (Ranges{{0x200000, 0x200400}}));
     EXPECT_TRUE(map.address_ranges_in(0x12).empty());
 }
+
+// resolve() remembers the buffer it last landed in (walks resolve runs of addresses inside one
+// buffer); what it answers must stay the walk's answer: a buffer that starts later but still at
+// or below the address is taken first, and a buffer destroyed and replaced at the same address
+// (other memory) is the new one.
+TEST_F(MapWithOneBuffer, TheLastBufferResolvedNeverHidesANewerAnswer) {
+    std::string why;
+    ASSERT_TRUE(map.resolve(0x100010, 4, why)) << why;
+    map.add_buffer({0x21, 256, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, 0, 0, 0, 0});
+    map.bind_buffer(0x21, 0x10, 2048);
+    map.set_buffer_address(0x21, 0x100080);  // inside 0x20's range, starting after it
+    auto r = map.resolve(0x100090, 4, why);
+    ASSERT_TRUE(r) << why;
+    EXPECT_EQ(r->buffer.handle, 0x21u);
+    EXPECT_EQ(r->host, hostMemory.data() + 2048 + 0x10);
+    r = map.resolve(0x100010, 4, why);  // below 0x21: still 0x20
+    ASSERT_TRUE(r) << why;
+    EXPECT_EQ(r->buffer.handle, 0x20u);
+    map.remove_buffer(0x20);
+    map.add_buffer({0x22, 1024, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, 0, 0, 0, 0});
+    map.bind_buffer(0x22, 0x10, 0);
+    map.set_buffer_address(0x22, 0x100000);
+    r = map.resolve(0x100010, 4, why);
+    ASSERT_TRUE(r) << why;
+    EXPECT_EQ(r->buffer.handle, 0x22u);
+    EXPECT_EQ(r->host, hostMemory.data() + 0x10);
+    map.remove_buffer(0x22);
+    EXPECT_FALSE(map.resolve(0x100010, 4, why));
+}

@@ -112,6 +112,13 @@ private:
     std::unordered_map<uint64_t, TrackedBuffer> buffers_;
     std::multimap<VkDeviceAddress, uint64_t> buffers_by_address_;
     VkDeviceSize largest_addressed_buffer_ = 0;
+    // The entry of the buffer the last resolve() landed in (end() when none): a walk resolves
+    // runs of addresses inside one buffer, and while no entry lies between it and the next
+    // address it is the one resolve() would try first. Erasing entries forgets it.
+    mutable std::multimap<VkDeviceAddress, uint64_t>::const_iterator last_resolved_ =
+        buffers_by_address_.cend();
+    void forget_last_resolved() { last_resolved_ = buffers_by_address_.cend(); }
+    std::optional<ResolvedRange> resolve_in_last(VkDeviceAddress address, VkDeviceSize size) const;
 };
 
 }  // namespace clastrace::capture
