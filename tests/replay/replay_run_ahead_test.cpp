@@ -58,6 +58,15 @@ std::string temp_path(const std::string& name) {
     return test::temp_trace_path("replay_run_ahead", name);
 }
 
+// The replay bench's cluster frames, about `ops` cluster ops, written to a temporary trace.
+std::string bench_frames(const std::string& name, uint64_t ops) {
+    const std::string path = temp_path(name);
+    bench::BenchTraceShape shape;
+    shape.target_ops = ops;
+    bench::write_bench_trace(path, shape);
+    return path;
+}
+
 std::vector<float> grid(float x, float z) {
     std::vector<float> v;
     for (int row = 0; row < 3; ++row)
@@ -380,10 +389,7 @@ TEST(ReplayRunAhead, BottomLevelBuildOverAMovedClusterRunsAgain) {
 // The replay bench's frames: CLAS builds (their reads all in their snapshots) run ahead across
 // submissions and stand, and so do the BLAS builds over them; moves run in their turn.
 TEST(ReplayRunAhead, ClusterFramesOfTheReplayBenchRunAheadAndStand) {
-    const std::string path = temp_path("bench_frames.clt");
-    bench::BenchTraceShape shape;
-    shape.target_ops = 5000;
-    bench::write_bench_trace(path, shape);
+    const std::string path = bench_frames("bench_frames.clt", 5000);
     const Replayed one = replay_with(path, 1), many = replay_with(path, 4);
     EXPECT_GT(many.counts.started, 60u);  // 2 CLAS builds and a BLAS per frame, 24 frames
     EXPECT_EQ(many.counts.run_again, 0u);
@@ -398,10 +404,7 @@ TEST(ReplayRunAhead, ClusterFramesOfTheReplayBenchRunAheadAndStand) {
 // window's (4 x 8 threads) and the one being taken, and the BLAS runs still stand. Counted on the
 // replay thread at each start and give-back, so the bound does not depend on the schedule.
 TEST(ReplayRunAhead, TakenRunsGiveTheirImagesBackWhateverTheTraceLength) {
-    const std::string path = temp_path("long_frames.clt");
-    bench::BenchTraceShape shape;
-    shape.target_ops = 8000;
-    bench::write_bench_trace(path, shape);
+    const std::string path = bench_frames("long_frames.clt", 8000);
     const Replayed one = replay_with(path, 1), many = replay_with(path, 8);
     EXPECT_GE(many.counts.started, 300u);  // 100 frames, each a BLAS over two CLAS runs
     EXPECT_GE(many.counts.stood, many.counts.started - 3);
@@ -416,10 +419,7 @@ TEST(ReplayRunAhead, TakenRunsGiveTheirImagesBackWhateverTheTraceLength) {
 // length: ReplayOptions), on when asked (ReplayOptions::run_ahead or
 // CLASTRACE_REPLAY_RUN_AHEAD=1) from 2 threads, and never on one.
 TEST(ReplayRunAhead, OffByDefaultAndOnWhenAskedFromTwoThreads) {
-    const std::string path = temp_path("default_frames.clt");
-    bench::BenchTraceShape shape;
-    shape.target_ops = 1000;
-    bench::write_bench_trace(path, shape);
+    const std::string path = bench_frames("default_frames.clt", 1000);
     auto started = [&](uint32_t threads) {
         traces::TraceError error;
         auto reader = traces::TraceReader::open(path, &error);
