@@ -278,9 +278,10 @@ void HostWriteWatch::paused(uint64_t submission, uint64_t pause_id,
             if (read == inputs.end()) continue;
             r.paused = true;
             if (r.guarded) {
-                const PageGuard& guard = *PageGuard::instance();
-                r.read_changed = any_page_written(guard, r) &&
-                                 differs_from_submitted(guard, r, read->bytes.data());
+                // Pages not written hold what they held at the submission: compared only
+                // where written (no written page: unchanged, nothing compared).
+                r.read_changed =
+                    differs_from_submitted(*PageGuard::instance(), r, read->bytes.data());
                 if (r.read_changed) r.pause_hash = hash_of(read->bytes);
                 continue;
             }
