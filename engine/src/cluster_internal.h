@@ -24,8 +24,10 @@ struct EncodeInput {
     uint32_t vertex_count = 0;
     uint32_t truncate_bits = 0;  // 0..32
     uint32_t vertex_format = 0;
-    const float* positions = nullptr;   // vertex_count * 3 truncated floats, nullptr = none
-    const uint32_t* indices = nullptr;  // triangle_count * 3, each < vertex_count unless inactive
+    const float* positions = nullptr;  // vertex_count * 3 truncated floats, nullptr = none
+    // triangle_count * 3 indices' low bytes (what the object stores: an active triangle's
+    // indices are below vertex_count, at most 256), and one more readable byte after them.
+    const uint8_t* index_bytes = nullptr;
     const uint8_t* inactive = nullptr;  // triangle_count flags (index out of range), nullptr = none
     uint32_t base_geometry_index_and_flags = 0;
     const uint32_t* geometry_index_and_flags =
