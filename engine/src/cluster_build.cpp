@@ -29,7 +29,7 @@ struct ClusterBuilder::Scratch {
     uint8_t inactive[kMaxTriangles];
     uint32_t geometry[kMaxTriangles];
     int32_t omm[kMaxTriangles];
-    detail::BvhScratch bvh;
+    detail::EncodeScratch encode;
 };
 
 ClusterBuilder::ClusterBuilder(const EngineProperties& properties)
@@ -556,6 +556,12 @@ bool decode_triangle_info(const TriangleDecode& job) {
     return true;
 }
 
+// A failed op's result: no object (the vector keeps its capacity).
+bool no_object(std::vector<std::byte>& out) {
+    out.clear();
+    return false;
+}
+
 void report_fault(const MemoryFault& f, Reporter& r) {
     r.out.push_back(Finding{kRuleMemoryFault, std::string(r.info_name) + ": " + f.message,
                             r.op_index, f.address});
@@ -592,22 +598,21 @@ bool ClusterBuilder::build_triangle_cluster(
     Reporter r{findings, op_index, kBuildRules.name};
     Scratch& s = *scratch_;
     Decoded d;
-    out.clear();
     try {
         if (!decode_triangle_info({memory, view_of(info), input, properties_, kBuildRules,
                                    /*positions_optional=*/false, s.positions, s.index_bytes,
                                    s.inactive, s.geometry, s.omm, d, r}))
-            return false;
+            return no_object(out);
     } catch (const MemoryFault& f) {
         report_fault(f, r);
-        return false;
+        return no_object(out);
     }
     detail::EncodeInput in;
     in.type = ObjectType::kTriangleCluster;
     set_shared_encode_fields(view_of(info), input, d, s.index_bytes, s.geometry, s.omm, in);
     in.positions = d.positions;
     in.inactive = s.inactive;
-    detail::encode_object(in, s.bvh, out);
+    detail::encode_object(in, s.encode, stores_, out);
     return true;
 }
 
@@ -619,16 +624,16 @@ bool ClusterBuilder::build_triangle_cluster_template(
     Reporter r{findings, op_index, kTemplateRules.name};
     Scratch& s = *scratch_;
     Decoded d;
-    out.clear();
     detail::EncodeInput in;
     try {
         if (!decode_triangle_info({memory, view_of(info), input, properties_, kTemplateRules,
                                    /*positions_optional=*/true, s.positions, s.index_bytes,
                                    s.inactive, s.geometry, s.omm, d, r}))
-            return false;
+            return no_object(out);
         for (uint32_t t = 0; t < d.triangle_count; ++t)
             if (s.inactive[t])
-                return false;  // a template must be instantiable: index findings already reported
+                return no_object(
+                    out);  // a template must be instantiable: index findings already reported
         if (info.instantiationBoundingBoxLimit != 0) {
             const uint32_t align = properties_.cluster_template_bounds_byte_alignment;
             if (align && info.instantiationBoundingBoxLimit % align != 0)
@@ -646,12 +651,12 @@ bool ClusterBuilder::build_triangle_cluster_template(
         }
     } catch (const MemoryFault& f) {
         report_fault(f, r);
-        return false;
+        return no_object(out);
     }
     in.type = ObjectType::kTriangleClusterTemplate;
     set_shared_encode_fields(view_of(info), input, d, s.index_bytes, s.geometry, s.omm, in);
     in.positions = d.has_positions ? d.positions : nullptr;
-    detail::encode_object(in, s.bvh, out);
+    detail::encode_object(in, s.encode, stores_, out);
     return true;
 }
 
@@ -661,7 +666,6 @@ bool ClusterBuilder::instantiate_triangle_cluster(
     std::vector<std::byte>& out, std::vector<Finding>& findings) {
     Reporter r{findings, op_index, "VkClusterAccelerationStructureInstantiateClusterInfoNV"};
     Scratch& s = *scratch_;
-    out.clear();
     check_input(input, properties_, r);
     if (info.reserved != 0)
         r.add("VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-reserved-10509",
@@ -669,7 +673,7 @@ bool ClusterBuilder::instantiate_triangle_cluster(
     try {
         const TemplateRead tmpl =
             read_cluster_template(memory, info.clusterTemplateAddress, op_index, r);
-        if (!tmpl.header) return false;
+        if (!tmpl.header) return no_object(out);
         const std::span<const std::byte> bytes = tmpl.bytes;
         const ObjectHeader& h = *tmpl.header;
         const uint32_t n_triangles = h.triangle_count, n_vertices = h.vertex_count;
@@ -685,13 +689,13 @@ bool ClusterBuilder::instantiate_triangle_cluster(
                     "10507",
                     "vertexBuffer is 0 but the template was built without vertex data",
                     info.clusterTemplateAddress);
-                return false;
+                return no_object(out);
             }
             for (uint32_t v = 0; v < n_vertices; ++v)
                 decode_position(bytes, h, v, s.positions + 3 * v);
         } else {
             const VertexFormatInfo vf = vertex_format_info(input.vertexFormat);
-            if (!vf.supported) return false;  // 10439 reported by check_input
+            if (!vf.supported) return no_object(out);  // 10439 reported by check_input
             const auto vb = memory.read_array(info.vertexBuffer.startAddress, n_vertices,
                                               info.vertexBuffer.strideInBytes, vf.size,
                                               {"vertexBuffer", op_index});
@@ -773,11 +777,11 @@ bool ClusterBuilder::instantiate_triangle_cluster(
                         4 * size_t(n_triangles));  // template keeps app order
             in.omm_indices = s.omm;
         }
-        detail::encode_object(in, s.bvh, out);
+        detail::encode_object(in, s.encode, stores_, out);
         return true;
     } catch (const MemoryFault& f) {
         report_fault(f, r);
-        return false;
+        return no_object(out);
     }
 }
 
@@ -788,14 +792,13 @@ bool ClusterBuilder::build_from_arrays(uint32_t cluster_id, std::span<const floa
                                        std::vector<std::byte>& out,
                                        std::vector<Finding>& findings) {
     Reporter r{findings, -1, "build_from_arrays"};
-    out.clear();
     Scratch& s = *scratch_;
     const size_t n_vertices = positions.size() / 3, n_triangles = indices.size() / 3;
     if (n_vertices > kMaxVertices || n_triangles > kMaxTriangles || positions.size() % 3 ||
         indices.size() % 3 || truncate_bits > 32 ||
         (!geometry_index_and_flags.empty() && geometry_index_and_flags.size() != n_triangles)) {
         r.add(kRuleCountAboveInput, "arrays exceed 256 vertices/triangles or are malformed");
-        return false;
+        return no_object(out);
     }
     for (size_t c = 0; c < positions.size(); ++c)
         s.positions[c] = truncate_position(positions[c], truncate_bits);
@@ -827,7 +830,7 @@ bool ClusterBuilder::build_from_arrays(uint32_t cluster_id, std::span<const floa
     in.base_geometry_index_and_flags = base_geometry_index_and_flags;
     in.geometry_index_and_flags =
         geometry_index_and_flags.empty() ? nullptr : geometry_index_and_flags.data();
-    detail::encode_object(in, s.bvh, out);
+    detail::encode_object(in, s.encode, stores_, out);
     return true;
 }
 

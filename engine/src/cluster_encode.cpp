@@ -3,6 +3,8 @@
 #include "cluster_internal.h"
 #include "simd4.h"
 
+#include "clastrace/common/debug_assert.h"
+
 #include <algorithm>
 #include <array>
 #include <bit>
@@ -292,9 +294,37 @@ uint32_t gather_active_boxes(const EncodeInput& in, BvhScratch& s, uint8_t* acti
     return n_active;
 }
 
+// Copies `size` bytes (a multiple of 4) with non-temporal stores: 4-byte ones up to the first
+// 16-byte boundary and after the last, 16-byte ones between. Fenced: a thread that later
+// synchronizes with this one (a release / acquire pair, which does not order non-temporal
+// stores by itself) sees every byte.
+void stream_copy(std::byte* dst, const std::byte* src, size_t size) {
+#if defined(__SSE2__)
+    if (reinterpret_cast<uintptr_t>(dst) % 4 == 0) {
+        size_t i = 0;
+        const auto put4 = [&] {
+            int32_t word;
+            std::memcpy(&word, src + i, 4);
+            _mm_stream_si32(reinterpret_cast<int*>(dst + i), word);
+            i += 4;
+        };
+        while (i < size && reinterpret_cast<uintptr_t>(dst + i) % 16 != 0) put4();
+        for (; i + 16 <= size; i += 16)
+            _mm_stream_si128(reinterpret_cast<__m128i*>(dst + i),
+                             _mm_loadu_si128(reinterpret_cast<const __m128i*>(src + i)));
+        while (i < size) put4();
+        _mm_sfence();
+        return;
+    }
+#endif
+    std::memcpy(dst, src, size);
+}
+
 }  // namespace
 
-uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::byte>& out) {
+uint32_t encode_object(const EncodeInput& in, EncodeScratch& scratch, ObjectStores stores,
+                       std::vector<std::byte>& out) {
+    BvhScratch& s = scratch.bvh;
     ObjectHeader h{};
     h.magic = kObjectMagic;
     h.object_type = uint8_t(in.type);
@@ -368,8 +398,11 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
     if (unbounded) h.header_flags |= kUnboundedNodes;
     if (any_nan) h.header_flags |= kHasNaNTriangles;
 
-    out.assign(size, std::byte{0});
-    std::byte* base = out.data();
+    const bool streamed = stores == ObjectStores::kStreaming;
+    CLASTRACE_DEBUG_ASSERT(size <= kMaxObjectBytes);
+    if (!streamed) out.assign(size, std::byte{0});
+    std::byte* const base = streamed ? scratch.object : out.data();
+    if (streamed) std::memset(base, 0, size);
     std::memcpy(base, &h, sizeof h);
 
     write_nodes(frame, unbounded, s, n_nodes, base + h.nodes_offset);
@@ -378,6 +411,10 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
                        base + h.positions_offset);
     write_triangle_sections(in, h, order, identity, varying, base);
     if (in.has_bounds_limit) std::memcpy(base + h.bounds_limit_offset, in.bounds_limit, 24);
+    if (streamed) {
+        out.resize(size);  // a rebuild's vector already has the size: nothing written
+        stream_copy(out.data(), base, size);
+    }
     return size;
 }
 

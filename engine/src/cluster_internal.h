@@ -2,6 +2,7 @@
 // Internals shared by the cluster encoder, the decoder and traversal.
 #pragma once
 
+#include "clastrace/engine/cluster_build.h"
 #include "clastrace/engine/cluster_format.h"
 
 #include <cstddef>
@@ -64,8 +65,21 @@ struct BvhScratch {
 // order (triangle indices) and scratch.nodes. Returns whether that order is 0, 1, ..., n - 1.
 bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* order);
 
-// Encodes the object into `out` (assigned, zero padded). Returns its size.
-uint32_t encode_object(const EncodeInput& in, BvhScratch& scratch, std::vector<std::byte>& out);
+// The largest object: a template's or CLAS's sections at 256 triangles and vertices, every
+// optional one present, with their alignment padding.
+inline constexpr uint32_t kMaxObjectBytes =
+    sizeof(ObjectHeader) + 8 * kMaxNodes + 12 * kMaxVertices + 3 + 4 * kMaxTriangles + 3 +
+    4 * kMaxTriangles + 7 + sizeof(OpacityMicromapSection) + 4 * kMaxTriangles + 24 + 3;
+
+// Scratch for encode_object: the BVH's, and the object itself where it is streamed out.
+struct EncodeScratch {
+    BvhScratch bvh;
+    alignas(64) std::byte object[kMaxObjectBytes];
+};
+
+// Encodes the object into `out` (sized to it, zero padded) as `stores` says. Returns its size.
+uint32_t encode_object(const EncodeInput& in, EncodeScratch& scratch, ObjectStores stores,
+                       std::vector<std::byte>& out);
 
 // Quantized box decoding: identical code for build and traversal (no FMA, see CMake).
 struct QuantFrame {
