@@ -10,7 +10,7 @@
 //
 // usage: bench_engine_clusters [--quick] [--tris N] [--max-threads N] [--mesh PATH]
 //                              [--throughput-only] [--builds-only] [--engine-only] [--repeat N]
-//                              [--scene TEXT] [--thread-cpu] [--cold]
+//                              [--scene TEXT] [--thread-cpu] [--cold] [--streaming-objects]
 //   --tris N: about N triangles per scene (default 10^6); --quick: 10^5 (a smoke run).
 //   --max-threads N: the sweep's last count (default: the machine's hardware threads).
 //   --mesh PATH: the WusonOBJ model to tile (default: Debian's assimp-testmodels copy).
@@ -25,6 +25,8 @@
 //     cluster without preemption by other processes; a system call per chunk end).
 //   --cold: before every timed build, evict its inputs and outputs from all caches (x86
 //     CLFLUSH): both builders then read and write a scene in memory at every thread count.
+//   --streaming-objects: the engine writes each object with non-temporal stores
+//     (engine::ObjectStores::kStreaming): its lines are not read for ownership first.
 #include "clastrace/engine/blas.h"
 #include "clastrace/engine/cluster_build.h"
 #include "clastrace/engine/cluster_format.h"
@@ -53,17 +55,21 @@ namespace ts = clastrace::testsupport;
 namespace eng = clastrace::engine;
 namespace cb = clastrace::bench;
 
-// Heap allocations made by this thread (operator new, replaced below): the phases table counts
-// those inside the engine's timed chunks. A per-thread count, so counting shares no line.
+// Heap allocations made by this thread and their bytes (operator new, replaced below): the
+// machine table counts those inside the engine's timed chunks. Per-thread counts, so counting
+// shares no line.
 thread_local uint64_t t_allocations = 0;
+thread_local uint64_t t_allocated_bytes = 0;
 
 void* operator new(std::size_t size) {
     ++t_allocations;
+    t_allocated_bytes += size;
     if (void* p = std::malloc(size ? size : 1)) return p;
     throw std::bad_alloc();
 }
 void* operator new(std::size_t size, std::align_val_t align) {
     ++t_allocations;
+    t_allocated_bytes += size;
     const std::size_t a = std::max(std::size_t(align), sizeof(void*));
     if (void* p = std::aligned_alloc(a, (std::max<std::size_t>(size, 1) + a - 1) / a * a)) return p;
     throw std::bad_alloc();
@@ -111,6 +117,8 @@ bool g_thread_cpu = false;
 // 1-thread run then no longer finds a whole scene left in the last-level cache by its previous
 // run, where N threads find each cluster's lines in another core's cache.
 bool g_cold = false;
+// How the engine writes its objects (--streaming-objects).
+eng::ObjectStores g_object_stores = eng::ObjectStores::kCached;
 
 struct Scene {
     std::string label;
@@ -145,14 +153,15 @@ struct PhaseStats {
     double busy_sum = 0, busy_max = 0, latest_start = 0;
     double busy_cpu_sum = 0;  // the threads' own CPU time in the chunks: busy less preemption
     int threads_used = 0;
-    uint64_t allocations = 0;   // inside the chunks, all threads
-    uint64_t minor_faults = 0;  // the whole process during the run
+    uint64_t allocations = 0;      // inside the chunks, all threads
+    uint64_t allocated_bytes = 0;  // the same allocations' bytes
+    uint64_t minor_faults = 0;     // the whole process during the run
 };
 
 // One thread's share of a run.
 struct ThreadPhase {
     double busy = 0, first_start = -1, busy_cpu = 0;
-    uint64_t allocations = 0;
+    uint64_t allocations = 0, allocated_bytes = 0;
 };
 
 // Engine build of every cluster on `threads` threads (TBB arena). run() times one build of all
@@ -173,6 +182,7 @@ struct EngineBuild {
     }
     void build_chunk(const tbb::blocked_range<size_t>& r) {
         auto& b = builders.local();
+        b.set_object_stores(g_object_stores);
         auto& f = findings.local();
         for (size_t i = r.begin(); i != r.end(); ++i) {
             f.clear();
@@ -201,12 +211,14 @@ struct EngineBuild {
                                       p.first_start =
                                           std::chrono::duration<double>(c0 - sw.wall0).count();
                                   const uint64_t a0 = t_allocations;
+                                  const uint64_t bytes0 = t_allocated_bytes;
                                   const double cpu0 =
                                       g_thread_cpu ? cpu_seconds(CLOCK_THREAD_CPUTIME_ID) : 0;
                                   build_chunk(r);
                                   if (g_thread_cpu)
                                       p.busy_cpu += cpu_seconds(CLOCK_THREAD_CPUTIME_ID) - cpu0;
                                   p.allocations += t_allocations - a0;
+                                  p.allocated_bytes += t_allocated_bytes - bytes0;
                                   p.busy += seconds_since(c0);
                               });
         });
@@ -217,6 +229,7 @@ struct EngineBuild {
             if (p.first_start < 0) continue;
             ++last.threads_used;
             last.allocations += p.allocations;
+            last.allocated_bytes += p.allocated_bytes;
             last.busy_sum += p.busy;
             last.busy_cpu_sum += p.busy_cpu;
             last.busy_max = std::max(last.busy_max, p.busy);
@@ -628,8 +641,10 @@ void phase_table(const std::vector<SweepTimes>& sweep, const BuildTraffic& traff
         "busy max (scheduling, preemption,\n  the join), cost/cluster = busy of all threads / "
         "1-thread busy (wall; cpu: the threads' CPU time, with\n  --thread-cpu), GB/s = input and "
         "object bytes "
-        "(%.0f + %.0f B per cluster) / wall\n",
-        traffic.input_bytes / double(clusters), traffic.output_bytes / double(clusters));
+        "(%.0f + %.0f B per cluster; the object's lines %s) / wall\n",
+        traffic.input_bytes / double(clusters), traffic.output_bytes / double(clusters),
+        g_object_stores == eng::ObjectStores::kStreaming ? "streamed, not read first"
+                                                         : "also read for ownership");
     std::printf("%8s %6s %9s %8s %10s %9s %8s %13s %7s %7s\n", "threads", "used", "wall", "start",
                 "busy mean", "busy max", "outside", "cost/cluster", "cpu", "GB/s");
     if (sweep.empty()) return;
@@ -651,17 +666,18 @@ void phase_table(const std::vector<SweepTimes>& sweep, const BuildTraffic& traff
 // build work: the clock (the dependent ALU chain's per-thread rate against one thread's), core
 // sharing (the eight chains'), the memory system (the traffic probe's); the engine's cost per
 // cluster in clock cycles (cost/cluster x clock: above 1, a cluster itself costs more cycles,
-// e.g. shared caches or memory); and the run's minor page faults and heap allocations.
+// e.g. shared caches or memory); and the run's minor page faults and heap allocations with
+// their bytes.
 void machine_table(const std::vector<SweepTimes>& sweep, size_t clusters) {
     std::printf(
         "machine (per-thread rate on all threads at once vs 1 thread, best of the repeats): clock "
         "= a dependent\n  multiply chain, ports = 8 independent chains, memory = the traffic probe "
         "(each cluster's input bytes\n  read and object bytes written, no work); cost@clock = "
-        "cost/cluster x clock (cycles per cluster vs\n  1 thread); faults, allocs = minor page "
-        "faults (process) and heap allocations (in the chunks) per\n  1000 clusters of the "
-        "best-wall run\n");
-    std::printf("%8s %6s %6s %6s %10s %7s %7s\n", "threads", "clock", "ports", "memory",
-                "cost@clock", "faults", "allocs");
+        "cost/cluster x clock (cycles per cluster vs\n  1 thread); faults, allocs, alloc B = minor "
+        "page faults (process), heap allocations and their\n  bytes (in the chunks) per 1000 "
+        "clusters of the best-wall run\n");
+    std::printf("%8s %6s %6s %6s %10s %7s %7s %8s\n", "threads", "clock", "ports", "memory",
+                "cost@clock", "faults", "allocs", "alloc B");
     if (sweep.empty()) return;
     const double one_busy = sweep.front().engine_phases.busy_sum;
     const cb::CoreRates& one = sweep.front().rates;
@@ -669,10 +685,10 @@ void machine_table(const std::vector<SweepTimes>& sweep, size_t clusters) {
     for (const SweepTimes& t : sweep) {
         const PhaseStats& p = t.engine_phases;
         const double clock = one.chain / t.rates.chain;
-        std::printf("%8d %6.2f %6.2f %6.2f %9.2fx %7.2f %7.2f\n", t.threads, clock,
+        std::printf("%8d %6.2f %6.2f %6.2f %9.2fx %7.2f %7.2f %8.0f\n", t.threads, clock,
                     one.ports / t.rates.ports, one.memory / t.rates.memory,
                     p.busy_sum / one_busy * clock, double(p.minor_faults) * per_k,
-                    double(p.allocations) * per_k);
+                    double(p.allocations) * per_k, double(p.allocated_bytes) * per_k);
     }
 }
 
@@ -825,7 +841,7 @@ void usage(const char* argv0) {
     std::fprintf(stderr,
                  "usage: %s [--quick] [--tris N] [--max-threads N] [--mesh PATH] "
                  "[--throughput-only] [--builds-only] [--engine-only] [--repeat N] [--scene TEXT] "
-                 "[--thread-cpu] [--cold]\n",
+                 "[--thread-cpu] [--cold] [--streaming-objects]\n",
                  argv0);
 }
 
@@ -860,6 +876,8 @@ int main(int argc, char** argv) {
             g_thread_cpu = true;
         else if (a == "--cold")
             g_cold = true;
+        else if (a == "--streaming-objects")
+            g_object_stores = eng::ObjectStores::kStreaming;
         else if (a == "--scene" && has_value)
             only_scene = argv[++i];
         else {
@@ -872,6 +890,8 @@ int main(int argc, char** argv) {
                 RTC_VERSION_STRING, std::max(1u, unsigned(tbb::info::default_concurrency())),
                 core_sharing().c_str(), cpu_description().c_str(),
                 g_cold ? "; --cold: inputs and outputs evicted before every timed build" : "");
+    if (g_object_stores == eng::ObjectStores::kStreaming)
+        std::printf("  --streaming-objects: the engine writes objects with non-temporal stores\n");
     std::printf(
         "columns: B/tri = CLAS object bytes / triangles; max|dx| = largest stored-minus-input "
         "coordinate;\n"

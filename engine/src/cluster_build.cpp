@@ -25,11 +25,11 @@ using detail::kMaxVertices;
 
 struct ClusterBuilder::Scratch {
     float positions[kMaxVertices * 3];
-    uint32_t indices[kMaxTriangles * 3];
+    uint8_t index_bytes[kMaxTriangles * 3 + 1];  // EncodeInput::index_bytes
     uint8_t inactive[kMaxTriangles];
     uint32_t geometry[kMaxTriangles];
     int32_t omm[kMaxTriangles];
-    detail::BvhScratch bvh;
+    detail::EncodeScratch encode;
 };
 
 ClusterBuilder::ClusterBuilder(const EngineProperties& properties)
@@ -195,6 +195,9 @@ struct Decoded {
     uint32_t triangle_count = 0, vertex_count = 0, truncate_bits = 0;
     bool has_positions = false, has_geometry = false, has_omm = false;
     uint32_t omm_index_type = 0;
+    // The decoded positions: the scratch's, or the vertex buffer itself when it holds them as
+    // the object does (packed 32-bit floats, untruncated), which then needs no copy.
+    const float* positions = nullptr;
 };
 
 // One decode: what it reads, the rules it checks it by, and where it writes (the builder's
@@ -207,7 +210,7 @@ struct TriangleDecode {
     const InfoRules& rules;
     bool positions_optional;  // a template may leave vertexBuffer 0
     float* positions;
-    uint32_t* indices;
+    uint8_t* index_bytes;
     uint8_t* inactive;
     uint32_t* geometry;
     int32_t* omm;
@@ -296,40 +299,40 @@ bool check_triangle_info(const TriangleDecode& job, const VertexFormatInfo& vf) 
     return buildable;
 }
 
-// Packed 8-bit indices (the usual cluster index buffer) widened to 32 bits, 16 at a time where
-// the target has SSE2 (GCC at -O2 vectorizes neither this loop nor the maximum's). Returns the
-// largest index.
-uint32_t widen_packed_bytes(const std::byte* src, uint32_t count, uint32_t* dst) {
+// Packed 8-bit indices (the usual cluster index buffer) copied as they are, with their
+// largest value found 16 at a time where the target has SSE2 (GCC at -O2 vectorizes no
+// maximum of bytes).
+uint32_t copy_packed_bytes(const std::byte* src, uint32_t count, uint8_t* dst) {
+    std::memcpy(dst, src, count);
     uint32_t i = 0, largest = 0;
 #if defined(__SSE2__)
-    const __m128i zero = _mm_setzero_si128();
-    __m128i top = zero;
-    for (; i + 16 <= count; i += 16) {
-        const __m128i v = _mm_loadu_si128(reinterpret_cast<const __m128i*>(src + i));
-        top = _mm_max_epu8(top, v);
-        const __m128i lo = _mm_unpacklo_epi8(v, zero), hi = _mm_unpackhi_epi8(v, zero);
-        _mm_storeu_si128(reinterpret_cast<__m128i*>(dst + i), _mm_unpacklo_epi16(lo, zero));
-        _mm_storeu_si128(reinterpret_cast<__m128i*>(dst + i + 4), _mm_unpackhi_epi16(lo, zero));
-        _mm_storeu_si128(reinterpret_cast<__m128i*>(dst + i + 8), _mm_unpacklo_epi16(hi, zero));
-        _mm_storeu_si128(reinterpret_cast<__m128i*>(dst + i + 12), _mm_unpackhi_epi16(hi, zero));
-    }
+    __m128i top = _mm_setzero_si128();
+    for (; i + 16 <= count; i += 16)
+        top = _mm_max_epu8(top, _mm_loadu_si128(reinterpret_cast<const __m128i*>(src + i)));
     top = _mm_max_epu8(top, _mm_srli_si128(top, 8));
     top = _mm_max_epu8(top, _mm_srli_si128(top, 4));
     top = _mm_max_epu8(top, _mm_srli_si128(top, 2));
     top = _mm_max_epu8(top, _mm_srli_si128(top, 1));
     largest = uint32_t(_mm_cvtsi128_si32(top)) & 0xFFu;
 #endif
-    for (; i < count; ++i) {
-        dst[i] = uint8_t(src[i]);
-        largest = std::max(largest, dst[i]);
-    }
+    for (; i < count; ++i) largest = std::max(largest, uint32_t(dst[i]));
     return largest;
 }
 
-// Indices widened to 32 bits; triangles with an index >= vertexCount are inactive.
+// Index i of a buffer of `size`-byte indices `step` bytes apart.
+uint32_t index_at(const std::byte* src, uint32_t size, uint32_t step, uint32_t i) {
+    uint32_t value = 0;  // little endian: the low `size` bytes
+    std::memcpy(&value, src + size_t(i) * step, size);
+    return value;
+}
+
+// Each index's low byte (all an object stores: the indices of an active triangle are below
+// its vertex count, at most 256), then a zero byte; triangles with an index >= vertexCount
+// are inactive. No 32-bit copy of the indices is kept: the rare out-of-range case rereads
+// the buffer.
 void decode_indices(const TriangleDecode& job) {
     const TriangleInfoView& info = job.info;
-    uint32_t* const indices = job.indices;
+    uint8_t* const index_bytes = job.index_bytes;
     uint8_t* const inactive = job.inactive;
     Reporter& r = job.report;
     const uint32_t n_triangles = job.decoded.triangle_count, n_vertices = job.decoded.vertex_count;
@@ -338,56 +341,56 @@ void decode_indices(const TriangleDecode& job) {
         job.memory.read_array(info.index_buffer, 3ull * n_triangles, info.index_buffer_stride,
                               index_size, {"indexBuffer", r.op_index});
     const uint32_t istep = info.index_buffer_stride ? info.index_buffer_stride : index_size;
-    // Widen first (one loop per index size, no per-value switch), then range-check.
+    // One loop per index size, no per-value switch.
     const std::byte* const isrc = idx.data();
     const uint32_t n_indices = 3 * n_triangles;
     uint32_t largest_index = 0;
     if (index_size == 1 && istep == 1) {
-        largest_index = widen_packed_bytes(isrc, n_indices, indices);
-    } else {
-        if (index_size == 1) {
-            for (uint32_t i = 0; i < n_indices; ++i) indices[i] = uint8_t(isrc[size_t(i) * istep]);
-        } else if (index_size == 2) {
-            for (uint32_t i = 0; i < n_indices; ++i) {
-                uint16_t value;
-                std::memcpy(&value, isrc + size_t(i) * istep, 2);
-                indices[i] = value;
-            }
-        } else {
-            for (uint32_t i = 0; i < n_indices; ++i)
-                std::memcpy(&indices[i], isrc + size_t(i) * istep, 4);
+        largest_index = copy_packed_bytes(isrc, n_indices, index_bytes);
+    } else if (index_size == 1) {
+        for (uint32_t i = 0; i < n_indices; ++i) {
+            index_bytes[i] = uint8_t(isrc[size_t(i) * istep]);
+            largest_index = std::max<uint32_t>(largest_index, index_bytes[i]);
         }
-        for (uint32_t i = 0; i < n_indices; ++i)
-            largest_index = std::max(largest_index, indices[i]);
+    } else if (index_size == 2) {
+        for (uint32_t i = 0; i < n_indices; ++i) {
+            uint16_t value;
+            std::memcpy(&value, isrc + size_t(i) * istep, 2);
+            index_bytes[i] = uint8_t(value);
+            largest_index = std::max<uint32_t>(largest_index, value);
+        }
+    } else {
+        for (uint32_t i = 0; i < n_indices; ++i) {
+            uint32_t value;
+            std::memcpy(&value, isrc + size_t(i) * istep, 4);
+            index_bytes[i] = uint8_t(value);
+            largest_index = std::max(largest_index, value);
+        }
     }
-    uint32_t out_of_range = 0, first_bad = 0;
+    index_bytes[n_indices] = 0;  // the last triangle's fourth byte (the encoder's 4-byte loads)
     // The common case, every index in range, costs one vectorized pass.
     if (largest_index < n_vertices) {
         std::memset(inactive, 0, n_triangles);
-    } else {
-        for (uint32_t t = 0; t < n_triangles; ++t) {
-            const uint32_t bad = uint32_t(indices[3 * t] >= n_vertices) +
-                                 uint32_t(indices[3 * t + 1] >= n_vertices) +
-                                 uint32_t(indices[3 * t + 2] >= n_vertices);
-            inactive[t] = bad != 0;
-            if (bad) {
-                if (out_of_range == 0)
-                    for (int v = 0; v < 3; ++v)
-                        if (indices[3 * t + v] >= n_vertices) {
-                            first_bad = 3 * t + v;
-                            break;
-                        }
-                out_of_range += bad;
-            }
-        }
+        return;
     }
-    if (out_of_range)
-        r.add(kRuleIndexOutOfRange,
-              std::to_string(out_of_range) + " index value(s) >= vertexCount " +
-                  std::to_string(n_vertices) + "; first at index " + std::to_string(first_bad) +
-                  " (value " + std::to_string(indices[first_bad]) +
-                  "); those triangles are inactive",
-              info.index_buffer);
+    uint32_t out_of_range = 0, first_bad = 0;
+    for (uint32_t t = 0; t < n_triangles; ++t) {
+        uint32_t bad = 0;
+        for (uint32_t v = 0; v < 3; ++v)
+            if (index_at(isrc, index_size, istep, 3 * t + v) >= n_vertices) {
+                if (out_of_range + bad == 0) first_bad = 3 * t + v;
+                ++bad;
+            }
+        inactive[t] = bad != 0;
+        out_of_range += bad;
+    }
+    if (out_of_range == 0) return;  // no triangles
+    r.add(kRuleIndexOutOfRange,
+          std::to_string(out_of_range) + " index value(s) >= vertexCount " +
+              std::to_string(n_vertices) + "; first at index " + std::to_string(first_bad) +
+              " (value " + std::to_string(index_at(isrc, index_size, istep, first_bad)) +
+              "); those triangles are inactive",
+          info.index_buffer);
 }
 
 // Positions: decoded, then truncated on their 32-bit patterns.
@@ -398,12 +401,19 @@ void decode_positions(const TriangleDecode& job, const VertexFormatInfo& vf) {
     Decoded& d = job.decoded;
     const uint32_t n_vertices = d.vertex_count;
     d.has_positions = !(job.positions_optional && info.vertex_buffer == 0);
+    d.positions = positions;
     if (d.has_positions && n_vertices > 0) {
         const auto vb =
             job.memory.read_array(info.vertex_buffer, n_vertices, info.vertex_buffer_stride,
                                   vf.size, {"vertexBuffer", job.report.op_index});
         const uint32_t vstep = info.vertex_buffer_stride ? info.vertex_buffer_stride : vf.size;
-        if (input.vertexFormat == VK_FORMAT_R32G32B32_SFLOAT && vstep == 12) {
+        const bool packed_floats = input.vertexFormat == VK_FORMAT_R32G32B32_SFLOAT && vstep == 12;
+        if (packed_floats && d.truncate_bits == 0 &&
+            reinterpret_cast<uintptr_t>(vb.data()) % alignof(float) == 0) {
+            d.positions = reinterpret_cast<const float*>(vb.data());
+            return;
+        }
+        if (packed_floats) {
             std::memcpy(positions, vb.data(), size_t(n_vertices) * 12);
         } else if (input.vertexFormat == VK_FORMAT_R32G32B32_SFLOAT ||
                    input.vertexFormat == VK_FORMAT_R32G32B32A32_SFLOAT) {
@@ -546,6 +556,12 @@ bool decode_triangle_info(const TriangleDecode& job) {
     return true;
 }
 
+// A failed op's result: no object (the vector keeps its capacity).
+bool no_object(std::vector<std::byte>& out) {
+    out.clear();
+    return false;
+}
+
 void report_fault(const MemoryFault& f, Reporter& r) {
     r.out.push_back(Finding{kRuleMemoryFault, std::string(r.info_name) + ": " + f.message,
                             r.op_index, f.address});
@@ -555,15 +571,16 @@ void report_fault(const MemoryFault& f, Reporter& r) {
 // the caller sets the object type, positions and inactive triangles, where the two differ.
 void set_shared_encode_fields(const TriangleInfoView& info,
                               const VkClusterAccelerationStructureTriangleClusterInputNV& input,
-                              const Decoded& d, const uint32_t* indices, const uint32_t* geometry,
-                              const int32_t* omm, detail::EncodeInput& in) {
+                              const Decoded& d, const uint8_t* index_bytes,
+                              const uint32_t* geometry, const int32_t* omm,
+                              detail::EncodeInput& in) {
     in.cluster_id = info.cluster_id;
     in.cluster_flags = info.cluster_flags;
     in.triangle_count = d.triangle_count;
     in.vertex_count = d.vertex_count;
     in.truncate_bits = d.truncate_bits;
     in.vertex_format = uint32_t(input.vertexFormat);
-    in.indices = indices;
+    in.index_bytes = index_bytes;
     in.base_geometry_index_and_flags = info.base_geometry_index_and_flags;
     in.geometry_index_and_flags = d.has_geometry ? geometry : nullptr;
     in.has_omm = d.has_omm;
@@ -581,22 +598,21 @@ bool ClusterBuilder::build_triangle_cluster(
     Reporter r{findings, op_index, kBuildRules.name};
     Scratch& s = *scratch_;
     Decoded d;
-    out.clear();
     try {
         if (!decode_triangle_info({memory, view_of(info), input, properties_, kBuildRules,
-                                   /*positions_optional=*/false, s.positions, s.indices, s.inactive,
-                                   s.geometry, s.omm, d, r}))
-            return false;
+                                   /*positions_optional=*/false, s.positions, s.index_bytes,
+                                   s.inactive, s.geometry, s.omm, d, r}))
+            return no_object(out);
     } catch (const MemoryFault& f) {
         report_fault(f, r);
-        return false;
+        return no_object(out);
     }
     detail::EncodeInput in;
     in.type = ObjectType::kTriangleCluster;
-    set_shared_encode_fields(view_of(info), input, d, s.indices, s.geometry, s.omm, in);
-    in.positions = s.positions;
+    set_shared_encode_fields(view_of(info), input, d, s.index_bytes, s.geometry, s.omm, in);
+    in.positions = d.positions;
     in.inactive = s.inactive;
-    detail::encode_object(in, s.bvh, out);
+    detail::encode_object(in, s.encode, stores_, out);
     return true;
 }
 
@@ -608,16 +624,16 @@ bool ClusterBuilder::build_triangle_cluster_template(
     Reporter r{findings, op_index, kTemplateRules.name};
     Scratch& s = *scratch_;
     Decoded d;
-    out.clear();
     detail::EncodeInput in;
     try {
         if (!decode_triangle_info({memory, view_of(info), input, properties_, kTemplateRules,
-                                   /*positions_optional=*/true, s.positions, s.indices, s.inactive,
-                                   s.geometry, s.omm, d, r}))
-            return false;
+                                   /*positions_optional=*/true, s.positions, s.index_bytes,
+                                   s.inactive, s.geometry, s.omm, d, r}))
+            return no_object(out);
         for (uint32_t t = 0; t < d.triangle_count; ++t)
             if (s.inactive[t])
-                return false;  // a template must be instantiable: index findings already reported
+                return no_object(
+                    out);  // a template must be instantiable: index findings already reported
         if (info.instantiationBoundingBoxLimit != 0) {
             const uint32_t align = properties_.cluster_template_bounds_byte_alignment;
             if (align && info.instantiationBoundingBoxLimit % align != 0)
@@ -635,12 +651,12 @@ bool ClusterBuilder::build_triangle_cluster_template(
         }
     } catch (const MemoryFault& f) {
         report_fault(f, r);
-        return false;
+        return no_object(out);
     }
     in.type = ObjectType::kTriangleClusterTemplate;
-    set_shared_encode_fields(view_of(info), input, d, s.indices, s.geometry, s.omm, in);
-    in.positions = d.has_positions ? s.positions : nullptr;
-    detail::encode_object(in, s.bvh, out);
+    set_shared_encode_fields(view_of(info), input, d, s.index_bytes, s.geometry, s.omm, in);
+    in.positions = d.has_positions ? d.positions : nullptr;
+    detail::encode_object(in, s.encode, stores_, out);
     return true;
 }
 
@@ -650,7 +666,6 @@ bool ClusterBuilder::instantiate_triangle_cluster(
     std::vector<std::byte>& out, std::vector<Finding>& findings) {
     Reporter r{findings, op_index, "VkClusterAccelerationStructureInstantiateClusterInfoNV"};
     Scratch& s = *scratch_;
-    out.clear();
     check_input(input, properties_, r);
     if (info.reserved != 0)
         r.add("VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-reserved-10509",
@@ -658,7 +673,7 @@ bool ClusterBuilder::instantiate_triangle_cluster(
     try {
         const TemplateRead tmpl =
             read_cluster_template(memory, info.clusterTemplateAddress, op_index, r);
-        if (!tmpl.header) return false;
+        if (!tmpl.header) return no_object(out);
         const std::span<const std::byte> bytes = tmpl.bytes;
         const ObjectHeader& h = *tmpl.header;
         const uint32_t n_triangles = h.triangle_count, n_vertices = h.vertex_count;
@@ -674,13 +689,13 @@ bool ClusterBuilder::instantiate_triangle_cluster(
                     "10507",
                     "vertexBuffer is 0 but the template was built without vertex data",
                     info.clusterTemplateAddress);
-                return false;
+                return no_object(out);
             }
             for (uint32_t v = 0; v < n_vertices; ++v)
                 decode_position(bytes, h, v, s.positions + 3 * v);
         } else {
             const VertexFormatInfo vf = vertex_format_info(input.vertexFormat);
-            if (!vf.supported) return false;  // 10439 reported by check_input
+            if (!vf.supported) return no_object(out);  // 10439 reported by check_input
             const auto vb = memory.read_array(info.vertexBuffer.startAddress, n_vertices,
                                               info.vertexBuffer.strideInBytes, vf.size,
                                               {"vertexBuffer", op_index});
@@ -720,7 +735,7 @@ bool ClusterBuilder::instantiate_triangle_cluster(
         for (uint32_t i = 0; i < n_triangles; ++i) {
             const DecodedTriangle tri = decode_triangle(bytes, h, i);
             const uint32_t t = tri.original_index;
-            for (int v = 0; v < 3; ++v) s.indices[3 * t + v] = tri.local_indices[v];
+            for (int v = 0; v < 3; ++v) s.index_bytes[3 * t + v] = uint8_t(tri.local_indices[v]);
             const int64_t index = int64_t(tri.geometry_index_and_flags & 0xFFFFFFu) + goff;
             max_index = std::max(max_index, index);
             min_index = std::min(min_index, index);
@@ -746,7 +761,8 @@ bool ClusterBuilder::instantiate_triangle_cluster(
         in.truncate_bits = h.position_truncate_bits;
         in.vertex_format = h.vertex_format;
         in.positions = s.positions;
-        in.indices = s.indices;
+        s.index_bytes[3 * n_triangles] = 0;
+        in.index_bytes = s.index_bytes;
         in.inactive = s.inactive;
         in.base_geometry_index_and_flags =
             n_triangles ? s.geometry[0] : h.base_geometry_index_and_flags;
@@ -761,11 +777,11 @@ bool ClusterBuilder::instantiate_triangle_cluster(
                         4 * size_t(n_triangles));  // template keeps app order
             in.omm_indices = s.omm;
         }
-        detail::encode_object(in, s.bvh, out);
+        detail::encode_object(in, s.encode, stores_, out);
         return true;
     } catch (const MemoryFault& f) {
         report_fault(f, r);
-        return false;
+        return no_object(out);
     }
 }
 
@@ -776,14 +792,13 @@ bool ClusterBuilder::build_from_arrays(uint32_t cluster_id, std::span<const floa
                                        std::vector<std::byte>& out,
                                        std::vector<Finding>& findings) {
     Reporter r{findings, -1, "build_from_arrays"};
-    out.clear();
     Scratch& s = *scratch_;
     const size_t n_vertices = positions.size() / 3, n_triangles = indices.size() / 3;
     if (n_vertices > kMaxVertices || n_triangles > kMaxTriangles || positions.size() % 3 ||
         indices.size() % 3 || truncate_bits > 32 ||
         (!geometry_index_and_flags.empty() && geometry_index_and_flags.size() != n_triangles)) {
         r.add(kRuleCountAboveInput, "arrays exceed 256 vertices/triangles or are malformed");
-        return false;
+        return no_object(out);
     }
     for (size_t c = 0; c < positions.size(); ++c)
         s.positions[c] = truncate_position(positions[c], truncate_bits);
@@ -791,7 +806,7 @@ bool ClusterBuilder::build_from_arrays(uint32_t cluster_id, std::span<const floa
     for (size_t t = 0; t < n_triangles; ++t) {
         s.inactive[t] = 0;
         for (int v = 0; v < 3; ++v) {
-            s.indices[3 * t + v] = indices[3 * t + v];
+            s.index_bytes[3 * t + v] = uint8_t(indices[3 * t + v]);
             if (indices[3 * t + v] >= n_vertices) {
                 s.inactive[t] = 1;
                 ++bad;
@@ -809,12 +824,13 @@ bool ClusterBuilder::build_from_arrays(uint32_t cluster_id, std::span<const floa
     in.truncate_bits = truncate_bits;
     in.vertex_format = VK_FORMAT_R32G32B32_SFLOAT;
     in.positions = s.positions;
-    in.indices = s.indices;
+    s.index_bytes[3 * n_triangles] = 0;
+    in.index_bytes = s.index_bytes;
     in.inactive = s.inactive;
     in.base_geometry_index_and_flags = base_geometry_index_and_flags;
     in.geometry_index_and_flags =
         geometry_index_and_flags.empty() ? nullptr : geometry_index_and_flags.data();
-    detail::encode_object(in, s.bvh, out);
+    detail::encode_object(in, s.encode, stores_, out);
     return true;
 }
 

@@ -3,6 +3,8 @@
 #include "cluster_internal.h"
 #include "simd4.h"
 
+#include "clastrace/common/debug_assert.h"
+
 #include <algorithm>
 #include <array>
 #include <bit>
@@ -195,47 +197,29 @@ uint32_t lay_out_object(ObjectHeader& h, const EncodeInput& in, uint32_t n_nodes
     return size;
 }
 
-// The low byte of each of `count` indices (an active triangle's indices are below its vertex
-// count, at most 256; an inactive one's bytes are zeroed after), 16 at a time in SSE2.
-void narrow_indices(const uint32_t* indices, uint32_t count, uint8_t* dst) {
-    uint32_t i = 0;
-#if defined(__SSE2__)
-    const __m128i low = _mm_set1_epi32(0xFF);
-    const auto load = [&](uint32_t k) {
-        return _mm_and_si128(_mm_loadu_si128(reinterpret_cast<const __m128i*>(indices + k)), low);
-    };
-    for (; i + 16 <= count; i += 16) {
-        const __m128i lo = _mm_packs_epi32(load(i), load(i + 4));
-        const __m128i hi = _mm_packs_epi32(load(i + 8), load(i + 12));
-        _mm_storeu_si128(reinterpret_cast<__m128i*>(dst + i), _mm_packus_epi16(lo, hi));
-    }
-#endif
-    for (; i < count; ++i) dst[i] = uint8_t(indices[i]);
-}
-
 // Per-triangle sections in stored order, one loop each (no per-triangle tests of which
-// sections exist). index8: every triangle's three local indices as bytes (narrow_indices) in
-// application order, with one byte of slack.
+// sections exist).
 void write_triangle_sections(const EncodeInput& in, const ObjectHeader& h, const uint8_t* order,
-                             const uint8_t* index8, bool identity, bool varying, std::byte* base) {
+                             bool identity, bool varying, std::byte* base) {
     const uint32_t n_triangles = in.triangle_count;
-    std::byte* const index_bytes = base + h.indices_offset;
+    std::byte* const index_section = base + h.indices_offset;
     const bool any_dead = in.inactive && std::memchr(in.inactive, 1, n_triangles) != nullptr;
     // Each triangle's three as one 4-byte load and store (the fourth byte is the next
     // triangle's, overwritten by it), the last one's bytewise: nothing past the section moves.
     for (uint32_t i = 0; i + 1 < n_triangles; ++i) {
         uint32_t three;
-        std::memcpy(&three, index8 + 3 * size_t(order[i]), 4);
-        std::memcpy(index_bytes + 3 * size_t(i), &three, 4);
+        std::memcpy(&three, in.index_bytes + 3 * size_t(order[i]), 4);
+        std::memcpy(index_section + 3 * size_t(i), &three, 4);
     }
     if (n_triangles > 0) {
         const size_t last = n_triangles - 1, from = 3 * size_t(order[last]);
-        for (int v = 0; v < 3; ++v) index_bytes[3 * last + v] = std::byte(index8[from + v]);
+        for (int v = 0; v < 3; ++v)
+            index_section[3 * last + v] = std::byte(in.index_bytes[from + v]);
     }
     if (any_dead)
         for (uint32_t i = 0; i < n_triangles; ++i)
             if (in.inactive[order[i]])  // dead ones stay 0
-                for (int v = 0; v < 3; ++v) index_bytes[3 * i + v] = std::byte{0};
+                for (int v = 0; v < 3; ++v) index_section[3 * i + v] = std::byte{0};
     if (!identity) std::memcpy(base + h.triangle_order_offset, order, n_triangles);
     if (varying)
         for (uint32_t i = 0; i < n_triangles; ++i)
@@ -276,7 +260,7 @@ uint32_t gather_active_boxes(const EncodeInput& in, BvhScratch& s, uint8_t* acti
     const Float4 half = splat(0.5f);
     for (uint32_t t = 0; t < in.triangle_count; ++t) {
         if (kSkipInactive && in.inactive[t]) continue;
-        const uint32_t* tri = in.indices + 3 * t;
+        const uint8_t* tri = in.index_bytes + 3 * t;
         const Float4 a = load3(in.positions + 3 * tri[0]);
         const Float4 b = load3(in.positions + 3 * tri[1]);
         const Float4 c = load3(in.positions + 3 * tri[2]);
@@ -310,9 +294,45 @@ uint32_t gather_active_boxes(const EncodeInput& in, BvhScratch& s, uint8_t* acti
     return n_active;
 }
 
+// Copies `size` bytes (a multiple of 4) with non-temporal stores: 4-byte ones up to the first
+// 16-byte boundary and after the last, 16-byte ones between. Fenced: a thread that later
+// synchronizes with this one (a release / acquire pair, which does not order non-temporal
+// stores by itself) sees every byte.
+void stream_copy(std::byte* dst, const std::byte* src, size_t size) {
+#if defined(__SSE2__)
+    if (reinterpret_cast<uintptr_t>(dst) % 4 == 0) {
+        size_t i = 0;
+        const auto put4 = [&] {
+            int32_t word;
+            std::memcpy(&word, src + i, 4);
+            _mm_stream_si32(reinterpret_cast<int*>(dst + i), word);
+            i += 4;
+        };
+        const auto put16 = [&](size_t at) {
+            _mm_stream_si128(reinterpret_cast<__m128i*>(dst + at),
+                             _mm_loadu_si128(reinterpret_cast<const __m128i*>(src + at)));
+        };
+        while (i < size && reinterpret_cast<uintptr_t>(dst + i) % 16 != 0) put4();
+        for (; i + 64 <= size; i += 64) {  // a line's worth per loop end (GCC unrolls none)
+            put16(i);
+            put16(i + 16);
+            put16(i + 32);
+            put16(i + 48);
+        }
+        for (; i + 16 <= size; i += 16) put16(i);
+        while (i < size) put4();
+        _mm_sfence();
+        return;
+    }
+#endif
+    std::memcpy(dst, src, size);
+}
+
 }  // namespace
 
-uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::byte>& out) {
+uint32_t encode_object(const EncodeInput& in, EncodeScratch& scratch, ObjectStores stores,
+                       std::vector<std::byte>& out) {
+    BvhScratch& s = scratch.bvh;
     ObjectHeader h{};
     h.magic = kObjectMagic;
     h.object_type = uint8_t(in.type);
@@ -327,12 +347,6 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
     h.vertex_format = in.vertex_format;
     const uint32_t n_triangles = in.triangle_count;
     const bool is_clas = in.type == ObjectType::kTriangleCluster;
-    // The index bytes, long before the index section is written: its 4-byte loads then find
-    // these 16-byte stores in the cache, not pending (a load across two pending stores waits).
-    alignas(16) uint8_t index8[3 * kMaxTriangles + 1];
-    narrow_indices(in.indices, 3 * n_triangles, index8);
-    index8[3 * n_triangles] = 0;  // the last triangle's fourth byte, read when it is not last
-
     // Active triangles: indices in range and no NaN coordinate (after truncation).
     uint8_t active[kMaxTriangles];
     bool any_nan = false;
@@ -392,16 +406,23 @@ uint32_t encode_object(const EncodeInput& in, BvhScratch& s, std::vector<std::by
     if (unbounded) h.header_flags |= kUnboundedNodes;
     if (any_nan) h.header_flags |= kHasNaNTriangles;
 
-    out.assign(size, std::byte{0});
-    std::byte* base = out.data();
+    const bool streamed = stores == ObjectStores::kStreaming;
+    CLASTRACE_DEBUG_ASSERT(size <= kMaxObjectBytes);
+    if (!streamed) out.assign(size, std::byte{0});
+    std::byte* const base = streamed ? scratch.object : out.data();
+    if (streamed) std::memset(base, 0, size);
     std::memcpy(base, &h, sizeof h);
 
     write_nodes(frame, unbounded, s, n_nodes, base + h.nodes_offset);
     if (in.positions)
         pack_positions(in.positions, 3 * in.vertex_count, h.position_bits, in.truncate_bits,
                        base + h.positions_offset);
-    write_triangle_sections(in, h, order, index8, identity, varying, base);
+    write_triangle_sections(in, h, order, identity, varying, base);
     if (in.has_bounds_limit) std::memcpy(base + h.bounds_limit_offset, in.bounds_limit, 24);
+    if (streamed) {
+        out.resize(size);  // a rebuild's vector already has the size: nothing written
+        stream_copy(out.data(), base, size);
+    }
     return size;
 }
 

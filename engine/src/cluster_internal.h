@@ -2,6 +2,7 @@
 // Internals shared by the cluster encoder, the decoder and traversal.
 #pragma once
 
+#include "clastrace/engine/cluster_build.h"
 #include "clastrace/engine/cluster_format.h"
 
 #include <cstddef>
@@ -24,8 +25,10 @@ struct EncodeInput {
     uint32_t vertex_count = 0;
     uint32_t truncate_bits = 0;  // 0..32
     uint32_t vertex_format = 0;
-    const float* positions = nullptr;   // vertex_count * 3 truncated floats, nullptr = none
-    const uint32_t* indices = nullptr;  // triangle_count * 3, each < vertex_count unless inactive
+    const float* positions = nullptr;  // vertex_count * 3 truncated floats, nullptr = none
+    // triangle_count * 3 indices' low bytes (what the object stores: an active triangle's
+    // indices are below vertex_count, at most 256), and one more readable byte after them.
+    const uint8_t* index_bytes = nullptr;
     const uint8_t* inactive = nullptr;  // triangle_count flags (index out of range), nullptr = none
     uint32_t base_geometry_index_and_flags = 0;
     const uint32_t* geometry_index_and_flags =
@@ -62,8 +65,21 @@ struct BvhScratch {
 // order (triangle indices) and scratch.nodes. Returns whether that order is 0, 1, ..., n - 1.
 bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* order);
 
-// Encodes the object into `out` (assigned, zero padded). Returns its size.
-uint32_t encode_object(const EncodeInput& in, BvhScratch& scratch, std::vector<std::byte>& out);
+// The largest object: a template's or CLAS's sections at 256 triangles and vertices, every
+// optional one present, with their alignment padding.
+inline constexpr uint32_t kMaxObjectBytes =
+    sizeof(ObjectHeader) + 8 * kMaxNodes + 12 * kMaxVertices + 3 + 4 * kMaxTriangles + 3 +
+    4 * kMaxTriangles + 7 + sizeof(OpacityMicromapSection) + 4 * kMaxTriangles + 24 + 3;
+
+// Scratch for encode_object: the BVH's, and the object itself where it is streamed out.
+struct EncodeScratch {
+    BvhScratch bvh;
+    alignas(64) std::byte object[kMaxObjectBytes];
+};
+
+// Encodes the object into `out` (sized to it, zero padded) as `stores` says. Returns its size.
+uint32_t encode_object(const EncodeInput& in, EncodeScratch& scratch, ObjectStores stores,
+                       std::vector<std::byte>& out);
 
 // Quantized box decoding: identical code for build and traversal (no FMA, see CMake).
 struct QuantFrame {

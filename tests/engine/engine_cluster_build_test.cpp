@@ -445,6 +445,38 @@ TEST(ClusterBuild, Deterministic) {
 namespace clastrace::engine {
 namespace {
 
+// Streamed objects (laid out in scratch, written once with non-temporal stores) are the
+// cached ones byte for byte: into a vector of another size, into one of the same size left
+// with stale bytes (a rebuild writes it without zero-filling first, so every padding byte must
+// be written), and a failed build leaves the vector empty.
+TEST(ClusterBuild, StreamedObjectsEqualCachedOnes) {
+    Arena arena;
+    ClusterBuilder cached, streamed;
+    streamed.set_object_stores(ObjectStores::kStreaming);
+    std::vector<std::byte> expected, out;
+    std::vector<Finding> f;
+    for (const auto& [n, truncate] :
+         {std::pair{11u, 0u}, {3u, 9u}, {7u, 0u}, {1u, 5u}, {11u, 3u}}) {
+        auto info = test::cluster_info(arena, test::grid(n, 1.0f, n));
+        info.positionTruncateBitCount = truncate;
+        ASSERT_TRUE(cached.build_triangle_cluster(arena.memory, info, test::default_input(), 0,
+                                                  expected, f));
+        ASSERT_TRUE(
+            streamed.build_triangle_cluster(arena.memory, info, test::default_input(), 0, out, f));
+        EXPECT_EQ(out, expected) << "grid " << n << ", other size before";
+        std::fill(out.begin(), out.end(), std::byte{0xAB});
+        ASSERT_TRUE(
+            streamed.build_triangle_cluster(arena.memory, info, test::default_input(), 0, out, f));
+        EXPECT_EQ(out, expected) << "grid " << n << ", same size, stale bytes";
+    }
+    EXPECT_TRUE(f.empty());
+    auto bad = test::cluster_info(arena, test::grid(2));
+    bad.vertexBuffer = 0xABC000;
+    EXPECT_FALSE(
+        streamed.build_triangle_cluster(arena.memory, bad, test::default_input(), 0, out, f));
+    EXPECT_TRUE(out.empty());
+}
+
 TEST(ClusterBuildRules, FaultFindingNamesFieldAddressAndOp) {
     test::Arena arena;
     const test::Mesh m = test::grid(2);

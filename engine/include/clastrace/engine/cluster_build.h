@@ -46,6 +46,15 @@ struct ClusterObject {
     bool ok = false;
 };
 
+// How a builder writes each object into its `out` vector.
+// - kCached: in place, through the caches, for callers that read the object back at once (as
+//   execute() does when it copies it into the memory image).
+// - kStreaming: laid out in the builder's scratch, then written once, in order, with
+//   non-temporal stores (x86): the object's cache lines are not read for ownership first and
+//   evict nothing, for bulk builds whose objects are read later. A vector that already holds
+//   an object of the same size (a rebuild) is written without zero-filling it first.
+enum class ObjectStores { kCached, kStreaming };
+
 // Reusable build state: keeps its scratch between ops, so building many clusters does no
 // heap allocation per cluster once warmed up. Not thread safe; use one per thread.
 class ClusterBuilder {
@@ -84,11 +93,13 @@ public:
                            std::vector<std::byte>& out, std::vector<Finding>& findings);
 
     const EngineProperties& properties() const { return properties_; }
+    void set_object_stores(ObjectStores stores) { stores_ = stores; }
 
 private:
     struct Scratch;
     EngineProperties properties_;
     std::unique_ptr<Scratch> scratch_;
+    ObjectStores stores_ = ObjectStores::kCached;
 };
 
 // One-shot forms of the ops (allocate a builder per call; use ClusterBuilder in loops).
