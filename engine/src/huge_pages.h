@@ -2,8 +2,9 @@
 // Arrays the traversal reads at random (wide nodes, leaf triangle groups) on 2 MiB pages where
 // the kernel gives them (issue 22). Incoherent rays land on a different 4 KiB page at nearly
 // every node and leaf: a scene of 10^5-10^6 triangles keeps 10-60 MB of them, more pages than
-// an Intel core's second-level TLB holds (1,536-2,048 entries), so each visit also waits for a
-// page walk, two-dimensional and several memory reads long inside a virtual machine. On 2 MiB
+// an Intel core's second-level TLB holds (1,536-2,048 entries), so the deep visits of a ray
+// also wait for page walks (about 1.2 a ray in a simulated 1,536-entry TLB: docs/benchmarks.md,
+// round 11), two-dimensional and several memory reads long inside a virtual machine. On 2 MiB
 // pages the same bytes take a few dozen TLB entries. The bytes and their order are unchanged.
 #pragma once
 
