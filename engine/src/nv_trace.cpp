@@ -31,7 +31,7 @@ struct Blas {
     std::vector<NvNode> nodes;
     detail::WideTree wide;  // `nodes` in the traversal's layout
     // Triangles: the wide leaves' records in groups of four (`wide` indexes these).
-    std::vector<geometry::Triangle4> groups;
+    detail::HugePageVector<geometry::Triangle4> groups;
     std::vector<uint32_t> geometry_flags;
     bool aabbs = false;
     // A cluster BLAS (blas.h): `bytes` is that object, `clas` the CLAS its references name
@@ -352,9 +352,9 @@ void walk_tree(const std::vector<NvNode>& nodes, const geometry::PreparedRay& rd
 // float distances to tell the leaves apart (nv_wide_tree.h). Both keep every box the ray
 // meets; only the order of the leaves differs. A leaf's items are fetched ahead. `wr` is
 // make_wide_ray of `rd`.
-template <class WideItem, class Leaf, class WideLeaf>
+template <class WideItems, class Leaf, class WideLeaf>
 void walk_leaves(const std::vector<NvNode>& nodes, const detail::WideTree& wide,
-                 const std::vector<WideItem>& wide_items, const geometry::PreparedRay& rd,
+                 const WideItems& wide_items, const geometry::PreparedRay& rd,
                  const detail::WideRay& wr, double* tmax, Leaf&& leaf, WideLeaf&& wide_leaf) {
     // A float32 ray's box test is as wide as the scalar float32 one (make_wide_ray): from far
     // away the 4-wide walk is still the faster of the two.
@@ -362,6 +362,7 @@ void walk_leaves(const std::vector<NvNode>& nodes, const detail::WideTree& wide,
         detail::walk_wide(wide, wr, tmax, wide_leaf, [&](uint32_t first, uint32_t count) {
             // Items of whole cache lines (groups of four triangles) line by line, unrolled:
             // a leaf is mostly one group.
+            using WideItem = typename WideItems::value_type;
             constexpr size_t kLines = sizeof(WideItem) % 64 == 0 ? sizeof(WideItem) / 64 : 0;
             if constexpr (kLines != 0) {
                 const uint32_t items = wide.leaf_groups ? (count + 3) / 4 : count;

@@ -175,9 +175,10 @@ bool quantize_node(const FloatWideNode<W>& w, QuantizedNode<W>* q) {
 }
 
 // The quantized form of every node, or nothing when one cannot be quantized.
-template <int W>
-std::vector<QuantizedNode<W>> quantize_tree(const std::vector<FloatWideNode<W>>& nodes) {
-    std::vector<QuantizedNode<W>> out(nodes.size());
+template <int W, class Allocator>
+HugePageVector<QuantizedNode<W>> quantize_tree(
+    const std::vector<FloatWideNode<W>, Allocator>& nodes) {
+    HugePageVector<QuantizedNode<W>> out(nodes.size());
     for (size_t i = 0; i < nodes.size(); ++i)
         if (!quantize_node(nodes[i], &out[i])) return {};
     return out;
@@ -276,8 +277,9 @@ WideTree make_wide_tree(const std::vector<NvNode>& nodes, SimdPath path) {
 
 WideTree make_float_wide_tree(const std::vector<NvNode>& nodes) {
     WideTree tree;
-    tree.nodes = float_wide_nodes<4>(nodes);
-    if (!tree.nodes.empty()) set_scale(nodes[0], tree.nodes, &tree);
+    const std::vector<FloatWideNode<4>> wide = float_wide_nodes<4>(nodes);
+    tree.nodes.assign(wide.begin(), wide.end());
+    if (!wide.empty()) set_scale(nodes[0], wide, &tree);
     return tree;
 }
 
@@ -300,7 +302,7 @@ namespace {
 
 // The groups of records [first, first + count), appended to `groups`.
 void append_groups(const std::vector<NvPrimitiveRecord>& records, uint32_t first, uint32_t count,
-                   std::vector<geometry::Triangle4>* groups) {
+                   HugePageVector<geometry::Triangle4>* groups) {
     for (uint32_t g = 0; g < count; g += 4) {
         geometry::Triangle4 t{};
         for (uint32_t k = 0; k < 4; ++k) {
@@ -316,9 +318,22 @@ void append_groups(const std::vector<NvPrimitiveRecord>& records, uint32_t first
     }
 }
 
+// The groups the leaves of `nodes` need, so that the array is allocated once, at its size.
 template <class Node>
-void group_leaves(std::vector<Node>* nodes, const std::vector<NvPrimitiveRecord>& records,
-                  std::vector<geometry::Triangle4>* groups) {
+size_t count_groups(const HugePageVector<Node>& nodes) {
+    constexpr int kLanes = int(sizeof(Node::child) / sizeof(uint32_t));
+    size_t groups = 0;
+    for (const Node& n : nodes)
+        for (int k = 0; k < kLanes; ++k) {
+            const uint32_t count = lane_count(n, k);
+            if (count != 0 && count != kWideEmptyLane) groups += (count + 3) / 4;
+        }
+    return groups;
+}
+
+template <class Node>
+void group_leaves(HugePageVector<Node>* nodes, const std::vector<NvPrimitiveRecord>& records,
+                  HugePageVector<geometry::Triangle4>* groups) {
     constexpr int kLanes = int(sizeof(Node::child) / sizeof(uint32_t));
     for (Node& n : *nodes)
         for (int k = 0; k < kLanes; ++k) {
@@ -332,9 +347,11 @@ void group_leaves(std::vector<Node>* nodes, const std::vector<NvPrimitiveRecord>
 
 }  // namespace
 
-std::vector<geometry::Triangle4> group_leaf_triangles(
+HugePageVector<geometry::Triangle4> group_leaf_triangles(
     WideTree* tree, const std::vector<NvPrimitiveRecord>& records) {
-    std::vector<geometry::Triangle4> groups;
+    HugePageVector<geometry::Triangle4> groups;
+    groups.reserve(count_groups(tree->nodes) + count_groups(tree->quantized) +
+                   count_groups(tree->quantized8));
     group_leaves(&tree->nodes, records, &groups);
     group_leaves(&tree->quantized, records, &groups);
     group_leaves(&tree->quantized8, records, &groups);

@@ -17,6 +17,7 @@
 #include "clastrace/engine/nv_format.h"
 #include "geometry/ray.h"
 #include "geometry/triangle4.h"
+#include "huge_pages.h"
 #include "simd4.h"
 #include "spill_stack.h"
 
@@ -134,11 +135,12 @@ bool cpu_has_avx2();
 // A tree in the traversal's layout: `quantized8` on the AVX2 path when every node could be
 // quantized, else `quantized` under the same condition (finite frames, leaves of at most
 // kQuantizedMaxLeaf records), `nodes` otherwise. Element 0 of the one used is the root; all
-// empty: nothing is ever hit.
+// empty: nothing is ever hit. A node's inner children lie side by side, its leaves' groups
+// too; the arrays lie on huge pages where large (huge_pages.h).
 struct WideTree {
-    std::vector<WideNode> nodes;
-    std::vector<QuantizedWideNode> quantized;
-    std::vector<QuantizedWideNode8> quantized8;
+    HugePageVector<WideNode> nodes;
+    HugePageVector<QuantizedWideNode> quantized;
+    HugePageVector<QuantizedWideNode8> quantized8;
     // Whether the leaves index groups of four triangles (group_leaf_triangles: `child` the first
     // group, `count` still the records) rather than records.
     bool leaf_groups = false;
@@ -171,8 +173,9 @@ void quantized_lanes8(const QuantizedWideNode8& n, int axis, float lo[8], float 
 // The triangles of `tree`'s leaves in groups of four (geometry/triangle4.h), a leaf's groups
 // side by side in the order the leaves are laid out; each leaf's `child` becomes the index of
 // its first group (tree->leaf_groups). `records` are the triangles the tree was built over;
-// a leaf reaching past them keeps only the records that exist.
-std::vector<geometry::Triangle4> group_leaf_triangles(
+// a leaf reaching past them keeps only the records that exist. On huge pages where large: the
+// walk reads one group or two at random per leaf it enters.
+HugePageVector<geometry::Triangle4> group_leaf_triangles(
     WideTree* tree, const std::vector<NvPrimitiveRecord>& records);
 
 // A prepared ray in the SIMD box test's terms, as scalars; each path puts it into its lanes
@@ -384,7 +387,7 @@ template <int W, class Node, class Prefetch>
 // that the AVX2 box test inlines into the AVX2 walk (target attribute) and the SSE one into
 // the SSE walk.
 template <int W, class Node, class BoxTest, class Leaf, class Prefetch>
-[[gnu::always_inline]] inline void walk_nodes(const std::vector<Node>& tree,
+[[gnu::always_inline]] inline void walk_nodes(const HugePageVector<Node>& tree,
                                               const BoxTest& box_test, double* tmax, Leaf& leaf,
                                               Prefetch& prefetch) {
     if (tree.empty()) return;
@@ -427,7 +430,7 @@ template <int W, class Node, class BoxTest, class Leaf, class Prefetch>
 
 // walk_nodes over 4-wide nodes (float or quantized) with the SSE box test.
 template <bool kZeroAxes, class Node, class Leaf, class Prefetch>
-void walk_wide_nodes(const std::vector<Node>& nodes, const WideRay& wide_ray, double* tmax,
+void walk_wide_nodes(const HugePageVector<Node>& nodes, const WideRay& wide_ray, double* tmax,
                      Leaf& leaf, Prefetch& prefetch) {
     const WideRay4 r = make_wide_ray4(wide_ray);
     const auto box_test = [&r](const Node& n, float tmax_up, float* entry) {
@@ -537,7 +540,7 @@ struct Wide8BoxTest {
 
 // walk_nodes over 8-wide quantized nodes with the AVX2 box test.
 template <bool kZeroAxes, class Leaf, class Prefetch>
-CLASTRACE_TARGET_AVX2 void walk_wide8_nodes(const std::vector<QuantizedWideNode8>& nodes,
+CLASTRACE_TARGET_AVX2 void walk_wide8_nodes(const HugePageVector<QuantizedWideNode8>& nodes,
                                             const WideRay& wide_ray, double* tmax, Leaf& leaf,
                                             Prefetch& prefetch) {
     const WideRay8 r = make_wide_ray8(wide_ray);
