@@ -360,10 +360,11 @@ OnceResult replay_in_child(const std::string& path, bool hazards, uint32_t threa
     const std::string out = run_self(
         {"--replay-once", path, hazards ? "hazards" : "no-hazards", std::to_string(threads)});
     OnceResult r;
-    r.ok = std::sscanf(out.c_str(), "%lf %lf %lf %lf %llu %llu %llu %llu %llu %llu %llu %llu %llu %zu",
-                       &r.wall, &r.cpu, &r.replay_thread_cpu, &r.engine, &r.commands,
-                       &r.engine_calls, &r.raw_bytes, &r.snapshot_bytes, &r.accesses, &r.started,
-                       &r.stood, &r.run_again, &r.peak_kb, &r.report_hash) == 14;
+    r.ok =
+        std::sscanf(out.c_str(), "%lf %lf %lf %lf %llu %llu %llu %llu %llu %llu %llu %llu %llu %zu",
+                    &r.wall, &r.cpu, &r.replay_thread_cpu, &r.engine, &r.commands, &r.engine_calls,
+                    &r.raw_bytes, &r.snapshot_bytes, &r.accesses, &r.started, &r.stood,
+                    &r.run_again, &r.peak_kb, &r.report_hash) == 14;
     if (!r.ok) {
         std::fprintf(stderr, "replay of %s in a child process failed\n", path.c_str());
         std::exit(1);
@@ -391,9 +392,9 @@ double mb(uint64_t bytes) { return double(bytes) / 1e6; }
 struct Setting {
     std::string name;
     bool hazards = true;
-    bool many = false;                      // T threads, else 1
-    const char* run_ahead = nullptr;        // CLASTRACE_REPLAY_RUN_AHEAD, null: unset
-    const char* sync_thread = nullptr;      // CLASTRACE_REPLAY_SYNC_THREAD, null: unset
+    bool many = false;                  // T threads, else 1
+    const char* run_ahead = nullptr;    // CLASTRACE_REPLAY_RUN_AHEAD, null: unset
+    const char* sync_thread = nullptr;  // CLASTRACE_REPLAY_SYNC_THREAD, null: unset
     std::vector<OnceResult> runs;
 };
 
@@ -407,13 +408,25 @@ void throughput_table(const std::string& dir, uint64_t ops, uint32_t threads, in
     std::vector<Setting> settings = {
         {"replay, 1 thread, hazards on", true, false, nullptr, nullptr, {}},
         {"replay, 1 thread, hazards off (--no-hazards)", false, false, nullptr, nullptr, {}},
-        {"replay, " + t + "every build in its turn (CLASTRACE_REPLAY_RUN_AHEAD=0)", true, true,
-         "0", nullptr, {}},
+        {"replay, " + t + "every build in its turn (CLASTRACE_REPLAY_RUN_AHEAD=0)",
+         true,
+         true,
+         "0",
+         nullptr,
+         {}},
         {"replay, " + t +
              "sync model on its own thread (CLASTRACE_REPLAY_SYNC_THREAD=1, RUN_AHEAD=0)",
-         true, true, "0", "1", {}},
-        {"replay, " + t + "cluster builds run ahead (CLASTRACE_REPLAY_RUN_AHEAD=1)", true, true,
-         "1", nullptr, {}},
+         true,
+         true,
+         "0",
+         "1",
+         {}},
+        {"replay, " + t + "cluster builds run ahead (CLASTRACE_REPLAY_RUN_AHEAD=1)",
+         true,
+         true,
+         "1",
+         nullptr,
+         {}},
         {"replay, " + t + "the model's thread and runs ahead (both =1)", true, true, "1", "1", {}},
     };
     Setting& on = settings[0];
@@ -428,8 +441,8 @@ void throughput_table(const std::string& dir, uint64_t ops, uint32_t threads, in
     for (int rep = 0; rep < repeats; ++rep) {
         z.push_back(zstd_once(path));
         for (Setting& s : settings)
-            s.runs.push_back(replay_in_child(path, s.hazards, s.many ? threads : 1, s.run_ahead,
-                                             s.sync_thread));
+            s.runs.push_back(
+                replay_in_child(path, s.hazards, s.many ? threads : 1, s.run_ahead, s.sync_thread));
     }
     set_or_unset("CLASTRACE_REPLAY_RUN_AHEAD", asked_run_ahead ? kept_run_ahead.c_str() : nullptr);
     set_or_unset("CLASTRACE_REPLAY_SYNC_THREAD", asked_sync ? kept_sync.c_str() : nullptr);
@@ -459,12 +472,13 @@ void throughput_table(const std::string& dir, uint64_t ops, uint32_t threads, in
         "submissions), trace %.2f MB on disk, %.2f MB decompressed, %.2f MB of memory laid in. "
         "Each replay in its own process (--replay-once), %d rounds interleaved (zstd, then the "
         "rows in order); medians of the %d rounds. Ratios: each run over its own engine time "
-        "(engine::execute summed; a %u-thread run: its round's 1-thread hazards-on run's), then the "
+        "(engine::execute summed; a %u-thread run: its round's 1-thread hazards-on run's), then "
+        "the "
         "median\n",
         (unsigned long long)stats.ops, (unsigned long long)stats.cluster_ops,
         (unsigned long long)last.commands, (unsigned long long)last.engine_calls,
-        (unsigned long long)stats.submissions, mb(stats.file_bytes), raw,
-        mb(last.snapshot_bytes), repeats, repeats, threads);
+        (unsigned long long)stats.submissions, mb(stats.file_bytes), raw, mb(last.snapshot_bytes),
+        repeats, repeats, threads);
     std::printf(
         "| run | wall s | CPU s (all threads) | replay thread CPU s (of wall) | ops/s (wall) | "
         "trace MB/s (decompressed, wall) | wall / engine | CPU / engine | wall vs zstd |\n");
@@ -486,24 +500,27 @@ void throughput_table(const std::string& dir, uint64_t ops, uint32_t threads, in
             median_of(s, [&](const OnceResult& r, size_t i) { return r.cpu / engine_of(s, i); }),
             median_of(s, [&](const OnceResult& r, size_t i) { return r.wall / z[i].seconds; }));
     }
-    std::printf("| engine alone: engine::execute of the same ops (1 thread, summed in those runs) "
-                "| %.4f | %.4f | - | %.0f | %.1f | 1.000x | 1.000x | %.1fx |\n",
-                engine, engine, double(stats.ops) / engine, raw / engine,
-                engine / median_over(rounds, [&](size_t i) { return z[i].seconds; }));
-    std::printf("| zstd: read + ZSTD_decompress each chunk (%llu chunks) | %.4f | %.4f | - | %.0f "
-                "| %.1f | - | - | 1.0x |\n",
-                (unsigned long long)z.back().chunks,
-                median_over(rounds, [&](size_t i) { return z[i].seconds; }),
-                median_over(rounds, [&](size_t i) { return z[i].cpu; }),
-                double(stats.ops) / median_over(rounds, [&](size_t i) { return z[i].seconds; }),
-                raw / median_over(rounds, [&](size_t i) { return z[i].seconds; }));
+    std::printf(
+        "| engine alone: engine::execute of the same ops (1 thread, summed in those runs) "
+        "| %.4f | %.4f | - | %.0f | %.1f | 1.000x | 1.000x | %.1fx |\n",
+        engine, engine, double(stats.ops) / engine, raw / engine,
+        engine / median_over(rounds, [&](size_t i) { return z[i].seconds; }));
+    std::printf(
+        "| zstd: read + ZSTD_decompress each chunk (%llu chunks) | %.4f | %.4f | - | %.0f "
+        "| %.1f | - | - | 1.0x |\n",
+        (unsigned long long)z.back().chunks,
+        median_over(rounds, [&](size_t i) { return z[i].seconds; }),
+        median_over(rounds, [&](size_t i) { return z[i].cpu; }),
+        double(stats.ops) / median_over(rounds, [&](size_t i) { return z[i].seconds; }),
+        raw / median_over(rounds, [&](size_t i) { return z[i].seconds; }));
     auto by_engine = [&](const Setting& s, bool cpu) {
         return median_of(s, [&](const OnceResult& r, size_t) {
             return (cpu ? r.cpu : r.wall) / r.engine;
         });
     };
     auto speedup = [&](const Setting& s) {
-        return median_of(s, [&](const OnceResult& r, size_t i) { return on.runs[i].wall / r.wall; });
+        return median_of(s,
+                         [&](const OnceResult& r, size_t i) { return on.runs[i].wall / r.wall; });
     };
     unsigned long long peak_kb = 0;
     for (const Setting& s : settings)
@@ -520,12 +537,16 @@ void throughput_table(const std::string& dir, uint64_t ops, uint32_t threads, in
         "replay processes %.1f MB\n\n",
         by_engine(off, false), by_engine(on, false), by_engine(off, false),
         by_engine(on, false) / by_engine(off, false), by_engine(on, true), by_engine(off, true),
-        by_engine(on, true) / by_engine(off, true), threads, speedup(in_turn),
-        speedup(settings[3]), speedup(settings[4]), speedup(settings[5]), threads,
-        100 * median_of(in_turn, [](const OnceResult& r, size_t) { return r.replay_thread_cpu / r.wall; }),
-        100 * median_of(settings[3], [](const OnceResult& r, size_t) { return r.replay_thread_cpu / r.wall; }),
-        100 * median_of(settings[4], [](const OnceResult& r, size_t) { return r.replay_thread_cpu / r.wall; }),
-        100 * median_of(settings[5], [](const OnceResult& r, size_t) { return r.replay_thread_cpu / r.wall; }),
+        by_engine(on, true) / by_engine(off, true), threads, speedup(in_turn), speedup(settings[3]),
+        speedup(settings[4]), speedup(settings[5]), threads,
+        100 * median_of(in_turn,
+                        [](const OnceResult& r, size_t) { return r.replay_thread_cpu / r.wall; }),
+        100 * median_of(settings[3],
+                        [](const OnceResult& r, size_t) { return r.replay_thread_cpu / r.wall; }),
+        100 * median_of(settings[4],
+                        [](const OnceResult& r, size_t) { return r.replay_thread_cpu / r.wall; }),
+        100 * median_of(settings[5],
+                        [](const OnceResult& r, size_t) { return r.replay_thread_cpu / r.wall; }),
         ahead.started, ahead.stood, ahead.run_again, last.accesses, double(peak_kb) / 1024.0);
     std::remove(path.c_str());
 }

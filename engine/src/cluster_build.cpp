@@ -822,10 +822,9 @@ namespace {
 
 // A ClusterBuilder op taking an info of type Info: the one-shot forms differ only in it.
 template <class Info>
-using BuilderOp = bool (ClusterBuilder::*)(const MemoryImage&, const Info&,
-                                           const VkClusterAccelerationStructureTriangleClusterInputNV&,
-                                           int64_t, std::vector<std::byte>&,
-                                           std::vector<Finding>&);
+using BuilderOp = bool (ClusterBuilder::*)(
+    const MemoryImage&, const Info&, const VkClusterAccelerationStructureTriangleClusterInputNV&,
+    int64_t, std::vector<std::byte>&, std::vector<Finding>&);
 
 template <class Info>
 ClusterObject run_once(BuilderOp<Info> op, const MemoryImage& memory, const Info& info,
@@ -860,8 +859,8 @@ ClusterObject instantiate_triangle_cluster(
     const MemoryImage& memory, const VkClusterAccelerationStructureInstantiateClusterInfoNV& info,
     const VkClusterAccelerationStructureTriangleClusterInputNV& input,
     const EngineProperties& properties, int64_t op_index) {
-    return run_once(&ClusterBuilder::instantiate_triangle_cluster, memory, info, input,
-                    properties, op_index);
+    return run_once(&ClusterBuilder::instantiate_triangle_cluster, memory, info, input, properties,
+                    op_index);
 }
 
 ClusterObject get_cluster_template_indices(

@@ -238,7 +238,7 @@ constexpr uint64_t with_copy_stage(uint64_t atoms) {
 // The atoms of `mask` and every stage `beside` (StageTables::earlier or ::later) puts on their
 // side; `every_stage` (BOTTOM for a source, TOP for a destination) stands for all of them.
 StageMask ordered_scope(StageMask mask, uint64_t every_stage,
-                        std::array<uint64_t, 64> StageTables::* beside) {
+                        std::array<uint64_t, 64> StageTables::*beside) {
     uint64_t atoms = with_copy_stage(atomic_stages(mask));
     if (mask & every_stage) atoms |= kDeviceStages;
     uint64_t out = atoms;
@@ -261,7 +261,9 @@ StageMask atomic_stages(StageMask mask) {
     return out;
 }
 
-StageMask source_scope(StageMask mask) { return ordered_scope(mask, kSBottom, &StageTables::earlier); }
+StageMask source_scope(StageMask mask) {
+    return ordered_scope(mask, kSBottom, &StageTables::earlier);
+}
 
 StageMask destination_scope(StageMask mask) {
     return ordered_scope(mask, kSTop, &StageTables::later);

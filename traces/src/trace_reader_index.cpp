@@ -66,7 +66,8 @@ void TraceReader::Impl::finish_scan() {
     full_scan = false;  // once per scan
     const auto* chunks = index->chunks();
     for (uint32_t i = 0; i < chunks->size(); ++i) {
-        if (index_chunk_read[i] || repeats_an_offset(i)) continue;  // a repeat: the index is bad_index from open
+        if (index_chunk_read[i] || repeats_an_offset(i))
+            continue;  // a repeat: the index is bad_index from open
         report_with(TraceErrorCode::kBadIndex, chunks->Get(i)->file_offset(), [&] {
             return "index entry " + std::to_string(i) + " lists a records chunk at offset " +
                    std::to_string(chunks->Get(i)->file_offset()) +
