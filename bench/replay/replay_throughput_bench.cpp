@@ -8,12 +8,19 @@
 // checking and without (--no-hazards), on T threads (default: the machine's cores) with
 // hazard checking (the sync model inline, each command in its turn: RUN_AHEAD=0), with the
 // sync model on its own thread (CLASTRACE_REPLAY_SYNC_THREAD=1), and with cluster builds run
-// ahead of their turn (CLASTRACE_REPLAY_RUN_AHEAD=1, docs/replay.md "Threads"), and with both; then the engine alone: the wall
-// time of every engine::execute call of a one-thread replay of the same trace in the same process (ReplayedCommand::engine_ns, summed
-// by an observer), i.e. exactly the ops the replay ran; and the peer: read the file and
-// ZSTD_decompress each chunk, nothing else. Goals (issue 23): replay (one thread) <= 1.1x the
-// engine alone, hazards on <= 1.2x hazards off, T threads >= 8x one thread on 16 cores at 10^6
-// ops. Each row is the best of R runs (--repeat R, default 5).
+// ahead of their turn (CLASTRACE_REPLAY_RUN_AHEAD=1, docs/replay.md "Threads"), and with both;
+// each replay in a process of its own (--replay-once), the settings interleaved round by round,
+// R rounds (--repeat R, default 7), every column the median of the R. Then the engine alone: the
+// wall time of every engine::execute call inside those one-thread replays
+// (ReplayedCommand::engine_ns, summed by an observer), i.e. exactly the ops the replay ran; and
+// the peer: read the file and ZSTD_decompress each chunk, nothing else. A one-thread replay is
+// divided by its own run's engine time, a T-thread one (run without the observer, which would
+// drain the sync model's queue each command) by its round's one-thread hazards-on run's: on a
+// noisy host the engine's time moves by 30% between runs, and a run's replay with it. The T-thread
+// rows also say the replay thread's CPU time (getrusage RUSAGE_THREAD on the thread that calls
+// replay_trace), over the wall: the serial share the other threads cannot take. Goals (issue 23):
+// replay (one thread) <= 1.1x the engine alone, hazards on <= 1.2x hazards off, T threads >= 8x
+// one thread on 16 cores at 10^6 ops.
 //
 // Table 2 replays traces of 10^2 .. M ops (default 10^6) on T threads, each in a fresh child
 // process, so its peak RSS is that size's alone; beside it the largest submission's bytes (its
@@ -65,6 +72,15 @@ double cpu_now() {
 
 // The high-water mark of this process image's memory (VmHWM). Not getrusage's ru_maxrss,
 // which a child keeps from its parent across fork and exec.
+// CPU seconds of the calling thread alone: in a replay, the replay thread's (replay_trace runs on
+// its caller), whose share of the run is the serial part the other threads cannot take.
+double thread_cpu_now() {
+    rusage u{};
+    getrusage(RUSAGE_THREAD, &u);
+    return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) +
+           1e-6 * double(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+}
+
 uint64_t peak_rss_kb() {
     FILE* f = std::fopen("/proc/self/status", "r");
     if (!f) return 0;
@@ -88,6 +104,7 @@ uint64_t current_rss_kb() {
 struct ReplayRun {
     double seconds = 0;
     double cpu = 0;
+    double replay_thread_cpu = 0;
     replay::ReplayReport report;
     uint64_t raw_bytes = 0;
 };
@@ -108,7 +125,7 @@ ReplayRun replay_once(const std::string& path, bool hazards, uint32_t threads,
                       replay::ReplayOptions::RunAheadCounts* run_ahead = nullptr) {
     ReplayRun run;
     traces::TraceError error;
-    const double t0 = now(), c0 = cpu_now();
+    const double t0 = now(), c0 = cpu_now(), r0 = thread_cpu_now();
     auto reader = traces::TraceReader::open(path, &error);
     if (!reader) {
         std::fprintf(stderr, "cannot open %s: %s\n", path.c_str(), error.message.c_str());
@@ -122,6 +139,7 @@ ReplayRun replay_once(const std::string& path, bool hazards, uint32_t threads,
     run.report = replay::replay_trace(*reader, path, options);
     run.seconds = now() - t0;
     run.cpu = cpu_now() - c0;
+    run.replay_thread_cpu = thread_cpu_now() - r0;
     run.raw_bytes = reader->stats().raw_bytes;
     return run;
 }
@@ -254,27 +272,33 @@ int replay_once_for_profiler(const std::string& path, bool hazards, uint32_t thr
         threads, run.seconds, 1e-9 * double(engine.ns), run.report.hazards.size(),
         (unsigned long long)run_ahead.started, (unsigned long long)run_ahead.stood,
         (unsigned long long)run_ahead.run_again);
+    // For table 1, which runs this in a child process per replay (OnceResult).
+    const replay::ReplayCounts& n = run.report.counts;
+    std::printf("RESULT %.6f %.6f %.6f %.6f %llu %llu %llu %llu %llu %llu %llu %llu %llu %zu\n",
+                run.seconds, run.cpu, run.replay_thread_cpu, 1e-9 * double(engine.ns),
+                (unsigned long long)n.commands, (unsigned long long)engine.commands,
+                (unsigned long long)run.raw_bytes, (unsigned long long)n.snapshot_bytes,
+                (unsigned long long)n.accesses, (unsigned long long)run_ahead.started,
+                (unsigned long long)run_ahead.stood, (unsigned long long)run_ahead.run_again,
+                (unsigned long long)peak_rss_kb(),
+                std::hash<std::string>{}(replay::to_json(run.report).dump()));
     return 0;
 }
 
-struct ChildResult {
-    double seconds = 0;
-    uint64_t peak_kb = 0, base_kb = 0, image_peak = 0, commands = 0;
-    bool ok = false;
-};
-
-ChildResult run_child(const char* self, const std::string& path, uint32_t threads) {
-    ChildResult r;
+// Runs this program again with `args`; what it printed after "RESULT ", or empty when it failed
+// (its stderr is ours).
+std::string run_self(const std::vector<std::string>& args) {
     int fds[2];
-    if (pipe(fds) != 0) return r;
+    if (pipe(fds) != 0) return {};
     pid_t pid = fork();
     if (pid == 0) {
         dup2(fds[1], 1);
         close(fds[0]);
         close(fds[1]);
-        const std::string count = std::to_string(threads);
-        execl(self, self, "--child-replay", path.c_str(), count.c_str(),
-              static_cast<char*>(nullptr));
+        std::vector<char*> argv{const_cast<char*>("/proc/self/exe")};
+        for (const std::string& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+        argv.push_back(nullptr);
+        execv(argv[0], argv.data());
         _exit(127);
     }
     close(fds[1]);
@@ -286,19 +310,93 @@ ChildResult run_child(const char* self, const std::string& path, uint32_t thread
     int status = 0;
     waitpid(pid, &status, 0);
     const size_t at = out.find("RESULT ");
+    if (!WIFEXITED(status) || WEXITSTATUS(status) != 0 || at == std::string::npos) return {};
+    return out.substr(at + 7);
+}
+
+struct ChildResult {
+    double seconds = 0;
+    uint64_t peak_kb = 0, base_kb = 0, image_peak = 0, commands = 0;
+    bool ok = false;
+};
+
+ChildResult run_child(const std::string& path, uint32_t threads) {
+    ChildResult r;
+    const std::string out = run_self({"--child-replay", path, std::to_string(threads)});
     unsigned long long peak = 0, base = 0, image = 0, commands = 0;
-    if (at != std::string::npos && std::sscanf(out.c_str() + at, "RESULT %lf %llu %llu %llu %llu",
-                                               &r.seconds, &peak, &base, &image, &commands) == 5) {
+    if (std::sscanf(out.c_str(), "%lf %llu %llu %llu %llu", &r.seconds, &peak, &base, &image,
+                    &commands) == 5) {
         r.peak_kb = peak;
         r.base_kb = base;
         r.image_peak = image;
         r.commands = commands;
-        r.ok = WIFEXITED(status) && WEXITSTATUS(status) == 0;
+        r.ok = true;
     }
     return r;
 }
 
+// What one `--replay-once` process printed (replay_once_for_profiler).
+struct OnceResult {
+    double wall = 0, cpu = 0, replay_thread_cpu = 0, engine = 0;  // engine: 1 thread only
+    unsigned long long commands = 0, engine_calls = 0, raw_bytes = 0, snapshot_bytes = 0,
+                       accesses = 0, started = 0, stood = 0, run_again = 0, peak_kb = 0;
+    size_t report_hash = 0;
+    bool ok = false;
+};
+
+// Sets CLASTRACE_REPLAY_* variable `name` to `value`, or unsets it for null.
+void set_or_unset(const char* name, const char* value) {
+    if (value)
+        setenv(name, value, 1);
+    else
+        unsetenv(name);
+}
+
+// One replay in a fresh process, under the run-ahead and sync-thread settings given.
+OnceResult replay_in_child(const std::string& path, bool hazards, uint32_t threads,
+                           const char* run_ahead, const char* sync_thread) {
+    set_or_unset("CLASTRACE_REPLAY_RUN_AHEAD", run_ahead);
+    set_or_unset("CLASTRACE_REPLAY_SYNC_THREAD", sync_thread);
+    const std::string out = run_self(
+        {"--replay-once", path, hazards ? "hazards" : "no-hazards", std::to_string(threads)});
+    OnceResult r;
+    r.ok =
+        std::sscanf(out.c_str(), "%lf %lf %lf %lf %llu %llu %llu %llu %llu %llu %llu %llu %llu %zu",
+                    &r.wall, &r.cpu, &r.replay_thread_cpu, &r.engine, &r.commands, &r.engine_calls,
+                    &r.raw_bytes, &r.snapshot_bytes, &r.accesses, &r.started, &r.stood,
+                    &r.run_again, &r.peak_kb, &r.report_hash) == 14;
+    if (!r.ok) {
+        std::fprintf(stderr, "replay of %s in a child process failed\n", path.c_str());
+        std::exit(1);
+    }
+    return r;
+}
+
+double median(std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    const size_t n = v.size();
+    return n == 0 ? 0 : n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+// The median over the rounds of f(round).
+template <class F>
+double median_over(size_t rounds, F&& f) {
+    std::vector<double> v;
+    for (size_t i = 0; i < rounds; ++i) v.push_back(f(i));
+    return median(v);
+}
+
 double mb(uint64_t bytes) { return double(bytes) / 1e6; }
+
+// One row of table 1: a replay setting and its runs, one per round.
+struct Setting {
+    std::string name;
+    bool hazards = true;
+    bool many = false;                  // T threads, else 1
+    const char* run_ahead = nullptr;    // CLASTRACE_REPLAY_RUN_AHEAD, null: unset
+    const char* sync_thread = nullptr;  // CLASTRACE_REPLAY_SYNC_THREAD, null: unset
+    std::vector<OnceResult> runs;
+};
 
 // Table 1: one trace of `ops` ops, replayed every way (see the file comment).
 void throughput_table(const std::string& dir, uint64_t ops, uint32_t threads, int repeats) {
@@ -306,110 +404,157 @@ void throughput_table(const std::string& dir, uint64_t ops, uint32_t threads, in
     bench::BenchTraceShape shape;
     shape.target_ops = ops;
     const bench::BenchTraceStats stats = bench::write_bench_trace(path, shape);
-    struct Best {
-        double wall = 1e30, cpu = 1e30;
-        void take(double w, double c) {
-            wall = std::min(wall, w);
-            cpu = std::min(cpu, c);
-        }
-    } on, off, many, many_sync_thread, many_run_ahead, many_both, engine, z;
-    replay::ReplayOptions::RunAheadCounts run_ahead;
-    ReplayRun last_on, last_many;
-    ZstdRun zr;
-    EngineTime engine_last;
+    const std::string t = std::to_string(threads) + " threads, hazards on, ";
+    std::vector<Setting> settings = {
+        {"replay, 1 thread, hazards on", true, false, nullptr, nullptr, {}},
+        {"replay, 1 thread, hazards off (--no-hazards)", false, false, nullptr, nullptr, {}},
+        {"replay, " + t + "every build in its turn (CLASTRACE_REPLAY_RUN_AHEAD=0)",
+         true,
+         true,
+         "0",
+         nullptr,
+         {}},
+        {"replay, " + t +
+             "sync model on its own thread (CLASTRACE_REPLAY_SYNC_THREAD=1, RUN_AHEAD=0)",
+         true,
+         true,
+         "0",
+         "1",
+         {}},
+        {"replay, " + t + "cluster builds run ahead (CLASTRACE_REPLAY_RUN_AHEAD=1)",
+         true,
+         true,
+         "1",
+         nullptr,
+         {}},
+        {"replay, " + t + "the model's thread and runs ahead (both =1)", true, true, "1", "1", {}},
+    };
+    Setting& on = settings[0];
+    Setting& off = settings[1];
+    Setting& in_turn = settings[2];
+    // The caller's settings, for table 2 after this one.
+    const char* asked_run_ahead = std::getenv("CLASTRACE_REPLAY_RUN_AHEAD");
+    const char* asked_sync = std::getenv("CLASTRACE_REPLAY_SYNC_THREAD");
+    const std::string kept_run_ahead = asked_run_ahead ? asked_run_ahead : "";
+    const std::string kept_sync = asked_sync ? asked_sync : "";
+    std::vector<ZstdRun> z;
     for (int rep = 0; rep < repeats; ++rep) {
-        zr = zstd_once(path);
-        z.take(zr.seconds, zr.cpu);
-        ReplayRun a = replay_once(path, true, 1);
-        on.take(a.seconds, a.cpu);
-        ReplayRun b = replay_once(path, false, 1);
-        off.take(b.seconds, b.cpu);
-        setenv("CLASTRACE_REPLAY_RUN_AHEAD", "0", 1);  // model inline, every build in its turn
-        ReplayRun m = replay_once(path, true, threads);
-        many.take(m.seconds, m.cpu);
-        setenv("CLASTRACE_REPLAY_RUN_AHEAD", "1", 1);  // cluster builds run ahead on T threads
-        ReplayRun t = replay_once(path, true, threads, nullptr, &run_ahead);
-        unsetenv("CLASTRACE_REPLAY_RUN_AHEAD");
-        many_run_ahead.take(t.seconds, t.cpu);
-        setenv("CLASTRACE_REPLAY_RUN_AHEAD", "0", 1);
-        setenv("CLASTRACE_REPLAY_SYNC_THREAD", "1", 1);  // the model on a thread of its own
-        ReplayRun mi = replay_once(path, true, threads);
-        unsetenv("CLASTRACE_REPLAY_RUN_AHEAD");
-        unsetenv("CLASTRACE_REPLAY_SYNC_THREAD");
-        many_sync_thread.take(mi.seconds, mi.cpu);
-        setenv("CLASTRACE_REPLAY_RUN_AHEAD", "1", 1);  // both
-        setenv("CLASTRACE_REPLAY_SYNC_THREAD", "1", 1);
-        ReplayRun both = replay_once(path, true, threads);
-        unsetenv("CLASTRACE_REPLAY_RUN_AHEAD");
-        unsetenv("CLASTRACE_REPLAY_SYNC_THREAD");
-        many_both.take(both.seconds, both.cpu);
-        EngineTime timed;
-        replay_once(path, true, 1, &timed);
-        engine.take(double(timed.ns) * 1e-9, double(timed.ns) * 1e-9);  // one thread: CPU = wall
-        engine_last = timed;
-        last_on = std::move(a);
-        last_many = std::move(m);
+        z.push_back(zstd_once(path));
+        for (Setting& s : settings)
+            s.runs.push_back(
+                replay_in_child(path, s.hazards, s.many ? threads : 1, s.run_ahead, s.sync_thread));
     }
-    require_clean(last_on.report, "one-thread");
-    require_clean(last_many.report, "many-thread");
-    if (replay::to_json(last_on.report) != replay::to_json(last_many.report))
-        std::fprintf(stderr, "warning: the %u-thread report differs from the one-thread one\n",
-                     threads);
-    const double raw = mb(last_on.raw_bytes);
+    set_or_unset("CLASTRACE_REPLAY_RUN_AHEAD", asked_run_ahead ? kept_run_ahead.c_str() : nullptr);
+    set_or_unset("CLASTRACE_REPLAY_SYNC_THREAD", asked_sync ? kept_sync.c_str() : nullptr);
+    const size_t rounds = size_t(repeats);
+    for (size_t i = 0; i < rounds; ++i)
+        if (in_turn.runs[i].report_hash != on.runs[i].report_hash)
+            std::fprintf(stderr,
+                         "warning: the %u-thread report differs from the one-thread one (round "
+                         "%zu)\n",
+                         threads, i + 1);
+    // The engine time each row is divided by: a one-thread run's own; a T-thread run (no
+    // observer there: it would drain the model's queue every command) the same round's one-thread
+    // hazards-on run's.
+    auto engine_of = [&](const Setting& s, size_t i) {
+        return s.many ? on.runs[i].engine : s.runs[i].engine;
+    };
+    std::vector<double> engine_times;
+    for (size_t i = 0; i < rounds; ++i) {
+        engine_times.push_back(on.runs[i].engine);
+        engine_times.push_back(off.runs[i].engine);
+    }
+    const double engine = median(engine_times);
+    const OnceResult& last = on.runs.back();
+    const double raw = mb(last.raw_bytes);
     std::printf(
         "replay throughput, %llu ops (%llu cluster ops, %llu commands, %llu engine calls, %llu "
-        "submissions), trace %.2f MB on disk, %.2f MB decompressed, %.2f MB of memory laid in; "
-        "best of %d\n",
+        "submissions), trace %.2f MB on disk, %.2f MB decompressed, %.2f MB of memory laid in. "
+        "Each replay in its own process (--replay-once), %d rounds interleaved (zstd, then the "
+        "rows in order); medians of the %d rounds. Ratios: each run over its own engine time "
+        "(engine::execute summed; a %u-thread run: its round's 1-thread hazards-on run's), then "
+        "the "
+        "median\n",
         (unsigned long long)stats.ops, (unsigned long long)stats.cluster_ops,
-        (unsigned long long)last_on.report.counts.commands,
-        (unsigned long long)engine_last.commands, (unsigned long long)stats.submissions,
-        mb(stats.file_bytes), raw, mb(last_on.report.counts.snapshot_bytes), repeats);
+        (unsigned long long)last.commands, (unsigned long long)last.engine_calls,
+        (unsigned long long)stats.submissions, mb(stats.file_bytes), raw, mb(last.snapshot_bytes),
+        repeats, repeats, threads);
     std::printf(
-        "| run | wall s | CPU s (all threads) | ops/s (wall) | trace MB/s (decompressed, wall) "
-        "| wall vs engine alone | wall vs zstd |\n");
-    std::printf("|---|---:|---:|---:|---:|---:|---:|\n");
-    auto row = [&](const std::string& name, const Best& b) {
-        std::printf("| %s | %.4f | %.4f | %.0f | %.1f | %.2fx | %.1fx |\n", name.c_str(), b.wall,
-                    b.cpu, double(stats.ops) / b.wall, raw / b.wall, b.wall / engine.wall,
-                    b.wall / z.wall);
+        "| run | wall s | CPU s (all threads) | replay thread CPU s (of wall) | ops/s (wall) | "
+        "trace MB/s (decompressed, wall) | wall / engine | CPU / engine | wall vs zstd |\n");
+    std::printf("|---|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+    auto median_of = [&](const Setting& s, auto field) {
+        return median_over(rounds, [&](size_t i) { return field(s.runs[i], i); });
     };
-    row("replay, 1 thread, hazards on", on);
-    row("replay, 1 thread, hazards off (--no-hazards)", off);
-    row("replay, " + std::to_string(threads) +
-            " threads, hazards on, every build in its turn (CLASTRACE_REPLAY_RUN_AHEAD=0)",
-        many);
-    row("replay, " + std::to_string(threads) +
-            " threads, hazards on, sync model on its own thread (CLASTRACE_REPLAY_SYNC_THREAD=1, "
-            "RUN_AHEAD=0)",
-        many_sync_thread);
-    row("replay, " + std::to_string(threads) +
-            " threads, hazards on, cluster builds run ahead (CLASTRACE_REPLAY_RUN_AHEAD=1)",
-        many_run_ahead);
-    row("replay, " + std::to_string(threads) +
-            " threads, hazards on, the model's thread and runs ahead (both =1)",
-        many_both);
-    row("engine alone: engine::execute of the same ops (1 thread, summed)", engine);
-    row("zstd: read + ZSTD_decompress each chunk (" + std::to_string(zr.chunks) + " chunks)", z);
+    for (const Setting& s : settings) {
+        const double wall = median_of(s, [](const OnceResult& r, size_t) { return r.wall; });
+        const double cpu = median_of(s, [](const OnceResult& r, size_t) { return r.cpu; });
+        const double serial =
+            median_of(s, [](const OnceResult& r, size_t) { return r.replay_thread_cpu; });
+        const double share =
+            median_of(s, [](const OnceResult& r, size_t) { return r.replay_thread_cpu / r.wall; });
+        std::printf(
+            "| %s | %.4f | %.4f | %.4f (%.0f%%) | %.0f | %.1f | %.3fx | %.3fx | %.1fx |\n",
+            s.name.c_str(), wall, cpu, serial, 100 * share, double(stats.ops) / wall, raw / wall,
+            median_of(s, [&](const OnceResult& r, size_t i) { return r.wall / engine_of(s, i); }),
+            median_of(s, [&](const OnceResult& r, size_t i) { return r.cpu / engine_of(s, i); }),
+            median_of(s, [&](const OnceResult& r, size_t i) { return r.wall / z[i].seconds; }));
+    }
     std::printf(
-        "replay (1 thread, hazards off) / engine alone: %.2fx (goal <= 1.1x); hazards on / off: "
-        "%.2fx wall, %.2fx CPU (goal <= 1.2x); %u threads vs 1: %.2fx (goal >= 8x on 16 cores at "
-        "10^6 ops), %.2fx with the sync model on its own thread, %.2fx with runs ahead, %.2fx "
-        "with both; cluster "
-        "builds "
-        "run ahead %llu, stood %llu, run again %llu (last run); accesses checked: %llu; peak RSS "
-        "of this process %.1f MB\n\n",
-        off.wall / engine.wall, on.wall / off.wall, on.cpu / off.cpu, threads, on.wall / many.wall,
-        on.wall / many_sync_thread.wall, on.wall / many_run_ahead.wall, on.wall / many_both.wall,
-        (unsigned long long)run_ahead.started, (unsigned long long)run_ahead.stood,
-        (unsigned long long)run_ahead.run_again, (unsigned long long)last_on.report.counts.accesses,
-        double(peak_rss_kb()) / 1024.0);
+        "| engine alone: engine::execute of the same ops (1 thread, summed in those runs) "
+        "| %.4f | %.4f | - | %.0f | %.1f | 1.000x | 1.000x | %.1fx |\n",
+        engine, engine, double(stats.ops) / engine, raw / engine,
+        engine / median_over(rounds, [&](size_t i) { return z[i].seconds; }));
+    std::printf(
+        "| zstd: read + ZSTD_decompress each chunk (%llu chunks) | %.4f | %.4f | - | %.0f "
+        "| %.1f | - | - | 1.0x |\n",
+        (unsigned long long)z.back().chunks,
+        median_over(rounds, [&](size_t i) { return z[i].seconds; }),
+        median_over(rounds, [&](size_t i) { return z[i].cpu; }),
+        double(stats.ops) / median_over(rounds, [&](size_t i) { return z[i].seconds; }),
+        raw / median_over(rounds, [&](size_t i) { return z[i].seconds; }));
+    auto by_engine = [&](const Setting& s, bool cpu) {
+        return median_of(s, [&](const OnceResult& r, size_t) {
+            return (cpu ? r.cpu : r.wall) / r.engine;
+        });
+    };
+    auto speedup = [&](const Setting& s) {
+        return median_of(s,
+                         [&](const OnceResult& r, size_t i) { return on.runs[i].wall / r.wall; });
+    };
+    unsigned long long peak_kb = 0;
+    for (const Setting& s : settings)
+        for (const OnceResult& r : s.runs) peak_kb = std::max(peak_kb, r.peak_kb);
+    const OnceResult& ahead = settings[4].runs.back();
+    std::printf(
+        "replay (1 thread, hazards off) / its engine time: %.3fx (goal <= 1.1x); hazards on / "
+        "off, each over its engine time: %.3f / %.3f = %.3fx wall, CPU %.3f / %.3f = %.3fx (goal "
+        "<= 1.2x); %u threads vs 1 (its round's 1-thread hazards-on wall over its wall): %.2fx in "
+        "turn, %.2fx with the sync model on its own thread, %.2fx with runs ahead, %.2fx with "
+        "both (goal >= 8x on 16 cores at 10^6 ops); the replay thread's CPU over the wall (its "
+        "serial share) at %u threads: %.0f%% / %.0f%% / %.0f%% / %.0f%%; cluster builds run ahead "
+        "%llu, stood %llu, run again %llu (last run); accesses checked: %llu; peak RSS of the "
+        "replay processes %.1f MB\n\n",
+        by_engine(off, false), by_engine(on, false), by_engine(off, false),
+        by_engine(on, false) / by_engine(off, false), by_engine(on, true), by_engine(off, true),
+        by_engine(on, true) / by_engine(off, true), threads, speedup(in_turn), speedup(settings[3]),
+        speedup(settings[4]), speedup(settings[5]), threads,
+        100 * median_of(in_turn,
+                        [](const OnceResult& r, size_t) { return r.replay_thread_cpu / r.wall; }),
+        100 * median_of(settings[3],
+                        [](const OnceResult& r, size_t) { return r.replay_thread_cpu / r.wall; }),
+        100 * median_of(settings[4],
+                        [](const OnceResult& r, size_t) { return r.replay_thread_cpu / r.wall; }),
+        100 * median_of(settings[5],
+                        [](const OnceResult& r, size_t) { return r.replay_thread_cpu / r.wall; }),
+        ahead.started, ahead.stood, ahead.run_again, last.accesses, double(peak_kb) / 1024.0);
     std::remove(path.c_str());
 }
 
 // Table 2: growth with trace length, one child process per size.
 void growth_table(const std::string& dir, uint64_t max_ops, uint32_t threads) {
-    // Table 1 leaves CLASTRACE_REPLAY_RUN_AHEAD unset, so these rows run the library's default;
-    // the variable, when set, decides (replayer.cpp runs_ahead).
+    // Table 1 gives the caller's CLASTRACE_REPLAY_RUN_AHEAD back, so these rows run the library's
+    // default unless the variable, set, decides (replayer.cpp runs_ahead).
     const char* asked = std::getenv("CLASTRACE_REPLAY_RUN_AHEAD");
     std::printf(
         "replay time and peak memory by trace length (hazards on, %u threads; each size in a "
@@ -429,7 +574,7 @@ void growth_table(const std::string& dir, uint64_t max_ops, uint32_t threads) {
         bench::BenchTraceShape shape;
         shape.target_ops = ops;
         const bench::BenchTraceStats stats = bench::write_bench_trace(path, shape);
-        ChildResult c = run_child("/proc/self/exe", path, threads);
+        ChildResult c = run_child(path, threads);
         const uint64_t chunk = largest_raw_chunk(path);
         std::remove(path.c_str());
         if (!c.ok) {
@@ -454,7 +599,7 @@ int main(int argc, char** argv) {
     uint64_t table_ops = 100000, max_ops = 1000000;
     std::string dir = "/tmp";
     uint32_t threads = replay::replay_threads({});  // the machine's cores
-    int repeats = 5;
+    int repeats = 7;  // the ratio rows are medians: >= 7 rounds (docs/benchmarks.md)
     for (int i = 1; i < argc; ++i) {
         const std::string a = argv[i];
         if (a == "--child-replay" && i + 2 < argc)

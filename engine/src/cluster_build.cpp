@@ -834,14 +834,32 @@ bool ClusterBuilder::build_from_arrays(uint32_t cluster_id, std::span<const floa
     return true;
 }
 
+namespace {
+
+// A ClusterBuilder op taking an info of type Info: the one-shot forms differ only in it.
+template <class Info>
+using BuilderOp = bool (ClusterBuilder::*)(
+    const MemoryImage&, const Info&, const VkClusterAccelerationStructureTriangleClusterInputNV&,
+    int64_t, std::vector<std::byte>&, std::vector<Finding>&);
+
+template <class Info>
+ClusterObject run_once(BuilderOp<Info> op, const MemoryImage& memory, const Info& info,
+                       const VkClusterAccelerationStructureTriangleClusterInputNV& input,
+                       const EngineProperties& properties, int64_t op_index) {
+    ClusterObject o;
+    ClusterBuilder b(properties);
+    o.ok = (b.*op)(memory, info, input, op_index, o.bytes, o.findings);
+    return o;
+}
+
+}  // namespace
+
 ClusterObject build_triangle_cluster(
     const MemoryImage& memory, const VkClusterAccelerationStructureBuildTriangleClusterInfoNV& info,
     const VkClusterAccelerationStructureTriangleClusterInputNV& input,
     const EngineProperties& properties, int64_t op_index) {
-    ClusterObject o;
-    ClusterBuilder b(properties);
-    o.ok = b.build_triangle_cluster(memory, info, input, op_index, o.bytes, o.findings);
-    return o;
+    return run_once(&ClusterBuilder::build_triangle_cluster, memory, info, input, properties,
+                    op_index);
 }
 
 ClusterObject build_triangle_cluster_template(
@@ -849,20 +867,16 @@ ClusterObject build_triangle_cluster_template(
     const VkClusterAccelerationStructureBuildTriangleClusterTemplateInfoNV& info,
     const VkClusterAccelerationStructureTriangleClusterInputNV& input,
     const EngineProperties& properties, int64_t op_index) {
-    ClusterObject o;
-    ClusterBuilder b(properties);
-    o.ok = b.build_triangle_cluster_template(memory, info, input, op_index, o.bytes, o.findings);
-    return o;
+    return run_once(&ClusterBuilder::build_triangle_cluster_template, memory, info, input,
+                    properties, op_index);
 }
 
 ClusterObject instantiate_triangle_cluster(
     const MemoryImage& memory, const VkClusterAccelerationStructureInstantiateClusterInfoNV& info,
     const VkClusterAccelerationStructureTriangleClusterInputNV& input,
     const EngineProperties& properties, int64_t op_index) {
-    ClusterObject o;
-    ClusterBuilder b(properties);
-    o.ok = b.instantiate_triangle_cluster(memory, info, input, op_index, o.bytes, o.findings);
-    return o;
+    return run_once(&ClusterBuilder::instantiate_triangle_cluster, memory, info, input, properties,
+                    op_index);
 }
 
 ClusterObject get_cluster_template_indices(

@@ -169,7 +169,7 @@ ExecutionRecord execute_khr_build(const KhrBuildCommand& command, MemoryImage& m
     record.ops.resize(command.infos.size());
     khr::check_between_infos(command, record);
     NvBuildOptions nv_options;
-    nv_options.resolve_handle = options.resolve_reference;
+    nv_options.resolve_reference = options.resolve_reference;
     nv_options.max_findings_per_rule = options.max_findings_per_rule;
     for (size_t i = 0; i < command.infos.size(); ++i) {
         const KhrBuildInfo& info = command.infos[i];

@@ -597,8 +597,8 @@ TopInput gather_top(Context& c) {
         if (!r.active) continue;
         const std::string field =
             c.dialect.instances + "[" + std::to_string(i) + "].accelerationStructureReference";
-        std::optional<uint64_t> address = c.options.resolve_handle
-                                              ? c.options.resolve_handle(r.reference)
+        std::optional<uint64_t> address = c.options.resolve_reference
+                                              ? c.options.resolve_reference(r.reference)
                                               : std::optional<uint64_t>(r.reference);
         if (!address) {
             c.finding(c.dialect.reference,

@@ -325,7 +325,7 @@ void NvReplay::build(const fbs::CmdBuildAccelerationStructureNV& b, const Comman
     engine::NvBuildOptions options;
     options.limits = limits_;
     options.max_findings_per_rule = c_.options.max_findings_per_rule;
-    options.resolve_handle = [this](uint64_t h) { return resolve(h, false); };
+    options.resolve_reference = [this](uint64_t h) { return resolve(h, false); };
     const auto started = std::chrono::steady_clock::now();
     engine::ExecutionRecord record = engine::execute_nv_build(cmd, c_.memory.image(), options);
     const uint64_t engine_ns = uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(

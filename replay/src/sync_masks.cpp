@@ -235,6 +235,18 @@ constexpr uint64_t with_copy_stage(uint64_t atoms) {
     return atoms & kSAsBuild ? atoms | kSAsCopy : atoms;
 }
 
+// The atoms of `mask` and every stage `beside` (StageTables::earlier or ::later) puts on their
+// side; `every_stage` (BOTTOM for a source, TOP for a destination) stands for all of them.
+StageMask ordered_scope(StageMask mask, uint64_t every_stage,
+                        std::array<uint64_t, 64> StageTables::*beside) {
+    uint64_t atoms = with_copy_stage(atomic_stages(mask));
+    if (mask & every_stage) atoms |= kDeviceStages;
+    uint64_t out = atoms;
+    const std::array<uint64_t, 64>& table = tables().*beside;
+    for (uint64_t m = atoms; m; m &= m - 1) out |= table[std::size_t(__builtin_ctzll(m))];
+    return out;
+}
+
 }  // namespace
 
 StageMask all_device_stages() { return kDeviceStages; }
@@ -250,21 +262,11 @@ StageMask atomic_stages(StageMask mask) {
 }
 
 StageMask source_scope(StageMask mask) {
-    uint64_t atoms = with_copy_stage(atomic_stages(mask));
-    if (mask & kSBottom) atoms |= kDeviceStages;
-    uint64_t out = atoms;
-    const StageTables& t = tables();
-    for (uint64_t m = atoms; m; m &= m - 1) out |= t.earlier[std::size_t(__builtin_ctzll(m))];
-    return out;
+    return ordered_scope(mask, kSBottom, &StageTables::earlier);
 }
 
 StageMask destination_scope(StageMask mask) {
-    uint64_t atoms = with_copy_stage(atomic_stages(mask));
-    if (mask & kSTop) atoms |= kDeviceStages;
-    uint64_t out = atoms;
-    const StageTables& t = tables();
-    for (uint64_t m = atoms; m; m &= m - 1) out |= t.later[std::size_t(__builtin_ctzll(m))];
-    return out;
+    return ordered_scope(mask, kSTop, &StageTables::later);
 }
 
 AccessMask atomic_accesses(AccessMask mask) {

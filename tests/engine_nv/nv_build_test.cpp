@@ -510,7 +510,7 @@ TEST(NvBuild, TopLevelRulesOnInstanceReferences) {
         eng::NvObjectBinding dst = w.make_object(top, "tlas2");
         eng::NvBuildOptions o;
         const uint64_t tlas_handle = s->tlas.handle;
-        o.resolve_handle = [&](uint64_t h) -> std::optional<uint64_t> {
+        o.resolve_reference = [&](uint64_t h) -> std::optional<uint64_t> {
             if (h == 0xDEAD0000) return std::nullopt;
             return h;
         };

@@ -85,7 +85,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
         NvObjectBinding{2, true, kObjects + kObjectSize, kObjectSize, std::nullopt, false, 0};
     tlas.scratch_address = kInput;
     NvBuildOptions options;
-    options.resolve_handle = [](uint64_t h) -> std::optional<uint64_t> {
+    options.resolve_reference = [](uint64_t h) -> std::optional<uint64_t> {
         return h % 2 ? std::optional<uint64_t>(kObjects) : std::nullopt;
     };
     execute_nv_build(tlas, memory, options);

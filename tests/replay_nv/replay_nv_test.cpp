@@ -256,7 +256,9 @@ TEST(ReplayNv, DeserializedEngineBlobTranslatesItsHandleListAndAgrees) {
         top.instance_count = uint32_t(w.instances.size());
         auto tlas = side.make_object(top, "tlas");
         eng::NvBuildOptions o;
-        o.resolve_handle = [&](uint64_t h) -> std::optional<uint64_t> { return to_address.at(h); };
+        o.resolve_reference = [&](uint64_t h) -> std::optional<uint64_t> {
+            return to_address.at(h);
+        };
         ASSERT_TRUE(side.build(top, tlas, ia, false, nullptr, o).ops[0].executed);
         const auto blob = eng::serialize_nv_object(side.memory, tlas.address, nullptr);
         ASSERT_FALSE(blob.empty());

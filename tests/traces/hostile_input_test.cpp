@@ -262,6 +262,38 @@ TEST(HostileTrace, ChunkOfZerosCostsAFewProblemsNotOnePerFrame) {
     EXPECT_EQ(r.submissions, 1u);  // the chunk after it still reads
 }
 
+TEST(HostileTrace, ZeroBombSeekedToAgainIsNotDecompressedAgain) {
+    CraftedTrace t;
+    const std::vector<uint8_t> zeros(4u << 20, 0);
+    t.add_raw(zeros, 1, 1);  // claims submission 0, holds nothing but empty frames
+    t.add_records({submit(1)});
+    const std::vector<uint8_t> file = t.finish();
+    TraceError e;
+    auto reader = TraceReader::open_memory(file.data(), file.size(), "hostile.clt", &e);
+    ASSERT_TRUE(reader) << e.message;
+    std::vector<uint64_t> decompressed{reader->stats().raw_bytes_decompressed};
+    std::vector<uint64_t> damage{reader->damage_count()};
+    for (int seek = 0; seek < 3; ++seek) {
+        EXPECT_EQ(reader->seek_to_submission(0).code, TraceErrorCode::kInvalidArgument);
+        decompressed.push_back(reader->stats().raw_bytes_decompressed);
+        damage.push_back(reader->damage_count());
+    }
+    EXPECT_GE(decompressed[1] - decompressed[0], zeros.size());  // the first seek finds it out
+    for (size_t i = 2; i < decompressed.size(); ++i) {
+        EXPECT_LT(decompressed[i] - decompressed[i - 1], 1024u) << "seek " << i;
+        // The chunk after it, starting past a submission never read, is damage each time.
+        EXPECT_EQ(damage[i] - damage[i - 1], damage[2] - damage[1]) << "seek " << i;
+    }
+    EXPECT_GT(damage[1] - damage[0], damage[2] - damage[1]);  // the broken frames, said once
+    const auto& kept = reader->damage();
+    EXPECT_EQ(std::count_if(kept.begin(), kept.end(),
+                            [](const TraceError& d) {
+                                return d.message.find("broken record frames") != std::string::npos;
+                            }),
+              1);
+    EXPECT_FALSE(reader->seek_to_submission(1));  // the chunk after it still reads
+}
+
 TEST(HostileTrace, IndexLargerThanTheFileCanNeedIsRefusedBeforeDecompressing) {
     CraftedTrace t = three_chunks();
     std::vector<uint8_t> file = t.file();
@@ -360,6 +392,32 @@ TEST(HostileTrace, IndexDisagreeingWithTheChunksIsBadIndex) {
             << describe(r.damage);
         EXPECT_EQ(r.submissions, 6u) << c.name;
     }
+}
+
+TEST(HostileTrace, IndexListingAnOffsetTwiceNamesBothEntriesAndKeepsTheFirst) {
+    const std::vector<uint8_t> file = three_chunks().finish([](fbs::TraceIndexT& i) {
+        const uint64_t second = i.chunks[1].file_offset();
+        edit_location(i.chunks[2], [&](Location& l) { l.file_offset = second; });
+    });
+    const uint64_t second = records_chunks(file)[1].offset;
+    const uint64_t third = records_chunks(file)[2].offset;
+    Read r = read(file);
+    const TraceError* e = find_damage(r, TraceErrorCode::kBadIndex,
+                                      "index: entries 1 and 2 both place a chunk at offset " +
+                                          std::to_string(second) + " (entry 1 is kept)");
+    ASSERT_NE(e, nullptr) << describe(r.damage);
+    EXPECT_EQ(find_damage(r, TraceErrorCode::kBadIndex, "outside the records"), nullptr)
+        << describe(r.damage);
+    // Entry 1 is the one the chunk there is checked against: it agrees. The third chunk is
+    // unlisted; the repeat is not reported again as a chunk the scan missed.
+    EXPECT_EQ(find_damage(r, TraceErrorCode::kBadIndex, "disagrees with the chunk"), nullptr)
+        << describe(r.damage);
+    const TraceError* unlisted = find_damage(r, TraceErrorCode::kBadIndex, "does not list");
+    ASSERT_NE(unlisted, nullptr) << describe(r.damage);
+    EXPECT_EQ(unlisted->file_offset, third);
+    EXPECT_EQ(find_damage(r, TraceErrorCode::kBadIndex, "did not read as one"), nullptr)
+        << describe(r.damage);
+    EXPECT_EQ(r.submissions, 6u);
 }
 
 TEST(HostileTrace, DuplicatedChunkIsSkippedSoNoSubmissionRepeats) {

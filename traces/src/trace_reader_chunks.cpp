@@ -269,6 +269,11 @@ bool TraceReader::Impl::advance_chunk() {
                 pos += format::kChunkHeaderSize + h.compressed_size;
                 continue;
             }
+            if (chunks_of_broken_frames.contains(here)) {
+                follow_chunk(h);  // as its first reading left the order
+                pos += format::kChunkHeaderSize + h.compressed_size;
+                continue;
+            }
             if (!have_raw) {
                 if (h.raw_size > kBigBufferBytes) release_side_chunk_if_big();
                 keep_loaded_as_older();
@@ -341,11 +346,7 @@ bool TraceReader::Impl::advance_chunk() {
                        std::to_string(h.first_submission) + " but " +
                        std::to_string(next_submission) + " submissions precede it");
         }
-        next_submission = h.first_submission;
-        expected_chunk_number = h.chunk_number + 1;
-        have_last_chunk = true;
-        last_chunk_number = h.chunk_number;
-        skipped_since_chunk = false;
+        follow_chunk(h);
         chunk = h;
         chunk_offset = here;
         chunk_loaded = true;
@@ -361,6 +362,14 @@ bool TraceReader::Impl::advance_chunk() {
         stats.compressed_bytes += h.compressed_size;
         return true;
     }
+}
+
+void TraceReader::Impl::follow_chunk(const format::ChunkHeader& h) {
+    next_submission = h.first_submission;
+    expected_chunk_number = h.chunk_number + 1;
+    have_last_chunk = true;
+    last_chunk_number = h.chunk_number;
+    skipped_since_chunk = false;
 }
 
 bool TraceReader::Impl::in_order(uint64_t at, const format::ChunkHeader& h) {

@@ -26,6 +26,7 @@
 #include <memory>
 #include <string>
 #include <unordered_map>
+#include <unordered_set>
 #include <vector>
 
 namespace clastrace::traces::reader {
@@ -141,6 +142,10 @@ struct TraceReader::Impl {
     uint32_t chunk_records_seen = 0;
     uint32_t chunk_submissions = 0;
     uint32_t chunk_broken_frames = 0;
+    // Records chunks cut short after broken frames with no other frame read: holding nothing,
+    // they are passed over undecompressed when read again (a seek: a zero bomb cost its whole
+    // raw size each time), having said their damage the first time.
+    std::unordered_set<uint64_t> chunks_of_broken_frames;
     bool chunk_cut_short = false;
     bool raw_evicted =
         false;  // the loaded chunk's bytes were freed for read_contents: decompress again
@@ -348,6 +353,10 @@ struct TraceReader::Impl {
     // Loads the next intact record chunk; false at the end of the records.
     bool advance_chunk();
 
+    // The chunk the next one is checked against (its number, its first submission), and
+    // against which a repeated or reordered one is told.
+    void follow_chunk(const format::ChunkHeader& h);
+
     // False for a chunk that repeats or goes back (a duplicated or reordered chunk): its
     // records would hand out submissions already handed out, so they are skipped.
     bool in_order(uint64_t at, const format::ChunkHeader& h);
@@ -402,6 +411,10 @@ struct TraceReader::Impl {
     // starting where the submissions before it end, totals the sum of the entries. The
     // scan then compares each entry with the chunk at its offset.
     void check_index_entries();
+
+    // True for an entry placing its chunk at an offset an earlier entry already placed one at:
+    // index_position keeps the earlier, and check_index_entries names both.
+    bool repeats_an_offset(uint32_t entry) const;
 
     // The reader's lookup of the index, whatever the file says: one read flag per entry, and
     // each offset leads to an entry placing a chunk at that offset (a hostile index listing

@@ -66,7 +66,8 @@ void TraceReader::Impl::finish_scan() {
     full_scan = false;  // once per scan
     const auto* chunks = index->chunks();
     for (uint32_t i = 0; i < chunks->size(); ++i) {
-        if (index_chunk_read[i]) continue;
+        if (index_chunk_read[i] || repeats_an_offset(i))
+            continue;  // a repeat: the index is bad_index from open
         report_with(TraceErrorCode::kBadIndex, chunks->Get(i)->file_offset(), [&] {
             return "index entry " + std::to_string(i) + " lists a records chunk at offset " +
                    std::to_string(chunks->Get(i)->file_offset()) +
@@ -180,6 +181,14 @@ void TraceReader::Impl::check_index_entries() {
     std::string problem;
     for (uint32_t i = 0; i < chunks->size(); ++i) {
         const fbs::ChunkLocation* c = chunks->Get(i);
+        // The first entry for an offset is the one kept (emplace), so the scan checks the chunk
+        // there against it, and the repeat is named as what it is.
+        const auto [first, fresh] = index_position.emplace(c->file_offset(), i);
+        if (problem.empty() && !fresh) {
+            problem = "entries " + std::to_string(first->second) + " and " + std::to_string(i) +
+                      " both place a chunk at offset " + std::to_string(c->file_offset()) +
+                      " (entry " + std::to_string(first->second) + " is kept)";
+        }
         if (problem.empty() &&
             (c->file_offset() < previous_end || c->file_offset() >= index_offset)) {
             problem = "entry " + std::to_string(i) + " places a chunk at offset " +
@@ -194,7 +203,6 @@ void TraceReader::Impl::check_index_entries() {
         previous_end = c->file_offset() + format::kChunkHeaderSize + c->compressed_size();
         records += c->record_count();
         submissions += c->submission_count();
-        index_position.emplace(c->file_offset(), i);
     }
     if (problem.empty() &&
         (records != index->record_count() || submissions != index->submission_count())) {
@@ -204,6 +212,10 @@ void TraceReader::Impl::check_index_entries() {
                   std::to_string(index->submission_count());
     }
     if (!problem.empty()) report(TraceErrorCode::kBadIndex, index_offset, "index: " + problem);
+}
+
+bool TraceReader::Impl::repeats_an_offset(uint32_t entry) const {
+    return index_position.at(index->chunks()->Get(entry)->file_offset()) != entry;
 }
 
 bool TraceReader::Impl::chunk_index_holds() const {

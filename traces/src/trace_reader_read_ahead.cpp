@@ -26,7 +26,9 @@ using namespace reader;
 
 void TraceReader::Impl::start_read_ahead(uint64_t offset, HeldChunks held) {
     drop_read_ahead();
-    if (offset >= size || size - offset < format::kChunkHeaderSize) return;
+    if (offset >= size || size - offset < format::kChunkHeaderSize ||
+        chunks_of_broken_frames.contains(offset))
+        return;
     const bool started = ahead.run([this, offset, held] {
         ReadAhead r;
         r.offset = offset;

@@ -148,6 +148,7 @@ void TraceReader::Impl::stop_chunk_after_broken_frames() {
                std::to_string(chunk_broken_frames) + " broken record frames; the remaining " +
                std::to_string(raw.size() - cursor) + " raw bytes of the chunk are skipped");
     stats.bytes_skipped += raw.size() - cursor;
+    if (chunk_broken_frames == chunk_records_seen) chunks_of_broken_frames.insert(chunk_offset);
     chunk_cut_short = true;
     close_chunk();
 }

@@ -18,6 +18,7 @@
 //   maps it to the engine address of a built bottom level (default: itself).
 #pragma once
 
+#include "clastrace/engine/build_options.h"
 #include "clastrace/engine/execution_record.h"
 #include "clastrace/engine/memory_image.h"
 #include "clastrace/engine/nv_build.h"
@@ -96,19 +97,13 @@ struct KhrBuildCommand {
 
 // VkPhysicalDeviceAccelerationStructurePropertiesKHR (the values NVIDIA reports).
 struct KhrLimits {
-    uint64_t max_geometry_count = 16777215;
-    uint64_t max_instance_count = 16777215;
-    uint64_t max_primitive_count = 536870911;
+    uint64_t max_geometry_count = kNvidiaMaxGeometryCount;
+    uint64_t max_instance_count = kNvidiaMaxInstanceCount;
+    uint64_t max_primitive_count = kNvidiaMaxPrimitiveCount;
     uint32_t min_scratch_offset_alignment = 128;
 };
 
-struct KhrBuildOptions {
-    KhrLimits limits;
-    // accelerationStructureReference -> the engine address of that bottom level; nullopt
-    // when the address names no acceleration structure. Default: the address itself.
-    std::function<std::optional<uint64_t>(uint64_t reference)> resolve_reference;
-    uint32_t max_findings_per_rule = 64;
-};
+using KhrBuildOptions = BuildOptions<KhrLimits>;
 
 // Runs every info in pInfos order (the spec orders none; valid usage keeps them apart).
 // The record has one op per info (dst_address, dst_size); its accesses and findings carry

@@ -12,13 +12,14 @@
 //   AABBs ignore it (the spec gives AABB geometry none).
 // - Update (`update` = VK_TRUE): the dst keeps src's tree and primitive order, every
 //   primitive is re-read and the boxes refit bottom-up. src == dst updates in place.
-// - The BLAS an instance names is found through NvBuildOptions::resolve_handle (the
+// - The BLAS an instance names is found through NvBuildOptions::resolve_reference (the
 //   engine's own handle is the object's address, the default). Its root box, transformed
 //   by the instance, is the instance's world box.
 // - Scratch: the engine writes nothing there but claims the bytes its requirement names
 //   (read and written, for the hazard checker).
 #pragma once
 
+#include "clastrace/engine/build_options.h"
 #include "clastrace/engine/execution_record.h"
 #include "clastrace/engine/memory_image.h"
 #include "clastrace/engine/nv_format.h"
@@ -97,18 +98,12 @@ struct NvBuildCommand {
 
 // VkPhysicalDeviceRayTracingPropertiesNV limits the build checks (NVIDIA's values).
 struct NvLimits {
-    uint64_t max_geometry_count = 16777215;
-    uint64_t max_instance_count = 16777215;
-    uint64_t max_triangle_count = 536870911;
+    uint64_t max_geometry_count = kNvidiaMaxGeometryCount;
+    uint64_t max_instance_count = kNvidiaMaxInstanceCount;
+    uint64_t max_triangle_count = kNvidiaMaxPrimitiveCount;
 };
 
-struct NvBuildOptions {
-    NvLimits limits;
-    // accelerationStructureReference -> the engine address of that BLAS; nullopt when the
-    // handle names no bottom-level object. Default: the handle is the address.
-    std::function<std::optional<uint64_t>(uint64_t handle)> resolve_handle;
-    uint32_t max_findings_per_rule = 64;
-};
+using NvBuildOptions = BuildOptions<NvLimits>;
 
 // Runs the command. The record's ops[0] is the object (dst_address, dst_size); its
 // accesses name every range read and written (fields as in the Vulkan parameters).
