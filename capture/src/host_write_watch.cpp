@@ -222,7 +222,7 @@ void HostWriteWatch::unguard(const std::vector<Range*>& ranges) {
 void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
                                 const std::vector<const PausePoint*>& pauses,
                                 std::vector<MemorySpan> device_writes) {
-    CostScope cost(CostPhase::kHostWrites);
+    CostScope cost(CostPhase::kHostWrites, true);  // on-CPU against wall: what waits
     WatchLaps laps(phases_, WatchCall::kSubmit);
     std::lock_guard lock(mutex_);
     laps.lap(WatchPhase::kSubmitLockWait);
@@ -332,7 +332,7 @@ std::vector<std::string> HostWriteWatch::phase_lines() const {
 
 void HostWriteWatch::paused(uint64_t submission, uint64_t pause_id,
                             const std::vector<CapturedRange>& inputs) {
-    CostScope cost(CostPhase::kHostWrites);
+    CostScope cost(CostPhase::kHostWrites, true);  // on-CPU against wall: what waits
     WatchLaps laps(phases_, WatchCall::kPause);
     std::lock_guard lock(mutex_);
     laps.lap(WatchPhase::kPauseLockWait);
@@ -372,7 +372,7 @@ void HostWriteWatch::paused(uint64_t submission, uint64_t pause_id,
 }
 
 void HostWriteWatch::waited(DeviceState& d, const std::function<bool(const Submission&)>& orders) {
-    CostScope cost(CostPhase::kHostWrites);
+    CostScope cost(CostPhase::kHostWrites, true);  // on-CPU against wall: what waits
     WatchLaps laps(phases_, WatchCall::kWait);
     std::lock_guard lock(mutex_);
     laps.lap(WatchPhase::kWaitLockWait);

@@ -35,7 +35,7 @@ double ms(uint64_t ns) { return double(ns) / 1e6; }
 
 std::vector<std::string> WatchPhaseTotals::lines(const PageGuard::Counts* guard) const {
     std::vector<std::string> out;
-    char line[320];
+    char line[400];
     for (size_t i = 0; i < size_t(WatchPhase::kCount); ++i) {
         const uint64_t calls = calls_[size_t(kPhases[i].call)].load(std::memory_order_relaxed);
         if (!calls) continue;
@@ -54,16 +54,16 @@ std::vector<std::string> WatchPhaseTotals::lines(const PageGuard::Counts* guard)
     };
     std::snprintf(line, sizeof line,
                   "host-write watch mprotect: read-only %llu calls, %llu pages (%.1f a call), "
-                  "%.3f ms; writable %llu calls, %llu pages (%.1f a call), %.3f ms; "
-                  "before-images %llu pages, %.3f ms",
+                  "%.3f ms (%.3f on CPU); writable %llu calls, %llu pages (%.1f a call), %.3f ms "
+                  "(%.3f on CPU); before-images %llu pages, %.3f ms",
                   (unsigned long long)guard->protect_calls,
                   (unsigned long long)guard->protected_pages,
                   per_call(guard->protected_pages, guard->protect_calls), ms(guard->protect_ns),
-                  (unsigned long long)guard->unprotect_calls,
+                  ms(guard->protect_cpu_ns), (unsigned long long)guard->unprotect_calls,
                   (unsigned long long)guard->unprotected_pages,
                   per_call(guard->unprotected_pages, guard->unprotect_calls),
-                  ms(guard->unprotect_ns), (unsigned long long)guard->faults,
-                  ms(guard->before_image_ns));
+                  ms(guard->unprotect_ns), ms(guard->unprotect_cpu_ns),
+                  (unsigned long long)guard->faults, ms(guard->before_image_ns));
     out.push_back(line);
     return out;
 }

@@ -76,11 +76,15 @@ struct sigaction guard_action() {
 }
 
 // clock_gettime is async-signal-safe, so the handler times its copies with it too.
-uint64_t monotonic_ns() {
+uint64_t clock_ns(clockid_t clock) {
     timespec t{};
-    clock_gettime(CLOCK_MONOTONIC, &t);
+    clock_gettime(clock, &t);
     return uint64_t(t.tv_sec) * 1000000000ull + uint64_t(t.tv_nsec);
 }
+uint64_t monotonic_ns() { return clock_ns(CLOCK_MONOTONIC); }
+// The calling thread's CPU time: against the wall time of mprotect, what it spent waiting (the
+// other CPUs' acknowledgements of its TLB shootdown, a lock of the kernel's).
+uint64_t thread_cpu_time_ns() { return clock_ns(CLOCK_THREAD_CPUTIME_ID); }
 
 size_t slot_index_hash(uintptr_t page, size_t page_size) {
     return size_t(((page / page_size) * 0x9E3779B97F4A7C15ull) >> 47) & (kTableEntries - 1);
@@ -157,7 +161,7 @@ uint8_t* PageGuard::slot_of(const Entry* e) const {
 bool PageGuard::protect_runs(const uintptr_t* pages, size_t count, int protection) {
     if (count == 0) return true;
     const bool writable = protection & PROT_WRITE;
-    const uint64_t start = monotonic_ns();
+    const uint64_t start = monotonic_ns(), start_cpu = thread_cpu_time_ns();
     uint64_t calls = 0, done = 0;
     bool ok = true;
     for (size_t i = 0; i < count;) {
@@ -171,10 +175,11 @@ bool PageGuard::protect_runs(const uintptr_t* pages, size_t count, int protectio
         done += run;
         i += run;
     }
-    const uint64_t took = monotonic_ns() - start;
+    const uint64_t took = monotonic_ns() - start, took_cpu = thread_cpu_time_ns() - start_cpu;
     (writable ? unprotect_calls_ : protect_calls_).fetch_add(calls, std::memory_order_relaxed);
     (writable ? unprotected_pages_ : protected_pages_).fetch_add(done, std::memory_order_relaxed);
     (writable ? unprotect_ns_ : protect_ns_).fetch_add(took, std::memory_order_relaxed);
+    (writable ? unprotect_cpu_ns_ : protect_cpu_ns_).fetch_add(took_cpu, std::memory_order_relaxed);
     return ok;
 }
 
@@ -283,6 +288,8 @@ PageGuard::Counts PageGuard::counts() const {
     c.unprotect_calls = unprotect_calls_.load(std::memory_order_relaxed);
     c.unprotected_pages = unprotected_pages_.load(std::memory_order_relaxed);
     c.unprotect_ns = unprotect_ns_.load(std::memory_order_relaxed);
+    c.protect_cpu_ns = protect_cpu_ns_.load(std::memory_order_relaxed);
+    c.unprotect_cpu_ns = unprotect_cpu_ns_.load(std::memory_order_relaxed);
     c.before_image_ns = before_image_ns_.load(std::memory_order_relaxed);
     return c;
 }

@@ -170,7 +170,7 @@ TEST_F(CaptureCostReport, HostWriteWatchPhasesAddUpToTheWatchLine) {
                     &hashed);
         if (std::sscanf(line.c_str(),
                         "host-write watch mprotect: read-only %llu calls, %llu pages (%*f a call), "
-                        "%*f ms; writable %llu calls, %llu pages",
+                        "%*f ms (%*f on CPU); writable %llu calls, %llu pages",
                         &protect_calls, &protected_pages, &unprotect_calls,
                         &unprotected_pages) == 4)
             mprotect_line = true;
