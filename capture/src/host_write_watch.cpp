@@ -8,14 +8,58 @@
 #include "page_guard.h"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cstring>
 #include <map>
+#include <optional>
 
 #define XXH_INLINE_ALL
 #include <xxhash.h>
 
 namespace clastrace::capture {
+
+// Resolves the addresses of one call of the watch. A walk lists runs of ranges inside a few
+// buffers (a cluster's indices, then its vertices, then the next cluster's), so the buffers found
+// last answer the ranges inside them as the memory map would (the same memory, offset and
+// mapping), without the map's lock and lookups each time. Plain buffers only: a sparse buffer's
+// pages may lie anywhere.
+class HostViewResolver {
+public:
+    explicit HostViewResolver(const DeviceMemoryMap& map) : map_(map) {}
+
+    // Where [address, address + size) is; null with `why` when no buffer holds it.
+    const ResolvedRange* resolve(VkDeviceAddress address, uint64_t size, std::string& why) {
+        for (size_t i = 0; i < found_; ++i) {
+            ResolvedRange& r = recent_[i];
+            if (!inside(r.buffer, address, size)) continue;
+            const VkDeviceSize offset = address - r.buffer.address;
+            r.offset_in_buffer = offset;
+            r.host =
+                r.memory.host_base ? r.memory.host_base + r.buffer.memory_offset + offset : nullptr;
+            return &r;
+        }
+        std::optional<ResolvedRange> r = map_.resolve(address, size, why);
+        if (!r) return nullptr;
+        ResolvedRange& slot = recent_[found_ < kRecent ? found_++ : replace_++ % kRecent];
+        slot = std::move(*r);
+        return &slot;
+    }
+
+private:
+    static constexpr size_t kRecent = 4;
+    static bool inside(const TrackedBuffer& b, VkDeviceAddress address, uint64_t size) {
+        if (b.flags & VK_BUFFER_CREATE_SPARSE_BINDING_BIT) return false;
+        if (address < b.address || address + size < address) return false;
+        const VkDeviceSize offset = address - b.address;
+        return offset < b.size && size <= b.size - offset;
+    }
+
+    const DeviceMemoryMap& map_;
+    std::array<ResolvedRange, kRecent> recent_;
+    size_t found_ = 0, replace_ = 0;
+};
+
 namespace {
 
 // Submissions never waited for (an application that only waits on the device side) are dropped,
@@ -27,9 +71,9 @@ constexpr size_t kMaxWatchedSubmissions = 64;
 std::atomic<uint64_t> mapped_bytes_read{0};
 
 // The host's view of mapped memory: what the host wrote is there, flushed or not.
-bool read_host_view(DeviceState& d, VkDeviceAddress address, uint64_t size, CapturedBytes* out,
-                    std::string& why, ResolvedRange* where = nullptr) {
-    auto range = d.memory_map.resolve(address, size, why);
+bool read_host_view(HostViewResolver& resolver, VkDeviceAddress address, uint64_t size,
+                    CapturedBytes* out, std::string& why, ResolvedRange* where = nullptr) {
+    const ResolvedRange* range = resolver.resolve(address, size, why);
     if (!range) return false;
     if (!range->host) {
         why = "not mapped: the host cannot write it";
@@ -52,22 +96,26 @@ uint64_t hash_of(const CapturedBytes& bytes) { return XXH3_64bits(bytes.data(), 
 // (the count and the indirect cells, 8 bytes at most, and the src infos entries, with streaming
 // loads where uncached); the ranges the walk only lists become views it never reads. (With an
 // INDIRECTED src infos array the entries are views too, read by the walk's plain loads.)
-DeviceMemoryReader pointer_reader(DeviceState& d, const ClusterCommandParameters& p) {
+DeviceMemoryReader pointer_reader(HostViewResolver& resolver, const ClusterCommandParameters& p) {
     const VkStridedDeviceAddressRegionKHR& src = p.info.srcInfosArray;
     const uint64_t entry = cluster_src_info_size(p.info.input.opType);
     const uint64_t stride = src.stride ? src.stride : entry;
     const uint64_t most = p.info.input.maxAccelerationStructureCount;
     const uint64_t span = src.size ? src.size : (most ? (most - 1) * stride + entry : 0);
     const VkDeviceAddress begin = src.deviceAddress, end = begin + span;
-    return
-        [&d, begin, end](VkDeviceAddress a, uint64_t size, CapturedBytes* out, std::string& why) {
-            if (!out || size <= sizeof(VkDeviceAddress) || (a >= begin && a < end))
-                return read_host_view(d, a, size, out, why);
-            ResolvedRange where;
-            if (!read_host_view(d, a, size, nullptr, why, &where)) return false;
-            *out = CapturedBytes::borrow(where.host, size);
-            return true;
-        };
+    return [&resolver, begin, end](VkDeviceAddress a, uint64_t size, CapturedBytes* out,
+                                   std::string& why) {
+        if (!out || size <= sizeof(VkDeviceAddress) || (a >= begin && a < end))
+            return read_host_view(resolver, a, size, out, why);
+        const ResolvedRange* where = resolver.resolve(a, size, why);
+        if (!where) return false;
+        if (!where->host) {
+            why = "not mapped: the host cannot write it";
+            return false;
+        }
+        *out = CapturedBytes::borrow(where->host, size);
+        return true;
+    };
 }
 
 struct PageSpan {
@@ -122,8 +170,8 @@ bool differs_from_submitted(const PageGuard& guard, const HostWriteWatch::Range&
 
 }  // namespace
 
-void HostWriteWatch::guard_or_hash(DeviceState& d, std::vector<Range*> ranges,
-                                   const TrackedMemory& memory) {
+void HostWriteWatch::guard_or_hash(HostViewResolver& resolver, std::vector<Range*> ranges,
+                                   const TrackedMemory& memory, WatchLaps& laps) {
     PageGuard* guard = layer_config().host_write_guard ? PageGuard::instance() : nullptr;
     std::vector<uintptr_t> pages;
     std::vector<Range*> guardable;
@@ -143,13 +191,15 @@ void HostWriteWatch::guard_or_hash(DeviceState& d, std::vector<Range*> ranges,
     } else {
         ranges.insert(ranges.end(), guardable.begin(), guardable.end());
     }
+    laps.lap(WatchPhase::kSubmitGuard);
     for (Range* r : ranges) {
         CapturedBytes now;
         std::string why;
-        read_host_view(d, r->address, r->size, &now, why);
+        read_host_view(resolver, r->address, r->size, &now, why);
         r->hash = hash_of(now);
         ++hashed_ranges_;
     }
+    laps.lap(WatchPhase::kSubmitHash);
 }
 
 bool HostWriteWatch::probed(uint64_t memory, uintptr_t page) {
@@ -172,16 +222,20 @@ void HostWriteWatch::unguard(const std::vector<Range*>& ranges) {
 void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
                                 const std::vector<const PausePoint*>& pauses,
                                 std::vector<MemorySpan> device_writes) {
-    CostScope cost(CostPhase::kHostWrites);
+    CostScope cost(CostPhase::kHostWrites, true);  // on-CPU against wall: what waits
+    WatchLaps laps(phases_, WatchCall::kSubmit);
     std::lock_guard lock(mutex_);
+    laps.lap(WatchPhase::kSubmitLockWait);
     for (Submission& s : watched_) look(d, s, HostWriteSeen::kAtSubmit);
+    laps.lap(WatchPhase::kSubmitLook);
     Submission fresh{
         record.index, record.queue, record.fence, {}, {}, std::move(device_writes), {}};
     for (const SubmitBatch& b : record.batches)
         fresh.signals.insert(fresh.signals.end(), b.signals.begin(), b.signals.end());
-    DeviceMemoryReader host_view = [&d](VkDeviceAddress a, uint64_t size, CapturedBytes* out,
-                                        std::string& why) {
-        return read_host_view(d, a, size, out, why);
+    HostViewResolver resolver(d.memory_map);
+    DeviceMemoryReader host_view = [&resolver](VkDeviceAddress a, uint64_t size, CapturedBytes* out,
+                                               std::string& why) {
+        return read_host_view(resolver, a, size, out, why);
     };
     const bool guarding = layer_config().host_write_guard && PageGuard::instance();
     // Guarded submissions: the ranges of each allocation, guarded (or hashed) together below.
@@ -190,19 +244,21 @@ void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
         if (!pause->parameters || pause->phase != PausePhase::kBeforeCommand) continue;
         ClusterMemoryWalk walk =
             walk_cluster_inputs(*pause->parameters,
-                                guarding ? pointer_reader(d, *pause->parameters) : host_view);
+                                guarding ? pointer_reader(resolver, *pause->parameters)
+                                         : host_view);
+        laps.lap(WatchPhase::kSubmitWalk);
         for (const CapturedRange& r : walk.ranges) {
             if (!r.address || !r.bytes.size()) continue;
-            ResolvedRange where;
             std::string why;
-            if (!read_host_view(d, r.address, r.bytes.size(), nullptr, why, &where)) continue;
-            const VkDeviceSize at = where.buffer.memory_offset + where.offset_in_buffer;
+            const ResolvedRange* where = resolver.resolve(r.address, r.bytes.size(), why);
+            if (!where || !where->host) continue;
+            const VkDeviceSize at = where->buffer.memory_offset + where->offset_in_buffer;
             Range range{pause->pause_id, r.address, r.bytes.size(),
-                        MemorySpan{where.memory.handle, at, at + r.bytes.size()}};
-            range.host = where.host;
+                        MemorySpan{where->memory.handle, at, at + r.bytes.size()}};
+            range.host = where->host;
             if (guarding) {
-                auto& group = by_memory[where.memory.handle];
-                group.first = where.memory;
+                auto& group = by_memory[where->memory.handle];
+                group.first = where->memory;
                 group.second.push_back(fresh.ranges.size());
             } else {
                 range.hash = hash_of(r.bytes);
@@ -210,11 +266,13 @@ void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
             }
             fresh.ranges.push_back(std::move(range));
         }
+        laps.lap(guarding ? WatchPhase::kSubmitResolve : WatchPhase::kSubmitHash);
     }
+    phases_.add_ranges(fresh.ranges.size());
     for (auto& [memory, group] : by_memory) {
         std::vector<Range*> ranges;
         for (size_t i : group.second) ranges.push_back(&fresh.ranges[i]);
-        guard_or_hash(d, std::move(ranges), group.first);
+        guard_or_hash(resolver, std::move(ranges), group.first, laps);
     }
     // A submission that only writes is kept too: its writes may change another's inputs.
     if (fresh.ranges.empty() && fresh.device_writes.empty()) return;
@@ -223,6 +281,7 @@ void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
         const uint64_t oldest = watched_.front().index;
         forget([oldest](const Submission& s) { return s.index == oldest; });
     }
+    laps.lap(WatchPhase::kSubmitKeep);
 }
 
 void HostWriteWatch::submit_failed(uint64_t index) {
@@ -264,18 +323,38 @@ std::string HostWriteWatch::mode_line() {
            " besides those pages";
 }
 
+std::vector<std::string> HostWriteWatch::phase_lines() const {
+    PageGuard* guard = layer_config().host_write_guard ? PageGuard::instance() : nullptr;
+    if (!guard) return phases_.lines(nullptr);
+    const PageGuard::Counts counts = guard->counts();
+    return phases_.lines(&counts);
+}
+
 void HostWriteWatch::paused(uint64_t submission, uint64_t pause_id,
                             const std::vector<CapturedRange>& inputs) {
-    CostScope cost(CostPhase::kHostWrites);
+    CostScope cost(CostPhase::kHostWrites, true);  // on-CPU against wall: what waits
+    WatchLaps laps(phases_, WatchCall::kPause);
     std::lock_guard lock(mutex_);
+    laps.lap(WatchPhase::kPauseLockWait);
+    // The submission's walk and the pause's list the ranges in one order, so each range's read is
+    // searched for from just past the last one found (equal address and size hold equal bytes:
+    // one pause reads them at one time).
+    size_t next = 0;
+    auto read_of = [&](const Range& r) -> const CapturedRange* {
+        for (size_t k = 0; k < inputs.size(); ++k) {
+            const size_t i = (next + k) % inputs.size();
+            if (inputs[i].address != r.address || inputs[i].bytes.size() != r.size) continue;
+            next = i + 1;
+            return &inputs[i];
+        }
+        return nullptr;
+    };
     for (Submission& s : watched_) {
         if (s.index != submission) continue;
         for (Range& r : s.ranges) {
             if (r.pause_id != pause_id) continue;
-            auto read = std::find_if(inputs.begin(), inputs.end(), [&](const CapturedRange& c) {
-                return c.address == r.address && c.bytes.size() == r.size;
-            });
-            if (read == inputs.end()) continue;
+            const CapturedRange* read = read_of(r);
+            if (!read) continue;
             r.paused = true;
             if (r.guarded) {
                 // Pages not written hold what they held at the submission: compared only
@@ -289,11 +368,14 @@ void HostWriteWatch::paused(uint64_t submission, uint64_t pause_id,
             r.read_changed = r.pause_hash != r.hash;
         }
     }
+    laps.lap(WatchPhase::kPauseCompare);
 }
 
 void HostWriteWatch::waited(DeviceState& d, const std::function<bool(const Submission&)>& orders) {
-    CostScope cost(CostPhase::kHostWrites);
+    CostScope cost(CostPhase::kHostWrites, true);  // on-CPU against wall: what waits
+    WatchLaps laps(phases_, WatchCall::kWait);
     std::lock_guard lock(mutex_);
+    laps.lap(WatchPhase::kWaitLockWait);
     std::map<uint64_t, uint64_t> completed_up_to;  // queue -> newest submission ordered
     for (const Submission& s : watched_)
         if (orders(s)) completed_up_to[s.queue] = std::max(completed_up_to[s.queue], s.index + 1);
@@ -303,7 +385,9 @@ void HostWriteWatch::waited(DeviceState& d, const std::function<bool(const Submi
     };
     for (Submission& s : watched_)
         if (ordered(s)) look(d, s, HostWriteSeen::kAtWait);
+    laps.lap(WatchPhase::kWaitLook);
     forget(ordered);
+    laps.lap(WatchPhase::kWaitUnprotect);
 }
 
 void HostWriteWatch::forget(const std::function<bool(const Submission&)>& gone) {
@@ -331,13 +415,15 @@ bool HostWriteWatch::device_may_have_written(const Submission& s, const MemorySp
 }
 
 void HostWriteWatch::look(DeviceState& d, Submission& s, HostWriteSeen seen) {
+    HostViewResolver resolver(d.memory_map);
     for (Range& r : s.ranges) {
         // A guarded range none of whose pages was written holds what it held at the submission.
         if (r.guarded && !any_page_written(*PageGuard::instance(), r)) continue;
         CapturedBytes now;
         ResolvedRange where;
         std::string why;
-        if (!read_host_view(d, r.address, r.size, &now, why, &where)) continue;  // freed, unmapped
+        if (!read_host_view(resolver, r.address, r.size, &now, why, &where))
+            continue;  // freed, unmapped
         const uint64_t hash = hash_of(now);
         bool changed = hash != r.hash;
         if (r.guarded) {  // hashed from now on: its before-images go with its pages' watchers

@@ -20,6 +20,7 @@
 
 #include "clastrace/capture/capture_records.h"
 #include "host_write_device_writes.h"
+#include "host_write_watch_phases.h"
 #include "pause_worker.h"
 
 #include <deque>
@@ -32,6 +33,7 @@
 namespace clastrace::capture {
 
 struct DeviceState;
+class HostViewResolver;
 
 class HostWriteWatch {
 public:
@@ -76,6 +78,8 @@ public:
     void memory_freed(uint64_t memory);
     // What CLASTRACE_STATS says of the watch: its mode and what the guard did.
     std::string mode_line();
+    // What CLASTRACE_STATS says of where the watch's time went (host_write_watch_phases.h).
+    std::vector<std::string> phase_lines() const;
     ~HostWriteWatch();
 
 private:
@@ -87,7 +91,8 @@ private:
     void forget(const std::function<bool(const Submission&)>& gone);
     // Write-protects the pages of `ranges` (of one allocation) where the guard can hold them,
     // and hashes the others.
-    void guard_or_hash(DeviceState& d, std::vector<Range*> ranges, const TrackedMemory& memory);
+    void guard_or_hash(HostViewResolver& resolver, std::vector<Range*> ranges,
+                       const TrackedMemory& memory, WatchLaps& laps);
     // Whether the guard can hold the pages of `memory`: probed at `page` the first time.
     bool probed(uint64_t memory, uintptr_t page);
     // Stops guarding `ranges` (one unwatch for all of them).
@@ -96,6 +101,7 @@ private:
     std::deque<Submission> watched_;                   // oldest first
     uint64_t guarded_ranges_ = 0, hashed_ranges_ = 0;  // watched since the device was created
     std::unordered_map<uint64_t, bool> probed_;        // allocation -> its pages can be guarded
+    WatchPhaseTotals phases_;
 };
 
 }  // namespace clastrace::capture

@@ -337,6 +337,9 @@ VKAPI_ATTR void VKAPI_CALL DestroyDevice(VkDevice device,
             state->sink ? state->sink->cost_lines() : std::vector<std::string>{};
         extra.push_back(layer_config().host_writes ? state->host_writes.mode_line()
                                                    : "host-write watch: off");
+        if (layer_config().host_writes)
+            for (std::string& line : state->host_writes.phase_lines())
+                extra.push_back(std::move(line));
         for (const std::string& line : cost_report(extra))
             std::fprintf(stderr, "clastrace: %s\n", line.c_str());
     }

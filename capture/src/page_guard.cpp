@@ -7,6 +7,7 @@
 #include <cerrno>
 #include <csignal>
 #include <cstring>
+#include <ctime>
 #include <new>
 #include <vector>
 
@@ -73,6 +74,17 @@ struct sigaction guard_action() {
     sigemptyset(&action.sa_mask);
     return action;
 }
+
+// clock_gettime is async-signal-safe, so the handler times its copies with it too.
+uint64_t clock_ns(clockid_t clock) {
+    timespec t{};
+    clock_gettime(clock, &t);
+    return uint64_t(t.tv_sec) * 1000000000ull + uint64_t(t.tv_nsec);
+}
+uint64_t monotonic_ns() { return clock_ns(CLOCK_MONOTONIC); }
+// The calling thread's CPU time: against the wall time of mprotect, what it spent waiting (the
+// other CPUs' acknowledgements of its TLB shootdown, a lock of the kernel's).
+uint64_t thread_cpu_time_ns() { return clock_ns(CLOCK_THREAD_CPUTIME_ID); }
 
 size_t slot_index_hash(uintptr_t page, size_t page_size) {
     return size_t(((page / page_size) * 0x9E3779B97F4A7C15ull) >> 47) & (kTableEntries - 1);
@@ -146,15 +158,29 @@ uint8_t* PageGuard::slot_of(const Entry* e) const {
     return slots_ + size_t(e - table_) * page_size_;
 }
 
-bool PageGuard::protect_runs(const uintptr_t* pages, size_t count, int protection) const {
+bool PageGuard::protect_runs(const uintptr_t* pages, size_t count, int protection) {
+    if (count == 0) return true;
+    const bool writable = protection & PROT_WRITE;
+    const uint64_t start = monotonic_ns(), start_cpu = thread_cpu_time_ns();
+    uint64_t calls = 0, done = 0;
+    bool ok = true;
     for (size_t i = 0; i < count;) {
         size_t run = 1;
         while (i + run < count && pages[i + run] == pages[i] + run * page_size_) ++run;
-        if (mprotect(reinterpret_cast<void*>(pages[i]), run * page_size_, protection) != 0)
-            return false;
+        ++calls;
+        if (mprotect(reinterpret_cast<void*>(pages[i]), run * page_size_, protection) != 0) {
+            ok = false;
+            break;
+        }
+        done += run;
         i += run;
     }
-    return true;
+    const uint64_t took = monotonic_ns() - start, took_cpu = thread_cpu_time_ns() - start_cpu;
+    (writable ? unprotect_calls_ : protect_calls_).fetch_add(calls, std::memory_order_relaxed);
+    (writable ? unprotected_pages_ : protected_pages_).fetch_add(done, std::memory_order_relaxed);
+    (writable ? unprotect_ns_ : protect_ns_).fetch_add(took, std::memory_order_relaxed);
+    (writable ? unprotect_cpu_ns_ : protect_cpu_ns_).fetch_add(took_cpu, std::memory_order_relaxed);
+    return ok;
 }
 
 bool PageGuard::watch(std::vector<uintptr_t> pages, bool uncached) {
@@ -222,7 +248,7 @@ bool PageGuard::probe(uintptr_t page) {
     e->uncached = true;
     e->stray_faults.store(0);
     e->state.store(kArmed, std::memory_order_release);
-    if (mprotect(reinterpret_cast<void*>(page), page_size_, PROT_READ) != 0) {
+    if (!protect_runs(&page, 1, PROT_READ)) {
         release({page});
         refused_.fetch_add(1, std::memory_order_relaxed);
         return false;
@@ -253,7 +279,19 @@ const uint8_t* PageGuard::before_image(uintptr_t page) const {
 }
 
 PageGuard::Counts PageGuard::counts() const {
-    return {faults_.load(std::memory_order_relaxed), refused_.load(std::memory_order_relaxed)};
+    Counts c;
+    c.faults = faults_.load(std::memory_order_relaxed);
+    c.refused = refused_.load(std::memory_order_relaxed);
+    c.protect_calls = protect_calls_.load(std::memory_order_relaxed);
+    c.protected_pages = protected_pages_.load(std::memory_order_relaxed);
+    c.protect_ns = protect_ns_.load(std::memory_order_relaxed);
+    c.unprotect_calls = unprotect_calls_.load(std::memory_order_relaxed);
+    c.unprotected_pages = unprotected_pages_.load(std::memory_order_relaxed);
+    c.unprotect_ns = unprotect_ns_.load(std::memory_order_relaxed);
+    c.protect_cpu_ns = protect_cpu_ns_.load(std::memory_order_relaxed);
+    c.unprotect_cpu_ns = unprotect_cpu_ns_.load(std::memory_order_relaxed);
+    c.before_image_ns = before_image_ns_.load(std::memory_order_relaxed);
+    return c;
 }
 
 bool PageGuard::take_fault(uintptr_t address) {
@@ -270,6 +308,7 @@ bool PageGuard::take_fault(uintptr_t address) {
             return e->stray_faults.fetch_add(1, std::memory_order_relaxed) < kMaxStrayFaults;
         }
         if (!e->state.compare_exchange_weak(state, kCapturing, std::memory_order_acq_rel)) continue;
+        const uint64_t start = monotonic_ns();
         const auto* page = reinterpret_cast<const uint8_t*>(e->page.load());
         if (e->uncached)
             copy_from_uncached(slot_of(e), page, page_size_);
@@ -281,6 +320,7 @@ bool PageGuard::take_fault(uintptr_t address) {
         }
         e->state.store(kWritten, std::memory_order_release);
         if (e->page.load() != probing_page_.load()) faults_.fetch_add(1, std::memory_order_relaxed);
+        before_image_ns_.fetch_add(monotonic_ns() - start, std::memory_order_relaxed);
         return true;
     }
 }

@@ -52,6 +52,12 @@ public:
     struct Counts {
         uint64_t faults = 0;   // pages written while protected
         uint64_t refused = 0;  // watch() calls mprotect refused
+        // What the guard's mprotect calls cost (CLASTRACE_STATS): those that made pages read-only
+        // (each one interrupts every CPU running another thread of the process, to drop its TLB
+        // entries) and those that made them writable again; the handler's before-image copies.
+        uint64_t protect_calls = 0, protected_pages = 0, protect_ns = 0, protect_cpu_ns = 0;
+        uint64_t unprotect_calls = 0, unprotected_pages = 0, unprotect_ns = 0, unprotect_cpu_ns = 0;
+        uint64_t before_image_ns = 0;  // in the handler: copy and mprotect, per written page
     };
     Counts counts() const;
 
@@ -79,7 +85,8 @@ private:
     Entry* find_or_add(uintptr_t page);
     uint8_t* slot_of(const Entry* e) const;
     // mprotect over the runs of consecutive pages in `pages` (sorted); false at the first refusal.
-    bool protect_runs(const uintptr_t* pages, size_t count, int protection) const;
+    // Counted and timed in the protecting or unprotecting totals, by `protection`.
+    bool protect_runs(const uintptr_t* pages, size_t count, int protection);
     // Makes `pages` (sorted) writable and unprotected (mutex_ held).
     void release(const std::vector<uintptr_t>& pages);
 
@@ -87,6 +94,11 @@ private:
     Entry* const table_;
     uint8_t* const slots_;
     std::atomic<uint64_t> faults_{0}, refused_{0};
+    std::atomic<uint64_t> protect_calls_{0}, protected_pages_{0}, protect_ns_{0},
+        protect_cpu_ns_{0};
+    std::atomic<uint64_t> unprotect_calls_{0}, unprotected_pages_{0}, unprotect_ns_{0},
+        unprotect_cpu_ns_{0};
+    std::atomic<uint64_t> before_image_ns_{0};
     std::atomic<uintptr_t> probing_page_{0};  // probe(): the page, and the thread writing it
     std::atomic<long> probing_thread_{0};
     sigjmp_buf probe_return_;

@@ -128,6 +128,77 @@ TEST_F(CaptureCostReport, CountsAgreeWithTheTraceWritten) {
     EXPECT_GT(t.raw, t.compressed);
 }
 
+// The watch's phase lines: one per phase of each kind of call, whose calls are the watch's calls
+// and whose wall times add up to (at most) the watch's own line; the ranges the walks found are
+// the ranges the mode line says were write-protected or hashed; the guard's mprotect line.
+TEST_F(CaptureCostReport, HostWriteWatchPhasesAddUpToTheWatchLine) {
+    const std::vector<std::string> lines = statsLines(
+        run({{"CLASTRACE_OUTPUT", (dir / "phases.clt").string()}, {"CLASTRACE_STATS", "1"}}));
+    double watch_ms = -1;
+    long long watch_calls = -1;
+    std::map<std::string, long long> calls;  // call kind -> its calls, from its phases' lines
+    std::map<std::string, int> phases;       // call kind -> phase lines
+    double phases_ms = 0;
+    unsigned long long found = 0, guarded = 0, hashed = 0, protect_calls = 0, protected_pages = 0,
+                       unprotect_calls = 0, unprotected_pages = 0;
+    bool found_line = false, mprotect_line = false;
+    for (const std::string& line : lines) {
+        double ms = 0;
+        long long n = 0;
+        if (std::sscanf(line.c_str(), "host-write watch | %lld | %lf", &n, &ms) == 2) {
+            watch_calls = n;
+            watch_ms = ms;
+        }
+        const std::string phase = "host-write watch phase: ";
+        if (line.rfind(phase, 0) == 0) {
+            const std::string kind =
+                line.substr(phase.size(), line.find(':', phase.size()) - phase.size());
+            const size_t bar = line.find(" | ");
+            ASSERT_NE(bar, std::string::npos) << line;
+            ASSERT_EQ(std::sscanf(line.c_str() + bar, " | %lld | %lf", &n, &ms), 2) << line;
+            EXPECT_TRUE(!calls.count(kind) || calls[kind] == n) << line;
+            calls[kind] = n;
+            ++phases[kind];
+            phases_ms += ms;
+        }
+        if (std::sscanf(line.c_str(),
+                        "host-write watch ranges found by the submissions' walks: %llu",
+                        &found) == 1)
+            found_line = true;
+        std::sscanf(line.c_str(),
+                    "host-write watch: guard: %llu ranges write-protected, %llu hashed", &guarded,
+                    &hashed);
+        if (std::sscanf(line.c_str(),
+                        "host-write watch mprotect: read-only %llu calls, %llu pages (%*f a call), "
+                        "%*f ms (%*f on CPU); writable %llu calls, %llu pages",
+                        &protect_calls, &protected_pages, &unprotect_calls,
+                        &unprotected_pages) == 4)
+            mprotect_line = true;
+    }
+    ASSERT_GT(watch_calls, 0);
+    // Each frame: one submission, two pauses; its waits (fence, fence status, timeline) and the
+    // two idle waits after the loop.
+    EXPECT_EQ(calls["submit"], kFrames);
+    EXPECT_EQ(calls["pause"], 2 * kFrames);
+    EXPECT_EQ(calls["wait"], 3 * kFrames + 2);
+    EXPECT_EQ(calls["submit"] + calls["pause"] + calls["wait"], watch_calls);
+    EXPECT_EQ(phases["submit"], 7);  // lock wait, looks, walks, resolve, guard, hash, kept
+    EXPECT_EQ(phases["pause"], 2);
+    EXPECT_EQ(phases["wait"], 3);
+    EXPECT_GT(phases_ms, 0.0);
+    EXPECT_LE(phases_ms, watch_ms + 0.001 * 12);  // each line rounds to a microsecond
+    ASSERT_TRUE(found_line);
+    EXPECT_GT(found, 0u);
+    EXPECT_EQ(found, guarded + hashed);
+    ASSERT_TRUE(mprotect_line);
+    EXPECT_GT(protect_calls, 0u);
+    EXPECT_GE(protected_pages, protect_calls);
+    // Every page made read-only (the probes' too) is writable again by the end: the idle waits
+    // unwatch them all.
+    EXPECT_EQ(unprotected_pages, protected_pages);
+    EXPECT_GE(unprotect_calls, 1u);
+}
+
 TEST_F(CaptureCostReport, ServingOnlyReportsThePausesAndNoTrace) {
     const std::vector<std::string> lines =
         statsLines(run({{"CLASTRACE_CAPTURE", "0"}, {"CLASTRACE_STATS", "1"}}));
