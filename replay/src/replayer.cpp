@@ -327,19 +327,24 @@ bool runs_ahead(const ReplayOptions& options) {
 
 }  // namespace
 
+// With builds run ahead, applying the model's calls is the largest part of what stays on the
+// replay thread (docs/benchmarks.md, session 12 serial).
+bool model_on_own_thread(const ReplayOptions& options, bool with_runs_ahead) {
+    if (!options.check_hazards || replay_threads(options) < 2) return false;
+    const char* value = std::getenv("CLASTRACE_REPLAY_SYNC_THREAD");
+    if (options.sync_model_thread || (value && std::string_view(value) == "1")) return true;
+    return with_runs_ahead && !(value && std::string_view(value) == "0");
+}
+
 ReplayReport Replay::run() {
     traces::RecordView view;
     ReplayProgress progress;
-    // On more than one thread, the sync model beside the replay and cluster builds run ahead
-    // when asked (ReplayOptions, or =1 in the environment; docs/replay.md "Threads").
-    const auto asked = [](bool option, const char* variable) {
-        const char* value = std::getenv(variable);
-        return option || (value && std::string_view(value) == "1");
-    };
-    if (options_.check_hazards && replay_threads(options_) > 1 &&
-        asked(options_.sync_model_thread, "CLASTRACE_REPLAY_SYNC_THREAD"))
-        sync_.start_thread();
-    if (runs_ahead(options_)) {
+    // On more than one thread, cluster builds run ahead when asked (ReplayOptions, or =1 in the
+    // environment; docs/replay.md "Threads"), and the sync model beside the replay with them or
+    // when asked.
+    const bool ahead = runs_ahead(options_);
+    if (model_on_own_thread(options_, ahead)) sync_.start_thread();
+    if (ahead) {
         ahead_runs_.emplace(std::min<size_t>(4 * size_t(replay_threads(options_)), 64));
         replay_records_ahead(progress);
         ahead_runs_->counts.most_images = ahead_runs_->storage().most_images();

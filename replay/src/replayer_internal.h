@@ -40,6 +40,11 @@
 
 namespace clastrace::replay::detail {
 
+// Whether the sync model runs on a thread of its own: hazards checked on 2 threads or more, and
+// ReplayOptions::sync_model_thread or CLASTRACE_REPLAY_SYNC_THREAD=1, or runs ahead on
+// (`with_runs_ahead`) unless CLASTRACE_REPLAY_SYNC_THREAD=0.
+bool model_on_own_thread(const ReplayOptions& options, bool with_runs_ahead);
+
 namespace fbs = clastrace::fbs;
 using traces::TraceReader;
 

@@ -8,6 +8,7 @@
 // runs stood.
 #include "cluster_speculation.h"
 #include "replay_bench_trace.h"
+#include "replayer_internal.h"
 
 #include <clastrace/engine/build_sizes.h>
 #include <clastrace/engine/properties.h>
@@ -448,6 +449,36 @@ TEST(ReplayRunAhead, BuildsReadBeforeTheirBuffersAreBoundStillRunAhead) {
     EXPECT_EQ(one.digests, many.digests);
     EXPECT_EQ(one.json, many.json);
     std::remove(path.c_str());
+}
+
+// With runs ahead the sync model runs on its own thread unless CLASTRACE_REPLAY_SYNC_THREAD=0
+// (the model's calls were the largest part of the replay thread's work left); asked for, it
+// does without them; never on one thread or without hazards.
+TEST(ReplayRunAhead, TheModelsThreadComesWithRunsAhead) {
+    using replay::detail::model_on_own_thread;
+    const char* kept = std::getenv("CLASTRACE_REPLAY_SYNC_THREAD");
+    const std::string was = kept ? kept : "";
+    unsetenv("CLASTRACE_REPLAY_SYNC_THREAD");
+    replay::ReplayOptions options;
+    options.threads = 4;
+    EXPECT_TRUE(model_on_own_thread(options, true));
+    EXPECT_FALSE(model_on_own_thread(options, false));
+    options.sync_model_thread = true;
+    EXPECT_TRUE(model_on_own_thread(options, false));
+    options.sync_model_thread = false;
+    setenv("CLASTRACE_REPLAY_SYNC_THREAD", "0", 1);
+    EXPECT_FALSE(model_on_own_thread(options, true));
+    setenv("CLASTRACE_REPLAY_SYNC_THREAD", "1", 1);
+    EXPECT_TRUE(model_on_own_thread(options, false));
+    options.threads = 1;
+    EXPECT_FALSE(model_on_own_thread(options, true));
+    options.threads = 4;
+    options.check_hazards = false;
+    EXPECT_FALSE(model_on_own_thread(options, true));
+    if (kept)
+        setenv("CLASTRACE_REPLAY_SYNC_THREAD", was.c_str(), 1);
+    else
+        unsetenv("CLASTRACE_REPLAY_SYNC_THREAD");
 }
 
 // Runs ahead are off by default at any thread count (their memory grows with the trace's
