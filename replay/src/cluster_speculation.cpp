@@ -96,7 +96,11 @@ bool same_sizes(const ClusterDriverSizes& a, const ClusterDriverSizes& b) {
 
 std::shared_ptr<ClusterRunAhead> ClusterRunAhead::start(
     std::vector<uint8_t> record, uint64_t stream_index, const AheadInputs& in,
-    std::vector<std::shared_ptr<ClusterRunAhead>> earlier) {
+    std::vector<std::shared_ptr<ClusterRunAhead>> earlier, bool* not_placed_yet) {
+    bool unplaced = false;
+    const bool wait_for_placement = not_placed_yet != nullptr;
+    if (!not_placed_yet) not_placed_yet = &unplaced;
+    *not_placed_yet = false;
     const fbs::Record* r = flatbuffers::GetRoot<fbs::Record>(record.data());
     const auto* build = r->body_as_CmdBuildClusterAccelerationStructureIndirect();
     if (!build || !build->input()) return nullptr;
@@ -118,7 +122,8 @@ std::shared_ptr<ClusterRunAhead> ClusterRunAhead::start(
     try {
         run->info_ = traces::cluster_commands_from_record(*build, run->op_inputs_);
         run->sizes_ = in.queries.sizes_for(run->info_.input, in.properties);
-        if (!run->plan(*build, in)) return nullptr;
+        if (!run->plan(*build, in, not_placed_yet)) return nullptr;
+        if (wait_for_placement && *not_placed_yet) return nullptr;
     } catch (const std::exception&) {
         return nullptr;  // a record or region the replay's own run will report on
     }
@@ -180,21 +185,25 @@ bool ClusterRunAhead::plan_region(const engine::MemoryImage& real, uint64_t addr
 
 // The regions the command names directly or through its snapshots, and the snapshots' bytes.
 bool ClusterRunAhead::plan(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
-                           const AheadInputs& in) {
+                           const AheadInputs& in, bool* not_placed_yet) {
     const engine::MemoryImage& real = in.memory.image();
     for (uint64_t address :
          {info_.srcInfosArray.deviceAddress, info_.srcInfosCount, info_.scratchData,
           info_.dstImplicitData, info_.dstAddressesArray.deviceAddress,
           info_.dstSizesArray.deviceAddress})
-        plan_region(real, address, 0);
+        if (address != 0 && !plan_region(real, address, 0)) *not_placed_yet = true;
     if (build.inputs()) {
         snapshots_.reserve(build.inputs()->size());
         for (const fbs::MemorySnapshot* s : *build.inputs()) {
             const std::optional<uint64_t> address =
                 in.memory.snapshot_address(s->buffer(), s->offset(), s->address());
             RecentContents::Bytes bytes = in.contents.find(s->hash());
-            // Its buffer not replayed yet: it starts when its own record is (or in its turn).
-            if (!address || !bytes || !plan_region(real, *address, bytes->size())) return false;
+            if (!bytes) return false;  // not kept: it runs in its turn
+            // Its buffer not replayed yet: the replay plans it again once regions are added.
+            if (!address || !plan_region(real, *address, bytes->size())) {
+                *not_placed_yet = true;
+                return false;
+            }
             snapshots_.push_back({*address, std::move(bytes)});
         }
     }

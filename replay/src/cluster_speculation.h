@@ -107,10 +107,13 @@ public:
     // A cluster BLAS reads the writes and objects of `earlier` (runs of CLAS and template
     // builds read before it): its task waits for them, or runs those not started yet.
     // Planning (which regions, which snapshot bytes where) is the replay thread's; making the
-    // image and running the engine are the task's.
+    // image and running the engine are the task's. With `not_placed_yet` given, a build that
+    // names a buffer (directly or by a snapshot) that no replayed region holds yet does not
+    // start, and *not_placed_yet says so: planned again once regions are added, it may (its run
+    // would fault there and run again in its turn). Without it, only a snapshot does that.
     static std::shared_ptr<ClusterRunAhead> start(
         std::vector<uint8_t> record, uint64_t stream_index, const AheadInputs& in,
-        std::vector<std::shared_ptr<ClusterRunAhead>> earlier);
+        std::vector<std::shared_ptr<ClusterRunAhead>> earlier, bool* not_placed_yet = nullptr);
     // Waits for a run in progress, or cancels one not started; its bytes go back to the pool.
     ~ClusterRunAhead();
     // The same, once its command's turn has passed or it was dropped: a later BLAS run lays in
@@ -152,8 +155,8 @@ private:
         uint64_t address = 0;
         RecentContents::Bytes bytes;
     };
-    bool plan(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
-              const AheadInputs& in);
+    bool plan(const fbs::CmdBuildClusterAccelerationStructureIndirect& build, const AheadInputs& in,
+              bool* not_placed_yet);
     // Plans the replay's region holding `address`, if any; true when it holds `size` bytes there.
     bool plan_region(const engine::MemoryImage& real, uint64_t address, uint64_t size);
     // Explicit destinations: the regions the snapshots' dstAddressesArray entries name.

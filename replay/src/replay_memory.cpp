@@ -80,6 +80,7 @@ bool ReplayMemory::add_region(uint64_t address, uint64_t size, uint64_t usage,
     if (size > kReservedLimit - std::min(kReservedLimit, image_.reserved_bytes())) return false;
     try {
         image_.add_region(address, size, static_cast<VkBufferUsageFlags>(usage), label);
+        ++regions_added_;
     } catch (const engine::MemoryFault&) {
         // Two buffers over the same bytes (aliasing): the first region serves both as far
         // as it reaches; the rest of this buffer stays outside the image. An address is

@@ -120,6 +120,9 @@ public:
 
     engine::MemoryImage& image() { return image_; }
     const engine::MemoryImage& image() const { return image_; }
+    // Regions added so far: a build read ahead whose buffers were not placed yet may be
+    // planned once this changed (Replay's pending runs).
+    uint64_t regions_added() const { return regions_added_; }
 
     static constexpr uint64_t kPrivateBase = 0xF000'0000'0000'0000ull;
 
@@ -168,6 +171,7 @@ private:
     std::map<uint64_t, uint64_t> cluster_blas_spans_;  // begin -> end, disjoint
     uint64_t budget_;
     uint64_t peak_ = 0;
+    uint64_t regions_added_ = 0;
     std::vector<std::pair<uint64_t, uint64_t>> over_budget_;
 };
 

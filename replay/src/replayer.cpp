@@ -232,11 +232,15 @@ void Replay::replay_records_ahead(ReplayProgress& progress) {
             ahead_bytes += a.bytes.size();
             start_ahead(a.view, read++);
         }
-        if (ahead.empty()) return;
+        if (ahead.empty()) {
+            pending_runs_.clear();  // their views pointed into `ahead`
+            return;
+        }
         const Ahead front = std::move(ahead.front());
         ahead.pop_front();
         ahead_bytes -= front.bytes.size();
         replay_record(front.view, progress);
+        if (!pending_runs_.empty()) start_pending_runs();
     }
 }
 
@@ -245,29 +249,69 @@ void Replay::start_ahead(const traces::RecordView& view, uint64_t stream_index) 
         if (c->data()) recent_contents_.keep(c->hash, c->data(), c->size());
         return;
     }
-    start_cluster_run(view, stream_index);
+    start_cluster_run(view, stream_index, true);
 }
 
-// Read ahead, a build may name buffers whose records are not replayed yet: then it starts when
-// its own record is (record_command), which is still before its submission.
-void Replay::start_cluster_run(const traces::RecordView& view, uint64_t stream_index) {
+// Read ahead, a build may name buffers whose records are not replayed yet: then it waits in
+// pending_runs_ until they are placed, or starts when its own record is (record_command),
+// which is still before its submission.
+void Replay::start_cluster_run(const traces::RecordView& view, uint64_t stream_index,
+                               bool read_ahead) {
     const auto* build = view.record->body_as_CmdBuildClusterAccelerationStructureIndirect();
     if (!build) return;
     // Every BLAS record read bounds the CLAS runs the next BLAS starts on, started or not.
+    if (build->input() &&
+        build->input()->op_type() ==
+            VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV)
+        ahead_runs_->note_bottom_level(stream_index);
+    if (read_ahead && !pending_runs_.empty()) {
+        pending_runs_.push_back({view, stream_index});  // after the builds read before it
+        return;
+    }
+    bool not_placed_yet = false;
+    if (!try_start_cluster_run(view, stream_index, read_ahead ? &not_placed_yet : nullptr) &&
+        not_placed_yet)
+        pending_runs_.push_back({view, stream_index, memory_.regions_added()});
+}
+
+bool Replay::try_start_cluster_run(const traces::RecordView& view, uint64_t stream_index,
+                                   bool* not_placed_yet) {
+    if (ahead_runs_->full() || ahead_runs_->holds(stream_index)) return false;
+    const auto* build = view.record->body_as_CmdBuildClusterAccelerationStructureIndirect();
     const bool bottom_level =
         build->input() &&
         build->input()->op_type() ==
             VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
-    if (bottom_level) ahead_runs_->note_bottom_level(stream_index);
-    if (ahead_runs_->full() || ahead_runs_->holds(stream_index)) return;
     const AheadInputs in{memory_,     recent_contents_,       cluster_queries_,
                          properties_, ahead_runs_->storage(), options_.max_findings_per_rule};
-    if (auto run = ClusterRunAhead::start({view.bytes, view.bytes + view.size}, stream_index, in,
-                                          bottom_level
-                                              ? ahead_runs_->builds_before(stream_index)
-                                              : std::vector<std::shared_ptr<ClusterRunAhead>>{})) {
-        ++ahead_runs_->counts.started;
-        ahead_runs_->add(std::move(run));
+    auto run =
+        ClusterRunAhead::start({view.bytes, view.bytes + view.size}, stream_index, in,
+                               bottom_level ? ahead_runs_->builds_before(stream_index)
+                                            : std::vector<std::shared_ptr<ClusterRunAhead>>{},
+                               not_placed_yet);
+    if (!run) return false;
+    ++ahead_runs_->counts.started;
+    ahead_runs_->add(std::move(run));
+    return true;
+}
+
+void Replay::start_pending_runs() {
+    while (!pending_runs_.empty() && pending_runs_.front().stream_index < stream_index_)
+        pending_runs_.pop_front();  // replayed: its view is gone
+    const uint64_t regions = memory_.regions_added();
+    while (!pending_runs_.empty() && !ahead_runs_->full()) {
+        // In stream order only: a later build started past one that waits for its buffers
+        // would take its room in the window (the first frames' BLAS builds, whose destination
+        // is bound after their CLAS builds' buffers, ran in their turn).
+        PendingRun& first = pending_runs_.front();
+        if (first.regions_added == regions) return;  // nothing placed since it was tried
+        bool not_placed_yet = false;
+        if (!try_start_cluster_run(first.view, first.stream_index, &not_placed_yet) &&
+            not_placed_yet) {
+            first.regions_added = regions;
+            return;
+        }
+        pending_runs_.pop_front();
     }
 }
 
@@ -283,19 +327,24 @@ bool runs_ahead(const ReplayOptions& options) {
 
 }  // namespace
 
+// With builds run ahead, applying the model's calls is the largest part of what stays on the
+// replay thread (docs/benchmarks.md, session 12 serial).
+bool model_on_own_thread(const ReplayOptions& options, bool with_runs_ahead) {
+    if (!options.check_hazards || replay_threads(options) < 2) return false;
+    const char* value = std::getenv("CLASTRACE_REPLAY_SYNC_THREAD");
+    if (options.sync_model_thread || (value && std::string_view(value) == "1")) return true;
+    return with_runs_ahead && !(value && std::string_view(value) == "0");
+}
+
 ReplayReport Replay::run() {
     traces::RecordView view;
     ReplayProgress progress;
-    // On more than one thread, the sync model beside the replay and cluster builds run ahead
-    // when asked (ReplayOptions, or =1 in the environment; docs/replay.md "Threads").
-    const auto asked = [](bool option, const char* variable) {
-        const char* value = std::getenv(variable);
-        return option || (value && std::string_view(value) == "1");
-    };
-    if (options_.check_hazards && replay_threads(options_) > 1 &&
-        asked(options_.sync_model_thread, "CLASTRACE_REPLAY_SYNC_THREAD"))
-        sync_.start_thread();
-    if (runs_ahead(options_)) {
+    // On more than one thread, cluster builds run ahead when asked (ReplayOptions, or =1 in the
+    // environment; docs/replay.md "Threads"), and the sync model beside the replay with them or
+    // when asked.
+    const bool ahead = runs_ahead(options_);
+    if (model_on_own_thread(options_, ahead)) sync_.start_thread();
+    if (ahead) {
         ahead_runs_.emplace(std::min<size_t>(4 * size_t(replay_threads(options_)), 64));
         replay_records_ahead(progress);
         ahead_runs_->counts.most_images = ahead_runs_->storage().most_images();

@@ -185,7 +185,7 @@ void Replay::record_command(const traces::RecordView& view) {
         recorded.target().emplace_back(view.bytes, view.bytes + view.size);
         recorded.bytes += view.size;
         recorded_bytes_ += view.size;
-        if (ahead_runs_) start_cluster_run(view, stream_index_);  // if not started read ahead
+        if (ahead_runs_) start_cluster_run(view, stream_index_, false);  // if not started yet
     }
 }
 

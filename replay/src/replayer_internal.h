@@ -40,6 +40,11 @@
 
 namespace clastrace::replay::detail {
 
+// Whether the sync model runs on a thread of its own: hazards checked on 2 threads or more, and
+// ReplayOptions::sync_model_thread or CLASTRACE_REPLAY_SYNC_THREAD=1, or runs ahead on
+// (`with_runs_ahead`) unless CLASTRACE_REPLAY_SYNC_THREAD=0.
+bool model_on_own_thread(const ReplayOptions& options, bool with_runs_ahead);
+
 namespace fbs = clastrace::fbs;
 using traces::TraceReader;
 
@@ -89,7 +94,17 @@ private:
     // cluster builds early (cluster_speculation.h, docs/replay.md "Threads").
     void replay_records_ahead(ReplayProgress& progress);
     void start_ahead(const traces::RecordView& view, uint64_t stream_index);
-    void start_cluster_run(const traces::RecordView& view, uint64_t stream_index);
+    // Read ahead (`read_ahead`) or at its own record. A build read ahead whose buffers are not
+    // placed yet, or read while such a build waits, waits in pending_runs_.
+    void start_cluster_run(const traces::RecordView& view, uint64_t stream_index, bool read_ahead);
+    // Starts a run of the build; false when it has none. not_placed_yet (given read ahead):
+    // see ClusterRunAhead::start.
+    bool try_start_cluster_run(const traces::RecordView& view, uint64_t stream_index,
+                               bool* not_placed_yet);
+    // Starts pending builds in stream order while the window has room, up to the first that
+    // still names a buffer no region holds (tried again once regions were added); drops those
+    // already replayed (they may start at their own record).
+    void start_pending_runs();
     // The families of records on_record dispatches to; each returns whether it took the record.
     bool on_memory_record(fbs::RecordBody kind, const fbs::Record& r);
     bool on_acceleration_structure_record(fbs::RecordBody kind, const fbs::Record& r);
@@ -282,6 +297,17 @@ private:
     RecentContents recent_contents_{kRecentContentsBytes};
     const std::vector<uint8_t>* command_bytes_ = nullptr;
     uint64_t stream_index_ = 0;
+    // Builds read ahead before the buffers they name were placed (a trace's first frames are
+    // read ahead before its buffers are bound), and every build read after the first of them,
+    // so that they start in stream order: started while they wait, they would find the window
+    // full of later frames' runs at their own record and run on the replay thread in their
+    // turn. Their views point into the records read ahead, kept until replayed.
+    struct PendingRun {
+        traces::RecordView view;
+        uint64_t stream_index = 0;
+        uint64_t regions_added = UINT64_MAX;  // ReplayMemory::regions_added() when last tried
+    };
+    std::deque<PendingRun> pending_runs_;
     detail::KhrReplay khr_{{nv_, translation_}};  // KHR commands, on nv_'s objects (khr_command.h)
     // What consumers of acceleration structures reach, and the frames their hazards name.
     StructureReachability reachability_{[this](uint64_t handle) { return structure_range(handle); },

@@ -8,6 +8,7 @@
 // runs stood.
 #include "cluster_speculation.h"
 #include "replay_bench_trace.h"
+#include "replayer_internal.h"
 
 #include <clastrace/engine/build_sizes.h>
 #include <clastrace/engine/properties.h>
@@ -413,6 +414,71 @@ TEST(ReplayRunAhead, TakenRunsGiveTheirImagesBackWhateverTheTraceLength) {
     EXPECT_EQ(one.digests, many.digests);
     EXPECT_EQ(one.json, many.json);
     std::remove(path.c_str());
+}
+
+// The CLAS and BLAS builds of a trace (moves, instantiations and template indices run in their
+// turn).
+uint64_t builds_that_run_ahead(const std::string& path) {
+    traces::TraceError error;
+    auto reader = traces::TraceReader::open(path, &error);
+    EXPECT_TRUE(reader) << error.message;
+    uint64_t builds = 0;
+    traces::RecordView view;
+    while (reader && reader->next(&view)) {
+        const auto* build = view.record->body_as_CmdBuildClusterAccelerationStructureIndirect();
+        if (build && build->input() &&
+            build->input()->op_type() != VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV)
+            ++builds;
+    }
+    return builds;
+}
+
+// The first 4096 records are read ahead before the replay binds any buffer, so no build among
+// them can be planned then. They wait, in stream order, until regions are placed, and start
+// before any build read after them: before, the window filled with later frames' runs and the
+// first 200 frames' builds (585 of 3,741 at 10^5 ops on 16 threads) ran in their turn on the
+// replay thread. 250 frames: longer than the records read ahead.
+TEST(ReplayRunAhead, BuildsReadBeforeTheirBuffersAreBoundStillRunAhead) {
+    const std::string path = bench_frames("unbound_frames.clt", 20000);
+    const uint64_t builds = builds_that_run_ahead(path);
+    EXPECT_GE(builds, 3u * 250u);
+    const Replayed one = replay_with(path, 1), many = replay_with(path, 16);
+    EXPECT_GE(many.counts.started, builds - 3) << builds;  // the last frames may be left
+    EXPECT_EQ(many.counts.run_again, 0u);
+    EXPECT_GE(many.counts.stood, many.counts.started - 3);
+    EXPECT_EQ(one.digests, many.digests);
+    EXPECT_EQ(one.json, many.json);
+    std::remove(path.c_str());
+}
+
+// With runs ahead the sync model runs on its own thread unless CLASTRACE_REPLAY_SYNC_THREAD=0
+// (the model's calls were the largest part of the replay thread's work left); asked for, it
+// does without them; never on one thread or without hazards.
+TEST(ReplayRunAhead, TheModelsThreadComesWithRunsAhead) {
+    using replay::detail::model_on_own_thread;
+    const char* kept = std::getenv("CLASTRACE_REPLAY_SYNC_THREAD");
+    const std::string was = kept ? kept : "";
+    unsetenv("CLASTRACE_REPLAY_SYNC_THREAD");
+    replay::ReplayOptions options;
+    options.threads = 4;
+    EXPECT_TRUE(model_on_own_thread(options, true));
+    EXPECT_FALSE(model_on_own_thread(options, false));
+    options.sync_model_thread = true;
+    EXPECT_TRUE(model_on_own_thread(options, false));
+    options.sync_model_thread = false;
+    setenv("CLASTRACE_REPLAY_SYNC_THREAD", "0", 1);
+    EXPECT_FALSE(model_on_own_thread(options, true));
+    setenv("CLASTRACE_REPLAY_SYNC_THREAD", "1", 1);
+    EXPECT_TRUE(model_on_own_thread(options, false));
+    options.threads = 1;
+    EXPECT_FALSE(model_on_own_thread(options, true));
+    options.threads = 4;
+    options.check_hazards = false;
+    EXPECT_FALSE(model_on_own_thread(options, true));
+    if (kept)
+        setenv("CLASTRACE_REPLAY_SYNC_THREAD", was.c_str(), 1);
+    else
+        unsetenv("CLASTRACE_REPLAY_SYNC_THREAD");
 }
 
 // Runs ahead are off by default at any thread count (their memory grows with the trace's

@@ -89,7 +89,9 @@ struct ReplayOptions {
     // them on too. Both are off by default: runs ahead make the device's 16-core replay faster
     // (1.88x against 1.22x over one thread) but peak memory still grows with the trace's length
     // (50 -> 120 MB at 10^6 ops, 171 MB at 10^7 on 16 threads: docs/replay.md "Threads"),
-    // and the model's thread is slower. The report is the same either way.
+    // and the model's thread is slower. The report is the same either way. With runs ahead the
+    // model's thread is on too, unless CLASTRACE_REPLAY_SYNC_THREAD=0 (session 12: the model's
+    // calls were the largest part of the replay thread's own work left).
     bool sync_model_thread = false;
     bool run_ahead = false;
     // Runs ahead, counted here when not null. Not owned.
