@@ -260,8 +260,13 @@ void Replay::start_cluster_run(const traces::RecordView& view, uint64_t stream_i
             VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
     if (bottom_level) ahead_runs_->note_bottom_level(stream_index);
     if (ahead_runs_->full() || ahead_runs_->holds(stream_index)) return;
-    const AheadInputs in{memory_,     recent_contents_,       cluster_queries_,
-                         properties_, ahead_runs_->storage(), options_.max_findings_per_rule};
+    const AheadInputs in{memory_,
+                         recent_contents_,
+                         cluster_queries_,
+                         properties_,
+                         ahead_runs_->storage(),
+                         ahead_runs_->buffers(),
+                         options_.max_findings_per_rule};
     if (auto run = ClusterRunAhead::start({view.bytes, view.bytes + view.size}, stream_index, in,
                                           bottom_level
                                               ? ahead_runs_->builds_before(stream_index)
