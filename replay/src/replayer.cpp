@@ -278,11 +278,12 @@ void Replay::start_cluster_run(const traces::RecordView& view, uint64_t stream_i
 
 namespace {
 
-// ReplayOptions::run_ahead or CLASTRACE_REPLAY_RUN_AHEAD=1, on 2 threads or more; off by
-// default (ReplayOptions says why).
+// On 2 threads or more: CLASTRACE_REPLAY_RUN_AHEAD=0 or =1 when set, else
+// ReplayOptions::run_ahead (on by default).
 bool runs_ahead(const ReplayOptions& options) {
     if (replay_threads(options) < 2) return false;
     const char* value = std::getenv("CLASTRACE_REPLAY_RUN_AHEAD");
+    if (value && std::string_view(value) == "0") return false;
     return options.run_ahead || (value && std::string_view(value) == "1");
 }
 
@@ -291,8 +292,9 @@ bool runs_ahead(const ReplayOptions& options) {
 ReplayReport Replay::run() {
     traces::RecordView view;
     ReplayProgress progress;
-    // On more than one thread, the sync model beside the replay and cluster builds run ahead
-    // when asked (ReplayOptions, or =1 in the environment; docs/replay.md "Threads").
+    // On more than one thread, the sync model beside the replay when asked (ReplayOptions, or
+    // =1 in the environment) and cluster builds run ahead unless told not to
+    // (docs/replay.md "Threads").
     const auto asked = [](bool option, const char* variable) {
         const char* value = std::getenv(variable);
         return option || (value && std::string_view(value) == "1");
