@@ -189,8 +189,8 @@ Command register_replay(CLI::App& app) {
         "Environment: CLASTRACE_ENGINE_SIMD=sse traces with the engine's 4-wide SSE path where the "
         "CPU has AVX2 (the reference path; same hits); CLASTRACE_REPLAY_SYNC_THREAD=1 checks "
         "hazards on a thread of their own (off by default: slower on the measured machine); "
-        "CLASTRACE_REPLAY_RUN_AHEAD=1 runs cluster builds ahead of their turn from 2 threads "
-        "(off by default: faster on 16 cores, but more memory; docs/replay.md \"Threads\").");
+        "CLASTRACE_REPLAY_RUN_AHEAD=0 runs every cluster build in its turn (by default they run "
+        "ahead of their turn from 2 threads; docs/replay.md \"Threads\").");
     return Command{sub, [args] { return run_replay(*args); }};
 }
 

@@ -66,6 +66,43 @@ void ImageStoragePool::give(std::vector<engine::RegionBytes> storage) {
     }
 }
 
+void RunBuffers::empty() {
+    result = engine::ExecutionRecord{};
+    directory = engine::ObjectDirectory{};
+    lookups.addresses.clear();
+    writes.clear();
+    written.clear();
+    written_regions.clear();
+    read.clear();
+    usage_queries.clear();
+    built.clear();
+}
+
+std::unique_ptr<RunBuffers> RunBufferPool::take() {
+    const bool on_replay_thread = std::this_thread::get_id() == replay_thread_;
+    std::unique_ptr<RunBuffers> buffers;
+    {
+        std::lock_guard lock(mutex_);
+        std::vector<std::unique_ptr<RunBuffers>>& kept = kept_[on_replay_thread];
+        if (!kept.empty()) {
+            buffers = std::move(kept.back());
+            kept.pop_back();
+        } else {
+            ++made_;
+        }
+    }
+    if (!buffers) buffers = std::make_unique<RunBuffers>();
+    buffers->empty();  // what an earlier run on this side allocated
+    buffers->on_replay_thread = on_replay_thread;
+    return buffers;
+}
+
+void RunBufferPool::give(std::unique_ptr<RunBuffers> buffers) {
+    if (!buffers) return;
+    std::lock_guard lock(mutex_);
+    kept_[buffers->on_replay_thread].push_back(std::move(buffers));
+}
+
 namespace {
 
 // Op types whose ops read no object through the directory: their results depend on memory
@@ -107,7 +144,7 @@ std::shared_ptr<ClusterRunAhead> ClusterRunAhead::start(
     const auto type =
         static_cast<VkClusterAccelerationStructureOpTypeNV>(build->input()->op_type());
     if (!reads_no_objects(type) && !reads_clusters(type)) return nullptr;
-    std::shared_ptr<ClusterRunAhead> run(new ClusterRunAhead(in.storage));
+    std::shared_ptr<ClusterRunAhead> run(new ClusterRunAhead(in.storage, in.buffers));
     run->stream_index_ = stream_index;
     run->reads_objects_ = reads_clusters(type);
     if (run->reads_objects_) {
@@ -142,7 +179,10 @@ std::shared_ptr<ClusterRunAhead> ClusterRunAhead::start(
     return run;
 }
 
-ClusterRunAhead::~ClusterRunAhead() { release_image(); }
+ClusterRunAhead::~ClusterRunAhead() {
+    release_image();
+    pool_.give(std::move(buffers_));
+}
 
 void ClusterRunAhead::wait_or_cancel() {
     int queued = kQueued;
@@ -152,10 +192,8 @@ void ClusterRunAhead::wait_or_cancel() {
 
 void ClusterRunAhead::release_image() {
     wait_or_cancel();
-    storage_.give(image_.release_storage());
     if (holds_image_) storage_.image_given_back();
     holds_image_ = false;
-    result_ = engine::ExecutionRecord{};  // moved out when it stood; no one reads it after
 }
 
 void ClusterRunAhead::finish() {
@@ -247,15 +285,16 @@ void ClusterRunAhead::make_image() {
 void ClusterRunAhead::lay_in_earlier_runs() {
     for (const std::shared_ptr<ClusterRunAhead>& earlier : earlier_) {
         earlier->finish();  // an earlier run: never waits for this one
-        if (earlier->failed_) continue;
-        const Written& from = earlier->written_;
-        const uint8_t* bytes = from.bytes.data();
-        for (const auto& [address, size] : earlier->writes_) {
+        if (earlier->failed_ || !earlier->buffers_) continue;  // failed, or cancelled
+        const RunBuffers& from = *earlier->buffers_;
+        const uint8_t* bytes = from.written.data();
+        for (const auto& [address, size] : from.writes) {
             const uint8_t* these = bytes;
             bytes += size;
             const auto holds = [&](const PlannedRegion& r) { return address - r.base < r.size; };
-            const auto source = std::find_if(from.regions.begin(), from.regions.end(), holds);
-            if (source == from.regions.end()) continue;
+            const auto source =
+                std::find_if(from.written_regions.begin(), from.written_regions.end(), holds);
+            if (source == from.written_regions.end()) continue;
             const engine::MemoryRegion* target = image_.find_region(address);
             if (!target)
                 target = &image_.add_region(source->base, source->size, source->usage,
@@ -264,86 +303,85 @@ void ClusterRunAhead::lay_in_earlier_runs() {
             std::memcpy(image_.write_bytes(address, size, {"run ahead", -1}).data(), these, size);
         }
         if (earlier->built_intact_)
-            for (const Built& b : earlier->built_)
-                directory_.copy_entry(earlier->directory_, b.address);
+            for (const RunBuffers::Built& b : from.built)
+                buffers_->directory.copy_entry(from.directory, b.address);
     }
     earlier_.clear();  // their images go back to the pool once no one else holds them
 }
 
 void ClusterRunAhead::run() {
+    buffers_ = pool_.take();
+    RunBuffers& b = *buffers_;
     engine::ExecuteOptions options;
     options.properties = *properties_;
-    options.directory = &directory_;
+    options.directory = &b.directory;
     options.max_findings_per_rule = max_findings_per_rule_;
     options.queried_max_count = queried_max_count_;
     options.answered_sizes = sizes_.answered();
     options.implicit_object_room = implicit_object_room_;
     // Answered "yes" here and asked again of the replay's buffers at the command's turn.
-    options.first_without_usage = [this](uint64_t begin, uint64_t end, VkBufferUsageFlags usage) {
-        std::lock_guard<std::mutex> lock(usage_mutex_);
-        usage_queries_.push_back({begin, end, usage});
+    options.first_without_usage = [&b](uint64_t begin, uint64_t end, VkBufferUsageFlags usage) {
+        std::lock_guard<std::mutex> lock(b.usage_mutex);
+        b.usage_queries.push_back({begin, end, usage});
         return std::optional<uint64_t>();
     };
     try {
         make_image();
+        image_.log_writes(&b.writes);
+        b.directory.log_lookups(&b.lookups);
+        const auto started = std::chrono::steady_clock::now();
+        try {
+            // Isolated: waiting in its parallel loop, this run must not take up another one,
+            // which would hold it up while the replay thread may be waiting for it.
+            b.result = tbb::this_task_arena::isolate(
+                [&] { return engine::execute(info_, image_, options); });
+        } catch (const std::exception&) {
+            failed_ = true;  // the command's turn runs it again and reports the failure
+        }
+        image_.log_writes(nullptr);
+        b.directory.log_lookups(nullptr);
+        engine_ns_ = static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                               std::chrono::steady_clock::now() - started)
+                                               .count());
+        built_intact_ = !failed_ && built_objects(&b.built);
+        if (!failed_) {
+            keep_written_bytes();
+            keep_read_bytes();
+        }
     } catch (const std::exception&) {
-        failed_ = true;  // a snapshot no region holds whole: the command runs in its turn
-        return;
+        failed_ = true;  // a snapshot no region holds whole, or a run its turn runs in place
+        built_intact_ = false;
     }
-    image_.log_writes(&writes_);
-    directory_.log_lookups(&lookups_);
-    const auto started = std::chrono::steady_clock::now();
-    try {
-        // Isolated: waiting in its parallel loop, this run must not take up another one, which
-        // would hold it up while the replay thread may be waiting for it.
-        result_ =
-            tbb::this_task_arena::isolate([&] { return engine::execute(info_, image_, options); });
-    } catch (const std::exception&) {
-        failed_ = true;  // the command's turn runs it again and reports the failure
-    }
-    image_.log_writes(nullptr);
-    directory_.log_lookups(nullptr);
-    engine_ns_ = static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
-                                           std::chrono::steady_clock::now() - started)
-                                           .count());
-    try {
-        built_intact_ = !failed_ && built_objects(&built_);
-    } catch (const std::exception&) {
-        built_intact_ = false;  // its turn runs the command in place
-    }
-    if (failed_) return;
-    try {
-        keep_written_bytes();
-    } catch (const std::exception&) {
-        failed_ = true;  // the same
-    }
+    // Back to the pool now, on this thread: the image's regions and their bookkeeping were
+    // made here, and what the checks need of it is kept apart.
+    storage_.give(image_.release_storage());
 }
 
 void ClusterRunAhead::keep_written_bytes() {
+    RunBuffers& b = *buffers_;
     uint64_t total = 0;
-    for (const auto& w : writes_) total += w.second;
-    written_.bytes.resize(total);
-    uint8_t* to = written_.bytes.data();
-    for (const auto& [address, size] : writes_) {
+    for (const auto& w : b.writes) total += w.second;
+    b.written.resize(total);
+    uint8_t* to = b.written.data();
+    for (const auto& [address, size] : b.writes) {
         auto from = image_.read_bytes(address, size, {"run ahead", -1});
         std::memcpy(to, from.data(), size);
         to += size;
         const engine::MemoryRegion* r = image_.find_region(address);
-        const bool known = std::any_of(written_.regions.begin(), written_.regions.end(),
+        const bool known = std::any_of(b.written_regions.begin(), b.written_regions.end(),
                                        [&](const PlannedRegion& k) { return k.base == r->base; });
-        if (!known) written_.regions.push_back({r->base, r->size, r->usage, r->label});
+        if (!known) b.written_regions.push_back({r->base, r->size, r->usage, r->label});
     }
 }
 
-bool ClusterRunAhead::earlier_turns_passed() const {
-    return std::all_of(earlier_turns_.begin(), earlier_turns_.end(),
-                       [](const auto& passed) { return *passed; });
-}
-
-bool ClusterRunAhead::reads_unchanged(const engine::MemoryImage& real) const {
+// The ranges it read, in access order, that it did not also write (visit returns false to
+// stop); false when a read overlaps its own writes, which the checks refuse.
+template <class Visit>
+bool ClusterRunAhead::for_each_read(Visit visit) const {
     // The bytes it wrote, merged: a read of them would compare its own output, not its input.
     std::vector<std::pair<uint64_t, uint64_t>> written;  // [begin, end), sorted, disjoint
-    for (const auto& [address, size] : writes_) written.emplace_back(address, address + size);
+    for (const auto& [address, size] : buffers_->writes)
+        written.emplace_back(address, address + size);
     std::sort(written.begin(), written.end());
     size_t kept = 0;
     for (const auto& w : written) {
@@ -353,27 +391,56 @@ bool ClusterRunAhead::reads_unchanged(const engine::MemoryImage& real) const {
             written[kept++] = w;
     }
     written.resize(kept);
-    for (const engine::MemoryAccess& a : result_.accesses) {
+    for (const engine::MemoryAccess& a : buffers_->result.accesses) {
         if (a.is_write || a.end <= a.begin) continue;
         auto after = std::upper_bound(written.begin(), written.end(),
                                       std::pair<uint64_t, uint64_t>{a.begin, UINT64_MAX});
         if (after != written.end() && after->first < a.end) return false;
         if (after != written.begin() && std::prev(after)->second > a.begin) return false;
+        if (!visit(a.begin, a.end - a.begin)) return false;
+    }
+    return true;
+}
+
+// A read outside its image (a fault) stops the copy, and the run cannot stand.
+void ClusterRunAhead::keep_read_bytes() {
+    std::vector<uint8_t>& read = buffers_->read;
+    for_each_read([&](uint64_t address, uint64_t size) {
         try {
-            auto now = real.read_bytes(a.begin, a.end - a.begin, {"run ahead", -1});
-            auto then = image_.read_bytes(a.begin, a.end - a.begin, {"run ahead", -1});
-            if (std::memcmp(now.data(), then.data(), now.size()) != 0) return false;
+            auto bytes = image_.read_bytes(address, size, {"run ahead", -1});
+            const auto from = reinterpret_cast<const uint8_t*>(bytes.data());
+            read.insert(read.end(), from, from + size);
+            return true;
+        } catch (const engine::MemoryFault&) {
+            reads_unreadable_ = true;
+            return false;
+        }
+    });
+}
+
+bool ClusterRunAhead::earlier_turns_passed() const {
+    return std::all_of(earlier_turns_.begin(), earlier_turns_.end(),
+                       [](const auto& passed) { return *passed; });
+}
+
+bool ClusterRunAhead::reads_unchanged(const engine::MemoryImage& real) const {
+    const uint8_t* then = buffers_->read.data();
+    return for_each_read([&](uint64_t address, uint64_t size) {
+        try {
+            auto now = real.read_bytes(address, size, {"run ahead", -1});
+            const bool same = std::memcmp(now.data(), then, size) == 0;
+            then += size;
+            return same;
         } catch (const engine::MemoryFault&) {
             return false;
         }
-    }
-    return true;
+    });
 }
 
 // Every write lands in one region of the replay's memory, within its resident limit.
 bool ClusterRunAhead::writes_fit(const engine::MemoryImage& real) const {
     uint64_t added = 0;
-    for (const auto& [address, size] : writes_) {
+    for (const auto& [address, size] : buffers_->writes) {
         const engine::MemoryRegion* r = real.find_region(address);
         if (!r || address - r->base > r->size || r->size - (address - r->base) < size) return false;
         added += r->bytes.untouched_bytes(address - r->base, size);
@@ -381,11 +448,12 @@ bool ClusterRunAhead::writes_fit(const engine::MemoryImage& real) const {
     return real.within_resident_limit(added);
 }
 
-bool ClusterRunAhead::built_objects(std::vector<Built>* objects) const {
-    for (const engine::OpResult& op : result_.ops) {
+bool ClusterRunAhead::built_objects(std::vector<RunBuffers::Built>* objects) const {
+    for (const engine::OpResult& op : buffers_->result.ops) {
         if (!op.executed || op.dst_address == 0) continue;
         const engine::ObjectType type = built_type(op);
-        if (!directory_.lookup(image_, op.dst_address, type, false, {"run ahead", -1}).found())
+        if (!buffers_->directory.lookup(image_, op.dst_address, type, false, {"run ahead", -1})
+                 .found())
             return false;  // a later op of the command wrote over it
         objects->push_back({op.dst_address, op.dst_size, type});
     }
@@ -395,17 +463,18 @@ bool ClusterRunAhead::built_objects(std::vector<Built>* objects) const {
 bool ClusterRunAhead::stands(const ReplayMemory& memory, uint32_t queried_max_count,
                              const ClusterDriverSizes& sizes) const {
     if (skip_checks_for_tests) return !failed_;
-    if (failed_ || !result_.findings.empty() || queried_max_count != queried_max_count_ ||
-        !same_sizes(sizes, sizes_))
+    if (failed_ || reads_unreadable_ || !buffers_->result.findings.empty() ||
+        queried_max_count != queried_max_count_ || !same_sizes(sizes, sizes_))
         return false;
-    for (const UsageQuery& q : usage_queries_)
+    for (const RunBuffers::UsageQuery& q : buffers_->usage_queries)
         if (memory.first_without_usage(q.begin, q.end, q.usage)) return false;
     return reads_unchanged(memory.image()) && writes_fit(memory.image());
 }
 
 bool ClusterRunAhead::same_objects(const engine::ObjectDirectory& real) const {
-    return std::all_of(lookups_.addresses.begin(), lookups_.addresses.end(),
-                       [&](uint64_t address) { return real.same_entry(directory_, address); });
+    const RunBuffers& b = *buffers_;
+    return std::all_of(b.lookups.addresses.begin(), b.lookups.addresses.end(),
+                       [&](uint64_t address) { return real.same_entry(b.directory, address); });
 }
 
 bool ClusterRunAhead::commit(ReplayMemory& memory, engine::ObjectDirectory& directory,
@@ -416,17 +485,19 @@ bool ClusterRunAhead::commit(ReplayMemory& memory, engine::ObjectDirectory& dire
         (!skip_checks_for_tests && !same_objects(directory)))
         return false;
     engine::MemoryImage& real = memory.image();
-    const uint8_t* from = written_.bytes.data();
-    for (const auto& [address, size] : writes_) {
+    const RunBuffers& b = *buffers_;
+    const uint8_t* from = b.written.data();
+    for (const auto& [address, size] : b.writes) {
         auto to = real.write_bytes(address, size, {"run ahead", -1});
         std::memcpy(to.data(), from, size);
         from += size;
     }
     // In op order, as the engine's own run records them; the bytes just copied are the ones
     // its own directory hashed.
-    for (const Built& b : built_) directory.copy_entry(directory_, b.address);
+    for (const RunBuffers::Built& built : b.built) directory.copy_entry(b.directory, built.address);
     stood_ = true;
-    *record = std::move(result_);
+    // A copy, made and freed on this thread; the run's own goes when a task reuses its buffers.
+    *record = b.result;
     if (engine_ns) *engine_ns = engine_ns_;
     return true;
 }

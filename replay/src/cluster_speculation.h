@@ -33,6 +33,7 @@
 #include <set>
 #include <span>
 #include <string>
+#include <thread>
 #include <unordered_map>
 #include <utility>
 #include <vector>
@@ -87,6 +88,68 @@ private:
     uint64_t images_ = 0, most_images_ = 0;
 };
 
+// A region of the replay's memory a run names: bounds, usage and label, no bytes.
+struct PlannedRegion {
+    uint64_t base = 0, size = 0;
+    VkBufferUsageFlags usage = 0;
+    std::string label;
+};
+
+// What a run keeps from its task until it is dropped: its engine record, its directory and
+// what its checks and a later BLAS run need. glibc gives each worker thread a heap arena of its
+// own; state a worker allocated and the replay thread freed at the command's turn left every
+// arena holding a window's worth of runs, and peak memory grew with the trace (issue 23). So
+// these buffers come from the replay's pool and go back to it, and only a run's task empties
+// them (at its start, on a worker): the replay thread never frees what a worker allocated,
+// and what the pool holds is bounded by the runs alive at once.
+struct RunBuffers {
+    struct UsageQuery {
+        uint64_t begin = 0, end = 0;
+        uint32_t usage = 0;
+    };
+    struct Built {
+        uint64_t address = 0, size = 0;
+        engine::ObjectType type{};
+    };
+    engine::ExecutionRecord result;
+    engine::ObjectDirectory directory;
+    engine::ObjectDirectory::LookupLog lookups;
+    std::vector<std::pair<uint64_t, uint64_t>> writes;  // (address, size), as written
+    // The bytes the image ended with at each of writes, one after the other, and the regions
+    // holding them: what a later BLAS run lays in and the command's turn copies over.
+    std::vector<uint8_t> written;
+    std::vector<PlannedRegion> written_regions;
+    // The bytes the image held at each range it read (result.accesses' reads, in order), kept
+    // so that the image can go back to the pool when the task ends.
+    std::vector<uint8_t> read;
+    std::mutex usage_mutex;
+    std::vector<UsageQuery> usage_queries;  // all answered "every byte has the usage"
+    std::vector<Built> built;               // what built_objects found
+    bool on_replay_thread = false;          // filled there (RunBufferPool)
+    void empty();
+};
+
+// RunBuffers lent to runs and taken back, safe from any thread. Holds at most as many as were
+// ever lent at once (the window and the runs a BLAS run still starts on). A run no worker took
+// up by its turn runs on the replay thread: it takes buffers that only such runs use, so that
+// the replay thread empties only what it filled.
+class RunBufferPool {
+public:
+    explicit RunBufferPool(std::thread::id replay_thread) : replay_thread_(replay_thread) {}
+    // Empty buffers for a run on the calling thread.
+    std::unique_ptr<RunBuffers> take();
+    void give(std::unique_ptr<RunBuffers> buffers);
+    // Buffers made so far (lent or kept): bounded by the runs alive at once, whatever the
+    // trace's length (ReplayOptions::RunAheadCounts::run_buffers).
+    uint64_t made() const { return made_; }
+
+private:
+    std::thread::id replay_thread_;
+    std::mutex mutex_;
+    std::vector<std::unique_ptr<RunBuffers>> kept_[2];  // [filled on the replay thread]
+    uint64_t made_ = 0;
+};
+
 // What the replay knows when it starts a command ahead: its memory as of now (for the regions'
 // bounds and snapshot addresses), the contents read so far and the size answers.
 struct AheadInputs {
@@ -95,6 +158,7 @@ struct AheadInputs {
     const ClusterSizeQueries& queries;
     const engine::EngineProperties& properties;  // outlives the run
     ImageStoragePool& storage;                   // outlives the run
+    RunBufferPool& buffers;                      // outlives the run
     uint32_t max_findings_per_rule = 64;
 };
 
@@ -114,10 +178,11 @@ public:
     static std::shared_ptr<ClusterRunAhead> start(
         std::vector<uint8_t> record, uint64_t stream_index, const AheadInputs& in,
         std::vector<std::shared_ptr<ClusterRunAhead>> earlier, bool* not_placed_yet = nullptr);
-    // Waits for a run in progress, or cancels one not started; its bytes go back to the pool.
+    // Waits for a run in progress, or cancels one not started; its buffers go back to the pool.
     ~ClusterRunAhead();
-    // The same, once its command's turn has passed or it was dropped: a later BLAS run lays in
-    // only the bytes it wrote, kept apart (written_), so its image need not live on.
+    // Waits or cancels the same, once its command's turn has passed or it was dropped. Its
+    // image went back to the pool when its task ended (a later BLAS run lays in only the bytes
+    // it wrote, kept apart); this counts it given back, on the replay thread.
     void release_image();
 
     const std::vector<uint8_t>& record() const { return record_; }
@@ -143,14 +208,10 @@ public:
     static bool skip_checks_for_tests;
 
 private:
-    ClusterRunAhead(ImageStoragePool& storage) : storage_(storage) {}
-    // What the task needs to make its image: the replay's regions the command names (bounds,
-    // usage, label) and its snapshots' bytes and addresses.
-    struct PlannedRegion {
-        uint64_t base = 0, size = 0;
-        VkBufferUsageFlags usage = 0;
-        std::string label;
-    };
+    ClusterRunAhead(ImageStoragePool& storage, RunBufferPool& pool)
+        : storage_(storage), pool_(pool) {}
+    // What the task needs to make its image: the replay's regions the command names and its
+    // snapshots' bytes and addresses.
     struct PlannedSnapshot {
         uint64_t address = 0;
         RecentContents::Bytes bytes;
@@ -165,8 +226,10 @@ private:
     // What the earlier runs wrote, laid in before its own snapshots (as their commands run
     // before its own in queue order), and their objects in its directory.
     void lay_in_earlier_runs();
-    // Copies the bytes its image ended with at every range it wrote into written_.
+    // Copies the bytes its image ended with at every range it wrote, and at every range it
+    // read, into its buffers, so that the image can go back when the task ends.
     void keep_written_bytes();
+    void keep_read_bytes();
     // Waits for a run in progress, or cancels one not started.
     void wait_or_cancel();
     // The task: the image, then the engine; once, on a worker or (not started by its turn) on
@@ -176,23 +239,19 @@ private:
     bool stands(const ReplayMemory& memory, uint32_t queried_max_count,
                 const ClusterDriverSizes& sizes) const;
     bool reads_unchanged(const engine::MemoryImage& real) const;
+    // The read accesses it compares, in order: the ranges keep_read_bytes copied.
+    template <class Visit>
+    bool for_each_read(Visit visit) const;
     bool same_objects(const engine::ObjectDirectory& real) const;
     bool writes_fit(const engine::MemoryImage& real) const;
     // The objects it built, when each is intact in its own image (the task asks, at its end).
-    struct Built {
-        uint64_t address = 0, size = 0;
-        engine::ObjectType type{};
-    };
-    bool built_objects(std::vector<Built>* objects) const;
+    bool built_objects(std::vector<RunBuffers::Built>* objects) const;
 
-    struct UsageQuery {
-        uint64_t begin = 0, end = 0;
-        uint32_t usage = 0;
-    };
     // Where the run is; shared with the queued task, which may outlive a cancelled run.
     enum Stage : int { kQueued, kRunning, kDone, kCancelled };
     std::shared_ptr<std::atomic<int>> stage_ = std::make_shared<std::atomic<int>>(kQueued);
     ImageStoragePool& storage_;
+    RunBufferPool& pool_;
     std::vector<uint8_t> record_;
     uint64_t stream_index_ = 0;
     traces::ClusterOpInputStorage op_inputs_;
@@ -210,32 +269,24 @@ private:
     // Both only on the replay thread.
     std::shared_ptr<bool> turn_passed_ = std::make_shared<bool>(false);
     std::vector<std::shared_ptr<const bool>> earlier_turns_;
-    engine::MemoryImage image_;
-    bool holds_image_ = false;  // started and not given back (the pool counts it)
-    engine::ObjectDirectory directory_;
-    engine::ObjectDirectory::LookupLog lookups_;
-    std::vector<std::pair<uint64_t, uint64_t>> writes_;  // (address, size), as written
-    // What a later BLAS run lays in, outliving the image: the bytes at each of writes_ as the
-    // image ended with them, one after the other, and the regions holding them.
-    struct Written {
-        std::vector<uint8_t> bytes;
-        std::vector<PlannedRegion> regions;
-    } written_;
-    std::mutex usage_mutex_;
-    std::vector<UsageQuery> usage_queries_;  // all answered "every byte has the usage"
-    engine::ExecutionRecord result_;
+    engine::MemoryImage image_;  // made and given back by the task
+    bool holds_image_ = false;   // started and not given back yet (the pool counts it)
+    // Taken by the task, given back when the run is dropped (a later BLAS run may still lay
+    // in what it wrote after its turn).
+    std::unique_ptr<RunBuffers> buffers_;
     uint64_t engine_ns_ = 0;
     bool failed_ = false;
     bool stood_ = false;
-    // What built_objects found, on the task: the replay thread only records them.
-    std::vector<Built> built_;
-    bool built_intact_ = false;
+    bool built_intact_ = false;      // what built_objects found, on the task
+    bool reads_unreadable_ = false;  // a range it read was outside its image
 };
 
 // The commands started ahead and not yet taken, at most `capacity`.
 class RunAheadWindow {
 public:
-    explicit RunAheadWindow(size_t capacity) : capacity_(capacity) {}
+    // Made on the replay thread.
+    explicit RunAheadWindow(size_t capacity)
+        : capacity_(capacity), buffers_(std::this_thread::get_id()) {}
     bool full() const { return runs_.size() >= capacity_; }
     void add(std::shared_ptr<ClusterRunAhead> run);
     bool holds(uint64_t stream_index) const;  // a run of the record at this index
@@ -255,12 +306,14 @@ public:
     void drop_before(uint64_t index);
 
     ImageStoragePool& storage() { return storage_; }
+    RunBufferPool& buffers() { return buffers_; }
 
     ReplayOptions::RunAheadCounts counts;
 
 private:
     size_t capacity_;
     ImageStoragePool storage_;  // before runs_: the runs give their bytes back as they go
+    RunBufferPool buffers_;     // the same
     std::deque<std::shared_ptr<ClusterRunAhead>> runs_;
     // The latest CLAS and template runs, taken or not (at most capacity_), and the stream
     // indices of the BLAS records read since the oldest of them. A taken or dropped run has

@@ -282,8 +282,13 @@ bool Replay::try_start_cluster_run(const traces::RecordView& view, uint64_t stre
         build->input() &&
         build->input()->op_type() ==
             VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
-    const AheadInputs in{memory_,     recent_contents_,       cluster_queries_,
-                         properties_, ahead_runs_->storage(), options_.max_findings_per_rule};
+    const AheadInputs in{memory_,
+                         recent_contents_,
+                         cluster_queries_,
+                         properties_,
+                         ahead_runs_->storage(),
+                         ahead_runs_->buffers(),
+                         options_.max_findings_per_rule};
     auto run =
         ClusterRunAhead::start({view.bytes, view.bytes + view.size}, stream_index, in,
                                bottom_level ? ahead_runs_->builds_before(stream_index)
@@ -317,11 +322,12 @@ void Replay::start_pending_runs() {
 
 namespace {
 
-// ReplayOptions::run_ahead or CLASTRACE_REPLAY_RUN_AHEAD=1, on 2 threads or more; off by
-// default (ReplayOptions says why).
+// On 2 threads or more: CLASTRACE_REPLAY_RUN_AHEAD=0 or =1 when set, else
+// ReplayOptions::run_ahead (on by default).
 bool runs_ahead(const ReplayOptions& options) {
     if (replay_threads(options) < 2) return false;
     const char* value = std::getenv("CLASTRACE_REPLAY_RUN_AHEAD");
+    if (value && std::string_view(value) == "0") return false;
     return options.run_ahead || (value && std::string_view(value) == "1");
 }
 

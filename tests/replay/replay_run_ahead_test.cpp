@@ -481,12 +481,12 @@ TEST(ReplayRunAhead, TheModelsThreadComesWithRunsAhead) {
         unsetenv("CLASTRACE_REPLAY_SYNC_THREAD");
 }
 
-// Runs ahead are off by default at any thread count (their memory grows with the trace's
-// length: ReplayOptions), on when asked (ReplayOptions::run_ahead or
-// CLASTRACE_REPLAY_RUN_AHEAD=1) from 2 threads, and never on one.
-TEST(ReplayRunAhead, OffByDefaultAndOnWhenAskedFromTwoThreads) {
+// Runs ahead are on by default from 2 threads (their state comes from the replay's pool, so
+// their memory no longer grows with the trace's length), off with CLASTRACE_REPLAY_RUN_AHEAD=0
+// or ReplayOptions::run_ahead = false, and never on one thread.
+TEST(ReplayRunAhead, OnByDefaultFromTwoThreadsAndOffWhenAsked) {
     const std::string path = bench_frames("default_frames.clt", 1000);
-    auto started = [&](uint32_t threads) {
+    auto started = [&](uint32_t threads, bool asked = true) {
         traces::TraceError error;
         auto reader = traces::TraceReader::open(path, &error);
         EXPECT_TRUE(reader) << error.message;
@@ -494,6 +494,7 @@ TEST(ReplayRunAhead, OffByDefaultAndOnWhenAskedFromTwoThreads) {
         replay::ReplayOptions::RunAheadCounts counts;
         replay::ReplayOptions options;
         options.threads = threads;
+        options.run_ahead = asked;
         options.run_ahead_counts = &counts;
         replay::replay_trace(*reader, path, options);
         return counts.started;
@@ -501,10 +502,14 @@ TEST(ReplayRunAhead, OffByDefaultAndOnWhenAskedFromTwoThreads) {
     const char* kept = std::getenv("CLASTRACE_REPLAY_RUN_AHEAD");
     const std::string was = kept ? kept : "";
     unsetenv("CLASTRACE_REPLAY_RUN_AHEAD");
-    EXPECT_EQ(started(4), 0u);
-    EXPECT_EQ(started(16), 0u);
-    setenv("CLASTRACE_REPLAY_RUN_AHEAD", "1", 1);
     EXPECT_GT(started(2), 0u);
+    EXPECT_GT(started(16), 0u);
+    EXPECT_EQ(started(1), 0u);
+    EXPECT_EQ(started(4, false), 0u);
+    setenv("CLASTRACE_REPLAY_RUN_AHEAD", "0", 1);
+    EXPECT_EQ(started(4), 0u);
+    setenv("CLASTRACE_REPLAY_RUN_AHEAD", "1", 1);
+    EXPECT_GT(started(2, false), 0u);
     EXPECT_EQ(started(1), 0u);
     if (kept)
         setenv("CLASTRACE_REPLAY_RUN_AHEAD", was.c_str(), 1);

@@ -84,16 +84,16 @@ struct ReplayOptions {
     // findings, hazards and their order) is the same for every count (docs/replay.md).
     uint32_t threads = 0;
     // With 2 or more threads: the sync model on a thread of its own, and cluster builds run
-    // ahead of their turn on images of their own (docs/replay.md "Threads").
-    // CLASTRACE_REPLAY_SYNC_THREAD=1 / CLASTRACE_REPLAY_RUN_AHEAD=1 in the environment turn
-    // them on too. Both are off by default: runs ahead make the device's 16-core replay faster
-    // (1.88x against 1.22x over one thread) but peak memory still grows with the trace's length
-    // (50 -> 120 MB at 10^6 ops, 171 MB at 10^7 on 16 threads: docs/replay.md "Threads"),
-    // and the model's thread is slower. The report is the same either way. With runs ahead the
-    // model's thread is on too, unless CLASTRACE_REPLAY_SYNC_THREAD=0 (session 12: the model's
-    // calls were the largest part of the replay thread's own work left).
+    // ahead of their turn on images of their own (docs/replay.md "Threads"). With runs ahead
+    // the model's thread is on too, unless CLASTRACE_REPLAY_SYNC_THREAD=0 (session 12: the
+    // model's calls were the largest part of the replay thread's own work left); =1 turns it on
+    // without them. Runs ahead are on by default from 2 threads (the device's 16-core replay: 1.68x
+    // over one thread against 0.96x with every build in its turn, session 11); since session 12
+    // a run's state comes from the replay's pool, so their peak memory grows far less with the
+    // trace's length (docs/benchmarks.md, s12-runahead). CLASTRACE_REPLAY_RUN_AHEAD=0 in the environment turns
+    // them off whatever this says, =1 on. The report is the same either way.
     bool sync_model_thread = false;
-    bool run_ahead = false;
+    bool run_ahead = true;
     // Runs ahead, counted here when not null. Not owned.
     struct RunAheadCounts {
         uint64_t started = 0;    // runs started ahead
