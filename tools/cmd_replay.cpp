@@ -187,10 +187,11 @@ Command register_replay(CLI::App& app) {
     add_max_raw_option(sub, &args->reader);
     sub->footer(
         "Environment: CLASTRACE_ENGINE_SIMD=sse traces with the engine's 4-wide SSE path where the "
-        "CPU has AVX2 (the reference path; same hits); CLASTRACE_REPLAY_SYNC_THREAD=1 checks "
-        "hazards on a thread of their own (off by default: slower on the measured machine); "
-        "CLASTRACE_REPLAY_RUN_AHEAD=0 runs every cluster build in its turn (by default they run "
-        "ahead of their turn from 2 threads; docs/replay.md \"Threads\").");
+        "CPU has AVX2 (the reference path; same hits); CLASTRACE_REPLAY_RUN_AHEAD=0 runs every "
+        "cluster build in its turn (by default they run ahead of their turn from 2 threads, "
+        "and hazards are checked on a thread of their own with them); "
+        "CLASTRACE_REPLAY_SYNC_THREAD=0 keeps the hazard checks on the replay thread, =1 asks "
+        "for their thread without runs ahead (docs/replay.md \"Threads\").");
     return Command{sub, [args] { return run_replay(*args); }};
 }
 
