@@ -130,12 +130,10 @@ std::optional<ResolvedRange> DeviceMemoryMap::resolve_in_last(VkDeviceAddress ad
     if (next != buffers_by_address_.cend() && next->first <= address) return std::nullopt;
     const auto b = buffers_.find(last->second);
     if (b == buffers_.end() || b->second.address != last->first ||
-        (b->second.flags & VK_BUFFER_CREATE_SPARSE_BINDING_BIT))
+        !plainly_holds(b->second, address, size))
         return std::nullopt;
-    const VkDeviceSize offset = address - last->first;
-    if (offset >= b->second.size || size > b->second.size - offset) return std::nullopt;
     std::string unused;
-    return resolve_in(b->second, offset, size, unused);
+    return resolve_in(b->second, address - last->first, size, unused);
 }
 
 std::optional<ResolvedRange> DeviceMemoryMap::resolve_buffer(uint64_t buffer, VkDeviceSize offset,

@@ -32,11 +32,8 @@ public:
     const ResolvedRange* resolve(VkDeviceAddress address, uint64_t size, std::string& why) {
         for (size_t i = 0; i < found_; ++i) {
             ResolvedRange& r = recent_[i];
-            if (!inside(r.buffer, address, size)) continue;
-            const VkDeviceSize offset = address - r.buffer.address;
-            r.offset_in_buffer = offset;
-            r.host =
-                r.memory.host_base ? r.memory.host_base + r.buffer.memory_offset + offset : nullptr;
+            if (!plainly_holds(r.buffer, address, size)) continue;
+            r.aim_at(address);
             return &r;
         }
         std::optional<ResolvedRange> r = map_.resolve(address, size, why);
@@ -48,12 +45,6 @@ public:
 
 private:
     static constexpr size_t kRecent = 4;
-    static bool inside(const TrackedBuffer& b, VkDeviceAddress address, uint64_t size) {
-        if (b.flags & VK_BUFFER_CREATE_SPARSE_BINDING_BIT) return false;
-        if (address < b.address || address + size < address) return false;
-        const VkDeviceSize offset = address - b.address;
-        return offset < b.size && size <= b.size - offset;
-    }
 
     const DeviceMemoryMap& map_;
     std::array<ResolvedRange, kRecent> recent_;

@@ -34,12 +34,29 @@ struct TrackedBuffer {
     VkDeviceAddress address = 0;  // 0 until the application asked for it
 };
 
+// Whether `b` is a plain (not sparse) buffer whose addresses hold [address, address + size): its
+// memory then holds the range at the same offset, wherever in the buffer it lies.
+inline bool plainly_holds(const TrackedBuffer& b, VkDeviceAddress address, VkDeviceSize size) {
+    if (b.flags & VK_BUFFER_CREATE_SPARSE_BINDING_BIT) return false;
+    if (address < b.address) return false;
+    const VkDeviceSize offset = address - b.address;
+    return offset < b.size && size <= b.size - offset;
+}
+
 // Where a device address range lives; `host` is null when the memory is not mapped by the layer.
 struct ResolvedRange {
     TrackedBuffer buffer;
     VkDeviceSize offset_in_buffer = 0;
     TrackedMemory memory;
     uint8_t* host = nullptr;
+
+    // The same buffer's range at `address` (which it must hold): the offset and host pointer
+    // follow, as resolve() would give them.
+    void aim_at(VkDeviceAddress address) {
+        offset_in_buffer = address - buffer.address;
+        host =
+            memory.host_base ? memory.host_base + buffer.memory_offset + offset_in_buffer : nullptr;
+    }
 };
 
 class DeviceMemoryMap {
