@@ -14,6 +14,7 @@
 #include <cstdlib>
 #include <deque>
 #include <memory>
+#include <optional>
 #include <string_view>
 
 #include <chrono>
@@ -25,6 +26,25 @@ bool is_engine_device(const std::string& driver_name) {
 }
 
 namespace detail {
+namespace {
+
+// A BLAS build over cluster objects: it reads the CLAS runs read before it.
+bool builds_bottom_level(const fbs::CmdBuildClusterAccelerationStructureIndirect& build) {
+    return build.input() &&
+           build.input()->op_type() ==
+               VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
+}
+
+// A CLASTRACE_REPLAY_* switch: true for "1", false for "0", none when unset or anything else.
+std::optional<bool> environment_switch(const char* variable) {
+    const char* value = std::getenv(variable);
+    if (!value) return std::nullopt;
+    if (std::string_view(value) == "1") return true;
+    if (std::string_view(value) == "0") return false;
+    return std::nullopt;
+}
+
+}  // namespace
 
 Replay::Replay(TraceReader& reader, const std::string& name, const ReplayOptions& options)
     : reader_(reader),
@@ -260,10 +280,7 @@ void Replay::start_cluster_run(const traces::RecordView& view, uint64_t stream_i
     const auto* build = view.record->body_as_CmdBuildClusterAccelerationStructureIndirect();
     if (!build) return;
     // Every BLAS record read bounds the CLAS runs the next BLAS starts on, started or not.
-    if (build->input() &&
-        build->input()->op_type() ==
-            VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV)
-        ahead_runs_->note_bottom_level(stream_index);
+    if (builds_bottom_level(*build)) ahead_runs_->note_bottom_level(stream_index);
     if (read_ahead && !pending_runs_.empty()) {
         pending_runs_.push_back({view, stream_index});  // after the builds read before it
         return;
@@ -277,11 +294,8 @@ void Replay::start_cluster_run(const traces::RecordView& view, uint64_t stream_i
 bool Replay::try_start_cluster_run(const traces::RecordView& view, uint64_t stream_index,
                                    bool* not_placed_yet) {
     if (ahead_runs_->full() || ahead_runs_->holds(stream_index)) return false;
-    const auto* build = view.record->body_as_CmdBuildClusterAccelerationStructureIndirect();
     const bool bottom_level =
-        build->input() &&
-        build->input()->op_type() ==
-            VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
+        builds_bottom_level(*view.record->body_as_CmdBuildClusterAccelerationStructureIndirect());
     const AheadInputs in{memory_,
                          recent_contents_,
                          cluster_queries_,
@@ -326,9 +340,7 @@ namespace {
 // ReplayOptions::run_ahead (on by default).
 bool runs_ahead(const ReplayOptions& options) {
     if (replay_threads(options) < 2) return false;
-    const char* value = std::getenv("CLASTRACE_REPLAY_RUN_AHEAD");
-    if (value && std::string_view(value) == "0") return false;
-    return options.run_ahead || (value && std::string_view(value) == "1");
+    return environment_switch("CLASTRACE_REPLAY_RUN_AHEAD").value_or(options.run_ahead);
 }
 
 }  // namespace
@@ -337,17 +349,17 @@ bool runs_ahead(const ReplayOptions& options) {
 // replay thread (docs/benchmarks.md, session 12 serial).
 bool model_on_own_thread(const ReplayOptions& options, bool with_runs_ahead) {
     if (!options.check_hazards || replay_threads(options) < 2) return false;
-    const char* value = std::getenv("CLASTRACE_REPLAY_SYNC_THREAD");
-    if (options.sync_model_thread || (value && std::string_view(value) == "1")) return true;
-    return with_runs_ahead && !(value && std::string_view(value) == "0");
+    const std::optional<bool> asked = environment_switch("CLASTRACE_REPLAY_SYNC_THREAD");
+    if (options.sync_model_thread || asked == true) return true;
+    return with_runs_ahead && asked != false;
 }
 
 ReplayReport Replay::run() {
     traces::RecordView view;
     ReplayProgress progress;
-    // On more than one thread, cluster builds run ahead when asked (ReplayOptions, or =1 in the
-    // environment; docs/replay.md "Threads"), and the sync model beside the replay with them or
-    // when asked.
+    // On more than one thread, cluster builds run ahead unless told not to (ReplayOptions, or =0
+    // in the environment; docs/replay.md "Threads"), and the sync model beside the replay with
+    // them or when asked.
     const bool ahead = runs_ahead(options_);
     if (model_on_own_thread(options_, ahead)) sync_.start_thread();
     if (ahead) {
