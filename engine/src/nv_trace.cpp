@@ -300,9 +300,10 @@ namespace {
 // Boxes are culled against the best t widened by 2^-20 of itself: a box entered at that same
 // t (the best hit lies on a vertex or edge on its face) rounds its entry either way, and its
 // tied hit must still be seen for ties to resolve by key (replaces), not by visiting order.
+// Out of line: inlined, its stack made the frame of every traversal that might take it.
 template <class Leaf>
-void walk_tree(const std::vector<NvNode>& nodes, const geometry::PreparedRay& rd, double* tmax,
-               Leaf&& leaf) {
+[[gnu::noinline]] void walk_tree(const std::vector<NvNode>& nodes, const geometry::PreparedRay& rd,
+                                 double* tmax, Leaf&& leaf) {
     auto reach = [tmax] { return *tmax + std::fabs(*tmax) * 0x1p-20; };
     struct Entry {
         uint32_t node;

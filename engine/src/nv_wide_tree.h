@@ -219,6 +219,7 @@ bool make_plain_object_rays(const float o[3], const float d[3], double tmin, dou
 // double scalar walk, which culls them, is several times faster.
 inline bool resolves_leaves(const WideTree& tree, const double o[3]) {
     double far = 0.0;
+#pragma GCC unroll 3
     for (int a = 0; a < 3; ++a) far = std::max(far, std::fabs(o[a] - tree.center[a]));
     return !(far * 0x1p-20 > tree.leaf_extent * 0.25);
 }
