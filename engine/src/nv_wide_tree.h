@@ -316,7 +316,7 @@ struct WalkEntry {
 // The entries a wide walk has yet to visit. Each visit pops one entry and pushes at most W - 1:
 // depth x (W - 1) + 1 entries; the stored tree's depth is bounded by its node count, so deep
 // (hostile) trees spill past 256.
-using WalkStack = SpillStack<WalkEntry, 256>;
+using WalkStack = BurstStack<WalkEntry, 256, 8>;
 
 // Lane k of `n`, which the box test hit (so it holds a child), as a stack entry; its bytes are
 // fetched at once, since rays are incoherent (`prefetch(first, count)` for a leaf).
@@ -347,6 +347,7 @@ template <int W, class Node, class Prefetch>
                                                        WalkStack* stack) {
     const WalkEntry second = hit_child(nodes, n, __builtin_ctz(more), entry, prefetch);
     more &= more - 1;
+    stack->make_room();
     if (more == 0) {
         if (first.t < second.t) {
             stack->push(second);
@@ -357,9 +358,7 @@ template <int W, class Node, class Prefetch>
     }
     // Sorted in place on top of the stack, the nearest last: all but it are then pushed as
     // they lie (a copy of each from a local array cost about 12 instructions an entry).
-    WalkEntry local[W];
-    WalkEntry* room = stack->room(W);
-    WalkEntry* order = room ? room : local;
+    WalkEntry* order = stack->top();
     order[0] = first;
     int count = 1;
     for (WalkEntry c = second;;
@@ -372,11 +371,7 @@ template <int W, class Node, class Prefetch>
         order[at] = c;
         if (more == 0) break;
     }
-    if (room) {
-        stack->grow(uint32_t(count - 1));
-    } else {
-        for (int k = 0; k + 1 < count; ++k) stack->push(order[k]);
-    }
+    stack->grow(uint32_t(count - 1));
     return order[count - 1];
 }
 
@@ -424,8 +419,7 @@ template <int W, class Node, class BoxTest, class Leaf, class Prefetch>
                 }
             }
         }
-        if (stack.empty()) return;
-        e = stack.pop();
+        if (!stack.pop(&e)) return;
     }
 }
 
