@@ -578,6 +578,7 @@ public:
           world_origin_(world_origin),
           first_hit_(first_hit),
           tmax_(tmax),
+          tmax_up_(detail::float_at_or_above(*tmax)),
           best_(best),
           rays_(rays),
           rules_(hit_rules(inst.flags, flags)) {}
@@ -600,11 +601,9 @@ public:
     [[gnu::always_inline]] bool groups(uint32_t first, uint32_t count) {
         for (uint32_t g = 0; g < (count + 3) / 4; ++g) {
             const geometry::Triangle4& group = b_.groups[first + g];
-            // At or above *tmax; *tmax only falls within the group, which keeps this safe.
-            const float tmax_up = detail::float_at_or_above(*tmax_);
             for (unsigned lanes =
                      geometry::triangle4_candidates(rays_.triangles, group,
-                                                    geometry::group_lanes(g, count), tmax_up);
+                                                    geometry::group_lanes(g, count), tmax_up_);
                  lanes; lanes &= lanes - 1) {
                 const int k = __builtin_ctz(lanes);
                 // open_nv_object keeps leaves inside the records; a lane without one is skipped.
@@ -660,6 +659,7 @@ public:
                 float(float_t_error(inst_, world_origin_, rd.o, rd.d, v, b_.aabbs, cand.t));
         }
         *tmax_ = cand.t;
+        tmax_up_ = detail::float_at_or_above(cand.t);
         return first_hit_;
     }
 
@@ -670,6 +670,9 @@ private:
     const float* world_origin_;
     bool first_hit_;
     double* tmax_;
+    // *tmax_ rounded up to float, what the filter drops sure hits beyond (only primitive()
+    // lowers *tmax_ while this traversal lasts).
+    float tmax_up_;
     NvHit* best_;
     const detail::ObjectRays& rays_;
     HitRules rules_;
