@@ -300,9 +300,10 @@ namespace {
 // Boxes are culled against the best t widened by 2^-20 of itself: a box entered at that same
 // t (the best hit lies on a vertex or edge on its face) rounds its entry either way, and its
 // tied hit must still be seen for ties to resolve by key (replaces), not by visiting order.
+// Out of line: inlined, its stack made the frame of every traversal that might take it.
 template <class Leaf>
-void walk_tree(const std::vector<NvNode>& nodes, const geometry::PreparedRay& rd, double* tmax,
-               Leaf&& leaf) {
+[[gnu::noinline]] void walk_tree(const std::vector<NvNode>& nodes, const geometry::PreparedRay& rd,
+                                 double* tmax, Leaf&& leaf) {
     auto reach = [tmax] { return *tmax + std::fabs(*tmax) * 0x1p-20; };
     struct Entry {
         uint32_t node;
@@ -538,6 +539,146 @@ bool trace_cluster_instance(const Instance& inst, uint32_t index, const double o
     return true;
 }
 
+// The rules of nv_trace.h a candidate must pass that depend only on the instance's and the
+// ray's flags, decided once per instance entry rather than at every primitive.
+struct HitRules {
+    int opacity = -1;             // 1 / 0: forced opaque / not opaque; -1: the geometry's flag
+    unsigned culled_opacity = 0;  // bit 1: opaque candidates culled, bit 0: non-opaque ones
+    bool flip = false;            // TRIANGLE_FRONT_COUNTERCLOCKWISE
+    bool cull_front = false, cull_back = false;  // after TRIANGLE_CULL_DISABLE
+};
+
+HitRules hit_rules(uint32_t instance_flags, uint32_t flags) {
+    HitRules h;
+    // Opacity: geometry flag < instance force flags < ray flags.
+    if (instance_flags & VK_GEOMETRY_INSTANCE_FORCE_OPAQUE_BIT_NV) h.opacity = 1;
+    if (instance_flags & VK_GEOMETRY_INSTANCE_FORCE_NO_OPAQUE_BIT_NV) h.opacity = 0;
+    if (flags & kRayFlagOpaque) h.opacity = 1;
+    if (flags & kRayFlagNoOpaque) h.opacity = 0;
+    h.culled_opacity =
+        (flags & kRayFlagCullOpaque ? 2u : 0u) | (flags & kRayFlagCullNoOpaque ? 1u : 0u);
+    h.flip = instance_flags & VK_GEOMETRY_INSTANCE_TRIANGLE_FRONT_COUNTERCLOCKWISE_BIT_NV;
+    if (!(instance_flags & VK_GEOMETRY_INSTANCE_TRIANGLE_CULL_DISABLE_BIT_NV)) {
+        h.cull_back = flags & kRayFlagCullBackFacingTriangles;
+        h.cull_front = flags & kRayFlagCullFrontFacingTriangles;
+    }
+    return h;
+}
+
+// One traversal of one instance's NV BLAS: its state in one object, so that the leaf
+// functions the walks call capture one pointer (closures of many references cost about 40
+// instructions a ray to build, and registers inside the walks).
+class InstanceTrace {
+public:
+    InstanceTrace(const Instance& inst, uint32_t index, const float* world_origin, uint32_t flags,
+                  bool first_hit, double* tmax, NvHit* best, const detail::ObjectRays& rays)
+        : inst_(inst),
+          b_(*inst.blas),
+          index_(index),
+          world_origin_(world_origin),
+          first_hit_(first_hit),
+          tmax_(tmax),
+          tmax_up_(detail::float_at_or_above(*tmax)),
+          best_(best),
+          rays_(rays),
+          rules_(hit_rules(inst.flags, flags)) {}
+
+    bool found() const { return found_; }
+
+    // Primitives [first, first + count) of the records in order; true: stop (first hit taken).
+    bool records(uint32_t first, uint32_t count) {
+        for (uint32_t k = first; k < first + count; ++k) {
+            const NvPrimitiveRecord& p = b_.primitives[k];
+            if (primitive(p.v, p.geometry_index, p.primitive_index)) return true;
+        }
+        return false;
+    }
+
+    // Triangles: each group's sure misses dropped four at a time, the rest in record order.
+    // Always inlined into each wide walk, and the filter with it: in the AVX2 walk it compiles
+    // to the VEX form of the same SSE operations (no fused multiply-adds: the same bits),
+    // where a call through a pointer to a copy per path cost 2% more instructions.
+    [[gnu::always_inline]] bool groups(uint32_t first, uint32_t count) {
+        for (uint32_t g = 0; g < (count + 3) / 4; ++g) {
+            const geometry::Triangle4& group = b_.groups[first + g];
+            for (unsigned lanes =
+                     geometry::triangle4_candidates(rays_.triangles, group,
+                                                    geometry::group_lanes(g, count), tmax_up_);
+                 lanes; lanes &= lanes - 1) {
+                const int k = __builtin_ctz(lanes);
+                // open_nv_object keeps leaves inside the records; a lane without one is skipped.
+                if (group.geometry[k] == geometry::kNoTriangle) continue;
+                float v[9];
+                geometry::lane_vertices(group, k, v);
+                if (primitive(v, group.geometry[k], group.primitive[k])) return true;
+            }
+        }
+        return false;
+    }
+
+    // One primitive (its coordinates `v`: a triangle's three vertices or a box's min and max)
+    // through the exact tests and the flag rules; true: stop (first hit taken). Out of line:
+    // under one call a ray, where inlined it took registers from the walks.
+    [[gnu::noinline]] bool primitive(const float* v, uint32_t geometry_index,
+                                     uint32_t primitive_index) {
+        const bool opaque =
+            rules_.opacity < 0
+                ? (b_.geometry_flags[geometry_index] & VK_GEOMETRY_OPAQUE_BIT_NV) != 0
+                : rules_.opacity != 0;
+        if ((rules_.culled_opacity >> unsigned(opaque)) & 1u) return false;
+        const geometry::PreparedRay& rd = rays_.exact;
+        geometry::TriangleHit cand;
+        uint32_t kind = 0;
+        if (b_.aabbs) {
+            const double t = aabb_primitive_entry(rd, v, v + 3, *tmax_);
+            if (std::isnan(t)) return false;
+            cand = geometry::TriangleHit{t, 0.0, 0.0, 0.0, true};
+        } else {
+            if (!geometry::intersect_triangle(rd, v, v + 3, v + 6, *tmax_, &cand)) return false;
+            const bool front = cand.front != rules_.flip;
+            if (front ? rules_.cull_front : rules_.cull_back) return false;
+            kind = front ? kHitKindFrontFacing : kHitKindBackFacing;
+        }
+        if (best_ && !replaces(*best_, cand.t, *tmax_, index_, geometry_index, primitive_index))
+            return false;
+        found_ = true;
+        if (best_) {
+            best_->hit = true;
+            best_->t = float(cand.t);
+            best_->instance_index = index_;
+            best_->instance_custom_index = inst_.custom_index;
+            best_->sbt_offset = inst_.sbt_offset;
+            best_->geometry_index = geometry_index;
+            best_->primitive_index = primitive_index;
+            best_->u = float(cand.u);
+            best_->v = float(cand.v);
+            best_->uv_error = float(cand.uv_error);
+            best_->hit_kind = kind;
+            best_->opaque = opaque;
+            best_->t_error =
+                float(float_t_error(inst_, world_origin_, rd.o, rd.d, v, b_.aabbs, cand.t));
+        }
+        *tmax_ = cand.t;
+        tmax_up_ = detail::float_at_or_above(cand.t);
+        return first_hit_;
+    }
+
+private:
+    const Instance& inst_;
+    const Blas& b_;
+    uint32_t index_;
+    const float* world_origin_;
+    bool first_hit_;
+    double* tmax_;
+    // *tmax_ rounded up to float, what the filter drops sure hits beyond (only primitive()
+    // lowers *tmax_ while this traversal lasts).
+    float tmax_up_;
+    NvHit* best_;
+    const detail::ObjectRays& rays_;
+    HitRules rules_;
+    bool found_ = false;
+};
+
 // One instance's BLAS: updates `best` (closest) or returns true at the first accepted
 // hit (any / terminate-on-first-hit).
 bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32_t flags,
@@ -559,112 +700,38 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
         rays.wide = detail::make_wide_ray(rays.exact);
         if (b.wide.leaf_groups) rays.triangles = geometry::make_triangle4_ray(rays.exact);
     }
-    const geometry::PreparedRay& rd = rays.exact;
-    const bool cull_disable = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_CULL_DISABLE_BIT_NV;
-    const bool flip = inst.flags & VK_GEOMETRY_INSTANCE_TRIANGLE_FRONT_COUNTERCLOCKWISE_BIT_NV;
-    bool found = false;
-    // One primitive (its coordinates `v`: a triangle's three vertices or a box's min and max)
-    // through the exact tests and the flag rules; true: stop (first hit taken).
-    auto test_primitive = [&](const float* v, uint32_t geometry_index, uint32_t primitive_index) {
-        // Opacity: geometry flag < instance force flags < ray flags.
-        bool opaque = b.geometry_flags[geometry_index] & VK_GEOMETRY_OPAQUE_BIT_NV;
-        if (inst.flags & VK_GEOMETRY_INSTANCE_FORCE_OPAQUE_BIT_NV) opaque = true;
-        if (inst.flags & VK_GEOMETRY_INSTANCE_FORCE_NO_OPAQUE_BIT_NV) opaque = false;
-        if (flags & kRayFlagOpaque) opaque = true;
-        if (flags & kRayFlagNoOpaque) opaque = false;
-        if ((flags & kRayFlagCullOpaque) && opaque) return false;
-        if ((flags & kRayFlagCullNoOpaque) && !opaque) return false;
-        geometry::TriangleHit cand;
-        uint32_t kind = 0;
-        if (b.aabbs) {
-            const double t = aabb_primitive_entry(rd, v, v + 3, *tmax);
-            if (std::isnan(t)) return false;
-            cand = geometry::TriangleHit{t, 0.0, 0.0, 0.0, true};
-        } else {
-            if (!geometry::intersect_triangle(rd, v, v + 3, v + 6, *tmax, &cand)) return false;
-            const bool front = cand.front != flip;
-            if (!cull_disable) {
-                if ((flags & kRayFlagCullBackFacingTriangles) && !front) return false;
-                if ((flags & kRayFlagCullFrontFacingTriangles) && front) return false;
-            }
-            kind = front ? kHitKindFrontFacing : kHitKindBackFacing;
-        }
-        if (best && !replaces(*best, cand.t, *tmax, index, geometry_index, primitive_index))
-            return false;
-        found = true;
-        if (best) {
-            best->hit = true;
-            best->t = float(cand.t);
-            best->instance_index = index;
-            best->instance_custom_index = inst.custom_index;
-            best->sbt_offset = inst.sbt_offset;
-            best->geometry_index = geometry_index;
-            best->primitive_index = primitive_index;
-            best->u = float(cand.u);
-            best->v = float(cand.v);
-            best->uv_error = float(cand.uv_error);
-            best->hit_kind = kind;
-            best->opaque = opaque;
-            best->t_error = float(float_t_error(inst, ray.origin, rd.o, rd.d, v, b.aabbs, cand.t));
-        }
-        *tmax = cand.t;
-        return first_hit;
-    };
-    auto records = [&](uint32_t first, uint32_t count) {
-        for (uint32_t k = first; k < first + count; ++k) {
-            const NvPrimitiveRecord& p = b.primitives[k];
-            if (test_primitive(p.v, p.geometry_index, p.primitive_index)) return true;
-        }
-        return false;
-    };
+    InstanceTrace trace(inst, index, ray.origin, flags, first_hit, tmax, best, rays);
+    auto records = [&trace](uint32_t first, uint32_t count) { return trace.records(first, count); };
     if (exhaustive) {
         records(0, uint32_t(b.primitives.size()));
-        return found;
+        return trace.found();
     }
     if (!b.wide.leaf_groups) {
-        walk_leaves(b.nodes, b.wide, b.primitives, rd, rays.wide, tmax, records, records);
-        return found;
+        walk_leaves(b.nodes, b.wide, b.primitives, rays.exact, rays.wide, tmax, records, records);
+        return trace.found();
     }
-    // Triangles: each group's sure misses dropped four at a time, the rest in record order.
-    // Always inlined into each wide walk, and the filter with it: in the AVX2 walk it compiles
-    // to the VEX form of the same SSE operations (no fused multiply-adds: the same bits),
-    // where a call through a pointer to a copy per path cost 2% more instructions.
-    const geometry::Triangle4Ray& r4 = rays.triangles;
-    auto groups = [&](uint32_t first, uint32_t count) __attribute__((always_inline)) {
-        for (uint32_t g = 0; g < (count + 3) / 4; ++g) {
-            const geometry::Triangle4& group = b.groups[first + g];
-            // At or above *tmax; *tmax only falls within the group, which keeps this safe.
-            const float tmax_up = detail::float_at_or_above(*tmax);
-            for (unsigned lanes =
-                     geometry::triangle4_candidates(r4, group, geometry::group_lanes(g, count),
-                                                    tmax_up);
-                 lanes; lanes &= lanes - 1) {
-                const int k = __builtin_ctz(lanes);
-                // open_nv_object keeps leaves inside the records; a lane without one is skipped.
-                if (group.geometry[k] == geometry::kNoTriangle) continue;
-                float v[9];
-                geometry::lane_vertices(group, k, v);
-                if (test_primitive(v, group.geometry[k], group.primitive[k])) return true;
-            }
-        }
-        return false;
+    auto groups = [&trace](uint32_t first, uint32_t count) __attribute__((always_inline)) {
+        return trace.groups(first, count);
     };
-    walk_leaves(b.nodes, b.wide, b.groups, rd, rays.wide, tmax, records, groups);
-    return found;
+    walk_leaves(b.nodes, b.wide, b.groups, rays.exact, rays.wide, tmax, records, groups);
+    return trace.found();
 }
 
 // Whether every origin and direction component is finite: such a ray enters a box of infinite
 // bounds on every axis (a single-BLAS scene's root) whatever its interval.
 bool finite_ray(const Ray& ray) {
+    bool finite = true;
+#pragma GCC unroll 3
     for (int a = 0; a < 3; ++a)
-        if (!std::isfinite(ray.origin[a]) || !std::isfinite(ray.direction[a])) return false;
-    return true;
+        finite &= std::isfinite(ray.origin[a]) & std::isfinite(ray.direction[a]);
+    return finite;
 }
 
-bool trace_scene(const NvScene::Data& s, const Ray& ray, uint32_t flags, uint32_t cull_mask,
-                 bool first_hit, NvHit* best, TraversalMode mode, bool exhaustive = false) {
-    if (s.nodes.empty() || std::isnan(ray.tmin) || std::isnan(ray.tmax) || !(ray.tmin <= ray.tmax))
-        return false;
+// trace_scene through the top level's tree (or every instance, exhaustive). Out of line, so
+// that its walk's stack and closures stay off the path of single-BLAS scenes.
+[[gnu::noinline]] bool trace_top_level(const NvScene::Data& s, const Ray& ray, uint32_t flags,
+                                       uint32_t cull_mask, bool first_hit, NvHit* best,
+                                       TraversalMode mode, bool exhaustive) {
     const double tmin = ray.tmin;
     double tmax = ray.tmax;
     bool found = false;
@@ -690,6 +757,21 @@ bool trace_scene(const NvScene::Data& s, const Ray& ray, uint32_t flags, uint32_
     walk_leaves(s.nodes, s.wide, s.instances, rd, detail::make_wide_ray(rd), &tmax, instances,
                 instances);
     return found;
+}
+
+bool trace_scene(const NvScene::Data& s, const Ray& ray, uint32_t flags, uint32_t cull_mask,
+                 bool first_hit, NvHit* best, TraversalMode mode, bool exhaustive = false) {
+    if (s.nodes.empty() || std::isnan(ray.tmin) || std::isnan(ray.tmax) || !(ray.tmin <= ray.tmax))
+        return false;
+    // A single-BLAS scene's one instance (open_bottom) straight away: a finite ray enters its
+    // root, whatever its interval.
+    if (!exhaustive && s.single_bottom && finite_ray(ray)) {
+        const Instance& inst = s.instances[0];
+        if (!inst.blas || !(inst.mask & cull_mask & 0xFFu)) return false;
+        double tmax = ray.tmax;
+        return trace_instance(inst, 0, ray, flags, first_hit, ray.tmin, &tmax, best, mode, false);
+    }
+    return trace_top_level(s, ray, flags, cull_mask, first_hit, best, mode, exhaustive);
 }
 
 }  // namespace

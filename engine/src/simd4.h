@@ -38,6 +38,8 @@ inline Float4 operator+(Float4 a, Float4 b) { return {_mm_add_ps(a.v, b.v)}; }
 inline Float4 operator-(Float4 a, Float4 b) { return {_mm_sub_ps(a.v, b.v)}; }
 inline Float4 operator*(Float4 a, Float4 b) { return {_mm_mul_ps(a.v, b.v)}; }
 inline Float4 operator/(Float4 a, Float4 b) { return {_mm_div_ps(a.v, b.v)}; }
+// |a|: the sign bit cleared (NaN stays NaN).
+inline Float4 abs4(Float4 a) { return {_mm_andnot_ps(_mm_set1_ps(-0.0f), a.v)}; }
 // Lane mask (bit k = lane k) of the lanes holding NaN.
 inline unsigned nan_lanes(Float4 a) { return unsigned(_mm_movemask_ps(_mm_cmpunord_ps(a.v, a.v))); }
 // Lane mask of the lanes where a <= b (false where either is NaN).
@@ -80,6 +82,9 @@ inline Float4 operator+(Float4 a, Float4 b) { CLASTRACE_LANES(a.v[k] + b.v[k]); 
 inline Float4 operator-(Float4 a, Float4 b) { CLASTRACE_LANES(a.v[k] - b.v[k]); }
 inline Float4 operator*(Float4 a, Float4 b) { CLASTRACE_LANES(a.v[k] * b.v[k]); }
 inline Float4 operator/(Float4 a, Float4 b) { CLASTRACE_LANES(a.v[k] / b.v[k]); }
+inline Float4 abs4(Float4 a) {
+    CLASTRACE_LANES(a.v[k] < 0.0f ? -a.v[k] : a.v[k] == 0.0f ? 0.0f : a.v[k]);
+}
 #undef CLASTRACE_LANES
 inline unsigned nan_lanes(Float4 a) {
     unsigned m = 0;

@@ -18,6 +18,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -584,6 +585,52 @@ TEST(NvWideTraversal, ADeepTreeSpillsTheStackAndLosesNoLeaf) {
         for (uint32_t k = 0; k <= kLevels; ++k)
             ASSERT_EQ(seen[k], 1) << "record " << k << ", path " << int(path);
     }
+}
+
+// The wide walk's stack (BurstStack) against a plain vector: random bursts of pushes (room
+// made once per burst, some written in place and grown) and pops through a fixed part of 16,
+// so that the older half spills to the vector and comes back many times; every pop must give
+// what the vector gives, in order.
+TEST(NvWideTraversal, TheBurstStackPopsWhatAVectorPops) {
+    using Stack = eng::BurstStack<uint32_t, 16, 8>;
+    uint32_t entries[Stack::kSize];
+    std::vector<uint32_t> overflow, model;
+    Stack stack(entries, &overflow);
+    std::mt19937 rng(7);
+    uint32_t next = 0;
+    size_t spilled_at_most = 0;
+    for (int step = 0; step < 20000; ++step) {
+        if (rng() % 2 == 0) {
+            stack.make_room();
+            const uint32_t burst = 1 + rng() % 8;
+            if (rng() % 2 == 0) {
+                for (uint32_t k = 0; k < burst; ++k) stack.push(next++);
+            } else {
+                for (uint32_t k = 0; k < burst; ++k) stack.top()[k] = next++;
+                stack.grow(burst);
+            }
+            for (uint32_t k = burst; k > 0; --k) model.push_back(next - k);
+        } else {
+            const uint32_t pops = 1 + rng() % 8;
+            for (uint32_t k = 0; k < pops; ++k) {
+                uint32_t e = 0;
+                const bool popped = stack.pop(&e);
+                ASSERT_EQ(popped, !model.empty()) << "step " << step;
+                if (!popped) break;
+                ASSERT_EQ(e, model.back()) << "step " << step;
+                model.pop_back();
+            }
+        }
+        spilled_at_most = std::max(spilled_at_most, overflow.size());
+    }
+    EXPECT_GE(spilled_at_most, 64u);  // the spill and refill paths ran, several halves deep
+    uint32_t e = 0;
+    while (!model.empty()) {
+        ASSERT_TRUE(stack.pop(&e));
+        ASSERT_EQ(e, model.back());
+        model.pop_back();
+    }
+    EXPECT_FALSE(stack.pop(&e));
 }
 
 }  // namespace

@@ -56,18 +56,33 @@ inline bool float_det_front(float det) { return det > 0.0f; }
 // a triangle 4e4 away however small it is); each edge function multiplies two sheared
 // coordinates (largest `sheared`), so it is off by about 6u * unsheared * sheared + 2u *
 // sheared^2, and u = V / det by four times that over |det|. Rounded up: 16 float epsilons.
+// (Chains of two-operand maxima, unrolled: the initializer-list form compiled to a loop over a
+// copy in memory, about 60 instructions a hit.)
 inline double barycentric_float_error(const double a[3], const double b[3], const double c[3],
                                       double sheared, double det) {
     double unsheared = 0.0;
+#pragma GCC unroll 3
     for (int k = 0; k < 3; ++k)
-        unsheared = std::max({unsheared, std::fabs(a[k]), std::fabs(b[k]), std::fabs(c[k])});
+        unsheared = std::max(std::max(std::max(unsheared, std::fabs(a[k])), std::fabs(b[k])),
+                             std::fabs(c[k]));
     const double eps = std::numeric_limits<float>::epsilon();
     return 16.0 * eps * (unsheared * sheared + sheared * sheared) / std::fabs(det);
+}
+
+// The largest |x| of six sheared coordinates, as std::max({|ax|, ...}) gives it (the same
+// two-operand maxima in the same order, without the initializer list's copy).
+inline double largest_magnitude(double ax, double ay, double bx, double by, double cx, double cy) {
+    return std::max(std::max(std::max(std::max(std::max(std::fabs(ax), std::fabs(ay)),
+                                               std::fabs(bx)),
+                                      std::fabs(by)),
+                             std::fabs(cx)),
+                    std::fabs(cy));
 }
 
 inline bool intersect_triangle_double(const PreparedRay& r, const float* p0, const float* p1,
                                       const float* p2, double tmax, TriangleHit* hit) {
     double a[3], b[3], c[3];
+#pragma GCC unroll 3
     for (int k = 0; k < 3; ++k) {
         a[k] = double(p0[k]) - r.o[k];
         b[k] = double(p1[k]) - r.o[k];
@@ -86,10 +101,8 @@ inline bool intersect_triangle_double(const PreparedRay& r, const float* p0, con
     hit->t = t;
     hit->u = v / det;
     hit->v = w / det;
-    hit->uv_error = barycentric_float_error(a, b, c,
-                                            std::max({std::fabs(ax), std::fabs(ay), std::fabs(bx),
-                                                      std::fabs(by), std::fabs(cx), std::fabs(cy)}),
-                                            det);
+    hit->uv_error =
+        barycentric_float_error(a, b, c, largest_magnitude(ax, ay, bx, by, cx, cy), det);
     hit->front = front_facing(r.d, p0, p1, p2);
     return true;
 }
@@ -130,10 +143,8 @@ inline bool intersect_triangle_float32(const PreparedRay& r, const float* p0, co
     hit->u = v * rcp_det;
     hit->v = w * rcp_det;
     const double da[3] = {a[0], a[1], a[2]}, db[3] = {b[0], b[1], b[2]}, dc[3] = {c[0], c[1], c[2]};
-    hit->uv_error = barycentric_float_error(da, db, dc,
-                                            std::max({std::fabs(ax), std::fabs(ay), std::fabs(bx),
-                                                      std::fabs(by), std::fabs(cx), std::fabs(cy)}),
-                                            det);
+    hit->uv_error =
+        barycentric_float_error(da, db, dc, largest_magnitude(ax, ay, bx, by, cx, cy), det);
     hit->front = float_det_front(det);
     return true;
 }

@@ -110,10 +110,8 @@ inline detail::Float4 edge_error(const Triangle4Ray& r, detail::Float4 m, detail
 
 namespace detail4 {
 
+using detail::abs4;
 using detail::Float4;
-
-// |a| as max(a, -a).
-inline Float4 abs4(Float4 a) { return detail::max4(a, detail::splat(0.0f) - a); }
 
 // The lanes whose hit lies surely beyond `tmax` (>= 0; float, at or above the exact test's):
 // t = T / det with T = u za + v zb + w zc (z = sz a_kz, the test's scaled distances) and
@@ -175,8 +173,8 @@ inline unsigned group_lanes(uint32_t g, uint32_t count) {
         x[j] = ax - r.sx * az;
         y[j] = ay - r.sy * az;
         z[j] = r.sz * az;
-        m = detail::max4(m, detail::max4(detail4::abs4(ax), detail4::abs4(ay)));
-        m = detail::max4(m, detail4::abs4(az));
+        m = detail::max4(m, detail::max4(detail::abs4(ax), detail::abs4(ay)));
+        m = detail::max4(m, detail::abs4(az));
     }
     const unsigned in_range = detail::le_lanes(m, detail::splat(kTriangle4LargestCoordinate)) &
                               detail::le_lanes(detail::splat(kTriangle4SmallestCoordinate), m);
@@ -187,13 +185,14 @@ inline unsigned group_lanes(uint32_t g, uint32_t count) {
     Float4 ms = detail::splat(0.0f);
 #pragma GCC unroll 3
     for (int j = 0; j < 3; ++j)
-        ms = detail::max4(ms, detail::max4(detail4::abs4(x[j]), detail4::abs4(y[j])));
+        ms = detail::max4(ms, detail::max4(detail::abs4(x[j]), detail::abs4(y[j])));
     const Float4 err = edge_error(r, m, ms);
     const Float4 neg_err = detail::splat(0.0f) - err;
-    const unsigned below =
-        detail::le_lanes(u, neg_err) | detail::le_lanes(v, neg_err) | detail::le_lanes(w, neg_err);
-    const unsigned above =
-        detail::le_lanes(err, u) | detail::le_lanes(err, v) | detail::le_lanes(err, w);
+    // One edge function at or below -err and one at or above err, through the least and the
+    // greatest of the three (a NaN among them may hide a lane's other two: it keeps the lane,
+    // which only costs the exact test).
+    const unsigned below = detail::le_lanes(detail::min4(detail::min4(u, v), w), neg_err);
+    const unsigned above = detail::le_lanes(err, detail::max4(detail::max4(u, v), w));
     unsigned missed = below & above;
     // A non-negative finite tmax (NaN and infinity fail this) also drops sure hits beyond it,
     // where a lane is left to decide.
