@@ -24,7 +24,7 @@ struct Recorder {
     int64_t op_index = -1;
 
     void access(uint64_t begin, uint64_t size, VkAccessFlags2 access, bool is_write,
-                std::string field);
+                FieldName field);
     void finding(const char* rule, std::string message, uint64_t address = 0);
     void fault(const MemoryFault& f);
 };

@@ -15,7 +15,7 @@
 namespace clastrace::engine::detail {
 
 void Recorder::access(uint64_t begin, uint64_t size, VkAccessFlags2 access, bool is_write,
-                      std::string field) {
+                      FieldName field) {
     if (size == 0) return;
     uint64_t end = begin + size;
     if (end < begin) end = UINT64_MAX;
@@ -51,16 +51,12 @@ uint64_t index_size(uint32_t index_type) {
     }
 }
 
-// "srcInfosArray[i]" or "srcInfosArray[i].member" in one allocation: every op names several.
-std::string field(uint32_t i, const char* member = nullptr) {
-    constexpr std::string_view kArray = "srcInfosArray[";
-    char digits[10];
-    const char* digits_end = std::to_chars(digits, digits + sizeof digits, i).ptr;
-    std::string s;
-    s.reserve(kArray.size() + size_t(digits_end - digits) + 2 + (member ? std::strlen(member) : 0));
-    s.append(kArray).append(digits, size_t(digits_end - digits)).push_back(']');
-    if (member) s.append(".").append(member);
-    return s;
+// "srcInfosArray[i]" or "srcInfosArray[i].member", kept inline: every op names several.
+FieldName field(uint32_t i, const char* member = nullptr) {
+    FieldName name("srcInfosArray[");
+    name.append_number(i).append("]");
+    if (member) name.append(".").append(member);
+    return name;
 }
 
 // Names the field only when it records it: most ops leave the optional buffers 0.
@@ -108,8 +104,8 @@ void record_cluster_reads(Recorder& rec, uint32_t i,
         uint64_t begin = ranges[k].first, end = ranges[k].second;
         size_t first = k;
         while (++k < ranges.size() && ranges[k].first <= end) end = std::max(end, ranges[k].second);
-        std::string name = field(i, "clusterReferences[*]");
-        name += k - first == 1 ? " (1 CLAS)" : " (" + std::to_string(k - first) + " CLAS)";
+        FieldName name = field(i, "clusterReferences[*]");
+        name.append(" (").append_number(k - first).append(" CLAS)");
         rec.access(begin, end - begin, kAccessObjectRead, false, std::move(name));
     }
 }
@@ -117,7 +113,7 @@ void record_cluster_reads(Recorder& rec, uint32_t i,
 void run_bottom_level(const ResolvedCommand& cmd, const MemoryImage& memory, uint32_t i,
                       uint64_t info_address, OpOutput& out) {
     Recorder& rec = out.rec;
-    std::string f = field(i);
+    FieldName f = field(i);
     auto info =
         memory.read<VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV>(info_address,
                                                                                   {f.c_str(), i});
@@ -140,7 +136,7 @@ void run_bottom_level(const ResolvedCommand& cmd, const MemoryImage& memory, uin
                 std::to_string(i) + ")");
         return;
     }
-    std::string refs_field = field(i, "clusterReferences");
+    FieldName refs_field = field(i, "clusterReferences");
     std::span<const std::byte> refs;
     try {
         refs = memory.read_array(info.clusterReferences, info.clusterReferencesCount,
@@ -211,7 +207,7 @@ void run_bottom_level(const ResolvedCommand& cmd, const MemoryImage& memory, uin
 void run_move(const ResolvedCommand& cmd, const MemoryImage& memory, uint32_t i,
               uint64_t info_address, OpOutput& out) {
     Recorder& rec = out.rec;
-    std::string f = field(i, "srcAccelerationStructure");
+    FieldName f = field(i, "srcAccelerationStructure");
     auto info =
         memory.read<VkClusterAccelerationStructureMoveObjectsInfoNV>(info_address, {f.c_str(), i});
     const auto& in = *cmd.input->opInput.pMoveObjects;
@@ -244,7 +240,7 @@ void run_move(const ResolvedCommand& cmd, const MemoryImage& memory, uint32_t i,
 
 // `f`: field(i), which run_op has named already.
 void run_cluster_op(const ResolvedCommand& cmd, const MemoryImage& memory, uint32_t i,
-                    const std::string& f, uint64_t info_address, ClusterBuilder& builder,
+                    const FieldName& f, uint64_t info_address, ClusterBuilder& builder,
                     OpOutput& out) {
     Recorder& rec = out.rec;
     const auto& in = *cmd.input->opInput.pTriangleClusters;
@@ -279,7 +275,7 @@ void run_cluster_op(const ResolvedCommand& cmd, const MemoryImage& memory, uint3
         auto info =
             memory.read<VkClusterAccelerationStructureInstantiateClusterInfoNV>(info_address,
                                                                                 where);
-        std::string tf = field(i, "clusterTemplateAddress");
+        FieldName tf = field(i, "clusterTemplateAddress");
         ObjectLookup tmpl =
             cmd.directory->lookup(memory, info.clusterTemplateAddress,
                                   ObjectType::kTriangleClusterTemplate, false, {tf.c_str(), i});
@@ -304,7 +300,7 @@ void run_cluster_op(const ResolvedCommand& cmd, const MemoryImage& memory, uint3
         auto info =
             memory.read<VkClusterAccelerationStructureGetTemplateIndicesInfoNV>(info_address,
                                                                                 where);
-        std::string tf = field(i, "clusterTemplateAddress");
+        FieldName tf = field(i, "clusterTemplateAddress");
         ObjectLookup tmpl =
             cmd.directory->lookup(memory, info.clusterTemplateAddress,
                                   ObjectType::kTriangleClusterTemplate, false, {tf.c_str(), i});
@@ -334,7 +330,7 @@ void run_op(const ResolvedCommand& cmd, const MemoryImage& memory, uint32_t i,
     // An op records its info, its inputs and its destination entries (about 6 ranges): room
     // for them at once instead of the vector's 1, 2, 4, 8 growth.
     out.rec.accesses.reserve(kAccessesPerOp);
-    std::string f = field(i);
+    FieldName f = field(i);
     try {
         uint64_t info_address =
             MemoryImage::strided_address(cmd.src_infos, i, cmd.info_size, {f.c_str(), i});
@@ -350,12 +346,14 @@ void run_op(const ResolvedCommand& cmd, const MemoryImage& memory, uint32_t i,
         }
         if (out.ok &&
             cmd.op_mode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV) {
-            std::string df = "dstAddressesArray[" + std::to_string(i) + "]";
+            FieldName df("dstAddressesArray[");
+            df.append_number(i).append("]");
             uint64_t a = MemoryImage::strided_address(cmd.dst_addresses, i, 8, {df.c_str(), i});
             out.explicit_dst = memory.read<uint64_t>(a, {df.c_str(), i});
             out.rec.access(a, 8, kAccessObjectWrite, false, df);
             if (cmd.dst_sizes.deviceAddress != 0) {
-                std::string sf = "dstSizesArray[" + std::to_string(i) + "]";
+                FieldName sf("dstSizesArray[");
+                sf.append_number(i).append("]");
                 uint64_t s = MemoryImage::strided_address(cmd.dst_sizes, i, 4, {sf.c_str(), i});
                 uint32_t given = memory.read<uint32_t>(s, {sf.c_str(), i});
                 out.rec.access(s, 4, kAccessObjectWrite, false, sf);

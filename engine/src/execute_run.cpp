@@ -57,13 +57,13 @@ void write_object(CommandState& s, OpOutput& out, uint32_t i, uint64_t dst, OpRe
     // zero-fills the rest: the command then defines every byte of the room, so a capture's
     // output snapshot of it replays without the memory's older contents.
     const uint64_t size = s.implicit ? implicit_room(s, out.bytes.size()) : out.bytes.size();
-    std::string where = s.implicit ? "dstImplicitData[op " + std::to_string(i) + "]"
-                                   : "*dstAddressesArray[" + std::to_string(i) + "]";
+    FieldName where(s.implicit ? "dstImplicitData[op " : "*dstAddressesArray[");
+    where.append_number(i).append("]");
     try {
         auto span = s.memory.write_bytes(dst, size, {where.c_str(), i});
         std::fill(std::copy(out.bytes.begin(), out.bytes.end(), span.begin()), span.end(),
                   std::byte{0});
-        out.rec.access(dst, size, kAccessObjectWrite, true, where);
+        out.rec.access(dst, size, kAccessObjectWrite, true, std::move(where));
         result.dst_address = dst;
         s.written.push_back({dst, dst + size, i});
         built.push_back({dst, &out});
@@ -79,13 +79,15 @@ void write_result_arrays(CommandState& s, OpOutput& out, uint32_t i, uint64_t si
     const ResolvedCommand& cmd = s.cmd;
     try {
         if (s.implicit && cmd.dst_addresses.deviceAddress != 0) {
-            std::string f = "dstAddressesArray[" + std::to_string(i) + "]";
+            FieldName f("dstAddressesArray[");
+            f.append_number(i).append("]");
             uint64_t a = MemoryImage::strided_address(cmd.dst_addresses, i, 8, {f.c_str(), i});
             s.memory.write<uint64_t>(a, result.dst_address, {f.c_str(), i});
             out.rec.access(a, 8, kAccessObjectWrite, true, f);
         }
         if ((s.implicit || s.sizes_only) && cmd.dst_sizes.deviceAddress != 0) {
-            std::string f = "dstSizesArray[" + std::to_string(i) + "]";
+            FieldName f("dstSizesArray[");
+            f.append_number(i).append("]");
             uint64_t a = MemoryImage::strided_address(cmd.dst_sizes, i, 4, {f.c_str(), i});
             const uint64_t taken = s.implicit ? implicit_room(s, size) : size;
             uint32_t written_size =

@@ -310,9 +310,7 @@ void check_instances_against_dsts(const KhrBuildCommand& command, ExecutionRecor
     const std::string reference = "].accelerationStructureReference";
     const std::vector<MemoryAccess> accesses = record.accesses;
     for (const MemoryAccess& a : accesses) {
-        if (a.field.size() < reference.size() ||
-            a.field.compare(a.field.size() - reference.size(), reference.size(), reference) != 0)
-            continue;
+        if (!a.field.ends_with(reference)) continue;
         for (size_t i = 0; i < command.infos.size(); ++i) {
             const KhrObject& dst = command.infos[i].dst;
             if (int64_t(i) == a.op_index) continue;

@@ -150,7 +150,7 @@ std::string field_at(const engine::ExecutionRecord& record, uint64_t address, in
     for (const engine::MemoryAccess& a : record.accesses) {
         if (a.is_write && address >= a.begin && address < a.end) {
             *op = a.op_index;
-            return a.field;
+            return a.field.str();
         }
     }
     *op = -1;

@@ -166,7 +166,7 @@ private:
     std::map<uint64_t, SparsePage> sparse_pages_;  // begin address -> bound part, disjoint
     uint64_t next_private_ = kPrivateBase;
     uint64_t aliased_buffers_ = 0;
-    std::map<uint64_t, uint64_t> engine_objects_;      // begin -> end, disjoint
+    std::map<uint64_t, uint64_t> engine_objects_;      // begin -> end, disjoint, merged
     std::map<uint64_t, uint64_t> driver_bvh_;          // begin -> end, disjoint
     std::map<uint64_t, uint64_t> cluster_blas_spans_;  // begin -> end, disjoint
     uint64_t budget_;

@@ -181,7 +181,7 @@ TEST(Execute, ComputeSizesWritesSizesAndScratchOnly) {
     }
     for (const auto& a : r.accesses)
         if (a.is_write) {
-            EXPECT_TRUE(a.field.rfind("dstSizesArray", 0) == 0 || a.field == "scratchData")
+            EXPECT_TRUE(a.field.starts_with("dstSizesArray") || a.field == "scratchData")
                 << a.field;
         }
 }

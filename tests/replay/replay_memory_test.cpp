@@ -12,6 +12,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <string>
 #include <tuple>
@@ -62,8 +63,9 @@ TEST(ReplayMemory, DestroyedBufferGivesItsRegionAndPagesBack) {
 }
 
 // Marking engine objects over the objects of an earlier build (shifted, split, covered, met at
-// one end) keeps exactly the bytes a per-byte reference says the engine wrote: each snapshot
-// laid in afterwards changes every other byte and none of those.
+// one end), with plain writes cutting them now and then, keeps exactly the bytes a per-byte
+// reference says the engine wrote: each snapshot laid in afterwards changes every other byte
+// and none of those.
 TEST(ReplayMemory, MarkedEngineObjectsMatchAPerByteReference) {
     constexpr uint64_t kBase = 0x100000000ull, kSpan = 4096;
     detail::ReplayMemory m;
@@ -82,6 +84,15 @@ TEST(ReplayMemory, MarkedEngineObjectsMatchAPerByteReference) {
         const uint64_t end = std::min(kSpan, begin + size);
         m.mark_engine_object({kBase + begin, kBase + end});
         for (uint64_t b = begin; b < end; ++b) engine_byte[b] = true;
+        if (round % 7 == 6) {  // a plain write ends the engine's ownership of what it covers
+            const uint64_t at = next(kSpan - 1), n = std::min(kSpan - at, 1 + next(200));
+            const uint8_t value = uint8_t(0xA0 + round % 16);
+            ASSERT_TRUE(m.write(kBase + at, std::vector<uint8_t>(n, value)));
+            for (uint64_t b = at; b < at + n; ++b) {
+                engine_byte[b] = false;
+                expected[b] = value;
+            }
+        }
         if (round % 25 != 24) continue;
         const uint8_t value = uint8_t(round / 25);
         ASSERT_TRUE(m.lay_in(kBase, std::vector<uint8_t>(kSpan, value)));

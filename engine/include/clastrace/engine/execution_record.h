@@ -19,6 +19,7 @@
 // for every access to them, so those reads carry AS_WRITE with is_write = false.
 #pragma once
 
+#include "clastrace/engine/field_name.h"
 #include "clastrace/engine/finding.h"
 #include "clastrace/vk_cluster_abi.h"
 
@@ -45,7 +46,7 @@ struct MemoryAccess {
     VkPipelineStageFlags2 stage = kStageBuild;
     VkAccessFlags2 access = 0;
     bool is_write = false;
-    std::string field;      // "srcInfosArray[3].vertexBuffer", "scratchData", ...
+    FieldName field;        // "srcInfosArray[3].vertexBuffer", "scratchData", ...
     int64_t op_index = -1;  // -1: the command as a whole (srcInfosCount, scratch, indirections)
 };
 
