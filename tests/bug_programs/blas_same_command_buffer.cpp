@@ -2,7 +2,9 @@
 // Bug: the bottom level over the clusters is built right after the cluster build in the same
 // command buffer with no barrier: it reads the CLAS addresses (its clusterReferences are the
 // cluster build's dstAddressesArray) and the CLAS objects before they are visible. --fixed
-// records BUILD/AS_WRITE -> BUILD/AS_READ between them.
+// records BUILD/AS_WRITE -> BUILD/(AS_READ | SHADER_READ) between them: AS_READ for the CLAS
+// objects, SHADER_READ for the reference array, a buffer the build reads as it reads vertices
+// (docs/replay.md, "Programs written apart": AS_READ alone leaves that read unordered).
 #include "bug_gpu.h"
 
 using namespace bug_programs;
@@ -23,7 +25,8 @@ int main(int argc, char** argv) {
         memory_barrier(cb, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
                        VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
                        VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
-                       VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR);
+                       VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR |
+                           VK_ACCESS_2_SHADER_READ_BIT);
     gpu.cmd_build_clusters(cb, &blas.info);
     gpu.submit_and_wait(cb);
     print_range("clas_addresses", clas.addresses.address, clas.addresses.size);
