@@ -173,6 +173,19 @@ TEST_F(BugPrograms, CopiedInfosWithoutBarrierAreReadAfterWrite) {
               "VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR");
 }
 
+TEST_F(BugPrograms, CopiedInfosBehindShaderReadBufferBarrierAreReadAfterWrite) {
+    CAPTURE_AND_REPLAY(r, "copy_infos_no_barrier", "--shader-read-barrier");
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    ASSERT_EQ(r.hazards().size(), 1u) << r.describe();
+    const json& h = r.hazards().at(0);
+    EXPECT_EQ(h.at("class"), "READ-AFTER-WRITE");
+    expect_side(h.at("prior"), "vkCmdCopyBuffer", 0, 0, "pRegions[0]", true);
+    expect_side(h.at("later"), kClusterBuild, 0, 2, "srcInfosArray", false);
+    EXPECT_EQ(h.at("later").at("access"), "INDIRECT_COMMAND_READ");
+    expect_equal(range_of(h.at("overlap")), r.range("infos"));
+    EXPECT_EQ(h.at("fix").at("dstAccessMask"), "VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT");
+}
+
 TEST_F(BugPrograms, CopiedInfosWithBarrierAreClean) {
     CAPTURE_AND_REPLAY(r, "copy_infos_no_barrier", "--fixed");
     expect_clean(r);
@@ -324,6 +337,25 @@ TEST_F(BugPrograms, MisalignedExplicitDestinationIsFoundAtItsOp) {
     CAPTURE_AND_REPLAY(r, "memory_rules", "misaligned-dst");
     EXPECT_EQ(r.findings().size(), 1u) << r.describe();
     if (const json* f = only_finding(r, "CLASTRACE-destination-misaligned", 1)) {
+        EXPECT_EQ(parse_address(f->at("address")), r.range("destination1").begin);
+    }
+}
+
+TEST_F(BugPrograms, OverlappingExplicitDestinationsAreFound) {
+    CAPTURE_AND_REPLAY(r, "memory_rules", "overlapping-dst");
+    EXPECT_EQ(r.findings().size(), 1u) << r.describe();
+    if (const json* f = only_finding(
+            r, "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-dstAddressesArray-12302",
+            -1)) {
+        EXPECT_EQ(parse_address(f->at("address")), r.range("destination1").begin);
+        EXPECT_NE(f->at("message").get<std::string>().find("op 1's object"), std::string::npos);
+    }
+}
+
+TEST_F(BugPrograms, ExplicitDestinationSmallerThanItsObjectIsFoundAtItsOp) {
+    CAPTURE_AND_REPLAY(r, "memory_rules", "dst-too-small");
+    EXPECT_EQ(r.findings().size(), 1u) << r.describe();
+    if (const json* f = only_finding(r, "CLASTRACE-explicit-destination-smaller-than-object", 1)) {
         EXPECT_EQ(parse_address(f->at("address")), r.range("destination1").begin);
     }
 }

@@ -5,6 +5,9 @@
 //   too-many-triangles  cluster 0 says 3 triangles where the input's maxClusterTriangleCount is 2
 //   count-above-max     srcInfosCount holds 5 where maxAccelerationStructureCount is 4
 //   misaligned-dst      explicit destinations, the second one 16 bytes past the alignment
+//   overlapping-dst     explicit destinations, the second one 128 bytes into the first
+//   dst-too-small       explicit destinations with dstSizesArray, the second size 128 bytes
+//   aligned-dst         (no bug) explicit destinations, each in a slot of its own
 #include "bug_gpu.h"
 
 #include <string>
@@ -28,7 +31,8 @@ int main(int argc, char** argv) {
     } else if (bug == "count-above-max") {
         const uint32_t five = 5;
         std::memcpy(clas.count.host, &five, sizeof five);
-    } else if (bug == "misaligned-dst" || bug == "aligned-dst") {
+    } else if (bug == "misaligned-dst" || bug == "overlapping-dst" || bug == "dst-too-small" ||
+               bug == "aligned-dst") {
         // Explicit mode: the application places every CLAS itself, each in a slot as large as
         // the driver's answer for the whole input (more than one cluster needs).
         clas.info.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
@@ -41,6 +45,16 @@ int main(int argc, char** argv) {
         auto* destinations = reinterpret_cast<VkDeviceAddress*>(clas.addresses.host);
         for (uint32_t c = 0; c < quads.count; ++c) destinations[c] = base + c * one;
         if (bug == "misaligned-dst") destinations[1] += 16;
+        if (bug == "overlapping-dst") destinations[1] = destinations[0] + alignment;
+        if (bug == "dst-too-small") {
+            // The sizes the application believes each slot holds (what the driver reads).
+            Buffer sizes = gpu.buffer(sizeof(uint32_t) * quads.count);
+            auto* size = reinterpret_cast<uint32_t*>(sizes.host);
+            for (uint32_t c = 0; c < quads.count; ++c) size[c] = uint32_t(one);
+            size[1] = 128;
+            clas.info.dstSizesArray = {sizes.address, sizeof(uint32_t),
+                                       sizeof(uint32_t) * quads.count};
+        }
     } else if (!bug.empty()) {
         die("unknown bug name");
     }
