@@ -58,6 +58,7 @@ struct Gpu {
     VkPhysicalDeviceClusterAccelerationStructurePropertiesNV cluster_props{};
     PFN_vkCmdBuildClusterAccelerationStructureIndirectNV cmd_build_clusters = nullptr;
     PFN_vkGetClusterAccelerationStructureBuildSizesNV get_cluster_sizes = nullptr;
+    bool khr_structures = false;  // VK_KHR_acceleration_structure enabled
     std::vector<Buffer> buffers;
 
     ~Gpu() {
@@ -222,6 +223,7 @@ inline void open(Gpu& gpu, const char* application) {
         extensions.push_back(VK_KHR_DEFERRED_HOST_OPERATIONS_EXTENSION_NAME);
         structures.accelerationStructure = VK_TRUE;
         clusters.pNext = &structures;
+        gpu.khr_structures = true;
     }
     VkDeviceCreateInfo device_info{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO, &v13};
     device_info.queueCreateInfoCount = 1;

@@ -293,6 +293,28 @@ TEST_F(BugPrograms, EventWithCopySourceStageIsClean) {
     expect_clean(r);
 }
 
+// Needs VK_KHR_acceleration_structure (lavapipe 25): skips on drivers without it.
+TEST_F(BugPrograms, KhrTopLevelRightAfterItsBottomLevelIsReadAfterWrite) {
+    CAPTURE_AND_REPLAY(r, "khr_tlas_without_barrier");
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    ASSERT_EQ(r.hazards().size(), 1u) << r.describe();
+    const json& h = r.hazards().at(0);
+    EXPECT_EQ(h.at("class"), "READ-AFTER-WRITE");
+    const std::string build = "vkCmdBuildAccelerationStructuresKHR";
+    expect_side(h.at("prior"), build, 0, 0, "pInfos[0].dstAccelerationStructure", true);
+    expect_side(
+        h.at("later"), build, 0, 1,
+        "pInfos[0].pGeometries[0].geometry.instances.data[0].accelerationStructureReference",
+        false);
+    EXPECT_EQ(h.at("later").at("access"), "ACCELERATION_STRUCTURE_READ");
+    expect_equal(range_of(h.at("overlap")), r.range("bottom_level"));
+}
+
+TEST_F(BugPrograms, KhrTopLevelAfterBarrierIsClean) {
+    CAPTURE_AND_REPLAY(r, "khr_tlas_without_barrier", "--fixed");
+    expect_clean(r);
+}
+
 // The single finding of rule `rule` at op `op` (-1: the command) of the one build.
 const json* only_finding(const Replayed& r, const std::string& rule, int op) {
     EXPECT_TRUE(r.hazards().empty()) << r.describe();
