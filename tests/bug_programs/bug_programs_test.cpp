@@ -236,6 +236,11 @@ TEST_F(BugPrograms, BottomLevelAfterBarrierIsClean) {
     expect_clean(r);
 }
 
+TEST_F(BugPrograms, BottomLevelAfterIndirectReadBarrierIsClean) {
+    CAPTURE_AND_REPLAY(r, "blas_same_command_buffer", "--fixed-indirect");
+    expect_clean(r);
+}
+
 TEST_F(BugPrograms, BottomLevelInNextSubmissionReadsUnorderedAddressesAndObjects) {
     CAPTURE_AND_REPLAY(r, "blas_next_submission");
     EXPECT_TRUE(r.findings().empty()) << r.describe();

@@ -1,8 +1,12 @@
 // SPDX-License-Identifier: Apache-2.0
-// Replay names a command by its index among the commands the application recorded: the
-// GpuTimestamp records the capture layer writes around the commands it captures (every
-// bug_programs trace has them) do not shift it. The bug programs' end-to-end test asserts the
-// same on real captures; this one pins it on a hand-written trace.
+// The two replay fixes the bug programs asked for, pinned on hand-written traces (the programs'
+// end-to-end test asserts them on real captures):
+// - replay names a command by its index among the commands the application recorded: the
+//   GpuTimestamp records the capture layer writes around the commands it captures do not
+//   shift it;
+// - a cluster build's read of a buffer its src infos point at (vertices, indices, cluster
+//   references) is ordered by a barrier naming SHADER_READ or INDIRECT_COMMAND_READ, the two
+//   readings of the command's page; a barrier naming neither leaves it unordered.
 #include "catalogue_replay.h"
 
 #include <clastrace/replay/replayer.h>
@@ -46,6 +50,41 @@ TEST(CommandIndex, TheLayersTimestampsDoNotCountAsCommands) {
     EXPECT_NE(h.format().find("(queue 0, submit 0, cb 0, cmd 1) reads srcInfosArray"),
               std::string::npos)
         << h.format();
+}
+
+// The vertices written by a copy, then a barrier to the build naming `dst_access`, then the
+// build that reads them.
+replay::ReplayReport vertices_copied_then_barrier(const std::string& name, uint64_t dst_access) {
+    return replay_catalogue_scene(temp_trace_path("bug_programs", name), [&](TraceScript& t) {
+        t.copy(kStagingBuffer, 0, kGeometryBuffer, 0, 0x300,
+               {{kStaging, std::vector<uint8_t>(0x300, 0)}});
+        t.barrier(VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
+                  VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, dst_access);
+        triangle_clusters(Destinations::kImplicit).emit(t);
+    });
+}
+
+TEST(PointedInputs, ABarrierNamingShaderReadOrdersTheVertexReads) {
+    const auto r = vertices_copied_then_barrier("shader_read.clt", VK_ACCESS_2_SHADER_READ_BIT);
+    EXPECT_TRUE(r.hazards.empty()) << replay::format_text(r);
+}
+
+TEST(PointedInputs, ABarrierNamingIndirectCommandReadOrdersTheVertexReads) {
+    const auto r =
+        vertices_copied_then_barrier("indirect_read.clt", VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
+    EXPECT_TRUE(r.hazards.empty()) << replay::format_text(r);
+}
+
+TEST(PointedInputs, ABarrierNamingAccelerationStructureReadDoesNot) {
+    const auto r = vertices_copied_then_barrier("as_read.clt",
+                                                VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR);
+    ASSERT_EQ(r.hazards.size(), 1u) << replay::format_text(r);
+    const replay::HazardReport& h = r.hazards[0];
+    EXPECT_EQ(h.hazard, replay::HazardClass::kReadAfterWrite);
+    EXPECT_EQ(h.later.field.rfind("srcInfosArray[", 0), 0u) << h.later.field;
+    EXPECT_NE(h.later.field.find("vertexBuffer"), std::string::npos) << h.later.field;
+    EXPECT_EQ(h.fix.dst_access,
+              VK_ACCESS_2_SHADER_READ_BIT | VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
 }
 
 }  // namespace
