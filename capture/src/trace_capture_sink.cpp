@@ -772,12 +772,14 @@ private:
         for (const auto& cb : p.command_buffers) {
             // A secondary's block goes before its primary's, once per execution, so every recording
             // is in the trace before the QueueSubmit that runs it (format 1.2).
-            for (size_t index = 0; index < cb->commands.size(); ++index)
-                if (const auto* execute = std::get_if<ExecuteCommandsCommand>(&cb->commands[index]))
+            uint32_t position = 0;  // the application's index: the layer's timestamps don't count
+            for (const RecordedCommand& command : cb->commands) {
+                if (const auto* execute = std::get_if<ExecuteCommandsCommand>(&command))
                     for (uint64_t secondary : execute->secondaries)
                         if (auto it = p.secondaries.find(secondary); it != p.secondaries.end())
-                            write_command_buffer(e, *it->second,
-                                                 {cb->command_buffer, uint32_t(index)});
+                            write_command_buffer(e, *it->second, {cb->command_buffer, position});
+                position += !std::holds_alternative<TimestampWriteCommand>(command);
+            }
             write_command_buffer(e, *cb, {});
         }
         std::vector<fbs::CaptureFindingT>& findings = e.findings;
@@ -826,8 +828,10 @@ private:
             f.execute_command_index = site.execute_index;
             e.findings.push_back(std::move(f));
         };
-        for (size_t index = 0; index < cb.commands.size(); ++index) {
-            const RecordedCommand& command = cb.commands[index];
+        // Commands are named by their index among the application's commands: the timestamps
+        // the layer wrote around them don't count (the application never recorded them).
+        size_t index = 0;
+        for (const RecordedCommand& command : cb.commands) {
             if (const auto* t = std::get_if<TimestampWriteCommand>(&command)) {
                 fbs::GpuTimestampT r;
                 r.command_buffer = cb.command_buffer;
@@ -846,6 +850,7 @@ private:
                 r.command_buffer = cb.command_buffer;
                 r.secondaries = execute->secondaries;
                 write_record(record_of(std::move(r)));
+                ++index;
                 continue;
             }
             const ClusterBuildCapture* captured = nullptr;
@@ -868,6 +873,7 @@ private:
                 finding(uncaptured_command_finding(cb.command_buffer, index));
             }
             write_command(cb.command_buffer, command, captured);
+            ++index;
         }
         fbs::CommandBufferEndT end;
         end.command_buffer = cb.command_buffer;

@@ -64,7 +64,7 @@ void record_buffer(Recorder& rec, uint64_t address, uint64_t count, uint64_t str
                    uint64_t element, uint32_t i, const char* member) {
     if (address == 0 || count == 0 || element == 0) return;
     if (auto n = strided_span(count, stride, element))
-        rec.access(address, *n, kAccessInputBuffer, false, field(i, member));
+        rec.access(address, *n, kAccessPointedInput, false, field(i, member));
 }
 
 // The inputs a triangle cluster or template build reads, as the spec lays them out.
@@ -151,7 +151,7 @@ void run_bottom_level(const ResolvedCommand& cmd, const MemoryImage& memory, uin
             info.clusterReferences);
         return;
     }
-    rec.access(info.clusterReferences, refs.size(), kAccessInputBuffer, false, refs_field);
+    rec.access(info.clusterReferences, refs.size(), kAccessPointedInput, false, refs_field);
     std::vector<ClusterBox> boxes;
     boxes.reserve(info.clusterReferencesCount);
     std::vector<std::pair<uint64_t, uint32_t>> seen;  // (address, reference index) for 10484
@@ -262,7 +262,7 @@ void run_cluster_op(const ResolvedCommand& cmd, const MemoryImage& memory, uint3
             info_address, where);
         record_triangle_inputs(rec, info, in, i);
         if (info.instantiationBoundingBoxLimit != 0)
-            rec.access(info.instantiationBoundingBoxLimit, 24, kAccessInputBuffer, false,
+            rec.access(info.instantiationBoundingBoxLimit, 24, kAccessPointedInput, false,
                        field(i, "instantiationBoundingBoxLimit"));
         out.triangles = info.triangleCount;
         out.vertices = info.vertexCount;

@@ -268,7 +268,9 @@ void Replay::run_command_buffer(uint64_t handle, uint32_t submission, uint32_t c
                 execute_secondaries(*record->body_as_CmdExecuteCommands(), ref);
             }
         }
-        ++command;
+        // The layer's timestamps are no command of the application's: the next command keeps
+        // the index the application gave it.
+        command += record->body_type() != fbs::RecordBody::GpuTimestamp;
     }
     if (!inside && recorded.one_time) forget_recorded(handle);
 }

@@ -4,9 +4,25 @@
 #include "sync_model_internal.h"
 
 #include <algorithm>
+#include <bit>
 #include <string>
 
 namespace clastrace::replay {
+
+namespace {
+
+// A read that carries several access types (the spec leaves open which one the command uses: a
+// cluster build's pointed-to inputs) is visible once one of them is; a write, and a read of one
+// type, need every atomic access of theirs.
+bool visible_to(const Visibility& visible, StageMask stage, const Record& later) {
+    if (later.is_write || std::popcount(later.access) < 2)
+        return visible.covers(stage, later.atoms);
+    for (AccessMask m = later.access; m; m &= m - 1)
+        if (visible.covers(stage, atomic_accesses(m & (~m + 1)))) return true;
+    return false;
+}
+
+}  // namespace
 
 std::optional<FixKind> SyncModel::State::unordered(Record& prior, const Later& later,
                                                    bool need_visible, uint64_t seg_begin,
@@ -36,7 +52,7 @@ std::optional<FixKind> SyncModel::State::unordered(Record& prior, const Later& l
         if (!foreign) return FixKind::kSemaphore;
         s = &*foreign;
     }
-    const bool ok = need_visible ? s->visible.covers(b.stage, b.atoms) : (s->chain & b.stage) != 0;
+    const bool ok = need_visible ? visible_to(s->visible, b.stage, b) : (s->chain & b.stage) != 0;
     if (ok) return std::nullopt;
     return prior.queue == later.queue ? FixKind::kPipelineBarrier : FixKind::kSemaphore;
 }

@@ -602,19 +602,9 @@ Expected hazardsWithout(ClusterSceneChain& test, const std::vector<std::string>&
     EXPECT_TRUE(report.findings.empty())
         << describe(report);  // serving still wrote the engine's bytes
     EXPECT_TRUE(report.trace_damage.empty());
-    // The trace's command indices count the layer's timestamps too: map them to the app's.
-    std::vector<int>
-        appIndex;  // trace command index -> application command index (-1: a timestamp)
-    forEachTimeline(trace, [&](uint64_t cb, const TracedTimeline& t) {
-        if (cb != scene["commandBuffer"].get<uint64_t>()) return;
-        int next = 0;
-        for (char kind : t.order) appIndex.push_back(kind == 'T' ? -1 : next++);
-    });
-    auto label = [&](uint64_t traceIndex) -> const std::string* {
-        if (traceIndex >= appIndex.size() || appIndex[traceIndex] < 0 ||
-            size_t(appIndex[traceIndex]) >= labels.size())
-            return nullptr;
-        return &labels[size_t(appIndex[traceIndex])];
+    // Replay names commands by the application's index (the layer's timestamps don't count).
+    auto label = [&](uint64_t index) -> const std::string* {
+        return index < labels.size() ? &labels[size_t(index)] : nullptr;
     };
     Expected found;
     for (const auto& h : report.hazards) {

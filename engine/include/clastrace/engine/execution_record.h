@@ -10,10 +10,13 @@
 //   dstSizesArray (the ranges written)           BUILD  AS_WRITE                write
 //   srcInfosArray, srcInfosCount, and the
 //   addresses read through an indirected field   BUILD  INDIRECT_COMMAND_READ   read
-// The page is silent on the buffers the src infos point at. We follow the words of
-// vkCmdBuildAccelerationStructuresKHR for the analogous inputs:
+// The buffers the src infos point at are "memory with input data as identified by any used
+// values of srcInfosArray" (INDIRECT_COMMAND_READ), read as the page's wording parallels
+// vkCmdBuildAccelerationStructuresKHR's "input buffers as identified by any used values of
+// geometry" (SHADER_READ there); tools and applications take either reading, so such a read
+// carries both types and replay takes a barrier naming either one (docs/replay.md):
 //   index/vertex/geometry-index/OMM-index buffers,
-//   instantiationBoundingBoxLimit                BUILD  SHADER_READ             read
+//   clusterReferences, instantiationBoundingBoxLimit  BUILD  SHADER_READ|INDIRECT_COMMAND_READ
 //   referenced CLAS, templates, move sources     BUILD  AS_READ                 read
 // In explicit mode dstAddressesArray/dstSizesArray are read; the page names AS_WRITE
 // for every access to them, so those reads carry AS_WRITE with is_write = false.
@@ -33,6 +36,9 @@ inline constexpr VkPipelineStageFlags2 kStageBuild =
     VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR;
 inline constexpr VkAccessFlags2 kAccessIndirect = VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT;
 inline constexpr VkAccessFlags2 kAccessInputBuffer = VK_ACCESS_2_SHADER_READ_BIT;
+// A cluster build's read of a buffer its src infos point at: either type (see above).
+inline constexpr VkAccessFlags2 kAccessPointedInput =
+    VK_ACCESS_2_SHADER_READ_BIT | VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT;
 inline constexpr VkAccessFlags2 kAccessObjectRead = VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR;
 inline constexpr VkAccessFlags2 kAccessObjectWrite =
     VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR;

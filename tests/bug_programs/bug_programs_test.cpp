@@ -1,0 +1,397 @@
+// SPDX-License-Identifier: Apache-2.0
+// Each program of this folder, written apart from the project's own test apps, carries one
+// deliberate bug that is silent at run time. Captured through the layer on the test driver and
+// replayed with `clastrace replay --json`, each must give exactly its finding: the hazard class
+// or rule, both commands, and the range the program says the bug touches; the variants without
+// the bug must replay clean.
+#include "layer_launch_test.h"
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <sstream>
+#include <string>
+#include <utility>
+
+namespace {
+
+using namespace clastrace::layer_launch;
+using nlohmann::json;
+
+constexpr int kUnsupported = 77;  // bug_gpu.h: the driver lacks what the program needs
+const char* kClusterBuild = "vkCmdBuildClusterAccelerationStructureIndirectNV";
+
+struct Range {
+    uint64_t begin = 0, end = 0;
+};
+
+uint64_t parse_address(const std::string& text) { return std::stoull(text, nullptr, 16); }
+
+Range range_of(const json& pair) {
+    return {parse_address(pair.at(0).get<std::string>()),
+            parse_address(pair.at(1).get<std::string>())};
+}
+
+// What one run said: the replay's JSON report and the ranges the program printed.
+struct Replayed {
+    json report;
+    std::map<std::string, Range> ranges;
+
+    const json& hazards() const { return report.at("hazards").at("hazards"); }
+    const json& findings() const { return report.at("findings"); }
+    Range range(const std::string& name) const {
+        auto it = ranges.find(name);
+        EXPECT_NE(it, ranges.end()) << "the program printed no range " << name;
+        return it == ranges.end() ? Range{} : it->second;
+    }
+    std::string describe() const {
+        std::string text;
+        for (const json& f : findings())
+            text +=
+                f.at("rule").get<std::string>() + ": " + f.at("message").get<std::string>() + "\n";
+        for (const json& h : hazards()) text += h.at("message").get<std::string>() + "\n";
+        return text;
+    }
+};
+
+class BugPrograms : public LayerLaunchTest {
+public:
+    BugPrograms() : LayerLaunchTest("clastrace_bug_programs") {}
+
+protected:
+    // `program ARGS` under the capture layer, then the replay of its trace; nullopt when the
+    // program cannot run here (the caller skips) or a step failed (already reported).
+    std::optional<Replayed> capture_and_replay(const std::string& program,
+                                               const std::string& args = "") {
+        const std::string trace = (dir / (program + ".clt")).string();
+        ProcessResult app =
+            run(quote(std::string(BUG_PROGRAM_DIR) + "/bug_" + program) + " " + args,
+                {{"CLASTRACE_OUTPUT", trace}});
+        if (app.exitCode == kUnsupported) {
+            unsupported_ = app.err;
+            return std::nullopt;
+        }
+        EXPECT_EQ(app.exitCode, 0) << app.err;
+        if (app.exitCode != 0) return std::nullopt;
+        ProcessResult replay =
+            run(quote(CLASTRACE_CLI) + " replay --json " + quote(trace), {}, /*withLayer=*/false);
+        EXPECT_LE(replay.exitCode, 1) << replay.err;  // 1: findings
+        Replayed r;
+        try {
+            r.report = json::parse(replay.out);
+        } catch (const json::exception& e) {
+            ADD_FAILURE() << "replay printed no JSON: " << e.what() << "\n" << replay.err;
+            return std::nullopt;
+        }
+        EXPECT_TRUE(r.report.at("trace_damage").empty());
+        EXPECT_TRUE(r.report.at("not_replayed").empty()) << r.report.at("not_replayed").dump();
+        std::istringstream lines(app.out);
+        std::string name, address;
+        uint64_t size = 0;
+        while (lines >> name >> address >> size) {
+            const uint64_t begin = parse_address(address);
+            r.ranges[name] = {begin, begin + size};
+        }
+        return r;
+    }
+
+    std::string unsupported_;
+};
+
+#define CAPTURE_AND_REPLAY(var, ...)                                       \
+    std::optional<Replayed> var##_run = capture_and_replay(__VA_ARGS__);   \
+    if (!var##_run && !unsupported_.empty()) GTEST_SKIP() << unsupported_; \
+    ASSERT_TRUE(var##_run);                                                \
+    const Replayed& var = *var##_run
+
+// One side of a hazard: its command, where it ran (the submission and the command's index in
+// its command buffer as the program recorded it), and the field its access came from.
+void expect_side(const json& side, const std::string& command, uint32_t submission,
+                 uint32_t command_index, const std::string& field_prefix, bool write) {
+    EXPECT_EQ(side.at("command"), command);
+    EXPECT_EQ(side.at("submission"), submission);
+    EXPECT_EQ(side.at("command_index"), command_index);
+    EXPECT_EQ(side.at("field").get<std::string>().rfind(field_prefix, 0), 0u)
+        << side.at("field") << " does not start with " << field_prefix;
+    EXPECT_EQ(side.at("write"), write);
+}
+
+void expect_inside(Range inner, Range outer) {
+    EXPECT_LT(inner.begin, inner.end);
+    EXPECT_GE(inner.begin, outer.begin);
+    EXPECT_LE(inner.end, outer.end);
+}
+
+void expect_equal(Range a, Range b) {
+    EXPECT_EQ(a.begin, b.begin);
+    EXPECT_EQ(a.end, b.end);
+}
+
+void expect_clean(const Replayed& r) {
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    EXPECT_TRUE(r.hazards().empty()) << r.describe();
+    EXPECT_TRUE(r.report.at("clean").get<bool>());
+}
+
+// The bottom level's two reads of what the cluster build wrote, with nothing ordering them:
+// the CLAS addresses (its clusterReferences, the cluster build's dstAddressesArray) and the
+// CLAS objects.
+void expect_bottom_level_reads_unordered(const Replayed& r, uint32_t clas_submission,
+                                         uint32_t blas_submission, uint32_t blas_index,
+                                         const std::string& fix_kind) {
+    ASSERT_EQ(r.hazards().size(), 2u) << r.describe();
+    const json& addresses = r.hazards().at(0);
+    EXPECT_EQ(addresses.at("class"), "READ-AFTER-WRITE");
+    expect_side(addresses.at("prior"), kClusterBuild, clas_submission, 0, "dstAddressesArray",
+                true);
+    expect_side(addresses.at("later"), kClusterBuild, blas_submission, blas_index,
+                "srcInfosArray[0].clusterReferences", false);
+    expect_equal(range_of(addresses.at("overlap")), r.range("clas_addresses"));
+    EXPECT_EQ(addresses.at("fix").at("kind"), fix_kind);
+    const json& objects = r.hazards().at(1);
+    EXPECT_EQ(objects.at("class"), "READ-AFTER-WRITE");
+    expect_side(objects.at("prior"), kClusterBuild, clas_submission, 0, "dstImplicitData", true);
+    expect_side(objects.at("later"), kClusterBuild, blas_submission, blas_index,
+                "srcInfosArray[0].clusterReferences[*]", false);
+    expect_inside(range_of(objects.at("overlap")), r.range("clas_objects"));
+}
+
+TEST_F(BugPrograms, CopiedInfosWithoutBarrierAreReadAfterWrite) {
+    CAPTURE_AND_REPLAY(r, "copy_infos_no_barrier");
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    ASSERT_EQ(r.hazards().size(), 1u) << r.describe();
+    const json& h = r.hazards().at(0);
+    EXPECT_EQ(h.at("class"), "READ-AFTER-WRITE");
+    expect_side(h.at("prior"), "vkCmdCopyBuffer", 0, 0, "pRegions[0]", true);
+    expect_side(h.at("later"), kClusterBuild, 0, 1, "srcInfosArray", false);
+    expect_equal(range_of(h.at("overlap")), r.range("infos"));
+    EXPECT_EQ(h.at("fix").at("srcStageMask"), "VK_PIPELINE_STAGE_2_COPY_BIT");
+    EXPECT_EQ(h.at("fix").at("dstStageMask"),
+              "VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR");
+}
+
+TEST_F(BugPrograms, CopiedInfosBehindShaderReadBufferBarrierAreReadAfterWrite) {
+    CAPTURE_AND_REPLAY(r, "copy_infos_no_barrier", "--shader-read-barrier");
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    ASSERT_EQ(r.hazards().size(), 1u) << r.describe();
+    const json& h = r.hazards().at(0);
+    EXPECT_EQ(h.at("class"), "READ-AFTER-WRITE");
+    expect_side(h.at("prior"), "vkCmdCopyBuffer", 0, 0, "pRegions[0]", true);
+    expect_side(h.at("later"), kClusterBuild, 0, 2, "srcInfosArray", false);
+    EXPECT_EQ(h.at("later").at("access"), "INDIRECT_COMMAND_READ");
+    expect_equal(range_of(h.at("overlap")), r.range("infos"));
+    EXPECT_EQ(h.at("fix").at("dstAccessMask"), "VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT");
+}
+
+TEST_F(BugPrograms, CopiedInfosWithBarrierAreClean) {
+    CAPTURE_AND_REPLAY(r, "copy_infos_no_barrier", "--fixed");
+    expect_clean(r);
+}
+
+TEST_F(BugPrograms, VerticesUpdatedBeforeComputeStageBarrierAreReadAfterWrite) {
+    CAPTURE_AND_REPLAY(r, "vertices_update_wrong_stage");
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    ASSERT_EQ(r.hazards().size(), 1u) << r.describe();
+    const json& h = r.hazards().at(0);
+    EXPECT_EQ(h.at("class"), "READ-AFTER-WRITE");
+    expect_side(h.at("prior"), "vkCmdUpdateBuffer", 0, 0, "pData", true);
+    expect_side(h.at("later"), kClusterBuild, 0, 2, "srcInfosArray[1].vertexBuffer", false);
+    expect_equal(range_of(h.at("overlap")), r.range("lifted"));
+    EXPECT_EQ(h.at("fix").at("dstStageMask"),
+              "VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR");
+}
+
+TEST_F(BugPrograms, VerticesUpdatedBeforeBuildStageBarrierAreClean) {
+    CAPTURE_AND_REPLAY(r, "vertices_update_wrong_stage", "--fixed");
+    expect_clean(r);
+}
+
+TEST_F(BugPrograms, SharedScratchWithoutBarrierIsWriteAfterWrite) {
+    CAPTURE_AND_REPLAY(r, "shared_scratch");
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    ASSERT_EQ(r.hazards().size(), 1u) << r.describe();
+    const json& h = r.hazards().at(0);
+    EXPECT_EQ(h.at("class"), "WRITE-AFTER-WRITE");
+    expect_side(h.at("prior"), kClusterBuild, 0, 0, "scratchData", true);
+    expect_side(h.at("later"), kClusterBuild, 0, 1, "scratchData", true);
+    expect_inside(range_of(h.at("overlap")), r.range("scratch"));
+}
+
+TEST_F(BugPrograms, SharedScratchWithBarrierIsClean) {
+    CAPTURE_AND_REPLAY(r, "shared_scratch", "--fixed");
+    expect_clean(r);
+}
+
+TEST_F(BugPrograms, BottomLevelRightAfterClustersReadsUnorderedAddressesAndObjects) {
+    CAPTURE_AND_REPLAY(r, "blas_same_command_buffer");
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    expect_bottom_level_reads_unordered(r, 0, 0, 1, "pipeline_barrier");
+}
+
+TEST_F(BugPrograms, BottomLevelAfterBarrierIsClean) {
+    CAPTURE_AND_REPLAY(r, "blas_same_command_buffer", "--fixed");
+    expect_clean(r);
+}
+
+TEST_F(BugPrograms, BottomLevelAfterIndirectReadBarrierIsClean) {
+    CAPTURE_AND_REPLAY(r, "blas_same_command_buffer", "--fixed-indirect");
+    expect_clean(r);
+}
+
+TEST_F(BugPrograms, BottomLevelInNextSubmissionReadsUnorderedAddressesAndObjects) {
+    CAPTURE_AND_REPLAY(r, "blas_next_submission");
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    expect_bottom_level_reads_unordered(r, 0, 1, 0, "pipeline_barrier");
+}
+
+TEST_F(BugPrograms, BottomLevelAfterSemaphoreIsClean) {
+    CAPTURE_AND_REPLAY(r, "blas_next_submission", "--fixed");
+    expect_clean(r);
+}
+
+TEST_F(BugPrograms, TimelineWaitOnEarlierValueLeavesBottomLevelUnordered) {
+    CAPTURE_AND_REPLAY(r, "timeline_wrong_value");
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    expect_bottom_level_reads_unordered(r, 1, 2, 0, "pipeline_barrier");
+}
+
+TEST_F(BugPrograms, TimelineWaitOnClusterBuildValueIsClean) {
+    CAPTURE_AND_REPLAY(r, "timeline_wrong_value", "--fixed");
+    expect_clean(r);
+}
+
+TEST_F(BugPrograms, HostRewriteBeforeFenceWaitIsHostWriteRace) {
+    CAPTURE_AND_REPLAY(r, "host_rewrite_in_flight");
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    ASSERT_EQ(r.hazards().size(), 1u) << r.describe();
+    const json& h = r.hazards().at(0);
+    EXPECT_EQ(h.at("class"), "WRITE-AFTER-READ");
+    expect_side(h.at("prior"), kClusterBuild, 0, 0, "srcInfosArray", false);
+    EXPECT_EQ(h.at("later").at("queue"), "host");
+    EXPECT_EQ(h.at("later").at("write"), true);
+    expect_inside(range_of(h.at("overlap")), r.range("infos"));
+    EXPECT_EQ(h.at("fix").at("kind"), "host_wait");
+    EXPECT_NE(h.at("message").get<std::string>().find("HOST-WRITE race"), std::string::npos);
+}
+
+TEST_F(BugPrograms, HostRewriteAfterFenceWaitIsClean) {
+    CAPTURE_AND_REPLAY(r, "host_rewrite_in_flight", "--fixed");
+    expect_clean(r);
+}
+
+TEST_F(BugPrograms, EventWithComputeSourceStageLeavesCopiedInfosUnordered) {
+    CAPTURE_AND_REPLAY(r, "event_wrong_stage");
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    ASSERT_EQ(r.hazards().size(), 1u) << r.describe();
+    const json& h = r.hazards().at(0);
+    EXPECT_EQ(h.at("class"), "READ-AFTER-WRITE");
+    expect_side(h.at("prior"), "vkCmdCopyBuffer", 0, 0, "pRegions[0]", true);
+    expect_side(h.at("later"), kClusterBuild, 0, 3, "srcInfosArray", false);
+    expect_equal(range_of(h.at("overlap")), r.range("infos"));
+}
+
+TEST_F(BugPrograms, EventWithCopySourceStageIsClean) {
+    CAPTURE_AND_REPLAY(r, "event_wrong_stage", "--fixed");
+    expect_clean(r);
+}
+
+// Needs VK_KHR_acceleration_structure (lavapipe 25): skips on drivers without it.
+TEST_F(BugPrograms, KhrTopLevelRightAfterItsBottomLevelIsReadAfterWrite) {
+    CAPTURE_AND_REPLAY(r, "khr_tlas_without_barrier");
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    ASSERT_EQ(r.hazards().size(), 1u) << r.describe();
+    const json& h = r.hazards().at(0);
+    EXPECT_EQ(h.at("class"), "READ-AFTER-WRITE");
+    const std::string build = "vkCmdBuildAccelerationStructuresKHR";
+    expect_side(h.at("prior"), build, 0, 0, "pInfos[0].dstAccelerationStructure", true);
+    expect_side(
+        h.at("later"), build, 0, 1,
+        "pInfos[0].pGeometries[0].geometry.instances.data[0].accelerationStructureReference",
+        false);
+    EXPECT_EQ(h.at("later").at("access"), "ACCELERATION_STRUCTURE_READ");
+    expect_equal(range_of(h.at("overlap")), r.range("bottom_level"));
+}
+
+TEST_F(BugPrograms, KhrTopLevelAfterBarrierIsClean) {
+    CAPTURE_AND_REPLAY(r, "khr_tlas_without_barrier", "--fixed");
+    expect_clean(r);
+}
+
+// The single finding of rule `rule` at op `op` (-1: the command) of the one build.
+const json* only_finding(const Replayed& r, const std::string& rule, int op) {
+    EXPECT_TRUE(r.hazards().empty()) << r.describe();
+    const json* found = nullptr;
+    for (const json& f : r.findings())
+        if (f.at("rule") == rule) {
+            EXPECT_EQ(found, nullptr) << "twice: " << rule;
+            found = &f;
+        }
+    EXPECT_NE(found, nullptr) << rule << " not found in\n" << r.describe();
+    if (!found) return nullptr;
+    EXPECT_EQ(found->at("op_index"), op);
+    EXPECT_EQ(found->at("where").at("name"), kClusterBuild);
+    EXPECT_EQ(found->at("where").at("submission"), 0);
+    EXPECT_EQ(found->at("where").at("command"), 0);  // the program's only command
+    return found;
+}
+
+TEST_F(BugPrograms, IndexPastTheClusterVerticesIsFoundAtItsOp) {
+    CAPTURE_AND_REPLAY(r, "memory_rules", "index-out-of-range");
+    EXPECT_EQ(r.findings().size(), 1u) << r.describe();
+    if (const json* f = only_finding(r, "CLASTRACE-index-out-of-range", 1)) {
+        EXPECT_EQ(parse_address(f->at("address")), r.range("cluster1_indices").begin);
+    }
+}
+
+TEST_F(BugPrograms, TriangleCountAboveTheInputLimitIsFoundAtItsOp) {
+    CAPTURE_AND_REPLAY(r, "memory_rules", "too-many-triangles");
+    only_finding(r, "CLASTRACE-count-above-triangle-cluster-input", 0);
+}
+
+TEST_F(BugPrograms, CountAboveMaxAccelerationStructureCountIsFound) {
+    CAPTURE_AND_REPLAY(r, "memory_rules", "count-above-max");
+    EXPECT_EQ(r.findings().size(), 1u) << r.describe();
+    if (const json* f = only_finding(
+            r, "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-10453", -1)) {
+        EXPECT_EQ(parse_address(f->at("address")), r.range("count").begin);
+    }
+}
+
+TEST_F(BugPrograms, MisalignedExplicitDestinationIsFoundAtItsOp) {
+    CAPTURE_AND_REPLAY(r, "memory_rules", "misaligned-dst");
+    EXPECT_EQ(r.findings().size(), 1u) << r.describe();
+    if (const json* f = only_finding(r, "CLASTRACE-destination-misaligned", 1)) {
+        EXPECT_EQ(parse_address(f->at("address")), r.range("destination1").begin);
+    }
+}
+
+TEST_F(BugPrograms, OverlappingExplicitDestinationsAreFound) {
+    CAPTURE_AND_REPLAY(r, "memory_rules", "overlapping-dst");
+    EXPECT_EQ(r.findings().size(), 1u) << r.describe();
+    if (const json* f = only_finding(
+            r, "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-dstAddressesArray-12302",
+            -1)) {
+        EXPECT_EQ(parse_address(f->at("address")), r.range("destination1").begin);
+        EXPECT_NE(f->at("message").get<std::string>().find("op 1's object"), std::string::npos);
+    }
+}
+
+TEST_F(BugPrograms, ExplicitDestinationSmallerThanItsObjectIsFoundAtItsOp) {
+    CAPTURE_AND_REPLAY(r, "memory_rules", "dst-too-small");
+    EXPECT_EQ(r.findings().size(), 1u) << r.describe();
+    if (const json* f = only_finding(r, "CLASTRACE-explicit-destination-smaller-than-object", 1)) {
+        EXPECT_EQ(parse_address(f->at("address")), r.range("destination1").begin);
+    }
+}
+
+TEST_F(BugPrograms, ValidImplicitAndExplicitBuildsAreClean) {
+    CAPTURE_AND_REPLAY(implicit, "memory_rules");
+    expect_clean(implicit);
+    CAPTURE_AND_REPLAY(explicit_run, "memory_rules", "aligned-dst");
+    expect_clean(explicit_run);
+}
+
+}  // namespace
