@@ -35,9 +35,44 @@ struct alignas(8) Task {
     uint16_t node, begin, end, unused;
 };
 
-// Sorts 0..n-1 by key[k] for each axis k into order[k] (stable: equal keys stay in
+// A triangle's two radix digits on each axis, as the sort reads them: its low digits (x, y, z)
+// in lo[0..2], its high digits in hi[0..2]; lane 3 unused. Bytes, one 8-byte store each.
+struct Digits {
+    uint8_t lo[4], hi[4];
+};
+
+// Splits a triangle's keys (lanes x, y, z, 0..1023) into its digits and counts them.
+void count_digits(Int4 key, Digits& d, uint16_t (*hist)[kDigits]) {
+#if defined(__SSE2__)
+    // The six digits side by side in one register, each taken out of it for its count: no
+    // store and reload of the keys, no scalar masks and shifts.
+    const __m128i k16 = _mm_packs_epi32(key.v, key.v);
+    const __m128i both = _mm_unpacklo_epi64(_mm_and_si128(k16, _mm_set1_epi16(kDigits - 1)),
+                                            _mm_srli_epi16(k16, kDigitBits));
+    _mm_storel_epi64(reinterpret_cast<__m128i*>(&d), _mm_packus_epi16(both, both));
+    ++hist[0][_mm_extract_epi16(both, 0)];
+    ++hist[2][_mm_extract_epi16(both, 1)];
+    ++hist[4][_mm_extract_epi16(both, 2)];
+    ++hist[1][_mm_extract_epi16(both, 4)];
+    ++hist[3][_mm_extract_epi16(both, 5)];
+    ++hist[5][_mm_extract_epi16(both, 6)];
+#else
+    alignas(16) int32_t q[4];
+    store_int4(q, key);
+    for (int k = 0; k < 4; ++k) {
+        d.lo[k] = uint8_t(q[k] & (kDigits - 1));
+        d.hi[k] = uint8_t(q[k] >> kDigitBits);
+    }
+    for (int k = 0; k < 3; ++k) {
+        ++hist[2 * k][d.lo[k]];
+        ++hist[2 * k + 1][d.hi[k]];
+    }
+#endif
+}
+
+// Sorts 0..n-1 by key (digits) on each axis k into order[k] (stable: equal keys stay in
 // increasing index order). hist[2k] / hist[2k+1] hold the counts of the low / high digits.
-void radix_sort3(const uint16_t (*key)[kMaxTriangles], uint32_t n, uint16_t (*hist)[kDigits],
+void radix_sort3(const Digits* digits, uint32_t n, uint16_t (*hist)[kDigits],
                  uint8_t (*order)[kMaxTriangles]) {
     // Exclusive prefix sums (counts <= 256 fit 16 bits).
 #if defined(__SSE2__)
@@ -72,17 +107,17 @@ void radix_sort3(const uint16_t (*key)[kMaxTriangles], uint32_t n, uint16_t (*hi
     uint16_t *const lo0 = hist[0], *const lo1 = hist[2], *const lo2 = hist[4];
 #pragma GCC unroll 4
     for (size_t i = 0; i < n; ++i) {
-        tmp[0][lo0[key[0][i] & (kDigits - 1)]++] = uint8_t(i);
-        tmp[1][lo1[key[1][i] & (kDigits - 1)]++] = uint8_t(i);
-        tmp[2][lo2[key[2][i] & (kDigits - 1)]++] = uint8_t(i);
+        tmp[0][lo0[digits[i].lo[0]]++] = uint8_t(i);
+        tmp[1][lo1[digits[i].lo[1]]++] = uint8_t(i);
+        tmp[2][lo2[digits[i].lo[2]]++] = uint8_t(i);
     }
     uint16_t *const hi0 = hist[1], *const hi1 = hist[3], *const hi2 = hist[5];
 #pragma GCC unroll 4
     for (size_t j = 0; j < n; ++j) {
         const size_t i0 = tmp[0][j], i1 = tmp[1][j], i2 = tmp[2][j];
-        order[0][hi0[key[0][i0] >> kDigitBits]++] = uint8_t(i0);
-        order[1][hi1[key[1][i1] >> kDigitBits]++] = uint8_t(i1);
-        order[2][hi2[key[2][i2] >> kDigitBits]++] = uint8_t(i2);
+        order[0][hi0[digits[i0].hi[0]]++] = uint8_t(i0);
+        order[1][hi1[digits[i1].hi[1]]++] = uint8_t(i1);
+        order[2][hi2[digits[i2].hi[2]]++] = uint8_t(i2);
     }
 }
 
@@ -147,32 +182,20 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
 
     // 10-bit keys per axis, monotone in the centroid (so sorting them sorts the centroids up
     // to ties inside one step of extent / 1024). Halves again keep extents finite.
-    uint16_t key[3][kMaxTriangles];
+    Digits digits[kMaxTriangles];
     uint16_t hist[6][kDigits] = {};
     {
         const Float4 base = clo * half;
         const Float4 scale = splat(float(1u << kKeyBits)) /
                              (chi * half - base);  // inf or NaN for a flat axis: keys 0
         const Float4 zero = splat(0.0f), top = splat(float((1u << kKeyBits) - 1));
-        for (uint32_t i = 0; i < n; ++i) {
-            alignas(16) int32_t q[4];
+        for (uint32_t i = 0; i < n; ++i)
             // max4(x, zero) turns NaN into 0.
-            store_int4(q,
-                       to_int(min4(max4((load4(centroid[i]) * half - base) * scale, zero), top)));
-            // Per axis written out, as in radix_sort3.
-            key[0][i] = uint16_t(q[0]);
-            key[1][i] = uint16_t(q[1]);
-            key[2][i] = uint16_t(q[2]);
-            ++hist[0][q[0] & (kDigits - 1)];
-            ++hist[2][q[1] & (kDigits - 1)];
-            ++hist[4][q[2] & (kDigits - 1)];
-            ++hist[1][q[0] >> kDigitBits];
-            ++hist[3][q[1] >> kDigitBits];
-            ++hist[5][q[2] >> kDigitBits];
-        }
+            count_digits(to_int(min4(max4((load4(centroid[i]) * half - base) * scale, zero), top)),
+                         digits[i], hist);
     }
     uint8_t order[3][kMaxTriangles];
-    radix_sort3(key, n, hist, order);
+    radix_sort3(digits, n, hist, order);
 
     // Top-down: node numbering is depth first, left subtree first, the two children of a node
     // next to each other.
