@@ -246,6 +246,21 @@ Float4 nan_lanes_to_zero(Float4 c) {
     return load4(lanes);
 }
 
+// The gathers' last step: the centroids' bounds into the BVH scratch, and the bounds over the
+// active triangles' vertices (left as given when none is active).
+void store_bounds(BvhScratch& s, Float4 centroid_lo, Float4 centroid_hi, uint32_t n_active,
+                  Float4 lo_all, Float4 hi_all, float bmin[3], float bmax[3]) {
+    store4(s.centroid_min, centroid_lo);
+    store4(s.centroid_max, centroid_hi);
+    if (n_active > 0) {
+        alignas(16) float lo4[4], hi4[4];
+        store4(lo4, lo_all);
+        store4(hi4, hi_all);
+        std::memcpy(bmin, lo4, 3 * sizeof(float));
+        std::memcpy(bmax, hi4, 3 * sizeof(float));
+    }
+}
+
 // One pass over the triangles (inactive ones skipped when kSkipInactive) gathers each active
 // triangle's box and centroid into the BVH scratch (what its build starts from), with the
 // centroids' bounds, its index into `active`, and the bounds over them (the bounds over the
@@ -282,16 +297,50 @@ uint32_t gather_active_boxes(const EncodeInput& in, BvhScratch& s, uint8_t* acti
         centroid_hi = max4(centroid_hi, centroid);
         active[n_active++] = uint8_t(t);
     }
-    store4(s.centroid_min, centroid_lo);
-    store4(s.centroid_max, centroid_hi);
-    if (n_active > 0) {
-        alignas(16) float lo4[4], hi4[4];
-        store4(lo4, lo_all);
-        store4(hi4, hi_all);
-        std::memcpy(bmin, lo4, 3 * sizeof(float));
-        std::memcpy(bmax, hi4, 3 * sizeof(float));
-    }
+    store_bounds(s, centroid_lo, centroid_hi, n_active, lo_all, hi_all, bmin, bmax);
     return n_active;
+}
+
+// The cluster's vertices as 16-byte lanes x, y, z, 0 (one aligned load each for the triangles
+// that use them). Returns whether every coordinate is finite.
+bool widen_vertices(const float* positions, uint32_t count, float (*vertex)[4]) {
+    Float4 any_bad = splat(0.0f);  // x - x is 0 for a finite x, NaN for infinities and NaN
+    for (uint32_t v = 0; v < count; ++v) {
+        const Float4 p = load3(positions + 3 * size_t(v));
+        store4(vertex[v], p);
+        any_bad = any_bad + (p - p);
+    }
+    return nan_lanes(any_bad) == 0;
+}
+
+// gather_active_boxes for a cluster whose triangles are all active and whose vertices are all
+// finite (the common case): the same boxes, centroids and bounds without the tests (no
+// coordinate is NaN, and half-sums of finite corners are finite), each corner one load.
+uint32_t gather_finite_boxes(const EncodeInput& in, const float (*vertex)[4], BvhScratch& s,
+                             uint8_t* active, float bmin[3], float bmax[3]) {
+    const uint32_t n = in.triangle_count;
+    const uint8_t* const index_bytes = in.index_bytes;
+    Float4 lo_all = splat(INFINITY), hi_all = splat(-INFINITY);
+    Float4 centroid_lo = lo_all, centroid_hi = hi_all;
+    const Float4 half = splat(0.5f);
+    for (size_t t = 0; t < n; ++t) {
+        const uint8_t* tri = index_bytes + 3 * t;
+        const Float4 a = load4(vertex[tri[0]]);
+        const Float4 b = load4(vertex[tri[1]]);
+        const Float4 c = load4(vertex[tri[2]]);
+        const Float4 lo = min4(a, min4(b, c)), hi = max4(a, max4(b, c));
+        store4(s.tri_min[t], lo);
+        store4(s.tri_max[t], hi);
+        lo_all = min4(lo_all, lo);
+        hi_all = max4(hi_all, hi);
+        const Float4 centroid = lo * half + hi * half;
+        store4(s.centroid[t], centroid);
+        centroid_lo = min4(centroid_lo, centroid);
+        centroid_hi = max4(centroid_hi, centroid);
+        active[t] = uint8_t(t);
+    }
+    store_bounds(s, centroid_lo, centroid_hi, n, lo_all, hi_all, bmin, bmax);
+    return n;
 }
 
 // Copies `size` bytes (a multiple of 4) with non-temporal stores: 4-byte ones up to the first
@@ -355,8 +404,13 @@ uint32_t encode_object(const EncodeInput& in, EncodeScratch& scratch, ObjectStor
     if (in.positions) {
         const bool any_inactive =
             in.inactive && std::memchr(in.inactive, 1, n_triangles) != nullptr;
-        n_active = any_inactive ? gather_active_boxes<true>(in, s, active, any_nan, bmin, bmax)
-                                : gather_active_boxes<false>(in, s, active, any_nan, bmin, bmax);
+        if (any_inactive)
+            n_active = gather_active_boxes<true>(in, s, active, any_nan, bmin, bmax);
+        else if (in.vertex_count > 0 &&  // else an instance of a hostile template's index 0
+                 widen_vertices(in.positions, in.vertex_count, scratch.vertex))
+            n_active = gather_finite_boxes(in, scratch.vertex, s, active, bmin, bmax);
+        else
+            n_active = gather_active_boxes<false>(in, s, active, any_nan, bmin, bmax);
     }
     std::memcpy(h.bounds_min, bmin, sizeof bmin);
     std::memcpy(h.bounds_max, bmax, sizeof bmax);

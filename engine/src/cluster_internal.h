@@ -71,9 +71,11 @@ inline constexpr uint32_t kMaxObjectBytes =
     sizeof(ObjectHeader) + 8 * kMaxNodes + 12 * kMaxVertices + 3 + 4 * kMaxTriangles + 3 +
     4 * kMaxTriangles + 7 + sizeof(OpacityMicromapSection) + 4 * kMaxTriangles + 24 + 3;
 
-// Scratch for encode_object: the BVH's, and the object itself where it is streamed out.
+// Scratch for encode_object: the BVH's, the widened vertices, and the object itself where it is
+// streamed out.
 struct EncodeScratch {
     BvhScratch bvh;
+    alignas(16) float vertex[kMaxVertices][4];  // the vertices as x, y, z, 0 lanes
     alignas(64) std::byte object[kMaxObjectBytes];
 };
 
