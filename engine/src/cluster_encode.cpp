@@ -315,9 +315,10 @@ bool widen_vertices(const float* positions, uint32_t count, float (*vertex)[4]) 
 
 // gather_active_boxes for a cluster whose triangles are all active and whose vertices are all
 // finite (the common case): the same boxes, centroids and bounds without the tests (no
-// coordinate is NaN, and half-sums of finite corners are finite), each corner one load.
+// coordinate is NaN, and half-sums of finite corners are finite), each corner one load, no
+// active list (every triangle is).
 uint32_t gather_finite_boxes(const EncodeInput& in, const float (*vertex)[4], BvhScratch& s,
-                             uint8_t* active, float bmin[3], float bmax[3]) {
+                             float bmin[3], float bmax[3]) {
     const uint32_t n = in.triangle_count;
     const uint8_t* const index_bytes = in.index_bytes;
     Float4 lo_all = splat(INFINITY), hi_all = splat(-INFINITY);
@@ -337,7 +338,6 @@ uint32_t gather_finite_boxes(const EncodeInput& in, const float (*vertex)[4], Bv
         store4(s.centroid[t], centroid);
         centroid_lo = min4(centroid_lo, centroid);
         centroid_hi = max4(centroid_hi, centroid);
-        active[t] = uint8_t(t);
     }
     store_bounds(s, centroid_lo, centroid_hi, n, lo_all, hi_all, bmin, bmax);
     return n;
@@ -408,7 +408,7 @@ uint32_t encode_object(const EncodeInput& in, EncodeScratch& scratch, ObjectStor
             n_active = gather_active_boxes<true>(in, s, active, any_nan, bmin, bmax);
         else if (in.vertex_count > 0 &&  // else an instance of a hostile template's index 0
                  widen_vertices(in.positions, in.vertex_count, scratch.vertex))
-            n_active = gather_finite_boxes(in, scratch.vertex, s, active, bmin, bmax);
+            n_active = gather_finite_boxes(in, scratch.vertex, s, bmin, bmax);
         else
             n_active = gather_active_boxes<false>(in, s, active, any_nan, bmin, bmax);
     }
@@ -423,7 +423,7 @@ uint32_t encode_object(const EncodeInput& in, EncodeScratch& scratch, ObjectStor
     if (is_clas && n_active > 0) {
         // Told by the BVH, not compared here: its order was just stored a byte at a time, and
         // memcmp's wide loads would wait for those stores.
-        identity = build_bvh(active, n_active, s, order);
+        identity = build_bvh(n_active < n_triangles ? active : nullptr, n_active, s, order);
         n_nodes = s.node_count;
         if (n_active < n_triangles) {
             bool is_active[kMaxTriangles] = {};

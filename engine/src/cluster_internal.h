@@ -60,9 +60,10 @@ struct BvhScratch {
     uint32_t node_count = 0;
 };
 
-// Builds a BVH over the n active triangles (their indices in `active_list`, increasing;
-// their boxes, centroids and centroid bounds in the scratch); fills order[0..n) with the BVH
-// order (triangle indices) and scratch.nodes. Returns whether that order is 0, 1, ..., n - 1.
+// Builds a BVH over the n active triangles (their indices in `active_list`, increasing, or
+// nullptr when they are 0, 1, ..., n - 1; their boxes, centroids and centroid bounds in the
+// scratch); fills order[0..n) with the BVH order (triangle indices) and scratch.nodes.
+// Returns whether that order is 0, 1, ..., n - 1.
 bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* order);
 
 // The largest object: a template's or CLAS's sections at 256 triangles and vertices, every
