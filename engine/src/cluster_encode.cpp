@@ -113,27 +113,36 @@ void write_nodes(const QuantFrame& f, bool unbounded, const BvhScratch& s, uint3
         __m128i qhi = _mm_cvttps_epi32(xhi);
         qhi =
             _mm_sub_epi32(qhi, _mm_castps_si128(_mm_cmplt_ps(_mm_cvtepi32_ps(qhi), xhi)));  // ceil
-        for (;;) {
-            const __m128i down = _mm_and_si128(_mm_cmpgt_epi32(qlo, izero),
-                                               _mm_castps_si128(_mm_cmpgt_ps(dequant(qlo), vlo)));
-            if (!_mm_movemask_epi8(down)) break;
-            qlo = _mm_add_epi32(qlo, down);
+        // The first guesses are almost always right: one test of both before the loops.
+        const __m128i down = _mm_and_si128(_mm_cmpgt_epi32(qlo, izero),
+                                           _mm_castps_si128(_mm_cmpgt_ps(dequant(qlo), vlo)));
+        const __m128i up = _mm_and_si128(_mm_cmplt_epi32(qhi, itop),
+                                         _mm_castps_si128(_mm_cmplt_ps(dequant(qhi), vhi)));
+        if (_mm_movemask_epi8(_mm_or_si128(down, up))) {
+            for (;;) {
+                const __m128i d = _mm_and_si128(_mm_cmpgt_epi32(qlo, izero),
+                                                _mm_castps_si128(_mm_cmpgt_ps(dequant(qlo), vlo)));
+                if (!_mm_movemask_epi8(d)) break;
+                qlo = _mm_add_epi32(qlo, d);
+            }
+            for (;;) {
+                const __m128i u = _mm_and_si128(_mm_cmplt_epi32(qhi, itop),
+                                                _mm_castps_si128(_mm_cmplt_ps(dequant(qhi), vhi)));
+                if (!_mm_movemask_epi8(u)) break;
+                qhi = _mm_sub_epi32(qhi, u);
+            }
         }
-        for (;;) {
-            const __m128i up = _mm_and_si128(_mm_cmplt_epi32(qhi, itop),
-                                             _mm_castps_si128(_mm_cmplt_ps(dequant(qhi), vhi)));
-            if (!_mm_movemask_epi8(up)) break;
-            qhi = _mm_sub_epi32(qhi, up);
-        }
-        // The six quantized bounds (0..255) narrowed to bytes in SSE: qmin then qmax, each in
-        // the low three bytes of a 32-bit half; the link in the top two bytes.
+        // The six quantized bounds (0..255) as bytes in SSE: qmin x y z 0 qmax x y z 0, the
+        // qmax bytes moved down one onto the 0, the link in the top two bytes.
         const __m128i q16 = _mm_packs_epi32(qlo, qhi);
-        const uint64_t q8 = uint64_t(_mm_cvtsi128_si64(_mm_packus_epi16(q16, q16)));
-        const uint64_t link = sn.link;
-        const uint64_t node = (q8 & 0xFFFFFFu) | ((q8 >> 32) & 0xFFFFFFu) << 24 | link << 48;
+        const __m128i q8 = _mm_packus_epi16(q16, q16);
+        const __m128i low3 = _mm_setr_epi8(-1, -1, -1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0);
+        const __m128i bounds =
+            _mm_or_si128(_mm_and_si128(low3, q8), _mm_andnot_si128(low3, _mm_srli_si128(q8, 1)));
+        const __m128i with_link = _mm_insert_epi16(bounds, sn.link, 3);
         static_assert(sizeof(BvhNode) == 8 && offsetof(BvhNode, qmax) == 3 &&
                       offsetof(BvhNode, link) == 6);
-        std::memcpy(dst + 8 * i, &node, 8);  // little endian, as the format is
+        _mm_storel_epi64(reinterpret_cast<__m128i*>(dst + 8 * i), with_link);  // little endian
     }
 #else
     float inv_step[3];
