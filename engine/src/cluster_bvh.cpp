@@ -135,9 +135,52 @@ void copy_up_to(uint8_t* dst, const uint8_t* src, size_t count) {
     }
 }
 
+// Copies count (1..256) bytes, src readable up to count + 7 bytes, as overlapping 8-byte (or
+// 4-byte, or single) moves: what a memcpy call does for these sizes, without the call and its
+// size classes.
+void copy_rights(uint8_t* dst, const uint8_t* src, size_t count) {
+    if (count >= 8) {
+        for (size_t k = 0; k + 8 < count; k += 8) std::memcpy(dst + k, src + k, 8);
+        std::memcpy(dst + count - 8, src + count - 8, 8);
+    } else if (count >= 4) {
+        std::memcpy(dst, src, 4);
+        std::memcpy(dst + count - 4, src + count - 4, 4);
+    } else {
+        dst[0] = src[0];
+        dst[count / 2] = src[count / 2];
+        dst[count - 1] = src[count - 1];
+    }
+}
+
+// Whether order[0..n) is 0, 1, ..., n - 1, 16 bytes at a time where the target has SSE2
+// (order is readable up to kMaxTriangles; the bytes past n are not looked at).
+bool is_identity(const uint8_t* order, uint32_t n) {
+#if defined(__SSE2__)
+    static_assert(kMaxTriangles % 16 == 0);
+    __m128i expected = _mm_setr_epi8(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+    const __m128i step = _mm_set1_epi8(16);
+    uint32_t i = 0;
+    for (; i + 16 <= n; i += 16) {
+        const __m128i got = _mm_loadu_si128(reinterpret_cast<const __m128i*>(order + i));
+        if (_mm_movemask_epi8(_mm_cmpeq_epi8(got, expected)) != 0xFFFF) return false;
+        expected = _mm_add_epi8(expected, step);
+    }
+    if (i == n) return true;
+    const __m128i got = _mm_loadu_si128(reinterpret_cast<const __m128i*>(order + i));
+    const uint32_t equal = uint32_t(_mm_movemask_epi8(_mm_cmpeq_epi8(got, expected)));
+    const uint32_t wanted = (1u << (n - i)) - 1u;
+    return (equal & wanted) == wanted;
+#else
+    uint32_t moved = 0;
+    for (uint32_t j = 0; j < n; ++j) moved |= order[j] ^ j;
+    return moved == 0;
+#endif
+}
+
 // A leaf's box over its 1..4 triangles: four loads, the last triangle repeated (min and max
 // fold it to the same box, ties included), so no branch on the count.
-void fit_leaf(BvhScratch& s, const uint8_t* tris, size_t count, BvhScratch::Node& node) {
+[[gnu::always_inline]] inline void fit_leaf(BvhScratch& s, const uint8_t* tris, size_t count,
+                                            BvhScratch::Node& node) {
     const size_t last = count - 1;
     const size_t t1 = tris[last < 1 ? last : 1], t2 = tris[last < 2 ? last : 2], t3 = tris[last];
     Float4 lo = load4(s.tri_min[tris[0]]), hi = load4(s.tri_max[tris[0]]);
@@ -271,7 +314,7 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
         // j - r <= j, already read) and at the next right slot of a buffer; the store on the
         // wrong side is overwritten by the next element of that side, or lands past the side's
         // end (the left one is covered by the copy of the rights).
-        uint8_t right1[kMaxTriangles + 1], right2[kMaxTriangles + 1];
+        uint8_t right1[kMaxTriangles + 8], right2[kMaxTriangles + 8];
         // Pointer-sized counters: no zero extension before each address.
         size_t r1 = 0, r2 = 0;
 #pragma GCC unroll 4
@@ -285,8 +328,8 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
             r1 += s1;
             r2 += s2;
         }
-        std::memcpy(o1 + left_count, right1, count - left_count);
-        std::memcpy(o2 + left_count, right2, count - left_count);
+        copy_rights(o1 + left_count, right1, count - left_count);
+        copy_rights(o2 + left_count, right2, count - left_count);
         // More than 8 triangles leave at least 8 on the left (a node), and on the right 1-4
         // (a leaf, its triangles from any order) or more (a node).
         if (count - left_count <= kMaxLeafSize) {
@@ -308,8 +351,7 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
             moved |= t ^ uint32_t(j);
         }
     } else {
-#pragma GCC unroll 4
-        for (size_t j = 0; j < n; ++j) moved |= order_out[j] ^ uint32_t(j);
+        return is_identity(order_out, n);
     }
     return moved == 0;
 }

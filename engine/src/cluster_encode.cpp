@@ -215,6 +215,7 @@ void write_triangle_sections(const EncodeInput& in, const ObjectHeader& h, const
     const bool any_dead = in.inactive && std::memchr(in.inactive, 1, n_triangles) != nullptr;
     // Each triangle's three as one 4-byte load and store (the fourth byte is the next
     // triangle's, overwritten by it), the last one's bytewise: nothing past the section moves.
+#pragma GCC unroll 4
     for (uint32_t i = 0; i + 1 < n_triangles; ++i) {
         uint32_t three;
         std::memcpy(&three, in.index_bytes + 3 * size_t(order[i]), 4);
