@@ -315,6 +315,7 @@ uint32_t gather_active_boxes(const EncodeInput& in, BvhScratch& s, uint8_t* acti
 // that use them). Returns whether every coordinate is finite.
 bool widen_vertices(const float* positions, uint32_t count, float (*vertex)[4]) {
     Float4 any_bad = splat(0.0f);  // x - x is 0 for a finite x, NaN for infinities and NaN
+#pragma GCC unroll 2
     for (uint32_t v = 0; v < count; ++v) {
         const Float4 p = load3(positions + 3 * size_t(v));
         store4(vertex[v], p);
@@ -334,6 +335,7 @@ uint32_t gather_finite_boxes(const EncodeInput& in, const float (*vertex)[4], Bv
     Float4 lo_all = splat(INFINITY), hi_all = splat(-INFINITY);
     Float4 centroid_lo = lo_all, centroid_hi = hi_all;
     const Float4 half = splat(0.5f);
+#pragma GCC unroll 2
     for (size_t t = 0; t < n; ++t) {
         const uint8_t* tri = index_bytes + 3 * t;
         const Float4 a = load4(vertex[tri[0]]);
