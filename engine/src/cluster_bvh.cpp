@@ -121,16 +121,17 @@ void radix_sort3(const Digits* digits, uint32_t n, uint16_t (*hist)[kDigits],
     }
 }
 
-// An exact copy of count (1..N) triangle indices without a branch on the count (a memcpy call
-// of a variable size mispredicts in its size classes): N byte copies, the last index repeated.
-// Bytewise, not in wider pieces: the indices were just written a byte at a time, and a wider
-// load that spans several pending stores cannot be forwarded from them (it waits for them).
-template <size_t N>
+// An exact copy of count (kLeast..N) triangle indices without a branch on the count (a memcpy
+// call of a variable size mispredicts in its size classes): N byte copies, those past kLeast
+// with the last index repeated. Bytewise, not in wider pieces: the indices were just written
+// a byte at a time, and a wider load that spans several pending stores cannot be forwarded
+// from them (it waits for them).
+template <size_t kLeast, size_t N>
 void copy_up_to(uint8_t* dst, const uint8_t* src, size_t count) {
     const size_t last = count - 1;
 #pragma GCC unroll 8
     for (size_t k = 0; k < N; ++k) {
-        const size_t at = k < last ? k : last;
+        const size_t at = k < kLeast || k < last ? k : last;
         dst[at] = src[at];
     }
 }
@@ -234,6 +235,7 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
         const Float4 scale = splat(float(1u << kKeyBits)) /
                              (chi * half - base);  // inf or NaN for a flat axis: keys 0
         const Float4 zero = splat(0.0f), top = splat(float((1u << kKeyBits) - 1));
+#pragma GCC unroll 2
         for (uint32_t i = 0; i < n; ++i)
             // max4(x, zero) turns NaN into 0.
             count_digits(to_int(min4(max4((load4(centroid[i]) * half - base) * scale, zero), top)),
@@ -286,7 +288,8 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
         interior[n_interior++] = uint16_t(task.node);
         if (count <= 2 * kMaxLeafSize) {
             // Both children are leaves: they need no sorted orders, only their triangles.
-            copy_up_to<2 * kMaxLeafSize>(leaf_order + b, order[axis] + b, count);
+            // A task has more than kMaxLeafSize triangles.
+            copy_up_to<kMaxLeafSize + 1, 2 * kMaxLeafSize>(leaf_order + b, order[axis] + b, count);
             make_leaf(s, leaf_order, b, left_count, s.nodes[left]);
             make_leaf(s, leaf_order, m, count - left_count, s.nodes[left + 1]);
             continue;
@@ -333,7 +336,7 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
         // More than 8 triangles leave at least 8 on the left (a node), and on the right 1-4
         // (a leaf, its triangles from any order) or more (a node).
         if (count - left_count <= kMaxLeafSize) {
-            copy_up_to<kMaxLeafSize>(leaf_order + m, order[axis] + m, count - left_count);
+            copy_up_to<1, kMaxLeafSize>(leaf_order + m, order[axis] + m, count - left_count);
             make_leaf(s, leaf_order, m, count - left_count, s.nodes[left + 1]);
         } else {
             stack[sp++] = {uint16_t(left + 1), uint16_t(m), uint16_t(e), 0};
