@@ -72,13 +72,21 @@ inline constexpr uint32_t kMaxObjectBytes =
     sizeof(ObjectHeader) + 8 * kMaxNodes + 12 * kMaxVertices + 3 + 4 * kMaxTriangles + 3 +
     4 * kMaxTriangles + 7 + sizeof(OpacityMicromapSection) + 4 * kMaxTriangles + 24 + 3;
 
+// Where the widened vertices start, counted from the BVH scratch modulo 4 KiB: its per-triangle
+// arrays are 4 KiB each, so lines 4 KiB apart fall into the same L1 set (64 sets of 64 bytes)
+// and the first triangles' boxes and centroids already share the low sets; the vertices (a
+// cluster's first kilobyte or so in use) start at set 40 instead of set 0 beside them.
+inline constexpr size_t kVertexSetOffset = 2560;
+
 // Scratch for encode_object: the BVH's, the widened vertices, and the object itself where it is
 // streamed out.
 struct EncodeScratch {
     BvhScratch bvh;
+    std::byte vertex_apart[(kVertexSetOffset + 4096 - sizeof(BvhScratch) % 4096) % 4096];
     alignas(16) float vertex[kMaxVertices][4];  // the vertices as x, y, z, 0 lanes
     alignas(64) std::byte object[kMaxObjectBytes];
 };
+static_assert(offsetof(EncodeScratch, vertex) % 4096 == kVertexSetOffset);
 
 // Encodes the object into `out` (sized to it, zero padded) as `stores` says. Returns its size.
 uint32_t encode_object(const EncodeInput& in, EncodeScratch& scratch, ObjectStores stores,
