@@ -136,9 +136,9 @@ void copy_up_to(uint8_t* dst, const uint8_t* src, size_t count) {
     }
 }
 
-// Copies count (1..256) bytes, src readable up to count + 7 bytes, as overlapping 8-byte (or
-// 4-byte, or single) moves: what a memcpy call does for these sizes, without the call and its
-// size classes.
+// Copies count (1..256) bytes as overlapping 8-byte (or 4-byte, or single) moves, reading and
+// writing nothing outside them: what a memcpy call does for these sizes, without the call and
+// its size classes.
 void copy_rights(uint8_t* dst, const uint8_t* src, size_t count) {
     if (count >= 8) {
         for (size_t k = 0; k + 8 < count; k += 8) std::memcpy(dst + k, src + k, 8);
@@ -317,7 +317,7 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
         // j - r <= j, already read) and at the next right slot of a buffer; the store on the
         // wrong side is overwritten by the next element of that side, or lands past the side's
         // end (the left one is covered by the copy of the rights).
-        uint8_t right1[kMaxTriangles + 8], right2[kMaxTriangles + 8];
+        uint8_t right1[kMaxTriangles + 1], right2[kMaxTriangles + 1];
         // Pointer-sized counters: no zero extension before each address.
         size_t r1 = 0, r2 = 0;
 #pragma GCC unroll 4
