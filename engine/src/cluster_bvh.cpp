@@ -216,6 +216,31 @@ void fit_interior_boxes(BvhScratch& s, const uint16_t* interior, size_t count) {
     }
 }
 
+// Each triangle's 10-bit keys per axis, monotone in its centroid (so sorting them sorts the
+// centroids up to ties inside one step of extent / 1024), as digits, and the digits' counts.
+// Halves again keep extents finite.
+void count_keys(const BvhScratch& s, uint32_t n, Digits* digits, uint16_t (*hist)[kDigits]) {
+    const Float4 half = splat(0.5f);
+    const Float4 base = load4(s.centroid_min) * half;
+    const Float4 scale =
+        splat(float(1u << kKeyBits)) /
+        (load4(s.centroid_max) * half - base);  // inf or NaN for a flat axis: keys 0
+    const Float4 zero = splat(0.0f), top = splat(float((1u << kKeyBits) - 1));
+#pragma GCC unroll 2
+    for (uint32_t i = 0; i < n; ++i)
+        // max4(x, zero) turns NaN into 0.
+        count_digits(to_int(min4(max4((load4(s.centroid[i]) * half - base) * scale, zero), top)),
+                     digits[i], hist);
+}
+
+// The triangles in key order along each axis (ties in triangle order).
+void sort_along_axes(const BvhScratch& s, uint32_t n, uint8_t (*order)[kMaxTriangles]) {
+    Digits digits[kMaxTriangles];
+    uint16_t hist[6][kDigits] = {};
+    count_keys(s, n, digits, hist);
+    radix_sort3(digits, n, hist, order);
+}
+
 }  // namespace
 
 bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* order_out) {
@@ -223,26 +248,8 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
     if (n == 0) return true;
 
     const float(*const centroid)[4] = s.centroid;
-    const Float4 clo = load4(s.centroid_min), chi = load4(s.centroid_max);
-    const Float4 half = splat(0.5f);
-
-    // 10-bit keys per axis, monotone in the centroid (so sorting them sorts the centroids up
-    // to ties inside one step of extent / 1024). Halves again keep extents finite.
-    Digits digits[kMaxTriangles];
-    uint16_t hist[6][kDigits] = {};
-    {
-        const Float4 base = clo * half;
-        const Float4 scale = splat(float(1u << kKeyBits)) /
-                             (chi * half - base);  // inf or NaN for a flat axis: keys 0
-        const Float4 zero = splat(0.0f), top = splat(float((1u << kKeyBits) - 1));
-#pragma GCC unroll 2
-        for (uint32_t i = 0; i < n; ++i)
-            // max4(x, zero) turns NaN into 0.
-            count_digits(to_int(min4(max4((load4(centroid[i]) * half - base) * scale, zero), top)),
-                         digits[i], hist);
-    }
     uint8_t order[3][kMaxTriangles];
-    radix_sort3(digits, n, hist, order);
+    sort_along_axes(s, n, order);
 
     // Top-down: node numbering is depth first, left subtree first, the two children of a node
     // next to each other.
@@ -345,16 +352,13 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
     }
 
     fit_interior_boxes(s, interior, n_interior);
+    if (!active_list) return is_identity(order_out, n);
     uint32_t moved = 0;
-    if (active_list) {
 #pragma GCC unroll 4
-        for (size_t j = 0; j < n; ++j) {
-            const uint8_t t = active_list[leaf_order[j]];
-            order_out[j] = t;
-            moved |= t ^ uint32_t(j);
-        }
-    } else {
-        return is_identity(order_out, n);
+    for (size_t j = 0; j < n; ++j) {
+        const uint8_t t = active_list[leaf_order[j]];
+        order_out[j] = t;
+        moved |= t ^ uint32_t(j);
     }
     return moved == 0;
 }
