@@ -35,9 +35,44 @@ struct alignas(8) Task {
     uint16_t node, begin, end, unused;
 };
 
-// Sorts 0..n-1 by key[k] for each axis k into order[k] (stable: equal keys stay in
+// A triangle's two radix digits on each axis, as the sort reads them: its low digits (x, y, z)
+// in lo[0..2], its high digits in hi[0..2]; lane 3 unused. Bytes, one 8-byte store each.
+struct Digits {
+    uint8_t lo[4], hi[4];
+};
+
+// Splits a triangle's keys (lanes x, y, z, 0..1023) into its digits and counts them.
+void count_digits(Int4 key, Digits& d, uint16_t (*hist)[kDigits]) {
+#if defined(__SSE2__)
+    // The six digits side by side in one register, each taken out of it for its count: no
+    // store and reload of the keys, no scalar masks and shifts.
+    const __m128i k16 = _mm_packs_epi32(key.v, key.v);
+    const __m128i both = _mm_unpacklo_epi64(_mm_and_si128(k16, _mm_set1_epi16(kDigits - 1)),
+                                            _mm_srli_epi16(k16, kDigitBits));
+    _mm_storel_epi64(reinterpret_cast<__m128i*>(&d), _mm_packus_epi16(both, both));
+    ++hist[0][_mm_extract_epi16(both, 0)];
+    ++hist[2][_mm_extract_epi16(both, 1)];
+    ++hist[4][_mm_extract_epi16(both, 2)];
+    ++hist[1][_mm_extract_epi16(both, 4)];
+    ++hist[3][_mm_extract_epi16(both, 5)];
+    ++hist[5][_mm_extract_epi16(both, 6)];
+#else
+    alignas(16) int32_t q[4];
+    store_int4(q, key);
+    for (int k = 0; k < 4; ++k) {
+        d.lo[k] = uint8_t(q[k] & (kDigits - 1));
+        d.hi[k] = uint8_t(q[k] >> kDigitBits);
+    }
+    for (int k = 0; k < 3; ++k) {
+        ++hist[2 * k][d.lo[k]];
+        ++hist[2 * k + 1][d.hi[k]];
+    }
+#endif
+}
+
+// Sorts 0..n-1 by key (digits) on each axis k into order[k] (stable: equal keys stay in
 // increasing index order). hist[2k] / hist[2k+1] hold the counts of the low / high digits.
-void radix_sort3(const uint16_t (*key)[kMaxTriangles], uint32_t n, uint16_t (*hist)[kDigits],
+void radix_sort3(const Digits* digits, uint32_t n, uint16_t (*hist)[kDigits],
                  uint8_t (*order)[kMaxTriangles]) {
     // Exclusive prefix sums (counts <= 256 fit 16 bits).
 #if defined(__SSE2__)
@@ -72,37 +107,81 @@ void radix_sort3(const uint16_t (*key)[kMaxTriangles], uint32_t n, uint16_t (*hi
     uint16_t *const lo0 = hist[0], *const lo1 = hist[2], *const lo2 = hist[4];
 #pragma GCC unroll 4
     for (size_t i = 0; i < n; ++i) {
-        tmp[0][lo0[key[0][i] & (kDigits - 1)]++] = uint8_t(i);
-        tmp[1][lo1[key[1][i] & (kDigits - 1)]++] = uint8_t(i);
-        tmp[2][lo2[key[2][i] & (kDigits - 1)]++] = uint8_t(i);
+        tmp[0][lo0[digits[i].lo[0]]++] = uint8_t(i);
+        tmp[1][lo1[digits[i].lo[1]]++] = uint8_t(i);
+        tmp[2][lo2[digits[i].lo[2]]++] = uint8_t(i);
     }
     uint16_t *const hi0 = hist[1], *const hi1 = hist[3], *const hi2 = hist[5];
 #pragma GCC unroll 4
     for (size_t j = 0; j < n; ++j) {
         const size_t i0 = tmp[0][j], i1 = tmp[1][j], i2 = tmp[2][j];
-        order[0][hi0[key[0][i0] >> kDigitBits]++] = uint8_t(i0);
-        order[1][hi1[key[1][i1] >> kDigitBits]++] = uint8_t(i1);
-        order[2][hi2[key[2][i2] >> kDigitBits]++] = uint8_t(i2);
+        order[0][hi0[digits[i0].hi[0]]++] = uint8_t(i0);
+        order[1][hi1[digits[i1].hi[1]]++] = uint8_t(i1);
+        order[2][hi2[digits[i2].hi[2]]++] = uint8_t(i2);
     }
 }
 
-// An exact copy of count (1..N) triangle indices without a branch on the count (a memcpy call
-// of a variable size mispredicts in its size classes): N byte copies, the last index repeated.
-// Bytewise, not in wider pieces: the indices were just written a byte at a time, and a wider
-// load that spans several pending stores cannot be forwarded from them (it waits for them).
-template <size_t N>
+// An exact copy of count (kLeast..N) triangle indices without a branch on the count (a memcpy
+// call of a variable size mispredicts in its size classes): N byte copies, those past kLeast
+// with the last index repeated. Bytewise, not in wider pieces: the indices were just written
+// a byte at a time, and a wider load that spans several pending stores cannot be forwarded
+// from them (it waits for them).
+template <size_t kLeast, size_t N>
 void copy_up_to(uint8_t* dst, const uint8_t* src, size_t count) {
     const size_t last = count - 1;
 #pragma GCC unroll 8
     for (size_t k = 0; k < N; ++k) {
-        const size_t at = k < last ? k : last;
+        const size_t at = k < kLeast || k < last ? k : last;
         dst[at] = src[at];
     }
 }
 
+// Copies count (1..256) bytes as overlapping 8-byte (or 4-byte, or single) moves, reading and
+// writing nothing outside them: what a memcpy call does for these sizes, without the call and
+// its size classes.
+void copy_rights(uint8_t* dst, const uint8_t* src, size_t count) {
+    if (count >= 8) {
+        for (size_t k = 0; k + 8 < count; k += 8) std::memcpy(dst + k, src + k, 8);
+        std::memcpy(dst + count - 8, src + count - 8, 8);
+    } else if (count >= 4) {
+        std::memcpy(dst, src, 4);
+        std::memcpy(dst + count - 4, src + count - 4, 4);
+    } else {
+        dst[0] = src[0];
+        dst[count / 2] = src[count / 2];
+        dst[count - 1] = src[count - 1];
+    }
+}
+
+// Whether order[0..n) is 0, 1, ..., n - 1, 16 bytes at a time where the target has SSE2
+// (order is readable up to kMaxTriangles; the bytes past n are not looked at).
+bool is_identity(const uint8_t* order, uint32_t n) {
+#if defined(__SSE2__)
+    static_assert(kMaxTriangles % 16 == 0);
+    __m128i expected = _mm_setr_epi8(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+    const __m128i step = _mm_set1_epi8(16);
+    uint32_t i = 0;
+    for (; i + 16 <= n; i += 16) {
+        const __m128i got = _mm_loadu_si128(reinterpret_cast<const __m128i*>(order + i));
+        if (_mm_movemask_epi8(_mm_cmpeq_epi8(got, expected)) != 0xFFFF) return false;
+        expected = _mm_add_epi8(expected, step);
+    }
+    if (i == n) return true;
+    const __m128i got = _mm_loadu_si128(reinterpret_cast<const __m128i*>(order + i));
+    const uint32_t equal = uint32_t(_mm_movemask_epi8(_mm_cmpeq_epi8(got, expected)));
+    const uint32_t wanted = (1u << (n - i)) - 1u;
+    return (equal & wanted) == wanted;
+#else
+    uint32_t moved = 0;
+    for (uint32_t j = 0; j < n; ++j) moved |= order[j] ^ j;
+    return moved == 0;
+#endif
+}
+
 // A leaf's box over its 1..4 triangles: four loads, the last triangle repeated (min and max
 // fold it to the same box, ties included), so no branch on the count.
-void fit_leaf(BvhScratch& s, const uint8_t* tris, size_t count, BvhScratch::Node& node) {
+[[gnu::always_inline]] inline void fit_leaf(BvhScratch& s, const uint8_t* tris, size_t count,
+                                            BvhScratch::Node& node) {
     const size_t last = count - 1;
     const size_t t1 = tris[last < 1 ? last : 1], t2 = tris[last < 2 ? last : 2], t3 = tris[last];
     Float4 lo = load4(s.tri_min[tris[0]]), hi = load4(s.tri_max[tris[0]]);
@@ -116,9 +195,11 @@ void fit_leaf(BvhScratch& s, const uint8_t* tris, size_t count, BvhScratch::Node
     store4(node.hi, hi);
 }
 
-// The leaf of `count` triangles at leaf_order[first..]: its box and link.
-void make_leaf(BvhScratch& s, const uint8_t* leaf_order, uint32_t first, uint32_t count,
-               BvhScratch::Node& node) {
+// The leaf of `count` triangles at leaf_order[first..]: its box and link. Inlined: a call
+// with its five arguments cost a third of a leaf.
+[[gnu::always_inline]] inline void make_leaf(BvhScratch& s, const uint8_t* leaf_order,
+                                             uint32_t first, uint32_t count,
+                                             BvhScratch::Node& node) {
     fit_leaf(s, leaf_order + first, count, node);
     node.link = uint16_t(kLeafBit | ((count - 1u) << 8) | first);
 }
@@ -135,6 +216,31 @@ void fit_interior_boxes(BvhScratch& s, const uint16_t* interior, size_t count) {
     }
 }
 
+// Each triangle's 10-bit keys per axis, monotone in its centroid (so sorting them sorts the
+// centroids up to ties inside one step of extent / 1024), as digits, and the digits' counts.
+// Halves again keep extents finite.
+void count_keys(const BvhScratch& s, uint32_t n, Digits* digits, uint16_t (*hist)[kDigits]) {
+    const Float4 half = splat(0.5f);
+    const Float4 base = load4(s.centroid_min) * half;
+    const Float4 scale =
+        splat(float(1u << kKeyBits)) /
+        (load4(s.centroid_max) * half - base);  // inf or NaN for a flat axis: keys 0
+    const Float4 zero = splat(0.0f), top = splat(float((1u << kKeyBits) - 1));
+#pragma GCC unroll 2
+    for (uint32_t i = 0; i < n; ++i)
+        // max4(x, zero) turns NaN into 0.
+        count_digits(to_int(min4(max4((load4(s.centroid[i]) * half - base) * scale, zero), top)),
+                     digits[i], hist);
+}
+
+// The triangles in key order along each axis (ties in triangle order).
+void sort_along_axes(const BvhScratch& s, uint32_t n, uint8_t (*order)[kMaxTriangles]) {
+    Digits digits[kMaxTriangles];
+    uint16_t hist[6][kDigits] = {};
+    count_keys(s, n, digits, hist);
+    radix_sort3(digits, n, hist, order);
+}
+
 }  // namespace
 
 bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* order_out) {
@@ -142,42 +248,16 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
     if (n == 0) return true;
 
     const float(*const centroid)[4] = s.centroid;
-    const Float4 clo = load4(s.centroid_min), chi = load4(s.centroid_max);
-    const Float4 half = splat(0.5f);
-
-    // 10-bit keys per axis, monotone in the centroid (so sorting them sorts the centroids up
-    // to ties inside one step of extent / 1024). Halves again keep extents finite.
-    uint16_t key[3][kMaxTriangles];
-    uint16_t hist[6][kDigits] = {};
-    {
-        const Float4 base = clo * half;
-        const Float4 scale = splat(float(1u << kKeyBits)) /
-                             (chi * half - base);  // inf or NaN for a flat axis: keys 0
-        const Float4 zero = splat(0.0f), top = splat(float((1u << kKeyBits) - 1));
-        for (uint32_t i = 0; i < n; ++i) {
-            alignas(16) int32_t q[4];
-            // max4(x, zero) turns NaN into 0.
-            store_int4(q,
-                       to_int(min4(max4((load4(centroid[i]) * half - base) * scale, zero), top)));
-            // Per axis written out, as in radix_sort3.
-            key[0][i] = uint16_t(q[0]);
-            key[1][i] = uint16_t(q[1]);
-            key[2][i] = uint16_t(q[2]);
-            ++hist[0][q[0] & (kDigits - 1)];
-            ++hist[2][q[1] & (kDigits - 1)];
-            ++hist[4][q[2] & (kDigits - 1)];
-            ++hist[1][q[0] >> kDigitBits];
-            ++hist[3][q[1] >> kDigitBits];
-            ++hist[5][q[2] >> kDigitBits];
-        }
-    }
     uint8_t order[3][kMaxTriangles];
-    radix_sort3(key, n, hist, order);
+    sort_along_axes(s, n, order);
 
     // Top-down: node numbering is depth first, left subtree first, the two children of a node
     // next to each other.
     uint8_t side[kMaxTriangles];
-    uint8_t leaf_order[kMaxTriangles];  // each leaf's triangles at its range
+    // Each leaf's triangles at its range: the BVH order itself when the active triangles are
+    // all of them.
+    uint8_t own_leaf_order[kMaxTriangles];
+    uint8_t* const leaf_order = active_list ? own_leaf_order : order_out;
     Task stack[kMaxNodes];
     uint16_t interior[kMaxNodes];  // in the order they were split
     size_t n_interior = 0;
@@ -215,7 +295,8 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
         interior[n_interior++] = uint16_t(task.node);
         if (count <= 2 * kMaxLeafSize) {
             // Both children are leaves: they need no sorted orders, only their triangles.
-            copy_up_to<2 * kMaxLeafSize>(leaf_order + b, order[axis] + b, count);
+            // A task has more than kMaxLeafSize triangles.
+            copy_up_to<kMaxLeafSize + 1, 2 * kMaxLeafSize>(leaf_order + b, order[axis] + b, count);
             make_leaf(s, leaf_order, b, left_count, s.nodes[left]);
             make_leaf(s, leaf_order, m, count - left_count, s.nodes[left + 1]);
             continue;
@@ -257,12 +338,12 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
             r1 += s1;
             r2 += s2;
         }
-        std::memcpy(o1 + left_count, right1, count - left_count);
-        std::memcpy(o2 + left_count, right2, count - left_count);
+        copy_rights(o1 + left_count, right1, count - left_count);
+        copy_rights(o2 + left_count, right2, count - left_count);
         // More than 8 triangles leave at least 8 on the left (a node), and on the right 1-4
         // (a leaf, its triangles from any order) or more (a node).
         if (count - left_count <= kMaxLeafSize) {
-            copy_up_to<kMaxLeafSize>(leaf_order + m, order[axis] + m, count - left_count);
+            copy_up_to<1, kMaxLeafSize>(leaf_order + m, order[axis] + m, count - left_count);
             make_leaf(s, leaf_order, m, count - left_count, s.nodes[left + 1]);
         } else {
             stack[sp++] = {uint16_t(left + 1), uint16_t(m), uint16_t(e), 0};
@@ -271,6 +352,7 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
     }
 
     fit_interior_boxes(s, interior, n_interior);
+    if (!active_list) return is_identity(order_out, n);
     uint32_t moved = 0;
 #pragma GCC unroll 4
     for (size_t j = 0; j < n; ++j) {

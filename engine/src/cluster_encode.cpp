@@ -113,27 +113,36 @@ void write_nodes(const QuantFrame& f, bool unbounded, const BvhScratch& s, uint3
         __m128i qhi = _mm_cvttps_epi32(xhi);
         qhi =
             _mm_sub_epi32(qhi, _mm_castps_si128(_mm_cmplt_ps(_mm_cvtepi32_ps(qhi), xhi)));  // ceil
-        for (;;) {
-            const __m128i down = _mm_and_si128(_mm_cmpgt_epi32(qlo, izero),
-                                               _mm_castps_si128(_mm_cmpgt_ps(dequant(qlo), vlo)));
-            if (!_mm_movemask_epi8(down)) break;
-            qlo = _mm_add_epi32(qlo, down);
+        // The first guesses are almost always right: one test of both before the loops.
+        const __m128i down = _mm_and_si128(_mm_cmpgt_epi32(qlo, izero),
+                                           _mm_castps_si128(_mm_cmpgt_ps(dequant(qlo), vlo)));
+        const __m128i up = _mm_and_si128(_mm_cmplt_epi32(qhi, itop),
+                                         _mm_castps_si128(_mm_cmplt_ps(dequant(qhi), vhi)));
+        if (_mm_movemask_epi8(_mm_or_si128(down, up))) {
+            for (;;) {
+                const __m128i d = _mm_and_si128(_mm_cmpgt_epi32(qlo, izero),
+                                                _mm_castps_si128(_mm_cmpgt_ps(dequant(qlo), vlo)));
+                if (!_mm_movemask_epi8(d)) break;
+                qlo = _mm_add_epi32(qlo, d);
+            }
+            for (;;) {
+                const __m128i u = _mm_and_si128(_mm_cmplt_epi32(qhi, itop),
+                                                _mm_castps_si128(_mm_cmplt_ps(dequant(qhi), vhi)));
+                if (!_mm_movemask_epi8(u)) break;
+                qhi = _mm_sub_epi32(qhi, u);
+            }
         }
-        for (;;) {
-            const __m128i up = _mm_and_si128(_mm_cmplt_epi32(qhi, itop),
-                                             _mm_castps_si128(_mm_cmplt_ps(dequant(qhi), vhi)));
-            if (!_mm_movemask_epi8(up)) break;
-            qhi = _mm_sub_epi32(qhi, up);
-        }
-        // The six quantized bounds (0..255) narrowed to bytes in SSE: qmin then qmax, each in
-        // the low three bytes of a 32-bit half; the link in the top two bytes.
+        // The six quantized bounds (0..255) as bytes in SSE: qmin x y z 0 qmax x y z 0, the
+        // qmax bytes moved down one onto the 0, the link in the top two bytes.
         const __m128i q16 = _mm_packs_epi32(qlo, qhi);
-        const uint64_t q8 = uint64_t(_mm_cvtsi128_si64(_mm_packus_epi16(q16, q16)));
-        const uint64_t link = sn.link;
-        const uint64_t node = (q8 & 0xFFFFFFu) | ((q8 >> 32) & 0xFFFFFFu) << 24 | link << 48;
+        const __m128i q8 = _mm_packus_epi16(q16, q16);
+        const __m128i low3 = _mm_setr_epi8(-1, -1, -1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0);
+        const __m128i bounds =
+            _mm_or_si128(_mm_and_si128(low3, q8), _mm_andnot_si128(low3, _mm_srli_si128(q8, 1)));
+        const __m128i with_link = _mm_insert_epi16(bounds, sn.link, 3);
         static_assert(sizeof(BvhNode) == 8 && offsetof(BvhNode, qmax) == 3 &&
                       offsetof(BvhNode, link) == 6);
-        std::memcpy(dst + 8 * i, &node, 8);  // little endian, as the format is
+        _mm_storel_epi64(reinterpret_cast<__m128i*>(dst + 8 * i), with_link);  // little endian
     }
 #else
     float inv_step[3];
@@ -206,6 +215,7 @@ void write_triangle_sections(const EncodeInput& in, const ObjectHeader& h, const
     const bool any_dead = in.inactive && std::memchr(in.inactive, 1, n_triangles) != nullptr;
     // Each triangle's three as one 4-byte load and store (the fourth byte is the next
     // triangle's, overwritten by it), the last one's bytewise: nothing past the section moves.
+#pragma GCC unroll 4
     for (uint32_t i = 0; i + 1 < n_triangles; ++i) {
         uint32_t three;
         std::memcpy(&three, in.index_bytes + 3 * size_t(order[i]), 4);
@@ -246,6 +256,21 @@ Float4 nan_lanes_to_zero(Float4 c) {
     return load4(lanes);
 }
 
+// The gathers' last step: the centroids' bounds into the BVH scratch, and the bounds over the
+// active triangles' vertices (left as given when none is active).
+void store_bounds(BvhScratch& s, Float4 centroid_lo, Float4 centroid_hi, uint32_t n_active,
+                  Float4 lo_all, Float4 hi_all, float bmin[3], float bmax[3]) {
+    store4(s.centroid_min, centroid_lo);
+    store4(s.centroid_max, centroid_hi);
+    if (n_active > 0) {
+        alignas(16) float lo4[4], hi4[4];
+        store4(lo4, lo_all);
+        store4(hi4, hi_all);
+        std::memcpy(bmin, lo4, 3 * sizeof(float));
+        std::memcpy(bmax, hi4, 3 * sizeof(float));
+    }
+}
+
 // One pass over the triangles (inactive ones skipped when kSkipInactive) gathers each active
 // triangle's box and centroid into the BVH scratch (what its build starts from), with the
 // centroids' bounds, its index into `active`, and the bounds over them (the bounds over the
@@ -282,16 +307,52 @@ uint32_t gather_active_boxes(const EncodeInput& in, BvhScratch& s, uint8_t* acti
         centroid_hi = max4(centroid_hi, centroid);
         active[n_active++] = uint8_t(t);
     }
-    store4(s.centroid_min, centroid_lo);
-    store4(s.centroid_max, centroid_hi);
-    if (n_active > 0) {
-        alignas(16) float lo4[4], hi4[4];
-        store4(lo4, lo_all);
-        store4(hi4, hi_all);
-        std::memcpy(bmin, lo4, 3 * sizeof(float));
-        std::memcpy(bmax, hi4, 3 * sizeof(float));
-    }
+    store_bounds(s, centroid_lo, centroid_hi, n_active, lo_all, hi_all, bmin, bmax);
     return n_active;
+}
+
+// The cluster's vertices as 16-byte lanes x, y, z, 0 (one aligned load each for the triangles
+// that use them). Returns whether every coordinate is finite.
+bool widen_vertices(const float* positions, uint32_t count, float (*vertex)[4]) {
+    Float4 any_bad = splat(0.0f);  // x - x is 0 for a finite x, NaN for infinities and NaN
+#pragma GCC unroll 2
+    for (uint32_t v = 0; v < count; ++v) {
+        const Float4 p = load3(positions + 3 * size_t(v));
+        store4(vertex[v], p);
+        any_bad = any_bad + (p - p);
+    }
+    return nan_lanes(any_bad) == 0;
+}
+
+// gather_active_boxes for a cluster whose triangles are all active and whose vertices are all
+// finite (the common case): the same boxes, centroids and bounds without the tests (no
+// coordinate is NaN, and half-sums of finite corners are finite), each corner one load, no
+// active list (every triangle is).
+uint32_t gather_finite_boxes(const EncodeInput& in, const float (*vertex)[4], BvhScratch& s,
+                             float bmin[3], float bmax[3]) {
+    const uint32_t n = in.triangle_count;
+    const uint8_t* const index_bytes = in.index_bytes;
+    Float4 lo_all = splat(INFINITY), hi_all = splat(-INFINITY);
+    Float4 centroid_lo = lo_all, centroid_hi = hi_all;
+    const Float4 half = splat(0.5f);
+#pragma GCC unroll 2
+    for (size_t t = 0; t < n; ++t) {
+        const uint8_t* tri = index_bytes + 3 * t;
+        const Float4 a = load4(vertex[tri[0]]);
+        const Float4 b = load4(vertex[tri[1]]);
+        const Float4 c = load4(vertex[tri[2]]);
+        const Float4 lo = min4(a, min4(b, c)), hi = max4(a, max4(b, c));
+        store4(s.tri_min[t], lo);
+        store4(s.tri_max[t], hi);
+        lo_all = min4(lo_all, lo);
+        hi_all = max4(hi_all, hi);
+        const Float4 centroid = lo * half + hi * half;
+        store4(s.centroid[t], centroid);
+        centroid_lo = min4(centroid_lo, centroid);
+        centroid_hi = max4(centroid_hi, centroid);
+    }
+    store_bounds(s, centroid_lo, centroid_hi, n, lo_all, hi_all, bmin, bmax);
+    return n;
 }
 
 // Copies `size` bytes (a multiple of 4) with non-temporal stores: 4-byte ones up to the first
@@ -355,8 +416,13 @@ uint32_t encode_object(const EncodeInput& in, EncodeScratch& scratch, ObjectStor
     if (in.positions) {
         const bool any_inactive =
             in.inactive && std::memchr(in.inactive, 1, n_triangles) != nullptr;
-        n_active = any_inactive ? gather_active_boxes<true>(in, s, active, any_nan, bmin, bmax)
-                                : gather_active_boxes<false>(in, s, active, any_nan, bmin, bmax);
+        if (any_inactive)
+            n_active = gather_active_boxes<true>(in, s, active, any_nan, bmin, bmax);
+        else if (in.vertex_count > 0 &&  // else an instance of a hostile template's index 0
+                 widen_vertices(in.positions, in.vertex_count, scratch.vertex))
+            n_active = gather_finite_boxes(in, scratch.vertex, s, bmin, bmax);
+        else
+            n_active = gather_active_boxes<false>(in, s, active, any_nan, bmin, bmax);
     }
     std::memcpy(h.bounds_min, bmin, sizeof bmin);
     std::memcpy(h.bounds_max, bmax, sizeof bmax);
@@ -369,7 +435,7 @@ uint32_t encode_object(const EncodeInput& in, EncodeScratch& scratch, ObjectStor
     if (is_clas && n_active > 0) {
         // Told by the BVH, not compared here: its order was just stored a byte at a time, and
         // memcmp's wide loads would wait for those stores.
-        identity = build_bvh(active, n_active, s, order);
+        identity = build_bvh(n_active < n_triangles ? active : nullptr, n_active, s, order);
         n_nodes = s.node_count;
         if (n_active < n_triangles) {
             bool is_active[kMaxTriangles] = {};
