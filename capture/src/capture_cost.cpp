@@ -21,6 +21,7 @@ const char* const kPhaseNames[] = {
     "  engine (served build)",
     "served records completed",
     "worker waiting for sink",
+    "waiting for the sink past its memory bound",
     "app threads in sink",
     "  waiting for sink lock",
     "timestamp readback",

@@ -19,6 +19,7 @@ enum class CostPhase : uint8_t {
     kPauseEngine,             //   of which: the served build's engine run
     kServedRecordCompletion,  // a served record completed where it is written: output walk, buffer naming
     kWorkerSinkWait,          // pause worker waiting for the sink's lock
+    kSinkBoundWait,  // a deliverer waiting for the sink to write, past its memory bound (1 GiB)
     kAppSinkCall,    // application threads inside the sink (records, submissions, timestamps)
     kAppSinkWait,    //   of which: waiting for the sink's lock
     kTimestampRead,  // application threads reading the layer's GPU timestamps
