@@ -2,6 +2,7 @@
 #include "clastrace/capture/served_build.h"
 #include "clastrace/common/hex.h"
 
+#include "clastrace/capture/capture_cost.h"
 #include "clastrace/capture/cluster_input_walker.h"
 #include "clastrace/capture/cluster_limits.h"
 #include "clastrace/capture/uncached_copy.h"
@@ -152,6 +153,7 @@ const ServedBuffer* ServedMemory::buffer_holding(VkDeviceAddress address, uint64
 
 void ServedMemory::copy(size_t group) {
     if (copied_[group]) return;
+    CostScope cost(CostPhase::kPauseCopyIn);
     const Group& g = groups_[group];
     engine::MemoryRegion& region =
         image_->add_region(g.base, g.end - g.base, g.usage, "buffer " + hex(g.buffers[0]->buffer),
