@@ -21,6 +21,7 @@ const char* const kPhaseNames[] = {
     "  reading inputs/outputs",
     "  engine (served build)",
     "  buffers copied into the engine's image",
+    "    of which into fresh pages (none in the region pool)",
     "served records completed",
     "worker waiting for sink",
     "waiting for the sink past its memory bound",

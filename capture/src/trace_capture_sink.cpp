@@ -103,8 +103,10 @@ public:
                                             .count()));
         traces::TraceWriterOptions options;
         options.zstd_level = zstd_level_;
+        // Nice 10, not SCHED_IDLE: the sink's thread, raised while others wait for it, waits for
+        // the compressor in turn (a full queue), and nobody can raise the compressor's thread.
         options.compressor_nice = kBackgroundNice;
-        options.compressor_idle_class = true;
+        options.compressor_idle_class = false;
         options.compressor_cpus = placement_.cpus;
         options.delta_contents = layer_config().delta_contents;
         TraceError error;
@@ -508,7 +510,9 @@ private:
         std::vector<RayCheckRecord> ray_checks;
         std::optional<PreRangeStateRecord> pre_range;  // the prelude's (layer_pre_range.cpp)
     };
-    static constexpr uint64_t kMaxPendingBytes = 256ull << 20;    // the sink's thread is raised
+    // Past this the sink's thread is raised: a sink that lags also holds the images whose regions
+    // the served region pool would lend the next pauses (their copies then fault fresh pages).
+    static constexpr uint64_t kMaxPendingBytes = 64ull << 20;
     static constexpr uint64_t kHardPendingBytes = 1024ull << 20;  // the deliverer waits
     static constexpr int kBackgroundNice = 10;  // the sink's and the compressor's threads
 

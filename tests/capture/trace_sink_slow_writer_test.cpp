@@ -118,7 +118,7 @@ TEST(TraceSinkSlowWriter, NeitherABuildPastTheMemoryBoundNorAHostWriteWaitsForTh
         std::this_thread::yield();
 
     // Submission 2: a host write ordered after it, then its build, held past the memory bound
-    // (256 MiB, counted; no memory behind it), as the pause worker delivers it.
+    // (64 MiB; 300 MiB counted, no memory behind it), as the pause worker delivers it.
     submit_build(*sink, 2, 0x78, 4);
     const uint64_t waits_before = cost_total(CostPhase::kSinkBoundWait).count;
     std::atomic<bool> returned{false};

@@ -22,6 +22,7 @@ enum class CostPhase : uint8_t {
     // first (the capture's walk, or the engine's run): left out of the two lines above, so that
     // they compare between capture + serving and serving only.
     kPauseCopyIn,
+    kPauseCopyInFresh,        //   of which: into fresh region bytes, the region pool having none
     kServedRecordCompletion,  // a served record completed where it is written: output walk, buffer naming
     kWorkerSinkWait,          // pause worker waiting for the sink's lock
     kSinkBoundWait,  // a deliverer waiting for the sink to write, past its memory bound (1 GiB)
