@@ -14,13 +14,17 @@ struct AtomicTotal {
 std::array<AtomicTotal, size_t(CostPhase::kCount)> phases;
 std::array<std::atomic<uint64_t>, size_t(CostThread::kCount)> threads{};
 thread_local bool layerThread = false;
+thread_local std::array<uint64_t, size_t(CostPhase::kCount)> thread_wall_ns{};
 
 const char* const kPhaseNames[] = {
     "pause held (queue stalled)",
     "  reading inputs/outputs",
     "  engine (served build)",
+    "  buffers copied into the engine's image",
+    "    of which into fresh pages (none in the region pool)",
     "served records completed",
     "worker waiting for sink",
+    "waiting for the sink past its memory bound",
     "app threads in sink",
     "  waiting for sink lock",
     "timestamp readback",
@@ -55,7 +59,10 @@ void add_cost(CostPhase phase, uint64_t wall, uint64_t cpu) {
     t.count.fetch_add(1, std::memory_order_relaxed);
     t.wall_ns.fetch_add(wall, std::memory_order_relaxed);
     t.cpu_ns.fetch_add(cpu, std::memory_order_relaxed);
+    thread_wall_ns[size_t(phase)] += wall;
 }
+
+uint64_t thread_cost_wall_ns(CostPhase phase) { return thread_wall_ns[size_t(phase)]; }
 
 CostTotal cost_total(CostPhase phase) {
     const AtomicTotal& t = phases[size_t(phase)];

@@ -246,7 +246,7 @@ bool PauseWorker::handle(Expected& expected) {
     const OpenKey open_key =
         std::make_tuple(expected.submission_index, pause.pause_id, pause.occurrence);
     if (capture) {
-        CostScope cost(CostPhase::kPauseRead);
+        CostScope cost(CostPhase::kPauseRead, false, CostPhase::kPauseCopyIn);
         if (pause.phase == PausePhase::kBeforeCommand) {
             record = open_record(expected, open_key, reader);
             if (layer_config().host_writes)
@@ -432,7 +432,7 @@ std::shared_ptr<const engine::MemoryImage> PauseWorker::finish_served_command(
     const DeviceMemoryReader& reader) {
     std::shared_ptr<const engine::MemoryImage> served_image;
     {
-        CostScope cost(CostPhase::kPauseEngine);
+        CostScope cost(CostPhase::kPauseEngine, false, CostPhase::kPauseCopyIn);
         served_image = execute_served(pause, served, record);
     }
     // No pause follows a served command: learn the templates it built (or moved) now, while

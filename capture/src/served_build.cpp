@@ -2,6 +2,7 @@
 #include "clastrace/capture/served_build.h"
 #include "clastrace/common/hex.h"
 
+#include "clastrace/capture/capture_cost.h"
 #include "clastrace/capture/cluster_input_walker.h"
 #include "clastrace/capture/cluster_limits.h"
 #include "clastrace/capture/uncached_copy.h"
@@ -152,10 +153,16 @@ const ServedBuffer* ServedMemory::buffer_holding(VkDeviceAddress address, uint64
 
 void ServedMemory::copy(size_t group) {
     if (copied_[group]) return;
+    CostScope cost(CostPhase::kPauseCopyIn);
     const Group& g = groups_[group];
+    engine::RegionBytes lent = pool_ ? pool_->take(g.end - g.base) : engine::RegionBytes();
+    // Counted apart: a copy into fresh bytes pays a page fault a page (the pool ran dry: the
+    // images of records not yet written and freed hold its regions).
+    std::optional<CostScope> fresh;
+    if (lent.empty()) fresh.emplace(CostPhase::kPauseCopyInFresh);
     engine::MemoryRegion& region =
         image_->add_region(g.base, g.end - g.base, g.usage, "buffer " + hex(g.buffers[0]->buffer),
-                           pool_ ? pool_->take(g.end - g.base) : engine::RegionBytes());
+                           std::move(lent));
     for (const ServedBuffer* b : g.buffers) {
         copy_in(*b, 0, b->size,
                 reinterpret_cast<uint8_t*>(region.bytes.write_at(b->address - g.base, b->size)));

@@ -9,12 +9,18 @@
 // is hashed, framed and handed to the compressor: `mutex_` guards what the calls change (held
 // for map updates only), and everything bound for the file goes, in trace order, through
 // `outbox_`; whoever holds `writeMutex_` (the sink's thread, or a flush) takes the outbox and
-// writes it. Lock order: writeMutex_ before mutex_.
+// writes it. Lock order: writeMutex_ before mutex_. Only the sink's thread and the
+// application's first vkCreateDevice and last flush take writeMutex_: the pause worker and the
+// application's calls never wait for the writing (a host write's bytes are stored by the
+// writing side too). The sink's thread runs in SCHED_IDLE (idle_priority.h); whoever finds
+// mutex_ taken, or the captured bytes past kMaxPendingBytes, raises it to the normal class so
+// that it cannot be starved while others wait for it.
 #include "clastrace/capture/capture_sink.h"
 #include "clastrace/capture/background_cpus.h"
 
 #include "clastrace/capture/capture_cost.h"
 #include "clastrace/capture/layer_config.h"
+#include "idle_priority.h"
 #include "trace_record_encoding.h"
 
 #include <clastrace/traces/cluster_conversions.h>
@@ -61,6 +67,7 @@ public:
           flush_milliseconds_(flush_milliseconds),
           placement_(std::move(placement)) {
         emitter_ = std::thread([this] { emit_in_background(); });
+        priority_.attach(emitter_.native_handle());
         // Placed from here, not from the thread: the stats line must not depend on whether the
         // idle-priority thread has run yet.
         if (!placement_.cpus.empty()) (void)place_thread(emitter_.native_handle(), placement_.cpus);
@@ -72,6 +79,7 @@ public:
             std::lock_guard lock(wake_mutex_);
             stop_emitting_ = true;
         }
+        priority_.raise();  // what it writes now, the application waits for
         wake_.notify_all();
         emitter_.join();
         std::lock_guard write(write_mutex_);
@@ -86,7 +94,7 @@ public:
     bool active() const override { return !failed_; }
 
     void device_created(const DeviceRecord& d) override {
-        std::lock_guard write(write_mutex_);
+        auto write = lock_writer();
         StateLock lock(*this);
         if (writer_ || failed_) return;  // the header describes the first device
         const fbs::TraceHeaderT header =
@@ -95,8 +103,10 @@ public:
                                             .count()));
         traces::TraceWriterOptions options;
         options.zstd_level = zstd_level_;
+        // Nice 10, not SCHED_IDLE: the sink's thread, raised while others wait for it, waits for
+        // the compressor in turn (a full queue), and nobody can raise the compressor's thread.
         options.compressor_nice = kBackgroundNice;
-        options.compressor_idle_class = true;
+        options.compressor_idle_class = false;
         options.compressor_cpus = placement_.cpus;
         options.delta_contents = layer_config().delta_contents;
         TraceError error;
@@ -221,20 +231,23 @@ public:
         for (const auto& c : cb.commands) n += pause_id_of(c) != 0;
         return n;
     }
-    // Hashing and framing the snapshots happen on the sink's thread, not in the pause that
-    // delivered them; past kMaxPendingBytes the deliverer does it (bounded memory).
+    // Hashing and framing the snapshots happen on the sink's thread, never on the pause worker
+    // that delivered them. Past kMaxPendingBytes the sink's thread works at the application's
+    // priority until it has caught up; past kHardPendingBytes (a writer slower than the capture
+    // even so: a slow disk, a pipe) the deliverer waits for it to write what is ready, so memory
+    // stays bounded. The pause worker delivers after releasing the queue, so that wait falls
+    // between pauses, never inside one.
     void cluster_build_captured(ClusterBuildCapture c) override {
-        bool over_limit = false;
+        uint64_t pending = 0;
         {
             StateLock lock(*this);
             pending_bytes_ += held_bytes_of(c);
             pending_[c.submission_index].builds[{c.pause_id, c.occurrence}] = std::move(c);
-            over_limit = pending_bytes_ > kMaxPendingBytes;
-            if (over_limit) emit_ready_locked(false);
+            pending = pending_bytes_;
         }
-        if (!over_limit) return wake_emitter();
-        std::lock_guard write(write_mutex_);
-        write_outbox_locked();
+        if (pending > kMaxPendingBytes) priority_.raise();
+        wake_emitter();
+        if (pending > kHardPendingBytes) wait_until_written();
     }
     // Host synchronization goes out after the newest submission already announced, as the
     // application made the call after that vkQueueSubmit returned; a submission still waiting
@@ -244,23 +257,14 @@ public:
         StateLock lock(*this);
         append_ordered_locked(std::move(record));
     }
-    // Ordered like host synchronization (the layer reports it from the host call that saw it);
-    // its bytes go to the content store at once, ahead of the record that names them.
+    // Ordered like host synchronization (the layer reports it from the host call that saw it).
+    // Its bytes go to the content store on the writing side, right ahead of the record that
+    // names them: the caller holds the host-write watch's lock, which a pause takes, so it must
+    // not wait here for the writer.
     void host_write_observed(const HostWriteRecord& w) override {
-        fbs::MemoryObservationT r;
-        r.memory = w.memory;
-        r.memory_offset = w.memory_offset;
-        r.reason = uint32_t(w.seen);
-        {
-            std::lock_guard write(write_mutex_);
-            if (!writer_ || failed_) return;
-            fbs::MemorySnapshot snap;
-            if (!check(writer_->snapshot(w.buffer, w.buffer_offset, w.address, w.bytes.data(),
-                                         w.bytes.size(), &snap)))
-                return;
-            r.snapshots.push_back(snap);
-        }
-        append(record_of(std::move(r)));
+        Ordered copy = w;  // outside the lock
+        StateLock lock(*this);
+        append_ordered_locked(std::move(copy));
     }
     // A queue operation like a submission: after the submissions made before the call (a
     // submission waiting on its semaphore is made after it).
@@ -328,11 +332,12 @@ public:
         }
         written.clear();
         StateLock lock(*this);
-        pending_bytes_ -= std::min(pending_bytes_, bytes);
+        pending_bytes_ -= std::min(pending_bytes_.load(), bytes);
     }
     void flush() override {
         CostScope cost(CostPhase::kDeviceFlush, true);
-        std::lock_guard write(write_mutex_);
+        priority_.raise();  // the application waits for what it writes now
+        auto write = lock_writer();
         {
             StateLock lock(*this);
             emit_ready_locked(false);
@@ -364,13 +369,20 @@ public:
                            " (the application's: " + application + ")") +
                 "; sink on " + format_cpu_list(sink_cpus_));
         }
-        std::lock_guard write(write_mutex_);
-        if (!writer_) return lines;
+        const std::string raised =
+            "sink thread raised out of the idle class: " + std::to_string(priority_.raises()) +
+            " times" + (priority_.idle_class() ? "" : " (runs at nice 10: cannot leave it)");
+        auto write = lock_writer();
+        if (!writer_) {
+            lines.push_back(raised);
+            return lines;
+        }
         const traces::TraceWriterStats w = writer_->stats();
         lines.back() +=
             std::string(", compressor ") + (placement_.cpus.empty() ? "as created"
                                             : w.compressor_placed   ? "placed"
                                                                     : "refused (as created)");
+        lines.push_back(raised);
         char line[256];
         std::snprintf(line, sizeof line,
                       "trace: %llu records, %llu chunks, %llu raw bytes -> %llu compressed (zstd "
@@ -483,6 +495,8 @@ private:
             ray_query_check_of(c, index == trace_submission_.end() ? ~0ull : index->second)));
     }
 
+    // A record of an application call, or a host write whose bytes the writing side stores.
+    using Ordered = std::variant<fbs::RecordT, HostWriteRecord>;
     struct Pending {
         SubmissionRecord submission;
         bool submitted = false;
@@ -491,12 +505,15 @@ private:
         std::map<uint64_t, std::shared_ptr<RecordedCommandBuffer>>
             secondaries;  // executed by them, by handle
         std::map<std::pair<uint64_t, uint32_t>, ClusterBuildCapture>
-            builds;                       // by (pauseId, occurrence)
-        std::vector<fbs::RecordT> after;  // the application's calls made after this submission
+            builds;                  // by (pauseId, occurrence)
+        std::vector<Ordered> after;  // the application's calls made after this submission
         std::vector<RayCheckRecord> ray_checks;
         std::optional<PreRangeStateRecord> pre_range;  // the prelude's (layer_pre_range.cpp)
     };
-    static constexpr uint64_t kMaxPendingBytes = 256ull << 20;
+    // Past this the sink's thread is raised: a sink that lags also holds the images whose regions
+    // the served region pool would lend the next pauses (their copies then fault fresh pages).
+    static constexpr uint64_t kMaxPendingBytes = 64ull << 20;
+    static constexpr uint64_t kHardPendingBytes = 1024ull << 20;  // the deliverer waits
     static constexpr int kBackgroundNice = 10;  // the sink's and the compressor's threads
 
     // The pause that reads a command buffer's timestamps (0: it has none).
@@ -533,12 +550,9 @@ private:
     void emit_in_background() {
         emitterThread = true;
         // The application's threads (and the served builds' engine) come first: writing the trace
-        // takes the cores they leave idle (SCHED_IDLE; a lower nice where the class is refused).
-        // Memory stays bounded (kMaxPendingBytes: past it the pause worker writes itself, at its
-        // own priority). Best effort, per thread on Linux.
-        sched_param idle{};
-        if (pthread_setschedparam(pthread_self(), SCHED_IDLE, &idle) != 0)
-            (void)setpriority(PRIO_PROCESS, id_t(gettid()), kBackgroundNice);
+        // takes the cores they leave idle (SCHED_IDLE; nice 10 where the class could not be left
+        // again), except while raised (idle_priority.h).
+        priority_.enter_on_calling_thread();
         pthread_setname_np(pthread_self(), "clastrace-sink");  // for profilers and top
         using Clock = std::chrono::steady_clock;
         auto last_flush = Clock::now();
@@ -546,6 +560,7 @@ private:
             std::chrono::milliseconds(flush_milliseconds_ ? flush_milliseconds_ : 3600000);
         std::unique_lock wait(wake_mutex_);
         while (!stop_emitting_) {
+            if (!work_ && pending_bytes_ < kMaxPendingBytes / 2) priority_.settle();
             wake_.wait_until(wait, last_flush + interval, [&] { return stop_emitting_ || work_; });
             if (stop_emitting_) break;
             work_ = false;
@@ -582,16 +597,42 @@ private:
         StateLock lock(*this);
         append_ordered_locked(std::move(record));
     }
+    // writeMutex_ for a thread other than the sink's, which it would wait for: raised first if
+    // taken (the sink's thread may hold it in SCHED_IDLE).
+    std::unique_lock<std::mutex> lock_writer() {
+        std::unique_lock write(write_mutex_, std::try_to_lock);
+        if (write.owns_lock()) return write;
+        priority_.raise();
+        write.lock();
+        return write;
+    }
+    // Past kHardPendingBytes: waits until the sink's thread wrote everything that can be written
+    // now (a submission still waiting for its builds cannot be), or the bytes dropped below.
+    void wait_until_written() {
+        CostScope cost(CostPhase::kSinkBoundWait);
+        release_written();  // the pause worker's job, which it cannot do while it waits here
+        std::unique_lock lock(mutex_);
+        written_pass_.wait(lock, [&] {
+            return pending_bytes_ <= kHardPendingBytes || failed_ || !ready_to_write_locked();
+        });
+    }
+    bool ready_to_write_locked() const {
+        if (writing_ || !outbox_.empty()) return true;
+        if (pending_.empty()) return false;
+        const Pending& p = pending_.begin()->second;
+        return p.submitted && p.builds.size() >= p.expected_builds;
+    }
     // A record of an application call goes after the newest submission announced before it (the
     // call came after that vkQueueSubmit returned); a submission still waiting for its builds
     // holds it back, so the trace keeps the order of the calls.
-    void append_ordered_locked(fbs::RecordT record) {
+    void append_ordered_locked(Ordered record) {
         for (auto it = pending_.rbegin(); it != pending_.rend(); ++it)
             if (it->second.submitted) {
                 it->second.after.push_back(std::move(record));
                 return;
             }
-        append_locked(std::move(record));
+        if (writer_ && !failed_)
+            std::visit([&](auto& r) { outbox_.emplace_back(std::move(r)); }, record);
     }
     // Queues a record for the file (mutex_ held); writeOutboxLocked writes it.
     void append_locked(fbs::RecordT record) {
@@ -600,6 +641,26 @@ private:
     void write_record(const fbs::RecordT& record) {  // writeMutex_ held
         if (writer_ && !failed_) check(writer_->append(record));
         appended_since_flush_ = true;
+    }
+    // Its bytes into the content store, then the record naming them (writeMutex_ held).
+    void write_host_write(const HostWriteRecord& w) {
+        if (!writer_ || failed_) return;
+        fbs::MemoryObservationT r;
+        r.memory = w.memory;
+        r.memory_offset = w.memory_offset;
+        r.reason = uint32_t(w.seen);
+        fbs::MemorySnapshot snap;
+        if (!check(writer_->snapshot(w.buffer, w.buffer_offset, w.address, w.bytes.data(),
+                                     w.bytes.size(), &snap)))
+            return;
+        r.snapshots.push_back(snap);
+        write_record(record_of(std::move(r)));
+    }
+    void write_ordered(const Ordered& item) {
+        if (const auto* record = std::get_if<fbs::RecordT>(&item))
+            write_record(*record);
+        else
+            write_host_write(std::get<HostWriteRecord>(item));
     }
     void emit_bind_locked(const BufferBindingRecord& b, VkDeviceAddress address, bool ordered) {
         fbs::BufferBindMemoryT r;
@@ -647,12 +708,18 @@ private:
             {
                 StateLock lock(*this);
                 items.swap(outbox_);
+                writing_ = !items.empty();
             }
-            if (items.empty()) return;
+            if (items.empty()) {
+                written_pass_.notify_all();
+                return;
+            }
             uint64_t written = 0;
             for (OutItem& item : items) {
                 if (auto* record = std::get_if<fbs::RecordT>(&item)) {
                     write_record(*record);
+                } else if (auto* w = std::get_if<HostWriteRecord>(&item)) {
+                    write_host_write(*w);
                 } else if (auto* p = std::get_if<Pending>(&item)) {
                     write_submission(*p);
                     for (const auto& [key, build] : p->builds) written += held_bytes_of(build);
@@ -673,8 +740,12 @@ private:
                 }
             }
             items.clear();  // frees what is left before the count says it is gone
-            StateLock lock(*this);
-            pending_bytes_ -= std::min(pending_bytes_, written);
+            {
+                StateLock lock(*this);
+                pending_bytes_ -= std::min(pending_bytes_.load(), written);
+                writing_ = false;
+            }
+            written_pass_.notify_all();
         }
     }
 
@@ -696,7 +767,7 @@ private:
             build.held_bytes = 0;
         const uint64_t after = held_bytes_of(build);
         StateLock lock(*this);
-        pending_bytes_ = pending_bytes_ - std::min(pending_bytes_, before) + after;
+        pending_bytes_ = pending_bytes_ - std::min(pending_bytes_.load(), before) + after;
     }
 
     // One snapshot per run of touching or overlapping ranges of one buffer (all read at the same
@@ -804,7 +875,7 @@ private:
             f.submission = submission;
             write_record(record_of(std::move(f)));
         }
-        for (const fbs::RecordT& r : p.after) write_record(r);
+        for (const Ordered& r : p.after) write_ordered(r);
     }
 
     // One execution of `cb`: Begin (restated when it ran before in this submission), its
@@ -921,7 +992,10 @@ private:
                 return;
             }
             const uint64_t started = wall_ns();
-            lock_.lock();
+            if (!lock_.try_lock()) {
+                sink.priority_.raise();  // it may hold the lock, starved in SCHED_IDLE
+                lock_.lock();
+            }
             locked_ = wall_ns();
             const uint64_t waited = locked_ - started;
             if (on_layer_thread()) {
@@ -941,11 +1015,14 @@ private:
         uint64_t locked_ = 0, started_ = 0;
     };
     static thread_local bool emitterThread;
-    using OutItem = std::variant<fbs::RecordT, Pending, RayCheckRecord>;
+    using OutItem = std::variant<fbs::RecordT, Pending, RayCheckRecord, HostWriteRecord>;
 
+    IdlePriority priority_;  // the sink's thread's (before emitter_, which uses it)
     std::mutex mutex_;
-    std::mutex write_mutex_;      // the writer, and what only the writing side touches
-    std::deque<OutItem> outbox_;  // records bound for the file, in trace order (mutex_)
+    std::condition_variable written_pass_;  // a write pass ended (mutex_)
+    bool writing_ = false;                  // a write pass holds items taken from outbox_ (mutex_)
+    std::mutex write_mutex_;                // the writer, and what only the writing side touches
+    std::deque<OutItem> outbox_;            // records bound for the file, in trace order (mutex_)
     std::string path_;
     int output_fd_;  // opened and locked at the start, until the writer takes it over (writeMutex_)
     int zstd_level_;
@@ -953,7 +1030,9 @@ private:
     std::atomic<bool> failed_{false};
     bool appended_since_flush_ = false;
     uint32_t flush_milliseconds_;
-    uint64_t pending_bytes_ = 0;  // captured bytes held in pending_ and written_
+    // Captured bytes held in pending_ and written_; changed under mutex_, read without it by the
+    // sink's thread deciding whether to settle (under wake_mutex_, which comes after mutex_).
+    std::atomic<uint64_t> pending_bytes_{0};
     // Builds already written, their bytes waiting for releaseWritten.
     static constexpr uint64_t kMaxWrittenBytes = 64ull << 20;
     std::mutex written_mutex_;

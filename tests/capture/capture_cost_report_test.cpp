@@ -209,6 +209,21 @@ TEST_F(CaptureCostReport, ServingOnlyReportsThePausesAndNoTrace) {
     EXPECT_FALSE(traceLine(lines).found);
 }
 
+// One read feeds both: the capture's walk of a served build's inputs reads through the engine's
+// image, so each reached buffer is copied from the application's memory once a pause, with
+// capture on or off, and the copies are counted apart from the reading and the engine.
+TEST_F(CaptureCostReport, ServedBuffersAreCopiedOnceAPauseWithCaptureOrWithout) {
+    const std::string copied = "  buffers copied into the engine's image";
+    const long long serving =
+        phaseCount(statsLines(run({{"CLASTRACE_CAPTURE", "0"}, {"CLASTRACE_STATS", "1"}})), copied);
+    const long long capturing =
+        phaseCount(statsLines(run({{"CLASTRACE_OUTPUT", (dir / "copies.clt").string()},
+                                   {"CLASTRACE_STATS", "1"}})),
+                   copied);
+    EXPECT_GE(serving, 2 * kFrames);  // at least a buffer a build
+    EXPECT_EQ(capturing, serving);
+}
+
 TEST_F(CaptureCostReport, NoReportUnlessAsked) {
     EXPECT_TRUE(statsLines(run({{"CLASTRACE_OUTPUT", (dir / "quiet.clt").string()}})).empty());
 }

@@ -5,6 +5,7 @@
 // which part of the application's pattern is to blame; the overhead bench prints it as a table.
 #pragma once
 
+#include <algorithm>
 #include <array>
 #include <atomic>
 #include <cstdint>
@@ -14,11 +15,17 @@
 namespace clastrace::capture {
 
 enum class CostPhase : uint8_t {
-    kPauseHeld,               // pause worker: the queue is stalled (event seen -> release)
-    kPauseRead,               //   of which: the capture reading the command's inputs (and outputs)
-    kPauseEngine,             //   of which: the served build's engine run
+    kPauseHeld,    // pause worker: the queue is stalled (event seen -> release)
+    kPauseRead,    //   of which: the capture reading the command's inputs (and outputs)
+    kPauseEngine,  //   of which: the served build's engine run
+    // of which: served buffers copied into the engine's image, once per pause whoever reads them
+    // first (the capture's walk, or the engine's run): left out of the two lines above, so that
+    // they compare between capture + serving and serving only.
+    kPauseCopyIn,
+    kPauseCopyInFresh,        //   of which: into fresh region bytes, the region pool having none
     kServedRecordCompletion,  // a served record completed where it is written: output walk, buffer naming
     kWorkerSinkWait,          // pause worker waiting for the sink's lock
+    kSinkBoundWait,  // a deliverer waiting for the sink to write, past its memory bound (1 GiB)
     kAppSinkCall,    // application threads inside the sink (records, submissions, timestamps)
     kAppSinkWait,    //   of which: waiting for the sink's lock
     kTimestampRead,  // application threads reading the layer's GPU timestamps
@@ -42,6 +49,8 @@ uint64_t thread_cpu_ns();
 uint64_t wall_ns();  // steady clock
 
 void add_cost(CostPhase phase, uint64_t wall_ns, uint64_t cpu_ns = 0);
+// The wall time the calling thread has added to `phase` so far (to leave nested phases out).
+uint64_t thread_cost_wall_ns(CostPhase phase);
 CostTotal cost_total(CostPhase phase);
 const char* cost_phase_name(CostPhase phase);
 
@@ -54,16 +63,30 @@ uint64_t thread_cpu_total(CostThread thread);
 // Times a scope into a phase; with `cpu` the thread's CPU time too (a system call each end).
 class CostScope {
 public:
-    explicit CostScope(CostPhase phase, bool cpu = false)
-        : phase_(phase), cpu_(cpu), wall_(wall_ns()), cpu_start_(cpu ? thread_cpu_ns() : 0) {}
-    ~CostScope() { add_cost(phase_, wall_ns() - wall_, cpu_ ? thread_cpu_ns() - cpu_start_ : 0); }
+    // `without`: a phase that may run inside this one and is left out of it (its own line has it).
+    explicit CostScope(CostPhase phase, bool cpu = false, CostPhase without = CostPhase::kCount)
+        : phase_(phase),
+          cpu_(cpu),
+          without_(without),
+          wall_(wall_ns()),
+          cpu_start_(cpu ? thread_cpu_ns() : 0),
+          without_start_(nested_wall()) {}
+    ~CostScope() {
+        const uint64_t nested = nested_wall() - without_start_;
+        const uint64_t wall = wall_ns() - wall_;
+        add_cost(phase_, wall - std::min(wall, nested), cpu_ ? thread_cpu_ns() - cpu_start_ : 0);
+    }
     CostScope(const CostScope&) = delete;
     CostScope& operator=(const CostScope&) = delete;
 
 private:
+    uint64_t nested_wall() const {
+        return without_ == CostPhase::kCount ? 0 : thread_cost_wall_ns(without_);
+    }
     CostPhase phase_;
     bool cpu_;
-    uint64_t wall_, cpu_start_;
+    CostPhase without_;
+    uint64_t wall_, cpu_start_, without_start_;
 };
 
 // Marks the calling thread as one of the layer's (sink waits are then counted as the worker's,
