@@ -269,8 +269,9 @@ void Replay::run_command_buffer(uint64_t handle, uint32_t submission, uint32_t c
             }
         }
         // The layer's timestamps are no command of the application's: the next command keeps
-        // the index the application gave it.
-        command += record->body_type() != fbs::RecordBody::GpuTimestamp;
+        // the index the application gave it (a trace older than format 1.9 numbered them).
+        command += record->body_type() != fbs::RecordBody::GpuTimestamp ||
+                   reader_.timestamps_take_command_indices();
     }
     if (!inside && recorded.one_time) forget_recorded(handle);
 }

@@ -203,13 +203,13 @@ TEST_F(DamagedTrace, NewerMinorVersionStillReads) {
     std::vector<uint8_t> file = file_;
     f::FileHeader fh;
     std::memcpy(&fh, file.data(), sizeof fh);
-    fh.version_minor = 9;
+    fh.version_minor = f::kVersionMinor + 1;
     fh.checksum = f::file_header_checksum(fh, file.data() + 32, fh.trace_header_size);
     std::memcpy(file.data(), &fh, sizeof fh);
     TraceError e;
     auto reader = TraceReader::open_memory(file.data(), file.size(), "minor.clt", &e);
     ASSERT_TRUE(reader) << e.message;
-    EXPECT_EQ(reader->version_minor(), 9);
+    EXPECT_EQ(reader->version_minor(), f::kVersionMinor + 1);
     ReadResult r = read_all_memory(file);
     EXPECT_EQ(r.damage_count, 0u) << describe(r.damage);
     EXPECT_EQ(r.records.size(), total_records_);

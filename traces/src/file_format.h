@@ -15,7 +15,7 @@ static_assert(std::endian::native == std::endian::little,
 
 inline constexpr char kFileMagic[8] = {'C', 'L', 'A', 'S', 'T', 'R', 'C', '\0'};
 inline constexpr uint16_t kVersionMajor = 1;         // bumped when old readers would misread
-inline constexpr uint16_t kVersionMinor = 8;         // bumped for additive changes
+inline constexpr uint16_t kVersionMinor = 9;         // bumped for additive changes
 inline constexpr uint16_t kFirstStreamsMinor = 8;    // streams payloads (chunk_streams.h)
 inline constexpr uint32_t kChunkMagic = 0x4b434c43;  // "CLCK"
 inline constexpr char kTrailerMagic[8] = {'C', 'L', 'T', 'I', 'N', 'D', 'E', 'X'};

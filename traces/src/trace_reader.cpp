@@ -148,6 +148,9 @@ std::unique_ptr<TraceReader> TraceReader::open_memory(const uint8_t* data, size_
 uint16_t TraceReader::version_major() const { return impl_->version_major; }
 uint16_t TraceReader::version_minor() const { return impl_->version_minor; }
 uint16_t TraceReader::current_version_minor() { return format::kVersionMinor; }
+bool TraceReader::timestamps_take_command_indices() const {
+    return impl_->version_major == 1 && impl_->version_minor < 9;
+}
 const fbs::TraceHeader* TraceReader::header() const { return impl_->header; }
 bool TraceReader::has_index() const { return impl_->index != nullptr; }
 uint64_t TraceReader::indexed_submission_count() const {

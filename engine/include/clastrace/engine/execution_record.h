@@ -13,10 +13,15 @@
 // The buffers the src infos point at are "memory with input data as identified by any used
 // values of srcInfosArray" (INDIRECT_COMMAND_READ), read as the page's wording parallels
 // vkCmdBuildAccelerationStructuresKHR's "input buffers as identified by any used values of
-// geometry" (SHADER_READ there); tools and applications take either reading, so such a read
-// carries both types and replay takes a barrier naming either one (docs/replay.md):
+// geometry" (SHADER_READ there); and NVIDIA's own cluster samples order them (vertices a
+// compute pass animated, the reference arrays a cluster build wrote) with a barrier naming
+// ACCELERATION_STRUCTURE_READ at the build stage, which their driver honours. Applications take
+// any of the three readings, so such a read carries all three types and replay takes a barrier
+// naming any one (docs/replay.md): a hazard here is a missing or mis-staged barrier, never a
+// reading of an ambiguous page:
 //   index/vertex/geometry-index/OMM-index buffers,
-//   clusterReferences, instantiationBoundingBoxLimit  BUILD  SHADER_READ|INDIRECT_COMMAND_READ
+//   clusterReferences, instantiationBoundingBoxLimit  BUILD  SHADER_READ|INDIRECT_COMMAND_READ|
+//                                                             AS_READ
 //   referenced CLAS, templates, move sources     BUILD  AS_READ                 read
 // In explicit mode dstAddressesArray/dstSizesArray are read; the page names AS_WRITE
 // for every access to them, so those reads carry AS_WRITE with is_write = false.
@@ -36,9 +41,10 @@ inline constexpr VkPipelineStageFlags2 kStageBuild =
     VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR;
 inline constexpr VkAccessFlags2 kAccessIndirect = VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT;
 inline constexpr VkAccessFlags2 kAccessInputBuffer = VK_ACCESS_2_SHADER_READ_BIT;
-// A cluster build's read of a buffer its src infos point at: either type (see above).
+// A cluster build's read of a buffer its src infos point at: any of three types (see above).
 inline constexpr VkAccessFlags2 kAccessPointedInput =
-    VK_ACCESS_2_SHADER_READ_BIT | VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT;
+    VK_ACCESS_2_SHADER_READ_BIT | VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT |
+    VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR;
 inline constexpr VkAccessFlags2 kAccessObjectRead = VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR;
 inline constexpr VkAccessFlags2 kAccessObjectWrite =
     VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR;

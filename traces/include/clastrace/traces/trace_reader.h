@@ -110,6 +110,10 @@ public:
     uint16_t version_minor() const;
     // The format version this library writes (a file's minor may be lower: older, still read).
     static uint16_t current_version_minor();
+    // From format 1.9 on, the capture layer's own GpuTimestamp records take no command index
+    // (findings, DeviceAddressWrites and execute_command_index count the application's commands
+    // only); a 1.8 or older file counted them, and is read with its own numbering.
+    bool timestamps_take_command_indices() const;
     // The TraceHeader, or nullptr when it is damaged (see damage()).
     const fbs::TraceHeader* header() const;
 
