@@ -464,8 +464,7 @@ bool ClusterRunAhead::reads_unchanged(const engine::MemoryImage& real) const {
     const engine::MemoryRegion* r = nullptr;
     for (const auto& [address, size] : buffers_->reads) {
         r = region_holding(real, r, address, size);
-        if (!r || std::memcmp(r->bytes.data() + (address - r->base), then, size) != 0)
-            return false;
+        if (!r || std::memcmp(r->bytes.data() + (address - r->base), then, size) != 0) return false;
         then += size;
     }
     return true;
