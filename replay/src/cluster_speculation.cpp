@@ -545,12 +545,39 @@ void RunAheadWindow::add(std::shared_ptr<ClusterRunAhead> run) {
                                  bottom_levels_.lower_bound(
                                      recent_builds_.front()->stream_index()));
         }
+        counts.most_builds_kept =
+            std::max<uint64_t>(counts.most_builds_kept, recent_builds_.size());
+    } else if (unstarted_bottom_levels_.erase(run->stream_index())) {
+        trim_recent_builds();
     }
     runs_.push_back(std::move(run));
 }
 
 void RunAheadWindow::note_bottom_level(uint64_t stream_index) {
     bottom_levels_.insert(stream_index);
+    unstarted_bottom_levels_.insert(stream_index);
+    trim_recent_builds();
+}
+
+void RunAheadWindow::replayed_before(uint64_t stream_index) {
+    const auto passed = unstarted_bottom_levels_.lower_bound(stream_index);
+    if (passed == unstarted_bottom_levels_.begin()) return;
+    unstarted_bottom_levels_.erase(unstarted_bottom_levels_.begin(), passed);
+    trim_recent_builds();
+}
+
+// builds_before(j) takes the runs after the BLAS record before j: a BLAS record still to be read
+// comes after the last one noted, and one noted that may still start needs those after the one
+// before it.
+void RunAheadWindow::trim_recent_builds() {
+    if (bottom_levels_.empty()) return;
+    uint64_t needed_from = *bottom_levels_.rbegin() + 1;
+    if (!unstarted_bottom_levels_.empty()) {
+        const auto at = bottom_levels_.lower_bound(*unstarted_bottom_levels_.begin());
+        needed_from = at == bottom_levels_.begin() ? 0 : *std::prev(at) + 1;
+    }
+    while (!recent_builds_.empty() && recent_builds_.front()->stream_index() < needed_from)
+        recent_builds_.pop_front();
 }
 
 std::vector<std::shared_ptr<ClusterRunAhead>> RunAheadWindow::builds_before(

@@ -297,6 +297,9 @@ public:
     // A cluster BLAS build's record at `stream_index`, started or not (records are read in
     // stream order; a build may start later, at its own record).
     void note_bottom_level(uint64_t stream_index);
+    // The records before `stream_index` were replayed: a BLAS build among them that has not
+    // started never will. Drops the CLAS and template runs no BLAS run can start on any more.
+    void replayed_before(uint64_t stream_index);
     // The runs a cluster BLAS at `stream_index` starts on: the CLAS and template builds
     // started from the records between the BLAS record before it and its own (a BLAS over the
     // clusters built just before it, the usual order; a BLAS over older ones, or over a build
@@ -324,6 +327,13 @@ private:
     // given its image back: what it wrote is all that is kept.
     std::deque<std::shared_ptr<ClusterRunAhead>> recent_builds_;
     std::set<uint64_t> bottom_levels_;
+    // The BLAS records noted whose run has not started and whose record is not replayed yet:
+    // each may still start on the runs since the BLAS record before it.
+    std::set<uint64_t> unstarted_bottom_levels_;
+    // Drops the recent builds that neither those nor a BLAS record still to be read can start
+    // on: a run keeps its buffers (what it read and wrote, its record) while it is held, and a
+    // window's worth of them was most of the memory runs ahead add (issue 23).
+    void trim_recent_builds();
 };
 
 }  // namespace clastrace::replay::detail

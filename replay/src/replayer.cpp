@@ -260,6 +260,7 @@ void Replay::replay_records_ahead(ReplayProgress& progress) {
         ahead.pop_front();
         ahead_bytes -= front.bytes.size();
         replay_record(front.view, progress);
+        ahead_runs_->replayed_before(stream_index_);
         if (!pending_runs_.empty()) start_pending_runs();
     }
 }
