@@ -73,6 +73,7 @@ void RunBuffers::empty() {
     writes.clear();
     written.clear();
     written_regions.clear();
+    reads.clear();
     read.clear();
     usage_queries.clear();
     built.clear();
@@ -127,6 +128,59 @@ engine::ObjectType built_type(const engine::OpResult& op) {
 bool same_sizes(const ClusterDriverSizes& a, const ClusterDriverSizes& b) {
     return a.build_scratch_size == b.build_scratch_size &&
            a.acceleration_structure_size == b.acceleration_structure_size && a.queried == b.queried;
+}
+
+// The region of `image` holding [address, address + size) whole, or nullptr. `last` is tried
+// first: ranges come in address order, most in the region of the range before.
+const engine::MemoryRegion* region_holding(const engine::MemoryImage& image,
+                                           const engine::MemoryRegion* last, uint64_t address,
+                                           uint64_t size) {
+    const auto holds = [&](const engine::MemoryRegion* r) {
+        return r && address - r->base < r->size && size <= r->size - (address - r->base);
+    };
+    if (holds(last)) return last;
+    const engine::MemoryRegion* r = image.find_region(address);
+    return holds(r) ? r : nullptr;
+}
+
+// Sorts `ranges` and makes each run of overlapping or adjacent ones inside one region of `image`
+// one range (the same bytes, fewer lookups and copies). False when a range lies in no region
+// whole: it is left out.
+bool merge_in_regions(RunBuffers::Ranges& ranges, const engine::MemoryImage& image) {
+    std::sort(ranges.begin(), ranges.end());
+    bool inside = true;
+    size_t kept = 0;
+    const engine::MemoryRegion* region = nullptr;  // the last kept range's
+    for (size_t i = 0; i < ranges.size(); ++i) {
+        const auto [address, size] = ranges[i];
+        const engine::MemoryRegion* r = region_holding(image, region, address, size);
+        if (!r) {
+            inside = false;
+            continue;
+        }
+        if (kept > 0 && r == region) {
+            auto& [last_address, last_size] = ranges[kept - 1];
+            if (address <= last_address + last_size) {
+                last_size = std::max(last_address + last_size, address + size) - last_address;
+                continue;
+            }
+        }
+        ranges[kept++] = {address, size};
+        region = r;
+    }
+    ranges.resize(kept);
+    return inside;
+}
+
+// Whether two sorted lists of disjoint ranges share a byte (or a range of `b` starts inside
+// one of `a`).
+bool any_overlap(const RunBuffers::Ranges& a, const RunBuffers::Ranges& b) {
+    size_t j = 0;
+    for (const auto& [address, size] : a) {
+        while (j < b.size() && b[j].first + b[j].second <= address) ++j;
+        if (j < b.size() && b[j].first < address + size) return true;
+    }
+    return false;
 }
 
 }  // namespace
@@ -359,63 +413,45 @@ void ClusterRunAhead::run() {
 
 void ClusterRunAhead::keep_written_bytes() {
     RunBuffers& b = *buffers_;
+    const engine::MemoryImage& image = image_;
+    merge_in_regions(b.writes, image);  // the image handed out each of them: all inside
     uint64_t total = 0;
     for (const auto& w : b.writes) total += w.second;
     b.written.resize(total);
     uint8_t* to = b.written.data();
+    const engine::MemoryRegion* r = nullptr;
     for (const auto& [address, size] : b.writes) {
-        auto from = image_.read_bytes(address, size, {"run ahead", -1});
-        std::memcpy(to, from.data(), size);
+        r = region_holding(image, r, address, size);
+        std::memcpy(to, r->bytes.data() + (address - r->base), size);
         to += size;
-        const engine::MemoryRegion* r = image_.find_region(address);
         const bool known = std::any_of(b.written_regions.begin(), b.written_regions.end(),
                                        [&](const PlannedRegion& k) { return k.base == r->base; });
         if (!known) b.written_regions.push_back({r->base, r->size, r->usage, r->label});
     }
 }
 
-// The ranges it read, in access order, that it did not also write (visit returns false to
-// stop); false when a read overlaps its own writes, which the checks refuse.
-template <class Visit>
-bool ClusterRunAhead::for_each_read(Visit visit) const {
-    // The bytes it wrote, merged: a read of them would compare its own output, not its input.
-    std::vector<std::pair<uint64_t, uint64_t>> written;  // [begin, end), sorted, disjoint
-    for (const auto& [address, size] : buffers_->writes)
-        written.emplace_back(address, address + size);
-    std::sort(written.begin(), written.end());
-    size_t kept = 0;
-    for (const auto& w : written) {
-        if (kept > 0 && w.first <= written[kept - 1].second)
-            written[kept - 1].second = std::max(written[kept - 1].second, w.second);
-        else
-            written[kept++] = w;
-    }
-    written.resize(kept);
-    for (const engine::MemoryAccess& a : buffers_->result.accesses) {
-        if (a.is_write || a.end <= a.begin) continue;
-        auto after = std::upper_bound(written.begin(), written.end(),
-                                      std::pair<uint64_t, uint64_t>{a.begin, UINT64_MAX});
-        if (after != written.end() && after->first < a.end) return false;
-        if (after != written.begin() && std::prev(after)->second > a.begin) return false;
-        if (!visit(a.begin, a.end - a.begin)) return false;
-    }
-    return true;
-}
-
-// A read outside its image (a fault) stops the copy, and the run cannot stand.
+// The reads it compares at its turn: every read access but the empty ones, merged. One outside
+// its image (a fault) or over bytes it wrote (it would compare its own output, not its input)
+// and the run cannot stand.
 void ClusterRunAhead::keep_read_bytes() {
-    std::vector<uint8_t>& read = buffers_->read;
-    for_each_read([&](uint64_t address, uint64_t size) {
-        try {
-            auto bytes = image_.read_bytes(address, size, {"run ahead", -1});
-            const auto from = reinterpret_cast<const uint8_t*>(bytes.data());
-            read.insert(read.end(), from, from + size);
-            return true;
-        } catch (const engine::MemoryFault&) {
-            reads_unreadable_ = true;
-            return false;
-        }
-    });
+    RunBuffers& b = *buffers_;
+    const engine::MemoryImage& image = image_;
+    for (const engine::MemoryAccess& a : b.result.accesses)
+        if (!a.is_write && a.end > a.begin) b.reads.emplace_back(a.begin, a.end - a.begin);
+    if (!merge_in_regions(b.reads, image) || any_overlap(b.reads, b.writes)) {
+        reads_unreadable_ = true;
+        return;
+    }
+    uint64_t total = 0;
+    for (const auto& range : b.reads) total += range.second;
+    b.read.resize(total);
+    uint8_t* to = b.read.data();
+    const engine::MemoryRegion* r = nullptr;
+    for (const auto& [address, size] : b.reads) {
+        r = region_holding(image, r, address, size);
+        std::memcpy(to, r->bytes.data() + (address - r->base), size);
+        to += size;
+    }
 }
 
 bool ClusterRunAhead::earlier_turns_passed() const {
@@ -425,24 +461,22 @@ bool ClusterRunAhead::earlier_turns_passed() const {
 
 bool ClusterRunAhead::reads_unchanged(const engine::MemoryImage& real) const {
     const uint8_t* then = buffers_->read.data();
-    return for_each_read([&](uint64_t address, uint64_t size) {
-        try {
-            auto now = real.read_bytes(address, size, {"run ahead", -1});
-            const bool same = std::memcmp(now.data(), then, size) == 0;
-            then += size;
-            return same;
-        } catch (const engine::MemoryFault&) {
-            return false;
-        }
-    });
+    const engine::MemoryRegion* r = nullptr;
+    for (const auto& [address, size] : buffers_->reads) {
+        r = region_holding(real, r, address, size);
+        if (!r || std::memcmp(r->bytes.data() + (address - r->base), then, size) != 0) return false;
+        then += size;
+    }
+    return true;
 }
 
 // Every write lands in one region of the replay's memory, within its resident limit.
 bool ClusterRunAhead::writes_fit(const engine::MemoryImage& real) const {
     uint64_t added = 0;
+    const engine::MemoryRegion* r = nullptr;
     for (const auto& [address, size] : buffers_->writes) {
-        const engine::MemoryRegion* r = real.find_region(address);
-        if (!r || address - r->base > r->size || r->size - (address - r->base) < size) return false;
+        r = region_holding(real, r, address, size);
+        if (!r) return false;
         added += r->bytes.untouched_bytes(address - r->base, size);
     }
     return real.within_resident_limit(added);
@@ -511,12 +545,39 @@ void RunAheadWindow::add(std::shared_ptr<ClusterRunAhead> run) {
                                  bottom_levels_.lower_bound(
                                      recent_builds_.front()->stream_index()));
         }
+        counts.most_builds_kept =
+            std::max<uint64_t>(counts.most_builds_kept, recent_builds_.size());
+    } else if (unstarted_bottom_levels_.erase(run->stream_index())) {
+        trim_recent_builds();
     }
     runs_.push_back(std::move(run));
 }
 
 void RunAheadWindow::note_bottom_level(uint64_t stream_index) {
     bottom_levels_.insert(stream_index);
+    unstarted_bottom_levels_.insert(stream_index);
+    trim_recent_builds();
+}
+
+void RunAheadWindow::replayed_before(uint64_t stream_index) {
+    const auto passed = unstarted_bottom_levels_.lower_bound(stream_index);
+    if (passed == unstarted_bottom_levels_.begin()) return;
+    unstarted_bottom_levels_.erase(unstarted_bottom_levels_.begin(), passed);
+    trim_recent_builds();
+}
+
+// builds_before(j) takes the runs after the BLAS record before j: a BLAS record still to be read
+// comes after the last one noted, and one noted that may still start needs those after the one
+// before it.
+void RunAheadWindow::trim_recent_builds() {
+    if (bottom_levels_.empty()) return;
+    uint64_t needed_from = *bottom_levels_.rbegin() + 1;
+    if (!unstarted_bottom_levels_.empty()) {
+        const auto at = bottom_levels_.lower_bound(*unstarted_bottom_levels_.begin());
+        needed_from = at == bottom_levels_.begin() ? 0 : *std::prev(at) + 1;
+    }
+    while (!recent_builds_.empty() && recent_builds_.front()->stream_index() < needed_from)
+        recent_builds_.pop_front();
 }
 
 std::vector<std::shared_ptr<ClusterRunAhead>> RunAheadWindow::builds_before(

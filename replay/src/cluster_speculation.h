@@ -111,16 +111,22 @@ struct RunBuffers {
         uint64_t address = 0, size = 0;
         engine::ObjectType type{};
     };
+    using Ranges = std::vector<std::pair<uint64_t, uint64_t>>;  // (address, size)
     engine::ExecutionRecord result;
     engine::ObjectDirectory directory;
     engine::ObjectDirectory::LookupLog lookups;
-    std::vector<std::pair<uint64_t, uint64_t>> writes;  // (address, size), as written
+    // What the image logged as written, then (at the task's end) those ranges merged: sorted,
+    // and each run of overlapping or adjacent ranges inside one region made one range. The
+    // command's turn copies and checks a few ranges instead of one per op and field.
+    Ranges writes;
     // The bytes the image ended with at each of writes, one after the other, and the regions
     // holding them: what a later BLAS run lays in and the command's turn copies over.
     std::vector<uint8_t> written;
     std::vector<PlannedRegion> written_regions;
-    // The bytes the image held at each range it read (result.accesses' reads, in order), kept
-    // so that the image can go back to the pool when the task ends.
+    // The ranges it read (result.accesses' reads), merged as writes are, and the bytes the image
+    // held there, one after the other: kept so that the image can go back to the pool when the
+    // task ends, and compared at the command's turn.
+    Ranges reads;
     std::vector<uint8_t> read;
     std::mutex usage_mutex;
     std::vector<UsageQuery> usage_queries;  // all answered "every byte has the usage"
@@ -140,14 +146,14 @@ public:
     std::unique_ptr<RunBuffers> take();
     void give(std::unique_ptr<RunBuffers> buffers);
     // Buffers made so far (lent or kept): bounded by the runs alive at once, whatever the
-    // trace's length (ReplayOptions::RunAheadCounts::run_buffers).
-    uint64_t made() const { return made_; }
+    // trace's length (ReplayOptions::RunAheadCounts::run_buffers). Read without the lock.
+    uint64_t made() const { return made_.load(std::memory_order_relaxed); }
 
 private:
     std::thread::id replay_thread_;
     std::mutex mutex_;
     std::vector<std::unique_ptr<RunBuffers>> kept_[2];  // [filled on the replay thread]
-    uint64_t made_ = 0;
+    std::atomic<uint64_t> made_{0};
 };
 
 // What the replay knows when it starts a command ahead: its memory as of now (for the regions'
@@ -226,8 +232,9 @@ private:
     // What the earlier runs wrote, laid in before its own snapshots (as their commands run
     // before its own in queue order), and their objects in its directory.
     void lay_in_earlier_runs();
-    // Copies the bytes its image ended with at every range it wrote, and at every range it
-    // read, into its buffers, so that the image can go back when the task ends.
+    // Copies the bytes its image ended with at every range it wrote (merged), and at every
+    // range it read (merged), into its buffers, so that the image can go back when the task
+    // ends. A read of bytes it wrote, or outside its image, leaves it unable to stand.
     void keep_written_bytes();
     void keep_read_bytes();
     // Waits for a run in progress, or cancels one not started.
@@ -239,9 +246,6 @@ private:
     bool stands(const ReplayMemory& memory, uint32_t queried_max_count,
                 const ClusterDriverSizes& sizes) const;
     bool reads_unchanged(const engine::MemoryImage& real) const;
-    // The read accesses it compares, in order: the ranges keep_read_bytes copied.
-    template <class Visit>
-    bool for_each_read(Visit visit) const;
     bool same_objects(const engine::ObjectDirectory& real) const;
     bool writes_fit(const engine::MemoryImage& real) const;
     // The objects it built, when each is intact in its own image (the task asks, at its end).
@@ -278,7 +282,7 @@ private:
     bool failed_ = false;
     bool stood_ = false;
     bool built_intact_ = false;      // what built_objects found, on the task
-    bool reads_unreadable_ = false;  // a range it read was outside its image
+    bool reads_unreadable_ = false;  // a range it read was outside its image, or written by it
 };
 
 // The commands started ahead and not yet taken, at most `capacity`.
@@ -293,6 +297,9 @@ public:
     // A cluster BLAS build's record at `stream_index`, started or not (records are read in
     // stream order; a build may start later, at its own record).
     void note_bottom_level(uint64_t stream_index);
+    // The records before `stream_index` were replayed: a BLAS build among them that has not
+    // started never will. Drops the CLAS and template runs no BLAS run can start on any more.
+    void replayed_before(uint64_t stream_index);
     // The runs a cluster BLAS at `stream_index` starts on: the CLAS and template builds
     // started from the records between the BLAS record before it and its own (a BLAS over the
     // clusters built just before it, the usual order; a BLAS over older ones, or over a build
@@ -320,6 +327,13 @@ private:
     // given its image back: what it wrote is all that is kept.
     std::deque<std::shared_ptr<ClusterRunAhead>> recent_builds_;
     std::set<uint64_t> bottom_levels_;
+    // The BLAS records noted whose run has not started and whose record is not replayed yet:
+    // each may still start on the runs since the BLAS record before it.
+    std::set<uint64_t> unstarted_bottom_levels_;
+    // Drops the recent builds that neither those nor a BLAS record still to be read can start
+    // on: a run keeps its buffers (what it read and wrote, its record) while it is held, and a
+    // window's worth of them was most of the memory runs ahead add (issue 23).
+    void trim_recent_builds();
 };
 
 }  // namespace clastrace::replay::detail

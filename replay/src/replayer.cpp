@@ -11,7 +11,9 @@
 #include <tbb/info.h>
 #include <tbb/task_arena.h>
 
+#include <algorithm>
 #include <cstdlib>
+#include <cstring>
 #include <deque>
 #include <memory>
 #include <optional>
@@ -34,6 +36,33 @@ bool builds_bottom_level(const fbs::CmdBuildClusterAccelerationStructureIndirect
            build.input()->op_type() ==
                VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
 }
+
+// Copies of records, laid one after the other in blocks shared by the copies in them: one
+// allocation per block instead of one per record on the replay thread (session 13); a block goes
+// when the last copy in it does.
+class RecordBlocks {
+public:
+    using Block = std::shared_ptr<uint8_t[]>;
+    // A copy of `size` bytes at a 16-byte aligned place (FlatBuffers align up to 8), in *block.
+    const uint8_t* copy(const uint8_t* bytes, size_t size, Block* block) {
+        const size_t room = (size + 15) & ~size_t(15);
+        if (!block_ || used_ + room > capacity_) {
+            capacity_ = std::max(kBlockBytes, room);
+            block_ = Block(new uint8_t[capacity_]);
+            used_ = 0;
+        }
+        uint8_t* at = block_.get() + used_;
+        used_ += room;
+        std::memcpy(at, bytes, size);
+        *block = block_;
+        return at;
+    }
+
+private:
+    static constexpr size_t kBlockBytes = 256u << 10;
+    Block block_;
+    size_t capacity_ = 0, used_ = 0;
+};
 
 // A CLASTRACE_REPLAY_* switch: true for "1", false for "0", none when unset or anything else.
 std::optional<bool> environment_switch(const char* variable) {
@@ -230,9 +259,10 @@ void Replay::replay_records_ahead(ReplayProgress& progress) {
     constexpr size_t kRecordsAhead = 4096;
     constexpr uint64_t kBytesAhead = 16ull << 20;
     struct Ahead {
-        std::vector<uint8_t> bytes;
-        traces::RecordView view;  // its pointers into `bytes` (a moved vector keeps its buffer)
+        RecordBlocks::Block block;  // holds the copy `view` points into
+        traces::RecordView view;
     };
+    RecordBlocks blocks;
     std::deque<Ahead> ahead;
     uint64_t ahead_bytes = 0, read = stream_index_;
     bool more = true;
@@ -245,11 +275,10 @@ void Replay::replay_records_ahead(ReplayProgress& progress) {
                 break;
             }
             Ahead& a = ahead.emplace_back();
-            a.bytes.assign(view.bytes, view.bytes + view.size);
             a.view = view;
-            a.view.bytes = a.bytes.data();
-            a.view.record = flatbuffers::GetRoot<fbs::Record>(a.bytes.data());
-            ahead_bytes += a.bytes.size();
+            a.view.bytes = blocks.copy(view.bytes, view.size, &a.block);
+            a.view.record = flatbuffers::GetRoot<fbs::Record>(a.view.bytes);
+            ahead_bytes += view.size;
             start_ahead(a.view, read++);
         }
         if (ahead.empty()) {
@@ -258,8 +287,9 @@ void Replay::replay_records_ahead(ReplayProgress& progress) {
         }
         const Ahead front = std::move(ahead.front());
         ahead.pop_front();
-        ahead_bytes -= front.bytes.size();
+        ahead_bytes -= front.view.size;
         replay_record(front.view, progress);
+        ahead_runs_->replayed_before(stream_index_);
         if (!pending_runs_.empty()) start_pending_runs();
     }
 }

@@ -416,6 +416,21 @@ TEST(ReplayRunAhead, TakenRunsGiveTheirImagesBackWhateverTheTraceLength) {
     std::remove(path.c_str());
 }
 
+// A BLAS run starts on the CLAS runs after the BLAS record before it, so once the next BLAS
+// record is read (or the last one started) the runs before it are no longer kept: each frame's
+// two CLAS runs, not the window's 32, while the BLAS runs still stand (before session 13 the
+// window's capacity of them was kept, each with what it read and wrote).
+TEST(ReplayRunAhead, OnlyTheBuildsABottomLevelRunMayStartOnAreKept) {
+    const std::string path = bench_frames("kept_frames.clt", 8000);
+    const Replayed one = replay_with(path, 1), many = replay_with(path, 8);
+    EXPECT_GE(many.counts.stood, many.counts.started - 3);
+    EXPECT_GE(many.counts.most_builds_kept, 2u);
+    EXPECT_LE(many.counts.most_builds_kept, 4u) << many.counts.most_builds_kept;
+    EXPECT_EQ(one.digests, many.digests);
+    EXPECT_EQ(one.json, many.json);
+    std::remove(path.c_str());
+}
+
 // The CLAS and BLAS builds of a trace (moves, instantiations and template indices run in their
 // turn).
 uint64_t builds_that_run_ahead(const std::string& path) {

@@ -103,6 +103,10 @@ struct ReplayOptions {
         // own): the window's capacity (4 x threads, at most 64) and the one being taken. A run
         // gives its image back at its command's turn; a later BLAS run keeps only what it wrote.
         uint64_t most_images = 0;
+        // The most CLAS and template runs kept at once after their turn for BLAS runs to start
+        // on: those after the BLAS record before the first BLAS that may still start (each
+        // holds what it read and wrote), at most the window's capacity.
+        uint64_t most_builds_kept = 0;
     };
     RunAheadCounts* run_ahead_counts = nullptr;
 };
