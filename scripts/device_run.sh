@@ -3,7 +3,8 @@
 # one log per part under $OUT; with bin-before/ in the bundle every round runs before, then
 # after (interleaved: both sides of a ratio on one machine, in one call).
 #   OUT=dir bash device_run.sh PART...
-# Parts (rounds: CLASTRACE_DEVICE_ROUNDS, default 7):
+# Parts (rounds: CLASTRACE_DEVICE_ROUNDS, default 7; passes inside one cluster bench run:
+# CLASTRACE_DEVICE_REPEAT, default 3, best of them):
 #   trav        bench_engine_nv --traversal 100000 3 (engine / Embree MEDIUM), per round
 #   clusters    bench_engine_clusters thread sweep on WusonOBJ, once per side
 #   clusters1   the same at 1 thread, per round
@@ -17,6 +18,7 @@ here=$(cd "$(dirname "$0")" && pwd)
 export LD_LIBRARY_PATH=$here/lib
 : "${OUT:?set OUT to the folder for the logs}"
 rounds=${CLASTRACE_DEVICE_ROUNDS:-7}
+repeat=${CLASTRACE_DEVICE_REPEAT:-3}
 sides=(after); [[ -d $here/bin-before ]] && sides=(before after)
 trace=/dev/shm/clastrace_device_replay.clt
 icd=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
@@ -39,9 +41,9 @@ run_part() {
     trav) for r in $(seq "$rounds"); do for side in "${sides[@]}"; do echo "-- round $r $side"
             "$(bin "$side" bench_engine_nv)" --traversal 100000 3 2>&1 | grep -E '^(icosphere|terrain|soup|torus)'; done; done ;;
     clusters) for side in "${sides[@]}"; do echo "-- $side"
-            "$(bin "$side" bench_engine_clusters)" --throughput-only --repeat 3 --mesh "$here/WusonOBJ.obj"; done ;;
+            "$(bin "$side" bench_engine_clusters)" --throughput-only --repeat "$repeat" --mesh "$here/WusonOBJ.obj"; done ;;
     clusters1) for r in $(seq "$rounds"); do for side in "${sides[@]}"; do echo "-- round $r $side"
-            "$(bin "$side" bench_engine_clusters)" --throughput-only --max-threads 1 --repeat 3 \
+            "$(bin "$side" bench_engine_clusters)" --throughput-only --max-threads 1 --repeat "$repeat" \
               --mesh "$here/WusonOBJ.obj" 2>&1 | grep -E '^build throughput|^ +1 +(wall|cpu)'; done; done ;;
     replay) replay_trace; for r in $(seq "$rounds"); do for side in "${sides[@]}"; do for m in hazards no-hazards; do
             echo "-- round $r $side $m 1"; "$(bin "$side" replay_throughput_bench)" --replay-once "$trace" $m 1; done; done; done ;;
