@@ -11,6 +11,7 @@
 #   replay      replay_throughput_bench --replay-once, 1 thread, hazards on and off, per round
 #   replay16    the same at 16 threads, hazards on, per round, then peak RSS per side
 #   cap         capture_overhead_bench 360 256 7 host-writes on the NVIDIA driver, per side
+#   cap-stats   the frames app, 240 frames, serving only then capturing, with the layer's stats
 #   prof-trav prof-clus prof-rep1 prof-rep16 prof-cap   perf cpu-clock profiles of the after
 #               side (bundle made with --perf; the VM has no hardware counters)
 set -uo pipefail
@@ -56,6 +57,10 @@ run_part() {
             ( cd /tmp && CLASTRACE_BENCH_DRIVER_FILES=$icd CLASTRACE_BENCH_LAYER_DIR=$here/layer-$side \
               CLASTRACE_BENCH_FRAMES_APP=$(bin "$side" capture_frames_app) \
               taskset -c 2-5 "$(bin "$side" capture_overhead_bench)" 360 256 7 host-writes ); done ;;
+    cap-stats) for side in "${sides[@]}"; do for mode in CLASTRACE_CAPTURE=0 CLASTRACE_OUTPUT=/dev/shm/c.clt; do
+            echo "-- $side $mode"; env "$mode" VK_ICD_FILENAMES=$icd VK_DRIVER_FILES=$icd VK_ADD_LAYER_PATH=$here/layer-$side \
+              VK_INSTANCE_LAYERS=VK_LAYER_CLASTRACE_capture CLASTRACE_STATS=1 \
+              taskset -c 2-5 "$(bin "$side" capture_frames_app)" frames 240 --clusters 256; done; done ;;
     prof-trav) profile trav taskset -c 3 "$(bin after bench_engine_nv)" --traversal 100000 1 ;;
     prof-clus) profile clus taskset -c 3 "$(bin after bench_engine_clusters)" --throughput-only \
                  --max-threads 1 --repeat 3 --mesh "$here/WusonOBJ.obj" ;;
