@@ -6,13 +6,18 @@
 // objects, SHADER_READ for the reference array, a buffer the build reads as it reads vertices.
 // --fixed-indirect names INDIRECT_COMMAND_READ for the reference array instead, as the command's
 // page words it ("input data as identified by any used values of srcInfosArray").
+// --fixed-as-samples records BUILD/(AS_WRITE | AS_READ) -> BUILD/(AS_WRITE | AS_READ), the
+// barrier NVIDIA's cluster samples put between their cluster and bottom-level builds.
 #include "bug_gpu.h"
 
 using namespace bug_programs;
 
 int main(int argc, char** argv) {
     const bool indirect = has_flag(argc, argv, "--fixed-indirect");
+    const bool as_samples = has_flag(argc, argv, "--fixed-as-samples");
     const bool fixed = indirect || has_flag(argc, argv, "--fixed");
+    constexpr VkAccessFlags2 kStructureAccess = VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR |
+                                                VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR;
     Gpu gpu;
     open(gpu, "blas_same_command_buffer");
     const Quads quads = make_quads(gpu, 4);
@@ -30,6 +35,10 @@ int main(int argc, char** argv) {
                        VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR |
                            (indirect ? VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT
                                      : VK_ACCESS_2_SHADER_READ_BIT));
+    if (as_samples)
+        memory_barrier(cb, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                       kStructureAccess, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                       kStructureAccess);
     gpu.cmd_build_clusters(cb, &blas.info);
     gpu.submit_and_wait(cb);
     print_range("clas_addresses", clas.addresses.address, clas.addresses.size);
