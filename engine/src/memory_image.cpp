@@ -338,7 +338,7 @@ MemoryRegion* MemoryImage::find_region(uint64_t address) {
 const MemoryRegion& MemoryImage::region_holding(uint64_t address, uint64_t size, FieldRef where,
                                                 const char* access) const {
     const MemoryRegion* r = find_region(address);
-    if (r && size <= r->size - (address - r->base)) return *r;
+    if (r && r->holds(address, size)) return *r;
     const std::string what = access;
     if (!r)
         fault(address, size, where,

@@ -135,12 +135,9 @@ bool same_sizes(const ClusterDriverSizes& a, const ClusterDriverSizes& b) {
 const engine::MemoryRegion* region_holding(const engine::MemoryImage& image,
                                            const engine::MemoryRegion* last, uint64_t address,
                                            uint64_t size) {
-    const auto holds = [&](const engine::MemoryRegion* r) {
-        return r && address - r->base < r->size && size <= r->size - (address - r->base);
-    };
-    if (holds(last)) return last;
+    if (last && last->holds(address, size)) return last;
     const engine::MemoryRegion* r = image.find_region(address);
-    return holds(r) ? r : nullptr;
+    return r && r->holds(address, size) ? r : nullptr;
 }
 
 // Sorts `ranges` and makes each run of overlapping or adjacent ones inside one region of `image`
@@ -170,6 +167,24 @@ bool merge_in_regions(RunBuffers::Ranges& ranges, const engine::MemoryImage& ima
     }
     ranges.resize(kept);
     return inside;
+}
+
+// Copies the bytes of `ranges` (each inside one region of `image`: merge_in_regions kept them)
+// one after another into `out`, telling `on_region` the region of each.
+template <class OnRegion>
+void copy_ranges(const engine::MemoryImage& image, const RunBuffers::Ranges& ranges,
+                 std::vector<uint8_t>& out, OnRegion on_region) {
+    uint64_t total = 0;
+    for (const auto& range : ranges) total += range.second;
+    out.resize(total);
+    uint8_t* to = out.data();
+    const engine::MemoryRegion* r = nullptr;
+    for (const auto& [address, size] : ranges) {
+        r = region_holding(image, r, address, size);
+        std::memcpy(to, r->bytes.data() + (address - r->base), size);
+        to += size;
+        on_region(*r);
+    }
 }
 
 // Whether two sorted lists of disjoint ranges share a byte (or a range of `b` starts inside
@@ -415,19 +430,11 @@ void ClusterRunAhead::keep_written_bytes() {
     RunBuffers& b = *buffers_;
     const engine::MemoryImage& image = image_;
     merge_in_regions(b.writes, image);  // the image handed out each of them: all inside
-    uint64_t total = 0;
-    for (const auto& w : b.writes) total += w.second;
-    b.written.resize(total);
-    uint8_t* to = b.written.data();
-    const engine::MemoryRegion* r = nullptr;
-    for (const auto& [address, size] : b.writes) {
-        r = region_holding(image, r, address, size);
-        std::memcpy(to, r->bytes.data() + (address - r->base), size);
-        to += size;
+    copy_ranges(image, b.writes, b.written, [&](const engine::MemoryRegion& r) {
         const bool known = std::any_of(b.written_regions.begin(), b.written_regions.end(),
-                                       [&](const PlannedRegion& k) { return k.base == r->base; });
-        if (!known) b.written_regions.push_back({r->base, r->size, r->usage, r->label});
-    }
+                                       [&](const PlannedRegion& k) { return k.base == r.base; });
+        if (!known) b.written_regions.push_back({r.base, r.size, r.usage, r.label});
+    });
 }
 
 // The reads it compares at its turn: every read access but the empty ones, merged. One outside
@@ -442,16 +449,7 @@ void ClusterRunAhead::keep_read_bytes() {
         reads_unreadable_ = true;
         return;
     }
-    uint64_t total = 0;
-    for (const auto& range : b.reads) total += range.second;
-    b.read.resize(total);
-    uint8_t* to = b.read.data();
-    const engine::MemoryRegion* r = nullptr;
-    for (const auto& [address, size] : b.reads) {
-        r = region_holding(image, r, address, size);
-        std::memcpy(to, r->bytes.data() + (address - r->base), size);
-        to += size;
-    }
+    copy_ranges(image, b.reads, b.read, [](const engine::MemoryRegion&) {});
 }
 
 bool ClusterRunAhead::earlier_turns_passed() const {

@@ -112,6 +112,11 @@ struct MemoryRegion {
     VkBufferUsageFlags usage = 0;
     std::string label;
     RegionBytes bytes;
+
+    // Whether all of [address, address + length) lies inside the region.
+    bool holds(uint64_t address, uint64_t length) const {
+        return address - base < size && length <= size - (address - base);
+    }
 };
 
 struct MemoryFault : std::exception {
