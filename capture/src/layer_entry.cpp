@@ -173,6 +173,99 @@ bool enable_ray_query_for_check(InstanceState& instance, VkPhysicalDevice physic
     return true;
 }
 
+// The application's device extensions split into what the driver is asked for and what the
+// layer serves itself.
+struct RequestedExtensions {
+    std::vector<const char*> for_driver;
+    bool cluster_extension = false;  // VK_NV_cluster_acceleration_structure asked for
+    bool cluster_feature = false;    // and its feature struct says clusterAccelerationStructure
+    bool frame_boundary_served = false;
+};
+
+RequestedExtensions sort_requested_extensions(InstanceState& instance,
+                                              VkPhysicalDevice physical_device,
+                                              const VkDeviceCreateInfo& info, bool serving) {
+    RequestedExtensions r;
+    for (uint32_t i = 0; i < info.enabledExtensionCount; ++i) {
+        const char* name = info.ppEnabledExtensionNames[i];
+        if (std::strcmp(name, VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME) == 0) {
+            r.cluster_extension = true;
+            if (serving) continue;  // the driver does not know it; the layer provides it
+        }
+        // VK_EXT_frame_boundary: the layer provides it where the driver lacks it.
+        if (std::strcmp(name, VK_EXT_FRAME_BOUNDARY_EXTENSION_NAME) == 0 &&
+            !driver_lists_extension(instance, physical_device,
+                                    VK_EXT_FRAME_BOUNDARY_EXTENSION_NAME)) {
+            r.frame_boundary_served = true;
+            continue;
+        }
+        r.for_driver.push_back(name);
+    }
+    for (auto* s = (const VkBaseInStructure*)info.pNext; s; s = s->pNext)
+        if (s->sType ==
+            VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_FEATURES_NV)
+            r.cluster_feature = ((const VkPhysicalDeviceClusterAccelerationStructureFeaturesNV*)s)
+                                    ->clusterAccelerationStructure == VK_TRUE;
+    return r;
+}
+
+// GPU timestamps around captured commands need every queue family the device uses to count
+// time, and the four query entry points.
+void set_up_timestamps(const VkDeviceCreateInfo& info, DeviceState& state) {
+    if (!info.queueCreateInfoCount) return;
+    const InstanceState& instance = *state.instance;
+    uint32_t family_count = 0;
+    instance.next.GetPhysicalDeviceQueueFamilyProperties(state.physical_device, &family_count,
+                                                         nullptr);
+    std::vector<VkQueueFamilyProperties> families(family_count);
+    instance.next.GetPhysicalDeviceQueueFamilyProperties(state.physical_device, &family_count,
+                                                         families.data());
+    uint32_t valid_bits = 64;
+    for (uint32_t i = 0; i < info.queueCreateInfoCount; ++i) {
+        const uint32_t family = info.pQueueCreateInfos[i].queueFamilyIndex;
+        valid_bits =
+            std::min(valid_bits, family < family_count ? families[family].timestampValidBits : 0u);
+    }
+    state.timestamps = valid_bits != 0 && state.next.CreateQueryPool &&
+                       state.next.CmdWriteTimestamp && state.next.CmdResetQueryPool &&
+                       state.next.GetQueryPoolResults;
+    state.timestamp_mask = valid_bits >= 64 ? ~0ull : (1ull << valid_bits) - 1;
+}
+
+DeviceRecord device_record(const VkDeviceCreateInfo& info,
+                           const VkPhysicalDeviceProperties& properties, DeviceState& state,
+                           bool cluster_feature_enabled) {
+    InstanceState& instance = *state.instance;
+    DeviceRecord record;
+    record.device = handle_id(state.device);
+    record.device_name = properties.deviceName;
+    record.application_name = instance.application_name;
+    record.engine_name = instance.engine_name;
+    record.api_version = properties.apiVersion;
+    record.vendor_id = properties.vendorID;
+    record.device_id = properties.deviceID;
+    record.driver_version = properties.driverVersion;
+    record.device_type = properties.deviceType;
+    record.pipeline_cache_uuid.assign(properties.pipelineCacheUUID,
+                                      properties.pipelineCacheUUID + VK_UUID_SIZE);
+    record.timestamp_period = properties.limits.timestampPeriod;
+    record.memory_heaps.assign(state.memory_properties.memoryHeaps,
+                               state.memory_properties.memoryHeaps +
+                                   state.memory_properties.memoryHeapCount);
+    for (uint32_t i = 0; i < info.enabledExtensionCount; ++i)
+        record.enabled_extensions.push_back(info.ppEnabledExtensionNames[i]);
+    // Serving matters to the trace only when the application uses the served extension: an NV
+    // ray-tracing program on a driver without it is a plain native capture.
+    record.served_by_layer = state.serving && state.cluster_enabled;
+    record.cluster_properties = state.cluster_properties;
+    record.cluster_feature_enabled = cluster_feature_enabled;
+    record.memory_types.assign(state.memory_properties.memoryTypes,
+                               state.memory_properties.memoryTypes +
+                                   state.memory_properties.memoryTypeCount);
+    fill_driver_identity(instance, state.physical_device, properties.apiVersion, state, record);
+    return record;
+}
+
 VKAPI_ATTR VkResult VKAPI_CALL CreateDevice(VkPhysicalDevice physical_device,
                                             const VkDeviceCreateInfo* p_create_info,
                                             const VkAllocationCallbacks* p_allocator,
@@ -188,32 +281,11 @@ VKAPI_ATTR VkResult VKAPI_CALL CreateDevice(VkPhysicalDevice physical_device,
     link->u.pLayerInfo = link->u.pLayerInfo->pNext;
 
     const bool serving = should_serve(*instance, physical_device);
-    bool cluster_extension_requested = false;
-    bool frame_boundary_served = false;
-    std::vector<const char*> extensions;
-    for (uint32_t i = 0; i < p_create_info->enabledExtensionCount; ++i) {
-        if (std::strcmp(p_create_info->ppEnabledExtensionNames[i],
-                        VK_NV_CLUSTER_ACCELERATION_STRUCTURE_EXTENSION_NAME) == 0) {
-            cluster_extension_requested = true;
-            if (serving) continue;  // the driver does not know it; the layer provides it
-        }
-        // VK_EXT_frame_boundary: the layer provides it where the driver lacks it.
-        if (std::strcmp(p_create_info->ppEnabledExtensionNames[i],
-                        VK_EXT_FRAME_BOUNDARY_EXTENSION_NAME) == 0 &&
-            !driver_lists_extension(*instance, physical_device,
-                                    VK_EXT_FRAME_BOUNDARY_EXTENSION_NAME)) {
-            frame_boundary_served = true;
-            continue;
-        }
-        extensions.push_back(p_create_info->ppEnabledExtensionNames[i]);
-    }
-    bool cluster_feature_requested = false;
-    for (auto* s = (const VkBaseInStructure*)p_create_info->pNext; s; s = s->pNext)
-        if (s->sType ==
-            VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_CLUSTER_ACCELERATION_STRUCTURE_FEATURES_NV)
-            cluster_feature_requested =
-                ((const VkPhysicalDeviceClusterAccelerationStructureFeaturesNV*)s)
-                    ->clusterAccelerationStructure == VK_TRUE;
+    const RequestedExtensions requested =
+        sort_requested_extensions(*instance, physical_device, *p_create_info, serving);
+    const bool cluster_extension_requested = requested.cluster_extension;
+    const bool frame_boundary_served = requested.frame_boundary_served;
+    std::vector<const char*> extensions = requested.for_driver;
 
     VkDeviceCreateInfo driver_info = *p_create_info;
     driver_info.enabledExtensionCount = uint32_t(extensions.size());
@@ -265,24 +337,7 @@ VKAPI_ATTR VkResult VKAPI_CALL CreateDevice(VkPhysicalDevice physical_device,
     const LayerConfig& config = layer_config();
     if (config.capture) state->sink = process_capture_sink();
     state->capturing = state->sink != nullptr;
-    if (state->capturing && config.timestamps && p_create_info->queueCreateInfoCount) {
-        uint32_t family_count = 0;
-        instance->next.GetPhysicalDeviceQueueFamilyProperties(physical_device, &family_count,
-                                                              nullptr);
-        std::vector<VkQueueFamilyProperties> families(family_count);
-        instance->next.GetPhysicalDeviceQueueFamilyProperties(physical_device, &family_count,
-                                                              families.data());
-        uint32_t valid_bits = 64;
-        for (uint32_t i = 0; i < p_create_info->queueCreateInfoCount; ++i) {
-            const uint32_t family = p_create_info->pQueueCreateInfos[i].queueFamilyIndex;
-            valid_bits = std::min(valid_bits,
-                                  family < family_count ? families[family].timestampValidBits : 0u);
-        }
-        state->timestamps = valid_bits != 0 && state->next.CreateQueryPool &&
-                            state->next.CmdWriteTimestamp && state->next.CmdResetQueryPool &&
-                            state->next.GetQueryPoolResults;
-        state->timestamp_mask = valid_bits >= 64 ? ~0ull : (1ull << valid_bits) - 1;
-    }
+    if (state->capturing && config.timestamps) set_up_timestamps(*p_create_info, *state);
     set_up_traceable_clusters(*state);  // before the pause worker, which builds with it
     if (state->capturing || serving) state->pauses = std::make_unique<PauseWorker>(*state);
     log_message(LogLevel::kInfo, "device %s: serving %s, capture %s, timestamps %s",
@@ -290,34 +345,9 @@ VKAPI_ATTR VkResult VKAPI_CALL CreateDevice(VkPhysicalDevice physical_device,
                 state->timestamps ? "on" : "off");
 
     if (state->sink) {
-        DeviceRecord record;
-        record.device = handle_id(*pDevice);
-        record.device_name = properties.deviceName;
-        record.application_name = instance->application_name;
-        record.engine_name = instance->engine_name;
-        record.api_version = properties.apiVersion;
-        record.vendor_id = properties.vendorID;
-        record.device_id = properties.deviceID;
-        record.driver_version = properties.driverVersion;
-        record.device_type = properties.deviceType;
-        record.pipeline_cache_uuid.assign(properties.pipelineCacheUUID,
-                                          properties.pipelineCacheUUID + VK_UUID_SIZE);
-        record.timestamp_period = properties.limits.timestampPeriod;
-        record.memory_heaps.assign(state->memory_properties.memoryHeaps,
-                                   state->memory_properties.memoryHeaps +
-                                       state->memory_properties.memoryHeapCount);
-        for (uint32_t i = 0; i < p_create_info->enabledExtensionCount; ++i)
-            record.enabled_extensions.push_back(p_create_info->ppEnabledExtensionNames[i]);
-        // Serving matters to the trace only when the application uses the served extension: an NV
-        // ray-tracing program on a driver without it is a plain native capture.
-        record.served_by_layer = serving && cluster_extension_requested;
-        record.cluster_properties = state->cluster_properties;
-        record.cluster_feature_enabled = cluster_extension_requested && cluster_feature_requested;
-        record.memory_types.assign(state->memory_properties.memoryTypes,
-                                   state->memory_properties.memoryTypes +
-                                       state->memory_properties.memoryTypeCount);
-        fill_driver_identity(*instance, physical_device, properties.apiVersion, *state, record);
-        state->sink->device_created(record);
+        state->sink->device_created(
+            device_record(*p_create_info, properties, *state,
+                          cluster_extension_requested && requested.cluster_feature));
     }
     register_device(dispatch_key(*pDevice), std::move(state));
     return VK_SUCCESS;
