@@ -273,117 +273,122 @@ ServedExecution execute_served_build(const VkClusterAccelerationStructureCommand
     return execute_served_build(command, memory, directory, properties, input_walk);
 }
 
-ServedExecution execute_served_build(const VkClusterAccelerationStructureCommandsInfoNV& command,
-                                     ServedMemory& memory, engine::ObjectDirectory& directory,
-                                     const engine::EngineProperties& properties,
-                                     std::vector<CapturedRange>* input_walk,
-                                     std::optional<uint32_t> output_entries,
-                                     const AfterServedWriteBack& after_write_back,
-                                     uint64_t implicit_object_room) {
-    ServedExecution result;
-    const std::vector<ServedMemory::Group>& groups = memory.groups();
+namespace {
 
-    // Start from the buffers the command names itself, those its pointers lead to and those
-    // read already; run; every finding about an address in a buffer left out adds that buffer,
-    // and the command runs again from the same state (the directory is copied per attempt). A run
-    // without findings read only memory that was there, so it equals a run over all buffers.
-    // With findings left, or with indirected fields (whose targets the seeds do not name), the
-    // last run is over all buffers: exact either way.
-    std::vector<bool> selected(groups.size(), false);
-    auto select = [&](uint64_t address) {
-        const size_t g = address ? memory.group_of(address) : groups.size();
-        if (g == groups.size() || selected[g]) return false;
-        selected[g] = true;
+// The buffer groups an attempt copies into the engine's image.
+class GroupSelection {
+public:
+    explicit GroupSelection(const ServedMemory& memory)
+        : memory_(memory), selected_(memory.groups().size(), false) {}
+
+    // Selects the group holding `address`; false when it was selected already or none holds it.
+    bool select(uint64_t address) {
+        const size_t g = address ? memory_.group_of(address) : selected_.size();
+        if (g == selected_.size() || selected_[g]) return false;
+        selected_[g] = true;
+        return true;
+    }
+    void select_group(size_t g) { selected_[g] = true; }
+    void select_all() { selected_.assign(selected_.size(), true); }
+    bool all() const {
+        return std::find(selected_.begin(), selected_.end(), false) == selected_.end();
+    }
+    bool operator[](size_t g) const { return selected_[g]; }
+    size_t size() const { return selected_.size(); }
+
+private:
+    const ServedMemory& memory_;
+    std::vector<bool> selected_;
+};
+
+// The buffers the command names itself, those its pointers lead to and those read already.
+GroupSelection first_selection(const VkClusterAccelerationStructureCommandsInfoNV& command,
+                               ServedMemory& memory, const std::vector<CapturedRange>* input_walk) {
+    GroupSelection selection(memory);
+    if (command.addressResolutionFlags != 0) {
+        selection.select_all();  // indirected fields: the seeds do not name their targets
+        return selection;
+    }
+    for (uint64_t seed :
+         {command.srcInfosArray.deviceAddress, command.srcInfosCount, command.dstImplicitData,
+          command.scratchData, command.dstAddressesArray.deviceAddress,
+          command.dstSizesArray.deviceAddress})
+        selection.select(seed);
+    // The capture's pointer walk names most of the rest (index, vertex, geometry, reference
+    // arrays; the clusters a reference array names), so one engine run usually suffices.
+    DeviceMemoryReader read = [&](VkDeviceAddress address, uint64_t size, CapturedBytes* out,
+                                  std::string& why) {
+        const uint8_t* bytes = memory.read(address, size);
+        if (!bytes) {
+            why = "not inside one buffer";
+            return false;
+        }
+        if (out)
+            *out = CapturedBytes::borrow(bytes, size);  // (the walk ends before the engine runs)
         return true;
     };
-    if (command.addressResolutionFlags != 0) {
-        selected.assign(groups.size(), true);
-    } else {
-        for (uint64_t seed :
-             {command.srcInfosArray.deviceAddress, command.srcInfosCount, command.dstImplicitData,
-              command.scratchData, command.dstAddressesArray.deviceAddress,
-              command.dstSizesArray.deviceAddress})
-            select(seed);
-        // The capture's pointer walk names most of the rest (index, vertex, geometry, reference
-        // arrays; the clusters a reference array names), so one engine run usually suffices.
-        DeviceMemoryReader read = [&](VkDeviceAddress address, uint64_t size, CapturedBytes* out,
-                                      std::string& why) {
-            const uint8_t* bytes = memory.read(address, size);
-            if (!bytes) {
-                why = "not inside one buffer";
-                return false;
-            }
-            if (out)
-                *out =
-                    CapturedBytes::borrow(bytes, size);  // (the walk ends before the engine runs)
-            return true;
-        };
-        ClusterMemoryWalk walk;
-        if (!input_walk)
-            walk = walk_cluster_inputs(ClusterCommandParameters::copy_of(command), read);
-        for (const CapturedRange& range : input_walk ? *input_walk : walk.ranges) {
-            select(range.address);
-            if (range.role != MemoryRole::kClusterReferences) continue;
-            for (size_t at = 0; at + 8 <= range.bytes.size(); at += 8) {
-                uint64_t reference;
-                std::memcpy(&reference, range.bytes.data() + at, 8);
-                select(reference);
-            }
+    ClusterMemoryWalk walk;
+    if (!input_walk) walk = walk_cluster_inputs(ClusterCommandParameters::copy_of(command), read);
+    for (const CapturedRange& range : input_walk ? *input_walk : walk.ranges) {
+        selection.select(range.address);
+        if (range.role != MemoryRole::kClusterReferences) continue;
+        for (size_t at = 0; at + 8 <= range.bytes.size(); at += 8) {
+            uint64_t reference;
+            std::memcpy(&reference, range.bytes.data() + at, 8);
+            selection.select(reference);
         }
-        for (size_t g = 0; g < groups.size();
-             ++g)  // in the image already: more memory is never less exact
-            if (memory.copied(g)) selected[g] = true;
     }
+    for (size_t g = 0; g < selection.size(); ++g)  // in the image already: more is never less exact
+        if (memory.copied(g)) selection.select_group(g);
+    return selection;
+}
 
-    engine::ExecuteOptions options;
-    options.properties = properties;
-    options.implicit_object_room = implicit_object_room;
+// Runs the command over the selected groups; every finding about an address in a group left
+// out adds that group, and the command runs again from the same state (the directory is copied
+// per attempt). A run without findings read only memory that was there, so it equals a run over
+// all buffers; with findings left, the last run is over all buffers: exact either way.
+void run_attempts(const VkClusterAccelerationStructureCommandsInfoNV& command, ServedMemory& memory,
+                  engine::ObjectDirectory& directory, const engine::ExecuteOptions& base_options,
+                  std::vector<CapturedRange>* input_walk, GroupSelection& selection,
+                  ServedExecution& result) {
+    engine::ExecuteOptions options = base_options;
     engine::ObjectDirectory attempt;
-    try {
-        for (bool last = false;;) {
-            if (result.attempts > 0) memory.reset();  // the engine wrote into the last image
-            for (size_t g = 0; g < groups.size(); ++g)
-                if (selected[g]) memory.copy(g);
-            result.bytes_copied_in = memory.bytes_copied();
-            // Over every buffer no further attempt can follow: the device's directory itself.
-            last = last || std::find(selected.begin(), selected.end(), false) == selected.end();
-            if (!last) attempt = directory;
-            options.directory = last ? &directory : &attempt;
-            result.record = engine::execute(command, memory.image(), options);
-            ++result.attempts;
-            if (input_walk)
-                memory.keep_inputs_as_read(*input_walk, &result.record);  // before the write-back
-            if (last) break;
-            if (result.record.findings.empty()) {
-                directory = std::move(attempt);
-                break;
-            }
-            bool grew = false;
-            for (const engine::Finding& f : result.record.findings) grew |= select(f.address);
-            if (!grew) selected.assign(groups.size(), true);
-        }
-    } catch (const std::exception& e) {
+    for (bool last = false;;) {
+        if (result.attempts > 0) memory.reset();  // the engine wrote into the last image
+        for (size_t g = 0; g < selection.size(); ++g)
+            if (selection[g]) memory.copy(g);
+        result.bytes_copied_in = memory.bytes_copied();
+        // Over every buffer no further attempt can follow: the device's directory itself.
+        last = last || selection.all();
+        if (!last) attempt = directory;
+        options.directory = last ? &directory : &attempt;
+        result.record = engine::execute(command, memory.image(), options);
+        ++result.attempts;
         if (input_walk)
-            memory.keep_inputs_as_read(*input_walk, nullptr);  // it may have written anything
-        result.error = e.what();
-        return result;
+            memory.keep_inputs_as_read(*input_walk, &result.record);  // before the write-back
+        if (last) return;
+        if (result.record.findings.empty()) {
+            directory = std::move(attempt);
+            return;
+        }
+        bool grew = false;
+        for (const engine::Finding& f : result.record.findings) grew |= selection.select(f.address);
+        if (!grew) selection.select_all();
     }
-    result.ran = true;
+}
 
-    // Back into every buffer that holds a written byte (aliases included: same memory or not,
-    // each view must show what the command wrote).
+// Back into every buffer that holds a written byte (aliases included: same memory or not, each
+// view must show what the command wrote). Marks in `keep` the groups written.
+void write_back(ServedMemory& memory, const GroupSelection& selection, std::vector<bool>* keep,
+                ServedExecution& result) {
+    const std::vector<ServedMemory::Group>& groups = memory.groups();
     const engine::MemoryImage& image = memory.image();
-    // The capture's walk may count more entries than the engine ran (its own caps): both are kept.
-    std::vector<bool> keep;
-    if (output_entries)
-        keep = groups_the_outputs_name(command, memory,
-                                       std::max(result.record.op_count, *output_entries));
     for (const engine::MemoryAccess& access : result.record.accesses) {
         if (!access.is_write || access.end <= access.begin) continue;
         for (size_t g = memory.group_of(access.begin);
              g < groups.size() && groups[g].base < access.end; ++g) {
-            if (!selected[g]) continue;
-            if (output_entries) keep[g] = true;
+            if (!selection[g]) continue;
+            if (keep) (*keep)[g] = true;
             for (const ServedBuffer* b : groups[g].buffers) {
                 const uint64_t begin = std::max(access.begin, b->address);
                 const uint64_t end = std::min(access.end, b->address + b->size);
@@ -400,7 +405,39 @@ ServedExecution execute_served_build(const VkClusterAccelerationStructureCommand
             }
         }
     }
-    if (after_write_back) after_write_back(image, result.record);
+}
+
+}  // namespace
+
+ServedExecution execute_served_build(const VkClusterAccelerationStructureCommandsInfoNV& command,
+                                     ServedMemory& memory, engine::ObjectDirectory& directory,
+                                     const engine::EngineProperties& properties,
+                                     std::vector<CapturedRange>* input_walk,
+                                     std::optional<uint32_t> output_entries,
+                                     const AfterServedWriteBack& after_write_back,
+                                     uint64_t implicit_object_room) {
+    ServedExecution result;
+    GroupSelection selection = first_selection(command, memory, input_walk);
+    engine::ExecuteOptions options;
+    options.properties = properties;
+    options.implicit_object_room = implicit_object_room;
+    try {
+        run_attempts(command, memory, directory, options, input_walk, selection, result);
+    } catch (const std::exception& e) {
+        if (input_walk)
+            memory.keep_inputs_as_read(*input_walk, nullptr);  // it may have written anything
+        result.error = e.what();
+        return result;
+    }
+    result.ran = true;
+
+    // The capture's walk may count more entries than the engine ran (its own caps): both are kept.
+    std::vector<bool> keep;
+    if (output_entries)
+        keep = groups_the_outputs_name(command, memory,
+                                       std::max(result.record.op_count, *output_entries));
+    write_back(memory, selection, output_entries ? &keep : nullptr, result);
+    if (after_write_back) after_write_back(memory.image(), result.record);
     result.image = memory.share(output_entries ? &keep : nullptr);
     return result;
 }
