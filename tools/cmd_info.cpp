@@ -325,10 +325,8 @@ nlohmann::json info_json(const std::string& path, const TraceReader& reader,
     };
 }
 
-void print_text(const std::string& path, const TraceReader& reader, const TraceSummary& s) {
-    const traces::TraceReadStats& st = reader.stats();
-    fmt::print("{:<12}{} ({} bytes)\n", "trace", path, st.file_size);
-    fmt::print("{:<12}{}.{}\n", "format", reader.version_major(), reader.version_minor());
+// The device and capture lines of the trace's header.
+void print_header(const TraceReader& reader) {
     if (const fbs::TraceHeader* h = reader.header()) {
         if (const auto* d = h->device()) {
             fmt::print("{:<12}{} (vendor {:#06x}, device {:#06x}), driver {} {}, Vulkan {}\n",
@@ -368,11 +366,11 @@ void print_text(const std::string& path, const TraceReader& reader, const TraceS
     } else {
         fmt::print("{:<12}(damaged)\n", "header");
     }
-    fmt::print("{:<12}{}\n", "index",
-               reader.has_index()
-                   ? fmt::format("present, {} submissions", reader.indexed_submission_count())
-                   : std::string("absent"));
+}
 
+// Records by kind.
+void print_records(const TraceReader& reader, const TraceSummary& s) {
+    const traces::TraceReadStats& st = reader.stats();
     fmt::print("\n{:<46}{:>10}\n", "record kind", "count");
     for (unsigned k = 1; k < traces::kRecordKindCount; ++k) {
         if (s.by_kind[k] == 0) continue;
@@ -382,7 +380,10 @@ void print_text(const std::string& path, const TraceReader& reader, const TraceS
     if (s.unknown_kinds) fmt::print("  {:<44}{:>10}\n", "(newer kinds, skipped)", s.unknown_kinds);
     fmt::print("  {:<44}{:>10}\n", "total", s.records);
     if (st.records_damaged) fmt::print("  {:<44}{:>10}\n", "damaged (skipped)", st.records_damaged);
+}
 
+// Frames, the state from before the range, acquires.
+void print_frames(const TraceSummary& s) {
     if (s.frame_ends()) {
         const std::string ends =
             s.frame_marks == 0 ? fmt::format("{} presents", s.presents)
@@ -412,6 +413,10 @@ void print_text(const std::string& path, const TraceReader& reader, const TraceS
     if (s.acquires)
         fmt::print("{}{:<12}{} image acquires\n", s.frame_ends() ? "" : "\n",
                    s.frame_ends() ? "" : "frames", s.acquires);
+}
+
+// What the layer found while capturing.
+void print_capture_findings(const TraceSummary& s) {
     if (s.finding_count) {
         fmt::print("\n{:<12}{} recorded while capturing\n", "findings", s.finding_count);
         for (const auto& f : s.findings) {
@@ -429,7 +434,11 @@ void print_text(const std::string& path, const TraceReader& reader, const TraceS
         if (s.finding_count > s.findings.size())
             fmt::print("  ... {} more not listed\n", s.finding_count - s.findings.size());
     }
+}
 
+// Contents, size against zstd, chunks and damage.
+void print_storage(const TraceReader& reader, const TraceSummary& s) {
+    const traces::TraceReadStats& st = reader.stats();
     fmt::print(
         "\n{:<12}{} bytes referenced by {} snapshots, {} bytes stored in {} contents, dedup ratio "
         "{:.2f}x\n",
@@ -459,6 +468,22 @@ void print_text(const std::string& path, const TraceReader& reader, const TraceS
     if (reader.damage_count() > reader.damage().size()) {
         fmt::print("  ... {} more not listed\n", reader.damage_count() - reader.damage().size());
     }
+}
+
+void print_text(const std::string& path, const TraceReader& reader, const TraceSummary& s) {
+    const traces::TraceReadStats& st = reader.stats();
+    fmt::print("{:<12}{} ({} bytes)\n", "trace", path, st.file_size);
+    fmt::print("{:<12}{}.{}\n", "format", reader.version_major(), reader.version_minor());
+    print_header(reader);
+    fmt::print("{:<12}{}\n", "index",
+               reader.has_index()
+                   ? fmt::format("present, {} submissions", reader.indexed_submission_count())
+                   : std::string("absent"));
+
+    print_records(reader, s);
+    print_frames(s);
+    print_capture_findings(s);
+    print_storage(reader, s);
 }
 
 }  // namespace
