@@ -130,25 +130,9 @@ std::string notes_text(const ReplayReport& r) {
     return s;
 }
 
-}  // namespace
-
-std::string format_text(const ReplayReport& r) {
-    std::string s;
-    for (const std::string& d : r.trace_damage) s += "CLASTRACE-trace-damaged: " + d + "\n";
-    for (const ReplayFinding& f : r.findings) s += f.format() + "\n";
-    for (const HazardReport& h : r.hazards) s += h.format() + "\n";
-    if (r.findings_over_cap)
-        s += "(" + std::to_string(r.findings_over_cap) + " more findings not kept)\n";
-    if (r.hazards_over_cap)
-        s += "(" + std::to_string(r.hazards_over_cap) + " more hazards not kept)\n";
-    s += notes_text(r);
-
+// The per-command size tables: cluster builds, then NV objects.
+void append_size_tables(const ReplayReport& r, std::string& s) {
     char line[384];
-    s += "\nreplay of " + r.trace + " (" +
-         (r.device.empty() ? std::string("unknown device") : r.device) +
-         (r.engine_trace ? ", made by clastrace's engine: outputs compared byte for byte"
-                         : ", captured on a driver: sizes compared side by side") +
-         ")\n";
     if (!r.sizes.empty()) {
         s += "  sizes, capture vs engine:\n";
         std::snprintf(line, sizeof line, "  %-26s %-31s %6s %8s %14s %14s %6s %12s %12s %s\n",
@@ -185,6 +169,10 @@ std::string format_text(const ReplayReport& r) {
             s += line;
         }
     }
+}
+
+void append_ray_checks(const ReplayReport& r, std::string& s) {
+    char line[384];
     for (const RayCheckResult& c : r.ray_checks) {
         if (!c.checked) {
             s += "  ray check '" + c.label + "' on " + hex(c.acceleration_structure) +
@@ -206,10 +194,11 @@ std::string format_text(const ReplayReport& r) {
                       c.disagree_unexplained, c.traversal.c_str());
         s += line;
     }
+}
+
+void append_counts(const ReplayReport& r, std::string& s) {
+    char line[384];
     const ReplayCounts& n = r.counts;
-    std::map<std::string, uint64_t> by_rule;
-    for (const ReplayFinding& f : r.findings) ++by_rule[f.rule];
-    for (const HazardReport& h : r.hazards) ++by_rule[hazard_rule_name(h)];
     std::snprintf(line, sizeof line,
                   "  records %" PRIu64 ", submissions %" PRIu64 ", commands replayed %" PRIu64
                   " (skipped %" PRIu64 "), cluster commands %" PRIu64 " (%" PRIu64
@@ -244,6 +233,13 @@ std::string format_text(const ReplayReport& r) {
     if (const uint64_t notes = r.notes.size() + r.notes_over_cap)
         s += "  notes: " + std::to_string(notes) +
              " limit(s) of this replay (not findings; listed under Notes)\n";
+}
+
+// The last line: clean, or the findings counted by rule.
+void append_result(const ReplayReport& r, std::string& s) {
+    std::map<std::string, uint64_t> by_rule;
+    for (const ReplayFinding& f : r.findings) ++by_rule[f.rule];
+    for (const HazardReport& h : r.hazards) ++by_rule[hazard_rule_name(h)];
     if (by_rule.empty() && r.trace_damage.empty()) {
         s += "  result: clean\n";
     } else {
@@ -253,6 +249,30 @@ std::string format_text(const ReplayReport& r) {
         for (const auto& [rule, count] : by_rule)
             s += "    " + std::to_string(count) + "  " + rule + "\n";
     }
+}
+
+}  // namespace
+
+std::string format_text(const ReplayReport& r) {
+    std::string s;
+    for (const std::string& d : r.trace_damage) s += "CLASTRACE-trace-damaged: " + d + "\n";
+    for (const ReplayFinding& f : r.findings) s += f.format() + "\n";
+    for (const HazardReport& h : r.hazards) s += h.format() + "\n";
+    if (r.findings_over_cap)
+        s += "(" + std::to_string(r.findings_over_cap) + " more findings not kept)\n";
+    if (r.hazards_over_cap)
+        s += "(" + std::to_string(r.hazards_over_cap) + " more hazards not kept)\n";
+    s += notes_text(r);
+
+    s += "\nreplay of " + r.trace + " (" +
+         (r.device.empty() ? std::string("unknown device") : r.device) +
+         (r.engine_trace ? ", made by clastrace's engine: outputs compared byte for byte"
+                         : ", captured on a driver: sizes compared side by side") +
+         ")\n";
+    append_size_tables(r, s);
+    append_ray_checks(r, s);
+    append_counts(r, s);
+    append_result(r, s);
     return s;
 }
 
