@@ -18,7 +18,7 @@ inline void add_max_raw_option(CLI::App* command, traces::TraceReaderOptions* op
     command
         ->add_option_function<uint64_t>(
             "--max-raw-mib", [options](uint64_t mib) { options->max_raw_bytes = mib << 20; },
-            "MiB the reader may decompress in all (default: 1024 x the file size, at least 1024); "
+            "MiB the reader may decompress in all (default: 1024 x the file size, at least 4096); "
             "a trace that "
             "inflates past it is reported as damaged")
         ->check(whole_number_from(1, UINT64_MAX >> 20, "the MiB the reader may decompress"));
