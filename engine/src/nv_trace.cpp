@@ -751,11 +751,11 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
                     bool exhaustive) {
     const Blas& b = *inst.blas;
     if (b.nodes.empty() && !b.clusters) return false;
-    // The object-space ray's three forms: at once for a double-mode ray through an identity
-    // (every ray of a bottom-level scene), else by way of to_object_space.
+    // The object-space ray's three forms: at once for a ray through an identity (every ray of
+    // a bottom-level scene), in either mode, else by way of to_object_space.
     detail::ObjectRays rays;
-    if (!(inst.identity && mode == TraversalMode::kDouble && !b.clusters &&
-          detail::make_plain_object_rays(ray.origin, ray.direction, tmin, *tmax, &rays))) {
+    if (!(inst.identity && !b.clusters &&
+          detail::make_plain_object_rays(ray.origin, ray.direction, tmin, *tmax, mode, &rays))) {
         double o[3], d[3];
         to_object_space(inst, ray, mode, o, d);
         if (b.clusters)

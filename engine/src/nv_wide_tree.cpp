@@ -434,7 +434,7 @@ WideRay make_wide_ray(const geometry::PreparedRay& r) {
 }
 
 bool make_plain_object_rays(const float o[3], const float d[3], double tmin, double tmax,
-                            ObjectRays* out) {
+                            TraversalMode mode, ObjectRays* out) {
     if (std::isnan(tmin)) return false;
     // The wide ray's range on every axis, four lanes at once (lane 3: o = d = 0, left out):
     // |o| <= 2^100, and 2^-100 <= |d| <= 2^100, which for a float d is exactly 1 / d in
@@ -448,6 +448,7 @@ bool make_plain_object_rays(const float o[3], const float d[3], double tmin, dou
     if ((in_range & 7u) != 7u) return false;
     geometry::PreparedRay& r = out->exact;
     WideRay& w = out->wide;
+    const bool float32 = mode == TraversalMode::kFloat32;
 #pragma GCC unroll 3
     for (int a = 0; a < 3; ++a) {
         r.o[a] = double(o[a]) + 0.0;  // -0 as +0, as an identity's rows give it
@@ -456,7 +457,14 @@ bool make_plain_object_rays(const float o[3], const float d[3], double tmin, dou
         r.fo[a] = float(r.o[a]);
         w.zero[a] = false;
         w.origin[a] = r.fo[a];
-        w.inverse[a] = float(r.inv[a]);
+        if (float32) {
+            // A float32 pipeline's own 1 / d (rounded once, from the float: not float(inv)).
+            r.fd[a] = d[a];
+            r.finv[a] = 1.0f / d[a];
+            w.inverse[a] = r.finv[a];
+        } else {
+            w.inverse[a] = float(r.inv[a]);
+        }
     }
     // prepare_ray's permutation and shear.
     int kz = 0;
@@ -476,7 +484,7 @@ bool make_plain_object_rays(const float o[3], const float d[3], double tmin, dou
     r.fsz = 1.0f / d[kz];
     r.tmin = tmin;
     r.tmax = tmax;
-    r.mode = TraversalMode::kDouble;
+    r.mode = mode;
     // make_triangle4_ray's limits (its origin's rounding is 0: the origin is a float).
     const double dz = std::fabs(r.d[kz]);
     if (!(dz >= 0x1p-100 && dz <= 0x1p100)) return false;
@@ -494,8 +502,9 @@ bool make_plain_object_rays(const float o[3], const float d[3], double tmin, dou
     t.delta4 = splat(0.0f);
     t.usable = true;
     // make_wide_ray's widening with no origin rounding: the underflow term alone.
-    w.widen_down = float(1.0 - kRelativeWidening);
-    w.widen_up = float(1.0 + kRelativeWidening);
+    const double widening = float32 ? kFloat32RelativeWidening : kRelativeWidening;
+    w.widen_down = float(1.0 - widening);
+    w.widen_up = float(1.0 + widening);
     w.widen_abs = float(kUnderflowWidening);
     w.tmin = float_at_or_below(tmin);
     w.usable = true;

@@ -191,15 +191,16 @@ struct ObjectRays {
     geometry::Triangle4Ray triangles;
 };
 
-// The ObjectRays of a kDouble ray whose origin and direction are floats, finite, with no zero
-// direction component (a bottom-level scene's rays, and those through an identity instance):
-// the fields the double mode reads, equal to what prepare_ray (of `o` + 0, `d`),
-// make_wide_ray and make_triangle4_ray give, without the checks and the terms these need only
-// for other rays (origins that are not floats, zero or non-finite components). False, and
-// `out` unusable, for a ray that is not such a ray or that either SIMD form would not take
-// (make_wide_ray's and make_triangle4_ray's range limits): those take the three functions.
+// The ObjectRays of a ray whose origin and direction are floats, finite, with no zero
+// direction component (a bottom-level scene's rays, and those through an identity instance),
+// in either mode: the fields the mode reads, equal to what prepare_ray (of `o` + 0, `d`,
+// `mode`), make_wide_ray and make_triangle4_ray give, without the checks and the terms these
+// need only for other rays (origins that are not floats, zero or non-finite components).
+// False, and `out` unusable, for a ray that is not such a ray or that either SIMD form would
+// not take (make_wide_ray's and make_triangle4_ray's range limits, on 1 / d in double): those
+// take the three functions.
 bool make_plain_object_rays(const float o[3], const float d[3], double tmin, double tmax,
-                            ObjectRays* out);
+                            TraversalMode mode, ObjectRays* out);
 
 // Whether the SIMD box test still tells the tree's leaf boxes apart for a ray from `o`: its
 // relative widening (2^-20 of each distance, make_wide_ray) at the ray's distance from the

@@ -509,9 +509,11 @@ bool same_lanes(eng::detail::Float4 a, eng::detail::Float4 b) {
     return std::memcmp(x, y, sizeof x) == 0;
 }
 
-// make_plain_object_rays gives the fields the double mode reads bit for bit as prepare_ray,
+// make_plain_object_rays gives the fields each mode reads bit for bit as prepare_ray,
 // make_wide_ray and make_triangle4_ray give them, and takes exactly the rays it is meant for:
-// float rays, finite, no zero direction component, within both SIMD forms' limits.
+// float rays, finite, no zero direction component, within both SIMD forms' limits (for
+// float32, on 1 / d in double: a float 1 / d that rounds onto 2^±100 is left to the general
+// way, which takes it).
 TEST(NvWideTraversal, PlainObjectRaysAreTheGeneralOnes) {
     const float specials[] = {0.0f,  -0.0f,     1.0f,      -3.5f,    1e-30f, -1e-38f,  1e-45f,
                               1e30f, -1e30f,    0x1p100f,  0x1p101f, 3e38f,  INFINITY, -INFINITY,
@@ -535,24 +537,29 @@ TEST(NvWideTraversal, PlainObjectRaysAreTheGeneralOnes) {
         }
         const double tmin = (i % 3 == 0) ? 0.0 : 1e-3;
         const double tmax = (i % 5 == 0) ? INFINITY : 1e4;
+        const eng::TraversalMode mode = kModes[i % 2];
         eng::detail::ObjectRays plain;
-        const bool taken = eng::detail::make_plain_object_rays(o, d, tmin, tmax, &plain);
+        const bool taken = eng::detail::make_plain_object_rays(o, d, tmin, tmax, mode, &plain);
         // The general way, from the object-space ray an identity instance gives.
         const double od[3] = {double(o[0]) + 0.0, double(o[1]) + 0.0, double(o[2]) + 0.0};
         const double dd[3] = {d[0], d[1], d[2]};
-        const eng::geometry::PreparedRay r = eng::geometry::prepare_ray(od, dd, tmin, tmax);
+        const eng::geometry::PreparedRay r = eng::geometry::prepare_ray(od, dd, tmin, tmax, mode);
         const eng::detail::WideRay w = eng::detail::make_wide_ray(r);
         const eng::geometry::Triangle4Ray t = eng::geometry::make_triangle4_ray(r);
         bool meant = w.usable && t.usable;
-        for (int a = 0; a < 3; ++a)
+        for (int a = 0; a < 3; ++a) {
             meant &= std::isfinite(o[a]) && std::isfinite(d[a]) && d[a] != 0;
+            meant &= !(std::fabs(1.0 / double(d[a])) > 0x1p100) &&
+                     !(std::fabs(1.0 / double(d[a])) < 0x1p-100);
+        }
         ASSERT_EQ(taken, meant) << i;
         if (!taken) continue;
         ++plain_count;
         const eng::geometry::PreparedRay& p = plain.exact;
         for (int a = 0; a < 3; ++a) {
             ASSERT_TRUE(same_bits(p.o[a], r.o[a]) && same_bits(p.d[a], r.d[a]) &&
-                        same_bits(p.inv[a], r.inv[a]) && same_bits(p.fo[a], r.fo[a]))
+                        same_bits(p.inv[a], r.inv[a]) && same_bits(p.fo[a], r.fo[a]) &&
+                        same_bits(p.fd[a], r.fd[a]) && same_bits(p.finv[a], r.finv[a]))
                 << i;
             ASSERT_TRUE(same_bits(plain.wide.origin[a], w.origin[a]) &&
                         same_bits(plain.wide.inverse[a], w.inverse[a]) &&
