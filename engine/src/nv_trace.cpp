@@ -616,16 +616,37 @@ public:
         return false;
     }
 
+    // The float32 mode's leaves: each group's four triangles through the float32 test at once
+    // (triangle4_float32), its hits taken in record order; the lanes it leaves to the scalar
+    // test (an edge function 0 or not finite) through primitive(), in their place in that order.
+    [[gnu::always_inline]] bool groups_float32(uint32_t first, uint32_t count) {
+        for (uint32_t g = 0; g < (count + 3) / 4; ++g) {
+            const geometry::Triangle4& group = b_.groups[first + g];
+            geometry::Triangle4Float32 f;
+            geometry::triangle4_float32(rays_.triangles, group, geometry::group_lanes(g, count),
+                                        &f);
+            for (unsigned lanes = f.hits | f.fallback; lanes; lanes &= lanes - 1) {
+                const int k = __builtin_ctz(lanes);
+                if (group.geometry[k] == geometry::kNoTriangle) continue;
+                if ((f.fallback >> k) & 1u) {
+                    float v[9];
+                    geometry::lane_vertices(group, k, v);
+                    if (primitive(v, group.geometry[k], group.primitive[k])) return true;
+                } else if (float32_lane(group, k, f)) {
+                    return true;
+                }
+            }
+        }
+        return false;
+    }
+
     // One primitive (its coordinates `v`: a triangle's three vertices or a box's min and max)
     // through the exact tests and the flag rules; true: stop (first hit taken). Out of line:
     // under one call a ray, where inlined it took registers from the walks.
     [[gnu::noinline]] bool primitive(const float* v, uint32_t geometry_index,
                                      uint32_t primitive_index) {
-        const bool opaque =
-            rules_.opacity < 0
-                ? (b_.geometry_flags[geometry_index] & VK_GEOMETRY_OPAQUE_BIT_NV) != 0
-                : rules_.opacity != 0;
-        if ((rules_.culled_opacity >> unsigned(opaque)) & 1u) return false;
+        const bool opaque = is_opaque(geometry_index);
+        if (opacity_culled(opaque)) return false;
         const geometry::PreparedRay& rd = rays_.exact;
         geometry::TriangleHit cand;
         uint32_t kind = 0;
@@ -635,10 +656,55 @@ public:
             cand = geometry::TriangleHit{t, 0.0, 0.0, 0.0, true};
         } else {
             if (!geometry::intersect_triangle(rd, v, v + 3, v + 6, *tmax_, &cand)) return false;
-            const bool front = cand.front != rules_.flip;
-            if (front ? rules_.cull_front : rules_.cull_back) return false;
-            kind = front ? kHitKindFrontFacing : kHitKindBackFacing;
+            if (!facing_kind(cand.front, &kind)) return false;
         }
+        return take(cand, kind, opaque, v, geometry_index, primitive_index);
+    }
+
+    // Lane k of `group`, a hit of triangle4_float32: what intersect_triangle_float32 gives for
+    // it, from the lanes, through primitive()'s rules. Out of line, as primitive() is.
+    [[gnu::noinline]] bool float32_lane(const geometry::Triangle4& group, int k,
+                                        const geometry::Triangle4Float32& f) {
+        const uint32_t geometry_index = group.geometry[k];
+        const bool opaque = is_opaque(geometry_index);
+        if (opacity_culled(opaque)) return false;
+        const double t = f.t[k];
+        if (!(t >= rays_.exact.tmin && t <= *tmax_)) return false;
+        const bool front = geometry::float_det_front(f.det[k]);
+        uint32_t kind = 0;
+        if (!facing_kind(front, &kind)) return false;
+        const geometry::TriangleHit cand{t, f.u[k], f.v[k],
+                                         geometry::barycentric_float_error(f.unsheared[k],
+                                                                           f.sheared[k], f.det[k]),
+                                         front};
+        float v[9];
+        geometry::lane_vertices(group, k, v);
+        return take(cand, kind, opaque, v, geometry_index, group.primitive[k]);
+    }
+
+private:
+    bool is_opaque(uint32_t geometry_index) const {
+        return rules_.opacity < 0
+                   ? (b_.geometry_flags[geometry_index] & VK_GEOMETRY_OPAQUE_BIT_NV) != 0
+                   : rules_.opacity != 0;
+    }
+    bool opacity_culled(bool opaque) const {
+        return (rules_.culled_opacity >> unsigned(opaque)) & 1u;
+    }
+
+    // A triangle's hit kind from the test's facing after the instance's flip; false: culled.
+    bool facing_kind(bool test_front, uint32_t* kind) const {
+        const bool front = test_front != rules_.flip;
+        if (front ? rules_.cull_front : rules_.cull_back) return false;
+        *kind = front ? kHitKindFrontFacing : kHitKindBackFacing;
+        return true;
+    }
+
+    // A candidate the exact test and the flag rules accept: kept when it replaces the best so
+    // far (the tie rule), recorded, and *tmax_ lowered to it; true: stop (first hit taken).
+    [[gnu::always_inline]] bool take(const geometry::TriangleHit& cand, uint32_t kind, bool opaque,
+                                     const float* v, uint32_t geometry_index,
+                                     uint32_t primitive_index) {
         if (best_ && !replaces(*best_, cand.t, *tmax_, index_, geometry_index, primitive_index))
             return false;
         found_ = true;
@@ -655,15 +721,14 @@ public:
             best_->uv_error = float(cand.uv_error);
             best_->hit_kind = kind;
             best_->opaque = opaque;
-            best_->t_error =
-                float(float_t_error(inst_, world_origin_, rd.o, rd.d, v, b_.aabbs, cand.t));
+            best_->t_error = float(float_t_error(inst_, world_origin_, rays_.exact.o, rays_.exact.d,
+                                                 v, b_.aabbs, cand.t));
         }
         *tmax_ = cand.t;
         tmax_up_ = detail::float_at_or_above(cand.t);
         return first_hit_;
     }
 
-private:
     const Instance& inst_;
     const Blas& b_;
     uint32_t index_;
@@ -686,11 +751,11 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
                     bool exhaustive) {
     const Blas& b = *inst.blas;
     if (b.nodes.empty() && !b.clusters) return false;
-    // The object-space ray's three forms: at once for a double-mode ray through an identity
-    // (every ray of a bottom-level scene), else by way of to_object_space.
+    // The object-space ray's three forms: at once for a ray through an identity (every ray of
+    // a bottom-level scene), in either mode, else by way of to_object_space.
     detail::ObjectRays rays;
-    if (!(inst.identity && mode == TraversalMode::kDouble && !b.clusters &&
-          detail::make_plain_object_rays(ray.origin, ray.direction, tmin, *tmax, &rays))) {
+    if (!(inst.identity && !b.clusters &&
+          detail::make_plain_object_rays(ray.origin, ray.direction, tmin, *tmax, mode, &rays))) {
         double o[3], d[3];
         to_object_space(inst, ray, mode, o, d);
         if (b.clusters)
@@ -708,6 +773,14 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
     }
     if (!b.wide.leaf_groups) {
         walk_leaves(b.nodes, b.wide, b.primitives, rays.exact, rays.wide, tmax, records, records);
+        return trace.found();
+    }
+    // The float32 mode's own leaf test where the four-triangle ray has the float ray's terms.
+    if (mode == TraversalMode::kFloat32 && rays.triangles.usable) {
+        auto groups = [&trace](uint32_t first, uint32_t count) __attribute__((always_inline)) {
+            return trace.groups_float32(first, count);
+        };
+        walk_leaves(b.nodes, b.wide, b.groups, rays.exact, rays.wide, tmax, records, groups);
         return trace.found();
     }
     auto groups = [&trace](uint32_t first, uint32_t count) __attribute__((always_inline)) {

@@ -126,9 +126,9 @@ int8_t step_exponent(double extent) {
 // dequantization (dequantized) contains the stored bound. A lane's box is taken as the hull of
 // its two bounds (the same box the min/max slab test sees of an inverted one), so that qlo <=
 // qhi, which the 8-wide test's choice of planes by the ray's signs relies on.
-template <int W>
-bool quantize_node(const FloatWideNode<W>& w, QuantizedNode<W>* q) {
-    *q = QuantizedNode<W>{};
+bool quantize_node(const WideNode& w, QuantizedWideNode* q) {
+    constexpr int W = 4;
+    *q = QuantizedWideNode{};
     unsigned used = 0;
     for (int k = 0; k < W; ++k) {
         q->child[k] = w.child[k];
@@ -153,7 +153,6 @@ bool quantize_node(const FloatWideNode<W>& w, QuantizedNode<W>* q) {
         if (!std::isfinite(lo) || !std::isfinite(hi)) return false;
         q->origin[a] = lo;
         q->exponent[a] = step_exponent(double(hi) - double(lo));
-        if constexpr (W == 8) q->steps.step[a] = quantization_step(q->exponent[a]);
         const double step = std::ldexp(1.0, q->exponent[a]);
         for (int k = 0; k < W; ++k) {
             if (!(used >> k & 1)) continue;
@@ -175,10 +174,8 @@ bool quantize_node(const FloatWideNode<W>& w, QuantizedNode<W>* q) {
 }
 
 // The quantized form of every node, or nothing when one cannot be quantized.
-template <int W, class Allocator>
-HugePageVector<QuantizedNode<W>> quantize_tree(
-    const std::vector<FloatWideNode<W>, Allocator>& nodes) {
-    HugePageVector<QuantizedNode<W>> out(nodes.size());
+HugePageVector<QuantizedWideNode> quantize_tree(const HugePageVector<WideNode>& nodes) {
+    HugePageVector<QuantizedWideNode> out(nodes.size());
     for (size_t i = 0; i < nodes.size(); ++i)
         if (!quantize_node(nodes[i], &out[i])) return {};
     return out;
@@ -229,6 +226,19 @@ std::vector<FloatWideNode<W>> float_wide_nodes(const std::vector<NvNode>& nodes)
     return out;
 }
 
+// An 8-wide node as the AVX2 box test takes it (WideNode8): each used lane's box the hull of
+// its bounds, each unused lane's lo = +inf and hi = -inf.
+void close_lanes(WideNode8* n) {
+    const float inf = std::numeric_limits<float>::infinity();
+    for (int k = 0; k < 8; ++k)
+        for (int a = 0; a < 3; ++a) {
+            const bool used = n->count[k] != kWideEmptyLane;
+            const float lo = n->lo[a][k], hi = n->hi[a][k];
+            n->lo[a][k] = used ? std::min(lo, hi) : inf;
+            n->hi[a][k] = used ? std::max(lo, hi) : -inf;
+        }
+}
+
 // The process's path: 0 not yet decided, else 1 + SimdPath.
 std::atomic<int> forced_path{0};
 
@@ -261,13 +271,12 @@ void force_simd_path(std::optional<SimdPath> path) {
 
 WideTree make_wide_tree(const std::vector<NvNode>& nodes, SimdPath path) {
     if (path == SimdPath::kAvx2 && cpu_has_avx2()) {
-        const std::vector<FloatWideNode<8>> wide = float_wide_nodes<8>(nodes);
+        const std::vector<WideNode8> wide = float_wide_nodes<8>(nodes);
         WideTree tree;
-        tree.quantized8 = quantize_tree(wide);
-        if (!tree.quantized8.empty()) {
-            set_scale(nodes[0], wide, &tree);
-            return tree;
-        }
+        if (!wide.empty()) set_scale(nodes[0], wide, &tree);
+        tree.nodes8.assign(wide.begin(), wide.end());
+        for (WideNode8& n : tree.nodes8) close_lanes(&n);
+        return tree;
     }
     WideTree tree = make_float_wide_tree(nodes);
     tree.quantized = quantize_tree(tree.nodes);
@@ -283,20 +292,9 @@ WideTree make_float_wide_tree(const std::vector<NvNode>& nodes) {
     return tree;
 }
 
-std::vector<FloatWideNode<8>> make_float_wide_nodes8(const std::vector<NvNode>& nodes) {
+std::vector<WideNode8> make_float_wide_nodes8(const std::vector<NvNode>& nodes) {
     return float_wide_nodes<8>(nodes);
 }
-
-#if defined(CLASTRACE_AVX2_PATH)
-CLASTRACE_TARGET_AVX2 void quantized_lanes8(const QuantizedWideNode8& n, int axis, float lo[8],
-                                            float hi[8]) {
-    const __m256 origin = _mm256_set1_ps(n.origin[axis]);
-    const __m256 step = _mm256_set1_ps(n.steps.step[axis]);
-    _mm256_storeu_ps(lo, dequantized8(n.qlo[axis], origin, step));
-    _mm256_storeu_ps(hi, dequantized8(n.qhi[axis], origin, step));
-}
-
-#endif
 
 namespace {
 
@@ -351,10 +349,10 @@ HugePageVector<geometry::Triangle4> group_leaf_triangles(
     WideTree* tree, const std::vector<NvPrimitiveRecord>& records) {
     HugePageVector<geometry::Triangle4> groups;
     groups.reserve(count_groups(tree->nodes) + count_groups(tree->quantized) +
-                   count_groups(tree->quantized8));
+                   count_groups(tree->nodes8));
     group_leaves(&tree->nodes, records, &groups);
     group_leaves(&tree->quantized, records, &groups);
-    group_leaves(&tree->quantized8, records, &groups);
+    group_leaves(&tree->nodes8, records, &groups);
     tree->leaf_groups = true;
     return groups;
 }
@@ -435,8 +433,13 @@ WideRay make_wide_ray(const geometry::PreparedRay& r) {
     return w;
 }
 
-bool make_plain_object_rays(const float o[3], const float d[3], double tmin, double tmax,
-                            ObjectRays* out) {
+namespace {
+
+// make_plain_object_rays for one mode (a template: a test of the mode in the loop cost the
+// double mode 15 instructions a ray).
+template <bool kFloat32>
+bool plain_object_rays(const float o[3], const float d[3], double tmin, double tmax,
+                       ObjectRays* out) {
     if (std::isnan(tmin)) return false;
     // The wide ray's range on every axis, four lanes at once (lane 3: o = d = 0, left out):
     // |o| <= 2^100, and 2^-100 <= |d| <= 2^100, which for a float d is exactly 1 / d in
@@ -458,7 +461,14 @@ bool make_plain_object_rays(const float o[3], const float d[3], double tmin, dou
         r.fo[a] = float(r.o[a]);
         w.zero[a] = false;
         w.origin[a] = r.fo[a];
-        w.inverse[a] = float(r.inv[a]);
+        if constexpr (kFloat32) {
+            // A float32 pipeline's own 1 / d (rounded once, from the float: not float(inv)).
+            r.fd[a] = d[a];
+            r.finv[a] = 1.0f / d[a];
+            w.inverse[a] = r.finv[a];
+        } else {
+            w.inverse[a] = float(r.inv[a]);
+        }
     }
     // prepare_ray's permutation and shear.
     int kz = 0;
@@ -478,7 +488,7 @@ bool make_plain_object_rays(const float o[3], const float d[3], double tmin, dou
     r.fsz = 1.0f / d[kz];
     r.tmin = tmin;
     r.tmax = tmax;
-    r.mode = TraversalMode::kDouble;
+    r.mode = kFloat32 ? TraversalMode::kFloat32 : TraversalMode::kDouble;
     // make_triangle4_ray's limits (its origin's rounding is 0: the origin is a float).
     const double dz = std::fabs(r.d[kz]);
     if (!(dz >= 0x1p-100 && dz <= 0x1p100)) return false;
@@ -496,12 +506,21 @@ bool make_plain_object_rays(const float o[3], const float d[3], double tmin, dou
     t.delta4 = splat(0.0f);
     t.usable = true;
     // make_wide_ray's widening with no origin rounding: the underflow term alone.
-    w.widen_down = float(1.0 - kRelativeWidening);
-    w.widen_up = float(1.0 + kRelativeWidening);
+    const double widening = kFloat32 ? kFloat32RelativeWidening : kRelativeWidening;
+    w.widen_down = float(1.0 - widening);
+    w.widen_up = float(1.0 + widening);
     w.widen_abs = float(kUnderflowWidening);
     w.tmin = float_at_or_below(tmin);
     w.usable = true;
     return true;
+}
+
+}  // namespace
+
+bool make_plain_object_rays(const float o[3], const float d[3], double tmin, double tmax,
+                            TraversalMode mode, ObjectRays* out) {
+    return mode == TraversalMode::kFloat32 ? plain_object_rays<true>(o, d, tmin, tmax, out)
+                                           : plain_object_rays<false>(o, d, tmin, tmax, out);
 }
 
 }  // namespace clastrace::engine::detail

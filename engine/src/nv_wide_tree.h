@@ -55,43 +55,35 @@ struct alignas(64) FloatWideNode {
 using WideNode = FloatWideNode<4>;
 static_assert(sizeof(WideNode) == 128);
 
-// The same node with each child's box as bytes in the frame of the union of the W (per axis,
-// `origin` and a power-of-two step 2^exponent, so q * step is exact and origin + q * step
+// The AVX2 path's nodes: the stored boxes themselves, eight children to a node, each lane's
+// box the hull of its two bounds (lo <= hi, which the 8-wide test's choice of planes by the
+// ray's signs relies on) and every unused lane lo = +inf, hi = -inf, which no ray meets. One
+// 32-byte load a plane and no arithmetic before the slab test (the quantized bytes cost a
+// widening, a conversion, a multiply and an add a plane: ~19 instructions a node). The box
+// test reads the first three cache lines (the planes), the children and counts in the fourth
+// only for the children hit.
+using WideNode8 = FloatWideNode<8>;
+static_assert(sizeof(WideNode8) == 256);
+static_assert(offsetof(WideNode8, child) == 192);
+
+// The 4-wide node with each child's box as bytes in the frame of the union of the four (per
+// axis, `origin` and a power-of-two step 2^exponent, so q * step is exact and origin + q * step
 // rounds once). The bytes are rounded outward at build time, checked on the very arithmetic
 // the traversal runs (dequantized): every dequantized box contains the stored box it stands
 // for, so the slab test on it culls nothing the stored one keeps.
-// count: 0 inner, 1-254 a leaf's records, kQuantizedEmptyLane unused.
-// The box test reads the fields before `child` (for W = 8 they fill the first of the node's
-// two cache lines exactly) and, for W = 8, the steps in the second line, which the walk
-// fetches with the first (hit_child) and reads anyway for the children hit.
+// count: 0 inner, 1-254 a leaf's records, kQuantizedEmptyLane unused. One cache line.
 inline constexpr uint8_t kQuantizedEmptyLane = 0xFF;
 inline constexpr uint32_t kQuantizedMaxLeaf = 254;
-// The three steps quantization_step(exponent[a]) as floats, kept by 8-wide nodes only (their
-// second line has room; a 4-wide node has none): the 8-wide box test broadcasts them where it
-// rebuilt them from the exponents (9 instructions a node).
-template <int W>
-struct QuantizedSteps {};
-template <>
-struct QuantizedSteps<8> {
-    float step[3];
-};
-template <int W>
-struct alignas(64) QuantizedNode {
+struct alignas(64) QuantizedWideNode {
     float origin[3];
     int8_t exponent[3];  // in [-126, 127]: the step is a normal float
     uint8_t used;        // bit k: lane k holds a child (count[k] != kQuantizedEmptyLane)
-    uint8_t qlo[3][W];
-    uint8_t qhi[3][W];
-    uint32_t child[W];
-    uint8_t count[W];
-    [[no_unique_address]] QuantizedSteps<W> steps;
+    uint8_t qlo[3][4];
+    uint8_t qhi[3][4];
+    uint32_t child[4];
+    uint8_t count[4];
 };
-using QuantizedWideNode = QuantizedNode<4>;
-using QuantizedWideNode8 = QuantizedNode<8>;
 static_assert(sizeof(QuantizedWideNode) == 64);
-static_assert(sizeof(QuantizedWideNode8) == 128);
-static_assert(offsetof(QuantizedWideNode8, child) == 64);
-static_assert(offsetof(QuantizedWideNode8, used) == offsetof(QuantizedWideNode8, exponent) + 3);
 
 // The step 2^e as a float (e in [-126, 127]).
 inline float quantization_step(int8_t e) {
@@ -102,8 +94,8 @@ inline float quantization_step(int8_t e) {
 }
 
 // One dequantized bound: origin + q * step, each operation rounded once to float. The builder
-// checks its rounding through this; the SIMD lanes (quantized_lanes, and the AVX2 box test)
-// run the same two float operations (no contraction: the engine builds with -ffp-contract=off),
+// checks its rounding through this; the SIMD lanes (quantized_lanes) run the same two float
+// operations (no contraction: the engine builds with -ffp-contract=off),
 // lane by lane, and so give the same floats.
 inline float dequantized(float origin, uint8_t q, int8_t exponent) {
     return origin + float(q) * quantization_step(exponent);
@@ -117,7 +109,7 @@ inline void quantized_lanes(const QuantizedWideNode& n, int axis, Float4* lo, Fl
     *hi = origin + bytes_to_float4(n.qhi[axis]) * step;
 }
 
-// Which box test and node width the traversal uses. kAvx2: 8-wide quantized nodes tested eight
+// Which box test and node width the traversal uses. kAvx2: 8-wide float nodes tested eight
 // at a time; kSse: 4-wide nodes, the reference and the path of CPUs without AVX2. Both keep
 // every box the ray meets and test the same triangles exactly, so hits, t, barycentrics,
 // facing and ties are the same; only the order of the leaves differs (which a
@@ -132,15 +124,15 @@ void force_simd_path(std::optional<SimdPath> path);
 // Whether this CPU runs the AVX2 path.
 bool cpu_has_avx2();
 
-// A tree in the traversal's layout: `quantized8` on the AVX2 path when every node could be
-// quantized, else `quantized` under the same condition (finite frames, leaves of at most
-// kQuantizedMaxLeaf records), `nodes` otherwise. Element 0 of the one used is the root; all
-// empty: nothing is ever hit. A node's inner children lie side by side, its leaves' groups
+// A tree in the traversal's layout: `nodes8` on the AVX2 path; on the SSE path `quantized`
+// when every node could be quantized (finite frames, leaves of at most kQuantizedMaxLeaf
+// records), `nodes` otherwise. Element 0 of the one used is the root; all empty: nothing is
+// ever hit. A node's inner children lie side by side, its leaves' groups
 // too; the arrays lie on huge pages where large (huge_pages.h).
 struct WideTree {
     HugePageVector<WideNode> nodes;
     HugePageVector<QuantizedWideNode> quantized;
-    HugePageVector<QuantizedWideNode8> quantized8;
+    HugePageVector<WideNode8> nodes8;
     // Whether the leaves index groups of four triangles (group_leaf_triangles: `child` the first
     // group, `count` still the records) rather than records.
     bool leaf_groups = false;
@@ -148,27 +140,24 @@ struct WideTree {
     // resolves_leaves.
     double center[3] = {0.0, 0.0, 0.0};
     double leaf_extent = 0.0;
-    size_t node_count() const { return nodes.size() + quantized.size() + quantized8.size(); }
+    size_t node_count() const { return nodes.size() + quantized.size() + nodes8.size(); }
     size_t bytes() const {
         return nodes.size() * sizeof(WideNode) + quantized.size() * sizeof(QuantizedWideNode) +
-               quantized8.size() * sizeof(QuantizedWideNode8);
+               nodes8.size() * sizeof(WideNode8);
     }
 };
 
 // The wide tree of a checked binary tree (open_nv_object's rules: children after their
-// parent) for `path`: 8-wide quantized on kAvx2 where every node can be quantized, else 4-wide,
+// parent) for `path`: 8-wide float nodes on kAvx2 (on a CPU that has it), else 4-wide,
 // quantized where every node can be. A box with a NaN bound is left out with its subtree: no
 // slab test ever accepts it.
 WideTree make_wide_tree(const std::vector<NvNode>& nodes, SimdPath path = active_simd_path());
 // The 4-wide tree with float boxes only (`nodes`).
 WideTree make_float_wide_tree(const std::vector<NvNode>& nodes);
-// The 8-wide float nodes the kAvx2 tree is quantized from (tests compare the two).
-std::vector<FloatWideNode<8>> make_float_wide_nodes8(const std::vector<NvNode>& nodes);
-#if defined(CLASTRACE_AVX2_PATH)
-// The dequantized boxes of one axis's eight lanes as the AVX2 box test computes them (tests;
-// AVX2 CPUs only).
-void quantized_lanes8(const QuantizedWideNode8& n, int axis, float lo[8], float hi[8]);
-#endif
+// The tree collapsed into 8-wide nodes as stored (boxes as the stored nodes give them, unused
+// lanes zero with count kWideEmptyLane): what the kAvx2 tree's nodes8 are made from (tests
+// compare the two).
+std::vector<WideNode8> make_float_wide_nodes8(const std::vector<NvNode>& nodes);
 
 // The triangles of `tree`'s leaves in groups of four (geometry/triangle4.h), a leaf's groups
 // side by side in the order the leaves are laid out; each leaf's `child` becomes the index of
@@ -202,15 +191,16 @@ struct ObjectRays {
     geometry::Triangle4Ray triangles;
 };
 
-// The ObjectRays of a kDouble ray whose origin and direction are floats, finite, with no zero
-// direction component (a bottom-level scene's rays, and those through an identity instance):
-// the fields the double mode reads, equal to what prepare_ray (of `o` + 0, `d`),
-// make_wide_ray and make_triangle4_ray give, without the checks and the terms these need only
-// for other rays (origins that are not floats, zero or non-finite components). False, and
-// `out` unusable, for a ray that is not such a ray or that either SIMD form would not take
-// (make_wide_ray's and make_triangle4_ray's range limits): those take the three functions.
+// The ObjectRays of a ray whose origin and direction are floats, finite, with no zero
+// direction component (a bottom-level scene's rays, and those through an identity instance),
+// in either mode: the fields the mode reads, equal to what prepare_ray (of `o` + 0, `d`,
+// `mode`), make_wide_ray and make_triangle4_ray give, without the checks and the terms these
+// need only for other rays (origins that are not floats, zero or non-finite components).
+// False, and `out` unusable, for a ray that is not such a ray or that either SIMD form would
+// not take (make_wide_ray's and make_triangle4_ray's range limits, on 1 / d in double): those
+// take the three functions.
 bool make_plain_object_rays(const float o[3], const float d[3], double tmin, double tmax,
-                            ObjectRays* out);
+                            TraversalMode mode, ObjectRays* out);
 
 // Whether the SIMD box test still tells the tree's leaf boxes apart for a ray from `o`: its
 // relative widening (2^-20 of each distance, make_wide_ray) at the ray's distance from the
@@ -247,9 +237,11 @@ inline void lane_boxes(const WideNode& n, int axis, Float4* lo, Float4* hi) {
 inline void lane_boxes(const QuantizedWideNode& n, int axis, Float4* lo, Float4* hi) {
     quantized_lanes(n, axis, lo, hi);
 }
-inline uint32_t lane_count(const WideNode& n, int k) { return n.count[k]; }
 template <int W>
-inline uint32_t lane_count(const QuantizedNode<W>& n, int k) {
+inline uint32_t lane_count(const FloatWideNode<W>& n, int k) {
+    return n.count[k];
+}
+inline uint32_t lane_count(const QuantizedWideNode& n, int k) {
     return n.count[k] == kQuantizedEmptyLane ? kWideEmptyLane : n.count[k];
 }
 // Bit k: lane k holds a child.
@@ -258,10 +250,7 @@ inline unsigned used_lanes(const WideNode& n) {
     for (int k = 0; k < 4; ++k) used |= unsigned(n.count[k] != kWideEmptyLane) << k;
     return used;
 }
-template <int W>
-inline unsigned used_lanes(const QuantizedNode<W>& n) {
-    return n.used;
-}
+inline unsigned used_lanes(const QuantizedWideNode& n) { return n.used; }
 
 // The children of `node` the ray meets within [tmin, tmax] (bit k = lane k) and their entry
 // distances, each at or below the exact one. kZeroAxes: the ray may have a direction component
@@ -452,8 +441,8 @@ void walk_wide_nodes(const HugePageVector<Node>& nodes, const WideRay& wide_ray,
 
 #if defined(CLASTRACE_AVX2_PATH)
 
-// WideRay in eight lanes for the 8-wide box test, and per axis the offsets (from a node's qlo)
-// of the bytes of the planes the ray enters and leaves a box by: with the signs of the
+// WideRay in eight lanes for the 8-wide box test, and per axis the byte offsets (from a
+// node's lo[0]) of the planes the ray enters and leaves a box by: with the signs of the
 // direction known, the near plane is lo where it is positive and hi where it is negative,
 // which gives the same distances as the min and max of the two (lo <= hi, 1 / d finite and
 // not 0) without computing both.
@@ -467,7 +456,7 @@ struct WideRay8 {
 
 CLASTRACE_TARGET_AVX2 inline WideRay8 make_wide_ray8(const WideRay& r) {
     WideRay8 w;
-    constexpr int kHi = int(offsetof(QuantizedWideNode8, qhi) - offsetof(QuantizedWideNode8, qlo));
+    constexpr int kHi = int(offsetof(WideNode8, hi) - offsetof(WideNode8, lo));
     for (int a = 0; a < 3; ++a) {
         w.zero[a] = r.zero[a];
         w.origin[a] = _mm256_set1_ps(r.origin[a]);
@@ -475,8 +464,9 @@ CLASTRACE_TARGET_AVX2 inline WideRay8 make_wide_ray8(const WideRay& r) {
         w.origin_below[a] = _mm256_set1_ps(r.origin_below[a]);
         w.origin_above[a] = _mm256_set1_ps(r.origin_above[a]);
         const bool negative = r.inverse[a] < 0.0f;
-        w.near_plane[a] = 8 * a + (negative ? kHi : 0);
-        w.far_plane[a] = 8 * a + (negative ? 0 : kHi);
+        const int plane = int(sizeof(float)) * 8 * a;
+        w.near_plane[a] = plane + (negative ? kHi : 0);
+        w.far_plane[a] = plane + (negative ? 0 : kHi);
     }
     w.widen_down = _mm256_set1_ps(r.widen_down);
     w.widen_up = _mm256_set1_ps(r.widen_up);
@@ -485,46 +475,39 @@ CLASTRACE_TARGET_AVX2 inline WideRay8 make_wide_ray8(const WideRay& r) {
     return w;
 }
 
-// Eight bytes as float lanes, dequantized: origin + q * step (dequantized's two roundings).
-CLASTRACE_TARGET_AVX2 inline __m256 dequantized8(const uint8_t* q, __m256 origin, __m256 step) {
-    const __m128i bytes = _mm_loadl_epi64(reinterpret_cast<const __m128i*>(q));
-    const __m256 f = _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(bytes));
-    return _mm256_add_ps(origin, _mm256_mul_ps(f, step));
-}
-
 CLASTRACE_TARGET_AVX2 inline unsigned le_lanes8(__m256 a, __m256 b) {
     return unsigned(_mm256_movemask_ps(_mm256_cmp_ps(a, b, _CMP_LE_OQ)));
 }
 
+// The eight floats `offset` bytes from a node's lo[0] (a plane of the node).
+CLASTRACE_TARGET_AVX2 inline __m256 plane8(const WideNode8& n, int offset) {
+    return _mm256_load_ps(
+        reinterpret_cast<const float*>(reinterpret_cast<const char*>(&n.lo[0][0]) + offset));
+}
+
 // wide_hits for eight children at once: the same bounds, the same widening, so the same
-// conservative answer for every box.
+// conservative answer for every box. Unused lanes (lo = +inf, hi = -inf) enter at +inf and
+// leave at -inf, or fail the zero-axis test: never hit.
 template <bool kZeroAxes>
-CLASTRACE_TARGET_AVX2 inline unsigned wide8_hits(const WideRay8& r, const QuantizedWideNode8& n,
-                                                 float tmax, float entry[8]) {
-    // Without zero axes the first axis's distances start the running max and min (against -inf
-    // and +inf the max and min give them unchanged, NaN included; 4 instructions a node).
+CLASTRACE_TARGET_AVX2 inline unsigned wide8_hits(const WideRay8& r, const WideNode8& n, float tmax,
+                                                 float entry[8]) {
     __m256 near_t = _mm256_set1_ps(-__builtin_inff()), far_t = _mm256_set1_ps(__builtin_inff());
     unsigned inside = 0xFF;
-    const uint8_t* q = &n.qlo[0][0];
-    constexpr int kHi = int(offsetof(QuantizedWideNode8, qhi) - offsetof(QuantizedWideNode8, qlo));
-    const __m256 axis_steps[3] = {_mm256_broadcast_ss(&n.steps.step[0]),
-                                  _mm256_broadcast_ss(&n.steps.step[1]),
-                                  _mm256_broadcast_ss(&n.steps.step[2])};
     // Unrolled: the loop's own counting was 15 instructions a node (callgrind).
 #pragma GCC unroll 3
     for (int a = 0; a < 3; ++a) {
-        const __m256 origin = _mm256_broadcast_ss(&n.origin[a]);
-        const __m256 step = axis_steps[a];
         if (kZeroAxes && r.zero[a]) {
-            const __m256 lo = dequantized8(q + 8 * a, origin, step);
-            const __m256 hi = dequantized8(q + kHi + 8 * a, origin, step);
-            inside &= le_lanes8(lo, r.origin_above[a]) & le_lanes8(r.origin_below[a], hi);
+            inside &= le_lanes8(_mm256_load_ps(n.lo[a]), r.origin_above[a]) &
+                      le_lanes8(r.origin_below[a], _mm256_load_ps(n.hi[a]));
             continue;
         }
-        const __m256 near_plane = dequantized8(q + r.near_plane[a], origin, step);
-        const __m256 far_plane = dequantized8(q + r.far_plane[a], origin, step);
-        const __m256 t_near = _mm256_mul_ps(_mm256_sub_ps(near_plane, r.origin[a]), r.inverse[a]);
-        const __m256 t_far = _mm256_mul_ps(_mm256_sub_ps(far_plane, r.origin[a]), r.inverse[a]);
+        const __m256 t_near =
+            _mm256_mul_ps(_mm256_sub_ps(plane8(n, r.near_plane[a]), r.origin[a]), r.inverse[a]);
+        const __m256 t_far =
+            _mm256_mul_ps(_mm256_sub_ps(plane8(n, r.far_plane[a]), r.origin[a]), r.inverse[a]);
+        // Without zero axes the first axis's distances start the running max and min (against
+        // -inf and +inf the max and min give them unchanged, NaN included; 4 instructions a
+        // node).
         near_t = !kZeroAxes && a == 0 ? t_near : _mm256_max_ps(near_t, t_near);
         far_t = !kZeroAxes && a == 0 ? t_far : _mm256_min_ps(far_t, t_far);
     }
@@ -537,7 +520,7 @@ CLASTRACE_TARGET_AVX2 inline unsigned wide8_hits(const WideRay8& r, const Quanti
     near_t = _mm256_max_ps(near_t, r.tmin);
     far_t = _mm256_min_ps(far_t, _mm256_set1_ps(tmax));
     _mm256_storeu_ps(entry, near_t);
-    return le_lanes8(near_t, far_t) & inside & n.used;
+    return le_lanes8(near_t, far_t) & inside;
 }
 
 // wide8_hits as walk_nodes' box test: a class rather than a lambda, so that its call operator
@@ -545,15 +528,14 @@ CLASTRACE_TARGET_AVX2 inline unsigned wide8_hits(const WideRay8& r, const Quanti
 template <bool kZeroAxes>
 struct Wide8BoxTest {
     const WideRay8& ray;
-    CLASTRACE_TARGET_AVX2 unsigned operator()(const QuantizedWideNode8& n, float tmax,
-                                              float* entry) const {
+    CLASTRACE_TARGET_AVX2 unsigned operator()(const WideNode8& n, float tmax, float* entry) const {
         return wide8_hits<kZeroAxes>(ray, n, tmax, entry);
     }
 };
 
-// walk_nodes over 8-wide quantized nodes with the AVX2 box test.
+// walk_nodes over 8-wide float nodes with the AVX2 box test.
 template <bool kZeroAxes, class Leaf, class Prefetch>
-CLASTRACE_TARGET_AVX2 void walk_wide8_nodes(const HugePageVector<QuantizedWideNode8>& nodes,
+CLASTRACE_TARGET_AVX2 void walk_wide8_nodes(const HugePageVector<WideNode8>& nodes,
                                             const WideRay& wide_ray, double* tmax, Leaf& leaf,
                                             Prefetch& prefetch) {
     const WideRay8 r = make_wide_ray8(wide_ray);
@@ -566,11 +548,11 @@ void walk_wide(const WideTree& tree, const WideRay& r, double* tmax, Leaf&& leaf
                Prefetch&& prefetch) {
     const bool zero_axes = r.zero[0] || r.zero[1] || r.zero[2];
 #if defined(CLASTRACE_AVX2_PATH)
-    if (!tree.quantized8.empty()) {
+    if (!tree.nodes8.empty()) {
         if (zero_axes)
-            walk_wide8_nodes<true>(tree.quantized8, r, tmax, leaf, prefetch);
+            walk_wide8_nodes<true>(tree.nodes8, r, tmax, leaf, prefetch);
         else
-            walk_wide8_nodes<false>(tree.quantized8, r, tmax, leaf, prefetch);
+            walk_wide8_nodes<false>(tree.nodes8, r, tmax, leaf, prefetch);
         return;
     }
 #endif

@@ -328,9 +328,10 @@ TEST(NvWideTraversal, QuantizedBoxesContainTheirFloatBoxes) {
     }
 }
 
-// The 8-wide nodes, lane by lane through the AVX2 test's own dequantization: every box
-// contains the float box it stands for, and children and counts are kept.
-TEST(NvWideTraversal, EightWideQuantizedBoxesContainTheirFloatBoxes) {
+// The 8-wide nodes hold the stored boxes (each lane the hull of its bounds), children and
+// counts of the collapse, and close every unused lane (lo = +inf, hi = -inf); the AVX2 box
+// test then reports no unused lane for any ray, axis-parallel ones included.
+TEST(NvWideTraversal, EightWideNodesHoldTheStoredBoxesAndCloseUnusedLanes) {
     if (!eng::detail::cpu_has_avx2()) GTEST_SKIP() << "no AVX2 on this CPU";
 #if defined(CLASTRACE_AVX2_PATH)
     const ts::TriangleMesh sphere = ts::make_icosphere(3, 1.0f);
@@ -339,35 +340,47 @@ TEST(NvWideTraversal, EightWideQuantizedBoxesContainTheirFloatBoxes) {
         {"soup", ts::make_random_soup(4000, 5, 1.0f, 0.05f)},
         {"sphere at 1e30", scaled(sphere, 1e30f, 0.0f)},
         {"sphere at 1e-30", scaled(sphere, 1e-30f, 0.0f)},
-        {"sphere across the float range", scaled(sphere, 3e38f, 0.0f)}};
+        {"sphere across the float range", scaled(sphere, 3e38f, 0.0f)},
+        {"three triangles", ts::make_random_soup(3, 9, 1.0f, 0.5f)}};
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<float> coord(-2.0f, 2.0f);
     for (const auto& [what, mesh] : meshes) {
         const std::vector<eng::NvNode> nodes = stored_nodes(mesh, 0);
         const auto plain = eng::detail::make_float_wide_nodes8(nodes);
         const auto tree = eng::detail::make_wide_tree(nodes, eng::detail::SimdPath::kAvx2);
-        ASSERT_EQ(tree.quantized8.size(), plain.size()) << what << ": not quantized";
+        ASSERT_EQ(tree.nodes8.size(), plain.size()) << what;
         EXPECT_TRUE(tree.quantized.empty() && tree.nodes.empty()) << what;
-        int bad = 0;
+        int bad = 0, unused_hit = 0;
         for (size_t i = 0; i < plain.size(); ++i) {
-            const auto& q = tree.quantized8[i];
+            const auto& n = tree.nodes8[i];
             const auto& f = plain[i];
+            unsigned used = 0;
             for (int k = 0; k < 8; ++k) {
                 const bool empty = f.count[k] == eng::detail::kWideEmptyLane;
-                bad += empty ? q.count[k] != eng::detail::kQuantizedEmptyLane
-                             : q.count[k] != f.count[k] || q.child[k] != f.child[k];
-                bad += ((q.used >> k) & 1) == empty;
+                used |= unsigned(!empty) << k;
+                bad += n.count[k] != f.count[k] || (!empty && n.child[k] != f.child[k]);
+                for (int a = 0; a < 3; ++a)
+                    bad += empty ? !(n.lo[a][k] == INFINITY && n.hi[a][k] == -INFINITY)
+                                 : !(n.lo[a][k] == std::min(f.lo[a][k], f.hi[a][k]) &&
+                                     n.hi[a][k] == std::max(f.lo[a][k], f.hi[a][k]));
             }
-            for (int a = 0; a < 3; ++a) {
-                // The kept step is the exponent's (the box test reads the step).
-                const float step = eng::detail::quantization_step(q.exponent[a]);
-                bad += std::memcmp(&q.steps.step[a], &step, sizeof step) != 0;
-                float lo[8], hi[8];
-                eng::detail::quantized_lanes8(q, a, lo, hi);
-                for (int k = 0; k < 8; ++k)
-                    if (f.count[k] != eng::detail::kWideEmptyLane)
-                        bad += !(lo[k] <= f.lo[a][k]) || !(hi[k] >= f.hi[a][k]);
+            for (int ray = 0; ray < 8; ++ray) {
+                const double o[3] = {coord(rng), coord(rng), coord(rng)};
+                double d[3] = {coord(rng), coord(rng), coord(rng)};
+                if (ray % 2) d[ray % 3] = 0.0;  // an axis-parallel component
+                const auto prepared = eng::geometry::prepare_ray(o, d, 0.0, INFINITY);
+                const auto wide = eng::detail::make_wide_ray(prepared);
+                if (!wide.usable) continue;
+                const auto ray8 = eng::detail::make_wide_ray8(wide);
+                alignas(32) float entry[8];
+                const unsigned hits =
+                    ray % 2 ? eng::detail::wide8_hits<true>(ray8, n, INFINITY, entry)
+                            : eng::detail::wide8_hits<false>(ray8, n, INFINITY, entry);
+                unused_hit += (hits & ~used) != 0;
             }
         }
         EXPECT_EQ(bad, 0) << what << ": lanes of " << plain.size() << " nodes";
+        EXPECT_EQ(unused_hit, 0) << what;
     }
 #endif
 }
@@ -378,19 +391,19 @@ TEST(NvWideTraversal, ThePathPicksTheNodeWidth) {
     const std::vector<eng::NvNode> nodes = stored_nodes(ts::make_icosphere(4, 1.0f), 0);
     const auto sse = eng::detail::make_wide_tree(nodes, eng::detail::SimdPath::kSse);
     EXPECT_FALSE(sse.quantized.empty());
-    EXPECT_TRUE(sse.quantized8.empty());
+    EXPECT_TRUE(sse.nodes8.empty());
     eng::detail::force_simd_path(eng::detail::SimdPath::kSse);
     EXPECT_EQ(eng::detail::active_simd_path(), eng::detail::SimdPath::kSse);
-    EXPECT_TRUE(eng::detail::make_wide_tree(nodes).quantized8.empty());
+    EXPECT_TRUE(eng::detail::make_wide_tree(nodes).nodes8.empty());
     eng::detail::force_simd_path(eng::detail::SimdPath::kAvx2);
     const bool avx2 = eng::detail::cpu_has_avx2();
     EXPECT_EQ(eng::detail::active_simd_path(),
               avx2 ? eng::detail::SimdPath::kAvx2 : eng::detail::SimdPath::kSse);
     const auto wide = eng::detail::make_wide_tree(nodes);
-    EXPECT_EQ(wide.quantized8.empty(), !avx2);
+    EXPECT_EQ(wide.nodes8.empty(), !avx2);
     // Fewer, wider nodes.
     if (avx2) {
-        EXPECT_LT(wide.quantized8.size(), sse.quantized.size());
+        EXPECT_LT(wide.nodes8.size(), sse.quantized.size());
     }
     eng::detail::force_simd_path(std::nullopt);
 }
@@ -403,11 +416,18 @@ TEST(NvWideTraversal, TreesWithInfiniteBoxesKeepFloatNodes) {
     }
     root.count = 1;
     const eng::detail::WideTree tree =
-        eng::detail::make_wide_tree({root}, eng::detail::SimdPath::kAvx2);
+        eng::detail::make_wide_tree({root}, eng::detail::SimdPath::kSse);
     EXPECT_TRUE(tree.quantized.empty());
-    EXPECT_TRUE(tree.quantized8.empty());
     ASSERT_EQ(tree.nodes.size(), 1u);
     EXPECT_EQ(tree.nodes[0].count[0], 1u);
+    // The 8-wide nodes are float nodes always.
+    if (eng::detail::cpu_has_avx2()) {
+        const eng::detail::WideTree tree8 =
+            eng::detail::make_wide_tree({root}, eng::detail::SimdPath::kAvx2);
+        ASSERT_EQ(tree8.nodes8.size(), 1u);
+        EXPECT_EQ(tree8.nodes8[0].count[0], 1u);
+        EXPECT_EQ(tree8.nodes8[0].lo[0][0], -INFINITY);
+    }
 }
 
 // A caterpillar of `levels` inner nodes: inner node L (index 2L) has leaf L (index 2L + 1, record
@@ -489,9 +509,11 @@ bool same_lanes(eng::detail::Float4 a, eng::detail::Float4 b) {
     return std::memcmp(x, y, sizeof x) == 0;
 }
 
-// make_plain_object_rays gives the fields the double mode reads bit for bit as prepare_ray,
+// make_plain_object_rays gives the fields each mode reads bit for bit as prepare_ray,
 // make_wide_ray and make_triangle4_ray give them, and takes exactly the rays it is meant for:
-// float rays, finite, no zero direction component, within both SIMD forms' limits.
+// float rays, finite, no zero direction component, within both SIMD forms' limits (for
+// float32, on 1 / d in double: a float 1 / d that rounds onto 2^±100 is left to the general
+// way, which takes it).
 TEST(NvWideTraversal, PlainObjectRaysAreTheGeneralOnes) {
     const float specials[] = {0.0f,  -0.0f,     1.0f,      -3.5f,    1e-30f, -1e-38f,  1e-45f,
                               1e30f, -1e30f,    0x1p100f,  0x1p101f, 3e38f,  INFINITY, -INFINITY,
@@ -515,24 +537,29 @@ TEST(NvWideTraversal, PlainObjectRaysAreTheGeneralOnes) {
         }
         const double tmin = (i % 3 == 0) ? 0.0 : 1e-3;
         const double tmax = (i % 5 == 0) ? INFINITY : 1e4;
+        const eng::TraversalMode mode = kModes[i % 2];
         eng::detail::ObjectRays plain;
-        const bool taken = eng::detail::make_plain_object_rays(o, d, tmin, tmax, &plain);
+        const bool taken = eng::detail::make_plain_object_rays(o, d, tmin, tmax, mode, &plain);
         // The general way, from the object-space ray an identity instance gives.
         const double od[3] = {double(o[0]) + 0.0, double(o[1]) + 0.0, double(o[2]) + 0.0};
         const double dd[3] = {d[0], d[1], d[2]};
-        const eng::geometry::PreparedRay r = eng::geometry::prepare_ray(od, dd, tmin, tmax);
+        const eng::geometry::PreparedRay r = eng::geometry::prepare_ray(od, dd, tmin, tmax, mode);
         const eng::detail::WideRay w = eng::detail::make_wide_ray(r);
         const eng::geometry::Triangle4Ray t = eng::geometry::make_triangle4_ray(r);
         bool meant = w.usable && t.usable;
-        for (int a = 0; a < 3; ++a)
+        for (int a = 0; a < 3; ++a) {
             meant &= std::isfinite(o[a]) && std::isfinite(d[a]) && d[a] != 0;
+            meant &= !(std::fabs(1.0 / double(d[a])) > 0x1p100) &&
+                     !(std::fabs(1.0 / double(d[a])) < 0x1p-100);
+        }
         ASSERT_EQ(taken, meant) << i;
         if (!taken) continue;
         ++plain_count;
         const eng::geometry::PreparedRay& p = plain.exact;
         for (int a = 0; a < 3; ++a) {
             ASSERT_TRUE(same_bits(p.o[a], r.o[a]) && same_bits(p.d[a], r.d[a]) &&
-                        same_bits(p.inv[a], r.inv[a]) && same_bits(p.fo[a], r.fo[a]))
+                        same_bits(p.inv[a], r.inv[a]) && same_bits(p.fo[a], r.fo[a]) &&
+                        same_bits(p.fd[a], r.fd[a]) && same_bits(p.finv[a], r.finv[a]))
                 << i;
             ASSERT_TRUE(same_bits(plain.wide.origin[a], w.origin[a]) &&
                         same_bits(plain.wide.inverse[a], w.inverse[a]) &&

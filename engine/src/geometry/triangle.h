@@ -58,6 +58,11 @@ inline bool float_det_front(float det) { return det > 0.0f; }
 // sheared^2, and u = V / det by four times that over |det|. Rounded up: 16 float epsilons.
 // (Chains of two-operand maxima, unrolled: the initializer-list form compiled to a loop over a
 // copy in memory, about 60 instructions a hit.)
+// `unsheared`, `sheared`: the largest magnitudes (triangle4.h's float32 test has them as such).
+inline double barycentric_float_error(double unsheared, double sheared, double det) {
+    const double eps = std::numeric_limits<float>::epsilon();
+    return 16.0 * eps * (unsheared * sheared + sheared * sheared) / std::fabs(det);
+}
 inline double barycentric_float_error(const double a[3], const double b[3], const double c[3],
                                       double sheared, double det) {
     double unsheared = 0.0;
@@ -65,8 +70,7 @@ inline double barycentric_float_error(const double a[3], const double b[3], cons
     for (int k = 0; k < 3; ++k)
         unsheared = std::max(std::max(std::max(unsheared, std::fabs(a[k])), std::fabs(b[k])),
                              std::fabs(c[k]));
-    const double eps = std::numeric_limits<float>::epsilon();
-    return 16.0 * eps * (unsheared * sheared + sheared * sheared) / std::fabs(det);
+    return barycentric_float_error(unsheared, sheared, det);
 }
 
 // The largest |x| of six sheared coordinates, as std::max({|ax|, ...}) gives it (the same

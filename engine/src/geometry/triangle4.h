@@ -150,20 +150,26 @@ inline unsigned group_lanes(uint32_t g, uint32_t count) {
     return left >= 4 ? 0xFu : (1u << left) - 1u;
 }
 
-// Lane mask (bit k = lane k) of the triangles among `used` (group_lanes) the exact test may hit
-// within [tmin, tmax] (`tmax` a float at or above the exact test's). Always inlined, so that
-// inside the AVX2 walk (nv_trace.cpp's leaf, inlined there) it compiles for AVX2.
-[[gnu::always_inline]] inline unsigned triangle4_candidates(const Triangle4Ray& r,
-                                                            const Triangle4& t, unsigned used,
-                                                            float tmax) {
+// The watertight test's first half on a group's four triangles in float: translated to the
+// ray's float origin, sheared by its float shear (both modes' filter, and the float32 test,
+// whose own arithmetic this is, operation for operation).
+struct Triangle4Edges {
+    detail::Float4 z[3];     // the scaled distances sz * (v[kz] - o[kz]) of the three vertices
+    detail::Float4 u, v, w;  // the edge functions, in the scalar test's order
+    detail::Float4 m;        // the largest translated magnitude of the nine coordinates
+    detail::Float4 ms;       // the largest sheared magnitude of the six x, y
+};
+
+// Always inlined, so that inside the AVX2 walk it compiles for AVX2 (no fused multiply-adds:
+// the engine builds with -ffp-contract=off, so the same bits as the SSE form).
+[[gnu::always_inline]] inline Triangle4Edges triangle4_edges(const Triangle4Ray& r,
+                                                             const Triangle4& t) {
     using detail::Float4;
-    if (!r.usable) return used;
-    // Translated to the float origin and sheared; m the largest translated magnitude. (A NaN
-    // coordinate may not reach m, as maxps returns its second operand; it makes the two edge
-    // functions of its vertex NaN, and those compare false, so such a triangle is never
-    // dropped.)
-    Float4 x[3], y[3], z[3];
-    Float4 m = detail::splat(0.0f);
+    // (A NaN coordinate may not reach m or ms, as maxps returns its second operand; it makes
+    // the two edge functions of its vertex NaN.)
+    Triangle4Edges e;
+    Float4 x[3], y[3];
+    e.m = detail::splat(0.0f);
     // Unrolled, so that x, y and z stay in registers (the loop stored them: 12% of the filter).
 #pragma GCC unroll 3
     for (int j = 0; j < 3; ++j) {
@@ -172,33 +178,94 @@ inline unsigned group_lanes(uint32_t g, uint32_t count) {
         const Float4 az = detail::load4(t.v[3 * j + r.kz]) - r.origin[r.kz];
         x[j] = ax - r.sx * az;
         y[j] = ay - r.sy * az;
-        z[j] = r.sz * az;
-        m = detail::max4(m, detail::max4(detail::abs4(ax), detail::abs4(ay)));
-        m = detail::max4(m, detail::abs4(az));
+        e.z[j] = r.sz * az;
+        e.m = detail::max4(e.m, detail::max4(detail::abs4(ax), detail::abs4(ay)));
+        e.m = detail::max4(e.m, detail::abs4(az));
     }
-    const unsigned in_range = detail::le_lanes(m, detail::splat(kTriangle4LargestCoordinate)) &
-                              detail::le_lanes(detail::splat(kTriangle4SmallestCoordinate), m);
     // The scalar test's order: u = cx by - cy bx, v = ax cy - ay cx, w = bx ay - by ax.
-    const Float4 u = x[2] * y[1] - y[2] * x[1];
-    const Float4 v = x[0] * y[2] - y[0] * x[2];
-    const Float4 w = x[1] * y[0] - y[1] * x[0];
-    Float4 ms = detail::splat(0.0f);
+    e.u = x[2] * y[1] - y[2] * x[1];
+    e.v = x[0] * y[2] - y[0] * x[2];
+    e.w = x[1] * y[0] - y[1] * x[0];
+    e.ms = detail::splat(0.0f);
 #pragma GCC unroll 3
     for (int j = 0; j < 3; ++j)
-        ms = detail::max4(ms, detail::max4(detail::abs4(x[j]), detail::abs4(y[j])));
-    const Float4 err = edge_error(r, m, ms);
+        e.ms = detail::max4(e.ms, detail::max4(detail::abs4(x[j]), detail::abs4(y[j])));
+    return e;
+}
+
+// Lane mask (bit k = lane k) of the triangles among `used` (group_lanes) the exact test may hit
+// within [tmin, tmax] (`tmax` a float at or above the exact test's). Always inlined, so that
+// inside the AVX2 walk (nv_trace.cpp's leaf, inlined there) it compiles for AVX2.
+[[gnu::always_inline]] inline unsigned triangle4_candidates(const Triangle4Ray& r,
+                                                            const Triangle4& t, unsigned used,
+                                                            float tmax) {
+    using detail::Float4;
+    if (!r.usable) return used;
+    // (A NaN edge function compares false, so such a triangle is never dropped.)
+    const Triangle4Edges e = triangle4_edges(r, t);
+    const unsigned in_range = detail::le_lanes(e.m, detail::splat(kTriangle4LargestCoordinate)) &
+                              detail::le_lanes(detail::splat(kTriangle4SmallestCoordinate), e.m);
+    const Float4 err = edge_error(r, e.m, e.ms);
     const Float4 neg_err = detail::splat(0.0f) - err;
     // One edge function at or below -err and one at or above err, through the least and the
     // greatest of the three (a NaN among them may hide a lane's other two: it keeps the lane,
     // which only costs the exact test).
-    const unsigned below = detail::le_lanes(detail::min4(detail::min4(u, v), w), neg_err);
-    const unsigned above = detail::le_lanes(err, detail::max4(detail::max4(u, v), w));
+    const unsigned below = detail::le_lanes(detail::min4(detail::min4(e.u, e.v), e.w), neg_err);
+    const unsigned above = detail::le_lanes(err, detail::max4(detail::max4(e.u, e.v), e.w));
     unsigned missed = below & above;
     // A non-negative finite tmax (NaN and infinity fail this) also drops sure hits beyond it,
     // where a lane is left to decide.
     if ((used & in_range & ~missed) != 0 && tmax >= 0.0f && tmax <= 0x1p100f)
-        missed |= detail4::beyond_lanes(r, u, v, w, z, err, m + r.delta4, tmax);
+        missed |= detail4::beyond_lanes(r, e.u, e.v, e.w, e.z, err, e.m + r.delta4, tmax);
     return used & ~(in_range & missed);
+}
+
+// TraversalMode::kFloat32's triangle test (triangle.h, intersect_triangle_float32) on four
+// triangles at once, with the same float operations in the same order, so lane by lane the
+// same edge functions, determinant, t and barycentrics: the float32 mode's leaves need no
+// filter and no second test. Lanes where an edge function is exactly 0 or not finite (the
+// scalar test's fallback to the double test, which keeps shared edges closed) are left to the
+// scalar test (`fallback`). For a kFloat32 ray (origin and shear the float ones), usable.
+struct Triangle4Float32 {
+    unsigned hits = 0;      // lanes hit at t (t not yet held against [tmin, tmax])
+    unsigned fallback = 0;  // lanes the scalar test decides
+    // Per lane: t, the barycentrics of p1 and p2, the determinant, and the largest translated
+    // and sheared magnitudes (what barycentric_float_error takes).
+    alignas(16) float t[4], u[4], v[4], det[4], unsheared[4], sheared[4];
+};
+
+[[gnu::always_inline]] inline void triangle4_float32(const Triangle4Ray& r, const Triangle4& t,
+                                                     unsigned used, Triangle4Float32* out) {
+    using detail::Float4;
+    const Triangle4Edges e = triangle4_edges(r, t);
+    const Float4 zero = detail::splat(0.0f);
+    const Float4 largest = detail::splat(std::numeric_limits<float>::max());
+    // |x| <= FLT_MAX fails for NaN and infinity; x <= 0 and 0 <= x both hold only for 0.
+    const unsigned finite = detail::le_lanes(detail::abs4(e.u), largest) &
+                            detail::le_lanes(detail::abs4(e.v), largest) &
+                            detail::le_lanes(detail::abs4(e.w), largest);
+    const unsigned zeros = (detail::le_lanes(e.u, zero) & detail::le_lanes(zero, e.u)) |
+                           (detail::le_lanes(e.v, zero) & detail::le_lanes(zero, e.v)) |
+                           (detail::le_lanes(e.w, zero) & detail::le_lanes(zero, e.w));
+    const unsigned plain = finite & ~zeros & 0xFu;
+    out->fallback = used & ~plain;
+    // No zero among them: a hit has all three of one sign.
+    const unsigned positive = ~detail::le_lanes(detail::min4(detail::min4(e.u, e.v), e.w), zero);
+    const unsigned negative = ~detail::le_lanes(zero, detail::max4(detail::max4(e.u, e.v), e.w));
+    const Float4 det = (e.u + e.v) + e.w;
+    // det != 0 and finite.
+    const unsigned det_ok = detail::le_lanes(detail::abs4(det), largest) &
+                            ~(detail::le_lanes(det, zero) & detail::le_lanes(zero, det));
+    out->hits = used & plain & (positive | negative) & det_ok;
+    if (out->hits == 0) return;
+    const Float4 t_scaled = (e.u * e.z[0] + e.v * e.z[1]) + e.w * e.z[2];
+    const Float4 rcp_det = detail::splat(1.0f) / det;
+    detail::store4(out->t, t_scaled * rcp_det);
+    detail::store4(out->u, e.v * rcp_det);
+    detail::store4(out->v, e.w * rcp_det);
+    detail::store4(out->det, det);
+    detail::store4(out->unsheared, e.m);
+    detail::store4(out->sheared, e.ms);
 }
 
 }  // namespace clastrace::engine::geometry
