@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 // BVH over the triangles of one cluster (at most 256): object-median splits along the
 // longest axis of the node's centroid bounds, rounded to whole leaves of kMaxLeafSize
-// triangles. No allocation: everything lives on the stack or in BvhScratch.
+// triangles. No allocation: everything lives in BvhScratch (its layout: cluster_internal.h).
 //
 // Why it is fast: the triangles are sorted once per axis (centroids quantized to 10 bits
 // inside the cluster's centroid bounds, a two-pass 5-bit radix sort, ties in triangle
@@ -21,6 +21,7 @@
 #include "simd4.h"
 
 #include <cstring>
+#include <new>
 
 namespace clastrace::engine::detail {
 
@@ -40,6 +41,22 @@ struct alignas(8) Task {
 struct Digits {
     uint8_t lo[4], hi[4];
 };
+
+// The build's arrays, in BvhScratch::bvh_arrays: those every split touches first (counts,
+// sides, partition buffers, orders), then those of the sort, then the task stack and the
+// interior list, of which only the heads are used.
+struct BvhArrays {
+    uint16_t hist[6][kDigits];
+    uint8_t side[kMaxTriangles];
+    uint8_t right[2][kMaxTriangles + 8];  // kMaxTriangles + 1 used (a store past the side)
+    uint8_t order[3][kMaxTriangles];
+    uint8_t sorted_low[3][kMaxTriangles];  // the order after the sort's first pass
+    Digits digits[kMaxTriangles];
+    uint8_t leaf_order[kMaxTriangles];  // when the active triangles are not all of them
+    Task stack[kMaxNodes];
+    uint16_t interior[kMaxNodes];  // in the order they were split
+};
+static_assert(sizeof(BvhArrays) <= kBvhArraysBytes && alignof(BvhArrays) <= 64);
 
 // Splits a triangle's keys (lanes x, y, z, 0..1023) into its digits and counts them.
 void count_digits(Int4 key, Digits& d, uint16_t (*hist)[kDigits]) {
@@ -73,7 +90,7 @@ void count_digits(Int4 key, Digits& d, uint16_t (*hist)[kDigits]) {
 // Sorts 0..n-1 by key (digits) on each axis k into order[k] (stable: equal keys stay in
 // increasing index order). hist[2k] / hist[2k+1] hold the counts of the low / high digits.
 void radix_sort3(const Digits* digits, uint32_t n, uint16_t (*hist)[kDigits],
-                 uint8_t (*order)[kMaxTriangles]) {
+                 uint8_t (*tmp)[kMaxTriangles], uint8_t (*order)[kMaxTriangles]) {
     // Exclusive prefix sums (counts <= 256 fit 16 bits).
 #if defined(__SSE2__)
     static_assert(kDigits % 8 == 0);
@@ -103,7 +120,6 @@ void radix_sort3(const Digits* digits, uint32_t n, uint16_t (*hist)[kDigits],
     // The three axes go through each pass together: three independent chains of counter
     // updates for the out-of-order core to overlap. Written out per axis: GCC at -O2 keeps a
     // loop over k and recomputes every address from k (about twice the instructions).
-    uint8_t tmp[3][kMaxTriangles];
     uint16_t *const lo0 = hist[0], *const lo1 = hist[2], *const lo2 = hist[4];
 #pragma GCC unroll 4
     for (size_t i = 0; i < n; ++i) {
@@ -198,10 +214,9 @@ bool is_identity(const uint8_t* order, uint32_t n) {
 // The leaf of `count` triangles at leaf_order[first..]: its box and link. Inlined: a call
 // with its five arguments cost a third of a leaf.
 [[gnu::always_inline]] inline void make_leaf(BvhScratch& s, const uint8_t* leaf_order,
-                                             uint32_t first, uint32_t count,
-                                             BvhScratch::Node& node) {
-    fit_leaf(s, leaf_order + first, count, node);
-    node.link = uint16_t(kLeafBit | ((count - 1u) << 8) | first);
+                                             uint32_t first, uint32_t count, size_t node) {
+    fit_leaf(s, leaf_order + first, count, s.nodes[node]);
+    s.link[node] = uint16_t(kLeafBit | ((count - 1u) << 8) | first);
 }
 
 // Interior boxes bottom-up, `interior` in the order the nodes were split: a node's children
@@ -209,8 +224,9 @@ bool is_identity(const uint8_t* order, uint32_t n) {
 void fit_interior_boxes(BvhScratch& s, const uint16_t* interior, size_t count) {
     for (size_t k = count; k-- > 0;) {
         BvhScratch::Node& node = s.nodes[interior[k]];
-        const BvhScratch::Node& l = s.nodes[node.link];
-        const BvhScratch::Node& r = s.nodes[node.link + 1];
+        const size_t left = s.link[interior[k]];
+        const BvhScratch::Node& l = s.nodes[left];
+        const BvhScratch::Node& r = s.nodes[left + 1];
         store4(node.lo, min4(load4(l.lo), load4(r.lo)));
         store4(node.hi, max4(load4(l.hi), load4(r.hi)));
     }
@@ -233,12 +249,11 @@ void count_keys(const BvhScratch& s, uint32_t n, Digits* digits, uint16_t (*hist
                      digits[i], hist);
 }
 
-// The triangles in key order along each axis (ties in triangle order).
-void sort_along_axes(const BvhScratch& s, uint32_t n, uint8_t (*order)[kMaxTriangles]) {
-    Digits digits[kMaxTriangles];
-    uint16_t hist[6][kDigits] = {};
-    count_keys(s, n, digits, hist);
-    radix_sort3(digits, n, hist, order);
+// The triangles in key order along each axis (ties in triangle order), in a.order.
+void sort_along_axes(const BvhScratch& s, uint32_t n, BvhArrays& a) {
+    std::memset(a.hist, 0, sizeof a.hist);
+    count_keys(s, n, a.digits, a.hist);
+    radix_sort3(a.digits, n, a.hist, a.sorted_low, a.order);
 }
 
 }  // namespace
@@ -248,24 +263,24 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
     if (n == 0) return true;
 
     const float(*const centroid)[4] = s.centroid;
-    uint8_t order[3][kMaxTriangles];
-    sort_along_axes(s, n, order);
+    BvhArrays& a = *new (s.bvh_arrays) BvhArrays;
+    uint8_t(*const order)[kMaxTriangles] = a.order;
+    sort_along_axes(s, n, a);
 
     // Top-down: node numbering is depth first, left subtree first, the two children of a node
     // next to each other.
-    uint8_t side[kMaxTriangles];
+    uint8_t* const side = a.side;
     // Each leaf's triangles at its range: the BVH order itself when the active triangles are
     // all of them.
-    uint8_t own_leaf_order[kMaxTriangles];
-    uint8_t* const leaf_order = active_list ? own_leaf_order : order_out;
-    Task stack[kMaxNodes];
-    uint16_t interior[kMaxNodes];  // in the order they were split
+    uint8_t* const leaf_order = active_list ? a.leaf_order : order_out;
+    Task* const stack = a.stack;
+    uint16_t* const interior = a.interior;
     size_t n_interior = 0;
     int sp = 0;
     s.node_count = 1;
     if (n <= kMaxLeafSize) {  // a root leaf: its triangles along x
         std::memcpy(leaf_order, order[0], n);
-        make_leaf(s, leaf_order, 0, n, s.nodes[0]);
+        make_leaf(s, leaf_order, 0, n, 0);
     } else {
         stack[sp++] = {0, 0, uint16_t(n), 0};
     }
@@ -273,7 +288,6 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
     // at each task mispredicted about every third node).
     while (sp > 0) {
         const Task task = stack[--sp];
-        BvhScratch::Node& node = s.nodes[task.node];
         const uint32_t b = task.begin, e = task.end, count = e - b;
         int axis = 0;
         float best = centroid[order[0][e - 1]][0] - centroid[order[0][b]][0];
@@ -291,14 +305,14 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
         const uint32_t m = b + left_count;
         const uint16_t left = uint16_t(s.node_count);
         s.node_count += 2;
-        node.link = left;
+        s.link[task.node] = left;
         interior[n_interior++] = uint16_t(task.node);
         if (count <= 2 * kMaxLeafSize) {
             // Both children are leaves: they need no sorted orders, only their triangles.
             // A task has more than kMaxLeafSize triangles.
             copy_up_to<kMaxLeafSize + 1, 2 * kMaxLeafSize>(leaf_order + b, order[axis] + b, count);
-            make_leaf(s, leaf_order, b, left_count, s.nodes[left]);
-            make_leaf(s, leaf_order, m, count - left_count, s.nodes[left + 1]);
+            make_leaf(s, leaf_order, b, left_count, left);
+            make_leaf(s, leaf_order, m, count - left_count, left + 1u);
             continue;
         }
         // Every triangle of a left child (odd node numbers) still has side 0 from its parent's
@@ -324,7 +338,7 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
         // j - r <= j, already read) and at the next right slot of a buffer; the store on the
         // wrong side is overwritten by the next element of that side, or lands past the side's
         // end (the left one is covered by the copy of the rights).
-        uint8_t right1[kMaxTriangles + 1], right2[kMaxTriangles + 1];
+        uint8_t *const right1 = a.right[0], *const right2 = a.right[1];
         // Pointer-sized counters: no zero extension before each address.
         size_t r1 = 0, r2 = 0;
 #pragma GCC unroll 4
@@ -344,7 +358,7 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
         // (a leaf, its triangles from any order) or more (a node).
         if (count - left_count <= kMaxLeafSize) {
             copy_up_to<1, kMaxLeafSize>(leaf_order + m, order[axis] + m, count - left_count);
-            make_leaf(s, leaf_order, m, count - left_count, s.nodes[left + 1]);
+            make_leaf(s, leaf_order, m, count - left_count, left + 1u);
         } else {
             stack[sp++] = {uint16_t(left + 1), uint16_t(m), uint16_t(e), 0};
         }
