@@ -194,6 +194,52 @@ bool is_identity(const uint8_t* order, uint32_t n) {
 #endif
 }
 
+// Partitions o1[0..count) and o2[0..count) stably by side (0 first; left_count of them), in
+// one loop (two independent chains). No branch and no select: every element is stored twice,
+// at the next left slot (in place: at or before its own, already read) and at the next right
+// slot of a buffer; the store on the wrong side is overwritten by the next element of that
+// side, or lands past the side's end (the left one is covered by the copy of the rights).
+[[gnu::always_inline]] inline void partition_sides(uint8_t* o1, uint8_t* o2, const uint8_t* side,
+                                                   size_t count, size_t left_count,
+                                                   uint8_t (*right)[kMaxTriangles + 8]) {
+    // Element j's left slot is at left1 + j (left1 = o1 - the rights so far; an address, not a
+    // pointer, as it may lie before the array), its right one at next1: one update of each per
+    // element instead of a j - r before each store (14 instructions an element for the two
+    // axes, 17 before).
+    uintptr_t left1 = uintptr_t(o1), left2 = uintptr_t(o2);
+    uint8_t *next1 = right[0], *next2 = right[1];
+#pragma GCC unroll 4
+    for (size_t j = 0; j < count; ++j) {
+        const size_t i1 = o1[j], i2 = o2[j];
+        const size_t s1 = side[i1], s2 = side[i2];
+        reinterpret_cast<uint8_t*>(left1)[j] = uint8_t(i1);
+        *next1 = uint8_t(i1);
+        reinterpret_cast<uint8_t*>(left2)[j] = uint8_t(i2);
+        *next2 = uint8_t(i2);
+        left1 -= s1;
+        next1 += s1;
+        left2 -= s2;
+        next2 += s2;
+    }
+    copy_rights(o1 + left_count, right[0], count - left_count);
+    copy_rights(o2 + left_count, right[1], count - left_count);
+}
+
+// partition_sides where the right side becomes a leaf (which takes its triangles from the
+// split axis's order): only the left side is kept, each element stored once, no copy after.
+[[gnu::always_inline]] inline void keep_lefts(uint8_t* o1, uint8_t* o2, const uint8_t* side,
+                                              size_t count) {
+    uintptr_t left1 = uintptr_t(o1), left2 = uintptr_t(o2);
+#pragma GCC unroll 4
+    for (size_t j = 0; j < count; ++j) {
+        const size_t i1 = o1[j], i2 = o2[j];
+        reinterpret_cast<uint8_t*>(left1)[j] = uint8_t(i1);
+        reinterpret_cast<uint8_t*>(left2)[j] = uint8_t(i2);
+        left1 -= side[i1];
+        left2 -= side[i2];
+    }
+}
+
 // A leaf's box over its 1..4 triangles: four loads, the last triangle repeated (min and max
 // fold it to the same box, ties included), so no branch on the count.
 [[gnu::always_inline]] inline void fit_leaf(BvhScratch& s, const uint8_t* tris, size_t count,
@@ -333,39 +379,14 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
         static constexpr uint8_t kOtherAxes[3][2] = {{1, 2}, {0, 2}, {0, 1}};
         uint8_t* const o1 = order[kOtherAxes[axis][0]] + b;
         uint8_t* const o2 = order[kOtherAxes[axis][1]] + b;
-        // Their orders, partitioned stably in one loop (two independent chains). No branch
-        // and no select: every element is stored twice, at the next left slot (in place:
-        // j - r <= j, already read) and at the next right slot of a buffer; the store on the
-        // wrong side is overwritten by the next element of that side, or lands past the side's
-        // end (the left one is covered by the copy of the rights).
-        uint8_t *const right1 = a.right[0], *const right2 = a.right[1];
-        // Element j's left slot is at left1 + j (left1 = o1 - the rights so far; an address,
-        // not a pointer, as it may lie before the array), its right one at next1: one update
-        // of each per element instead of a j - r before each store (14 instructions an element
-        // for the two axes, 17 before).
-        uintptr_t left1 = uintptr_t(o1), left2 = uintptr_t(o2);
-        uint8_t *next1 = right1, *next2 = right2;
-#pragma GCC unroll 4
-        for (size_t j = 0; j < count; ++j) {
-            const size_t i1 = o1[j], i2 = o2[j];
-            const size_t s1 = side[i1], s2 = side[i2];
-            reinterpret_cast<uint8_t*>(left1)[j] = uint8_t(i1);
-            *next1 = uint8_t(i1);
-            reinterpret_cast<uint8_t*>(left2)[j] = uint8_t(i2);
-            *next2 = uint8_t(i2);
-            left1 -= s1;
-            next1 += s1;
-            left2 -= s2;
-            next2 += s2;
-        }
-        copy_rights(o1 + left_count, right1, count - left_count);
-        copy_rights(o2 + left_count, right2, count - left_count);
         // More than 8 triangles leave at least 8 on the left (a node), and on the right 1-4
         // (a leaf, its triangles from any order) or more (a node).
         if (count - left_count <= kMaxLeafSize) {
+            keep_lefts(o1, o2, side, count);
             copy_up_to<1, kMaxLeafSize>(leaf_order + m, order[axis] + m, count - left_count);
             make_leaf(s, leaf_order, m, count - left_count, left + 1u);
         } else {
+            partition_sides(o1, o2, side, count, left_count, a.right);
             stack[sp++] = {uint16_t(left + 1), uint16_t(m), uint16_t(e), 0};
         }
         stack[sp++] = {left, uint16_t(b), uint16_t(m), 0};
