@@ -3,7 +3,8 @@
 // shape (fewest nodes, whole leaves on the left, every active triangle in exactly one leaf),
 // conservative boxes, splits at the median of the longest axis, and the same bytes on every
 // build, for sizes 1..256 and for centroid sets that defeat quantized keys (all equal,
-// near +-FLT_MAX, tiny, one far outlier).
+// near +-FLT_MAX, tiny, one far outlier), and the stored order of a reference build where no
+// two centroids share a key.
 #include "clastrace/engine/cluster_build.h"
 #include "clastrace/engine/cluster_format.h"
 
@@ -13,6 +14,7 @@
 #include <array>
 #include <cmath>
 #include <cstring>
+#include <numeric>
 #include <random>
 #include <string>
 #include <vector>
@@ -181,6 +183,71 @@ TEST(ClusterBvh, CentroidSetsThatDefeatQuantizedKeys) {
         const auto o = build(m, name);
         check_tree(o, uint32_t(centers.size()), name);
         EXPECT_EQ(o, build(m, name)) << name;
+    }
+}
+
+// The stored order of the documented splits, for centroids that no key step holds two of
+// (so the builder's key order is their order on every axis): a node splits along the longest
+// extent of its centroids (x before y before z on a tie), the left child taking half of its
+// leaves (rounded up), and a leaf keeps its parent's order along the split axis.
+void reference_order(const std::vector<std::array<float, 3>>& c, std::vector<uint32_t> tris,
+                     std::vector<uint32_t>& out) {
+    if (tris.size() <= 4) {
+        out.insert(out.end(), tris.begin(), tris.end());
+        return;
+    }
+    int axis = 0;
+    float best = 0.0f;
+    for (int a = 0; a < 3; ++a) {
+        const auto by_axis = [&](uint32_t x, uint32_t y) { return c[x][a] < c[y][a]; };
+        const auto [lo, hi] = std::minmax_element(tris.begin(), tris.end(), by_axis);
+        const float extent = c[*hi][a] - c[*lo][a];
+        if (a == 0 || extent > best) {
+            best = extent;
+            axis = a;
+        }
+    }
+    std::sort(tris.begin(), tris.end(),
+              [&](uint32_t x, uint32_t y) { return c[x][axis] < c[y][axis]; });
+    const size_t leaves = (tris.size() + 3) / 4, left = 4 * ((leaves + 1) / 2);
+    reference_order(c, {tris.begin(), tris.begin() + ptrdiff_t(left)}, out);
+    reference_order(c, {tris.begin() + ptrdiff_t(left), tris.end()}, out);
+}
+
+TEST(ClusterBvh, StoredOrderIsTheReferenceSplitsOnDistinctKeys) {
+    // Point triangles (one vertex three times: the centroid is the vertex) at distinct integer
+    // coordinates on each axis, so two centroids are at least 4 key steps (extent / 1024)
+    // apart; the axes' scales differ, so the longest axis changes from node to node and every
+    // kind of split (both children leaves, a leaf on the right, two nodes) reorders the other
+    // two axes.
+    std::mt19937 rng(23);
+    const float scale[3] = {1.0f, 0.75f, 0.5625f};
+    for (uint32_t n = 1; n <= 256; ++n) {
+        std::vector<std::array<float, 3>> c(n);
+        for (int a = 0; a < 3; ++a) {
+            std::vector<uint32_t> coordinate(n);
+            std::iota(coordinate.begin(), coordinate.end(), 0u);
+            std::shuffle(coordinate.begin(), coordinate.end(), rng);
+            for (uint32_t t = 0; t < n; ++t) c[t][a] = float(coordinate[t]) * scale[a];
+        }
+        Mesh m;
+        for (uint32_t t = 0; t < n; ++t) {
+            m.positions.insert(m.positions.end(), c[t].begin(), c[t].end());
+            m.indices.insert(m.indices.end(), {t, t, t});
+        }
+        const std::string what = "distinct keys " + std::to_string(n);
+        const auto o = build(m, what);
+        check_tree(o, n, what);
+        std::vector<uint32_t> tris(n), expected;
+        std::iota(tris.begin(), tris.end(), 0u);
+        if (n <= 4)  // a root leaf: its triangles along x
+            std::sort(tris.begin(), tris.end(),
+                      [&](uint32_t x, uint32_t y) { return c[x][0] < c[y][0]; });
+        reference_order(c, tris, expected);
+        const ObjectHeader h = *read_object_header(o).header;
+        for (uint32_t i = 0; i < n; ++i)
+            EXPECT_EQ(decode_triangle(o, h, i).original_index, expected[i])
+                << what << ": stored triangle " << i;
     }
 }
 
