@@ -26,8 +26,8 @@ int main(int argc, char** argv) {
     const VkBufferCopy whole{0, 0, clas.infos.size};
     vkCmdCopyBuffer(cb, staging.buffer, clas.infos.buffer, 1, &whole);
     buffer_barrier(cb, wrong_buffer ? staging.buffer : clas.infos.buffer, 0,
-                   fixed || wrong_buffer ? VK_WHOLE_SIZE : one_info,
-                   VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
+                   fixed || wrong_buffer ? VK_WHOLE_SIZE : one_info, VK_PIPELINE_STAGE_2_COPY_BIT,
+                   VK_ACCESS_2_TRANSFER_WRITE_BIT,
                    VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
                    VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
     gpu.cmd_build_clusters(cb, &clas.info);

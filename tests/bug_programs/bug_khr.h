@@ -32,7 +32,7 @@ struct Structure {
 };
 
 inline void create(Gpu& gpu, const KhrCalls& khr, VkAccelerationStructureTypeKHR type,
-            const VkAccelerationStructureGeometryKHR& geometry, Structure& s) {
+                   const VkAccelerationStructureGeometryKHR& geometry, Structure& s) {
     s.build.type = type;
     s.build.flags = VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_KHR;
     s.build.mode = VK_BUILD_ACCELERATION_STRUCTURE_MODE_BUILD_KHR;

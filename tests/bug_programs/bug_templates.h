@@ -68,7 +68,7 @@ inline void prepare_template_build(Gpu& gpu, const Quads& q, TemplateStep& step)
         t.vertexBuffer = quad.vertexBuffer;
     }
     step.slot = place_explicitly(gpu, step.info, step.addresses, q.count,
-                     gpu.cluster_props.clusterTemplateByteAlignment);
+                                 gpu.cluster_props.clusterTemplateByteAlignment);
 }
 
 inline VkDeviceAddress template_address(const TemplateStep& templates, uint32_t c) {

@@ -25,8 +25,7 @@ CopyPass make_copy_pass(Gpu& gpu, const Buffer& from, const Buffer& to) {
     module_info.codeSize = sizeof kCopyWordsComp;
     module_info.pCode = kCopyWordsComp;
     VkShaderModule module = VK_NULL_HANDLE;
-    vk_ok(vkCreateShaderModule(gpu.device, &module_info, nullptr, &module),
-          "vkCreateShaderModule");
+    vk_ok(vkCreateShaderModule(gpu.device, &module_info, nullptr, &module), "vkCreateShaderModule");
     VkDescriptorSetLayoutBinding bindings[2] = {};
     for (uint32_t b = 0; b < 2; ++b)
         bindings[b] = {b, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1, VK_SHADER_STAGE_COMPUTE_BIT};
@@ -65,7 +64,8 @@ CopyPass make_copy_pass(Gpu& gpu, const Buffer& from, const Buffer& to) {
     alloc.descriptorSetCount = 1;
     alloc.pSetLayouts = &p.set_layout;
     vk_ok(vkAllocateDescriptorSets(gpu.device, &alloc, &p.set), "vkAllocateDescriptorSets");
-    const VkDescriptorBufferInfo targets[2] = {{from.buffer, 0, from.size}, {to.buffer, 0, to.size}};
+    const VkDescriptorBufferInfo targets[2] = {{from.buffer, 0, from.size},
+                                               {to.buffer, 0, to.size}};
     VkWriteDescriptorSet writes[2] = {};
     for (uint32_t b = 0; b < 2; ++b) {
         writes[b] = {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET};

@@ -43,13 +43,12 @@ int main(int argc, char** argv) {
     Gpu gpu;
     open(gpu, "khr_deserialize_no_barrier");
     const KhrCalls khr = load_khr(gpu);
-    const SerializeCalls calls{
-        device_call<PFN_vkCmdWriteAccelerationStructuresPropertiesKHR>(
-            gpu, "vkCmdWriteAccelerationStructuresPropertiesKHR"),
-        device_call<PFN_vkCmdCopyAccelerationStructureToMemoryKHR>(
-            gpu, "vkCmdCopyAccelerationStructureToMemoryKHR"),
-        device_call<PFN_vkCmdCopyMemoryToAccelerationStructureKHR>(
-            gpu, "vkCmdCopyMemoryToAccelerationStructureKHR")};
+    const SerializeCalls calls{device_call<PFN_vkCmdWriteAccelerationStructuresPropertiesKHR>(
+                                   gpu, "vkCmdWriteAccelerationStructuresPropertiesKHR"),
+                               device_call<PFN_vkCmdCopyAccelerationStructureToMemoryKHR>(
+                                   gpu, "vkCmdCopyAccelerationStructureToMemoryKHR"),
+                               device_call<PFN_vkCmdCopyMemoryToAccelerationStructureKHR>(
+                                   gpu, "vkCmdCopyMemoryToAccelerationStructureKHR")};
 
     Buffer vertices = gpu.buffer(kTriangleBytes);
     const VkAccelerationStructureGeometryKHR triangles = triangle_geometry(vertices);

@@ -21,8 +21,8 @@ int main(int argc, char** argv) {
     ClasBuild clas;
     prepare_clas_build(gpu, quads, clas);
     const VkDeviceSize alignment = gpu.cluster_props.clusterByteAlignment;
-    const VkDeviceSize slot = place_explicitly(gpu, clas.info, clas.addresses, quads.count,
-                                               alignment);
+    const VkDeviceSize slot =
+        place_explicitly(gpu, clas.info, clas.addresses, quads.count, alignment);
     const auto* sources = reinterpret_cast<const VkDeviceAddress*>(clas.addresses.host);
 
     VkClusterAccelerationStructureMoveObjectsInputNV limits{
@@ -57,7 +57,8 @@ int main(int argc, char** argv) {
         move.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
         move.dstImplicitData = 0;
         auto* destinations = reinterpret_cast<VkDeviceAddress*>(moved.host);
-        for (uint32_t c = 0; c < last; ++c) destinations[c] = align_up(packed.address, alignment) + c * slot;
+        for (uint32_t c = 0; c < last; ++c)
+            destinations[c] = align_up(packed.address, alignment) + c * slot;
         destinations[last] = sources[last] + alignment;
     }
 
