@@ -336,6 +336,11 @@ TEST_F(BugPrograms, SemaphoreWaitAtComputeStageLeavesBottomLevelUnordered) {
     CAPTURE_AND_REPLAY(r, "semaphore_wrong_stage");
     EXPECT_TRUE(r.findings().empty()) << r.describe();
     expect_bottom_level_reads_unordered(r, 0, 1, 0, "pipeline_barrier");
+    for (const json& h : r.hazards())  // the advice names the wait that missed
+        EXPECT_NE(h.at("fix").at("advice").get<std::string>().find(
+                      "at COMPUTE_SHADER only: add ACCELERATION_STRUCTURE_BUILD"),
+                  std::string::npos)
+            << h.at("fix").at("advice");
 }
 
 TEST_F(BugPrograms, SemaphoreWaitAtBuildStageIsClean) {
@@ -383,6 +388,10 @@ TEST_F(BugPrograms, HostRewriteAfterWaitingTheEarlierFrameFenceIsHostWriteRace) 
     EXPECT_EQ(h.at("later").at("write"), true);
     expect_inside(range_of(h.at("overlap")), r.range("infos"));
     EXPECT_EQ(h.at("fix").at("kind"), "host_wait");
+    EXPECT_NE(h.at("fix").at("advice").get<std::string>().find(
+                  "signaled by submission 0, which does not include submission 1"),
+              std::string::npos)
+        << h.at("fix").at("advice");
 }
 
 TEST_F(BugPrograms, HostRewriteAfterWaitingTheBuildFenceIsClean) {
