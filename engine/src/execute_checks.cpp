@@ -170,11 +170,13 @@ void check_moves(CommandState& s) {
         auto it = std::lower_bound(dsts.begin(), dsts.end(), src.op,
                                    [](const Written& w, int64_t op) { return w.op < op; });
         if (it != dsts.end() && it->op == src.op && it->begin < src.end && src.begin < it->end)
-            s.top.finding(kRuleMoveOverlap,
-                          "op " + std::to_string(src.op) + " moves [" + hex(src.begin) + ", " +
-                              hex(src.end) + ") onto an overlapping destination at " +
-                              hex(it->begin) + " although noMoveOverlap is VK_TRUE",
-                          src.begin);
+            // Named at the op that moves (a checker keyed on the op finds it there).
+            s.top.findings.push_back(
+                Finding{kRuleMoveOverlap,
+                        "op " + std::to_string(src.op) + " moves [" + hex(src.begin) + ", " +
+                            hex(src.end) + ") onto an overlapping destination at " +
+                            hex(it->begin) + " although noMoveOverlap is VK_TRUE",
+                        src.op, src.begin});
     }
 }
 

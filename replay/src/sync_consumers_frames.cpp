@@ -59,7 +59,7 @@ void annotate_consumer_hazards(std::vector<HazardReport>& hazards, const FrameBo
             h.prior.frame = frames.frame_of(h.prior.command.submission);
         if (h.later.queue != kHostQueue)
             h.later.frame = frames.frame_of(h.later.command.submission);
-        h.advice = consumer_advice(h);
+        if (std::string advice = consumer_advice(h); !advice.empty()) h.advice = std::move(advice);
     }
 }
 

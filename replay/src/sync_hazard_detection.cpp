@@ -185,6 +185,7 @@ void SyncModel::State::emit(const Finding& f, const Record& later) {
         rep.fix.dst_stages = VK_PIPELINE_STAGE_2_HOST_BIT;
         rep.fix.dst_access = VK_ACCESS_2_HOST_READ_BIT;
     }
+    rep.advice = wait_advice(f.prior, later, rep);
     reports.push_back(std::move(rep));
 }
 

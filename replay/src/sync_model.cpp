@@ -19,9 +19,11 @@ void SyncModel::set_address_resolver(AddressResolver* resolver, UnboundHandler o
     state_->on_unbound = std::move(on_unbound);
 }
 
-void SyncModel::begin_submission(QueueId queue, uint32_t, std::span<const SemaphoreWait> waits) {
+void SyncModel::begin_submission(QueueId queue, uint32_t submission_index,
+                                 std::span<const SemaphoreWait> waits) {
     State& s = *state_;
     s.current_queue = s.queue_slot(queue);
+    s.current_submission = submission_index;
     s.in_submission = true;
     s.sync_tag();
     for (const SemaphoreWait& w : waits) {
@@ -54,6 +56,9 @@ void SyncModel::begin_submission(QueueId queue, uint32_t, std::span<const Semaph
         im.dst_scope = destination_scope_of(w.dst_stages) & kDeviceStages;
         im.signal = narrow.signal;
         im.signal_queue = narrow.queue;
+        im.semaphore = w.semaphore;
+        im.submission = submission_index;
+        im.wait_stages = w.dst_stages;
         LogEntry e;
         e.kind = EntryKind::kImport;
         e.import_index = q.imports_base + uint32_t(q.imports.size());
@@ -292,7 +297,10 @@ void SyncModel::end_submission(std::span<const SemaphoreSignal> signals, uint64_
                 sem.timeline_narrow.erase(sig.value);
         }
     }
-    if (fence) s.fences[fence] = clock;
+    if (fence) {
+        s.fences[fence] = clock;
+        s.fence_submissions[fence] = s.current_submission;
+    }
     s.in_submission = false;
     s.maybe_compact(s.queues[s.current_queue]);
 }
@@ -312,6 +320,7 @@ void SyncModel::wait_for_fence(uint64_t fence) {
     s.sync_tag();
     auto it = s.fences.find(fence);
     if (it == s.fences.end()) return;
+    s.last_fence_wait.emplace(fence, s.fence_submissions[fence]);
     s.complete_through(it->second, false);
 }
 

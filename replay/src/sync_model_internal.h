@@ -42,6 +42,11 @@ struct SyncModel::State {
     std::vector<Queue> queues;
     std::unordered_map<uint64_t, SemaphoreState> semaphores;
     std::unordered_map<uint64_t, Clock> fences;
+    // For the advice on host-write races (sync_wait_advice.cpp): the submission each fence
+    // signals after, and the fence the host waited on last with its submission.
+    std::unordered_map<uint64_t, uint32_t> fence_submissions;
+    std::optional<std::pair<uint64_t, uint32_t>> last_fence_wait;
+    uint32_t current_submission = 0;
     std::unordered_map<uint64_t, EventState> events;
     std::array<uint64_t, kEventSlots> slot_owner{};  // event handle holding each slot (0 = free)
     std::array<bool, kEventSlots> slot_used{};
@@ -216,6 +221,13 @@ struct SyncModel::State {
     HazardAccess describe(const Record& r) const;
 
     void emit(const Finding& f, const Record& later);
+
+    // ------------------------------------------------------------------ advice (sync_wait_advice.cpp)
+    // What the application's own wait missed, when it had one: a semaphore wait that orders
+    // the prior access but not the later access's stage, or a host wait on another
+    // submission's fence. Empty when there was no such wait.
+    std::string wait_advice(const Record& prior, const Record& later,
+                            const HazardReport& report) const;
 
     // ------------------------------------------------------------------ the address map (sync_address_map.cpp)
     // Makes `at` a segment boundary if a segment straddles it.

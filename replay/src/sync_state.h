@@ -252,6 +252,11 @@ struct Import {
     StageMask dst_scope = 0;
     uint32_t signal = 0;        // narrow signal id, 0 when the signal's scope is every stage
     uint16_t signal_queue = 0;  // queue slot that signaled (narrow signals only)
+    // Only for the advice on a hazard this wait orders but whose stage it misses
+    // (sync_wait_advice.cpp): the semaphore, the waiting submission, its stage mask as given.
+    uint64_t semaphore = 0;
+    uint32_t submission = 0;
+    StageMask wait_stages = 0;
 };
 
 struct Queue {

@@ -411,4 +411,50 @@ inline void memory_barrier(VkCommandBuffer cb, VkPipelineStageFlags2 src_stage,
     vkCmdPipelineBarrier2(cb, &dependency);
 }
 
+// A VkBufferMemoryBarrier2 over [offset, offset + size) of `buffer`, alone in its
+// vkCmdPipelineBarrier2.
+inline void buffer_barrier(VkCommandBuffer cb, VkBuffer buffer, VkDeviceSize offset,
+                           VkDeviceSize size, VkPipelineStageFlags2 src_stage,
+                           VkAccessFlags2 src_access, VkPipelineStageFlags2 dst_stage,
+                           VkAccessFlags2 dst_access) {
+    VkBufferMemoryBarrier2 barrier{VK_STRUCTURE_TYPE_BUFFER_MEMORY_BARRIER_2};
+    barrier.srcStageMask = src_stage;
+    barrier.srcAccessMask = src_access;
+    barrier.dstStageMask = dst_stage;
+    barrier.dstAccessMask = dst_access;
+    barrier.srcQueueFamilyIndex = VK_QUEUE_FAMILY_IGNORED;
+    barrier.dstQueueFamilyIndex = VK_QUEUE_FAMILY_IGNORED;
+    barrier.buffer = buffer;
+    barrier.offset = offset;
+    barrier.size = size;
+    VkDependencyInfo dependency{VK_STRUCTURE_TYPE_DEPENDENCY_INFO};
+    dependency.bufferMemoryBarrierCount = 1;
+    dependency.pBufferMemoryBarriers = &barrier;
+    vkCmdPipelineBarrier2(cb, &dependency);
+}
+
+// The build barrier engines put between two cluster steps that hand objects on.
+inline void build_to_build_barrier(VkCommandBuffer cb) {
+    memory_barrier(cb, VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                   VK_ACCESS_2_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
+                   VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                   VK_ACCESS_2_ACCELERATION_STRUCTURE_READ_BIT_KHR);
+}
+
+// Turns `build` into an explicit-destination build: every object in a slot of its own, as
+// large as the driver's answer for one, at addresses the host chose (so later infos can name
+// them without reading anything back). Returns the slot size.
+inline VkDeviceSize place_explicitly(Gpu& gpu, VkClusterAccelerationStructureCommandsInfoNV& info,
+                                     Buffer& addresses, uint32_t count, VkDeviceSize alignment) {
+    info.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
+    const VkDeviceSize one =
+        align_up(sizes_of(gpu, info.input).accelerationStructureSize, alignment);
+    info.dstImplicitData = 0;
+    Buffer place = gpu.buffer(one * (count + 1));
+    const VkDeviceAddress base = align_up(place.address, alignment);
+    auto* destinations = reinterpret_cast<VkDeviceAddress*>(addresses.host);
+    for (uint32_t c = 0; c < count; ++c) destinations[c] = base + c * one;
+    return one;
+}
+
 }  // namespace bug_programs

@@ -412,6 +412,7 @@ TEST(HazardCatalogueMove, MoveOntoItsOwnSourceWithNoMoveOverlapIsReported) {
         ASSERT_FALSE(r.findings.empty()) << replay::format_text(r);
         EXPECT_EQ(r.findings[0].rule, "CLASTRACE-move-overlaps-with-noMoveOverlap");
         EXPECT_EQ(r.findings[0].where.command, move_command);
+        EXPECT_EQ(r.findings[0].op_index, 0);  // the op that moves, not the command
     }
 }
 

@@ -1,0 +1,105 @@
+// SPDX-License-Identifier: Apache-2.0
+// The advice naming the application's wait that missed a hazard: a semaphore wait that
+// follows the prior access but leaves out the later access's stage, and a host wait on an
+// earlier submission's fence before a host write. No advice where there was no such wait.
+#include <gtest/gtest.h>
+
+#include <string>
+
+#include "sync_stream.h"
+
+namespace clastrace::replay::test {
+namespace {
+
+constexpr AddressRange kClas{0x1000, 0x1100};
+constexpr AddressRange kInfos{0x2000, 0x2100};
+constexpr AddressRange kCleared{0x3000, 0x3100};
+constexpr uint64_t kSemaphore = 0x5E;
+
+// Submission 0 builds the CLAS; submission 1, waiting on the semaphore at `wait_stages`,
+// builds a bottom level reading them.
+std::vector<HazardReport> bottom_level_after_wait(StageMask wait_stages) {
+    Stream s;
+    s.submit(0);
+    Stream::Build clas;
+    clas.dst_implicit = kClas;
+    s.build(clas);
+    s.end({{kSemaphore, 0, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT}});
+    s.submit(0, {{kSemaphore, 0, wait_stages}});
+    Stream::Build blas;
+    blas.inputs = {{kClas, "srcInfosArray[0].clusterReferences[*]"}};
+    s.build(blas);
+    s.end();
+    return s.hazards();
+}
+
+TEST(SyncWaitAdvice, SemaphoreWaitMissingTheLaterStageIsNamed) {
+    const auto h = bottom_level_after_wait(kCompute);
+    ASSERT_EQ(h.size(), 1u);
+    EXPECT_EQ(h[0].hazard, HazardClass::kReadAfterWrite);
+    EXPECT_NE(h[0].advice.find("The wait of submission 1 on semaphore 0x5e"), std::string::npos)
+        << h[0].advice;
+    EXPECT_NE(h[0].advice.find("at COMPUTE_SHADER only: add ACCELERATION_STRUCTURE_BUILD"),
+              std::string::npos)
+        << h[0].advice;
+}
+
+TEST(SyncWaitAdvice, SemaphoreWaitAtTheLaterStageOrdersIt) {
+    EXPECT_TRUE(bottom_level_after_wait(kAsBuild).empty());
+}
+
+// A semaphore signaled before the prior access orders nothing after it: no advice about it.
+TEST(SyncWaitAdvice, WaitOnAnEarlierSignalIsNotNamed) {
+    Stream s;
+    s.submit(0);
+    s.fill(kCleared);
+    s.end({{kSemaphore, 0, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT}});
+    s.submit(0);
+    Stream::Build clas;
+    clas.dst_implicit = kClas;
+    s.build(clas);
+    s.end();
+    s.submit(0, {{kSemaphore, 0, kCompute}});
+    Stream::Build blas;
+    blas.inputs = {{kClas, "srcInfosArray[0].clusterReferences[*]"}};
+    s.build(blas);
+    s.end();
+    ASSERT_EQ(s.hazards().size(), 1u);
+    EXPECT_TRUE(s.hazards()[0].advice.empty()) << s.hazards()[0].advice;
+}
+
+// Frame 0 (fence 0xF0) fills, frame 1 (fence 0xF1) builds from the infos; the host waits on
+// `waited` and rewrites the infos.
+std::vector<HazardReport> host_rewrite_after_waiting(uint64_t waited) {
+    Stream s;
+    s.submit(0);
+    s.fill(kCleared);
+    s.end({}, 0xF0);
+    s.submit(0);
+    Stream::Build clas;
+    clas.src_infos = kInfos;
+    s.build(clas);
+    s.end({}, 0xF1);
+    s.model.wait_for_fence(waited);
+    s.model.host_access(CommandRef{s.submission, 0, 0, 0, "host write (mapped memory)"},
+                        Stream::write(kInfos.begin, kInfos.end, VK_PIPELINE_STAGE_2_HOST_BIT,
+                                      VK_ACCESS_2_HOST_WRITE_BIT, "mapped memory"));
+    return s.hazards();
+}
+
+TEST(SyncWaitAdvice, HostWaitOnAnEarlierSubmissionsFenceIsNamed) {
+    const auto h = host_rewrite_after_waiting(0xF0);
+    ASSERT_EQ(h.size(), 1u);
+    EXPECT_EQ(h[0].hazard, HazardClass::kWriteAfterRead);
+    EXPECT_NE(h[0].advice.find("The host last waited on fence 0xf0, signaled by submission 0, "
+                               "which does not include submission 1"),
+              std::string::npos)
+        << h[0].advice;
+}
+
+TEST(SyncWaitAdvice, HostWaitOnTheReadersFenceOrdersTheWrite) {
+    EXPECT_TRUE(host_rewrite_after_waiting(0xF1).empty());
+}
+
+}  // namespace
+}  // namespace clastrace::replay::test
