@@ -2,10 +2,8 @@
 #include "host_write_walk_cache.h"
 
 #include <cstring>
+#include <string_view>
 #include <type_traits>
-
-#define XXH_INLINE_ALL
-#include <xxhash.h>
 
 namespace clastrace::capture {
 namespace {
@@ -20,8 +18,9 @@ static_assert(std::is_trivially_copyable_v<ClusterCommandParameters>,
 }  // namespace
 
 bool HostWriteWalkCache::keepable(const ClusterCommandParameters& p) {
-    return !(p.info.addressResolutionFlags &
-             VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_SRC_INFOS_ARRAY_BIT_NV);
+    return !(
+        p.info.addressResolutionFlags &
+        VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_SRC_INFOS_ARRAY_BIT_NV);
 }
 
 ClusterCommandParameters HostWriteWalkCache::key_of(const ClusterCommandParameters& p) {
@@ -37,7 +36,8 @@ ClusterCommandParameters HostWriteWalkCache::key_of(const ClusterCommandParamete
 }
 
 uint64_t HostWriteWalkCache::hash_of(const ClusterCommandParameters& key) {
-    return XXH3_64bits(&key, sizeof key);
+    return std::hash<std::string_view>{}(
+        std::string_view(reinterpret_cast<const char*>(&key), sizeof key));
 }
 
 const std::vector<HostWriteWalkCache::Found>* HostWriteWalkCache::find(
