@@ -29,9 +29,8 @@ struct Kept {
     bool unchanged(const HostWriteWalkCache::Read& r) const { return r.bytes == infos; }
     const std::vector<HostWriteWalkCache::Found>* find(const ClusterCommandParameters& p,
                                                        uint64_t changes = 7) {
-        return cache.find(p, changes, [this](const HostWriteWalkCache::Read& r) {
-            return unchanged(r);
-        });
+        return cache.find(p, changes,
+                          [this](const HostWriteWalkCache::Read& r) { return unchanged(r); });
     }
 };
 
@@ -56,9 +55,9 @@ TEST(HostWriteWalkCache, ChangedBytesParametersOrMapAreWalkedAgain) {
     Kept k;
     const ClusterCommandParameters p = triangle_build(0x8000);
     k.cache.keep(p, 7, {{0x8000, k.infos}}, {HostWriteWalkCache::Found{}});
-    EXPECT_EQ(k.find(p, 8), nullptr);                   // a buffer came or went since
+    EXPECT_EQ(k.find(p, 8), nullptr);                    // a buffer came or went since
     EXPECT_EQ(k.find(triangle_build(0x8100)), nullptr);  // other parameters
-    k.infos[5] = 2;                                     // the host or the device wrote the infos
+    k.infos[5] = 2;                                      // the host or the device wrote the infos
     EXPECT_EQ(k.find(p), nullptr);
     k.infos[5] = 1;
     EXPECT_NE(k.find(p), nullptr);
