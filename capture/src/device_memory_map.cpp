@@ -25,11 +25,13 @@ void erase_address(std::multimap<VkDeviceAddress, uint64_t>& by_address, VkDevic
 
 void DeviceMemoryMap::add_memory(const TrackedMemory& memory) {
     std::lock_guard lock(mutex_);
+    changed();
     memories_[memory.handle] = memory;
 }
 
 void DeviceMemoryMap::remove_memory(uint64_t handle) {
     std::lock_guard lock(mutex_);
+    changed();
     memories_.erase(handle);
 }
 
@@ -42,12 +44,14 @@ std::optional<TrackedMemory> DeviceMemoryMap::memory(uint64_t handle) const {
 
 void DeviceMemoryMap::add_buffer(const TrackedBuffer& buffer) {
     std::lock_guard lock(mutex_);
+    changed();
     forget_last_resolved();  // a handle added again may have another address
     buffers_[buffer.handle] = buffer;
 }
 
 void DeviceMemoryMap::bind_buffer(uint64_t buffer, uint64_t memory, VkDeviceSize offset) {
     std::lock_guard lock(mutex_);
+    changed();
     auto it = buffers_.find(buffer);
     if (it == buffers_.end()) return;
     it->second.memory = memory;
@@ -59,6 +63,7 @@ void DeviceMemoryMap::set_buffer_address(uint64_t buffer, VkDeviceAddress addres
     auto it = buffers_.find(buffer);
     if (it == buffers_.end() || address == 0) return;
     if (it->second.address == address) return;
+    changed();
     if (it->second.address != 0) erase_address(buffers_by_address_, it->second.address, buffer);
     forget_last_resolved();
     it->second.address = address;
@@ -68,6 +73,7 @@ void DeviceMemoryMap::set_buffer_address(uint64_t buffer, VkDeviceAddress addres
 
 void DeviceMemoryMap::remove_buffer(uint64_t handle) {
     std::lock_guard lock(mutex_);
+    changed();
     auto it = buffers_.find(handle);
     if (it == buffers_.end()) return;
     if (it->second.address != 0) erase_address(buffers_by_address_, it->second.address, handle);
@@ -211,6 +217,7 @@ std::optional<ResolvedRange> DeviceMemoryMap::resolve_in(const TrackedBuffer& b,
 void DeviceMemoryMap::bind_sparse(uint64_t buffer, VkDeviceSize resource_offset, VkDeviceSize size,
                                   uint64_t memory, VkDeviceSize memory_offset) {
     std::lock_guard lock(mutex_);
+    changed();
     if (size == 0 || resource_offset + size < resource_offset) return;
     std::map<VkDeviceSize, SparsePage>& pages = sparse_pages_[buffer];
     const VkDeviceSize end = resource_offset + size;

@@ -86,18 +86,24 @@ uint64_t hash_of(const CapturedBytes& bytes) { return XXH3_64bits(bytes.data(), 
 // The reader of a guarded submission's walk: it copies only what leads the walk to other ranges
 // (the count and the indirect cells, 8 bytes at most, and the src infos entries, with streaming
 // loads where uncached); the ranges the walk only lists become views it never reads. (With an
-// INDIRECTED src infos array the entries are views too, read by the walk's plain loads.)
-DeviceMemoryReader pointer_reader(HostViewResolver& resolver, const ClusterCommandParameters& p) {
+// INDIRECTED src infos array the entries are views too, read by the walk's plain loads.) Each copy
+// goes to `reads` too, for the walk cache (host_write_walk_cache.h).
+DeviceMemoryReader pointer_reader(HostViewResolver& resolver, const ClusterCommandParameters& p,
+                                  std::vector<HostWriteWalkCache::Read>& reads) {
     const VkStridedDeviceAddressRegionKHR& src = p.info.srcInfosArray;
     const uint64_t entry = cluster_src_info_size(p.info.input.opType);
     const uint64_t stride = src.stride ? src.stride : entry;
     const uint64_t most = p.info.input.maxAccelerationStructureCount;
     const uint64_t span = src.size ? src.size : (most ? (most - 1) * stride + entry : 0);
     const VkDeviceAddress begin = src.deviceAddress, end = begin + span;
-    return [&resolver, begin, end](VkDeviceAddress a, uint64_t size, CapturedBytes* out,
-                                   std::string& why) {
-        if (!out || size <= sizeof(VkDeviceAddress) || (a >= begin && a < end))
-            return read_host_view(resolver, a, size, out, why);
+    return [&resolver, &reads, begin, end](VkDeviceAddress a, uint64_t size, CapturedBytes* out,
+                                           std::string& why) {
+        if (!out) return read_host_view(resolver, a, size, out, why);
+        if (size <= sizeof(VkDeviceAddress) || (a >= begin && a < end)) {
+            if (!read_host_view(resolver, a, size, out, why)) return false;
+            reads.push_back({a, std::vector<uint8_t>(out->data(), out->data() + out->size())});
+            return true;
+        }
         const ResolvedRange* where = resolver.resolve(a, size, why);
         if (!where) return false;
         if (!where->host) {
@@ -162,7 +168,7 @@ bool differs_from_submitted(const PageGuard& guard, const HostWriteWatch::Range&
 }  // namespace
 
 void HostWriteWatch::guard_or_hash(HostViewResolver& resolver, std::vector<Range*> ranges,
-                                   const TrackedMemory& memory, WatchLaps& laps) {
+                                   const TrackedMemory& memory, Submission& s, WatchLaps& laps) {
     PageGuard* guard = layer_config().host_write_guard ? PageGuard::instance() : nullptr;
     std::vector<uintptr_t> pages;
     std::vector<Range*> guardable;
@@ -174,11 +180,14 @@ void HostWriteWatch::guard_or_hash(HostViewResolver& resolver, std::vector<Range
             guardable.push_back(r);
             return true;
         });
+    // Each page once: the submission is one watcher of it, however many of its ranges lie there.
+    std::sort(pages.begin(), pages.end());
+    pages.erase(std::unique(pages.begin(), pages.end()), pages.end());
     const bool uncached = !(memory.property_flags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT);
-    if (!guardable.empty() && probed(memory.handle, pages.front()) &&
-        guard->watch(std::move(pages), uncached)) {
+    if (!guardable.empty() && probed(memory, pages.front()) && guard->watch(pages, uncached)) {
         for (Range* r : guardable) r->guarded = true;
         guarded_ranges_ += guardable.size();
+        s.guarded.push_back({memory.handle, std::move(pages)});
     } else {
         ranges.insert(ranges.end(), guardable.begin(), guardable.end());
     }
@@ -193,21 +202,103 @@ void HostWriteWatch::guard_or_hash(HostViewResolver& resolver, std::vector<Range
     laps.lap(WatchPhase::kSubmitHash);
 }
 
-bool HostWriteWatch::probed(uint64_t memory, uintptr_t page) {
-    auto it = probed_.find(memory);
-    if (it == probed_.end()) it = probed_.emplace(memory, PageGuard::instance()->probe(page)).first;
-    return it->second;
+bool HostWriteWatch::probed(const TrackedMemory& memory, uintptr_t page) {
+    auto it = probed_.find(memory.handle);
+    if (it == probed_.end())
+        it = probed_
+                 .emplace(memory.handle,
+                          Probed{PageGuard::instance()->probe(page),
+                                 reinterpret_cast<uintptr_t>(memory.host_base), memory.size})
+                 .first;
+    return it->second.guardable;
 }
 
-void HostWriteWatch::unguard(const std::vector<Range*>& ranges) {
-    PageGuard* guard = PageGuard::instance();
-    std::vector<uintptr_t> pages;
-    for (Range* r : ranges) {
-        if (!r->guarded) continue;
-        append_pages(pages, pages_of(r->host, r->size, guard->page_size()), guard->page_size());
-        r->guarded = false;
+void HostWriteWatch::unguard(Submission& s, const std::function<bool(uint64_t memory)>& picked) {
+    std::erase_if(s.guarded, [&](GuardedPages& g) {
+        if (!picked(g.memory)) return false;
+        PageGuard::instance()->unwatch(std::move(g.pages));
+        return true;
+    });
+    for (Range& r : s.ranges)
+        if (r.guarded && picked(r.span.memory)) r.guarded = false;
+}
+
+bool HostWriteWatch::wrote_any_page(const Submission& s) {
+    const PageGuard* guard = s.guarded.empty() ? nullptr : PageGuard::instance();
+    for (const GuardedPages& g : s.guarded)
+        for (uintptr_t page : g.pages)
+            if (guard->before_image(page)) return true;
+    return false;
+}
+
+void HostWriteWatch::walk_pauses(
+    DeviceState& d, HostViewResolver& resolver, const std::vector<const PausePoint*>& pauses,
+    Submission& fresh, std::map<uint64_t, std::pair<TrackedMemory, std::vector<size_t>>>& by_memory,
+    WatchLaps& laps) {
+    const bool guarding = layer_config().host_write_guard && PageGuard::instance();
+    DeviceMemoryReader host_view = [&resolver](VkDeviceAddress a, uint64_t size, CapturedBytes* out,
+                                               std::string& why) {
+        return read_host_view(resolver, a, size, out, why);
+    };
+    // Whether a read of a kept walk still gives its bytes.
+    auto unchanged = [&resolver](const HostWriteWalkCache::Read& r) {
+        CapturedBytes now;
+        std::string why;
+        return read_host_view(resolver, r.address, r.bytes.size(), &now, why) &&
+               std::memcmp(now.data(), r.bytes.data(), r.bytes.size()) == 0;
+    };
+    for (const PausePoint* pause : pauses) {
+        if (!pause->parameters || pause->phase != PausePhase::kBeforeCommand) continue;
+        const ClusterCommandParameters& p = *pause->parameters;
+        // Read before the walk: a change of the map meanwhile leaves the walk kept unfound.
+        const uint64_t map_changes = d.memory_map.changes();
+        const std::vector<HostWriteWalkCache::Found>* kept =
+            guarding ? walk_cache_.find(p, map_changes, unchanged) : nullptr;
+        std::vector<HostWriteWalkCache::Found> walked;
+        if (guarding) ++walks_;
+        if (kept) {
+            ++walks_reused_;
+            laps.lap(WatchPhase::kSubmitWalk);
+        } else {
+            std::vector<HostWriteWalkCache::Read> reads;
+            ClusterMemoryWalk walk =
+                walk_cluster_inputs(p, guarding ? pointer_reader(resolver, p, reads) : host_view);
+            laps.lap(WatchPhase::kSubmitWalk);
+            for (const CapturedRange& r : walk.ranges) {
+                if (!r.address || !r.bytes.size()) continue;
+                std::string why;
+                const ResolvedRange* where = resolver.resolve(r.address, r.bytes.size(), why);
+                if (!where || !where->host) continue;
+                const VkDeviceSize at = where->buffer.memory_offset + where->offset_in_buffer;
+                walked.push_back({r.address, r.bytes.size(),
+                                  MemorySpan{where->memory.handle, at, at + r.bytes.size()},
+                                  where->host, where->memory});
+                if (!guarding) {
+                    Range range{pause->pause_id, r.address, r.bytes.size(), walked.back().span};
+                    range.host = where->host;
+                    range.hash = hash_of(r.bytes);
+                    ++hashed_ranges_;
+                    fresh.ranges.push_back(std::move(range));
+                }
+            }
+            if (!guarding) {
+                laps.lap(WatchPhase::kSubmitHash);
+                continue;
+            }
+            if (HostWriteWalkCache::keepable(p))
+                walk_cache_.keep(p, map_changes, std::move(reads), walked);
+            kept = &walked;
+        }
+        for (const HostWriteWalkCache::Found& f : *kept) {
+            Range range{pause->pause_id, f.address, f.size, f.span};
+            range.host = f.host;
+            auto& group = by_memory[f.memory.handle];
+            group.first = f.memory;
+            group.second.push_back(fresh.ranges.size());
+            fresh.ranges.push_back(std::move(range));
+        }
+        laps.lap(WatchPhase::kSubmitResolve);
     }
-    if (!pages.empty()) guard->unwatch(std::move(pages));
 }
 
 void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
@@ -220,50 +311,18 @@ void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
     for (Submission& s : watched_) look(d, s, HostWriteSeen::kAtSubmit);
     laps.lap(WatchPhase::kSubmitLook);
     Submission fresh{
-        record.index, record.queue, record.fence, {}, {}, std::move(device_writes), {}};
+        record.index, record.queue, record.fence, {}, {}, {}, std::move(device_writes), {}};
     for (const SubmitBatch& b : record.batches)
         fresh.signals.insert(fresh.signals.end(), b.signals.begin(), b.signals.end());
     HostViewResolver resolver(d.memory_map);
-    DeviceMemoryReader host_view = [&resolver](VkDeviceAddress a, uint64_t size, CapturedBytes* out,
-                                               std::string& why) {
-        return read_host_view(resolver, a, size, out, why);
-    };
-    const bool guarding = layer_config().host_write_guard && PageGuard::instance();
     // Guarded submissions: the ranges of each allocation, guarded (or hashed) together below.
     std::map<uint64_t, std::pair<TrackedMemory, std::vector<size_t>>> by_memory;
-    for (const PausePoint* pause : pauses) {
-        if (!pause->parameters || pause->phase != PausePhase::kBeforeCommand) continue;
-        ClusterMemoryWalk walk =
-            walk_cluster_inputs(*pause->parameters,
-                                guarding ? pointer_reader(resolver, *pause->parameters)
-                                         : host_view);
-        laps.lap(WatchPhase::kSubmitWalk);
-        for (const CapturedRange& r : walk.ranges) {
-            if (!r.address || !r.bytes.size()) continue;
-            std::string why;
-            const ResolvedRange* where = resolver.resolve(r.address, r.bytes.size(), why);
-            if (!where || !where->host) continue;
-            const VkDeviceSize at = where->buffer.memory_offset + where->offset_in_buffer;
-            Range range{pause->pause_id, r.address, r.bytes.size(),
-                        MemorySpan{where->memory.handle, at, at + r.bytes.size()}};
-            range.host = where->host;
-            if (guarding) {
-                auto& group = by_memory[where->memory.handle];
-                group.first = where->memory;
-                group.second.push_back(fresh.ranges.size());
-            } else {
-                range.hash = hash_of(r.bytes);
-                ++hashed_ranges_;
-            }
-            fresh.ranges.push_back(std::move(range));
-        }
-        laps.lap(guarding ? WatchPhase::kSubmitResolve : WatchPhase::kSubmitHash);
-    }
+    walk_pauses(d, resolver, pauses, fresh, by_memory, laps);
     phases_.add_ranges(fresh.ranges.size());
     for (auto& [memory, group] : by_memory) {
         std::vector<Range*> ranges;
         for (size_t i : group.second) ranges.push_back(&fresh.ranges[i]);
-        guard_or_hash(resolver, std::move(ranges), group.first, laps);
+        guard_or_hash(resolver, std::move(ranges), group.first, fresh, laps);
     }
     // A submission that only writes is kept too: its writes may change another's inputs.
     if (fresh.ranges.empty() && fresh.device_writes.empty()) return;
@@ -282,21 +341,22 @@ void HostWriteWatch::submit_failed(uint64_t index) {
 
 void HostWriteWatch::memory_freed(uint64_t memory) {
     std::lock_guard lock(mutex_);
-    probed_.erase(memory);
     for (Submission& s : watched_) {
-        std::vector<Range*> gone;
-        for (Range& r : s.ranges)
-            if (r.span.memory == memory) gone.push_back(&r);
-        unguard(gone);
+        unguard(s, [memory](uint64_t m) { return m == memory; });
         std::erase_if(s.ranges, [&](const Range& r) { return r.span.memory == memory; });
     }
+    // Its pages left read-only past their watchers: writable again before the mapping goes.
+    auto it = probed_.find(memory);
+    if (it == probed_.end()) return;
+    if (it->second.guardable && PageGuard::instance())
+        PageGuard::instance()->forget_memory(it->second.host_base, it->second.size);
+    probed_.erase(it);
 }
 
 HostWriteWatch::~HostWriteWatch() {
-    std::vector<Range*> all;
-    for (Submission& s : watched_)
-        for (Range& r : s.ranges) all.push_back(&r);
-    unguard(all);
+    for (Submission& s : watched_) unguard(s, [](uint64_t) { return true; });
+    for (const auto& [memory, p] : probed_)
+        if (p.guardable) PageGuard::instance()->forget_memory(p.host_base, p.size);
 }
 
 std::string HostWriteWatch::mode_line() {
@@ -310,8 +370,10 @@ std::string HostWriteWatch::mode_line() {
     return "host-write watch: guard: " + std::to_string(guarded_ranges_) +
            " ranges write-protected, " + std::to_string(hashed_ranges_) + " hashed (" +
            std::to_string(counts.refused) + " refused by mprotect), " +
-           std::to_string(counts.faults) + " pages written while protected, " + read +
-           " besides those pages";
+           std::to_string(counts.faults) + " pages written while protected (" +
+           std::to_string(counts.resting_faults) + " more after their waits), " + read +
+           " besides those pages, " + std::to_string(walks_reused_) + " of " +
+           std::to_string(walks_) + " walks reused";
 }
 
 std::vector<std::string> HostWriteWatch::phase_lines() const {
@@ -342,6 +404,7 @@ void HostWriteWatch::paused(uint64_t submission, uint64_t pause_id,
     };
     for (Submission& s : watched_) {
         if (s.index != submission) continue;
+        const bool written = wrote_any_page(s);
         for (Range& r : s.ranges) {
             if (r.pause_id != pause_id) continue;
             const CapturedRange* read = read_of(r);
@@ -350,8 +413,8 @@ void HostWriteWatch::paused(uint64_t submission, uint64_t pause_id,
             if (r.guarded) {
                 // Pages not written hold what they held at the submission: compared only
                 // where written (no written page: unchanged, nothing compared).
-                r.read_changed =
-                    differs_from_submitted(*PageGuard::instance(), r, read->bytes.data());
+                r.read_changed = written && differs_from_submitted(*PageGuard::instance(), r,
+                                                                   read->bytes.data());
                 if (r.read_changed) r.pause_hash = hash_of(read->bytes);
                 continue;
             }
@@ -383,13 +446,11 @@ void HostWriteWatch::waited(DeviceState& d, const std::function<bool(const Submi
 
 void HostWriteWatch::forget(const std::function<bool(const Submission&)>& gone) {
     std::vector<MemorySpan> written;
-    std::vector<Range*> unwatched;
     for (Submission& s : watched_) {
         if (!gone(s)) continue;
         written.insert(written.end(), s.device_writes.begin(), s.device_writes.end());
-        for (Range& r : s.ranges) unwatched.push_back(&r);
+        unguard(s, [](uint64_t) { return true; });
     }
-    unguard(unwatched);
     std::erase_if(watched_, gone);
     // Those submissions ran while the remaining ones were pending: a remaining one's input may
     // have changed by their writes, which its own wait only sees later.
@@ -407,9 +468,10 @@ bool HostWriteWatch::device_may_have_written(const Submission& s, const MemorySp
 
 void HostWriteWatch::look(DeviceState& d, Submission& s, HostWriteSeen seen) {
     HostViewResolver resolver(d.memory_map);
+    const bool written = wrote_any_page(s);
     for (Range& r : s.ranges) {
         // A guarded range none of whose pages was written holds what it held at the submission.
-        if (r.guarded && !any_page_written(*PageGuard::instance(), r)) continue;
+        if (r.guarded && (!written || !any_page_written(*PageGuard::instance(), r))) continue;
         CapturedBytes now;
         ResolvedRange where;
         std::string why;
@@ -417,9 +479,9 @@ void HostWriteWatch::look(DeviceState& d, Submission& s, HostWriteSeen seen) {
             continue;  // freed, unmapped
         const uint64_t hash = hash_of(now);
         bool changed = hash != r.hash;
-        if (r.guarded) {  // hashed from now on: its before-images go with its pages' watchers
+        if (r.guarded) {  // hashed from now on (its pages stay watched till the submission goes)
             changed = differs_from_submitted(*PageGuard::instance(), r, now.data());
-            unguard({&r});
+            r.guarded = false;
         }
         if (!changed && !r.read_changed) {
             r.hash = hash;

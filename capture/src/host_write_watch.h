@@ -16,15 +16,20 @@
 // (page_guard.h). A look compares only ranges on pages written since, against the pages'
 // before-images; an unwritten range costs nothing. A range on a page the guard cannot hold
 // (mprotect refused, a page shared with memory outside the allocation) is hashed as above.
+// Pages stay read-only past the wait (page_guard.h), and a command submitted again with the
+// same parameters, whose walk reads the same bytes, reuses its last walk's ranges
+// (host_write_walk_cache.h).
 #pragma once
 
 #include "clastrace/capture/capture_records.h"
 #include "host_write_device_writes.h"
+#include "host_write_walk_cache.h"
 #include "host_write_watch_phases.h"
 #include "pause_worker.h"
 
 #include <deque>
 #include <functional>
+#include <map>
 #include <mutex>
 #include <string>
 #include <unordered_map>
@@ -51,12 +56,18 @@ public:
         // of them written, compares, and hashes the range from then on.
         bool guarded = false;
     };
+    // The pages a submission watches in one allocation (sorted, each once).
+    struct GuardedPages {
+        uint64_t memory = 0;
+        std::vector<uintptr_t> pages;
+    };
     struct Submission {
         uint64_t index = 0;
         uint64_t queue = 0;
         uint64_t fence = 0;
         std::vector<SemaphoreUse> signals;
         std::vector<Range> ranges;
+        std::vector<GuardedPages> guarded;      // its ranges' pages, watched till it goes
         std::vector<MemorySpan> device_writes;  // what its own commands may write
         // What submissions pending beside it wrote, kept once they stopped being watched.
         std::vector<MemorySpan> others_writes;
@@ -90,17 +101,32 @@ private:
     // Stops watching the submissions `gone` picks; the others keep what those may have written.
     void forget(const std::function<bool(const Submission&)>& gone);
     // Write-protects the pages of `ranges` (of one allocation) where the guard can hold them,
-    // and hashes the others.
+    // and hashes the others; `s` keeps the pages it watches.
     void guard_or_hash(HostViewResolver& resolver, std::vector<Range*> ranges,
-                       const TrackedMemory& memory, WatchLaps& laps);
+                       const TrackedMemory& memory, Submission& s, WatchLaps& laps);
     // Whether the guard can hold the pages of `memory`: probed at `page` the first time.
-    bool probed(uint64_t memory, uintptr_t page);
-    // Stops guarding `ranges` (one unwatch for all of them).
-    void unguard(const std::vector<Range*>& ranges);
+    bool probed(const TrackedMemory& memory, uintptr_t page);
+    // Stops watching the pages `s` watches in the allocations `picked` picks.
+    static void unguard(Submission& s, const std::function<bool(uint64_t memory)>& picked);
+    // Whether a page `s` watches was written since: if not, none of its guarded ranges changed.
+    static bool wrote_any_page(const Submission& s);
+    // Walks the submission's cluster pauses (or reuses an earlier walk) into `fresh.ranges`, and
+    // groups the guarded submission's ranges by allocation.
+    void walk_pauses(DeviceState& d, HostViewResolver& resolver,
+                     const std::vector<const PausePoint*>& pauses, Submission& fresh,
+                     std::map<uint64_t, std::pair<TrackedMemory, std::vector<size_t>>>& by_memory,
+                     WatchLaps& laps);
+    struct Probed {
+        bool guardable = false;
+        uintptr_t host_base = 0;  // the layer's mapping, forgotten by the guard when freed
+        size_t size = 0;
+    };
     std::mutex mutex_;
     std::deque<Submission> watched_;                   // oldest first
     uint64_t guarded_ranges_ = 0, hashed_ranges_ = 0;  // watched since the device was created
-    std::unordered_map<uint64_t, bool> probed_;        // allocation -> its pages can be guarded
+    uint64_t walks_reused_ = 0, walks_ = 0;            // guarded pauses' walks, and those reused
+    std::unordered_map<uint64_t, Probed> probed_;      // allocation -> its pages can be guarded
+    HostWriteWalkCache walk_cache_;
     WatchPhaseTotals phases_;
 };
 

@@ -32,6 +32,11 @@ constexpr size_t kTableEntries = size_t(1) << 17;
 // not the guard's (the application protected the page itself) and goes to the next handler.
 constexpr uint32_t kMaxStrayFaults = 1024;
 
+// How many unwatches a page written while resting is made writable at, rather than left resting:
+// a page the host rewrites every frame costs one fault in this many frames, and one page of an
+// mprotect run in the others.
+constexpr uint32_t kHotUnwatches = 8;
+
 std::atomic<PageGuard*> the_guard{nullptr};
 struct sigaction previous_action {};  // the handler the guard passes other faults to
 
@@ -185,46 +190,93 @@ bool PageGuard::protect_runs(const uintptr_t* pages, size_t count, int protectio
 
 bool PageGuard::watch(std::vector<uintptr_t> pages, bool uncached) {
     std::sort(pages.begin(), pages.end());
+    pages.erase(std::unique(pages.begin(), pages.end()), pages.end());
     std::lock_guard lock(mutex_);
     keep_handler_first();
-    std::vector<uintptr_t> to_protect;
+    std::vector<uintptr_t> to_protect, adopted;
     std::vector<Entry*> entries;
-    for (size_t i = 0; i < pages.size(); ++i) {
-        if (i > 0 && pages[i] == pages[i - 1]) continue;
-        Entry* e = find_or_add(pages[i]);
+    for (uintptr_t page : pages) {
+        Entry* e = find_or_add(page);
         if (!e) return false;
-        const uint32_t state = e->state.load(std::memory_order_acquire);
-        if (state == kWritten || state == kCapturing) return false;
-        if (watchers_.count(pages[i])) continue;  // protected already
-        to_protect.push_back(pages[i]);
+        if (watchers_.count(page)) {
+            const uint32_t state = e->state.load(std::memory_order_acquire);
+            if (state == kWritten || state == kCapturing) return false;
+            continue;  // protected already
+        }
         entries.push_back(e);
     }
-    // Armed before the pages turn read-only: a write in between is one the page held already.
     for (Entry* e : entries) {
+        const uintptr_t page = e->page.load(std::memory_order_relaxed);
         e->uncached = uncached;
+        // A resting page is read-only and unwritten since: adopted as it is. One the handler
+        // took meanwhile is writable again (free) and protected afresh below.
+        uint32_t resting = kResting;
+        if (e->state.compare_exchange_strong(resting, kArmed, std::memory_order_acq_rel)) {
+            adopted.push_back(page);
+            continue;
+        }
+        while (e->state.load(std::memory_order_acquire) == kCapturing) cpu_relax();
+        // Armed before the page turns read-only: a write in between is one the page held already.
         e->stray_faults.store(0, std::memory_order_relaxed);
         e->state.store(kArmed, std::memory_order_release);
+        to_protect.push_back(page);
     }
     if (!protect_runs(to_protect.data(), to_protect.size(), PROT_READ)) {
         release(to_protect);
+        for (uintptr_t page : adopted) rest(find(page), page, nullptr);
         refused_.fetch_add(1, std::memory_order_relaxed);
         return false;
     }
+    for (uintptr_t page : to_protect) watched_ever_.insert(page);
     for (uintptr_t page : pages) ++watchers_[page];
     return true;
 }
 
 void PageGuard::unwatch(std::vector<uintptr_t> pages) {
     std::sort(pages.begin(), pages.end());
+    pages.erase(std::unique(pages.begin(), pages.end()), pages.end());
     std::lock_guard lock(mutex_);
-    std::vector<uintptr_t> released;
+    std::vector<uintptr_t> hot;
     for (uintptr_t page : pages) {
         auto it = watchers_.find(page);
         if (it == watchers_.end() || --it->second > 0) continue;
         watchers_.erase(it);
-        released.push_back(page);
+        if (Entry* e = find(page)) rest(e, page, &hot);
     }
-    release(released);
+    release(hot);  // sorted: pages came sorted
+}
+
+void PageGuard::rest(Entry* e, uintptr_t page, std::vector<uintptr_t>* to_release) {
+    const uint32_t hot = e->hot.load(std::memory_order_relaxed);
+    if (to_release && hot > 0 && e->state.load(std::memory_order_acquire) == kArmed) {
+        e->hot.store(hot - 1, std::memory_order_relaxed);
+        to_release->push_back(page);
+        return;
+    }
+    uint32_t armed = kArmed;
+    if (e->state.compare_exchange_strong(armed, kResting, std::memory_order_acq_rel)) return;
+    // Written (or being written): the handler made it writable; its before-image has no reader.
+    while (e->state.load(std::memory_order_acquire) == kCapturing) cpu_relax();
+    e->state.store(kFree, std::memory_order_release);
+}
+
+void PageGuard::forget_memory(uintptr_t begin, size_t size) {
+    std::lock_guard lock(mutex_);
+    std::vector<uintptr_t> writable;
+    for (auto it = watched_ever_.lower_bound(begin);
+         it != watched_ever_.end() && *it < begin + size;) {
+        Entry* e = find(*it);
+        uint32_t resting = kResting;
+        // Claimed from the handler as it would claim it; a page it took is writable already.
+        if (e && e->state.compare_exchange_strong(resting, kCapturing, std::memory_order_acq_rel))
+            writable.push_back(*it);
+        else if (e)
+            while (e->state.load(std::memory_order_acquire) == kCapturing) cpu_relax();
+        if (e) e->hot.store(0, std::memory_order_relaxed);  // other memory may come here next
+        it = watched_ever_.erase(it);
+    }
+    protect_runs(writable.data(), writable.size(), PROT_READ | PROT_WRITE);
+    for (uintptr_t page : writable) find(page)->state.store(kFree, std::memory_order_release);
 }
 
 void PageGuard::release(const std::vector<uintptr_t>& pages) {
@@ -242,7 +294,7 @@ void PageGuard::release(const std::vector<uintptr_t>& pages) {
 bool PageGuard::probe(uintptr_t page) {
     std::lock_guard lock(mutex_);
     keep_handler_first();
-    if (watchers_.count(page)) return true;  // guarded already
+    if (watchers_.count(page) || watched_ever_.count(page)) return true;  // guarded already
     Entry* e = find_or_add(page);
     if (!e || e->state.load() != kFree) return false;
     e->uncached = true;
@@ -282,6 +334,7 @@ PageGuard::Counts PageGuard::counts() const {
     Counts c;
     c.faults = faults_.load(std::memory_order_relaxed);
     c.refused = refused_.load(std::memory_order_relaxed);
+    c.resting_faults = resting_faults_.load(std::memory_order_relaxed);
     c.protect_calls = protect_calls_.load(std::memory_order_relaxed);
     c.protected_pages = protected_pages_.load(std::memory_order_relaxed);
     c.protect_ns = protect_ns_.load(std::memory_order_relaxed);
@@ -303,6 +356,11 @@ bool PageGuard::take_fault(uintptr_t address) {
             cpu_relax();
             continue;
         }
+        if (state == kResting) {
+            if (!e->state.compare_exchange_weak(state, kCapturing, std::memory_order_acq_rel))
+                continue;
+            return take_resting_fault(e);
+        }
         if (state != kArmed) {
             if (e->page.load() == probing_page_.load()) return false;  // end_failed_probe's
             return e->stray_faults.fetch_add(1, std::memory_order_relaxed) < kMaxStrayFaults;
@@ -323,6 +381,18 @@ bool PageGuard::take_fault(uintptr_t address) {
         before_image_ns_.fetch_add(monotonic_ns() - start, std::memory_order_relaxed);
         return true;
     }
+}
+
+bool PageGuard::take_resting_fault(Entry* e) {
+    auto* page = reinterpret_cast<void*>(e->page.load());
+    if (mprotect(page, page_size_, PROT_READ | PROT_WRITE) != 0) {
+        e->state.store(kResting, std::memory_order_release);
+        return false;
+    }
+    e->hot.store(kHotUnwatches, std::memory_order_relaxed);
+    e->state.store(kFree, std::memory_order_release);
+    resting_faults_.fetch_add(1, std::memory_order_relaxed);
+    return true;
 }
 
 }  // namespace clastrace::capture

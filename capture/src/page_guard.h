@@ -6,6 +6,17 @@
 // before-image), makes it writable again and returns, so the write proceeds. Faults on pages the
 // guard does not hold go to the handler installed before it (or the default action).
 //
+// Protection outlives the watchers: a page whose last watcher goes while it was not written stays
+// read-only ("resting"), so the next submission that watches it adopts it without an mprotect,
+// and a frame loop resubmitting over the same buffers re-protects only the pages written since
+// (capture/README.md, "Host writes"). A write to a resting page faults once, and the handler
+// only makes the page writable again (nobody needs its before-image). A page written while
+// resting is "hot" for its next kHotUnwatches unwatches: made writable then, in runs of pages,
+// rather than left to fault one page at a time (a frame loop rewriting its vertices after each
+// wait would otherwise pay a fault per page per frame). Memory going away
+// (vkFreeMemory) must be forgotten first (forget_memory), or a later mapping at its addresses
+// would be taken for protected.
+//
 // The handler is async-signal-safe: it looks pages up in a fixed open-addressing table and copies
 // into fixed slots, both mapped once when the guard starts, and takes no lock. Entries are only
 // ever added (under the guard's mutex); a page keeps its entry after its watchers are gone.
@@ -16,6 +27,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <mutex>
+#include <set>
 #include <unordered_map>
 #include <vector>
 
@@ -30,14 +42,19 @@ public:
     size_t page_size() const { return page_size_; }
 
     // Adds a watcher to each page in `pages` (page-aligned, any order; a page listed twice gets
-    // two): pages that had none become read-only, their bytes now the reference. False, with
-    // nothing added, when a page was written since it was protected (its reference is gone until
-    // its watchers are), the table is full or mprotect refused. `uncached`: the memory is
-    // write-combined, so the handler copies the page with streaming loads. One call per
-    // allocation and submission: each run of consecutive pages costs one mprotect.
+    // one): pages that had none become read-only (resting ones are already), their bytes now the
+    // reference. False, with nothing added, when a page was written since it was protected (its
+    // reference is gone until its watchers are), the table is full or mprotect refused.
+    // `uncached`: the memory is write-combined, so the handler copies the page with streaming
+    // loads. Each run of consecutive pages not already read-only costs one mprotect.
     bool watch(std::vector<uintptr_t> pages, bool uncached);
-    // Drops a watcher from each page listed; a page left without one is writable again.
+    // Drops a watcher from each page listed (once per page, as watch() added it). A page left
+    // without one rests read-only if it was not written (no mprotect), is plain writable memory
+    // again if it was (its fault made it writable), and is made writable if it is hot.
     void unwatch(std::vector<uintptr_t> pages);
+    // The memory [begin, begin + size) is going away (unmapped, freed): its resting pages become
+    // writable and the guard forgets them. Its pages must have no watchers left.
+    void forget_memory(uintptr_t begin, size_t size);
 
     // Whether pages of this mapping can be guarded: protects `page`, writes it (an atomic add of
     // 0, which keeps a concurrent write of the host's) and checks the write went through once the
@@ -50,8 +67,9 @@ public:
     const uint8_t* before_image(uintptr_t page) const;
 
     struct Counts {
-        uint64_t faults = 0;   // pages written while protected
-        uint64_t refused = 0;  // watch() calls mprotect refused
+        uint64_t faults = 0;          // pages written while protected
+        uint64_t resting_faults = 0;  // pages written while resting (after their watchers went)
+        uint64_t refused = 0;         // watch() calls mprotect refused
         // What the guard's mprotect calls cost (CLASTRACE_STATS): those that made pages read-only
         // (each one interrupts every CPU running another thread of the process, to drop its TLB
         // entries) and those that made them writable again; the handler's before-image copies.
@@ -73,11 +91,14 @@ public:
     void end_failed_probe(uintptr_t address);
 
 private:
-    enum State : uint32_t { kFree, kArmed, kCapturing, kWritten };
+    // kFree: writable, unwatched; kArmed: read-only, watched; kCapturing: the handler copies it;
+    // kWritten: watched, written (writable, before-image kept); kResting: read-only, unwatched.
+    enum State : uint32_t { kFree, kArmed, kCapturing, kWritten, kResting };
     struct Entry {
         std::atomic<uintptr_t> page{0};  // 0: empty
         std::atomic<uint32_t> state{kFree};
         std::atomic<uint32_t> stray_faults{0};
+        std::atomic<uint32_t> hot{0};  // unwatches left that make it writable rather than rest
         bool uncached = false;
     };
     PageGuard(size_t page_size, Entry* table, uint8_t* slots);
@@ -89,11 +110,16 @@ private:
     bool protect_runs(const uintptr_t* pages, size_t count, int protection);
     // Makes `pages` (sorted) writable and unprotected (mutex_ held).
     void release(const std::vector<uintptr_t>& pages);
+    // `page` lost its last watcher: resting if unwritten and not hot, free if written (mutex_
+    // held). A hot unwritten page goes to `to_release` instead, for release().
+    void rest(Entry* e, uintptr_t page, std::vector<uintptr_t>* to_release);
+    // The handler's part for a resting page: writable again, forgotten.
+    bool take_resting_fault(Entry* e);
 
     const size_t page_size_;
     Entry* const table_;
     uint8_t* const slots_;
-    std::atomic<uint64_t> faults_{0}, refused_{0};
+    std::atomic<uint64_t> faults_{0}, refused_{0}, resting_faults_{0};
     std::atomic<uint64_t> protect_calls_{0}, protected_pages_{0}, protect_ns_{0},
         protect_cpu_ns_{0};
     std::atomic<uint64_t> unprotect_calls_{0}, unprotected_pages_{0}, unprotect_ns_{0},
@@ -104,7 +130,8 @@ private:
     sigjmp_buf probe_return_;
     std::mutex mutex_;                                  // watch/unwatch; the handler takes none
     std::unordered_map<uintptr_t, uint32_t> watchers_;  // page -> watchers
-    size_t used_ = 0;                                   // table entries taken
+    std::set<uintptr_t> watched_ever_;  // pages watched since their memory was last forgotten
+    size_t used_ = 0;                   // table entries taken
 };
 
 }  // namespace clastrace::capture

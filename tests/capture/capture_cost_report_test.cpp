@@ -193,9 +193,9 @@ TEST_F(CaptureCostReport, HostWriteWatchPhasesAddUpToTheWatchLine) {
     ASSERT_TRUE(mprotect_line);
     EXPECT_GT(protect_calls, 0u);
     EXPECT_GE(protected_pages, protect_calls);
-    // Every page made read-only (the probes' too) is writable again by the end: the idle waits
-    // unwatch them all.
-    EXPECT_EQ(unprotected_pages, protected_pages);
+    // Pages unwritten when their watchers go stay read-only (page_guard.h): only the probes' and
+    // freed memory's pages are made writable by mprotect.
+    EXPECT_LE(unprotected_pages, protected_pages);
     EXPECT_GE(unprotect_calls, 1u);
 }
 

@@ -31,7 +31,12 @@ protected:
         memory = static_cast<uint8_t*>(m);
         std::memset(memory, 7, 4 * page);
     }
-    void TearDown() override { munmap(memory, 4 * page); }
+    // Pages left read-only past their watchers are forgotten before the memory goes, as
+    // vkFreeMemory does: a later mapping at these addresses is not taken for protected.
+    void TearDown() override {
+        guard->forget_memory(at(0), 4 * page);
+        munmap(memory, 4 * page);
+    }
     uintptr_t at(size_t i) const { return reinterpret_cast<uintptr_t>(memory + i * page); }
     // Pages first .. first + count - 1, as the guard takes them.
     std::vector<uintptr_t> pages(size_t first, size_t count = 1) const {
@@ -60,9 +65,59 @@ TEST_F(PageGuardTest, AWriteLandsAndThePageKeepsItsBeforeImage) {
     EXPECT_EQ(guard->counts().faults, faults + 1);
     guard->unwatch(pages(1, 2));
     EXPECT_EQ(guard->before_image(at(1)), nullptr);
-    memory[2 * page] = 1;  // unwatched: writable, nothing kept
+    memory[2 * page] = 1;  // unwatched (resting): the write goes through, nothing kept
+    EXPECT_EQ(memory[2 * page], 1);
     EXPECT_EQ(guard->before_image(at(2)), nullptr);
     EXPECT_EQ(guard->counts().faults, faults + 1);
+}
+
+// An unwritten page keeps its protection past its last watcher: the next watch adopts it without
+// an mprotect, a write after the unwatch costs one fault and no before-image, and only that page
+// is protected again by the next watch.
+TEST_F(PageGuardTest, AnUnwrittenPageStaysReadOnlyForTheNextWatch) {
+    ASSERT_TRUE(guard->watch(pages(0, 3), false));
+    memory[0] = 1;  // page 0 written while watched
+    guard->unwatch(pages(0, 3));
+    const PageGuard::Counts rested = guard->counts();
+    ASSERT_TRUE(guard->watch(pages(1, 2), false));  // pages 1 and 2 rested read-only
+    EXPECT_EQ(guard->counts().protect_calls, rested.protect_calls);
+    memory[page] = 2;  // still protected: the watch sees it
+    ASSERT_NE(guard->before_image(at(1)), nullptr);
+    EXPECT_EQ(guard->before_image(at(1))[0], 7);
+    EXPECT_EQ(guard->counts().faults, rested.faults + 1);
+    guard->unwatch(pages(1, 2));
+    memory[2 * page] = 3;  // resting: one fault, not a watched write
+    EXPECT_EQ(memory[2 * page], 3);
+    EXPECT_EQ(guard->counts().resting_faults, rested.resting_faults + 1);
+    EXPECT_EQ(guard->counts().faults, rested.faults + 1);
+    EXPECT_EQ(guard->before_image(at(2)), nullptr);
+    const PageGuard::Counts again = guard->counts();
+    ASSERT_TRUE(guard->watch(pages(0, 3), false));  // pages 0..2 written since: protected anew
+    EXPECT_EQ(guard->counts().protected_pages, again.protected_pages + 3);
+    memory[2 * page + 1] = 4;
+    ASSERT_NE(guard->before_image(at(2)), nullptr);
+    EXPECT_EQ(guard->before_image(at(2))[0], 3);
+    guard->unwatch(pages(0, 3));
+}
+
+// Memory going away: its resting pages become writable without a fault, and the next watch of
+// those addresses protects them again.
+TEST_F(PageGuardTest, ForgottenMemoryIsWritableAndProtectedAfresh) {
+    ASSERT_TRUE(guard->watch(pages(0, 4), false));
+    guard->unwatch(pages(0, 4));
+    const PageGuard::Counts rested = guard->counts();
+    guard->forget_memory(at(1), 2 * page);  // pages 1 and 2
+    memory[page] = 5;
+    memory[2 * page] = 5;
+    EXPECT_EQ(guard->counts().resting_faults, rested.resting_faults);
+    EXPECT_EQ(guard->counts().unprotected_pages, rested.unprotected_pages + 2);
+    memory[3 * page] = 6;  // not forgotten: still resting
+    EXPECT_EQ(guard->counts().resting_faults, rested.resting_faults + 1);
+    ASSERT_TRUE(guard->watch(pages(1, 1), false));
+    EXPECT_EQ(guard->counts().protected_pages, rested.protected_pages + 1);
+    memory[page] = 8;
+    EXPECT_NE(guard->before_image(at(1)), nullptr);
+    guard->unwatch(pages(1, 1));
 }
 
 TEST_F(PageGuardTest, AnotherThreadsWriteIsSeenToo) {

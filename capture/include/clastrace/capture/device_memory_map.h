@@ -6,6 +6,7 @@
 #include <vulkan/vulkan_core.h>
 
 #include <cstdint>
+#include <atomic>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -108,6 +109,10 @@ public:
     std::vector<std::pair<VkDeviceAddress, VkDeviceAddress>> address_ranges_in(
         uint64_t memory) const;
 
+    // Counts the changes that can move what resolve() answers (memory, buffers, binds,
+    // addresses): equal counts, equal answers. The host-write watch reuses resolved walks by it.
+    uint64_t changes() const { return changes_.load(std::memory_order_acquire); }
+
 private:
     // [offset, offset + size) of `b` in its memory (mutex_ held): a plain buffer's bound
     // memory, or for a sparse buffer the one memory its binds put the whole range in,
@@ -125,6 +130,8 @@ private:
     // Sparse buffer -> its bound parts, keyed by the offset in the buffer where each begins.
     std::unordered_map<uint64_t, std::map<VkDeviceSize, SparsePage>> sparse_pages_;
     mutable std::mutex mutex_;
+    std::atomic<uint64_t> changes_{0};
+    void changed() { changes_.fetch_add(1, std::memory_order_acq_rel); }
     std::unordered_map<uint64_t, TrackedMemory> memories_;
     std::unordered_map<uint64_t, TrackedBuffer> buffers_;
     std::multimap<VkDeviceAddress, uint64_t> buffers_by_address_;
