@@ -21,8 +21,19 @@ void RecentContents::keep(uint64_t hash, const uint8_t* data, size_t size) {
         order_.splice(order_.begin(), order_, it->second);
         return;
     }
-    order_.emplace_front(hash, std::make_shared<const std::vector<uint8_t>>(data, data + size));
-    by_hash_[hash] = order_.begin();
+    keep(hash, std::make_shared<const std::vector<uint8_t>>(data, data + size));
+}
+
+void RecentContents::keep(uint64_t hash, Bytes bytes) {
+    if (!bytes || bytes->size() > max_bytes_ / 4) return;
+    auto [it, fresh] = by_hash_.try_emplace(hash);
+    if (!fresh) {
+        order_.splice(order_.begin(), order_, it->second);
+        return;
+    }
+    const size_t size = bytes->size();
+    order_.emplace_front(hash, std::move(bytes));
+    it->second = order_.begin();
     bytes_ += size;
     while (bytes_ > max_bytes_ && !order_.empty()) {
         bytes_ -= order_.back().second->size();

@@ -49,6 +49,8 @@ public:
     using Bytes = std::shared_ptr<const std::vector<uint8_t>>;
     explicit RecentContents(uint64_t max_bytes) : max_bytes_(max_bytes) {}
     void keep(uint64_t hash, const uint8_t* data, size_t size);
+    // The same, with the bytes copied already (the record stage's thread made them).
+    void keep(uint64_t hash, Bytes bytes);
     Bytes find(uint64_t hash);  // null when not kept
 
 private:

@@ -37,33 +37,6 @@ bool builds_bottom_level(const fbs::CmdBuildClusterAccelerationStructureIndirect
                VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
 }
 
-// Copies of records, laid one after the other in blocks shared by the copies in them: one
-// allocation per block instead of one per record on the replay thread (session 13); a block goes
-// when the last copy in it does.
-class RecordBlocks {
-public:
-    using Block = std::shared_ptr<uint8_t[]>;
-    // A copy of `size` bytes at a 16-byte aligned place (FlatBuffers align up to 8), in *block.
-    const uint8_t* copy(const uint8_t* bytes, size_t size, Block* block) {
-        const size_t room = (size + 15) & ~size_t(15);
-        if (!block_ || used_ + room > capacity_) {
-            capacity_ = std::max(kBlockBytes, room);
-            block_ = Block(new uint8_t[capacity_]);
-            used_ = 0;
-        }
-        uint8_t* at = block_.get() + used_;
-        used_ += room;
-        std::memcpy(at, bytes, size);
-        *block = block_;
-        return at;
-    }
-
-private:
-    static constexpr size_t kBlockBytes = 256u << 10;
-    Block block_;
-    size_t capacity_ = 0, used_ = 0;
-};
-
 // A CLASTRACE_REPLAY_* switch: true for "1", false for "0", none when unset or anything else.
 std::optional<bool> environment_switch(const char* variable) {
     const char* value = std::getenv(variable);
@@ -254,38 +227,34 @@ void Replay::replay_record(const traces::RecordView& view, ReplayProgress& progr
 
 // Records are read into a queue of their own copies (at most kRecordsAhead records and
 // kBytesAhead bytes, and no further while the window of runs is full); each cluster build read
-// starts ahead, and the front record is replayed as always.
+// starts ahead, and the front record is replayed as always. The stage (replayer_record_stage.h)
+// reads and copies them on a thread of its own.
 void Replay::replay_records_ahead(ReplayProgress& progress) {
     constexpr size_t kRecordsAhead = 4096;
     constexpr uint64_t kBytesAhead = 16ull << 20;
-    struct Ahead {
-        RecordBlocks::Block block;  // holds the copy `view` points into
-        traces::RecordView view;
-    };
-    RecordBlocks blocks;
-    std::deque<Ahead> ahead;
+    std::deque<StagedRecord> ahead;
     uint64_t ahead_bytes = 0, read = stream_index_;
     bool more = true;
+    RecordStage stage(reader_, reader_mutex_, kRecentContentsBytes / 4);
     for (;;) {
         while (more && (ahead.empty() || (ahead.size() < kRecordsAhead &&
                                           ahead_bytes < kBytesAhead && !ahead_runs_->full()))) {
-            traces::RecordView view;
-            if (!reader_.next(&view)) {
+            StagedRecord& a = ahead.emplace_back();
+            if (!stage.next(&a)) {
+                ahead.pop_back();
                 more = false;
                 break;
             }
-            Ahead& a = ahead.emplace_back();
-            a.view = view;
-            a.view.bytes = blocks.copy(view.bytes, view.size, &a.block);
-            a.view.record = flatbuffers::GetRoot<fbs::Record>(a.view.bytes);
-            ahead_bytes += view.size;
-            start_ahead(a.view, read++);
+            ahead_bytes += a.view.size;
+            for (auto& [hash, bytes] : a.resolved) resolved_contents_.keep(hash, std::move(bytes));
+            a.resolved.clear();
+            start_ahead(a, read++);
         }
         if (ahead.empty()) {
             pending_runs_.clear();  // their views pointed into `ahead`
             return;
         }
-        const Ahead front = std::move(ahead.front());
+        const StagedRecord front = std::move(ahead.front());
         ahead.pop_front();
         ahead_bytes -= front.view.size;
         replay_record(front.view, progress);
@@ -294,12 +263,25 @@ void Replay::replay_records_ahead(ReplayProgress& progress) {
     }
 }
 
-void Replay::start_ahead(const traces::RecordView& view, uint64_t stream_index) {
-    if (const std::optional<traces::ContentsRecord> c = traces::contents_record(*view.record)) {
-        if (c->data()) recent_contents_.keep(c->hash, c->data(), c->size());
+void Replay::start_ahead(StagedRecord& staged, uint64_t stream_index) {
+    if (staged.is_contents) {
+        if (staged.contents)
+            recent_contents_.keep(staged.contents_hash, std::move(staged.contents));
         return;
     }
-    start_cluster_run(view, stream_index, true);
+    start_cluster_run(staged.view, stream_index, true);
+}
+
+// With runs ahead, the record stage asked the reader already (its answer does not depend on
+// when it is asked: the bytes it returns hash to the key); otherwise the reader answers, one
+// caller at a time while the stage reads records on its own thread.
+bool Replay::contents(uint64_t hash, std::vector<uint8_t>* bytes) {
+    if (RecentContents::Bytes kept = resolved_contents_.find(hash)) {
+        bytes->assign(kept->begin(), kept->end());
+        return true;
+    }
+    std::lock_guard lock(reader_mutex_);
+    return !reader_.read_contents(hash, bytes);
 }
 
 // Read ahead, a build may name buffers whose records are not replayed yet: then it waits in

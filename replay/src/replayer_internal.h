@@ -11,6 +11,7 @@
 #include "cluster_command.h"
 #include "khr_command.h"
 #include "nv_command.h"
+#include "replayer_record_stage.h"
 #include "replay_memory.h"
 #include "structure_reachability.h"
 #include "sync_consumers.h"
@@ -28,6 +29,7 @@
 #include <cstdint>
 #include <deque>
 #include <map>
+#include <mutex>
 #include <optional>
 #include <span>
 #include <string>
@@ -93,7 +95,7 @@ private:
     // With 2 or more threads: reads records ahead of the one being replayed and starts their
     // cluster builds early (cluster_speculation.h, docs/replay.md "Threads").
     void replay_records_ahead(ReplayProgress& progress);
-    void start_ahead(const traces::RecordView& view, uint64_t stream_index);
+    void start_ahead(StagedRecord& staged, uint64_t stream_index);
     // Read ahead (`read_ahead`) or at its own record. A build read ahead whose buffers are not
     // placed yet, or read while such a build waits, waits in pending_runs_.
     void start_cluster_run(const traces::RecordView& view, uint64_t stream_index, bool read_ahead);
@@ -241,6 +243,8 @@ private:
     }
 
     TraceReader& reader_;
+    // Held by each call into the reader while the record stage reads it on its own thread.
+    std::mutex reader_mutex_;
     ReplayOptions options_;
     ReplayReport report_;
     engine::EngineProperties properties_ = engine::EngineProperties::nvidia_default();
@@ -295,6 +299,12 @@ private:
     static constexpr uint64_t kRecentContentsBytes = 4ull << 20;
     std::optional<RunAheadWindow> ahead_runs_;
     RecentContents recent_contents_{kRecentContentsBytes};
+    // The reader's answers for the snapshots of the records read ahead, which the record stage
+    // asked for (replayer_record_stage.h): contents() takes them instead of asking again. They
+    // are kept from a record's reading to its command's turn (up to 4096 records later), longer
+    // than a run's snapshots are.
+    static constexpr uint64_t kResolvedContentsBytes = 16ull << 20;
+    RecentContents resolved_contents_{kResolvedContentsBytes};
     const std::vector<uint8_t>* command_bytes_ = nullptr;
     uint64_t stream_index_ = 0;
     // Builds read ahead before the buffers they name were placed (a trace's first frames are

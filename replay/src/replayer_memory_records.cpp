@@ -43,10 +43,6 @@ void Replay::memory_freed(std::optional<AddressRange> range) {
     if (options_.check_hazards) sync_.memory_freed(*range);
 }
 
-bool Replay::contents(uint64_t hash, std::vector<uint8_t>* bytes) {
-    return !reader_.read_contents(hash, bytes);
-}
-
 void Replay::lay_in_snapshots(const traces::SnapshotVector* snapshots,
                               const ReplayLocation& where) {
     if (!snapshots) return;

@@ -11,11 +11,13 @@
 #include "cluster_speculation.h"
 #include "random_stream.h"
 #include "replay_bench_trace.h"
+#include "replayer_record_stage.h"
 #include "rt_frame_bench_trace.h"
 #include "sync_model_feed.h"
 
 #include <clastrace/replay/replay_observer.h>
 #include <clastrace/replay/replayer.h>
+#include <clastrace/traces/records.h>
 #include <clastrace/traces/trace_reader.h>
 
 #include <gtest/gtest.h>
@@ -25,6 +27,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <mutex>
 #include <random>
 #include <string>
 #include <thread>
@@ -99,6 +102,53 @@ TEST(ReplayThreads, ClusterFramesOfTheReplayBenchReportTheSame) {
     bench::write_bench_trace(path, shape);
     expect_same_report(path, true);
     expect_same_report(path, false);
+    std::remove(path.c_str());
+}
+
+// The record stage (replayer_record_stage.h) hands out the records a reader of its own hands
+// out, in order and byte for byte, with a contents record's bytes and, for the snapshots a record
+// names, the bytes read_contents answers, even while the test asks its reader between records as
+// the replay thread does.
+TEST(ReplayThreads, TheRecordStageHandsOutTheReadersRecordsAndAnswers) {
+    const std::string path = temp_path("stage_frames.clt");
+    bench::BenchTraceShape shape;
+    shape.target_ops = 4000;
+    bench::write_bench_trace(path, shape);
+    traces::TraceError error;
+    auto staged_reader = traces::TraceReader::open(path, &error);
+    auto reference = traces::TraceReader::open(path, &error);
+    ASSERT_TRUE(staged_reader && reference) << error.message;
+    std::mutex reader_mutex;
+    replay::detail::RecordStage stage(*staged_reader, reader_mutex, 1u << 20);
+    uint64_t records = 0, resolved = 0, contents = 0;
+    replay::detail::StagedRecord r;
+    traces::RecordView view;
+    std::vector<uint8_t> bytes;
+    while (stage.next(&r)) {
+        ASSERT_TRUE(reference->next(&view)) << "record " << records;
+        ASSERT_EQ(r.view.size, view.size) << "record " << records;
+        ASSERT_EQ(std::vector<uint8_t>(r.view.bytes, r.view.bytes + r.view.size),
+                  std::vector<uint8_t>(view.bytes, view.bytes + view.size));
+        if (const auto c = traces::contents_record(*view.record); c && c->data()) {
+            ASSERT_TRUE(r.is_contents && r.contents);
+            EXPECT_EQ(*r.contents, std::vector<uint8_t>(c->data(), c->data() + c->size()));
+            ++contents;
+        }
+        {
+            std::lock_guard lock(reader_mutex);  // the replay thread's calls meanwhile
+            for (const auto& [hash, kept] : r.resolved) {
+                ASSERT_FALSE(staged_reader->read_contents(hash, &bytes));
+                EXPECT_EQ(*kept, bytes);
+                ASSERT_FALSE(reference->read_contents(hash, &bytes));
+                EXPECT_EQ(*kept, bytes);
+                ++resolved;
+            }
+        }
+        ++records;
+    }
+    EXPECT_FALSE(reference->next(&view));
+    EXPECT_GT(contents, 0u);
+    EXPECT_GT(resolved, records / 4);
     std::remove(path.c_str());
 }
 
