@@ -207,6 +207,18 @@ TraceError TraceReader::Impl::resolve_contents(uint64_t hash, std::vector<uint8_
     return {};
 }
 
+TraceError TraceReader::Impl::read_contents_view(uint64_t hash, std::span<const uint8_t>* out) {
+    *out = {};
+    viewed = known_real_bytes(hash);
+    if (!viewed) {
+        if (TraceError e = resolve_contents(hash, &view_scratch, true)) return e;
+        viewed = known_real_bytes(hash);  // kept there unless too big for them
+    }
+    *out = viewed ? std::span<const uint8_t>(viewed->data.get(), viewed->size)
+                  : std::span<const uint8_t>(view_scratch);
+    return {};
+}
+
 TraceError TraceReader::Impl::resolve_uncached(uint64_t hash, std::vector<uint8_t>* out,
                                                bool may_evict_raw) {
     std::vector<uint64_t> chain;  // deltas from `hash` back, the last one's base held whole

@@ -419,6 +419,12 @@ struct TraceReader::Impl {
         return resolve_contents(hash, out, true);
     }
 
+    // The bytes of the last read_contents_view: a cache's (shared, so eviction leaves them be),
+    // or, for contents too big for the caches, view_scratch.
+    SharedBytes viewed;
+    std::vector<uint8_t> view_scratch;
+    TraceError read_contents_view(uint64_t hash, std::span<const uint8_t>* out);
+
     // File header, trace header and (if intact) trailer + index. Fatal problems only
     // for what makes the file unreadable; the rest is damage.
     TraceError open();

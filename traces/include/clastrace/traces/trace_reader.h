@@ -17,6 +17,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <memory>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -134,6 +135,9 @@ public:
     // come back as their real bytes: the chain of bases is resolved (a base must precede its
     // delta), and each result is checked against its key. next() hands deltas out decoded.
     TraceError read_contents(uint64_t hash, std::vector<uint8_t>* out);
+    // read_contents without the copy: *out views the real bytes, which the reader holds until
+    // the next read_contents_view (replay lays a content in at every snapshot naming it).
+    TraceError read_contents_view(uint64_t hash, std::span<const uint8_t>* out);
 
     // Every problem found so far, in the order found (at most 1000 kept; see damage_count()).
     const std::vector<TraceError>& damage() const;
