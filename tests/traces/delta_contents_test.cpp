@@ -10,6 +10,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -112,7 +113,8 @@ TEST(DeltaContents, ReadContentsResolvesChainsOutOfOrder) {
 }
 
 // Contents read back once stay with the reader (up to its read-back budget): reading every
-// snapshot again after the scan passed their chunks decompresses nothing more, with the same bytes.
+// snapshot again after the scan passed their chunks decompresses nothing more, with the same bytes,
+// copied (read_contents) or viewed (read_contents_view).
 TEST(DeltaContents, ContentsReadAgainAreNotDecompressedAgain) {
     const std::string path = temp_path("delta_read_again.clt");
     const DeltaTrace written = write_delta_trace(path, {}, 60);
@@ -128,6 +130,9 @@ TEST(DeltaContents, ContentsReadAgainAreNotDecompressedAgain) {
         for (uint64_t key : written.snapshot_keys) {
             ASSERT_FALSE(reader->read_contents(key, &got));
             EXPECT_EQ(got, written.bytes_by_key.at(key));
+            std::span<const uint8_t> view;
+            ASSERT_FALSE(reader->read_contents_view(key, &view));
+            EXPECT_TRUE(std::ranges::equal(view, written.bytes_by_key.at(key)));
         }
         if (reading == 0) decompressed_after_first = reader->stats().raw_bytes_decompressed;
     }

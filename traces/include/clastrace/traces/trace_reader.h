@@ -5,7 +5,8 @@
 // by what the file's size makes plausible), about 64 bytes per distinct content, and the
 // real bytes of recent contents kept as bases of delta contents (64 MiB at most for the
 // caller's thread and 64 MiB for the read-ahead task, which decodes the deltas of the chunk it
-// reads ahead; the two share the bytes they both keep); all the bytes it decompresses are
+// reads ahead; the two share the bytes they both keep), the real bytes read_contents handed
+// out (16 MiB, so a content read again costs a lookup); all the bytes it decompresses are
 // bounded by a budget relative to the file's size. Every record is checked by the FlatBuffers
 // verifier before it is handed out. Damage does not stop reading: it is listed in damage() and
 // the reader continues with the next intact chunk.
