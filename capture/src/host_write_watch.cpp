@@ -170,6 +170,7 @@ bool differs_from_submitted(const PageGuard& guard, const HostWriteWatch::Range&
 void HostWriteWatch::guard_or_hash(HostViewResolver& resolver, std::vector<Range*> ranges,
                                    const TrackedMemory& memory, Submission& s, WatchLaps& laps) {
     PageGuard* guard = layer_config().host_write_guard ? PageGuard::instance() : nullptr;
+    if (guard) guard->set_resting(layer_config().guard_rest);
     std::vector<uintptr_t> pages;
     std::vector<Range*> guardable;
     if (guard)

@@ -148,6 +148,7 @@ void read_capture_settings(SettingReader& r, LayerConfig& config) {
     r.read_switch("CLASTRACE_PRE_RANGE_STATE", &config.pre_range_state);
     r.read_switch("CLASTRACE_FORCE_STAGING", &config.force_staging);
     r.read_switch("CLASTRACE_TIMESTAMPS", &config.timestamps);
+    r.read_switch("CLASTRACE_GUARD_REST", &config.guard_rest);
     if (auto v = r.value("CLASTRACE_DEVICE_ADDRESS_WRITES")) {
         if (*v == "cheap" || *v == "off" || *v == "exact") {
             config.mark_device_address_writers = *v != "off";

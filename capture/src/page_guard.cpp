@@ -248,8 +248,9 @@ void PageGuard::unwatch(std::vector<uintptr_t> pages) {
 
 void PageGuard::rest(Entry* e, uintptr_t page, std::vector<uintptr_t>* to_release) {
     const uint32_t hot = e->hot.load(std::memory_order_relaxed);
-    if (to_release && hot > 0 && e->state.load(std::memory_order_acquire) == kArmed) {
-        e->hot.store(hot - 1, std::memory_order_relaxed);
+    const bool rests = resting_.load(std::memory_order_relaxed);
+    if (to_release && (hot > 0 || !rests) && e->state.load(std::memory_order_acquire) == kArmed) {
+        if (hot > 0) e->hot.store(hot - 1, std::memory_order_relaxed);
         to_release->push_back(page);
         return;
     }

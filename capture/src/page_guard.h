@@ -55,6 +55,9 @@ public:
     // The memory [begin, begin + size) is going away (unmapped, freed): its resting pages become
     // writable and the guard forgets them. Its pages must have no watchers left.
     void forget_memory(uintptr_t begin, size_t size);
+    // False: a page losing its last watcher is made writable at once, written or not (no page
+    // rests read-only between submissions; LayerConfig::guard_rest).
+    void set_resting(bool on) { resting_.store(on, std::memory_order_relaxed); }
 
     // Whether pages of this mapping can be guarded: protects `page`, writes it (an atomic add of
     // 0, which keeps a concurrent write of the host's) and checks the write went through once the
@@ -120,6 +123,7 @@ private:
     Entry* const table_;
     uint8_t* const slots_;
     std::atomic<uint64_t> faults_{0}, refused_{0}, resting_faults_{0};
+    std::atomic<bool> resting_{true};
     std::atomic<uint64_t> protect_calls_{0}, protected_pages_{0}, protect_ns_{0},
         protect_cpu_ns_{0};
     std::atomic<uint64_t> unprotect_calls_{0}, unprotected_pages_{0}, unprotect_ns_{0},

@@ -354,16 +354,21 @@ void ReplayMemory::mark_driver_bvh(AddressRange range) {
 }
 
 ReplayMemory::KeptDriverBvh ReplayMemory::keep_driver_bvh(uint64_t address,
-                                                          std::span<uint8_t> bytes) const {
-    KeptDriverBvh kept;
-    const uint64_t end = address + bytes.size();
+                                                          std::span<const uint8_t> captured,
+                                                          std::vector<uint8_t>* edited) const {
+    KeptDriverBvh kept{captured, {}, 0};
+    const uint64_t end = address + captured.size();
     auto it = driver_bvh_.upper_bound(address);
     if (it != driver_bvh_.begin()) --it;
     std::vector<uint8_t> current;
     for (; it != driver_bvh_.end() && it->first < end; ++it) {
         const uint64_t b = std::max(it->first, address), e = std::min(it->second, end);
         if (b >= e || !read(b, e - b, &current)) continue;
-        std::memcpy(bytes.data() + (b - address), current.data(), e - b);
+        if (kept.ranges.empty()) {  // the first mark met: the captured bytes are copied
+            edited->assign(captured.begin(), captured.end());
+            kept.to_lay_in = *edited;
+        }
+        std::memcpy(edited->data() + (b - address), current.data(), e - b);
         kept.ranges.push_back({it->first, it->second});
         kept.bytes += e - b;
     }

@@ -87,14 +87,17 @@ public:
     // the capture's memory there holds the driver's BVH, replay's holds the engine's object.
     // Plain writes (write(), fill(), a destroyed buffer) end the mark.
     void mark_driver_bvh(AddressRange range);
-    // Puts the image's bytes into `bytes` (captured at `address`) wherever a driver BVH is
-    // marked, so laying them in keeps the engine's bytes. The marked ranges met (whole) and the
-    // bytes kept.
+    // The bytes to lay in for `captured` (at `address`): the image's own wherever a driver BVH
+    // is marked, so laying them in keeps the engine's bytes. Those are a copy in *edited, made
+    // only when a mark is met; else `captured` itself. With the marked ranges met (whole) and
+    // the bytes kept.
     struct KeptDriverBvh {
+        std::span<const uint8_t> to_lay_in;
         std::vector<AddressRange> ranges;
         uint64_t bytes = 0;
     };
-    KeptDriverBvh keep_driver_bvh(uint64_t address, std::span<uint8_t> bytes) const;
+    KeptDriverBvh keep_driver_bvh(uint64_t address, std::span<const uint8_t> captured,
+                                  std::vector<uint8_t>* edited) const;
     // An explicit-destination cluster BLAS: the bytes its build may have written (its
     // dstSizesArray room), which a driver's rays through it may read. Plain writes end the mark.
     void mark_cluster_blas_span(AddressRange range);

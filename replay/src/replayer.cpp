@@ -236,6 +236,11 @@ void Replay::replay_records_ahead(ReplayProgress& progress) {
     uint64_t ahead_bytes = 0, read = stream_index_;
     bool more = true;
     RecordStage stage(reader_, reader_mutex_, kRecentContentsBytes / 4);
+    record_stage_reading_ = true;
+    struct StageEnds {
+        bool& reading;
+        ~StageEnds() { reading = false; }
+    } stage_ends{record_stage_reading_};
     for (;;) {
         while (more && (ahead.empty() || (ahead.size() < kRecordsAhead &&
                                           ahead_bytes < kBytesAhead && !ahead_runs_->full()))) {
@@ -282,6 +287,20 @@ bool Replay::contents(uint64_t hash, std::vector<uint8_t>* bytes) {
     }
     std::lock_guard lock(reader_mutex_);
     return !reader_.read_contents(hash, bytes);
+}
+
+// The reader's view is valid until its next call, which the record stage may make at any time
+// from its own thread: beside a stage the bytes are copied under the reader's lock.
+bool Replay::contents_view(uint64_t hash, std::span<const uint8_t>* bytes, HeldContents* held) {
+    if ((held->kept = resolved_contents_.find(hash))) {
+        *bytes = *held->kept;
+        return true;
+    }
+    if (!record_stage_reading_) return !reader_.read_contents_view(hash, bytes);
+    std::lock_guard lock(reader_mutex_);
+    if (reader_.read_contents(hash, &held->copy)) return false;
+    *bytes = held->copy;
+    return true;
 }
 
 // Read ahead, a build may name buffers whose records are not replayed yet: then it waits in

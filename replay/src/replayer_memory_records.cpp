@@ -46,14 +46,20 @@ void Replay::memory_freed(std::optional<AddressRange> range) {
 void Replay::lay_in_snapshots(const traces::SnapshotVector* snapshots,
                               const ReplayLocation& where) {
     if (!snapshots) return;
-    std::vector<uint8_t> bytes;
+    std::vector<uint8_t> edited;
+    HeldContents held_contents;
     for (const fbs::MemorySnapshot* s : *snapshots) {
         std::optional<uint64_t> address =
             memory_.snapshot_address(s->buffer(), s->offset(), s->address());
         const uint64_t refused = memory_.writes_over_budget();
-        const bool held = address && contents(s->hash(), &bytes);
-        if (held)
-            report_.counts.driver_bvh_bytes_kept += memory_.keep_driver_bvh(*address, bytes).bytes;
+        std::span<const uint8_t> bytes;
+        const bool held = address && contents_view(s->hash(), &bytes, &held_contents);
+        if (held) {
+            const ReplayMemory::KeptDriverBvh kept =
+                memory_.keep_driver_bvh(*address, bytes, &edited);
+            report_.counts.driver_bvh_bytes_kept += kept.bytes;
+            bytes = kept.to_lay_in;
+        }
         if (!held || !memory_.lay_in(*address, bytes)) {
             ++report_.counts.snapshots_outside_memory;
             if (memory_.writes_over_budget() != refused)
@@ -79,17 +85,21 @@ void Replay::host_observation(const fbs::MemoryObservation& observation) {
     // the image holds them already; the whole range is the host's write (capture/README.md).
     constexpr uint32_t kReadByCommand = 4;
     const bool read_by_command = observation.reason() == kReadByCommand;
-    std::vector<uint8_t> bytes, before;
+    std::vector<uint8_t> edited, before;
+    HeldContents held_contents;
     for (const fbs::MemorySnapshot* s : *observation.snapshots()) {
         std::optional<uint64_t> address =
             memory_.snapshot_address(s->buffer(), s->offset(), s->address());
-        if (!address || !contents(s->hash(), &bytes)) {
+        std::span<const uint8_t> captured;
+        if (!address || !contents_view(s->hash(), &captured, &held_contents)) {
             ++report_.counts.snapshots_outside_memory;
             continue;
         }
         // The capture saw the driver's BVH of a traceable cluster BLAS change: not the host's
         // write, and replay keeps the engine's object there.
-        const ReplayMemory::KeptDriverBvh kept = memory_.keep_driver_bvh(*address, bytes);
+        const ReplayMemory::KeptDriverBvh kept =
+            memory_.keep_driver_bvh(*address, captured, &edited);
+        const std::span<const uint8_t> bytes = kept.to_lay_in;
         report_.counts.driver_bvh_bytes_kept += kept.bytes;
         // A capture may observe mapped memory the host did not touch: only bytes that
         // changed count as a host write (unchanged ones would be false WAR/WAW hazards).

@@ -100,6 +100,25 @@ TEST_F(PageGuardTest, AnUnwrittenPageStaysReadOnlyForTheNextWatch) {
     guard->unwatch(pages(0, 3));
 }
 
+// With resting off (CLASTRACE_GUARD_REST=0) no page stays read-only past its last watcher: a
+// system call may write the page after the wait (read(2) into it would fail with EFAULT on a
+// read-only page), and the next watch protects it again.
+TEST_F(PageGuardTest, WithRestingOffAnUnwatchedPageIsWritableAtOnce) {
+    guard->set_resting(false);
+    ASSERT_TRUE(guard->watch(pages(1, 2), false));
+    const PageGuard::Counts watched = guard->counts();
+    guard->unwatch(pages(1, 2));
+    EXPECT_EQ(guard->counts().unprotected_pages, watched.unprotected_pages + 2);
+    memory[page] = 9;
+    memory[2 * page] = 9;
+    EXPECT_EQ(guard->counts().faults, watched.faults);
+    EXPECT_EQ(guard->counts().resting_faults, watched.resting_faults);
+    ASSERT_TRUE(guard->watch(pages(1, 1), false));
+    EXPECT_EQ(guard->counts().protected_pages, watched.protected_pages + 1);
+    guard->unwatch(pages(1, 1));
+    guard->set_resting(true);
+}
+
 // Memory going away: its resting pages become writable without a fault, and the next watch of
 // those addresses protects them again.
 TEST_F(PageGuardTest, ForgottenMemoryIsWritableAndProtectedAfresh) {

@@ -480,6 +480,44 @@ TEST(TraceDamage, ContentsThatDoNotHashToTheirKeyAreReported) {
     EXPECT_EQ(v.kind, fbs::RecordBody::MemoryContents);
 }
 
+// read_contents keeps the real bytes it hands out for the next reading (replay reads a content
+// at every snapshot naming it): bytes failing their key are never kept, and contents defined
+// again by a later record are read from that record, as without the cache.
+TEST(TraceDamage, ReadContentsKeepsNoBytesFailingTheirKeyNorThoseOfAContentDefinedAgain) {
+    fbs::MemoryContentsT good;
+    good.bytes = {1, 2, 3, 4};
+    good.hash = f::content_key(good.bytes.data(), 4, 0, 64);
+    fbs::MemoryContentsT mis_keyed = good;
+    mis_keyed.bytes = {9, 9, 9, 9};
+    std::vector<uint8_t> raw;
+    for (const fbs::MemoryContentsT& c : {good, mis_keyed}) {
+        fbs::RecordT r;
+        r.body.Set(fbs::MemoryContentsT(c));
+        frame(raw, r);
+    }
+    uint64_t chunk_at = 0;
+    const std::vector<uint8_t> file = file_of_raw(raw, 2, &chunk_at);
+    TraceReaderOptions fast;  // trusts the keys in the scan: read_contents checks them
+    fast.verify_content_keys = false;
+    TraceError e;
+    auto reader = TraceReader::open_memory(file.data(), file.size(), "again.clt", &e, fast);
+    ASSERT_TRUE(reader);
+    RecordView v;
+    ASSERT_TRUE(reader->next(&v));
+    std::vector<uint8_t> got;
+    for (int reading = 0; reading < 2; ++reading) {
+        ASSERT_FALSE(reader->read_contents(good.hash, &got));
+        EXPECT_EQ(got, good.bytes);
+    }
+    ASSERT_TRUE(reader->next(&v));  // the same key, other bytes: read from here on
+    for (int reading = 0; reading < 2; ++reading) {
+        const TraceError err = reader->read_contents(good.hash, &got);
+        EXPECT_EQ(err.code, TraceErrorCode::kContentMismatch) << err.message;
+        EXPECT_EQ(err.file_offset, chunk_at);
+        EXPECT_NE(err.message.find("hold bytes that hash differently"), std::string::npos);
+    }
+}
+
 TEST(TraceDamage, RecordFailingTheVerifierIsSkippedAndTheNextOneRead) {
     std::vector<uint8_t> raw;
     std::vector<uint8_t> junk(24, 0xff);  // root offset points far outside

@@ -10,6 +10,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -109,6 +110,34 @@ TEST(DeltaContents, ReadContentsResolvesChainsOutOfOrder) {
     }
     EXPECT_EQ(checked, written.snapshot_keys.size());
     EXPECT_EQ(scan->damage_count(), 0u);
+}
+
+// Contents read back once stay with the reader (up to its read-back budget): reading every
+// snapshot again after the scan passed their chunks decompresses nothing more, with the same bytes,
+// copied (read_contents) or viewed (read_contents_view).
+TEST(DeltaContents, ContentsReadAgainAreNotDecompressedAgain) {
+    const std::string path = temp_path("delta_read_again.clt");
+    const DeltaTrace written = write_delta_trace(path, {}, 60);
+    TraceError e;
+    auto reader = TraceReader::open(path, &e, {.verify_content_keys = true});
+    ASSERT_TRUE(reader) << e.message;
+    RecordView v;
+    while (reader->next(&v)) {}
+    ASSERT_GT(reader->stats().chunks_read, 10u);  // the scan passed the chunks read below
+    std::vector<uint8_t> got;
+    uint64_t decompressed_after_first = 0;
+    for (int reading = 0; reading < 2; ++reading) {
+        for (uint64_t key : written.snapshot_keys) {
+            ASSERT_FALSE(reader->read_contents(key, &got));
+            EXPECT_EQ(got, written.bytes_by_key.at(key));
+            std::span<const uint8_t> view;
+            ASSERT_FALSE(reader->read_contents_view(key, &view));
+            EXPECT_TRUE(std::ranges::equal(view, written.bytes_by_key.at(key)));
+        }
+        if (reading == 0) decompressed_after_first = reader->stats().raw_bytes_decompressed;
+    }
+    EXPECT_EQ(reader->stats().raw_bytes_decompressed, decompressed_after_first);
+    EXPECT_EQ(reader->damage_count(), 0u);
 }
 
 // Chunks big enough to be read ahead (256 KiB and more) have their deltas XORed on the read-ahead

@@ -91,6 +91,9 @@ private:
 struct RealBytesCache {
     static constexpr uint64_t kBudgetBytes = uint64_t{64} << 20;
     static constexpr uint64_t kUsedBudgetBytes = uint64_t{4} << 20;
+    explicit RealBytesCache(uint64_t budget = kBudgetBytes) : budget_bytes(budget) {}
+    // What this cache may hold; a content above a quarter of it is never kept.
+    uint64_t budget_bytes;
     struct Entry {
         SharedBytes bytes;
         uint64_t sequence;  // when it was kept or last moved, to tell stale queue places
@@ -110,11 +113,19 @@ struct RealBytesCache {
     }
     void keep(uint64_t hash, SharedBytes bytes) {
         const size_t n = bytes->size;
-        if (n > kBudgetBytes / 4 || by_hash.count(hash)) return;
-        while (bytes_held + n > kBudgetBytes && evict_oldest()) {}
+        if (n > budget_bytes / 4 || by_hash.count(hash)) return;
+        while (bytes_held + n > budget_bytes && evict_oldest()) {}
         by_hash.emplace(hash, Entry{std::move(bytes), next_sequence, false});
         oldest_first.push_back({hash, next_sequence++});
         bytes_held += n;
+    }
+    // The bytes kept for `hash` no longer answer for it (another record defines it again).
+    void forget(uint64_t hash) {
+        auto it = by_hash.find(hash);
+        if (it == by_hash.end()) return;
+        bytes_held -= it->second.bytes->size;
+        if (it->second.used) used_bytes_held -= it->second.bytes->size;
+        by_hash.erase(it);  // its queue places are no longer live, and are skipped
     }
     // A delta was decoded against `hash`: it goes among the used bases.
     void note_used(uint64_t hash) {

@@ -161,6 +161,9 @@ TraceError TraceReader::seek_to_submission(uint64_t k) { return impl_->seek(k); 
 TraceError TraceReader::read_contents(uint64_t hash, std::vector<uint8_t>* out) {
     return impl_->read_contents(hash, out);
 }
+TraceError TraceReader::read_contents_view(uint64_t hash, std::span<const uint8_t>* out) {
+    return impl_->read_contents_view(hash, out);
+}
 const std::vector<TraceError>& TraceReader::damage() const { return impl_->damage; }
 uint64_t TraceReader::damage_count() const { return impl_->damage_total; }
 const TraceReadStats& TraceReader::stats() const {

@@ -183,16 +183,48 @@ TraceError TraceReader::Impl::locate(uint64_t hash, bool may_evict_raw, Contents
     return {};
 }
 
+SharedBytes TraceReader::Impl::known_real_bytes(uint64_t hash) const {
+    if (SharedBytes kept = resolved.find(hash)) return kept;
+    return read_back.find(hash);
+}
+
+bool TraceReader::Impl::key_holds(uint64_t hash, const ContentPlace& place, const uint8_t* data,
+                                  size_t n, uint64_t seed) {
+    if (place.key_checked) return true;
+    if (format::content_key(data, n, seed, hash_bits) != hash) return false;
+    contents.find(hash)->second.key_checked = true;  // `place` is its copy (locate)
+    return true;
+}
+
 TraceError TraceReader::Impl::resolve_contents(uint64_t hash, std::vector<uint8_t>* out,
                                                bool may_evict_raw) {
-    if (SharedBytes known = resolved.find(hash)) {
+    if (SharedBytes known = known_real_bytes(hash)) {
         out->assign(known->data.get(), known->data.get() + known->size);
         return {};
     }
+    if (TraceError e = resolve_uncached(hash, out, may_evict_raw)) return e;
+    if (!resolved.find(hash)) read_back.keep(hash, copy_of(out->data(), out->size()));
+    return {};
+}
+
+TraceError TraceReader::Impl::read_contents_view(uint64_t hash, std::span<const uint8_t>* out) {
+    *out = {};
+    viewed = known_real_bytes(hash);
+    if (!viewed) {
+        if (TraceError e = resolve_contents(hash, &view_scratch, true)) return e;
+        viewed = known_real_bytes(hash);  // kept there unless too big for them
+    }
+    *out = viewed ? std::span<const uint8_t>(viewed->data.get(), viewed->size)
+                  : std::span<const uint8_t>(view_scratch);
+    return {};
+}
+
+TraceError TraceReader::Impl::resolve_uncached(uint64_t hash, std::vector<uint8_t>* out,
+                                               bool may_evict_raw) {
     std::vector<uint64_t> chain;  // deltas from `hash` back, the last one's base held whole
     uint64_t at = hash;
     for (;;) {
-        if (SharedBytes known = resolved.find(at)) {
+        if (SharedBytes known = known_real_bytes(at)) {
             out->assign(known->data.get(), known->data.get() + known->size);
             break;
         }
@@ -203,7 +235,7 @@ TraceError TraceReader::Impl::resolve_contents(uint64_t hash, std::vector<uint8_
         const size_t n = c.size();
         if (real) {
             out->assign(c.data(), c.data() + n);
-            if (format::content_key(out->data(), n, c.seed, hash_bits) != at) {
+            if (!key_holds(at, place, out->data(), n, c.seed)) {
                 return error(TraceErrorCode::kContentMismatch, place.chunk_offset,
                              "contents " + hex(at) + " hold bytes that hash differently");
             }
@@ -241,7 +273,7 @@ TraceError TraceReader::Impl::resolve_contents(uint64_t hash, std::vector<uint8_
                          "delta contents " + hex(chain[k]) + " changed size while read");
         }
         apply_delta(c.data(), c.byte_planes, out->data(), n, out->data());
-        if (format::content_key(out->data(), n, c.seed, hash_bits) != chain[k]) {
+        if (!key_holds(chain[k], place, out->data(), n, c.seed)) {
             return error(TraceErrorCode::kContentMismatch, place.chunk_offset,
                          "delta contents " + hex(chain[k]) +
                              " decode to bytes that hash differently (a damaged base?)");

@@ -52,7 +52,15 @@ struct ContentPlace {
     uint64_t chunk_offset;
     uint32_t raw_offset;
     bool seen_in_scan;  // defined by a record the scan already passed
+    // The real bytes of the record here hash to its key (the scan or read_contents checked
+    // them): the chunk checksums make every later reading of this place the same bytes.
+    bool key_checked = false;
 };
+
+// The real bytes read_contents handed out recently, so that a content read again (replay lays
+// each in at every snapshot naming it) costs a lookup and a copy instead of locating, verifying
+// and hashing its record again, or decompressing a chunk the scan passed.
+constexpr uint64_t kReadBackBudgetBytes = uint64_t{16} << 20;
 
 enum class RecordStatus {
     kOk,
@@ -170,6 +178,7 @@ struct TraceReader::Impl {
     std::vector<uint32_t> decoded_in_raw;
     std::shared_ptr<BytesPool> pool = std::make_shared<BytesPool>();
     RealBytesCache resolved;
+    RealBytesCache read_back{reader::kReadBackBudgetBytes};
     ChunkBytes delta_copy;  // a delta's planes while it is decoded in place
     bool trace_has_deltas = false;
     // The read-ahead task decodes the deltas of the chunk it reads; the loaded chunk's results,
@@ -393,11 +402,28 @@ struct TraceReader::Impl {
     // The real bytes of contents `hash`: a delta's chain of bases is walked back to contents
     // held whole (stored whole, decoded by the scan, or kept in `resolved`), then XORed forward.
     // Each base must lie before its delta, so the walk ends, however the file was crafted.
+    // The real bytes of every later reading go to `read_back` (unless `resolved` keeps them).
     TraceError resolve_contents(uint64_t hash, std::vector<uint8_t>* out, bool may_evict_raw);
+    // resolve_contents' walk back through the chain of bases, its result kept nowhere.
+    TraceError resolve_uncached(uint64_t hash, std::vector<uint8_t>* out, bool may_evict_raw);
+
+    // The real bytes of contents `hash` that a cache keeps: the scan's bases or read_contents'.
+    SharedBytes known_real_bytes(uint64_t hash) const;
+
+    // True when the real bytes `data` of the record at `place` (contents `hash`, located
+    // just now) hash to `hash`: hashed once per place, then trusted (ContentPlace::key_checked).
+    bool key_holds(uint64_t hash, const ContentPlace& place, const uint8_t* data, size_t n,
+                   uint64_t seed);
 
     TraceError read_contents(uint64_t hash, std::vector<uint8_t>* out) {
         return resolve_contents(hash, out, true);
     }
+
+    // The bytes of the last read_contents_view: a cache's (shared, so eviction leaves them be),
+    // or, for contents too big for the caches, view_scratch.
+    SharedBytes viewed;
+    std::vector<uint8_t> view_scratch;
+    TraceError read_contents_view(uint64_t hash, std::span<const uint8_t>* out);
 
     // File header, trace header and (if intact) trailer + index. Fatal problems only
     // for what makes the file unreadable; the rest is damage.

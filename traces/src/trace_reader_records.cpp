@@ -85,7 +85,8 @@ bool TraceReader::Impl::check_record(const fbs::Record& record, uint32_t at) {
             });
             return false;
         }
-        contents[c->hash] = ContentPlace{n, chunk_offset, at, true};
+        const ContentPlace place{n, chunk_offset, at, true, options.verify_content_keys};
+        if (!contents.insert_or_assign(c->hash, place).second) read_back.forget(c->hash);
         if (trace_has_deltas) keep_real_bytes(c->hash, data, n, std::move(ahead_bytes));
         return true;
     }

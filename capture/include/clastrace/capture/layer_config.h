@@ -65,6 +65,11 @@ struct LayerConfig {
     // pages it made read-only, falling back to hashing where mprotect refuses; `hash`: it hashes
     // every watched range at the submission and again at the wait (page_guard.h).
     bool host_write_guard = true;
+    // CLASTRACE_GUARD_REST: a guarded page nobody wrote stays read-only after its wait, so the
+    // next submission watches it without an mprotect (the default). 0 makes every page writable
+    // at its wait: for an application whose system calls write into mapped memory a build read
+    // (`read(2)` into a mapped buffer fails with EFAULT on a read-only page).
+    bool guard_rest = true;
     // CLASTRACE_DELTA_CONTENTS: store a range's new contents XOR its previous contents
     // (TraceWriterOptions::delta_contents); 0 stores every content whole (format 1.6 readers).
     bool delta_contents = true;

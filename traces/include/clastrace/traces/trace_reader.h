@@ -5,7 +5,8 @@
 // by what the file's size makes plausible), about 64 bytes per distinct content, and the
 // real bytes of recent contents kept as bases of delta contents (64 MiB at most for the
 // caller's thread and 64 MiB for the read-ahead task, which decodes the deltas of the chunk it
-// reads ahead; the two share the bytes they both keep); all the bytes it decompresses are
+// reads ahead; the two share the bytes they both keep), the real bytes read_contents handed
+// out (16 MiB, so a content read again costs a lookup); all the bytes it decompresses are
 // bounded by a budget relative to the file's size. Every record is checked by the FlatBuffers
 // verifier before it is handed out. Damage does not stop reading: it is listed in damage() and
 // the reader continues with the next intact chunk.
@@ -17,6 +18,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <memory>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -137,6 +139,9 @@ public:
     // come back as their real bytes: the chain of bases is resolved (a base must precede its
     // delta), and each result is checked against its key. next() hands deltas out decoded.
     TraceError read_contents(uint64_t hash, std::vector<uint8_t>* out);
+    // read_contents without the copy: *out views the real bytes, which the reader holds until
+    // the next read_contents_view (replay lays a content in at every snapshot naming it).
+    TraceError read_contents_view(uint64_t hash, std::span<const uint8_t>* out);
 
     // Every problem found so far, in the order found (at most 1000 kept; see damage_count()).
     const std::vector<TraceError>& damage() const;
