@@ -23,15 +23,13 @@ namespace clastrace::engine {
 using detail::kMaxTriangles;
 using detail::kMaxVertices;
 
-// The encoder's block first (its layout is for L1 sets from a 4 KiB boundary), the decoded
-// input after it, hot arrays first.
 struct ClusterBuilder::Scratch {
-    detail::EncodeScratch encode;
+    float positions[kMaxVertices * 3];
     uint8_t index_bytes[kMaxTriangles * 3 + 1];  // EncodeInput::index_bytes
     uint8_t inactive[kMaxTriangles];
-    float positions[kMaxVertices * 3];
     uint32_t geometry[kMaxTriangles];
     int32_t omm[kMaxTriangles];
+    detail::EncodeScratch encode;
 };
 
 ClusterBuilder::ClusterBuilder(const EngineProperties& properties)

@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 // BVH over the triangles of one cluster (at most 256): object-median splits along the
 // longest axis of the node's centroid bounds, rounded to whole leaves of kMaxLeafSize
-// triangles. No allocation: everything lives in BvhScratch (its layout: cluster_internal.h).
+// triangles. No allocation: everything lives on the stack or in BvhScratch.
 //
 // Why it is fast: the triangles are sorted once per axis (centroids quantized to 10 bits
 // inside the cluster's centroid bounds, a two-pass 5-bit radix sort, ties in triangle
@@ -21,7 +21,6 @@
 #include "simd4.h"
 
 #include <cstring>
-#include <new>
 
 namespace clastrace::engine::detail {
 
@@ -41,22 +40,6 @@ struct alignas(8) Task {
 struct Digits {
     uint8_t lo[4], hi[4];
 };
-
-// The build's arrays, in BvhScratch::bvh_arrays: those every split touches first (counts,
-// sides, partition buffers, orders), then those of the sort, then the task stack and the
-// interior list, of which only the heads are used.
-struct BvhArrays {
-    uint16_t hist[6][kDigits];
-    uint8_t side[kMaxTriangles];
-    uint8_t right[2][kMaxTriangles + 8];  // kMaxTriangles + 1 used (a store past the side)
-    uint8_t order[3][kMaxTriangles];
-    uint8_t sorted_low[3][kMaxTriangles];  // the order after the sort's first pass
-    Digits digits[kMaxTriangles];
-    uint8_t leaf_order[kMaxTriangles];  // when the active triangles are not all of them
-    Task stack[kMaxNodes];
-    uint16_t interior[kMaxNodes];  // in the order they were split
-};
-static_assert(sizeof(BvhArrays) <= kBvhArraysBytes && alignof(BvhArrays) <= 64);
 
 // Splits a triangle's keys (lanes x, y, z, 0..1023) into its digits and counts them.
 void count_digits(Int4 key, Digits& d, uint16_t (*hist)[kDigits]) {
@@ -90,7 +73,7 @@ void count_digits(Int4 key, Digits& d, uint16_t (*hist)[kDigits]) {
 // Sorts 0..n-1 by key (digits) on each axis k into order[k] (stable: equal keys stay in
 // increasing index order). hist[2k] / hist[2k+1] hold the counts of the low / high digits.
 void radix_sort3(const Digits* digits, uint32_t n, uint16_t (*hist)[kDigits],
-                 uint8_t (*tmp)[kMaxTriangles], uint8_t (*order)[kMaxTriangles]) {
+                 uint8_t (*order)[kMaxTriangles]) {
     // Exclusive prefix sums (counts <= 256 fit 16 bits).
 #if defined(__SSE2__)
     static_assert(kDigits % 8 == 0);
@@ -120,6 +103,7 @@ void radix_sort3(const Digits* digits, uint32_t n, uint16_t (*hist)[kDigits],
     // The three axes go through each pass together: three independent chains of counter
     // updates for the out-of-order core to overlap. Written out per axis: GCC at -O2 keeps a
     // loop over k and recomputes every address from k (about twice the instructions).
+    uint8_t tmp[3][kMaxTriangles];
     uint16_t *const lo0 = hist[0], *const lo1 = hist[2], *const lo2 = hist[4];
 #pragma GCC unroll 4
     for (size_t i = 0; i < n; ++i) {
@@ -194,52 +178,6 @@ bool is_identity(const uint8_t* order, uint32_t n) {
 #endif
 }
 
-// Partitions o1[0..count) and o2[0..count) stably by side (0 first; left_count of them), in
-// one loop (two independent chains). No branch and no select: every element is stored twice,
-// at the next left slot (in place: at or before its own, already read) and at the next right
-// slot of a buffer; the store on the wrong side is overwritten by the next element of that
-// side, or lands past the side's end (the left one is covered by the copy of the rights).
-[[gnu::always_inline]] inline void partition_sides(uint8_t* o1, uint8_t* o2, const uint8_t* side,
-                                                   size_t count, size_t left_count,
-                                                   uint8_t (*right)[kMaxTriangles + 8]) {
-    // Element j's left slot is at left1 + j (left1 = o1 - the rights so far; an address, not a
-    // pointer, as it may lie before the array), its right one at next1: one update of each per
-    // element instead of a j - r before each store (14 instructions an element for the two
-    // axes, 17 before).
-    uintptr_t left1 = uintptr_t(o1), left2 = uintptr_t(o2);
-    uint8_t *next1 = right[0], *next2 = right[1];
-#pragma GCC unroll 4
-    for (size_t j = 0; j < count; ++j) {
-        const size_t i1 = o1[j], i2 = o2[j];
-        const size_t s1 = side[i1], s2 = side[i2];
-        reinterpret_cast<uint8_t*>(left1)[j] = uint8_t(i1);
-        *next1 = uint8_t(i1);
-        reinterpret_cast<uint8_t*>(left2)[j] = uint8_t(i2);
-        *next2 = uint8_t(i2);
-        left1 -= s1;
-        next1 += s1;
-        left2 -= s2;
-        next2 += s2;
-    }
-    copy_rights(o1 + left_count, right[0], count - left_count);
-    copy_rights(o2 + left_count, right[1], count - left_count);
-}
-
-// partition_sides where the right side becomes a leaf (which takes its triangles from the
-// split axis's order): only the left side is kept, each element stored once, no copy after.
-[[gnu::always_inline]] inline void keep_lefts(uint8_t* o1, uint8_t* o2, const uint8_t* side,
-                                              size_t count) {
-    uintptr_t left1 = uintptr_t(o1), left2 = uintptr_t(o2);
-#pragma GCC unroll 4
-    for (size_t j = 0; j < count; ++j) {
-        const size_t i1 = o1[j], i2 = o2[j];
-        reinterpret_cast<uint8_t*>(left1)[j] = uint8_t(i1);
-        reinterpret_cast<uint8_t*>(left2)[j] = uint8_t(i2);
-        left1 -= side[i1];
-        left2 -= side[i2];
-    }
-}
-
 // A leaf's box over its 1..4 triangles: four loads, the last triangle repeated (min and max
 // fold it to the same box, ties included), so no branch on the count.
 [[gnu::always_inline]] inline void fit_leaf(BvhScratch& s, const uint8_t* tris, size_t count,
@@ -260,9 +198,10 @@ bool is_identity(const uint8_t* order, uint32_t n) {
 // The leaf of `count` triangles at leaf_order[first..]: its box and link. Inlined: a call
 // with its five arguments cost a third of a leaf.
 [[gnu::always_inline]] inline void make_leaf(BvhScratch& s, const uint8_t* leaf_order,
-                                             uint32_t first, uint32_t count, size_t node) {
-    fit_leaf(s, leaf_order + first, count, s.nodes[node]);
-    s.link[node] = uint16_t(kLeafBit | ((count - 1u) << 8) | first);
+                                             uint32_t first, uint32_t count,
+                                             BvhScratch::Node& node) {
+    fit_leaf(s, leaf_order + first, count, node);
+    node.link = uint16_t(kLeafBit | ((count - 1u) << 8) | first);
 }
 
 // Interior boxes bottom-up, `interior` in the order the nodes were split: a node's children
@@ -270,9 +209,8 @@ bool is_identity(const uint8_t* order, uint32_t n) {
 void fit_interior_boxes(BvhScratch& s, const uint16_t* interior, size_t count) {
     for (size_t k = count; k-- > 0;) {
         BvhScratch::Node& node = s.nodes[interior[k]];
-        const size_t left = s.link[interior[k]];
-        const BvhScratch::Node& l = s.nodes[left];
-        const BvhScratch::Node& r = s.nodes[left + 1];
+        const BvhScratch::Node& l = s.nodes[node.link];
+        const BvhScratch::Node& r = s.nodes[node.link + 1];
         store4(node.lo, min4(load4(l.lo), load4(r.lo)));
         store4(node.hi, max4(load4(l.hi), load4(r.hi)));
     }
@@ -288,18 +226,19 @@ void count_keys(const BvhScratch& s, uint32_t n, Digits* digits, uint16_t (*hist
         splat(float(1u << kKeyBits)) /
         (load4(s.centroid_max) * half - base);  // inf or NaN for a flat axis: keys 0
     const Float4 zero = splat(0.0f), top = splat(float((1u << kKeyBits) - 1));
-#pragma GCC unroll 4
+#pragma GCC unroll 2
     for (uint32_t i = 0; i < n; ++i)
         // max4(x, zero) turns NaN into 0.
         count_digits(to_int(min4(max4((load4(s.centroid[i]) * half - base) * scale, zero), top)),
                      digits[i], hist);
 }
 
-// The triangles in key order along each axis (ties in triangle order), in a.order.
-void sort_along_axes(const BvhScratch& s, uint32_t n, BvhArrays& a) {
-    std::memset(a.hist, 0, sizeof a.hist);
-    count_keys(s, n, a.digits, a.hist);
-    radix_sort3(a.digits, n, a.hist, a.sorted_low, a.order);
+// The triangles in key order along each axis (ties in triangle order).
+void sort_along_axes(const BvhScratch& s, uint32_t n, uint8_t (*order)[kMaxTriangles]) {
+    Digits digits[kMaxTriangles];
+    uint16_t hist[6][kDigits] = {};
+    count_keys(s, n, digits, hist);
+    radix_sort3(digits, n, hist, order);
 }
 
 }  // namespace
@@ -309,24 +248,24 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
     if (n == 0) return true;
 
     const float(*const centroid)[4] = s.centroid;
-    BvhArrays& a = *new (s.bvh_arrays) BvhArrays;
-    uint8_t(*const order)[kMaxTriangles] = a.order;
-    sort_along_axes(s, n, a);
+    uint8_t order[3][kMaxTriangles];
+    sort_along_axes(s, n, order);
 
     // Top-down: node numbering is depth first, left subtree first, the two children of a node
     // next to each other.
-    uint8_t* const side = a.side;
+    uint8_t side[kMaxTriangles];
     // Each leaf's triangles at its range: the BVH order itself when the active triangles are
     // all of them.
-    uint8_t* const leaf_order = active_list ? a.leaf_order : order_out;
-    Task* const stack = a.stack;
-    uint16_t* const interior = a.interior;
+    uint8_t own_leaf_order[kMaxTriangles];
+    uint8_t* const leaf_order = active_list ? own_leaf_order : order_out;
+    Task stack[kMaxNodes];
+    uint16_t interior[kMaxNodes];  // in the order they were split
     size_t n_interior = 0;
     int sp = 0;
     s.node_count = 1;
     if (n <= kMaxLeafSize) {  // a root leaf: its triangles along x
         std::memcpy(leaf_order, order[0], n);
-        make_leaf(s, leaf_order, 0, n, 0);
+        make_leaf(s, leaf_order, 0, n, s.nodes[0]);
     } else {
         stack[sp++] = {0, 0, uint16_t(n), 0};
     }
@@ -334,6 +273,7 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
     // at each task mispredicted about every third node).
     while (sp > 0) {
         const Task task = stack[--sp];
+        BvhScratch::Node& node = s.nodes[task.node];
         const uint32_t b = task.begin, e = task.end, count = e - b;
         int axis = 0;
         float best = centroid[order[0][e - 1]][0] - centroid[order[0][b]][0];
@@ -351,14 +291,14 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
         const uint32_t m = b + left_count;
         const uint16_t left = uint16_t(s.node_count);
         s.node_count += 2;
-        s.link[task.node] = left;
+        node.link = left;
         interior[n_interior++] = uint16_t(task.node);
         if (count <= 2 * kMaxLeafSize) {
             // Both children are leaves: they need no sorted orders, only their triangles.
             // A task has more than kMaxLeafSize triangles.
             copy_up_to<kMaxLeafSize + 1, 2 * kMaxLeafSize>(leaf_order + b, order[axis] + b, count);
-            make_leaf(s, leaf_order, b, left_count, left);
-            make_leaf(s, leaf_order, m, count - left_count, left + 1u);
+            make_leaf(s, leaf_order, b, left_count, s.nodes[left]);
+            make_leaf(s, leaf_order, m, count - left_count, s.nodes[left + 1]);
             continue;
         }
         // Every triangle of a left child (odd node numbers) still has side 0 from its parent's
@@ -379,14 +319,33 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
         static constexpr uint8_t kOtherAxes[3][2] = {{1, 2}, {0, 2}, {0, 1}};
         uint8_t* const o1 = order[kOtherAxes[axis][0]] + b;
         uint8_t* const o2 = order[kOtherAxes[axis][1]] + b;
+        // Their orders, partitioned stably in one loop (two independent chains). No branch
+        // and no select: every element is stored twice, at the next left slot (in place:
+        // j - r <= j, already read) and at the next right slot of a buffer; the store on the
+        // wrong side is overwritten by the next element of that side, or lands past the side's
+        // end (the left one is covered by the copy of the rights).
+        uint8_t right1[kMaxTriangles + 1], right2[kMaxTriangles + 1];
+        // Pointer-sized counters: no zero extension before each address.
+        size_t r1 = 0, r2 = 0;
+#pragma GCC unroll 4
+        for (size_t j = 0; j < count; ++j) {
+            const size_t i1 = o1[j], i2 = o2[j];
+            const size_t s1 = side[i1], s2 = side[i2];
+            o1[j - r1] = uint8_t(i1);
+            right1[r1] = uint8_t(i1);
+            o2[j - r2] = uint8_t(i2);
+            right2[r2] = uint8_t(i2);
+            r1 += s1;
+            r2 += s2;
+        }
+        copy_rights(o1 + left_count, right1, count - left_count);
+        copy_rights(o2 + left_count, right2, count - left_count);
         // More than 8 triangles leave at least 8 on the left (a node), and on the right 1-4
         // (a leaf, its triangles from any order) or more (a node).
         if (count - left_count <= kMaxLeafSize) {
-            keep_lefts(o1, o2, side, count);
             copy_up_to<1, kMaxLeafSize>(leaf_order + m, order[axis] + m, count - left_count);
-            make_leaf(s, leaf_order, m, count - left_count, left + 1u);
+            make_leaf(s, leaf_order, m, count - left_count, s.nodes[left + 1]);
         } else {
-            partition_sides(o1, o2, side, count, left_count, a.right);
             stack[sp++] = {uint16_t(left + 1), uint16_t(m), uint16_t(e), 0};
         }
         stack[sp++] = {left, uint16_t(b), uint16_t(m), 0};

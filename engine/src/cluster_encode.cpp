@@ -84,12 +84,13 @@ void write_nodes(const QuantFrame& f, bool unbounded, const BvhScratch& s, uint3
                  std::byte* dst) {
     if (unbounded) {
         for (uint32_t i = 0; i < n_nodes; ++i) {
+            const BvhScratch::Node& sn = s.nodes[i];
             BvhNode node{};
             for (int a = 0; a < 3; ++a) {
                 node.qmin[a] = 0;
                 node.qmax[a] = 255;
             }
-            node.link = s.link[i];
+            node.link = sn.link;
             std::memcpy(dst + 8 * i, &node, 8);
         }
         return;
@@ -138,7 +139,7 @@ void write_nodes(const QuantFrame& f, bool unbounded, const BvhScratch& s, uint3
         const __m128i low3 = _mm_setr_epi8(-1, -1, -1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0);
         const __m128i bounds =
             _mm_or_si128(_mm_and_si128(low3, q8), _mm_andnot_si128(low3, _mm_srli_si128(q8, 1)));
-        const __m128i with_link = _mm_insert_epi16(bounds, s.link[i], 3);
+        const __m128i with_link = _mm_insert_epi16(bounds, sn.link, 3);
         static_assert(sizeof(BvhNode) == 8 && offsetof(BvhNode, qmax) == 3 &&
                       offsetof(BvhNode, link) == 6);
         _mm_storel_epi64(reinterpret_cast<__m128i*>(dst + 8 * i), with_link);  // little endian
@@ -153,7 +154,7 @@ void write_nodes(const QuantFrame& f, bool unbounded, const BvhScratch& s, uint3
             node.qmin[a] = quantize_lo(f, inv_step, a, sn.lo[a]);
             node.qmax[a] = quantize_hi(f, inv_step, a, sn.hi[a]);
         }
-        node.link = s.link[i];
+        node.link = sn.link;
         std::memcpy(dst + 8 * i, &node, 8);
     }
 #endif
@@ -418,8 +419,8 @@ uint32_t encode_object(const EncodeInput& in, EncodeScratch& scratch, ObjectStor
         if (any_inactive)
             n_active = gather_active_boxes<true>(in, s, active, any_nan, bmin, bmax);
         else if (in.vertex_count > 0 &&  // else an instance of a hostile template's index 0
-                 widen_vertices(in.positions, in.vertex_count, s.vertex))
-            n_active = gather_finite_boxes(in, s.vertex, s, bmin, bmax);
+                 widen_vertices(in.positions, in.vertex_count, scratch.vertex))
+            n_active = gather_finite_boxes(in, scratch.vertex, s, bmin, bmax);
         else
             n_active = gather_active_boxes<false>(in, s, active, any_nan, bmin, bmax);
     }
@@ -428,7 +429,7 @@ uint32_t encode_object(const EncodeInput& in, EncodeScratch& scratch, ObjectStor
 
     // Triangle order: BVH order for a CLAS (inactive triangles after the active ones),
     // the application's order for a template.
-    uint8_t* const order = scratch.order;
+    uint8_t order[kMaxTriangles];
     uint32_t n_nodes = 0;
     bool identity = true;
     if (is_clas && n_active > 0) {

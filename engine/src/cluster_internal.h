@@ -41,34 +41,22 @@ struct EncodeInput {
     float bounds_limit[6] = {};
 };
 
-// Rows of padding after each of the scratch's 16-byte-row arrays (1 KiB): see EncodeScratch.
-inline constexpr uint32_t kRowsApart = 64;
-
-// The BVH build's own arrays (keys, sorted orders, partition buffers, its task stack), laid out
-// by cluster_bvh.cpp in this many bytes of the scratch.
-inline constexpr size_t kBvhArraysBytes = 12288;
-
-// Scratch for the gathers and the BVH build, sized once for the largest cluster.
+// Scratch for the BVH build, sized once for the largest cluster.
 struct BvhScratch {
     // Boxes and centroids of the active triangles by their position in the active list (the
     // caller fills them, and the centroids' bounds): xyz + padding, 16-byte aligned for 4-wide
     // min/max. A centroid is the half-sum of its box's corners (no overflow near FLT_MAX), a
     // NaN lane (infinities that cancel) taken as 0.
-    alignas(64) float tri_min[kMaxTriangles + kRowsApart][4];
-    alignas(64) float tri_max[kMaxTriangles + kRowsApart][4];
-    alignas(64) float centroid[kMaxTriangles + kRowsApart][4];
-    // The cluster's vertices as x, y, z, 0 lanes (the common gather's input).
-    alignas(64) float vertex[kMaxVertices + kRowsApart][4];
+    alignas(16) float tri_min[kMaxTriangles][4];
+    alignas(16) float tri_max[kMaxTriangles][4];
+    alignas(16) float centroid[kMaxTriangles][4];
     alignas(16) float centroid_min[4];
     alignas(16) float centroid_max[4];
-    alignas(64) std::byte bvh_arrays[kBvhArraysBytes];
-    // The nodes' stored BvhNode::link: a leaf's triangles or an interior's left child.
-    uint16_t link[kMaxNodes];
     struct Node {
         alignas(16) float lo[4];
         alignas(16) float hi[4];  // lane 3 unused
-    };
-    alignas(64) Node nodes[kMaxNodes];
+        uint16_t link;  // the stored BvhNode::link: a leaf's triangles or an interior's left child
+    } nodes[kMaxNodes];
     uint32_t node_count = 0;
 };
 
@@ -84,23 +72,23 @@ inline constexpr uint32_t kMaxObjectBytes =
     sizeof(ObjectHeader) + 8 * kMaxNodes + 12 * kMaxVertices + 3 + 4 * kMaxTriangles + 3 +
     4 * kMaxTriangles + 7 + sizeof(OpacityMicromapSection) + 4 * kMaxTriangles + 24 + 3;
 
-// Scratch for encode_object: one block per builder (thread), laid out for a 32 KiB 8-way L1
-// (64 sets of 64 bytes: lines 4 KiB apart share a set). A cluster uses the head of each array
-// (WusonOBJ's average 88 triangles: 1.4 KiB of each 4 KiB per-triangle array, 1 KiB of
-// vertices), so arrays of 4 KiB placed back to back put every head on the same sets (with the
-// nodes' and, wherever the stack fell, the build's arrays on top), and the input and object
-// lines streaming through evicted them: conflict misses. Here each 16-byte-row array ends with
-// kRowsApart rows of padding, so the four heads start 16 sets apart (0, 16, 32, 48), the build's
-// arrays (one block, hot ones first) and the nodes (32 bytes each, links apart) follow, and no
-// set holds more than about four hot lines.
-struct alignas(4096) EncodeScratch {
+// Where the widened vertices start, counted from the BVH scratch modulo 4 KiB: its per-triangle
+// arrays are 4 KiB each, so lines 4 KiB apart fall into the same L1 set (64 sets of 64 bytes)
+// and the first triangles' boxes and centroids already share the low sets; the vertices (a
+// cluster's first kilobyte or so in use) start at set 56 instead of set 0 beside them. The
+// count of conflict misses depends on this (and on where the stack lies): callgrind's D1
+// misses per WusonOBJ cluster were 55.6 at 0, 46.9-63.5 at 2560, 49.6-51.3 at 3584.
+inline constexpr size_t kVertexSetOffset = 3584;
+
+// Scratch for encode_object: the BVH's, the widened vertices, and the object itself where it is
+// streamed out.
+struct EncodeScratch {
     BvhScratch bvh;
-    uint8_t order[kMaxTriangles];  // the object's triangle order
+    std::byte vertex_apart[(kVertexSetOffset + 4096 - sizeof(BvhScratch) % 4096) % 4096];
+    alignas(16) float vertex[kMaxVertices][4];  // the vertices as x, y, z, 0 lanes
     alignas(64) std::byte object[kMaxObjectBytes];
 };
-static_assert(offsetof(BvhScratch, tri_max) % 4096 == 1024 &&
-              offsetof(BvhScratch, centroid) % 4096 == 2048 &&
-              offsetof(BvhScratch, vertex) % 4096 == 3072);
+static_assert(offsetof(EncodeScratch, vertex) % 4096 == kVertexSetOffset);
 
 // Encodes the object into `out` (sized to it, zero padded) as `stores` says. Returns its size.
 uint32_t encode_object(const EncodeInput& in, EncodeScratch& scratch, ObjectStores stores,
