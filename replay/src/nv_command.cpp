@@ -98,6 +98,86 @@ const char* cause_name(DisagreementCause c) {
     return "unexplained";
 }
 
+// One ray's answers compared: agreements, ties and edge cases counted in `out`; returns the
+// kind of a disagreement, or nullptr when the answers agree.
+const char* compare_answers(const engine::NvHit& e, const fbs::RayHitResult& d,
+                            RayCheckResult& out) {
+    const bool driver_hit = d.hit() != 0;
+    auto near_edge = [](float u, float v, uint32_t kind) {
+        return (kind == engine::kHitKindFrontFacing || kind == engine::kHitKindBackFacing) &&
+               std::min({u, v, 1.0f - u - v}) < 1e-5f;
+    };
+    const char* verdict = nullptr;  // a disagreement's kind; nullptr when the answers agree
+    if (!e.hit && !driver_hit) {
+        ++out.agree_miss;
+    } else if (e.hit && driver_hit) {
+        const double rel =
+            std::fabs(double(e.t) - d.t()) / std::max(std::fabs(double(d.t())), 1e-30);
+        const bool same =
+            e.instance_index == d.instance_id() && e.primitive_index == d.primitive_id() &&
+            (d.geometry_index() == 0xFFFFFFFFu || d.geometry_index() == e.geometry_index);
+        // A driver traces in float32: within the engine's bound of that error, the same
+        // primitive at a t off by more than kRayCheckRelT still agrees (counted apart).
+        const bool within_float = std::fabs(double(e.t) - d.t()) <= double(e.t_error);
+        if (same && (rel <= kRayCheckRelT || within_float)) {
+            // Barycentrics within 1e-3, or within their float32 error bound (a tiny
+            // triangle far away: float noise on both sides), counted apart as t is.
+            const float du = std::fabs(e.u - d.barycentric_u()),
+                        dv = std::fabs(e.v - d.barycentric_v());
+            const bool uv_close = du <= 1e-3f && dv <= 1e-3f;
+            const bool uv_within_float = du <= e.uv_error && dv <= e.uv_error;
+            const bool attributes = e.instance_custom_index == d.instance_custom_index() &&
+                                    e.hit_kind == d.hit_kind() &&
+                                    (e.hit_kind == 0 || uv_close || uv_within_float);
+            if (attributes) {
+                ++out.agree_hit;
+                if (rel > kRayCheckRelT || (e.hit_kind != 0 && !uv_close))
+                    ++out.float_precision;
+                else
+                    out.max_rel_t = std::max(out.max_rel_t, rel);
+            } else {
+                verdict = "same primitive and t, other custom index, hit kind or barycentrics";
+            }
+        } else if (rel <= kRayCheckRelT) {
+            ++out.tie;
+        } else if (near_edge(e.u, e.v, e.hit_kind) ||
+                   near_edge(d.barycentric_u(), d.barycentric_v(), d.hit_kind())) {
+            ++out.edge;
+        } else {
+            verdict = same ? "same primitive, other t" : "other primitive at another t";
+        }
+    } else if ((e.hit && near_edge(e.u, e.v, e.hit_kind)) ||
+               (driver_hit && near_edge(d.barycentric_u(), d.barycentric_v(), d.hit_kind()))) {
+        ++out.edge;
+    } else {
+        verdict =
+            e.hit ? "the engine hits, the driver missed" : "the driver hit, the engine misses";
+    }
+    return verdict;
+}
+
+std::string disagreement_message(size_t i, const std::string& label, const engine::Ray& ray,
+                                 const fbs::TracedRay& r, const fbs::RayHitResult& d,
+                                 const engine::NvHit& e, const char* verdict,
+                                 DisagreementCause cause, const std::string& traversal) {
+    const bool driver_hit = d.hit() != 0;
+    char text[768];
+    std::snprintf(text, sizeof text,
+                  "ray %zu of check '%s' (origin %g %g %g, direction %g %g %g, t [%g, %g], "
+                  "flags 0x%x, cull mask 0x%x): %s (cause class %s, %s traversal); "
+                  "driver: %s t=%g instance %u primitive %u kind 0x%x u %g v %g; engine: %s "
+                  "t=%g instance %u primitive %u kind 0x%x u %g v %g (float32 error of u, v "
+                  "%g)",
+                  i, label.c_str(), ray.origin[0], ray.origin[1], ray.origin[2], ray.direction[0],
+                  ray.direction[1], ray.direction[2], ray.tmin, ray.tmax, r.ray_flags(),
+                  r.cull_mask(), verdict, cause_name(cause), traversal.c_str(),
+                  driver_hit ? "hit" : "miss", double(d.t()), d.instance_id(), d.primitive_id(),
+                  d.hit_kind(), double(d.barycentric_u()), double(d.barycentric_v()),
+                  e.hit ? "hit" : "miss", double(e.t), e.instance_index, e.primitive_index,
+                  e.hit_kind, double(e.u), double(e.v), double(e.uv_error));
+    return text;
+}
+
 }  // namespace
 
 NvReplay::Object* NvReplay::object(uint64_t handle) {
@@ -529,58 +609,7 @@ void NvReplay::ray_check(const fbs::RayQueryCheck& check) {
                               r->t_max()};
         const engine::NvHit e = scene->closest(ray, r->ray_flags(), r->cull_mask(), mode);
         ++out.rays;
-        const bool driver_hit = d->hit() != 0;
-        auto near_edge = [](float u, float v, uint32_t kind) {
-            return (kind == engine::kHitKindFrontFacing || kind == engine::kHitKindBackFacing) &&
-                   std::min({u, v, 1.0f - u - v}) < 1e-5f;
-        };
-        const char* verdict = nullptr;  // a disagreement's kind; nullptr when the answers agree
-        if (!e.hit && !driver_hit) {
-            ++out.agree_miss;
-        } else if (e.hit && driver_hit) {
-            const double rel =
-                std::fabs(double(e.t) - d->t()) / std::max(std::fabs(double(d->t())), 1e-30);
-            const bool same =
-                e.instance_index == d->instance_id() && e.primitive_index == d->primitive_id() &&
-                (d->geometry_index() == 0xFFFFFFFFu || d->geometry_index() == e.geometry_index);
-            // A driver traces in float32: within the engine's bound of that error, the same
-            // primitive at a t off by more than kRayCheckRelT still agrees (counted apart).
-            const bool within_float = std::fabs(double(e.t) - d->t()) <= double(e.t_error);
-            if (same && (rel <= kRayCheckRelT || within_float)) {
-                // Barycentrics within 1e-3, or within their float32 error bound (a tiny
-                // triangle far away: float noise on both sides), counted apart as t is.
-                const float du = std::fabs(e.u - d->barycentric_u()),
-                            dv = std::fabs(e.v - d->barycentric_v());
-                const bool uv_close = du <= 1e-3f && dv <= 1e-3f;
-                const bool uv_within_float = du <= e.uv_error && dv <= e.uv_error;
-                const bool attributes = e.instance_custom_index == d->instance_custom_index() &&
-                                        e.hit_kind == d->hit_kind() &&
-                                        (e.hit_kind == 0 || uv_close || uv_within_float);
-                if (attributes) {
-                    ++out.agree_hit;
-                    if (rel > kRayCheckRelT || (e.hit_kind != 0 && !uv_close))
-                        ++out.float_precision;
-                    else
-                        out.max_rel_t = std::max(out.max_rel_t, rel);
-                } else {
-                    verdict = "same primitive and t, other custom index, hit kind or barycentrics";
-                }
-            } else if (rel <= kRayCheckRelT) {
-                ++out.tie;
-            } else if (near_edge(e.u, e.v, e.hit_kind) ||
-                       near_edge(d->barycentric_u(), d->barycentric_v(), d->hit_kind())) {
-                ++out.edge;
-            } else {
-                verdict = same ? "same primitive, other t" : "other primitive at another t";
-            }
-        } else if ((e.hit && near_edge(e.u, e.v, e.hit_kind)) ||
-                   (driver_hit &&
-                    near_edge(d->barycentric_u(), d->barycentric_v(), d->hit_kind()))) {
-            ++out.edge;
-        } else {
-            verdict =
-                e.hit ? "the engine hits, the driver missed" : "the driver hit, the engine misses";
-        }
+        const char* verdict = compare_answers(e, *d, out);
         if (!verdict) continue;
         ++out.disagree;
         const DisagreementCause cause = disagreement_cause(ray, e, *d);
@@ -588,21 +617,8 @@ void NvReplay::ray_check(const fbs::RayQueryCheck& check) {
            : cause == DisagreementCause::kDegenerate ? out.disagree_degenerate
                                                      : out.disagree_unexplained);
         if (reported++ >= c_.options.max_findings_per_rule) continue;
-        char text[768];
-        std::snprintf(text, sizeof text,
-                      "ray %zu of check '%s' (origin %g %g %g, direction %g %g %g, t [%g, %g], "
-                      "flags 0x%x, cull mask 0x%x): %s (cause class %s, %s traversal); "
-                      "driver: %s t=%g instance %u primitive %u kind 0x%x u %g v %g; engine: %s "
-                      "t=%g instance %u primitive %u kind 0x%x u %g v %g (float32 error of u, v "
-                      "%g)",
-                      i, short_label.c_str(), ray.origin[0], ray.origin[1], ray.origin[2],
-                      ray.direction[0], ray.direction[1], ray.direction[2], ray.tmin, ray.tmax,
-                      r->ray_flags(), r->cull_mask(), verdict, cause_name(cause),
-                      out.traversal.c_str(), driver_hit ? "hit" : "miss", double(d->t()),
-                      d->instance_id(), d->primitive_id(), d->hit_kind(),
-                      double(d->barycentric_u()), double(d->barycentric_v()),
-                      e.hit ? "hit" : "miss", double(e.t), e.instance_index, e.primitive_index,
-                      e.hit_kind, double(e.u), double(e.v), double(e.uv_error));
+        const std::string text =
+            disagreement_message(i, short_label, ray, *r, *d, e, verdict, cause, out.traversal);
         c_.add_finding({kRuleRayDisagrees, text, FindingSource::kVerify, where, int64_t(i), 0});
     }
     c_.report.ray_checks.push_back(out);
