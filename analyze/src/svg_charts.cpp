@@ -130,6 +130,119 @@ private:
 
 }  // namespace
 
+namespace {
+
+// The memory map's plot area and its command axis: ordinal `first` at `left`, one command
+// `width / span` wide.
+struct MapFrame {
+    double left, top, width, height;
+    uint64_t first, last;
+    double span;  // last - first + 1, in double (it may wrap in integers)
+    double x(uint64_t ordinal) const {
+        return left + width * static_cast<double>(ordinal - first) / span;
+    }
+};
+
+// Address labels at segment starts, thinned so they do not collide; breaks mark cut gaps.
+void append_address_labels(const AddressAxis& axis, const MapFrame& f, std::string& s) {
+    double last_label = -100;
+    for (const auto& g : axis.segments()) {
+        if (g.after_gap)
+            s += format(
+                "<line class=\"gap\" x1=\"{}\" x2=\"{:.1f}\" y1=\"{:.2f}\" y2=\"{:.2f}\"/>\n",
+                f.left - 4, f.left + f.width, g.y - 1.5, g.y - 1.5);
+        if (g.y - last_label >= 13) {
+            s +=
+                format("<text class=\"axis\" x=\"{}\" y=\"{:.2f}\" text-anchor=\"end\">{}</text>\n",
+                       f.left - 6, g.y + 4, fmtu::hex(g.begin));
+            last_label = g.y;
+        }
+    }
+}
+
+// Buffers first (containers, drawn behind what they hold), then everything else.
+void append_regions(const std::vector<const RegionRow*>& drawn, const AddressAxis& axis,
+                    const MapFrame& f, std::string& s) {
+    for (int pass = 0; pass < 2; ++pass) {
+        for (const RegionRow* g : drawn) {
+            if ((g->role == RegionRole::kBuffer) != (pass == 0)) continue;
+            double x0 = f.x(g->first_command),
+                   x1 = std::max(f.x(g->last_command) + f.width / f.span, x0 + 2.0);
+            double y0 = axis.y(g->base), y1 = std::max(axis.y_end(g->base + g->size), y0 + 1.0);
+            s += format(
+                "<rect class=\"region role-{}\" data-region=\"{}\" x=\"{:.2f}\" y=\"{:.2f}\" "
+                "width=\"{:.2f}\" "
+                "height=\"{:.2f}\" fill=\"{}\"><title>{} {} [{}, +{}) commands "
+                "{}..{}</title></rect>\n",
+                region_role_name(g->role), g->id, x0, y0, x1 - x0, y1 - y0, role_color(g->role),
+                region_role_name(g->role), escape_markup(g->label), fmtu::hex(g->base), g->size,
+                g->first_command, g->last_command);
+            if (pass == 1 && y1 - y0 >= 12 && x1 - x0 >= 70 && !g->label.empty())
+                s += format("<text class=\"region-label\" x=\"{:.2f}\" y=\"{:.2f}\">{}</text>\n",
+                            x0 + 3, y0 + 11,
+                            escape_markup(traces::utf8_prefix(g->label, static_cast<std::size_t>(
+                                                                            (x1 - x0) / 6.5))));
+        }
+    }
+}
+
+// Hazards and aliasing are always outlined, hazards on top; ordered reuse only while few
+// enough to read (a frame loop reuses every buffer every frame). Returns the ordered-reuse
+// pairs left without an outline.
+std::size_t append_overlaps(const AnalysisReport& r, const AddressAxis& axis, const MapFrame& f,
+                            std::string& s) {
+    std::size_t reuse_pairs = 0;
+    for (const OverlapRow& o : r.overlaps)
+        reuse_pairs += !o.hazard && o.kind == OverlapKind::kReuse;
+    const bool outline_reuse = reuse_pairs <= kMaxOutlinedReuse;
+    std::vector<const OverlapRow*> outlined;
+    for (int rank = 2; rank >= 0; --rank)
+        for (const OverlapRow& o : r.overlaps) {
+            int k = o.hazard ? 0 : (o.kind == OverlapKind::kAliasing ? 1 : 2);
+            if (k == rank && (k != 2 || outline_reuse)) outlined.push_back(&o);
+        }
+    for (const OverlapRow* op : outlined) {
+        const OverlapRow& o = *op;
+        double x0 = f.x(o.older_command),
+               x1 = std::max(f.x(o.newer_command) + f.width / f.span, x0 + 2.0);
+        double y0 = axis.y(o.base), y1 = std::max(axis.y_end(o.base + o.size), y0 + 2.0);
+        const char* cls =
+            o.hazard ? "hazard" : (o.kind == OverlapKind::kAliasing ? "aliasing" : "reuse");
+        s += format(
+            "<rect class=\"overlap {}\" x=\"{:.2f}\" y=\"{:.2f}\" width=\"{:.2f}\" "
+            "height=\"{:.2f}\">"
+            "<title>{}: {} (cmd {}) and {} (cmd {}) share [{}, +{})</title></rect>\n",
+            cls, x0, y0, x1 - x0, y1 - y0, o.hazard ? "HAZARD" : overlap_kind_name(o.kind),
+            escape_markup(o.older_label), o.older_command, escape_markup(o.newer_label),
+            o.newer_command, fmtu::hex(o.base), o.size);
+    }
+    return outline_reuse ? 0 : reuse_pairs;
+}
+
+// Command axis: at most nine ticks, whatever the ordinals (they may span all of 2^64).
+void append_command_axis(const MapFrame& f, std::size_t omitted, std::size_t unoutlined_reuse,
+                         std::string& s) {
+    const double axis_y = f.top + f.height + 4;
+    s += format("<line class=\"axis-line\" x1=\"{}\" x2=\"{}\" y1=\"{}\" y2=\"{}\"/>\n", f.left,
+                f.left + f.width, axis_y, axis_y);
+    const uint64_t step = (f.last - f.first) / 8 + 1;
+    for (uint64_t i = 0, o = f.first; i < 9; ++i, o += step) {
+        s += format("<text class=\"axis\" x=\"{:.1f}\" y=\"{}\" text-anchor=\"middle\">{}</text>\n",
+                    f.x(o) + f.width / f.span / 2, axis_y + 14, o);
+        if (f.last - o < step) break;
+    }
+    s += format(
+        "<text class=\"axis-title\" x=\"{}\" y=\"{}\" text-anchor=\"middle\">command "
+        "ordinal{}</text>\n",
+        f.left + f.width / 2, axis_y + 32,
+        (omitted ? format(" ({} smaller regions not drawn)", omitted) : std::string()) +
+            (unoutlined_reuse == 0
+                 ? std::string()
+                 : format(" ({} ordered-reuse pairs not outlined)", unoutlined_reuse)));
+}
+
+}  // namespace
+
 std::string svg_memory_map(const AnalysisReport& r) {
     const double left = 120, top = 20, width = 840, height = 520, bottom_axis = 40;
     std::vector<const RegionRow*> drawn;
@@ -164,91 +277,12 @@ std::string svg_memory_map(const AnalysisReport& r) {
         last = std::max(last, o.newer_command);
     }
     const AddressAxis axis(ranges, top, height);
-    const double span = static_cast<double>(last - first) + 1.0;  // last - first + 1 may wrap
-    auto x = [&](uint64_t ordinal) {
-        return left + width * static_cast<double>(ordinal - first) / span;
-    };
-
-    // Address labels at segment starts, thinned so they do not collide; breaks mark cut gaps.
-    double last_label = -100;
-    for (const auto& g : axis.segments()) {
-        if (g.after_gap)
-            s += format(
-                "<line class=\"gap\" x1=\"{}\" x2=\"{:.1f}\" y1=\"{:.2f}\" y2=\"{:.2f}\"/>\n",
-                left - 4, left + width, g.y - 1.5, g.y - 1.5);
-        if (g.y - last_label >= 13) {
-            s +=
-                format("<text class=\"axis\" x=\"{}\" y=\"{:.2f}\" text-anchor=\"end\">{}</text>\n",
-                       left - 6, g.y + 4, fmtu::hex(g.begin));
-            last_label = g.y;
-        }
-    }
-    // Buffers first (containers, drawn behind what they hold), then everything else.
-    for (int pass = 0; pass < 2; ++pass) {
-        for (const RegionRow* g : drawn) {
-            if ((g->role == RegionRole::kBuffer) != (pass == 0)) continue;
-            double x0 = x(g->first_command),
-                   x1 = std::max(x(g->last_command) + width / span, x0 + 2.0);
-            double y0 = axis.y(g->base), y1 = std::max(axis.y_end(g->base + g->size), y0 + 1.0);
-            s += format(
-                "<rect class=\"region role-{}\" data-region=\"{}\" x=\"{:.2f}\" y=\"{:.2f}\" "
-                "width=\"{:.2f}\" "
-                "height=\"{:.2f}\" fill=\"{}\"><title>{} {} [{}, +{}) commands "
-                "{}..{}</title></rect>\n",
-                region_role_name(g->role), g->id, x0, y0, x1 - x0, y1 - y0, role_color(g->role),
-                region_role_name(g->role), escape_markup(g->label), fmtu::hex(g->base), g->size,
-                g->first_command, g->last_command);
-            if (pass == 1 && y1 - y0 >= 12 && x1 - x0 >= 70 && !g->label.empty())
-                s += format("<text class=\"region-label\" x=\"{:.2f}\" y=\"{:.2f}\">{}</text>\n",
-                            x0 + 3, y0 + 11,
-                            escape_markup(traces::utf8_prefix(g->label, static_cast<std::size_t>(
-                                                                            (x1 - x0) / 6.5))));
-        }
-    }
-    // Hazards and aliasing are always outlined, hazards on top; ordered reuse only while few
-    // enough to read (a frame loop reuses every buffer every frame).
-    std::size_t reuse_pairs = 0;
-    for (const OverlapRow& o : r.overlaps)
-        reuse_pairs += !o.hazard && o.kind == OverlapKind::kReuse;
-    const bool outline_reuse = reuse_pairs <= kMaxOutlinedReuse;
-    std::vector<const OverlapRow*> outlined;
-    for (int rank = 2; rank >= 0; --rank)
-        for (const OverlapRow& o : r.overlaps) {
-            int k = o.hazard ? 0 : (o.kind == OverlapKind::kAliasing ? 1 : 2);
-            if (k == rank && (k != 2 || outline_reuse)) outlined.push_back(&o);
-        }
-    for (const OverlapRow* op : outlined) {
-        const OverlapRow& o = *op;
-        double x0 = x(o.older_command), x1 = std::max(x(o.newer_command) + width / span, x0 + 2.0);
-        double y0 = axis.y(o.base), y1 = std::max(axis.y_end(o.base + o.size), y0 + 2.0);
-        const char* cls =
-            o.hazard ? "hazard" : (o.kind == OverlapKind::kAliasing ? "aliasing" : "reuse");
-        s += format(
-            "<rect class=\"overlap {}\" x=\"{:.2f}\" y=\"{:.2f}\" width=\"{:.2f}\" "
-            "height=\"{:.2f}\">"
-            "<title>{}: {} (cmd {}) and {} (cmd {}) share [{}, +{})</title></rect>\n",
-            cls, x0, y0, x1 - x0, y1 - y0, o.hazard ? "HAZARD" : overlap_kind_name(o.kind),
-            escape_markup(o.older_label), o.older_command, escape_markup(o.newer_label),
-            o.newer_command, fmtu::hex(o.base), o.size);
-    }
-    // Command axis: about eight ticks.
-    const double axis_y = top + height + 4;
-    s += format("<line class=\"axis-line\" x1=\"{}\" x2=\"{}\" y1=\"{}\" y2=\"{}\"/>\n", left,
-                left + width, axis_y, axis_y);
-    // At most nine ticks, whatever the ordinals (they may span all of 2^64).
-    const uint64_t step = (last - first) / 8 + 1;
-    for (uint64_t i = 0, o = first; i < 9; ++i, o += step) {
-        s += format("<text class=\"axis\" x=\"{:.1f}\" y=\"{}\" text-anchor=\"middle\">{}</text>\n",
-                    x(o) + width / span / 2, axis_y + 14, o);
-        if (last - o < step) break;
-    }
-    s += format(
-        "<text class=\"axis-title\" x=\"{}\" y=\"{}\" text-anchor=\"middle\">command "
-        "ordinal{}</text>\n",
-        left + width / 2, axis_y + 32,
-        (omitted ? format(" ({} smaller regions not drawn)", omitted) : std::string()) +
-            (outline_reuse ? std::string()
-                           : format(" ({} ordered-reuse pairs not outlined)", reuse_pairs)));
+    const MapFrame frame{
+        left, top, width, height, first, last, static_cast<double>(last - first) + 1.0};
+    append_address_labels(axis, frame, s);
+    append_regions(drawn, axis, frame, s);
+    const std::size_t unoutlined_reuse = append_overlaps(r, axis, frame, s);
+    append_command_axis(frame, omitted, unoutlined_reuse, s);
     s += "</svg>\n";
     return s;
 }
