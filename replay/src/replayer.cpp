@@ -236,11 +236,6 @@ void Replay::replay_records_ahead(ReplayProgress& progress) {
     uint64_t ahead_bytes = 0, read = stream_index_;
     bool more = true;
     RecordStage stage(reader_, reader_mutex_, kRecentContentsBytes / 4);
-    record_stage_reading_ = true;
-    struct StageEnds {
-        bool& reading;
-        ~StageEnds() { reading = false; }
-    } stage_ends{record_stage_reading_};
     for (;;) {
         while (more && (ahead.empty() || (ahead.size() < kRecordsAhead &&
                                           ahead_bytes < kBytesAhead && !ahead_runs_->full()))) {
@@ -279,27 +274,24 @@ void Replay::start_ahead(StagedRecord& staged, uint64_t stream_index) {
 
 // With runs ahead, the record stage asked the reader already (its answer does not depend on
 // when it is asked: the bytes it returns hash to the key); otherwise the reader answers, one
-// caller at a time while the stage reads records on its own thread.
-bool Replay::contents(uint64_t hash, std::vector<uint8_t>* bytes) {
-    if (RecentContents::Bytes kept = resolved_contents_.find(hash)) {
-        bytes->assign(kept->begin(), kept->end());
+// caller at a time while the stage reads records on its own thread. The reader's view stays
+// valid until its next read_contents_view, which only this thread makes: the stage's calls
+// (next, read_contents) leave it be.
+bool Replay::contents_view(uint64_t hash, std::span<const uint8_t>* bytes,
+                           RecentContents::Bytes* held) {
+    if ((*held = resolved_contents_.find(hash))) {
+        *bytes = **held;
         return true;
     }
     std::lock_guard lock(reader_mutex_);
-    return !reader_.read_contents(hash, bytes);
+    return !reader_.read_contents_view(hash, bytes);
 }
 
-// The reader's view is valid until its next call, which the record stage may make at any time
-// from its own thread: beside a stage the bytes are copied under the reader's lock.
-bool Replay::contents_view(uint64_t hash, std::span<const uint8_t>* bytes, HeldContents* held) {
-    if ((held->kept = resolved_contents_.find(hash))) {
-        *bytes = *held->kept;
-        return true;
-    }
-    if (!record_stage_reading_) return !reader_.read_contents_view(hash, bytes);
-    std::lock_guard lock(reader_mutex_);
-    if (reader_.read_contents(hash, &held->copy)) return false;
-    *bytes = held->copy;
+bool Replay::contents(uint64_t hash, std::vector<uint8_t>* bytes) {
+    RecentContents::Bytes held;
+    std::span<const uint8_t> view;
+    if (!contents_view(hash, &view, &held)) return false;
+    bytes->assign(view.begin(), view.end());
     return true;
 }
 

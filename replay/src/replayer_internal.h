@@ -145,13 +145,9 @@ private:
 
     // Memory helpers.
     bool contents(uint64_t hash, std::vector<uint8_t>* bytes);
-    // A content's bytes with no copy where that is safe (contents_view in replayer.cpp); `held`
-    // and `copy` keep them alive until the caller is done.
-    struct HeldContents {
-        RecentContents::Bytes kept;
-        std::vector<uint8_t> copy;
-    };
-    bool contents_view(uint64_t hash, std::span<const uint8_t>* bytes, HeldContents* held);
+    // A content's bytes without a copy, valid while `held` (the record stage's answer, when it
+    // has one) is and until the next contents_view (the reader's view).
+    bool contents_view(uint64_t hash, std::span<const uint8_t>* bytes, RecentContents::Bytes* held);
     void lay_in_snapshots(const traces::SnapshotVector* snapshots, const ReplayLocation& where);
     void feed(const CommandRef& ref, const AddressRange& range, StageMask stage, AccessMask access,
               bool write, std::string_view field);
@@ -312,7 +308,6 @@ private:
     // than a run's snapshots are.
     static constexpr uint64_t kResolvedContentsBytes = 16ull << 20;
     RecentContents resolved_contents_{kResolvedContentsBytes};
-    bool record_stage_reading_ = false;  // a RecordStage calls the reader on its own thread
     const std::vector<uint8_t>* command_bytes_ = nullptr;
     uint64_t stream_index_ = 0;
     // Builds read ahead before the buffers they name were placed (a trace's first frames are

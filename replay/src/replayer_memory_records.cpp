@@ -47,7 +47,7 @@ void Replay::lay_in_snapshots(const traces::SnapshotVector* snapshots,
                               const ReplayLocation& where) {
     if (!snapshots) return;
     std::vector<uint8_t> edited;
-    HeldContents held_contents;
+    RecentContents::Bytes held_contents;
     for (const fbs::MemorySnapshot* s : *snapshots) {
         std::optional<uint64_t> address =
             memory_.snapshot_address(s->buffer(), s->offset(), s->address());
@@ -86,7 +86,7 @@ void Replay::host_observation(const fbs::MemoryObservation& observation) {
     constexpr uint32_t kReadByCommand = 4;
     const bool read_by_command = observation.reason() == kReadByCommand;
     std::vector<uint8_t> edited, before;
-    HeldContents held_contents;
+    RecentContents::Bytes held_contents;
     for (const fbs::MemorySnapshot* s : *observation.snapshots()) {
         std::optional<uint64_t> address =
             memory_.snapshot_address(s->buffer(), s->offset(), s->address());
