@@ -215,7 +215,7 @@ bool PageGuard::watch(std::vector<uintptr_t> pages, bool uncached) {
             adopted.push_back(page);
             continue;
         }
-        while (e->state.load(std::memory_order_acquire) == kCapturing) cpu_relax();
+        wait_while_capturing(e);
         // Armed before the page turns read-only: a write in between is one the page held already.
         e->stray_faults.store(0, std::memory_order_relaxed);
         e->state.store(kArmed, std::memory_order_release);
@@ -257,7 +257,7 @@ void PageGuard::rest(Entry* e, uintptr_t page, std::vector<uintptr_t>* to_releas
     uint32_t armed = kArmed;
     if (e->state.compare_exchange_strong(armed, kResting, std::memory_order_acq_rel)) return;
     // Written (or being written): the handler made it writable; its before-image has no reader.
-    while (e->state.load(std::memory_order_acquire) == kCapturing) cpu_relax();
+    wait_while_capturing(e);
     e->state.store(kFree, std::memory_order_release);
 }
 
@@ -272,7 +272,7 @@ void PageGuard::forget_memory(uintptr_t begin, size_t size) {
         if (e && e->state.compare_exchange_strong(resting, kCapturing, std::memory_order_acq_rel))
             writable.push_back(*it);
         else if (e)
-            while (e->state.load(std::memory_order_acquire) == kCapturing) cpu_relax();
+            wait_while_capturing(e);
         if (e) e->hot.store(0, std::memory_order_relaxed);  // other memory may come here next
         it = watched_ever_.erase(it);
     }
@@ -287,7 +287,7 @@ void PageGuard::release(const std::vector<uintptr_t>& pages) {
     for (uintptr_t page : pages) {
         Entry* e = find(page);
         if (!e) continue;
-        while (e->state.load(std::memory_order_acquire) == kCapturing) cpu_relax();
+        wait_while_capturing(e);
         e->state.store(kFree, std::memory_order_release);
     }
 }
@@ -382,6 +382,10 @@ bool PageGuard::take_fault(uintptr_t address) {
         before_image_ns_.fetch_add(monotonic_ns() - start, std::memory_order_relaxed);
         return true;
     }
+}
+
+void PageGuard::wait_while_capturing(const Entry* e) {
+    while (e->state.load(std::memory_order_acquire) == kCapturing) cpu_relax();
 }
 
 bool PageGuard::take_resting_fault(Entry* e) {

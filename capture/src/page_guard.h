@@ -118,6 +118,8 @@ private:
     void rest(Entry* e, uintptr_t page, std::vector<uintptr_t>* to_release);
     // The handler's part for a resting page: writable again, forgotten.
     bool take_resting_fault(Entry* e);
+    // Waits while a fault's handler copies the page's before-image (kCapturing).
+    static void wait_while_capturing(const Entry* e);
 
     const size_t page_size_;
     Entry* const table_;
