@@ -7,6 +7,7 @@
 
 #include <cstdint>
 #include <cstring>
+#include <limits>
 
 #if defined(__SSE2__)
 #include <emmintrin.h>
@@ -108,5 +109,15 @@ inline Float4 bytes_to_float4(const uint8_t* p) {
 }
 
 #endif
+
+// Lanes holding exactly zero (either sign): x <= 0 and 0 <= x both hold only there.
+inline unsigned zero_lanes(Float4 a) {
+    const Float4 zero = splat(0.0f);
+    return le_lanes(a, zero) & le_lanes(zero, a);
+}
+// Finite lanes: |x| <= FLT_MAX fails for NaN and infinity.
+inline unsigned finite_lanes(Float4 a) {
+    return le_lanes(abs4(a), splat(std::numeric_limits<float>::max()));
+}
 
 }  // namespace clastrace::engine::detail

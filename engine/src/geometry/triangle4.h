@@ -239,23 +239,17 @@ struct Triangle4Float32 {
     using detail::Float4;
     const Triangle4Edges e = triangle4_edges(r, t);
     const Float4 zero = detail::splat(0.0f);
-    const Float4 largest = detail::splat(std::numeric_limits<float>::max());
-    // |x| <= FLT_MAX fails for NaN and infinity; x <= 0 and 0 <= x both hold only for 0.
-    const unsigned finite = detail::le_lanes(detail::abs4(e.u), largest) &
-                            detail::le_lanes(detail::abs4(e.v), largest) &
-                            detail::le_lanes(detail::abs4(e.w), largest);
-    const unsigned zeros = (detail::le_lanes(e.u, zero) & detail::le_lanes(zero, e.u)) |
-                           (detail::le_lanes(e.v, zero) & detail::le_lanes(zero, e.v)) |
-                           (detail::le_lanes(e.w, zero) & detail::le_lanes(zero, e.w));
+    const unsigned finite =
+        detail::finite_lanes(e.u) & detail::finite_lanes(e.v) & detail::finite_lanes(e.w);
+    const unsigned zeros =
+        detail::zero_lanes(e.u) | detail::zero_lanes(e.v) | detail::zero_lanes(e.w);
     const unsigned plain = finite & ~zeros & 0xFu;
     out->fallback = used & ~plain;
     // No zero among them: a hit has all three of one sign.
     const unsigned positive = ~detail::le_lanes(detail::min4(detail::min4(e.u, e.v), e.w), zero);
     const unsigned negative = ~detail::le_lanes(zero, detail::max4(detail::max4(e.u, e.v), e.w));
     const Float4 det = (e.u + e.v) + e.w;
-    // det != 0 and finite.
-    const unsigned det_ok = detail::le_lanes(detail::abs4(det), largest) &
-                            ~(detail::le_lanes(det, zero) & detail::le_lanes(zero, det));
+    const unsigned det_ok = detail::finite_lanes(det) & ~detail::zero_lanes(det);
     out->hits = used & plain & (positive | negative) & det_ok;
     if (out->hits == 0) return;
     const Float4 t_scaled = (e.u * e.z[0] + e.v * e.z[1]) + e.w * e.z[2];
