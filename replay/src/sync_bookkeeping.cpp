@@ -38,7 +38,7 @@ uint16_t SyncModel::State::queue_slot(QueueId id) {
     q.id = id;
     queues.push_back(std::move(q));
     for (Queue& each : queues) each.known.resize(queues.size(), 0);
-    for (auto& [handle, clock] : fences) clock.resize(queues.size(), 0);
+    for (auto& [handle, fence] : fences) fence.clock.resize(queues.size(), 0);
     for (auto& [handle, sem] : semaphores) {
         if (sem.binary_signal) sem.binary_signal->resize(queues.size(), 0);
         for (auto& [value, clock] : sem.timeline) clock.resize(queues.size(), 0);

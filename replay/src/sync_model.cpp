@@ -297,10 +297,7 @@ void SyncModel::end_submission(std::span<const SemaphoreSignal> signals, uint64_
                 sem.timeline_narrow.erase(sig.value);
         }
     }
-    if (fence) {
-        s.fences[fence] = clock;
-        s.fence_submissions[fence] = s.current_submission;
-    }
+    if (fence) s.fences[fence] = {clock, s.current_submission};
     s.in_submission = false;
     s.maybe_compact(s.queues[s.current_queue]);
 }
@@ -320,8 +317,8 @@ void SyncModel::wait_for_fence(uint64_t fence) {
     s.sync_tag();
     auto it = s.fences.find(fence);
     if (it == s.fences.end()) return;
-    s.last_fence_wait.emplace(fence, s.fence_submissions[fence]);
-    s.complete_through(it->second, false);
+    if (it->second.submission) s.last_fence_wait.emplace(fence, *it->second.submission);
+    s.complete_through(it->second.clock, false);
 }
 
 void SyncModel::queue_wait_idle(QueueId queue) {
@@ -397,7 +394,7 @@ void SyncModel::acquire_signal(uint64_t semaphore, uint64_t fence) {
         sem.binary_signal = Clock(s.queues.size(), 0);
         sem.binary_narrow = {};
     }
-    if (fence) s.fences[fence] = Clock(s.queues.size(), 0);
+    if (fence) s.fences[fence] = {Clock(s.queues.size(), 0), std::nullopt};
 }
 
 const std::vector<HazardReport>& SyncModel::hazards() const { return state_->reports; }

@@ -41,10 +41,14 @@ struct SyncModel::State {
     uint32_t current_command = 0;  // the index of the command command_tag last saw
     std::vector<Queue> queues;
     std::unordered_map<uint64_t, SemaphoreState> semaphores;
-    std::unordered_map<uint64_t, Clock> fences;
-    // For the advice on host-write races (sync_wait_advice.cpp): the submission each fence
-    // signals after, and the fence the host waited on last with its submission.
-    std::unordered_map<uint64_t, uint32_t> fence_submissions;
+    struct FenceSignal {
+        Clock clock;
+        // The submission it signals after, for the advice on host-write races
+        // (sync_wait_advice.cpp); none for an image acquire's fence.
+        std::optional<uint32_t> submission;
+    };
+    std::unordered_map<uint64_t, FenceSignal> fences;
+    // The last fence of a submission the host waited on, with that submission.
     std::optional<std::pair<uint64_t, uint32_t>> last_fence_wait;
     uint32_t current_submission = 0;
     std::unordered_map<uint64_t, EventState> events;
