@@ -392,31 +392,37 @@ std::vector<NvTracedRay> sceneRays(uint32_t count) {
     return rays;
 }
 
-}  // namespace
+// ---- Start-up ------------------------------------------------------------------------------
 
-int main(int argc, char** argv) {
+struct AppOptions {
     bool probe = false, require = false, skipKhr = false, extremes = false;
     uint32_t rayCount = 4096;
+};
+
+bool parseArgs(int argc, char** argv, AppOptions& o) {
     for (int i = 1; i < argc; ++i) {
         const std::string a = argv[i];
         if (a == "--probe")
-            probe = true;
+            o.probe = true;
         else if (a == "--require")
-            require = true;
+            o.require = true;
         else if (a == "--no-khr")
-            skipKhr = true;
+            o.skipKhr = true;
         else if (a == "--extremes")
-            extremes = true;
+            o.extremes = true;
         else if (a == "--rays" && i + 1 < argc)
-            rayCount = uint32_t(std::strtoul(argv[++i], nullptr, 10));
+            o.rayCount = uint32_t(std::strtoul(argv[++i], nullptr, 10));
         else {
             std::fprintf(stderr,
                          "usage: nv_ray_tracing_app [--probe] [--require] [--no-khr] [--extremes] "
                          "[--rays N]\n");
-            return 2;
+            return false;
         }
     }
-    Vulkan v;
+    return true;
+}
+
+void createInstance(Vulkan& v) {
     VkApplicationInfo app{VK_STRUCTURE_TYPE_APPLICATION_INFO};
     app.pApplicationName = "nv_ray_tracing_app";
     app.pEngineName = "clastrace tests";
@@ -424,7 +430,10 @@ int main(int argc, char** argv) {
     VkInstanceCreateInfo ici{VK_STRUCTURE_TYPE_INSTANCE_CREATE_INFO};
     ici.pApplicationInfo = &app;
     CHECK(vkCreateInstance(&ici, nullptr, &v.instance));
+}
 
+// The first device with VK_NV_ray_tracing (else the first device); returns its extensions.
+std::vector<VkExtensionProperties> pickPhysicalDevice(Vulkan& v) {
     uint32_t count = 0;
     CHECK(vkEnumeratePhysicalDevices(v.instance, &count, nullptr));
     std::vector<VkPhysicalDevice> physicals(count);
@@ -445,33 +454,23 @@ int main(int argc, char** argv) {
         }
     }
     if (!v.physical) die("no Vulkan device");
-    if (probe) printProbe(v, extensions);
-    VkPhysicalDeviceProperties properties;
-    vkGetPhysicalDeviceProperties(v.physical, &properties);
-    if (!hasExtension(extensions, VK_NV_RAY_TRACING_EXTENSION_NAME)) {
-        std::printf(
-            "nv_ray_tracing_app: VK_NV_ray_tracing not available on '%s': skipping the NV "
-            "ray-tracing scene\n",
-            properties.deviceName);
-        vkDestroyInstance(v.instance, nullptr);
-        return require ? 77 : 0;
-    }
-    if (probe) {
-        vkDestroyInstance(v.instance, nullptr);
-        return 0;
-    }
-    v.khr = !skipKhr && hasExtension(extensions, VK_KHR_ACCELERATION_STRUCTURE_EXTENSION_NAME) &&
-            hasExtension(extensions, VK_KHR_DEFERRED_HOST_OPERATIONS_EXTENSION_NAME);
+    return extensions;
+}
 
+uint32_t computeFamily(VkPhysicalDevice physical) {
     uint32_t familyCount = 0;
-    vkGetPhysicalDeviceQueueFamilyProperties(v.physical, &familyCount, nullptr);
+    vkGetPhysicalDeviceQueueFamilyProperties(physical, &familyCount, nullptr);
     std::vector<VkQueueFamilyProperties> families(familyCount);
-    vkGetPhysicalDeviceQueueFamilyProperties(v.physical, &familyCount, families.data());
-    v.family = UINT32_MAX;
-    for (uint32_t i = 0; i < familyCount && v.family == UINT32_MAX; ++i)
-        if (families[i].queueFlags & VK_QUEUE_COMPUTE_BIT) v.family = i;
-    if (v.family == UINT32_MAX) die("no compute queue");
+    vkGetPhysicalDeviceQueueFamilyProperties(physical, &familyCount, families.data());
+    for (uint32_t i = 0; i < familyCount; ++i)
+        if (families[i].queueFlags & VK_QUEUE_COMPUTE_BIT) return i;
+    die("no compute queue");
+}
 
+// The device with VK_NV_ray_tracing (and the KHR acceleration structures when v.khr), its
+// queue, properties and command pool.
+void createDevice(Vulkan& v) {
+    v.family = computeFamily(v.physical);
     std::vector<const char*> enabled = {VK_NV_RAY_TRACING_EXTENSION_NAME};
     VkPhysicalDeviceVulkan12Features features12{
         VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_2_FEATURES};
@@ -506,169 +505,230 @@ int main(int argc, char** argv) {
     pci.flags = VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT;
     pci.queueFamilyIndex = v.family;
     CHECK(vkCreateCommandPool(v.device, &pci, nullptr, &v.pool));
-    std::printf(
-        "nv_ray_tracing_app: device '%s', driverVersion 0x%08x, KHR acceleration structures %s\n",
-        properties.deviceName, properties.driverVersion, v.khr ? "on" : "off");
+}
 
-    // ---- NV bottom levels and top level ---------------------------------------------------------
-    const VkBufferUsageFlags input = VK_BUFFER_USAGE_RAY_TRACING_BIT_NV;
-    auto sceneVertices = [&](float phase) {
+// ---- NV bottom levels and top level -----------------------------------------------------------
+
+// The NV scene's buffers, geometries and structures. The build infos point into it: it is
+// filled in place and never moved.
+struct NvStructures {
+    bool extremes = false;
+    Vulkan::Buffer vertices, indices, transforms, tetraVertices, tetraIndices, boxBuffer,
+        instanceBuffer, scratch;
+    uint32_t vertexCount = 0, indexCount = 0;
+    VkGeometryNV triangleGeometries[2] = {};
+    VkGeometryNV aabbGeometry{VK_STRUCTURE_TYPE_GEOMETRY_NV};
+    VkAccelerationStructureInfoNV triangleInfo{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_INFO_NV};
+    VkAccelerationStructureInfoNV aabbInfo{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_INFO_NV};
+    VkAccelerationStructureInfoNV topInfo{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_INFO_NV};
+    NvObject triangleBlas, aabbBlas, tlas;
+    // Instances: (custom index, mask, SBT offset, flags) each different; instance 4 has mask 0.
+    static constexpr uint32_t kInstances = 5;
+    std::vector<VkAccelerationStructureInstanceNV> instances =
+        std::vector<VkAccelerationStructureInstanceNV>(kInstances);
+    std::vector<Box> boxValues;  // the boxes as last written
+
+    std::vector<Vertex> sceneVertices(float phase) const {
         return extremes ? extremeVertices(phase) : heightField(phase);
-    };
-    auto sceneBoxes = [&](float lift) { return extremes ? extremeBoxes(lift) : boxes(lift); };
-    const auto firstVertices = sceneVertices(0.0f);
-    const auto gridIndices = extremes ? extremeIndices() : heightFieldIndices();
-    auto vertices = v.upload(firstVertices, input);
-    auto indices = v.upload(gridIndices, input);
+    }
+    std::vector<Box> sceneBoxes(float lift) const {
+        return extremes ? extremeBoxes(lift) : boxes(lift);
+    }
+};
+
+void uploadInputs(Vulkan& v, NvStructures& s) {
+    const VkBufferUsageFlags input = VK_BUFFER_USAGE_RAY_TRACING_BIT_NV;
+    const auto firstVertices = s.sceneVertices(0.0f);
+    const auto gridIndices = s.extremes ? extremeIndices() : heightFieldIndices();
+    s.vertexCount = uint32_t(firstVertices.size());
+    s.indexCount = uint32_t(gridIndices.size());
+    s.vertices = v.upload(firstVertices, input);
+    s.indices = v.upload(gridIndices, input);
     // Two 3x4 transforms at offsets 0 and 48; geometry 0 uses the second (offset 48).
     std::vector<float> transforms = {1,    0, 0, 0,    0, 1, 0, 0,     0, 0, 1,    0,
                                      1.2f, 0, 0, 0.5f, 0, 1, 0, 0.25f, 0, 0, 1.2f, -0.5f};
-    auto transformBuffer = v.upload(transforms, input);
+    s.transforms = v.upload(transforms, input);
     const std::vector<float> tetraVertices = {0,    1.5f, 0,     -0.6f, 0.6f, -0.6f,
                                               0.6f, 0.6f, -0.6f, 0,     0.6f, 0.7f};
     const std::vector<uint16_t> tetraIndices = {0, 1, 2, 0, 2, 3, 0, 3, 1, 1, 3, 2};
-    auto tetraVertexBuffer = v.upload(tetraVertices, input);
-    auto tetraIndexBuffer = v.upload(tetraIndices, input);
-    auto boxBuffer = v.upload(sceneBoxes(0.0f), input);
+    s.tetraVertices = v.upload(tetraVertices, input);
+    s.tetraIndices = v.upload(tetraIndices, input);
+    s.boxValues = s.sceneBoxes(0.0f);
+    s.boxBuffer = v.upload(s.boxValues, input);
+}
 
-    VkGeometryNV triangleGeometries[2] = {};
-    for (auto& g : triangleGeometries) {
+void describeTriangles(NvStructures& s) {
+    for (auto& g : s.triangleGeometries) {
         g.sType = VK_STRUCTURE_TYPE_GEOMETRY_NV;
         g.geometryType = VK_GEOMETRY_TYPE_TRIANGLES_NV;
         g.geometry.triangles.sType = VK_STRUCTURE_TYPE_GEOMETRY_TRIANGLES_NV;
         g.geometry.aabbs.sType = VK_STRUCTURE_TYPE_GEOMETRY_AABB_NV;
         g.flags = VK_GEOMETRY_OPAQUE_BIT_NV;
     }
-    auto& grid = triangleGeometries[0].geometry.triangles;
-    grid.vertexData = vertices.buffer;
-    grid.vertexCount = uint32_t(firstVertices.size());
+    auto& grid = s.triangleGeometries[0].geometry.triangles;
+    grid.vertexData = s.vertices.buffer;
+    grid.vertexCount = s.vertexCount;
     grid.vertexStride = sizeof(Vertex);
     grid.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
-    grid.indexData = indices.buffer;
-    grid.indexCount = uint32_t(gridIndices.size());
+    grid.indexData = s.indices.buffer;
+    grid.indexCount = s.indexCount;
     grid.indexType = VK_INDEX_TYPE_UINT32;
-    grid.transformData = transformBuffer.buffer;
+    grid.transformData = s.transforms.buffer;
     grid.transformOffset = 48;
-    auto& tetra = triangleGeometries[1].geometry.triangles;
-    tetra.vertexData = tetraVertexBuffer.buffer;
+    auto& tetra = s.triangleGeometries[1].geometry.triangles;
+    tetra.vertexData = s.tetraVertices.buffer;
     tetra.vertexCount = 4;
     tetra.vertexStride = 12;
     tetra.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
-    tetra.indexData = tetraIndexBuffer.buffer;
+    tetra.indexData = s.tetraIndices.buffer;
     tetra.indexCount = 12;
     tetra.indexType = VK_INDEX_TYPE_UINT16;
-    triangleGeometries[1].flags = 0;  // not opaque: exercises the no-any-hit path
+    s.triangleGeometries[1].flags = 0;  // not opaque: exercises the no-any-hit path
+    s.triangleInfo.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV;
+    s.triangleInfo.flags = VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_NV |
+                           VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_NV;
+    s.triangleInfo.geometryCount = 2;
+    s.triangleInfo.pGeometries = s.triangleGeometries;
+}
 
-    VkGeometryNV aabbGeometry{VK_STRUCTURE_TYPE_GEOMETRY_NV};
-    aabbGeometry.geometryType = VK_GEOMETRY_TYPE_AABBS_NV;
-    aabbGeometry.geometry.triangles.sType = VK_STRUCTURE_TYPE_GEOMETRY_TRIANGLES_NV;
-    aabbGeometry.geometry.aabbs.sType = VK_STRUCTURE_TYPE_GEOMETRY_AABB_NV;
-    aabbGeometry.geometry.aabbs.aabbData = boxBuffer.buffer;
-    aabbGeometry.geometry.aabbs.numAABBs = 8;
-    aabbGeometry.geometry.aabbs.stride = sizeof(Box);
-    aabbGeometry.flags = VK_GEOMETRY_OPAQUE_BIT_NV;
+void describeBoxes(NvStructures& s) {
+    s.aabbGeometry.geometryType = VK_GEOMETRY_TYPE_AABBS_NV;
+    s.aabbGeometry.geometry.triangles.sType = VK_STRUCTURE_TYPE_GEOMETRY_TRIANGLES_NV;
+    s.aabbGeometry.geometry.aabbs.sType = VK_STRUCTURE_TYPE_GEOMETRY_AABB_NV;
+    s.aabbGeometry.geometry.aabbs.aabbData = s.boxBuffer.buffer;
+    s.aabbGeometry.geometry.aabbs.numAABBs = 8;
+    s.aabbGeometry.geometry.aabbs.stride = sizeof(Box);
+    s.aabbGeometry.flags = VK_GEOMETRY_OPAQUE_BIT_NV;
+    s.aabbInfo.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV;
+    s.aabbInfo.flags = VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_NV;
+    s.aabbInfo.geometryCount = 1;
+    s.aabbInfo.pGeometries = &s.aabbGeometry;
+}
 
-    VkAccelerationStructureInfoNV triangleInfo{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_INFO_NV};
-    triangleInfo.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV;
-    triangleInfo.flags = VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_NV |
-                         VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_NV;
-    triangleInfo.geometryCount = 2;
-    triangleInfo.pGeometries = triangleGeometries;
-    VkAccelerationStructureInfoNV aabbInfo{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_INFO_NV};
-    aabbInfo.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_NV;
-    aabbInfo.flags = VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_NV;
-    aabbInfo.geometryCount = 1;
-    aabbInfo.pGeometries = &aabbGeometry;
-    NvObject triangleBlas = createNv(v, triangleInfo);
-    NvObject aabbBlas = createNv(v, aabbInfo);
+void fillInstances(NvStructures& s, float t) {
+    auto& instances = s.instances;
+    setTransform(instances[0], 0.0f, 1.0f, -4.0f, 0.0f, -3.0f);
+    setTransform(instances[1], 0.6f + t, 0.8f, 4.0f, 0.5f, -2.0f);
+    setTransform(instances[2], 0.0f, 1.0f, -3.0f, 0.2f + t, 4.0f);
+    setTransform(instances[3], -0.4f, 1.5f, 4.5f, 0.0f, 4.5f);
+    setTransform(instances[4], 0.0f, 1.0f, 0.0f, -2.0f, 0.0f);
+    if (s.extremes) {
+        // Mirrored (x negated: front faces turn back), a hundredth the size, 1000 away.
+        const float mirrored[12] = {-0.8f, 0, 0, 4.0f, 0, 0.8f, 0, 0.5f + t, 0, 0, 0.8f, -2.0f};
+        std::memcpy(instances[1].transform.matrix, mirrored, sizeof mirrored);
+        setTransform(instances[2], 0.0f, 0.01f, -3.0f, 0.2f + t, 4.0f);
+        setTransform(instances[3], -0.4f, 1.5f, 1000.0f, 0.0f, 1000.0f);
+    }
+    constexpr uint32_t n = NvStructures::kInstances;
+    const uint32_t custom[n] = {10, 11, 12, 0xABCDE, 14};
+    const uint32_t masks[n] = {0xFF, 0x01, 0xFF, 0x02, 0x00};
+    const uint32_t offsets[n] = {0, 0, 2, 2, 0};
+    const uint32_t flags[n] = {0, VK_GEOMETRY_INSTANCE_TRIANGLE_CULL_DISABLE_BIT_NV,
+                               VK_GEOMETRY_INSTANCE_FORCE_OPAQUE_BIT_NV,
+                               VK_GEOMETRY_INSTANCE_TRIANGLE_FRONT_COUNTERCLOCKWISE_BIT_NV, 0};
+    for (uint32_t i = 0; i < n; ++i) {
+        instances[i].instanceCustomIndex = custom[i];
+        instances[i].mask = masks[i];
+        instances[i].instanceShaderBindingTableRecordOffset = offsets[i];
+        instances[i].flags = flags[i];
+        instances[i].accelerationStructureReference =
+            (i == 2 || i == 3) ? s.aabbBlas.deviceHandle : s.triangleBlas.deviceHandle;
+    }
+}
 
-    // Instances: (custom index, mask, SBT offset, flags) each different; instance 4 has mask 0.
-    constexpr uint32_t kInstances = 5;
-    std::vector<VkAccelerationStructureInstanceNV> instances(kInstances);
-    auto fillInstances = [&](float t) {
-        setTransform(instances[0], 0.0f, 1.0f, -4.0f, 0.0f, -3.0f);
-        setTransform(instances[1], 0.6f + t, 0.8f, 4.0f, 0.5f, -2.0f);
-        setTransform(instances[2], 0.0f, 1.0f, -3.0f, 0.2f + t, 4.0f);
-        setTransform(instances[3], -0.4f, 1.5f, 4.5f, 0.0f, 4.5f);
-        setTransform(instances[4], 0.0f, 1.0f, 0.0f, -2.0f, 0.0f);
-        if (extremes) {
-            // Mirrored (x negated: front faces turn back), a hundredth the size, 1000 away.
-            const float mirrored[12] = {-0.8f, 0, 0, 4.0f, 0, 0.8f, 0, 0.5f + t, 0, 0, 0.8f, -2.0f};
-            std::memcpy(instances[1].transform.matrix, mirrored, sizeof mirrored);
-            setTransform(instances[2], 0.0f, 0.01f, -3.0f, 0.2f + t, 4.0f);
-            setTransform(instances[3], -0.4f, 1.5f, 1000.0f, 0.0f, 1000.0f);
-        }
-        const uint32_t custom[kInstances] = {10, 11, 12, 0xABCDE, 14};
-        const uint32_t masks[kInstances] = {0xFF, 0x01, 0xFF, 0x02, 0x00};
-        const uint32_t offsets[kInstances] = {0, 0, 2, 2, 0};
-        const uint32_t flags[kInstances] = {
-            0, VK_GEOMETRY_INSTANCE_TRIANGLE_CULL_DISABLE_BIT_NV,
-            VK_GEOMETRY_INSTANCE_FORCE_OPAQUE_BIT_NV,
-            VK_GEOMETRY_INSTANCE_TRIANGLE_FRONT_COUNTERCLOCKWISE_BIT_NV, 0};
-        for (uint32_t i = 0; i < kInstances; ++i) {
-            instances[i].instanceCustomIndex = custom[i];
-            instances[i].mask = masks[i];
-            instances[i].instanceShaderBindingTableRecordOffset = offsets[i];
-            instances[i].flags = flags[i];
-            instances[i].accelerationStructureReference =
-                (i == 2 || i == 3) ? aabbBlas.deviceHandle : triangleBlas.deviceHandle;
-        }
-    };
-    fillInstances(0.0f);
-    auto instanceBuffer = v.upload(instances, input);
-    VkAccelerationStructureInfoNV topInfo{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_INFO_NV};
-    topInfo.type = VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV;
-    topInfo.flags = VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_NV;
-    topInfo.instanceCount = kInstances;
-    NvObject tlas = createNv(v, topInfo);
-
+void createStructures(Vulkan& v, NvStructures& s) {
+    uploadInputs(v, s);
+    describeTriangles(s);
+    describeBoxes(s);
+    s.triangleBlas = createNv(v, s.triangleInfo);
+    s.aabbBlas = createNv(v, s.aabbInfo);
+    fillInstances(s, 0.0f);
+    s.instanceBuffer = v.upload(s.instances, VK_BUFFER_USAGE_RAY_TRACING_BIT_NV);
+    s.topInfo.type = VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV;
+    s.topInfo.flags = VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_NV;
+    s.topInfo.instanceCount = NvStructures::kInstances;
+    s.tlas = createNv(v, s.topInfo);
     VkDeviceSize scratchSize = 0;
-    for (const NvObject* o : {&triangleBlas, &aabbBlas, &tlas})
+    for (const NvObject* o : {&s.triangleBlas, &s.aabbBlas, &s.tlas})
         scratchSize = std::max({scratchSize, o->buildScratch, o->updateScratch});
-    auto scratch = v.buffer(scratchSize, VK_BUFFER_USAGE_RAY_TRACING_BIT_NV, false);
+    s.scratch = v.buffer(scratchSize, VK_BUFFER_USAGE_RAY_TRACING_BIT_NV, false);
+}
+
+void buildAll(Vulkan& v, NvStructures& s, bool update) {
     auto build = v.proc<PFN_vkCmdBuildAccelerationStructureNV>("vkCmdBuildAccelerationStructureNV");
+    v.submit([&](VkCommandBuffer cb) {
+        // One scratch buffer for all three: each build waits for the one before.
+        build(cb, &s.triangleInfo, VK_NULL_HANDLE, 0, update, s.triangleBlas.handle,
+              update ? s.triangleBlas.handle : VK_NULL_HANDLE, s.scratch.buffer, 0);
+        asBarrier(cb);
+        build(cb, &s.aabbInfo, VK_NULL_HANDLE, 0, update, s.aabbBlas.handle,
+              update ? s.aabbBlas.handle : VK_NULL_HANDLE, s.scratch.buffer, 0);
+        asBarrier(cb);
+        build(cb, &s.topInfo, s.instanceBuffer.buffer, 0, update, s.tlas.handle,
+              update ? s.tlas.handle : VK_NULL_HANDLE, s.scratch.buffer, 0);
+        asBarrier(cb);
+    });
+}
 
-    auto buildAll = [&](bool update) {
-        v.submit([&](VkCommandBuffer cb) {
-            // One scratch buffer for all three: each build waits for the one before.
-            build(cb, &triangleInfo, VK_NULL_HANDLE, 0, update, triangleBlas.handle,
-                  update ? triangleBlas.handle : VK_NULL_HANDLE, scratch.buffer, 0);
-            asBarrier(cb);
-            build(cb, &aabbInfo, VK_NULL_HANDLE, 0, update, aabbBlas.handle,
-                  update ? aabbBlas.handle : VK_NULL_HANDLE, scratch.buffer, 0);
-            asBarrier(cb);
-            build(cb, &topInfo, instanceBuffer.buffer, 0, update, tlas.handle,
-                  update ? tlas.handle : VK_NULL_HANDLE, scratch.buffer, 0);
-            asBarrier(cb);
-        });
-    };
-    buildAll(false);
-    std::printf("nv_ray_tracing_app: built NV bottom levels 0x%016" PRIx64 " 0x%016" PRIx64
-                " and top level 0x%016" PRIx64 "\n",
-                triangleBlas.deviceHandle, aabbBlas.deviceHandle, tlas.deviceHandle);
+// Refit: same topology, moved vertices, boxes and instances.
+void refit(Vulkan& v, NvStructures& s) {
+    const auto moved = s.sceneVertices(0.8f);
+    std::memcpy(s.vertices.mapped, moved.data(), moved.size() * sizeof(Vertex));
+    s.boxValues = s.sceneBoxes(0.25f);
+    std::memcpy(s.boxBuffer.mapped, s.boxValues.data(), s.boxValues.size() * sizeof(Box));
+    fillInstances(s, 0.3f);
+    std::memcpy(s.instanceBuffer.mapped, s.instances.data(),
+                s.instances.size() * sizeof(s.instances[0]));
+    buildAll(v, s, true);
+}
 
-    // Refit: same topology, moved vertices, boxes and instances.
-    const auto moved = sceneVertices(0.8f);
-    std::memcpy(vertices.mapped, moved.data(), moved.size() * sizeof(Vertex));
-    const auto lifted = sceneBoxes(0.25f);
-    std::memcpy(boxBuffer.mapped, lifted.data(), lifted.size() * sizeof(Box));
-    fillInstances(0.3f);
-    std::memcpy(instanceBuffer.mapped, instances.data(), instances.size() * sizeof(instances[0]));
-    buildAll(true);
-    std::printf("nv_ray_tracing_app: updated (refit) the three NV structures\n");
+// ---- The application's own rays ---------------------------------------------------------------
 
-    // ---- The application's own rays ------------------------------------------------------------
+NvTraceScene traceScene(const NvStructures& s) {
     NvTraceScene scene;
     // Slots: 0-1 triangle bottom level's geometries, 2 the AABB geometry.
     scene.geometry_is_aabb = {0, 0, 1};
     scene.geometry_first_box = {0, 0, 0};
-    for (const Box& b : lifted)
+    for (const Box& b : s.boxValues)
         scene.boxes.insert(scene.boxes.end(),
                            {b.lo[0], b.lo[1], b.lo[2], b.hi[0], b.hi[1], b.hi[2]});
-    for (uint32_t i = 0; i < kInstances; ++i)
+    for (uint32_t i = 0; i < NvStructures::kInstances; ++i)
         scene.instances.push_back(
-            {instances[i].instanceShaderBindingTableRecordOffset, (i == 2 || i == 3) ? 2u : 0u});
+            {s.instances[i].instanceShaderBindingTableRecordOffset, (i == 2 || i == 3) ? 2u : 0u});
     scene.record_is_procedural = {0, 0, 1};
+    return scene;
+}
+
+void printHits(const std::vector<NvRayHit>& hits, size_t rayCount) {
+    constexpr uint32_t n = NvStructures::kInstances;
+    uint32_t hitCount = 0, perInstance[n] = {}, procedural = 0;
+    uint64_t digest = 1469598103934665603ull;
+    for (const NvRayHit& h : hits) {
+        if (h.hit) {
+            ++hitCount;
+            if (h.instance_id < n) ++perInstance[h.instance_id];
+            procedural += h.hit_kind == 0;
+        }
+        // Fields only: the shaders leave the padding words undefined.
+        for (size_t k = 0; k < offsetof(NvRayHit, pad); ++k)
+            digest = (digest ^ reinterpret_cast<const uint8_t*>(&h)[k]) * 1099511628211ull;
+    }
+    std::printf(
+        "nv_ray_tracing_app: traced %zu rays: %u hits (instances %u %u %u %u %u; %u on boxes), "
+        "digest %016" PRIx64 "\n",
+        rayCount, hitCount, perInstance[0], perInstance[1], perInstance[2], perInstance[3],
+        perInstance[4], procedural, digest);
+    for (size_t i = 0; i < 3 && i < hits.size(); ++i)
+        std::printf(
+            "nv_ray_tracing_app: ray %zu: hit %u t %.6f custom %u instance %u primitive %u "
+            "geometry %u kind 0x%x "
+            "uv (%.4f %.4f)\n",
+            i, hits[i].hit, hits[i].t, hits[i].instance_custom_index, hits[i].instance_id,
+            hits[i].primitive_id, hits[i].geometry_index, hits[i].hit_kind, hits[i].u, hits[i].v);
+}
+
+void traceAppRays(Vulkan& v, const NvStructures& s, uint32_t rayCount) {
+    const NvTraceScene scene = traceScene(s);
     clastrace::capture::NvRayTracerContext context;
     context.device = v.device;
     context.queue = v.queue;
@@ -679,177 +739,205 @@ int main(int argc, char** argv) {
     const auto rays = sceneRays(rayCount);
     std::vector<NvRayHit> hits;
     std::string error;
-    if (!clastrace::capture::trace_rays_nv(context, tlas.handle, scene, rays, hits, error))
+    if (!clastrace::capture::trace_rays_nv(context, s.tlas.handle, scene, rays, hits, error))
         die("tracing rays: " + error);
-    uint32_t hitCount = 0, perInstance[kInstances] = {}, procedural = 0;
-    uint64_t digest = 1469598103934665603ull;
-    for (const NvRayHit& h : hits) {
-        if (h.hit) {
-            ++hitCount;
-            if (h.instance_id < kInstances) ++perInstance[h.instance_id];
-            procedural += h.hit_kind == 0;
-        }
-        // Fields only: the shaders leave the padding words undefined.
-        for (size_t k = 0; k < offsetof(NvRayHit, pad); ++k)
-            digest = (digest ^ reinterpret_cast<const uint8_t*>(&h)[k]) * 1099511628211ull;
-    }
-    std::printf(
-        "nv_ray_tracing_app: traced %zu rays: %u hits (instances %u %u %u %u %u; %u on boxes), "
-        "digest %016" PRIx64 "\n",
-        rays.size(), hitCount, perInstance[0], perInstance[1], perInstance[2], perInstance[3],
-        perInstance[4], procedural, digest);
-    for (size_t i = 0; i < 3 && i < hits.size(); ++i)
+    printHits(hits, rays.size());
+}
+
+// ---- KHR: build, serialize, deserialize -------------------------------------------------------
+
+VkAccelerationStructureKHR makeKhr(Vulkan& v, VkDeviceSize size, Vulkan::Buffer& backing) {
+    auto createKhr =
+        v.proc<PFN_vkCreateAccelerationStructureKHR>("vkCreateAccelerationStructureKHR");
+    auto addressOf = v.proc<PFN_vkGetAccelerationStructureDeviceAddressKHR>(
+        "vkGetAccelerationStructureDeviceAddressKHR");
+    backing = v.buffer(size, VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR, false, true);
+    VkAccelerationStructureCreateInfoKHR ci{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_CREATE_INFO_KHR};
+    ci.buffer = backing.buffer;
+    ci.size = size;
+    ci.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR;
+    VkAccelerationStructureKHR as;
+    CHECK(createKhr(v.device, &ci, nullptr, &as));
+    VkAccelerationStructureDeviceAddressInfoKHR ai{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_DEVICE_ADDRESS_INFO_KHR};
+    ai.accelerationStructure = as;
+    const VkDeviceAddress address = addressOf(v.device, &ai);
+    std::printf("nv_ray_tracing_app: KHR structure of %" PRIu64 " bytes at 0x%016" PRIx64 "\n",
+                uint64_t(size), uint64_t(address));
+    return as;
+}
+
+// A KHR bottom level: its inputs, its structure and the build's scratch, kept alive together.
+struct KhrQuad {
+    Vulkan::Buffer vertices, indices, backing, scratch;
+    VkAccelerationStructureKHR structure = VK_NULL_HANDLE;
+    VkDeviceSize size = 0;
+};
+
+// Builds a two-triangle quad and returns its serialized size (a query after the build).
+uint64_t buildKhrQuad(Vulkan& v, KhrQuad& q) {
+    auto sizes = v.proc<PFN_vkGetAccelerationStructureBuildSizesKHR>(
+        "vkGetAccelerationStructureBuildSizesKHR");
+    auto buildKhr =
+        v.proc<PFN_vkCmdBuildAccelerationStructuresKHR>("vkCmdBuildAccelerationStructuresKHR");
+    auto writeProperties = v.proc<PFN_vkCmdWriteAccelerationStructuresPropertiesKHR>(
+        "vkCmdWriteAccelerationStructuresPropertiesKHR");
+    const std::vector<float> quad = {-1, 0, -1, 1, 0, -1, 1, 0, 1, -1, 0, 1};
+    const std::vector<uint32_t> quadIndices = {0, 1, 2, 0, 2, 3};
+    const VkBufferUsageFlags buildInput =
+        VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
+    q.vertices = v.upload(quad, buildInput, true);
+    q.indices = v.upload(quadIndices, buildInput, true);
+    VkAccelerationStructureGeometryKHR geometry{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_KHR};
+    geometry.geometryType = VK_GEOMETRY_TYPE_TRIANGLES_KHR;
+    geometry.flags = VK_GEOMETRY_OPAQUE_BIT_KHR;
+    auto& t = geometry.geometry.triangles;
+    t.sType = VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_TRIANGLES_DATA_KHR;
+    t.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+    t.vertexData.deviceAddress = q.vertices.address;
+    t.vertexStride = 12;
+    t.maxVertex = 3;
+    t.indexType = VK_INDEX_TYPE_UINT32;
+    t.indexData.deviceAddress = q.indices.address;
+    VkAccelerationStructureBuildGeometryInfoKHR buildInfo{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_GEOMETRY_INFO_KHR};
+    buildInfo.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR;
+    buildInfo.flags = VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_KHR;
+    buildInfo.mode = VK_BUILD_ACCELERATION_STRUCTURE_MODE_BUILD_KHR;
+    buildInfo.geometryCount = 1;
+    buildInfo.pGeometries = &geometry;
+    const uint32_t primitives = 2;
+    VkAccelerationStructureBuildSizesInfoKHR sizeInfo{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR};
+    sizes(v.device, VK_ACCELERATION_STRUCTURE_BUILD_TYPE_DEVICE_KHR, &buildInfo, &primitives,
+          &sizeInfo);
+    q.size = sizeInfo.accelerationStructureSize;
+    q.structure = makeKhr(v, q.size, q.backing);
+    const VkDeviceSize scratchAlign =
+        std::max<VkDeviceSize>(v.asProperties.minAccelerationStructureScratchOffsetAlignment, 1);
+    q.scratch = v.buffer(sizeInfo.buildScratchSize + scratchAlign,
+                         VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, false, true);
+    buildInfo.dstAccelerationStructure = q.structure;
+    buildInfo.scratchData.deviceAddress =
+        (q.scratch.address + scratchAlign - 1) / scratchAlign * scratchAlign;
+    VkAccelerationStructureBuildRangeInfoKHR range{primitives, 0, 0, 0};
+    const VkAccelerationStructureBuildRangeInfoKHR* ranges = &range;
+
+    VkQueryPoolCreateInfo qpi{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
+    qpi.queryType = VK_QUERY_TYPE_ACCELERATION_STRUCTURE_SERIALIZATION_SIZE_KHR;
+    qpi.queryCount = 1;
+    VkQueryPool queries;
+    CHECK(vkCreateQueryPool(v.device, &qpi, nullptr, &queries));
+    v.submit([&](VkCommandBuffer cb) {
+        vkCmdResetQueryPool(cb, queries, 0, 1);
+        buildKhr(cb, 1, &buildInfo, &ranges);
+        VkMemoryBarrier b{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr,
+                          VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
+                          VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_KHR};
+        vkCmdPipelineBarrier(cb, VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                             VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, 0, 1, &b, 0,
+                             nullptr, 0, nullptr);
+        writeProperties(cb, 1, &q.structure,
+                        VK_QUERY_TYPE_ACCELERATION_STRUCTURE_SERIALIZATION_SIZE_KHR, queries, 0);
+    });
+    uint64_t serializedSize = 0;
+    CHECK(vkGetQueryPoolResults(v.device, queries, 0, 1, sizeof serializedSize, &serializedSize,
+                                sizeof serializedSize,
+                                VK_QUERY_RESULT_64_BIT | VK_QUERY_RESULT_WAIT_BIT));
+    vkDestroyQueryPool(v.device, queries, nullptr);
+    return serializedSize;
+}
+
+void khrRoundTrip(Vulkan& v) {
+    auto toMemory = v.proc<PFN_vkCmdCopyAccelerationStructureToMemoryKHR>(
+        "vkCmdCopyAccelerationStructureToMemoryKHR");
+    auto fromMemory = v.proc<PFN_vkCmdCopyMemoryToAccelerationStructureKHR>(
+        "vkCmdCopyMemoryToAccelerationStructureKHR");
+    KhrQuad source;
+    const uint64_t serializedSize = buildKhrQuad(v, source);
+    // The blob's address must be 256-byte aligned: over-allocate and align inside the buffer.
+    auto blob = v.buffer(serializedSize + 256,
+                         VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR |
+                             VK_BUFFER_USAGE_STORAGE_BUFFER_BIT,
+                         true, true);
+    const VkDeviceAddress blobAddress = (blob.address + 255) / 256 * 256;
+    v.submit([&](VkCommandBuffer cb) {
+        VkCopyAccelerationStructureToMemoryInfoKHR ci{
+            VK_STRUCTURE_TYPE_COPY_ACCELERATION_STRUCTURE_TO_MEMORY_INFO_KHR};
+        ci.src = source.structure;
+        ci.dst.deviceAddress = blobAddress;
+        ci.mode = VK_COPY_ACCELERATION_STRUCTURE_MODE_SERIALIZE_KHR;
+        toMemory(cb, &ci);
+    });
+    const uint8_t* header = static_cast<const uint8_t*>(blob.mapped) + (blobAddress - blob.address);
+    uint64_t headerSizes[3];
+    std::memcpy(headerSizes, header + 32, sizeof headerSizes);
+    std::printf("nv_ray_tracing_app: serialized KHR structure: %" PRIu64 " bytes (query %" PRIu64
+                "), deserialized size %" PRIu64 ", %" PRIu64 " handles, driver UUID %s\n",
+                headerSizes[0], serializedSize, headerSizes[1], headerSizes[2],
+                hex(header, 16).c_str());
+    Vulkan::Buffer copyBacking;
+    VkAccelerationStructureKHR copy =
+        makeKhr(v, std::max<VkDeviceSize>(headerSizes[1], source.size), copyBacking);
+    v.submit([&](VkCommandBuffer cb) {
+        VkCopyMemoryToAccelerationStructureInfoKHR ci{
+            VK_STRUCTURE_TYPE_COPY_MEMORY_TO_ACCELERATION_STRUCTURE_INFO_KHR};
+        ci.src.deviceAddress = blobAddress;
+        ci.dst = copy;
+        ci.mode = VK_COPY_ACCELERATION_STRUCTURE_MODE_DESERIALIZE_KHR;
+        fromMemory(cb, &ci);
+    });
+    std::printf("nv_ray_tracing_app: deserialized into a new KHR structure\n");
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    AppOptions options;
+    if (!parseArgs(argc, argv, options)) return 2;
+    Vulkan v;
+    createInstance(v);
+    const std::vector<VkExtensionProperties> extensions = pickPhysicalDevice(v);
+    if (options.probe) printProbe(v, extensions);
+    VkPhysicalDeviceProperties properties;
+    vkGetPhysicalDeviceProperties(v.physical, &properties);
+    if (!hasExtension(extensions, VK_NV_RAY_TRACING_EXTENSION_NAME)) {
         std::printf(
-            "nv_ray_tracing_app: ray %zu: hit %u t %.6f custom %u instance %u primitive %u "
-            "geometry %u kind 0x%x "
-            "uv (%.4f %.4f)\n",
-            i, hits[i].hit, hits[i].t, hits[i].instance_custom_index, hits[i].instance_id,
-            hits[i].primitive_id, hits[i].geometry_index, hits[i].hit_kind, hits[i].u, hits[i].v);
-
-    // ---- KHR: build, serialize, deserialize ----------------------------------------------------
-    if (v.khr) {
-        auto createKhr =
-            v.proc<PFN_vkCreateAccelerationStructureKHR>("vkCreateAccelerationStructureKHR");
-        auto sizes = v.proc<PFN_vkGetAccelerationStructureBuildSizesKHR>(
-            "vkGetAccelerationStructureBuildSizesKHR");
-        auto buildKhr =
-            v.proc<PFN_vkCmdBuildAccelerationStructuresKHR>("vkCmdBuildAccelerationStructuresKHR");
-        auto writeProperties = v.proc<PFN_vkCmdWriteAccelerationStructuresPropertiesKHR>(
-            "vkCmdWriteAccelerationStructuresPropertiesKHR");
-        auto toMemory = v.proc<PFN_vkCmdCopyAccelerationStructureToMemoryKHR>(
-            "vkCmdCopyAccelerationStructureToMemoryKHR");
-        auto fromMemory = v.proc<PFN_vkCmdCopyMemoryToAccelerationStructureKHR>(
-            "vkCmdCopyMemoryToAccelerationStructureKHR");
-        auto addressOf = v.proc<PFN_vkGetAccelerationStructureDeviceAddressKHR>(
-            "vkGetAccelerationStructureDeviceAddressKHR");
-
-        const std::vector<float> quad = {-1, 0, -1, 1, 0, -1, 1, 0, 1, -1, 0, 1};
-        const std::vector<uint32_t> quadIndices = {0, 1, 2, 0, 2, 3};
-        const VkBufferUsageFlags buildInput =
-            VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
-        auto quadVertices = v.upload(quad, buildInput, true);
-        auto quadIndexBuffer = v.upload(quadIndices, buildInput, true);
-        VkAccelerationStructureGeometryKHR geometry{
-            VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_KHR};
-        geometry.geometryType = VK_GEOMETRY_TYPE_TRIANGLES_KHR;
-        geometry.flags = VK_GEOMETRY_OPAQUE_BIT_KHR;
-        auto& t = geometry.geometry.triangles;
-        t.sType = VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_TRIANGLES_DATA_KHR;
-        t.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
-        t.vertexData.deviceAddress = quadVertices.address;
-        t.vertexStride = 12;
-        t.maxVertex = 3;
-        t.indexType = VK_INDEX_TYPE_UINT32;
-        t.indexData.deviceAddress = quadIndexBuffer.address;
-        VkAccelerationStructureBuildGeometryInfoKHR buildInfo{
-            VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_GEOMETRY_INFO_KHR};
-        buildInfo.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR;
-        buildInfo.flags = VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_KHR;
-        buildInfo.mode = VK_BUILD_ACCELERATION_STRUCTURE_MODE_BUILD_KHR;
-        buildInfo.geometryCount = 1;
-        buildInfo.pGeometries = &geometry;
-        const uint32_t primitives = 2;
-        VkAccelerationStructureBuildSizesInfoKHR sizeInfo{
-            VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR};
-        sizes(v.device, VK_ACCELERATION_STRUCTURE_BUILD_TYPE_DEVICE_KHR, &buildInfo, &primitives,
-              &sizeInfo);
-
-        const VkBufferUsageFlags storage = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
-        auto makeKhr = [&](VkDeviceSize size, Vulkan::Buffer& backing) {
-            backing = v.buffer(size, storage, false, true);
-            VkAccelerationStructureCreateInfoKHR ci{
-                VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_CREATE_INFO_KHR};
-            ci.buffer = backing.buffer;
-            ci.size = size;
-            ci.type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR;
-            VkAccelerationStructureKHR as;
-            CHECK(createKhr(v.device, &ci, nullptr, &as));
-            VkAccelerationStructureDeviceAddressInfoKHR ai{
-                VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_DEVICE_ADDRESS_INFO_KHR};
-            ai.accelerationStructure = as;
-            const VkDeviceAddress address = addressOf(v.device, &ai);
-            std::printf("nv_ray_tracing_app: KHR structure of %" PRIu64 " bytes at 0x%016" PRIx64
-                        "\n",
-                        uint64_t(size), uint64_t(address));
-            return as;
-        };
-        Vulkan::Buffer sourceBacking, copyBacking;
-        VkAccelerationStructureKHR source =
-            makeKhr(sizeInfo.accelerationStructureSize, sourceBacking);
-        const VkDeviceSize scratchAlign =
-            std::max<VkDeviceSize>(v.asProperties.minAccelerationStructureScratchOffsetAlignment,
-                                   1);
-        auto khrScratch = v.buffer(sizeInfo.buildScratchSize + scratchAlign,
-                                   VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, false, true);
-        buildInfo.dstAccelerationStructure = source;
-        buildInfo.scratchData.deviceAddress =
-            (khrScratch.address + scratchAlign - 1) / scratchAlign * scratchAlign;
-        VkAccelerationStructureBuildRangeInfoKHR range{primitives, 0, 0, 0};
-        const VkAccelerationStructureBuildRangeInfoKHR* ranges = &range;
-
-        VkQueryPoolCreateInfo qpi{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
-        qpi.queryType = VK_QUERY_TYPE_ACCELERATION_STRUCTURE_SERIALIZATION_SIZE_KHR;
-        qpi.queryCount = 1;
-        VkQueryPool queries;
-        CHECK(vkCreateQueryPool(v.device, &qpi, nullptr, &queries));
-        v.submit([&](VkCommandBuffer cb) {
-            vkCmdResetQueryPool(cb, queries, 0, 1);
-            buildKhr(cb, 1, &buildInfo, &ranges);
-            VkMemoryBarrier b{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr,
-                              VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
-                              VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_KHR};
-            vkCmdPipelineBarrier(cb, VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
-                                 VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, 0, 1, &b,
-                                 0, nullptr, 0, nullptr);
-            writeProperties(cb, 1, &source,
-                            VK_QUERY_TYPE_ACCELERATION_STRUCTURE_SERIALIZATION_SIZE_KHR, queries,
-                            0);
-        });
-        uint64_t serializedSize = 0;
-        CHECK(vkGetQueryPoolResults(v.device, queries, 0, 1, sizeof serializedSize, &serializedSize,
-                                    sizeof serializedSize,
-                                    VK_QUERY_RESULT_64_BIT | VK_QUERY_RESULT_WAIT_BIT));
-        vkDestroyQueryPool(v.device, queries, nullptr);
-        // The blob's address must be 256-byte aligned: over-allocate and align inside the buffer.
-        auto blob = v.buffer(serializedSize + 256,
-                             VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR |
-                                 VK_BUFFER_USAGE_STORAGE_BUFFER_BIT,
-                             true, true);
-        const VkDeviceAddress blobAddress = (blob.address + 255) / 256 * 256;
-        v.submit([&](VkCommandBuffer cb) {
-            VkCopyAccelerationStructureToMemoryInfoKHR ci{
-                VK_STRUCTURE_TYPE_COPY_ACCELERATION_STRUCTURE_TO_MEMORY_INFO_KHR};
-            ci.src = source;
-            ci.dst.deviceAddress = blobAddress;
-            ci.mode = VK_COPY_ACCELERATION_STRUCTURE_MODE_SERIALIZE_KHR;
-            toMemory(cb, &ci);
-        });
-        const uint8_t* header =
-            static_cast<const uint8_t*>(blob.mapped) + (blobAddress - blob.address);
-        uint64_t headerSizes[3];
-        std::memcpy(headerSizes, header + 32, sizeof headerSizes);
-        std::printf("nv_ray_tracing_app: serialized KHR structure: %" PRIu64
-                    " bytes (query %" PRIu64 "), deserialized size %" PRIu64 ", %" PRIu64
-                    " handles, driver UUID %s\n",
-                    headerSizes[0], serializedSize, headerSizes[1], headerSizes[2],
-                    hex(header, 16).c_str());
-        VkAccelerationStructureKHR copy =
-            makeKhr(std::max<VkDeviceSize>(headerSizes[1], sizeInfo.accelerationStructureSize),
-                    copyBacking);
-        v.submit([&](VkCommandBuffer cb) {
-            VkCopyMemoryToAccelerationStructureInfoKHR ci{
-                VK_STRUCTURE_TYPE_COPY_MEMORY_TO_ACCELERATION_STRUCTURE_INFO_KHR};
-            ci.src.deviceAddress = blobAddress;
-            ci.dst = copy;
-            ci.mode = VK_COPY_ACCELERATION_STRUCTURE_MODE_DESERIALIZE_KHR;
-            fromMemory(cb, &ci);
-        });
-        std::printf("nv_ray_tracing_app: deserialized into a new KHR structure\n");
+            "nv_ray_tracing_app: VK_NV_ray_tracing not available on '%s': skipping the NV "
+            "ray-tracing scene\n",
+            properties.deviceName);
+        vkDestroyInstance(v.instance, nullptr);
+        return options.require ? 77 : 0;
     }
+    if (options.probe) {
+        vkDestroyInstance(v.instance, nullptr);
+        return 0;
+    }
+    v.khr = !options.skipKhr &&
+            hasExtension(extensions, VK_KHR_ACCELERATION_STRUCTURE_EXTENSION_NAME) &&
+            hasExtension(extensions, VK_KHR_DEFERRED_HOST_OPERATIONS_EXTENSION_NAME);
+    createDevice(v);
+    std::printf(
+        "nv_ray_tracing_app: device '%s', driverVersion 0x%08x, KHR acceleration structures %s\n",
+        properties.deviceName, properties.driverVersion, v.khr ? "on" : "off");
+
+    NvStructures s;
+    s.extremes = options.extremes;
+    createStructures(v, s);
+    buildAll(v, s, false);
+    std::printf("nv_ray_tracing_app: built NV bottom levels 0x%016" PRIx64 " 0x%016" PRIx64
+                " and top level 0x%016" PRIx64 "\n",
+                s.triangleBlas.deviceHandle, s.aabbBlas.deviceHandle, s.tlas.deviceHandle);
+    refit(v, s);
+    std::printf("nv_ray_tracing_app: updated (refit) the three NV structures\n");
+    traceAppRays(v, s, options.rayCount);
+    if (v.khr) khrRoundTrip(v);
 
     vkDeviceWaitIdle(v.device);
-    vkDestroyDevice(v.device,
-                    nullptr);  // the layer finishes its trace at exit; objects die with the device
+    // The layer finishes its trace at exit; objects die with the device.
+    vkDestroyDevice(v.device, nullptr);
     vkDestroyInstance(v.instance, nullptr);
     std::printf("nv_ray_tracing_app: done\n");
     return 0;
