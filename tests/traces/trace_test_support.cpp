@@ -208,17 +208,31 @@ static void append_acceleration_structure_use_records(std::vector<fbs::RecordT>&
     }
 }
 
-std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
-    std::vector<fbs::RecordT> out;
-    auto snap = [&](uint64_t address, const std::vector<uint8_t>& bytes) {
-        fbs::MemorySnapshot s;
-        EXPECT_FALSE(w.snapshot(0xb0f, address & 0xfff, address, bytes.data(), bytes.size(), &s));
-        return s;
-    };
-    std::vector<uint8_t> a(300), b(77);
-    for (size_t i = 0; i < a.size(); ++i) a[i] = static_cast<uint8_t>(i * 7);
-    for (size_t i = 0; i < b.size(); ++i) b[i] = static_cast<uint8_t>(255 - i);
+namespace {
 
+// The writer and the two byte strings every record's snapshots are cut from.
+struct EveryKindBytes {
+    TraceWriter& writer;
+    std::vector<uint8_t> a = std::vector<uint8_t>(300), b = std::vector<uint8_t>(77);
+
+    explicit EveryKindBytes(TraceWriter& w) : writer(w) {
+        for (size_t i = 0; i < a.size(); ++i) a[i] = static_cast<uint8_t>(i * 7);
+        for (size_t i = 0; i < b.size(); ++i) b[i] = static_cast<uint8_t>(255 - i);
+    }
+    fbs::MemorySnapshot snap(uint64_t address, const std::vector<uint8_t>& bytes) {
+        fbs::MemorySnapshot s;
+        EXPECT_FALSE(
+            writer.snapshot(0xb0f, address & 0xfff, address, bytes.data(), bytes.size(), &s));
+        return s;
+    }
+};
+
+// The memory, buffer and acceleration-structure object records.
+void append_memory_and_object_records(std::vector<fbs::RecordT>& out, EveryKindBytes& bytes) {
+    auto snap = [&](uint64_t address, const std::vector<uint8_t>& v) {
+        return bytes.snap(address, v);
+    };
+    const std::vector<uint8_t>& a = bytes.a;
     {
         fbs::MemoryAllocateT r;
         r.memory = 0x10;
@@ -301,6 +315,10 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
         r.memory_type_bits = 3;
         out.push_back(record(r));
     }
+}
+
+// Command buffers, barriers and events.
+void append_command_buffer_and_sync_records(std::vector<fbs::RecordT>& out) {
     {
         fbs::CommandBufferBeginT r;
         r.command_buffer = 0xcb;
@@ -365,6 +383,15 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
         r.result = 3;
         out.push_back(record(r));
     }
+}
+
+// Transfers, a dispatch and the three captured build commands.
+void append_transfer_and_build_records(std::vector<fbs::RecordT>& out, EveryKindBytes& bytes) {
+    auto snap = [&](uint64_t address, const std::vector<uint8_t>& v) {
+        return bytes.snap(address, v);
+    };
+    const std::vector<uint8_t>& a = bytes.a;
+    const std::vector<uint8_t>& b = bytes.b;
     {
         fbs::CmdCopyBufferT r;
         r.command_buffer = 0xcb;
@@ -475,6 +502,11 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
         r.build_scratch_size = 1 << 16;
         out.push_back(record(std::move(r)));
     }
+}
+
+// Submissions and the host's waits.
+void append_queue_and_host_sync_records(std::vector<fbs::RecordT>& out, EveryKindBytes& bytes) {
+    TraceWriter& w = bytes.writer;
     {
         fbs::QueueSubmitT r;
         r.queue = 0x51;
@@ -532,6 +564,10 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
         r.result = 2;
         out.push_back(record(r));
     }
+}
+
+// Timestamps, labels, a ray check and a capture finding.
+void append_timing_and_check_records(std::vector<fbs::RecordT>& out) {
     {
         fbs::GpuTimestampT r;
         r.command_buffer = 0xcb;
@@ -585,6 +621,10 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
         r.message = "clusterID is 0xFFFFFFFF";
         out.push_back(record(r));
     }
+}
+
+// Presentation, frames, secondaries, sparse binds and a draw.
+void append_present_and_frame_records(std::vector<fbs::RecordT>& out) {
     {
         fbs::QueuePresentT r;
         r.queue = 0x9e;
@@ -675,6 +715,24 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
         r.address_stages = 0x80000ull | 0x100000ull;  // TASK_SHADER_EXT | MESH_SHADER_EXT
         out.push_back(record(r));
     }
+}
+
+}  // namespace
+
+std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
+    std::vector<fbs::RecordT> out;
+    EveryKindBytes bytes(w);
+    append_memory_and_object_records(out, bytes);
+    append_command_buffer_and_sync_records(out);
+    append_transfer_and_build_records(out, bytes);
+    append_queue_and_host_sync_records(out, bytes);
+    append_timing_and_check_records(out);
+    append_present_and_frame_records(out);
+    auto snap = [&](uint64_t address, const std::vector<uint8_t>& v) {
+        return bytes.snap(address, v);
+    };
+    const std::vector<uint8_t>& a = bytes.a;
+    const std::vector<uint8_t>& b = bytes.b;
     append_acceleration_structure_use_records(out);
     // The reader checks the snapshots of these records (traces::record_snapshots): contents
     // stored here.
@@ -690,6 +748,7 @@ std::vector<fbs::RecordT> one_of_every_kind(TraceWriter& w) {
     }
     return out;
 }
+
 
 std::vector<uint64_t> append_build_snapshotting(
     TraceWriter& writer, const std::vector<SnapshotPiece>& pieces,
