@@ -121,159 +121,182 @@ VkAccelerationStructureBuildSizesInfoKHR sizes_of(
 
 uint64_t id(const void* handle) { return uint64_t(reinterpret_cast<uintptr_t>(handle)); }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-    if (argc != 2) {
-        std::fprintf(stderr, "usage: khr_build_app OUT.json\n");
-        return 2;
-    }
-    Device d;
-    create_device(d);
-    Buffer staging = make_buffer(d, kInputBytes), input = make_buffer(d, kInputBytes);
-    Buffer storage = make_buffer(d, 1 << 20), scratch = make_buffer(d, 1 << 20);
-    Buffer instances = make_buffer(d, 2 * sizeof(VkAccelerationStructureInstanceKHR));
-    std::memcpy(staging.mapped + kVertices, kQuad, sizeof kQuad);
-    std::memcpy(staging.mapped + kIndices, kQuadIndices, sizeof kQuadIndices);
-    std::memcpy(staging.mapped + kAabbs, kBoxes, sizeof kBoxes);
-    std::memcpy(staging.mapped + kTransform, kTransform3x4, sizeof kTransform3x4);
-
-    // The two bottom levels.
+// The program's buffers, build infos and structures. The infos point into it (geometries,
+// ranges): it is filled in place and never moved.
+struct Scene {
+    Buffer staging, input, storage, scratch, instances, serial;
+    VkDeviceSize used = 0;  // bytes of `storage` taken by structures
     VkAccelerationStructureGeometryKHR triangles{
         VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_KHR};
-    triangles.geometryType = VK_GEOMETRY_TYPE_TRIANGLES_KHR;
-    triangles.flags = VK_GEOMETRY_OPAQUE_BIT_KHR;
-    auto& t = triangles.geometry.triangles;
-    t.sType = VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_TRIANGLES_DATA_KHR;
-    t.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
-    t.vertexData.deviceAddress = input.address + kVertices;
-    t.vertexStride = 12;
-    t.maxVertex = 3;
-    t.indexType = VK_INDEX_TYPE_UINT32;
-    t.indexData.deviceAddress = input.address + kIndices;
-    t.transformData.deviceAddress = input.address + kTransform;
     VkAccelerationStructureGeometryKHR boxes{VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_KHR};
-    boxes.geometryType = VK_GEOMETRY_TYPE_AABBS_KHR;
-    boxes.geometry.aabbs.sType = VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_AABBS_DATA_KHR;
-    boxes.geometry.aabbs.data.deviceAddress = input.address + kAabbs;
-    boxes.geometry.aabbs.stride = 24;
-
+    VkAccelerationStructureGeometryKHR instance_geometry{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_KHR};
     VkAccelerationStructureBuildGeometryInfoKHR blas[2] = {
         {VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_GEOMETRY_INFO_KHR},
         {VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_GEOMETRY_INFO_KHR}};
+    VkAccelerationStructureBuildGeometryInfoKHR tlas{
+        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_GEOMETRY_INFO_KHR};
+    VkAccelerationStructureBuildSizesInfoKHR triangle_sizes{}, box_sizes{}, tlas_sizes{};
+    VkAccelerationStructureBuildRangeInfoKHR triangle_range{2, 0, 0, 0}, box_range{2, 0, 0, 0},
+        tlas_range{2, 0, 0, 0};
+    const VkAccelerationStructureBuildRangeInfoKHR* blas_ranges[2] = {&triangle_range, &box_range};
+    const VkAccelerationStructureBuildRangeInfoKHR* tlas_ranges[1] = {&tlas_range};
+    VkAccelerationStructureInstanceKHR instance_data[2]{};
+    Structure triangle_blas, box_blas, top, compact;
+    VkQueryPool compacted = VK_NULL_HANDLE, serialized = VK_NULL_HANDLE;
+    uint64_t compacted_size = 0, serialized_size = 0;
+};
+
+void make_buffers(Device& d, Scene& s) {
+    s.staging = make_buffer(d, kInputBytes);
+    s.input = make_buffer(d, kInputBytes);
+    s.storage = make_buffer(d, 1 << 20);
+    s.scratch = make_buffer(d, 1 << 20);
+    s.instances = make_buffer(d, 2 * sizeof(VkAccelerationStructureInstanceKHR));
+    std::memcpy(s.staging.mapped + kVertices, kQuad, sizeof kQuad);
+    std::memcpy(s.staging.mapped + kIndices, kQuadIndices, sizeof kQuadIndices);
+    std::memcpy(s.staging.mapped + kAabbs, kBoxes, sizeof kBoxes);
+    std::memcpy(s.staging.mapped + kTransform, kTransform3x4, sizeof kTransform3x4);
+}
+
+void describe_geometries(Scene& s) {
+    s.triangles.geometryType = VK_GEOMETRY_TYPE_TRIANGLES_KHR;
+    s.triangles.flags = VK_GEOMETRY_OPAQUE_BIT_KHR;
+    auto& t = s.triangles.geometry.triangles;
+    t.sType = VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_TRIANGLES_DATA_KHR;
+    t.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+    t.vertexData.deviceAddress = s.input.address + kVertices;
+    t.vertexStride = 12;
+    t.maxVertex = 3;
+    t.indexType = VK_INDEX_TYPE_UINT32;
+    t.indexData.deviceAddress = s.input.address + kIndices;
+    t.transformData.deviceAddress = s.input.address + kTransform;
+    s.boxes.geometryType = VK_GEOMETRY_TYPE_AABBS_KHR;
+    s.boxes.geometry.aabbs.sType = VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_AABBS_DATA_KHR;
+    s.boxes.geometry.aabbs.data.deviceAddress = s.input.address + kAabbs;
+    s.boxes.geometry.aabbs.stride = 24;
+}
+
+// The two bottom levels: a triangle one (allowing compaction and update) and an AABB one.
+void describe_bottom_levels(const Device& d, Scene& s) {
+    auto& blas = s.blas;
     blas[0].type = blas[1].type = VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR;
     blas[0].flags = VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_COMPACTION_BIT_KHR |
                     VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_KHR;
     blas[1].flags = VK_BUILD_ACCELERATION_STRUCTURE_PREFER_FAST_TRACE_BIT_KHR;
     blas[0].mode = blas[1].mode = VK_BUILD_ACCELERATION_STRUCTURE_MODE_BUILD_KHR;
     blas[0].geometryCount = blas[1].geometryCount = 1;
-    blas[0].pGeometries = &triangles;
-    blas[1].pGeometries = &boxes;
-    const auto triangle_sizes = sizes_of(d, blas[0], 2);
-    const auto box_sizes = sizes_of(d, blas[1], 2);
-    VkDeviceSize used = 0;
-    Structure triangle_blas =
-        create_structure(d, storage, used, triangle_sizes.accelerationStructureSize,
+    blas[0].pGeometries = &s.triangles;
+    blas[1].pGeometries = &s.boxes;
+    s.triangle_sizes = sizes_of(d, blas[0], 2);
+    s.box_sizes = sizes_of(d, blas[1], 2);
+    s.triangle_blas =
+        create_structure(d, s.storage, s.used, s.triangle_sizes.accelerationStructureSize,
                          VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR);
-    Structure box_blas = create_structure(d, storage, used, box_sizes.accelerationStructureSize,
-                                          VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR);
-    blas[0].dstAccelerationStructure = triangle_blas.handle;
-    blas[1].dstAccelerationStructure = box_blas.handle;
-    blas[0].scratchData.deviceAddress = scratch.address;
-    blas[1].scratchData.deviceAddress = scratch.address + (256 << 10);
-    const VkAccelerationStructureBuildRangeInfoKHR triangle_range{2, 0, 0, 0};
-    const VkAccelerationStructureBuildRangeInfoKHR box_range{2, 0, 0, 0};
-    const VkAccelerationStructureBuildRangeInfoKHR* blas_ranges[2] = {&triangle_range, &box_range};
+    s.box_blas = create_structure(d, s.storage, s.used, s.box_sizes.accelerationStructureSize,
+                                  VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR);
+    blas[0].dstAccelerationStructure = s.triangle_blas.handle;
+    blas[1].dstAccelerationStructure = s.box_blas.handle;
+    blas[0].scratchData.deviceAddress = s.scratch.address;
+    blas[1].scratchData.deviceAddress = s.scratch.address + (256 << 10);
+}
 
-    // The top level over one instance of each.
-    VkAccelerationStructureInstanceKHR instance_data[2]{};
-    const Structure* targets[2] = {&triangle_blas, &box_blas};
+// The top level over one instance of each bottom level.
+void describe_top_level(const Device& d, Scene& s) {
+    const Structure* targets[2] = {&s.triangle_blas, &s.box_blas};
     for (uint32_t i = 0; i < 2; ++i) {
-        auto& m = instance_data[i].transform.matrix;
+        auto& m = s.instance_data[i].transform.matrix;
         m[0][0] = m[1][1] = m[2][2] = 1;
         m[0][3] = float(i) * 4;
-        instance_data[i].instanceCustomIndex = 10 + i;
-        instance_data[i].mask = 0xff;
-        instance_data[i].flags = VK_GEOMETRY_INSTANCE_TRIANGLE_FACING_CULL_DISABLE_BIT_KHR;
-        instance_data[i].accelerationStructureReference = targets[i]->address;
+        s.instance_data[i].instanceCustomIndex = 10 + i;
+        s.instance_data[i].mask = 0xff;
+        s.instance_data[i].flags = VK_GEOMETRY_INSTANCE_TRIANGLE_FACING_CULL_DISABLE_BIT_KHR;
+        s.instance_data[i].accelerationStructureReference = targets[i]->address;
     }
-    std::memcpy(instances.mapped, instance_data, sizeof instance_data);
-    VkAccelerationStructureGeometryKHR instance_geometry{
-        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_KHR};
-    instance_geometry.geometryType = VK_GEOMETRY_TYPE_INSTANCES_KHR;
-    instance_geometry.geometry.instances.sType =
+    std::memcpy(s.instances.mapped, s.instance_data, sizeof s.instance_data);
+    s.instance_geometry.geometryType = VK_GEOMETRY_TYPE_INSTANCES_KHR;
+    s.instance_geometry.geometry.instances.sType =
         VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_INSTANCES_DATA_KHR;
-    instance_geometry.geometry.instances.data.deviceAddress = instances.address;
-    VkAccelerationStructureBuildGeometryInfoKHR tlas{
-        VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_GEOMETRY_INFO_KHR};
-    tlas.type = VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_KHR;
-    tlas.mode = VK_BUILD_ACCELERATION_STRUCTURE_MODE_BUILD_KHR;
-    tlas.geometryCount = 1;
-    tlas.pGeometries = &instance_geometry;
-    const auto tlas_sizes = sizes_of(d, tlas, 2);
-    Structure top = create_structure(d, storage, used, tlas_sizes.accelerationStructureSize,
-                                     VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_KHR);
-    tlas.dstAccelerationStructure = top.handle;
-    tlas.scratchData.deviceAddress = scratch.address + (512 << 10);
-    const VkAccelerationStructureBuildRangeInfoKHR tlas_range{2, 0, 0, 0};
-    const VkAccelerationStructureBuildRangeInfoKHR* tlas_ranges[1] = {&tlas_range};
+    s.instance_geometry.geometry.instances.data.deviceAddress = s.instances.address;
+    s.tlas.type = VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_KHR;
+    s.tlas.mode = VK_BUILD_ACCELERATION_STRUCTURE_MODE_BUILD_KHR;
+    s.tlas.geometryCount = 1;
+    s.tlas.pGeometries = &s.instance_geometry;
+    s.tlas_sizes = sizes_of(d, s.tlas, 2);
+    s.top = create_structure(d, s.storage, s.used, s.tlas_sizes.accelerationStructureSize,
+                             VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_KHR);
+    s.tlas.dstAccelerationStructure = s.top.handle;
+    s.tlas.scratchData.deviceAddress = s.scratch.address + (512 << 10);
+}
 
-    VkQueryPool compacted =
-        d.makeQueryPool(VK_QUERY_TYPE_ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR);
-    VkQueryPool serialized =
-        d.makeQueryPool(VK_QUERY_TYPE_ACCELERATION_STRUCTURE_SERIALIZATION_SIZE_KHR);
-
+// Submission 1: the inputs copied in, both bottom levels, their compacted size, the top level
+// and its serialization size.
+void build_all(Device& d, Scene& s) {
+    s.compacted = d.makeQueryPool(VK_QUERY_TYPE_ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR);
+    s.serialized = d.makeQueryPool(VK_QUERY_TYPE_ACCELERATION_STRUCTURE_SERIALIZATION_SIZE_KHR);
     VkCommandBuffer first = d.beginCommands();
     const VkBufferCopy upload{0, 0, kInputBytes};
-    vkCmdCopyBuffer(first, staging.buffer, input.buffer, 1, &upload);
+    vkCmdCopyBuffer(first, s.staging.buffer, s.input.buffer, 1, &upload);
     barrier(first);
-    d.cmd_build(first, 2, blas, blas_ranges);
+    d.cmd_build(first, 2, s.blas, s.blas_ranges);
     barrier(first);
-    vkCmdResetQueryPool(first, compacted, 0, 1);
-    d.cmd_write_properties(first, 1, &triangle_blas.handle,
-                           VK_QUERY_TYPE_ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR, compacted, 0);
-    d.cmd_build(first, 1, &tlas, tlas_ranges);
+    vkCmdResetQueryPool(first, s.compacted, 0, 1);
+    d.cmd_write_properties(first, 1, &s.triangle_blas.handle,
+                           VK_QUERY_TYPE_ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR, s.compacted, 0);
+    d.cmd_build(first, 1, &s.tlas, s.tlas_ranges);
     barrier(first);
-    vkCmdResetQueryPool(first, serialized, 0, 1);
-    d.cmd_write_properties(first, 1, &top.handle,
-                           VK_QUERY_TYPE_ACCELERATION_STRUCTURE_SERIALIZATION_SIZE_KHR, serialized,
-                           0);
+    vkCmdResetQueryPool(first, s.serialized, 0, 1);
+    d.cmd_write_properties(first, 1, &s.top.handle,
+                           VK_QUERY_TYPE_ACCELERATION_STRUCTURE_SERIALIZATION_SIZE_KHR,
+                           s.serialized, 0);
     d.submitAndWait(first);
-    const uint64_t compacted_size = d.queryResult(compacted);
-    const uint64_t serialized_size = d.queryResult(serialized);
+    s.compacted_size = d.queryResult(s.compacted);
+    s.serialized_size = d.queryResult(s.serialized);
+}
 
-    // Compaction, serialization, and an update of the triangle BLAS from moved vertices.
-    Structure compact = create_structure(d, storage, used, compacted_size,
-                                         VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR);
-    Buffer serial = make_buffer(d, serialized_size);
-    std::memcpy(staging.mapped + kVertices, kMovedQuad, sizeof kMovedQuad);
+// Submission 2: compaction, serialization, and an update of the triangle BLAS from moved
+// vertices.
+void compact_serialize_update(Device& d, Scene& s) {
+    s.compact = create_structure(d, s.storage, s.used, s.compacted_size,
+                                 VK_ACCELERATION_STRUCTURE_TYPE_BOTTOM_LEVEL_KHR);
+    s.serial = make_buffer(d, s.serialized_size);
+    std::memcpy(s.staging.mapped + kVertices, kMovedQuad, sizeof kMovedQuad);
     VkCommandBuffer second = d.beginCommands();
     VkCopyAccelerationStructureInfoKHR copy{VK_STRUCTURE_TYPE_COPY_ACCELERATION_STRUCTURE_INFO_KHR};
-    copy.src = triangle_blas.handle;
-    copy.dst = compact.handle;
+    copy.src = s.triangle_blas.handle;
+    copy.dst = s.compact.handle;
     copy.mode = VK_COPY_ACCELERATION_STRUCTURE_MODE_COMPACT_KHR;
     d.cmd_copy(second, &copy);
     VkCopyAccelerationStructureToMemoryInfoKHR to_memory{
         VK_STRUCTURE_TYPE_COPY_ACCELERATION_STRUCTURE_TO_MEMORY_INFO_KHR};
-    to_memory.src = top.handle;
-    to_memory.dst.deviceAddress = serial.address;
+    to_memory.src = s.top.handle;
+    to_memory.dst.deviceAddress = s.serial.address;
     to_memory.mode = VK_COPY_ACCELERATION_STRUCTURE_MODE_SERIALIZE_KHR;
     d.cmd_copy_to_memory(second, &to_memory);
     const VkBufferCopy moved{kVertices, kVertices, sizeof kMovedQuad};
-    vkCmdCopyBuffer(second, staging.buffer, input.buffer, 1, &moved);
+    vkCmdCopyBuffer(second, s.staging.buffer, s.input.buffer, 1, &moved);
     barrier(second);
-    VkAccelerationStructureBuildGeometryInfoKHR update = blas[0];
+    VkAccelerationStructureBuildGeometryInfoKHR update = s.blas[0];
     update.mode = VK_BUILD_ACCELERATION_STRUCTURE_MODE_UPDATE_KHR;
-    update.srcAccelerationStructure = triangle_blas.handle;
-    update.dstAccelerationStructure = triangle_blas.handle;
-    d.cmd_build(second, 1, &update, blas_ranges);
+    update.srcAccelerationStructure = s.triangle_blas.handle;
+    update.dstAccelerationStructure = s.triangle_blas.handle;
+    d.cmd_build(second, 1, &update, s.blas_ranges);
     d.submitAndWait(second);
+}
 
+json structure_json(const Structure& s) {
+    return json{{"handle", id(s.handle)},
+                {"address", s.address},
+                {"offset", s.offset},
+                {"size", s.size}};
+}
+
+json scene_json(const Scene& s) {
     json out;
-    out["input"] = {{"buffer", id(input.buffer)}, {"address", input.address}};
-    out["instances"] = {{"buffer", id(instances.buffer)},
-                        {"address", instances.address},
-                        {"bytes", hex(instance_data, sizeof instance_data)}};
+    out["input"] = {{"buffer", id(s.input.buffer)}, {"address", s.input.address}};
+    out["instances"] = {{"buffer", id(s.instances.buffer)},
+                        {"address", s.instances.address},
+                        {"bytes", hex(s.instance_data, sizeof s.instance_data)}};
     out["bytes"] = {{"vertices", hex(kQuad, sizeof kQuad)},
                     {"movedVertices", hex(kMovedQuad, sizeof kMovedQuad)},
                     {"indices", hex(kQuadIndices, sizeof kQuadIndices)},
@@ -283,26 +306,39 @@ int main(int argc, char** argv) {
                       {"indices", kIndices},
                       {"aabbs", kAabbs},
                       {"transform", kTransform}};
-    auto structure_json = [](const Structure& s) {
-        return json{{"handle", id(s.handle)},
-                    {"address", s.address},
-                    {"offset", s.offset},
-                    {"size", s.size}};
-    };
-    out["triangleBlas"] = structure_json(triangle_blas);
-    out["boxBlas"] = structure_json(box_blas);
-    out["tlas"] = structure_json(top);
-    out["compact"] = structure_json(compact);
-    out["storage"] = id(storage.buffer);
-    out["scratch"] = scratch.address;
-    out["serial"] = serial.address;
-    out["queryPools"] = {{"compacted", id(compacted)}, {"serialized", id(serialized)}};
-    out["compactedSize"] = compacted_size;
-    out["serializedSize"] = serialized_size;
-    out["sizes"] = {{"triangle", triangle_sizes.accelerationStructureSize},
-                    {"box", box_sizes.accelerationStructureSize},
-                    {"tlas", tlas_sizes.accelerationStructureSize}};
-    std::ofstream(argv[1]) << out.dump(1);
+    out["triangleBlas"] = structure_json(s.triangle_blas);
+    out["boxBlas"] = structure_json(s.box_blas);
+    out["tlas"] = structure_json(s.top);
+    out["compact"] = structure_json(s.compact);
+    out["storage"] = id(s.storage.buffer);
+    out["scratch"] = s.scratch.address;
+    out["serial"] = s.serial.address;
+    out["queryPools"] = {{"compacted", id(s.compacted)}, {"serialized", id(s.serialized)}};
+    out["compactedSize"] = s.compacted_size;
+    out["serializedSize"] = s.serialized_size;
+    out["sizes"] = {{"triangle", s.triangle_sizes.accelerationStructureSize},
+                    {"box", s.box_sizes.accelerationStructureSize},
+                    {"tlas", s.tlas_sizes.accelerationStructureSize}};
+    return out;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    if (argc != 2) {
+        std::fprintf(stderr, "usage: khr_build_app OUT.json\n");
+        return 2;
+    }
+    Device d;
+    create_device(d);
+    Scene s;
+    make_buffers(d, s);
+    describe_geometries(s);
+    describe_bottom_levels(d, s);
+    describe_top_level(d, s);
+    build_all(d, s);
+    compact_serialize_update(d, s);
+    std::ofstream(argv[1]) << scene_json(s).dump(1);
     vkDeviceWaitIdle(d.device);
     std::printf("ok\n");
     return 0;
