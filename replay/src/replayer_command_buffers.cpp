@@ -271,9 +271,10 @@ void Replay::run_command_buffer(uint64_t handle, uint32_t submission, uint32_t c
             ref.secondary_command = command;
         }
         command_bytes_ = &bytes;  // build_clusters finds the command's run ahead by its bytes
-        answers_ = {&recorded_command.answers, 0};
+        const CurrentAnswers record_answers =
+            std::exchange(answers_, {&recorded_command.answers, 0});
         replay_command(*record, ref, sequence, selected(sequence, submission));
-        answers_ = {};
+        answers_ = record_answers;  // of what runs this buffer: a record, or a command
         command_bytes_ = nullptr;
         // The secondaries' commands get their own sequence numbers and are selected (--ops) one
         // by one, whether or not the execute command itself is.
