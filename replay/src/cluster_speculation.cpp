@@ -49,6 +49,19 @@ RecentContents::Bytes RecentContents::find(uint64_t hash) {
     return it->second->second;
 }
 
+const RecentContents::Bytes* find_answer(std::span<const SnapshotAnswer> answers, size_t* next,
+                                         uint64_t hash) {
+    const size_t n = answers.size();
+    for (size_t k = 0; k < n; ++k) {
+        const size_t i = (*next + k) % n;
+        if (answers[i].first == hash) {
+            *next = i + 1;
+            return &answers[i].second;
+        }
+    }
+    return nullptr;
+}
+
 engine::RegionBytes ImageStoragePool::take(uint64_t size) {
     {
         std::lock_guard lock(mutex_);
@@ -312,11 +325,13 @@ bool ClusterRunAhead::plan(const fbs::CmdBuildClusterAccelerationStructureIndire
         if (address != 0 && !plan_region(real, address, 0)) *not_placed_yet = true;
     if (build.inputs()) {
         snapshots_.reserve(build.inputs()->size());
+        size_t next_answer = 0;
         for (const fbs::MemorySnapshot* s : *build.inputs()) {
             const std::optional<uint64_t> address =
                 in.memory.snapshot_address(s->buffer(), s->offset(), s->address());
-            RecentContents::Bytes bytes = in.contents.find(s->hash());
-            if (!bytes) return false;  // not kept: it runs in its turn
+            const RecentContents::Bytes* answer = find_answer(in.answers, &next_answer, s->hash());
+            if (!answer) return false;  // no answer: it runs in its turn
+            RecentContents::Bytes bytes = *answer;
             // Its buffer not replayed yet: the replay plans it again once regions are added.
             if (!address || !plan_region(real, *address, bytes->size())) {
                 *not_placed_yet = true;

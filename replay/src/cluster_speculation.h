@@ -60,6 +60,15 @@ private:
     uint64_t bytes_ = 0, max_bytes_;
 };
 
+// The reader's answer for the contents of one of a record's snapshots, by hash (the record
+// stage asks for them: replayer_record_stage.h).
+using SnapshotAnswer = std::pair<uint64_t, RecentContents::Bytes>;
+// A record's answers are in the order it names its snapshots (inputs, then outputs; one without
+// an answer left out), and its snapshots are asked for in that order: the entry for `hash` is
+// looked for from *next on, then from the start, and *next moves past it. Null when none.
+const RecentContents::Bytes* find_answer(std::span<const SnapshotAnswer> answers, size_t* next,
+                                         uint64_t hash);
+
 // Region bytes that runs' images take over from earlier runs: mapping a region per run and
 // unmapping it afterwards costs two system calls, a page fault per page written and, at the
 // unmap, a TLB shootdown on every core the replay's threads run on. Reused bytes hold an earlier
@@ -159,10 +168,10 @@ private:
 };
 
 // What the replay knows when it starts a command ahead: its memory as of now (for the regions'
-// bounds and snapshot addresses), the contents read so far and the size answers.
+// bounds and snapshot addresses), the contents of the command's snapshots and the size answers.
 struct AheadInputs {
     const ReplayMemory& memory;
-    RecentContents& contents;
+    std::span<const SnapshotAnswer> answers;  // the record's (a snapshot without one: no run)
     const ClusterSizeQueries& queries;
     const engine::EngineProperties& properties;  // outlives the run
     ImageStoragePool& storage;                   // outlives the run
@@ -175,7 +184,7 @@ public:
     // Plans the command of `record` (a CmdBuildClusterAccelerationStructureIndirect's Record
     // bytes) and queues it on the calling thread's arena, or nullptr when it cannot run ahead:
     // moves, instantiations and template indices (their objects may come from commands in
-    // their turn), a snapshot whose contents are not at hand or that no region holds.
+    // their turn), a snapshot whose contents the reader did not answer or that no region holds.
     // A cluster BLAS reads the writes and objects of `earlier` (runs of CLAS and template
     // builds read before it): its task waits for them, or runs those not started yet.
     // Planning (which regions, which snapshot bytes where) is the replay thread's; making the

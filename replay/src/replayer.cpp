@@ -232,13 +232,17 @@ void Replay::replay_record(const traces::RecordView& view, ReplayProgress& progr
 void Replay::replay_records_ahead(ReplayProgress& progress) {
     constexpr size_t kRecordsAhead = 4096;
     constexpr uint64_t kBytesAhead = 16ull << 20;
+    // The stage's answers the records ahead hold, counted per record (bytes several records
+    // share count each time, so they hold less): a bound for snapshots far larger than records.
+    constexpr uint64_t kAnswerBytesAhead = 64ull << 20;
     std::deque<StagedRecord> ahead;
-    uint64_t ahead_bytes = 0, read = stream_index_;
+    uint64_t ahead_bytes = 0, ahead_answer_bytes = 0, read = stream_index_;
     bool more = true;
-    RecordStage stage(reader_, reader_mutex_, kRecentContentsBytes / 4);
+    RecordStage stage(reader_, reader_mutex_);
     for (;;) {
-        while (more && (ahead.empty() || (ahead.size() < kRecordsAhead &&
-                                          ahead_bytes < kBytesAhead && !ahead_runs_->full()))) {
+        while (more && (ahead.empty() ||
+                        (ahead.size() < kRecordsAhead && ahead_bytes < kBytesAhead &&
+                         ahead_answer_bytes < kAnswerBytesAhead && !ahead_runs_->full()))) {
             StagedRecord& a = ahead.emplace_back();
             if (!stage.next(&a)) {
                 ahead.pop_back();
@@ -246,30 +250,25 @@ void Replay::replay_records_ahead(ReplayProgress& progress) {
                 break;
             }
             ahead_bytes += a.view.size;
-            for (auto& [hash, bytes] : a.resolved) resolved_contents_.keep(hash, std::move(bytes));
-            a.resolved.clear();
-            start_ahead(a, read++);
+            ahead_answer_bytes += a.resolved_bytes;
+            start_cluster_run(a.view, a.resolved, read++, true);
         }
         if (ahead.empty()) {
             pending_runs_.clear();  // their views pointed into `ahead`
             return;
         }
-        const StagedRecord front = std::move(ahead.front());
+        StagedRecord front = std::move(ahead.front());
         ahead.pop_front();
         ahead_bytes -= front.view.size;
+        ahead_answer_bytes -= front.resolved_bytes;
+        answers_ = {&front.resolved, 0};
+        staged_answers_ = &front.resolved;
         replay_record(front.view, progress);
+        answers_ = {};
+        staged_answers_ = nullptr;
         ahead_runs_->replayed_before(stream_index_);
         if (!pending_runs_.empty()) start_pending_runs();
     }
-}
-
-void Replay::start_ahead(StagedRecord& staged, uint64_t stream_index) {
-    if (staged.is_contents) {
-        if (staged.contents)
-            recent_contents_.keep(staged.contents_hash, std::move(staged.contents));
-        return;
-    }
-    start_cluster_run(staged.view, stream_index, true);
 }
 
 // With runs ahead, the record stage asked the reader already (its answer does not depend on
@@ -279,10 +278,14 @@ void Replay::start_ahead(StagedRecord& staged, uint64_t stream_index) {
 // (next, read_contents) leave it be.
 bool Replay::contents_view(uint64_t hash, std::span<const uint8_t>* bytes,
                            RecentContents::Bytes* held) {
-    if ((*held = resolved_contents_.find(hash))) {
-        *bytes = **held;
-        return true;
-    }
+    if (answers_.list)
+        if (const RecentContents::Bytes* answer =
+                find_answer(*answers_.list, &answers_.next, hash)) {
+            *held = *answer;
+            *bytes = **held;
+            return true;
+        }
+    held->reset();
     std::lock_guard lock(reader_mutex_);
     return !reader_.read_contents_view(hash, bytes);
 }
@@ -298,29 +301,32 @@ bool Replay::contents(uint64_t hash, std::vector<uint8_t>* bytes) {
 // Read ahead, a build may name buffers whose records are not replayed yet: then it waits in
 // pending_runs_ until they are placed, or starts when its own record is (record_command),
 // which is still before its submission.
-void Replay::start_cluster_run(const traces::RecordView& view, uint64_t stream_index,
+void Replay::start_cluster_run(const traces::RecordView& view,
+                               std::span<const SnapshotAnswer> answers, uint64_t stream_index,
                                bool read_ahead) {
     const auto* build = view.record->body_as_CmdBuildClusterAccelerationStructureIndirect();
     if (!build) return;
     // Every BLAS record read bounds the CLAS runs the next BLAS starts on, started or not.
     if (builds_bottom_level(*build)) ahead_runs_->note_bottom_level(stream_index);
     if (read_ahead && !pending_runs_.empty()) {
-        pending_runs_.push_back({view, stream_index});  // after the builds read before it
+        pending_runs_.push_back({view, answers, stream_index});  // after those read before it
         return;
     }
     bool not_placed_yet = false;
-    if (!try_start_cluster_run(view, stream_index, read_ahead ? &not_placed_yet : nullptr) &&
+    if (!try_start_cluster_run(view, answers, stream_index,
+                               read_ahead ? &not_placed_yet : nullptr) &&
         not_placed_yet)
-        pending_runs_.push_back({view, stream_index, memory_.regions_added()});
+        pending_runs_.push_back({view, answers, stream_index, memory_.regions_added()});
 }
 
-bool Replay::try_start_cluster_run(const traces::RecordView& view, uint64_t stream_index,
+bool Replay::try_start_cluster_run(const traces::RecordView& view,
+                                   std::span<const SnapshotAnswer> answers, uint64_t stream_index,
                                    bool* not_placed_yet) {
     if (ahead_runs_->full() || ahead_runs_->holds(stream_index)) return false;
     const bool bottom_level =
         builds_bottom_level(*view.record->body_as_CmdBuildClusterAccelerationStructureIndirect());
     const AheadInputs in{memory_,
-                         recent_contents_,
+                         answers,
                          cluster_queries_,
                          properties_,
                          ahead_runs_->storage(),
@@ -348,7 +354,8 @@ void Replay::start_pending_runs() {
         PendingRun& first = pending_runs_.front();
         if (first.regions_added == regions) return;  // nothing placed since it was tried
         bool not_placed_yet = false;
-        if (!try_start_cluster_run(first.view, first.stream_index, &not_placed_yet) &&
+        if (!try_start_cluster_run(first.view, first.answers, first.stream_index,
+                                   &not_placed_yet) &&
             not_placed_yet) {
             first.regions_added = regions;
             return;

@@ -182,11 +182,29 @@ void Replay::record_command(const traces::RecordView& view) {
     const fbs::Record& r = *view.record;
     if (uint64_t cb = command_buffer_of(r)) {
         Recorded& recorded = recorded_[cb];
-        recorded.target().emplace_back(view.bytes, view.bytes + view.size);
+        const RecordedCommand& command = recorded.target().emplace_back(
+            RecordedCommand{std::vector<uint8_t>(view.bytes, view.bytes + view.size),
+                            take_answers(recorded)});
         recorded.bytes += view.size;
         recorded_bytes_ += view.size;
-        if (ahead_runs_) start_cluster_run(view, stream_index_, false);  // if not started yet
+        if (ahead_runs_)  // if not started yet; the answers are the command's, or still staged
+            start_cluster_run(view,
+                              command.answers.empty() && staged_answers_
+                                  ? std::span<const SnapshotAnswer>(*staged_answers_)
+                                  : std::span<const SnapshotAnswer>(command.answers),
+                              stream_index_, false);
     }
+}
+
+SnapshotAnswers Replay::take_answers(Recorded& recorded) {
+    SnapshotAnswers none{SnapshotAnswers::allocator_type(nullptr)};
+    if (!staged_answers_ || staged_answers_->empty()) return none;
+    uint64_t bytes = 0;
+    for (const SnapshotAnswer& a : *staged_answers_) bytes += a.second->size();
+    if (answer_bytes_ + bytes > kMaxAnswerBytes) return none;
+    answer_bytes_ += bytes;
+    recorded.answer_bytes += bytes;
+    return std::move(*staged_answers_);
 }
 
 // Command buffers stay recorded after submission because they may be submitted again;
@@ -241,7 +259,8 @@ void Replay::run_command_buffer(uint64_t handle, uint32_t submission, uint32_t c
     const uint32_t execution = executions_[handle]++;
     const Commands& commands = recorded.copy_for(execution);
     uint32_t command = 0;
-    for (const std::vector<uint8_t>& bytes : commands) {
+    for (const RecordedCommand& recorded_command : commands) {
+        const std::vector<uint8_t>& bytes = recorded_command.bytes;
         const fbs::Record* record = flatbuffers::GetRoot<fbs::Record>(bytes.data());
         const uint64_t sequence = sequence_++;
         CommandRef ref{submission, cb_index, handle, command, command_name(*record)};
@@ -252,7 +271,10 @@ void Replay::run_command_buffer(uint64_t handle, uint32_t submission, uint32_t c
             ref.secondary_command = command;
         }
         command_bytes_ = &bytes;  // build_clusters finds the command's run ahead by its bytes
+        const CurrentAnswers record_answers =
+            std::exchange(answers_, {&recorded_command.answers, 0});
         replay_command(*record, ref, sequence, selected(sequence, submission));
+        answers_ = record_answers;  // of what runs this buffer: a record, or a command
         command_bytes_ = nullptr;
         // The secondaries' commands get their own sequence numbers and are selected (--ops) one
         // by one, whether or not the execute command itself is.

@@ -67,8 +67,14 @@ public:
     ReplayReport run();
 
 private:
-    using Commands =
-        std::vector<std::vector<uint8_t>>;  // Record FlatBuffers, copied out of the reader
+    // A command's Record FlatBuffer, copied out of the reader, and (read ahead) the record
+    // stage's answers for its snapshots: they go with the command to its turn, however many
+    // records later (a submission) or how often (a buffer submitted again) that comes.
+    struct RecordedCommand {
+        std::vector<uint8_t> bytes;
+        SnapshotAnswers answers{SnapshotAnswers::allocator_type(nullptr)};
+    };
+    using Commands = std::vector<RecordedCommand>;
     struct Recorded {
         Commands commands;
         // Restatements (format 1.2): restated[k - 1] is copy k of the recording, for the
@@ -78,7 +84,8 @@ private:
         bool one_time = false;  // freed once submitted (memory stays bounded)
         bool secondary = false;
         uint64_t bytes = 0;
-        uint64_t submitted = 0;  // 1 + submission_index of its last submission, 0 never
+        uint64_t answer_bytes = 0;  // of its commands' answers (shared bytes counted each time)
+        uint64_t submitted = 0;     // 1 + submission_index of its last submission, 0 never
         Commands& target() {
             return filling == 0 || filling > restated.size() ? commands : restated[filling - 1];
         }
@@ -95,13 +102,15 @@ private:
     // With 2 or more threads: reads records ahead of the one being replayed and starts their
     // cluster builds early (cluster_speculation.h, docs/replay.md "Threads").
     void replay_records_ahead(ReplayProgress& progress);
-    void start_ahead(StagedRecord& staged, uint64_t stream_index);
-    // Read ahead (`read_ahead`) or at its own record. A build read ahead whose buffers are not
-    // placed yet, or read while such a build waits, waits in pending_runs_.
-    void start_cluster_run(const traces::RecordView& view, uint64_t stream_index, bool read_ahead);
+    // Read ahead (`read_ahead`) or at its own record, with the stage's answers for its
+    // snapshots. A build read ahead whose buffers are not placed yet, or read while such a
+    // build waits, waits in pending_runs_.
+    void start_cluster_run(const traces::RecordView& view, std::span<const SnapshotAnswer> answers,
+                           uint64_t stream_index, bool read_ahead);
     // Starts a run of the build; false when it has none. not_placed_yet (given read ahead):
     // see ClusterRunAhead::start.
-    bool try_start_cluster_run(const traces::RecordView& view, uint64_t stream_index,
+    bool try_start_cluster_run(const traces::RecordView& view,
+                               std::span<const SnapshotAnswer> answers, uint64_t stream_index,
                                bool* not_placed_yet);
     // Starts pending builds in stream order while the window has room, up to the first that
     // still names a buffer no region holds (tried again once regions were added); drops those
@@ -216,7 +225,11 @@ private:
     void memory_freed(std::optional<AddressRange> range);
     void drop_recorded(const Recorded& cb) {
         recorded_bytes_ -= std::min(recorded_bytes_, cb.bytes);
+        answer_bytes_ -= std::min(answer_bytes_, cb.answer_bytes);
     }
+    // The answers of the record being replayed, for its command to keep (none past
+    // kMaxAnswerBytes: its turn asks the reader then).
+    SnapshotAnswers take_answers(Recorded& recorded);
     void limit_recorded();
     void forget_recorded(uint64_t handle) {
         if (auto it = recorded_.find(handle); it != recorded_.end()) {
@@ -293,30 +306,35 @@ private:
                               observed_nv_ = true;
                           }}};
     bool observed_nv_ = false;  // the command in replay_command was an NV build or deserialization
-    // Cluster builds started ahead of their turn (2 or more threads), the contents records read
-    // lately that their snapshots come from, the bytes of the command being replayed (to find
-    // its run), and the stream index of the record being replayed. The contents a run needs
-    // come in the records just read or are used again often (least recently used go first):
-    // the replay bench's runs start as often with 2 MiB kept as with 32 MiB, which held pages
-    // of contents no run asked for again (peak memory, issue 23).
-    static constexpr uint64_t kRecentContentsBytes = 4ull << 20;
+    // Cluster builds started ahead of their turn (2 or more threads), the bytes of the command
+    // being replayed (to find its run), and the stream index of the record being replayed. A
+    // run's snapshots are the stage's answers for its record (session 15: before, the bytes of
+    // the contents records read lately, a cache of its own).
     std::optional<RunAheadWindow> ahead_runs_;
-    RecentContents recent_contents_{kRecentContentsBytes};
-    // The reader's answers for the snapshots of the records read ahead, which the record stage
-    // asked for (replayer_record_stage.h): contents() takes them instead of asking again. They
-    // are kept from a record's reading to its command's turn (up to 4096 records later), longer
-    // than a run's snapshots are.
-    static constexpr uint64_t kResolvedContentsBytes = 16ull << 20;
-    RecentContents resolved_contents_{kResolvedContentsBytes};
+    // The record stage's answers for the snapshots of the record or command being replayed
+    // (replayer_record_stage.h), which contents() takes instead of asking the reader, and where
+    // the next lookup starts: snapshots are asked for in the order the stage resolved them.
+    struct CurrentAnswers {
+        const SnapshotAnswers* list = nullptr;
+        size_t next = 0;
+    };
+    CurrentAnswers answers_;
+    SnapshotAnswers* staged_answers_ = nullptr;  // the record's, for its command to take
+    // Answers the recorded commands hold, and the most they may (counted per command, so
+    // bytes several commands share count more than once): a bound for traces that record much
+    // and submit late; the bench's frames hold well under it.
+    static constexpr uint64_t kMaxAnswerBytes = 32ull << 20;
+    uint64_t answer_bytes_ = 0;
     const std::vector<uint8_t>* command_bytes_ = nullptr;
     uint64_t stream_index_ = 0;
     // Builds read ahead before the buffers they name were placed (a trace's first frames are
     // read ahead before its buffers are bound), and every build read after the first of them,
     // so that they start in stream order: started while they wait, they would find the window
     // full of later frames' runs at their own record and run on the replay thread in their
-    // turn. Their views point into the records read ahead, kept until replayed.
+    // turn. Their views and answers point into the records read ahead, kept until replayed.
     struct PendingRun {
         traces::RecordView view;
+        std::span<const SnapshotAnswer> answers;
         uint64_t stream_index = 0;
         uint64_t regions_added = UINT64_MAX;  // ReplayMemory::regions_added() when last tried
     };

@@ -99,12 +99,18 @@ void Replay::on_submit(const fbs::QueueSubmit& submit) {
     for (const auto& [handle, count] : executions_)
         if (auto it = recorded_.find(handle);
             it != recorded_.end() && !it->second.restated.empty()) {
-            uint64_t copies = 0;
+            uint64_t copies = 0, answers = 0;
             for (const Commands& copy : it->second.restated)
-                for (const auto& bytes : copy) copies += bytes.size();
+                for (const RecordedCommand& c : copy) {
+                    copies += c.bytes.size();
+                    for (const SnapshotAnswer& a : c.answers) answers += a.second->size();
+                }
             copies = std::min(copies, it->second.bytes);
             it->second.bytes -= copies;
             recorded_bytes_ -= std::min(recorded_bytes_, copies);
+            answers = std::min(answers, it->second.answer_bytes);
+            it->second.answer_bytes -= answers;
+            answer_bytes_ -= std::min(answer_bytes_, answers);
             it->second.restated.clear();
             it->second.filling = 0;
         }

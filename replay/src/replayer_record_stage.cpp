@@ -92,9 +92,8 @@ RecentContents::Bytes RecordStage::stage_bytes(const uint8_t* data, size_t size)
         StageReturns::Allocator<uint8_t>(returns_));
 }
 
-RecordStage::RecordStage(traces::TraceReader& reader, std::mutex& reader_mutex,
-                         size_t max_kept_contents)
-    : reader_(reader), reader_mutex_(reader_mutex), max_kept_contents_(max_kept_contents) {
+RecordStage::RecordStage(traces::TraceReader& reader, std::mutex& reader_mutex)
+    : reader_(reader), reader_mutex_(reader_mutex) {
     thread_ = std::thread([this] { loop(); });
 }
 
@@ -119,14 +118,6 @@ bool RecordStage::read(StagedRecord* out) {
         out->view.bytes = blocks_.copy(view.bytes, view.size, &out->block);
     }
     out->view.record = flatbuffers::GetRoot<fbs::Record>(out->view.bytes);
-    if (const std::optional<traces::ContentsRecord> c =
-            traces::contents_record(*out->view.record)) {
-        out->is_contents = true;
-        out->contents_hash = c->hash;
-        if (c->data() && c->size() <= max_kept_contents_)
-            out->contents = stage_bytes(c->data(), c->size());
-        return true;
-    }
     resolve_snapshots(out);
     return true;
 }
@@ -134,8 +125,7 @@ bool RecordStage::read(StagedRecord* out) {
 void RecordStage::resolve_snapshots(StagedRecord* out) {
     const traces::SnapshotLists lists = traces::record_snapshots(*out->view.record);
     if (!lists.inputs && !lists.outputs) return;
-    out->resolved =
-        decltype(out->resolved)(StageReturns::Allocator<StagedRecord::Resolved>(returns_));
+    out->resolved = SnapshotAnswers(SnapshotAnswers::allocator_type(returns_));
     std::vector<uint8_t> bytes;
     for (const traces::SnapshotVector* list : {lists.inputs, lists.outputs}) {
         if (!list) continue;
@@ -150,6 +140,7 @@ void RecordStage::resolve_snapshots(StagedRecord* out) {
                 kept = stage_bytes(bytes.data(), bytes.size());
                 resolved_.keep(s->hash(), kept);
             }
+            out->resolved_bytes += kept->size();
             out->resolved.emplace_back(s->hash(), std::move(kept));
         }
     }

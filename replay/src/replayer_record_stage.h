@@ -1,12 +1,11 @@
 // SPDX-License-Identifier: Apache-2.0
 // The stage ahead of the replay thread (2 or more threads, runs ahead on): on a thread of its
 // own it takes records from the reader (decompression's hand-off, the FlatBuffers verifier, delta
-// decoding, the reader's caches), copies each into blocks of its own, makes the bytes a contents
-// record keeps for runs ahead, and asks the reader for the contents of every snapshot a record
-// names (read_contents: the chunk decompressed again, the key checked), so that the replay thread
-// receives records ready to plan and replay and lays snapshots in without asking the reader
-// (docs/replay.md "Threads", issue 23). Records come out in stream order, as the reader hands
-// them out.
+// decoding, the reader's caches), copies each into blocks of its own, and asks the reader for
+// the contents of every snapshot a record names (read_contents: the chunk decompressed again, the
+// key checked), so that the replay thread receives records ready to plan and replay, and plans
+// runs ahead and lays snapshots in from those answers without asking the reader (docs/replay.md
+// "Threads", issue 23). Records come out in stream order, as the reader hands them out.
 #pragma once
 
 #include "cluster_speculation.h"
@@ -87,28 +86,23 @@ private:
     size_t capacity_ = 0, used_ = 0;
 };
 
-// One record as the stage hands it over: its copy and, for a contents record, what
-// RecentContents keeps of it.
+// The reader's answers for the contents of a record's snapshots (find_answer).
+using SnapshotAnswers = std::vector<SnapshotAnswer, StageReturns::Allocator<SnapshotAnswer>>;
+
+// One record as the stage hands it over: its copy and its snapshots' answers (one with too many
+// bytes to keep is left out too: the replay thread asks the reader itself).
 struct StagedRecord {
     RecordBlocks::Block block;  // holds the copy `view` points into
     traces::RecordView view;
-    bool is_contents = false;
-    uint64_t contents_hash = 0;
-    RecentContents::Bytes contents;  // null: no bytes, or too many to keep
-    // The reader's answer for the contents of each snapshot the record names (inputs, then
-    // outputs), as read_contents gave it; a snapshot it had no answer for, or too many bytes to
-    // keep, is left out (the replay thread asks the reader itself).
-    using Resolved = std::pair<uint64_t, RecentContents::Bytes>;
-    std::vector<Resolved, StageReturns::Allocator<Resolved>> resolved{
-        StageReturns::Allocator<Resolved>(nullptr)};
+    SnapshotAnswers resolved{SnapshotAnswers::allocator_type(nullptr)};
+    uint64_t resolved_bytes = 0;  // their sizes' sum
 };
 
 class RecordStage {
 public:
     // Reads `reader` on a thread of its own from now on. Every other call into the reader while
     // the stage lives takes `reader_mutex` (the reader serves one caller at a time).
-    // Contents larger than `max_kept_contents` are not copied (RecentContents would refuse them).
-    RecordStage(traces::TraceReader& reader, std::mutex& reader_mutex, size_t max_kept_contents);
+    RecordStage(traces::TraceReader& reader, std::mutex& reader_mutex);
     ~RecordStage();  // stops the thread and waits for it
     RecordStage(const RecordStage&) = delete;
     RecordStage& operator=(const RecordStage&) = delete;
@@ -136,7 +130,6 @@ private:
 
     traces::TraceReader& reader_;
     std::mutex& reader_mutex_;
-    size_t max_kept_contents_;
     std::shared_ptr<StageReturns> returns_ = std::make_shared<StageReturns>();
     RecordBlocks blocks_{returns_};  // the stage thread's only
     // Bytes made on the stage's thread, handed back there when the last holder lets them go.

@@ -106,9 +106,9 @@ TEST(ReplayThreads, ClusterFramesOfTheReplayBenchReportTheSame) {
 }
 
 // The record stage (replayer_record_stage.h) hands out the records a reader of its own hands
-// out, in order and byte for byte, with a contents record's bytes and, for the snapshots a record
-// names, the bytes read_contents answers, even while the test asks its reader between records as
-// the replay thread does.
+// out, in order and byte for byte, with, for the snapshots a record names, the bytes
+// read_contents answers, in the order the record names them (find_answer finds each at its
+// cursor), even while the test asks its reader between records as the replay thread does.
 TEST(ReplayThreads, TheRecordStageHandsOutTheReadersRecordsAndAnswers) {
     const std::string path = temp_path("stage_frames.clt");
     bench::BenchTraceShape shape;
@@ -119,8 +119,8 @@ TEST(ReplayThreads, TheRecordStageHandsOutTheReadersRecordsAndAnswers) {
     auto reference = traces::TraceReader::open(path, &error);
     ASSERT_TRUE(staged_reader && reference) << error.message;
     std::mutex reader_mutex;
-    replay::detail::RecordStage stage(*staged_reader, reader_mutex, 1u << 20);
-    uint64_t records = 0, resolved = 0, contents = 0;
+    replay::detail::RecordStage stage(*staged_reader, reader_mutex);
+    uint64_t records = 0, resolved = 0;
     replay::detail::StagedRecord r;
     traces::RecordView view;
     std::vector<uint8_t> bytes;
@@ -129,11 +129,20 @@ TEST(ReplayThreads, TheRecordStageHandsOutTheReadersRecordsAndAnswers) {
         ASSERT_EQ(r.view.size, view.size) << "record " << records;
         ASSERT_EQ(std::vector<uint8_t>(r.view.bytes, r.view.bytes + r.view.size),
                   std::vector<uint8_t>(view.bytes, view.bytes + view.size));
-        if (const auto c = traces::contents_record(*view.record); c && c->data()) {
-            ASSERT_TRUE(r.is_contents && r.contents);
-            EXPECT_EQ(*r.contents, std::vector<uint8_t>(c->data(), c->data() + c->size()));
-            ++contents;
-        }
+        const traces::SnapshotLists lists = traces::record_snapshots(*view.record);
+        size_t cursor = 0, named = 0;
+        uint64_t bytes_answered = 0;
+        for (const traces::SnapshotVector* list : {lists.inputs, lists.outputs})
+            for (size_t i = 0; list && i < list->size(); ++i, ++named) {
+                const size_t at = cursor;
+                const auto* answer =
+                    replay::detail::find_answer(r.resolved, &cursor, list->Get(i)->hash());
+                ASSERT_TRUE(answer) << "record " << records << " snapshot " << named;
+                EXPECT_EQ(cursor, at + 1);  // in order: found where the cursor was
+                bytes_answered += (*answer)->size();
+            }
+        EXPECT_EQ(named, r.resolved.size());
+        EXPECT_EQ(bytes_answered, r.resolved_bytes);
         {
             std::lock_guard lock(reader_mutex);  // the replay thread's calls meanwhile
             for (const auto& [hash, kept] : r.resolved) {
@@ -147,7 +156,6 @@ TEST(ReplayThreads, TheRecordStageHandsOutTheReadersRecordsAndAnswers) {
         ++records;
     }
     EXPECT_FALSE(reference->next(&view));
-    EXPECT_GT(contents, 0u);
     EXPECT_GT(resolved, records / 4);
     std::remove(path.c_str());
 }
@@ -236,6 +244,29 @@ TEST(ReplayThreads, CommandLineThreadsPrintTheSameJson) {
 }
 
 // --- runs ahead: their images' bytes (cluster_speculation.h) ------------------------------
+
+// A record's answers are looked up from a cursor that moves past each one found, and wraps:
+// snapshots asked for in the record's order cost one comparison each.
+TEST(SnapshotAnswers, AreFoundFromTheCursorOnThenFromTheStart) {
+    using replay::detail::find_answer;
+    using replay::detail::SnapshotAnswer;
+    auto bytes = [](uint8_t v) { return std::make_shared<const std::vector<uint8_t>>(3, v); };
+    const std::vector<SnapshotAnswer> answers{{7, bytes(1)}, {9, bytes(2)}, {7, bytes(3)}};
+    size_t cursor = 0;
+    ASSERT_TRUE(find_answer(answers, &cursor, 9));
+    EXPECT_EQ(cursor, 2u);
+    const auto* second_seven = find_answer(answers, &cursor, 7);  // from the cursor on
+    ASSERT_TRUE(second_seven);
+    EXPECT_EQ((**second_seven)[0], 3);
+    EXPECT_EQ(cursor, 3u);
+    const auto* wrapped = find_answer(answers, &cursor, 9);  // past the end: from the start
+    ASSERT_TRUE(wrapped);
+    EXPECT_EQ((**wrapped)[0], 2);
+    EXPECT_FALSE(find_answer(answers, &cursor, 8));
+    EXPECT_EQ(cursor, 2u);  // a miss leaves it
+    size_t none = 0;
+    EXPECT_FALSE(find_answer({}, &none, 7));
+}
 
 TEST(ImageStoragePool, HandsBackTheBytesItWasGivenForTheSameSizeOnly) {
     replay::detail::ImageStoragePool pool;
