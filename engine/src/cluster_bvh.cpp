@@ -323,7 +323,8 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
         // and no select: every element is stored twice, at the next left slot (in place:
         // j - r <= j, already read) and at the next right slot of a buffer; the store on the
         // wrong side is overwritten by the next element of that side, or lands past the side's
-        // end (the left one is covered by the copy of the rights).
+        // end (the left one on the right part's first slot, which the copy of the rights
+        // covers, or nothing reads: a right leaf).
         uint8_t right1[kMaxTriangles + 1], right2[kMaxTriangles + 1];
         // Pointer-sized counters: no zero extension before each address.
         size_t r1 = 0, r2 = 0;
@@ -338,14 +339,15 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
             r1 += s1;
             r2 += s2;
         }
-        copy_rights(o1 + left_count, right1, count - left_count);
-        copy_rights(o2 + left_count, right2, count - left_count);
         // More than 8 triangles leave at least 8 on the left (a node), and on the right 1-4
-        // (a leaf, its triangles from any order) or more (a node).
+        // (a leaf, its triangles from the split axis's order: the rights of the other two are
+        // not needed) or more (a node, which needs them in place).
         if (count - left_count <= kMaxLeafSize) {
             copy_up_to<1, kMaxLeafSize>(leaf_order + m, order[axis] + m, count - left_count);
             make_leaf(s, leaf_order, m, count - left_count, s.nodes[left + 1]);
         } else {
+            copy_rights(o1 + left_count, right1, count - left_count);
+            copy_rights(o2 + left_count, right2, count - left_count);
             stack[sp++] = {uint16_t(left + 1), uint16_t(m), uint16_t(e), 0};
         }
         stack[sp++] = {left, uint16_t(b), uint16_t(m), 0};
