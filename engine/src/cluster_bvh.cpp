@@ -30,10 +30,23 @@ constexpr uint32_t kKeyBits = 10;  // per axis; two radix passes of kDigitBits
 constexpr uint32_t kDigitBits = kKeyBits / 2;
 constexpr uint32_t kDigits = 1u << kDigitBits;
 
-// Eight bytes (one load and one store per push and pop, not a 4 + 2 byte pair).
-struct alignas(8) Task {
-    uint16_t node, begin, end, unused;
+// A node to split and its triangles' range in the orders.
+struct Task {
+    uint32_t node, begin, end;
 };
+
+// Tasks sit on the stack as 8-byte words, pushed by one store and popped by one load. As a
+// struct of 16-bit fields GCC stored them field by field, and the pop's 8-byte load, spanning
+// several stores, cannot take its data from them (store forwarding needs one store holding
+// the whole load): it waited for every older store to reach the cache, the partition's
+// hundreds of byte stores included, at every task.
+using PackedTask = uint64_t;
+PackedTask pack(const Task& t) {
+    return PackedTask(t.node) | PackedTask(t.begin) << 16 | PackedTask(t.end) << 32;
+}
+Task unpack(PackedTask w) {
+    return {uint32_t(w & 0xFFFF), uint32_t(w >> 16 & 0xFFFF), uint32_t(w >> 32 & 0xFFFF)};
+}
 
 // A triangle's two radix digits on each axis, as the sort reads them: its low digits (x, y, z)
 // in lo[0..2], its high digits in hi[0..2]; lane 3 unused. Bytes, one 8-byte store each.
@@ -258,7 +271,7 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
     // all of them.
     uint8_t own_leaf_order[kMaxTriangles];
     uint8_t* const leaf_order = active_list ? own_leaf_order : order_out;
-    Task stack[kMaxNodes];
+    PackedTask stack[kMaxNodes];
     uint16_t interior[kMaxNodes];  // in the order they were split
     size_t n_interior = 0;
     int sp = 0;
@@ -267,12 +280,12 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
         std::memcpy(leaf_order, order[0], n);
         make_leaf(s, leaf_order, 0, n, s.nodes[0]);
     } else {
-        stack[sp++] = {0, 0, uint16_t(n), 0};
+        stack[sp++] = pack({0, 0, n});
     }
     // Only nodes that split are tasks: their parent makes a leaf where it splits (a leaf test
     // at each task mispredicted about every third node).
     while (sp > 0) {
-        const Task task = stack[--sp];
+        const Task task = unpack(stack[--sp]);
         BvhScratch::Node& node = s.nodes[task.node];
         const uint32_t b = task.begin, e = task.end, count = e - b;
         int axis = 0;
@@ -348,9 +361,9 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
         } else {
             copy_rights(o1 + left_count, right1, count - left_count);
             copy_rights(o2 + left_count, right2, count - left_count);
-            stack[sp++] = {uint16_t(left + 1), uint16_t(m), uint16_t(e), 0};
+            stack[sp++] = pack({left + 1u, m, e});
         }
-        stack[sp++] = {left, uint16_t(b), uint16_t(m), 0};
+        stack[sp++] = pack({left, b, m});
     }
 
     fit_interior_boxes(s, interior, n_interior);
