@@ -14,6 +14,9 @@
 #   cap-stats   the frames app, 240 frames, serving only then capturing, with the layer's stats
 #   prof-trav prof-clus prof-rep1 prof-rep16 prof-cap   perf cpu-clock profiles of the after
 #               side (bundle made with --perf; the VM has no hardware counters)
+#   prof-build  the cluster build alone (--engine-only, WusonOBJ, 300 builds), by symbol, and
+#               the hottest instructions of build_bvh and encode_object (their whole
+#               annotations in $OUT/annotate_*.txt); profiles the before side too when present
 set -uo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
 export LD_LIBRARY_PATH=$here/lib
@@ -64,6 +67,17 @@ run_part() {
     prof-trav) profile trav taskset -c 3 "$(bin after bench_engine_nv)" --traversal 100000 1 ;;
     prof-clus) profile clus taskset -c 3 "$(bin after bench_engine_clusters)" --throughput-only \
                  --max-threads 1 --repeat 3 --mesh "$here/WusonOBJ.obj" ;;
+    prof-build) for side in "${sides[@]}"; do echo "-- $side"
+            local data=/dev/shm/clastrace_build_$side.data
+            "$(bin after perf)" record -q -e cpu-clock -F 1999 -o "$data" -- taskset -c 3 \
+              "$(bin "$side" bench_engine_clusters)" --engine-only --repeat 300 --scene WusonOBJ \
+              --mesh "$here/WusonOBJ.obj" 2>&1 | grep 'engine build'
+            perf_report "$data" dso,sym
+            for f in build_bvh encode_object; do
+              "$(bin after perf)" annotate -i "$data" --stdio "clastrace::engine::detail::$f" \
+                > "$OUT/annotate_${f}_$side.txt" 2>&1
+              echo "-- hottest instructions of $f ($side)"
+              grep -E '^ +[0-9]+\.[0-9]+ +:' "$OUT/annotate_${f}_$side.txt" | sort -rn | sed -n 1,40p; done; done ;;
     prof-rep1) replay_trace; profile rep1 taskset -c 3 "$(bin after replay_throughput_bench)" --replay-once "$trace" hazards 1 ;;
     prof-rep16) replay_trace; profile rep16 "$(bin after replay_throughput_bench)" --replay-once "$trace" hazards 16
           perf_report /dev/shm/clastrace_rep16.data pid ;;

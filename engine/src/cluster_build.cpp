@@ -194,6 +194,10 @@ void check_input(const VkClusterAccelerationStructureTriangleClusterInputNV& inp
 struct Decoded {
     uint32_t triangle_count = 0, vertex_count = 0, truncate_bits = 0;
     bool has_positions = false, has_geometry = false, has_omm = false;
+    // Some triangle has an index out of range (its flag set in the inactive array). A build
+    // then hands the encoder no flags at all: its scan for a set flag, with wide loads over
+    // the flags' stores just made, would wait for them to reach the cache.
+    bool any_inactive = false;
     uint32_t omm_index_type = 0;
     // The decoded positions: the scratch's, or the vertex buffer itself when it holds them as
     // the object does (packed 32-bit floats, untruncated), which then needs no copy.
@@ -384,6 +388,7 @@ void decode_indices(const TriangleDecode& job) {
         inactive[t] = bad != 0;
         out_of_range += bad;
     }
+    job.decoded.any_inactive = out_of_range != 0;
     if (out_of_range == 0) return;  // no triangles
     r.add(kRuleIndexOutOfRange,
           std::to_string(out_of_range) + " index value(s) >= vertexCount " +
@@ -611,7 +616,7 @@ bool ClusterBuilder::build_triangle_cluster(
     in.type = ObjectType::kTriangleCluster;
     set_shared_encode_fields(view_of(info), input, d, s.index_bytes, s.geometry, s.omm, in);
     in.positions = d.positions;
-    in.inactive = s.inactive;
+    in.inactive = d.any_inactive ? s.inactive : nullptr;
     detail::encode_object(in, s.encode, stores_, out);
     return true;
 }

@@ -30,10 +30,23 @@ constexpr uint32_t kKeyBits = 10;  // per axis; two radix passes of kDigitBits
 constexpr uint32_t kDigitBits = kKeyBits / 2;
 constexpr uint32_t kDigits = 1u << kDigitBits;
 
-// Eight bytes (one load and one store per push and pop, not a 4 + 2 byte pair).
-struct alignas(8) Task {
-    uint16_t node, begin, end, unused;
+// A node to split and its triangles' range in the orders.
+struct Task {
+    uint32_t node, begin, end;
 };
+
+// Tasks sit on the stack as 8-byte words, pushed by one store and popped by one load. As a
+// struct of 16-bit fields GCC stored them field by field, and the pop's 8-byte load, spanning
+// several stores, cannot take its data from them (store forwarding needs one store holding
+// the whole load): it waited for every older store to reach the cache, the partition's
+// hundreds of byte stores included, at every task.
+using PackedTask = uint64_t;
+PackedTask pack(const Task& t) {
+    return PackedTask(t.node) | PackedTask(t.begin) << 16 | PackedTask(t.end) << 32;
+}
+Task unpack(PackedTask w) {
+    return {uint32_t(w & 0xFFFF), uint32_t(w >> 16 & 0xFFFF), uint32_t(w >> 32 & 0xFFFF)};
+}
 
 // A triangle's two radix digits on each axis, as the sort reads them: its low digits (x, y, z)
 // in lo[0..2], its high digits in hi[0..2]; lane 3 unused. Bytes, one 8-byte store each.
@@ -216,6 +229,23 @@ void fit_interior_boxes(BvhScratch& s, const uint16_t* interior, size_t count) {
     }
 }
 
+// The six digit counts set to 0 by 16-byte stores where the target has SSE2. GCC zeroes the
+// array (`= {}`, or a loop storing zeros it can see) with `rep stos`, microcoded, whose stores
+// the counting's loads of the same bytes right after cannot be forwarded from: they wait for
+// them to reach the cache. The empty asm hides that the stored value is zero.
+void zero_counts(uint16_t (*hist)[kDigits]) {
+#if defined(__SSE2__) && defined(__GNUC__)
+    static_assert(kDigits % 8 == 0);
+    __m128i zero = _mm_setzero_si128();
+    asm("" : "+x"(zero));
+    for (int h = 0; h < 6; ++h)
+        for (uint32_t d = 0; d < kDigits; d += 8)
+            _mm_store_si128(reinterpret_cast<__m128i*>(hist[h] + d), zero);
+#else
+    std::memset(hist, 0, 6 * sizeof *hist);
+#endif
+}
+
 // Each triangle's 10-bit keys per axis, monotone in its centroid (so sorting them sorts the
 // centroids up to ties inside one step of extent / 1024), as digits, and the digits' counts.
 // Halves again keep extents finite.
@@ -236,7 +266,8 @@ void count_keys(const BvhScratch& s, uint32_t n, Digits* digits, uint16_t (*hist
 // The triangles in key order along each axis (ties in triangle order).
 void sort_along_axes(const BvhScratch& s, uint32_t n, uint8_t (*order)[kMaxTriangles]) {
     Digits digits[kMaxTriangles];
-    uint16_t hist[6][kDigits] = {};
+    alignas(16) uint16_t hist[6][kDigits];
+    zero_counts(hist);
     count_keys(s, n, digits, hist);
     radix_sort3(digits, n, hist, order);
 }
@@ -258,7 +289,7 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
     // all of them.
     uint8_t own_leaf_order[kMaxTriangles];
     uint8_t* const leaf_order = active_list ? own_leaf_order : order_out;
-    Task stack[kMaxNodes];
+    PackedTask stack[kMaxNodes];
     uint16_t interior[kMaxNodes];  // in the order they were split
     size_t n_interior = 0;
     int sp = 0;
@@ -267,12 +298,12 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
         std::memcpy(leaf_order, order[0], n);
         make_leaf(s, leaf_order, 0, n, s.nodes[0]);
     } else {
-        stack[sp++] = {0, 0, uint16_t(n), 0};
+        stack[sp++] = pack({0, 0, n});
     }
     // Only nodes that split are tasks: their parent makes a leaf where it splits (a leaf test
     // at each task mispredicted about every third node).
     while (sp > 0) {
-        const Task task = stack[--sp];
+        const Task task = unpack(stack[--sp]);
         BvhScratch::Node& node = s.nodes[task.node];
         const uint32_t b = task.begin, e = task.end, count = e - b;
         int axis = 0;
@@ -323,7 +354,8 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
         // and no select: every element is stored twice, at the next left slot (in place:
         // j - r <= j, already read) and at the next right slot of a buffer; the store on the
         // wrong side is overwritten by the next element of that side, or lands past the side's
-        // end (the left one is covered by the copy of the rights).
+        // end (the left one on the right part's first slot, which the copy of the rights
+        // covers, or nothing reads: a right leaf).
         uint8_t right1[kMaxTriangles + 1], right2[kMaxTriangles + 1];
         // Pointer-sized counters: no zero extension before each address.
         size_t r1 = 0, r2 = 0;
@@ -338,17 +370,18 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
             r1 += s1;
             r2 += s2;
         }
-        copy_rights(o1 + left_count, right1, count - left_count);
-        copy_rights(o2 + left_count, right2, count - left_count);
         // More than 8 triangles leave at least 8 on the left (a node), and on the right 1-4
-        // (a leaf, its triangles from any order) or more (a node).
+        // (a leaf, its triangles from the split axis's order: the rights of the other two are
+        // not needed) or more (a node, which needs them in place).
         if (count - left_count <= kMaxLeafSize) {
             copy_up_to<1, kMaxLeafSize>(leaf_order + m, order[axis] + m, count - left_count);
             make_leaf(s, leaf_order, m, count - left_count, s.nodes[left + 1]);
         } else {
-            stack[sp++] = {uint16_t(left + 1), uint16_t(m), uint16_t(e), 0};
+            copy_rights(o1 + left_count, right1, count - left_count);
+            copy_rights(o2 + left_count, right2, count - left_count);
+            stack[sp++] = pack({left + 1u, m, e});
         }
-        stack[sp++] = {left, uint16_t(b), uint16_t(m), 0};
+        stack[sp++] = pack({left, b, m});
     }
 
     fit_interior_boxes(s, interior, n_interior);

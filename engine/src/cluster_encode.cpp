@@ -477,7 +477,6 @@ uint32_t encode_object(const EncodeInput& in, EncodeScratch& scratch, ObjectStor
     if (!streamed) out.assign(size, std::byte{0});
     std::byte* const base = streamed ? scratch.object : out.data();
     if (streamed) std::memset(base, 0, size);
-    std::memcpy(base, &h, sizeof h);
 
     write_nodes(frame, unbounded, s, n_nodes, base + h.nodes_offset);
     if (in.positions)
@@ -485,6 +484,10 @@ uint32_t encode_object(const EncodeInput& in, EncodeScratch& scratch, ObjectStor
                        base + h.positions_offset);
     write_triangle_sections(in, h, order, identity, varying, base);
     if (in.has_bounds_limit) std::memcpy(base + h.bounds_limit_offset, in.bounds_limit, 24);
+    // The header last: its fields were just stored one by one, and the copy's wide loads
+    // cannot be forwarded from those stores (they wait for them to reach the cache); the
+    // sections' work in between lets them get there.
+    std::memcpy(base, &h, sizeof h);
     if (streamed) {
         out.resize(size);  // a rebuild's vector already has the size: nothing written
         stream_copy(out.data(), base, size);
