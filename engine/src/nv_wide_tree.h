@@ -397,34 +397,35 @@ template <int W, class Node, class BoxTest, class Leaf, class Prefetch>
     // (entries are at or below the exact ones). One between *tmax and the float above it is
     // still visited, which only costs a box test.
     float tmax_up = float_at_or_above(*tmax);
-    // The entry visited next: the nearest child the node just visited hit, else the top of
-    // the stack.
+    // The entry visited next: the nearest child the node just visited hit (its entry is at or
+    // below tmax_up, the box test's far end), else the first entry off the stack that is not
+    // behind tmax_up.
     WalkEntry e{0, 0, -__builtin_inff()};
     for (;;) {
-        if (!(e.t > tmax_up)) {
-            if (e.count != 0) {
-                if (leaf(e.child, e.count)) return;
-                tmax_up = float_at_or_above(*tmax);
-            } else {
-                const Node& n = nodes[e.child];
-                alignas(32) float entry[W];
-                const unsigned hits = box_test(n, tmax_up, entry);
-                if (hits != 0) {
-                    // A single child hit is visited next, its bytes read at once: no fetch
-                    // ahead (8 instructions a leaf, 4 a node, half the visits).
-                    const WalkEntry first = lane_child(n, __builtin_ctz(hits), entry);
-                    const unsigned more = hits & (hits - 1);
-                    if (more == 0) {
-                        e = first;
-                        continue;
-                    }
-                    fetch_child(nodes, first, prefetch);
-                    e = order_children<W>(nodes, n, first, more, entry, prefetch, &stack);
+        if (e.count != 0) {
+            if (leaf(e.child, e.count)) return;
+            tmax_up = float_at_or_above(*tmax);
+        } else {
+            const Node& n = nodes[e.child];
+            alignas(32) float entry[W];
+            const unsigned hits = box_test(n, tmax_up, entry);
+            if (hits != 0) {
+                // A single child hit is visited next, its bytes read at once: no fetch
+                // ahead (8 instructions a leaf, 4 a node, half the visits).
+                const WalkEntry first = lane_child(n, __builtin_ctz(hits), entry);
+                const unsigned more = hits & (hits - 1);
+                if (more == 0) {
+                    e = first;
                     continue;
                 }
+                fetch_child(nodes, first, prefetch);
+                e = order_children<W>(nodes, n, first, more, entry, prefetch, &stack);
+                continue;
             }
         }
-        if (!stack.pop(&e)) return;
+        do {
+            if (!stack.pop(&e)) return;
+        } while (e.t > tmax_up);
     }
 }
 
