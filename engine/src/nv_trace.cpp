@@ -804,12 +804,10 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
 
 // Whether every origin and direction component is finite: such a ray enters a box of infinite
 // bounds on every axis (a single-BLAS scene's root) whatever its interval.
+// (Three lanes at once: per component, the six tests were 40 instructions a ray.)
 bool finite_ray(const Ray& ray) {
-    bool finite = true;
-#pragma GCC unroll 3
-    for (int a = 0; a < 3; ++a)
-        finite &= std::isfinite(ray.origin[a]) & std::isfinite(ray.direction[a]);
-    return finite;
+    return (detail::finite_lanes(detail::load3(ray.origin)) &
+            detail::finite_lanes(detail::load3(ray.direction)) & 7u) == 7u;
 }
 
 // trace_scene through the top level's tree (or every instance, exhaustive). Out of line, so
