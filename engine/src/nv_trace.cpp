@@ -633,7 +633,7 @@ public:
             const geometry::Triangle4& group = b_.groups[first + g];
             geometry::Triangle4Float32 f;
             geometry::triangle4_float32(rays_.triangles, group, geometry::group_lanes(g, count),
-                                        tmax_up_, &f);
+                                        &f);
             for (unsigned lanes = f.hits | f.fallback; lanes; lanes &= lanes - 1) {
                 const int k = __builtin_ctz(lanes);
                 if (group.geometry[k] == geometry::kNoTriangle) continue;

@@ -30,13 +30,6 @@ struct Tally {
 
 bool same_bits(double a, double b) { return std::memcmp(&a, &b, sizeof a) == 0; }
 
-// The float at or above `t` (what the traversal hands the filter).
-float float_up(double t) {
-    float f = float(t);
-    if (double(f) < t) f = std::nextafter(f, HUGE_VALF);
-    return f;
-}
-
 // Lane by lane, triangle4_float32 on `group` against intersect_triangle_float32 within
 // [r.tmin, tmax].
 void check_float32_group(const Triangle4& group, const float tris[4][9], const PreparedRay& r,
@@ -44,7 +37,7 @@ void check_float32_group(const Triangle4& group, const float tris[4][9], const P
     const Triangle4Ray ray = make_triangle4_ray(r);
     if (!ray.usable) return;
     Triangle4Float32 f;
-    triangle4_float32(ray, group, 0xFu, float_up(tmax), &f);
+    triangle4_float32(ray, group, 0xFu, &f);
     for (int k = 0; k < 4; ++k) {
         if (f.fallback >> k & 1) {
             ++tally->float32_left;
@@ -68,6 +61,13 @@ void check_float32_group(const Triangle4& group, const float tris[4][9], const P
                           << " at t=" << exact.t << ", four at once "
                           << (lane_hits ? "hit" : "miss") << " at t=" << t;
     }
+}
+
+// The float at or above `t` (what the traversal hands the filter).
+float float_up(double t) {
+    float f = float(t);
+    if (double(f) < t) f = std::nextafter(f, HUGE_VALF);
+    return f;
 }
 
 // Four triangles through one group and one at a time within [-inf, tmax]: every exact hit must

@@ -227,9 +227,7 @@ struct Triangle4Edges {
 // scalar test's fallback to the double test, which keeps shared edges closed) are left to the
 // scalar test (`fallback`). For a kFloat32 ray (origin and shear the float ones), usable.
 struct Triangle4Float32 {
-    // Lanes hit at t, t at or below the `tmax` given (a float at or above the caller's tmax:
-    // the lanes left out lie beyond it; t not yet held against tmin nor the exact tmax).
-    unsigned hits = 0;
+    unsigned hits = 0;      // lanes hit at t (t not yet held against [tmin, tmax])
     unsigned fallback = 0;  // lanes the scalar test decides
     // Per lane: t, the barycentrics of p1 and p2, the determinant, and the largest translated
     // and sheared magnitudes (what barycentric_float_error takes).
@@ -237,8 +235,7 @@ struct Triangle4Float32 {
 };
 
 [[gnu::always_inline]] inline void triangle4_float32(const Triangle4Ray& r, const Triangle4& t,
-                                                     unsigned used, float tmax,
-                                                     Triangle4Float32* out) {
+                                                     unsigned used, Triangle4Float32* out) {
     using detail::Float4;
     const Triangle4Edges e = triangle4_edges(r, t);
     const Float4 zero = detail::splat(0.0f);
@@ -257,10 +254,7 @@ struct Triangle4Float32 {
     if (out->hits == 0) return;
     const Float4 t_scaled = (e.u * e.z[0] + e.v * e.z[1]) + e.w * e.z[2];
     const Float4 rcp_det = detail::splat(1.0f) / det;
-    const Float4 hit_t = t_scaled * rcp_det;
-    // Beyond tmax (or NaN): the scalar rules would reject the lane; an out-of-line call less.
-    out->hits &= detail::le_lanes(hit_t, detail::splat(tmax));
-    detail::store4(out->t, hit_t);
+    detail::store4(out->t, t_scaled * rcp_det);
     detail::store4(out->u, e.v * rcp_det);
     detail::store4(out->v, e.w * rcp_det);
     detail::store4(out->det, det);
