@@ -417,8 +417,8 @@ TEST(NvWideTraversal, TheShortEntryWideningGivesTheGeneralEntries) {
                 if (d[0] == 0.0 || d[1] == 0.0 || d[2] == 0.0) continue;
                 for (double tmin : tmins) {
                     const double tmax = tmaxes[(ray + compared) % 3] * (tmin > 1.0 ? 10.0 : 1.0);
-                    const auto wide = eng::detail::make_wide_ray(
-                        eng::geometry::prepare_ray(o, d, tmin, tmax));
+                    const auto wide =
+                        eng::detail::make_wide_ray(eng::geometry::prepare_ray(o, d, tmin, tmax));
                     if (!wide.usable || !(wide.tmin >= 0.0f)) continue;
                     const auto ray8 = eng::detail::make_wide_ray8(wide);
                     const float tmax_up = eng::detail::float_at_or_above(tmax);
