@@ -203,21 +203,23 @@ struct Triangle4Edges {
     if (!r.usable) return used;
     // (A NaN edge function compares false, so such a triangle is never dropped.)
     const Triangle4Edges e = triangle4_edges(r, t);
-    const unsigned in_range = detail::le_lanes(e.m, detail::splat(kTriangle4LargestCoordinate)) &
-                              detail::le_lanes(detail::splat(kTriangle4SmallestCoordinate), e.m);
+    const detail::Mask4 in_range =
+        detail::le_mask(e.m, detail::splat(kTriangle4LargestCoordinate)) &
+        detail::le_mask(detail::splat(kTriangle4SmallestCoordinate), e.m);
     const Float4 err = edge_error(r, e.m, e.ms);
     const Float4 neg_err = detail::splat(0.0f) - err;
     // One edge function at or below -err and one at or above err, through the least and the
     // greatest of the three (a NaN among them may hide a lane's other two: it keeps the lane,
-    // which only costs the exact test).
-    const unsigned below = detail::le_lanes(detail::min4(detail::min4(e.u, e.v), e.w), neg_err);
-    const unsigned above = detail::le_lanes(err, detail::max4(detail::max4(e.u, e.v), e.w));
-    unsigned missed = below & above;
+    // which only costs the exact test). The conditions combined in the lanes: two masks out.
+    const unsigned decided = detail::lanes(in_range);
+    unsigned missed = detail::lanes(
+        in_range & detail::le_mask(detail::min4(detail::min4(e.u, e.v), e.w), neg_err) &
+        detail::le_mask(err, detail::max4(detail::max4(e.u, e.v), e.w)));
     // A non-negative finite tmax (NaN and infinity fail this) also drops sure hits beyond it,
     // where a lane is left to decide.
-    if ((used & in_range & ~missed) != 0 && tmax >= 0.0f && tmax <= 0x1p100f)
-        missed |= detail4::beyond_lanes(r, e.u, e.v, e.w, e.z, err, e.m + r.delta4, tmax);
-    return used & ~(in_range & missed);
+    if ((used & decided & ~missed) != 0 && tmax >= 0.0f && tmax <= 0x1p100f)
+        missed |= decided & detail4::beyond_lanes(r, e.u, e.v, e.w, e.z, err, e.m + r.delta4, tmax);
+    return used & ~missed;
 }
 
 // TraversalMode::kFloat32's triangle test (triangle.h, intersect_triangle_float32) on four
