@@ -804,7 +804,7 @@ bool trace_instance(const Instance& inst, uint32_t index, const Ray& ray, uint32
 
 // Whether every origin and direction component is finite: such a ray enters a box of infinite
 // bounds on every axis (a single-BLAS scene's root) whatever its interval.
-// (Three lanes at once: per component, the six tests were 40 instructions a ray.)
+// (Three lanes at once: the six scalar tests were 7 instructions a ray more, callgrind.)
 bool finite_ray(const Ray& ray) {
     return (detail::finite_lanes(detail::load3(ray.origin)) &
             detail::finite_lanes(detail::load3(ray.direction)) & 7u) == 7u;
