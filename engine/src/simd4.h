@@ -47,6 +47,17 @@ inline unsigned nan_lanes(Float4 a) { return unsigned(_mm_movemask_ps(_mm_cmpuno
 inline unsigned le_lanes(Float4 a, Float4 b) {
     return unsigned(_mm_movemask_ps(_mm_cmple_ps(a.v, b.v)));
 }
+// Conditions kept in the lanes (all bits set where true) and combined there, so that a test of
+// several conditions moves one mask to a register (lanes) instead of one a condition.
+struct Mask4 {
+    __m128 v;
+};
+inline Mask4 operator&(Mask4 a, Mask4 b) { return {_mm_and_ps(a.v, b.v)}; }
+inline Mask4 operator|(Mask4 a, Mask4 b) { return {_mm_or_ps(a.v, b.v)}; }
+inline Mask4 le_mask(Float4 a, Float4 b) { return {_mm_cmple_ps(a.v, b.v)}; }  // NaN: false
+inline Mask4 lt_mask(Float4 a, Float4 b) { return {_mm_cmplt_ps(a.v, b.v)}; }  // NaN: false
+inline Mask4 nonzero_mask(Float4 a) { return {_mm_cmpneq_ps(a.v, _mm_setzero_ps())}; }  // NaN: true
+inline unsigned lanes(Mask4 m) { return unsigned(_mm_movemask_ps(m.v)); }
 // Truncation toward zero of lanes already inside [0, 2^31).
 inline Int4 to_int(Float4 a) { return {_mm_cvttps_epi32(a.v)}; }
 inline Float4 to_float(Int4 a) { return {_mm_cvtepi32_ps(a.v)}; }
@@ -97,6 +108,23 @@ inline unsigned le_lanes(Float4 a, Float4 b) {
     for (int k = 0; k < 4; ++k) m |= unsigned(a.v[k] <= b.v[k]) << k;
     return m;
 }
+struct Mask4 {
+    unsigned bits;  // bit k: lane k
+};
+inline Mask4 operator&(Mask4 a, Mask4 b) { return {a.bits & b.bits}; }
+inline Mask4 operator|(Mask4 a, Mask4 b) { return {a.bits | b.bits}; }
+inline Mask4 le_mask(Float4 a, Float4 b) { return {le_lanes(a, b)}; }
+inline Mask4 lt_mask(Float4 a, Float4 b) {
+    unsigned m = 0;
+    for (int k = 0; k < 4; ++k) m |= unsigned(a.v[k] < b.v[k]) << k;
+    return {m};
+}
+inline Mask4 nonzero_mask(Float4 a) {
+    unsigned m = 0;
+    for (int k = 0; k < 4; ++k) m |= unsigned(a.v[k] != 0.0f) << k;
+    return {m};
+}
+inline unsigned lanes(Mask4 m) { return m.bits; }
 inline Int4 to_int(Float4 a) {
     return {{int32_t(a.v[0]), int32_t(a.v[1]), int32_t(a.v[2]), int32_t(a.v[3])}};
 }
@@ -110,14 +138,10 @@ inline Float4 bytes_to_float4(const uint8_t* p) {
 
 #endif
 
-// Lanes holding exactly zero (either sign): x <= 0 and 0 <= x both hold only there.
-inline unsigned zero_lanes(Float4 a) {
-    const Float4 zero = splat(0.0f);
-    return le_lanes(a, zero) & le_lanes(zero, a);
-}
 // Finite lanes: |x| <= FLT_MAX fails for NaN and infinity.
-inline unsigned finite_lanes(Float4 a) {
-    return le_lanes(abs4(a), splat(std::numeric_limits<float>::max()));
+inline Mask4 finite_mask(Float4 a) {
+    return le_mask(abs4(a), splat(std::numeric_limits<float>::max()));
 }
+inline unsigned finite_lanes(Float4 a) { return lanes(finite_mask(a)); }
 
 }  // namespace clastrace::engine::detail

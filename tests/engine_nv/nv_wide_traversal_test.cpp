@@ -385,6 +385,57 @@ TEST(NvWideTraversal, EightWideNodesHoldTheStoredBoxesAndCloseUnusedLanes) {
 #endif
 }
 
+// For a ray with no zero direction component and tmin >= 0 the short box test (one multiply
+// widening the entry) gives the general test's lanes and entry distances bit for bit, on every
+// node, from near and far origins, tmin 0, -0, tiny and large, tmax finite and infinite.
+TEST(NvWideTraversal, TheShortEntryWideningGivesTheGeneralEntries) {
+    if (!eng::detail::cpu_has_avx2()) GTEST_SKIP() << "no AVX2 on this CPU";
+#if defined(CLASTRACE_AVX2_PATH)
+    const ts::TriangleMesh sphere = ts::make_icosphere(3, 1.0f);
+    const std::pair<std::string, ts::TriangleMesh> meshes[] = {
+        {"soup", ts::make_random_soup(4000, 5, 1.0f, 0.05f)},
+        {"sphere at 1e20", scaled(sphere, 1e20f, 0.0f)},
+        {"sphere at 1e-30", scaled(sphere, 1e-30f, 0.0f)},
+        {"1e-3 triangles at 4e4", scaled(ts::make_random_soup(2000, 7, 0.25f, 1e-3f), 1.0f, 4e4f)}};
+    const double tmins[] = {0.0, -0.0, 1e-40, 1e-3, 0.5, 3.0};
+    const double tmaxes[] = {INFINITY, 2.0, 1e-3};
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<float> coord(-2.0f, 2.0f);
+    for (const auto& [what, mesh] : meshes) {
+        const auto tree =
+            eng::detail::make_wide_tree(stored_nodes(mesh, 0), eng::detail::SimdPath::kAvx2);
+        const ts::Bounds b = ts::bounds_of(mesh);
+        const float extent = std::max({b.hi[0] - b.lo[0], b.hi[1] - b.lo[1], b.hi[2] - b.lo[2]});
+        int compared = 0, different = 0;
+        for (const auto& n : tree.nodes8) {
+            for (int ray = 0; ray < 6; ++ray) {
+                double o[3], d[3];
+                for (int a = 0; a < 3; ++a) {
+                    o[a] = (b.lo[a] + b.hi[a]) / 2 + coord(rng) * extent * (ray < 3 ? 1.0f : 1e3f);
+                    d[a] = coord(rng);
+                }
+                if (d[0] == 0.0 || d[1] == 0.0 || d[2] == 0.0) continue;
+                for (double tmin : tmins) {
+                    const double tmax = tmaxes[(ray + compared) % 3] * (tmin > 1.0 ? 10.0 : 1.0);
+                    const auto wide =
+                        eng::detail::make_wide_ray(eng::geometry::prepare_ray(o, d, tmin, tmax));
+                    if (!wide.usable || !(wide.tmin >= 0.0f)) continue;
+                    const auto ray8 = eng::detail::make_wide_ray8(wide);
+                    const float tmax_up = eng::detail::float_at_or_above(tmax);
+                    alignas(32) float general[8], short_form[8];
+                    const unsigned g = eng::detail::wide8_hits<true>(ray8, n, tmax_up, general);
+                    const unsigned s = eng::detail::wide8_hits<false>(ray8, n, tmax_up, short_form);
+                    different += g != s || std::memcmp(general, short_form, sizeof general) != 0;
+                    ++compared;
+                }
+            }
+        }
+        EXPECT_GT(compared, 1000) << what;
+        EXPECT_EQ(different, 0) << what << " of " << compared;
+    }
+#endif
+}
+
 // The path decides the layout: 8-wide nodes on kAvx2 (where the CPU has it), 4-wide on kSse,
 // and the test hook moves the default.
 TEST(NvWideTraversal, ThePathPicksTheNodeWidth) {

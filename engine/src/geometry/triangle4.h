@@ -203,21 +203,23 @@ struct Triangle4Edges {
     if (!r.usable) return used;
     // (A NaN edge function compares false, so such a triangle is never dropped.)
     const Triangle4Edges e = triangle4_edges(r, t);
-    const unsigned in_range = detail::le_lanes(e.m, detail::splat(kTriangle4LargestCoordinate)) &
-                              detail::le_lanes(detail::splat(kTriangle4SmallestCoordinate), e.m);
+    const detail::Mask4 in_range =
+        detail::le_mask(e.m, detail::splat(kTriangle4LargestCoordinate)) &
+        detail::le_mask(detail::splat(kTriangle4SmallestCoordinate), e.m);
     const Float4 err = edge_error(r, e.m, e.ms);
     const Float4 neg_err = detail::splat(0.0f) - err;
     // One edge function at or below -err and one at or above err, through the least and the
     // greatest of the three (a NaN among them may hide a lane's other two: it keeps the lane,
-    // which only costs the exact test).
-    const unsigned below = detail::le_lanes(detail::min4(detail::min4(e.u, e.v), e.w), neg_err);
-    const unsigned above = detail::le_lanes(err, detail::max4(detail::max4(e.u, e.v), e.w));
-    unsigned missed = below & above;
+    // which only costs the exact test). The conditions combined in the lanes: two masks out.
+    const unsigned decided = detail::lanes(in_range);
+    unsigned missed = detail::lanes(
+        in_range & detail::le_mask(detail::min4(detail::min4(e.u, e.v), e.w), neg_err) &
+        detail::le_mask(err, detail::max4(detail::max4(e.u, e.v), e.w)));
     // A non-negative finite tmax (NaN and infinity fail this) also drops sure hits beyond it,
     // where a lane is left to decide.
-    if ((used & in_range & ~missed) != 0 && tmax >= 0.0f && tmax <= 0x1p100f)
-        missed |= detail4::beyond_lanes(r, e.u, e.v, e.w, e.z, err, e.m + r.delta4, tmax);
-    return used & ~(in_range & missed);
+    if ((used & decided & ~missed) != 0 && tmax >= 0.0f && tmax <= 0x1p100f)
+        missed |= decided & detail4::beyond_lanes(r, e.u, e.v, e.w, e.z, err, e.m + r.delta4, tmax);
+    return used & ~missed;
 }
 
 // TraversalMode::kFloat32's triangle test (triangle.h, intersect_triangle_float32) on four
@@ -239,18 +241,18 @@ struct Triangle4Float32 {
     using detail::Float4;
     const Triangle4Edges e = triangle4_edges(r, t);
     const Float4 zero = detail::splat(0.0f);
-    const unsigned finite =
-        detail::finite_lanes(e.u) & detail::finite_lanes(e.v) & detail::finite_lanes(e.w);
-    const unsigned zeros =
-        detail::zero_lanes(e.u) | detail::zero_lanes(e.v) | detail::zero_lanes(e.w);
-    const unsigned plain = finite & ~zeros & 0xFu;
-    out->fallback = used & ~plain;
-    // No zero among them: a hit has all three of one sign.
-    const unsigned positive = ~detail::le_lanes(detail::min4(detail::min4(e.u, e.v), e.w), zero);
-    const unsigned negative = ~detail::le_lanes(zero, detail::max4(detail::max4(e.u, e.v), e.w));
+    // The conditions combined in the lanes and moved out as two masks (one a condition: 13).
+    const detail::Mask4 plain = detail::finite_mask(e.u) & detail::finite_mask(e.v) &
+                                detail::finite_mask(e.w) & detail::nonzero_mask(e.u) &
+                                detail::nonzero_mask(e.v) & detail::nonzero_mask(e.w);
+    // No zero among them (and none NaN): a hit has all three of one sign.
+    const detail::Mask4 one_sign =
+        detail::lt_mask(zero, detail::min4(detail::min4(e.u, e.v), e.w)) |
+        detail::lt_mask(detail::max4(detail::max4(e.u, e.v), e.w), zero);
     const Float4 det = (e.u + e.v) + e.w;
-    const unsigned det_ok = detail::finite_lanes(det) & ~detail::zero_lanes(det);
-    out->hits = used & plain & (positive | negative) & det_ok;
+    const detail::Mask4 det_ok = detail::finite_mask(det) & detail::nonzero_mask(det);
+    out->fallback = used & ~detail::lanes(plain);
+    out->hits = used & detail::lanes(plain & one_sign & det_ok);
     if (out->hits == 0) return;
     const Float4 t_scaled = (e.u * e.z[0] + e.v * e.z[1]) + e.w * e.z[2];
     const Float4 rcp_det = detail::splat(1.0f) / det;
