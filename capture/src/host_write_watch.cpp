@@ -312,6 +312,7 @@ void HostWriteWatch::walk_pauses(DeviceState& d, HostViewResolver& resolver,
                        : &walked;
         }
         const size_t first = fresh.ranges.size();
+        fresh.ranges.reserve(first + kept->found.size());
         for (const HostWriteWalkCache::Found& f : kept->found) {
             Range range{pause->pause_id, f.address, f.size, f.span};
             range.host = f.host;

@@ -198,7 +198,7 @@ bool PageGuard::watch(std::vector<uintptr_t> pages, bool uncached) {
     std::lock_guard lock(mutex_);
     keep_handler_first();
     std::vector<uintptr_t> to_protect, adopted;
-    std::vector<Entry*> all, entries;
+    std::vector<Entry*> all, entries, protecting;
     all.reserve(pages.size());
     for (uintptr_t page : pages) {
         Entry* e = find_or_add(page);
@@ -226,6 +226,7 @@ bool PageGuard::watch(std::vector<uintptr_t> pages, bool uncached) {
         e->stray_faults.store(0, std::memory_order_relaxed);
         e->state.store(kArmed, std::memory_order_release);
         to_protect.push_back(page);
+        protecting.push_back(e);
     }
     if (!protect_runs(to_protect.data(), to_protect.size(), PROT_READ)) {
         release(to_protect);
@@ -233,7 +234,11 @@ bool PageGuard::watch(std::vector<uintptr_t> pages, bool uncached) {
         refused_.fetch_add(1, std::memory_order_relaxed);
         return false;
     }
-    for (uintptr_t page : to_protect) watched_ever_.insert(page);
+    for (Entry* e : protecting)
+        if (!e->listed) {
+            e->listed = true;
+            watched_ever_.insert(e->page.load(std::memory_order_relaxed));
+        }
     for (Entry* e : all) ++e->watchers;
     return true;
 }
@@ -279,6 +284,7 @@ void PageGuard::forget_memory(uintptr_t begin, size_t size) {
         else if (e)
             wait_while_capturing(e);
         if (e) {  // other memory may come here next
+            e->listed = false;
             e->hot.store(0, std::memory_order_relaxed);
             e->hot_span.store(0, std::memory_order_relaxed);
         }
@@ -304,7 +310,7 @@ bool PageGuard::probe(uintptr_t page) {
     std::lock_guard lock(mutex_);
     keep_handler_first();
     const Entry* held = find(page);
-    if ((held && held->watchers) || watched_ever_.count(page)) return true;  // guarded already
+    if (held && (held->watchers || held->listed)) return true;  // guarded already
     Entry* e = find_or_add(page);
     if (!e || e->state.load() != kFree) return false;
     e->uncached = true;

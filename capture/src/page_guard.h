@@ -105,6 +105,7 @@ private:
         std::atomic<uint32_t> hot{0};       // unwatches left that make it writable rather than rest
         std::atomic<uint32_t> hot_span{0};  // `hot` at its next write while resting (0: the first)
         uint32_t watchers = 0;              // (mutex_ held; the handler never reads it)
+        bool listed = false;                // in watched_ever_ (mutex_ held)
         bool uncached = false;
     };
     PageGuard(size_t page_size, Entry* table, uint8_t* slots);
