@@ -9,6 +9,8 @@
 //     --clusters C        clusters per build (default 64)
 //     --out FILE          JSON: what the builds wrote in the last frame (hex)
 //     --bad-cluster-id    cluster 0 gets clusterID 0xFFFFFFFF (a rule the engine names)
+//     --race-at K         after submitting frame K, before its wait: the host rewrites a vertex
+//                         the build reads (a host-write race, on a walk the watch reused)
 //     --host-infos        the host writes srcInfosArray once, and no GPU copy does each frame (as
 //                         on a GPU, where that copy faults nothing; lavapipe's CPU copy writes
 //                         pages the host-write watch holds, in every frame)
@@ -75,7 +77,7 @@ struct FrameOptions {
     uint32_t clusters = 64;
     std::string out, waitFor;
     bool badClusterId = false, hostInfos = false;
-    int exitAt = -1, abortAt = -1, stopAt = -1;
+    int exitAt = -1, abortAt = -1, stopAt = -1, raceAt = -1;
 };
 
 double processCpuMilliseconds() {
@@ -261,6 +263,7 @@ int frames(const FrameOptions& o) {
             std::fflush(stdout);
             for (;;) std::this_thread::sleep_for(std::chrono::seconds(1));
         }
+        if (f == o.raceAt) reinterpret_cast<float*>(vertices.mapped)[1] += 1.0f;
         CHECK(vkSetEvent(c.device, frameEvent));
         CHECK(vkWaitForFences(c.device, 1, &fence, VK_TRUE, 60ull * 1000 * 1000 * 1000));
         if (vkGetFenceStatus(c.device, fence) != VK_SUCCESS)
@@ -538,6 +541,8 @@ int main(int argc, char** argv) {
                 o.abortAt = std::atoi(argv[++i]);
             else if (a == "--stop-at")
                 o.stopAt = std::atoi(argv[++i]);
+            else if (a == "--race-at")
+                o.raceAt = std::atoi(argv[++i]);
             else
                 fail("unknown option");
         }
