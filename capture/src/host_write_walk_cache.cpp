@@ -40,7 +40,7 @@ uint64_t HostWriteWalkCache::hash_of(const ClusterCommandParameters& key) {
         std::string_view(reinterpret_cast<const char*>(&key), sizeof key));
 }
 
-const std::vector<HostWriteWalkCache::Found>* HostWriteWalkCache::find(
+const HostWriteWalkCache::Ranges* HostWriteWalkCache::find(
     const ClusterCommandParameters& p, uint64_t map_changes,
     const std::function<bool(const Read&)>& unchanged) const {
     const ClusterCommandParameters key = key_of(p);
@@ -53,11 +53,14 @@ const std::vector<HostWriteWalkCache::Found>* HostWriteWalkCache::find(
     return &it->second.found;
 }
 
-void HostWriteWalkCache::keep(const ClusterCommandParameters& p, uint64_t map_changes,
-                              std::vector<Read> reads, std::vector<Found> found) {
+const HostWriteWalkCache::Ranges& HostWriteWalkCache::keep(const ClusterCommandParameters& p,
+                                                           uint64_t map_changes,
+                                                           std::vector<Read> reads, Ranges found) {
     if (walks_.size() >= kMaxWalks) walks_.clear();
     const ClusterCommandParameters key = key_of(p);
-    walks_[hash_of(key)] = Walk{key, map_changes, std::move(reads), std::move(found)};
+    Walk& kept = walks_[hash_of(key)];
+    kept = Walk{key, map_changes, std::move(reads), std::move(found)};
+    return kept.found;
 }
 
 }  // namespace clastrace::capture

@@ -36,6 +36,20 @@ public:
         const uint8_t* host = nullptr;
         TrackedMemory memory;
     };
+    // The ranges a walk found in one allocation, as the page guard holds them: the pages of the
+    // ranges that lie wholly on pages inside the allocation's bytes (sorted, each once), those
+    // ranges, and the others, which are hashed (indices into the walk's `found`).
+    struct Group {
+        TrackedMemory memory;
+        std::vector<uintptr_t> pages;
+        std::vector<uint32_t> on_pages, hashed;
+    };
+    // What a walk found, and the same grouped by allocation: a walk kept is reused whole, so a
+    // resubmitted command costs no per-range work before its pages are watched.
+    struct Ranges {
+        std::vector<Found> found;
+        std::vector<Group> groups;
+    };
 
     // Whether a walk of `p` may be kept: one whose src infos entries lie behind an indirection
     // reads them through views, which the reads do not record.
@@ -43,19 +57,19 @@ public:
     // The ranges of the walk kept for parameters equal to `p` under `map_changes`
     // (DeviceMemoryMap::changes), if `unchanged` says each of its reads still gives its bytes;
     // null otherwise.
-    const std::vector<Found>* find(const ClusterCommandParameters& p, uint64_t map_changes,
-                                   const std::function<bool(const Read&)>& unchanged) const;
-    // Keeps a walk of `p` (replacing the one kept for equal parameters). A walk kept before the
-    // map changed (memory freed, say) is never found again.
-    void keep(const ClusterCommandParameters& p, uint64_t map_changes, std::vector<Read> reads,
-              std::vector<Found> found);
+    const Ranges* find(const ClusterCommandParameters& p, uint64_t map_changes,
+                       const std::function<bool(const Read&)>& unchanged) const;
+    // Keeps a walk of `p` (replacing the one kept for equal parameters) and returns its ranges as
+    // kept. A walk kept before the map changed (memory freed, say) is never found again.
+    const Ranges& keep(const ClusterCommandParameters& p, uint64_t map_changes,
+                       std::vector<Read> reads, Ranges found);
 
 private:
     struct Walk {
         ClusterCommandParameters key;  // normalized: see key_of
         uint64_t map_changes = 0;
         std::vector<Read> reads;
-        std::vector<Found> found;
+        Ranges found;
     };
     // `p` with its pointers cleared (the application's, meaningless to the walk), compared bytewise.
     static ClusterCommandParameters key_of(const ClusterCommandParameters& p);

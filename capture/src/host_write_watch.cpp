@@ -139,6 +139,34 @@ void append_pages(std::vector<uintptr_t>& out, const PageSpan& pages, size_t pag
     for (size_t i = 0; i < pages.count; ++i) out.push_back(pages.first + i * page_size);
 }
 
+// A walk's ranges by allocation, each group with the pages the guard would hold for it.
+HostWriteWalkCache::Ranges grouped(std::vector<HostWriteWalkCache::Found> found, size_t page_size) {
+    HostWriteWalkCache::Ranges out;
+    for (size_t i = 0; i < found.size(); ++i) {
+        const HostWriteWalkCache::Found& f = found[i];
+        auto group = std::find_if(out.groups.begin(), out.groups.end(), [&](const auto& g) {
+            return g.memory.handle == f.memory.handle;
+        });
+        if (group == out.groups.end())
+            group = out.groups.insert(out.groups.end(),
+                                      HostWriteWalkCache::Group{f.memory, {}, {}, {}});
+        const PageSpan pages = pages_of(f.host, f.size, page_size);
+        if (!inside_mapping(f.memory, pages, page_size)) {
+            group->hashed.push_back(uint32_t(i));
+            continue;
+        }
+        append_pages(group->pages, pages, page_size);
+        group->on_pages.push_back(uint32_t(i));
+    }
+    // Each page once: the walk is one watcher of it, however many of its ranges lie there.
+    for (HostWriteWalkCache::Group& g : out.groups) {
+        std::sort(g.pages.begin(), g.pages.end());
+        g.pages.erase(std::unique(g.pages.begin(), g.pages.end()), g.pages.end());
+    }
+    out.found = std::move(found);
+    return out;
+}
+
 bool any_page_written(const PageGuard& guard, const HostWriteWatch::Range& r) {
     const PageSpan pages = pages_of(r.host, r.size, guard.page_size());
     for (size_t i = 0; i < pages.count; ++i)
@@ -167,39 +195,32 @@ bool differs_from_submitted(const PageGuard& guard, const HostWriteWatch::Range&
 
 }  // namespace
 
-void HostWriteWatch::guard_or_hash(HostViewResolver& resolver, std::vector<Range*> ranges,
-                                   const TrackedMemory& memory, Submission& s, WatchLaps& laps) {
-    PageGuard* guard = layer_config().host_write_guard ? PageGuard::instance() : nullptr;
-    if (guard) guard->set_resting(layer_config().guard_rest);
-    std::vector<uintptr_t> pages;
-    std::vector<Range*> guardable;
-    if (guard)
-        std::erase_if(ranges, [&](Range* r) {
-            const PageSpan span = pages_of(r->host, r->size, guard->page_size());
-            if (!inside_mapping(memory, span, guard->page_size())) return false;
-            append_pages(pages, span, guard->page_size());
-            guardable.push_back(r);
-            return true;
-        });
-    // Each page once: the submission is one watcher of it, however many of its ranges lie there.
-    std::sort(pages.begin(), pages.end());
-    pages.erase(std::unique(pages.begin(), pages.end()), pages.end());
-    const bool uncached = !(memory.property_flags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT);
-    if (!guardable.empty() && probed(memory, pages.front()) && guard->watch(pages, uncached)) {
-        for (Range* r : guardable) r->guarded = true;
-        guarded_ranges_ += guardable.size();
-        s.guarded.push_back({memory.handle, std::move(pages)});
-    } else {
-        ranges.insert(ranges.end(), guardable.begin(), guardable.end());
+void HostWriteWatch::guard_or_hash(HostViewResolver& resolver,
+                                   const HostWriteWalkCache::Group& group, size_t first,
+                                   Submission& s, WatchLaps& laps) {
+    PageGuard* guard = PageGuard::instance();
+    guard->set_resting(layer_config().guard_rest);
+    const bool uncached = !(group.memory.property_flags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT);
+    const bool held = !group.on_pages.empty() && probed(group.memory, group.pages.front()) &&
+                      guard->watch(group.pages, uncached);
+    if (held) {
+        for (uint32_t i : group.on_pages) s.ranges[first + i].guarded = true;
+        guarded_ranges_ += group.on_pages.size();
+        s.guarded.push_back({group.memory.handle, group.pages});
     }
     laps.lap(WatchPhase::kSubmitGuard);
-    for (Range* r : ranges) {
+    auto hash = [&](uint32_t i) {
+        Range& r = s.ranges[first + i];
         CapturedBytes now;
         std::string why;
-        read_host_view(resolver, r->address, r->size, &now, why);
-        r->hash = hash_of(now);
+        read_host_view(resolver, r.address, r.size, &now, why);
+        r.hash = hash_of(now);
+        s.hashed.push_back(uint32_t(first + i));
         ++hashed_ranges_;
-    }
+    };
+    for (uint32_t i : group.hashed) hash(i);
+    if (!held)
+        for (uint32_t i : group.on_pages) hash(i);
     laps.lap(WatchPhase::kSubmitHash);
 }
 
@@ -220,8 +241,6 @@ void HostWriteWatch::unguard(Submission& s, const std::function<bool(uint64_t me
         PageGuard::instance()->unwatch(std::move(g.pages));
         return true;
     });
-    for (Range& r : s.ranges)
-        if (r.guarded && picked(r.span.memory)) r.guarded = false;
 }
 
 bool HostWriteWatch::wrote_any_page(const Submission& s) {
@@ -232,10 +251,9 @@ bool HostWriteWatch::wrote_any_page(const Submission& s) {
     return false;
 }
 
-void HostWriteWatch::walk_pauses(
-    DeviceState& d, HostViewResolver& resolver, const std::vector<const PausePoint*>& pauses,
-    Submission& fresh, std::map<uint64_t, std::pair<TrackedMemory, std::vector<size_t>>>& by_memory,
-    WatchLaps& laps) {
+void HostWriteWatch::walk_pauses(DeviceState& d, HostViewResolver& resolver,
+                                 const std::vector<const PausePoint*>& pauses, Submission& fresh,
+                                 WatchLaps& laps) {
     const bool guarding = layer_config().host_write_guard && PageGuard::instance();
     DeviceMemoryReader host_view = [&resolver](VkDeviceAddress a, uint64_t size, CapturedBytes* out,
                                                std::string& why) {
@@ -253,9 +271,9 @@ void HostWriteWatch::walk_pauses(
         const ClusterCommandParameters& p = *pause->parameters;
         // Read before the walk: a change of the map meanwhile leaves the walk kept unfound.
         const uint64_t map_changes = d.memory_map.changes();
-        const std::vector<HostWriteWalkCache::Found>* kept =
+        const HostWriteWalkCache::Ranges* kept =
             guarding ? walk_cache_.find(p, map_changes, unchanged) : nullptr;
-        std::vector<HostWriteWalkCache::Found> walked;
+        HostWriteWalkCache::Ranges walked;
         if (guarding) ++walks_;
         if (kept) {
             ++walks_reused_;
@@ -271,34 +289,38 @@ void HostWriteWatch::walk_pauses(
                 const ResolvedRange* where = resolver.resolve(r.address, r.bytes.size(), why);
                 if (!where || !where->host) continue;
                 const VkDeviceSize at = where->buffer.memory_offset + where->offset_in_buffer;
-                walked.push_back({r.address, r.bytes.size(),
-                                  MemorySpan{where->memory.handle, at, at + r.bytes.size()},
-                                  where->host, where->memory});
-                if (!guarding) {
-                    Range range{pause->pause_id, r.address, r.bytes.size(), walked.back().span};
-                    range.host = where->host;
-                    range.hash = hash_of(r.bytes);
-                    ++hashed_ranges_;
-                    fresh.ranges.push_back(std::move(range));
+                const MemorySpan span{where->memory.handle, at, at + r.bytes.size()};
+                if (guarding) {
+                    walked.found.push_back(
+                        {r.address, r.bytes.size(), span, where->host, where->memory});
+                    continue;
                 }
+                Range range{pause->pause_id, r.address, r.bytes.size(), span};
+                range.host = where->host;
+                range.hash = hash_of(r.bytes);
+                ++hashed_ranges_;
+                fresh.hashed.push_back(uint32_t(fresh.ranges.size()));
+                fresh.ranges.push_back(std::move(range));
             }
             if (!guarding) {
                 laps.lap(WatchPhase::kSubmitHash);
                 continue;
             }
-            if (HostWriteWalkCache::keepable(p))
-                walk_cache_.keep(p, map_changes, std::move(reads), walked);
-            kept = &walked;
+            walked = grouped(std::move(walked.found), PageGuard::instance()->page_size());
+            kept = HostWriteWalkCache::keepable(p)
+                       ? &walk_cache_.keep(p, map_changes, std::move(reads), std::move(walked))
+                       : &walked;
         }
-        for (const HostWriteWalkCache::Found& f : *kept) {
+        const size_t first = fresh.ranges.size();
+        fresh.ranges.reserve(first + kept->found.size());
+        for (const HostWriteWalkCache::Found& f : kept->found) {
             Range range{pause->pause_id, f.address, f.size, f.span};
             range.host = f.host;
-            auto& group = by_memory[f.memory.handle];
-            group.first = f.memory;
-            group.second.push_back(fresh.ranges.size());
             fresh.ranges.push_back(std::move(range));
         }
         laps.lap(WatchPhase::kSubmitResolve);
+        for (const HostWriteWalkCache::Group& group : kept->groups)
+            guard_or_hash(resolver, group, first, fresh, laps);
     }
 }
 
@@ -312,19 +334,12 @@ void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
     for (Submission& s : watched_) look(d, s, HostWriteSeen::kAtSubmit);
     laps.lap(WatchPhase::kSubmitLook);
     Submission fresh{
-        record.index, record.queue, record.fence, {}, {}, {}, std::move(device_writes), {}};
+        record.index, record.queue, record.fence, {}, {}, {}, std::move(device_writes), {}, {}, {}};
     for (const SubmitBatch& b : record.batches)
         fresh.signals.insert(fresh.signals.end(), b.signals.begin(), b.signals.end());
     HostViewResolver resolver(d.memory_map);
-    // Guarded submissions: the ranges of each allocation, guarded (or hashed) together below.
-    std::map<uint64_t, std::pair<TrackedMemory, std::vector<size_t>>> by_memory;
-    walk_pauses(d, resolver, pauses, fresh, by_memory, laps);
+    walk_pauses(d, resolver, pauses, fresh, laps);
     phases_.add_ranges(fresh.ranges.size());
-    for (auto& [memory, group] : by_memory) {
-        std::vector<Range*> ranges;
-        for (size_t i : group.second) ranges.push_back(&fresh.ranges[i]);
-        guard_or_hash(resolver, std::move(ranges), group.first, fresh, laps);
-    }
     // A submission that only writes is kept too: its writes may change another's inputs.
     if (fresh.ranges.empty() && fresh.device_writes.empty()) return;
     watched_.push_back(std::move(fresh));
@@ -345,6 +360,9 @@ void HostWriteWatch::memory_freed(uint64_t memory) {
     for (Submission& s : watched_) {
         unguard(s, [memory](uint64_t m) { return m == memory; });
         std::erase_if(s.ranges, [&](const Range& r) { return r.span.memory == memory; });
+        s.hashed.clear();
+        for (size_t i = 0; i < s.ranges.size(); ++i)
+            if (!s.ranges[i].guarded) s.hashed.push_back(uint32_t(i));
     }
     // Its pages left read-only past their watchers: writable again before the mapping goes.
     auto it = probed_.find(memory);
@@ -403,25 +421,27 @@ void HostWriteWatch::paused(uint64_t submission, uint64_t pause_id,
         }
         return nullptr;
     };
+    auto compare = [&](Range& r) {
+        if (r.pause_id != pause_id) return;
+        const CapturedRange* read = read_of(r);
+        if (!read) return;
+        if (r.guarded) {  // compared only where its pages were written
+            r.read_changed = differs_from_submitted(*PageGuard::instance(), r, read->bytes.data());
+            if (r.read_changed) r.pause_hash = hash_of(read->bytes);
+            return;
+        }
+        r.pause_hash = hash_of(read->bytes);
+        r.read_changed = r.pause_hash != r.hash;
+    };
     for (Submission& s : watched_) {
         if (s.index != submission) continue;
-        const bool written = wrote_any_page(s);
-        for (Range& r : s.ranges) {
-            if (r.pause_id != pause_id) continue;
-            const CapturedRange* read = read_of(r);
-            if (!read) continue;
-            r.paused = true;
-            if (r.guarded) {
-                // Pages not written hold what they held at the submission: compared only
-                // where written (no written page: unchanged, nothing compared).
-                r.read_changed = written && differs_from_submitted(*PageGuard::instance(), r,
-                                                                   read->bytes.data());
-                if (r.read_changed) r.pause_hash = hash_of(read->bytes);
-                continue;
-            }
-            r.pause_hash = hash_of(read->bytes);
-            r.read_changed = r.pause_hash != r.hash;
-        }
+        s.paused.push_back(pause_id);
+        // No page written: the guarded ranges hold what they held at the submission, and only
+        // the hashed ones are compared.
+        if (wrote_any_page(s))
+            for (Range& r : s.ranges) compare(r);
+        else
+            for (uint32_t i : s.hashed) compare(s.ranges[i]);
     }
     laps.lap(WatchPhase::kPauseCompare);
 }
@@ -469,51 +489,61 @@ bool HostWriteWatch::device_may_have_written(const Submission& s, const MemorySp
 
 void HostWriteWatch::look(DeviceState& d, Submission& s, HostWriteSeen seen) {
     HostViewResolver resolver(d.memory_map);
-    const bool written = wrote_any_page(s);
-    for (Range& r : s.ranges) {
-        // A guarded range none of whose pages was written holds what it held at the submission.
-        if (r.guarded && (!written || !any_page_written(*PageGuard::instance(), r))) continue;
-        CapturedBytes now;
-        ResolvedRange where;
-        std::string why;
-        if (!read_host_view(resolver, r.address, r.size, &now, why, &where))
-            continue;  // freed, unmapped
-        const uint64_t hash = hash_of(now);
-        bool changed = hash != r.hash;
-        if (r.guarded) {  // hashed from now on (its pages stay watched till the submission goes)
-            changed = differs_from_submitted(*PageGuard::instance(), r, now.data());
-            r.guarded = false;
-        }
-        if (!changed && !r.read_changed) {
-            r.hash = hash;
-            continue;
-        }
-        if (device_may_have_written(s, r.span)) {
-            // Bytes the device may have changed: not claimed as a host write (a limit, in
-            // capture/README.md), and the new bytes are what a later look compares with.
-            r.hash = hash;
-            r.read_changed = false;
-            continue;
-        }
-        HostWriteRecord w;
-        // The command read the changed bytes, or its pause has not come yet (a later submission
-        // saw the write while the command waited): the pause reads the new bytes, so replay's
-        // image holds them by the time it meets this record, and it counts the whole range as
-        // written rather than the bytes that differ from its image.
-        const bool read_new_bytes = (r.read_changed && hash == r.pause_hash) || !r.paused;
-        w.seen = read_new_bytes ? HostWriteSeen::kReadByCommand : seen;
-        w.memory = where.memory.handle;
-        w.memory_offset = where.buffer.memory_offset + where.offset_in_buffer;
-        w.buffer = where.buffer.handle;
-        w.buffer_offset = where.offset_in_buffer;
-        w.address = r.address;
-        w.bytes.assign(now.data(), now.data() + now.size());
-        w.submission_index = s.index;
-        w.pause_id = r.pause_id;
-        if (d.sink) d.sink->host_write_observed(w);
-        r.hash = hash;
-        r.read_changed = false;  // reported once
+    if (!wrote_any_page(s)) {  // the guarded ranges hold what they held at the submission
+        for (uint32_t i : s.hashed) look_at(d, resolver, s, s.ranges[i], seen);
+        return;
     }
+    for (uint32_t i = 0; i < s.ranges.size(); ++i) {
+        Range& r = s.ranges[i];
+        // A guarded range none of whose pages was written holds what it held at the submission.
+        if (r.guarded && !any_page_written(*PageGuard::instance(), r)) continue;
+        if (r.guarded) s.hashed.push_back(i);  // hashed from now on (look_at)
+        look_at(d, resolver, s, r, seen);
+    }
+}
+
+void HostWriteWatch::look_at(DeviceState& d, HostViewResolver& resolver, Submission& s, Range& r,
+                             HostWriteSeen seen) {
+    CapturedBytes now;
+    ResolvedRange where;
+    std::string why;
+    if (!read_host_view(resolver, r.address, r.size, &now, why, &where)) return;  // freed, unmapped
+    const uint64_t hash = hash_of(now);
+    bool changed = hash != r.hash;
+    if (r.guarded) {  // hashed from now on (its pages stay watched till the submission goes)
+        changed = differs_from_submitted(*PageGuard::instance(), r, now.data());
+        r.guarded = false;
+    }
+    if (!changed && !r.read_changed) {
+        r.hash = hash;
+        return;
+    }
+    if (device_may_have_written(s, r.span)) {
+        // Bytes the device may have changed: not claimed as a host write (a limit, in
+        // capture/README.md), and the new bytes are what a later look compares with.
+        r.hash = hash;
+        r.read_changed = false;
+        return;
+    }
+    HostWriteRecord w;
+    // The command read the changed bytes, or its pause has not come yet (a later submission
+    // saw the write while the command waited): the pause reads the new bytes, so replay's
+    // image holds them by the time it meets this record, and it counts the whole range as
+    // written rather than the bytes that differ from its image.
+    const bool paused = std::find(s.paused.begin(), s.paused.end(), r.pause_id) != s.paused.end();
+    const bool read_new_bytes = (r.read_changed && hash == r.pause_hash) || !paused;
+    w.seen = read_new_bytes ? HostWriteSeen::kReadByCommand : seen;
+    w.memory = where.memory.handle;
+    w.memory_offset = where.buffer.memory_offset + where.offset_in_buffer;
+    w.buffer = where.buffer.handle;
+    w.buffer_offset = where.offset_in_buffer;
+    w.address = r.address;
+    w.bytes.assign(now.data(), now.data() + now.size());
+    w.submission_index = s.index;
+    w.pause_id = r.pause_id;
+    if (d.sink) d.sink->host_write_observed(w);
+    r.hash = hash;
+    r.read_changed = false;  // reported once
 }
 
 }  // namespace clastrace::capture

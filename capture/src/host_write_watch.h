@@ -50,7 +50,6 @@ public:
         uint64_t hash = 0;              // at the submission, then at the last look
         uint64_t pause_hash = 0;        // what the command read, once its pause came
         bool read_changed = false;      // the command read bytes unlike those at the submission
-        bool paused = false;            // its pause came: the trace holds what the command read
         const uint8_t* host = nullptr;  // where the layer's mapping holds it
         // Its pages are write-protected (page_guard.h): `hash` is unset until a look finds one
         // of them written, compares, and hashes the range from then on.
@@ -71,6 +70,11 @@ public:
         std::vector<MemorySpan> device_writes;  // what its own commands may write
         // What submissions pending beside it wrote, kept once they stopped being watched.
         std::vector<MemorySpan> others_writes;
+        // Its ranges not guarded (indices into `ranges`): all a look or pause compares while no
+        // page it watches was written, without going through the guarded ones.
+        std::vector<uint32_t> hashed;
+        // The pauses that came: the trace holds what their commands read.
+        std::vector<uint64_t> paused;
     };
 
     // Inside vkQueueSubmit, before the driver call: reports host writes to the submissions still
@@ -96,25 +100,29 @@ public:
 private:
     // Hashes each range again; a changed one goes to the sink as `seen`.
     void look(DeviceState& d, Submission& s, HostWriteSeen seen);
+    // The same for one range of `s`.
+    void look_at(DeviceState& d, HostViewResolver& resolver, Submission& s, Range& r,
+                 HostWriteSeen seen);
     // A command of `s` or of a submission pending beside it may have written `span`.
     bool device_may_have_written(const Submission& s, const MemorySpan& span) const;
     // Stops watching the submissions `gone` picks; the others keep what those may have written.
     void forget(const std::function<bool(const Submission&)>& gone);
-    // Write-protects the pages of `ranges` (of one allocation) where the guard can hold them,
-    // and hashes the others; `s` keeps the pages it watches.
-    void guard_or_hash(HostViewResolver& resolver, std::vector<Range*> ranges,
-                       const TrackedMemory& memory, Submission& s, WatchLaps& laps);
+    // Write-protects the pages of the ranges of `group` (of the walk whose ranges start at
+    // `first` in `s.ranges`) where the guard can hold them, and hashes the others; `s` keeps the
+    // pages it watches.
+    void guard_or_hash(HostViewResolver& resolver, const HostWriteWalkCache::Group& group,
+                       size_t first, Submission& s, WatchLaps& laps);
     // Whether the guard can hold the pages of `memory`: probed at `page` the first time.
     bool probed(const TrackedMemory& memory, uintptr_t page);
-    // Stops watching the pages `s` watches in the allocations `picked` picks.
+    // Stops watching the pages `s` watches in the allocations `picked` picks (its ranges there
+    // are about to go with it, or with their memory).
     static void unguard(Submission& s, const std::function<bool(uint64_t memory)>& picked);
     // Whether a page `s` watches was written since: if not, none of its guarded ranges changed.
     static bool wrote_any_page(const Submission& s);
     // Walks the submission's cluster pauses (or reuses an earlier walk) into `fresh.ranges`, and
-    // groups the guarded submission's ranges by allocation.
+    // guards (or hashes) each walk's ranges.
     void walk_pauses(DeviceState& d, HostViewResolver& resolver,
                      const std::vector<const PausePoint*>& pauses, Submission& fresh,
-                     std::map<uint64_t, std::pair<TrackedMemory, std::vector<size_t>>>& by_memory,
                      WatchLaps& laps);
     struct Probed {
         bool guardable = false;

@@ -55,7 +55,8 @@ std::vector<std::string> WatchPhaseTotals::lines(const PageGuard::Counts* guard)
     std::snprintf(line, sizeof line,
                   "host-write watch mprotect: read-only %llu calls, %llu pages (%.1f a call), "
                   "%.3f ms (%.3f on CPU); writable %llu calls, %llu pages (%.1f a call), %.3f ms "
-                  "(%.3f on CPU); before-images %llu pages, %.3f ms",
+                  "(%.3f on CPU); before-images %llu pages, %.3f ms; faults after the waits %llu, "
+                  "%.3f ms in the handler",
                   (unsigned long long)guard->protect_calls,
                   (unsigned long long)guard->protected_pages,
                   per_call(guard->protected_pages, guard->protect_calls), ms(guard->protect_ns),
@@ -63,7 +64,8 @@ std::vector<std::string> WatchPhaseTotals::lines(const PageGuard::Counts* guard)
                   (unsigned long long)guard->unprotected_pages,
                   per_call(guard->unprotected_pages, guard->unprotect_calls),
                   ms(guard->unprotect_ns), ms(guard->unprotect_cpu_ns),
-                  (unsigned long long)guard->faults, ms(guard->before_image_ns));
+                  (unsigned long long)guard->faults, ms(guard->before_image_ns),
+                  (unsigned long long)guard->resting_faults, ms(guard->resting_fault_ns));
     out.push_back(line);
     return out;
 }

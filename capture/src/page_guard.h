@@ -11,9 +11,10 @@
 // and a frame loop resubmitting over the same buffers re-protects only the pages written since
 // (capture/README.md, "Host writes"). A write to a resting page faults once, and the handler
 // only makes the page writable again (nobody needs its before-image). A page written while
-// resting is "hot" for its next kHotUnwatches unwatches: made writable then, in runs of pages,
-// rather than left to fault one page at a time (a frame loop rewriting its vertices after each
-// wait would otherwise pay a fault per page per frame). Memory going away
+// resting is "hot" for its next unwatches (8 after its first such write, twice as many after each
+// later one): made writable then, in runs of pages, rather than left to fault one page at a time
+// (a frame loop rewriting its vertices after each wait would otherwise pay a fault per page per
+// frame). Memory going away
 // (vkFreeMemory) must be forgotten first (forget_memory), or a later mapping at its addresses
 // would be taken for protected.
 //
@@ -28,7 +29,6 @@
 #include <cstdint>
 #include <mutex>
 #include <set>
-#include <unordered_map>
 #include <vector>
 
 namespace clastrace::capture {
@@ -78,7 +78,8 @@ public:
         // entries) and those that made them writable again; the handler's before-image copies.
         uint64_t protect_calls = 0, protected_pages = 0, protect_ns = 0, protect_cpu_ns = 0;
         uint64_t unprotect_calls = 0, unprotected_pages = 0, unprotect_ns = 0, unprotect_cpu_ns = 0;
-        uint64_t before_image_ns = 0;  // in the handler: copy and mprotect, per written page
+        uint64_t before_image_ns = 0;   // in the handler: copy and mprotect, per written page
+        uint64_t resting_fault_ns = 0;  // in the handler: mprotect, per page written while resting
     };
     Counts counts() const;
 
@@ -101,7 +102,10 @@ private:
         std::atomic<uintptr_t> page{0};  // 0: empty
         std::atomic<uint32_t> state{kFree};
         std::atomic<uint32_t> stray_faults{0};
-        std::atomic<uint32_t> hot{0};  // unwatches left that make it writable rather than rest
+        std::atomic<uint32_t> hot{0};       // unwatches left that make it writable rather than rest
+        std::atomic<uint32_t> hot_span{0};  // `hot` at its next write while resting (0: the first)
+        uint32_t watchers = 0;              // (mutex_ held; the handler never reads it)
+        bool listed = false;                // in watched_ever_ (mutex_ held)
         bool uncached = false;
     };
     PageGuard(size_t page_size, Entry* table, uint8_t* slots);
@@ -130,12 +134,11 @@ private:
         protect_cpu_ns_{0};
     std::atomic<uint64_t> unprotect_calls_{0}, unprotected_pages_{0}, unprotect_ns_{0},
         unprotect_cpu_ns_{0};
-    std::atomic<uint64_t> before_image_ns_{0};
+    std::atomic<uint64_t> before_image_ns_{0}, resting_fault_ns_{0};
     std::atomic<uintptr_t> probing_page_{0};  // probe(): the page, and the thread writing it
     std::atomic<long> probing_thread_{0};
     sigjmp_buf probe_return_;
-    std::mutex mutex_;                                  // watch/unwatch; the handler takes none
-    std::unordered_map<uintptr_t, uint32_t> watchers_;  // page -> watchers
+    std::mutex mutex_;                  // watch/unwatch; the handler takes none
     std::set<uintptr_t> watched_ever_;  // pages watched since their memory was last forgotten
     size_t used_ = 0;                   // table entries taken
 };

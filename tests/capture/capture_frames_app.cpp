@@ -9,6 +9,11 @@
 //     --clusters C        clusters per build (default 64)
 //     --out FILE          JSON: what the builds wrote in the last frame (hex)
 //     --bad-cluster-id    cluster 0 gets clusterID 0xFFFFFFFF (a rule the engine names)
+//     --race-at K         after submitting frame K, before its wait: the host rewrites a vertex
+//                         the build reads (a host-write race, on a walk the watch reused)
+//     --host-infos        the host writes srcInfosArray once, and no GPU copy does each frame (as
+//                         on a GPU, where that copy faults nothing; lavapipe's CPU copy writes
+//                         pages the host-write watch holds, in every frame)
 //     --exit-at K         after submitting frame K: exit(0) without waiting or cleanup
 //     --abort-at K        after submitting frame K: abort()
 //     --stop-at K         after submitting frame K: sleep until killed
@@ -71,8 +76,8 @@ struct FrameOptions {
     int frames = 10;
     uint32_t clusters = 64;
     std::string out, waitFor;
-    bool badClusterId = false;
-    int exitAt = -1, abortAt = -1, stopAt = -1;
+    bool badClusterId = false, hostInfos = false;
+    int exitAt = -1, abortAt = -1, stopAt = -1, raceAt = -1;
 };
 
 double processCpuMilliseconds() {
@@ -183,6 +188,7 @@ int frames(const FrameOptions& o) {
         i.indexBuffer = indices.address + uint64_t(k) * kTriangles * 12;
         i.vertexBuffer = vertices.address + uint64_t(k) * kVertices * 12;
     }
+    if (o.hostInfos) std::memcpy(infos.mapped, infoSource.mapped, infos.size);
     const uint32_t countValues[2] = {n, 1};
     std::memcpy(counts.mapped, countValues, sizeof countValues);
     VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV reference{};
@@ -232,10 +238,12 @@ int frames(const FrameOptions& o) {
         VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr,
                                        VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT, nullptr};
         CHECK(vkBeginCommandBuffer(cb, &begin));
-        VkBufferCopy copy{0, 0, infos.size};
-        vkCmdCopyBuffer(cb, infoSource.buffer, infos.buffer, 1, &copy);
-        barrier(cb, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
-                VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_READ_BIT);
+        if (!o.hostInfos) {
+            VkBufferCopy copy{0, 0, infos.size};
+            vkCmdCopyBuffer(cb, infoSource.buffer, infos.buffer, 1, &copy);
+            barrier(cb, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
+                    VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_READ_BIT);
+        }
         c.cmdBuildClusters(cb, &build);
         barrier(cb, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_WRITE_BIT,
                 VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_READ_BIT);
@@ -255,6 +263,7 @@ int frames(const FrameOptions& o) {
             std::fflush(stdout);
             for (;;) std::this_thread::sleep_for(std::chrono::seconds(1));
         }
+        if (f == o.raceAt) reinterpret_cast<float*>(vertices.mapped)[1] += 1.0f;
         CHECK(vkSetEvent(c.device, frameEvent));
         CHECK(vkWaitForFences(c.device, 1, &fence, VK_TRUE, 60ull * 1000 * 1000 * 1000));
         if (vkGetFenceStatus(c.device, fence) != VK_SUCCESS)
@@ -516,6 +525,8 @@ int main(int argc, char** argv) {
             const char* value = i + 1 < argc ? argv[i + 1] : nullptr;
             if (a == "--bad-cluster-id")
                 o.badClusterId = true;
+            else if (a == "--host-infos")
+                o.hostInfos = true;
             else if (!value)
                 fail("option without value");
             else if (a == "--clusters")
@@ -530,6 +541,8 @@ int main(int argc, char** argv) {
                 o.abortAt = std::atoi(argv[++i]);
             else if (a == "--stop-at")
                 o.stopAt = std::atoi(argv[++i]);
+            else if (a == "--race-at")
+                o.raceAt = std::atoi(argv[++i]);
             else
                 fail("unknown option");
         }

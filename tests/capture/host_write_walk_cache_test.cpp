@@ -27,8 +27,8 @@ struct Kept {
     std::vector<uint8_t> infos = std::vector<uint8_t>(4 * 48, 1);
     // What the walk's reads give now: the infos as they are.
     bool unchanged(const HostWriteWalkCache::Read& r) const { return r.bytes == infos; }
-    const std::vector<HostWriteWalkCache::Found>* find(const ClusterCommandParameters& p,
-                                                       uint64_t changes = 7) {
+    const HostWriteWalkCache::Ranges* find(const ClusterCommandParameters& p,
+                                           uint64_t changes = 7) {
         return cache.find(p, changes,
                           [this](const HostWriteWalkCache::Read& r) { return unchanged(r); });
     }
@@ -40,21 +40,21 @@ TEST(HostWriteWalkCache, AResubmittedCommandWhoseReadsHoldTheSameBytesGetsItsRan
     HostWriteWalkCache::Found f;
     f.address = 0xA000;
     f.size = 96;
-    k.cache.keep(p, 7, {{0x8000, k.infos}}, {f});
+    k.cache.keep(p, 7, {{0x8000, k.infos}}, {{f}, {}});
     ClusterCommandParameters again = triangle_build(0x8000);
     int chained = 0;
     again.info.pNext = &chained;  // a re-recorded command: other application pointers
     const auto* found = k.find(again);
     ASSERT_NE(found, nullptr);
-    ASSERT_EQ(found->size(), 1u);
-    EXPECT_EQ((*found)[0].address, 0xA000u);
-    EXPECT_EQ((*found)[0].size, 96u);
+    ASSERT_EQ(found->found.size(), 1u);
+    EXPECT_EQ(found->found[0].address, 0xA000u);
+    EXPECT_EQ(found->found[0].size, 96u);
 }
 
 TEST(HostWriteWalkCache, ChangedBytesParametersOrMapAreWalkedAgain) {
     Kept k;
     const ClusterCommandParameters p = triangle_build(0x8000);
-    k.cache.keep(p, 7, {{0x8000, k.infos}}, {HostWriteWalkCache::Found{}});
+    k.cache.keep(p, 7, {{0x8000, k.infos}}, {{HostWriteWalkCache::Found{}}, {}});
     EXPECT_EQ(k.find(p, 8), nullptr);                    // a buffer came or went since
     EXPECT_EQ(k.find(triangle_build(0x8100)), nullptr);  // other parameters
     k.infos[5] = 2;                                      // the host or the device wrote the infos

@@ -117,6 +117,34 @@ TEST_F(HostWriteWatchRun, RefusedMprotectFallsBackToHashing) {
     EXPECT_EQ(o.watch_line.find("(0 refused by mprotect)"), std::string::npos) << o.watch_line;
 }
 
+// A frame loop (tests/capture/capture_frames_app) whose host rewrites a vertex after submitting
+// frame 6, before its wait: the submission's walks were reused from frame 1 on (the stats say
+// so), and the race is found as with a fresh walk, in both modes; without the rewrite, none.
+TEST_F(HostWriteWatchRun, ARaceOnAResubmittedCommandIsFoundThroughItsReusedWalk) {
+    const std::string trace = (dir / "frames.clt").string();
+    for (const char* mode : {"hash", "guard"})
+        for (const char* race : {"", " --race-at 6"}) {
+            SCOPED_TRACE(std::string(mode) + race);
+            ProcessResult r = run(std::string(CLASTRACE_FRAMES_APP) +
+                                      " frames 8 --clusters 64 --host-infos" + race,
+                                  {{"CLASTRACE_OUTPUT", trace},
+                                   {"CLASTRACE_HOST_WRITES", mode},
+                                   {"CLASTRACE_TRACEABLE_CLUSTERS", "0"},
+                                   {"CLASTRACE_STATS", "1"}});
+            ASSERT_EQ(r.exitCode, 0) << r.err;
+            if (std::string(mode) == "guard") {
+                EXPECT_NE(r.err.find("14 of 16 walks reused"), std::string::npos) << r.err;
+            }
+            ProcessResult replayed =
+                run(std::string(CLASTRACE_CAPTURE_LAUNCHER) + " replay " + trace, {}, false);
+            size_t races = 0;
+            for (size_t p = replayed.out.find("HOST-WRITE race"); p != std::string::npos;
+                 p = replayed.out.find("HOST-WRITE race", p + 1))
+                ++races;
+            EXPECT_EQ(races, *race ? 1u : 0u) << replayed.out;
+        }
+}
+
 // CLASTRACE_HOST_WRITES=0: no watch, no observation, and the stats say so.
 TEST_F(HostWriteWatchRun, OffWatchesNothing) {
     const Outcome o = rewrite("before-wait paged", "0");
