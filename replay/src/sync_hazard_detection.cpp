@@ -146,7 +146,9 @@ HazardAccess SyncModel::State::describe(const Record& r) const {
     a.is_write = r.is_write;
     a.possible = r.possible;
     a.range = r.range;
-    a.field = field_names[r.field];
+    // An element run not resolved to one element (pending_accesses): every element at once.
+    a.field = r.element_bytes ? field_names[r.field] + "*" + field_names[r.field_suffix]
+                              : field_names[r.field];
     return a;
 }
 
