@@ -68,6 +68,8 @@ const char* command_name(const fbs::Record& record) {
                              : "vkCmdWriteAccelerationStructuresPropertiesKHR";
     if (const fbs::CmdTraceRays* rays = record.body_as_CmdTraceRays())
         return trace_rays_entry_point(*rays);
+    if (const auto* b = record.body_as_CmdPipelineBarrier())
+        return b->version() == 2 ? "vkCmdPipelineBarrier2" : "vkCmdPipelineBarrier";
     return command_name(record.body_type());
 }
 

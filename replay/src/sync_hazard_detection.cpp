@@ -188,6 +188,7 @@ void SyncModel::State::emit(const Finding& f, const Record& later) {
         rep.fix.dst_access = VK_ACCESS_2_HOST_READ_BIT;
     }
     rep.advice = wait_advice(f.prior, later, rep);
+    if (rep.advice.empty()) rep.advice = barrier_advice(f.prior, later, rep);
     reports.push_back(std::move(rep));
 }
 

@@ -198,11 +198,13 @@ void SyncModel::record_deserialize(const CommandRef& command, const Access& sour
     s.record_resolved(s.make_record(destination, s.current_queue, t), destination, true);
 }
 
-void SyncModel::pipeline_barrier(const CommandRef&, const DependencyInfo& dependency) {
+void SyncModel::pipeline_barrier(const CommandRef& command, const DependencyInfo& dependency) {
     State& s = *state_;
-    s.sync_tag();
+    const uint64_t barrier_tag = s.sync_tag();
     std::vector<BufferBarrier> resolved;
+    const uint32_t logged = s.queues[s.current_queue].log_end();
     s.log_barrier_entry(EntryKind::kBarrier, s.resolve_barriers(dependency, resolved), 0, false);
+    if (s.queues[s.current_queue].log_end() != logged) s.remember_barrier(command, barrier_tag);
 }
 
 void SyncModel::set_event(const CommandRef&, uint64_t event, const DependencyInfo& dependency) {

@@ -365,6 +365,12 @@ void expect_infos_after_copy_unordered(const Replayed& r, Range unordered) {
 TEST_F(BugPrograms, BufferBarrierOverFirstInfoLeavesTheOthersUnordered) {
     CAPTURE_AND_REPLAY(r, "barrier_wrong_range");
     expect_infos_after_copy_unordered(r, r.range("infos_past_the_barrier"));
+    if (r.hazards().size() != 1) return;
+    const std::string advice = r.hazards().at(0).at("fix").at("advice").get<std::string>();
+    EXPECT_NE(advice.find(
+                  "vkCmdPipelineBarrier2 (submit 0, cb 0, cmd 1), misses: its buffer range"),
+              std::string::npos)
+        << advice;
 }
 
 TEST_F(BugPrograms, BufferBarrierOnTheStagingBufferLeavesTheInfosUnordered) {
@@ -735,14 +741,29 @@ TEST_F(BugPrograms, SizesCopiedBehindBarrierAreClean) {
 }
 
 // The barrier is there (cmd 1) but orders execution only, or waits at TOP_OF_PIPE.
+// The advice names the barrier that was there (cmd 1) and what it leaves out.
+void expect_barrier_advice(const json& hazard, const std::string& barrier,
+                           const std::string& missed) {
+    if (hazard.empty()) return;
+    const std::string advice = hazard.at("fix").at("advice").get<std::string>();
+    EXPECT_NE(advice.find("The barrier between them, " + barrier +
+                          " (submit 0, cb 0, cmd 1), misses: " + missed),
+              std::string::npos)
+        << advice;
+}
+
 TEST_F(BugPrograms, BarrierWithoutSourceAccessLeavesCopiedInfosUnavailable) {
     CAPTURE_AND_REPLAY(r, "barrier_without_access");
-    expect_copy_then_build_read(r, 0, 2, "srcInfosArray", r.range("infos"));
+    const json& h = expect_copy_then_build_read(r, 0, 2, "srcInfosArray", r.range("infos"));
+    expect_barrier_advice(h, "vkCmdPipelineBarrier2",
+                          "its srcAccessMask leaves out TRANSFER_WRITE");
 }
 
 TEST_F(BugPrograms, BarrierToTopOfPipeLeavesCopiedInfosUnordered) {
     CAPTURE_AND_REPLAY(r, "barrier_without_access", "--top-of-pipe");
-    expect_copy_then_build_read(r, 0, 2, "srcInfosArray", r.range("infos"));
+    const json& h = expect_copy_then_build_read(r, 0, 2, "srcInfosArray", r.range("infos"));
+    expect_barrier_advice(h, "vkCmdPipelineBarrier",
+                          "its dstAccessMask leaves out INDIRECT_COMMAND_READ");
 }
 
 TEST_F(BugPrograms, BarrierWithAccessMasksIsClean) {
@@ -885,6 +906,29 @@ TEST_F(BugPrograms, VertexBufferDestroyedWhileTheBuildReadsItIsFound) {
 
 TEST_F(BugPrograms, VertexBufferRetiredAfterTheFenceWaitIsClean) {
     CAPTURE_AND_REPLAY(r, "input_memory_reused", "--fixed");
+    expect_clean(r);
+}
+
+
+// The engine's rule (the stored pages give the bottom level's references no VUID for it): one
+// finding per guessed reference that holds no CLAS; the first guess (offset 0) is right.
+TEST_F(BugPrograms, BottomLevelOverGuessedImplicitAddressesReferencesNoClas) {
+    CAPTURE_AND_REPLAY(r, "blas_guessed_addresses");
+    EXPECT_TRUE(r.hazards().empty()) << r.describe();
+    ASSERT_EQ(r.findings().size(), 2u) << r.describe();
+    for (const json& f : r.findings()) {
+        EXPECT_EQ(f.at("rule"), "CLASTRACE-cluster-reference-holds-no-clas");
+        EXPECT_EQ(f.at("op_index"), 0);
+        EXPECT_EQ(f.at("where").at("command"), 2);  // after the cluster build and the barrier
+    }
+    EXPECT_EQ(parse_address(r.findings().at(0).at("address")), r.range("guessed_second").begin);
+    EXPECT_NE(r.findings().at(0).at("message").get<std::string>().find(
+                  "srcInfosArray[0].clusterReferences[1]"),
+              std::string::npos);
+}
+
+TEST_F(BugPrograms, BottomLevelOverTheWrittenAddressesIsClean) {
+    CAPTURE_AND_REPLAY(r, "blas_guessed_addresses", "--fixed");
     expect_clean(r);
 }
 
