@@ -70,6 +70,10 @@ const char* command_name(const fbs::Record& record) {
         return trace_rays_entry_point(*rays);
     if (const auto* b = record.body_as_CmdPipelineBarrier())
         return b->version() == 2 ? "vkCmdPipelineBarrier2" : "vkCmdPipelineBarrier";
+    if (const auto* e = record.body_as_CmdSetEvent())
+        return e->version() == 2 ? "vkCmdSetEvent2" : "vkCmdSetEvent";
+    if (const auto* w = record.body_as_CmdWaitEvents())
+        return w->version() == 2 ? "vkCmdWaitEvents2" : "vkCmdWaitEvents";
     return command_name(record.body_type());
 }
 

@@ -207,9 +207,10 @@ void SyncModel::pipeline_barrier(const CommandRef& command, const DependencyInfo
     if (s.queues[s.current_queue].log_end() != logged) s.remember_barrier(command, barrier_tag);
 }
 
-void SyncModel::set_event(const CommandRef&, uint64_t event, const DependencyInfo& dependency) {
+void SyncModel::set_event(const CommandRef& command, uint64_t event,
+                          const DependencyInfo& dependency) {
     State& s = *state_;
-    s.sync_tag();
+    const uint64_t set_tag = s.sync_tag();
     EventState& ev = s.events[event];
     if (ev.slot < 0) {
         const int slot = s.next_slot;
@@ -227,6 +228,7 @@ void SyncModel::set_event(const CommandRef&, uint64_t event, const DependencyInf
     std::vector<BufferBarrier> resolved;
     s.log_barrier_entry(EntryKind::kEventSet, s.resolve_barriers(dependency, resolved),
                         StageMask(1) << (kFirstEventBit + ev.slot), false);
+    s.remember_barrier(command, set_tag);
 }
 
 void SyncModel::set_event_v1(const CommandRef& command, uint64_t event,

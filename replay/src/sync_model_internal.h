@@ -232,12 +232,14 @@ struct SyncModel::State {
     // submission's fence. Empty when there was no such wait.
     std::string wait_advice(const Record& prior, const Record& later,
                             const HazardReport& report) const;
-    // The same for a pipeline barrier recorded between two accesses of one queue that misses
-    // the hazard (stages, access masks or buffer range): names it and what it leaves out.
+    // The same for a pipeline barrier or event set recorded between two accesses of one queue
+    // that misses the hazard (stages, access masks or buffer range): names it and what it
+    // leaves out.
     std::string barrier_advice(const Record& prior, const Record& later,
                                const HazardReport& report) const;
-    // The last pipeline barriers' commands (a ring), for barrier_advice: only hazards read it,
-    // and a barrier that missed is nearly always one of the last few before the later access.
+    // The last pipeline barriers' and event sets' commands (a ring), for barrier_advice: only
+    // hazards read it, and a barrier that missed is nearly always one of the last few before
+    // the later access.
     struct BarrierCommand {
         uint64_t tag = 0;
         uint16_t queue = 0;

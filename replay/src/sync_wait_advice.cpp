@@ -31,22 +31,26 @@ std::string range_text(AddressRange r) {
     return "[" + common::hex(r.begin) + ", " + common::hex(r.end) + ")";
 }
 
-// What `b` leaves out of ordering `prior` before `later` over `overlap`; empty when nothing
-// (the hazard then comes from elsewhere). Reads of several types need one of them visible
-// (docs/replay.md, "Programs written apart").
-std::string what_barrier_misses(const LoggedBarrier& b, const Record& prior, const Record& later,
-                                AddressRange overlap) {
+// What a barrier logged as `e` (a pipeline barrier, or an event set: its source half alone,
+// the wait holds the rest) leaves out of ordering `prior` before `later` over `overlap`; empty
+// when nothing (the hazard then comes from elsewhere). Reads of several types need one of them
+// visible (docs/replay.md, "Programs written apart"). A synchronization-1 event set names no
+// accesses.
+std::string what_barrier_misses(const LogEntry& e, const LoggedBarrier& b, const Record& prior,
+                                const Record& later, AddressRange overlap) {
+    const bool source_only = e.kind == EntryKind::kEventSet;
     if (!b.global && !contains(b.range, overlap.begin, overlap.end))
         return "its buffer range " + range_text(b.range) + " leaves these bytes out";
     if ((b.src_scope & prior.stage) != prior.stage)
         return "its srcStageMask leaves out " + stage_names(prior.stage);
-    if ((b.dst_scope & later.stage) != later.stage)
+    if (!source_only && (b.dst_scope & later.stage) != later.stage)
         return "its dstStageMask leaves out " + stage_names(later.stage);
-    if (!prior.is_write) return {};
+    if (!prior.is_write || e.v1_event) return {};
     const AccessMask written = prior.atoms & kWriteAtoms;
     if ((b.src_atoms & written) != written)
         return "its srcAccessMask leaves out " + access_names(written) +
                ": it orders execution but does not make the write available";
+    if (source_only) return {};
     const AccessMask seen = later.atoms & b.dst_atoms;
     if (later.is_write ? seen != later.atoms : seen == 0)
         return "its dstAccessMask leaves out " + access_names(later.access) +
@@ -107,11 +111,12 @@ std::string SyncModel::State::barrier_advice(const Record& prior, const Record& 
         if (b.log_pos < q.log_base || b.log_pos >= q.log_end()) continue;
         const LogEntry& e = q.log[b.log_pos - q.log_base];
         if (e.first < q.pool_base) continue;
-        // One barrier of the command that misses nothing: the hazard came from elsewhere.
+        // One barrier of the command that misses nothing: the hazard came from elsewhere. (A
+        // reset or wait between an event's set and the later access is left to the fix's text.)
         std::string why;
         bool all_miss = e.count > 0;
         for (uint32_t i = 0; i < e.count && all_miss; ++i) {
-            std::string reason = what_barrier_misses(q.pool[e.first + i - q.pool_base], prior,
+            std::string reason = what_barrier_misses(e, q.pool[e.first + i - q.pool_base], prior,
                                                      later, report.overlap);
             all_miss = !reason.empty();
             if (why.empty()) why = std::move(reason);
@@ -121,8 +126,9 @@ std::string SyncModel::State::barrier_advice(const Record& prior, const Record& 
         missed = std::move(why);
     }
     if (!nearest) return {};
-    return "The barrier between them, " + command_text(nearest->command) + ", misses: " + missed +
-           ".";
+    const bool event = q.log[nearest->log_pos - q.log_base].kind == EntryKind::kEventSet;
+    return std::string(event ? "The event set" : "The barrier") + " between them, " +
+           command_text(nearest->command) + ", misses: " + missed + ".";
 }
 
 }  // namespace clastrace::replay

@@ -299,6 +299,11 @@ TEST_F(BugPrograms, EventWithComputeSourceStageLeavesCopiedInfosUnordered) {
     expect_side(h.at("prior"), "vkCmdCopyBuffer", 0, 0, "pRegions[0]", true);
     expect_side(h.at("later"), kClusterBuild, 0, 3, "srcInfosArray", false);
     expect_equal(range_of(h.at("overlap")), r.range("infos"));
+    EXPECT_NE(h.at("fix").at("advice").get<std::string>().find(
+                  "The event set between them, vkCmdSetEvent2 (submit 0, cb 0, cmd 1), misses: "
+                  "its srcStageMask leaves out COPY"),
+              std::string::npos)
+        << h.at("fix").at("advice");
 }
 
 TEST_F(BugPrograms, EventWithCopySourceStageIsClean) {

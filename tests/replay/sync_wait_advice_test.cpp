@@ -167,5 +167,20 @@ TEST(SyncBarrierAdvice, BarrierBeforeThePriorAccessIsNotNamed) {
     EXPECT_TRUE(s.hazards()[0].advice.empty()) << s.hazards()[0].advice;
 }
 
+// vkCmdSetEvent2 whose source half misses the copy, and its wait: the set is named.
+TEST(SyncBarrierAdvice, EventSetWithoutTheCopyStageIsNamed) {
+    const std::string advice = advice_after_copy([](Stream& s) {
+        const MemoryBarrier b{kCompute, VK_ACCESS_2_SHADER_WRITE_BIT, kAsBuild, kIndirect};
+        const DependencyInfo dep{std::span(&b, 1), {}, 0};
+        const uint64_t event = 0xE1;
+        s.model.set_event(s.next("vkCmdSetEvent2"), event, dep);
+        s.model.wait_events(s.next("vkCmdWaitEvents2"), std::span(&event, 1), dep);
+    });
+    EXPECT_NE(advice.find("The event set between them, vkCmdSetEvent2 (submit 0, cb 0, cmd 1), "
+                          "misses: its srcStageMask leaves out COPY"),
+              std::string::npos)
+        << advice;
+}
+
 }  // namespace
 }  // namespace clastrace::replay::test
