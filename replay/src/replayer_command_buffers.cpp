@@ -68,6 +68,12 @@ const char* command_name(const fbs::Record& record) {
                              : "vkCmdWriteAccelerationStructuresPropertiesKHR";
     if (const fbs::CmdTraceRays* rays = record.body_as_CmdTraceRays())
         return trace_rays_entry_point(*rays);
+    if (const auto* b = record.body_as_CmdPipelineBarrier())
+        return b->version() == 2 ? "vkCmdPipelineBarrier2" : "vkCmdPipelineBarrier";
+    if (const auto* e = record.body_as_CmdSetEvent())
+        return e->version() == 2 ? "vkCmdSetEvent2" : "vkCmdSetEvent";
+    if (const auto* w = record.body_as_CmdWaitEvents())
+        return w->version() == 2 ? "vkCmdWaitEvents2" : "vkCmdWaitEvents";
     return command_name(record.body_type());
 }
 

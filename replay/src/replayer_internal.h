@@ -203,8 +203,10 @@ private:
                                    const ReplayLocation& where);
     std::vector<uint64_t> khr_instance_references(const fbs::GeometryInstancesKHR& instances,
                                                   const fbs::BuildRangeInfoKHR& range) const;
-    void check_consumers_done(const AddressRange& range, const char* call, const char* rule,
-                              const std::string& what);
+    // What keeps a destroyed object in use (sync_consumers.cpp).
+    enum class PendingUse { kConsumerReads, kAnyDeviceAccess };
+    void check_commands_done(const AddressRange& range, const char* call, const char* rule,
+                             const std::string& what, PendingUse use);
     // Structures read before any command built them (sync_unbuilt_structures.cpp).
     void note_structure_writes(const fbs::Record& record);
     std::string unbuilt_cause() const;

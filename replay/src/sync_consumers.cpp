@@ -127,12 +127,12 @@ void Replay::on_consumer_bookkeeping(fbs::RecordBody kind, const fbs::Record& r)
         const uint64_t handle = r.body_as_AccelerationStructureDestroy()->acceleration_structure();
         const bool nv = structure_api_[handle] == 0;
         if (auto range = memory_.object_range(handle))
-            check_consumers_done(
+            check_commands_done(
                 *range,
                 nv ? "vkDestroyAccelerationStructureNV" : "vkDestroyAccelerationStructureKHR",
                 nv ? "VUID-vkDestroyAccelerationStructureNV-accelerationStructure-03752"
                    : "VUID-vkDestroyAccelerationStructureKHR-accelerationStructure-02442",
-                "acceleration structure " + hex(handle));
+                "acceleration structure " + hex(handle), PendingUse::kConsumerReads);
         reachability_.on_destroyed(handle);
         structure_api_.erase(handle);
         break;
@@ -140,8 +140,8 @@ void Replay::on_consumer_bookkeeping(fbs::RecordBody kind, const fbs::Record& r)
     case fbs::RecordBody::BufferDestroy: {
         const uint64_t buffer = r.body_as_BufferDestroy()->buffer();
         if (auto range = memory_.buffer_range(buffer, 0, kWholeSize))
-            check_consumers_done(*range, "vkDestroyBuffer", "VUID-vkDestroyBuffer-buffer-00922",
-                                 "buffer " + hex(buffer));
+            check_commands_done(*range, "vkDestroyBuffer", "VUID-vkDestroyBuffer-buffer-00922",
+                                "buffer " + hex(buffer), PendingUse::kAnyDeviceAccess);
         break;
     }
     case fbs::RecordBody::QueuePresent:
@@ -165,13 +165,19 @@ void Replay::on_consumer_bookkeeping(fbs::RecordBody kind, const fbs::Record& r)
     }
 }
 
-// A consumer still pending (no host wait saw it complete) that reads bytes of `range`: the
-// destroyed object was in use. One finding per pending consumer command.
-void Replay::check_consumers_done(const AddressRange& range, const char* call, const char* rule,
-                                  const std::string& what) {
+// A command still pending (no host wait saw it complete) that uses bytes of `range`: the
+// destroyed object was in use. One finding per pending command. A buffer is in use by any
+// device access to its bytes (a build reads its inputs by device address, which names no
+// buffer, but the bytes are the buffer's all the same: once destroyed, a sub-allocator hands
+// them on); a structure by the consumers that read it (its builds are ordered by barriers).
+// Accesses the trace only allows (Access::possible) are no use.
+void Replay::check_commands_done(const AddressRange& range, const char* call, const char* rule,
+                                 const std::string& what, PendingUse use) {
     if (!options_.check_hazards) return;
     std::vector<HazardAccess> pending = sync_.pending_accesses(range);
-    std::erase_if(pending, [](const HazardAccess& a) { return !is_consumer_read(a); });
+    std::erase_if(pending, [&](const HazardAccess& a) {
+        return a.possible || (use == PendingUse::kConsumerReads && !is_consumer_read(a));
+    });
     std::unordered_set<uint64_t> told;
     for (const HazardAccess& a : pending) {
         const CommandRef& c = a.command;
@@ -187,10 +193,11 @@ void Replay::check_consumers_done(const AddressRange& range, const char* call, c
                          std::to_string(c.command_buffer) + ", command " +
                          std::to_string(c.command) +
                          (frame ? ", frame " + std::to_string(*frame) : std::string()) +
-                         "), which reads it through " + a.field +
+                         "), which " + (a.is_write ? "writes" : "reads") + " it through " +
+                         a.field + " at " + stage_names(a.stage) + " / " + access_names(a.access) +
                          ", has not completed: no fence wait or idle wait saw that submission "
                          "finish. Wait for its fence (vkWaitForFences) before destroying, or "
-                         "destroy the structure a frame in flight later.",
+                         "destroy it a frame in flight later.",
                      FindingSource::kReplay, where, -1, range.begin});
     }
 }

@@ -146,7 +146,9 @@ HazardAccess SyncModel::State::describe(const Record& r) const {
     a.is_write = r.is_write;
     a.possible = r.possible;
     a.range = r.range;
-    a.field = field_names[r.field];
+    // An element run not resolved to one element (pending_accesses): every element at once.
+    a.field = r.element_bytes ? field_names[r.field] + "*" + field_names[r.field_suffix]
+                              : field_names[r.field];
     return a;
 }
 
@@ -186,6 +188,7 @@ void SyncModel::State::emit(const Finding& f, const Record& later) {
         rep.fix.dst_access = VK_ACCESS_2_HOST_READ_BIT;
     }
     rep.advice = wait_advice(f.prior, later, rep);
+    if (rep.advice.empty()) rep.advice = barrier_advice(f.prior, later, rep);
     reports.push_back(std::move(rep));
 }
 

@@ -198,16 +198,19 @@ void SyncModel::record_deserialize(const CommandRef& command, const Access& sour
     s.record_resolved(s.make_record(destination, s.current_queue, t), destination, true);
 }
 
-void SyncModel::pipeline_barrier(const CommandRef&, const DependencyInfo& dependency) {
+void SyncModel::pipeline_barrier(const CommandRef& command, const DependencyInfo& dependency) {
     State& s = *state_;
-    s.sync_tag();
+    const uint64_t barrier_tag = s.sync_tag();
     std::vector<BufferBarrier> resolved;
+    const uint32_t logged = s.queues[s.current_queue].log_end();
     s.log_barrier_entry(EntryKind::kBarrier, s.resolve_barriers(dependency, resolved), 0, false);
+    if (s.queues[s.current_queue].log_end() != logged) s.remember_barrier(command, barrier_tag);
 }
 
-void SyncModel::set_event(const CommandRef&, uint64_t event, const DependencyInfo& dependency) {
+void SyncModel::set_event(const CommandRef& command, uint64_t event,
+                          const DependencyInfo& dependency) {
     State& s = *state_;
-    s.sync_tag();
+    const uint64_t set_tag = s.sync_tag();
     EventState& ev = s.events[event];
     if (ev.slot < 0) {
         const int slot = s.next_slot;
@@ -225,6 +228,7 @@ void SyncModel::set_event(const CommandRef&, uint64_t event, const DependencyInf
     std::vector<BufferBarrier> resolved;
     s.log_barrier_entry(EntryKind::kEventSet, s.resolve_barriers(dependency, resolved),
                         StageMask(1) << (kFirstEventBit + ev.slot), false);
+    s.remember_barrier(command, set_tag);
 }
 
 void SyncModel::set_event_v1(const CommandRef& command, uint64_t event,

@@ -232,6 +232,24 @@ struct SyncModel::State {
     // submission's fence. Empty when there was no such wait.
     std::string wait_advice(const Record& prior, const Record& later,
                             const HazardReport& report) const;
+    // The same for a pipeline barrier or event set recorded between two accesses of one queue
+    // that misses the hazard (stages, access masks or buffer range): names it and what it
+    // leaves out.
+    std::string barrier_advice(const Record& prior, const Record& later,
+                               const HazardReport& report) const;
+    // The last pipeline barriers' and event sets' commands (a ring), for barrier_advice: only
+    // hazards read it, and a barrier that missed is nearly always one of the last few before
+    // the later access.
+    struct BarrierCommand {
+        uint64_t tag = 0;
+        uint16_t queue = 0;
+        uint32_t log_pos = 0;  // its entry in the queue's log (gone once trimmed)
+        CommandRef command;
+    };
+    static constexpr std::size_t kRecentBarriers = 64;
+    std::vector<BarrierCommand> recent_barriers;
+    std::size_t next_recent_barrier = 0;
+    void remember_barrier(const CommandRef& command, uint64_t barrier_tag);
 
     // ------------------------------------------------------------------ the address map (sync_address_map.cpp)
     // Makes `at` a segment boundary if a segment straddles it.

@@ -1,7 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
-// The advice on a hazard the application meant to order with a wait that missed it
-// (SyncModel::State::wait_advice): the fix names what orders the two accesses; this names the
-// wait that was there, so the author finds the line to change.
+// The advice on a hazard the application meant to order with a wait or a barrier that missed
+// it (SyncModel::State::wait_advice, barrier_advice): the fix names what orders the two
+// accesses; this names the wait or barrier that was there, so the author finds the line to
+// change.
 #include "clastrace/common/hex.h"
 #include "clastrace/replay/sync_masks.h"
 #include "sync_model_internal.h"
@@ -14,6 +15,47 @@ namespace {
 
 std::string submission_text(uint32_t submission) {
     return "submission " + std::to_string(submission);
+}
+
+std::string command_text(const CommandRef& c) {
+    std::string s = std::string(c.name && *c.name ? c.name : "the barrier") + " (submit " +
+                    std::to_string(c.submission) + ", cb " + std::to_string(c.command_buffer) +
+                    ", cmd " + std::to_string(c.command);
+    if (c.secondary_handle)
+        s += " > secondary " + std::to_string(c.secondary) + ", cmd " +
+             std::to_string(c.secondary_command);
+    return s + ")";
+}
+
+std::string range_text(AddressRange r) {
+    return "[" + common::hex(r.begin) + ", " + common::hex(r.end) + ")";
+}
+
+// What a barrier logged as `e` (a pipeline barrier, or an event set: its source half alone,
+// the wait holds the rest) leaves out of ordering `prior` before `later` over `overlap`; empty
+// when nothing (the hazard then comes from elsewhere). Reads of several types need one of them
+// visible (docs/replay.md, "Programs written apart"). A synchronization-1 event set names no
+// accesses.
+std::string what_barrier_misses(const LogEntry& e, const LoggedBarrier& b, const Record& prior,
+                                const Record& later, AddressRange overlap) {
+    const bool source_only = e.kind == EntryKind::kEventSet;
+    if (!b.global && !contains(b.range, overlap.begin, overlap.end))
+        return "its buffer range " + range_text(b.range) + " leaves these bytes out";
+    if ((b.src_scope & prior.stage) != prior.stage)
+        return "its srcStageMask leaves out " + stage_names(prior.stage);
+    if (!source_only && (b.dst_scope & later.stage) != later.stage)
+        return "its dstStageMask leaves out " + stage_names(later.stage);
+    if (!prior.is_write || e.v1_event) return {};
+    const AccessMask written = prior.atoms & kWriteAtoms;
+    if ((b.src_atoms & written) != written)
+        return "its srcAccessMask leaves out " + access_names(written) +
+               ": it orders execution but does not make the write available";
+    if (source_only) return {};
+    const AccessMask seen = later.atoms & b.dst_atoms;
+    if (later.is_write ? seen != later.atoms : seen == 0)
+        return "its dstAccessMask leaves out " + access_names(later.access) +
+               ": the write is not made visible to that access";
+    return {};
 }
 
 }  // namespace
@@ -44,6 +86,49 @@ std::string SyncModel::State::wait_advice(const Record& prior, const Record& lat
                " to the wait's stage mask (pWaitDstStageMask, VkSemaphoreSubmitInfo::stageMask).";
     }
     return {};
+}
+
+void SyncModel::State::remember_barrier(const CommandRef& command, uint64_t barrier_tag) {
+    const Queue& q = queues[current_queue];
+    BarrierCommand b{barrier_tag, current_queue, q.log_end() - 1, command};
+    if (recent_barriers.size() < kRecentBarriers) {
+        recent_barriers.push_back(b);
+        return;
+    }
+    recent_barriers[next_recent_barrier] = b;
+    next_recent_barrier = (next_recent_barrier + 1) % kRecentBarriers;
+}
+
+std::string SyncModel::State::barrier_advice(const Record& prior, const Record& later,
+                                             const HazardReport& report) const {
+    if (prior.queue == kHostSlot || prior.queue != later.queue) return {};
+    const Queue& q = queues[later.queue];
+    const BarrierCommand* nearest = nullptr;  // the last barrier between the two
+    std::string missed;
+    for (const BarrierCommand& b : recent_barriers) {
+        if (b.queue != later.queue || b.tag <= prior.tag || b.tag >= later.tag) continue;
+        if (nearest && nearest->tag > b.tag) continue;
+        if (b.log_pos < q.log_base || b.log_pos >= q.log_end()) continue;
+        const LogEntry& e = q.log[b.log_pos - q.log_base];
+        if (e.first < q.pool_base) continue;
+        // One barrier of the command that misses nothing: the hazard came from elsewhere. (A
+        // reset or wait between an event's set and the later access is left to the fix's text.)
+        std::string why;
+        bool all_miss = e.count > 0;
+        for (uint32_t i = 0; i < e.count && all_miss; ++i) {
+            std::string reason = what_barrier_misses(e, q.pool[e.first + i - q.pool_base], prior,
+                                                     later, report.overlap);
+            all_miss = !reason.empty();
+            if (why.empty()) why = std::move(reason);
+        }
+        if (!all_miss) continue;
+        nearest = &b;
+        missed = std::move(why);
+    }
+    if (!nearest) return {};
+    const bool event = q.log[nearest->log_pos - q.log_base].kind == EntryKind::kEventSet;
+    return std::string(event ? "The event set" : "The barrier") + " between them, " +
+           command_text(nearest->command) + ", misses: " + missed + ".";
 }
 
 }  // namespace clastrace::replay

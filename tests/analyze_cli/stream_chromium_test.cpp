@@ -130,7 +130,7 @@ TEST(StreamHtmlInChromium, GpuTimelineKindsAndMap) {
     }
     EXPECT_NE(dom.find("<tr data-name=\"vkCmdCopyMemoryToAccelerationStructureKHR\">"),
               std::string::npos);
-    EXPECT_NE(dom.find("<tr data-name=\"vkCmdPipelineBarrier\">"), std::string::npos);
+    EXPECT_NE(dom.find("<tr data-name=\"vkCmdPipelineBarrier2\">"), std::string::npos);
     // The memory map draws the scratch, implicit data and objects; the reuse is outlined, not a hazard.
     EXPECT_NE(dom.find("<svg id=\"memory-map\""), std::string::npos);
     EXPECT_GT(count(dom, "role-scratch"), 0u);

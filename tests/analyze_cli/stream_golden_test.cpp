@@ -203,8 +203,8 @@ TEST(StreamGolden, AllCommandKindsListed) {
     EXPECT_EQ(nv.driver_bytes, 12345u);  // its memory requirement (OBJECT)
     const auto& deser = kinds.at("vkCmdCopyMemoryToAccelerationStructureKHR");
     EXPECT_EQ(deser.commands, 1u);
-    EXPECT_EQ(deser.driver_bytes, 4096u);  // the KHR object's create size
-    EXPECT_EQ(kinds.at("vkCmdPipelineBarrier").commands, 1u);
+    EXPECT_EQ(deser.driver_bytes, 4096u);                       // the KHR object's create size
+    EXPECT_EQ(kinds.at("vkCmdPipelineBarrier2").commands, 1u);  // the golden scene's v2 barrier
     EXPECT_EQ(kinds.at("vkCmdCopyBuffer").commands, 1u);
 }
 

@@ -1,7 +1,9 @@
 // SPDX-License-Identifier: Apache-2.0
 // The advice naming the application's wait that missed a hazard: a semaphore wait that
 // follows the prior access but leaves out the later access's stage, and a host wait on an
-// earlier submission's fence before a host write. No advice where there was no such wait.
+// earlier submission's fence before a host write; and a pipeline barrier between the two
+// accesses that leaves out a stage, an access or the bytes. No advice where there was no such
+// wait or barrier.
 #include <gtest/gtest.h>
 
 #include <string>
@@ -99,6 +101,85 @@ TEST(SyncWaitAdvice, HostWaitOnAnEarlierSubmissionsFenceIsNamed) {
 
 TEST(SyncWaitAdvice, HostWaitOnTheReadersFenceOrdersTheWrite) {
     EXPECT_TRUE(host_rewrite_after_waiting(0xF1).empty());
+}
+
+constexpr AddressRange kStaging{0x4000, 0x4100};
+
+// The staging copy into the infos (cmd 0), `barrier` (cmd 1), then the build reading them
+// (cmd 2): the one hazard's advice.
+template <class Barrier>
+std::string advice_after_copy(Barrier barrier) {
+    Stream s;
+    s.submit(0);
+    s.copy_buffer(kStaging, kInfos);
+    barrier(s);
+    Stream::Build clas;
+    clas.src_infos = kInfos;
+    s.build(clas);
+    s.end();
+    EXPECT_EQ(s.hazards().size(), 1u);
+    return s.hazards().empty() ? "" : s.hazards()[0].advice;
+}
+
+TEST(SyncBarrierAdvice, BarrierWithoutSourceAccessIsNamed) {
+    const std::string advice =
+        advice_after_copy([](Stream& s) { s.barrier(kCopy, 0, kAsBuild, kIndirect); });
+    EXPECT_NE(advice.find("The barrier between them, vkCmdPipelineBarrier2 (submit 0, cb 0, "
+                          "cmd 1), misses: its srcAccessMask leaves out TRANSFER_WRITE"),
+              std::string::npos)
+        << advice;
+}
+
+TEST(SyncBarrierAdvice, BarrierToAnotherStageIsNamed) {
+    const std::string advice =
+        advice_after_copy([](Stream& s) { s.barrier(kCopy, kTransferWrite, kCompute, kIndirect); });
+    EXPECT_NE(advice.find("its dstStageMask leaves out ACCELERATION_STRUCTURE_BUILD"),
+              std::string::npos)
+        << advice;
+}
+
+TEST(SyncBarrierAdvice, BarrierToAnotherAccessIsNamed) {
+    const std::string advice = advice_after_copy(
+        [](Stream& s) { s.barrier(kCopy, kTransferWrite, kAsBuild, VK_ACCESS_2_SHADER_READ_BIT); });
+    EXPECT_NE(advice.find("its dstAccessMask leaves out INDIRECT_COMMAND_READ"), std::string::npos)
+        << advice;
+}
+
+TEST(SyncBarrierAdvice, BufferBarrierOverOtherBytesIsNamed) {
+    const std::string advice = advice_after_copy(
+        [](Stream& s) { s.buffer_barrier(kStaging, kCopy, kTransferWrite, kAsBuild, kIndirect); });
+    EXPECT_NE(advice.find("its buffer range [0x4000, 0x4100) leaves these bytes out"),
+              std::string::npos)
+        << advice;
+}
+
+// A barrier before the copy is not between the two; a full one after a narrow one orders them.
+TEST(SyncBarrierAdvice, BarrierBeforeThePriorAccessIsNotNamed) {
+    Stream s;
+    s.submit(0);
+    s.barrier(kCopy, 0, kAsBuild, kIndirect);
+    s.copy_buffer(kStaging, kInfos);
+    Stream::Build clas;
+    clas.src_infos = kInfos;
+    s.build(clas);
+    s.end();
+    ASSERT_EQ(s.hazards().size(), 1u);
+    EXPECT_TRUE(s.hazards()[0].advice.empty()) << s.hazards()[0].advice;
+}
+
+// vkCmdSetEvent2 whose source half misses the copy, and its wait: the set is named.
+TEST(SyncBarrierAdvice, EventSetWithoutTheCopyStageIsNamed) {
+    const std::string advice = advice_after_copy([](Stream& s) {
+        const MemoryBarrier b{kCompute, VK_ACCESS_2_SHADER_WRITE_BIT, kAsBuild, kIndirect};
+        const DependencyInfo dep{std::span(&b, 1), {}, 0};
+        const uint64_t event = 0xE1;
+        s.model.set_event(s.next("vkCmdSetEvent2"), event, dep);
+        s.model.wait_events(s.next("vkCmdWaitEvents2"), std::span(&event, 1), dep);
+    });
+    EXPECT_NE(advice.find("The event set between them, vkCmdSetEvent2 (submit 0, cb 0, cmd 1), "
+                          "misses: its srcStageMask leaves out COPY"),
+              std::string::npos)
+        << advice;
 }
 
 }  // namespace
