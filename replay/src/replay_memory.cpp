@@ -132,7 +132,10 @@ std::optional<AddressRange> ReplayMemory::destroy_buffer(uint64_t buffer) {
         for (const auto& [handle, other] : buffers_)
             if (other.bound && other.address < end && begin < other.address + other.size)
                 shared = true;
-        if (!shared) image_.remove_region(begin);
+        if (!shared) {
+            image_.remove_region(begin);
+            forget_laid({begin, end});
+        }
     }
     unmark(range);
     forget_sparse(buffer, range);
@@ -251,6 +254,66 @@ bool ReplayMemory::lay_in(uint64_t address, std::span<const uint8_t> bytes) {
     return true;
 }
 
+bool ReplayMemory::lay_in(uint64_t address, std::span<const uint8_t> bytes, uint64_t hash) {
+    forget_written();
+    const AddressRange range{address, address + bytes.size()};
+    auto it = laid_.find(address);
+    if (it != laid_.end() && it->second.end == range.end && it->second.hash == hash) return true;
+    if (!lay_in(address, bytes)) return false;
+    writes_.clear();  // lay_in's own write
+    if (range.empty()) return true;
+    forget_laid(range);
+    laid_.emplace(address, LaidContent{range.end, hash});
+    return true;
+}
+
+void ReplayMemory::forget_laid(AddressRange range) {
+    auto it = laid_.upper_bound(range.begin);
+    if (it != laid_.begin() && std::prev(it)->second.end > range.begin) --it;
+    while (it != laid_.end() && it->first < range.end) it = laid_.erase(it);
+}
+
+// A command's writes come in a few interleaved streams (a cluster build's objects, its address
+// and size arrays, its scratch entries), each rising and taking turns: a write joins the open run
+// it starts in or near, tried first the one after the run the last write joined, so a command
+// costs a few forget_laid calls instead of one a write. A run also covers the bytes between its
+// writes, which only costs those contents a lay-in again.
+void ReplayMemory::forget_written() {
+    if (writes_.empty()) return;
+    if (laid_.empty()) {
+        writes_.clear();
+        return;
+    }
+    constexpr size_t kRuns = 4;
+    constexpr uint64_t kNear = 256;
+    AddressRange runs[kRuns];
+    size_t open = 0, next = 0, oldest = 0;
+    auto joins = [&](size_t k, uint64_t begin) {
+        return begin - runs[k].begin <= runs[k].end - runs[k].begin + kNear;  // (wraps below)
+    };
+    for (const auto& [address, size] : writes_) {
+        const AddressRange w{address, address + size < address ? UINT64_MAX : address + size};
+        size_t k = next;
+        if (k >= open || !joins(k, w.begin))
+            for (k = 0; k < open && !joins(k, w.begin);) ++k;
+        if (k < open) {
+            runs[k].end = std::max(runs[k].end, w.end);
+            next = k + 1 < open ? k + 1 : 0;
+            continue;
+        }
+        if (open < kRuns) {
+            runs[open++] = w;
+        } else {
+            forget_laid(runs[oldest]);
+            runs[oldest] = w;
+            oldest = (oldest + 1) % kRuns;
+        }
+        next = 0;
+    }
+    for (size_t k = 0; k < open; ++k) forget_laid(runs[k]);
+    writes_.clear();
+}
+
 bool ReplayMemory::write(uint64_t address, std::span<const uint8_t> bytes) {
     if (bytes.empty()) return true;
     try {
@@ -330,6 +393,7 @@ static void unite(std::map<uint64_t, uint64_t>& ranges, AddressRange range) {
 }
 
 void ReplayMemory::unmark(AddressRange range) {
+    forget_laid(range);  // (zero_bytes, which fill uses, is not logged as a write)
     cut(engine_objects_, range);
     cut(driver_bvh_, range);
     cut(cluster_blas_spans_, range);
@@ -357,6 +421,7 @@ ReplayMemory::KeptDriverBvh ReplayMemory::keep_driver_bvh(uint64_t address,
                                                           std::span<const uint8_t> captured,
                                                           std::vector<uint8_t>* edited) const {
     KeptDriverBvh kept{captured, {}, 0};
+    if (driver_bvh_.empty()) return kept;
     const uint64_t end = address + captured.size();
     auto it = driver_bvh_.upper_bound(address);
     if (it != driver_bvh_.begin()) --it;

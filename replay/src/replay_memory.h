@@ -27,7 +27,11 @@ public:
     // buffer reserves address space only, and the budget counts the pages written.
     explicit ReplayMemory(uint64_t budget_bytes = 8ull << 30) : budget_(budget_bytes) {
         image_.set_resident_limit(budget_bytes);
+        image_.log_writes(&writes_);
     }
+    // The image logs its writes into writes_: a copy would log into the original's.
+    ReplayMemory(const ReplayMemory&) = delete;
+    ReplayMemory& operator=(const ReplayMemory&) = delete;
 
     void create_buffer(uint64_t buffer, uint64_t size, uint64_t usage);
     // Binds and adds the buffer's region. Buffers without a device address get one: the
@@ -79,6 +83,10 @@ public:
     // Writes `bytes` at `address`, leaving engine-built object bytes alone. False when no
     // region holds the range.
     bool lay_in(uint64_t address, std::span<const uint8_t> bytes);
+    // The same for the bytes of content `hash`, skipped when that content was the last laid in
+    // at `address` and no write has met its bytes since: laying it again would change no byte
+    // (the engine's objects and a driver BVH's kept bytes inside it hold what they held then).
+    bool lay_in(uint64_t address, std::span<const uint8_t> bytes, uint64_t hash);
     // Plain write (copies, fills, updates): also ends engine ownership of those bytes.
     bool write(uint64_t address, std::span<const uint8_t> bytes);
     bool read(uint64_t address, uint64_t size, std::vector<uint8_t>* out) const;
@@ -142,6 +150,10 @@ private:
         bool bound = false;
     };
     void unmark(AddressRange range);
+    // The contents laid in that a write met (range, or each write the image logged) no longer
+    // lie there.
+    void forget_laid(AddressRange range);
+    void forget_written();
     void unindex(uint64_t buffer);
     // Adds the region (an alias of an existing one is served by it); false when over the limit.
     bool add_region(uint64_t address, uint64_t size, uint64_t usage, const std::string& label);
@@ -172,6 +184,12 @@ private:
     std::map<uint64_t, uint64_t> engine_objects_;      // begin -> end, disjoint, merged
     std::map<uint64_t, uint64_t> driver_bvh_;          // begin -> end, disjoint
     std::map<uint64_t, uint64_t> cluster_blas_spans_;  // begin -> end, disjoint
+    struct LaidContent {
+        uint64_t end = 0;
+        uint64_t hash = 0;
+    };
+    std::map<uint64_t, LaidContent> laid_;               // begin -> content, disjoint
+    std::vector<std::pair<uint64_t, uint64_t>> writes_;  // (address, size) not yet met with laid_
     uint64_t budget_;
     uint64_t peak_ = 0;
     uint64_t regions_added_ = 0;

@@ -60,7 +60,7 @@ void Replay::lay_in_snapshots(const traces::SnapshotVector* snapshots,
             report_.counts.driver_bvh_bytes_kept += kept.bytes;
             bytes = kept.to_lay_in;
         }
-        if (!held || !memory_.lay_in(*address, bytes)) {
+        if (!held || !memory_.lay_in(*address, bytes, s->hash())) {
             ++report_.counts.snapshots_outside_memory;
             if (memory_.writes_over_budget() != refused)
                 continue;  // named once, by the budget finding
