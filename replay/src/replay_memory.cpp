@@ -326,6 +326,20 @@ bool ReplayMemory::write(uint64_t address, std::span<const uint8_t> bytes) {
     return true;
 }
 
+bool ReplayMemory::copy(uint64_t from, uint64_t size, uint64_t to) {
+    if (size == 0) return true;
+    try {
+        // A write never moves a region's bytes, so `src` stays valid across write_bytes.
+        std::span<const std::byte> src = image_.read_bytes(from, size, {"replay", -1});
+        std::span<std::byte> dst = image_.write_bytes(to, size, {"copy", -1});
+        std::memmove(dst.data(), src.data(), size);
+    } catch (const engine::MemoryFault&) {
+        return false;
+    }
+    unmark({to, to + size});
+    return true;
+}
+
 bool ReplayMemory::read(uint64_t address, uint64_t size, std::vector<uint8_t>* out) const {
     try {
         std::span<const std::byte> src = image_.read_bytes(address, size, {"replay", -1});

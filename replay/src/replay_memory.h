@@ -90,6 +90,10 @@ public:
     // Plain write (copies, fills, updates): also ends engine ownership of those bytes.
     bool write(uint64_t address, std::span<const uint8_t> bytes);
     bool read(uint64_t address, uint64_t size, std::vector<uint8_t>* out) const;
+    // vkCmdCopyBuffer's bytes, from one place of the image to another, as write() does (an
+    // overlap, which the application may not ask for, copies as if through a buffer between).
+    // False when no region holds either range (nothing is written then).
+    bool copy(uint64_t from, uint64_t size, uint64_t to);
     void mark_engine_object(AddressRange range);
     // A served traceable cluster BLAS (CmdBuildClusterAccelerationStructureIndirect.driver_bvh):
     // the capture's memory there holds the driver's BVH, replay's holds the engine's object.
