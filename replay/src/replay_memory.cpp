@@ -267,6 +267,20 @@ bool ReplayMemory::lay_in(uint64_t address, std::span<const uint8_t> bytes, uint
     return true;
 }
 
+bool ReplayMemory::holds_laid_content(uint64_t address, uint64_t hash, uint64_t* size) {
+    forget_written();
+    auto it = laid_.find(address);
+    if (it == laid_.end() || it->second.hash != hash) return false;
+    const AddressRange range{address, it->second.end};
+    if (!driver_bvh_.empty()) {
+        auto mark = driver_bvh_.upper_bound(address);
+        if (mark != driver_bvh_.begin() && std::prev(mark)->second > address) return false;
+        if (mark != driver_bvh_.end() && mark->first < range.end) return false;
+    }
+    *size = range.end - range.begin;
+    return true;
+}
+
 void ReplayMemory::forget_laid(AddressRange range) {
     auto it = laid_.upper_bound(range.begin);
     if (it != laid_.begin() && std::prev(it)->second.end > range.begin) --it;

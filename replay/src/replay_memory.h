@@ -87,6 +87,10 @@ public:
     // at `address` and no write has met its bytes since: laying it again would change no byte
     // (the engine's objects and a driver BVH's kept bytes inside it hold what they held then).
     bool lay_in(uint64_t address, std::span<const uint8_t> bytes, uint64_t hash);
+    // Whether that skip applies without the content's bytes: `hash` was the content last laid in
+    // at `address`, no write has met it since and no driver BVH is marked over it (whose kept
+    // bytes a report counts). Its size in *size.
+    bool holds_laid_content(uint64_t address, uint64_t hash, uint64_t* size);
     // Plain write (copies, fills, updates): also ends engine ownership of those bytes.
     bool write(uint64_t address, std::span<const uint8_t> bytes);
     bool read(uint64_t address, uint64_t size, std::vector<uint8_t>* out) const;
@@ -185,7 +189,7 @@ private:
     std::map<uint64_t, SparsePage> sparse_pages_;  // begin address -> bound part, disjoint
     uint64_t next_private_ = kPrivateBase;
     uint64_t aliased_buffers_ = 0;
-    std::map<uint64_t, uint64_t> engine_objects_;      // begin -> end, disjoint, merged
+    std::map<uint64_t, uint64_t> engine_objects_;  // begin -> end, disjoint, merged
     std::map<uint64_t, uint64_t> driver_bvh_;          // begin -> end, disjoint
     std::map<uint64_t, uint64_t> cluster_blas_spans_;  // begin -> end, disjoint
     struct LaidContent {

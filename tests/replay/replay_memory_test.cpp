@@ -149,6 +149,21 @@ TEST(ReplayMemory, ContentLaidInAgainAfterAnyWriteIsLaidInAgain) {
     ASSERT_TRUE(m.lay_in(kBase, content, kHash));
     EXPECT_TRUE(lies_there()) << "after writes in eight streams";
 
+    // Known without its bytes while nothing met it; not over a driver BVH's mark.
+    uint64_t size = 0;
+    EXPECT_TRUE(m.holds_laid_content(kBase, kHash, &size));
+    EXPECT_EQ(size, kSpan);
+    EXPECT_FALSE(m.holds_laid_content(kBase, kHash + 1, &size));
+    EXPECT_FALSE(m.holds_laid_content(kBase + 1, kHash, &size));
+    m.mark_driver_bvh({kBase + kSpan - 8, kBase + kSpan});
+    EXPECT_FALSE(m.holds_laid_content(kBase, kHash, &size));
+    m.image().write<uint8_t>(kBase + kSpan - 1, 0xEE, {"engine", 0});
+    ASSERT_TRUE(m.fill(kBase + kSpan - 8, 8, 0));  // a plain write ends the mark
+    EXPECT_FALSE(m.holds_laid_content(kBase, kHash, &size));
+    ASSERT_TRUE(m.lay_in(kBase, content, kHash));
+    EXPECT_TRUE(lies_there()) << "after a driver BVH's mark";
+    EXPECT_TRUE(m.holds_laid_content(kBase, kHash, &size));
+
     // Another content at the same place, and the first one back.
     std::vector<uint8_t> other(kSpan, 0x42);
     ASSERT_TRUE(m.lay_in(kBase, other, kHash + 1));
