@@ -385,19 +385,20 @@ static void cut(std::map<uint64_t, uint64_t>& ranges, AddressRange range) {
 // read only as bytes (lay_in skips them). Each op of a cluster build marks its object, mostly
 // inside the objects built there the frame before, which are one range by then: marking is one
 // lookup (it was ~750 instructions an op keeping each object its own range, and ~1,600 before).
-static void unite(std::map<uint64_t, uint64_t>& ranges, AddressRange range) {
+// Returns the range of the set that holds `range` now.
+static AddressRange unite(std::map<uint64_t, uint64_t>& ranges, AddressRange range) {
     auto it = ranges.upper_bound(range.begin);
     if (it != ranges.begin()) {
         const auto before = std::prev(it);
-        if (before->second >= range.end) return;  // already inside
-        if (before->second >= range.begin) {      // meets or touches it: grows over the rest
+        if (before->second >= range.end) return {before->first, before->second};  // inside
+        if (before->second >= range.begin) {  // meets or touches it: grows over the rest
             uint64_t end = range.end;
             while (it != ranges.end() && it->first <= end) {
                 end = std::max(end, it->second);
                 it = ranges.erase(it);
             }
             before->second = end;
-            return;
+            return {before->first, end};
         }
     }
     uint64_t end = range.end;
@@ -413,16 +414,18 @@ static void unite(std::map<uint64_t, uint64_t>& ranges, AddressRange range) {
     }
     if (spare.empty()) {
         ranges.emplace_hint(it, range.begin, end);
-        return;
+        return {range.begin, end};
     }
     spare.key() = range.begin;
     spare.mapped() = end;
     ranges.insert(it, std::move(spare));
+    return {range.begin, end};
 }
 
 void ReplayMemory::unmark(AddressRange range) {
     forget_laid(range);  // (zero_bytes, which fill uses, is not logged as a write)
     cut(engine_objects_, range);
+    last_object_ = {};
     cut(driver_bvh_, range);
     cut(cluster_blas_spans_, range);
 }
@@ -470,9 +473,13 @@ ReplayMemory::KeptDriverBvh ReplayMemory::keep_driver_bvh(uint64_t address,
 
 void ReplayMemory::mark_engine_object(AddressRange range) {
     if (range.empty()) return;
+    // Mostly inside the range the object before joined (last frame's objects, merged): then
+    // neither set changes.
+    if (driver_bvh_.empty() && range.begin >= last_object_.begin && range.end <= last_object_.end)
+        return;
     // (A cluster BLAS span stays: the engine's object is written inside it.)
     cut(driver_bvh_, range);
-    unite(engine_objects_, range);
+    last_object_ = unite(engine_objects_, range);
 }
 
 }  // namespace clastrace::replay::detail

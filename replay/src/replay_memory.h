@@ -190,6 +190,7 @@ private:
     uint64_t next_private_ = kPrivateBase;
     uint64_t aliased_buffers_ = 0;
     std::map<uint64_t, uint64_t> engine_objects_;  // begin -> end, disjoint, merged
+    AddressRange last_object_;  // the engine_objects_ range the last marked object joined
     std::map<uint64_t, uint64_t> driver_bvh_;          // begin -> end, disjoint
     std::map<uint64_t, uint64_t> cluster_blas_spans_;  // begin -> end, disjoint
     struct LaidContent {
