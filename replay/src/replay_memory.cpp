@@ -148,6 +148,7 @@ void ReplayMemory::destroy_object(uint64_t object) {
 }
 
 bool ReplayMemory::fill(uint64_t address, uint64_t size, uint32_t value) {
+    forget_written();  // keeps the image's write log short (image())
     try {
         if (value == 0) {
             image_.zero_bytes(address, size,
@@ -329,6 +330,7 @@ void ReplayMemory::forget_written() {
 }
 
 bool ReplayMemory::write(uint64_t address, std::span<const uint8_t> bytes) {
+    forget_written();  // keeps the image's write log short (image())
     if (bytes.empty()) return true;
     try {
         std::span<std::byte> dst = image_.write_bytes(address, bytes.size(), {"copy", -1});
@@ -341,6 +343,7 @@ bool ReplayMemory::write(uint64_t address, std::span<const uint8_t> bytes) {
 }
 
 bool ReplayMemory::copy(uint64_t from, uint64_t size, uint64_t to) {
+    forget_written();  // keeps the image's write log short (image())
     if (size == 0) return true;
     try {
         // A write never moves a region's bytes, so `src` stays valid across write_bytes.

@@ -137,7 +137,13 @@ public:
     // Fills [address, address + size) with a repeated 32-bit value in place (vkCmdFillBuffer).
     bool fill(uint64_t address, uint64_t size, uint32_t value);
 
-    engine::MemoryImage& image() { return image_; }
+    // Writing through the image is logged (lay_in): the log is met with the laid contents here
+    // first (and in write, copy and fill), so it holds the writes of one command at most,
+    // however long no lay-in comes.
+    engine::MemoryImage& image() {
+        forget_written();
+        return image_;
+    }
     const engine::MemoryImage& image() const { return image_; }
     // Regions added so far: a build read ahead whose buffers were not placed yet may be
     // planned once this changed (Replay's pending runs).

@@ -143,9 +143,10 @@ TEST(ReplayMemory, ContentLaidInAgainAfterAnyWriteIsLaidInAgain) {
     ASSERT_TRUE(m.lay_in(kBase, content, kHash));
     EXPECT_TRUE(lies_there()) << "after the buffer was destroyed and another bound there";
 
-    // Eight interleaved rising streams, the last write of one far into the content.
+    // Eight interleaved rising streams through one hold of the image, as engine::execute writes.
+    engine::MemoryImage& image = m.image();
     for (uint64_t k = 0; k < 64; ++k)
-        m.image().write<uint8_t>(kBase + (k % 8) * 8192 + (k / 8) * 300, 0xEE, {"engine", 0});
+        image.write<uint8_t>(kBase + (k % 8) * 8192 + (k / 8) * 300, 0xEE, {"engine", 0});
     ASSERT_TRUE(m.lay_in(kBase, content, kHash));
     EXPECT_TRUE(lies_there()) << "after writes in eight streams";
 
