@@ -29,9 +29,10 @@ ExecutionRecord execute(const VkClusterAccelerationStructureCommandsInfoNV& comm
     check_intra_command_hazards(s);
     s.flush_command_findings();
     s.sink.close();
-    record.accesses = std::move(s.top.accesses);
-    record.accesses.insert(record.accesses.end(), std::make_move_iterator(s.op_accesses.begin()),
-                           std::make_move_iterator(s.op_accesses.end()));
+    record.accesses.reserve(s.top.accesses.size() + s.op_accesses.size());
+    for (auto* part : {&s.top.accesses, &s.op_accesses})
+        record.accesses.insert(record.accesses.end(), std::make_move_iterator(part->begin()),
+                               std::make_move_iterator(part->end()));
     return record;
 }
 

@@ -214,6 +214,8 @@ struct WriteIndex {
     std::vector<size_t> reach;
 
     explicit WriteIndex(const std::vector<MemoryAccess>& accesses) {
+        writes.reserve(size_t(std::count_if(accesses.begin(), accesses.end(),
+                                            [](const MemoryAccess& a) { return a.is_write; })));
         for (const auto& a : accesses)
             if (a.is_write) writes.push_back(&a);
         std::sort(writes.begin(), writes.end(), [](const MemoryAccess* a, const MemoryAccess* b) {

@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <cstring>
+#include <span>
 
 namespace clastrace::engine::detail {
 
@@ -16,6 +17,67 @@ namespace {
 
 // Objects a chunk wrote, by destination, for the directory.
 using BuiltObjects = std::vector<std::pair<uint64_t, const OpOutput*>>;
+
+// The op outputs of the commands a thread runs, kept from one command to the next: their object
+// bytes and access lists keep their capacity, so a steady replay allocates neither per op. A
+// command started while the thread waits inside another's ops (TBB may run one there) gets
+// outputs of its own. What a thread keeps is bounded: kKeptOutputs outputs, each with at most a
+// CLAS's or template's bytes (a bottom level's are let go) and kKeptAccesses accesses.
+class KeptOpOutputs {
+public:
+    static constexpr size_t kKeptOutputs = 256;
+    static constexpr size_t kKeptObjectBytes = size_t{16} << 10;  // > kMaxObjectBytes
+    static constexpr size_t kKeptAccesses = 64;
+
+    KeptOpOutputs() : pool_(in_use_ ? own_ : pool()) { in_use_ = true; }
+    ~KeptOpOutputs() {
+        trim();
+        if (&pool_ == &pool()) in_use_ = false;
+    }
+    KeptOpOutputs(const KeptOpOutputs&) = delete;
+    KeptOpOutputs& operator=(const KeptOpOutputs&) = delete;
+
+    // n outputs as fresh as OpOutput{} but for their vectors' capacity.
+    std::span<OpOutput> take(uint32_t n) {
+        if (pool_.size() < n) pool_.resize(n);
+        for (uint32_t k = 0; k < n; ++k) reset(pool_[k]);
+        used_ = std::max<size_t>(used_, n);
+        return {pool_.data(), n};
+    }
+
+private:
+    static std::vector<OpOutput>& pool() {
+        thread_local std::vector<OpOutput> outputs;
+        return outputs;
+    }
+    static void reset(OpOutput& out) {
+        std::vector<MemoryAccess> accesses = std::move(out.rec.accesses);
+        std::vector<Finding> findings = std::move(out.rec.findings);
+        std::vector<std::byte> bytes = std::move(out.bytes);
+        accesses.clear();
+        findings.clear();
+        bytes.clear();
+        out = OpOutput{};
+        out.rec.accesses = std::move(accesses);
+        out.rec.findings = std::move(findings);
+        out.bytes = std::move(bytes);
+    }
+    void trim() {
+        if (pool_.size() > kKeptOutputs) pool_.resize(kKeptOutputs);
+        for (size_t k = 0; k < std::min(used_, pool_.size()); ++k) {
+            OpOutput& out = pool_[k];
+            if (out.bytes.capacity() > kKeptObjectBytes) std::vector<std::byte>().swap(out.bytes);
+            if (out.rec.accesses.capacity() > kKeptAccesses)
+                std::vector<MemoryAccess>().swap(out.rec.accesses);
+        }
+    }
+
+    static thread_local bool in_use_;
+    std::vector<OpOutput> own_;
+    std::vector<OpOutput>& pool_;
+    size_t used_ = 0;
+};
+thread_local bool KeptOpOutputs::in_use_ = false;
 
 VkClusterAccelerationStructureTypeNV result_type(const OpOutput& out) {
     if (!out.is_object) return VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_MAX_ENUM_NV;
@@ -136,7 +198,15 @@ void write_op(CommandState& s, OpOutput& out, uint32_t i, BuiltObjects& built) {
     write_scratch_entry(s, out.rec, i, dst, size);
     for (auto& f : out.rec.findings) s.sink.add(std::move(f));
     out.rec.findings.clear();
-    for (auto& a : out.rec.accesses) s.op_accesses.push_back(std::move(a));
+}
+
+// The chunk's accesses after the command's earlier ones, in op order, with one allocation.
+void append_accesses(CommandState& s, std::span<OpOutput> outs) {
+    size_t total = s.op_accesses.size();
+    for (const OpOutput& out : outs) total += out.rec.accesses.size();
+    s.op_accesses.reserve(total);
+    for (OpOutput& out : outs)
+        for (MemoryAccess& a : out.rec.accesses) s.op_accesses.push_back(std::move(a));
 }
 
 // Move sources retired first, so a swap (A->B, B->A) leaves both live.
@@ -154,14 +224,19 @@ void run_ops(CommandState& s) {
     const EngineProperties& props = s.options.properties;
     tbb::enumerable_thread_specific<ClusterBuilder> builders(
         [&props] { return ClusterBuilder(props); });
+    KeptOpOutputs kept;
+    s.written.reserve(cmd.count);
+    BuiltObjects built;
     for (uint64_t base = 0; base < cmd.count; base += kOpsPerChunk) {
         const uint32_t n = uint32_t(std::min<uint64_t>(kOpsPerChunk, cmd.count - base));
-        std::vector<OpOutput> outs(n);
+        std::span<OpOutput> outs = kept.take(n);
         tbb::parallel_for(uint32_t(0), n, [&](uint32_t k) {
             run_op(cmd, s.memory, uint32_t(base + k), builders.local(), outs[k]);
         });
-        BuiltObjects built;
+        built.clear();
+        built.reserve(n);
         for (uint32_t k = 0; k < n; ++k) write_op(s, outs[k], uint32_t(base + k), built);
+        append_accesses(s, outs);
         update_directory(s, built);
     }
     s.record.implicit_bytes_used = s.implicit ? s.cursor : 0;

@@ -68,26 +68,53 @@ public:
         const uint64_t stride = info.srcInfosArray.stride ? info.srcInfosArray.stride : layout.size;
         if (stride < layout.size) return;
         if (info.srcInfosArray.size != 0) count = std::min(count, info.srcInfosArray.size / stride);
+        const Elements infos =
+            elements(info.srcInfosArray.deviceAddress, count, stride, layout.size);
         for (uint64_t i = 0; i < count; ++i) {
             const uint64_t element = info.srcInfosArray.deviceAddress + i * stride;
             if (layout.cluster_references) {
                 VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV blas{};
-                if (!read(element, &blas)) return;
+                if (!infos.read(i, &blas) && !read(element, &blas)) return;
                 const uint64_t ref_stride =
                     blas.clusterReferencesStride ? blas.clusterReferencesStride : 8;
+                const Elements refs =
+                    elements(blas.clusterReferences, blas.clusterReferencesCount, ref_stride, 8);
                 for (uint64_t j = 0; j < blas.clusterReferencesCount; ++j) {
-                    if (!cell(blas.clusterReferences + j * ref_stride, static_cast<int64_t>(i),
-                              "clusterReferences", j))
+                    if (!cell(blas.clusterReferences + j * ref_stride, refs, j,
+                              static_cast<int64_t>(i), "clusterReferences", j))
                         break;
                 }
-            } else if (!cell(element + static_cast<uint64_t>(layout.object_field),
-                             static_cast<int64_t>(i), layout.object_field_name, UINT64_MAX)) {
+            } else if (!cell(element + static_cast<uint64_t>(layout.object_field), infos, i,
+                             static_cast<int64_t>(i), layout.object_field_name, UINT64_MAX,
+                             static_cast<uint64_t>(layout.object_field))) {
                 return;
             }
         }
     }
 
 private:
+    // A strided array read in one piece when memory holds it whole (a fault leaves it empty,
+    // and each element is then read on its own, stopping where memory ends, as before).
+    struct Elements {
+        std::span<const std::byte> bytes;
+        uint64_t stride = 0;
+        template <class T>
+        bool read(uint64_t index, T* out, uint64_t offset = 0) const {
+            if (bytes.empty() || index * stride + offset + sizeof(T) > bytes.size()) return false;
+            std::memcpy(out, bytes.data() + index * stride + offset, sizeof(T));
+            return true;
+        }
+    };
+    Elements elements(uint64_t address, uint64_t count, uint64_t stride, uint64_t size) {
+        if (count == 0) return {};
+        try {
+            return {c_.memory.image().read_array(address, count, stride, size, {"translation", -1}),
+                    stride};
+        } catch (const engine::MemoryFault&) {
+            return {};
+        }
+    }
+
     template <class T>
     bool read(uint64_t address, T* out) {
         try {
@@ -99,9 +126,11 @@ private:
     }
 
     // False when the cell is outside memory (the engine reports that itself).
-    bool cell(uint64_t address, int64_t op, const char* field, uint64_t element) {
+    // `in`, `index`, `offset`: where the array read in one piece holds the cell's value.
+    bool cell(uint64_t address, const Elements& in, uint64_t index, int64_t op, const char* field,
+              uint64_t element, uint64_t offset = 0) {
         uint64_t value = 0;
-        if (!read(address, &value)) return false;
+        if (!in.read(index, &value, offset) && !read(address, &value)) return false;
         if (value == 0) return true;
         AddressTranslation& t = c_.translation;
         auto done = t.translated_cells.find(address);

@@ -132,7 +132,10 @@ std::optional<AddressRange> ReplayMemory::destroy_buffer(uint64_t buffer) {
         for (const auto& [handle, other] : buffers_)
             if (other.bound && other.address < end && begin < other.address + other.size)
                 shared = true;
-        if (!shared) image_.remove_region(begin);
+        if (!shared) {
+            image_.remove_region(begin);
+            forget_laid({begin, end});
+        }
     }
     unmark(range);
     forget_sparse(buffer, range);
@@ -145,6 +148,7 @@ void ReplayMemory::destroy_object(uint64_t object) {
 }
 
 bool ReplayMemory::fill(uint64_t address, uint64_t size, uint32_t value) {
+    forget_written();  // keeps the image's write log short (image())
     try {
         if (value == 0) {
             image_.zero_bytes(address, size,
@@ -251,7 +255,82 @@ bool ReplayMemory::lay_in(uint64_t address, std::span<const uint8_t> bytes) {
     return true;
 }
 
+bool ReplayMemory::lay_in(uint64_t address, std::span<const uint8_t> bytes, uint64_t hash) {
+    forget_written();
+    const AddressRange range{address, address + bytes.size()};
+    auto it = laid_.find(address);
+    if (it != laid_.end() && it->second.end == range.end && it->second.hash == hash) return true;
+    if (!lay_in(address, bytes)) return false;
+    writes_.clear();  // lay_in's own write
+    if (range.empty()) return true;
+    forget_laid(range);
+    laid_.emplace(address, LaidContent{range.end, hash});
+    return true;
+}
+
+bool ReplayMemory::holds_laid_content(uint64_t address, uint64_t hash, uint64_t* size) {
+    forget_written();
+    auto it = laid_.find(address);
+    if (it == laid_.end() || it->second.hash != hash) return false;
+    const AddressRange range{address, it->second.end};
+    if (!driver_bvh_.empty()) {
+        auto mark = driver_bvh_.upper_bound(address);
+        if (mark != driver_bvh_.begin() && std::prev(mark)->second > address) return false;
+        if (mark != driver_bvh_.end() && mark->first < range.end) return false;
+    }
+    *size = range.end - range.begin;
+    return true;
+}
+
+void ReplayMemory::forget_laid(AddressRange range) {
+    auto it = laid_.upper_bound(range.begin);
+    if (it != laid_.begin() && std::prev(it)->second.end > range.begin) --it;
+    while (it != laid_.end() && it->first < range.end) it = laid_.erase(it);
+}
+
+// A command's writes come in a few interleaved streams (a cluster build's objects, its address
+// and size arrays, its scratch entries), each rising and taking turns: a write joins the open run
+// it starts in or near, tried first the one after the run the last write joined, so a command
+// costs a few forget_laid calls instead of one a write. A run also covers the bytes between its
+// writes, which only costs those contents a lay-in again.
+void ReplayMemory::forget_written() {
+    if (writes_.empty()) return;
+    if (laid_.empty()) {
+        writes_.clear();
+        return;
+    }
+    constexpr size_t kRuns = 4;
+    constexpr uint64_t kNear = 256;
+    AddressRange runs[kRuns];
+    size_t open = 0, next = 0, oldest = 0;
+    auto joins = [&](size_t k, uint64_t begin) {
+        return begin - runs[k].begin <= runs[k].end - runs[k].begin + kNear;  // (wraps below)
+    };
+    for (const auto& [address, size] : writes_) {
+        const AddressRange w{address, address + size < address ? UINT64_MAX : address + size};
+        size_t k = next;
+        if (k >= open || !joins(k, w.begin))
+            for (k = 0; k < open && !joins(k, w.begin);) ++k;
+        if (k < open) {
+            runs[k].end = std::max(runs[k].end, w.end);
+            next = k + 1 < open ? k + 1 : 0;
+            continue;
+        }
+        if (open < kRuns) {
+            runs[open++] = w;
+        } else {
+            forget_laid(runs[oldest]);
+            runs[oldest] = w;
+            oldest = (oldest + 1) % kRuns;
+        }
+        next = 0;
+    }
+    for (size_t k = 0; k < open; ++k) forget_laid(runs[k]);
+    writes_.clear();
+}
+
 bool ReplayMemory::write(uint64_t address, std::span<const uint8_t> bytes) {
+    forget_written();  // keeps the image's write log short (image())
     if (bytes.empty()) return true;
     try {
         std::span<std::byte> dst = image_.write_bytes(address, bytes.size(), {"copy", -1});
@@ -260,6 +339,21 @@ bool ReplayMemory::write(uint64_t address, std::span<const uint8_t> bytes) {
         return false;
     }
     unmark({address, address + bytes.size()});
+    return true;
+}
+
+bool ReplayMemory::copy(uint64_t from, uint64_t size, uint64_t to) {
+    forget_written();  // keeps the image's write log short (image())
+    if (size == 0) return true;
+    try {
+        // A write never moves a region's bytes, so `src` stays valid across write_bytes.
+        std::span<const std::byte> src = image_.read_bytes(from, size, {"replay", -1});
+        std::span<std::byte> dst = image_.write_bytes(to, size, {"copy", -1});
+        std::memmove(dst.data(), src.data(), size);
+    } catch (const engine::MemoryFault&) {
+        return false;
+    }
+    unmark({to, to + size});
     return true;
 }
 
@@ -294,19 +388,20 @@ static void cut(std::map<uint64_t, uint64_t>& ranges, AddressRange range) {
 // read only as bytes (lay_in skips them). Each op of a cluster build marks its object, mostly
 // inside the objects built there the frame before, which are one range by then: marking is one
 // lookup (it was ~750 instructions an op keeping each object its own range, and ~1,600 before).
-static void unite(std::map<uint64_t, uint64_t>& ranges, AddressRange range) {
+// Returns the range of the set that holds `range` now.
+static AddressRange unite(std::map<uint64_t, uint64_t>& ranges, AddressRange range) {
     auto it = ranges.upper_bound(range.begin);
     if (it != ranges.begin()) {
         const auto before = std::prev(it);
-        if (before->second >= range.end) return;  // already inside
-        if (before->second >= range.begin) {      // meets or touches it: grows over the rest
+        if (before->second >= range.end) return {before->first, before->second};  // inside
+        if (before->second >= range.begin) {  // meets or touches it: grows over the rest
             uint64_t end = range.end;
             while (it != ranges.end() && it->first <= end) {
                 end = std::max(end, it->second);
                 it = ranges.erase(it);
             }
             before->second = end;
-            return;
+            return {before->first, end};
         }
     }
     uint64_t end = range.end;
@@ -322,15 +417,18 @@ static void unite(std::map<uint64_t, uint64_t>& ranges, AddressRange range) {
     }
     if (spare.empty()) {
         ranges.emplace_hint(it, range.begin, end);
-        return;
+        return {range.begin, end};
     }
     spare.key() = range.begin;
     spare.mapped() = end;
     ranges.insert(it, std::move(spare));
+    return {range.begin, end};
 }
 
 void ReplayMemory::unmark(AddressRange range) {
+    forget_laid(range);  // (zero_bytes, which fill uses, is not logged as a write)
     cut(engine_objects_, range);
+    last_object_ = {};
     cut(driver_bvh_, range);
     cut(cluster_blas_spans_, range);
 }
@@ -357,6 +455,7 @@ ReplayMemory::KeptDriverBvh ReplayMemory::keep_driver_bvh(uint64_t address,
                                                           std::span<const uint8_t> captured,
                                                           std::vector<uint8_t>* edited) const {
     KeptDriverBvh kept{captured, {}, 0};
+    if (driver_bvh_.empty()) return kept;
     const uint64_t end = address + captured.size();
     auto it = driver_bvh_.upper_bound(address);
     if (it != driver_bvh_.begin()) --it;
@@ -377,9 +476,13 @@ ReplayMemory::KeptDriverBvh ReplayMemory::keep_driver_bvh(uint64_t address,
 
 void ReplayMemory::mark_engine_object(AddressRange range) {
     if (range.empty()) return;
+    // Mostly inside the range the object before joined (last frame's objects, merged): then
+    // neither set changes.
+    if (driver_bvh_.empty() && range.begin >= last_object_.begin && range.end <= last_object_.end)
+        return;
     // (A cluster BLAS span stays: the engine's object is written inside it.)
     cut(driver_bvh_, range);
-    unite(engine_objects_, range);
+    last_object_ = unite(engine_objects_, range);
 }
 
 }  // namespace clastrace::replay::detail

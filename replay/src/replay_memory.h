@@ -27,7 +27,11 @@ public:
     // buffer reserves address space only, and the budget counts the pages written.
     explicit ReplayMemory(uint64_t budget_bytes = 8ull << 30) : budget_(budget_bytes) {
         image_.set_resident_limit(budget_bytes);
+        image_.log_writes(&writes_);
     }
+    // The image logs its writes into writes_: a copy would log into the original's.
+    ReplayMemory(const ReplayMemory&) = delete;
+    ReplayMemory& operator=(const ReplayMemory&) = delete;
 
     void create_buffer(uint64_t buffer, uint64_t size, uint64_t usage);
     // Binds and adds the buffer's region. Buffers without a device address get one: the
@@ -79,9 +83,21 @@ public:
     // Writes `bytes` at `address`, leaving engine-built object bytes alone. False when no
     // region holds the range.
     bool lay_in(uint64_t address, std::span<const uint8_t> bytes);
+    // The same for the bytes of content `hash`, skipped when that content was the last laid in
+    // at `address` and no write has met its bytes since: laying it again would change no byte
+    // (the engine's objects and a driver BVH's kept bytes inside it hold what they held then).
+    bool lay_in(uint64_t address, std::span<const uint8_t> bytes, uint64_t hash);
+    // Whether that skip applies without the content's bytes: `hash` was the content last laid in
+    // at `address`, no write has met it since and no driver BVH is marked over it (whose kept
+    // bytes a report counts). Its size in *size.
+    bool holds_laid_content(uint64_t address, uint64_t hash, uint64_t* size);
     // Plain write (copies, fills, updates): also ends engine ownership of those bytes.
     bool write(uint64_t address, std::span<const uint8_t> bytes);
     bool read(uint64_t address, uint64_t size, std::vector<uint8_t>* out) const;
+    // vkCmdCopyBuffer's bytes, from one place of the image to another, as write() does (an
+    // overlap, which the application may not ask for, copies as if through a buffer between).
+    // False when no region holds either range (nothing is written then).
+    bool copy(uint64_t from, uint64_t size, uint64_t to);
     void mark_engine_object(AddressRange range);
     // A served traceable cluster BLAS (CmdBuildClusterAccelerationStructureIndirect.driver_bvh):
     // the capture's memory there holds the driver's BVH, replay's holds the engine's object.
@@ -121,7 +137,13 @@ public:
     // Fills [address, address + size) with a repeated 32-bit value in place (vkCmdFillBuffer).
     bool fill(uint64_t address, uint64_t size, uint32_t value);
 
-    engine::MemoryImage& image() { return image_; }
+    // Writing through the image is logged (lay_in): the log is met with the laid contents here
+    // first (and in write, copy and fill), so it holds the writes of one command at most,
+    // however long no lay-in comes.
+    engine::MemoryImage& image() {
+        forget_written();
+        return image_;
+    }
     const engine::MemoryImage& image() const { return image_; }
     // Regions added so far: a build read ahead whose buffers were not placed yet may be
     // planned once this changed (Replay's pending runs).
@@ -142,6 +164,10 @@ private:
         bool bound = false;
     };
     void unmark(AddressRange range);
+    // The contents laid in that a write met (range, or each write the image logged) no longer
+    // lie there.
+    void forget_laid(AddressRange range);
+    void forget_written();
     void unindex(uint64_t buffer);
     // Adds the region (an alias of an existing one is served by it); false when over the limit.
     bool add_region(uint64_t address, uint64_t size, uint64_t usage, const std::string& label);
@@ -169,9 +195,16 @@ private:
     std::map<uint64_t, SparsePage> sparse_pages_;  // begin address -> bound part, disjoint
     uint64_t next_private_ = kPrivateBase;
     uint64_t aliased_buffers_ = 0;
-    std::map<uint64_t, uint64_t> engine_objects_;      // begin -> end, disjoint, merged
+    std::map<uint64_t, uint64_t> engine_objects_;  // begin -> end, disjoint, merged
+    AddressRange last_object_;  // the engine_objects_ range the last marked object joined
     std::map<uint64_t, uint64_t> driver_bvh_;          // begin -> end, disjoint
     std::map<uint64_t, uint64_t> cluster_blas_spans_;  // begin -> end, disjoint
+    struct LaidContent {
+        uint64_t end = 0;
+        uint64_t hash = 0;
+    };
+    std::map<uint64_t, LaidContent> laid_;               // begin -> content, disjoint
+    std::vector<std::pair<uint64_t, uint64_t>> writes_;  // (address, size) not yet met with laid_
     uint64_t budget_;
     uint64_t peak_ = 0;
     uint64_t regions_added_ = 0;

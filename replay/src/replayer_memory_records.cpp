@@ -51,6 +51,14 @@ void Replay::lay_in_snapshots(const traces::SnapshotVector* snapshots,
     for (const fbs::MemorySnapshot* s : *snapshots) {
         std::optional<uint64_t> address =
             memory_.snapshot_address(s->buffer(), s->offset(), s->address());
+        // The reader's answer for a content it answered once is the same bytes (they hash to
+        // the key), so a content lying where it was laid needs neither reading nor laying.
+        uint64_t laid_size = 0;
+        if (address && memory_.holds_laid_content(*address, s->hash(), &laid_size)) {
+            ++report_.counts.snapshots_applied;
+            report_.counts.snapshot_bytes += laid_size;
+            continue;
+        }
         const uint64_t refused = memory_.writes_over_budget();
         std::span<const uint8_t> bytes;
         const bool held = address && contents_view(s->hash(), &bytes, &held_contents);
@@ -60,7 +68,7 @@ void Replay::lay_in_snapshots(const traces::SnapshotVector* snapshots,
             report_.counts.driver_bvh_bytes_kept += kept.bytes;
             bytes = kept.to_lay_in;
         }
-        if (!held || !memory_.lay_in(*address, bytes)) {
+        if (!held || !memory_.lay_in(*address, bytes, s->hash())) {
             ++report_.counts.snapshots_outside_memory;
             if (memory_.writes_over_budget() != refused)
                 continue;  // named once, by the budget finding

@@ -22,14 +22,12 @@ void Replay::copy_buffer(const fbs::CmdCopyBuffer& copy, const CommandRef& ref,
     ++report_.counts.copies;
     lay_in_snapshots(copy.inputs(), where);
     if (!copy.regions()) return;
-    std::vector<uint8_t> bytes;
     uint32_t i = 0;
     for (const fbs::BufferCopy* region : *copy.regions()) {
         auto src = memory_.buffer_range(copy.src_buffer(), region->src_offset(), region->size());
         auto dst = memory_.buffer_range(copy.dst_buffer(), region->dst_offset(), region->size());
         if (src && dst) {
-            if (memory_.read(src->begin, src->end - src->begin, &bytes))
-                memory_.write(dst->begin, bytes);
+            memory_.copy(src->begin, src->end - src->begin, dst->begin);
             if (options_.check_hazards) {
                 report_.counts.accesses += 2;
                 std::string src_field = "pRegions[" + std::to_string(i) + "].srcOffset";

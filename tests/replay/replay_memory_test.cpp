@@ -105,6 +105,77 @@ TEST(ReplayMemory, MarkedEngineObjectsMatchAPerByteReference) {
     }
 }
 
+// A content laid in again where it lies already is skipped; every way the image's bytes can
+// change in between (an engine write through image(), a copy, a zero fill, the buffer destroyed
+// and bound again, writes in more streams than forget_written keeps open) lays it in again.
+TEST(ReplayMemory, ContentLaidInAgainAfterAnyWriteIsLaidInAgain) {
+    constexpr uint64_t kBase = 0x100000000ull, kSpan = 64 * 1024, kHash = 0x1234;
+    detail::ReplayMemory m;
+    m.create_buffer(1, kSpan, 0);
+    m.bind_buffer(1, 0x10, 0, kBase);
+    std::vector<uint8_t> content(kSpan);
+    for (uint64_t b = 0; b < kSpan; ++b) content[b] = uint8_t(b * 7 + 3);
+    auto lies_there = [&] {
+        std::vector<uint8_t> now;
+        return m.read(kBase, kSpan, &now) && now == content;
+    };
+    ASSERT_TRUE(m.lay_in(kBase, content, kHash));
+    ASSERT_TRUE(lies_there());
+    ASSERT_TRUE(m.lay_in(kBase, content, kHash));  // nothing met it: skipped, still there
+    ASSERT_TRUE(lies_there());
+
+    m.image().write<uint64_t>(kBase + 4096, ~0ull, {"engine", 0});
+    ASSERT_FALSE(lies_there());
+    ASSERT_TRUE(m.lay_in(kBase, content, kHash));
+    EXPECT_TRUE(lies_there()) << "after an engine write";
+
+    ASSERT_TRUE(m.write(kBase + 100, std::vector<uint8_t>(10, 0)));
+    ASSERT_TRUE(m.lay_in(kBase, content, kHash));
+    EXPECT_TRUE(lies_there()) << "after a copy";
+
+    ASSERT_TRUE(m.fill(kBase + 8192, 4096, 0));
+    ASSERT_TRUE(m.lay_in(kBase, content, kHash));
+    EXPECT_TRUE(lies_there()) << "after a zero fill";
+
+    ASSERT_TRUE(m.destroy_buffer(1));
+    m.create_buffer(2, kSpan, 0);
+    m.bind_buffer(2, 0x10, 0, kBase);
+    ASSERT_TRUE(m.lay_in(kBase, content, kHash));
+    EXPECT_TRUE(lies_there()) << "after the buffer was destroyed and another bound there";
+
+    // Eight interleaved rising streams through one hold of the image, as engine::execute writes.
+    engine::MemoryImage& image = m.image();
+    for (uint64_t k = 0; k < 64; ++k)
+        image.write<uint8_t>(kBase + (k % 8) * 8192 + (k / 8) * 300, 0xEE, {"engine", 0});
+    ASSERT_TRUE(m.lay_in(kBase, content, kHash));
+    EXPECT_TRUE(lies_there()) << "after writes in eight streams";
+
+    // Known without its bytes while nothing met it; not over a driver BVH's mark.
+    uint64_t size = 0;
+    EXPECT_TRUE(m.holds_laid_content(kBase, kHash, &size));
+    EXPECT_EQ(size, kSpan);
+    EXPECT_FALSE(m.holds_laid_content(kBase, kHash + 1, &size));
+    EXPECT_FALSE(m.holds_laid_content(kBase + 1, kHash, &size));
+    m.mark_driver_bvh({kBase + kSpan - 8, kBase + kSpan});
+    EXPECT_FALSE(m.holds_laid_content(kBase, kHash, &size));
+    m.image().write<uint8_t>(kBase + kSpan - 1, 0xEE, {"engine", 0});
+    ASSERT_TRUE(m.fill(kBase + kSpan - 8, 8, 0));  // a plain write ends the mark
+    EXPECT_FALSE(m.holds_laid_content(kBase, kHash, &size));
+    ASSERT_TRUE(m.lay_in(kBase, content, kHash));
+    EXPECT_TRUE(lies_there()) << "after a driver BVH's mark";
+    EXPECT_TRUE(m.holds_laid_content(kBase, kHash, &size));
+
+    // Another content at the same place, and the first one back.
+    std::vector<uint8_t> other(kSpan, 0x42);
+    ASSERT_TRUE(m.lay_in(kBase, other, kHash + 1));
+    ASSERT_TRUE(m.lay_in(kBase, content, kHash));
+    EXPECT_TRUE(lies_there()) << "after another content laid over it";
+    // A content laid in over part of it.
+    ASSERT_TRUE(m.lay_in(kBase + 16, std::vector<uint8_t>(16, 0x42), kHash + 2));
+    ASSERT_TRUE(m.lay_in(kBase, content, kHash));
+    EXPECT_TRUE(lies_there()) << "after a smaller content laid inside it";
+}
+
 TEST(ReplayMemory, AliasedRegionStaysWhileAnotherBufferUsesIt) {
     detail::ReplayMemory m;
     m.create_buffer(1, 0x10000, 0);
