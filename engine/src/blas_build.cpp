@@ -49,6 +49,15 @@ struct Bin {
     uint32_t count = 0;
 };
 
+// The bin of a centroid `offset` past the centroid bounds' low corner. Clamped in float before
+// the conversion: a denormal extent makes the scale infinite, and offset * scale is then
+// infinite or NaN, whose conversion to int is undefined (a wild bin index). NaN goes to bin 0.
+int bin_of(float offset, float scale) {
+    const float x = offset * scale;
+    if (!(x > 0.0f)) return 0;
+    return x >= float(kBins - 1) ? kBins - 1 : int(x);
+}
+
 // SAH over 16 bins on each axis, one pass over the items; partitions [begin, end) in place.
 // Returns false for a leaf.
 bool split_node(std::vector<Item>& items, const Range& range, Range* left, Range* right) {
@@ -67,8 +76,7 @@ bool split_node(std::vector<Item>& items, const Range& range, Range* left, Range
         const Item& it = items[i];
         for (int a = 0; a < 3; ++a) {
             if (!axis_ok[a]) continue;
-            int b = std::min(kBins - 1, int((it.centroid[a] - centroids.lo[a]) * scale[a]));
-            Bin& bin = bins[a][b];
+            Bin& bin = bins[a][bin_of(it.centroid[a] - centroids.lo[a], scale[a])];
             bin.box.grow(it.box);
             bin.centroids.grow_point(it.centroid);
             ++bin.count;
@@ -91,7 +99,7 @@ bool split_node(std::vector<Item>& items, const Range& range, Range* left, Range
         if (count <= kSah.max_leaf_size && float(count) * cluster_cost <= split_cost) return false;
         const float lo = centroids.lo[best_axis], sc = scale[best_axis];
         auto* pivot = std::partition(items.data() + begin, items.data() + end, [&](const Item& it) {
-            return std::min(kBins - 1, int((it.centroid[best_axis] - lo) * sc)) <= best_plane;
+            return bin_of(it.centroid[best_axis] - lo, sc) <= best_plane;
         });
         const uint32_t mid = uint32_t(pivot - items.data());
         *left = Range{begin, mid, Box(), Box()};

@@ -243,6 +243,28 @@ TEST(ClusterBlas, EmptyAndDegenerateInputs) {
     EXPECT_LE(bytes.size(), bottom_level_size_bound(100));
 }
 
+TEST(ClusterBlas, DenormalCentroidExtentsBuildAValidTree) {
+    // Centroids 1e-44 apart on x (a denormal extent: 16 / extent overflows to infinity) and
+    // 1e-38 apart on y: a fuzzed trace's boxes once indexed a bin far outside the array here.
+    std::vector<ClusterBox> boxes;
+    for (uint32_t i = 0; i < 60; ++i) {
+        const float x = (i % 2) ? 1e-44f : 0.0f, y = (i % 3) ? 1e-38f : 0.0f;
+        boxes.push_back({{x, y, float(i % 5)}, {x, y, float(i % 5)}, 0x1000ull * (i + 1), i, i});
+    }
+    auto bytes = build_bottom_level(boxes, uint32_t(boxes.size()));
+    auto h = read_bottom_level_header(bytes);
+    ASSERT_TRUE(h.header) << h.error;
+    EXPECT_EQ(h.header->reference_count, boxes.size());
+    std::vector<int> seen(boxes.size());
+    for (uint32_t k = 0; k < h.header->reference_count; ++k) {
+        ClusterReference r;
+        std::memcpy(&r, bytes.data() + h.header->references_offset + sizeof r * k, sizeof r);
+        ASSERT_LT(r.reference_index, boxes.size());
+        ++seen[r.reference_index];
+    }
+    for (int s : seen) EXPECT_EQ(s, 1);
+}
+
 TEST(ClusterBlas, CorruptBottomLevelBytesAreRejected) {
     std::vector<ClusterBox> boxes;
     for (uint32_t i = 0; i < 50; ++i)
