@@ -14,9 +14,8 @@
 // resting is "hot" for its next unwatches (8 after its first such write, twice as many after each
 // later one): made writable then, in runs of pages, rather than left to fault one page at a time
 // (a frame loop rewriting its vertices after each wait would otherwise pay a fault per page per
-// frame). Memory going away
-// (vkFreeMemory) must be forgotten first (forget_memory), or a later mapping at its addresses
-// would be taken for protected.
+// frame). Memory going away (vkFreeMemory) must be forgotten first (forget_memory), or a later
+// mapping at its addresses would be taken for protected.
 //
 // The handler is async-signal-safe: it looks pages up in a fixed open-addressing table and copies
 // into fixed slots, both mapped once when the guard starts, and takes no lock. Entries are only
