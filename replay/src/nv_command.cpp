@@ -317,66 +317,101 @@ void NvReplay::feed(const CommandRef& ref, const engine::ExecutionRecord& record
     }
 }
 
-void NvReplay::build(const fbs::CmdBuildAccelerationStructureNV& b, const CommandRef& ref,
-                     const ReplayLocation& where) {
-    c_.lay_in_snapshots(b.inputs(), where);
-    ++c_.report.counts.nv_builds;
-    auto buffer = [&](uint64_t handle, uint64_t offset, const std::string& field) -> Resolved {
-        if (handle == 0) return {};
-        auto whole = c_.memory.buffer_range(handle, 0, kWholeSize);
-        if (!whole) {
-            c_.add_finding({kRuleUnknownBuffer,
-                            field + " names buffer " + hex(handle) +
-                                ", which is not bound to memory in the trace",
-                            FindingSource::kReplay, where, -1, 0});
-            return {0, 0, 0};
+namespace {
+
+// A buffer and offset as a build names them: the address, the bytes from there to the buffer's
+// end and its usage; a finding when no bound buffer has that handle.
+Resolved resolve_buffer(NvReplayContext& c, uint64_t handle, uint64_t offset,
+                        const std::string& field, const ReplayLocation& where) {
+    if (handle == 0) return {};
+    auto whole = c.memory.buffer_range(handle, 0, kWholeSize);
+    if (!whole) {
+        c.add_finding(
+            {kRuleUnknownBuffer,
+             field + " names buffer " + hex(handle) + ", which is not bound to memory in the trace",
+             FindingSource::kReplay, where, -1, 0});
+        return {0, 0, 0};
+    }
+    Resolved r;
+    const uint64_t size = whole->end - whole->begin;
+    r.address = whole->begin + offset;
+    r.available = offset >= size ? 0 : size - offset;
+    if (const engine::MemoryRegion* region = c.memory.image().find_region(whole->begin))
+        r.usage = region->usage;
+    return r;
+}
+
+void resolve_geometries(NvReplayContext& c, const fbs::CmdBuildAccelerationStructureNV& b,
+                        engine::NvBuildCommand& cmd, const ReplayLocation& where) {
+    if (!b.info() || !b.info()->geometries()) return;
+    uint32_t g = 0;
+    for (const fbs::GeometryNV* geo : *b.info()->geometries()) {
+        engine::NvGeometry& out = cmd.info.geometries[g];
+        const std::string at = "pInfo->pGeometries[" + std::to_string(g++) + "]";
+        if (const fbs::GeometryTrianglesNV* t = geo->triangles();
+            t && out.type == VK_GEOMETRY_TYPE_TRIANGLES_NV) {
+            Resolved v =
+                resolve_buffer(c, t->vertex_data(), t->vertex_offset(), at + ".vertexData", where);
+            out.triangles.vertex_address = v.address;
+            out.triangles.vertex_available = v.available;
+            Resolved i =
+                resolve_buffer(c, t->index_data(), t->index_offset(), at + ".indexData", where);
+            out.triangles.index_address = i.address;
+            out.triangles.index_available = i.available;
+            Resolved m = resolve_buffer(c, t->transform_data(), t->transform_offset(),
+                                        at + ".transformData", where);
+            out.triangles.transform_address = m.address;
+            out.triangles.transform_available = m.available;
         }
-        Resolved r;
-        const uint64_t size = whole->end - whole->begin;
-        r.address = whole->begin + offset;
-        r.available = offset >= size ? 0 : size - offset;
-        if (const engine::MemoryRegion* region = c_.memory.image().find_region(whole->begin))
-            r.usage = region->usage;
-        return r;
-    };
-    engine::NvBuildCommand cmd;
-    cmd.info = counts_of(b.info());
-    if (b.info() && b.info()->geometries()) {
-        uint32_t g = 0;
-        for (const fbs::GeometryNV* geo : *b.info()->geometries()) {
-            engine::NvGeometry& out = cmd.info.geometries[g];
-            const std::string at = "pInfo->pGeometries[" + std::to_string(g++) + "]";
-            if (const fbs::GeometryTrianglesNV* t = geo->triangles();
-                t && out.type == VK_GEOMETRY_TYPE_TRIANGLES_NV) {
-                Resolved v = buffer(t->vertex_data(), t->vertex_offset(), at + ".vertexData");
-                out.triangles.vertex_address = v.address;
-                out.triangles.vertex_available = v.available;
-                Resolved i = buffer(t->index_data(), t->index_offset(), at + ".indexData");
-                out.triangles.index_address = i.address;
-                out.triangles.index_available = i.available;
-                Resolved m =
-                    buffer(t->transform_data(), t->transform_offset(), at + ".transformData");
-                out.triangles.transform_address = m.address;
-                out.triangles.transform_available = m.available;
-            }
-            if (const fbs::GeometryAabbNV* a = geo->aabbs();
-                a && out.type == VK_GEOMETRY_TYPE_AABBS_NV) {
-                Resolved r = buffer(a->aabb_data(), a->offset(), at + ".aabbData");
-                out.aabbs.address = r.address;
-                out.aabbs.available = r.available;
-            }
+        if (const fbs::GeometryAabbNV* a = geo->aabbs();
+            a && out.type == VK_GEOMETRY_TYPE_AABBS_NV) {
+            Resolved r = resolve_buffer(c, a->aabb_data(), a->offset(), at + ".aabbData", where);
+            out.aabbs.address = r.address;
+            out.aabbs.available = r.available;
         }
     }
-    const Resolved instances = buffer(b.instance_data(), b.instance_offset(), "instanceData");
+}
+
+// The build's geometries, instances and scratch, by address.
+void resolve_inputs(NvReplayContext& c, const fbs::CmdBuildAccelerationStructureNV& b,
+                    engine::NvBuildCommand& cmd, const ReplayLocation& where) {
+    cmd.info = counts_of(b.info());
+    resolve_geometries(c, b, cmd, where);
+    const Resolved instances =
+        resolve_buffer(c, b.instance_data(), b.instance_offset(), "instanceData", where);
     cmd.instance_address = instances.address;
     cmd.instance_available = instances.available;
     cmd.instance_buffer_ray_tracing_usage =
         instances.usage == 0 || (instances.usage & kRayTracingUsage);
-    const Resolved scratch = buffer(b.scratch(), b.scratch_offset(), "scratch");
+    const Resolved scratch = resolve_buffer(c, b.scratch(), b.scratch_offset(), "scratch", where);
     cmd.scratch_address = scratch.address;
     cmd.scratch_available = scratch.available;
     cmd.scratch_ray_tracing_usage = scratch.usage == 0 || (scratch.usage & kRayTracingUsage);
     cmd.update = b.update();
+}
+
+// With the capturing driver's scratch requirement in the trace, the scratch rule is that one:
+// the engine ran with the whole buffer, its scratch access is cut to what the driver needs of
+// the `available` bytes, and too few of them is a finding.
+void apply_driver_scratch(engine::ExecutionRecord& record, const engine::NvBuildCommand& cmd,
+                          uint64_t available, uint64_t driver_scratch) {
+    for (engine::MemoryAccess& a : record.accesses)
+        if (a.field == "scratch") a.end = a.begin + std::min(available, driver_scratch);
+    if (driver_scratch <= available) return;
+    record.findings.push_back(
+        engine::Finding{cmd.update ? engine::kVuidNvUpdateScratch : engine::kVuidNvBuildScratch,
+                        "scratch holds " + std::to_string(available) +
+                            " bytes after scratchOffset; the driver's " +
+                            (cmd.update ? "update" : "build") + " scratch requirement is " +
+                            std::to_string(driver_scratch),
+                        -1, cmd.scratch_address});
+}
+
+}  // namespace
+
+NvReplay::Object* NvReplay::bind_build_structures(const fbs::CmdBuildAccelerationStructureNV& b,
+                                                  engine::NvBuildCommand& cmd,
+                                                  const ReplayLocation& where) {
     Object* dst = object(b.dst());
     if (!dst) {
         c_.add_finding({kRuleUnknownObject,
@@ -396,6 +431,38 @@ void NvReplay::build(const fbs::CmdBuildAccelerationStructureNV& b, const Comman
             cmd.src.handle = b.src();
         }
     }
+    return dst;
+}
+
+void NvReplay::note_sizes(const Object& dst, const engine::NvBuildCommand& cmd,
+                          const engine::ExecutionRecord& record, const ReplayLocation& where) {
+    NvSizeComparison s;
+    s.where = where;
+    s.handle = dst.handle;
+    s.top_level = cmd.info.type == VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV;
+    const engine::NvMemoryRequirements need =
+        engine::nv_memory_requirements(dst.created ? *dst.created : cmd.info);
+    s.primitives = s.top_level ? cmd.info.instance_count : 0;
+    for (const engine::NvGeometry& g : cmd.info.geometries)
+        s.primitives += g.type == VK_GEOMETRY_TYPE_AABBS_NV ? g.aabbs.count
+                        : g.triangles.index_type == VK_INDEX_TYPE_NONE_NV
+                            ? g.triangles.vertex_count / 3
+                            : g.triangles.index_count / 3;
+    s.driver_object = dst.driver_object;
+    s.driver_build_scratch = dst.driver_build_scratch;
+    s.engine_object = need.object;
+    s.engine_build_scratch = need.build_scratch;
+    s.engine_bytes = record.ops[0].dst_size;
+    c_.report.nv_sizes.push_back(s);
+}
+
+void NvReplay::build(const fbs::CmdBuildAccelerationStructureNV& b, const CommandRef& ref,
+                     const ReplayLocation& where) {
+    c_.lay_in_snapshots(b.inputs(), where);
+    ++c_.report.counts.nv_builds;
+    engine::NvBuildCommand cmd;
+    resolve_inputs(c_, b, cmd, where);
+    Object* dst = bind_build_structures(b, cmd, where);
     // The scratch rule is about the capturing driver's requirement when the trace holds it.
     const uint64_t driver_scratch =
         dst ? (cmd.update ? dst->driver_update_scratch : dst->driver_build_scratch) : 0;
@@ -411,19 +478,7 @@ void NvReplay::build(const fbs::CmdBuildAccelerationStructureNV& b, const Comman
     const uint64_t engine_ns = uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(
                                             std::chrono::steady_clock::now() - started)
                                             .count());
-    if (driver_sizes) {
-        for (engine::MemoryAccess& a : record.accesses)
-            if (a.field == "scratch") a.end = a.begin + std::min(available, driver_scratch);
-        if (driver_scratch > available)
-            record.findings.push_back(
-                engine::Finding{cmd.update ? engine::kVuidNvUpdateScratch
-                                           : engine::kVuidNvBuildScratch,
-                                "scratch holds " + std::to_string(available) +
-                                    " bytes after scratchOffset; the driver's " +
-                                    (cmd.update ? "update" : "build") + " scratch requirement is " +
-                                    std::to_string(driver_scratch),
-                                -1, cmd.scratch_address});
-    }
+    if (driver_sizes) apply_driver_scratch(record, cmd, available, driver_scratch);
     engine_findings(record, where);
     feed(ref, record, where);
     if (dst && record.ops[0].executed) {
@@ -431,26 +486,7 @@ void NvReplay::build(const fbs::CmdBuildAccelerationStructureNV& b, const Comman
         dst->opaque = false;
         dst->built_flags = cmd.info.flags;
     }
-    if (dst) {
-        NvSizeComparison s;
-        s.where = where;
-        s.handle = dst->handle;
-        s.top_level = cmd.info.type == VK_ACCELERATION_STRUCTURE_TYPE_TOP_LEVEL_NV;
-        const engine::NvMemoryRequirements need =
-            engine::nv_memory_requirements(dst->created ? *dst->created : cmd.info);
-        s.primitives = s.top_level ? cmd.info.instance_count : 0;
-        for (const engine::NvGeometry& g : cmd.info.geometries)
-            s.primitives += g.type == VK_GEOMETRY_TYPE_AABBS_NV ? g.aabbs.count
-                            : g.triangles.index_type == VK_INDEX_TYPE_NONE_NV
-                                ? g.triangles.vertex_count / 3
-                                : g.triangles.index_count / 3;
-        s.driver_object = dst->driver_object;
-        s.driver_build_scratch = dst->driver_build_scratch;
-        s.engine_object = need.object;
-        s.engine_build_scratch = need.build_scratch;
-        s.engine_bytes = record.ops[0].dst_size;
-        c_.report.nv_sizes.push_back(s);
-    }
+    if (dst) note_sizes(*dst, cmd, record, where);
     if (c_.observe) c_.observe(std::move(record), engine_ns);
 }
 

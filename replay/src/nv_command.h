@@ -86,6 +86,12 @@ private:
     Object* object(uint64_t handle);
     bool ensure_shadow(Object& o, const ReplayLocation& where, uint64_t at_least = 0);
     engine::NvObjectBinding binding(Object& o, const ReplayLocation& where);
+    // A build's dst and src bound into `cmd` (findings for unknown handles); dst, or null.
+    Object* bind_build_structures(const fbs::CmdBuildAccelerationStructureNV& build,
+                                  engine::NvBuildCommand& cmd, const ReplayLocation& where);
+    // The build's sizes beside the driver's, for the report (NvSizeComparison).
+    void note_sizes(const Object& dst, const engine::NvBuildCommand& cmd,
+                    const engine::ExecutionRecord& record, const ReplayLocation& where);
     std::optional<uint64_t> resolve(uint64_t driver_handle, bool bottom_only);
     void feed(const CommandRef& ref, const engine::ExecutionRecord& record,
               const ReplayLocation& where);
