@@ -161,16 +161,16 @@ struct App {
     }
 };
 
-int run(uint32_t frames, uint32_t submissionsPerFrame) {
-    App app;
-    app.createInstance();
-    if (!app.vk.hasClusterExtension()) {
-        std::printf("VK_NV_cluster_acceleration_structure is not supported\n");
-        return 3;
-    }
-    app.vk.createDevice(false, 1, app.surface);
-    app.createSwapchain();
+// The served scene's buffers (served_scene.h), its inputs written, and the build commands over
+// their addresses.
+struct SceneBuffers {
+    Buffer vertices, indices, infos, counts, dstAddresses, dstSizes, implicitData, scratch,
+        blasInfos, blasDstAddresses, blasDstSizes, blasImplicit, blasScratch;
+    served_scene::Inputs in;
+    served_scene::Commands commands;
+};
 
+void makeScene(App& app, SceneBuffers& b) {
     served_scene::Commands sizing;
     served_scene::makeCommands({}, sizing);
     VkAccelerationStructureBuildSizesInfoKHR clusterSizes{
@@ -186,38 +186,147 @@ int run(uint32_t frames, uint32_t submissionsPerFrame) {
         VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
     const VkBufferUsageFlags storage = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
     const served_scene::Inputs probe = served_scene::makeInputs({});
-    Buffer vertices = app.vk.makeBuffer(probe.vertices.size() * 4, input);
-    Buffer indices = app.vk.makeBuffer(probe.indices.size() * 4, input);
-    Buffer infos = app.vk.makeBuffer(served_scene::kInfoStride * served_scene::kMaxClusters, input);
-    Buffer counts = app.vk.makeBuffer(8, input);
-    Buffer dstAddresses = app.vk.makeBuffer(8 * served_scene::kMaxClusters, storage | input);
-    Buffer dstSizes = app.vk.makeBuffer(4 * served_scene::kMaxClusters, storage);
-    Buffer implicitData = app.vk.makeBuffer(clusterSizes.accelerationStructureSize, storage);
-    Buffer scratch = app.vk.makeBuffer(clusterSizes.buildScratchSize, 0);
-    Buffer blasInfos =
+    b.vertices = app.vk.makeBuffer(probe.vertices.size() * 4, input);
+    b.indices = app.vk.makeBuffer(probe.indices.size() * 4, input);
+    b.infos = app.vk.makeBuffer(served_scene::kInfoStride * served_scene::kMaxClusters, input);
+    b.counts = app.vk.makeBuffer(8, input);
+    b.dstAddresses = app.vk.makeBuffer(8 * served_scene::kMaxClusters, storage | input);
+    b.dstSizes = app.vk.makeBuffer(4 * served_scene::kMaxClusters, storage);
+    b.implicitData = app.vk.makeBuffer(clusterSizes.accelerationStructureSize, storage);
+    b.scratch = app.vk.makeBuffer(clusterSizes.buildScratchSize, 0);
+    b.blasInfos =
         app.vk.makeBuffer(sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV),
                           input);
-    Buffer blasDstAddresses = app.vk.makeBuffer(8, storage);
-    Buffer blasDstSizes = app.vk.makeBuffer(4, storage);
-    Buffer blasImplicit = app.vk.makeBuffer(blasSizes.accelerationStructureSize, storage);
-    Buffer blasScratch = app.vk.makeBuffer(blasSizes.buildScratchSize, 0);
-    const served_scene::Addresses a{vertices.address,     indices.address,
-                                    infos.address,        counts.address,
-                                    dstAddresses.address, dstSizes.address,
-                                    implicitData.address, scratch.address,
-                                    blasInfos.address,    blasDstAddresses.address,
-                                    blasDstSizes.address, blasImplicit.address,
-                                    blasScratch.address};
-    served_scene::Inputs in = served_scene::makeInputs(a);
-    std::memcpy(vertices.mapped, in.vertices.data(), in.vertices.size() * 4);
-    std::memcpy(indices.mapped, in.indices.data(), in.indices.size() * 4);
-    std::memcpy(counts.mapped, in.counts, sizeof in.counts);
-    std::memcpy(blasInfos.mapped, &in.blasInfo, sizeof in.blasInfo);
-    served_scene::Commands commands;
-    served_scene::makeCommands(a, commands);
-    Buffer fillTarget =
-        app.vk.makeBuffer(64 * 16,
-                          VK_BUFFER_USAGE_TRANSFER_DST_BIT);  // 64 bytes per extra submission
+    b.blasDstAddresses = app.vk.makeBuffer(8, storage);
+    b.blasDstSizes = app.vk.makeBuffer(4, storage);
+    b.blasImplicit = app.vk.makeBuffer(blasSizes.accelerationStructureSize, storage);
+    b.blasScratch = app.vk.makeBuffer(blasSizes.buildScratchSize, 0);
+    const served_scene::Addresses a{b.vertices.address,     b.indices.address,
+                                    b.infos.address,        b.counts.address,
+                                    b.dstAddresses.address, b.dstSizes.address,
+                                    b.implicitData.address, b.scratch.address,
+                                    b.blasInfos.address,    b.blasDstAddresses.address,
+                                    b.blasDstSizes.address, b.blasImplicit.address,
+                                    b.blasScratch.address};
+    b.in = served_scene::makeInputs(a);
+    std::memcpy(b.vertices.mapped, b.in.vertices.data(), b.in.vertices.size() * 4);
+    std::memcpy(b.indices.mapped, b.in.indices.data(), b.in.indices.size() * 4);
+    std::memcpy(b.counts.mapped, b.in.counts, sizeof b.in.counts);
+    std::memcpy(b.blasInfos.mapped, &b.in.blasInfo, sizeof b.in.blasInfo);
+    served_scene::makeCommands(a, b.commands);
+}
+
+// The previous frame's fence was waited: the host may rewrite the build's inputs.
+void writeFrameInputs(SceneBuffers& b, uint32_t frame) {
+    for (uint32_t c = 0; c < served_scene::kClusterCount; ++c) {
+        auto info = b.in.infos[c];
+        info.clusterID += kFrameIdStride * frame;
+        std::memcpy(b.infos.mapped + c * served_scene::kInfoStride, &info, sizeof info);
+    }
+    std::memset(b.dstSizes.mapped, 0, 4 * served_scene::kMaxClusters);
+}
+
+// Submissions before the frame's own: a fill each, 64 bytes apart (no barrier needed between).
+void submitExtraFills(App& app, const std::vector<VkCommandBuffer>& extra, const Buffer& fillTarget,
+                      uint32_t frame) {
+    for (size_t k = 0; k < extra.size(); ++k) {
+        VkCommandBuffer e = extra[k];
+        VkCommandBufferBeginInfo once{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr,
+                                      VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT, nullptr};
+        CHECK(vkBeginCommandBuffer(e, &once));
+        vkCmdFillBuffer(e, fillTarget.buffer, 64 * k, 64, frame);
+        CHECK(vkEndCommandBuffer(e));
+        VkSubmitInfo fill{
+            VK_STRUCTURE_TYPE_SUBMIT_INFO, nullptr, 0, nullptr, nullptr, 1, &e, 0, nullptr};
+        CHECK(vkQueueSubmit(app.vk.queue, 1, &fill, VK_NULL_HANDLE));
+    }
+}
+
+// The builds, then the swapchain image cleared to a colour per frame (the window shows the
+// loop advancing).
+void recordFrame(App& app, const SceneBuffers& b, uint32_t image, uint32_t frame) {
+    VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr,
+                                   VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT, nullptr};
+    CHECK(vkBeginCommandBuffer(app.cb, &begin));
+    app.vk.cmdBuildClusters(app.cb, &b.commands.clusters);
+    VkMemoryBarrier built{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr,
+                          VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
+                          VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_KHR |
+                              VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_INDIRECT_COMMAND_READ_BIT};
+    vkCmdPipelineBarrier(app.cb, VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                         VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, 0, 1, &built, 0,
+                         nullptr, 0, nullptr);
+    app.vk.cmdBuildClusters(app.cb, &b.commands.blas);
+    VkMemoryBarrier toHost{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr,
+                           VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR, VK_ACCESS_HOST_READ_BIT};
+    vkCmdPipelineBarrier(app.cb, VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                         VK_PIPELINE_STAGE_HOST_BIT, 0, 1, &toHost, 0, nullptr, 0, nullptr);
+    app.imageBarrier(app.images[image], VK_IMAGE_LAYOUT_UNDEFINED,
+                     VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 0, VK_ACCESS_TRANSFER_WRITE_BIT,
+                     VK_PIPELINE_STAGE_TRANSFER_BIT, VK_PIPELINE_STAGE_TRANSFER_BIT);
+    const VkClearColorValue color{{float(frame % 3) / 2.0f, 0.25f, 0.5f, 1.0f}};
+    const VkImageSubresourceRange whole{VK_IMAGE_ASPECT_COLOR_BIT, 0, 1, 0, 1};
+    vkCmdClearColorImage(app.cb, app.images[image], VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, &color, 1,
+                         &whole);
+    app.imageBarrier(app.images[image], VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
+                     VK_IMAGE_LAYOUT_PRESENT_SRC_KHR, VK_ACCESS_TRANSFER_WRITE_BIT, 0,
+                     VK_PIPELINE_STAGE_TRANSFER_BIT, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT);
+    CHECK(vkEndCommandBuffer(app.cb));
+}
+
+// Submits the frame (waiting for its image, signalling its render-done semaphore) and presents
+// it; false when the present failed.
+bool submitAndPresent(App& app, uint32_t image, uint32_t frame) {
+    const VkPipelineStageFlags waitStage = VK_PIPELINE_STAGE_TRANSFER_BIT;
+    VkSubmitInfo submit{
+        VK_STRUCTURE_TYPE_SUBMIT_INFO, nullptr, 1, &app.imageAvailable, &waitStage, 1, &app.cb, 1,
+        &app.renderDone[image]};
+    CHECK(vkQueueSubmit(app.vk.queue, 1, &submit, app.frameDone));
+    VkPresentInfoKHR present{VK_STRUCTURE_TYPE_PRESENT_INFO_KHR,
+                             nullptr,
+                             1,
+                             &app.renderDone[image],
+                             1,
+                             &app.swapchain,
+                             &image,
+                             nullptr};
+    const VkResult presented = vkQueuePresentKHR(app.vk.queue, &present);
+    if (presented != VK_SUCCESS && presented != VK_SUBOPTIMAL_KHR) {
+        std::fprintf(stderr, "present_frames_app: vkQueuePresentKHR of frame %u failed: %d\n",
+                     frame, int(presented));
+        return false;
+    }
+    return true;
+}
+
+// After the frame's fence: every cluster of the frame was built (its size is not 0).
+bool everyClusterBuilt(const SceneBuffers& b, uint32_t frame) {
+    for (uint32_t c = 0; c < served_scene::kClusterCount; ++c) {
+        uint32_t size = 0;
+        std::memcpy(&size, b.dstSizes.mapped + 4 * c, 4);
+        if (size == 0) {
+            std::fprintf(
+                stderr,
+                "present_frames_app: frame %u: cluster %u was not built (dstSizesArray is 0)\n",
+                frame, c);
+            return false;
+        }
+    }
+    return true;
+}
+
+int run(uint32_t frames, uint32_t submissionsPerFrame) {
+    App app;
+    app.createInstance();
+    if (!app.vk.hasClusterExtension()) {
+        std::printf("VK_NV_cluster_acceleration_structure is not supported\n");
+        return 3;
+    }
+    app.vk.createDevice(false, 1, app.surface);
+    app.createSwapchain();
+    SceneBuffers scene;
+    makeScene(app, scene);
+    Buffer fillTarget = app.vk.makeBuffer(64 * 16, VK_BUFFER_USAGE_TRANSFER_DST_BIT);
     std::vector<VkCommandBuffer> extra(submissionsPerFrame - 1);
     if (!extra.empty()) {
         VkCommandBufferAllocateInfo extraInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO,
@@ -225,99 +334,17 @@ int run(uint32_t frames, uint32_t submissionsPerFrame) {
                                               uint32_t(extra.size())};
         CHECK(vkAllocateCommandBuffers(app.vk.device, &extraInfo, extra.data()));
     }
-
     for (uint32_t frame = 0; frame < frames; ++frame) {
-        // The previous frame's fence was waited: the host may rewrite the build's inputs.
-        for (uint32_t c = 0; c < served_scene::kClusterCount; ++c) {
-            auto info = in.infos[c];
-            info.clusterID += kFrameIdStride * frame;
-            std::memcpy(infos.mapped + c * served_scene::kInfoStride, &info, sizeof info);
-        }
-        std::memset(dstSizes.mapped, 0, 4 * served_scene::kMaxClusters);
-        for (size_t k = 0; k < extra.size(); ++k) {
-            VkCommandBuffer e = extra[k];
-            VkCommandBufferBeginInfo once{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr,
-                                          VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT, nullptr};
-            CHECK(vkBeginCommandBuffer(e, &once));
-            vkCmdFillBuffer(e, fillTarget.buffer, 64 * k, 64,
-                            frame);  // apart: no barrier needed between them
-            CHECK(vkEndCommandBuffer(e));
-            VkSubmitInfo fill{
-                VK_STRUCTURE_TYPE_SUBMIT_INFO, nullptr, 0, nullptr, nullptr, 1, &e, 0, nullptr};
-            CHECK(vkQueueSubmit(app.vk.queue, 1, &fill, VK_NULL_HANDLE));
-        }
+        writeFrameInputs(scene, frame);
+        submitExtraFills(app, extra, fillTarget, frame);
         uint32_t image = 0;
         CHECK(vkAcquireNextImageKHR(app.vk.device, app.swapchain, 10 * kSecond, app.imageAvailable,
                                     VK_NULL_HANDLE, &image));
-
-        VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr,
-                                       VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT, nullptr};
-        CHECK(vkBeginCommandBuffer(app.cb, &begin));
-        app.vk.cmdBuildClusters(app.cb, &commands.clusters);
-        VkMemoryBarrier built{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr,
-                              VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
-                              VK_ACCESS_ACCELERATION_STRUCTURE_READ_BIT_KHR |
-                                  VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_INDIRECT_COMMAND_READ_BIT};
-        vkCmdPipelineBarrier(app.cb, VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
-                             VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR, 0, 1, &built,
-                             0, nullptr, 0, nullptr);
-        app.vk.cmdBuildClusters(app.cb, &commands.blas);
-        VkMemoryBarrier toHost{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr,
-                               VK_ACCESS_ACCELERATION_STRUCTURE_WRITE_BIT_KHR,
-                               VK_ACCESS_HOST_READ_BIT};
-        vkCmdPipelineBarrier(app.cb, VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
-                             VK_PIPELINE_STAGE_HOST_BIT, 0, 1, &toHost, 0, nullptr, 0, nullptr);
-        // A colour per frame, so the window shows the loop advancing.
-        app.imageBarrier(app.images[image], VK_IMAGE_LAYOUT_UNDEFINED,
-                         VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 0, VK_ACCESS_TRANSFER_WRITE_BIT,
-                         VK_PIPELINE_STAGE_TRANSFER_BIT, VK_PIPELINE_STAGE_TRANSFER_BIT);
-        const VkClearColorValue color{{float(frame % 3) / 2.0f, 0.25f, 0.5f, 1.0f}};
-        const VkImageSubresourceRange whole{VK_IMAGE_ASPECT_COLOR_BIT, 0, 1, 0, 1};
-        vkCmdClearColorImage(app.cb, app.images[image], VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
-                             &color, 1, &whole);
-        app.imageBarrier(app.images[image], VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
-                         VK_IMAGE_LAYOUT_PRESENT_SRC_KHR, VK_ACCESS_TRANSFER_WRITE_BIT, 0,
-                         VK_PIPELINE_STAGE_TRANSFER_BIT, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT);
-        CHECK(vkEndCommandBuffer(app.cb));
-
-        const VkPipelineStageFlags waitStage = VK_PIPELINE_STAGE_TRANSFER_BIT;
-        VkSubmitInfo submit{VK_STRUCTURE_TYPE_SUBMIT_INFO,
-                            nullptr,
-                            1,
-                            &app.imageAvailable,
-                            &waitStage,
-                            1,
-                            &app.cb,
-                            1,
-                            &app.renderDone[image]};
-        CHECK(vkQueueSubmit(app.vk.queue, 1, &submit, app.frameDone));
-        VkPresentInfoKHR present{VK_STRUCTURE_TYPE_PRESENT_INFO_KHR,
-                                 nullptr,
-                                 1,
-                                 &app.renderDone[image],
-                                 1,
-                                 &app.swapchain,
-                                 &image,
-                                 nullptr};
-        const VkResult presented = vkQueuePresentKHR(app.vk.queue, &present);
-        if (presented != VK_SUCCESS && presented != VK_SUBOPTIMAL_KHR) {
-            std::fprintf(stderr, "present_frames_app: vkQueuePresentKHR of frame %u failed: %d\n",
-                         frame, int(presented));
-            return 2;
-        }
+        recordFrame(app, scene, image, frame);
+        if (!submitAndPresent(app, image, frame)) return 2;
         CHECK(vkWaitForFences(app.vk.device, 1, &app.frameDone, VK_TRUE, 30 * kSecond));
         CHECK(vkResetFences(app.vk.device, 1, &app.frameDone));
-        for (uint32_t c = 0; c < served_scene::kClusterCount; ++c) {
-            uint32_t size = 0;
-            std::memcpy(&size, dstSizes.mapped + 4 * c, 4);
-            if (size == 0) {
-                std::fprintf(
-                    stderr,
-                    "present_frames_app: frame %u: cluster %u was not built (dstSizesArray is 0)\n",
-                    frame, c);
-                return 2;
-            }
-        }
+        if (!everyClusterBuilt(scene, frame)) return 2;
     }
     std::printf("presented %u frames\n", frames);
     return 0;
