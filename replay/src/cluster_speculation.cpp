@@ -15,15 +15,6 @@ namespace clastrace::replay::detail {
 
 bool ClusterRunAhead::skip_checks_for_tests = false;
 
-void RecentContents::keep(uint64_t hash, const uint8_t* data, size_t size) {
-    if (size > max_bytes_ / 4) return;  // one big content would push out everything else
-    if (auto it = by_hash_.find(hash); it != by_hash_.end()) {
-        order_.splice(order_.begin(), order_, it->second);
-        return;
-    }
-    keep(hash, std::make_shared<const std::vector<uint8_t>>(data, data + size));
-}
-
 void RecentContents::keep(uint64_t hash, Bytes bytes) {
     if (!bytes || bytes->size() > max_bytes_ / 4) return;
     auto [it, fresh] = by_hash_.try_emplace(hash);

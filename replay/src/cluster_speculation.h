@@ -40,16 +40,14 @@
 
 namespace clastrace::replay::detail {
 
-// The bytes of contents records the replay read recently, least recently used dropped first,
-// so a command running ahead gets its snapshots without asking the reader (whose budget and
-// damage list must see the calls of a one-thread replay, no more). Shared: a run's task keeps
-// the bytes it lays in after the replay thread dropped them here.
+// Contents bytes by hash, least recently used dropped first: the record stage's answers
+// (replayer_record_stage.h), so that a content several records name is asked of the reader
+// once. Shared: a record and a run ahead keep the bytes they hold after they are dropped here.
 class RecentContents {
 public:
     using Bytes = std::shared_ptr<const std::vector<uint8_t>>;
     explicit RecentContents(uint64_t max_bytes) : max_bytes_(max_bytes) {}
-    void keep(uint64_t hash, const uint8_t* data, size_t size);
-    // The same, with the bytes copied already (the record stage's thread made them).
+    // Bytes larger than a quarter of the bound are not kept (they would push out the rest).
     void keep(uint64_t hash, Bytes bytes);
     Bytes find(uint64_t hash);  // null when not kept
 
