@@ -282,16 +282,23 @@ struct Triangle4Float32 {
     triangle4_edge_functions(x, y, &u, &v, &w);
     const Float4 zero = detail::splat(0.0f);
     // The conditions combined in the lanes and moved out as two masks (one a condition: 13).
-    const detail::Mask4 plain = detail::finite_mask(u) & detail::finite_mask(v) &
-                                detail::finite_mask(w) & detail::nonzero_mask(u) &
-                                detail::nonzero_mask(v) & detail::nonzero_mask(w);
-    // No zero among them (and none NaN): a hit has all three of one sign.
+    // The scalar test's double fallback takes the lanes with an edge function exactly 0 or not
+    // finite: |u| + |v| + |w| is finite only where all three are (NaN and infinity carry through
+    // the sum), and the least of |u|, |v|, |w| is 0 only where one is. (A finite sum past FLT_MAX
+    // sends its lane there too, where the scalar test misses it as the lanes would: its edge
+    // functions are of mixed signs or their sum, the determinant, overflows.)
+    const Float4 abs_u = detail::abs4(u), abs_v = detail::abs4(v), abs_w = detail::abs4(w);
+    const detail::Mask4 plain =
+        detail::le_mask((abs_u + abs_v) + abs_w, detail::splat(std::numeric_limits<float>::max())) &
+        detail::lt_mask(zero, detail::min4(detail::min4(abs_u, abs_v), abs_w));
+    // A hit: all three of one sign and a finite determinant. A finite determinant has no NaN or
+    // infinity among its terms, and all three strictly of one sign are none 0 and sum to no 0:
+    // such lanes are plain, with a determinant neither 0 nor infinite (no test of those apart).
     const detail::Mask4 one_sign = detail::lt_mask(zero, detail::min4(detail::min4(u, v), w)) |
                                    detail::lt_mask(detail::max4(detail::max4(u, v), w), zero);
     const Float4 det = (u + v) + w;
-    const detail::Mask4 det_ok = detail::finite_mask(det) & detail::nonzero_mask(det);
     out->fallback = used & ~detail::lanes(plain);
-    out->hits = used & detail::lanes(plain & one_sign & det_ok);
+    out->hits = used & detail::lanes(one_sign & detail::finite_mask(det));
     if (out->hits == 0) return;
     // Only hits need t, the barycentrics and the magnitudes (the error of the barycentrics):
     // most groups a ray enters have none (2.85 groups, 0.88 hits a ray).
