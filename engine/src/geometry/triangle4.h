@@ -21,6 +21,7 @@
 #include "geometry/ray.h"
 #include "simd4.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -43,6 +44,14 @@ static_assert(sizeof(Triangle4) == 192);
 inline void lane_vertices(const Triangle4& t, int k, float out[9]) {
 #pragma GCC unroll 9
     for (int c = 0; c < 9; ++c) out[c] = t.v[c][k];
+}
+
+// The largest magnitude of lane k's nine coordinates (as the max of lane_vertices' nine).
+inline float lane_largest_magnitude(const Triangle4& t, int k) {
+    float largest = 0.0f;
+#pragma GCC unroll 9
+    for (int c = 0; c < 9; ++c) largest = std::max(largest, std::fabs(t.v[c][k]));
+    return largest;
 }
 
 // The ray in the test's terms, prepared once per traversal of one object.
