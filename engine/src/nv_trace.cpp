@@ -426,22 +426,26 @@ bool replaces(const NvHit& best, double t, double tmax, uint32_t instance, uint3
     return primitive < best.primitive_index;
 }
 
-// The float32 error bound of NvHit::t_error: 8 ulps of the largest magnitude that enters
-// the driver's arithmetic (object-space primitive coordinates and origin, and the terms of
-// the world-to-object transform), over the largest direction component, plus 8 ulps of t.
-// (Loops unrolled: a closest hit computes this once or more per ray.) `o_is_wo`: `o` is the
-// world origin itself (an identity's plain ray, make_plain_object_rays), whose transform
-// terms, |wo[r]| each, are then among |o[a]| already.
-double float_t_error(const Instance& inst, const float wo[3], const double o[3], const double d[3],
-                     const float* v, bool aabb, double t, bool o_is_wo) {
-    double scale = 0.0;
-#pragma GCC unroll 3
-    for (int a = 0; a < 3; ++a) scale = std::max(scale, std::fabs(o[a]));
-    // A box's six bounds, a triangle's nine coordinates.
+// The largest magnitude among a primitive's coordinates: a box's six bounds, a triangle's nine.
+float largest_coordinate(const float* v, bool aabb) {
     float largest = 0.0f;
 #pragma GCC unroll 6
     for (int i = 0; i < 6; ++i) largest = std::max(largest, std::fabs(v[i]));
     if (!aabb) largest = std::max({largest, std::fabs(v[6]), std::fabs(v[7]), std::fabs(v[8])});
+    return largest;
+}
+
+// The float32 error bound of NvHit::t_error: 8 ulps of the largest magnitude that enters
+// the driver's arithmetic (object-space primitive coordinates, `largest` of them, and origin,
+// and the terms of the world-to-object transform), over the largest direction component, plus
+// 8 ulps of t. (Loops unrolled: a closest hit computes this once or more per ray.) `o_is_wo`:
+// `o` is the world origin itself (an identity's plain ray, make_plain_object_rays), whose
+// transform terms, |wo[r]| each, are then among |o[a]| already.
+double float_t_error(const Instance& inst, const float wo[3], const double o[3], const double d[3],
+                     float largest, double t, bool o_is_wo) {
+    double scale = 0.0;
+#pragma GCC unroll 3
+    for (int a = 0; a < 3; ++a) scale = std::max(scale, std::fabs(o[a]));
     scale = std::max(scale, double(largest));
 #pragma GCC unroll 3
     for (int r = 0; r < 3 && !o_is_wo; ++r) {
@@ -667,7 +671,8 @@ public:
             if (!geometry::intersect_triangle(rd, v, v + 3, v + 6, *tmax_, &cand)) return false;
             if (!facing_kind(cand.front, &kind)) return false;
         }
-        return take(cand, kind, opaque, v, geometry_index, primitive_index);
+        const auto largest = [this, v] { return largest_coordinate(v, b_.aabbs); };
+        return take(cand, kind, opaque, largest, geometry_index, primitive_index);
     }
 
     // Lane k of `group`, a hit of triangle4_float32: what intersect_triangle_float32 gives for
@@ -686,9 +691,9 @@ public:
                                          geometry::barycentric_float_error(f.unsheared[k],
                                                                            f.sheared[k], f.det[k]),
                                          front};
-        float v[9];
-        geometry::lane_vertices(group, k, v);
-        return take(cand, kind, opaque, v, geometry_index, group.primitive[k]);
+        // The lane's coordinates read in place (a copy of the nine cost 18 instructions a hit).
+        const auto largest = [&group, k] { return geometry::lane_largest_magnitude(group, k); };
+        return take(cand, kind, opaque, largest, geometry_index, group.primitive[k]);
     }
 
 private:
@@ -711,8 +716,10 @@ private:
 
     // A candidate the exact test and the flag rules accept: kept when it replaces the best so
     // far (the tie rule), recorded, and *tmax_ lowered to it; true: stop (first hit taken).
+    // `largest()`: the largest magnitude of its coordinates (float_t_error), for a recorded hit.
+    template <class Largest>
     [[gnu::always_inline]] bool take(const geometry::TriangleHit& cand, uint32_t kind, bool opaque,
-                                     const float* v, uint32_t geometry_index,
+                                     const Largest& largest, uint32_t geometry_index,
                                      uint32_t primitive_index) {
         if (best_ && !replaces(*best_, cand.t, *tmax_, index_, geometry_index, primitive_index))
             return false;
@@ -731,7 +738,7 @@ private:
             best_->hit_kind = kind;
             best_->opaque = opaque;
             best_->t_error = float(float_t_error(inst_, world_origin_, rays_.exact.o, rays_.exact.d,
-                                                 v, b_.aabbs, cand.t, plain_));
+                                                 largest(), cand.t, plain_));
         }
         *tmax_ = cand.t;
         tmax_up_ = detail::float_at_or_above(cand.t);

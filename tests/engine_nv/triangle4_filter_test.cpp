@@ -214,6 +214,40 @@ TEST(Triangle4Filter, KeepsNanAndDegenerateTrianglesForTheExactTest) {
     EXPECT_EQ(tally.hits, 1u);  // triangle 3, the unit right triangle in z = 0
 }
 
+// The float32 test leaves to the scalar test every lane with an edge function exactly 0 or not
+// finite (a NaN or infinite coordinate, a ray through a vertex), and answers no lane otherwise
+// than the scalar test, also where the edge functions are finite but their sum, the
+// determinant, overflows (coordinates near 1e19: each edge function ~1e38).
+TEST(Triangle4Filter, Float32LeavesZeroAndNonFiniteEdgeFunctionsToTheScalarTest) {
+    const float s = 1e19f, inf = HUGE_VALF;
+    const float tris[4][9] = {
+        {1.0f, 0.0f, 0.0f, NAN, 1.0f, 0.0f, -1.0f, -1.0f, 0.0f},    // a NaN coordinate
+        {inf, 0.0f, 0.0f, -1.0f, 1.0f, 0.0f, -1.0f, -1.0f, 0.0f},   // an infinite one
+        {0.0f, 0.0f, 0.0f, -1.0f, 1.0f, 0.0f, -1.0f, -1.0f, 0.0f},  // the ray through p0
+        {s, 0.0f, 0.0f, -s, s, 0.0f, -s, -s, 0.0f},                 // |det| past FLT_MAX
+    };
+    Triangle4 group{};
+    for (int k = 0; k < 4; ++k) {
+        group.geometry[k] = group.primitive[k] = uint32_t(k);
+        for (int c = 0; c < 9; ++c) group.v[c][k] = tris[k][c];
+    }
+    const double o[3] = {0.0, 0.0, -1.0}, d[3] = {0.0, 0.0, 1.0};
+    const PreparedRay r = prepare_ray(o, d, 0.0, HUGE_VAL, TraversalMode::kFloat32);
+    const Triangle4Ray ray = make_triangle4_ray(r);
+    ASSERT_TRUE(ray.usable);
+    Triangle4Float32 f;
+    triangle4_float32(ray, group, 0xFu, &f);
+    EXPECT_EQ(f.fallback & 0x7u, 0x7u) << "NaN, infinite and zero edge functions";
+    EXPECT_EQ(f.hits & 0x8u, 0u) << "an overflowing determinant is no hit";
+    TriangleHit hit;
+    EXPECT_FALSE(intersect_triangle_float32(r, tris[3], tris[3] + 3, tris[3] + 6, HUGE_VAL, &hit));
+    EXPECT_TRUE(intersect_triangle_float32(r, tris[2], tris[2] + 3, tris[2] + 6, HUGE_VAL, &hit))
+        << "a ray through a vertex hits (the double fallback)";
+    Tally tally;
+    check_float32_group(group, tris, r, HUGE_VAL, &tally);
+    EXPECT_EQ(tally.float32_different, 0u);
+}
+
 TEST(Triangle4Filter, LanesPastTheLeafAreNeverCandidates) {
     EXPECT_EQ(group_lanes(0, 1), 0x1u);
     EXPECT_EQ(group_lanes(0, 4), 0xFu);
