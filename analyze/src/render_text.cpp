@@ -29,8 +29,8 @@ void for_each_used_op_type(const AnalysisReport& r, F f) {
         if (t.commands > 0 || t.objects > 0) f(t);
 }
 
-void sizes_section(const AnalysisReport& r, std::ostream& out) {
-    heading(out, "Sizes by op type (engine bytes per object)");
+// Engine bytes per object, by op type.
+void engine_sizes_table(const AnalysisReport& r, std::ostream& out) {
     TextTable t;
     t.column("op type", Align::kLeft)
         .column("cmds")
@@ -46,27 +46,32 @@ void sizes_section(const AnalysisReport& r, std::ostream& out) {
                fmtu::fixed(fmtu::ratio(d.sum(), s.triangles), 2)});
     });
     t.print(out, kTextColumns);
+}
 
+// Captured driver sizes beside the engine's, where dstSizesArray was captured.
+void driver_sizes_table(const AnalysisReport& r, std::ostream& out) {
     bool any_driver = false;
     for_each_used_op_type(r, [&](const OpTypeSizes& s) {
         any_driver |= s.objects_with_driver_bytes > 0;
     });
-    if (any_driver) {
-        out << "\nDriver sizes (objects whose dstSizesArray was captured)\n";
-        TextTable d;
-        d.column("op type", Align::kLeft).column("objects").column("driver B").column("engine B");
-        d.column("driver/engine").column("min").column("median").column("max");
-        for_each_used_op_type(r, [&](const OpTypeSizes& s) {
-            if (s.objects_with_driver_bytes == 0) return;
-            const ValueDistribution& v = s.driver_bytes;
-            d.row({op_type_short(s.op_type), num(s.objects_with_driver_bytes), num(v.sum()),
-                   num(s.engine_bytes_of_driver_objects),
-                   fmtu::fixed(fmtu::ratio(v.sum(), s.engine_bytes_of_driver_objects), 3),
-                   num(v.min()), num(v.median()), num(v.max())});
-        });
-        d.print(out, kTextColumns);
-    }
+    if (!any_driver) return;
+    out << "\nDriver sizes (objects whose dstSizesArray was captured)\n";
+    TextTable d;
+    d.column("op type", Align::kLeft).column("objects").column("driver B").column("engine B");
+    d.column("driver/engine").column("min").column("median").column("max");
+    for_each_used_op_type(r, [&](const OpTypeSizes& s) {
+        if (s.objects_with_driver_bytes == 0) return;
+        const ValueDistribution& v = s.driver_bytes;
+        d.row({op_type_short(s.op_type), num(s.objects_with_driver_bytes), num(v.sum()),
+               num(s.engine_bytes_of_driver_objects),
+               fmtu::fixed(fmtu::ratio(v.sum(), s.engine_bytes_of_driver_objects), 3), num(v.min()),
+               num(v.median()), num(v.max())});
+    });
+    d.print(out, kTextColumns);
+}
 
+// The build-sizes query's worst case against what the objects used.
+void worst_case_table(const AnalysisReport& r, std::ostream& out) {
     out << "\nWorst case (build-sizes query) vs actual; dstImplicitData allocated vs used;\n"
            "scratch allocated vs required by the query\n";
     TextTable w;
@@ -88,7 +93,10 @@ void sizes_section(const AnalysisReport& r, std::ostream& out) {
                num(s.scratch_required)});
     });
     w.print(out, kTextColumns);
+}
 
+// One log2 histogram of object bytes per op type.
+void object_bytes_histograms(const AnalysisReport& r, std::ostream& out) {
     for_each_used_op_type(r, [&](const OpTypeSizes& s) {
         if (s.objects == 0) return;
         out << format("\nHistogram of object bytes, {} ({} objects)\n", op_type_short(s.op_type),
@@ -108,7 +116,10 @@ void sizes_section(const AnalysisReport& r, std::ostream& out) {
             out << format("  {:>41} {:>10} {}\n", range, bins[b], std::string(bar, '#'));
         }
     });
+}
 
+// Sizes by positionTruncateBitCount.
+void truncation_table(const AnalysisReport& r, std::ostream& out) {
     if (!r.truncation.empty()) {
         out << "\npositionTruncateBitCount and size (cluster and template objects)\n";
         TextTable t2;
@@ -124,7 +135,10 @@ void sizes_section(const AnalysisReport& r, std::ostream& out) {
                         : "-"});
         t2.print(out, kTextColumns);
     }
+}
 
+// The trace's raw, deduplicated and compressed bytes.
+void trace_bytes_table(const AnalysisReport& r, std::ostream& out) {
     if (r.trace_bytes) {
         const TraceBytes& b = *r.trace_bytes;
         out << "\nTrace bytes\n";
@@ -139,6 +153,16 @@ void sizes_section(const AnalysisReport& r, std::ostream& out) {
                 fmtu::fixed(fmtu::ratio(b.raw, b.compressed), 2)});
         t3.print(out, kTextColumns);
     }
+}
+
+void sizes_section(const AnalysisReport& r, std::ostream& out) {
+    heading(out, "Sizes by op type (engine bytes per object)");
+    engine_sizes_table(r, out);
+    driver_sizes_table(r, out);
+    worst_case_table(r, out);
+    object_bytes_histograms(r, out);
+    truncation_table(r, out);
+    trace_bytes_table(r, out);
 }
 
 void commands_section(const AnalysisReport& r, std::ostream& out) {

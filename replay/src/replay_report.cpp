@@ -276,74 +276,118 @@ std::string format_text(const ReplayReport& r) {
     return s;
 }
 
+namespace {
+
+nlohmann::json row_json(const ReplayFinding& f) {
+    return {{"rule", f.rule},
+            {"source", finding_source_name(f.source)},
+            {"where", where_json(f.where)},
+            {"op_index", f.op_index},
+            {"address", hex(f.address)},
+            {"message", f.message}};
+}
+
+nlohmann::json row_json(const ReplayNote& n) {
+    return {{"rule", n.rule},
+            {"where", where_json(n.where)},
+            {"op_index", n.op_index},
+            {"address", hex(n.address)},
+            {"message", n.message}};
+}
+
+nlohmann::json row_json(const SizeComparison& c) {
+    nlohmann::json ops = nlohmann::json::array();
+    for (const SizeComparison::OpSize& o : c.first_ops)
+        ops.push_back({{"op", o.op}, {"captured", o.captured}, {"engine", o.engine}});
+    return {{"where", where_json(c.where)},
+            {"first_ops", ops},
+            {"op_type", c.op_type},
+            {"ops", c.ops},
+            {"ops_compared", c.ops_compared},
+            {"captured_bytes", c.captured_bytes},
+            {"engine_bytes", c.engine_bytes},
+            {"sizes_equal", c.sizes_equal},
+            {"scratch_span", c.scratch_span},
+            {"destination_span", c.destination_span},
+            {"spans_queried", c.spans_queried}};
+}
+
+nlohmann::json row_json(const NvSizeComparison& c) {
+    return {{"where", where_json(c.where)},
+            {"handle", hex(c.handle)},
+            {"level", c.top_level ? "top" : "bottom"},
+            {"primitives", c.primitives},
+            {"driver_object", c.driver_object},
+            {"driver_build_scratch", c.driver_build_scratch},
+            {"engine_object", c.engine_object},
+            {"engine_build_scratch", c.engine_build_scratch},
+            {"engine_bytes", c.engine_bytes}};
+}
+
+nlohmann::json row_json(const RayCheckResult& c) {
+    return {{"label", c.label},
+            {"acceleration_structure", hex(c.acceleration_structure)},
+            {"after_submission", c.after_submission},
+            {"checked", c.checked},
+            {"why_not", c.why_not},
+            {"rays", c.rays},
+            {"agree_hit", c.agree_hit},
+            {"agree_miss", c.agree_miss},
+            {"agree_hit_float_precision", c.float_precision},
+            {"tie", c.tie},
+            {"edge", c.edge},
+            {"disagree", c.disagree},
+            {"disagree_far_tiny", c.disagree_far_tiny},
+            {"disagree_degenerate", c.disagree_degenerate},
+            {"disagree_unexplained", c.disagree_unexplained},
+            {"traversal", c.traversal},
+            {"max_rel_t", c.max_rel_t}};
+}
+
+nlohmann::json row_json(const NotReplayed& n) {
+    return {{"where", where_json(n.where)}, {"reason", n.reason}};
+}
+
+template <typename Row>
+nlohmann::json rows_json(const std::vector<Row>& rows) {
+    nlohmann::json out = nlohmann::json::array();
+    for (const Row& row : rows) out.push_back(row_json(row));
+    return out;
+}
+
+nlohmann::json counts_json(const ReplayCounts& n) {
+    return {{"records", n.records},
+            {"submissions", n.submissions},
+            {"commands", n.commands},
+            {"skipped_commands", n.skipped_commands},
+            {"cluster_commands", n.cluster_commands},
+            {"cluster_ops", n.cluster_ops},
+            {"copies", n.copies},
+            {"barriers", n.barriers},
+            {"accesses", n.accesses},
+            {"snapshots_applied", n.snapshots_applied},
+            {"snapshot_bytes", n.snapshot_bytes},
+            {"snapshots_outside_memory", n.snapshots_outside_memory},
+            {"driver_bvh_ranges", n.driver_bvh_ranges},
+            {"driver_bvh_bytes_kept", n.driver_bvh_bytes_kept},
+            {"outputs_compared", n.outputs_compared},
+            {"output_bytes_compared", n.output_bytes_compared},
+            {"addresses_translated", n.addresses_translated},
+            {"peak_image_bytes", n.peak_image_bytes},
+            {"nv_builds", n.nv_builds},
+            {"deserializations", n.deserializations},
+            {"handles_translated", n.handles_translated},
+            {"presents", n.presents},
+            {"acquires", n.acquires},
+            {"unsatisfied_semaphore_waits", n.unsatisfied_semaphore_waits},
+            {"khr_builds", n.khr_builds},
+            {"khr_copies", n.khr_copies},
+            {"query_answers", n.query_answers}};
+}
+
+}  // namespace
+
 nlohmann::json to_json(const ReplayReport& r) {
-    nlohmann::json findings = nlohmann::json::array();
-    for (const ReplayFinding& f : r.findings)
-        findings.push_back({{"rule", f.rule},
-                            {"source", finding_source_name(f.source)},
-                            {"where", where_json(f.where)},
-                            {"op_index", f.op_index},
-                            {"address", hex(f.address)},
-                            {"message", f.message}});
-    nlohmann::json notes = nlohmann::json::array();
-    for (const ReplayNote& n : r.notes)
-        notes.push_back({{"rule", n.rule},
-                         {"where", where_json(n.where)},
-                         {"op_index", n.op_index},
-                         {"address", hex(n.address)},
-                         {"message", n.message}});
-    nlohmann::json hazards = to_json(r.hazards, r.hazards_over_cap);
-    nlohmann::json sizes = nlohmann::json::array();
-    for (const SizeComparison& c : r.sizes) {
-        nlohmann::json ops = nlohmann::json::array();
-        for (const SizeComparison::OpSize& o : c.first_ops)
-            ops.push_back({{"op", o.op}, {"captured", o.captured}, {"engine", o.engine}});
-        sizes.push_back({{"where", where_json(c.where)},
-                         {"first_ops", ops},
-                         {"op_type", c.op_type},
-                         {"ops", c.ops},
-                         {"ops_compared", c.ops_compared},
-                         {"captured_bytes", c.captured_bytes},
-                         {"engine_bytes", c.engine_bytes},
-                         {"sizes_equal", c.sizes_equal},
-                         {"scratch_span", c.scratch_span},
-                         {"destination_span", c.destination_span},
-                         {"spans_queried", c.spans_queried}});
-    }
-    nlohmann::json nv_sizes = nlohmann::json::array();
-    for (const NvSizeComparison& c : r.nv_sizes)
-        nv_sizes.push_back({{"where", where_json(c.where)},
-                            {"handle", hex(c.handle)},
-                            {"level", c.top_level ? "top" : "bottom"},
-                            {"primitives", c.primitives},
-                            {"driver_object", c.driver_object},
-                            {"driver_build_scratch", c.driver_build_scratch},
-                            {"engine_object", c.engine_object},
-                            {"engine_build_scratch", c.engine_build_scratch},
-                            {"engine_bytes", c.engine_bytes}});
-    nlohmann::json ray_checks = nlohmann::json::array();
-    for (const RayCheckResult& c : r.ray_checks)
-        ray_checks.push_back({{"label", c.label},
-                              {"acceleration_structure", hex(c.acceleration_structure)},
-                              {"after_submission", c.after_submission},
-                              {"checked", c.checked},
-                              {"why_not", c.why_not},
-                              {"rays", c.rays},
-                              {"agree_hit", c.agree_hit},
-                              {"agree_miss", c.agree_miss},
-                              {"agree_hit_float_precision", c.float_precision},
-                              {"tie", c.tie},
-                              {"edge", c.edge},
-                              {"disagree", c.disagree},
-                              {"disagree_far_tiny", c.disagree_far_tiny},
-                              {"disagree_degenerate", c.disagree_degenerate},
-                              {"disagree_unexplained", c.disagree_unexplained},
-                              {"traversal", c.traversal},
-                              {"max_rel_t", c.max_rel_t}});
-    nlohmann::json not_replayed = nlohmann::json::array();
-    for (const NotReplayed& n : r.not_replayed)
-        not_replayed.push_back({{"where", where_json(n.where)}, {"reason", n.reason}});
-    const ReplayCounts& n = r.counts;
     return {
         {"trace", r.trace},
         {"device", r.device},
@@ -351,46 +395,19 @@ nlohmann::json to_json(const ReplayReport& r) {
         {"clean", r.clean()},
         {"hazards_checked", r.hazards_checked},
         {"outputs_verified", r.verified},
-        {"findings", findings},
+        {"findings", rows_json(r.findings)},
         {"findings_over_cap", r.findings_over_cap},
         {"hazards_merged", r.hazards_merged},
-        {"hazards", hazards},
-        {"notes", notes},
+        {"hazards", to_json(r.hazards, r.hazards_over_cap)},
+        {"notes", rows_json(r.notes)},
         {"notes_over_cap", r.notes_over_cap},
-        {"sizes", sizes},
-        {"not_replayed", not_replayed},
+        {"sizes", rows_json(r.sizes)},
+        {"not_replayed", rows_json(r.not_replayed)},
         {"rows_over_cap", r.rows_over_cap},
-        {"nv_sizes", nv_sizes},
-        {"ray_checks", ray_checks},
+        {"nv_sizes", rows_json(r.nv_sizes)},
+        {"ray_checks", rows_json(r.ray_checks)},
         {"trace_damage", r.trace_damage},
-        {"counts",
-         {{"records", n.records},
-          {"submissions", n.submissions},
-          {"commands", n.commands},
-          {"skipped_commands", n.skipped_commands},
-          {"cluster_commands", n.cluster_commands},
-          {"cluster_ops", n.cluster_ops},
-          {"copies", n.copies},
-          {"barriers", n.barriers},
-          {"accesses", n.accesses},
-          {"snapshots_applied", n.snapshots_applied},
-          {"snapshot_bytes", n.snapshot_bytes},
-          {"snapshots_outside_memory", n.snapshots_outside_memory},
-          {"driver_bvh_ranges", n.driver_bvh_ranges},
-          {"driver_bvh_bytes_kept", n.driver_bvh_bytes_kept},
-          {"outputs_compared", n.outputs_compared},
-          {"output_bytes_compared", n.output_bytes_compared},
-          {"addresses_translated", n.addresses_translated},
-          {"peak_image_bytes", n.peak_image_bytes},
-          {"nv_builds", n.nv_builds},
-          {"deserializations", n.deserializations},
-          {"handles_translated", n.handles_translated},
-          {"presents", n.presents},
-          {"acquires", n.acquires},
-          {"unsatisfied_semaphore_waits", n.unsatisfied_semaphore_waits},
-          {"khr_builds", n.khr_builds},
-          {"khr_copies", n.khr_copies},
-          {"query_answers", n.query_answers}}},
+        {"counts", counts_json(r.counts)},
     };
 }
 

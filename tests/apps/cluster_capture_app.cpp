@@ -409,127 +409,126 @@ void takeSigsegv() {
     if (sigaction(SIGSEGV, &action, nullptr) != 0) fail("sigaction");
 }
 
-int hostRewrite(Rewrite when, Placement place = Placement::kOwnMemory) {
-    Context c;
-    c.createInstance();
-    c.createDevice(/*timelineSemaphores=*/true);
+// One triangle cluster built from infos the host rewrites around the submission (hostRewrite):
+// its buffers, the infos' host pointer and the build's commands info.
+struct RewriteScene {
     VkClusterAccelerationStructureTriangleClusterInputNV triangleInput{};
-    triangleInput.sType =
-        VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
-    triangleInput.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
-    triangleInput.maxGeometryIndexValue = 0;
-    triangleInput.maxClusterUniqueGeometryCount = 1;
-    triangleInput.maxClusterTriangleCount = 1;
-    triangleInput.maxClusterVertexCount = 3;
-    triangleInput.maxTotalTriangleCount = 1;
-    triangleInput.maxTotalVertexCount = 3;
     VkClusterAccelerationStructureCommandsInfoNV build{};
+    VkClusterAccelerationStructureBuildTriangleClusterInfoNV cluster{};
+    Buffer counts, infos, vertices, indices, implicitData, scratch, dstAddresses, dstSizes;
+    uint8_t* infosHost = nullptr;
+};
+
+void describeOneTriangleBuild(RewriteScene& s) {
+    VkClusterAccelerationStructureTriangleClusterInputNV& in = s.triangleInput;
+    in.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
+    in.vertexFormat = VK_FORMAT_R32G32B32_SFLOAT;
+    in.maxGeometryIndexValue = 0;
+    in.maxClusterUniqueGeometryCount = 1;
+    in.maxClusterTriangleCount = 1;
+    in.maxClusterVertexCount = 3;
+    in.maxTotalTriangleCount = 1;
+    in.maxTotalVertexCount = 3;
+    VkClusterAccelerationStructureCommandsInfoNV& build = s.build;
     build.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
     build.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
     build.input.maxAccelerationStructureCount = 1;
     build.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
     build.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
-    build.input.opInput.pTriangleClusters = &triangleInput;
+    build.input.opInput.pTriangleClusters = &in;
+}
+
+void makeRewriteScene(Context& c, Placement place, RewriteScene& s) {
+    describeOneTriangleBuild(s);
     VkAccelerationStructureBuildSizesInfoKHR sizes{
         VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr, 0, 0, 0};
-    c.getBuildSizes(c.device, &build.input, &sizes);
+    c.getBuildSizes(c.device, &s.build.input, &sizes);
     if (!sizes.accelerationStructureSize || !sizes.buildScratchSize) fail("build sizes of 0");
 
     const VkBufferUsageFlags input =
         VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_BIT_KHR;
     const VkBufferUsageFlags storage = VK_BUFFER_USAGE_ACCELERATION_STRUCTURE_STORAGE_BIT_KHR;
-    Buffer counts = c.makeBuffer(4, input);
+    s.counts = c.makeBuffer(4, input);
     const bool paged = place != Placement::kOwnMemory;
     const VkDeviceSize infosAt = paged ? 8192 : 0;  // an interior page of a 32 KiB buffer
-    Buffer infos =
-        paged
-            ? c.makeBuffer(32768, input | storage)
-            : c.makeBuffer(sizeof(VkClusterAccelerationStructureBuildTriangleClusterInfoNV), input);
-    uint8_t* const infosHost = infos.mapped + infosAt;
-    const VkDeviceAddress infosAddress = infos.address + infosAt;
-    Buffer vertices = c.makeBuffer(9 * sizeof(float), input);
-    Buffer indices = c.makeBuffer(3 * sizeof(uint32_t), input);
-    Buffer implicitData = c.makeBuffer(sizes.accelerationStructureSize, storage);
-    Buffer scratch = c.makeBuffer(sizes.buildScratchSize, 0);
-    Buffer dstAddresses = c.makeBuffer(sizeof(VkDeviceAddress), storage);
-    Buffer dstSizes = c.makeBuffer(sizeof(uint32_t), storage);
+    s.infos = paged ? c.makeBuffer(32768, input | storage) : c.makeBuffer(sizeof(s.cluster), input);
+    s.infosHost = s.infos.mapped + infosAt;
+    const VkDeviceAddress infosAddress = s.infos.address + infosAt;
+    s.vertices = c.makeBuffer(9 * sizeof(float), input);
+    s.indices = c.makeBuffer(3 * sizeof(uint32_t), input);
+    s.implicitData = c.makeBuffer(sizes.accelerationStructureSize, storage);
+    s.scratch = c.makeBuffer(sizes.buildScratchSize, 0);
+    s.dstAddresses = c.makeBuffer(sizeof(VkDeviceAddress), storage);
+    s.dstSizes = c.makeBuffer(sizeof(uint32_t), storage);
     const uint32_t one = 1;
-    std::memcpy(counts.mapped, &one, sizeof one);
+    std::memcpy(s.counts.mapped, &one, sizeof one);
     const float triangle[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
-    std::memcpy(vertices.mapped, triangle, sizeof triangle);
+    std::memcpy(s.vertices.mapped, triangle, sizeof triangle);
     const uint32_t corners[3] = {0, 1, 2};
-    std::memcpy(indices.mapped, corners, sizeof corners);
-    VkClusterAccelerationStructureBuildTriangleClusterInfoNV cluster{};
+    std::memcpy(s.indices.mapped, corners, sizeof corners);
+    VkClusterAccelerationStructureBuildTriangleClusterInfoNV& cluster = s.cluster;
     cluster.clusterID = 10;
     cluster.triangleCount = 1;
     cluster.vertexCount = 3;
     cluster.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
     cluster.vertexBufferStride = 3 * sizeof(float);
-    cluster.indexBuffer = indices.address;
-    cluster.vertexBuffer = vertices.address;
-    std::memcpy(infosHost, &cluster, sizeof cluster);
+    cluster.indexBuffer = s.indices.address;
+    cluster.vertexBuffer = s.vertices.address;
+    std::memcpy(s.infosHost, &cluster, sizeof cluster);
+    VkClusterAccelerationStructureCommandsInfoNV& build = s.build;
     build.dstImplicitData =
-        place == Placement::kLayerWrites ? infosAddress + 1024 : implicitData.address;
-    build.scratchData = scratch.address;
-    build.dstAddressesArray = {dstAddresses.address, sizeof(VkDeviceAddress),
+        place == Placement::kLayerWrites ? infosAddress + 1024 : s.implicitData.address;
+    build.scratchData = s.scratch.address;
+    build.dstAddressesArray = {s.dstAddresses.address, sizeof(VkDeviceAddress),
                                sizeof(VkDeviceAddress)};
-    build.dstSizesArray = {dstSizes.address, sizeof(uint32_t), sizeof(uint32_t)};
+    build.dstSizesArray = {s.dstSizes.address, sizeof(uint32_t), sizeof(uint32_t)};
     build.srcInfosArray = {infosAddress, sizeof cluster, sizeof cluster};
-    build.srcInfosCount = counts.address;
+    build.srcInfosCount = s.counts.address;
+}
 
-    VkCommandBufferAllocateInfo allocInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr,
-                                          c.pool, VK_COMMAND_BUFFER_LEVEL_PRIMARY, 1};
-    VkCommandBuffer cb;
-    CHECK(vkAllocateCommandBuffers(c.device, &allocInfo, &cb));
-    VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr, 0,
-                                   nullptr};
-    CHECK(vkBeginCommandBuffer(cb, &begin));
-    c.cmdBuildClusters(cb, &build);
-    CHECK(vkEndCommandBuffer(cb));
-    VkFenceCreateInfo fenceInfo{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO, nullptr, 0};
-    VkFence fence;
-    CHECK(vkCreateFence(c.device, &fenceInfo, nullptr, &fence));
-    VkSubmitInfo submit{};
-    submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
-    submit.commandBufferCount = 1;
-    submit.pCommandBuffers = &cb;
-    auto rewrite = [&] {
-        cluster.clusterID = 20;  // the next frame's infos, written over this frame's
-        if (place == Placement::kNeighbour) {
-            std::memset(infosHost + 2048, 0x5A, 64);  // the same page, bytes no command reads
-        } else if (place == Placement::kThread) {
-            std::thread([&] { std::memcpy(infosHost, &cluster, sizeof cluster); }).join();
-        } else if (place != Placement::kLayerWrites) {
-            std::memcpy(infosHost, &cluster, sizeof cluster);
-        }
-    };
-    const uint64_t kForever = 30ull * 1000 * 1000 * 1000;
-    if (when == Rewrite::kBeforeRun) {
-        // The build waits for a timeline value the host signals only after rewriting the infos
-        // and making one more (empty) submission: the build has not run when the layer looks.
-        VkSemaphoreTypeCreateInfo type{VK_STRUCTURE_TYPE_SEMAPHORE_TYPE_CREATE_INFO, nullptr,
-                                       VK_SEMAPHORE_TYPE_TIMELINE, 0};
-        VkSemaphoreCreateInfo semaphoreInfo{VK_STRUCTURE_TYPE_SEMAPHORE_CREATE_INFO, &type, 0};
-        VkSemaphore gate;
-        CHECK(vkCreateSemaphore(c.device, &semaphoreInfo, nullptr, &gate));
-        const uint64_t open = 1;
-        VkTimelineSemaphoreSubmitInfo values{
-            VK_STRUCTURE_TYPE_TIMELINE_SEMAPHORE_SUBMIT_INFO, nullptr, 1, &open, 0, nullptr};
-        const VkPipelineStageFlags stage = VK_PIPELINE_STAGE_ALL_COMMANDS_BIT;
-        submit.pNext = &values;
-        submit.waitSemaphoreCount = 1;
-        submit.pWaitSemaphores = &gate;
-        submit.pWaitDstStageMask = &stage;
-        CHECK(vkQueueSubmit(c.queue, 1, &submit, fence));
-        rewrite();
-        CHECK(vkQueueSubmit(c.queue, 0, nullptr, VK_NULL_HANDLE));
-        VkSemaphoreSignalInfo signal{VK_STRUCTURE_TYPE_SEMAPHORE_SIGNAL_INFO, nullptr, gate, open};
-        CHECK(vkSignalSemaphore(c.device, &signal));
-        CHECK(vkWaitForFences(c.device, 1, &fence, VK_TRUE, kForever));
-        vkDestroySemaphore(c.device, gate, nullptr);
-        vkDestroyFence(c.device, fence, nullptr);
-        return 0;
+// The next frame's infos written over this frame's, by the way `place` names.
+void rewriteInfos(RewriteScene& s, Placement place) {
+    s.cluster.clusterID = 20;
+    if (place == Placement::kNeighbour) {
+        std::memset(s.infosHost + 2048, 0x5A, 64);  // the same page, bytes no command reads
+    } else if (place == Placement::kThread) {
+        std::thread([&] { std::memcpy(s.infosHost, &s.cluster, sizeof s.cluster); }).join();
+    } else if (place != Placement::kLayerWrites) {
+        std::memcpy(s.infosHost, &s.cluster, sizeof s.cluster);
     }
+}
+
+constexpr uint64_t kForever = 30ull * 1000 * 1000 * 1000;
+
+// The build waits for a timeline value the host signals only after rewriting the infos and
+// making one more (empty) submission: the build has not run when the layer looks.
+void rewriteBeforeRun(Context& c, RewriteScene& s, Placement place, VkSubmitInfo submit,
+                      VkFence fence) {
+    VkSemaphoreTypeCreateInfo type{VK_STRUCTURE_TYPE_SEMAPHORE_TYPE_CREATE_INFO, nullptr,
+                                   VK_SEMAPHORE_TYPE_TIMELINE, 0};
+    VkSemaphoreCreateInfo semaphoreInfo{VK_STRUCTURE_TYPE_SEMAPHORE_CREATE_INFO, &type, 0};
+    VkSemaphore gate;
+    CHECK(vkCreateSemaphore(c.device, &semaphoreInfo, nullptr, &gate));
+    const uint64_t open = 1;
+    VkTimelineSemaphoreSubmitInfo values{
+        VK_STRUCTURE_TYPE_TIMELINE_SEMAPHORE_SUBMIT_INFO, nullptr, 1, &open, 0, nullptr};
+    const VkPipelineStageFlags stage = VK_PIPELINE_STAGE_ALL_COMMANDS_BIT;
+    submit.pNext = &values;
+    submit.waitSemaphoreCount = 1;
+    submit.pWaitSemaphores = &gate;
+    submit.pWaitDstStageMask = &stage;
+    CHECK(vkQueueSubmit(c.queue, 1, &submit, fence));
+    rewriteInfos(s, place);
+    CHECK(vkQueueSubmit(c.queue, 0, nullptr, VK_NULL_HANDLE));
+    VkSemaphoreSignalInfo signal{VK_STRUCTURE_TYPE_SEMAPHORE_SIGNAL_INFO, nullptr, gate, open};
+    CHECK(vkSignalSemaphore(c.device, &signal));
+    CHECK(vkWaitForFences(c.device, 1, &fence, VK_TRUE, kForever));
+    vkDestroySemaphore(c.device, gate, nullptr);
+}
+
+// Submits the build, rewrites the infos before or after the fence wait, and submits again.
+int rewriteAroundWait(Context& c, RewriteScene& s, Rewrite when, Placement place,
+                      const VkSubmitInfo& submit, VkFence fence) {
     if (place == Placement::kAppHandler) {  // its handler comes after the layer's
         CHECK(vkQueueSubmit(c.queue, 1, &submit, fence));
         CHECK(vkWaitForFences(c.device, 1, &fence, VK_TRUE, kForever));
@@ -538,19 +537,51 @@ int hostRewrite(Rewrite when, Placement place = Placement::kOwnMemory) {
     }
     CHECK(vkQueueSubmit(c.queue, 1, &submit, fence));
     if (place == Placement::kAppHandler) appGuardPage[0] = 1;  // the app's own fault
-    if (when == Rewrite::kBeforeWait) rewrite();
+    if (when == Rewrite::kBeforeWait) rewriteInfos(s, place);
     CHECK(vkWaitForFences(c.device, 1, &fence, VK_TRUE, kForever));
     if (place == Placement::kAppHandler && appFaults != 1) {
         std::fprintf(stderr, "the application's SIGSEGV handler saw %d faults, not 1\n",
                      appFaults.load());
         return 4;
     }
-    if (when == Rewrite::kAfterWait) rewrite();
+    if (when == Rewrite::kAfterWait) rewriteInfos(s, place);
     CHECK(vkResetFences(c.device, 1, &fence));
     CHECK(vkQueueSubmit(c.queue, 1, &submit, fence));
     CHECK(vkWaitForFences(c.device, 1, &fence, VK_TRUE, kForever));
-    vkDestroyFence(c.device, fence, nullptr);
     return 0;
+}
+
+int hostRewrite(Rewrite when, Placement place = Placement::kOwnMemory) {
+    Context c;
+    c.createInstance();
+    c.createDevice(/*timelineSemaphores=*/true);
+    RewriteScene s;
+    makeRewriteScene(c, place, s);
+
+    VkCommandBufferAllocateInfo allocInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr,
+                                          c.pool, VK_COMMAND_BUFFER_LEVEL_PRIMARY, 1};
+    VkCommandBuffer cb;
+    CHECK(vkAllocateCommandBuffers(c.device, &allocInfo, &cb));
+    VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr, 0,
+                                   nullptr};
+    CHECK(vkBeginCommandBuffer(cb, &begin));
+    c.cmdBuildClusters(cb, &s.build);
+    CHECK(vkEndCommandBuffer(cb));
+    VkFenceCreateInfo fenceInfo{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO, nullptr, 0};
+    VkFence fence;
+    CHECK(vkCreateFence(c.device, &fenceInfo, nullptr, &fence));
+    VkSubmitInfo submit{};
+    submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
+    submit.commandBufferCount = 1;
+    submit.pCommandBuffers = &cb;
+    int rc = 0;
+    if (when == Rewrite::kBeforeRun) {
+        rewriteBeforeRun(c, s, place, submit, fence);
+    } else {
+        rc = rewriteAroundWait(c, s, when, place, submit, fence);
+    }
+    if (rc == 0) vkDestroyFence(c.device, fence, nullptr);
+    return rc;
 }
 
 // A compute dispatch with two storage buffers bound (one dynamic), for the layer's record of

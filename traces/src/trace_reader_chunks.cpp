@@ -321,47 +321,61 @@ bool TraceReader::Impl::advance_chunk() {
             continue;
         }
         if (!is_records) {
-            // Kinds added by a newer minor version are skipped; in a file this reader
-            // fully knows, an unknown kind is a records chunk whose label was changed.
-            if (version_minor <= format::kVersionMinor) {
-                report(TraceErrorCode::kBadChunk, here,
-                       "chunk " + std::to_string(h.chunk_number) + " has kind " +
-                           std::to_string(h.kind) + ", which format " +
-                           std::to_string(version_major) + "." + std::to_string(version_minor) +
-                           " does not define; its " + std::to_string(h.record_count) +
-                           " records are skipped");
-                ++stats.chunks_damaged;
-            }
+            skip_unknown_kind(here, h);
             continue;
         }
-        if (!skipped_since_chunk && h.chunk_number != expected_chunk_number) {
-            report(TraceErrorCode::kBadChunk, here,
-                   "chunk number " + std::to_string(h.chunk_number) + " where " +
-                       std::to_string(expected_chunk_number) +
-                       " was expected (chunks missing or reordered)");
-        }
-        if (!skipped_since_chunk && h.first_submission != next_submission) {
-            report(TraceErrorCode::kBadChunk, here,
-                   "chunk " + std::to_string(h.chunk_number) + " starts at submission " +
-                       std::to_string(h.first_submission) + " but " +
-                       std::to_string(next_submission) + " submissions precede it");
-        }
-        follow_chunk(h);
-        chunk = h;
-        chunk_offset = here;
-        chunk_loaded = true;
-        chunk_cut_short = false;
-        raw_evicted = false;
-        cursor = 0;
-        chunk_records_seen = 0;
-        chunk_submissions = 0;
-        chunk_broken_frames = 0;
-        scan_records_claimed += h.record_count;
-        ++stats.chunks_read;
-        stats.raw_bytes += h.raw_size;
-        stats.compressed_bytes += h.compressed_size;
+        check_chunk_sequence(here, h);
+        enter_chunk(here, h);
         return true;
     }
+}
+
+// Kinds added by a newer minor version are skipped; in a file this reader fully knows, an
+// unknown kind is a records chunk whose label was changed.
+void TraceReader::Impl::skip_unknown_kind(uint64_t here, const format::ChunkHeader& h) {
+    if (version_minor > format::kVersionMinor) return;
+    report(TraceErrorCode::kBadChunk, here,
+           "chunk " + std::to_string(h.chunk_number) + " has kind " + std::to_string(h.kind) +
+               ", which format " + std::to_string(version_major) + "." +
+               std::to_string(version_minor) + " does not define; its " +
+               std::to_string(h.record_count) + " records are skipped");
+    ++stats.chunks_damaged;
+}
+
+// A records chunk's number and first submission against those its predecessor implies
+// (unless a damaged chunk was skipped in between, whose count is unknown).
+void TraceReader::Impl::check_chunk_sequence(uint64_t here, const format::ChunkHeader& h) {
+    if (skipped_since_chunk) return;
+    if (h.chunk_number != expected_chunk_number) {
+        report(TraceErrorCode::kBadChunk, here,
+               "chunk number " + std::to_string(h.chunk_number) + " where " +
+                   std::to_string(expected_chunk_number) +
+                   " was expected (chunks missing or reordered)");
+    }
+    if (h.first_submission != next_submission) {
+        report(TraceErrorCode::kBadChunk, here,
+               "chunk " + std::to_string(h.chunk_number) + " starts at submission " +
+                   std::to_string(h.first_submission) + " but " + std::to_string(next_submission) +
+                   " submissions precede it");
+    }
+}
+
+// The decompressed records chunk at `here` becomes the one the cursor walks.
+void TraceReader::Impl::enter_chunk(uint64_t here, const format::ChunkHeader& h) {
+    follow_chunk(h);
+    chunk = h;
+    chunk_offset = here;
+    chunk_loaded = true;
+    chunk_cut_short = false;
+    raw_evicted = false;
+    cursor = 0;
+    chunk_records_seen = 0;
+    chunk_submissions = 0;
+    chunk_broken_frames = 0;
+    scan_records_claimed += h.record_count;
+    ++stats.chunks_read;
+    stats.raw_bytes += h.raw_size;
+    stats.compressed_bytes += h.compressed_size;
 }
 
 void TraceReader::Impl::follow_chunk(const format::ChunkHeader& h) {

@@ -365,6 +365,9 @@ struct TraceReader::Impl {
     // The chunk the next one is checked against (its number, its first submission), and
     // against which a repeated or reordered one is told.
     void follow_chunk(const format::ChunkHeader& h);
+    void skip_unknown_kind(uint64_t here, const format::ChunkHeader& h);
+    void check_chunk_sequence(uint64_t here, const format::ChunkHeader& h);
+    void enter_chunk(uint64_t here, const format::ChunkHeader& h);
 
     // False for a chunk that repeats or goes back (a duplicated or reordered chunk): its
     // records would hand out submissions already handed out, so they are skipped.
