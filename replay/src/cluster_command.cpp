@@ -11,6 +11,8 @@
 #include <cstddef>
 #include <cstdio>
 #include <cstring>
+#include <memory>
+#include <optional>
 #include <string_view>
 #include <unordered_set>
 
@@ -388,6 +390,15 @@ private:
     }
 };
 
+// A command's engine record and the accesses made of it for the sync model, together: the
+// model's feed keeps them until the model applied the call, so the accesses' field texts (views
+// into the record's field names and DriverSizedAccesses' own strings) are not copied.
+struct ModelAccesses {
+    explicit ModelAccesses(engine::ExecutionRecord&& ran) : record(std::move(ran)) {}
+    engine::ExecutionRecord record;
+    std::optional<DriverSizedAccesses> sized;
+};
+
 // A served traceable cluster BLAS: the capture's memory there holds the driver's BVH from now
 // on, so snapshots taken later of it must not replace the engine's object (ReplayMemory).
 void mark_driver_bvh(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
@@ -459,19 +470,24 @@ void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect
             continue;
         c.add_finding({f.rule, f.message, FindingSource::kEngine, c.where, f.op_index, f.address});
     }
+    std::shared_ptr<ModelAccesses> kept;  // with hazards checked, where the record went
+    const engine::ExecutionRecord* ran = &record;
     if (c.options.check_hazards) {
+        kept = std::make_shared<ModelAccesses>(std::move(record));
+        ran = &kept->record;
         // One call for the command: the model keeps each per-op array as one range.
         const bool implicit =
             info.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
         const bool explicit_mode =
             info.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
-        const DriverSizedAccesses sized(record, implicit,
-                                        explicit_mode ? explicit_destination_spans(info, record,
-                                                                                   sizes, c.memory)
-                                                      : std::vector<uint64_t>{},
-                                        sizes);
+        const DriverSizedAccesses& sized =
+            kept->sized.emplace(*ran, implicit,
+                                explicit_mode
+                                    ? explicit_destination_spans(info, *ran, sizes, c.memory)
+                                    : std::vector<uint64_t>{},
+                                sizes);
         c.report.counts.accesses += sized.accesses.size();
-        c.sync.record_accesses(c.ref, sized.accesses);
+        c.sync.record_accesses(c.ref, sized.accesses, kept);
         if (explicit_mode)  // rays through these BLASes read what the build may have written
             for (const Access& a : sized.accesses)
                 if (a.is_write && a.field.starts_with("*dstAddressesArray["))
@@ -483,9 +499,13 @@ void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect
                         {a.range.begin,
                          engine::sat_add(a.range.begin, build.implicit_object_room())});
     }
-    verify(build, info, record, sizes, c);
+    verify(build, info, *ran, sizes, c);
     mark_driver_bvh(build, c);
-    if (c.executed) *c.executed = std::move(record);
+    if (!c.executed) return;
+    if (kept)
+        *c.executed = kept->record;  // the model's thread may still read it
+    else
+        *c.executed = std::move(record);
 }
 
 }  // namespace clastrace::replay::detail

@@ -545,8 +545,7 @@ bool ClusterRunAhead::commit(ReplayMemory& memory, engine::ObjectDirectory& dire
     // its own directory hashed.
     for (const RunBuffers::Built& built : b.built) directory.copy_entry(b.directory, built.address);
     stood_ = true;
-    // A copy, made and freed on this thread; the run's own goes when a task reuses its buffers.
-    *record = b.result;
+    std::swap(*record, buffers_->result);
     if (engine_ns) *engine_ns = engine_ns_;
     return true;
 }

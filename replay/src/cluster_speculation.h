@@ -212,7 +212,8 @@ public:
 
     // At the command's turn, with its snapshots laid in and addresses translated: true when the
     // early run stands (the checks in the file comment); its bytes and objects then land in
-    // `memory` and `directory`, and its record and engine time go to *record and *engine_ns.
+    // `memory` and `directory`, its record is swapped into *record (an empty one: the turn
+    // takes the run's record instead of a copy) and its engine time goes to *engine_ns.
     // A run no worker has started yet runs here first, so whether it stands does not depend on
     // the schedule.
     bool commit(ReplayMemory& memory, engine::ObjectDirectory& directory,

@@ -126,6 +126,14 @@ void SyncModelFeed::record_accesses(const CommandRef& command, std::span<const A
     submit([command, kept = std::move(kept)](SyncModel& m) { m.record_accesses(command, kept); });
 }
 
+void SyncModelFeed::record_accesses(const CommandRef& command, std::span<const Access> accesses,
+                                    std::shared_ptr<const void> owner) {
+    if (!threaded()) return model_.record_accesses(command, accesses);
+    submit([command, accesses, owner = std::move(owner)](SyncModel& m) {
+        m.record_accesses(command, accesses);
+    });
+}
+
 void SyncModelFeed::record_copy(const CommandRef& command, const Access& source,
                                 const Access& destination) {
     if (!threaded()) return model_.record_copy(command, source, destination);

@@ -46,6 +46,10 @@ public:
                           std::span<const SemaphoreWait> waits = {});
     void record_access(const CommandRef& command, const Access& access);
     void record_accesses(const CommandRef& command, std::span<const Access> accesses);
+    // The same, for accesses that live in `owner` with the text their fields view: the feed
+    // keeps `owner` with the call until the model applied it, instead of copying them.
+    void record_accesses(const CommandRef& command, std::span<const Access> accesses,
+                         std::shared_ptr<const void> owner);
     void record_copy(const CommandRef& command, const Access& source, const Access& destination);
     void record_deserialize(const CommandRef& command, const Access& source,
                             const Access& destination);

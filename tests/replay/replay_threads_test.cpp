@@ -27,6 +27,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <memory>
 #include <mutex>
 #include <random>
 #include <string>
@@ -300,9 +301,20 @@ struct ThreadOfModel : replay::AddressResolver {
     }
 };
 
+// Accesses that hold their field's text, scribbled over when they are freed: a feed that let
+// them go before the model applied the call would hand it other names.
+struct OwnedAccesses {
+    std::string text;
+    std::vector<replay::Access> accesses;
+    ~OwnedAccesses() {
+        for (volatile char& c : text) c = 'X';
+    }
+};
+
 // A stream of accesses, barriers, submissions and host waits over a few hundred bytes, with
 // hazards of every class; each field's text is overwritten right after the call, so a feed that
-// kept only the caller's view would hand the model other names.
+// kept only the caller's view would hand the model other names, and a third of the accesses come
+// with an owner of their text that the caller lets go right after the call.
 std::vector<std::string> feed_stream(replay::detail::SyncModelFeed& feed) {
     using namespace replay;
     std::mt19937 random(7);
@@ -337,10 +349,18 @@ std::vector<std::string> feed_stream(replay::detail::SyncModelFeed& feed) {
                                           write ? writes[kind] : reads[kind],
                                           write,
                                           field}};
-            if (pick(2) == 0)
+            const uint32_t how = pick(3);
+            if (how == 0) {
                 feed.record_accesses(ref, accesses);
-            else
+            } else if (how == 1) {
                 feed.record_access(ref, accesses[0]);
+            } else {
+                auto owned = std::make_shared<OwnedAccesses>();
+                owned->text = field;
+                owned->accesses = accesses;
+                owned->accesses[0].field = owned->text;
+                feed.record_accesses(ref, owned->accesses, owned);
+            }
             field.assign(field.size(), 'X');
         }
         feed.end_submission({}, 100 + batch);
