@@ -30,6 +30,9 @@ namespace {
 constexpr uint32_t kKeyBits = 10;  // per axis; two radix passes of kDigitBits
 constexpr uint32_t kDigitBits = kKeyBits / 2;
 constexpr uint32_t kDigits = 1u << kDigitBits;
+// Counts of the six digits (low and high on each axis), kept twice while counting: even
+// triangles into the first six, odd ones into the second (count_keys says why).
+constexpr int kCountArrays = 12;
 
 // A node to split, its triangles' range in the orders, and which of the two order buffers
 // holds each axis's order over that range (bit k for axis k).
@@ -88,7 +91,8 @@ void count_digits(Int4 key, Digits& d, uint16_t (*hist)[kDigits]) {
 }
 
 // Sorts 0..n-1 by key (digits) on each axis k into order[k] (stable: equal keys stay in
-// increasing index order). hist[2k] / hist[2k+1] hold the counts of the low / high digits.
+// increasing index order). hist[2k] / hist[2k+1] hold the counts of the low / high digits,
+// hist[6 + h] more counts of hist[h]'s digits; the passes use hist[0..5] alone.
 void radix_sort3(const Digits* digits, uint32_t n, uint16_t (*hist)[kDigits],
                  uint8_t (*order)[kMaxTriangles]) {
     // Exclusive prefix sums (counts <= 256 fit 16 bits).
@@ -98,7 +102,8 @@ void radix_sort3(const Digits* digits, uint32_t n, uint16_t (*hist)[kDigits],
         __m128i carry = _mm_setzero_si128();
         for (uint32_t d = 0; d < kDigits; d += 8) {
             __m128i* const p = reinterpret_cast<__m128i*>(hist[h] + d);
-            __m128i x = _mm_loadu_si128(p);
+            const __m128i* const q = reinterpret_cast<const __m128i*>(hist[h + 6] + d);
+            __m128i x = _mm_add_epi16(_mm_loadu_si128(p), _mm_loadu_si128(q));
             x = _mm_add_epi16(x, _mm_slli_si128(x, 2));
             x = _mm_add_epi16(x, _mm_slli_si128(x, 4));
             x = _mm_add_epi16(x, _mm_slli_si128(x, 8));  // inclusive
@@ -111,7 +116,7 @@ void radix_sort3(const Digits* digits, uint32_t n, uint16_t (*hist)[kDigits],
     for (int h = 0; h < 6; ++h) {
         uint32_t sum = 0;
         for (uint32_t d = 0; d < kDigits; ++d) {
-            const uint32_t c = hist[h][d];
+            const uint32_t c = hist[h][d] + hist[h + 6][d];
             hist[h][d] = uint16_t(sum);
             sum += c;
         }
@@ -216,7 +221,7 @@ void fit_interior_boxes(BvhScratch& s, const uint16_t* interior, size_t count) {
     }
 }
 
-// The six digit counts set to 0 by 16-byte stores where the target has SSE2. GCC zeroes the
+// The digit counts set to 0 by 16-byte stores where the target has SSE2. GCC zeroes the
 // array (`= {}`, or a loop storing zeros it can see) with `rep stos`, microcoded, whose stores
 // the counting's loads of the same bytes right after cannot be forwarded from: they wait for
 // them to reach the cache. The empty asm hides that the stored value is zero.
@@ -225,17 +230,21 @@ void zero_counts(uint16_t (*hist)[kDigits]) {
     static_assert(kDigits % 8 == 0);
     __m128i zero = _mm_setzero_si128();
     asm("" : "+x"(zero));
-    for (int h = 0; h < 6; ++h)
+    for (int h = 0; h < kCountArrays; ++h)
         for (uint32_t d = 0; d < kDigits; d += 8)
             _mm_store_si128(reinterpret_cast<__m128i*>(hist[h] + d), zero);
 #else
-    std::memset(hist, 0, 6 * sizeof *hist);
+    std::memset(hist, 0, kCountArrays * sizeof *hist);
 #endif
 }
 
 // Each triangle's 10-bit keys per axis, monotone in its centroid (so sorting them sorts the
 // centroids up to ties inside one step of extent / 1024), as digits, and the digits' counts.
-// Halves again keep extents finite.
+// Halves again keep extents finite. Neighbouring triangles often share a digit (a cluster's
+// triangles come in mesh order), and the increments of one counter in a row wait for each
+// other through memory: the odd triangles count into their own six arrays, which halves those
+// chains (the device's Xeon built WusonOBJ 1.1-1.26x as fast with this; docs/benchmarks.md,
+// cluster build round 11).
 void count_keys(const BvhScratch& s, uint32_t n, Digits* digits, uint16_t (*hist)[kDigits]) {
     const Float4 half = splat(0.5f);
     const Float4 base = load4(s.centroid_min) * half;
@@ -243,17 +252,22 @@ void count_keys(const BvhScratch& s, uint32_t n, Digits* digits, uint16_t (*hist
         splat(float(1u << kKeyBits)) /
         (load4(s.centroid_max) * half - base);  // inf or NaN for a flat axis: keys 0
     const Float4 zero = splat(0.0f), top = splat(float((1u << kKeyBits) - 1));
-#pragma GCC unroll 2
-    for (uint32_t i = 0; i < n; ++i)
+    const auto key = [&](uint32_t i) {
         // max4(x, zero) turns NaN into 0.
-        count_digits(to_int(min4(max4((load4(s.centroid[i]) * half - base) * scale, zero), top)),
-                     digits[i], hist);
+        return to_int(min4(max4((load4(s.centroid[i]) * half - base) * scale, zero), top));
+    };
+    uint32_t i = 0;
+    for (; i + 1 < n; i += 2) {
+        count_digits(key(i), digits[i], hist);
+        count_digits(key(i + 1), digits[i + 1], hist + 6);
+    }
+    if (i < n) count_digits(key(i), digits[i], hist);
 }
 
 // The triangles in key order along each axis (ties in triangle order).
 void sort_along_axes(const BvhScratch& s, uint32_t n, uint8_t (*order)[kMaxTriangles]) {
     Digits digits[kMaxTriangles];
-    alignas(16) uint16_t hist[6][kDigits];
+    alignas(16) uint16_t hist[kCountArrays][kDigits];
     zero_counts(hist);
     count_keys(s, n, digits, hist);
     radix_sort3(digits, n, hist, order);
