@@ -594,6 +594,165 @@ void set_shared_encode_fields(const TriangleInfoView& info,
     in.omm_indices = omm;
 }
 
+// What an instantiation checks of its info alone, before reading the template.
+void check_instantiate_info(const VkClusterAccelerationStructureInstantiateClusterInfoNV& info,
+                            const VkClusterAccelerationStructureTriangleClusterInputNV& input,
+                            const EngineProperties& properties, Reporter& r) {
+    check_input(input, properties, r);
+    if (info.reserved != 0)
+        r.add("VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-reserved-10509",
+              "reserved is " + std::to_string(info.reserved) + ", not 0");
+}
+
+// An instantiation's inputs besides its scratch: the info, the template read and its header.
+struct InstanceSource {
+    const MemoryImage& memory;
+    const VkClusterAccelerationStructureInstantiateClusterInfoNV& info;
+    const VkClusterAccelerationStructureTriangleClusterInputNV& input;
+    std::span<const std::byte> bytes;  // the template
+    const ObjectHeader& h;
+    int64_t op_index;
+};
+
+// The instance's vertex positions (truncated as the template's): its vertex buffer's, or the
+// template's own when the buffer is 0. False when there are none to take (finding reported).
+bool instance_positions(const InstanceSource& src, float* positions, Reporter& r) {
+    const ObjectHeader& h = src.h;
+    const auto& vertices = src.info.vertexBuffer;
+    if (vertices.startAddress == 0) {
+        if (!(h.header_flags & kHasPositions)) {
+            r.add("VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-vertexBuffer-10507",
+                  "vertexBuffer is 0 but the template was built without vertex data",
+                  src.info.clusterTemplateAddress);
+            return false;
+        }
+        for (uint32_t v = 0; v < h.vertex_count; ++v)
+            decode_position(src.bytes, h, v, positions + 3 * v);
+        return true;
+    }
+    const VertexFormatInfo vf = vertex_format_info(src.input.vertexFormat);
+    if (!vf.supported) return false;  // 10439 reported by check_input
+    const auto vb =
+        src.memory.read_array(vertices.startAddress, h.vertex_count, vertices.strideInBytes,
+                              vf.size, {"vertexBuffer", src.op_index});
+    const uint64_t vstep = vertices.strideInBytes ? vertices.strideInBytes : vf.size;
+    for (uint32_t v = 0; v < h.vertex_count; ++v) {
+        decode_vertex(src.input.vertexFormat, vb.data() + size_t(v * vstep), positions + 3 * v);
+        for (int k = 0; k < 3; ++k)
+            positions[3 * v + k] =
+                truncate_position(positions[3 * v + k], h.position_truncate_bits);
+    }
+    return true;
+}
+
+// Reports the instance's vertices outside the template's instantiationBoundingBoxLimit.
+void check_bounds_limit(std::span<const std::byte> bytes, const ObjectHeader& h,
+                        const float* positions, uint64_t vertex_buffer, Reporter& r) {
+    float lim[6];
+    std::memcpy(lim, bytes.data() + h.bounds_limit_offset, 24);
+    uint32_t outside = 0, first = 0;
+    for (uint32_t v = 0; v < h.vertex_count; ++v)
+        for (int k = 0; k < 3; ++k) {
+            const float c = positions[3 * v + k];
+            if (!(c >= lim[k] && c <= lim[3 + k])) {  // NaN is outside too
+                if (outside++ == 0) first = v;
+                break;
+            }
+        }
+    if (outside)
+        r.add(kRuleInstanceOutsideLimit,
+              std::to_string(outside) +
+                  " instantiated vertex position(s) outside the template's "
+                  "instantiationBoundingBoxLimit; first is vertex " +
+                  std::to_string(first),
+              vertex_buffer);
+}
+
+// geometryIndexOffset: a signed 24-bit value.
+int32_t geometry_index_offset(const VkClusterAccelerationStructureInstantiateClusterInfoNV& info) {
+    return int32_t(uint32_t(info.geometryIndexOffset) << 8) >> 8;
+}
+
+// The lowest and highest geometry index of an instance's triangles after the offset; max < min
+// when it has none.
+struct GeometryIndexRange {
+    int64_t min = INT64_MAX, max = -1;
+};
+
+// The template's triangles back in the application's order: their local indices, their
+// geometry indices and flags with the offset added, all active.
+GeometryIndexRange instance_triangles(std::span<const std::byte> bytes, const ObjectHeader& h,
+                                      int32_t offset, uint8_t* index_bytes, uint32_t* geometry,
+                                      uint8_t* inactive) {
+    GeometryIndexRange range;
+    for (uint32_t i = 0; i < h.triangle_count; ++i) {
+        const DecodedTriangle tri = decode_triangle(bytes, h, i);
+        const uint32_t t = tri.original_index;
+        for (int v = 0; v < 3; ++v) index_bytes[3 * t + v] = uint8_t(tri.local_indices[v]);
+        const int64_t index = int64_t(tri.geometry_index_and_flags & 0xFFFFFFu) + offset;
+        range.max = std::max(range.max, index);
+        range.min = std::min(range.min, index);
+        geometry[t] = (uint32_t(index) & 0xFFFFFFu) | (tri.geometry_index_and_flags & 0xE0000000u);
+        inactive[t] = 0;
+    }
+    index_bytes[3 * h.triangle_count] = 0;  // EncodeInput's one readable byte past the indices
+    return range;
+}
+
+void check_geometry_index_range(const GeometryIndexRange& range, int32_t offset,
+                                const EngineProperties& properties, Reporter& r) {
+    if (range.max < range.min) return;  // no triangle
+    if (range.max >= int64_t(properties.max_cluster_geometry_index) || range.min < 0)
+        r.add(
+            "VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-geometryIndexOffset-"
+            "10510",
+            "geometry indices after geometryIndexOffset " + std::to_string(offset) + " span [" +
+                std::to_string(range.min) + ", " + std::to_string(range.max) +
+                "], not within [0, maxClusterGeometryIndex " +
+                std::to_string(properties.max_cluster_geometry_index) + ")");
+}
+
+// An instance's per-vertex and per-triangle arrays, filled by the steps above.
+struct InstanceArrays {
+    const float* positions;
+    const uint8_t* index_bytes;
+    const uint8_t* inactive;
+    const uint32_t* geometry;
+    int32_t* omm;  // filled here from the template's OMM section, when it has one
+};
+
+// The encoder's input for an instance: the template's header fields with the info's offsets,
+// the instance's arrays, and the template's OMM indices (kept in application order).
+detail::EncodeInput instance_encode_input(
+    std::span<const std::byte> bytes, const ObjectHeader& h,
+    const VkClusterAccelerationStructureInstantiateClusterInfoNV& info, const InstanceArrays& a) {
+    const uint32_t n_triangles = h.triangle_count;
+    detail::EncodeInput in;
+    in.type = ObjectType::kTriangleCluster;
+    in.cluster_id = h.cluster_id + info.clusterIdOffset;
+    in.cluster_flags = h.cluster_flags;
+    in.triangle_count = n_triangles;
+    in.vertex_count = h.vertex_count;
+    in.truncate_bits = h.position_truncate_bits;
+    in.vertex_format = h.vertex_format;
+    in.positions = a.positions;
+    in.index_bytes = a.index_bytes;
+    in.inactive = a.inactive;
+    in.base_geometry_index_and_flags =
+        n_triangles ? a.geometry[0] : h.base_geometry_index_and_flags;
+    in.geometry_index_and_flags = n_triangles ? a.geometry : nullptr;
+    if (h.header_flags & kHasOpacityMicromap) {
+        OpacityMicromapSection sec;
+        std::memcpy(&sec, bytes.data() + h.omm_offset, sizeof sec);
+        in.has_omm = true;
+        in.omm_array = sec.opacity_micromap_array;
+        in.omm_index_type = sec.index_type;
+        std::memcpy(a.omm, bytes.data() + h.omm_offset + sizeof sec, 4 * size_t(n_triangles));
+        in.omm_indices = a.omm;
+    }
+    return in;
+}
+
 }  // namespace
 
 bool ClusterBuilder::build_triangle_cluster(
@@ -671,117 +830,27 @@ bool ClusterBuilder::instantiate_triangle_cluster(
     std::vector<std::byte>& out, std::vector<Finding>& findings) {
     Reporter r{findings, op_index, "VkClusterAccelerationStructureInstantiateClusterInfoNV"};
     Scratch& s = *scratch_;
-    check_input(input, properties_, r);
-    if (info.reserved != 0)
-        r.add("VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-reserved-10509",
-              "reserved is " + std::to_string(info.reserved) + ", not 0");
+    check_instantiate_info(info, input, properties_, r);
     try {
         const TemplateRead tmpl =
             read_cluster_template(memory, info.clusterTemplateAddress, op_index, r);
         if (!tmpl.header) return no_object(out);
-        const std::span<const std::byte> bytes = tmpl.bytes;
         const ObjectHeader& h = *tmpl.header;
-        const uint32_t n_triangles = h.triangle_count, n_vertices = h.vertex_count;
         if (uint32_t(input.vertexFormat) != h.vertex_format)
             r.add("VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-vertexBuffer-10508",
                   "vertexFormat " + std::to_string(int(input.vertexFormat)) +
                       " differs from the template's " + std::to_string(h.vertex_format));
-        // Positions: the instance's vertex buffer, or the template's own.
-        if (info.vertexBuffer.startAddress == 0) {
-            if (!(h.header_flags & kHasPositions)) {
-                r.add(
-                    "VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-vertexBuffer-"
-                    "10507",
-                    "vertexBuffer is 0 but the template was built without vertex data",
-                    info.clusterTemplateAddress);
-                return no_object(out);
-            }
-            for (uint32_t v = 0; v < n_vertices; ++v)
-                decode_position(bytes, h, v, s.positions + 3 * v);
-        } else {
-            const VertexFormatInfo vf = vertex_format_info(input.vertexFormat);
-            if (!vf.supported) return no_object(out);  // 10439 reported by check_input
-            const auto vb = memory.read_array(info.vertexBuffer.startAddress, n_vertices,
-                                              info.vertexBuffer.strideInBytes, vf.size,
-                                              {"vertexBuffer", op_index});
-            const uint64_t vstep =
-                info.vertexBuffer.strideInBytes ? info.vertexBuffer.strideInBytes : vf.size;
-            for (uint32_t v = 0; v < n_vertices; ++v) {
-                decode_vertex(input.vertexFormat, vb.data() + size_t(v * vstep),
-                              s.positions + 3 * v);
-                for (int k = 0; k < 3; ++k)
-                    s.positions[3 * v + k] =
-                        truncate_position(s.positions[3 * v + k], h.position_truncate_bits);
-            }
-        }
-        if (h.header_flags & kHasBoundsLimit) {
-            float lim[6];
-            std::memcpy(lim, bytes.data() + h.bounds_limit_offset, 24);
-            uint32_t outside = 0, first = 0;
-            for (uint32_t v = 0; v < n_vertices; ++v)
-                for (int k = 0; k < 3; ++k) {
-                    const float c = s.positions[3 * v + k];
-                    if (!(c >= lim[k] && c <= lim[3 + k])) {  // NaN is outside too
-                        if (outside++ == 0) first = v;
-                        break;
-                    }
-                }
-            if (outside)
-                r.add(kRuleInstanceOutsideLimit,
-                      std::to_string(outside) +
-                          " instantiated vertex position(s) outside the template's "
-                          "instantiationBoundingBoxLimit; first is vertex " +
-                          std::to_string(first),
-                      info.vertexBuffer.startAddress);
-        }
-        // Geometry index offset: a signed 24-bit value.
-        const int32_t goff = int32_t(uint32_t(info.geometryIndexOffset) << 8) >> 8;
-        int64_t max_index = -1, min_index = INT64_MAX;
-        for (uint32_t i = 0; i < n_triangles; ++i) {
-            const DecodedTriangle tri = decode_triangle(bytes, h, i);
-            const uint32_t t = tri.original_index;
-            for (int v = 0; v < 3; ++v) s.index_bytes[3 * t + v] = uint8_t(tri.local_indices[v]);
-            const int64_t index = int64_t(tri.geometry_index_and_flags & 0xFFFFFFu) + goff;
-            max_index = std::max(max_index, index);
-            min_index = std::min(min_index, index);
-            s.geometry[t] =
-                (uint32_t(index) & 0xFFFFFFu) | (tri.geometry_index_and_flags & 0xE0000000u);
-            s.inactive[t] = 0;
-        }
-        if (n_triangles &&
-            (max_index >= int64_t(properties_.max_cluster_geometry_index) || min_index < 0))
-            r.add(
-                "VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-geometryIndexOffset-"
-                "10510",
-                "geometry indices after geometryIndexOffset " + std::to_string(goff) + " span [" +
-                    std::to_string(min_index) + ", " + std::to_string(max_index) +
-                    "], not within [0, maxClusterGeometryIndex " +
-                    std::to_string(properties_.max_cluster_geometry_index) + ")");
-        detail::EncodeInput in;
-        in.type = ObjectType::kTriangleCluster;
-        in.cluster_id = h.cluster_id + info.clusterIdOffset;
-        in.cluster_flags = h.cluster_flags;
-        in.triangle_count = n_triangles;
-        in.vertex_count = n_vertices;
-        in.truncate_bits = h.position_truncate_bits;
-        in.vertex_format = h.vertex_format;
-        in.positions = s.positions;
-        s.index_bytes[3 * n_triangles] = 0;
-        in.index_bytes = s.index_bytes;
-        in.inactive = s.inactive;
-        in.base_geometry_index_and_flags =
-            n_triangles ? s.geometry[0] : h.base_geometry_index_and_flags;
-        in.geometry_index_and_flags = n_triangles ? s.geometry : nullptr;
-        if (h.header_flags & kHasOpacityMicromap) {
-            OpacityMicromapSection sec;
-            std::memcpy(&sec, bytes.data() + h.omm_offset, sizeof sec);
-            in.has_omm = true;
-            in.omm_array = sec.opacity_micromap_array;
-            in.omm_index_type = sec.index_type;
-            std::memcpy(s.omm, bytes.data() + h.omm_offset + sizeof sec,
-                        4 * size_t(n_triangles));  // template keeps app order
-            in.omm_indices = s.omm;
-        }
+        if (!instance_positions({memory, info, input, tmpl.bytes, h, op_index}, s.positions, r))
+            return no_object(out);
+        if (h.header_flags & kHasBoundsLimit)
+            check_bounds_limit(tmpl.bytes, h, s.positions, info.vertexBuffer.startAddress, r);
+        const int32_t offset = geometry_index_offset(info);
+        const GeometryIndexRange range =
+            instance_triangles(tmpl.bytes, h, offset, s.index_bytes, s.geometry, s.inactive);
+        check_geometry_index_range(range, offset, properties_, r);
+        const detail::EncodeInput in =
+            instance_encode_input(tmpl.bytes, h, info,
+                                  {s.positions, s.index_bytes, s.inactive, s.geometry, s.omm});
         detail::encode_object(in, s.encode, stores_, out);
         return true;
     } catch (const MemoryFault& f) {

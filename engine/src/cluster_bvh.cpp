@@ -6,7 +6,8 @@
 // Why it is fast: the triangles are sorted once per axis (centroids quantized to 10 bits
 // inside the cluster's centroid bounds, a two-pass 5-bit radix sort, ties in triangle
 // order), and every split keeps the three orders: the split axis's order is already split,
-// the other two are partitioned stably in one pass each. A node's centroid extent is then
+// the other two are partitioned stably in one pass each, from one of two buffers into the
+// other, every element stored once at its final slot. A node's centroid extent is then
 // its first and last triangle in each order, the median is a position, a leaf's box is taken
 // when it is made and the interior boxes bottom-up once (each node from its children), so no
 // level rereads its triangles to select, and none compares floats in a data-dependent branch;
@@ -29,10 +30,14 @@ namespace {
 constexpr uint32_t kKeyBits = 10;  // per axis; two radix passes of kDigitBits
 constexpr uint32_t kDigitBits = kKeyBits / 2;
 constexpr uint32_t kDigits = 1u << kDigitBits;
+// Counts of the six digits (low and high on each axis), kept twice while counting: even
+// triangles into the first six, odd ones into the second (count_keys says why).
+constexpr int kCountArrays = 12;
 
-// A node to split and its triangles' range in the orders.
+// A node to split, its triangles' range in the orders, and which of the two order buffers
+// holds each axis's order over that range (bit k for axis k).
 struct Task {
-    uint32_t node, begin, end;
+    uint32_t node, begin, end, buffers;
 };
 
 // Tasks sit on the stack as 8-byte words, pushed by one store and popped by one load. As a
@@ -42,10 +47,12 @@ struct Task {
 // hundreds of byte stores included, at every task.
 using PackedTask = uint64_t;
 PackedTask pack(const Task& t) {
-    return PackedTask(t.node) | PackedTask(t.begin) << 16 | PackedTask(t.end) << 32;
+    return PackedTask(t.node) | PackedTask(t.begin) << 16 | PackedTask(t.end) << 32 |
+           PackedTask(t.buffers) << 48;
 }
 Task unpack(PackedTask w) {
-    return {uint32_t(w & 0xFFFF), uint32_t(w >> 16 & 0xFFFF), uint32_t(w >> 32 & 0xFFFF)};
+    return {uint32_t(w & 0xFFFF), uint32_t(w >> 16 & 0xFFFF), uint32_t(w >> 32 & 0xFFFF),
+            uint32_t(w >> 48)};
 }
 
 // A triangle's two radix digits on each axis, as the sort reads them: its low digits (x, y, z)
@@ -84,7 +91,8 @@ void count_digits(Int4 key, Digits& d, uint16_t (*hist)[kDigits]) {
 }
 
 // Sorts 0..n-1 by key (digits) on each axis k into order[k] (stable: equal keys stay in
-// increasing index order). hist[2k] / hist[2k+1] hold the counts of the low / high digits.
+// increasing index order). hist[2k] / hist[2k+1] hold the counts of the low / high digits,
+// hist[6 + h] more counts of hist[h]'s digits; the passes use hist[0..5] alone.
 void radix_sort3(const Digits* digits, uint32_t n, uint16_t (*hist)[kDigits],
                  uint8_t (*order)[kMaxTriangles]) {
     // Exclusive prefix sums (counts <= 256 fit 16 bits).
@@ -94,7 +102,8 @@ void radix_sort3(const Digits* digits, uint32_t n, uint16_t (*hist)[kDigits],
         __m128i carry = _mm_setzero_si128();
         for (uint32_t d = 0; d < kDigits; d += 8) {
             __m128i* const p = reinterpret_cast<__m128i*>(hist[h] + d);
-            __m128i x = _mm_loadu_si128(p);
+            const __m128i* const q = reinterpret_cast<const __m128i*>(hist[h + 6] + d);
+            __m128i x = _mm_add_epi16(_mm_loadu_si128(p), _mm_loadu_si128(q));
             x = _mm_add_epi16(x, _mm_slli_si128(x, 2));
             x = _mm_add_epi16(x, _mm_slli_si128(x, 4));
             x = _mm_add_epi16(x, _mm_slli_si128(x, 8));  // inclusive
@@ -107,7 +116,7 @@ void radix_sort3(const Digits* digits, uint32_t n, uint16_t (*hist)[kDigits],
     for (int h = 0; h < 6; ++h) {
         uint32_t sum = 0;
         for (uint32_t d = 0; d < kDigits; ++d) {
-            const uint32_t c = hist[h][d];
+            const uint32_t c = hist[h][d] + hist[h + 6][d];
             hist[h][d] = uint16_t(sum);
             sum += c;
         }
@@ -146,23 +155,6 @@ void copy_up_to(uint8_t* dst, const uint8_t* src, size_t count) {
     for (size_t k = 0; k < N; ++k) {
         const size_t at = k < kLeast || k < last ? k : last;
         dst[at] = src[at];
-    }
-}
-
-// Copies count (1..256) bytes as overlapping 8-byte (or 4-byte, or single) moves, reading and
-// writing nothing outside them: what a memcpy call does for these sizes, without the call and
-// its size classes.
-void copy_rights(uint8_t* dst, const uint8_t* src, size_t count) {
-    if (count >= 8) {
-        for (size_t k = 0; k + 8 < count; k += 8) std::memcpy(dst + k, src + k, 8);
-        std::memcpy(dst + count - 8, src + count - 8, 8);
-    } else if (count >= 4) {
-        std::memcpy(dst, src, 4);
-        std::memcpy(dst + count - 4, src + count - 4, 4);
-    } else {
-        dst[0] = src[0];
-        dst[count / 2] = src[count / 2];
-        dst[count - 1] = src[count - 1];
     }
 }
 
@@ -229,7 +221,7 @@ void fit_interior_boxes(BvhScratch& s, const uint16_t* interior, size_t count) {
     }
 }
 
-// The six digit counts set to 0 by 16-byte stores where the target has SSE2. GCC zeroes the
+// The digit counts set to 0 by 16-byte stores where the target has SSE2. GCC zeroes the
 // array (`= {}`, or a loop storing zeros it can see) with `rep stos`, microcoded, whose stores
 // the counting's loads of the same bytes right after cannot be forwarded from: they wait for
 // them to reach the cache. The empty asm hides that the stored value is zero.
@@ -238,17 +230,21 @@ void zero_counts(uint16_t (*hist)[kDigits]) {
     static_assert(kDigits % 8 == 0);
     __m128i zero = _mm_setzero_si128();
     asm("" : "+x"(zero));
-    for (int h = 0; h < 6; ++h)
+    for (int h = 0; h < kCountArrays; ++h)
         for (uint32_t d = 0; d < kDigits; d += 8)
             _mm_store_si128(reinterpret_cast<__m128i*>(hist[h] + d), zero);
 #else
-    std::memset(hist, 0, 6 * sizeof *hist);
+    std::memset(hist, 0, kCountArrays * sizeof *hist);
 #endif
 }
 
 // Each triangle's 10-bit keys per axis, monotone in its centroid (so sorting them sorts the
 // centroids up to ties inside one step of extent / 1024), as digits, and the digits' counts.
-// Halves again keep extents finite.
+// Halves again keep extents finite. Neighbouring triangles often share a digit (a cluster's
+// triangles come in mesh order), and the increments of one counter in a row wait for each
+// other through memory: the odd triangles count into their own six arrays, which halves those
+// chains (the device's Xeon built WusonOBJ 1.1-1.26x as fast with this; docs/benchmarks.md,
+// cluster build round 11).
 void count_keys(const BvhScratch& s, uint32_t n, Digits* digits, uint16_t (*hist)[kDigits]) {
     const Float4 half = splat(0.5f);
     const Float4 base = load4(s.centroid_min) * half;
@@ -256,17 +252,22 @@ void count_keys(const BvhScratch& s, uint32_t n, Digits* digits, uint16_t (*hist
         splat(float(1u << kKeyBits)) /
         (load4(s.centroid_max) * half - base);  // inf or NaN for a flat axis: keys 0
     const Float4 zero = splat(0.0f), top = splat(float((1u << kKeyBits) - 1));
-#pragma GCC unroll 2
-    for (uint32_t i = 0; i < n; ++i)
+    const auto key = [&](uint32_t i) {
         // max4(x, zero) turns NaN into 0.
-        count_digits(to_int(min4(max4((load4(s.centroid[i]) * half - base) * scale, zero), top)),
-                     digits[i], hist);
+        return to_int(min4(max4((load4(s.centroid[i]) * half - base) * scale, zero), top));
+    };
+    uint32_t i = 0;
+    for (; i + 1 < n; i += 2) {
+        count_digits(key(i), digits[i], hist);
+        count_digits(key(i + 1), digits[i + 1], hist + 6);
+    }
+    if (i < n) count_digits(key(i), digits[i], hist);
 }
 
 // The triangles in key order along each axis (ties in triangle order).
 void sort_along_axes(const BvhScratch& s, uint32_t n, uint8_t (*order)[kMaxTriangles]) {
     Digits digits[kMaxTriangles];
-    alignas(16) uint16_t hist[6][kDigits];
+    alignas(16) uint16_t hist[kCountArrays][kDigits];
     zero_counts(hist);
     count_keys(s, n, digits, hist);
     radix_sort3(digits, n, hist, order);
@@ -279,8 +280,14 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
     if (n == 0) return true;
 
     const float(*const centroid)[4] = s.centroid;
-    uint8_t order[3][kMaxTriangles];
-    sort_along_axes(s, n, order);
+    // Two buffers per axis: a split reads the other two axes' orders from one and writes them
+    // partitioned into the other, each element stored once. Partitioned in place, every
+    // element was stored twice (at the next left slot and at the next slot of a buffer of the
+    // rights, copied back after the loop in 8-byte moves over those byte stores), and the
+    // in-place stores went to the array the loop was reading: the device's Xeon built
+    // WusonOBJ 1.6x as fast with this (docs/benchmarks.md, cluster build round 11).
+    uint8_t order[2][3][kMaxTriangles];
+    sort_along_axes(s, n, order[0]);
 
     // Top-down: node numbering is depth first, left subtree first, the two children of a node
     // next to each other.
@@ -295,10 +302,10 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
     int sp = 0;
     s.node_count = 1;
     if (n <= kMaxLeafSize) {  // a root leaf: its triangles along x
-        std::memcpy(leaf_order, order[0], n);
+        std::memcpy(leaf_order, order[0][0], n);
         make_leaf(s, leaf_order, 0, n, s.nodes[0]);
     } else {
-        stack[sp++] = pack({0, 0, n});
+        stack[sp++] = pack({0, 0, n, 0});
     }
     // Only nodes that split are tasks: their parent makes a leaf where it splits (a leaf test
     // at each task mispredicted about every third node).
@@ -306,15 +313,20 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
         const Task task = unpack(stack[--sp]);
         BvhScratch::Node& node = s.nodes[task.node];
         const uint32_t b = task.begin, e = task.end, count = e - b;
+        uint8_t* const ox = order[task.buffers & 1][0];
+        uint8_t* const oy = order[task.buffers >> 1 & 1][1];
+        uint8_t* const oz = order[task.buffers >> 2 & 1][2];
+        uint8_t* const axis_order[3] = {ox, oy, oz};
         int axis = 0;
-        float best = centroid[order[0][e - 1]][0] - centroid[order[0][b]][0];
-        for (int k = 1; k < 3; ++k) {
-            const float extent = centroid[order[k][e - 1]][k] - centroid[order[k][b]][k];
-            if (extent > best) {
-                best = extent;
-                axis = k;
-            }
+        float best = centroid[ox[e - 1]][0] - centroid[ox[b]][0];
+        const float extent_y = centroid[oy[e - 1]][1] - centroid[oy[b]][1];
+        if (extent_y > best) {
+            best = extent_y;
+            axis = 1;
         }
+        const float extent_z = centroid[oz[e - 1]][2] - centroid[oz[b]][2];
+        if (extent_z > best) axis = 2;
+        const uint8_t* const split_order = axis_order[axis];
         // Object median rounded to whole leaves: left gets half of the leaves (full ones), so
         // the tree has the fewest nodes (2 * ceil(n / 4) - 1) and stays balanced.
         const uint32_t leaves = (count + kMaxLeafSize - 1) / kMaxLeafSize;
@@ -327,7 +339,7 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
         if (count <= 2 * kMaxLeafSize) {
             // Both children are leaves: they need no sorted orders, only their triangles.
             // A task has more than kMaxLeafSize triangles.
-            copy_up_to<kMaxLeafSize + 1, 2 * kMaxLeafSize>(leaf_order + b, order[axis] + b, count);
+            copy_up_to<kMaxLeafSize + 1, 2 * kMaxLeafSize>(leaf_order + b, split_order + b, count);
             make_leaf(s, leaf_order, b, left_count, s.nodes[left]);
             make_leaf(s, leaf_order, m, count - left_count, s.nodes[left + 1]);
             continue;
@@ -339,49 +351,44 @@ bool build_bvh(const uint8_t* active_list, uint32_t n, BvhScratch& s, uint8_t* o
         const bool left_child = task.node % 2 == 1, right_child = !left_child && task.node;
         if (!left_child) {
 #pragma GCC unroll 4
-            for (size_t j = b; j < m; ++j) side[order[axis][j]] = 0;
+            for (size_t j = b; j < m; ++j) side[split_order[j]] = 0;
         }
         if (!right_child) {
 #pragma GCC unroll 4
-            for (size_t j = m; j < e; ++j) side[order[axis][j]] = 1;
+            for (size_t j = m; j < e; ++j) side[split_order[j]] = 1;
         }
         // The other two axes from a table: a select on `axis` compiles to a branch that
         // mispredicts (the axis follows the data).
         static constexpr uint8_t kOtherAxes[3][2] = {{1, 2}, {0, 2}, {0, 1}};
-        uint8_t* const o1 = order[kOtherAxes[axis][0]] + b;
-        uint8_t* const o2 = order[kOtherAxes[axis][1]] + b;
-        // Their orders, partitioned stably in one loop (two independent chains). No branch
-        // and no select: every element is stored twice, at the next left slot (in place:
-        // j - r <= j, already read) and at the next right slot of a buffer; the store on the
-        // wrong side is overwritten by the next element of that side, or lands past the side's
-        // end (the left one on the right part's first slot, which the copy of the rights
-        // covers, or nothing reads: a right leaf).
-        uint8_t right1[kMaxTriangles + 1], right2[kMaxTriangles + 1];
+        const uint32_t k1 = kOtherAxes[axis][0], k2 = kOtherAxes[axis][1];
+        const uint32_t from1 = task.buffers >> k1 & 1, from2 = task.buffers >> k2 & 1;
+        const uint8_t* const src1 = order[from1][k1] + b;
+        const uint8_t* const src2 = order[from2][k2] + b;
+        uint8_t* const dst1 = order[from1 ^ 1][k1] + b;
+        uint8_t* const dst2 = order[from2 ^ 1][k2] + b;
+        // Their orders, partitioned stably in one loop (two independent chains), each element
+        // stored once, at the next slot of its side: no branch, the slot is a select.
         // Pointer-sized counters: no zero extension before each address.
         size_t r1 = 0, r2 = 0;
 #pragma GCC unroll 4
         for (size_t j = 0; j < count; ++j) {
-            const size_t i1 = o1[j], i2 = o2[j];
+            const size_t i1 = src1[j], i2 = src2[j];
             const size_t s1 = side[i1], s2 = side[i2];
-            o1[j - r1] = uint8_t(i1);
-            right1[r1] = uint8_t(i1);
-            o2[j - r2] = uint8_t(i2);
-            right2[r2] = uint8_t(i2);
+            dst1[s1 ? left_count + r1 : j - r1] = uint8_t(i1);
+            dst2[s2 ? left_count + r2 : j - r2] = uint8_t(i2);
             r1 += s1;
             r2 += s2;
         }
+        const uint32_t buffers = task.buffers ^ (1u << k1) ^ (1u << k2);
         // More than 8 triangles leave at least 8 on the left (a node), and on the right 1-4
-        // (a leaf, its triangles from the split axis's order: the rights of the other two are
-        // not needed) or more (a node, which needs them in place).
+        // (a leaf, its triangles from the split axis's order) or more (a node).
         if (count - left_count <= kMaxLeafSize) {
-            copy_up_to<1, kMaxLeafSize>(leaf_order + m, order[axis] + m, count - left_count);
+            copy_up_to<1, kMaxLeafSize>(leaf_order + m, split_order + m, count - left_count);
             make_leaf(s, leaf_order, m, count - left_count, s.nodes[left + 1]);
         } else {
-            copy_rights(o1 + left_count, right1, count - left_count);
-            copy_rights(o2 + left_count, right2, count - left_count);
-            stack[sp++] = pack({left + 1u, m, e});
+            stack[sp++] = pack({left + 1u, m, e, buffers});
         }
-        stack[sp++] = pack({left, b, m});
+        stack[sp++] = pack({left, b, m, buffers});
     }
 
     fit_interior_boxes(s, interior, n_interior);
