@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "clastrace/replay/hazard_report.h"
 #include "clastrace/common/hex.h"
+#include "hazard_text.h"
 
 #include <cinttypes>
 #include <cstdio>
@@ -12,19 +13,7 @@ namespace {
 
 using common::hex;
 
-std::string where(const HazardAccess& a) {
-    std::string s = a.command.name && *a.command.name ? a.command.name : "command";
-    if (a.queue == kHostQueue) return s + " (host)";
-    s += " (queue " + std::to_string(a.queue) + ", submit " + std::to_string(a.command.submission) +
-         ", cb " + std::to_string(a.command.command_buffer) + ", cmd " +
-         std::to_string(a.command.command);
-    if (a.frame) s += ", frame " + std::to_string(*a.frame);
-    if (a.command.secondary_handle)
-        s += " > secondary " + std::to_string(a.command.secondary) + " (" +
-             hex(a.command.secondary_handle) + "), cmd " +
-             std::to_string(a.command.secondary_command);
-    return s + ")";
-}
+std::string where(const HazardAccess& a) { return command_place_text(a.command, a.queue, a.frame); }
 
 const char* verb(const HazardAccess& a) { return a.is_write ? "writes" : "reads"; }
 const char* past(const HazardAccess& a) { return a.is_write ? "wrote" : "read"; }
@@ -65,6 +54,24 @@ const char* fix_kind_name(FixKind k) {
 }
 
 }  // namespace
+
+std::string command_place_text(const CommandRef& command, QueueId queue,
+                               std::optional<uint64_t> frame) {
+    std::string s = command.name && *command.name ? command.name : "command";
+    if (queue == kHostQueue) return s + " (host)";
+    s += " (queue " + std::to_string(queue) + ", submit " + std::to_string(command.submission) +
+         ", cb " + std::to_string(command.command_buffer) + ", cmd " +
+         std::to_string(command.command);
+    if (frame) s += ", frame " + std::to_string(*frame);
+    if (command.secondary_handle)
+        s += " > secondary " + std::to_string(command.secondary) + " (" +
+             hex(command.secondary_handle) + "), cmd " + std::to_string(command.secondary_command);
+    return s + ")";
+}
+
+std::string range_text(AddressRange range) {
+    return "[" + hex(range.begin) + ", " + hex(range.end) + ")";
+}
 
 const char* hazard_class_name(HazardClass c) {
     switch (c) {
@@ -114,11 +121,10 @@ std::string hazard_rule_name(const HazardReport& report) {
 
 std::string HazardReport::format() const {
     std::string s = hazard_rule_name(*this) + ": ";
-    const std::string region = "[" + hex(overlap.begin) + ", " + hex(overlap.end) + ")";
+    const std::string region = range_text(overlap);
     if (hazard == HazardClass::kMoveOverlap) {
-        s += where(later) + " copies " + prior.field + " " + "[" + hex(prior.range.begin) + ", " +
-             hex(prior.range.end) + ") into " + later.field + " [" + hex(later.range.begin) + ", " +
-             hex(later.range.end) + "), which overlap in " + region + ".";
+        s += where(later) + " copies " + prior.field + " " + range_text(prior.range) + " into " +
+             later.field + " " + range_text(later.range) + ", which overlap in " + region + ".";
     } else {
         s += where(later) + " " + verb(later) + " " + later.field + " " + region + " at " +
              stage_names(later.stage) + " / " + access_names(later.access) + " after " +

@@ -73,6 +73,11 @@ public:
     std::optional<AddressRange> destroy_buffer(uint64_t buffer);
     void destroy_object(uint64_t object);
     void free_memory(uint64_t memory) { memory_base_.erase(memory); }
+    // The device address of the memory object's first byte, once a buffer bound to it said.
+    std::optional<uint64_t> memory_address(uint64_t memory) const {
+        auto it = memory_base_.find(memory);
+        return it == memory_base_.end() ? std::nullopt : std::optional<uint64_t>(it->second);
+    }
 
     // [offset, offset + size) of `buffer` as device addresses (VK_WHOLE_SIZE: to the end).
     std::optional<AddressRange> buffer_range(uint64_t buffer, uint64_t offset, uint64_t size) const;

@@ -203,10 +203,9 @@ private:
                                    const ReplayLocation& where);
     std::vector<uint64_t> khr_instance_references(const fbs::GeometryInstancesKHR& instances,
                                                   const fbs::BuildRangeInfoKHR& range) const;
-    // What keeps a destroyed object in use (sync_consumers.cpp).
-    enum class PendingUse { kConsumerReads, kAnyDeviceAccess };
+    // A destroy or free while a pending command still uses the bytes (sync_consumers.cpp).
     void check_commands_done(const AddressRange& range, const char* call, const char* rule,
-                             const std::string& what, PendingUse use);
+                             const std::string& what_happens);
     // Structures read before any command built them (sync_unbuilt_structures.cpp).
     void note_structure_writes(const fbs::Record& record);
     std::string unbuilt_cause() const;
@@ -348,6 +347,7 @@ private:
                                             return cluster_bottom_level(address);
                                         }};
     std::unordered_map<uint64_t, uint8_t> structure_api_;  // handle -> 0 NV, 1 KHR
+    std::unordered_map<uint64_t, uint64_t> memory_sizes_;  // memory handle -> allocation size
     FrameBoundaries frames_;
     // The trace's PreRangeState record, when it has one (format 1.5).
     struct PreRangeInfo {

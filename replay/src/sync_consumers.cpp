@@ -132,7 +132,7 @@ void Replay::on_consumer_bookkeeping(fbs::RecordBody kind, const fbs::Record& r)
                 nv ? "vkDestroyAccelerationStructureNV" : "vkDestroyAccelerationStructureKHR",
                 nv ? "VUID-vkDestroyAccelerationStructureNV-accelerationStructure-03752"
                    : "VUID-vkDestroyAccelerationStructureKHR-accelerationStructure-02442",
-                "acceleration structure " + hex(handle), PendingUse::kConsumerReads);
+                "acceleration structure " + hex(handle) + " is destroyed");
         reachability_.on_destroyed(handle);
         structure_api_.erase(handle);
         break;
@@ -141,7 +141,24 @@ void Replay::on_consumer_bookkeeping(fbs::RecordBody kind, const fbs::Record& r)
         const uint64_t buffer = r.body_as_BufferDestroy()->buffer();
         if (auto range = memory_.buffer_range(buffer, 0, kWholeSize))
             check_commands_done(*range, "vkDestroyBuffer", "VUID-vkDestroyBuffer-buffer-00922",
-                                "buffer " + hex(buffer), PendingUse::kAnyDeviceAccess);
+                                "buffer " + hex(buffer) + " is destroyed");
+        break;
+    }
+    case fbs::RecordBody::MemoryAllocate: {
+        const auto* a = r.body_as_MemoryAllocate();
+        memory_sizes_[a->memory()] = a->size();
+        break;
+    }
+    case fbs::RecordBody::MemoryFree: {
+        // Every byte of the allocation, whichever buffers (live or destroyed) reached it.
+        const uint64_t memory = r.body_as_MemoryFree()->memory();
+        const auto size = memory_sizes_.find(memory);
+        const std::optional<uint64_t> base = memory_.memory_address(memory);
+        if (size != memory_sizes_.end() && base)
+            check_commands_done({*base, *base + size->second}, "vkFreeMemory",
+                                "VUID-vkFreeMemory-memory-00677",
+                                "memory " + hex(memory) + " is freed");
+        if (size != memory_sizes_.end()) memory_sizes_.erase(size);
         break;
     }
     case fbs::RecordBody::QueuePresent:
@@ -166,18 +183,16 @@ void Replay::on_consumer_bookkeeping(fbs::RecordBody kind, const fbs::Record& r)
 }
 
 // A command still pending (no host wait saw it complete) that uses bytes of `range`: the
-// destroyed object was in use. One finding per pending command. A buffer is in use by any
-// device access to its bytes (a build reads its inputs by device address, which names no
-// buffer, but the bytes are the buffer's all the same: once destroyed, a sub-allocator hands
-// them on); a structure by the consumers that read it (its builds are ordered by barriers).
+// destroyed or freed object was in use. One finding per pending command. Any device access to
+// the bytes counts: a build reads its inputs by device address, which names no buffer, but the
+// bytes are the buffer's all the same (once destroyed, a sub-allocator hands them on), and a
+// structure's own build or copy "refers to" it as much as a ray query does (02442, 03752).
 // Accesses the trace only allows (Access::possible) are no use.
 void Replay::check_commands_done(const AddressRange& range, const char* call, const char* rule,
-                                 const std::string& what, PendingUse use) {
+                                 const std::string& what_happens) {
     if (!options_.check_hazards) return;
     std::vector<HazardAccess> pending = sync_.pending_accesses(range);
-    std::erase_if(pending, [&](const HazardAccess& a) {
-        return a.possible || (use == PendingUse::kConsumerReads && !is_consumer_read(a));
-    });
+    std::erase_if(pending, [](const HazardAccess& a) { return a.possible; });
     std::unordered_set<uint64_t> told;
     for (const HazardAccess& a : pending) {
         const CommandRef& c = a.command;
@@ -188,16 +203,16 @@ void Replay::check_commands_done(const AddressRange& range, const char* call, co
         where.submission = next_submission_;
         where.name = call;
         add_finding({rule,
-                     what + " is destroyed while " + (c.name ? c.name : "a command") +
-                         " (submission " + std::to_string(c.submission) + ", command buffer " +
+                     what_happens + " while " + (c.name ? c.name : "a command") + " (submission " +
+                         std::to_string(c.submission) + ", command buffer " +
                          std::to_string(c.command_buffer) + ", command " +
                          std::to_string(c.command) +
                          (frame ? ", frame " + std::to_string(*frame) : std::string()) +
                          "), which " + (a.is_write ? "writes" : "reads") + " it through " +
                          a.field + " at " + stage_names(a.stage) + " / " + access_names(a.access) +
                          ", has not completed: no fence wait or idle wait saw that submission "
-                         "finish. Wait for its fence (vkWaitForFences) before destroying, or "
-                         "destroy it a frame in flight later.",
+                         "finish. Wait for its fence (vkWaitForFences) before " +
+                         call + ", or call it a frame in flight later.",
                      FindingSource::kReplay, where, -1, range.begin});
     }
 }

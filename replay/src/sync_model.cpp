@@ -249,10 +249,10 @@ void SyncModel::reset_event(const CommandRef&, uint64_t event) {
     it->second.slot = -1;
 }
 
-void SyncModel::wait_events(const CommandRef&, std::span<const uint64_t> events,
+void SyncModel::wait_events(const CommandRef& command, std::span<const uint64_t> events,
                             const DependencyInfo& dependency) {
     State& s = *state_;
-    s.sync_tag();
+    const uint64_t wait_tag = s.sync_tag();
     StageMask bits = 0;
     bool v1 = false;
     for (uint64_t event : events) {
@@ -264,7 +264,9 @@ void SyncModel::wait_events(const CommandRef&, std::span<const uint64_t> events,
     }
     if (!bits) return;
     std::vector<BufferBarrier> resolved;
+    const uint32_t logged = s.queues[s.current_queue].log_end();
     s.log_barrier_entry(EntryKind::kEventWait, s.resolve_barriers(dependency, resolved), bits, v1);
+    if (s.queues[s.current_queue].log_end() != logged) s.remember_barrier(command, wait_tag);
 }
 
 void SyncModel::end_submission(std::span<const SemaphoreSignal> signals, uint64_t fence) {

@@ -5,6 +5,7 @@
 // change.
 #include "clastrace/common/hex.h"
 #include "clastrace/replay/sync_masks.h"
+#include "hazard_text.h"
 #include "sync_model_internal.h"
 
 #include <string>
@@ -17,37 +18,27 @@ std::string submission_text(uint32_t submission) {
     return "submission " + std::to_string(submission);
 }
 
-std::string command_text(const CommandRef& c) {
-    std::string s = std::string(c.name && *c.name ? c.name : "the barrier") + " (submit " +
-                    std::to_string(c.submission) + ", cb " + std::to_string(c.command_buffer) +
-                    ", cmd " + std::to_string(c.command);
-    if (c.secondary_handle)
-        s += " > secondary " + std::to_string(c.secondary) + ", cmd " +
-             std::to_string(c.secondary_command);
-    return s + ")";
-}
-
-std::string range_text(AddressRange r) {
-    return "[" + common::hex(r.begin) + ", " + common::hex(r.end) + ")";
-}
-
-// What a barrier logged as `e` (a pipeline barrier, or an event set: its source half alone,
-// the wait holds the rest) leaves out of ordering `prior` before `later` over `overlap`; empty
-// when nothing (the hazard then comes from elsewhere). Reads of several types need one of them
-// visible (docs/replay.md, "Programs written apart"). A synchronization-1 event set names no
-// accesses.
+// What a barrier logged as `e` leaves out of ordering `prior` before `later` over `overlap`;
+// empty when nothing (the hazard then comes from elsewhere). An event splits the barrier: its
+// set holds the source half (stages, and the access mask but for a synchronization-1 set,
+// which names none), its wait the destination half (and, in synchronization 1, the source
+// access mask); a synchronization-2 wait repeats the set's dependency, so its source half is
+// the set's to name. Reads of several types need one of them visible (docs/replay.md,
+// "Programs written apart").
 std::string what_barrier_misses(const LogEntry& e, const LoggedBarrier& b, const Record& prior,
                                 const Record& later, AddressRange overlap) {
     const bool source_only = e.kind == EntryKind::kEventSet;
+    const bool destination_only = e.kind == EntryKind::kEventWait;
     if (!b.global && !contains(b.range, overlap.begin, overlap.end))
         return "its buffer range " + range_text(b.range) + " leaves these bytes out";
-    if ((b.src_scope & prior.stage) != prior.stage)
+    if (!destination_only && (b.src_scope & prior.stage) != prior.stage)
         return "its srcStageMask leaves out " + stage_names(prior.stage);
     if (!source_only && (b.dst_scope & later.stage) != later.stage)
         return "its dstStageMask leaves out " + stage_names(later.stage);
-    if (!prior.is_write || e.v1_event) return {};
+    if (!prior.is_write || (source_only && e.v1_event)) return {};
     const AccessMask written = prior.atoms & kWriteAtoms;
-    if ((b.src_atoms & written) != written)
+    const bool names_source_access = !destination_only || e.v1_event;
+    if (names_source_access && (b.src_atoms & written) != written)
         return "its srcAccessMask leaves out " + access_names(written) +
                ": it orders execution but does not make the write available";
     if (source_only) return {};
@@ -56,6 +47,14 @@ std::string what_barrier_misses(const LogEntry& e, const LoggedBarrier& b, const
         return "its dstAccessMask leaves out " + access_names(later.access) +
                ": the write is not made visible to that access";
     return {};
+}
+
+const char* barrier_kind_text(EntryKind kind) {
+    switch (kind) {
+    case EntryKind::kEventSet: return "The event set";
+    case EntryKind::kEventWait: return "The event wait";
+    default: return "The barrier";
+    }
 }
 
 }  // namespace
@@ -112,7 +111,7 @@ std::string SyncModel::State::barrier_advice(const Record& prior, const Record& 
         const LogEntry& e = q.log[b.log_pos - q.log_base];
         if (e.first < q.pool_base) continue;
         // One barrier of the command that misses nothing: the hazard came from elsewhere. (A
-        // reset or wait between an event's set and the later access is left to the fix's text.)
+        // reset between an event's set and its wait is left to the fix's text.)
         std::string why;
         bool all_miss = e.count > 0;
         for (uint32_t i = 0; i < e.count && all_miss; ++i) {
@@ -126,9 +125,9 @@ std::string SyncModel::State::barrier_advice(const Record& prior, const Record& 
         missed = std::move(why);
     }
     if (!nearest) return {};
-    const bool event = q.log[nearest->log_pos - q.log_base].kind == EntryKind::kEventSet;
-    return std::string(event ? "The event set" : "The barrier") + " between them, " +
-           command_text(nearest->command) + ", misses: " + missed + ".";
+    const EntryKind kind = q.log[nearest->log_pos - q.log_base].kind;
+    return std::string(barrier_kind_text(kind)) + " between them, " +
+           command_place_text(nearest->command, report.later.queue) + ", misses: " + missed + ".";
 }
 
 }  // namespace clastrace::replay

@@ -299,10 +299,11 @@ TEST_F(BugPrograms, EventWithComputeSourceStageLeavesCopiedInfosUnordered) {
     expect_side(h.at("prior"), "vkCmdCopyBuffer", 0, 0, "pRegions[0]", true);
     expect_side(h.at("later"), kClusterBuild, 0, 3, "srcInfosArray", false);
     expect_equal(range_of(h.at("overlap")), r.range("infos"));
-    EXPECT_NE(h.at("fix").at("advice").get<std::string>().find(
-                  "The event set between them, vkCmdSetEvent2 (submit 0, cb 0, cmd 1), misses: "
-                  "its srcStageMask leaves out COPY"),
-              std::string::npos)
+    EXPECT_NE(
+        h.at("fix").at("advice").get<std::string>().find(
+            "The event set between them, vkCmdSetEvent2 (queue 0, submit 0, cb 0, cmd 1), misses: "
+            "its srcStageMask leaves out COPY"),
+        std::string::npos)
         << h.at("fix").at("advice");
 }
 
@@ -372,9 +373,10 @@ TEST_F(BugPrograms, BufferBarrierOverFirstInfoLeavesTheOthersUnordered) {
     expect_infos_after_copy_unordered(r, r.range("infos_past_the_barrier"));
     if (r.hazards().size() != 1) return;
     const std::string advice = r.hazards().at(0).at("fix").at("advice").get<std::string>();
-    EXPECT_NE(advice.find(
-                  "vkCmdPipelineBarrier2 (submit 0, cb 0, cmd 1), misses: its buffer range"),
-              std::string::npos)
+    EXPECT_NE(
+        advice.find(
+            "vkCmdPipelineBarrier2 (queue 0, submit 0, cb 0, cmd 1), misses: its buffer range"),
+        std::string::npos)
         << advice;
 }
 
@@ -752,7 +754,7 @@ void expect_barrier_advice(const json& hazard, const std::string& barrier,
     if (hazard.empty()) return;
     const std::string advice = hazard.at("fix").at("advice").get<std::string>();
     EXPECT_NE(advice.find("The barrier between them, " + barrier +
-                          " (submit 0, cb 0, cmd 1), misses: " + missed),
+                          " (queue 0, submit 0, cb 0, cmd 1), misses: " + missed),
               std::string::npos)
         << advice;
 }
@@ -934,6 +936,162 @@ TEST_F(BugPrograms, BottomLevelOverGuessedImplicitAddressesReferencesNoClas) {
 
 TEST_F(BugPrograms, BottomLevelOverTheWrittenAddressesIsClean) {
     CAPTURE_AND_REPLAY(r, "blas_guessed_addresses", "--fixed");
+    expect_clean(r);
+}
+
+// Session 16: an event's wait that misses (its set is right), memory freed and a KHR structure
+// destroyed while a pending command uses them, and srcInfosArray shorter than the count.
+
+// The copied infos read by the build with the event's wait not covering it; the advice names
+// the wait, at cmd 2, and what it leaves out.
+void expect_event_wait_named(const Replayed& r, const std::string& wait,
+                             const std::string& missed) {
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    ASSERT_EQ(r.hazards().size(), 1u) << r.describe();
+    const json& h = r.hazards().at(0);
+    EXPECT_EQ(h.at("class"), "READ-AFTER-WRITE");
+    expect_side(h.at("prior"), "vkCmdCopyBuffer", 0, 0, "pRegions[0]", true);
+    expect_side(h.at("later"), kClusterBuild, 0, 3, "srcInfosArray", false);
+    expect_equal(range_of(h.at("overlap")), r.range("infos"));
+    EXPECT_NE(h.at("fix").at("advice").get<std::string>().find(
+                  "The event wait between them, " + wait +
+                  " (queue 0, submit 0, cb 0, cmd 2), misses: " + missed),
+              std::string::npos)
+        << h.at("fix").at("advice");
+}
+
+TEST_F(BugPrograms, EventWaitAtComputeStageIsNamed) {
+    CAPTURE_AND_REPLAY(r, "event_wait_wrong_stage");
+    expect_event_wait_named(r, "vkCmdWaitEvents2",
+                            "its dstStageMask leaves out ACCELERATION_STRUCTURE_BUILD");
+}
+
+TEST_F(BugPrograms, EventWaitV1WithoutSourceAccessIsNamed) {
+    CAPTURE_AND_REPLAY(r, "event_wait_wrong_stage", "--v1");
+    expect_event_wait_named(r, "vkCmdWaitEvents", "its srcAccessMask leaves out TRANSFER_WRITE");
+}
+
+TEST_F(BugPrograms, EventWaitAtBuildStageIsClean) {
+    CAPTURE_AND_REPLAY(r, "event_wait_wrong_stage", "--fixed");
+    expect_clean(r);
+}
+
+TEST_F(BugPrograms, EventWaitV1WithSourceAccessIsClean) {
+    CAPTURE_AND_REPLAY(r, "event_wait_wrong_stage", "--v1 --fixed");
+    expect_clean(r);
+}
+
+// The finding of a destroy or free at `address` while command 0 of submission 0 (`command`)
+// is pending, naming its access (`how`); besides it, at most the output difference the
+// capture's own late build gives (docs/replay.md, "Known misses and limits").
+void expect_in_use(const Replayed& r, const std::string& rule, uint64_t address,
+                   const std::string& command, const std::string& how) {
+    EXPECT_TRUE(r.hazards().empty()) << r.describe();
+    const json* in_use = nullptr;
+    for (const json& f : r.findings()) {
+        if (f.at("rule") == rule) {
+            EXPECT_EQ(in_use, nullptr) << r.describe();
+            in_use = &f;
+        } else {
+            EXPECT_EQ(f.at("rule"), "CLASTRACE-replay-output-differs") << r.describe();
+        }
+    }
+    ASSERT_NE(in_use, nullptr) << r.describe();
+    EXPECT_EQ(parse_address(in_use->at("address")), address);
+    EXPECT_NE(in_use->at("message").get<std::string>().find(
+                  "while " + command + " (submission 0, command buffer 0, command 0), which " +
+                  how),
+              std::string::npos)
+        << in_use->at("message");
+}
+
+TEST_F(BugPrograms, VertexMemoryFreedWhileTheBuildReadsItIsFound) {
+    CAPTURE_AND_REPLAY(r, "memory_freed_in_flight");
+    expect_in_use(r, "VUID-vkFreeMemory-memory-00677", r.range("vertices").begin, kClusterBuild,
+                  "reads it through srcInfosArray[*].vertexBuffer at ACCELERATION_STRUCTURE_BUILD");
+}
+
+TEST_F(BugPrograms, VertexMemoryFreedAfterTheFenceWaitIsClean) {
+    CAPTURE_AND_REPLAY(r, "memory_freed_in_flight", "--fixed");
+    expect_clean(r);
+}
+
+TEST_F(BugPrograms, KhrStructureDestroyedWhileItsBuildIsPendingIsFound) {
+    CAPTURE_AND_REPLAY(r, "khr_destroyed_while_building");
+    expect_in_use(r, "VUID-vkDestroyAccelerationStructureKHR-accelerationStructure-02442",
+                  r.range("structure").begin, "vkCmdBuildAccelerationStructuresKHR",
+                  "writes it through pInfos[0].dstAccelerationStructure at "
+                  "ACCELERATION_STRUCTURE_BUILD");
+}
+
+TEST_F(BugPrograms, KhrStructureDestroyedAfterTheFenceWaitIsClean) {
+    CAPTURE_AND_REPLAY(r, "khr_destroyed_while_building", "--fixed");
+    expect_clean(r);
+}
+
+TEST_F(BugPrograms, InfosArrayShorterThanTheCountIsFound) {
+    CAPTURE_AND_REPLAY(r, "infos_array_short");
+    EXPECT_TRUE(r.hazards().empty()) << r.describe();
+    const json* short_array = nullptr;
+    for (const json& f : r.findings())
+        if (f.at("rule") ==
+            "VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-pCommandInfos-10454")
+            short_array = &f;
+    ASSERT_NE(short_array, nullptr) << r.describe();
+    EXPECT_EQ(parse_address(short_array->at("address")), r.range("infos").begin);
+    EXPECT_EQ(short_array->at("where").at("command"), 0);
+    EXPECT_NE(short_array->at("message").get<std::string>().find("the op count is 3"),
+              std::string::npos)
+        << short_array->at("message");
+}
+
+TEST_F(BugPrograms, InfosArrayHoldingTheCountIsClean) {
+    CAPTURE_AND_REPLAY(r, "infos_array_short", "--fixed");
+    expect_clean(r);
+}
+
+TEST_F(BugPrograms, CountOverwrittenRightAfterTheBuildIsWriteAfterRead) {
+    CAPTURE_AND_REPLAY(r, "count_overwritten_after_build");
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    ASSERT_EQ(r.hazards().size(), 1u) << r.describe();
+    const json& h = r.hazards().at(0);
+    EXPECT_EQ(h.at("class"), "WRITE-AFTER-READ");
+    expect_side(h.at("prior"), kClusterBuild, 0, 0, "srcInfosCount", false);
+    expect_side(h.at("later"), "vkCmdCopyBuffer", 0, 1, "pRegions[0]", true);
+    expect_equal(range_of(h.at("overlap")), r.range("count"));
+    EXPECT_EQ(h.at("fix").at("srcStageMask"),
+              "VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR");
+    EXPECT_EQ(h.at("fix").at("dstStageMask"), "VK_PIPELINE_STAGE_2_COPY_BIT");
+}
+
+TEST_F(BugPrograms, CountOverwrittenBehindExecutionBarrierIsClean) {
+    CAPTURE_AND_REPLAY(r, "count_overwritten_after_build", "--fixed");
+    expect_clean(r);
+}
+
+TEST_F(BugPrograms, BottomLevelSubmittedBeforeItsClustersIsWriteAfterRead) {
+    CAPTURE_AND_REPLAY(r, "blas_before_clas_submission");
+    ASSERT_EQ(r.hazards().size(), 1u) << r.describe();
+    const json& h = r.hazards().at(0);
+    EXPECT_EQ(h.at("class"), "WRITE-AFTER-READ");
+    expect_side(h.at("prior"), kClusterBuild, 0, 0, "srcInfosArray[0].clusterReferences", false);
+    expect_side(h.at("later"), kClusterBuild, 1, 0, "dstAddressesArray", true);
+    expect_equal(range_of(h.at("overlap")), r.range("clas_addresses"));
+    // The engine's findings on what the bottom level read: the addresses, still zero.
+    int unbuilt = 0;
+    for (const json& f : r.findings()) {
+        if (f.at("rule") == "CLASTRACE-cluster-reference-holds-no-clas")
+            ++unbuilt;
+        else
+            EXPECT_EQ(f.at("rule"),
+                      "VUID-VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV-"
+                      "clusterReferences-10484");
+    }
+    EXPECT_EQ(unbuilt, 3) << r.describe();
+}
+
+TEST_F(BugPrograms, BottomLevelSubmittedAfterItsClustersIsClean) {
+    CAPTURE_AND_REPLAY(r, "blas_before_clas_submission", "--fixed");
     expect_clean(r);
 }
 

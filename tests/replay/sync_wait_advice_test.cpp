@@ -124,8 +124,8 @@ std::string advice_after_copy(Barrier barrier) {
 TEST(SyncBarrierAdvice, BarrierWithoutSourceAccessIsNamed) {
     const std::string advice =
         advice_after_copy([](Stream& s) { s.barrier(kCopy, 0, kAsBuild, kIndirect); });
-    EXPECT_NE(advice.find("The barrier between them, vkCmdPipelineBarrier2 (submit 0, cb 0, "
-                          "cmd 1), misses: its srcAccessMask leaves out TRANSFER_WRITE"),
+    EXPECT_NE(advice.find("The barrier between them, vkCmdPipelineBarrier2 (queue 0, submit 0, "
+                          "cb 0, cmd 1), misses: its srcAccessMask leaves out TRANSFER_WRITE"),
               std::string::npos)
         << advice;
 }
@@ -176,8 +176,45 @@ TEST(SyncBarrierAdvice, EventSetWithoutTheCopyStageIsNamed) {
         s.model.set_event(s.next("vkCmdSetEvent2"), event, dep);
         s.model.wait_events(s.next("vkCmdWaitEvents2"), std::span(&event, 1), dep);
     });
-    EXPECT_NE(advice.find("The event set between them, vkCmdSetEvent2 (submit 0, cb 0, cmd 1), "
-                          "misses: its srcStageMask leaves out COPY"),
+    EXPECT_NE(advice.find(
+                  "The event set between them, vkCmdSetEvent2 (queue 0, submit 0, cb 0, cmd 1), "
+                  "misses: its srcStageMask leaves out COPY"),
+              std::string::npos)
+        << advice;
+}
+
+// vkCmdSetEvent2 and vkCmdWaitEvents2 sharing a dependency whose source half is right and whose
+// destination misses the build: the wait is named, the set (which misses nothing) is not.
+TEST(SyncBarrierAdvice, EventWaitWithoutTheBuildStageIsNamed) {
+    const std::string advice = advice_after_copy([](Stream& s) {
+        const MemoryBarrier b{kCopy, kTransferWrite, kCompute, VK_ACCESS_2_SHADER_READ_BIT};
+        const DependencyInfo dep{std::span(&b, 1), {}, 0};
+        const uint64_t event = 0xE2;
+        s.model.set_event(s.next("vkCmdSetEvent2"), event, dep);
+        s.model.wait_events(s.next("vkCmdWaitEvents2"), std::span(&event, 1), dep);
+    });
+    EXPECT_NE(advice.find(
+                  "The event wait between them, vkCmdWaitEvents2 (queue 0, submit 0, cb 0, "
+                  "cmd 2), misses: its dstStageMask leaves out ACCELERATION_STRUCTURE_BUILD"),
+              std::string::npos)
+        << advice;
+}
+
+// vkCmdSetEvent (stages only) and a vkCmdWaitEvents whose srcAccessMask leaves the copy's write
+// out: the wait carries the access mask, so the wait is named.
+TEST(SyncBarrierAdvice, EventWaitV1WithoutSourceAccessIsNamed) {
+    const std::string advice = advice_after_copy([](Stream& s) {
+        const uint64_t event = 0xE3;
+        s.model.set_event_v1(s.next("vkCmdSetEvent"), event, VK_PIPELINE_STAGE_TRANSFER_BIT);
+        const MemoryBarrier b =
+            memory_barrier_v1(VK_PIPELINE_STAGE_TRANSFER_BIT, 0,
+                              VK_PIPELINE_STAGE_ACCELERATION_STRUCTURE_BUILD_BIT_KHR,
+                              VK_ACCESS_INDIRECT_COMMAND_READ_BIT);
+        s.model.wait_events(s.next("vkCmdWaitEvents"), std::span(&event, 1),
+                            DependencyInfo{std::span(&b, 1), {}, 0});
+    });
+    EXPECT_NE(advice.find("The event wait between them, vkCmdWaitEvents (queue 0, submit 0, cb 0, "
+                          "cmd 2), misses: its srcAccessMask leaves out TRANSFER_WRITE"),
               std::string::npos)
         << advice;
 }

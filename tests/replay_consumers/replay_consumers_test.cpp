@@ -290,6 +290,36 @@ TEST(ReplayConsumers, BottomLevelDestroyedWhileRaysMayReadItIsAFinding) {
     EXPECT_TRUE(destroyed_in_frame_2("destroy_waited.clt", true).findings.empty());
 }
 
+// A structure destroyed while its own build is pending is in use too (03752's "refer to"):
+// the finding names the build and the write; destroyed after the fence wait, nothing.
+ReplayReport destroyed_while_building(const std::string& name, bool wait_first) {
+    const std::string path = temp_path(name);
+    {
+        ConsumerTrace t(path);
+        ConsumerTrace::Object blas = t.bottom_level();
+        t.build_bottom(blas);
+        t.submit(kSetupFence);
+        if (wait_first) t.wait(kSetupFence);
+        t.destroy(blas);
+        t.finish();
+    }
+    ReplayReport r = test::replay_file(path);
+    test::discard_trace(path);
+    return r;
+}
+
+TEST(ReplayConsumers, BottomLevelDestroyedWhileItsBuildIsPendingIsAFinding) {
+    const ReplayReport r = destroyed_while_building("destroy_building.clt", false);
+    ASSERT_EQ(r.findings.size(), 1u) << all_hazards(r);
+    const auto& f = r.findings[0];
+    EXPECT_EQ(f.rule, "VUID-vkDestroyAccelerationStructureNV-accelerationStructure-03752");
+    EXPECT_NE(f.message.find("vkCmdBuildAccelerationStructureNV (submission 0, command buffer 0, "
+                             "command 0), which writes it"),
+              std::string::npos)
+        << f.message;
+    EXPECT_TRUE(destroyed_while_building("destroy_built.clt", true).findings.empty());
+}
+
 // A KHR top level names its bottom levels by device address: overwriting a bottom level's
 // buffer after rays that bind only the top level's address is a WRITE-AFTER-READ, whether the
 // instances were packed or given as an array of pointers.
