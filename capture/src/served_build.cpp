@@ -139,6 +139,7 @@ bool ServedRegionPool::make_one_ready() {
         size = size_short_of_demand();
     }
     if (!size) return false;
+    CostScope cost(CostPhase::kRegionsMadeReady);
     engine::RegionBytes bytes;
     try {
         bytes = engine::RegionBytes(*size);
