@@ -254,174 +254,135 @@ void printHostWriteTable(const Mode& serving, const Mode& guard, const Mode& has
                 std::printf("    %-29s %s\n", labels[i], line.c_str());
 }
 
-}  // namespace
+// The bench's arguments: frames, clusters and repetitions, and which tables to print.
+struct BenchArgs {
+    int frames = 60, clusters = 256, repetitions = 5;
+    bool host_writes_only = false;  // `host-writes`: only table 7
+    bool deltas_only = false;       // `deltas`: only table 8
+};
 
-int main(int argc, char** argv) {
-    const int frames = argc > 1 ? std::max(1, std::atoi(argv[1])) : 60;
-    const int clusters = argc > 2 ? std::clamp(std::atoi(argv[2]), 1, 4096) : 256;
-    const int repetitions = argc > 3 ? std::max(1, std::atoi(argv[3])) : 5;
-    const std::string driver = bench_driver().driver_files;
-    if (!bench_driver().installed()) {
-        std::fprintf(stderr, "capture_overhead_bench: the driver manifest %s is missing (%s)\n",
-                     driver.c_str(), bench_driver().missing_message().c_str());
-        return 1;
-    }
-    const fs::path dir =
-        fs::temp_directory_path() / ("clastrace_capture_bench_" + std::to_string(getpid()));
-    fs::create_directories(dir);
-    const fs::path trace = dir / "bench.clt";
-    const std::string args =
-        "frames " + std::to_string(frames) + " --clusters " + std::to_string(clusters);
+BenchArgs parse_args(int argc, char** argv) {
+    BenchArgs a;
+    if (argc > 1) a.frames = std::max(1, std::atoi(argv[1]));
+    if (argc > 2) a.clusters = std::clamp(std::atoi(argv[2]), 1, 4096);
+    if (argc > 3) a.repetitions = std::max(1, std::atoi(argv[3]));
+    a.host_writes_only = argc > 4 && std::string(argv[4]) == "host-writes";
+    a.deltas_only = argc > 4 && std::string(argv[4]) == "deltas";
+    return a;
+}
 
-    constexpr size_t kHostWritesOff = 10;  // index of the watch-off mode below
-    auto traceOf = [&](const char* name) { return (dir / (std::string(name) + ".clt")).string(); };
-    std::vector<Mode> modes = {
-        {"serving only (CLASTRACE_CAPTURE=0)", {{"CLASTRACE_CAPTURE", "0"}}, {}, {}, {}, {}},
-        {"capture + serving", {{"CLASTRACE_OUTPUT", traceOf("default")}}, {}, {}, {}, {}},
-        {"capture + serving, forced staging",
-         {{"CLASTRACE_OUTPUT", traceOf("staging")}, {"CLASTRACE_FORCE_STAGING", "1"}},
-         {},
-         {},
-         {},
-         {}},
-        {"capture + serving, CLASTRACE_FLUSH_MS=0",
-         {{"CLASTRACE_OUTPUT", traceOf("flush0")}, {"CLASTRACE_FLUSH_MS", "0"}},
-         {},
-         {},
-         {},
-         {}},
-        {"capture + serving, CLASTRACE_FLUSH_MS=50",
-         {{"CLASTRACE_OUTPUT", traceOf("flush50")}, {"CLASTRACE_FLUSH_MS", "50"}},
-         {},
-         {},
-         {},
-         {}},
-        {"capture + serving, CLASTRACE_ZSTD_LEVEL=1",
-         {{"CLASTRACE_OUTPUT", traceOf("zstd1")}, {"CLASTRACE_ZSTD_LEVEL", "1"}},
-         {},
-         {},
-         {},
-         {}},
-        {"capture + serving, CLASTRACE_ZSTD_LEVEL=9",
-         {{"CLASTRACE_OUTPUT", traceOf("zstd9")}, {"CLASTRACE_ZSTD_LEVEL", "9"}},
-         {},
-         {},
-         {},
-         {}},
-        {"capture + serving, CLASTRACE_ZSTD_LEVEL=-1",
-         {{"CLASTRACE_OUTPUT", traceOf("zstdm1")}, {"CLASTRACE_ZSTD_LEVEL", "-1"}},
-         {},
-         {},
-         {},
-         {}},
-        {"capture + serving, CLASTRACE_ZSTD_LEVEL=-5",
-         {{"CLASTRACE_OUTPUT", traceOf("zstdm5")}, {"CLASTRACE_ZSTD_LEVEL", "-5"}},
-         {},
-         {},
-         {},
-         {}},
-        {"capture + serving, CLASTRACE_BACKGROUND_CPUS=app",
-         {{"CLASTRACE_OUTPUT", traceOf("bgapp")}, {"CLASTRACE_BACKGROUND_CPUS", "app"}},
-         {},
-         {},
-         {},
-         {}},
-        {"capture + serving, CLASTRACE_HOST_WRITES=0",
-         {{"CLASTRACE_OUTPUT", traceOf("nohostwrites")}, {"CLASTRACE_HOST_WRITES", "0"}},
-         {},
-         {},
-         {},
-         {}},
-        {"capture + serving, CLASTRACE_DELTA_CONTENTS=0",
-         {{"CLASTRACE_OUTPUT", traceOf("nodeltas")}, {"CLASTRACE_DELTA_CONTENTS", "0"}},
-         {},
-         {},
-         {},
-         {}},
-        {"capture + serving, CLASTRACE_HOST_WRITES=hash",
-         {{"CLASTRACE_OUTPUT", traceOf("hashwatch")}, {"CLASTRACE_HOST_WRITES", "hash"}},
-         {},
-         {},
-         {},
-         {}},
+// Indices into all_modes' list of the modes the tables name.
+constexpr size_t kServing = 0, kCapture = 1, kStaging = 2, kFlush0 = 3, kFlush50 = 4, kZstd1 = 5,
+                 kZstd9 = 6, kZstdMinus1 = 7, kZstdMinus5 = 8, kBackgroundApp = 9,
+                 kHostWritesOff = 10, kDeltasOff = 11, kHostWritesHash = 12;
+
+// Every mode, in the order of the indices above; each capturing mode writes `dir`/NAME.clt.
+std::vector<Mode> all_modes(const fs::path& dir) {
+    auto capturing = [&](const char* name, const char* file,
+                         std::map<std::string, std::string> env) {
+        env["CLASTRACE_OUTPUT"] = (dir / (std::string(file) + ".clt")).string();
+        return Mode{name, std::move(env), {}, {}, {}, {}};
     };
-    constexpr size_t kDeltasOff = 11;
-    constexpr size_t kHostWritesHash = 12;
-    // `host-writes` as the 4th argument: only the host-write watch's table (guard, hash and off,
-    // with serving only as the floor), for its cost without the other knobs' runs.
-    const bool host_writes_only = argc > 4 && std::string(argv[4]) == "host-writes";
-    if (host_writes_only)
-        modes = {modes[0], modes[1], modes[kHostWritesHash], modes[kHostWritesOff]};
-    // `deltas`: only delta contents on against off (table 8).
-    const bool deltas_only = argc > 4 && std::string(argv[4]) == "deltas";
-    if (deltas_only) modes = {modes[0], modes[1], modes[kDeltasOff]};
-    // Interleaved, so drift of a shared machine spreads over every mode alike.
+    return {
+        {"serving only (CLASTRACE_CAPTURE=0)", {{"CLASTRACE_CAPTURE", "0"}}, {}, {}, {}, {}},
+        capturing("capture + serving", "default", {}),
+        capturing("capture + serving, forced staging", "staging",
+                  {{"CLASTRACE_FORCE_STAGING", "1"}}),
+        capturing("capture + serving, CLASTRACE_FLUSH_MS=0", "flush0",
+                  {{"CLASTRACE_FLUSH_MS", "0"}}),
+        capturing("capture + serving, CLASTRACE_FLUSH_MS=50", "flush50",
+                  {{"CLASTRACE_FLUSH_MS", "50"}}),
+        capturing("capture + serving, CLASTRACE_ZSTD_LEVEL=1", "zstd1",
+                  {{"CLASTRACE_ZSTD_LEVEL", "1"}}),
+        capturing("capture + serving, CLASTRACE_ZSTD_LEVEL=9", "zstd9",
+                  {{"CLASTRACE_ZSTD_LEVEL", "9"}}),
+        capturing("capture + serving, CLASTRACE_ZSTD_LEVEL=-1", "zstdm1",
+                  {{"CLASTRACE_ZSTD_LEVEL", "-1"}}),
+        capturing("capture + serving, CLASTRACE_ZSTD_LEVEL=-5", "zstdm5",
+                  {{"CLASTRACE_ZSTD_LEVEL", "-5"}}),
+        capturing("capture + serving, CLASTRACE_BACKGROUND_CPUS=app", "bgapp",
+                  {{"CLASTRACE_BACKGROUND_CPUS", "app"}}),
+        capturing("capture + serving, CLASTRACE_HOST_WRITES=0", "nohostwrites",
+                  {{"CLASTRACE_HOST_WRITES", "0"}}),
+        capturing("capture + serving, CLASTRACE_DELTA_CONTENTS=0", "nodeltas",
+                  {{"CLASTRACE_DELTA_CONTENTS", "0"}}),
+        capturing("capture + serving, CLASTRACE_HOST_WRITES=hash", "hashwatch",
+                  {{"CLASTRACE_HOST_WRITES", "hash"}}),
+    };
+}
+
+// Interleaved, so drift of a shared machine spreads over every mode alike.
+void run_interleaved(std::vector<Mode>& modes, const fs::path& dir, const std::string& app_args,
+                     int repetitions) {
     for (int r = 0; r < repetitions; ++r)
         for (Mode& m : modes) {
-            m.last = runApp(dir, args, m.env);
+            m.last = runApp(dir, app_args, m.env);
             m.loops.push_back(m.last.loopMs);
             m.cpu.push_back(m.last.loopCpuMs);
         }
-    if (host_writes_only) {
-        printHostWriteTable(modes[0], modes[1], modes[2], modes[3], frames, clusters);
-        fs::remove_all(dir);
-        return 0;
-    }
+}
+
+// The trace bytes of every capturing mode's last run.
+void measure_traces(std::vector<Mode>& modes) {
     for (Mode& m : modes)
         if (m.env.count("CLASTRACE_OUTPUT")) m.bytes = measureTrace(m.env["CLASTRACE_OUTPUT"], 3);
-    if (deltas_only) {
-        printDeltaTable(modes[0], modes[1], modes[2], repetitions);
-        fs::remove_all(dir);
-        return 0;
-    }
-    const TraceBytes& bytes = modes[1].bytes;
+}
 
+// Table 1: wall and CPU time of serving only, capture and forced staging, the pairwise and
+// median-wall ratios and the bootstrap interval of the latter.
+void print_time_table(const std::vector<Mode>& modes, const BenchArgs& a) {
+    const std::string driver = bench_driver().driver_files;
     std::printf(
         "capture overhead: %d frames x (1 triangle-cluster build of %d clusters + 1 bottom-level "
         "build), "
         "%s, best of %d runs each (interleaved)\n\n",
-        frames, clusters,
+        a.frames, a.clusters,
         driver == clastrace::testsupport::kSystemLavapipe ? "lavapipe" : driver.c_str(),
-        repetitions);
+        a.repetitions);
     // Wall time is what the application feels, but on a machine shared with other work it swings
     // by tens of percent run to run; the process's CPU time (all threads: application, driver,
     // layer worker, trace writer) is the steadier measure of the work capture adds.
-    const double peer = best(modes[0].loops), peerCpu = median(modes[0].cpu);
+    const double peer = best(modes[kServing].loops), peer_cpu = median(modes[kServing].cpu);
     std::printf(
         "| mode                                  | wall ms (best) | ratio  | CPU ms (median) | "
         "ratio  |\n");
     std::printf(
         "|---------------------------------------|---------------:|-------:|----------------:|-----"
         "--:|\n");
-    for (size_t i = 0; i < 3; ++i) {
+    for (size_t i : {kServing, kCapture, kStaging}) {
         const double ms = best(modes[i].loops), cpu = median(modes[i].cpu);
         std::printf("| %-37s | %14.1f | %5.3fx | %15.1f | %5.3fx |\n", modes[i].name, ms, ms / peer,
-                    cpu, cpu / peerCpu);
+                    cpu, cpu / peer_cpu);
     }
     // Each repetition ran serving only and capture back to back: the median of those pairs'
     // ratios is less moved by slow spells of a shared machine than the ratio of two minimums.
-    std::vector<double> pairWall, pairCpu;
-    for (int r = 0; r < repetitions; ++r) {
-        pairWall.push_back(modes[1].loops[r] / modes[0].loops[r]);
-        pairCpu.push_back(modes[1].cpu[r] / modes[0].cpu[r]);
+    const Mode &serving = modes[kServing], &capture = modes[kCapture];
+    std::vector<double> pair_wall, pair_cpu;
+    for (int r = 0; r < a.repetitions; ++r) {
+        pair_wall.push_back(capture.loops[r] / serving.loops[r]);
+        pair_cpu.push_back(capture.cpu[r] / serving.cpu[r]);
     }
     std::printf("| %-37s | %14s | %5.3fx | %15s | %5.3fx |\n", "capture + serving, median pairwise",
-                "", median(pairWall), "", median(pairCpu));
+                "", median(pair_wall), "", median(pair_cpu));
     // The goal's statistic (capture/README.md): the median wall time of each mode over all runs.
-    const double medianServe = median(modes[0].loops), medianCapture = median(modes[1].loops);
-    const auto atGoal =
-        std::count_if(pairWall.begin(), pairWall.end(), [](double r) { return r <= 1.10; });
+    const double median_serve = median(serving.loops), median_capture = median(capture.loops);
+    const auto at_goal =
+        std::count_if(pair_wall.begin(), pair_wall.end(), [](double r) { return r <= 1.10; });
     std::printf("| %-37s | %14.1f | %5.3fx | %15s | %6s |\n", "capture + serving, median wall",
-                medianCapture, medianCapture / medianServe, "", "");
-    for (const std::string& line : modes[1].last.stats)
+                median_capture, median_capture / median_serve, "", "");
+    for (const std::string& line : capture.last.stats)
         if (line.rfind("host-write watch:", 0) == 0)
             std::printf("\ncapture + serving ran the %s\n", line.c_str());
-    const auto [low, high] = bootstrapRatioInterval(modes[0].loops, modes[1].loops);
+    const auto [low, high] = bootstrapRatioInterval(serving.loops, capture.loops);
     std::printf(
         "\nserving only median wall %.1f ms; pairs with capture <= 1.10x: %lld of %d; median wall "
         "ratio "
         "%.3fx, 95%% bootstrap interval %.3fx-%.3fx\n",
-        medianServe, (long long)atGoal, repetitions, medianCapture / medianServe, low, high);
+        median_serve, (long long)at_goal, a.repetitions, median_capture / median_serve, low, high);
+}
+
+// Table 2: the default capture's trace bytes against the bytes its snapshots reference.
+void print_trace_bytes_table(const TraceBytes& bytes) {
     std::printf(
         "\n| trace bytes                                    |       bytes | vs referenced |\n");
     std::printf(
@@ -440,87 +401,152 @@ int main(int argc, char** argv) {
         "the stored contents are deltas\n",
         bytes.zstdOfReferenced ? double(bytes.fileBytes) / double(bytes.zstdOfReferenced) : 0.0,
         (unsigned long long)bytes.deltas);
+}
+
+// Table 3: host time per pause, from the layer's report of each mode's last run.
+void print_pause_table(const std::vector<Mode>& modes) {
     std::printf(
         "\n| mode                                  | pauses | median ms/pause | p90 ms/pause |\n");
     std::printf(
         "|---------------------------------------|-------:|----------------:|-------------:|\n");
-    for (size_t i = 0; i < 3; ++i)
+    for (size_t i : {kServing, kCapture, kStaging})
         std::printf("| %-37s | %6llu | %15.3f | %12.3f |\n", modes[i].name,
                     (unsigned long long)modes[i].last.pauses, modes[i].last.pauseMedianMs,
                     modes[i].last.pauseP90Ms);
+}
+
+// Table 4: the periodic flush interval against chunks, trace bytes and CPU time.
+void print_flush_table(const std::vector<Mode>& modes) {
+    const double peer_cpu = median(modes[kServing].cpu);
     std::printf(
         "\n| flush interval (loses at most)         | chunks | .clt bytes | CPU ms (median) | "
         "ratio vs serving only |\n");
     std::printf(
         "|----------------------------------------|-------:|-----------:|----------------:|--------"
         "--------------:|\n");
-    for (size_t i : {3, 1, 4}) {
+    for (size_t i : {kFlush0, kCapture, kFlush50}) {
         const Mode& m = modes[i];
-        const char* label = i == 3   ? "0: full 4 MiB chunks only"
-                            : i == 1 ? "1000 ms (default)"
-                                     : "50 ms";
+        const char* label = i == kFlush0    ? "0: full 4 MiB chunks only"
+                            : i == kCapture ? "1000 ms (default)"
+                                            : "50 ms";
         const double cpu = median(m.cpu);
         std::printf("| %-38s | %6llu | %10llu | %15.1f | %20.3fx |\n", label,
                     (unsigned long long)m.bytes.chunks, (unsigned long long)m.bytes.fileBytes, cpu,
-                    cpu / peerCpu);
+                    cpu / peer_cpu);
     }
-    // Compression runs on its own thread (at a lower priority than the application): the level
-    // trades trace bytes against that thread's CPU, which the application feels only when the
-    // machine has no idle core.
+}
+
+// Table 5: compression runs on its own thread (at a lower priority than the application): the
+// level trades trace bytes against that thread's CPU, which the application feels only when the
+// machine has no idle core.
+void print_zstd_table(const std::vector<Mode>& modes) {
+    const double peer = best(modes[kServing].loops), peer_cpu = median(modes[kServing].cpu);
     std::printf(
         "\n| CLASTRACE_ZSTD_LEVEL | .clt bytes | compressor CPU ms (last run) | wall ms (best) | "
         "ratio | CPU ms (median) | ratio |\n");
     std::printf(
         "|---------------------:|-----------:|-----------------------------:|---------------:|-----"
         "-:|----------------:|------:|\n");
-    for (size_t i : {8, 7, 5, 1, 6}) {
+    for (size_t i : {kZstdMinus5, kZstdMinus1, kZstd1, kCapture, kZstd9}) {
         const Mode& m = modes[i];
-        double compressorCpu = 0;
+        double compressor_cpu = 0;
         for (const std::string& line : m.last.stats) {
             const size_t at = line.find("compressor CPU ");
-            if (at != std::string::npos) compressorCpu = std::atof(line.c_str() + at + 15);
+            if (at != std::string::npos) compressor_cpu = std::atof(line.c_str() + at + 15);
         }
         const double ms = best(m.loops), cpu = median(m.cpu);
         std::printf("| %20s | %10llu | %28.1f | %14.1f | %4.3fx | %15.1f | %4.3fx |\n",
-                    i == 8   ? "-5"
-                    : i == 7 ? "-1"
-                    : i == 5 ? "1"
-                    : i == 1 ? "3 (default)"
-                             : "9",
-                    (unsigned long long)m.bytes.fileBytes, compressorCpu, ms, ms / peer, cpu,
-                    cpu / peerCpu);
+                    i == kZstdMinus5   ? "-5"
+                    : i == kZstdMinus1 ? "-1"
+                    : i == kZstd1      ? "1"
+                    : i == kCapture    ? "3 (default)"
+                                       : "9",
+                    (unsigned long long)m.bytes.fileBytes, compressor_cpu, ms, ms / peer, cpu,
+                    cpu / peer_cpu);
     }
-    // Where the sink's and the compressor's threads run: by default on the CPUs the application
-    // may not use (the bench runs confined by taskset on the device), with `app` on its own,
-    // where their SCHED_IDLE work still shares the engine's cores and caches. Without spare CPUs
-    // (an unconfined run) both rows run the same placement.
+}
+
+// Table 6: where the sink's and the compressor's threads run: by default on the CPUs the
+// application may not use (the bench runs confined by taskset on the device), with `app` on its
+// own, where their SCHED_IDLE work still shares the engine's cores and caches. Without spare CPUs
+// (an unconfined run) both rows run the same placement.
+void print_placement_table(const std::vector<Mode>& modes, int repetitions) {
+    const Mode& serving = modes[kServing];
+    const double peer = best(serving.loops), peer_cpu = median(serving.cpu);
     std::printf(
         "\n| CLASTRACE_BACKGROUND_CPUS | wall ms (best) | ratio | median wall ratio | median "
         "pairwise | CPU ms (median) | ratio |\n");
     std::printf(
         "|---------------------------|---------------:|------:|------------------:|----------------"
         ":|----------------:|------:|\n");
-    for (size_t i : {1, 9}) {
+    for (size_t i : {kCapture, kBackgroundApp}) {
         const Mode& m = modes[i];
         std::vector<double> pairs;
-        for (int r = 0; r < repetitions; ++r) pairs.push_back(m.loops[r] / modes[0].loops[r]);
+        for (int r = 0; r < repetitions; ++r) pairs.push_back(m.loops[r] / serving.loops[r]);
         const double ms = best(m.loops), cpu = median(m.cpu);
         std::printf("| %-25s | %14.1f | %4.3fx | %16.3fx | %14.3fx | %15.1f | %4.3fx |\n",
-                    i == 1 ? "spare (default)" : "app", ms, ms / peer,
-                    median(m.loops) / medianServe, median(pairs), cpu, cpu / peerCpu);
+                    i == kCapture ? "spare (default)" : "app", ms, ms / peer,
+                    median(m.loops) / median(serving.loops), median(pairs), cpu, cpu / peer_cpu);
     }
-    for (size_t i : {1, 9})
+    for (size_t i : {kCapture, kBackgroundApp})
         for (const std::string& line : modes[i].last.stats)
             if (line.rfind("background threads:", 0) == 0) std::printf("\n    %s", line.c_str());
     std::printf("\n");
-    // The layer's own account (CLASTRACE_STATS=1, capture/README.md): wall and CPU time per
-    // phase over the whole process, the vkDestroyDevice flush included (after the frame loop).
-    printHostWriteTable(modes[0], modes[1], modes[kHostWritesHash], modes[kHostWritesOff], frames,
-                        clusters);
-    printDeltaTable(modes[0], modes[1], modes[kDeltasOff], repetitions);
-    for (size_t i : {0, 1}) {
+}
+
+// The layer's own account (CLASTRACE_STATS=1, capture/README.md): wall and CPU time per phase
+// over the whole process, the vkDestroyDevice flush included (after the frame loop).
+void print_where_time_went(const std::vector<Mode>& modes) {
+    for (size_t i : {kServing, kCapture}) {
         std::printf("\nwhere the time went, %s (last run, CLASTRACE_STATS=1):\n\n", modes[i].name);
         for (const std::string& line : modes[i].last.stats) std::printf("    %s\n", line.c_str());
+    }
+}
+
+// Every table, from the runs of every mode.
+void print_all_tables(std::vector<Mode>& modes, const BenchArgs& a) {
+    measure_traces(modes);
+    print_time_table(modes, a);
+    print_trace_bytes_table(modes[kCapture].bytes);
+    print_pause_table(modes);
+    print_flush_table(modes);
+    print_zstd_table(modes);
+    print_placement_table(modes, a.repetitions);
+    printHostWriteTable(modes[kServing], modes[kCapture], modes[kHostWritesHash],
+                        modes[kHostWritesOff], a.frames, a.clusters);
+    printDeltaTable(modes[kServing], modes[kCapture], modes[kDeltasOff], a.repetitions);
+    print_where_time_went(modes);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    const BenchArgs a = parse_args(argc, argv);
+    if (!bench_driver().installed()) {
+        std::fprintf(stderr, "capture_overhead_bench: the driver manifest %s is missing (%s)\n",
+                     bench_driver().driver_files.c_str(), bench_driver().missing_message().c_str());
+        return 1;
+    }
+    const fs::path dir =
+        fs::temp_directory_path() / ("clastrace_capture_bench_" + std::to_string(getpid()));
+    fs::create_directories(dir);
+    const std::string app_args =
+        "frames " + std::to_string(a.frames) + " --clusters " + std::to_string(a.clusters);
+    std::vector<Mode> modes = all_modes(dir);
+    // `host-writes`: the host-write watch's table alone (guard, hash and off, with serving only
+    // as the floor), for its cost without the other knobs' runs; `deltas`: table 8 alone.
+    if (a.host_writes_only)
+        modes = {modes[kServing], modes[kCapture], modes[kHostWritesHash], modes[kHostWritesOff]};
+    else if (a.deltas_only)
+        modes = {modes[kServing], modes[kCapture], modes[kDeltasOff]};
+    run_interleaved(modes, dir, app_args, a.repetitions);
+    if (a.host_writes_only) {
+        printHostWriteTable(modes[0], modes[1], modes[2], modes[3], a.frames, a.clusters);
+    } else if (a.deltas_only) {
+        measure_traces(modes);
+        printDeltaTable(modes[0], modes[1], modes[2], a.repetitions);
+    } else {
+        print_all_tables(modes, a);
     }
     fs::remove_all(dir);
     return 0;

@@ -56,19 +56,27 @@ std::string format_cpu_list(const std::vector<unsigned>& cpus) {
 std::vector<unsigned> background_cpus_for(const BackgroundCpus& setting,
                                           const std::vector<unsigned>& online,
                                           const std::vector<unsigned>& allowed,
-                                          const std::vector<unsigned>& reserved) {
+                                          const std::vector<unsigned>& reserved,
+                                          const std::vector<unsigned>& siblings) {
     switch (setting.mode) {
     case BackgroundCpus::Mode::kApp: return {};
     case BackgroundCpus::Mode::kList: return setting.list;
     case BackgroundCpus::Mode::kSpare: break;
     }
     if (allowed.empty()) return {};  // the application's CPUs unknown: nothing to keep clear of
-    std::vector<unsigned> spare;
+    auto in = [](const std::vector<unsigned>& list, unsigned cpu) {
+        return std::find(list.begin(), list.end(), cpu) != list.end();
+    };
+    std::vector<unsigned> spare, apart_from_siblings;
     for (unsigned cpu : online)
-        if (!std::binary_search(allowed.begin(), allowed.end(), cpu) &&
-            std::find(reserved.begin(), reserved.end(), cpu) == reserved.end())
+        if (!in(allowed, cpu) && !in(reserved, cpu)) {
             spare.push_back(cpu);
-    return spare;
+            if (!in(siblings, cpu)) apart_from_siblings.push_back(cpu);
+        }
+    // A sibling shares its core's execution units and first caches with an engine thread while
+    // both run (SCHED_IDLE yields only the logical CPU): other cores first, siblings when the
+    // application holds every core.
+    return apart_from_siblings.empty() ? spare : apart_from_siblings;
 }
 
 namespace {
@@ -86,6 +94,19 @@ std::vector<unsigned> reserved_cpus() {
     std::vector<unsigned> reserved = cpu_list_file("/sys/devices/system/cpu/isolated");
     for (unsigned c : cpu_list_file("/sys/devices/system/cpu/nohz_full")) reserved.push_back(c);
     return reserved;
+}
+
+std::vector<unsigned> smt_siblings(const std::vector<unsigned>& cpus) {
+    std::vector<unsigned> siblings;
+    for (unsigned cpu : cpus) {
+        const std::string path =
+            "/sys/devices/system/cpu/cpu" + std::to_string(cpu) + "/topology/thread_siblings_list";
+        for (unsigned s : cpu_list_file(path.c_str()))
+            if (!std::binary_search(cpus.begin(), cpus.end(), s)) siblings.push_back(s);
+    }
+    std::sort(siblings.begin(), siblings.end());
+    siblings.erase(std::unique(siblings.begin(), siblings.end()), siblings.end());
+    return siblings;
 }
 
 std::vector<unsigned> thread_cpus(pthread_t thread) {

@@ -23,6 +23,7 @@ const char* const kPhaseNames[] = {
     "  buffers copied into the engine's image",
     "    of which into fresh pages (none in the region pool)",
     "served records completed",
+    "served regions made ready between pauses",
     "worker waiting for sink",
     "waiting for the sink past its memory bound",
     "app threads in sink",

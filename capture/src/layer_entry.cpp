@@ -512,8 +512,10 @@ std::shared_ptr<CaptureSink> process_capture_sink() {
         // Decided on the application's thread creating the device: its affinity is the application's.
         BackgroundPlacement placement;
         placement.application_cpus = calling_thread_cpus();
-        placement.cpus = background_cpus_for(config.background_cpus, online_cpus(),
-                                             placement.application_cpus, reserved_cpus());
+        placement.application_siblings = smt_siblings(placement.application_cpus);
+        placement.cpus =
+            background_cpus_for(config.background_cpus, online_cpus(), placement.application_cpus,
+                                reserved_cpus(), placement.application_siblings);
         log_message(LogLevel::kInfo, "background threads: CPUs %s (the application's: %s)",
                     placement.cpus.empty() ? "of the application"
                                            : format_cpu_list(placement.cpus).c_str(),

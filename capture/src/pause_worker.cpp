@@ -123,12 +123,11 @@ void PauseWorker::run() {
             }
         }
         if (!any_pending) {
-            if (device_
-                    .sink) {  // idle: free the written records' bytes here, where they were allocated
-                lock.unlock();
-                device_.sink->release_written();
-                lock.lock();
-            }
+            lock.unlock();
+            // idle: free the written records' bytes here, where they were allocated
+            if (device_.sink) device_.sink->release_written();
+            make_regions_ready();
+            lock.lock();
             wake_.wait(lock, [this] {
                 return stop_ || std::any_of(queues_.begin(), queues_.end(),
                                             [](auto& q) { return !q.second.empty(); });
@@ -150,6 +149,17 @@ void PauseWorker::run() {
         else
             std::this_thread::sleep_for(std::chrono::microseconds(50));
         lock.lock();
+    }
+}
+
+// Called idle, without mutex_: stops as soon as a pause is expected (the pool's regions are
+// made one at a time, each a few milliseconds at most).
+void PauseWorker::make_regions_ready() {
+    while (region_pool_->make_one_ready()) {
+        std::lock_guard lock(mutex_);
+        if (stop_ ||
+            std::any_of(queues_.begin(), queues_.end(), [](auto& q) { return !q.second.empty(); }))
+            return;
     }
 }
 
@@ -258,6 +268,7 @@ bool PauseWorker::handle(Expected& expected) {
     std::shared_ptr<const engine::MemoryImage> served_image;
     if (served) served_image = finish_served_command(pause, *served, record, reader);
     const double stalled = release_queue(expected, started, started_cpu);
+    if (served) region_pool_->pause_ended();
     staging_ = nullptr;  // the queue may overwrite the staged copies from here on
     if (!record) return true;
     record->pause_milliseconds += stalled;

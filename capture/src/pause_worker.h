@@ -139,6 +139,8 @@ private:
     // The buffers a served build can reach (mapped ones, and the pause's staged copies), their
     // non-coherent memory invalidated.
     std::vector<ServedBuffer> prepare_served_buffers();
+    // Between pauses: the served region pool's regions for the next pause's copies.
+    void make_regions_ready();
     std::shared_ptr<ServedRegionPool> region_pool_ = std::make_shared<ServedRegionPool>();
 
     DeviceState& device_;

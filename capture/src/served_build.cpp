@@ -90,6 +90,7 @@ std::vector<bool> groups_the_outputs_name(
 
 engine::RegionBytes ServedRegionPool::take(uint64_t size) {
     std::lock_guard lock(mutex_);
+    ++taken_now_[size];
     auto it = by_size_.find(size);
     if (it == by_size_.end()) return {};
     engine::RegionBytes bytes = std::move(it->second);
@@ -112,6 +113,47 @@ void ServedRegionPool::give(std::vector<engine::RegionBytes> storage) {
 uint64_t ServedRegionPool::held_bytes() const {
     std::lock_guard lock(mutex_);
     return held_;
+}
+
+void ServedRegionPool::pause_ended() {
+    std::lock_guard lock(mutex_);
+    if (taken_now_.empty()) return;  // a pause that copied nothing says nothing of the next
+    if (recent_.size() == kDemandPauses) recent_.erase(recent_.begin());
+    recent_.push_back(std::move(taken_now_));
+    taken_now_.clear();
+}
+
+std::optional<uint64_t> ServedRegionPool::size_short_of_demand() const {
+    std::map<uint64_t, uint32_t> demand;
+    for (const auto& pause : recent_)
+        for (const auto& [size, count] : pause) demand[size] = std::max(demand[size], count);
+    for (const auto& [size, count] : demand)
+        if (by_size_.count(size) < count && held_ + size <= kMaxBytes) return size;
+    return std::nullopt;
+}
+
+bool ServedRegionPool::make_one_ready() {
+    std::optional<uint64_t> size;
+    {
+        std::lock_guard lock(mutex_);
+        size = size_short_of_demand();
+    }
+    if (!size) return false;
+    CostScope cost(CostPhase::kRegionsMadeReady);
+    engine::RegionBytes bytes;
+    try {
+        bytes = engine::RegionBytes(*size);
+    } catch (const std::bad_alloc&) {
+        return false;
+    }
+    // One store a page faults it in here, between pauses, rather than inside the next one.
+    std::byte* first = bytes.write_at(0, *size);
+    for (uint64_t at = 0; at < *size; at += engine::RegionBytes::kPageBytes)
+        first[at] = std::byte{0};
+    std::vector<engine::RegionBytes> ready;
+    ready.push_back(std::move(bytes));
+    give(std::move(ready));
+    return true;
 }
 
 ServedMemory::ServedMemory(std::vector<ServedBuffer> buffers,

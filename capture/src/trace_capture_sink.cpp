@@ -361,7 +361,10 @@ public:
         }
         {
             std::lock_guard lock(placement_mutex_);
-            const std::string application = format_cpu_list(placement_.application_cpus);
+            std::string application = format_cpu_list(placement_.application_cpus);
+            if (!placement_.application_siblings.empty())
+                application +=
+                    "; their SMT siblings: " + format_cpu_list(placement_.application_siblings);
             lines.push_back(
                 (placement_.cpus.empty()
                      ? "background threads: with the application (CPUs " + application + ")"

@@ -249,8 +249,14 @@ TEST(CaptureCostSetting, ParsesAndRejectsByName) {
 TEST_F(CaptureCostReport, BackgroundThreadsGoWhereTheSettingSays) {
     const std::vector<unsigned> online = clastrace::capture::online_cpus();
     if (online.size() < 2 || online[0] != 0) GTEST_SKIP() << "needs CPU 0 and another online CPU";
-    const std::string others =
-        clastrace::capture::format_cpu_list({online.begin() + 1, online.end()});
+    // Spare: the others, less CPU 0's SMT siblings where the machine has other cores.
+    const std::vector<unsigned> siblings = clastrace::capture::smt_siblings({0});
+    const std::string others = clastrace::capture::format_cpu_list(
+        clastrace::capture::background_cpus_for({}, online, {0}, {}, siblings));
+    const std::string application =
+        siblings.empty()
+            ? "0"
+            : "0; their SMT siblings: " + clastrace::capture::format_cpu_list(siblings);
     const std::string last = std::to_string(online.back());
     auto placementLine = [&](const char* setting) {
         std::map<std::string, std::string> env{{"CLASTRACE_OUTPUT", (dir / "placed.clt").string()},
@@ -261,21 +267,22 @@ TEST_F(CaptureCostReport, BackgroundThreadsGoWhereTheSettingSays) {
         return std::string("(no placement line)");
     };
     const std::string spare = "background threads: asked for CPUs " + others +
-                              " (the application's: 0); sink on " + others + ", compressor placed";
+                              " (the application's: " + application + "); sink on " + others +
+                              ", compressor placed";
     EXPECT_EQ(placementLine(nullptr), spare);
     EXPECT_EQ(placementLine("spare"), spare);
     EXPECT_EQ(
         placementLine("app"),
         "background threads: with the application (CPUs 0); sink on 0, compressor as created");
     EXPECT_EQ(placementLine(last.c_str()), "background threads: asked for CPUs " + last +
-                                               " (the application's: 0); sink on " + last +
-                                               ", compressor placed");
+                                               " (the application's: " + application +
+                                               "); sink on " + last + ", compressor placed");
     // A CPU the kernel refuses (none such here; a cpuset would do the same): both threads stay
     // with the application and the line says so.
     if (online.back() < 4095) {
         EXPECT_EQ(placementLine("4095"),
-                  "background threads: asked for CPUs 4095 (the application's: 0); sink on 0, "
-                  "compressor refused (as created)");
+                  "background threads: asked for CPUs 4095 (the application's: " + application +
+                      "); sink on 0, compressor refused (as created)");
     }
 }
 

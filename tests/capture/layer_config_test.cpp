@@ -6,6 +6,7 @@
 #include <string>
 #include <thread>
 
+#include <algorithm>
 #include <mutex>
 
 using namespace clastrace::capture;
@@ -188,6 +189,40 @@ TEST(BackgroundCpus, SpareIsTheOnlineCpusTheApplicationLacks) {
             .empty());
     EXPECT_EQ(background_cpus_for({BackgroundCpus::Mode::kList, {9}}, online, online),
               (std::vector<unsigned>{9}));
+}
+
+// The SMT siblings of the application's CPUs (2-5 on cores shared with 10-13) are left out while
+// other CPUs remain, and taken when only they are spare; `app` and a list ignore them.
+TEST(BackgroundCpus, SpareLeavesOutTheApplicationsSmtSiblingsWhileOtherCoresRemain) {
+    const std::vector<unsigned> online = *parse_cpu_list("0-15");
+    const std::vector<unsigned> app = *parse_cpu_list("2-5");
+    const std::vector<unsigned> siblings = *parse_cpu_list("10-13");
+    const BackgroundCpus spare;
+    EXPECT_EQ(format_cpu_list(background_cpus_for(spare, online, app, {}, siblings)),
+              "0-1,6-9,14-15");
+    EXPECT_EQ(format_cpu_list(
+                  background_cpus_for(spare, online, app, {0, 1, 6, 7, 8, 9, 14, 15}, siblings)),
+              "10-13");  // only siblings left: better than the application's own CPUs
+    EXPECT_EQ(format_cpu_list(background_cpus_for(spare, *parse_cpu_list("0-7"),
+                                                  *parse_cpu_list("0-3"), {}, {4, 5, 6, 7})),
+              "4-7");
+    EXPECT_TRUE(
+        background_cpus_for({BackgroundCpus::Mode::kApp, {}}, online, app, {}, siblings).empty());
+    EXPECT_EQ(background_cpus_for({BackgroundCpus::Mode::kList, {10}}, online, app, {}, siblings),
+              (std::vector<unsigned>{10}));
+}
+
+// This machine's topology: a CPU's siblings never include the CPUs asked about, and every CPU
+// is a sibling of none once all are asked about.
+TEST(BackgroundCpus, SmtSiblingsAreOtherCpusOfTheSameCores) {
+    const std::vector<unsigned> online = online_cpus();
+    if (online.empty()) GTEST_SKIP() << "no /sys/devices/system/cpu/online";
+    EXPECT_TRUE(smt_siblings(online).empty());
+    const std::vector<unsigned> first{online[0]};
+    for (unsigned s : smt_siblings(first)) {
+        EXPECT_NE(s, online[0]);
+        EXPECT_TRUE(std::binary_search(online.begin(), online.end(), s)) << s;
+    }
 }
 
 // The sink places its thread from the creating thread, before that thread has run: the

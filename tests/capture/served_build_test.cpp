@@ -371,6 +371,40 @@ TEST(ServedBuild, RegionPoolMatchesExactSizesAndStaysBounded) {
     EXPECT_EQ(pool.held_bytes(), 0u);
 }
 
+// Between pauses the pool makes ready, pages faulted in, as many regions of each size as one
+// of the last pauses took (while records waiting to be written hold theirs), and no more; a
+// size no longer taken drops out of the demand after kDemandPauses pauses.
+TEST(ServedBuild, RegionPoolMakesReadyWhatTheLastPausesTook) {
+    ServedRegionPool pool;
+    EXPECT_FALSE(pool.make_one_ready());  // no demand yet
+    EXPECT_TRUE(pool.take(8192).empty());
+    EXPECT_TRUE(pool.take(8192).empty());
+    EXPECT_TRUE(pool.take(4096).empty());
+    EXPECT_FALSE(pool.make_one_ready());  // the pause has not ended
+    pool.pause_ended();
+    int made = 0;
+    while (pool.make_one_ready()) ++made;
+    EXPECT_EQ(made, 3);
+    EXPECT_EQ(pool.held_bytes(), 2 * 8192u + 4096u);
+    engine::RegionBytes lent = pool.take(8192);
+    ASSERT_EQ(lent.size(), 8192u);
+    EXPECT_EQ(lent.resident_bytes(), 8192u);  // faulted in: the copy into it faults no page
+    EXPECT_EQ(std::to_integer<int>(lent.data()[4096]), 0);
+    pool.pause_ended();  // took one 8192: the demand is still two of them
+    EXPECT_TRUE(pool.make_one_ready());
+    EXPECT_FALSE(pool.make_one_ready());
+    // Pauses taking only 4096 push the 8192s out of the demand, not out of the pool.
+    for (size_t i = 0; i < ServedRegionPool::kDemandPauses; ++i) {
+        engine::RegionBytes small = pool.take(4096);
+        pool.pause_ended();
+        std::vector<engine::RegionBytes> back;
+        back.push_back(std::move(small));
+        pool.give(std::move(back));
+    }
+    EXPECT_FALSE(pool.make_one_ready());
+    EXPECT_EQ(pool.held_bytes(), 2 * 8192u + 4096u);
+}
+
 // The capture's walk and the served build read through one copy: a read copies the buffer's
 // alias group on first touch only, and ranges outside every buffer, or across two, are null.
 TEST(ServedBuild, ServedMemoryCopiesAGroupOnFirstRead) {

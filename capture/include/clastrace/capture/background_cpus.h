@@ -8,8 +8,10 @@
 // CLASTRACE_BACKGROUND_CPUS:
 //   spare (default)  the online CPUs that the thread creating the capture may not run on (an
 //                    application started under `taskset` or a narrowed affinity), leaving out
-//                    those the kernel keeps apart (isolcpus, nohz_full: someone reserved them),
-//                    when there are any; otherwise the application's own, as with `app`
+//                    those the kernel keeps apart (isolcpus, nohz_full: someone reserved them)
+//                    and, unless only they are left, the SMT siblings of the application's
+//                    CPUs (a sibling shares the core an engine thread runs on), when there are
+//                    any; otherwise the application's own, as with `app`
 //   app              inherited from the application: the old placement
 //   a list, "6-7,12" those CPUs (0-based, as `taskset -c` takes them)
 // The application's CPUs are those of the thread creating the first device (what `taskset`
@@ -41,15 +43,19 @@ std::optional<std::vector<unsigned>> parse_cpu_list(const std::string& text);
 std::string format_cpu_list(const std::vector<unsigned>& cpus);
 
 // The CPUs the background threads should be given, from the machine's online CPUs, the
-// calling (application) thread's allowed ones and the reserved ones; empty means: leave them
-// where they were created.
+// calling (application) thread's allowed ones, the reserved ones and the allowed ones' SMT
+// siblings; empty means: leave them where they were created.
 std::vector<unsigned> background_cpus_for(const BackgroundCpus& setting,
                                           const std::vector<unsigned>& online,
                                           const std::vector<unsigned>& allowed,
-                                          const std::vector<unsigned>& reserved = {});
+                                          const std::vector<unsigned>& reserved = {},
+                                          const std::vector<unsigned>& siblings = {});
 
 std::vector<unsigned> online_cpus();    // /sys/devices/system/cpu/online; empty if unknown
 std::vector<unsigned> reserved_cpus();  // /sys/devices/system/cpu/{isolated,nohz_full}
+// The other hardware threads of the cores that `cpus` (ascending) are on, not in `cpus`
+// (/sys/devices/system/cpu/cpuN/topology/thread_siblings_list); empty without SMT or if unknown.
+std::vector<unsigned> smt_siblings(const std::vector<unsigned>& cpus);
 // A thread's affinity; empty if unknown.
 std::vector<unsigned> thread_cpus(pthread_t thread);
 std::vector<unsigned> calling_thread_cpus();

@@ -24,6 +24,7 @@ enum class CostPhase : uint8_t {
     kPauseCopyIn,
     kPauseCopyInFresh,        //   of which: into fresh region bytes, the region pool having none
     kServedRecordCompletion,  // a served record completed where it is written: output walk, buffer naming
+    kRegionsMadeReady,        // pause worker between pauses: served region pool regions faulted in
     kWorkerSinkWait,          // pause worker waiting for the sink's lock
     kSinkBoundWait,  // a deliverer waiting for the sink to write, past its memory bound (1 GiB)
     kAppSinkCall,    // application threads inside the sink (records, submissions, timestamps)

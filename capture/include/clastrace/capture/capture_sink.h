@@ -78,10 +78,11 @@ std::unique_ptr<CaptureSink> make_json_capture_sink(const std::string& path, std
 // Every `flushMilliseconds` (0: never) the records so far are written out as a finished chunk,
 // so a process that is killed loses at most that much of its capture.
 // Its two threads (the sink's and the compressor's) run on `placement.cpus` when not empty
-// (background_cpus.h); `applicationCpus` is only reported.
+// (background_cpus.h); `application_cpus` and `application_siblings` are only reported.
 struct BackgroundPlacement {
     std::vector<unsigned> cpus;
     std::vector<unsigned> application_cpus;
+    std::vector<unsigned> application_siblings;  // SMT siblings of application_cpus
 };
 // The output follows traces/output_file.h's rule and is written in place: it is opened (or,
 // with `inheritedFd` >= 0, taken over from `clastrace capture`) and locked here, and emptied

@@ -49,15 +49,29 @@ struct ServedBuffer {
 class ServedRegionPool {
 public:
     static constexpr uint64_t kMaxBytes = 256ull << 20;
+    // Pauses whose takes make the demand that make_one_ready() meets.
+    static constexpr size_t kDemandPauses = 8;
     // Bytes of exactly `size`, or an empty RegionBytes when none is held.
     engine::RegionBytes take(uint64_t size);
     void give(std::vector<engine::RegionBytes> storage);
     uint64_t held_bytes() const;
 
+    // With capture the images of records not yet written hold their regions, and the next
+    // pause's copies would fault in fresh pages while the queue waits. The demand is, per size,
+    // the most regions one of the last kDemandPauses pauses took; between pauses the worker
+    // makes regions ready up to it.
+    void pause_ended();  // the takes since the last call were one pause's
+    // Adds one region, its pages faulted in, of a size the pool holds fewer of than the demand
+    // (within kMaxBytes); false when there is none such or the memory cannot be had.
+    bool make_one_ready();
+
 private:
+    std::optional<uint64_t> size_short_of_demand() const;  // under mutex_
     mutable std::mutex mutex_;
     std::multimap<uint64_t, engine::RegionBytes> by_size_;
     uint64_t held_ = 0;
+    std::map<uint64_t, uint32_t> taken_now_;            // size -> takes this pause
+    std::vector<std::map<uint64_t, uint32_t>> recent_;  // the last pauses' takes, oldest first
 };
 
 // The served buffers as the engine will see them: buffers whose address ranges overlap
