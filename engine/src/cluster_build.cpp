@@ -305,9 +305,10 @@ bool check_triangle_info(const TriangleDecode& job, const VertexFormatInfo& vf) 
 
 // Packed 8-bit indices (the usual cluster index buffer) copied as they are, with their
 // largest value found 16 at a time where the target has SSE2 (GCC at -O2 vectorizes no
-// maximum of bytes).
+// maximum of bytes). An empty cluster's indices are an empty span, whose data() is null, which
+// memcpy may not be given even for 0 bytes.
 uint32_t copy_packed_bytes(const std::byte* src, uint32_t count, uint8_t* dst) {
-    std::memcpy(dst, src, count);
+    if (count != 0) std::memcpy(dst, src, count);
     uint32_t i = 0, largest = 0;
 #if defined(__SSE2__)
     __m128i top = _mm_setzero_si128();

@@ -377,7 +377,10 @@ void ClusterRunAhead::lay_in_earlier_runs() {
         for (const auto& [address, size] : from.writes) {
             const uint8_t* these = bytes;
             bytes += size;
-            const auto holds = [&](const PlannedRegion& r) { return address - r.base < r.size; };
+            // An init-capture: clang 14 (scripts/fuzz.sh's compiler) captures no structured binding.
+            const auto holds = [at = address](const PlannedRegion& r) {
+                return at - r.base < r.size;
+            };
             const auto source =
                 std::find_if(from.written_regions.begin(), from.written_regions.end(), holds);
             if (source == from.written_regions.end()) continue;

@@ -561,6 +561,23 @@ TEST(ClusterBuildRules, ClusterWithoutVerticesHasOnlyInactiveTriangles) {
     EXPECT_EQ(empty.bytes.size(), sizeof(ObjectHeader));
 }
 
+// Packed 8-bit indices take the build's copy path; an empty cluster's are an empty span with a
+// null data(), which that copy once handed memcpy (UBSan: null argument; session 16's fuzzing).
+TEST(ClusterBuildRules, EmptyClusterWithPacked8BitIndices) {
+    test::Arena arena;
+    VkClusterAccelerationStructureBuildTriangleClusterInfoNV info{};
+    info.triangleCount = 0;
+    info.vertexCount = 0;
+    info.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_8BIT_NV;
+    info.indexBuffer = arena.alloc(16);
+    info.vertexBuffer = arena.alloc(64);
+    const auto o =
+        build_triangle_cluster(arena.memory, info, test::default_input(), EngineProperties{}, 0);
+    ASSERT_TRUE(o.ok);
+    EXPECT_TRUE(o.findings.empty());
+    EXPECT_EQ(o.bytes.size(), sizeof(ObjectHeader));
+}
+
 }  // namespace
 }  // namespace clastrace::engine
 

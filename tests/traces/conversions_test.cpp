@@ -171,6 +171,32 @@ TEST(ClusterConversions, NoOpInputIsRecordedForANullPointerOrAnUnknownOpType) {
     }
 }
 
+// A record whose union holds another member than its opType names (a hostile trace; session 16's
+// replay_built_trace fuzzing under ASan): readers follow opType, so handing them the member it
+// holds had the size-query key read a triangle input past the end of a move input's storage.
+TEST(ClusterConversions, AnOpInputOtherThanTheOpTypeNamesIsDropped) {
+    fbs::ClusterInputInfoT record;
+    record.op_type = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
+    record.max_acceleration_structure_count = 7;
+    fbs::MoveObjectsInputT move;
+    move.max_moved_bytes = 64;
+    record.op_input.Set(std::move(move));
+    ClusterOpInputStorage storage;
+    flatbuffers::FlatBufferBuilder fbb;
+    const auto out =
+        cluster_input_from_record(&packed<fbs::ClusterInputInfo>(record, fbb), storage);
+    EXPECT_EQ(out.opType, VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV);
+    EXPECT_EQ(out.maxAccelerationStructureCount, 7u);
+    EXPECT_EQ(out.opInput.pTriangleClusters, nullptr);
+    // The member the op type names still comes back.
+    record.op_type = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV;
+    flatbuffers::FlatBufferBuilder fbb2;
+    const auto moved =
+        cluster_input_from_record(&packed<fbs::ClusterInputInfo>(record, fbb2), storage);
+    ASSERT_EQ(moved.opInput.pMoveObjects, &storage.move_objects);
+    EXPECT_EQ(moved.opInput.pMoveObjects->maxMovedBytes, 64u);
+}
+
 TEST(ClusterConversions, MissingRecordsReadAsZeroedStructs) {
     ClusterOpInputStorage storage;
     const auto in = cluster_input_from_record(nullptr, storage);

@@ -85,21 +85,34 @@ VkClusterAccelerationStructureMoveObjectsInputNV move_objects_input_from_record(
 
 namespace {
 
-void set_op_input(const VkClusterAccelerationStructureInputInfoNV& input,
-                  fbs::ClusterOpInputUnion& out) {
-    // The union's member is chosen by opType; an unknown op type's input has an unknown layout.
-    if (!input.opInput.pTriangleClusters) return;
-    switch (input.opType) {
+// The union member opType selects (VkClusterAccelerationStructureOpInputNV); NONE for an op type
+// whose input has an unknown layout.
+fbs::ClusterOpInput op_input_member(uint32_t op_type) {
+    switch (op_type) {
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV:
-        out.Set(bottom_level_input_to_record(*input.opInput.pClustersBottomLevel));
-        return;
+        return fbs::ClusterOpInput::ClustersBottomLevelInput;
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV:
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV:
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV:
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV:
+        return fbs::ClusterOpInput::TriangleClusterInput;
+    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV:
+        return fbs::ClusterOpInput::MoveObjectsInput;
+    default: return fbs::ClusterOpInput::NONE;
+    }
+}
+
+void set_op_input(const VkClusterAccelerationStructureInputInfoNV& input,
+                  fbs::ClusterOpInputUnion& out) {
+    if (!input.opInput.pTriangleClusters) return;
+    switch (op_input_member(input.opType)) {
+    case fbs::ClusterOpInput::ClustersBottomLevelInput:
+        out.Set(bottom_level_input_to_record(*input.opInput.pClustersBottomLevel));
+        return;
+    case fbs::ClusterOpInput::TriangleClusterInput:
         out.Set(triangle_cluster_input_to_record(*input.opInput.pTriangleClusters));
         return;
-    case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV:
+    case fbs::ClusterOpInput::MoveObjectsInput:
         out.Set(move_objects_input_to_record(*input.opInput.pMoveObjects));
         return;
     default: return;
@@ -128,6 +141,9 @@ VkClusterAccelerationStructureInputInfoNV cluster_input_from_record(
     out.flags = record->flags();
     out.opType = static_cast<VkClusterAccelerationStructureOpTypeNV>(record->op_type());
     out.opMode = static_cast<VkClusterAccelerationStructureOpModeNV>(record->op_mode());
+    // Every reader takes the union's member that opType names: a record holding another one
+    // (a damaged or hostile trace) would have them read past the member it holds.
+    if (record->op_input_type() != op_input_member(record->op_type())) return out;
     if (const auto* t = record->op_input_as_TriangleClusterInput()) {
         storage.triangle_cluster = triangle_cluster_input_from_record(*t);
         out.opInput.pTriangleClusters = &storage.triangle_cluster;
