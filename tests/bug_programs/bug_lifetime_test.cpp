@@ -18,7 +18,7 @@ void expect_destroyed_in_use(const Replayed& r) {
     EXPECT_EQ(parse_address(destroyed->at("address")), r.range("vertices").begin);
     const std::string message = destroyed->at("message").get<std::string>();
     EXPECT_NE(message.find("while " + std::string(kClusterBuild) +
-                           " (submission 0, command buffer 0, command 0), which reads it through "
+                           " (queue 0, submit 0, cb 0, cmd 0), which reads it through "
                            "srcInfosArray[*].vertexBuffer at ACCELERATION_STRUCTURE_BUILD"),
               std::string::npos)
         << message;
@@ -72,8 +72,7 @@ void expect_in_use(const Replayed& r, const std::string& rule, uint64_t address,
     ASSERT_NE(in_use, nullptr) << r.describe();
     EXPECT_EQ(parse_address(in_use->at("address")), address);
     EXPECT_NE(in_use->at("message").get<std::string>().find(
-                  "while " + command + " (submission 0, command buffer 0, command 0), which " +
-                  how),
+                  "while " + command + " (queue 0, submit 0, cb 0, cmd 0), which " + how),
               std::string::npos)
         << in_use->at("message");
 }
