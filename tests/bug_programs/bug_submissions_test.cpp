@@ -5,6 +5,7 @@
 #include "bug_programs_support.h"
 
 #include <string>
+#include <vector>
 
 namespace clastrace::bug_programs {
 namespace {
@@ -98,17 +99,28 @@ TEST_F(BugPrograms, BottomLevelSubmittedBeforeItsClustersIsWriteAfterRead) {
     expect_side(h.at("prior"), kClusterBuild, 0, 0, "srcInfosArray[0].clusterReferences", false);
     expect_side(h.at("later"), kClusterBuild, 1, 0, "dstAddressesArray", true);
     expect_equal(range_of(h.at("overlap")), r.range("clas_addresses"));
-    // The engine's findings on what the bottom level read: the addresses, still zero.
+    // The engine's findings on what the bottom level read: the addresses, still zero. 10484
+    // says "All cluster references in clusterReferences must be unique" and leaves 0 no
+    // exception, so the three zeros are two repeats, each naming the pair it saw.
     int unbuilt = 0;
+    std::vector<std::string> repeats;
     for (const json& f : r.findings()) {
-        if (f.at("rule") == "CLASTRACE-cluster-reference-holds-no-clas")
+        if (f.at("rule") == "CLASTRACE-cluster-reference-holds-no-clas") {
             ++unbuilt;
-        else
+            EXPECT_NE(f.at("message").get<std::string>().find("address is 0, not a CLAS"),
+                      std::string::npos)
+                << f.at("message");
+        } else {
             EXPECT_EQ(f.at("rule"),
                       "VUID-VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV-"
                       "clusterReferences-10484");
+            repeats.push_back(f.at("message").get<std::string>());
+        }
     }
     EXPECT_EQ(unbuilt, 3) << r.describe();
+    ASSERT_EQ(repeats.size(), 2u) << r.describe();
+    EXPECT_NE(repeats[0].find("[0] and [1] both reference 0x0"), std::string::npos) << repeats[0];
+    EXPECT_NE(repeats[1].find("[1] and [2] both reference 0x0"), std::string::npos) << repeats[1];
 }
 
 TEST_F(BugPrograms, BottomLevelSubmittedAfterItsClustersIsClean) {
