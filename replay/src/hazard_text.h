@@ -1,6 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
-// The pieces of text a hazard message and its advice share (hazard_report.cpp), so a command
-// and a range read the same wherever replay names them.
+// The one text for a command and for a range in replay's messages (defined in
+// hazard_report.cpp): hazards, their advice, and the findings that name another command (a
+// destroy or free while it is pending, a structure it reads that nothing built). A finding's
+// own place, its header (ReplayFinding::format), is its record's, with the handle and [#N].
 #pragma once
 
 #include <cstdint>

@@ -279,6 +279,7 @@ private:
     std::unordered_set<uint64_t>
         pools_noted_;  // pool resets of unknown membership already in not_replayed
     std::unordered_map<uint64_t, QueueId> queues_;
+    QueueId submission_queue_ = 0;  // the queue of the submission being replayed (command_text)
     detail::ClusterSizeQueries cluster_queries_;  // what build-size queries answered
     uint64_t sequence_ = 0;
     uint32_t next_submission_ = 0;

@@ -61,7 +61,7 @@ void Replay::on_submit(const fbs::QueueSubmit& submit) {
     ++report_.counts.submissions;
     if (submit.result() != VK_SUCCESS) return;  // nothing reached the queue
     if (options_.observer) options_.observer->on_submission_begin(submission);
-    const QueueId queue = queue_id(submit.queue());
+    const QueueId queue = submission_queue_ = queue_id(submit.queue());
     const auto* batches = submit.batches();
     const size_t batch_count = batches ? batches->size() : 0;
     uint32_t cb_index = 0;

@@ -3,6 +3,7 @@
 // dispatches and draws whose shaders use ray queries read every structure reachable from what
 // they bind (structure_reachability.h), at their shader stages, in the synchronization model;
 // a structure destroyed while a consumer that reads it may still run is a finding.
+#include "hazard_text.h"
 #include "replayer_internal.h"
 #include "structure_reachability.h"
 #include "sync_consumers.h"
@@ -197,19 +198,15 @@ void Replay::check_commands_done(const AddressRange& range, const char* call, co
     for (const HazardAccess& a : pending) {
         const CommandRef& c = a.command;
         if (!told.insert(uint64_t(c.submission) << 32 | c.command).second) continue;
-        const std::optional<uint64_t> frame = frames_.frame_of(c.submission);
         ReplayLocation where;
         where.sequence = sequence_;
         where.submission = next_submission_;
         where.name = call;
         add_finding({rule,
-                     what_happens + " while " + (c.name ? c.name : "a command") + " (submission " +
-                         std::to_string(c.submission) + ", command buffer " +
-                         std::to_string(c.command_buffer) + ", command " +
-                         std::to_string(c.command) +
-                         (frame ? ", frame " + std::to_string(*frame) : std::string()) +
-                         "), which " + (a.is_write ? "writes" : "reads") + " it through " +
-                         a.field + " at " + stage_names(a.stage) + " / " + access_names(a.access) +
+                     what_happens + " while " +
+                         command_place_text(c, a.queue, frames_.frame_of(c.submission)) +
+                         ", which " + (a.is_write ? "writes" : "reads") + " it through " + a.field +
+                         " at " + stage_names(a.stage) + " / " + access_names(a.access) +
                          ", has not completed: no fence wait or idle wait saw that submission "
                          "finish. Wait for its fence (vkWaitForFences) before " +
                          call + ", or call it a frame in flight later.",

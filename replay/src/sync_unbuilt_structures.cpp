@@ -3,6 +3,7 @@
 // a consumer or a top-level build reaching a created acceleration structure that no command of
 // the trace built, copied or deserialized into, nor the pre-range prelude of a frame range.
 // Without this rule only the engine's ray check notices (its rays miss).
+#include "hazard_text.h"
 #include "replayer_internal.h"
 
 #include <clastrace/common/hex.h>
@@ -17,13 +18,18 @@ constexpr const char* kRuleStructureNotBuilt = "CLASTRACE-replay-structure-not-b
 
 }  // namespace
 
-// "vkCmdTraceRaysKHR (submission 3, command buffer 0, command 2, frame 4)".
+// The command at `where`, in the one text hazards and findings name commands by
+// (command_place_text): "vkCmdTraceRaysKHR (queue 0, submit 3, cb 0, cmd 2, frame 4)".
 std::string Replay::command_text(const ReplayLocation& where) const {
-    const std::optional<uint64_t> frame = frames_.frame_of(where.submission);
-    return std::string(where.name && *where.name ? where.name : "a command") + " (submission " +
-           std::to_string(where.submission) + ", command buffer " +
-           std::to_string(where.command_buffer) + ", command " + std::to_string(where.command) +
-           (frame ? ", frame " + std::to_string(*frame) : std::string()) + ")";
+    const CommandRef command{.submission = where.submission,
+                             .command_buffer = where.command_buffer,
+                             .command_buffer_handle = where.command_buffer_handle,
+                             .command = where.command,
+                             .name = where.name,
+                             .secondary_handle = where.secondary_handle,
+                             .secondary = where.secondary,
+                             .secondary_command = where.secondary_command};
+    return command_place_text(command, submission_queue_, frames_.frame_of(where.submission));
 }
 
 // Every command the trace submits, replayed or outside the selection: what it writes is built
