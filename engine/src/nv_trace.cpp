@@ -608,9 +608,10 @@ public:
     }
 
     // Triangles: each group's sure misses dropped four at a time, the rest in record order.
-    // Always inlined into each wide walk, and the filter with it: in the AVX2 walk it compiles
-    // to the VEX form of the same SSE operations (no fused multiply-adds: the same bits),
-    // where a call through a pointer to a copy per path cost 2% more instructions.
+    // Always inlined, and the filter with it, into the SSE walk and into the AVX2 walk's leaf
+    // function (wide8_leaf): there it compiles to the VEX form of the same SSE operations (no
+    // fused multiply-adds: the same bits), where a call through a pointer to a copy per path
+    // cost 2% more instructions.
     [[gnu::always_inline]] bool groups(uint32_t first, uint32_t count) {
         for (uint32_t g = 0; g < (count + 3) / 4; ++g) {
             const geometry::Triangle4& group = b_.groups[first + g];
