@@ -134,6 +134,18 @@ bool reads_clusters(VkClusterAccelerationStructureOpTypeNV type) {
     return type == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
 }
 
+// A move reads its sources through the directory too, and creates its destinations' entries.
+bool moves_objects(VkClusterAccelerationStructureOpTypeNV type) {
+    return type == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV;
+}
+
+// A move without noMoveOverlap retires its sources; commit lands created entries only, so such
+// a move runs in its turn.
+bool retires_sources(const VkClusterAccelerationStructureCommandsInfoNV& info) {
+    return info.input.opType == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV &&
+           (!info.input.opInput.pMoveObjects || !info.input.opInput.pMoveObjects->noMoveOverlap);
+}
+
 engine::ObjectType built_type(const engine::OpResult& op) {
     return op.dst_type == 0   ? engine::ObjectType::kClustersBottomLevel
            : op.dst_type == 2 ? engine::ObjectType::kTriangleClusterTemplate
@@ -227,10 +239,10 @@ std::shared_ptr<ClusterRunAhead> ClusterRunAhead::start(
     if (!build || !build->input()) return nullptr;
     const auto type =
         static_cast<VkClusterAccelerationStructureOpTypeNV>(build->input()->op_type());
-    if (!reads_no_objects(type) && !reads_clusters(type)) return nullptr;
+    if (!reads_no_objects(type) && !reads_clusters(type) && !moves_objects(type)) return nullptr;
     std::shared_ptr<ClusterRunAhead> run(new ClusterRunAhead(in.storage, in.buffers));
     run->stream_index_ = stream_index;
-    run->reads_objects_ = reads_clusters(type);
+    run->reads_objects_ = reads_clusters(type) || moves_objects(type);
     if (run->reads_objects_) {
         for (const auto& e : earlier) run->earlier_turns_.push_back(e->turn_passed_);
         run->earlier_ = std::move(earlier);
@@ -242,6 +254,7 @@ std::shared_ptr<ClusterRunAhead> ClusterRunAhead::start(
     run->implicit_object_room_ = build->implicit_object_room();
     try {
         run->info_ = traces::cluster_commands_from_record(*build, run->op_inputs_);
+        if (retires_sources(run->info_)) return nullptr;
         run->sizes_ = in.queries.sizes_for(run->info_.input, in.properties);
         if (!run->plan(*build, in, not_placed_yet)) return nullptr;
         if (wait_for_placement && *not_placed_yet) return nullptr;
@@ -564,7 +577,8 @@ void RunAheadWindow::add(std::shared_ptr<ClusterRunAhead> run) {
         }
         counts.most_builds_kept =
             std::max<uint64_t>(counts.most_builds_kept, recent_builds_.size());
-    } else if (unstarted_bottom_levels_.erase(run->stream_index())) {
+    } else if (unstarted_bottom_levels_.erase(run->stream_index()) +
+               unstarted_moves_.erase(run->stream_index())) {
         trim_recent_builds();
     }
     runs_.push_back(std::move(run));
@@ -576,37 +590,62 @@ void RunAheadWindow::note_bottom_level(uint64_t stream_index) {
     trim_recent_builds();
 }
 
+void RunAheadWindow::note_move(uint64_t stream_index) { unstarted_moves_.insert(stream_index); }
+
 void RunAheadWindow::replayed_before(uint64_t stream_index) {
     const auto passed = unstarted_bottom_levels_.lower_bound(stream_index);
-    if (passed == unstarted_bottom_levels_.begin()) return;
+    const auto moves_passed = unstarted_moves_.lower_bound(stream_index);
+    if (passed == unstarted_bottom_levels_.begin() && moves_passed == unstarted_moves_.begin())
+        return;
     unstarted_bottom_levels_.erase(unstarted_bottom_levels_.begin(), passed);
+    unstarted_moves_.erase(unstarted_moves_.begin(), moves_passed);
     trim_recent_builds();
 }
 
 // builds_before(j) takes the runs after the BLAS record before j: a BLAS record still to be read
 // comes after the last one noted, and one noted that may still start needs those after the one
-// before it.
+// before it. builds_for_move(j) takes those after the BLAS record before the one before j: a
+// move record still to be read, after the last BLAS record noted, needs those after the one
+// before it, and one noted that may still start those its own record needs.
 void RunAheadWindow::trim_recent_builds() {
-    if (bottom_levels_.empty()) return;
-    uint64_t needed_from = *bottom_levels_.rbegin() + 1;
+    if (bottom_levels_.size() < 2) return;
+    uint64_t needed_from = *std::next(bottom_levels_.rbegin()) + 1;
     if (!unstarted_bottom_levels_.empty()) {
         const auto at = bottom_levels_.lower_bound(*unstarted_bottom_levels_.begin());
-        needed_from = at == bottom_levels_.begin() ? 0 : *std::prev(at) + 1;
+        needed_from = std::min(needed_from, at == bottom_levels_.begin() ? 0 : *std::prev(at) + 1);
     }
+    if (!unstarted_moves_.empty())
+        needed_from = std::min(needed_from, move_needs_from(*unstarted_moves_.begin()));
     while (!recent_builds_.empty() && recent_builds_.front()->stream_index() < needed_from)
         recent_builds_.pop_front();
+}
+
+std::vector<std::shared_ptr<ClusterRunAhead>> RunAheadWindow::builds_between(
+    uint64_t after, uint64_t before) const {
+    std::vector<std::shared_ptr<ClusterRunAhead>> runs;
+    for (const auto& run : recent_builds_)
+        if (run->stream_index() >= after && run->stream_index() < before) runs.push_back(run);
+    std::sort(runs.begin(), runs.end(),
+              [](const auto& a, const auto& b) { return a->stream_index() < b->stream_index(); });
+    return runs;
 }
 
 std::vector<std::shared_ptr<ClusterRunAhead>> RunAheadWindow::builds_before(
     uint64_t stream_index) const {
     auto previous = bottom_levels_.lower_bound(stream_index);
-    const uint64_t after = previous == bottom_levels_.begin() ? 0 : *std::prev(previous) + 1;
-    std::vector<std::shared_ptr<ClusterRunAhead>> runs;
-    for (const auto& run : recent_builds_)
-        if (run->stream_index() >= after && run->stream_index() < stream_index) runs.push_back(run);
-    std::sort(runs.begin(), runs.end(),
-              [](const auto& a, const auto& b) { return a->stream_index() < b->stream_index(); });
-    return runs;
+    return builds_between(previous == bottom_levels_.begin() ? 0 : *std::prev(previous) + 1,
+                          stream_index);
+}
+
+uint64_t RunAheadWindow::move_needs_from(uint64_t stream_index) const {
+    auto previous = bottom_levels_.lower_bound(stream_index);
+    if (previous != bottom_levels_.begin()) --previous;  // the BLAS record just before it
+    return previous == bottom_levels_.begin() ? 0 : *std::prev(previous) + 1;
+}
+
+std::vector<std::shared_ptr<ClusterRunAhead>> RunAheadWindow::builds_for_move(
+    uint64_t stream_index) const {
+    return builds_between(move_needs_from(stream_index), stream_index);
 }
 
 std::shared_ptr<ClusterRunAhead> RunAheadWindow::take(std::span<const uint8_t> record) {

@@ -2,9 +2,9 @@
 // Cluster builds run ahead of their turn (docs/replay.md "Threads"). A capture records the bytes
 // a cluster command reads as it saw them (its input snapshots), so the command can run early,
 // on another thread, on an image of its own: the regions it names, holding only its snapshots.
-// A cluster BLAS build also reads the CLAS it references through the object directory: its run
-// starts on an image that holds, besides its snapshots, what the CLAS runs started before it
-// wrote, and a directory of the objects they built. At its turn, after replay laid its
+// A cluster BLAS build also reads the CLAS it references through the object directory, and a
+// move the objects it moves: its run starts on an image that holds, besides its snapshots, what
+// the CLAS runs started before it wrote, and a directory of the objects they built. At its turn, after replay laid its
 // snapshots in and translated its addresses as always, the run is taken only when every byte it
 // read is the same in the replay's memory now, it wrote nothing it read, every object it looked
 // up has the same entry in the replay's directory, the buffers and size answers it was judged
@@ -181,10 +181,11 @@ class ClusterRunAhead {
 public:
     // Plans the command of `record` (a CmdBuildClusterAccelerationStructureIndirect's Record
     // bytes) and queues it on the calling thread's arena, or nullptr when it cannot run ahead:
-    // moves, instantiations and template indices (their objects may come from commands in
-    // their turn), a snapshot whose contents the reader did not answer or that no region holds.
-    // A cluster BLAS reads the writes and objects of `earlier` (runs of CLAS and template
-    // builds read before it): its task waits for them, or runs those not started yet.
+    // instantiations and template indices (their objects may come from commands in their
+    // turn), moves that retire their sources (without noMoveOverlap), a snapshot whose contents
+    // the reader did not answer or that no region holds. A cluster BLAS or a move reads the
+    // writes and objects of `earlier` (runs of CLAS and template builds read before it): its
+    // task waits for them, or runs those not started yet.
     // Planning (which regions, which snapshot bytes where) is the replay thread's; making the
     // image and running the engine are the task's. With `not_placed_yet` given, a build that
     // names a buffer (directly or by a snapshot) that no replayed region holds yet does not
@@ -203,7 +204,7 @@ public:
     const std::vector<uint8_t>& record() const { return record_; }
     bool stood() const { return stood_; }  // commit took it
     uint64_t stream_index() const { return stream_index_; }
-    bool reads_objects() const { return reads_objects_; }  // a cluster BLAS build
+    bool reads_objects() const { return reads_objects_; }  // a cluster BLAS build or a move
     // On the replay thread: whether the commands of the runs it starts on have had their turn.
     // Until then it is the run of a later record with the same bytes (a BLAS over the same
     // slot, next frame but one) and is not taken.
@@ -307,14 +308,21 @@ public:
     // A cluster BLAS build's record at `stream_index`, started or not (records are read in
     // stream order; a build may start later, at its own record).
     void note_bottom_level(uint64_t stream_index);
-    // The records before `stream_index` were replayed: a BLAS build among them that has not
-    // started never will. Drops the CLAS and template runs no BLAS run can start on any more.
+    // A cluster move's record at `stream_index` (noMoveOverlap or not), started or not.
+    void note_move(uint64_t stream_index);
+    // The records before `stream_index` were replayed: a BLAS build or a move among them that
+    // has not started never will. Drops the CLAS and template runs no BLAS run can start on any more.
     void replayed_before(uint64_t stream_index);
     // The runs a cluster BLAS at `stream_index` starts on: the CLAS and template builds
     // started from the records between the BLAS record before it and its own (a BLAS over the
     // clusters built just before it, the usual order; a BLAS over older ones, or over a build
     // that starts after it, fails its checks and runs in its turn).
     std::vector<std::shared_ptr<ClusterRunAhead>> builds_before(uint64_t stream_index) const;
+    // The runs a cluster move at `stream_index` starts on: the CLAS and template builds started
+    // from the records after the BLAS record before the last one before it (a move compacts
+    // the clusters a BLAS was just built over, the usual order; a move of older ones fails its
+    // checks and runs in its turn).
+    std::vector<std::shared_ptr<ClusterRunAhead>> builds_for_move(uint64_t stream_index) const;
     // A run of a record with these bytes (any: a run stands or not by the bytes it read);
     // nullptr when none.
     std::shared_ptr<ClusterRunAhead> take(std::span<const uint8_t> record);
@@ -340,10 +348,17 @@ private:
     // The BLAS records noted whose run has not started and whose record is not replayed yet:
     // each may still start on the runs since the BLAS record before it.
     std::set<uint64_t> unstarted_bottom_levels_;
+    // The same for the move records noted.
+    std::set<uint64_t> unstarted_moves_;
     // Drops the recent builds that neither those nor a BLAS record still to be read can start
     // on: a run keeps its buffers (what it read and wrote, its record) while it is held, and a
     // window's worth of them was most of the memory runs ahead add (issue 23).
     void trim_recent_builds();
+    // The first stream index of the recent builds a move at `stream_index` starts on.
+    uint64_t move_needs_from(uint64_t stream_index) const;
+    // The recent builds read at stream indices [after, before), in stream order.
+    std::vector<std::shared_ptr<ClusterRunAhead>> builds_between(uint64_t after,
+                                                                 uint64_t before) const;
 };
 
 }  // namespace clastrace::replay::detail

@@ -37,6 +37,12 @@ bool builds_bottom_level(const fbs::CmdBuildClusterAccelerationStructureIndirect
                VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
 }
 
+// A move of cluster objects: it reads the objects of the CLAS runs read before it.
+bool moves_objects(const fbs::CmdBuildClusterAccelerationStructureIndirect& build) {
+    return build.input() &&
+           build.input()->op_type() == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV;
+}
+
 // A CLASTRACE_REPLAY_* switch: true for "1", false for "0", none when unset or anything else.
 std::optional<bool> environment_switch(const char* variable) {
     const char* value = std::getenv(variable);
@@ -306,8 +312,10 @@ void Replay::start_cluster_run(const traces::RecordView& view,
                                bool read_ahead) {
     const auto* build = view.record->body_as_CmdBuildClusterAccelerationStructureIndirect();
     if (!build) return;
-    // Every BLAS record read bounds the CLAS runs the next BLAS starts on, started or not.
+    // Every BLAS record read bounds the CLAS runs the next BLAS (and a move after it) starts
+    // on, started or not; a move record read keeps the runs it starts on until it starts.
     if (builds_bottom_level(*build)) ahead_runs_->note_bottom_level(stream_index);
+    if (moves_objects(*build)) ahead_runs_->note_move(stream_index);
     if (read_ahead && !pending_runs_.empty()) {
         pending_runs_.push_back({view, answers, stream_index});  // after those read before it
         return;
@@ -323,8 +331,7 @@ bool Replay::try_start_cluster_run(const traces::RecordView& view,
                                    std::span<const SnapshotAnswer> answers, uint64_t stream_index,
                                    bool* not_placed_yet) {
     if (ahead_runs_->full() || ahead_runs_->holds(stream_index)) return false;
-    const bool bottom_level =
-        builds_bottom_level(*view.record->body_as_CmdBuildClusterAccelerationStructureIndirect());
+    const auto& build = *view.record->body_as_CmdBuildClusterAccelerationStructureIndirect();
     const AheadInputs in{memory_,
                          answers,
                          cluster_queries_,
@@ -332,11 +339,13 @@ bool Replay::try_start_cluster_run(const traces::RecordView& view,
                          ahead_runs_->storage(),
                          ahead_runs_->buffers(),
                          options_.max_findings_per_rule};
-    auto run =
-        ClusterRunAhead::start({view.bytes, view.bytes + view.size}, stream_index, in,
-                               bottom_level ? ahead_runs_->builds_before(stream_index)
-                                            : std::vector<std::shared_ptr<ClusterRunAhead>>{},
-                               not_placed_yet);
+    std::vector<std::shared_ptr<ClusterRunAhead>> earlier;
+    if (builds_bottom_level(build))
+        earlier = ahead_runs_->builds_before(stream_index);
+    else if (moves_objects(build))
+        earlier = ahead_runs_->builds_for_move(stream_index);
+    auto run = ClusterRunAhead::start({view.bytes, view.bytes + view.size}, stream_index, in,
+                                      std::move(earlier), not_placed_yet);
     if (!run) return false;
     ++ahead_runs_->counts.started;
     ahead_runs_->add(std::move(run));

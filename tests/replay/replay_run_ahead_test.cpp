@@ -151,12 +151,12 @@ public:
     }
 
     // Moves the CLAS at kObjects + from_offset to kObjects + to_offset, overlap allowed (so
-    // the source is retired: no object is left there).
-    void move(uint64_t from_offset, uint64_t to_offset) {
+    // the source is retired: no object is left there) unless `no_overlap`, which leaves it.
+    void move(uint64_t from_offset, uint64_t to_offset, bool no_overlap = false) {
         VkClusterAccelerationStructureMoveObjectsInputNV in{};
         in.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_MOVE_OBJECTS_INPUT_NV;
         in.type = VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_TRIANGLE_CLUSTER_NV;
-        in.noMoveOverlap = VK_FALSE;
+        in.noMoveOverlap = no_overlap ? VK_TRUE : VK_FALSE;
         in.maxMovedBytes = sizes_.acceleration_structure_size;
         const VkClusterAccelerationStructureMoveObjectsInfoNV info{kObjects + from_offset};
         other_op(tb::cluster_op_input(1, &in), to_offset, kInfos + 0x900, tb::bytes_of(&info, 1));
@@ -396,7 +396,8 @@ TEST(ReplayRunAhead, BottomLevelBuildOverAMovedClusterRunsAgain) {
         t.finish();
     }
     const Replayed one = replay_with(path, 1), many = replay_with(path, 4);
-    EXPECT_EQ(many.counts.started, 2u);  // the CLAS build and the BLAS; the move in its turn
+    EXPECT_EQ(many.counts.started, 2u);  // the CLAS build and the BLAS; the move (which
+                                         // retires its source) in its turn
     EXPECT_EQ(many.counts.stood, 1u);
     EXPECT_EQ(many.counts.run_again, 1u);
     EXPECT_EQ(one.digests, many.digests);
@@ -415,8 +416,62 @@ TEST(ReplayRunAhead, BottomLevelBuildOverAMovedClusterRunsAgain) {
     std::remove(path.c_str());
 }
 
+// Two CLAS builds, a BLAS over them, then a move (noMoveOverlap) of the first CLAS: the move
+// runs ahead on the CLAS runs' bytes and objects, like the BLAS, and stands.
+TEST(ReplayRunAhead, AMoveOfTheClustersJustBuiltRunsAheadAndStands) {
+    const std::string path = temp_path("move_over_runs.clt");
+    {
+        BuildsTrace t(path);
+        t.build(0, grid(0, 0), 0, 0);
+        t.build(512, grid(3, 2), 1, 0x1000);
+        t.barrier(kBuild, kAsWrite, kBuild, kAsRead | kAsWrite);
+        t.blas(0, 2, 0x10000);
+        t.barrier(kBuild, kAsWrite, kBuild, kAsRead | kAsWrite);
+        t.move(0, 0x8000, true);
+        t.finish();
+    }
+    const Replayed one = replay_with(path, 1), many = replay_with(path, 4);
+    EXPECT_EQ(many.counts.started, 4u);
+    EXPECT_EQ(many.counts.stood, 4u);
+    EXPECT_EQ(many.counts.run_again, 0u);
+    ASSERT_EQ(one.digests.size(), 4u);
+    EXPECT_EQ(one.digests, many.digests);
+    EXPECT_EQ(one.json, many.json);
+    EXPECT_EQ(one.json.find("CLASTRACE-"), std::string::npos) << one.json;  // no finding
+    EXPECT_EQ(one.json.find("VUID-"), std::string::npos) << one.json;
+    std::remove(path.c_str());
+}
+
+// The second build reads vertices a transfer wrote outside its snapshots, so its run holds a
+// stale object; a move of that object started on it read the stale bytes: at its turn the
+// byte comparison fails and the move runs again in place, as one thread runs it.
+TEST(ReplayRunAhead, AMoveOfAStaleRunsObjectRunsAgain) {
+    const std::string path = temp_path("move_of_stale.clt");
+    {
+        BuildsTrace t(path);
+        t.build(0, grid(0, 0), 0, 0);
+        t.barrier(kBuild, kAsWrite, VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT,
+                  VK_ACCESS_2_TRANSFER_WRITE_BIT);
+        const std::vector<float> moved = grid(5, 1);
+        t.update_vertices(moved);
+        t.barrier(VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, kBuild,
+                  kAsRead | kAsWrite);
+        t.build(0, moved, 1, 0x1000, {{kVertices, tb::bytes_of(moved.data(), 3)}});
+        t.barrier(kBuild, kAsWrite, kBuild, kAsRead | kAsWrite);
+        t.move(0x1000, 0x8000, true);
+        t.finish();
+    }
+    const Replayed one = replay_with(path, 1), many = replay_with(path, 4);
+    EXPECT_EQ(many.counts.started, 3u);
+    EXPECT_EQ(many.counts.stood, 1u);
+    EXPECT_EQ(many.counts.run_again, 2u);  // the second build and the move
+    EXPECT_EQ(one.digests, many.digests);
+    EXPECT_EQ(one.json, many.json);
+    std::remove(path.c_str());
+}
+
 // The replay bench's frames: CLAS builds (their reads all in their snapshots) run ahead across
-// submissions and stand, and so do the BLAS builds over them; moves run in their turn.
+// submissions and stand, and so do the BLAS builds and the moves (noMoveOverlap) over them.
 TEST(ReplayRunAhead, ClusterFramesOfTheReplayBenchRunAheadAndStand) {
     const std::string path = bench_frames("bench_frames.clt", 5000);
     const Replayed one = replay_with(path, 1), many = replay_with(path, 4);
@@ -459,8 +514,8 @@ TEST(ReplayRunAhead, OnlyTheBuildsABottomLevelRunMayStartOnAreKept) {
     std::remove(path.c_str());
 }
 
-// The CLAS and BLAS builds of a trace (moves, instantiations and template indices run in their
-// turn).
+// The cluster commands of a trace: the bench's are CLAS builds, BLAS builds and moves that leave
+// their sources (noMoveOverlap), all of which run ahead.
 uint64_t builds_that_run_ahead(const std::string& path) {
     traces::TraceError error;
     auto reader = traces::TraceReader::open(path, &error);
@@ -469,9 +524,7 @@ uint64_t builds_that_run_ahead(const std::string& path) {
     traces::RecordView view;
     while (reader && reader->next(&view)) {
         const auto* build = view.record->body_as_CmdBuildClusterAccelerationStructureIndirect();
-        if (build && build->input() &&
-            build->input()->op_type() != VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV)
-            ++builds;
+        if (build && build->input()) ++builds;
     }
     return builds;
 }
