@@ -35,6 +35,7 @@
 // time of all the process's threads (driver and layer included) during it.
 #include "cluster_test_device.h"
 
+#include <array>
 #include <chrono>
 #include <sys/resource.h>
 #include <csignal>
@@ -133,51 +134,73 @@ void describeClusterBuild(uint32_t clusters,
     build.input.opInput.pTriangleClusters = &triangles;
 }
 
-int frames(const FrameOptions& o) {
-    Context c;
-    const uint32_t n = o.clusters;
+// The frames' scene: one implicit-destination cluster build of `n` grid clusters and one bottom
+// level over them, their buffers, and the commands infos pointing into this struct (so it is
+// built in place and not moved).
+struct FrameScene {
+    using Info = VkClusterAccelerationStructureBuildTriangleClusterInfoNV;
+    uint32_t n = 0;
     VkClusterAccelerationStructureTriangleClusterInputNV triangles{};
     VkClusterAccelerationStructureCommandsInfoNV build{};
-    describeClusterBuild(n, triangles, build);
     VkClusterAccelerationStructureClustersBottomLevelInputNV bottom{};
-    bottom.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
-    bottom.maxTotalClusterCount = n;
-    bottom.maxClusterCountPerAccelerationStructure = n;
     VkClusterAccelerationStructureCommandsInfoNV blas{};
+    Buffer vertices, indices, infoSource, infos, counts, dstAddresses, dstSizes, implicit, scratch;
+    Buffer blasInfo, blasAddress, blasSize, blasImplicit, blasScratch;
+
+    std::array<Buffer*, 14> buffers() {
+        return {&vertices,     &indices,  &infoSource,   &infos,      &counts,
+                &dstAddresses, &dstSizes, &implicit,     &scratch,    &blasInfo,
+                &blasAddress,  &blasSize, &blasImplicit, &blasScratch};
+    }
+};
+
+void describeBottomLevelBuild(FrameScene& s) {
+    s.bottom.sType =
+        VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_CLUSTERS_BOTTOM_LEVEL_INPUT_NV;
+    s.bottom.maxTotalClusterCount = s.n;
+    s.bottom.maxClusterCountPerAccelerationStructure = s.n;
+    VkClusterAccelerationStructureCommandsInfoNV& blas = s.blas;
     blas.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_COMMANDS_INFO_NV;
     blas.input.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_INPUT_INFO_NV;
     blas.input.maxAccelerationStructureCount = 1;
     blas.input.opType = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_CLUSTERS_BOTTOM_LEVEL_NV;
     blas.input.opMode = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
-    blas.input.opInput.pClustersBottomLevel = &bottom;
+    blas.input.opInput.pClustersBottomLevel = &s.bottom;
+}
+
+void makeFrameBuffers(Context& c, FrameScene& s) {
     VkAccelerationStructureBuildSizesInfoKHR clusterSizes{
         VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_SIZES_INFO_KHR, nullptr, 0, 0, 0};
     VkAccelerationStructureBuildSizesInfoKHR blasSizes = clusterSizes;
-    c.getBuildSizes(c.device, &build.input, &clusterSizes);
-    c.getBuildSizes(c.device, &blas.input, &blasSizes);
+    c.getBuildSizes(c.device, &s.build.input, &clusterSizes);
+    c.getBuildSizes(c.device, &s.blas.input, &blasSizes);
     if (!clusterSizes.accelerationStructureSize || !blasSizes.accelerationStructureSize)
         fail("build sizes of 0");
-
-    using Info = VkClusterAccelerationStructureBuildTriangleClusterInfoNV;
-    Buffer vertices = c.makeBuffer(uint64_t(n) * kVertices * 12, kInput);
-    Buffer indices = c.makeBuffer(uint64_t(n) * kTriangles * 12, kInput);
-    Buffer infoSource = c.makeBuffer(uint64_t(n) * sizeof(Info), 0);
-    Buffer infos = c.makeBuffer(uint64_t(n) * sizeof(Info), kInput);
-    Buffer counts = c.makeBuffer(8, kInput);
-    Buffer dstAddresses = c.makeBuffer(uint64_t(n) * 8, kStorage | kInput);
-    Buffer dstSizes = c.makeBuffer(uint64_t(n) * 4, kStorage);
-    Buffer implicit = c.makeBuffer(clusterSizes.accelerationStructureSize, kStorage);
-    Buffer scratch = c.makeBuffer(clusterSizes.buildScratchSize, kStorage);
-    Buffer blasInfo =
+    const uint64_t n = s.n;
+    s.vertices = c.makeBuffer(n * kVertices * 12, kInput);
+    s.indices = c.makeBuffer(n * kTriangles * 12, kInput);
+    s.infoSource = c.makeBuffer(n * sizeof(FrameScene::Info), 0);
+    s.infos = c.makeBuffer(n * sizeof(FrameScene::Info), kInput);
+    s.counts = c.makeBuffer(8, kInput);
+    s.dstAddresses = c.makeBuffer(n * 8, kStorage | kInput);
+    s.dstSizes = c.makeBuffer(n * 4, kStorage);
+    s.implicit = c.makeBuffer(clusterSizes.accelerationStructureSize, kStorage);
+    s.scratch = c.makeBuffer(clusterSizes.buildScratchSize, kStorage);
+    s.blasInfo =
         c.makeBuffer(sizeof(VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV), kInput);
-    Buffer blasAddress = c.makeBuffer(8, kStorage);
-    Buffer blasSize = c.makeBuffer(4, kStorage);
-    Buffer blasImplicit = c.makeBuffer(blasSizes.accelerationStructureSize, kStorage);
-    Buffer blasScratch = c.makeBuffer(blasSizes.buildScratchSize, kStorage);
+    s.blasAddress = c.makeBuffer(8, kStorage);
+    s.blasSize = c.makeBuffer(4, kStorage);
+    s.blasImplicit = c.makeBuffer(blasSizes.accelerationStructureSize, kStorage);
+    s.blasScratch = c.makeBuffer(blasSizes.buildScratchSize, kStorage);
+}
 
-    auto* index = reinterpret_cast<uint32_t*>(indices.mapped);
-    auto* info = reinterpret_cast<Info*>(infoSource.mapped);
-    for (uint32_t k = 0; k < n; ++k) {
+// The grid's indices, the clusters' infos (in the staging buffer, or already in place with
+// `hostInfos`), the counts and the bottom level's one info.
+void writeFrameInputs(const FrameOptions& o, FrameScene& s) {
+    using Info = FrameScene::Info;
+    auto* index = reinterpret_cast<uint32_t*>(s.indices.mapped);
+    auto* info = reinterpret_cast<Info*>(s.infoSource.mapped);
+    for (uint32_t k = 0; k < s.n; ++k) {
         writeGridIndices(index + uint64_t(k) * kTriangles * 3);
         Info& i = info[k];
         i = Info{};
@@ -185,46 +208,148 @@ int frames(const FrameOptions& o) {
         i.triangleCount = kTriangles;
         i.vertexCount = kVertices;
         i.indexType = VK_CLUSTER_ACCELERATION_STRUCTURE_INDEX_FORMAT_32BIT_NV;
-        i.indexBuffer = indices.address + uint64_t(k) * kTriangles * 12;
-        i.vertexBuffer = vertices.address + uint64_t(k) * kVertices * 12;
+        i.indexBuffer = s.indices.address + uint64_t(k) * kTriangles * 12;
+        i.vertexBuffer = s.vertices.address + uint64_t(k) * kVertices * 12;
     }
-    if (o.hostInfos) std::memcpy(infos.mapped, infoSource.mapped, infos.size);
-    const uint32_t countValues[2] = {n, 1};
-    std::memcpy(counts.mapped, countValues, sizeof countValues);
+    if (o.hostInfos) std::memcpy(s.infos.mapped, s.infoSource.mapped, s.infos.size);
+    const uint32_t countValues[2] = {s.n, 1};
+    std::memcpy(s.counts.mapped, countValues, sizeof countValues);
     VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV reference{};
-    reference.clusterReferencesCount = n;
+    reference.clusterReferencesCount = s.n;
     reference.clusterReferencesStride = 8;
-    reference.clusterReferences = dstAddresses.address;
-    std::memcpy(blasInfo.mapped, &reference, sizeof reference);
+    reference.clusterReferences = s.dstAddresses.address;
+    std::memcpy(s.blasInfo.mapped, &reference, sizeof reference);
+}
 
-    build.dstImplicitData = implicit.address;
-    build.scratchData = scratch.address;
-    build.dstAddressesArray = {dstAddresses.address, 8, dstAddresses.size};
-    build.dstSizesArray = {dstSizes.address, 4, dstSizes.size};
-    build.srcInfosArray = {infos.address, sizeof(Info), infos.size};
-    build.srcInfosCount = counts.address;
-    blas.dstImplicitData = blasImplicit.address;
-    blas.scratchData = blasScratch.address;
-    blas.dstAddressesArray = {blasAddress.address, 8, 8};
-    blas.dstSizesArray = {blasSize.address, 4, 4};
-    blas.srcInfosArray = {blasInfo.address, 0, blasInfo.size};
-    blas.srcInfosCount = counts.address + 4;
+void pointBuildsAtBuffers(FrameScene& s) {
+    using Info = FrameScene::Info;
+    VkClusterAccelerationStructureCommandsInfoNV& build = s.build;
+    build.dstImplicitData = s.implicit.address;
+    build.scratchData = s.scratch.address;
+    build.dstAddressesArray = {s.dstAddresses.address, 8, s.dstAddresses.size};
+    build.dstSizesArray = {s.dstSizes.address, 4, s.dstSizes.size};
+    build.srcInfosArray = {s.infos.address, sizeof(Info), s.infos.size};
+    build.srcInfosCount = s.counts.address;
+    VkClusterAccelerationStructureCommandsInfoNV& blas = s.blas;
+    blas.dstImplicitData = s.blasImplicit.address;
+    blas.scratchData = s.blasScratch.address;
+    blas.dstAddressesArray = {s.blasAddress.address, 8, 8};
+    blas.dstSizesArray = {s.blasSize.address, 4, 4};
+    blas.srcInfosArray = {s.blasInfo.address, 0, s.blasInfo.size};
+    blas.srcInfosCount = s.counts.address + 4;
+}
 
+void makeFrameScene(Context& c, const FrameOptions& o, FrameScene& s) {
+    s.n = o.clusters;
+    describeClusterBuild(s.n, s.triangles, s.build);
+    describeBottomLevelBuild(s);
+    makeFrameBuffers(c, s);
+    writeFrameInputs(o, s);
+    pointBuildsAtBuffers(s);
+}
+
+// What a frame waits and signals with: its command buffer, fence, event and the host's
+// timeline semaphore.
+struct FrameSync {
+    VkCommandBuffer cb = VK_NULL_HANDLE;
+    VkFence fence = VK_NULL_HANDLE;
+    VkEvent frameEvent = VK_NULL_HANDLE;
+    VkSemaphore timeline = VK_NULL_HANDLE;
+};
+
+FrameSync makeFrameSync(Context& c) {
+    FrameSync y;
     VkCommandBufferAllocateInfo allocInfo{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO, nullptr,
                                           c.pool, VK_COMMAND_BUFFER_LEVEL_PRIMARY, 1};
-    VkCommandBuffer cb;
-    CHECK(vkAllocateCommandBuffers(c.device, &allocInfo, &cb));
+    CHECK(vkAllocateCommandBuffers(c.device, &allocInfo, &y.cb));
     VkFenceCreateInfo fenceInfo{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO, nullptr, 0};
-    VkFence fence;
-    CHECK(vkCreateFence(c.device, &fenceInfo, nullptr, &fence));
+    CHECK(vkCreateFence(c.device, &fenceInfo, nullptr, &y.fence));
     VkEventCreateInfo eventInfo{VK_STRUCTURE_TYPE_EVENT_CREATE_INFO, nullptr, 0};
-    VkEvent frameEvent;
-    CHECK(vkCreateEvent(c.device, &eventInfo, nullptr, &frameEvent));
+    CHECK(vkCreateEvent(c.device, &eventInfo, nullptr, &y.frameEvent));
     VkSemaphoreTypeCreateInfo timelineType{VK_STRUCTURE_TYPE_SEMAPHORE_TYPE_CREATE_INFO, nullptr,
                                            VK_SEMAPHORE_TYPE_TIMELINE, 0};
     VkSemaphoreCreateInfo semaphoreInfo{VK_STRUCTURE_TYPE_SEMAPHORE_CREATE_INFO, &timelineType, 0};
-    VkSemaphore timeline;
-    CHECK(vkCreateSemaphore(c.device, &semaphoreInfo, nullptr, &timeline));
+    CHECK(vkCreateSemaphore(c.device, &semaphoreInfo, nullptr, &y.timeline));
+    return y;
+}
+
+// Re-recorded every frame, as engines do.
+void recordFrame(Context& c, const FrameOptions& o, FrameScene& s, VkCommandBuffer cb) {
+    VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr,
+                                   VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT, nullptr};
+    CHECK(vkBeginCommandBuffer(cb, &begin));
+    if (!o.hostInfos) {
+        VkBufferCopy copy{0, 0, s.infos.size};
+        vkCmdCopyBuffer(cb, s.infoSource.buffer, s.infos.buffer, 1, &copy);
+        barrier(cb, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
+                VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_READ_BIT);
+    }
+    c.cmdBuildClusters(cb, &s.build);
+    barrier(cb, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_WRITE_BIT,
+            VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_READ_BIT);
+    c.cmdBuildClusters(cb, &s.blas);
+    barrier(cb, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_WRITE_BIT,
+            VK_PIPELINE_STAGE_HOST_BIT, VK_ACCESS_HOST_READ_BIT);
+    CHECK(vkEndCommandBuffer(cb));
+}
+
+// The frame's submission, the exits the options ask for at it, then the host's waits.
+void submitFrame(Context& c, const FrameOptions& o, FrameScene& s, const FrameSync& y, int f) {
+    VkSubmitInfo submit{};
+    submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
+    submit.commandBufferCount = 1;
+    submit.pCommandBuffers = &y.cb;
+    CHECK(vkQueueSubmit(c.queue, 1, &submit, y.fence));
+    if (f == o.exitAt) std::exit(0);
+    if (f == o.abortAt) std::abort();
+    if (f == o.stopAt) {
+        std::printf("stopped at frame %d\n", f);
+        std::fflush(stdout);
+        for (;;) std::this_thread::sleep_for(std::chrono::seconds(1));
+    }
+    if (f == o.raceAt) reinterpret_cast<float*>(s.vertices.mapped)[1] += 1.0f;
+    CHECK(vkSetEvent(c.device, y.frameEvent));
+    CHECK(vkWaitForFences(c.device, 1, &y.fence, VK_TRUE, 60ull * 1000 * 1000 * 1000));
+    if (vkGetFenceStatus(c.device, y.fence) != VK_SUCCESS)
+        fail("fence not signalled after the wait");
+    CHECK(vkResetFences(c.device, 1, &y.fence));
+    CHECK(vkResetEvent(c.device, y.frameEvent));
+    // The host counts frames on a timeline semaphore and waits for its own signal.
+    const uint64_t value = uint64_t(f) + 1;
+    VkSemaphoreSignalInfo signal{VK_STRUCTURE_TYPE_SEMAPHORE_SIGNAL_INFO, nullptr, y.timeline,
+                                 value};
+    CHECK(vkSignalSemaphore(c.device, &signal));
+    VkSemaphoreWaitInfo wait{
+        VK_STRUCTURE_TYPE_SEMAPHORE_WAIT_INFO, nullptr, 0, 1, &y.timeline, &value};
+    CHECK(vkWaitSemaphores(c.device, &wait, 60ull * 1000 * 1000 * 1000));
+}
+
+void writeFrameOutputs(const std::string& path, const FrameScene& s) {
+    std::ofstream out(path);
+    out << "{\"dstSizes\": \"" << hex(s.dstSizes.mapped, s.dstSizes.size)
+        << "\", \"dstAddresses\": \"" << hex(s.dstAddresses.mapped, s.dstAddresses.size)
+        << "\", \"implicit\": \"" << hex(s.implicit.mapped, s.implicit.size)
+        << "\", \"blasImplicit\": \"" << hex(s.blasImplicit.mapped, s.blasImplicit.size) << "\"}\n";
+}
+
+void destroyFrames(Context& c, FrameScene& s, const FrameSync& y) {
+    vkDestroyEvent(c.device, y.frameEvent, nullptr);
+    vkDestroySemaphore(c.device, y.timeline, nullptr);
+    vkDestroyFence(c.device, y.fence, nullptr);
+    vkDestroyCommandPool(c.device, c.pool, nullptr);
+    for (Buffer* b : s.buffers()) {
+        vkDestroyBuffer(c.device, b->buffer, nullptr);
+        vkFreeMemory(c.device, b->memory, nullptr);
+    }
+    vkDestroyDevice(c.device, nullptr);
+    vkDestroyInstance(c.instance, nullptr);
+}
+
+int frames(const FrameOptions& o) {
+    Context c;
+    FrameScene s;
+    makeFrameScene(c, o, s);
+    const FrameSync y = makeFrameSync(c);
 
     const auto start = std::chrono::steady_clock::now();
     const double cpuStart = processCpuMilliseconds();
@@ -233,77 +358,18 @@ int frames(const FrameOptions& o) {
         if (last && !o.waitFor.empty())
             while (!std::filesystem::exists(o.waitFor))
                 std::this_thread::sleep_for(std::chrono::milliseconds(5));
-        writeVertices(vertices, n, f);
-        // Re-recorded every frame, as engines do.
-        VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO, nullptr,
-                                       VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT, nullptr};
-        CHECK(vkBeginCommandBuffer(cb, &begin));
-        if (!o.hostInfos) {
-            VkBufferCopy copy{0, 0, infos.size};
-            vkCmdCopyBuffer(cb, infoSource.buffer, infos.buffer, 1, &copy);
-            barrier(cb, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
-                    VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_READ_BIT);
-        }
-        c.cmdBuildClusters(cb, &build);
-        barrier(cb, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_WRITE_BIT,
-                VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_READ_BIT);
-        c.cmdBuildClusters(cb, &blas);
-        barrier(cb, VK_PIPELINE_STAGE_ALL_COMMANDS_BIT, VK_ACCESS_MEMORY_WRITE_BIT,
-                VK_PIPELINE_STAGE_HOST_BIT, VK_ACCESS_HOST_READ_BIT);
-        CHECK(vkEndCommandBuffer(cb));
-        VkSubmitInfo submit{};
-        submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
-        submit.commandBufferCount = 1;
-        submit.pCommandBuffers = &cb;
-        CHECK(vkQueueSubmit(c.queue, 1, &submit, fence));
-        if (f == o.exitAt) std::exit(0);
-        if (f == o.abortAt) std::abort();
-        if (f == o.stopAt) {
-            std::printf("stopped at frame %d\n", f);
-            std::fflush(stdout);
-            for (;;) std::this_thread::sleep_for(std::chrono::seconds(1));
-        }
-        if (f == o.raceAt) reinterpret_cast<float*>(vertices.mapped)[1] += 1.0f;
-        CHECK(vkSetEvent(c.device, frameEvent));
-        CHECK(vkWaitForFences(c.device, 1, &fence, VK_TRUE, 60ull * 1000 * 1000 * 1000));
-        if (vkGetFenceStatus(c.device, fence) != VK_SUCCESS)
-            fail("fence not signalled after the wait");
-        CHECK(vkResetFences(c.device, 1, &fence));
-        CHECK(vkResetEvent(c.device, frameEvent));
-        // The host counts frames on a timeline semaphore and waits for its own signal.
-        const uint64_t value = uint64_t(f) + 1;
-        VkSemaphoreSignalInfo signal{VK_STRUCTURE_TYPE_SEMAPHORE_SIGNAL_INFO, nullptr, timeline,
-                                     value};
-        CHECK(vkSignalSemaphore(c.device, &signal));
-        VkSemaphoreWaitInfo wait{
-            VK_STRUCTURE_TYPE_SEMAPHORE_WAIT_INFO, nullptr, 0, 1, &timeline, &value};
-        CHECK(vkWaitSemaphores(c.device, &wait, 60ull * 1000 * 1000 * 1000));
+        writeVertices(s.vertices, s.n, f);
+        recordFrame(c, o, s, y.cb);
+        submitFrame(c, o, s, y, f);
     }
     const double loopMs =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
     const double loopCpuMs = processCpuMilliseconds() - cpuStart;
     CHECK(vkQueueWaitIdle(c.queue));
     CHECK(vkDeviceWaitIdle(c.device));
-    if (!o.out.empty()) {
-        std::ofstream out(o.out);
-        out << "{\"dstSizes\": \"" << hex(dstSizes.mapped, dstSizes.size)
-            << "\", \"dstAddresses\": \"" << hex(dstAddresses.mapped, dstAddresses.size)
-            << "\", \"implicit\": \"" << hex(implicit.mapped, implicit.size)
-            << "\", \"blasImplicit\": \"" << hex(blasImplicit.mapped, blasImplicit.size) << "\"}\n";
-    }
+    if (!o.out.empty()) writeFrameOutputs(o.out, s);
     std::printf("frames=%d loop_ms=%.3f loop_cpu_ms=%.3f\n", o.frames, loopMs, loopCpuMs);
-    vkDestroyEvent(c.device, frameEvent, nullptr);
-    vkDestroySemaphore(c.device, timeline, nullptr);
-    vkDestroyFence(c.device, fence, nullptr);
-    vkDestroyCommandPool(c.device, c.pool, nullptr);
-    for (Buffer* b :
-         {&vertices, &indices, &infoSource, &infos, &counts, &dstAddresses, &dstSizes, &implicit,
-          &scratch, &blasInfo, &blasAddress, &blasSize, &blasImplicit, &blasScratch}) {
-        vkDestroyBuffer(c.device, b->buffer, nullptr);
-        vkFreeMemory(c.device, b->memory, nullptr);
-    }
-    vkDestroyDevice(c.device, nullptr);
-    vkDestroyInstance(c.instance, nullptr);
+    destroyFrames(c, s, y);
     return 0;
 }
 
