@@ -14,18 +14,13 @@ namespace clastrace::replay::detail {
 std::vector<HazardReport> merge_per_op_hazards(const std::vector<HazardReport>& hazards,
                                                uint64_t* merged) {
     std::vector<HazardReport> out;
-    // A command is (submission, command buffer, command) and, inside a secondary, (secondary,
-    // its command): commands of one secondary share the primary's execute index.
-    auto command_key = [](const CommandRef& c) {
-        return std::make_tuple(c.submission, c.command_buffer, c.command,
-                               c.secondary_handle ? c.secondary + 1 : 0u, c.secondary_command);
-    };
-    using CommandKey = decltype(command_key(CommandRef{}));
+    using CommandKey = decltype(command_place_key(CommandRef{}));
     std::map<std::tuple<int, CommandKey, CommandKey, std::string, std::string>, size_t> index;
     for (const HazardReport& h : hazards) {
-        auto key = std::make_tuple(int(h.hazard), command_key(h.prior.command),
-                                   command_key(h.later.command), hazard_field_family(h.prior.field),
-                                   hazard_field_family(h.later.field));
+        auto key =
+            std::make_tuple(int(h.hazard), command_place_key(h.prior.command),
+                            command_place_key(h.later.command), hazard_field_family(h.prior.field),
+                            hazard_field_family(h.later.field));
         auto [it, inserted] = index.emplace(key, out.size());
         if (inserted) {
             out.push_back(h);

@@ -52,6 +52,14 @@ using traces::TraceReader;
 
 constexpr uint64_t kWholeSize = ~0ull;  // VK_WHOLE_SIZE
 
+// A command's place within its queue: (submission, command buffer, command) and, inside a
+// secondary, (secondary, its command), since commands of one secondary share the primary's
+// vkCmdExecuteCommands index.
+inline auto command_place_key(const CommandRef& c) {
+    return std::make_tuple(c.submission, c.command_buffer, c.command,
+                           c.secondary_handle ? c.secondary + 1 : 0u, c.secondary_command);
+}
+
 // Hazards of one class between the same two commands over the same fields, told once
 // (replayer_hazard_merge.cpp); *merged counts the reports folded into others.
 std::vector<HazardReport> merge_per_op_hazards(const std::vector<HazardReport>& hazards,

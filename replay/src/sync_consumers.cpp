@@ -13,6 +13,8 @@
 #include <clastrace/engine/cluster_format.h>
 
 #include <cstring>
+#include <set>
+#include <tuple>
 #include <unordered_set>
 
 namespace clastrace::replay {
@@ -184,7 +186,8 @@ void Replay::on_consumer_bookkeeping(fbs::RecordBody kind, const fbs::Record& r)
 }
 
 // A command still pending (no host wait saw it complete) that uses bytes of `range`: the
-// destroyed or freed object was in use. One finding per pending command. Any device access to
+// destroyed or freed object was in use. One finding per pending command (per place: queue,
+// submission, command buffer, command, secondary). Any device access to
 // the bytes counts: a build reads its inputs by device address, which names no buffer, but the
 // bytes are the buffer's all the same (once destroyed, a sub-allocator hands them on), and a
 // structure's own build or copy "refers to" it as much as a ray query does (02442, 03752).
@@ -194,10 +197,12 @@ void Replay::check_commands_done(const AddressRange& range, const char* call, co
     if (!options_.check_hazards) return;
     std::vector<HazardAccess> pending = sync_.pending_accesses(range);
     std::erase_if(pending, [](const HazardAccess& a) { return a.possible; });
-    std::unordered_set<uint64_t> told;
+    // Keyed on the whole place: two command buffers of one submission, or two secondaries of
+    // one vkCmdExecuteCommands, are two pending commands.
+    std::set<std::tuple<QueueId, decltype(command_place_key(CommandRef{}))>> told;
     for (const HazardAccess& a : pending) {
         const CommandRef& c = a.command;
-        if (!told.insert(uint64_t(c.submission) << 32 | c.command).second) continue;
+        if (!told.emplace(a.queue, command_place_key(c)).second) continue;
         ReplayLocation where;
         where.sequence = sequence_;
         where.submission = next_submission_;

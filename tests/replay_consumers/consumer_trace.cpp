@@ -40,6 +40,7 @@ uint64_t ConsumerTrace::buffer(const void* bytes, uint64_t size) {
 }
 
 uint64_t ConsumerTrace::open() {
+    if (secondary_) return secondary_;
     if (!open_) writer_.append(tb::command_buffer_begin(command_buffer_));
     open_ = true;
     return command_buffer_;
@@ -213,10 +214,37 @@ void ConsumerTrace::ray_query_draw(const Object& tlas, uint64_t stages) {
     writer_.append(tb::ray_query_draw(open(), stages, {tb::structure_binding(tlas.handle)}));
 }
 
-void ConsumerTrace::submit(uint64_t fence) {
-    writer_.end_and_submit(kQueue, open(), fence);
-    ++command_buffer_;
+void ConsumerTrace::next_command_buffer() {
+    writer_.append(tb::command_buffer_end(open()));
+    ended_.push_back(command_buffer_++);
     open_ = false;
+}
+
+void ConsumerTrace::begin_secondary() {
+    secondary_ = next_secondary_++;
+    fbs::CommandBufferBeginT begin = tb::command_buffer_begin(secondary_);
+    begin.level = 1;
+    writer_.append(begin);
+}
+
+uint64_t ConsumerTrace::end_secondary() {
+    const uint64_t ended = secondary_;
+    writer_.append(tb::command_buffer_end(ended));
+    secondary_ = 0;
+    return ended;
+}
+
+void ConsumerTrace::execute_commands(std::vector<uint64_t> secondaries) {
+    fbs::CmdExecuteCommandsT e;
+    e.command_buffer = open();
+    e.secondaries = std::move(secondaries);
+    writer_.append(std::move(e));
+}
+
+void ConsumerTrace::submit(uint64_t fence) {
+    next_command_buffer();
+    writer_.append(tb::queue_submit(kQueue, ended_, fence, writer_.next_submission_index()));
+    ended_.clear();
 }
 
 void ConsumerTrace::wait(uint64_t fence) { writer_.wait_fence(fence); }

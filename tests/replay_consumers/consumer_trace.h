@@ -48,7 +48,15 @@ public:
     // A ray-query dispatch reaching `structures` as given (any source).
     void ray_query_dispatch(std::vector<fbs::AccelerationStructureBinding> structures);
     void ray_query_draw(const Object& tlas, uint64_t stages);
-    // Ends the open command buffer and submits it with `fence` (no wait).
+    // Ends the open command buffer; the next command opens another in the same submission.
+    void next_command_buffer();
+    // Commands from here go into a new secondary command buffer (level 1) until
+    // end_secondary(), which returns its handle for execute_commands().
+    void begin_secondary();
+    uint64_t end_secondary();
+    void execute_commands(std::vector<uint64_t> secondaries);
+    // Ends the open command buffer and submits it, after those next_command_buffer() ended, in
+    // one batch with `fence` (no wait).
     void submit(uint64_t fence);
     void wait(uint64_t fence);
     void present(uint64_t frame);
@@ -66,8 +74,10 @@ private:
     trace_building::RecordWriter writer_;
     std::vector<fbs::MemorySnapshot> inputs_;
     uint64_t next_buffer_ = 0x5000, next_address_ = 0x10000000, next_object_ = 0xA5000,
-             next_object_offset_ = 0, command_buffer_ = 0xC000;
-    uint64_t last_address_ = 0;  // of the buffer buffer() made last
+             next_object_offset_ = 0, command_buffer_ = 0xC000, next_secondary_ = 0xD000;
+    uint64_t secondary_ = 0;       // the secondary being recorded; 0: none
+    std::vector<uint64_t> ended_;  // primaries ended for the next submit
+    uint64_t last_address_ = 0;    // of the buffer buffer() made last
     bool open_ = false;
 };
 

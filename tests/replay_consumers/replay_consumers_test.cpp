@@ -320,6 +320,70 @@ TEST(ReplayConsumers, BottomLevelDestroyedWhileItsBuildIsPendingIsAFinding) {
     EXPECT_TRUE(destroyed_while_building("destroy_built.clt", true).findings.empty());
 }
 
+// Rays and a ray-query dispatch, in two command buffers of one submission (or in two
+// secondaries of one vkCmdExecuteCommands), both read a bottom level destroyed before the fence
+// wait: two pending commands at the same command index, two findings, each naming its own
+// place. (Two readers at one stage would be one: the model keeps the latest read per queue and
+// stage.)
+ReplayReport destroyed_under_two_readers(const std::string& name, bool secondaries) {
+    const std::string path = temp_path(name);
+    {
+        ConsumerTrace t(path);
+        Pool p{{t.bottom_level(), t.bottom_level()}, {}};
+        p.tlas = t.top_level(2);
+        t.build_bottom(p.blas[0]);
+        t.build_bottom(p.blas[1]);
+        t.barrier(kBuildStages, kStructureWrite, kBuildStages | kRayStages, kStructureRead);
+        t.build_top(p.tlas, {p.blas[0], p.blas[1]});
+        t.barrier(kBuildStages, kStructureWrite, kRayStages, kStructureRead);
+        t.submit(kSetupFence);
+        t.wait(kSetupFence);
+        if (secondaries) {
+            std::vector<uint64_t> listed;
+            t.begin_secondary();
+            t.trace_rays(p.tlas);
+            listed.push_back(t.end_secondary());
+            t.begin_secondary();
+            t.ray_query_dispatch(p.tlas);
+            listed.push_back(t.end_secondary());
+            t.execute_commands(listed);
+        } else {
+            t.trace_rays(p.tlas);
+            t.next_command_buffer();
+            t.ray_query_dispatch(p.tlas);
+        }
+        t.submit(kFrame1Fence);
+        t.destroy(p.blas[1]);
+        t.finish();
+    }
+    ReplayReport r = test::replay_file(path);
+    test::discard_trace(path);
+    return r;
+}
+
+int count_naming(const ReplayReport& r, const std::string& place) {
+    int n = 0;
+    for (const auto& f : r.findings) n += f.message.find(place) != std::string::npos;
+    return n;
+}
+
+TEST(ReplayConsumers, DestroyedUnderTwoCommandBuffersOfOneSubmissionIsTwoFindings) {
+    const ReplayReport r = destroyed_under_two_readers("destroy_two_cbs.clt", false);
+    ASSERT_EQ(r.findings.size(), 2u) << all_hazards(r);
+    for (const auto& f : r.findings)
+        EXPECT_EQ(f.rule, "VUID-vkDestroyAccelerationStructureNV-accelerationStructure-03752");
+    for (const char* place : {"submit 1, cb 0, cmd 0)", "submit 1, cb 1, cmd 0)"})
+        EXPECT_EQ(count_naming(r, place), 1) << place << "\n" << all_hazards(r);
+}
+
+TEST(ReplayConsumers, DestroyedUnderTwoSecondariesOfOneExecuteIsTwoFindings) {
+    const ReplayReport r = destroyed_under_two_readers("destroy_two_secondaries.clt", true);
+    ASSERT_EQ(r.findings.size(), 2u) << all_hazards(r);
+    for (const char* place :
+         {"cmd 0 > secondary 0 (0xd000), cmd 0)", "cmd 0 > secondary 1 (0xd001), cmd 0)"})
+        EXPECT_EQ(count_naming(r, place), 1) << place << "\n" << all_hazards(r);
+}
+
 // A KHR top level names its bottom levels by device address: overwriting a bottom level's
 // buffer after rays that bind only the top level's address is a WRITE-AFTER-READ, whether the
 // instances were packed or given as an array of pointers.
