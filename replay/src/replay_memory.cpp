@@ -293,8 +293,7 @@ void ReplayMemory::forget_laid(AddressRange range) {
 // it starts in or near, tried first the one after the run the last write joined, so a command
 // costs a few forget_laid calls instead of one a write. A run also covers the bytes between its
 // writes, which only costs those contents a lay-in again.
-void ReplayMemory::forget_written() {
-    if (writes_.empty()) return;
+void ReplayMemory::forget_written_runs() {
     if (laid_.empty()) {
         writes_.clear();
         return;

@@ -172,7 +172,11 @@ private:
     // The contents laid in that a write met (range, or each write the image logged) no longer
     // lie there.
     void forget_laid(AddressRange range);
-    void forget_written();
+    // Inline: called at every lay-in and image() hand-out, mostly with nothing logged since.
+    void forget_written() {
+        if (!writes_.empty()) forget_written_runs();
+    }
+    void forget_written_runs();
     void unindex(uint64_t buffer);
     // Adds the region (an alias of an existing one is served by it); false when over the limit.
     bool add_region(uint64_t address, uint64_t size, uint64_t usage, const std::string& label);
