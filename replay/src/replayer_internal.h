@@ -257,6 +257,17 @@ private:
                               ref.secondary,
                               ref.secondary_command};
     }
+    // The command a location names: location()'s inverse (the sequence has no place in it).
+    static CommandRef command_ref(const ReplayLocation& where) {
+        return CommandRef{.submission = where.submission,
+                          .command_buffer = where.command_buffer,
+                          .command_buffer_handle = where.command_buffer_handle,
+                          .command = where.command,
+                          .name = where.name,
+                          .secondary_handle = where.secondary_handle,
+                          .secondary = where.secondary,
+                          .secondary_command = where.secondary_command};
+    }
     QueueId queue_id(uint64_t queue) {
         auto [it, inserted] = queues_.emplace(queue, static_cast<QueueId>(queues_.size()));
         return it->second;

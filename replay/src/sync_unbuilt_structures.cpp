@@ -21,15 +21,8 @@ constexpr const char* kRuleStructureNotBuilt = "CLASTRACE-replay-structure-not-b
 // The command at `where`, in the one text hazards and findings name commands by
 // (command_place_text): "vkCmdTraceRaysKHR (queue 0, submit 3, cb 0, cmd 2, frame 4)".
 std::string Replay::command_text(const ReplayLocation& where) const {
-    const CommandRef command{.submission = where.submission,
-                             .command_buffer = where.command_buffer,
-                             .command_buffer_handle = where.command_buffer_handle,
-                             .command = where.command,
-                             .name = where.name,
-                             .secondary_handle = where.secondary_handle,
-                             .secondary = where.secondary,
-                             .secondary_command = where.secondary_command};
-    return command_place_text(command, submission_queue_, frames_.frame_of(where.submission));
+    return command_place_text(command_ref(where), submission_queue_,
+                              frames_.frame_of(where.submission));
 }
 
 // Every command the trace submits, replayed or outside the selection: what it writes is built
