@@ -6,11 +6,13 @@
 # Parts (rounds: CLASTRACE_DEVICE_ROUNDS, default 7; passes inside one cluster bench run:
 # CLASTRACE_DEVICE_REPEAT, default 3, best of them):
 #   trav        bench_engine_nv --traversal 100000 3 (engine / Embree MEDIUM), per round
-#   clusters    bench_engine_clusters thread sweep on WusonOBJ, once per side
+#   clusters    bench_engine_clusters thread sweep on WusonOBJ, per sweep round
+#               (CLASTRACE_DEVICE_SWEEPS, default 3: one sweep a side cannot rank on a noisy VM)
 #   clusters1   the same at 1 thread, per round
 #   replay      replay_throughput_bench --replay-once, 1 thread, hazards on and off, per round
 #   replay16    the same at 16 threads, hazards on, per round, then peak RSS per side
-#   cap         capture_overhead_bench 360 256 7 host-writes on the NVIDIA driver, per side
+#   cap         capture_overhead_bench 360 256 3 host-writes on the NVIDIA driver, per round
+#               (CLASTRACE_DEVICE_CAP_ROUNDS, default 3), sides interleaved round by round
 #   cap-stats   the frames app, 240 frames, serving only then capturing, with the layer's stats
 #   prof-trav prof-clus prof-rep1 prof-rep16 prof-cap   perf cpu-clock profiles of the after
 #               side (bundle made with --perf; the VM has no hardware counters)
@@ -23,6 +25,8 @@ export LD_LIBRARY_PATH=$here/lib
 : "${OUT:?set OUT to the folder for the logs}"
 rounds=${CLASTRACE_DEVICE_ROUNDS:-7}
 repeat=${CLASTRACE_DEVICE_REPEAT:-3}
+sweeps=${CLASTRACE_DEVICE_SWEEPS:-3}
+cap_rounds=${CLASTRACE_DEVICE_CAP_ROUNDS:-3}
 sides=(after); [[ -d $here/bin-before ]] && sides=(before after)
 trace=/dev/shm/clastrace_device_replay.clt
 icd=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
@@ -44,8 +48,8 @@ run_part() {
   case $part in
     trav) for r in $(seq "$rounds"); do for side in "${sides[@]}"; do echo "-- round $r $side"
             "$(bin "$side" bench_engine_nv)" --traversal 100000 3 2>&1 | grep -E '^(icosphere|terrain|soup|torus)'; done; done ;;
-    clusters) for side in "${sides[@]}"; do echo "-- $side"
-            "$(bin "$side" bench_engine_clusters)" --throughput-only --repeat "$repeat" --mesh "$here/WusonOBJ.obj"; done ;;
+    clusters) for r in $(seq "$sweeps"); do for side in "${sides[@]}"; do echo "-- sweep $r $side"
+            "$(bin "$side" bench_engine_clusters)" --throughput-only --repeat "$repeat" --mesh "$here/WusonOBJ.obj"; done; done ;;
     clusters1) for r in $(seq "$rounds"); do for side in "${sides[@]}"; do echo "-- round $r $side"
             "$(bin "$side" bench_engine_clusters)" --throughput-only --max-threads 1 --repeat "$repeat" \
               --mesh "$here/WusonOBJ.obj" 2>&1 | grep -E '^build throughput|^ +1 +(wall|cpu)'; done; done ;;
@@ -56,10 +60,10 @@ run_part() {
           for side in "${sides[@]}"; do echo "-- rss $side 16"
             /usr/bin/time -v "$(bin "$side" replay_throughput_bench)" --replay-once "$trace" hazards 16 2>&1 |
               grep -E 'ops, hazards|Maximum resident'; done ;;
-    cap) for side in "${sides[@]}"; do echo "-- $side"
+    cap) for r in $(seq "$cap_rounds"); do for side in "${sides[@]}"; do echo "-- round $r $side"
             ( cd /tmp && CLASTRACE_BENCH_DRIVER_FILES=$icd CLASTRACE_BENCH_LAYER_DIR=$here/layer-$side \
               CLASTRACE_BENCH_FRAMES_APP=$(bin "$side" capture_frames_app) \
-              taskset -c 2-5 "$(bin "$side" capture_overhead_bench)" 360 256 7 host-writes ); done ;;
+              taskset -c 2-5 "$(bin "$side" capture_overhead_bench)" 360 256 3 host-writes ); done; done ;;
     cap-stats) for side in "${sides[@]}"; do for mode in CLASTRACE_CAPTURE=0 CLASTRACE_OUTPUT=/dev/shm/c.clt; do
             echo "-- $side $mode"; env "$mode" VK_ICD_FILENAMES=$icd VK_DRIVER_FILES=$icd VK_ADD_LAYER_PATH=$here/layer-$side \
               VK_INSTANCE_LAYERS=VK_LAYER_CLASTRACE_capture CLASTRACE_STATS=1 \
