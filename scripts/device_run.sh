@@ -9,6 +9,8 @@
 #   clusters    bench_engine_clusters thread sweep on WusonOBJ, per sweep round
 #               (CLASTRACE_DEVICE_SWEEPS, default 3: one sweep a side cannot rank on a noisy VM)
 #   clusters1   the same at 1 thread, per round
+#   clusters-measures  the after side's bench, one process: counts 1 and 16, 3 sweeps in each of
+#               its measure and session 16's (--both-measures), alternating (about 100 s)
 #   replay      replay_throughput_bench --replay-once, 1 thread, hazards on and off, per round
 #   replay16    the same at 16 threads, hazards on, per round, then peak RSS per side
 #   cap         capture_overhead_bench 360 256 3 host-writes on the NVIDIA driver, per round
@@ -53,6 +55,8 @@ run_part() {
     clusters1) for r in $(seq "$rounds"); do for side in "${sides[@]}"; do echo "-- round $r $side"
             "$(bin "$side" bench_engine_clusters)" --throughput-only --max-threads 1 --repeat "$repeat" \
               --mesh "$here/WusonOBJ.obj" 2>&1 | grep -E '^build throughput|^ +1 +(wall|cpu)'; done; done ;;
+    clusters-measures) "$(bin after bench_engine_clusters)" --builds-only --repeat "$repeat" --counts 16 \
+              --sweeps "$sweeps" --both-measures --mesh "$here/WusonOBJ.obj" ;;
     replay) replay_trace; for r in $(seq "$rounds"); do for side in "${sides[@]}"; do for m in hazards no-hazards; do
             echo "-- round $r $side $m 1"; "$(bin "$side" replay_throughput_bench)" --replay-once "$trace" $m 1; done; done; done ;;
     replay16) replay_trace; for r in $(seq "$rounds"); do for side in "${sides[@]}"; do echo "-- round $r $side 16"

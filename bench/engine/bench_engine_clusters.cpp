@@ -11,6 +11,8 @@
 // usage: bench_engine_clusters [--quick] [--tris N] [--max-threads N] [--mesh PATH]
 //                              [--throughput-only] [--builds-only] [--engine-only] [--repeat N]
 //                              [--scene TEXT] [--thread-cpu] [--cold] [--streaming-objects]
+//                              [--single-build] [--grain N] [--counts LIST] [--sweeps N]
+//                              [--both-measures]
 //   --tris N: about N triangles per scene (default 10^6); --quick: 10^5 (a smoke run).
 //   --max-threads N: the sweep's last count (default: the machine's hardware threads).
 //   --mesh PATH: the WusonOBJ model to tile (default: Debian's assimp-testmodels copy).
@@ -27,6 +29,15 @@
 //     CLFLUSH): both builders then read and write a scene in memory at every thread count.
 //   --streaming-objects: the engine writes each object with non-temporal stores
 //     (engine::ObjectStores::kStreaming): its lines are not read for ownership first.
+//   --single-build: a timed run at N threads is one build whose threads it wakes (before
+//     session 17), not one untimed build and then the mean of N builds back to back.
+//   --grain N: the engine's parallel loop takes chunks of at least N clusters (default 8;
+//     32 before session 17).
+//   --counts LIST: the sweep's thread counts after 1, e.g. "16" or "4,16".
+//   --sweeps N: each scene's throughput table N times (one clustering for all).
+//   --both-measures: each sweep twice, in the measure chosen and in session 16's
+//     (--single-build --grain 32), alternating which goes first: the two measures compared
+//     in one process.
 #include "clastrace/engine/blas.h"
 #include "clastrace/engine/cluster_build.h"
 #include "clastrace/engine/cluster_format.h"
@@ -103,6 +114,18 @@ struct Timing {
     }
 };
 
+// The mean of `builds` timed builds (each timed alone).
+struct TimingSum {
+    Timing sum{0, 0};
+    int builds = 0;
+    void add(const Timing& t) {
+        sum.wall += t.wall;
+        sum.cpu += t.cpu;
+        ++builds;
+    }
+    Timing mean() const { return {sum.wall / builds, sum.cpu / builds}; }
+};
+
 struct Stopwatch {
     Clock::time_point wall0 = Clock::now();
     double cpu0 = cpu_seconds();
@@ -119,6 +142,24 @@ bool g_thread_cpu = false;
 bool g_cold = false;
 // How the engine writes its objects (--streaming-objects).
 eng::ObjectStores g_object_stores = eng::ObjectStores::kCached;
+// How a thread count's run is timed. By default one untimed build first, then N builds back to
+// back at N threads, their mean the run's time: each builder's threads then start every timed
+// build awake (not woken from the sleep that settle() gives them), on cores at the clock their
+// load holds, and the timed interval is about one 1-thread build at every count. Session 16's
+// measure (--single-build) timed one build a run whose threads it woke: on the device VM the
+// last of 16 threads started 4-11% of a 3-5 ms build late (0.3-1% with this measure). Chunks
+// of 8 clusters (--grain): with 32, the busiest of 16 threads ended 2.5-5% after the mean
+// (0.4-2% with 8).
+struct Measure {
+    bool single_build = false;
+    size_t grain = 8;  // clusters per chunk of the parallel loop (the bench's, not the engine's)
+};
+constexpr Measure kSession16Measure{true, 32};
+Measure g_measure;
+
+// Untimed builds before a timed run's, and timed builds in it, at `threads` threads.
+int warm_builds() { return g_measure.single_build ? 0 : 1; }
+int timed_builds(int threads) { return g_measure.single_build ? 1 : threads; }
 
 struct Scene {
     std::string label;
@@ -153,9 +194,24 @@ struct PhaseStats {
     double busy_sum = 0, busy_max = 0, latest_start = 0;
     double busy_cpu_sum = 0;  // the threads' own CPU time in the chunks: busy less preemption
     int threads_used = 0;
-    uint64_t allocations = 0;      // inside the chunks, all threads
-    uint64_t allocated_bytes = 0;  // the same allocations' bytes
-    uint64_t minor_faults = 0;     // the whole process during the run
+    double allocations = 0;      // inside the chunks, all threads
+    double allocated_bytes = 0;  // the same allocations' bytes
+    double minor_faults = 0;     // the whole process during the run
+    // Sums another build's stats into these (the mean over a run's builds: divide by them).
+    void add(const PhaseStats& p) {
+        busy_sum += p.busy_sum, busy_max += p.busy_max, latest_start += p.latest_start;
+        busy_cpu_sum += p.busy_cpu_sum;
+        threads_used = std::max(threads_used, p.threads_used);
+        allocations += p.allocations, allocated_bytes += p.allocated_bytes;
+        minor_faults += p.minor_faults;
+    }
+    PhaseStats per_build(int builds) const {
+        PhaseStats m = *this;
+        m.busy_sum /= builds, m.busy_max /= builds, m.latest_start /= builds;
+        m.busy_cpu_sum /= builds;
+        m.allocations /= builds, m.allocated_bytes /= builds, m.minor_faults /= builds;
+        return m;
+    }
 };
 
 // One thread's share of a run.
@@ -164,7 +220,7 @@ struct ThreadPhase {
     uint64_t allocations = 0, allocated_bytes = 0;
 };
 
-// Engine build of every cluster on `threads` threads (TBB arena). run() times one build of all
+// Engine build of every cluster on `threads` threads (TBB arena). run() times builds of all
 // clusters; the first run warms the per-thread builders and the output buffers.
 struct EngineBuild {
     const ts::ClusterSceneInputs& in;
@@ -173,7 +229,7 @@ struct EngineBuild {
     tbb::enumerable_thread_specific<std::vector<eng::Finding>> findings;
     tbb::enumerable_thread_specific<ThreadPhase> phases;
     std::vector<std::vector<std::byte>>& objects;
-    PhaseStats last;  // of the latest run
+    PhaseStats last;  // of the latest run, the mean of its timed builds
     EngineBuild(const ts::ClusterSceneInputs& inputs, int threads,
                 std::vector<std::vector<std::byte>>& out)
         : in(inputs), arena(threads), objects(out) {
@@ -197,45 +253,60 @@ struct EngineBuild {
         cb::evict_lines(in.infos.data(), in.infos.size() * sizeof in.infos[0]);
         for (const auto& o : objects) cb::evict_lines(o.data(), o.capacity());
     }
-    Timing run() {
+    // `warm` untimed builds, then `builds` timed ones (each evicted first with --cold): the
+    // mean of the timed builds, their mean phases in `last`.
+    Timing run(int warm = 0, int builds = 1) {
+        for (int w = 0; w < warm; ++w) build_once(Clock::now());
+        TimingSum sum;
+        PhaseStats phases_sum;
+        for (int k = 0; k < builds; ++k) {
+            if (g_cold) evict();
+            const double faults0 = double(cb::minor_faults());
+            const Stopwatch sw;
+            build_once(sw.wall0);
+            sum.add(sw.elapsed());
+            PhaseStats p = collect_phases();
+            p.minor_faults = double(cb::minor_faults()) - faults0;
+            phases_sum.add(p);
+        }
+        last = phases_sum.per_build(builds);
+        return sum.mean();
+    }
+    // One parallel build of every cluster, each chunk's phase taken from `t0` (the build's start).
+    void build_once(Clock::time_point t0) {
         for (ThreadPhase& p : phases) p = ThreadPhase{};
-        if (g_cold) evict();
-        const uint64_t faults0 = cb::minor_faults();
-        const Stopwatch sw;
         arena.execute([&] {
-            tbb::parallel_for(tbb::blocked_range<size_t>(0, in.infos.size(), 32),
-                              [&](const tbb::blocked_range<size_t>& r) {
-                                  const auto c0 = Clock::now();
-                                  ThreadPhase& p = phases.local();
-                                  if (p.first_start < 0)
-                                      p.first_start =
-                                          std::chrono::duration<double>(c0 - sw.wall0).count();
-                                  const uint64_t a0 = t_allocations;
-                                  const uint64_t bytes0 = t_allocated_bytes;
-                                  const double cpu0 =
-                                      g_thread_cpu ? cpu_seconds(CLOCK_THREAD_CPUTIME_ID) : 0;
-                                  build_chunk(r);
-                                  if (g_thread_cpu)
-                                      p.busy_cpu += cpu_seconds(CLOCK_THREAD_CPUTIME_ID) - cpu0;
-                                  p.allocations += t_allocations - a0;
-                                  p.allocated_bytes += t_allocated_bytes - bytes0;
-                                  p.busy += seconds_since(c0);
-                              });
+            tbb::parallel_for(tbb::blocked_range<size_t>(0, in.infos.size(), g_measure.grain),
+                              [&](const tbb::blocked_range<size_t>& r) { timed_chunk(r, t0); });
         });
-        const Timing t = sw.elapsed();
-        last = PhaseStats{};
-        last.minor_faults = cb::minor_faults() - faults0;
+    }
+    void timed_chunk(const tbb::blocked_range<size_t>& r, Clock::time_point t0) {
+        const auto c0 = Clock::now();
+        ThreadPhase& p = phases.local();
+        if (p.first_start < 0) p.first_start = std::chrono::duration<double>(c0 - t0).count();
+        const uint64_t a0 = t_allocations;
+        const uint64_t bytes0 = t_allocated_bytes;
+        const double cpu0 = g_thread_cpu ? cpu_seconds(CLOCK_THREAD_CPUTIME_ID) : 0;
+        build_chunk(r);
+        if (g_thread_cpu) p.busy_cpu += cpu_seconds(CLOCK_THREAD_CPUTIME_ID) - cpu0;
+        p.allocations += t_allocations - a0;
+        p.allocated_bytes += t_allocated_bytes - bytes0;
+        p.busy += seconds_since(c0);
+    }
+    // The threads' phases of the latest build (its faults are the caller's to add).
+    PhaseStats collect_phases() {
+        PhaseStats s;
         for (const ThreadPhase& p : phases) {
             if (p.first_start < 0) continue;
-            ++last.threads_used;
-            last.allocations += p.allocations;
-            last.allocated_bytes += p.allocated_bytes;
-            last.busy_sum += p.busy;
-            last.busy_cpu_sum += p.busy_cpu;
-            last.busy_max = std::max(last.busy_max, p.busy);
-            last.latest_start = std::max(last.latest_start, p.first_start);
+            ++s.threads_used;
+            s.allocations += double(p.allocations);
+            s.allocated_bytes += double(p.allocated_bytes);
+            s.busy_sum += p.busy;
+            s.busy_cpu_sum += p.busy_cpu;
+            s.busy_max = std::max(s.busy_max, p.busy);
+            s.latest_start = std::max(s.latest_start, p.first_start);
         }
-        return t;
+        return s;
     }
 };
 
@@ -551,9 +622,17 @@ void quality_line(const Scene& sc, const std::vector<std::vector<std::byte>>& ob
     cluster_blas_trace_line(sc, objects, rays);
 }
 
-// The thread counts of the sweep: 1, 2, 4, ... below `max_threads`, then `max_threads` itself.
+// The thread counts of the sweep: 1, 2, 4, ... below `max_threads`, then `max_threads` itself;
+// or --counts' list, after 1 (every count's efficiency is against it).
+std::vector<int> g_counts;
 std::vector<int> thread_sweep(int max_threads) {
     std::vector<int> counts;
+    if (!g_counts.empty()) {
+        counts.push_back(1);
+        for (int t : g_counts)
+            if (t > 1) counts.push_back(t);
+        return counts;
+    }
     for (int t = 1; t < max_threads; t *= 2) counts.push_back(t);
     counts.push_back(max_threads);
     return counts;
@@ -588,15 +667,22 @@ SweepTimes time_thread_count(const Scene& sc, const ts::ClusterSceneInputs& in,
         embree_arena.execute([&] { t = build(); });
         return t;
     };
+    // Embree's run as the engine's (warm_builds, timed_builds).
+    const auto embree_whole = [&] {
+        TimingSum sum;
+        for (int w = 0; w < warm_builds(); ++w) embree_scene_seconds(sc.mesh, padded, device);
+        for (int k = 0; k < timed_builds(threads); ++k)
+            sum.add(embree_scene_seconds(sc.mesh, padded, device));
+        return sum.mean();
+    };
     embree_run([&] { return embree_scene_seconds(sc.mesh, padded, device); });  // warm up
     SweepTimes t{threads, {}, {}, {}, {}, {}};
     for (int rep = 0; rep < g_repeat; ++rep) {
         settle();
-        const Timing e = engine.run();
+        const Timing e = engine.run(warm_builds(), timed_builds(threads));
         if (e.wall < t.engine.wall) t.engine_phases = engine.last;
         t.engine.keep_best(e);
-        t.whole.keep_best(
-            embree_run([&] { return embree_scene_seconds(sc.mesh, padded, device); }));
+        t.whole.keep_best(embree_run(embree_whole));
         if (threads == 1)
             t.per_cluster.keep_best(
                 embree_run([&] { return embree_per_cluster_seconds(arrays, device); }));
@@ -636,12 +722,12 @@ BuildTraffic build_traffic(const ts::ClusterSceneInputs& in,
 void phase_table(const std::vector<SweepTimes>& sweep, const BuildTraffic& traffic,
                  size_t clusters) {
     std::printf(
-        "engine phases (best wall per count; ms): used = threads that took chunks, start = "
-        "latest first chunk,\n  busy = time in the chunks per thread (mean, max), outside = wall - "
-        "busy max (scheduling, preemption,\n  the join), cost/cluster = busy of all threads / "
-        "1-thread busy (wall; cpu: the threads' CPU time, with\n  --thread-cpu), GB/s = input and "
-        "object bytes "
-        "(%.0f + %.0f B per cluster; the object's lines %s) / wall\n",
+        "engine phases (best-wall run per count, the mean of its builds; ms): used = threads that "
+        "took chunks,\n  start = latest first chunk, busy = time in the chunks per thread (mean, "
+        "max), outside = wall -\n  busy max (scheduling, preemption, the join), cost/cluster = "
+        "busy of all threads / 1-thread\n  busy (wall; cpu: the threads' CPU time, with "
+        "--thread-cpu), GB/s = input and object bytes\n  (%.0f + %.0f B per cluster; the object's "
+        "lines %s) / wall\n",
         traffic.input_bytes / double(clusters), traffic.output_bytes / double(clusters),
         g_object_stores == eng::ObjectStores::kStreaming ? "streamed, not read first"
                                                          : "also read for ownership");
@@ -692,21 +778,18 @@ void machine_table(const std::vector<SweepTimes>& sweep, size_t clusters) {
     }
 }
 
-// Engine and Embree LOW at every thread count of the sweep. Scaling efficiency = (1-thread
-// wall / N-thread wall) / N, each builder against its own 1-thread run; on CPU time rows it
-// is not shown (CPU time counts every thread's work, so it is flat under perfect scaling).
-void throughput_table(const Scene& sc, int max_threads, bool with_quality) {
-    const ts::ClusterSceneInputs in = ts::write_cluster_inputs(sc.mesh, sc.clusters, {1, 0, 0, 0});
-    const double mtris = double(sc.mesh.triangles.size()) / 1e6;
+// The throughput table's title and what its columns mean.
+void throughput_header(const Scene& sc) {
     std::printf(
         "\nbuild throughput, %s, %zu triangles, %zu clusters (Mtris/s, best of %d runs "
         "interleaved engine/Embree\n"
-        "  so both see the same load; Embree RTC_BUILD_QUALITY_LOW on the same untruncated "
-        "triangles: one scene of\n"
-        "  one geometry, and (1 thread) one scene per cluster built one after another; ratio = "
-        "engine / Embree at\n"
-        "  the same thread count; eff = scaling efficiency (speedup over its own 1-thread wall "
-        "/ threads);\n"
+        "  so both see the same load; a run: see the measure line below; Embree "
+        "RTC_BUILD_QUALITY_LOW on\n"
+        "  the same untruncated triangles: one scene of one geometry, and (1 thread) one scene "
+        "per cluster\n"
+        "  built one after another; ratio = engine / Embree at the same thread count; eff = "
+        "scaling efficiency\n"
+        "  (speedup over its own 1-thread wall / threads);\n"
         "  clock wall = elapsed time, cpu = process CPU time, the load-independent measure of "
         "work on a shared machine;\n"
         "  calib = per-thread rate of fixed loops on all threads at once vs 1 thread: under eng "
@@ -717,6 +800,24 @@ void throughput_table(const Scene& sc, int max_threads, bool with_quality) {
         "eng eff / clock =\n"
         "  the engine's efficiency with the clock's share taken out)\n",
         sc.label.c_str(), sc.mesh.triangles.size(), sc.clusters.size(), g_repeat);
+    if (g_measure.single_build)
+        std::printf(
+            "  measure: one build a timed run, its threads woken by it; %zu-cluster chunks\n",
+            g_measure.grain);
+    else
+        std::printf(
+            "  measure: at N threads 1 untimed build, then the mean of N builds; %zu-cluster "
+            "chunks\n",
+            g_measure.grain);
+}
+
+// Engine and Embree LOW at every thread count of the sweep. Scaling efficiency = (1-thread
+// wall / N-thread wall) / N, each builder against its own 1-thread run; on CPU time rows it
+// is not shown (CPU time counts every thread's work, so it is flat under perfect scaling).
+void throughput_table(const Scene& sc, int max_threads, bool with_quality) {
+    const ts::ClusterSceneInputs in = ts::write_cluster_inputs(sc.mesh, sc.clusters, {1, 0, 0, 0});
+    const double mtris = double(sc.mesh.triangles.size()) / 1e6;
+    throughput_header(sc);
     std::printf("%8s %6s %10s %10s %8s %7s %7s %20s %8s\n", "threads", "clock", "engine",
                 "embree LOW", "ratio", "eng eff", "emb eff", "embree per-cluster", "ratio");
     std::vector<ts::Float3> padded = sc.mesh.positions;
@@ -841,35 +942,52 @@ void usage(const char* argv0) {
     std::fprintf(stderr,
                  "usage: %s [--quick] [--tris N] [--max-threads N] [--mesh PATH] "
                  "[--throughput-only] [--builds-only] [--engine-only] [--repeat N] [--scene TEXT] "
-                 "[--thread-cpu] [--cold] [--streaming-objects]\n",
+                 "[--thread-cpu] [--cold] [--streaming-objects] [--single-build] [--grain N] "
+                 "[--counts LIST] [--sweeps N] [--both-measures]\n",
                  argv0);
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
+struct Options {
     bool throughput_only = false, engine_only = false, with_quality = true;
     size_t tris = 1000000;
     int max_threads = std::max(1, int(tbb::info::default_concurrency()));
     std::filesystem::path wuson = ts::assimp_models_dir() / "OBJ/WusonOBJ.obj";
     std::string only_scene;
+    int sweeps = 1;              // throughput tables per scene (--sweeps)
+    bool both_measures = false;  // each sweep also in session 16's measure (--both-measures)
+};
+
+// "1,16" -> {1, 16}: the thread counts of --counts.
+std::vector<int> parse_counts(const char* list) {
+    std::vector<int> counts;
+    for (const char* p = list; *p;) {
+        char* end = nullptr;
+        counts.push_back(int(std::strtol(p, &end, 10)));
+        if (end == p) break;
+        p = *end == ',' ? end + 1 : end;
+    }
+    return counts;
+}
+
+// The command line into `o` and the bench's globals; false on an unknown or incomplete option.
+bool parse_options(int argc, char** argv, Options& o) {
     for (int i = 1; i < argc; ++i) {
         const std::string a = argv[i];
         const bool has_value = i + 1 < argc;
         if (a == "--quick")
-            tris = 100000;
+            o.tris = 100000;
         else if (a == "--tris" && has_value)
-            tris = std::max<size_t>(1000, std::strtoull(argv[++i], nullptr, 10));
+            o.tris = std::max<size_t>(1000, std::strtoull(argv[++i], nullptr, 10));
         else if (a == "--max-threads" && has_value)
-            max_threads = std::max(1, std::atoi(argv[++i]));
+            o.max_threads = std::max(1, std::atoi(argv[++i]));
         else if (a == "--mesh" && has_value)
-            wuson = argv[++i];
+            o.wuson = argv[++i];
         else if (a == "--throughput-only")
-            throughput_only = true;
+            o.throughput_only = true;
         else if (a == "--builds-only")
-            throughput_only = true, with_quality = false;
+            o.throughput_only = true, o.with_quality = false;
         else if (a == "--engine-only")
-            engine_only = true;
+            o.engine_only = true;
         else if (a == "--repeat" && has_value)
             g_repeat = std::max(1, std::atoi(argv[++i]));
         else if (a == "--thread-cpu")
@@ -878,14 +996,58 @@ int main(int argc, char** argv) {
             g_cold = true;
         else if (a == "--streaming-objects")
             g_object_stores = eng::ObjectStores::kStreaming;
+        else if (a == "--single-build")
+            g_measure.single_build = true;
+        else if (a == "--grain" && has_value)
+            g_measure.grain = std::max<size_t>(1, std::strtoull(argv[++i], nullptr, 10));
+        else if (a == "--counts" && has_value)
+            g_counts = parse_counts(argv[++i]);
+        else if (a == "--sweeps" && has_value)
+            o.sweeps = std::max(1, std::atoi(argv[++i]));
+        else if (a == "--both-measures")
+            o.both_measures = true;
         else if (a == "--scene" && has_value)
-            only_scene = argv[++i];
-        else {
-            usage(argv[0]);
-            return 2;
-        }
+            o.only_scene = argv[++i];
+        else
+            return false;
     }
-    const std::vector<Scene> scenes = make_scenes(tris, wuson, only_scene);
+    return true;
+}
+
+// A scene's throughput tables: --sweeps of them, each in session 16's measure too with
+// --both-measures (which of the two goes first alternates), the quality line after the last.
+void scene_sweeps(const Scene& s, const Options& o) {
+    const Measure chosen = g_measure;
+    const int measures = o.both_measures ? 2 : 1;
+    for (int r = 0; r < o.sweeps; ++r)
+        for (int m = 0; m < measures; ++m) {
+            if (o.both_measures) g_measure = (r + m) % 2 == 0 ? kSession16Measure : chosen;
+            const bool last = r + 1 == o.sweeps && m + 1 == measures;
+            throughput_table(s, o.max_threads, o.with_quality && last);
+        }
+    g_measure = chosen;
+}
+
+// The engine's 1-thread build alone, repeated (--engine-only).
+void engine_only_lines(const std::vector<Scene>& scenes) {
+    for (const Scene& s : scenes) {
+        const ts::ClusterSceneInputs in =
+            ts::write_cluster_inputs(s.mesh, s.clusters, {1, 0, 0, 0});
+        std::vector<std::vector<std::byte>> objects;
+        EngineBuild engine(in, 1, objects);
+        Timing best;
+        for (int rep = 0; rep < g_repeat; ++rep) best.keep_best(engine.run());
+        const double mtris = double(s.mesh.triangles.size()) / 1e6;
+        std::printf(
+            "%s: engine build, 1 thread, best of %d: wall %.2f ms (%.2f Mtris/s), cpu %.2f ms "
+            "(%.2f Mtris/s)\n",
+            s.label.c_str(), g_repeat, best.wall * 1e3, mtris / best.wall, best.cpu * 1e3,
+            mtris / best.cpu);
+    }
+}
+
+// The machine, the measure's options, and the truncation table's columns.
+void print_header() {
     std::printf("bench_engine_clusters: TBB, Embree %s, %u hardware threads, %s\n  CPU: %s%s\n",
                 RTC_VERSION_STRING, std::max(1u, unsigned(tbb::info::default_concurrency())),
                 core_sharing().c_str(), cpu_description().c_str(),
@@ -910,30 +1072,29 @@ int main(int argc, char** argv) {
         "  triangle; hit flip = rays hitting at one setting and missing at the other; build ms = "
         "all\n"
         "  clusters, 1 thread, best of the repeats.\n");
-    if (engine_only) {
-        for (const Scene& s : scenes) {
-            const ts::ClusterSceneInputs in =
-                ts::write_cluster_inputs(s.mesh, s.clusters, {1, 0, 0, 0});
-            std::vector<std::vector<std::byte>> objects;
-            EngineBuild engine(in, 1, objects);
-            Timing best;
-            for (int rep = 0; rep < g_repeat; ++rep) best.keep_best(engine.run());
-            const double mtris = double(s.mesh.triangles.size()) / 1e6;
-            std::printf(
-                "%s: engine build, 1 thread, best of %d: wall %.2f ms (%.2f Mtris/s), cpu %.2f ms "
-                "(%.2f Mtris/s)\n",
-                s.label.c_str(), g_repeat, best.wall * 1e3, mtris / best.wall, best.cpu * 1e3,
-                mtris / best.cpu);
-        }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    Options o;
+    if (!parse_options(argc, argv, o)) {
+        usage(argv[0]);
+        return 2;
+    }
+    const std::vector<Scene> scenes = make_scenes(o.tris, o.wuson, o.only_scene);
+    print_header();
+    if (o.engine_only) {
+        engine_only_lines(scenes);
         return 0;
     }
     for (const Scene& s : scenes) {
         const ts::Bounds b = ts::bounds_of(s.mesh);
         std::vector<ts::TestRay> rays = ts::camera_rays(b, 256, 256, 3);
-        const auto rnd = ts::random_rays(b, tris < 500000 ? 1 << 15 : 1 << 17, 4);
+        const auto rnd = ts::random_rays(b, o.tris < 500000 ? 1 << 15 : 1 << 17, 4);
         rays.insert(rays.end(), rnd.begin(), rnd.end());
-        if (!throughput_only) truncation_table(s, rays);
-        throughput_table(s, max_threads, with_quality);
+        if (!o.throughput_only) truncation_table(s, rays);
+        scene_sweeps(s, o);
     }
     return 0;
 }
