@@ -30,8 +30,8 @@ struct Tree {
 enum class TreeQuality { kSah, kMorton };
 // What an SAH tree is for, which sets how it ends its branches and chooses its splits.
 // kBottom: every range of up to kNvMaxLeafSize items is a leaf (the traversal tests a leaf's
-// items four at once and merges any stored subtree of up to four contiguous records into one
-// leaf, so splitting such a range buys nothing), and every larger range is binned, Embree's
+// items four at once and merges any stored subtree of up to twelve contiguous records into
+// one leaf, so splitting such a range buys nothing), and every larger range is binned, Embree's
 // way. kTop: the SAH weighs a leaf against its best split at one item per intersection, and
 // ranges of up to 16 items take the exact sweep (top levels are small, and their leaves become
 // chains of single instances, each costing a bottom-level walk). Morton trees always end at

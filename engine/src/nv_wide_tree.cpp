@@ -53,9 +53,11 @@ std::vector<RecordSpan> record_spans(const std::vector<NvNode>& nodes) {
     return spans;
 }
 
-// A stored subtree of at most this many records, contiguous, becomes one leaf lane: the
-// builder's leaves hold 1-2 triangles, and a node load costs more than a few triangle tests.
-constexpr uint32_t kMergedLeafRecords = 4;
+// A stored subtree of at most this many records, contiguous, becomes one leaf lane (three
+// groups of four triangles at most): the builder's leaves hold 1-2 triangles, and on the
+// device a level of nodes less (each a load that misses, on the walk's chain) gained more than
+// the extra triangle tests cost: 4 -> 8 -> 12 records, +12% -> +16% (benchmarks.md, round 17).
+constexpr uint32_t kMergedLeafRecords = 12;
 
 bool is_leaf(const NvNode& n, const RecordSpan& span) {
     return n.count != 0 || (span.count != 0 && span.count <= kMergedLeafRecords);

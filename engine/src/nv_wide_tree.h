@@ -42,7 +42,7 @@ namespace clastrace::engine::detail {
 // Children of a collapsed tree, W of them (4 for the SSE path, 8 for the AVX2 path): their
 // boxes by axis and lane, each child an inner wide node (count 0: `child` indexes the tree's
 // nodes) or a leaf: `count` records from `child` on, those of a stored leaf or of a stored
-// subtree of at most four contiguous records. Unused lanes have count kWideEmptyLane. Aligned
+// subtree of at most 12 contiguous records. Unused lanes have count kWideEmptyLane. Aligned
 // to cache lines. Trees that cannot be quantized (below) keep the 4-wide form of this.
 inline constexpr uint32_t kWideEmptyLane = 0xFFFFFFFFu;
 template <int W>
@@ -407,6 +407,10 @@ template <int W, class Node, class BoxTest, class Leaf, class Prefetch>
             tmax_up = float_at_or_above(*tmax);
         } else {
             const Node& n = nodes[e.child];
+            // The children's line asked for with the planes, not after the box test: a node
+            // visited without a fetch (the root, a single hit child) missed on the planes and
+            // then on its children, in turn (benchmarks.md, round 17).
+            __builtin_prefetch(&n.child[0]);
             alignas(32) float entry[W];
             const unsigned hits = box_test(n, tmax_up, entry);
             if (hits != 0) {
