@@ -19,8 +19,17 @@
 //   8. delta contents on against off (CLASTRACE_DELTA_CONTENTS=0): trace bytes against plain
 //      zstd, and each mode's time against serving only.
 //
-//   capture_overhead_bench [frames=60] [clusters=256] [repetitions=5] [host-writes|deltas]
-//   (host-writes: run and print only table 7; deltas: only table 8)
+//   9. (`pairs` only) serving only against capture, alternately: the per-pair ratios' median,
+//      quartiles and range, and each ratio in run order.
+//
+//   capture_overhead_bench [frames=60] [clusters=256] [repetitions=5] [host-writes|deltas|pairs]
+//   (host-writes: run and print only table 7; deltas: only table 8; pairs: only serving only and
+//   capture, `repetitions` pairs of them, and table 9: the most pairs a given time buys)
+//
+// Each repetition runs every mode once; odd repetitions run them in reverse order, so a pair
+// (serving only and one mode, run next to each other in a repetition) has either run first as
+// often as the other, and what the first or last run of a repetition meets (a cold cache, the
+// previous process's exit) falls on both sides alike.
 #include <clastrace/testsupport/test_driver.h>
 #include <clastrace/traces/records.h>
 #include <clastrace/traces/referenced_zstd.h>
@@ -35,6 +44,7 @@
 #include <random>
 #include <sstream>
 #include <string>
+#include <tuple>
 #include <unistd.h>
 #include <vector>
 
@@ -125,6 +135,50 @@ double best(const std::vector<double>& v) { return *std::min_element(v.begin(), 
 double median(std::vector<double> v) {
     std::sort(v.begin(), v.end());
     return v[v.size() / 2];
+}
+
+// The ratios of one mode's runs to serving only's runs of the same repetitions (run next to each
+// other: the VM's slow spells, which last longer than one run, move both sides of a pair alike,
+// where they move the two modes' medians apart), with their spread, so one number says what the
+// pairs agree on and two say how far they do.
+struct PairRatios {
+    std::vector<double> in_run_order;
+    double median = 0, lower_quartile = 0, upper_quartile = 0, lowest = 0, highest = 0;
+};
+
+// The q-quantile of sorted `v`, interpolated between the neighbouring ranks.
+double quantile(const std::vector<double>& sorted, double q) {
+    const double at = q * double(sorted.size() - 1);
+    const size_t below = size_t(at);
+    if (below + 1 >= sorted.size()) return sorted.back();
+    return sorted[below] + (at - double(below)) * (sorted[below + 1] - sorted[below]);
+}
+
+PairRatios pair_ratios(const std::vector<double>& serving, const std::vector<double>& mode) {
+    PairRatios p;
+    for (size_t r = 0; r < mode.size() && r < serving.size(); ++r)
+        p.in_run_order.push_back(mode[r] / serving[r]);
+    if (p.in_run_order.empty()) return p;
+    std::vector<double> sorted = p.in_run_order;
+    std::sort(sorted.begin(), sorted.end());
+    p.median = quantile(sorted, 0.5);
+    p.lower_quartile = quantile(sorted, 0.25);
+    p.upper_quartile = quantile(sorted, 0.75);
+    p.lowest = sorted.front();
+    p.highest = sorted.back();
+    return p;
+}
+
+// "N pairs: median M (quartiles A-B, range C-D)", and each ratio in run order, for pooling the
+// pairs of several bench runs (the device's rounds) into one median.
+void print_pair_ratios(const char* label, const PairRatios& p) {
+    std::printf(
+        "    %-29s %zu pairs: median %.3fx (quartiles %.3fx-%.3fx, range %.3fx-%.3fx); in run "
+        "order:",
+        label, p.in_run_order.size(), p.median, p.lower_quartile, p.upper_quartile, p.lowest,
+        p.highest);
+    for (double r : p.in_run_order) std::printf(" %.3f", r);
+    std::printf("\n");
 }
 
 // How far the median-wall ratio could move with other runs of the same machine: the 2.5th and
@@ -236,22 +290,53 @@ void printHostWriteTable(const Mode& serving, const Mode& guard, const Mode& has
     const char* const labels[] = {"watch default (guard)", "watch hash (HOST_WRITES=hash)",
                                   "watch off (HOST_WRITES=0)"};
     const Mode* const rows[] = {&guard, &hash, &off};
+    PairRatios pairs[3];
     for (size_t i = 0; i < 3; ++i) {
         const Mode& m = *rows[i];
-        std::vector<double> pairs;
-        for (size_t r = 0; r < m.loops.size() && r < serving.loops.size(); ++r)
-            pairs.push_back(m.loops[r] / serving.loops[r]);
+        pairs[i] = pair_ratios(serving.loops, m.loops);
         std::printf("| %-32s | %16.1f | %9.3fx | %5.3fx | %18.3fx | %15.1f | %5.3fx |\n", labels[i],
                     median(m.loops), median(m.loops) / median(serving.loops),
-                    median(m.loops) / median(off.loops), median(pairs), median(m.cpu),
+                    median(m.loops) / median(off.loops), pairs[i].median, median(m.cpu),
                     median(m.cpu) / median(off.cpu));
     }
-    std::printf("(serving only: median wall %.1f ms, CPU %.1f ms)\n", median(serving.loops),
-                median(serving.cpu));
+    std::printf(
+        "(serving only: median wall %.1f ms, CPU %.1f ms)\n\nwall time against serving only, "
+        "pair by pair:\n",
+        median(serving.loops), median(serving.cpu));
+    for (size_t i = 0; i < 3; ++i) print_pair_ratios(labels[i], pairs[i]);
+    std::printf("\n");
     for (size_t i = 0; i < 3; ++i)
         for (const std::string& line : rows[i]->last.stats)
             if (line.find("host-write watch") != std::string::npos)
                 std::printf("    %-29s %s\n", labels[i], line.c_str());
+}
+
+// Table 9 (`pairs`): capture against serving only, pair by pair, with the medians of each side
+// and how many pairs met the goal.
+void print_pairs_table(const Mode& serving, const Mode& capture, int frames, int clusters) {
+    const PairRatios wall = pair_ratios(serving.loops, capture.loops);
+    const PairRatios cpu = pair_ratios(serving.cpu, capture.cpu);
+    const auto at_goal = std::count_if(wall.in_run_order.begin(), wall.in_run_order.end(),
+                                       [](double r) { return r <= 1.10; });
+    std::printf(
+        "\ncapture + serving against serving only, %d frames x %d clusters, %zu pairs (alternate "
+        "order):\n\n"
+        "| measure | serving only (median) | capture (median) | ratio of medians | pairwise median "
+        "| pairwise quartiles | pairwise range |\n"
+        "|---|---:|---:|---:|---:|---:|---:|\n",
+        frames, clusters, wall.in_run_order.size());
+    for (const auto& [name, s, c, p] :
+         {std::tuple{"wall ms", &serving.loops, &capture.loops, &wall},
+          std::tuple{"CPU ms", &serving.cpu, &capture.cpu, &cpu}})
+        std::printf("| %s | %.1f | %.1f | %.3fx | %.3fx | %.3fx-%.3fx | %.3fx-%.3fx |\n", name,
+                    median(*s), median(*c), median(*c) / median(*s), p->median, p->lower_quartile,
+                    p->upper_quartile, p->lowest, p->highest);
+    std::printf("\npairs with capture <= 1.10x of serving only (wall): %lld of %zu\n",
+                (long long)at_goal, wall.in_run_order.size());
+    print_pair_ratios("capture + serving, wall", wall);
+    print_pair_ratios("capture + serving, CPU", cpu);
+    for (const std::string& line : capture.last.stats)
+        if (line.rfind("host-write watch:", 0) == 0) std::printf("\n    %s\n", line.c_str());
 }
 
 // The bench's arguments: frames, clusters and repetitions, and which tables to print.
@@ -259,6 +344,7 @@ struct BenchArgs {
     int frames = 60, clusters = 256, repetitions = 5;
     bool host_writes_only = false;  // `host-writes`: only table 7
     bool deltas_only = false;       // `deltas`: only table 8
+    bool pairs_only = false;        // `pairs`: only serving only and capture, table 9
 };
 
 BenchArgs parse_args(int argc, char** argv) {
@@ -266,8 +352,16 @@ BenchArgs parse_args(int argc, char** argv) {
     if (argc > 1) a.frames = std::max(1, std::atoi(argv[1]));
     if (argc > 2) a.clusters = std::clamp(std::atoi(argv[2]), 1, 4096);
     if (argc > 3) a.repetitions = std::max(1, std::atoi(argv[3]));
-    a.host_writes_only = argc > 4 && std::string(argv[4]) == "host-writes";
-    a.deltas_only = argc > 4 && std::string(argv[4]) == "deltas";
+    const std::string only = argc > 4 ? argv[4] : "";
+    a.host_writes_only = only == "host-writes";
+    a.deltas_only = only == "deltas";
+    a.pairs_only = only == "pairs";
+    if (argc > 5 || (!only.empty() && !a.host_writes_only && !a.deltas_only && !a.pairs_only)) {
+        std::fprintf(stderr,
+                     "usage: capture_overhead_bench [frames] [clusters] [repetitions] "
+                     "[host-writes|deltas|pairs]\n");
+        std::exit(2);
+    }
     return a;
 }
 
@@ -311,11 +405,13 @@ std::vector<Mode> all_modes(const fs::path& dir) {
     };
 }
 
-// Interleaved, so drift of a shared machine spreads over every mode alike.
+// Interleaved, so drift of a shared machine spreads over every mode alike; odd repetitions in
+// reverse order (the file's header says why).
 void run_interleaved(std::vector<Mode>& modes, const fs::path& dir, const std::string& app_args,
                      int repetitions) {
     for (int r = 0; r < repetitions; ++r)
-        for (Mode& m : modes) {
+        for (size_t k = 0; k < modes.size(); ++k) {
+            Mode& m = modes[r % 2 ? modes.size() - 1 - k : k];
             m.last = runApp(dir, app_args, m.env);
             m.loops.push_back(m.last.loopMs);
             m.cpu.push_back(m.last.loopCpuMs);
@@ -357,13 +453,10 @@ void print_time_table(const std::vector<Mode>& modes, const BenchArgs& a) {
     // Each repetition ran serving only and capture back to back: the median of those pairs'
     // ratios is less moved by slow spells of a shared machine than the ratio of two minimums.
     const Mode &serving = modes[kServing], &capture = modes[kCapture];
-    std::vector<double> pair_wall, pair_cpu;
-    for (int r = 0; r < a.repetitions; ++r) {
-        pair_wall.push_back(capture.loops[r] / serving.loops[r]);
-        pair_cpu.push_back(capture.cpu[r] / serving.cpu[r]);
-    }
+    const PairRatios pairs = pair_ratios(serving.loops, capture.loops);
+    const std::vector<double>& pair_wall = pairs.in_run_order;
     std::printf("| %-37s | %14s | %5.3fx | %15s | %5.3fx |\n", "capture + serving, median pairwise",
-                "", median(pair_wall), "", median(pair_cpu));
+                "", pairs.median, "", pair_ratios(serving.cpu, capture.cpu).median);
     // The goal's statistic (capture/README.md): the median wall time of each mode over all runs.
     const double median_serve = median(serving.loops), median_capture = median(capture.loops);
     const auto at_goal =
@@ -379,6 +472,7 @@ void print_time_table(const std::vector<Mode>& modes, const BenchArgs& a) {
         "ratio "
         "%.3fx, 95%% bootstrap interval %.3fx-%.3fx\n",
         median_serve, (long long)at_goal, a.repetitions, median_capture / median_serve, low, high);
+    print_pair_ratios("capture + serving, wall", pairs);
 }
 
 // Table 2: the default capture's trace bytes against the bytes its snapshots reference.
@@ -535,13 +629,18 @@ int main(int argc, char** argv) {
     std::vector<Mode> modes = all_modes(dir);
     // `host-writes`: the host-write watch's table alone (guard, hash and off, with serving only
     // as the floor), for its cost without the other knobs' runs; `deltas`: table 8 alone.
+    // `pairs`: serving only and capture alone, as many pairs as the repetitions say.
     if (a.host_writes_only)
         modes = {modes[kServing], modes[kCapture], modes[kHostWritesHash], modes[kHostWritesOff]};
     else if (a.deltas_only)
         modes = {modes[kServing], modes[kCapture], modes[kDeltasOff]};
+    else if (a.pairs_only)
+        modes = {modes[kServing], modes[kCapture]};
     run_interleaved(modes, dir, app_args, a.repetitions);
     if (a.host_writes_only) {
         printHostWriteTable(modes[0], modes[1], modes[2], modes[3], a.frames, a.clusters);
+    } else if (a.pairs_only) {
+        print_pairs_table(modes[0], modes[1], a.frames, a.clusters);
     } else if (a.deltas_only) {
         measure_traces(modes);
         printDeltaTable(modes[0], modes[1], modes[2], a.repetitions);

@@ -53,6 +53,10 @@ private:
 
 namespace {
 
+// The watch's scratch copy is given back past this many bytes (a large range hashed once should
+// not stay allocated); below it, it is kept for the next call.
+constexpr size_t kScratchKept = size_t(16) << 20;
+
 // Submissions never waited for (an application that only waits on the device side) are dropped,
 // oldest first, past this many: the watch stays bounded.
 constexpr size_t kMaxWatchedSubmissions = 64;
@@ -61,27 +65,51 @@ constexpr size_t kMaxWatchedSubmissions = 64;
 // uncached, and these reads are what the watch costs.
 std::atomic<uint64_t> mapped_bytes_read{0};
 
+// Where the layer's mapping holds [address, address + size); null, with `why`, when the host
+// cannot write it.
+const ResolvedRange* mapped_range(HostViewResolver& resolver, VkDeviceAddress address,
+                                  uint64_t size, std::string& why) {
+    const ResolvedRange* range = resolver.resolve(address, size, why);
+    if (range && !range->host) {
+        why = "not mapped: the host cannot write it";
+        return nullptr;
+    }
+    return range;
+}
+
+void copy_mapped(const ResolvedRange& range, uint64_t size, uint8_t* to) {
+    mapped_bytes_read.fetch_add(size, std::memory_order_relaxed);
+    if (range.memory.property_flags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT)
+        std::memcpy(to, range.host, size);
+    else
+        copy_from_uncached(to, range.host, size);
+}
+
 // The host's view of mapped memory: what the host wrote is there, flushed or not.
 bool read_host_view(HostViewResolver& resolver, VkDeviceAddress address, uint64_t size,
-                    CapturedBytes* out, std::string& why, ResolvedRange* where = nullptr) {
-    const ResolvedRange* range = resolver.resolve(address, size, why);
+                    CapturedBytes* out, std::string& why) {
+    const ResolvedRange* range = mapped_range(resolver, address, size, why);
     if (!range) return false;
-    if (!range->host) {
-        why = "not mapped: the host cannot write it";
-        return false;
-    }
-    if (where) *where = *range;
-    if (!out) return true;
-    mapped_bytes_read.fetch_add(size, std::memory_order_relaxed);
-    uint8_t* to = out->fill(size);
-    if (range->memory.property_flags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT)
-        std::memcpy(to, range->host, size);
-    else
-        copy_from_uncached(to, range->host, size);
+    if (out) copy_mapped(*range, size, out->fill(size));
     return true;
 }
 
+// The same bytes for the watch's own compares and hashes, copied into `scratch`: grown as
+// needed and kept between calls, so a read costs the copy alone, not an allocation and a
+// zero fill of the bytes about to be overwritten. Null, with `why`, when not mapped.
+const uint8_t* copy_host_view(HostViewResolver& resolver, VkDeviceAddress address, uint64_t size,
+                              std::vector<uint8_t>& scratch, std::string& why,
+                              ResolvedRange* where = nullptr) {
+    const ResolvedRange* range = mapped_range(resolver, address, size, why);
+    if (!range) return nullptr;
+    if (where) *where = *range;
+    if (scratch.size() < size) scratch.resize(size);
+    copy_mapped(*range, size, scratch.data());
+    return scratch.data();
+}
+
 uint64_t hash_of(const CapturedBytes& bytes) { return XXH3_64bits(bytes.data(), bytes.size()); }
+uint64_t hash_of(const uint8_t* bytes, uint64_t size) { return XXH3_64bits(bytes, size); }
 
 // The reader of a guarded submission's walk: it copies only what leads the walk to other ranges
 // (the count and the indirect cells, 8 bytes at most, and the src infos entries, with streaming
@@ -104,12 +132,8 @@ DeviceMemoryReader pointer_reader(HostViewResolver& resolver, const ClusterComma
             reads.push_back({a, std::vector<uint8_t>(out->data(), out->data() + out->size())});
             return true;
         }
-        const ResolvedRange* where = resolver.resolve(a, size, why);
+        const ResolvedRange* where = mapped_range(resolver, a, size, why);
         if (!where) return false;
-        if (!where->host) {
-            why = "not mapped: the host cannot write it";
-            return false;
-        }
         *out = CapturedBytes::borrow(where->host, size);
         return true;
     };
@@ -211,10 +235,9 @@ void HostWriteWatch::guard_or_hash(HostViewResolver& resolver,
     laps.lap(WatchPhase::kSubmitGuard);
     auto hash = [&](uint32_t i) {
         Range& r = s.ranges[first + i];
-        CapturedBytes now;
         std::string why;
-        read_host_view(resolver, r.address, r.size, &now, why);
-        r.hash = hash_of(now);
+        const uint8_t* now = copy_host_view(resolver, r.address, r.size, scratch_, why);
+        r.hash = now ? hash_of(now, r.size) : hash_of(nullptr, 0);
         s.hashed.push_back(uint32_t(first + i));
         ++hashed_ranges_;
     };
@@ -251,6 +274,33 @@ bool HostWriteWatch::wrote_any_page(const Submission& s) {
     return false;
 }
 
+bool HostWriteWatch::still_reads(HostViewResolver& resolver, const HostWriteWalkCache::Read& r) {
+    std::string why;
+    const uint8_t* now = copy_host_view(resolver, r.address, r.bytes.size(), scratch_, why);
+    return now && std::memcmp(now, r.bytes.data(), r.bytes.size()) == 0;
+}
+
+void HostWriteWatch::add_hashed_range(Range range, const uint8_t* host, uint64_t hash,
+                                      Submission& fresh) {
+    range.host = host;
+    range.hash = hash;
+    ++hashed_ranges_;
+    fresh.hashed.push_back(uint32_t(fresh.ranges.size()));
+    fresh.ranges.push_back(std::move(range));
+}
+
+size_t HostWriteWatch::add_kept_ranges(const HostWriteWalkCache::Ranges& kept, uint64_t pause_id,
+                                       Submission& fresh) {
+    const size_t first = fresh.ranges.size();
+    fresh.ranges.reserve(first + kept.found.size());
+    for (const HostWriteWalkCache::Found& f : kept.found) {
+        Range range{pause_id, f.address, f.size, f.span};
+        range.host = f.host;
+        fresh.ranges.push_back(std::move(range));
+    }
+    return first;
+}
+
 void HostWriteWatch::walk_pauses(DeviceState& d, HostViewResolver& resolver,
                                  const std::vector<const PausePoint*>& pauses, Submission& fresh,
                                  WatchLaps& laps) {
@@ -259,13 +309,7 @@ void HostWriteWatch::walk_pauses(DeviceState& d, HostViewResolver& resolver,
                                                std::string& why) {
         return read_host_view(resolver, a, size, out, why);
     };
-    // Whether a read of a kept walk still gives its bytes.
-    auto unchanged = [&resolver](const HostWriteWalkCache::Read& r) {
-        CapturedBytes now;
-        std::string why;
-        return read_host_view(resolver, r.address, r.bytes.size(), &now, why) &&
-               std::memcmp(now.data(), r.bytes.data(), r.bytes.size()) == 0;
-    };
+    auto unchanged = [&](const HostWriteWalkCache::Read& r) { return still_reads(resolver, r); };
     for (const PausePoint* pause : pauses) {
         if (!pause->parameters || pause->phase != PausePhase::kBeforeCommand) continue;
         const ClusterCommandParameters& p = *pause->parameters;
@@ -295,12 +339,8 @@ void HostWriteWatch::walk_pauses(DeviceState& d, HostViewResolver& resolver,
                         {r.address, r.bytes.size(), span, where->host, where->memory});
                     continue;
                 }
-                Range range{pause->pause_id, r.address, r.bytes.size(), span};
-                range.host = where->host;
-                range.hash = hash_of(r.bytes);
-                ++hashed_ranges_;
-                fresh.hashed.push_back(uint32_t(fresh.ranges.size()));
-                fresh.ranges.push_back(std::move(range));
+                add_hashed_range({pause->pause_id, r.address, r.bytes.size(), span}, where->host,
+                                 hash_of(r.bytes), fresh);
             }
             if (!guarding) {
                 laps.lap(WatchPhase::kSubmitHash);
@@ -311,13 +351,7 @@ void HostWriteWatch::walk_pauses(DeviceState& d, HostViewResolver& resolver,
                        ? &walk_cache_.keep(p, map_changes, std::move(reads), std::move(walked))
                        : &walked;
         }
-        const size_t first = fresh.ranges.size();
-        fresh.ranges.reserve(first + kept->found.size());
-        for (const HostWriteWalkCache::Found& f : kept->found) {
-            Range range{pause->pause_id, f.address, f.size, f.span};
-            range.host = f.host;
-            fresh.ranges.push_back(std::move(range));
-        }
+        const size_t first = add_kept_ranges(*kept, pause->pause_id, fresh);
         laps.lap(WatchPhase::kSubmitResolve);
         for (const HostWriteWalkCache::Group& group : kept->groups)
             guard_or_hash(resolver, group, first, fresh, laps);
@@ -339,6 +373,7 @@ void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
         fresh.signals.insert(fresh.signals.end(), b.signals.begin(), b.signals.end());
     HostViewResolver resolver(d.memory_map);
     walk_pauses(d, resolver, pauses, fresh, laps);
+    trim_scratch();
     phases_.add_ranges(fresh.ranges.size());
     // A submission that only writes is kept too: its writes may change another's inputs.
     if (fresh.ranges.empty() && fresh.device_writes.empty()) return;
@@ -348,6 +383,12 @@ void HostWriteWatch::submitting(DeviceState& d, const SubmissionRecord& record,
         forget([oldest](const Submission& s) { return s.index == oldest; });
     }
     laps.lap(WatchPhase::kSubmitKeep);
+}
+
+void HostWriteWatch::trim_scratch() {
+    if (scratch_.capacity() <= kScratchKept) return;
+    scratch_.clear();
+    scratch_.shrink_to_fit();
 }
 
 void HostWriteWatch::submit_failed(uint64_t index) {
@@ -462,6 +503,7 @@ void HostWriteWatch::waited(DeviceState& d, const std::function<bool(const Submi
         if (ordered(s)) look(d, s, HostWriteSeen::kAtWait);
     laps.lap(WatchPhase::kWaitLook);
     forget(ordered);
+    trim_scratch();
     laps.lap(WatchPhase::kWaitUnprotect);
 }
 
@@ -504,14 +546,14 @@ void HostWriteWatch::look(DeviceState& d, Submission& s, HostWriteSeen seen) {
 
 void HostWriteWatch::look_at(DeviceState& d, HostViewResolver& resolver, Submission& s, Range& r,
                              HostWriteSeen seen) {
-    CapturedBytes now;
     ResolvedRange where;
     std::string why;
-    if (!read_host_view(resolver, r.address, r.size, &now, why, &where)) return;  // freed, unmapped
-    const uint64_t hash = hash_of(now);
+    const uint8_t* now = copy_host_view(resolver, r.address, r.size, scratch_, why, &where);
+    if (!now) return;  // freed, unmapped
+    const uint64_t hash = hash_of(now, r.size);
     bool changed = hash != r.hash;
     if (r.guarded) {  // hashed from now on (its pages stay watched till the submission goes)
-        changed = differs_from_submitted(*PageGuard::instance(), r, now.data());
+        changed = differs_from_submitted(*PageGuard::instance(), r, now);
         r.guarded = false;
     }
     if (!changed && !r.read_changed) {
@@ -538,7 +580,7 @@ void HostWriteWatch::look_at(DeviceState& d, HostViewResolver& resolver, Submiss
     w.buffer = where.buffer.handle;
     w.buffer_offset = where.offset_in_buffer;
     w.address = r.address;
-    w.bytes.assign(now.data(), now.data() + now.size());
+    w.bytes.assign(now, now + r.size);
     w.submission_index = s.index;
     w.pause_id = r.pause_id;
     if (d.sink) d.sink->host_write_observed(w);

@@ -124,6 +124,14 @@ private:
     void walk_pauses(DeviceState& d, HostViewResolver& resolver,
                      const std::vector<const PausePoint*>& pauses, Submission& fresh,
                      WatchLaps& laps);
+    // Whether a read of a kept walk still gives its bytes.
+    bool still_reads(HostViewResolver& resolver, const HostWriteWalkCache::Read& r);
+    // Adds `range` (placed at `host` in the layer's mapping, hashing to `hash`) to `fresh` as a
+    // hashed one.
+    void add_hashed_range(Range range, const uint8_t* host, uint64_t hash, Submission& fresh);
+    // Adds the ranges of a kept walk to `fresh` for pause `pause_id`; returns the first's index.
+    static size_t add_kept_ranges(const HostWriteWalkCache::Ranges& kept, uint64_t pause_id,
+                                  Submission& fresh);
     struct Probed {
         bool guardable = false;
         uintptr_t host_base = 0;  // the layer's mapping, forgotten by the guard when freed
@@ -136,6 +144,10 @@ private:
     std::unordered_map<uint64_t, Probed> probed_;      // allocation -> its pages can be guarded
     HostWriteWalkCache walk_cache_;
     WatchPhaseTotals phases_;
+    // Where the watch copies the mapped bytes it compares and hashes (copy_host_view); mutex_
+    // held. Given back past a bound after each submission and wait (trim_scratch).
+    std::vector<uint8_t> scratch_;
+    void trim_scratch();
 };
 
 }  // namespace clastrace::capture

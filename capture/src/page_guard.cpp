@@ -8,6 +8,7 @@
 #include <csignal>
 #include <cstring>
 #include <ctime>
+#include <functional>
 #include <new>
 #include <vector>
 
@@ -97,6 +98,14 @@ uint64_t thread_cpu_time_ns() { return clock_ns(CLOCK_THREAD_CPUTIME_ID); }
 
 size_t slot_index_hash(uintptr_t page, size_t page_size) {
     return size_t(((page / page_size) * 0x9E3779B97F4A7C15ull) >> 47) & (kTableEntries - 1);
+}
+
+// Sorted, each page once; a kept walk's groups come so already, and are not sorted again.
+void sort_once(std::vector<uintptr_t>& pages) {
+    if (std::adjacent_find(pages.begin(), pages.end(), std::greater_equal<>()) == pages.end())
+        return;
+    std::sort(pages.begin(), pages.end());
+    pages.erase(std::unique(pages.begin(), pages.end()), pages.end());
 }
 
 }  // namespace
@@ -193,13 +202,15 @@ bool PageGuard::protect_runs(const uintptr_t* pages, size_t count, int protectio
 }
 
 bool PageGuard::watch(std::vector<uintptr_t> pages, bool uncached) {
-    std::sort(pages.begin(), pages.end());
-    pages.erase(std::unique(pages.begin(), pages.end()), pages.end());
+    sort_once(pages);
     std::lock_guard lock(mutex_);
     keep_handler_first();
+    // Reserved whole: a frame loop's watch lists tens of pages (a vector grown page by page
+    // allocates again at each doubling).
     std::vector<uintptr_t> to_protect, adopted;
     std::vector<Entry*> all, entries, protecting;
-    all.reserve(pages.size());
+    for (auto* v : {&to_protect, &adopted}) v->reserve(pages.size());
+    for (auto* v : {&all, &entries, &protecting}) v->reserve(pages.size());
     for (uintptr_t page : pages) {
         Entry* e = find_or_add(page);
         if (!e) return false;
@@ -244,10 +255,10 @@ bool PageGuard::watch(std::vector<uintptr_t> pages, bool uncached) {
 }
 
 void PageGuard::unwatch(std::vector<uintptr_t> pages) {
-    std::sort(pages.begin(), pages.end());
-    pages.erase(std::unique(pages.begin(), pages.end()), pages.end());
+    sort_once(pages);
     std::lock_guard lock(mutex_);
     std::vector<uintptr_t> hot;
+    hot.reserve(pages.size());
     for (uintptr_t page : pages) {
         Entry* e = find(page);
         if (!e || e->watchers == 0 || --e->watchers > 0) continue;
