@@ -14,7 +14,8 @@
 #   replay      replay_throughput_bench --replay-once, 1 thread, hazards on and off, per round
 #   replay16    the same at 16 threads, hazards on, per round, then peak RSS per side
 #   cap         capture_overhead_bench 360 256 3 host-writes on the NVIDIA driver, per round
-#               (CLASTRACE_DEVICE_CAP_ROUNDS, default 3), sides interleaved round by round
+#               (CLASTRACE_DEVICE_CAP_ROUNDS, default 3), sides interleaved round by round; the
+#               after side's bench drives both sides' layer and frames app (one measure)
 #   cap-stats   the frames app, 240 frames, serving only then capturing, with the layer's stats
 #   prof-trav prof-clus prof-rep1 prof-rep16 prof-cap   perf cpu-clock profiles of the after
 #               side (bundle made with --perf; the VM has no hardware counters)
@@ -67,7 +68,7 @@ run_part() {
     cap) for r in $(seq "$cap_rounds"); do for side in "${sides[@]}"; do echo "-- round $r $side"
             ( cd /tmp && CLASTRACE_BENCH_DRIVER_FILES=$icd CLASTRACE_BENCH_LAYER_DIR=$here/layer-$side \
               CLASTRACE_BENCH_FRAMES_APP=$(bin "$side" capture_frames_app) \
-              taskset -c 2-5 "$(bin "$side" capture_overhead_bench)" 360 256 3 host-writes ); done; done ;;
+              taskset -c 2-5 "$(bin after capture_overhead_bench)" 360 256 3 host-writes ); done; done ;;
     cap-stats) for side in "${sides[@]}"; do for mode in CLASTRACE_CAPTURE=0 CLASTRACE_OUTPUT=/dev/shm/c.clt; do
             echo "-- $side $mode"; env "$mode" VK_ICD_FILENAMES=$icd VK_DRIVER_FILES=$icd VK_ADD_LAYER_PATH=$here/layer-$side \
               VK_INSTANCE_LAYERS=VK_LAYER_CLASTRACE_capture CLASTRACE_STATS=1 \
