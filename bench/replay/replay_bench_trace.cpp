@@ -310,7 +310,8 @@ private:
         barrier(kTransfer, VK_ACCESS_2_TRANSFER_WRITE_BIT, kBuild, kBuildReads | kAsWrite);
 
         for (uint32_t b = 0; b < shape_.builds_per_frame; ++b) {
-            if (b > 0) barrier(kBuild, kAsWrite, kBuild, kBuildReads | kAsWrite);  // scratch reuse
+            if (b > 0 && shape_.scratch_barriers)  // scratch reuse
+                barrier(kBuild, kAsWrite, kBuild, kBuildReads | kAsWrite);
             const uint64_t first = uint64_t(b) * k;
             std::vector<fbs::MemorySnapshot> inputs;
             inputs.push_back(snapshot(slot.infos + first * sizeof(Info), infos.data() + first,

@@ -17,6 +17,9 @@ struct BenchTraceShape {
     uint32_t clusters_per_build = 32;
     uint32_t builds_per_frame = 2;
     uint32_t cluster_pool = 256;  // distinct cluster geometries the frames pick from
+    // false: a frame's CLAS builds reuse the scratch buffer with no barrier between them (a
+    // write-after-write hazard per frame, for tests).
+    bool scratch_barriers = true;
     uint64_t seed = 1;
 };
 

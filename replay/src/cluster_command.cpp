@@ -1,6 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "cluster_command.h"
 
+#include "driver_sized_accesses.h"
+
 #include <clastrace/engine/build_sizes.h>
 #include <clastrace/engine/execute.h>
 #include <clastrace/traces/cluster_conversions.h>
@@ -325,80 +327,6 @@ std::vector<uint64_t> explicit_destination_spans(
     return spans;
 }
 
-// The command's accesses for the sync model at the sizes a driver may touch: scratch spans the
-// answered buildScratchSize; in implicit mode the answered region from dstImplicitData is
-// written whole (the engine's packed objects keep their per-op fields, the bytes around them
-// are named as the region, with its size and where the size comes from); in explicit mode each
-// destination spans its explicit_destination_spans() entry.
-struct DriverSizedAccesses {
-    std::vector<Access> accesses;
-    std::string scratch_field, region_field;  // what Access::field of those accesses views
-
-    DriverSizedAccesses(const engine::ExecutionRecord& record, bool implicit,
-                        const std::vector<uint64_t>& explicit_spans,
-                        const ClusterDriverSizes& sizes) {
-        scratch_field = "scratchData (the " + std::to_string(sizes.build_scratch_size) +
-                        "-byte buildScratchSize " + sizes.source() + ")";
-        region_field = "dstImplicitData (the " + std::to_string(sizes.acceleration_structure_size) +
-                       "-byte implicit region " + sizes.source() + ")";
-        std::vector<AddressRange> packed;
-        // The unpacked region comes in at most one piece more than the objects packed in it.
-        accesses.reserve(record.accesses.size() + (implicit ? record.ops.size() + 1 : 0));
-        for (const engine::MemoryAccess& a : record.accesses) {
-            if (a.end <= a.begin) continue;
-            Access access{{a.begin, a.end}, a.stage, a.access, a.is_write, a.field};
-            if (a.op_index < 0 && a.field == "scratchData") {
-                access.range.end =
-                    std::max(a.end, engine::sat_add(a.begin, sizes.build_scratch_size));
-                access.field = scratch_field;
-            } else if (implicit && a.is_write && a.field.starts_with("dstImplicitData[")) {
-                packed.push_back(access.range);
-            } else if (a.is_write && a.op_index >= 0 &&
-                       size_t(a.op_index) < explicit_spans.size() &&
-                       a.field.starts_with("*dstAddressesArray[")) {
-                access.range.end =
-                    std::max(a.end, engine::sat_add(a.begin, explicit_spans[size_t(a.op_index)]));
-            }
-            accesses.push_back(access);
-        }
-        if (implicit && !record.ops.empty()) add_unpacked_region(record, sizes, packed);
-    }
-
-private:
-    // The answered region less the engine's packed objects, as writes of the region.
-    void add_unpacked_region(const engine::ExecutionRecord& record, const ClusterDriverSizes& sizes,
-                             std::vector<AddressRange>& packed) {
-        const uint64_t begin = record.implicit_address;
-        const uint64_t end = engine::sat_add(begin, std::max(sizes.acceleration_structure_size,
-                                                             record.implicit_bytes_used));
-        std::sort(packed.begin(), packed.end(),
-                  [](const AddressRange& a, const AddressRange& b) { return a.begin < b.begin; });
-        uint64_t cursor = begin;
-        auto unpacked = [&](uint64_t to) {
-            if (cursor < to)
-                accesses.push_back(Access{{cursor, to},
-                                          engine::kStageBuild,
-                                          engine::kAccessObjectWrite,
-                                          true,
-                                          region_field});
-        };
-        for (const AddressRange& r : packed) {
-            unpacked(std::min(r.begin, end));
-            cursor = std::max(cursor, r.end);
-        }
-        unpacked(end);
-    }
-};
-
-// A command's engine record and the accesses made of it for the sync model, together: the
-// model's feed keeps them until the model applied the call, so the accesses' field texts (views
-// into the record's field names and DriverSizedAccesses' own strings) are not copied.
-struct ModelAccesses {
-    explicit ModelAccesses(engine::ExecutionRecord&& ran) : record(std::move(ran)) {}
-    engine::ExecutionRecord record;
-    std::optional<DriverSizedAccesses> sized;
-};
-
 // A served traceable cluster BLAS: the capture's memory there holds the driver's BVH from now
 // on, so snapshots taken later of it must not replace the engine's object (ReplayMemory).
 void mark_driver_bvh(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
@@ -433,10 +361,12 @@ void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect
         return c.memory.first_without_usage(begin, end, usage);
     };
     engine::ExecutionRecord record;
+    std::optional<DriverSizedAccesses> sized_ahead;  // what a run ahead made of its record
     const auto started = std::chrono::steady_clock::now();
     try {
-        const bool ran_ahead = c.ahead && c.ahead->commit(c.memory, c.directory, queried_max_count,
-                                                          sizes, &record, c.engine_ns);
+        const bool ran_ahead =
+            c.ahead && c.ahead->commit(c.memory, c.directory, queried_max_count, sizes, &record,
+                                       c.engine_ns, &sized_ahead);
         if (!ran_ahead) {
             record = engine::execute(info, c.memory.image(), options);
             if (c.engine_ns)
@@ -481,11 +411,13 @@ void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect
         const bool explicit_mode =
             info.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
         const DriverSizedAccesses& sized =
-            kept->sized.emplace(*ran, implicit,
-                                explicit_mode
-                                    ? explicit_destination_spans(info, *ran, sizes, c.memory)
-                                    : std::vector<uint64_t>{},
-                                sizes);
+            sized_ahead
+                ? kept->sized.emplace(std::move(*sized_ahead))
+                : kept->sized.emplace(*ran, implicit,
+                                      explicit_mode
+                                          ? explicit_destination_spans(info, *ran, sizes, c.memory)
+                                          : std::vector<uint64_t>{},
+                                      sizes);
         c.report.counts.accesses += sized.accesses.size();
         c.sync.record_accesses(c.ref, sized.accesses, kept);
         if (explicit_mode)  // rays through these BLASes read what the build may have written

@@ -1,6 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "cluster_speculation.h"
 
+#include "driver_sized_accesses.h"
+
 #include <clastrace/engine/build_sizes.h>
 #include <clastrace/engine/execute.h>
 #include <clastrace/traces/trace_generated.h>
@@ -251,6 +253,7 @@ std::shared_ptr<ClusterRunAhead> ClusterRunAhead::start(
         in.queries.largest_count(build->input()->op_type(), build->input()->op_mode());
     run->properties_ = &in.properties;
     run->max_findings_per_rule_ = in.max_findings_per_rule;
+    run->model_accesses_ = in.model_accesses;
     run->implicit_object_room_ = build->implicit_object_room();
     try {
         run->info_ = traces::cluster_commands_from_record(*build, run->op_inputs_);
@@ -275,6 +278,9 @@ std::shared_ptr<ClusterRunAhead> ClusterRunAhead::start(
     });
     return run;
 }
+
+ClusterRunAhead::ClusterRunAhead(ImageStoragePool& storage, RunBufferPool& pool)
+    : storage_(storage), pool_(pool) {}
 
 ClusterRunAhead::~ClusterRunAhead() {
     release_image();
@@ -304,15 +310,29 @@ void ClusterRunAhead::finish() {
     for (int now = stage_->load(); now == kRunning; now = stage_->load()) stage_->wait(now);
 }
 
+// The replay's regions do not overlap, so neither do the planned ones: the first found is the one.
+const PlannedRegion* ClusterRunAhead::planned_holder(uint64_t address) {
+    for (size_t i : recent_regions_)
+        if (i < regions_.size() && address - regions_[i].base < regions_[i].size)
+            return &regions_[i];
+    for (size_t i = 0; i < regions_.size(); ++i)
+        if (address - regions_[i].base < regions_[i].size) {
+            recent_regions_[1] = recent_regions_[0];
+            recent_regions_[0] = i;
+            return &regions_[i];
+        }
+    return nullptr;
+}
+
 bool ClusterRunAhead::plan_region(const engine::MemoryImage& real, uint64_t address,
                                   uint64_t size) {
     if (address == 0) return false;
-    const PlannedRegion* holder = nullptr;
-    for (const PlannedRegion& r : regions_)
-        if (address - r.base < r.size) holder = &r;
+    const PlannedRegion* holder = planned_holder(address);
     if (!holder) {
         const engine::MemoryRegion* r = real.find_region(address);
         if (!r) return false;
+        recent_regions_[1] = recent_regions_[0];
+        recent_regions_[0] = regions_.size();
         holder = &regions_.emplace_back(PlannedRegion{r->base, r->size, r->usage, r->label});
     }
     return holder->size - (address - holder->base) >= size;
@@ -322,6 +342,7 @@ bool ClusterRunAhead::plan_region(const engine::MemoryImage& real, uint64_t addr
 bool ClusterRunAhead::plan(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
                            const AheadInputs& in, bool* not_placed_yet) {
     const engine::MemoryImage& real = in.memory.image();
+    regions_.reserve(8);  // a cluster command names a handful of buffers
     for (uint64_t address :
          {info_.srcInfosArray.deviceAddress, info_.srcInfosCount, info_.scratchData,
           info_.dstImplicitData, info_.dstAddressesArray.deviceAddress,
@@ -449,6 +470,7 @@ void ClusterRunAhead::run() {
         if (!failed_) {
             keep_written_bytes();
             keep_read_bytes();
+            make_model_accesses();
         }
     } catch (const std::exception&) {
         failed_ = true;  // a snapshot no region holds whole, or a run its turn runs in place
@@ -485,6 +507,19 @@ void ClusterRunAhead::keep_read_bytes() {
     copy_ranges(image, b.reads, b.read, [](const engine::MemoryRegion&) {});
 }
 
+// From the record the command's turn takes when the run stands, with the sizes commit checks
+// are the turn's: the same accesses the turn would make (cluster_command.cpp), made here.
+void ClusterRunAhead::make_model_accesses() {
+    const RunBuffers& b = *buffers_;
+    if (!model_accesses_ || reads_unreadable_ || !built_intact_ || !b.result.findings.empty() ||
+        info_.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV)
+        return;
+    const bool implicit =
+        info_.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+    sized_ =
+        std::make_unique<DriverSizedAccesses>(b.result, implicit, std::vector<uint64_t>{}, sizes_);
+}
+
 bool ClusterRunAhead::earlier_turns_passed() const {
     return std::all_of(earlier_turns_.begin(), earlier_turns_.end(),
                        [](const auto& passed) { return *passed; });
@@ -501,16 +536,21 @@ bool ClusterRunAhead::reads_unchanged(const engine::MemoryImage& real) const {
     return true;
 }
 
-// Every write lands in one region of the replay's memory, within its resident limit.
+// Every write lands in one region of the replay's memory, within its resident limit. The pages
+// each write would touch first are counted only when the limit is near: a write of n bytes
+// touches at most n bytes and two pages' worth of pages.
 bool ClusterRunAhead::writes_fit(const engine::MemoryImage& real) const {
+    const RunBuffers& b = *buffers_;
+    const bool room = real.within_resident_limit(
+        b.written.size() + b.writes.size() * 2 * engine::RegionBytes::kPageBytes);
     uint64_t added = 0;
     const engine::MemoryRegion* r = nullptr;
-    for (const auto& [address, size] : buffers_->writes) {
+    for (const auto& [address, size] : b.writes) {
         r = region_holding(real, r, address, size);
         if (!r) return false;
-        added += r->bytes.untouched_bytes(address - r->base, size);
+        if (!room) added += r->bytes.untouched_bytes(address - r->base, size);
     }
-    return real.within_resident_limit(added);
+    return room || real.within_resident_limit(added);
 }
 
 bool ClusterRunAhead::built_objects(std::vector<RunBuffers::Built>* objects) const {
@@ -544,7 +584,8 @@ bool ClusterRunAhead::same_objects(const engine::ObjectDirectory& real) const {
 
 bool ClusterRunAhead::commit(ReplayMemory& memory, engine::ObjectDirectory& directory,
                              uint32_t queried_max_count, const ClusterDriverSizes& sizes,
-                             engine::ExecutionRecord* record, uint64_t* engine_ns) {
+                             engine::ExecutionRecord* record, uint64_t* engine_ns,
+                             std::optional<DriverSizedAccesses>* sized) {
     finish();
     if (!stands(memory, queried_max_count, sizes) || !built_intact_ ||
         (!skip_checks_for_tests && !same_objects(directory)))
@@ -561,8 +602,9 @@ bool ClusterRunAhead::commit(ReplayMemory& memory, engine::ObjectDirectory& dire
     // its own directory hashed.
     for (const RunBuffers::Built& built : b.built) directory.copy_entry(b.directory, built.address);
     stood_ = true;
-    std::swap(*record, buffers_->result);
+    std::swap(*record, buffers_->result);  // the vectors sized_ views keep their storage
     if (engine_ns) *engine_ns = engine_ns_;
+    if (sized && sized_) sized->emplace(std::move(*sized_));
     return true;
 }
 

@@ -40,6 +40,8 @@
 
 namespace clastrace::replay::detail {
 
+struct DriverSizedAccesses;  // driver_sized_accesses.h
+
 // Contents bytes by hash, least recently used dropped first: the record stage's answers
 // (replayer_record_stage.h), so that a content several records name is asked of the reader
 // once. Shared: a record and a run ahead keep the bytes they hold after they are dropped here.
@@ -175,6 +177,9 @@ struct AheadInputs {
     ImageStoragePool& storage;                   // outlives the run
     RunBufferPool& buffers;                      // outlives the run
     uint32_t max_findings_per_rule = 64;
+    // Hazards checked: the run also makes its record's accesses for the sync model
+    // (driver_sized_accesses.h), which the command's turn would make otherwise.
+    bool model_accesses = false;
 };
 
 class ClusterRunAhead {
@@ -214,19 +219,21 @@ public:
     // At the command's turn, with its snapshots laid in and addresses translated: true when the
     // early run stands (the checks in the file comment); its bytes and objects then land in
     // `memory` and `directory`, its record is swapped into *record (an empty one: the turn
-    // takes the run's record instead of a copy) and its engine time goes to *engine_ns.
+    // takes the run's record instead of a copy), its engine time goes to *engine_ns and, when
+    // it made them (AheadInputs::model_accesses; not in explicit mode, whose spans the replay's
+    // memory sizes), its record's accesses for the sync model to *sized.
     // A run no worker has started yet runs here first, so whether it stands does not depend on
     // the schedule.
     bool commit(ReplayMemory& memory, engine::ObjectDirectory& directory,
                 uint32_t queried_max_count, const ClusterDriverSizes& sizes,
-                engine::ExecutionRecord* record, uint64_t* engine_ns);
+                engine::ExecutionRecord* record, uint64_t* engine_ns,
+                std::optional<DriverSizedAccesses>* sized = nullptr);
 
     // The checks commit makes without landing anything (a test breaks them through this).
     static bool skip_checks_for_tests;
 
 private:
-    ClusterRunAhead(ImageStoragePool& storage, RunBufferPool& pool)
-        : storage_(storage), pool_(pool) {}
+    ClusterRunAhead(ImageStoragePool& storage, RunBufferPool& pool);
     // What the task needs to make its image: the replay's regions the command names and its
     // snapshots' bytes and addresses.
     struct PlannedSnapshot {
@@ -237,6 +244,9 @@ private:
               bool* not_placed_yet);
     // Plans the replay's region holding `address`, if any; true when it holds `size` bytes there.
     bool plan_region(const engine::MemoryImage& real, uint64_t address, uint64_t size);
+    // The planned region holding `address`, or nullptr. Snapshots take turns between a few
+    // buffers (a cluster's vertices, then its indices): the last two found are tried first.
+    const PlannedRegion* planned_holder(uint64_t address);
     // Explicit destinations: the regions the snapshots' dstAddressesArray entries name.
     void plan_explicit_destinations(const engine::MemoryImage& real);
     void make_image();
@@ -248,6 +258,8 @@ private:
     // ends. A read of bytes it wrote, or outside its image, leaves it unable to stand.
     void keep_written_bytes();
     void keep_read_bytes();
+    // The sync model's accesses of its record, when asked for and the run may stand.
+    void make_model_accesses();
     // Waits for a run in progress, or cancels one not started.
     void wait_or_cancel();
     // The task: the image, then the engine; once, on a worker or (not started by its turn) on
@@ -275,8 +287,11 @@ private:
     ClusterDriverSizes sizes_;
     const engine::EngineProperties* properties_ = nullptr;
     uint32_t max_findings_per_rule_ = 64;
+    bool model_accesses_ = false;
+    std::unique_ptr<DriverSizedAccesses> sized_;  // made by the task, viewing its record
     uint64_t implicit_object_room_ = 0;
     std::vector<PlannedRegion> regions_;
+    size_t recent_regions_[2] = {0, 0};  // indices into regions_ (planned_holder)
     std::vector<PlannedSnapshot> snapshots_;
     bool reads_objects_ = false;
     std::vector<std::shared_ptr<ClusterRunAhead>> earlier_;  // released once laid in

@@ -338,7 +338,8 @@ bool Replay::try_start_cluster_run(const traces::RecordView& view,
                          properties_,
                          ahead_runs_->storage(),
                          ahead_runs_->buffers(),
-                         options_.max_findings_per_rule};
+                         options_.max_findings_per_rule,
+                         options_.check_hazards};
     std::vector<std::shared_ptr<ClusterRunAhead>> earlier;
     if (builds_bottom_level(build))
         earlier = ahead_runs_->builds_before(stream_index);

@@ -178,6 +178,27 @@ TEST(ReplayThreads, ClusterFramesOnOneWorkerReportTheSameAndTheirRunsStand) {
     std::remove(path.c_str());
 }
 
+// With hazards checked, a cluster command's run ahead makes the accesses the sync model takes
+// (the scratch at the driver's answered size among them) on its worker: the hazards they give
+// are the ones of one thread, where the command's turn makes them.
+TEST(ReplayThreads, HazardsFromTheAccessesRunsAheadMadeAreTheOneThreadsOnes) {
+    const std::string path = temp_path("bench_frames_no_scratch_barrier.clt");
+    bench::BenchTraceShape shape;
+    shape.target_ops = 4000;
+    shape.scratch_barriers = false;
+    bench::write_bench_trace(path, shape);
+    replay::ReplayOptions::RunAheadCounts counts;
+    const std::string one = replay_json(path, 1);
+    const std::string many = replay_json(path, kManyThreads, true, nullptr, &counts);
+    EXPECT_TRUE(one == many) << first_difference(one, many);
+    const nlohmann::json report = nlohmann::json::parse(many);
+    ASSERT_FALSE(report["hazards"].empty());
+    EXPECT_NE(many.find("-byte buildScratchSize"), std::string::npos);  // the sized scratch
+    EXPECT_GT(counts.stood, 0u);
+    EXPECT_EQ(counts.run_again, 0u);
+    std::remove(path.c_str());
+}
+
 TEST(ReplayThreads, RayTracedFramesOfTheConsumerBenchReportTheSame) {
     const std::string path = temp_path("rt_frames.clt");
     bench::RtFrameShape shape;
