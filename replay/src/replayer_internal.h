@@ -367,7 +367,6 @@ private:
                                             return cluster_bottom_level(address);
                                         }};
     std::unordered_map<uint64_t, uint8_t> structure_api_;  // handle -> 0 NV, 1 KHR
-    std::unordered_map<uint64_t, uint64_t> memory_sizes_;  // memory handle -> allocation size
     FrameBoundaries frames_;
     // The trace's PreRangeState record, when it has one (format 1.5).
     struct PreRangeInfo {
