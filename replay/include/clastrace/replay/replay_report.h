@@ -28,6 +28,9 @@ struct ReplayLocation {
     uint64_t secondary_handle = 0;
     uint32_t secondary = 0;
     uint32_t secondary_command = 0;
+    // The queue it ran on (queues numbered in the order the trace first submits to them), or
+    // kHostQueue for a call of the host's (vkFreeMemory, vkAcquireNextImageKHR, ...).
+    QueueId queue = kHostQueue;
 };
 
 enum class FindingSource : uint8_t {
