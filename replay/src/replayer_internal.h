@@ -9,6 +9,7 @@
 
 #include "binary_signals.h"
 #include "cluster_command.h"
+#include "hazard_text.h"
 #include "khr_command.h"
 #include "nv_command.h"
 #include "replayer_record_stage.h"
@@ -251,30 +252,6 @@ private:
             drop_recorded(it->second);
             recorded_.erase(it);
         }
-    }
-    ReplayLocation location(const CommandRef& ref, uint64_t sequence, QueueId queue) const {
-        return ReplayLocation{sequence,
-                              ref.submission,
-                              ref.command_buffer,
-                              ref.command,
-                              ref.command_buffer_handle,
-                              ref.name,
-                              ref.secondary_handle,
-                              ref.secondary,
-                              ref.secondary_command,
-                              queue};
-    }
-    // The command a location names: location()'s inverse (the sequence and the queue have no
-    // place in it).
-    static CommandRef command_ref(const ReplayLocation& where) {
-        return CommandRef{.submission = where.submission,
-                          .command_buffer = where.command_buffer,
-                          .command_buffer_handle = where.command_buffer_handle,
-                          .command = where.command,
-                          .name = where.name,
-                          .secondary_handle = where.secondary_handle,
-                          .secondary = where.secondary,
-                          .secondary_command = where.secondary_command};
     }
     QueueId queue_id(uint64_t queue) {
         auto [it, inserted] = queues_.emplace(queue, static_cast<QueueId>(queues_.size()));
