@@ -398,14 +398,12 @@ struct Setting {
     std::vector<OnceResult> runs;
 };
 
-// Table 1: one trace of `ops` ops, replayed every way (see the file comment).
-void throughput_table(const std::string& dir, uint64_t ops, uint32_t threads, int repeats) {
-    const std::string path = trace_path(dir, ops);
-    bench::BenchTraceShape shape;
-    shape.target_ops = ops;
-    const bench::BenchTraceStats stats = bench::write_bench_trace(path, shape);
+// Table 1's rows, in the order they run each round and print.
+enum SettingRow : size_t { kOneThreadOn, kOneThreadOff, kInTurn, kSyncThread, kRunAhead, kBoth };
+
+std::vector<Setting> throughput_settings(uint32_t threads) {
     const std::string t = std::to_string(threads) + " threads, hazards on, ";
-    std::vector<Setting> settings = {
+    return {
         {"replay, 1 thread, hazards on", true, false, nullptr, nullptr, {}},
         {"replay, 1 thread, hazards off (--no-hazards)", false, false, nullptr, nullptr, {}},
         {"replay, " + t + "every build in its turn (CLASTRACE_REPLAY_RUN_AHEAD=0)",
@@ -429,44 +427,75 @@ void throughput_table(const std::string& dir, uint64_t ops, uint32_t threads, in
          {}},
         {"replay, " + t + "the model's thread and runs ahead (both =1)", true, true, "1", "1", {}},
     };
-    Setting& on = settings[0];
-    Setting& off = settings[1];
-    Setting& in_turn = settings[2];
-    // The caller's settings, for table 2 after this one.
+}
+
+// Table 1's measurements: every setting's runs and the zstd peer's, round by round.
+struct ThroughputRounds {
+    bench::BenchTraceStats stats;
+    uint32_t threads = 0;
+    size_t rounds = 0;
+    std::vector<Setting> settings;
+    std::vector<ZstdRun> zstd;
+    double raw_mb = 0;          // the trace decompressed (the last one-thread run's count)
+    double engine_seconds = 0;  // median of the one-thread runs' engine times
+
+    const Setting& row(SettingRow r) const { return settings[r]; }
+    // The median over the rounds of field(run, round) for setting `s`.
+    template <class F>
+    double median_of(const Setting& s, F&& field) const {
+        return median_over(rounds, [&](size_t i) { return field(s.runs[i], i); });
+    }
+    // The engine time a run is divided by: a one-thread run's own; a T-thread run (no observer
+    // there: it would drain the model's queue every command) the same round's one-thread
+    // hazards-on run's.
+    double engine_of(const Setting& s, size_t i) const {
+        return s.many ? row(kOneThreadOn).runs[i].engine : s.runs[i].engine;
+    }
+    double zstd_median(double ZstdRun::*field) const {
+        return median_over(rounds, [&](size_t i) { return zstd[i].*field; });
+    }
+};
+
+// Runs the rounds: zstd, then each setting in its own process. The caller's
+// CLASTRACE_REPLAY_RUN_AHEAD and CLASTRACE_REPLAY_SYNC_THREAD are set back after (table 2
+// runs with them).
+void run_rounds(const std::string& path, int repeats, ThroughputRounds& t) {
     const char* asked_run_ahead = std::getenv("CLASTRACE_REPLAY_RUN_AHEAD");
     const char* asked_sync = std::getenv("CLASTRACE_REPLAY_SYNC_THREAD");
     const std::string kept_run_ahead = asked_run_ahead ? asked_run_ahead : "";
     const std::string kept_sync = asked_sync ? asked_sync : "";
-    std::vector<ZstdRun> z;
     for (int rep = 0; rep < repeats; ++rep) {
-        z.push_back(zstd_once(path));
-        for (Setting& s : settings)
-            s.runs.push_back(
-                replay_in_child(path, s.hazards, s.many ? threads : 1, s.run_ahead, s.sync_thread));
+        t.zstd.push_back(zstd_once(path));
+        for (Setting& s : t.settings)
+            s.runs.push_back(replay_in_child(path, s.hazards, s.many ? t.threads : 1, s.run_ahead,
+                                             s.sync_thread));
     }
     set_or_unset("CLASTRACE_REPLAY_RUN_AHEAD", asked_run_ahead ? kept_run_ahead.c_str() : nullptr);
     set_or_unset("CLASTRACE_REPLAY_SYNC_THREAD", asked_sync ? kept_sync.c_str() : nullptr);
-    const size_t rounds = size_t(repeats);
-    for (size_t i = 0; i < rounds; ++i)
-        if (in_turn.runs[i].report_hash != on.runs[i].report_hash)
+    t.rounds = size_t(repeats);
+}
+
+// The T-thread report (in turn) must be the one-thread one's, round by round.
+void warn_if_reports_differ(const ThroughputRounds& t) {
+    for (size_t i = 0; i < t.rounds; ++i)
+        if (t.row(kInTurn).runs[i].report_hash != t.row(kOneThreadOn).runs[i].report_hash)
             std::fprintf(stderr,
                          "warning: the %u-thread report differs from the one-thread one (round "
                          "%zu)\n",
-                         threads, i + 1);
-    // The engine time each row is divided by: a one-thread run's own; a T-thread run (no
-    // observer there: it would drain the model's queue every command) the same round's one-thread
-    // hazards-on run's.
-    auto engine_of = [&](const Setting& s, size_t i) {
-        return s.many ? on.runs[i].engine : s.runs[i].engine;
-    };
+                         t.threads, i + 1);
+}
+
+double median_engine_seconds(const ThroughputRounds& t) {
     std::vector<double> engine_times;
-    for (size_t i = 0; i < rounds; ++i) {
-        engine_times.push_back(on.runs[i].engine);
-        engine_times.push_back(off.runs[i].engine);
+    for (size_t i = 0; i < t.rounds; ++i) {
+        engine_times.push_back(t.row(kOneThreadOn).runs[i].engine);
+        engine_times.push_back(t.row(kOneThreadOff).runs[i].engine);
     }
-    const double engine = median(engine_times);
-    const OnceResult& last = on.runs.back();
-    const double raw = mb(last.raw_bytes);
+    return median(engine_times);
+}
+
+void print_throughput_heading(const ThroughputRounds& t, int repeats) {
+    const OnceResult& last = t.row(kOneThreadOn).runs.back();
     std::printf(
         "replay throughput, %llu ops (%llu cluster ops, %llu commands, %llu engine calls, %llu "
         "submissions), trace %.2f MB on disk, %.2f MB decompressed, %.2f MB of memory laid in. "
@@ -475,57 +504,67 @@ void throughput_table(const std::string& dir, uint64_t ops, uint32_t threads, in
         "(engine::execute summed; a %u-thread run: its round's 1-thread hazards-on run's), then "
         "the "
         "median\n",
-        (unsigned long long)stats.ops, (unsigned long long)stats.cluster_ops,
+        (unsigned long long)t.stats.ops, (unsigned long long)t.stats.cluster_ops,
         (unsigned long long)last.commands, (unsigned long long)last.engine_calls,
-        (unsigned long long)stats.submissions, mb(stats.file_bytes), raw, mb(last.snapshot_bytes),
-        repeats, repeats, threads);
+        (unsigned long long)t.stats.submissions, mb(t.stats.file_bytes), t.raw_mb,
+        mb(last.snapshot_bytes), repeats, repeats, t.threads);
     std::printf(
         "| run | wall s | CPU s (all threads) | replay thread CPU s (of wall) | ops/s (wall) | "
         "trace MB/s (decompressed, wall) | wall / engine | CPU / engine | wall vs zstd |\n");
     std::printf("|---|---:|---:|---:|---:|---:|---:|---:|---:|\n");
-    auto median_of = [&](const Setting& s, auto field) {
-        return median_over(rounds, [&](size_t i) { return field(s.runs[i], i); });
-    };
-    for (const Setting& s : settings) {
-        const double wall = median_of(s, [](const OnceResult& r, size_t) { return r.wall; });
-        const double cpu = median_of(s, [](const OnceResult& r, size_t) { return r.cpu; });
-        const double serial =
-            median_of(s, [](const OnceResult& r, size_t) { return r.replay_thread_cpu; });
-        const double share =
-            median_of(s, [](const OnceResult& r, size_t) { return r.replay_thread_cpu / r.wall; });
-        std::printf(
-            "| %s | %.4f | %.4f | %.4f (%.0f%%) | %.0f | %.1f | %.3fx | %.3fx | %.1fx |\n",
-            s.name.c_str(), wall, cpu, serial, 100 * share, double(stats.ops) / wall, raw / wall,
-            median_of(s, [&](const OnceResult& r, size_t i) { return r.wall / engine_of(s, i); }),
-            median_of(s, [&](const OnceResult& r, size_t i) { return r.cpu / engine_of(s, i); }),
-            median_of(s, [&](const OnceResult& r, size_t i) { return r.wall / z[i].seconds; }));
-    }
+}
+
+void print_setting_row(const ThroughputRounds& t, const Setting& s) {
+    const double wall = t.median_of(s, [](const OnceResult& r, size_t) { return r.wall; });
+    const double cpu = t.median_of(s, [](const OnceResult& r, size_t) { return r.cpu; });
+    const double serial =
+        t.median_of(s, [](const OnceResult& r, size_t) { return r.replay_thread_cpu; });
+    const double share =
+        t.median_of(s, [](const OnceResult& r, size_t) { return r.replay_thread_cpu / r.wall; });
+    std::printf(
+        "| %s | %.4f | %.4f | %.4f (%.0f%%) | %.0f | %.1f | %.3fx | %.3fx | %.1fx |\n",
+        s.name.c_str(), wall, cpu, serial, 100 * share, double(t.stats.ops) / wall, t.raw_mb / wall,
+        t.median_of(s, [&](const OnceResult& r, size_t i) { return r.wall / t.engine_of(s, i); }),
+        t.median_of(s, [&](const OnceResult& r, size_t i) { return r.cpu / t.engine_of(s, i); }),
+        t.median_of(s, [&](const OnceResult& r, size_t i) { return r.wall / t.zstd[i].seconds; }));
+}
+
+// The two peers' rows: the engine alone and zstd alone.
+void print_peer_rows(const ThroughputRounds& t) {
+    const double engine = t.engine_seconds, zstd = t.zstd_median(&ZstdRun::seconds);
     std::printf(
         "| engine alone: engine::execute of the same ops (1 thread, summed in those runs) "
         "| %.4f | %.4f | - | %.0f | %.1f | 1.000x | 1.000x | %.1fx |\n",
-        engine, engine, double(stats.ops) / engine, raw / engine,
-        engine / median_over(rounds, [&](size_t i) { return z[i].seconds; }));
+        engine, engine, double(t.stats.ops) / engine, t.raw_mb / engine, engine / zstd);
     std::printf(
         "| zstd: read + ZSTD_decompress each chunk (%llu chunks) | %.4f | %.4f | - | %.0f "
         "| %.1f | - | - | 1.0x |\n",
-        (unsigned long long)z.back().chunks,
-        median_over(rounds, [&](size_t i) { return z[i].seconds; }),
-        median_over(rounds, [&](size_t i) { return z[i].cpu; }),
-        double(stats.ops) / median_over(rounds, [&](size_t i) { return z[i].seconds; }),
-        raw / median_over(rounds, [&](size_t i) { return z[i].seconds; }));
+        (unsigned long long)t.zstd.back().chunks, zstd, t.zstd_median(&ZstdRun::cpu),
+        double(t.stats.ops) / zstd, t.raw_mb / zstd);
+}
+
+// The goals' ratios, the T-thread speedups and serial shares, and the runs' counters.
+void print_throughput_summary(const ThroughputRounds& t) {
+    const Setting& on = t.row(kOneThreadOn);
+    const Setting& off = t.row(kOneThreadOff);
     auto by_engine = [&](const Setting& s, bool cpu) {
-        return median_of(s, [&](const OnceResult& r, size_t) {
+        return t.median_of(s, [&](const OnceResult& r, size_t) {
             return (cpu ? r.cpu : r.wall) / r.engine;
         });
     };
-    auto speedup = [&](const Setting& s) {
-        return median_of(s,
-                         [&](const OnceResult& r, size_t i) { return on.runs[i].wall / r.wall; });
+    auto speedup = [&](SettingRow row) {
+        return t.median_of(t.row(row),
+                           [&](const OnceResult& r, size_t i) { return on.runs[i].wall / r.wall; });
+    };
+    auto serial_share = [&](SettingRow row) {
+        return 100 * t.median_of(t.row(row), [](const OnceResult& r, size_t) {
+            return r.replay_thread_cpu / r.wall;
+        });
     };
     unsigned long long peak_kb = 0;
-    for (const Setting& s : settings)
+    for (const Setting& s : t.settings)
         for (const OnceResult& r : s.runs) peak_kb = std::max(peak_kb, r.peak_kb);
-    const OnceResult& ahead = settings[4].runs.back();
+    const OnceResult& ahead = t.row(kRunAhead).runs.back();
     std::printf(
         "replay (1 thread, hazards off) / its engine time: %.3fx (goal <= 1.1x); hazards on / "
         "off, each over its engine time: %.3f / %.3f = %.3fx wall, CPU %.3f / %.3f = %.3fx (goal "
@@ -537,17 +576,29 @@ void throughput_table(const std::string& dir, uint64_t ops, uint32_t threads, in
         "replay processes %.1f MB\n\n",
         by_engine(off, false), by_engine(on, false), by_engine(off, false),
         by_engine(on, false) / by_engine(off, false), by_engine(on, true), by_engine(off, true),
-        by_engine(on, true) / by_engine(off, true), threads, speedup(in_turn), speedup(settings[3]),
-        speedup(settings[4]), speedup(settings[5]), threads,
-        100 * median_of(in_turn,
-                        [](const OnceResult& r, size_t) { return r.replay_thread_cpu / r.wall; }),
-        100 * median_of(settings[3],
-                        [](const OnceResult& r, size_t) { return r.replay_thread_cpu / r.wall; }),
-        100 * median_of(settings[4],
-                        [](const OnceResult& r, size_t) { return r.replay_thread_cpu / r.wall; }),
-        100 * median_of(settings[5],
-                        [](const OnceResult& r, size_t) { return r.replay_thread_cpu / r.wall; }),
-        ahead.started, ahead.stood, ahead.run_again, last.accesses, double(peak_kb) / 1024.0);
+        by_engine(on, true) / by_engine(off, true), t.threads, speedup(kInTurn),
+        speedup(kSyncThread), speedup(kRunAhead), speedup(kBoth), t.threads, serial_share(kInTurn),
+        serial_share(kSyncThread), serial_share(kRunAhead), serial_share(kBoth), ahead.started,
+        ahead.stood, ahead.run_again, on.runs.back().accesses, double(peak_kb) / 1024.0);
+}
+
+// Table 1: one trace of `ops` ops, replayed every way (see the file comment).
+void throughput_table(const std::string& dir, uint64_t ops, uint32_t threads, int repeats) {
+    const std::string path = trace_path(dir, ops);
+    bench::BenchTraceShape shape;
+    shape.target_ops = ops;
+    ThroughputRounds t;
+    t.stats = bench::write_bench_trace(path, shape);
+    t.threads = threads;
+    t.settings = throughput_settings(threads);
+    run_rounds(path, repeats, t);
+    warn_if_reports_differ(t);
+    t.engine_seconds = median_engine_seconds(t);
+    t.raw_mb = mb(t.row(kOneThreadOn).runs.back().raw_bytes);
+    print_throughput_heading(t, repeats);
+    for (const Setting& s : t.settings) print_setting_row(t, s);
+    print_peer_rows(t);
+    print_throughput_summary(t);
     std::remove(path.c_str());
 }
 

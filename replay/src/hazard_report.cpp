@@ -55,18 +55,44 @@ const char* fix_kind_name(FixKind k) {
 
 }  // namespace
 
-std::string command_place_text(const CommandRef& command, QueueId queue,
-                               std::optional<uint64_t> frame) {
-    std::string s = command.name && *command.name ? command.name : "command";
-    if (queue == kHostQueue) return s + " (host)";
-    s += " (queue " + std::to_string(queue) + ", submit " + std::to_string(command.submission) +
-         ", cb " + std::to_string(command.command_buffer) + ", cmd " +
-         std::to_string(command.command);
+namespace {
+
+const char* command_name(const CommandRef& command) {
+    return command.name && *command.name ? command.name : "command";
+}
+
+// The words between a device command's parentheses; `handle` adds the command buffer's after
+// its index.
+std::string queue_place(const CommandRef& command, QueueId queue, std::optional<uint64_t> frame,
+                        bool handle) {
+    std::string s = "queue " + std::to_string(queue) + ", submit " +
+                    std::to_string(command.submission) + ", cb " +
+                    std::to_string(command.command_buffer);
+    if (handle) s += " (" + hex(command.command_buffer_handle) + ")";
+    s += ", cmd " + std::to_string(command.command);
     if (frame) s += ", frame " + std::to_string(*frame);
     if (command.secondary_handle)
         s += " > secondary " + std::to_string(command.secondary) + " (" +
              hex(command.secondary_handle) + "), cmd " + std::to_string(command.secondary_command);
-    return s + ")";
+    return s;
+}
+
+}  // namespace
+
+std::string command_place_text(const CommandRef& command, QueueId queue,
+                               std::optional<uint64_t> frame) {
+    const std::string name = command_name(command);
+    if (queue == kHostQueue) return name + " (host)";
+    return name + " (" + queue_place(command, queue, frame, false) + ")";
+}
+
+std::string finding_place_text(const ReplayLocation& where) {
+    const CommandRef command = command_ref(where);
+    const std::string place = where.queue == kHostQueue
+                                  ? "host, submit " + std::to_string(where.submission)
+                                  : queue_place(command, where.queue, std::nullopt, true);
+    return std::string(command_name(command)) + " (" + place + ") [#" +
+           std::to_string(where.sequence) + "]";
 }
 
 std::string range_text(AddressRange range) {

@@ -85,14 +85,13 @@ std::optional<uint64_t> ReplayMemory::first_without_usage(uint64_t begin, uint64
 }
 
 uint64_t ReplayMemory::memory_base(uint64_t memory) {
-    auto it = memory_base_.find(memory);
-    if (it != memory_base_.end()) return it->second;
-    uint64_t base = next_private_;
+    std::optional<uint64_t>& base = memory_objects_[memory].base;
+    if (base) return *base;
+    base = next_private_;
     next_private_ += kPrivateSpan;
     if (next_private_ < kPrivateBase)
         next_private_ = kPrivateBase;  // wrapped: reuse (aliasing at worst)
-    memory_base_.emplace(memory, base);
-    return base;
+    return *base;
 }
 
 bool ReplayMemory::add_region(uint64_t address, uint64_t size, uint64_t usage,
@@ -170,8 +169,10 @@ void ReplayMemory::bind_buffer(uint64_t buffer, uint64_t memory, uint64_t memory
     Buffer& b = buffers_[buffer];
     if (device_address != 0) {
         b.address = device_address;
-        if (memory != 0 && device_address >= memory_offset)
-            memory_base_.emplace(memory, device_address - memory_offset);
+        if (memory != 0 && device_address >= memory_offset) {
+            std::optional<uint64_t>& base = memory_objects_[memory].base;
+            if (!base) base = device_address - memory_offset;
+        }
     } else {
         b.address = memory_base(memory) + memory_offset;
     }

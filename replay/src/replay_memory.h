@@ -72,11 +72,16 @@ public:
     // and the engine no longer owns bytes there. Returns the range it had, if bound.
     std::optional<AddressRange> destroy_buffer(uint64_t buffer);
     void destroy_object(uint64_t object);
-    void free_memory(uint64_t memory) { memory_base_.erase(memory); }
-    // The device address of the memory object's first byte, once a buffer bound to it said.
-    std::optional<uint64_t> memory_address(uint64_t memory) const {
-        auto it = memory_base_.find(memory);
-        return it == memory_base_.end() ? std::nullopt : std::optional<uint64_t>(it->second);
+    // vkAllocateMemory: the allocation's size, for memory_range().
+    void allocate_memory(uint64_t memory, uint64_t size) { memory_objects_[memory].size = size; }
+    void free_memory(uint64_t memory) { memory_objects_.erase(memory); }
+    // The device addresses of the whole allocation, once its size and its base (the address of
+    // its first byte, as a buffer bound to it said) are known.
+    std::optional<AddressRange> memory_range(uint64_t memory) const {
+        auto it = memory_objects_.find(memory);
+        if (it == memory_objects_.end() || !it->second.base || !it->second.size)
+            return std::nullopt;
+        return AddressRange{*it->second.base, *it->second.base + *it->second.size};
     }
 
     // [offset, offset + size) of `buffer` as device addresses (VK_WHOLE_SIZE: to the end).
@@ -190,7 +195,13 @@ private:
     uint64_t largest_bound_ = 0;                  // size of the largest buffer ever bound
     std::unordered_map<uint64_t, Object> objects_;
     std::unordered_map<uint64_t, uint64_t> object_size_;
-    std::unordered_map<uint64_t, uint64_t> memory_base_;
+    // A memory object: its base (learned from an addressed buffer bound to it, or a private
+    // range memory_base() gave it) and its size (vkAllocateMemory), each once known.
+    struct MemoryObject {
+        std::optional<uint64_t> base;
+        std::optional<uint64_t> size;
+    };
+    std::unordered_map<uint64_t, MemoryObject> memory_objects_;
     struct SparseSpan {  // a placed sparse buffer's addresses
         uint64_t end = 0;
         uint64_t buffer = 0;

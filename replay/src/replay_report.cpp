@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "clastrace/replay/replay_report.h"
 #include "clastrace/common/hex.h"
+#include "hazard_text.h"
 
 #include <clastrace/engine/execute.h>
 #include <clastrace/engine/finding.h>
@@ -19,16 +20,6 @@ namespace clastrace::replay {
 namespace {
 
 using common::hex;
-
-std::string where_text(const ReplayLocation& w) {
-    std::string command = "command " + std::to_string(w.command);
-    if (w.secondary_handle)
-        command += " (vkCmdExecuteCommands) > secondary " + std::to_string(w.secondary) + " (" +
-                   hex(w.secondary_handle) + "), command " + std::to_string(w.secondary_command);
-    return "submission " + std::to_string(w.submission) + ", command buffer " +
-           std::to_string(w.command_buffer) + " (" + hex(w.command_buffer_handle) + "), " +
-           command + " " + w.name + " [#" + std::to_string(w.sequence) + "]";
-}
 
 nlohmann::json where_json(const ReplayLocation& w) {
     nlohmann::json j = {{"sequence", w.sequence},
@@ -106,13 +97,13 @@ const char* cluster_op_type_name(uint32_t op_type) {
 }
 
 std::string ReplayFinding::format() const {
-    std::string s = rule + ": " + where_text(where);
+    std::string s = rule + ": " + finding_place_text(where);
     if (op_index >= 0) s += ", op " + std::to_string(op_index);
     return s + ": " + message;
 }
 
 std::string ReplayNote::format() const {
-    std::string s = rule + ": " + where_text(where);
+    std::string s = rule + ": " + finding_place_text(where);
     if (op_index >= 0) s += ", op " + std::to_string(op_index);
     return s + ": " + message;
 }
@@ -126,7 +117,7 @@ std::string notes_text(const ReplayReport& r) {
     for (const ReplayNote& n : r.notes) s += "  " + n.format() + "\n";
     if (r.notes_over_cap) s += "  (" + std::to_string(r.notes_over_cap) + " more notes not kept)\n";
     for (const NotReplayed& n : r.not_replayed)
-        s += "  not replayed: " + where_text(n.where) + ": " + n.reason + "\n";
+        s += "  not replayed: " + finding_place_text(n.where) + ": " + n.reason + "\n";
     return s;
 }
 

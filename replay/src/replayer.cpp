@@ -60,9 +60,9 @@ Replay::Replay(TraceReader& reader, const std::string& name, const ReplayOptions
       memory_(options.memory_budget_bytes),
       sync_model_(SyncOptions{options.max_findings}) {
     report_.trace = name;
-    sync_model_.set_address_resolver(&memory_, [this](const CommandRef& ref, const Access& access,
-                                                      AddressRange unbound) {
-        unbound_access(ref, access, unbound);
+    sync_model_.set_address_resolver(&memory_, [this](const CommandRef& ref, QueueId queue,
+                                                      const Access& access, AddressRange unbound) {
+        unbound_access(ref, queue, access, unbound);
     });
     report_.hazards_checked = options.check_hazards;
     report_.verified = options.verify_outputs;
@@ -100,8 +100,8 @@ void Replay::on_record(const traces::RecordView& view) {
     record_command(view);
 }
 
-void Replay::execute_command(const fbs::Record& record, const CommandRef& ref, uint64_t sequence) {
-    const ReplayLocation where = location(ref, sequence);
+void Replay::execute_command(const fbs::Record& record, const CommandRef& ref,
+                             const ReplayLocation& where) {
     ++report_.counts.commands;
     switch (record.body_type()) {
     case fbs::RecordBody::CmdPipelineBarrier:
@@ -156,8 +156,8 @@ void Replay::execute_command(const fbs::Record& record, const CommandRef& ref, u
 
 // Executes (or skips) one command and, with an observer, hands it the command, then the
 // findings and hazards the command produced.
-void Replay::replay_command(const fbs::Record& record, const CommandRef& ref, uint64_t sequence,
-                            bool selected) {
+void Replay::replay_command(const fbs::Record& record, const CommandRef& ref,
+                            const ReplayLocation& where, bool selected) {
     ReplayObserver* observer = options_.observer;
     // Only an observer reads the model per command: that read drains the model's queue.
     const size_t findings = report_.findings.size(),
@@ -173,14 +173,14 @@ void Replay::replay_command(const fbs::Record& record, const CommandRef& ref, ui
     const auto started = std::chrono::steady_clock::now();
     note_structure_writes(record);
     if (selected) {
-        execute_command(record, ref, sequence);
+        execute_command(record, ref, where);
     } else {
         ++report_.counts.skipped_commands;
     }
     if (!observer) return;
     observed_execution_ = nullptr;
     observed_engine_ns_ = nullptr;
-    ReplayedCommand c{location(ref, sequence),
+    ReplayedCommand c{where,
                       &record,
                       selected,
                       report_.counts.cluster_commands != engine_runs || observed_nv_ ? &execution

@@ -229,11 +229,12 @@ void Replay::limit_recorded() {
     }
 }
 
-void Replay::run_command_buffer(uint64_t handle, uint32_t submission, uint32_t cb_index,
-                                const CommandRef* inside) {
+void Replay::run_command_buffer(uint64_t handle, QueueId queue, uint32_t submission,
+                                uint32_t cb_index, const CommandRef* inside) {
     const char* where_name = inside ? "vkCmdExecuteCommands" : "vkQueueSubmit";
     auto location_here = [&] {
         ReplayLocation where{sequence_, submission, cb_index, 0, handle, where_name};
+        where.queue = queue;
         if (inside) {
             where.command_buffer_handle = inside->command_buffer_handle;
             where.command = inside->command;
@@ -279,7 +280,8 @@ void Replay::run_command_buffer(uint64_t handle, uint32_t submission, uint32_t c
         command_bytes_ = &bytes;  // build_clusters finds the command's run ahead by its bytes
         const CurrentAnswers record_answers =
             std::exchange(answers_, {&recorded_command.answers, 0});
-        replay_command(*record, ref, sequence, selected(sequence, submission));
+        replay_command(*record, ref, location(ref, sequence, queue),
+                       selected(sequence, submission));
         answers_ = record_answers;  // of what runs this buffer: a record, or a command
         command_bytes_ = nullptr;
         // The secondaries' commands get their own sequence numbers and are selected (--ops) one
@@ -288,12 +290,12 @@ void Replay::run_command_buffer(uint64_t handle, uint32_t submission, uint32_t c
             if (inside) {
                 if (selected(sequence, submission))
                     report_.not_replayed.push_back(
-                        {location(ref, sequence),
+                        {location(ref, sequence, queue),
                          "vkCmdExecuteCommands inside a secondary command buffer "
                          "(VK_EXT_nested_command_buffer): the nested secondaries are not "
                          "replayed"});
             } else {
-                execute_secondaries(*record->body_as_CmdExecuteCommands(), ref);
+                execute_secondaries(*record->body_as_CmdExecuteCommands(), ref, queue);
             }
         }
         // The layer's timestamps are no command of the application's: the next command keeps
@@ -307,7 +309,8 @@ void Replay::run_command_buffer(uint64_t handle, uint32_t submission, uint32_t c
 // The secondaries run inline, in list order, as part of the primary's command-buffer order:
 // the synchronization model sees their commands between the primary's commands before and
 // after the vkCmdExecuteCommands.
-void Replay::execute_secondaries(const fbs::CmdExecuteCommands& execute, const CommandRef& ref) {
+void Replay::execute_secondaries(const fbs::CmdExecuteCommands& execute, const CommandRef& ref,
+                                 QueueId queue) {
     if (!execute.secondaries()) return;
     uint32_t index = 0;
     for (uint64_t secondary : *execute.secondaries()) {
@@ -321,8 +324,8 @@ void Replay::execute_secondaries(const fbs::CmdExecuteCommands& execute, const C
                              ") was begun as a primary command buffer (CommandBufferBegin level "
                              "0): it is replayed "
                              "inline all the same",
-                         FindingSource::kReplay, location(ref, sequence_), -1, 0});
-        run_command_buffer(secondary, ref.submission, ref.command_buffer, &inside);
+                         FindingSource::kReplay, location(ref, sequence_, queue), -1, 0});
+        run_command_buffer(secondary, queue, ref.submission, ref.command_buffer, &inside);
     }
 }
 

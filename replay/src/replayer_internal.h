@@ -9,6 +9,7 @@
 
 #include "binary_signals.h"
 #include "cluster_command.h"
+#include "hazard_text.h"
 #include "khr_command.h"
 #include "nv_command.h"
 #include "replayer_record_stage.h"
@@ -140,24 +141,30 @@ private:
     bool on_sparse_record(const traces::RecordView& view);
     // Applies a batch's buffer binds in order; a bind the replay cannot apply (damaged) or a
     // range bound twice in the batch is a finding naming the record `place`.
-    void apply_sparse_binds(const fbs::SparseBindBatch& batch, const std::string& place);
+    void apply_sparse_binds(const fbs::SparseBindBatch& batch, QueueId queue,
+                            const std::string& place);
     // The binds of one buffer bind entry that can be applied: checks the buffer and its
     // address; false (and a finding) when the whole entry must be skipped.
-    bool sparse_buffer_usable(const fbs::SparseBufferBind& entry, const std::string& place);
-    void sparse_bind_finding(const char* rule, const std::string& message);
+    bool sparse_buffer_usable(const fbs::SparseBufferBind& entry, QueueId queue,
+                              const std::string& place);
+    void sparse_bind_finding(const char* rule, QueueId queue, const std::string& message);
     // SyncModel's UnboundHandler: an access to a sparse buffer's unbound part is a finding.
-    void unbound_access(const CommandRef& ref, const Access& access, AddressRange unbound);
+    void unbound_access(const CommandRef& ref, QueueId queue, const Access& access,
+                        AddressRange unbound);
     void record_command(const traces::RecordView& view);
     void on_submit(const fbs::QueueSubmit& submit);
     // Replays one execution of a command buffer (a primary listed in a batch, or a secondary
     // at its primary's vkCmdExecuteCommands: `inside` then names the execute command).
-    void run_command_buffer(uint64_t handle, uint32_t submission, uint32_t cb_index,
+    void run_command_buffer(uint64_t handle, QueueId queue, uint32_t submission, uint32_t cb_index,
                             const CommandRef* inside);
-    void execute_secondaries(const fbs::CmdExecuteCommands& execute, const CommandRef& ref);
+    void execute_secondaries(const fbs::CmdExecuteCommands& execute, const CommandRef& ref,
+                             QueueId queue);
     void reset_command_buffers(const fbs::CommandBufferReset& reset);
-    void execute_command(const fbs::Record& record, const CommandRef& ref, uint64_t sequence);
-    void replay_command(const fbs::Record& record, const CommandRef& ref, uint64_t sequence,
-                        bool selected);
+    // The command `ref` at `where` (location(ref, ...)).
+    void execute_command(const fbs::Record& record, const CommandRef& ref,
+                         const ReplayLocation& where);
+    void replay_command(const fbs::Record& record, const CommandRef& ref,
+                        const ReplayLocation& where, bool selected);
     void host_observation(const fbs::MemoryObservation& observation);
 
     // Memory helpers.
@@ -246,28 +253,6 @@ private:
             recorded_.erase(it);
         }
     }
-    ReplayLocation location(const CommandRef& ref, uint64_t sequence) const {
-        return ReplayLocation{sequence,
-                              ref.submission,
-                              ref.command_buffer,
-                              ref.command,
-                              ref.command_buffer_handle,
-                              ref.name,
-                              ref.secondary_handle,
-                              ref.secondary,
-                              ref.secondary_command};
-    }
-    // The command a location names: location()'s inverse (the sequence has no place in it).
-    static CommandRef command_ref(const ReplayLocation& where) {
-        return CommandRef{.submission = where.submission,
-                          .command_buffer = where.command_buffer,
-                          .command_buffer_handle = where.command_buffer_handle,
-                          .command = where.command,
-                          .name = where.name,
-                          .secondary_handle = where.secondary_handle,
-                          .secondary = where.secondary,
-                          .secondary_command = where.secondary_command};
-    }
     QueueId queue_id(uint64_t queue) {
         auto [it, inserted] = queues_.emplace(queue, static_cast<QueueId>(queues_.size()));
         return it->second;
@@ -298,7 +283,6 @@ private:
     std::unordered_set<uint64_t>
         pools_noted_;  // pool resets of unknown membership already in not_replayed
     std::unordered_map<uint64_t, QueueId> queues_;
-    QueueId submission_queue_ = 0;  // the queue of the submission being replayed (command_text)
     detail::ClusterSizeQueries cluster_queries_;  // what build-size queries answered
     uint64_t sequence_ = 0;
     uint32_t next_submission_ = 0;
@@ -367,7 +351,6 @@ private:
                                             return cluster_bottom_level(address);
                                         }};
     std::unordered_map<uint64_t, uint8_t> structure_api_;  // handle -> 0 NV, 1 KHR
-    std::unordered_map<uint64_t, uint64_t> memory_sizes_;  // memory handle -> allocation size
     FrameBoundaries frames_;
     // The trace's PreRangeState record, when it has one (format 1.5).
     struct PreRangeInfo {

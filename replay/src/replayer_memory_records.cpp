@@ -21,6 +21,11 @@ bool Replay::on_memory_record(fbs::RecordBody kind, const fbs::Record& r) {
     case fbs::RecordBody::BufferDestroy:
         memory_freed(memory_.destroy_buffer(r.body_as_BufferDestroy()->buffer()));
         break;
+    case fbs::RecordBody::MemoryAllocate: {
+        const auto* a = r.body_as_MemoryAllocate();
+        memory_.allocate_memory(a->memory(), a->size());
+        break;
+    }
     case fbs::RecordBody::MemoryFree: memory_.free_memory(r.body_as_MemoryFree()->memory()); break;
     case fbs::RecordBody::MemoryObservation:
         host_observation(*r.body_as_MemoryObservation());

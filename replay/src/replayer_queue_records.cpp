@@ -61,7 +61,7 @@ void Replay::on_submit(const fbs::QueueSubmit& submit) {
     ++report_.counts.submissions;
     if (submit.result() != VK_SUCCESS) return;  // nothing reached the queue
     if (options_.observer) options_.observer->on_submission_begin(submission);
-    const QueueId queue = submission_queue_ = queue_id(submit.queue());
+    const QueueId queue = queue_id(submit.queue());
     const auto* batches = submit.batches();
     const size_t batch_count = batches ? batches->size() : 0;
     uint32_t cb_index = 0;
@@ -87,7 +87,7 @@ void Replay::on_submit(const fbs::QueueSubmit& submit) {
         if (options_.check_hazards) sync_.begin_submission(queue, submission, waits);
         if (batch && batch->command_buffers()) {
             for (uint64_t handle : *batch->command_buffers()) {
-                run_command_buffer(handle, submission, cb_index, nullptr);
+                run_command_buffer(handle, queue, submission, cb_index, nullptr);
                 ++cb_index;
             }
         }
@@ -143,6 +143,7 @@ void Replay::check_binary_signals(const fbs::QueueSubmit& submit, uint32_t batch
         where.sequence = sequence_;
         where.submission = submission;
         where.name = v2 ? "vkQueueSubmit2" : "vkQueueSubmit";
+        where.queue = queue_id(submit.queue());  // numbered by on_submit already
         const std::string field = v2 ? "pSubmits[" + std::to_string(batch) +
                                            "].pSignalSemaphoreInfos[" + std::to_string(i) + "]"
                                      : "pSubmits[" + std::to_string(batch) +

@@ -112,32 +112,34 @@ bool Replay::on_sparse_record(const traces::RecordView& view) {
         for (const SemaphoreSignal& s : signals)
             if (s.value == 0) binary_signals_.signal(s.semaphore, "vkQueueBindSparse");
         if (options_.check_hazards) sync_.begin_submission(queue, next_submission_, waits);
-        apply_sparse_binds(batch, place + ", batch " + std::to_string(b));
+        apply_sparse_binds(batch, queue, place + ", batch " + std::to_string(b));
         if (options_.check_hazards)
             sync_.end_submission(signals, b + 1 >= batch_count ? bind.fence() : 0);
     }
     return true;
 }
 
-void Replay::apply_sparse_binds(const fbs::SparseBindBatch& batch, const std::string& place) {
+void Replay::apply_sparse_binds(const fbs::SparseBindBatch& batch, QueueId queue,
+                                const std::string& place) {
     if (!batch.buffer_binds()) return;
     std::vector<BatchBind> applied;
     for (flatbuffers::uoffset_t e = 0; e < batch.buffer_binds()->size(); ++e) {
         const fbs::SparseBufferBind& entry = *batch.buffer_binds()->Get(e);
         const std::string entry_place =
             place + ", buffer bind " + std::to_string(e) + " (buffer " + hex(entry.buffer()) + ")";
-        if (!entry.binds() || !sparse_buffer_usable(entry, entry_place)) continue;
+        if (!entry.binds() || !sparse_buffer_usable(entry, queue, entry_place)) continue;
         const uint64_t buffer_size = memory_.buffer_extent(entry.buffer())->size;
         for (flatbuffers::uoffset_t k = 0; k < entry.binds()->size(); ++k) {
             const fbs::SparseMemoryBind& m = *entry.binds()->Get(k);
             const std::string problem = sparse_bind_problem(m, buffer_size);
             if (!problem.empty()) {
-                sparse_bind_finding(kRuleBindDamaged, entry_place + ", bind " + std::to_string(k) +
-                                                          ": " + problem + "; the bind is skipped");
+                sparse_bind_finding(kRuleBindDamaged, queue,
+                                    entry_place + ", bind " + std::to_string(k) + ": " + problem +
+                                        "; the bind is skipped");
                 continue;
             }
             if (memory_.sparse_page_count() >= kMaxSparseParts) {
-                sparse_bind_finding(kRuleBindBudget,
+                sparse_bind_finding(kRuleBindBudget, queue,
                                     entry_place + ", bind " + std::to_string(k) +
                                         ": the sparse buffers already have " +
                                         std::to_string(kMaxSparseParts) +
@@ -152,10 +154,11 @@ void Replay::apply_sparse_binds(const fbs::SparseBindBatch& batch, const std::st
         }
     }
     if (const std::optional<std::string> twice = bound_twice(applied))
-        sparse_bind_finding(kRuleBoundTwice, place + ": " + *twice);
+        sparse_bind_finding(kRuleBoundTwice, queue, place + ": " + *twice);
 }
 
-bool Replay::sparse_buffer_usable(const fbs::SparseBufferBind& entry, const std::string& place) {
+bool Replay::sparse_buffer_usable(const fbs::SparseBufferBind& entry, QueueId queue,
+                                  const std::string& place) {
     const std::optional<ReplayMemory::BufferExtent> extent = memory_.buffer_extent(entry.buffer());
     std::string problem;
     const uint64_t address = entry.device_address();
@@ -177,16 +180,19 @@ bool Replay::sparse_buffer_usable(const fbs::SparseBufferBind& entry, const std:
                   " overlap another sparse buffer's";
     }
     if (problem.empty()) return true;
-    sparse_bind_finding(kRuleBindDamaged, place + ": " + problem + "; its binds are skipped");
+    sparse_bind_finding(kRuleBindDamaged, queue,
+                        place + ": " + problem + "; its binds are skipped");
     return false;
 }
 
-void Replay::sparse_bind_finding(const char* rule, const std::string& message) {
-    add_finding({rule, message, FindingSource::kReplay,
-                 ReplayLocation{sequence_, next_submission_, 0, 0, 0, "vkQueueBindSparse"}, -1, 0});
+void Replay::sparse_bind_finding(const char* rule, QueueId queue, const std::string& message) {
+    ReplayLocation where{sequence_, next_submission_, 0, 0, 0, "vkQueueBindSparse"};
+    where.queue = queue;
+    add_finding({rule, message, FindingSource::kReplay, where, -1, 0});
 }
 
-void Replay::unbound_access(const CommandRef& ref, const Access& access, AddressRange unbound) {
+void Replay::unbound_access(const CommandRef& ref, QueueId queue, const Access& access,
+                            AddressRange unbound) {
     std::string place = "addresses " + hex(unbound.begin) + ".." + hex(unbound.end);
     if (auto at = memory_.sparse_buffer_at(unbound.begin))
         place = "bytes [" + std::to_string(at->second) + ", " +
@@ -199,7 +205,7 @@ void Replay::unbound_access(const CommandRef& ref, const Access& access, Address
                      "VK_BUFFER_CREATE_SPARSE_RESIDENCY_BIT must be fully bound before use; with "
                      "it, such reads are undefined and writes are discarded): bind the range with "
                      "vkQueueBindSparse, signalling a semaphore this submission waits on",
-                 FindingSource::kReplay, location(ref, sequence_ ? sequence_ - 1 : 0), -1,
+                 FindingSource::kReplay, location(ref, sequence_ ? sequence_ - 1 : 0, queue), -1,
                  unbound.begin});
 }
 

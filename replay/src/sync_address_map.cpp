@@ -108,7 +108,8 @@ void SyncModel::State::record_resolved(const Record& b, const Access& access, bo
     const std::vector<ResolvedRange> parts = resolved;
     for (const ResolvedRange& part : parts) {
         if (!part.bound) {
-            if (on_unbound) on_unbound(commands[b.command], access, part.range);
+            if (on_unbound)
+                on_unbound(commands[b.command], queue_of_slot(b.queue), access, part.range);
             continue;
         }
         Record piece = b;

@@ -147,21 +147,12 @@ void Replay::on_consumer_bookkeeping(fbs::RecordBody kind, const fbs::Record& r)
                                 "buffer " + hex(buffer) + " is destroyed");
         break;
     }
-    case fbs::RecordBody::MemoryAllocate: {
-        const auto* a = r.body_as_MemoryAllocate();
-        memory_sizes_[a->memory()] = a->size();
-        break;
-    }
     case fbs::RecordBody::MemoryFree: {
         // Every byte of the allocation, whichever buffers (live or destroyed) reached it.
         const uint64_t memory = r.body_as_MemoryFree()->memory();
-        const auto size = memory_sizes_.find(memory);
-        const std::optional<uint64_t> base = memory_.memory_address(memory);
-        if (size != memory_sizes_.end() && base)
-            check_commands_done({*base, *base + size->second}, "vkFreeMemory",
-                                "VUID-vkFreeMemory-memory-00677",
+        if (auto range = memory_.memory_range(memory))
+            check_commands_done(*range, "vkFreeMemory", "VUID-vkFreeMemory-memory-00677",
                                 "memory " + hex(memory) + " is freed");
-        if (size != memory_sizes_.end()) memory_sizes_.erase(size);
         break;
     }
     case fbs::RecordBody::QueuePresent:

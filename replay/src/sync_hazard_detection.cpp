@@ -140,7 +140,7 @@ void SyncModel::State::note(std::vector<Finding>& found, HazardClass hazard, con
 HazardAccess SyncModel::State::describe(const Record& r) const {
     HazardAccess a;
     a.command = commands[r.command];
-    a.queue = r.queue == kHostSlot ? kHostQueue : queues[r.queue].id;
+    a.queue = queue_of_slot(r.queue);
     a.stage = r.stage;
     a.access = r.access;
     a.is_write = r.is_write;

@@ -112,6 +112,10 @@ struct SyncModel::State {
 
     // ------------------------------------------------------------------ bookkeeping (sync_bookkeeping.cpp)
     uint16_t queue_slot(QueueId id);
+    // queue_slot()'s inverse: the queue of a record's slot (kHostQueue for kHostSlot).
+    QueueId queue_of_slot(uint16_t slot) const {
+        return slot == kHostSlot ? kHostQueue : queues[slot].id;
+    }
     uint64_t covered(const Clock& c, uint16_t slot) const { return slot < c.size() ? c[slot] : 0; }
 
     // Every access names its field ("srcInfosArray[7].vertexBuffer": a few names per op

@@ -21,8 +21,7 @@ constexpr const char* kRuleStructureNotBuilt = "CLASTRACE-replay-structure-not-b
 // The command at `where`, in the one text hazards and findings name commands by
 // (command_place_text): "vkCmdTraceRaysKHR (queue 0, submit 3, cb 0, cmd 2, frame 4)".
 std::string Replay::command_text(const ReplayLocation& where) const {
-    return command_place_text(command_ref(where), submission_queue_,
-                              frames_.frame_of(where.submission));
+    return command_place_text(command_ref(where), where.queue, frames_.frame_of(where.submission));
 }
 
 // Every command the trace submits, replayed or outside the selection: what it writes is built

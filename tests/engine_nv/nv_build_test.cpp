@@ -131,22 +131,196 @@ uint16_t to_half(float f) {  // exact for the values used (multiples of 1/64 in 
     return uint16_t(sign | (exp << 10) | mant);
 }
 
-TEST(NvBuild, EveryVertexFormatIndexTypeStrideAndTransformMatchesFloatReference) {
-    // A wavy grid with coordinates exact in half (k/64) and SNORM16 (k/32767) forms.
+// A wavy grid with coordinates exact in half (k/64) and SNORM16 (k/32767) forms: its vertex
+// positions and its triangles' corners (two triangles a cell).
+struct WavyGrid {
+    std::vector<std::array<float, 3>> positions;
+    std::vector<uint32_t> corners;
+};
+
+WavyGrid wavy_grid() {
     const int n = 10;
     std::mt19937 rng(5);
-    std::vector<std::array<float, 3>> base;
+    WavyGrid grid;
     for (int y = 0; y <= n; ++y)
         for (int x = 0; x <= n; ++x)
-            base.push_back(
+            grid.positions.push_back(
                 {(x - n / 2) / 8.0f, (y - n / 2) / 8.0f, float(int(rng() % 17) - 8) / 64.0f});
-    std::vector<uint32_t> tri;
     for (int y = 0; y < n; ++y)
         for (int x = 0; x < n; ++x) {
             const uint32_t a = y * (n + 1) + x, b = a + 1, c = a + n + 1, d = c + 1;
-            tri.insert(tri.end(), {a, b, d, a, d, c});
+            grid.corners.insert(grid.corners.end(), {a, b, d, a, d, c});
         }
-    const float transform[12] = {0.5f, 0.25f, 0, 1.0f, -0.25f, 0.5f, 0, -2.0f, 0, 0, 2.0f, 0.5f};
+    return grid;
+}
+
+// One vertex format NV allows: its component count and kind.
+struct VertexEncoding {
+    VkFormat format = VK_FORMAT_UNDEFINED;
+    uint32_t components = 3;
+    bool snorm = false, half = false;
+    uint32_t component_bytes() const { return (snorm || half) ? 2 : 4; }
+};
+
+VertexEncoding encoding_of(VkFormat f) {
+    VertexEncoding e;
+    e.format = f;
+    e.components = (f == VK_FORMAT_R32G32_SFLOAT || f == VK_FORMAT_R16G16_SFLOAT ||
+                    f == VK_FORMAT_R16G16_SNORM)
+                       ? 2
+                       : 3;
+    e.snorm = f == VK_FORMAT_R16G16_SNORM || f == VK_FORMAT_R16G16B16_SNORM;
+    e.half = f == VK_FORMAT_R16G16B16_SFLOAT || f == VK_FORMAT_R16G16_SFLOAT;
+    return e;
+}
+
+// The grid's vertices in one encoding (one vertex per corner for NONE_NV), `pad` bytes after
+// each, and the decoded reference positions (the values the GPU sees).
+struct EncodedVertices {
+    std::vector<uint8_t> bytes;
+    std::vector<std::array<float, 3>> decoded;
+    uint32_t stride = 0;
+    size_t count = 0;
+};
+
+// Writes component `x` at `dst` in encoding `e`; returns the value the GPU decodes.
+float encode_component(const VertexEncoding& e, float x, uint8_t* dst) {
+    if (e.snorm) {
+        const int16_t q = int16_t(std::lround(x * 32767.0f));
+        std::memcpy(dst, &q, 2);
+        return std::max(float(q) / 32767.0f, -1.0f);
+    }
+    if (e.half) {
+        const uint16_t h = to_half(x);
+        std::memcpy(dst, &h, 2);
+    } else {
+        std::memcpy(dst, &x, 4);
+    }
+    return x;
+}
+
+EncodedVertices encode_vertices(const WavyGrid& grid, const VertexEncoding& e, VkIndexType it,
+                                uint32_t pad) {
+    EncodedVertices v;
+    v.stride = e.components * e.component_bytes() + pad;  // pad keeps the component alignment
+    v.count = it == VK_INDEX_TYPE_NONE_NV ? grid.corners.size() : grid.positions.size();
+    v.bytes.resize(v.count * v.stride);
+    v.decoded.resize(v.count);
+    for (size_t k = 0; k < v.count; ++k) {
+        const auto& p = grid.positions[it == VK_INDEX_TYPE_NONE_NV ? grid.corners[k] : k];
+        for (uint32_t c = 0; c < 3; ++c)
+            v.decoded[k][c] =
+                c < e.components
+                    ? encode_component(e, p[c],
+                                       v.bytes.data() + k * v.stride + c * e.component_bytes())
+                    : 0.0f;
+    }
+    return v;
+}
+
+std::vector<uint8_t> index_bytes(const std::vector<uint32_t>& corners, VkIndexType it) {
+    std::vector<uint8_t> ib(corners.size() * (it == VK_INDEX_TYPE_UINT16 ? 2 : 4));
+    for (size_t k = 0; k < corners.size(); ++k) {
+        if (it == VK_INDEX_TYPE_UINT16) {
+            const uint16_t s = uint16_t(corners[k]);
+            std::memcpy(ib.data() + 2 * k, &s, 2);
+        } else {
+            std::memcpy(ib.data() + 4 * k, &corners[k], 4);
+        }
+    }
+    return ib;
+}
+
+const float kGridTransform[12] = {0.5f, 0.25f, 0, 1.0f, -0.25f, 0.5f, 0, -2.0f, 0, 0, 2.0f, 0.5f};
+
+// The geometry of the encoded vertices, its indices and (with_transform) kGridTransform, put
+// into w's memory.
+eng::NvGeometry encoded_geometry(NvWorld& w, const WavyGrid& grid, const EncodedVertices& v,
+                                 VkFormat f, VkIndexType it, bool with_transform) {
+    eng::NvGeometry g;
+    g.flags = VK_GEOMETRY_OPAQUE_BIT_NV;
+    g.triangles.vertex_address = w.put(v.bytes.data(), v.bytes.size(), "vb");
+    g.triangles.vertex_count = uint32_t(v.count);
+    g.triangles.vertex_format = f;
+    g.triangles.vertex_stride = v.stride;
+    g.triangles.index_type = it;
+    if (it != VK_INDEX_TYPE_NONE_NV) {
+        const std::vector<uint8_t> ib = index_bytes(grid.corners, it);
+        g.triangles.index_address = w.put(ib.data(), ib.size(), "ib");
+        g.triangles.index_count = uint32_t(grid.corners.size());
+    }
+    if (with_transform) g.triangles.transform_address = w.put(kGridTransform, 48, "transform");
+    return g;
+}
+
+// Reference: the decoded (and transformed, in float as the GPU does) positions as a float mesh.
+GeometrySpec reference_geometry(const WavyGrid& grid, const EncodedVertices& v, VkIndexType it,
+                                bool with_transform) {
+    GeometrySpec gs;
+    for (auto p : v.decoded) {
+        if (with_transform) {
+            const float x = p[0], y = p[1], z = p[2];
+            const float* m = kGridTransform;
+            for (int row = 0; row < 3; ++row)
+                p[row] = m[4 * row] * x + m[4 * row + 1] * y + m[4 * row + 2] * z + m[4 * row + 3];
+        }
+        gs.mesh.positions.push_back({p[0], p[1], p[2]});
+    }
+    const std::vector<uint32_t>& order = grid.corners;
+    for (size_t k = 0; k + 2 < order.size(); k += 3) {
+        if (it == VK_INDEX_TYPE_NONE_NV)
+            gs.mesh.triangles.push_back({uint32_t(k), uint32_t(k + 1), uint32_t(k + 2)});
+        else
+            gs.mesh.triangles.push_back({order[k], order[k + 1], order[k + 2]});
+    }
+    return gs;
+}
+
+// Every ray hits the two bottom levels alike; *hits counts the rays that hit.
+void expect_same_hits(const NvWorld& w, uint64_t built, uint64_t reference,
+                      const std::vector<ts::TestRay>& rays, VkFormat f, VkIndexType it,
+                      size_t* hits) {
+    auto a = eng::NvScene::open_bottom(w.memory, built, nullptr);
+    auto b = eng::NvScene::open_bottom(w.memory, reference, nullptr);
+    ASSERT_TRUE(a && b);
+    for (const auto& tr : rays) {
+        const eng::Ray ray{{tr.origin[0], tr.origin[1], tr.origin[2]},
+                           0.0f,
+                           {tr.direction[0], tr.direction[1], tr.direction[2]},
+                           tr.tmax};
+        const eng::NvHit ha = a->closest(ray, 0, 0xFF), hb = b->closest(ray, 0, 0xFF);
+        ASSERT_EQ(ha.hit, hb.hit) << "format " << f << " index type " << it;
+        if (!ha.hit) continue;
+        ++*hits;
+        ASSERT_EQ(ha.t, hb.t) << "format " << f << " index type " << it;
+        ASSERT_EQ(ha.primitive_index, hb.primitive_index);
+        ASSERT_EQ(ha.hit_kind, hb.hit_kind);
+    }
+}
+
+// One combination: the grid built in that encoding answers every ray as its float reference.
+void check_encoding(const WavyGrid& grid, const std::vector<ts::TestRay>& rays, VkFormat f,
+                    VkIndexType it, uint32_t pad, bool with_transform) {
+    NvWorld w;
+    const EncodedVertices v = encode_vertices(grid, encoding_of(f), it, pad);
+    eng::NvObjectInfo info;
+    info.geometries.push_back(encoded_geometry(w, grid, v, f, it, with_transform));
+    auto obj = w.make_object(info, "blas");
+    const auto r = w.build(info, obj);
+    ASSERT_TRUE(r.ops[0].executed) << rules(r);
+    ASSERT_TRUE(r.findings.empty()) << rules(r);
+    BlasSpec spec;
+    spec.geometries.push_back(reference_geometry(grid, v, it, with_transform));
+    auto ref_info = w.blas_info(spec);
+    auto ref_obj = w.make_object(ref_info, "ref");
+    ASSERT_TRUE(w.build(ref_info, ref_obj).ops[0].executed);
+    size_t hits = 0;
+    ASSERT_NO_FATAL_FAILURE(expect_same_hits(w, obj.address, ref_obj.address, rays, f, it, &hits));
+    EXPECT_GT(hits, 40u) << "format " << f;
+}
+
+TEST(NvBuild, EveryVertexFormatIndexTypeStrideAndTransformMatchesFloatReference) {
+    const WavyGrid grid = wavy_grid();
     const VkFormat formats[] = {VK_FORMAT_R32G32B32_SFLOAT, VK_FORMAT_R32G32_SFLOAT,
                                 VK_FORMAT_R16G16B16_SFLOAT, VK_FORMAT_R16G16_SFLOAT,
                                 VK_FORMAT_R16G16_SNORM,     VK_FORMAT_R16G16B16_SNORM};
@@ -157,123 +331,13 @@ TEST(NvBuild, EveryVertexFormatIndexTypeStrideAndTransformMatchesFloatReference)
     box.extend({2.5f, 1.5f, 1.5f});
     const auto rays = ts::random_rays(box, 3000, 8);
     int combos = 0;
-    for (VkFormat f : formats) {
-        const uint32_t comps = (f == VK_FORMAT_R32G32_SFLOAT || f == VK_FORMAT_R16G16_SFLOAT ||
-                                f == VK_FORMAT_R16G16_SNORM)
-                                   ? 2
-                                   : 3;
-        const bool snorm = f == VK_FORMAT_R16G16_SNORM || f == VK_FORMAT_R16G16B16_SNORM;
-        const bool half = f == VK_FORMAT_R16G16B16_SFLOAT || f == VK_FORMAT_R16G16_SFLOAT;
-        const uint32_t csize = (snorm || half) ? 2 : 4;
+    for (VkFormat f : formats)
         for (VkIndexType it : index_types)
             for (uint32_t pad : {0u, 10u})
                 for (bool with_transform : {false, true}) {
-                    NvWorld w;
-                    // Decoded reference positions (the values the GPU sees).
-                    std::vector<std::array<float, 3>> dec(base.size());
-                    const uint32_t stride =
-                        comps * csize + pad;  // pad keeps the component alignment
-                    std::vector<uint8_t> vb;
-                    const std::vector<uint32_t>& order = tri;
-                    std::vector<uint32_t> seq;  // vertex order for NONE_NV: one vertex per corner
-                    const size_t vcount = it == VK_INDEX_TYPE_NONE_NV ? order.size() : base.size();
-                    vb.resize(vcount * stride);
-                    std::vector<std::array<float, 3>> ref(vcount);
-                    for (size_t v = 0; v < vcount; ++v) {
-                        const auto& p = base[it == VK_INDEX_TYPE_NONE_NV ? order[v] : v];
-                        for (uint32_t c = 0; c < 3; ++c) {
-                            const float x = c < comps ? p[c] : 0.0f;
-                            float d = x;
-                            uint8_t* dst = vb.data() + v * stride + c * csize;
-                            if (c >= comps) {
-                                d = 0.0f;
-                            } else if (snorm) {
-                                const int16_t q = int16_t(std::lround(x * 32767.0f));
-                                std::memcpy(dst, &q, 2);
-                                d = std::max(float(q) / 32767.0f, -1.0f);
-                            } else if (half) {
-                                const uint16_t h = to_half(x);
-                                std::memcpy(dst, &h, 2);
-                            } else {
-                                std::memcpy(dst, &x, 4);
-                            }
-                            ref[v][c] = d;
-                        }
-                    }
-                    eng::NvObjectInfo info;
-                    eng::NvGeometry g;
-                    g.flags = VK_GEOMETRY_OPAQUE_BIT_NV;
-                    g.triangles.vertex_address = w.put(vb.data(), vb.size(), "vb");
-                    g.triangles.vertex_count = uint32_t(vcount);
-                    g.triangles.vertex_format = f;
-                    g.triangles.vertex_stride = stride;
-                    g.triangles.index_type = it;
-                    if (it != VK_INDEX_TYPE_NONE_NV) {
-                        std::vector<uint8_t> ib(order.size() *
-                                                (it == VK_INDEX_TYPE_UINT16 ? 2 : 4));
-                        for (size_t k = 0; k < order.size(); ++k) {
-                            if (it == VK_INDEX_TYPE_UINT16) {
-                                const uint16_t s = uint16_t(order[k]);
-                                std::memcpy(ib.data() + 2 * k, &s, 2);
-                            } else {
-                                std::memcpy(ib.data() + 4 * k, &order[k], 4);
-                            }
-                        }
-                        g.triangles.index_address = w.put(ib.data(), ib.size(), "ib");
-                        g.triangles.index_count = uint32_t(order.size());
-                    }
-                    if (with_transform)
-                        g.triangles.transform_address = w.put(transform, 48, "transform");
-                    info.geometries.push_back(g);
-                    auto obj = w.make_object(info, "blas");
-                    const auto r = w.build(info, obj);
-                    ASSERT_TRUE(r.ops[0].executed) << rules(r);
-                    ASSERT_TRUE(r.findings.empty()) << rules(r);
-                    // Reference: decoded (and transformed, in float as the GPU does) positions.
-                    BlasSpec spec;
-                    GeometrySpec gs;
-                    for (auto p : ref) {
-                        if (with_transform) {
-                            const float x = p[0], y = p[1], z = p[2];
-                            for (int row = 0; row < 3; ++row)
-                                p[row] = transform[4 * row] * x + transform[4 * row + 1] * y +
-                                         transform[4 * row + 2] * z + transform[4 * row + 3];
-                        }
-                        gs.mesh.positions.push_back({p[0], p[1], p[2]});
-                    }
-                    for (size_t k = 0; k + 2 < order.size(); k += 3) {
-                        if (it == VK_INDEX_TYPE_NONE_NV)
-                            gs.mesh.triangles.push_back(
-                                {uint32_t(k), uint32_t(k + 1), uint32_t(k + 2)});
-                        else
-                            gs.mesh.triangles.push_back({order[k], order[k + 1], order[k + 2]});
-                    }
-                    spec.geometries.push_back(gs);
-                    auto ref_info = w.blas_info(spec);
-                    auto ref_obj = w.make_object(ref_info, "ref");
-                    ASSERT_TRUE(w.build(ref_info, ref_obj).ops[0].executed);
-                    auto a = eng::NvScene::open_bottom(w.memory, obj.address, nullptr);
-                    auto b = eng::NvScene::open_bottom(w.memory, ref_obj.address, nullptr);
-                    ASSERT_TRUE(a && b);
-                    size_t hits = 0;
-                    for (const auto& tr : rays) {
-                        const eng::Ray ray{{tr.origin[0], tr.origin[1], tr.origin[2]},
-                                           0.0f,
-                                           {tr.direction[0], tr.direction[1], tr.direction[2]},
-                                           tr.tmax};
-                        const eng::NvHit ha = a->closest(ray, 0, 0xFF),
-                                         hb = b->closest(ray, 0, 0xFF);
-                        ASSERT_EQ(ha.hit, hb.hit) << "format " << f << " index type " << it;
-                        if (!ha.hit) continue;
-                        ++hits;
-                        ASSERT_EQ(ha.t, hb.t) << "format " << f << " index type " << it;
-                        ASSERT_EQ(ha.primitive_index, hb.primitive_index);
-                        ASSERT_EQ(ha.hit_kind, hb.hit_kind);
-                    }
-                    EXPECT_GT(hits, 40u) << "format " << f;
+                    ASSERT_NO_FATAL_FAILURE(check_encoding(grid, rays, f, it, pad, with_transform));
                     ++combos;
                 }
-    }
     EXPECT_EQ(combos, 6 * 3 * 2 * 2);
 }
 
@@ -369,22 +433,24 @@ struct RuleCase {
     bool builds;
 };
 
-TEST(NvBuild, EveryRuleFiresOnItsInput) {
-    auto make = [](NvWorld& w) {
-        BlasSpec spec;
-        spec.geometries.push_back({ts::make_icosphere(1, 1.0f), {}, VK_GEOMETRY_OPAQUE_BIT_NV});
-        eng::NvBuildCommand cmd;
-        cmd.info = w.blas_info(spec, VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_NV);
-        cmd.dst = w.make_object(cmd.info, "dst");
-        const auto need = eng::nv_memory_requirements(cmd.info);
-        cmd.scratch_address = w.scratch(need.build_scratch);
-        cmd.scratch_available = need.build_scratch;
-        return cmd;
-    };
-    auto tri = [](eng::NvBuildCommand& c) -> eng::NvTriangles& {
-        return c.info.geometries[0].triangles;
-    };
-    const std::vector<RuleCase> cases = {
+// A clean bottom-level build of an icosphere that allows updates, with the scratch it needs.
+eng::NvBuildCommand clean_bottom_level_build(NvWorld& w) {
+    BlasSpec spec;
+    spec.geometries.push_back({ts::make_icosphere(1, 1.0f), {}, VK_GEOMETRY_OPAQUE_BIT_NV});
+    eng::NvBuildCommand cmd;
+    cmd.info = w.blas_info(spec, VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_NV);
+    cmd.dst = w.make_object(cmd.info, "dst");
+    const auto need = eng::nv_memory_requirements(cmd.info);
+    cmd.scratch_address = w.scratch(need.build_scratch);
+    cmd.scratch_available = need.build_scratch;
+    return cmd;
+}
+
+eng::NvTriangles& triangles_of(eng::NvBuildCommand& c) { return c.info.geometries[0].triangles; }
+
+// The rules on the command, its objects and its info.
+std::vector<RuleCase> command_rule_cases() {
+    return {
         {eng::kVuidNvUpdateNoSrc, [](auto& c, auto&, auto&) { c.update = true; }, false},
         {eng::kVuidNvUpdateNotAllowed,
          [](auto& c, auto& w, auto&) {
@@ -423,77 +489,94 @@ TEST(NvBuild, EveryRuleFiresOnItsInput) {
              c.dst.created->geometries.push_back(g);
          },
          false},
+    };
+}
+
+// The rules on the geometry's memory and contents.
+std::vector<RuleCase> geometry_rule_cases() {
+    return {
         {eng::kVuidVertexFormat,
-         [&](auto& c, auto&, auto&) { tri(c).vertex_format = VK_FORMAT_R8G8B8A8_UNORM; }, true},
-        {eng::kVuidVertexOffset, [&](auto& c, auto&, auto&) { tri(c).vertex_available = 0; }, true},
-        {eng::kVuidVertexOffsetAlign, [&](auto& c, auto&, auto&) { tri(c).vertex_offset = 2; },
+         [](auto& c, auto&, auto&) { triangles_of(c).vertex_format = VK_FORMAT_R8G8B8A8_UNORM; },
          true},
+        {eng::kVuidVertexOffset,
+         [](auto& c, auto&, auto&) { triangles_of(c).vertex_available = 0; }, true},
+        {eng::kVuidVertexOffsetAlign,
+         [](auto& c, auto&, auto&) { triangles_of(c).vertex_offset = 2; }, true},
         {eng::kVuidIndexType,
-         [&](auto& c, auto&, auto&) { tri(c).index_type = VK_INDEX_TYPE_UINT8_EXT; }, true},
-        {eng::kVuidIndexOffset, [&](auto& c, auto&, auto&) { tri(c).index_available = 0; }, true},
-        {eng::kVuidIndexOffsetAlign, [&](auto& c, auto&, auto&) { tri(c).index_offset = 2; }, true},
+         [](auto& c, auto&, auto&) { triangles_of(c).index_type = VK_INDEX_TYPE_UINT8_EXT; }, true},
+        {eng::kVuidIndexOffset, [](auto& c, auto&, auto&) { triangles_of(c).index_available = 0; },
+         true},
+        {eng::kVuidIndexOffsetAlign,
+         [](auto& c, auto&, auto&) { triangles_of(c).index_offset = 2; }, true},
         {eng::kVuidIndexNoneData,
-         [&](auto& c, auto&, auto&) {
-             tri(c).index_type = VK_INDEX_TYPE_NONE_NV;
-             tri(c).index_count = 0;
+         [](auto& c, auto&, auto&) {
+             triangles_of(c).index_type = VK_INDEX_TYPE_NONE_NV;
+             triangles_of(c).index_count = 0;
          },
          true},
         {eng::kVuidIndexNoneCount,
-         [&](auto& c, auto&, auto&) {
-             tri(c).index_type = VK_INDEX_TYPE_NONE_NV;
-             tri(c).index_address = 0;
+         [](auto& c, auto&, auto&) {
+             triangles_of(c).index_type = VK_INDEX_TYPE_NONE_NV;
+             triangles_of(c).index_address = 0;
          },
          true},
-        {eng::kRuleNvPartialTriangle, [&](auto& c, auto&, auto&) { tri(c).index_count -= 1; },
-         true},
+        {eng::kRuleNvPartialTriangle,
+         [](auto& c, auto&, auto&) { triangles_of(c).index_count -= 1; }, true},
         {eng::kVuidTransformOffset,
-         [&](auto& c, auto& w, auto&) {
+         [](auto& c, auto& w, auto&) {
              const float m[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
-             tri(c).transform_address = w.put(m, 48, "t");
-             tri(c).transform_available = 0;
+             triangles_of(c).transform_address = w.put(m, 48, "t");
+             triangles_of(c).transform_available = 0;
          },
          true},
         {eng::kVuidTransformOffsetAlign,
-         [&](auto& c, auto& w, auto&) {
+         [](auto& c, auto& w, auto&) {
              const float m[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
-             tri(c).transform_address = w.put(m, 48, "t");
-             tri(c).transform_offset = 8;
+             triangles_of(c).transform_address = w.put(m, 48, "t");
+             triangles_of(c).transform_offset = 8;
          },
          true},
-        {eng::kRuleNvMemoryFault, [&](auto& c, auto&, auto&) { tri(c).vertex_address = 0x10; },
-         false},
-        {eng::kRuleNvMemoryFault, [&](auto& c, auto&, auto&) { tri(c).vertex_stride = 1ull << 62; },
-         false},
+        {eng::kRuleNvMemoryFault,
+         [](auto& c, auto&, auto&) { triangles_of(c).vertex_address = 0x10; }, false},
+        {eng::kRuleNvMemoryFault,
+         [](auto& c, auto&, auto&) { triangles_of(c).vertex_stride = 1ull << 62; }, false},
         {eng::kRuleNvObjectTooLarge, [](auto& c, auto&, auto&) { c.dst.size = 200; }, false},
         {eng::kRuleNvScratchOverlap,
          [](auto& c, auto&, auto&) {
              c.scratch_address = c.info.geometries[0].triangles.vertex_address;
          },
          true},
-        {eng::kRuleNvIndexOutOfRange, [&](auto& c, auto&, auto&) { tri(c).vertex_count = 3; },
-         true},
+        {eng::kRuleNvIndexOutOfRange,
+         [](auto& c, auto&, auto&) { triangles_of(c).vertex_count = 3; }, true},
     };
-    for (size_t i = 0; i < cases.size(); ++i) {
-        NvWorld w;
-        eng::NvBuildCommand cmd = make(w);
-        eng::NvBuildOptions options;
-        {
-            // The unchanged command is clean.
-            NvWorld w0;
-            eng::NvBuildCommand c0 = make(w0);
-            const auto r0 = eng::execute_nv_build(c0, w0.memory);
-            ASSERT_TRUE(r0.findings.empty()) << rules(r0);
-        }
-        cases[i].change(cmd, w, options);
-        const auto r = eng::execute_nv_build(cmd, w.memory, options);
-        EXPECT_TRUE(has(r, cases[i].rule))
-            << "case " << i << " expected " << cases[i].rule << ", got:\n"
-            << rules(r);
-        EXPECT_EQ(r.ops[0].executed, cases[i].builds)
-            << "case " << i << " " << cases[i].rule << "\n"
-            << rules(r);
-        for (const auto& f : r.findings) EXPECT_FALSE(f.message.empty());
+}
+
+// The unchanged command is clean; case i's change makes its rule fire.
+void expect_rule_fires(const RuleCase& rule_case, size_t i) {
+    {
+        NvWorld w0;
+        eng::NvBuildCommand c0 = clean_bottom_level_build(w0);
+        const auto r0 = eng::execute_nv_build(c0, w0.memory);
+        ASSERT_TRUE(r0.findings.empty()) << rules(r0);
     }
+    NvWorld w;
+    eng::NvBuildCommand cmd = clean_bottom_level_build(w);
+    eng::NvBuildOptions options;
+    rule_case.change(cmd, w, options);
+    const auto r = eng::execute_nv_build(cmd, w.memory, options);
+    EXPECT_TRUE(has(r, rule_case.rule))
+        << "case " << i << " expected " << rule_case.rule << ", got:\n"
+        << rules(r);
+    EXPECT_EQ(r.ops[0].executed, rule_case.builds) << "case " << i << " " << rule_case.rule << "\n"
+                                                   << rules(r);
+    for (const auto& f : r.findings) EXPECT_FALSE(f.message.empty());
+}
+
+TEST(NvBuild, EveryRuleFiresOnItsInput) {
+    std::vector<RuleCase> cases = command_rule_cases();
+    for (RuleCase& c : geometry_rule_cases()) cases.push_back(std::move(c));
+    for (size_t i = 0; i < cases.size(); ++i)
+        ASSERT_NO_FATAL_FAILURE(expect_rule_fires(cases[i], i));
 }
 
 TEST(NvBuild, TopLevelRulesOnInstanceReferences) {

@@ -317,6 +317,13 @@ TEST(ReplayConsumers, BottomLevelDestroyedWhileItsBuildIsPendingIsAFinding) {
                              "which writes it"),
               std::string::npos)
         << f.message;
+    // Its own place, a call of the host's: the next submission's index and the next command's
+    // --ops number.
+    EXPECT_TRUE(
+        f.format().starts_with("VUID-vkDestroyAccelerationStructureNV-accelerationStructure-"
+                               "03752: vkDestroyAccelerationStructureNV (host, submit 1) "
+                               "[#1]: "))
+        << f.format();
     EXPECT_TRUE(destroyed_while_building("destroy_built.clt", true).findings.empty());
 }
 

@@ -73,6 +73,11 @@ TEST(UnbuiltStructures, RaysOverATopLevelNoCommandBuiltAreOneFinding) {
     const std::string& m = found[0].message;
     // The frame is not known yet: its present comes after the submission.
     EXPECT_NE(m.find("vkCmdTraceRaysKHR (queue 0, submit 0, cb 0, cmd "), std::string::npos) << m;
+    // Its own place, in the same words with the command buffer's handle and the --ops number.
+    EXPECT_TRUE(found[0].format().starts_with(
+        "CLASTRACE-replay-structure-not-built: vkCmdTraceRaysKHR (queue 0, submit 0, cb 0 "
+        "(0xc000), cmd 0) [#0]: "))
+        << found[0].format();
     EXPECT_NE(m.find("acceleration structure " + hex_of(tlas)), std::string::npos) << m;
     EXPECT_NE(m.find("built before the captured range by a capture without pre-range state"),
               std::string::npos)

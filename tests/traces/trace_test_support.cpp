@@ -86,14 +86,11 @@ fbs::TraceHeaderT test_header() {
 }
 
 
-// Format 1.4: KHR builds (a bottom level from indexed triangles, an indirect top level), the
-// copies, property queries and their answers, a size query, a ray-query dispatch, rays traced
-// indirectly, and the exact writes of a dispatch.
-static void append_acceleration_structure_use_records(std::vector<fbs::RecordT>& out) {
+// The KHR build's bottom level: R32G32B32_SFLOAT vertices, UINT32 indices.
+static std::unique_ptr<fbs::AccelerationStructureBuildInfoKHRT> khr_bottom_level_info() {
     auto triangles = std::make_unique<fbs::GeometryKHRT>();
     triangles->geometry_type = 0;  // VK_GEOMETRY_TYPE_TRIANGLES_KHR
     triangles->flags = 1;          // OPAQUE
-    // R32G32B32_SFLOAT vertices, UINT32 indices.
     triangles->triangles =
         std::make_unique<fbs::GeometryTrianglesKHR>(106, 0x7000, 12, 35, 1, 0x7800, 0);
     auto bottom = std::make_unique<fbs::AccelerationStructureBuildInfoKHRT>();
@@ -104,6 +101,11 @@ static void append_acceleration_structure_use_records(std::vector<fbs::RecordT>&
     bottom->geometries.push_back(std::move(triangles));
     bottom->ranges = {fbs::BuildRangeInfoKHR(12, 0, 0, 0)};
     bottom->unrecorded_next_stypes = {1000150013};
+    return bottom;
+}
+
+// The KHR build's top level: an update of 0xa52, its ranges read indirectly.
+static std::unique_ptr<fbs::AccelerationStructureBuildInfoKHRT> khr_indirect_top_level_info() {
     auto instances = std::make_unique<fbs::GeometryKHRT>();
     instances->geometry_type = 2;  // INSTANCES
     instances->instances = std::make_unique<fbs::GeometryInstancesKHR>(false, 0xb000);
@@ -118,16 +120,22 @@ static void append_acceleration_structure_use_records(std::vector<fbs::RecordT>&
     top->indirect_address = 0xc000;
     top->indirect_stride = 16;
     top->max_primitive_counts = {8};
-    {
-        fbs::CmdBuildAccelerationStructuresKHRT r;
-        r.command_buffer = 0xcb2;
-        r.indirect = true;
-        r.infos.push_back(std::move(bottom));
-        r.infos.push_back(std::move(top));
-        r.inputs = {fbs::MemorySnapshot(0xb0, 0, 0xb000, 192, 0x1234)};
-        r.outputs = {fbs::MemorySnapshot(0xa0, 256, 0xa100, 1024, 0x5678)};
-        out.push_back(record(r));
-    }
+    return top;
+}
+
+static void append_khr_build(std::vector<fbs::RecordT>& out) {
+    fbs::CmdBuildAccelerationStructuresKHRT r;
+    r.command_buffer = 0xcb2;
+    r.indirect = true;
+    r.infos.push_back(khr_bottom_level_info());
+    r.infos.push_back(khr_indirect_top_level_info());
+    r.inputs = {fbs::MemorySnapshot(0xb0, 0, 0xb000, 192, 0x1234)};
+    r.outputs = {fbs::MemorySnapshot(0xa0, 256, 0xa100, 1024, 0x5678)};
+    out.push_back(record(r));
+}
+
+// A compacting copy, then a serialization of the copy.
+static void append_structure_copies(std::vector<fbs::RecordT>& out) {
     {
         fbs::CmdCopyAccelerationStructureT r;
         r.command_buffer = 0xcb2;
@@ -145,6 +153,10 @@ static void append_acceleration_structure_use_records(std::vector<fbs::RecordT>&
         r.mode = 2;  // SERIALIZE
         out.push_back(record(r));
     }
+}
+
+// A compacted-size query and its answers, then a build-size query.
+static void append_property_queries(std::vector<fbs::RecordT>& out) {
     {
         fbs::CmdWriteAccelerationStructuresPropertiesT r;
         r.command_buffer = 0xcb2;
@@ -173,6 +185,10 @@ static void append_acceleration_structure_use_records(std::vector<fbs::RecordT>&
         r.build_scratch_size = 2048;
         out.push_back(record(r));
     }
+}
+
+// A ray-query dispatch, rays traced indirectly, and the dispatch's exact writes.
+static void append_shader_uses(std::vector<fbs::RecordT>& out) {
     {
         fbs::CmdDispatchT r;
         r.command_buffer = 0xcb3;
@@ -206,6 +222,16 @@ static void append_acceleration_structure_use_records(std::vector<fbs::RecordT>&
         r.compared_bytes = 1 << 20;
         out.push_back(record(r));
     }
+}
+
+// Format 1.4: KHR builds (a bottom level from indexed triangles, an indirect top level), the
+// copies, property queries and their answers, a size query, a ray-query dispatch, rays traced
+// indirectly, and the exact writes of a dispatch.
+static void append_acceleration_structure_use_records(std::vector<fbs::RecordT>& out) {
+    append_khr_build(out);
+    append_structure_copies(out);
+    append_property_queries(out);
+    append_shader_uses(out);
 }
 
 namespace {
@@ -385,13 +411,30 @@ void append_command_buffer_and_sync_records(std::vector<fbs::RecordT>& out) {
     }
 }
 
-// Transfers, a dispatch and the three captured build commands.
-void append_transfer_and_build_records(std::vector<fbs::RecordT>& out, EveryKindBytes& bytes) {
-    auto snap = [&](uint64_t address, const std::vector<uint8_t>& v) {
-        return bytes.snap(address, v);
-    };
-    const std::vector<uint8_t>& a = bytes.a;
-    const std::vector<uint8_t>& b = bytes.b;
+// The NV build's geometries: triangles (with an unused AABB part) and AABBs.
+std::unique_ptr<fbs::AccelerationStructureInfoNVT> nv_bottom_level_info() {
+    auto info = std::make_unique<fbs::AccelerationStructureInfoNVT>();
+    info->type = 1;
+    info->flags = 0x4;
+    info->instance_count = 0;
+    auto tri = std::make_unique<fbs::GeometryNVT>();
+    tri->geometry_type = 0;
+    tri->flags = 1;
+    tri->triangles = std::make_unique<fbs::GeometryTrianglesNV>(0xb1, 16, 100, 106, 12, 0xb2, 32,
+                                                                300, 1, 0xb3, 48);
+    tri->aabbs = std::make_unique<fbs::GeometryAabbNV>(0, 0, 24, 0);
+    auto box = std::make_unique<fbs::GeometryNVT>();
+    box->geometry_type = 1;
+    box->flags = 2;
+    box->triangles = std::make_unique<fbs::GeometryTrianglesNV>();
+    box->aabbs = std::make_unique<fbs::GeometryAabbNV>(0xb4, 10, 32, 64);
+    info->geometries.push_back(std::move(tri));
+    info->geometries.push_back(std::move(box));
+    return info;
+}
+
+// A copy, a fill and an update of buffers.
+void append_transfers(std::vector<fbs::RecordT>& out, EveryKindBytes& bytes) {
     {
         fbs::CmdCopyBufferT r;
         r.command_buffer = 0xcb;
@@ -399,8 +442,8 @@ void append_transfer_and_build_records(std::vector<fbs::RecordT>& out, EveryKind
         r.src_buffer = 0xb1;
         r.dst_buffer = 0xb2;
         r.regions = {fbs::BufferCopy(0, 16, 300), fbs::BufferCopy(400, 800, 77)};
-        r.inputs = {snap(0x8000, a), snap(0x8190, b)};
-        r.outputs = {snap(0x9010, a)};  // same bytes as an input: stored once
+        r.inputs = {bytes.snap(0x8000, bytes.a), bytes.snap(0x8190, bytes.b)};
+        r.outputs = {bytes.snap(0x9010, bytes.a)};  // same bytes as an input: stored once
         out.push_back(record(std::move(r)));
     }
     {
@@ -420,6 +463,10 @@ void append_transfer_and_build_records(std::vector<fbs::RecordT>& out, EveryKind
         r.data = {1, 2, 3, 4, 5, 6, 7, 8};
         out.push_back(record(r));
     }
+}
+
+// An indirect dispatch with a storage buffer and push constants.
+void append_dispatch(std::vector<fbs::RecordT>& out, EveryKindBytes& bytes) {
     {
         fbs::CmdDispatchT r;
         r.command_buffer = 0xcb;
@@ -434,10 +481,14 @@ void append_transfer_and_build_records(std::vector<fbs::RecordT>& out, EveryKind
         r.base_group_z = 3;
         r.storage_buffers = {fbs::BoundBufferRange(0, 1, 2, 7, 0xb1, 0, 300, 0x8000)};
         r.push_constants = {9, 9, 9, 9};
-        r.inputs = {snap(0x8000, a)};
-        r.outputs = {snap(0x8190, b)};
+        r.inputs = {bytes.snap(0x8000, bytes.a)};
+        r.outputs = {bytes.snap(0x8190, bytes.b)};
         out.push_back(record(std::move(r)));
     }
+}
+
+// The three captured build commands (cluster, NV, NV deserialization) and a cluster size query.
+void append_builds(std::vector<fbs::RecordT>& out, EveryKindBytes& bytes) {
     {
         fbs::CmdBuildClusterAccelerationStructureIndirectT r;
         r.command_buffer = 0xcb;
@@ -450,31 +501,15 @@ void append_transfer_and_build_records(std::vector<fbs::RecordT>& out, EveryKind
         r.src_infos_count = 0xf000;
         r.address_resolution_flags = 0x3f;
         r.unrecorded_next_stypes = {7};
-        r.inputs = {snap(0xe000, a), snap(0xf000, b)};
-        r.outputs = {snap(0xc000, b)};
+        r.inputs = {bytes.snap(0xe000, bytes.a), bytes.snap(0xf000, bytes.b)};
+        r.outputs = {bytes.snap(0xc000, bytes.b)};
         r.driver_bvh = {fbs::DeviceAddressRange(0xc100, 0x2a00)};  // a traceable BLAS's BVH
         out.push_back(record(std::move(r)));
     }
     {
         fbs::CmdBuildAccelerationStructureNVT r;
         r.command_buffer = 0xcb;
-        r.info = std::make_unique<fbs::AccelerationStructureInfoNVT>();
-        r.info->type = 1;
-        r.info->flags = 0x4;
-        r.info->instance_count = 0;
-        auto tri = std::make_unique<fbs::GeometryNVT>();
-        tri->geometry_type = 0;
-        tri->flags = 1;
-        tri->triangles = std::make_unique<fbs::GeometryTrianglesNV>(0xb1, 16, 100, 106, 12, 0xb2,
-                                                                    32, 300, 1, 0xb3, 48);
-        tri->aabbs = std::make_unique<fbs::GeometryAabbNV>(0, 0, 24, 0);
-        auto box = std::make_unique<fbs::GeometryNVT>();
-        box->geometry_type = 1;
-        box->flags = 2;
-        box->triangles = std::make_unique<fbs::GeometryTrianglesNV>();
-        box->aabbs = std::make_unique<fbs::GeometryAabbNV>(0xb4, 10, 32, 64);
-        r.info->geometries.push_back(std::move(tri));
-        r.info->geometries.push_back(std::move(box));
+        r.info = nv_bottom_level_info();
         r.instance_data = 0;
         r.instance_offset = 0;
         r.update = true;
@@ -482,7 +517,7 @@ void append_transfer_and_build_records(std::vector<fbs::RecordT>& out, EveryKind
         r.src = 0xa5;
         r.scratch = 0xb5;
         r.scratch_offset = 256;
-        r.inputs = {snap(0x8000, a)};
+        r.inputs = {bytes.snap(0x8000, bytes.a)};
         out.push_back(record(std::move(r)));
     }
     {
@@ -491,7 +526,7 @@ void append_transfer_and_build_records(std::vector<fbs::RecordT>& out, EveryKind
         r.src_address = 0x10000;
         r.dst = 0xa6;
         r.mode = 3;
-        r.inputs = {snap(0x10000, b)};
+        r.inputs = {bytes.snap(0x10000, bytes.b)};
         out.push_back(record(std::move(r)));
     }
     {
@@ -502,6 +537,13 @@ void append_transfer_and_build_records(std::vector<fbs::RecordT>& out, EveryKind
         r.build_scratch_size = 1 << 16;
         out.push_back(record(std::move(r)));
     }
+}
+
+// Transfers, a dispatch and the three captured build commands.
+void append_transfer_and_build_records(std::vector<fbs::RecordT>& out, EveryKindBytes& bytes) {
+    append_transfers(out, bytes);
+    append_dispatch(out, bytes);
+    append_builds(out, bytes);
 }
 
 // Submissions and the host's waits.

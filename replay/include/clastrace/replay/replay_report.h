@@ -28,6 +28,9 @@ struct ReplayLocation {
     uint64_t secondary_handle = 0;
     uint32_t secondary = 0;
     uint32_t secondary_command = 0;
+    // The queue it ran on (queues numbered in the order the trace first submits to them), or
+    // kHostQueue for a call of the host's (vkFreeMemory, vkAcquireNextImageKHR, ...).
+    QueueId queue = kHostQueue;
 };
 
 enum class FindingSource : uint8_t {
@@ -54,7 +57,7 @@ struct ReplayFinding {
     ReplayLocation where;
     int64_t op_index = -1;  // element of srcInfosArray, -1 for the command as a whole
     uint64_t address = 0;
-    // "VUID-... : submission 0, command buffer 0 (0x4001), command 3 vkCmd...: message"
+    // "VUID-...: vkCmd... (queue 0, submit 0, cb 0 (0x4001), cmd 3) [#8], op 2: message"
     std::string format() const;
 };
 
@@ -126,7 +129,7 @@ struct ReplayNote {
     ReplayLocation where;
     int64_t op_index = -1;
     uint64_t address = 0;
-    // "CLASTRACE-... : submission 0, command buffer 0 (0x4001), command 3 vkCmd...: message"
+    // "CLASTRACE-...: vkCmd... (queue 0, submit 0, cb 0 (0x4001), cmd 3) [#8]: message"
     std::string format() const;
 };
 

@@ -55,9 +55,9 @@ public:
 
     // Accesses and buffer barriers go to the memory `resolver` maps their addresses to (null:
     // every address is its own memory). A part of an access with no memory bound is recorded
-    // nowhere and given to `on_unbound` with the access and that part's addresses.
+    // nowhere and given to `on_unbound` with the access, its queue and that part's addresses.
     using UnboundHandler =
-        std::function<void(const CommandRef&, const Access&, AddressRange unbound)>;
+        std::function<void(const CommandRef&, QueueId, const Access&, AddressRange unbound)>;
     void set_address_resolver(AddressResolver* resolver, UnboundHandler on_unbound);
 
     // --- device work, one submission batch at a time -------------------------------
