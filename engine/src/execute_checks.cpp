@@ -128,18 +128,26 @@ void check_overlaps(CommandState& s, std::vector<Written> v, const char* rule, c
     }
 }
 
-// 12303 (implicit data) and 12302 (explicit destinations) against the scratch the ops used.
-void check_scratch_overlaps(CommandState& s) {
+// The scratch bytes the command may write, [first, second); empty when it uses none. A
+// driver may touch every byte it answered: with answered sizes the range spans them.
+std::pair<uint64_t, uint64_t> scratch_span(const CommandState& s) {
     const ResolvedCommand& cmd = s.cmd;
-    if (cmd.scratch == 0 || s.record.scratch_bytes_used == 0) return;
-    // A driver may touch every byte it answered: with answered sizes the ranges span them.
+    if (cmd.scratch == 0 || s.record.scratch_bytes_used == 0) return {0, 0};
     const auto& answered = s.options.answered_sizes;
     const uint64_t scratch_size =
         answered ? std::max(answered->build_scratch_size, s.record.scratch_bytes_used)
                  : s.record.scratch_bytes_used;
+    return {cmd.scratch, sat_add(cmd.scratch, scratch_size)};
+}
+
+// 12303 (implicit data) and 12302 (explicit destinations) against the scratch the ops used.
+void check_scratch_overlaps(CommandState& s) {
+    const ResolvedCommand& cmd = s.cmd;
+    const auto [s0, s1] = scratch_span(s);
+    if (s0 == s1) return;
+    const auto& answered = s.options.answered_sizes;
     const uint64_t implicit_size =
         answered ? std::max(answered->acceleration_structure_size, s.cursor) : s.cursor;
-    const uint64_t s0 = cmd.scratch, s1 = sat_add(cmd.scratch, scratch_size);
     const uint64_t i0 = cmd.implicit_data, i1 = sat_add(cmd.implicit_data, implicit_size);
     if (s.implicit && s.cursor > 0 && i0 < s1 && s0 < i1)
         s.top.finding("VUID-vkCmdBuildClusterAccelerationStructureIndirectNV-dstImplicitData-12303",
@@ -320,11 +328,24 @@ void check_whole_command(CommandState& s) {
 // noMoveOverlap may overlap their own source: the spec allows it.)
 void check_intra_command_hazards(CommandState& s) {
     const WriteIndex index(s.op_accesses);
+    const auto [s0, s1] = scratch_span(s);
     uint64_t hazards = 0;
     // The command's reads (srcInfosCount, indirection cells) first, then the ops'.
     for (const std::vector<MemoryAccess>* accesses : {&s.top.accesses, &s.op_accesses}) {
         for (const MemoryAccess& read : *accesses) {
             if (read.is_write) continue;
+            if (read.begin < s1 && s0 < read.end) {  // scratch sub-allocated over an input
+                if (++hazards <= s.options.max_findings_per_rule)
+                    s.top.finding(kRuleIntraCommandHazard,
+                                  "op " + std::to_string(read.op_index) + " reads " + read.field +
+                                      " [" + hex(read.begin) + ", " + hex(read.end) +
+                                      ") which the command writes as scratchData [" + hex(s0) +
+                                      ", " + hex(s1) + ")",
+                                  std::max(read.begin, s0));
+                else
+                    s.top.finding(kRuleIntraCommandHazard, "");
+                continue;
+            }
             const MemoryAccess* w = index.overlapping(read.begin, read.end);
             if (!w) continue;
             if (s.is_move && w->op_index == read.op_index)

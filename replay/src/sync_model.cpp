@@ -59,6 +59,8 @@ void SyncModel::begin_submission(QueueId queue, uint32_t submission_index,
         im.semaphore = w.semaphore;
         im.submission = submission_index;
         im.wait_stages = w.dst_stages;
+        im.signal_stages = narrow.stages;
+        im.signal_submission = narrow.submission;
         LogEntry e;
         e.kind = EntryKind::kImport;
         e.import_index = q.imports_base + uint32_t(q.imports.size());
@@ -279,7 +281,7 @@ void SyncModel::end_submission(std::span<const SemaphoreSignal> signals, uint64_
         if (scope != kDeviceStages) {
             // A mark in the log: catching a record up over it tells whether this signal's
             // first scope (its stages, or a chain into them) took the record in.
-            narrow = {++s.next_signal, s.current_queue};
+            narrow = {++s.next_signal, s.current_queue, sig.src_stages, s.current_submission};
             s.any_narrow = true;
             Queue& q = s.queues[s.current_queue];
             LogEntry e;

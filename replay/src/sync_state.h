@@ -257,6 +257,8 @@ struct Import {
     uint64_t semaphore = 0;
     uint32_t submission = 0;
     StageMask wait_stages = 0;
+    StageMask signal_stages = 0;  // a narrow signal's stage mask as given, and its submission
+    uint32_t signal_submission = 0;
 };
 
 struct Queue {
@@ -281,6 +283,9 @@ struct Queue {
 struct NarrowSignal {
     uint32_t signal = 0;  // 0: the signal's scope is every stage
     uint16_t queue = 0;
+    // Only for the advice (sync_wait_advice.cpp): the stage mask as given, the submission.
+    StageMask stages = 0;
+    uint32_t submission = 0;
 };
 
 struct SemaphoreState {

@@ -49,6 +49,22 @@ std::string what_barrier_misses(const LogEntry& e, const LoggedBarrier& b, const
     return {};
 }
 
+// Whether the narrow signal `im` waits on took `prior` in (its stages, or a chain into them):
+// what catching `prior` up over the signal's mark noted; a record of another queue than the
+// signal's is taken as in (the hazard then comes from elsewhere).
+bool signal_took_in(const Import& im, const Record& prior) {
+    if (im.signal_queue != prior.queue) return true;
+    for (const SignalMembership& m : prior.sync.signals)
+        if (m.signal == im.signal) return true;
+    return false;
+}
+
+// How far a barrier's buffer range lies from `bytes` (0: global, touching or overlapping).
+uint64_t distance_to(const LoggedBarrier& b, AddressRange bytes) {
+    if (b.global || (b.range.begin <= bytes.end && bytes.begin <= b.range.end)) return 0;
+    return b.range.end < bytes.begin ? bytes.begin - b.range.end : b.range.begin - bytes.end;
+}
+
 const char* barrier_kind_text(EntryKind kind) {
     switch (kind) {
     case EntryKind::kEventSet: return "The event set";
@@ -73,10 +89,17 @@ std::string SyncModel::State::wait_advice(const Record& prior, const Record& lat
                ": wait on the fence of that submission (or of a later one on its queue).";
     }
     // A semaphore wait whose signal came after the prior access (so it would order it) but
-    // whose stage mask leaves out the later access's stage.
+    // whose stage mask leaves out the later access's stage; or whose signal's stage mask
+    // left the prior access out (its first synchronization scope).
     const Queue& q = queues[later.queue];
     for (const Import& im : q.imports) {
-        if (im.signal || covered(im.own, prior.queue) <= prior.tag) continue;
+        if (covered(im.own, prior.queue) <= prior.tag) continue;
+        if (im.signal && !signal_took_in(im, prior))
+            return "The signal of semaphore " + common::hex(im.semaphore) + " by " +
+                   submission_text(im.signal_submission) + ", which " +
+                   submission_text(im.submission) + " waits on, is at " +
+                   stage_names(im.signal_stages) + " only: add " + stage_names(prior.stage) +
+                   " to the signal's stage mask (VkSemaphoreSubmitInfo::stageMask).";
         if (im.dst_scope & later.stage) continue;
         return "The wait of " + submission_text(im.submission) + " on semaphore " +
                common::hex(im.semaphore) + " follows " +
@@ -111,14 +134,20 @@ std::string SyncModel::State::barrier_advice(const Record& prior, const Record& 
         const LogEntry& e = q.log[b.log_pos - q.log_base];
         if (e.first < q.pool_base) continue;
         // One barrier of the command that misses nothing: the hazard came from elsewhere. (A
-        // reset between an event's set and its wait is left to the fix's text.)
+        // reset between an event's set and its wait is left to the fix's text.) Of several,
+        // the one whose range lies nearest the bytes says why: it was meant for them.
         std::string why;
+        uint64_t why_distance = UINT64_MAX;
         bool all_miss = e.count > 0;
         for (uint32_t i = 0; i < e.count && all_miss; ++i) {
-            std::string reason = what_barrier_misses(e, q.pool[e.first + i - q.pool_base], prior,
-                                                     later, report.overlap);
+            const LoggedBarrier& lb = q.pool[e.first + i - q.pool_base];
+            std::string reason = what_barrier_misses(e, lb, prior, later, report.overlap);
             all_miss = !reason.empty();
-            if (why.empty()) why = std::move(reason);
+            const uint64_t distance = distance_to(lb, report.overlap);
+            if (distance < why_distance) {
+                why = std::move(reason);
+                why_distance = distance;
+            }
         }
         if (!all_miss) continue;
         nearest = &b;

@@ -420,5 +420,93 @@ TEST_F(BugPrograms, CountOverwrittenBehindExecutionBarrierIsClean) {
     expect_clean(r);
 }
 
+// Session 17: a fill ordered from COPY, an indirect count ordered for DRAW_INDIRECT, a buffer
+// barrier over a strided array sized as if packed.
+TEST_F(BugPrograms, FilledCountBehindCopyStageBarrierIsReadAfterWrite) {
+    CAPTURE_AND_REPLAY(r, "fill_count_copy_stage");
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    ASSERT_EQ(r.hazards().size(), 1u) << r.describe();
+    const json& h = r.hazards().at(0);
+    EXPECT_EQ(h.at("class"), "READ-AFTER-WRITE");
+    expect_side(h.at("prior"), "vkCmdFillBuffer", 0, 0, "dstOffset", true);
+    EXPECT_EQ(h.at("prior").at("stage"), "CLEAR");
+    expect_side(h.at("later"), kClusterBuild, 0, 2, "srcInfosCount", false);
+    expect_equal(range_of(h.at("overlap")), r.range("count"));
+    EXPECT_EQ(h.at("fix").at("srcStageMask"), "VK_PIPELINE_STAGE_2_CLEAR_BIT");
+    EXPECT_NE(h.at("fix").at("advice").get<std::string>().find(
+                  "vkCmdPipelineBarrier2 (queue 0, submit 0, cb 0, cmd 1), misses: its "
+                  "srcStageMask leaves out CLEAR"),
+              std::string::npos)
+        << h.at("fix").at("advice");
+}
+
+TEST_F(BugPrograms, FilledCountBehindClearStageBarrierIsClean) {
+    CAPTURE_AND_REPLAY(r, "fill_count_copy_stage", "--fixed");
+    expect_clean(r);
+}
+
+TEST_F(BugPrograms, FilledCountBehindAllTransferBarrierIsClean) {
+    CAPTURE_AND_REPLAY(r, "fill_count_copy_stage", "--all-transfer");
+    expect_clean(r);
+}
+
+// Synchronization 1's TRANSFER stage holds the clear commands.
+TEST_F(BugPrograms, FilledCountBehindTransferStageBarrierV1IsClean) {
+    CAPTURE_AND_REPLAY(r, "fill_count_copy_stage", "--v1");
+    expect_clean(r);
+}
+
+TEST_F(BugPrograms, DispatchedCountBehindDrawIndirectBarrierIsReadAfterWrite) {
+    CAPTURE_AND_REPLAY(r, "count_dispatch_draw_indirect");
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    ASSERT_EQ(r.hazards().size(), 1u) << r.describe();
+    const json& h = r.hazards().at(0);
+    EXPECT_EQ(h.at("class"), "READ-AFTER-WRITE");
+    expect_side(h.at("prior"), "vkCmdDispatch", 0, 0, "set 0 binding 1", true);
+    expect_side(h.at("later"), kClusterBuild, 0, 2, "srcInfosCount", false);
+    expect_equal(range_of(h.at("overlap")), r.range("count"));
+    EXPECT_EQ(h.at("fix").at("dstStageMask"),
+              "VK_PIPELINE_STAGE_2_ACCELERATION_STRUCTURE_BUILD_BIT_KHR");
+    EXPECT_NE(h.at("fix").at("advice").get<std::string>().find(
+                  "its dstStageMask leaves out ACCELERATION_STRUCTURE_BUILD"),
+              std::string::npos)
+        << h.at("fix").at("advice");
+}
+
+TEST_F(BugPrograms, DispatchedCountBehindBuildStageBarrierIsClean) {
+    CAPTURE_AND_REPLAY(r, "count_dispatch_draw_indirect", "--fixed");
+    expect_clean(r);
+}
+
+// The advice names the records' barrier (the one nearest the bytes), not the objects' one of
+// the same vkCmdPipelineBarrier2.
+TEST_F(BugPrograms, StridedAddressesBehindPackedSizeBarrierAreReadAfterWrite) {
+    CAPTURE_AND_REPLAY(r, "strided_addresses_barrier_short");
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    ASSERT_EQ(r.hazards().size(), 1u) << r.describe();
+    const json& h = r.hazards().at(0);
+    EXPECT_EQ(h.at("class"), "READ-AFTER-WRITE");
+    expect_side(h.at("prior"), kClusterBuild, 0, 0, "dstAddressesArray", true);
+    expect_side(h.at("later"), kClusterBuild, 0, 2, "srcInfosArray[0].clusterReferences", false);
+    const Range uncovered = r.range("uncovered");
+    const Range overlap = range_of(h.at("overlap"));
+    EXPECT_EQ(overlap.begin, uncovered.begin);     // record 2's address
+    EXPECT_EQ(overlap.end, uncovered.begin + 24);  // to record 3's address's end
+    const Range records = r.range("records");
+    char covered[64];
+    std::snprintf(covered, sizeof covered, "[0x%llx, 0x%llx)",
+                  static_cast<unsigned long long>(records.begin),
+                  static_cast<unsigned long long>(uncovered.begin));
+    EXPECT_NE(h.at("fix").at("advice").get<std::string>().find(
+                  std::string("misses: its buffer range ") + covered + " leaves these bytes out"),
+              std::string::npos)
+        << h.at("fix").at("advice");
+}
+
+TEST_F(BugPrograms, StridedAddressesBehindWholeSizeBarrierAreClean) {
+    CAPTURE_AND_REPLAY(r, "strided_addresses_barrier_short", "--fixed");
+    expect_clean(r);
+}
+
 }  // namespace
 }  // namespace clastrace::bug_programs

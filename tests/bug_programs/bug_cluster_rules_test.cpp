@@ -222,5 +222,35 @@ TEST_F(BugPrograms, InfosArrayHoldingTheCountIsClean) {
     expect_clean(r);
 }
 
+// Session 17: the scratch sub-allocated over the src infos the same command reads. Every
+// overlapping info is found (from op 4 on), at the first byte both share.
+TEST_F(BugPrograms, ScratchSubAllocatedOverItsOwnInfosIsFoundPerOp) {
+    CAPTURE_AND_REPLAY(r, "scratch_overlaps_infos");
+    EXPECT_TRUE(r.hazards().empty()) << r.describe();
+    ASSERT_FALSE(r.findings().empty()) << r.describe();
+    const Range infos = r.range("infos"), scratch = r.range("scratch");
+    for (const json& f : r.findings()) {
+        EXPECT_EQ(f.at("rule"), "CLASTRACE-op-reads-what-another-op-writes");
+        EXPECT_EQ(f.at("where").at("name"), kClusterBuild);
+        EXPECT_NE(f.at("message").get<std::string>().find(
+                      "which the command writes as scratchData"),
+                  std::string::npos)
+            << f.at("message");
+        const uint64_t at = parse_address(f.at("address"));
+        EXPECT_GE(at, scratch.begin);
+        EXPECT_LT(at, std::min(infos.end, scratch.end));
+    }
+    // A finding of the whole command (no op of its own): the message names the op.
+    EXPECT_NE(r.findings().at(0).at("message").get<std::string>().find(
+                  "op 4 reads srcInfosArray[4]"),
+              std::string::npos)
+        << r.describe();
+}
+
+TEST_F(BugPrograms, ScratchAfterAllItsInfosIsClean) {
+    CAPTURE_AND_REPLAY(r, "scratch_overlaps_infos", "--fixed");
+    expect_clean(r);
+}
+
 }  // namespace
 }  // namespace clastrace::bug_programs

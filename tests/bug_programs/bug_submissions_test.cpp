@@ -128,5 +128,46 @@ TEST_F(BugPrograms, BottomLevelSubmittedAfterItsClustersIsClean) {
     expect_clean(r);
 }
 
+// Session 17: vkQueueSubmit2's per-semaphore stage masks (a narrow signal), and a host signal.
+TEST_F(BugPrograms, TimelineWaitAtComputeStageLeavesBottomLevelUnordered) {
+    CAPTURE_AND_REPLAY(r, "timeline_submit2_wrong_stage");
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    expect_bottom_level_reads_unordered(r, 0, 1, 0, "pipeline_barrier");
+    for (const json& h : r.hazards())
+        EXPECT_NE(h.at("fix").at("advice").get<std::string>().find(
+                      "follows submission 0's access, but at COMPUTE_SHADER only: add "
+                      "ACCELERATION_STRUCTURE_BUILD to the wait's stage mask"),
+                  std::string::npos)
+            << h.at("fix").at("advice");
+}
+
+TEST_F(BugPrograms, TimelineSignalAtCopyStageLeavesBottomLevelUnordered) {
+    CAPTURE_AND_REPLAY(r, "timeline_submit2_wrong_stage", "--signal-copy");
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    expect_bottom_level_reads_unordered(r, 0, 1, 0, "pipeline_barrier");
+    for (const json& h : r.hazards())
+        EXPECT_NE(h.at("fix").at("advice").get<std::string>().find(
+                      "by submission 0, which submission 1 waits on, is at COPY only: add "
+                      "ACCELERATION_STRUCTURE_BUILD to the signal's stage mask"),
+                  std::string::npos)
+            << h.at("fix").at("advice");
+}
+
+TEST_F(BugPrograms, TimelineAtBuildStageBothSidesIsClean) {
+    CAPTURE_AND_REPLAY(r, "timeline_submit2_wrong_stage", "--fixed");
+    expect_clean(r);
+}
+
+TEST_F(BugPrograms, HostWriteAfterItsHostSignalIsHostWriteRace) {
+    CAPTURE_AND_REPLAY(r, "host_signal_before_write");
+    EXPECT_TRUE(r.findings().empty()) << r.describe();
+    ASSERT_EQ(r.hazards().size(), 1u) << r.describe();
+    const json& h = r.hazards().at(0);
+    EXPECT_EQ(h.at("class"), "WRITE-AFTER-READ");
+    expect_side(h.at("prior"), kClusterBuild, 0, 0, "srcInfosArray", false);
+    EXPECT_EQ(h.at("later").at("queue"), "host");
+    expect_equal(range_of(h.at("overlap")), r.range("infos"));
+}
+
 }  // namespace
 }  // namespace clastrace::bug_programs

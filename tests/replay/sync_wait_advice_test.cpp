@@ -20,13 +20,15 @@ constexpr uint64_t kSemaphore = 0x5E;
 
 // Submission 0 builds the CLAS; submission 1, waiting on the semaphore at `wait_stages`,
 // builds a bottom level reading them.
-std::vector<HazardReport> bottom_level_after_wait(StageMask wait_stages) {
+// `signal_stages`: the signal's stage mask (VkSemaphoreSubmitInfo::stageMask).
+std::vector<HazardReport> bottom_level_after_wait(
+    StageMask wait_stages, StageMask signal_stages = VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT) {
     Stream s;
     s.submit(0);
     Stream::Build clas;
     clas.dst_implicit = kClas;
     s.build(clas);
-    s.end({{kSemaphore, 0, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT}});
+    s.end({{kSemaphore, 0, signal_stages}});
     s.submit(0, {{kSemaphore, 0, wait_stages}});
     Stream::Build blas;
     blas.inputs = {{kClas, "srcInfosArray[0].clusterReferences[*]"}};
@@ -44,6 +46,26 @@ TEST(SyncWaitAdvice, SemaphoreWaitMissingTheLaterStageIsNamed) {
     EXPECT_NE(h[0].advice.find("at COMPUTE_SHADER only: add ACCELERATION_STRUCTURE_BUILD"),
               std::string::npos)
         << h[0].advice;
+}
+
+// A signal whose stage mask names the build (a narrow signal) is named the same way when the
+// wait misses; a signal whose stage mask leaves the prior build out is named itself.
+TEST(SyncWaitAdvice, NarrowSignalsWaitMissingTheLaterStageIsNamed) {
+    const auto h = bottom_level_after_wait(kCompute, kAsBuild);
+    ASSERT_EQ(h.size(), 1u);
+    EXPECT_NE(h[0].advice.find("The wait of submission 1 on semaphore 0x5e follows submission "
+                               "0's access, but at COMPUTE_SHADER only"),
+              std::string::npos)
+        << h[0].advice;
+}
+
+TEST(SyncWaitAdvice, SignalLeavingThePriorStageOutIsNamed) {
+    const auto h = bottom_level_after_wait(kAsBuild, kCopy);
+    ASSERT_EQ(h.size(), 1u);
+    EXPECT_EQ(h[0].advice,
+              "The signal of semaphore 0x5e by submission 0, which submission 1 waits on, is at "
+              "COPY only: add ACCELERATION_STRUCTURE_BUILD to the signal's stage mask "
+              "(VkSemaphoreSubmitInfo::stageMask).");
 }
 
 TEST(SyncWaitAdvice, SemaphoreWaitAtTheLaterStageOrdersIt) {
