@@ -258,21 +258,22 @@ bool ReplayMemory::lay_in(uint64_t address, std::span<const uint8_t> bytes) {
 bool ReplayMemory::lay_in(uint64_t address, std::span<const uint8_t> bytes, uint64_t hash) {
     forget_written();
     const AddressRange range{address, address + bytes.size()};
-    auto it = laid_.find(address);
-    if (it != laid_.end() && it->second.end == range.end && it->second.hash == hash) return true;
+    const LaidIndex::Entry* laid = laid_index_.find(address);
+    if (laid && laid->end == range.end && laid->hash == hash) return true;
     if (!lay_in(address, bytes)) return false;
     writes_.clear();  // lay_in's own write
     if (range.empty()) return true;
     forget_laid(range);
-    laid_.emplace(address, LaidContent{range.end, hash});
+    laid_.emplace(address, range.end);
+    laid_index_.insert(address, range.end, hash);
     return true;
 }
 
 bool ReplayMemory::holds_laid_content(uint64_t address, uint64_t hash, uint64_t* size) {
     forget_written();
-    auto it = laid_.find(address);
-    if (it == laid_.end() || it->second.hash != hash) return false;
-    const AddressRange range{address, it->second.end};
+    const LaidIndex::Entry* laid = laid_index_.find(address);
+    if (!laid || laid->hash != hash) return false;
+    const AddressRange range{address, laid->end};
     if (!driver_bvh_.empty()) {
         auto mark = driver_bvh_.upper_bound(address);
         if (mark != driver_bvh_.begin() && std::prev(mark)->second > address) return false;
@@ -284,8 +285,11 @@ bool ReplayMemory::holds_laid_content(uint64_t address, uint64_t hash, uint64_t*
 
 void ReplayMemory::forget_laid(AddressRange range) {
     auto it = laid_.upper_bound(range.begin);
-    if (it != laid_.begin() && std::prev(it)->second.end > range.begin) --it;
-    while (it != laid_.end() && it->first < range.end) it = laid_.erase(it);
+    if (it != laid_.begin() && std::prev(it)->second > range.begin) --it;
+    while (it != laid_.end() && it->first < range.end) {
+        laid_index_.erase(it->first);
+        it = laid_.erase(it);
+    }
 }
 
 // A command's writes come in a few interleaved streams (a cluster build's objects, its address

@@ -8,6 +8,8 @@
 #include <clastrace/engine/memory_image.h>
 #include <clastrace/replay/sync_types.h>
 
+#include "laid_index.h"
+
 #include <algorithm>
 
 #include <cstdint>
@@ -208,11 +210,10 @@ private:
     AddressRange last_object_;  // the engine_objects_ range the last marked object joined
     std::map<uint64_t, uint64_t> driver_bvh_;          // begin -> end, disjoint
     std::map<uint64_t, uint64_t> cluster_blas_spans_;  // begin -> end, disjoint
-    struct LaidContent {
-        uint64_t end = 0;
-        uint64_t hash = 0;
-    };
-    std::map<uint64_t, LaidContent> laid_;               // begin -> content, disjoint
+    // The contents laid in and not met since: by first byte for the lookups (laid_index_), and
+    // ordered (begin -> end, disjoint) for the overlap walks of forget_laid.
+    LaidIndex laid_index_;
+    std::map<uint64_t, uint64_t> laid_;
     std::vector<std::pair<uint64_t, uint64_t>> writes_;  // (address, size) not yet met with laid_
     uint64_t budget_;
     uint64_t peak_ = 0;
