@@ -84,8 +84,13 @@ public:
     // [offset, offset + size) of `buffer` as device addresses (VK_WHOLE_SIZE: to the end).
     std::optional<AddressRange> buffer_range(uint64_t buffer, uint64_t offset, uint64_t size) const;
     std::optional<AddressRange> object_range(uint64_t object) const;
+    // Where a snapshot lies: its address, or (a format without one) its buffer's plus offset.
+    // Inline: every snapshot of every command asks, and mostly the address is there.
     std::optional<uint64_t> snapshot_address(uint64_t buffer, uint64_t offset,
-                                             uint64_t address) const;
+                                             uint64_t address) const {
+        if (address != 0) return address;
+        return buffer_snapshot_address(buffer, offset);
+    }
 
     // Writes `bytes` at `address`, leaving engine-built object bytes alone. False when no
     // region holds the range.
@@ -97,7 +102,15 @@ public:
     // Whether that skip applies without the content's bytes: `hash` was the content last laid in
     // at `address`, no write has met it since and no driver BVH is marked over it (whose kept
     // bytes a report counts). Its size in *size.
-    bool holds_laid_content(uint64_t address, uint64_t hash, uint64_t* size);
+    // Inline: every input snapshot asks, and mostly the answer is yes.
+    bool holds_laid_content(uint64_t address, uint64_t hash, uint64_t* size) {
+        forget_written();
+        const LaidIndex::Entry* laid = laid_index_.find(address);
+        if (!laid || laid->hash != hash) return false;
+        if (!driver_bvh_.empty() && meets_driver_bvh({address, laid->end})) return false;
+        *size = laid->end - address;
+        return true;
+    }
     // Plain write (copies, fills, updates): also ends engine ownership of those bytes.
     bool write(uint64_t address, std::span<const uint8_t> bytes);
     bool read(uint64_t address, uint64_t size, std::vector<uint8_t>* out) const;
@@ -171,6 +184,9 @@ private:
         bool bound = false;
     };
     void unmark(AddressRange range);
+    std::optional<uint64_t> buffer_snapshot_address(uint64_t buffer, uint64_t offset) const;
+    // Whether a driver BVH's mark meets `range`.
+    bool meets_driver_bvh(AddressRange range) const;
     // The contents laid in that a write met (range, or each write the image logged) no longer
     // lie there.
     void forget_laid(AddressRange range);
