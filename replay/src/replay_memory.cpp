@@ -222,9 +222,8 @@ std::optional<AddressRange> ReplayMemory::object_range(uint64_t object) const {
     return AddressRange{it->second.address, it->second.address + size};
 }
 
-std::optional<uint64_t> ReplayMemory::snapshot_address(uint64_t buffer, uint64_t offset,
-                                                       uint64_t address) const {
-    if (address != 0) return address;
+std::optional<uint64_t> ReplayMemory::buffer_snapshot_address(uint64_t buffer,
+                                                              uint64_t offset) const {
     auto it = buffers_.find(buffer);
     if (it == buffers_.end() || !it->second.bound) return std::nullopt;
     return it->second.address + offset;
@@ -259,34 +258,30 @@ bool ReplayMemory::lay_in(uint64_t address, std::span<const uint8_t> bytes) {
 bool ReplayMemory::lay_in(uint64_t address, std::span<const uint8_t> bytes, uint64_t hash) {
     forget_written();
     const AddressRange range{address, address + bytes.size()};
-    auto it = laid_.find(address);
-    if (it != laid_.end() && it->second.end == range.end && it->second.hash == hash) return true;
+    const LaidIndex::Entry* laid = laid_index_.find(address);
+    if (laid && laid->end == range.end && laid->hash == hash) return true;
     if (!lay_in(address, bytes)) return false;
     writes_.clear();  // lay_in's own write
     if (range.empty()) return true;
     forget_laid(range);
-    laid_.emplace(address, LaidContent{range.end, hash});
+    laid_.emplace(address, range.end);
+    laid_index_.insert(address, range.end, hash);
     return true;
 }
 
-bool ReplayMemory::holds_laid_content(uint64_t address, uint64_t hash, uint64_t* size) {
-    forget_written();
-    auto it = laid_.find(address);
-    if (it == laid_.end() || it->second.hash != hash) return false;
-    const AddressRange range{address, it->second.end};
-    if (!driver_bvh_.empty()) {
-        auto mark = driver_bvh_.upper_bound(address);
-        if (mark != driver_bvh_.begin() && std::prev(mark)->second > address) return false;
-        if (mark != driver_bvh_.end() && mark->first < range.end) return false;
-    }
-    *size = range.end - range.begin;
-    return true;
+bool ReplayMemory::meets_driver_bvh(AddressRange range) const {
+    auto mark = driver_bvh_.upper_bound(range.begin);
+    if (mark != driver_bvh_.begin() && std::prev(mark)->second > range.begin) return true;
+    return mark != driver_bvh_.end() && mark->first < range.end;
 }
 
 void ReplayMemory::forget_laid(AddressRange range) {
     auto it = laid_.upper_bound(range.begin);
-    if (it != laid_.begin() && std::prev(it)->second.end > range.begin) --it;
-    while (it != laid_.end() && it->first < range.end) it = laid_.erase(it);
+    if (it != laid_.begin() && std::prev(it)->second > range.begin) --it;
+    while (it != laid_.end() && it->first < range.end) {
+        laid_index_.erase(it->first);
+        it = laid_.erase(it);
+    }
 }
 
 // A command's writes come in a few interleaved streams (a cluster build's objects, its address
@@ -307,7 +302,7 @@ void ReplayMemory::forget_written_runs() {
         return begin - runs[k].begin <= runs[k].end - runs[k].begin + kNear;  // (wraps below)
     };
     for (const auto& [address, size] : writes_) {
-        const AddressRange w{address, address + size < address ? UINT64_MAX : address + size};
+        const AddressRange w{address, address + size};  // logged writes lie in a region: no wrap
         size_t k = next;
         if (k >= open || !joins(k, w.begin))
             for (k = 0; k < open && !joins(k, w.begin);) ++k;

@@ -8,6 +8,8 @@
 #include <clastrace/engine/memory_image.h>
 #include <clastrace/replay/sync_types.h>
 
+#include "laid_index.h"
+
 #include <algorithm>
 
 #include <cstdint>
@@ -87,8 +89,13 @@ public:
     // [offset, offset + size) of `buffer` as device addresses (VK_WHOLE_SIZE: to the end).
     std::optional<AddressRange> buffer_range(uint64_t buffer, uint64_t offset, uint64_t size) const;
     std::optional<AddressRange> object_range(uint64_t object) const;
+    // Where a snapshot lies: its address, or (a format without one) its buffer's plus offset.
+    // Inline: every snapshot of every command asks, and mostly the address is there.
     std::optional<uint64_t> snapshot_address(uint64_t buffer, uint64_t offset,
-                                             uint64_t address) const;
+                                             uint64_t address) const {
+        if (address != 0) return address;
+        return buffer_snapshot_address(buffer, offset);
+    }
 
     // Writes `bytes` at `address`, leaving engine-built object bytes alone. False when no
     // region holds the range.
@@ -100,7 +107,15 @@ public:
     // Whether that skip applies without the content's bytes: `hash` was the content last laid in
     // at `address`, no write has met it since and no driver BVH is marked over it (whose kept
     // bytes a report counts). Its size in *size.
-    bool holds_laid_content(uint64_t address, uint64_t hash, uint64_t* size);
+    // Inline: every input snapshot asks, and mostly the answer is yes.
+    bool holds_laid_content(uint64_t address, uint64_t hash, uint64_t* size) {
+        forget_written();
+        const LaidIndex::Entry* laid = laid_index_.find(address);
+        if (!laid || laid->hash != hash) return false;
+        if (!driver_bvh_.empty() && meets_driver_bvh({address, laid->end})) return false;
+        *size = laid->end - address;
+        return true;
+    }
     // Plain write (copies, fills, updates): also ends engine ownership of those bytes.
     bool write(uint64_t address, std::span<const uint8_t> bytes);
     bool read(uint64_t address, uint64_t size, std::vector<uint8_t>* out) const;
@@ -174,6 +189,9 @@ private:
         bool bound = false;
     };
     void unmark(AddressRange range);
+    std::optional<uint64_t> buffer_snapshot_address(uint64_t buffer, uint64_t offset) const;
+    // Whether a driver BVH's mark meets `range`.
+    bool meets_driver_bvh(AddressRange range) const;
     // The contents laid in that a write met (range, or each write the image logged) no longer
     // lie there.
     void forget_laid(AddressRange range);
@@ -219,11 +237,10 @@ private:
     AddressRange last_object_;  // the engine_objects_ range the last marked object joined
     std::map<uint64_t, uint64_t> driver_bvh_;          // begin -> end, disjoint
     std::map<uint64_t, uint64_t> cluster_blas_spans_;  // begin -> end, disjoint
-    struct LaidContent {
-        uint64_t end = 0;
-        uint64_t hash = 0;
-    };
-    std::map<uint64_t, LaidContent> laid_;               // begin -> content, disjoint
+    // The contents laid in and not met since: by first byte for the lookups (laid_index_), and
+    // ordered (begin -> end, disjoint) for the overlap walks of forget_laid.
+    LaidIndex laid_index_;
+    std::map<uint64_t, uint64_t> laid_;
     std::vector<std::pair<uint64_t, uint64_t>> writes_;  // (address, size) not yet met with laid_
     uint64_t budget_;
     uint64_t peak_ = 0;

@@ -144,7 +144,11 @@ bool Replay::on_command_buffer_record(fbs::RecordBody kind, const fbs::Record& r
             break;
         }
         drop_recorded(cb);
+        recycle(cb);
+        Commands kept = std::move(cb.commands);  // (its room, for the commands to come)
+        kept.clear();
         cb = Recorded{};
+        cb.commands = std::move(kept);
         dropped_.erase(begin->command_buffer());
         cb.one_time = begin->flags() & VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
         cb.secondary = begin->level() == 1;
@@ -188,9 +192,14 @@ void Replay::record_command(const traces::RecordView& view) {
     const fbs::Record& r = *view.record;
     if (uint64_t cb = command_buffer_of(r)) {
         Recorded& recorded = recorded_[cb];
+        std::vector<uint8_t> bytes;
+        if (!spare_command_bytes_.empty()) {
+            bytes = std::move(spare_command_bytes_.back());
+            spare_command_bytes_.pop_back();
+        }
+        bytes.assign(view.bytes, view.bytes + view.size);
         const RecordedCommand& command = recorded.target().emplace_back(
-            RecordedCommand{std::vector<uint8_t>(view.bytes, view.bytes + view.size),
-                            take_answers(recorded)});
+            RecordedCommand{std::move(bytes), take_answers(recorded)});
         recorded.bytes += view.size;
         recorded_bytes_ += view.size;
         if (ahead_runs_)  // if not started yet; the answers are the command's, or still staged
@@ -200,6 +209,19 @@ void Replay::record_command(const traces::RecordView& view) {
                                   : std::span<const SnapshotAnswer>(command.answers),
                               stream_index_, false);
     }
+}
+
+void Replay::recycle(Recorded& cb) {
+    // Last command first, so the next recording's first command takes the first one's buffer.
+    auto take = [&](Commands& commands) {
+        for (auto c = commands.rbegin(); c != commands.rend(); ++c) {
+            if (spare_command_bytes_.size() >= kSpareCommandBuffers) return;
+            if (c->bytes.capacity() != 0 && c->bytes.capacity() <= kSpareCommandBufferBytes)
+                spare_command_bytes_.push_back(std::move(c->bytes));
+        }
+    };
+    for (auto r = cb.restated.rbegin(); r != cb.restated.rend(); ++r) take(*r);
+    take(cb.commands);
 }
 
 SnapshotAnswers Replay::take_answers(Recorded& recorded) {

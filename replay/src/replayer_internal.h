@@ -250,9 +250,12 @@ private:
     void forget_recorded(uint64_t handle) {
         if (auto it = recorded_.find(handle); it != recorded_.end()) {
             drop_recorded(it->second);
+            recycle(it->second);
             recorded_.erase(it);
         }
     }
+    // Takes the byte buffers of a recording being forgotten into spare_command_bytes_.
+    void recycle(Recorded& cb);
     QueueId queue_id(uint64_t queue) {
         auto [it, inserted] = queues_.emplace(queue, static_cast<QueueId>(queues_.size()));
         return it->second;
@@ -277,6 +280,11 @@ private:
     SyncModelFeed sync_{sync_model_};
     detail::AddressTranslation translation_;
     std::unordered_map<uint64_t, Recorded> recorded_;
+    // The byte buffers of forgotten recordings, for the commands recorded next: a frame mostly
+    // records what the frame before did, so a command's copy mostly fits one without allocating.
+    std::vector<std::vector<uint8_t>> spare_command_bytes_;
+    static constexpr size_t kSpareCommandBuffers = 1024;
+    static constexpr size_t kSpareCommandBufferBytes = 16 << 10;
     // Pool membership, as far as the trace tells it: resets that name both a command buffer
     // and its pool. vkResetCommandPool (pool only) then resets those buffers.
     std::unordered_map<uint64_t, std::unordered_set<uint64_t>> pool_members_;

@@ -532,6 +532,36 @@ TEST(TraceDamage, RecordFailingTheVerifierIsSkippedAndTheNextOneRead) {
     ASSERT_EQ(read.records.size(), 1u);
 }
 
+// The read-ahead task verifies a chunk's records before the reader's thread reads them (which
+// then skips the verifier for those): a record failing it in a chunk read ahead is still
+// reported and skipped, and the records around it read.
+TEST(TraceDamage, RecordFailingTheVerifierInAChunkReadAheadIsSkippedAndTheNextOneRead) {
+    fbs::MemoryContentsT big;  // a first chunk big enough for the next one to be read ahead
+    big.bytes.assign(300u << 10, 7);
+    big.hash = f::content_key(big.bytes.data(), big.bytes.size(), 0, 64);
+    fbs::RecordT contents;
+    contents.body.Set(fbs::MemoryContentsT(big));
+    std::vector<uint8_t> first, second;
+    frame(first, contents);
+    frame(second, command_buffer_end());
+    std::vector<uint8_t> junk(24, 0xff);  // root offset points far outside
+    frame(second, junk.data(), junk.size(), 3);
+    frame(second, command_buffer_end());
+    std::vector<uint8_t> file = header_only_prefix();
+    const std::vector<uint8_t> chunk0 = make_chunk(first, 0, 1);
+    file.insert(file.end(), chunk0.begin(), chunk0.end());
+    const uint64_t chunk_at = file.size();
+    const std::vector<uint8_t> chunk1 = make_chunk(second, 1, 3);
+    file.insert(file.end(), chunk1.begin(), chunk1.end());
+    ReadResult read = read_all_memory(file);
+    ASSERT_TRUE(has_damage(read, TraceErrorCode::kInvalidRecord, chunk_at))
+        << describe(read.damage);
+    EXPECT_NE(describe(read.damage).find("chunk 1 record 2 (raw offset 40)"), std::string::npos)
+        << describe(read.damage);
+    EXPECT_NE(describe(read.damage).find("fails the FlatBuffers verifier"), std::string::npos);
+    ASSERT_EQ(read.records.size(), 3u);
+}
+
 TEST_F(DamagedTrace, BytesAfterTheTrailerAreReported) {
     std::vector<uint8_t> file = file_;
     file.insert(file.end(), {1, 2, 3, 4, 5});

@@ -109,10 +109,16 @@ struct ReadAhead {
     TraceError error;
     bool decompressed = false;  // false for chunks left to the reader's thread (big or not records)
     std::vector<AheadContents> contents;  // by raw offset: what the task decoded of the chunk
+    std::vector<uint32_t> verified;       // rising raw offsets of the frames the task verified
 };
 
 // The contents record in the frame at raw offset `at` of `raw`, verified; nullopt when the frame
 // overruns the bytes or holds anything else.
 std::optional<ContentsRecord> contents_in_frame(const ChunkBytes& raw, uint32_t at);
+
+// The raw offsets of the frames of `raw` whose records pass the FlatBuffers verifier, walked as
+// the reader's thread walks them: the task verifies a chunk's records, so that the reader's
+// thread, the replay's, checks only what the verifier does not.
+std::vector<uint32_t> verified_frames(const ChunkBytes& raw);
 
 }  // namespace clastrace::traces::reader

@@ -234,6 +234,8 @@ ChunkStatus TraceReader::Impl::take_chunk(format::ChunkHeader* h, TraceError* er
         *err = std::move(r.error);
         if (r.status == ChunkStatus::kOverBudget) budget_exhausted = true;
         chunk_ahead = std::move(r.contents);
+        frames_verified = std::move(r.verified);
+        next_verified = 0;
         if (r.decompressed) {
             keep_loaded_as_older();
             std::swap(raw, ahead_raw);
@@ -246,6 +248,7 @@ ChunkStatus TraceReader::Impl::take_chunk(format::ChunkHeader* h, TraceError* er
     }
     drop_read_ahead();
     chunk_ahead.clear();
+    frames_verified.clear();
     return read_checked_payload(decoder, pos, h, err);
 }
 

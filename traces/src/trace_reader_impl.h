@@ -185,6 +185,15 @@ struct TraceReader::Impl {
     // by raw offset, wait here for the checks of their records (decode_delta).
     AheadDecoding ahead_decoding;
     std::vector<AheadContents> chunk_ahead;
+    // The loaded chunk's frames the task verified (ReadAhead::verified), and the first of them
+    // parse_record has not passed yet.
+    std::vector<uint32_t> frames_verified;
+    size_t next_verified = 0;
+    bool verified_ahead(uint32_t at) {
+        while (next_verified < frames_verified.size() && frames_verified[next_verified] < at)
+            ++next_verified;
+        return next_verified < frames_verified.size() && frames_verified[next_verified] == at;
+    }
 
     std::vector<TraceError> damage;
     uint64_t damage_total = 0;

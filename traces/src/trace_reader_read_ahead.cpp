@@ -18,6 +18,26 @@ std::optional<ContentsRecord> contents_in_frame(const ChunkBytes& raw, uint32_t 
     return contents_record(*fbs::GetRecord(bytes));
 }
 
+std::vector<uint32_t> verified_frames(const ChunkBytes& raw) {
+    std::vector<uint32_t> verified;
+    uint32_t failed = 0;
+    size_t next_frame = 0;
+    while (raw.size() - next_frame >= format::kRecordFrameSize) {
+        const auto at = static_cast<uint32_t>(next_frame);
+        const uint32_t rsize = format::load<uint32_t>(raw.data() + at);
+        if (rsize > raw.size() - at - format::kRecordFrameSize) break;
+        next_frame = std::min<size_t>(raw.size(), next_frame + format::kRecordFrameSize +
+                                                      format::align8(rsize));
+        flatbuffers::Verifier verifier(raw.data() + at + format::kRecordFrameSize, rsize, 64,
+                                       10'000'000);
+        if (fbs::VerifyRecordBuffer(verifier))
+            verified.push_back(at);
+        else if (++failed >= kMaxBrokenFramesPerChunk)
+            break;  // the reader's thread stops the chunk by then (a chunk of zeros is not walked)
+    }
+    return verified;
+}
+
 }  // namespace clastrace::traces::reader
 
 namespace clastrace::traces {
@@ -38,6 +58,7 @@ void TraceReader::Impl::start_read_ahead(uint64_t offset, HeldChunks held) {
             r.header.raw_size <= kReadAheadMaxRawBytes) {
             r.status = decompress_payload(ahead_decoder, offset, r.header, &ahead_raw, &r.error);
             r.decompressed = r.status == ChunkStatus::kOk;
+            if (r.decompressed) r.verified = verified_frames(ahead_raw);
             if (r.decompressed && options.decode_deltas_ahead)
                 r.contents = decode_ahead(offset, ahead_raw, held);
         }
