@@ -8,6 +8,7 @@
 
 #include <fmt/format.h>
 
+#include <clastrace/common/enum_bits.h>
 #include <clastrace/engine/cluster_format.h>
 #include <clastrace/engine/execution_record.h>
 #include <clastrace/engine/memory_image.h>
@@ -179,7 +180,7 @@ VkClusterAccelerationStructureTriangleClusterInputNV triangle_input(
     VkClusterAccelerationStructureTriangleClusterInputNV t{};
     t.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
     if (const auto* f = in ? in->op_input_as_TriangleClusterInput() : nullptr) {
-        t.vertexFormat = static_cast<VkFormat>(f->vertex_format());
+        common::set_enum_bits(t.vertexFormat, f->vertex_format());
         t.maxGeometryIndexValue = f->max_geometry_index_value();
         t.maxClusterUniqueGeometryCount = f->max_cluster_unique_geometry_count();
         t.maxClusterTriangleCount = f->max_cluster_triangle_count();

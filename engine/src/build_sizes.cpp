@@ -3,12 +3,15 @@
 
 #include "clastrace/engine/blas.h"
 #include "clastrace/engine/cluster_build.h"
+#include "clastrace/common/enum_bits.h"
 
 #include <algorithm>
 #include <limits>
 #include <string>
 
 namespace clastrace::engine {
+
+using common::enum_bits;
 
 uint64_t sat_add(uint64_t a, uint64_t b) {
     uint64_t r;
@@ -27,9 +30,8 @@ uint64_t align_up_sat(uint64_t v, uint64_t alignment) {
 uint64_t scratch_bytes_for_ops(uint64_t op_count) { return sat_mul(op_count, 16); }
 
 namespace {
-uint64_t alignment_for(VkClusterAccelerationStructureOpTypeNV op_type,
-                       VkClusterAccelerationStructureTypeNV move_type, const EngineProperties& p) {
-    auto by_type = [&](VkClusterAccelerationStructureTypeNV t) -> uint64_t {
+uint64_t alignment_for(uint32_t op_type, uint32_t move_type, const EngineProperties& p) {
+    auto by_type = [&](uint32_t t) -> uint64_t {
         switch (t) {
         case VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_CLUSTERS_BOTTOM_LEVEL_NV:
             return p.cluster_bottom_level_byte_alignment;
@@ -58,9 +60,7 @@ uint64_t alignment_for(VkClusterAccelerationStructureOpTypeNV op_type,
 }  // namespace
 
 // A captured properties struct may hold 0 (or a non power of two): never divide by 0.
-uint64_t destination_alignment(VkClusterAccelerationStructureOpTypeNV op_type,
-                               VkClusterAccelerationStructureTypeNV move_type,
-                               const EngineProperties& p) {
+uint64_t destination_alignment(uint32_t op_type, uint32_t move_type, const EngineProperties& p) {
     return std::max<uint64_t>(1, alignment_for(op_type, move_type, p));
 }
 
@@ -98,6 +98,20 @@ uint64_t clusters_total_bound(uint64_t count,
                     sat_add(sat_mul(count, c), sat_add(sat_mul(a, tris), sat_mul(b, verts))));
 }
 
+// The alignment of the objects `info` writes; by the op type's and the move input's bits, which
+// nothing has checked yet (common/enum_bits.h).
+uint64_t input_alignment(const VkClusterAccelerationStructureInputInfoNV& info,
+                         const EngineProperties& p) {
+    const uint32_t op_type = enum_bits(info.opType);
+    const auto* move = info.opInput.pMoveObjects;
+    return destination_alignment(
+        op_type,
+        op_type == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV && move
+            ? enum_bits(move->type)
+            : VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_MAX_ENUM_NV,
+        p);
+}
+
 }  // namespace
 
 BuildSizes cluster_build_sizes(const VkClusterAccelerationStructureInputInfoNV& info,
@@ -109,20 +123,17 @@ BuildSizes cluster_build_sizes(const VkClusterAccelerationStructureInputInfoNV& 
             {rule, "vkGetClusterAccelerationStructureBuildSizesNV: " + msg, -1, 0});
         return s;
     };
-    if (info.opMode > VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_COMPUTE_SIZES_NV)
+    // Op type and mode by their bits until checked (common/enum_bits.h).
+    const uint32_t op_type = enum_bits(info.opType);
+    const uint32_t op_mode = enum_bits(info.opMode);
+    if (op_mode > VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_COMPUTE_SIZES_NV)
         return bad("VUID-VkClusterAccelerationStructureInputInfoNV-opMode-parameter",
-                   "opMode " + std::to_string(int(info.opMode)) +
+                   "opMode " + std::to_string(int(op_mode)) +
                        " is not a VkClusterAccelerationStructureOpModeNV");
     uint64_t one = 0;       // worst single object
     uint64_t implicit = 0;  // worst implicit total, before per-object alignment padding
-    uint64_t align = destination_alignment(
-        info.opType,
-        info.opType == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV &&
-                info.opInput.pMoveObjects
-            ? info.opInput.pMoveObjects->type
-            : VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_MAX_ENUM_NV,
-        p);
-    switch (info.opType) {
+    uint64_t align = input_alignment(info, p);
+    switch (op_type) {
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV: {
         if (!info.opInput.pMoveObjects)
             return bad("VUID-VkClusterAccelerationStructureInputInfoNV-pMoveObjects-parameter",
@@ -173,7 +184,7 @@ BuildSizes cluster_build_sizes(const VkClusterAccelerationStructureInputInfoNV& 
     }
     default:
         return bad("VUID-VkClusterAccelerationStructureInputInfoNV-opType-parameter",
-                   "opType " + std::to_string(int(info.opType)) +
+                   "opType " + std::to_string(int(op_type)) +
                        " is not a VkClusterAccelerationStructureOpTypeNV");
     }
     s.single_object_size = one;

@@ -3,6 +3,7 @@
 // spec's per-info rules (findings carry the VUID strings verbatim), decode and
 // truncate positions, and hand the result to the encoder.
 #include "clastrace/engine/cluster_build.h"
+#include "clastrace/common/enum_bits.h"
 #include "clastrace/common/hex.h"
 
 #include "clastrace/engine/cluster_format.h"
@@ -168,9 +169,11 @@ bool single_bit(uint32_t v) { return v != 0 && (v & (v - 1)) == 0; }
 // Rules on the TriangleClusterInput itself (checked with every op that uses it).
 void check_input(const VkClusterAccelerationStructureTriangleClusterInputNV& input,
                  const EngineProperties& p, Reporter& r) {
-    if (!vertex_format_info(input.vertexFormat).supported)
+    // By its bits until found supported (common/enum_bits.h).
+    const uint32_t format = common::enum_bits(input.vertexFormat);
+    if (!vertex_format_info(format).supported)
         r.add("VUID-VkClusterAccelerationStructureTriangleClusterInputNV-vertexFormat-10439",
-              "vertexFormat " + std::to_string(int(input.vertexFormat)) +
+              "vertexFormat " + std::to_string(int(format)) +
                   " lacks VK_FORMAT_FEATURE_ACCELERATION_STRUCTURE_VERTEX_BUFFER_BIT_KHR");
     if (input.maxClusterTriangleCount > p.max_triangles_per_cluster)
         r.add(
@@ -549,7 +552,7 @@ void decode_opacity_micromaps(const TriangleDecode& job) {
 // object can be built; findings say why.
 bool decode_triangle_info(const TriangleDecode& job) {
     check_input(job.input, job.properties, job.report);
-    const VertexFormatInfo vf = vertex_format_info(job.input.vertexFormat);
+    const VertexFormatInfo vf = vertex_format_info(common::enum_bits(job.input.vertexFormat));
     if (!check_triangle_info(job, vf)) return false;
     Decoded& d = job.decoded;
     d.triangle_count = job.info.triangle_count;
@@ -585,7 +588,7 @@ void set_shared_encode_fields(const TriangleInfoView& info,
     in.triangle_count = d.triangle_count;
     in.vertex_count = d.vertex_count;
     in.truncate_bits = d.truncate_bits;
-    in.vertex_format = uint32_t(input.vertexFormat);
+    in.vertex_format = common::enum_bits(input.vertexFormat);
     in.index_bytes = index_bytes;
     in.base_geometry_index_and_flags = info.base_geometry_index_and_flags;
     in.geometry_index_and_flags = d.has_geometry ? geometry : nullptr;
@@ -631,7 +634,7 @@ bool instance_positions(const InstanceSource& src, float* positions, Reporter& r
             decode_position(src.bytes, h, v, positions + 3 * v);
         return true;
     }
-    const VertexFormatInfo vf = vertex_format_info(src.input.vertexFormat);
+    const VertexFormatInfo vf = vertex_format_info(common::enum_bits(src.input.vertexFormat));
     if (!vf.supported) return false;  // 10439 reported by check_input
     const auto vb =
         src.memory.read_array(vertices.startAddress, h.vertex_count, vertices.strideInBytes,
@@ -837,10 +840,11 @@ bool ClusterBuilder::instantiate_triangle_cluster(
             read_cluster_template(memory, info.clusterTemplateAddress, op_index, r);
         if (!tmpl.header) return no_object(out);
         const ObjectHeader& h = *tmpl.header;
-        if (uint32_t(input.vertexFormat) != h.vertex_format)
+        const uint32_t format = common::enum_bits(input.vertexFormat);
+        if (format != h.vertex_format)
             r.add("VUID-VkClusterAccelerationStructureInstantiateClusterInfoNV-vertexBuffer-10508",
-                  "vertexFormat " + std::to_string(int(input.vertexFormat)) +
-                      " differs from the template's " + std::to_string(h.vertex_format));
+                  "vertexFormat " + std::to_string(int(format)) + " differs from the template's " +
+                      std::to_string(h.vertex_format));
         if (!instance_positions({memory, info, input, tmpl.bytes, h, op_index}, s.positions, r))
             return no_object(out);
         if (h.header_flags & kHasBoundsLimit)

@@ -4,6 +4,8 @@
 #include "clastrace/engine/build_sizes.h"
 #include "execute_command.h"
 
+#include "clastrace/common/enum_bits.h"
+
 #include <algorithm>
 #include <initializer_list>
 #include <optional>
@@ -295,10 +297,12 @@ void check_scratch(CommandState& s) {
 
 void check_destinations(CommandState& s) {
     const ResolvedCommand& cmd = s.cmd;
-    s.align = destination_alignment(s.input.opType,
-                                    s.is_move ? s.input.opInput.pMoveObjects->type
-                                              : VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_MAX_ENUM_NV,
-                                    s.options.properties);
+    // The move input's type is never checked: it goes by its bits (common/enum_bits.h).
+    s.align =
+        destination_alignment(s.input.opType,
+                              s.is_move ? common::enum_bits(s.input.opInput.pMoveObjects->type)
+                                        : VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_MAX_ENUM_NV,
+                              s.options.properties);
     if (s.implicit && cmd.count > 0 && cmd.implicit_data % s.align != 0)
         s.top.finding(kRuleDestinationMisaligned,
                       "dstImplicitData " + hex(cmd.implicit_data) + " is not a multiple of the " +

@@ -5,6 +5,8 @@
 #include "clastrace/engine/vertex_format.h"
 #include "execute_internal.h"
 
+#include "clastrace/common/enum_bits.h"
+
 #include <algorithm>
 #include <charconv>
 #include <cstring>
@@ -67,6 +69,12 @@ void record_buffer(Recorder& rec, uint64_t address, uint64_t count, uint64_t str
         rec.access(address, *n, kAccessPointedInput, false, field(i, member));
 }
 
+// Bytes of one vertex of the input's format, 0 for one no build decodes; by the field's bits,
+// which the op has not checked yet (common/enum_bits.h).
+uint32_t vertex_bytes(const VkClusterAccelerationStructureTriangleClusterInputNV& in) {
+    return vertex_format_info(common::enum_bits(in.vertexFormat)).size;
+}
+
 // The inputs a triangle cluster or template build reads, as the spec lays them out.
 template <class Info>
 void record_triangle_inputs(Recorder& rec, const Info& info,
@@ -75,7 +83,7 @@ void record_triangle_inputs(Recorder& rec, const Info& info,
     record_buffer(rec, info.indexBuffer, uint64_t(info.triangleCount) * 3, info.indexBufferStride,
                   index_size(info.indexType), i, "indexBuffer");
     record_buffer(rec, info.vertexBuffer, info.vertexCount, info.vertexBufferStride,
-                  vertex_format_info(in.vertexFormat).size, i, "vertexBuffer");
+                  vertex_bytes(in), i, "vertexBuffer");
     record_buffer(rec, info.geometryIndexAndFlagsBuffer, info.triangleCount,
                   info.geometryIndexAndFlagsBufferStride, 4, i, "geometryIndexAndFlagsBuffer");
     if (info.opacityMicromapArray != 0)
@@ -84,7 +92,8 @@ void record_triangle_inputs(Recorder& rec, const Info& info,
                       index_size(info.opacityMicromapIndexType), i, "opacityMicromapIndexBuffer");
 }
 
-ObjectType object_type_of(VkClusterAccelerationStructureTypeNV t) {
+// `t` is the move input's type by its bits: nothing checks it (common/enum_bits.h).
+ObjectType object_type_of(uint32_t t) {
     switch (t) {
     case VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_CLUSTERS_BOTTOM_LEVEL_NV:
         return ObjectType::kClustersBottomLevel;
@@ -222,12 +231,12 @@ void run_move(const ResolvedCommand& cmd, const MemoryImage& memory, uint32_t i,
         return;
     }
     rec.access(info.srcAccelerationStructure, obj.bytes.size(), kAccessObjectRead, false, f);
-    if (obj.type != object_type_of(in.type)) {
+    const ObjectType moved_type = object_type_of(common::enum_bits(in.type));
+    if (obj.type != moved_type) {
         rec.finding(kRuleMoveTypeMismatch,
                     f + " = " + hex(info.srcAccelerationStructure) + " holds a " +
                         object_type_name(obj.type) + " but the move input's type is " +
-                        object_type_name(object_type_of(in.type)) + " (op " + std::to_string(i) +
-                        ")",
+                        object_type_name(moved_type) + " (op " + std::to_string(i) + ")",
                     info.srcAccelerationStructure);
         return;
     }
@@ -289,8 +298,7 @@ void run_cluster_op(const ResolvedCommand& cmd, const MemoryImage& memory, uint3
         ObjectHeader h;
         std::memcpy(&h, tmpl.bytes.data(), sizeof h);
         record_buffer(rec, info.vertexBuffer.startAddress, h.vertex_count,
-                      info.vertexBuffer.strideInBytes, vertex_format_info(in.vertexFormat).size, i,
-                      "vertexBuffer");
+                      info.vertexBuffer.strideInBytes, vertex_bytes(in), i, "vertexBuffer");
         out.triangles = h.triangle_count;
         out.vertices = h.vertex_count;
         out.ok = builder.instantiate_triangle_cluster(memory, info, in, i, out.bytes, rec.findings);

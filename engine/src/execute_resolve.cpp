@@ -2,9 +2,13 @@
 // Resolving the command: its parameters, its indirected addresses and its op count.
 #include "execute_command.h"
 
+#include "clastrace/common/enum_bits.h"
+
 #include <algorithm>
 
 namespace clastrace::engine::detail {
+
+using common::enum_bits;
 
 namespace {
 
@@ -132,13 +136,14 @@ CommandState::CommandState(const VkClusterAccelerationStructureCommandsInfoNV& c
       record(record),
       sink{record.findings, std::max<uint32_t>(1, options.max_findings_per_rule), {}},
       directory(options.directory ? *options.directory : local_directory) {
-    record.op_type = input.opType;
-    record.op_mode = input.opMode;
-    implicit = input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
-    explicit_mode =
-        input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
-    sizes_only = input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_COMPUTE_SIZES_NV;
-    is_move = input.opType == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV;
+    // By their bits: check_parameters has not checked them yet (common/enum_bits.h).
+    const uint32_t op_type = enum_bits(input.opType), op_mode = enum_bits(input.opMode);
+    common::set_enum_bits(record.op_type, op_type);
+    common::set_enum_bits(record.op_mode, op_mode);
+    implicit = op_mode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+    explicit_mode = op_mode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
+    sizes_only = op_mode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_COMPUTE_SIZES_NV;
+    is_move = op_type == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV;
 }
 
 void CommandState::flush_command_findings() {
@@ -148,16 +153,17 @@ void CommandState::flush_command_findings() {
 
 bool check_parameters(CommandState& s) {
     const auto& input = s.input;
-    if (input.opType > VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV) {
+    const uint32_t op_type = enum_bits(input.opType), op_mode = enum_bits(input.opMode);
+    if (op_type > VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV) {
         s.sink.add({"VUID-VkClusterAccelerationStructureInputInfoNV-opType-parameter",
-                    "input.opType = " + std::to_string(int(input.opType)) +
+                    "input.opType = " + std::to_string(int(op_type)) +
                         " is not a VkClusterAccelerationStructureOpTypeNV",
                     -1, 0});
         return false;
     }
-    if (input.opMode > VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_COMPUTE_SIZES_NV) {
+    if (op_mode > VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_COMPUTE_SIZES_NV) {
         s.sink.add({"VUID-VkClusterAccelerationStructureInputInfoNV-opMode-parameter",
-                    "input.opMode = " + std::to_string(int(input.opMode)) +
+                    "input.opMode = " + std::to_string(int(op_mode)) +
                         " is not a VkClusterAccelerationStructureOpModeNV",
                     -1, 0});
         return false;

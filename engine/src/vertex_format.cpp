@@ -7,7 +7,7 @@
 
 namespace clastrace::engine {
 
-VertexFormatInfo vertex_format_info(VkFormat format) {
+VertexFormatInfo vertex_format_info(uint32_t format) {
     switch (format) {
     case VK_FORMAT_R32G32B32_SFLOAT: return {true, 12, 4, 3};
     case VK_FORMAT_R32G32B32A32_SFLOAT: return {true, 16, 4, 3};

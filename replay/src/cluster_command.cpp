@@ -3,6 +3,7 @@
 
 #include "driver_sized_accesses.h"
 
+#include <clastrace/common/enum_bits.h>
 #include <clastrace/engine/build_sizes.h>
 #include <clastrace/engine/execute.h>
 #include <clastrace/traces/cluster_conversions.h>
@@ -31,7 +32,7 @@ struct InfoLayout {
         false;  // VkClusterAccelerationStructureBuildClustersBottomLevelInfoNV
 };
 
-InfoLayout info_layout(VkClusterAccelerationStructureOpTypeNV type) {
+InfoLayout info_layout(uint32_t type) {
     switch (type) {
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV:
         return {sizeof(VkClusterAccelerationStructureMoveObjectsInfoNV),
@@ -60,7 +61,7 @@ public:
 
     // Rewrites the captured object addresses the command will read, in memory, before it runs.
     void run(const VkClusterAccelerationStructureCommandsInfoNV& info) {
-        const InfoLayout layout = info_layout(info.input.opType);
+        const InfoLayout layout = info_layout(common::enum_bits(info.input.opType));
         if (layout.size == 0) return;
         // Indirected arrays and counts are left to the engine as captured (not translated yet).
         if (info.addressResolutionFlags != 0) return;
@@ -203,10 +204,10 @@ void verify(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
                 captured.snapshots.emplace_back(*address, std::move(bytes));
         }
     }
-    const bool implicit =
-        info.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
-    const bool sizes_written =
-        info.input.opMode != VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
+    const bool implicit = common::enum_bits(info.input.opMode) ==
+                          VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+    const bool sizes_written = common::enum_bits(info.input.opMode) !=
+                               VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
     const bool direct_addresses =
         !(info.addressResolutionFlags &
           VK_CLUSTER_ACCELERATION_STRUCTURE_ADDRESS_RESOLUTION_INDIRECTED_DST_ADDRESS_ARRAY_BIT_NV);
@@ -216,7 +217,7 @@ void verify(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
     const bool check = c.options.verify_outputs;
     SizeComparison sizes;
     sizes.where = c.where;
-    sizes.op_type = info.input.opType;
+    sizes.op_type = common::enum_bits(info.input.opType);
     sizes.ops = static_cast<uint32_t>(record.ops.size());
     sizes.scratch_span = driver_sizes.build_scratch_size;
     sizes.destination_span = driver_sizes.acceleration_structure_size;
@@ -226,7 +227,7 @@ void verify(const fbs::CmdBuildClusterAccelerationStructureIndirect& build,
         const engine::OpResult& op = record.ops[i];
         const auto op_index = static_cast<int64_t>(i);
         if (op.executed && op.dst_address != 0 &&
-            info.input.opType !=
+            common::enum_bits(info.input.opType) !=
                 VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV) {
             c.translation.rebuilt.insert(op.dst_address);
             c.memory.mark_engine_object({op.dst_address, op.dst_address + op.dst_size});
@@ -406,10 +407,11 @@ void run_cluster_command(const fbs::CmdBuildClusterAccelerationStructureIndirect
         kept = std::make_shared<ModelAccesses>(std::move(record));
         ran = &kept->record;
         // One call for the command: the model keeps each per-op array as one range.
+        const uint32_t op_mode = common::enum_bits(info.input.opMode);
         const bool implicit =
-            info.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
+            op_mode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_IMPLICIT_DESTINATIONS_NV;
         const bool explicit_mode =
-            info.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
+            op_mode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV;
         const DriverSizedAccesses& sized =
             sized_ahead
                 ? kept->sized.emplace(std::move(*sized_ahead))

@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "cluster_size_queries.h"
 
+#include <clastrace/common/enum_bits.h>
 #include <clastrace/engine/build_sizes.h>
 #include <clastrace/traces/cluster_conversions.h>
 
@@ -11,16 +12,18 @@ namespace clastrace::replay::detail {
 namespace {
 
 // Every field of the input the answer depends on, so a command and a query compare as inputs.
+// Enum fields go by their bits: nothing has checked them yet (common/enum_bits.h).
 std::vector<uint64_t> input_key(const VkClusterAccelerationStructureInputInfoNV& in) {
-    std::vector<uint64_t> k{uint64_t(in.opType), uint64_t(in.opMode),
+    using common::enum_bits;
+    std::vector<uint64_t> k{enum_bits(in.opType), enum_bits(in.opMode),
                             in.maxAccelerationStructureCount, in.flags};
-    switch (in.opType) {
+    switch (enum_bits(in.opType)) {
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV:
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_TEMPLATE_NV:
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_INSTANTIATE_TRIANGLE_CLUSTER_NV:
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_GET_CLUSTER_TEMPLATE_INDICES_NV:
         if (const auto* t = in.opInput.pTriangleClusters)
-            k.insert(k.end(), {uint64_t(t->vertexFormat), t->maxGeometryIndexValue,
+            k.insert(k.end(), {enum_bits(t->vertexFormat), t->maxGeometryIndexValue,
                                t->maxClusterUniqueGeometryCount, t->maxClusterTriangleCount,
                                t->maxClusterVertexCount, t->maxTotalTriangleCount,
                                t->maxTotalVertexCount, t->minPositionTruncateBitCount});
@@ -32,7 +35,7 @@ std::vector<uint64_t> input_key(const VkClusterAccelerationStructureInputInfoNV&
         break;
     case VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV:
         if (const auto* m = in.opInput.pMoveObjects)
-            k.insert(k.end(), {uint64_t(m->type), uint64_t(m->noMoveOverlap), m->maxMovedBytes});
+            k.insert(k.end(), {enum_bits(m->type), uint64_t(m->noMoveOverlap), m->maxMovedBytes});
         break;
     default: break;
     }

@@ -3,6 +3,7 @@
 
 #include "driver_sized_accesses.h"
 
+#include <clastrace/common/enum_bits.h>
 #include <clastrace/engine/build_sizes.h>
 #include <clastrace/engine/execute.h>
 #include <clastrace/traces/trace_generated.h>
@@ -144,7 +145,8 @@ bool moves_objects(VkClusterAccelerationStructureOpTypeNV type) {
 // A move without noMoveOverlap retires its sources; commit lands created entries only, so such
 // a move runs in its turn.
 bool retires_sources(const VkClusterAccelerationStructureCommandsInfoNV& info) {
-    return info.input.opType == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV &&
+    return common::enum_bits(info.input.opType) ==
+               VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV &&
            (!info.input.opInput.pMoveObjects || !info.input.opInput.pMoveObjects->noMoveOverlap);
 }
 
@@ -365,7 +367,8 @@ bool ClusterRunAhead::plan(const fbs::CmdBuildClusterAccelerationStructureIndire
             snapshots_.push_back({*address, std::move(bytes)});
         }
     }
-    if (info_.input.opMode == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV)
+    if (common::enum_bits(info_.input.opMode) ==
+        VK_CLUSTER_ACCELERATION_STRUCTURE_OP_MODE_EXPLICIT_DESTINATIONS_NV)
         plan_explicit_destinations(real);
     return true;
 }

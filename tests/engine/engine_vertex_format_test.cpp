@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 // Vertex formats decode to the values the format defines, and truncation zeroes exactly
 // the low N bits of each coordinate's 32-bit pattern, before anything else.
+#include "clastrace/common/enum_bits.h"
 #include "clastrace/engine/cluster_build.h"
 #include "clastrace/engine/cluster_format.h"
 #include "clastrace/engine/vertex_format.h"
@@ -185,6 +186,26 @@ TEST(VertexFormat, UnsupportedFormatIsAFindingAndNoObject) {
     EXPECT_TRUE(
         has_rule(o.findings,
                  "VUID-VkClusterAccelerationStructureTriangleClusterInputNV-vertexFormat-10439"));
+}
+
+// A hostile trace's format past VkFormat's range (0x7FFFFFFF) is the same finding, found by the
+// field's bits (under UBSan, loading it as a VkFormat stopped the check itself).
+TEST(VertexFormat, AFormatPastTheEnumsRangeIsAFindingAndNoObject) {
+    EXPECT_FALSE(vertex_format_info(0xffffffffu).supported);
+    Arena arena;
+    const test::Mesh m = test::grid(2);
+    auto info = test::cluster_info(arena, m);
+    auto input = test::default_input(VK_FORMAT_R32G32B32_SFLOAT);
+    common::set_enum_bits(input.vertexFormat, 0xffffffffu);
+    const ClusterObject o =
+        build_triangle_cluster(arena.memory, info, input, EngineProperties{}, 3);
+    EXPECT_FALSE(o.ok);
+    const char* rule =
+        "VUID-VkClusterAccelerationStructureTriangleClusterInputNV-vertexFormat-10439";
+    ASSERT_TRUE(has_rule(o.findings, rule));
+    for (const Finding& f : o.findings)
+        if (f.rule == rule)
+            EXPECT_NE(f.message.find("vertexFormat -1 lacks"), std::string::npos) << f.message;
 }
 
 }  // namespace

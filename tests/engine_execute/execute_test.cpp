@@ -2,6 +2,7 @@
 // execute(): packing, the count rules, scratch, and the execution record.
 #include "execute_rig.h"
 
+#include "clastrace/common/enum_bits.h"
 #include "clastrace/engine/cluster_format.h"
 
 namespace clastrace::engine::execute_test {
@@ -327,6 +328,38 @@ TEST(Execute, BadOpTypeModeAndMissingInputAreFindings) {
     s.cmd.input.opMode = kImplicit;
     s.cmd.input.opInput.pTriangleClusters = nullptr;
     EXPECT_EQ(count_rule(execute(s.cmd, rig.memory).findings, kRuleMissingInput), 1u);
+}
+
+// The message of the one finding of `rule`, or "" when there is not exactly one.
+std::string only_message(const std::vector<Finding>& findings, const char* rule) {
+    if (count_rule(findings, rule) != 1) return "";
+    for (const Finding& f : findings)
+        if (f.rule == rule) return f.message;
+    return "";
+}
+
+// A hostile trace may hold any 32 bits in an enum field: values past Vulkan's 0x7FFFFFFF are
+// findings like any other bad value, found by the fields' bits (under UBSan, loading them as the
+// enum stopped the check itself).
+TEST(Execute, OpTypeAndModePastTheEnumsRangeAreFindings) {
+    Rig rig;
+    CommandSetup s;
+    setup_command(s, rig, kBuild, kImplicit, 1, rig.inputs.base);
+    common::set_enum_bits(s.cmd.input.opType, 0xffffffffu);
+    const char* type_rule = "VUID-VkClusterAccelerationStructureInputInfoNV-opType-parameter";
+    EXPECT_EQ(only_message(execute(s.cmd, rig.memory).findings, type_rule),
+              "input.opType = -1 is not a VkClusterAccelerationStructureOpTypeNV");
+    EXPECT_EQ(only_message(cluster_build_sizes(s.cmd.input, {}).findings, type_rule),
+              "vkGetClusterAccelerationStructureBuildSizesNV: opType -1 is not a "
+              "VkClusterAccelerationStructureOpTypeNV");
+    s.cmd.input.opType = kBuild;
+    common::set_enum_bits(s.cmd.input.opMode, 0x80000000u);
+    const char* mode_rule = "VUID-VkClusterAccelerationStructureInputInfoNV-opMode-parameter";
+    EXPECT_EQ(only_message(execute(s.cmd, rig.memory).findings, mode_rule),
+              "input.opMode = -2147483648 is not a VkClusterAccelerationStructureOpModeNV");
+    EXPECT_EQ(only_message(cluster_build_sizes(s.cmd.input, {}).findings, mode_rule),
+              "vkGetClusterAccelerationStructureBuildSizesNV: opMode -2147483648 is not a "
+              "VkClusterAccelerationStructureOpModeNV");
 }
 
 }  // namespace

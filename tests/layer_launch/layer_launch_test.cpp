@@ -66,6 +66,10 @@ std::string LayerLaunchTest::cleanEnvironment(std::map<std::string, std::string>
         line += std::string(" -u ") + v;
     for (const auto& [name, value] : clastrace::testsupport::test_driver().environment())
         env[name] = value;
+#ifdef CLASTRACE_ASAN_RUNTIME
+    // The layer is built with ASan, whose runtime must come first in a process's libraries.
+    env.try_emplace("LD_PRELOAD", CLASTRACE_ASAN_RUNTIME);
+#endif
     env["XDG_RUNTIME_DIR"] = dir.string();
     env["VK_LOADER_DEBUG"] = "";  // the loader's own warnings are not the programs' output
     if (!layers.empty()) {

@@ -225,6 +225,46 @@ TEST(ReplayE2E, ClusterIdAllOnesIsTheEngineVuidAtThatOp) {
     std::remove(twin.c_str());
 }
 
+// A hostile trace's enum fields past Vulkan's 0x7FFFFFFF: the engine's findings, with the
+// values as the trace holds them; replay and engine read such fields by their bits (under UBSan,
+// loading them as the enums stopped the replay).
+TEST(ReplayE2E, EnumFieldsPastTheEnumsRangeAreTheEngineVuids) {
+    const struct {
+        uint32_t vertex_format, op_type;
+        const char* rule;
+        const char* text;
+    } cases[] = {
+        {0xffffffffu, VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV,
+         "VUID-VkClusterAccelerationStructureTriangleClusterInputNV-vertexFormat-10439",
+         "vertexFormat -1 lacks"},
+        {VK_FORMAT_R32G32B32_SFLOAT, 0x80000000u,
+         "VUID-VkClusterAccelerationStructureInputInfoNV-opType-parameter",
+         "input.opType = -2147483648 is not"},
+    };
+    for (const auto& c : cases) {
+        SCOPED_TRACE(c.rule);
+        const std::string path = temp_path("enum_bits.clt");
+        {
+            SceneTrace t(path, true);
+            BuildCall call;
+            call.capture_outputs = false;
+            call.vertex_format = c.vertex_format;
+            call.op_type = c.op_type;
+            t.build(call);
+            t.finish();
+        }
+        replay::ReplayReport r = replay_file(path);
+        size_t named = 0;
+        for (const auto& f : r.findings)
+            if (f.rule == c.rule && f.source == replay::FindingSource::kEngine) {
+                EXPECT_NE(f.message.find(c.text), std::string::npos) << f.message;
+                ++named;
+            }
+        EXPECT_GE(named, 1u) << describe(r);
+        std::remove(path.c_str());
+    }
+}
+
 TEST(ReplayE2E, ScratchTooSmallIs12300AndEnoughScratchIsClean) {
     const std::string path = temp_path("scratch_small.clt");
     const std::string twin = temp_path("scratch_enough.clt");

@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 #include "scene_trace.h"
 
+#include <clastrace/common/enum_bits.h>
 #include <clastrace/trace_building/cluster_records.h>
 #include <clastrace/trace_building/cluster_structs.h>
 #include <clastrace/trace_building/command_records.h>
@@ -153,10 +154,11 @@ void SceneTrace::emit_build(
 }
 
 void SceneTrace::build(const BuildCall& call) {
-    const auto tri =
-        tb::triangle_cluster_limits(kTris, kVerts, kTris * kClusters, kVerts * kClusters);
+    auto tri = tb::triangle_cluster_limits(kTris, kVerts, kTris * kClusters, kVerts * kClusters);
+    common::set_enum_bits(tri.vertexFormat, call.vertex_format);
     auto info =
         tb::cluster_commands(tb::cluster_op_input(static_cast<uint32_t>(infos.size()), &tri));
+    common::set_enum_bits(info.input.opType, call.op_type);
     info.dstImplicitData = call.dst;
     info.scratchData = call.scratch;
     info.dstAddressesArray = {call.addresses, 8, infos.size() * 8};

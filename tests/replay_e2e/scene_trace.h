@@ -30,6 +30,10 @@ struct BuildCall {
     uint32_t first_cluster_id = 100;
     bool capture_outputs = true;  // write the engine's outputs into the trace as captured outputs
     uint64_t corrupt_output_byte = 0;  // != 0: flip this byte of the captured dst bytes
+    // The input's vertexFormat and opType by their bits: a hostile trace's may be past the
+    // enums' range (common/enum_bits.h).
+    uint32_t vertex_format = VK_FORMAT_R32G32B32_SFLOAT;
+    uint32_t op_type = VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_BUILD_TRIANGLE_CLUSTER_NV;
 };
 
 class SceneTrace {

@@ -5,6 +5,8 @@
 #include <clastrace/traces/cluster_conversions.h>
 #include <clastrace/traces/nv_conversions.h>
 
+#include <clastrace/common/enum_bits.h>
+
 #include <gtest/gtest.h>
 
 #include <cstdint>
@@ -14,6 +16,9 @@
 
 namespace clastrace::traces {
 namespace {
+
+using common::enum_bits;
+using common::set_enum_bits;
 
 constexpr uint32_t kMax32 = std::numeric_limits<uint32_t>::max();
 constexpr uint64_t kMax64 = std::numeric_limits<uint64_t>::max();
@@ -28,7 +33,7 @@ const Table& packed(const Object& object, flatbuffers::FlatBufferBuilder& fbb) {
 VkClusterAccelerationStructureTriangleClusterInputNV triangle_limits(uint32_t value) {
     VkClusterAccelerationStructureTriangleClusterInputNV t{};
     t.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
-    t.vertexFormat = static_cast<VkFormat>(value);
+    set_enum_bits(t.vertexFormat, value);  // kMax32 is past VkFormat's range
     t.maxGeometryIndexValue = value;
     t.maxClusterUniqueGeometryCount = value ^ 1;
     t.maxClusterTriangleCount = value ^ 2;
@@ -42,7 +47,7 @@ VkClusterAccelerationStructureTriangleClusterInputNV triangle_limits(uint32_t va
 void expect_equal(const VkClusterAccelerationStructureTriangleClusterInputNV& a,
                   const VkClusterAccelerationStructureTriangleClusterInputNV& b) {
     EXPECT_EQ(a.sType, b.sType);
-    EXPECT_EQ(a.vertexFormat, b.vertexFormat);
+    EXPECT_EQ(enum_bits(a.vertexFormat), enum_bits(b.vertexFormat));
     EXPECT_EQ(a.maxGeometryIndexValue, b.maxGeometryIndexValue);
     EXPECT_EQ(a.maxClusterUniqueGeometryCount, b.maxClusterUniqueGeometryCount);
     EXPECT_EQ(a.maxClusterTriangleCount, b.maxClusterTriangleCount);
@@ -65,8 +70,8 @@ void expect_equal_header(const VkClusterAccelerationStructureInputInfoNV& a,
     EXPECT_EQ(a.pNext, nullptr);
     EXPECT_EQ(a.maxAccelerationStructureCount, b.maxAccelerationStructureCount);
     EXPECT_EQ(a.flags, b.flags);
-    EXPECT_EQ(a.opType, b.opType);
-    EXPECT_EQ(a.opMode, b.opMode);
+    EXPECT_EQ(enum_bits(a.opType), enum_bits(b.opType));
+    EXPECT_EQ(enum_bits(a.opMode), enum_bits(b.opMode));
 }
 
 VkClusterAccelerationStructureInputInfoNV input_info(VkClusterAccelerationStructureOpTypeNV type,
@@ -171,6 +176,34 @@ TEST(ClusterConversions, NoOpInputIsRecordedForANullPointerOrAnUnknownOpType) {
     }
 }
 
+// An application or a hostile trace may hold any 32 bits in an enum field; Vulkan's enums only
+// have values up to 0x7FFFFFFF, so the conversions carry these fields by their bits (under
+// UBSan, loading 0xFFFFFFFF as the enum stops the test).
+TEST(ClusterConversions, EnumFieldsPastTheEnumsRangeRoundTripAsTheirBits) {
+    VkClusterAccelerationStructureMoveObjectsInputNV move{};
+    move.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_MOVE_OBJECTS_INPUT_NV;
+    set_enum_bits(move.type, 0xfffffffeu);
+    auto in = input_info(VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV, 1);
+    in.opInput.pMoveObjects = &move;
+    set_enum_bits(in.opMode, 0x80000000u);
+    const auto record = cluster_input_to_record(in);
+    EXPECT_EQ(record->op_mode, 0x80000000u);
+    ASSERT_NE(record->op_input.AsMoveObjectsInput(), nullptr);
+    EXPECT_EQ(record->op_input.AsMoveObjectsInput()->type, 0xfffffffeu);
+    ClusterOpInputStorage storage;
+    flatbuffers::FlatBufferBuilder fbb;
+    const auto out = round_trip(in, storage, fbb);
+    expect_equal_header(out, in);
+    ASSERT_EQ(out.opInput.pMoveObjects, &storage.move_objects);
+    EXPECT_EQ(enum_bits(out.opInput.pMoveObjects->type), 0xfffffffeu);
+    // An op type past the range names no input: none is recorded, and the type comes back.
+    set_enum_bits(in.opType, kMax32);
+    EXPECT_EQ(cluster_input_to_record(in)->op_type, kMax32);
+    EXPECT_EQ(cluster_input_to_record(in)->op_input.type, fbs::ClusterOpInput::NONE);
+    flatbuffers::FlatBufferBuilder fbb2;
+    EXPECT_EQ(enum_bits(round_trip(in, storage, fbb2).opType), kMax32);
+}
+
 // A record whose union holds another member than its opType names (a hostile trace; session 16's
 // replay_built_trace fuzzing under ASan): readers follow opType, so handing them the member it
 // holds had the size-query key read a triangle input past the end of a move input's storage.
@@ -263,11 +296,11 @@ VkGeometryNV geometry(VkGeometryTypeNV type, uint64_t value) {
     t.vertexOffset = value ^ 2;
     t.vertexCount = uint32_t(value ^ 3);
     t.vertexStride = value ^ 4;
-    t.vertexFormat = static_cast<VkFormat>(uint32_t(value ^ 5));
+    set_enum_bits(t.vertexFormat, uint32_t(value ^ 5));
     t.indexData = handle<VkBuffer>(value ^ 6);
     t.indexOffset = value ^ 7;
     t.indexCount = uint32_t(value ^ 8);
-    t.indexType = static_cast<VkIndexType>(uint32_t(value ^ 9));
+    set_enum_bits(t.indexType, uint32_t(value ^ 9));
     t.transformData = handle<VkBuffer>(value ^ 10);
     t.transformOffset = value ^ 11;
     auto& a = g.geometry.aabbs;
@@ -282,7 +315,7 @@ VkGeometryNV geometry(VkGeometryTypeNV type, uint64_t value) {
 void expect_equal(const VkGeometryNV& a, const VkGeometryNV& b) {
     EXPECT_EQ(a.sType, b.sType);
     EXPECT_EQ(a.pNext, nullptr);
-    EXPECT_EQ(a.geometryType, b.geometryType);
+    EXPECT_EQ(enum_bits(a.geometryType), enum_bits(b.geometryType));
     EXPECT_EQ(a.flags, b.flags);
     const auto &s = a.geometry.triangles, &t = b.geometry.triangles;
     EXPECT_EQ(s.sType, t.sType);
@@ -290,11 +323,11 @@ void expect_equal(const VkGeometryNV& a, const VkGeometryNV& b) {
     EXPECT_EQ(s.vertexOffset, t.vertexOffset);
     EXPECT_EQ(s.vertexCount, t.vertexCount);
     EXPECT_EQ(s.vertexStride, t.vertexStride);
-    EXPECT_EQ(s.vertexFormat, t.vertexFormat);
+    EXPECT_EQ(enum_bits(s.vertexFormat), enum_bits(t.vertexFormat));
     EXPECT_EQ(s.indexData, t.indexData);
     EXPECT_EQ(s.indexOffset, t.indexOffset);
     EXPECT_EQ(s.indexCount, t.indexCount);
-    EXPECT_EQ(s.indexType, t.indexType);
+    EXPECT_EQ(enum_bits(s.indexType), enum_bits(t.indexType));
     EXPECT_EQ(s.transformData, t.transformData);
     EXPECT_EQ(s.transformOffset, t.transformOffset);
     const auto &x = a.geometry.aabbs, &y = b.geometry.aabbs;

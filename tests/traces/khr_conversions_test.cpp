@@ -4,6 +4,8 @@
 // by pGeometries and by ppGeometries alike.
 #include <clastrace/traces/khr_conversions.h>
 
+#include <clastrace/common/enum_bits.h>
+
 #include <gtest/gtest.h>
 
 #include <cstdint>
@@ -30,11 +32,11 @@ std::vector<VkAccelerationStructureGeometryKHR> three_geometries(uint64_t value)
     g[0].flags = uint32_t(value) & 3;
     auto& t = g[0].geometry.triangles;
     t.sType = VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_TRIANGLES_DATA_KHR;
-    t.vertexFormat = VkFormat(uint32_t(value) & 0x7fffffff);
+    common::set_enum_bits(t.vertexFormat, uint32_t(value));
     t.vertexData.deviceAddress = value;
     t.vertexStride = value ^ 1;
     t.maxVertex = uint32_t(value ^ 2);
-    t.indexType = VkIndexType(uint32_t(value) & 0x7fffffff);
+    common::set_enum_bits(t.indexType, uint32_t(value));
     t.indexData.deviceAddress = value ^ 3;
     t.transformData.deviceAddress = value ^ 4;
     g[1].geometryType = VK_GEOMETRY_TYPE_AABBS_KHR;

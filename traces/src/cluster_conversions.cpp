@@ -1,9 +1,14 @@
 // SPDX-License-Identifier: Apache-2.0
 #include <clastrace/traces/cluster_conversions.h>
 
+#include <clastrace/common/enum_bits.h>
+
 #include <utility>
 
 namespace clastrace::traces {
+
+using common::enum_bits;
+using common::set_enum_bits;
 
 fbs::StridedDeviceAddressRegion strided_region_to_record(
     const VkStridedDeviceAddressRegionKHR& region) {
@@ -38,7 +43,7 @@ VkClusterAccelerationStructureClustersBottomLevelInputNV bottom_level_input_from
 fbs::TriangleClusterInputT triangle_cluster_input_to_record(
     const VkClusterAccelerationStructureTriangleClusterInputNV& input) {
     fbs::TriangleClusterInputT out;
-    out.vertex_format = uint32_t(input.vertexFormat);
+    out.vertex_format = enum_bits(input.vertexFormat);
     out.max_geometry_index_value = input.maxGeometryIndexValue;
     out.max_cluster_unique_geometry_count = input.maxClusterUniqueGeometryCount;
     out.max_cluster_triangle_count = input.maxClusterTriangleCount;
@@ -53,7 +58,7 @@ VkClusterAccelerationStructureTriangleClusterInputNV triangle_cluster_input_from
     const fbs::TriangleClusterInput& record) {
     VkClusterAccelerationStructureTriangleClusterInputNV out{};
     out.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_TRIANGLE_CLUSTER_INPUT_NV;
-    out.vertexFormat = static_cast<VkFormat>(record.vertex_format());
+    set_enum_bits(out.vertexFormat, record.vertex_format());
     out.maxGeometryIndexValue = record.max_geometry_index_value();
     out.maxClusterUniqueGeometryCount = record.max_cluster_unique_geometry_count();
     out.maxClusterTriangleCount = record.max_cluster_triangle_count();
@@ -67,7 +72,7 @@ VkClusterAccelerationStructureTriangleClusterInputNV triangle_cluster_input_from
 fbs::MoveObjectsInputT move_objects_input_to_record(
     const VkClusterAccelerationStructureMoveObjectsInputNV& input) {
     fbs::MoveObjectsInputT out;
-    out.type = uint32_t(input.type);
+    out.type = enum_bits(input.type);
     out.no_move_overlap = input.noMoveOverlap == VK_TRUE;
     out.max_moved_bytes = input.maxMovedBytes;
     return out;
@@ -77,7 +82,7 @@ VkClusterAccelerationStructureMoveObjectsInputNV move_objects_input_from_record(
     const fbs::MoveObjectsInput& record) {
     VkClusterAccelerationStructureMoveObjectsInputNV out{};
     out.sType = VK_STRUCTURE_TYPE_CLUSTER_ACCELERATION_STRUCTURE_MOVE_OBJECTS_INPUT_NV;
-    out.type = static_cast<VkClusterAccelerationStructureTypeNV>(record.type());
+    set_enum_bits(out.type, record.type());
     out.noMoveOverlap = record.no_move_overlap() ? VK_TRUE : VK_FALSE;
     out.maxMovedBytes = record.max_moved_bytes();
     return out;
@@ -105,7 +110,7 @@ fbs::ClusterOpInput op_input_member(uint32_t op_type) {
 void set_op_input(const VkClusterAccelerationStructureInputInfoNV& input,
                   fbs::ClusterOpInputUnion& out) {
     if (!input.opInput.pTriangleClusters) return;
-    switch (op_input_member(input.opType)) {
+    switch (op_input_member(enum_bits(input.opType))) {
     case fbs::ClusterOpInput::ClustersBottomLevelInput:
         out.Set(bottom_level_input_to_record(*input.opInput.pClustersBottomLevel));
         return;
@@ -126,8 +131,8 @@ std::unique_ptr<fbs::ClusterInputInfoT> cluster_input_to_record(
     auto out = std::make_unique<fbs::ClusterInputInfoT>();
     out->max_acceleration_structure_count = input.maxAccelerationStructureCount;
     out->flags = input.flags;
-    out->op_type = uint32_t(input.opType);
-    out->op_mode = uint32_t(input.opMode);
+    out->op_type = enum_bits(input.opType);
+    out->op_mode = enum_bits(input.opMode);
     set_op_input(input, out->op_input);
     return out;
 }
@@ -139,8 +144,8 @@ VkClusterAccelerationStructureInputInfoNV cluster_input_from_record(
     if (!record) return out;
     out.maxAccelerationStructureCount = record->max_acceleration_structure_count();
     out.flags = record->flags();
-    out.opType = static_cast<VkClusterAccelerationStructureOpTypeNV>(record->op_type());
-    out.opMode = static_cast<VkClusterAccelerationStructureOpModeNV>(record->op_mode());
+    set_enum_bits(out.opType, record->op_type());
+    set_enum_bits(out.opMode, record->op_mode());
     // Every reader takes the union's member that opType names: a record holding another one
     // (a damaged or hostile trace) would have them read past the member it holds.
     if (record->op_input_type() != op_input_member(record->op_type())) return out;

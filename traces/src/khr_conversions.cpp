@@ -3,19 +3,23 @@
 
 #include "vk_handle_record.h"
 
+#include <clastrace/common/enum_bits.h>
+
 #include <cstdint>
 
 namespace clastrace::traces {
 
 namespace {
 
+using common::enum_bits;
+using common::set_enum_bits;
 using detail::handle_from_record;
 using detail::handle_to_record;
 
 std::vector<uint32_t> next_stypes(const void* next) {
     std::vector<uint32_t> stypes;
     for (auto* s = static_cast<const VkBaseInStructure*>(next); s; s = s->pNext)
-        stypes.push_back(uint32_t(s->sType));
+        stypes.push_back(enum_bits(s->sType));
     return stypes;
 }
 
@@ -24,11 +28,11 @@ VkAccelerationStructureGeometryTrianglesDataKHR triangles_from_record(
     VkAccelerationStructureGeometryTrianglesDataKHR out{};
     out.sType = VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_TRIANGLES_DATA_KHR;
     if (!t) return out;
-    out.vertexFormat = static_cast<VkFormat>(t->vertex_format());
+    set_enum_bits(out.vertexFormat, t->vertex_format());
     out.vertexData.deviceAddress = t->vertex_data();
     out.vertexStride = t->vertex_stride();
     out.maxVertex = t->max_vertex();
-    out.indexType = static_cast<VkIndexType>(t->index_type());
+    set_enum_bits(out.indexType, t->index_type());
     out.indexData.deviceAddress = t->index_data();
     out.transformData.deviceAddress = t->transform_data();
     return out;
@@ -39,12 +43,12 @@ VkAccelerationStructureGeometryTrianglesDataKHR triangles_from_record(
 std::unique_ptr<fbs::GeometryKHRT> khr_geometry_to_record(
     const VkAccelerationStructureGeometryKHR& geometry) {
     auto out = std::make_unique<fbs::GeometryKHRT>();
-    out->geometry_type = uint32_t(geometry.geometryType);
+    out->geometry_type = enum_bits(geometry.geometryType);
     out->flags = geometry.flags;
     const auto& t = geometry.geometry.triangles;
     out->triangles = std::make_unique<fbs::GeometryTrianglesKHR>(
-        uint32_t(t.vertexFormat), t.vertexData.deviceAddress, t.vertexStride, t.maxVertex,
-        uint32_t(t.indexType), t.indexData.deviceAddress, t.transformData.deviceAddress);
+        enum_bits(t.vertexFormat), t.vertexData.deviceAddress, t.vertexStride, t.maxVertex,
+        enum_bits(t.indexType), t.indexData.deviceAddress, t.transformData.deviceAddress);
     const auto& a = geometry.geometry.aabbs;
     out->aabbs = std::make_unique<fbs::GeometryAabbsKHR>(a.data.deviceAddress, a.stride);
     const auto& i = geometry.geometry.instances;
@@ -56,9 +60,9 @@ std::unique_ptr<fbs::GeometryKHRT> khr_geometry_to_record(
 VkAccelerationStructureGeometryKHR khr_geometry_from_record(const fbs::GeometryKHR& record) {
     VkAccelerationStructureGeometryKHR out{};
     out.sType = VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_GEOMETRY_KHR;
-    out.geometryType = static_cast<VkGeometryTypeKHR>(record.geometry_type());
+    set_enum_bits(out.geometryType, record.geometry_type());
     out.flags = record.flags();
-    switch (out.geometryType) {
+    switch (record.geometry_type()) {
     case VK_GEOMETRY_TYPE_TRIANGLES_KHR:
         out.geometry.triangles = triangles_from_record(record.triangles());
         break;
@@ -97,9 +101,9 @@ std::unique_ptr<fbs::AccelerationStructureBuildInfoKHRT> khr_build_info_to_recor
     const VkAccelerationStructureBuildGeometryInfoKHR& info,
     const VkAccelerationStructureBuildRangeInfoKHR* ranges) {
     auto out = std::make_unique<fbs::AccelerationStructureBuildInfoKHRT>();
-    out->type = uint32_t(info.type);
+    out->type = enum_bits(info.type);
     out->flags = info.flags;
-    out->mode = uint32_t(info.mode);
+    out->mode = enum_bits(info.mode);
     out->src = handle_to_record(info.srcAccelerationStructure);
     out->dst = handle_to_record(info.dstAccelerationStructure);
     for (uint32_t g = 0; g < info.geometryCount; ++g) {
@@ -126,9 +130,9 @@ VkAccelerationStructureBuildGeometryInfoKHR khr_build_info_from_record(
         for (const fbs::BuildRangeInfoKHR* r : *list) ranges.push_back(khr_range_from_record(*r));
     VkAccelerationStructureBuildGeometryInfoKHR out{};
     out.sType = VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_BUILD_GEOMETRY_INFO_KHR;
-    out.type = static_cast<VkAccelerationStructureTypeKHR>(record.type());
+    set_enum_bits(out.type, record.type());
     out.flags = record.flags();
-    out.mode = static_cast<VkBuildAccelerationStructureModeKHR>(record.mode());
+    set_enum_bits(out.mode, record.mode());
     out.srcAccelerationStructure = handle_from_record<VkAccelerationStructureKHR>(record.src());
     out.dstAccelerationStructure = handle_from_record<VkAccelerationStructureKHR>(record.dst());
     out.geometryCount = uint32_t(geometries.size());

@@ -3,6 +3,8 @@
 
 #include "vk_handle_record.h"
 
+#include <clastrace/common/enum_bits.h>
+
 #include <cstdint>
 #include <type_traits>
 
@@ -10,6 +12,8 @@ namespace clastrace::traces {
 
 namespace {
 
+using common::enum_bits;
+using common::set_enum_bits;
 using detail::handle_from_record;
 using detail::handle_to_record;
 
@@ -21,11 +25,11 @@ VkGeometryTrianglesNV triangles_from_record(const fbs::GeometryTrianglesNV* t) {
     out.vertexOffset = t->vertex_offset();
     out.vertexCount = t->vertex_count();
     out.vertexStride = t->vertex_stride();
-    out.vertexFormat = static_cast<VkFormat>(t->vertex_format());
+    set_enum_bits(out.vertexFormat, t->vertex_format());
     out.indexData = handle_from_record<VkBuffer>(t->index_data());
     out.indexOffset = t->index_offset();
     out.indexCount = t->index_count();
-    out.indexType = static_cast<VkIndexType>(t->index_type());
+    set_enum_bits(out.indexType, t->index_type());
     out.transformData = handle_from_record<VkBuffer>(t->transform_data());
     out.transformOffset = t->transform_offset();
     return out;
@@ -46,13 +50,13 @@ VkGeometryAABBNV aabbs_from_record(const fbs::GeometryAabbNV* a) {
 
 std::unique_ptr<fbs::GeometryNVT> nv_geometry_to_record(const VkGeometryNV& geometry) {
     auto out = std::make_unique<fbs::GeometryNVT>();
-    out->geometry_type = uint32_t(geometry.geometryType);
+    out->geometry_type = enum_bits(geometry.geometryType);
     out->flags = geometry.flags;
     const VkGeometryTrianglesNV& t = geometry.geometry.triangles;
     out->triangles = std::make_unique<fbs::GeometryTrianglesNV>(
-        handle_to_record(t.vertexData), t.vertexOffset, t.vertexCount, uint32_t(t.vertexFormat),
+        handle_to_record(t.vertexData), t.vertexOffset, t.vertexCount, enum_bits(t.vertexFormat),
         t.vertexStride, handle_to_record(t.indexData), t.indexOffset, t.indexCount,
-        uint32_t(t.indexType), handle_to_record(t.transformData), t.transformOffset);
+        enum_bits(t.indexType), handle_to_record(t.transformData), t.transformOffset);
     const VkGeometryAABBNV& a = geometry.geometry.aabbs;
     out->aabbs = std::make_unique<fbs::GeometryAabbNV>(handle_to_record(a.aabbData), a.numAABBs,
                                                        a.stride, a.offset);
@@ -62,7 +66,7 @@ std::unique_ptr<fbs::GeometryNVT> nv_geometry_to_record(const VkGeometryNV& geom
 VkGeometryNV nv_geometry_from_record(const fbs::GeometryNV& record) {
     VkGeometryNV out{};
     out.sType = VK_STRUCTURE_TYPE_GEOMETRY_NV;
-    out.geometryType = static_cast<VkGeometryTypeNV>(record.geometry_type());
+    set_enum_bits(out.geometryType, record.geometry_type());
     out.flags = record.flags();
     out.geometry.triangles = triangles_from_record(record.triangles());
     out.geometry.aabbs = aabbs_from_record(record.aabbs());
@@ -72,7 +76,7 @@ VkGeometryNV nv_geometry_from_record(const fbs::GeometryNV& record) {
 std::unique_ptr<fbs::AccelerationStructureInfoNVT> nv_info_to_record(
     const VkAccelerationStructureInfoNV& info) {
     auto out = std::make_unique<fbs::AccelerationStructureInfoNVT>();
-    out->type = uint32_t(info.type);
+    out->type = enum_bits(info.type);
     out->flags = info.flags;
     out->instance_count = info.instanceCount;
     for (uint32_t g = 0; g < info.geometryCount; ++g)
@@ -88,7 +92,7 @@ VkAccelerationStructureInfoNV nv_info_from_record(const fbs::AccelerationStructu
             if (g) geometries.push_back(nv_geometry_from_record(*g));
     VkAccelerationStructureInfoNV out{};
     out.sType = VK_STRUCTURE_TYPE_ACCELERATION_STRUCTURE_INFO_NV;
-    out.type = static_cast<VkAccelerationStructureTypeNV>(record.type());
+    set_enum_bits(out.type, record.type());
     out.flags = record.flags();
     out.instanceCount = record.instance_count();
     out.geometryCount = uint32_t(geometries.size());

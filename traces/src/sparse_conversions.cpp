@@ -3,6 +3,8 @@
 
 #include "vk_handle_record.h"
 
+#include <clastrace/common/enum_bits.h>
+
 #include <type_traits>
 
 namespace clastrace::traces {
@@ -14,7 +16,7 @@ using detail::handle_to_record;
 
 const VkTimelineSemaphoreSubmitInfo* timeline_values(const VkBindSparseInfo& info) {
     for (auto* s = static_cast<const VkBaseInStructure*>(info.pNext); s; s = s->pNext)
-        if (s->sType == VK_STRUCTURE_TYPE_TIMELINE_SEMAPHORE_SUBMIT_INFO)
+        if (common::enum_bits(s->sType) == VK_STRUCTURE_TYPE_TIMELINE_SEMAPHORE_SUBMIT_INFO)
             return reinterpret_cast<const VkTimelineSemaphoreSubmitInfo*>(s);
     return nullptr;
 }

@@ -34,8 +34,9 @@ BuildSizes cluster_build_sizes(const VkClusterAccelerationStructureInputInfoNV& 
 uint64_t scratch_bytes_for_ops(uint64_t op_count);
 
 // The alignment of the objects an op type writes (properties), or 8 for template indices.
-uint64_t destination_alignment(VkClusterAccelerationStructureOpTypeNV op_type,
-                               VkClusterAccelerationStructureTypeNV move_type,
+// The op type and the move input's type are the fields' 32 bits (common/enum_bits.h): neither
+// need be checked yet.
+uint64_t destination_alignment(uint32_t op_type, uint32_t move_type,
                                const EngineProperties& properties);
 
 // Saturating helpers: sizes saturate at UINT64_MAX rather than wrap.

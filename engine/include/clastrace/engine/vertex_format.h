@@ -26,7 +26,8 @@ struct VertexFormatInfo {
     uint32_t components = 0;      // position components read (2 or 3)
 };
 
-VertexFormatInfo vertex_format_info(VkFormat format);
+// `format` is the field's 32 bits (common/enum_bits.h): a trace may hold a value no VkFormat has.
+VertexFormatInfo vertex_format_info(uint32_t format);
 
 // Bytes of one tightly packed vertex of `format` for any build that may name it: the formats
 // above and the NV-only R16G16B16_SNORM (VUID-VkGeometryTrianglesNV-vertexFormat-02430); 0 for
