@@ -108,7 +108,7 @@ uint64_t input_alignment(const VkClusterAccelerationStructureInputInfoNV& info,
         op_type,
         op_type == VK_CLUSTER_ACCELERATION_STRUCTURE_OP_TYPE_MOVE_OBJECTS_NV && move
             ? enum_bits(move->type)
-            : VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_MAX_ENUM_NV,
+            : uint32_t(VK_CLUSTER_ACCELERATION_STRUCTURE_TYPE_MAX_ENUM_NV),
         p);
 }
 

@@ -237,10 +237,15 @@ bool check_triangles(Context& c, const NvTriangles& t, const std::string& at) {
     return usable;
 }
 
-// x, y, z of the float3 vertex at p, lane 3 zero (no byte past the vertex is read).
+// x, y, z of the float3 vertex at p, lane 3 zero (no byte past the vertex is read). The
+// bytes go through memcpy: a vertex stride need not align p for a double (UBSan), and the
+// compiler still makes one 8-byte and one 4-byte load of them.
 __m128 load_float3(const std::byte* p) {
-    const __m128 xy = _mm_castpd_ps(_mm_load_sd(reinterpret_cast<const double*>(p)));
-    return _mm_movelh_ps(xy, _mm_load_ss(reinterpret_cast<const float*>(p + 8)));
+    double xy_bits;
+    float z;
+    std::memcpy(&xy_bits, p, sizeof xy_bits);
+    std::memcpy(&z, p + 8, sizeof z);
+    return _mm_movelh_ps(_mm_castpd_ps(_mm_set_sd(xy_bits)), _mm_set_ss(z));
 }
 
 // Triangle i's three vertex indices; IndexSize 0 is VK_INDEX_TYPE_NONE_NV.
