@@ -96,17 +96,21 @@ const char* cluster_op_type_name(uint32_t op_type) {
     return "other";
 }
 
-std::string ReplayFinding::format() const {
+namespace {
+
+// One line for a finding or a note: both name their rule, place, op and message alike.
+std::string rule_line(const std::string& rule, const ReplayLocation& where, int64_t op_index,
+                      const std::string& message) {
     std::string s = rule + ": " + finding_place_text(where);
     if (op_index >= 0) s += ", op " + std::to_string(op_index);
     return s + ": " + message;
 }
 
-std::string ReplayNote::format() const {
-    std::string s = rule + ": " + finding_place_text(where);
-    if (op_index >= 0) s += ", op " + std::to_string(op_index);
-    return s + ": " + message;
-}
+}  // namespace
+
+std::string ReplayFinding::format() const { return rule_line(rule, where, op_index, message); }
+
+std::string ReplayNote::format() const { return rule_line(rule, where, op_index, message); }
 
 namespace {
 
