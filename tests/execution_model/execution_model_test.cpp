@@ -336,7 +336,8 @@ TEST(ExecutionModel, SecondaryReExecutionAndFindingLocation) {
     EXPECT_EQ(f.where.secondary, 0u);
     EXPECT_EQ(f.where.secondary_command, 1u);
     EXPECT_EQ(f.op_index, 0);
-    EXPECT_NE(f.format().find("cmd 1 > secondary 0 (0x5c01), cmd 1"), std::string::npos) << f.format();
+    EXPECT_NE(f.format().find("cmd 1 > secondary 0 (0x5c01), cmd 1"), std::string::npos)
+        << f.format();
 }
 
 // --ops selects a secondary's commands by their own sequence numbers: the second execution's
