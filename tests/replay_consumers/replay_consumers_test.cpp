@@ -54,8 +54,8 @@ struct Pool {
 };
 
 // Frame 0: the pool's two bottom levels and the top level over them, made visible to rays,
-// waited for. Frame 1: rays over the top level, submitted with kFrame1Fence, not waited for.
-Pool setup_and_rays(ConsumerTrace& t) {
+// submitted with kSetupFence and waited for.
+Pool built_pool(ConsumerTrace& t) {
     Pool p{{t.bottom_level(), t.bottom_level()}, {}};
     p.tlas = t.top_level(2);
     t.build_bottom(p.blas[0]);
@@ -65,6 +65,13 @@ Pool setup_and_rays(ConsumerTrace& t) {
     t.barrier(kBuildStages, kStructureWrite, kRayStages, kStructureRead);
     t.submit(kSetupFence);
     t.wait(kSetupFence);
+    return p;
+}
+
+// Frame 0 (built_pool), then frame 1: rays over the top level, submitted with kFrame1Fence, not
+// waited for.
+Pool setup_and_rays(ConsumerTrace& t) {
+    Pool p = built_pool(t);
     t.present(0);
     t.trace_rays(p.tlas);
     t.submit(kFrame1Fence);
@@ -336,15 +343,7 @@ ReplayReport destroyed_under_two_readers(const std::string& name, bool secondari
     const std::string path = temp_path(name);
     {
         ConsumerTrace t(path);
-        Pool p{{t.bottom_level(), t.bottom_level()}, {}};
-        p.tlas = t.top_level(2);
-        t.build_bottom(p.blas[0]);
-        t.build_bottom(p.blas[1]);
-        t.barrier(kBuildStages, kStructureWrite, kBuildStages | kRayStages, kStructureRead);
-        t.build_top(p.tlas, {p.blas[0], p.blas[1]});
-        t.barrier(kBuildStages, kStructureWrite, kRayStages, kStructureRead);
-        t.submit(kSetupFence);
-        t.wait(kSetupFence);
+        Pool p = built_pool(t);
         if (secondaries) {
             std::vector<uint64_t> listed;
             t.begin_secondary();
